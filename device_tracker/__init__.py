@@ -1,0 +1,1 @@
+"""device_tracker: ORB front end, local tracking, frame summaries and the uplink shaper."""

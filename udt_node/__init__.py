@@ -1,0 +1,1 @@
+"""udt_node: the user digital twin — uplink channel models, latent inference, baselines."""
