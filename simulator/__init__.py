@@ -1,0 +1,1 @@
+"""Offline simulator: the map-management core driven by covisibility data and a channel model."""

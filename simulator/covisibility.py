@@ -1,0 +1,114 @@
+"""Covisibility datasets: the per-frame map-point sets M_f of a real (or synthetic) sequence.
+
+File format (``.npz``, written by :func:`save_covisibility`, read by :func:`load_covisibility`):
+
+==================  ==========  =========================================================
+key                 dtype       meaning
+==================  ==========  =========================================================
+``format``          str         ``"twinslam-covis-1"``
+``point_offsets``   int64 n+1   frame i observes ``point_ids[point_offsets[i]:point_offsets[i+1]]``
+``point_ids``       int64       concatenated, per frame sorted and unique
+``stamps``          float64 n   capture times in seconds (optional)
+``poses``           float64 n×7 estimated camera-to-world x y z qx qy qz qw (optional)
+``source``          str         where the sets came from (sequence path, extractor version)
+==================  ==========  =========================================================
+
+Weights between frames are |M_f ∩ M_f'|, computed through a sparse frame × point incidence
+matrix so a whole block of weights costs one sparse product.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+
+FORMAT = "twinslam-covis-1"
+
+
+class CovisibilityError(ValueError):
+    """A missing or malformed covisibility file."""
+
+
+@dataclass
+class CovisibilityDataset:
+    """Per-frame point-id sets with fast weight queries."""
+
+    point_offsets: np.ndarray
+    point_ids: np.ndarray
+    stamps: np.ndarray | None = None
+    poses: np.ndarray | None = None
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        self.point_offsets = np.asarray(self.point_offsets, dtype=np.int64)
+        self.point_ids = np.asarray(self.point_ids, dtype=np.int64)
+        if self.point_offsets.ndim != 1 or self.point_offsets.size < 2:
+            raise CovisibilityError("point_offsets must list at least one frame")
+        if self.point_offsets[0] != 0 or self.point_offsets[-1] != self.point_ids.size \
+                or np.any(np.diff(self.point_offsets) < 0):
+            raise CovisibilityError("point_offsets do not index point_ids consistently")
+        _, cols = np.unique(self.point_ids, return_inverse=True)
+        rows = np.repeat(np.arange(self.n_frames), np.diff(self.point_offsets))
+        self._incidence = sp.csr_matrix(
+            (np.ones(rows.size, dtype=np.float64), (rows, cols)),
+            shape=(self.n_frames, int(cols.max()) + 1 if cols.size else 1))
+        self._incidence.sum_duplicates()
+        self._incidence.data[:] = 1.0
+
+    @classmethod
+    def from_sets(cls, sets: list[np.ndarray] | list[set[int]], **kwargs: object
+                  ) -> CovisibilityDataset:
+        arrays = [np.unique(np.fromiter(s, dtype=np.int64)) if isinstance(s, set)
+                  else np.unique(np.asarray(s, dtype=np.int64)) for s in sets]
+        offsets = np.concatenate([[0], np.cumsum([a.size for a in arrays])])
+        ids = np.concatenate(arrays) if arrays else np.zeros(0, dtype=np.int64)
+        return cls(offsets, ids, **kwargs)  # type: ignore[arg-type]
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.point_offsets.size - 1)
+
+    def points(self, frame: int) -> np.ndarray:
+        return self.point_ids[self.point_offsets[frame]:self.point_offsets[frame + 1]]
+
+    def weights(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """|M_r ∩ M_c| for every (r, c), as a dense float64 block."""
+        rows = np.asarray(rows, dtype=np.int64)
+        cols = np.asarray(cols, dtype=np.int64)
+        if rows.size == 0 or cols.size == 0:
+            return np.zeros((rows.size, cols.size))
+        block = self._incidence[rows] @ self._incidence[cols].T
+        return block.toarray()
+
+
+def save_covisibility(path: Path, data: CovisibilityDataset) -> None:
+    extra = {}
+    if data.stamps is not None:
+        extra["stamps"] = np.asarray(data.stamps, dtype=np.float64)
+    if data.poses is not None:
+        extra["poses"] = np.asarray(data.poses, dtype=np.float64)
+    np.savez_compressed(path, format=np.array(FORMAT), point_offsets=data.point_offsets,
+                        point_ids=data.point_ids, source=np.array(data.source), **extra)
+
+
+def load_covisibility(path: Path) -> CovisibilityDataset:
+    path = Path(path)
+    if not path.is_file():
+        raise CovisibilityError(f"covisibility file {path} does not exist")
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            fmt = str(npz["format"]) if "format" in npz else ""
+            if fmt != FORMAT:
+                raise CovisibilityError(f"{path}: format {fmt!r}, expected {FORMAT!r}")
+            return CovisibilityDataset(
+                npz["point_offsets"], npz["point_ids"],
+                stamps=npz["stamps"] if "stamps" in npz else None,
+                poses=npz["poses"] if "poses" in npz else None,
+                source=str(npz["source"]) if "source" in npz else "")
+    except (OSError, KeyError, ValueError) as exc:
+        if isinstance(exc, CovisibilityError):
+            raise
+        raise CovisibilityError(f"{path}: not a readable covisibility file ({exc})") from None

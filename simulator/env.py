@@ -1,0 +1,211 @@
+"""Gymnasium-style environment: one ``step`` is one slot of map management (DESIGN.md §4).
+
+At slot k the agent sees the map V^e_k, the slot's frames F_k and the rate d_k, and answers
+with U_k ⊆ F_k and C_k ⊆ V^e_k ∪ U_k of Theorem 1's sizes. The environment applies the update
+(eq. 3), draws F_{k+1} and d_{k+1}, and returns r_k = -υ_k (eq. 8, lost frames penalised).
+
+Frames come from a covisibility dataset, read forwards then backwards (a walk that turns
+around) so that episodes can be longer than the recording; every frame *instance* has its own
+id, and two instances of the same recorded frame share all their points.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from edge_mapper.uncertainty import (
+    LOST_FRAME_PENALTY,
+    SlotUncertainty,
+    map_uncertainty,
+    next_slot_uncertainty,
+    theorem1_cardinalities,
+)
+from simulator.covisibility import CovisibilityDataset
+from udt_node.channel import MarkovChannel, TraceChannel
+
+
+class ActionError(ValueError):
+    """An action that breaks the slot's constraints (wrong sizes, unknown frames)."""
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """Paper Table I defaults."""
+
+    vmax: int = 45
+    slot_frames: int = 60
+    alpha_mbit: float = 5.0
+    d_req_s: float = 0.5
+    slots: int = 200
+    log_det_pi: float = 0.0
+    lost_penalty: float = LOST_FRAME_PENALTY
+    history: int = 8            #: length τ+1 of the rate history in observations
+
+
+@dataclass
+class MapAction:
+    upload: list[int]
+    evict: list[int]
+
+
+@dataclass
+class SlotObservation:
+    """What a policy may know at the end of slot k (ids are frame-instance ids)."""
+
+    slot: int
+    map_frames: list[int]              #: V^e_k, oldest first (index 0 is the anchor)
+    candidates: list[int]              #: F_k in capture order
+    n_upload: int                      #: |U_k|
+    n_evict: int                       #: |C_k|
+    rate_mbps: float
+    rate_state: int
+    rate_history: list[int]            #: state indices d_{k-τ..k}
+    n_states: int
+    weights: Any = field(repr=False, default=None)   #: callable(ids_a, ids_b) -> block
+
+    def weight_block(self, a: list[int], b: list[int]) -> np.ndarray:
+        return self.weights(a, b)
+
+
+class FrameStream:
+    """Maps frame-instance ids to dataset frames, reading the dataset forth and back."""
+
+    def __init__(self, dataset: CovisibilityDataset, start: int = 0) -> None:
+        self.n = dataset.n_frames
+        self.start = start
+
+    def dataset_index(self, instance: np.ndarray | list[int] | int) -> np.ndarray:
+        t = np.asarray(instance, dtype=np.int64) + self.start
+        period = 2 * (self.n - 1) if self.n > 1 else 1
+        phase = t % period
+        return np.where(phase < self.n, phase, period - phase)
+
+
+class MapManagementEnv:
+    """``reset(seed) -> (obs, info)``, ``step(action) -> (obs, reward, terminated, truncated, info)``."""
+
+    def __init__(self, dataset: CovisibilityDataset, channel: MarkovChannel | TraceChannel,
+                 config: SimConfig | None = None) -> None:
+        self.dataset = dataset
+        self.channel = channel
+        self.config = config or SimConfig()
+        if dataset.n_frames < 2:
+            raise ValueError("a covisibility dataset needs at least two frames")
+        self.stream = FrameStream(dataset)
+        self._map: list[int] = []
+        self._map_w = np.zeros((0, 0))
+        self._slot = 0
+        self._plan: list[tuple[int, float]] = []   #: (state, rate) of every slot of the episode
+
+    # -- weights -----------------------------------------------------------------------------
+
+    def weights(self, a: list[int], b: list[int]) -> np.ndarray:
+        """Covisibility weights between frame instances; an instance has weight 0 to itself."""
+        block = self.dataset.weights(self.stream.dataset_index(a), self.stream.dataset_index(b))
+        same = np.asarray(a)[:, None] == np.asarray(b)[None, :] if len(a) and len(b) else None
+        if same is not None and same.any():
+            block[same] = 0.0
+        return block
+
+    def slot_frames(self, slot: int) -> list[int]:
+        f = self.config.slot_frames
+        return list(range(slot * f, (slot + 1) * f))
+
+    # -- gym interface -----------------------------------------------------------------------
+
+    def reset(self, seed: int | None = None) -> tuple[SlotObservation, dict[str, Any]]:
+        rng = np.random.default_rng(seed)
+        self.stream = FrameStream(self.dataset, start=int(rng.integers(self.dataset.n_frames)))
+        self.channel.reset(seed)
+        self._map, self._map_w, self._slot = [], np.zeros((0, 0)), 0
+        # The whole episode's rates are drawn up front: the agent still sees them one slot at a
+        # time, but a clairvoyant planner can read ahead and snapshots stay exact.
+        self._plan = [self.channel.step() for _ in range(self.config.slots + 1)]
+        return self._observation(), {}
+
+    @property
+    def rate_plan(self) -> list[tuple[int, float]]:
+        """(state, rate) of every slot of the episode; for the clairvoyant oracle only."""
+        return list(self._plan)
+
+    def _observation(self) -> SlotObservation:
+        state, rate = self._plan[self._slot]
+        cand = self.slot_frames(self._slot)
+        n_up, n_ev = theorem1_cardinalities(rate, self.config.alpha_mbit, self.config.d_req_s,
+                                            self.config.vmax, len(self._map), len(cand))
+        hist = [s for s, _ in self._plan[max(0, self._slot - self.config.history + 1):
+                                         self._slot + 1]]
+        return SlotObservation(self._slot, list(self._map), cand, n_up, n_ev, rate, state, hist,
+                               self.channel.n_states, self.weights)
+
+    def check_action(self, obs: SlotObservation, action: MapAction) -> None:
+        up, ev = list(action.upload), list(action.evict)
+        if len(up) != obs.n_upload or len(set(up)) != len(up):
+            raise ActionError(f"slot {obs.slot}: upload {len(up)} distinct frames, "
+                              f"Theorem 1 asks for {obs.n_upload}")
+        if not set(up) <= set(obs.candidates):
+            raise ActionError(f"slot {obs.slot}: uploads {sorted(set(up) - set(obs.candidates))} "
+                              "are not frames of this slot")
+        if len(ev) != obs.n_evict or len(set(ev)) != len(ev):
+            raise ActionError(f"slot {obs.slot}: evict {len(ev)} frames, Theorem 1 asks for "
+                              f"{obs.n_evict}")
+        if not set(ev) <= set(obs.map_frames) | set(up):
+            raise ActionError(f"slot {obs.slot}: evictions {sorted(set(ev) - set(obs.map_frames))}"
+                              " are neither in the map nor uploaded")
+
+    def apply(self, action: MapAction) -> None:
+        """V^e_{k+1} = (U_k ∪ V^e_k) \\ C_k, keeping capture order (oldest = anchor first)."""
+        keep_old = [f for f in self._map if f not in set(action.evict)]
+        new = sorted(f for f in action.upload if f not in set(action.evict))
+        merged = sorted(keep_old + new)
+        # Maintain the weight matrix incrementally: reuse old rows, query only new pairs.
+        idx_old = {f: i for i, f in enumerate(self._map)}
+        w = np.zeros((len(merged), len(merged)))
+        old_pos = [i for i, f in enumerate(merged) if f in idx_old]
+        new_pos = [i for i, f in enumerate(merged) if f not in idx_old]
+        if old_pos:
+            src = [idx_old[merged[i]] for i in old_pos]
+            w[np.ix_(old_pos, old_pos)] = self._map_w[np.ix_(src, src)]
+        if new_pos:
+            block = self.weights([merged[i] for i in new_pos], merged)
+            w[new_pos, :] = block
+            w[:, new_pos] = block.T
+        self._map, self._map_w = merged, w
+
+    def step(self, action: MapAction) -> tuple[SlotObservation, float, bool, bool, dict[str, Any]]:
+        obs = self._observation()
+        self.check_action(obs, action)
+        self.apply(action)
+        self._slot += 1
+        nxt = self.slot_frames(self._slot)
+        slot_u = self.evaluate(nxt)
+        info = {"uncertainty": slot_u, "map_size": len(self._map),
+                "map_uncertainty": map_uncertainty(self._map_w, self.config.log_det_pi)}
+        truncated = self._slot >= self.config.slots
+        return self._observation(), slot_u.reward, False, truncated, info
+
+    def evaluate(self, frames: list[int]) -> SlotUncertainty:
+        """υ of the current map against ``frames``."""
+        return next_slot_uncertainty(self._map_w, self.weights(frames, self._map),
+                                     self.config.log_det_pi, self.config.lost_penalty)
+
+    # -- planning support (the clairvoyant oracle) --------------------------------------------
+
+    @property
+    def map_frames(self) -> list[int]:
+        return list(self._map)
+
+    def snapshot(self) -> tuple[list[int], np.ndarray, int]:
+        return list(self._map), self._map_w.copy(), self._slot
+
+    def restore(self, snap: tuple[list[int], np.ndarray, int]) -> None:
+        frames, w, self._slot = snap
+        self._map, self._map_w = list(frames), w.copy()
+
+
+def finite_or_nan(value: float) -> float:
+    return value if math.isfinite(value) else math.nan

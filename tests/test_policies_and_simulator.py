@@ -1,0 +1,167 @@
+"""Policies, the gym-style simulator and the clairvoyant oracle (paper §VII benchmarks)."""
+
+from __future__ import annotations
+
+import itertools
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from edge_mapper.policies import Adapt, greedy_additions, greedy_removals, make_policy, naive_greedy
+from simulator.covisibility import CovisibilityDataset, load_covisibility, save_covisibility
+from simulator.env import ActionError, MapAction, MapManagementEnv, SimConfig
+from simulator.geometric_covisibility import geometric_covisibility
+from simulator.oracle import ClairvoyantOracle, rollout
+from udt_node.channel import MarkovChannel, parse_channel, state_rates
+
+
+@pytest.fixture(scope="module")
+def room() -> CovisibilityDataset:
+    return geometric_covisibility(n_frames=400, n_points=2000, seed=3)
+
+
+def _random_universe(rng: np.random.Generator, n: int) -> np.ndarray:
+    """Weights of n frames with random point sets drawn from a moving window of points."""
+    sets = [set(rng.choice(np.arange(i * 3, i * 3 + 60), 30, replace=False).tolist())
+            for i in range(n)]
+    return CovisibilityDataset.from_sets(sets).weights(np.arange(n), np.arange(n))
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_incremental_adapt_picks_what_the_naive_greedy_picks(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    n_map, n_cand = int(rng.integers(0, 12)), int(rng.integers(4, 14))
+    w = _random_universe(rng, n_map + n_cand)
+    n_add = int(rng.integers(1, min(n_cand, 6) + 1))
+    n_remove = int(rng.integers(0, n_map + n_add))
+    map_idx, cand_idx = list(range(n_map)), list(range(n_map, n_map + n_cand))
+    picks = greedy_additions(w[np.ix_(map_idx, map_idx)], w[np.ix_(cand_idx, map_idx)],
+                             w[np.ix_(cand_idx, cand_idx)], n_add)
+    added = [cand_idx[i] for i in picks]
+    union = sorted(map_idx + added)
+    removed = [union[i] for i in greedy_removals(w[np.ix_(union, union)], n_remove)]
+    ref_added, ref_removed = naive_greedy(w, map_idx, cand_idx, n_add, n_remove)
+    assert added == ref_added
+    assert removed == ref_removed
+
+
+def test_policies_respect_theorem1_and_differ(room: CovisibilityDataset) -> None:
+    config = SimConfig(vmax=20, slots=12)
+    uploads = {}
+    for name in ("lff", "pu", "adapt", "random"):
+        env = MapManagementEnv(room, parse_channel("markov:N=2", seed=1), config)
+        obs, _ = env.reset(seed=1)
+        policy = make_policy(name)
+        sets = []
+        for _ in range(config.slots):
+            action = policy.decide(obs)
+            assert len(action.upload) == obs.n_upload
+            assert len(action.evict) == obs.n_evict
+            obs, reward, _t, trunc, info = env.step(action)
+            assert info["map_size"] <= config.vmax
+            assert np.isfinite(reward)
+            sets.append(tuple(action.upload))
+        uploads[name] = sets
+    assert len({tuple(v) for v in uploads.values()}) == 4
+
+
+def test_env_refuses_actions_that_break_the_slot_constraints(room: CovisibilityDataset) -> None:
+    env = MapManagementEnv(room, parse_channel("markov:N=2"), SimConfig(vmax=10, slots=3))
+    obs, _ = env.reset(seed=0)
+    with pytest.raises(ActionError, match="Theorem 1"):
+        env.step(MapAction(obs.candidates[:obs.n_upload + 1], []))
+    with pytest.raises(ActionError, match="not frames of this slot"):
+        env.step(MapAction([10_000 + i for i in range(obs.n_upload)], []))
+
+
+def test_oracle_is_never_worse_than_any_policy(room: CovisibilityDataset) -> None:
+    config = SimConfig(vmax=15, slots=6)
+    for seed in (0, 1):
+        env = MapManagementEnv(room, parse_channel("markov:N=2", seed=seed), config)
+        oracle = ClairvoyantOracle(beam=3, perturbations=2).plan(env, seed).total
+        for name in ("lff", "pu", "adapt", "random"):
+            env = MapManagementEnv(room, parse_channel("markov:N=2", seed=seed), config)
+            total = rollout(env, make_policy(name), seed).total
+            assert oracle <= total + 1e-9, f"{name} beat the oracle on seed {seed}"
+
+
+def test_oracle_is_exact_on_a_tiny_case() -> None:
+    sets = [set(range(i, i + 6)) for i in range(0, 40, 2)]
+    data = CovisibilityDataset.from_sets(sets)
+    config = SimConfig(vmax=3, slot_frames=4, slots=3, alpha_mbit=5.0, d_req_s=0.25)
+    channel = MarkovChannel(state_rates(2, 20.0, 40.0), seed=0)
+    env = MapManagementEnv(data, channel, config)
+    plan = ClairvoyantOracle().plan(env, seed=0)
+
+    # Independent brute force over every action sequence.
+    best = np.inf
+
+    def search(snapshot, depth: int, total: float) -> None:
+        nonlocal best
+        env.restore(snapshot)
+        obs = env._observation()
+        for up in itertools.combinations(obs.candidates, obs.n_upload):
+            pool = sorted(obs.map_frames + list(up))
+            for ev in itertools.combinations(pool, obs.n_evict):
+                env.restore(snapshot)
+                _o, reward, _t, trunc, _i = env.step(MapAction(list(up), list(ev)))
+                if trunc:
+                    best = min(best, total - reward)
+                else:
+                    search(env.snapshot(), depth + 1, total - reward)
+
+    env.reset(seed=0)
+    search(env.snapshot(), 0, 0.0)
+    assert plan.total == pytest.approx(best)
+
+
+def test_adapt_beats_lff_on_the_room_model(room: CovisibilityDataset) -> None:
+    config = SimConfig(vmax=20, slots=20)
+    totals = {}
+    for name in ("lff", "adapt"):
+        vals = []
+        for seed in range(3):
+            env = MapManagementEnv(room, parse_channel("markov:N=2", seed=seed), config)
+            vals.append(rollout(env, make_policy(name), seed).total)
+        totals[name] = np.mean(vals)
+    print(f"mean total υ over 3 seeds: {totals}")
+    assert totals["adapt"] < totals["lff"]
+
+
+def test_covisibility_file_round_trip_and_errors(tmp_path, room: CovisibilityDataset) -> None:
+    path = tmp_path / "covis.npz"
+    save_covisibility(path, room)
+    back = load_covisibility(path)
+    idx = np.arange(0, 400, 37)
+    assert np.array_equal(back.weights(idx, idx), room.weights(idx, idx))
+    with pytest.raises(ValueError, match="does not exist"):
+        load_covisibility(tmp_path / "missing.npz")
+    bad = tmp_path / "bad.npz"
+    bad.write_bytes(b"not a zip")
+    with pytest.raises(ValueError, match="bad.npz"):
+        load_covisibility(bad)
+
+
+def test_sim_cli_prints_a_table_and_writes_csv(tmp_path) -> None:
+    out = tmp_path / "res.csv"
+    proc = subprocess.run([sys.executable, "-m", "twinslam_cli.main", "sim", "--policy",
+                           "lff,adapt", "--covis", "geometric:300", "--slots", "5", "--seeds",
+                           "2", "--vmax", "15", "--csv", str(out)],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert "adapt" in proc.stdout and "ci95" in proc.stdout
+    lines = out.read_text().splitlines()
+    assert lines[0] == "policy,mean_uncertainty,ci95"
+    assert [line.split(",")[0] for line in lines[1:]] == ["lff", "adapt"]
+    bad = subprocess.run([sys.executable, "-m", "twinslam_cli.main", "sim", "--covis",
+                          "geometric:300", "--channel", "wifi:fast"],
+                         capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "unknown channel" in bad.stderr
+
+
+def test_adapt_policy_object_is_usable_by_name() -> None:
+    assert isinstance(make_policy("adapt"), Adapt)
+    with pytest.raises(ValueError, match="unknown policy"):
+        make_policy("magic")

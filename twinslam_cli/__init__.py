@@ -1,0 +1,1 @@
+"""The ``twinslam`` command: offline tools (simulator, graph inspection, the demo)."""
