@@ -1,4 +1,4 @@
-"""ament_python package ``twinslam``: `colcon build` on a ROS 2 host, `pip install -e .` elsewhere."""
+"""ament_python package ``twinslam`` (``colcon build`` on ROS 2 hosts, ``pip install -e .``)."""
 
 from glob import glob
 

@@ -34,8 +34,8 @@ def codec_ms_per_mb(repeats: int = 50) -> tuple[float, float]:
         cdr.deserialize(cdr.serialize(img), "sensor_msgs/msg/Image")
     ours = (time.perf_counter() - start) / repeats * 1000 / size_mb
     T = dds_type("sensor_msgs/msg/Image")
-    hdr = dds_type("std_msgs/msg/Header")(stamp=dds_type("builtin_interfaces/msg/Time")(sec=0, nanosec=0),
-                                          frame_id="")
+    stamp = dds_type("builtin_interfaces/msg/Time")(sec=0, nanosec=0)
+    hdr = dds_type("std_msgs/msg/Header")(stamp=stamp, frame_id="")
     sample = T(header=hdr, height=480, width=640, encoding="rgb8", is_bigendian=0, step=1920,
                data=img.data.tolist())
     start = time.perf_counter()

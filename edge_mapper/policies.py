@@ -183,7 +183,7 @@ def naive_greedy(weights: np.ndarray, start: list[int], pool: list[int], n_add: 
             scores = np.array([weights[v, remaining].sum() for v in remaining], dtype=float)
         else:
             scores = np.array([logdet_spd(reduced_laplacian(
-                weights[np.ix_(current + [v], current + [v])])) for v in remaining])
+                weights[np.ix_([*current, v], [*current, v])])) for v in remaining])
         v = remaining[pick_best(scores)]
         added.append(v)
         current.append(v)

@@ -129,13 +129,18 @@ def augmented_uncertainties(map_weights: np.ndarray, cand_weights: np.ndarray,
     n = w.shape[0]
     if n == 0:
         return np.full(b.shape[0], math.inf)
+    u = np.full(b.shape[0], math.inf)
+    # A frame sharing no point is lost without factorising anything; leaving it out also keeps
+    # the batch free of singular matrices, so numpy's batched Cholesky does not fall back.
+    live = np.flatnonzero(b.sum(axis=1) > 0)
+    if live.size == 0:
+        return u
     lap = laplacian(w)
-    mats = np.broadcast_to(lap, (b.shape[0], n, n)).copy()
+    mats = np.broadcast_to(lap, (live.size, n, n)).copy()
     idx = np.arange(n)
-    mats[:, idx, idx] += b
+    mats[:, idx, idx] += b[live]
     ld = batched_logdet_spd(mats)
-    u = -6.0 * ld - n * log_det_pi
-    u[~np.isfinite(ld)] = math.inf
+    u[live] = np.where(np.isfinite(ld), -6.0 * ld - n * log_det_pi, math.inf)
     return u
 
 
@@ -187,7 +192,7 @@ def theorem1_cardinalities(rate_mbps: float, alpha_mbit: float, d_req_s: float, 
         raise ValueError(f"uplink rate must be finite and >= 0, got {rate_mbps}")
     if alpha_mbit <= 0 or d_req_s <= 0 or vmax < 1:
         raise ValueError("alpha, D_req must be > 0 and V_max >= 1")
-    n_up = min(int(math.floor(rate_mbps * d_req_s / alpha_mbit + 1e-9)), slot_size)
+    n_up = min(math.floor(rate_mbps * d_req_s / alpha_mbit + 1e-9), slot_size)
     n_up = min(n_up, vmax)
     n_evict = max(0, map_size + n_up - vmax)
     return n_up, n_evict

@@ -266,7 +266,7 @@ class MessageCodec:
         # Deferred so that recursive lookups through compiled() see this codec in the cache.
         self._fields = [(fname, *_field_codec(node, f"{self.name}.{fname}"))
                         for fname, node in self._defs]
-        if not self._fields:  # an empty ROS message still carries one uint8 (structure_needs_at_least_one_member)
+        if not self._fields:  # an empty ROS message still carries one uint8 member
             enc, dec = _primitive_codec("uint8")
             self._fields = [("structure_needs_at_least_one_member", enc, dec)]
 
@@ -275,7 +275,8 @@ class MessageCodec:
             try:
                 value = getattr(msg, fname) if fname != "structure_needs_at_least_one_member" else 0
             except AttributeError:
-                raise CdrError(f"{type(msg).__name__} lacks field {fname!r} of {self.name}") from None
+                raise CdrError(f"{type(msg).__name__} lacks field {fname!r} "
+                               f"of {self.name}") from None
             enc(out, value)
 
     def decode_from(self, buf: memoryview, pos: int) -> tuple[Any, int]:
@@ -307,7 +308,7 @@ class MessageCodec:
         return msg
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def compiled(name: str) -> MessageCodec:
     """The codec of message type ``name`` (compiled once, cached)."""
     codec = MessageCodec(name)

@@ -58,7 +58,7 @@ def _annotation(node: tuple[Any, Any]) -> Any:
     return t.sequence[_annotation(sub), count] if count else t.sequence[_annotation(sub)]
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def dds_type(ros_name: str) -> type[IdlStruct]:
     """The Cyclone IdlStruct class of a ROS message type (cached; nested types reused)."""
     _consts, defs = typestore().fielddefs[ros_name]

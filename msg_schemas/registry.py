@@ -112,7 +112,8 @@ def new(name: str, **fields: Any) -> Any:
     unknown = set(fields) - known
     if unknown:
         raise TypeError(f"{name} has no field(s) {sorted(unknown)}; fields are {sorted(known)}")
-    values = {fname: fields[fname] if fname in fields else _default_for(node) for fname, node in defs}
+    values = {fname: fields[fname] if fname in fields else _default_for(node)
+              for fname, node in defs}
     if name == "geometry_msgs/msg/Quaternion" and "w" not in fields:
         values["w"] = 1.0  # the .msg default (``float64 w 1``): an identity rotation
     return cls(**values)

@@ -115,7 +115,8 @@ def validate_map_update(msg: Any) -> None:
     if len(msg.point_positions) != 3 * n:
         raise MessageError(f"point_positions has {len(msg.point_positions)} values for {n} points")
     if len(msg.point_descriptors) != ORB_DESCRIPTOR_BYTES * n:
-        raise MessageError(f"point_descriptors has {len(msg.point_descriptors)} bytes for {n} points")
+        raise MessageError(f"point_descriptors has {len(msg.point_descriptors)} bytes "
+                           f"for {n} points")
     if len(msg.point_observations) not in (0, n):
         raise MessageError(f"point_observations has {len(msg.point_observations)} for {n} points")
     if n and not np.all(np.isfinite(msg.point_positions)):

@@ -62,7 +62,8 @@ class Context:
     def __init__(self, argv: list[str], domain_id: int | None = None) -> None:
         self.ros_args: RosArguments = parse_ros_args(argv)
         self.domain_id = domain_id_from_env() if domain_id is None else domain_id
-        self.participant = DomainParticipant(self.domain_id, qos=Qos(Policy.Userdata(b"enclave=/;")))
+        self.participant = DomainParticipant(self.domain_id,
+                                             qos=Qos(Policy.Userdata(b"enclave=/;")))
         self.gid = self.participant.get_guid()
         self.guard = GuardCondition(self.participant)
         self._shutdown = threading.Event()

@@ -68,7 +68,7 @@ class SingleThreadedExecutor:
         while self.context.ok():
             self.spin_once()
 
-    def spin_until(self, predicate: "callable", timeout_sec: float) -> bool:  # noqa: F821
+    def spin_until(self, predicate: callable, timeout_sec: float) -> bool:
         """Spin until ``predicate()`` holds or ``timeout_sec`` passes; returns the predicate."""
         deadline = time.monotonic() + timeout_sec
         while self.context.ok() and not predicate():

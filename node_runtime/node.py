@@ -259,7 +259,8 @@ class Node:
         try:
             return self._parameters[name]
         except KeyError:
-            raise ParameterError(f"parameter {name!r} of node {self._name} is not declared") from None
+            raise ParameterError(f"parameter {name!r} of node {self._name} "
+                                 "is not declared") from None
 
     def set_parameter(self, name: str, value: Any) -> None:
         self.get_parameter(name)

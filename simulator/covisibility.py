@@ -26,6 +26,7 @@ import numpy as np
 import scipy.sparse as sp
 
 FORMAT = "twinslam-covis-1"
+DENSE_LIMIT = 4000  #: up to this many frames all pairwise weights are precomputed (64 MB)
 
 
 class CovisibilityError(ValueError):
@@ -57,6 +58,11 @@ class CovisibilityDataset:
             shape=(self.n_frames, int(cols.max()) + 1 if cols.size else 1))
         self._incidence.sum_duplicates()
         self._incidence.data[:] = 1.0
+        # Small datasets (the usual case: a few thousand frames) keep every weight in a dense
+        # int32 matrix, so a slot's weight block is an index operation instead of a sparse product.
+        self._dense: np.ndarray | None = None
+        if self.n_frames <= DENSE_LIMIT:
+            self._dense = (self._incidence @ self._incidence.T).toarray().astype(np.int32)
 
     @classmethod
     def from_sets(cls, sets: list[np.ndarray] | list[set[int]], **kwargs: object
@@ -80,6 +86,8 @@ class CovisibilityDataset:
         cols = np.asarray(cols, dtype=np.int64)
         if rows.size == 0 or cols.size == 0:
             return np.zeros((rows.size, cols.size))
+        if self._dense is not None:
+            return self._dense[np.ix_(rows, cols)].astype(np.float64)
         block = self._incidence[rows] @ self._incidence[cols].T
         return block.toarray()
 

@@ -86,7 +86,8 @@ class FrameStream:
 
 
 class MapManagementEnv:
-    """``reset(seed) -> (obs, info)``, ``step(action) -> (obs, reward, terminated, truncated, info)``."""
+    """Gym-style: ``reset(seed) -> (obs, info)``;
+    ``step(action) -> (obs, reward, terminated, truncated, info)``."""
 
     def __init__(self, dataset: CovisibilityDataset, channel: MarkovChannel | TraceChannel,
                  config: SimConfig | None = None) -> None:

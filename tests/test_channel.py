@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -17,7 +19,7 @@ from udt_node.channel import (
 
 def _transition_counts(states: list[int], n: int) -> np.ndarray:
     counts = np.zeros((n, n))
-    for a, b in zip(states[:-1], states[1:], strict=True):
+    for a, b in itertools.pairwise(states):
         counts[a, b] += 1
     return counts
 

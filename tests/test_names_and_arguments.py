@@ -62,7 +62,7 @@ def test_bad_ros_args_say_what_is_wrong(tmp_path: Path) -> None:
         parse_ros_args(["--ros-args", "--bogus"])
     with pytest.raises(ArgumentError, match="no such file"):
         parse_ros_args(["--ros-args", "--params-file", str(tmp_path / "missing.yaml")])
-    with pytest.raises(ArgumentError, match=":="):
+    with pytest.raises(ArgumentError, match=r":="):
         parse_ros_args(["--ros-args", "-p", "novalue"])
 
 
@@ -81,5 +81,17 @@ def test_params_file_wildcards_nesting_and_precedence(tmp_path: Path) -> None:
 def test_malformed_params_file_names_the_file(tmp_path: Path) -> None:
     path = tmp_path / "bad.yaml"
     path.write_text("node: [1, 2\n")
-    with pytest.raises(ParameterError, match="bad.yaml"):
+    with pytest.raises(ParameterError, match=r"bad\.yaml"):
         load_params_file(path, "/node")
+
+
+def test_shipped_parameter_file_matches_the_nodes_parameters() -> None:
+    import importlib
+
+    path = Path(__file__).resolve().parents[1] / "config" / "twinslam.yaml"
+    for node in ("sequence_player", "device_tracker", "edge_mapper", "udt_node"):
+        declared = importlib.import_module(f"{node}.node").PARAMETERS
+        given = load_params_file(path, f"/{node}")
+        assert set(given) <= set(declared), f"{node}: unknown {set(given) - set(declared)}"
+        for key, value in given.items():
+            assert isinstance(value, type(declared[key])), f"{node}.{key} has the wrong type"

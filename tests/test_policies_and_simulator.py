@@ -59,7 +59,7 @@ def test_policies_respect_theorem1_and_differ(room: CovisibilityDataset) -> None
             action = policy.decide(obs)
             assert len(action.upload) == obs.n_upload
             assert len(action.evict) == obs.n_evict
-            obs, reward, _t, trunc, info = env.step(action)
+            obs, reward, _t, _trunc, info = env.step(action)
             assert info["map_size"] <= config.vmax
             assert np.isfinite(reward)
             sets.append(tuple(action.upload))
@@ -72,7 +72,7 @@ def test_env_refuses_actions_that_break_the_slot_constraints(room: CovisibilityD
     obs, _ = env.reset(seed=0)
     with pytest.raises(ActionError, match="Theorem 1"):
         env.step(MapAction(obs.candidates[:obs.n_upload + 1], []))
-    with pytest.raises(ActionError, match="not frames of this slot"):
+    with pytest.raises(ActionError, match=r"not frames of this slot"):
         env.step(MapAction([10_000 + i for i in range(obs.n_upload)], []))
 
 
@@ -140,7 +140,7 @@ def test_covisibility_file_round_trip_and_errors(tmp_path, room: CovisibilityDat
         load_covisibility(tmp_path / "missing.npz")
     bad = tmp_path / "bad.npz"
     bad.write_bytes(b"not a zip")
-    with pytest.raises(ValueError, match="bad.npz"):
+    with pytest.raises(ValueError, match=r"bad\.npz"):
         load_covisibility(bad)
 
 

@@ -33,6 +33,13 @@ def connected_graphs(draw, max_nodes: int = 7) -> np.ndarray:
     return w
 
 
+def _root(parent: list[int], x: int) -> int:
+    while parent[x] != x:
+        parent[x] = parent[parent[x]]
+        x = parent[x]
+    return x
+
+
 def spanning_tree_count(w: np.ndarray) -> float:
     """Σ over spanning trees of the product of edge weights, by brute-force enumeration."""
     n = w.shape[0]
@@ -40,16 +47,9 @@ def spanning_tree_count(w: np.ndarray) -> float:
     total = 0.0
     for subset in itertools.combinations(edges, n - 1):
         parent = list(range(n))
-
-        def find(x: int) -> int:
-            while parent[x] != x:
-                parent[x] = parent[parent[x]]
-                x = parent[x]
-            return x
-
         acyclic = True
         for u, v in subset:
-            ru, rv = find(u), find(v)
+            ru, rv = _root(parent, u), _root(parent, v)
             if ru == rv:
                 acyclic = False
                 break

@@ -47,8 +47,9 @@ def cmd_sim(args: argparse.Namespace) -> int:
               f"channel {args.channel}; V_max {args.vmax}, F {args.slot_frames}, "
               f"{args.slots} slots x {len(seeds)} seeds", flush=True)
         start = time.monotonic()
-        results = evaluate(policies, dataset, args.channel, config, seeds, rate_range,  # type: ignore[arg-type]
-                           progress=(lambda m: print(f"  {m}", flush=True)) if args.verbose else None)
+        report = (lambda m: print(f"  {m}", flush=True)) if args.verbose else None
+        results = evaluate(policies, dataset, args.channel, config, seeds,
+                           rate_range, progress=report)  # type: ignore[arg-type]
     except (ChannelError, CovisibilityError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -85,7 +85,8 @@ class MarkovChannel:
         if self.matrix is not None:
             self.matrix = check_transition_matrix(self.matrix)
             if self.matrix.shape[0] != self.rates.size:
-                raise ChannelError(f"{self.matrix.shape[0]}-state matrix for {self.rates.size} rates")
+                raise ChannelError(f"{self.matrix.shape[0]}-state matrix for "
+                                   f"{self.rates.size} rates")
         self.reset(self.seed)
 
     @property
