@@ -19,7 +19,12 @@ from msg_schemas import cdr
 from msg_schemas.dds_types import dds_type
 from msg_schemas.registry import type_hash
 from node_runtime.context import DISCOVERY_TOPIC, DISCOVERY_TYPE
-from node_runtime.qos import LATCHED
+from node_runtime.qos import Durability, QoSProfile
+
+#: ros_discovery_info is keyless: every participant's sample lands in the one instance, so a
+#: KEEP_LAST 1 reader would keep only the newest participant's. Readers keep a deep history;
+#: writers stay KEEP_LAST 1 as ROS 2 expects.
+GRAPH_READER_QOS = QoSProfile(depth=256, durability=Durability.TRANSIENT_LOCAL)
 
 
 @dataclass(frozen=True)
@@ -42,7 +47,8 @@ class GraphMonitor:
 
     def __init__(self, participant: DomainParticipant) -> None:
         topic = Topic(participant, DISCOVERY_TOPIC, dds_type(DISCOVERY_TYPE))
-        self._reader = DataReader(participant, topic, qos=LATCHED.to_dds(type_hash(DISCOVERY_TYPE)))
+        self._reader = DataReader(participant, topic,
+                                  qos=GRAPH_READER_QOS.to_dds(type_hash(DISCOVERY_TYPE)))
         self._latest: dict[bytes, list[GraphNode]] = {}
 
     def poll(self) -> None:

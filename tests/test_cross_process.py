@@ -19,7 +19,7 @@ from msg_schemas import new, typestore
 from msg_schemas.dds_types import dds_type
 from msg_schemas.registry import type_hash
 from node_runtime.context import DISCOVERY_TOPIC, DISCOVERY_TYPE, get_context
-from node_runtime.graph import GraphMonitor
+from node_runtime.graph import GRAPH_READER_QOS, GraphMonitor
 from node_runtime.loopback import LoopbackDomain
 from tests.conftest import JsonLines
 
@@ -92,7 +92,7 @@ def test_discovery_info_decodes_with_rosbags_and_lists_the_node(domain: Loopback
     ready = JsonLines(proc).next("ready", timeout=30)
     participant = get_context().participant
     reader = DataReader(participant, Topic(participant, DISCOVERY_TOPIC, dds_type(DISCOVERY_TYPE)),
-                        qos=node_runtime.LATCHED.to_dds(type_hash(DISCOVERY_TYPE)))
+                        qos=GRAPH_READER_QOS.to_dds(type_hash(DISCOVERY_TYPE)))
     store = typestore()
     mask = SampleState.Any | ViewState.Any | InstanceState.Any
     deadline = time.monotonic() + 5
@@ -176,3 +176,12 @@ def test_signal_stops_a_node_cleanly_within_2_s(domain: LoopbackDomain, sig) -> 
     print(f"{sig.name}: exited {code} in {elapsed * 1000:.0f} ms")
     assert code == 0
     assert elapsed < 2.0
+
+
+def test_graph_monitor_sees_every_participant_of_the_domain(domain: LoopbackDomain, ros) -> None:
+    """ros_discovery_info is keyless: one shallow reader would keep only the newest node."""
+    names = ["alpha", "beta", "gamma"]
+    for name in names:
+        domain.spawn([*LISTENER, "--ros-args", "-r", f"__node:={name}"])
+    monitor = GraphMonitor(get_context().participant)
+    assert monitor.wait_for({f"/{n}" for n in names}, timeout=30)
