@@ -8,6 +8,7 @@ executor. Timers are scheduled on the monotonic clock without drift (``next_due 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 from cyclonedds.core import WaitSet
 
@@ -68,7 +69,7 @@ class SingleThreadedExecutor:
         while self.context.ok():
             self.spin_once()
 
-    def spin_until(self, predicate: callable, timeout_sec: float) -> bool:
+    def spin_until(self, predicate: Callable[[], bool], timeout_sec: float) -> bool:
         """Spin until ``predicate()`` holds or ``timeout_sec`` passes; returns the predicate."""
         deadline = time.monotonic() + timeout_sec
         while self.context.ok() and not predicate():

@@ -11,7 +11,6 @@ id, and two instances of the same recorded frame share all their points.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -207,6 +206,3 @@ class MapManagementEnv:
         frames, w, self._slot = snap
         self._map, self._map_w = list(frames), w.copy()
 
-
-def finite_or_nan(value: float) -> float:
-    return value if math.isfinite(value) else math.nan
