@@ -9,8 +9,6 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
-import cyclonedds._clayer as _clayer
-from cyclonedds.core import InstanceState, SampleState, ViewState
 from cyclonedds.domain import DomainParticipant
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
@@ -20,6 +18,7 @@ from msg_schemas.dds_types import dds_type
 from msg_schemas.registry import type_hash
 from node_runtime.context import DISCOVERY_TOPIC, DISCOVERY_TYPE
 from node_runtime.qos import Durability, QoSProfile
+from node_runtime.wire import take_raw
 
 #: ros_discovery_info is keyless: every participant's sample lands in the one instance, so a
 #: KEEP_LAST 1 reader would keep only the newest participant's. Readers keep a deep history;
@@ -52,25 +51,18 @@ class GraphMonitor:
         self._latest: dict[bytes, list[GraphNode]] = {}
 
     def poll(self) -> None:
-        mask = SampleState.Any | ViewState.Any | InstanceState.Any
-        while True:
-            ret = _clayer.ddspy_take(self._reader._ref, mask, 64)
-            if isinstance(ret, int) or not ret:
-                return
-            for data, info in ret:
-                if not info.valid_data:
-                    continue
-                try:
-                    msg = cdr.deserialize(data, DISCOVERY_TYPE)
-                except cdr.CdrError:
-                    continue
-                gid = bytes(msg.gid.data)
-                self._latest[gid] = [
-                    GraphNode(n.node_namespace, n.node_name, gid,
-                              tuple(bytes(g.data) for g in n.reader_gid_seq),
-                              tuple(bytes(g.data) for g in n.writer_gid_seq))
-                    for n in msg.node_entities_info_seq
-                ]
+        for data in take_raw(self._reader, batch=64):
+            try:
+                msg = cdr.deserialize(data, DISCOVERY_TYPE)
+            except cdr.CdrError:
+                continue
+            gid = bytes(msg.gid.data)
+            self._latest[gid] = [
+                GraphNode(n.node_namespace, n.node_name, gid,
+                          tuple(bytes(g.data) for g in n.reader_gid_seq),
+                          tuple(bytes(g.data) for g in n.writer_gid_seq))
+                for n in msg.node_entities_info_seq
+            ]
 
     def nodes(self) -> list[GraphNode]:
         self.poll()

@@ -13,8 +13,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-import cyclonedds._clayer as _clayer
-from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState
+from cyclonedds.core import ReadCondition
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
@@ -34,10 +33,7 @@ from node_runtime.names import (
 )
 from node_runtime.parameters import Parameter, ParameterError, load_params_file
 from node_runtime.qos import DEFAULT, QoSProfile
-from node_runtime.wire import write_raw
-
-_ANY_STATE = SampleState.Any | ViewState.Any | InstanceState.Any
-_TAKE_BATCH = 32
+from node_runtime.wire import ANY_STATE, take_raw, write_raw
 
 
 def _msg_type_name(msg_type: Any) -> str:
@@ -94,7 +90,7 @@ class Subscription:
         dds_topic = Topic(node.context.participant, dds_topic_name(topic), dds_type(type_name))
         self._reader = DataReader(node.context.participant, dds_topic,
                                   qos=qos.to_dds(type_hash(type_name)))
-        self.condition = ReadCondition(self._reader, _ANY_STATE)
+        self.condition = ReadCondition(self._reader, ANY_STATE)
 
     def get_publisher_count(self) -> int:
         return len(self._reader.get_matched_publications())
@@ -106,29 +102,24 @@ class Subscription:
     def take_and_dispatch(self) -> int:
         """Take what Cyclone holds, run the callback per good sample; returns samples handled."""
         handled = 0
-        while True:
-            ret = _clayer.ddspy_take(self._reader._ref, _ANY_STATE, _TAKE_BATCH)
-            if isinstance(ret, int) or not ret:
-                return handled
-            for data, info in ret:
-                if not info.valid_data:
-                    continue
-                handled += 1
-                if self.raw:
-                    self.received += 1
-                    self.callback(data)
-                    continue
-                try:
-                    msg = self._codec.deserialize(data)
-                    validate(self.msg_type, msg)
-                except (cdr.CdrError, MessageError) as exc:
-                    self.rejected += 1
-                    self._node.get_logger().error(
-                        f"dropped a malformed {self.msg_type} on {self.topic_name} "
-                        f"({len(data)} bytes): {exc}")
-                    continue
+        for data in take_raw(self._reader):
+            handled += 1
+            if self.raw:
                 self.received += 1
-                self.callback(msg)
+                self.callback(data)
+                continue
+            try:
+                msg = self._codec.deserialize(data)
+                validate(self.msg_type, msg)
+            except (cdr.CdrError, MessageError) as exc:
+                self.rejected += 1
+                self._node.get_logger().error(
+                    f"dropped a malformed {self.msg_type} on {self.topic_name} "
+                    f"({len(data)} bytes): {exc}")
+                continue
+            self.received += 1
+            self.callback(msg)
+        return handled
 
 
 class Timer:
