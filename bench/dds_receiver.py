@@ -24,13 +24,9 @@ def main() -> int:
     sub = node.create_subscription("sensor_msgs/msg/Image", "bench/image", on_image,
                                    node_runtime.QoSProfile(depth=30))
     print(json.dumps({"event": "ready"}), flush=True)
-    executor = node_runtime.SingleThreadedExecutor()
-    executor.add_node(node)
-    executor.spin()
+    node_runtime.run(node)
     print(json.dumps({"event": "result", "latencies": latencies, "seqs": seqs,
                       "rejected": sub.rejected}), flush=True)
-    node.destroy_node()
-    node_runtime.shutdown()
     return 0
 
 

@@ -7,13 +7,11 @@ written against this API looks like an rclpy node::
 
     node_runtime.init()
     node = MyNode()            # a node_runtime.Node subclass
-    node_runtime.spin(node)
-    node.destroy_node()
-    node_runtime.shutdown()
+    node_runtime.run(node)     # spin until SIGINT/SIGTERM, then destroy and shut down
 """
 
 from node_runtime.context import get_context, init, ok, shutdown
-from node_runtime.executor import SingleThreadedExecutor, spin, spin_once
+from node_runtime.executor import SingleThreadedExecutor, run, spin, spin_once
 from node_runtime.node import Node, Publisher, Subscription, Timer
 from node_runtime.parameters import Parameter, ParameterError
 from node_runtime.qos import DEFAULT, LATCHED, SENSOR_DATA, Durability, QoSProfile, Reliability
@@ -35,6 +33,7 @@ __all__ = [
     "get_context",
     "init",
     "ok",
+    "run",
     "shutdown",
     "spin",
     "spin_once",

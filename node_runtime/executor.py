@@ -12,7 +12,7 @@ from collections.abc import Callable
 
 from cyclonedds.core import WaitSet
 
-from node_runtime.context import get_context
+from node_runtime.context import get_context, shutdown
 from node_runtime.node import Node
 
 _MAX_WAIT_S = 0.1  # upper bound of one wait, so new endpoints and shutdown are seen promptly
@@ -85,6 +85,19 @@ def spin(node: Node) -> None:
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     executor.spin()
+
+
+def run(node: Node) -> None:
+    """Spin ``node`` until SIGINT/SIGTERM/``shutdown()``, then destroy it and shut down.
+
+    The whole life of a one-node process after ``init()``: the teardown runs even when a
+    callback raises, so the participant always leaves the domain cleanly.
+    """
+    try:
+        spin(node)
+    finally:
+        node.destroy_node()
+        shutdown()
 
 
 def spin_once(node: Node, timeout_sec: float | None = None) -> None:

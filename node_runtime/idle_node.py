@@ -20,9 +20,5 @@ def run_idle_node(name: str, parameters: dict[str, Any], pending: str,
     for key, default in parameters.items():
         node.declare_parameter(key, default)
     node.get_logger().warning(f"{pending}: this node joins the graph but publishes nothing yet")
-    try:
-        node_runtime.spin(node)
-    finally:
-        node.destroy_node()
-        node_runtime.shutdown()
+    node_runtime.run(node)
     return 0

@@ -37,11 +37,7 @@ def main() -> int:
         "reader_gids": [g.bytes.hex() for g in node._reader_gids()],
         "participant_gid": node.context.gid.bytes.hex(),
     }), flush=True)
-    try:
-        node_runtime.spin(node)
-    finally:
-        node.destroy_node()
-        node_runtime.shutdown()
+    node_runtime.run(node)
     return 0
 
 
