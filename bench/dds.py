@@ -20,8 +20,7 @@ import numpy as np
 import node_runtime
 from msg_schemas import cdr, new
 from msg_schemas.dds_types import dds_type
-from node_runtime.loopback import LoopbackDomain
-from tests.conftest import JsonLines
+from node_runtime.loopback import JsonLines, LoopbackDomain
 
 
 def codec_ms_per_mb(repeats: int = 50) -> tuple[float, float]:

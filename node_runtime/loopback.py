@@ -10,12 +10,15 @@ test never leaves processes behind.
 
 from __future__ import annotations
 
+import json
 import os
+import queue
 import random
 import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 from types import TracebackType
@@ -128,3 +131,37 @@ class LoopbackDomain:
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
                  tb: TracebackType | None) -> None:
         self.close()
+
+
+class JsonLines:
+    """Reads a child's stdout JSON lines on a thread, so waiting on them is bounded in time.
+
+    Tests and benchmarks talk to the node processes they spawn through such lines.
+    """
+
+    def __init__(self, proc: subprocess.Popen[str]) -> None:
+        self.proc = proc
+        self.lines: queue.Queue[dict] = queue.Queue()
+        self._thread = threading.Thread(target=self._pump, daemon=True)
+        self._thread.start()
+
+    def _pump(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            line = line.strip()
+            if line.startswith("{"):
+                self.lines.put(json.loads(line))
+
+    def next(self, event: str, timeout: float) -> dict:
+        deadline = time.monotonic() + timeout
+        while True:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise TimeoutError(f"no {event!r} line within {timeout} s "
+                                   f"(process exit code {self.proc.poll()})")
+            try:
+                item = self.lines.get(timeout=remaining)
+            except queue.Empty:
+                continue
+            if item.get("event") == event:
+                return item

@@ -20,8 +20,7 @@ from msg_schemas.dds_types import dds_type
 from msg_schemas.registry import type_hash
 from node_runtime.context import DISCOVERY_TOPIC, DISCOVERY_TYPE, get_context
 from node_runtime.graph import GRAPH_READER_QOS, GraphMonitor
-from node_runtime.loopback import LoopbackDomain
-from tests.conftest import JsonLines
+from node_runtime.loopback import JsonLines, LoopbackDomain
 
 LISTENER = ["-m", "tests.nodes.listener"]
 
