@@ -147,28 +147,21 @@ def greedy_removals(set_w: np.ndarray, count: int) -> list[int]:
     w = set_w.astype(np.float64)
     alive = list(range(w.shape[0]))
     removed: list[int] = []
-    lap = laplacian(w)
     for _ in range(count):
         t = len(alive)
         if t <= 2:
             # Any removal leaves <= 1 frame (logdet 0): drop the oldest.
             v = alive[0]
         else:
-            a = np.array(alive)
+            w_alive = w[np.ix_(alive, alive)]
             keep = np.array([[j for j in range(t) if j != i] for i in range(t)])  # (t, t-1)
-            sub = lap[np.ix_(a, a)]
-            mats = sub[keep[:, :, None], keep[:, None, :]].copy()
-            wv = w[np.ix_(a, a)][np.arange(t)[:, None], keep]                   # (t, t-1)
+            mats = laplacian(w_alive)[keep[:, :, None], keep[:, None, :]]
             idx = np.arange(t - 1)
-            mats[:, idx, idx] -= wv
+            mats[:, idx, idx] -= w_alive[np.arange(t)[:, None], keep]           # v's weights
             scores = batched_logdet_spd(mats[:, 1:, 1:])
             v = alive[pick_best(scores)]
         removed.append(v)
         alive.remove(v)
-        lap = laplacian(w[np.ix_(alive, alive)])
-        lap_full = np.zeros_like(w)
-        lap_full[np.ix_(alive, alive)] = lap
-        lap = lap_full
     return removed
 
 
