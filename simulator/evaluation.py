@@ -12,7 +12,7 @@ from scipy import stats
 from edge_mapper.policies import make_policy
 from simulator.covisibility import CovisibilityDataset
 from simulator.env import MapManagementEnv, SimConfig
-from simulator.oracle import ClairvoyantOracle, rollout
+from simulator.oracle import ClairvoyantOracle, Plan, rollout
 from udt_node.channel import parse_channel
 
 
@@ -35,19 +35,10 @@ class PolicyResult:
         return float(stats.t.ppf(0.975, n - 1) * np.std(self.per_seed, ddof=1) / math.sqrt(n))
 
 
-def _episode_stats(env: MapManagementEnv, plan_actions: list, seed: int
-                   ) -> tuple[float, float, float]:
-    """Replay actions to collect υ (penalised), lost share and tracked-only mean."""
-    env.reset(seed)
-    objs, lost, tracked = [], [], []
-    for action in plan_actions:
-        _obs, reward, _t, _tr, info = env.step(action)
-        u = info["uncertainty"]
-        objs.append(-reward)
-        lost.append(u.lost_ratio)
-        if not math.isnan(u.mean_tracked):
-            tracked.append(u.mean_tracked)
-    return float(np.mean(objs)), float(np.mean(lost)), \
+def _episode_stats(plan: Plan) -> tuple[float, float, float]:
+    """Mean υ (penalised), lost share and tracked-only mean of an episode's slots."""
+    tracked = [s.mean_tracked for s in plan.slots if not math.isnan(s.mean_tracked)]
+    return float(np.mean(plan.objectives)), float(np.mean([s.lost_ratio for s in plan.slots])), \
         float(np.mean(tracked)) if tracked else math.nan
 
 
@@ -59,11 +50,9 @@ def evaluate(policies: list[str], dataset: CovisibilityDataset, channel_spec: st
         per_seed, lost, tracked = [], [], []
         for seed in seeds:
             env = MapManagementEnv(dataset, parse_channel(channel_spec, rate_range, seed), config)
-            if name == "oracle":
-                actions = ClairvoyantOracle().plan(env, seed).actions
-            else:
-                actions = rollout(env, make_policy(name), seed).actions
-            mean_obj, lost_share, tracked_mean = _episode_stats(env, actions, seed)
+            plan = (ClairvoyantOracle().plan(env, seed) if name == "oracle"
+                    else rollout(env, make_policy(name), seed))
+            mean_obj, lost_share, tracked_mean = _episode_stats(plan)
             per_seed.append(mean_obj)
             lost.append(lost_share)
             tracked.append(tracked_mean)

@@ -20,13 +20,19 @@ from dataclasses import dataclass
 import numpy as np
 
 from edge_mapper.policies import Adapt, LatestFrameFirst, MapPolicy, PeriodicalUploading
+from edge_mapper.uncertainty import SlotUncertainty
 from simulator.env import MapAction, MapManagementEnv, SlotObservation
 
 
 @dataclass
 class Plan:
     actions: list[MapAction]
-    objectives: list[float]       #: υ_k (penalised) of every slot
+    slots: list[SlotUncertainty]  #: υ_k of every slot, as the environment reported it
+
+    @property
+    def objectives(self) -> list[float]:
+        """Penalised υ_k of every slot (the quantity the oracle minimises)."""
+        return [s.objective for s in self.slots]
 
     @property
     def total(self) -> float:
@@ -37,14 +43,14 @@ def rollout(env: MapManagementEnv, policy: MapPolicy, seed: int) -> Plan:
     """Run ``policy`` for a whole episode from ``reset(seed)``."""
     obs, _ = env.reset(seed)
     policy.reset(seed)
-    actions, objectives = [], []
+    actions, slots = [], []
     while True:
         action = policy.decide(obs)
-        obs, reward, _term, trunc, _info = env.step(action)
+        obs, _reward, _term, trunc, info = env.step(action)
         actions.append(action)
-        objectives.append(-reward)
+        slots.append(info["uncertainty"])
         if trunc:
-            return Plan(actions, objectives)
+            return Plan(actions, slots)
 
 
 def _all_actions(obs: SlotObservation) -> list[MapAction]:
@@ -87,18 +93,18 @@ class ClairvoyantOracle:
     def _search(self, env: MapManagementEnv, seed: int) -> Plan:
         rng = np.random.default_rng(seed)
         obs, _ = env.reset(seed)
-        beams: list[tuple[float, list[MapAction], list[float], tuple, SlotObservation]] = \
-            [(0.0, [], [], env.snapshot(), obs)]
+        beams: list[tuple[float, list[MapAction], list[SlotUncertainty], tuple,
+                          SlotObservation]] = [(0.0, [], [], env.snapshot(), obs)]
         exhaustive = self._tiny(env, obs)
         width = self.exhaustive_limit if exhaustive else self.beam
         for _slot in range(env.config.slots):
             children = []
-            for total, acts, objs, snap, state_obs in beams:
+            for total, acts, slots, snap, state_obs in beams:
                 for action in self._proposals(state_obs, rng, exhaustive):
                     env.restore(snap)
-                    nxt, reward, _t, _tr, _info = env.step(action)
-                    children.append((total - reward, [*acts, action], [*objs, -reward],
-                                     env.snapshot(), nxt))
+                    nxt, reward, _t, _tr, info = env.step(action)
+                    children.append((total - reward, [*acts, action],
+                                     [*slots, info["uncertainty"]], env.snapshot(), nxt))
             children.sort(key=lambda c: c[0])
             beams = children[:width]
         best = beams[0]
