@@ -20,10 +20,10 @@ from typing import Protocol
 
 import numpy as np
 
-from edge_mapper.uncertainty import batched_logdet_spd, laplacian, logdet_spd, reduced_laplacian
+from edge_mapper import laplacian_kernels as kernels
+from edge_mapper.graph_factor import BOUND_RTOL, GraphFactor, pick_best, tie_floor
+from edge_mapper.uncertainty import logdet_spd, reduced_laplacian
 from simulator.env import MapAction, SlotObservation
-
-_TIE_RTOL = 1e-9
 
 
 class MapPolicy(Protocol):
@@ -36,14 +36,6 @@ class MapPolicy(Protocol):
 
 def _evict_oldest(obs: SlotObservation, upload: list[int]) -> list[int]:
     return sorted(obs.map_frames + upload)[:obs.n_evict]
-
-
-def pick_best(values: np.ndarray) -> int:
-    """Index of the largest value; near-ties (relative 1e-9) go to the lowest index."""
-    best = float(np.max(values))
-    if best == -math.inf:
-        return 0
-    return int(np.flatnonzero(values >= best - _TIE_RTOL * max(1.0, abs(best)))[0])
 
 
 class LatestFrameFirst:
@@ -93,75 +85,95 @@ class RandomPolicy:
 # ---------------------------------------------------------------------------------------------
 # ADAPT: incremental greedy
 
+#: Candidates scored per kernel call once bounds order them.
+_BATCH = 4
+
 
 def greedy_additions(set_w: np.ndarray, cand_set_w: np.ndarray, cand_w: np.ndarray,
                      count: int) -> list[int]:
     """Greedily add ``count`` candidates to a frame set, each maximising logdet(L̂).
 
     ``set_w`` (n×n) are the set's weights, ``cand_set_w`` (m×n) candidates to set, ``cand_w``
-    (m×m) candidates among themselves. Grounding the *candidate* (Kirchhoff) makes
-    L̂(S ∪ {v}) = L(S) + diag(b_v): every remaining candidate of a round is scored by one batched
-    Cholesky of a shared Laplacian plus a diagonal, and the chosen frame enters L(S) as a border
-    and a diagonal update, never rebuilt from point sets. Returns candidate indices in order.
+    (m×m) candidates among themselves. A candidate is scored against one factorisation of the
+    set (matrix determinant lemma on the few frames it touches), and the chosen frame borders
+    the set's inverse Laplacian instead of refactorising it. After the first round each
+    candidate carries a proven upper bound on its score (``raise_addition_bounds``); a round
+    scores candidates in order of that bound and stops once no bound can reach the best score
+    within the tie tolerance, so it picks exactly what scoring all of them would. Returns
+    candidate indices in pick order.
     """
     m = cand_set_w.shape[0]
     chosen: list[int] = []
-    lap = laplacian(set_w)
-    b = cand_set_w.astype(np.float64).copy()         # weights of every candidate to S
+    b = np.asarray(cand_set_w, dtype=np.float64)     # weights of every candidate to the set
     remaining = list(range(m))
     if set_w.shape[0] == 0 and count > 0:
         # An empty set: start from the candidate most connected to the others.
         first = pick_best(cand_w.sum(axis=1).astype(np.float64))
         chosen.append(first)
         remaining.remove(first)
-        lap = np.zeros((1, 1))
+        factor = GraphFactor(np.zeros((1, 1)))
         b = cand_w[:, [first]].astype(np.float64)
+    else:
+        factor = GraphFactor(set_w)
+    upper = np.full(m, math.inf)        # bound on log(τ(S ∪ {f}) / τ(S)), exact when scored
     while len(chosen) < count:
-        n = lap.shape[0]
         rem = np.array(remaining)
-        mats = np.broadcast_to(lap, (rem.size, n, n)).copy()
-        diag = np.arange(n)
-        mats[:, diag, diag] += b[rem]
-        scores = batched_logdet_spd(mats)
-        v = int(rem[pick_best(scores)])
+        scores = _bounded_scores(factor, b, rem, upper)
+        best = pick_best(scores)
+        v = int(rem[best])
         chosen.append(v)
         remaining.remove(v)
-        # Border L(S) with v: degrees of S grow by b_v, v's degree is sum(b_v).
-        bv = b[v]
-        new = np.zeros((n + 1, n + 1))
-        new[:n, :n] = lap + np.diag(bv)
-        new[:n, n] = new[n, :n] = -bv
-        new[n, n] = bv.sum()
-        lap = new
-        b = np.concatenate([b, cand_w[:, [v]].astype(np.float64)], axis=1)
+        grown = factor.with_frame(b[v], float(scores[best]))
+        to_v = cand_w[:, v].astype(np.float64)
+        if factor.connected and grown.connected:
+            kernels.raise_addition_bounds(grown.inverse, grown.pos, b, to_v,
+                                          np.array(remaining, dtype=np.int64), upper)
+        else:
+            upper[:] = math.inf
+        factor = grown
+        b = np.concatenate([b, to_v[:, None]], axis=1)
     return chosen
+
+
+def _bounded_scores(factor: GraphFactor, b: np.ndarray, rem: np.ndarray,
+                    upper: np.ndarray) -> np.ndarray:
+    """log τ(S ∪ {f}) for the candidates ``rem`` that could win this round, -inf for the rest
+    (whose bound is below the best score's tie floor). Scores ``upper`` in place."""
+    scores = np.full(rem.size, -math.inf)
+    order = np.argsort(-upper[rem], kind="stable")
+    start = 0
+    while start < rem.size:
+        top = factor.log_det_a + upper[rem[order[start]]]
+        best = float(scores.max())
+        if math.isfinite(top) and top + BOUND_RTOL * max(1.0, abs(top)) < tie_floor(best):
+            break
+        # every unbounded candidate at once, then a few at a time in order of their bound
+        stop = start + max(_BATCH, int(np.isinf(upper[rem[order[start:]]]).sum()))
+        idx = order[start:stop]
+        scores[idx] = factor.augmented_log_tau(b[rem[idx]])
+        if factor.connected:
+            upper[rem[idx]] = scores[idx] - factor.log_det_a
+        start = stop
+    return scores
 
 
 def greedy_removals(set_w: np.ndarray, count: int) -> list[int]:
     """Greedily remove ``count`` frames, each time the one whose removal keeps logdet highest.
 
-    For all frames v at once: L(S \\ v) is L(S) without v's row and column and with v's weights
-    taken off its neighbours' degrees; grounded at the first remaining frame, the whole round is
-    one batched Cholesky.
+    Every frame's removal is scored from the set's inverse Laplacian (a downdate on the
+    frame's neighbours), and the removal itself downdates that inverse. Near-ties go to the
+    oldest frame; when any removal leaves <= 1 frame, the oldest goes.
     """
-    w = set_w.astype(np.float64)
-    alive = list(range(w.shape[0]))
+    factor = GraphFactor(set_w)
+    alive = list(range(set_w.shape[0]))
     removed: list[int] = []
     for _ in range(count):
-        t = len(alive)
-        if t <= 2:
-            # Any removal leaves <= 1 frame (logdet 0): drop the oldest.
-            v = alive[0]
+        if len(alive) <= 2:
+            i, score = 0, 0.0
         else:
-            w_alive = w[np.ix_(alive, alive)]
-            keep = np.array([[j for j in range(t) if j != i] for i in range(t)])  # (t, t-1)
-            mats = laplacian(w_alive)[keep[:, :, None], keep[:, None, :]]
-            idx = np.arange(t - 1)
-            mats[:, idx, idx] -= w_alive[np.arange(t)[:, None], keep]           # v's weights
-            scores = batched_logdet_spd(mats[:, 1:, 1:])
-            v = alive[pick_best(scores)]
-        removed.append(v)
-        alive.remove(v)
+            i, score = factor.best_removal()
+        removed.append(alive.pop(i))
+        factor = factor.without_frame(i, score)
     return removed
 
 

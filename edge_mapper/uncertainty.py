@@ -19,13 +19,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from edge_mapper.graph_factor import PIVOT_RTOL, GraphFactor
+
 #: u of a next-slot frame that shares no map point is +inf (it would lose tracking). RL and
 #: the objective need a finite number: such a frame counts as u(G) + LOST_FRAME_PENALTY.
 LOST_FRAME_PENALTY = 100.0
-#: A Cholesky pivot (diag(R)²) below this share of the matrix's largest diagonal entry is a
-#: rounding-level zero: the matrix is singular (a disconnected graph). For integer weights the
-#: pivots of a connected graph are ratios of spanning-forest counts, far above this.
-_PIVOT_RTOL = 1e-11
 
 
 def laplacian(weights: np.ndarray) -> np.ndarray:
@@ -49,43 +47,9 @@ def logdet_spd(matrix: np.ndarray) -> float:
     except np.linalg.LinAlgError:
         return -math.inf
     diag = np.diagonal(chol)
-    if float((diag * diag).min()) <= _PIVOT_RTOL * max(1.0, float(np.diagonal(m).max())):
+    if float((diag * diag).min()) <= PIVOT_RTOL * max(1.0, float(np.diagonal(m).max())):
         return -math.inf
     return 2.0 * float(np.log(diag).sum())
-
-
-def batched_logdet_spd(matrices: np.ndarray) -> np.ndarray:
-    """logdet of a stack of SPD matrices (m, n, n); -inf where one is singular."""
-    mats = np.asarray(matrices, dtype=np.float64)
-    m, n = mats.shape[0], mats.shape[-1]
-    if n == 0:
-        return np.zeros(m)
-    chol, ok = _batched_cholesky(mats)
-    out = np.full(m, -math.inf)
-    if ok.any():
-        diag = np.diagonal(chol[ok], axis1=1, axis2=2)
-        scale = np.maximum(1.0, np.diagonal(mats[ok], axis1=1, axis2=2).max(axis=1))
-        good = (diag * diag).min(axis=1) > _PIVOT_RTOL * scale
-        vals = np.full(diag.shape[0], -math.inf)
-        vals[good] = 2.0 * np.log(diag[good]).sum(axis=1)
-        out[ok] = vals
-    return out
-
-
-def _batched_cholesky(mats: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Cholesky of each matrix; numpy's batched call fails as a whole, so retry one by one."""
-    try:
-        return np.linalg.cholesky(mats), np.ones(mats.shape[0], dtype=bool)
-    except np.linalg.LinAlgError:
-        chol = np.zeros_like(mats)
-        ok = np.zeros(mats.shape[0], dtype=bool)
-        for i, mat in enumerate(mats):
-            try:
-                chol[i] = np.linalg.cholesky(mat)
-                ok[i] = True
-            except np.linalg.LinAlgError:
-                pass
-        return chol, ok
 
 
 def logdet_pi(pi: np.ndarray | None) -> float:
@@ -119,29 +83,18 @@ def augmented_uncertainties(map_weights: np.ndarray, cand_weights: np.ndarray,
                             log_det_pi: float = 0.0) -> np.ndarray:
     """u(G ∪ {f}) for each candidate frame f (eq. 8's summand), all at once.
 
-    ``cand_weights[i, j]`` is the weight between candidate i and map frame j. Grounding the
-    *candidate* (allowed by Kirchhoff) turns L̂(G ∪ {f}) into L(G) + diag(b_f), so all
-    candidates share L(G) and one batched Cholesky scores them. A candidate that shares no
-    point with the map, or any candidate of a disconnected map, gets +inf.
+    ``cand_weights[i, j]`` is the weight between candidate i and map frame j. One factorisation
+    of the map serves every candidate (:class:`~edge_mapper.graph_factor.GraphFactor`). A
+    candidate that shares no point with the map, or leaves G ∪ {f} disconnected, gets +inf.
     """
-    w = np.asarray(map_weights, dtype=np.float64)
-    b = np.atleast_2d(np.asarray(cand_weights, dtype=np.float64))
-    n = w.shape[0]
-    if n == 0:
-        return np.full(b.shape[0], math.inf)
-    u = np.full(b.shape[0], math.inf)
-    # A frame sharing no point is lost without factorising anything; leaving it out also keeps
-    # the batch free of singular matrices, so numpy's batched Cholesky does not fall back.
-    live = np.flatnonzero(b.sum(axis=1) > 0)
-    if live.size == 0:
-        return u
-    lap = laplacian(w)
-    mats = np.broadcast_to(lap, (live.size, n, n)).copy()
-    idx = np.arange(n)
-    mats[:, idx, idx] += b[live]
-    ld = batched_logdet_spd(mats)
-    u[live] = np.where(np.isfinite(ld), -6.0 * ld - n * log_det_pi, math.inf)
-    return u
+    return _augmented(GraphFactor(map_weights), cand_weights, log_det_pi)
+
+
+def _augmented(factor: GraphFactor, cand_weights: np.ndarray, log_det_pi: float) -> np.ndarray:
+    log_tau = factor.augmented_log_tau(cand_weights)
+    n = factor.n
+    with np.errstate(invalid="ignore"):
+        return np.where(np.isfinite(log_tau), -6.0 * log_tau - n * log_det_pi, math.inf)
 
 
 @dataclass(frozen=True)
@@ -151,6 +104,7 @@ class SlotUncertainty:
     mean_tracked: float        #: mean u(G ∪ {f}) over frames that share a point with the map
     lost_ratio: float          #: share of frames that share no point (u = +inf)
     objective: float           #: mean with lost frames counted as u(G) + LOST_FRAME_PENALTY
+    map_uncertainty: float = math.inf   #: u(G) of the map itself (+inf if disconnected)
 
     @property
     def reward(self) -> float:
@@ -161,22 +115,29 @@ class SlotUncertainty:
 def next_slot_uncertainty(map_weights: np.ndarray, cand_weights: np.ndarray,
                           log_det_pi: float = 0.0,
                           lost_penalty: float = LOST_FRAME_PENALTY) -> SlotUncertainty:
-    """υ_k of eq. (8) for the map G^e_{k+1} and the frames F_{k+1}, never letting inf leak."""
-    u = augmented_uncertainties(map_weights, cand_weights, log_det_pi)
-    if u.size == 0:
+    """υ_k of eq. (8) for the map G^e_{k+1} and the frames F_{k+1}, never letting inf leak.
+
+    Runs once per slot in the simulator; on 60 frames plain Python beats a chain of numpy
+    calls."""
+    factor = GraphFactor(map_weights)
+    log_tau = factor.augmented_log_tau(cand_weights)
+    if log_tau.size == 0:
         raise ValueError("the next slot holds no frames")
-    finite = np.isfinite(u)
-    base = map_uncertainty(map_weights, log_det_pi)
-    if not math.isfinite(base):
+    u = [-6.0 * x - factor.n * log_det_pi for x in log_tau.tolist() if x > -math.inf]
+    n_lost = log_tau.size - len(u)
+    map_u = (-6.0 * factor.log_tau - (factor.n - 1) * log_det_pi if factor.connected
+             else math.inf)
+    total = math.fsum(u)
+    base = map_u
+    if n_lost and not math.isfinite(base):
         # An empty or disconnected map: fall back to the penalty alone so the objective stays
         # finite and worse than any tracked frame of a connected map would make it.
-        base = float(np.max(u[finite])) if finite.any() else 0.0
-    lost_value = base + lost_penalty
-    values = np.where(finite, u, lost_value)
+        base = max(u) if u else 0.0
     return SlotUncertainty(
-        mean_tracked=float(u[finite].mean()) if finite.any() else math.nan,
-        lost_ratio=float(1.0 - finite.mean()),
-        objective=float(values.mean()),
+        mean_tracked=total / len(u) if u else math.nan,
+        lost_ratio=n_lost / log_tau.size,
+        objective=(total + n_lost * (base + lost_penalty)) / log_tau.size,
+        map_uncertainty=map_u,
     )
 
 

@@ -19,7 +19,6 @@ import numpy as np
 from edge_mapper.uncertainty import (
     LOST_FRAME_PENALTY,
     SlotUncertainty,
-    map_uncertainty,
     next_slot_uncertainty,
     theorem1_cardinalities,
 )
@@ -73,15 +72,24 @@ class SlotObservation:
 class FrameStream:
     """Maps frame-instance ids to dataset frames, reading the dataset forth and back."""
 
-    def __init__(self, dataset: CovisibilityDataset, start: int = 0) -> None:
+    def __init__(self, dataset: CovisibilityDataset, start: int = 0, horizon: int = 0) -> None:
         self.n = dataset.n_frames
         self.start = start
+        #: dataset index of instances 0..horizon-1, looked up instead of recomputed per query
+        self._table = self._compute(np.arange(horizon))
 
-    def dataset_index(self, instance: np.ndarray | list[int] | int) -> np.ndarray:
-        t = np.asarray(instance, dtype=np.int64) + self.start
+    def _compute(self, instance: np.ndarray) -> np.ndarray:
+        t = instance + self.start
         period = 2 * (self.n - 1) if self.n > 1 else 1
         phase = t % period
         return np.where(phase < self.n, phase, period - phase)
+
+    def dataset_index(self, instance: np.ndarray | list[int] | int) -> np.ndarray:
+        idx = np.asarray(instance, dtype=np.int64)
+        try:
+            return self._table[idx]
+        except IndexError:                 # beyond the episode's horizon
+            return self._compute(idx)
 
 
 class MapManagementEnv:
@@ -106,9 +114,8 @@ class MapManagementEnv:
     def weights(self, a: list[int], b: list[int]) -> np.ndarray:
         """Covisibility weights between frame instances; an instance has weight 0 to itself."""
         block = self.dataset.weights(self.stream.dataset_index(a), self.stream.dataset_index(b))
-        same = np.asarray(a)[:, None] == np.asarray(b)[None, :] if len(a) and len(b) else None
-        if same is not None and same.any():
-            block[same] = 0.0
+        if len(a) and len(b) and not set(a).isdisjoint(b):
+            block[np.asarray(a)[:, None] == np.asarray(b)[None, :]] = 0.0
         return block
 
     def slot_frames(self, slot: int) -> list[int]:
@@ -119,7 +126,8 @@ class MapManagementEnv:
 
     def reset(self, seed: int | None = None) -> tuple[SlotObservation, dict[str, Any]]:
         rng = np.random.default_rng(seed)
-        self.stream = FrameStream(self.dataset, start=int(rng.integers(self.dataset.n_frames)))
+        self.stream = FrameStream(self.dataset, start=int(rng.integers(self.dataset.n_frames)),
+                                  horizon=(self.config.slots + 2) * self.config.slot_frames)
         self.channel.reset(seed)
         self._map, self._map_w, self._slot = [], np.zeros((0, 0)), 0
         # The whole episode's rates are drawn up front: the agent still sees them one slot at a
@@ -159,19 +167,26 @@ class MapManagementEnv:
 
     def apply(self, action: MapAction) -> None:
         """V^e_{k+1} = (U_k ∪ V^e_k) \\ C_k, keeping capture order (oldest = anchor first)."""
-        keep_old = [f for f in self._map if f not in set(action.evict)]
-        new = sorted(f for f in action.upload if f not in set(action.evict))
-        merged = sorted(keep_old + new)
-        # Maintain the weight matrix incrementally: reuse old rows, query only new pairs.
-        idx_old = {f: i for i, f in enumerate(self._map)}
+        evict = set(action.evict)
+        src = np.array([i for i, f in enumerate(self._map) if f not in evict], dtype=np.int64)
+        kept = [self._map[i] for i in src]
+        new = sorted(f for f in action.upload if f not in evict)
+        merged = sorted(kept + new)
+        if self.dataset.dense:               # a gather of the whole block is the cheapest
+            self._map, self._map_w = merged, self.weights(merged, merged)
+            return
+        # Sparse products are not: reuse the old rows, query only the new pairs.
         w = np.zeros((len(merged), len(merged)))
-        old_pos = [i for i, f in enumerate(merged) if f in idx_old]
-        new_pos = [i for i, f in enumerate(merged) if f not in idx_old]
-        if old_pos:
-            src = [idx_old[merged[i]] for i in old_pos]
-            w[np.ix_(old_pos, old_pos)] = self._map_w[np.ix_(src, src)]
-        if new_pos:
-            block = self.weights([merged[i] for i in new_pos], merged)
+        if merged == kept + new:          # uploads are newer than the map: blocks, no scatter
+            w[:src.size, :src.size] = self._map_w.take(src, axis=0).take(src, axis=1)
+            new_pos = np.arange(src.size, len(merged))
+        else:
+            at = {f: i for i, f in enumerate(merged)}
+            old_pos = np.array([at[f] for f in kept], dtype=np.int64)
+            w[np.ix_(old_pos, old_pos)] = self._map_w.take(src, axis=0).take(src, axis=1)
+            new_pos = np.array([at[f] for f in new], dtype=np.int64)
+        if new:
+            block = self.weights(new, merged)
             w[new_pos, :] = block
             w[:, new_pos] = block.T
         self._map, self._map_w = merged, w
@@ -184,7 +199,7 @@ class MapManagementEnv:
         nxt = self.slot_frames(self._slot)
         slot_u = self.evaluate(nxt)
         info = {"uncertainty": slot_u, "map_size": len(self._map),
-                "map_uncertainty": map_uncertainty(self._map_w, self.config.log_det_pi)}
+                "map_uncertainty": slot_u.map_uncertainty}
         truncated = self._slot >= self.config.slots
         return self._observation(), slot_u.reward, False, truncated, info
 

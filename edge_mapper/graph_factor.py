@@ -1,0 +1,177 @@
+"""A frame set's grounded Laplacian, factorised once and scored against many frames.
+
+Every score here is a log weighted spanning-tree count τ (Kirchhoff: det of any reduced
+Laplacian), the quantity u(G) = -6 log τ(G) - (|V|-1) logdet Π is made of. υ_k scores 60 frames
+against one map and ADAPT's greedy scores every candidate in each of its rounds; both differ
+from the map by one frame, so :class:`GraphFactor` keeps C = A⁻¹ of the map's grounded
+Laplacian A and answers each query from the few entries of C the frame touches
+(``laplacian_kernels``). After a greedy pick the inverse is bordered (add) or downdated
+(remove) in O(n²k) instead of refactorised.
+
+A disconnected set is grounded once per component (A stays positive definite); adding a frame
+that touches every component is then still scored exactly, so a bridging frame is not mistaken
+for a lost one.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from edge_mapper import laplacian_kernels as kernels
+
+#: Scores within this relative distance of the best count as tied (greedy picks the oldest).
+TIE_RTOL = 1e-9
+#: Headroom on the Hadamard bounds against rounding in the exact scores they are compared to.
+BOUND_RTOL = 1e-12
+#: A Cholesky pivot (diag(R)²) below this share of the matrix's largest diagonal entry is a
+#: rounding-level zero: the matrix is singular (a disconnected graph). For integer weights the
+#: pivots of a connected graph are ratios of spanning-forest counts, far above this.
+PIVOT_RTOL = 1e-11
+
+
+class GraphFactor:
+    """C = A⁻¹ and log det A for a symmetric weight matrix (frames in set order).
+
+    Frame 0 of each component is grounded (for a connected set, the oldest frame — the map's
+    anchor). ``log_tau`` is log τ(G) for a connected set and -inf otherwise.
+    """
+
+    def __init__(self, weights: np.ndarray) -> None:
+        w = np.asarray(weights, dtype=np.float64)
+        if w.shape[0] == 0:
+            self.weights = np.zeros((0, 0))
+            self.inverse = np.zeros((0, 0))
+            self.pos = self.comp = np.zeros(0, dtype=np.int64)
+            self.n_comp = 0
+            self.log_det_a = 0.0
+            return
+        (self.weights, self.inverse, self.pos, self.comp, self.n_comp,
+         self.log_det_a) = kernels.factorise(w, PIVOT_RTOL)
+        if self.log_det_a == -math.inf:      # cannot happen for finite non-negative weights
+            raise ValueError("grounded Laplacian is not positive definite; are the weights "
+                             "finite and non-negative?")
+
+    @property
+    def n(self) -> int:
+        return self.weights.shape[0]
+
+    @property
+    def connected(self) -> bool:
+        return self.n_comp == 1
+
+    @property
+    def log_tau(self) -> float:
+        """log of the weighted spanning-tree count; -inf when disconnected or empty."""
+        return self.log_det_a if self.connected else -math.inf
+
+    # -- queries ------------------------------------------------------------------------------
+
+    def augmented_log_tau(self, cand: np.ndarray) -> np.ndarray:
+        """log τ(G ∪ {f}) for each row f of ``cand`` (weights to the set, in set order)."""
+        b = np.ascontiguousarray(np.atleast_2d(cand), dtype=np.float64)
+        if self.n == 0 or b.shape[0] == 0:
+            return np.full(b.shape[0], -math.inf)
+        out = np.empty(b.shape[0])
+        if b.shape[1] != self.n:
+            raise ValueError(f"candidate weights have {b.shape[1]} columns, the set {self.n}")
+        kernels.augmented_log_ratios(self.inverse, self.pos, self.comp, self.n_comp, b,
+                                     PIVOT_RTOL, out)
+        return out + self.log_det_a
+
+    def removal_log_tau(self) -> np.ndarray:
+        """log τ(G \\ v) for every frame v (-inf where G \\ v is disconnected)."""
+        out = self._trivial_removals()
+        if out is None:
+            out = np.full(self.n, -math.inf)
+            kernels.removal_log_ratios(self.inverse, self.pos, self.weights, PIVOT_RTOL, out)
+            out[1:] += self.log_det_a
+            out[0] = kernels.subgraph_log_tau(self.weights, 1, PIVOT_RTOL)
+        return out
+
+    def best_removal(self) -> tuple[int, float]:
+        """(v, log τ(G \\ v)) of the frame whose removal keeps τ highest, by :func:`pick_best`.
+
+        Same answer as ``pick_best(removal_log_tau())``, but a frame is only factorised when
+        its Hadamard upper bound reaches the best exact score within the tie tolerance, which
+        on dense maps leaves a handful of the ~50 frames.
+        """
+        out = self._trivial_removals()
+        if out is None:
+            ratios = np.empty(self.n)
+            ground = kernels.subgraph_log_tau(self.weights, 1, PIVOT_RTOL) - self.log_det_a
+            kernels.pruned_removal_log_ratios(self.inverse, self.pos, self.weights,
+                                              self.log_det_a, ground, TIE_RTOL, BOUND_RTOL,
+                                              PIVOT_RTOL, ratios)
+            out = ratios + self.log_det_a
+        i = pick_best(out)
+        return i, float(out[i])
+
+    def _trivial_removals(self) -> np.ndarray | None:
+        """Scores that need no factorisation: tiny or disconnected sets; None otherwise."""
+        n = self.n
+        if n <= 2:
+            return np.full(n, 0.0 if n == 2 else -math.inf)   # one frame left: τ = 1
+        if self.connected:
+            return None
+        out = np.full(n, -math.inf)
+        # Only dropping an isolated frame can reconnect a graph of two components.
+        if self.n_comp == 2:
+            sizes = np.bincount(self.comp, minlength=2)
+            out[sizes[self.comp] == 1] = self.log_det_a
+        return out
+
+    # -- updates ------------------------------------------------------------------------------
+
+    def with_frame(self, cand_row: np.ndarray, log_tau_after: float | None = None
+                   ) -> GraphFactor:
+        """The factor of G ∪ {f}, f appended last; bordered in O(n²k) when G is connected.
+        ``log_tau_after`` is f's score if already known."""
+        b = np.asarray(cand_row, dtype=np.float64)
+        n = self.n
+        w = np.zeros((n + 1, n + 1))
+        w[:n, :n] = self.weights
+        w[n, :n] = w[:n, n] = b
+        if not self.connected or b.sum() <= 0:
+            return GraphFactor(w)
+        if log_tau_after is None:
+            log_tau_after = float(self.augmented_log_tau(b[None, :])[0])
+        inv = kernels.bordered_inverse(self.inverse, b, self.pos)
+        return GraphFactor._from_parts(w, inv, log_tau_after)
+
+    def without_frame(self, v: int, log_tau_after: float) -> GraphFactor:
+        """The factor of G \\ {v}; downdated in O(n²k) when G and G \\ v are connected and v
+        is not the ground, refactorised otherwise. ``log_tau_after`` is v's removal score."""
+        keep = np.arange(self.n) != v
+        w = self.weights[np.ix_(keep, keep)]
+        p = int(self.pos[v])
+        if not self.connected or p < 0 or not math.isfinite(log_tau_after):
+            return GraphFactor(w)
+        inv = kernels.downdated_inverse(self.inverse, self.weights, self.pos, v)
+        return GraphFactor._from_parts(w, inv, log_tau_after)
+
+    @classmethod
+    def _from_parts(cls, weights: np.ndarray, inverse: np.ndarray, log_det: float) -> GraphFactor:
+        obj = cls.__new__(cls)
+        obj.weights = weights
+        obj.pos = np.arange(-1, weights.shape[0] - 1)
+        obj.comp = np.zeros(weights.shape[0], dtype=np.int64)
+        obj.n_comp = 1
+        obj.inverse = np.ascontiguousarray(inverse)
+        obj.log_det_a = log_det
+        return obj
+
+
+def tie_floor(best: float) -> float:
+    """Lowest score that still ties with ``best``."""
+    return best - TIE_RTOL * max(1.0, abs(best)) if math.isfinite(best) else best
+
+
+def pick_best(values: np.ndarray) -> int:
+    """Index of the largest value; near-ties (relative 1e-9) go to the lowest index (oldest
+    frame), so that exact and incremental greedy agree despite rounding."""
+    best = float(np.max(values))
+    if best == -math.inf:
+        return 0
+    return int(np.flatnonzero(values >= tie_floor(best))[0])
