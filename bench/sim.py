@@ -23,7 +23,14 @@ from simulator.geometric_covisibility import geometric_covisibility
 from udt_node.channel import parse_channel
 
 
-def slots_per_second(dataset, name: str, slots: int) -> tuple[float, float]:
+def slots_per_second(dataset, name: str, slots: int, repeats: int) -> tuple[float, float]:
+    """Median over ``repeats`` runs of (slots/s, decisions/s): this VM's speed drifts by tens
+    of percent between runs, and a median of short runs is steadier than one long run."""
+    runs = [_one_run(dataset, name, slots) for _ in range(repeats)]
+    return (float(np.median([r[0] for r in runs])), float(np.median([r[1] for r in runs])))
+
+
+def _one_run(dataset, name: str, slots: int) -> tuple[float, float]:
     config = SimConfig(vmax=45, slot_frames=60, slots=slots + 30)
     env = MapManagementEnv(dataset, parse_channel("markov:N=2", seed=0), config)
     policy = make_policy(name)
@@ -41,7 +48,7 @@ def slots_per_second(dataset, name: str, slots: int) -> tuple[float, float]:
     return slots / total, slots / decide_s
 
 
-def adapt_ratio(dataset, repeats: int = 5) -> tuple[float, float]:
+def adapt_ratio(dataset, repeats: int = 9) -> tuple[float, float]:
     """Seconds per ADAPT decision (8 uploads, 8 evictions): incremental, naive."""
     rng = np.random.default_rng(0)
     inc, naive = [], []
@@ -67,13 +74,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--covis", help="covisibility .npz (default: geometric room model)")
     parser.add_argument("--slots", type=int, default=100)
+    parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args()
     dataset = load_covisibility(args.covis) if args.covis else \
         geometric_covisibility(n_frames=1000, n_points=4000)
     print(f"machine: {platform.node()} {platform.machine()} python {platform.python_version()}; "
           f"covisibility: {dataset.source or args.covis} ({dataset.n_frames} frames)")
     for name in ("lff", "pu", "random", "adapt"):
-        full, decide = slots_per_second(dataset, name, args.slots)
+        full, decide = slots_per_second(dataset, name, args.slots, args.repeats)
         print(f"{name:<7} {full:8.0f} slots/s (decide+update+reward)   "
               f"{decide:9.0f} decisions/s")
     inc, naive = adapt_ratio(dataset)

@@ -38,7 +38,9 @@ class GraphFactor:
     anchor). ``log_tau`` is log τ(G) for a connected set and -inf otherwise.
     """
 
-    def __init__(self, weights: np.ndarray) -> None:
+    def __init__(self, weights: np.ndarray, maybe_connected: bool = True) -> None:
+        """``maybe_connected=False`` (the caller knows the set is disconnected) skips the
+        attempt with a single ground."""
         w = np.asarray(weights, dtype=np.float64)
         if w.shape[0] == 0:
             self.weights = np.zeros((0, 0))
@@ -48,7 +50,7 @@ class GraphFactor:
             self.log_det_a = 0.0
             return
         (self.weights, self.inverse, self.pos, self.comp, self.n_comp,
-         self.log_det_a) = kernels.factorise(w, PIVOT_RTOL)
+         self.log_det_a) = kernels.factorise(w, PIVOT_RTOL, maybe_connected)
         if self.log_det_a == -math.inf:      # cannot happen for finite non-negative weights
             raise ValueError("grounded Laplacian is not positive definite; are the weights "
                              "finite and non-negative?")
@@ -68,17 +70,24 @@ class GraphFactor:
 
     # -- queries ------------------------------------------------------------------------------
 
-    def augmented_log_tau(self, cand: np.ndarray) -> np.ndarray:
-        """log τ(G ∪ {f}) for each row f of ``cand`` (weights to the set, in set order)."""
+    def augmented_log_tau(self, cand: np.ndarray, rows: np.ndarray | None = None,
+                          upper: np.ndarray | None = None) -> np.ndarray:
+        """log τ(G ∪ {f}) for each row f of ``cand`` (weights to the set, in set order).
+
+        With ``rows`` only those rows are scored (in that order). With ``upper`` — proven
+        upper bounds on log(τ(G ∪ {f}) / τ(G)), indexed by row — only the rows that could be
+        :func:`pick_best`'s pick are scored exactly; the others come back as -inf.
+        """
         b = np.ascontiguousarray(np.atleast_2d(cand), dtype=np.float64)
-        if self.n == 0 or b.shape[0] == 0:
-            return np.full(b.shape[0], -math.inf)
-        out = np.empty(b.shape[0])
+        if rows is None:
+            rows = np.arange(b.shape[0])
+        if self.n == 0 or rows.size == 0:
+            return np.full(rows.size, -math.inf)
         if b.shape[1] != self.n:
             raise ValueError(f"candidate weights have {b.shape[1]} columns, the set {self.n}")
-        kernels.augmented_log_ratios(self.inverse, self.pos, self.comp, self.n_comp, b,
-                                     PIVOT_RTOL, out)
-        return out + self.log_det_a
+        return kernels.augmented_log_taus(self.inverse, self.pos, self.comp, self.n_comp, b,
+                                          rows, upper, self.log_det_a, TIE_RTOL, BOUND_RTOL,
+                                          PIVOT_RTOL)
 
     def removal_log_tau(self) -> np.ndarray:
         """log τ(G \\ v) for every frame v (-inf where G \\ v is disconnected)."""
@@ -126,29 +135,27 @@ class GraphFactor:
 
     def with_frame(self, cand_row: np.ndarray, log_tau_after: float | None = None
                    ) -> GraphFactor:
-        """The factor of G ∪ {f}, f appended last; bordered in O(n²k) when G is connected.
-        ``log_tau_after`` is f's score if already known."""
-        b = np.asarray(cand_row, dtype=np.float64)
-        n = self.n
-        w = np.zeros((n + 1, n + 1))
-        w[:n, :n] = self.weights
-        w[n, :n] = w[:n, n] = b
-        if not self.connected or b.sum() <= 0:
-            return GraphFactor(w)
+        """The factor of G ∪ {f}, f appended last; bordered in O(n²k) when G ∪ {f} is
+        connected. ``log_tau_after`` is f's score if already known."""
+        b = np.ascontiguousarray(cand_row, dtype=np.float64)
         if log_tau_after is None:
             log_tau_after = float(self.augmented_log_tau(b[None, :])[0])
-        inv = kernels.bordered_inverse(self.inverse, b, self.pos)
+        if not self.connected or not math.isfinite(log_tau_after):
+            n = self.n
+            w = np.zeros((n + 1, n + 1))
+            w[:n, :n] = self.weights
+            w[n, :n] = w[:n, n] = b
+            return GraphFactor(w, maybe_connected=math.isfinite(log_tau_after))
+        w, inv = kernels.bordered(self.weights, self.inverse, b, self.pos)
         return GraphFactor._from_parts(w, inv, log_tau_after)
 
     def without_frame(self, v: int, log_tau_after: float) -> GraphFactor:
-        """The factor of G \\ {v}; downdated in O(n²k) when G and G \\ v are connected and v
-        is not the ground, refactorised otherwise. ``log_tau_after`` is v's removal score."""
-        keep = np.arange(self.n) != v
-        w = self.weights[np.ix_(keep, keep)]
-        p = int(self.pos[v])
-        if not self.connected or p < 0 or not math.isfinite(log_tau_after):
-            return GraphFactor(w)
-        inv = kernels.downdated_inverse(self.inverse, self.weights, self.pos, v)
+        """The factor of G \\ {v}; downdated in O(n²k) when G and G \\ v are connected,
+        refactorised otherwise. ``log_tau_after`` is v's removal score."""
+        if not self.connected or not math.isfinite(log_tau_after):
+            w = np.delete(np.delete(self.weights, v, axis=0), v, axis=1)
+            return GraphFactor(w, maybe_connected=math.isfinite(log_tau_after))
+        w, inv = kernels.downdated(self.weights, self.inverse, self.pos, v)
         return GraphFactor._from_parts(w, inv, log_tau_after)
 
     @classmethod

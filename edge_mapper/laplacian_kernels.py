@@ -74,10 +74,12 @@ def cholesky_solve(chol: np.ndarray, k: int, rhs: np.ndarray, ncols: int) -> Non
 
 
 @njit(cache=True, fastmath=_FAST)
-def augmented_log_ratios(inv: np.ndarray, pos: np.ndarray, comp: np.ndarray, n_comp: int,
-                         cand: np.ndarray, rtol: float, out: np.ndarray) -> None:
-    """log(τ(G ∪ {f}) / τ_A(G)) for every candidate row of ``cand``, -inf if G ∪ {f} is
-    disconnected.
+def _augmented_one(inv: np.ndarray, pos: np.ndarray, comp: np.ndarray, n_comp: int,
+                   cand: np.ndarray, rtol: float, s_idx: np.ndarray, s_comp: np.ndarray,
+                   d: np.ndarray, b_ground: np.ndarray, touched: np.ndarray, m: np.ndarray,
+                   z: np.ndarray, t: np.ndarray) -> float:
+    """log(τ(G ∪ {f}) / τ_A(G)) for one candidate f with weights ``cand`` to G; -inf if
+    G ∪ {f} is disconnected.
 
     τ_A(G) is det A, A the Laplacian of G with one grounded frame per component removed
     (``pos[j]`` = row of frame j in A, -1 for a grounded frame; ``comp[j]`` its component) and
@@ -90,6 +92,70 @@ def augmented_log_ratios(inv: np.ndarray, pos: np.ndarray, comp: np.ndarray, n_c
     a sum of positives, so nothing cancels; a component f does not touch makes the last
     matrix singular, which is decided combinatorially instead.
     """
+    n = cand.shape[0]
+    b_ground[:] = 0.0
+    touched[:] = False
+    k = 0
+    log_d = 0.0
+    prod_d = 1.0
+    for j in range(n):
+        w = cand[j]
+        if w > 0.0:
+            c = comp[j]
+            touched[c] = True
+            if pos[j] < 0:
+                b_ground[c] = w
+            else:
+                s_idx[k] = pos[j]
+                s_comp[k] = c
+                d[k] = w
+                prod_d *= w
+                if prod_d > 1e150:
+                    log_d += math.log(prod_d)
+                    prod_d = 1.0
+                k += 1
+    for c in range(n_comp):
+        if not touched[c]:
+            return -math.inf
+    for a in range(k):
+        ia = s_idx[a]
+        for b in range(a):
+            m[a, b] = inv[ia, s_idx[b]]
+        m[a, a] = inv[ia, ia] + 1.0 / d[a]
+    ld_m = cholesky_logdet(m, k, rtol)
+    if ld_m == -math.inf:
+        return -math.inf
+    # Pᵀ M⁻¹ P = ZᵀZ with Z = L⁻¹P: one forward substitution, no back substitution
+    for a in range(k):
+        for c in range(n_comp):
+            zc = 1.0 if s_comp[a] == c else 0.0
+            for q in range(a):
+                zc -= m[a, q] * z[q, c]
+            z[a, c] = zc / m[a, a]
+    for c1 in range(n_comp):
+        for c2 in range(c1 + 1):
+            acc = 0.0
+            for a in range(k):
+                acc += z[a, c1] * z[a, c2]
+            t[c1, c2] = acc
+        t[c1, c1] += b_ground[c1]
+    ld_t = cholesky_logdet(t, n_comp, rtol)
+    return log_d + math.log(prod_d) + ld_m + ld_t
+
+
+@njit(cache=True, fastmath=_FAST)
+def augmented_log_taus(inv: np.ndarray, pos: np.ndarray, comp: np.ndarray, n_comp: int,
+                       cand: np.ndarray, rows: np.ndarray, upper: np.ndarray | None,
+                       log_det: float, tie_rtol: float, bound_rtol: float,
+                       rtol: float) -> np.ndarray:
+    """``log_det`` + :func:`_augmented_one` for the candidate rows ``rows`` of ``cand``.
+
+    ``upper[f]`` (optional) bounds candidate f's ratio from above (+inf: unknown). Candidates
+    are scored in order of decreasing bound, and scoring stops once no remaining bound can
+    reach the best score ``log_det + ratio`` within its tie tolerance; the rest are left at
+    -inf, as no greedy pick can be among them. Without bounds every row is scored.
+    """
+    out = np.empty(rows.size)
     n = cand.shape[1]
     s_idx = np.empty(n, dtype=np.int64)
     s_comp = np.empty(n, dtype=np.int64)
@@ -99,60 +165,29 @@ def augmented_log_ratios(inv: np.ndarray, pos: np.ndarray, comp: np.ndarray, n_c
     m = np.empty((n, n))
     z = np.empty((n, n_comp))
     t = np.empty((n_comp, n_comp))
-    for row in range(cand.shape[0]):
-        b_ground[:] = 0.0
-        touched[:] = False
-        k = 0
-        log_d = 0.0
-        prod_d = 1.0
-        for j in range(n):
-            w = cand[row, j]
-            if w > 0.0:
-                c = comp[j]
-                touched[c] = True
-                if pos[j] < 0:
-                    b_ground[c] = w
-                else:
-                    s_idx[k] = pos[j]
-                    s_comp[k] = c
-                    d[k] = w
-                    prod_d *= w
-                    if prod_d > 1e150:
-                        log_d += math.log(prod_d)
-                        prod_d = 1.0
-                    k += 1
-        connected = True
-        for c in range(n_comp):
-            if not touched[c]:
-                connected = False
-        if not connected:
-            out[row] = -math.inf
-            continue
-        for a in range(k):
-            ia = s_idx[a]
-            for b in range(a):
-                m[a, b] = inv[ia, s_idx[b]]
-            m[a, a] = inv[ia, ia] + 1.0 / d[a]
-        ld_m = cholesky_logdet(m, k, rtol)
-        if ld_m == -math.inf:
-            out[row] = -math.inf
-            continue
-        # Pᵀ M⁻¹ P = ZᵀZ with Z = L⁻¹P: one forward substitution, no back substitution
-        for a in range(k):
-            for c in range(n_comp):
-                zc = 1.0 if s_comp[a] == c else 0.0
-                for q in range(a):
-                    zc -= m[a, q] * z[q, c]
-                z[a, c] = zc / m[a, a]
-        for c1 in range(n_comp):
-            for c2 in range(c1 + 1):
-                acc = 0.0
-                for a in range(k):
-                    acc += z[a, c1] * z[a, c2]
-                t[c1, c2] = acc
-            t[c1, c1] += b_ground[c1]
-        ld_t = cholesky_logdet(t, n_comp, rtol)
-        out[row] = log_d + math.log(prod_d) + ld_m + ld_t
+    if upper is None:
+        for i in range(rows.size):
+            out[i] = log_det + _augmented_one(inv, pos, comp, n_comp, cand[rows[i]], rtol,
+                                              s_idx, s_comp, d, b_ground, touched, m, z, t)
+        return out
+    bounds = np.empty(rows.size)
+    for i in range(rows.size):
+        out[i] = -math.inf
+        bounds[i] = upper[rows[i]]
+    best = -math.inf
+    for i in np.argsort(-bounds, kind="mergesort"):
+        if bounds[i] == -math.inf:          # known not to connect, and so are all after it
+            break
+        top = log_det + bounds[i]
+        if best > -math.inf and top < math.inf:
+            score = log_det + best
+            if top + bound_rtol * max(1.0, abs(top)) < score - tie_rtol * max(1.0, abs(score)):
+                break
+        ratio = _augmented_one(inv, pos, comp, n_comp, cand[rows[i]], rtol, s_idx, s_comp,
+                               d, b_ground, touched, m, z, t)
+        out[i] = log_det + ratio
+        best = max(best, ratio)
+    return out
 
 
 @njit(cache=True, fastmath=_FAST)
@@ -363,15 +398,35 @@ def components(weights: np.ndarray, labels: np.ndarray) -> int:
 
 
 @njit(cache=True, fastmath=_FAST)
-def bordered_inverse(inv: np.ndarray, cand: np.ndarray, pos: np.ndarray) -> np.ndarray:
-    """A'⁻¹ for a connected set grown by frame f (weights ``cand``, new last row of A').
+def forward_solve(chol: np.ndarray, k: int, rhs: np.ndarray, ncols: int) -> None:
+    """Solve L X = B in place for ``rhs[:k, :ncols]``, L in ``chol[:k, :k]``, by rows."""
+    for i in range(k):
+        for p in range(i):
+            lip = chol[i, p]
+            for c in range(ncols):
+                rhs[i, c] -= lip * rhs[p, c]
+        r = 1.0 / chol[i, i]
+        for c in range(ncols):
+            rhs[i, c] *= r
 
-    A' = [[A + D, -b], [-bᵀ, Σb]]. With X = (K + D⁻¹)⁻¹ on f's support S and Y = X C[S, :]:
-    (A + D)⁻¹ = C - C[:, S] Y (Woodbury), h = (A + D)⁻¹ b = Yᵀ 1 and the Schur complement
-    σ = b_ground + 1ᵀ X 1 (no cancellation), so A'⁻¹ = [[E + hhᵀ/σ, h/σ], [hᵀ/σ, 1/σ]].
+
+@njit(cache=True, fastmath=_FAST)
+def bordered(weights: np.ndarray, inv: np.ndarray, cand: np.ndarray,
+             pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Weights and A'⁻¹ of a connected set grown by frame f (weights ``cand``, appended last).
+
+    A' = [[A + D, -b], [-bᵀ, Σb]]. With L Lᵀ = K + D⁻¹ on f's support S, W = L⁻¹ C[S, :] and
+    z = L⁻¹ 1: (A + D)⁻¹ = C - WᵀW (Woodbury), h = (A + D)⁻¹ b = Wᵀz and the Schur complement
+    σ = b_ground + zᵀz (no cancellation), so A'⁻¹ = [[C - WᵀW + hhᵀ/σ, h/σ], [hᵀ/σ, 1/σ]].
     """
     m = inv.shape[0]
     n = cand.shape[0]
+    w_new = np.empty((n + 1, n + 1))
+    w_new[:n, :n] = weights
+    for j in range(n):
+        w_new[n, j] = cand[j]
+        w_new[j, n] = cand[j]
+    w_new[n, n] = 0.0
     s_idx = np.empty(n, dtype=np.int64)
     d = np.empty(n)
     b_ground = 0.0
@@ -387,44 +442,52 @@ def bordered_inverse(inv: np.ndarray, cand: np.ndarray, pos: np.ndarray) -> np.n
                 k += 1
     mat = np.empty((k, k))
     for a in range(k):
-        for b in range(k):
+        for b in range(a + 1):
             mat[a, b] = inv[s_idx[a], s_idx[b]]
         mat[a, a] += 1.0 / d[a]
     cholesky_logdet(mat, k, 0.0)
-    y = np.empty((k, m + 1))               # columns :m hold Y, column m holds X 1
+    y = np.empty((k, m + 1))               # columns :m become W, column m becomes z
     for a in range(k):
         for c in range(m):
             y[a, c] = inv[s_idx[a], c]
         y[a, m] = 1.0
-    cholesky_solve(mat, k, y, m + 1)
+    forward_solve(mat, k, y, m + 1)
     sigma = b_ground
     for a in range(k):
-        sigma += y[a, m]
-    cs = np.empty((m, k))
-    for r in range(m):
-        for a in range(k):
-            cs[r, a] = inv[r, s_idx[a]]
-    yy = np.ascontiguousarray(y[:, :m])
-    h = yy.sum(axis=0)
+        sigma += y[a, m] * y[a, m]
+    wz = np.ascontiguousarray(y[:, :m])
+    h = np.zeros(m)
+    for a in range(k):
+        for c in range(m):
+            h[c] += wz[a, c] * y[a, m]
     out = np.empty((m + 1, m + 1))
-    out[:m, :m] = inv - cs @ yy + np.outer(h, h) / sigma      # BLAS for the O(m²k) part
+    out[:m, :m] = inv - wz.T @ wz + np.outer(h, h) / sigma    # BLAS for the O(m²k) part
     for r in range(m):
         out[r, m] = h[r] / sigma
         out[m, r] = h[r] / sigma
     out[m, m] = 1.0 / sigma
-    return out
+    return w_new, out
 
 
 @njit(cache=True, fastmath=_FAST)
-def downdated_inverse(inv: np.ndarray, weights: np.ndarray, pos: np.ndarray,
-                      v: int) -> np.ndarray:
-    """(A without v)⁻¹ for a connected set that stays connected when non-grounded v leaves.
+def downdated(weights: np.ndarray, inv: np.ndarray, pos: np.ndarray,
+              v: int) -> tuple[np.ndarray, np.ndarray]:
+    """Weights and A⁻¹ when frame v leaves a connected set that stays connected.
 
-    C' = C - C[:, p] C[p, :] / C_pp drops v's row and column; taking v's weights D off its
-    neighbours S is then the Woodbury update C' + C'[:, S] (D⁻¹ - C'[S, S])⁻¹ C'[S, :].
+    For a non-grounded v, C' = C - C[:, p] C[p, :] / C_pp drops v's row and column; taking v's
+    weights D off its neighbours S is then the Woodbury update C' + WᵀW, L Lᵀ = D⁻¹ - C'[S, S]
+    and W = L⁻¹ C'[S, :]. When v is the ground (frame 0), frame 1 becomes the ground: the same
+    two steps drop frame 1's row and take frame 0's weights off, and A's rows keep their order.
     """
+    n = weights.shape[0]
+    w_new = np.empty((n - 1, n - 1))
+    for i in range(n - 1):
+        si = i if i < v else i + 1
+        for j in range(n - 1):
+            w_new[i, j] = weights[si, j if j < v else j + 1]
     m = inv.shape[0]
-    p = pos[v]
+    drop = v if pos[v] >= 0 else 1
+    p = pos[drop]
     cpp = inv[p, p]
     keep = np.empty(m - 1, dtype=np.int64)
     q = 0
@@ -437,31 +500,26 @@ def downdated_inverse(inv: np.ndarray, weights: np.ndarray, pos: np.ndarray,
         f = inv[keep[r], p] / cpp
         for c in range(m - 1):
             cm[r, c] = inv[keep[r], keep[c]] - f * inv[p, keep[c]]
-    n = weights.shape[0]
     s_idx = np.empty(n, dtype=np.int64)
     d = np.empty(n)
     k = 0
     for j in range(n):
-        if j != v and weights[v, j] > 0.0 and pos[j] >= 0:
+        if j != v and j != drop and weights[v, j] > 0.0 and pos[j] >= 0:
             s_idx[k] = pos[j] if pos[j] < p else pos[j] - 1
             d[k] = weights[v, j]
             k += 1
     mat = np.empty((k, k))
     for a in range(k):
-        for b in range(k):
+        for b in range(a + 1):
             mat[a, b] = -cm[s_idx[a], s_idx[b]]
         mat[a, a] += 1.0 / d[a]
     cholesky_logdet(mat, k, 0.0)
-    y = np.empty((k, m - 1))
+    wz = np.empty((k, m - 1))
     for a in range(k):
         for c in range(m - 1):
-            y[a, c] = cm[s_idx[a], c]
-    cholesky_solve(mat, k, y, m - 1)
-    cs = np.empty((m - 1, k))
-    for r in range(m - 1):
-        for a in range(k):
-            cs[r, a] = cm[r, s_idx[a]]
-    return cm + cs @ y                       # BLAS for the O(m²k) part
+            wz[a, c] = cm[s_idx[a], c]
+    forward_solve(mat, k, wz, m - 1)
+    return w_new, cm + wz.T @ wz             # BLAS for the O(m²k) part
 
 
 @njit(cache=True, fastmath=_FAST)
@@ -497,8 +555,8 @@ def raise_addition_bounds(inv: np.ndarray, pos: np.ndarray, cand: np.ndarray,
 
 
 @njit(cache=True)
-def factorise(weights: np.ndarray, rtol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray,
-                                                         np.ndarray, int, float]:
+def factorise(weights: np.ndarray, rtol: float, maybe_connected: bool
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, float]:
     """Everything :class:`~edge_mapper.graph_factor.GraphFactor` holds, in one call:
     (weights with a zero diagonal, A⁻¹, pos, comp, number of components, log det A).
 
@@ -512,10 +570,11 @@ def factorise(weights: np.ndarray, rtol: float) -> tuple[np.ndarray, np.ndarray,
             w[i, j] = 0.0 if i == j else weights[i, j]
     pos = np.arange(-1, n - 1)
     comp = np.zeros(n, dtype=np.int64)
-    inv = np.empty((n - 1, n - 1))
-    log_det = grounded_inverse(w, np.arange(1, n), rtol, inv)
-    if log_det > -math.inf:
-        return w, inv, pos, comp, 1, log_det
+    if maybe_connected:
+        inv = np.empty((n - 1, n - 1))
+        log_det = grounded_inverse(w, np.arange(1, n), rtol, inv)
+        if log_det > -math.inf:
+            return w, inv, pos, comp, 1, log_det
     n_comp = components(w, comp)
     seen = -1
     q = 0

@@ -21,7 +21,7 @@ from typing import Protocol
 import numpy as np
 
 from edge_mapper import laplacian_kernels as kernels
-from edge_mapper.graph_factor import BOUND_RTOL, GraphFactor, pick_best, tie_floor
+from edge_mapper.graph_factor import GraphFactor, pick_best
 from edge_mapper.uncertainty import logdet_spd, reduced_laplacian
 from simulator.env import MapAction, SlotObservation
 
@@ -85,8 +85,6 @@ class RandomPolicy:
 # ---------------------------------------------------------------------------------------------
 # ADAPT: incremental greedy
 
-#: Candidates scored per kernel call once bounds order them.
-_BATCH = 4
 
 
 def greedy_additions(set_w: np.ndarray, cand_set_w: np.ndarray, cand_w: np.ndarray,
@@ -118,7 +116,10 @@ def greedy_additions(set_w: np.ndarray, cand_set_w: np.ndarray, cand_w: np.ndarr
     upper = np.full(m, math.inf)        # bound on log(τ(S ∪ {f}) / τ(S)), exact when scored
     while len(chosen) < count:
         rem = np.array(remaining)
-        scores = _bounded_scores(factor, b, rem, upper)
+        scores = factor.augmented_log_tau(b, rem, upper)
+        if factor.connected:
+            scored = scores > -math.inf
+            upper[rem[scored]] = scores[scored] - factor.log_det_a
         best = pick_best(scores)
         v = int(rem[best])
         chosen.append(v)
@@ -133,28 +134,6 @@ def greedy_additions(set_w: np.ndarray, cand_set_w: np.ndarray, cand_w: np.ndarr
         factor = grown
         b = np.concatenate([b, to_v[:, None]], axis=1)
     return chosen
-
-
-def _bounded_scores(factor: GraphFactor, b: np.ndarray, rem: np.ndarray,
-                    upper: np.ndarray) -> np.ndarray:
-    """log τ(S ∪ {f}) for the candidates ``rem`` that could win this round, -inf for the rest
-    (whose bound is below the best score's tie floor). Scores ``upper`` in place."""
-    scores = np.full(rem.size, -math.inf)
-    order = np.argsort(-upper[rem], kind="stable")
-    start = 0
-    while start < rem.size:
-        top = factor.log_det_a + upper[rem[order[start]]]
-        best = float(scores.max())
-        if math.isfinite(top) and top + BOUND_RTOL * max(1.0, abs(top)) < tie_floor(best):
-            break
-        # every unbounded candidate at once, then a few at a time in order of their bound
-        stop = start + max(_BATCH, int(np.isinf(upper[rem[order[start:]]]).sum()))
-        idx = order[start:stop]
-        scores[idx] = factor.augmented_log_tau(b[rem[idx]])
-        if factor.connected:
-            upper[rem[idx]] = scores[idx] - factor.log_det_a
-        start = stop
-    return scores
 
 
 def greedy_removals(set_w: np.ndarray, count: int) -> list[int]:
@@ -218,24 +197,16 @@ class Adapt:
 
     def decide(self, obs: SlotObservation) -> MapAction:
         v, f = obs.map_frames, obs.candidates
-        set_w = obs.weight_block(v, v) if v else np.zeros((0, 0))
-        cand_set_w = obs.weight_block(f, v) if v else np.zeros((len(f), 0))
-        cand_w = obs.weight_block(f, f)
-        picks = greedy_additions(set_w, cand_set_w, cand_w, obs.n_upload)
+        nv = len(v)
+        everything = v + f                       # one weight query serves both stages
+        w = obs.weight_block(everything, everything)
+        picks = greedy_additions(w[:nv, :nv], w[nv:, :nv], w[nv:, nv:], obs.n_upload)
         upload = sorted(f[i] for i in picks)
         if obs.n_evict == 0:
             return MapAction(upload, [])
-        union = sorted(v + upload)
-        pos = {fid: i for i, fid in enumerate(union)}
-        # The union's weights from the blocks already fetched (map, map-candidate, candidates).
-        w = np.zeros((len(union), len(union)))
-        vi, ui = [pos[x] for x in v], [pos[f[i]] for i in picks]
-        if v:
-            w[np.ix_(vi, vi)] = set_w
-            w[np.ix_(ui, vi)] = cand_set_w[picks]
-            w[np.ix_(vi, ui)] = cand_set_w[picks].T
-        w[np.ix_(ui, ui)] = cand_w[np.ix_(picks, picks)]
-        evict = sorted(union[i] for i in greedy_removals(w, obs.n_evict))
+        keep = sorted([*range(nv), *(nv + i for i in picks)], key=everything.__getitem__)
+        union = [everything[i] for i in keep]
+        evict = sorted(union[i] for i in greedy_removals(w[np.ix_(keep, keep)], obs.n_evict))
         return MapAction(upload, evict)
 
 

@@ -115,7 +115,10 @@ class MapManagementEnv:
         """Covisibility weights between frame instances; an instance has weight 0 to itself."""
         block = self.dataset.weights(self.stream.dataset_index(a), self.stream.dataset_index(b))
         if len(a) and len(b) and not set(a).isdisjoint(b):
-            block[np.asarray(a)[:, None] == np.asarray(b)[None, :]] = 0.0
+            at = {x: j for j, x in enumerate(b)}
+            for i, x in enumerate(a):
+                if x in at:
+                    block[i, at[x]] = 0.0
         return block
 
     def slot_frames(self, slot: int) -> list[int]:
@@ -151,19 +154,26 @@ class MapManagementEnv:
                                self.channel.n_states, self.weights)
 
     def check_action(self, obs: SlotObservation, action: MapAction) -> None:
+        """Refuse an action that breaks slot ``obs.slot``'s constraints. Frame sets come from
+        the environment, not from ``obs``, so a policy that edits its observation cannot
+        smuggle frames in."""
         up, ev = list(action.upload), list(action.evict)
-        if len(up) != obs.n_upload or len(set(up)) != len(up):
+        up_set, ev_set = set(up), set(ev)
+        first = obs.slot * self.config.slot_frames
+        if len(up) != obs.n_upload or len(up_set) != len(up):
             raise ActionError(f"slot {obs.slot}: upload {len(up)} distinct frames, "
                               f"Theorem 1 asks for {obs.n_upload}")
-        if not set(up) <= set(obs.candidates):
-            raise ActionError(f"slot {obs.slot}: uploads {sorted(set(up) - set(obs.candidates))} "
-                              "are not frames of this slot")
-        if len(ev) != obs.n_evict or len(set(ev)) != len(ev):
+        outside = [f for f in up if not first <= f < first + self.config.slot_frames]
+        if outside:
+            raise ActionError(f"slot {obs.slot}: uploads {sorted(outside)} are not frames of "
+                              "this slot")
+        if len(ev) != obs.n_evict or len(ev_set) != len(ev):
             raise ActionError(f"slot {obs.slot}: evict {len(ev)} frames, Theorem 1 asks for "
                               f"{obs.n_evict}")
-        if not set(ev) <= set(obs.map_frames) | set(up):
-            raise ActionError(f"slot {obs.slot}: evictions {sorted(set(ev) - set(obs.map_frames))}"
-                              " are neither in the map nor uploaded")
+        stray = ev_set - set(self._map) - up_set
+        if stray:
+            raise ActionError(f"slot {obs.slot}: evictions {sorted(stray)} are neither in the "
+                              "map nor uploaded")
 
     def apply(self, action: MapAction) -> None:
         """V^e_{k+1} = (U_k ∪ V^e_k) \\ C_k, keeping capture order (oldest = anchor first)."""
@@ -173,7 +183,9 @@ class MapManagementEnv:
         new = sorted(f for f in action.upload if f not in evict)
         merged = sorted(kept + new)
         if self.dataset.dense:               # a gather of the whole block is the cheapest
-            self._map, self._map_w = merged, self.weights(merged, merged)
+            ds = self.stream.dataset_index(merged)
+            self._map, self._map_w = merged, self.dataset.weights(ds, ds)
+            np.fill_diagonal(self._map_w, 0.0)   # an instance shares no edge with itself
             return
         # Sparse products are not: reuse the old rows, query only the new pairs.
         w = np.zeros((len(merged), len(merged)))
@@ -196,17 +208,19 @@ class MapManagementEnv:
         self.check_action(obs, action)
         self.apply(action)
         self._slot += 1
-        nxt = self.slot_frames(self._slot)
-        slot_u = self.evaluate(nxt)
+        f = self.config.slot_frames
+        slot_u = self._evaluate(np.arange(self._slot * f, (self._slot + 1) * f))
         info = {"uncertainty": slot_u, "map_size": len(self._map),
                 "map_uncertainty": slot_u.map_uncertainty}
         truncated = self._slot >= self.config.slots
         return self._observation(), slot_u.reward, False, truncated, info
 
-    def evaluate(self, frames: list[int]) -> SlotUncertainty:
-        """υ of the current map against ``frames``."""
-        return next_slot_uncertainty(self._map_w, self.weights(frames, self._map),
-                                     self.config.log_det_pi, self.config.lost_penalty)
+    def _evaluate(self, frames: np.ndarray) -> SlotUncertainty:
+        """υ of the current map against ``frames`` (future frames: none is in the map)."""
+        block = self.dataset.weights(self.stream.dataset_index(frames),
+                                     self.stream.dataset_index(self._map))
+        return next_slot_uncertainty(self._map_w, block, self.config.log_det_pi,
+                                     self.config.lost_penalty)
 
     # -- planning support (the clairvoyant oracle) --------------------------------------------
 
