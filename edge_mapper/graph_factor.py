@@ -38,9 +38,7 @@ class GraphFactor:
     anchor). ``log_tau`` is log τ(G) for a connected set and -inf otherwise.
     """
 
-    def __init__(self, weights: np.ndarray, maybe_connected: bool = True) -> None:
-        """``maybe_connected=False`` (the caller knows the set is disconnected) skips the
-        attempt with a single ground."""
+    def __init__(self, weights: np.ndarray) -> None:
         w = np.asarray(weights, dtype=np.float64)
         if w.shape[0] == 0:
             self.weights = np.zeros((0, 0))
@@ -50,7 +48,7 @@ class GraphFactor:
             self.log_det_a = 0.0
             return
         (self.weights, self.inverse, self.pos, self.comp, self.n_comp,
-         self.log_det_a) = kernels.factorise(w, PIVOT_RTOL, maybe_connected)
+         self.log_det_a) = kernels.factorise(w, PIVOT_RTOL)
         if self.log_det_a == -math.inf:      # cannot happen for finite non-negative weights
             raise ValueError("grounded Laplacian is not positive definite; are the weights "
                              "finite and non-negative?")
@@ -145,7 +143,7 @@ class GraphFactor:
             w = np.zeros((n + 1, n + 1))
             w[:n, :n] = self.weights
             w[n, :n] = w[:n, n] = b
-            return GraphFactor(w, maybe_connected=math.isfinite(log_tau_after))
+            return GraphFactor(w)
         w, inv = kernels.bordered(self.weights, self.inverse, b, self.pos)
         return GraphFactor._from_parts(w, inv, log_tau_after)
 
@@ -154,7 +152,7 @@ class GraphFactor:
         refactorised otherwise. ``log_tau_after`` is v's removal score."""
         if not self.connected or not math.isfinite(log_tau_after):
             w = np.delete(np.delete(self.weights, v, axis=0), v, axis=1)
-            return GraphFactor(w, maybe_connected=math.isfinite(log_tau_after))
+            return GraphFactor(w)
         w, inv = kernels.downdated(self.weights, self.inverse, self.pos, v)
         return GraphFactor._from_parts(w, inv, log_tau_after)
 

@@ -555,27 +555,23 @@ def raise_addition_bounds(inv: np.ndarray, pos: np.ndarray, cand: np.ndarray,
 
 
 @njit(cache=True)
-def factorise(weights: np.ndarray, rtol: float, maybe_connected: bool
+def factorise(weights: np.ndarray, rtol: float
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, float]:
     """Everything :class:`~edge_mapper.graph_factor.GraphFactor` holds, in one call:
     (weights with a zero diagonal, A⁻¹, pos, comp, number of components, log det A).
 
-    Frame 0 is grounded; if A is then singular the set is disconnected and the first frame of
-    every component is grounded instead.
+    Components first (a breadth-first pass costs far less than a failed factorisation), then
+    the first frame of every component is grounded and A factorised once.
     """
     n = weights.shape[0]
     w = np.empty((n, n))
     for i in range(n):
         for j in range(n):
             w[i, j] = 0.0 if i == j else weights[i, j]
-    pos = np.arange(-1, n - 1)
-    comp = np.zeros(n, dtype=np.int64)
-    if maybe_connected:
-        inv = np.empty((n - 1, n - 1))
-        log_det = grounded_inverse(w, np.arange(1, n), rtol, inv)
-        if log_det > -math.inf:
-            return w, inv, pos, comp, 1, log_det
+    comp = np.empty(n, dtype=np.int64)
     n_comp = components(w, comp)
+    pos = np.empty(n, dtype=np.int64)
+    keep = np.empty(n - n_comp, dtype=np.int64)
     seen = -1
     q = 0
     for i in range(n):
@@ -584,11 +580,8 @@ def factorise(weights: np.ndarray, rtol: float, maybe_connected: bool
             seen = comp[i]
         else:
             pos[i] = q
+            keep[q] = i
             q += 1
-    keep = np.empty(q, dtype=np.int64)
-    for i in range(n):
-        if pos[i] >= 0:
-            keep[pos[i]] = i
     inv = np.empty((q, q))
     log_det = grounded_inverse(w, keep, rtol, inv)
     return w, inv, pos, comp, n_comp, log_det

@@ -47,6 +47,23 @@ def test_incremental_adapt_picks_what_the_naive_greedy_picks(seed: int) -> None:
     assert removed == ref_removed
 
 
+@pytest.mark.parametrize("start", [0, 120, 250])
+def test_pruned_adapt_equals_naive_greedy_at_full_size(room: CovisibilityDataset,
+                                                       start: int) -> None:
+    """V_max 45, 60 candidates, 8 up / 8 evict on dense room windows: most candidates are
+    skipped by the bounds here, and the picks must still be the naive greedy's."""
+    idx = np.arange(start, start + 105)
+    w = room.weights(idx, idx)
+    np.fill_diagonal(w, 0)
+    map_idx, cand_idx = list(range(45)), list(range(45, 105))
+    picks = greedy_additions(w[np.ix_(map_idx, map_idx)], w[np.ix_(cand_idx, map_idx)],
+                             w[np.ix_(cand_idx, cand_idx)], 8)
+    added = [cand_idx[i] for i in picks]
+    union = sorted(map_idx + added)
+    removed = [union[i] for i in greedy_removals(w[np.ix_(union, union)], 8)]
+    assert (added, removed) == naive_greedy(w, map_idx, cand_idx, 8, 8)
+
+
 def test_policies_respect_theorem1_and_differ(room: CovisibilityDataset) -> None:
     config = SimConfig(vmax=20, slots=12)
     uploads = {}
