@@ -27,6 +27,7 @@ lint: venv
 bench: venv
 	$(PY) -m bench.dds
 	$(PY) -m bench.sim
+	$(PY) -m bench.frontend
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .ruff_cache

@@ -2,6 +2,7 @@
 
     twinslam sim --policy lff,pu,adapt,oracle --vmax 45 --channel markov:N=2 --slots 200 \
                  --seeds 5 --covis FILE [--csv OUT]
+    twinslam extract SEQUENCE -o covis.npz [--start N] [--end N] [--features 1000]
     twinslam nodes [--timeout 2]          # the ROS graph on $ROS_DOMAIN_ID (ros2 node list)
     twinslam demo                         # what `make run` runs
 """
@@ -13,6 +14,8 @@ import csv
 import sys
 import time
 from pathlib import Path
+
+import numpy as np
 
 from simulator.covisibility import CovisibilityError, load_covisibility
 from simulator.env import SimConfig
@@ -72,6 +75,48 @@ def cmd_sim(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_extract(args: argparse.Namespace) -> int:
+    from device_tracker.tracking import TrackingConfig
+    from sequence_player.readers import SequenceError, open_sequence
+    from simulator.covisibility import save_covisibility
+    from simulator.extraction import extract_covisibility
+
+    out = Path(args.output)
+    if not out.parent.is_dir():
+        print(f"error: output folder {out.parent} does not exist", file=sys.stderr)
+        return 2
+    try:
+        reader = open_sequence(args.sequence, args.start, args.end)
+    except SequenceError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"extracting {len(reader)} frames of {reader.kind} sequence {reader.path}", flush=True)
+
+    tty = sys.stdout.isatty()
+
+    def progress(done: int, total: int) -> None:
+        if tty and (done == total or done % 10 == 0):
+            print(f"\r  {done}/{total} frames", end="\n" if done == total else "",
+                  flush=True)
+        elif not tty and (done == total or done % 100 == 0):
+            print(f"  {done}/{total} frames", flush=True)
+
+    try:
+        dataset, _, report = extract_covisibility(
+            reader, TrackingConfig(n_features=args.features), progress)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    save_covisibility(out, dataset)
+    sizes = np.diff(dataset.point_offsets)
+    print(f"wrote {out}: {report.frames} frames, {report.map_points} map points, "
+          f"{sizes.mean():.0f} observed per frame, {report.keyframes} keyframes, "
+          f"{report.untracked} untracked, {len(report.skipped)} skipped files; "
+          f"front end {np.median(report.frontend_ms):.1f} ms/frame median, "
+          f"{report.seconds:.1f} s in all")
+    return 0
+
+
 def cmd_nodes(args: argparse.Namespace) -> int:
     from cyclonedds.domain import DomainParticipant
 
@@ -111,6 +156,13 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--csv")
     sim.add_argument("-v", "--verbose", action="store_true")
     sim.set_defaults(func=cmd_sim)
+    extract = sub.add_parser("extract", help="covisibility dataset from an RGB-D sequence")
+    extract.add_argument("sequence", help="a SUN3D, 7-Scenes or TUM RGB-D folder")
+    extract.add_argument("-o", "--output", required=True, help="covisibility .npz to write")
+    extract.add_argument("--start", type=int, default=0)
+    extract.add_argument("--end", type=int, default=-1, help="first frame not read (-1: all)")
+    extract.add_argument("--features", type=int, default=1000, help="ORB features per frame")
+    extract.set_defaults(func=cmd_extract)
     nodes = sub.add_parser("nodes", help="list the nodes on $ROS_DOMAIN_ID (ros_discovery_info)")
     nodes.add_argument("--timeout", type=float, default=2.0)
     nodes.set_defaults(func=cmd_nodes)

@@ -1,0 +1,56 @@
+"""Front-end benchmark (issue #4): ms per 640×480 frame for ORB extraction + projection
+matching + PnP + map-point bookkeeping, on one core, and the extraction time of a sequence.
+
+    python -m bench.frontend [SEQUENCE] [--frames 1000]
+
+SEQUENCE defaults to ../shared/data/7scenes-1000. Image decoding is timed separately: it is
+the reader's cost, not the front end's.
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from device_tracker.tracking import Tracking
+from sequence_player.readers import open_sequence
+
+DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes-1000"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("sequence", nargs="?", default=str(DEFAULT))
+    parser.add_argument("--frames", type=int, default=1000)
+    args = parser.parse_args()
+    cv2.setNumThreads(1)                       # "on one core"
+    reader = open_sequence(args.sequence, end=args.frames)
+    tracker = Tracking(reader.intrinsics)
+    frontend, decode = [], []
+    start = time.perf_counter()
+    t_read = time.perf_counter()
+    for frame in reader:
+        decode.append(time.perf_counter() - t_read)
+        t0 = time.perf_counter()
+        tracker.track(frame.color, frame.depth)
+        frontend.append(time.perf_counter() - t0)
+        t_read = time.perf_counter()
+    total = time.perf_counter() - start
+    ms = np.array(frontend) * 1000
+    print(f"machine: {platform.node()} {platform.machine()} python {platform.python_version()}, "
+          f"OpenCV {cv2.__version__}, 1 thread; sequence {reader.path} ({len(ms)} frames, "
+          f"{frame.color.shape[1]}x{frame.color.shape[0]})")
+    print(f"front end: median {np.median(ms):.1f} ms/frame, p90 {np.percentile(ms, 90):.1f}, "
+          f"first 100 frames {np.median(ms[:100]):.1f}, last 100 {np.median(ms[-100:]):.1f} "
+          f"({len(tracker.map)} map points at the end)")
+    print(f"image decoding: median {np.median(decode) * 1000:.1f} ms/frame; whole extraction "
+          f"{total:.1f} s")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,79 @@
+"""Map points with global ids: world position, ORB descriptor, when they were last seen.
+
+Stored as growing column arrays (not one object per point) because tracking projects and
+matches all candidate points of a frame at once.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from device_tracker.orb_extractor import ORB_DESCRIPTOR_BYTES
+
+
+class MapPoints:
+    """Append-only store; a point's id is its row."""
+
+    def __init__(self, capacity: int = 4096) -> None:
+        self._pos = np.empty((capacity, 3))
+        self._desc = np.empty((capacity, ORB_DESCRIPTOR_BYTES), dtype=np.uint8)
+        self._last_seen = np.empty(capacity, dtype=np.int64)
+        self._seen_count = np.empty(capacity, dtype=np.int64)
+        self._active = np.empty(capacity, dtype=np.bool_)
+        self._n = 0
+
+    def __len__(self) -> int:
+        return self._n
+
+    @property
+    def positions(self) -> np.ndarray:
+        return self._pos[:self._n]
+
+    @property
+    def descriptors(self) -> np.ndarray:
+        return self._desc[:self._n]
+
+    @property
+    def last_seen(self) -> np.ndarray:
+        return self._last_seen[:self._n]
+
+    @property
+    def seen_count(self) -> np.ndarray:
+        return self._seen_count[:self._n]
+
+    @property
+    def active(self) -> np.ndarray:
+        """False for culled points: kept (ids stay valid) but no longer searched for."""
+        return self._active[:self._n]
+
+    def cull(self, ids: np.ndarray) -> None:
+        self._active[ids] = False
+
+    def add(self, positions: np.ndarray, descriptors: np.ndarray, frame: int) -> np.ndarray:
+        """Append points first seen in ``frame``; returns their new ids."""
+        k = positions.shape[0]
+        if self._n + k > self._pos.shape[0]:
+            cap = max(2 * self._pos.shape[0], self._n + k)
+            self._pos = _grow(self._pos, cap)
+            self._desc = _grow(self._desc, cap)
+            self._last_seen = _grow(self._last_seen, cap)
+            self._seen_count = _grow(self._seen_count, cap)
+            self._active = _grow(self._active, cap)
+        ids = np.arange(self._n, self._n + k)
+        self._pos[ids] = positions
+        self._desc[ids] = descriptors
+        self._last_seen[ids] = frame
+        self._seen_count[ids] = 1
+        self._active[ids] = True
+        self._n += k
+        return ids
+
+    def mark_seen(self, ids: np.ndarray, frame: int) -> None:
+        self._last_seen[ids] = frame
+        self._seen_count[ids] += 1
+
+
+def _grow(a: np.ndarray, capacity: int) -> np.ndarray:
+    out = np.empty((capacity, *a.shape[1:]), dtype=a.dtype)
+    out[:a.shape[0]] = a
+    return out

@@ -1,0 +1,209 @@
+"""Frame-by-frame tracking against a growing map of points (ORB-SLAM's Tracking, RGB-D case).
+
+For each frame: ORB features → candidate map points (those the predicted pose — constant
+velocity — projects into the image) → descriptor matches near each projection (ratio test,
+Hamming cap) → PnP RANSAC on the matched points' world
+positions and a Levenberg–Marquardt refinement on the inliers. The inliers are the frame's
+observed map points M_f, the set the covisibility graph is built from. On a keyframe (the first
+frame, too few tracked points or too long since the last) unmatched features with a depth
+reading become new map points, back-projected with the estimated pose — as ORB-SLAM's RGB-D
+mode creates "close" points from depth.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from device_tracker.map_points import MapPoints
+from device_tracker.orb_extractor import Features, OrbExtractor
+from device_tracker.projection_matching import match_by_projection, visible_points
+
+
+@dataclass(frozen=True)
+class TrackingConfig:
+    n_features: int = 1000
+    ratio: float = 0.8                 #: Lowe's ratio test on Hamming distances
+    max_hamming: int = 64              #: of 256 bits
+    search_radius_px: float = 20.0     #: match only near the predicted projection
+    max_candidates: int = 3000
+    min_inliers: int = 15              #: fewer: the frame is not tracked (pose predicted)
+    reprojection_px: float = 3.0       #: RANSAC inlier threshold
+    keyframe_ratio: float = 0.6        #: new points when tracked < ratio × last keyframe's
+    keyframe_every: int = 20           #: and at least this often (frames)
+    depth_range_m: tuple[float, float] = (0.2, 8.0)
+    fuse_radius_px: float = 60.0       #: keyframes look for old points this far off...
+    fuse_max_hamming: int = 40         #: ...with a stricter descriptor match
+    fuse_ratio: float = 0.7
+    fuse_min_age: int = 30             #: "old": not seen in the last this many frames
+    cull_after: int = 10               #: a new point not seen again within this many frames
+    #: is culled (ORB-SLAM's recent map-point culling): no longer a match candidate
+
+
+@dataclass
+class TrackedFrame:
+    index: int
+    pose: np.ndarray                   #: 4×4 camera-to-world estimate
+    observed: np.ndarray               #: ids of the map points the frame observes (M_f)
+    tracked: bool                      #: False: too few inliers, pose is the prediction
+    keyframe: bool
+    n_features: int
+    n_matches: int
+
+
+class Tracking:
+    """Stateful tracker over one sequence; call :meth:`track` with frames in order."""
+
+    def __init__(self, intrinsics: np.ndarray, config: TrackingConfig | None = None) -> None:
+        self.config = config or TrackingConfig()
+        self.k = np.asarray(intrinsics, dtype=np.float64)
+        self.extractor = OrbExtractor(self.config.n_features)
+        self.map = MapPoints()
+        self._pose: np.ndarray | None = None          # camera-to-world of the last frame
+        self._velocity = np.eye(4)                      # last frame-to-frame motion
+        self._last_kf_tracked = 0
+        self._last_kf_index = -1
+        self._count = 0
+        self._probation: list[tuple[int, np.ndarray]] = []   # (frame, ids) of new points
+
+    def track(self, color: np.ndarray, depth: np.ndarray | None) -> TrackedFrame:
+        index = self._count
+        self._count += 1
+        feats = self.extractor.extract(color)
+        if self._pose is None:
+            self._pose = np.eye(4)
+            new = self._add_points(feats, np.ones(len(feats.points), bool), depth, self._pose,
+                                   index)
+            self._last_kf_tracked, self._last_kf_index = new.size, index
+            return TrackedFrame(index, self._pose.copy(), new, True, True,
+                                len(feats.points), 0)
+        predicted = self._pose @ self._velocity
+        matched_feat, matched_ids = self._match(feats, predicted, color.shape[:2])
+        pose, inliers = self._solve_pose(feats.points[matched_feat], matched_ids, predicted)
+        tracked = pose is not None
+        if not tracked:
+            pose, inliers = predicted, np.zeros(0, dtype=bool)
+        observed = matched_ids[inliers]
+        self.map.mark_seen(observed, index)
+        keyframe = (len(observed) < self.config.keyframe_ratio * self._last_kf_tracked
+                    or index - self._last_kf_index >= self.config.keyframe_every)
+        if keyframe and depth is not None:
+            free = np.ones(len(feats.points), bool)
+            free[matched_feat[inliers]] = False
+            fused = self._fuse(feats, free, pose, color.shape[:2], index)
+            new = self._add_points(feats, free, depth, pose, index)
+            observed = np.concatenate([observed, fused, new])
+            self._last_kf_tracked, self._last_kf_index = len(observed), index
+        self._velocity = np.linalg.inv(self._pose) @ pose if tracked else np.eye(4)
+        self._pose = pose
+        self._cull(index)
+        return TrackedFrame(index, pose.copy(), np.sort(observed), tracked, keyframe,
+                            len(feats.points), len(matched_ids))
+
+    # -- steps ------------------------------------------------------------------------------
+
+    def _fuse(self, feats: Features, free: np.ndarray, pose: np.ndarray,
+              shape: tuple[int, int], index: int) -> np.ndarray:
+        """Old points that free features of a keyframe see again (ORB-SLAM's fusion of
+        duplicates): searched wider and matched stricter than tracking, since after a revisit
+        drift moves an old point tens of pixels. Marks them seen, clears those features, and
+        returns their ids; they are not used for the pose."""
+        cfg = self.config
+        ids, uv = visible_points(self.map.positions, self.map.active, pose, self.k, shape,
+                                 cfg.depth_range_m)
+        old = self.map.last_seen[ids] < index - cfg.fuse_min_age
+        ids, uv = ids[old], uv[old]
+        f_free = np.flatnonzero(free)
+        if ids.size == 0 or f_free.size == 0:
+            return np.zeros(0, dtype=np.int64)
+        f_idx, c_idx = match_by_projection(feats.points[f_free], feats.descriptors[f_free], uv,
+                                           self.map.descriptors[ids], cfg.fuse_radius_px,
+                                           cfg.fuse_max_hamming, cfg.fuse_ratio, shape)
+        free[f_free[f_idx]] = False
+        fused = ids[c_idx]
+        self.map.mark_seen(fused, index)
+        return fused
+
+    def _cull(self, index: int) -> None:
+        """Deactivate points created ``cull_after`` frames ago that no later frame saw."""
+        while self._probation and index - self._probation[0][0] >= self.config.cull_after:
+            _, ids = self._probation.pop(0)
+            self.map.cull(ids[self.map.seen_count[ids] < 2])
+
+    def _candidates(self, predicted: np.ndarray, shape: tuple[int, int]
+                    ) -> tuple[np.ndarray, np.ndarray]:
+        """Ids of points the predicted pose sees, and their predicted pixel positions."""
+        ids, uv = visible_points(self.map.positions, self.map.active, predicted, self.k, shape,
+                                 self.config.depth_range_m)
+        if ids.size > self.config.max_candidates:     # keep the most recently seen
+            keep = np.sort(np.argpartition(-self.map.last_seen[ids],
+                                           self.config.max_candidates)[
+                :self.config.max_candidates])
+            ids, uv = ids[keep], uv[keep]
+        return ids, uv
+
+    def _match(self, feats: Features, predicted: np.ndarray, shape: tuple[int, int]
+               ) -> tuple[np.ndarray, np.ndarray]:
+        """(feature indices, map point ids) of accepted matches, one per feature and point.
+
+        Searched near the predicted projections; if that finds too little (a jerk the motion
+        model missed), once more with a three times wider window."""
+        ids, uv = self._candidates(predicted, shape)
+        cfg = self.config
+        for radius in (cfg.search_radius_px, 3 * cfg.search_radius_px):
+            f_idx, c_idx = match_by_projection(feats.points, feats.descriptors, uv,
+                                               self.map.descriptors[ids], radius,
+                                               cfg.max_hamming, cfg.ratio, shape)
+            if len(f_idx) >= 4 * cfg.min_inliers:
+                break
+        return f_idx, ids[c_idx]
+
+    def _solve_pose(self, pixels: np.ndarray, ids: np.ndarray, predicted: np.ndarray
+                    ) -> tuple[np.ndarray | None, np.ndarray]:
+        """Camera-to-world from 2D–3D matches, and the inlier mask; None if it fails."""
+        if len(ids) < self.config.min_inliers:
+            return None, np.zeros(len(ids), dtype=bool)
+        world = self.map.positions[ids]
+        cw = np.linalg.inv(predicted)                    # world-to-camera prior
+        rvec0, _ = cv2.Rodrigues(cw[:3, :3])
+        ok, rvec, tvec, inl = cv2.solvePnPRansac(
+            world, pixels.astype(np.float64), self.k, None, rvec0.copy(), cw[:3, 3].copy(),
+            useExtrinsicGuess=True, iterationsCount=100,
+            reprojectionError=self.config.reprojection_px, confidence=0.999,
+            flags=cv2.SOLVEPNP_ITERATIVE)
+        if not ok or inl is None or len(inl) < self.config.min_inliers:
+            return None, np.zeros(len(ids), dtype=bool)
+        mask = np.zeros(len(ids), dtype=bool)
+        mask[inl.ravel()] = True
+        rvec, tvec = cv2.solvePnPRefineLM(world[mask], pixels[mask].astype(np.float64), self.k,
+                                          None, rvec, tvec)
+        rot, _ = cv2.Rodrigues(rvec)
+        cw = np.eye(4)
+        cw[:3, :3], cw[:3, 3] = rot, tvec.ravel()
+        return np.linalg.inv(cw), mask
+
+    def _add_points(self, feats: Features, free: np.ndarray, depth: np.ndarray | None,
+                    pose: np.ndarray, index: int) -> np.ndarray:
+        """New map points for the free features that have a depth reading."""
+        if depth is None or not free.any():
+            return np.zeros(0, dtype=np.int64)
+        idx = np.flatnonzero(free)
+        px = np.round(feats.points[idx]).astype(int)
+        h, w = depth.shape
+        px[:, 0] = np.clip(px[:, 0], 0, w - 1)
+        px[:, 1] = np.clip(px[:, 1], 0, h - 1)
+        z = depth[px[:, 1], px[:, 0]].astype(np.float64)
+        lo, hi = self.config.depth_range_m
+        good = (z > lo) & (z < hi)
+        idx, z = idx[good], z[good]
+        if idx.size == 0:
+            return np.zeros(0, dtype=np.int64)
+        uv = feats.points[idx].astype(np.float64)
+        cam = np.column_stack([(uv[:, 0] - self.k[0, 2]) * z / self.k[0, 0],
+                               (uv[:, 1] - self.k[1, 2]) * z / self.k[1, 1], z])
+        world = cam @ pose[:3, :3].T + pose[:3, 3]
+        ids = self.map.add(world, feats.descriptors[idx], index)
+        self._probation.append((index, ids))
+        return ids
