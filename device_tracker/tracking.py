@@ -94,8 +94,8 @@ class Tracking:
             free[matched_feat[inliers]] = False
             fused = self._fuse(feats, free, pose, color.shape[:2], index)
             new = self._add_points(feats, free, depth, pose, index)
+            self._last_kf_tracked, self._last_kf_index = len(observed) + len(new), index
             observed = np.concatenate([observed, fused, new])
-            self._last_kf_tracked, self._last_kf_index = len(observed), index
         self._velocity = np.linalg.inv(self._pose) @ pose if tracked else np.eye(4)
         self._pose = pose
         self._cull(index)
@@ -115,6 +115,10 @@ class Tracking:
                                  cfg.depth_range_m)
         old = self.map.last_seen[ids] < index - cfg.fuse_min_age
         ids, uv = ids[old], uv[old]
+        if ids.size > cfg.max_candidates:             # the most often confirmed ones
+            keep = np.sort(np.argpartition(-self.map.seen_count[ids], cfg.max_candidates)[
+                :cfg.max_candidates])
+            ids, uv = ids[keep], uv[keep]
         f_free = np.flatnonzero(free)
         if ids.size == 0 or f_free.size == 0:
             return np.zeros(0, dtype=np.int64)
