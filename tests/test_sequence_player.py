@@ -1,0 +1,89 @@
+"""sequence_player as its own process on a loopback domain, received by this process."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+import node_runtime
+from node_runtime.loopback import LoopbackDomain
+from sequence_player.messages import depth_message
+from sequence_player.readers import RgbdFrame
+
+K = np.array([[200.0, 0, 80], [0, 200.0, 60], [0, 0, 1]])
+
+
+def _seven_scenes_fixture(root: Path, frames: int, corrupt: int) -> Path:
+    root.mkdir()
+    np.savetxt(root / "camera-intrinsics.txt", K)
+    rng = np.random.default_rng(0)
+    for i in range(frames):
+        cv2.imwrite(str(root / f"frame-{i:06d}.color.jpg"),
+                    rng.integers(0, 255, (120, 160, 3), dtype=np.uint8))
+        cv2.imwrite(str(root / f"frame-{i:06d}.depth.png"),
+                    np.full((120, 160), 1000 + i, np.uint16))
+        pose = np.eye(4)
+        pose[0, 3] = 0.01 * i
+        np.savetxt(root / f"frame-{i:06d}.pose.txt", pose)
+    (root / f"frame-{corrupt:06d}.color.jpg").write_bytes(b"\xff\xd8\xff broken")
+    return root
+
+
+def _stamp(msg: object) -> float:
+    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9  # type: ignore[attr-defined]
+
+
+def test_player_delivers_every_frame_at_30_hz_and_skips_a_corrupt_jpeg(
+        tmp_path: Path, domain: LoopbackDomain, ros: node_runtime.SingleThreadedExecutor
+) -> None:
+    seq = _seven_scenes_fixture(tmp_path / "seq", frames=100, corrupt=40)
+    node = node_runtime.Node("player_check")
+    got: dict[str, list] = {"color": [], "depth": [], "info": [], "pose": []}
+    for key, topic, kind in [("color", "/camera/image_raw", "sensor_msgs/msg/Image"),
+                             ("depth", "/camera/depth/image_raw", "sensor_msgs/msg/Image"),
+                             ("info", "/camera/camera_info", "sensor_msgs/msg/CameraInfo"),
+                             ("pose", "/camera/ground_truth_pose",
+                              "geometry_msgs/msg/PoseStamped")]:
+        node.create_subscription(kind, topic, lambda m, k=key: got[k].append(m),
+                                 node_runtime.DEFAULT)
+    ros.add_node(node)
+    player = domain.spawn(["-m", "sequence_player.node", "--ros-args",
+                           "-p", f"sequence:={seq}", "-p", "wait_for_subscribers:=1"])
+    start = time.monotonic()
+    # 99 frames at 30 Hz take 3.3 s; generous bound for a loaded CI machine
+    ros.spin_until(lambda: player.poll() is not None and len(got["color"]) >= 99, 40.0)
+    ros.spin_until(lambda: len(got["info"]) >= 99 and len(got["pose"]) >= 99, 5.0)
+    code, _, err = domain.stop(player)
+    assert code == 0, err
+    assert len(got["color"]) == 99, f"received {len(got['color'])} of 99 frames"
+    assert len(got["depth"]) == len(got["info"]) == len(got["pose"]) == 99
+    stamps = np.array([_stamp(m) for m in got["color"]])
+    gaps = np.diff(stamps)
+    assert np.all(gaps > 0)
+    np.testing.assert_allclose(np.median(gaps), 1 / 30, rtol=1e-6)   # recorded 30 Hz spacing
+    across_skip = np.flatnonzero(np.abs(gaps - 2 / 30) < 1e-6)
+    assert across_skip.tolist() == [39]                  # frames 39 → 41: one gap of two periods
+    assert [_stamp(m) for m in got["info"]] == stamps.tolist()
+    assert [_stamp(m) for m in got["depth"]] == stamps.tolist()
+    info = got["info"][0]
+    np.testing.assert_allclose(np.asarray(info.k).reshape(3, 3), K)
+    assert (info.width, info.height) == (160, 120) and got["color"][0].encoding == "rgb8"
+    depth0 = np.frombuffer(bytes(got["depth"][0].data), np.uint16)
+    assert got["depth"][0].encoding == "16UC1" and np.all(depth0 == 1000)
+    assert abs(got["pose"][40].pose.position.x - 0.41) < 1e-12   # 40th received: frame 41
+    assert "frame-000040.color.jpg" in err and "1 skipped" in err
+    assert 3.0 < time.monotonic() - start
+
+
+def test_depth_message_encodings_round_trip() -> None:
+    depth = np.array([[0.0, 1.5], [2.25, 0.0]], np.float32)
+    frame = RgbdFrame(0, 0.0, np.zeros((2, 2, 3), np.uint8), depth, K, None, "f")
+    mm = depth_message(frame, 1.25, "camera", "16UC1")
+    assert mm.step == 4 and mm.header.stamp.sec == 1 and mm.header.stamp.nanosec == 250_000_000
+    assert np.frombuffer(bytes(mm.data), np.uint16).tolist() == [0, 1500, 2250, 0]
+    metres = depth_message(frame, 0.0, "camera", "32FC1")
+    values = np.frombuffer(bytes(metres.data), np.float32)
+    assert np.isnan(values[0]) and values[1:3].tolist() == [1.5, 2.25]
