@@ -1,4 +1,5 @@
-"""sequence_player: replays an RGB-D sequence folder as ROS 2 camera topics.
+"""sequence_player: replays an RGB-D sequence (a SUN3D / 7-Scenes / TUM RGB-D folder, or a
+rosbag2 MCAP recorded with ``twinslam record``) as ROS 2 camera topics.
 
 Publishes, per frame and with the frame's recorded time (shifted to now) in every header:
 

@@ -140,8 +140,13 @@ def decode_depth(raw: np.ndarray, encoding: str) -> np.ndarray:
 
 
 def open_sequence(path: str | Path, start: int = 0, end: int = -1) -> SequenceReader:
-    """Detect the layout of ``path`` and open it."""
+    """Detect the layout of ``path`` and open it (a rosbag2 folder or ``.mcap`` file recorded
+    by ``twinslam record`` too)."""
     root = Path(path)
+    if root.suffix == ".mcap" or (root / "metadata.yaml").is_file():
+        from sequence_player.bag import open_bag
+
+        return open_bag(root, start, end)  # type: ignore[return-value]
     if not root.is_dir():
         raise SequenceError(f"sequence folder {root} does not exist")
     if (root / "image").is_dir():

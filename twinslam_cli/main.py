@@ -3,6 +3,7 @@
     twinslam sim --policy lff,pu,adapt,oracle --vmax 45 --channel markov:N=2 --slots 200 \
                  --seeds 5 --covis FILE [--csv OUT]
     twinslam extract SEQUENCE -o covis.npz [--start N] [--end N] [--features 1000]
+    twinslam record SEQUENCE -o BAG [--start N] [--end N]   # the player's topics as MCAP
     twinslam nodes [--timeout 2]          # the ROS graph on $ROS_DOMAIN_ID (ros2 node list)
     twinslam demo                         # what `make run` runs
 """
@@ -117,6 +118,23 @@ def cmd_extract(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_record(args: argparse.Namespace) -> int:
+    from sequence_player.bag import record_bag
+    from sequence_player.readers import SequenceError, open_sequence
+
+    try:
+        reader = open_sequence(args.sequence, args.start, args.end)
+        print(f"recording {len(reader)} frames of {reader.kind} sequence {reader.path} to "
+              f"{args.output} (rosbag2, MCAP)", flush=True)
+        written = record_bag(reader, args.output)
+    except SequenceError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"wrote {written} frames, {len(reader.skipped)} skipped"
+          f"{': ' + ', '.join(reader.skipped) if reader.skipped else ''}")
+    return 0
+
+
 def cmd_nodes(args: argparse.Namespace) -> int:
     from cyclonedds.domain import DomainParticipant
 
@@ -163,6 +181,12 @@ def build_parser() -> argparse.ArgumentParser:
     extract.add_argument("--end", type=int, default=-1, help="first frame not read (-1: all)")
     extract.add_argument("--features", type=int, default=1000, help="ORB features per frame")
     extract.set_defaults(func=cmd_extract)
+    record = sub.add_parser("record", help="a sequence's camera topics as a rosbag2 (MCAP)")
+    record.add_argument("sequence", help="a SUN3D, 7-Scenes or TUM RGB-D folder")
+    record.add_argument("-o", "--output", required=True, help="rosbag2 folder to create")
+    record.add_argument("--start", type=int, default=0)
+    record.add_argument("--end", type=int, default=-1)
+    record.set_defaults(func=cmd_record)
     nodes = sub.add_parser("nodes", help="list the nodes on $ROS_DOMAIN_ID (ros_discovery_info)")
     nodes.add_argument("--timeout", type=float, default=2.0)
     nodes.set_defaults(func=cmd_nodes)
