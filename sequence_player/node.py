@@ -13,8 +13,8 @@ at the recorded rate × ``rate``, frames [``start``, ``end``), once or with ``lo
 ``wait_for_subscribers:=N`` holds the first frame until N subscribers match the colour topic
 (DDS does not deliver what was published before a reader matched). A corrupt
 image is skipped, counted and named in a warning; the run goes on. At the end it logs what it
-published and exits 0. ``sequence:=synthetic`` (the default) is the rendered room that is not
-built yet: the node then only joins the graph and says so.
+published and exits 0. ``sequence:=synthetic[:frames]`` (the default) renders the textured
+room of :mod:`sequence_player.synthetic` with exact depth and ground truth.
 """
 
 from __future__ import annotations
@@ -144,12 +144,6 @@ def main(args: list[str] | None = None) -> int:
     for key, default in PARAMETERS.items():
         node.declare_parameter(key, default)
     sequence = node.get_parameter("sequence").value
-    if sequence == "synthetic":
-        node.get_logger().warning("the synthetic room sequence is not built yet (issue #4): "
-                                  "set sequence:=<SUN3D, 7-Scenes or TUM folder>; this node "
-                                  "joins the graph but publishes nothing")
-        node_runtime.run(node)
-        return 0
     try:
         reader = open_sequence(sequence, node.get_parameter("start").value,
                                node.get_parameter("end").value)
