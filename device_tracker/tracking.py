@@ -67,6 +67,7 @@ class Tracking:
         self._last_kf_index = -1
         self._count = 0
         self._probation: list[tuple[int, np.ndarray]] = []   # (frame, ids) of new points
+        self._visible = np.zeros(0, dtype=np.int64)
 
     def track(self, color: np.ndarray, depth: np.ndarray | None) -> TrackedFrame:
         index = self._count
@@ -111,14 +112,16 @@ class Tracking:
         drift moves an old point tens of pixels. Marks them seen, clears those features, and
         returns their ids; they are not used for the pose."""
         cfg = self.config
-        ids, uv = visible_points(self.map.positions, self.map.active, pose, self.k, shape,
-                                 cfg.depth_range_m)
-        old = self.map.last_seen[ids] < index - cfg.fuse_min_age
-        ids, uv = ids[old], uv[old]
+        ids = self._visible                           # seen from the predicted pose
+        ids = ids[self.map.last_seen[ids] < index - cfg.fuse_min_age]
         if ids.size > cfg.max_candidates:             # the most often confirmed ones
-            keep = np.sort(np.argpartition(-self.map.seen_count[ids], cfg.max_candidates)[
-                :cfg.max_candidates])
-            ids, uv = ids[keep], uv[keep]
+            ids = np.sort(ids[np.argpartition(-self.map.seen_count[ids], cfg.max_candidates)[
+                :cfg.max_candidates]])
+        cw = np.linalg.inv(pose)                      # re-projected with the estimate
+        cam = self.map.positions[ids] @ cw[:3, :3].T + cw[:3, 3]
+        in_front = cam[:, 2] > cfg.depth_range_m[0]
+        ids, cam = ids[in_front], cam[in_front]
+        uv = cam[:, :2] / cam[:, 2:3] * np.diag(self.k)[:2] + self.k[:2, 2]
         f_free = np.flatnonzero(free)
         if ids.size == 0 or f_free.size == 0:
             return np.zeros(0, dtype=np.int64)
@@ -141,6 +144,7 @@ class Tracking:
         """Ids of points the predicted pose sees, and their predicted pixel positions."""
         ids, uv = visible_points(self.map.positions, self.map.active, predicted, self.k, shape,
                                  self.config.depth_range_m)
+        self._visible = ids                           # kept for the keyframe's fusion
         if ids.size > self.config.max_candidates:     # keep the most recently seen
             keep = np.sort(np.argpartition(-self.map.last_seen[ids],
                                            self.config.max_candidates)[
