@@ -23,7 +23,8 @@ from edge_mapper import laplacian_kernels as kernels
 
 #: Scores within this relative distance of the best count as tied (greedy picks the oldest).
 TIE_RTOL = 1e-9
-#: Headroom on the Hadamard bounds against rounding in the exact scores they are compared to.
+#: Headroom on the upper bounds (Hadamard for removals, Rayleigh for additions) against
+#: rounding in the exact scores they are compared to.
 BOUND_RTOL = 1e-12
 #: A Cholesky pivot (diag(R)²) below this share of the matrix's largest diagonal entry is a
 #: rounding-level zero: the matrix is singular (a disconnected graph). For integer weights the

@@ -52,28 +52,6 @@ def cholesky_logdet(m: np.ndarray, k: int, rtol: float) -> float:
 
 
 @njit(cache=True, fastmath=_FAST)
-def cholesky_solve(chol: np.ndarray, k: int, rhs: np.ndarray, ncols: int) -> None:
-    """Solve (L Lᵀ) X = B in place for ``rhs[:k, :ncols]``, L in ``chol[:k, :k]``; whole rows
-    at a time, so the inner loops run along contiguous memory."""
-    for i in range(k):
-        for p in range(i):
-            lip = chol[i, p]
-            for c in range(ncols):
-                rhs[i, c] -= lip * rhs[p, c]
-        r = 1.0 / chol[i, i]
-        for c in range(ncols):
-            rhs[i, c] *= r
-    for i in range(k - 1, -1, -1):
-        for p in range(i + 1, k):
-            lpi = chol[p, i]
-            for c in range(ncols):
-                rhs[i, c] -= lpi * rhs[p, c]
-        r = 1.0 / chol[i, i]
-        for c in range(ncols):
-            rhs[i, c] *= r
-
-
-@njit(cache=True, fastmath=_FAST)
 def _augmented_one(inv: np.ndarray, pos: np.ndarray, comp: np.ndarray, n_comp: int,
                    cand: np.ndarray, rtol: float, s_idx: np.ndarray, s_comp: np.ndarray,
                    d: np.ndarray, b_ground: np.ndarray, touched: np.ndarray, m: np.ndarray,
