@@ -68,4 +68,7 @@ def test_front_end_on_the_synthetic_room_tracks_and_sees_real_covisibility() -> 
           f"> 90° apart share {w[far].mean():.2f} points (max {w[far].max():.0f}) of "
           f"{np.diff(data.point_offsets).mean():.0f} per frame")
     assert report.untracked == 0 and ate < 0.02
-    assert rho <= -0.5 and far.sum() > 100 and w[far].mean() < 2.0
+    # "almost none": under 1 % of a frame's points (two views 2 m apart can still both see a
+    # corner of the room, so a few shared points are real)
+    assert rho <= -0.5 and far.sum() > 100
+    assert w[far].mean() < 0.01 * np.diff(data.point_offsets).mean()
