@@ -177,7 +177,9 @@ def tie_floor(best: float) -> float:
 def pick_best(values: np.ndarray) -> int:
     """Index of the largest value; near-ties (relative 1e-9) go to the lowest index (oldest
     frame), so that exact and incremental greedy agree despite rounding."""
-    best = float(np.max(values))
+    vals = values.tolist() if isinstance(values, np.ndarray) else list(values)
+    best = max(vals)                  # a Python pass beats three numpy calls at this size
     if best == -math.inf:
         return 0
-    return int(np.flatnonzero(values >= tie_floor(best))[0])
+    floor = tie_floor(best)
+    return next(i for i, v in enumerate(vals) if v >= floor)

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from edge_mapper import laplacian_kernels as kernels
 from edge_mapper.graph_factor import PIVOT_RTOL, GraphFactor
 
 #: u of a next-slot frame that shares no map point is +inf (it would lose tracking). RL and
@@ -117,16 +118,22 @@ def next_slot_uncertainty(map_weights: np.ndarray, cand_weights: np.ndarray,
                           lost_penalty: float = LOST_FRAME_PENALTY) -> SlotUncertainty:
     """υ_k of eq. (8) for the map G^e_{k+1} and the frames F_{k+1}, never letting inf leak.
 
-    Runs once per slot in the simulator; on 60 frames plain Python beats a chain of numpy
-    calls."""
-    factor = GraphFactor(map_weights)
-    log_tau = factor.augmented_log_tau(cand_weights)
-    if log_tau.size == 0:
+    Runs once per slot in the simulator: one kernel call (factorise + score every frame), and on
+    60 frames plain Python beats a chain of numpy calls for the statistics."""
+    w = np.asarray(map_weights, dtype=np.float64)
+    b = np.ascontiguousarray(np.atleast_2d(cand_weights), dtype=np.float64)
+    n = w.shape[0]
+    if b.shape[0] == 0:
         raise ValueError("the next slot holds no frames")
-    u = [-6.0 * x - factor.n * log_det_pi for x in log_tau.tolist() if x > -math.inf]
+    if n == 0:
+        n_comp, log_det, log_tau = 0, -math.inf, np.full(b.shape[0], -math.inf)
+    else:
+        if b.shape[1] != n:
+            raise ValueError(f"candidate weights have {b.shape[1]} columns, the map {n}")
+        n_comp, log_det, log_tau = kernels.slot_scores(w, b, PIVOT_RTOL)
+    u = [-6.0 * x - n * log_det_pi for x in log_tau.tolist() if x > -math.inf]
     n_lost = log_tau.size - len(u)
-    map_u = (-6.0 * factor.log_tau - (factor.n - 1) * log_det_pi if factor.connected
-             else math.inf)
+    map_u = -6.0 * log_det - (n - 1) * log_det_pi if n_comp == 1 else math.inf
     total = math.fsum(u)
     base = map_u
     if n_lost and not math.isfinite(base):

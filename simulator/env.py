@@ -107,6 +107,8 @@ class MapManagementEnv:
         self._map: list[int] = []
         self._map_w = np.zeros((0, 0))
         self._slot = 0
+        #: the observation last handed out, valid until the map or the slot changes
+        self._last_obs: SlotObservation | None = None
         self._plan: list[tuple[int, float]] = []   #: (state, rate) of every slot of the episode
 
     # -- weights -----------------------------------------------------------------------------
@@ -136,7 +138,8 @@ class MapManagementEnv:
         # The whole episode's rates are drawn up front: the agent still sees them one slot at a
         # time, but a clairvoyant planner can read ahead and snapshots stay exact.
         self._plan = [self.channel.step() for _ in range(self.config.slots + 1)]
-        return self._observation(), {}
+        self._last_obs = self._observation()
+        return self._last_obs, {}
 
     @property
     def rate_plan(self) -> list[tuple[int, float]]:
@@ -177,6 +180,7 @@ class MapManagementEnv:
 
     def apply(self, action: MapAction) -> None:
         """V^e_{k+1} = (U_k ∪ V^e_k) \\ C_k, keeping capture order (oldest = anchor first)."""
+        self._last_obs = None
         evict = set(action.evict)
         src = np.array([i for i, f in enumerate(self._map) if f not in evict], dtype=np.int64)
         kept = [self._map[i] for i in src]
@@ -204,7 +208,7 @@ class MapManagementEnv:
         self._map, self._map_w = merged, w
 
     def step(self, action: MapAction) -> tuple[SlotObservation, float, bool, bool, dict[str, Any]]:
-        obs = self._observation()
+        obs = self._last_obs or self._observation()
         self.check_action(obs, action)
         self.apply(action)
         self._slot += 1
@@ -213,7 +217,8 @@ class MapManagementEnv:
         info = {"uncertainty": slot_u, "map_size": len(self._map),
                 "map_uncertainty": slot_u.map_uncertainty}
         truncated = self._slot >= self.config.slots
-        return self._observation(), slot_u.reward, False, truncated, info
+        self._last_obs = self._observation()
+        return self._last_obs, slot_u.reward, False, truncated, info
 
     def _evaluate(self, frames: np.ndarray) -> SlotUncertainty:
         """υ of the current map against ``frames`` (future frames: none is in the map)."""
@@ -233,5 +238,6 @@ class MapManagementEnv:
 
     def restore(self, snap: tuple[list[int], np.ndarray, int]) -> None:
         frames, w, self._slot = snap
+        self._last_obs = None
         self._map, self._map_w = list(frames), w.copy()
 

@@ -7,6 +7,7 @@ import itertools
 import math
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -119,3 +120,26 @@ def test_addition_bounds_hold_after_the_set_grows(w: np.ndarray, data) -> None:
                                   np.arange(len(cands)), upper)
     exact = after.augmented_log_tau(w[np.ix_(cands, [*s, v])]) - after.log_det_a
     assert np.all(exact <= upper + 1e-9 * np.maximum(1.0, np.abs(upper)))
+
+
+@settings(max_examples=80, deadline=None)
+@given(any_graphs(min_nodes=2, max_nodes=8), st.integers(1, 4), st.data())
+def test_slot_uncertainty_equals_per_frame_factorisations(w: np.ndarray, k: int, data) -> None:
+    """υ_k's one-call path (kernels.slot_scores) against a fresh Cholesky per next-slot frame."""
+    from edge_mapper.uncertainty import map_uncertainty, next_slot_uncertainty
+
+    n = w.shape[0]
+    cand = np.array([[data.draw(st.sampled_from([0, 0, 1, 7, 40])) for _ in range(n)]
+                     for _ in range(k)], dtype=float)
+    slot = next_slot_uncertainty(w, cand, lost_penalty=100.0)
+    u = []
+    for row in cand:
+        full = np.zeros((n + 1, n + 1))
+        full[:n, :n], full[n, :n], full[:n, n] = w, row, row
+        u.append(-6.0 * log_tau(full))
+    u = np.array(u)
+    tracked = np.isfinite(u)
+    assert slot.lost_ratio == pytest.approx(1 - tracked.mean())
+    assert close(slot.map_uncertainty, map_uncertainty(w))
+    if tracked.any():
+        assert close(slot.mean_tracked, float(u[tracked].mean()))
