@@ -17,6 +17,7 @@ from cyclonedds.core import ReadCondition
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
+from cyclonedds.util import duration
 
 from msg_schemas import cdr
 from msg_schemas.dds_types import dds_type
@@ -68,6 +69,12 @@ class Publisher:
 
     def get_subscription_count(self) -> int:
         return len(self._writer.get_matched_subscriptions())
+
+    def wait_for_acknowledgments(self, timeout_sec: float) -> bool:
+        """Block until every reliable reader has acknowledged what was published (or the
+        timeout passes); a process that is about to exit calls this so its last samples are
+        not lost with its participant. Returns whether all were acknowledged."""
+        return bool(self._writer.wait_for_acks(duration(seconds=timeout_sec)))
 
     @property
     def gid(self) -> Any:

@@ -133,6 +133,10 @@ class SequencePlayer:
     def _finish(self) -> None:
         self.finished = True
         elapsed = time.monotonic() - self._start_wall
+        # the last frames may still be in flight: let reliable readers acknowledge them before
+        # the process (and its participant) goes away
+        for pub in (self.pub_color, self.pub_depth, self.pub_info, self.pub_pose):
+            pub.wait_for_acknowledgments(2.0)
         self.node.get_logger().info(
             f"done: {self.published} frames published in {elapsed:.1f} s, {self.skipped} "
             f"skipped{' (' + ', '.join(self.reader.skipped) + ')' if self.reader.skipped else ''}")

@@ -173,7 +173,10 @@ def open_sequence(path: str | Path, start: int = 0, end: int = -1) -> SequenceRe
                             "(frame-*.color.*) folder")
     if not reader.entries:
         raise SequenceError(f"{root}: the sequence holds no frames")
-    return reader.select(start, end)
+    chosen = reader.select(start, end)
+    if not chosen.entries:
+        raise SequenceError(f"{root}: no frame in [{start}, {end}) of its {len(reader)}")
+    return chosen
 
 
 def read_matrix(path: Path, rows: int, cols: int) -> np.ndarray:

@@ -147,3 +147,5 @@ def test_missing_folders_and_intrinsics_are_clear_errors(tmp_path: Path) -> None
     (tmp_path / "empty").mkdir()
     with pytest.raises(SequenceError, match="not a SUN3D"):
         open_sequence(tmp_path / "empty")
+    with pytest.raises(SequenceError, match="no frame in"):
+        open_sequence(_sun3d_folder(tmp_path / "sun"), start=10)
