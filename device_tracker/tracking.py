@@ -28,7 +28,7 @@ class TrackingConfig:
     ratio: float = 0.8                 #: Lowe's ratio test on Hamming distances
     max_hamming: int = 64              #: of 256 bits
     search_radius_px: float = 20.0     #: match only near the predicted projection
-    max_candidates: int = 3000
+    max_candidates: int = 3000         #: visible points matched per frame (most recently seen)
     min_inliers: int = 15              #: fewer: the frame is not tracked (pose predicted)
     reprojection_px: float = 3.0       #: RANSAC inlier threshold
     keyframe_ratio: float = 0.6        #: new points when tracked < ratio × last keyframe's
