@@ -16,7 +16,6 @@ from typing import Any
 
 import numpy as np
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
-from scipy.spatial.transform import Rotation
 
 from msg_schemas import typestore
 from sequence_player.messages import (
@@ -25,7 +24,7 @@ from sequence_player.messages import (
     depth_message,
     pose_message,
 )
-from sequence_player.readers import RgbdFrame, SequenceError, SequenceReader
+from sequence_player.readers import RgbdFrame, SequenceError, SequenceReader, pose_from_xyzq
 
 log = logging.getLogger(__name__)
 
@@ -145,10 +144,8 @@ def _frame(index: int, stamp: float, msgs: dict[str, Any]) -> RgbdFrame:
     pose = None
     if "pose" in msgs:
         p = msgs["pose"].pose
-        pose = np.eye(4)
-        pose[:3, :3] = Rotation.from_quat([p.orientation.x, p.orientation.y, p.orientation.z,
-                                           p.orientation.w]).as_matrix()
-        pose[:3, 3] = [p.position.x, p.position.y, p.position.z]
+        pose = pose_from_xyzq([p.position.x, p.position.y, p.position.z, p.orientation.x,
+                               p.orientation.y, p.orientation.z, p.orientation.w])
     k = np.asarray(msgs["info"].k, dtype=np.float64).reshape(3, 3)
     return RgbdFrame(index, stamp, color.copy(), depth, k, pose, f"frame@{stamp:.6f}")
 

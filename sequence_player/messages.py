@@ -9,10 +9,9 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from msg_schemas import new
-from sequence_player.readers import RgbdFrame
+from sequence_player.readers import RgbdFrame, pose_to_xyzq
 
 DEPTH_ENCODINGS = ("16UC1", "32FC1")
 
@@ -72,9 +71,8 @@ def camera_info_message(frame: RgbdFrame, stamp: float, frame_id: str) -> Any:
 def pose_message(pose: np.ndarray, stamp: float, frame_id: str) -> Any:
     """Camera-to-world 4×4 as a PoseStamped in ``frame_id`` (the world frame)."""
     msg = new("geometry_msgs/msg/PoseStamped")
-    msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = (float(v) for v in
-                                                                       pose[:3, 3])
-    qx, qy, qz, qw = Rotation.from_matrix(pose[:3, :3]).as_quat()
-    msg.pose.orientation.x, msg.pose.orientation.y = float(qx), float(qy)
-    msg.pose.orientation.z, msg.pose.orientation.w = float(qz), float(qw)
+    x, y, z, qx, qy, qz, qw = (float(v) for v in pose_to_xyzq(pose))
+    msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = x, y, z
+    msg.pose.orientation.x, msg.pose.orientation.y = qx, qy
+    msg.pose.orientation.z, msg.pose.orientation.w = qz, qw
     return _header(msg, stamp, frame_id)

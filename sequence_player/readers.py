@@ -33,6 +33,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 log = logging.getLogger(__name__)
 
@@ -325,19 +326,21 @@ def read_tum(root: Path) -> SequenceReader:
         if depth_rows and d is None:
             continue                        # TUM's association drops unpaired colour frames
         g = _nearest(gt_stamps, stamp, TUM_MAX_DT)
-        pose = _tum_pose([float(x) for x in gt_rows[g][1:8]]) if g is not None else None
+        pose = pose_from_xyzq([float(x) for x in gt_rows[g][1:8]]) if g is not None \
+            else None
         entries.append(_Entry(stamp, path, depth_rows[d][1] if d is not None else None, pose))
     return SequenceReader(root, "tum", intrinsics, entries, "tum")
 
 
-def _tum_pose(values: list[float]) -> np.ndarray:
-    """tx ty tz qx qy qz qw → 4×4 camera-to-world."""
-    t, (x, y, z, w) = values[:3], values[3:7]
-    norm = np.sqrt(x * x + y * y + z * z + w * w)
-    x, y, z, w = x / norm, y / norm, z / norm, w / norm
+def pose_from_xyzq(values: list[float] | np.ndarray) -> np.ndarray:
+    """x y z qx qy qz qw (TUM's, the covisibility file's and PoseStamped's order) → 4×4
+    camera-to-world; the quaternion is normalised."""
     pose = np.eye(4)
-    pose[:3, :3] = [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                    [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                    [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
-    pose[:3, 3] = t
+    pose[:3, :3] = Rotation.from_quat(np.asarray(values[3:7], dtype=np.float64)).as_matrix()
+    pose[:3, 3] = values[:3]
     return pose
+
+
+def pose_to_xyzq(pose: np.ndarray) -> np.ndarray:
+    """4×4 camera-to-world → x y z qx qy qz qw."""
+    return np.concatenate([pose[:3, 3], Rotation.from_matrix(pose[:3, :3]).as_quat()])

@@ -8,10 +8,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from device_tracker.tracking import Tracking, TrackingConfig
-from sequence_player.readers import SequenceReader
+from sequence_player.readers import SequenceReader, pose_to_xyzq
 from simulator.covisibility import CovisibilityDataset
 
 
@@ -24,11 +23,6 @@ class ExtractionReport:
     map_points: int
     seconds: float
     frontend_ms: np.ndarray  #: per-frame front-end time (ORB + matching + PnP + bookkeeping)
-
-
-def pose_to_xyzq(pose: np.ndarray) -> np.ndarray:
-    """4×4 camera-to-world → x y z qx qy qz qw (the covisibility file's pose columns)."""
-    return np.concatenate([pose[:3, 3], Rotation.from_matrix(pose[:3, :3]).as_quat()])
 
 
 def extract_covisibility(reader: SequenceReader, config: TrackingConfig | None = None,
