@@ -17,6 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from bench.gauge import cpu_gauge
 from device_tracker.tracking import Tracking
 from sequence_player.readers import open_sequence
 
@@ -29,6 +30,7 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=1000)
     args = parser.parse_args()
     cv2.setNumThreads(1)                       # "on one core"
+    print(cpu_gauge(), "(before)")
     reader = open_sequence(args.sequence, end=args.frames)
     tracker = Tracking(reader.intrinsics)
     frontend, decode = [], []
@@ -50,6 +52,7 @@ def main() -> None:
           f"({len(tracker.map)} map points at the end)")
     print(f"image decoding: median {np.median(decode) * 1000:.1f} ms/frame; whole extraction "
           f"{total:.1f} s")
+    print(cpu_gauge(), "(after)")
 
 
 if __name__ == "__main__":

@@ -16,6 +16,7 @@ import time
 
 import numpy as np
 
+from bench.gauge import cpu_gauge
 from edge_mapper.policies import greedy_additions, greedy_removals, make_policy, naive_greedy
 from simulator.covisibility import load_covisibility
 from simulator.env import MapManagementEnv, SimConfig
@@ -80,6 +81,7 @@ def main() -> None:
         geometric_covisibility(n_frames=1000, n_points=4000)
     print(f"machine: {platform.node()} {platform.machine()} python {platform.python_version()}; "
           f"covisibility: {dataset.source or args.covis} ({dataset.n_frames} frames)")
+    print(cpu_gauge(), "(before)")
     for name in ("lff", "pu", "random", "adapt"):
         full, decide = slots_per_second(dataset, name, args.slots, args.repeats)
         print(f"{name:<7} {full:8.0f} slots/s (decide+update+reward)   "
@@ -87,6 +89,7 @@ def main() -> None:
     inc, naive = adapt_ratio(dataset)
     print(f"ADAPT decision (V_max 45, 60 candidates, 8 up / 8 evict): incremental "
           f"{inc * 1000:.2f} ms, naive {naive * 1000:.1f} ms, ratio {naive / inc:.1f}x")
+    print(cpu_gauge(), "(after)")
 
 
 if __name__ == "__main__":

