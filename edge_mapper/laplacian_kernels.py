@@ -39,6 +39,7 @@ def cholesky_logdet(m: np.ndarray, k: int, rtol: float) -> float:
             return -math.inf
         ljj = math.sqrt(s)
         m[j, j] = ljj
+        r = 1.0 / ljj                      # one division per column, not one per entry
         prod *= s
         if prod < 1e-150 or prod > 1e150:
             logdet += math.log(prod)
@@ -47,7 +48,7 @@ def cholesky_logdet(m: np.ndarray, k: int, rtol: float) -> float:
             t = m[i, j]
             for p in range(j):
                 t -= m[i, p] * m[j, p]
-            m[i, j] = t / ljj
+            m[i, j] = t * r
     return logdet + math.log(prod)
 
 
@@ -532,6 +533,34 @@ def raise_addition_bounds(inv: np.ndarray, pos: np.ndarray, cand: np.ndarray,
         upper[f] += math.log1p(w_fv * r_min)
 
 
+@njit(cache=True, fastmath=_FAST)
+def tighten_addition_bounds(inv: np.ndarray, pos: np.ndarray, comp: np.ndarray, n_comp: int,
+                            cand: np.ndarray, rows: np.ndarray, upper: np.ndarray) -> None:
+    """upper[f] = min(upper[f], Hadamard bound on f's :func:`_augmented_one` ratio), O(n) each.
+
+    With M = K + D⁻¹ on f's support: Πd·det M = det(I + D^½ K D^½) ≤ Π(1 + d_i C_ii)
+    (Hadamard, the matrix being positive definite), and M ⪰ D⁻¹ gives Pᵀ M⁻¹ P ⪯ Pᵀ D P, so the
+    last determinant is at most Π_c (b_ground,c + Σ_{i∈c} d_i). An untouched component gives
+    -inf, as the exact score does. This lets the first greedy round skip most candidates,
+    which no carried bound can do.
+    """
+    n = cand.shape[1]
+    per_comp = np.empty(n_comp)
+    for f in rows:
+        per_comp[:] = 0.0
+        bound = 0.0
+        for j in range(n):
+            w = cand[f, j]
+            if w > 0.0:
+                per_comp[comp[j]] += w
+                pj = pos[j]
+                if pj >= 0:
+                    bound += math.log1p(w * inv[pj, pj])
+        for c in range(n_comp):
+            bound = bound + math.log(per_comp[c]) if per_comp[c] > 0.0 else -math.inf
+        upper[f] = min(upper[f], bound)
+
+
 @njit(cache=True)
 def factorise(weights: np.ndarray, rtol: float
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, float]:
@@ -575,3 +604,23 @@ def slot_scores(weights: np.ndarray, cand: np.ndarray, rtol: float
     rows = np.arange(cand.shape[0])
     return n_comp, log_det, augmented_log_taus(inv, pos, comp, n_comp, cand, rows, None,
                                                log_det, 0.0, 0.0, rtol)
+
+
+@njit(cache=True)
+def gathered_slot_scores(dense: np.ndarray, map_idx: np.ndarray, cand_idx: np.ndarray,
+                         rtol: float) -> tuple[np.ndarray, int, float, np.ndarray]:
+    """:func:`slot_scores` with the weights gathered from a dataset's dense weight matrix:
+    (map weights, components, log det A, log τ(G ∪ {f}) per candidate). The simulator's slot
+    then costs one kernel call; the map weights (zero diagonal: an instance shares no edge
+    with itself) are returned for the policies and snapshots."""
+    n, m = map_idx.size, cand_idx.size
+    w = np.empty((n, n))
+    for i in range(n):
+        for j in range(n):
+            w[i, j] = 0.0 if i == j else dense[map_idx[i], map_idx[j]]
+    cand = np.empty((m, n))
+    for i in range(m):
+        for j in range(n):
+            cand[i, j] = dense[cand_idx[i], map_idx[j]]
+    n_comp, log_det, log_tau = slot_scores(w, cand, rtol)
+    return w, n_comp, log_det, log_tau

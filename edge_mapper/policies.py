@@ -15,13 +15,12 @@ Theorem 1 fixes. The rule-based ones are the paper's benchmarks (§VII):
 
 from __future__ import annotations
 
-import math
 from typing import Protocol
 
 import numpy as np
 
-from edge_mapper import laplacian_kernels as kernels
-from edge_mapper.graph_factor import GraphFactor, pick_best
+from edge_mapper import greedy_kernels
+from edge_mapper.graph_factor import BOUND_RTOL, PIVOT_RTOL, TIE_RTOL, pick_best
 from edge_mapper.uncertainty import logdet_spd, reduced_laplacian
 from simulator.env import MapAction, SlotObservation
 
@@ -94,46 +93,22 @@ def greedy_additions(set_w: np.ndarray, cand_set_w: np.ndarray, cand_w: np.ndarr
     ``set_w`` (n×n) are the set's weights, ``cand_set_w`` (m×n) candidates to set, ``cand_w``
     (m×m) candidates among themselves. A candidate is scored against one factorisation of the
     set (matrix determinant lemma on the few frames it touches), and the chosen frame borders
-    the set's inverse Laplacian instead of refactorising it. After the first round each
-    candidate carries a proven upper bound on its score (``raise_addition_bounds``); a round
-    scores candidates in order of that bound and stops once no bound can reach the best score
-    within the tie tolerance, so it picks exactly what scoring all of them would. Returns
-    candidate indices in pick order.
+    the set's inverse Laplacian instead of refactorising it. Every candidate has a proven
+    upper bound on its score: a Hadamard bound from the diagonal of the inverse
+    (``tighten_addition_bounds``), and after a pick the previous score raised by Rayleigh
+    monotonicity (``raise_addition_bounds``), whichever is lower. A round scores candidates in
+    order of that bound and stops once no bound can reach the best score within the tie
+    tolerance, so it picks exactly what scoring all of them would. The whole loop is one
+    compiled call (:mod:`edge_mapper.greedy_kernels`). Returns candidate indices in pick order.
     """
-    m = cand_set_w.shape[0]
-    chosen: list[int] = []
-    b = np.asarray(cand_set_w, dtype=np.float64)     # weights of every candidate to the set
-    remaining = list(range(m))
-    if set_w.shape[0] == 0 and count > 0:
-        # An empty set: start from the candidate most connected to the others.
-        first = pick_best(cand_w.sum(axis=1).astype(np.float64))
-        chosen.append(first)
-        remaining.remove(first)
-        factor = GraphFactor(np.zeros((1, 1)))
-        b = cand_w[:, [first]].astype(np.float64)
-    else:
-        factor = GraphFactor(set_w)
-    upper = np.full(m, math.inf)        # bound on log(τ(S ∪ {f}) / τ(S)), exact when scored
-    while len(chosen) < count:
-        rem = np.array(remaining)
-        scores = factor.augmented_log_tau(b, rem, upper)
-        if factor.connected:
-            scored = scores > -math.inf
-            upper[rem[scored]] = scores[scored] - factor.log_det_a
-        best = pick_best(scores)
-        v = int(rem[best])
-        chosen.append(v)
-        remaining.remove(v)
-        grown = factor.with_frame(b[v], float(scores[best]))
-        to_v = cand_w[:, v].astype(np.float64)
-        if factor.connected and grown.connected:
-            kernels.raise_addition_bounds(grown.inverse, grown.pos, b, to_v,
-                                          np.array(remaining, dtype=np.int64), upper)
-        else:
-            upper[:] = math.inf
-        factor = grown
-        b = np.concatenate([b, to_v[:, None]], axis=1)
-    return chosen
+    if count > cand_set_w.shape[0]:
+        raise ValueError(f"cannot add {count} of {cand_set_w.shape[0]} candidates")
+    picks = greedy_kernels.greedy_additions(
+        np.ascontiguousarray(set_w, dtype=np.float64),
+        np.ascontiguousarray(cand_set_w, dtype=np.float64),
+        np.ascontiguousarray(cand_w, dtype=np.float64), int(count), TIE_RTOL, BOUND_RTOL,
+        PIVOT_RTOL)
+    return picks.tolist()
 
 
 def greedy_removals(set_w: np.ndarray, count: int) -> list[int]:
@@ -143,17 +118,12 @@ def greedy_removals(set_w: np.ndarray, count: int) -> list[int]:
     frame's neighbours), and the removal itself downdates that inverse. Near-ties go to the
     oldest frame; when any removal leaves <= 1 frame, the oldest goes.
     """
-    factor = GraphFactor(set_w)
-    alive = list(range(set_w.shape[0]))
-    removed: list[int] = []
-    for _ in range(count):
-        if len(alive) <= 2:
-            i, score = 0, 0.0
-        else:
-            i, score = factor.best_removal()
-        removed.append(alive.pop(i))
-        factor = factor.without_frame(i, score)
-    return removed
+    n = np.asarray(set_w).shape[0]
+    if count > n:
+        raise ValueError(f"cannot remove {count} of {n} frames")
+    return greedy_kernels.greedy_removals(np.ascontiguousarray(set_w, dtype=np.float64),
+                                          int(count), TIE_RTOL, BOUND_RTOL,
+                                          PIVOT_RTOL).tolist()
 
 
 def naive_greedy(weights: np.ndarray, start: list[int], pool: list[int], n_add: int,

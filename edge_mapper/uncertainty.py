@@ -118,8 +118,7 @@ def next_slot_uncertainty(map_weights: np.ndarray, cand_weights: np.ndarray,
                           lost_penalty: float = LOST_FRAME_PENALTY) -> SlotUncertainty:
     """υ_k of eq. (8) for the map G^e_{k+1} and the frames F_{k+1}, never letting inf leak.
 
-    Runs once per slot in the simulator: one kernel call (factorise + score every frame), and on
-    60 frames plain Python beats a chain of numpy calls for the statistics."""
+    Runs once per slot in the simulator: one kernel call (factorise + score every frame)."""
     w = np.asarray(map_weights, dtype=np.float64)
     b = np.ascontiguousarray(np.atleast_2d(cand_weights), dtype=np.float64)
     n = w.shape[0]
@@ -131,17 +130,26 @@ def next_slot_uncertainty(map_weights: np.ndarray, cand_weights: np.ndarray,
         if b.shape[1] != n:
             raise ValueError(f"candidate weights have {b.shape[1]} columns, the map {n}")
         n_comp, log_det, log_tau = kernels.slot_scores(w, b, PIVOT_RTOL)
-    u = [-6.0 * x - n * log_det_pi for x in log_tau.tolist() if x > -math.inf]
-    n_lost = log_tau.size - len(u)
+    return slot_uncertainty_from_scores(n, n_comp, log_det, log_tau, log_det_pi, lost_penalty)
+
+
+def slot_uncertainty_from_scores(n: int, n_comp: int, log_det: float, log_tau: np.ndarray,
+                                 log_det_pi: float = 0.0,
+                                 lost_penalty: float = LOST_FRAME_PENALTY) -> SlotUncertainty:
+    """υ_k from a map of ``n`` frames with ``n_comp`` components and log det A = ``log_det``,
+    and log τ(G ∪ {f}) of each next-slot frame (-inf: the frame shares no point)."""
+    finite = log_tau[log_tau > -math.inf]
+    n_tracked = finite.size
+    n_lost = log_tau.size - n_tracked
+    total = -6.0 * float(finite.sum()) - n_tracked * n * log_det_pi     # Σ u(G ∪ {f})
     map_u = -6.0 * log_det - (n - 1) * log_det_pi if n_comp == 1 else math.inf
-    total = math.fsum(u)
     base = map_u
     if n_lost and not math.isfinite(base):
         # An empty or disconnected map: fall back to the penalty alone so the objective stays
         # finite and worse than any tracked frame of a connected map would make it.
-        base = max(u) if u else 0.0
+        base = -6.0 * float(finite.min()) - n * log_det_pi if n_tracked else 0.0
     return SlotUncertainty(
-        mean_tracked=total / len(u) if u else math.nan,
+        mean_tracked=total / n_tracked if n_tracked else math.nan,
         lost_ratio=n_lost / log_tau.size,
         objective=(total + n_lost * (base + lost_penalty)) / log_tau.size,
         map_uncertainty=map_u,

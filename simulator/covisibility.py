@@ -80,6 +80,14 @@ class CovisibilityDataset:
         return self._dense is not None
 
     @property
+    def dense_weights(self) -> np.ndarray:
+        """The n×n int32 matrix of all pairwise weights (only when :attr:`dense`)."""
+        if self._dense is None:
+            raise ValueError(f"{self.n_frames} frames: weights are not kept dense "
+                             f"(limit {DENSE_LIMIT})")
+        return self._dense
+
+    @property
     def n_frames(self) -> int:
         return int(self.point_offsets.size - 1)
 

@@ -16,10 +16,13 @@ from typing import Any
 
 import numpy as np
 
+from edge_mapper import laplacian_kernels as kernels
+from edge_mapper.graph_factor import PIVOT_RTOL
 from edge_mapper.uncertainty import (
     LOST_FRAME_PENALTY,
     SlotUncertainty,
     next_slot_uncertainty,
+    slot_uncertainty_from_scores,
     theorem1_cardinalities,
 )
 from simulator.covisibility import CovisibilityDataset
@@ -178,9 +181,15 @@ class MapManagementEnv:
             raise ActionError(f"slot {obs.slot}: evictions {sorted(stray)} are neither in the "
                               "map nor uploaded")
 
-    def apply(self, action: MapAction) -> None:
-        """V^e_{k+1} = (U_k ∪ V^e_k) \\ C_k, keeping capture order (oldest = anchor first)."""
+    def apply(self, action: MapAction, *, weights: bool = True) -> None:
+        """V^e_{k+1} = (U_k ∪ V^e_k) \\ C_k, keeping capture order (oldest = anchor first).
+
+        ``weights=False`` leaves the map's weight matrix for the caller to set (``step`` on a
+        dense dataset gathers it in the same kernel call as the reward)."""
         self._last_obs = None
+        if not weights:
+            self._map = sorted(set(self._map).union(action.upload).difference(action.evict))
+            return
         evict = set(action.evict)
         src = np.array([i for i, f in enumerate(self._map) if f not in evict], dtype=np.int64)
         kept = [self._map[i] for i in src]
@@ -210,10 +219,22 @@ class MapManagementEnv:
     def step(self, action: MapAction) -> tuple[SlotObservation, float, bool, bool, dict[str, Any]]:
         obs = self._last_obs or self._observation()
         self.check_action(obs, action)
-        self.apply(action)
+        dense = self.dataset.dense
+        self.apply(action, weights=not dense)
         self._slot += 1
         f = self.config.slot_frames
-        slot_u = self._evaluate(np.arange(self._slot * f, (self._slot + 1) * f))
+        frames = np.arange(self._slot * f, (self._slot + 1) * f)
+        if dense and self._map:               # map weights and reward in one kernel call
+            self._map_w, n_comp, log_det, log_tau = kernels.gathered_slot_scores(
+                self.dataset.dense_weights, self.stream.dataset_index(self._map),
+                self.stream.dataset_index(frames), PIVOT_RTOL)
+            slot_u = slot_uncertainty_from_scores(len(self._map), n_comp, log_det, log_tau,
+                                                  self.config.log_det_pi,
+                                                  self.config.lost_penalty)
+        else:
+            if dense:
+                self._map_w = np.zeros((0, 0))
+            slot_u = self._evaluate(frames)
         info = {"uncertainty": slot_u, "map_size": len(self._map),
                 "map_uncertainty": slot_u.map_uncertainty}
         truncated = self._slot >= self.config.slots

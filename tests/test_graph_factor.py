@@ -122,6 +122,25 @@ def test_addition_bounds_hold_after_the_set_grows(w: np.ndarray, data) -> None:
     assert np.all(exact <= upper + 1e-9 * np.maximum(1.0, np.abs(upper)))
 
 
+@settings(max_examples=150, deadline=None)
+@given(any_graphs(min_nodes=1, max_nodes=9), st.integers(1, 5), st.data())
+def test_hadamard_addition_bounds_hold(w: np.ndarray, k: int, data) -> None:
+    """The first greedy round's pruning premise: on any set, connected or not, no candidate's
+    exact ratio exceeds its Hadamard bound, and a bound is -inf exactly when the exact score
+    is (the candidate leaves a component untouched)."""
+    n = w.shape[0]
+    cand = np.array([[data.draw(st.sampled_from([0, 0, 1, 7, 40])) for _ in range(n)]
+                     for _ in range(k)], dtype=float)
+    factor = GraphFactor(w)
+    exact = factor.augmented_log_tau(cand) - factor.log_det_a
+    upper = np.full(k, math.inf)
+    kernels.tighten_addition_bounds(factor.inverse, factor.pos, factor.comp, factor.n_comp,
+                                    cand, np.arange(k), upper)
+    assert np.array_equal(np.isinf(upper) & (upper < 0), np.isinf(exact) & (exact < 0))
+    finite = np.isfinite(exact)
+    assert np.all(exact[finite] <= upper[finite] + 1e-9 * np.maximum(1.0, np.abs(upper[finite])))
+
+
 @settings(max_examples=80, deadline=None)
 @given(any_graphs(min_nodes=2, max_nodes=8), st.integers(1, 4), st.data())
 def test_slot_uncertainty_equals_per_frame_factorisations(w: np.ndarray, k: int, data) -> None:

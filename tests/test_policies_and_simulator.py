@@ -22,18 +22,22 @@ def room() -> CovisibilityDataset:
     return geometric_covisibility(n_frames=400, n_points=2000, seed=3)
 
 
-def _random_universe(rng: np.random.Generator, n: int) -> np.ndarray:
-    """Weights of n frames with random point sets drawn from a moving window of points."""
-    sets = [set(rng.choice(np.arange(i * 3, i * 3 + 60), 30, replace=False).tolist())
-            for i in range(n)]
+def _random_universe(rng: np.random.Generator, n: int, clusters: int = 1) -> np.ndarray:
+    """Weights of n frames with random point sets drawn from a moving window of points; with
+    ``clusters`` > 1 each frame's window is also shifted to one of that many disjoint regions
+    (at random), so maps and unions are often disconnected and some candidates bridge."""
+    region = rng.integers(0, clusters, n) * 10_000
+    sets = [set((region[i] + rng.choice(np.arange(i * 3, i * 3 + 60), 30, replace=False)
+                 ).tolist()) for i in range(n)]
     return CovisibilityDataset.from_sets(sets).weights(np.arange(n), np.arange(n))
 
 
+@pytest.mark.parametrize("clusters", [1, 2, 3])
 @pytest.mark.parametrize("seed", range(12))
-def test_incremental_adapt_picks_what_the_naive_greedy_picks(seed: int) -> None:
+def test_incremental_adapt_picks_what_the_naive_greedy_picks(seed: int, clusters: int) -> None:
     rng = np.random.default_rng(seed)
     n_map, n_cand = int(rng.integers(0, 12)), int(rng.integers(4, 14))
-    w = _random_universe(rng, n_map + n_cand)
+    w = _random_universe(rng, n_map + n_cand, clusters)
     n_add = int(rng.integers(1, min(n_cand, 6) + 1))
     n_remove = int(rng.integers(0, n_map + n_add))
     map_idx, cand_idx = list(range(n_map)), list(range(n_map, n_map + n_cand))
