@@ -27,6 +27,7 @@ lint: venv
 bench: venv
 	$(PY) -m bench.dds
 	$(PY) -m bench.sim
+	$(PY) -m bench.sim --covis room
 	$(PY) -m bench.frontend
 
 clean:

@@ -5,7 +5,7 @@ A slot is decide + map update + the reward υ_k (eq. 8: 60 log-determinants of 4
 Laplacians). Both the full slot rate and the decision-only rate are printed, because the
 reward's cost is the same for every policy and bounds them all.
 
-    python -m bench.sim [--covis FILE] [--slots 100]
+    python -m bench.sim [--covis FILE|room] [--slots 100] [--repeats 5]
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import platform
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -22,6 +23,8 @@ from simulator.covisibility import load_covisibility
 from simulator.env import MapManagementEnv, SimConfig
 from simulator.geometric_covisibility import geometric_covisibility
 from udt_node.channel import parse_channel
+
+REAL_COVIS = Path(__file__).resolve().parents[1] / "data" / "7scenes-redkitchen-1000.covis.npz"
 
 
 def slots_per_second(dataset, name: str, slots: int, repeats: int) -> tuple[float, float]:
@@ -73,12 +76,14 @@ def adapt_ratio(dataset, repeats: int = 9) -> tuple[float, float]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--covis", help="covisibility .npz (default: geometric room model)")
+    parser.add_argument("--covis", default=str(REAL_COVIS),
+                        help="covisibility .npz, or 'room' for the geometric room model "
+                             "(default: the 7-Scenes sample's, the data the experiments use)")
     parser.add_argument("--slots", type=int, default=100)
     parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args()
-    dataset = load_covisibility(args.covis) if args.covis else \
-        geometric_covisibility(n_frames=1000, n_points=4000)
+    dataset = geometric_covisibility(n_frames=1000, n_points=4000) if args.covis == "room" \
+        else load_covisibility(args.covis)
     print(f"machine: {platform.node()} {platform.machine()} python {platform.python_version()}; "
           f"covisibility: {dataset.source or args.covis} ({dataset.n_frames} frames)")
     print(cpu_gauge(), "(before)")
