@@ -1,0 +1,40 @@
+"""Rate histories as learning data, and how an estimated transition matrix is scored.
+
+The twin and its baselines all learn from the same thing: the sequence of quantised uplink
+states d_0, d_1, … (one per slot). A training example is a history window
+d_k = [d_{k−τ} … d_k] (one-hot, τ+1 steps) and its successor d_{k+1}.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+
+def one_hot(states: np.ndarray, n_states: int) -> np.ndarray:
+    """(…, N) float32 one-hot rows of integer states."""
+    s = np.asarray(states, dtype=np.int64)
+    if s.size and (s.min() < 0 or s.max() >= n_states):
+        raise ValueError(f"states must lie in [0, {n_states}), got {s.min()}..{s.max()}")
+    return np.eye(n_states, dtype=np.float32)[s]
+
+
+def history_windows(states: np.ndarray, history: int, n_states: int
+                    ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Every (d_k window, d_{k+1}) pair of a state sequence: windows (M, history, N) one-hot,
+    targets (M,) long. Empty tensors when the sequence is shorter than ``history`` + 1."""
+    s = np.asarray(states, dtype=np.int64)
+    m = s.size - history
+    if m <= 0:
+        return (torch.zeros((0, history, n_states)), torch.zeros(0, dtype=torch.long))
+    idx = np.arange(history)[None, :] + np.arange(m)[:, None]
+    return (torch.from_numpy(one_hot(s[idx], n_states)), torch.from_numpy(s[history:].copy()))
+
+
+def transition_error(estimate: np.ndarray, truth: np.ndarray) -> float:
+    """Mean absolute difference over all N² entries of two transition matrices — the error
+    of every UDT figure (paper Figs 4 and 5)."""
+    a, b = np.asarray(estimate, dtype=np.float64), np.asarray(truth, dtype=np.float64)
+    if a.shape != b.shape:
+        raise ValueError(f"matrices differ in shape: {a.shape} vs {b.shape}")
+    return float(np.abs(a - b).mean())
