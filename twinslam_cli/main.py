@@ -157,6 +157,37 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return run_demo(args)
 
 
+def cmd_experiment(args: argparse.Namespace) -> int:
+    from udt_node import experiments as ex
+
+    out = Path(args.out)
+    proto = ex.Protocol(interval_slots=args.interval_slots, retrain_every=args.retrain_every,
+                        buffer_slots=args.buffer_slots)
+    t0 = time.monotonic()
+
+    def progress(line: str) -> None:
+        print(f"[{time.monotonic() - t0:7.1f} s] {line}", file=sys.stderr, flush=True)
+
+    if args.name == "udt-fig3":
+        res = ex.fig3(out, seed=args.seed, progress=progress,
+                      proto=ex.Protocol(interval_slots=max(args.interval_slots, 1000),
+                                        retrain_every=args.retrain_every,
+                                        buffer_slots=max(args.buffer_slots, 1000)))
+        print(f"UDT error on a 4-state chain (mean |P̂ - P|): {res['error']:.4f}")
+    elif args.name == "udt-fig4":
+        res4 = ex.fig4(out, runs=args.runs, seed=args.seed, proto=proto, progress=progress)
+        print(f"{'N':>3} " + " ".join(f"{name:>16}" for name in res4))
+        for n in next(iter(res4.values())):
+            print(f"{n:>3} " + " ".join(f"{sum(v[n]) / len(v[n]):16.4f}" for v in res4.values()))
+    else:
+        res5 = ex.fig5(out, runs=args.runs, n_states=args.states, seed=args.seed, proto=proto,
+                       progress=progress)
+        for mode, by in res5.items():
+            print(mode + ": " + ", ".join(f"{name} {v.mean():.4f}" for name, v in by.items()))
+    print(f"wrote {out}/{args.name.replace('-', '_')}.csv and .png")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="twinslam", description=__doc__.split("\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -194,6 +225,17 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--slots", type=int, default=40)
     demo.add_argument("--seeds", type=int, default=3)
     demo.set_defaults(func=cmd_demo)
+    exp = sub.add_parser("experiment", help="reproduce a paper figure (CSV + PNG)")
+    exp.add_argument("name", choices=["udt-fig3", "udt-fig4", "udt-fig5"])
+    exp.add_argument("--runs", type=int, default=20, help="independent runs per point")
+    exp.add_argument("--seed", type=int, default=0)
+    exp.add_argument("--states", type=int, default=2, help="N for udt-fig5")
+    exp.add_argument("--interval-slots", type=int, default=300, help="K, slots per interval")
+    exp.add_argument("--retrain-every", type=int, default=300, help="W, slots between retrains")
+    exp.add_argument("--buffer-slots", type=int, default=300,
+                     help="latest real experiences a retrain learns from")
+    exp.add_argument("--out", default="results", help="folder for the CSV and PNG")
+    exp.set_defaults(func=cmd_experiment)
     return parser
 
 

@@ -7,8 +7,11 @@ d_k = [d_{k−τ} … d_k] (one-hot, τ+1 steps) and its successor d_{k+1}.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import torch
+from torch import nn
 
 
 def one_hot(states: np.ndarray, n_states: int) -> np.ndarray:
@@ -38,3 +41,23 @@ def transition_error(estimate: np.ndarray, truth: np.ndarray) -> float:
     if a.shape != b.shape:
         raise ValueError(f"matrices differ in shape: {a.shape} vs {b.shape}")
     return float(np.abs(a - b).mean())
+
+
+def fit(network: nn.Module, loss_fn: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
+        windows: torch.Tensor, targets: torch.Tensor, steps: int, batch_size: int,
+        learning_rate: float, rng: np.random.Generator) -> list[float]:
+    """``steps`` Adam steps on random mini-batches of (window, target) pairs, in place, from
+    the network's current weights (the warm start of Algorithm 1); returns every step's loss.
+    """
+    opt = torch.optim.Adam(network.parameters(), lr=learning_rate)
+    network.train()
+    trace: list[float] = []
+    for _ in range(steps):
+        idx = torch.from_numpy(rng.integers(0, len(targets), batch_size))
+        loss = loss_fn(windows[idx], targets[idx])
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        trace.append(float(loss.detach()))
+    network.eval()
+    return trace

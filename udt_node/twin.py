@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import copy
 import io
+import pickle
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,20 +26,20 @@ import numpy as np
 import torch
 from torch import nn
 
-from udt_node.rate_history import history_windows, one_hot
+from udt_node.rate_history import fit, history_windows, one_hot
 
 
 @dataclass(frozen=True)
 class TwinConfig:
     n_states: int = 2
     latent_dim: int = 8           #: Z
-    history: int = 16             #: τ + 1 states in d_k
+    history: int = 8              #: τ + 1 states in d_k
     lstm_hidden: int = 300        #: paper: 2 × LSTM(300)
     buffer_slots: int = 600       #: real experiences a retrain learns from (the latest)
     retrain_every: int = 100      #: W
-    steps_per_retrain: int = 150  #: Adam steps per retrain (warm-started)
-    batch_size: int = 128
-    learning_rate: float = 1e-3
+    steps_per_retrain: int = 100  #: Adam steps per retrain (warm-started)
+    batch_size: int = 64
+    learning_rate: float = 3e-3
     kl_weight: float = 1.0        #: 1 is the ELBO; kept as a knob for ablations
     seed: int = 0
 
@@ -135,34 +136,33 @@ class UserDigitalTwin:
 
     def retrain(self, steps: int | None = None) -> list[float]:
         """Fit to the buffer in place; returns the negative ELBO of every step."""
-        trained, trace = self.train_copy(steps)
+        trained, trace = self.train_copy(self.take_training_data(), steps)
         self.adopt(trained, trace)
         return trace
 
-    def train_copy(self, steps: int | None = None) -> tuple[UdtNetwork, list[float]]:
-        """A trained copy of the network (the live one keeps answering meanwhile)."""
+    def take_training_data(self) -> list[int]:
+        """The buffer as it is now, for a retrain; the W-slot count starts again."""
+        self._since = 0
+        return list(self.states)
+
+    def train_copy(self, states: list[int], steps: int | None = None
+                   ) -> tuple[UdtNetwork, list[float]]:
+        """A copy of the network trained on ``states`` (the live one keeps answering
+        meanwhile, so a node can run this on another thread)."""
         cfg = self.config
-        windows, targets = history_windows(np.array(self.states), cfg.history, cfg.n_states)
+        windows, targets = history_windows(np.array(states), cfg.history, cfg.n_states)
         net = copy.deepcopy(self.network)
-        trace: list[float] = []
         if len(targets) == 0:
-            return net, trace
-        opt = torch.optim.Adam(net.parameters(), lr=cfg.learning_rate)
-        net.train()
-        for _ in range(cfg.steps_per_retrain if steps is None else steps):
-            idx = torch.from_numpy(self._rng.integers(0, len(targets), cfg.batch_size))
-            loss, _, _ = net.negative_elbo(windows[idx], targets[idx], cfg.kl_weight)
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            trace.append(float(loss.detach()))
-        net.eval()
+            return net, []
+        trace = fit(net, lambda w, t: net.negative_elbo(w, t, cfg.kl_weight)[0], windows,
+                    targets, cfg.steps_per_retrain if steps is None else steps,
+                    cfg.batch_size, cfg.learning_rate, self._rng)
         return net, trace
 
     def adopt(self, network: UdtNetwork, trace: list[float]) -> None:
+        """Make a trained network the live one (a new model version)."""
         self.network = network
         self.version += 1
-        self._since = 0
         if trace:
             self.losses.append(trace[-1])
 
@@ -225,7 +225,8 @@ class UserDigitalTwin:
             blob = torch.load(path, map_location="cpu", weights_only=True)
             twin = cls(TwinConfig(**blob["config"]))
             twin.network.load_state_dict(blob["state_dict"])
-        except (OSError, RuntimeError, KeyError, TypeError, EOFError) as exc:
+        except (OSError, RuntimeError, KeyError, TypeError, EOFError,
+                pickle.UnpicklingError) as exc:
             raise ValueError(f"{path}: not a twin checkpoint ({exc})") from None
         twin.network.eval()
         twin.version = int(blob["version"])

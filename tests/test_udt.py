@@ -1,0 +1,166 @@
+"""The user digital twin: ELBO training, the transition matrix it recovers, its baselines, and
+udt_node across processes."""
+
+from __future__ import annotations
+
+import math
+import re
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import node_runtime
+from msg_schemas.registry import new
+from node_runtime.loopback import LoopbackDomain
+from udt_node.baselines import LstmConfig, LstmPredictor, MarkovMle
+from udt_node.channel import MarkovChannel, state_rates
+from udt_node.experiments import chain_states
+from udt_node.node import SLOT_QOS
+from udt_node.rate_history import history_windows, transition_error
+from udt_node.twin import TwinConfig, UserDigitalTwin
+
+P2 = np.array([[0.8, 0.2], [0.3, 0.7]])
+
+
+def _chain(matrix: np.ndarray, slots: int, seed: int) -> list[int]:
+    channel = MarkovChannel(state_rates(matrix.shape[0]), matrix=matrix, seed=seed)
+    return [channel.step()[0] for _ in range(slots)]
+
+
+def test_history_windows_pair_each_window_with_its_successor() -> None:
+    windows, targets = history_windows(np.array([0, 1, 1, 0, 1]), 3, 2)
+    assert windows.shape == (2, 3, 2)
+    assert windows[0].argmax(dim=1).tolist() == [0, 1, 1] and targets.tolist() == [0, 1]
+    assert windows[1].argmax(dim=1).tolist() == [1, 1, 0]
+
+
+def test_elbo_falls_and_the_twin_recovers_a_stationary_two_state_chain() -> None:
+    twin = UserDigitalTwin(TwinConfig(n_states=2, buffer_slots=2000, seed=0))
+    for s in _chain(P2, 2000, seed=1):
+        twin.observe(s)
+    trace = twin.retrain(steps=300)
+    first, last = np.mean(trace[:30]), np.mean(trace[-30:])
+    estimate = twin.transition_matrix()
+    error = transition_error(estimate, P2)
+    print(f"\nnegative ELBO {first:.3f} -> {last:.3f}; estimate {estimate.round(3).tolist()}, "
+          f"error {error:.4f} (Markov MLE on the same data: "
+          f"{transition_error(_mle(twin.states, 2), P2):.4f})")
+    assert last < first - 0.05
+    assert error < 0.05
+    assert twin.version == 1
+    latent = twin.latent()
+    assert latent.mu.shape == latent.sigma.shape == (8,) and np.all(latent.sigma > 0)
+    assert math.isclose(float(latent.next_state_probs.sum()), 1.0, rel_tol=1e-5)
+    # artificial experiences: samples follow the predicted next-state distribution
+    samples = twin.sample_next(4000, generator=np.random.default_rng(0))
+    expected = twin.transition_matrix()[twin.states[-1]]
+    assert abs(np.mean(samples == 1) - expected[1]) < 0.03
+
+
+def _mle(states: list[int], n: int) -> np.ndarray:
+    mle = MarkovMle(n)
+    for s in states:
+        mle.observe(s)
+    return mle.transition_matrix()
+
+
+def test_markov_mle_counts_transitions_whole_or_windowed() -> None:
+    mle = MarkovMle(3)
+    for s in [0, 1, 0, 1, 1, 2]:
+        mle.observe(s)
+    # 0→1 twice; 1→0, 1→1, 1→2 once each; 2 never left: uniform
+    np.testing.assert_allclose(mle.transition_matrix(),
+                               [[0, 1, 0], [1 / 3, 1 / 3, 1 / 3], [1 / 3, 1 / 3, 1 / 3]])
+    windowed = MarkovMle(2, window=2)
+    for s in [0, 0, 0, 1, 1]:
+        windowed.observe(s)
+    np.testing.assert_allclose(windowed.transition_matrix(), [[0, 1], [0, 1]])
+
+
+def test_lstm_point_predictor_gives_deterministic_rows() -> None:
+    """The paper's point: an LSTM predicting the next state gives one answer per history, so
+    the matrix it implies is far from a spread-out truth, where the twin's is not."""
+    truth = np.array([[0.5, 0.5], [0.5, 0.5]])
+    states = _chain(truth, 800, seed=2)
+    lstm = LstmPredictor(LstmConfig(n_states=2, buffer_slots=800, steps_per_retrain=60))
+    for s in states:
+        lstm.observe(s)
+    lstm.retrain()
+    rows = lstm.transition_matrix()
+    assert np.allclose(rows.sum(axis=1), 1.0)
+    assert transition_error(rows, truth) > 0.2
+
+
+def test_chain_states_follow_each_interval_matrix() -> None:
+    stay, flip = np.eye(2), np.array([[0.0, 1.0], [1.0, 0.0]])
+    s = chain_states([stay, flip], 50, np.random.default_rng(0))
+    assert len(set(s[:50].tolist())) == 1                     # never leaves its state
+    assert np.all(np.diff(s[50:]) != 0)                      # alternates every slot
+
+
+def test_twin_checkpoint_round_trip(tmp_path: Path) -> None:
+    twin = UserDigitalTwin(TwinConfig(n_states=3, latent_dim=4, seed=1))
+    for s in _chain(np.full((3, 3), 1 / 3), 120, seed=3):
+        twin.observe(s)
+    twin.retrain(steps=5)
+    twin.save(tmp_path / "twin.pt")
+    again = UserDigitalTwin.load(tmp_path / "twin.pt")
+    assert again.version == 1 and again.states == twin.states
+    np.testing.assert_allclose(again.transition_matrix(), twin.transition_matrix())
+    (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(ValueError, match=r"junk\.pt"):
+        UserDigitalTwin.load(tmp_path / "junk.pt")
+
+
+def _throughput(slot: int, mbps: float) -> object:
+    return new("twinslam_msgs/msg/UplinkThroughput", slot=slot, achieved_mbps=mbps,
+               configured_rate_mbps=mbps if math.isfinite(mbps) else 0.0)
+
+
+def test_udt_node_round_trip_refuses_bad_throughput(
+        tmp_path: Path, domain: LoopbackDomain, ros: node_runtime.SingleThreadedExecutor
+) -> None:
+    """Throughput in from this process, RateLatent out of udt_node's: one latent per valid
+    slot, a retrain in the background (model version rises, weights saved), and NaN,
+    negative and absurd values refused and counted."""
+    node = node_runtime.Node("udt_check")
+    pub = node.create_publisher("twinslam_msgs/msg/UplinkThroughput",
+                                "/device/uplink_throughput", SLOT_QOS)
+    got: list = []
+    sub = node.create_subscription("twinslam_msgs/msg/RateLatent", "/udt/rate_latent",
+                                   got.append, SLOT_QOS)
+    ros.add_node(node)
+    weights = tmp_path / "twin.pt"
+    proc = domain.spawn(["-m", "udt_node.node", "--ros-args", "-p", "retrain_every:=20",
+                         "-p", "steps_per_retrain:=5", "-p", "latent_dim:=4",
+                         "-p", f"weights:={weights}"])
+    assert ros.spin_until(lambda: pub.get_subscription_count() > 0
+                          and sub.get_publisher_count() > 0, 30.0)
+    rates = [40.0, 80.0]
+    states = _chain(P2, 60, seed=4)
+    bad = {10: float("nan"), 25: -3.0, 40: 1e9}
+    for slot, s in enumerate(states):
+        if slot in bad:
+            pub.publish(_throughput(slot, bad[slot]))
+        pub.publish(_throughput(slot, rates[s] + 0.7))
+        ros.spin_until(lambda: False, 0.01)
+    ros.spin_until(lambda: len(got) >= 60 and got[-1].model_version >= 1
+                   and weights.is_file(), 40.0)
+    deadline = time.monotonic() + 20
+    while got[-1].model_version < 2 and time.monotonic() < deadline:   # a retrain at slot 40
+        pub.publish(_throughput(len(got), 40.0))
+        ros.spin_until(lambda: False, 0.2)
+    code, _, err = domain.stop(proc)
+    assert code == 0, err
+    assert [m.slot for m in got[:60]] == list(range(60))
+    assert all(len(m.mu) == len(m.sigma) == 4 and abs(sum(m.next_state_probs) - 1) < 1e-5
+               for m in got)
+    assert list(got[0].state_rates_mbps) == rates
+    assert got[0].model_version == 0 and got[-1].model_version >= 2
+    assert weights.is_file() and UserDigitalTwin.load(weights).version >= 1
+    assert err.count("dropped a malformed twinslam_msgs/msg/UplinkThroughput") == 2  # NaN, < 0
+    assert err.count("refused throughput 1000000000.0") == 1
+    summary = re.search(r"(\d+) slots learned from, (\d+) refused", err)
+    assert summary is not None and int(summary[1]) >= 60 and int(summary[2]) == 3
