@@ -29,6 +29,7 @@ bench: venv
 	$(PY) -m bench.sim
 	$(PY) -m bench.sim --covis room
 	$(PY) -m bench.frontend
+	$(PY) -m bench.udt
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .ruff_cache

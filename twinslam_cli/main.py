@@ -175,13 +175,14 @@ def cmd_experiment(args: argparse.Namespace) -> int:
                                         buffer_slots=max(args.buffer_slots, 1000)))
         print(f"UDT error on a 4-state chain (mean |P̂ - P|): {res['error']:.4f}")
     elif args.name == "udt-fig4":
-        res4 = ex.fig4(out, runs=args.runs, seed=args.seed, proto=proto, progress=progress)
+        res4 = ex.fig4(out, runs=args.runs, seed=args.seed, proto=proto, progress=progress,
+                       jobs=args.jobs)
         print(f"{'N':>3} " + " ".join(f"{name:>16}" for name in res4))
         for n in next(iter(res4.values())):
             print(f"{n:>3} " + " ".join(f"{sum(v[n]) / len(v[n]):16.4f}" for v in res4.values()))
     else:
         res5 = ex.fig5(out, runs=args.runs, n_states=args.states, seed=args.seed, proto=proto,
-                       progress=progress)
+                       progress=progress, jobs=args.jobs)
         for mode, by in res5.items():
             print(mode + ": " + ", ".join(f"{name} {v.mean():.4f}" for name, v in by.items()))
     print(f"wrote {out}/{args.name.replace('-', '_')}.csv and .png")
@@ -235,6 +236,8 @@ def build_parser() -> argparse.ArgumentParser:
     exp.add_argument("--buffer-slots", type=int, default=300,
                      help="latest real experiences a retrain learns from")
     exp.add_argument("--out", default="results", help="folder for the CSV and PNG")
+    exp.add_argument("--jobs", type=int, default=1,
+                     help="runs in parallel worker processes (one torch thread each)")
     exp.set_defaults(func=cmd_experiment)
     return parser
 

@@ -13,11 +13,15 @@ from __future__ import annotations
 
 import csv
 from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, replace
+from multiprocessing import get_context
 from pathlib import Path
 from types import ModuleType
+from typing import TypeVar
 
 import numpy as np
+import torch
 
 from udt_node.baselines import LstmConfig, LstmPredictor, MarkovMle
 from udt_node.channel import random_transition_matrix
@@ -25,6 +29,8 @@ from udt_node.rate_history import transition_error
 from udt_node.twin import TwinConfig, UserDigitalTwin
 
 Progress = Callable[[str], None]
+T = TypeVar("T")
+R = TypeVar("R")
 
 
 @dataclass(frozen=True)
@@ -105,25 +111,69 @@ def fig3(out_dir: Path, seed: int = 0, proto: Protocol | None = None,
     return {"error": errors["udt"][0], "estimated": est, "actual": truth}
 
 
+def _fig4_run(task: tuple[int, int, int, tuple[str, ...], Protocol]
+              ) -> tuple[int, dict[str, float]]:
+    """One Fig 4 run: 3 intervals with their own random N-state matrices."""
+    n, r, seed, names, proto = task
+    rng = np.random.default_rng([seed, n, r])
+    matrices = [random_transition_matrix(rng, n) for _ in range(3)]
+    errors, _ = interval_errors(matrices, list(names), proto, seed * 1000 + r)
+    return n, {name: float(np.mean(errors[name])) for name in names}
+
+
+def _fig5_run(task: tuple[str, int, int, int, int, Protocol]
+              ) -> tuple[str, dict[str, list[float]]]:
+    """One Fig 5 run: ``intervals`` intervals, one matrix or a new one each."""
+    mode, r, seed, n_states, intervals, proto = task
+    rng = np.random.default_rng([seed, 5, r])
+    first = random_transition_matrix(rng, n_states)
+    matrices = [first if mode == "stationary" or t == 0 else
+                random_transition_matrix(rng, n_states) for t in range(intervals)]
+    errors, _ = interval_errors(matrices, ["udt", "markov", "markov_window"], proto,
+                                seed * 1000 + r)
+    return mode, errors
+
+
+def _init_worker() -> None:
+    torch.set_num_threads(1)       # jobs share the cores; one thread each uses them best
+
+
+def _run_all(fn: Callable[[T], R], tasks: list[T], jobs: int, label: Callable[[R], str],
+             progress: Progress | None) -> list[R]:
+    """``fn`` over ``tasks``, in ``jobs`` worker processes when > 1, reporting each result."""
+    results: list[R] = []
+
+    def report(res: R) -> None:
+        results.append(res)
+        if progress:
+            progress(f"{len(results)}/{len(tasks)} {label(res)}")
+
+    if jobs <= 1:
+        for task in tasks:
+            report(fn(task))
+        return results
+    with ProcessPoolExecutor(jobs, mp_context=get_context("spawn"),
+                             initializer=_init_worker) as pool:
+        for res in pool.map(fn, tasks):
+            report(res)
+    return results
+
+
 def fig4(out_dir: Path, runs: int = 20, states: tuple[int, ...] = (2, 3, 4, 5, 6),
          latent_sizes: tuple[int, int] = (2, 8), seed: int = 0,
-         proto: Protocol | None = None, progress: Progress | None = None
+         proto: Protocol | None = None, progress: Progress | None = None, jobs: int = 1
          ) -> dict[str, dict[int, list[float]]]:
     """Error vs N for the twin with two latent sizes and the LSTM; each run = 3 intervals with
     different matrices, its error the mean over the intervals' ends."""
     proto = proto or Protocol()
-    names = [f"udt_z{z}" for z in latent_sizes] + ["lstm"]
+    names = (*(f"udt_z{z}" for z in latent_sizes), "lstm")
+    tasks = [(n, r, seed, names, proto) for n in states for r in range(runs)]
+    done = _run_all(_fig4_run, tasks, jobs, lambda res: f"fig4 N={res[0]}: " + ", ".join(
+        f"{k} {v:.3f}" for k, v in res[1].items()), progress)
     result: dict[str, dict[int, list[float]]] = {name: {n: [] for n in states} for name in names}
-    for n in states:
-        for r in range(runs):
-            rng = np.random.default_rng([seed, n, r])
-            matrices = [random_transition_matrix(rng, n) for _ in range(3)]
-            errors, _ = interval_errors(matrices, names, proto, seed * 1000 + r)
-            for name in names:
-                result[name][n].append(float(np.mean(errors[name])))
-            if progress:
-                progress(f"fig4: N={n} run {r + 1}/{runs}: " + ", ".join(
-                    f"{name} {np.mean(errors[name]):.3f}" for name in names))
+    for n, errors in done:
+        for name in names:
+            result[name][n].append(errors[name])
     rows = [[name, n, float(np.mean(v)), _ci95(v), len(v)]
             for name in names for n, v in result[name].items()]
     _write_csv(out_dir / "udt_fig4.csv", ["estimator", "n_states", "mean_error", "ci95", "runs"],
@@ -133,27 +183,19 @@ def fig4(out_dir: Path, runs: int = 20, states: tuple[int, ...] = (2, 3, 4, 5, 6
 
 
 def fig5(out_dir: Path, runs: int = 20, n_states: int = 2, intervals: int = 15,
-         seed: int = 0, proto: Protocol | None = None, progress: Progress | None = None
-         ) -> dict[str, dict[str, np.ndarray]]:
+         seed: int = 0, proto: Protocol | None = None, progress: Progress | None = None,
+         jobs: int = 1) -> dict[str, dict[str, np.ndarray]]:
     """Twin vs Markov model-driven (whole history; and a sliding window of the twin's buffer)
     across 15 intervals, stationary and non-stationary: error per interval, mean of runs."""
     proto = proto or Protocol()
     names = ["udt", "markov", "markov_window"]
-    result: dict[str, dict[str, np.ndarray]] = {}
-    for mode in ("stationary", "non-stationary"):
-        per_run: dict[str, list[list[float]]] = {name: [] for name in names}
-        for r in range(runs):
-            rng = np.random.default_rng([seed, 5, r])
-            first = random_transition_matrix(rng, n_states)
-            matrices = [first if mode == "stationary" or t == 0 else
-                        random_transition_matrix(rng, n_states) for t in range(intervals)]
-            errors, _ = interval_errors(matrices, names, proto, seed * 1000 + r)
-            for name in names:
-                per_run[name].append(errors[name])
-            if progress:
-                progress(f"fig5 {mode}: run {r + 1}/{runs}: " + ", ".join(
-                    f"{name} {np.mean(errors[name]):.3f}" for name in names))
-        result[mode] = {name: np.array(v) for name, v in per_run.items()}
+    modes = ("stationary", "non-stationary")
+    tasks = [(mode, r, seed, n_states, intervals, proto) for mode in modes for r in range(runs)]
+    done = _run_all(_fig5_run, tasks, jobs, lambda res: f"fig5 {res[0]}: " + ", ".join(
+        f"{k} {np.mean(v):.3f}" for k, v in res[1].items()), progress)
+    result: dict[str, dict[str, np.ndarray]] = {
+        mode: {name: np.array([e[name] for m, e in done if m == mode]) for name in names}
+        for mode in modes}
     rows = [[mode, name, t + 1, float(v[:, t].mean()), _ci95(v[:, t]), v.shape[0]]
             for mode, by in result.items() for name, v in by.items()
             for t in range(v.shape[1])]

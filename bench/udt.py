@@ -1,0 +1,58 @@
+"""User digital twin benchmark (issue #6): seconds per retrain on W slots of data, and
+milliseconds per slot of inference (μ, Σ and p(d_{k+1}) from the latest history), on 2 cores.
+
+    python -m bench.udt [--states 2] [--retrains 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import time
+
+import numpy as np
+import torch
+
+from bench.gauge import cpu_gauge
+from udt_node.channel import MarkovChannel, random_transition_matrix, state_rates
+from udt_node.twin import TwinConfig, UserDigitalTwin
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--states", type=int, default=2)
+    parser.add_argument("--retrains", type=int, default=5)
+    parser.add_argument("--threads", type=int, default=2)
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    config = TwinConfig(n_states=args.states)
+    matrix = random_transition_matrix(np.random.default_rng(0), args.states)
+    channel = MarkovChannel(state_rates(args.states), matrix=matrix, seed=0)
+    twin = UserDigitalTwin(config)
+    print(f"machine: {platform.node()} {platform.machine()} python "
+          f"{platform.python_version()}, torch {torch.__version__}, {args.threads} threads")
+    print(cpu_gauge(), "(before)")
+    retrain_s = []
+    for _ in range(args.retrains):
+        for _ in range(config.retrain_every):
+            twin.observe(channel.step()[0])
+        t0 = time.perf_counter()
+        twin.retrain()
+        retrain_s.append(time.perf_counter() - t0)
+    infer_ms = []
+    for _ in range(200):
+        twin.observe(channel.step()[0])
+        t0 = time.perf_counter()
+        twin.latent()
+        infer_ms.append((time.perf_counter() - t0) * 1000)
+    print(f"retrain (W = {config.retrain_every} slots, buffer {config.buffer_slots}, "
+          f"{config.steps_per_retrain} Adam steps of {config.batch_size} windows of "
+          f"{config.history} slots): median {np.median(retrain_s):.2f} s "
+          f"(min {min(retrain_s):.2f}, max {max(retrain_s):.2f})")
+    print(f"inference per slot: median {np.median(infer_ms):.2f} ms, "
+          f"p99 {np.percentile(infer_ms, 99):.2f} ms")
+    print(cpu_gauge(), "(after)")
+
+
+if __name__ == "__main__":
+    main()
