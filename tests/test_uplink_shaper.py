@@ -1,0 +1,79 @@
+"""The uplink shaper: uploads take the time the slot's rate gives them, on virtual and on real
+time."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from device_tracker.uplink_shaper import ShaperError, UplinkShaper
+
+ALPHA_BYTES = 5_000_000 // 8          # the paper's 5 Mbit keyframe payload
+
+
+class VirtualTime:
+    """A clock that only moves when slept on."""
+
+    def __init__(self) -> None:
+        self.now = 100.0
+
+    def clock(self) -> float:
+        return self.now
+
+    def sleep(self, seconds: float) -> None:
+        self.now += seconds
+
+
+def test_each_upload_takes_bytes_over_rate_and_queues_behind_the_last() -> None:
+    t = VirtualTime()
+    link = UplinkShaper(t.clock, t.sleep)
+    link.start_slot(0, rate_mbps=40.0, rate_state=0)
+    delivered: list[float] = []
+    took = [link.send(ALPHA_BYTES, lambda: delivered.append(t.now)) for _ in range(4)]
+    assert took == pytest.approx([0.125] * 4)               # 5 Mbit at 40 Mbit/s
+    assert delivered == pytest.approx([100.125, 100.25, 100.375, 100.5])
+    slot = link.end_slot()
+    assert (slot.slot, slot.frames_sent, slot.bytes_sent) == (0, 4, 4 * ALPHA_BYTES)
+    assert slot.achieved_mbps == pytest.approx(40.0)
+    # the next slot is faster, and an idle link does not bank credit for a burst
+    link.start_slot(1, rate_mbps=80.0, rate_state=1)
+    t.sleep(1.0)
+    assert link.send(ALPHA_BYTES, lambda: None) == pytest.approx(0.0625)
+    slot = link.end_slot()
+    assert slot.configured_rate_mbps == 80.0 and slot.rate_state == 1
+    assert slot.achieved_mbps == pytest.approx(5.0 / 1.0625)   # idle second counts
+
+
+def test_a_new_slot_rate_applies_to_the_next_payload_and_resets_the_counts() -> None:
+    t = VirtualTime()
+    link = UplinkShaper(t.clock, t.sleep)
+    link.start_slot(0, rate_mbps=40.0)
+    link.send(ALPHA_BYTES, lambda: None)
+    link.start_slot(1, rate_mbps=80.0)
+    assert link.send(ALPHA_BYTES, lambda: None) == pytest.approx(0.0625)
+    assert link.end_slot().frames_sent == 1
+
+
+def test_bad_rates_and_sizes_are_refused() -> None:
+    link = UplinkShaper()
+    with pytest.raises(ShaperError, match="start_slot"):
+        link.send(10, lambda: None)
+    for bad in (0.0, -5.0, float("nan"), float("inf")):
+        with pytest.raises(ShaperError, match="slot 3"):
+            link.start_slot(3, bad)
+    link.start_slot(3, 10.0)
+    with pytest.raises(ShaperError, match=">= 0 bytes"):
+        link.send(-1, lambda: None)
+
+
+def test_real_time_uploads_are_paced() -> None:
+    """On the real clock: ten 0.25 Mbit payloads at 50 Mbit/s take at least 50 ms."""
+    link = UplinkShaper()
+    link.start_slot(0, rate_mbps=50.0)
+    start = time.monotonic()
+    for _ in range(10):
+        link.send(250_000 // 8, lambda: None)
+    elapsed = time.monotonic() - start
+    assert 0.05 <= elapsed < 2.0
+    assert link.end_slot().achieved_mbps <= 50.0 * 1.0001
