@@ -1,0 +1,164 @@
+"""The edge's keyframe map: keyframes, map points, who observes what, and a checkpoint.
+
+ORB-SLAM's ``Map`` with ``KeyFrame`` and ``MapPoint``, reduced to what edge-assisted map
+management needs: the covisibility weight of two keyframes is the number of map points both
+observe, w(f, f') = |M_f ∩ M_f'| (paper §III-B), and evicting a keyframe removes its
+observations, and with them the points nobody observes any more (they cannot be optimised).
+
+The checkpoint is one ``.npz`` written to a temporary file and renamed over the old one, so a
+crash mid-write leaves the previous checkpoint intact; the edge node writes it every slot and
+restores from it after a restart.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+CHECKPOINT_FORMAT = "twinslam-keyframe-map-1"
+
+
+class MapError(ValueError):
+    """An inconsistent edit (unknown keyframe or point) or an unreadable checkpoint."""
+
+
+@dataclass
+class KeyFrame:
+    id: int
+    pose: np.ndarray                       #: 4×4 camera-to-map
+    points: set[int] = field(default_factory=set)   #: M_f: ids of the map points it observes
+
+
+@dataclass
+class MapPoint:
+    id: int
+    position: np.ndarray                   #: xyz in the map frame
+    descriptor: np.ndarray                 #: 32-byte ORB descriptor (representative)
+    observers: set[int] = field(default_factory=set)  #: keyframe ids
+
+
+class KeyframeMap:
+    """Keyframes and map points with their observation links kept both ways."""
+
+    def __init__(self) -> None:
+        self.keyframes: dict[int, KeyFrame] = {}
+        self.points: dict[int, MapPoint] = {}
+        self.next_point_id = 1                   #: 0 means "no point" on the wire
+
+    # -- edits -----------------------------------------------------------------------------
+
+    def add_keyframe(self, kf_id: int, pose: np.ndarray) -> KeyFrame:
+        if kf_id in self.keyframes:
+            raise MapError(f"keyframe {kf_id} is already in the map")
+        kf = KeyFrame(kf_id, np.asarray(pose, dtype=np.float64).copy())
+        self.keyframes[kf_id] = kf
+        return kf
+
+    def add_point(self, position: np.ndarray, descriptor: np.ndarray) -> int:
+        """A new map point; returns its id."""
+        pid = self.next_point_id
+        self.next_point_id += 1
+        self.points[pid] = MapPoint(pid, np.asarray(position, dtype=np.float64).copy(),
+                                    np.asarray(descriptor, dtype=np.uint8).copy())
+        return pid
+
+    def observe(self, kf_id: int, point_id: int) -> None:
+        try:
+            kf, pt = self.keyframes[kf_id], self.points[point_id]
+        except KeyError:
+            raise MapError(f"keyframe {kf_id} cannot observe point {point_id}: unknown "
+                           "keyframe or point") from None
+        kf.points.add(point_id)
+        pt.observers.add(kf_id)
+
+    def evict(self, kf_id: int) -> list[int]:
+        """Remove a keyframe and its observations; returns the ids of the points that lost
+        their last observer and were removed with it."""
+        kf = self.keyframes.pop(kf_id, None)
+        if kf is None:
+            raise MapError(f"cannot evict keyframe {kf_id}: not in the map")
+        orphans = []
+        for pid in kf.points:
+            pt = self.points[pid]
+            pt.observers.discard(kf_id)
+            if not pt.observers:
+                del self.points[pid]
+                orphans.append(pid)
+        return sorted(orphans)
+
+    # -- queries ---------------------------------------------------------------------------
+
+    def keyframe_ids(self) -> list[int]:
+        """Keyframe ids oldest first (ids grow with capture time)."""
+        return sorted(self.keyframes)
+
+    def covisibility(self, ids: list[int] | None = None) -> np.ndarray:
+        """w(f, f') = |M_f ∩ M_f'| for the keyframes ``ids`` (default: all, oldest first),
+        zero diagonal — the weights the uncertainty and the policies take."""
+        ids = self.keyframe_ids() if ids is None else list(ids)
+        n = len(ids)
+        w = np.zeros((n, n))
+        for a in range(n):
+            pa = self.keyframes[ids[a]].points
+            for b in range(a):
+                w[a, b] = w[b, a] = len(pa & self.keyframes[ids[b]].points)
+        return w
+
+    def shared_points(self, point_ids: set[int]) -> np.ndarray:
+        """Weights from a frame observing ``point_ids`` to every keyframe, oldest first."""
+        return np.array([len(point_ids & self.keyframes[k].points)
+                         for k in self.keyframe_ids()], dtype=np.float64)
+
+    # -- checkpoint ------------------------------------------------------------------------
+
+    def save(self, path: Path, **extra: np.ndarray) -> None:
+        """Write the map (and ``extra`` arrays, e.g. the slot) atomically to ``path``."""
+        path = Path(path)
+        kf_ids = self.keyframe_ids()
+        pt_ids = sorted(self.points)
+        obs = [(k, p) for k in kf_ids for p in sorted(self.keyframes[k].points)]
+        tmp = path.with_name(path.name + ".tmp")
+        with tmp.open("wb") as fh:
+            np.savez(fh, format=np.array(CHECKPOINT_FORMAT),
+                     keyframe_ids=np.array(kf_ids, dtype=np.int64),
+                     keyframe_poses=np.array([self.keyframes[k].pose for k in kf_ids]
+                                             ).reshape(-1, 4, 4),
+                     point_ids=np.array(pt_ids, dtype=np.int64),
+                     point_positions=np.array([self.points[p].position for p in pt_ids]
+                                              ).reshape(-1, 3),
+                     point_descriptors=np.array([self.points[p].descriptor for p in pt_ids],
+                                                dtype=np.uint8).reshape(-1, 32),
+                     observations=np.array(obs, dtype=np.int64).reshape(-1, 2),
+                     next_point_id=np.array(self.next_point_id), **extra)
+            fh.flush()
+            os.fsync(fh.fileno())
+        tmp.replace(path)
+
+    @classmethod
+    def load(cls, path: Path) -> tuple[KeyframeMap, dict[str, np.ndarray]]:
+        """The map saved at ``path`` and the extra arrays saved with it."""
+        path = Path(path)
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                data = {k: z[k] for k in z.files}
+        except (OSError, ValueError, EOFError) as exc:
+            raise MapError(f"{path}: not a readable map checkpoint ({exc})") from None
+        if str(data.pop("format", "")) != CHECKPOINT_FORMAT:
+            raise MapError(f"{path}: not a {CHECKPOINT_FORMAT} checkpoint")
+        m = cls()
+        try:
+            for k, pose in zip(data.pop("keyframe_ids"), data.pop("keyframe_poses"),
+                               strict=True):
+                m.add_keyframe(int(k), pose)
+            for p, xyz, desc in zip(data.pop("point_ids"), data.pop("point_positions"),
+                                    data.pop("point_descriptors"), strict=True):
+                m.points[int(p)] = MapPoint(int(p), xyz.copy(), desc.copy())
+            for k, p in data.pop("observations"):
+                m.observe(int(k), int(p))
+            m.next_point_id = int(data.pop("next_point_id"))
+        except (KeyError, ValueError) as exc:
+            raise MapError(f"{path}: inconsistent map checkpoint ({exc})") from None
+        return m, data

@@ -1,0 +1,67 @@
+"""The edge's keyframe map: covisibility from shared points, eviction, checkpoints."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from edge_mapper.keyframe_map import KeyframeMap, MapError
+
+
+def _map() -> KeyframeMap:
+    """Keyframes 10, 11, 12; points shared 10–11 (3), 11–12 (2), 10–12 (1)."""
+    m = KeyframeMap()
+    for k in (10, 11, 12):
+        pose = np.eye(4)
+        pose[0, 3] = k
+        m.add_keyframe(k, pose)
+    rng = np.random.default_rng(0)
+    links = {(10, 11): 3, (11, 12): 2, (10, 12): 1, (10,): 4}
+    for kfs, count in links.items():
+        for _ in range(count):
+            pid = m.add_point(rng.normal(size=3), rng.integers(0, 256, 32, dtype=np.uint8))
+            for k in kfs:
+                m.observe(k, pid)
+    return m
+
+
+def test_covisibility_counts_shared_points() -> None:
+    m = _map()
+    np.testing.assert_array_equal(m.covisibility(), [[0, 3, 1], [3, 0, 2], [1, 2, 0]])
+    assert m.shared_points(m.keyframes[11].points).tolist() == [3, 5, 2]
+
+
+def test_evicting_a_keyframe_drops_its_links_and_orphaned_points() -> None:
+    m = _map()
+    n_points = len(m.points)
+    orphans = m.evict(10)
+    assert len(orphans) == 4                             # seen by keyframe 10 alone
+    assert len(m.points) == n_points - 4
+    np.testing.assert_array_equal(m.covisibility(), [[0, 2], [2, 0]])
+    assert all(10 not in p.observers for p in m.points.values())
+    with pytest.raises(MapError, match="keyframe 10"):
+        m.evict(10)
+    with pytest.raises(MapError, match="point 9999"):
+        m.observe(11, 9999)
+
+
+def test_checkpoint_round_trip_and_refusals(tmp_path: Path) -> None:
+    m = _map()
+    m.evict(12)
+    path = tmp_path / "map.npz"
+    m.save(path, slot=np.array(7))
+    again, extra = KeyframeMap.load(path)
+    assert int(extra["slot"]) == 7
+    assert again.keyframe_ids() == [10, 11]
+    np.testing.assert_array_equal(again.covisibility(), m.covisibility())
+    np.testing.assert_array_equal(again.keyframes[11].pose, m.keyframes[11].pose)
+    assert {p: (tuple(v.position), bytes(v.descriptor), v.observers)
+            for p, v in again.points.items()} == \
+        {p: (tuple(v.position), bytes(v.descriptor), v.observers) for p, v in m.points.items()}
+    assert again.add_point(np.zeros(3), np.zeros(32, np.uint8)) == m.next_point_id
+    assert not (tmp_path / "map.npz.tmp").exists()
+    (tmp_path / "bad.npz").write_bytes(b"garbage")
+    with pytest.raises(MapError, match=r"bad\.npz"):
+        KeyframeMap.load(tmp_path / "bad.npz")
