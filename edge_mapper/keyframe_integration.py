@@ -1,0 +1,146 @@
+"""Adding an uploaded keyframe to the edge's map (DESIGN.md §1 step 5; ORB-SLAM's
+LocalMapping: associate, then create points).
+
+A keyframe arrives with its features (pixel, ORB descriptor, depth) and, per feature, the id
+the device associated it with (``Keyframe.map_point_ids``, 0 = none):
+
+* an id below 2⁶³ is a **global map-point id** from the device's last ``MapUpdate``; if the
+  point is still in the map the keyframe observes it;
+* an id with the top bit set is a **device-local track id** of a feature the device followed
+  across frames but the map does not have yet: the first keyframe carrying it creates the map
+  point, and later keyframes with the same track id observe that same point — so two frames of
+  one slot that saw the same new corner share it, as the covisibility weight needs;
+* a feature with no usable id is matched by projection against the map points the keyframe's
+  pose sees (the device's own matching, :mod:`device_tracker.projection_matching`);
+* what is still unmatched and has a depth reading becomes a new map point, back-projected with
+  the keyframe's pose.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from device_tracker.projection_matching import match_by_projection, visible_points
+from edge_mapper.keyframe_map import KeyframeMap
+
+TRACK_ID_BIT = np.uint64(1 << 63)          #: marks a device-local track id
+
+
+@dataclass(frozen=True)
+class IntegrationConfig:
+    search_radius_px: float = 15.0
+    max_hamming: int = 50
+    ratio: float = 0.8
+    depth_range_m: tuple[float, float] = (0.2, 8.0)
+
+
+@dataclass(frozen=True)
+class IntegrationReport:
+    """How each of the keyframe's features ended up."""
+
+    associated: int        #: by the device's global id
+    tracked: int           #: by a device track id (``created_from_tracks`` of them new)
+    created_from_tracks: int
+    matched: int           #: by projection at the edge
+    created: int           #: new points from depth
+    unused: int            #: no match, no depth
+
+
+class KeyframeIntegrator:
+    """Turns keyframes into map edits; remembers which map point each device track became."""
+
+    def __init__(self, keyframe_map: KeyframeMap, intrinsics: np.ndarray,
+                 shape: tuple[int, int], config: IntegrationConfig | None = None) -> None:
+        self.map = keyframe_map
+        self.k = np.asarray(intrinsics, dtype=np.float64)
+        self.shape = shape
+        self.config = config or IntegrationConfig()
+        self.track_points: dict[int, int] = {}    #: device track id → map point id
+
+    def integrate(self, kf_id: int, pose: np.ndarray, keypoints: np.ndarray,
+                  descriptors: np.ndarray, depths: np.ndarray, device_ids: np.ndarray
+                  ) -> IntegrationReport:
+        n = len(keypoints)
+        if not (len(descriptors) == len(depths) == len(device_ids) == n):
+            raise ValueError(f"keyframe {kf_id}: {n} keypoints but {len(descriptors)} "
+                             f"descriptors, {len(depths)} depths, {len(device_ids)} ids")
+        m = self.map
+        m.add_keyframe(kf_id, pose)
+        ids = np.asarray(device_ids, dtype=np.uint64)
+        free = np.ones(n, dtype=bool)
+        counts = dict(associated=0, tracked=0, created_from_tracks=0, matched=0, created=0)
+        pending_tracks: list[int] = []
+        for i in range(n):
+            dev = int(ids[i])
+            if dev == 0:
+                continue
+            if dev & int(TRACK_ID_BIT):
+                pid = self.track_points.get(dev)
+                if pid is not None and pid in m.points:
+                    self._observe(kf_id, pid, free, i)
+                    counts["tracked"] += 1
+                else:
+                    pending_tracks.append(i)       # created below if it has depth
+            elif dev in m.points:
+                self._observe(kf_id, dev, free, i)
+                counts["associated"] += 1
+        counts["matched"] = self._match(kf_id, pose, keypoints, descriptors, free)
+        world = self._back_project(pose, keypoints, depths)
+        for i in pending_tracks:
+            if free[i] and world[i] is not None:
+                pid = m.add_point(world[i], descriptors[i])
+                self.track_points[int(ids[i])] = pid
+                self._observe(kf_id, pid, free, i)
+                counts["tracked"] += 1
+                counts["created_from_tracks"] += 1
+        for i in np.flatnonzero(free):
+            if world[i] is not None:
+                self._observe(kf_id, m.add_point(world[i], descriptors[i]), free, i)
+                counts["created"] += 1
+        unused = int(free.sum())
+        return IntegrationReport(unused=unused, **counts)
+
+    def _observe(self, kf_id: int, pid: int, free: np.ndarray, i: int) -> None:
+        if pid not in self.map.keyframes[kf_id].points:      # one feature per point
+            self.map.observe(kf_id, pid)
+        free[i] = False
+
+    def _match(self, kf_id: int, pose: np.ndarray, keypoints: np.ndarray,
+               descriptors: np.ndarray, free: np.ndarray) -> int:
+        """Free features matched to visible map points the keyframe does not observe yet."""
+        m, cfg = self.map, self.config
+        f_free = np.flatnonzero(free)
+        if f_free.size == 0 or not m.points:
+            return 0
+        pids = np.array(sorted(set(m.points) - m.keyframes[kf_id].points), dtype=np.int64)
+        if pids.size == 0:
+            return 0
+        positions = np.array([m.points[p].position for p in pids])
+        vis, uv = visible_points(positions, np.ones(len(pids), dtype=bool), pose, self.k,
+                                 self.shape, cfg.depth_range_m)
+        if vis.size == 0:
+            return 0
+        desc = np.array([m.points[p].descriptor for p in pids[vis]], dtype=np.uint8)
+        f_idx, c_idx = match_by_projection(np.asarray(keypoints)[f_free],
+                                           np.asarray(descriptors)[f_free], uv, desc,
+                                           cfg.search_radius_px, cfg.max_hamming, cfg.ratio,
+                                           self.shape)
+        for fi, ci in zip(f_idx, c_idx, strict=True):
+            self._observe(kf_id, int(pids[vis[ci]]), free, int(f_free[fi]))
+        return len(f_idx)
+
+    def _back_project(self, pose: np.ndarray, keypoints: np.ndarray, depths: np.ndarray
+                      ) -> list[np.ndarray | None]:
+        lo, hi = self.config.depth_range_m
+        out: list[np.ndarray | None] = []
+        for (u, v), z in zip(np.asarray(keypoints, dtype=np.float64),
+                             np.asarray(depths, dtype=np.float64), strict=True):
+            if not (lo < z < hi):
+                out.append(None)
+                continue
+            cam = np.array([(u - self.k[0, 2]) * z / self.k[0, 0],
+                            (v - self.k[1, 2]) * z / self.k[1, 1], z])
+            out.append(pose[:3, :3] @ cam + pose[:3, 3])
+        return out

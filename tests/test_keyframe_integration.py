@@ -1,0 +1,77 @@
+"""Keyframes into the edge's map: device ids, track ids, projection matches, new points."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from edge_mapper.keyframe_integration import TRACK_ID_BIT, KeyframeIntegrator
+from edge_mapper.keyframe_map import KeyframeMap
+
+K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
+
+
+def _pose(x: float) -> np.ndarray:
+    p = np.eye(4)
+    p[0, 3] = x
+    return p
+
+
+def _features(pose, world, descs, rng):
+    cw = np.linalg.inv(pose)
+    cam = world @ cw[:3, :3].T + cw[:3, 3]
+    uv = cam[:, :2] / cam[:, 2:] * 500 + [320, 240]
+    seen = (uv[:, 0] > 5) & (uv[:, 0] < 635) & (uv[:, 1] > 5) & (uv[:, 1] < 475)
+    noisy = descs.copy()
+    noisy[:, 0] ^= rng.integers(0, 2, len(descs), dtype=np.uint8)   # a bit or so of noise
+    return seen, uv + rng.normal(0, 0.3, uv.shape), cam[:, 2], noisy
+
+
+def test_integration_uses_ids_tracks_projection_and_depth() -> None:
+    rng = np.random.default_rng(0)
+    world = rng.uniform([-2, -1.5, 3], [2, 1.5, 6], (300, 3))
+    descs = rng.integers(0, 256, (300, 32), dtype=np.uint8)
+    m = KeyframeMap()
+    m.add_keyframe(0, _pose(0.0))
+    in_map = {}
+    for j in range(150):                                 # the map knows the first 150 points
+        in_map[j] = m.add_point(world[j], descs[j])
+        m.observe(0, in_map[j])
+    integ = KeyframeIntegrator(m, K, (480, 640))
+
+    seen, uv, depth, noisy = _features(_pose(0.1), world, descs, rng)
+    idx = np.flatnonzero(seen)
+    ids = np.zeros(len(idx), dtype=np.uint64)
+    for n, j in enumerate(idx):
+        if j < 150 and j % 2 == 0:
+            ids[n] = in_map[j]                           # the device associated it
+        elif j >= 150:
+            ids[n] = TRACK_ID_BIT | np.uint64(j)         # a new corner the device tracked
+    d = depth[idx].copy()
+    d[idx >= 280] = 0.0                                  # no depth there: cannot be created
+    rep = integ.integrate(1, _pose(0.1), uv[idx], noisy[idx], d, ids)
+    n_map = int((idx < 150).sum())
+    n_new = int(((idx >= 150) & (idx < 280)).sum())
+    assert rep.associated == int(((idx < 150) & (idx % 2 == 0)).sum())
+    assert rep.associated + rep.matched == n_map          # the rest found by projection
+    assert rep.created_from_tracks == rep.tracked == n_new
+    assert rep.unused == int((idx >= 280).sum()) and rep.created == 0
+    assert m.covisibility()[0, 1] == n_map
+
+    # a second keyframe carrying some of the same tracks observes the same new points
+    seen2, uv2, depth2, noisy2 = _features(_pose(0.2), world, descs, rng)
+    idx2 = np.flatnonzero(seen2 & (np.arange(300) >= 150) & (np.arange(300) < 280))
+    ids2 = (TRACK_ID_BIT | idx2.astype(np.uint64)).astype(np.uint64)
+    before = len(m.points)
+    rep2 = integ.integrate(2, _pose(0.2), uv2[idx2], noisy2[idx2], depth2[idx2], ids2)
+    shared = len(set(idx2) & set(idx[(idx >= 150) & (idx < 280)]))
+    assert rep2.tracked == len(idx2) and rep2.created_from_tracks == len(idx2) - shared
+    assert len(m.points) == before + len(idx2) - shared
+    assert m.covisibility()[1, 2] == shared
+
+
+def test_mismatched_lengths_are_refused() -> None:
+    integ = KeyframeIntegrator(KeyframeMap(), K, (480, 640))
+    with pytest.raises(ValueError, match="keyframe 5"):
+        integ.integrate(5, np.eye(4), np.zeros((3, 2)), np.zeros((2, 32), np.uint8),
+                        np.zeros(3), np.zeros(3, np.uint64))
