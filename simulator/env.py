@@ -11,6 +11,7 @@ id, and two instances of the same recorded frame share all their points.
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -70,6 +71,27 @@ class SlotObservation:
 
     def weight_block(self, a: list[int], b: list[int]) -> np.ndarray:
         return self.weights(a, b)
+
+
+def check_map_action(slot: int, n_upload: int, n_evict: int, candidates: Collection[int],
+                     map_frames: Collection[int], action: MapAction) -> None:
+    """Raise :class:`ActionError` unless ``action`` uploads ``n_upload`` distinct frames of
+    ``candidates`` and evicts ``n_evict`` distinct frames of the map or the uploads (Theorem 1's
+    sizes); used by the simulator and by the edge node alike."""
+    up, ev = list(action.upload), list(action.evict)
+    up_set, ev_set = set(up), set(ev)
+    if len(up) != n_upload or len(up_set) != len(up):
+        raise ActionError(f"slot {slot}: upload {len(up)} distinct frames, Theorem 1 asks for "
+                          f"{n_upload}")
+    outside = [f for f in up if f not in candidates]
+    if outside:
+        raise ActionError(f"slot {slot}: uploads {sorted(outside)} are not frames of this slot")
+    if len(ev) != n_evict or len(ev_set) != len(ev):
+        raise ActionError(f"slot {slot}: evict {len(ev)} frames, Theorem 1 asks for {n_evict}")
+    stray = ev_set - set(map_frames) - up_set
+    if stray:
+        raise ActionError(f"slot {slot}: evictions {sorted(stray)} are neither in the map nor "
+                          "uploaded")
 
 
 class FrameStream:
@@ -163,23 +185,9 @@ class MapManagementEnv:
         """Refuse an action that breaks slot ``obs.slot``'s constraints. Frame sets come from
         the environment, not from ``obs``, so a policy that edits its observation cannot
         smuggle frames in."""
-        up, ev = list(action.upload), list(action.evict)
-        up_set, ev_set = set(up), set(ev)
         first = obs.slot * self.config.slot_frames
-        if len(up) != obs.n_upload or len(up_set) != len(up):
-            raise ActionError(f"slot {obs.slot}: upload {len(up)} distinct frames, "
-                              f"Theorem 1 asks for {obs.n_upload}")
-        outside = [f for f in up if not first <= f < first + self.config.slot_frames]
-        if outside:
-            raise ActionError(f"slot {obs.slot}: uploads {sorted(outside)} are not frames of "
-                              "this slot")
-        if len(ev) != obs.n_evict or len(ev_set) != len(ev):
-            raise ActionError(f"slot {obs.slot}: evict {len(ev)} frames, Theorem 1 asks for "
-                              f"{obs.n_evict}")
-        stray = ev_set - set(self._map) - up_set
-        if stray:
-            raise ActionError(f"slot {obs.slot}: evictions {sorted(stray)} are neither in the "
-                              "map nor uploaded")
+        check_map_action(obs.slot, obs.n_upload, obs.n_evict,
+                         range(first, first + self.config.slot_frames), self._map, action)
 
     def apply(self, action: MapAction, *, weights: bool = True) -> None:
         """V^e_{k+1} = (U_k ∪ V^e_k) \\ C_k, keeping capture order (oldest = anchor first).

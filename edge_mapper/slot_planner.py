@@ -1,0 +1,107 @@
+"""The edge's per-slot decision from a device's frame summaries (DESIGN.md §1 steps 3 and 6).
+
+The device reports each frame of slot k as the sets of ids it observes: global map-point ids
+from the last map update and device-local track ids of new features. The covisibility weight
+between two frames is the size of the intersection of those sets, and between a frame and a
+keyframe of the edge's map the number of map points both observe. With these weights the
+planner builds the same :class:`~simulator.env.SlotObservation` the simulator gives the
+policies, asks the configured policy for U_k and C_k (Theorem 1's sizes), checks the answer,
+and scores the slot: υ over F_k against the current map (eq. 8), the reward of the previous
+decision.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from edge_mapper.keyframe_map import KeyframeMap
+from edge_mapper.uncertainty import SlotUncertainty, next_slot_uncertainty, theorem1_cardinalities
+from simulator.env import MapAction, SlotObservation, check_map_action
+
+
+@dataclass(frozen=True)
+class FrameSet:
+    """One frame of a slot as the planner sees it (``FrameSummary`` without the pose)."""
+
+    frame_id: int
+    map_points: frozenset[int]         #: global map-point ids
+    tracks: frozenset[int] = frozenset()   #: device-local track ids (only shared in-slot)
+
+
+@dataclass(frozen=True)
+class SlotConfig:
+    vmax: int = 45
+    alpha_mbit: float = 5.0
+    d_req_s: float = 0.5
+    log_det_pi: float = 0.0
+
+
+@dataclass
+class SlotPlan:
+    action: MapAction
+    observation: SlotObservation
+    uncertainty: SlotUncertainty | None     #: υ of F_k against the map; None if the map is empty
+
+
+class SlotPlanner:
+    """Builds observations over a :class:`KeyframeMap` and runs a policy on them."""
+
+    def __init__(self, keyframe_map: KeyframeMap, policy: object,
+                 config: SlotConfig | None = None, n_states: int = 2) -> None:
+        self.map = keyframe_map
+        self.policy = policy
+        self.config = config or SlotConfig()
+        self.n_states = n_states
+
+    def weights(self, frames: dict[int, FrameSet], a: list[int], b: list[int]) -> np.ndarray:
+        """w between ids in ``a`` and ``b``, each a keyframe of the map or a frame of the slot;
+        zero between an id and itself."""
+        sets = [self._points(frames, x) for x in a], [self._points(frames, x) for x in b]
+        out = np.zeros((len(a), len(b)))
+        for i, sa in enumerate(sets[0]):
+            for j, sb in enumerate(sets[1]):
+                if a[i] != b[j]:
+                    out[i, j] = len(sa & sb)
+        return out
+
+    def _points(self, frames: dict[int, FrameSet], frame_id: int) -> frozenset:
+        kf = self.map.keyframes.get(frame_id)
+        if kf is not None:
+            return frozenset(kf.points)
+        f = frames[frame_id]
+        # track ids live in their own namespace: tagged so they never equal a map-point id
+        return f.map_points | frozenset(("track", t) for t in f.tracks)
+
+    def plan(self, slot: int, frames: list[FrameSet], rate_mbps: float, rate_state: int,
+             rate_history: list[int]) -> SlotPlan:
+        """U_k and C_k for slot k's frames (capture order) at rate d_k."""
+        if not frames:
+            raise ValueError(f"slot {slot}: no frames to plan with")
+        by_id = {f.frame_id: f for f in frames}
+        if len(by_id) != len(frames):
+            raise ValueError(f"slot {slot}: frame ids repeat")
+        map_ids = self.map.keyframe_ids()
+        cand = [f.frame_id for f in frames]
+        clash = set(cand) & set(map_ids)
+        if clash:
+            raise ValueError(f"slot {slot}: frames {sorted(clash)} are already keyframes")
+        cfg = self.config
+        n_up, n_ev = theorem1_cardinalities(rate_mbps, cfg.alpha_mbit, cfg.d_req_s, cfg.vmax,
+                                            len(map_ids), len(cand))
+        obs = SlotObservation(slot, map_ids, cand, n_up, n_ev, rate_mbps, rate_state,
+                              list(rate_history), self.n_states,
+                              lambda a, b: self.weights(by_id, list(a), list(b)))
+        action = self.policy.decide(obs)             # type: ignore[attr-defined]
+        check_map_action(slot, n_up, n_ev, set(cand), map_ids, action)
+        return SlotPlan(action, obs, self.uncertainty(frames))
+
+    def uncertainty(self, frames: list[FrameSet]) -> SlotUncertainty | None:
+        """υ of ``frames`` against the map as it is (eq. 8), or None for an empty map."""
+        map_ids = self.map.keyframe_ids()
+        if not map_ids:
+            return None
+        cand_w = np.array([self.map.shared_points(set(f.map_points)) for f in frames])
+        return next_slot_uncertainty(self.map.covisibility(map_ids), cand_w,
+                                     self.config.log_det_pi)
