@@ -11,12 +11,14 @@ from typing import Any
 import numpy as np
 
 from msg_schemas import new
-from sequence_player.readers import RgbdFrame, pose_to_xyzq
+from msg_schemas.poses import pose_msg
+from sequence_player.readers import RgbdFrame
 
 DEPTH_ENCODINGS = ("16UC1", "32FC1")
 
 
-def _header(msg: Any, stamp: float, frame_id: str) -> Any:
+def set_header(msg: Any, stamp: float, frame_id: str) -> Any:
+    """Fill ``msg.header`` with a stamp in seconds and a frame id; returns ``msg``."""
     sec = int(np.floor(stamp))
     msg.header.stamp.sec = sec
     msg.header.stamp.nanosec = min(round((stamp - sec) * 1e9), 999_999_999)
@@ -34,7 +36,7 @@ def color_message(frame: RgbdFrame, stamp: float, frame_id: str, mono: bool = Fa
     h, w = data.shape[:2]
     msg = new("sensor_msgs/msg/Image", height=h, width=w, encoding=encoding,
               step=w * channels, data=np.ascontiguousarray(data).reshape(-1))
-    return _header(msg, stamp, frame_id)
+    return set_header(msg, stamp, frame_id)
 
 
 def depth_message(frame: RgbdFrame, stamp: float, frame_id: str, encoding: str = "16UC1"
@@ -54,7 +56,7 @@ def depth_message(frame: RgbdFrame, stamp: float, frame_id: str, encoding: str =
     h, w = data.shape
     msg = new("sensor_msgs/msg/Image", height=h, width=w, encoding=encoding, step=w * bpp,
               data=np.ascontiguousarray(data).view(np.uint8).reshape(-1))
-    return _header(msg, stamp, frame_id)
+    return set_header(msg, stamp, frame_id)
 
 
 def camera_info_message(frame: RgbdFrame, stamp: float, frame_id: str) -> Any:
@@ -65,14 +67,10 @@ def camera_info_message(frame: RgbdFrame, stamp: float, frame_id: str) -> Any:
     h, w = frame.color.shape[:2]
     msg = new("sensor_msgs/msg/CameraInfo", height=h, width=w, distortion_model="plumb_bob",
               d=np.zeros(5), k=k.reshape(-1), r=np.eye(3).reshape(-1), p=p.reshape(-1))
-    return _header(msg, stamp, frame_id)
+    return set_header(msg, stamp, frame_id)
 
 
 def pose_message(pose: np.ndarray, stamp: float, frame_id: str) -> Any:
     """Camera-to-world 4×4 as a PoseStamped in ``frame_id`` (the world frame)."""
-    msg = new("geometry_msgs/msg/PoseStamped")
-    x, y, z, qx, qy, qz, qw = (float(v) for v in pose_to_xyzq(pose))
-    msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = x, y, z
-    msg.pose.orientation.x, msg.pose.orientation.y = qx, qy
-    msg.pose.orientation.z, msg.pose.orientation.w = qz, qw
-    return _header(msg, stamp, frame_id)
+    msg = new("geometry_msgs/msg/PoseStamped", pose=pose_msg(pose))
+    return set_header(msg, stamp, frame_id)

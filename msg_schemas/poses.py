@@ -1,0 +1,29 @@
+"""``geometry_msgs/Pose`` ↔ 4×4 homogeneous matrix (camera-to-map by the project's convention)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from msg_schemas.registry import new
+
+
+def pose_msg(matrix: np.ndarray) -> Any:
+    """A ``geometry_msgs/Pose`` of a 4×4 rigid transform."""
+    m = np.asarray(matrix, dtype=np.float64)
+    qx, qy, qz, qw = (float(v) for v in Rotation.from_matrix(m[:3, :3]).as_quat())
+    msg = new("geometry_msgs/msg/Pose")
+    msg.position.x, msg.position.y, msg.position.z = (float(v) for v in m[:3, 3])
+    msg.orientation.x, msg.orientation.y, msg.orientation.z, msg.orientation.w = qx, qy, qz, qw
+    return msg
+
+
+def pose_matrix(msg: Any) -> np.ndarray:
+    """The 4×4 transform of a ``geometry_msgs/Pose`` (the quaternion is normalised)."""
+    q = msg.orientation
+    out = np.eye(4)
+    out[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
+    out[:3, 3] = [msg.position.x, msg.position.y, msg.position.z]
+    return out

@@ -1,0 +1,84 @@
+"""The edge's messages survive CDR: map updates, keyframes, upload requests, map stats."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from edge_mapper.keyframe_integration import TRACK_ID_BIT
+from edge_mapper.keyframe_map import KeyframeMap
+from edge_mapper.messages import (
+    map_stats_message,
+    map_update_message,
+    read_keyframe,
+    read_map_update,
+    upload_request_message,
+)
+from msg_schemas import deserialize, new, serialize
+from msg_schemas.poses import pose_matrix, pose_msg
+from msg_schemas.validation import validate
+from simulator.env import MapAction
+
+
+def _roundtrip(msg: object) -> object:
+    out = deserialize(serialize(msg), msg.__msgtype__)  # type: ignore[attr-defined]
+    validate(msg.__msgtype__, out)  # type: ignore[attr-defined]
+    return out
+
+
+def _pose(angle: float, t: list[float]) -> np.ndarray:
+    c, s = math.cos(angle), math.sin(angle)
+    p = np.eye(4)
+    p[:3, :3] = [[c, -s, 0], [s, c, 0], [0, 0, 1]]
+    p[:3, 3] = t
+    return p
+
+
+def test_pose_conversion_round_trips() -> None:
+    p = _pose(0.7, [1.0, -2.0, 0.5])
+    np.testing.assert_allclose(pose_matrix(_roundtrip(pose_msg(p))), p, atol=1e-12)
+
+
+def test_map_update_round_trip() -> None:
+    rng = np.random.default_rng(0)
+    m = KeyframeMap()
+    for k in (5, 9):
+        m.add_keyframe(k, _pose(0.1 * k, [k, 0, 0]))
+    for _ in range(4):
+        pid = m.add_point(rng.normal(size=3), rng.integers(0, 256, 32, dtype=np.uint8))
+        m.observe(5, pid)
+        if pid % 2:
+            m.observe(9, pid)
+    local = read_map_update(_roundtrip(map_update_message(m, slot=3, version=7, stamp=12.5)))
+    assert local.version == 7 and local.keyframe_ids.tolist() == [5, 9]
+    np.testing.assert_allclose(local.keyframe_poses[1], m.keyframes[9].pose, atol=1e-12)
+    assert local.point_ids.tolist() == sorted(m.points)
+    np.testing.assert_array_equal(local.positions, [m.points[p].position for p in sorted(m.points)])
+    np.testing.assert_array_equal(local.descriptors[2], m.points[3].descriptor)
+    assert local.observations.tolist() == [2, 1, 2, 1]
+
+
+def test_keyframe_reading_keeps_ids_and_track_bits() -> None:
+    msg = new("twinslam_msgs/msg/Keyframe", slot=4, frame_id=123,
+              pose_estimate=pose_msg(_pose(0.2, [0, 1, 0])),
+              k=np.array([500.0, 0, 320, 0, 500, 240, 0, 0, 1]),
+              keypoints_xy=np.array([10, 20, 30, 40], dtype=np.float32),
+              keypoint_depths=np.array([1.5, 0.0], dtype=np.float32),
+              descriptors=np.arange(64, dtype=np.uint8),
+              map_point_ids=np.array([17, int(TRACK_ID_BIT) | 3], dtype=np.uint64))
+    kf = read_keyframe(_roundtrip(msg))
+    assert (kf.frame_id, kf.slot) == (123, 4)
+    np.testing.assert_array_equal(kf.keypoints, [[10, 20], [30, 40]])
+    assert kf.point_ids.tolist() == [17, (1 << 63) | 3]
+    assert kf.descriptors.shape == (2, 32) and kf.descriptors[1, 0] == 32
+    np.testing.assert_allclose(kf.pose, _pose(0.2, [0, 1, 0]), atol=1e-12)
+
+
+def test_upload_request_and_map_stats() -> None:
+    req = _roundtrip(upload_request_message(2, "adapt", 60.0, MapAction([31, 40], [3]), 1.0))
+    assert req.upload_frame_ids.tolist() == [31, 40] and req.evict_frame_ids.tolist() == [3]
+    stats = _roundtrip(map_stats_message(2, "lff", KeyframeMap(), math.inf, math.nan, 0.25, 2,
+                                         12.0, 30.0, 1.0))
+    assert math.isinf(stats.uncertainty) and math.isnan(stats.mean_next_uncertainty)
+    assert stats.lost_frame_ratio == 0.25 and stats.map_size == 0
