@@ -18,6 +18,7 @@ the device associated it with (``Keyframe.map_point_ids``, 0 = none):
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -68,6 +69,9 @@ class KeyframeIntegrator:
                              f"descriptors, {len(depths)} depths, {len(device_ids)} ids")
         m = self.map
         m.add_keyframe(kf_id, pose)
+        self._keypoints = np.asarray(keypoints, dtype=np.float64)
+        d = np.asarray(depths, dtype=np.float64)
+        self._depths = np.where(d > 0, d, math.nan)
         ids = np.asarray(device_ids, dtype=np.uint64)
         free = np.ones(n, dtype=bool)
         counts = dict(associated=0, tracked=0, created_from_tracks=0, matched=0, created=0)
@@ -104,7 +108,8 @@ class KeyframeIntegrator:
 
     def _observe(self, kf_id: int, pid: int, free: np.ndarray, i: int) -> None:
         if pid not in self.map.keyframes[kf_id].points:      # one feature per point
-            self.map.observe(kf_id, pid)
+            u, v = self._keypoints[i]
+            self.map.observe(kf_id, pid, (float(u), float(v)), float(self._depths[i]))
         free[i] = False
 
     def _match(self, kf_id: int, pose: np.ndarray, keypoints: np.ndarray,

@@ -12,6 +12,7 @@ restores from it after a restart.
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,6 +31,8 @@ class KeyFrame:
     id: int
     pose: np.ndarray                       #: 4×4 camera-to-map
     points: set[int] = field(default_factory=set)   #: M_f: ids of the map points it observes
+    #: where it saw each point: (u, v, depth in metres or NaN) — the bundle adjustment's data
+    measurements: dict[int, tuple[float, float, float]] = field(default_factory=dict)
 
 
 @dataclass
@@ -65,13 +68,17 @@ class KeyframeMap:
                                     np.asarray(descriptor, dtype=np.uint8).copy())
         return pid
 
-    def observe(self, kf_id: int, point_id: int) -> None:
+    def observe(self, kf_id: int, point_id: int,
+                uv: tuple[float, float] = (math.nan, math.nan), depth: float = math.nan
+                ) -> None:
+        """Keyframe ``kf_id`` sees point ``point_id`` at pixel ``uv`` (with ``depth``)."""
         try:
             kf, pt = self.keyframes[kf_id], self.points[point_id]
         except KeyError:
             raise MapError(f"keyframe {kf_id} cannot observe point {point_id}: unknown "
                            "keyframe or point") from None
         kf.points.add(point_id)
+        kf.measurements[point_id] = (float(uv[0]), float(uv[1]), float(depth))
         pt.observers.add(kf_id)
 
     def evict(self, kf_id: int) -> list[int]:
@@ -120,6 +127,7 @@ class KeyframeMap:
         kf_ids = self.keyframe_ids()
         pt_ids = sorted(self.points)
         obs = [(k, p) for k in kf_ids for p in sorted(self.keyframes[k].points)]
+        uvd = [self.keyframes[k].measurements.get(p, (math.nan,) * 3) for k, p in obs]
         tmp = path.with_name(path.name + ".tmp")
         with tmp.open("wb") as fh:
             np.savez(fh, format=np.array(CHECKPOINT_FORMAT),
@@ -132,6 +140,7 @@ class KeyframeMap:
                      point_descriptors=np.array([self.points[p].descriptor for p in pt_ids],
                                                 dtype=np.uint8).reshape(-1, 32),
                      observations=np.array(obs, dtype=np.int64).reshape(-1, 2),
+                     measurements=np.array(uvd, dtype=np.float64).reshape(-1, 3),
                      next_point_id=np.array(self.next_point_id), **extra)
             fh.flush()
             os.fsync(fh.fileno())
@@ -156,8 +165,9 @@ class KeyframeMap:
             for p, xyz, desc in zip(data.pop("point_ids"), data.pop("point_positions"),
                                     data.pop("point_descriptors"), strict=True):
                 m.points[int(p)] = MapPoint(int(p), xyz.copy(), desc.copy())
-            for k, p in data.pop("observations"):
-                m.observe(int(k), int(p))
+            for (k, p), (u, v, d) in zip(data.pop("observations"), data.pop("measurements"),
+                                         strict=True):
+                m.observe(int(k), int(p), (u, v), d)
             m.next_point_id = int(data.pop("next_point_id"))
         except (KeyError, ValueError) as exc:
             raise MapError(f"{path}: inconsistent map checkpoint ({exc})") from None

@@ -57,6 +57,10 @@ def test_integration_uses_ids_tracks_projection_and_depth() -> None:
     assert rep.created_from_tracks == rep.tracked == n_new
     assert rep.unused == int((idx >= 280).sum()) and rep.created == 0
     assert m.covisibility()[0, 1] == n_map
+    n = int(np.flatnonzero(idx == 150)[0])              # a new point: measured where it was seen
+    pid = integ.track_points[int(TRACK_ID_BIT) | 150]
+    u, v, z = m.keyframes[1].measurements[pid]
+    assert (u, v) == (float(uv[idx][n, 0]), float(uv[idx][n, 1])) and z == float(d[n])
 
     # a second keyframe carrying some of the same tracks observes the same new points
     seen2, uv2, depth2, noisy2 = _features(_pose(0.2), world, descs, rng)

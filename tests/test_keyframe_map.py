@@ -23,7 +23,7 @@ def _map() -> KeyframeMap:
         for _ in range(count):
             pid = m.add_point(rng.normal(size=3), rng.integers(0, 256, 32, dtype=np.uint8))
             for k in kfs:
-                m.observe(k, pid)
+                m.observe(k, pid, (float(pid), float(k)), 1.5 if pid % 2 else float("nan"))
     return m
 
 
@@ -60,6 +60,8 @@ def test_checkpoint_round_trip_and_refusals(tmp_path: Path) -> None:
     assert {p: (tuple(v.position), bytes(v.descriptor), v.observers)
             for p, v in again.points.items()} == \
         {p: (tuple(v.position), bytes(v.descriptor), v.observers) for p, v in m.points.items()}
+    for k in (10, 11):
+        np.testing.assert_equal(again.keyframes[k].measurements, m.keyframes[k].measurements)
     assert again.add_point(np.zeros(3), np.zeros(32, np.uint8)) == m.next_point_id
     assert not (tmp_path / "map.npz.tmp").exists()
     (tmp_path / "bad.npz").write_bytes(b"garbage")
