@@ -97,18 +97,19 @@ def bundle_adjust(poses: dict[int, np.ndarray], points: dict[int, np.ndarray],
     result = optimizer.optimize()
     out_poses = {kf: result.atPose3(X(kf)).matrix() for kf in poses}
     out_points = {pid: np.asarray(result.atPoint3(L(pid))) for pid in points}
+    world_to_cam = {kf: np.linalg.inv(p) for kf, p in out_poses.items()}
     outliers = [ob for ob in observations
-                if _reprojection_sq(out_poses[ob.keyframe], out_points[ob.point], k, ob.uv)
+                if _reprojection_sq(world_to_cam[ob.keyframe], out_points[ob.point], k, ob.uv)
                 > CHI2_MONO * pixel_sigma ** 2]
     return BundleAdjustmentResult(out_poses, out_points, initial_error, graph.error(result),
                                   optimizer.iterations(), outliers,
                                   (time.perf_counter() - start) * 1000)
 
 
-def _reprojection_sq(camera_to_world: np.ndarray, xyz: np.ndarray, k: np.ndarray,
+def _reprojection_sq(world_to_camera: np.ndarray, xyz: np.ndarray, k: np.ndarray,
                      uv: tuple[float, float]) -> float:
     """Squared pixel distance between ``uv`` and the point's projection (inf behind)."""
-    cw = np.linalg.inv(camera_to_world)
+    cw = world_to_camera
     cam = cw[:3, :3] @ xyz + cw[:3, 3]
     if cam[2] <= 0:
         return math.inf

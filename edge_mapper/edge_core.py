@@ -1,0 +1,145 @@
+"""The edge's work for one device, slot by slot, without DDS (DESIGN.md §1 steps 3, 5, 6).
+
+``plan`` answers a slot's frame summaries with U_k and C_k (and υ of those frames against the
+map, the previous decision's reward); ``add_keyframe`` integrates each uploaded keyframe the
+plan asked for; ``finish_slot`` evicts C_k, runs a local bundle adjustment over the newest
+keyframes, bumps the map version and writes the checkpoint. The node (``edge_mapper/node.py``)
+only moves messages in and out of this class; a restarted node resumes from the checkpoint.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from edge_mapper.bundle_adjustment import BundleAdjustmentResult, Observation, bundle_adjust
+from edge_mapper.keyframe_integration import IntegrationReport, KeyframeIntegrator
+from edge_mapper.keyframe_map import KeyframeMap
+from edge_mapper.messages import KeyframeData
+from edge_mapper.slot_planner import FrameSet, SlotConfig, SlotPlan, SlotPlanner
+from edge_mapper.uncertainty import map_uncertainty
+from simulator.env import MapAction
+
+
+@dataclass(frozen=True)
+class EdgeConfig:
+    slot: SlotConfig = field(default_factory=SlotConfig)
+    ba_window: int = 10              #: newest keyframes optimised each slot; the rest fixed
+    ba_iterations: int = 10
+    baseline_m: float = 0.08         #: RGB-D virtual stereo baseline of the BA
+    image_shape: tuple[int, int] = (480, 640)
+
+
+@dataclass
+class SlotOutcome:
+    slot: int
+    integrated: list[int]            #: keyframes added this slot
+    missing: list[int]               #: asked for, never received
+    evicted: list[int]
+    orphaned_points: int
+    bundle_adjustment: BundleAdjustmentResult | None
+    map_uncertainty: float           #: u(G) after the slot (+inf if disconnected)
+    version: int
+
+
+class EdgeMapperCore:
+    """One device's map at the edge: plans, keyframes, evictions, optimisation, checkpoint."""
+
+    def __init__(self, policy: object, intrinsics: np.ndarray, config: EdgeConfig | None = None,
+                 checkpoint: Path | None = None, n_states: int = 2) -> None:
+        self.config = config or EdgeConfig()
+        self.k = np.asarray(intrinsics, dtype=np.float64)
+        self.checkpoint = Path(checkpoint) if checkpoint else None
+        self.version = 0
+        self.last_slot = -1
+        self.rate_history: list[int] = []
+        self.map = KeyframeMap()
+        if self.checkpoint is not None and self.checkpoint.is_file():
+            self.map, extra = KeyframeMap.load(self.checkpoint)
+            self.version = int(extra.get("version", 0))
+            self.last_slot = int(extra.get("last_slot", -1))
+            self.rate_history = [int(x) for x in extra.get("rate_history", [])]
+        self.integrator = KeyframeIntegrator(self.map, self.k, self.config.image_shape)
+        self.planner = SlotPlanner(self.map, policy, self.config.slot, n_states)
+        self.pending: dict[int, tuple[MapAction, set[int]]] = {}   #: slot → (action, received)
+        self.restored = self.last_slot >= 0
+
+    # -- the protocol ------------------------------------------------------------------------
+
+    def plan(self, slot: int, frames: list[FrameSet], rate_mbps: float, rate_state: int
+             ) -> SlotPlan:
+        self.rate_history = [*self.rate_history[-63:], int(rate_state)]
+        plan = self.planner.plan(slot, frames, rate_mbps, rate_state, self.rate_history)
+        self.pending[slot] = (plan.action, set())
+        return plan
+
+    def add_keyframe(self, data: KeyframeData) -> IntegrationReport | None:
+        """Integrate a keyframe the plan of its slot asked for; None (and nothing changes) for
+        an unrequested or repeated one."""
+        entry = self.pending.get(data.slot)
+        if entry is None or data.frame_id not in entry[0].upload or \
+                data.frame_id in self.map.keyframes:
+            return None
+        report = self.integrator.integrate(data.frame_id, data.pose, data.keypoints,
+                                           data.descriptors, data.depths, data.point_ids)
+        entry[1].add(data.frame_id)
+        return report
+
+    def finish_slot(self, slot: int) -> SlotOutcome:
+        """Evict C_k, optimise, publish a new map version, checkpoint."""
+        action, received = self.pending.pop(slot, (MapAction([], []), set()))
+        evicted, orphans = [], 0
+        for kf in action.evict:
+            if kf in self.map.keyframes:
+                orphans += len(self.map.evict(kf))
+                evicted.append(kf)
+        ba = self.optimise() if len(self.map.keyframes) >= 2 else None
+        self.version += 1
+        self.last_slot = slot
+        if self.checkpoint is not None:
+            self.map.save(self.checkpoint, version=np.array(self.version),
+                          last_slot=np.array(slot),
+                          rate_history=np.array(self.rate_history, dtype=np.int64))
+        w = self.map.covisibility()
+        u = map_uncertainty(w, self.config.slot.log_det_pi) if len(w) else math.inf
+        return SlotOutcome(slot, sorted(received), sorted(set(action.upload) - received),
+                           evicted, orphans, ba, u, self.version)
+
+    # -- optimisation ------------------------------------------------------------------------
+
+    def optimise(self) -> BundleAdjustmentResult | None:
+        """Local BA: the newest ``ba_window`` keyframes and the points they see move; the other
+        keyframes that see those points hold still (and the oldest always does)."""
+        ids = self.map.keyframe_ids()
+        window = set(ids[-self.config.ba_window:]) - {ids[0]}
+        if not window:
+            return None
+        points = set().union(*(self.map.keyframes[k].points for k in window))
+        observers = set().union(*(self.map.points[p].observers for p in points))
+        observations = []
+        for kf in observers:
+            meas = self.map.keyframes[kf].measurements
+            for p in points & self.map.keyframes[kf].points:
+                u, v, d = meas.get(p, (math.nan, math.nan, math.nan))
+                if math.isfinite(u) and math.isfinite(v):
+                    observations.append(Observation(kf, p, (u, v), d))
+        if not observations:
+            return None
+        fixed = observers - window
+        if not fixed:
+            return None
+        start = time.perf_counter()
+        result = bundle_adjust({k: self.map.keyframes[k].pose for k in observers},
+                               {p: self.map.points[p].position for p in points}, observations,
+                               self.k, fixed, baseline_m=self.config.baseline_m,
+                               max_iterations=self.config.ba_iterations)
+        for k in window:
+            self.map.keyframes[k].pose = result.poses[k]
+        for p in points:
+            self.map.points[p].position = result.points[p]
+        result.milliseconds = (time.perf_counter() - start) * 1000
+        return result
