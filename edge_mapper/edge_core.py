@@ -49,10 +49,12 @@ class SlotOutcome:
 class EdgeMapperCore:
     """One device's map at the edge: plans, keyframes, evictions, optimisation, checkpoint."""
 
-    def __init__(self, policy: object, intrinsics: np.ndarray, config: EdgeConfig | None = None,
-                 checkpoint: Path | None = None, n_states: int = 2) -> None:
+    def __init__(self, policy: object, intrinsics: np.ndarray | None = None,
+                 config: EdgeConfig | None = None, checkpoint: Path | None = None,
+                 n_states: int = 2) -> None:
         self.config = config or EdgeConfig()
-        self.k = np.asarray(intrinsics, dtype=np.float64)
+        #: camera intrinsics; without them at start, taken from the first keyframe
+        self.k = np.eye(3) if intrinsics is None else np.asarray(intrinsics, dtype=np.float64)
         self.checkpoint = Path(checkpoint) if checkpoint else None
         self.version = 0
         self.last_slot = -1
@@ -84,6 +86,7 @@ class EdgeMapperCore:
         if entry is None or data.frame_id not in entry[0].upload or \
                 data.frame_id in self.map.keyframes:
             return None
+        self.k = self.integrator.k = np.asarray(data.intrinsics, dtype=np.float64)
         report = self.integrator.integrate(data.frame_id, data.pose, data.keypoints,
                                            data.descriptors, data.depths, data.point_ids)
         entry[1].add(data.frame_id)

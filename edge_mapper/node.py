@@ -1,18 +1,154 @@
-"""edge_mapper node entry point (the live edge map lands with the pipeline issue #5)."""
+"""edge_mapper: the edge's side of the per-slot protocol as a ROS 2 node (DESIGN.md §1).
+
+* ``/device/frame_summaries`` (``FrameSummaries``) → the policy's U_k and C_k on
+  ``/edge/upload_request`` (``UploadRequest``);
+* ``/device/keyframes`` (``Keyframe``) → integrated when the slot's plan asked for them; once
+  every requested keyframe is in (or ``slot_timeout_s`` passed), C_k is evicted, the newest
+  keyframes are bundle-adjusted (GTSAM), the map is checkpointed, and the new map goes out on
+  ``/edge/map_update`` (``MapUpdate``, latched: a device that joins or restarts gets the latest)
+  with ``/edge/map_stats`` (``MapStats``: u(G), υ, lost share, uploads, timings).
+
+With ``checkpoint`` set the node resumes from that file after a restart. A keyframe that fails
+decoding or validation is dropped with a logged error by the runtime; an unrequested or repeated
+one is logged and ignored; the run goes on. The work itself is
+:class:`~edge_mapper.edge_core.EdgeMapperCore`'s; this file only moves messages.
+"""
 
 from __future__ import annotations
 
+import math
 import sys
+import time
+from typing import Any
 
-from node_runtime.idle_node import run_idle_node
+import node_runtime
+from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, SlotOutcome
+from edge_mapper.messages import (
+    map_stats_message,
+    map_update_message,
+    read_keyframe,
+    upload_request_message,
+)
+from edge_mapper.policies import make_policy
+from edge_mapper.slot_planner import FrameSet, SlotConfig
+from edge_mapper.uncertainty import SlotUncertainty
+from node_runtime.executor import SingleThreadedExecutor
 
 PARAMETERS = {"policy": "adapt", "vmax": 45, "alpha_mbit": 5.0, "d_req_s": 0.5,
-              "checkpoint": ""}
+              "checkpoint": "", "states": 2, "ba_window": 10, "slot_timeout_s": 10.0,
+              "image_width": 640, "image_height": 480}
+#: per-slot protocol topics: reliable, and deep enough that a slow slot loses nothing
+PROTOCOL_QOS = node_runtime.QoSProfile(depth=100)
+
+
+class EdgeMapperNode:
+    def __init__(self, node: node_runtime.Node) -> None:
+        self.node = node
+        p = {k: node.get_parameter(k).value for k in PARAMETERS}
+        self.policy_name = str(p["policy"])
+        config = EdgeConfig(slot=SlotConfig(vmax=int(p["vmax"]), alpha_mbit=float(p["alpha_mbit"]),
+                                            d_req_s=float(p["d_req_s"])),
+                            ba_window=int(p["ba_window"]),
+                            image_shape=(int(p["image_height"]), int(p["image_width"])))
+        self.core = EdgeMapperCore(make_policy(self.policy_name), None, config,
+                                   p["checkpoint"] or None, int(p["states"]))
+        self.timeout = float(p["slot_timeout_s"])
+        self._opened: dict[int, tuple[float, float, SlotUncertainty | None]] = {}
+        self.pub_request = node.create_publisher("twinslam_msgs/msg/UploadRequest",
+                                                 "/edge/upload_request", PROTOCOL_QOS)
+        self.pub_map = node.create_publisher("twinslam_msgs/msg/MapUpdate", "/edge/map_update",
+                                             node_runtime.LATCHED)
+        self.pub_stats = node.create_publisher("twinslam_msgs/msg/MapStats", "/edge/map_stats",
+                                               PROTOCOL_QOS)
+        node.create_subscription("twinslam_msgs/msg/FrameSummaries", "/device/frame_summaries",
+                                 self._on_summaries, PROTOCOL_QOS)
+        node.create_subscription("twinslam_msgs/msg/Keyframe", "/device/keyframes",
+                                 self._on_keyframe, PROTOCOL_QOS)
+        node.create_timer(0.2, self._check_timeouts)
+        log = node.get_logger()
+        if self.core.restored:
+            log.info(f"restored map version {self.core.version} (slot {self.core.last_slot}, "
+                     f"{len(self.core.map.keyframes)} keyframes, {len(self.core.map.points)} "
+                     f"points) from {self.core.checkpoint}")
+            self.pub_map.publish(map_update_message(self.core.map, self.core.last_slot,
+                                                    self.core.version, time.time()))
+
+    def _on_summaries(self, msg: Any) -> None:
+        slot = int(msg.slot)
+        frames = [FrameSet(int(f.frame_id), frozenset(int(i) for i in f.map_point_ids),
+                           frozenset(int(i) for i in f.local_track_ids)) for f in msg.frames]
+        started = time.perf_counter()
+        try:
+            plan = self.core.plan(slot, frames, float(msg.rate_mbps), int(msg.rate_state))
+        except ValueError as exc:
+            self.node.get_logger().error(f"slot {slot}: cannot plan: {exc}")
+            return
+        self.pub_request.publish(upload_request_message(slot, self.policy_name,
+                                                        float(msg.rate_mbps), plan.action,
+                                                        time.time()))
+        self._opened[slot] = (time.monotonic(), started, plan.uncertainty)
+        if not plan.action.upload:
+            self._finish(slot)
+
+    def _on_keyframe(self, msg: Any) -> None:
+        data = read_keyframe(msg)
+        report = self.core.add_keyframe(data)
+        if report is None:
+            self.node.get_logger().warning(
+                f"keyframe {data.frame_id} of slot {data.slot} was not asked for (or came "
+                "twice): ignored")
+            return
+        action, received = self.core.pending[data.slot]
+        if set(action.upload) <= received:
+            self._finish(data.slot)
+
+    def _check_timeouts(self) -> None:
+        now = time.monotonic()
+        for slot, (opened, _, _) in list(self._opened.items()):
+            if now - opened > self.timeout and slot in self.core.pending:
+                action, received = self.core.pending[slot]
+                self.node.get_logger().warning(
+                    f"slot {slot}: {len(set(action.upload) - received)} requested keyframe(s) "
+                    f"did not arrive within {self.timeout:g} s; finishing without them")
+                self._finish(slot)
+
+    def _finish(self, slot: int) -> None:
+        _, started, upsilon = self._opened.pop(slot, (0.0, time.perf_counter(), None))
+        out: SlotOutcome = self.core.finish_slot(slot)
+        now = time.time()
+        self.pub_map.publish(map_update_message(self.core.map, slot, out.version, now))
+        ba_ms = out.bundle_adjustment.milliseconds if out.bundle_adjustment else 0.0
+        self.pub_stats.publish(map_stats_message(
+            slot, self.policy_name, self.core.map, out.map_uncertainty,
+            upsilon.mean_tracked if upsilon else math.nan,
+            upsilon.lost_ratio if upsilon else 0.0, len(out.integrated), ba_ms,
+            (time.perf_counter() - started) * 1000, now))
+        self.node.get_logger().info(
+            f"slot {slot}: +{len(out.integrated)} keyframes, -{len(out.evicted)}, map "
+            f"{len(self.core.map.keyframes)} keyframes / {len(self.core.map.points)} points, "
+            f"u(G) {out.map_uncertainty:.1f}, BA {ba_ms:.0f} ms, version {out.version}")
 
 
 def main(args: list[str] | None = None) -> int:
-    return run_idle_node("edge_mapper", PARAMETERS,
-                         "edge mapping is not implemented yet (issue #5)", args)
+    node_runtime.init(args=args)
+    node = node_runtime.Node("edge_mapper")
+    for key, default in PARAMETERS.items():
+        node.declare_parameter(key, default)
+    try:
+        EdgeMapperNode(node)
+    except ValueError as exc:
+        node.get_logger().error(str(exc))
+        node.destroy_node()
+        node_runtime.shutdown()
+        return 2
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    try:
+        executor.spin()
+    finally:
+        node.destroy_node()
+        node_runtime.shutdown()
+    return 0
 
 
 if __name__ == "__main__":

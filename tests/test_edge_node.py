@@ -1,0 +1,125 @@
+"""edge_mapper as its own process: frame summaries in, upload requests out, keyframes in, map
+updates and stats out; a corrupt keyframe is dropped; SIGKILL and restart resume from the
+checkpoint."""
+
+from __future__ import annotations
+
+import signal
+import time
+from pathlib import Path
+
+import numpy as np
+
+import node_runtime
+from edge_mapper.keyframe_integration import TRACK_ID_BIT
+from edge_mapper.node import PROTOCOL_QOS
+from msg_schemas import new
+from msg_schemas.poses import pose_msg
+from node_runtime.loopback import LoopbackDomain
+from tests.test_edge_core import Device, K
+
+F = 8
+
+
+def _summaries(device: Device, slot: int, rate: float) -> object:
+    frames = []
+    for f in range(slot * F, (slot + 1) * F):
+        seen = device.observe_ids(f)
+        frames.append(new("twinslam_msgs/msg/FrameSummary", frame_id=f, tracked=True,
+                          pose=pose_msg(device.pose(f)),
+                          local_track_ids=np.array([int(TRACK_ID_BIT) | int(j) for j in seen],
+                                                   dtype=np.uint64)))
+    return new("twinslam_msgs/msg/FrameSummaries", slot=slot, rate_mbps=rate,
+               rate_state=int(rate > 50), frames=frames)
+
+
+def _keyframe(device: Device, frame: int, slot: int) -> object:
+    seen, uv, depth = device.features(frame)
+    return new("twinslam_msgs/msg/Keyframe", slot=slot, frame_id=frame,
+               pose_estimate=pose_msg(device.pose(frame)), k=K.reshape(-1),
+               keypoints_xy=uv.astype(np.float32).reshape(-1),
+               keypoint_depths=depth.astype(np.float32),
+               descriptors=device.descs[seen].reshape(-1),
+               map_point_ids=np.array([int(TRACK_ID_BIT) | int(j) for j in seen],
+                                      dtype=np.uint64))
+
+
+class TrackIdDevice(Device):
+    """The simulated device of test_edge_core, reporting new features by track id only (the
+    edge associates them by projection)."""
+
+    def features(self, frame: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        cw = np.linalg.inv(self.pose(frame))
+        cam = self.world @ cw[:3, :3].T + cw[:3, 3]
+        uv = cam[:, :2] / cam[:, 2:] * 500 + [320, 240]
+        seen = np.flatnonzero((uv[:, 0] > 5) & (uv[:, 0] < 635) & (uv[:, 1] > 5)
+                              & (uv[:, 1] < 475))
+        return seen, uv[seen] + self.rng.normal(0, 0.3, (len(seen), 2)), cam[seen, 2]
+
+    def observe_ids(self, frame: int) -> np.ndarray:
+        return self.features(frame)[0]
+
+
+def test_edge_node_protocol_corrupt_keyframe_and_restart(
+        tmp_path: Path, domain: LoopbackDomain, ros: node_runtime.SingleThreadedExecutor
+) -> None:
+    device = TrackIdDevice(np.random.default_rng(0))
+    node = node_runtime.Node("device_script")
+    pub_sum = node.create_publisher("twinslam_msgs/msg/FrameSummaries",
+                                    "/device/frame_summaries", PROTOCOL_QOS)
+    pub_kf = node.create_publisher("twinslam_msgs/msg/Keyframe", "/device/keyframes",
+                                   PROTOCOL_QOS)
+    got: dict[str, list] = {"request": [], "map": [], "stats": []}
+    node.create_subscription("twinslam_msgs/msg/UploadRequest", "/edge/upload_request",
+                             got["request"].append, PROTOCOL_QOS)
+    node.create_subscription("twinslam_msgs/msg/MapUpdate", "/edge/map_update",
+                             got["map"].append, node_runtime.LATCHED)
+    node.create_subscription("twinslam_msgs/msg/MapStats", "/edge/map_stats",
+                             got["stats"].append, PROTOCOL_QOS)
+    ros.add_node(node)
+    ckpt = tmp_path / "edge.npz"
+    args = ["-m", "edge_mapper.node", "--ros-args", "-p", "policy:=lff", "-p", "vmax:=10",
+            "-p", f"checkpoint:={ckpt}", "-p", "ba_window:=6"]
+
+    def run_slot(slot: int, rate: float) -> None:
+        n_req, n_map = len(got["request"]), len(got["map"])
+        pub_sum.publish(_summaries(device, slot, rate))
+        assert ros.spin_until(lambda: len(got["request"]) > n_req, 30.0), f"slot {slot}"
+        req = got["request"][-1]
+        assert req.slot == slot and len(req.upload_frame_ids) == int(rate * 0.5 / 5.0)
+        if slot == 1:                                   # a corrupt keyframe: 3 keypoints,
+            bad = _keyframe(device, int(req.upload_frame_ids[0]), slot)   # 2 descriptors
+            bad.keypoints_xy = np.zeros(6, np.float32)
+            bad.descriptors = np.zeros(64, np.uint8)
+            pub_kf.publish(bad)
+        for f in req.upload_frame_ids:
+            pub_kf.publish(_keyframe(device, int(f), slot))
+        assert ros.spin_until(lambda: len(got["map"]) > n_map and got["map"][-1].slot == slot,
+                              60.0), f"no map update for slot {slot}"
+
+    edge = domain.spawn(args)
+    assert ros.spin_until(lambda: pub_sum.get_subscription_count() > 0
+                          and pub_kf.get_subscription_count() > 0, 30.0)
+    for slot, rate in enumerate([40.0, 80.0, 60.0]):
+        run_slot(slot, rate)
+    assert [m.map_version for m in got["map"]] == [1, 2, 3]
+    assert ros.spin_until(lambda: len(got["stats"]) >= 3, 10.0)
+    assert all(s.map_size <= 10 for s in got["stats"])
+    assert got["stats"][-1].map_size == 10 and np.isfinite(got["stats"][-1].uncertainty)
+    assert got["stats"][-1].uploads == 6
+
+    edge.send_signal(signal.SIGKILL)                                    # the edge host dies
+    edge.wait(timeout=10)
+    _, err_before = edge.communicate(timeout=10)
+    assert "dropped a malformed twinslam_msgs/msg/Keyframe" in err_before
+    last = got["map"][-1]
+    edge = domain.spawn(args)                                           # ... and comes back
+    assert ros.spin_until(lambda: len(got["map"]) > 3, 30.0), "no latched map after restart"
+    restored = got["map"][-1]
+    assert restored.map_version == 3 and list(restored.keyframe_ids) == list(last.keyframe_ids)
+    time.sleep(0.2)
+    run_slot(3, 40.0)
+    assert got["map"][-1].map_version == 4
+    code, _, err = domain.stop(edge)
+    assert code == 0, err
+    assert "restored map version 3" in err
