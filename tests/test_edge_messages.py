@@ -82,3 +82,20 @@ def test_upload_request_and_map_stats() -> None:
                                          12.0, 30.0, 1.0))
     assert math.isinf(stats.uncertainty) and math.isnan(stats.mean_next_uncertainty)
     assert stats.lost_frame_ratio == 0.25 and stats.map_size == 0
+
+
+def test_device_messages_round_trip_into_the_edge_readers() -> None:
+    from device_tracker.messages import FrameRecord, frame_summaries_message, keyframe_message
+
+    rec = FrameRecord(41, 12.25, _pose(0.3, [1, 2, 3]), True, np.array([5, 9], np.uint64),
+                      np.array([int(TRACK_ID_BIT) | 2], np.uint64))
+    msg = _roundtrip(frame_summaries_message(7, 60.0, 1, 3, [rec], 12.5))
+    f = msg.frames[0]
+    assert (msg.slot, msg.map_version, f.frame_id, f.stamp.sec, f.stamp.nanosec) == \
+        (7, 3, 41, 12, 250_000_000)
+    assert f.map_point_ids.tolist() == [5, 9] and f.local_track_ids.tolist() == [(1 << 63) | 2]
+    np.testing.assert_allclose(pose_matrix(f.pose), rec.pose, atol=1e-12)
+    kf = read_keyframe(_roundtrip(keyframe_message(
+        7, 41, 12.25, rec.pose, np.diag([500.0, 500.0, 1.0]), np.array([[1.0, 2.0]]),
+        np.array([2.5]), np.full((1, 32), 7, np.uint8), np.array([9], np.uint64))))
+    assert kf.frame_id == 41 and kf.point_ids.tolist() == [9] and kf.depths.tolist() == [2.5]

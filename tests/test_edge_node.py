@@ -11,10 +11,9 @@ from pathlib import Path
 import numpy as np
 
 import node_runtime
+from device_tracker.messages import FrameRecord, frame_summaries_message, keyframe_message
 from edge_mapper.keyframe_integration import TRACK_ID_BIT
 from edge_mapper.node import PROTOCOL_QOS
-from msg_schemas import new
-from msg_schemas.poses import pose_msg
 from node_runtime.loopback import LoopbackDomain
 from tests.test_edge_core import Device, K
 
@@ -22,26 +21,18 @@ F = 8
 
 
 def _summaries(device: Device, slot: int, rate: float) -> object:
-    frames = []
-    for f in range(slot * F, (slot + 1) * F):
-        seen = device.observe_ids(f)
-        frames.append(new("twinslam_msgs/msg/FrameSummary", frame_id=f, tracked=True,
-                          pose=pose_msg(device.pose(f)),
-                          local_track_ids=np.array([int(TRACK_ID_BIT) | int(j) for j in seen],
-                                                   dtype=np.uint64)))
-    return new("twinslam_msgs/msg/FrameSummaries", slot=slot, rate_mbps=rate,
-               rate_state=int(rate > 50), frames=frames)
+    frames = [FrameRecord(f, 0.1 * f, device.pose(f), True, np.zeros(0, np.uint64),
+                          np.array([int(TRACK_ID_BIT) | int(j) for j in device.observe_ids(f)],
+                                   dtype=np.uint64))
+              for f in range(slot * F, (slot + 1) * F)]
+    return frame_summaries_message(slot, rate, int(rate > 50), 0, frames, time.time())
 
 
 def _keyframe(device: Device, frame: int, slot: int) -> object:
     seen, uv, depth = device.features(frame)
-    return new("twinslam_msgs/msg/Keyframe", slot=slot, frame_id=frame,
-               pose_estimate=pose_msg(device.pose(frame)), k=K.reshape(-1),
-               keypoints_xy=uv.astype(np.float32).reshape(-1),
-               keypoint_depths=depth.astype(np.float32),
-               descriptors=device.descs[seen].reshape(-1),
-               map_point_ids=np.array([int(TRACK_ID_BIT) | int(j) for j in seen],
-                                      dtype=np.uint64))
+    return keyframe_message(slot, frame, 0.1 * frame, device.pose(frame), K, uv, depth,
+                            device.descs[seen],
+                            np.array([int(TRACK_ID_BIT) | int(j) for j in seen], np.uint64))
 
 
 class TrackIdDevice(Device):
