@@ -135,12 +135,15 @@ def main(args: list[str] | None = None) -> int:
     for key, default in PARAMETERS.items():
         node.declare_parameter(key, default)
     try:
-        EdgeMapperNode(node)
+        edge = EdgeMapperNode(node)
     except ValueError as exc:
         node.get_logger().error(str(exc))
         node.destroy_node()
         node_runtime.shutdown()
         return 2
+    cfg = edge.core.config.slot
+    node.get_logger().info(f"policy {edge.policy_name}, V_max {cfg.vmax}, alpha {cfg.alpha_mbit} "
+                           f"Mbit, D_req {cfg.d_req_s} s; listening on /device/frame_summaries")
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     try:

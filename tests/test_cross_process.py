@@ -164,9 +164,9 @@ def test_signal_stops_a_node_cleanly_within_2_s(domain: LoopbackDomain, sig) -> 
     proc_lines = proc.stderr
     assert proc_lines is not None
     deadline = time.monotonic() + 30
-    while time.monotonic() < deadline:  # wait until the node has started (its warning line)
+    while time.monotonic() < deadline:  # wait until the node has started (its ready line)
         line = proc_lines.readline()
-        if "publishes nothing yet" in line or not line:
+        if "listening on" in line or not line:
             break
     start = time.monotonic()
     proc.send_signal(sig)
