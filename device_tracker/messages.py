@@ -12,7 +12,7 @@ import numpy as np
 
 from msg_schemas import new
 from msg_schemas.poses import pose_msg
-from sequence_player.messages import set_header
+from sequence_player.messages import ros_time, set_header
 
 
 @dataclass(frozen=True)
@@ -27,18 +27,12 @@ class FrameRecord:
     track_ids: np.ndarray          #: device-local ids of new features it observes
 
 
-def _time(stamp: float) -> Any:
-    sec = int(np.floor(stamp))
-    return new("builtin_interfaces/msg/Time", sec=sec,
-               nanosec=min(round((stamp - sec) * 1e9), 999_999_999))
-
-
 def frame_summaries_message(slot: int, rate_mbps: float, rate_state: int, map_version: int,
                             frames: list[FrameRecord], stamp: float) -> Any:
     msg = new("twinslam_msgs/msg/FrameSummaries", slot=slot, rate_mbps=rate_mbps,
               rate_state=rate_state, map_version=map_version,
               frames=[new("twinslam_msgs/msg/FrameSummary", frame_id=f.frame_id,
-                          stamp=_time(f.stamp), pose=pose_msg(f.pose), tracked=f.tracked,
+                          stamp=ros_time(f.stamp), pose=pose_msg(f.pose), tracked=f.tracked,
                           map_point_ids=np.asarray(f.map_point_ids, dtype=np.uint64),
                           local_track_ids=np.asarray(f.track_ids, dtype=np.uint64))
                       for f in frames])

@@ -155,3 +155,14 @@ def visible_points(world: np.ndarray, active: np.ndarray, camera_to_world: np.nd
                     np.ascontiguousarray(cw),
                     np.ascontiguousarray(k, dtype=np.float64), int(w), int(h),
                     float(depth_range[0]), float(depth_range[1]))
+
+
+def back_project(uv: np.ndarray, depth: np.ndarray, k: np.ndarray,
+                 camera_to_world: np.ndarray) -> np.ndarray:
+    """World positions (n×3) of pixels ``uv`` (n×2) seen at ``depth`` (n, metres) by a pinhole
+    camera ``k`` at ``camera_to_world``: how keyframes turn depth readings into map points."""
+    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    z = np.asarray(depth, dtype=np.float64)
+    cam = np.column_stack([(uv[:, 0] - k[0, 2]) * z / k[0, 0],
+                           (uv[:, 1] - k[1, 2]) * z / k[1, 1], z])
+    return cam @ camera_to_world[:3, :3].T + camera_to_world[:3, 3]

@@ -20,7 +20,7 @@ import numpy as np
 from device_tracker.map_points import MapPoints
 from device_tracker.orb_extractor import Features, OrbExtractor
 from device_tracker.pose_optimization import optimize_pose
-from device_tracker.projection_matching import match_by_projection, visible_points
+from device_tracker.projection_matching import back_project, match_by_projection, visible_points
 
 
 @dataclass(frozen=True)
@@ -218,10 +218,7 @@ class Tracking:
         idx, z = idx[good], z[good]
         if idx.size == 0:
             return np.zeros(0, dtype=np.int64)
-        uv = feats.points[idx].astype(np.float64)
-        cam = np.column_stack([(uv[:, 0] - self.k[0, 2]) * z / self.k[0, 0],
-                               (uv[:, 1] - self.k[1, 2]) * z / self.k[1, 1], z])
-        world = cam @ pose[:3, :3].T + pose[:3, 3]
+        world = back_project(feats.points[idx], z, self.k, pose)
         ids = self.map.add(world, feats.descriptors[idx], index)
         self._probation.append((index, ids))
         return ids

@@ -10,7 +10,6 @@ only moves messages in and out of this class; a restarted node resumes from the 
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -135,7 +134,6 @@ class EdgeMapperCore:
         fixed = observers - window
         if not fixed:
             return None
-        start = time.perf_counter()
         result = bundle_adjust({k: self.map.keyframes[k].pose for k in observers},
                                {p: self.map.points[p].position for p in points}, observations,
                                self.k, fixed, baseline_m=self.config.baseline_m,
@@ -144,5 +142,4 @@ class EdgeMapperCore:
             self.map.keyframes[k].pose = result.poses[k]
         for p in points:
             self.map.points[p].position = result.points[p]
-        result.milliseconds = (time.perf_counter() - start) * 1000
         return result

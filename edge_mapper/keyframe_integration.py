@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from device_tracker.projection_matching import match_by_projection, visible_points
+from device_tracker.projection_matching import back_project, match_by_projection, visible_points
 from edge_mapper.keyframe_map import KeyframeMap
 
 TRACK_ID_BIT = np.uint64(1 << 63)          #: marks a device-local track id
@@ -138,14 +138,8 @@ class KeyframeIntegrator:
 
     def _back_project(self, pose: np.ndarray, keypoints: np.ndarray, depths: np.ndarray
                       ) -> list[np.ndarray | None]:
+        """Each feature's world position from its depth; None outside the depth range."""
         lo, hi = self.config.depth_range_m
-        out: list[np.ndarray | None] = []
-        for (u, v), z in zip(np.asarray(keypoints, dtype=np.float64),
-                             np.asarray(depths, dtype=np.float64), strict=True):
-            if not (lo < z < hi):
-                out.append(None)
-                continue
-            cam = np.array([(u - self.k[0, 2]) * z / self.k[0, 0],
-                            (v - self.k[1, 2]) * z / self.k[1, 1], z])
-            out.append(pose[:3, :3] @ cam + pose[:3, 3])
-        return out
+        z = np.asarray(depths, dtype=np.float64)
+        world = back_project(keypoints, z, self.k, pose)
+        return [w if lo < d < hi else None for w, d in zip(world, z, strict=True)]

@@ -17,11 +17,16 @@ from sequence_player.readers import RgbdFrame
 DEPTH_ENCODINGS = ("16UC1", "32FC1")
 
 
+def ros_time(stamp: float) -> Any:
+    """``builtin_interfaces/Time`` of a time in seconds."""
+    sec = int(np.floor(stamp))
+    return new("builtin_interfaces/msg/Time", sec=sec,
+               nanosec=min(round((stamp - sec) * 1e9), 999_999_999))
+
+
 def set_header(msg: Any, stamp: float, frame_id: str) -> Any:
     """Fill ``msg.header`` with a stamp in seconds and a frame id; returns ``msg``."""
-    sec = int(np.floor(stamp))
-    msg.header.stamp.sec = sec
-    msg.header.stamp.nanosec = min(round((stamp - sec) * 1e9), 999_999_999)
+    msg.header.stamp = ros_time(stamp)
     msg.header.frame_id = frame_id
     return msg
 

@@ -11,7 +11,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from udt_node.rate_history import fit, history_windows, one_hot
+from udt_node.rate_history import fit, history_windows, latest_window, one_hot
 
 
 class MarkovMle:
@@ -100,9 +100,7 @@ class LstmPredictor:
     @torch.no_grad()
     def predict(self, states: list[int]) -> int:
         """The point prediction of d_{k+1} after the history ``states``."""
-        s = list(states)[-self.config.history:]
-        s = [s[0]] * (self.config.history - len(s)) + s
-        x = torch.from_numpy(one_hot(np.array(s), self.config.n_states))[None]
+        x = latest_window(states, self.config.history, self.config.n_states)
         return int(self.network(x).argmax(dim=-1))
 
     @torch.no_grad()

@@ -34,6 +34,14 @@ def history_windows(states: np.ndarray, history: int, n_states: int
     return (torch.from_numpy(one_hot(s[idx], n_states)), torch.from_numpy(s[history:].copy()))
 
 
+def latest_window(states: list[int], history: int, n_states: int) -> torch.Tensor:
+    """The newest ``history`` states as a (1, history, N) one-hot batch; a shorter sequence is
+    padded at the front with its oldest state (no states at all: state 0)."""
+    s = list(states)[-history:]
+    s = [s[0]] * (history - len(s)) + s if s else [0] * history
+    return torch.from_numpy(one_hot(np.array(s), n_states))[None]
+
+
 def transition_error(estimate: np.ndarray, truth: np.ndarray) -> float:
     """Mean absolute difference over all N² entries of two transition matrices — the error
     of every UDT figure (paper Figs 4 and 5)."""

@@ -26,7 +26,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from udt_node.rate_history import fit, history_windows, one_hot
+from udt_node.rate_history import fit, history_windows, latest_window
 
 
 @dataclass(frozen=True)
@@ -113,7 +113,6 @@ class UserDigitalTwin:
                                   self.config.lstm_hidden)
         self.states: list[int] = []
         self.version = 0
-        self.losses: list[float] = []          #: negative ELBO after each retrain
         self._since = 0                        #: slots observed since the last retrain
 
     # -- data ----------------------------------------------------------------------------
@@ -126,11 +125,6 @@ class UserDigitalTwin:
         del self.states[:-max(self.config.buffer_slots, self.config.history) - 1]
         self._since += 1
         return self._since >= self.config.retrain_every
-
-    @property
-    def ready(self) -> bool:
-        """Enough states for one training example."""
-        return len(self.states) > self.config.history
 
     # -- training ------------------------------------------------------------------------
 
@@ -163,15 +157,12 @@ class UserDigitalTwin:
         """Make a trained network the live one (a new model version)."""
         self.network = network
         self.version += 1
-        if trace:
-            self.losses.append(trace[-1])
 
     # -- queries -------------------------------------------------------------------------
 
     def _window(self, states: list[int] | None = None) -> torch.Tensor:
-        s = list(self.states if states is None else states)[-self.config.history:]
-        s = [s[0]] * (self.config.history - len(s)) + s if s else [0] * self.config.history
-        return torch.from_numpy(one_hot(np.array(s), self.config.n_states))[None]
+        return latest_window(self.states if states is None else states, self.config.history,
+                             self.config.n_states)
 
     @torch.no_grad()
     def latent(self, states: list[int] | None = None) -> Latent:
