@@ -42,6 +42,9 @@ class TrackingConfig:
     fuse_min_age: int = 30             #: "old": not seen in the last this many frames
     cull_after: int = 10               #: a new point not seen again within this many frames
     #: is culled (ORB-SLAM's recent map-point culling): no longer a match candidate
+    relocalise: bool = False           #: a frame the motion model loses is matched against
+    #: every active point by descriptor alone and solved by PnP RANSAC (ORB-SLAM's
+    #: relocalisation, without its bag of words: the device's local map is small)
 
 
 @dataclass
@@ -53,6 +56,9 @@ class TrackedFrame:
     keyframe: bool
     n_features: int
     n_matches: int
+    features: Features | None = None  #: the frame's ORB features
+    feature_points: np.ndarray | None = None   #: per feature, the map point it observes or -1
+    relocalised: bool = False          #: tracked only by relocalisation
 
 
 class Tracking:
@@ -75,44 +81,70 @@ class Tracking:
         index = self._count
         self._count += 1
         feats = self.extractor.extract(color)
+        assoc = np.full(len(feats.points), -1, dtype=np.int64)
         if self._pose is None:
             self._pose = np.eye(4)
-            new = self._add_points(feats, np.ones(len(feats.points), bool), depth, self._pose,
-                                   index)
+            idx, new = self._add_points(feats, np.ones(len(feats.points), bool), depth,
+                                        self._pose, index)
+            assoc[idx] = new
             self._last_kf_tracked, self._last_kf_index = new.size, index
             return TrackedFrame(index, self._pose.copy(), new, True, True,
-                                len(feats.points), 0)
+                                len(feats.points), 0, feats, assoc)
         predicted = self._pose @ self._velocity
         matched_feat, matched_ids = self._match(feats, predicted, color.shape[:2])
         pose, inliers = self._solve_pose(feats.points[matched_feat], matched_ids, predicted)
+        relocalised = False
+        if pose is None and self.config.relocalise:
+            matched_feat, matched_ids = self._match_all(feats)
+            pose, inliers = self._solve_pose(feats.points[matched_feat], matched_ids, None)
+            relocalised = pose is not None
         tracked = pose is not None
         if not tracked:
-            pose, inliers = predicted, np.zeros(0, dtype=bool)
+            pose, inliers = predicted, np.zeros(len(matched_ids), dtype=bool)
         observed = matched_ids[inliers]
+        assoc[matched_feat[inliers]] = observed
         self.map.mark_seen(observed, index)
         keyframe = (len(observed) < self.config.keyframe_ratio * self._last_kf_tracked
                     or index - self._last_kf_index >= self.config.keyframe_every)
         if keyframe and depth is not None:
             free = np.ones(len(feats.points), bool)
             free[matched_feat[inliers]] = False
-            fused = self._fuse(feats, free, pose, color.shape[:2], index)
-            new = self._add_points(feats, free, depth, pose, index)
+            fused_idx, fused = self._fuse(feats, free, pose, color.shape[:2], index)
+            new_idx, new = self._add_points(feats, free, depth, pose, index)
+            assoc[fused_idx], assoc[new_idx] = fused, new
             self._last_kf_tracked, self._last_kf_index = len(observed) + len(new), index
             observed = np.concatenate([observed, fused, new])
-        self._velocity = np.linalg.inv(self._pose) @ pose if tracked else np.eye(4)
+        self._velocity = (np.linalg.inv(self._pose) @ pose if tracked and not relocalised
+                          else np.eye(4))
         self._pose = pose
         self._cull(index)
         return TrackedFrame(index, pose.copy(), np.sort(observed), tracked, keyframe,
-                            len(feats.points), len(matched_ids))
+                            len(feats.points), len(matched_ids), feats, assoc, relocalised)
+
+    @property
+    def frames_tracked(self) -> int:
+        return self._count
+
+    def replace_map(self, points: MapPoints, old_to_new: np.ndarray) -> None:
+        """Track from now on against ``points`` (the device's copy of a new edge map);
+        ``old_to_new[i]`` is the new id of old point i, or -1 where it is gone. Points still on
+        probation keep it; the motion model and the pose carry on."""
+        self.map = points
+        probation = []
+        for frame, ids in self._probation:
+            kept = old_to_new[ids]
+            probation.append((frame, kept[kept >= 0]))
+        self._probation = probation
+        self._visible = np.zeros(0, dtype=np.int64)
 
     # -- steps ------------------------------------------------------------------------------
 
     def _fuse(self, feats: Features, free: np.ndarray, pose: np.ndarray,
-              shape: tuple[int, int], index: int) -> np.ndarray:
+              shape: tuple[int, int], index: int) -> tuple[np.ndarray, np.ndarray]:
         """Old points that free features of a keyframe see again (ORB-SLAM's fusion of
         duplicates): searched wider and matched stricter than tracking, since after a revisit
         drift moves an old point tens of pixels. Marks them seen, clears those features, and
-        returns their ids; they are not used for the pose."""
+        returns (feature indices, point ids); they are not used for the pose."""
         cfg = self.config
         ids = self._visible                           # seen from the predicted pose
         ids = ids[self.map.last_seen[ids] < index - cfg.fuse_min_age]
@@ -126,14 +158,14 @@ class Tracking:
         uv = cam[:, :2] / cam[:, 2:3] * np.diag(self.k)[:2] + self.k[:2, 2]
         f_free = np.flatnonzero(free)
         if ids.size == 0 or f_free.size == 0:
-            return np.zeros(0, dtype=np.int64)
+            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
         f_idx, c_idx = match_by_projection(feats.points[f_free], feats.descriptors[f_free], uv,
                                            self.map.descriptors[ids], cfg.fuse_radius_px,
                                            cfg.fuse_max_hamming, cfg.fuse_ratio, shape)
         free[f_free[f_idx]] = False
         fused = ids[c_idx]
         self.map.mark_seen(fused, index)
-        return fused
+        return f_free[f_idx], fused
 
     def _cull(self, index: int) -> None:
         """Deactivate points created ``cull_after`` frames ago that no later frame saw."""
@@ -170,25 +202,50 @@ class Tracking:
                 break
         return f_idx, ids[c_idx]
 
-    def _solve_pose(self, pixels: np.ndarray, ids: np.ndarray, predicted: np.ndarray
+    def _match_all(self, feats: Features) -> tuple[np.ndarray, np.ndarray]:
+        """(feature indices, point ids) matched by descriptor alone against every active
+        point: the relocalisation search, used when the motion model lost the frame."""
+        ids = np.flatnonzero(self.map.active)
+        if ids.size < self.config.min_inliers or len(feats.points) == 0:
+            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+        pairs = cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(feats.descriptors,
+                                                         self.map.descriptors[ids], k=2)
+        f_idx, p_idx = [], []
+        for pair in pairs:
+            if len(pair) == 2 and pair[0].distance <= self.config.max_hamming and \
+                    pair[0].distance < self.config.ratio * pair[1].distance:
+                f_idx.append(pair[0].queryIdx)
+                p_idx.append(pair[0].trainIdx)
+        f_arr = np.array(f_idx, dtype=np.int64)
+        p_arr = ids[np.array(p_idx, dtype=np.int64)]
+        _, first = np.unique(p_arr, return_index=True)     # one feature per point
+        first.sort()
+        return f_arr[first], p_arr[first]
+
+    def _solve_pose(self, pixels: np.ndarray, ids: np.ndarray, predicted: np.ndarray | None
                     ) -> tuple[np.ndarray | None, np.ndarray]:
         """Camera-to-world from 2D–3D matches, and the inlier mask; None if it fails.
 
         As ORB-SLAM tracks with its motion model: a robust refinement of the prediction, and
-        RANSAC only when that keeps too few of the matches (a motion the model missed)."""
+        RANSAC only when that keeps too few of the matches (a motion the model missed). With
+        no prediction (relocalisation), RANSAC alone."""
         cfg = self.config
         if len(ids) < cfg.min_inliers:
             return None, np.zeros(len(ids), dtype=bool)
         world = self.map.positions[ids]
-        cw = np.linalg.inv(predicted)                    # world-to-camera prior
-        refined, mask = optimize_pose(world, pixels, self.k, cw, cfg.reprojection_px)
-        kept = int(mask.sum())
-        if kept >= cfg.min_inliers and kept >= cfg.min_inlier_ratio * len(ids):
-            return np.linalg.inv(refined), mask
-        rvec0, _ = cv2.Rodrigues(cw[:3, :3])
+        if predicted is not None:
+            cw = np.linalg.inv(predicted)                # world-to-camera prior
+            refined, mask = optimize_pose(world, pixels, self.k, cw, cfg.reprojection_px)
+            kept = int(mask.sum())
+            if kept >= cfg.min_inliers and kept >= cfg.min_inlier_ratio * len(ids):
+                return np.linalg.inv(refined), mask
+            rvec0, _ = cv2.Rodrigues(cw[:3, :3])
+            tvec0 = cw[:3, 3].copy()
+        else:
+            rvec0, tvec0 = np.zeros((3, 1)), np.zeros(3)
         ok, rvec, tvec, inl = cv2.solvePnPRansac(
-            world, pixels.astype(np.float64), self.k, None, rvec0.copy(), cw[:3, 3].copy(),
-            useExtrinsicGuess=True, iterationsCount=100,
+            world, pixels.astype(np.float64), self.k, None, rvec0.copy(), tvec0,
+            useExtrinsicGuess=predicted is not None, iterationsCount=100,
             reprojectionError=self.config.reprojection_px, confidence=0.999,
             flags=cv2.SOLVEPNP_ITERATIVE)
         if not ok or inl is None or len(inl) < self.config.min_inliers:
@@ -203,22 +260,31 @@ class Tracking:
         return np.linalg.inv(cw), mask
 
     def _add_points(self, feats: Features, free: np.ndarray, depth: np.ndarray | None,
-                    pose: np.ndarray, index: int) -> np.ndarray:
-        """New map points for the free features that have a depth reading."""
+                    pose: np.ndarray, index: int) -> tuple[np.ndarray, np.ndarray]:
+        """New map points for the free features that have a depth reading: (feature
+        indices, new point ids)."""
+        none = np.zeros(0, dtype=np.int64)
         if depth is None or not free.any():
-            return np.zeros(0, dtype=np.int64)
+            return none, none
         idx = np.flatnonzero(free)
-        px = np.round(feats.points[idx]).astype(int)
-        h, w = depth.shape
-        px[:, 0] = np.clip(px[:, 0], 0, w - 1)
-        px[:, 1] = np.clip(px[:, 1], 0, h - 1)
-        z = depth[px[:, 1], px[:, 0]].astype(np.float64)
-        lo, hi = self.config.depth_range_m
-        good = (z > lo) & (z < hi)
+        z = depth_at(feats.points[idx], depth, self.config.depth_range_m)
+        good = z > 0
         idx, z = idx[good], z[good]
         if idx.size == 0:
-            return np.zeros(0, dtype=np.int64)
+            return none, none
         world = back_project(feats.points[idx], z, self.k, pose)
         ids = self.map.add(world, feats.descriptors[idx], index)
         self._probation.append((index, ids))
-        return ids
+        return idx, ids
+
+
+def depth_at(points: np.ndarray, depth: np.ndarray, depth_range_m: tuple[float, float]
+             ) -> np.ndarray:
+    """The depth (metres) under each pixel, nearest pixel; 0 outside ``depth_range_m``."""
+    px = np.round(np.asarray(points)).astype(int)
+    h, w = depth.shape
+    px[:, 0] = np.clip(px[:, 0], 0, w - 1)
+    px[:, 1] = np.clip(px[:, 1], 0, h - 1)
+    z = depth[px[:, 1], px[:, 0]].astype(np.float64)
+    lo, hi = depth_range_m
+    return np.where((z > lo) & (z < hi), z, 0.0)

@@ -27,8 +27,8 @@ from simulator.env import MapAction
 @dataclass(frozen=True)
 class EdgeConfig:
     slot: SlotConfig = field(default_factory=SlotConfig)
-    ba_window: int = 10              #: newest keyframes optimised each slot; the rest fixed
-    ba_iterations: int = 10
+    ba_window: int = 5               #: newest keyframes optimised each slot; the rest fixed
+    ba_iterations: int = 3           #: Gauss–Newton steps (see bundle_adjustment)
     baseline_m: float = 0.08         #: RGB-D virtual stereo baseline of the BA
     image_shape: tuple[int, int] = (480, 640)
 
@@ -43,6 +43,8 @@ class SlotOutcome:
     bundle_adjustment: BundleAdjustmentResult | None
     map_uncertainty: float           #: u(G) after the slot (+inf if disconnected)
     version: int
+    #: device tracks resolved to map points in this slot and the previous one
+    tracks: dict[int, int] = field(default_factory=dict)
 
 
 class EdgeMapperCore:
@@ -59,12 +61,19 @@ class EdgeMapperCore:
         self.last_slot = -1
         self.rate_history: list[int] = []
         self.map = KeyframeMap()
-        if self.checkpoint is not None and self.checkpoint.is_file():
+        extra: dict[str, np.ndarray] = {}
+        self.restored_from_file = self.checkpoint is not None and self.checkpoint.is_file()
+        if self.restored_from_file:
             self.map, extra = KeyframeMap.load(self.checkpoint)
             self.version = int(extra.get("version", 0))
             self.last_slot = int(extra.get("last_slot", -1))
             self.rate_history = [int(x) for x in extra.get("rate_history", [])]
         self.integrator = KeyframeIntegrator(self.map, self.k, self.config.image_shape)
+        if self.restored_from_file:
+            self.integrator.track_points = dict(zip(
+                (int(t) for t in extra.get("track_ids", [])),
+                (int(p) for p in extra.get("track_point_ids", [])), strict=True))
+        self._previous_tracks: dict[int, int] = {}
         self.planner = SlotPlanner(self.map, policy, self.config.slot, n_states)
         self.pending: dict[int, tuple[MapAction, set[int]]] = {}   #: slot → (action, received)
         self.restored = self.last_slot >= 0
@@ -74,9 +83,20 @@ class EdgeMapperCore:
     def plan(self, slot: int, frames: list[FrameSet], rate_mbps: float, rate_state: int
              ) -> SlotPlan:
         self.rate_history = [*self.rate_history[-63:], int(rate_state)]
+        frames = [self._resolve_tracks(f) for f in frames]
         plan = self.planner.plan(slot, frames, rate_mbps, rate_state, self.rate_history)
         self.pending[slot] = (plan.action, set())
         return plan
+
+    def _resolve_tracks(self, frame: FrameSet) -> FrameSet:
+        """A frame's track ids that already became map points count as those points (the
+        device reports them as tracks until its next map update relabels them)."""
+        known = self.integrator.track_points
+        resolved = {known[t] for t in frame.tracks if known.get(t) in self.map.points}
+        if not resolved:
+            return frame
+        return FrameSet(frame.frame_id, frame.map_points | resolved,
+                        frozenset(t for t in frame.tracks if known.get(t) not in resolved))
 
     def add_keyframe(self, data: KeyframeData) -> IntegrationReport | None:
         """Integrate a keyframe the plan of its slot asked for; None (and nothing changes) for
@@ -102,26 +122,36 @@ class EdgeMapperCore:
         ba = self.optimise() if len(self.map.keyframes) >= 2 else None
         self.version += 1
         self.last_slot = slot
+        fresh = self.integrator.take_new_tracks()
+        tracks = {**self._previous_tracks, **fresh}
+        self._previous_tracks = fresh
         if self.checkpoint is not None:
+            known = self.integrator.track_points
             self.map.save(self.checkpoint, version=np.array(self.version),
                           last_slot=np.array(slot),
-                          rate_history=np.array(self.rate_history, dtype=np.int64))
+                          rate_history=np.array(self.rate_history, dtype=np.int64),
+                          track_ids=np.array(list(known), dtype=np.uint64),
+                          track_point_ids=np.array(list(known.values()), dtype=np.uint64))
         w = self.map.covisibility()
         u = map_uncertainty(w, self.config.slot.log_det_pi) if len(w) else math.inf
         return SlotOutcome(slot, sorted(received), sorted(set(action.upload) - received),
-                           evicted, orphans, ba, u, self.version)
+                           evicted, orphans, ba, u, self.version, tracks)
 
     # -- optimisation ------------------------------------------------------------------------
 
     def optimise(self) -> BundleAdjustmentResult | None:
-        """Local BA: the newest ``ba_window`` keyframes and the points they see move; the other
-        keyframes that see those points hold still (and the oldest always does)."""
+        """Local BA: the newest ``ba_window`` keyframes and the points they share with another
+        keyframe move; the other keyframes that see those points hold still (and the oldest
+        always does). A point only one keyframe sees constrains no pose: it moves rigidly with
+        its keyframe instead of entering the graph. Observations the optimiser finds to be
+        outliers are removed from the map (ORB-SLAM's local BA does the same)."""
         ids = self.map.keyframe_ids()
         window = set(ids[-self.config.ba_window:]) - {ids[0]}
         if not window:
             return None
-        points = set().union(*(self.map.keyframes[k].points for k in window))
-        observers = set().union(*(self.map.points[p].observers for p in points))
+        seen = set().union(*(self.map.keyframes[k].points for k in window))
+        points = {p for p in seen if len(self.map.points[p].observers) >= 2}
+        observers = set().union(*(self.map.points[p].observers for p in points)) | window
         observations = []
         for kf in observers:
             meas = self.map.keyframes[kf].measurements
@@ -129,17 +159,23 @@ class EdgeMapperCore:
                 u, v, d = meas.get(p, (math.nan, math.nan, math.nan))
                 if math.isfinite(u) and math.isfinite(v):
                     observations.append(Observation(kf, p, (u, v), d))
-        if not observations:
-            return None
         fixed = observers - window
-        if not fixed:
+        if not observations or not fixed:
             return None
         result = bundle_adjust({k: self.map.keyframes[k].pose for k in observers},
                                {p: self.map.points[p].position for p in points}, observations,
                                self.k, fixed, baseline_m=self.config.baseline_m,
                                max_iterations=self.config.ba_iterations)
         for k in window:
-            self.map.keyframes[k].pose = result.poses[k]
+            kf = self.map.keyframes[k]
+            motion = result.poses[k] @ np.linalg.inv(kf.pose)
+            for p in kf.points - points:          # single-observer points ride along
+                pt = self.map.points[p]
+                pt.position = motion[:3, :3] @ pt.position + motion[:3, 3]
+            kf.pose = result.poses[k]
         for p in points:
             self.map.points[p].position = result.points[p]
+        for ob in result.outliers:
+            if ob.point in self.map.points:
+                self.map.unobserve(ob.keyframe, ob.point)
         return result

@@ -59,6 +59,8 @@ class KeyframeIntegrator:
         self.shape = shape
         self.config = config or IntegrationConfig()
         self.track_points: dict[int, int] = {}    #: device track id → map point id
+        #: tracks that became (or were matched to) a map point since the last ``take_new_tracks``
+        self.new_tracks: dict[int, int] = {}
 
     def integrate(self, kf_id: int, pose: np.ndarray, keypoints: np.ndarray,
                   descriptors: np.ndarray, depths: np.ndarray, device_ids: np.ndarray
@@ -72,6 +74,7 @@ class KeyframeIntegrator:
         self._keypoints = np.asarray(keypoints, dtype=np.float64)
         d = np.asarray(depths, dtype=np.float64)
         self._depths = np.where(d > 0, d, math.nan)
+        self._feature_point = np.zeros(n, dtype=np.int64)
         ids = np.asarray(device_ids, dtype=np.uint64)
         free = np.ones(n, dtype=bool)
         counts = dict(associated=0, tracked=0, created_from_tracks=0, matched=0, created=0)
@@ -93,9 +96,11 @@ class KeyframeIntegrator:
         counts["matched"] = self._match(kf_id, pose, keypoints, descriptors, free)
         world = self._back_project(pose, keypoints, depths)
         for i in pending_tracks:
-            if free[i] and world[i] is not None:
+            if not free[i]:                   # matched to an existing point by projection
+                self._remember_track(int(ids[i]), self._feature_point[i])
+            elif world[i] is not None:
                 pid = m.add_point(world[i], descriptors[i])
-                self.track_points[int(ids[i])] = pid
+                self._remember_track(int(ids[i]), pid)
                 self._observe(kf_id, pid, free, i)
                 counts["tracked"] += 1
                 counts["created_from_tracks"] += 1
@@ -106,7 +111,17 @@ class KeyframeIntegrator:
         unused = int(free.sum())
         return IntegrationReport(unused=unused, **counts)
 
+    def _remember_track(self, track: int, pid: int) -> None:
+        self.track_points[track] = pid
+        self.new_tracks[track] = pid
+
+    def take_new_tracks(self) -> dict[int, int]:
+        """Track ids resolved since the last call (the device relabels them), and forget."""
+        out, self.new_tracks = self.new_tracks, {}
+        return out
+
     def _observe(self, kf_id: int, pid: int, free: np.ndarray, i: int) -> None:
+        self._feature_point[i] = pid
         if pid not in self.map.keyframes[kf_id].points:      # one feature per point
             u, v = self._keypoints[i]
             self.map.observe(kf_id, pid, (float(u), float(v)), float(self._depths[i]))

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy import sparse
 
 CHECKPOINT_FORMAT = "twinslam-keyframe-map-1"
 
@@ -41,6 +42,22 @@ class MapPoint:
     position: np.ndarray                   #: xyz in the map frame
     descriptor: np.ndarray                 #: 32-byte ORB descriptor (representative)
     observers: set[int] = field(default_factory=set)  #: keyframe ids
+
+
+def shared_counts(sets: list[np.ndarray]) -> np.ndarray:
+    """|S_a ∩ S_b| for every pair of id sets (int64 arrays without repeats), zero diagonal:
+    one sparse product of the sets × ids incidence matrix with its transpose — milliseconds
+    where pairwise Python set intersections took ~0.3 s for a slot against a full map."""
+    if not sets:
+        return np.zeros((0, 0))
+    keys = np.concatenate(sets)
+    rows = np.repeat(np.arange(len(sets)), [len(s) for s in sets])
+    _, cols = np.unique(keys, return_inverse=True)
+    inc = sparse.csr_matrix((np.ones(len(keys)), (rows, cols.ravel())),
+                            shape=(len(sets), int(cols.max(initial=-1)) + 1))
+    w = (inc @ inc.T).toarray()
+    np.fill_diagonal(w, 0.0)
+    return w
 
 
 class KeyframeMap:
@@ -81,6 +98,18 @@ class KeyframeMap:
         kf.measurements[point_id] = (float(uv[0]), float(uv[1]), float(depth))
         pt.observers.add(kf_id)
 
+    def unobserve(self, kf_id: int, point_id: int) -> bool:
+        """Drop one observation (an outlier the optimiser found); removes the point when it
+        was its last observer and returns True then."""
+        kf, pt = self.keyframes[kf_id], self.points[point_id]
+        kf.points.discard(point_id)
+        kf.measurements.pop(point_id, None)
+        pt.observers.discard(kf_id)
+        if not pt.observers:
+            del self.points[point_id]
+            return True
+        return False
+
     def evict(self, kf_id: int) -> list[int]:
         """Remove a keyframe and its observations; returns the ids of the points that lost
         their last observer and were removed with it."""
@@ -106,13 +135,8 @@ class KeyframeMap:
         """w(f, f') = |M_f ∩ M_f'| for the keyframes ``ids`` (default: all, oldest first),
         zero diagonal — the weights the uncertainty and the policies take."""
         ids = self.keyframe_ids() if ids is None else list(ids)
-        n = len(ids)
-        w = np.zeros((n, n))
-        for a in range(n):
-            pa = self.keyframes[ids[a]].points
-            for b in range(a):
-                w[a, b] = w[b, a] = len(pa & self.keyframes[ids[b]].points)
-        return w
+        return shared_counts([np.fromiter(self.keyframes[k].points, dtype=np.int64,
+                                          count=len(self.keyframes[k].points)) for k in ids])
 
     def shared_points(self, point_ids: set[int]) -> np.ndarray:
         """Weights from a frame observing ``point_ids`` to every keyframe, oldest first."""

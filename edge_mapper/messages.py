@@ -6,7 +6,7 @@ conversion, no DDS, so the node stays a thin shell and the conversions are teste
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -56,9 +56,10 @@ def upload_request_message(slot: int, policy: str, rate_mbps: float, action: Map
 
 
 def map_update_message(keyframe_map: KeyframeMap, slot: int, version: int, stamp: float,
-                       frame_id: str = "map") -> Any:
+                       frame_id: str = "map", tracks: dict[int, int] | None = None) -> Any:
     """The whole map for the device: keyframe poses, points with descriptors and how many
-    keyframes observe each."""
+    keyframes observe each, and the device tracks that became map points (``tracks``)."""
+    tracks = {t: p for t, p in (tracks or {}).items() if p in keyframe_map.points}
     kf_ids = keyframe_map.keyframe_ids()
     pt_ids = sorted(keyframe_map.points)
     pts = [keyframe_map.points[p] for p in pt_ids]
@@ -69,7 +70,14 @@ def map_update_message(keyframe_map: KeyframeMap, slot: int, version: int, stamp
               point_positions=np.array([p.position for p in pts], dtype=np.float64).reshape(-1),
               point_descriptors=np.array([p.descriptor for p in pts], dtype=np.uint8
                                          ).reshape(-1),
-              point_observations=np.array([len(p.observers) for p in pts], dtype=np.uint32))
+              point_observations=np.array([len(p.observers) for p in pts], dtype=np.uint32),
+              keyframe_point_counts=np.array([len(keyframe_map.keyframes[k].points)
+                                              for k in kf_ids], dtype=np.uint32),
+              keyframe_point_ids=np.array([p for k in kf_ids
+                                           for p in sorted(keyframe_map.keyframes[k].points)],
+                                          dtype=np.uint64),
+              track_ids=np.array(list(tracks), dtype=np.uint64),
+              track_point_ids=np.array(list(tracks.values()), dtype=np.uint64))
     return set_header(msg, stamp, frame_id)
 
 
@@ -84,6 +92,9 @@ class LocalMap:
     positions: np.ndarray          #: n×3
     descriptors: np.ndarray        #: n×32 uint8
     observations: np.ndarray       #: n uint32
+    keyframe_points: list[np.ndarray] = field(default_factory=list)   #: M_f per keyframe
+    track_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint64))
+    track_point_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint64))
 
 
 def read_map_update(msg: Any) -> LocalMap:
@@ -94,7 +105,12 @@ def read_map_update(msg: Any) -> LocalMap:
                     np.asarray(msg.point_positions, dtype=np.float64).reshape(n, 3),
                     np.asarray(msg.point_descriptors, dtype=np.uint8).reshape(n,
                                                                               DESCRIPTOR_BYTES),
-                    np.asarray(msg.point_observations, dtype=np.uint32))
+                    np.asarray(msg.point_observations, dtype=np.uint32),
+                    np.split(np.asarray(msg.keyframe_point_ids, dtype=np.uint64),
+                             np.cumsum(np.asarray(msg.keyframe_point_counts, dtype=np.int64)
+                                       )[:-1]) if len(msg.keyframe_point_counts) else [],
+                    np.asarray(msg.track_ids, dtype=np.uint64),
+                    np.asarray(msg.track_point_ids, dtype=np.uint64))
 
 
 def map_stats_message(slot: int, policy: str, keyframe_map: KeyframeMap, uncertainty: float,

@@ -35,7 +35,7 @@ from edge_mapper.uncertainty import SlotUncertainty
 from node_runtime.executor import SingleThreadedExecutor
 
 PARAMETERS = {"policy": "adapt", "vmax": 45, "alpha_mbit": 5.0, "d_req_s": 0.5,
-              "checkpoint": "", "states": 2, "ba_window": 10, "slot_timeout_s": 10.0,
+              "checkpoint": "", "states": 2, "ba_window": 5, "slot_timeout_s": 10.0,
               "image_width": 640, "image_height": 480}
 #: per-slot protocol topics: reliable, and deep enough that a slow slot loses nothing
 PROTOCOL_QOS = node_runtime.QoSProfile(depth=100)
@@ -53,6 +53,7 @@ class EdgeMapperNode:
         self.core = EdgeMapperCore(make_policy(self.policy_name), None, config,
                                    p["checkpoint"] or None, int(p["states"]))
         self.timeout = float(p["slot_timeout_s"])
+        #: slot → (opened at, compute seconds so far, υ of its frames)
         self._opened: dict[int, tuple[float, float, SlotUncertainty | None]] = {}
         self.pub_request = node.create_publisher("twinslam_msgs/msg/UploadRequest",
                                                  "/edge/upload_request", PROTOCOL_QOS)
@@ -86,13 +87,18 @@ class EdgeMapperNode:
         self.pub_request.publish(upload_request_message(slot, self.policy_name,
                                                         float(msg.rate_mbps), plan.action,
                                                         time.time()))
-        self._opened[slot] = (time.monotonic(), started, plan.uncertainty)
+        self._opened[slot] = (time.monotonic(), time.perf_counter() - started,
+                              plan.uncertainty)
         if not plan.action.upload:
             self._finish(slot)
 
     def _on_keyframe(self, msg: Any) -> None:
+        started = time.perf_counter()
         data = read_keyframe(msg)
         report = self.core.add_keyframe(data)
+        if data.slot in self._opened:
+            opened, spent, upsilon = self._opened[data.slot]
+            self._opened[data.slot] = (opened, spent + time.perf_counter() - started, upsilon)
         if report is None:
             self.node.get_logger().warning(
                 f"keyframe {data.frame_id} of slot {data.slot} was not asked for (or came "
@@ -113,16 +119,18 @@ class EdgeMapperNode:
                 self._finish(slot)
 
     def _finish(self, slot: int) -> None:
-        _, started, upsilon = self._opened.pop(slot, (0.0, time.perf_counter(), None))
+        started = time.perf_counter()
+        _, spent, upsilon = self._opened.pop(slot, (0.0, 0.0, None))
         out: SlotOutcome = self.core.finish_slot(slot)
         now = time.time()
-        self.pub_map.publish(map_update_message(self.core.map, slot, out.version, now))
+        self.pub_map.publish(map_update_message(self.core.map, slot, out.version, now,
+                                                tracks=out.tracks))
         ba_ms = out.bundle_adjustment.milliseconds if out.bundle_adjustment else 0.0
         self.pub_stats.publish(map_stats_message(
             slot, self.policy_name, self.core.map, out.map_uncertainty,
             upsilon.mean_tracked if upsilon else math.nan,
             upsilon.lost_ratio if upsilon else 0.0, len(out.integrated), ba_ms,
-            (time.perf_counter() - started) * 1000, now))
+            (spent + time.perf_counter() - started) * 1000, now))
         self.node.get_logger().info(
             f"slot {slot}: +{len(out.integrated)} keyframes, -{len(out.evicted)}, map "
             f"{len(self.core.map.keyframes)} keyframes / {len(self.core.map.points)} points, "

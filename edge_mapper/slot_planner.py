@@ -16,9 +16,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from edge_mapper.keyframe_map import KeyframeMap
+from edge_mapper.keyframe_map import KeyframeMap, shared_counts
 from edge_mapper.uncertainty import SlotUncertainty, next_slot_uncertainty, theorem1_cardinalities
 from simulator.env import MapAction, SlotObservation, check_map_action
+
+TRACK_MASK = (1 << 63) - 1          #: a track id without its marker bit
 
 
 @dataclass(frozen=True)
@@ -58,21 +60,27 @@ class SlotPlanner:
     def weights(self, frames: dict[int, FrameSet], a: list[int], b: list[int]) -> np.ndarray:
         """w between ids in ``a`` and ``b``, each a keyframe of the map or a frame of the slot;
         zero between an id and itself."""
-        sets = [self._points(frames, x) for x in a], [self._points(frames, x) for x in b]
-        out = np.zeros((len(a), len(b)))
-        for i, sa in enumerate(sets[0]):
-            for j, sb in enumerate(sets[1]):
-                if a[i] != b[j]:
-                    out[i, j] = len(sa & sb)
-        return out
+        ids = list(dict.fromkeys([*a, *b]))
+        full = self.weight_matrix(frames, ids)
+        pos = {x: i for i, x in enumerate(ids)}
+        return full[np.ix_([pos[x] for x in a], [pos[x] for x in b])]
 
-    def _points(self, frames: dict[int, FrameSet], frame_id: int) -> frozenset:
+    def weight_matrix(self, frames: dict[int, FrameSet], ids: list[int]) -> np.ndarray:
+        """w among ``ids`` (keyframes and slot frames) as one sparse product."""
+        return shared_counts([self._points(frames, x) for x in ids])
+
+    def _points(self, frames: dict[int, FrameSet], frame_id: int) -> np.ndarray:
+        """The ids a keyframe or slot frame observes as one int64 key set: map points as
+        they are, track ids (their own namespace) as negative keys so they never equal a
+        map-point id."""
         kf = self.map.keyframes.get(frame_id)
         if kf is not None:
-            return frozenset(kf.points)
+            return np.fromiter(kf.points, dtype=np.int64, count=len(kf.points))
         f = frames[frame_id]
-        # track ids live in their own namespace: tagged so they never equal a map-point id
-        return f.map_points | frozenset(("track", t) for t in f.tracks)
+        tracks = np.fromiter((t & TRACK_MASK for t in f.tracks), dtype=np.int64,
+                             count=len(f.tracks))
+        return np.concatenate([np.fromiter(f.map_points, dtype=np.int64,
+                                           count=len(f.map_points)), -1 - tracks])
 
     def plan(self, slot: int, frames: list[FrameSet], rate_mbps: float, rate_state: int,
              rate_history: list[int]) -> SlotPlan:
@@ -90,9 +98,12 @@ class SlotPlanner:
         cfg = self.config
         n_up, n_ev = theorem1_cardinalities(rate_mbps, cfg.alpha_mbit, cfg.d_req_s, cfg.vmax,
                                             len(map_ids), len(cand))
+        full = self.weight_matrix(by_id, map_ids + cand)
+        pos = {x: i for i, x in enumerate(map_ids + cand)}
         obs = SlotObservation(slot, map_ids, cand, n_up, n_ev, rate_mbps, rate_state,
                               list(rate_history), self.n_states,
-                              lambda a, b: self.weights(by_id, list(a), list(b)))
+                              lambda a, b: full[np.ix_([pos[x] for x in a],
+                                                       [pos[x] for x in b])])
         action = self.policy.decide(obs)             # type: ignore[attr-defined]
         check_map_action(slot, n_up, n_ev, set(cand), map_ids, action)
         return SlotPlan(action, obs, self.uncertainty(frames))

@@ -121,6 +121,14 @@ def validate_map_update(msg: Any) -> None:
         raise MessageError(f"point_observations has {len(msg.point_observations)} for {n} points")
     if n and not np.all(np.isfinite(msg.point_positions)):
         raise MessageError("point_positions hold non-finite values")
+    if len(msg.keyframe_point_counts) not in (0, len(msg.keyframe_ids)) or \
+            int(np.sum(msg.keyframe_point_counts, dtype=np.int64)) != len(msg.keyframe_point_ids):
+        raise MessageError(f"keyframe_point_counts ({len(msg.keyframe_point_counts)} values) "
+                           f"do not add up to the {len(msg.keyframe_point_ids)} keyframe point "
+                           f"ids of {len(msg.keyframe_ids)} keyframes")
+    if len(msg.track_ids) != len(msg.track_point_ids):
+        raise MessageError(f"{len(msg.track_ids)} track ids but {len(msg.track_point_ids)} "
+                           "track point ids")
 
 
 def validate_uplink_throughput(msg: Any) -> None:

@@ -64,7 +64,8 @@ def test_bundle_adjustment_recovers_the_map_and_flags_wrong_matches() -> None:
     rng = np.random.default_rng(0)
     poses, points, obs, bad = _scene(rng, wrong=0.05)
     start_poses, start_points = _perturb(rng, poses, points)
-    res = bundle_adjust(start_poses, start_points, obs, K, fixed={0})
+    # 8-12 cm off is a cold start (the edge warm-starts from the device's poses and runs 3)
+    res = bundle_adjust(start_poses, start_points, obs, K, fixed={0}, max_iterations=10)
     seen: dict[int, int] = {}
     for ob in obs:
         seen[ob.point] = seen.get(ob.point, 0) + 1

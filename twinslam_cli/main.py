@@ -18,9 +18,25 @@ from pathlib import Path
 
 import numpy as np
 
+from node_runtime.loopback import LoopbackDomain
 from simulator.covisibility import CovisibilityError, load_covisibility
 from simulator.env import SimConfig
 from udt_node.channel import ChannelError
+
+
+class _EnvDomain(LoopbackDomain):
+    """The domain of the environment ($ROS_DOMAIN_ID, $CYCLONEDDS_URI) as it is."""
+
+    def __init__(self) -> None:
+        from node_runtime.context import domain_id_from_env
+
+        super().__init__(domain_id_from_env())
+
+    @property
+    def env(self) -> dict[str, str]:
+        import os
+
+        return dict(os.environ)
 
 
 def _covis(spec: str):
@@ -151,6 +167,33 @@ def cmd_nodes(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_launch(args: argparse.Namespace) -> int:
+    from twinslam_cli.launcher import LaunchConfig, Launcher, print_table
+
+    if not args.params.is_file():
+        print(f"error: parameter file {args.params} does not exist", file=sys.stderr)
+        return 2
+    reports = []
+    for policy in [p.strip() for p in args.policy.split(",") if p.strip()]:
+        config = LaunchConfig(args.sequence, policy, args.frames, args.rate, args.params,
+                              with_twin=args.twin, timeout_s=args.timeout)
+        with LoopbackDomain() if args.loopback else _EnvDomain() as dom:
+            if args.loopback:
+                dom.activate()
+            where = "loopback domain" if args.loopback else "domain"
+            print(f"{policy}: {args.frames} frames of {args.sequence} at {args.rate}x on "
+                  f"{where} {dom.domain_id}", flush=True)
+            try:
+                reports.append(Launcher(dom, config,
+                                        lambda line: print(line, flush=True)).run())
+            except KeyboardInterrupt:
+                print("interrupted: nodes stopped", file=sys.stderr)
+                return 130
+    print()
+    print_table(reports)
+    return 0
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
     from twinslam_cli.demo import run_demo
 
@@ -222,6 +265,19 @@ def build_parser() -> argparse.ArgumentParser:
     nodes = sub.add_parser("nodes", help="list the nodes on $ROS_DOMAIN_ID (ros_discovery_info)")
     nodes.add_argument("--timeout", type=float, default=2.0)
     nodes.set_defaults(func=cmd_nodes)
+    launch = sub.add_parser("launch", help="run player, device, edge (and twin) as processes")
+    launch.add_argument("--sequence", default="synthetic",
+                        help="SUN3D / 7-Scenes / TUM folder, MCAP bag, or synthetic[:frames]")
+    launch.add_argument("--policy", default="adapt", help="one or more, comma-separated")
+    launch.add_argument("--frames", type=int, default=600, help="frames to play; -1: all")
+    launch.add_argument("--rate", type=float, default=1.0, help="x the recorded frame rate")
+    launch.add_argument("--params", type=Path, default=Path(__file__).resolve().parents[1]
+                        / "config" / "twinslam.yaml", help="ROS 2 parameter file")
+    launch.add_argument("--twin", action="store_true", help="start udt_node too")
+    launch.add_argument("--loopback", action="store_true",
+                        help="a private loopback DDS domain instead of $ROS_DOMAIN_ID")
+    launch.add_argument("--timeout", type=float, default=1800.0)
+    launch.set_defaults(func=cmd_launch)
     demo = sub.add_parser("demo", help="the node graph on a loopback domain, then the simulator")
     demo.add_argument("--slots", type=int, default=40)
     demo.add_argument("--seeds", type=int, default=3)

@@ -1,0 +1,170 @@
+"""The device's work, frame by frame and slot by slot, without DDS (DESIGN.md §1 steps 1, 2, 4).
+
+The device tracks every frame against its **local map**: the points of the edge's last
+``MapUpdate`` (global ids) plus the points it created itself since then from depth on its own
+tracking keyframes (device-local **track ids**, top bit set, the namespace
+:data:`~edge_mapper.keyframe_integration.TRACK_ID_BIT` names). For each frame it remembers
+M_f split by that origin, and, for the frames of the last two slots, the features an upload
+needs (keypoints, descriptors, depths, the id each feature observes).
+
+When a ``MapUpdate`` answering slot s arrives, the map is swapped: the global points are the
+update's (positions after the edge's bundle adjustment); the device's own points the edge
+turned into map points (the update lists those track ids) take their global id, so they are
+not kept twice — a duplicate would make the ratio test reject both; of the rest only those
+created in slot s or later are kept (older ones were not uploaded, and the edge's map, which
+the device follows, does not hold them). The tracker's pose and motion model carry on.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from device_tracker.map_points import MapPoints
+from device_tracker.messages import FrameRecord
+from device_tracker.tracking import Tracking, TrackingConfig, depth_at
+from edge_mapper.keyframe_integration import TRACK_ID_BIT
+from edge_mapper.messages import LocalMap
+
+TRACK_BIT = int(TRACK_ID_BIT)
+
+
+@dataclass(frozen=True)
+class UploadData:
+    """What a ``Keyframe`` carries for one frame."""
+
+    frame_id: int
+    slot: int
+    stamp: float
+    pose: np.ndarray               #: 4×4 camera-to-map estimate
+    keypoints: np.ndarray          #: n×2 float32
+    descriptors: np.ndarray        #: n×32 uint8
+    depths: np.ndarray             #: n float32 metres, 0 = none
+    point_ids: np.ndarray          #: n uint64: global id, TRACK_BIT | track id, or 0
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    record: FrameRecord
+    relocalised: bool
+    slot_done: bool                #: this frame was the slot's last
+
+
+class DeviceTrackerCore:
+    """Tracking against the edge's map plus the device's own recent points."""
+
+    def __init__(self, intrinsics: np.ndarray, slot_frames: int = 60,
+                 config: TrackingConfig | None = None) -> None:
+        if slot_frames < 1:
+            raise ValueError(f"slot_frames must be >= 1, got {slot_frames}")
+        self.k = np.asarray(intrinsics, dtype=np.float64)
+        self.slot_frames = slot_frames
+        self.config = config or TrackingConfig(relocalise=True)
+        self.tracking = Tracking(self.k, self.config)
+        #: per map-point row: its global id or TRACK_BIT | track id
+        self.labels = np.zeros(0, dtype=np.uint64)
+        self.created = np.zeros(0, dtype=np.int64)     #: per row: frame that created it
+        self.map_version = 0
+        self.frames: list[FrameRecord] = []            #: the current slot's
+        self._uploads: dict[int, UploadData] = {}      #: last two slots' frames
+        self._next_track = 1
+        self.lost = False                              #: the last frame was not tracked
+
+    @property
+    def frame_count(self) -> int:
+        return self.tracking.frames_tracked
+
+    @staticmethod
+    def warm_up(intrinsics: np.ndarray, shape: tuple[int, int] = (480, 640)) -> None:
+        """Track two frames of noise at 2 m, so the compiled kernels are loaded before the
+        first real frame arrives (the first call otherwise stalls tracking for seconds)."""
+        rng = np.random.default_rng(0)
+        image = rng.integers(0, 255, (*shape, 3), dtype=np.uint8)
+        depth = np.full(shape, 2.0, dtype=np.float32)
+        tracking = Tracking(intrinsics, TrackingConfig(relocalise=True))
+        for _ in range(2):
+            tracking.track(image, depth)
+
+    def slot_of(self, frame_id: int) -> int:
+        return frame_id // self.slot_frames
+
+    # -- frames ------------------------------------------------------------------------------
+
+    def track(self, color: np.ndarray, depth: np.ndarray | None, stamp: float) -> FrameResult:
+        out = self.tracking.track(color, depth)
+        self._label_new_points(out.index)
+        ids = self.labels[out.observed]
+        is_track = (ids & np.uint64(TRACK_BIT)) != 0
+        record = FrameRecord(out.index, stamp, out.pose, out.tracked, np.sort(ids[~is_track]),
+                             np.sort(ids[is_track]))
+        self.frames.append(record)
+        assert out.features is not None and out.feature_points is not None
+        assoc = out.feature_points
+        point_ids = np.where(assoc >= 0, self.labels[np.maximum(assoc, 0)], np.uint64(0))
+        slot = self.slot_of(out.index)
+        depths = (depth_at(out.features.points, depth, self.config.depth_range_m)
+                  if depth is not None else np.zeros(len(assoc)))
+        self._uploads[out.index] = UploadData(
+            out.index, slot, stamp, out.pose, out.features.points, out.features.descriptors,
+            depths.astype(np.float32), point_ids.astype(np.uint64))
+        self.lost = not out.tracked
+        return FrameResult(record, out.relocalised,
+                           out.index % self.slot_frames == self.slot_frames - 1)
+
+    def take_slot(self) -> list[FrameRecord]:
+        """The finished slot's frames (F_k); forgets uploads older than the previous slot."""
+        frames, self.frames = self.frames, []
+        if frames:
+            oldest = (self.slot_of(frames[-1].frame_id) - 1) * self.slot_frames
+            self._uploads = {f: u for f, u in self._uploads.items() if f >= oldest}
+        return frames
+
+    def upload(self, frame_id: int) -> UploadData | None:
+        """The keyframe content of a frame of the last two slots; None if it is gone."""
+        return self._uploads.get(frame_id)
+
+    def _label_new_points(self, frame: int) -> None:
+        n_old, n = len(self.labels), len(self.tracking.map)
+        if n == n_old:
+            return
+        tracks = np.arange(self._next_track, self._next_track + n - n_old, dtype=np.uint64)
+        self._next_track += n - n_old
+        self.labels = np.concatenate([self.labels, tracks | np.uint64(TRACK_BIT)])
+        self.created = np.concatenate([self.created, np.full(n - n_old, frame, np.int64)])
+
+    # -- map updates -------------------------------------------------------------------------
+
+    def apply_map_update(self, update: LocalMap, slot: int) -> bool:
+        """Swap in the edge's map of slot ``slot``; False (and nothing changes) for a version
+        not newer than the one held."""
+        if update.version <= self.map_version:
+            return False
+        old, now = self.tracking.map, max(self.frame_count - 1, 0)
+        if len(update.track_ids):
+            relabel = dict(zip(update.track_ids.tolist(), update.track_point_ids.tolist(),
+                               strict=True))
+            self.labels = np.array([relabel.get(int(x), int(x)) for x in self.labels],
+                                   dtype=np.uint64)
+        keep = np.flatnonzero(((self.labels & np.uint64(TRACK_BIT)) != 0)
+                              & (self.created >= slot * self.slot_frames) & old.active)
+        points = MapPoints(max(len(update.point_ids) + keep.size, 16))
+        new_global = points.add(update.positions, update.descriptors, now)
+        new_track = points.add(old.positions[keep], old.descriptors[keep], now)
+        old_to_new = np.full(len(old), -1, dtype=np.int64)
+        old_to_new[keep] = new_track
+        row_of = {int(g): r for r, g in enumerate(self.labels) if not int(g) & TRACK_BIT}
+        for new_row, gid in zip(new_global, update.point_ids, strict=True):
+            r = row_of.get(int(gid))
+            if r is not None:
+                old_to_new[r] = new_row
+        moved = np.flatnonzero(old_to_new >= 0)
+        points.last_seen[old_to_new[moved]] = old.last_seen[moved]
+        points.seen_count[old_to_new[moved]] = old.seen_count[moved]
+        points.active[new_track] = old.active[keep]
+        self.tracking.replace_map(points, old_to_new)
+        self.labels = np.concatenate([update.point_ids.astype(np.uint64), self.labels[keep]])
+        self.created = np.concatenate([np.full(len(update.point_ids), now, np.int64),
+                                       self.created[keep]])
+        self.map_version = update.version
+        return True

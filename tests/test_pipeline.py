@@ -1,0 +1,131 @@
+"""The live pipeline on a loopback domain: sequence_player → device_tracker ⇄ edge_mapper, every
+node its own process, on the first 600 real 7-Scenes frames (issue #5's acceptance).
+
+Per slot the edge asks for exactly ⌊d_k·D_req/α⌋ frames, the map never exceeds V_max, every
+upload takes at least its bytes / d_k, the device's ATE stays under 0.15 m, and MapStats.u is
+the u(G) of the published map. LFF, PU and ADAPT decide differently and ADAPT's mean υ is
+lower than LFF's. An edge killed with SIGKILL mid-run comes back from its checkpoint.
+"""
+
+from __future__ import annotations
+
+import math
+import signal
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from edge_mapper.keyframe_map import shared_counts
+from edge_mapper.uncertainty import map_uncertainty
+from node_runtime.loopback import LoopbackDomain
+from twinslam_cli.launcher import LaunchConfig, Launcher, RunRecord, RunReport
+
+SEQUENCE = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes-1000"
+FRAMES, VMAX, ALPHA, D_REQ = 600, 45, 5.0, 0.5
+
+pytestmark = pytest.mark.skipif(not SEQUENCE.is_dir(), reason=f"{SEQUENCE} is missing")
+
+
+def _run(policy: str, frames: int = FRAMES, checkpoint: Path | None = None,
+         on_stats: Any = None) -> tuple[RunReport, RunRecord, Launcher]:
+    records: list[RunRecord] = []
+
+    def keep(msg: Any, record: RunRecord) -> None:
+        if not records:
+            records.append(record)
+        if on_stats:
+            on_stats(msg, record, launcher)
+
+    with LoopbackDomain() as dom:
+        dom.activate()
+        launcher = Launcher(dom, LaunchConfig(str(SEQUENCE), policy, frames, 1.0,
+                                              checkpoint=checkpoint, timeout_s=240.0),
+                            echo=print)
+        report = launcher.run(keep)
+    assert records, f"{policy}: the edge published no MapStats"
+    return report, records[0], launcher
+
+
+@pytest.fixture(scope="module")
+def runs() -> dict[str, tuple[RunReport, RunRecord, Launcher]]:
+    return {p: _run(p) for p in ("lff", "pu", "adapt")}
+
+
+def test_protocol_holds_every_slot(runs: dict) -> None:
+    report, record, _ = runs["adapt"]
+    assert report.slots == FRAMES // 60, f"{report.slots} slots answered"
+    for slot, summary in record.summaries.items():
+        request = record.requests[slot]
+        expected = min(math.floor(summary.rate_mbps * D_REQ / ALPHA + 1e-9), len(summary.frames))
+        assert len(request.upload_frame_ids) == expected, f"slot {slot}"
+        assert set(request.upload_frame_ids) <= {f.frame_id for f in summary.frames}
+    for slot, stats in record.stats.items():
+        assert stats.map_size <= VMAX, f"slot {slot}: {stats.map_size} keyframes"
+    for slot, t in record.throughput.items():
+        assert t.frames_sent == len(record.requests[slot].upload_frame_ids)
+        # the uplink shaper: every byte took at least 8 / d_k
+        assert t.duration_s >= t.bytes_sent * 8 / (t.configured_rate_mbps * 1e6) - 1e-6
+        assert t.achieved_mbps <= t.configured_rate_mbps * 1.001
+        assert t.bytes_sent >= t.frames_sent * ALPHA * 1e6 / 8
+    print(f"\nADAPT: ATE {report.ate_m:.3f} m, {report.frames_uploaded} uploads, "
+          f"{report.untracked_frames} untracked frames, edge {report.edge_ms_median:.0f} ms")
+    assert report.ate_m < 0.15
+
+
+def test_map_stats_uncertainty_is_the_published_maps(runs: dict) -> None:
+    _, record, _ = runs["adapt"]
+    checked = 0
+    for slot, stats in record.stats.items():
+        update = record.maps.get(slot)
+        if update is None:
+            continue
+        assert len(update.keyframe_points) == len(update.keyframe_ids) == stats.map_size
+        w = shared_counts([p.astype(np.int64) for p in update.keyframe_points])
+        u = map_uncertainty(w, 0.0)
+        assert u == pytest.approx(stats.uncertainty, rel=1e-9), f"slot {slot}"
+        checked += 1
+    assert checked >= FRAMES // 60 - 1
+
+
+def test_policies_decide_differently_and_adapt_beats_lff(runs: dict) -> None:
+    uploads = {p: [sorted(r[1].requests[s].upload_frame_ids) for s in sorted(r[1].requests)]
+               for p, r in runs.items()}
+    assert uploads["lff"] != uploads["adapt"] and uploads["pu"] != uploads["adapt"] \
+        and uploads["lff"] != uploads["pu"]
+    means = {p: r[0].mean_uncertainty for p, r in runs.items()}
+    print(f"\nmean υ: {means}")
+    assert means["adapt"] < means["lff"]
+
+
+def test_edge_killed_mid_run_resumes_from_its_checkpoint(tmp_path: Path) -> None:
+    state: dict[str, Any] = {}
+
+    def fault(msg: Any, record: RunRecord, launcher: Launcher) -> None:
+        slot = int(msg.slot)
+        if slot == 2 and "killed" not in state:
+            before = record.maps.get(slot) or record.maps[max(record.maps)]
+            state["killed"] = (slot, set(before.keyframe_ids.tolist()), before.version)
+            edge = launcher.procs["edge_mapper"]
+            edge.send_signal(signal.SIGKILL)
+            edge.wait(timeout=10)
+            launcher.start("edge_mapper")
+        elif "killed" in state and "after" not in state:
+            after = record.maps.get(slot) or record.maps[max(record.maps)]
+            state["after"] = (slot, set(after.keyframe_ids.tolist()), after.version,
+                              set(msg_evictions(record, slot)))
+
+    def msg_evictions(record: RunRecord, slot: int) -> list[int]:
+        req = record.requests.get(slot)
+        return [int(f) for f in req.evict_frame_ids] if req is not None else []
+
+    report, record, launcher = _run("adapt", 480, tmp_path / "edge.npz", fault)
+    assert "after" in state, "the restarted edge answered no slot"
+    killed_slot, kept, version = state["killed"]
+    slot, kfs, new_version, evicted = state["after"]
+    assert slot > killed_slot and new_version > version
+    assert kept - evicted <= kfs, "a keyframe the edge had acknowledged was lost"
+    assert "restored map version" in launcher.logs["edge_mapper"]
+    assert max(record.stats) == 480 // 60 - 1, "the run did not complete"
+    assert report.ate_m < 0.15

@@ -1,0 +1,242 @@
+"""``twinslam launch``: the pipeline without ROS — player, device, edge (and the twin) as
+separate processes on one DDS domain with one parameter file, a live status line per slot, and
+a clean stop (SIGTERM, then SIGKILL) of every process at the end or on Ctrl-C.
+
+A monitor participant in this process listens to the run's topics and ends with a
+:class:`RunReport`: mean υ (and the share of lost next-slot frames), ATE of ``/device/pose``
+against ``/camera/ground_truth_pose`` (evo, SE(3)-aligned), frames and bytes uploaded, the
+throughput achieved, frames the device could not track, and the edge's milliseconds per slot.
+"""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import node_runtime
+from device_tracker.camera_input import stamp_key
+from edge_mapper.messages import LocalMap, read_map_update
+from msg_schemas.poses import pose_matrix
+from node_runtime.loopback import LoopbackDomain
+
+REPO = Path(__file__).resolve().parents[1]
+DEFAULT_PARAMS = REPO / "config" / "twinslam.yaml"
+PROTOCOL_QOS = node_runtime.QoSProfile(depth=100)
+
+
+@dataclass
+class RunRecord:
+    """Everything the monitor heard, by slot (messages as received)."""
+
+    summaries: dict[int, Any] = field(default_factory=dict)
+    requests: dict[int, Any] = field(default_factory=dict)
+    stats: dict[int, Any] = field(default_factory=dict)
+    throughput: dict[int, Any] = field(default_factory=dict)
+    maps: dict[int, LocalMap] = field(default_factory=dict)   #: last map update per slot
+    poses: dict[int, np.ndarray] = field(default_factory=dict)        #: stamp ns → pose
+    ground_truth: dict[int, np.ndarray] = field(default_factory=dict)
+
+
+@dataclass
+class RunReport:
+    policy: str
+    slots: int
+    mean_uncertainty: float          #: mean υ over slots (tracked next-slot frames)
+    lost_ratio: float                #: mean share of next-slot frames sharing no map point
+    ate_m: float                     #: NaN without ground truth
+    frames_uploaded: int
+    bytes_uploaded: int
+    achieved_mbps: float             #: mean over slots with uploads
+    untracked_frames: int
+    edge_ms_median: float
+    seconds: float
+
+    ROW = ("{policy:<8} {mean_uncertainty:>10.1f} {lost_ratio:>6.1%} {ate_m:>8.3f} "
+           "{frames_uploaded:>7d} {mbytes:>8.1f} {achieved_mbps:>9.1f} {untracked_frames:>8d} "
+           "{edge_ms_median:>8.0f}")
+    HEADER = (f"{'policy':<8} {'mean υ':>10} {'lost':>6} {'ATE m':>8} {'uploads':>7} "
+              f"{'MB':>8} {'Mbit/s':>9} {'untrackd':>8} {'edge ms':>8}")
+
+    def row(self) -> str:
+        return self.ROW.format(mbytes=self.bytes_uploaded / 1e6, **self.__dict__)
+
+
+class PipelineMonitor:
+    """Subscribes to the run's topics in this process and keeps what it hears."""
+
+    def __init__(self, node: node_runtime.Node,
+                 on_stats: Callable[[Any, RunRecord], None] | None = None) -> None:
+        self.record = RunRecord()
+        self._on_stats = on_stats
+        r = self.record
+        sub = node.create_subscription
+        sub("twinslam_msgs/msg/FrameSummaries", "/device/frame_summaries",
+            lambda m: r.summaries.__setitem__(int(m.slot), m), PROTOCOL_QOS)
+        sub("twinslam_msgs/msg/UploadRequest", "/edge/upload_request",
+            lambda m: r.requests.__setitem__(int(m.slot), m), PROTOCOL_QOS)
+        sub("twinslam_msgs/msg/UplinkThroughput", "/device/uplink_throughput",
+            lambda m: r.throughput.__setitem__(int(m.slot), m), PROTOCOL_QOS)
+        sub("twinslam_msgs/msg/MapStats", "/edge/map_stats", self._stats, PROTOCOL_QOS)
+        sub("twinslam_msgs/msg/MapUpdate", "/edge/map_update",
+            lambda m: r.maps.__setitem__(int(m.slot), read_map_update(m)),
+            node_runtime.QoSProfile(depth=100, durability=node_runtime.LATCHED.durability))
+        sub("geometry_msgs/msg/PoseStamped", "/device/pose",
+            lambda m: r.poses.__setitem__(stamp_key(m.header), pose_matrix(m.pose)),
+            node_runtime.QoSProfile(depth=100))
+        sub("geometry_msgs/msg/PoseStamped", "/camera/ground_truth_pose",
+            lambda m: r.ground_truth.__setitem__(stamp_key(m.header), pose_matrix(m.pose)),
+            node_runtime.QoSProfile(depth=100))
+
+    def _stats(self, msg: Any) -> None:
+        self.record.stats[int(msg.slot)] = msg
+        if self._on_stats:
+            self._on_stats(msg, self.record)
+
+
+def status_line(msg: Any, record: RunRecord) -> str:
+    """One slot as a line: rate, decision, map, uncertainty, timing."""
+    slot = int(msg.slot)
+    req = record.requests.get(slot)
+    summ = record.summaries.get(slot)
+    rate = f"{summ.rate_mbps:4.0f}" if summ is not None else "   ?"
+    ups = len(req.upload_frame_ids) if req is not None else 0
+    ev = len(req.evict_frame_ids) if req is not None else 0
+    nu = msg.mean_next_uncertainty
+    return (f"[{msg.policy}] slot {slot:3d} | d_k {rate} Mbit/s | U {ups} C {ev} | map "
+            f"{msg.map_size:2d} kf {msg.map_points:6d} pts | u {msg.uncertainty:9.1f} | υ "
+            f"{nu:9.1f} lost {msg.lost_frame_ratio:4.0%} | GTSAM {msg.optimisation_ms:4.0f} ms,"
+            f" slot {msg.slot_processing_ms:4.0f} ms")
+
+
+def absolute_trajectory_error(record: RunRecord) -> float:
+    """RMSE of the device's positions against ground truth at the same stamps, after an
+    SE(3) alignment (evo); NaN with fewer than 3 common stamps."""
+    from evo.core import metrics
+    from evo.core.trajectory import PosePath3D
+
+    common = sorted(set(record.poses) & set(record.ground_truth))
+    if len(common) < 3:
+        return math.nan
+    est = PosePath3D(poses_se3=[record.poses[s] for s in common])
+    ref = PosePath3D(poses_se3=[record.ground_truth[s] for s in common])
+    est.align(ref, correct_scale=False)
+    ape = metrics.APE(metrics.PoseRelation.translation_part)
+    ape.process_data((ref, est))
+    return float(ape.get_statistic(metrics.StatisticsType.rmse))
+
+
+def report(policy: str, record: RunRecord, seconds: float) -> RunReport:
+    stats = [record.stats[s] for s in sorted(record.stats)]
+    nus = [s.mean_next_uncertainty for s in stats if math.isfinite(s.mean_next_uncertainty)]
+    tps = [t for t in record.throughput.values() if t.frames_sent]
+    untracked = sum(not f.tracked for s in record.summaries.values() for f in s.frames)
+    return RunReport(policy, len(stats), float(np.mean(nus)) if nus else math.nan,
+                     float(np.mean([s.lost_frame_ratio for s in stats[1:]]))
+                     if len(stats) > 1 else 0.0,
+                     absolute_trajectory_error(record),
+                     sum(int(t.frames_sent) for t in record.throughput.values()),
+                     sum(int(t.bytes_sent) for t in record.throughput.values()),
+                     float(np.mean([t.achieved_mbps for t in tps])) if tps else 0.0,
+                     untracked,
+                     float(np.median([s.slot_processing_ms for s in stats])) if stats
+                     else math.nan, seconds)
+
+
+@dataclass
+class LaunchConfig:
+    sequence: str = "synthetic"
+    policy: str = "adapt"
+    frames: int = 600                #: played from the sequence's start; -1: all
+    rate: float = 1.0                #: × the recorded frame rate
+    params_file: Path = DEFAULT_PARAMS
+    checkpoint: Path | None = None
+    with_twin: bool = False
+    extra: dict[str, list[str]] = field(default_factory=dict)   #: node → more "-p k:=v"
+    timeout_s: float = 600.0
+
+
+class Launcher:
+    """Starts the nodes on ``domain`` and watches them; ``run`` blocks until the sequence is
+    played and the edge has answered its last full slot."""
+
+    NODES = ("edge_mapper", "device_tracker", "udt_node", "sequence_player")
+
+    def __init__(self, domain: LoopbackDomain, config: LaunchConfig,
+                 echo: Callable[[str], None] | None = print) -> None:
+        self.domain, self.config, self.echo = domain, config, echo
+        self.procs: dict[str, subprocess.Popen[str]] = {}
+        self.logs: dict[str, str] = {}         #: each node's stderr (its log), after stop
+
+    def node_args(self, name: str) -> list[str]:
+        c = self.config
+        args = ["-m", f"{name}.node", "--ros-args", "--params-file", str(c.params_file)]
+        params = {"edge_mapper": [f"policy:={c.policy}"]
+                  + ([f"checkpoint:={c.checkpoint}"] if c.checkpoint else []),
+                  "sequence_player": [f"sequence:={c.sequence}", f"rate:={c.rate}",
+                                      f"end:={c.frames}", "wait_for_subscribers:=1"]
+                  }.get(name, []) + c.extra.get(name, [])
+        for p in params:
+            args += ["-p", p]
+        return args
+
+    def start(self, name: str) -> subprocess.Popen[str]:
+        proc = self.domain.spawn(self.node_args(name))
+        self.procs[name] = proc
+        return proc
+
+    def run(self, on_stats: Callable[[Any, RunRecord], None] | None = None) -> RunReport:
+        """Play, watch, stop; ``on_stats(msg, record)`` runs on every ``MapStats`` (tests use
+        it to inject faults mid-run)."""
+        c = self.config
+        node_runtime.init(args=["twinslam_launch"], install_signal_handlers=False)
+        try:
+            node = node_runtime.Node("twinslam_monitor")
+            def stats(msg: Any, record: RunRecord) -> None:
+                if self.echo:
+                    self.echo(status_line(msg, record))
+                if on_stats:
+                    on_stats(msg, record)
+
+            monitor = PipelineMonitor(node, stats)
+            executor = node_runtime.SingleThreadedExecutor()
+            executor.add_node(node)
+            started = time.monotonic()
+            for name in self.NODES:
+                if name != "udt_node" or c.with_twin:
+                    self.start(name)
+            player = self.procs["sequence_player"]
+            deadline = started + c.timeout_s
+            executor.spin_until(lambda: player.poll() is not None, c.timeout_s)
+            summaries = monitor.record.summaries
+            last = max(summaries) if summaries else -1
+            executor.spin_until(lambda: last in monitor.record.stats and all(
+                s in monitor.record.throughput for s in monitor.record.requests),
+                max(1.0, min(60.0, deadline - time.monotonic())))
+            executor.spin_until(lambda: False, 0.5)       # late poses and map updates
+            return report(c.policy, monitor.record, time.monotonic() - started)
+        finally:
+            self.stop()
+            node_runtime.shutdown()
+
+    def stop(self) -> dict[str, int]:
+        codes = {}
+        for name, proc in self.procs.items():
+            code, _, err = self.domain.stop(proc)
+            codes[name] = code
+            self.logs[name] = err
+            if code not in (0, -15) and self.echo:
+                self.echo(f"{name} exited with {code}: {err.strip()[-2000:]}")
+        return codes
+
+
+def print_table(reports: list[RunReport], echo: Callable[[str], None] = print) -> None:
+    echo(RunReport.HEADER)
+    for r in reports:
+        echo(r.row())
