@@ -30,6 +30,7 @@ bench: venv
 	$(PY) -m bench.sim --covis room
 	$(PY) -m bench.frontend
 	$(PY) -m bench.udt
+	$(PY) -m bench.pipeline
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .ruff_cache

@@ -1,13 +1,13 @@
 """``make run``: the most complete real thing that exists today.
 
-1. Starts the four nodes as separate processes on a private loopback DDS domain, waits until
-   each announces itself on ``ros_discovery_info`` and prints the graph, then stops them with
-   SIGTERM and checks they exit cleanly.
-2. Runs the offline simulator with LFF, PU, ADAPT and the clairvoyant oracle on the
-   covisibility the ORB front end extracted from 1000 real 7-Scenes frames (shipped in
-   ``data/``; the geometric room model only if that file is missing, and then said so).
-
-The live pipeline (issue #5) replaces step 1's idle nodes.
+1. The live pipeline — sequence_player, device_tracker and edge_mapper as separate processes
+   on a private loopback DDS domain — once per policy (LFF, PU, ADAPT) on the first 600 real
+   7-Scenes frames of ``../shared/data`` (the synthetic room when that is missing, and then
+   said so), with a status line per slot and a table per policy at the end: mean υ, lost
+   next-slot frames, ATE (evo), uploads, MB, achieved uplink throughput, untracked frames,
+   edge ms per slot.
+2. The offline simulator with LFF, PU, ADAPT and the clairvoyant oracle on the covisibility
+   the ORB front end extracted from 1000 real 7-Scenes frames (shipped in ``data/``).
 """
 
 from __future__ import annotations
@@ -18,36 +18,35 @@ from pathlib import Path
 
 from node_runtime.loopback import LoopbackDomain
 
-REAL_COVIS = Path(__file__).resolve().parents[1] / "data" / "7scenes-redkitchen-1000.covis.npz"
+REPO = Path(__file__).resolve().parents[1]
+REAL_COVIS = REPO / "data" / "7scenes-redkitchen-1000.covis.npz"
+REAL_SEQUENCE = REPO.parent / "shared" / "data" / "7scenes-1000"
 
-NODES = ["sequence_player", "device_tracker", "edge_mapper", "udt_node"]
 
+def run_pipeline(policies: list[str], frames: int) -> bool:
+    from twinslam_cli.launcher import LaunchConfig, Launcher, RunReport, print_table
 
-def run_graph() -> bool:
-    import node_runtime
-    from node_runtime.context import get_context
-    from node_runtime.graph import GraphMonitor
-
-    with LoopbackDomain() as dom:
-        dom.activate()
-        print(f"[1/2] starting {', '.join(NODES)} on loopback DDS domain {dom.domain_id}",
-              flush=True)
-        procs = {name: dom.spawn(["-m", f"{name}.node"]) for name in NODES}
-        node_runtime.init(args=["demo"], install_signal_handlers=False)
-        monitor = GraphMonitor(get_context().participant)
-        ok = monitor.wait_for({f"/{n}" for n in NODES}, timeout=60)
-        for node in monitor.nodes():
-            print(f"      {node.fully_qualified_name:<18} publishers {len(node.writer_gids)} "
-                  f"subscriptions {len(node.reader_gids)}")
-        node_runtime.shutdown()
-        codes = {name: dom.stop(p)[0] for name, p in procs.items()}
-        print(f"      stopped with SIGTERM, exit codes {codes}", flush=True)
-        return ok and all(c == 0 for c in codes.values())
+    if REAL_SEQUENCE.is_dir():
+        sequence, what = str(REAL_SEQUENCE), f"{frames} real 7-Scenes frames"
+    else:
+        sequence, what = f"synthetic:{frames}", (f"{frames} synthetic frames ({REAL_SEQUENCE} "
+                                                 "is missing)")
+    print(f"[1/2] live pipeline (player, device, edge as processes on a loopback domain), "
+          f"{what}, policies {', '.join(policies)}", flush=True)
+    reports: list[RunReport] = []
+    for policy in policies:
+        with LoopbackDomain() as dom:
+            dom.activate()
+            reports.append(Launcher(dom, LaunchConfig(sequence, policy, frames),
+                                    lambda line: print("      " + line, flush=True)).run())
+    print()
+    print_table(reports, lambda line: print("      " + line))
+    return all(r.slots > 0 for r in reports)
 
 
 def run_demo(args: argparse.Namespace) -> int:
     start = time.monotonic()
-    graph_ok = run_graph()
+    graph_ok = run_pipeline(["lff", "pu", "adapt"], args.frames)
     if REAL_COVIS.is_file():
         covis, what = str(REAL_COVIS), ("real covisibility: ORB map points of 1000 7-Scenes "
                                         "frames (data/)")

@@ -1,0 +1,92 @@
+"""Pipeline benchmark (issue #5): the device's ms per frame (tracking against the edge's map,
+no image decoding) and the edge's ms per slot (plan + keyframe integration + GTSAM + eviction
++ checkpoint), with the device and edge cores driven in one process — exactly the work the
+nodes do, without DDS and without the uplink's deliberate delay.
+
+    python -m bench.pipeline [SEQUENCE] [--frames 600] [--policy adapt]
+
+SEQUENCE defaults to ../shared/data/7scenes-1000. Targets: device ≤ 15 ms, edge ≤ 150 ms
+(medians).
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from bench.gauge import cpu_gauge
+from device_tracker.device_core import DeviceTrackerCore
+from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore
+from edge_mapper.messages import KeyframeData, map_update_message, read_map_update
+from edge_mapper.policies import make_policy
+from edge_mapper.slot_planner import FrameSet
+from sequence_player.readers import open_sequence
+from udt_node.channel import parse_channel
+
+DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes-1000"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("sequence", nargs="?", default=str(DEFAULT))
+    parser.add_argument("--frames", type=int, default=600)
+    parser.add_argument("--policy", default="adapt")
+    parser.add_argument("--ba-window", type=int, default=EdgeConfig().ba_window)
+    args = parser.parse_args()
+    cv2.setNumThreads(1)
+    print(cpu_gauge(), "(before)")
+    reader = open_sequence(args.sequence, end=args.frames)
+    DeviceTrackerCore.warm_up(reader.intrinsics)
+    device = DeviceTrackerCore(reader.intrinsics, 60)
+    channel = parse_channel("markov:N=2", seed=0)
+    device_ms, edge_ms, parts = [], [], {"plan": [], "integrate": [], "finish": []}
+    with tempfile.TemporaryDirectory() as tmp:
+        edge = EdgeMapperCore(make_policy(args.policy), reader.intrinsics,
+                              EdgeConfig(ba_window=args.ba_window), Path(tmp) / "edge.npz")
+        for frame in reader:
+            t0 = time.perf_counter()
+            result = device.track(frame.color, frame.depth, frame.stamp)
+            device_ms.append((time.perf_counter() - t0) * 1000)
+            if not result.slot_done:
+                continue
+            frames = device.take_slot()
+            slot = device.slot_of(frames[-1].frame_id)
+            state, rate = channel.step()
+            sets = [FrameSet(f.frame_id, frozenset(f.map_point_ids.tolist()),
+                             frozenset(f.track_ids.tolist())) for f in frames]
+            t0 = time.perf_counter()
+            plan = edge.plan(slot, sets, rate, state)
+            t1 = time.perf_counter()
+            for fid in plan.action.upload:
+                u = device.upload(fid)
+                assert u is not None
+                edge.add_keyframe(KeyframeData(fid, slot, u.pose, reader.intrinsics,
+                                               u.keypoints, u.depths, u.descriptors,
+                                               u.point_ids))
+            t2 = time.perf_counter()
+            out = edge.finish_slot(slot)
+            t3 = time.perf_counter()
+            edge_ms.append((t3 - t0) * 1000)
+            for key, dt in zip(parts, (t1 - t0, t2 - t1, t3 - t2), strict=True):
+                parts[key].append(dt * 1000)
+            msg = map_update_message(edge.map, slot, out.version, time.time(),
+                                     tracks=out.tracks)
+            device.apply_map_update(read_map_update(msg), slot)
+    print(cpu_gauge(), "(after)")
+    print(f"{platform.processor() or platform.machine()}, {reader.kind} {reader.path.name}, "
+          f"{len(device_ms)} frames, policy {args.policy}, BA window {args.ba_window}")
+    print(f"device ms/frame (tracking): median {np.median(device_ms):.1f}, p90 "
+          f"{np.percentile(device_ms, 90):.1f}   target <= 15")
+    print(f"edge ms/slot: median {np.median(edge_ms):.0f}, p90 {np.percentile(edge_ms, 90):.0f}"
+          f" over {len(edge_ms)} slots   target <= 150")
+    print("  " + ", ".join(f"{k} median {np.median(v):.0f} ms" for k, v in parts.items()))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,41 @@
+"""ROS 2 launch file (``ros2 launch twinslam twinslam_launch.py``) for hosts with ROS 2: the
+same nodes and parameter file as ``twinslam launch`` (which needs no ROS).
+
+    ros2 launch twinslam twinslam_launch.py sequence:=/data/7scenes policy:=adapt twin:=true
+
+Needs the ROS 2 ``launch`` / ``launch_ros`` packages (never PyPI's unrelated ``launch``).
+"""
+
+from __future__ import annotations
+
+import os
+
+from ament_index_python.packages import get_package_share_directory
+from launch.actions import DeclareLaunchArgument
+from launch.conditions import IfCondition
+from launch.substitutions import LaunchConfiguration
+from launch_ros.actions import Node
+
+from launch import LaunchDescription
+
+
+def generate_launch_description() -> LaunchDescription:
+    params = os.path.join(get_package_share_directory("twinslam"), "config", "twinslam.yaml")
+    arg = LaunchConfiguration
+    return LaunchDescription([
+        DeclareLaunchArgument("params_file", default_value=params),
+        DeclareLaunchArgument("sequence", default_value="synthetic"),
+        DeclareLaunchArgument("policy", default_value="adapt"),
+        DeclareLaunchArgument("rate", default_value="1.0"),
+        DeclareLaunchArgument("twin", default_value="false"),
+        Node(package="twinslam", executable="edge_mapper", name="edge_mapper",
+             parameters=[arg("params_file"), {"policy": arg("policy")}], output="screen"),
+        Node(package="twinslam", executable="device_tracker", name="device_tracker",
+             parameters=[arg("params_file")], output="screen"),
+        Node(package="twinslam", executable="udt_node", name="udt_node",
+             parameters=[arg("params_file")], output="screen",
+             condition=IfCondition(arg("twin"))),
+        Node(package="twinslam", executable="sequence_player", name="sequence_player",
+             parameters=[arg("params_file"), {"sequence": arg("sequence"),
+                                               "rate": arg("rate")}], output="screen"),
+    ])

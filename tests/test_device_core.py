@@ -1,0 +1,65 @@
+"""The device's core without DDS: frame records split global ids from track ids, uploads carry
+one id per feature, and a map update relabels the tracks the edge resolved (no duplicates),
+drops the device's stale points, and keeps tracking on course."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from device_tracker.device_core import TRACK_BIT, DeviceTrackerCore
+from edge_mapper.messages import LocalMap
+from sequence_player.synthetic import SyntheticSequence
+
+SLOT = 10
+
+
+def _track(core: DeviceTrackerCore, frames: list) -> list:
+    return [core.track(f.color, f.depth, f.stamp) for f in frames]
+
+
+def test_map_update_relabels_resolved_tracks_and_keeps_tracking() -> None:
+    seq = SyntheticSequence(3 * SLOT, seed=0)
+    frames = list(seq)
+    core = DeviceTrackerCore(seq.intrinsics, SLOT)
+    results = _track(core, frames[:SLOT])
+    assert results[-1].slot_done and not any(r.slot_done for r in results[:-1])
+    records = core.take_slot()
+    assert [r.frame_id for r in records] == list(range(SLOT))
+    # before any map update the device knows only its own points
+    assert all(len(r.map_point_ids) == 0 and len(r.track_ids) > 50 for r in records)
+    assert all(int(t) & TRACK_BIT for r in records for t in r.track_ids)
+
+    up = core.upload(5)
+    assert up is not None and len(up.point_ids) == len(up.keypoints) == len(up.depths)
+    observed = {int(i) for i in up.point_ids if i}
+    assert observed == {int(i) for i in records[5].track_ids}
+
+    # the edge turned the tracks frame 0 observes into map points 1..n, at their positions
+    first = records[0].track_ids
+    rows = np.array([int(np.flatnonzero(core.labels == t)[0]) for t in first])
+    global_ids = np.arange(1, len(first) + 1, dtype=np.uint64)
+    update = LocalMap(1, np.array([0], np.uint64), np.eye(4)[None], global_ids,
+                      core.tracking.map.positions[rows].copy(),
+                      core.tracking.map.descriptors[rows].copy(),
+                      np.ones(len(first), np.uint32), [global_ids], first, global_ids)
+    assert core.apply_map_update(update, 0)
+    assert not core.apply_map_update(update, 0), "an old version must not apply twice"
+    labels = core.labels
+    assert len(set(labels.tolist())) == len(labels), "a point is held twice"
+    assert set(global_ids.tolist()) <= set(labels.tolist())
+    assert not set(first.tolist()) & set(labels.tolist()), "resolved tracks keep no track id"
+
+    results = _track(core, frames[SLOT:2 * SLOT])
+    later = core.take_slot()
+    assert all(r.record.tracked for r in results)
+    # the next slot observes the resolved points by their global ids
+    assert np.mean([len(r.map_point_ids) > 0 for r in later]) > 0.5
+    truth = [f.pose for f in frames[SLOT:2 * SLOT]]
+    for r, gt in zip(results, truth, strict=True):
+        rel = np.linalg.inv(frames[0].pose) @ gt
+        assert np.linalg.norm(r.record.pose[:3, 3] - rel[:3, 3]) < 0.05
+    # a slot's frames stay uploadable through the next slot, then are forgotten
+    assert core.upload(0) is not None
+    _track(core, frames[2 * SLOT:])
+    core.take_slot()
+    assert core.upload(SLOT - 1) is None and core.upload(SLOT) is not None
