@@ -125,8 +125,10 @@ class EdgeMapperCore:
         fresh = self.integrator.take_new_tracks()
         tracks = {**self._previous_tracks, **fresh}
         self._previous_tracks = fresh
+        # tracks whose point left the map are forgotten: the table stays the map's size
+        known = {t: p for t, p in self.integrator.track_points.items() if p in self.map.points}
+        self.integrator.track_points = known
         if self.checkpoint is not None:
-            known = self.integrator.track_points
             self.map.save(self.checkpoint, version=np.array(self.version),
                           last_slot=np.array(slot),
                           rate_history=np.array(self.rate_history, dtype=np.int64),
