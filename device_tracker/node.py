@@ -70,6 +70,7 @@ class DeviceTrackerNode:
         self.shaper = UplinkShaper()
         self.slot_rates: dict[int, tuple[float, int]] = {}
         self.pending: dict[int, dict[str, Any]] = {}      # stamp → colour / depth messages
+        self._latest = {"color": -1, "depth": -1}         # newest stamp seen per topic
         self.skipped = 0
         self.path: list[Any] = []
         self._uploads: queue.Queue[tuple[int, list[int]] | None] = queue.Queue()
@@ -110,19 +111,27 @@ class DeviceTrackerNode:
         self._process_ready()
 
     def _on_image(self, kind: str, msg: Any) -> None:
-        self.pending.setdefault(stamp_key(msg.header), {})[kind] = msg
+        key = stamp_key(msg.header)
+        self.pending.setdefault(key, {})[kind] = msg
+        self._latest[kind] = max(self._latest[kind], key)
         self._process_ready()
 
     def _process_ready(self) -> None:
-        """Track complete frames oldest first; a colour image whose depth has not come while
-        ``MAX_PENDING`` newer frames did is tracked without it; a lone depth image is dropped."""
+        """Track complete frames oldest first. Each topic delivers in stamp order, so a frame
+        still missing its depth once a newer depth came will never get it: its colour is
+        tracked without depth (and a lone depth image dropped). With no depth topic at all,
+        colour waits at most ``MAX_PENDING`` frames. (Counting pending frames alone is wrong
+        under load: the executor may take ten colour images before their depth images.)"""
         if self.core is None:
             return
         while self.pending:
             oldest = min(self.pending)
             entry = self.pending[oldest]
             complete = "color" in entry and "depth" in entry
-            if not complete and len(self.pending) <= MAX_PENDING:
+            missing = "depth" if "color" in entry else "color"
+            hopeless = self._latest[missing] > oldest or (
+                self._latest["depth"] < 0 and len(self.pending) > MAX_PENDING)
+            if not complete and not hopeless:
                 return
             del self.pending[oldest]
             if "color" not in entry:

@@ -78,6 +78,23 @@ class EdgeMapperCore:
         self.pending: dict[int, tuple[MapAction, set[int]]] = {}   #: slot → (action, received)
         self.restored = self.last_slot >= 0
 
+    @staticmethod
+    def warm_up(policy: object) -> None:
+        """One slot of a tiny made-up map through ``policy``, υ, eviction and the optimiser,
+        so the compiled kernels are loaded (or compiled, in a fresh checkout: tens of seconds)
+        before the first real slot arrives instead of while the device waits for its map."""
+        core = EdgeMapperCore(policy, None, EdgeConfig(slot=SlotConfig(vmax=3)))
+        for kf in range(3):
+            core.map.add_keyframe(kf, np.eye(4))
+        for p in range(40):
+            pid = core.map.add_point(np.array([0.0, 0.0, 2.0]), np.zeros(32, np.uint8))
+            for kf in range(3):
+                if kf * 10 <= p < kf * 10 + 20:
+                    core.map.observe(kf, pid, (320.0, 240.0), 2.0)
+        frames = [FrameSet(10 + i, frozenset(range(1 + 5 * i, 21 + 5 * i))) for i in range(6)]
+        core.plan(0, frames, 40.0, 0)
+        core.finish_slot(0)
+
     # -- the protocol ------------------------------------------------------------------------
 
     def plan(self, slot: int, frames: list[FrameSet], rate_mbps: float, rate_state: int

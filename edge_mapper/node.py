@@ -50,6 +50,7 @@ class EdgeMapperNode:
                                             d_req_s=float(p["d_req_s"])),
                             ba_window=int(p["ba_window"]),
                             image_shape=(int(p["image_height"]), int(p["image_width"])))
+        EdgeMapperCore.warm_up(make_policy(self.policy_name))
         self.core = EdgeMapperCore(make_policy(self.policy_name), None, config,
                                    p["checkpoint"] or None, int(p["states"]))
         self.timeout = float(p["slot_timeout_s"])

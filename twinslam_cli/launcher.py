@@ -79,8 +79,9 @@ class PipelineMonitor:
         sub = node.create_subscription
         sub("twinslam_msgs/msg/FrameSummaries", "/device/frame_summaries",
             lambda m: r.summaries.__setitem__(int(m.slot), m), PROTOCOL_QOS)
-        sub("twinslam_msgs/msg/UploadRequest", "/edge/upload_request",
-            lambda m: r.requests.__setitem__(int(m.slot), m), PROTOCOL_QOS)
+        #: its publisher count says whether the edge is up (it publishes after warming up)
+        self.requests = sub("twinslam_msgs/msg/UploadRequest", "/edge/upload_request",
+                            lambda m: r.requests.__setitem__(int(m.slot), m), PROTOCOL_QOS)
         sub("twinslam_msgs/msg/UplinkThroughput", "/device/uplink_throughput",
             lambda m: r.throughput.__setitem__(int(m.slot), m), PROTOCOL_QOS)
         sub("twinslam_msgs/msg/MapStats", "/edge/map_stats", self._stats, PROTOCOL_QOS)
@@ -208,7 +209,15 @@ class Launcher:
             executor = node_runtime.SingleThreadedExecutor()
             executor.add_node(node)
             started = time.monotonic()
-            for name in self.NODES:
+            # the edge first, and the rest once it listens: summaries published before the
+            # edge's reader matched would be lost (the device starts the slots with the player)
+            edge = self.start("edge_mapper")
+            if not executor.spin_until(lambda: monitor.requests.get_publisher_count() > 0
+                                       or edge.poll() is not None, min(120.0, c.timeout_s)):
+                raise RuntimeError("edge_mapper did not come up within 120 s")
+            if edge.poll() is not None:
+                raise RuntimeError(f"edge_mapper exited with {edge.returncode} at start")
+            for name in self.NODES[1:]:
                 if name != "udt_node" or c.with_twin:
                     self.start(name)
             player = self.procs["sequence_player"]
