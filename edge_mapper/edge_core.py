@@ -10,6 +10,7 @@ only moves messages in and out of this class; a restarted node resumes from the 
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -45,6 +46,8 @@ class SlotOutcome:
     version: int
     #: device tracks resolved to map points in this slot and the previous one
     tracks: dict[int, int] = field(default_factory=dict)
+    #: milliseconds of each step of ``finish_slot``: optimise, checkpoint, uncertainty
+    timings_ms: dict[str, float] = field(default_factory=dict)
 
 
 class EdgeMapperCore:
@@ -136,7 +139,9 @@ class EdgeMapperCore:
             if kf in self.map.keyframes:
                 orphans += len(self.map.evict(kf))
                 evicted.append(kf)
+        t0 = time.perf_counter()
         ba = self.optimise() if len(self.map.keyframes) >= 2 else None
+        t1 = time.perf_counter()
         self.version += 1
         self.last_slot = slot
         fresh = self.integrator.take_new_tracks()
@@ -151,10 +156,14 @@ class EdgeMapperCore:
                           rate_history=np.array(self.rate_history, dtype=np.int64),
                           track_ids=np.array(list(known), dtype=np.uint64),
                           track_point_ids=np.array(list(known.values()), dtype=np.uint64))
+        t2 = time.perf_counter()
         w = self.map.covisibility()
         u = map_uncertainty(w, self.config.slot.log_det_pi) if len(w) else math.inf
+        t3 = time.perf_counter()
+        timings = {"optimise": (t1 - t0) * 1e3, "checkpoint": (t2 - t1) * 1e3,
+                   "uncertainty": (t3 - t2) * 1e3}
         return SlotOutcome(slot, sorted(received), sorted(set(action.upload) - received),
-                           evicted, orphans, ba, u, self.version, tracks)
+                           evicted, orphans, ba, u, self.version, tracks, timings)
 
     # -- optimisation ------------------------------------------------------------------------
 
