@@ -223,6 +223,10 @@ class Launcher:
             player = self.procs["sequence_player"]
             deadline = started + c.timeout_s
             executor.spin_until(lambda: player.poll() is not None, c.timeout_s)
+            if player.returncode not in (0, None):
+                _, _, err = self.domain.stop(self.procs.pop("sequence_player"))
+                raise RuntimeError(f"sequence_player exited with {player.returncode}: "
+                                   f"{err.strip()[-500:]}")
             summaries = monitor.record.summaries
             last = max(summaries) if summaries else -1
             executor.spin_until(lambda: last in monitor.record.stats and all(
@@ -236,7 +240,7 @@ class Launcher:
 
     def stop(self) -> dict[str, int]:
         codes = {}
-        for name, proc in self.procs.items():
+        for name, proc in list(self.procs.items()):
             code, _, err = self.domain.stop(proc)
             codes[name] = code
             self.logs[name] = err

@@ -189,6 +189,9 @@ def cmd_launch(args: argparse.Namespace) -> int:
             except KeyboardInterrupt:
                 print("interrupted: nodes stopped", file=sys.stderr)
                 return 130
+            except RuntimeError as exc:
+                print(f"error: {exc}", file=sys.stderr)
+                return 1
     print()
     print_table(reports)
     return 0
