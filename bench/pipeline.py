@@ -40,6 +40,7 @@ def main() -> None:
     parser.add_argument("--policy", default="adapt")
     parser.add_argument("--ba-window", type=int, default=EdgeConfig().ba_window)
     parser.add_argument("--ba-iterations", type=int, default=EdgeConfig().ba_iterations)
+    parser.add_argument("--ba-points", type=int, default=EdgeConfig().ba_points)
     args = parser.parse_args()
     cv2.setNumThreads(1)
     print(cpu_gauge(), "(before)")
@@ -52,7 +53,8 @@ def main() -> None:
     parts: dict[str, list[float]] = {"plan": [], "integrate": [], "finish": [], "optimise": [],
                                      "checkpoint": [], "uncertainty": []}
     with tempfile.TemporaryDirectory() as tmp:
-        config = EdgeConfig(ba_window=args.ba_window, ba_iterations=args.ba_iterations)
+        config = EdgeConfig(ba_window=args.ba_window, ba_iterations=args.ba_iterations,
+                            ba_points=args.ba_points)
         edge = EdgeMapperCore(make_policy(args.policy), reader.intrinsics, config,
                               Path(tmp) / "edge.npz")
         for frame in reader:
@@ -93,7 +95,7 @@ def main() -> None:
     print(cpu_gauge(), "(after)")
     print(f"{platform.processor() or platform.machine()}, {reader.kind} {reader.path.name}, "
           f"{len(device_ms)} frames, policy {args.policy}, BA window {args.ba_window}, "
-          f"{args.ba_iterations} iterations")
+          f"{args.ba_iterations} iterations, at most {args.ba_points or 'all'} points")
     print(f"device ms/frame (tracking): median {np.median(device_ms):.1f}, p90 "
           f"{np.percentile(device_ms, 90):.1f}   target <= 15")
     print(f"edge ms/slot: median {np.median(edge_ms):.0f}, p90 {np.percentile(edge_ms, 90):.0f}"

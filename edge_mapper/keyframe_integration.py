@@ -19,6 +19,7 @@ the device associated it with (``Keyframe.map_point_ids``, 0 = none):
 from __future__ import annotations
 
 import math
+from collections import Counter
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,7 +33,8 @@ TRACK_ID_BIT = np.uint64(1 << 63)          #: marks a device-local track id
 @dataclass(frozen=True)
 class IntegrationConfig:
     search_radius_px: float = 15.0
-    local_keyframes: int = 10          #: without associations: the newest this many keyframes
+    local_keyframes: int = 10          #: the local map: this many best covisible keyframes
+    #: (the newest ones for a keyframe that shares no point yet)
     max_hamming: int = 50
     ratio: float = 0.8
     depth_range_m: tuple[float, float] = (0.2, 8.0)
@@ -72,6 +74,7 @@ class KeyframeIntegrator:
                              f"descriptors, {len(depths)} depths, {len(device_ids)} ids")
         m = self.map
         m.add_keyframe(kf_id, pose)
+        self._taken: dict[int, int] = {}          # point → feature, flushed into the map
         self._keypoints = np.asarray(keypoints, dtype=np.float64)
         d = np.asarray(depths, dtype=np.float64)
         self._depths = np.where(d > 0, d, math.nan)
@@ -94,6 +97,7 @@ class KeyframeIntegrator:
             elif dev in m.points:
                 self._observe(kf_id, dev, free, i)
                 counts["associated"] += 1
+        self._flush(kf_id)                        # _match needs the keyframe's points
         counts["matched"] = self._match(kf_id, pose, keypoints, descriptors, free)
         world = self._back_project(pose, keypoints, depths)
         for i in pending_tracks:
@@ -109,6 +113,7 @@ class KeyframeIntegrator:
             if world[i] is not None:
                 self._observe(kf_id, m.add_point(world[i], descriptors[i]), free, i)
                 counts["created"] += 1
+        self._flush(kf_id)
         unused = int(free.sum())
         return IntegrationReport(unused=unused, **counts)
 
@@ -123,23 +128,33 @@ class KeyframeIntegrator:
 
     def _observe(self, kf_id: int, pid: int, free: np.ndarray, i: int) -> None:
         self._feature_point[i] = pid
-        if pid not in self.map.keyframes[kf_id].points:      # one feature per point
-            u, v = self._keypoints[i]
-            self.map.observe(kf_id, pid, (float(u), float(v)), float(self._depths[i]))
+        if pid not in self._taken and pid not in self.map.keyframes[kf_id].points:
+            self._taken[pid] = i                 # one feature per point: the first
         free[i] = False
+
+    def _flush(self, kf_id: int) -> None:
+        """Write the collected observations into the map in one call."""
+        if self._taken:
+            rows = np.fromiter(self._taken.values(), dtype=np.int64, count=len(self._taken))
+            self.map.observe_many(kf_id, list(self._taken), self._keypoints[rows].tolist(),
+                                  self._depths[rows].tolist())
+            self._taken = {}
 
     def _match(self, kf_id: int, pose: np.ndarray, keypoints: np.ndarray,
                descriptors: np.ndarray, free: np.ndarray) -> int:
         """Free features matched to visible points of the keyframe's local map that it does
         not observe yet. The local map, as in ORB-SLAM, is the points of the keyframes that
-        share a point with it (by the device's associations), or of the newest keyframes when
-        it shares none: searching the whole map cost ~20 ms a keyframe in Python alone."""
+        share the most points with it (by the device's associations), or of the newest
+        keyframes when it shares none: searching the whole map cost ~20 ms a keyframe."""
         m, cfg = self.map, self.config
         f_free = np.flatnonzero(free)
         if f_free.size == 0 or not m.points:
             return 0
         own = m.keyframes[kf_id].points
-        neighbours = set().union(*(m.points[p].observers for p in own)) - {kf_id}
+        shared = Counter(k for p in own for k in m.points[p].observers)
+        del shared[kf_id]
+        # the keyframes sharing the most points (ORB-SLAM's best covisible neighbours)
+        neighbours = {k for k, _ in shared.most_common(cfg.local_keyframes)}
         if not neighbours:
             neighbours = set(m.keyframe_ids()[-cfg.local_keyframes - 1:]) - {kf_id}
         local = set().union(*(m.keyframes[k].points for k in neighbours)) if neighbours \
@@ -147,12 +162,13 @@ class KeyframeIntegrator:
         pids = np.array(sorted(local - own), dtype=np.int64)
         if pids.size == 0:
             return 0
-        positions = np.array([m.points[p].position for p in pids])
+        pts = [m.points[p] for p in pids.tolist()]
+        positions = np.array([pt.position for pt in pts])
         vis, uv = visible_points(positions, np.ones(len(pids), dtype=bool), pose, self.k,
                                  self.shape, cfg.depth_range_m)
         if vis.size == 0:
             return 0
-        desc = np.array([m.points[p].descriptor for p in pids[vis]], dtype=np.uint8)
+        desc = np.array([pts[i].descriptor for i in vis.tolist()], dtype=np.uint8)
         f_idx, c_idx = match_by_projection(np.asarray(keypoints)[f_free],
                                            np.asarray(descriptors)[f_free], uv, desc,
                                            cfg.search_radius_px, cfg.max_hamming, cfg.ratio,

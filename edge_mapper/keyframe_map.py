@@ -51,9 +51,9 @@ def shared_counts(sets: list[np.ndarray]) -> np.ndarray:
     if not sets:
         return np.zeros((0, 0))
     keys = np.concatenate(sets)
-    rows = np.repeat(np.arange(len(sets)), [len(s) for s in sets])
     _, cols = np.unique(keys, return_inverse=True)
-    inc = sparse.csr_matrix((np.ones(len(keys)), (rows, cols.ravel())),
+    indptr = np.concatenate([[0], np.cumsum([len(s) for s in sets])])
+    inc = sparse.csr_matrix((np.ones(len(keys)), cols.ravel(), indptr),   # rows contiguous
                             shape=(len(sets), int(cols.max(initial=-1)) + 1))
     w = (inc @ inc.T).toarray()
     np.fill_diagonal(w, 0.0)
@@ -97,6 +97,20 @@ class KeyframeMap:
         kf.points.add(point_id)
         kf.measurements[point_id] = (float(uv[0]), float(uv[1]), float(depth))
         pt.observers.add(kf_id)
+
+    def observe_many(self, kf_id: int, point_ids: list[int], uvs: list[list[float]],
+                     depths: list[float]) -> None:
+        """``observe`` for many points of one keyframe (its integration's bulk path)."""
+        kf = self.keyframes.get(kf_id)
+        missing = [p for p in point_ids if p not in self.points]
+        if kf is None or missing:
+            raise MapError(f"keyframe {kf_id} cannot observe points {missing[:5]}: unknown "
+                           "keyframe or point")
+        kf.points.update(point_ids)
+        meas, points = kf.measurements, self.points
+        for pid, (u, v), d in zip(point_ids, uvs, depths, strict=True):
+            meas[pid] = (u, v, d)
+            points[pid].observers.add(kf_id)
 
     def unobserve(self, kf_id: int, point_id: int) -> bool:
         """Drop one observation (an outlier the optimiser found); removes the point when it
@@ -150,8 +164,15 @@ class KeyframeMap:
         path = Path(path)
         kf_ids = self.keyframe_ids()
         pt_ids = sorted(self.points)
-        obs = [(k, p) for k in kf_ids for p in sorted(self.keyframes[k].points)]
-        uvd = [self.keyframes[k].measurements.get(p, (math.nan,) * 3) for k, p in obs]
+        # every observation has its measurement (observe writes both, unobserve and evict
+        # drop both), so the measurement dicts list the observations, in C-speed bulk
+        meas = [self.keyframes[k].measurements for k in kf_ids]
+        seen = [np.fromiter(d.keys(), dtype=np.int64, count=len(d)) for d in meas]
+        obs = np.column_stack([np.repeat(np.array(kf_ids, dtype=np.int64),
+                                         [len(x) for x in seen]),
+                               np.concatenate(seen) if seen else np.zeros(0, np.int64)])
+        uvd = np.array([v for d in meas for v in d.values()], dtype=np.float64)
+        positions = np.array([self.points[p].position for p in pt_ids], dtype=np.float64)
         tmp = path.with_name(path.name + ".tmp")
         with tmp.open("wb") as fh:
             np.savez(fh, format=np.array(CHECKPOINT_FORMAT),
@@ -159,12 +180,11 @@ class KeyframeMap:
                      keyframe_poses=np.array([self.keyframes[k].pose for k in kf_ids]
                                              ).reshape(-1, 4, 4),
                      point_ids=np.array(pt_ids, dtype=np.int64),
-                     point_positions=np.array([self.points[p].position for p in pt_ids]
-                                              ).reshape(-1, 3),
+                     point_positions=positions.reshape(-1, 3),
                      point_descriptors=np.array([self.points[p].descriptor for p in pt_ids],
                                                 dtype=np.uint8).reshape(-1, 32),
-                     observations=np.array(obs, dtype=np.int64).reshape(-1, 2),
-                     measurements=np.array(uvd, dtype=np.float64).reshape(-1, 3),
+                     observations=obs.reshape(-1, 2),
+                     measurements=uvd.reshape(-1, 3),
                      next_point_id=np.array(self.next_point_id), **extra)
             fh.flush()
             os.fsync(fh.fileno())

@@ -106,13 +106,9 @@ class SlotPlanner:
                                                        [pos[x] for x in b])])
         action = self.policy.decide(obs)             # type: ignore[attr-defined]
         check_map_action(slot, n_up, n_ev, set(cand), map_ids, action)
-        return SlotPlan(action, obs, self.uncertainty(frames))
-
-    def uncertainty(self, frames: list[FrameSet]) -> SlotUncertainty | None:
-        """υ of ``frames`` against the map as it is (eq. 8), or None for an empty map."""
-        map_ids = self.map.keyframe_ids()
-        if not map_ids:
-            return None
-        cand_w = np.array([self.map.shared_points(set(f.map_points)) for f in frames])
-        return next_slot_uncertainty(self.map.covisibility(map_ids), cand_w,
-                                     self.config.log_det_pi)
+        # υ of F_k against the map as it is (eq. 8), None for an empty map; a keyframe holds
+        # map-point ids only, so the frame–keyframe block counts shared map points alone
+        m = len(map_ids)
+        upsilon = next_slot_uncertainty(full[:m, :m], full[m:, :m], self.config.log_det_pi) \
+            if m else None
+        return SlotPlan(action, obs, upsilon)
