@@ -77,8 +77,8 @@ class SlotPlanner:
         if kf is not None:
             return np.fromiter(kf.points, dtype=np.int64, count=len(kf.points))
         f = frames[frame_id]
-        tracks = np.fromiter((t & TRACK_MASK for t in f.tracks), dtype=np.int64,
-                             count=len(f.tracks))
+        tracks = (np.fromiter(f.tracks, dtype=np.uint64, count=len(f.tracks))
+                  & np.uint64(TRACK_MASK)).astype(np.int64)
         return np.concatenate([np.fromiter(f.map_points, dtype=np.int64,
                                            count=len(f.map_points)), -1 - tracks])
 
