@@ -30,9 +30,9 @@ class EdgeConfig:
     slot: SlotConfig = field(default_factory=SlotConfig)
     ba_window: int = 5               #: newest keyframes optimised each slot; the rest fixed
     ba_iterations: int = 3           #: Gauss–Newton steps (see bundle_adjustment)
-    #: points in the local BA at most, most observed first: 150-300 gave the same device ATE
-    #: (0.034 m on 600 7-Scenes frames) as all 2-4 k, at 35-70 ms instead of ~200 ms
-    ba_points: int | None = 200
+    #: points in the local BA at most, most observed first: 120-300 gave the same device ATE
+    #: (0.034 m on 600 7-Scenes frames) as all 2-4 k, at 33-70 ms instead of ~200 ms
+    ba_points: int | None = 120
     baseline_m: float = 0.08         #: RGB-D virtual stereo baseline of the BA
     image_shape: tuple[int, int] = (480, 640)
 

@@ -63,3 +63,19 @@ def test_map_update_relabels_resolved_tracks_and_keeps_tracking() -> None:
     _track(core, frames[2 * SLOT:])
     core.take_slot()
     assert core.upload(SLOT - 1) is None and core.upload(SLOT) is not None
+
+
+def test_a_frame_the_motion_model_loses_is_relocalised() -> None:
+    seq = SyntheticSequence(12, seed=0)
+    frames = list(seq)
+    core = DeviceTrackerCore(seq.intrinsics, SLOT)
+    _track(core, frames[:10])
+    wrong = np.eye(4)
+    wrong[:3, 3] = [0.6, -0.4, 0.5]           # a motion model 80 cm off: nothing projects near
+    core.tracking._velocity = wrong
+    result = core.track(frames[10].color, frames[10].depth, frames[10].stamp)
+    assert result.relocalised and result.record.tracked
+    truth = np.linalg.inv(frames[0].pose) @ frames[10].pose
+    assert np.linalg.norm(result.record.pose[:3, 3] - truth[:3, 3]) < 0.05
+    after = core.track(frames[11].color, frames[11].depth, frames[11].stamp)
+    assert after.record.tracked and not after.relocalised
