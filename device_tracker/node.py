@@ -36,7 +36,7 @@ from device_tracker.uplink_shaper import UplinkShaper
 from edge_mapper.messages import read_map_update
 from msg_schemas import new
 from msg_schemas.poses import pose_msg
-from node_runtime.executor import SingleThreadedExecutor
+from node_runtime import PROTOCOL
 from sequence_player.messages import set_header
 from udt_node.channel import ChannelError, parse_channel
 
@@ -45,7 +45,6 @@ PARAMETERS = {"slot_frames": 60, "alpha_mbit": 5.0, "channel": "markov:N=2",
               "map_frame": "map"}
 #: camera topics: reliable and deep, so a slot's bundle adjustment next door drops no frame
 CAMERA_QOS = node_runtime.QoSProfile(depth=60)
-PROTOCOL_QOS = node_runtime.QoSProfile(depth=100)
 MAX_PENDING = 5                     #: colour frames waiting for their depth at most
 #: bytes of one keypoint in a features-only keyframe (xy, depth, descriptor, id)
 KEYPOINT_BYTES = 8 + 4 + 32 + 8
@@ -82,11 +81,11 @@ class DeviceTrackerNode:
         self.pub_path = node.create_publisher("nav_msgs/msg/Path", "/device/path",
                                               node_runtime.LATCHED)
         self.pub_summaries = node.create_publisher("twinslam_msgs/msg/FrameSummaries",
-                                                   "/device/frame_summaries", PROTOCOL_QOS)
+                                                   "/device/frame_summaries", PROTOCOL)
         self.pub_keyframes = node.create_publisher("twinslam_msgs/msg/Keyframe",
-                                                   "/device/keyframes", PROTOCOL_QOS)
+                                                   "/device/keyframes", PROTOCOL)
         self.pub_throughput = node.create_publisher("twinslam_msgs/msg/UplinkThroughput",
-                                                    "/device/uplink_throughput", PROTOCOL_QOS)
+                                                    "/device/uplink_throughput", PROTOCOL)
         node.create_subscription("sensor_msgs/msg/Image", "/camera/image_raw",
                                  lambda m: self._on_image("color", m), CAMERA_QOS)
         node.create_subscription("sensor_msgs/msg/Image", "/camera/depth/image_raw",
@@ -94,7 +93,7 @@ class DeviceTrackerNode:
         node.create_subscription("sensor_msgs/msg/CameraInfo", "/camera/camera_info",
                                  self._on_camera_info, CAMERA_QOS)
         node.create_subscription("twinslam_msgs/msg/UploadRequest", "/edge/upload_request",
-                                 self._on_upload_request, PROTOCOL_QOS)
+                                 self._on_upload_request, PROTOCOL)
         node.create_subscription("twinslam_msgs/msg/MapUpdate", "/edge/map_update",
                                  self._on_map_update, node_runtime.LATCHED)
         self._uploader = threading.Thread(target=self._upload_loop, name="uplink", daemon=True)
@@ -180,8 +179,9 @@ class DeviceTrackerNode:
         self.pub_path.publish(set_header(path, stamp, self.map_frame))
         tracked = sum(f.tracked for f in frames)
         self.node.get_logger().info(
-            f"slot {slot}: {len(frames)} frames ({tracked} tracked), d_k {rate:.1f} Mbit/s, "
-            f"map version {version}, {len(self.core.tracking.map)} local points")
+            f"slot {slot}: {len(frames)} frames ({tracked} tracked, {self.skipped} skipped so "
+            f"far), d_k {rate:.1f} Mbit/s, map version {version}, "
+            f"{len(self.core.tracking.map)} local points")
 
     # -- edge --------------------------------------------------------------------------------
 
@@ -230,28 +230,15 @@ class DeviceTrackerNode:
 
 
 def main(args: list[str] | None = None) -> int:
-    node_runtime.init(args=args)
-    node = node_runtime.Node("device_tracker")
-    for key, default in PARAMETERS.items():
-        node.declare_parameter(key, default)
+    node = node_runtime.start_node("device_tracker", PARAMETERS, args)
     try:
         device = DeviceTrackerNode(node)
     except (ValueError, ChannelError) as exc:
-        node.get_logger().error(str(exc))
-        node.destroy_node()
-        node_runtime.shutdown()
-        return 2
+        return node_runtime.fail(node, str(exc))
     node.get_logger().info(f"slots of {device.slot_frames} frames, channel "
                            f"{node.get_parameter('channel').value}; waiting for "
                            "/camera/camera_info")
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    try:
-        executor.spin()
-    finally:
-        device.close()
-        node.destroy_node()
-        node_runtime.shutdown()
+    node_runtime.run(node, on_exit=device.close)
     return 0
 
 

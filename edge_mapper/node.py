@@ -32,13 +32,11 @@ from edge_mapper.messages import (
 from edge_mapper.policies import make_policy
 from edge_mapper.slot_planner import FrameSet, SlotConfig
 from edge_mapper.uncertainty import SlotUncertainty
-from node_runtime.executor import SingleThreadedExecutor
+from node_runtime import PROTOCOL
 
 PARAMETERS = {"policy": "adapt", "vmax": 45, "alpha_mbit": 5.0, "d_req_s": 0.5,
               "checkpoint": "", "states": 2, "ba_window": 5, "slot_timeout_s": 10.0,
               "image_width": 640, "image_height": 480}
-#: per-slot protocol topics: reliable, and deep enough that a slow slot loses nothing
-PROTOCOL_QOS = node_runtime.QoSProfile(depth=100)
 
 
 class EdgeMapperNode:
@@ -57,15 +55,15 @@ class EdgeMapperNode:
         #: slot → (opened at, compute seconds so far, υ of its frames)
         self._opened: dict[int, tuple[float, float, SlotUncertainty | None]] = {}
         self.pub_request = node.create_publisher("twinslam_msgs/msg/UploadRequest",
-                                                 "/edge/upload_request", PROTOCOL_QOS)
+                                                 "/edge/upload_request", PROTOCOL)
         self.pub_map = node.create_publisher("twinslam_msgs/msg/MapUpdate", "/edge/map_update",
                                              node_runtime.LATCHED)
         self.pub_stats = node.create_publisher("twinslam_msgs/msg/MapStats", "/edge/map_stats",
-                                               PROTOCOL_QOS)
+                                               PROTOCOL)
         node.create_subscription("twinslam_msgs/msg/FrameSummaries", "/device/frame_summaries",
-                                 self._on_summaries, PROTOCOL_QOS)
+                                 self._on_summaries, PROTOCOL)
         node.create_subscription("twinslam_msgs/msg/Keyframe", "/device/keyframes",
-                                 self._on_keyframe, PROTOCOL_QOS)
+                                 self._on_keyframe, PROTOCOL)
         node.create_timer(0.2, self._check_timeouts)
         log = node.get_logger()
         if self.core.restored:
@@ -139,27 +137,15 @@ class EdgeMapperNode:
 
 
 def main(args: list[str] | None = None) -> int:
-    node_runtime.init(args=args)
-    node = node_runtime.Node("edge_mapper")
-    for key, default in PARAMETERS.items():
-        node.declare_parameter(key, default)
+    node = node_runtime.start_node("edge_mapper", PARAMETERS, args)
     try:
         edge = EdgeMapperNode(node)
     except ValueError as exc:
-        node.get_logger().error(str(exc))
-        node.destroy_node()
-        node_runtime.shutdown()
-        return 2
+        return node_runtime.fail(node, str(exc))
     cfg = edge.core.config.slot
     node.get_logger().info(f"policy {edge.policy_name}, V_max {cfg.vmax}, alpha {cfg.alpha_mbit} "
                            f"Mbit, D_req {cfg.d_req_s} s; listening on /device/frame_summaries")
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    try:
-        executor.spin()
-    finally:
-        node.destroy_node()
-        node_runtime.shutdown()
+    node_runtime.run(node)
     return 0
 
 

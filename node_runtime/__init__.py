@@ -11,14 +11,30 @@ written against this API looks like an rclpy node::
 """
 
 from node_runtime.context import get_context, init, ok, shutdown
-from node_runtime.executor import SingleThreadedExecutor, run, spin, spin_once
+from node_runtime.executor import (
+    SingleThreadedExecutor,
+    fail,
+    run,
+    spin,
+    spin_once,
+    start_node,
+)
 from node_runtime.node import Node, Publisher, Subscription, Timer
 from node_runtime.parameters import Parameter, ParameterError
-from node_runtime.qos import DEFAULT, LATCHED, SENSOR_DATA, Durability, QoSProfile, Reliability
+from node_runtime.qos import (
+    DEFAULT,
+    LATCHED,
+    PROTOCOL,
+    SENSOR_DATA,
+    Durability,
+    QoSProfile,
+    Reliability,
+)
 
 __all__ = [
     "DEFAULT",
     "LATCHED",
+    "PROTOCOL",
     "SENSOR_DATA",
     "Durability",
     "Node",
@@ -30,6 +46,7 @@ __all__ = [
     "SingleThreadedExecutor",
     "Subscription",
     "Timer",
+    "fail",
     "get_context",
     "init",
     "ok",
@@ -37,4 +54,5 @@ __all__ = [
     "shutdown",
     "spin",
     "spin_once",
+    "start_node",
 ]

@@ -9,10 +9,11 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from typing import Any
 
 from cyclonedds.core import WaitSet
 
-from node_runtime.context import get_context, shutdown
+from node_runtime.context import get_context, init, shutdown
 from node_runtime.node import Node
 
 _MAX_WAIT_S = 0.1  # upper bound of one wait, so new endpoints and shutdown are seen promptly
@@ -87,15 +88,43 @@ def spin(node: Node) -> None:
     executor.spin()
 
 
-def run(node: Node) -> None:
-    """Spin ``node`` until SIGINT/SIGTERM/``shutdown()``, then destroy it and shut down.
+def start_node(name: str, parameters: dict[str, Any], args: list[str] | None = None) -> Node:
+    """``init()`` and a node named ``name`` with ``parameters`` declared (defaults, then the
+    command line's and parameter files' values): every entry point's first step."""
+    init(args=args)
+    node = Node(name)
+    for key, default in parameters.items():
+        node.declare_parameter(key, default)
+    return node
+
+
+def fail(node: Node, message: str) -> int:
+    """A node that cannot start (bad parameter, missing input): log why, leave the domain,
+    and return the exit code 2 of a usage error."""
+    node.get_logger().error(message)
+    node.destroy_node()
+    shutdown()
+    return 2
+
+
+def run(node: Node, until: Callable[[], bool] | None = None,
+        on_exit: Callable[[], None] | None = None) -> None:
+    """Spin ``node`` until SIGINT/SIGTERM/``shutdown()`` (or ``until()`` holds), run
+    ``on_exit``, then destroy it and shut down.
 
     The whole life of a one-node process after ``init()``: the teardown runs even when a
     callback raises, so the participant always leaves the domain cleanly.
     """
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
     try:
-        spin(node)
+        if until is None:
+            executor.spin()
+        else:
+            executor.spin_until(until, float("inf"))
     finally:
+        if on_exit is not None:
+            on_exit()
         node.destroy_node()
         shutdown()
 

@@ -54,3 +54,6 @@ class QoSProfile:
 DEFAULT = QoSProfile()
 SENSOR_DATA = QoSProfile(depth=5, reliability=Reliability.BEST_EFFORT)
 LATCHED = QoSProfile(depth=1, durability=Durability.TRANSIENT_LOCAL)
+#: the per-slot protocol topics: reliable, and deep enough that a slow slot (a retrain, a bundle
+#: adjustment next door) loses nothing — a KEEP_LAST 10 queue dropped 11 slots in a test
+PROTOCOL = QoSProfile(depth=100)

@@ -24,7 +24,6 @@ import time
 from collections.abc import Iterator
 
 import node_runtime
-from node_runtime.executor import SingleThreadedExecutor
 from sequence_player.messages import (
     camera_info_message,
     color_message,
@@ -143,29 +142,17 @@ class SequencePlayer:
 
 
 def main(args: list[str] | None = None) -> int:
-    node_runtime.init(args=args)
-    node = node_runtime.Node("sequence_player")
-    for key, default in PARAMETERS.items():
-        node.declare_parameter(key, default)
+    node = node_runtime.start_node("sequence_player", PARAMETERS, args)
     sequence = node.get_parameter("sequence").value
     try:
         reader = open_sequence(sequence, node.get_parameter("start").value,
                                node.get_parameter("end").value)
         player = SequencePlayer(node, reader)
     except (SequenceError, ValueError) as exc:
-        node.get_logger().error(str(exc))
-        node.destroy_node()
-        node_runtime.shutdown()
-        return 2
+        return node_runtime.fail(node, str(exc))
     node.get_logger().info(f"playing {len(reader)} frames of {reader.kind} sequence "
                            f"{reader.path} at {player.rate}x{' in a loop' if player.loop else ''}")
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    try:
-        executor.spin_until(lambda: player.finished, float("inf"))
-    finally:
-        node.destroy_node()
-        node_runtime.shutdown()
+    node_runtime.run(node, until=lambda: player.finished)
     return 0
 
 

@@ -13,7 +13,7 @@ import numpy as np
 import node_runtime
 from device_tracker.messages import FrameRecord, frame_summaries_message, keyframe_message
 from edge_mapper.keyframe_integration import TRACK_ID_BIT
-from edge_mapper.node import PROTOCOL_QOS
+from node_runtime import PROTOCOL
 from node_runtime.loopback import LoopbackDomain
 from tests.test_edge_core import Device, K
 
@@ -57,16 +57,16 @@ def test_edge_node_protocol_corrupt_keyframe_and_restart(
     device = TrackIdDevice(np.random.default_rng(0))
     node = node_runtime.Node("device_script")
     pub_sum = node.create_publisher("twinslam_msgs/msg/FrameSummaries",
-                                    "/device/frame_summaries", PROTOCOL_QOS)
+                                    "/device/frame_summaries", PROTOCOL)
     pub_kf = node.create_publisher("twinslam_msgs/msg/Keyframe", "/device/keyframes",
-                                   PROTOCOL_QOS)
+                                   PROTOCOL)
     got: dict[str, list] = {"request": [], "map": [], "stats": []}
     node.create_subscription("twinslam_msgs/msg/UploadRequest", "/edge/upload_request",
-                             got["request"].append, PROTOCOL_QOS)
+                             got["request"].append, PROTOCOL)
     node.create_subscription("twinslam_msgs/msg/MapUpdate", "/edge/map_update",
                              got["map"].append, node_runtime.LATCHED)
     node.create_subscription("twinslam_msgs/msg/MapStats", "/edge/map_stats",
-                             got["stats"].append, PROTOCOL_QOS)
+                             got["stats"].append, PROTOCOL)
     ros.add_node(node)
     ckpt = tmp_path / "edge.npz"
     args = ["-m", "edge_mapper.node", "--ros-args", "-p", "policy:=lff", "-p", "vmax:=10",

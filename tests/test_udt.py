@@ -13,11 +13,11 @@ import pytest
 
 import node_runtime
 from msg_schemas.registry import new
+from node_runtime import PROTOCOL
 from node_runtime.loopback import LoopbackDomain
 from udt_node.baselines import LstmConfig, LstmPredictor, MarkovMle
 from udt_node.channel import MarkovChannel, state_rates
 from udt_node.experiments import chain_states
-from udt_node.node import SLOT_QOS
 from udt_node.rate_history import history_windows, transition_error
 from udt_node.twin import TwinConfig, UserDigitalTwin
 
@@ -127,10 +127,10 @@ def test_udt_node_round_trip_refuses_bad_throughput(
     negative and absurd values refused and counted."""
     node = node_runtime.Node("udt_check")
     pub = node.create_publisher("twinslam_msgs/msg/UplinkThroughput",
-                                "/device/uplink_throughput", SLOT_QOS)
+                                "/device/uplink_throughput", PROTOCOL)
     got: list = []
     sub = node.create_subscription("twinslam_msgs/msg/RateLatent", "/udt/rate_latent",
-                                   got.append, SLOT_QOS)
+                                   got.append, PROTOCOL)
     ros.add_node(node)
     weights = tmp_path / "twin.pt"
     proc = domain.spawn(["-m", "udt_node.node", "--ros-args", "-p", "retrain_every:=20",

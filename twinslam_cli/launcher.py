@@ -28,7 +28,6 @@ from node_runtime.loopback import LoopbackDomain
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_PARAMS = REPO / "config" / "twinslam.yaml"
-PROTOCOL_QOS = node_runtime.QoSProfile(depth=100)
 
 
 @dataclass
@@ -78,22 +77,22 @@ class PipelineMonitor:
         r = self.record
         sub = node.create_subscription
         sub("twinslam_msgs/msg/FrameSummaries", "/device/frame_summaries",
-            lambda m: r.summaries.__setitem__(int(m.slot), m), PROTOCOL_QOS)
+            lambda m: r.summaries.__setitem__(int(m.slot), m), node_runtime.PROTOCOL)
         #: its publisher count says whether the edge is up (it publishes after warming up)
         self.requests = sub("twinslam_msgs/msg/UploadRequest", "/edge/upload_request",
-                            lambda m: r.requests.__setitem__(int(m.slot), m), PROTOCOL_QOS)
+                            lambda m: r.requests.__setitem__(int(m.slot), m), node_runtime.PROTOCOL)
         sub("twinslam_msgs/msg/UplinkThroughput", "/device/uplink_throughput",
-            lambda m: r.throughput.__setitem__(int(m.slot), m), PROTOCOL_QOS)
-        sub("twinslam_msgs/msg/MapStats", "/edge/map_stats", self._stats, PROTOCOL_QOS)
+            lambda m: r.throughput.__setitem__(int(m.slot), m), node_runtime.PROTOCOL)
+        sub("twinslam_msgs/msg/MapStats", "/edge/map_stats", self._stats, node_runtime.PROTOCOL)
         sub("twinslam_msgs/msg/MapUpdate", "/edge/map_update",
             lambda m: r.maps.__setitem__(int(m.slot), read_map_update(m)),
             node_runtime.QoSProfile(depth=100, durability=node_runtime.LATCHED.durability))
         sub("geometry_msgs/msg/PoseStamped", "/device/pose",
             lambda m: r.poses.__setitem__(stamp_key(m.header), pose_matrix(m.pose)),
-            node_runtime.QoSProfile(depth=100))
+            node_runtime.PROTOCOL)
         sub("geometry_msgs/msg/PoseStamped", "/camera/ground_truth_pose",
             lambda m: r.ground_truth.__setitem__(stamp_key(m.header), pose_matrix(m.pose)),
-            node_runtime.QoSProfile(depth=100))
+            node_runtime.PROTOCOL)
 
     def _stats(self, msg: Any) -> None:
         self.record.stats[int(msg.slot)] = msg

@@ -26,7 +26,7 @@ import torch
 
 import node_runtime
 from msg_schemas.registry import new
-from node_runtime.executor import SingleThreadedExecutor
+from node_runtime import PROTOCOL
 from udt_node.channel import state_rates
 from udt_node.twin import TwinConfig, UserDigitalTwin
 
@@ -35,9 +35,6 @@ PARAMETERS = {"states": 2, "latent_dim": 8, "history": 8, "retrain_every": 100,
               "rate_max": 80.0, "max_mbps": 10_000.0, "weights": "", "seed": 0}
 THROUGHPUT_TOPIC = "/device/uplink_throughput"
 LATENT_TOPIC = "/udt/rate_latent"
-#: one sample per slot, and every slot counts: reliable, with room for a minute of slots at
-#: the shortest slot the protocol allows, should the spin thread fall behind for a while
-SLOT_QOS = node_runtime.QoSProfile(depth=100)
 
 
 class TwinNode:
@@ -58,9 +55,9 @@ class TwinNode:
         self.received = 0
         self._lock = threading.Lock()            # guards the twin's network swap
         self._training: threading.Thread | None = None
-        self.pub = node.create_publisher("twinslam_msgs/msg/RateLatent", LATENT_TOPIC, SLOT_QOS)
+        self.pub = node.create_publisher("twinslam_msgs/msg/RateLatent", LATENT_TOPIC, PROTOCOL)
         self.sub = node.create_subscription("twinslam_msgs/msg/UplinkThroughput",
-                                            THROUGHPUT_TOPIC, self._on_throughput, SLOT_QOS)
+                                            THROUGHPUT_TOPIC, self._on_throughput, PROTOCOL)
 
     def _load_or_create(self, config: TwinConfig) -> UserDigitalTwin:
         log = self.node.get_logger()
@@ -137,31 +134,22 @@ def main(args: list[str] | None = None) -> int:
     # One intra-op thread: the retrain shares the machine with the spin thread (and on the
     # edge host with the other nodes), and the per-slot inference is tiny.
     torch.set_num_threads(1)
-    node_runtime.init(args=args)
-    node = node_runtime.Node("udt_node")
-    for key, default in PARAMETERS.items():
-        node.declare_parameter(key, default)
+    node = node_runtime.start_node("udt_node", PARAMETERS, args)
     try:
         twin_node = TwinNode(node)
     except ValueError as exc:
-        node.get_logger().error(str(exc))
-        node.destroy_node()
-        node_runtime.shutdown()
-        return 2
+        return node_runtime.fail(node, str(exc))
     node.get_logger().info(
         f"twin of {twin_node.rates.size} uplink states {twin_node.rates.tolist()} Mbit/s, "
         f"Z = {twin_node.twin.config.latent_dim}, retrain every "
         f"{twin_node.twin.config.retrain_every} slots; listening on {THROUGHPUT_TOPIC}")
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    try:
-        executor.spin()
-    finally:
+
+    def stopping() -> None:
         twin_node.wait_for_training(30.0)
         node.get_logger().info(f"stopping: {twin_node.received} slots learned from, "
                                f"{twin_node.refused} refused")
-        node.destroy_node()
-        node_runtime.shutdown()
+
+    node_runtime.run(node, on_exit=stopping)
     return 0
 
 
