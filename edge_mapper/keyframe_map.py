@@ -89,14 +89,7 @@ class KeyframeMap:
                 uv: tuple[float, float] = (math.nan, math.nan), depth: float = math.nan
                 ) -> None:
         """Keyframe ``kf_id`` sees point ``point_id`` at pixel ``uv`` (with ``depth``)."""
-        try:
-            kf, pt = self.keyframes[kf_id], self.points[point_id]
-        except KeyError:
-            raise MapError(f"keyframe {kf_id} cannot observe point {point_id}: unknown "
-                           "keyframe or point") from None
-        kf.points.add(point_id)
-        kf.measurements[point_id] = (float(uv[0]), float(uv[1]), float(depth))
-        pt.observers.add(kf_id)
+        self.observe_many(kf_id, [point_id], [[float(uv[0]), float(uv[1])]], [float(depth)])
 
     def observe_many(self, kf_id: int, point_ids: list[int], uvs: list[list[float]],
                      depths: list[float]) -> None:
@@ -104,7 +97,8 @@ class KeyframeMap:
         kf = self.keyframes.get(kf_id)
         missing = [p for p in point_ids if p not in self.points]
         if kf is None or missing:
-            raise MapError(f"keyframe {kf_id} cannot observe points {missing[:5]}: unknown "
+            named = ", ".join(str(p) for p in (missing or point_ids)[:5])
+            raise MapError(f"keyframe {kf_id} cannot observe point {named}: unknown "
                            "keyframe or point")
         kf.points.update(point_ids)
         meas, points = kf.measurements, self.points
@@ -145,12 +139,16 @@ class KeyframeMap:
         """Keyframe ids oldest first (ids grow with capture time)."""
         return sorted(self.keyframes)
 
+    def point_array(self, kf_id: int) -> np.ndarray:
+        """M_f of keyframe ``kf_id`` as an int64 array (unordered), for :func:`shared_counts`."""
+        points = self.keyframes[kf_id].points
+        return np.fromiter(points, dtype=np.int64, count=len(points))
+
     def covisibility(self, ids: list[int] | None = None) -> np.ndarray:
         """w(f, f') = |M_f ∩ M_f'| for the keyframes ``ids`` (default: all, oldest first),
         zero diagonal — the weights the uncertainty and the policies take."""
         ids = self.keyframe_ids() if ids is None else list(ids)
-        return shared_counts([np.fromiter(self.keyframes[k].points, dtype=np.int64,
-                                          count=len(self.keyframes[k].points)) for k in ids])
+        return shared_counts([self.point_array(k) for k in ids])
 
     def shared_points(self, point_ids: set[int]) -> np.ndarray:
         """Weights from a frame observing ``point_ids`` to every keyframe, oldest first."""

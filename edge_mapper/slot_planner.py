@@ -73,9 +73,8 @@ class SlotPlanner:
         """The ids a keyframe or slot frame observes as one int64 key set: map points as
         they are, track ids (their own namespace) as negative keys so they never equal a
         map-point id."""
-        kf = self.map.keyframes.get(frame_id)
-        if kf is not None:
-            return np.fromiter(kf.points, dtype=np.int64, count=len(kf.points))
+        if frame_id in self.map.keyframes:
+            return self.map.point_array(frame_id)
         f = frames[frame_id]
         tracks = (np.fromiter(f.tracks, dtype=np.uint64, count=len(f.tracks))
                   & np.uint64(TRACK_MASK)).astype(np.int64)
