@@ -15,6 +15,7 @@ Theorem 1 fixes. The rule-based ones are the paper's benchmarks (§VII):
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Protocol
 
 import numpy as np
@@ -166,18 +167,26 @@ class Adapt:
         pass
 
     def decide(self, obs: SlotObservation) -> MapAction:
-        v, f = obs.map_frames, obs.candidates
-        nv = len(v)
-        everything = v + f                       # one weight query serves both stages
-        w = obs.weight_block(everything, everything)
-        picks = greedy_additions(w[:nv, :nv], w[nv:, :nv], w[nv:, nv:], obs.n_upload)
-        upload = sorted(f[i] for i in picks)
-        if obs.n_evict == 0:
-            return MapAction(upload, [])
-        keep = sorted([*range(nv), *(nv + i for i in picks)], key=everything.__getitem__)
-        union = [everything[i] for i in keep]
-        evict = sorted(union[i] for i in greedy_removals(w[np.ix_(keep, keep)], obs.n_evict))
-        return MapAction(upload, evict)
+        everything = obs.map_frames + obs.candidates   # one weight query serves both stages
+        return adapt_action(obs.map_frames, obs.candidates,
+                            obs.weight_block(everything, everything), obs.n_upload, obs.n_evict)
+
+
+def adapt_action(map_frames: list[int], candidates: list[int], weights: np.ndarray,
+                 n_upload: int, n_evict: int) -> MapAction:
+    """ADAPT's decision from the weights among ``map_frames + candidates`` (in that order);
+    the learned policy reads it as a feature of the same block it already gathered."""
+    v, f, w = map_frames, candidates, weights
+    nv = len(v)
+    everything = v + f
+    picks = greedy_additions(w[:nv, :nv], w[nv:, :nv], w[nv:, nv:], n_upload)
+    upload = sorted(f[i] for i in picks)
+    if n_evict == 0:
+        return MapAction(upload, [])
+    keep = sorted([*range(nv), *(nv + i for i in picks)], key=everything.__getitem__)
+    union = [everything[i] for i in keep]
+    evict = sorted(union[i] for i in greedy_removals(w[np.ix_(keep, keep)], n_evict))
+    return MapAction(upload, evict)
 
 
 POLICIES = {"lff": LatestFrameFirst, "pu": PeriodicalUploading, "adapt": Adapt,
@@ -185,8 +194,17 @@ POLICIES = {"lff": LatestFrameFirst, "pu": PeriodicalUploading, "adapt": Adapt,
 
 
 def make_policy(name: str) -> MapPolicy:
+    """A policy by name; ``mbrl:PATH`` is the learned policy of the checkpoint at PATH
+    (``twinslam train`` writes it)."""
+    kind, _, path = name.partition(":")
+    if kind == "mbrl":
+        if not path:
+            raise ValueError("policy 'mbrl' needs its checkpoint: mbrl:PATH (from "
+                             "`twinslam train`)")
+        from mbrl.policy import MbrlPolicy  # torch loads only for this policy
+        return MbrlPolicy(Path(path))
     try:
         return POLICIES[name]()
     except KeyError:
-        raise ValueError(f"unknown policy {name!r}; choose from {sorted(POLICIES)} "
-                         "(or 'oracle' in the simulator)") from None
+        raise ValueError(f"unknown policy {name!r}; choose from {sorted(POLICIES)}, "
+                         "mbrl:CHECKPOINT (or 'oracle' in the simulator)") from None

@@ -256,6 +256,27 @@ class MapManagementEnv:
         return next_slot_uncertainty(self._map_w, block, self.config.log_det_pi,
                                      self.config.lost_penalty)
 
+    def emulate(self, before: tuple[list[int], np.ndarray, int], action: MapAction,
+                next_rate: tuple[int, float]) -> tuple[SlotObservation, float, dict[str, Any]]:
+        """What ``step(action)`` from the snapshot ``before`` would have returned had slot
+        k + 1's rate been ``next_rate`` = (state, Mbit/s): an artificial experience (paper
+        eq. 23: emulated map update, its reward, the next state with the sampled rate). The
+        environment is left exactly as it was."""
+        now, last_obs = self.snapshot(), self._last_obs
+        k = before[2]
+        if not 0 <= k < self.config.slots:
+            raise ValueError(f"slot {k} is outside the episode (0..{self.config.slots - 1})")
+        real_next = self._plan[k + 1]
+        self.restore(before)
+        self._plan[k + 1] = (int(next_rate[0]), float(next_rate[1]))
+        try:
+            obs, reward, _term, _trunc, info = self.step(action)
+        finally:
+            self._plan[k + 1] = real_next
+            self.restore(now)
+            self._last_obs = last_obs
+        return obs, reward, info
+
     # -- planning support (the clairvoyant oracle) --------------------------------------------
 
     @property

@@ -48,17 +48,22 @@ def evaluate(policies: list[str], dataset: CovisibilityDataset, channel_spec: st
     results = []
     for name in policies:
         per_seed, lost, tracked = [], [], []
+        label = name
         for seed in seeds:
             env = MapManagementEnv(dataset, parse_channel(channel_spec, rate_range, seed), config)
-            plan = (ClairvoyantOracle().plan(env, seed) if name == "oracle"
-                    else rollout(env, make_policy(name), seed))
+            if name == "oracle":
+                plan = ClairvoyantOracle().plan(env, seed)
+            else:
+                policy = make_policy(name)
+                label = policy.name
+                plan = rollout(env, policy, seed)
             mean_obj, lost_share, tracked_mean = _episode_stats(plan)
             per_seed.append(mean_obj)
             lost.append(lost_share)
             tracked.append(tracked_mean)
             if progress:
-                progress(f"{name}: seed {seed} mean υ {mean_obj:.2f}")
-        results.append(PolicyResult(name, per_seed, float(np.mean(lost)),
+                progress(f"{label}: seed {seed} mean υ {mean_obj:.2f}")
+        results.append(PolicyResult(label, per_seed, float(np.mean(lost)),
                                     float(np.nanmean(tracked)) if not all(map(math.isnan, tracked))
                                     else math.nan))
     return results

@@ -1,7 +1,8 @@
 """``twinslam``: the command-line entry point for the offline tools.
 
     twinslam sim --policy lff,pu,adapt,oracle --vmax 45 --channel markov:N=2 --slots 200 \
-                 --seeds 5 --covis FILE [--csv OUT]
+                 --seeds 5 --covis FILE [--csv OUT]      # mbrl:CHECKPOINT is a policy too
+    twinslam train --covis FILE --channel markov:N=2 --vmax 45 [--rate-model udt] -o OUT.pt
     twinslam extract SEQUENCE -o covis.npz [--start N] [--end N] [--features 1000]
     twinslam record SEQUENCE -o BAG [--start N] [--end N]   # the player's topics as MCAP
     twinslam nodes [--timeout 2]          # the ROS graph on $ROS_DOMAIN_ID (ros2 node list)
@@ -235,6 +236,46 @@ def cmd_experiment(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_train(args: argparse.Namespace) -> int:
+    import torch
+
+    from mbrl.trainer import AmmTrainer, TrainConfig
+
+    try:
+        rate_range = tuple(float(x) for x in args.rate_range.split(","))
+        if len(rate_range) != 2:
+            raise ValueError(f"--rate-range must be 'min,max', got {args.rate_range!r}")
+        dataset = _covis(args.covis)
+        config = TrainConfig(channel=args.channel, rate_range=rate_range,  # type: ignore[arg-type]
+                             vmax=args.vmax, slots=args.slots, episode_slots=args.episode_slots,
+                             seed=args.seed, rate_model=args.rate_model,
+                             real_fraction=args.real_fraction,
+                             artificial_per_real=args.artificial)
+        torch.set_num_threads(args.threads)
+        t0 = time.monotonic()
+
+        def progress(line: str) -> None:
+            print(f"[{time.monotonic() - t0:7.1f} s] {line}", file=sys.stderr, flush=True)
+
+        trainer = AmmTrainer(config, dataset, progress)
+    except (ChannelError, CovisibilityError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"training on {dataset.n_frames} frames ({dataset.source or args.covis}); channel "
+          f"{args.channel}; V_max {args.vmax}; rate model {args.rate_model}; I/|Ξ| "
+          f"{config.real_count}/{config.batch_size}, J {config.artificial_per_real}; "
+          f"{args.slots} slots", flush=True)
+    log = trainer.train()
+    out = Path(args.output)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    trainer.save(out)
+    log_path = out.with_suffix(".csv")
+    log.write_csv(log_path)
+    print(f"wrote {out} (use it as --policy mbrl:{out}) and the training log {log_path} "
+          f"({time.monotonic() - t0:.0f} s)")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="twinslam", description=__doc__.split("\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -252,6 +293,24 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--csv")
     sim.add_argument("-v", "--verbose", action="store_true")
     sim.set_defaults(func=cmd_sim)
+    train = sub.add_parser("train", help="train the learned (MBRL) map-management policy")
+    train.add_argument("--covis", required=True,
+                       help="covisibility .npz, or 'geometric[:frames]' for the room model")
+    train.add_argument("--channel", default="markov:N=2")
+    train.add_argument("--rate-range", default="40,80")
+    train.add_argument("--vmax", type=int, default=45)
+    train.add_argument("--slots", type=int, default=3000, help="real slots to train on")
+    train.add_argument("--episode-slots", type=int, default=200)
+    train.add_argument("--rate-model", default="udt", choices=["udt", "lstm", "markov"],
+                       help="what augments the state and generates artificial experiences")
+    train.add_argument("--real-fraction", type=float, default=0.5,
+                       help="I/|Ξ|: share of real tuples in each batch")
+    train.add_argument("--artificial", type=int, default=2,
+                       help="J: artificial tuples per real one (0: real experiences only)")
+    train.add_argument("--seed", type=int, default=0)
+    train.add_argument("--threads", type=int, default=2, help="torch threads")
+    train.add_argument("-o", "--output", default="results/amm_policy.pt")
+    train.set_defaults(func=cmd_train)
     extract = sub.add_parser("extract", help="covisibility dataset from an RGB-D sequence")
     extract.add_argument("sequence", help="a SUN3D, 7-Scenes or TUM RGB-D folder")
     extract.add_argument("-o", "--output", required=True, help="covisibility .npz to write")

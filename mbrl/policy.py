@@ -1,0 +1,76 @@
+"""The trained AMM actor as a map-management policy (``policy:=mbrl``).
+
+It answers the same :class:`~simulator.env.SlotObservation` as LFF, PU and ADAPT, in the
+simulator and in the edge node alike: the observation becomes the graph state (with the rate
+model's features of the rate history), the actor scores every frame, and U_k / C_k are Theorem
+1's top and bottom of those scores — no exploration noise. The rate model comes from the
+checkpoint; it keeps observing the rates it is shown (the Markov estimate counts them, starting
+afresh each episode) but does not retrain here.
+"""
+
+from __future__ import annotations
+
+import pickle
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from mbrl.networks import Actor
+from mbrl.rate_models import RateModel, load_rate_model, make_rate_model
+from mbrl.replay import collate
+from mbrl.state import action_from_scores, build_state, context_size
+from mbrl.trainer import CHECKPOINT_FORMAT
+from simulator.env import MapAction, SlotObservation
+
+
+class PolicyCheckpointError(ValueError):
+    """A file that is not a trained AMM policy."""
+
+
+class MbrlPolicy:
+    name = "mbrl"
+
+    def __init__(self, checkpoint: Path) -> None:
+        path = Path(checkpoint)
+        try:
+            blob = torch.load(path, map_location="cpu", weights_only=True)
+        except FileNotFoundError:
+            raise PolicyCheckpointError(f"{path}: no such policy checkpoint (train one with "
+                                        "`twinslam train`)") from None
+        except (OSError, RuntimeError, EOFError, pickle.UnpicklingError) as exc:
+            raise PolicyCheckpointError(f"{path}: not a policy checkpoint ({exc})") from None
+        if not isinstance(blob, dict) or blob.get("format") != CHECKPOINT_FORMAT:
+            raise PolicyCheckpointError(f"{path}: not a {CHECKPOINT_FORMAT} checkpoint")
+        self.path = path
+        self.history = int(blob["config"]["history"])
+        self.n_states = int(blob["n_states"])
+        self.rate_model_name = str(blob["rate_model"])
+        self._rate_blob = blob["rate_model_state"]
+        self.rate_model: RateModel = load_rate_model(self.rate_model_name, self._rate_blob)
+        self.actor = Actor(context_size(self.history, self.n_states,
+                                        self.rate_model.feature_size))
+        self.actor.load_state_dict(blob["actor"])
+        self.actor.eval()
+        self.name = f"mbrl-{self.rate_model_name}"   #: e.g. mbrl-udt, as tables show it
+        self._seen = 0
+
+    def reset(self, seed: int | None = None) -> None:
+        if self.rate_model_name == "markov":          # a new run: counts start afresh
+            self.rate_model = make_rate_model("markov", self.n_states)
+        self._seen = 0
+
+    @torch.no_grad()
+    def decide(self, obs: SlotObservation) -> MapAction:
+        if obs.n_states != self.n_states:
+            raise ValueError(f"policy {self.path} was trained for {self.n_states} rate states,"
+                             f" the channel has {obs.n_states}")
+        if self.rate_model_name == "markov":
+            unseen = obs.slot + 1 - self._seen
+            for state in obs.rate_history[-unseen:] if unseen > 0 else []:
+                self.rate_model.observe(state)       # the slots not counted yet
+            self._seen = obs.slot + 1
+        state = build_state(obs, self.rate_model.features(obs.rate_history), self.history)
+        batch = collate([state])
+        scores = self.actor(batch.x, batch.adj, batch.mask, batch.context)[0].numpy()
+        return action_from_scores(state, scores.astype(np.float64))[0]

@@ -1,0 +1,212 @@
+"""The learned map-management policy (issue #7): state graph, actions, artificial experiences,
+blended replay, training and the trained policy behind the common policy interface."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from edge_mapper.policies import Adapt, make_policy
+from mbrl.networks import Actor, soft_flags
+from mbrl.policy import MbrlPolicy, PolicyCheckpointError
+from mbrl.rate_models import MarkovRateModel, TwinRateModel
+from mbrl.replay import ReplayBuffer, Transition, blended_batch, collate
+from mbrl.state import NODE_FEATURES, action_from_scores, build_state, context_size, select
+from mbrl.trainer import AmmTrainer, TrainConfig
+from simulator.covisibility import CovisibilityDataset, load_covisibility
+from simulator.env import MapManagementEnv, SimConfig
+from simulator.oracle import rollout
+from udt_node.channel import parse_channel
+
+COVIS = Path(__file__).resolve().parents[1] / "data" / "7scenes-redkitchen-1000.covis.npz"
+
+
+@pytest.fixture(scope="module")
+def kitchen() -> CovisibilityDataset:
+    return load_covisibility(COVIS)
+
+
+def _env(dataset: CovisibilityDataset, seed: int = 0, slots: int = 30) -> MapManagementEnv:
+    return MapManagementEnv(dataset, parse_channel("markov:N=2", seed=seed),
+                            SimConfig(slots=slots))
+
+
+def _played(env: MapManagementEnv, slots: int, seed: int = 0):
+    """The observation after ``slots`` ADAPT slots (a full map and a fresh slot)."""
+    obs, _ = env.reset(seed)
+    for _ in range(slots):
+        obs, *_ = env.step(Adapt().decide(obs))
+    return obs
+
+
+def test_state_graph_describes_the_map_and_the_candidates(kitchen: CovisibilityDataset) -> None:
+    obs = _played(_env(kitchen), 8)
+    state = build_state(obs, np.zeros(3, np.float32), history=8)
+    nv, nf = len(obs.map_frames), len(obs.candidates)
+    assert state.size == nv + nf and state.n_map == nv
+    assert state.nodes.shape == (nv + nf, NODE_FEATURES)
+    assert state.nodes[:nv, 0].all() and not state.nodes[nv:, 0].any()      # in map
+    assert state.nodes[nv:, 1].all() and not state.nodes[:nv, 1].any()      # candidate
+    assert state.context.shape == (context_size(8, 2, 3),)
+    w = obs.weight_block(list(state.frames), list(state.frames))
+    assert np.allclose(state.adjacency.astype(np.float64), np.log1p(w), atol=1e-2)
+    greedy = Adapt().decide(obs)
+    flagged_up = {state.frames[i] for i in np.flatnonzero(state.nodes[:, 8])}
+    flagged_ev = {state.frames[i] for i in np.flatnonzero(state.nodes[:, 9])}
+    assert flagged_up == set(greedy.upload) and flagged_ev == set(greedy.evict)
+
+
+def test_any_scores_give_an_action_the_environment_accepts(kitchen: CovisibilityDataset
+                                                           ) -> None:
+    env = _env(kitchen, slots=25)
+    obs, _ = env.reset(5)
+    rng = np.random.default_rng(0)
+    for _ in range(25):
+        state = build_state(obs, np.zeros(0, np.float32), history=8)
+        action, flags = action_from_scores(state, rng.normal(size=state.size))
+        assert len(action.upload) == obs.n_upload and len(action.evict) == obs.n_evict
+        assert flags[:, 0].sum() == obs.n_upload and flags[:, 1].sum() == obs.n_evict
+        env.check_action(obs, action)                 # raises ActionError if infeasible
+        obs, *_ = env.step(action)
+
+
+def test_scores_pick_the_best_candidates_and_evict_the_worst_kept() -> None:
+    # map frames 0-2, candidates 3-6: upload the best 2 candidates, evict the lowest 2 of
+    # the map and the uploads (an upload can be evicted when it scores lowest)
+    flags = select(np.array([0.5, -1.0, 2.0, 3.0, -5.0, 1.0, 0.0]), 3, 2, 2)
+    assert np.flatnonzero(flags[:, 0]).tolist() == [3, 5]
+    assert np.flatnonzero(flags[:, 1]).tolist() == [0, 1]
+    flags = select(np.array([0.5, 1.0, 2.0, -3.0, -5.0, -4.0, 0.0]), 3, 1, 1)
+    assert np.flatnonzero(flags[:, 0]).tolist() == [6]
+    assert np.flatnonzero(flags[:, 1]).tolist() == [6]
+
+
+def test_untrained_actor_starts_from_adapts_decision(kitchen: CovisibilityDataset) -> None:
+    """The correction's last layer starts near zero, so before training the actor uploads
+    what ADAPT uploads and evicts ADAPT's map frames (where ADAPT does not evict a frame it
+    has just uploaded: one score per frame cannot say 'upload, then evict')."""
+    torch.manual_seed(0)
+    env = _env(kitchen, slots=20)
+    obs, _ = env.reset(1)
+    actor = Actor(context_size(8, 2, 0))
+    compared = 0
+    for _ in range(20):
+        state = build_state(obs, np.zeros(0, np.float32), history=8)
+        b = collate([state])
+        with torch.no_grad():
+            scores = actor(b.x, b.adj, b.mask, b.context)[0].numpy()
+        action, _ = action_from_scores(state, scores)
+        greedy = Adapt().decide(obs)
+        if not set(greedy.evict) & set(greedy.upload):
+            assert action.upload == greedy.upload and action.evict == greedy.evict
+            compared += 1
+        obs, *_ = env.step(greedy)
+    assert compared >= 10
+
+
+def test_relaxed_action_tends_to_the_hard_one() -> None:
+    rng = np.random.default_rng(2)
+    n_map, n_cand = 6, 9
+    x = torch.zeros(1, n_map + n_cand, NODE_FEATURES)
+    x[0, :n_map, 0] = 1.0
+    x[0, n_map:, 1] = 1.0
+    mask = torch.ones(1, n_map + n_cand, dtype=torch.bool)
+    for n_up, n_ev in [(3, 3), (0, 2), (4, 0), (9, 9)]:
+        scores = torch.from_numpy(rng.normal(size=(1, n_map + n_cand)).astype(np.float32))
+        soft = soft_flags(scores, x, mask, torch.tensor([n_up]), torch.tensor([n_ev]), 1e-4)
+        hard = select(scores[0].numpy(), n_map, n_up, n_ev)
+        assert np.allclose(soft[0].numpy(), hard, atol=1e-3)
+    scores.requires_grad_(True)
+    soft_flags(scores, x, mask, torch.tensor([3]), torch.tensor([3]), 0.5).sum().backward()
+    assert scores.grad is not None and scores.grad.abs().sum() > 0
+
+
+def test_emulated_slot_equals_the_real_one_and_leaves_the_environment_alone(
+        kitchen: CovisibilityDataset) -> None:
+    env = _env(kitchen, slots=12)
+    obs = _played(env, 6)
+    before = env.snapshot()
+    action = Adapt().decide(obs)
+    real_state, real_rate = env.rate_plan[7]
+    emu_obs, emu_reward, _ = env.emulate(before, action, (real_state, real_rate))
+    other = 1 - real_state
+    alt_obs, _, _ = env.emulate(before, action, (other, float(env.channel.rates[other])))
+    obs2, reward, *_ = env.step(action)                # the environment was not disturbed
+    assert emu_reward == pytest.approx(reward)
+    assert emu_obs.map_frames == obs2.map_frames and emu_obs.n_upload == obs2.n_upload
+    assert alt_obs.rate_state == other and alt_obs.rate_history[-1] == other
+    assert alt_obs.map_frames == obs2.map_frames       # the rate does not move the map
+    assert alt_obs.n_upload != obs2.n_upload           # 40 vs 80 Mbit/s: 4 vs 8 frames
+
+
+def test_blended_batch_holds_i_real_tuples(kitchen: CovisibilityDataset) -> None:
+    obs = _played(_env(kitchen), 3)
+    state = build_state(obs, np.zeros(0, np.float32), history=8)
+    flags = np.zeros((state.size, 2), np.float32)
+    real, artificial = ReplayBuffer(10), ReplayBuffer(10)
+    for r in range(12):                                # a ring keeps the newest 10
+        real.add(Transition(state, flags, float(r), state))
+    rng = np.random.default_rng(0)
+    assert len(real) == 10
+    assert {t.reward for t in real.sample(200, rng)} == set(map(float, range(2, 12)))
+    assert len(blended_batch(real, artificial, 8, 3, rng)) == 8      # no artificial yet
+    for _ in range(5):
+        artificial.add(Transition(state, flags, -1.0, state))
+    batch = blended_batch(real, artificial, 8, 3, rng)
+    assert sum(t.reward >= 0 for t in batch) == 3 and len(batch) == 8
+    with pytest.raises(ValueError, match="real tuples"):
+        blended_batch(real, artificial, 8, 9, rng)
+
+
+def test_markov_rate_model_is_the_count_estimate() -> None:
+    model = MarkovRateModel(2)
+    for s in [0, 0, 1, 0, 0, 0, 1, 1]:
+        model.observe(s)
+    # transitions from 0: 0→0 ×3, 0→1 ×2; from 1: 1→0, 1→1
+    assert np.allclose(model.features([1, 0]), [0.6, 0.4])
+    draws = model.sample_next([0], 20_000, np.random.default_rng(0))
+    assert abs(draws.mean() - 0.4) < 0.02
+
+
+def test_twin_rate_model_gives_its_latent_and_samples_states() -> None:
+    model = TwinRateModel(3, retrain_every=1000)
+    assert model.features([0, 1, 2]).shape == (model.feature_size,) == (16,)
+    draws = model.sample_next([0, 1, 2], 50, np.random.default_rng(0))
+    assert draws.shape == (50,) and set(draws.tolist()) <= {0, 1, 2}
+
+
+def test_training_writes_a_policy_the_simulator_and_make_policy_run(
+        kitchen: CovisibilityDataset, tmp_path: Path) -> None:
+    config = TrainConfig(slots=40, episode_slots=20, warmup_slots=15, batch_size=8,
+                         rate_model="markov", artificial_per_real=1, replay_capacity=100,
+                         log_every=5)
+    trainer = AmmTrainer(config, kitchen)
+    log = trainer.train()
+    assert len(trainer.real) == 40 and len(trainer.artificial) == 40    # J = 1 per real slot
+    assert log.rows and log.rows[-1]["slot"] == 40
+    assert all(np.isfinite(row["critic_loss"]) for row in log.rows)
+    path = tmp_path / "amm.pt"
+    trainer.save(path)
+    policy = make_policy(f"mbrl:{path}")
+    assert isinstance(policy, MbrlPolicy) and policy.name == "mbrl-markov"
+    plan = rollout(_env(kitchen, seed=3, slots=10), policy, 3)   # every action is checked
+    assert len(plan.actions) == 10
+    assert all(np.isfinite(s.objective) for s in plan.slots)
+
+
+def test_bad_policy_checkpoints_are_refused_by_name(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="needs its checkpoint"):
+        make_policy("mbrl")
+    with pytest.raises(PolicyCheckpointError, match="no such policy checkpoint"):
+        make_policy(f"mbrl:{tmp_path / 'missing.pt'}")
+    junk = tmp_path / "junk.pt"
+    junk.write_bytes(b"not a checkpoint")
+    with pytest.raises(PolicyCheckpointError, match="junk.pt"):
+        MbrlPolicy(junk)
+    other = tmp_path / "other.pt"
+    torch.save({"format": "something-else"}, other)
+    with pytest.raises(PolicyCheckpointError, match="not a twinslam-amm-policy-1"):
+        MbrlPolicy(other)
