@@ -151,7 +151,9 @@ def slot_uncertainty_from_scores(n: int, n_comp: int, log_det: float, log_tau: n
     return SlotUncertainty(
         mean_tracked=total / n_tracked if n_tracked else math.nan,
         lost_ratio=n_lost / log_tau.size,
-        objective=(total + n_lost * (base + lost_penalty)) / log_tau.size,
+        # (no lost frame adds nothing: 0 · inf would be NaN for a disconnected map that every
+        # next-slot frame bridges)
+        objective=(total + (n_lost * (base + lost_penalty) if n_lost else 0.0)) / log_tau.size,
         map_uncertainty=map_u,
     )
 

@@ -118,6 +118,18 @@ def test_lost_frames_are_reported_and_never_leak_inf_into_the_mean() -> None:
     assert math.isfinite(slot.reward)
 
 
+def test_a_disconnected_map_that_every_next_frame_bridges_has_a_finite_objective() -> None:
+    # found by the learner: the map's u is +inf, no frame is lost, and 0 lost x inf gave NaN
+    w = np.zeros((4, 4))
+    w[0, 1] = w[1, 0] = 5
+    w[2, 3] = w[3, 2] = 7
+    cand = np.array([[1.0, 0, 2, 0], [0, 3.0, 0, 1.0]])
+    slot = next_slot_uncertainty(w, cand, lost_penalty=100.0)
+    assert slot.lost_ratio == 0.0 and slot.map_uncertainty == math.inf
+    assert slot.objective == pytest.approx(np.mean(augmented_uncertainties(w, cand)))
+    assert math.isfinite(slot.reward)
+
+
 def test_theorem1_cardinalities_keep_the_map_at_vmax() -> None:
     assert theorem1_cardinalities(80, 5, 0.5, 45, 45, 60) == (8, 8)
     assert theorem1_cardinalities(40, 5, 0.5, 45, 45, 60) == (4, 4)
