@@ -6,9 +6,9 @@ dense adjacency (padded nodes masked out): a map of ≤ 45 frames plus 60 candid
 and dense, where the dense form is ~80× faster than a sparse ``GCNConv`` over all pairs.
 
 * **Actor** — per node: [its embedding, the graph's mean embedding, the context] → a score.
-  The score starts from ADAPT's answer (``prior · (ADAPT uploads − ADAPT evicts)``, ``prior`` a
-  learned scalar starting at 1) and the network adds a learned correction whose last layer
-  starts near zero, so training starts from the myopic greedy policy and moves away from it
+  The score starts from ADAPT's answer (``prior ·`` :func:`adapt_scores`, ``prior`` a learned
+  scalar starting at 1) and the network adds a learned correction whose last layer starts near
+  zero, so training starts from the myopic greedy policy and moves away from it
   only where the critic says the long run gains.
 * **Critic** — Q(s, a) with the action as two node features (uploaded, evicted); the readout
   is the mean embedding of all nodes and the mean over the frames the action keeps in the map.
@@ -72,8 +72,17 @@ class Actor(nn.Module):
         n = h.shape[1]
         joint = torch.cat([h, pooled.unsqueeze(1).expand(-1, n, -1),
                            context.unsqueeze(1).expand(-1, n, -1)], dim=-1)
-        greedy = x[..., ADAPT_UPLOAD] - x[..., ADAPT_EVICT]
-        return (self.prior * greedy + self.head(joint).squeeze(-1)) * mask.float()
+        return (self.prior * adapt_scores(x) + self.head(joint).squeeze(-1)) * mask.float()
+
+
+def adapt_scores(x: torch.Tensor) -> torch.Tensor:
+    """Scores whose action is exactly ADAPT's, from its flags in the node features: kept map
+    frames 0, evicted ones −2; uploaded candidates +2, or −1 when ADAPT evicts them again
+    (above every candidate it skips, −3, so they are still uploaded, and below every map frame
+    it keeps, so they are evicted). Gaps of ≥ 1 leave room for a correction below 0.5."""
+    up, ev = x[..., ADAPT_UPLOAD], x[..., ADAPT_EVICT]
+    in_map, cand = x[..., IN_MAP], x[..., CANDIDATE]
+    return -2.0 * ev * in_map + cand * (up * (2.0 - 3.0 * ev) - 3.0 * (1.0 - up))
 
 
 class Critic(nn.Module):

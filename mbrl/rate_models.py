@@ -23,7 +23,6 @@ import torch
 from udt_node.baselines import LstmConfig, LstmPredictor
 from udt_node.twin import TwinConfig, UserDigitalTwin
 
-
 LOG_SIGMA_FLOOR = 1e-12        #: Σ below this enters the state as log(1e-12) ≈ -27.6
 
 

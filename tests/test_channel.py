@@ -55,6 +55,18 @@ def test_high_rate_ratio_knob_sets_the_stationary_share() -> None:
     assert states.mean() == pytest.approx(0.8, abs=0.02)
 
 
+@pytest.mark.parametrize("n", [2, 4])
+def test_balanced_chains_share_one_mean_rate_whatever_n(n: int) -> None:
+    """Fig. 8's setting: N = 2 and N = 4 at the same mean rate (60 Mbit/s on 40-80)."""
+    rates = []
+    for seed in range(3):
+        chan = parse_channel(f"markov:N={n},balanced", seed=seed)
+        m = chan.current_matrix
+        assert np.allclose(m.sum(axis=0), 1.0, atol=1e-6)   # doubly stochastic
+        rates += [chan.step()[1] for _ in range(20_000)]
+    assert np.mean(rates) == pytest.approx(60.0, abs=1.0)
+
+
 def test_trace_replay_quantises_and_scales(tmp_path) -> None:
     path = tmp_path / "trace.csv"
     rows = ["time_s,throughput_mbps"] + [f"{t * 0.5},{10 if (t // 4) % 2 == 0 else 30}"

@@ -84,27 +84,25 @@ def test_scores_pick_the_best_candidates_and_evict_the_worst_kept() -> None:
     assert np.flatnonzero(flags[:, 1]).tolist() == [6]
 
 
-def test_untrained_actor_starts_from_adapts_decision(kitchen: CovisibilityDataset) -> None:
-    """The correction's last layer starts near zero, so before training the actor uploads
-    what ADAPT uploads and evicts ADAPT's map frames (where ADAPT does not evict a frame it
-    has just uploaded: one score per frame cannot say 'upload, then evict')."""
+def test_untrained_actor_makes_adapts_decision(kitchen: CovisibilityDataset) -> None:
+    """The correction's last layer starts near zero, so before training the actor uploads and
+    evicts exactly what ADAPT does — also where ADAPT evicts a frame it has just uploaded."""
     torch.manual_seed(0)
-    env = _env(kitchen, slots=20)
+    env = _env(kitchen, slots=30)
     obs, _ = env.reset(1)
     actor = Actor(context_size(8, 2, 0))
-    compared = 0
-    for _ in range(20):
+    upload_then_evict = 0
+    for _ in range(30):
         state = build_state(obs, np.zeros(0, np.float32), history=8)
         b = collate([state])
         with torch.no_grad():
             scores = actor(b.x, b.adj, b.mask, b.context)[0].numpy()
         action, _ = action_from_scores(state, scores)
         greedy = Adapt().decide(obs)
-        if not set(greedy.evict) & set(greedy.upload):
-            assert action.upload == greedy.upload and action.evict == greedy.evict
-            compared += 1
+        assert action.upload == greedy.upload and action.evict == greedy.evict
+        upload_then_evict += bool(set(greedy.evict) & set(greedy.upload))
         obs, *_ = env.step(greedy)
-    assert compared >= 10
+    assert upload_then_evict > 0           # the hard case was exercised
 
 
 def test_relaxed_action_tends_to_the_hard_one() -> None:

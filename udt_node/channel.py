@@ -40,6 +40,18 @@ def random_transition_matrix(rng: np.random.Generator, n_states: int,
     return rng.dirichlet(np.full(n_states, concentration), size=n_states)
 
 
+def balanced_transition_matrix(rng: np.random.Generator, n_states: int,
+                               concentration: float = 1.0, sweeps: int = 200) -> np.ndarray:
+    """A random doubly stochastic matrix (Dirichlet rows, then Sinkhorn sweeps): its
+    stationary distribution is uniform, so every such chain has the same mean rate — the mean
+    of the N rates — whatever N (paper Fig. 8 compares N = 2 and N = 4 at one mean rate)."""
+    m = random_transition_matrix(rng, n_states, concentration) + 1e-9
+    for _ in range(sweeps):
+        m /= m.sum(axis=0, keepdims=True)
+        m /= m.sum(axis=1, keepdims=True)
+    return m
+
+
 def two_state_matrix(high_ratio: float, switch_rate: float = 0.3) -> np.ndarray:
     """2-state chain whose stationary share of high-rate slots is ``high_ratio`` (paper Fig. 7).
 
@@ -71,6 +83,7 @@ class MarkovChannel:
     stationary: bool = True
     matrix: np.ndarray | None = None        #: fixed matrix (stationary) or the first one
     concentration: float = 1.0
+    balanced: bool = False                  #: draw doubly stochastic matrices (uniform rates)
     seed: int = 0
     _rng: np.random.Generator = field(init=False, repr=False)
     _state: int = field(init=False, default=0)
@@ -103,6 +116,8 @@ class MarkovChannel:
     def _draw_matrix(self) -> np.ndarray:
         if self.matrix is not None and (self.stationary or not self.matrices):
             m = self.matrix
+        elif self.balanced:
+            m = balanced_transition_matrix(self._rng, self.n_states, self.concentration)
         else:
             m = random_transition_matrix(self._rng, self.n_states, self.concentration)
         self.matrices.append(m)
@@ -205,7 +220,8 @@ def parse_channel(spec: str, rate_range: tuple[float, float] = (40.0, 80.0),
                   seed: int = 0) -> MarkovChannel | TraceChannel:
     """Build a channel from a CLI spec.
 
-    ``markov:N=2[,ratio=0.5][,K=100][,nonstationary]`` or ``trace:FILE[,N=4]``.
+    ``markov:N=2[,ratio=0.5][,K=100][,nonstationary][,balanced]`` or ``trace:FILE[,N=4]``;
+    ``balanced`` draws doubly stochastic matrices (every state equally often in the long run).
     """
     kind, _, rest = spec.partition(":")
     opts: dict[str, str] = {}
@@ -228,7 +244,7 @@ def parse_channel(spec: str, rate_range: tuple[float, float] = (40.0, 80.0),
                 raise ChannelError("ratio= applies to N=2 only")
             return MarkovChannel(rates, interval_slots=int(opts.get("K", "100")),
                                  stationary="nonstationary" not in flags, matrix=matrix,
-                                 seed=seed)
+                                 balanced="balanced" in flags, seed=seed)
         if kind == "trace":
             if not target:
                 raise ChannelError("trace: needs a file, e.g. trace:uplink.csv,N=4")

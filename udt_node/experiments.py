@@ -11,18 +11,17 @@ against that interval's true matrix.
 
 from __future__ import annotations
 
-import csv
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, replace
 from multiprocessing import get_context
 from pathlib import Path
-from types import ModuleType
 from typing import TypeVar
 
 import numpy as np
 import torch
 
+from simulator.reporting import pyplot, write_csv
 from udt_node.baselines import LstmConfig, LstmPredictor, MarkovMle
 from udt_node.channel import random_transition_matrix
 from udt_node.rate_history import transition_error
@@ -104,7 +103,7 @@ def fig3(out_dir: Path, seed: int = 0, proto: Protocol | None = None,
     est = last["udt"]
     if progress:
         progress(f"fig3: error {errors['udt'][0]:.4f}")
-    _write_csv(out_dir / "udt_fig3.csv", ["matrix", "from_state", *[f"to_{j}" for j in range(4)]],
+    write_csv(out_dir / "udt_fig3.csv", ["matrix", "from_state", *[f"to_{j}" for j in range(4)]],
                [["estimated", i, *est[i]] for i in range(4)]
                + [["actual", i, *truth[i]] for i in range(4)])
     _heatmaps(out_dir / "udt_fig3.png", est, truth)
@@ -176,7 +175,7 @@ def fig4(out_dir: Path, runs: int = 20, states: tuple[int, ...] = (2, 3, 4, 5, 6
             result[name][n].append(errors[name])
     rows = [[name, n, float(np.mean(v)), _ci95(v), len(v)]
             for name in names for n, v in result[name].items()]
-    _write_csv(out_dir / "udt_fig4.csv", ["estimator", "n_states", "mean_error", "ci95", "runs"],
+    write_csv(out_dir / "udt_fig4.csv", ["estimator", "n_states", "mean_error", "ci95", "runs"],
                rows)
     _bars(out_dir / "udt_fig4.png", result, states)
     return result
@@ -199,7 +198,7 @@ def fig5(out_dir: Path, runs: int = 20, n_states: int = 2, intervals: int = 15,
     rows = [[mode, name, t + 1, float(v[:, t].mean()), _ci95(v[:, t]), v.shape[0]]
             for mode, by in result.items() for name, v in by.items()
             for t in range(v.shape[1])]
-    _write_csv(out_dir / "udt_fig5.csv",
+    write_csv(out_dir / "udt_fig5.csv",
                ["mode", "estimator", "interval", "mean_error", "ci95", "runs"], rows)
     _lines(out_dir / "udt_fig5.png", result)
     return result
@@ -212,25 +211,8 @@ def _ci95(values: list[float] | np.ndarray) -> float:
     return float(1.96 * v.std(ddof=1) / np.sqrt(v.size)) if v.size > 1 else float("nan")
 
 
-def _write_csv(path: Path, header: list[str], rows: list[list[object]]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", newline="", encoding="utf-8") as fh:
-        writer = csv.writer(fh)
-        writer.writerow(header)
-        writer.writerows(rows)
-
-
-def _pyplot() -> ModuleType:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def _heatmaps(path: Path, estimated: np.ndarray, actual: np.ndarray) -> None:
-    plt = _pyplot()
+    plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(10, 4), layout="constrained")
     for ax, m, title in zip(axes, (estimated, actual),
                             ("(a) estimated by the UDT", "(b) actual"), strict=True):
@@ -250,7 +232,7 @@ def _heatmaps(path: Path, estimated: np.ndarray, actual: np.ndarray) -> None:
 
 
 def _bars(path: Path, result: dict[str, dict[int, list[float]]], states: tuple[int, ...]) -> None:
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(7, 4))
     width = 0.8 / len(result)
     for i, (name, by_n) in enumerate(result.items()):
@@ -268,7 +250,7 @@ def _bars(path: Path, result: dict[str, dict[int, list[float]]], states: tuple[i
 
 
 def _lines(path: Path, result: dict[str, dict[str, np.ndarray]]) -> None:
-    plt = _pyplot()
+    plt = pyplot()
     labels = {"udt": "UDT", "markov": "Markov model-driven",
               "markov_window": "Markov model-driven, sliding window"}
     fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=True)

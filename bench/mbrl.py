@@ -1,0 +1,70 @@
+"""Learned-policy benchmark (issue #7): wall time of a training run on this machine's cores,
+and the policy's inference milliseconds per slot (state graph + ADAPT feature + rate-model
+features + actor), the work ``policy:=mbrl`` adds to the edge's plan.
+
+    python -m bench.mbrl [--slots 3000] [--rate-model udt] [--threads 2]
+
+Targets: training ≤ 10 min on 2 cores, inference ≤ 10 ms per slot (median).
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from bench.gauge import cpu_gauge
+from mbrl.policy import MbrlPolicy
+from mbrl.trainer import AmmTrainer, TrainConfig
+from simulator.covisibility import load_covisibility
+from simulator.env import MapManagementEnv, SimConfig
+from udt_node.channel import parse_channel
+
+COVIS = Path(__file__).resolve().parents[1] / "data" / "7scenes-redkitchen-1000.covis.npz"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--covis", default=str(COVIS))
+    parser.add_argument("--slots", type=int, default=3000)
+    parser.add_argument("--rate-model", default="udt")
+    parser.add_argument("--channel", default="markov:N=2")
+    parser.add_argument("--threads", type=int, default=2)
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    dataset = load_covisibility(Path(args.covis))
+    print(f"machine: {platform.machine()} python {platform.python_version()}, torch "
+          f"{torch.__version__}, {args.threads} threads; {args.rate_model}, {args.channel}")
+    print(cpu_gauge(), "(before)")
+    trainer = AmmTrainer(TrainConfig(channel=args.channel, slots=args.slots,
+                                     rate_model=args.rate_model), dataset)
+    t0 = time.perf_counter()
+    trainer.train()
+    train_s = time.perf_counter() - t0
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "policy.pt"
+        trainer.save(path)
+        policy = MbrlPolicy(path)
+    env = MapManagementEnv(dataset, parse_channel(args.channel, seed=0), SimConfig(slots=200))
+    obs, _ = env.reset(0)
+    policy.reset(0)
+    infer_ms = []
+    for _ in range(200):
+        t1 = time.perf_counter()
+        action = policy.decide(obs)
+        infer_ms.append((time.perf_counter() - t1) * 1e3)
+        obs, *_ = env.step(action)
+    print(f"training: {args.slots} slots in {train_s:.0f} s ({train_s / 60:.1f} min, "
+          f"{train_s / args.slots * 1e3:.0f} ms a slot)   target <= 10 min")
+    print(f"inference per slot: median {np.median(infer_ms):.2f} ms, p90 "
+          f"{np.percentile(infer_ms, 90):.2f} ms   target <= 10 ms")
+    print(cpu_gauge(), "(after)")
+
+
+if __name__ == "__main__":
+    main()
