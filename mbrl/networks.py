@@ -64,15 +64,21 @@ class Actor(nn.Module):
             self.head[-1].bias.zero_()
         self.prior = nn.Parameter(torch.tensor(1.0))
 
-    def forward(self, x: torch.Tensor, adj: torch.Tensor, mask: torch.Tensor,
-                context: torch.Tensor) -> torch.Tensor:
-        """Scores (B, n); padded nodes score 0 and are never chosen (they are not frames)."""
+    def correction(self, x: torch.Tensor, adj: torch.Tensor, mask: torch.Tensor,
+                   context: torch.Tensor) -> torch.Tensor:
+        """The learned part of the scores (B, n), zero on padded nodes."""
         h = self.embed(x, adj, mask)
         pooled = masked_mean(h, mask.float())
         n = h.shape[1]
         joint = torch.cat([h, pooled.unsqueeze(1).expand(-1, n, -1),
                            context.unsqueeze(1).expand(-1, n, -1)], dim=-1)
-        return (self.prior * adapt_scores(x) + self.head(joint).squeeze(-1)) * mask.float()
+        return self.head(joint).squeeze(-1) * mask.float()
+
+    def forward(self, x: torch.Tensor, adj: torch.Tensor, mask: torch.Tensor,
+                context: torch.Tensor) -> torch.Tensor:
+        """Scores (B, n); padded nodes score 0 and are never chosen (they are not frames)."""
+        return self.prior * adapt_scores(x) * mask.float() + \
+            self.correction(x, adj, mask, context)
 
 
 def adapt_scores(x: torch.Tensor) -> torch.Tensor:

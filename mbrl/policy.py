@@ -20,8 +20,9 @@ from mbrl.networks import Actor
 from mbrl.rate_models import RateModel, load_rate_model, make_rate_model
 from mbrl.replay import collate
 from mbrl.state import action_from_scores, build_state, context_size
-from mbrl.trainer import CHECKPOINT_FORMAT
 from simulator.env import MapAction, SlotObservation
+
+CHECKPOINT_FORMAT = "twinslam-amm-policy-1"
 
 
 class PolicyCheckpointError(ValueError):
@@ -42,6 +43,17 @@ class MbrlPolicy:
             raise PolicyCheckpointError(f"{path}: not a policy checkpoint ({exc})") from None
         if not isinstance(blob, dict) or blob.get("format") != CHECKPOINT_FORMAT:
             raise PolicyCheckpointError(f"{path}: not a {CHECKPOINT_FORMAT} checkpoint")
+        self._adopt(blob, path)
+
+    @classmethod
+    def from_blob(cls, blob: dict, origin: str = "<memory>") -> MbrlPolicy:
+        """The policy of a checkpoint dictionary not written to disk (training validates
+        its current actor this way)."""
+        policy = cls.__new__(cls)
+        policy._adopt(blob, Path(origin))
+        return policy
+
+    def _adopt(self, blob: dict, path: Path) -> None:
         self.path = path
         self.history = int(blob["config"]["history"])
         self.n_states = int(blob["n_states"])
@@ -52,7 +64,9 @@ class MbrlPolicy:
                                         self.rate_model.feature_size))
         self.actor.load_state_dict(blob["actor"])
         self.actor.eval()
-        self.name = f"mbrl-{self.rate_model_name}"   #: e.g. mbrl-udt, as tables show it
+        real_only = int(blob["config"].get("artificial_per_real", 1)) == 0
+        #: e.g. mbrl-udt, as tables show it; -real for a policy trained without artificial tuples
+        self.name = f"mbrl-{self.rate_model_name}{'-real' if real_only else ''}"
         self._seen = 0
 
     def reset(self, seed: int | None = None) -> None:

@@ -26,7 +26,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from mbrl.networks import Actor, Critic, soft_flags
+from mbrl.networks import Actor, Critic, adapt_scores, soft_flags
+from mbrl.policy import CHECKPOINT_FORMAT, MbrlPolicy
 from mbrl.rate_models import RateModel, make_rate_model
 from mbrl.replay import (
     GraphBatch,
@@ -39,10 +40,11 @@ from mbrl.replay import (
 from mbrl.state import GraphState, action_from_scores, build_state, context_size, select
 from simulator.covisibility import CovisibilityDataset
 from simulator.env import MapManagementEnv, SimConfig, SlotObservation
+from simulator.oracle import rollout
 from udt_node.channel import parse_channel
 
 TRAINING_SEED_BASE = 100_000
-CHECKPOINT_FORMAT = "twinslam-amm-policy-1"
+VALIDATION_SEED_BASE = 50_000    #: the actor kept is the best on these (never evaluated on)
 
 
 @dataclass(frozen=True)
@@ -66,10 +68,18 @@ class TrainConfig:
     tau: float = 0.01                 #: soft target update
     noise: float = 0.3                #: exploration noise on the scores (std)
     artificial_noise: float = 1.0     #: noise of the artificial tuples' exploratory actions
-    temperature: float = 0.1          #: of the relaxed action in the actor's gradient
+    #: of the relaxed action in the actor's gradient; ADAPT's prior separates its classes
+    #: of frames by ≥ 1, so a much smaller T leaves the actor without a gradient
+    temperature: float = 1.0
     warmup_slots: int = 100           #: slots played before the first update
     replay_capacity: int = 5000
     log_every: int = 50               #: slots between progress lines / log rows
+    #: the actor's loss adds this × the mean square of its correction to ADAPT's scores
+    #: (TD3+BC's idea: leave the prior only where the critic's gain outweighs it)
+    correction_weight: float = 1.0
+    validate_every: int = 500         #: slots between validations (0: never; keep the last)
+    validation_seeds: int = 4
+    validation_slots: int = 100
 
     @property
     def real_count(self) -> int:
@@ -118,6 +128,10 @@ class AmmTrainer:
         #: rewards are −υ (~10³); they are standardised by the warm-up slots' statistics
         self.reward_mean, self.reward_std = 0.0, 1.0
         self.log = TrainLog()
+        #: (slot, validation υ) of every validation; the best actor's checkpoint
+        self.validations: list[tuple[int, float]] = []
+        self.best_validation = math.inf
+        self.best_blob: dict | None = None
 
     # -- acting ---------------------------------------------------------------------------
 
@@ -142,6 +156,8 @@ class AmmTrainer:
         cfg = self.config
         played, episode, start = 0, 0, time.perf_counter()
         warm_rewards: list[float] = []
+        if cfg.validate_every:
+            self._keep_if_best(0)                  # the untrained actor: ADAPT's decisions
         pending: list[tuple[GraphState, np.ndarray, float, GraphState, bool]] = []
         while played < cfg.slots:
             obs, _ = self.env.reset(TRAINING_SEED_BASE + 1000 * cfg.seed + episode)
@@ -176,12 +192,16 @@ class AmmTrainer:
                     losses = self.update()
                     if played % cfg.log_every == 0:
                         self._log(played, episode, returns, losses, start)
+                    if cfg.validate_every and played % cfg.validate_every == 0:
+                        self._keep_if_best(played)
                 state = next_state
                 if trunc:
                     break
             episode += 1
         for item in pending:                       # fewer slots than the warm-up
             self._store(*item)
+        if cfg.validate_every and played % cfg.validate_every:
+            self._keep_if_best(played)
         return self.log
 
     def _artificial(self, state: GraphState, before: tuple, history: list[int]
@@ -232,9 +252,11 @@ class AmmTrainer:
         torch.nn.utils.clip_grad_norm_(self.critic.parameters(), 10.0)
         self.critic_opt.step()
 
-        scores = self.actor(s.x, s.adj, s.mask, s.context)
+        correction = self.actor.correction(s.x, s.adj, s.mask, s.context)
+        scores = self.actor.prior * adapt_scores(s.x) * s.mask.float() + correction
         relaxed = soft_flags(scores, s.x, s.mask, s.n_upload, s.n_evict, cfg.temperature)
-        actor_loss = -self.critic(s.x, s.adj, s.mask, s.context, relaxed).mean()
+        actor_loss = -self.critic(s.x, s.adj, s.mask, s.context, relaxed).mean() + \
+            cfg.correction_weight * (correction ** 2).sum() / s.mask.sum()
         self.actor_opt.zero_grad()
         actor_loss.backward()
         torch.nn.utils.clip_grad_norm_(self.actor.parameters(), 10.0)
@@ -261,16 +283,46 @@ class AmmTrainer:
 
     # -- persistence ----------------------------------------------------------------------
 
-    def save(self, path: Path) -> None:
-        """Actor, rate model and the settings needed to run them, atomically."""
-        path = Path(path)
-        blob = {"format": CHECKPOINT_FORMAT, "config": asdict(self.config),
+    def checkpoint_blob(self) -> dict:
+        """Actor, rate model and the settings needed to run them."""
+        return {"format": CHECKPOINT_FORMAT, "config": asdict(self.config),
                 "n_states": self.env.channel.n_states,
-                "actor": self.actor.state_dict(), "rate_model": self.rate_model.name,
-                "rate_model_state": self.rate_model.state_dict()}
+                "actor": copy.deepcopy(self.actor.state_dict()),
+                "rate_model": self.rate_model.name,
+                "rate_model_state": copy.deepcopy(self.rate_model.state_dict()),
+                "validation": self.best_validation}
+
+    def save(self, path: Path) -> None:
+        """The checkpoint of the kept actor (the best validated one), atomically."""
+        path = Path(path)
+        blob = self.best_blob or self.checkpoint_blob()
         tmp = path.with_name(path.name + ".tmp")
         torch.save(blob, tmp)
         tmp.replace(path)
+
+    def validate(self) -> float:
+        """Mean υ of the current actor (no noise) over the validation seeds' episodes."""
+        cfg = self.config
+        policy = MbrlPolicy.from_blob(self.checkpoint_blob())
+        sim = SimConfig(vmax=cfg.vmax, slot_frames=cfg.slot_frames, slots=cfg.validation_slots,
+                        history=cfg.history)
+        means = []
+        for i in range(cfg.validation_seeds):
+            seed = VALIDATION_SEED_BASE + 1000 * cfg.seed + i
+            env = MapManagementEnv(self.dataset, parse_channel(cfg.channel, cfg.rate_range,
+                                                               seed), sim)
+            means.append(float(np.mean(rollout(env, policy, seed).objectives)))
+        return float(np.mean(means))
+
+    def _keep_if_best(self, played: int) -> None:
+        score = self.validate()
+        self.validations.append((played, score))
+        if score < self.best_validation:
+            self.best_validation = score
+            self.best_blob = self.checkpoint_blob()
+        if self.progress:
+            self.progress(f"validation at slot {played}: υ {score:.1f} (best "
+                          f"{self.best_validation:.1f})")
 
 
 def _hard_flags(scores: torch.Tensor, batch: GraphBatch) -> torch.Tensor:

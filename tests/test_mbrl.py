@@ -180,14 +180,21 @@ def test_training_writes_a_policy_the_simulator_and_make_policy_run(
         kitchen: CovisibilityDataset, tmp_path: Path) -> None:
     config = TrainConfig(slots=40, episode_slots=20, warmup_slots=15, batch_size=8,
                          rate_model="markov", artificial_per_real=1, replay_capacity=100,
-                         log_every=5)
+                         log_every=5, validate_every=20, validation_seeds=1,
+                         validation_slots=10)
     trainer = AmmTrainer(config, kitchen)
     log = trainer.train()
     assert len(trainer.real) == 40 and len(trainer.artificial) == 40    # J = 1 per real slot
     assert log.rows and log.rows[-1]["slot"] == 40
     assert all(np.isfinite(row["critic_loss"]) for row in log.rows)
+    # the actor kept is the best of the validations (slot 0 = ADAPT's decisions, 20, 40)
+    assert [slot for slot, _ in trainer.validations] == [0, 20, 40]
+    assert trainer.best_validation == min(v for _, v in trainer.validations)
     path = tmp_path / "amm.pt"
     trainer.save(path)
+    kept = AmmTrainer(config, kitchen)
+    kept.actor.load_state_dict(torch.load(path, weights_only=True)["actor"])
+    assert kept.validate() == pytest.approx(trainer.best_validation)
     policy = make_policy(f"mbrl:{path}")
     assert isinstance(policy, MbrlPolicy) and policy.name == "mbrl-markov"
     plan = rollout(_env(kitchen, seed=3, slots=10), policy, 3)   # every action is checked

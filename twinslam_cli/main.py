@@ -204,7 +204,55 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return run_demo(args)
 
 
+def _learned(specs: list[str]) -> dict[str, dict[str, Path]]:
+    """``LABEL=PATH`` or ``LABEL@N=PATH`` (fig8: the policy for N rate states) → {N or '':
+    {label: path}}; a missing file is an error now, not after an hour of other policies."""
+    out: dict[str, dict[str, Path]] = {}
+    for spec in specs:
+        label, sep, path = spec.partition("=")
+        if not sep or not label or not path:
+            raise ValueError(f"--policy takes LABEL=CHECKPOINT (e.g. UDT=results/udt.pt), "
+                             f"got {spec!r}")
+        label, _, n = label.partition("@")
+        if not Path(path).is_file():
+            raise ValueError(f"{path}: no such policy checkpoint (train one with "
+                             "`twinslam train`)")
+        out.setdefault(n, {})[label] = Path(path)
+    return out
+
+
+def cmd_amm_experiment(args: argparse.Namespace) -> int:
+    from mbrl import experiments as ex
+
+    t0 = time.monotonic()
+
+    def progress(line: str) -> None:
+        print(f"[{time.monotonic() - t0:7.1f} s] {line}", file=sys.stderr, flush=True)
+
+    try:
+        learned = _learned(args.policy or [])
+        dataset = _covis(args.covis)
+    except (CovisibilityError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    setting = ex.Setting(runs=args.runs, slots=args.slots, seed0=args.seed)
+    out = Path(args.out)
+    if args.name == "fig8":
+        by_n = {int(n or 2): pol for n, pol in learned.items()}
+        results = ex.fig8(dataset, by_n, out, setting, progress)
+    else:
+        fig = ex.fig7 if args.name == "fig7" else ex.fig9
+        results = fig(dataset, learned.get("", {}), out, setting, progress=progress)
+    for x, by in results.items():
+        print(f"{x}: " + ", ".join(f"{label} {r.mean:.1f} ± {r.ci95:.1f}"
+                                    for label, r in by.items()))
+    print(f"wrote {out}/{args.name}.csv and .png ({time.monotonic() - t0:.0f} s)")
+    return 0
+
+
 def cmd_experiment(args: argparse.Namespace) -> int:
+    if args.name in ("fig7", "fig8", "fig9"):
+        return cmd_amm_experiment(args)
     from udt_node import experiments as ex
 
     out = Path(args.out)
@@ -346,8 +394,17 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--seeds", type=int, default=3)
     demo.set_defaults(func=cmd_demo)
     exp = sub.add_parser("experiment", help="reproduce a paper figure (CSV + PNG)")
-    exp.add_argument("name", choices=["udt-fig3", "udt-fig4", "udt-fig5"])
-    exp.add_argument("--runs", type=int, default=20, help="independent runs per point")
+    exp.add_argument("name", choices=["udt-fig3", "udt-fig4", "udt-fig5", "fig7", "fig8",
+                                      "fig9"])
+    exp.add_argument("--runs", type=int, default=20, help="independent runs per point "
+                     "(the paper's fig7-9 use 15)")
+    exp.add_argument("--policy", action="append", metavar="LABEL[@N]=CHECKPOINT",
+                     help="fig7-9: a trained policy to compare (repeat); @N: for N states "
+                     "(fig8)")
+    exp.add_argument("--covis", default=str(Path(__file__).resolve().parents[1] / "data"
+                                            / "7scenes-redkitchen-1000.covis.npz"),
+                     help="fig7-9: covisibility dataset")
+    exp.add_argument("--slots", type=int, default=200, help="fig7-9: slots per run")
     exp.add_argument("--seed", type=int, default=0)
     exp.add_argument("--states", type=int, default=2, help="N for udt-fig5")
     exp.add_argument("--interval-slots", type=int, default=300, help="K, slots per interval")
