@@ -31,6 +31,7 @@ bench: venv
 	$(PY) -m bench.frontend
 	$(PY) -m bench.udt
 	$(PY) -m bench.pipeline
+	$(PY) -m bench.mbrl
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .ruff_cache

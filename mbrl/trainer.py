@@ -66,7 +66,8 @@ class TrainConfig:
     actor_lr: float = 1e-4
     critic_lr: float = 1e-3
     tau: float = 0.01                 #: soft target update
-    noise: float = 0.3                #: exploration noise on the scores (std)
+    #: exploration noise on the scores (std); ADAPT's prior separates its classes by ≥ 1
+    noise: float = 1.0
     artificial_noise: float = 1.0     #: noise of the artificial tuples' exploratory actions
     #: of the relaxed action in the actor's gradient; ADAPT's prior separates its classes
     #: of frames by ≥ 1, so a much smaller T leaves the actor without a gradient
@@ -76,7 +77,7 @@ class TrainConfig:
     log_every: int = 50               #: slots between progress lines / log rows
     #: the actor's loss adds this × the mean square of its correction to ADAPT's scores
     #: (TD3+BC's idea: leave the prior only where the critic's gain outweighs it)
-    correction_weight: float = 1.0
+    correction_weight: float = 0.05
     validate_every: int = 500         #: slots between validations (0: never; keep the last)
     validation_seeds: int = 4
     validation_slots: int = 100
