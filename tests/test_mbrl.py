@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 
+from edge_mapper.edge_core import EdgeMapperCore
 from edge_mapper.policies import Adapt, make_policy
 from mbrl.networks import Actor, soft_flags
 from mbrl.policy import MbrlPolicy, PolicyCheckpointError
@@ -200,6 +201,8 @@ def test_training_writes_a_policy_the_simulator_and_make_policy_run(
     plan = rollout(_env(kitchen, seed=3, slots=10), policy, 3)   # every action is checked
     assert len(plan.actions) == 10
     assert all(np.isfinite(s.objective) for s in plan.slots)
+    # the edge's core plans with it too (policy:=mbrl:PATH): a slot of a made-up map
+    EdgeMapperCore.warm_up(make_policy(f"mbrl:{path}"))
 
 
 def test_bad_policy_checkpoints_are_refused_by_name(tmp_path: Path) -> None:
@@ -209,9 +212,24 @@ def test_bad_policy_checkpoints_are_refused_by_name(tmp_path: Path) -> None:
         make_policy(f"mbrl:{tmp_path / 'missing.pt'}")
     junk = tmp_path / "junk.pt"
     junk.write_bytes(b"not a checkpoint")
-    with pytest.raises(PolicyCheckpointError, match="junk.pt"):
+    with pytest.raises(PolicyCheckpointError, match=r"junk\.pt"):
         MbrlPolicy(junk)
     other = tmp_path / "other.pt"
     torch.save({"format": "something-else"}, other)
     with pytest.raises(PolicyCheckpointError, match="not a twinslam-amm-policy-1"):
         MbrlPolicy(other)
+
+
+def test_experiment_and_train_commands_refuse_bad_arguments_by_name(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from twinslam_cli.main import main
+
+    assert main(["experiment", "fig7", "--policy", f"UDT={tmp_path / 'none.pt'}",
+                 "--out", str(tmp_path)]) == 2
+    assert "none.pt: no such policy checkpoint" in capsys.readouterr().err
+    assert main(["experiment", "fig9", "--policy", "just-a-path.pt"]) == 2
+    assert "LABEL=CHECKPOINT" in capsys.readouterr().err
+    assert main(["train", "--covis", str(tmp_path / "missing.npz"), "-o",
+                 str(tmp_path / "p.pt")]) == 2
+    assert "missing.npz" in capsys.readouterr().err
+    assert not (tmp_path / "p.pt").exists()
