@@ -291,7 +291,8 @@ class AmmTrainer:
                 "actor": copy.deepcopy(self.actor.state_dict()),
                 "rate_model": self.rate_model.name,
                 "rate_model_state": copy.deepcopy(self.rate_model.state_dict()),
-                "validation": self.best_validation}
+                "validation": self.best_validation,
+                "validations": [[slot, score] for slot, score in self.validations]}
 
     def save(self, path: Path) -> None:
         """The checkpoint of the kept actor (the best validated one), atomically."""
