@@ -3,6 +3,7 @@ and the policy's inference milliseconds per slot (state graph + ADAPT feature + 
 features + actor), the work ``policy:=mbrl`` adds to the edge's plan.
 
     python -m bench.mbrl [--slots 3000] [--rate-model udt] [--threads 2]
+    python -m bench.mbrl --policy results/amm_udt_n2.pt     # inference of a trained policy only
 
 Targets: training ≤ 10 min on 2 cores, inference ≤ 10 ms per slot (median).
 """
@@ -35,21 +36,26 @@ def main() -> None:
     parser.add_argument("--rate-model", default="udt")
     parser.add_argument("--channel", default="markov:N=2")
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--policy", type=Path, help="time this checkpoint's inference; no training")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     dataset = load_covisibility(Path(args.covis))
     print(f"machine: {platform.machine()} python {platform.python_version()}, torch "
           f"{torch.__version__}, {args.threads} threads; {args.rate_model}, {args.channel}")
     print(cpu_gauge(), "(before)")
-    trainer = AmmTrainer(TrainConfig(channel=args.channel, slots=args.slots,
-                                     rate_model=args.rate_model), dataset)
-    t0 = time.perf_counter()
-    trainer.train()
-    train_s = time.perf_counter() - t0
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "policy.pt"
-        trainer.save(path)
-        policy = MbrlPolicy(path)
+    train_s = None
+    if args.policy:
+        policy = MbrlPolicy(args.policy)
+    else:
+        trainer = AmmTrainer(TrainConfig(channel=args.channel, slots=args.slots,
+                                         rate_model=args.rate_model), dataset)
+        t0 = time.perf_counter()
+        trainer.train()
+        train_s = time.perf_counter() - t0
+        with tempfile.TemporaryDirectory() as tmp:
+            path = Path(tmp) / "policy.pt"
+            trainer.save(path)
+            policy = MbrlPolicy(path)
     env = MapManagementEnv(dataset, parse_channel(args.channel, seed=0), SimConfig(slots=200))
     obs, _ = env.reset(0)
     policy.reset(0)
@@ -59,8 +65,9 @@ def main() -> None:
         action = policy.decide(obs)
         infer_ms.append((time.perf_counter() - t1) * 1e3)
         obs, *_ = env.step(action)
-    print(f"training: {args.slots} slots in {train_s:.0f} s ({train_s / 60:.1f} min, "
-          f"{train_s / args.slots * 1e3:.0f} ms a slot)   target <= 10 min")
+    if train_s is not None:
+        print(f"training: {args.slots} slots in {train_s:.0f} s ({train_s / 60:.1f} min, "
+              f"{train_s / args.slots * 1e3:.0f} ms a slot)   target <= 10 min")
     print(f"inference per slot: median {np.median(infer_ms):.2f} ms, p90 "
           f"{np.percentile(infer_ms, 90):.2f} ms   target <= 10 ms")
     print(cpu_gauge(), "(after)")
