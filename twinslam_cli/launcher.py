@@ -57,14 +57,21 @@ class RunReport:
     edge_ms_median: float
     seconds: float
 
-    ROW = ("{policy:<8} {mean_uncertainty:>10.1f} {lost_ratio:>6.1%} {ate_m:>8.3f} "
+    ROW = ("{label:<14} {mean_uncertainty:>10.1f} {lost_ratio:>6.1%} {ate_m:>8.3f} "
            "{frames_uploaded:>7d} {mbytes:>8.1f} {achieved_mbps:>9.1f} {untracked_frames:>8d} "
            "{edge_ms_median:>8.0f}")
-    HEADER = (f"{'policy':<8} {'mean υ':>10} {'lost':>6} {'ATE m':>8} {'uploads':>7} "
+    HEADER = (f"{'policy':<14} {'mean υ':>10} {'lost':>6} {'ATE m':>8} {'uploads':>7} "
               f"{'MB':>8} {'Mbit/s':>9} {'untrackd':>8} {'edge ms':>8}")
 
+    @property
+    def label(self) -> str:
+        """The policy as the table shows it: a learned one by its checkpoint's file name."""
+        kind, sep, path = self.policy.partition(":")
+        return f"{kind}:{Path(path).stem}" if sep else self.policy
+
     def row(self) -> str:
-        return self.ROW.format(mbytes=self.bytes_uploaded / 1e6, **self.__dict__)
+        return self.ROW.format(mbytes=self.bytes_uploaded / 1e6, label=self.label,
+                               **self.__dict__)
 
 
 class PipelineMonitor:
