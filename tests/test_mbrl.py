@@ -233,3 +233,18 @@ def test_experiment_and_train_commands_refuse_bad_arguments_by_name(
                  str(tmp_path / "p.pt")]) == 2
     assert "missing.npz" in capsys.readouterr().err
     assert not (tmp_path / "p.pt").exists()
+
+
+def test_figure_sweeps_write_one_csv_row_per_point_and_policy_and_a_plot(
+        kitchen: CovisibilityDataset, tmp_path: Path) -> None:
+    from mbrl.experiments import Setting, sweep
+
+    results = sweep("figtest", [0.3, 0.7], lambda r: f"markov:N=2,ratio={r}",
+                    lambda _r: Setting(runs=2, slots=6), kitchen, {}, tmp_path, "ratio",
+                    oracle=False)
+    rows = (tmp_path / "figtest.csv").read_text().strip().splitlines()
+    assert rows[0] == "ratio,policy,mean_uncertainty,ci95,runs,lost_ratio"
+    assert len(rows) == 1 + 2 * 3                       # 2 ratios × LFF, PU, ADAPT
+    assert (tmp_path / "figtest.png").stat().st_size > 0
+    # more 80 Mbit/s slots upload more frames: LFF's map fills faster, υ falls
+    assert results[0.7]["LFF"].mean < results[0.3]["LFF"].mean
