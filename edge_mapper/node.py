@@ -34,8 +34,8 @@ from edge_mapper.slot_planner import FrameSet, SlotConfig
 from edge_mapper.uncertainty import SlotUncertainty
 from node_runtime import PROTOCOL
 
-PARAMETERS = {"policy": "adapt", "vmax": 45, "alpha_mbit": 5.0, "d_req_s": 0.5,
-              "checkpoint": "", "states": 2, "ba_window": 5, "slot_timeout_s": 10.0,
+PARAMETERS = {"policy": "adapt", "policy_checkpoint": "", "vmax": 45, "alpha_mbit": 5.0,
+              "d_req_s": 0.5, "checkpoint": "", "states": 2, "ba_window": 5, "slot_timeout_s": 10.0,
               "image_width": 640, "image_height": 480}
 
 
@@ -44,6 +44,9 @@ class EdgeMapperNode:
         self.node = node
         p = {k: node.get_parameter(k).value for k in PARAMETERS}
         self.policy_name = str(p["policy"])
+        if self.policy_name == "mbrl" and p["policy_checkpoint"]:
+            # ROS style: policy:=mbrl policy_checkpoint:=PATH (or policy:=mbrl:PATH)
+            self.policy_name = f"mbrl:{p['policy_checkpoint']}"
         config = EdgeConfig(slot=SlotConfig(vmax=int(p["vmax"]), alpha_mbit=float(p["alpha_mbit"]),
                                             d_req_s=float(p["d_req_s"])),
                             ba_window=int(p["ba_window"]),
