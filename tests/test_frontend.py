@@ -158,10 +158,21 @@ def test_extract_command_writes_a_file_the_simulator_reads(tmp_path: Path) -> No
     assert "120/120 frames" in run.stdout and "wrote" in run.stdout
     data = load_covisibility(out)
     assert data.n_frames == 120 and data.poses.shape == (120, 7)
-    # tracking is causal: the committed file's first 120 frames are what this code extracts
+    # tracking is causal: the committed file's first 120 frames are what this code extracts —
+    # up to the CPU: OpenCV's SIMD paths and float rounding differ between machines, a pose
+    # moves by a millimetre, a point is created or not and the ids shift (measured on a second
+    # VM: poses 2.7 mm apart, weights correlated 0.997, totals 0.4 % apart), so the file is
+    # compared as covisibility, not bit for bit
     committed = load_covisibility(COVIS_7SCENES)
-    for f in range(120):
-        np.testing.assert_array_equal(data.points(f), committed.points(f))
+    idx = np.arange(120)
+    w, w_ref = data.weights(idx, idx), committed.weights(idx, idx)
+    upper = np.triu_indices(120, 1)
+    assert np.corrcoef(w[upper], w_ref[upper])[0, 1] > 0.98
+    assert abs(w.sum() - w_ref.sum()) < 0.02 * w_ref.sum()
+    assert np.abs(data.poses - committed.poses[:120]).max() < 0.01
+    sizes = np.array([len(data.points(f)) for f in idx])
+    ref_sizes = np.array([len(committed.points(f)) for f in idx])
+    assert np.mean(np.abs(sizes - ref_sizes) / ref_sizes) < 0.10
     sim = subprocess.run([sys.executable, "-m", "twinslam_cli.main", "sim", "--covis", str(out),
                           "--policy", "lff,adapt", "--slots", "5", "--seeds", "1",
                           "--vmax", "10", "--slot-frames", "20"],
