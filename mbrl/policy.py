@@ -43,7 +43,11 @@ class MbrlPolicy:
             raise PolicyCheckpointError(f"{path}: not a policy checkpoint ({exc})") from None
         if not isinstance(blob, dict) or blob.get("format") != CHECKPOINT_FORMAT:
             raise PolicyCheckpointError(f"{path}: not a {CHECKPOINT_FORMAT} checkpoint")
-        self._adopt(blob, path)
+        try:
+            self._adopt(blob, path)
+        except (KeyError, TypeError, ValueError, RuntimeError) as exc:   # e.g. a truncated dict
+            raise PolicyCheckpointError(f"{path}: an incomplete or mismatched policy "
+                                        f"checkpoint ({type(exc).__name__}: {exc})") from None
 
     @classmethod
     def from_blob(cls, blob: dict, origin: str = "<memory>") -> MbrlPolicy:
@@ -58,8 +62,8 @@ class MbrlPolicy:
         self.history = int(blob["config"]["history"])
         self.n_states = int(blob["n_states"])
         self.rate_model_name = str(blob["rate_model"])
-        self._rate_blob = blob["rate_model_state"]
-        self.rate_model: RateModel = load_rate_model(self.rate_model_name, self._rate_blob)
+        self.rate_model: RateModel = load_rate_model(self.rate_model_name,
+                                                     blob["rate_model_state"])
         self.actor = Actor(context_size(self.history, self.n_states,
                                         self.rate_model.feature_size))
         self.actor.load_state_dict(blob["actor"])

@@ -218,6 +218,9 @@ def test_bad_policy_checkpoints_are_refused_by_name(tmp_path: Path) -> None:
     torch.save({"format": "something-else"}, other)
     with pytest.raises(PolicyCheckpointError, match="not a twinslam-amm-policy-1"):
         MbrlPolicy(other)
+    torch.save({"format": "twinslam-amm-policy-1", "config": {"history": 8}}, other)
+    with pytest.raises(PolicyCheckpointError, match="incomplete or mismatched"):
+        MbrlPolicy(other)
 
 
 def test_experiment_and_train_commands_refuse_bad_arguments_by_name(
