@@ -28,6 +28,8 @@ from edge_mapper.policies import adapt_action
 from simulator.env import MapAction, SlotObservation
 
 NODE_FEATURES = 10
+#: the node feature columns other modules read (the order of the list above)
+IN_MAP, CANDIDATE, ADAPT_UPLOAD, ADAPT_EVICT = 0, 1, 8, 9
 #: scale of map sizes and ages in the features (the paper's largest V_max)
 SIZE_SCALE = 45.0
 #: log(1 + w) of a strong covisibility edge is ~5-6; features are divided by this
@@ -67,8 +69,8 @@ def build_state(obs: SlotObservation, rate_features: np.ndarray, history: int) -
     w = np.asarray(obs.weight_block(frames, frames), dtype=np.float64)
     log_w = np.log1p(w)
     x = np.zeros((n, NODE_FEATURES), dtype=np.float32)
-    x[:nv, 0] = 1.0
-    x[nv:, 1] = 1.0
+    x[:nv, IN_MAP] = 1.0
+    x[nv:, CANDIDATE] = 1.0
     if nv:
         x[0, 2] = 1.0
     newest_id = max(f) if f else (max(v) if v else 0)
@@ -80,8 +82,8 @@ def build_state(obs: SlotObservation, rate_features: np.ndarray, history: int) -
     x[:, 7] = (w > 0).sum(axis=1) / max(n - 1, 1)
     greedy = adapt_action(v, f, w, obs.n_upload, obs.n_evict)
     at = {fr: i for i, fr in enumerate(frames)}
-    x[[at[u] for u in greedy.upload], 8] = 1.0
-    x[[at[e] for e in greedy.evict], 9] = 1.0
+    x[[at[u] for u in greedy.upload], ADAPT_UPLOAD] = 1.0
+    x[[at[e] for e in greedy.evict], ADAPT_EVICT] = 1.0
     hist = list(obs.rate_history)[-history:]
     hist = [hist[0]] * (history - len(hist)) + hist if hist else [0] * history
     one_hot = np.eye(obs.n_states, dtype=np.float32)[hist].ravel()

@@ -37,7 +37,14 @@ from mbrl.replay import (
     collate,
     collate_flags,
 )
-from mbrl.state import GraphState, action_from_scores, build_state, context_size, select
+from mbrl.state import (
+    IN_MAP,
+    GraphState,
+    action_from_scores,
+    build_state,
+    context_size,
+    select,
+)
 from simulator.covisibility import CovisibilityDataset
 from simulator.env import MapManagementEnv, SimConfig, SlotObservation
 from simulator.oracle import rollout
@@ -332,7 +339,7 @@ def _hard_flags(scores: torch.Tensor, batch: GraphBatch) -> torch.Tensor:
     out = torch.zeros(*scores.shape, 2)
     for i in range(scores.shape[0]):
         n = int(batch.mask[i].sum())
-        n_map = int((batch.x[i, :n, 0] > 0.5).sum())
+        n_map = int((batch.x[i, :n, IN_MAP] > 0.5).sum())
         out[i, :n] = torch.from_numpy(select(scores[i, :n].numpy(), n_map,
                                              int(batch.n_upload[i]), int(batch.n_evict[i])))
     return out
