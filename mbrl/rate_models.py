@@ -20,7 +20,7 @@ from typing import Protocol
 import numpy as np
 import torch
 
-from udt_node.baselines import LstmConfig, LstmPredictor
+from udt_node.baselines import LstmConfig, LstmPredictor, MarkovMle
 from udt_node.twin import TwinConfig, UserDigitalTwin
 
 LOG_SIGMA_FLOOR = 1e-12        #: Σ below this enters the state as log(1e-12) ≈ -27.6
@@ -126,42 +126,37 @@ class LstmRateModel:
 
 
 class MarkovRateModel:
-    """The paper's "Proposed (Markov model)": maximum-likelihood transition counts over the
-    whole history (``udt_node.baselines.MarkovMle``'s estimate, kept as running counts so a
-    query does not recount 10⁴ slots); features = the estimated row of the current state,
-    artificial next states drawn from it."""
+    """The paper's "Proposed (Markov model)": the maximum-likelihood transition counts over the
+    whole history (``udt_node.baselines.MarkovMle``); features = the estimated row of the
+    current state, artificial next states drawn from it."""
 
     name = "markov"
 
     def __init__(self, n_states: int, counts: np.ndarray | None = None) -> None:
         self.n_states = n_states
-        #: transition counts, kept instead of the whole history (the MLE of every slot seen)
-        self.counts = np.zeros((n_states, n_states)) if counts is None else counts
-        self._last: int | None = None
+        self.mle = MarkovMle(n_states)
+        if counts is not None:
+            self.mle.counts = np.asarray(counts, dtype=np.float64).copy()
 
     @property
     def feature_size(self) -> int:
         return self.n_states
 
     def observe(self, state: int) -> None:
-        if self._last is not None:
-            self.counts[self._last, int(state)] += 1.0
-        self._last = int(state)
+        self.mle.observe(state)
 
-    def _row(self, current: int) -> np.ndarray:
-        row = self.counts[current]
-        total = row.sum()
-        return row / total if total > 0 else np.full(self.n_states, 1.0 / self.n_states)
+    def _row(self, history: list[int]) -> np.ndarray:
+        return self.mle.transition_matrix()[history[-1] if history else 0]
 
     def features(self, history: list[int]) -> np.ndarray:
-        return self._row(history[-1] if history else 0).astype(np.float32)
+        return self._row(history).astype(np.float32)
 
     def sample_next(self, history: list[int], count: int, rng: np.random.Generator
                     ) -> np.ndarray:
-        return rng.choice(self.n_states, size=count, p=self._row(history[-1] if history else 0))
+        return rng.choice(self.n_states, size=count, p=self._row(history))
 
     def state_dict(self) -> dict:
-        return {"n_states": self.n_states, "counts": torch.from_numpy(self.counts.copy())}
+        return {"n_states": self.n_states, "counts": torch.from_numpy(self.mle.counts.copy())}
 
     @classmethod
     def from_state_dict(cls, blob: dict) -> MarkovRateModel:

@@ -16,27 +16,33 @@ from udt_node.rate_history import fit, history_windows, latest_window, one_hot
 
 class MarkovMle:
     """Maximum-likelihood transition counts: P̂[i, j] = n_ij / n_i over the whole history, or
-    over the last ``window`` transitions. A state never left yet has a uniform row."""
+    over the last ``window`` transitions. A state never left yet has a uniform row.
+
+    The counts are kept up to date as states arrive (a transition leaving the window is taken
+    off again), so a query costs O(N²) however long the history — the learned policy asks once
+    per slot over 10⁴ slots."""
 
     def __init__(self, n_states: int, window: int | None = None) -> None:
         if window is not None and window < 1:
             raise ValueError("window must be >= 1 transition")
         self.n_states, self.window = n_states, window
-        self.states: list[int] = []
+        self.counts = np.zeros((n_states, n_states))
+        self._recent: list[int] = []        #: the window's states (the last one only if whole)
 
     def observe(self, state: int) -> None:
-        self.states.append(int(state))
-        if self.window is not None:
-            del self.states[:-self.window - 1]
+        s = int(state)
+        if self._recent:
+            self.counts[self._recent[-1], s] += 1.0
+        self._recent.append(s)
+        keep = 1 if self.window is None else self.window + 1
+        while len(self._recent) > keep:
+            if self.window is not None:
+                self.counts[self._recent[0], self._recent[1]] -= 1.0
+            del self._recent[0]
 
     def transition_matrix(self) -> np.ndarray:
-        n = self.n_states
-        counts = np.zeros((n, n))
-        s = np.asarray(self.states, dtype=np.int64)
-        if s.size > 1:
-            np.add.at(counts, (s[:-1], s[1:]), 1.0)
-        rows = counts.sum(axis=1, keepdims=True)
-        return np.where(rows > 0, counts / np.maximum(rows, 1.0), 1.0 / n)
+        rows = self.counts.sum(axis=1, keepdims=True)
+        return np.where(rows > 0, self.counts / np.maximum(rows, 1.0), 1.0 / self.n_states)
 
 
 @dataclass(frozen=True)
