@@ -176,14 +176,15 @@ class AmmTrainer:
             returns: list[float] = []
             while played < cfg.slots:
                 before, history = self.env.snapshot(), obs.rate_history
-                noisy = self.scores(state) + self.rng.normal(0.0, cfg.noise, state.size)
+                scores = self.scores(state)          # the real and the artificial actions'
+                noisy = scores + self.rng.normal(0.0, cfg.noise, state.size)
                 action, flags = action_from_scores(state, noisy)
                 obs, reward, _term, trunc, _info = self.env.step(action)
                 self.rate_model.observe(obs.rate_state)
                 next_state = self.state_of(obs)
                 returns.append(-reward)
                 items = [(state, flags, reward, next_state, True)]
-                items += self._artificial(state, before, history)
+                items += self._artificial(state, scores, before, history)
                 played += 1
                 if played <= cfg.warmup_slots:
                     warm_rewards.append(reward)
@@ -212,14 +213,16 @@ class AmmTrainer:
             self._keep_if_best(played)
         return self.log
 
-    def _artificial(self, state: GraphState, before: tuple, history: list[int]
+    def _artificial(self, state: GraphState, scores: np.ndarray, before: tuple,
+                    history: list[int]
                     ) -> list[tuple[GraphState, np.ndarray, float, GraphState, bool]]:
-        """J artificial tuples from the slot just played (paper eq. 23)."""
+        """J artificial tuples from the slot just played (paper eq. 23); ``scores`` are the
+        actor's for ``state``, explored around with the artificial noise."""
         cfg = self.config
         out = []
         rates = self.env.channel.rates
         for d_hat in self.rate_model.sample_next(history, cfg.artificial_per_real, self.rng):
-            noisy = self.scores(state) + self.rng.normal(0.0, cfg.artificial_noise, state.size)
+            noisy = scores + self.rng.normal(0.0, cfg.artificial_noise, state.size)
             action, flags = action_from_scores(state, noisy)
             obs, reward, _info = self.env.emulate(before, action,
                                                   (int(d_hat), float(rates[int(d_hat)])))
