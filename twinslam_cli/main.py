@@ -49,16 +49,18 @@ def _covis(spec: str):
     return load_covisibility(Path(spec))
 
 
+def _rate_range(text: str) -> tuple[float, float]:
+    """``--rate-range`` of sim and train: 'min,max' in Mbit/s."""
+    try:
+        lo, hi = (float(x) for x in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be 'min,max', got {text!r}") from None
+    return lo, hi
+
+
 def cmd_sim(args: argparse.Namespace) -> int:
     from simulator.evaluation import evaluate
 
-    try:
-        rate_range = tuple(float(x) for x in args.rate_range.split(","))
-        if len(rate_range) != 2:
-            raise ValueError
-    except ValueError:
-        print(f"error: --rate-range must be 'min,max', got {args.rate_range!r}", file=sys.stderr)
-        return 2
     try:
         dataset = _covis(args.covis)
         config = SimConfig(vmax=args.vmax, slot_frames=args.slot_frames, slots=args.slots)
@@ -70,7 +72,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
         start = time.monotonic()
         report = (lambda m: print(f"  {m}", flush=True)) if args.verbose else None
         results = evaluate(policies, dataset, args.channel, config, seeds,
-                           rate_range, progress=report)  # type: ignore[arg-type]
+                           args.rate_range, progress=report)
     except (ChannelError, CovisibilityError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -290,11 +292,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     from mbrl.trainer import AmmTrainer, TrainConfig
 
     try:
-        rate_range = tuple(float(x) for x in args.rate_range.split(","))
-        if len(rate_range) != 2:
-            raise ValueError(f"--rate-range must be 'min,max', got {args.rate_range!r}")
         dataset = _covis(args.covis)
-        config = TrainConfig(channel=args.channel, rate_range=rate_range,  # type: ignore[arg-type]
+        config = TrainConfig(channel=args.channel, rate_range=args.rate_range,
                              vmax=args.vmax, slots=args.slots, episode_slots=args.episode_slots,
                              seed=args.seed, rate_model=args.rate_model,
                              real_fraction=args.real_fraction,
@@ -332,7 +331,8 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--vmax", type=int, default=45)
     sim.add_argument("--slot-frames", type=int, default=60)
     sim.add_argument("--channel", default="markov:N=2")
-    sim.add_argument("--rate-range", default="40,80")
+    sim.add_argument("--rate-range", type=_rate_range, default="40,80",
+                     help="min,max Mbit/s the channel states spread over")
     sim.add_argument("--slots", type=int, default=200)
     sim.add_argument("--seeds", type=int, default=5)
     sim.add_argument("--seed0", type=int, default=0)
@@ -345,7 +345,8 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--covis", required=True,
                        help="covisibility .npz, or 'geometric[:frames]' for the room model")
     train.add_argument("--channel", default="markov:N=2")
-    train.add_argument("--rate-range", default="40,80")
+    train.add_argument("--rate-range", type=_rate_range, default="40,80",
+                       help="min,max Mbit/s the channel states spread over")
     train.add_argument("--vmax", type=int, default=45)
     train.add_argument("--slots", type=int, default=3000, help="real slots to train on")
     train.add_argument("--episode-slots", type=int, default=200)
