@@ -42,9 +42,10 @@ def frame_summaries_message(slot: int, rate_mbps: float, rate_state: int, map_ve
 def keyframe_message(slot: int, frame_id: int, stamp: float, pose: np.ndarray,
                      intrinsics: np.ndarray, keypoints: np.ndarray, depths: np.ndarray,
                      descriptors: np.ndarray, point_ids: np.ndarray,
-                     camera_frame: str = "camera") -> Any:
-    """A features-only keyframe (no image): n keypoints, their depths (0 = none), ORB
-    descriptors and the ids they were associated with (0 = none, top bit = track id)."""
+                     camera_frame: str = "camera", image: Any = None) -> Any:
+    """A keyframe: n keypoints, their depths (0 = none), ORB descriptors and the ids they were
+    associated with (0 = none, top bit = track id); with ``image`` (a ``sensor_msgs/Image``)
+    the frame itself too, otherwise features only."""
     xy = np.asarray(keypoints, dtype=np.float32).reshape(-1, 2)
     n = len(xy)
     desc = np.asarray(descriptors, dtype=np.uint8)
@@ -56,4 +57,6 @@ def keyframe_message(slot: int, frame_id: int, stamp: float, pose: np.ndarray,
               k=np.asarray(intrinsics, dtype=np.float64).reshape(-1),
               keypoints_xy=xy.reshape(-1), keypoint_depths=np.asarray(depths, np.float32),
               descriptors=desc.reshape(-1), map_point_ids=np.asarray(point_ids, np.uint64))
+    if image is not None:
+        msg.image = image
     return set_header(msg, stamp, camera_frame)

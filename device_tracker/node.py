@@ -12,6 +12,16 @@
   slot's ``/device/uplink_throughput``;
 * ``/edge/map_update`` (latched) → the new local map.
 
+``shaper:=tc`` hands the pacing to the kernel instead (:mod:`device_tracker.tc_shaper`): a
+``tbf`` of rate d_k on ``uplink_interface`` each slot, optional ``netem_delay_ms`` /
+``netem_loss_percent``, and the slot's throughput measured on the interface. With
+``upload_image:=true`` a keyframe also carries its colour image, so the bytes on the link are a
+real frame's.
+
+The edge can become unreachable (a link down, an edge restarting): when a slot's summaries get
+no ``UploadRequest`` within ``edge_timeout_s``, the device says it goes on tracking on its local
+map, and says so again when the edge answers; uploads then resume from the slots it asks for.
+
 A frame the motion model loses is relocalised against the whole local map; the node logs when
 tracking is lost and when it comes back. A colour image without its depth within a few frames
 is tracked without depth (no new points from it).
@@ -31,8 +41,9 @@ import node_runtime
 from device_tracker.camera_input import depth_array, image_array, stamp_key, stamp_seconds
 from device_tracker.device_core import DeviceTrackerCore
 from device_tracker.messages import frame_summaries_message, keyframe_message
+from device_tracker.tc_shaper import NetemConfig, TcShaper
 from device_tracker.tracking import TrackingConfig
-from device_tracker.uplink_shaper import UplinkShaper
+from device_tracker.uplink_shaper import ShaperError, UplinkShaper
 from edge_mapper.messages import read_map_update
 from msg_schemas import new
 from msg_schemas.poses import pose_msg
@@ -42,12 +53,16 @@ from udt_node.channel import ChannelError, parse_channel
 
 PARAMETERS = {"slot_frames": 60, "alpha_mbit": 5.0, "channel": "markov:N=2",
               "rate_min": 40.0, "rate_max": 80.0, "seed": 0, "n_features": 1000,
-              "map_frame": "map"}
+              "map_frame": "map", "shaper": "token_bucket", "uplink_interface": "eth0",
+              "netem_delay_ms": 0.0, "netem_loss_percent": 0.0, "upload_image": False,
+              "edge_timeout_s": 3.0}
+SHAPERS = ("token_bucket", "tc")
+#: how long one keyframe write may keep failing (the writer's history full of unacknowledged
+#: keyframes while the link is down) before that keyframe is given up
+WRITE_RETRY_S = 30.0
 #: camera topics: reliable and deep, so a slot's bundle adjustment next door drops no frame
 CAMERA_QOS = node_runtime.QoSProfile(depth=60)
 MAX_PENDING = 5                     #: colour frames waiting for their depth at most
-#: bytes of one keypoint in a features-only keyframe (xy, depth, descriptor, id)
-KEYPOINT_BYTES = 8 + 4 + 32 + 8
 
 
 class DeviceTrackerNode:
@@ -66,7 +81,14 @@ class DeviceTrackerNode:
         self.map_frame = str(p["map_frame"])
         self.tracking_config = TrackingConfig(n_features=int(p["n_features"]), relocalise=True)
         self.core: DeviceTrackerCore | None = None
-        self.shaper = UplinkShaper()
+        self.shaper = self._make_shaper(p)
+        self.upload_image = bool(p["upload_image"])
+        self.images: dict[int, Any] = {}                  # frame id → colour image, if uploaded
+        self.edge_timeout = float(p["edge_timeout_s"])
+        if not self.edge_timeout > 0:
+            raise ValueError(f"edge_timeout_s must be > 0, got {self.edge_timeout}")
+        self._unanswered: dict[int, float] = {}           # slot → when its summaries went out
+        self._edge_silent_since: float | None = None
         self.slot_rates: dict[int, tuple[float, int]] = {}
         self.pending: dict[int, dict[str, Any]] = {}      # stamp → colour / depth messages
         self._latest = {"color": -1, "depth": -1}         # newest stamp seen per topic
@@ -96,8 +118,22 @@ class DeviceTrackerNode:
                                  self._on_upload_request, PROTOCOL)
         node.create_subscription("twinslam_msgs/msg/MapUpdate", "/edge/map_update",
                                  self._on_map_update, node_runtime.LATCHED)
+        node.create_timer(0.5, self._check_edge)
         self._uploader = threading.Thread(target=self._upload_loop, name="uplink", daemon=True)
         self._uploader.start()
+
+    def _make_shaper(self, p: dict[str, Any]) -> UplinkShaper | TcShaper:
+        kind = str(p["shaper"])
+        if kind == "token_bucket":
+            return UplinkShaper()
+        if kind != "tc":
+            raise ValueError(f"shaper must be one of {', '.join(SHAPERS)}, got {kind!r}")
+        netem = NetemConfig(float(p["netem_delay_ms"]), float(p["netem_loss_percent"]))
+        shaper = TcShaper(str(p["uplink_interface"]), netem,
+                          flush=lambda: self.pub_keyframes.wait_for_acknowledgments(
+                              WRITE_RETRY_S))
+        shaper.start(float(self.channel.rates[0]))
+        return shaper
 
     # -- camera ------------------------------------------------------------------------------
 
@@ -158,6 +194,10 @@ class DeviceTrackerNode:
                         "local map")
         elif result.relocalised or (was_lost and record.tracked):
             log.info(f"frame {record.frame_id}: relocalised")
+        if self.upload_image:
+            self.images[record.frame_id] = color_msg
+            for old in [f for f in self.images if f < record.frame_id - 3 * self.slot_frames]:
+                del self.images[old]
         pose = set_header(new("geometry_msgs/msg/PoseStamped", pose=pose_msg(record.pose)),
                           stamp, self.map_frame)
         self.pub_pose.publish(pose)
@@ -173,6 +213,7 @@ class DeviceTrackerNode:
         slot = self.core.slot_of(frames[-1].frame_id)
         state, rate = self.channel.step()
         self.slot_rates[slot] = (rate, state)
+        self._unanswered[slot] = time.monotonic()
         self.pub_summaries.publish(frame_summaries_message(slot, rate, state, version, frames,
                                                            stamp))
         path = new("nav_msgs/msg/Path", poses=list(self.path))
@@ -196,27 +237,74 @@ class DeviceTrackerNode:
                                          f"{len(update.point_ids)} points")
 
     def _on_upload_request(self, msg: Any) -> None:
-        self._uploads.put((int(msg.slot), [int(f) for f in msg.upload_frame_ids]))
+        slot = int(msg.slot)
+        for answered in [k for k in self._unanswered if k <= slot]:
+            del self._unanswered[answered]     # older ones the edge will not answer now
+        if self._edge_silent_since is not None:
+            self.node.get_logger().info(
+                f"slot {slot}: the edge answers again after "
+                f"{time.monotonic() - self._edge_silent_since:.1f} s of silence; uploads resume")
+            self._edge_silent_since = None
+        self._uploads.put((slot, [int(f) for f in msg.upload_frame_ids]))
+
+    def _check_edge(self) -> None:
+        """Say once when the edge stops answering: the device keeps tracking regardless."""
+        if self._edge_silent_since is not None or not self._unanswered:
+            return
+        slot = min(self._unanswered)
+        waited = time.monotonic() - self._unanswered[slot]
+        if waited > self.edge_timeout:
+            self._edge_silent_since = self._unanswered[slot]
+            points = len(self.core.tracking.map) if self.core else 0
+            version = self.core.map_version if self.core else 0
+            self.node.get_logger().warning(
+                f"slot {slot}: no upload request from the edge for {waited:.1f} s (link down "
+                f"or edge gone?); tracking on the local map (version {version}, {points} "
+                "points) until it answers")
+
+    def _encode_keyframe(self, slot: int, frame_id: int) -> tuple[int, bytes, int] | None:
+        """(frame id, CDR bytes, bytes the uplink is charged) of a requested frame; None, and
+        an error logged, when the device no longer holds it."""
+        with self._lock:
+            data = self.core.upload(frame_id) if self.core else None
+        if data is None:
+            self.node.get_logger().error(f"slot {slot}: frame {frame_id} was asked for but is "
+                                         "no longer held; not sent")
+            return None
+        msg = keyframe_message(slot, data.frame_id, data.stamp, data.pose,
+                               self.core.k if self.core else np.eye(3), data.keypoints,
+                               data.depths, data.descriptors, data.point_ids,
+                               image=self.images.get(frame_id))
+        payload = self.pub_keyframes.encode(msg)
+        return frame_id, payload, max(self.alpha_bytes, len(payload))
+
+    def _publish_keyframe(self, slot: int, frame_id: int, payload: bytes) -> None:
+        """Write one keyframe, retrying while the writer is blocked (a reliable writer whose
+        readers stopped acknowledging times out after its max blocking time)."""
+        deadline = time.monotonic() + WRITE_RETRY_S
+        while True:
+            try:
+                self.pub_keyframes.publish_raw(payload)
+                return
+            except Exception as exc:           # cyclonedds' DDSException: a write timeout
+                if time.monotonic() > deadline:
+                    self.node.get_logger().error(
+                        f"slot {slot}: keyframe {frame_id} not written within "
+                        f"{WRITE_RETRY_S:g} s ({exc}); given up")
+                    return
+                time.sleep(0.1)
 
     def _upload_loop(self) -> None:
         """Sends each slot's requested frames through the shaper, then its throughput."""
         while (job := self._uploads.get()) is not None:
             slot, frame_ids = job
             rate, state = self.slot_rates.get(slot, (self.channel.rates[0], 0))
+            # encoded before the slot's transfer starts, so the link never waits for the CPU
+            payloads = [p for f in frame_ids if (p := self._encode_keyframe(slot, f))]
             self.shaper.start_slot(slot, rate, state)
-            for frame_id in frame_ids:
-                with self._lock:
-                    data = self.core.upload(frame_id) if self.core else None
-                if data is None:
-                    self.node.get_logger().error(f"slot {slot}: frame {frame_id} was asked "
-                                                 "for but is no longer held; not sent")
-                    continue
-                msg = keyframe_message(slot, data.frame_id, data.stamp, data.pose,
-                                       self.core.k if self.core else np.eye(3),
-                                       data.keypoints, data.depths, data.descriptors,
-                                       data.point_ids)
-                size = max(self.alpha_bytes, KEYPOINT_BYTES * len(data.keypoints))
-                self.shaper.send(size, lambda m=msg: self.pub_keyframes.publish(m))
+            for frame_id, payload, size in payloads:
+                self.shaper.send(size, lambda b=payload, f=frame_id, k=slot:
+                                 self._publish_keyframe(k, f, b))
             t = self.shaper.end_slot()
             out = new("twinslam_msgs/msg/UplinkThroughput", slot=t.slot,
                       configured_rate_mbps=t.configured_rate_mbps, rate_state=t.rate_state,
@@ -227,17 +315,21 @@ class DeviceTrackerNode:
     def close(self) -> None:
         self._uploads.put(None)
         self._uploader.join(timeout=5.0)
+        if isinstance(self.shaper, TcShaper):
+            self.shaper.close()
 
 
 def main(args: list[str] | None = None) -> int:
     node = node_runtime.start_node("device_tracker", PARAMETERS, args)
     try:
         device = DeviceTrackerNode(node)
-    except (ValueError, ChannelError) as exc:
+    except (ValueError, ChannelError, ShaperError) as exc:
         return node_runtime.fail(node, str(exc))
+    shaper = (f"tc on {device.shaper.interface}" if isinstance(device.shaper, TcShaper)
+              else "token bucket")
     node.get_logger().info(f"slots of {device.slot_frames} frames, channel "
-                           f"{node.get_parameter('channel').value}; waiting for "
-                           "/camera/camera_info")
+                           f"{node.get_parameter('channel').value}, uplink shaper {shaper}; "
+                           "waiting for /camera/camera_info")
     node_runtime.run(node, on_exit=device.close)
     return 0
 

@@ -78,8 +78,21 @@ class MbrlPolicy:
             self.rate_model = make_rate_model("markov", self.n_states)
         self._seen = 0
 
+    @property
+    def uses_twin(self) -> bool:
+        """Driven by the user digital twin: on the edge its features can come from the twin
+        node's ``/udt/rate_latent`` instead of the checkpoint's copy of the twin."""
+        return self.rate_model_name == "udt"
+
+    @property
+    def feature_size(self) -> int:
+        return self.rate_model.feature_size
+
     @torch.no_grad()
-    def decide(self, obs: SlotObservation) -> MapAction:
+    def decide(self, obs: SlotObservation, rate_features: np.ndarray | None = None
+               ) -> MapAction:
+        """U_k and C_k; ``rate_features`` (the rate model's ``features``, e.g. the twin node's
+        [μ, log Σ]) replace what the checkpoint's own rate model would compute."""
         if obs.n_states != self.n_states:
             raise ValueError(f"policy {self.path} was trained for {self.n_states} rate states,"
                              f" the channel has {obs.n_states}")
@@ -88,7 +101,12 @@ class MbrlPolicy:
             for state in obs.rate_history[-unseen:] if unseen > 0 else []:
                 self.rate_model.observe(state)       # the slots not counted yet
             self._seen = obs.slot + 1
-        state = build_state(obs, self.rate_model.features(obs.rate_history), self.history)
+        if rate_features is None:
+            rate_features = self.rate_model.features(obs.rate_history)
+        elif rate_features.shape != (self.feature_size,):
+            raise ValueError(f"policy {self.path} takes {self.feature_size} rate features, got "
+                             f"{rate_features.shape}")
+        state = build_state(obs, rate_features, self.history)
         batch = collate([state])
         scores = self.actor(batch.x, batch.adj, batch.mask, batch.context)[0].numpy()
         return action_from_scores(state, scores.astype(np.float64))[0]

@@ -26,6 +26,14 @@ from udt_node.twin import TwinConfig, UserDigitalTwin
 LOG_SIGMA_FLOOR = 1e-12        #: Σ below this enters the state as log(1e-12) ≈ -27.6
 
 
+def latent_features(mu: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """The twin's latent as the policy's state sees it: [μ, log Σ]. A confident twin's Σ
+    underflows float32 (exp of log Σ < -87 is 0): clipped before the log, or the state holds
+    -inf and the networks NaN."""
+    log_sigma = np.log(np.clip(np.asarray(sigma, dtype=np.float64), LOG_SIGMA_FLOOR, None))
+    return np.concatenate([np.asarray(mu, dtype=np.float64), log_sigma]).astype(np.float32)
+
+
 class RateModel(Protocol):
     name: str
     n_states: int
@@ -64,10 +72,7 @@ class TwinRateModel:
 
     def features(self, history: list[int]) -> np.ndarray:
         lat = self.twin.latent(history)
-        # a confident twin's Σ underflows float32 (exp of log Σ < -87 is 0): clip before the
-        # log, or the state holds -inf and the networks NaN
-        log_sigma = np.log(np.clip(lat.sigma, LOG_SIGMA_FLOOR, None))
-        return np.concatenate([lat.mu, log_sigma]).astype(np.float32)
+        return latent_features(lat.mu, lat.sigma)
 
     def sample_next(self, history: list[int], count: int, rng: np.random.Generator
                     ) -> np.ndarray:

@@ -10,6 +10,7 @@ test never leaves processes behind.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import queue
@@ -69,36 +70,44 @@ def pick_domain_id(rng: random.Random | None = None) -> int:
     raise RuntimeError("no free DDS domain id in 100..229 on this machine")
 
 
-class LoopbackDomain:
-    """Context manager: a domain id + loopback Cyclone config + the processes started in it."""
+class ProcessDomain:
+    """The processes of one DDS domain: each started with that domain's environment, each
+    stopped (SIGTERM, then SIGKILL) when the domain closes, so a failing test never leaves
+    processes behind. Subclasses say where a host's processes run and with which Cyclone
+    configuration (:class:`LoopbackDomain`, :class:`node_runtime.netns.NetnsHosts`)."""
 
-    def __init__(self, domain_id: int | None = None) -> None:
-        self.domain_id = pick_domain_id() if domain_id is None else domain_id
+    def __init__(self, domain_id: int) -> None:
+        self.domain_id = domain_id
         self.processes: list[subprocess.Popen[str]] = []
-        self._saved_env: dict[str, str | None] = {}
 
-    @property
-    def env(self) -> dict[str, str]:
-        """Environment for a process on this domain (the current one plus the DDS settings)."""
+    def base_env(self) -> dict[str, str]:
+        """The current environment with this domain's id and the repository on the path."""
         env = dict(os.environ)
         env.update({
             "ROS_DOMAIN_ID": str(self.domain_id),
-            "CYCLONEDDS_URI": LOOPBACK_CONFIG,
             "PYTHONUNBUFFERED": "1",
             "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO_ROOT),
                                                         os.environ.get("PYTHONPATH")])),
         })
         return env
 
-    def activate(self) -> None:
-        """Point *this* process's future participants at the domain (set before ``init()``)."""
-        for key in ("ROS_DOMAIN_ID", "CYCLONEDDS_URI"):
-            self._saved_env[key] = os.environ.get(key)
-            os.environ[key] = self.env[key]
+    def env_for(self, host: str | None) -> dict[str, str]:
+        raise NotImplementedError
 
-    def spawn(self, args: list[str], **kwargs: object) -> subprocess.Popen[str]:
-        """Start ``python args...`` on this domain; stdout/stderr are captured as text."""
-        proc = subprocess.Popen([sys.executable, *args], env=self.env, text=True,
+    def command(self, host: str | None, argv: list[str]) -> list[str]:
+        """``argv`` as it must be run to execute on ``host``."""
+        return argv
+
+    def monitor_scope(self) -> contextlib.AbstractContextManager[None]:
+        """Where this process's own participants must be made to watch the domain."""
+        return contextlib.nullcontext()
+
+    def spawn(self, args: list[str], host: str | None = None,
+              **kwargs: object) -> subprocess.Popen[str]:
+        """Start ``python args...`` on this domain (on ``host`` where the domain has hosts);
+        stdout/stderr are captured as text."""
+        proc = subprocess.Popen(self.command(host, [sys.executable, *args]),
+                                env=self.env_for(host), text=True,
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                 cwd=str(REPO_ROOT), **kwargs)  # type: ignore[call-overload]
         self.processes.append(proc)
@@ -119,6 +128,40 @@ class LoopbackDomain:
         for proc in self.processes:
             if proc.poll() is None:
                 self.stop(proc)
+
+    def __enter__(self) -> ProcessDomain:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+
+class LoopbackDomain(ProcessDomain):
+    """Context manager: a domain id + loopback Cyclone config + the processes started in it."""
+
+    def __init__(self, domain_id: int | None = None) -> None:
+        super().__init__(pick_domain_id() if domain_id is None else domain_id)
+        self._saved_env: dict[str, str | None] = {}
+
+    @property
+    def env(self) -> dict[str, str]:
+        """Environment for a process on this domain (the current one plus the DDS settings)."""
+        env = self.base_env()
+        env["CYCLONEDDS_URI"] = LOOPBACK_CONFIG
+        return env
+
+    def env_for(self, host: str | None) -> dict[str, str]:
+        return self.env                 # every "host" is this machine's loopback
+
+    def activate(self) -> None:
+        """Point *this* process's future participants at the domain (set before ``init()``)."""
+        for key in ("ROS_DOMAIN_ID", "CYCLONEDDS_URI"):
+            self._saved_env[key] = os.environ.get(key)
+            os.environ[key] = self.env[key]
+
+    def close(self) -> None:
+        super().close()
         for key, value in self._saved_env.items():
             if value is None:
                 os.environ.pop(key, None)
@@ -127,10 +170,6 @@ class LoopbackDomain:
 
     def __enter__(self) -> LoopbackDomain:
         return self
-
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> None:
-        self.close()
 
 
 class JsonLines:

@@ -58,10 +58,14 @@ class Publisher:
                                   qos=qos.to_dds(type_hash(type_name)))
 
     def publish(self, msg: Any) -> None:
+        write_raw(self._writer, self.encode(msg))
+
+    def encode(self, msg: Any) -> bytes:
+        """The CDR bytes ``publish`` would write (to write later with ``publish_raw``)."""
         if getattr(msg, "__msgtype__", None) != self.msg_type:
             raise TypeError(f"publisher on {self.topic_name} takes {self.msg_type}, got "
                             f"{getattr(msg, '__msgtype__', type(msg).__name__)}")
-        write_raw(self._writer, self._codec.serialize(msg))
+        return self._codec.serialize(msg)
 
     def publish_raw(self, payload: bytes) -> None:
         """Write already-encoded CDR bytes (tests and bridges use this)."""

@@ -7,6 +7,7 @@ import time
 
 import pytest
 
+from device_tracker.tc_shaper import NetemConfig, TcShaper, interface_tx_bytes, run_tc
 from device_tracker.uplink_shaper import ShaperError, UplinkShaper
 
 ALPHA_BYTES = 5_000_000 // 8          # the paper's 5 Mbit keyframe payload
@@ -77,3 +78,69 @@ def test_real_time_uploads_are_paced() -> None:
     elapsed = time.monotonic() - start
     assert 0.05 <= elapsed < 2.0
     assert link.end_slot().achieved_mbps <= 50.0 * 1.0001
+
+
+class FakeInterface:
+    """``tc`` and the interface counter as a kernel would see them, without a kernel."""
+
+    def __init__(self) -> None:
+        self.commands: list[tuple[str, ...]] = []
+        self.tx = 1000
+
+    def tc(self, *args: str) -> None:
+        self.commands.append(args)
+
+
+def test_tc_shaper_sets_the_slots_rate_once_and_measures_the_interface() -> None:
+    t = VirtualTime()
+    nic = FakeInterface()
+    acked: list[float] = []
+
+    def flush() -> None:                # all keyframes acknowledged 0.5 s after the writes
+        t.sleep(0.5)
+        nic.tx += 5_000_000            # 40 Mbit went out meanwhile
+        acked.append(t.now)
+
+    shaper = TcShaper("eth0", NetemConfig(delay_ms=2, loss_percent=5), flush, nic.tc,
+                      lambda: nic.tx, t.clock)
+    shaper.start(40.0)
+    assert nic.commands[0][:9] == ("qdisc", "replace", "dev", "eth0", "root", "handle", "1:",
+                                   "tbf", "rate")
+    assert nic.commands[0][9] == "40000kbit"
+    assert nic.commands[1][-5:] == ("netem", "delay", "2ms", "loss", "5%")
+    shaper.start_slot(0, 40.0, 0)                  # same rate: no tc call
+    assert len(nic.commands) == 2
+    shaper.send(625_000, lambda: None)
+    shaper.send(625_000, lambda: None)
+    out = shaper.end_slot()
+    assert acked and out.frames_sent == 2 and out.bytes_sent == 5_000_000
+    assert out.achieved_mbps == pytest.approx(80.0)   # 40 Mbit in 0.5 s
+    shaper.start_slot(1, 80.0, 1)
+    assert nic.commands[-1][1] == "change" and nic.commands[-1][9] == "80000kbit"
+    empty = shaper.end_slot()                       # nothing asked for: nothing flushed
+    assert empty.frames_sent == 0 and empty.bytes_sent == 0 and len(acked) == 1
+    shaper.close()
+    assert nic.commands[-1] == ("qdisc", "del", "dev", "eth0", "root")
+
+
+def test_tc_shaper_refuses_bad_rates_impairments_and_interfaces(tmp_path) -> None:
+    nic = FakeInterface()
+    shaper = TcShaper("eth0", tc=nic.tc, tx_bytes=lambda: nic.tx)
+    for bad in (0.0, -5.0, float("nan"), float("inf")):
+        with pytest.raises(ShaperError, match="finite and > 0"):
+            shaper.start_slot(3, bad)
+    with pytest.raises(ShaperError, match="no slot started"):
+        shaper.send(10, lambda: None)
+    with pytest.raises(ShaperError, match="loss"):
+        NetemConfig(loss_percent=100)
+    with pytest.raises(ShaperError, match="delay"):
+        NetemConfig(delay_ms=-1)
+    dev = tmp_path / "dev"
+    dev.write_text("Inter-|   Receive\n face |bytes\n    lo: 1 2 3 4 5 6 7 8 9 10 11 12 13 14 "
+                   "15 16\n  eth0: 10 1 0 0 0 0 0 0 4242 7 0 0 0 0 0 0\n")
+    assert interface_tx_bytes("eth0", dev) == 4242
+    with pytest.raises(ShaperError, match="no interface 'wlan0'"):
+        interface_tx_bytes("wlan0", dev)
+    with pytest.raises(ShaperError, match="CAP_NET_ADMIN"):
+        run_tc("qdisc", "replace", "dev", "no-such-interface-here", "root", "tbf", "rate",
+               "1mbit", "burst", "10kb", "latency", "10ms")

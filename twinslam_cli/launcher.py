@@ -24,9 +24,13 @@ import node_runtime
 from device_tracker.camera_input import stamp_key
 from edge_mapper.messages import LocalMap, read_map_update
 from msg_schemas.poses import pose_matrix
-from node_runtime.loopback import LoopbackDomain
+from node_runtime.loopback import ProcessDomain
+from node_runtime.parameters import load_params_file
 
 REPO = Path(__file__).resolve().parents[1]
+#: where each node runs when the domain has hosts (node_runtime.netns): the camera is the device's
+NODE_HOSTS = {"sequence_player": "device", "device_tracker": "device", "edge_mapper": "edge",
+              "udt_node": "twin"}
 DEFAULT_PARAMS = REPO / "config" / "twinslam.yaml"
 
 
@@ -41,6 +45,7 @@ class RunRecord:
     maps: dict[int, LocalMap] = field(default_factory=dict)   #: last map update per slot
     poses: dict[int, np.ndarray] = field(default_factory=dict)        #: stamp ns → pose
     ground_truth: dict[int, np.ndarray] = field(default_factory=dict)
+    images_received: int = 0        #: /camera/image_raw samples, when the monitor watches them
 
 
 @dataclass
@@ -78,7 +83,8 @@ class PipelineMonitor:
     """Subscribes to the run's topics in this process and keeps what it hears."""
 
     def __init__(self, node: node_runtime.Node,
-                 on_stats: Callable[[Any, RunRecord], None] | None = None) -> None:
+                 on_stats: Callable[[Any, RunRecord], None] | None = None,
+                 watch_images: bool = False) -> None:
         self.record = RunRecord()
         self._on_stats = on_stats
         r = self.record
@@ -100,6 +106,12 @@ class PipelineMonitor:
         sub("geometry_msgs/msg/PoseStamped", "/camera/ground_truth_pose",
             lambda m: r.ground_truth.__setitem__(stamp_key(m.header), pose_matrix(m.pose)),
             node_runtime.PROTOCOL)
+        if watch_images:     # a viewer's subscription: best effort, undecoded, only counted
+            sub("sensor_msgs/msg/Image", "/camera/image_raw", self._image,
+                node_runtime.SENSOR_DATA, raw=True)
+
+    def _image(self, _data: bytes) -> None:
+        self.record.images_received += 1
 
     def _stats(self, msg: Any) -> None:
         self.record.stats[int(msg.slot)] = msg
@@ -165,6 +177,7 @@ class LaunchConfig:
     params_file: Path = DEFAULT_PARAMS
     checkpoint: Path | None = None
     with_twin: bool = False
+    watch_images: bool = False       #: the monitor also views /camera/image_raw (best effort)
     extra: dict[str, list[str]] = field(default_factory=dict)   #: node → more "-p k:=v"
     timeout_s: float = 600.0
 
@@ -175,7 +188,7 @@ class Launcher:
 
     NODES = ("edge_mapper", "device_tracker", "udt_node", "sequence_player")
 
-    def __init__(self, domain: LoopbackDomain, config: LaunchConfig,
+    def __init__(self, domain: ProcessDomain, config: LaunchConfig,
                  echo: Callable[[str], None] | None = print) -> None:
         self.domain, self.config, self.echo = domain, config, echo
         self.procs: dict[str, subprocess.Popen[str]] = {}
@@ -187,20 +200,26 @@ class Launcher:
         params = {"edge_mapper": [f"policy:={c.policy}"]
                   + ([f"checkpoint:={c.checkpoint}"] if c.checkpoint else []),
                   "sequence_player": [f"sequence:={c.sequence}", f"rate:={c.rate}",
-                                      f"end:={c.frames}", "wait_for_subscribers:=1"]
+                                      f"end:={c.frames}",
+                                      # the device, and the monitor when it views images
+                                      f"wait_for_subscribers:={1 + c.watch_images}"]
                   }.get(name, []) + c.extra.get(name, [])
         for p in params:
             args += ["-p", p]
         return args
 
     def start(self, name: str) -> subprocess.Popen[str]:
-        proc = self.domain.spawn(self.node_args(name))
+        proc = self.domain.spawn(self.node_args(name), host=NODE_HOSTS[name])
         self.procs[name] = proc
         return proc
 
     def run(self, on_stats: Callable[[Any, RunRecord], None] | None = None) -> RunReport:
         """Play, watch, stop; ``on_stats(msg, record)`` runs on every ``MapStats`` (tests use
         it to inject faults mid-run)."""
+        with self.domain.monitor_scope():
+            return self._run(on_stats)
+
+    def _run(self, on_stats: Callable[[Any, RunRecord], None] | None) -> RunReport:
         c = self.config
         node_runtime.init(args=["twinslam_launch"], install_signal_handlers=False)
         try:
@@ -211,7 +230,7 @@ class Launcher:
                 if on_stats:
                     on_stats(msg, record)
 
-            monitor = PipelineMonitor(node, stats)
+            monitor = PipelineMonitor(node, stats, c.watch_images)
             executor = node_runtime.SingleThreadedExecutor()
             executor.add_node(node)
             started = time.monotonic()
@@ -228,13 +247,21 @@ class Launcher:
                     self.start(name)
             player = self.procs["sequence_player"]
             deadline = started + c.timeout_s
-            executor.spin_until(lambda: player.poll() is not None, c.timeout_s)
+            executor.spin_until(lambda: player.poll() is not None or self._failed(),
+                                c.timeout_s)
+            failed = self._failed()
+            if failed:
+                _, _, err = self.domain.stop(self.procs.pop(failed))
+                raise RuntimeError(f"{failed} exited during the run: {err.strip()[-800:]}")
             if player.returncode not in (0, None):
                 _, _, err = self.domain.stop(self.procs.pop("sequence_player"))
                 raise RuntimeError(f"sequence_player exited with {player.returncode}: "
                                    f"{err.strip()[-500:]}")
+            # the device's last summaries may still be in flight (a lossy link retransmits):
+            # wait for every full slot of the frames played, or what arrived when unknown
             summaries = monitor.record.summaries
-            last = max(summaries) if summaries else -1
+            expected = self._expected_slots()
+            last = expected - 1 if expected else (max(summaries) if summaries else -1)
             executor.spin_until(lambda: last in monitor.record.stats and all(
                 s in monitor.record.throughput for s in monitor.record.requests),
                 max(1.0, min(60.0, deadline - time.monotonic())))
@@ -243,6 +270,23 @@ class Launcher:
         finally:
             self.stop()
             node_runtime.shutdown()
+
+    def _expected_slots(self) -> int | None:
+        """Full slots in the frames played (None when the whole sequence plays)."""
+        if self.config.frames <= 0:
+            return None
+        slot_frames = load_params_file(self.config.params_file, "/device_tracker").get(
+            "slot_frames", 60)
+        for item in self.config.extra.get("device_tracker", []):
+            key, _, value = item.partition(":=")
+            if key == "slot_frames":
+                slot_frames = int(value)
+        return self.config.frames // int(slot_frames)
+
+    def _failed(self) -> str | None:
+        """A node that exited with an error while the sequence plays (none: None)."""
+        return next((name for name, proc in self.procs.items()
+                     if name != "sequence_player" and proc.poll() not in (None, 0)), None)
 
     def stop(self) -> dict[str, int]:
         codes = {}

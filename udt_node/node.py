@@ -6,7 +6,9 @@ quantises the achieved throughput to the nearest of N rates spread over [``rate_
 (``RateLatent``: μ, Σ, p(d_{k+1}), model version) for every slot. Every ``retrain_every`` slots
 the twin is retrained on a background thread, warm-started; callbacks never wait for it, and
 the trained network is swapped in when ready. With ``weights`` set, the twin is loaded from
-that file at start (if present) and saved after every retrain.
+that file at start (if present) and saved after every retrain. With ``policy_checkpoint`` set
+to a twin-driven AMM policy (``twinslam train --rate-model udt``), the twin starts as the one that
+policy was trained with, so the latents the edge feeds it mean what they meant in training.
 
 A throughput that is NaN, infinite or negative (refused by the message validation of
 :mod:`msg_schemas.validation`) or above ``max_mbps`` (refused here) is logged as an error,
@@ -32,7 +34,8 @@ from udt_node.twin import TwinConfig, UserDigitalTwin
 
 PARAMETERS = {"states": 2, "latent_dim": 8, "history": 8, "retrain_every": 100,
               "buffer_slots": 600, "steps_per_retrain": 100, "rate_min": 40.0,
-              "rate_max": 80.0, "max_mbps": 10_000.0, "weights": "", "seed": 0}
+              "rate_max": 80.0, "max_mbps": 10_000.0, "weights": "", "seed": 0,
+              "policy_checkpoint": ""}
 THROUGHPUT_TOPIC = "/device/uplink_throughput"
 LATENT_TOPIC = "/udt/rate_latent"
 
@@ -50,7 +53,10 @@ class TwinNode:
         self.rates = state_rates(config.n_states, float(p["rate_min"]), float(p["rate_max"]))
         self.max_mbps = float(p["max_mbps"])
         self.weights = Path(p["weights"]) if p["weights"] else None
-        self.twin = self._load_or_create(config)
+        self.twin = self._load_or_create(config, str(p["policy_checkpoint"]))
+        if self.twin.config.n_states != config.n_states:
+            raise ValueError(f"a {self.twin.config.n_states}-state twin, states:="
+                             f"{config.n_states} asked for")
         self.rejected = 0
         self.received = 0
         self._lock = threading.Lock()            # guards the twin's network swap
@@ -59,13 +65,21 @@ class TwinNode:
         self.sub = node.create_subscription("twinslam_msgs/msg/UplinkThroughput",
                                             THROUGHPUT_TOPIC, self._on_throughput, PROTOCOL)
 
-    def _load_or_create(self, config: TwinConfig) -> UserDigitalTwin:
+    def _load_or_create(self, config: TwinConfig, policy_checkpoint: str) -> UserDigitalTwin:
         log = self.node.get_logger()
+        if policy_checkpoint:
+            from mbrl.policy import MbrlPolicy
+            from mbrl.rate_models import TwinRateModel
+
+            policy = MbrlPolicy(Path(policy_checkpoint))
+            if not isinstance(policy.rate_model, TwinRateModel):
+                raise ValueError(f"{policy_checkpoint}: a {policy.rate_model_name}-driven "
+                                 "policy has no twin to start from")
+            log.info(f"the twin of policy {policy_checkpoint} (version "
+                     f"{policy.rate_model.twin.version})")
+            return policy.rate_model.twin
         if self.weights is not None and self.weights.is_file():
             twin = UserDigitalTwin.load(self.weights)
-            if twin.config.n_states != config.n_states:
-                raise ValueError(f"{self.weights}: a {twin.config.n_states}-state twin, "
-                                 f"states:={config.n_states} asked for")
             log.info(f"loaded twin version {twin.version} ({len(twin.states)} slots) from "
                      f"{self.weights}")
             return twin

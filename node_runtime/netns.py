@@ -1,0 +1,257 @@
+"""Three hosts on one machine: network namespaces ``device``, ``edge`` and ``twin`` (issue #8).
+
+Each host is a network namespace with one interface, ``eth0``, holding an address on a private
+/24 that exists only inside these namespaces; the three ``eth0`` are veth pairs whose other
+ends hang on a bridge in a fourth namespace, the "switch". Nothing is routed anywhere else: the
+namespaces have no default route and no link to the machine's own network, so no packet of a
+run can leave them.
+
+Cyclone DDS is configured per host for its ``eth0`` with multicast off and the three host
+addresses as unicast discovery peers, as on a LAN whose switch drops multicast. Its messages
+stay below the link MTU, so a lost packet costs one RTPS fragment, not an IP-fragmented
+datagram of ten.
+
+The device's uplink is its veth: ``tc`` on the device's ``eth0`` shapes what the device sends
+(:mod:`device_tracker.tc_shaper`), and :meth:`NetnsHosts.set_link` pulls the switch-side
+end of a host's cable. :class:`NetnsHosts` is a context manager with the process handling of
+:class:`~node_runtime.loopback.LoopbackDomain`: ``spawn(args, host=...)`` runs ``python args``
+inside a host, ``close()`` stops them and deletes every namespace, even after a failure.
+Creating namespaces needs root (CAP_SYS_ADMIN and CAP_NET_ADMIN) and ``iproute2``;
+:func:`unavailable_reason` says why they cannot be made here.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+from node_runtime.loopback import ProcessDomain
+
+HOSTS = ("device", "edge", "twin")
+SUBNET = "10.210.0"                      #: the hosts' /24; addresses exist only in the namespaces
+HOST_NUMBER = {"device": 2, "edge": 3, "twin": 4}
+INTERFACE = "eth0"
+MTU = 1500
+CLONE_NEWNET = 0x40000000
+
+HOST_CONFIG = """<?xml version="1.0" encoding="UTF-8"?>
+<CycloneDDS xmlns="https://cdds.io/config">
+  <Domain Id="any">
+    <General>
+      <Interfaces><NetworkInterface name="{interface}"/></Interfaces>
+      <AllowMulticast>false</AllowMulticast>
+      <MaxMessageSize>1472B</MaxMessageSize>
+      <FragmentSize>1400B</FragmentSize>
+    </General>
+    <Internal>
+      <SocketReceiveBufferSize min="4MB"/>
+      <SocketSendBufferSize min="1MB"/>
+    </Internal>
+    <Discovery>
+      <ParticipantIndex>auto</ParticipantIndex>
+      <MaxAutoParticipantIndex>20</MaxAutoParticipantIndex>
+      <Peers>{peers}</Peers>
+    </Discovery>
+  </Domain>
+</CycloneDDS>
+"""
+
+
+class NetnsError(RuntimeError):
+    """A namespace, link or address that could not be made (the message holds ip's words)."""
+
+
+def unavailable_reason() -> str | None:
+    """Why namespaces cannot be made on this machine, or None when they can."""
+    if sys.platform != "linux":
+        return f"network namespaces need Linux, this is {sys.platform}"
+    if shutil.which("ip") is None:
+        return "iproute2's `ip` is not installed"
+    if shutil.which("tc") is None:
+        return "iproute2's `tc` is not installed"
+    if os.geteuid() != 0:
+        return "creating network namespaces needs root (CAP_SYS_ADMIN, CAP_NET_ADMIN)"
+    probe = f"twinslam-probe-{os.getpid()}"
+    made = subprocess.run(["ip", "netns", "add", probe], capture_output=True, text=True)
+    if made.returncode != 0:
+        return f"`ip netns add` failed: {made.stderr.strip()}"
+    subprocess.run(["ip", "netns", "delete", probe], capture_output=True)
+    return None
+
+
+def cyclone_config(interface: str = INTERFACE, hosts: tuple[str, ...] = HOSTS) -> str:
+    """The Cyclone configuration of one host: its interface, unicast peers, no multicast."""
+    peers = "".join(f'<Peer address="{address_of(h)}"/>' for h in hosts)
+    return HOST_CONFIG.format(interface=interface, peers=peers)
+
+
+def address_of(host: str) -> str:
+    if host not in HOST_NUMBER:
+        raise ValueError(f"unknown host {host!r}; hosts are {', '.join(HOSTS)}")
+    return f"{SUBNET}.{HOST_NUMBER[host]}"
+
+
+def _ip(*args: str, netns: str | None = None) -> str:
+    cmd = ["ip", *(["-n", netns] if netns else []), *args]
+    done = subprocess.run(cmd, capture_output=True, text=True)
+    if done.returncode != 0:
+        raise NetnsError(f"`{' '.join(cmd)}` failed: {done.stderr.strip()}")
+    return done.stdout
+
+
+def _setns(path: str) -> None:
+    libc = ctypes.CDLL(None, use_errno=True)
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        if libc.setns(fd, CLONE_NEWNET) != 0:
+            err = ctypes.get_errno()
+            raise NetnsError(f"setns({path}) failed: {os.strerror(err)}")
+    finally:
+        os.close(fd)
+
+
+class NetnsHosts(ProcessDomain):
+    """The device, edge and twin hosts and their switch; ``up()`` builds, ``close()`` removes."""
+
+    def __init__(self, prefix: str = "twinslam-", domain_id: int = 0) -> None:
+        super().__init__(domain_id)
+        self.prefix = prefix
+        self.namespaces = {h: f"{prefix}{h}" for h in HOSTS}
+        self.switch = f"{prefix}switch"
+        self._bpffs: Path | None = None         # where loss programs are pinned
+
+    def port(self, host: str) -> str:
+        """The switch-side end of ``host``'s cable."""
+        return f"p-{host}"
+
+    # -- building and removing ------------------------------------------------------------------
+
+    def up(self) -> NetnsHosts:
+        """Create the namespaces, the bridge and one cable per host; on failure remove what
+        was made and raise :class:`NetnsError`."""
+        try:
+            for ns in (self.switch, *self.namespaces.values()):
+                _ip("netns", "add", ns)
+                _ip("link", "set", "lo", "up", netns=ns)
+            _ip("link", "add", "br0", "type", "bridge", netns=self.switch)
+            _ip("link", "set", "br0", "up", netns=self.switch)
+            for host, ns in self.namespaces.items():
+                _ip("link", "add", self.port(host), "mtu", str(MTU), "type", "veth", "peer",
+                    "name", INTERFACE, "mtu", str(MTU), "netns", ns, netns=self.switch)
+                _ip("link", "set", self.port(host), "master", "br0", "up", netns=self.switch)
+                _ip("addr", "add", f"{address_of(host)}/24", "dev", INTERFACE, netns=ns)
+                _ip("link", "set", INTERFACE, "up", netns=ns)
+        except NetnsError:
+            self.down()
+            raise
+        return self
+
+    def down(self) -> None:
+        """Delete every namespace of this set (their veths go with them); idempotent."""
+        for ns in (*self.namespaces.values(), self.switch):
+            subprocess.run(["ip", "netns", "delete", ns], capture_output=True)
+
+    def exists(self) -> list[str]:
+        """The namespaces of this set that exist now."""
+        listed = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout
+        names = {line.split()[0] for line in listed.splitlines() if line.strip()}
+        return [ns for ns in (*self.namespaces.values(), self.switch) if ns in names]
+
+    # -- running inside a host --------------------------------------------------------------------
+
+    def env_for(self, host: str) -> dict[str, str]:
+        env = self.base_env()
+        env["CYCLONEDDS_URI"] = cyclone_config()
+        env["TWINSLAM_HOST"] = host
+        return env
+
+    def command(self, host: str, argv: list[str]) -> list[str]:
+        if host not in self.namespaces:
+            raise ValueError(f"unknown host {host!r}; hosts are {', '.join(HOSTS)}")
+        return ["ip", "netns", "exec", self.namespaces[host], *argv]
+
+    def run_in(self, host: str, *argv: str, check: bool = True) -> str:
+        """Run a command in ``host`` (e.g. ``tc``) and return its output."""
+        done = subprocess.run(self.command(host, list(argv)), capture_output=True, text=True)
+        if check and done.returncode != 0:
+            raise NetnsError(f"`{' '.join(argv)}` in {host} failed: {done.stderr.strip()}")
+        return done.stdout
+
+    @contextlib.contextmanager
+    def inside(self, host: str) -> Iterator[None]:
+        """Run this thread in ``host``'s namespace for the block: DDS participants made here
+        (and the threads Cyclone starts for them) live in that host."""
+        home = os.open("/proc/thread-self/ns/net", os.O_RDONLY)
+        saved = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "CYCLONEDDS_URI")}
+        try:
+            _setns(f"/run/netns/{self.namespaces[host]}")
+            os.environ.update({"ROS_DOMAIN_ID": str(self.domain_id),
+                               "CYCLONEDDS_URI": cyclone_config()})
+            yield
+        finally:
+            _setns(f"/proc/self/fd/{home}")
+            os.close(home)
+            for key, value in saved.items():
+                if value is None:
+                    os.environ.pop(key, None)
+                else:
+                    os.environ[key] = value
+
+    def monitor_scope(self) -> contextlib.AbstractContextManager[None]:
+        """A monitor watches from the edge host, as an operator's console beside the server."""
+        return self.inside("edge")
+
+    # -- the cables -------------------------------------------------------------------------------
+
+    def set_link(self, host: str, up: bool) -> None:
+        """Plug (``up``) or pull ``host``'s cable at the switch: its ``eth0`` loses carrier."""
+        _ip("link", "set", self.port(host), "up" if up else "down", netns=self.switch)
+
+    def lose_packets(self, host: str, percent: float) -> None:
+        """Drop ``percent`` % of what ``host`` sends, at random, on its ``eth0`` (an eBPF
+        classifier, :mod:`node_runtime.ebpf_loss`: works where ``tc netem`` is missing)."""
+        from node_runtime.ebpf_loss import pin_random_drop
+
+        if self._bpffs is None:
+            self._bpffs = Path(tempfile.mkdtemp(prefix=f"{self.prefix}bpffs-"))
+            done = subprocess.run(["mount", "-t", "bpf", "bpf", str(self._bpffs)],
+                                  capture_output=True, text=True)
+            if done.returncode != 0:
+                raise NetnsError(f"cannot mount a bpffs: {done.stderr.strip()}")
+        pin = self._bpffs / f"loss-{host}"
+        pin_random_drop(percent, pin)
+        ns = self.namespaces[host]
+        for args in (["qdisc", "replace", "dev", INTERFACE, "clsact"],
+                     ["filter", "replace", "dev", INTERFACE, "egress", "bpf", "da",
+                      "object-pinned", str(pin)]):
+            done = subprocess.run(["tc", "-n", ns, *args], capture_output=True, text=True)
+            if done.returncode != 0:
+                raise NetnsError(f"`tc {' '.join(args)}` in {host} failed: "
+                                 f"{done.stderr.strip()}")
+
+    def port_bytes(self, host: str) -> int:
+        """Bytes the switch has received from ``host`` (what crossed its cable, uplink)."""
+        ns_path = Path("/run/netns") / self.switch
+        if not ns_path.exists():
+            raise NetnsError(f"{self.switch} does not exist")
+        out = _ip("-s", "-j", "link", "show", self.port(host), netns=self.switch)
+        return int(json.loads(out)[0]["stats64"]["rx"]["bytes"])
+
+    def close(self) -> None:
+        super().close()
+        self.down()
+        if self._bpffs is not None:           # the pinned programs go with the mount
+            subprocess.run(["umount", str(self._bpffs)], capture_output=True)
+            shutil.rmtree(self._bpffs, ignore_errors=True)
+            self._bpffs = None
+
+    def __enter__(self) -> NetnsHosts:
+        return self.up()
