@@ -55,9 +55,14 @@ class DeviceTrackerCore:
     """Tracking against the edge's map plus the device's own recent points."""
 
     def __init__(self, intrinsics: np.ndarray, slot_frames: int = 60,
-                 config: TrackingConfig | None = None) -> None:
+                 config: TrackingConfig | None = None, keep_slots: int = 2) -> None:
+        """``keep_slots``: the ended slots whose frames stay uploadable; the edge asks for a
+        slot's frames during the next one, or later when the link was down meanwhile."""
         if slot_frames < 1:
             raise ValueError(f"slot_frames must be >= 1, got {slot_frames}")
+        if keep_slots < 1:
+            raise ValueError(f"keep_slots must be >= 1, got {keep_slots}")
+        self.keep_slots = keep_slots
         self.k = np.asarray(intrinsics, dtype=np.float64)
         self.slot_frames = slot_frames
         self.config = config or TrackingConfig(relocalise=True)
@@ -67,7 +72,7 @@ class DeviceTrackerCore:
         self.created = np.zeros(0, dtype=np.int64)     #: per row: frame that created it
         self.map_version = 0
         self.frames: list[FrameRecord] = []            #: the current slot's
-        self._uploads: dict[int, UploadData] = {}      #: last two slots' frames
+        self._uploads: dict[int, UploadData] = {}      #: the last keep_slots slots' frames
         self._next_track = 1
         self.lost = False                              #: the last frame was not tracked
 
@@ -116,12 +121,13 @@ class DeviceTrackerCore:
         """The finished slot's frames (F_k); forgets uploads older than the previous slot."""
         frames, self.frames = self.frames, []
         if frames:
-            oldest = (self.slot_of(frames[-1].frame_id) - 1) * self.slot_frames
+            oldest = (self.slot_of(frames[-1].frame_id) - self.keep_slots + 1) * self.slot_frames
             self._uploads = {f: u for f, u in self._uploads.items() if f >= oldest}
         return frames
 
     def upload(self, frame_id: int) -> UploadData | None:
-        """The keyframe content of a frame of the last two slots; None if it is gone."""
+        """The keyframe content of a frame of the last ``keep_slots`` slots; None if it is
+        gone."""
         return self._uploads.get(frame_id)
 
     def _label_new_points(self, frame: int) -> None:

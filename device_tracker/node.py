@@ -55,7 +55,7 @@ PARAMETERS = {"slot_frames": 60, "alpha_mbit": 5.0, "channel": "markov:N=2",
               "rate_min": 40.0, "rate_max": 80.0, "seed": 0, "n_features": 1000,
               "map_frame": "map", "shaper": "token_bucket", "uplink_interface": "eth0",
               "netem_delay_ms": 0.0, "netem_loss_percent": 0.0, "upload_image": False,
-              "edge_timeout_s": 3.0}
+              "edge_timeout_s": 3.0, "keep_slots": 4}
 SHAPERS = ("token_bucket", "tc")
 #: how long one keyframe write may keep failing (the writer's history full of unacknowledged
 #: keyframes while the link is down) before that keyframe is given up
@@ -83,6 +83,10 @@ class DeviceTrackerNode:
         self.core: DeviceTrackerCore | None = None
         self.shaper = self._make_shaper(p)
         self.upload_image = bool(p["upload_image"])
+        #: slots whose frames stay uploadable: 4 ride out a link down for ~5 s
+        self.keep_slots = int(p["keep_slots"])
+        if self.keep_slots < 1:
+            raise ValueError(f"keep_slots must be >= 1, got {self.keep_slots}")
         self.images: dict[int, Any] = {}                  # frame id → colour image, if uploaded
         self.edge_timeout = float(p["edge_timeout_s"])
         if not self.edge_timeout > 0:
@@ -140,7 +144,8 @@ class DeviceTrackerNode:
     def _on_camera_info(self, msg: Any) -> None:
         if self.core is None:
             k = np.asarray(msg.k, dtype=np.float64).reshape(3, 3)
-            self.core = DeviceTrackerCore(k, self.slot_frames, self.tracking_config)
+            self.core = DeviceTrackerCore(k, self.slot_frames, self.tracking_config,
+                                          self.keep_slots)
             self.node.get_logger().info(f"camera {msg.width}x{msg.height}, fx {k[0, 0]:.1f}; "
                                         "tracking starts")
         self._process_ready()
@@ -196,7 +201,8 @@ class DeviceTrackerNode:
             log.info(f"frame {record.frame_id}: relocalised")
         if self.upload_image:
             self.images[record.frame_id] = color_msg
-            for old in [f for f in self.images if f < record.frame_id - 3 * self.slot_frames]:
+            horizon = record.frame_id - (self.keep_slots + 1) * self.slot_frames
+            for old in [f for f in self.images if f < horizon]:
                 del self.images[old]
         pose = set_header(new("geometry_msgs/msg/PoseStamped", pose=pose_msg(record.pose)),
                           stamp, self.map_frame)

@@ -75,6 +75,8 @@ class EdgeMapperNode:
         self.core = EdgeMapperCore(policy, None, config, p["checkpoint"] or None,
                                    int(p["states"]))
         self.timeout = float(p["slot_timeout_s"])
+        #: slot → keyframes the device says it sent (its UplinkThroughput), while open
+        self._sent: dict[int, int] = {}
         #: slot → (opened at, compute seconds so far, υ of its frames, policy that decided)
         self._opened: dict[int, tuple[float, float, SlotUncertainty | None, str]] = {}
         self.pub_request = node.create_publisher("twinslam_msgs/msg/UploadRequest",
@@ -87,6 +89,8 @@ class EdgeMapperNode:
                                  self._on_summaries, PROTOCOL)
         node.create_subscription("twinslam_msgs/msg/Keyframe", "/device/keyframes",
                                  self._on_keyframe, PROTOCOL)
+        node.create_subscription("twinslam_msgs/msg/UplinkThroughput",
+                                 "/device/uplink_throughput", self._on_throughput, PROTOCOL)
         node.create_subscription("twinslam_msgs/msg/RateLatent", "/udt/rate_latent",
                                  self._on_latent, PROTOCOL)
         node.create_timer(0.2, self._check_timeouts)
@@ -160,9 +164,25 @@ class EdgeMapperNode:
                 f"keyframe {data.frame_id} of slot {data.slot} was not asked for (or came "
                 "twice): ignored")
             return
-        action, received = self.core.pending[data.slot]
+        self._finish_if_complete(data.slot)
+
+    def _on_throughput(self, msg: Any) -> None:
+        """The device's account of a slot: once what it sent is in, nothing more will come
+        (a frame it no longer held, after a link outage, is not waited for)."""
+        slot = int(msg.slot)
+        if slot in self.core.pending:
+            self._sent[slot] = int(msg.frames_sent)
+            self._finish_if_complete(slot)
+
+    def _finish_if_complete(self, slot: int) -> None:
+        action, received = self.core.pending[slot]
         if set(action.upload) <= received:
-            self._finish(data.slot)
+            self._finish(slot)
+        elif slot in self._sent and len(received) >= self._sent[slot]:
+            self.node.get_logger().warning(
+                f"slot {slot}: the device sent {self._sent[slot]} of {len(action.upload)} "
+                "requested keyframes (the rest were no longer held); finishing without them")
+            self._finish(slot)
 
     def _check_timeouts(self) -> None:
         now = time.monotonic()
@@ -178,6 +198,7 @@ class EdgeMapperNode:
         started = time.perf_counter()
         _, spent, upsilon, decided_by = self._opened.pop(slot, (0.0, 0.0, None,
                                                                 self.policy_name))
+        self._sent.pop(slot, None)
         out: SlotOutcome = self.core.finish_slot(slot)
         now = time.time()
         self.pub_map.publish(map_update_message(self.core.map, slot, out.version, now,
