@@ -115,22 +115,28 @@ class Subscription:
         handled = 0
         for data in take_raw(self._reader):
             handled += 1
-            if self.raw:
-                self.received += 1
-                self.callback(data)
-                continue
-            try:
-                msg = self._codec.deserialize(data)
-                validate(self.msg_type, msg)
-            except (cdr.CdrError, MessageError) as exc:
-                self.rejected += 1
-                self._node.get_logger().error(
-                    f"dropped a malformed {self.msg_type} on {self.topic_name} "
-                    f"({len(data)} bytes): {exc}")
-                continue
-            self.received += 1
-            self.callback(msg)
+            self.handle(data)
         return handled
+
+    def handle(self, data: bytes) -> bool:
+        """One sample as it came off the wire: decoded, validated and given to the callback,
+        or rejected with a logged error; returns whether the callback ran."""
+        if self.raw:
+            self.received += 1
+            self.callback(data)
+            return True
+        try:
+            msg = self._codec.deserialize(data)
+            validate(self.msg_type, msg)
+        except (cdr.CdrError, MessageError) as exc:
+            self.rejected += 1
+            self._node.get_logger().error(
+                f"dropped a malformed {self.msg_type} on {self.topic_name} "
+                f"({len(data)} bytes): {exc}")
+            return False
+        self.received += 1
+        self.callback(msg)
+        return True
 
 
 class Timer:

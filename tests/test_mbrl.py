@@ -263,3 +263,41 @@ def test_edge_node_with_a_missing_policy_checkpoint_says_so_and_exits(tmp_path: 
         _out, err = proc.communicate(timeout=120)
     assert proc.returncode == 2
     assert f"{missing}: no such policy checkpoint" in err
+
+
+class _Learned:
+    name, feature_size = "mbrl-udt", 4
+
+    def __init__(self) -> None:
+        self.features: list[np.ndarray] = []
+
+    def decide(self, obs, rate_features=None):
+        self.features.append(rate_features)
+        return "learned"
+
+
+class _Fallback:
+    name = "adapt"
+
+    def decide(self, obs):
+        return "fallback"
+
+
+def test_twin_fed_policy_uses_fresh_latents_and_falls_back_without_them() -> None:
+    from types import SimpleNamespace
+
+    from edge_mapper.twin_feed import TwinFedPolicy
+
+    learned = _Learned()
+    feed = TwinFedPolicy(learned, _Fallback(), max_age=1)
+    assert feed.decide(SimpleNamespace(slot=0)) == "fallback" and feed.used == "adapt"
+    feed.offer(3, np.array([0.5, -0.5]), np.array([1.0, 0.0]), model_version=2)
+    assert feed.decide(SimpleNamespace(slot=4)) == "learned" and feed.used == "mbrl-udt"
+    # [μ, log Σ] with Σ = 0 clipped, not -inf
+    np.testing.assert_allclose(learned.features[-1][:3], [0.5, -0.5, 0.0])
+    assert np.isfinite(learned.features[-1]).all()
+    assert feed.decide(SimpleNamespace(slot=5)) == "fallback"        # two slots old: stale
+    feed.offer(2, np.zeros(2), np.ones(2), 1)                          # older: not taken
+    assert feed.latent is not None and feed.latent.slot == 3
+    with pytest.raises(ValueError, match="a latent of 3 dimensions"):
+        feed.offer(6, np.zeros(3), np.ones(3), 3)

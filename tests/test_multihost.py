@@ -263,3 +263,21 @@ def test_5_percent_loss_reliable_topics_deliver_best_effort_images_degrade(
     assert all(len(s.frames) == 60 for s in record.summaries.values())
     assert "clsact" in hosts.run_in("device", "tc", "qdisc", "show", "dev", "eth0")
     assert report.ate_m < 0.15
+
+
+def test_hosts_command_builds_and_removes_the_three_hosts() -> None:
+    prefix = f"tc{os.getpid()}-"
+    cli = [sys.executable, "-m", "twinslam_cli.main", "hosts"]
+    try:
+        up = subprocess.run([*cli, "up", "--prefix", prefix], capture_output=True, text=True,
+                            timeout=60)
+        assert up.returncode == 0, up.stderr
+        assert f"edge    netns {prefix}edge" in up.stdout
+        again = subprocess.run([*cli, "up", "--prefix", prefix], capture_output=True,
+                               text=True, timeout=60)
+        assert again.returncode == 1 and "exist already" in again.stderr
+    finally:
+        down = subprocess.run([*cli, "down", "--prefix", prefix], capture_output=True,
+                              text=True, timeout=60)
+    assert down.returncode == 0 and "removed" in down.stdout
+    assert not NetnsHosts(prefix=prefix).exists()

@@ -170,6 +170,50 @@ def cmd_nodes(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_hosts(args: argparse.Namespace) -> int:
+    """Build or remove the three test hosts (network namespaces) and say how to use them."""
+    from node_runtime.netns import (
+        HOSTS,
+        NetnsError,
+        NetnsHosts,
+        address_of,
+        cyclone_config,
+        unavailable_reason,
+    )
+
+    hosts = NetnsHosts(prefix=args.prefix)
+    if args.action == "down":
+        hosts.down()
+        left = hosts.exists()
+        print("removed" if not left else f"could not remove {', '.join(left)}")
+        return 0 if not left else 1
+    if args.action == "config":
+        print(cyclone_config())
+        return 0
+    why = unavailable_reason()
+    if why:
+        print(f"twinslam hosts: {why}", file=sys.stderr)
+        return 2
+    if hosts.exists():
+        print(f"twinslam hosts: {', '.join(hosts.exists())} exist already; "
+              f"`twinslam hosts down --prefix '{args.prefix}'` first", file=sys.stderr)
+        return 1
+    try:
+        hosts.up()
+    except NetnsError as exc:
+        print(f"twinslam hosts: {exc}", file=sys.stderr)
+        return 1
+    for host in HOSTS:
+        print(f"{host:<7} netns {hosts.namespaces[host]:<20} eth0 {address_of(host)}/24")
+    print("\nrun a node on a host, e.g.:\n"
+          f"  export CYCLONEDDS_URI=\"$(twinslam hosts config)\"\n"
+          f"  ip netns exec {hosts.namespaces['edge']} .venv/bin/python -m edge_mapper.node\n"
+          f"shape the device's uplink: ip netns exec {hosts.namespaces['device']} "
+          "tc qdisc replace dev eth0 root tbf rate 40mbit burst 64kb latency 500ms "
+          "(or device_tracker -p shaper:=tc)")
+    return 0
+
+
 def cmd_launch(args: argparse.Namespace) -> int:
     from twinslam_cli.launcher import LaunchConfig, Launcher, print_table
 
@@ -376,6 +420,13 @@ def build_parser() -> argparse.ArgumentParser:
     nodes = sub.add_parser("nodes", help="list the nodes on $ROS_DOMAIN_ID (ros_discovery_info)")
     nodes.add_argument("--timeout", type=float, default=2.0)
     nodes.set_defaults(func=cmd_nodes)
+    hosts = sub.add_parser("hosts", help="device, edge and twin hosts as network namespaces "
+                           "(root)")
+    hosts.add_argument("action", choices=["up", "down", "config"],
+                       help="build them, remove them, or print a host's Cyclone configuration")
+    hosts.add_argument("--prefix", default="", help="namespace name prefix (default none: "
+                       "device, edge, twin, switch)")
+    hosts.set_defaults(func=cmd_hosts)
     launch = sub.add_parser("launch", help="run player, device, edge (and twin) as processes")
     launch.add_argument("--sequence", default="synthetic",
                         help="SUN3D / 7-Scenes / TUM folder, MCAP bag, or synthetic[:frames]")
