@@ -1,0 +1,74 @@
+"""Uplink benchmark (issue #8): the device's uplink shaped by ``tc`` across network namespaces.
+
+The pipeline runs on three hosts (``node_runtime.netns``) with ``shaper:=tc`` and real frames
+as keyframes (``upload_image:=true``); per slot it prints the rate d_k the ``tbf`` was set to,
+what the device measured on its interface until its keyframes were acknowledged, and the bytes
+the switch received from the device's cable over the whole run.
+
+    sudo python -m bench.uplink [SEQUENCE] [--frames 600]
+
+Needs root and iproute2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import statistics
+import sys
+from pathlib import Path
+
+from node_runtime.netns import NetnsHosts, unavailable_reason
+from twinslam_cli.launcher import LaunchConfig, Launcher, RunRecord
+
+FRAME_MBIT = 640 * 480 * 3 * 8 / 1e6
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("sequence", nargs="?",
+                        default=str(Path(__file__).resolve().parents[2] / "shared" / "data"
+                                    / "7scenes-1000"))
+    parser.add_argument("--frames", type=int, default=600)
+    args = parser.parse_args()
+    why = unavailable_reason()
+    if why:
+        print(f"bench.uplink: {why}", file=sys.stderr)
+        return 2
+    alpha = f"alpha_mbit:={FRAME_MBIT}"
+    records: list[RunRecord] = []
+    with NetnsHosts(prefix="bench-") as hosts:
+        before = hosts.port_bytes("device")
+        launcher = Launcher(hosts, LaunchConfig(args.sequence, "adapt", args.frames, extra={
+            "device_tracker": ["shaper:=tc", "upload_image:=true", alpha],
+            "edge_mapper": [alpha]}), echo=None)
+        report = launcher.run(lambda _m, r: records.append(r) if not records else None)
+        crossed = hosts.port_bytes("device") - before
+    record = records[0]
+    print(f"machine: {platform.processor() or platform.machine()}, {platform.system()} "
+          f"{platform.release()}; {args.frames} frames of {args.sequence}")
+    ratios: dict[int, list[float]] = {}
+    print(f"{'slot':>4} {'frames':>6} {'MB':>6} {'tbf Mbit/s':>10} {'measured':>9} {'ratio':>6}"
+          f" {'s':>5}")
+    for slot, t in sorted(record.throughput.items()):
+        if not t.frames_sent:
+            continue
+        ratio = t.achieved_mbps / t.configured_rate_mbps
+        ratios.setdefault(round(t.configured_rate_mbps), []).append(ratio)
+        print(f"{slot:>4} {t.frames_sent:>6} {t.bytes_sent / 1e6:>6.2f} "
+              f"{t.configured_rate_mbps:>10.0f} {t.achieved_mbps:>9.1f} {ratio:>6.1%} "
+              f"{t.duration_s:>5.2f}")
+    for rate, rs in sorted(ratios.items()):
+        print(f"{rate} Mbit/s: measured/configured median {statistics.median(rs):.1%}, "
+              f"range {min(rs):.1%}–{max(rs):.1%} over {len(rs)} slots")
+    sent = sum(t.bytes_sent for t in record.throughput.values())
+    print(f"device link bytes in upload windows {sent / 1e6:.1f} MB; switch received "
+          f"{crossed / 1e6:.1f} MB from the device over the run; {report.frames_uploaded} "
+          f"frames of {FRAME_MBIT:.2f} Mbit = {report.frames_uploaded * FRAME_MBIT / 8:.1f} MB "
+          "of pixels")
+    print(f"mean υ {report.mean_uncertainty:.1f}, ATE {report.ate_m:.3f} m")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
