@@ -63,7 +63,11 @@ def interface_tx_bytes(interface: str, proc_net_dev: Path = Path("/proc/net/dev"
 
 
 def run_tc(*args: str) -> None:
-    done = subprocess.run(["tc", *args], capture_output=True, text=True)
+    try:
+        done = subprocess.run(["tc", *args], capture_output=True, text=True)
+    except FileNotFoundError:
+        raise ShaperError("`tc` (iproute2) is not installed on this host: the tc shaper needs "
+                          "it; use shaper:=token_bucket") from None
     if done.returncode != 0:
         raise ShaperError(f"`tc {' '.join(args)}` failed: {done.stderr.strip()} (the tc shaper "
                           "needs CAP_NET_ADMIN on the uplink interface: run the device node as "
