@@ -14,7 +14,7 @@ import threading
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from cyclonedds.core import GuardCondition
+from cyclonedds.core import DDSException, GuardCondition
 from cyclonedds.domain import DomainParticipant
 from cyclonedds.pub import DataWriter
 from cyclonedds.qos import Policy, Qos
@@ -36,6 +36,25 @@ DISCOVERY_TYPE = "rmw_dds_common/msg/ParticipantEntitiesInfo"
 
 class RuntimeStateError(RuntimeError):
     """Using the runtime before ``init()`` or after ``shutdown()``."""
+
+
+class DomainJoinError(RuntimeError):
+    """Cyclone refused to create the participant; the message says what to check."""
+
+
+def participant_failure(domain_id: int, exc: Exception) -> str:
+    """Why joining ``domain_id`` failed, in words a user can act on (Cyclone only says
+    "non specific error" and prints its configuration complaint to stderr)."""
+    uri = os.environ.get("CYCLONEDDS_URI", "")
+    if "<Security" in uri:
+        return ("CYCLONEDDS_URI has a <Security> section, but the cyclonedds wheel is built "
+                "without the DDS Security plugins (auth, access control, crypto): remove the "
+                "section, or build Cyclone DDS with ENABLE_SECURITY and its Python binding "
+                "against it (README, Security)")
+    where = "CYCLONEDDS_URI" if uri else "Cyclone's default configuration"
+    return (f"could not join DDS domain {domain_id} ({exc}); check {where}: the interface it "
+            "names must exist on this host, and the XML must be valid (Cyclone printed its "
+            "complaint above)")
 
 
 def gid_message(guid: Any) -> Any:
@@ -62,8 +81,11 @@ class Context:
     def __init__(self, argv: list[str], domain_id: int | None = None) -> None:
         self.ros_args: RosArguments = parse_ros_args(argv)
         self.domain_id = domain_id_from_env() if domain_id is None else domain_id
-        self.participant = DomainParticipant(self.domain_id,
-                                             qos=Qos(Policy.Userdata(b"enclave=/;")))
+        try:
+            self.participant = DomainParticipant(self.domain_id,
+                                                 qos=Qos(Policy.Userdata(b"enclave=/;")))
+        except DDSException as exc:
+            raise DomainJoinError(participant_failure(self.domain_id, exc)) from None
         self.gid = self.participant.get_guid()
         self.guard = GuardCondition(self.participant)
         self._shutdown = threading.Event()

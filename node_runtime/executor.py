@@ -7,13 +7,14 @@ executor. Timers are scheduled on the monotonic clock without drift (``next_due 
 
 from __future__ import annotations
 
+import sys
 import time
 from collections.abc import Callable
 from typing import Any
 
 from cyclonedds.core import WaitSet
 
-from node_runtime.context import get_context, init, shutdown
+from node_runtime.context import DomainJoinError, get_context, init, shutdown
 from node_runtime.node import Node
 
 _MAX_WAIT_S = 0.1  # upper bound of one wait, so new endpoints and shutdown are seen promptly
@@ -91,7 +92,11 @@ def spin(node: Node) -> None:
 def start_node(name: str, parameters: dict[str, Any], args: list[str] | None = None) -> Node:
     """``init()`` and a node named ``name`` with ``parameters`` declared (defaults, then the
     command line's and parameter files' values): every entry point's first step."""
-    init(args=args)
+    try:
+        init(args=args)
+    except (DomainJoinError, ValueError) as exc:     # ValueError: a bad ROS_DOMAIN_ID
+        print(f"[FATAL] [{name}]: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
     node = Node(name)
     for key, default in parameters.items():
         node.declare_parameter(key, default)
