@@ -193,6 +193,7 @@ class Launcher:
         self.domain, self.config, self.echo = domain, config, echo
         self.procs: dict[str, subprocess.Popen[str]] = {}
         self.logs: dict[str, str] = {}         #: each node's stderr (its log), after stop
+        self._killed: set[int] = set()         #: pids killed on purpose (``kill``)
 
     def node_args(self, name: str) -> list[str]:
         c = self.config
@@ -283,10 +284,18 @@ class Launcher:
                 slot_frames = int(value)
         return self.config.frames // int(slot_frames)
 
+    def kill(self, name: str) -> None:
+        """SIGKILL a node on purpose (a fault injected mid-run): not a failure of the run."""
+        proc = self.procs[name]
+        proc.kill()
+        proc.wait(timeout=10)
+        self._killed.add(proc.pid)
+
     def _failed(self) -> str | None:
         """A node that exited with an error while the sequence plays (none: None)."""
         return next((name for name, proc in self.procs.items()
-                     if name != "sequence_player" and proc.poll() not in (None, 0)), None)
+                     if name != "sequence_player" and proc.pid not in self._killed
+                     and proc.poll() not in (None, 0)), None)
 
     def stop(self) -> dict[str, int]:
         codes = {}

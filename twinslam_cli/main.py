@@ -13,13 +13,14 @@ from __future__ import annotations
 
 import argparse
 import csv
+import os
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from node_runtime.loopback import LoopbackDomain
+from node_runtime.loopback import LoopbackDomain, ProcessDomain
 from simulator.covisibility import CovisibilityError, load_covisibility
 from simulator.env import SimConfig
 from udt_node.channel import ChannelError
@@ -214,20 +215,55 @@ def cmd_hosts(args: argparse.Namespace) -> int:
     return 0
 
 
+def _launch_domain(args: argparse.Namespace) -> ProcessDomain:
+    """Where ``twinslam launch`` runs the nodes: three namespaces, loopback, or $ROS_DOMAIN_ID."""
+    if args.hosts:
+        from node_runtime.netns import NetnsHosts
+
+        return NetnsHosts(prefix=f"twinslam{os.getpid()}-")
+    return LoopbackDomain() if args.loopback else _EnvDomain()
+
+
+def _real_frame_uplink(sequence: str) -> dict[str, list[str]]:
+    """Node parameters for a tc-shaped uplink carrying real frames: α is the size of the
+    sequence's first colour image as rgb8, on device and edge alike."""
+    from sequence_player.readers import open_sequence
+
+    first = next(iter(open_sequence(sequence, 0, 1)))
+    alpha = f"alpha_mbit:={first.color.nbytes * 8 / 1e6:g}"
+    return {"device_tracker": ["shaper:=tc", "upload_image:=true", alpha],
+            "edge_mapper": [alpha]}
+
+
 def cmd_launch(args: argparse.Namespace) -> int:
     from twinslam_cli.launcher import LaunchConfig, Launcher, print_table
 
     if not args.params.is_file():
         print(f"error: parameter file {args.params} does not exist", file=sys.stderr)
         return 2
+    extra: dict[str, list[str]] = {}
+    if args.tc:
+        if not args.hosts:
+            print("error: --tc shapes the device host's uplink: use it with --hosts",
+                  file=sys.stderr)
+            return 2
+        extra = _real_frame_uplink(args.sequence)
+    if args.hosts:
+        from node_runtime.netns import unavailable_reason
+
+        why = unavailable_reason()
+        if why:
+            print(f"error: --hosts: {why}", file=sys.stderr)
+            return 2
     reports = []
     for policy in [p.strip() for p in args.policy.split(",") if p.strip()]:
         config = LaunchConfig(args.sequence, policy, args.frames, args.rate, args.params,
-                              with_twin=args.twin, timeout_s=args.timeout)
-        with LoopbackDomain() if args.loopback else _EnvDomain() as dom:
+                              with_twin=args.twin, timeout_s=args.timeout, extra=extra)
+        with _launch_domain(args) as dom:
             if args.loopback:
                 dom.activate()
-            where = "loopback domain" if args.loopback else "domain"
+            where = ("hosts device/edge/twin, domain" if args.hosts else
+                     "loopback domain" if args.loopback else "domain")
             print(f"{policy}: {args.frames} frames of {args.sequence} at {args.rate}x on "
                   f"{where} {dom.domain_id}", flush=True)
             try:
@@ -438,6 +474,11 @@ def build_parser() -> argparse.ArgumentParser:
     launch.add_argument("--twin", action="store_true", help="start udt_node too")
     launch.add_argument("--loopback", action="store_true",
                         help="a private loopback DDS domain instead of $ROS_DOMAIN_ID")
+    launch.add_argument("--hosts", action="store_true",
+                        help="device, edge and twin in network namespaces of their own (root)")
+    launch.add_argument("--tc", action="store_true",
+                        help="with --hosts: the device's uplink shaped by tc at d_k, keyframes "
+                        "carrying their image")
     launch.add_argument("--timeout", type=float, default=1800.0)
     launch.set_defaults(func=cmd_launch)
     demo = sub.add_parser("demo", help="the live pipeline per policy, then the simulator")
