@@ -3,6 +3,11 @@ same nodes and parameter file as ``twinslam launch`` (which needs no ROS).
 
     ros2 launch twinslam twinslam_launch.py sequence:=/data/7scenes policy:=adapt twin:=true
 
+On separate machines, ``host:=device`` (camera player + device tracker), ``host:=edge`` or
+``host:=twin`` starts that machine's share, with the same ``ROS_DOMAIN_ID`` everywhere:
+
+    ros2 launch twinslam twinslam_launch.py host:=edge policy:=adapt
+
 Needs the ROS 2 ``launch`` / ``launch_ros`` packages (never PyPI's unrelated ``launch``).
 """
 
@@ -13,7 +18,7 @@ import os
 from ament_index_python.packages import get_package_share_directory
 from launch.actions import DeclareLaunchArgument
 from launch.conditions import IfCondition
-from launch.substitutions import LaunchConfiguration
+from launch.substitutions import LaunchConfiguration, PythonExpression
 from launch_ros.actions import Node
 
 from launch import LaunchDescription
@@ -22,20 +27,31 @@ from launch import LaunchDescription
 def generate_launch_description() -> LaunchDescription:
     params = os.path.join(get_package_share_directory("twinslam"), "config", "twinslam.yaml")
     arg = LaunchConfiguration
+
+    def on(*hosts: str) -> IfCondition:
+        """Start the node when this machine is one of ``hosts`` (or runs them all)."""
+        return IfCondition(PythonExpression(["'", arg("host"), f"' in {('all', *hosts)!r}"]))
+
     return LaunchDescription([
         DeclareLaunchArgument("params_file", default_value=params),
         DeclareLaunchArgument("sequence", default_value="synthetic"),
         DeclareLaunchArgument("policy", default_value="adapt"),
         DeclareLaunchArgument("rate", default_value="1.0"),
         DeclareLaunchArgument("twin", default_value="false"),
+        DeclareLaunchArgument("host", default_value="all",
+                              description="all | device | edge | twin: this machine's nodes"),
         Node(package="twinslam", executable="edge_mapper", name="edge_mapper",
-             parameters=[arg("params_file"), {"policy": arg("policy")}], output="screen"),
+             parameters=[arg("params_file"), {"policy": arg("policy")}], output="screen",
+             condition=on("edge")),
         Node(package="twinslam", executable="device_tracker", name="device_tracker",
-             parameters=[arg("params_file")], output="screen"),
+             parameters=[arg("params_file")], output="screen", condition=on("device")),
         Node(package="twinslam", executable="udt_node", name="udt_node",
              parameters=[arg("params_file")], output="screen",
-             condition=IfCondition(arg("twin"))),
+             condition=IfCondition(PythonExpression([
+                 "'", arg("host"), "' == 'twin' or ('", arg("host"), "' == 'all' and '",
+                 arg("twin"), "'.lower() == 'true')"]))),
         Node(package="twinslam", executable="sequence_player", name="sequence_player",
              parameters=[arg("params_file"), {"sequence": arg("sequence"),
-                                               "rate": arg("rate")}], output="screen"),
+                                               "rate": arg("rate")}], output="screen",
+             condition=on("device")),
     ])
