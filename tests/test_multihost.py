@@ -71,9 +71,13 @@ def _run(hosts: NetnsHosts, frames: int, extra: dict[str, list[str]],
             on_stats(msg, record, launcher)
 
     config.setdefault("policy", "adapt")
-    launcher = Launcher(hosts, LaunchConfig(str(SEQUENCE), frames=frames, timeout_s=150.0,
+    launcher = Launcher(hosts, LaunchConfig(str(SEQUENCE), frames=frames, timeout_s=240.0,
                                             extra=extra, **config), echo=print)
-    report = launcher.run(keep)
+    try:
+        report = launcher.run(keep)
+    finally:                          # the nodes' logs, shown by pytest when a test fails
+        for name, log in launcher.logs.items():
+            print(f"--- {name} (last lines) ---\n" + "\n".join(log.splitlines()[-25:]))
     assert records, "the edge published no MapStats"
     return report, records[0], launcher
 

@@ -265,7 +265,9 @@ class Launcher:
             last = expected - 1 if expected else (max(summaries) if summaries else -1)
             executor.spin_until(lambda: last in monitor.record.stats and all(
                 s in monitor.record.throughput for s in monitor.record.requests),
-                max(1.0, min(60.0, deadline - time.monotonic())))
+                # at least 10 s even when a slow start (a fresh checkout compiles its kernels)
+                # used up most of the run's timeout
+                min(60.0, max(10.0, deadline - time.monotonic())))
             executor.spin_until(lambda: False, 0.5)       # late poses and map updates
             return report(c.policy, monitor.record, time.monotonic() - started)
         finally:
