@@ -11,7 +11,10 @@ Publishes, per frame and with the frame's recorded time (shifted to now) in ever
 
 at the recorded rate × ``rate``, frames [``start``, ``end``), once or with ``loop``;
 ``wait_for_subscribers:=N`` holds the first frame until N subscribers match the colour topic
-(DDS does not deliver what was published before a reader matched). A corrupt
+(DDS does not deliver what was published before a reader matched), and the camera info too,
+then ``DISCOVERY_SETTLE_S`` more: the writer learning of a reader does not mean the reader has
+learnt of the writer, and a reader drops samples of a writer it does not know yet (a clean
+checkout's device, busy starting, lost its first colour frame that way). A corrupt
 image is skipped, counted and named in a warning; the run goes on. At the end it logs what it
 published and exits 0. ``sequence:=synthetic[:frames]`` (the default) renders the textured
 room of :mod:`sequence_player.synthetic` with exact depth and ground truth.
@@ -36,6 +39,7 @@ PARAMETERS = {"sequence": "synthetic", "rate": 1.0, "loop": False, "start": 0, "
               "depth_encoding": "16UC1", "mono": False, "frame_id": "camera",
               "world_frame_id": "world", "wait_for_subscribers": 0}
 PROGRESS_EVERY_S = 5.0
+DISCOVERY_SETTLE_S = 1.0
 
 
 class SequencePlayer:
@@ -69,6 +73,7 @@ class SequencePlayer:
         self._last_progress = self._start_wall
         self._next = self._read_next()
         self._wait_for = int(p["wait_for_subscribers"])
+        self._settling = False
         self.timer = node.create_timer(1.0, self._tick)
         if self._wait_for > 0:
             node.get_logger().info(f"waiting for {self._wait_for} subscriber(s) on "
@@ -101,10 +106,16 @@ class SequencePlayer:
 
     def _tick(self) -> None:
         if self._wait_for > 0:
-            if self.pub_color.get_subscription_count() < self._wait_for:
+            if min(self.pub_color.get_subscription_count(),
+                   self.pub_info.get_subscription_count()) < self._wait_for:
                 self.timer.next_due = time.monotonic() + 0.05
                 return
-            self._wait_for = 0                # matched: the recording starts now
+            self._wait_for = 0                # matched both ways once settled
+            self._settling = True
+            self.timer.next_due = time.monotonic() + DISCOVERY_SETTLE_S
+            return
+        if self._settling:                    # the recording starts now
+            self._settling = False
             self._start_wall, self._start_ros = time.monotonic(), time.time()
             self._schedule()
             return
