@@ -60,8 +60,11 @@ SHAPERS = ("token_bucket", "tc")
 #: how long one keyframe write may keep failing (the writer's history full of unacknowledged
 #: keyframes while the link is down) before that keyframe is given up
 WRITE_RETRY_S = 30.0
-#: camera topics: reliable and deep, so a slot's bundle adjustment next door drops no frame
-CAMERA_QOS = node_runtime.QoSProfile(depth=60)
+#: camera topics: reliable and 5 s deep. A reader keeps the last `depth` samples not yet
+#: taken; a device that falls behind by more loses frames and its slot clock with them (a
+#: clean checkout's device lagged 2.5 s over its first frames on a 2-core host and lost a
+#: colour image at depth 60). Memory is only held while behind: ~1.5 MB a frame.
+CAMERA_QOS = node_runtime.QoSProfile(depth=150)
 MAX_PENDING = 5                     #: colour frames waiting for their depth at most
 
 
@@ -112,10 +115,12 @@ class DeviceTrackerNode:
                                                    "/device/keyframes", PROTOCOL)
         self.pub_throughput = node.create_publisher("twinslam_msgs/msg/UplinkThroughput",
                                                     "/device/uplink_throughput", PROTOCOL)
-        node.create_subscription("sensor_msgs/msg/Image", "/camera/image_raw",
-                                 lambda m: self._on_image("color", m), CAMERA_QOS)
-        node.create_subscription("sensor_msgs/msg/Image", "/camera/depth/image_raw",
-                                 lambda m: self._on_image("depth", m), CAMERA_QOS)
+        self.sub_color = node.create_subscription(
+            "sensor_msgs/msg/Image", "/camera/image_raw", lambda m: self._on_image("color", m),
+            CAMERA_QOS)
+        self.sub_depth = node.create_subscription(
+            "sensor_msgs/msg/Image", "/camera/depth/image_raw",
+            lambda m: self._on_image("depth", m), CAMERA_QOS)
         node.create_subscription("sensor_msgs/msg/CameraInfo", "/camera/camera_info",
                                  self._on_camera_info, CAMERA_QOS)
         node.create_subscription("twinslam_msgs/msg/UploadRequest", "/edge/upload_request",
@@ -176,6 +181,9 @@ class DeviceTrackerNode:
             del self.pending[oldest]
             if "color" not in entry:
                 self.skipped += 1
+                self.node.get_logger().warning(
+                    f"depth image of stamp {oldest / 1e9:.3f} s without its colour image "
+                    f"(newest colour {self._latest['color'] / 1e9:.3f} s): skipped")
                 continue
             self._track(entry["color"], entry.get("depth"))
 
@@ -227,7 +235,8 @@ class DeviceTrackerNode:
         tracked = sum(f.tracked for f in frames)
         self.node.get_logger().info(
             f"slot {slot}: {len(frames)} frames ({tracked} tracked, {self.skipped} skipped so "
-            f"far), d_k {rate:.1f} Mbit/s, map version {version}, "
+            f"far; {self.sub_color.received} colour / {self.sub_depth.received} depth images "
+            f"received), d_k {rate:.1f} Mbit/s, map version {version}, "
             f"{len(self.core.tracking.map)} local points")
 
     # -- edge --------------------------------------------------------------------------------

@@ -11,10 +11,10 @@ Publishes, per frame and with the frame's recorded time (shifted to now) in ever
 
 at the recorded rate × ``rate``, frames [``start``, ``end``), once or with ``loop``;
 ``wait_for_subscribers:=N`` holds the first frame until N subscribers match the colour topic
-(DDS does not deliver what was published before a reader matched), and the camera info too,
-then ``DISCOVERY_SETTLE_S`` more: the writer learning of a reader does not mean the reader has
-learnt of the writer, and a reader drops samples of a writer it does not know yet (a clean
-checkout's device, busy starting, lost its first colour frame that way). A corrupt
+(DDS does not deliver what was published before a reader matched), then
+``DISCOVERY_SETTLE_S`` more: the writer learning of a reader does not mean the reader has
+learnt of the writer (nor that the depth and camera-info readers have matched), and a reader
+drops samples of a writer it does not know yet. A corrupt
 image is skipped, counted and named in a warning; the run goes on. At the end it logs what it
 published and exits 0. ``sequence:=synthetic[:frames]`` (the default) renders the textured
 room of :mod:`sequence_player.synthetic` with exact depth and ground truth.
@@ -106,8 +106,7 @@ class SequencePlayer:
 
     def _tick(self) -> None:
         if self._wait_for > 0:
-            if min(self.pub_color.get_subscription_count(),
-                   self.pub_info.get_subscription_count()) < self._wait_for:
+            if self.pub_color.get_subscription_count() < self._wait_for:
                 self.timer.next_due = time.monotonic() + 0.05
                 return
             self._wait_for = 0                # matched both ways once settled
