@@ -215,27 +215,37 @@ class NetnsHosts(ProcessDomain):
         """Plug (``up``) or pull ``host``'s cable at the switch: its ``eth0`` loses carrier."""
         _ip("link", "set", self.port(host), "up" if up else "down", netns=self.switch)
 
-    def lose_packets(self, host: str, percent: float) -> None:
-        """Drop ``percent`` % of what ``host`` sends, at random, on its ``eth0`` (an eBPF
-        classifier, :mod:`node_runtime.ebpf_loss`: works where ``tc netem`` is missing)."""
-        from node_runtime.ebpf_loss import pin_random_drop
+    def lose_packets(self, host: str, percent: float) -> str:
+        """Drop ``percent`` % of what ``host`` sends, at random, on its ``eth0``: ``tc netem``
+        where the kernel has it, else an eBPF classifier (:mod:`node_runtime.ebpf_loss`).
+        Returns which; raises :class:`NetnsError` when neither can be installed."""
+        ns = self.namespaces[host]
+        netem = subprocess.run(["tc", "-n", ns, "qdisc", "replace", "dev", INTERFACE, "root",
+                                "netem", "loss", f"{percent:g}%"], capture_output=True, text=True)
+        if netem.returncode == 0:
+            return "netem"
+        from node_runtime.ebpf_loss import EbpfError, pin_random_drop
 
         if self._bpffs is None:
             self._bpffs = Path(tempfile.mkdtemp(prefix=f"{self.prefix}bpffs-"))
             done = subprocess.run(["mount", "-t", "bpf", "bpf", str(self._bpffs)],
                                   capture_output=True, text=True)
             if done.returncode != 0:
-                raise NetnsError(f"cannot mount a bpffs: {done.stderr.strip()}")
-        pin = self._bpffs / f"loss-{host}"
-        pin_random_drop(percent, pin)
-        ns = self.namespaces[host]
+                raise NetnsError(f"no netem ({netem.stderr.strip()}) and cannot mount a bpffs "
+                                 f"for the eBPF loss program: {done.stderr.strip()}")
+        pin = self._bpffs / f"loss-{host}-{percent:g}"
+        try:
+            pin_random_drop(percent, pin)
+        except EbpfError as exc:
+            raise NetnsError(f"no netem ({netem.stderr.strip()}) and no eBPF: {exc}") from None
         for args in (["qdisc", "replace", "dev", INTERFACE, "clsact"],
-                     ["filter", "replace", "dev", INTERFACE, "egress", "bpf", "da",
+                     ["filter", "replace", "dev", INTERFACE, "egress", "pref", "1", "bpf", "da",
                       "object-pinned", str(pin)]):
             done = subprocess.run(["tc", "-n", ns, *args], capture_output=True, text=True)
             if done.returncode != 0:
                 raise NetnsError(f"`tc {' '.join(args)}` in {host} failed: "
                                  f"{done.stderr.strip()}")
+        return "ebpf"
 
     def port_bytes(self, host: str) -> int:
         """Bytes the switch has received from ``host`` (what crossed its cable, uplink)."""
