@@ -10,7 +10,7 @@ protocol and the link's rate decide when the bytes arrive, as on a real uplink.
 What a slot achieved is measured, not assumed: the bytes the interface transmitted between
 ``start_slot`` and the moment every reliable reader acknowledged the slot's keyframes (the
 ``flush`` callable), over that time. Those are link bytes — RTPS, UDP, IP and Ethernet headers
-included, ~12 % above the keyframes' own bytes (BENCHMARKS.md) — the rate the link delivered.
+included, ~13 % above the keyframes' own bytes (BENCHMARKS.md) — the rate the link delivered.
 
 Changing a qdisc needs CAP_NET_ADMIN in the interface's network namespace: a device node run
 as root inside its host (or with that capability) can; elsewhere ``start`` fails with the

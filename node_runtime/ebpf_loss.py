@@ -1,7 +1,7 @@
 """Random packet loss on a link without ``netem``: a six-instruction eBPF classifier.
 
 ``tc netem loss`` is the usual way to lose packets, but not every kernel has ``sch_netem``
-(the Firecracker guest kernels of this project's CI machines do not). ``cls_bpf`` with a
+(the Firecracker guest kernel this was developed on has none). ``cls_bpf`` with a
 direct-action program is in far more kernels: this one draws ``bpf_get_prandom_u32()`` per
 packet and answers ``TC_ACT_SHOT`` (drop) when the draw falls below ``percent`` % of 2³², else
 ``TC_ACT_OK``. It is loaded with the ``bpf(2)`` system call, pinned on a private ``bpffs``
