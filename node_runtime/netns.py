@@ -136,7 +136,11 @@ class NetnsHosts(ProcessDomain):
 
     def up(self) -> NetnsHosts:
         """Create the namespaces, the bridge and one cable per host; on failure remove what
-        was made and raise :class:`NetnsError`."""
+        was made and raise :class:`NetnsError`. Namespaces of these names that exist already
+        are refused, never reused or removed."""
+        taken = self.exists()
+        if taken:
+            raise NetnsError(f"network namespaces {', '.join(taken)} exist already")
         try:
             for ns in (self.switch, *self.namespaces.values()):
                 _ip("netns", "add", ns)
@@ -170,7 +174,6 @@ class NetnsHosts(ProcessDomain):
     def env_for(self, host: str) -> dict[str, str]:
         env = self.base_env()
         env["CYCLONEDDS_URI"] = cyclone_config()
-        env["TWINSLAM_HOST"] = host
         return env
 
     def command(self, host: str, argv: list[str]) -> list[str]:

@@ -307,6 +307,9 @@ def test_hosts_command_builds_and_removes_the_three_hosts() -> None:
         again = subprocess.run([*cli, "up", "--prefix", prefix], capture_output=True,
                                text=True, timeout=60)
         assert again.returncode == 1 and "exist already" in again.stderr
+        with pytest.raises(NetnsError, match="exist already"):   # never reused or removed
+            NetnsHosts(prefix=prefix).up()
+        assert len(NetnsHosts(prefix=prefix).exists()) == 4
     finally:
         down = subprocess.run([*cli, "down", "--prefix", prefix], capture_output=True,
                               text=True, timeout=60)
