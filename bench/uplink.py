@@ -19,7 +19,7 @@ import sys
 from pathlib import Path
 
 from node_runtime.netns import NetnsHosts, unavailable_reason
-from twinslam_cli.launcher import LaunchConfig, Launcher, RunRecord
+from twinslam_cli.launcher import LaunchConfig, Launcher, tc_uplink_params
 
 FRAME_MBIT = 640 * 480 * 3 * 8 / 1e6
 
@@ -35,16 +35,14 @@ def main() -> int:
     if why:
         print(f"bench.uplink: {why}", file=sys.stderr)
         return 2
-    alpha = f"alpha_mbit:={FRAME_MBIT}"
-    records: list[RunRecord] = []
     with NetnsHosts(prefix="bench-") as hosts:
         before = hosts.port_bytes("device")
-        launcher = Launcher(hosts, LaunchConfig(args.sequence, "adapt", args.frames, extra={
-            "device_tracker": ["shaper:=tc", "upload_image:=true", alpha],
-            "edge_mapper": [alpha]}), echo=None)
-        report = launcher.run(lambda _m, r: records.append(r) if not records else None)
+        launcher = Launcher(hosts, LaunchConfig(args.sequence, "adapt", args.frames,
+                                                extra=tc_uplink_params(FRAME_MBIT)), echo=None)
+        report = launcher.run()
         crossed = hosts.port_bytes("device") - before
-    record = records[0]
+    record = launcher.record
+    assert record is not None
     print(f"machine: {platform.processor() or platform.machine()}, {platform.system()} "
           f"{platform.release()}; {args.frames} frames of {args.sequence}")
     ratios: dict[int, list[float]] = {}

@@ -26,7 +26,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from device_tracker.uplink_shaper import ShaperError, SlotThroughput
+from device_tracker.uplink_shaper import ShaperError, SlotThroughput, check_rate
 
 #: bucket depth: well above rate / HZ at 80 Mbit/s, small against a slot's megabytes
 BURST = "64kb"
@@ -111,18 +111,12 @@ class TcShaper:
 
     def start(self, rate_mbps: float) -> None:
         """Install the qdisc before the first slot (fails early without CAP_NET_ADMIN)."""
-        self._check_rate(rate_mbps, "start")
+        check_rate(rate_mbps, "start")
         self._tx_bytes()                         # the interface exists in this host
         self._set_rate(rate_mbps)
 
-    @staticmethod
-    def _check_rate(rate_mbps: float, what: object) -> None:
-        if not math.isfinite(rate_mbps) or rate_mbps <= 0:
-            raise ShaperError(f"slot {what}: uplink rate must be finite and > 0 Mbit/s, got "
-                              f"{rate_mbps}")
-
     def start_slot(self, slot: int, rate_mbps: float, rate_state: int = 0) -> None:
-        self._check_rate(rate_mbps, slot)
+        check_rate(rate_mbps, slot)
         if rate_mbps != self._rate_mbps or not self._installed:
             self._set_rate(rate_mbps)
         self._slot, self._state, self._frames = slot, rate_state, 0

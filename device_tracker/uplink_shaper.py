@@ -40,6 +40,13 @@ class SlotThroughput:
         return self.bytes_sent * 8 / self.duration_s / 1e6 if self.duration_s > 0 else 0.0
 
 
+def check_rate(rate_mbps: float, slot: object) -> None:
+    """A slot's uplink rate must be a finite, positive Mbit/s (both shapers refuse others)."""
+    if not math.isfinite(rate_mbps) or rate_mbps <= 0:
+        raise ShaperError(f"slot {slot}: uplink rate must be finite and > 0 Mbit/s, got "
+                          f"{rate_mbps}")
+
+
 class UplinkShaper:
     """Serialises payloads at the current slot's rate; ``send`` blocks until delivery."""
 
@@ -61,9 +68,7 @@ class UplinkShaper:
     def start_slot(self, slot: int, rate_mbps: float, rate_state: int = 0) -> None:
         """Begin slot ``slot`` at ``rate_mbps`` (Mbit/s); the previous slot's figures are
         dropped unless ``end_slot`` collected them."""
-        if not math.isfinite(rate_mbps) or rate_mbps <= 0:
-            raise ShaperError(f"slot {slot}: uplink rate must be finite and > 0 Mbit/s, got "
-                              f"{rate_mbps}")
+        check_rate(rate_mbps, slot)
         self._rate_bps = rate_mbps * 1e6
         self._slot, self._state = slot, rate_state
         self._slot_start = self._clock()

@@ -140,7 +140,8 @@ class NetnsHosts(ProcessDomain):
         are refused, never reused or removed."""
         taken = self.exists()
         if taken:
-            raise NetnsError(f"network namespaces {', '.join(taken)} exist already")
+            raise NetnsError(f"network namespaces {', '.join(taken)} exist already; "
+                             f"`twinslam hosts down --prefix '{self.prefix}'` first")
         try:
             for ns in (self.switch, *self.namespaces.values()):
                 _ip("netns", "add", ns)

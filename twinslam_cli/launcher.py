@@ -194,6 +194,8 @@ class Launcher:
         self.procs: dict[str, subprocess.Popen[str]] = {}
         self.logs: dict[str, str] = {}         #: each node's stderr (its log), after stop
         self._killed: set[int] = set()         #: pids killed on purpose (``kill``)
+        #: what the monitor heard, by slot: filled while ``run`` plays, kept afterwards
+        self.record: RunRecord | None = None
 
     def node_args(self, name: str) -> list[str]:
         c = self.config
@@ -232,6 +234,7 @@ class Launcher:
                     on_stats(msg, record)
 
             monitor = PipelineMonitor(node, stats, c.watch_images)
+            self.record = monitor.record
             executor = node_runtime.SingleThreadedExecutor()
             executor.add_node(node)
             started = time.monotonic()
@@ -308,6 +311,16 @@ class Launcher:
             if code not in (0, -15) and self.echo:
                 self.echo(f"{name} exited with {code}: {err.strip()[-2000:]}")
         return codes
+
+
+def tc_uplink_params(alpha_mbit: float, **device: str) -> dict[str, list[str]]:
+    """Node parameters for an uplink shaped by tc that carries real frames (each keyframe with
+    its image): α, the frame's size in Mbit, the same on device and edge so that Theorem 1's
+    |U_k| fits D_req; ``device`` adds device parameters (e.g. ``netem_delay_ms="2"``)."""
+    alpha = f"alpha_mbit:={alpha_mbit:g}"
+    return {"device_tracker": ["shaper:=tc", "upload_image:=true", alpha,
+                               *(f"{k}:={v}" for k, v in device.items())],
+            "edge_mapper": [alpha]}
 
 
 def print_table(reports: list[RunReport], echo: Callable[[str], None] = print) -> None:

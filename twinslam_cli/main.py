@@ -195,10 +195,6 @@ def cmd_hosts(args: argparse.Namespace) -> int:
     if why:
         print(f"twinslam hosts: {why}", file=sys.stderr)
         return 2
-    if hosts.exists():
-        print(f"twinslam hosts: {', '.join(hosts.exists())} exist already; "
-              f"`twinslam hosts down --prefix '{args.prefix}'` first", file=sys.stderr)
-        return 1
     try:
         hosts.up()
     except NetnsError as exc:
@@ -225,14 +221,12 @@ def _launch_domain(args: argparse.Namespace) -> ProcessDomain:
 
 
 def _real_frame_uplink(sequence: str) -> dict[str, list[str]]:
-    """Node parameters for a tc-shaped uplink carrying real frames: α is the size of the
-    sequence's first colour image as rgb8, on device and edge alike."""
+    """tc-shaped uplink parameters whose α is the sequence's first colour image as rgb8."""
     from sequence_player.readers import open_sequence
+    from twinslam_cli.launcher import tc_uplink_params
 
     first = next(iter(open_sequence(sequence, 0, 1)))
-    alpha = f"alpha_mbit:={first.color.nbytes * 8 / 1e6:g}"
-    return {"device_tracker": ["shaper:=tc", "upload_image:=true", alpha],
-            "edge_mapper": [alpha]}
+    return tc_uplink_params(first.color.nbytes * 8 / 1e6)
 
 
 def cmd_launch(args: argparse.Namespace) -> int:
