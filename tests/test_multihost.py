@@ -21,7 +21,14 @@ from typing import Any
 import pytest
 
 from node_runtime.netns import HOSTS, NetnsError, NetnsHosts, address_of, unavailable_reason
-from twinslam_cli.launcher import NODE_HOSTS, LaunchConfig, Launcher, RunRecord, RunReport
+from twinslam_cli.launcher import (
+    NODE_HOSTS,
+    LaunchConfig,
+    Launcher,
+    RunRecord,
+    RunReport,
+    tc_uplink_params,
+)
 
 SEQUENCE = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes-1000"
 VMAX = 45
@@ -52,34 +59,26 @@ def hosts() -> Iterator[NetnsHosts]:
     assert not made.exists(), "namespaces left behind"
 
 
-def _tc_uplink(**extra: str) -> dict[str, list[str]]:
+def _tc_uplink() -> dict[str, list[str]]:
     """Node parameters of a run whose device uploads real frames through tc."""
-    alpha = f"alpha_mbit:={FRAME_MBIT}"
-    device = ["shaper:=tc", "upload_image:=true", alpha, *(f"{k}:={v}" for k, v in extra.items())]
-    return {"device_tracker": device, "edge_mapper": [alpha]}
+    return tc_uplink_params(FRAME_MBIT)
 
 
 def _run(hosts: NetnsHosts, frames: int, extra: dict[str, list[str]],
          on_stats: Callable[[Any, RunRecord, Launcher], None] | None = None,
          **config: Any) -> tuple[RunReport, RunRecord, Launcher]:
-    records: list[RunRecord] = []
-
-    def keep(msg: Any, record: RunRecord) -> None:
-        if not records:
-            records.append(record)
-        if on_stats:
-            on_stats(msg, record, launcher)
-
     config.setdefault("policy", "adapt")
     launcher = Launcher(hosts, LaunchConfig(str(SEQUENCE), frames=frames, timeout_s=240.0,
                                             extra=extra, **config), echo=print)
     try:
-        report = launcher.run(keep)
+        report = launcher.run(lambda msg, record: on_stats(msg, record, launcher)
+                              if on_stats else None)
     finally:                          # the nodes' logs, shown by pytest when a test fails
         for name, log in launcher.logs.items():
             print(f"--- {name} (last lines) ---\n" + "\n".join(log.splitlines()[-25:]))
-    assert records, "the edge published no MapStats"
-    return report, records[0], launcher
+    assert launcher.record is not None and launcher.record.stats, \
+        "the edge published no MapStats"
+    return report, launcher.record, launcher
 
 
 def _namespace_of(pid: int) -> str:
@@ -193,8 +192,10 @@ def test_edge_host_node_killed_and_restarted_restores_its_map(hosts: NetnsHosts,
 
     def kill_edge(msg: Any, record: RunRecord, launcher: Launcher) -> None:
         slot = int(msg.slot)
-        if "killed" not in state and slot >= 2 and slot in record.maps:
-            state["killed"] = (slot, set(record.maps[slot].keyframe_ids.tolist()))
+        # the newest map the monitor holds (a slot's MapUpdate may arrive after its MapStats)
+        acked = max(record.maps, default=-1)
+        if "killed" not in state and slot >= 2 and acked >= 2:
+            state["killed"] = (acked, set(record.maps[acked].keyframe_ids.tolist()))
             launcher.kill("edge_mapper")
             state["restarted"] = launcher.start("edge_mapper")
         elif "killed" in state and "after" not in state:
@@ -205,7 +206,9 @@ def test_edge_host_node_killed_and_restarted_restores_its_map(hosts: NetnsHosts,
                                     checkpoint=tmp_path / "edge.npz")
     killed_slot, kept = state["killed"]
     after = record.maps[state["after"]]
-    evicted = {int(f) for f in record.requests[state["after"]].evict_frame_ids}
+    # kept unless a decision after that map evicted it
+    evicted = {int(f) for k in range(killed_slot + 1, state["after"] + 1) if k in record.requests
+               for f in record.requests[k].evict_frame_ids}
     assert state["after"] > killed_slot
     assert kept - evicted <= set(after.keyframe_ids.tolist()), "acknowledged keyframes lost"
     assert "restored map version" in launcher.logs["edge_mapper"]
