@@ -1,18 +1,42 @@
-# Two commands do all the set-up: `make run` and `make test` create .venv when it is missing.
+# Two commands do all the set-up: `make run` and `make test` create .venv when it is missing,
+# install the pinned requirements and build the twinslam_msgs interface package into it.
 PYTHON ?= python3
-VENV := .venv
+VENV := $(abspath .venv)
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-$(shell cat requirements.txt setup.py | md5sum | cut -c1-12)
+# the interface package is rebuilt whenever a .msg file or its CMake/package files change
+MSG_SOURCES := $(sort $(wildcard msg_schemas/msg/*.msg)) msg_schemas/CMakeLists.txt \
+	msg_schemas/package.xml
+MSGS_STAMP := $(VENV)/.twinslam_msgs-$(shell cat $(MSG_SOURCES) | md5sum | cut -c1-12)
+MSGS_BUILD := build/twinslam_msgs
 
-.PHONY: venv run test lint bench clean
+.PHONY: venv msgs run test lint bench clean
 
-venv: $(STAMP)
+venv: $(STAMP) $(MSGS_STAMP)
 
 $(STAMP): requirements.txt setup.py
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --disable-pip-version-check -r requirements.txt
 	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e .
 	@rm -f $(VENV)/.installed-* && touch $@
+
+# rosidl through CMake into the venv prefix, which the ROS wheels made an ament prefix: the
+# generated Python package lands in site-packages, its libraries in .venv/lib (on the loader
+# path the wheels' bootstrapper sets). Fresh build directory each time: a removed .msg must not
+# leave its generated code behind.
+msgs: $(MSGS_STAMP)
+
+$(MSGS_STAMP): $(STAMP) $(MSG_SOURCES)
+	@echo "building the twinslam_msgs interface package (rosidl, ~40 s)"
+	@rm -rf $(MSGS_BUILD) && mkdir -p $(MSGS_BUILD)
+	cd $(MSGS_BUILD) && PATH=$(VENV)/bin:$$PATH AMENT_PREFIX_PATH=$(VENV) \
+	  CMAKE_PREFIX_PATH=$(VENV) cmake $(CURDIR)/msg_schemas -DCMAKE_INSTALL_PREFIX=$(VENV) \
+	  -DPython3_EXECUTABLE=$(PY) -DBUILD_TESTING=OFF > configure.log 2>&1 \
+	  || { tail -40 configure.log; exit 1; }
+	cd $(MSGS_BUILD) && PATH=$(VENV)/bin:$$PATH $(MAKE) --no-print-directory -j2 install \
+	  > build.log 2>&1 || { grep -iE -B2 -A8 "error" build.log | tail -60; exit 1; }
+	$(PY) -c "from twinslam_msgs.msg import MapStats, Keyframe"
+	@rm -f $(VENV)/.twinslam_msgs-* && touch $@
 
 run: venv
 	$(VENV)/bin/twinslam demo
