@@ -3,7 +3,9 @@
 PYTHON ?= python3
 VENV := $(abspath .venv)
 PY := $(VENV)/bin/python
-STAMP := $(VENV)/.installed-$(shell cat requirements.txt setup.py | md5sum | cut -c1-12)
+# the editable install maps each top-level package: a package added or renamed reinstalls it
+STAMP := $(VENV)/.installed-$(shell (cat requirements.txt setup.py; ls -d */__init__.py) \
+	| md5sum | cut -c1-12)
 # the interface package is rebuilt whenever a .msg file or its CMake/package files change
 MSG_SOURCES := $(sort $(wildcard msg_schemas/msg/*.msg)) msg_schemas/CMakeLists.txt \
 	msg_schemas/package.xml

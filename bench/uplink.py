@@ -1,6 +1,6 @@
 """Uplink benchmark (issue #8): the device's uplink shaped by ``tc`` across network namespaces.
 
-The pipeline runs on three hosts (``node_runtime.netns``) with ``shaper:=tc`` and real frames
+The pipeline runs on three hosts (``node_hosts.netns``) with ``shaper:=tc`` and real frames
 as keyframes (``upload_image:=true``); per slot it prints the rate d_k the ``tbf`` was set to,
 what the device measured on its interface until its keyframes were acknowledged, and the bytes
 the switch received from the device's cable over the whole run.
@@ -18,7 +18,7 @@ import statistics
 import sys
 from pathlib import Path
 
-from node_runtime.netns import NetnsHosts, unavailable_reason
+from node_hosts.netns import NetnsHosts, unavailable_reason
 from twinslam_cli.launcher import LaunchConfig, Launcher, tc_uplink_params
 
 FRAME_MBIT = 640 * 480 * 3 * 8 / 1e6

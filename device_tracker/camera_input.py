@@ -7,14 +7,9 @@ from typing import Any
 
 import numpy as np
 
+from msg_schemas.headers import stamp_key, stamp_seconds
 
-def stamp_seconds(header: Any) -> float:
-    return int(header.stamp.sec) + int(header.stamp.nanosec) * 1e-9
-
-
-def stamp_key(header: Any) -> int:
-    """The stamp in integer nanoseconds: a colour and a depth image of one frame share it."""
-    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+__all__ = ["depth_array", "image_array", "stamp_key", "stamp_seconds"]
 
 
 def image_array(msg: Any) -> np.ndarray:

@@ -11,8 +11,8 @@ from typing import Any
 import numpy as np
 
 from msg_schemas import new
+from msg_schemas.headers import ros_time, set_header
 from msg_schemas.poses import pose_msg
-from sequence_player.messages import ros_time, set_header
 
 
 @dataclass(frozen=True)

@@ -1,16 +1,18 @@
 """device_tracker: the device's side of the per-slot protocol as a ROS 2 node (DESIGN.md §1).
 
-* ``/camera/image_raw`` + ``/camera/depth/image_raw`` + ``/camera/camera_info`` → every frame
+* ``camera/image_raw`` + ``camera/depth/image_raw`` + ``camera/camera_info`` → every frame
   tracked against the local map (:class:`~device_tracker.device_core.DeviceTrackerCore`);
-  ``/device/pose`` (``PoseStamped``) per frame, ``/device/path`` (``nav_msgs/Path``) per slot;
-* at each slot's end, ``/device/frame_summaries`` with d_k, drawn from the configured channel
+  ``device/pose`` (``PoseStamped``) per frame, ``device/path`` (``nav_msgs/Path``) per slot;
+* at each slot's end, ``device/frame_summaries`` with d_k, drawn from the configured channel
   model (``channel:=markov:N=2`` or ``trace:FILE``, as the simulator's);
-* ``/edge/upload_request`` → exactly the frames asked for go out as ``Keyframe`` messages on
-  ``/device/keyframes`` through the :class:`~device_tracker.uplink_shaper.UplinkShaper`, on an
+* ``edge/upload_request`` → exactly the frames asked for go out as ``Keyframe`` messages on
+  ``device/keyframes`` through the :class:`~device_tracker.uplink_shaper.UplinkShaper`, on an
   upload thread so tracking never waits for the uplink; each frame occupies the link for
   ``alpha_mbit`` (the paper's compressed frame, 5 Mbit) or its real size if larger; then the
-  slot's ``/device/uplink_throughput``;
-* ``/edge/map_update`` (latched) → the new local map.
+  slot's ``device/uplink_throughput``;
+* ``edge/map_update`` (transient local) → the new local map.
+
+Topic names are relative, so ``-r __ns:=/ar1`` moves the device with its edge and camera.
 
 ``shaper:=tc`` hands the pacing to the kernel instead (:mod:`device_tracker.tc_shaper`): a
 ``tbf`` of rate d_k on ``uplink_interface`` each slot, optional ``netem_delay_ms`` /
@@ -36,8 +38,19 @@ import time
 from typing import Any
 
 import numpy as np
+from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import Path
+from rclpy.node import Node
+from rclpy.serialization import serialize_message
+from sensor_msgs.msg import CameraInfo, Image
+from twinslam_msgs.msg import (
+    FrameSummaries,
+    Keyframe,
+    MapUpdate,
+    UplinkThroughput,
+    UploadRequest,
+)
 
-import node_runtime
 from device_tracker.camera_input import depth_array, image_array, stamp_key, stamp_seconds
 from device_tracker.device_core import DeviceTrackerCore
 from device_tracker.messages import frame_summaries_message, keyframe_message
@@ -45,55 +58,75 @@ from device_tracker.tc_shaper import NetemConfig, TcShaper
 from device_tracker.tracking import TrackingConfig
 from device_tracker.uplink_shaper import ShaperError, UplinkShaper
 from edge_mapper.messages import read_map_update
-from msg_schemas import new
+from msg_schemas import new, qos, topics
+from msg_schemas.headers import set_header
 from msg_schemas.poses import pose_msg
-from node_runtime import PROTOCOL
-from sequence_player.messages import set_header
+from node_hosts.acks import wait_for_acks
+from node_hosts.checked_subscription import CheckedSubscription
+from node_hosts.node_main import NodeStartError, run_node
+from node_hosts.parameters import ParamSpec, declare
 from udt_node.channel import ChannelError, parse_channel
 
-PARAMETERS = {"slot_frames": 60, "alpha_mbit": 5.0, "channel": "markov:N=2",
-              "rate_min": 40.0, "rate_max": 80.0, "seed": 0, "n_features": 1000,
-              "map_frame": "map", "shaper": "token_bucket", "uplink_interface": "eth0",
-              "netem_delay_ms": 0.0, "netem_loss_percent": 0.0, "upload_image": False,
-              "edge_timeout_s": 3.0, "keep_slots": 4}
 SHAPERS = ("token_bucket", "tc")
+PARAMETERS = (
+    ParamSpec("slot_frames", 60, "F, frames per slot", low=1, high=100_000),
+    ParamSpec("alpha_mbit", 5.0, "alpha, uplink Mbit one uploaded frame occupies (at least)",
+              low=1e-6, high=1e6),
+    ParamSpec("channel", "markov:N=2", "uplink rate model: markov:N=2[,K=...] or "
+              "trace:FILE[,N=4] (CSV time_s,throughput_mbps)"),
+    ParamSpec("rate_min", 40.0, "Mbit/s the channel's lowest state", low=0.0, high=1e6),
+    ParamSpec("rate_max", 80.0, "Mbit/s the channel's highest state", low=0.0, high=1e6),
+    ParamSpec("seed", 0, "seed of the channel model", low=0),
+    ParamSpec("n_features", 1000, "ORB features per frame", low=10, high=100_000),
+    ParamSpec("map_frame", "map", "frame id of the device's poses and path"),
+    ParamSpec("shaper", "token_bucket", "uplink shaper: token_bucket (in process) or tc (a "
+              "tbf of rate d_k on uplink_interface; CAP_NET_ADMIN)",
+              check=lambda v: None if v in SHAPERS else f"must be one of {', '.join(SHAPERS)}"),
+    ParamSpec("uplink_interface", "eth0", "interface tc shapes (shaper:=tc)"),
+    ParamSpec("netem_delay_ms", 0.0, "tc netem delay on the uplink (kernels with sch_netem)",
+              low=0.0, high=60_000.0),
+    ParamSpec("netem_loss_percent", 0.0, "tc netem random loss on the uplink", low=0.0,
+              high=100.0),
+    ParamSpec("upload_image", False, "keyframes carry their colour image too (real frame "
+              "bytes on the link)"),
+    ParamSpec("edge_timeout_s", 3.0, "no upload request for this long: say the edge is silent",
+              low=0.01, high=3600.0),
+    ParamSpec("keep_slots", 4, "slots whose frames stay uploadable (rides out ~5 s outages)",
+              low=1, high=1000),
+)
 #: how long one keyframe write may keep failing (the writer's history full of unacknowledged
 #: keyframes while the link is down) before that keyframe is given up
 WRITE_RETRY_S = 30.0
-#: camera topics: reliable and 5 s deep. A reader keeps the last `depth` samples not yet
-#: taken; a device that falls behind by more loses frames and its slot clock with them (a
-#: clean checkout's device lagged 2.5 s over its first frames on a 2-core host and lost a
-#: colour image at depth 60). Memory is only held while behind: ~1.5 MB a frame.
-CAMERA_QOS = node_runtime.QoSProfile(depth=150)
 MAX_PENDING = 5                     #: colour frames waiting for their depth at most
 
 
-class DeviceTrackerNode:
-    def __init__(self, node: node_runtime.Node) -> None:
-        self.node = node
-        p = {k: node.get_parameter(k).value for k in PARAMETERS}
+class DeviceTrackerNode(Node):
+    def __init__(self) -> None:
+        super().__init__("device_tracker")
+        p = declare(self, PARAMETERS)
         self.slot_frames = int(p["slot_frames"])
-        if self.slot_frames < 1:
-            raise ValueError(f"slot_frames must be >= 1, got {self.slot_frames}")
-        if not float(p["alpha_mbit"]) > 0:
-            raise ValueError(f"alpha_mbit must be > 0, got {p['alpha_mbit']}")
         self.alpha_bytes = int(float(p["alpha_mbit"]) * 1e6 / 8)
-        self.channel = parse_channel(str(p["channel"]),
-                                     (float(p["rate_min"]), float(p["rate_max"])),
-                                     int(p["seed"]))
+        self.channel_spec = str(p["channel"])
+        try:
+            self.channel = parse_channel(self.channel_spec,
+                                         (float(p["rate_min"]), float(p["rate_max"])),
+                                         int(p["seed"]))
+        except (ChannelError, ValueError) as exc:
+            raise NodeStartError(str(exc)) from None
         self.map_frame = str(p["map_frame"])
         self.tracking_config = TrackingConfig(n_features=int(p["n_features"]), relocalise=True)
         self.core: DeviceTrackerCore | None = None
-        self.shaper = self._make_shaper(p)
+        # the publisher the tc shaper flushes exists before the shaper
+        self.pub_keyframes = self.create_publisher(Keyframe, topics.KEYFRAMES, qos.PROTOCOL)
+        try:
+            self.shaper = self._make_shaper(p)
+        except (ShaperError, ValueError) as exc:
+            raise NodeStartError(str(exc)) from None
         self.upload_image = bool(p["upload_image"])
         #: slots whose frames stay uploadable: 4 ride out a link down for ~5 s
         self.keep_slots = int(p["keep_slots"])
-        if self.keep_slots < 1:
-            raise ValueError(f"keep_slots must be >= 1, got {self.keep_slots}")
         self.images: dict[int, Any] = {}                  # frame id → colour image, if uploaded
         self.edge_timeout = float(p["edge_timeout_s"])
-        if not self.edge_timeout > 0:
-            raise ValueError(f"edge_timeout_s must be > 0, got {self.edge_timeout}")
         self._unanswered: dict[int, float] = {}           # slot → when its summaries went out
         self._edge_silent_since: float | None = None
         self.slot_rates: dict[int, tuple[float, int]] = {}
@@ -105,31 +138,28 @@ class DeviceTrackerNode:
         DeviceTrackerCore.warm_up(np.array([[525.0, 0, 320], [0, 525, 240], [0, 0, 1]]))
         self._lock = threading.Lock()                     # the core, between the threads
 
-        self.pub_pose = node.create_publisher("geometry_msgs/msg/PoseStamped", "/device/pose",
-                                              node_runtime.DEFAULT)
-        self.pub_path = node.create_publisher("nav_msgs/msg/Path", "/device/path",
-                                              node_runtime.LATCHED)
-        self.pub_summaries = node.create_publisher("twinslam_msgs/msg/FrameSummaries",
-                                                   "/device/frame_summaries", PROTOCOL)
-        self.pub_keyframes = node.create_publisher("twinslam_msgs/msg/Keyframe",
-                                                   "/device/keyframes", PROTOCOL)
-        self.pub_throughput = node.create_publisher("twinslam_msgs/msg/UplinkThroughput",
-                                                    "/device/uplink_throughput", PROTOCOL)
-        self.sub_color = node.create_subscription(
-            "sensor_msgs/msg/Image", "/camera/image_raw", lambda m: self._on_image("color", m),
-            CAMERA_QOS)
-        self.sub_depth = node.create_subscription(
-            "sensor_msgs/msg/Image", "/camera/depth/image_raw",
-            lambda m: self._on_image("depth", m), CAMERA_QOS)
-        node.create_subscription("sensor_msgs/msg/CameraInfo", "/camera/camera_info",
-                                 self._on_camera_info, CAMERA_QOS)
-        node.create_subscription("twinslam_msgs/msg/UploadRequest", "/edge/upload_request",
-                                 self._on_upload_request, PROTOCOL)
-        node.create_subscription("twinslam_msgs/msg/MapUpdate", "/edge/map_update",
-                                 self._on_map_update, node_runtime.LATCHED)
-        node.create_timer(0.5, self._check_edge)
+        self.pub_pose = self.create_publisher(PoseStamped, topics.DEVICE_POSE, qos.PROTOCOL)
+        self.pub_path = self.create_publisher(Path, topics.DEVICE_PATH, qos.MAP)
+        self.pub_summaries = self.create_publisher(FrameSummaries, topics.FRAME_SUMMARIES,
+                                                   qos.PROTOCOL)
+        self.pub_throughput = self.create_publisher(UplinkThroughput, topics.UPLINK_THROUGHPUT,
+                                                    qos.PROTOCOL)
+        self.sub_color = CheckedSubscription(self, Image, topics.CAMERA_IMAGE,
+                                             lambda m: self._on_image("color", m), qos.CAMERA)
+        self.sub_depth = CheckedSubscription(self, Image, topics.CAMERA_DEPTH,
+                                             lambda m: self._on_image("depth", m), qos.CAMERA)
+        self.sub_info = CheckedSubscription(self, CameraInfo, topics.CAMERA_INFO,
+                                            self._on_camera_info, qos.CAMERA)
+        self.sub_request = CheckedSubscription(self, UploadRequest, topics.UPLOAD_REQUEST,
+                                               self._on_upload_request, qos.PROTOCOL)
+        self.sub_map = CheckedSubscription(self, MapUpdate, topics.MAP_UPDATE,
+                                           self._on_map_update, qos.MAP)
+        self.create_timer(0.5, self._check_edge)
         self._uploader = threading.Thread(target=self._upload_loop, name="uplink", daemon=True)
         self._uploader.start()
+
+    def _now(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
 
     def _make_shaper(self, p: dict[str, Any]) -> UplinkShaper | TcShaper:
         kind = str(p["shaper"])
@@ -139,8 +169,7 @@ class DeviceTrackerNode:
             raise ValueError(f"shaper must be one of {', '.join(SHAPERS)}, got {kind!r}")
         netem = NetemConfig(float(p["netem_delay_ms"]), float(p["netem_loss_percent"]))
         shaper = TcShaper(str(p["uplink_interface"]), netem,
-                          flush=lambda: self.pub_keyframes.wait_for_acknowledgments(
-                              WRITE_RETRY_S))
+                          flush=lambda: wait_for_acks(self.pub_keyframes, WRITE_RETRY_S))
         shaper.start(float(self.channel.rates[0]))
         return shaper
 
@@ -151,7 +180,7 @@ class DeviceTrackerNode:
             k = np.asarray(msg.k, dtype=np.float64).reshape(3, 3)
             self.core = DeviceTrackerCore(k, self.slot_frames, self.tracking_config,
                                           self.keep_slots)
-            self.node.get_logger().info(f"camera {msg.width}x{msg.height}, fx {k[0, 0]:.1f}; "
+            self.get_logger().info(f"camera {msg.width}x{msg.height}, fx {k[0, 0]:.1f}; "
                                         "tracking starts")
         self._process_ready()
 
@@ -181,7 +210,7 @@ class DeviceTrackerNode:
             del self.pending[oldest]
             if "color" not in entry:
                 self.skipped += 1
-                self.node.get_logger().warning(
+                self.get_logger().warning(
                     f"depth image of stamp {oldest / 1e9:.3f} s without its colour image "
                     f"(newest colour {self._latest['color'] / 1e9:.3f} s): skipped")
                 continue
@@ -194,14 +223,14 @@ class DeviceTrackerNode:
             depth = depth_array(depth_msg) if depth_msg is not None else None
         except ValueError as exc:
             self.skipped += 1
-            self.node.get_logger().error(f"frame skipped: {exc}")
+            self.get_logger().error(f"frame skipped: {exc}")
             return
         stamp = stamp_seconds(color_msg.header)
         with self._lock:
             was_lost = self.core.lost
             result = self.core.track(color, depth, stamp)
         record = result.record
-        log = self.node.get_logger()
+        log = self.get_logger()
         if not record.tracked and not was_lost:
             log.warning(f"frame {record.frame_id}: tracking lost; relocalising against the "
                         "local map")
@@ -212,8 +241,7 @@ class DeviceTrackerNode:
             horizon = record.frame_id - (self.keep_slots + 1) * self.slot_frames
             for old in [f for f in self.images if f < horizon]:
                 del self.images[old]
-        pose = set_header(new("geometry_msgs/msg/PoseStamped", pose=pose_msg(record.pose)),
-                          stamp, self.map_frame)
+        pose = set_header(PoseStamped(pose=pose_msg(record.pose)), stamp, self.map_frame)
         self.pub_pose.publish(pose)
         self.path.append(pose)
         if result.slot_done:
@@ -230,10 +258,10 @@ class DeviceTrackerNode:
         self._unanswered[slot] = time.monotonic()
         self.pub_summaries.publish(frame_summaries_message(slot, rate, state, version, frames,
                                                            stamp))
-        path = new("nav_msgs/msg/Path", poses=list(self.path))
+        path = Path(poses=list(self.path))
         self.pub_path.publish(set_header(path, stamp, self.map_frame))
         tracked = sum(f.tracked for f in frames)
-        self.node.get_logger().info(
+        self.get_logger().info(
             f"slot {slot}: {len(frames)} frames ({tracked} tracked, {self.skipped} skipped so "
             f"far; {self.sub_color.received} colour / {self.sub_depth.received} depth images "
             f"received), d_k {rate:.1f} Mbit/s, map version {version}, "
@@ -248,7 +276,7 @@ class DeviceTrackerNode:
         with self._lock:
             applied = self.core.apply_map_update(update, int(msg.slot))
         if applied:
-            self.node.get_logger().debug(f"map version {update.version}: "
+            self.get_logger().debug(f"map version {update.version}: "
                                          f"{len(update.point_ids)} points")
 
     def _on_upload_request(self, msg: Any) -> None:
@@ -256,7 +284,7 @@ class DeviceTrackerNode:
         for answered in [k for k in self._unanswered if k <= slot]:
             del self._unanswered[answered]     # older ones the edge will not answer now
         if self._edge_silent_since is not None:
-            self.node.get_logger().info(
+            self.get_logger().info(
                 f"slot {slot}: the edge answers again after "
                 f"{time.monotonic() - self._edge_silent_since:.1f} s of silence; uploads resume")
             self._edge_silent_since = None
@@ -272,7 +300,7 @@ class DeviceTrackerNode:
             self._edge_silent_since = self._unanswered[slot]
             points = len(self.core.tracking.map) if self.core else 0
             version = self.core.map_version if self.core else 0
-            self.node.get_logger().warning(
+            self.get_logger().warning(
                 f"slot {slot}: no upload request from the edge for {waited:.1f} s (link down "
                 f"or edge gone?); tracking on the local map (version {version}, {points} "
                 "points) until it answers")
@@ -283,14 +311,14 @@ class DeviceTrackerNode:
         with self._lock:
             data = self.core.upload(frame_id) if self.core else None
         if data is None:
-            self.node.get_logger().error(f"slot {slot}: frame {frame_id} was asked for but is "
+            self.get_logger().error(f"slot {slot}: frame {frame_id} was asked for but is "
                                          "no longer held; not sent")
             return None
         msg = keyframe_message(slot, data.frame_id, data.stamp, data.pose,
                                self.core.k if self.core else np.eye(3), data.keypoints,
                                data.depths, data.descriptors, data.point_ids,
                                image=self.images.get(frame_id))
-        payload = self.pub_keyframes.encode(msg)
+        payload = serialize_message(msg)
         return frame_id, payload, max(self.alpha_bytes, len(payload))
 
     def _publish_keyframe(self, slot: int, frame_id: int, payload: bytes) -> None:
@@ -299,11 +327,11 @@ class DeviceTrackerNode:
         deadline = time.monotonic() + WRITE_RETRY_S
         while True:
             try:
-                self.pub_keyframes.publish_raw(payload)
+                self.pub_keyframes.publish(payload)
                 return
-            except Exception as exc:           # cyclonedds' DDSException: a write timeout
+            except Exception as exc:           # rclpy's RCLError: the write timed out
                 if time.monotonic() > deadline:
-                    self.node.get_logger().error(
+                    self.get_logger().error(
                         f"slot {slot}: keyframe {frame_id} not written within "
                         f"{WRITE_RETRY_S:g} s ({exc}); given up")
                     return
@@ -325,7 +353,7 @@ class DeviceTrackerNode:
                       configured_rate_mbps=t.configured_rate_mbps, rate_state=t.rate_state,
                       achieved_mbps=t.achieved_mbps, bytes_sent=t.bytes_sent,
                       duration_s=t.duration_s, frames_sent=t.frames_sent)
-            self.pub_throughput.publish(set_header(out, time.time(), ""))
+            self.pub_throughput.publish(set_header(out, self._now(), ""))
 
     def close(self) -> None:
         self._uploads.put(None)
@@ -335,18 +363,14 @@ class DeviceTrackerNode:
 
 
 def main(args: list[str] | None = None) -> int:
-    node = node_runtime.start_node("device_tracker", PARAMETERS, args)
-    try:
-        device = DeviceTrackerNode(node)
-    except (ValueError, ChannelError, ShaperError) as exc:
-        return node_runtime.fail(node, str(exc))
-    shaper = (f"tc on {device.shaper.interface}" if isinstance(device.shaper, TcShaper)
-              else "token bucket")
-    node.get_logger().info(f"slots of {device.slot_frames} frames, channel "
-                           f"{node.get_parameter('channel').value}, uplink shaper {shaper}; "
-                           "waiting for /camera/camera_info")
-    node_runtime.run(node, on_exit=device.close)
-    return 0
+    def started(device: DeviceTrackerNode) -> None:
+        shaper = (f"tc on {device.shaper.interface}" if isinstance(device.shaper, TcShaper)
+                  else "token bucket")
+        device.get_logger().info(
+            f"slots of {device.slot_frames} frames, channel {device.channel_spec}, uplink "
+            f"shaper {shaper}; waiting for {device.resolve_topic_name(topics.CAMERA_INFO)}")
+
+    return run_node("device_tracker", DeviceTrackerNode, args, started=started)
 
 
 if __name__ == "__main__":

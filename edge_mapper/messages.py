@@ -13,8 +13,8 @@ import numpy as np
 
 from edge_mapper.keyframe_map import KeyframeMap
 from msg_schemas import new
+from msg_schemas.headers import set_header
 from msg_schemas.poses import pose_matrix, pose_msg
-from sequence_player.messages import set_header
 from simulator.env import MapAction
 
 DESCRIPTOR_BYTES = 32

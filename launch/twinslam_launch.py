@@ -8,6 +8,10 @@ On separate machines, ``host:=device`` (camera player + device tracker), ``host:
 
     ros2 launch twinslam twinslam_launch.py host:=edge policy:=adapt
 
+``namespace:=/ar1`` puts a device/edge pair under ``/ar1`` (a second pair under ``/ar2`` shares
+the domain). The nodes run with the package's Fast DDS profile (``config/fastdds.xml``) unless
+``FASTRTPS_DEFAULT_PROFILES_FILE`` names another.
+
 Needs the ROS 2 ``launch`` / ``launch_ros`` packages (never PyPI's unrelated ``launch``).
 """
 
@@ -16,7 +20,7 @@ from __future__ import annotations
 import os
 
 from ament_index_python.packages import get_package_share_directory
-from launch.actions import DeclareLaunchArgument
+from launch.actions import DeclareLaunchArgument, SetEnvironmentVariable
 from launch.conditions import IfCondition
 from launch.substitutions import LaunchConfiguration, PythonExpression
 from launch_ros.actions import Node
@@ -25,7 +29,10 @@ from launch import LaunchDescription
 
 
 def generate_launch_description() -> LaunchDescription:
-    params = os.path.join(get_package_share_directory("twinslam"), "config", "twinslam.yaml")
+    share = get_package_share_directory("twinslam")
+    params = os.path.join(share, "config", "twinslam.yaml")
+    profile = os.environ.get("FASTRTPS_DEFAULT_PROFILES_FILE",
+                             os.path.join(share, "config", "fastdds.xml"))
     arg = LaunchConfiguration
 
     def on(*hosts: str) -> IfCondition:
@@ -33,7 +40,10 @@ def generate_launch_description() -> LaunchDescription:
         return IfCondition(PythonExpression(["'", arg("host"), f"' in {('all', *hosts)!r}"]))
 
     return LaunchDescription([
+        SetEnvironmentVariable("FASTRTPS_DEFAULT_PROFILES_FILE", profile),
         DeclareLaunchArgument("params_file", default_value=params),
+        DeclareLaunchArgument("namespace", default_value="",
+                              description="namespace of this device/edge pair, e.g. /ar1"),
         DeclareLaunchArgument("sequence", default_value="synthetic"),
         DeclareLaunchArgument("policy", default_value="adapt"),
         DeclareLaunchArgument("rate", default_value="1.0"),
@@ -41,16 +51,19 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("host", default_value="all",
                               description="all | device | edge | twin: this machine's nodes"),
         Node(package="twinslam", executable="edge_mapper", name="edge_mapper",
+             namespace=arg("namespace"),
              parameters=[arg("params_file"), {"policy": arg("policy")}], output="screen",
              condition=on("edge")),
         Node(package="twinslam", executable="device_tracker", name="device_tracker",
+             namespace=arg("namespace"),
              parameters=[arg("params_file")], output="screen", condition=on("device")),
-        Node(package="twinslam", executable="udt_node", name="udt_node",
+        Node(package="twinslam", executable="udt_node", name="udt_node", namespace=arg("namespace"),
              parameters=[arg("params_file")], output="screen",
              condition=IfCondition(PythonExpression([
                  "'", arg("host"), "' == 'twin' or ('", arg("host"), "' == 'all' and '",
                  arg("twin"), "'.lower() == 'true')"]))),
         Node(package="twinslam", executable="sequence_player", name="sequence_player",
+             namespace=arg("namespace"),
              parameters=[arg("params_file"), {"sequence": arg("sequence"),
                                                "rate": arg("rate")}], output="screen",
              condition=on("device")),

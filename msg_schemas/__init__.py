@@ -1,30 +1,25 @@
-"""Message schemas of twinslam: the custom ``.msg`` files and everything derived from them.
+"""Message schemas of twinslam: the custom ``.msg`` files and what the nodes share about them.
 
-``msg_schemas/msg/*.msg`` define the per-slot protocol (DESIGN.md §1) as ROS 2 interface package
-``twinslam_msgs``; ROS 2 Jazzy's standard messages come from rosbags. Use :func:`new` to build a
-message with ROS defaults, :func:`serialize`/:func:`deserialize` for CDR bytes.
+``msg_schemas/msg/*.msg`` define the per-slot protocol (DESIGN.md §1) as the ROS 2 interface
+package ``twinslam_msgs``, which rosidl generates (``make`` builds it into the venv; colcon on a
+ROS host). Here: :func:`new` to fill a generated message from numpy arrays, the topic names and
+QoS profiles, header stamps, and the validation of decoded content.
 """
 
-from msg_schemas.cdr import CdrError, deserialize, serialize
-from msg_schemas.registry import (
+from msg_schemas.interfaces import (
     INTERFACE_PACKAGE,
+    UnknownMessageType,
     custom_message_names,
     message_class,
     new,
-    type_hash,
     type_name_of,
-    typestore,
 )
 
 __all__ = [
     "INTERFACE_PACKAGE",
-    "CdrError",
+    "UnknownMessageType",
     "custom_message_names",
-    "deserialize",
     "message_class",
     "new",
-    "serialize",
-    "type_hash",
     "type_name_of",
-    "typestore",
 ]

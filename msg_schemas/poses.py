@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from msg_schemas.registry import new
+from msg_schemas.interfaces import new
 
 
 def pose_msg(matrix: np.ndarray) -> Any:

@@ -1,9 +1,10 @@
 """Semantic checks on decoded messages: the CDR was well formed, but does the content make sense?
 
-Cyclone drops payloads that are not valid CDR for the topic type before they reach Python; what
-reaches us can still be malformed as a message: an image whose buffer is shorter than
-``height * step``, a NaN pose, descriptor arrays that do not match the keypoint count. A node
-must refuse those with a logged reason (DESIGN.md §8) instead of crashing deep in a callback.
+The middleware drops payloads that are not valid CDR of the topic type before they reach Python
+(Fast DDS's type support refuses them); what reaches us can still be malformed as a message:
+an image whose buffer is shorter than ``height * step``, a NaN pose, descriptor arrays that do
+not match the keypoint count. A node must refuse those with a logged reason (DESIGN.md §8)
+instead of crashing deep in a callback.
 Each validator raises :class:`MessageError` with a reason a user can act on.
 """
 
@@ -79,7 +80,7 @@ def validate_frame_summaries(msg: Any) -> None:
 
 def validate_upload_request(msg: Any) -> None:
     _finite("rate_mbps", msg.rate_mbps)
-    if len(set(msg.upload_frame_ids.tolist())) != len(msg.upload_frame_ids):
+    if len(set(msg.upload_frame_ids)) != len(msg.upload_frame_ids):
         raise MessageError("upload_frame_ids repeat an id")
 
 

@@ -3,7 +3,9 @@ sequence the player replays like a folder.
 
 A bag holds exactly what the player publishes — colour, depth, CameraInfo and (when known) the
 ground-truth pose on the player's topics, CDR-encoded, stamped with the recorded time — so a run
-recorded once replays identically anywhere, without the dataset's own layout.
+recorded once replays identically anywhere, without the dataset's own layout. The samples are
+serialised by rclpy (the bytes a ROS 2 recorder would store); rosbags writes the MCAP container
+with ROS 2 Jazzy's message definitions, so ``ros2 bag play`` reads the bag too.
 """
 
 from __future__ import annotations
@@ -15,9 +17,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
 
-from msg_schemas import typestore
+from msg_schemas import message_class
 from sequence_player.messages import (
     camera_info_message,
     color_message,
@@ -55,7 +59,7 @@ def record_bag(reader: SequenceReader, path: str | Path) -> int:
     out = Path(path)
     if out.exists():
         raise SequenceError(f"{out} exists; rosbag2 writes a new folder")
-    store = typestore()
+    store = get_typestore(Stores.ROS2_JAZZY)     # the message definitions the bag records
     written = 0
     with Writer(out, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
         conns = {key: writer.add_connection(topic, kind, typestore=store)
@@ -63,7 +67,7 @@ def record_bag(reader: SequenceReader, path: str | Path) -> int:
         for frame in reader:
             ns = round(frame.stamp * 1e9)
             for key, msg in frame_messages(frame, frame.stamp).items():
-                writer.write(conns[key], ns, bytes(store.serialize_cdr(msg, TOPICS[key][1])))
+                writer.write(conns[key], ns, serialize_message(msg))
             written += 1
     return written
 
@@ -96,7 +100,6 @@ class BagSequence:
         """Streams the bag: its messages are in time order and a frame's messages share one
         stamp, so a frame is complete when the stamp changes (never the whole bag in memory)."""
         self.skipped = []
-        store = typestore()
         keys = {topic: key for key, (topic, _) in TOPICS.items()}
         wanted = set(self.stamps_ns)
         index = 0
@@ -114,7 +117,7 @@ class BagSequence:
                         index += 1
                     pending = {}
                 pending_t = log_ns
-                pending[keys[conn.topic]] = store.deserialize_cdr(raw, conn.msgtype)
+                pending[keys[conn.topic]] = deserialize_message(raw, message_class(conn.msgtype))
         if pending_t is not None:
             frame = self._complete(index, pending_t, pending)
             if frame is not None:
@@ -153,7 +156,6 @@ def _frame(index: int, stamp: float, msgs: dict[str, Any]) -> RgbdFrame:
 def open_bag(path: str | Path, start: int = 0, end: int = -1) -> BagSequence:
     """Index a recorded bag (stamps, intrinsics) without decoding its images."""
     root = Path(path)
-    store = typestore()
     stamps: set[int] = set()
     intrinsics = None
     try:
@@ -164,7 +166,7 @@ def open_bag(path: str | Path, start: int = 0, end: int = -1) -> BagSequence:
             for conn, log_ns, raw in reader.messages(connections=conns):
                 stamps.add(log_ns)            # a frame's messages share one bag time
                 if intrinsics is None:
-                    msg = store.deserialize_cdr(raw, conn.msgtype)
+                    msg = deserialize_message(raw, message_class(conn.msgtype))
                     intrinsics = np.asarray(msg.k, dtype=np.float64).reshape(3, 3)
     except SequenceError:
         raise

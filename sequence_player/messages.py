@@ -11,24 +11,11 @@ from typing import Any
 import numpy as np
 
 from msg_schemas import new
+from msg_schemas.headers import set_header
 from msg_schemas.poses import pose_msg
 from sequence_player.readers import RgbdFrame
 
 DEPTH_ENCODINGS = ("16UC1", "32FC1")
-
-
-def ros_time(stamp: float) -> Any:
-    """``builtin_interfaces/Time`` of a time in seconds."""
-    sec = int(np.floor(stamp))
-    return new("builtin_interfaces/msg/Time", sec=sec,
-               nanosec=min(round((stamp - sec) * 1e9), 999_999_999))
-
-
-def set_header(msg: Any, stamp: float, frame_id: str) -> Any:
-    """Fill ``msg.header`` with a stamp in seconds and a frame id; returns ``msg``."""
-    msg.header.stamp = ros_time(stamp)
-    msg.header.frame_id = frame_id
-    return msg
 
 
 def color_message(frame: RgbdFrame, stamp: float, frame_id: str, mono: bool = False) -> Any:

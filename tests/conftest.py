@@ -1,4 +1,4 @@
-"""Shared fixtures: a private loopback DDS domain per test, and an in-process ROS context."""
+"""Shared fixtures: a private ROS domain per test, and an in-process rclpy node on it."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ from collections.abc import Iterator
 
 import pytest
 
-import node_runtime
-from node_runtime.loopback import LoopbackDomain
+from node_hosts.loopback import LoopbackDomain
+from node_hosts.session import RosSession
 
 
 @pytest.fixture
@@ -18,9 +18,7 @@ def domain() -> Iterator[LoopbackDomain]:
 
 
 @pytest.fixture
-def ros(domain: LoopbackDomain) -> Iterator[node_runtime.SingleThreadedExecutor]:
-    """An initialised runtime on the test's domain and an executor to spin it (bounded)."""
-    node_runtime.init(args=["test"], install_signal_handlers=False)
-    executor = node_runtime.SingleThreadedExecutor()
-    yield executor
-    node_runtime.shutdown()
+def ros(domain: LoopbackDomain) -> Iterator[RosSession]:
+    """A node (``ros.node``) on the test's domain and bounded spinning (``ros.spin_until``)."""
+    with RosSession("test_driver") as session:
+        yield session

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from rclpy.serialization import deserialize_message, serialize_message
 
 from edge_mapper.keyframe_integration import TRACK_ID_BIT
 from edge_mapper.keyframe_map import KeyframeMap
@@ -15,15 +16,15 @@ from edge_mapper.messages import (
     read_map_update,
     upload_request_message,
 )
-from msg_schemas import deserialize, new, serialize
+from msg_schemas import new, type_name_of
 from msg_schemas.poses import pose_matrix, pose_msg
 from msg_schemas.validation import validate
 from simulator.env import MapAction
 
 
 def _roundtrip(msg: object) -> object:
-    out = deserialize(serialize(msg), msg.__msgtype__)  # type: ignore[attr-defined]
-    validate(msg.__msgtype__, out)  # type: ignore[attr-defined]
+    out = deserialize_message(serialize_message(msg), type(msg))
+    validate(type_name_of(msg), out)
     return out
 
 

@@ -9,12 +9,13 @@ import time
 from pathlib import Path
 
 import numpy as np
+from twinslam_msgs.msg import FrameSummaries, Keyframe, MapStats, MapUpdate, UploadRequest
 
-import node_runtime
 from device_tracker.messages import FrameRecord, frame_summaries_message, keyframe_message
 from edge_mapper.keyframe_integration import TRACK_ID_BIT
-from node_runtime import PROTOCOL
-from node_runtime.loopback import LoopbackDomain
+from msg_schemas import qos, topics
+from node_hosts.loopback import LoopbackDomain
+from node_hosts.session import RosSession
 from tests.test_edge_core import Device, K
 
 F = 8
@@ -52,22 +53,16 @@ class TrackIdDevice(Device):
 
 
 def test_edge_node_protocol_corrupt_keyframe_and_restart(
-        tmp_path: Path, domain: LoopbackDomain, ros: node_runtime.SingleThreadedExecutor
-) -> None:
+        tmp_path: Path, domain: LoopbackDomain, ros: RosSession) -> None:
     device = TrackIdDevice(np.random.default_rng(0))
-    node = node_runtime.Node("device_script")
-    pub_sum = node.create_publisher("twinslam_msgs/msg/FrameSummaries",
-                                    "/device/frame_summaries", PROTOCOL)
-    pub_kf = node.create_publisher("twinslam_msgs/msg/Keyframe", "/device/keyframes",
-                                   PROTOCOL)
+    node = ros.node
+    pub_sum = node.create_publisher(FrameSummaries, topics.FRAME_SUMMARIES, qos.PROTOCOL)
+    pub_kf = node.create_publisher(Keyframe, topics.KEYFRAMES, qos.PROTOCOL)
     got: dict[str, list] = {"request": [], "map": [], "stats": []}
-    node.create_subscription("twinslam_msgs/msg/UploadRequest", "/edge/upload_request",
-                             got["request"].append, PROTOCOL)
-    node.create_subscription("twinslam_msgs/msg/MapUpdate", "/edge/map_update",
-                             got["map"].append, node_runtime.LATCHED)
-    node.create_subscription("twinslam_msgs/msg/MapStats", "/edge/map_stats",
-                             got["stats"].append, PROTOCOL)
-    ros.add_node(node)
+    node.create_subscription(UploadRequest, topics.UPLOAD_REQUEST, got["request"].append,
+                             qos.PROTOCOL)
+    node.create_subscription(MapUpdate, topics.MAP_UPDATE, got["map"].append, qos.MAP)
+    node.create_subscription(MapStats, topics.MAP_STATS, got["stats"].append, qos.PROTOCOL)
     ckpt = tmp_path / "edge.npz"
     args = ["-m", "edge_mapper.node", "--ros-args", "-p", "policy:=lff", "-p", "vmax:=10",
             "-p", f"checkpoint:={ckpt}", "-p", "ba_window:=6"]
@@ -101,7 +96,7 @@ def test_edge_node_protocol_corrupt_keyframe_and_restart(
 
     edge.send_signal(signal.SIGKILL)                                    # the edge host dies
     edge.wait(timeout=10)
-    _, err_before = edge.communicate(timeout=10)
+    _, _, err_before = domain.stop(edge)
     assert "dropped a malformed twinslam_msgs/msg/Keyframe" in err_before
     last = got["map"][-1]
     edge = domain.spawn(args)                                           # ... and comes back

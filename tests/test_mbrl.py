@@ -254,14 +254,15 @@ def test_figure_sweeps_write_one_csv_row_per_point_and_policy_and_a_plot(
 
 
 def test_edge_node_with_a_missing_policy_checkpoint_says_so_and_exits(tmp_path: Path) -> None:
-    from node_runtime.loopback import LoopbackDomain
+    from node_hosts.loopback import LoopbackDomain
 
     missing = tmp_path / "gone.pt"
     with LoopbackDomain() as domain:
         proc = domain.spawn(["-m", "edge_mapper.node", "--ros-args", "-p", "policy:=mbrl",
                              "-p", f"policy_checkpoint:={missing}"])
-        _out, err = proc.communicate(timeout=120)
-    assert proc.returncode == 2
+        proc.wait(timeout=120)
+        code, _out, err = domain.stop(proc)
+    assert code == 2
     assert f"{missing}: no such policy checkpoint" in err
 
 

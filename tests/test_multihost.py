@@ -2,8 +2,14 @@
 namespace with its own address, the device's uplink a veth shaped by ``tc``, and faults
 injected while the 7-Scenes sample plays.
 
-Needs root and iproute2 (``node_runtime.netns``); without them every test here is skipped with
+Needs root and iproute2 (``node_hosts.netns``); without them every test here is skipped with
 the reason. The namespaces of a test are removed when it ends, failed or not.
+
+These tests run in a process of their own (``tests/test_multihost_process.py`` starts it):
+Fast DDS keeps what it learnt of the network interfaces from the first participant of a process,
+so a monitor made inside a namespace after a participant in the root namespace announces the
+root namespace's addresses, and no node on the hosts can reach it (measured: the edge's monitor
+then discovered nothing in 120 s; as the first participant of its process it works at once).
 """
 
 from __future__ import annotations
@@ -20,7 +26,7 @@ from typing import Any
 
 import pytest
 
-from node_runtime.netns import HOSTS, NetnsError, NetnsHosts, address_of, unavailable_reason
+from node_hosts.netns import HOSTS, NetnsError, NetnsHosts, address_of, unavailable_reason
 from twinslam_cli.launcher import (
     NODE_HOSTS,
     LaunchConfig,
@@ -36,7 +42,11 @@ VMAX = 45
 FRAME_MBIT = 640 * 480 * 3 * 8 / 1e6
 
 _why_not = unavailable_reason()
+#: set by tests/test_multihost_process.py in the fresh process that runs this module
+FRESH_PROCESS = os.environ.get("TWINSLAM_MULTIHOST_PROCESS") == "1"
 pytestmark = [
+    pytest.mark.skipif(not FRESH_PROCESS, reason="runs in a process of its own "
+                       "(tests/test_multihost_process.py)"),
     pytest.mark.skipif(_why_not is not None, reason=f"multi-host tests: {_why_not}"),
     pytest.mark.skipif(not SEQUENCE.is_dir(), reason=f"{SEQUENCE} is missing"),
 ]
@@ -238,8 +248,9 @@ def twin_policy(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_twin_absent_edge_falls_back_and_returns_when_latents_flow(
         hosts: NetnsHosts, twin_policy: Path) -> None:
     """No twin at first: the fallback decides. The twin host's node starts after slot 1: the
-    learned policy takes over once its latents arrive. The twin dies after slot 6: fallback
-    again once the last latent is more than latent_max_age slots old."""
+    learned policy takes over once its latents arrive. The twin dies once the learned policy
+    decided two slots: fallback again once the last latent is more than latent_max_age slots
+    old."""
     learned = f"mbrl:{twin_policy}"
     twin: dict[str, Any] = {}
 
@@ -257,7 +268,8 @@ def test_twin_absent_edge_falls_back_and_returns_when_latents_flow(
     extra = _tc_uplink()
     extra["edge_mapper"] += ["fallback_policy:=adapt", "latent_max_age:=1"]
     extra["udt_node"] = [f"policy_checkpoint:={twin_policy}"]
-    _, record, launcher = _run(hosts, 720, extra, start_then_kill_twin, policy=learned)
+    # 15 slots: the twin's start (torch, the policy's checkpoint) takes several slots on 2 cores
+    _, record, launcher = _run(hosts, 900, extra, start_then_kill_twin, policy=learned)
     deciders = [record.requests[s].policy for s in sorted(record.requests)]
     print(f"\ndecided by: {deciders}")
     assert deciders[0] == deciders[1] == "adapt (fallback)"
@@ -268,7 +280,7 @@ def test_twin_absent_edge_falls_back_and_returns_when_latents_flow(
     assert edge_log.count("deciding with the fallback policy adapt") == 2
     assert "rate latents from the twin again" in edge_log
     assert twin["in"] == hosts.namespaces["twin"]
-    _assert_slots_consistent(record, 12)
+    _assert_slots_consistent(record, 15)
 
 
 def test_5_percent_loss_reliable_topics_deliver_best_effort_images_degrade(

@@ -1,5 +1,5 @@
-"""What the multi-host harness configures, checked without root: each host's Cyclone
-configuration, its addresses, and the loss program's bytecode."""
+"""What the multi-host harness configures, checked without root: each host's Fast DDS profile
+and discovery peers, its addresses, and the loss program's bytecode."""
 
 from __future__ import annotations
 
@@ -8,23 +8,25 @@ import xml.etree.ElementTree as ET
 
 import pytest
 
-from node_runtime.ebpf_loss import random_drop_program
-from node_runtime.netns import HOSTS, NetnsHosts, address_of, cyclone_config
+from node_hosts.ebpf_loss import random_drop_program
+from node_hosts.netns import HOST_PROFILE, HOSTS, NetnsHosts, address_of, host_env
 
-NS = {"c": "https://cdds.io/config"}
+NS = {"f": "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"}
 
 
-def test_each_host_speaks_unicast_on_its_own_interface_below_the_mtu() -> None:
-    root = ET.fromstring(cyclone_config("eth0"))
-    general = root.find("c:Domain/c:General", NS)
-    assert general is not None
-    assert general.find("c:Interfaces/c:NetworkInterface", NS).get("name") == "eth0"
-    assert general.findtext("c:AllowMulticast", namespaces=NS) == "false"
-    assert int(general.findtext("c:MaxMessageSize", namespaces=NS).rstrip("B")) <= 1472
-    peers = [p.get("address") for p in root.findall("c:Domain/c:Discovery/c:Peers/c:Peer", NS)]
+def test_each_host_speaks_udp_only_below_the_mtu_to_static_peers(tmp_path) -> None:
+    root = ET.fromstring(HOST_PROFILE)
+    transports = root.findall("f:profiles/f:transport_descriptors/f:transport_descriptor", NS)
+    assert [t.findtext("f:type", namespaces=NS) for t in transports] == ["UDPv4"]  # no SHM
+    assert int(transports[0].findtext("f:maxMessageSize", namespaces=NS)) <= 1472
+    rtps = root.find("f:profiles/f:participant/f:rtps", NS)
+    assert rtps.findtext("f:useBuiltinTransports", namespaces=NS) == "false"
+    env = host_env(42, tmp_path / "p.xml")
+    peers = env["ROS_STATIC_PEERS"].split(";")
     assert peers == [address_of(h) for h in HOSTS]
     assert all(a.startswith("10.210.0.") for a in peers)            # private, namespaces only
     assert len(set(peers)) == 3
+    assert env["ROS_DOMAIN_ID"] == "42" and env["FASTRTPS_DEFAULT_PROFILES_FILE"].endswith("p.xml")
 
 
 def test_hosts_are_named_by_prefix_and_unknown_hosts_are_refused() -> None:

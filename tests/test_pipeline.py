@@ -18,7 +18,7 @@ import pytest
 
 from edge_mapper.keyframe_map import shared_counts
 from edge_mapper.uncertainty import map_uncertainty
-from node_runtime.loopback import LoopbackDomain
+from node_hosts.loopback import LoopbackDomain
 from twinslam_cli.launcher import LaunchConfig, Launcher, RunRecord, RunReport
 
 SEQUENCE = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes-1000"

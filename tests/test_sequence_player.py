@@ -7,9 +7,12 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from geometry_msgs.msg import PoseStamped
+from sensor_msgs.msg import CameraInfo, Image
 
-import node_runtime
-from node_runtime.loopback import LoopbackDomain
+from msg_schemas import qos, topics
+from node_hosts.loopback import LoopbackDomain
+from node_hosts.session import RosSession
 from sequence_player.messages import depth_message
 from sequence_player.readers import RgbdFrame
 
@@ -37,19 +40,15 @@ def _stamp(msg: object) -> float:
 
 
 def test_player_delivers_every_frame_at_30_hz_and_skips_a_corrupt_jpeg(
-        tmp_path: Path, domain: LoopbackDomain, ros: node_runtime.SingleThreadedExecutor
-) -> None:
+        tmp_path: Path, domain: LoopbackDomain, ros: RosSession) -> None:
     seq = _seven_scenes_fixture(tmp_path / "seq", frames=100, corrupt=40)
-    node = node_runtime.Node("player_check")
     got: dict[str, list] = {"color": [], "depth": [], "info": [], "pose": []}
-    for key, topic, kind in [("color", "/camera/image_raw", "sensor_msgs/msg/Image"),
-                             ("depth", "/camera/depth/image_raw", "sensor_msgs/msg/Image"),
-                             ("info", "/camera/camera_info", "sensor_msgs/msg/CameraInfo"),
-                             ("pose", "/camera/ground_truth_pose",
-                              "geometry_msgs/msg/PoseStamped")]:
-        node.create_subscription(kind, topic, lambda m, k=key: got[k].append(m),
-                                 node_runtime.DEFAULT)
-    ros.add_node(node)
+    for key, topic, kind in [("color", topics.CAMERA_IMAGE, Image),
+                             ("depth", topics.CAMERA_DEPTH, Image),
+                             ("info", topics.CAMERA_INFO, CameraInfo),
+                             ("pose", topics.GROUND_TRUTH_POSE, PoseStamped)]:
+        ros.node.create_subscription(kind, topic, lambda m, k=key: got[k].append(m),
+                                     qos.CAMERA)
     player = domain.spawn(["-m", "sequence_player.node", "--ros-args",
                            "-p", f"sequence:={seq}", "-p", "wait_for_subscribers:=1"])
     start = time.monotonic()
@@ -90,9 +89,8 @@ def test_depth_message_encodings_round_trip() -> None:
 
 
 def _messages_equal(a: dict, b: dict) -> None:
-    from msg_schemas import typestore
+    from tests.nodes.digest import content_digest
 
-    store = typestore()
     assert a.keys() == b.keys()
     for key in a:
         if key == "pose":   # rotation → quaternion → rotation: equal to rounding
@@ -101,8 +99,7 @@ def _messages_equal(a: dict, b: dict) -> None:
                 [pa.position.x, pa.position.y, pa.position.z, pa.orientation.w],
                 [pb.position.x, pb.position.y, pb.position.z, pb.orientation.w], atol=1e-12)
             continue
-        assert bytes(store.serialize_cdr(a[key], a[key].__msgtype__)) == \
-            bytes(store.serialize_cdr(b[key], b[key].__msgtype__)), key
+        assert content_digest(a[key]) == content_digest(b[key]), key
 
 
 def test_record_to_mcap_and_replay_gives_the_same_messages(tmp_path: Path) -> None:

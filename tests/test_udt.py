@@ -10,11 +10,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from twinslam_msgs.msg import RateLatent, UplinkThroughput
 
-import node_runtime
-from msg_schemas.registry import new
-from node_runtime import PROTOCOL
-from node_runtime.loopback import LoopbackDomain
+from msg_schemas import new, qos, topics
+from node_hosts.loopback import LoopbackDomain
+from node_hosts.session import RosSession
 from udt_node.baselines import LstmConfig, LstmPredictor, MarkovMle
 from udt_node.channel import MarkovChannel, state_rates
 from udt_node.experiments import chain_states
@@ -115,23 +115,18 @@ def test_twin_checkpoint_round_trip(tmp_path: Path) -> None:
 
 
 def _throughput(slot: int, mbps: float) -> object:
-    return new("twinslam_msgs/msg/UplinkThroughput", slot=slot, achieved_mbps=mbps,
+    return new(UplinkThroughput, slot=slot, achieved_mbps=mbps,
                configured_rate_mbps=mbps if math.isfinite(mbps) else 0.0)
 
 
 def test_udt_node_round_trip_refuses_bad_throughput(
-        tmp_path: Path, domain: LoopbackDomain, ros: node_runtime.SingleThreadedExecutor
-) -> None:
+        tmp_path: Path, domain: LoopbackDomain, ros: RosSession) -> None:
     """Throughput in from this process, RateLatent out of udt_node's: one latent per valid
     slot, a retrain in the background (model version rises, weights saved), and NaN,
     negative and absurd values refused and counted."""
-    node = node_runtime.Node("udt_check")
-    pub = node.create_publisher("twinslam_msgs/msg/UplinkThroughput",
-                                "/device/uplink_throughput", PROTOCOL)
+    pub = ros.node.create_publisher(UplinkThroughput, topics.UPLINK_THROUGHPUT, qos.PROTOCOL)
     got: list = []
-    sub = node.create_subscription("twinslam_msgs/msg/RateLatent", "/udt/rate_latent",
-                                   got.append, PROTOCOL)
-    ros.add_node(node)
+    sub = ros.node.create_subscription(RateLatent, topics.RATE_LATENT, got.append, qos.PROTOCOL)
     weights = tmp_path / "twin.pt"
     proc = domain.spawn(["-m", "udt_node.node", "--ros-args", "-p", "retrain_every:=20",
                          "-p", "steps_per_retrain:=5", "-p", "latent_dim:=4",

@@ -1,7 +1,7 @@
 """``make run``: the most complete real thing that exists today.
 
 1. The live pipeline — sequence_player, device_tracker and edge_mapper as separate processes
-   on a private loopback DDS domain — once per policy (LFF, PU, ADAPT) on the first 600 real
+   on a private ROS domain on this machine — once per policy (LFF, PU, ADAPT) on the first 600 real
    7-Scenes frames of ``../shared/data`` (the synthetic room when that is missing, and then
    said so), with a status line per slot and a table per policy at the end: mean υ, lost
    next-slot frames, ATE (evo), uploads, MB, achieved uplink throughput, untracked frames,
@@ -16,7 +16,7 @@ import argparse
 import time
 from pathlib import Path
 
-from node_runtime.loopback import LoopbackDomain
+from node_hosts.loopback import LoopbackDomain
 
 REPO = Path(__file__).resolve().parents[1]
 REAL_COVIS = REPO / "data" / "7scenes-redkitchen-1000.covis.npz"

@@ -1,8 +1,8 @@
-"""``twinslam launch``: the pipeline without ROS — player, device, edge (and the twin) as
-separate processes on one DDS domain with one parameter file, a live status line per slot, and
-a clean stop (SIGTERM, then SIGKILL) of every process at the end or on Ctrl-C.
+"""``twinslam launch``: the pipeline without a ROS installation — player, device, edge (and the
+twin) as separate rclpy processes on one ROS domain with one parameter file, a live status line
+per slot, and a clean stop (SIGTERM, then SIGKILL) of every process at the end or on Ctrl-C.
 
-A monitor participant in this process listens to the run's topics and ends with a
+A monitor node (its own rclpy context) in this process listens to the run's topics and ends with a
 :class:`RunReport`: mean υ (and the share of lost next-slot frames), ATE of ``/device/pose``
 against ``/camera/ground_truth_pose`` (evo, SE(3)-aligned), frames and bytes uploaded, the
 throughput achieved, frames the device could not track, and the edge's milliseconds per slot.
@@ -19,16 +19,28 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import rclpy
+import yaml
+from geometry_msgs.msg import PoseStamped
+from rclpy.node import Node
+from sensor_msgs.msg import Image
+from twinslam_msgs.msg import (
+    FrameSummaries,
+    MapStats,
+    MapUpdate,
+    UplinkThroughput,
+    UploadRequest,
+)
 
-import node_runtime
-from device_tracker.camera_input import stamp_key
 from edge_mapper.messages import LocalMap, read_map_update
+from msg_schemas import qos, topics
+from msg_schemas.headers import stamp_key
 from msg_schemas.poses import pose_matrix
-from node_runtime.loopback import ProcessDomain
-from node_runtime.parameters import load_params_file
+from node_hosts.loopback import ProcessDomain
+from node_hosts.session import RosSession
 
 REPO = Path(__file__).resolve().parents[1]
-#: where each node runs when the domain has hosts (node_runtime.netns): the camera is the device's
+#: where each node runs when the domain has hosts (node_hosts.netns): the camera is the device's
 NODE_HOSTS = {"sequence_player": "device", "device_tracker": "device", "edge_mapper": "edge",
               "udt_node": "twin"}
 DEFAULT_PARAMS = REPO / "config" / "twinslam.yaml"
@@ -80,35 +92,35 @@ class RunReport:
 
 
 class PipelineMonitor:
-    """Subscribes to the run's topics in this process and keeps what it hears."""
+    """Subscribes to the run's topics with ``node`` and keeps what it hears."""
 
-    def __init__(self, node: node_runtime.Node,
-                 on_stats: Callable[[Any, RunRecord], None] | None = None,
+    def __init__(self, node: Node, on_stats: Callable[[Any, RunRecord], None] | None = None,
                  watch_images: bool = False) -> None:
         self.record = RunRecord()
         self._on_stats = on_stats
         r = self.record
         sub = node.create_subscription
-        sub("twinslam_msgs/msg/FrameSummaries", "/device/frame_summaries",
-            lambda m: r.summaries.__setitem__(int(m.slot), m), node_runtime.PROTOCOL)
+        sub(FrameSummaries, topics.FRAME_SUMMARIES,
+            lambda m: r.summaries.__setitem__(int(m.slot), m), qos.PROTOCOL)
         #: its publisher count says whether the edge is up (it publishes after warming up)
-        self.requests = sub("twinslam_msgs/msg/UploadRequest", "/edge/upload_request",
-                            lambda m: r.requests.__setitem__(int(m.slot), m), node_runtime.PROTOCOL)
-        sub("twinslam_msgs/msg/UplinkThroughput", "/device/uplink_throughput",
-            lambda m: r.throughput.__setitem__(int(m.slot), m), node_runtime.PROTOCOL)
-        sub("twinslam_msgs/msg/MapStats", "/edge/map_stats", self._stats, node_runtime.PROTOCOL)
-        sub("twinslam_msgs/msg/MapUpdate", "/edge/map_update",
-            lambda m: r.maps.__setitem__(int(m.slot), read_map_update(m)),
-            node_runtime.QoSProfile(depth=100, durability=node_runtime.LATCHED.durability))
-        sub("geometry_msgs/msg/PoseStamped", "/device/pose",
+        self.requests = sub(UploadRequest, topics.UPLOAD_REQUEST,
+                            lambda m: r.requests.__setitem__(int(m.slot), m), qos.PROTOCOL)
+        sub(UplinkThroughput, topics.UPLINK_THROUGHPUT,
+            lambda m: r.throughput.__setitem__(int(m.slot), m), qos.PROTOCOL)
+        sub(MapStats, topics.MAP_STATS, self._stats, qos.PROTOCOL)
+        # every map the edge sends (not only the latest a late joiner gets)
+        map_qos = rclpy.qos.QoSProfile(depth=100, durability=qos.MAP.durability,
+                                       reliability=qos.MAP.reliability)
+        sub(MapUpdate, topics.MAP_UPDATE,
+            lambda m: r.maps.__setitem__(int(m.slot), read_map_update(m)), map_qos)
+        sub(PoseStamped, topics.DEVICE_POSE,
             lambda m: r.poses.__setitem__(stamp_key(m.header), pose_matrix(m.pose)),
-            node_runtime.PROTOCOL)
-        sub("geometry_msgs/msg/PoseStamped", "/camera/ground_truth_pose",
+            qos.PROTOCOL)
+        sub(PoseStamped, topics.GROUND_TRUTH_POSE,
             lambda m: r.ground_truth.__setitem__(stamp_key(m.header), pose_matrix(m.pose)),
-            node_runtime.PROTOCOL)
+            qos.CAMERA)
         if watch_images:     # a viewer's subscription: best effort, undecoded, only counted
-            sub("sensor_msgs/msg/Image", "/camera/image_raw", self._image,
-                node_runtime.SENSOR_DATA, raw=True)
+            sub(Image, topics.CAMERA_IMAGE, self._image, qos.SENSOR_DATA, raw=True)
 
     def _image(self, _data: bytes) -> None:
         self.record.images_received += 1
@@ -224,24 +236,21 @@ class Launcher:
 
     def _run(self, on_stats: Callable[[Any, RunRecord], None] | None) -> RunReport:
         c = self.config
-        node_runtime.init(args=["twinslam_launch"], install_signal_handlers=False)
+        session = RosSession("twinslam_monitor")
         try:
-            node = node_runtime.Node("twinslam_monitor")
             def stats(msg: Any, record: RunRecord) -> None:
                 if self.echo:
                     self.echo(status_line(msg, record))
                 if on_stats:
                     on_stats(msg, record)
 
-            monitor = PipelineMonitor(node, stats, c.watch_images)
+            monitor = PipelineMonitor(session.node, stats, c.watch_images)
             self.record = monitor.record
-            executor = node_runtime.SingleThreadedExecutor()
-            executor.add_node(node)
             started = time.monotonic()
             # the edge first, and the rest once it listens: summaries published before the
             # edge's reader matched would be lost (the device starts the slots with the player)
             edge = self.start("edge_mapper")
-            if not executor.spin_until(lambda: monitor.requests.get_publisher_count() > 0
+            if not session.spin_until(lambda: monitor.requests.get_publisher_count() > 0
                                        or edge.poll() is not None, min(120.0, c.timeout_s)):
                 raise RuntimeError("edge_mapper did not come up within 120 s")
             if edge.poll() is not None:
@@ -251,7 +260,7 @@ class Launcher:
                     self.start(name)
             player = self.procs["sequence_player"]
             deadline = started + c.timeout_s
-            executor.spin_until(lambda: player.poll() is not None or self._failed(),
+            session.spin_until(lambda: player.poll() is not None or self._failed(),
                                 c.timeout_s)
             failed = self._failed()
             if failed:
@@ -266,22 +275,22 @@ class Launcher:
             summaries = monitor.record.summaries
             expected = self._expected_slots()
             last = expected - 1 if expected else (max(summaries) if summaries else -1)
-            executor.spin_until(lambda: last in monitor.record.stats and all(
+            session.spin_until(lambda: last in monitor.record.stats and all(
                 s in monitor.record.throughput for s in monitor.record.requests),
                 # at least 10 s even when a slow start (a fresh checkout compiles its kernels)
                 # used up most of the run's timeout
                 min(60.0, max(10.0, deadline - time.monotonic())))
-            executor.spin_until(lambda: False, 0.5)       # late poses and map updates
+            session.spin_until(lambda: False, 0.5)       # late poses and map updates
             return report(c.policy, monitor.record, time.monotonic() - started)
         finally:
             self.stop()
-            node_runtime.shutdown()
+            session.close()
 
     def _expected_slots(self) -> int | None:
         """Full slots in the frames played (None when the whole sequence plays)."""
         if self.config.frames <= 0:
             return None
-        slot_frames = load_params_file(self.config.params_file, "/device_tracker").get(
+        slot_frames = node_parameters(self.config.params_file, "device_tracker").get(
             "slot_frames", 60)
         for item in self.config.extra.get("device_tracker", []):
             key, _, value = item.partition(":=")
@@ -311,6 +320,16 @@ class Launcher:
             if code not in (0, -15) and self.echo:
                 self.echo(f"{name} exited with {code}: {err.strip()[-2000:]}")
         return codes
+
+
+def node_parameters(params_file: Path, node: str) -> dict[str, Any]:
+    """The ``ros__parameters`` a ROS 2 parameter file gives ``node`` (by its plain name or
+    ``/**``), for the launcher's own bookkeeping; the nodes read the file themselves."""
+    doc = yaml.safe_load(Path(params_file).read_text(encoding="utf-8")) or {}
+    out: dict[str, Any] = {}
+    for key in ("/**", node, f"/{node}"):
+        out.update((doc.get(key) or {}).get("ros__parameters", {}))
+    return out
 
 
 def tc_uplink_params(alpha_mbit: float, **device: str) -> dict[str, list[str]]:

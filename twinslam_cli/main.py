@@ -20,25 +20,28 @@ from pathlib import Path
 
 import numpy as np
 
-from node_runtime.loopback import LoopbackDomain, ProcessDomain
+from node_hosts.loopback import LoopbackDomain, ProcessDomain
 from simulator.covisibility import CovisibilityError, load_covisibility
 from simulator.env import SimConfig
 from udt_node.channel import ChannelError
 
 
 class _EnvDomain(LoopbackDomain):
-    """The domain of the environment ($ROS_DOMAIN_ID, $CYCLONEDDS_URI) as it is."""
+    """The domain of the environment ($ROS_DOMAIN_ID, discovery range, static peers) as it is,
+    with the project's Fast DDS profile unless $FASTRTPS_DEFAULT_PROFILES_FILE names one."""
 
     def __init__(self) -> None:
-        from node_runtime.context import domain_id_from_env
+        from node_hosts.fastdds import domain_id_from_env
 
         super().__init__(domain_id_from_env())
 
     @property
     def env(self) -> dict[str, str]:
-        import os
+        from node_hosts.fastdds import installed_profile
 
-        return dict(os.environ)
+        env = self.base_env()
+        env.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(installed_profile()))
+        return env
 
 
 def _covis(spec: str):
@@ -156,29 +159,36 @@ def cmd_record(args: argparse.Namespace) -> int:
 
 
 def cmd_nodes(args: argparse.Namespace) -> int:
-    from cyclonedds.domain import DomainParticipant
+    """The ROS graph's nodes on $ROS_DOMAIN_ID, as ``ros2 node list`` prints them."""
+    from node_hosts.fastdds import domain_id_from_env
+    from node_hosts.session import RosSession
 
-    from node_runtime.context import domain_id_from_env
-    from node_runtime.graph import GraphMonitor
-
-    participant = DomainParticipant(domain_id_from_env())
-    monitor = GraphMonitor(participant)
-    deadline = time.monotonic() + args.timeout
-    while time.monotonic() < deadline:
-        time.sleep(0.1)
-    for node in monitor.nodes():
-        print(node.fully_qualified_name)
+    try:
+        domain_id_from_env()
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    session = RosSession("twinslam_nodes")
+    try:
+        session.spin_until(lambda: False, args.timeout)     # let discovery run
+        names = sorted(f"{ns.rstrip('/')}/{name}" for name, ns in
+                       session.node.get_node_names_and_namespaces()
+                       if name != "twinslam_nodes")
+    finally:
+        session.close()
+    for name in names:
+        print(name)
     return 0
 
 
 def cmd_hosts(args: argparse.Namespace) -> int:
     """Build or remove the three test hosts (network namespaces) and say how to use them."""
-    from node_runtime.netns import (
+    from node_hosts.netns import (
+        HOST_PROFILE,
         HOSTS,
         NetnsError,
         NetnsHosts,
         address_of,
-        cyclone_config,
         unavailable_reason,
     )
 
@@ -189,7 +199,7 @@ def cmd_hosts(args: argparse.Namespace) -> int:
         print("removed" if not left else f"could not remove {', '.join(left)}")
         return 0 if not left else 1
     if args.action == "config":
-        print(cyclone_config())
+        print(HOST_PROFILE)
         return 0
     why = unavailable_reason()
     if why:
@@ -202,8 +212,11 @@ def cmd_hosts(args: argparse.Namespace) -> int:
         return 1
     for host in HOSTS:
         print(f"{host:<7} netns {hosts.namespaces[host]:<20} eth0 {address_of(host)}/24")
+    peers = ";".join(address_of(h) for h in HOSTS)
     print("\nrun a node on a host, e.g.:\n"
-          f"  export CYCLONEDDS_URI=\"$(twinslam hosts config)\"\n"
+          "  twinslam hosts config > /tmp/fastdds_host.xml\n"
+          "  export FASTRTPS_DEFAULT_PROFILES_FILE=/tmp/fastdds_host.xml "
+          f"ROS_STATIC_PEERS='{peers}'\n"
           f"  ip netns exec {hosts.namespaces['edge']} .venv/bin/python -m edge_mapper.node\n"
           f"shape the device's uplink: ip netns exec {hosts.namespaces['device']} "
           "tc qdisc replace dev eth0 root tbf rate 40mbit burst 64kb latency 500ms "
@@ -214,7 +227,7 @@ def cmd_hosts(args: argparse.Namespace) -> int:
 def _launch_domain(args: argparse.Namespace) -> ProcessDomain:
     """Where ``twinslam launch`` runs the nodes: three namespaces, loopback, or $ROS_DOMAIN_ID."""
     if args.hosts:
-        from node_runtime.netns import NetnsHosts
+        from node_hosts.netns import NetnsHosts
 
         return NetnsHosts(prefix=f"twinslam{os.getpid()}-")
     return LoopbackDomain() if args.loopback else _EnvDomain()
@@ -243,7 +256,7 @@ def cmd_launch(args: argparse.Namespace) -> int:
             return 2
         extra = _real_frame_uplink(args.sequence)
     if args.hosts:
-        from node_runtime.netns import unavailable_reason
+        from node_hosts.netns import unavailable_reason
 
         why = unavailable_reason()
         if why:
@@ -447,13 +460,14 @@ def build_parser() -> argparse.ArgumentParser:
     record.add_argument("--start", type=int, default=0)
     record.add_argument("--end", type=int, default=-1)
     record.set_defaults(func=cmd_record)
-    nodes = sub.add_parser("nodes", help="list the nodes on $ROS_DOMAIN_ID (ros_discovery_info)")
-    nodes.add_argument("--timeout", type=float, default=2.0)
+    nodes = sub.add_parser("nodes", help="list the nodes on $ROS_DOMAIN_ID (like ros2 node list)")
+    nodes.add_argument("--timeout", type=float, default=2.0,
+                       help="seconds of discovery before listing")
     nodes.set_defaults(func=cmd_nodes)
     hosts = sub.add_parser("hosts", help="device, edge and twin hosts as network namespaces "
                            "(root)")
     hosts.add_argument("action", choices=["up", "down", "config"],
-                       help="build them, remove them, or print a host's Cyclone configuration")
+                       help="build them, remove them, or print a host's Fast DDS profile")
     hosts.add_argument("--prefix", default="", help="namespace name prefix (default none: "
                        "device, edge, twin, switch)")
     hosts.set_defaults(func=cmd_hosts)

@@ -1,11 +1,12 @@
 """udt_node: the user digital twin as a ROS 2 node (paper §V, Algorithm 1).
 
-Subscribes ``/device/uplink_throughput`` (``twinslam_msgs/UplinkThroughput``, one per slot),
+Subscribes ``device/uplink_throughput`` (``twinslam_msgs/UplinkThroughput``, one per slot),
 quantises the achieved throughput to the nearest of N rates spread over [``rate_min``,
-``rate_max``], keeps the real-experience buffer and publishes ``/udt/rate_latent``
+``rate_max``], keeps the real-experience buffer and publishes ``udt/rate_latent``
 (``RateLatent``: μ, Σ, p(d_{k+1}), model version) for every slot. Every ``retrain_every`` slots
 the twin is retrained on a background thread, warm-started; callbacks never wait for it, and
-the trained network is swapped in when ready. With ``weights`` set, the twin is loaded from
+the trained network is swapped in when ready (the executor's callbacks and the training thread
+share only the swap, under a lock). With ``weights`` set, the twin is loaded from
 that file at start (if present) and saved after every retrain. With ``policy_checkpoint`` set
 to a twin-driven AMM policy (``twinslam train --rate-model udt``), the twin starts as the one that
 policy was trained with, so the latents the edge feeds it mean what they meant in training.
@@ -21,31 +22,45 @@ import math
 import sys
 import threading
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
+from rclpy.node import Node
+from twinslam_msgs.msg import RateLatent, UplinkThroughput
 
-import node_runtime
-from msg_schemas.registry import new
-from node_runtime import PROTOCOL
+from msg_schemas import new, qos, topics
+from node_hosts.checked_subscription import CheckedSubscription
+from node_hosts.node_main import NodeStartError, run_node
+from node_hosts.parameters import ParamSpec, declare
 from udt_node.channel import state_rates
 from udt_node.twin import TwinConfig, UserDigitalTwin
 
-PARAMETERS = {"states": 2, "latent_dim": 8, "history": 8, "retrain_every": 100,
-              "buffer_slots": 600, "steps_per_retrain": 100, "rate_min": 40.0,
-              "rate_max": 80.0, "max_mbps": 10_000.0, "weights": "", "seed": 0,
-              "policy_checkpoint": ""}
-THROUGHPUT_TOPIC = "/device/uplink_throughput"
-LATENT_TOPIC = "/udt/rate_latent"
+PARAMETERS = (
+    ParamSpec("states", 2, "N uplink states, spread over [rate_min, rate_max]", low=1, high=64),
+    ParamSpec("latent_dim", 8, "Z, the latent's dimensions", low=1, high=1024),
+    ParamSpec("history", 8, "tau + 1 slots of rate history the encoder reads", low=1,
+              high=10_000),
+    ParamSpec("retrain_every", 100, "W, slots between retrains (background thread)", low=1,
+              high=1_000_000),
+    ParamSpec("buffer_slots", 600, "real experiences a retrain learns from", low=1,
+              high=10_000_000),
+    ParamSpec("steps_per_retrain", 100, "optimiser steps per retrain", low=1, high=1_000_000),
+    ParamSpec("rate_min", 40.0, "Mbit/s of the lowest state", low=0.0, high=1e6),
+    ParamSpec("rate_max", 80.0, "Mbit/s of the highest state", low=0.0, high=1e6),
+    ParamSpec("max_mbps", 10_000.0, "a larger throughput report is refused as absurd",
+              low=0.0, high=1e9),
+    ParamSpec("weights", "", "file to load at start and save after each retrain"),
+    ParamSpec("seed", 0, "seed of the twin's training", low=0),
+    ParamSpec("policy_checkpoint", "", "start as the twin of this AMM policy (rate model udt)"),
+)
 
 
-class TwinNode:
+class TwinNode(Node):
     """Topic ↔ twin wiring; the learning lives in :class:`~udt_node.twin.UserDigitalTwin`."""
 
-    def __init__(self, node: node_runtime.Node) -> None:
-        self.node = node
-        p = {k: node.get_parameter(k).value for k in PARAMETERS}
+    def __init__(self) -> None:
+        super().__init__("udt_node")
+        p = declare(self, PARAMETERS)
         config = TwinConfig(n_states=int(p["states"]), latent_dim=int(p["latent_dim"]),
                             history=int(p["history"]), retrain_every=int(p["retrain_every"]),
                             buffer_slots=int(p["buffer_slots"]),
@@ -53,20 +68,23 @@ class TwinNode:
         self.rates = state_rates(config.n_states, float(p["rate_min"]), float(p["rate_max"]))
         self.max_mbps = float(p["max_mbps"])
         self.weights = Path(p["weights"]) if p["weights"] else None
-        self.twin = self._load_or_create(config, str(p["policy_checkpoint"]))
+        try:
+            self.twin = self._load_or_create(config, str(p["policy_checkpoint"]))
+        except (ValueError, OSError) as exc:
+            raise NodeStartError(str(exc)) from None
         if self.twin.config.n_states != config.n_states:
-            raise ValueError(f"a {self.twin.config.n_states}-state twin, states:="
-                             f"{config.n_states} asked for")
+            raise NodeStartError(f"a {self.twin.config.n_states}-state twin, states:="
+                                 f"{config.n_states} asked for")
         self.rejected = 0
         self.received = 0
         self._lock = threading.Lock()            # guards the twin's network swap
         self._training: threading.Thread | None = None
-        self.pub = node.create_publisher("twinslam_msgs/msg/RateLatent", LATENT_TOPIC, PROTOCOL)
-        self.sub = node.create_subscription("twinslam_msgs/msg/UplinkThroughput",
-                                            THROUGHPUT_TOPIC, self._on_throughput, PROTOCOL)
+        self.pub = self.create_publisher(RateLatent, topics.RATE_LATENT, qos.PROTOCOL)
+        self.sub = CheckedSubscription(self, UplinkThroughput, topics.UPLINK_THROUGHPUT,
+                                       self._on_throughput, qos.PROTOCOL)
 
     def _load_or_create(self, config: TwinConfig, policy_checkpoint: str) -> UserDigitalTwin:
-        log = self.node.get_logger()
+        log = self.get_logger()
         if policy_checkpoint:
             from mbrl.policy import MbrlPolicy
             from mbrl.rate_models import TwinRateModel
@@ -89,11 +107,11 @@ class TwinNode:
         """Index of the state rate nearest to a measured throughput."""
         return int(np.argmin(np.abs(self.rates - mbps)))
 
-    def _on_throughput(self, msg: Any) -> None:
+    def _on_throughput(self, msg: UplinkThroughput) -> None:
         mbps = float(msg.achieved_mbps)
         if not math.isfinite(mbps) or mbps < 0 or mbps > self.max_mbps:
             self.rejected += 1
-            self.node.get_logger().error(
+            self.get_logger().error(
                 f"slot {msg.slot}: refused throughput {mbps!r} Mbit/s (must be finite, >= 0 and "
                 f"<= max_mbps {self.max_mbps:g}); {self.refused} refused so far")
             return
@@ -106,7 +124,7 @@ class TwinNode:
             self._training.start()
         with self._lock:
             latent = self.twin.latent()
-        out = new("twinslam_msgs/msg/RateLatent", slot=int(msg.slot),
+        out = new(RateLatent, slot=int(msg.slot),
                   model_version=latent.model_version,
                   mu=latent.mu.astype(np.float32), sigma=latent.sigma.astype(np.float32),
                   next_state_probs=latent.next_state_probs.astype(np.float32),
@@ -117,7 +135,7 @@ class TwinNode:
 
     def _retrain(self, states: list[int]) -> None:
         """Runs on the training thread: train a copy, swap it in, save it."""
-        log = self.node.get_logger()
+        log = self.get_logger()
         try:
             network, trace = self.twin.train_copy(states)
             with self._lock:
@@ -143,28 +161,26 @@ class TwinNode:
         if thread is not None:
             thread.join(timeout)
 
+    def close(self) -> None:
+        """At shutdown: let a running retrain finish (and save), then say what was learnt."""
+        self.wait_for_training(30.0)
+        self.get_logger().info(f"stopping: {self.received} slots learned from, "
+                               f"{self.refused} refused")
+
 
 def main(args: list[str] | None = None) -> int:
     # One intra-op thread: the retrain shares the machine with the spin thread (and on the
     # edge host with the other nodes), and the per-slot inference is tiny.
     torch.set_num_threads(1)
-    node = node_runtime.start_node("udt_node", PARAMETERS, args)
-    try:
-        twin_node = TwinNode(node)
-    except ValueError as exc:
-        return node_runtime.fail(node, str(exc))
-    node.get_logger().info(
-        f"twin of {twin_node.rates.size} uplink states {twin_node.rates.tolist()} Mbit/s, "
-        f"Z = {twin_node.twin.config.latent_dim}, retrain every "
-        f"{twin_node.twin.config.retrain_every} slots; listening on {THROUGHPUT_TOPIC}")
 
-    def stopping() -> None:
-        twin_node.wait_for_training(30.0)
-        node.get_logger().info(f"stopping: {twin_node.received} slots learned from, "
-                               f"{twin_node.refused} refused")
+    def started(twin_node: TwinNode) -> None:
+        twin_node.get_logger().info(
+            f"twin of {twin_node.rates.size} uplink states {twin_node.rates.tolist()} Mbit/s, "
+            f"Z = {twin_node.twin.config.latent_dim}, retrain every "
+            f"{twin_node.twin.config.retrain_every} slots; listening on "
+            f"{twin_node.sub.topic_name}")
 
-    node_runtime.run(node, on_exit=stopping)
-    return 0
+    return run_node("udt_node", TwinNode, args, started=started)
 
 
 if __name__ == "__main__":

@@ -1,45 +1,43 @@
 """A listener node run as its own OS process by the cross-process tests.
 
-It subscribes to one topic (parameters ``topic`` and ``type``), prints one JSON line when it is
-ready (its resolved names, parameters and endpoint GIDs) and one JSON line per message it
-accepts, holding the SHA-256 of the message re-encoded by rosbags, the independent reference.
+It subscribes to one topic (parameters ``topic`` and ``type``) through a
+:class:`~node_hosts.checked_subscription.CheckedSubscription`, prints one JSON line when it is
+ready (its resolved names and parameters) and one JSON line per message it accepts, holding
+the digest of its content (:mod:`tests.nodes.digest`).
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
 import sys
 
-import node_runtime
-from msg_schemas import typestore
+from rclpy.node import Node
+
+from msg_schemas import message_class, qos
+from node_hosts.checked_subscription import CheckedSubscription
+from node_hosts.node_main import run_node
+from tests.nodes.digest import content_digest
 
 
-def main() -> int:
-    node_runtime.init()
-    node = node_runtime.Node("listener")
-    topic = node.declare_parameter("topic", "chatter").value
-    type_name = node.declare_parameter("type", "std_msgs/msg/String").value
-    qos_name = node.declare_parameter("qos", "default").value
-    extra = node.declare_parameter("extra", "none").value
-    qos = node_runtime.SENSOR_DATA if qos_name == "sensor_data" else node_runtime.DEFAULT
-    store = typestore()
+class Listener(Node):
+    def __init__(self) -> None:
+        super().__init__("listener")
+        topic = self.declare_parameter("topic", "chatter").value
+        self.type_name = self.declare_parameter("type", "std_msgs/msg/String").value
+        qos_name = self.declare_parameter("qos", "default").value
+        extra = self.declare_parameter("extra", "none").value
+        profile = qos.SENSOR_DATA if qos_name == "sensor_data" else qos.PROTOCOL
+        self.sub = CheckedSubscription(self, message_class(self.type_name), topic, self.on_msg,
+                                       profile)
+        print(json.dumps({"event": "ready", "name": self.get_name(),
+                          "namespace": self.get_namespace(), "topic": self.sub.topic_name,
+                          "extra": extra}), flush=True)
 
-    def on_msg(msg: object) -> None:
-        ref = bytes(store.serialize_cdr(msg, type_name))
-        print(json.dumps({"event": "msg", "type": type_name,
-                          "sha256": hashlib.sha256(ref).hexdigest()}), flush=True)
-
-    sub = node.create_subscription(type_name, topic, on_msg, qos)
-    print(json.dumps({
-        "event": "ready", "name": node.get_name(), "namespace": node.get_namespace(),
-        "topic": sub.topic_name, "extra": extra,
-        "reader_gids": [g.bytes.hex() for g in node._reader_gids()],
-        "participant_gid": node.context.gid.bytes.hex(),
-    }), flush=True)
-    node_runtime.run(node)
-    return 0
+    def on_msg(self, msg: object) -> None:
+        print(json.dumps({"event": "msg", "type": self.type_name,
+                          "digest": content_digest(msg)}),
+              flush=True)
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_node("listener", Listener))

@@ -6,15 +6,15 @@ ends hang on a bridge in a fourth namespace, the "switch". Nothing is routed any
 namespaces have no default route and no link to the machine's own network, so no packet of a
 run can leave them.
 
-Cyclone DDS is configured per host for its ``eth0`` with multicast off and the three host
-addresses as unicast discovery peers, as on a LAN whose switch drops multicast. Its messages
+Fast DDS is configured per host for UDPv4 only, with the three host addresses as static
+discovery peers (``ROS_STATIC_PEERS``), as on a LAN whose switch drops multicast. Its messages
 stay below the link MTU, so a lost packet costs one RTPS fragment, not an IP-fragmented
-datagram of ten.
+datagram of 45.
 
 The device's uplink is its veth: ``tc`` on the device's ``eth0`` shapes what the device sends
 (:mod:`device_tracker.tc_shaper`), and :meth:`NetnsHosts.set_link` pulls the switch-side
 end of a host's cable. :class:`NetnsHosts` is a context manager with the process handling of
-:class:`~node_runtime.loopback.LoopbackDomain`: ``spawn(args, host=...)`` runs ``python args``
+:class:`~node_hosts.loopback.LoopbackDomain`: ``spawn(args, host=...)`` runs ``python args``
 inside a host, ``close()`` stops them and deletes every namespace, even after a failure.
 Creating namespaces needs root (CAP_SYS_ADMIN and CAP_NET_ADMIN) and ``iproute2``;
 :func:`unavailable_reason` says why they cannot be made here.
@@ -33,7 +33,8 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
-from node_runtime.loopback import ProcessDomain
+from node_hosts.fastdds import ENV_KEYS, ros_env
+from node_hosts.loopback import ProcessDomain
 
 HOSTS = ("device", "edge", "twin")
 SUBNET = "10.210.0"                      #: the hosts' /24; addresses exist only in the namespaces
@@ -42,26 +43,29 @@ INTERFACE = "eth0"
 MTU = 1500
 CLONE_NEWNET = 0x40000000
 
-HOST_CONFIG = """<?xml version="1.0" encoding="UTF-8"?>
-<CycloneDDS xmlns="https://cdds.io/config">
-  <Domain Id="any">
-    <General>
-      <Interfaces><NetworkInterface name="{interface}"/></Interfaces>
-      <AllowMulticast>false</AllowMulticast>
-      <MaxMessageSize>1472B</MaxMessageSize>
-      <FragmentSize>1400B</FragmentSize>
-    </General>
-    <Internal>
-      <SocketReceiveBufferSize min="4MB"/>
-      <SocketSendBufferSize min="1MB"/>
-    </Internal>
-    <Discovery>
-      <ParticipantIndex>auto</ParticipantIndex>
-      <MaxAutoParticipantIndex>20</MaxAutoParticipantIndex>
-      <Peers>{peers}</Peers>
-    </Discovery>
-  </Domain>
-</CycloneDDS>
+#: Fast DDS profile of a host: UDPv4 only (shared memory would carry a device's samples to the
+#: edge past the shaped cable, the namespaces sharing /dev/shm) with datagrams below the link MTU
+#: (a lost packet costs one RTPS fragment, not an IP-fragmented 64 KB datagram of 45)
+HOST_PROFILE = """<?xml version="1.0" encoding="UTF-8"?>
+<dds xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
+  <profiles>
+    <transport_descriptors>
+      <transport_descriptor>
+        <transport_id>host_udp</transport_id>
+        <type>UDPv4</type>
+        <maxMessageSize>1472</maxMessageSize>
+        <sendBufferSize>1048576</sendBufferSize>
+        <receiveBufferSize>4194304</receiveBufferSize>
+      </transport_descriptor>
+    </transport_descriptors>
+    <participant profile_name="twinslam_host" is_default_profile="true">
+      <rtps>
+        <useBuiltinTransports>false</useBuiltinTransports>
+        <userTransports><transport_id>host_udp</transport_id></userTransports>
+      </rtps>
+    </participant>
+  </profiles>
+</dds>
 """
 
 
@@ -87,10 +91,11 @@ def unavailable_reason() -> str | None:
     return None
 
 
-def cyclone_config(interface: str = INTERFACE, hosts: tuple[str, ...] = HOSTS) -> str:
-    """The Cyclone configuration of one host: its interface, unicast peers, no multicast."""
-    peers = "".join(f'<Peer address="{address_of(h)}"/>' for h in hosts)
-    return HOST_CONFIG.format(interface=interface, peers=peers)
+def host_env(domain_id: int, profile: Path, hosts: tuple[str, ...] = HOSTS) -> dict[str, str]:
+    """The DDS environment of a node on a host: the hosts' addresses as static peers (the
+    namespaces have no route for multicast, as a LAN whose switch drops it) and the host
+    profile."""
+    return ros_env(domain_id, "SUBNET", profile, tuple(address_of(h) for h in hosts))
 
 
 def address_of(host: str) -> str:
@@ -127,6 +132,9 @@ class NetnsHosts(ProcessDomain):
         self.namespaces = {h: f"{prefix}{h}" for h in HOSTS}
         self.switch = f"{prefix}switch"
         self._bpffs: Path | None = None         # where loss programs are pinned
+        self._profile_dir = Path(tempfile.mkdtemp(prefix=f"{prefix}dds-"))
+        self.profile = self._profile_dir / "fastdds_host.xml"
+        self.profile.write_text(HOST_PROFILE, encoding="utf-8")
 
     def port(self, host: str) -> str:
         """The switch-side end of ``host``'s cable."""
@@ -174,7 +182,7 @@ class NetnsHosts(ProcessDomain):
 
     def env_for(self, host: str) -> dict[str, str]:
         env = self.base_env()
-        env["CYCLONEDDS_URI"] = cyclone_config()
+        env.update(host_env(self.domain_id, self.profile))
         return env
 
     def command(self, host: str, argv: list[str]) -> list[str]:
@@ -192,13 +200,12 @@ class NetnsHosts(ProcessDomain):
     @contextlib.contextmanager
     def inside(self, host: str) -> Iterator[None]:
         """Run this thread in ``host``'s namespace for the block: DDS participants made here
-        (and the threads Cyclone starts for them) live in that host."""
+        (and the threads the middleware starts for them) live in that host."""
         home = os.open("/proc/thread-self/ns/net", os.O_RDONLY)
-        saved = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "CYCLONEDDS_URI")}
+        saved = {k: os.environ.get(k) for k in ENV_KEYS}
         try:
             _setns(f"/run/netns/{self.namespaces[host]}")
-            os.environ.update({"ROS_DOMAIN_ID": str(self.domain_id),
-                               "CYCLONEDDS_URI": cyclone_config()})
+            os.environ.update(host_env(self.domain_id, self.profile))
             yield
         finally:
             _setns(f"/proc/self/fd/{home}")
@@ -221,14 +228,14 @@ class NetnsHosts(ProcessDomain):
 
     def lose_packets(self, host: str, percent: float) -> str:
         """Drop ``percent`` % of what ``host`` sends, at random, on its ``eth0``: ``tc netem``
-        where the kernel has it, else an eBPF classifier (:mod:`node_runtime.ebpf_loss`).
+        where the kernel has it, else an eBPF classifier (:mod:`node_hosts.ebpf_loss`).
         Returns which; raises :class:`NetnsError` when neither can be installed."""
         ns = self.namespaces[host]
         netem = subprocess.run(["tc", "-n", ns, "qdisc", "replace", "dev", INTERFACE, "root",
                                 "netem", "loss", f"{percent:g}%"], capture_output=True, text=True)
         if netem.returncode == 0:
             return "netem"
-        from node_runtime.ebpf_loss import EbpfError, pin_random_drop
+        from node_hosts.ebpf_loss import EbpfError, pin_random_drop
 
         if self._bpffs is None:
             self._bpffs = Path(tempfile.mkdtemp(prefix=f"{self.prefix}bpffs-"))
@@ -262,6 +269,7 @@ class NetnsHosts(ProcessDomain):
     def close(self) -> None:
         super().close()
         self.down()
+        shutil.rmtree(self._profile_dir, ignore_errors=True)
         if self._bpffs is not None:           # the pinned programs go with the mount
             subprocess.run(["umount", str(self._bpffs)], capture_output=True)
             shutil.rmtree(self._bpffs, ignore_errors=True)

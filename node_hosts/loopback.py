@@ -1,11 +1,10 @@
-"""A private DDS domain on the loopback interface, for tests, benchmarks and the demo.
+"""A private ROS 2 domain on this machine, for tests, benchmarks and the demo.
 
 Every ``LoopbackDomain`` gets a domain id no other live domain on this machine uses (checked
-by binding its discovery port) and a Cyclone configuration that never leaves ``lo``: multicast
-off, unicast discovery to 127.0.0.1 only, and large UDP messages (loopback's MTU is 64 KiB, so
-an image travels in ~15 datagrams instead of ~700). Node processes started through it inherit
-that environment and are stopped (SIGTERM, then SIGKILL) when the domain closes, so a failing
-test never leaves processes behind.
+by binding its discovery port) and discovery limited to this machine
+(``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``), with the project's Fast DDS profile. Node
+processes started through it inherit that environment and are stopped (SIGTERM, then SIGKILL)
+when the domain closes, so a failing test never leaves processes behind.
 """
 
 from __future__ import annotations
@@ -21,31 +20,10 @@ import subprocess
 import sys
 import threading
 import time
-from pathlib import Path
 from types import TracebackType
+from typing import Any
 
-LOOPBACK_CONFIG = """<?xml version="1.0" encoding="UTF-8"?>
-<CycloneDDS xmlns="https://cdds.io/config">
-  <Domain Id="any">
-    <General>
-      <Interfaces><NetworkInterface name="lo"/></Interfaces>
-      <AllowMulticast>false</AllowMulticast>
-      <MaxMessageSize>65000B</MaxMessageSize>
-    </General>
-    <Internal>
-      <SocketReceiveBufferSize min="4MB"/>
-      <SocketSendBufferSize min="4MB"/>
-    </Internal>
-    <Discovery>
-      <ParticipantIndex>auto</ParticipantIndex>
-      <MaxAutoParticipantIndex>40</MaxAutoParticipantIndex>
-      <Peers><Peer address="127.0.0.1"/></Peers>
-    </Discovery>
-  </Domain>
-</CycloneDDS>
-"""
-
-REPO_ROOT = Path(__file__).resolve().parent.parent
+from node_hosts.fastdds import ENV_KEYS, REPO_ROOT, ros_env
 
 
 def _discovery_port_free(domain_id: int) -> bool:
@@ -73,12 +51,16 @@ def pick_domain_id(rng: random.Random | None = None) -> int:
 class ProcessDomain:
     """The processes of one DDS domain: each started with that domain's environment, each
     stopped (SIGTERM, then SIGKILL) when the domain closes, so a failing test never leaves
-    processes behind. Subclasses say where a host's processes run and with which Cyclone
-    configuration (:class:`LoopbackDomain`, :class:`node_runtime.netns.NetnsHosts`)."""
+    processes behind. Subclasses say where a host's processes run and with which DDS
+    environment (:class:`LoopbackDomain`, :class:`node_hosts.netns.NetnsHosts`)."""
 
     def __init__(self, domain_id: int) -> None:
         self.domain_id = domain_id
         self.processes: list[subprocess.Popen[str]] = []
+        #: each process's stderr (its log) so far, by pid, read by a thread as it comes: a
+        #: chatty node must never block on a full pipe (64 KB) that nobody reads
+        self._logs: dict[int, list[str]] = {}
+        self._log_threads: dict[int, threading.Thread] = {}
 
     def base_env(self) -> dict[str, str]:
         """The current environment with this domain's id and the repository on the path."""
@@ -111,18 +93,44 @@ class ProcessDomain:
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                 cwd=str(REPO_ROOT), **kwargs)  # type: ignore[call-overload]
         self.processes.append(proc)
+        lines: list[str] = []
+        self._logs[proc.pid] = lines
+        thread = threading.Thread(target=_pump_lines, args=(proc.stderr, lines), daemon=True,
+                                  name=f"log-{proc.pid}")
+        thread.start()
+        self._log_threads[proc.pid] = thread
         return proc
+
+    def log(self, proc: subprocess.Popen[str]) -> str:
+        """What ``proc`` has written to stderr so far."""
+        return "".join(self._logs.get(proc.pid, []))
+
+    def wait_for_log(self, proc: subprocess.Popen[str], text: str, timeout: float) -> bool:
+        """Wait (bounded) until ``proc`` logged ``text``; False if it did not, or exited."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if text in self.log(proc):
+                return True
+            if proc.poll() is not None:
+                time.sleep(0.2)             # the last lines may still be in the pipe
+                return text in self.log(proc)
+            time.sleep(0.05)
+        return False
 
     def stop(self, proc: subprocess.Popen[str], timeout: float = 5.0) -> tuple[int, str, str]:
         """SIGTERM, wait up to ``timeout`` s, SIGKILL if needed; returns (code, out, err)."""
         if proc.poll() is None:
             proc.send_signal(signal.SIGTERM)
         try:
-            out, err = proc.communicate(timeout=timeout)
+            proc.wait(timeout=timeout)
         except subprocess.TimeoutExpired:
             proc.kill()
-            out, err = proc.communicate(timeout=5)
-        return proc.returncode, out, err
+            proc.wait(timeout=5)
+        thread = self._log_threads.get(proc.pid)
+        if thread is not None:
+            thread.join(timeout=5)
+        out = proc.stdout.read() if proc.stdout is not None and not proc.stdout.closed else ""
+        return proc.returncode, out or "", self.log(proc)
 
     def close(self) -> None:
         for proc in self.processes:
@@ -137,8 +145,13 @@ class ProcessDomain:
         self.close()
 
 
+def _pump_lines(stream: Any, lines: list[str]) -> None:
+    for line in stream:
+        lines.append(line)
+
+
 class LoopbackDomain(ProcessDomain):
-    """Context manager: a domain id + loopback Cyclone config + the processes started in it."""
+    """Context manager: a domain id on this machine only + the processes started in it."""
 
     def __init__(self, domain_id: int | None = None) -> None:
         super().__init__(pick_domain_id() if domain_id is None else domain_id)
@@ -148,17 +161,22 @@ class LoopbackDomain(ProcessDomain):
     def env(self) -> dict[str, str]:
         """Environment for a process on this domain (the current one plus the DDS settings)."""
         env = self.base_env()
-        env["CYCLONEDDS_URI"] = LOOPBACK_CONFIG
+        env.pop("ROS_STATIC_PEERS", None)
+        env.update(ros_env(self.domain_id))
         return env
 
     def env_for(self, host: str | None) -> dict[str, str]:
         return self.env                 # every "host" is this machine's loopback
 
     def activate(self) -> None:
-        """Point *this* process's future participants at the domain (set before ``init()``)."""
-        for key in ("ROS_DOMAIN_ID", "CYCLONEDDS_URI"):
-            self._saved_env[key] = os.environ.get(key)
-            os.environ[key] = self.env[key]
+        """Point *this* process's future contexts at the domain (set before ``rclpy.init``)."""
+        env = self.env
+        for key in ENV_KEYS:
+            self._saved_env.setdefault(key, os.environ.get(key))
+            if key in env:
+                os.environ[key] = env[key]
+            else:
+                os.environ.pop(key, None)
 
     def close(self) -> None:
         super().close()

@@ -1,0 +1,99 @@
+"""The two processes of ``bench.dds``: ``receive`` records the arrival time and header stamp of
+every image (through the nodes' own decoding and validation path,
+:class:`~node_hosts.checked_subscription.CheckedSubscription`); ``send`` publishes 640×480 rgb8
+images at a fixed rate, stamped with the wall clock just before each publish.
+
+    python -m bench.dds_peer receive|send --qos reliable|sensor_data [--seconds S --rate R]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+import numpy as np
+import rclpy
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Image
+
+from msg_schemas import new
+from node_hosts.acks import wait_for_acks
+from node_hosts.checked_subscription import CheckedSubscription
+
+TOPIC = "bench/image"
+
+
+def profile(name: str) -> QoSProfile:
+    """Depth 30 (one second of frames), reliable or best effort (sensor-data)."""
+    reliability = (ReliabilityPolicy.RELIABLE if name == "reliable"
+                   else ReliabilityPolicy.BEST_EFFORT)
+    return QoSProfile(depth=30, reliability=reliability)
+
+
+def receive(qos: QoSProfile) -> None:
+    node = Node("bench_receiver")
+    latencies: list[float] = []
+    seqs: list[int] = []
+
+    def on_image(msg: Image) -> None:
+        now = time.time()
+        latencies.append(now - (msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9))
+        seqs.append(int(msg.header.frame_id))
+
+    sub = CheckedSubscription(node, Image, TOPIC, on_image, qos)
+    print(json.dumps({"event": "ready"}), flush=True)
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
+        pass
+    print(json.dumps({"event": "result", "latencies": latencies, "seqs": seqs,
+                      "rejected": sub.rejected}), flush=True)
+
+
+def send(qos: QoSProfile, seconds: float, rate: float) -> None:
+    node = Node("bench_sender")
+    pub = node.create_publisher(Image, TOPIC, qos)
+    deadline = time.monotonic() + 30
+    while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
+        rclpy.spin_once(node, timeout_sec=0.05)
+    if pub.get_subscription_count() == 0:
+        raise SystemExit("bench_sender: the receiver never matched")
+    time.sleep(1.0)                  # discovery settles both ways
+    pixels = np.random.default_rng(0).integers(0, 255, 921600, dtype=np.uint8)
+    count = int(seconds * rate)
+    t0 = time.monotonic()
+    for i in range(count):
+        while (delay := t0 + i / rate - time.monotonic()) > 0:
+            time.sleep(delay)
+        img = new(Image, height=480, width=640, encoding="rgb8", step=1920, data=pixels)
+        img.header.frame_id = str(i)
+        now = time.time()
+        img.header.stamp.sec, img.header.stamp.nanosec = int(now), int((now % 1) * 1e9)
+        pub.publish(img)
+    wait_for_acks(pub, 2.0)
+    print(json.dumps({"event": "sent", "count": count}), flush=True)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("role", choices=["receive", "send"])
+    parser.add_argument("--qos", choices=["reliable", "sensor_data"], default="reliable")
+    parser.add_argument("--seconds", type=float, default=10.0)
+    parser.add_argument("--rate", type=float, default=30.0)
+    args = parser.parse_args()
+    rclpy.init()
+    try:
+        if args.role == "receive":
+            receive(profile(args.qos))
+        else:
+            send(profile(args.qos), args.seconds, args.rate)
+    finally:
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

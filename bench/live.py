@@ -1,0 +1,110 @@
+"""The live pipeline (``twinslam launch --loopback``: player, device, edge as processes) on two
+commits side by side, alternating in one run: the edge's compute ms per slot (median of its
+MapStats, as the launch table prints it) and the device process's CPU ms per frame (user +
+system time of the whole process over the run, start-up included, / frames played).
+
+    python -m bench.live [--baseline COMMIT] [--rounds 3] [--frames 600] [--policy adapt]
+
+The baseline is checked out into a temporary git worktree and run with this venv (its
+dependencies are a subset of today's); each round runs the baseline, then the working tree.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import re
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+SEQUENCE = REPO.parent / "shared" / "data" / "7scenes-1000"
+TICK = os.sysconf("SC_CLK_TCK")
+
+
+def _device_cpu_s(root: Path) -> float | None:
+    """CPU seconds of the running device process started from ``root`` (None if none)."""
+    for pid in os.listdir("/proc"):
+        if not pid.isdigit():
+            continue
+        try:
+            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+            if b"device_tracker.node" not in cmd or Path(f"/proc/{pid}/cwd").resolve() != root:
+                continue
+            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+            return (int(fields[11]) + int(fields[12])) / TICK
+        except (OSError, IndexError, ValueError):
+            continue
+    return None
+
+
+def run(root: Path, frames: int, policy: str) -> dict[str, float]:
+    """One ``twinslam launch`` from checkout ``root``; its edge ms and device CPU ms/frame."""
+    env = dict(os.environ, PYTHONPATH=str(root))
+    cmd = [sys.executable, "-m", "twinslam_cli.main", "launch", "--loopback", "--sequence",
+           str(SEQUENCE), "--frames", str(frames), "--policy", policy]
+    proc = subprocess.Popen(cmd, cwd=root, env=env, text=True, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT)
+    last_cpu: list[float] = []
+
+    def watch() -> None:
+        while proc.poll() is None:
+            cpu = _device_cpu_s(root)
+            if cpu is not None:
+                last_cpu.append(cpu)
+            time.sleep(0.2)
+
+    watcher = threading.Thread(target=watch, daemon=True)
+    watcher.start()
+    out, _ = proc.communicate(timeout=900)
+    watcher.join()
+    row = next((line for line in out.splitlines() if line.startswith(policy + " ")), None)
+    if proc.returncode != 0 or row is None or not last_cpu:
+        raise RuntimeError(f"launch in {root} failed ({proc.returncode}): {out[-3000:]}")
+    values = re.split(r"\s+", row.strip())
+    return {"edge_ms": float(values[-1]), "device_ms_per_frame": max(last_cpu) / frames * 1000,
+            "untracked": float(values[-2]), "ate_m": float(values[3])}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--baseline", default="d48d6e2",
+                        help="commit to compare with (default: the last on the own runtime)")
+    parser.add_argument("--rounds", type=int, default=3, help="baseline/current pairs")
+    parser.add_argument("--frames", type=int, default=600, help="frames played per run")
+    parser.add_argument("--policy", default="adapt", help="the edge's policy")
+    args = parser.parse_args()
+    print(f"machine: {platform.node()} {platform.machine()} {os.cpu_count()} cores, python "
+          f"{platform.python_version()}; {args.frames} frames of {SEQUENCE.name}, {args.policy}",
+          flush=True)
+    with tempfile.TemporaryDirectory(prefix="twinslam-baseline-") as tmp:
+        base = Path(tmp) / "baseline"
+        subprocess.run(["git", "worktree", "add", "--detach", str(base), args.baseline],
+                       cwd=REPO, check=True, capture_output=True)
+        try:
+            results: dict[str, list[dict[str, float]]] = {"baseline": [], "current": []}
+            for i in range(args.rounds):
+                for label, root in (("baseline", base.resolve()), ("current", REPO)):
+                    res = run(root, args.frames, args.policy)
+                    results[label].append(res)
+                    print(f"round {i + 1} {label:<8} edge {res['edge_ms']:6.1f} ms/slot, device "
+                          f"{res['device_ms_per_frame']:6.1f} CPU ms/frame, ATE "
+                          f"{res['ate_m']:.3f} m, untracked {res['untracked']:.0f}", flush=True)
+        finally:
+            subprocess.run(["git", "worktree", "remove", "--force", str(base)], cwd=REPO,
+                           capture_output=True)
+    for key in ("edge_ms", "device_ms_per_frame"):
+        b = statistics.median(r[key] for r in results["baseline"])
+        c = statistics.median(r[key] for r in results["current"])
+        print(f"{key:<20} baseline {args.baseline} {b:7.1f}   current {c:7.1f}   "
+              f"({(c / b - 1) * 100:+.1f} %)")
+
+
+if __name__ == "__main__":
+    main()

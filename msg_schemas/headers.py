@@ -1,0 +1,36 @@
+"""Stamps and headers: seconds ↔ ``builtin_interfaces/Time``, and filling ``std_msgs/Header``.
+
+Every node stamps with its own clock (``node.get_clock()``, so ``use_sim_time`` works); these
+helpers only convert. One place for it, so the device, the edge and the player agree on the
+nanosecond rounding that pairs a colour image with its depth image.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from builtin_interfaces.msg import Time
+
+
+def ros_time(stamp: float) -> Time:
+    """``builtin_interfaces/Time`` of a time in seconds (nanoseconds rounded, never 10⁹)."""
+    sec = math.floor(stamp)
+    return Time(sec=sec, nanosec=min(round((stamp - sec) * 1e9), 999_999_999))
+
+
+def stamp_seconds(header: Any) -> float:
+    """A header's stamp in seconds."""
+    return int(header.stamp.sec) + int(header.stamp.nanosec) * 1e-9
+
+
+def stamp_key(header: Any) -> int:
+    """The stamp in integer nanoseconds: a colour and a depth image of one frame share it."""
+    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+
+
+def set_header(msg: Any, stamp: float, frame_id: str) -> Any:
+    """Fill ``msg.header`` with a stamp in seconds and a frame id; returns ``msg``."""
+    msg.header.stamp = ros_time(stamp)
+    msg.header.frame_id = frame_id
+    return msg

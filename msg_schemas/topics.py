@@ -1,0 +1,23 @@
+"""Topic names of the per-slot protocol and the camera, written once (DESIGN.md §1).
+
+All are relative, so a node's namespace moves them: ``-r __ns:=/ar1`` on a device and its edge
+puts the pair on ``/ar1/device/...`` and ``/ar1/edge/...``, and a second pair under ``/ar2``
+shares the domain without cross-talk.
+"""
+
+CAMERA_IMAGE = "camera/image_raw"
+CAMERA_DEPTH = "camera/depth/image_raw"
+CAMERA_INFO = "camera/camera_info"
+GROUND_TRUTH_POSE = "camera/ground_truth_pose"
+
+DEVICE_POSE = "device/pose"
+DEVICE_PATH = "device/path"
+FRAME_SUMMARIES = "device/frame_summaries"
+KEYFRAMES = "device/keyframes"
+UPLINK_THROUGHPUT = "device/uplink_throughput"
+
+UPLOAD_REQUEST = "edge/upload_request"
+MAP_UPDATE = "edge/map_update"
+MAP_STATS = "edge/map_stats"
+
+RATE_LATENT = "udt/rate_latent"

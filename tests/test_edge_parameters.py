@@ -1,0 +1,79 @@
+"""The edge's parameters through ROS 2's standard parameter services, from another rclpy
+process: listed, described, refused with a reason when out of range or read-only, and a live
+``policy`` change that decides the next slot."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+from rcl_interfaces.srv import DescribeParameters, ListParameters, SetParameters
+from twinslam_msgs.msg import FrameSummaries, UploadRequest
+
+from device_tracker.messages import FrameRecord, frame_summaries_message
+from msg_schemas import qos, topics
+from node_hosts.loopback import LoopbackDomain
+from node_hosts.session import RosSession
+
+
+def _call(ros: RosSession, srv_type: type, name: str, request: object) -> object:
+    client = ros.node.create_client(srv_type, name)
+    assert ros.spin_until(client.service_is_ready, 60.0), f"{name} is not offered"
+    future = client.call_async(request)
+    assert ros.spin_until(future.done, 30.0), f"{name} did not answer"
+    return future.result()
+
+
+def _value(value: object) -> ParameterValue:
+    if isinstance(value, str):
+        return ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value)
+    return ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=int(value))
+
+
+def _set(ros: RosSession, **values: object) -> list:
+    request = SetParameters.Request(parameters=[Parameter(name=k, value=_value(v))
+                                                for k, v in values.items()])
+    return _call(ros, SetParameters, "/edge_mapper/set_parameters", request).results
+
+
+def _summaries(slot: int) -> FrameSummaries:
+    frames = [FrameRecord(f, 0.1 * f, np.eye(4), True, np.arange(5, dtype=np.uint64) + f,
+                          np.zeros(0, np.uint64)) for f in range(slot * 6, slot * 6 + 6)]
+    return frame_summaries_message(slot, 40.0, 0, 0, frames, time.time())
+
+
+def test_edge_parameters_are_listed_refused_with_reasons_and_changed_live(
+        domain: LoopbackDomain, ros: RosSession) -> None:
+    edge = domain.spawn(["-m", "edge_mapper.node", "--ros-args", "-p", "vmax:=10"])
+    listed = _call(ros, ListParameters, "/edge_mapper/list_parameters",
+                   ListParameters.Request()).result.names
+    assert {"policy", "vmax", "alpha_mbit", "fallback_policy", "latent_max_age",
+            "use_sim_time"} <= set(listed)
+    described = _call(ros, DescribeParameters, "/edge_mapper/describe_parameters",
+                      DescribeParameters.Request(names=["vmax", "alpha_mbit"])).descriptors
+    vmax, alpha = described
+    assert vmax.integer_range[0].from_value == 2 and "V_max" in vmax.description
+    assert not vmax.read_only and alpha.read_only
+
+    out_of_range, read_only, unknown = (_set(ros, vmax=1)[0], _set(ros, alpha_mbit="7")[0],
+                                        _set(ros, policy="fastest")[0])
+    assert not out_of_range.successful and "range" in out_of_range.reason
+    assert not read_only.successful and "read-only" in read_only.reason
+    assert not unknown.successful and "unknown policy 'fastest'" in unknown.reason
+
+    requests: list[UploadRequest] = []
+    ros.node.create_subscription(UploadRequest, topics.UPLOAD_REQUEST, requests.append,
+                                 qos.PROTOCOL)
+    pub = ros.node.create_publisher(FrameSummaries, topics.FRAME_SUMMARIES, qos.PROTOCOL)
+    assert ros.spin_until(lambda: pub.get_subscription_count() > 0, 30.0)
+    pub.publish(_summaries(0))
+    assert ros.spin_until(lambda: len(requests) == 1, 30.0)
+    assert requests[0].policy == "adapt"
+    assert all(r.successful for r in _set(ros, policy="lff", vmax=12))   # from the next slot
+    pub.publish(_summaries(1))
+    assert ros.spin_until(lambda: len(requests) == 2, 30.0)
+    assert requests[1].policy == "lff"
+    code, _, err = domain.stop(edge)
+    assert code == 0, err[-2000:]
+    assert "slot 1: parameters now" in err and "V_max 12" in err
