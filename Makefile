@@ -58,6 +58,7 @@ bench: venv
 	$(PY) -m bench.udt
 	$(PY) -m bench.pipeline
 	$(PY) -m bench.mbrl
+	$(PY) -m bench.live --rounds 2
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .ruff_cache

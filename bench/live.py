@@ -1,7 +1,8 @@
 """The live pipeline (``twinslam launch --loopback``: player, device, edge as processes) on two
 commits side by side, alternating in one run: the edge's compute ms per slot (median of its
-MapStats, as the launch table prints it) and the device process's CPU ms per frame (user +
-system time of the whole process over the run, start-up included, / frames played).
+MapStats, as the launch table prints it) and the device process's CPU ms per frame in steady
+state (user + system time between the edge's first and last slot status lines, over the
+frames of the slots in between; start-up and warm-up left out).
 
     python -m bench.live [--baseline COMMIT] [--rounds 3] [--frames 600] [--policy adapt]
 
@@ -29,7 +30,9 @@ TICK = os.sysconf("SC_CLK_TCK")
 
 
 def _device_cpu_s(root: Path) -> float | None:
-    """CPU seconds of the running device process started from ``root`` (None if none)."""
+    """CPU seconds of the newest running device process started from ``root`` (None if
+    none)."""
+    found: list[tuple[int, float]] = []
     for pid in os.listdir("/proc"):
         if not pid.isdigit():
             continue
@@ -38,37 +41,51 @@ def _device_cpu_s(root: Path) -> float | None:
             if b"device_tracker.node" not in cmd or Path(f"/proc/{pid}/cwd").resolve() != root:
                 continue
             fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-            return (int(fields[11]) + int(fields[12])) / TICK
+            found.append((int(fields[19]), (int(fields[11]) + int(fields[12])) / TICK))
         except (OSError, IndexError, ValueError):
             continue
-    return None
+    return max(found)[1] if found else None
 
 
 def run(root: Path, frames: int, policy: str) -> dict[str, float]:
     """One ``twinslam launch`` from checkout ``root``; its edge ms and device CPU ms/frame."""
-    env = dict(os.environ, PYTHONPATH=str(root))
+    env = dict(os.environ, PYTHONPATH=str(root), PYTHONUNBUFFERED="1")
     cmd = [sys.executable, "-m", "twinslam_cli.main", "launch", "--loopback", "--sequence",
            str(SEQUENCE), "--frames", str(frames), "--policy", policy]
     proc = subprocess.Popen(cmd, cwd=root, env=env, text=True, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT)
-    last_cpu: list[float] = []
+    latest: list[float] = []
+    stop = threading.Event()
 
     def watch() -> None:
-        while proc.poll() is None:
+        while not stop.is_set():
             cpu = _device_cpu_s(root)
             if cpu is not None:
-                last_cpu.append(cpu)
-            time.sleep(0.2)
+                latest.append(cpu)
+            time.sleep(0.05)
 
     watcher = threading.Thread(target=watch, daemon=True)
     watcher.start()
-    out, _ = proc.communicate(timeout=900)
+    marks: list[tuple[int, float]] = []          # (slot, device CPU s) at each status line
+    lines = []
+    assert proc.stdout is not None
+    for line in proc.stdout:
+        lines.append(line)
+        match = re.search(r"\] slot\s+(\d+) \|", line)
+        if match and latest:
+            marks.append((int(match[1]), latest[-1]))
+    proc.wait(timeout=900)
+    stop.set()
     watcher.join()
+    out = "".join(lines)
     row = next((line for line in out.splitlines() if line.startswith(policy + " ")), None)
-    if proc.returncode != 0 or row is None or not last_cpu:
+    if proc.returncode != 0 or row is None or len(marks) < 2:
         raise RuntimeError(f"launch in {root} failed ({proc.returncode}): {out[-3000:]}")
+    (first, cpu0), (last, cpu1) = marks[0], marks[-1]
+    slot_frames = frames // (max(s for s, _ in marks) + 1)
     values = re.split(r"\s+", row.strip())
-    return {"edge_ms": float(values[-1]), "device_ms_per_frame": max(last_cpu) / frames * 1000,
+    return {"edge_ms": float(values[-1]),
+            "device_ms_per_frame": (cpu1 - cpu0) / ((last - first) * slot_frames) * 1000,
             "untracked": float(values[-2]), "ate_m": float(values[3])}
 
 
