@@ -127,6 +127,8 @@ class EdgeMapperNode(Node):
         #: the twin node feeds a twin-driven learned policy; None for every other policy
         self.feed: TwinFedPolicy | None = None
         self._live = self._live_values()
+        #: live values whose policy could not be made (logged once, kept until they change)
+        self._refused: dict[str, Any] | None = None
         try:
             policy = self._make_policies(self._live)
             self.core = EdgeMapperCore(policy, None, config, p["checkpoint"] or None,
@@ -197,7 +199,7 @@ class EdgeMapperNode(Node):
     def _apply_live_parameters(self, slot: int) -> None:
         """Parameters set since the last slot take effect now, before it is planned."""
         live = self._live_values()
-        if live == self._live:
+        if live == self._live or live == self._refused:
             return
         log = self.get_logger()
         changed = {k: v for k, v in live.items() if self._live[k] != v}
@@ -209,6 +211,7 @@ class EdgeMapperNode(Node):
                 self.feed = feed
                 log.error(f"slot {slot}: cannot switch to {changed} ({exc}); "
                           f"{self.policy_name} goes on deciding")
+                self._refused = dict(live)        # not tried again until a parameter changes
                 live = {**live, **{k: self._live[k] for k in changed if k != "vmax"}}
             else:
                 self.core.planner.policy = policy
