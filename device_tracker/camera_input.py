@@ -7,10 +7,6 @@ from typing import Any
 
 import numpy as np
 
-from msg_schemas.headers import stamp_key, stamp_seconds
-
-__all__ = ["depth_array", "image_array", "stamp_key", "stamp_seconds"]
-
 
 def image_array(msg: Any) -> np.ndarray:
     """H×W×3 RGB (``rgb8``/``bgr8``) or H×W grey (``mono8``) view of a validated image."""

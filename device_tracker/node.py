@@ -51,7 +51,7 @@ from twinslam_msgs.msg import (
     UploadRequest,
 )
 
-from device_tracker.camera_input import depth_array, image_array, stamp_key, stamp_seconds
+from device_tracker.camera_input import depth_array, image_array
 from device_tracker.device_core import DeviceTrackerCore
 from device_tracker.messages import frame_summaries_message, keyframe_message
 from device_tracker.tc_shaper import NetemConfig, TcShaper
@@ -59,7 +59,7 @@ from device_tracker.tracking import TrackingConfig
 from device_tracker.uplink_shaper import ShaperError, UplinkShaper
 from edge_mapper.messages import read_map_update
 from msg_schemas import new, qos, topics
-from msg_schemas.headers import set_header
+from msg_schemas.headers import set_header, stamp_key, stamp_seconds
 from msg_schemas.poses import pose_msg
 from node_hosts.acks import wait_for_acks
 from node_hosts.checked_subscription import CheckedSubscription

@@ -130,7 +130,7 @@ class EdgeMapperNode(Node):
         #: live values whose policy could not be made (logged once, kept until they change)
         self._refused: dict[str, Any] | None = None
         try:
-            policy = self._make_policies(self._live)
+            policy, self.feed = self._make_policies(self._live)
             self.core = EdgeMapperCore(policy, None, config, p["checkpoint"] or None,
                                        int(p["states"]))
         except ValueError as exc:
@@ -181,9 +181,10 @@ class EdgeMapperNode(Node):
     def policy_name(self) -> str:
         return self._policy_name(self._live)
 
-    def _make_policies(self, live: dict[str, Any]) -> object:
-        """The policy the live values name (a twin-driven one wrapped with its fallback),
-        warmed up; sets ``self.feed``. ValueError when it cannot be made."""
+    def _make_policies(self, live: dict[str, Any]) -> tuple[object, TwinFedPolicy | None]:
+        """The policy the live values name, warmed up, and its twin feed: a twin-driven policy
+        comes wrapped with its fallback (the wrapper is both), any other with no feed.
+        ValueError when it cannot be made."""
         policy = make_policy(self._policy_name(live))
         EdgeMapperCore.warm_up(policy)
         feed = None
@@ -193,8 +194,7 @@ class EdgeMapperNode(Node):
                 raise ValueError("fallback_policy must not need the twin itself")
             EdgeMapperCore.warm_up(fallback)
             policy = feed = TwinFedPolicy(policy, fallback, int(live["latent_max_age"]))
-        self.feed = feed
-        return policy
+        return policy, feed
 
     def _apply_live_parameters(self, slot: int) -> None:
         """Parameters set since the last slot take effect now, before it is planned."""
@@ -204,17 +204,15 @@ class EdgeMapperNode(Node):
         log = self.get_logger()
         changed = {k: v for k, v in live.items() if self._live[k] != v}
         if changed.keys() - {"vmax"}:
-            feed = self.feed
             try:
-                policy = self._make_policies(live)
+                policy, feed = self._make_policies(live)
             except ValueError as exc:
-                self.feed = feed
                 log.error(f"slot {slot}: cannot switch to {changed} ({exc}); "
                           f"{self.policy_name} goes on deciding")
                 self._refused = dict(live)        # not tried again until a parameter changes
                 live = {**live, **{k: self._live[k] for k in changed if k != "vmax"}}
             else:
-                self.core.planner.policy = policy
+                self.core.planner.policy, self.feed = policy, feed
         if live["vmax"] != self._live["vmax"]:
             slot_config = dataclasses.replace(self.core.config.slot, vmax=int(live["vmax"]))
             self.core.config = dataclasses.replace(self.core.config, slot=slot_config)
