@@ -11,10 +11,14 @@ MSG_SOURCES := $(sort $(wildcard msg_schemas/msg/*.msg)) msg_schemas/CMakeLists.
 	msg_schemas/package.xml
 MSGS_STAMP := $(VENV)/.twinslam_msgs-$(shell cat $(MSG_SOURCES) | md5sum | cut -c1-12)
 MSGS_BUILD := build/twinslam_msgs
+# the modules with numba kernels (compiled once at set-up, recompiled when one changes)
+KERNEL_SOURCES := $(sort $(shell grep -l -r --include=*.py "@njit" device_tracker edge_mapper \
+	sequence_player simulator))
+KERNELS_STAMP := $(VENV)/.kernels-$(shell cat $(KERNEL_SOURCES) | md5sum | cut -c1-12)
 
-.PHONY: venv msgs run test lint bench clean
+.PHONY: venv msgs kernels run test lint bench clean
 
-venv: $(STAMP) $(MSGS_STAMP)
+venv: $(STAMP) $(MSGS_STAMP) $(KERNELS_STAMP)
 
 $(STAMP): requirements.txt setup.py
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -39,6 +43,13 @@ $(MSGS_STAMP): $(STAMP) $(MSG_SOURCES)
 	  > build.log 2>&1 || { grep -iE -B2 -A8 "error" build.log | tail -60; exit 1; }
 	$(PY) -c "from twinslam_msgs.msg import MapStats, Keyframe"
 	@rm -f $(VENV)/.twinslam_msgs-* && touch $@
+
+# numba compiles on first use: done here, not in the first node start (twinslam_cli/precompile.py)
+kernels: $(KERNELS_STAMP)
+
+$(KERNELS_STAMP): $(STAMP) $(MSGS_STAMP) $(KERNEL_SOURCES)
+	$(PY) -m twinslam_cli.precompile
+	@rm -f $(VENV)/.kernels-* && touch $@
 
 run: venv
 	$(VENV)/bin/twinslam demo

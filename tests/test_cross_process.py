@@ -144,7 +144,7 @@ def test_the_ros_graph_lists_every_node_and_twinslam_nodes_prints_them(
         return {f"{ns.rstrip('/')}/{n}" for n, ns in ros.node.get_node_names_and_namespaces()}
 
     assert ros.spin_until(lambda: {f"/lab/{n}" for n in names} <= listed(), 30)
-    out = subprocess.run([sys.executable, "-m", "twinslam_cli.main", "nodes", "--timeout", "3"],
+    out = subprocess.run([sys.executable, "-m", "twinslam_cli.main", "nodes"],
                          env=domain.env, capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     assert {f"/lab/{n}" for n in names} <= set(out.stdout.split())

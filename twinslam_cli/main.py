@@ -5,7 +5,7 @@
     twinslam train --covis FILE --channel markov:N=2 --vmax 45 [--rate-model udt] -o OUT.pt
     twinslam extract SEQUENCE -o covis.npz [--start N] [--end N] [--features 1000]
     twinslam record SEQUENCE -o BAG [--start N] [--end N]   # the player's topics as MCAP
-    twinslam nodes [--timeout 2]          # the ROS graph on $ROS_DOMAIN_ID (ros2 node list)
+    twinslam nodes [--timeout 3.5]        # the ROS graph on $ROS_DOMAIN_ID (ros2 node list)
     twinslam demo                         # what `make run` runs
 """
 
@@ -461,8 +461,10 @@ def build_parser() -> argparse.ArgumentParser:
     record.add_argument("--end", type=int, default=-1)
     record.set_defaults(func=cmd_record)
     nodes = sub.add_parser("nodes", help="list the nodes on $ROS_DOMAIN_ID (like ros2 node list)")
-    nodes.add_argument("--timeout", type=float, default=2.0,
-                       help="seconds of discovery before listing")
+    nodes.add_argument("--timeout", type=float, default=3.5,
+                       help="seconds of discovery before listing (default 3.5: a node announces "
+                       "itself every 3 s at Fast DDS's defaults, every 1 s with the project's "
+                       "profile; a shorter wait can miss nodes)")
     nodes.set_defaults(func=cmd_nodes)
     hosts = sub.add_parser("hosts", help="device, edge and twin hosts as network namespaces "
                            "(root)")
