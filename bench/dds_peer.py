@@ -15,6 +15,8 @@ import time
 
 import numpy as np
 import rclpy
+import rclpy.executors
+from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
@@ -33,7 +35,7 @@ def profile(name: str) -> QoSProfile:
     return QoSProfile(depth=30, reliability=reliability)
 
 
-def receive(qos: QoSProfile) -> None:
+def receive(qos: QoSProfile, executor_name: str) -> None:
     node = Node("bench_receiver")
     latencies: list[float] = []
     seqs: list[int] = []
@@ -45,8 +47,12 @@ def receive(qos: QoSProfile) -> None:
 
     sub = CheckedSubscription(node, Image, TOPIC, on_image, qos)
     print(json.dumps({"event": "ready"}), flush=True)
+    executor = (EventsExecutor() if executor_name == "events"
+                else rclpy.executors.SingleThreadedExecutor())
+    executor.add_node(node)
     try:
-        rclpy.spin(node)
+        while rclpy.ok():
+            executor.spin_once(timeout_sec=0.1)
     except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
         pass
     print(json.dumps({"event": "result", "latencies": latencies, "seqs": seqs,
@@ -79,15 +85,19 @@ def send(qos: QoSProfile, seconds: float, rate: float) -> None:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("role", choices=["receive", "send"])
-    parser.add_argument("--qos", choices=["reliable", "sensor_data"], default="reliable")
-    parser.add_argument("--seconds", type=float, default=10.0)
-    parser.add_argument("--rate", type=float, default=30.0)
+    parser.add_argument("role", choices=["receive", "send"], help="which end of the link")
+    parser.add_argument("--qos", choices=["reliable", "sensor_data"], default="reliable",
+                        help="reliable, or best effort (sensor data)")
+    parser.add_argument("--seconds", type=float, default=10.0, help="seconds of images (send)")
+    parser.add_argument("--rate", type=float, default=30.0, help="images per second (send)")
+    parser.add_argument("--executor", choices=["single", "events"], default="single",
+                        help="the receiver's executor: rclpy's SingleThreadedExecutor or the "
+                        "C++ EventsExecutor (rclpy.experimental)")
     args = parser.parse_args()
     rclpy.init()
     try:
         if args.role == "receive":
-            receive(profile(args.qos))
+            receive(profile(args.qos), args.executor)
         else:
             send(profile(args.qos), args.seconds, args.rate)
     finally:

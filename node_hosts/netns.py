@@ -45,7 +45,10 @@ CLONE_NEWNET = 0x40000000
 
 #: Fast DDS profile of a host: UDPv4 only (shared memory would carry a device's samples to the
 #: edge past the shaped cable, the namespaces sharing /dev/shm) with datagrams below the link MTU
-#: (a lost packet costs one RTPS fragment, not an IP-fragmented 64 KB datagram of 45)
+#: (a lost packet costs one RTPS fragment, not an IP-fragmented 64 KB datagram of 45), and
+#: the timings of config/fastdds.xml: participants announced every second, reliable writers
+#: heartbeating every 0.5 s (after a pulled cable is plugged back, what was lost is resent within
+#: half a second instead of up to Fast DDS's 3 s)
 HOST_PROFILE = """<?xml version="1.0" encoding="UTF-8"?>
 <dds xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
   <profiles>
@@ -60,10 +63,20 @@ HOST_PROFILE = """<?xml version="1.0" encoding="UTF-8"?>
     </transport_descriptors>
     <participant profile_name="twinslam_host" is_default_profile="true">
       <rtps>
+        <builtin>
+          <discovery_config>
+            <leaseAnnouncement><sec>1</sec></leaseAnnouncement>
+          </discovery_config>
+        </builtin>
         <useBuiltinTransports>false</useBuiltinTransports>
         <userTransports><transport_id>host_udp</transport_id></userTransports>
       </rtps>
     </participant>
+    <data_writer profile_name="twinslam_host_writer" is_default_profile="true">
+      <times>
+        <heartbeatPeriod><sec>0</sec><nanosec>500000000</nanosec></heartbeatPeriod>
+      </times>
+    </data_writer>
   </profiles>
 </dds>
 """

@@ -81,6 +81,23 @@ def test_two_processes_exchange_messages(domain: LoopbackDomain, ros: RosSession
     assert got["digest"] == _sha(msg)
 
 
+def test_a_node_on_the_python_executor_still_works_and_a_wrong_name_is_refused(
+        domain: LoopbackDomain, ros: RosSession, monkeypatch) -> None:
+    """The nodes spin on the C++ EventsExecutor; TWINSLAM_EXECUTOR=single is the way back to
+    rclpy's SingleThreadedExecutor, and a name that is neither stops the node with the reason."""
+    monkeypatch.setenv("TWINSLAM_EXECUTOR", "single")
+    lines = JsonLines(domain.spawn([*LISTENER, "--ros-args", "-p",
+                                    "type:=geometry_msgs/msg/PoseStamped"]))
+    lines.next("ready", timeout=30)
+    pub = ros.node.create_publisher(PoseStamped, "chatter", qos.PROTOCOL)
+    got, _ = _publish_until_received(ros, pub, _pose(), lines, timeout=10.0)
+    assert got["digest"] == _sha(_pose())
+    monkeypatch.setenv("TWINSLAM_EXECUTOR", "multi")
+    proc = domain.spawn(LISTENER)
+    assert proc.wait(timeout=30) == 2
+    assert domain.wait_for_log(proc, "TWINSLAM_EXECUTOR='multi': choose from events, single", 5)
+
+
 def test_namespace_remapping_and_parameters_across_processes(domain: LoopbackDomain,
                                                              ros: RosSession, tmp_path) -> None:
     params = tmp_path / "listener.yaml"

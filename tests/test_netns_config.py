@@ -48,3 +48,29 @@ def test_loss_program_drops_below_the_threshold_and_refuses_large_loss() -> None
     assert insns[2][3] == 2 and insns[4][3] == 0             # TC_ACT_SHOT, TC_ACT_OK
     with pytest.raises(ValueError, match="loss must be in"):
         random_drop_program(50.0)
+
+
+@pytest.mark.parametrize("which", ["project", "host"])
+def test_fast_dds_accepts_every_element_of_the_profiles(which: str, tmp_path) -> None:
+    """Fast DDS reports an element it does not know on stdout and goes on without the whole
+    profile (the transports, announcement period and heartbeat would silently be its defaults):
+    a node started with each profile must print no parser error."""
+    import subprocess
+    import sys
+
+    from node_hosts.fastdds import PROFILE, ros_env
+
+    path = PROFILE
+    if which == "host":
+        path = tmp_path / "host.xml"
+        path.write_text(HOST_PROFILE, encoding="utf-8")
+    import os
+    env = dict(os.environ, **ros_env(231, profile=path))   # nothing is exchanged: no peer needed
+    code = ("import rclpy; from std_msgs.msg import String; rclpy.init(); "
+            "n = rclpy.create_node('profile_check'); n.create_publisher(String, 'p', 1); "
+            "rclpy.shutdown()")
+    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                          text=True, timeout=60)
+    said = done.stdout + done.stderr
+    assert done.returncode == 0, said
+    assert "XMLPARSER" not in said and "Error" not in said, said
