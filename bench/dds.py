@@ -1,8 +1,9 @@
 """DDS image benchmark through rclpy: 640×480 rgb8 at 30 Hz for 10 s between two processes.
 
 For RELIABLE and sensor-data (best effort) QoS, each as the nodes run (the project's Fast DDS
-profile ``config/fastdds.xml``, rclpy's C++ EventsExecutor), with the profile on rclpy's
-default SingleThreadedExecutor, and with both defaults, side by side in one run: images
+profile ``config/fastdds.xml``, processes set up as ``node_hosts.node_main`` does: the C++
+EventsExecutor, freed memory kept), with the profile alone (rclpy's SingleThreadedExecutor,
+glibc's defaults), and with all defaults, side by side in one run: images
 delivered and one-way latency median / p99 (header stamp → the receiver's callback, after the
 nodes' own decoding and validation; one host clock). Each configuration runs a fresh sender and
 receiver process on a private domain (Fast DDS reads its profile once per process).
@@ -37,21 +38,21 @@ class _Domain(LoopbackDomain):
         return env
 
 
-def run(qos: str, with_profile: bool, executor: str, seconds: float, rate: float) -> dict:
+def run(qos: str, with_profile: bool, as_nodes: bool, seconds: float, rate: float) -> dict:
+    setup = ["--as-nodes"] if as_nodes else []
     with _Domain(with_profile) as dom:
-        receiver = dom.spawn(["-m", "bench.dds_peer", "receive", "--qos", qos,
-                              "--executor", executor])
+        receiver = dom.spawn(["-m", "bench.dds_peer", "receive", "--qos", qos, *setup])
         lines = JsonLines(receiver)
         lines.next("ready", timeout=60)
         sender = dom.spawn(["-m", "bench.dds_peer", "send", "--qos", qos, "--seconds",
-                            str(seconds), "--rate", str(rate)])
+                            str(seconds), "--rate", str(rate), *setup])
         sent = JsonLines(sender).next("sent", timeout=seconds + 90)["count"]
         receiver.send_signal(signal.SIGINT)
         result = lines.next("result", timeout=30)
     lat = np.array(result["latencies"]) * 1000
     delivered = len(set(result["seqs"]))
     return {"qos": qos, "profile": "twinslam" if with_profile else "Fast DDS defaults",
-            "executor": executor,
+            "process": "as nodes" if as_nodes else "rclpy defaults",
             "sent": sent, "delivered": delivered, "delivered_pct": 100.0 * delivered / sent,
             "latency_median_ms": float(np.median(lat)) if lat.size else float("nan"),
             "latency_p99_ms": float(np.percentile(lat, 99)) if lat.size else float("nan"),
@@ -68,14 +69,14 @@ def main() -> None:
           f"{args.seconds:g} s, rclpy + rmw_fastrtps_cpp", flush=True)
     rows = []
     for qos in ("reliable", "sensor_data"):
-        for with_profile, executor in ((True, "events"), (True, "single"), (False, "single")):
-            res = run(qos, with_profile, executor, args.seconds, args.rate)
+        for with_profile, as_nodes in ((True, True), (True, False), (False, False)):
+            res = run(qos, with_profile, as_nodes, args.seconds, args.rate)
             rows.append(res)
             print(json.dumps(res), flush=True)
-    print(f"\n{'QoS':<12} {'profile':<18} {'executor':<9} {'delivered':>14} {'median ms':>10} "
+    print(f"\n{'QoS':<12} {'profile':<18} {'process':<15} {'delivered':>14} {'median ms':>10} "
           f"{'p99 ms':>8}")
     for r in rows:
-        print(f"{r['qos']:<12} {r['profile']:<18} {r['executor']:<9} "
+        print(f"{r['qos']:<12} {r['profile']:<18} {r['process']:<15} "
               f"{r['delivered']:>5}/{r['sent']:<4} "
               f"{r['delivered_pct']:5.1f}% {r['latency_median_ms']:>9.2f} "
               f"{r['latency_p99_ms']:>8.2f}")

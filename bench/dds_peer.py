@@ -23,6 +23,7 @@ from sensor_msgs.msg import Image
 
 from msg_schemas import new
 from node_hosts.acks import wait_for_acks
+from node_hosts.allocator import keep_freed_memory
 from node_hosts.checked_subscription import CheckedSubscription
 
 TOPIC = "bench/image"
@@ -35,7 +36,7 @@ def profile(name: str) -> QoSProfile:
     return QoSProfile(depth=30, reliability=reliability)
 
 
-def receive(qos: QoSProfile, executor_name: str) -> None:
+def receive(qos: QoSProfile, events_executor: bool) -> None:
     node = Node("bench_receiver")
     latencies: list[float] = []
     seqs: list[int] = []
@@ -47,7 +48,7 @@ def receive(qos: QoSProfile, executor_name: str) -> None:
 
     sub = CheckedSubscription(node, Image, TOPIC, on_image, qos)
     print(json.dumps({"event": "ready"}), flush=True)
-    executor = (EventsExecutor() if executor_name == "events"
+    executor = (EventsExecutor() if events_executor
                 else rclpy.executors.SingleThreadedExecutor())
     executor.add_node(node)
     try:
@@ -90,14 +91,17 @@ def main() -> int:
                         help="reliable, or best effort (sensor data)")
     parser.add_argument("--seconds", type=float, default=10.0, help="seconds of images (send)")
     parser.add_argument("--rate", type=float, default=30.0, help="images per second (send)")
-    parser.add_argument("--executor", choices=["single", "events"], default="single",
-                        help="the receiver's executor: rclpy's SingleThreadedExecutor or the "
-                        "C++ EventsExecutor (rclpy.experimental)")
+    parser.add_argument("--as-nodes", action="store_true",
+                        help="set the process up as twinslam's nodes are (node_hosts.node_main): "
+                        "the C++ EventsExecutor and freed memory kept (node_hosts.allocator); "
+                        "without it, rclpy's SingleThreadedExecutor and glibc's defaults")
     args = parser.parse_args()
+    if args.as_nodes:
+        keep_freed_memory()
     rclpy.init()
     try:
         if args.role == "receive":
-            receive(profile(args.qos), args.executor)
+            receive(profile(args.qos), args.as_nodes)
         else:
             send(profile(args.qos), args.seconds, args.rate)
     finally:

@@ -11,6 +11,8 @@ The nodes spin on rclpy's C++ ``EventsExecutor`` (``rclpy.experimental``, in Jaz
 Measured with ``bench.dds`` (BENCHMARKS.md), it cut the image path's median latency and the
 device's CPU per frame. ``TWINSLAM_EXECUTOR=single`` runs a node on rclpy's
 ``SingleThreadedExecutor`` instead, should the experimental executor misbehave somewhere.
+Freed memory stays in the process (:mod:`node_hosts.allocator`): a frame's buffers are reused
+instead of page-faulted in anew.
 """
 
 from __future__ import annotations
@@ -25,6 +27,8 @@ from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedE
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
+
+from node_hosts.allocator import keep_freed_memory
 
 N = TypeVar("N", bound=Node)
 
@@ -65,6 +69,7 @@ def run_node(name: str, factory: Callable[[], N], args: list[str] | None = None,
     except ValueError as exc:
         rclpy.logging.get_logger(name).fatal(str(exc))
         return 2
+    keep_freed_memory()
     try:
         rclpy.init(args=sys.argv if args is None else args,
                    signal_handler_options=SignalHandlerOptions.ALL)
