@@ -69,7 +69,7 @@ bench: venv
 	$(PY) -m bench.udt
 	$(PY) -m bench.pipeline
 	$(PY) -m bench.mbrl
-	$(PY) -m bench.live --rounds 2
+	$(PY) -m bench.live --rounds 4 --frames 1000
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .ruff_cache

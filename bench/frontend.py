@@ -26,8 +26,9 @@ DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes-100
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("sequence", nargs="?", default=str(DEFAULT))
-    parser.add_argument("--frames", type=int, default=1000)
+    parser.add_argument("sequence", nargs="?", default=str(DEFAULT),
+                        help="RGB-D sequence folder (default: the bundled 7-Scenes sample)")
+    parser.add_argument("--frames", type=int, default=1000, help="frames to time")
     args = parser.parse_args()
     cv2.setNumThreads(1)                       # "on one core"
     print(cpu_gauge(), "(before)")

@@ -31,11 +31,11 @@ COVIS = Path(__file__).resolve().parents[1] / "data" / "7scenes-redkitchen-1000.
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--covis", default=str(COVIS))
-    parser.add_argument("--slots", type=int, default=3000)
-    parser.add_argument("--rate-model", default="udt")
-    parser.add_argument("--channel", default="markov:N=2")
-    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--covis", default=str(COVIS), help="covisibility dataset (.npz)")
+    parser.add_argument("--slots", type=int, default=3000, help="real slots to train on")
+    parser.add_argument("--rate-model", default="udt", help="udt, lstm or markov")
+    parser.add_argument("--channel", default="markov:N=2", help="uplink rate model spec")
+    parser.add_argument("--threads", type=int, default=2, help="torch threads")
     parser.add_argument("--policy", type=Path, help="time this checkpoint's inference; no training")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)

@@ -35,12 +35,16 @@ DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes-100
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("sequence", nargs="?", default=str(DEFAULT))
-    parser.add_argument("--frames", type=int, default=600)
-    parser.add_argument("--policy", default="adapt")
-    parser.add_argument("--ba-window", type=int, default=EdgeConfig().ba_window)
-    parser.add_argument("--ba-iterations", type=int, default=EdgeConfig().ba_iterations)
-    parser.add_argument("--ba-points", type=int, default=EdgeConfig().ba_points)
+    parser.add_argument("sequence", nargs="?", default=str(DEFAULT),
+                        help="RGB-D sequence folder (default: the bundled 7-Scenes sample)")
+    parser.add_argument("--frames", type=int, default=600, help="frames to play")
+    parser.add_argument("--policy", default="adapt", help="the edge's policy")
+    parser.add_argument("--ba-window", type=int, default=EdgeConfig().ba_window,
+                        help="newest keyframes the local bundle adjustment optimises")
+    parser.add_argument("--ba-iterations", type=int, default=EdgeConfig().ba_iterations,
+                        help="Gauss-Newton steps per adjustment")
+    parser.add_argument("--ba-points", type=int, default=EdgeConfig().ba_points,
+                        help="map points the adjustment takes at most, most observed first")
     args = parser.parse_args()
     cv2.setNumThreads(1)
     print(cpu_gauge(), "(before)")

@@ -79,8 +79,8 @@ def main() -> None:
     parser.add_argument("--covis", default=str(REAL_COVIS),
                         help="covisibility .npz, or 'room' for the geometric room model "
                              "(default: the 7-Scenes sample's, the data the experiments use)")
-    parser.add_argument("--slots", type=int, default=100)
-    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--slots", type=int, default=100, help="slots per run")
+    parser.add_argument("--repeats", type=int, default=5, help="runs per policy")
     args = parser.parse_args()
     dataset = geometric_covisibility(n_frames=1000, n_points=4000) if args.covis == "room" \
         else load_covisibility(args.covis)

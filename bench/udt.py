@@ -20,9 +20,9 @@ from udt_node.twin import TwinConfig, UserDigitalTwin
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--states", type=int, default=2)
-    parser.add_argument("--retrains", type=int, default=5)
-    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--states", type=int, default=2, help="N, uplink rate states")
+    parser.add_argument("--retrains", type=int, default=5, help="retrains timed")
+    parser.add_argument("--threads", type=int, default=2, help="torch threads")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     config = TwinConfig(n_states=args.states)

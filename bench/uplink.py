@@ -28,8 +28,9 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("sequence", nargs="?",
                         default=str(Path(__file__).resolve().parents[2] / "shared" / "data"
-                                    / "7scenes-1000"))
-    parser.add_argument("--frames", type=int, default=600)
+                                    / "7scenes-1000"),
+                        help="RGB-D sequence folder (default: the bundled 7-Scenes sample)")
+    parser.add_argument("--frames", type=int, default=600, help="frames to play")
     args = parser.parse_args()
     why = unavailable_reason()
     if why:

@@ -414,51 +414,58 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="twinslam", description=__doc__.split("\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
     sim = sub.add_parser("sim", help="evaluate map-management policies offline")
-    sim.add_argument("--policy", default="lff,pu,adapt,oracle")
-    sim.add_argument("--vmax", type=int, default=45)
-    sim.add_argument("--slot-frames", type=int, default=60)
-    sim.add_argument("--channel", default="markov:N=2")
+    sim.add_argument("--policy", default="lff,pu,adapt,oracle",
+                     help="comma-separated policies: lff, pu, adapt, random, oracle, "
+                     "mbrl:CHECKPOINT")
+    sim.add_argument("--vmax", type=int, default=45, help="V_max, keyframes the edge may hold")
+    sim.add_argument("--slot-frames", type=int, default=60, help="F, frames per slot")
+    sim.add_argument("--channel", default="markov:N=2",
+                     help="uplink rate model: markov:N=2[,ratio=0.5][,K=100][,nonstationary]"
+                     "[,balanced] or trace:FILE[,N=4]")
     sim.add_argument("--rate-range", type=_rate_range, default="40,80",
                      help="min,max Mbit/s the channel states spread over")
-    sim.add_argument("--slots", type=int, default=200)
-    sim.add_argument("--seeds", type=int, default=5)
-    sim.add_argument("--seed0", type=int, default=0)
+    sim.add_argument("--slots", type=int, default=200, help="slots per run")
+    sim.add_argument("--seeds", type=int, default=5, help="runs, one seed each")
+    sim.add_argument("--seed0", type=int, default=0, help="the first run's seed")
     sim.add_argument("--covis", required=True,
                      help="covisibility .npz, or 'geometric[:frames]' for the room model")
-    sim.add_argument("--csv")
-    sim.add_argument("-v", "--verbose", action="store_true")
+    sim.add_argument("--csv", help="also write every run's scores to this CSV file")
+    sim.add_argument("-v", "--verbose", action="store_true", help="print every slot")
     sim.set_defaults(func=cmd_sim)
     train = sub.add_parser("train", help="train the learned (MBRL) map-management policy")
     train.add_argument("--covis", required=True,
                        help="covisibility .npz, or 'geometric[:frames]' for the room model")
-    train.add_argument("--channel", default="markov:N=2")
+    train.add_argument("--channel", default="markov:N=2",
+                       help="uplink rate model: markov:N=2[,ratio=0.5][,K=100][,nonstationary]"
+                       "[,balanced] or trace:FILE[,N=4]")
     train.add_argument("--rate-range", type=_rate_range, default="40,80",
                        help="min,max Mbit/s the channel states spread over")
-    train.add_argument("--vmax", type=int, default=45)
+    train.add_argument("--vmax", type=int, default=45, help="V_max, keyframes the edge may hold")
     train.add_argument("--slots", type=int, default=3000, help="real slots to train on")
-    train.add_argument("--episode-slots", type=int, default=200)
+    train.add_argument("--episode-slots", type=int, default=200, help="slots per episode")
     train.add_argument("--rate-model", default="udt", choices=["udt", "lstm", "markov"],
                        help="what augments the state and generates artificial experiences")
     train.add_argument("--real-fraction", type=float, default=0.5,
                        help="I/|Ξ|: share of real tuples in each batch")
     train.add_argument("--artificial", type=int, default=2,
                        help="J: artificial tuples per real one (0: real experiences only)")
-    train.add_argument("--seed", type=int, default=0)
+    train.add_argument("--seed", type=int, default=0, help="seed of the channel and the networks")
     train.add_argument("--threads", type=int, default=2, help="torch threads")
-    train.add_argument("-o", "--output", default="results/amm_policy.pt")
+    train.add_argument("-o", "--output", default="results/amm_policy.pt",
+                       help="checkpoint to write (then --policy mbrl:PATH)")
     train.set_defaults(func=cmd_train)
     extract = sub.add_parser("extract", help="covisibility dataset from an RGB-D sequence")
     extract.add_argument("sequence", help="a SUN3D, 7-Scenes or TUM RGB-D folder")
     extract.add_argument("-o", "--output", required=True, help="covisibility .npz to write")
-    extract.add_argument("--start", type=int, default=0)
+    extract.add_argument("--start", type=int, default=0, help="first frame read")
     extract.add_argument("--end", type=int, default=-1, help="first frame not read (-1: all)")
     extract.add_argument("--features", type=int, default=1000, help="ORB features per frame")
     extract.set_defaults(func=cmd_extract)
     record = sub.add_parser("record", help="a sequence's camera topics as a rosbag2 (MCAP)")
     record.add_argument("sequence", help="a SUN3D, 7-Scenes or TUM RGB-D folder")
     record.add_argument("-o", "--output", required=True, help="rosbag2 folder to create")
-    record.add_argument("--start", type=int, default=0)
-    record.add_argument("--end", type=int, default=-1)
+    record.add_argument("--start", type=int, default=0, help="first frame recorded")
+    record.add_argument("--end", type=int, default=-1, help="first frame not recorded (-1: all)")
     record.set_defaults(func=cmd_record)
     nodes = sub.add_parser("nodes", help="list the nodes on $ROS_DOMAIN_ID (like ros2 node list)")
     nodes.add_argument("--timeout", type=float, default=3.5,
@@ -489,16 +496,17 @@ def build_parser() -> argparse.ArgumentParser:
     launch.add_argument("--tc", action="store_true",
                         help="with --hosts: the device's uplink shaped by tc at d_k, keyframes "
                         "carrying their image")
-    launch.add_argument("--timeout", type=float, default=1800.0)
+    launch.add_argument("--timeout", type=float, default=1800.0,
+                        help="seconds a policy's run may take before its nodes are stopped")
     launch.set_defaults(func=cmd_launch)
     demo = sub.add_parser("demo", help="the live pipeline per policy, then the simulator")
     demo.add_argument("--frames", type=int, default=600, help="frames the pipeline plays")
-    demo.add_argument("--slots", type=int, default=40)
-    demo.add_argument("--seeds", type=int, default=3)
+    demo.add_argument("--slots", type=int, default=40, help="simulator slots per run")
+    demo.add_argument("--seeds", type=int, default=3, help="simulator runs per policy")
     demo.set_defaults(func=cmd_demo)
     exp = sub.add_parser("experiment", help="reproduce a paper figure (CSV + PNG)")
     exp.add_argument("name", choices=["udt-fig3", "udt-fig4", "udt-fig5", "fig7", "fig8",
-                                      "fig9"])
+                                      "fig9"], help="which figure")
     exp.add_argument("--runs", type=int, default=20, help="independent runs per point "
                      "(the paper's fig7-9 use 15)")
     exp.add_argument("--policy", action="append", metavar="LABEL[@N]=CHECKPOINT",
@@ -508,7 +516,7 @@ def build_parser() -> argparse.ArgumentParser:
                                             / "7scenes-redkitchen-1000.covis.npz"),
                      help="fig7-9: covisibility dataset")
     exp.add_argument("--slots", type=int, default=200, help="fig7-9: slots per run")
-    exp.add_argument("--seed", type=int, default=0)
+    exp.add_argument("--seed", type=int, default=0, help="the first run's seed")
     exp.add_argument("--states", type=int, default=2, help="N for udt-fig5")
     exp.add_argument("--interval-slots", type=int, default=300, help="K, slots per interval")
     exp.add_argument("--retrain-every", type=int, default=300, help="W, slots between retrains")
