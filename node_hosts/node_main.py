@@ -8,8 +8,8 @@ the last samples are acknowledged.
 
 The nodes spin on rclpy's C++ ``EventsExecutor`` (``rclpy.experimental``, in Jazzy's rclpy
 7.1): it takes each sample as an event instead of rebuilding a wait set in Python every turn.
-Measured with ``bench.dds`` (BENCHMARKS.md), it cut the image path's median latency and the
-device's CPU per frame. ``TWINSLAM_EXECUTOR=single`` runs a node on rclpy's
+On ``bench.dds``'s camera path it cut the median latency from 5.1 to 3.8 ms (BENCHMARKS.md;
+measured on a loaded machine). ``TWINSLAM_EXECUTOR=single`` runs a node on rclpy's
 ``SingleThreadedExecutor`` instead, should the experimental executor misbehave somewhere.
 Freed memory stays in the process (:mod:`node_hosts.allocator`): a frame's buffers are reused
 instead of page-faulted in anew.
