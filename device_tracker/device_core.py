@@ -81,9 +81,12 @@ class DeviceTrackerCore:
         return self.tracking.frames_tracked
 
     @staticmethod
-    def warm_up(intrinsics: np.ndarray, shape: tuple[int, int] = (480, 640)) -> None:
+    def warm_up(intrinsics: np.ndarray | None = None, shape: tuple[int, int] = (480, 640)) -> None:
         """Track two frames of noise at 2 m, so the compiled kernels are loaded before the
-        first real frame arrives (the first call otherwise stalls tracking for seconds)."""
+        first real frame arrives (the first call otherwise stalls tracking for seconds).
+        Any camera compiles the same kernels; without one, a 640×480 camera with f = 525."""
+        if intrinsics is None:
+            intrinsics = np.array([[525.0, 0, 320], [0, 525, 240], [0, 0, 1]])
         rng = np.random.default_rng(0)
         image = rng.integers(0, 255, (*shape, 3), dtype=np.uint8)
         depth = np.full(shape, 2.0, dtype=np.float32)

@@ -135,7 +135,7 @@ class DeviceTrackerNode(Node):
         self.skipped = 0
         self.path: list[Any] = []
         self._uploads: queue.Queue[tuple[int, list[int]] | None] = queue.Queue()
-        DeviceTrackerCore.warm_up(np.array([[525.0, 0, 320], [0, 525, 240], [0, 0, 1]]))
+        DeviceTrackerCore.warm_up()
         self._lock = threading.Lock()                     # the core, between the threads
 
         self.pub_pose = self.create_publisher(PoseStamped, topics.DEVICE_POSE, qos.PROTOCOL)

@@ -3,12 +3,16 @@ and discovery peers, its addresses, and the loss program's bytecode."""
 
 from __future__ import annotations
 
+import os
 import struct
+import subprocess
+import sys
 import xml.etree.ElementTree as ET
 
 import pytest
 
 from node_hosts.ebpf_loss import random_drop_program
+from node_hosts.fastdds import PROFILE, ros_env
 from node_hosts.netns import HOST_PROFILE, HOSTS, NetnsHosts, address_of, host_env
 
 NS = {"f": "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"}
@@ -55,16 +59,10 @@ def test_fast_dds_accepts_every_element_of_the_profiles(which: str, tmp_path) ->
     """Fast DDS reports an element it does not know on stdout and goes on without the whole
     profile (the transports, announcement period and heartbeat would silently be its defaults):
     a node started with each profile must print no parser error."""
-    import subprocess
-    import sys
-
-    from node_hosts.fastdds import PROFILE, ros_env
-
     path = PROFILE
     if which == "host":
         path = tmp_path / "host.xml"
         path.write_text(HOST_PROFILE, encoding="utf-8")
-    import os
     env = dict(os.environ, **ros_env(231, profile=path))   # nothing is exchanged: no peer needed
     code = ("import rclpy; from std_msgs.msg import String; rclpy.init(); "
             "n = rclpy.create_node('profile_check'); n.create_publisher(String, 'p', 1); "

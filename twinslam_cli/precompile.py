@@ -15,8 +15,6 @@ from __future__ import annotations
 import sys
 import time
 
-import numpy as np
-
 
 def main() -> int:
     from device_tracker.device_core import DeviceTrackerCore
@@ -27,7 +25,7 @@ def main() -> int:
     start = time.monotonic()
     print("compiling the device, edge and synthetic-room kernels (once after a change; "
           "about a minute on 2 cores)", flush=True)
-    DeviceTrackerCore.warm_up(np.array([[525.0, 0, 320], [0, 525, 240], [0, 0, 1]]))
+    DeviceTrackerCore.warm_up()
     for name in POLICIES:
         EdgeMapperCore.warm_up(make_policy(name))
     next(iter(SyntheticSequence(n_frames=1)))
