@@ -13,7 +13,7 @@ MSGS_STAMP := $(VENV)/.twinslam_msgs-$(shell cat $(MSG_SOURCES) | md5sum | cut -
 MSGS_BUILD := build/twinslam_msgs
 # the modules with numba kernels (compiled once at set-up, recompiled when one changes)
 KERNEL_SOURCES := $(sort $(shell grep -l -r --include=*.py "@njit" device_tracker edge_mapper \
-	sequence_player simulator))
+	udt_node twinslam))
 KERNELS_STAMP := $(VENV)/.kernels-$(shell cat $(KERNEL_SOURCES) | md5sum | cut -c1-12)
 
 .PHONY: venv msgs kernels run test lint bench clean
@@ -44,11 +44,11 @@ $(MSGS_STAMP): $(STAMP) $(MSG_SOURCES)
 	$(PY) -c "from twinslam_msgs.msg import MapStats, Keyframe"
 	@rm -f $(VENV)/.twinslam_msgs-* && touch $@
 
-# numba compiles on first use: done here, not in the first node start (twinslam_cli/precompile.py)
+# numba compiles on first use: done here, not in the first node start (twinslam/cli/precompile.py)
 kernels: $(KERNELS_STAMP)
 
 $(KERNELS_STAMP): $(STAMP) $(MSGS_STAMP) $(KERNEL_SOURCES)
-	$(PY) -m twinslam_cli.precompile
+	$(PY) -m twinslam.cli.precompile
 	@rm -f $(VENV)/.kernels-* && touch $@
 
 run: venv
@@ -56,10 +56,12 @@ run: venv
 
 test: venv
 	$(PY) -m ruff check .
+	$(VENV)/bin/lint-imports
 	$(PY) -m pytest
 
 lint: venv
 	$(PY) -m ruff check .
+	$(VENV)/bin/lint-imports
 
 bench: venv
 	$(PY) -m bench.dds

@@ -25,11 +25,11 @@ setup(
     tests_require=["pytest"],
     entry_points={
         "console_scripts": [
-            "sequence_player = sequence_player.node:main",
+            "sequence_player = twinslam.sequence_player.node:main",
             "device_tracker = device_tracker.node:main",
             "edge_mapper = edge_mapper.node:main",
             "udt_node = udt_node.node:main",
-            "twinslam = twinslam_cli.main:main",
+            "twinslam = twinslam.cli.main:main",
         ],
     },
 )

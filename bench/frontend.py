@@ -19,7 +19,7 @@ import numpy as np
 
 from bench.gauge import cpu_gauge
 from device_tracker.tracking import Tracking
-from sequence_player.readers import open_sequence
+from twinslam.sequence_player.readers import open_sequence
 
 DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes-1000"
 

@@ -50,7 +50,10 @@ def _device_cpu_s(root: Path) -> float | None:
 def run(root: Path, frames: int, policy: str) -> dict[str, float]:
     """One ``twinslam launch`` from checkout ``root``; its edge ms and device CPU ms/frame."""
     env = dict(os.environ, PYTHONPATH=str(root), PYTHONUNBUFFERED="1")
-    cmd = [sys.executable, "-m", "twinslam_cli.main", "launch", "--loopback", "--sequence",
+    # the command line moved under the project package (issue #17): older baselines have it
+    # as a top-level package
+    cli = "twinslam_cli.main" if (root / "twinslam_cli").is_dir() else "twinslam.cli.main"
+    cmd = [sys.executable, "-m", cli, "launch", "--loopback", "--sequence",
            str(SEQUENCE), "--frames", str(frames), "--policy", policy]
     proc = subprocess.Popen(cmd, cwd=root, env=env, text=True, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT)

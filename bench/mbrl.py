@@ -20,11 +20,11 @@ import numpy as np
 import torch
 
 from bench.gauge import cpu_gauge
-from mbrl.policy import MbrlPolicy
-from mbrl.trainer import AmmTrainer, TrainConfig
-from simulator.covisibility import load_covisibility
-from simulator.env import MapManagementEnv, SimConfig
-from udt_node.channel import parse_channel
+from twinslam.mbrl.policy import MbrlPolicy
+from twinslam.mbrl.trainer import AmmTrainer, TrainConfig
+from twinslam.simulator.covisibility import load_covisibility
+from twinslam.simulator.env import MapManagementEnv, SimConfig
+from twinslam.uplink.channels import parse_channel
 
 COVIS = Path(__file__).resolve().parents[1] / "data" / "7scenes-redkitchen-1000.covis.npz"
 

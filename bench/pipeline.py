@@ -23,12 +23,13 @@ import numpy as np
 from bench.gauge import cpu_gauge
 from device_tracker.device_core import DeviceTrackerCore
 from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore
-from edge_mapper.messages import KeyframeData, map_update_message, read_map_update
-from edge_mapper.policies import make_policy
+from edge_mapper.messages import map_update_message
 from edge_mapper.slot_planner import FrameSet
-from sequence_player.readers import open_sequence
-from twinslam_cli.launcher import RunRecord, absolute_trajectory_error
-from udt_node.channel import parse_channel
+from twinslam.cli.launcher import RunRecord, absolute_trajectory_error
+from twinslam.policy_registry import make_policy
+from twinslam.sequence_player.readers import open_sequence
+from twinslam.slam.map_update import read_map_update
+from twinslam.uplink.channels import parse_channel
 
 DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes-1000"
 
@@ -79,11 +80,9 @@ def main() -> None:
             plan = edge.plan(slot, sets, rate, state)
             t1 = time.perf_counter()
             for fid in plan.action.upload:
-                u = device.upload(fid)
-                assert u is not None
-                edge.add_keyframe(KeyframeData(fid, slot, u.pose, reader.intrinsics,
-                                               u.keypoints, u.depths, u.descriptors,
-                                               u.point_ids))
+                payload = device.upload(fid)
+                assert payload is not None
+                edge.add_keyframe(payload)
             t2 = time.perf_counter()
             out = edge.finish_slot(slot)
             t3 = time.perf_counter()

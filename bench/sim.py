@@ -18,11 +18,16 @@ from pathlib import Path
 import numpy as np
 
 from bench.gauge import cpu_gauge
-from edge_mapper.policies import greedy_additions, greedy_removals, make_policy, naive_greedy
-from simulator.covisibility import load_covisibility
-from simulator.env import MapManagementEnv, SimConfig
-from simulator.geometric_covisibility import geometric_covisibility
-from udt_node.channel import parse_channel
+from tests.laplacian_reference import naive_greedy
+from twinslam.map_management.policies import (
+    greedy_additions,
+    greedy_removals,
+)
+from twinslam.policy_registry import make_policy
+from twinslam.simulator.covisibility import load_covisibility
+from twinslam.simulator.env import MapManagementEnv, SimConfig
+from twinslam.simulator.geometric_covisibility import geometric_covisibility
+from twinslam.uplink.channels import parse_channel
 
 REAL_COVIS = Path(__file__).resolve().parents[1] / "data" / "7scenes-redkitchen-1000.covis.npz"
 

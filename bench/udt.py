@@ -14,8 +14,8 @@ import numpy as np
 import torch
 
 from bench.gauge import cpu_gauge
-from udt_node.channel import MarkovChannel, random_transition_matrix, state_rates
-from udt_node.twin import TwinConfig, UserDigitalTwin
+from twinslam.twin.digital_twin import TwinConfig, UserDigitalTwin
+from twinslam.uplink.channels import MarkovChannel, random_transition_matrix, state_rates
 
 
 def main() -> None:

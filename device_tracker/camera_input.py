@@ -1,4 +1,4 @@
-"""Camera messages back to arrays: the inverse of :mod:`sequence_player.messages`, for the
+"""Camera messages back to arrays: the inverse of :mod:`twinslam.sequence_player.messages`, for the
 device's tracker (REP 118 depth encodings; colour as RGB or grey)."""
 
 from __future__ import annotations

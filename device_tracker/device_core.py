@@ -3,7 +3,7 @@
 The device tracks every frame against its **local map**: the points of the edge's last
 ``MapUpdate`` (global ids) plus the points it created itself since then from depth on its own
 tracking keyframes (device-local **track ids**, top bit set, the namespace
-:data:`~edge_mapper.keyframe_integration.TRACK_ID_BIT` names). For each frame it remembers
+:data:`~twinslam.slam.keyframe.TRACK_ID_BIT` names). For each frame it remembers
 M_f split by that origin, and, for the frames of the last two slots, the features an upload
 needs (keypoints, descriptors, depths, the id each feature observes).
 
@@ -24,24 +24,11 @@ import numpy as np
 from device_tracker.map_points import MapPoints
 from device_tracker.messages import FrameRecord
 from device_tracker.tracking import Tracking, TrackingConfig, depth_at
-from edge_mapper.keyframe_integration import TRACK_ID_BIT
-from edge_mapper.messages import LocalMap
+from twinslam.common import table1
+from twinslam.slam.keyframe import TRACK_ID_BIT, KeyFramePayload
+from twinslam.slam.map_update import MapSnapshot
 
 TRACK_BIT = int(TRACK_ID_BIT)
-
-
-@dataclass(frozen=True)
-class UploadData:
-    """What a ``Keyframe`` carries for one frame."""
-
-    frame_id: int
-    slot: int
-    stamp: float
-    pose: np.ndarray               #: 4×4 camera-to-map estimate
-    keypoints: np.ndarray          #: n×2 float32
-    descriptors: np.ndarray        #: n×32 uint8
-    depths: np.ndarray             #: n float32 metres, 0 = none
-    point_ids: np.ndarray          #: n uint64: global id, TRACK_BIT | track id, or 0
 
 
 @dataclass(frozen=True)
@@ -54,7 +41,7 @@ class FrameResult:
 class DeviceTrackerCore:
     """Tracking against the edge's map plus the device's own recent points."""
 
-    def __init__(self, intrinsics: np.ndarray, slot_frames: int = 60,
+    def __init__(self, intrinsics: np.ndarray, slot_frames: int = table1.SLOT_FRAMES,
                  config: TrackingConfig | None = None, keep_slots: int = 2) -> None:
         """``keep_slots``: the ended slots whose frames stay uploadable; the edge asks for a
         slot's frames during the next one, or later when the link was down meanwhile."""
@@ -72,7 +59,9 @@ class DeviceTrackerCore:
         self.created = np.zeros(0, dtype=np.int64)     #: per row: frame that created it
         self.map_version = 0
         self.frames: list[FrameRecord] = []            #: the current slot's
-        self._uploads: dict[int, UploadData] = {}      #: the last keep_slots slots' frames
+        self._uploads: dict[int, KeyFramePayload] = {}      #: the last keep_slots slots' frames
+        #: the images that go with those uploads, when the device uploads images too
+        self._images: dict[int, object] = {}
         self._next_track = 1
         self.lost = False                              #: the last frame was not tracked
 
@@ -99,8 +88,13 @@ class DeviceTrackerCore:
 
     # -- frames ------------------------------------------------------------------------------
 
-    def track(self, color: np.ndarray, depth: np.ndarray | None, stamp: float) -> FrameResult:
+    def track(self, color: np.ndarray, depth: np.ndarray | None, stamp: float,
+              image: object | None = None) -> FrameResult:
+        """Track one frame; ``image`` (e.g. its colour message) is kept with the frame's
+        upload, for a device that sends the frame itself with its keyframe."""
         out = self.tracking.track(color, depth)
+        if image is not None:
+            self._images[out.index] = image
         self._label_new_points(out.index)
         ids = self.labels[out.observed]
         is_track = (ids & np.uint64(TRACK_BIT)) != 0
@@ -113,9 +107,9 @@ class DeviceTrackerCore:
         slot = self.slot_of(out.index)
         depths = (depth_at(out.features.points, depth, self.config.depth_range_m)
                   if depth is not None else np.zeros(len(assoc)))
-        self._uploads[out.index] = UploadData(
-            out.index, slot, stamp, out.pose, out.features.points, out.features.descriptors,
-            depths.astype(np.float32), point_ids.astype(np.uint64))
+        self._uploads[out.index] = KeyFramePayload(
+            out.index, slot, stamp, out.pose, self.k, out.features.points,
+            depths.astype(np.float32), out.features.descriptors, point_ids.astype(np.uint64))
         self.lost = not out.tracked
         return FrameResult(record, out.relocalised,
                            out.index % self.slot_frames == self.slot_frames - 1)
@@ -126,12 +120,17 @@ class DeviceTrackerCore:
         if frames:
             oldest = (self.slot_of(frames[-1].frame_id) - self.keep_slots + 1) * self.slot_frames
             self._uploads = {f: u for f, u in self._uploads.items() if f >= oldest}
+            self._images = {f: i for f, i in self._images.items() if f >= oldest}
         return frames
 
-    def upload(self, frame_id: int) -> UploadData | None:
+    def upload(self, frame_id: int) -> KeyFramePayload | None:
         """The keyframe content of a frame of the last ``keep_slots`` slots; None if it is
         gone."""
         return self._uploads.get(frame_id)
+
+    def upload_image(self, frame_id: int) -> object | None:
+        """The image kept with an upload (``track(..., image=...)``); None if none or gone."""
+        return self._images.get(frame_id)
 
     def _label_new_points(self, frame: int) -> None:
         n_old, n = len(self.labels), len(self.tracking.map)
@@ -144,7 +143,7 @@ class DeviceTrackerCore:
 
     # -- map updates -------------------------------------------------------------------------
 
-    def apply_map_update(self, update: LocalMap, slot: int) -> bool:
+    def apply_map_update(self, update: MapSnapshot, slot: int) -> bool:
         """Swap in the edge's map of slot ``slot``; False (and nothing changes) for a version
         not newer than the one held."""
         if update.version <= self.map_version:

@@ -1,6 +1,6 @@
 """The device's side of the per-slot protocol as messages (DESIGN.md §1 steps 2 and 4): the slot's
-``FrameSummaries`` and the ``Keyframe`` uploads, built from plain arrays. Pure conversion, no
-DDS; ``edge_mapper.messages`` reads what this writes.
+``FrameSummaries``, built from plain arrays (the ``Keyframe`` uploads are
+:mod:`twinslam.slam.keyframe`'s). Pure conversion, no DDS.
 """
 
 from __future__ import annotations
@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from device_tracker.uplink_shaper import SlotThroughput
 from msg_schemas import new
 from msg_schemas.headers import ros_time, set_header
 from msg_schemas.poses import pose_msg
@@ -39,24 +40,11 @@ def frame_summaries_message(slot: int, rate_mbps: float, rate_state: int, map_ve
     return set_header(msg, stamp, "map")
 
 
-def keyframe_message(slot: int, frame_id: int, stamp: float, pose: np.ndarray,
-                     intrinsics: np.ndarray, keypoints: np.ndarray, depths: np.ndarray,
-                     descriptors: np.ndarray, point_ids: np.ndarray,
-                     camera_frame: str = "camera", image: Any = None) -> Any:
-    """A keyframe: n keypoints, their depths (0 = none), ORB descriptors and the ids they were
-    associated with (0 = none, top bit = track id); with ``image`` (a ``sensor_msgs/Image``)
-    the frame itself too, otherwise features only."""
-    xy = np.asarray(keypoints, dtype=np.float32).reshape(-1, 2)
-    n = len(xy)
-    desc = np.asarray(descriptors, dtype=np.uint8)
-    if desc.shape != (n, 32) or len(depths) != n or len(point_ids) != n:
-        raise ValueError(f"frame {frame_id}: {n} keypoints need n×32 descriptors and n depths "
-                         f"and ids, got {desc.shape}, {len(depths)}, {len(point_ids)}")
-    msg = new("twinslam_msgs/msg/Keyframe", slot=slot, frame_id=frame_id,
-              pose_estimate=pose_msg(pose),
-              k=np.asarray(intrinsics, dtype=np.float64).reshape(-1),
-              keypoints_xy=xy.reshape(-1), keypoint_depths=np.asarray(depths, np.float32),
-              descriptors=desc.reshape(-1), map_point_ids=np.asarray(point_ids, np.uint64))
-    if image is not None:
-        msg.image = image
-    return set_header(msg, stamp, camera_frame)
+def uplink_throughput_message(throughput: SlotThroughput, stamp: float) -> Any:
+    """What the uplink carried in a slot, as the edge and the twin read it."""
+    t = throughput
+    msg = new("twinslam_msgs/msg/UplinkThroughput", slot=t.slot,
+              configured_rate_mbps=t.configured_rate_mbps, rate_state=t.rate_state,
+              achieved_mbps=t.achieved_mbps, bytes_sent=t.bytes_sent, duration_s=t.duration_s,
+              frames_sent=t.frames_sent)
+    return set_header(msg, stamp, "")

@@ -26,7 +26,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from device_tracker.uplink_shaper import ShaperError, SlotThroughput, check_rate
+from device_tracker.uplink_shaper import ShaperError, SlotThroughput, UplinkShaper, check_rate
 
 #: bucket depth: well above rate / HZ at 80 Mbit/s, small against a slot's megabytes
 BURST = "64kb"
@@ -152,3 +152,21 @@ class TcShaper:
             except ShaperError:
                 pass
             self._installed = False
+
+
+SHAPERS = ("token_bucket", "tc")
+
+
+def make_shaper(kind: str, initial_rate_mbps: float, interface: str = "eth0",
+                netem: NetemConfig | None = None,
+                flush: Callable[[], None] = lambda: None) -> UplinkShaper | TcShaper:
+    """The uplink shaper a device is configured with: ``token_bucket`` paces in the process,
+    ``tc`` installs a tbf on ``interface`` at ``initial_rate_mbps`` (CAP_NET_ADMIN).
+    ValueError for another kind, ShaperError when tc cannot be set up."""
+    if kind == "token_bucket":
+        return UplinkShaper()
+    if kind != "tc":
+        raise ValueError(f"shaper must be one of {', '.join(SHAPERS)}, got {kind!r}")
+    shaper = TcShaper(interface, netem or NetemConfig(), flush=flush)
+    shaper.start(initial_rate_mbps)
+    return shaper

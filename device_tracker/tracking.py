@@ -20,7 +20,7 @@ import numpy as np
 from device_tracker.map_points import MapPoints
 from device_tracker.orb_extractor import Features, OrbExtractor
 from device_tracker.pose_optimization import optimize_pose
-from device_tracker.projection_matching import back_project, match_by_projection, visible_points
+from twinslam.slam.projection_matching import back_project, match_by_projection, visible_points
 
 
 @dataclass(frozen=True)

@@ -1,1 +1,2 @@
-"""edge_mapper: the edge map — covisibility graph, uncertainty, policies, GTSAM back end."""
+"""edge_mapper: the edge's keyframe map, keyframe integration, GTSAM back end, slot planning,
+node."""

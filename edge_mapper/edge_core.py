@@ -9,6 +9,7 @@ only moves messages in and out of this class; a restarted node resumes from the 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -19,10 +20,11 @@ import numpy as np
 from edge_mapper.bundle_adjustment import BundleAdjustmentResult, Observation, bundle_adjust
 from edge_mapper.keyframe_integration import IntegrationReport, KeyframeIntegrator
 from edge_mapper.keyframe_map import KeyframeMap
-from edge_mapper.messages import KeyframeData
 from edge_mapper.slot_planner import FrameSet, SlotConfig, SlotPlan, SlotPlanner
-from edge_mapper.uncertainty import map_uncertainty
-from simulator.env import MapAction
+from twinslam.map_management.actions import MapAction
+from twinslam.map_management.policies import MapPolicy
+from twinslam.slam.keyframe import KeyFramePayload
+from twinslam.uncertainty.map_uncertainty import map_uncertainty
 
 
 @dataclass(frozen=True)
@@ -56,7 +58,7 @@ class SlotOutcome:
 class EdgeMapperCore:
     """One device's map at the edge: plans, keyframes, evictions, optimisation, checkpoint."""
 
-    def __init__(self, policy: object, intrinsics: np.ndarray | None = None,
+    def __init__(self, policy: MapPolicy, intrinsics: np.ndarray | None = None,
                  config: EdgeConfig | None = None, checkpoint: Path | None = None,
                  n_states: int = 2) -> None:
         self.config = config or EdgeConfig()
@@ -85,7 +87,7 @@ class EdgeMapperCore:
         self.restored = self.last_slot >= 0
 
     @staticmethod
-    def warm_up(policy: object) -> None:
+    def warm_up(policy: MapPolicy) -> None:
         """One slot of a tiny made-up map through ``policy``, υ, eviction and the optimiser,
         so the compiled kernels are loaded (or compiled, in a fresh checkout: tens of seconds)
         before the first real slot arrives instead of while the device waits for its map."""
@@ -100,6 +102,17 @@ class EdgeMapperCore:
         frames = [FrameSet(10 + i, frozenset(range(1 + 5 * i, 21 + 5 * i))) for i in range(6)]
         core.plan(0, frames, 40.0, 0)
         core.finish_slot(0)
+
+    def set_policy(self, policy: MapPolicy) -> None:
+        """The policy that decides from the next plan on."""
+        self.planner.policy = policy
+
+    def set_vmax(self, vmax: int) -> None:
+        """V_max from the next plan on (a smaller one evicts the excess over the next slots'
+        C_k, as Theorem 1's sizes allow)."""
+        slot = dataclasses.replace(self.config.slot, vmax=int(vmax))
+        self.config = dataclasses.replace(self.config, slot=slot)
+        self.planner.config = slot
 
     # -- the protocol ------------------------------------------------------------------------
 
@@ -121,7 +134,7 @@ class EdgeMapperCore:
         return FrameSet(frame.frame_id, frame.map_points | {known[t] for t in hits},
                         frame.tracks - hits)
 
-    def add_keyframe(self, data: KeyframeData) -> IntegrationReport | None:
+    def add_keyframe(self, data: KeyFramePayload) -> IntegrationReport | None:
         """Integrate a keyframe the plan of its slot asked for; None (and nothing changes) for
         an unrequested or repeated one."""
         entry = self.pending.get(data.slot)

@@ -11,7 +11,7 @@ the device associated it with (``Keyframe.map_point_ids``, 0 = none):
   point, and later keyframes with the same track id observe that same point — so two frames of
   one slot that saw the same new corner share it, as the covisibility weight needs;
 * a feature with no usable id is matched by projection against the map points the keyframe's
-  pose sees (the device's own matching, :mod:`device_tracker.projection_matching`);
+  pose sees (the device's own matching, :mod:`twinslam.slam.projection_matching`);
 * what is still unmatched and has a depth reading becomes a new map point, back-projected with
   the keyframe's pose.
 """
@@ -24,10 +24,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from device_tracker.projection_matching import back_project, match_by_projection, visible_points
 from edge_mapper.keyframe_map import KeyframeMap
-
-TRACK_ID_BIT = np.uint64(1 << 63)          #: marks a device-local track id
+from twinslam.slam.keyframe import TRACK_ID_BIT
+from twinslam.slam.projection_matching import back_project, match_by_projection, visible_points
 
 
 @dataclass(frozen=True)

@@ -1,12 +1,12 @@
-"""The edge's side of the per-slot protocol as messages (DESIGN.md §1): what it reads from a
-``Keyframe`` and what it writes as ``UploadRequest``, ``MapUpdate`` and ``MapStats``. Pure
-conversion, no DDS, so the node stays a thin shell and the conversions are tested alone.
+"""The edge's side of the per-slot protocol as messages (DESIGN.md §1): what it writes as
+``UploadRequest``, ``MapUpdate`` and ``MapStats`` (it reads ``Keyframe`` with
+:mod:`twinslam.slam.keyframe`). Pure conversion, no DDS, so the node stays a thin shell and
+the conversions are tested alone.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -14,37 +14,8 @@ import numpy as np
 from edge_mapper.keyframe_map import KeyframeMap
 from msg_schemas import new
 from msg_schemas.headers import set_header
-from msg_schemas.poses import pose_matrix, pose_msg
-from simulator.env import MapAction
-
-DESCRIPTOR_BYTES = 32
-
-
-@dataclass
-class KeyframeData:
-    """A received keyframe's content in the shapes the integrator takes."""
-
-    frame_id: int
-    slot: int
-    pose: np.ndarray               #: 4×4 camera-to-map (the device's estimate)
-    intrinsics: np.ndarray         #: 3×3
-    keypoints: np.ndarray          #: n×2 float32
-    depths: np.ndarray             #: n float32, metres, 0 = none
-    descriptors: np.ndarray        #: n×32 uint8
-    point_ids: np.ndarray          #: n uint64, 0 = none, top bit = device track id
-
-
-def read_keyframe(msg: Any) -> KeyframeData:
-    """Unpack a (validated) ``Keyframe``."""
-    xy = np.asarray(msg.keypoints_xy, dtype=np.float32).reshape(-1, 2)
-    n = len(xy)
-    depths = np.asarray(msg.keypoint_depths, dtype=np.float32)
-    ids = np.asarray(msg.map_point_ids, dtype=np.uint64)
-    return KeyframeData(int(msg.frame_id), int(msg.slot), pose_matrix(msg.pose_estimate),
-                        np.asarray(msg.k, dtype=np.float64).reshape(3, 3), xy,
-                        depths if depths.size == n else np.zeros(n, np.float32),
-                        np.asarray(msg.descriptors, dtype=np.uint8).reshape(n, DESCRIPTOR_BYTES),
-                        ids if ids.size == n else np.zeros(n, np.uint64))
+from msg_schemas.poses import pose_msg
+from twinslam.map_management.actions import MapAction
 
 
 def upload_request_message(slot: int, policy: str, rate_mbps: float, action: MapAction,
@@ -79,38 +50,6 @@ def map_update_message(keyframe_map: KeyframeMap, slot: int, version: int, stamp
               track_ids=np.array(list(tracks), dtype=np.uint64),
               track_point_ids=np.array(list(tracks.values()), dtype=np.uint64))
     return set_header(msg, stamp, frame_id)
-
-
-@dataclass
-class LocalMap:
-    """A ``MapUpdate`` as arrays: what the device tracks against."""
-
-    version: int
-    keyframe_ids: np.ndarray       #: uint64
-    keyframe_poses: np.ndarray     #: k×4×4
-    point_ids: np.ndarray          #: uint64
-    positions: np.ndarray          #: n×3
-    descriptors: np.ndarray        #: n×32 uint8
-    observations: np.ndarray       #: n uint32
-    keyframe_points: list[np.ndarray] = field(default_factory=list)   #: M_f per keyframe
-    track_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint64))
-    track_point_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint64))
-
-
-def read_map_update(msg: Any) -> LocalMap:
-    n = len(msg.point_ids)
-    return LocalMap(int(msg.map_version), np.asarray(msg.keyframe_ids, dtype=np.uint64),
-                    np.array([pose_matrix(p) for p in msg.keyframe_poses]).reshape(-1, 4, 4),
-                    np.asarray(msg.point_ids, dtype=np.uint64),
-                    np.asarray(msg.point_positions, dtype=np.float64).reshape(n, 3),
-                    np.asarray(msg.point_descriptors, dtype=np.uint8).reshape(n,
-                                                                              DESCRIPTOR_BYTES),
-                    np.asarray(msg.point_observations, dtype=np.uint32),
-                    np.split(np.asarray(msg.keyframe_point_ids, dtype=np.uint64),
-                             np.cumsum(np.asarray(msg.keyframe_point_counts, dtype=np.int64)
-                                       )[:-1]) if len(msg.keyframe_point_counts) else [],
-                    np.asarray(msg.track_ids, dtype=np.uint64),
-                    np.asarray(msg.track_point_ids, dtype=np.uint64))
 
 
 def map_stats_message(slot: int, policy: str, keyframe_map: KeyframeMap, uncertainty: float,

@@ -4,7 +4,8 @@ The device reports each frame of slot k as the sets of ids it observes: global m
 from the last map update and device-local track ids of new features. The covisibility weight
 between two frames is the size of the intersection of those sets, and between a frame and a
 keyframe of the edge's map the number of map points both observe. With these weights the
-planner builds the same :class:`~simulator.env.SlotObservation` the simulator gives the
+planner builds the same :class:`~twinslam.map_management.actions.SlotObservation` the simulator
+gives the
 policies, asks the configured policy for U_k and C_k (Theorem 1's sizes), checks the answer,
 and scores the slot: υ over F_k against the current map (eq. 8), the reward of the previous
 decision.
@@ -17,8 +18,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from edge_mapper.keyframe_map import KeyframeMap, shared_counts
-from edge_mapper.uncertainty import SlotUncertainty, next_slot_uncertainty, theorem1_cardinalities
-from simulator.env import MapAction, SlotObservation, check_map_action
+from twinslam.common import table1
+from twinslam.map_management.actions import MapAction, SlotObservation, check_map_action
+from twinslam.map_management.policies import MapPolicy
+from twinslam.uncertainty.map_uncertainty import (
+    SlotUncertainty,
+    next_slot_uncertainty,
+    theorem1_cardinalities,
+)
 
 TRACK_MASK = (1 << 63) - 1          #: a track id without its marker bit
 
@@ -34,9 +41,9 @@ class FrameSet:
 
 @dataclass(frozen=True)
 class SlotConfig:
-    vmax: int = 45
-    alpha_mbit: float = 5.0
-    d_req_s: float = 0.5
+    vmax: int = table1.VMAX
+    alpha_mbit: float = table1.ALPHA_MBIT
+    d_req_s: float = table1.D_REQ_S
     log_det_pi: float = 0.0
 
 
@@ -50,7 +57,7 @@ class SlotPlan:
 class SlotPlanner:
     """Builds observations over a :class:`KeyframeMap` and runs a policy on them."""
 
-    def __init__(self, keyframe_map: KeyframeMap, policy: object,
+    def __init__(self, keyframe_map: KeyframeMap, policy: MapPolicy,
                  config: SlotConfig | None = None, n_states: int = 2) -> None:
         self.map = keyframe_map
         self.policy = policy
@@ -103,7 +110,7 @@ class SlotPlanner:
                               list(rate_history), self.n_states,
                               lambda a, b: full[np.ix_([pos[x] for x in a],
                                                        [pos[x] for x in b])])
-        action = self.policy.decide(obs)             # type: ignore[attr-defined]
+        action = self.policy.decide(obs)
         check_map_action(slot, n_up, n_ev, set(cand), map_ids, action)
         # υ of F_k against the map as it is (eq. 8), None for an empty map; a keyframe holds
         # map-point ids only, so the frame–keyframe block counts shared map points alone

@@ -12,11 +12,13 @@ takes over again. Pure logic: the node offers latents and reads which policy dec
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
-from mbrl.rate_models import latent_features
-from simulator.env import MapAction, SlotObservation
+from twinslam.map_management.actions import MapAction, SlotObservation
+from twinslam.map_management.policies import MapPolicy
+from twinslam.twin.latent import latent_features
 
 
 @dataclass(frozen=True)
@@ -26,15 +28,29 @@ class TwinLatent:
     model_version: int
 
 
+class TwinDrivenPolicy(Protocol):
+    """A learned policy that can take the twin's features in place of its own rate model's
+    (``MbrlPolicy`` of a twin checkpoint)."""
+
+    name: str
+    feature_size: int
+
+    def reset(self, seed: int | None = None) -> None: ...
+
+    def decide(self, obs: SlotObservation, rate_features: np.ndarray | None = None
+               ) -> MapAction: ...
+
+
 class TwinFedPolicy:
     """``decide`` runs the learned policy on a fresh latent, else the fallback."""
 
-    def __init__(self, learned: object, fallback: object, max_age: int = 2) -> None:
+    def __init__(self, learned: TwinDrivenPolicy, fallback: MapPolicy, max_age: int = 2
+                 ) -> None:
         if max_age < 0:
             raise ValueError(f"latent max age must be >= 0 slots, got {max_age}")
         self.learned, self.fallback, self.max_age = learned, fallback, max_age
-        self.name = str(getattr(learned, "name", "learned"))
-        self.fallback_name = str(getattr(fallback, "name", "fallback"))
+        self.name = learned.name
+        self.fallback_name = fallback.name
         self.latent: TwinLatent | None = None
         self.used = self.name              #: which policy decided the last slot
 
@@ -42,7 +58,7 @@ class TwinFedPolicy:
         """A latent from the twin node; refused (ValueError) if the learned policy cannot
         take it, e.g. a twin of another latent size."""
         features = latent_features(mu, sigma)
-        size = int(getattr(self.learned, "feature_size", features.size))
+        size = self.learned.feature_size
         if features.size != size:
             raise ValueError(f"a latent of {features.size // 2} dimensions; the policy was "
                              f"trained on a twin of {size // 2}")
@@ -56,11 +72,10 @@ class TwinFedPolicy:
         if self.fresh(obs.slot):
             assert self.latent is not None
             self.used = self.name
-            return self.learned.decide(obs, rate_features=self.latent.features)  # type: ignore[attr-defined]
+            return self.learned.decide(obs, rate_features=self.latent.features)
         self.used = self.fallback_name
-        return self.fallback.decide(obs)             # type: ignore[attr-defined]
+        return self.fallback.decide(obs)
 
     def reset(self, seed: int | None = None) -> None:
-        for policy in (self.learned, self.fallback):
-            if hasattr(policy, "reset"):
-                policy.reset(seed)
+        self.learned.reset(seed)
+        self.fallback.reset(seed)

@@ -6,8 +6,8 @@ from collections.abc import Iterator
 
 import pytest
 
-from node_hosts.loopback import LoopbackDomain
-from node_hosts.session import RosSession
+from twinslam.node_hosts.loopback import LoopbackDomain
+from twinslam.node_hosts.session import RosSession
 
 
 @pytest.fixture

@@ -7,7 +7,7 @@ import itertools
 import numpy as np
 import pytest
 
-from udt_node.channel import (
+from twinslam.uplink.channels import (
     ChannelError,
     MarkovChannel,
     TraceChannel,

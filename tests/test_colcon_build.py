@@ -15,8 +15,8 @@ from pathlib import Path
 
 import pytest
 
-from node_hosts.fastdds import ros_env
-from node_hosts.loopback import pick_domain_id
+from twinslam.node_hosts.fastdds import ros_env
+from twinslam.node_hosts.loopback import pick_domain_id
 
 REPO = Path(__file__).resolve().parents[1]
 VENV = Path(sys.prefix)

@@ -15,9 +15,9 @@ from sensor_msgs.msg import Image
 from twinslam_msgs.msg import FrameSummaries, FrameSummary
 
 from msg_schemas import message_class, new, qos
-from node_hosts.loopback import JsonLines, LoopbackDomain
-from node_hosts.session import RosSession
 from tests.nodes.digest import content_digest
+from twinslam.node_hosts.loopback import JsonLines, LoopbackDomain
+from twinslam.node_hosts.session import RosSession
 
 LISTENER = ["-m", "tests.nodes.listener"]
 
@@ -161,7 +161,7 @@ def test_the_ros_graph_lists_every_node_and_twinslam_nodes_prints_them(
         return {f"{ns.rstrip('/')}/{n}" for n, ns in ros.node.get_node_names_and_namespaces()}
 
     assert ros.spin_until(lambda: {f"/lab/{n}" for n in names} <= listed(), 30)
-    out = subprocess.run([sys.executable, "-m", "twinslam_cli.main", "nodes"],
+    out = subprocess.run([sys.executable, "-m", "twinslam.cli.main", "nodes"],
                          env=domain.env, capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     assert {f"/lab/{n}" for n in names} <= set(out.stdout.split())
@@ -177,7 +177,7 @@ def test_waiting_for_acknowledgements_lets_the_other_threads_run(domain: Loopbac
 
     from std_msgs.msg import String
 
-    from node_hosts.acks import wait_for_acks
+    from twinslam.node_hosts.acks import wait_for_acks
 
     proc = domain.spawn([*LISTENER])
     JsonLines(proc).next("ready", timeout=30)

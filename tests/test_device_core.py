@@ -7,14 +7,14 @@ from __future__ import annotations
 import numpy as np
 
 from device_tracker.device_core import TRACK_BIT, DeviceTrackerCore
-from edge_mapper.messages import LocalMap
-from sequence_player.synthetic import SyntheticSequence
+from twinslam.sequence_player.synthetic import SyntheticSequence
+from twinslam.slam.map_update import MapSnapshot
 
 SLOT = 10
 
 
 def _track(core: DeviceTrackerCore, frames: list) -> list:
-    return [core.track(f.color, f.depth, f.stamp) for f in frames]
+    return [core.track(f.color, f.depth, f.stamp, image=f"image {f.index}") for f in frames]
 
 
 def test_map_update_relabels_resolved_tracks_and_keeps_tracking() -> None:
@@ -38,7 +38,7 @@ def test_map_update_relabels_resolved_tracks_and_keeps_tracking() -> None:
     first = records[0].track_ids
     rows = np.array([int(np.flatnonzero(core.labels == t)[0]) for t in first])
     global_ids = np.arange(1, len(first) + 1, dtype=np.uint64)
-    update = LocalMap(1, np.array([0], np.uint64), np.eye(4)[None], global_ids,
+    update = MapSnapshot(1, np.array([0], np.uint64), np.eye(4)[None], global_ids,
                       core.tracking.map.positions[rows].copy(),
                       core.tracking.map.descriptors[rows].copy(),
                       np.ones(len(first), np.uint32), [global_ids], first, global_ids)
@@ -63,6 +63,11 @@ def test_map_update_relabels_resolved_tracks_and_keeps_tracking() -> None:
     _track(core, frames[2 * SLOT:])
     core.take_slot()
     assert core.upload(SLOT - 1) is None and core.upload(SLOT) is not None
+    # the image kept with an upload lives exactly as long as the upload
+    assert core.upload_image(SLOT - 1) is None and core.upload_image(SLOT) == f"image {SLOT}"
+    payload = core.upload(SLOT)
+    assert payload is not None and payload.frame_id == SLOT and payload.slot == 1
+    np.testing.assert_array_equal(payload.intrinsics, seq.intrinsics)
 
 
 def test_a_frame_the_motion_model_loses_is_relocalised() -> None:

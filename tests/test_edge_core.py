@@ -8,10 +8,9 @@ from pathlib import Path
 import numpy as np
 
 from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore
-from edge_mapper.keyframe_integration import TRACK_ID_BIT
-from edge_mapper.messages import KeyframeData
-from edge_mapper.policies import make_policy
 from edge_mapper.slot_planner import FrameSet, SlotConfig
+from twinslam.policy_registry import make_policy
+from twinslam.slam.keyframe import TRACK_ID_BIT, KeyFramePayload
 
 K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
 F = 8                                      # frames per slot (60 in the paper; small for speed)
@@ -49,13 +48,13 @@ class Device:
         return FrameSet(frame, frozenset(i for i in ids if not i & int(TRACK_ID_BIT)),
                         frozenset(i for i in ids if i & int(TRACK_ID_BIT)))
 
-    def keyframe(self, frame: int, slot: int, core: EdgeMapperCore) -> KeyframeData:
+    def keyframe(self, frame: int, slot: int, core: EdgeMapperCore) -> KeyFramePayload:
         seen, uv, depth, ids = self.observe(frame, core)
         pose = self.pose(frame)
         pose[:3, 3] += self.rng.normal(0, 0.01, 3)               # the device's estimate
-        return KeyframeData(frame, slot, pose, K, uv.astype(np.float32),
-                            depth.astype(np.float32), self.descs[seen],
-                            np.array(ids, dtype=np.uint64))
+        return KeyFramePayload(frame, slot, 0.1 * frame, pose, K, uv.astype(np.float32),
+                               depth.astype(np.float32), self.descs[seen],
+                               np.array(ids, dtype=np.uint64))
 
 
 def _run(core: EdgeMapperCore, device: Device, slots: range, rates: list[float]):

@@ -7,19 +7,18 @@ import math
 import numpy as np
 from rclpy.serialization import deserialize_message, serialize_message
 
-from edge_mapper.keyframe_integration import TRACK_ID_BIT
 from edge_mapper.keyframe_map import KeyframeMap
 from edge_mapper.messages import (
     map_stats_message,
     map_update_message,
-    read_keyframe,
-    read_map_update,
     upload_request_message,
 )
 from msg_schemas import new, type_name_of
 from msg_schemas.poses import pose_matrix, pose_msg
 from msg_schemas.validation import validate
-from simulator.env import MapAction
+from twinslam.map_management.actions import MapAction
+from twinslam.slam.keyframe import TRACK_ID_BIT, KeyFramePayload, keyframe_message, read_keyframe
+from twinslam.slam.map_update import read_map_update
 
 
 def _roundtrip(msg: object) -> object:
@@ -86,7 +85,7 @@ def test_upload_request_and_map_stats() -> None:
 
 
 def test_device_messages_round_trip_into_the_edge_readers() -> None:
-    from device_tracker.messages import FrameRecord, frame_summaries_message, keyframe_message
+    from device_tracker.messages import FrameRecord, frame_summaries_message
 
     rec = FrameRecord(41, 12.25, _pose(0.3, [1, 2, 3]), True, np.array([5, 9], np.uint64),
                       np.array([int(TRACK_ID_BIT) | 2], np.uint64))
@@ -96,7 +95,10 @@ def test_device_messages_round_trip_into_the_edge_readers() -> None:
         (7, 3, 41, 12, 250_000_000)
     assert f.map_point_ids.tolist() == [5, 9] and f.local_track_ids.tolist() == [(1 << 63) | 2]
     np.testing.assert_allclose(pose_matrix(f.pose), rec.pose, atol=1e-12)
-    kf = read_keyframe(_roundtrip(keyframe_message(
-        7, 41, 12.25, rec.pose, np.diag([500.0, 500.0, 1.0]), np.array([[1.0, 2.0]]),
-        np.array([2.5]), np.full((1, 32), 7, np.uint8), np.array([9], np.uint64))))
+    sent = KeyFramePayload(41, 7, 12.25, rec.pose, np.diag([500.0, 500.0, 1.0]),
+                           np.array([[1.0, 2.0]]), np.array([2.5]), np.full((1, 32), 7, np.uint8),
+                           np.array([9], np.uint64))
+    kf = read_keyframe(_roundtrip(keyframe_message(sent)))
     assert kf.frame_id == 41 and kf.point_ids.tolist() == [9] and kf.depths.tolist() == [2.5]
+    assert kf.stamp == 12.25 and kf.slot == 7
+    np.testing.assert_allclose(kf.intrinsics, sent.intrinsics)

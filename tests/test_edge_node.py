@@ -11,12 +11,12 @@ from pathlib import Path
 import numpy as np
 from twinslam_msgs.msg import FrameSummaries, Keyframe, MapStats, MapUpdate, UploadRequest
 
-from device_tracker.messages import FrameRecord, frame_summaries_message, keyframe_message
-from edge_mapper.keyframe_integration import TRACK_ID_BIT
+from device_tracker.messages import FrameRecord, frame_summaries_message
 from msg_schemas import qos, topics
-from node_hosts.loopback import LoopbackDomain
-from node_hosts.session import RosSession
 from tests.test_edge_core import Device, K
+from twinslam.node_hosts.loopback import LoopbackDomain
+from twinslam.node_hosts.session import RosSession
+from twinslam.slam.keyframe import TRACK_ID_BIT, KeyFramePayload, keyframe_message
 
 F = 8
 
@@ -31,9 +31,9 @@ def _summaries(device: Device, slot: int, rate: float) -> object:
 
 def _keyframe(device: Device, frame: int, slot: int) -> object:
     seen, uv, depth = device.features(frame)
-    return keyframe_message(slot, frame, 0.1 * frame, device.pose(frame), K, uv, depth,
-                            device.descs[seen],
-                            np.array([int(TRACK_ID_BIT) | int(j) for j in seen], np.uint64))
+    return keyframe_message(KeyFramePayload(
+        frame, slot, 0.1 * frame, device.pose(frame), K, uv, depth, device.descs[seen],
+        np.array([int(TRACK_ID_BIT) | int(j) for j in seen], np.uint64)))
 
 
 class TrackIdDevice(Device):
@@ -93,7 +93,14 @@ def test_edge_node_protocol_corrupt_keyframe_and_restart(
     assert all(s.map_size <= 10 for s in got["stats"])
     assert got["stats"][-1].map_size == 10 and np.isfinite(got["stats"][-1].uncertainty)
     assert got["stats"][-1].uploads == 6
+    # a running edge on policy:=lff has not loaded torch (tests/test_layers.py: the imports)
+    assert "libtorch" not in Path(f"/proc/{edge.pid}/maps").read_text()
 
+    def summary_readers() -> set[bytes]:
+        return {bytes(i.endpoint_gid) for i in
+                node.get_subscriptions_info_by_topic(f"/{topics.FRAME_SUMMARIES}")}
+
+    killed_readers = summary_readers()
     edge.send_signal(signal.SIGKILL)                                    # the edge host dies
     edge.wait(timeout=10)
     _, _, err_before = domain.stop(edge)
@@ -103,7 +110,9 @@ def test_edge_node_protocol_corrupt_keyframe_and_restart(
     assert ros.spin_until(lambda: len(got["map"]) > 3, 30.0), "no latched map after restart"
     restored = got["map"][-1]
     assert restored.map_version == 3 and list(restored.keyframe_ids) == list(last.keyframe_ids)
-    time.sleep(0.2)
+    # the new edge's summaries reader is known here (the killed one's may linger until its
+    # lease ends): a summary published now reaches it
+    assert ros.spin_until(lambda: bool(summary_readers() - killed_readers), 30.0)
     run_slot(3, 40.0)
     assert got["map"][-1].map_version == 4
     code, _, err = domain.stop(edge)

@@ -13,8 +13,8 @@ from twinslam_msgs.msg import FrameSummaries, UploadRequest
 
 from device_tracker.messages import FrameRecord, frame_summaries_message
 from msg_schemas import qos, topics
-from node_hosts.loopback import LoopbackDomain
-from node_hosts.session import RosSession
+from twinslam.node_hosts.loopback import LoopbackDomain
+from twinslam.node_hosts.session import RosSession
 
 
 def _call(ros: RosSession, srv_type: type, name: str, request: object) -> object:
@@ -79,7 +79,7 @@ def test_edge_parameters_are_listed_refused_with_reasons_and_changed_live(
     assert all(r.successful for r in _set(ros, policy="mbrl"))
     for slot in (2, 3):
         pub.publish(_summaries(slot))
-    assert ros.spin_until(lambda: len(requests) == 4, 30.0)
+    assert ros.spin_until(lambda: len(requests) == 4, 30.0), domain.log(edge)[-3000:]
     assert [r.policy for r in requests[2:]] == ["lff", "lff"]
     code, _, err = domain.stop(edge)
     assert code == 0, err[-2000:]

@@ -15,11 +15,11 @@ from scipy.stats import spearmanr
 
 from device_tracker.orb_extractor import OrbExtractor
 from device_tracker.pose_optimization import optimize_pose
-from device_tracker.projection_matching import match_by_projection
-from sequence_player.readers import open_sequence
-from simulator.covisibility import load_covisibility
-from simulator.extraction import extract_covisibility
 from tests.test_sequence_readers import SEVEN, needs_seven
+from twinslam.sequence_player.readers import open_sequence
+from twinslam.simulator.covisibility import load_covisibility
+from twinslam.simulator.extraction import extract_covisibility
+from twinslam.slam.projection_matching import match_by_projection
 
 REPO = Path(__file__).resolve().parents[1]
 COVIS_7SCENES = REPO / "data" / "7scenes-redkitchen-1000.covis.npz"
@@ -151,7 +151,7 @@ def test_extracted_covisibility_falls_with_viewpoint_distance() -> None:
 @needs_seven
 def test_extract_command_writes_a_file_the_simulator_reads(tmp_path: Path) -> None:
     out = tmp_path / "covis.npz"
-    run = subprocess.run([sys.executable, "-m", "twinslam_cli.main", "extract", str(SEVEN),
+    run = subprocess.run([sys.executable, "-m", "twinslam.cli.main", "extract", str(SEVEN),
                           "-o", str(out), "--end", "120"], capture_output=True, text=True,
                          timeout=240, cwd=REPO)
     assert run.returncode == 0, run.stderr
@@ -173,7 +173,7 @@ def test_extract_command_writes_a_file_the_simulator_reads(tmp_path: Path) -> No
     sizes = np.array([len(data.points(f)) for f in idx])
     ref_sizes = np.array([len(committed.points(f)) for f in idx])
     assert np.mean(np.abs(sizes - ref_sizes) / ref_sizes) < 0.10
-    sim = subprocess.run([sys.executable, "-m", "twinslam_cli.main", "sim", "--covis", str(out),
+    sim = subprocess.run([sys.executable, "-m", "twinslam.cli.main", "sim", "--covis", str(out),
                           "--policy", "lff,adapt", "--slots", "5", "--seeds", "1",
                           "--vmax", "10", "--slot-frames", "20"],
                          capture_output=True, text=True, timeout=240, cwd=REPO)
@@ -182,7 +182,7 @@ def test_extract_command_writes_a_file_the_simulator_reads(tmp_path: Path) -> No
 
 
 def test_extract_command_refuses_a_missing_sequence(tmp_path: Path) -> None:
-    run = subprocess.run([sys.executable, "-m", "twinslam_cli.main", "extract",
+    run = subprocess.run([sys.executable, "-m", "twinslam.cli.main", "extract",
                           str(tmp_path / "nope"), "-o", str(tmp_path / "c.npz")],
                          capture_output=True, text=True, timeout=60, cwd=REPO)
     assert run.returncode == 2 and "does not exist" in run.stderr

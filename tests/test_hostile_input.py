@@ -1,7 +1,7 @@
 """Hostile bytes at every message type a twinslam node subscribes to.
 
 In process, each payload goes through the subscription's own path
-(:meth:`~node_hosts.checked_subscription.CheckedSubscription.handle`: rclpy's CDR decoding,
+(:meth:`~twinslam.node_hosts.checked_subscription.CheckedSubscription.handle`: rclpy's CDR decoding,
 validation, the callback or a logged rejection), as a sample taken off the wire would:
 Hypothesis draws truncated, extended and random payloads and bit flips of real ones (~16 s); a
 deterministic sweep writes 0xFFFFFFFF (a 4 GB length) into every aligned word of each type's
@@ -29,9 +29,9 @@ from hypothesis import strategies as st
 from rclpy.serialization import serialize_message
 
 from msg_schemas import message_class, new, qos
-from node_hosts.checked_subscription import CheckedSubscription
-from node_hosts.session import RosSession
 from tests import cyclone_peer
+from twinslam.node_hosts.checked_subscription import CheckedSubscription
+from twinslam.node_hosts.session import RosSession
 
 REPO = Path(__file__).resolve().parents[1]
 NODE_FILES = ["device_tracker/node.py", "edge_mapper/node.py", "udt_node/node.py"]

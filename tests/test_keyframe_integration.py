@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from edge_mapper.keyframe_integration import TRACK_ID_BIT, KeyframeIntegrator
+from edge_mapper.keyframe_integration import KeyframeIntegrator
 from edge_mapper.keyframe_map import KeyframeMap
+from twinslam.slam.keyframe import TRACK_ID_BIT
 
 K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
 

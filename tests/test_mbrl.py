@@ -10,17 +10,18 @@ import pytest
 import torch
 
 from edge_mapper.edge_core import EdgeMapperCore
-from edge_mapper.policies import Adapt, make_policy
-from mbrl.networks import Actor, soft_flags
-from mbrl.policy import MbrlPolicy, PolicyCheckpointError
-from mbrl.rate_models import MarkovRateModel, TwinRateModel
-from mbrl.replay import ReplayBuffer, Transition, blended_batch, collate
-from mbrl.state import NODE_FEATURES, action_from_scores, build_state, context_size, select
-from mbrl.trainer import AmmTrainer, TrainConfig
-from simulator.covisibility import CovisibilityDataset, load_covisibility
-from simulator.env import MapManagementEnv, SimConfig
-from simulator.oracle import rollout
-from udt_node.channel import parse_channel
+from twinslam.map_management.policies import Adapt
+from twinslam.mbrl.networks import Actor, soft_flags
+from twinslam.mbrl.policy import MbrlPolicy, PolicyCheckpointError
+from twinslam.mbrl.replay import ReplayBuffer, Transition, blended_batch, collate
+from twinslam.mbrl.state import NODE_FEATURES, action_from_scores, build_state, context_size, select
+from twinslam.mbrl.trainer import AmmTrainer, TrainConfig
+from twinslam.policy_registry import make_policy
+from twinslam.simulator.covisibility import CovisibilityDataset, load_covisibility
+from twinslam.simulator.env import MapManagementEnv, SimConfig
+from twinslam.simulator.oracle import rollout
+from twinslam.twin.rate_models import MarkovRateModel, TwinRateModel
+from twinslam.uplink.channels import parse_channel
 
 COVIS = Path(__file__).resolve().parents[1] / "data" / "7scenes-redkitchen-1000.covis.npz"
 
@@ -225,7 +226,7 @@ def test_bad_policy_checkpoints_are_refused_by_name(tmp_path: Path) -> None:
 
 def test_experiment_and_train_commands_refuse_bad_arguments_by_name(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from twinslam_cli.main import main
+    from twinslam.cli.main import main
 
     assert main(["experiment", "fig7", "--policy", f"UDT={tmp_path / 'none.pt'}",
                  "--out", str(tmp_path)]) == 2
@@ -240,7 +241,7 @@ def test_experiment_and_train_commands_refuse_bad_arguments_by_name(
 
 def test_figure_sweeps_write_one_csv_row_per_point_and_policy_and_a_plot(
         kitchen: CovisibilityDataset, tmp_path: Path) -> None:
-    from mbrl.experiments import Setting, sweep
+    from twinslam.experiments.amm import Setting, sweep
 
     results = sweep("figtest", [0.3, 0.7], lambda r: f"markov:N=2,ratio={r}",
                     lambda _r: Setting(runs=2, slots=6), kitchen, {}, tmp_path, "ratio",
@@ -254,7 +255,7 @@ def test_figure_sweeps_write_one_csv_row_per_point_and_policy_and_a_plot(
 
 
 def test_edge_node_with_a_missing_policy_checkpoint_says_so_and_exits(tmp_path: Path) -> None:
-    from node_hosts.loopback import LoopbackDomain
+    from twinslam.node_hosts.loopback import LoopbackDomain
 
     missing = tmp_path / "gone.pt"
     with LoopbackDomain() as domain:

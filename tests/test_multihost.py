@@ -2,7 +2,8 @@
 namespace with its own address, the device's uplink a veth shaped by ``tc``, and faults
 injected while the 7-Scenes sample plays.
 
-Needs root and iproute2 (``node_hosts.netns``); without them every test here is skipped with
+Needs root and iproute2 (``twinslam.node_hosts.netns``); without them every test here is skipped
+with
 the reason. The namespaces of a test are removed when it ends, failed or not.
 
 These tests run in a process of their own (``tests/test_multihost_process.py`` starts it):
@@ -26,8 +27,7 @@ from typing import Any
 
 import pytest
 
-from node_hosts.netns import HOSTS, NetnsError, NetnsHosts, address_of, unavailable_reason
-from twinslam_cli.launcher import (
+from twinslam.cli.launcher import (
     NODE_HOSTS,
     LaunchConfig,
     Launcher,
@@ -35,6 +35,7 @@ from twinslam_cli.launcher import (
     RunReport,
     tc_uplink_params,
 )
+from twinslam.node_hosts.netns import HOSTS, NetnsError, NetnsHosts, address_of, unavailable_reason
 
 SEQUENCE = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes-1000"
 VMAX = 45
@@ -235,8 +236,8 @@ def test_edge_host_node_killed_and_restarted_restores_its_map(hosts: NetnsHosts,
 @pytest.fixture(scope="module")
 def twin_policy(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A twin-driven AMM policy, trained for a few slots (its quality is not the point)."""
-    from mbrl.trainer import AmmTrainer, TrainConfig
-    from simulator.covisibility import load_covisibility
+    from twinslam.mbrl.trainer import AmmTrainer, TrainConfig
+    from twinslam.simulator.covisibility import load_covisibility
 
     covis = Path(__file__).resolve().parents[1] / "data" / "7scenes-redkitchen-1000.covis.npz"
     trainer = AmmTrainer(TrainConfig(slots=20, episode_slots=10, warmup_slots=10,
@@ -325,7 +326,7 @@ def test_5_percent_loss_reliable_topics_deliver_best_effort_images_degrade(
 
 def test_hosts_command_builds_and_removes_the_three_hosts() -> None:
     prefix = f"tc{os.getpid()}-"
-    cli = [sys.executable, "-m", "twinslam_cli.main", "hosts"]
+    cli = [sys.executable, "-m", "twinslam.cli.main", "hosts"]
     try:
         up = subprocess.run([*cli, "up", "--prefix", prefix], capture_output=True, text=True,
                             timeout=60)

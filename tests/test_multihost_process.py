@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from node_hosts.netns import unavailable_reason
+from twinslam.node_hosts.netns import unavailable_reason
 
 REPO = Path(__file__).resolve().parents[1]
 _why_not = unavailable_reason()

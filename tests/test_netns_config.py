@@ -11,9 +11,9 @@ import xml.etree.ElementTree as ET
 
 import pytest
 
-from node_hosts.ebpf_loss import random_drop_program
-from node_hosts.fastdds import PROFILE, ros_env
-from node_hosts.netns import HOST_PROFILE, HOSTS, NetnsHosts, address_of, host_env
+from twinslam.node_hosts.ebpf_loss import random_drop_program
+from twinslam.node_hosts.fastdds import PROFILE, ros_env
+from twinslam.node_hosts.netns import HOST_PROFILE, HOSTS, NetnsHosts, address_of, host_env
 
 NS = {"f": "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"}
 

@@ -12,8 +12,8 @@ from cyclonedds.util import duration
 from rmw_dds_common.msg import ParticipantEntitiesInfo
 from sensor_msgs.msg import Image
 
-from node_hosts.loopback import LoopbackDomain
 from tests import cyclone_peer
+from twinslam.node_hosts.loopback import LoopbackDomain
 
 
 def test_cyclone_reads_the_players_640x480_images(domain: LoopbackDomain) -> None:
@@ -25,7 +25,7 @@ def test_cyclone_reads_the_players_640x480_images(domain: LoopbackDomain) -> Non
     rd = cyclone_peer.reader(dp, "/camera/image_raw", Image,
                              Policy.Reliability.Reliable(duration(seconds=1)),
                              Policy.History.KeepLast(100))
-    player = domain.spawn(["-m", "sequence_player.node", "--ros-args", "-p",
+    player = domain.spawn(["-m", "twinslam.sequence_player.node", "--ros-args", "-p",
                            "sequence:=synthetic:30", "-p", "rate:=2.0",
                            "-p", "wait_for_subscribers:=1"])
     got: list = []

@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 
 from edge_mapper.keyframe_map import shared_counts
-from edge_mapper.uncertainty import map_uncertainty
-from node_hosts.loopback import LoopbackDomain
-from twinslam_cli.launcher import LaunchConfig, Launcher, RunRecord, RunReport
+from twinslam.cli.launcher import LaunchConfig, Launcher, RunRecord, RunReport
+from twinslam.node_hosts.loopback import LoopbackDomain
+from twinslam.uncertainty.map_uncertainty import map_uncertainty
 
 SEQUENCE = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes-1000"
 FRAMES, VMAX, ALPHA, D_REQ = 600, 45, 5.0, 0.5

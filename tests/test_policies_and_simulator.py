@@ -9,12 +9,23 @@ import sys
 import numpy as np
 import pytest
 
-from edge_mapper.policies import Adapt, greedy_additions, greedy_removals, make_policy, naive_greedy
-from simulator.covisibility import CovisibilityDataset, load_covisibility, save_covisibility
-from simulator.env import ActionError, MapAction, MapManagementEnv, SimConfig
-from simulator.geometric_covisibility import geometric_covisibility
-from simulator.oracle import ClairvoyantOracle, rollout
-from udt_node.channel import MarkovChannel, parse_channel, state_rates
+from tests.laplacian_reference import naive_greedy
+from twinslam.map_management.actions import ActionError, MapAction
+from twinslam.map_management.policies import (
+    Adapt,
+    greedy_additions,
+    greedy_removals,
+)
+from twinslam.policy_registry import make_policy
+from twinslam.simulator.covisibility import (
+    CovisibilityDataset,
+    load_covisibility,
+    save_covisibility,
+)
+from twinslam.simulator.env import MapManagementEnv, SimConfig
+from twinslam.simulator.geometric_covisibility import geometric_covisibility
+from twinslam.simulator.oracle import ClairvoyantOracle, rollout
+from twinslam.uplink.channels import MarkovChannel, parse_channel, state_rates
 
 
 @pytest.fixture(scope="module")
@@ -167,7 +178,7 @@ def test_covisibility_file_round_trip_and_errors(tmp_path, room: CovisibilityDat
 
 def test_sim_cli_prints_a_table_and_writes_csv(tmp_path) -> None:
     out = tmp_path / "res.csv"
-    proc = subprocess.run([sys.executable, "-m", "twinslam_cli.main", "sim", "--policy",
+    proc = subprocess.run([sys.executable, "-m", "twinslam.cli.main", "sim", "--policy",
                            "lff,adapt", "--covis", "geometric:300", "--slots", "5", "--seeds",
                            "2", "--vmax", "15", "--csv", str(out)],
                           capture_output=True, text=True, timeout=300)
@@ -176,7 +187,7 @@ def test_sim_cli_prints_a_table_and_writes_csv(tmp_path) -> None:
     lines = out.read_text().splitlines()
     assert lines[0] == "policy,mean_uncertainty,ci95"
     assert [line.split(",")[0] for line in lines[1:]] == ["lff", "adapt"]
-    bad = subprocess.run([sys.executable, "-m", "twinslam_cli.main", "sim", "--covis",
+    bad = subprocess.run([sys.executable, "-m", "twinslam.cli.main", "sim", "--covis",
                           "geometric:300", "--channel", "wifi:fast"],
                          capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and "unknown channel" in bad.stderr

@@ -11,10 +11,10 @@ from geometry_msgs.msg import PoseStamped
 from sensor_msgs.msg import CameraInfo, Image
 
 from msg_schemas import qos, topics
-from node_hosts.loopback import LoopbackDomain
-from node_hosts.session import RosSession
-from sequence_player.messages import depth_message
-from sequence_player.readers import RgbdFrame
+from twinslam.node_hosts.loopback import LoopbackDomain
+from twinslam.node_hosts.session import RosSession
+from twinslam.sequence_player.messages import depth_message
+from twinslam.sequence_player.readers import RgbdFrame
 
 K = np.array([[200.0, 0, 80], [0, 200.0, 60], [0, 0, 1]])
 
@@ -49,7 +49,7 @@ def test_player_delivers_every_frame_at_30_hz_and_skips_a_corrupt_jpeg(
                              ("pose", topics.GROUND_TRUTH_POSE, PoseStamped)]:
         ros.node.create_subscription(kind, topic, lambda m, k=key: got[k].append(m),
                                      qos.CAMERA)
-    player = domain.spawn(["-m", "sequence_player.node", "--ros-args",
+    player = domain.spawn(["-m", "twinslam.sequence_player.node", "--ros-args",
                            "-p", f"sequence:={seq}", "-p", "wait_for_subscribers:=1"])
     start = time.monotonic()
     # 99 frames at 30 Hz take 3.3 s; generous bound for a loaded CI machine
@@ -106,12 +106,12 @@ def test_record_to_mcap_and_replay_gives_the_same_messages(tmp_path: Path) -> No
     import subprocess
     import sys
 
-    from sequence_player.bag import frame_messages
-    from sequence_player.readers import open_sequence
+    from twinslam.sequence_player.bag import frame_messages
+    from twinslam.sequence_player.readers import open_sequence
 
     seq = _seven_scenes_fixture(tmp_path / "seq", frames=12, corrupt=5)
     bag = tmp_path / "run"
-    run = subprocess.run([sys.executable, "-m", "twinslam_cli.main", "record", str(seq),
+    run = subprocess.run([sys.executable, "-m", "twinslam.cli.main", "record", str(seq),
                           "-o", str(bag)], capture_output=True, text=True, timeout=120,
                          cwd=Path(__file__).resolve().parents[1])
     assert run.returncode == 0, run.stderr

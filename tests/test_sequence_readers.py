@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from sequence_player.readers import SequenceError, decode_depth, open_sequence
+from twinslam.sequence_player.readers import SequenceError, decode_depth, open_sequence
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 SEVEN = DATA / "7scenes-1000"

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from edge_mapper.keyframe_map import KeyframeMap
-from edge_mapper.policies import make_policy
 from edge_mapper.slot_planner import FrameSet, SlotConfig, SlotPlanner
-from simulator.env import ActionError, MapAction
+from twinslam.map_management.actions import ActionError, MapAction
+from twinslam.policy_registry import make_policy
 
 
 def _windows(n: int, rng: np.random.Generator) -> list[set[int]]:

@@ -9,9 +9,9 @@ from evo.core import metrics
 from evo.core.trajectory import PosePath3D
 from scipy.stats import spearmanr
 
-from sequence_player.readers import SequenceError, open_sequence
-from sequence_player.synthetic import ROOM_HALF, SyntheticSequence
-from simulator.extraction import extract_covisibility
+from twinslam.sequence_player.readers import SequenceError, open_sequence
+from twinslam.sequence_player.synthetic import ROOM_HALF, SyntheticSequence
+from twinslam.simulator.extraction import extract_covisibility
 
 
 def test_same_seed_same_frames_other_seed_other_trajectory() -> None:

@@ -8,8 +8,8 @@ from collections import Counter
 from twinslam_msgs.msg import FrameSummaries, MapStats, MapUpdate, UplinkThroughput, UploadRequest
 
 from msg_schemas import qos
-from node_hosts.loopback import LoopbackDomain
-from node_hosts.session import RosSession
+from twinslam.node_hosts.loopback import LoopbackDomain
+from twinslam.node_hosts.session import RosSession
 
 #: per pair: slot length (different, so a frame id tells whose slot it is), channel seed,
 #: first frame of the synthetic room played (different views)
@@ -37,7 +37,7 @@ def test_two_pairs_share_a_domain_without_cross_talk(domain: LoopbackDomain,
     for ns, (slot_frames, seed, start) in PAIRS.items():
         domain.spawn(["-m", "device_tracker.node", "--ros-args", "-r", f"__ns:={ns}",
                       "-p", f"slot_frames:={slot_frames}", "-p", f"seed:={seed}"])
-        domain.spawn(["-m", "sequence_player.node", "--ros-args", "-r", f"__ns:={ns}",
+        domain.spawn(["-m", "twinslam.sequence_player.node", "--ros-args", "-r", f"__ns:={ns}",
                       "-p", f"sequence:=synthetic:{start + FRAMES}", "-p", f"start:={start}",
                       "-p", "wait_for_subscribers:=1"])
     slots = {ns: FRAMES // f for ns, (f, _, _) in PAIRS.items()}

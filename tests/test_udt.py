@@ -13,13 +13,13 @@ import pytest
 from twinslam_msgs.msg import RateLatent, UplinkThroughput
 
 from msg_schemas import new, qos, topics
-from node_hosts.loopback import LoopbackDomain
-from node_hosts.session import RosSession
-from udt_node.baselines import LstmConfig, LstmPredictor, MarkovMle
-from udt_node.channel import MarkovChannel, state_rates
-from udt_node.experiments import chain_states
-from udt_node.rate_history import history_windows, transition_error
-from udt_node.twin import TwinConfig, UserDigitalTwin
+from twinslam.experiments.twin import chain_states
+from twinslam.node_hosts.loopback import LoopbackDomain
+from twinslam.node_hosts.session import RosSession
+from twinslam.twin.baselines import LstmConfig, LstmPredictor, MarkovMle
+from twinslam.twin.digital_twin import TwinConfig, UserDigitalTwin
+from twinslam.twin.rate_history import history_windows, transition_error
+from twinslam.uplink.channels import MarkovChannel, state_rates
 
 P2 = np.array([[0.8, 0.2], [0.3, 0.7]])
 

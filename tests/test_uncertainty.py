@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from edge_mapper.uncertainty import (
+from twinslam.uncertainty.map_uncertainty import (
     augmented_uncertainties,
     logdet_pi,
     map_uncertainty,

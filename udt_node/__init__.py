@@ -1,1 +1,1 @@
-"""udt_node: the user digital twin — uplink channel models, latent inference, baselines."""
+"""udt_node: the user digital twin's ROS 2 node (the twin itself is :mod:`twinslam.twin`)."""

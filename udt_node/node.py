@@ -29,11 +29,12 @@ from rclpy.node import Node
 from twinslam_msgs.msg import RateLatent, UplinkThroughput
 
 from msg_schemas import new, qos, topics
-from node_hosts.checked_subscription import CheckedSubscription
-from node_hosts.node_main import NodeStartError, run_node
-from node_hosts.parameters import ParamSpec, declare
-from udt_node.channel import state_rates
-from udt_node.twin import TwinConfig, UserDigitalTwin
+from twinslam.common import table1
+from twinslam.node_hosts.checked_subscription import CheckedSubscription
+from twinslam.node_hosts.node_main import NodeStartError, run_node
+from twinslam.node_hosts.parameters import ParamSpec, declare
+from twinslam.twin.digital_twin import TwinConfig, UserDigitalTwin
+from twinslam.uplink.channels import state_rates
 
 PARAMETERS = (
     ParamSpec("states", 2, "N uplink states, spread over [rate_min, rate_max]", low=1, high=64),
@@ -45,8 +46,8 @@ PARAMETERS = (
     ParamSpec("buffer_slots", 600, "real experiences a retrain learns from", low=1,
               high=10_000_000),
     ParamSpec("steps_per_retrain", 100, "optimiser steps per retrain", low=1, high=1_000_000),
-    ParamSpec("rate_min", 40.0, "Mbit/s of the lowest state", low=0.0, high=1e6),
-    ParamSpec("rate_max", 80.0, "Mbit/s of the highest state", low=0.0, high=1e6),
+    ParamSpec("rate_min", table1.RATE_MIN_MBPS, "Mbit/s of the lowest state", low=0.0, high=1e6),
+    ParamSpec("rate_max", table1.RATE_MAX_MBPS, "Mbit/s of the highest state", low=0.0, high=1e6),
     ParamSpec("max_mbps", 10_000.0, "a larger throughput report is refused as absurd",
               low=0.0, high=1e9),
     ParamSpec("weights", "", "file to load at start and save after each retrain"),
@@ -56,7 +57,8 @@ PARAMETERS = (
 
 
 class TwinNode(Node):
-    """Topic ↔ twin wiring; the learning lives in :class:`~udt_node.twin.UserDigitalTwin`."""
+    """Topic ↔ twin wiring; the learning lives in
+    :class:`~twinslam.twin.digital_twin.UserDigitalTwin`."""
 
     def __init__(self) -> None:
         super().__init__("udt_node")
@@ -86,8 +88,8 @@ class TwinNode(Node):
     def _load_or_create(self, config: TwinConfig, policy_checkpoint: str) -> UserDigitalTwin:
         log = self.get_logger()
         if policy_checkpoint:
-            from mbrl.policy import MbrlPolicy
-            from mbrl.rate_models import TwinRateModel
+            from twinslam.mbrl.policy import MbrlPolicy
+            from twinslam.twin.rate_models import TwinRateModel
 
             policy = MbrlPolicy(Path(policy_checkpoint))
             if not isinstance(policy.rate_model, TwinRateModel):

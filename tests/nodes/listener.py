@@ -1,7 +1,8 @@
 """A listener node run as its own OS process by the cross-process tests.
 
 It subscribes to one topic (parameters ``topic`` and ``type``) through a
-:class:`~node_hosts.checked_subscription.CheckedSubscription`, prints one JSON line when it is
+:class:`~twinslam.node_hosts.checked_subscription.CheckedSubscription`, prints one JSON line when
+it is
 ready (its resolved names and parameters) and one JSON line per message it accepts, holding
 the digest of its content (:mod:`tests.nodes.digest`).
 """
@@ -14,9 +15,9 @@ import sys
 from rclpy.node import Node
 
 from msg_schemas import message_class, qos
-from node_hosts.checked_subscription import CheckedSubscription
-from node_hosts.node_main import run_node
 from tests.nodes.digest import content_digest
+from twinslam.node_hosts.checked_subscription import CheckedSubscription
+from twinslam.node_hosts.node_main import run_node
 
 
 class Listener(Node):

@@ -1,0 +1,40 @@
+"""The device node's ROS parameters: name, default, description and range.
+
+Defaults are the paper's Table I where it has one (F 60 frames a slot, α 5 Mbit, 40–80 Mbit/s);
+``ros2 param describe /device_tracker channel`` shows the description.
+"""
+
+from __future__ import annotations
+
+from device_tracker.tc_shaper import SHAPERS
+from twinslam.common import table1
+from twinslam.node_hosts.parameters import ParamSpec
+
+PARAMETERS = (
+    ParamSpec("slot_frames", table1.SLOT_FRAMES, "F, frames per slot", low=1, high=100_000),
+    ParamSpec("alpha_mbit", table1.ALPHA_MBIT, "alpha, uplink Mbit one uploaded frame occupies "
+              "(at least)", low=1e-6, high=1e6),
+    ParamSpec("channel", "markov:N=2", "uplink rate model: markov:N=2[,K=...] or "
+              "trace:FILE[,N=4] (CSV time_s,throughput_mbps)"),
+    ParamSpec("rate_min", table1.RATE_MIN_MBPS, "Mbit/s the channel's lowest state", low=0.0,
+              high=1e6),
+    ParamSpec("rate_max", table1.RATE_MAX_MBPS, "Mbit/s the channel's highest state", low=0.0,
+              high=1e6),
+    ParamSpec("seed", 0, "seed of the channel model", low=0),
+    ParamSpec("n_features", 1000, "ORB features per frame", low=10, high=100_000),
+    ParamSpec("map_frame", "map", "frame id of the device's poses and path"),
+    ParamSpec("shaper", "token_bucket", "uplink shaper: token_bucket (in process) or tc (a "
+              "tbf of rate d_k on uplink_interface; CAP_NET_ADMIN)",
+              check=lambda v: None if v in SHAPERS else f"must be one of {', '.join(SHAPERS)}"),
+    ParamSpec("uplink_interface", "eth0", "interface tc shapes (shaper:=tc)"),
+    ParamSpec("netem_delay_ms", 0.0, "tc netem delay on the uplink (kernels with sch_netem)",
+              low=0.0, high=60_000.0),
+    ParamSpec("netem_loss_percent", 0.0, "tc netem random loss on the uplink", low=0.0,
+              high=100.0),
+    ParamSpec("upload_image", False, "keyframes carry their colour image too (real frame "
+              "bytes on the link)"),
+    ParamSpec("edge_timeout_s", 3.0, "no upload request for this long: say the edge is silent",
+              low=0.01, high=3600.0),
+    ParamSpec("keep_slots", 4, "slots whose frames stay uploadable (rides out ~5 s outages)",
+              low=1, high=1000),
+)

@@ -1,0 +1,104 @@
+"""The device's upload worker, without DDS: each slot's requested keyframes through the uplink
+shaper on a thread of its own, so tracking never waits for the link (DESIGN.md §1 step 4).
+
+For every ``UploadRequest`` the worker encodes the frames first (so the link never waits for
+the CPU), starts the shaper's slot at the rate the device drew for it, sends each frame — the
+link is occupied for the frame's charged size at that rate — and reports the slot's
+throughput. A write that fails (a reliable writer whose readers stopped acknowledging times out
+after its max blocking time) is retried until ``retry_s`` has passed, then given up with an
+error: the slot goes on. Clock and sleep are injected for tests.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from collections.abc import Callable
+from typing import Protocol
+
+from device_tracker.uplink_shaper import SlotThroughput
+
+#: (frame id, serialized bytes, bytes the uplink is charged) of a frame to send
+Encoded = tuple[int, bytes, int]
+
+
+class Shaper(Protocol):
+    def start_slot(self, slot: int, rate_mbps: float, rate_state: int = 0) -> None: ...
+
+    def send(self, n_bytes: int, deliver: Callable[[], None]) -> float: ...
+
+    def end_slot(self) -> SlotThroughput: ...
+
+
+def write_with_retry(write: Callable[[], None], retry_s: float,
+                     clock: Callable[[], float] = time.monotonic,
+                     sleep: Callable[[float], None] = time.sleep,
+                     pause_s: float = 0.1) -> Exception | None:
+    """Call ``write`` until it succeeds or ``retry_s`` has passed since the first try; None on
+    success, else the last failure."""
+    deadline = clock() + retry_s
+    while True:
+        try:
+            write()
+            return None
+        except Exception as exc:           # rclpy's RCLError: the write timed out
+            if clock() > deadline:
+                return exc
+            sleep(pause_s)
+
+
+class UplinkSender:
+    """Requests in, keyframes and throughput out, one slot at a time in request order."""
+
+    def __init__(self, shaper: Shaper, encode: Callable[[int, int], Encoded | None],
+                 write: Callable[[bytes], None], report: Callable[[SlotThroughput], None],
+                 log_error: Callable[[str], None], default_rate: float,
+                 retry_s: float = 30.0, clock: Callable[[], float] = time.monotonic,
+                 sleep: Callable[[float], None] = time.sleep) -> None:
+        """``encode(slot, frame_id)`` gives a frame's bytes (None: no longer held);
+        ``write(bytes)`` publishes one keyframe; ``report`` publishes a slot's throughput."""
+        self.shaper, self.encode, self.write, self.report = shaper, encode, write, report
+        self.log_error = log_error
+        self.default_rate = default_rate
+        self.retry_s, self.clock, self.sleep = retry_s, clock, sleep
+        #: slot → (d_k Mbit/s, rate state) the device drew when the slot ended
+        self.rates: dict[int, tuple[float, int]] = {}
+        self._jobs: queue.Queue[tuple[int, list[int]] | None] = queue.Queue()
+        self._thread: threading.Thread | None = None
+
+    def request(self, slot: int, frame_ids: list[int]) -> None:
+        """The edge asked for ``frame_ids`` of ``slot``; sent in order behind earlier slots."""
+        self._jobs.put((slot, list(frame_ids)))
+
+    def send_slot(self, slot: int, frame_ids: list[int]) -> SlotThroughput:
+        """One request, synchronously: encode, send through the shaper, report."""
+        rate, state = self.rates.get(slot, (self.default_rate, 0))
+        encoded = [e for f in frame_ids if (e := self.encode(slot, f)) is not None]
+        self.shaper.start_slot(slot, rate, state)
+        for frame_id, payload, size in encoded:
+            self.shaper.send(size, lambda b=payload, f=frame_id: self._write(slot, f, b))
+        throughput = self.shaper.end_slot()
+        self.report(throughput)
+        return throughput
+
+    def _write(self, slot: int, frame_id: int, payload: bytes) -> None:
+        failure = write_with_retry(lambda: self.write(payload), self.retry_s, self.clock,
+                                   self.sleep)
+        if failure is not None:
+            self.log_error(f"slot {slot}: keyframe {frame_id} not written within "
+                           f"{self.retry_s:g} s ({failure}); given up")
+
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self._loop, name="uplink", daemon=True)
+        self._thread.start()
+
+    def _loop(self) -> None:
+        while (job := self._jobs.get()) is not None:
+            self.send_slot(*job)
+
+    def close(self, timeout: float = 5.0) -> None:
+        """Stop after the slot being sent (queued requests are dropped with the process)."""
+        self._jobs.put(None)
+        if self._thread is not None:
+            self._thread.join(timeout=timeout)

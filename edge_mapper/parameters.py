@@ -1,0 +1,44 @@
+"""The edge node's ROS parameters: name, default, description, range, and which change live.
+
+Defaults are the paper's Table I (V_max 45 keyframes, α 5 Mbit, D_req 0.5 s). ``ros2 param
+describe /edge_mapper vmax`` shows the description and range; a value out of range or a policy
+that cannot be made is refused with the reason (:mod:`edge_mapper.policy_control`).
+"""
+
+from __future__ import annotations
+
+from edge_mapper.policy_control import (
+    checkpoint_refused,
+    fallback_refused,
+    policy_refused,
+)
+from msg_schemas import topics
+from twinslam.common import table1
+from twinslam.node_hosts.parameters import ParamSpec
+
+PARAMETERS = (
+    ParamSpec("policy", "adapt", "map-management policy: lff | pu | adapt | random | "
+              "mbrl (with policy_checkpoint) | mbrl:CHECKPOINT", live=True,
+              check=policy_refused),
+    ParamSpec("policy_checkpoint", "", "the trained policy of policy:=mbrl "
+              "(`twinslam train -o FILE`)", live=True, check=checkpoint_refused),
+    ParamSpec("vmax", table1.VMAX, "V_max, keyframes the edge map holds at most", low=2,
+              high=10_000, live=True),
+    ParamSpec("alpha_mbit", table1.ALPHA_MBIT, "alpha, uplink Mbit one uploaded frame occupies",
+              low=1e-6, high=1e6),
+    ParamSpec("d_req_s", table1.D_REQ_S, "D_req, seconds a slot's uploads may take", low=1e-3,
+              high=1e3),
+    ParamSpec("checkpoint", "", "map file written every slot and resumed from after a "
+              "restart; empty: none"),
+    ParamSpec("states", 2, "N uplink channel states (the rate history's alphabet)", low=1,
+              high=64),
+    ParamSpec("ba_window", 5, "newest keyframes bundle-adjusted each slot", low=1, high=1000),
+    ParamSpec("slot_timeout_s", 10.0, "finish a slot without keyframes that never came after "
+              "this many seconds", low=0.1, high=3600.0),
+    ParamSpec("image_width", 640, "camera image width in pixels", low=1, high=100_000),
+    ParamSpec("image_height", 480, "camera image height in pixels", low=1, high=100_000),
+    ParamSpec("fallback_policy", "adapt", "decides when a twin-driven policy has no fresh "
+              f"{topics.RATE_LATENT}", live=True, check=fallback_refused),
+    ParamSpec("latent_max_age", 2, "slots a twin latent stays fresh", low=0, high=1_000_000,
+              live=True),
+)

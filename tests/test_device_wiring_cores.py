@@ -1,0 +1,142 @@
+"""The device's frame pairing, edge watchdog and upload worker, driven without DDS and
+without waiting: injected clocks, a real token-bucket shaper, writes that fail on purpose."""
+
+from __future__ import annotations
+
+import pytest
+
+from device_tracker.edge_watchdog import EdgeWatchdog
+from device_tracker.frame_pairing import FramePairing
+from device_tracker.uplink_sender import UplinkSender, write_with_retry
+from device_tracker.uplink_shaper import UplinkShaper
+
+
+class Clock:
+    """Seconds that move only when something sleeps (or a test says so)."""
+
+    def __init__(self) -> None:
+        self.t = 0.0
+
+    def __call__(self) -> float:
+        return self.t
+
+    def sleep(self, seconds: float) -> None:
+        self.t += seconds
+
+
+def _drain(pairing: FramePairing) -> list[tuple[int, str | None, str | None]]:
+    return [(f.stamp_key, f.color, f.depth) for f in pairing.ready()]
+
+
+def test_colour_and_depth_pair_by_stamp_whatever_order_they_come_in() -> None:
+    pairing = FramePairing()
+    for key in (1, 2, 3):                            # the colour topic runs ahead
+        pairing.add("color", key, f"c{key}")
+    assert _drain(pairing) == []                     # depth may still come for each
+    pairing.add("depth", 1, "d1")
+    assert _drain(pairing) == [(1, "c1", "d1")]
+    pairing.add("depth", 3, "d3")                    # depth 2 was lost: never coming now
+    assert _drain(pairing) == [(2, "c2", None), (3, "c3", "d3")]
+
+
+def test_a_lone_depth_image_is_handed_out_to_be_dropped() -> None:
+    pairing = FramePairing()
+    pairing.add("depth", 5, "d5")
+    pairing.add("color", 6, "c6")
+    frames = list(pairing.ready())
+    assert frames[0].color is None and frames[0].newest_color == 6
+    with pytest.raises(ValueError, match="image kind"):
+        pairing.add("infrared", 7, "i7")
+
+
+def test_without_a_depth_topic_colour_waits_a_bounded_number_of_frames() -> None:
+    pairing = FramePairing(max_pending=2)
+    for key in (1, 2):
+        pairing.add("color", key, f"c{key}")
+    assert _drain(pairing) == []
+    pairing.add("color", 3, "c3")
+    assert _drain(pairing) == [(1, "c1", None)]      # 3 pending > 2: the oldest goes
+
+
+def test_the_watchdog_says_once_that_the_edge_is_silent_and_how_long_it_was() -> None:
+    clock = Clock()
+    dog = EdgeWatchdog(3.0, clock)
+    assert dog.check() is None                       # nothing asked yet
+    dog.asked(0)
+    clock.t = 1.0
+    dog.asked(1)
+    assert dog.answered(0) is None and dog.check() is None    # answered in time
+    clock.t = 4.5
+    assert dog.check() == (1, 3.5)
+    clock.t = 9.0
+    dog.asked(2)
+    assert dog.check() is None                       # already said
+    clock.t = 10.0
+    assert dog.answered(2) == pytest.approx(9.0)     # silent since slot 1 went out at t=1
+    assert dog.unanswered == {} and dog.check() is None
+
+
+def test_a_failing_write_is_retried_until_it_succeeds_or_the_deadline() -> None:
+    clock = Clock()
+    failures = iter([True, True, False])
+
+    def flaky() -> None:
+        if next(failures):
+            raise RuntimeError("writer blocked")
+
+    assert write_with_retry(flaky, 1.0, clock, clock.sleep) is None
+    assert clock.t == pytest.approx(0.2)
+
+    def dead() -> None:
+        raise RuntimeError("writer blocked")
+
+    failure = write_with_retry(dead, 1.0, clock, clock.sleep)
+    assert isinstance(failure, RuntimeError) and clock.t == pytest.approx(1.3)
+
+
+def test_the_upload_worker_sends_what_was_asked_at_the_slots_rate_and_reports_it() -> None:
+    clock = Clock()
+    written: list[tuple[float, bytes]] = []
+    reports, errors = [], []
+    held = {10: b"a" * 100, 11: b"b" * 100}
+
+    def encode(slot: int, frame: int) -> tuple[int, bytes, int] | None:
+        return (frame, held[frame], 625_000) if frame in held else None   # 5 Mbit charged
+
+    sender = UplinkSender(UplinkShaper(clock, clock.sleep), encode,
+                          lambda b: written.append((clock.t, b)), reports.append, errors.append,
+                          default_rate=40.0, clock=clock, sleep=clock.sleep)
+    sender.rates[0] = (50.0, 1)
+    out = sender.send_slot(0, [10, 11, 12])          # 12 is no longer held
+    assert [b[:1] for _, b in written] == [b"a", b"b"]
+    assert [t for t, _ in written] == pytest.approx([0.1, 0.2])    # 5 Mbit at 50 Mbit/s
+    assert reports == [out] and out.frames_sent == 2 and out.rate_state == 1
+    assert out.configured_rate_mbps == 50.0 and errors == []
+    out = sender.send_slot(1, [10])                   # no rate drawn: the default
+    assert out.configured_rate_mbps == 40.0
+
+
+def test_a_keyframe_that_cannot_be_written_is_given_up_and_the_slot_goes_on() -> None:
+    clock = Clock()
+    errors: list[str] = []
+
+    def blocked(payload: bytes) -> None:
+        raise RuntimeError("timed out")
+
+    sender = UplinkSender(UplinkShaper(clock, clock.sleep), lambda s, f: (f, b"x", 1000),
+                          blocked, lambda t: None, errors.append, default_rate=40.0,
+                          retry_s=2.0, clock=clock, sleep=clock.sleep)
+    out = sender.send_slot(3, [30, 31])
+    assert out.slot == 3 and len(errors) == 2
+    assert "keyframe 30 not written within 2 s" in errors[0]
+
+
+def test_the_worker_thread_sends_requests_in_order_and_stops() -> None:
+    done: list[int] = []
+    sender = UplinkSender(UplinkShaper(), lambda s, f: (f, b"x", 10), lambda b: None,
+                          lambda t: done.append(t.slot), lambda m: None, default_rate=1000.0)
+    sender.start()
+    for slot in range(3):
+        sender.request(slot, [slot])
+    sender.close(timeout=10.0)
+    assert done == [0, 1, 2]

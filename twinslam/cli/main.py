@@ -1,0 +1,545 @@
+"""``twinslam``: the command-line entry point for the offline tools.
+
+    twinslam sim --policy lff,pu,adapt,oracle --vmax 45 --channel markov:N=2 --slots 200 \
+                 --seeds 5 --covis FILE [--csv OUT]      # mbrl:CHECKPOINT is a policy too
+    twinslam train --covis FILE --channel markov:N=2 --vmax 45 [--rate-model udt] -o OUT.pt
+    twinslam extract SEQUENCE -o covis.npz [--start N] [--end N] [--features 1000]
+    twinslam record SEQUENCE -o BAG [--start N] [--end N]   # the player's topics as MCAP
+    twinslam nodes [--timeout 3.5]        # the ROS graph on $ROS_DOMAIN_ID (ros2 node list)
+    twinslam demo                         # what `make run` runs
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from twinslam.common import table1
+from twinslam.node_hosts.loopback import LoopbackDomain, ProcessDomain
+from twinslam.simulator.covisibility import CovisibilityError, load_covisibility
+from twinslam.simulator.env import SimConfig
+from twinslam.uplink.channels import ChannelError
+
+
+class _EnvDomain(LoopbackDomain):
+    """The domain of the environment ($ROS_DOMAIN_ID, discovery range, static peers) as it is,
+    with the project's Fast DDS profile unless $FASTRTPS_DEFAULT_PROFILES_FILE names one."""
+
+    def __init__(self) -> None:
+        from twinslam.node_hosts.fastdds import domain_id_from_env
+
+        super().__init__(domain_id_from_env())
+
+    @property
+    def env(self) -> dict[str, str]:
+        from twinslam.node_hosts.fastdds import installed_profile
+
+        env = self.base_env()
+        env.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(installed_profile()))
+        return env
+
+
+def _covis(spec: str):
+    if spec.startswith("geometric"):
+        from twinslam.simulator.geometric_covisibility import geometric_covisibility
+
+        _, _, frames = spec.partition(":")
+        return geometric_covisibility(n_frames=int(frames or 600))
+    return load_covisibility(Path(spec))
+
+
+def _rate_range(text: str) -> tuple[float, float]:
+    """``--rate-range`` of sim and train: 'min,max' in Mbit/s."""
+    try:
+        lo, hi = (float(x) for x in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be 'min,max', got {text!r}") from None
+    return lo, hi
+
+
+def cmd_sim(args: argparse.Namespace) -> int:
+    from twinslam.policy_registry import make_policy
+    from twinslam.simulator.evaluation import evaluate
+
+    try:
+        dataset = _covis(args.covis)
+        config = SimConfig(vmax=args.vmax, slot_frames=args.slot_frames, slots=args.slots)
+        policies = [p.strip() for p in args.policy.split(",") if p.strip()]
+        seeds = list(range(args.seed0, args.seed0 + args.seeds))
+        print(f"covisibility: {dataset.n_frames} frames ({dataset.source or args.covis}); "
+              f"channel {args.channel}; V_max {args.vmax}, F {args.slot_frames}, "
+              f"{args.slots} slots x {len(seeds)} seeds", flush=True)
+        start = time.monotonic()
+        report = (lambda m: print(f"  {m}", flush=True)) if args.verbose else None
+        results = evaluate(policies, dataset, args.channel, config, seeds,
+                           args.rate_range, progress=report, make_policy=make_policy)
+    except (ChannelError, CovisibilityError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    oracle = next((r for r in results if r.policy == "oracle"), None)
+    print(f"\n{'policy':<8} {'mean υ':>11} {'± ci95':>9} {'lost %':>7} {'υ tracked':>11}"
+          f"{'  gap to oracle' if oracle else ''}")
+    for r in results:
+        gap = f"  {r.mean - oracle.mean:+.2f}" if oracle else ""
+        print(f"{r.policy:<8} {r.mean:>11.2f} {r.ci95:>9.2f} {100 * r.lost_ratio:>7.2f} "
+              f"{r.mean_tracked:>11.2f}{gap}")
+    print(f"({time.monotonic() - start:.1f} s; υ counts a lost frame as u(G) + penalty, "
+          "'υ tracked' averages tracked frames only)")
+    if args.csv:
+        with open(args.csv, "w", newline="", encoding="utf-8") as fh:
+            writer = csv.writer(fh)
+            writer.writerow(["policy", "mean_uncertainty", "ci95"])
+            for r in results:
+                writer.writerow([r.policy, f"{r.mean:.6f}", f"{r.ci95:.6f}"])
+        print(f"wrote {args.csv}")
+    return 0
+
+
+def cmd_extract(args: argparse.Namespace) -> int:
+    from device_tracker.tracking import TrackingConfig
+    from twinslam.sequence_player.readers import SequenceError, open_sequence
+    from twinslam.simulator.covisibility import save_covisibility
+    from twinslam.simulator.extraction import extract_covisibility
+
+    out = Path(args.output)
+    if not out.parent.is_dir():
+        print(f"error: output folder {out.parent} does not exist", file=sys.stderr)
+        return 2
+    try:
+        reader = open_sequence(args.sequence, args.start, args.end)
+    except SequenceError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"extracting {len(reader)} frames of {reader.kind} sequence {reader.path}", flush=True)
+
+    tty = sys.stdout.isatty()
+
+    def progress(done: int, total: int) -> None:
+        if tty and (done == total or done % 10 == 0):
+            print(f"\r  {done}/{total} frames", end="\n" if done == total else "",
+                  flush=True)
+        elif not tty and (done == total or done % 100 == 0):
+            print(f"  {done}/{total} frames", flush=True)
+
+    try:
+        dataset, _, report = extract_covisibility(
+            reader, TrackingConfig(n_features=args.features), progress)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    save_covisibility(out, dataset)
+    sizes = np.diff(dataset.point_offsets)
+    print(f"wrote {out}: {report.frames} frames, {report.map_points} map points, "
+          f"{sizes.mean():.0f} observed per frame, {report.keyframes} keyframes, "
+          f"{report.untracked} untracked, {len(report.skipped)} skipped files; "
+          f"front end {np.median(report.frontend_ms):.1f} ms/frame median, "
+          f"{report.seconds:.1f} s in all")
+    return 0
+
+
+def cmd_record(args: argparse.Namespace) -> int:
+    from twinslam.sequence_player.bag import record_bag
+    from twinslam.sequence_player.readers import SequenceError, open_sequence
+
+    try:
+        reader = open_sequence(args.sequence, args.start, args.end)
+        print(f"recording {len(reader)} frames of {reader.kind} sequence {reader.path} to "
+              f"{args.output} (rosbag2, MCAP)", flush=True)
+        written = record_bag(reader, args.output)
+    except SequenceError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"wrote {written} frames, {len(reader.skipped)} skipped"
+          f"{': ' + ', '.join(reader.skipped) if reader.skipped else ''}")
+    return 0
+
+
+def cmd_nodes(args: argparse.Namespace) -> int:
+    """The ROS graph's nodes on $ROS_DOMAIN_ID, as ``ros2 node list`` prints them."""
+    from twinslam.node_hosts.fastdds import domain_id_from_env
+    from twinslam.node_hosts.session import RosSession
+
+    try:
+        domain_id_from_env()
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    session = RosSession("twinslam_nodes")
+    try:
+        session.spin_until(lambda: False, args.timeout)     # let discovery run
+        names = sorted(f"{ns.rstrip('/')}/{name}" for name, ns in
+                       session.node.get_node_names_and_namespaces()
+                       if name != "twinslam_nodes")
+    finally:
+        session.close()
+    for name in names:
+        print(name)
+    return 0
+
+
+def cmd_hosts(args: argparse.Namespace) -> int:
+    """Build or remove the three test hosts (network namespaces) and say how to use them."""
+    from twinslam.node_hosts.netns import (
+        HOST_PROFILE,
+        HOSTS,
+        NetnsError,
+        NetnsHosts,
+        address_of,
+        unavailable_reason,
+    )
+
+    hosts = NetnsHosts(prefix=args.prefix)
+    if args.action == "down":
+        hosts.down()
+        left = hosts.exists()
+        print("removed" if not left else f"could not remove {', '.join(left)}")
+        return 0 if not left else 1
+    if args.action == "config":
+        print(HOST_PROFILE)
+        return 0
+    why = unavailable_reason()
+    if why:
+        print(f"twinslam hosts: {why}", file=sys.stderr)
+        return 2
+    try:
+        hosts.up()
+    except NetnsError as exc:
+        print(f"twinslam hosts: {exc}", file=sys.stderr)
+        return 1
+    for host in HOSTS:
+        print(f"{host:<7} netns {hosts.namespaces[host]:<20} eth0 {address_of(host)}/24")
+    peers = ";".join(address_of(h) for h in HOSTS)
+    print("\nrun a node on a host, e.g.:\n"
+          "  twinslam hosts config > /tmp/fastdds_host.xml\n"
+          "  export FASTRTPS_DEFAULT_PROFILES_FILE=/tmp/fastdds_host.xml "
+          f"ROS_STATIC_PEERS='{peers}'\n"
+          f"  ip netns exec {hosts.namespaces['edge']} .venv/bin/python -m edge_mapper.node\n"
+          f"shape the device's uplink: ip netns exec {hosts.namespaces['device']} "
+          "tc qdisc replace dev eth0 root tbf rate 40mbit burst 64kb latency 500ms "
+          "(or device_tracker -p shaper:=tc)")
+    return 0
+
+
+def _launch_domain(args: argparse.Namespace) -> ProcessDomain:
+    """Where ``twinslam launch`` runs the nodes: three namespaces, loopback, or $ROS_DOMAIN_ID."""
+    if args.hosts:
+        from twinslam.node_hosts.netns import NetnsHosts
+
+        return NetnsHosts(prefix=f"twinslam{os.getpid()}-")
+    return LoopbackDomain() if args.loopback else _EnvDomain()
+
+
+def _real_frame_uplink(sequence: str) -> dict[str, list[str]]:
+    """tc-shaped uplink parameters whose α is the sequence's first colour image as rgb8."""
+    from twinslam.cli.launcher import tc_uplink_params
+    from twinslam.sequence_player.readers import open_sequence
+
+    first = next(iter(open_sequence(sequence, 0, 1)))
+    return tc_uplink_params(first.color.nbytes * 8 / 1e6)
+
+
+def cmd_launch(args: argparse.Namespace) -> int:
+    from twinslam.cli.launcher import LaunchConfig, Launcher, print_table
+
+    if not args.params.is_file():
+        print(f"error: parameter file {args.params} does not exist", file=sys.stderr)
+        return 2
+    extra: dict[str, list[str]] = {}
+    if args.tc:
+        if not args.hosts:
+            print("error: --tc shapes the device host's uplink: use it with --hosts",
+                  file=sys.stderr)
+            return 2
+        extra = _real_frame_uplink(args.sequence)
+    if args.hosts:
+        from twinslam.node_hosts.netns import unavailable_reason
+
+        why = unavailable_reason()
+        if why:
+            print(f"error: --hosts: {why}", file=sys.stderr)
+            return 2
+    reports = []
+    for policy in [p.strip() for p in args.policy.split(",") if p.strip()]:
+        config = LaunchConfig(args.sequence, policy, args.frames, args.rate, args.params,
+                              with_twin=args.twin, timeout_s=args.timeout, extra=extra)
+        with _launch_domain(args) as dom:
+            if args.loopback:
+                dom.activate()
+            where = ("hosts device/edge/twin, domain" if args.hosts else
+                     "loopback domain" if args.loopback else "domain")
+            print(f"{policy}: {args.frames} frames of {args.sequence} at {args.rate}x on "
+                  f"{where} {dom.domain_id}", flush=True)
+            try:
+                reports.append(Launcher(dom, config,
+                                        lambda line: print(line, flush=True)).run())
+            except KeyboardInterrupt:
+                print("interrupted: nodes stopped", file=sys.stderr)
+                return 130
+            except RuntimeError as exc:
+                print(f"error: {exc}", file=sys.stderr)
+                return 1
+    print()
+    print_table(reports)
+    return 0
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from twinslam.cli.demo import run_demo
+
+    return run_demo(args)
+
+
+def _learned(specs: list[str]) -> dict[str, dict[str, Path]]:
+    """``LABEL=PATH`` or ``LABEL@N=PATH`` (fig8: the policy for N rate states) → {N or '':
+    {label: path}}; a missing file is an error now, not after an hour of other policies."""
+    out: dict[str, dict[str, Path]] = {}
+    for spec in specs:
+        label, sep, path = spec.partition("=")
+        if not sep or not label or not path:
+            raise ValueError(f"--policy takes LABEL=CHECKPOINT (e.g. UDT=results/udt.pt), "
+                             f"got {spec!r}")
+        label, _, n = label.partition("@")
+        if not Path(path).is_file():
+            raise ValueError(f"{path}: no such policy checkpoint (train one with "
+                             "`twinslam train`)")
+        out.setdefault(n, {})[label] = Path(path)
+    return out
+
+
+def cmd_amm_experiment(args: argparse.Namespace) -> int:
+    from twinslam.experiments import amm as ex
+
+    t0 = time.monotonic()
+
+    def progress(line: str) -> None:
+        print(f"[{time.monotonic() - t0:7.1f} s] {line}", file=sys.stderr, flush=True)
+
+    try:
+        learned = _learned(args.policy or [])
+        dataset = _covis(args.covis)
+    except (CovisibilityError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    setting = ex.Setting(runs=args.runs, slots=args.slots, seed0=args.seed)
+    out = Path(args.out)
+    if args.name == "fig8":
+        by_n = {int(n or 2): pol for n, pol in learned.items()}
+        results = ex.fig8(dataset, by_n, out, setting, progress)
+    else:
+        fig = ex.fig7 if args.name == "fig7" else ex.fig9
+        results = fig(dataset, learned.get("", {}), out, setting, progress=progress)
+    for x, by in results.items():
+        print(f"{x}: " + ", ".join(f"{label} {r.mean:.1f} ± {r.ci95:.1f}"
+                                    for label, r in by.items()))
+    print(f"wrote {out}/{args.name}.csv and .png ({time.monotonic() - t0:.0f} s)")
+    return 0
+
+
+def cmd_experiment(args: argparse.Namespace) -> int:
+    if args.name in ("fig7", "fig8", "fig9"):
+        return cmd_amm_experiment(args)
+    from twinslam.experiments import twin as ex
+
+    out = Path(args.out)
+    proto = ex.Protocol(interval_slots=args.interval_slots, retrain_every=args.retrain_every,
+                        buffer_slots=args.buffer_slots)
+    t0 = time.monotonic()
+
+    def progress(line: str) -> None:
+        print(f"[{time.monotonic() - t0:7.1f} s] {line}", file=sys.stderr, flush=True)
+
+    if args.name == "udt-fig3":
+        res = ex.fig3(out, seed=args.seed, progress=progress,
+                      proto=ex.Protocol(interval_slots=max(args.interval_slots, 1000),
+                                        retrain_every=args.retrain_every,
+                                        buffer_slots=max(args.buffer_slots, 1000)))
+        print(f"UDT error on a 4-state chain (mean |P̂ - P|): {res['error']:.4f}")
+    elif args.name == "udt-fig4":
+        res4 = ex.fig4(out, runs=args.runs, seed=args.seed, proto=proto, progress=progress,
+                       jobs=args.jobs)
+        print(f"{'N':>3} " + " ".join(f"{name:>16}" for name in res4))
+        for n in next(iter(res4.values())):
+            print(f"{n:>3} " + " ".join(f"{sum(v[n]) / len(v[n]):16.4f}" for v in res4.values()))
+    else:
+        res5 = ex.fig5(out, runs=args.runs, n_states=args.states, seed=args.seed, proto=proto,
+                       progress=progress, jobs=args.jobs)
+        for mode, by in res5.items():
+            print(mode + ": " + ", ".join(f"{name} {v.mean():.4f}" for name, v in by.items()))
+    print(f"wrote {out}/{args.name.replace('-', '_')}.csv and .png")
+    return 0
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    import torch
+
+    from twinslam.mbrl.trainer import AmmTrainer, TrainConfig
+
+    try:
+        dataset = _covis(args.covis)
+        config = TrainConfig(channel=args.channel, rate_range=args.rate_range,
+                             vmax=args.vmax, slots=args.slots, episode_slots=args.episode_slots,
+                             seed=args.seed, rate_model=args.rate_model,
+                             real_fraction=args.real_fraction,
+                             artificial_per_real=args.artificial)
+        torch.set_num_threads(args.threads)
+        t0 = time.monotonic()
+
+        def progress(line: str) -> None:
+            print(f"[{time.monotonic() - t0:7.1f} s] {line}", file=sys.stderr, flush=True)
+
+        trainer = AmmTrainer(config, dataset, progress)
+    except (ChannelError, CovisibilityError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"training on {dataset.n_frames} frames ({dataset.source or args.covis}); channel "
+          f"{args.channel}; V_max {args.vmax}; rate model {args.rate_model}; I/|Ξ| "
+          f"{config.real_count}/{config.batch_size}, J {config.artificial_per_real}; "
+          f"{args.slots} slots", flush=True)
+    log = trainer.train()
+    out = Path(args.output)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    trainer.save(out)
+    log_path = out.with_suffix(".csv")
+    log.write_csv(log_path)
+    print(f"wrote {out} (use it as --policy mbrl:{out}) and the training log {log_path} "
+          f"({time.monotonic() - t0:.0f} s)")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="twinslam", description=__doc__.split("\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    sim = sub.add_parser("sim", help="evaluate map-management policies offline")
+    sim.add_argument("--policy", default="lff,pu,adapt,oracle",
+                     help="comma-separated policies: lff, pu, adapt, random, oracle, "
+                     "mbrl:CHECKPOINT")
+    sim.add_argument("--vmax", type=int, default=table1.VMAX,
+                     help="V_max, keyframes the edge may hold")
+    sim.add_argument("--slot-frames", type=int, default=table1.SLOT_FRAMES,
+                     help="F, frames per slot")
+    sim.add_argument("--channel", default="markov:N=2",
+                     help="uplink rate model: markov:N=2[,ratio=0.5][,K=100][,nonstationary]"
+                     "[,balanced] or trace:FILE[,N=4]")
+    sim.add_argument("--rate-range", type=_rate_range,
+                     default=f"{table1.RATE_MIN_MBPS:g},{table1.RATE_MAX_MBPS:g}",
+                     help="min,max Mbit/s the channel states spread over")
+    sim.add_argument("--slots", type=int, default=200, help="slots per run")
+    sim.add_argument("--seeds", type=int, default=5, help="runs, one seed each")
+    sim.add_argument("--seed0", type=int, default=0, help="the first run's seed")
+    sim.add_argument("--covis", required=True,
+                     help="covisibility .npz, or 'geometric[:frames]' for the room model")
+    sim.add_argument("--csv", help="also write every run's scores to this CSV file")
+    sim.add_argument("-v", "--verbose", action="store_true", help="print every slot")
+    sim.set_defaults(func=cmd_sim)
+    train = sub.add_parser("train", help="train the learned (MBRL) map-management policy")
+    train.add_argument("--covis", required=True,
+                       help="covisibility .npz, or 'geometric[:frames]' for the room model")
+    train.add_argument("--channel", default="markov:N=2",
+                       help="uplink rate model: markov:N=2[,ratio=0.5][,K=100][,nonstationary]"
+                       "[,balanced] or trace:FILE[,N=4]")
+    train.add_argument("--rate-range", type=_rate_range,
+                       default=f"{table1.RATE_MIN_MBPS:g},{table1.RATE_MAX_MBPS:g}",
+                       help="min,max Mbit/s the channel states spread over")
+    train.add_argument("--vmax", type=int, default=table1.VMAX,
+                       help="V_max, keyframes the edge may hold")
+    train.add_argument("--slots", type=int, default=3000, help="real slots to train on")
+    train.add_argument("--episode-slots", type=int, default=200, help="slots per episode")
+    train.add_argument("--rate-model", default="udt", choices=["udt", "lstm", "markov"],
+                       help="what augments the state and generates artificial experiences")
+    train.add_argument("--real-fraction", type=float, default=0.5,
+                       help="I/|Ξ|: share of real tuples in each batch")
+    train.add_argument("--artificial", type=int, default=2,
+                       help="J: artificial tuples per real one (0: real experiences only)")
+    train.add_argument("--seed", type=int, default=0, help="seed of the channel and the networks")
+    train.add_argument("--threads", type=int, default=2, help="torch threads")
+    train.add_argument("-o", "--output", default="results/amm_policy.pt",
+                       help="checkpoint to write (then --policy mbrl:PATH)")
+    train.set_defaults(func=cmd_train)
+    extract = sub.add_parser("extract", help="covisibility dataset from an RGB-D sequence")
+    extract.add_argument("sequence", help="a SUN3D, 7-Scenes or TUM RGB-D folder")
+    extract.add_argument("-o", "--output", required=True, help="covisibility .npz to write")
+    extract.add_argument("--start", type=int, default=0, help="first frame read")
+    extract.add_argument("--end", type=int, default=-1, help="first frame not read (-1: all)")
+    extract.add_argument("--features", type=int, default=1000, help="ORB features per frame")
+    extract.set_defaults(func=cmd_extract)
+    record = sub.add_parser("record", help="a sequence's camera topics as a rosbag2 (MCAP)")
+    record.add_argument("sequence", help="a SUN3D, 7-Scenes or TUM RGB-D folder")
+    record.add_argument("-o", "--output", required=True, help="rosbag2 folder to create")
+    record.add_argument("--start", type=int, default=0, help="first frame recorded")
+    record.add_argument("--end", type=int, default=-1, help="first frame not recorded (-1: all)")
+    record.set_defaults(func=cmd_record)
+    nodes = sub.add_parser("nodes", help="list the nodes on $ROS_DOMAIN_ID (like ros2 node list)")
+    nodes.add_argument("--timeout", type=float, default=3.5,
+                       help="seconds of discovery before listing (default 3.5: a node announces "
+                       "itself every 3 s at Fast DDS's defaults, every 1 s with the project's "
+                       "profile; a shorter wait can miss nodes)")
+    nodes.set_defaults(func=cmd_nodes)
+    hosts = sub.add_parser("hosts", help="device, edge and twin hosts as network namespaces "
+                           "(root)")
+    hosts.add_argument("action", choices=["up", "down", "config"],
+                       help="build them, remove them, or print a host's Fast DDS profile")
+    hosts.add_argument("--prefix", default="", help="namespace name prefix (default none: "
+                       "device, edge, twin, switch)")
+    hosts.set_defaults(func=cmd_hosts)
+    launch = sub.add_parser("launch", help="run player, device, edge (and twin) as processes")
+    launch.add_argument("--sequence", default="synthetic",
+                        help="SUN3D / 7-Scenes / TUM folder, MCAP bag, or synthetic[:frames]")
+    launch.add_argument("--policy", default="adapt", help="one or more, comma-separated")
+    launch.add_argument("--frames", type=int, default=600, help="frames to play; -1: all")
+    launch.add_argument("--rate", type=float, default=1.0, help="x the recorded frame rate")
+    launch.add_argument("--params", type=Path, default=Path(__file__).resolve().parents[2]
+                        / "config" / "twinslam.yaml", help="ROS 2 parameter file")
+    launch.add_argument("--twin", action="store_true", help="start udt_node too")
+    launch.add_argument("--loopback", action="store_true",
+                        help="a private loopback DDS domain instead of $ROS_DOMAIN_ID")
+    launch.add_argument("--hosts", action="store_true",
+                        help="device, edge and twin in network namespaces of their own (root)")
+    launch.add_argument("--tc", action="store_true",
+                        help="with --hosts: the device's uplink shaped by tc at d_k, keyframes "
+                        "carrying their image")
+    launch.add_argument("--timeout", type=float, default=1800.0,
+                        help="seconds a policy's run may take before its nodes are stopped")
+    launch.set_defaults(func=cmd_launch)
+    demo = sub.add_parser("demo", help="the live pipeline per policy, then the simulator")
+    demo.add_argument("--frames", type=int, default=600, help="frames the pipeline plays")
+    demo.add_argument("--slots", type=int, default=40, help="simulator slots per run")
+    demo.add_argument("--seeds", type=int, default=3, help="simulator runs per policy")
+    demo.set_defaults(func=cmd_demo)
+    exp = sub.add_parser("experiment", help="reproduce a paper figure (CSV + PNG)")
+    exp.add_argument("name", choices=["udt-fig3", "udt-fig4", "udt-fig5", "fig7", "fig8",
+                                      "fig9"], help="which figure")
+    exp.add_argument("--runs", type=int, default=20, help="independent runs per point "
+                     "(the paper's fig7-9 use 15)")
+    exp.add_argument("--policy", action="append", metavar="LABEL[@N]=CHECKPOINT",
+                     help="fig7-9: a trained policy to compare (repeat); @N: for N states "
+                     "(fig8)")
+    exp.add_argument("--covis", default=str(Path(__file__).resolve().parents[2] / "data"
+                                            / "7scenes-redkitchen-1000.covis.npz"),
+                     help="fig7-9: covisibility dataset")
+    exp.add_argument("--slots", type=int, default=200, help="fig7-9: slots per run")
+    exp.add_argument("--seed", type=int, default=0, help="the first run's seed")
+    exp.add_argument("--states", type=int, default=2, help="N for udt-fig5")
+    exp.add_argument("--interval-slots", type=int, default=300, help="K, slots per interval")
+    exp.add_argument("--retrain-every", type=int, default=300, help="W, slots between retrains")
+    exp.add_argument("--buffer-slots", type=int, default=300,
+                     help="latest real experiences a retrain learns from")
+    exp.add_argument("--out", default="results", help="folder for the CSV and PNG")
+    exp.add_argument("--jobs", type=int, default=1,
+                     help="runs in parallel worker processes (one torch thread each)")
+    exp.set_defaults(func=cmd_experiment)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return int(args.func(args))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

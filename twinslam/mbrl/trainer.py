@@ -1,0 +1,350 @@
+"""Training the AMM policy: Algorithm 2 of the paper on the offline simulator.
+
+Each slot: the rate model gives the state's latent features (line 4); the actor scores the
+frames and exploration noise is added to the scores (line 5); the environment plays the slot
+(line 6) and the tuple goes to the real buffer; the rate model samples J next rates and, for
+each, an exploratory action is played in an emulated copy of the slot — the artificial tuples
+(Algorithm 1, line 4); then the critic takes a TD step (eq. 25) and the actor a deterministic
+policy-gradient step (eq. 26) on one blended batch of I real and |Ξ| − I artificial tuples
+(lines 7–9), and the target networks follow softly. The rate model observes each slot's rate
+and retrains every W slots (lines 11–13).
+
+Episodes use training seeds only (``TRAINING_SEED_BASE`` + …), so the channel realisations and
+start frames of an evaluation (seeds 0, 1, …) are never seen in training.
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import math
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from twinslam.common import table1
+from twinslam.map_management.actions import SlotObservation
+from twinslam.mbrl.networks import Actor, Critic, adapt_scores, soft_flags
+from twinslam.mbrl.policy import CHECKPOINT_FORMAT, MbrlPolicy
+from twinslam.mbrl.replay import (
+    GraphBatch,
+    ReplayBuffer,
+    Transition,
+    blended_batch,
+    collate,
+    collate_flags,
+)
+from twinslam.mbrl.state import (
+    IN_MAP,
+    GraphState,
+    action_from_scores,
+    build_state,
+    context_size,
+    select,
+)
+from twinslam.simulator.covisibility import CovisibilityDataset
+from twinslam.simulator.env import MapManagementEnv, SimConfig
+from twinslam.simulator.oracle import rollout
+from twinslam.twin.rate_models import RateModel, make_rate_model
+from twinslam.uplink.channels import parse_channel
+
+TRAINING_SEED_BASE = 100_000
+VALIDATION_SEED_BASE = 50_000    #: the actor kept is the best on these (never evaluated on)
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    channel: str = "markov:N=2"
+    rate_range: tuple[float, float] = table1.RATE_RANGE_MBPS
+    vmax: int = table1.VMAX
+    slot_frames: int = table1.SLOT_FRAMES
+    slots: int = 3000                 #: real slots in all
+    episode_slots: int = 200
+    seed: int = 0
+    rate_model: str = "udt"           #: udt | lstm | markov
+    retrain_every: int = 100          #: W
+    history: int = 8                  #: rate states in the context
+    batch_size: int = 64              #: |Ξ|
+    real_fraction: float = 0.5        #: I / |Ξ|; 1 = no artificial experiences
+    artificial_per_real: int = 2      #: J
+    gamma: float = 0.9
+    actor_lr: float = 1e-4
+    critic_lr: float = 1e-3
+    tau: float = 0.01                 #: soft target update
+    #: exploration noise on the scores (std); ADAPT's prior separates its classes by ≥ 1
+    noise: float = 1.0
+    artificial_noise: float = 1.0     #: noise of the artificial tuples' exploratory actions
+    #: of the relaxed action in the actor's gradient; ADAPT's prior separates its classes
+    #: of frames by ≥ 1, so a much smaller T leaves the actor without a gradient
+    temperature: float = 1.0
+    warmup_slots: int = 100           #: slots played before the first update
+    replay_capacity: int = 5000
+    log_every: int = 50               #: slots between progress lines / log rows
+    #: the actor's loss adds this × the mean square of its correction to ADAPT's scores
+    #: (TD3+BC's idea: leave the prior only where the critic's gain outweighs it)
+    correction_weight: float = 0.05
+    validate_every: int = 500         #: slots between validations (0: never; keep the last)
+    validation_seeds: int = 4
+    validation_slots: int = 100
+
+    @property
+    def real_count(self) -> int:
+        return self.batch_size if self.artificial_per_real == 0 else \
+            round(self.real_fraction * self.batch_size)
+
+    def sim_config(self) -> SimConfig:
+        return SimConfig(vmax=self.vmax, slot_frames=self.slot_frames, slots=self.episode_slots,
+                         history=self.history)
+
+
+@dataclass
+class TrainLog:
+    rows: list[dict[str, float]] = field(default_factory=list)
+
+    def write_csv(self, path: Path) -> None:
+        if not self.rows:
+            return
+        with Path(path).open("w", newline="") as fh:
+            writer = csv.DictWriter(fh, fieldnames=list(self.rows[0]))
+            writer.writeheader()
+            writer.writerows(self.rows)
+
+
+class AmmTrainer:
+    def __init__(self, config: TrainConfig, dataset: CovisibilityDataset,
+                 progress: Callable[[str], None] | None = None) -> None:
+        self.config = config
+        self.dataset = dataset
+        self.progress = progress
+        torch.manual_seed(config.seed)
+        self.rng = np.random.default_rng(config.seed)
+        self.env = MapManagementEnv(dataset, parse_channel(config.channel, config.rate_range,
+                                                           config.seed), config.sim_config())
+        n_states = self.env.channel.n_states
+        self.rate_model: RateModel = make_rate_model(config.rate_model, n_states,
+                                                     config.retrain_every, config.seed)
+        c = context_size(config.history, n_states, self.rate_model.feature_size)
+        self.actor, self.critic = Actor(c), Critic(c)
+        self.actor_target = copy.deepcopy(self.actor)
+        self.critic_target = copy.deepcopy(self.critic)
+        self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=config.actor_lr)
+        self.critic_opt = torch.optim.Adam(self.critic.parameters(), lr=config.critic_lr)
+        self.real = ReplayBuffer(config.replay_capacity)
+        self.artificial = ReplayBuffer(config.replay_capacity * max(config.artificial_per_real, 1))
+        #: rewards are −υ (~10³); they are standardised by the warm-up slots' statistics
+        self.reward_mean, self.reward_std = 0.0, 1.0
+        self.log = TrainLog()
+        #: (slot, validation υ) of every validation; the best actor's checkpoint
+        self.validations: list[tuple[int, float]] = []
+        self.best_validation = math.inf
+        self.best_blob: dict | None = None
+
+    # -- acting ---------------------------------------------------------------------------
+
+    def state_of(self, obs: SlotObservation) -> GraphState:
+        features = self.rate_model.features(obs.rate_history)
+        if not np.all(np.isfinite(features)):
+            raise FloatingPointError(f"slot {obs.slot}: the {self.rate_model.name} rate model's "
+                                     f"features are not finite: {features}")
+        return build_state(obs, features, self.config.history)
+
+    @torch.no_grad()
+    def scores(self, state: GraphState) -> np.ndarray:
+        b = collate([state])
+        return self.actor(b.x, b.adj, b.mask, b.context)[0].numpy()
+
+    def _norm(self, reward: float) -> float:
+        return (reward - self.reward_mean) / self.reward_std
+
+    # -- training -------------------------------------------------------------------------
+
+    def train(self) -> TrainLog:
+        cfg = self.config
+        played, episode, start = 0, 0, time.perf_counter()
+        warm_rewards: list[float] = []
+        if cfg.validate_every:
+            self._keep_if_best(0)                  # the untrained actor: ADAPT's decisions
+        pending: list[tuple[GraphState, np.ndarray, float, GraphState, bool]] = []
+        while played < cfg.slots:
+            obs, _ = self.env.reset(TRAINING_SEED_BASE + 1000 * cfg.seed + episode)
+            if cfg.rate_model == "markov":
+                self.rate_model = make_rate_model("markov", self.env.channel.n_states)
+            self.rate_model.observe(obs.rate_state)
+            state = self.state_of(obs)
+            returns: list[float] = []
+            while played < cfg.slots:
+                before, history = self.env.snapshot(), obs.rate_history
+                scores = self.scores(state)          # the real and the artificial actions'
+                noisy = scores + self.rng.normal(0.0, cfg.noise, state.size)
+                action, flags = action_from_scores(state, noisy)
+                obs, reward, _term, trunc, _info = self.env.step(action)
+                self.rate_model.observe(obs.rate_state)
+                next_state = self.state_of(obs)
+                returns.append(-reward)
+                items = [(state, flags, reward, next_state, True)]
+                items += self._artificial(state, scores, before, history)
+                played += 1
+                if played <= cfg.warmup_slots:
+                    warm_rewards.append(reward)
+                    pending += items
+                    if played == cfg.warmup_slots:
+                        self.reward_mean = float(np.mean(warm_rewards))
+                        self.reward_std = float(np.std(warm_rewards)) or 1.0
+                        for item in pending:
+                            self._store(*item)
+                        pending = []
+                else:
+                    for item in items:
+                        self._store(*item)
+                    losses = self.update()
+                    if played % cfg.log_every == 0:
+                        self._log(played, episode, returns, losses, start)
+                    if cfg.validate_every and played % cfg.validate_every == 0:
+                        self._keep_if_best(played)
+                state = next_state
+                if trunc:
+                    break
+            episode += 1
+        for item in pending:                       # fewer slots than the warm-up
+            self._store(*item)
+        if cfg.validate_every and played % cfg.validate_every:
+            self._keep_if_best(played)
+        return self.log
+
+    def _artificial(self, state: GraphState, scores: np.ndarray, before: tuple,
+                    history: list[int]
+                    ) -> list[tuple[GraphState, np.ndarray, float, GraphState, bool]]:
+        """J artificial tuples from the slot just played (paper eq. 23); ``scores`` are the
+        actor's for ``state``, explored around with the artificial noise."""
+        cfg = self.config
+        out = []
+        rates = self.env.channel.rates
+        for d_hat in self.rate_model.sample_next(history, cfg.artificial_per_real, self.rng):
+            noisy = scores + self.rng.normal(0.0, cfg.artificial_noise, state.size)
+            action, flags = action_from_scores(state, noisy)
+            obs, reward, _info = self.env.emulate(before, action,
+                                                  (int(d_hat), float(rates[int(d_hat)])))
+            out.append((state, flags, reward, self.state_of(obs), False))
+        return out
+
+    def _store(self, state: GraphState, flags: np.ndarray, reward: float,
+               next_state: GraphState, real: bool) -> None:
+        if not math.isfinite(reward):
+            raise FloatingPointError(f"a {'real' if real else 'artificial'} reward is not "
+                                     f"finite ({reward})")
+        item = Transition(state, flags, self._norm(reward), next_state)
+        (self.real if real else self.artificial).add(item)
+
+    def update(self) -> dict[str, float]:
+        """One critic TD step (eq. 25) and one actor policy-gradient step (eq. 26) on a
+        blended batch, then the soft target update."""
+        cfg = self.config
+        batch = blended_batch(self.real, self.artificial, cfg.batch_size, cfg.real_count,
+                              self.rng)
+        n = max(max(t.state.size for t in batch), max(t.next_state.size for t in batch))
+        s = collate([t.state for t in batch], n)
+        s2 = collate([t.next_state for t in batch], n)
+        flags = collate_flags(batch, n)
+        reward = torch.tensor([t.reward for t in batch], dtype=torch.float32)
+        with torch.no_grad():
+            a2 = self.actor_target(s2.x, s2.adj, s2.mask, s2.context)
+            f2 = _hard_flags(a2, s2)
+            target = reward + cfg.gamma * self.critic_target(s2.x, s2.adj, s2.mask,
+                                                             s2.context, f2)
+        q = self.critic(s.x, s.adj, s.mask, s.context, flags)
+        critic_loss = torch.nn.functional.mse_loss(q, target)
+        if not torch.isfinite(critic_loss):
+            raise FloatingPointError("the critic's TD loss is not finite: a state feature or "
+                                     "a reward is (training stopped before it spread)")
+        self.critic_opt.zero_grad()
+        critic_loss.backward()
+        torch.nn.utils.clip_grad_norm_(self.critic.parameters(), 10.0)
+        self.critic_opt.step()
+
+        correction = self.actor.correction(s.x, s.adj, s.mask, s.context)
+        scores = self.actor.prior * adapt_scores(s.x) * s.mask.float() + correction
+        relaxed = soft_flags(scores, s.x, s.mask, s.n_upload, s.n_evict, cfg.temperature)
+        actor_loss = -self.critic(s.x, s.adj, s.mask, s.context, relaxed).mean() + \
+            cfg.correction_weight * (correction ** 2).sum() / s.mask.sum()
+        self.actor_opt.zero_grad()
+        actor_loss.backward()
+        torch.nn.utils.clip_grad_norm_(self.actor.parameters(), 10.0)
+        self.actor_opt.step()
+        with torch.no_grad():
+            for net, tgt in ((self.actor, self.actor_target), (self.critic, self.critic_target)):
+                for p, pt in zip(net.parameters(), tgt.parameters(), strict=True):
+                    pt.mul_(1.0 - cfg.tau).add_(p, alpha=cfg.tau)
+        return {"critic_loss": critic_loss.item(), "actor_loss": actor_loss.item(),
+                "q": q.mean().item()}
+
+    def _log(self, played: int, episode: int, returns: list[float],
+             losses: dict[str, float], start: float) -> None:
+        row = {"slot": played, "episode": episode,
+               "mean_uncertainty_last_50": float(np.mean(returns[-50:])) if returns
+               else math.nan,
+               **losses, "prior": self.actor.prior.item(), "seconds": time.perf_counter() - start}
+        self.log.rows.append(row)
+        if self.progress:
+            self.progress(f"slot {played}/{self.config.slots}  episode {episode}  "
+                          f"υ(last 50) {row['mean_uncertainty_last_50']:.1f}  "
+                          f"critic {losses['critic_loss']:.3f}  Q {losses['q']:.2f}  "
+                          f"{row['seconds']:.0f} s")
+
+    # -- persistence ----------------------------------------------------------------------
+
+    def checkpoint_blob(self) -> dict:
+        """Actor, rate model and the settings needed to run them."""
+        return {"format": CHECKPOINT_FORMAT, "config": asdict(self.config),
+                "n_states": self.env.channel.n_states,
+                "actor": copy.deepcopy(self.actor.state_dict()),
+                "rate_model": self.rate_model.name,
+                "rate_model_state": copy.deepcopy(self.rate_model.state_dict()),
+                "validation": self.best_validation,
+                "validations": [[slot, score] for slot, score in self.validations]}
+
+    def save(self, path: Path) -> None:
+        """The checkpoint of the kept actor (the best validated one), atomically."""
+        path = Path(path)
+        blob = self.best_blob or self.checkpoint_blob()
+        tmp = path.with_name(path.name + ".tmp")
+        torch.save(blob, tmp)
+        tmp.replace(path)
+
+    def validate(self) -> float:
+        """Mean υ of the current actor (no noise) over the validation seeds' episodes."""
+        cfg = self.config
+        policy = MbrlPolicy.from_blob(self.checkpoint_blob())
+        sim = SimConfig(vmax=cfg.vmax, slot_frames=cfg.slot_frames, slots=cfg.validation_slots,
+                        history=cfg.history)
+        means = []
+        for i in range(cfg.validation_seeds):
+            seed = VALIDATION_SEED_BASE + 1000 * cfg.seed + i
+            env = MapManagementEnv(self.dataset, parse_channel(cfg.channel, cfg.rate_range,
+                                                               seed), sim)
+            means.append(float(np.mean(rollout(env, policy, seed).objectives)))
+        return float(np.mean(means))
+
+    def _keep_if_best(self, played: int) -> None:
+        score = self.validate()
+        self.validations.append((played, score))
+        if score < self.best_validation:
+            self.best_validation = score
+            self.best_blob = self.checkpoint_blob()
+        if self.progress:
+            self.progress(f"validation at slot {played}: υ {score:.1f} (best "
+                          f"{self.best_validation:.1f})")
+
+
+def _hard_flags(scores: torch.Tensor, batch: GraphBatch) -> torch.Tensor:
+    """The (uploaded, evicted) flags of the hard action the scores stand for, batched."""
+    out = torch.zeros(*scores.shape, 2)
+    for i in range(scores.shape[0]):
+        n = int(batch.mask[i].sum())
+        n_map = int((batch.x[i, :n, IN_MAP] > 0.5).sum())
+        out[i, :n] = torch.from_numpy(select(scores[i, :n].numpy(), n_map,
+                                             int(batch.n_upload[i]), int(batch.n_evict[i])))
+    return out

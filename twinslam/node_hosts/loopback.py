@@ -1,0 +1,224 @@
+"""A private ROS 2 domain on this machine, for tests, benchmarks and the demo.
+
+Every ``LoopbackDomain`` gets a domain id no other live domain on this machine uses (checked
+by binding its discovery port) and discovery limited to this machine
+(``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``), with the project's Fast DDS profile. Node
+processes started through it inherit that environment and are stopped (SIGTERM, then SIGKILL)
+when the domain closes, so a failing test never leaves processes behind.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import queue
+import random
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from types import TracebackType
+from typing import Any
+
+from twinslam.node_hosts.fastdds import ENV_KEYS, REPO_ROOT, ros_env
+
+
+def _discovery_port_free(domain_id: int) -> bool:
+    """RTPS: the first unicast discovery port of domain d is 7400 + 250 d + 10."""
+    port = 7400 + 250 * domain_id + 10
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        try:
+            sock.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
+
+
+def pick_domain_id(rng: random.Random | None = None) -> int:
+    """A domain id in 100..229 whose discovery port is unused right now."""
+    rng = rng or random.Random(os.getpid() ^ time.monotonic_ns())
+    candidates = list(range(100, 230))
+    rng.shuffle(candidates)
+    for domain_id in candidates:
+        if _discovery_port_free(domain_id):
+            return domain_id
+    raise RuntimeError("no free DDS domain id in 100..229 on this machine")
+
+
+class ProcessDomain:
+    """The processes of one DDS domain: each started with that domain's environment, each
+    stopped (SIGTERM, then SIGKILL) when the domain closes, so a failing test never leaves
+    processes behind. Subclasses say where a host's processes run and with which DDS
+    environment (:class:`LoopbackDomain`, :class:`twinslam.node_hosts.netns.NetnsHosts`)."""
+
+    def __init__(self, domain_id: int) -> None:
+        self.domain_id = domain_id
+        self.processes: list[subprocess.Popen[str]] = []
+        #: each process's stderr (its log) so far, by pid, read by a thread as it comes: a
+        #: chatty node must never block on a full pipe (64 KB) that nobody reads
+        self._logs: dict[int, list[str]] = {}
+        self._log_threads: dict[int, threading.Thread] = {}
+
+    def base_env(self) -> dict[str, str]:
+        """The current environment with this domain's id and the repository on the path."""
+        env = dict(os.environ)
+        env.update({
+            "ROS_DOMAIN_ID": str(self.domain_id),
+            "PYTHONUNBUFFERED": "1",
+            "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO_ROOT),
+                                                        os.environ.get("PYTHONPATH")])),
+        })
+        return env
+
+    def env_for(self, host: str | None) -> dict[str, str]:
+        raise NotImplementedError
+
+    def command(self, host: str | None, argv: list[str]) -> list[str]:
+        """``argv`` as it must be run to execute on ``host``."""
+        return argv
+
+    def monitor_scope(self) -> contextlib.AbstractContextManager[None]:
+        """Where this process's own participants must be made to watch the domain."""
+        return contextlib.nullcontext()
+
+    def spawn(self, args: list[str], host: str | None = None,
+              **kwargs: object) -> subprocess.Popen[str]:
+        """Start ``python args...`` on this domain (on ``host`` where the domain has hosts);
+        stdout/stderr are captured as text."""
+        proc = subprocess.Popen(self.command(host, [sys.executable, *args]),
+                                env=self.env_for(host), text=True,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                cwd=str(REPO_ROOT), **kwargs)  # type: ignore[call-overload]
+        self.processes.append(proc)
+        lines: list[str] = []
+        self._logs[proc.pid] = lines
+        thread = threading.Thread(target=_pump_lines, args=(proc.stderr, lines), daemon=True,
+                                  name=f"log-{proc.pid}")
+        thread.start()
+        self._log_threads[proc.pid] = thread
+        return proc
+
+    def log(self, proc: subprocess.Popen[str]) -> str:
+        """What ``proc`` has written to stderr so far."""
+        return "".join(self._logs.get(proc.pid, []))
+
+    def wait_for_log(self, proc: subprocess.Popen[str], text: str, timeout: float) -> bool:
+        """Wait (bounded) until ``proc`` logged ``text``; False if it did not, or exited."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if text in self.log(proc):
+                return True
+            if proc.poll() is not None:
+                time.sleep(0.2)             # the last lines may still be in the pipe
+                return text in self.log(proc)
+            time.sleep(0.05)
+        return False
+
+    def stop(self, proc: subprocess.Popen[str], timeout: float = 5.0) -> tuple[int, str, str]:
+        """SIGTERM, wait up to ``timeout`` s, SIGKILL if needed; returns (code, out, err)."""
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout=5)
+        thread = self._log_threads.get(proc.pid)
+        if thread is not None:
+            thread.join(timeout=5)
+        out = proc.stdout.read() if proc.stdout is not None and not proc.stdout.closed else ""
+        return proc.returncode, out or "", self.log(proc)
+
+    def close(self) -> None:
+        for proc in self.processes:
+            if proc.poll() is None:
+                self.stop(proc)
+
+    def __enter__(self) -> ProcessDomain:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+
+def _pump_lines(stream: Any, lines: list[str]) -> None:
+    for line in stream:
+        lines.append(line)
+
+
+class LoopbackDomain(ProcessDomain):
+    """Context manager: a domain id on this machine only + the processes started in it."""
+
+    def __init__(self, domain_id: int | None = None) -> None:
+        super().__init__(pick_domain_id() if domain_id is None else domain_id)
+        self._saved_env: dict[str, str | None] = {}
+
+    @property
+    def env(self) -> dict[str, str]:
+        """Environment for a process on this domain (the current one plus the DDS settings)."""
+        env = self.base_env()
+        env.pop("ROS_STATIC_PEERS", None)
+        env.update(ros_env(self.domain_id))
+        return env
+
+    def env_for(self, host: str | None) -> dict[str, str]:
+        return self.env                 # every "host" is this machine's loopback
+
+    def activate(self) -> None:
+        """Point *this* process's future contexts at the domain (set before ``rclpy.init``)."""
+        env = self.env
+        for key in ENV_KEYS:
+            self._saved_env.setdefault(key, os.environ.get(key))
+            if key in env:
+                os.environ[key] = env[key]
+            else:
+                os.environ.pop(key, None)
+
+    def close(self) -> None:
+        super().close()
+        for key, value in self._saved_env.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
+
+    def __enter__(self) -> LoopbackDomain:
+        return self
+
+
+class JsonLines:
+    """Reads a child's stdout JSON lines on a thread, so waiting on them is bounded in time.
+
+    Tests and benchmarks talk to the node processes they spawn through such lines.
+    """
+
+    def __init__(self, proc: subprocess.Popen[str]) -> None:
+        self.proc = proc
+        self.lines: queue.Queue[dict] = queue.Queue()
+        self._thread = threading.Thread(target=self._pump, daemon=True)
+        self._thread.start()
+
+    def _pump(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            line = line.strip()
+            if line.startswith("{"):
+                self.lines.put(json.loads(line))
+
+    def next(self, event: str, timeout: float) -> dict:
+        deadline = time.monotonic() + timeout
+        while True:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise TimeoutError(f"no {event!r} line within {timeout} s "
+                                   f"(process exit code {self.proc.poll()})")
+            try:
+                item = self.lines.get(timeout=remaining)
+            except queue.Empty:
+                continue
+            if item.get("event") == event:
+                return item

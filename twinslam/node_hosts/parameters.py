@@ -1,0 +1,104 @@
+"""Node parameters declared the ROS 2 way: a type, a range, a description, and whether the
+value may change while the node runs.
+
+A node lists its parameters as :class:`ParamSpec` s and calls :func:`declare`: each becomes an
+rclpy parameter with a ``ParameterDescriptor`` (so ``ros2 param describe`` explains it), an
+integer or floating-point range where one applies (rclpy refuses a value outside it, at start-up
+from ``-p``/``--params-file`` and at run time from ``ros2 param set``), ``read_only`` unless the
+node applies changes live, and an optional check of its own (a policy name that must exist, a
+channel spec that must parse) that runs on every set with the reason returned to the caller.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    ParameterType,
+    SetParametersResult,
+)
+from rclpy.exceptions import (
+    InvalidParameterTypeException,
+    InvalidParameterValueException,
+    ParameterException,
+)
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from twinslam.node_hosts.node_main import NodeStartError
+
+#: a check of one value: None when fine, else the reason it is refused
+Check = Callable[[Any], "str | None"]
+
+_TYPES = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
+          float: ParameterType.PARAMETER_DOUBLE, str: ParameterType.PARAMETER_STRING}
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One parameter: default (whose type is the parameter's), description, range, liveness."""
+
+    name: str
+    default: bool | int | float | str
+    description: str
+    low: float | None = None          #: inclusive bounds of an int or float parameter
+    high: float | None = None
+    live: bool = False                #: applied while running; otherwise read-only
+    check: Check | None = None        #: further validation (also for live changes)
+
+    def descriptor(self) -> ParameterDescriptor:
+        kind = type(self.default)
+        desc = ParameterDescriptor(name=self.name, type=_TYPES[kind],
+                                   description=self.description, read_only=not self.live)
+        if kind is int and (self.low is not None or self.high is not None):
+            desc.integer_range = [IntegerRange(
+                from_value=int(self.low if self.low is not None else -(2 ** 63)),
+                to_value=int(self.high if self.high is not None else 2 ** 63 - 1), step=0)]
+        elif kind is float and (self.low is not None or self.high is not None):
+            desc.floating_point_range = [FloatingPointRange(
+                from_value=float(self.low if self.low is not None else -sys.float_info.max),
+                to_value=float(self.high if self.high is not None else sys.float_info.max),
+                step=0.0)]
+        if not self.live:
+            desc.additional_constraints = "read-only: set it at start (-p, --params-file)"
+        return desc
+
+
+class ParameterStartError(NodeStartError):
+    """A parameter value given at start-up that the node refuses; the message says why."""
+
+
+def declare(node: Node, specs: Sequence[ParamSpec]) -> dict[str, Any]:
+    """Declare ``specs`` on ``node`` (overrides from the command line and parameter files
+    apply) and return their values by name. Raises :class:`ParameterStartError` with the
+    parameter and the reason when a given value is refused."""
+    checks = {s.name: s.check for s in specs if s.check is not None}
+
+    def on_set(params: list[Parameter]) -> SetParametersResult:
+        for param in params:
+            check = checks.get(param.name)
+            reason = check(param.value) if check is not None else None
+            if reason:
+                return SetParametersResult(successful=False,
+                                           reason=f"{param.name} := {param.value!r}: {reason}")
+        return SetParametersResult(successful=True)
+
+    node.add_on_set_parameters_callback(on_set)
+    values = {}
+    for spec in specs:
+        try:
+            values[spec.name] = node.declare_parameter(spec.name, spec.default,
+                                                       spec.descriptor()).value
+        except InvalidParameterTypeException as exc:
+            raise ParameterStartError(
+                f"parameter {spec.name} takes a {type(spec.default).__name__} "
+                f"({spec.description}): {exc}") from None
+        except (InvalidParameterValueException, ParameterException) as exc:
+            raise ParameterStartError(f"parameter {spec.name}: {exc}") from None
+    return values

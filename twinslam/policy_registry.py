@@ -1,0 +1,33 @@
+"""Every map-management policy by name, the learned one included: what nodes and the CLI take.
+
+The rule-based policies (:mod:`twinslam.map_management.policies`) need numpy; the learned AMM
+policy needs torch and its checkpoint. This registry sits above both, at the level of the
+nodes and the command line, and imports the learned policy only when one is asked for: an edge
+on ``policy:=lff`` never loads torch (tests/test_layers.py), and the libraries below never
+import the learning core.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from twinslam.map_management.policies import POLICIES, MapPolicy, make_rule_policy
+
+LEARNED_PREFIX = "mbrl"          #: ``mbrl:CHECKPOINT`` names a policy `twinslam train` wrote
+
+
+def make_policy(name: str) -> MapPolicy:
+    """A policy by name: ``lff``, ``pu``, ``adapt``, ``random``, or ``mbrl:PATH`` for the
+    learned policy of the checkpoint at PATH. Unknown names raise ValueError listing the
+    choices."""
+    kind, _, path = name.partition(":")
+    if kind == LEARNED_PREFIX:
+        if not path:
+            raise ValueError("policy 'mbrl' needs its checkpoint: mbrl:PATH (from "
+                             "`twinslam train`)")
+        from twinslam.mbrl.policy import MbrlPolicy  # torch loads only for this policy
+        return MbrlPolicy(Path(path))
+    if name not in POLICIES:
+        raise ValueError(f"unknown policy {name!r}; choose from {sorted(POLICIES)}, "
+                         "mbrl:CHECKPOINT (or 'oracle' in the simulator)")
+    return make_rule_policy(name)

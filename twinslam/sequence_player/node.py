@@ -1,0 +1,195 @@
+"""sequence_player: replays an RGB-D sequence (a SUN3D / 7-Scenes / TUM RGB-D folder, or a
+rosbag2 MCAP recorded with ``twinslam record``) as ROS 2 camera topics.
+
+Publishes, per frame and with the frame's recorded time (shifted to the node clock's now) in
+every header:
+
+* ``camera/image_raw`` — ``sensor_msgs/Image``, ``rgb8`` (``mono8`` with ``mono:=true``)
+* ``camera/depth/image_raw`` — ``16UC1`` millimetres or ``32FC1`` metres (``depth_encoding``)
+* ``camera/camera_info`` — ``sensor_msgs/CameraInfo``
+* ``camera/ground_truth_pose`` — ``geometry_msgs/PoseStamped`` in ``world`` when the dataset
+  has ground truth (for evaluation only; nothing in the pipeline subscribes to it)
+
+at the recorded rate × ``rate``, frames [``start``, ``end``), once or with ``loop``. Topic names
+are relative: ``-r __ns:=/ar1`` plays into ``/ar1/camera/...``. ``wait_for_subscribers:=N``
+holds the first frame until N subscribers match the colour topic (DDS does not deliver what was
+published before a reader matched), then ``DISCOVERY_SETTLE_S`` more: the writer learning of a
+reader does not mean the reader has learnt of the writer (nor that the depth and camera-info
+readers have matched), and a reader drops samples of a writer it does not know yet. A corrupt
+image is skipped, counted and named in a warning; the run goes on. At the end it logs what it
+published and exits 0. ``sequence:=synthetic[:frames]`` (the default) renders the textured
+room of :mod:`twinslam.sequence_player.synthetic` with exact depth and ground truth.
+"""
+
+from __future__ import annotations
+
+import sys
+
+from geometry_msgs.msg import PoseStamped
+from rclpy.node import Node
+from sensor_msgs.msg import CameraInfo, Image
+
+from msg_schemas import qos, topics
+from twinslam.node_hosts.acks import wait_for_acks
+from twinslam.node_hosts.node_main import NodeStartError, run_node
+from twinslam.node_hosts.parameters import ParamSpec, declare
+from twinslam.sequence_player.messages import (
+    DEPTH_ENCODINGS,
+    camera_info_message,
+    color_message,
+    depth_message,
+    pose_message,
+)
+from twinslam.sequence_player.readers import RgbdFrame, SequenceError, open_sequence
+
+PARAMETERS = (
+    ParamSpec("sequence", "synthetic", "dataset folder, rosbag2 (MCAP) of `twinslam record`, "
+              "or synthetic[:frames]"),
+    ParamSpec("rate", 1.0, "playback speed, x the recorded frame rate", low=1e-3, high=1e3),
+    ParamSpec("loop", False, "start over at the end"),
+    ParamSpec("start", 0, "first frame played", low=0),
+    ParamSpec("end", -1, "first frame not played; -1: to the end", low=-1),
+    ParamSpec("depth_encoding", "16UC1", "16UC1 (millimetres) or 32FC1 (metres)",
+              check=lambda v: None if v in DEPTH_ENCODINGS
+              else f"must be one of {', '.join(DEPTH_ENCODINGS)}"),
+    ParamSpec("mono", False, "mono8 colour instead of rgb8"),
+    ParamSpec("frame_id", "camera", "frame id of the camera topics"),
+    ParamSpec("world_frame_id", "world", "frame id of the ground-truth poses"),
+    ParamSpec("wait_for_subscribers", 0, "hold the first frame until this many colour "
+              "subscribers match", low=0),
+)
+PROGRESS_EVERY_S = 5.0
+DISCOVERY_SETTLE_S = 1.0
+POLL_S = 0.05
+
+
+class SequencePlayer(Node):
+    """Publishes one frame per timer tick, each at its recorded time (``rate`` × faster)."""
+
+    def __init__(self) -> None:
+        super().__init__("sequence_player")
+        p = declare(self, PARAMETERS)
+        try:
+            self.reader = open_sequence(p["sequence"], p["start"], p["end"])
+        except SequenceError as exc:
+            raise NodeStartError(str(exc)) from None
+        self.rate, self.loop = float(p["rate"]), bool(p["loop"])
+        self.depth_encoding, self.mono = str(p["depth_encoding"]), bool(p["mono"])
+        self.frame_id, self.world_frame_id = str(p["frame_id"]), str(p["world_frame_id"])
+        self.pub_color = self.create_publisher(Image, topics.CAMERA_IMAGE, qos.CAMERA)
+        self.pub_depth = self.create_publisher(Image, topics.CAMERA_DEPTH, qos.CAMERA)
+        self.pub_info = self.create_publisher(CameraInfo, topics.CAMERA_INFO, qos.CAMERA)
+        self.pub_pose = self.create_publisher(PoseStamped, topics.GROUND_TRUTH_POSE, qos.CAMERA)
+        self.published = 0
+        self.skipped = 0
+        self.finished = False
+        self._frames = iter(self.reader)
+        self._first_stamp = self.reader.entries[0].stamp
+        self._lap_offset = 0.0        # recorded seconds added per completed loop
+        self._next = self._read_next()        # the first frame read before the clock starts
+        self._start_ns = self._now_ns()
+        self._last_progress = self._start_ns
+        self._wait_for = int(p["wait_for_subscribers"])
+        self._settling = False
+        self.timer = self.create_timer(POLL_S, self._tick)
+        if self._wait_for > 0:
+            self.get_logger().info(f"waiting for {self._wait_for} subscriber(s) on "
+                                   f"{self.pub_color.topic_name}")
+        else:
+            self._schedule()
+
+    def _now_ns(self) -> int:
+        return self.get_clock().now().nanoseconds
+
+    def _read_next(self) -> RgbdFrame | None:
+        frame = next(self._frames, None)
+        if frame is None:
+            self.skipped += len(self.reader.skipped)
+            if self.loop and self.published:
+                span = self.reader.entries[-1].stamp - self._first_stamp
+                period = span / max(len(self.reader.entries) - 1, 1)
+                self._lap_offset += span + period
+                self._frames = iter(self.reader)
+                frame = next(self._frames, None)
+        return frame
+
+    def _recorded(self, frame: RgbdFrame) -> float:
+        return frame.stamp - self._first_stamp + self._lap_offset
+
+    def _due_ns(self, frame: RgbdFrame) -> int:
+        return self._start_ns + round(self._recorded(frame) / self.rate * 1e9)
+
+    def _fire_in(self, delay_ns: int) -> None:
+        """Make the one timer fire once ``delay_ns`` from now (then periodically, until the
+        next call moves it again)."""
+        self.timer.timer_period_ns = max(delay_ns, 1_000_000)
+        self.timer.reset()
+
+    def _schedule(self) -> None:
+        if self._next is None:
+            self.timer.cancel()
+            self._finish()
+            return
+        self._fire_in(self._due_ns(self._next) - self._now_ns())
+
+    def _tick(self) -> None:
+        if self._wait_for > 0:
+            if self.pub_color.get_subscription_count() >= self._wait_for:
+                self._wait_for = 0            # matched both ways once settled
+                self._settling = True
+                self._fire_in(round(DISCOVERY_SETTLE_S * 1e9))
+            return
+        if self._settling:                    # the recording starts now
+            self._settling = False
+            self._start_ns = self._now_ns()
+            self._schedule()
+            return
+        frame = self._next
+        if frame is None:
+            return
+        if self._due_ns(frame) > self._now_ns() + 1_000_000:
+            self._schedule()                  # woke early (a periodic tick): wait on
+            return
+        stamp = self._due_ns(frame) * 1e-9
+        self.pub_color.publish(color_message(frame, stamp, self.frame_id, self.mono))
+        if frame.depth is not None:
+            self.pub_depth.publish(depth_message(frame, stamp, self.frame_id,
+                                                 self.depth_encoding))
+        self.pub_info.publish(camera_info_message(frame, stamp, self.frame_id))
+        if frame.pose is not None:
+            self.pub_pose.publish(pose_message(frame.pose, stamp, self.world_frame_id))
+        self.published += 1
+        now = self._now_ns()
+        if now - self._last_progress >= PROGRESS_EVERY_S * 1e9:
+            self._last_progress = now
+            self.get_logger().info(
+                f"frame {frame.index + 1}/{len(self.reader)} ({self.published} published, "
+                f"{self.skipped + len(self.reader.skipped)} skipped)")
+        self._next = self._read_next()
+        self._schedule()
+
+    def _finish(self) -> None:
+        self.finished = True
+        elapsed = (self._now_ns() - self._start_ns) * 1e-9
+        # the last frames may still be in flight: let reliable readers acknowledge them before
+        # the process (and its participant) goes away
+        for pub in (self.pub_color, self.pub_depth, self.pub_info, self.pub_pose):
+            wait_for_acks(pub, 2.0)
+        skipped = f" ({', '.join(self.reader.skipped)})" if self.reader.skipped else ""
+        self.get_logger().info(f"done: {self.published} frames published in {elapsed:.1f} s, "
+                               f"{self.skipped} skipped{skipped}")
+
+
+def main(args: list[str] | None = None) -> int:
+    def started(player: SequencePlayer) -> None:
+        reader = player.reader
+        player.get_logger().info(
+            f"playing {len(reader)} frames of {reader.kind} sequence {reader.path} at "
+            f"{player.rate}x{' in a loop' if player.loop else ''}")
+
+    return run_node("sequence_player", SequencePlayer, args,
+                    until=lambda player: player.finished, started=started)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,244 @@
+"""Gymnasium-style environment: one ``step`` is one slot of map management (DESIGN.md §4).
+
+At slot k the agent sees the map V^e_k, the slot's frames F_k and the rate d_k, and answers
+with U_k ⊆ F_k and C_k ⊆ V^e_k ∪ U_k of Theorem 1's sizes. The environment applies the update
+(eq. 3), draws F_{k+1} and d_{k+1}, and returns r_k = -υ_k (eq. 8, lost frames penalised).
+
+Frames come from a covisibility dataset, read forwards then backwards (a walk that turns
+around) so that episodes can be longer than the recording; every frame *instance* has its own
+id, and two instances of the same recorded frame share all their points.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from twinslam.common import table1
+from twinslam.map_management.actions import MapAction, SlotObservation, check_map_action
+from twinslam.simulator.covisibility import CovisibilityDataset
+from twinslam.uncertainty import laplacian_kernels as kernels
+from twinslam.uncertainty.laplacian_factorization import PIVOT_RTOL
+from twinslam.uncertainty.map_uncertainty import (
+    LOST_FRAME_PENALTY,
+    SlotUncertainty,
+    next_slot_uncertainty,
+    slot_uncertainty_from_scores,
+    theorem1_cardinalities,
+)
+from twinslam.uplink.channels import MarkovChannel, TraceChannel
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """Paper Table I defaults."""
+
+    vmax: int = table1.VMAX
+    slot_frames: int = table1.SLOT_FRAMES
+    alpha_mbit: float = table1.ALPHA_MBIT
+    d_req_s: float = table1.D_REQ_S
+    slots: int = 200
+    log_det_pi: float = 0.0
+    lost_penalty: float = LOST_FRAME_PENALTY
+    history: int = 8            #: length τ+1 of the rate history in observations
+
+
+class FrameStream:
+    """Maps frame-instance ids to dataset frames, reading the dataset forth and back."""
+
+    def __init__(self, dataset: CovisibilityDataset, start: int = 0, horizon: int = 0) -> None:
+        self.n = dataset.n_frames
+        self.start = start
+        #: dataset index of instances 0..horizon-1, looked up instead of recomputed per query
+        self._table = self._compute(np.arange(horizon))
+
+    def _compute(self, instance: np.ndarray) -> np.ndarray:
+        t = instance + self.start
+        period = 2 * (self.n - 1) if self.n > 1 else 1
+        phase = t % period
+        return np.where(phase < self.n, phase, period - phase)
+
+    def dataset_index(self, instance: np.ndarray | list[int] | int) -> np.ndarray:
+        idx = np.asarray(instance, dtype=np.int64)
+        try:
+            return self._table[idx]
+        except IndexError:                 # beyond the episode's horizon
+            return self._compute(idx)
+
+
+class MapManagementEnv:
+    """Gym-style: ``reset(seed) -> (obs, info)``;
+    ``step(action) -> (obs, reward, terminated, truncated, info)``."""
+
+    def __init__(self, dataset: CovisibilityDataset, channel: MarkovChannel | TraceChannel,
+                 config: SimConfig | None = None) -> None:
+        self.dataset = dataset
+        self.channel = channel
+        self.config = config or SimConfig()
+        if dataset.n_frames < 2:
+            raise ValueError("a covisibility dataset needs at least two frames")
+        self.stream = FrameStream(dataset)
+        self._map: list[int] = []
+        self._map_w = np.zeros((0, 0))
+        self._slot = 0
+        #: the observation last handed out, valid until the map or the slot changes
+        self._last_obs: SlotObservation | None = None
+        self._plan: list[tuple[int, float]] = []   #: (state, rate) of every slot of the episode
+
+    # -- weights -----------------------------------------------------------------------------
+
+    def weights(self, a: list[int], b: list[int]) -> np.ndarray:
+        """Covisibility weights between frame instances; an instance has weight 0 to itself."""
+        block = self.dataset.weights(self.stream.dataset_index(a), self.stream.dataset_index(b))
+        if len(a) and len(b) and not set(a).isdisjoint(b):
+            at = {x: j for j, x in enumerate(b)}
+            for i, x in enumerate(a):
+                if x in at:
+                    block[i, at[x]] = 0.0
+        return block
+
+    def slot_frames(self, slot: int) -> list[int]:
+        f = self.config.slot_frames
+        return list(range(slot * f, (slot + 1) * f))
+
+    # -- gym interface -----------------------------------------------------------------------
+
+    def reset(self, seed: int | None = None) -> tuple[SlotObservation, dict[str, Any]]:
+        rng = np.random.default_rng(seed)
+        self.stream = FrameStream(self.dataset, start=int(rng.integers(self.dataset.n_frames)),
+                                  horizon=(self.config.slots + 2) * self.config.slot_frames)
+        self.channel.reset(seed)
+        self._map, self._map_w, self._slot = [], np.zeros((0, 0)), 0
+        # The whole episode's rates are drawn up front: the agent still sees them one slot at a
+        # time, but a clairvoyant planner can read ahead and snapshots stay exact.
+        self._plan = [self.channel.step() for _ in range(self.config.slots + 1)]
+        self._last_obs = self._observation()
+        return self._last_obs, {}
+
+    @property
+    def rate_plan(self) -> list[tuple[int, float]]:
+        """(state, rate) of every slot of the episode; for the clairvoyant oracle only."""
+        return list(self._plan)
+
+    def _observation(self) -> SlotObservation:
+        state, rate = self._plan[self._slot]
+        cand = self.slot_frames(self._slot)
+        n_up, n_ev = theorem1_cardinalities(rate, self.config.alpha_mbit, self.config.d_req_s,
+                                            self.config.vmax, len(self._map), len(cand))
+        hist = [s for s, _ in self._plan[max(0, self._slot - self.config.history + 1):
+                                         self._slot + 1]]
+        return SlotObservation(self._slot, list(self._map), cand, n_up, n_ev, rate, state, hist,
+                               self.channel.n_states, self.weights)
+
+    def check_action(self, obs: SlotObservation, action: MapAction) -> None:
+        """Refuse an action that breaks slot ``obs.slot``'s constraints. Frame sets come from
+        the environment, not from ``obs``, so a policy that edits its observation cannot
+        smuggle frames in."""
+        first = obs.slot * self.config.slot_frames
+        check_map_action(obs.slot, obs.n_upload, obs.n_evict,
+                         range(first, first + self.config.slot_frames), self._map, action)
+
+    def apply(self, action: MapAction, *, weights: bool = True) -> None:
+        """V^e_{k+1} = (U_k ∪ V^e_k) \\ C_k, keeping capture order (oldest = anchor first).
+
+        ``weights=False`` leaves the map's weight matrix for the caller to set (``step`` on a
+        dense dataset gathers it in the same kernel call as the reward)."""
+        self._last_obs = None
+        if not weights:
+            self._map = sorted(set(self._map).union(action.upload).difference(action.evict))
+            return
+        evict = set(action.evict)
+        src = np.array([i for i, f in enumerate(self._map) if f not in evict], dtype=np.int64)
+        kept = [self._map[i] for i in src]
+        new = sorted(f for f in action.upload if f not in evict)
+        merged = sorted(kept + new)
+        if self.dataset.dense:               # a gather of the whole block is the cheapest
+            ds = self.stream.dataset_index(merged)
+            self._map, self._map_w = merged, self.dataset.weights(ds, ds)
+            np.fill_diagonal(self._map_w, 0.0)   # an instance shares no edge with itself
+            return
+        # Sparse products are not: reuse the old rows, query only the new pairs.
+        w = np.zeros((len(merged), len(merged)))
+        if merged == kept + new:          # uploads are newer than the map: blocks, no scatter
+            w[:src.size, :src.size] = self._map_w.take(src, axis=0).take(src, axis=1)
+            new_pos = np.arange(src.size, len(merged))
+        else:
+            at = {f: i for i, f in enumerate(merged)}
+            old_pos = np.array([at[f] for f in kept], dtype=np.int64)
+            w[np.ix_(old_pos, old_pos)] = self._map_w.take(src, axis=0).take(src, axis=1)
+            new_pos = np.array([at[f] for f in new], dtype=np.int64)
+        if new:
+            block = self.weights(new, merged)
+            w[new_pos, :] = block
+            w[:, new_pos] = block.T
+        self._map, self._map_w = merged, w
+
+    def step(self, action: MapAction) -> tuple[SlotObservation, float, bool, bool, dict[str, Any]]:
+        obs = self._last_obs or self._observation()
+        self.check_action(obs, action)
+        dense = self.dataset.dense
+        self.apply(action, weights=not dense)
+        self._slot += 1
+        f = self.config.slot_frames
+        frames = np.arange(self._slot * f, (self._slot + 1) * f)
+        if dense and self._map:               # map weights and reward in one kernel call
+            self._map_w, n_comp, log_det, log_tau = kernels.gathered_slot_scores(
+                self.dataset.dense_weights, self.stream.dataset_index(self._map),
+                self.stream.dataset_index(frames), PIVOT_RTOL)
+            slot_u = slot_uncertainty_from_scores(len(self._map), n_comp, log_det, log_tau,
+                                                  self.config.log_det_pi,
+                                                  self.config.lost_penalty)
+        else:
+            if dense:
+                self._map_w = np.zeros((0, 0))
+            slot_u = self._evaluate(frames)
+        info = {"uncertainty": slot_u, "map_size": len(self._map),
+                "map_uncertainty": slot_u.map_uncertainty}
+        truncated = self._slot >= self.config.slots
+        self._last_obs = self._observation()
+        return self._last_obs, slot_u.reward, False, truncated, info
+
+    def _evaluate(self, frames: np.ndarray) -> SlotUncertainty:
+        """υ of the current map against ``frames`` (future frames: none is in the map)."""
+        block = self.dataset.weights(self.stream.dataset_index(frames),
+                                     self.stream.dataset_index(self._map))
+        return next_slot_uncertainty(self._map_w, block, self.config.log_det_pi,
+                                     self.config.lost_penalty)
+
+    def emulate(self, before: tuple[list[int], np.ndarray, int], action: MapAction,
+                next_rate: tuple[int, float]) -> tuple[SlotObservation, float, dict[str, Any]]:
+        """What ``step(action)`` from the snapshot ``before`` would have returned had slot
+        k + 1's rate been ``next_rate`` = (state, Mbit/s): an artificial experience (paper
+        eq. 23: emulated map update, its reward, the next state with the sampled rate). The
+        environment is left exactly as it was."""
+        now, last_obs = self.snapshot(), self._last_obs
+        k = before[2]
+        if not 0 <= k < self.config.slots:
+            raise ValueError(f"slot {k} is outside the episode (0..{self.config.slots - 1})")
+        real_next = self._plan[k + 1]
+        self.restore(before)
+        self._plan[k + 1] = (int(next_rate[0]), float(next_rate[1]))
+        try:
+            obs, reward, _term, _trunc, info = self.step(action)
+        finally:
+            self._plan[k + 1] = real_next
+            self.restore(now)
+            self._last_obs = last_obs
+        return obs, reward, info
+
+    # -- planning support (the clairvoyant oracle) --------------------------------------------
+
+    @property
+    def map_frames(self) -> list[int]:
+        return list(self._map)
+
+    def snapshot(self) -> tuple[list[int], np.ndarray, int]:
+        return list(self._map), self._map_w.copy(), self._slot
+
+    def restore(self, snap: tuple[list[int], np.ndarray, int]) -> None:
+        frames, w, self._slot = snap
+        self._last_obs = None
+        self._map, self._map_w = list(frames), w.copy()
+

@@ -1,0 +1,1 @@
+"""SLAM pieces device and edge share: projection matching and the keyframe/map payloads."""

@@ -1,0 +1,1 @@
+"""Covisibility math: the map graph's uncertainty u(G), the next slot's υ and their kernels."""

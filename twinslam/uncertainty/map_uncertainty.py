@@ -1,0 +1,178 @@
+"""Pose estimation uncertainty of a keyframe map (paper eq. 6 and 8, DESIGN.md §2).
+
+The map is a weighted covisibility graph: w(f, f') = |M_f ∩ M_f'|. Its uncertainty is
+
+    u(G) = -log det(L̂ ⊗ Π) = -6 logdet(L̂) - (|V| - 1) logdet(Π),
+
+with L̂ the weighted Laplacian reduced by one grounded frame. By Kirchhoff's matrix-tree
+theorem every principal cofactor of a Laplacian equals the weighted spanning-tree count, so the
+choice of grounded frame does not change det(L̂); we ground the oldest frame of the map (index 0
+of every weight matrix here). Determinants are never formed: logdet comes from a float64
+Cholesky factor, and a factorisation that fails (or has a vanishing pivot) means the graph is
+disconnected, reported as u = +inf.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from twinslam.uncertainty import laplacian_kernels as kernels
+from twinslam.uncertainty.laplacian_factorization import PIVOT_RTOL, LaplacianFactorization
+
+#: u of a next-slot frame that shares no map point is +inf (it would lose tracking). RL and
+#: the objective need a finite number: such a frame counts as u(G) + LOST_FRAME_PENALTY.
+LOST_FRAME_PENALTY = 100.0
+
+
+def laplacian(weights: np.ndarray) -> np.ndarray:
+    """L = D - W of a symmetric, non-negative weight matrix with zero diagonal."""
+    w = np.asarray(weights, dtype=np.float64)
+    return np.diag(w.sum(axis=1)) - w
+
+
+def reduced_laplacian(weights: np.ndarray) -> np.ndarray:
+    """L̂: the Laplacian with the row and column of frame 0 (the anchor) removed."""
+    return laplacian(weights)[1:, 1:]
+
+
+def logdet_spd(matrix: np.ndarray) -> float:
+    """log det of a symmetric positive definite matrix, or -inf if it is singular/indefinite."""
+    m = np.asarray(matrix, dtype=np.float64)
+    if m.shape[0] == 0:
+        return 0.0
+    try:
+        chol = np.linalg.cholesky(m)
+    except np.linalg.LinAlgError:
+        return -math.inf
+    diag = np.diagonal(chol)
+    if float((diag * diag).min()) <= PIVOT_RTOL * max(1.0, float(np.diagonal(m).max())):
+        return -math.inf
+    return 2.0 * float(np.log(diag).sum())
+
+
+def logdet_pi(pi: np.ndarray | None) -> float:
+    """logdet(Π) of the 6x6 information parameter (identity, i.e. 0, by default)."""
+    if pi is None:
+        return 0.0
+    p = np.asarray(pi, dtype=np.float64)
+    if p.shape != (6, 6) or not np.allclose(p, p.T):
+        raise ValueError(f"Π must be a symmetric 6x6 matrix, got shape {p.shape}")
+    value = logdet_spd(p)
+    if not math.isfinite(value):
+        raise ValueError("Π must be positive definite")
+    return value
+
+
+def map_uncertainty(weights: np.ndarray, log_det_pi: float = 0.0) -> float:
+    """u(G) for the map whose frames have pairwise weights ``weights`` (oldest frame first).
+
+    An empty map is +inf (nothing can be tracked); a single frame is 0 (L̂ is 0x0).
+    """
+    n = np.asarray(weights).shape[0]
+    if n == 0:
+        return math.inf
+    ld = logdet_spd(reduced_laplacian(weights))
+    if ld == -math.inf:
+        return math.inf
+    return -6.0 * ld - (n - 1) * log_det_pi
+
+
+def augmented_uncertainties(map_weights: np.ndarray, cand_weights: np.ndarray,
+                            log_det_pi: float = 0.0) -> np.ndarray:
+    """u(G ∪ {f}) for each candidate frame f (eq. 8's summand), all at once.
+
+    ``cand_weights[i, j]`` is the weight between candidate i and map frame j. One factorisation
+    of the map serves every candidate
+    (:class:`~twinslam.uncertainty.laplacian_factorization.LaplacianFactorization`). A candidate
+    that shares no point with the map, or leaves G ∪ {f} disconnected, gets +inf.
+    """
+    return _augmented(LaplacianFactorization(map_weights), cand_weights, log_det_pi)
+
+
+def _augmented(factor: LaplacianFactorization, cand_weights: np.ndarray, log_det_pi: float
+               ) -> np.ndarray:
+    log_tau = factor.augmented_log_tau(cand_weights)
+    n = factor.n
+    with np.errstate(invalid="ignore"):
+        return np.where(np.isfinite(log_tau), -6.0 * log_tau - n * log_det_pi, math.inf)
+
+
+@dataclass(frozen=True)
+class SlotUncertainty:
+    """υ_k over the next slot's frames, reported the two ways DESIGN.md §2 asks for."""
+
+    mean_tracked: float        #: mean u(G ∪ {f}) over frames that share a point with the map
+    lost_ratio: float          #: share of frames that share no point (u = +inf)
+    objective: float           #: mean with lost frames counted as u(G) + LOST_FRAME_PENALTY
+    map_uncertainty: float = math.inf   #: u(G) of the map itself (+inf if disconnected)
+
+    @property
+    def reward(self) -> float:
+        """r_k = -υ_k on the finite objective (paper eq. 13 with the lost-frame penalty)."""
+        return -self.objective
+
+
+def next_slot_uncertainty(map_weights: np.ndarray, cand_weights: np.ndarray,
+                          log_det_pi: float = 0.0,
+                          lost_penalty: float = LOST_FRAME_PENALTY) -> SlotUncertainty:
+    """υ_k of eq. (8) for the map G^e_{k+1} and the frames F_{k+1}, never letting inf leak.
+
+    Runs once per slot in the simulator: one kernel call (factorise + score every frame)."""
+    w = np.asarray(map_weights, dtype=np.float64)
+    b = np.ascontiguousarray(np.atleast_2d(cand_weights), dtype=np.float64)
+    n = w.shape[0]
+    if b.shape[0] == 0:
+        raise ValueError("the next slot holds no frames")
+    if n == 0:
+        n_comp, log_det, log_tau = 0, -math.inf, np.full(b.shape[0], -math.inf)
+    else:
+        if b.shape[1] != n:
+            raise ValueError(f"candidate weights have {b.shape[1]} columns, the map {n}")
+        n_comp, log_det, log_tau = kernels.slot_scores(w, b, PIVOT_RTOL)
+    return slot_uncertainty_from_scores(n, n_comp, log_det, log_tau, log_det_pi, lost_penalty)
+
+
+def slot_uncertainty_from_scores(n: int, n_comp: int, log_det: float, log_tau: np.ndarray,
+                                 log_det_pi: float = 0.0,
+                                 lost_penalty: float = LOST_FRAME_PENALTY) -> SlotUncertainty:
+    """υ_k from a map of ``n`` frames with ``n_comp`` components and log det A = ``log_det``,
+    and log τ(G ∪ {f}) of each next-slot frame (-inf: the frame shares no point)."""
+    finite = log_tau[log_tau > -math.inf]
+    n_tracked = finite.size
+    n_lost = log_tau.size - n_tracked
+    total = -6.0 * float(finite.sum()) - n_tracked * n * log_det_pi     # Σ u(G ∪ {f})
+    map_u = -6.0 * log_det - (n - 1) * log_det_pi if n_comp == 1 else math.inf
+    base = map_u
+    if n_lost and not math.isfinite(base):
+        # An empty or disconnected map: fall back to the penalty alone so the objective stays
+        # finite and worse than any tracked frame of a connected map would make it.
+        base = -6.0 * float(finite.min()) - n * log_det_pi if n_tracked else 0.0
+    return SlotUncertainty(
+        mean_tracked=total / n_tracked if n_tracked else math.nan,
+        lost_ratio=n_lost / log_tau.size,
+        # (no lost frame adds nothing: 0 · inf would be NaN for a disconnected map that every
+        # next-slot frame bridges)
+        objective=(total + (n_lost * (base + lost_penalty) if n_lost else 0.0)) / log_tau.size,
+        map_uncertainty=map_u,
+    )
+
+
+def theorem1_cardinalities(rate_mbps: float, alpha_mbit: float, d_req_s: float, vmax: int,
+                           map_size: int, slot_size: int) -> tuple[int, int]:
+    """(|U_k|, |C_k|) of paper Theorem 1, clamped to what the slot and the map hold.
+
+    |U_k| = floor(d_k · D_req / α) (eq. 10), at most |F_k|. The paper prints
+    |C_k| = V_max - |U_k| (eq. 11), but its own proof (eq. 12) keeps the map at V_max:
+    |C_k| = |V_k| + |U_k| - V_max, never negative. We use eq. 12.
+    """
+    if not math.isfinite(rate_mbps) or rate_mbps < 0:
+        raise ValueError(f"uplink rate must be finite and >= 0, got {rate_mbps}")
+    if alpha_mbit <= 0 or d_req_s <= 0 or vmax < 1:
+        raise ValueError("alpha, D_req must be > 0 and V_max >= 1")
+    n_up = min(math.floor(rate_mbps * d_req_s / alpha_mbit + 1e-9), slot_size)
+    n_up = min(n_up, vmax)
+    n_evict = max(0, map_size + n_up - vmax)
+    return n_up, n_evict

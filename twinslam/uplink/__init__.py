@@ -1,0 +1,1 @@
+"""Uplink models shared by the device, the simulator and the learner: Markov and trace channels."""
