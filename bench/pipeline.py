@@ -24,7 +24,7 @@ from bench.gauge import cpu_gauge
 from device_tracker.device_core import DeviceTrackerCore
 from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore
 from edge_mapper.messages import map_update_message
-from edge_mapper.slot_planner import FrameSet
+from edge_mapper.slot_planner import FrameObservations
 from twinslam.cli.launcher import RunRecord, absolute_trajectory_error
 from twinslam.policy_registry import make_policy
 from twinslam.sequence_player.readers import open_sequence
@@ -74,8 +74,8 @@ def main() -> None:
             frames = device.take_slot()
             slot = device.slot_of(frames[-1].frame_id)
             state, rate = channel.step()
-            sets = [FrameSet(f.frame_id, frozenset(f.map_point_ids.tolist()),
-                             frozenset(f.track_ids.tolist())) for f in frames]
+            sets = [FrameObservations(f.frame_id, frozenset(f.map_point_ids.tolist()),
+                                      frozenset(f.track_ids.tolist())) for f in frames]
             t0 = time.perf_counter()
             plan = edge.plan(slot, sets, rate, state)
             t1 = time.perf_counter()

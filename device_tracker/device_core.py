@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from device_tracker.map_points import MapPoints
+from device_tracker.local_map import LocalMap
 from device_tracker.messages import FrameRecord
 from device_tracker.tracking import Tracking, TrackingConfig, depth_at
 from twinslam.common import table1
@@ -156,7 +156,7 @@ class DeviceTrackerCore:
                                    dtype=np.uint64)
         keep = np.flatnonzero(((self.labels & np.uint64(TRACK_BIT)) != 0)
                               & (self.created >= slot * self.slot_frames) & old.active)
-        points = MapPoints(max(len(update.point_ids) + keep.size, 16))
+        points = LocalMap(max(len(update.point_ids) + keep.size, 16))
         new_global = points.add(update.positions, update.descriptors, now)
         new_track = points.add(old.positions[keep], old.descriptors[keep], now)
         old_to_new = np.full(len(old), -1, dtype=np.int64)

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-ORB_DESCRIPTOR_BYTES = 32
+from msg_schemas.validation import ORB_DESCRIPTOR_BYTES
 
 
 @dataclass

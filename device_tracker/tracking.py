@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from device_tracker.map_points import MapPoints
+from device_tracker.local_map import LocalMap
 from device_tracker.orb_extractor import Features, OrbExtractor
 from device_tracker.pose_optimization import optimize_pose
 from twinslam.slam.projection_matching import back_project, match_by_projection, visible_points
@@ -68,7 +68,7 @@ class Tracking:
         self.config = config or TrackingConfig()
         self.k = np.asarray(intrinsics, dtype=np.float64)
         self.extractor = OrbExtractor(self.config.n_features)
-        self.map = MapPoints()
+        self.map = LocalMap()
         self._pose: np.ndarray | None = None          # camera-to-world of the last frame
         self._velocity = np.eye(4)                      # last frame-to-frame motion
         self._last_kf_tracked = 0
@@ -125,7 +125,7 @@ class Tracking:
     def frames_tracked(self) -> int:
         return self._count
 
-    def replace_map(self, points: MapPoints, old_to_new: np.ndarray) -> None:
+    def replace_map(self, points: LocalMap, old_to_new: np.ndarray) -> None:
         """Track from now on against ``points`` (the device's copy of a new edge map);
         ``old_to_new[i]`` is the new id of old point i, or -1 where it is gone. Points still on
         probation keep it; the motion model and the pose carry on."""

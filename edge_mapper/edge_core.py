@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 
 from edge_mapper.bundle_adjustment import BundleAdjustmentResult, Observation, bundle_adjust
-from edge_mapper.keyframe_integration import IntegrationReport, KeyframeIntegrator
-from edge_mapper.keyframe_map import KeyframeMap
-from edge_mapper.slot_planner import FrameSet, SlotConfig, SlotPlan, SlotPlanner
+from edge_mapper.keyframe_map import KeyFrameMap
+from edge_mapper.local_mapping import IntegrationReport, LocalMapping
+from edge_mapper.slot_planner import FrameObservations, SlotConfig, SlotPlan, SlotPlanner
 from twinslam.map_management.actions import MapAction
 from twinslam.map_management.policies import MapPolicy
 from twinslam.slam.keyframe import KeyFramePayload
@@ -68,17 +68,17 @@ class EdgeMapperCore:
         self.version = 0
         self.last_slot = -1
         self.rate_history: list[int] = []
-        self.map = KeyframeMap()
+        self.map = KeyFrameMap()
         extra: dict[str, np.ndarray] = {}
         self.restored_from_file = self.checkpoint is not None and self.checkpoint.is_file()
         if self.restored_from_file:
-            self.map, extra = KeyframeMap.load(self.checkpoint)
+            self.map, extra = KeyFrameMap.load(self.checkpoint)
             self.version = int(extra.get("version", 0))
             self.last_slot = int(extra.get("last_slot", -1))
             self.rate_history = [int(x) for x in extra.get("rate_history", [])]
-        self.integrator = KeyframeIntegrator(self.map, self.k, self.config.image_shape)
+        self.local_mapping = LocalMapping(self.map, self.k, self.config.image_shape)
         if self.restored_from_file:
-            self.integrator.track_points = dict(zip(
+            self.local_mapping.track_points = dict(zip(
                 (int(t) for t in extra.get("track_ids", [])),
                 (int(p) for p in extra.get("track_point_ids", [])), strict=True))
         self._previous_tracks: dict[int, int] = {}
@@ -99,7 +99,8 @@ class EdgeMapperCore:
             for kf in range(3):
                 if kf * 10 <= p < kf * 10 + 20:
                     core.map.observe(kf, pid, (320.0, 240.0), 2.0)
-        frames = [FrameSet(10 + i, frozenset(range(1 + 5 * i, 21 + 5 * i))) for i in range(6)]
+        frames = [FrameObservations(10 + i, frozenset(range(1 + 5 * i, 21 + 5 * i)))
+                  for i in range(6)]
         core.plan(0, frames, 40.0, 0)
         core.finish_slot(0)
 
@@ -116,7 +117,7 @@ class EdgeMapperCore:
 
     # -- the protocol ------------------------------------------------------------------------
 
-    def plan(self, slot: int, frames: list[FrameSet], rate_mbps: float, rate_state: int
+    def plan(self, slot: int, frames: list[FrameObservations], rate_mbps: float, rate_state: int
              ) -> SlotPlan:
         self.rate_history = [*self.rate_history[-63:], int(rate_state)]
         frames = [self._resolve_tracks(f) for f in frames]
@@ -124,15 +125,15 @@ class EdgeMapperCore:
         self.pending[slot] = (plan.action, set())
         return plan
 
-    def _resolve_tracks(self, frame: FrameSet) -> FrameSet:
+    def _resolve_tracks(self, frame: FrameObservations) -> FrameObservations:
         """A frame's track ids that already became map points count as those points (the
         device reports them as tracks until its next map update relabels them)."""
-        known = self.integrator.track_points       # pruned to the map's points each slot
+        known = self.local_mapping.track_points       # pruned to the map's points each slot
         hits = known.keys() & frame.tracks
         if not hits:
             return frame
-        return FrameSet(frame.frame_id, frame.map_points | {known[t] for t in hits},
-                        frame.tracks - hits)
+        return FrameObservations(frame.frame_id, frame.map_points | {known[t] for t in hits},
+                                 frame.tracks - hits)
 
     def add_keyframe(self, data: KeyFramePayload) -> IntegrationReport | None:
         """Integrate a keyframe the plan of its slot asked for; None (and nothing changes) for
@@ -141,8 +142,8 @@ class EdgeMapperCore:
         if entry is None or data.frame_id not in entry[0].upload or \
                 data.frame_id in self.map.keyframes:
             return None
-        self.k = self.integrator.k = np.asarray(data.intrinsics, dtype=np.float64)
-        report = self.integrator.integrate(data.frame_id, data.pose, data.keypoints,
+        self.k = self.local_mapping.k = np.asarray(data.intrinsics, dtype=np.float64)
+        report = self.local_mapping.integrate(data.frame_id, data.pose, data.keypoints,
                                            data.descriptors, data.depths, data.point_ids)
         entry[1].add(data.frame_id)
         return report
@@ -160,12 +161,12 @@ class EdgeMapperCore:
         t1 = time.perf_counter()
         self.version += 1
         self.last_slot = slot
-        fresh = self.integrator.take_new_tracks()
+        fresh = self.local_mapping.take_new_tracks()
         tracks = {**self._previous_tracks, **fresh}
         self._previous_tracks = fresh
         # tracks whose point left the map are forgotten: the table stays the map's size
-        known = {t: p for t, p in self.integrator.track_points.items() if p in self.map.points}
-        self.integrator.track_points = known
+        known = {t: p for t, p in self.local_mapping.track_points.items() if p in self.map.points}
+        self.local_mapping.track_points = known
         if self.checkpoint is not None:
             self.map.save(self.checkpoint, version=np.array(self.version),
                           last_slot=np.array(slot),

@@ -60,7 +60,7 @@ def shared_counts(sets: list[np.ndarray]) -> np.ndarray:
     return w
 
 
-class KeyframeMap:
+class KeyFrameMap:
     """Keyframes and map points with their observation links kept both ways."""
 
     def __init__(self) -> None:
@@ -189,7 +189,7 @@ class KeyframeMap:
         tmp.replace(path)
 
     @classmethod
-    def load(cls, path: Path) -> tuple[KeyframeMap, dict[str, np.ndarray]]:
+    def load(cls, path: Path) -> tuple[KeyFrameMap, dict[str, np.ndarray]]:
         """The map saved at ``path`` and the extra arrays saved with it."""
         path = Path(path)
         try:

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from edge_mapper.keyframe_map import KeyframeMap
+from edge_mapper.keyframe_map import KeyFrameMap
 from msg_schemas import new
 from msg_schemas.headers import set_header
 from msg_schemas.poses import pose_msg
@@ -26,7 +26,7 @@ def upload_request_message(slot: int, policy: str, rate_mbps: float, action: Map
     return set_header(msg, stamp, "")
 
 
-def map_update_message(keyframe_map: KeyframeMap, slot: int, version: int, stamp: float,
+def map_update_message(keyframe_map: KeyFrameMap, slot: int, version: int, stamp: float,
                        frame_id: str = "map", tracks: dict[int, int] | None = None) -> Any:
     """The whole map for the device: keyframe poses, points with descriptors and how many
     keyframes observe each, and the device tracks that became map points (``tracks``)."""
@@ -52,7 +52,7 @@ def map_update_message(keyframe_map: KeyframeMap, slot: int, version: int, stamp
     return set_header(msg, stamp, frame_id)
 
 
-def map_stats_message(slot: int, policy: str, keyframe_map: KeyframeMap, uncertainty: float,
+def map_stats_message(slot: int, policy: str, keyframe_map: KeyFrameMap, uncertainty: float,
                       mean_next: float, lost_ratio: float, uploads: int, optimisation_ms: float,
                       processing_ms: float, stamp: float) -> Any:
     """``MapStats``; u = +inf for a disconnected map and υ = NaN with no tracked frame are

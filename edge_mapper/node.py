@@ -41,7 +41,7 @@ from edge_mapper.messages import map_stats_message, map_update_message, upload_r
 from edge_mapper.parameters import PARAMETERS
 from edge_mapper.policy_control import LIVE, Note, PolicyControl
 from edge_mapper.slot_lifecycle import Closing, SlotLifecycle
-from edge_mapper.slot_planner import FrameSet, SlotConfig
+from edge_mapper.slot_planner import FrameObservations, SlotConfig
 from msg_schemas import qos, topics
 from twinslam.node_hosts.checked_subscription import CheckedSubscription
 from twinslam.node_hosts.node_main import NodeStartError, run_node
@@ -110,8 +110,9 @@ class EdgeMapperNode(Node):
         self.core.set_policy(self.control.policy)
         if self.control.vmax != self.core.config.slot.vmax:
             self.core.set_vmax(self.control.vmax)
-        frames = [FrameSet(int(f.frame_id), frozenset(int(i) for i in f.map_point_ids),
-                           frozenset(int(i) for i in f.local_track_ids)) for f in msg.frames]
+        frames = [FrameObservations(int(f.frame_id), frozenset(int(i) for i in f.map_point_ids),
+                                    frozenset(int(i) for i in f.local_track_ids))
+                  for f in msg.frames]
         started = time.perf_counter()
         try:
             plan = self.core.plan(slot, frames, float(msg.rate_mbps), int(msg.rate_state))

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from edge_mapper.keyframe_map import KeyframeMap, shared_counts
+from edge_mapper.keyframe_map import KeyFrameMap, shared_counts
 from twinslam.common import table1
 from twinslam.map_management.actions import MapAction, SlotObservation, check_map_action
 from twinslam.map_management.policies import MapPolicy
@@ -31,7 +31,7 @@ TRACK_MASK = (1 << 63) - 1          #: a track id without its marker bit
 
 
 @dataclass(frozen=True)
-class FrameSet:
+class FrameObservations:
     """One frame of a slot as the planner sees it (``FrameSummary`` without the pose)."""
 
     frame_id: int
@@ -55,16 +55,17 @@ class SlotPlan:
 
 
 class SlotPlanner:
-    """Builds observations over a :class:`KeyframeMap` and runs a policy on them."""
+    """Builds observations over a :class:`KeyFrameMap` and runs a policy on them."""
 
-    def __init__(self, keyframe_map: KeyframeMap, policy: MapPolicy,
+    def __init__(self, keyframe_map: KeyFrameMap, policy: MapPolicy,
                  config: SlotConfig | None = None, n_states: int = 2) -> None:
         self.map = keyframe_map
         self.policy = policy
         self.config = config or SlotConfig()
         self.n_states = n_states
 
-    def weights(self, frames: dict[int, FrameSet], a: list[int], b: list[int]) -> np.ndarray:
+    def weights(self, frames: dict[int, FrameObservations], a: list[int], b: list[int]
+                ) -> np.ndarray:
         """w between ids in ``a`` and ``b``, each a keyframe of the map or a frame of the slot;
         zero between an id and itself."""
         ids = list(dict.fromkeys([*a, *b]))
@@ -72,11 +73,11 @@ class SlotPlanner:
         pos = {x: i for i, x in enumerate(ids)}
         return full[np.ix_([pos[x] for x in a], [pos[x] for x in b])]
 
-    def weight_matrix(self, frames: dict[int, FrameSet], ids: list[int]) -> np.ndarray:
+    def weight_matrix(self, frames: dict[int, FrameObservations], ids: list[int]) -> np.ndarray:
         """w among ``ids`` (keyframes and slot frames) as one sparse product."""
         return shared_counts([self._points(frames, x) for x in ids])
 
-    def _points(self, frames: dict[int, FrameSet], frame_id: int) -> np.ndarray:
+    def _points(self, frames: dict[int, FrameObservations], frame_id: int) -> np.ndarray:
         """The ids a keyframe or slot frame observes as one int64 key set: map points as
         they are, track ids (their own namespace) as negative keys so they never equal a
         map-point id."""
@@ -88,7 +89,7 @@ class SlotPlanner:
         return np.concatenate([np.fromiter(f.map_points, dtype=np.int64,
                                            count=len(f.map_points)), -1 - tracks])
 
-    def plan(self, slot: int, frames: list[FrameSet], rate_mbps: float, rate_state: int,
+    def plan(self, slot: int, frames: list[FrameObservations], rate_mbps: float, rate_state: int,
              rate_history: list[int]) -> SlotPlan:
         """U_k and C_k for slot k's frames (capture order) at rate d_k."""
         if not frames:

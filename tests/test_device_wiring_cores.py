@@ -9,19 +9,7 @@ from device_tracker.edge_watchdog import EdgeWatchdog
 from device_tracker.frame_pairing import FramePairing
 from device_tracker.uplink_sender import UplinkSender, write_with_retry
 from device_tracker.uplink_shaper import UplinkShaper
-
-
-class Clock:
-    """Seconds that move only when something sleeps (or a test says so)."""
-
-    def __init__(self) -> None:
-        self.t = 0.0
-
-    def __call__(self) -> float:
-        return self.t
-
-    def sleep(self, seconds: float) -> None:
-        self.t += seconds
+from tests.test_uplink_shaper import VirtualTime
 
 
 def _drain(pairing: FramePairing) -> list[tuple[int, str | None, str | None]]:
@@ -59,43 +47,46 @@ def test_without_a_depth_topic_colour_waits_a_bounded_number_of_frames() -> None
 
 
 def test_the_watchdog_says_once_that_the_edge_is_silent_and_how_long_it_was() -> None:
-    clock = Clock()
-    dog = EdgeWatchdog(3.0, clock)
+    clock = VirtualTime()
+    clock.now = 0.0
+    dog = EdgeWatchdog(3.0, clock.clock)
     assert dog.check() is None                       # nothing asked yet
     dog.asked(0)
-    clock.t = 1.0
+    clock.now = 1.0
     dog.asked(1)
     assert dog.answered(0) is None and dog.check() is None    # answered in time
-    clock.t = 4.5
+    clock.now = 4.5
     assert dog.check() == (1, 3.5)
-    clock.t = 9.0
+    clock.now = 9.0
     dog.asked(2)
     assert dog.check() is None                       # already said
-    clock.t = 10.0
+    clock.now = 10.0
     assert dog.answered(2) == pytest.approx(9.0)     # silent since slot 1 went out at t=1
     assert dog.unanswered == {} and dog.check() is None
 
 
 def test_a_failing_write_is_retried_until_it_succeeds_or_the_deadline() -> None:
-    clock = Clock()
+    clock = VirtualTime()
+    clock.now = 0.0
     failures = iter([True, True, False])
 
     def flaky() -> None:
         if next(failures):
             raise RuntimeError("writer blocked")
 
-    assert write_with_retry(flaky, 1.0, clock, clock.sleep) is None
-    assert clock.t == pytest.approx(0.2)
+    assert write_with_retry(flaky, 1.0, clock.clock, clock.sleep) is None
+    assert clock.now == pytest.approx(0.2)
 
     def dead() -> None:
         raise RuntimeError("writer blocked")
 
-    failure = write_with_retry(dead, 1.0, clock, clock.sleep)
-    assert isinstance(failure, RuntimeError) and clock.t == pytest.approx(1.3)
+    failure = write_with_retry(dead, 1.0, clock.clock, clock.sleep)
+    assert isinstance(failure, RuntimeError) and clock.now == pytest.approx(1.3)
 
 
 def test_the_upload_worker_sends_what_was_asked_at_the_slots_rate_and_reports_it() -> None:
-    clock = Clock()
+    clock = VirtualTime()
+    clock.now = 0.0
     written: list[tuple[float, bytes]] = []
     reports, errors = [], []
     held = {10: b"a" * 100, 11: b"b" * 100}
@@ -103,9 +94,9 @@ def test_the_upload_worker_sends_what_was_asked_at_the_slots_rate_and_reports_it
     def encode(slot: int, frame: int) -> tuple[int, bytes, int] | None:
         return (frame, held[frame], 625_000) if frame in held else None   # 5 Mbit charged
 
-    sender = UplinkSender(UplinkShaper(clock, clock.sleep), encode,
-                          lambda b: written.append((clock.t, b)), reports.append, errors.append,
-                          default_rate=40.0, clock=clock, sleep=clock.sleep)
+    sender = UplinkSender(UplinkShaper(clock.clock, clock.sleep), encode,
+                          lambda b: written.append((clock.now, b)), reports.append, errors.append,
+                          default_rate=40.0, clock=clock.clock, sleep=clock.sleep)
     sender.rates[0] = (50.0, 1)
     out = sender.send_slot(0, [10, 11, 12])          # 12 is no longer held
     assert [b[:1] for _, b in written] == [b"a", b"b"]
@@ -117,15 +108,16 @@ def test_the_upload_worker_sends_what_was_asked_at_the_slots_rate_and_reports_it
 
 
 def test_a_keyframe_that_cannot_be_written_is_given_up_and_the_slot_goes_on() -> None:
-    clock = Clock()
+    clock = VirtualTime()
+    clock.now = 0.0
     errors: list[str] = []
 
     def blocked(payload: bytes) -> None:
         raise RuntimeError("timed out")
 
-    sender = UplinkSender(UplinkShaper(clock, clock.sleep), lambda s, f: (f, b"x", 1000),
+    sender = UplinkSender(UplinkShaper(clock.clock, clock.sleep), lambda s, f: (f, b"x", 1000),
                           blocked, lambda t: None, errors.append, default_rate=40.0,
-                          retry_s=2.0, clock=clock, sleep=clock.sleep)
+                          retry_s=2.0, clock=clock.clock, sleep=clock.sleep)
     out = sender.send_slot(3, [30, 31])
     assert out.slot == 3 and len(errors) == 2
     assert "keyframe 30 not written within 2 s" in errors[0]

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore
-from edge_mapper.slot_planner import FrameSet, SlotConfig
+from edge_mapper.slot_planner import FrameObservations, SlotConfig
 from twinslam.policy_registry import make_policy
 from twinslam.slam.keyframe import TRACK_ID_BIT, KeyFramePayload
 
@@ -18,7 +18,7 @@ F = 8                                      # frames per slot (60 in the paper; s
 
 class Device:
     """Frames along a path past a wall of points; knows which world point became which map
-    point the way a device learns it from map updates (here: from the edge's integrator)."""
+    point the way a device learns it from map updates (here: from the edge's local_mapping)."""
 
     def __init__(self, rng: np.random.Generator) -> None:
         self.rng = rng
@@ -38,15 +38,15 @@ class Device:
                               & (uv[:, 1] < 475))
         ids = []
         for j in seen:
-            pid = core.integrator.track_points.get(int(TRACK_ID_BIT) | int(j))
+            pid = core.local_mapping.track_points.get(int(TRACK_ID_BIT) | int(j))
             ids.append(pid if pid is not None and pid in core.map.points
                        else int(TRACK_ID_BIT) | int(j))
         return seen, uv[seen] + self.rng.normal(0, 0.3, (len(seen), 2)), cam[seen, 2], ids
 
-    def summary(self, frame: int, core: EdgeMapperCore) -> FrameSet:
+    def summary(self, frame: int, core: EdgeMapperCore) -> FrameObservations:
         _, _, _, ids = self.observe(frame, core)
-        return FrameSet(frame, frozenset(i for i in ids if not i & int(TRACK_ID_BIT)),
-                        frozenset(i for i in ids if i & int(TRACK_ID_BIT)))
+        return FrameObservations(frame, frozenset(i for i in ids if not i & int(TRACK_ID_BIT)),
+                                 frozenset(i for i in ids if i & int(TRACK_ID_BIT)))
 
     def keyframe(self, frame: int, slot: int, core: EdgeMapperCore) -> KeyFramePayload:
         seen, uv, depth, ids = self.observe(frame, core)

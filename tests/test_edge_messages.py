@@ -7,7 +7,7 @@ import math
 import numpy as np
 from rclpy.serialization import deserialize_message, serialize_message
 
-from edge_mapper.keyframe_map import KeyframeMap
+from edge_mapper.keyframe_map import KeyFrameMap
 from edge_mapper.messages import (
     map_stats_message,
     map_update_message,
@@ -42,7 +42,7 @@ def test_pose_conversion_round_trips() -> None:
 
 def test_map_update_round_trip() -> None:
     rng = np.random.default_rng(0)
-    m = KeyframeMap()
+    m = KeyFrameMap()
     for k in (5, 9):
         m.add_keyframe(k, _pose(0.1 * k, [k, 0, 0]))
     for _ in range(4):
@@ -78,7 +78,7 @@ def test_keyframe_reading_keeps_ids_and_track_bits() -> None:
 def test_upload_request_and_map_stats() -> None:
     req = _roundtrip(upload_request_message(2, "adapt", 60.0, MapAction([31, 40], [3]), 1.0))
     assert req.upload_frame_ids.tolist() == [31, 40] and req.evict_frame_ids.tolist() == [3]
-    stats = _roundtrip(map_stats_message(2, "lff", KeyframeMap(), math.inf, math.nan, 0.25, 2,
+    stats = _roundtrip(map_stats_message(2, "lff", KeyFrameMap(), math.inf, math.nan, 0.25, 2,
                                          12.0, 30.0, 1.0))
     assert math.isinf(stats.uncertainty) and math.isnan(stats.mean_next_uncertainty)
     assert stats.lost_frame_ratio == 0.25 and stats.map_size == 0

@@ -10,18 +10,11 @@ import pytest
 from edge_mapper.parameters import PARAMETERS
 from edge_mapper.policy_control import LIVE, PolicyControl
 from edge_mapper.slot_lifecycle import Closing, SlotLifecycle
-
-
-class Clock:
-    def __init__(self) -> None:
-        self.t = 100.0
-
-    def __call__(self) -> float:
-        return self.t
+from tests.test_uplink_shaper import VirtualTime
 
 
 def test_a_slot_closes_when_all_requested_keyframes_are_in() -> None:
-    slots = SlotLifecycle(10.0, Clock())
+    slots = SlotLifecycle(10.0, VirtualTime().clock)
     slots.open(3, 0.01, None, "adapt")
     assert slots.closing(3, [30, 31], {30}) is None
     assert slots.closing(3, [30, 31], {30, 31}) is Closing.COMPLETE
@@ -29,7 +22,7 @@ def test_a_slot_closes_when_all_requested_keyframes_are_in() -> None:
 
 
 def test_a_slot_closes_short_once_everything_the_device_sent_is_in() -> None:
-    slots = SlotLifecycle(10.0, Clock())
+    slots = SlotLifecycle(10.0, VirtualTime().clock)
     slots.open(3, 0.0, None, "lff")
     slots.device_sent(3, 1)                 # it no longer held the other frame
     assert slots.closing(3, [30, 31], set()) is None
@@ -39,15 +32,16 @@ def test_a_slot_closes_short_once_everything_the_device_sent_is_in() -> None:
 
 
 def test_timeouts_follow_the_injected_clock_and_closing_forgets_the_slot() -> None:
-    clock = Clock()
-    slots = SlotLifecycle(2.0, clock)
+    clock = VirtualTime()
+    clock.now = 0.0
+    slots = SlotLifecycle(2.0, clock.clock)
     slots.open(1, 0.02, None, "adapt")
-    clock.t += 1.0
+    clock.now += 1.0
     slots.open(2, 0.03, None, "pu")
     slots.charge(2, 0.5)
-    clock.t += 1.5                          # slot 1 is 2.5 s old, slot 2 1.5 s
+    clock.now += 1.5                          # slot 1 is 2.5 s old, slot 2 1.5 s
     assert slots.expired() == [1]
-    clock.t += 1.0
+    clock.now += 1.0
     assert slots.expired() == [1, 2]
     closed = slots.close(2, "lff")
     assert closed.decided_by == "pu" and closed.compute_s == pytest.approx(0.53)

@@ -15,7 +15,7 @@ from scipy.stats import spearmanr
 
 from device_tracker.orb_extractor import OrbExtractor
 from device_tracker.pose_optimization import optimize_pose
-from tests.test_sequence_readers import SEVEN, needs_seven
+from tests.data_paths import SEVEN, needs_seven, seven_or_synthetic
 from twinslam.sequence_player.readers import open_sequence
 from twinslam.simulator.covisibility import load_covisibility
 from twinslam.simulator.extraction import extract_covisibility
@@ -93,10 +93,10 @@ def test_pose_refinement_recovers_the_pose_and_rejects_outliers() -> None:
     assert np.array_equal(inliers, ~wrong)
 
 
-@needs_seven
 def test_front_end_trajectory_error_on_the_seven_scenes_sample() -> None:
+    """On the 7-Scenes sample (the synthetic room without it)."""
     cv2.setNumThreads(1)
-    reader = open_sequence(SEVEN, end=300)
+    reader = open_sequence(seven_or_synthetic(), end=300)
     _, poses, report = extract_covisibility(reader)
     ref = PosePath3D(poses_se3=[p for p in reader.poses])
     est = PosePath3D(poses_se3=list(poses))

@@ -7,12 +7,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from edge_mapper.keyframe_map import KeyframeMap, MapError
+from edge_mapper.keyframe_map import KeyFrameMap, MapError
 
 
-def _map() -> KeyframeMap:
+def _map() -> KeyFrameMap:
     """Keyframes 10, 11, 12; points shared 10–11 (3), 11–12 (2), 10–12 (1)."""
-    m = KeyframeMap()
+    m = KeyFrameMap()
     for k in (10, 11, 12):
         pose = np.eye(4)
         pose[0, 3] = k
@@ -52,7 +52,7 @@ def test_checkpoint_round_trip_and_refusals(tmp_path: Path) -> None:
     m.evict(12)
     path = tmp_path / "map.npz"
     m.save(path, slot=np.array(7))
-    again, extra = KeyframeMap.load(path)
+    again, extra = KeyFrameMap.load(path)
     assert int(extra["slot"]) == 7
     assert again.keyframe_ids() == [10, 11]
     np.testing.assert_array_equal(again.covisibility(), m.covisibility())
@@ -66,4 +66,4 @@ def test_checkpoint_round_trip_and_refusals(tmp_path: Path) -> None:
     assert not (tmp_path / "map.npz.tmp").exists()
     (tmp_path / "bad.npz").write_bytes(b"garbage")
     with pytest.raises(MapError, match=r"bad\.npz"):
-        KeyframeMap.load(tmp_path / "bad.npz")
+        KeyFrameMap.load(tmp_path / "bad.npz")

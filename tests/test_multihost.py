@@ -1,10 +1,9 @@
 """The pipeline across three hosts (issue #8): device, edge and twin each in its own network
 namespace with its own address, the device's uplink a veth shaped by ``tc``, and faults
-injected while the 7-Scenes sample plays.
+injected while the 7-Scenes sample plays (the synthetic room without it).
 
-Needs root and iproute2 (``twinslam.node_hosts.netns``); without them every test here is skipped
-with
-the reason. The namespaces of a test are removed when it ends, failed or not.
+Needs root and iproute2 (``twinslam.node_hosts.netns``); without them every test here is
+skipped with the reason. The namespaces of a test are removed when it ends, failed or not.
 
 These tests run in a process of their own (``tests/test_multihost_process.py`` starts it):
 Fast DDS keeps what it learnt of the network interfaces from the first participant of a process,
@@ -27,6 +26,7 @@ from typing import Any
 
 import pytest
 
+from tests.data_paths import seven_or_synthetic
 from twinslam.cli.launcher import (
     NODE_HOSTS,
     LaunchConfig,
@@ -37,7 +37,7 @@ from twinslam.cli.launcher import (
 )
 from twinslam.node_hosts.netns import HOSTS, NetnsError, NetnsHosts, address_of, unavailable_reason
 
-SEQUENCE = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes-1000"
+SEQUENCE = seven_or_synthetic()
 VMAX = 45
 #: the keyframe as it crosses the link with upload_image:=true: a 640×480 rgb8 frame
 FRAME_MBIT = 640 * 480 * 3 * 8 / 1e6
@@ -49,7 +49,6 @@ pytestmark = [
     pytest.mark.skipif(not FRESH_PROCESS, reason="runs in a process of its own "
                        "(tests/test_multihost_process.py)"),
     pytest.mark.skipif(_why_not is not None, reason=f"multi-host tests: {_why_not}"),
-    pytest.mark.skipif(not SEQUENCE.is_dir(), reason=f"{SEQUENCE} is missing"),
 ]
 
 
@@ -79,7 +78,7 @@ def _run(hosts: NetnsHosts, frames: int, extra: dict[str, list[str]],
          on_stats: Callable[[Any, RunRecord, Launcher], None] | None = None,
          **config: Any) -> tuple[RunReport, RunRecord, Launcher]:
     config.setdefault("policy", "adapt")
-    launcher = Launcher(hosts, LaunchConfig(str(SEQUENCE), frames=frames, timeout_s=240.0,
+    launcher = Launcher(hosts, LaunchConfig(SEQUENCE, frames=frames, timeout_s=240.0,
                                             extra=extra, **config), echo=print)
     try:
         report = launcher.run(lambda msg, record: on_stats(msg, record, launcher)

@@ -1,5 +1,6 @@
 """The live pipeline on a loopback domain: sequence_player → device_tracker ⇄ edge_mapper, every
-node its own process, on the first 600 real 7-Scenes frames (issue #5's acceptance).
+node its own process, on the first 600 real 7-Scenes frames (issue #5's acceptance), or 600
+frames of the synthetic room where the sample is absent (``tests/data_paths.py``).
 
 Per slot the edge asks for exactly ⌊d_k·D_req/α⌋ frames, the map never exceeds V_max, every
 upload takes at least its bytes / d_k, the device's ATE stays under 0.15 m, and MapStats.u is
@@ -17,21 +18,21 @@ import numpy as np
 import pytest
 
 from edge_mapper.keyframe_map import shared_counts
+from tests.data_paths import seven_or_synthetic
 from twinslam.cli.launcher import LaunchConfig, Launcher, RunRecord, RunReport
 from twinslam.node_hosts.loopback import LoopbackDomain
 from twinslam.uncertainty.map_uncertainty import map_uncertainty
 
-SEQUENCE = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes-1000"
+SEQUENCE = seven_or_synthetic()
 FRAMES, VMAX, ALPHA, D_REQ = 600, 45, 5.0, 0.5
 
-pytestmark = pytest.mark.skipif(not SEQUENCE.is_dir(), reason=f"{SEQUENCE} is missing")
 
 
 def _run(policy: str, frames: int = FRAMES, checkpoint: Path | None = None,
          on_stats: Any = None) -> tuple[RunReport, RunRecord, Launcher]:
     with LoopbackDomain() as dom:
         dom.activate()
-        launcher = Launcher(dom, LaunchConfig(str(SEQUENCE), policy, frames, 1.0,
+        launcher = Launcher(dom, LaunchConfig(SEQUENCE, policy, frames, 1.0,
                                               checkpoint=checkpoint, timeout_s=240.0),
                             echo=print)
         report = launcher.run(lambda msg, record: on_stats(msg, record, launcher)

@@ -10,13 +10,8 @@ import cv2
 import numpy as np
 import pytest
 
+from tests.data_paths import SEVEN, SUN3D, needs_seven, needs_sun3d
 from twinslam.sequence_player.readers import SequenceError, decode_depth, open_sequence
-
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
-SEVEN = DATA / "7scenes-1000"
-SUN3D = DATA / "sun3d-mit_w85k1-whole_apartment-30"
-needs_seven = pytest.mark.skipif(not SEVEN.is_dir(), reason=f"real 7-Scenes sample absent: {SEVEN}")
-needs_sun3d = pytest.mark.skipif(not SUN3D.is_dir(), reason=f"real SUN3D sample absent: {SUN3D}")
 
 K = np.array([[500.0, 0, 16], [0, 500.0, 12], [0, 0, 1]])
 

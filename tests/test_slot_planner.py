@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from edge_mapper.keyframe_map import KeyframeMap
-from edge_mapper.slot_planner import FrameSet, SlotConfig, SlotPlanner
+from edge_mapper.keyframe_map import KeyFrameMap
+from edge_mapper.slot_planner import FrameObservations, SlotConfig, SlotPlanner
 from twinslam.map_management.actions import ActionError, MapAction
 from twinslam.policy_registry import make_policy
 
@@ -20,7 +20,7 @@ def _windows(n: int, rng: np.random.Generator) -> list[set[int]]:
 def _setup(n_map: int = 12, n_slot: int = 20):
     rng = np.random.default_rng(0)
     sets = _windows(n_map + n_slot, rng)
-    m = KeyframeMap()
+    m = KeyFrameMap()
     point_of: dict[int, int] = {}
     for f in range(n_map):
         m.add_keyframe(f, np.eye(4))
@@ -28,8 +28,8 @@ def _setup(n_map: int = 12, n_slot: int = 20):
             if p not in point_of:
                 point_of[p] = m.add_point(np.zeros(3), np.zeros(32, np.uint8))
             m.observe(f, point_of[p])
-    frames = [FrameSet(f, frozenset(point_of[p] for p in sets[f] if p in point_of),
-                       frozenset(p for p in sets[f] if p not in point_of))
+    frames = [FrameObservations(f, frozenset(point_of[p] for p in sets[f] if p in point_of),
+                                frozenset(p for p in sets[f] if p not in point_of))
               for f in range(n_map, n_map + n_slot)]
     return m, frames, sets, point_of
 
@@ -76,4 +76,5 @@ def test_adapt_and_lff_differ_and_bad_actions_are_refused() -> None:
     with pytest.raises(ActionError, match="slot 4: upload 20 distinct frames"):
         SlotPlanner(m, Greedy(), SlotConfig(vmax=14)).plan(4, frames, 60.0, 1, [1])
     with pytest.raises(ValueError, match="already keyframes"):
-        SlotPlanner(m, make_policy("lff")).plan(5, [FrameSet(3, frozenset())], 60.0, 1, [1])
+        SlotPlanner(m, make_policy("lff")).plan(5, [FrameObservations(3, frozenset())], 60.0, 1,
+                                               [1])

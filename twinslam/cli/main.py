@@ -412,6 +412,20 @@ def cmd_train(args: argparse.Namespace) -> int:
     return 0
 
 
+def _add_setting_arguments(parser: argparse.ArgumentParser) -> None:
+    """What the simulator and the trainer both take: the data, the uplink and V_max."""
+    parser.add_argument("--covis", required=True,
+                        help="covisibility .npz, or 'geometric[:frames]' for the room model")
+    parser.add_argument("--channel", default="markov:N=2",
+                        help="uplink rate model: markov:N=2[,ratio=0.5][,K=100][,nonstationary]"
+                        "[,balanced] or trace:FILE[,N=4]")
+    parser.add_argument("--rate-range", type=_rate_range,
+                        default=f"{table1.RATE_MIN_MBPS:g},{table1.RATE_MAX_MBPS:g}",
+                        help="min,max Mbit/s the channel states spread over")
+    parser.add_argument("--vmax", type=int, default=table1.VMAX,
+                        help="V_max, keyframes the edge may hold")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="twinslam", description=__doc__.split("\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -419,35 +433,17 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--policy", default="lff,pu,adapt,oracle",
                      help="comma-separated policies: lff, pu, adapt, random, oracle, "
                      "mbrl:CHECKPOINT")
-    sim.add_argument("--vmax", type=int, default=table1.VMAX,
-                     help="V_max, keyframes the edge may hold")
+    _add_setting_arguments(sim)
     sim.add_argument("--slot-frames", type=int, default=table1.SLOT_FRAMES,
                      help="F, frames per slot")
-    sim.add_argument("--channel", default="markov:N=2",
-                     help="uplink rate model: markov:N=2[,ratio=0.5][,K=100][,nonstationary]"
-                     "[,balanced] or trace:FILE[,N=4]")
-    sim.add_argument("--rate-range", type=_rate_range,
-                     default=f"{table1.RATE_MIN_MBPS:g},{table1.RATE_MAX_MBPS:g}",
-                     help="min,max Mbit/s the channel states spread over")
     sim.add_argument("--slots", type=int, default=200, help="slots per run")
     sim.add_argument("--seeds", type=int, default=5, help="runs, one seed each")
     sim.add_argument("--seed0", type=int, default=0, help="the first run's seed")
-    sim.add_argument("--covis", required=True,
-                     help="covisibility .npz, or 'geometric[:frames]' for the room model")
     sim.add_argument("--csv", help="also write every run's scores to this CSV file")
     sim.add_argument("-v", "--verbose", action="store_true", help="print every slot")
     sim.set_defaults(func=cmd_sim)
     train = sub.add_parser("train", help="train the learned (MBRL) map-management policy")
-    train.add_argument("--covis", required=True,
-                       help="covisibility .npz, or 'geometric[:frames]' for the room model")
-    train.add_argument("--channel", default="markov:N=2",
-                       help="uplink rate model: markov:N=2[,ratio=0.5][,K=100][,nonstationary]"
-                       "[,balanced] or trace:FILE[,N=4]")
-    train.add_argument("--rate-range", type=_rate_range,
-                       default=f"{table1.RATE_MIN_MBPS:g},{table1.RATE_MAX_MBPS:g}",
-                       help="min,max Mbit/s the channel states spread over")
-    train.add_argument("--vmax", type=int, default=table1.VMAX,
-                       help="V_max, keyframes the edge may hold")
+    _add_setting_arguments(train)
     train.add_argument("--slots", type=int, default=3000, help="real slots to train on")
     train.add_argument("--episode-slots", type=int, default=200, help="slots per episode")
     train.add_argument("--rate-model", default="udt", choices=["udt", "lstm", "markov"],

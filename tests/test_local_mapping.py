@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from edge_mapper.keyframe_integration import KeyframeIntegrator
-from edge_mapper.keyframe_map import KeyframeMap
+from edge_mapper.keyframe_map import KeyFrameMap
+from edge_mapper.local_mapping import LocalMapping
 from twinslam.slam.keyframe import TRACK_ID_BIT
 
 K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
@@ -32,13 +32,13 @@ def test_integration_uses_ids_tracks_projection_and_depth() -> None:
     rng = np.random.default_rng(0)
     world = rng.uniform([-2, -1.5, 3], [2, 1.5, 6], (300, 3))
     descs = rng.integers(0, 256, (300, 32), dtype=np.uint8)
-    m = KeyframeMap()
+    m = KeyFrameMap()
     m.add_keyframe(0, _pose(0.0))
     in_map = {}
     for j in range(150):                                 # the map knows the first 150 points
         in_map[j] = m.add_point(world[j], descs[j])
         m.observe(0, in_map[j])
-    integ = KeyframeIntegrator(m, K, (480, 640))
+    integ = LocalMapping(m, K, (480, 640))
 
     seen, uv, depth, noisy = _features(_pose(0.1), world, descs, rng)
     idx = np.flatnonzero(seen)
@@ -76,7 +76,7 @@ def test_integration_uses_ids_tracks_projection_and_depth() -> None:
 
 
 def test_mismatched_lengths_are_refused() -> None:
-    integ = KeyframeIntegrator(KeyframeMap(), K, (480, 640))
+    integ = LocalMapping(KeyFrameMap(), K, (480, 640))
     with pytest.raises(ValueError, match="keyframe 5"):
         integ.integrate(5, np.eye(4), np.zeros((3, 2)), np.zeros((2, 32), np.uint8),
                         np.zeros(3), np.zeros(3, np.uint64))

@@ -1,4 +1,5 @@
-"""Map points with global ids: world position, ORB descriptor, when they were last seen.
+"""The device's local map: the map points it tracks against — world position, ORB descriptor,
+when each was last seen.
 
 Stored as growing column arrays (not one object per point) because tracking projects and
 matches all candidate points of a frame at once.
@@ -8,11 +9,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from device_tracker.orb_extractor import ORB_DESCRIPTOR_BYTES
+from msg_schemas.validation import ORB_DESCRIPTOR_BYTES
 
 
-class MapPoints:
-    """Append-only store; a point's id is its row."""
+class LocalMap:
+    """The tracker's map points as an append-only store; a point's id is its row (the edge's
+    map update replaces the whole store, :meth:`DeviceTrackerCore.apply_map_update`)."""
 
     def __init__(self, capacity: int = 4096) -> None:
         self._pos = np.empty((capacity, 3))

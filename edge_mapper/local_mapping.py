@@ -24,13 +24,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from edge_mapper.keyframe_map import KeyframeMap
+from edge_mapper.keyframe_map import KeyFrameMap
 from twinslam.slam.keyframe import TRACK_ID_BIT
 from twinslam.slam.projection_matching import back_project, match_by_projection, visible_points
 
 
 @dataclass(frozen=True)
-class IntegrationConfig:
+class LocalMappingConfig:
     search_radius_px: float = 15.0
     local_keyframes: int = 10          #: the local map: this many best covisible keyframes
     #: (the newest ones for a keyframe that shares no point yet)
@@ -51,15 +51,15 @@ class IntegrationReport:
     unused: int            #: no match, no depth
 
 
-class KeyframeIntegrator:
+class LocalMapping:
     """Turns keyframes into map edits; remembers which map point each device track became."""
 
-    def __init__(self, keyframe_map: KeyframeMap, intrinsics: np.ndarray,
-                 shape: tuple[int, int], config: IntegrationConfig | None = None) -> None:
+    def __init__(self, keyframe_map: KeyFrameMap, intrinsics: np.ndarray,
+                 shape: tuple[int, int], config: LocalMappingConfig | None = None) -> None:
         self.map = keyframe_map
         self.k = np.asarray(intrinsics, dtype=np.float64)
         self.shape = shape
-        self.config = config or IntegrationConfig()
+        self.config = config or LocalMappingConfig()
         self.track_points: dict[int, int] = {}    #: device track id → map point id
         #: tracks that became (or were matched to) a map point since the last ``take_new_tracks``
         self.new_tracks: dict[int, int] = {}
