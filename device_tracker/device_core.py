@@ -36,6 +36,8 @@ class FrameResult:
     record: FrameRecord
     relocalised: bool
     slot_done: bool                #: this frame was the slot's last
+    lost_now: bool = False         #: tracking was lost at this frame (the one before tracked)
+    recovered: bool = False        #: relocalised, or tracked again after untracked frames
 
 
 class DeviceTrackerCore:
@@ -110,9 +112,11 @@ class DeviceTrackerCore:
         self._uploads[out.index] = KeyFramePayload(
             out.index, slot, stamp, out.pose, self.k, out.features.points,
             depths.astype(np.float32), out.features.descriptors, point_ids.astype(np.uint64))
-        self.lost = not out.tracked
+        was_lost, self.lost = self.lost, not out.tracked
         return FrameResult(record, out.relocalised,
-                           out.index % self.slot_frames == self.slot_frames - 1)
+                           out.index % self.slot_frames == self.slot_frames - 1,
+                           lost_now=self.lost and not was_lost,
+                           recovered=out.tracked and (out.relocalised or was_lost))
 
     def take_slot(self) -> list[FrameRecord]:
         """The finished slot's frames (F_k); forgets uploads older than the previous slot."""

@@ -161,14 +161,13 @@ class DeviceTrackerNode(Node):
             return
         stamp = stamp_seconds(color_msg.header)
         with self._lock:
-            was_lost = self.core.lost
             result = self.core.track(color, depth, stamp,
                                      image=color_msg if self.upload_image else None)
         record = result.record
-        if not record.tracked and not was_lost:
+        if result.lost_now:
             self.get_logger().warning(f"frame {record.frame_id}: tracking lost; relocalising "
                                       "against the local map")
-        elif result.relocalised or (was_lost and record.tracked):
+        elif result.recovered:
             self.get_logger().info(f"frame {record.frame_id}: relocalised")
         pose = set_header(PoseStamped(pose=pose_msg(record.pose)), stamp, self.map_frame)
         self.pub_pose.publish(pose)

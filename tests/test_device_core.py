@@ -80,7 +80,24 @@ def test_a_frame_the_motion_model_loses_is_relocalised() -> None:
     core.tracking._velocity = wrong
     result = core.track(frames[10].color, frames[10].depth, frames[10].stamp)
     assert result.relocalised and result.record.tracked
+    assert result.recovered and not result.lost_now          # what the node logs
     truth = np.linalg.inv(frames[0].pose) @ frames[10].pose
     assert np.linalg.norm(result.record.pose[:3, 3] - truth[:3, 3]) < 0.05
     after = core.track(frames[11].color, frames[11].depth, frames[11].stamp)
     assert after.record.tracked and not after.relocalised
+    assert not after.recovered and not after.lost_now
+
+
+def test_tracking_lost_and_recovered_are_reported_once_each() -> None:
+    seq = SyntheticSequence(16, seed=1)
+    frames = list(seq)
+    core = DeviceTrackerCore(seq.intrinsics, SLOT)
+    _track(core, frames[:10])
+    blank = np.zeros_like(frames[10].color)                 # a covered lens: nothing to match
+    lost = [core.track(blank, None, f.stamp) for f in frames[10:13]]
+    assert [r.record.tracked for r in lost] == [False] * 3
+    assert [r.lost_now for r in lost] == [True, False, False] and core.lost
+    back = core.track(frames[13].color, frames[13].depth, frames[13].stamp)
+    assert back.record.tracked and back.recovered and not back.lost_now
+    truth = np.linalg.inv(frames[0].pose) @ frames[13].pose
+    assert np.linalg.norm(back.record.pose[:3, 3] - truth[:3, 3]) < 0.05

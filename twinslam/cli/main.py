@@ -458,7 +458,8 @@ def build_parser() -> argparse.ArgumentParser:
                        help="checkpoint to write (then --policy mbrl:PATH)")
     train.set_defaults(func=cmd_train)
     extract = sub.add_parser("extract", help="covisibility dataset from an RGB-D sequence")
-    extract.add_argument("sequence", help="a SUN3D, 7-Scenes or TUM RGB-D folder")
+    extract.add_argument("sequence", help="a SUN3D, 7-Scenes or TUM RGB-D folder, a recorded "
+                         "bag, or synthetic[:frames]")
     extract.add_argument("-o", "--output", required=True, help="covisibility .npz to write")
     extract.add_argument("--start", type=int, default=0, help="first frame read")
     extract.add_argument("--end", type=int, default=-1, help="first frame not read (-1: all)")
