@@ -14,11 +14,11 @@ from __future__ import annotations
 
 import argparse
 import time
-from pathlib import Path
 
+from twinslam.node_hosts.fastdds import REPO_ROOT
 from twinslam.node_hosts.loopback import LoopbackDomain
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = REPO_ROOT
 REAL_COVIS = REPO / "data" / "7scenes-redkitchen-1000.covis.npz"
 REAL_SEQUENCE = REPO.parent / "shared" / "data" / "7scenes-1000"
 

@@ -36,11 +36,12 @@ from msg_schemas import qos, topics
 from msg_schemas.headers import stamp_key
 from msg_schemas.poses import pose_matrix
 from twinslam.common import table1
+from twinslam.node_hosts.fastdds import REPO_ROOT
 from twinslam.node_hosts.loopback import ProcessDomain
 from twinslam.node_hosts.session import RosSession
 from twinslam.slam.map_update import MapSnapshot, read_map_update
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = REPO_ROOT
 #: the module each node's process runs (``python -m``), as setup.py's console scripts do
 NODE_MODULES = {"sequence_player": "twinslam.sequence_player.node",
                 "device_tracker": "device_tracker.node", "edge_mapper": "edge_mapper.node",

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from twinslam.common import table1
+from twinslam.node_hosts.fastdds import REPO_ROOT
 from twinslam.node_hosts.loopback import LoopbackDomain, ProcessDomain
 from twinslam.simulator.covisibility import CovisibilityError, load_covisibility
 from twinslam.simulator.env import SimConfig
@@ -490,8 +491,8 @@ def build_parser() -> argparse.ArgumentParser:
     launch.add_argument("--policy", default="adapt", help="one or more, comma-separated")
     launch.add_argument("--frames", type=int, default=600, help="frames to play; -1: all")
     launch.add_argument("--rate", type=float, default=1.0, help="x the recorded frame rate")
-    launch.add_argument("--params", type=Path, default=Path(__file__).resolve().parents[2]
-                        / "config" / "twinslam.yaml", help="ROS 2 parameter file")
+    launch.add_argument("--params", type=Path, default=REPO_ROOT / "config" / "twinslam.yaml",
+                        help="ROS 2 parameter file")
     launch.add_argument("--twin", action="store_true", help="start udt_node too")
     launch.add_argument("--loopback", action="store_true",
                         help="a private loopback DDS domain instead of $ROS_DOMAIN_ID")
@@ -516,8 +517,8 @@ def build_parser() -> argparse.ArgumentParser:
     exp.add_argument("--policy", action="append", metavar="LABEL[@N]=CHECKPOINT",
                      help="fig7-9: a trained policy to compare (repeat); @N: for N states "
                      "(fig8)")
-    exp.add_argument("--covis", default=str(Path(__file__).resolve().parents[2] / "data"
-                                            / "7scenes-redkitchen-1000.covis.npz"),
+    exp.add_argument("--covis",
+                     default=str(REPO_ROOT / "data" / "7scenes-redkitchen-1000.covis.npz"),
                      help="fig7-9: covisibility dataset")
     exp.add_argument("--slots", type=int, default=200, help="fig7-9: slots per run")
     exp.add_argument("--seed", type=int, default=0, help="the first run's seed")
