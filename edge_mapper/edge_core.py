@@ -5,6 +5,14 @@ map, the previous decision's reward); ``add_keyframe`` integrates each uploaded 
 plan asked for; ``finish_slot`` evicts C_k, runs a local bundle adjustment over the newest
 keyframes, bumps the map version and writes the checkpoint. The node (``edge_mapper/node.py``)
 only moves messages in and out of this class; a restarted node resumes from the checkpoint.
+
+Slots may overlap: a slot shorter than its uploads take (D_req) is planned while the one
+before still waits for keyframes. The map then never holds more than V_max keyframes when a
+slot finishes, because (1) a plan is sized against the map the open slots will leave — their
+uploads counted in, their evictions out (``SlotPlanner.plan``'s ``arriving``/``leaving``);
+(2) slots finish in order (``oldest_open``); (3) a keyframe of a later slot is held, not
+integrated, while an earlier slot is open (``integrate_held`` after that slot finished); and
+(4) a keyframe of a finished slot is not integrated any more.
 """
 
 from __future__ import annotations
@@ -84,6 +92,10 @@ class EdgeMapperCore:
         self._previous_tracks: dict[int, int] = {}
         self.planner = SlotPlanner(self.map, policy, self.config.slot, n_states)
         self.pending: dict[int, tuple[MapAction, set[int]]] = {}   #: slot → (action, received)
+        #: requested uploads not integrated yet, as the slot's summaries observed them
+        self._arriving: dict[int, FrameObservations] = {}
+        #: keyframes of a slot that arrived while an earlier slot was open
+        self._held: dict[int, list[KeyFramePayload]] = {}
         self.restored = self.last_slot >= 0
 
     @staticmethod
@@ -120,10 +132,26 @@ class EdgeMapperCore:
     def plan(self, slot: int, frames: list[FrameObservations], rate_mbps: float, rate_state: int
              ) -> SlotPlan:
         self.rate_history = [*self.rate_history[-63:], int(rate_state)]
+        if slot in self.pending:
+            raise ValueError(f"slot {slot} is planned already and still open")
         frames = [self._resolve_tracks(f) for f in frames]
-        plan = self.planner.plan(slot, frames, rate_mbps, rate_state, self.rate_history)
+        leaving = {kf for action, _ in self.pending.values() for kf in action.evict}
+        plan = self.planner.plan(slot, frames, rate_mbps, rate_state, self.rate_history,
+                                 self._arriving, leaving)
         self.pending[slot] = (plan.action, set())
+        by_id = {f.frame_id: f for f in frames}
+        self._arriving.update({f: by_id[f] for f in plan.action.upload})
         return plan
+
+    @property
+    def oldest_open(self) -> int | None:
+        """The open slot that must finish next (slots finish in order)."""
+        return min(self.pending) if self.pending else None
+
+    def is_complete(self, slot: int) -> bool:
+        """Every keyframe ``slot`` asked for has arrived (integrated or held)."""
+        action, received = self.pending[slot]
+        return set(action.upload) <= received
 
     def _resolve_tracks(self, frame: FrameObservations) -> FrameObservations:
         """A frame's track ids that already became map points count as those points (the
@@ -136,21 +164,44 @@ class EdgeMapperCore:
                                  frame.tracks - hits)
 
     def add_keyframe(self, data: KeyFramePayload) -> IntegrationReport | None:
-        """Integrate a keyframe the plan of its slot asked for; None (and nothing changes) for
-        an unrequested or repeated one."""
+        """Integrate a keyframe the plan of its slot asked for — or hold it while an earlier
+        slot is open (``IntegrationReport.deferred``); None (and nothing changes) for an
+        unrequested or repeated one, or one of a slot that finished already."""
         entry = self.pending.get(data.slot)
         if entry is None or data.frame_id not in entry[0].upload or \
-                data.frame_id in self.map.keyframes:
+                data.frame_id in entry[1] or data.frame_id in self.map.keyframes:
             return None
-        self.k = self.local_mapping.k = np.asarray(data.intrinsics, dtype=np.float64)
-        report = self.local_mapping.integrate(data.frame_id, data.pose, data.keypoints,
-                                           data.descriptors, data.depths, data.point_ids)
         entry[1].add(data.frame_id)
-        return report
+        if data.slot != self.oldest_open:
+            self._held.setdefault(data.slot, []).append(data)
+            return IntegrationReport.held()
+        return self._integrate(data)
+
+    def _integrate(self, data: KeyFramePayload) -> IntegrationReport:
+        self._arriving.pop(data.frame_id, None)
+        self.k = self.local_mapping.k = np.asarray(data.intrinsics, dtype=np.float64)
+        return self.local_mapping.integrate(data.frame_id, data.pose, data.keypoints,
+                                            data.descriptors, data.depths, data.point_ids)
+
+    def integrate_held(self) -> list[int]:
+        """The held keyframes of the slot that is now the oldest open one, integrated (call
+        after publishing a finished slot's map); their frame ids."""
+        slot = self.oldest_open
+        held = self._held.pop(slot, []) if slot is not None else []
+        for data in held:
+            self._integrate(data)
+        return [d.frame_id for d in held]
 
     def finish_slot(self, slot: int) -> SlotOutcome:
-        """Evict C_k, optimise, publish a new map version, checkpoint."""
+        """Evict C_k, optimise, publish a new map version, checkpoint. Slots finish in order:
+        finishing a later slot while an earlier one is open is refused (ValueError)."""
+        if slot in self.pending and slot != self.oldest_open:
+            raise ValueError(f"slot {slot} cannot finish before slot {self.oldest_open}")
         action, received = self.pending.pop(slot, (MapAction([], []), set()))
+        for frame in action.upload:                  # what has not come will not be used
+            self._arriving.pop(frame, None)
+        for data in self._held.pop(slot, []):        # cannot happen: held only while older open
+            self._integrate(data)
         evicted, orphans = [], 0
         for kf in action.evict:
             if kf in self.map.keyframes:

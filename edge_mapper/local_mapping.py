@@ -49,6 +49,11 @@ class IntegrationReport:
     matched: int           #: by projection at the edge
     created: int           #: new points from depth
     unused: int            #: no match, no depth
+    deferred: bool = False  #: held until an earlier slot finishes (counts above not known yet)
+
+    @classmethod
+    def held(cls) -> IntegrationReport:
+        return cls(0, 0, 0, 0, 0, 0, deferred=True)
 
 
 class LocalMapping:

@@ -78,7 +78,7 @@ class EdgeMapperNode(Node):
             CheckedSubscription(self, RateLatent, topics.RATE_LATENT, self._on_latent,
                                 qos.PROTOCOL),
         ]
-        self.create_timer(0.2, self._check_timeouts)
+        self.create_timer(0.2, self._finish_due)     # timeouts
         if self.core.restored:
             self.get_logger().info(
                 f"restored map version {self.core.version} (slot {self.core.last_slot}, "
@@ -125,8 +125,7 @@ class EdgeMapperNode(Node):
                                                         float(msg.rate_mbps), plan.action,
                                                         self._now()))
         self.slots.open(slot, time.perf_counter() - started, plan.uncertainty, decided_by)
-        if not plan.action.upload:
-            self._finish(slot)
+        self._finish_due()                       # a slot that uploads nothing is due at once
 
     def _on_latent(self, msg: RateLatent) -> None:
         if self.control.feed is None:
@@ -144,37 +143,39 @@ class EdgeMapperNode(Node):
         self.slots.charge(data.slot, time.perf_counter() - started)
         if report is None:
             self.get_logger().warning(
-                f"keyframe {data.frame_id} of slot {data.slot} was not asked for (or came "
-                "twice): ignored")
+                f"keyframe {data.frame_id} of slot {data.slot} was not asked for, came twice "
+                "or after its slot closed: ignored")
             return
-        self._finish_if_due(data.slot)
+        self._finish_due()
 
     def _on_throughput(self, msg: UplinkThroughput) -> None:
         """The device's account of a slot: once what it sent is in, nothing more will come."""
         slot = int(msg.slot)
         if slot in self.core.pending:
             self.slots.device_sent(slot, int(msg.frames_sent))
-            self._finish_if_due(slot)
+            self._finish_due()
 
-    def _finish_if_due(self, slot: int) -> None:
-        action, received = self.core.pending[slot]
-        closing = self.slots.closing(slot, action.upload, received)
-        if closing is Closing.SHORT:
-            self.get_logger().warning(
-                f"slot {slot}: the device sent {self.slots.open_slots[slot].sent} of "
-                f"{len(action.upload)} "
-                "requested keyframes (the rest were no longer held); finishing without them")
-        if closing is not None:
-            self._finish(slot)
-
-    def _check_timeouts(self) -> None:
-        for slot in self.slots.expired():
-            if slot in self.core.pending:
-                action, received = self.core.pending[slot]
+    def _finish_due(self) -> None:
+        """Finish open slots, oldest first, while the oldest is due (slots finish in order so
+        that no map the edge publishes holds more than V_max keyframes)."""
+        while (slot := self.core.oldest_open) is not None:
+            action, received = self.core.pending[slot]
+            closing = self.slots.closing(slot, action.upload, received)
+            if closing is None:
+                return
+            if closing is Closing.SHORT:
+                self.get_logger().warning(
+                    f"slot {slot}: the device sent {self.slots.open_slots[slot].sent} of "
+                    f"{len(action.upload)} requested keyframes (the rest were no longer "
+                    "held); finishing without them")
+            elif closing is Closing.TIMEOUT:
                 self.get_logger().warning(
                     f"slot {slot}: {len(set(action.upload) - received)} requested keyframe(s) "
                     f"did not arrive within {self.slots.timeout_s:g} s; finishing without them")
-                self._finish(slot)
+            self._finish(slot)
+            started = time.perf_counter()
+            if self.core.integrate_held() and self.core.oldest_open is not None:
+                self.slots.charge(self.core.oldest_open, time.perf_counter() - started)
 
     def _finish(self, slot: int) -> None:
         started = time.perf_counter()

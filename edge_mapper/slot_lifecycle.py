@@ -8,6 +8,9 @@ the new map published — at the first of:
   (frames it no longer held after an outage) and all it sent are in — nothing more will come;
 * **timeout**: ``timeout_s`` passed since the request (keyframes lost on the way).
 
+Slots close in order (the edge core refuses otherwise): a slot that is due waits for the open
+slots before it, so the node asks about the oldest open slot only.
+
 The clock is injected, so tests drive timeouts without waiting. The lifecycle also carries
 what the slot's ``MapStats`` reports: compute time spent on it so far, υ of its frames, and
 which policy decided it.
@@ -63,19 +66,16 @@ class SlotLifecycle:
 
     def closing(self, slot: int, requested: Collection[int],
                 received: Collection[int]) -> Closing | None:
-        """Whether the slot closes now on what has arrived (None: keep waiting)."""
+        """Whether the slot may close now on what has arrived, or because its time is up
+        (None: keep waiting)."""
         if set(requested) <= set(received):
             return Closing.COMPLETE
         entry = self.open_slots.get(slot)
         if entry is not None and entry.sent is not None and len(received) >= entry.sent:
             return Closing.SHORT
+        if entry is not None and self.clock() - entry.opened_at > self.timeout_s:
+            return Closing.TIMEOUT
         return None
-
-    def expired(self) -> list[int]:
-        """Open slots whose request went out more than ``timeout_s`` ago, oldest first."""
-        now = self.clock()
-        return sorted(s for s, e in self.open_slots.items()
-                      if now - e.opened_at > self.timeout_s)
 
     def close(self, slot: int, default_policy: str) -> OpenSlot:
         """Forget the slot; what it carried (a slot never opened carries nothing)."""

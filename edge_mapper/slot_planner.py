@@ -4,11 +4,10 @@ The device reports each frame of slot k as the sets of ids it observes: global m
 from the last map update and device-local track ids of new features. The covisibility weight
 between two frames is the size of the intersection of those sets, and between a frame and a
 keyframe of the edge's map the number of map points both observe. With these weights the
-planner builds the same :class:`~twinslam.map_management.actions.SlotObservation` the simulator
-gives the
-policies, asks the configured policy for U_k and C_k (Theorem 1's sizes), checks the answer,
-and scores the slot: υ over F_k against the current map (eq. 8), the reward of the previous
-decision.
+planner builds the same :class:`~twinslam.map_management.actions.SlotObservation` the
+simulator gives the policies, asks the configured policy for U_k and C_k (Theorem 1's sizes),
+checks the answer, and scores the slot: υ over F_k against the current map (eq. 8), the reward
+of the previous decision.
 """
 
 from __future__ import annotations
@@ -90,14 +89,23 @@ class SlotPlanner:
                                            count=len(f.map_points)), -1 - tracks])
 
     def plan(self, slot: int, frames: list[FrameObservations], rate_mbps: float, rate_state: int,
-             rate_history: list[int]) -> SlotPlan:
-        """U_k and C_k for slot k's frames (capture order) at rate d_k."""
+             rate_history: list[int], arriving: dict[int, FrameObservations] | None = None,
+             leaving: frozenset[int] | set[int] = frozenset()) -> SlotPlan:
+        """U_k and C_k for slot k's frames (capture order) at rate d_k.
+
+        With earlier slots still open (their uploads on the way, their evictions not yet
+        applied — slots shorter than their upload time), the map the decision is sized and
+        scored against is the one those slots will leave: ``arriving`` uploads (not yet in the
+        map, as their frames were observed) join it, ``leaving`` keyframes are left out.
+        """
         if not frames:
             raise ValueError(f"slot {slot}: no frames to plan with")
         by_id = {f.frame_id: f for f in frames}
         if len(by_id) != len(frames):
             raise ValueError(f"slot {slot}: frame ids repeat")
-        map_ids = self.map.keyframe_ids()
+        arriving = {f: o for f, o in (arriving or {}).items()
+                    if f not in leaving and f not in self.map.keyframes}
+        map_ids = [k for k in self.map.keyframe_ids() if k not in leaving] + sorted(arriving)
         cand = [f.frame_id for f in frames]
         clash = set(cand) & set(map_ids)
         if clash:
@@ -105,7 +113,7 @@ class SlotPlanner:
         cfg = self.config
         n_up, n_ev = theorem1_cardinalities(rate_mbps, cfg.alpha_mbit, cfg.d_req_s, cfg.vmax,
                                             len(map_ids), len(cand))
-        full = self.weight_matrix(by_id, map_ids + cand)
+        full = self.weight_matrix({**arriving, **by_id}, map_ids + cand)
         pos = {x: i for i, x in enumerate(map_ids + cand)}
         obs = SlotObservation(slot, map_ids, cand, n_up, n_ev, rate_mbps, rate_state,
                               list(rate_history), self.n_states,

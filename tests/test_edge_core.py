@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore
 from edge_mapper.slot_planner import FrameObservations, SlotConfig
@@ -99,3 +100,45 @@ def test_edge_slot_loop_keeps_vmax_optimises_and_resumes(tmp_path: Path) -> None
     np.testing.assert_array_equal(resumed.map.covisibility(), core.map.covisibility())
     _run(resumed, device, range(6, 8), rates=[60.0])
     assert resumed.version == 8
+
+
+def test_overlapping_slots_never_leave_more_than_vmax_keyframes() -> None:
+    """Slots shorter than their uploads (issue #19): slot k+1 is planned before slot k's
+    keyframes arrive, keyframes come late, out of order, some never, one after its slot
+    closed. Each plan counts the open slots' uploads in and their evictions out, slots finish
+    in order, and a later slot's keyframes wait for the earlier slot: no finished slot leaves
+    more than V_max keyframes, and every requested keyframe that came in time is used."""
+    rng = np.random.default_rng(3)
+    device = Device(rng)
+    vmax = 10
+    core = EdgeMapperCore(make_policy("lff"), K, EdgeConfig(slot=SlotConfig(vmax=vmax)))
+    plans = {}
+    for slot in range(8):
+        frames = [device.summary(f, core) for f in range(slot * F, (slot + 1) * F)]
+        plans[slot] = core.plan(slot, frames, 80.0, 1)             # 8 uploads a slot
+        assert len(plans[slot].action.upload) == 8
+        if slot == 0:
+            continue
+        # the previous slot's keyframes arrive only now, newest first, one of them never;
+        # a keyframe of this slot arrives before them and is held
+        early = plans[slot].action.upload[0]
+        report = core.add_keyframe(device.keyframe(early, slot, core))
+        assert report is not None and report.deferred
+        previous = plans[slot - 1].action.upload        # its [0] came early (held then)
+        never = previous[-1]
+        for f in reversed(previous[:-1] if slot == 1 else previous[1:-1]):
+            assert core.add_keyframe(device.keyframe(f, slot - 1, core)) is not None
+        with pytest.raises(ValueError, match="cannot finish before"):
+            core.finish_slot(slot)
+        assert core.oldest_open == slot - 1 and not core.is_complete(slot - 1)
+        out = core.finish_slot(slot - 1)                           # finished without one
+        assert out.missing == [never]
+        assert len(core.map.keyframes) <= vmax, f"slot {slot - 1}: {len(core.map.keyframes)}"
+        assert core.integrate_held() == [early]
+        assert core.add_keyframe(device.keyframe(never, slot - 1, core)) is None   # too late
+    for f in plans[7].action.upload[1:]:
+        core.add_keyframe(device.keyframe(f, 7, core))
+    assert core.is_complete(7)
+    core.finish_slot(7)
+    # slot 7 was sized counting slot 6's missing keyframe in: one short of V_max, not over
+    assert len(core.map.keyframes) == vmax - 1 and core.oldest_open is None

@@ -40,12 +40,14 @@ def test_timeouts_follow_the_injected_clock_and_closing_forgets_the_slot() -> No
     slots.open(2, 0.03, None, "pu")
     slots.charge(2, 0.5)
     clock.now += 1.5                          # slot 1 is 2.5 s old, slot 2 1.5 s
-    assert slots.expired() == [1]
+    assert slots.closing(1, [10], set()) is Closing.TIMEOUT
+    assert slots.closing(2, [20], set()) is None
+    assert slots.closing(2, [20], {20}) is Closing.COMPLETE        # in time beats late
     clock.now += 1.0
-    assert slots.expired() == [1, 2]
+    assert slots.closing(2, [20], set()) is Closing.TIMEOUT
     closed = slots.close(2, "lff")
     assert closed.decided_by == "pu" and closed.compute_s == pytest.approx(0.53)
-    assert slots.expired() == [1]
+    assert slots.closing(2, [20], set()) is None                   # closed: forgotten
     assert slots.close(7, "lff").decided_by == "lff"      # never opened: the current policy
     with pytest.raises(ValueError, match="timeout"):
         SlotLifecycle(0.0)

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from edge_mapper.keyframe_map import shared_counts
+from msg_schemas.headers import stamp_seconds
 from tests.data_paths import seven_or_synthetic
 from twinslam.cli.launcher import LaunchConfig, Launcher, RunRecord, RunReport
 from twinslam.node_hosts.loopback import LoopbackDomain
@@ -29,11 +30,13 @@ FRAMES, VMAX, ALPHA, D_REQ = 600, 45, 5.0, 0.5
 
 
 def _run(policy: str, frames: int = FRAMES, checkpoint: Path | None = None,
-         on_stats: Any = None) -> tuple[RunReport, RunRecord, Launcher]:
+         on_stats: Any = None, extra: dict[str, list[str]] | None = None
+         ) -> tuple[RunReport, RunRecord, Launcher]:
     with LoopbackDomain() as dom:
         dom.activate()
         launcher = Launcher(dom, LaunchConfig(SEQUENCE, policy, frames, 1.0,
-                                              checkpoint=checkpoint, timeout_s=240.0),
+                                              checkpoint=checkpoint, timeout_s=240.0,
+                                              extra=extra or {}),
                             echo=print)
         report = launcher.run(lambda msg, record: on_stats(msg, record, launcher)
                               if on_stats else None)
@@ -126,3 +129,22 @@ def test_edge_killed_mid_run_resumes_from_its_checkpoint(tmp_path: Path) -> None
     assert "restored map version" in launcher.logs["edge_mapper"]
     assert max(record.stats) == 480 // 60 - 1, "the run did not complete"
     assert report.ate_m < 0.15
+
+
+def test_slots_shorter_than_their_uploads_never_leave_more_than_vmax() -> None:
+    """Issue #19: slots of 10 frames (0.33 s at 30 Hz) are shorter than the 0.5 s their
+    uploads may take, so the edge plans slot k+1 while slot k's keyframes are still on the
+    way. Every map the edge publishes holds at most V_max keyframes (it grew to 36 of 15
+    before plans counted the open slots' uploads in)."""
+    vmax = 15
+    report, record, _ = _run("adapt", frames=200, extra={"device_tracker": ["slot_frames:=10"],
+                                                         "edge_mapper": [f"vmax:={vmax}"]})
+    assert report.slots >= 15 and len(record.stats) >= 15
+    sizes = {slot: s.map_size for slot, s in record.stats.items()}
+    assert max(sizes.values()) <= vmax, sizes
+    assert max(sizes.values()) >= vmax - 2, f"the map never filled: {sizes}"
+    # the slots did overlap: some slot was requested before the previous one finished
+    overlapped = [k for k in record.stats if k + 1 in record.requests and
+                  stamp_seconds(record.requests[k + 1].header)
+                  < stamp_seconds(record.stats[k].header)]
+    assert overlapped, "no slot overlapped its predecessor: the test tests nothing"
