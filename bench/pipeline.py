@@ -72,7 +72,7 @@ def main() -> None:
             if not result.slot_done:
                 continue
             frames = device.take_slot()
-            slot = device.slot_of(frames[-1].frame_id)
+            slot = frames[-1].slot
             state, rate = channel.step()
             sets = [FrameObservations(f.frame_id, frozenset(f.map_point_ids.tolist()),
                                       frozenset(f.track_ids.tolist())) for f in frames]

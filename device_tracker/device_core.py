@@ -23,6 +23,7 @@ import numpy as np
 
 from device_tracker.local_map import LocalMap
 from device_tracker.messages import FrameRecord
+from device_tracker.slot_clock import SlotClock
 from device_tracker.tracking import Tracking, TrackingConfig, depth_at
 from twinslam.common import table1
 from twinslam.slam.keyframe import TRACK_ID_BIT, KeyFramePayload
@@ -35,7 +36,7 @@ TRACK_BIT = int(TRACK_ID_BIT)
 class FrameResult:
     record: FrameRecord
     relocalised: bool
-    slot_done: bool                #: this frame was the slot's last
+    slot_done: bool                #: this frame was its slot's last (take the slot now)
     lost_now: bool = False         #: tracking was lost at this frame (the one before tracked)
     recovered: bool = False        #: relocalised, or tracked again after untracked frames
 
@@ -44,23 +45,25 @@ class DeviceTrackerCore:
     """Tracking against the edge's map plus the device's own recent points."""
 
     def __init__(self, intrinsics: np.ndarray, slot_frames: int = table1.SLOT_FRAMES,
-                 config: TrackingConfig | None = None, keep_slots: int = 2) -> None:
+                 config: TrackingConfig | None = None, keep_slots: int = 2,
+                 frame_rate_hz: float = table1.FRAME_RATE_HZ) -> None:
         """``keep_slots``: the ended slots whose frames stay uploadable; the edge asks for a
-        slot's frames during the next one, or later when the link was down meanwhile."""
-        if slot_frames < 1:
-            raise ValueError(f"slot_frames must be >= 1, got {slot_frames}")
+        slot's frames during the next one, or later when the link was down meanwhile. A slot
+        lasts ``slot_frames`` / ``frame_rate_hz`` seconds of frame stamps."""
         if keep_slots < 1:
             raise ValueError(f"keep_slots must be >= 1, got {keep_slots}")
         self.keep_slots = keep_slots
         self.k = np.asarray(intrinsics, dtype=np.float64)
         self.slot_frames = slot_frames
+        self.clock = SlotClock(slot_frames, frame_rate_hz)
         self.config = config or TrackingConfig(relocalise=True)
         self.tracking = Tracking(self.k, self.config)
         #: per map-point row: its global id or TRACK_BIT | track id
         self.labels = np.zeros(0, dtype=np.uint64)
-        self.created = np.zeros(0, dtype=np.int64)     #: per row: frame that created it
+        self.created = np.zeros(0, dtype=np.int64)     #: per row: slot that created it
         self.map_version = 0
         self.frames: list[FrameRecord] = []            #: the current slot's
+        self.slot = 0                                  #: the slot frames are tracked in
         self._uploads: dict[int, KeyFramePayload] = {}      #: the last keep_slots slots' frames
         #: the images that go with those uploads, when the device uploads images too
         self._images: dict[int, object] = {}
@@ -85,8 +88,10 @@ class DeviceTrackerCore:
         for _ in range(2):
             tracking.track(image, depth)
 
-    def slot_of(self, frame_id: int) -> int:
-        return frame_id // self.slot_frames
+    def ends_slot_before(self, stamp: float) -> bool:
+        """A frame of ``stamp`` starts a later slot while the current one still holds
+        frames: its last frame never came, so take it now (before tracking this frame)."""
+        return bool(self.frames) and self.clock.slot_of(stamp) > self.slot
 
     # -- frames ------------------------------------------------------------------------------
 
@@ -94,37 +99,43 @@ class DeviceTrackerCore:
               image: object | None = None) -> FrameResult:
         """Track one frame; ``image`` (e.g. its colour message) is kept with the frame's
         upload, for a device that sends the frame itself with its keyframe."""
+        if self.ends_slot_before(stamp):
+            raise RuntimeError(f"slot {self.slot} must be taken before a frame of a later slot "
+                               "is tracked (ends_slot_before)")
+        # a late stamp (older than the current slot) joins the current slot: ended is ended
+        self.slot = max(self.slot, self.clock.slot_of(stamp))
         out = self.tracking.track(color, depth)
         if image is not None:
             self._images[out.index] = image
-        self._label_new_points(out.index)
+        self._label_new_points()
         ids = self.labels[out.observed]
         is_track = (ids & np.uint64(TRACK_BIT)) != 0
         record = FrameRecord(out.index, stamp, out.pose, out.tracked, np.sort(ids[~is_track]),
-                             np.sort(ids[is_track]))
+                             np.sort(ids[is_track]), self.slot, out.relocalised)
         self.frames.append(record)
         assert out.features is not None and out.feature_points is not None
         assoc = out.feature_points
         point_ids = np.where(assoc >= 0, self.labels[np.maximum(assoc, 0)], np.uint64(0))
-        slot = self.slot_of(out.index)
+        slot = self.slot
         depths = (depth_at(out.features.points, depth, self.config.depth_range_m)
                   if depth is not None else np.zeros(len(assoc)))
         self._uploads[out.index] = KeyFramePayload(
             out.index, slot, stamp, out.pose, self.k, out.features.points,
             depths.astype(np.float32), out.features.descriptors, point_ids.astype(np.uint64))
         was_lost, self.lost = self.lost, not out.tracked
-        return FrameResult(record, out.relocalised,
-                           out.index % self.slot_frames == self.slot_frames - 1,
+        return FrameResult(record, out.relocalised, self.clock.is_last(stamp),
                            lost_now=self.lost and not was_lost,
                            recovered=out.tracked and (out.relocalised or was_lost))
 
     def take_slot(self) -> list[FrameRecord]:
-        """The finished slot's frames (F_k); forgets uploads older than the previous slot."""
+        """The finished slot's frames (F_k, each with its ``slot``); forgets the uploads of
+        slots more than ``keep_slots`` - 1 before it."""
         frames, self.frames = self.frames, []
         if frames:
-            oldest = (self.slot_of(frames[-1].frame_id) - self.keep_slots + 1) * self.slot_frames
-            self._uploads = {f: u for f, u in self._uploads.items() if f >= oldest}
-            self._images = {f: i for f, i in self._images.items() if f >= oldest}
+            oldest = self.slot - self.keep_slots + 1
+            self._uploads = {f: u for f, u in self._uploads.items() if u.slot >= oldest}
+            self._images = {f: i for f, i in self._images.items() if f in self._uploads}
+            self.slot += 1
         return frames
 
     def upload(self, frame_id: int) -> KeyFramePayload | None:
@@ -136,14 +147,14 @@ class DeviceTrackerCore:
         """The image kept with an upload (``track(..., image=...)``); None if none or gone."""
         return self._images.get(frame_id)
 
-    def _label_new_points(self, frame: int) -> None:
+    def _label_new_points(self) -> None:
         n_old, n = len(self.labels), len(self.tracking.map)
         if n == n_old:
             return
         tracks = np.arange(self._next_track, self._next_track + n - n_old, dtype=np.uint64)
         self._next_track += n - n_old
         self.labels = np.concatenate([self.labels, tracks | np.uint64(TRACK_BIT)])
-        self.created = np.concatenate([self.created, np.full(n - n_old, frame, np.int64)])
+        self.created = np.concatenate([self.created, np.full(n - n_old, self.slot, np.int64)])
 
     # -- map updates -------------------------------------------------------------------------
 
@@ -159,7 +170,7 @@ class DeviceTrackerCore:
             self.labels = np.array([relabel.get(int(x), int(x)) for x in self.labels],
                                    dtype=np.uint64)
         keep = np.flatnonzero(((self.labels & np.uint64(TRACK_BIT)) != 0)
-                              & (self.created >= slot * self.slot_frames) & old.active)
+                              & (self.created >= slot) & old.active)
         points = LocalMap(max(len(update.point_ids) + keep.size, 16))
         new_global = points.add(update.positions, update.descriptors, now)
         new_track = points.add(old.positions[keep], old.descriptors[keep], now)
@@ -176,7 +187,7 @@ class DeviceTrackerCore:
         points.active[new_track] = old.active[keep]
         self.tracking.replace_map(points, old_to_new)
         self.labels = np.concatenate([update.point_ids.astype(np.uint64), self.labels[keep]])
-        self.created = np.concatenate([np.full(len(update.point_ids), now, np.int64),
+        self.created = np.concatenate([np.full(len(update.point_ids), self.slot, np.int64),
                                        self.created[keep]])
         self.map_version = update.version
         return True

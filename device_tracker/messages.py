@@ -26,6 +26,8 @@ class FrameRecord:
     tracked: bool
     map_point_ids: np.ndarray      #: global ids of the last map update it observes
     track_ids: np.ndarray          #: device-local ids of new features it observes
+    slot: int                      #: the slot its stamp falls in (:mod:`.slot_clock`)
+    relocalised: bool = False      #: tracked again only by relocalisation (after a loss)
 
 
 def frame_summaries_message(slot: int, rate_mbps: float, rate_state: int, map_version: int,
@@ -35,7 +37,8 @@ def frame_summaries_message(slot: int, rate_mbps: float, rate_state: int, map_ve
               frames=[new("twinslam_msgs/msg/FrameSummary", frame_id=f.frame_id,
                           stamp=ros_time(f.stamp), pose=pose_msg(f.pose), tracked=f.tracked,
                           map_point_ids=np.asarray(f.map_point_ids, dtype=np.uint64),
-                          local_track_ids=np.asarray(f.track_ids, dtype=np.uint64))
+                          local_track_ids=np.asarray(f.track_ids, dtype=np.uint64),
+                          relocalised=f.relocalised)
                       for f in frames])
     return set_header(msg, stamp, "map")
 

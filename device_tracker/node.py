@@ -70,6 +70,7 @@ class DeviceTrackerNode(Node):
         super().__init__("device_tracker")
         p = declare(self, PARAMETERS)
         self.slot_frames = int(p["slot_frames"])
+        self.frame_rate_hz = float(p["frame_rate_hz"])
         self.alpha_bytes = int(float(p["alpha_mbit"]) * 1e6 / 8)
         self.channel_spec = str(p["channel"])
         try:
@@ -95,6 +96,7 @@ class DeviceTrackerNode(Node):
         self.watchdog = EdgeWatchdog(float(p["edge_timeout_s"]))
         self.pairing = FramePairing()
         self.skipped = 0
+        self.last_slot = -1                      #: the last slot whose summaries went out
         self.path: list[Any] = []
         DeviceTrackerCore.warm_up()
         self._lock = threading.Lock()            # the core, between callbacks and uploads
@@ -129,7 +131,7 @@ class DeviceTrackerNode(Node):
         if self.core is None:
             k = np.asarray(msg.k, dtype=np.float64).reshape(3, 3)
             self.core = DeviceTrackerCore(k, self.slot_frames, self.tracking_config,
-                                          self.keep_slots)
+                                          self.keep_slots, self.frame_rate_hz)
             self.get_logger().info(f"camera {msg.width}x{msg.height}, fx {k[0, 0]:.1f}; "
                                    "tracking starts")
         self._process_ready()
@@ -161,8 +163,14 @@ class DeviceTrackerNode(Node):
             return
         stamp = stamp_seconds(color_msg.header)
         with self._lock:
+            # a slot whose last frame never came ends at the first frame of a later slot
+            unfinished = self.core.take_slot() if self.core.ends_slot_before(stamp) else []
             result = self.core.track(color, depth, stamp,
                                      image=color_msg if self.upload_image else None)
+            finished = self.core.take_slot() if result.slot_done else []
+            version = self.core.map_version
+        if unfinished:
+            self._end_slot(unfinished, version, stamp)
         record = result.record
         if result.lost_now:
             self.get_logger().warning(f"frame {record.frame_id}: tracking lost; relocalising "
@@ -172,16 +180,15 @@ class DeviceTrackerNode(Node):
         pose = set_header(PoseStamped(pose=pose_msg(record.pose)), stamp, self.map_frame)
         self.pub_pose.publish(pose)
         self.path.append(pose)
-        if result.slot_done:
-            self._end_slot(stamp)
+        if finished:
+            self._end_slot(finished, version, stamp)
 
-    def _end_slot(self, stamp: float) -> None:
+    def _end_slot(self, frames: list[Any], version: int, stamp: float) -> None:
         assert self.core is not None
-        with self._lock:
-            frames = self.core.take_slot()
-            version = self.core.map_version
-        slot = self.core.slot_of(frames[-1].frame_id)
-        state, rate = self.channel.step()
+        slot = frames[-1].slot
+        for _ in range(max(slot - self.last_slot, 1)):   # on through slots no frame reached
+            state, rate = self.channel.step()
+        self.last_slot = slot
         self.sender.rates[slot] = (rate, state)
         self.watchdog.asked(slot)
         self.pub_summaries.publish(frame_summaries_message(slot, rate, state, version, frames,
@@ -254,8 +261,10 @@ def main(args: list[str] | None = None) -> int:
         shaper = (f"tc on {device.shaper.interface}" if isinstance(device.shaper, TcShaper)
                   else "token bucket")
         device.get_logger().info(
-            f"slots of {device.slot_frames} frames, channel {device.channel_spec}, uplink "
-            f"shaper {shaper}; waiting for {device.resolve_topic_name(topics.CAMERA_INFO)}")
+            f"slots of {device.slot_frames} frames "
+            f"({device.slot_frames / device.frame_rate_hz:g} s of stamps), channel "
+            f"{device.channel_spec}, uplink shaper {shaper}; waiting for "
+            f"{device.resolve_topic_name(topics.CAMERA_INFO)}")
 
     return run_node("device_tracker", DeviceTrackerNode, args, started=started)
 

@@ -12,6 +12,9 @@ from twinslam.node_hosts.parameters import ParamSpec
 
 PARAMETERS = (
     ParamSpec("slot_frames", table1.SLOT_FRAMES, "F, frames per slot", low=1, high=100_000),
+    ParamSpec("frame_rate_hz", table1.FRAME_RATE_HZ, "nominal camera rate (Hz, x the player's "
+              "rate when replaying faster); a slot is slot_frames / frame_rate_hz seconds of "
+              "frame stamps, so a lost frame does not shift later slots", low=1e-3, high=1e5),
     ParamSpec("alpha_mbit", table1.ALPHA_MBIT, "alpha, uplink Mbit one uploaded frame occupies "
               "(at least)", low=1e-6, high=1e6),
     ParamSpec("channel", "markov:N=2", "uplink rate model: markov:N=2[,K=...] or "

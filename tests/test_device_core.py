@@ -75,6 +75,7 @@ def test_a_frame_the_motion_model_loses_is_relocalised() -> None:
     frames = list(seq)
     core = DeviceTrackerCore(seq.intrinsics, SLOT)
     _track(core, frames[:10])
+    core.take_slot()
     wrong = np.eye(4)
     wrong[:3, 3] = [0.6, -0.4, 0.5]           # a motion model 80 cm off: nothing projects near
     core.tracking._velocity = wrong
@@ -93,6 +94,7 @@ def test_tracking_lost_and_recovered_are_reported_once_each() -> None:
     frames = list(seq)
     core = DeviceTrackerCore(seq.intrinsics, SLOT)
     _track(core, frames[:10])
+    core.take_slot()
     blank = np.zeros_like(frames[10].color)                 # a covered lens: nothing to match
     lost = [core.track(blank, None, f.stamp) for f in frames[10:13]]
     assert [r.record.tracked for r in lost] == [False] * 3

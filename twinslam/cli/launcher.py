@@ -226,6 +226,10 @@ class Launcher:
                                       # the device, and the monitor when it views images
                                       f"wait_for_subscribers:={1 + c.watch_images}"]
                   }.get(name, []) + c.extra.get(name, [])
+        if name == "device_tracker" and c.rate != 1.0:
+            # slots are cut by stamps: replayed faster, the camera's frames come faster
+            nominal = self._device_param("frame_rate_hz", table1.FRAME_RATE_HZ)
+            params.append(f"frame_rate_hz:={nominal * c.rate!r}")
         for p in params:
             args += ["-p", p]
         return args
@@ -297,13 +301,18 @@ class Launcher:
         """Full slots in the frames played (None when the whole sequence plays)."""
         if self.config.frames <= 0:
             return None
-        slot_frames = node_parameters(self.config.params_file, "device_tracker").get(
-            "slot_frames", table1.SLOT_FRAMES)
+        return self.config.frames // int(self._device_param("slot_frames",
+                                                            table1.SLOT_FRAMES))
+
+    def _device_param(self, name: str, default: float) -> float:
+        """A device parameter as the node will read it: ``extra`` over the parameter file
+        over the node's default."""
+        value = node_parameters(self.config.params_file, "device_tracker").get(name, default)
         for item in self.config.extra.get("device_tracker", []):
-            key, _, value = item.partition(":=")
-            if key == "slot_frames":
-                slot_frames = int(value)
-        return self.config.frames // int(slot_frames)
+            key, _, given = item.partition(":=")
+            if key == name:
+                value = given
+        return float(value)
 
     def kill(self, name: str) -> None:
         """SIGKILL a node on purpose (a fault injected mid-run): not a failure of the run."""

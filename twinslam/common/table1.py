@@ -10,6 +10,7 @@ from __future__ import annotations
 
 VMAX = 45                        #: V_max, keyframes the edge map holds at most
 SLOT_FRAMES = 60                 #: F, frames per slot
+FRAME_RATE_HZ = 30.0             #: the camera's nominal rate (a slot lasts F / this seconds)
 ALPHA_MBIT = 5.0                 #: α, Mbit one uploaded frame occupies on the uplink
 D_REQ_S = 0.5                    #: D_req, seconds a slot's uploads may take
 RATE_MIN_MBPS = 40.0             #: the uplink's lowest rate state
