@@ -85,11 +85,12 @@ class EdgeMapperCore:
             self.last_slot = int(extra.get("last_slot", -1))
             self.rate_history = [int(x) for x in extra.get("rate_history", [])]
         self.local_mapping = LocalMapping(self.map, self.k, self.config.image_shape)
-        if self.restored_from_file:
-            self.local_mapping.track_points = dict(zip(
-                (int(t) for t in extra.get("track_ids", [])),
-                (int(p) for p in extra.get("track_point_ids", [])), strict=True))
+        #: the device's tracks resolved in the last finished slot: the next map update lists
+        #: them again, in case the device missed the update that first did
         self._previous_tracks: dict[int, int] = {}
+        if self.restored_from_file:      # a restarted edge resolves the device's tracks as before
+            self.local_mapping.track_points = _table(extra, "track")
+            self._previous_tracks = _table(extra, "previous_track")
         self.planner = SlotPlanner(self.map, policy, self.config.slot, n_states)
         self.pending: dict[int, tuple[MapAction, set[int]]] = {}   #: slot → (action, received)
         #: requested uploads not integrated yet, as the slot's summaries observed them
@@ -222,8 +223,8 @@ class EdgeMapperCore:
             self.map.save(self.checkpoint, version=np.array(self.version),
                           last_slot=np.array(slot),
                           rate_history=np.array(self.rate_history, dtype=np.int64),
-                          track_ids=np.array(list(known), dtype=np.uint64),
-                          track_point_ids=np.array(list(known.values()), dtype=np.uint64))
+                          **_table_arrays(known, "track"),
+                          **_table_arrays(fresh, "previous_track"))
         t2 = time.perf_counter()
         w = self.map.covisibility()
         u = map_uncertainty(w, self.config.slot.log_det_pi) if len(w) else math.inf
@@ -280,3 +281,15 @@ class EdgeMapperCore:
             if ob.point in self.map.points:
                 self.map.unobserve(ob.keyframe, ob.point)
         return result
+
+
+def _table_arrays(table: dict[int, int], name: str) -> dict[str, np.ndarray]:
+    """A device track id → map point id table as the checkpoint's two arrays."""
+    return {f"{name}_ids": np.array(list(table), dtype=np.uint64),
+            f"{name}_point_ids": np.array(list(table.values()), dtype=np.uint64)}
+
+
+def _table(extra: dict[str, np.ndarray], name: str) -> dict[int, int]:
+    """The table :func:`_table_arrays` wrote (empty in a checkpoint written before it)."""
+    return dict(zip((int(t) for t in extra.get(f"{name}_ids", [])),
+                    (int(p) for p in extra.get(f"{name}_point_ids", [])), strict=True))

@@ -83,9 +83,12 @@ class EdgeMapperNode(Node):
             self.get_logger().info(
                 f"restored map version {self.core.version} (slot {self.core.last_slot}, "
                 f"{len(self.core.map.keyframes)} keyframes, {len(self.core.map.points)} "
-                f"points) from {self.core.checkpoint}")
+                f"points, {len(self.core.local_mapping.track_points)} device tracks resolved) "
+                f"from {self.core.checkpoint}")
+            # with the whole track table: the device may still hold tracks of before the stop
             self.pub_map.publish(map_update_message(self.core.map, self.core.last_slot,
-                                                    self.core.version, self._now()))
+                                                    self.core.version, self._now(),
+                                                    tracks=self.core.local_mapping.track_points))
 
     def _live_values(self) -> dict[str, Any]:
         return {name: self.get_parameter(name).value for name in LIVE}

@@ -98,7 +98,18 @@ def test_edge_slot_loop_keeps_vmax_optimises_and_resumes(tmp_path: Path) -> None
     assert resumed.restored and resumed.version == 6 and resumed.last_slot == 5
     assert resumed.map.keyframe_ids() == core.map.keyframe_ids()
     np.testing.assert_array_equal(resumed.map.covisibility(), core.map.covisibility())
-    _run(resumed, device, range(6, 8), rates=[60.0])
+    # the device's tracks keep their map points across the restart (issue #19): a frame that
+    # still reports a track the edge resolved before the stop counts it as that point
+    table = core.local_mapping.track_points
+    assert table and resumed.local_mapping.track_points == table
+    track, point = next(iter(table.items()))
+    frame = FrameObservations(10_000, frozenset(), frozenset({track}))
+    assert resumed._resolve_tracks(frame) == core._resolve_tracks(frame)
+    assert resumed._resolve_tracks(frame).map_points == {point}
+    # and the first map update after it lists again the tracks of the slot before the stop
+    after = _run(resumed, device, range(6, 8), rates=[60.0])
+    before = core._previous_tracks                  # resolved in slot 5, the last before
+    assert before and before.items() <= after[0].tracks.items()
     assert resumed.version == 8
 
 

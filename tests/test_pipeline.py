@@ -11,6 +11,7 @@ lower than LFF's. An edge killed with SIGKILL mid-run comes back from its checkp
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 from typing import Any
 
@@ -126,7 +127,12 @@ def test_edge_killed_mid_run_resumes_from_its_checkpoint(tmp_path: Path) -> None
     evicted = {f for k in range(killed_slot + 1, slot + 1) for f in msg_evictions(record, k)}
     assert slot > killed_slot and new_version > version
     assert kept - evicted <= kfs, "a keyframe the edge had acknowledged was lost"
-    assert "restored map version" in launcher.logs["edge_mapper"]
+    restored = re.search(r"restored map version .*?(\d+) device tracks resolved",
+                         launcher.logs["edge_mapper"])
+    assert restored, "the restarted edge did not say what it restored"
+    # the device's tracks the edge had resolved survive the kill (tests/test_edge_core.py
+    # checks the table itself and that a known track keeps its point)
+    assert int(restored.group(1)) > 0, "the track -> map point table was lost"
     assert max(record.stats) == 480 // 60 - 1, "the run did not complete"
     assert report.ate_m < 0.15
 
