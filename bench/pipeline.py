@@ -25,10 +25,11 @@ from device_tracker.device_core import DeviceTrackerCore
 from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore
 from edge_mapper.messages import map_update_message
 from edge_mapper.slot_planner import FrameObservations
-from twinslam.cli.launcher import RunRecord, absolute_trajectory_error
+from twinslam.cli.launcher import RunRecord
 from twinslam.policy_registry import make_policy
 from twinslam.sequence_player.readers import open_sequence
 from twinslam.slam.map_update import read_map_update
+from twinslam.slam.tracking_quality import absolute_trajectory_error
 from twinslam.uplink.channels import parse_channel
 
 DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes-1000"
@@ -103,7 +104,8 @@ def main() -> None:
           f"{np.percentile(device_ms, 90):.1f}   target <= 15")
     print(f"edge ms/slot: median {np.median(edge_ms):.0f}, p90 {np.percentile(edge_ms, 90):.0f}"
           f" over {len(edge_ms)} slots   target <= 150")
-    print(f"device ATE (evo, SE(3)-aligned): {absolute_trajectory_error(record):.3f} m")
+    ate = absolute_trajectory_error(record.poses, record.ground_truth)
+    print(f"device ATE (evo, SE(3)-aligned): {ate:.3f} m")
     print("  medians: " + ", ".join(f"{k} {np.median(v):.0f} ms" for k, v in parts.items())
           + " (finish = optimise + checkpoint + uncertainty + eviction)")
 

@@ -45,6 +45,8 @@ class TrackingConfig:
     relocalise: bool = False           #: a frame the motion model loses is matched against
     #: every active point by descriptor alone and solved by PnP RANSAC (ORB-SLAM's
     #: relocalisation, without its bag of words: the device's local map is small)
+    reinit_after: int = 60             #: lost this many frames in a row: start afresh from
+    #: depth at the last pose (no new points from a lost frame before: its pose is a guess)
 
 
 @dataclass
@@ -74,6 +76,7 @@ class Tracking:
         self._last_kf_tracked = 0
         self._last_kf_index = -1
         self._count = 0
+        self._lost = 0                                  # frames lost in a row
         self._probation: list[tuple[int, np.ndarray]] = []   # (frame, ids) of new points
         self._visible = np.zeros(0, dtype=np.int64)
 
@@ -99,6 +102,7 @@ class Tracking:
             pose, inliers = self._solve_pose(feats.points[matched_feat], matched_ids, None)
             relocalised = pose is not None
         tracked = pose is not None
+        self._lost = 0 if tracked else self._lost + 1
         if not tracked:
             pose, inliers = predicted, np.zeros(len(matched_ids), dtype=bool)
         observed = matched_ids[inliers]
@@ -106,6 +110,8 @@ class Tracking:
         self.map.mark_seen(observed, index)
         keyframe = (len(observed) < self.config.keyframe_ratio * self._last_kf_tracked
                     or index - self._last_kf_index >= self.config.keyframe_every)
+        reinitialised = self._lost >= self.config.reinit_after
+        keyframe = keyframe and (tracked or reinitialised)
         if keyframe and depth is not None:
             free = np.ones(len(feats.points), bool)
             free[matched_feat[inliers]] = False

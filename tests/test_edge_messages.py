@@ -88,12 +88,13 @@ def test_device_messages_round_trip_into_the_edge_readers() -> None:
     from device_tracker.messages import FrameRecord, frame_summaries_message
 
     rec = FrameRecord(41, 12.25, _pose(0.3, [1, 2, 3]), True, np.array([5, 9], np.uint64),
-                      np.array([int(TRACK_ID_BIT) | 2], np.uint64))
+                      np.array([int(TRACK_ID_BIT) | 2], np.uint64), 7, relocalised=True)
     msg = _roundtrip(frame_summaries_message(7, 60.0, 1, 3, [rec], 12.5))
     f = msg.frames[0]
     assert (msg.slot, msg.map_version, f.frame_id, f.stamp.sec, f.stamp.nanosec) == \
         (7, 3, 41, 12, 250_000_000)
     assert f.map_point_ids.tolist() == [5, 9] and f.local_track_ids.tolist() == [(1 << 63) | 2]
+    assert f.tracked and f.relocalised
     np.testing.assert_allclose(pose_matrix(f.pose), rec.pose, atol=1e-12)
     sent = KeyFramePayload(41, 7, 12.25, rec.pose, np.diag([500.0, 500.0, 1.0]),
                            np.array([[1.0, 2.0]]), np.array([2.5]), np.full((1, 32), 7, np.uint8),

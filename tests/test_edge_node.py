@@ -24,7 +24,7 @@ F = 8
 def _summaries(device: Device, slot: int, rate: float) -> object:
     frames = [FrameRecord(f, 0.1 * f, device.pose(f), True, np.zeros(0, np.uint64),
                           np.array([int(TRACK_ID_BIT) | int(j) for j in device.observe_ids(f)],
-                                   dtype=np.uint64))
+                                   dtype=np.uint64), slot)
               for f in range(slot * F, (slot + 1) * F)]
     return frame_summaries_message(slot, rate, int(rate > 50), 0, frames, time.time())
 

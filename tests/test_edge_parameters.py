@@ -39,7 +39,7 @@ def _set(ros: RosSession, **values: object) -> list:
 
 def _summaries(slot: int) -> FrameSummaries:
     frames = [FrameRecord(f, 0.1 * f, np.eye(4), True, np.arange(5, dtype=np.uint64) + f,
-                          np.zeros(0, np.uint64)) for f in range(slot * 6, slot * 6 + 6)]
+                          np.zeros(0, np.uint64), slot) for f in range(slot * 6, slot * 6 + 6)]
     return frame_summaries_message(slot, 40.0, 0, 0, frames, time.time())
 
 

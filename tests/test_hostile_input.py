@@ -240,7 +240,7 @@ def test_running_nodes_survive_hostile_samples_and_still_answer(
                           or any(p.poll() is not None for p in procs.values()), 90.0)
     assert all(p.poll() is None for p in procs.values())
     frames = [FrameRecord(f, 0.1 * f, np.eye(4), True, np.arange(5, dtype=np.uint64) + f,
-                          np.zeros(0, np.uint64)) for f in range(3)]
+                          np.zeros(0, np.uint64), 900) for f in range(3)]
     summaries = good["twinslam_msgs/msg/FrameSummaries"]
     summaries.publish(frame_summaries_message(900, 40.0, 0, 0, frames, time.time()))
     assert ros.spin_until(lambda: any(m.slot == 900 for m in got["stats"]), 30.0), \

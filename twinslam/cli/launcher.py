@@ -33,13 +33,21 @@ from twinslam_msgs.msg import (
 )
 
 from msg_schemas import qos, topics
-from msg_schemas.headers import stamp_key
+from msg_schemas.headers import stamp_key, stamp_seconds
 from msg_schemas.poses import pose_matrix
+from twinslam.cli.scenarios import SCENARIOS, Scenario
 from twinslam.common import table1
 from twinslam.node_hosts.fastdds import REPO_ROOT
 from twinslam.node_hosts.loopback import ProcessDomain
 from twinslam.node_hosts.session import RosSession
 from twinslam.slam.map_update import MapSnapshot, read_map_update
+from twinslam.slam.tracking_quality import (
+    FrameFlags,
+    TrackingEvents,
+    absolute_trajectory_error,
+    relative_pose_error,
+    tracking_events,
+)
 
 REPO = REPO_ROOT
 #: the module each node's process runs (``python -m``), as setup.py's console scripts do
@@ -74,18 +82,24 @@ class RunReport:
     mean_uncertainty: float          #: mean υ over slots (tracked next-slot frames)
     lost_ratio: float                #: mean share of next-slot frames sharing no map point
     ate_m: float                     #: NaN without ground truth
+    rpe_m: float                     #: over 1 s (30 frames); NaN without ground truth
     frames_uploaded: int
     bytes_uploaded: int
     achieved_mbps: float             #: mean over slots with uploads
     untracked_frames: int
+    tracking_failures: int           #: tracked → untracked transitions
+    relocalisations: int             #: frames tracked again by relocalisation
+    recover_s: float                 #: mean seconds from a loss to tracking again (NaN: none)
     edge_ms_median: float
     seconds: float
 
-    ROW = ("{label:<14} {mean_uncertainty:>10.1f} {lost_ratio:>6.1%} {ate_m:>8.3f} "
-           "{frames_uploaded:>7d} {mbytes:>8.1f} {achieved_mbps:>9.1f} {untracked_frames:>8d} "
-           "{edge_ms_median:>8.0f}")
-    HEADER = (f"{'policy':<14} {'mean υ':>10} {'lost':>6} {'ATE m':>8} {'uploads':>7} "
-              f"{'MB':>8} {'Mbit/s':>9} {'untrackd':>8} {'edge ms':>8}")
+    ROW = ("{label:<14} {mean_uncertainty:>10.1f} {lost_ratio:>6.1%} {ate_m:>7.3f} "
+           "{rpe_m:>7.3f} {frames_uploaded:>7d} {mbytes:>7.1f} {achieved_mbps:>7.1f} "
+           "{untracked_frames:>6d} {tracking_failures:>5d} {relocalisations:>6d} "
+           "{recover_s:>7.2f} {edge_ms_median:>7.0f}")
+    HEADER = (f"{'policy':<14} {'mean υ':>10} {'lost':>6} {'ATE m':>7} {'RPE m':>7} "
+              f"{'uploads':>7} {'MB':>7} {'Mbit/s':>7} {'untrk':>6} {'fails':>5} "
+              f"{'reloc':>6} {'recov s':>7} {'edge ms':>7}")
 
     @property
     def label(self) -> str:
@@ -153,36 +167,27 @@ def status_line(msg: Any, record: RunRecord) -> str:
             f" slot {msg.slot_processing_ms:4.0f} ms")
 
 
-def absolute_trajectory_error(record: RunRecord) -> float:
-    """RMSE of the device's positions against ground truth at the same stamps, after an
-    SE(3) alignment (evo); NaN with fewer than 3 common stamps."""
-    from evo.core import metrics
-    from evo.core.trajectory import PosePath3D
-
-    common = sorted(set(record.poses) & set(record.ground_truth))
-    if len(common) < 3:
-        return math.nan
-    est = PosePath3D(poses_se3=[record.poses[s] for s in common])
-    ref = PosePath3D(poses_se3=[record.ground_truth[s] for s in common])
-    est.align(ref, correct_scale=False)
-    ape = metrics.APE(metrics.PoseRelation.translation_part)
-    ape.process_data((ref, est))
-    return float(ape.get_statistic(metrics.StatisticsType.rmse))
+def record_events(record: RunRecord) -> TrackingEvents:
+    """The device's tracking failures and relocalisations, from its frame summaries."""
+    return tracking_events(FrameFlags(stamp_seconds(f), bool(f.tracked), bool(f.relocalised))
+                           for s in record.summaries.values() for f in s.frames)
 
 
 def report(policy: str, record: RunRecord, seconds: float) -> RunReport:
     stats = [record.stats[s] for s in sorted(record.stats)]
     nus = [s.mean_next_uncertainty for s in stats if math.isfinite(s.mean_next_uncertainty)]
     tps = [t for t in record.throughput.values() if t.frames_sent]
-    untracked = sum(not f.tracked for s in record.summaries.values() for f in s.frames)
+    events = record_events(record)
     return RunReport(policy, len(stats), float(np.mean(nus)) if nus else math.nan,
                      float(np.mean([s.lost_frame_ratio for s in stats[1:]]))
                      if len(stats) > 1 else 0.0,
-                     absolute_trajectory_error(record),
+                     absolute_trajectory_error(record.poses, record.ground_truth),
+                     relative_pose_error(record.poses, record.ground_truth),
                      sum(int(t.frames_sent) for t in record.throughput.values()),
                      sum(int(t.bytes_sent) for t in record.throughput.values()),
                      float(np.mean([t.achieved_mbps for t in tps])) if tps else 0.0,
-                     untracked,
+                     events.untracked, events.failures, events.relocalisations,
+                     events.mean_recover_s,
                      float(np.median([s.slot_processing_ms for s in stats])) if stats
                      else math.nan, seconds)
 
@@ -199,6 +204,7 @@ class LaunchConfig:
     watch_images: bool = False       #: the monitor also views /camera/image_raw (best effort)
     extra: dict[str, list[str]] = field(default_factory=dict)   #: node → more "-p k:=v"
     timeout_s: float = 600.0
+    scenario: Scenario = SCENARIOS["forward"]   #: order, covered-lens bursts, uplink range
 
 
 class Launcher:
@@ -225,7 +231,9 @@ class Launcher:
                                       f"end:={c.frames}",
                                       # the device, and the monitor when it views images
                                       f"wait_for_subscribers:={1 + c.watch_images}"]
-                  }.get(name, []) + c.extra.get(name, [])
+                  }.get(name, [])
+        params += c.scenario.node_params(c.frames, self._device_param(
+            "frame_rate_hz", table1.FRAME_RATE_HZ)).get(name, []) + c.extra.get(name, [])
         if name == "device_tracker" and c.rate != 1.0:
             # slots are cut by stamps: replayed faster, the camera's frames come faster
             nominal = self._device_param("frame_rate_hz", table1.FRAME_RATE_HZ)
@@ -301,8 +309,8 @@ class Launcher:
         """Full slots in the frames played (None when the whole sequence plays)."""
         if self.config.frames <= 0:
             return None
-        return self.config.frames // int(self._device_param("slot_frames",
-                                                            table1.SLOT_FRAMES))
+        played = self.config.scenario.played_frames(self.config.frames)
+        return played // int(self._device_param("slot_frames", table1.SLOT_FRAMES))
 
     def _device_param(self, name: str, default: float) -> float:
         """A device parameter as the node will read it: ``extra`` over the parameter file

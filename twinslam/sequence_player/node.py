@@ -10,7 +10,9 @@ every header:
 * ``camera/ground_truth_pose`` — ``geometry_msgs/PoseStamped`` in ``world`` when the dataset
   has ground truth (for evaluation only; nothing in the pipeline subscribes to it)
 
-at the recorded rate × ``rate``, frames [``start``, ``end``), once or with ``loop``. Topic names
+at the recorded rate × ``rate``, frames [``start``, ``end``), once or with ``loop``, forward or
+``order:=forward_backward``, with ``blank:=START:COUNT`` bursts of covered-lens frames
+(:mod:`twinslam.sequence_player.playback`: the scenarios where the edge's map matters). Topic names
 are relative: ``-r __ns:=/ar1`` plays into ``/ar1/camera/...``. ``wait_for_subscribers:=N``
 holds the first frame until N subscribers match the colour topic (DDS does not deliver what was
 published before a reader matched), then ``DISCOVERY_SETTLE_S`` more: the writer learning of a
@@ -40,7 +42,17 @@ from twinslam.sequence_player.messages import (
     depth_message,
     pose_message,
 )
+from twinslam.sequence_player.playback import ORDERS, Playback, PlayedSequence, parse_bursts
 from twinslam.sequence_player.readers import RgbdFrame, SequenceError, open_sequence
+
+
+def _bursts_error(value: object) -> str | None:
+    try:
+        parse_bursts(str(value))
+    except ValueError as exc:
+        return str(exc)
+    return None
+
 
 PARAMETERS = (
     ParamSpec("sequence", "synthetic", "dataset folder, rosbag2 (MCAP) of `twinslam record`, "
@@ -57,6 +69,11 @@ PARAMETERS = (
     ParamSpec("world_frame_id", "world", "frame id of the ground-truth poses"),
     ParamSpec("wait_for_subscribers", 0, "hold the first frame until this many colour "
               "subscribers match", low=0),
+    ParamSpec("order", "forward", "forward, or forward_backward: every place visited twice "
+              "(dataset folders and synthetic only)",
+              check=lambda v: None if v in ORDERS else f"must be one of {', '.join(ORDERS)}"),
+    ParamSpec("blank", "", "bursts of played frames shown black with no depth (a covered "
+              "lens): START:COUNT[,START:COUNT...]; empty: none", check=_bursts_error),
 )
 PROGRESS_EVERY_S = 5.0
 DISCOVERY_SETTLE_S = 1.0
@@ -70,7 +87,8 @@ class SequencePlayer(Node):
         super().__init__("sequence_player")
         p = declare(self, PARAMETERS)
         try:
-            self.reader = open_sequence(p["sequence"], p["start"], p["end"])
+            self.reader = PlayedSequence(open_sequence(p["sequence"], p["start"], p["end"]),
+                                         Playback(str(p["order"]), parse_bursts(p["blank"])))
         except SequenceError as exc:
             raise NodeStartError(str(exc)) from None
         self.rate, self.loop = float(p["rate"]), bool(p["loop"])
@@ -84,7 +102,7 @@ class SequencePlayer(Node):
         self.skipped = 0
         self.finished = False
         self._frames = iter(self.reader)
-        self._first_stamp = self.reader.entries[0].stamp
+        self._first_stamp = self.reader.first_stamp
         self._lap_offset = 0.0        # recorded seconds added per completed loop
         self._next = self._read_next()        # the first frame read before the clock starts
         self._start_ns = self._now_ns()
@@ -106,9 +124,7 @@ class SequencePlayer(Node):
         if frame is None:
             self.skipped += len(self.reader.skipped)
             if self.loop and self.published:
-                span = self.reader.entries[-1].stamp - self._first_stamp
-                period = span / max(len(self.reader.entries) - 1, 1)
-                self._lap_offset += span + period
+                self._lap_offset += self.reader.span_s + self.reader.period_s
                 self._frames = iter(self.reader)
                 frame = next(self._frames, None)
         return frame
@@ -185,7 +201,9 @@ def main(args: list[str] | None = None) -> int:
         reader = player.reader
         player.get_logger().info(
             f"playing {len(reader)} frames of {reader.kind} sequence {reader.path} at "
-            f"{player.rate}x{' in a loop' if player.loop else ''}")
+            f"{player.rate}x{' in a loop' if player.loop else ''}, order "
+            f"{reader.playback.order}"
+            + (f", blanked {reader.playback.blank}" if reader.playback.blank else ""))
 
     return run_node("sequence_player", SequencePlayer, args,
                     until=lambda player: player.finished, started=started)

@@ -106,21 +106,29 @@ class SequenceReader:
 
     def __iter__(self) -> Iterator[RgbdFrame]:
         self.skipped = []
-        for i, entry in enumerate(self.entries):
-            color = cv2.imread(str(entry.color), cv2.IMREAD_COLOR)
-            if color is None:
-                self._skip(entry.color, "cannot decode the colour image")
-                continue
-            depth = None
-            if entry.depth is not None:
-                raw = cv2.imread(str(entry.depth), cv2.IMREAD_UNCHANGED)
-                if raw is None or raw.dtype != np.uint16 or raw.shape != color.shape[:2]:
-                    self._skip(entry.depth, "cannot decode the 16-bit depth image "
-                                            "(or its size differs from the colour image)")
-                    continue
-                depth = decode_depth(raw, self.depth_decoder)
-            yield RgbdFrame(i, entry.stamp, cv2.cvtColor(color, cv2.COLOR_BGR2RGB), depth,
-                            self.intrinsics, entry.pose, entry.color.name)
+        for i in range(len(self.entries)):
+            frame = self.read(i)
+            if frame is not None:
+                yield frame
+
+    def read(self, i: int) -> RgbdFrame | None:
+        """Frame ``i`` of the listing; None (skipped, counted, warned) when it cannot be
+        decoded. Any order: a scenario may play the sequence backwards."""
+        entry = self.entries[i]
+        color = cv2.imread(str(entry.color), cv2.IMREAD_COLOR)
+        if color is None:
+            self._skip(entry.color, "cannot decode the colour image")
+            return None
+        depth = None
+        if entry.depth is not None:
+            raw = cv2.imread(str(entry.depth), cv2.IMREAD_UNCHANGED)
+            if raw is None or raw.dtype != np.uint16 or raw.shape != color.shape[:2]:
+                self._skip(entry.depth, "cannot decode the 16-bit depth image "
+                                        "(or its size differs from the colour image)")
+                return None
+            depth = decode_depth(raw, self.depth_decoder)
+        return RgbdFrame(i, entry.stamp, cv2.cvtColor(color, cv2.COLOR_BGR2RGB), depth,
+                         self.intrinsics, entry.pose, entry.color.name)
 
     def _skip(self, path: Path, why: str) -> None:
         self.skipped.append(str(path))

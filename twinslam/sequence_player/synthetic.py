@@ -108,10 +108,15 @@ class SyntheticSequence:
         return color, depth
 
     def __iter__(self) -> Iterator[RgbdFrame]:
-        for i in range(self.first, self.n_frames):
-            color, depth = self.render(i)
-            yield RgbdFrame(i - self.first, i / FPS, color, depth, self.intrinsics,
-                            self.pose(i), f"synthetic-{i:06d}")
+        for i in range(len(self)):
+            yield self.read(i)
+
+    def read(self, i: int) -> RgbdFrame:
+        """Frame ``i`` of the selection (rendered on demand, in any order)."""
+        j = self.first + i
+        color, depth = self.render(j)
+        return RgbdFrame(i, j / FPS, color, depth, self.intrinsics, self.pose(j),
+                         f"synthetic-{j:06d}")
 
 
 @njit(cache=True)

@@ -1,0 +1,75 @@
+"""Live scenarios: how a run plays its sequence and shapes its uplink (issue #19).
+
+On a sequence played once forward at 40–80 Mbit/s the edge's choice of keyframes decides
+nothing a user sees: the device tracks from its own recent points, never comes back, and the
+uplink never binds. Each scenario changes one of those:
+
+* ``forward`` — the sequence as recorded (the default, ``make run``'s);
+* ``revisit`` — forward then backward: every place is seen again after the edge's map moved
+  on, so the device tracks against the keyframes the policy kept;
+* ``revisit-lost`` — ``revisit`` with the lens covered for ``blank_s`` seconds at 70 % of the
+  run (on the way back): tracking is lost and must be regained by relocalising against the
+  edge's map wherever the camera went meanwhile;
+* ``constrained`` — ``revisit-lost`` over a 5–20 Mbit/s uplink (0–2 keyframes a slot at
+  α = 5 Mbit, D_req = 0.5 s instead of 4–8).
+
+A scenario only adds node parameters (:meth:`Scenario.node_params`); the nodes know nothing of
+it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    description: str
+    order: str = "forward"                    #: the player's order
+    blank_at: float | None = None             #: a covered-lens burst starts at this share
+    blank_s: float = 1.0                      #: of played frames, for this many seconds
+    rate_mbps: tuple[float, float] | None = None   #: the device channel's rate range
+
+    def played_frames(self, frames: int) -> int:
+        """Frames played when ``frames`` of the sequence are selected (-1 / 0: unknown)."""
+        if frames <= 0:
+            return frames
+        return frames if self.order == "forward" else 2 * frames - 1
+
+    def blank_burst(self, frames: int, frame_rate_hz: float) -> tuple[int, int] | None:
+        """(first played position, count) of the covered-lens burst, if any."""
+        played = self.played_frames(frames)
+        if self.blank_at is None or played <= 0:
+            return None
+        count = max(1, round(self.blank_s * frame_rate_hz))
+        return min(int(played * self.blank_at), max(played - count, 0)), count
+
+    def node_params(self, frames: int, frame_rate_hz: float) -> dict[str, list[str]]:
+        """The ``-p name:=value`` items this scenario adds, by node."""
+        player = [f"order:={self.order}"]
+        burst = self.blank_burst(frames, frame_rate_hz)
+        if burst is not None:
+            player.append(f"blank:={burst[0]}:{burst[1]}")
+        device = ([f"rate_min:={self.rate_mbps[0]!r}", f"rate_max:={self.rate_mbps[1]!r}"]
+                  if self.rate_mbps else [])
+        return {"sequence_player": player, "device_tracker": device}
+
+
+SCENARIOS = {s.name: s for s in (
+    Scenario("forward", "the sequence once, as recorded"),
+    Scenario("revisit", "forward then backward: every place seen twice",
+             order="forward_backward"),
+    Scenario("revisit-lost", "revisit, the lens covered for 1 s at 70 % of the run",
+             order="forward_backward", blank_at=0.7),
+    Scenario("constrained", "revisit-lost over a 5-20 Mbit/s uplink",
+             order="forward_backward", blank_at=0.7, rate_mbps=(5.0, 20.0)),
+)}
+
+
+def scenario(name: str) -> Scenario:
+    """The scenario called ``name``; ValueError naming the known ones otherwise."""
+    try:
+        return SCENARIOS[name]
+    except KeyError:
+        raise ValueError(f"unknown scenario {name!r}; known: {', '.join(SCENARIOS)}") from None

@@ -1,0 +1,127 @@
+"""What the player plays: a sequence's frames in a scenario's order, some of them blanked.
+
+Map management only shows in tracking when the camera comes back to places it left (the
+device then tracks against keyframes the edge chose to keep) and when tracking is lost and
+must be regained against the edge's map (issue #19). A sequence recorded once forward rarely
+does either, so the player can
+
+* play it **forward then backward** (``order: forward_backward``): every place is visited
+  twice, the second time after the edge's map moved on, and the backward half's frames get
+  fresh, evenly spaced stamps (the recorded period) so time keeps running forward;
+* **blank** bursts of played frames (``blank: "START:COUNT,..."``, positions in the played
+  order): black colour and no depth readings — a covered lens — while the ground truth goes on,
+  so the device loses tracking and must relocalise wherever the camera went meanwhile.
+
+Random access is needed for the backward half: dataset folders and the synthetic room have it,
+a rosbag2 recording does not (play it forward, or record the scenario).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from twinslam.sequence_player.readers import RgbdFrame, SequenceError
+
+ORDERS = ("forward", "forward_backward")
+#: the period assumed when a sequence has a single frame (no interval to measure)
+DEFAULT_PERIOD_S = 1.0 / 30.0
+
+
+def parse_bursts(text: str) -> tuple[tuple[int, int], ...]:
+    """``"START:COUNT[,START:COUNT...]"`` (played positions) as sorted (start, count) pairs;
+    "" is none. ValueError, saying what is wrong, otherwise."""
+    bursts = []
+    for item in filter(None, (part.strip() for part in text.split(","))):
+        start, sep, count = item.partition(":")
+        try:
+            pair = (int(start), int(count))
+        except ValueError:
+            pair = (-1, -1)
+        if not sep or pair[0] < 0 or pair[1] < 1:
+            raise ValueError(f"blank burst {item!r}: expected START:COUNT, START >= 0 and "
+                             "COUNT >= 1 (played frames)")
+        bursts.append(pair)
+    return tuple(sorted(bursts))
+
+
+@dataclass(frozen=True)
+class Playback:
+    """The order frames are played in and the played positions that are blanked."""
+
+    order: str = "forward"
+    blank: tuple[tuple[int, int], ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.order not in ORDERS:
+            raise ValueError(f"order must be one of {', '.join(ORDERS)}, got {self.order!r}")
+
+    def source_indices(self, n: int) -> list[int]:
+        """The sequence's frame played at each position (the turning frame plays once)."""
+        forward = list(range(n))
+        return forward if self.order == "forward" else forward + forward[-2::-1]
+
+    def blanked(self, position: int) -> bool:
+        return any(start <= position < start + count for start, count in self.blank)
+
+
+def blank_frame(frame: RgbdFrame) -> RgbdFrame:
+    """The frame as a covered camera sees it: black, no depth reading; its pose stays true."""
+    depth = np.zeros_like(frame.depth) if frame.depth is not None else None
+    return dataclasses.replace(frame, color=np.zeros_like(frame.color), depth=depth,
+                               name=f"{frame.name} (blanked)")
+
+
+class PlayedSequence:
+    """A sequence reader seen through a :class:`Playback`; iterates :class:`RgbdFrame` s whose
+    ``index`` is the played position and whose stamps increase."""
+
+    def __init__(self, reader: Any, playback: Playback) -> None:
+        if playback.order != "forward" and not hasattr(reader, "read"):
+            raise SequenceError(f"{reader.path}: a {reader.kind} sequence plays forward only "
+                                f"(order {playback.order!r} needs a dataset folder or the "
+                                "synthetic room)")
+        self.reader, self.playback = reader, playback
+        self.positions = playback.source_indices(len(reader))
+        stamps = np.array([e.stamp for e in reader.entries], dtype=np.float64)
+        steps = np.diff(stamps)
+        steps = steps[steps > 0]
+        self.period_s = float(np.median(steps)) if steps.size else DEFAULT_PERIOD_S
+        self.first_stamp = float(stamps[0])
+        self.span_s = (float(stamps[-1] - stamps[0]) if playback.order == "forward"
+                       else (len(self.positions) - 1) * self.period_s)
+
+    @property
+    def kind(self) -> str:
+        return str(self.reader.kind)
+
+    @property
+    def path(self) -> Any:
+        return self.reader.path
+
+    @property
+    def skipped(self) -> list[str]:
+        """Frames of the last pass that could not be read."""
+        return list(self.reader.skipped)
+
+    def __len__(self) -> int:
+        return len(self.positions)
+
+    def __iter__(self) -> Iterator[RgbdFrame]:
+        for frame in self._frames():
+            yield blank_frame(frame) if self.playback.blanked(frame.index) else frame
+
+    def _frames(self) -> Iterator[RgbdFrame]:
+        if self.playback.order == "forward":      # streams (bags too), stamps as recorded
+            yield from self.reader
+            return
+        self.reader.skipped = []
+        for position, source in enumerate(self.positions):
+            frame = self.reader.read(source)
+            if frame is not None:
+                yield dataclasses.replace(frame, index=position,
+                                          stamp=self.first_stamp + position * self.period_s)

@@ -1,0 +1,104 @@
+"""How well the device tracked, as a user of the live system measures it (issue #19).
+
+* **ATE** — RMSE of the device's positions against ground truth after one SE(3) alignment
+  (evo's APE, translation part): the drift and jumps of the whole run.
+* **RPE** — RMSE of the translation error of relative motions over ``delta`` frames (evo's
+  RPE): local consistency, blind to one-off offsets, sensitive to jumps.
+* **Tracking events**, from the device's per-frame flags (``FrameSummary.tracked`` /
+  ``relocalised``): a *failure* is a tracked frame followed by an untracked one; a
+  *relocalisation* is a frame tracked again by relocalisation against the local map — the
+  edge's last map and the device's few own recent points; *time to recover* runs from the
+  first untracked frame to the next tracked one (a loss never recovered counts up to the last
+  frame and is reported apart).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class FrameFlags:
+    stamp: float
+    tracked: bool
+    relocalised: bool
+
+
+@dataclass
+class TrackingEvents:
+    frames: int = 0
+    untracked: int = 0
+    failures: int = 0
+    relocalisations: int = 0
+    unrecovered: int = 0                  #: losses still lost at the last frame
+    recover_s: list[float] = field(default_factory=list)   #: per recovered loss
+
+    @property
+    def mean_recover_s(self) -> float:
+        """Mean seconds from a loss to tracking again (NaN when nothing was lost)."""
+        return float(np.mean(self.recover_s)) if self.recover_s else math.nan
+
+
+def tracking_events(frames: Iterable[FrameFlags]) -> TrackingEvents:
+    """Count failures, relocalisations and recovery times over frames in stamp order."""
+    out = TrackingEvents()
+    lost_since: float | None = None
+    previous_tracked = True
+    for f in sorted(frames, key=lambda f: f.stamp):
+        out.frames += 1
+        out.untracked += not f.tracked
+        out.relocalisations += f.tracked and f.relocalised
+        if not f.tracked and previous_tracked:
+            out.failures += 1
+            lost_since = f.stamp
+        elif f.tracked and lost_since is not None:
+            out.recover_s.append(f.stamp - lost_since)
+            lost_since = None
+        previous_tracked = f.tracked
+    out.unrecovered = int(lost_since is not None)
+    return out
+
+
+def _aligned_paths(poses: Mapping[int, np.ndarray], truth: Mapping[int, np.ndarray]
+                   ) -> tuple[object, object] | None:
+    from evo.core.trajectory import PosePath3D
+
+    common = sorted(set(poses) & set(truth))
+    if len(common) < 3:
+        return None
+    est = PosePath3D(poses_se3=[poses[s] for s in common])
+    ref = PosePath3D(poses_se3=[truth[s] for s in common])
+    est.align(ref, correct_scale=False)
+    return ref, est
+
+
+def absolute_trajectory_error(poses: Mapping[int, np.ndarray],
+                              truth: Mapping[int, np.ndarray]) -> float:
+    """ATE (m) over the stamps both hold; NaN with fewer than 3 common stamps."""
+    from evo.core import metrics
+
+    paths = _aligned_paths(poses, truth)
+    if paths is None:
+        return math.nan
+    ape = metrics.APE(metrics.PoseRelation.translation_part)
+    ape.process_data(paths)
+    return float(ape.get_statistic(metrics.StatisticsType.rmse))
+
+
+def relative_pose_error(poses: Mapping[int, np.ndarray], truth: Mapping[int, np.ndarray],
+                        delta: int = 30) -> float:
+    """RPE (m): translation RMSE of motions over ``delta`` frames (30: one second at 30 Hz),
+    every pair; NaN when the run is shorter than ``delta`` + 1 common stamps."""
+    from evo.core import metrics
+
+    paths = _aligned_paths(poses, truth)
+    if paths is None or len(paths[0].poses_se3) <= delta:   # type: ignore[attr-defined]
+        return math.nan
+    rpe = metrics.RPE(metrics.PoseRelation.translation_part, delta=delta,
+                      delta_unit=metrics.Unit.frames, all_pairs=True)
+    rpe.process_data(paths)
+    return float(rpe.get_statistic(metrics.StatisticsType.rmse))
