@@ -6,6 +6,8 @@
     twinslam extract SEQUENCE -o covis.npz [--start N] [--end N] [--features 1000]
     twinslam record SEQUENCE -o BAG [--start N] [--end N]   # the player's topics as MCAP
     twinslam nodes [--timeout 3.5]        # the ROS graph on $ROS_DOMAIN_ID (ros2 node list)
+    twinslam launch --scenario revisit-lost --policy lff,adapt --loopback
+    twinslam evaluate --policy lff,pu,adapt --seeds 3     # live: policy x scenario x seed
     twinslam demo                         # what `make run` runs
 """
 
@@ -265,10 +267,18 @@ def cmd_launch(args: argparse.Namespace) -> int:
         if why:
             print(f"error: --hosts: {why}", file=sys.stderr)
             return 2
+    from twinslam.cli.scenarios import scenario
+
+    try:
+        chosen = scenario(args.scenario)
+    except ValueError as exc:
+        print(f"error: --scenario: {exc}", file=sys.stderr)
+        return 2
     reports = []
     for policy in [p.strip() for p in args.policy.split(",") if p.strip()]:
         config = LaunchConfig(args.sequence, policy, args.frames, args.rate, args.params,
-                              with_twin=args.twin, timeout_s=args.timeout, extra=extra)
+                              with_twin=args.twin, timeout_s=args.timeout, extra=extra,
+                              scenario=chosen)
         with _launch_domain(args) as dom:
             if args.loopback:
                 dom.activate()
@@ -287,6 +297,55 @@ def cmd_launch(args: argparse.Namespace) -> int:
                 return 1
     print()
     print_table(reports)
+    return 0
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    from twinslam.cli import evaluate as ev
+    from twinslam.cli.scenarios import scenario
+    from twinslam.sequence_player.playback import Playback, PlayedSequence
+    from twinslam.sequence_player.readers import SequenceError, open_sequence
+
+    policies = [p.strip() for p in args.policy.split(",") if p.strip()]
+    try:
+        scenarios = [scenario(n.strip()) for n in args.scenario.split(",") if n.strip()]
+        for policy in policies:
+            kind, _, path = policy.partition(":")
+            if kind == "mbrl" and not Path(path).is_file():
+                raise ValueError(f"{path}: no such policy checkpoint (`twinslam train`)")
+        if not args.params.is_file():
+            raise ValueError(f"parameter file {args.params} does not exist")
+        if args.seeds < 1 or args.frames < 2:
+            raise ValueError("--seeds must be >= 1 and --frames >= 2")
+        for s in {s.order: s for s in scenarios}.values():     # fails now, not in run 20
+            PlayedSequence(open_sequence(ev.sequence_for(args.sequence, 0), 0, args.frames),
+                           Playback(s.order))
+    except (ValueError, SequenceError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    if not policies or not scenarios:
+        print("error: at least one policy and one scenario", file=sys.stderr)
+        return 2
+    total = len(policies) * len(scenarios) * args.seeds
+    print(f"live evaluation: {total} runs ({len(scenarios)} scenarios x {len(policies)} "
+          f"policies x {args.seeds} seeds) of {args.frames} frames of {args.sequence}; "
+          f"results in {args.out}", flush=True)
+    try:
+        results = ev.run_all(args.sequence, args.frames, policies, scenarios,
+                             list(range(args.seeds)), args.params, args.out, args.timeout,
+                             lambda line: print(line, flush=True), args.verbose)
+    except KeyboardInterrupt:
+        print(f"interrupted: the runs that finished are in {args.out / 'runs.csv'}",
+              file=sys.stderr)
+        return 130
+    except RuntimeError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    rows = ev.summarise(results)
+    ev.write_summary(rows, args.out)
+    print()
+    print(ev.markdown_table(rows))
+    print(f"\nwrote {args.out / 'runs.csv'}, summary.csv, summary.md, summary.png")
     return 0
 
 
@@ -503,7 +562,20 @@ def build_parser() -> argparse.ArgumentParser:
                         "carrying their image")
     launch.add_argument("--timeout", type=float, default=1800.0,
                         help="seconds a policy's run may take before its nodes are stopped")
+    launch.add_argument("--scenario", default="forward",
+                        help="forward, revisit (forward then back), revisit-lost (+ 1 s "
+                        "covered lens), constrained (+ 5-20 Mbit/s); default %(default)s")
     launch.set_defaults(func=cmd_launch)
+    from twinslam.cli.demo import REAL_SEQUENCE
+    from twinslam.cli.evaluate import add_arguments
+    from twinslam.cli.scenarios import SCENARIOS
+
+    evaluate = sub.add_parser(
+        "evaluate", help="the live pipeline per scenario x policy x seed: ATE, RPE, tracking "
+        "failures, relocalisations, υ, uploads (CSV, table, plot)")
+    add_arguments(evaluate, str(REAL_SEQUENCE) if REAL_SEQUENCE.is_dir() else "synthetic:300",
+                  REPO_ROOT / "config" / "twinslam.yaml", list(SCENARIOS))
+    evaluate.set_defaults(func=cmd_evaluate)
     demo = sub.add_parser("demo", help="the live pipeline per policy, then the simulator")
     demo.add_argument("--frames", type=int, default=600, help="frames the pipeline plays")
     demo.add_argument("--slots", type=int, default=40, help="simulator slots per run")

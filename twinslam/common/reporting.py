@@ -1,10 +1,15 @@
-"""Writing experiment results: one CSV per figure and a headless matplotlib."""
+"""Writing experiment results: one CSV per figure, means with confidence intervals, and a
+headless matplotlib."""
 
 from __future__ import annotations
 
 import csv
+import math
 from pathlib import Path
 from types import ModuleType
+
+import numpy as np
+from scipy import stats
 
 
 def write_csv(path: Path, header: list[str], rows: list[list[object]]) -> None:
@@ -23,3 +28,15 @@ def pyplot() -> ModuleType:
     import matplotlib.pyplot as plt
 
     return plt
+
+
+def mean_ci95(values: list[float]) -> tuple[float, float]:
+    """Mean and 95 % confidence half-width (Student t) of independent runs; NaN values (a
+    metric a run could not measure) are left out, and the half-width is NaN under two runs."""
+    x = np.asarray([v for v in values if not math.isnan(v)], dtype=np.float64)
+    if x.size == 0:
+        return math.nan, math.nan
+    if x.size < 2:
+        return float(x.mean()), math.nan
+    half = stats.t.ppf(0.975, x.size - 1) * x.std(ddof=1) / math.sqrt(x.size)
+    return float(x.mean()), float(half)

@@ -150,20 +150,23 @@ def decode_depth(raw: np.ndarray, encoding: str) -> np.ndarray:
 
 def open_sequence(path: str | Path, start: int = 0, end: int = -1) -> SequenceReader:
     """Detect the layout of ``path`` and open it: a dataset folder, a rosbag2 folder or
-    ``.mcap`` file recorded by ``twinslam record``, or ``synthetic[:frames]`` (the rendered
-    room, 900 frames by default)."""
+    ``.mcap`` file recorded by ``twinslam record``, or ``synthetic[:frames[:seed]]`` (the
+    rendered room, 900 frames by default; the seed picks the walk)."""
     if str(path).startswith("synthetic"):
         from twinslam.sequence_player.synthetic import SyntheticSequence
 
-        _, _, frames = str(path).partition(":")
+        _, _, spec = str(path).partition(":")
+        frames, _, seed = spec.partition(":")
         try:
             n = int(frames) if frames else 900
+            walk = int(seed) if seed else 0
         except ValueError:
-            raise SequenceError(f"synthetic[:frames] expected, got {path!r}") from None
+            raise SequenceError(f"synthetic[:frames[:seed]] expected, got {path!r}") from None
         stop = n if end < 0 else min(end, n)
         if not 0 <= start < stop:
             raise SequenceError(f"{path}: bad frame range start={start} end={end}")
-        return SyntheticSequence(n_frames=n).select(start, stop)  # type: ignore[return-value]
+        return SyntheticSequence(n_frames=n, seed=walk).select(  # type: ignore[return-value]
+            start, stop)
     root = Path(path)
     if root.suffix == ".mcap" or (root / "metadata.yaml").is_file():
         from twinslam.sequence_player.bag import open_bag

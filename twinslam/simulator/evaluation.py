@@ -7,9 +7,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
 
 from twinslam.common import table1
+from twinslam.common.reporting import mean_ci95
 from twinslam.map_management.policies import MapPolicy, make_rule_policy
 from twinslam.simulator.covisibility import CovisibilityDataset
 from twinslam.simulator.env import MapManagementEnv, SimConfig
@@ -30,10 +30,7 @@ class PolicyResult:
 
     @property
     def ci95(self) -> float:
-        n = len(self.per_seed)
-        if n < 2:
-            return math.nan
-        return float(stats.t.ppf(0.975, n - 1) * np.std(self.per_seed, ddof=1) / math.sqrt(n))
+        return mean_ci95(self.per_seed)[1]
 
 
 def _episode_stats(plan: Plan) -> tuple[float, float, float]:
