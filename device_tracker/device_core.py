@@ -3,9 +3,13 @@
 The device tracks every frame against its **local map**: the points of the edge's last
 ``MapUpdate`` (global ids) plus the points it created itself since then from depth on its own
 tracking keyframes (device-local **track ids**, top bit set, the namespace
-:data:`~twinslam.slam.keyframe.TRACK_ID_BIT` names). For each frame it remembers
-M_f split by that origin, and, for the frames of the last two slots, the features an upload
-needs (keypoints, descriptors, depths, the id each feature observes).
+:data:`~twinslam.slam.keyframe.TRACK_ID_BIT` names) — at most those of the last
+``keep_slots`` slots, so the map stays bounded when the edge falls silent (Edge-SLAM's device,
+likewise, keeps only a few recent keyframes of its own). A lost frame is relocalised against
+that map: the edge's keyframes' points, matched by descriptor, solved by PnP RANSAC. For
+each frame it remembers M_f split by that origin, and, for the frames of the last
+``keep_slots`` slots, the features an upload needs (keypoints, descriptors, depths, the id
+each feature observes).
 
 When a ``MapUpdate`` answering slot s arrives, the map is swapped: the global points are the
 update's (positions after the edge's bundle adjustment); the device's own points the edge
@@ -135,8 +139,28 @@ class DeviceTrackerCore:
             oldest = self.slot - self.keep_slots + 1
             self._uploads = {f: u for f, u in self._uploads.items() if u.slot >= oldest}
             self._images = {f: i for f, i in self._images.items() if f in self._uploads}
+            self._forget_own_points_before(oldest)
             self.slot += 1
         return frames
+
+    def _forget_own_points_before(self, oldest_slot: int) -> None:
+        """Bound the local map while the edge is silent: the device's own points created
+        before ``oldest_slot`` go (their frames can no longer be uploaded, so the edge's map
+        will not hold them). With the edge answering, each map update prunes them sooner."""
+        stale = (((self.labels & np.uint64(TRACK_BIT)) != 0) & (self.created < oldest_slot))
+        if not stale.any():
+            return
+        keep = np.flatnonzero(~stale)
+        old = self.tracking.map
+        points = LocalMap(max(keep.size, 16))
+        rows = points.add(old.positions[keep], old.descriptors[keep], 0)
+        points.last_seen[rows] = old.last_seen[keep]
+        points.seen_count[rows] = old.seen_count[keep]
+        points.active[rows] = old.active[keep]
+        old_to_new = np.full(len(old), -1, dtype=np.int64)
+        old_to_new[keep] = rows
+        self.tracking.replace_map(points, old_to_new)
+        self.labels, self.created = self.labels[keep], self.created[keep]
 
     def upload(self, frame_id: int) -> KeyFramePayload | None:
         """The keyframe content of a frame of the last ``keep_slots`` slots; None if it is

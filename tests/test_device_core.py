@@ -103,3 +103,21 @@ def test_tracking_lost_and_recovered_are_reported_once_each() -> None:
     assert back.record.tracked and back.recovered and not back.lost_now
     truth = np.linalg.inv(frames[0].pose) @ frames[13].pose
     assert np.linalg.norm(back.record.pose[:3, 3] - truth[:3, 3]) < 0.05
+
+
+def test_own_points_stay_bounded_while_the_edge_is_silent() -> None:
+    """No map update for six slots: the device keeps only the points it made in the last
+    keep_slots slots (the edge can no longer get the older ones) and tracks on."""
+    seq = SyntheticSequence(6 * SLOT, seed=3)
+    frames = list(seq)
+    core = DeviceTrackerCore(seq.intrinsics, SLOT, keep_slots=2)
+    sizes = []
+    for k in range(6):
+        results = _track(core, frames[k * SLOT:(k + 1) * SLOT])
+        assert all(r.record.tracked for r in results), f"slot {k} lost tracking"
+        core.take_slot()
+        assert core.created.min() >= k - 1, "points older than keep_slots slots were kept"
+        sizes.append(len(core.tracking.map))
+    assert max(sizes) < 3 * min(sizes[1:]), f"the local map kept growing: {sizes}"
+    truth = np.linalg.inv(frames[0].pose) @ frames[-1].pose
+    assert np.linalg.norm(results[-1].record.pose[:3, 3] - truth[:3, 3]) < 0.05
