@@ -7,7 +7,7 @@
    next-slot frames, ATE and RPE (evo), uploads, MB, achieved uplink throughput, untracked
    frames, tracking failures, relocalisations, time to recover, edge ms per slot.
 2. The same on the ``revisit-lost`` scenario (:mod:`twinslam.cli.scenarios`): the first half
-   of those frames forward then back, the lens covered for 1 s on the way back, so the device
+   of those frames forward then back, the lens covered for 3 s on the way back, so the device
    must relocalise against the edge's map — the case where the kept keyframes matter.
 3. The offline simulator with LFF, PU, ADAPT and the clairvoyant oracle on the covisibility
    the ORB front end extracted from 1000 real 7-Scenes frames (shipped in ``data/``).

@@ -563,8 +563,9 @@ def build_parser() -> argparse.ArgumentParser:
     launch.add_argument("--timeout", type=float, default=1800.0,
                         help="seconds a policy's run may take before its nodes are stopped")
     launch.add_argument("--scenario", default="forward",
-                        help="forward, revisit (forward then back), revisit-lost (+ 1 s "
-                        "covered lens), constrained (+ 5-20 Mbit/s); default %(default)s")
+                        help="forward, revisit (forward then back), revisit-lost (+ 3 s "
+                        "covered lens), small-map (+ V_max 15), constrained (+ 5-20 Mbit/s); "
+                        "default %(default)s")
     launch.set_defaults(func=cmd_launch)
     from twinslam.cli.demo import REAL_SEQUENCE
     from twinslam.cli.evaluate import add_arguments

@@ -7,9 +7,13 @@ uplink never binds. Each scenario changes one of those:
 * ``forward`` — the sequence as recorded (the default, ``make run``'s);
 * ``revisit`` — forward then backward: every place is seen again after the edge's map moved
   on, so the device tracks against the keyframes the policy kept;
-* ``revisit-lost`` — ``revisit`` with the lens covered for ``blank_s`` seconds at 70 % of the
-  run (on the way back): tracking is lost and must be regained by relocalising against the
-  edge's map wherever the camera went meanwhile;
+* ``revisit-lost`` — ``revisit`` with the lens covered for ``blank_s`` = 3 s at 70 % of the
+  run (on the way back; a phone put down for a moment): tracking is lost and must be regained
+  by relocalising against the edge's map wherever the camera went meanwhile (after 1 s the
+  camera has rarely moved far enough for the map to matter);
+* ``small-map`` — ``revisit-lost`` with an edge map of V_max = 15 keyframes instead of 45:
+  on a few hundred frames 45 keyframes cover nearly every place the camera saw, whatever the
+  policy keeps; 15 do not, so where the lens uncovers, the map may or may not hold it;
 * ``constrained`` — ``revisit-lost`` over a 5–20 Mbit/s uplink (0–2 keyframes a slot at
   α = 5 Mbit, D_req = 0.5 s instead of 4–8).
 
@@ -28,8 +32,9 @@ class Scenario:
     description: str
     order: str = "forward"                    #: the player's order
     blank_at: float | None = None             #: a covered-lens burst starts at this share
-    blank_s: float = 1.0                      #: of played frames, for this many seconds
+    blank_s: float = 3.0                      #: of played frames, for this many seconds
     rate_mbps: tuple[float, float] | None = None   #: the device channel's rate range
+    vmax: int | None = None                   #: the edge's V_max (None: the parameter file's)
 
     def played_frames(self, frames: int) -> int:
         """Frames played when ``frames`` of the sequence are selected (-1 / 0: unknown)."""
@@ -53,15 +58,18 @@ class Scenario:
             player.append(f"blank:={burst[0]}:{burst[1]}")
         device = ([f"rate_min:={self.rate_mbps[0]!r}", f"rate_max:={self.rate_mbps[1]!r}"]
                   if self.rate_mbps else [])
-        return {"sequence_player": player, "device_tracker": device}
+        edge = [f"vmax:={self.vmax}"] if self.vmax is not None else []
+        return {"sequence_player": player, "device_tracker": device, "edge_mapper": edge}
 
 
 SCENARIOS = {s.name: s for s in (
     Scenario("forward", "the sequence once, as recorded"),
     Scenario("revisit", "forward then backward: every place seen twice",
              order="forward_backward"),
-    Scenario("revisit-lost", "revisit, the lens covered for 1 s at 70 % of the run",
+    Scenario("revisit-lost", "revisit, the lens covered for 3 s at 70 % of the run",
              order="forward_backward", blank_at=0.7),
+    Scenario("small-map", "revisit-lost with an edge map of 15 keyframes",
+             order="forward_backward", blank_at=0.7, vmax=15),
     Scenario("constrained", "revisit-lost over a 5-20 Mbit/s uplink",
              order="forward_backward", blank_at=0.7, rate_mbps=(5.0, 20.0)),
 )}
