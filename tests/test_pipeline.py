@@ -5,7 +5,9 @@ frames of the synthetic room where the sample is absent (``tests/data_paths.py``
 Per slot the edge asks for exactly ⌊d_k·D_req/α⌋ frames, the map never exceeds V_max, every
 upload takes at least its bytes / d_k, the device's ATE stays under 0.15 m, and MapStats.u is
 the u(G) of the published map. LFF, PU and ADAPT decide differently and ADAPT's mean υ is
-lower than LFF's. An edge killed with SIGKILL mid-run comes back from its checkpoint.
+lower than LFF's. An edge killed with SIGKILL mid-run comes back from its checkpoint, its
+track table included. Issue #19: slots shorter than their uploads never leave more than V_max
+keyframes, and a device that lost tracking on the way back relocalises against the edge's map.
 """
 
 from __future__ import annotations
