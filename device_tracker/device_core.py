@@ -58,7 +58,6 @@ class DeviceTrackerCore:
             raise ValueError(f"keep_slots must be >= 1, got {keep_slots}")
         self.keep_slots = keep_slots
         self.k = np.asarray(intrinsics, dtype=np.float64)
-        self.slot_frames = slot_frames
         self.clock = SlotClock(slot_frames, frame_rate_hz)
         self.config = config or TrackingConfig(relocalise=True)
         self.tracking = Tracking(self.k, self.config)

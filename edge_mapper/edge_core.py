@@ -201,7 +201,9 @@ class EdgeMapperCore:
         action, received = self.pending.pop(slot, (MapAction([], []), set()))
         for frame in action.upload:                  # what has not come will not be used
             self._arriving.pop(frame, None)
-        for data in self._held.pop(slot, []):        # cannot happen: held only while older open
+        # keyframes held while an older slot was open, if the caller finished this slot
+        # without integrate_held() first (the node always calls it; a bare core user may not)
+        for data in self._held.pop(slot, []):
             self._integrate(data)
         evicted, orphans = [], 0
         for kf in action.evict:
