@@ -87,12 +87,14 @@ def run(root: Path, frames: int, policy: str) -> dict[str, float]:
     (first, cpu0), (last, cpu1) = marks[0], marks[-1]
     slot_frames = frames // (max(s for s, _ in marks) + 1)
     values = re.split(r"\s+", row.strip())
-    # tables since issue #19 carry RPE, failures, relocalisations and recovery after ATE
+    # tables since issue #19 carry RPE, failures, relocalisations and recovery after ATE;
+    # since issue #18 a "υ tracked" column before ATE
     header = next((line for line in out.splitlines() if line.startswith("policy ")), "")
-    untracked = values[8] if "untrk" in header else values[-2]
+    ate = 4 if "υ tracked" in header else 3
+    untracked = values[ate + 5] if "untrk" in header else values[-2]
     return {"edge_ms": float(values[-1]),
             "device_ms_per_frame": (cpu1 - cpu0) / ((last - first) * slot_frames) * 1000,
-            "untracked": float(untracked), "ate_m": float(values[3])}
+            "untracked": float(untracked), "ate_m": float(values[ate])}
 
 
 def main() -> None:

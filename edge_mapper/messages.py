@@ -16,6 +16,7 @@ from msg_schemas import new
 from msg_schemas.headers import set_header
 from msg_schemas.poses import pose_msg
 from twinslam.map_management.actions import MapAction
+from twinslam.uncertainty.map_uncertainty import SlotUncertainty
 
 
 def upload_request_message(slot: int, policy: str, rate_mbps: float, action: MapAction,
@@ -53,14 +54,17 @@ def map_update_message(keyframe_map: KeyFrameMap, slot: int, version: int, stamp
 
 
 def map_stats_message(slot: int, policy: str, keyframe_map: KeyFrameMap, uncertainty: float,
-                      mean_next: float, lost_ratio: float, uploads: int, optimisation_ms: float,
+                      upsilon: SlotUncertainty | None, uploads: int, optimisation_ms: float,
                       processing_ms: float, stamp: float) -> Any:
-    """``MapStats``; u = +inf for a disconnected map and υ = NaN with no tracked frame are
-    sent as they are (IEEE floats), never replaced by a number that looks valid."""
+    """``MapStats``; u = +inf for a disconnected map and υ = NaN (unknown, or no tracked frame)
+    are sent as they are (IEEE floats), never replaced by a number that looks valid. υ is
+    reported the three ways DESIGN.md §2 asks: mean with a lost frame scoring 0, the lost
+    share, and the mean over the tracked frames."""
     msg = new("twinslam_msgs/msg/MapStats", slot=slot, policy=policy,
               map_size=len(keyframe_map.keyframes), map_points=len(keyframe_map.points),
               uncertainty=float(uncertainty),
-              mean_next_uncertainty=float(mean_next) if mean_next is not None else math.nan,
-              lost_frame_ratio=float(lost_ratio), uploads=uploads,
+              mean_next_uncertainty=upsilon.objective if upsilon else math.nan,
+              tracked_next_uncertainty=upsilon.mean_tracked if upsilon else math.nan,
+              lost_frame_ratio=upsilon.lost_ratio if upsilon else 0.0, uploads=uploads,
               optimisation_ms=float(optimisation_ms), slot_processing_ms=float(processing_ms))
     return set_header(msg, stamp, "")

@@ -19,7 +19,6 @@ The work is :class:`~edge_mapper.edge_core.EdgeMapperCore`'s; this file only mov
 
 from __future__ import annotations
 
-import math
 import sys
 import time
 from typing import Any
@@ -188,11 +187,9 @@ class EdgeMapperNode(Node):
         self.pub_map.publish(map_update_message(self.core.map, slot, out.version, now,
                                                 tracks=out.tracks))
         ba_ms = out.bundle_adjustment.milliseconds if out.bundle_adjustment else 0.0
-        upsilon = entry.uncertainty
         self.pub_stats.publish(map_stats_message(
-            slot, entry.decided_by, self.core.map, out.map_uncertainty,
-            upsilon.mean_tracked if upsilon else math.nan,
-            upsilon.lost_ratio if upsilon else 0.0, len(out.integrated), ba_ms,
+            slot, entry.decided_by, self.core.map, out.map_uncertainty, entry.uncertainty,
+            len(out.integrated), ba_ms,
             (entry.compute_s + time.perf_counter() - started) * 1000, now))
         self.get_logger().info(
             f"slot {slot}: +{len(out.integrated)} keyframes, -{len(out.evicted)}, map "

@@ -151,7 +151,7 @@ def test_slot_uncertainty_equals_per_frame_factorisations(w: np.ndarray, k: int,
     n = w.shape[0]
     cand = np.array([[data.draw(st.sampled_from([0, 0, 1, 7, 40])) for _ in range(n)]
                      for _ in range(k)], dtype=float)
-    slot = next_slot_uncertainty(w, cand, lost_penalty=100.0)
+    slot = next_slot_uncertainty(w, cand)
     u = []
     for row in cand:
         full = np.zeros((n + 1, n + 1))
@@ -163,3 +163,4 @@ def test_slot_uncertainty_equals_per_frame_factorisations(w: np.ndarray, k: int,
     assert close(slot.map_uncertainty, map_uncertainty(w))
     if tracked.any():
         assert close(slot.mean_tracked, float(u[tracked].mean()))
+    assert close(slot.objective, float(u[tracked].sum()) / len(u))     # a lost frame: u = 0

@@ -19,7 +19,7 @@ from twinslam.mbrl.trainer import AmmTrainer, TrainConfig
 from twinslam.policy_registry import make_policy
 from twinslam.simulator.covisibility import CovisibilityDataset, load_covisibility
 from twinslam.simulator.env import MapManagementEnv, SimConfig
-from twinslam.simulator.oracle import rollout
+from twinslam.simulator.plan import rollout
 from twinslam.twin.rate_models import MarkovRateModel, TwinRateModel
 from twinslam.uplink.channels import parse_channel
 
@@ -245,9 +245,10 @@ def test_figure_sweeps_write_one_csv_row_per_point_and_policy_and_a_plot(
 
     results = sweep("figtest", [0.3, 0.7], lambda r: f"markov:N=2,ratio={r}",
                     lambda _r: Setting(runs=2, slots=6), kitchen, {}, tmp_path, "ratio",
-                    oracle=False)
+                    reference=False)
     rows = (tmp_path / "figtest.csv").read_text().strip().splitlines()
-    assert rows[0] == "ratio,policy,mean_uncertainty,ci95,runs,lost_ratio"
+    assert rows[0] == ("ratio,policy,mean_uncertainty,ci95,runs,lost_share,"
+                       "tracked_uncertainty")
     assert len(rows) == 1 + 2 * 3                       # 2 ratios × LFF, PU, ADAPT
     assert (tmp_path / "figtest.png").stat().st_size > 0
     # more 80 Mbit/s slots upload more frames: LFF's map fills faster, υ falls

@@ -11,6 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from twinslam.uncertainty.map_uncertainty import (
+    UncertaintyTally,
     augmented_uncertainties,
     logdet_pi,
     map_uncertainty,
@@ -106,16 +107,32 @@ def test_disconnected_map_is_infinite_and_so_are_its_augmentations() -> None:
     assert math.isfinite(augmented_uncertainties(w, np.array([[1.0, 0, 2, 0]]))[0])
 
 
-def test_lost_frames_are_reported_and_never_leak_inf_into_the_mean() -> None:
+def test_a_lost_frame_scores_as_a_frame_with_no_map_and_never_leaks_inf() -> None:
     w = np.array([[0, 10], [10, 0]], dtype=float)
     cand = np.array([[3, 4], [0, 0], [5, 0]], dtype=float)
-    slot = next_slot_uncertainty(w, cand, lost_penalty=100.0)
+    slot = next_slot_uncertainty(w, cand)
     assert slot.lost_ratio == pytest.approx(1 / 3)
     u = augmented_uncertainties(w, cand)
     assert slot.mean_tracked == pytest.approx(np.mean(u[[0, 2]]))
-    base = map_uncertainty(w)
-    assert slot.objective == pytest.approx((u[0] + u[2] + base + 100.0) / 3)
-    assert math.isfinite(slot.reward)
+    assert slot.objective == pytest.approx((u[0] + u[2] + 0.0) / 3)      # lost: u = 0
+    assert slot.objective == pytest.approx((1 - slot.lost_ratio) * slot.mean_tracked)
+    assert slot.reward == -slot.objective
+    # losing the frame is worse than tracking it, however weakly: u(G ∪ {f}) < 0
+    weakly = next_slot_uncertainty(w, np.array([[3, 4], [1, 0], [5, 0]], dtype=float))
+    assert weakly.objective < slot.objective
+
+
+def test_pooled_scores_keep_mean_equal_lost_times_tracked() -> None:
+    w = np.array([[0, 10], [10, 0]], dtype=float)
+    slots = [next_slot_uncertainty(w, np.array(c, dtype=float)) for c in
+             ([[3, 4], [0, 0], [5, 0]], [[1, 1]], [[0, 0], [0, 0]])]
+    pooled = UncertaintyTally()
+    for s in slots:
+        pooled = pooled.add(s)
+    assert pooled.n_frames == 6 and pooled.n_tracked == 3
+    assert pooled.lost_share == pytest.approx(0.5)
+    assert pooled.mean == pytest.approx((1 - pooled.lost_share) * pooled.tracked_mean)
+    assert math.isnan(slots[2].mean_tracked) and slots[2].objective == 0.0
 
 
 def test_a_disconnected_map_that_every_next_frame_bridges_has_a_finite_objective() -> None:
@@ -124,7 +141,7 @@ def test_a_disconnected_map_that_every_next_frame_bridges_has_a_finite_objective
     w[0, 1] = w[1, 0] = 5
     w[2, 3] = w[3, 2] = 7
     cand = np.array([[1.0, 0, 2, 0], [0, 3.0, 0, 1.0]])
-    slot = next_slot_uncertainty(w, cand, lost_penalty=100.0)
+    slot = next_slot_uncertainty(w, cand)
     assert slot.lost_ratio == 0.0 and slot.map_uncertainty == math.inf
     assert slot.objective == pytest.approx(np.mean(augmented_uncertainties(w, cand)))
     assert math.isfinite(slot.reward)

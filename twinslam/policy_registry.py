@@ -29,5 +29,5 @@ def make_policy(name: str) -> MapPolicy:
         return MbrlPolicy(Path(path))
     if name not in POLICIES:
         raise ValueError(f"unknown policy {name!r}; choose from {sorted(POLICIES)}, "
-                         "mbrl:CHECKPOINT (or 'oracle' in the simulator)")
+                         "mbrl:CHECKPOINT (or 'reference' in the simulator)")
     return make_rule_policy(name)

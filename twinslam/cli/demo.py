@@ -9,7 +9,7 @@
 2. The same on the ``revisit-lost`` scenario (:mod:`twinslam.cli.scenarios`): the first half
    of those frames forward then back, the lens covered for 3 s on the way back, so the device
    must relocalise against the edge's map — the case where the kept keyframes matter.
-3. The offline simulator with LFF, PU, ADAPT and the clairvoyant oracle on the covisibility
+3. The offline simulator with LFF, PU, ADAPT and the clairvoyant reference on the covisibility
    the ORB front end extracted from 1000 real 7-Scenes frames (shipped in ``data/``).
 """
 
@@ -66,7 +66,7 @@ def run_demo(args: argparse.Namespace) -> int:
           flush=True)
     from twinslam.cli.main import main
 
-    code = main(["sim", "--policy", "lff,pu,adapt,oracle", "--covis", covis,
+    code = main(["sim", "--policy", "lff,pu,adapt,reference", "--covis", covis,
                  "--slots", str(args.slots), "--seeds", str(args.seeds)])
     print(f"\ndemo finished in {time.monotonic() - start:.0f} s")
     return 0 if graph_ok and code == 0 else 1

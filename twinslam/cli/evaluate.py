@@ -29,8 +29,10 @@ from twinslam.node_hosts.loopback import LoopbackDomain
 METRICS = (("ate_m", "ATE", "m"), ("rpe_m", "RPE 1 s", "m"),
            ("tracking_failures", "failures", ""), ("relocalisations", "relocalisations", ""),
            ("recover_s", "recover", "s"), ("untracked_frames", "untracked", "frames"),
-           # MapStats' υ: over the next-slot frames that share a map point; lost ones beside
-           ("mean_uncertainty", "υ tracked", ""), ("lost_ratio", "lost share", ""),
+           # MapStats' υ three ways: a lost next-slot frame scoring 0, the lost share, and
+           # the tracked frames only (DESIGN.md §2)
+           ("mean_uncertainty", "mean υ", ""), ("lost_ratio", "lost share", ""),
+           ("tracked_uncertainty", "υ tracked", ""),
            ("frames_uploaded", "uploads", "frames"), ("edge_ms_median", "edge", "ms/slot"))
 
 

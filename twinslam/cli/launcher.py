@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 import subprocess
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -79,8 +79,9 @@ class RunRecord:
 class RunReport:
     policy: str
     slots: int
-    mean_uncertainty: float          #: mean υ over slots (tracked next-slot frames)
+    mean_uncertainty: float          #: mean υ over slots, a lost next-slot frame scoring 0
     lost_ratio: float                #: mean share of next-slot frames sharing no map point
+    tracked_uncertainty: float       #: mean υ over slots, tracked next-slot frames only
     ate_m: float                     #: NaN without ground truth
     rpe_m: float                     #: over 1 s (30 frames); NaN without ground truth
     frames_uploaded: int
@@ -93,11 +94,13 @@ class RunReport:
     edge_ms_median: float
     seconds: float
 
-    ROW = ("{label:<14} {mean_uncertainty:>10.1f} {lost_ratio:>6.1%} {ate_m:>7.3f} "
+    ROW = ("{label:<14} {mean_uncertainty:>10.1f} {lost_ratio:>6.1%} "
+           "{tracked_uncertainty:>10.1f} {ate_m:>7.3f} "
            "{rpe_m:>7.3f} {frames_uploaded:>7d} {mbytes:>7.1f} {achieved_mbps:>7.1f} "
            "{untracked_frames:>6d} {tracking_failures:>5d} {relocalisations:>6d} "
            "{recover_s:>7.2f} {edge_ms_median:>7.0f}")
-    HEADER = (f"{'policy':<14} {'mean υ':>10} {'lost':>6} {'ATE m':>7} {'RPE m':>7} "
+    HEADER = (f"{'policy':<14} {'mean υ':>10} {'lost':>6} {'υ tracked':>10} {'ATE m':>7} "
+              f"{'RPE m':>7} "
               f"{'uploads':>7} {'MB':>7} {'Mbit/s':>7} {'untrk':>6} {'fails':>5} "
               f"{'reloc':>6} {'recov s':>7} {'edge ms':>7}")
 
@@ -163,7 +166,8 @@ def status_line(msg: Any, record: RunRecord) -> str:
     nu = msg.mean_next_uncertainty
     return (f"[{msg.policy}] slot {slot:3d} | d_k {rate} Mbit/s | U {ups} C {ev} | map "
             f"{msg.map_size:2d} kf {msg.map_points:6d} pts | u {msg.uncertainty:9.1f} | υ "
-            f"{nu:9.1f} lost {msg.lost_frame_ratio:4.0%} | GTSAM {msg.optimisation_ms:4.0f} ms,"
+            f"{nu:9.1f} lost {msg.lost_frame_ratio:4.0%} tracked "
+            f"{msg.tracked_next_uncertainty:9.1f} | GTSAM {msg.optimisation_ms:4.0f} ms,"
             f" slot {msg.slot_processing_ms:4.0f} ms")
 
 
@@ -173,14 +177,20 @@ def record_events(record: RunRecord) -> TrackingEvents:
                            for s in record.summaries.values() for f in s.frames)
 
 
+def _finite_mean(values: Iterable[float]) -> float:
+    """Mean of the finite values (NaN: the edge did not know, or nothing was tracked)."""
+    finite = [v for v in values if math.isfinite(v)]
+    return float(np.mean(finite)) if finite else math.nan
+
+
 def report(policy: str, record: RunRecord, seconds: float) -> RunReport:
     stats = [record.stats[s] for s in sorted(record.stats)]
-    nus = [s.mean_next_uncertainty for s in stats if math.isfinite(s.mean_next_uncertainty)]
+    scored = stats[1:]         # slot 0 plans against an empty map: every policy loses it all
     tps = [t for t in record.throughput.values() if t.frames_sent]
     events = record_events(record)
-    return RunReport(policy, len(stats), float(np.mean(nus)) if nus else math.nan,
-                     float(np.mean([s.lost_frame_ratio for s in stats[1:]]))
-                     if len(stats) > 1 else 0.0,
+    return RunReport(policy, len(stats), _finite_mean(s.mean_next_uncertainty for s in scored),
+                     float(np.mean([s.lost_frame_ratio for s in scored])) if scored else 0.0,
+                     _finite_mean(s.tracked_next_uncertainty for s in scored),
                      absolute_trajectory_error(record.poses, record.ground_truth),
                      relative_pose_error(record.poses, record.ground_truth),
                      sum(int(t.frames_sent) for t in record.throughput.values()),

@@ -8,8 +8,10 @@ C_k of the sizes Theorem 1 fixes. The rule-based ones are the paper's benchmarks
 * **ADAPT** — AdaptSLAM's rule (Chen et al., INFOCOM'23): greedily keep the frames that
   maximise logdet of the grounded covisibility Laplacian; here first the uploads (greedy
   additions to the map), then the evictions (greedy removals), each step choosing the frame
-  with the largest resulting logdet. logdet of a Laplacian is monotone log-submodular
-  (Khosoussi et al.), so greedy additions carry the (1 - 1/e) guarantee.
+  with the largest resulting logdet. Greedy is a heuristic here: the log-submodularity
+  that gives greedy its (1 - 1/e) guarantee (Khosoussi et al.) holds for choosing *edges* of a
+  graph on fixed vertices, not for choosing frames (vertices, each bringing all its edges),
+  so no approximation bound is claimed (DESIGN.md §2).
 * **random** — a sanity floor.
 """
 

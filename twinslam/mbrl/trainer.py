@@ -48,7 +48,7 @@ from twinslam.mbrl.state import (
 )
 from twinslam.simulator.covisibility import CovisibilityDataset
 from twinslam.simulator.env import MapManagementEnv, SimConfig
-from twinslam.simulator.oracle import rollout
+from twinslam.simulator.plan import rollout
 from twinslam.twin.rate_models import RateModel, make_rate_model
 from twinslam.uplink.channels import parse_channel
 

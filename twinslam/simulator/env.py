@@ -2,7 +2,7 @@
 
 At slot k the agent sees the map V^e_k, the slot's frames F_k and the rate d_k, and answers
 with U_k ⊆ F_k and C_k ⊆ V^e_k ∪ U_k of Theorem 1's sizes. The environment applies the update
-(eq. 3), draws F_{k+1} and d_{k+1}, and returns r_k = -υ_k (eq. 8, lost frames penalised).
+(eq. 3), draws F_{k+1} and d_{k+1}, and returns r_k = -υ_k (eq. 8, a lost frame scoring u = 0).
 
 Frames come from a covisibility dataset, read forwards then backwards (a walk that turns
 around) so that episodes can be longer than the recording; every frame *instance* has its own
@@ -22,7 +22,6 @@ from twinslam.simulator.covisibility import CovisibilityDataset
 from twinslam.uncertainty import laplacian_kernels as kernels
 from twinslam.uncertainty.laplacian_factorization import PIVOT_RTOL
 from twinslam.uncertainty.map_uncertainty import (
-    LOST_FRAME_PENALTY,
     SlotUncertainty,
     next_slot_uncertainty,
     slot_uncertainty_from_scores,
@@ -41,7 +40,6 @@ class SimConfig:
     d_req_s: float = table1.D_REQ_S
     slots: int = 200
     log_det_pi: float = 0.0
-    lost_penalty: float = LOST_FRAME_PENALTY
     history: int = 8            #: length τ+1 of the rate history in observations
 
 
@@ -119,7 +117,7 @@ class MapManagementEnv:
 
     @property
     def rate_plan(self) -> list[tuple[int, float]]:
-        """(state, rate) of every slot of the episode; for the clairvoyant oracle only."""
+        """(state, rate) of every slot of the episode; for the clairvoyant references only."""
         return list(self._plan)
 
     def _observation(self) -> SlotObservation:
@@ -131,6 +129,12 @@ class MapManagementEnv:
                                          self._slot + 1]]
         return SlotObservation(self._slot, list(self._map), cand, n_up, n_ev, rate, state, hist,
                                self.channel.n_states, self.weights)
+
+    def observation(self) -> SlotObservation:
+        """What the agent sees now (after ``reset``, ``step`` or ``restore``)."""
+        if self._last_obs is None:
+            self._last_obs = self._observation()
+        return self._last_obs
 
     def check_action(self, obs: SlotObservation, action: MapAction) -> None:
         """Refuse an action that breaks slot ``obs.slot``'s constraints. Frame sets come from
@@ -176,7 +180,7 @@ class MapManagementEnv:
         self._map, self._map_w = merged, w
 
     def step(self, action: MapAction) -> tuple[SlotObservation, float, bool, bool, dict[str, Any]]:
-        obs = self._last_obs or self._observation()
+        obs = self.observation()
         self.check_action(obs, action)
         dense = self.dataset.dense
         self.apply(action, weights=not dense)
@@ -188,8 +192,7 @@ class MapManagementEnv:
                 self.dataset.dense_weights, self.stream.dataset_index(self._map),
                 self.stream.dataset_index(frames), PIVOT_RTOL)
             slot_u = slot_uncertainty_from_scores(len(self._map), n_comp, log_det, log_tau,
-                                                  self.config.log_det_pi,
-                                                  self.config.lost_penalty)
+                                                  self.config.log_det_pi)
         else:
             if dense:
                 self._map_w = np.zeros((0, 0))
@@ -204,8 +207,7 @@ class MapManagementEnv:
         """υ of the current map against ``frames`` (future frames: none is in the map)."""
         block = self.dataset.weights(self.stream.dataset_index(frames),
                                      self.stream.dataset_index(self._map))
-        return next_slot_uncertainty(self._map_w, block, self.config.log_det_pi,
-                                     self.config.lost_penalty)
+        return next_slot_uncertainty(self._map_w, block, self.config.log_det_pi)
 
     def emulate(self, before: tuple[list[int], np.ndarray, int], action: MapAction,
                 next_rate: tuple[int, float]) -> tuple[SlotObservation, float, dict[str, Any]]:
@@ -228,7 +230,7 @@ class MapManagementEnv:
             self._last_obs = last_obs
         return obs, reward, info
 
-    # -- planning support (the clairvoyant oracle) --------------------------------------------
+    # -- planning support (the clairvoyant references) ----------------------------------------
 
     @property
     def map_frames(self) -> list[int]:

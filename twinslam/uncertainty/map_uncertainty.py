@@ -22,9 +22,13 @@ import numpy as np
 from twinslam.uncertainty import laplacian_kernels as kernels
 from twinslam.uncertainty.laplacian_factorization import PIVOT_RTOL, LaplacianFactorization
 
-#: u of a next-slot frame that shares no map point is +inf (it would lose tracking). RL and
-#: the objective need a finite number: such a frame counts as u(G) + LOST_FRAME_PENALTY.
-LOST_FRAME_PENALTY = 100.0
+#: u of a next-slot frame that shares no map point. The paper's u is +inf there (the frame
+#: cannot be tracked); a finite objective needs a number, and DESIGN.md §2 scores such a frame
+#: as a frame with no map at all: u = 0, worse than any tracked frame (with Π = I and integer
+#: covisibility weights every tracked frame has u <= 0). The u(G) + 100 used before issue #18
+#: made a lost frame cost ~4 % more than a tracked one at V_max 45: cheap enough for a policy
+#: to lose a third of the next slot's frames and still rank first.
+LOST_FRAME_UNCERTAINTY = 0.0
 
 
 def laplacian(weights: np.ndarray) -> np.ndarray:
@@ -102,22 +106,70 @@ def _augmented(factor: LaplacianFactorization, cand_weights: np.ndarray, log_det
 
 @dataclass(frozen=True)
 class SlotUncertainty:
-    """υ_k over the next slot's frames, reported the two ways DESIGN.md §2 asks for."""
+    """υ_k over the next slot's frames, kept as sums so that every aggregate over slots, runs
+    and seeds stays consistent: mean = (1 - lost share) · tracked mean for any pooling
+    (DESIGN.md §2, §9)."""
 
-    mean_tracked: float        #: mean u(G ∪ {f}) over frames that share a point with the map
-    lost_ratio: float          #: share of frames that share no point (u = +inf)
-    objective: float           #: mean with lost frames counted as u(G) + LOST_FRAME_PENALTY
+    tracked_sum: float         #: Σ u(G ∪ {f}) over the frames that share a point with the map
+    n_tracked: int             #: frames that share a point with the map
+    n_frames: int              #: frames of the next slot (tracked + lost)
     map_uncertainty: float = math.inf   #: u(G) of the map itself (+inf if disconnected)
 
     @property
+    def n_lost(self) -> int:
+        return self.n_frames - self.n_tracked
+
+    @property
+    def lost_ratio(self) -> float:
+        """Share of the next slot's frames that share no map point (they lose tracking)."""
+        return self.n_lost / self.n_frames
+
+    @property
+    def mean_tracked(self) -> float:
+        """Mean u(G ∪ {f}) over the tracked frames only; NaN when every frame is lost."""
+        return self.tracked_sum / self.n_tracked if self.n_tracked else math.nan
+
+    @property
+    def objective(self) -> float:
+        """υ_k: the mean over every frame, a lost frame scoring LOST_FRAME_UNCERTAINTY (0)."""
+        return (self.tracked_sum + self.n_lost * LOST_FRAME_UNCERTAINTY) / self.n_frames
+
+    @property
     def reward(self) -> float:
-        """r_k = -υ_k on the finite objective (paper eq. 13 with the lost-frame penalty)."""
+        """r_k = -υ_k (paper eq. 13), the same υ every table reports."""
         return -self.objective
 
 
+@dataclass(frozen=True)
+class UncertaintyTally:
+    """υ pooled over many slots (a run, or every run of a policy) by summing frames, so that
+    a pooled mean, lost share and tracked mean obey the same identity as one slot's."""
+
+    tracked_sum: float = 0.0
+    n_tracked: int = 0
+    n_frames: int = 0
+
+    def add(self, part: SlotUncertainty | UncertaintyTally) -> UncertaintyTally:
+        return UncertaintyTally(self.tracked_sum + part.tracked_sum,
+                                self.n_tracked + part.n_tracked, self.n_frames + part.n_frames)
+
+    @property
+    def mean(self) -> float:
+        """Mean υ over every frame, a lost frame scoring 0; NaN when nothing was tallied."""
+        lost = (self.n_frames - self.n_tracked) * LOST_FRAME_UNCERTAINTY
+        return (self.tracked_sum + lost) / self.n_frames if self.n_frames else math.nan
+
+    @property
+    def lost_share(self) -> float:
+        return 1.0 - self.n_tracked / self.n_frames if self.n_frames else math.nan
+
+    @property
+    def tracked_mean(self) -> float:
+        return self.tracked_sum / self.n_tracked if self.n_tracked else math.nan
+
+
 def next_slot_uncertainty(map_weights: np.ndarray, cand_weights: np.ndarray,
-                          log_det_pi: float = 0.0,
-                          lost_penalty: float = LOST_FRAME_PENALTY) -> SlotUncertainty:
+                          log_det_pi: float = 0.0) -> SlotUncertainty:
     """υ_k of eq. (8) for the map G^e_{k+1} and the frames F_{k+1}, never letting inf leak.
 
     Runs once per slot in the simulator: one kernel call (factorise + score every frame)."""
@@ -132,32 +184,19 @@ def next_slot_uncertainty(map_weights: np.ndarray, cand_weights: np.ndarray,
         if b.shape[1] != n:
             raise ValueError(f"candidate weights have {b.shape[1]} columns, the map {n}")
         n_comp, log_det, log_tau = kernels.slot_scores(w, b, PIVOT_RTOL)
-    return slot_uncertainty_from_scores(n, n_comp, log_det, log_tau, log_det_pi, lost_penalty)
+    return slot_uncertainty_from_scores(n, n_comp, log_det, log_tau, log_det_pi)
 
 
 def slot_uncertainty_from_scores(n: int, n_comp: int, log_det: float, log_tau: np.ndarray,
-                                 log_det_pi: float = 0.0,
-                                 lost_penalty: float = LOST_FRAME_PENALTY) -> SlotUncertainty:
+                                 log_det_pi: float = 0.0) -> SlotUncertainty:
     """υ_k from a map of ``n`` frames with ``n_comp`` components and log det A = ``log_det``,
     and log τ(G ∪ {f}) of each next-slot frame (-inf: the frame shares no point)."""
     finite = log_tau[log_tau > -math.inf]
-    n_tracked = finite.size
-    n_lost = log_tau.size - n_tracked
+    n_tracked = int(finite.size)
     total = -6.0 * float(finite.sum()) - n_tracked * n * log_det_pi     # Σ u(G ∪ {f})
     map_u = -6.0 * log_det - (n - 1) * log_det_pi if n_comp == 1 else math.inf
-    base = map_u
-    if n_lost and not math.isfinite(base):
-        # An empty or disconnected map: fall back to the penalty alone so the objective stays
-        # finite and worse than any tracked frame of a connected map would make it.
-        base = -6.0 * float(finite.min()) - n * log_det_pi if n_tracked else 0.0
-    return SlotUncertainty(
-        mean_tracked=total / n_tracked if n_tracked else math.nan,
-        lost_ratio=n_lost / log_tau.size,
-        # (no lost frame adds nothing: 0 · inf would be NaN for a disconnected map that every
-        # next-slot frame bridges)
-        objective=(total + (n_lost * (base + lost_penalty) if n_lost else 0.0)) / log_tau.size,
-        map_uncertainty=map_u,
-    )
+    return SlotUncertainty(tracked_sum=total, n_tracked=n_tracked, n_frames=int(log_tau.size),
+                           map_uncertainty=map_u)
 
 
 def theorem1_cardinalities(rate_mbps: float, alpha_mbit: float, d_req_s: float, vmax: int,
