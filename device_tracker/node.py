@@ -58,7 +58,7 @@ from twinslam.node_hosts.node_main import NodeStartError, run_node
 from twinslam.node_hosts.parameters import declare
 from twinslam.slam.keyframe import keyframe_message
 from twinslam.slam.map_update import read_map_update
-from twinslam.uplink.channels import ChannelError, parse_channel
+from twinslam.uplink.channels import ChannelError, initial_rate, parse_channel
 
 #: how long one keyframe write may keep failing (the writer's history full of unacknowledged
 #: keyframes while the link is down) before that keyframe is given up
@@ -86,7 +86,7 @@ class DeviceTrackerNode(Node):
         self.pub_keyframes = self.create_publisher(Keyframe, topics.KEYFRAMES, qos.PROTOCOL)
         try:
             self.shaper = make_shaper(
-                str(p["shaper"]), float(self.channel.rates[0]), str(p["uplink_interface"]),
+                str(p["shaper"]), initial_rate(self.channel), str(p["uplink_interface"]),
                 NetemConfig(float(p["netem_delay_ms"]), float(p["netem_loss_percent"])),
                 flush=lambda: wait_for_acks(self.pub_keyframes, WRITE_RETRY_S))
         except (ShaperError, ValueError) as exc:
@@ -119,7 +119,7 @@ class DeviceTrackerNode(Node):
         self.create_timer(0.5, self._check_edge)
         self.sender = UplinkSender(self.shaper, self._encode_keyframe, self.pub_keyframes.publish,
                                    self._report_throughput, self.get_logger().error,
-                                   float(self.channel.rates[0]), WRITE_RETRY_S)
+                                   initial_rate(self.channel), WRITE_RETRY_S)
         self.sender.start()
 
     def _now(self) -> float:

@@ -74,6 +74,13 @@ class UplinkSender:
     def send_slot(self, slot: int, frame_ids: list[int]) -> SlotThroughput:
         """One request, synchronously: encode, send through the shaper, report."""
         rate, state = self.rates.get(slot, (self.default_rate, 0))
+        if rate <= 0:                   # an outage: the link carries nothing this slot
+            if frame_ids:
+                self.log_error(f"slot {slot}: the uplink is down (0 Mbit/s); "
+                               f"{len(frame_ids)} requested keyframe(s) not sent")
+            throughput = SlotThroughput(slot, 0.0, state, 0, 0.0, 0)
+            self.report(throughput)
+            return throughput
         encoded = [e for f in frame_ids if (e := self.encode(slot, f)) is not None]
         self.shaper.start_slot(slot, rate, state)
         for frame_id, payload, size in encoded:

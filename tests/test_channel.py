@@ -1,4 +1,5 @@
-"""Uplink channel models: Markov statistics, interval changes, trace files and bad input."""
+"""Uplink channel models: Markov statistics, interval changes, traces at their real rates
+(outages, offsets per seed, header spellings, quantisation), the trace generator, bad input."""
 
 from __future__ import annotations
 
@@ -7,14 +8,15 @@ import itertools
 import numpy as np
 import pytest
 
+from twinslam.map_management.actions import MapAction
 from twinslam.uplink.channels import (
     ChannelError,
     MarkovChannel,
-    TraceChannel,
     parse_channel,
     state_rates,
     two_state_matrix,
 )
+from twinslam.uplink.traces import TraceShape, generate_trace, read_trace, write_trace
 
 
 def _transition_counts(states: list[int], n: int) -> np.ndarray:
@@ -67,31 +69,123 @@ def test_balanced_chains_share_one_mean_rate_whatever_n(n: int) -> None:
     assert np.mean(rates) == pytest.approx(60.0, abs=1.0)
 
 
-def test_trace_replay_quantises_and_scales(tmp_path) -> None:
-    path = tmp_path / "trace.csv"
-    rows = ["time_s,throughput_mbps"] + [f"{t * 0.5},{10 if (t // 4) % 2 == 0 else 30}"
-                                         for t in range(40)]
-    path.write_text("\n".join(rows) + "\n")
-    chan = TraceChannel.from_csv(path, 2, (40.0, 80.0), slot_seconds=2.0)
-    rates = [chan.step()[1] for _ in range(6)]
-    assert rates == [40.0, 80.0, 40.0, 80.0, 40.0, 80.0]
+def _trace(path, rows: list[str], header: str = "time_s,throughput_mbps") -> str:
+    path.write_text("\n".join([header, *rows]) + "\n")
+    return str(path)
+
+
+def _constant(tmp_path, mbps: float, seconds: int = 120) -> str:
+    return _trace(tmp_path / f"const{mbps:g}.csv", [f"{t},{mbps}" for t in range(seconds)])
+
+
+@pytest.mark.parametrize(("mbps", "uploads"), [(10.0, 1), (80.0, 8), (0.0, 0)])
+def test_a_trace_uploads_what_its_real_rate_carries(tmp_path, mbps: float, uploads: int) -> None:
+    """|U_k| = ⌊d_k · D_req / α⌋ from the trace's own Mbit/s (α 5 Mbit, D_req 0.5 s), whatever
+    the rate range of the Markov channels is."""
+    from twinslam.simulator.covisibility import CovisibilityDataset
+    from twinslam.simulator.env import MapManagementEnv, SimConfig
+
+    data = CovisibilityDataset.from_sets([set(range(i, i + 30)) for i in range(0, 400, 2)])
+    env = MapManagementEnv(data, parse_channel(f"trace:{_constant(tmp_path, mbps)}", seed=3),
+                           SimConfig(vmax=45, slots=6))
+    obs, _ = env.reset(3)
+    for _ in range(6):
+        assert obs.rate_mbps == pytest.approx(mbps) and obs.n_upload == uploads
+        obs, *_ = env.step(MapAction(obs.candidates[:obs.n_upload], obs.map_frames[:obs.n_evict]))
+
+
+def test_a_10_s_outage_uploads_nothing_while_it_lasts(tmp_path) -> None:
+    """40 Mbit/s, down from 20 s to 30 s: the slots inside the outage carry 0 frames, the
+    slots that straddle its edges carry what their mean rate allows."""
+    rows = [f"{t / 10:.1f},{0 if 200 <= t < 300 else 40}" for t in range(600)]
+    chan = parse_channel(f"trace:{_trace(tmp_path / 'outage.csv', rows)},start=15", seed=0)
+    rates = [chan.step()[1] for _ in range(10)]          # slots of 2 s from 15 s on
+    assert rates[3:7] == [0.0] * 4                        # 21-29 s: inside the outage
+    assert rates[2] == pytest.approx(20.0) and rates[7] == pytest.approx(20.0)   # 19-21, 29-31
+    assert rates[0] == rates[1] == rates[8] == pytest.approx(40.0)
+    from twinslam.uncertainty.map_uncertainty import theorem1_cardinalities
+    assert [theorem1_cardinalities(r, 5.0, 0.5, 45, 45, 60)[0] for r in rates[3:7]] == [0] * 4
+
+
+def test_seeds_start_at_their_own_offsets_unless_a_start_is_given(tmp_path) -> None:
+    path = _trace(tmp_path / "ramp.csv", [f"{t},{t % 97}" for t in range(600)])
+    firsts = {round(parse_channel(f"trace:{path}", seed=s).step()[1], 3) for s in range(6)}
+    assert len(firsts) == 6
+    fixed = {parse_channel(f"trace:{path},start=10", seed=s).step()[1] for s in range(3)}
+    assert fixed == {10.5}                      # mean of 10 and 11 over 10-12 s
+    chan = parse_channel(f"trace:{path}", seed=4)
+    first = [chan.step() for _ in range(5)]
+    chan.reset(4)
+    assert [chan.step() for _ in range(5)] == first    # a seed replays its own stretch
+
+
+def test_states_come_from_the_traces_quantiles_or_a_given_range(tmp_path) -> None:
+    rows = [f"{t},{[0, 10, 20, 60][(t // 20) % 4]}" for t in range(400)]
+    path = _trace(tmp_path / "levels.csv", rows)
+    chan = parse_channel(f"trace:{path},N=4,start=0", seed=0)
+    seen = {chan.step() for _ in range(40)}
+    assert seen == {(0, 0.0), (1, 10.0), (2, 20.0), (3, 60.0)}
+    assert chan.rates.tolist() == [0.0, 10.0, 20.0, 60.0]
+    even = parse_channel(f"trace:{path},N=2,states=0-80,start=0", seed=0)
+    assert {even.step() for _ in range(40)} == {(0, 0.0), (0, 10.0), (0, 20.0), (1, 60.0)}
+
+
+def test_rescaling_into_a_range_happens_only_when_asked(tmp_path) -> None:
+    path = _trace(tmp_path / "two.csv", [f"{t * 0.5},{10 if (t // 4) % 2 == 0 else 30}"
+                                         for t in range(40)])
+    real = parse_channel(f"trace:{path},start=0", seed=0)
+    assert [real.step()[1] for _ in range(4)] == [10.0, 30.0, 10.0, 30.0]
+    scaled = parse_channel(f"trace:{path},rescale,start=0", (40.0, 80.0), seed=0)
+    assert [scaled.step()[1] for _ in range(4)] == [40.0, 80.0, 40.0, 80.0]
+
+
+@pytest.mark.parametrize(("header", "row", "mbps"), [
+    ("time_s,throughput_mbps", "{t},12", 12.0),
+    ("Time (s),Throughput (Mbit/s)", "{t},12", 12.0),
+    ("timestamp,bandwidth_kbps", "{t},12000", 12.0),
+    ("time_ms,rate_mbps", "{t}000,12", 12.0),
+    ("t,bw", "{t},12", 12.0),
+    ("seconds,bitrate (bps)", "{t},12000000", 12.0),
+    ("elapsed,cell_id,tput", "{t},7,12", 12.0),
+])
+def test_common_trace_header_spellings_are_read(tmp_path, header: str, row: str,
+                                                mbps: float) -> None:
+    path = _trace(tmp_path / "h.csv", [row.format(t=t) for t in range(20)], header)
+    chan = parse_channel(f"trace:{path},start=0", seed=0)
+    assert chan.step()[1] == pytest.approx(mbps)
+    assert chan.duration_s == pytest.approx(20.0)
 
 
 @pytest.mark.parametrize(("content", "message"), [
     ("", "empty"),
-    ("time_s,throughput_mbps\n", "no samples"),
+    ("time_s,throughput_mbps\n", "at least two samples"),
     ("time_s,throughput_mbps\n0,10\n1,nan\n", ":3: NaN"),
     ("time_s,throughput_mbps\n0,10\n1,-5\n", ":3: negative"),
     ("time_s,throughput_mbps\n0,10\n0,5\n", ":3: time"),
-    ("t,rate\n0,10\n", ":1: header"),
+    ("when,what\n0,10\n", ":1: header .* names no time column"),
+    ("time,cell\n0,10\n", ":1: header .* names no throughput column"),
     ("time_s,throughput_mbps\n0,abc\n", ":2: not a number"),
 ])
 def test_bad_trace_files_are_refused_naming_file_and_line(tmp_path, content, message) -> None:
     path = tmp_path / "bad.csv"
     path.write_text(content)
     with pytest.raises(ChannelError, match=message) as err:
-        TraceChannel.from_csv(path, 2)
+        parse_channel(f"trace:{path}")
     assert "bad.csv" in str(err.value)
+
+
+def test_generated_traces_have_regimes_and_outages_and_round_trip(tmp_path) -> None:
+    shape = TraceShape(seconds=300, outages=((100.0, 10.0),), outage_every_s=60.0)
+    times, mbps = generate_trace(shape, seed=2)
+    assert np.all(mbps[(times >= 100) & (times < 110)] == 0.0)
+    assert (mbps == 0).mean() > 10 / 300                  # the random outages too
+    up = mbps[mbps > 0]
+    assert up.min() >= 0 and np.percentile(up, 90) > 2 * np.percentile(up, 10)   # regimes
+    write_trace(tmp_path / "g.csv", times, mbps)
+    _times, back_v = read_trace(tmp_path / "g.csv")
+    np.testing.assert_allclose(back_v, mbps, atol=1e-4)
+    assert np.array_equal(generate_trace(shape, seed=2)[1], mbps)
+    assert not np.array_equal(generate_trace(shape, seed=3)[1], mbps)
 
 
 def test_channel_specs() -> None:
@@ -102,3 +196,24 @@ def test_channel_specs() -> None:
         parse_channel("markov:N=3,ratio=0.5")
     with pytest.raises(ChannelError, match="does not exist"):
         parse_channel("trace:/nonexistent.csv")
+    with pytest.raises(ChannelError, match="unknown option"):
+        parse_channel("trace:/nonexistent.csv,scale")
+
+
+def test_trace_cli_generates_describes_and_feeds_the_simulator(
+        tmp_path, capsys: pytest.CaptureFixture[str]) -> None:
+    from twinslam.cli.main import main
+
+    out = tmp_path / "gen.csv"
+    assert main(["trace", "generate", "-o", str(out), "--seconds", "120", "--outage",
+                 "30:10", "--seed", "1"]) == 0
+    text = capsys.readouterr().out
+    assert f"wrote {out}" in text and "of slots down" in text and "thresholds" in text
+    assert main(["trace", "info", str(tmp_path / "missing.csv")]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["trace", "generate", "-o", str(tmp_path / "x.csv"), "--outage", "30"])
+    csv_out = tmp_path / "sim.csv"
+    assert main(["sim", "--covis", "geometric:300", "--channel", f"trace:{out}", "--slots",
+                 "4", "--seeds", "2", "--policy", "lff", "--csv", str(csv_out)]) == 0
+    assert len(csv_out.read_text().splitlines()) == 3

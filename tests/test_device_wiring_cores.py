@@ -107,6 +107,23 @@ def test_the_upload_worker_sends_what_was_asked_at_the_slots_rate_and_reports_it
     assert out.configured_rate_mbps == 40.0
 
 
+def test_an_outage_slot_sends_nothing_and_reports_zero_instead_of_crashing_the_worker() -> None:
+    """A trace at its real rate has 0 Mbit/s slots; the shaper refuses a 0 rate, so the worker
+    must not start one (a request for frames then is an edge error, logged)."""
+    clock = VirtualTime()
+    clock.now = 0.0
+    written, reports, errors = [], [], []
+    sender = UplinkSender(UplinkShaper(clock.clock, clock.sleep), lambda s, f: (f, b"x", 1000),
+                          written.append, reports.append, errors.append, default_rate=40.0,
+                          clock=clock.clock, sleep=clock.sleep)
+    sender.rates[5] = (0.0, 0)
+    out = sender.send_slot(5, [])
+    assert out.frames_sent == 0 and out.configured_rate_mbps == 0.0 and errors == []
+    out = sender.send_slot(5, [50, 51])
+    assert written == [] and reports[-1] is out and out.frames_sent == 0
+    assert "uplink is down" in errors[0]
+
+
 def test_a_keyframe_that_cannot_be_written_is_given_up_and_the_slot_goes_on() -> None:
     clock = VirtualTime()
     clock.now = 0.0

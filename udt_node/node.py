@@ -34,7 +34,7 @@ from twinslam.node_hosts.checked_subscription import CheckedSubscription
 from twinslam.node_hosts.node_main import NodeStartError, run_node
 from twinslam.node_hosts.parameters import ParamSpec, declare
 from twinslam.twin.digital_twin import TwinConfig, UserDigitalTwin
-from twinslam.uplink.channels import state_rates
+from twinslam.uplink.quantiser import RateQuantiser
 
 PARAMETERS = (
     ParamSpec("states", 2, "N uplink states, spread over [rate_min, rate_max]", low=1, high=64),
@@ -67,7 +67,10 @@ class TwinNode(Node):
                             history=int(p["history"]), retrain_every=int(p["retrain_every"]),
                             buffer_slots=int(p["buffer_slots"]),
                             steps_per_retrain=int(p["steps_per_retrain"]), seed=int(p["seed"]))
-        self.rates = state_rates(config.n_states, float(p["rate_min"]), float(p["rate_max"]))
+        #: a measured rate's state: the nearest of N rates spread over [rate_min, rate_max]
+        self.quantiser = RateQuantiser.evenly(config.n_states, float(p["rate_min"]),
+                                              float(p["rate_max"]))
+        self.rates = self.quantiser.rates
         self.max_mbps = float(p["max_mbps"])
         self.weights = Path(p["weights"]) if p["weights"] else None
         try:
@@ -107,7 +110,7 @@ class TwinNode(Node):
 
     def quantise(self, mbps: float) -> int:
         """Index of the state rate nearest to a measured throughput."""
-        return int(np.argmin(np.abs(self.rates - mbps)))
+        return self.quantiser.state(mbps)
 
     def _on_throughput(self, msg: UplinkThroughput) -> None:
         mbps = float(msg.achieved_mbps)

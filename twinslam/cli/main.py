@@ -476,13 +476,68 @@ def cmd_train(args: argparse.Namespace) -> int:
     return 0
 
 
+def _outage(text: str) -> tuple[float, float]:
+    """``--outage START:SECONDS`` of ``twinslam trace generate``."""
+    start, sep, length = text.partition(":")
+    try:
+        if not sep:
+            raise ValueError
+        return float(start), float(length)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be START:SECONDS, got {text!r}") from None
+
+
+def cmd_trace(args: argparse.Namespace) -> int:
+    """Generate a throughput trace, or describe one (what a trace channel will replay)."""
+    from twinslam.uplink.channels import SLOT_SECONDS, TraceChannel
+    from twinslam.uplink.traces import TraceShape, generate_trace, write_trace
+
+    try:
+        if args.action == "generate":
+            if not args.output:
+                raise ValueError("generate needs -o/--output FILE")
+            shape = TraceShape(seconds=args.seconds, sample_s=args.sample,
+                               rate_range=args.rate_range, regime_s=args.regime,
+                               noise=args.noise, outages=tuple(args.outage or ()),
+                               outage_every_s=args.outage_every, outage_s=args.outage_length)
+            times, mbps = generate_trace(shape, args.seed)
+            write_trace(Path(args.output), times, mbps)
+            print(f"wrote {args.output}: {times.size} samples over {args.seconds:g} s, mean "
+                  f"{mbps.mean():.1f} Mbit/s, {100 * (mbps == 0).mean():.1f} % of the time down")
+            path = Path(args.output)
+        else:
+            if not args.file:
+                raise ValueError("info needs a trace FILE")
+            path = Path(args.file)
+        chan = TraceChannel.from_csv(path, args.states, slot_seconds=SLOT_SECONDS)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    slots = chan.slot_rates()
+    print(f"{path}: {chan.duration_s:.1f} s, {slots.size} slots of {chan.slot_seconds:g} s; "
+          f"per-slot Mbit/s min {slots.min():.1f}, median {np.median(slots):.1f}, max "
+          f"{slots.max():.1f}; {np.mean(slots == 0):.1%} of slots down")
+    print(f"{chan.n_states} states by the trace's quantiles: thresholds "
+          f"{', '.join(f'{t:.1f}' for t in chan.quantiser.thresholds)} Mbit/s, representative "
+          f"rates {', '.join(f'{r:.1f}' for r in chan.rates)}")
+    return 0
+
+
 def _add_setting_arguments(parser: argparse.ArgumentParser) -> None:
     """What the simulator and the trainer both take: the data, the uplink and V_max."""
     parser.add_argument("--covis", required=True,
                         help="covisibility .npz, or 'geometric[:frames]' for the room model")
     parser.add_argument("--channel", default="markov:N=2",
-                        help="uplink rate model: markov:N=2[,ratio=0.5][,K=100][,nonstationary]"
-                        "[,balanced] or trace:FILE[,N=4]")
+                        help="uplink rate model (default %(default)s). "
+                        "markov:N=2[,ratio=R][,K=100][,nonstationary][,balanced]: N rates evenly "
+                        "over --rate-range; ratio=R: share of high-rate slots (N=2); K: slots "
+                        "per interval; nonstationary: a new matrix every K slots; balanced: "
+                        "every state equally often. trace:FILE[,N=4][,states=MIN-MAX][,rescale]"
+                        "[,start=S][,slot=S]: a CSV throughput trace at its real Mbit/s (an "
+                        "outage uploads nothing), states by the trace's quantiles or evenly "
+                        "over states=, rescale: map its min..max onto --rate-range, start: "
+                        "seconds into the trace for every seed (default: an offset per seed), "
+                        "slot: seconds a slot lasts (default 2)")
     parser.add_argument("--rate-range", type=_rate_range,
                         default=f"{table1.RATE_MIN_MBPS:g},{table1.RATE_MAX_MBPS:g}",
                         help="min,max Mbit/s the channel states spread over")
@@ -586,6 +641,36 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--slots", type=int, default=40, help="simulator slots per run")
     demo.add_argument("--seeds", type=int, default=3, help="simulator runs per policy")
     demo.set_defaults(func=cmd_demo)
+    trace = sub.add_parser("trace", help="generate a synthetic uplink trace with regimes and "
+                           "outages, or describe a trace file")
+    trace.add_argument("action", choices=["generate", "info"],
+                       help="generate: write a trace to -o; info: describe FILE as a trace "
+                       "channel replays it (duration, per-slot rates, outages, states)")
+    trace.add_argument("file", nargs="?", help="info: the trace CSV to describe")
+    trace.add_argument("-o", "--output", help="generate: CSV to write (time_s,throughput_mbps)")
+    trace.add_argument("--seconds", type=float, default=600.0,
+                       help="generate: trace length in s (default %(default)s)")
+    trace.add_argument("--sample", type=float, default=0.1,
+                       help="generate: s between samples (default %(default)s)")
+    trace.add_argument("--rate-range", type=_rate_range, default="5,80",
+                       help="generate: min,max Mbit/s the regime means are drawn from "
+                       "(default 5,80)")
+    trace.add_argument("--regime", type=float, default=60.0,
+                       help="generate: mean s a regime lasts, exponential (default %(default)s)")
+    trace.add_argument("--noise", type=float, default=0.15,
+                       help="generate: relative std of samples around the regime mean "
+                       "(default %(default)s)")
+    trace.add_argument("--outage", type=_outage, action="append", metavar="START:SECONDS",
+                       help="generate: a 0 Mbit/s outage at START s lasting SECONDS (repeat)")
+    trace.add_argument("--outage-every", type=float, default=0.0,
+                       help="generate: also random outages, one per this many s on average "
+                       "(default 0: none)")
+    trace.add_argument("--outage-length", type=float, default=5.0,
+                       help="generate: mean s a random outage lasts (default %(default)s)")
+    trace.add_argument("--seed", type=int, default=0, help="generate: random seed (default 0)")
+    trace.add_argument("--states", type=int, default=4,
+                       help="N rate states to report quantile thresholds for (default 4)")
+    trace.set_defaults(func=cmd_trace)
     exp = sub.add_parser("experiment", help="reproduce a paper figure (CSV + PNG)")
     exp.add_argument("name", choices=["udt-fig3", "udt-fig4", "udt-fig5", "fig7", "fig8",
                                       "fig9"], help="which figure")

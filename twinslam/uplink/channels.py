@@ -3,17 +3,13 @@
 Inside an interval of K slots the rate follows an N-state Markov chain with one transition
 matrix; across intervals the matrix may change (the hidden x_t). ``MarkovChannel`` generates
 such rates, stationary (one matrix for all intervals) or non-stationary (a new matrix drawn per
-interval). ``TraceChannel`` replays a measured throughput trace instead.
-
-Trace file format (CSV, one header line): ``time_s,throughput_mbps``, time strictly
-increasing, throughput finite and >= 0. Each slot takes the mean throughput over its time
-window; the trace is scaled linearly onto the configured rate range and quantised to the
-nearest of N states.
+interval). ``TraceChannel`` replays a measured throughput trace instead: the slot's real mean
+Mbit/s (an outage is 0: nothing uploads), its state from a :class:`RateQuantiser`, each seed
+starting at its own offset into the trace. File formats: :mod:`twinslam.uplink.traces`.
 """
 
 from __future__ import annotations
 
-import csv
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,10 +17,14 @@ from pathlib import Path
 import numpy as np
 
 from twinslam.common import table1
+from twinslam.uplink.errors import ChannelError
+from twinslam.uplink.quantiser import RateQuantiser
+from twinslam.uplink.traces import read_trace
 
+__all__ = ["ChannelError", "MarkovChannel", "TraceChannel", "parse_channel", "state_rates"]
 
-class ChannelError(ValueError):
-    """A bad channel specification or trace file; the message names the file and line."""
+#: seconds one slot lasts at the paper's sizes (F frames at the camera's rate)
+SLOT_SECONDS = table1.SLOT_FRAMES / table1.FRAME_RATE_HZ
 
 
 def state_rates(n_states: int, d_min: float = 40.0, d_max: float = 80.0) -> np.ndarray:
@@ -139,92 +139,139 @@ class MarkovChannel:
         return self._state, float(self.rates[self._state])
 
 
-def read_trace(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Parse a ``time_s,throughput_mbps`` CSV; refuse bad values naming file and line."""
-    path = Path(path)
-    if not path.is_file():
-        raise ChannelError(f"trace file {path} does not exist")
-    times: list[float] = []
-    values: list[float] = []
-    with path.open(newline="", encoding="utf-8") as fh:
-        reader = csv.reader(fh)
-        header = next(reader, None)
-        if header is None:
-            raise ChannelError(f"{path}: empty trace file")
-        if [h.strip() for h in header] != ["time_s", "throughput_mbps"]:
-            raise ChannelError(f"{path}:1: header must be 'time_s,throughput_mbps', got {header}")
-        for lineno, row in enumerate(reader, start=2):
-            if not row or all(not c.strip() for c in row):
-                continue
-            if len(row) != 2:
-                raise ChannelError(f"{path}:{lineno}: expected 2 columns, got {len(row)}")
-            try:
-                t, v = float(row[0]), float(row[1])
-            except ValueError:
-                raise ChannelError(f"{path}:{lineno}: not a number: {row}") from None
-            if not (math.isfinite(t) and math.isfinite(v)):
-                raise ChannelError(f"{path}:{lineno}: NaN or infinite value {row}")
-            if v < 0:
-                raise ChannelError(f"{path}:{lineno}: negative throughput {v}")
-            if times and t <= times[-1]:
-                raise ChannelError(f"{path}:{lineno}: time {t} does not increase")
-            times.append(t)
-            values.append(v)
-    if not times:
-        raise ChannelError(f"{path}: trace holds no samples")
-    return np.array(times), np.array(values)
-
-
 @dataclass
 class TraceChannel:
-    """Replays a throughput trace, one slot per ``slot_seconds``, quantised to N states."""
+    """Replays a throughput trace one slot (``slot_seconds``) at a time.
+
+    ``step`` gives the slot's mean real Mbit/s — the step function of the samples averaged over
+    the slot, the trace looping at its end — and its state from ``quantiser``. ``rescale``
+    (explicit only) maps the trace's min..max linearly onto a range first, the way the first
+    versions replayed every trace. ``reset(seed)`` starts at ``start_s`` if given, else at an
+    offset drawn from the seed, so seeds replay different stretches of one trace.
+    """
 
     times: np.ndarray
-    throughput: np.ndarray
-    rates: np.ndarray
-    slot_seconds: float = 2.0
+    throughput: np.ndarray                    #: Mbit/s, as measured
+    quantiser: RateQuantiser
+    slot_seconds: float = SLOT_SECONDS
+    rescale: tuple[float, float] | None = None
+    start_s: float | None = None
+    seed: int = 0
+    _offset: float = field(init=False, default=0.0)
     _slot: int = field(init=False, default=0)
-    _levels: np.ndarray = field(init=False, repr=False)
+    _cumulative: np.ndarray = field(init=False, repr=False)
+    _period: float = field(init=False, default=0.0)
+    _edges: np.ndarray = field(init=False, repr=False)
 
     @classmethod
-    def from_csv(cls, path: Path, n_states: int,
-                 rate_range: tuple[float, float] = table1.RATE_RANGE_MBPS,
-                 slot_seconds: float = 2.0) -> TraceChannel:
+    def from_csv(cls, path: Path, n_states: int, quantise_range: tuple[float, float] | None = None,
+                 slot_seconds: float = SLOT_SECONDS, rescale: tuple[float, float] | None = None,
+                 start_s: float | None = None, seed: int = 0) -> TraceChannel:
+        """A trace file's channel; states over ``quantise_range`` (evenly) or, by default, the
+        trace's own quantiles of its per-slot rates."""
         times, values = read_trace(path)
-        return cls(times, values, state_rates(n_states, *rate_range), slot_seconds)
+        channel = cls(times, values, RateQuantiser.evenly(1, 0.0, 1.0), slot_seconds, rescale,
+                      start_s, seed)
+        channel.quantiser = (RateQuantiser.evenly(n_states, *quantise_range) if quantise_range
+                             else RateQuantiser.from_quantiles(channel.slot_rates(), n_states))
+        return channel
 
     def __post_init__(self) -> None:
-        lo, hi = float(self.throughput.min()), float(self.throughput.max())
-        span = hi - lo
-        scaled = (self.rates[0] + (self.throughput - lo) / span * (self.rates[-1] - self.rates[0])
-                  if span > 0 else np.full_like(self.throughput, self.rates.mean()))
-        self._levels = scaled
+        t = np.asarray(self.times, dtype=np.float64)
+        v = np.asarray(self.throughput, dtype=np.float64)
+        if t.ndim != 1 or t.shape != v.shape or t.size < 2 or np.any(np.diff(t) <= 0):
+            raise ChannelError("a trace needs >= 2 samples at strictly increasing times")
+        if not self.slot_seconds > 0:
+            raise ChannelError(f"slot length must be > 0 s, got {self.slot_seconds}")
+        if self.rescale is not None:
+            lo, hi = self.rescale
+            span = float(v.max() - v.min())
+            v = (lo + (v - v.min()) / span * (hi - lo) if span > 0
+                 else np.full_like(v, (lo + hi) / 2))
+        self.times, self.throughput = t, v
+        # each sample holds until the next; the last for the median sample spacing
+        held = np.diff(t, append=t[-1] + float(np.median(np.diff(t))))
+        self._period = float(held.sum())
+        self._cumulative = np.concatenate([[0.0], np.cumsum(v * held)])
+        self._edges = np.concatenate([t - t[0], [self._period]])
+        self.reset(self.seed)
 
     @property
     def n_states(self) -> int:
-        return int(self.rates.size)
+        return self.quantiser.n_states
+
+    @property
+    def rates(self) -> np.ndarray:
+        """The representative Mbit/s of each state (for emulated rates and initial shaping)."""
+        return self.quantiser.rates
+
+    @property
+    def duration_s(self) -> float:
+        return self._period
+
+    def _integral(self, t: float) -> float:
+        """∫ rate dt (Mbit) from the trace's start to ``t`` s after it, looping."""
+        laps, rest = divmod(t, self._period)
+        return laps * float(self._cumulative[-1]) + float(
+            np.interp(rest, self._edges, self._cumulative))
+
+    def rate_over(self, start: float, seconds: float) -> float:
+        """Mean Mbit/s from ``start`` s into the trace for ``seconds`` (rounded to 1e-9 so that
+        a constant trace gives its constant back, not 39.99999999999977)."""
+        return round((self._integral(start + seconds) - self._integral(start)) / seconds, 9)
+
+    def slot_rates(self) -> np.ndarray:
+        """The mean rate of every whole slot of one pass through the trace from its start."""
+        n = max(1, int(self._period // self.slot_seconds))
+        return np.array([self.rate_over(i * self.slot_seconds, self.slot_seconds)
+                         for i in range(n)])
 
     def reset(self, seed: int | None = None) -> None:
         self._slot = 0
+        if self.start_s is not None:
+            self._offset = float(self.start_s)
+        else:
+            rng = np.random.default_rng(self.seed if seed is None else seed)
+            self._offset = float(rng.uniform(0.0, self._period))
+
+    @property
+    def offset_s(self) -> float:
+        """Where in the trace this run started (s after its first sample)."""
+        return self._offset
 
     def step(self) -> tuple[int, float]:
-        """Mean scaled throughput of the next slot's window (the trace loops at its end)."""
-        duration = float(self.times[-1] - self.times[0]) or self.slot_seconds
-        start = self.times[0] + (self._slot * self.slot_seconds) % max(duration, self.slot_seconds)
-        window = (self.times >= start) & (self.times < start + self.slot_seconds)
-        level = float(self._levels[window].mean()) if window.any() else \
-            float(np.interp(start, self.times, self._levels))
+        """(state, real mean Mbit/s) of the next slot."""
+        rate = self.rate_over(self._offset + self._slot * self.slot_seconds, self.slot_seconds)
         self._slot += 1
-        state = int(np.argmin(np.abs(self.rates - level)))
-        return state, float(self.rates[state])
+        return self.quantiser.state(rate), rate
+
+
+def initial_rate(channel: MarkovChannel | TraceChannel) -> float:
+    """A positive Mbit/s to shape with before the first slot's rate is known: the lowest
+    positive state rate (a trace's lowest state may be an outage)."""
+    positive = [float(r) for r in channel.rates if r > 0]
+    return min(positive) if positive else table1.RATE_MIN_MBPS
+
+
+def _pair(text: str, what: str) -> tuple[float, float]:
+    lo, sep, hi = text.partition("-")
+    if not sep:
+        raise ChannelError(f"{what} takes MIN-MAX in Mbit/s, got {text!r}")
+    return float(lo), float(hi)
 
 
 def parse_channel(spec: str, rate_range: tuple[float, float] = table1.RATE_RANGE_MBPS,
                   seed: int = 0) -> MarkovChannel | TraceChannel:
     """Build a channel from a CLI spec.
 
-    ``markov:N=2[,ratio=0.5][,K=100][,nonstationary][,balanced]`` or ``trace:FILE[,N=4]``;
-    ``balanced`` draws doubly stochastic matrices (every state equally often in the long run).
+    ``markov:N=2[,ratio=0.5][,K=100][,nonstationary][,balanced]``: N rates evenly over
+    ``rate_range``; ``balanced`` draws doubly stochastic matrices (every state equally often).
+
+    ``trace:FILE[,N=4][,states=MIN-MAX][,rescale][,start=S][,slot=S]``: the trace's real Mbit/s
+    (an outage uploads nothing); states by the trace's quantiles, or evenly over
+    ``states=MIN-MAX``; ``rescale`` maps the trace's min..max onto ``rate_range`` first;
+    ``start=S`` fixes where every seed starts (default: an offset per seed); ``slot=S`` the slot
+    length (default F / frame rate = 2 s).
     """
     kind, _, rest = spec.partition(":")
     opts: dict[str, str] = {}
@@ -251,7 +298,16 @@ def parse_channel(spec: str, rate_range: tuple[float, float] = table1.RATE_RANGE
         if kind == "trace":
             if not target:
                 raise ChannelError("trace: needs a file, e.g. trace:uplink.csv,N=4")
-            return TraceChannel.from_csv(Path(target), n, rate_range)
+            unknown = flags - {"rescale"} or set(opts) - {"N", "states", "start", "slot"}
+            if unknown:
+                raise ChannelError(f"trace: unknown option(s) {sorted(unknown)}; use N=, "
+                                   "states=MIN-MAX, rescale, start=S, slot=S")
+            return TraceChannel.from_csv(
+                Path(target), n,
+                _pair(opts["states"], "states=") if "states" in opts else None,
+                float(opts.get("slot", SLOT_SECONDS)),
+                rate_range if "rescale" in flags else None,
+                float(opts["start"]) if "start" in opts else None, seed)
     except (KeyError, ValueError) as exc:
         if isinstance(exc, ChannelError):
             raise
