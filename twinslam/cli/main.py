@@ -1,20 +1,25 @@
-"""``twinslam``: the command-line entry point for the offline tools.
+"""``twinslam``: the command-line entry point for the offline tools and the live pipeline.
 
-    twinslam sim --policy lff,pu,adapt,reference --vmax 45 --channel markov:N=2 --slots 200 \
-                 --seeds 5 --covis FILE [--csv OUT]      # mbrl:CHECKPOINT is a policy too
+    twinslam sim --covis FILE --policy lff,pu,adapt,reference [--channel markov:N=2]
+                 [--vmax 45] [--slots 200] [--seeds 5] [--csv OUT]   # mbrl:CHECKPOINT too
     twinslam train --covis FILE --channel markov:N=2 --vmax 45 [--rate-model udt] -o OUT.pt
     twinslam extract SEQUENCE -o covis.npz [--start N] [--end N] [--features 1000]
     twinslam record SEQUENCE -o BAG [--start N] [--end N]   # the player's topics as MCAP
+    twinslam trace generate -o uplink.csv --outage 300:10   # or: trace info FILE
     twinslam nodes [--timeout 3.5]        # the ROS graph on $ROS_DOMAIN_ID (ros2 node list)
     twinslam launch --scenario revisit-lost --policy lff,adapt --loopback
     twinslam evaluate --policy lff,pu,adapt --seeds 3     # live: policy x scenario x seed
+    twinslam experiment fig7 --policy UDT=results/amm_udt.pt   # paper figures
     twinslam demo                         # what `make run` runs
+
+`twinslam COMMAND --help` documents every option of a command.
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+import functools
 import os
 import sys
 import time
@@ -525,8 +530,10 @@ def cmd_trace(args: argparse.Namespace) -> int:
 
 def _add_setting_arguments(parser: argparse.ArgumentParser) -> None:
     """What the simulator and the trainer both take: the data, the uplink and V_max."""
-    parser.add_argument("--covis", required=True,
-                        help="covisibility .npz, or 'geometric[:frames]' for the room model")
+    parser.add_argument("--covis", required=True, metavar="FILE|geometric[:FRAMES]",
+                        help="covisibility .npz from `twinslam extract`, or "
+                        "'geometric[:frames]' for the geometric room model (600 frames unless "
+                        "given)")
     parser.add_argument("--channel", default="markov:N=2",
                         help="uplink rate model (default %(default)s). "
                         "markov:N=2[,ratio=R][,K=100][,nonstationary][,balanced]: N rates evenly "
@@ -538,57 +545,96 @@ def _add_setting_arguments(parser: argparse.ArgumentParser) -> None:
                         "over states=, rescale: map its min..max onto --rate-range, start: "
                         "seconds into the trace for every seed (default: an offset per seed), "
                         "slot: seconds a slot lasts (default 2)")
-    parser.add_argument("--rate-range", type=_rate_range,
+    parser.add_argument("--rate-range", type=_rate_range, metavar="MIN,MAX",
                         default=f"{table1.RATE_MIN_MBPS:g},{table1.RATE_MAX_MBPS:g}",
-                        help="min,max Mbit/s the channel states spread over")
+                        help="Mbit/s the Markov channel's N rates spread over (a trace only "
+                        "with its rescale option)")
     parser.add_argument("--vmax", type=int, default=table1.VMAX,
-                        help="V_max, keyframes the edge may hold")
+                        help="V_max, keyframes the edge map holds at most")
+
+
+class _HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """Every option's help ends with its default, unless the text already gives it."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        default = action.default
+        if (action.option_strings and default is not None and default is not False
+                and default != argparse.SUPPRESS and "default" not in text):
+            text += " (default: %(default)s)"
+        return text
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="twinslam", description=__doc__.split("\n")[0])
-    sub = parser.add_subparsers(dest="command", required=True)
-    sim = sub.add_parser("sim", help="evaluate map-management policies offline")
+    parser = argparse.ArgumentParser(prog="twinslam", description=__doc__,
+                                     formatter_class=_HelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    sub.add_parser = functools.partial(sub.add_parser,  # type: ignore[method-assign]
+                                       formatter_class=_HelpFormatter)
+    sim = sub.add_parser("sim", help="evaluate map-management policies offline",
+                         description="Each policy over --seeds runs of the gym-style simulator "
+                         "(covisibility from real frames, a rate model): mean υ with a lost "
+                         "frame scoring 0, its 95 %% CI, the lost share and υ over tracked "
+                         "frames.")
     sim.add_argument("--policy", default="lff,pu,adapt,reference",
-                     help="comma-separated policies: lff, pu, adapt, random, oracle, "
-                     "mbrl:CHECKPOINT")
+                     help="comma-separated: lff (latest frames first), pu (periodical "
+                     "uploading), adapt (AdaptSLAM's greedy log-det), random, mbrl:CHECKPOINT "
+                     "(a policy from `twinslam train`), reference (a clairvoyant search "
+                     "started from every other listed policy: beam search, then swap local "
+                     "search; not a bound)")
     _add_setting_arguments(sim)
     sim.add_argument("--slot-frames", type=int, default=table1.SLOT_FRAMES,
-                     help="F, frames per slot")
+                     help="F, frames per slot (a slot lasts F / 30 Hz)")
     sim.add_argument("--slots", type=int, default=200, help="slots per run")
-    sim.add_argument("--seeds", type=int, default=5, help="runs, one seed each")
+    sim.add_argument("--seeds", type=int, default=5,
+                     help="runs per policy, seeds --seed0 … --seed0 + N - 1 (each seed: its "
+                     "own start frame and rate sequence)")
     sim.add_argument("--seed0", type=int, default=0, help="the first run's seed")
-    sim.add_argument("--csv", help="also write every run's scores to this CSV file")
-    sim.add_argument("-v", "--verbose", action="store_true", help="print every slot")
+    sim.add_argument("--csv", metavar="FILE",
+                     help="also write one row per run: policy, seed, mean_uncertainty (a lost "
+                     "frame = 0), lost_share, tracked_uncertainty")
+    sim.add_argument("-v", "--verbose", action="store_true",
+                     help="print every run's scores as it finishes")
     sim.set_defaults(func=cmd_sim)
-    train = sub.add_parser("train", help="train the learned (MBRL) map-management policy")
+    train = sub.add_parser("train", help="train the learned (MBRL) map-management policy",
+                           description="Actor-critic on the map graph (paper §VI), the state "
+                           "augmented by a rate model; checkpoints are validated on seeds "
+                           "training never plays and the best validation is kept. Writes the "
+                           "checkpoint and a CSV training log beside it.")
     _add_setting_arguments(train)
     train.add_argument("--slots", type=int, default=3000, help="real slots to train on")
     train.add_argument("--episode-slots", type=int, default=200, help="slots per episode")
     train.add_argument("--rate-model", default="udt", choices=["udt", "lstm", "markov"],
-                       help="what augments the state and generates artificial experiences")
+                       help="what augments the state and generates artificial experiences: "
+                       "udt (the digital twin's latent), lstm (a point predictor), markov "
+                       "(transition counts)")
     train.add_argument("--real-fraction", type=float, default=0.5,
-                       help="I/|Ξ|: share of real tuples in each batch")
+                       help="I/|Ξ|: share of real tuples in each batch, in (0, 1]")
     train.add_argument("--artificial", type=int, default=2,
                        help="J: artificial tuples per real one (0: real experiences only)")
     train.add_argument("--seed", type=int, default=0, help="seed of the channel and the networks")
-    train.add_argument("--threads", type=int, default=2, help="torch threads")
-    train.add_argument("-o", "--output", default="results/amm_policy.pt",
-                       help="checkpoint to write (then --policy mbrl:PATH)")
+    train.add_argument("--threads", type=int, default=2, help="torch CPU threads")
+    train.add_argument("-o", "--output", default="results/amm_policy.pt", metavar="FILE",
+                       help="checkpoint to write (then --policy mbrl:FILE)")
     train.set_defaults(func=cmd_train)
-    extract = sub.add_parser("extract", help="covisibility dataset from an RGB-D sequence")
+    extract = sub.add_parser("extract", help="covisibility dataset from an RGB-D sequence",
+                             description="Runs the device's ORB front end and tracking over a "
+                             "sequence and stores which map points every frame observes (the "
+                             "simulator's and the trainer's --covis).")
     extract.add_argument("sequence", help="a SUN3D, 7-Scenes or TUM RGB-D folder, a recorded "
                          "bag, or synthetic[:frames]")
     extract.add_argument("-o", "--output", required=True, help="covisibility .npz to write")
-    extract.add_argument("--start", type=int, default=0, help="first frame read")
-    extract.add_argument("--end", type=int, default=-1, help="first frame not read (-1: all)")
+    extract.add_argument("--start", type=int, default=0, help="index of the first frame read")
+    extract.add_argument("--end", type=int, default=-1,
+                         help="index of the first frame not read (-1: to the end)")
     extract.add_argument("--features", type=int, default=1000, help="ORB features per frame")
     extract.set_defaults(func=cmd_extract)
     record = sub.add_parser("record", help="a sequence's camera topics as a rosbag2 (MCAP)")
     record.add_argument("sequence", help="a SUN3D, 7-Scenes or TUM RGB-D folder")
     record.add_argument("-o", "--output", required=True, help="rosbag2 folder to create")
-    record.add_argument("--start", type=int, default=0, help="first frame recorded")
-    record.add_argument("--end", type=int, default=-1, help="first frame not recorded (-1: all)")
+    record.add_argument("--start", type=int, default=0, help="index of the first frame recorded")
+    record.add_argument("--end", type=int, default=-1,
+                        help="index of the first frame not recorded (-1: to the end)")
     record.set_defaults(func=cmd_record)
     nodes = sub.add_parser("nodes", help="list the nodes on $ROS_DOMAIN_ID (like ros2 node list)")
     nodes.add_argument("--timeout", type=float, default=3.5,
@@ -606,11 +652,14 @@ def build_parser() -> argparse.ArgumentParser:
     launch = sub.add_parser("launch", help="run player, device, edge (and twin) as processes")
     launch.add_argument("--sequence", default="synthetic",
                         help="SUN3D / 7-Scenes / TUM folder, MCAP bag, or synthetic[:frames]")
-    launch.add_argument("--policy", default="adapt", help="one or more, comma-separated")
+    launch.add_argument("--policy", default="adapt",
+                        help="the edge's policy, one run each, comma-separated: lff, pu, adapt, "
+                        "random, mbrl:CHECKPOINT")
     launch.add_argument("--frames", type=int, default=600, help="frames to play; -1: all")
-    launch.add_argument("--rate", type=float, default=1.0, help="x the recorded frame rate")
+    launch.add_argument("--rate", type=float, default=1.0,
+                        help="playback speed, × the recorded frame rate")
     launch.add_argument("--params", type=Path, default=REPO_ROOT / "config" / "twinslam.yaml",
-                        help="ROS 2 parameter file")
+                        help="ROS 2 parameter file for the nodes")
     launch.add_argument("--twin", action="store_true", help="start udt_node too")
     launch.add_argument("--loopback", action="store_true",
                         help="a private loopback DDS domain instead of $ROS_DOMAIN_ID")
@@ -623,8 +672,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="seconds a policy's run may take before its nodes are stopped")
     launch.add_argument("--scenario", default="forward",
                         help="forward, revisit (forward then back), revisit-lost (+ 3 s "
-                        "covered lens), small-map (+ V_max 15), constrained (+ 5-20 Mbit/s); "
-                        "default %(default)s")
+                        "covered lens), small-map (+ V_max 15), constrained (+ "
+                        "5-20 Mbit/s); default %(default)s")
     launch.set_defaults(func=cmd_launch)
     from twinslam.cli.demo import REAL_SEQUENCE
     from twinslam.cli.evaluate import add_arguments
@@ -637,7 +686,9 @@ def build_parser() -> argparse.ArgumentParser:
                   REPO_ROOT / "config" / "twinslam.yaml", list(SCENARIOS))
     evaluate.set_defaults(func=cmd_evaluate)
     demo = sub.add_parser("demo", help="the live pipeline per policy, then the simulator")
-    demo.add_argument("--frames", type=int, default=600, help="frames the pipeline plays")
+    demo.add_argument("--frames", type=int, default=600,
+                      help="frames the live pipeline plays (the revisit-lost part plays half "
+                      "of them forward and back)")
     demo.add_argument("--slots", type=int, default=40, help="simulator slots per run")
     demo.add_argument("--seeds", type=int, default=3, help="simulator runs per policy")
     demo.set_defaults(func=cmd_demo)
@@ -671,7 +722,10 @@ def build_parser() -> argparse.ArgumentParser:
     trace.add_argument("--states", type=int, default=4,
                        help="N rate states to report quantile thresholds for (default 4)")
     trace.set_defaults(func=cmd_trace)
-    exp = sub.add_parser("experiment", help="reproduce a paper figure (CSV + PNG)")
+    exp = sub.add_parser("experiment", help="reproduce a paper figure (CSV + PNG)",
+                         description="udt-fig3/4/5: the digital twin's transition-matrix "
+                         "error (paper Figs 3-5); fig7/8/9: mean υ, lost share and υ tracked of "
+                         "the policies vs the high-rate share, N, V_max (paper Figs 7-9).")
     exp.add_argument("name", choices=["udt-fig3", "udt-fig4", "udt-fig5", "fig7", "fig8",
                                       "fig9"], help="which figure")
     exp.add_argument("--runs", type=int, default=20, help="independent runs per point "
@@ -679,17 +733,20 @@ def build_parser() -> argparse.ArgumentParser:
     exp.add_argument("--policy", action="append", metavar="LABEL[@N]=CHECKPOINT",
                      help="fig7-9: a trained policy to compare (repeat); @N: for N states "
                      "(fig8)")
-    exp.add_argument("--covis",
+    exp.add_argument("--covis", metavar="FILE|geometric[:FRAMES]",
                      default=str(REPO_ROOT / "data" / "7scenes-redkitchen-1000.covis.npz"),
                      help="fig7-9: covisibility dataset")
     exp.add_argument("--slots", type=int, default=200, help="fig7-9: slots per run")
     exp.add_argument("--seed", type=int, default=0, help="the first run's seed")
-    exp.add_argument("--states", type=int, default=2, help="N for udt-fig5")
-    exp.add_argument("--interval-slots", type=int, default=300, help="K, slots per interval")
-    exp.add_argument("--retrain-every", type=int, default=300, help="W, slots between retrains")
+    exp.add_argument("--states", type=int, default=2, help="udt-fig5: N, rate states")
+    exp.add_argument("--interval-slots", type=int, default=300,
+                     help="udt-fig4/5: K, slots per interval of one transition matrix")
+    exp.add_argument("--retrain-every", type=int, default=300,
+                     help="udt-fig4/5: W, slots between retrains of the twin")
     exp.add_argument("--buffer-slots", type=int, default=300,
-                     help="latest real experiences a retrain learns from")
-    exp.add_argument("--out", default="results", help="folder for the CSV and PNG")
+                     help="udt-fig4/5: latest slots a retrain learns from")
+    exp.add_argument("--out", default="results", metavar="FOLDER",
+                     help="folder for the CSV and PNG")
     exp.add_argument("--jobs", type=int, default=1,
                      help="runs in parallel worker processes (one torch thread each)")
     exp.set_defaults(func=cmd_experiment)
