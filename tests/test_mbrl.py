@@ -206,6 +206,37 @@ def test_training_writes_a_policy_the_simulator_and_make_policy_run(
     EdgeMapperCore.warm_up(make_policy(f"mbrl:{path}"))
 
 
+def test_the_papers_amm_sees_no_adapt_answer_and_trains_into_a_policy_of_its_own_name(
+        kitchen: CovisibilityDataset, tmp_path: Path) -> None:
+    """actor='paper': ADAPT's flag columns stay 0, the score is the GCN's alone (no prior),
+    and the checkpoint runs as amm-<rate model>, beside mbrl-<rate model> (ADAPT + RL)."""
+    from twinslam.mbrl.state import ADAPT_EVICT, ADAPT_UPLOAD
+
+    env = _env(kitchen, seed=1)
+    obs, _ = env.reset(1)
+    state = build_state(obs, np.zeros(0, np.float32), history=8, adapt_features=False)
+    assert not state.nodes[:, [ADAPT_UPLOAD, ADAPT_EVICT]].any()
+    assert build_state(obs, np.zeros(0, np.float32), 8).nodes[:, ADAPT_UPLOAD].sum() == \
+        obs.n_upload
+    config = TrainConfig(slots=30, episode_slots=15, warmup_slots=10, batch_size=8,
+                         rate_model="markov", artificial_per_real=1, replay_capacity=100,
+                         log_every=5, validate_every=15, validation_seeds=1,
+                         validation_slots=10, actor="paper")
+    trainer = AmmTrainer(config, kitchen)
+    b = collate([trainer.state_of(obs)])
+    assert torch.equal(trainer.actor(b.x, b.adj, b.mask, b.context),
+                       trainer.actor.correction(b.x, b.adj, b.mask, b.context))
+    trainer.train()
+    assert trainer.actor.prior.item() == 0.0          # never trained: not part of the score
+    path = tmp_path / "paper.pt"
+    trainer.save(path)
+    policy = make_policy(f"mbrl:{path}")
+    assert policy.name == "amm-markov"
+    assert len(rollout(_env(kitchen, seed=3, slots=5), policy, 3).actions) == 5
+    with pytest.raises(ValueError, match="unknown actor"):
+        AmmTrainer(TrainConfig(actor="greedy"), kitchen)
+
+
 def test_bad_policy_checkpoints_are_refused_by_name(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="needs its checkpoint"):
         make_policy("mbrl")

@@ -224,6 +224,15 @@ def test_covisibility_file_round_trip_and_errors(tmp_path, room: CovisibilityDat
         load_covisibility(bad)
 
 
+def test_a_stretch_of_frames_is_a_dataset_of_its_own(room: CovisibilityDataset) -> None:
+    part = room.stretch(100, 250)
+    assert part.n_frames == 150
+    idx = np.arange(0, 150, 13)
+    assert np.array_equal(part.weights(idx, idx), room.weights(idx + 100, idx + 100))
+    with pytest.raises(ValueError, match="not a stretch"):
+        room.stretch(300, 500)
+
+
 def test_sim_cli_prints_a_table_and_writes_csv(tmp_path) -> None:
     """One CSV row per run; a lost frame scores 0, so mean = (1 - lost) · tracked in every
     row (V_max 8 on the room loses frames, so the identity is not 0 = 0)."""
@@ -246,6 +255,9 @@ def test_sim_cli_prints_a_table_and_writes_csv(tmp_path) -> None:
                           "geometric:300", "--channel", "wifi:fast"],
                          capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and "unknown channel" in bad.stderr
+    bad = subprocess.run([sys.executable, "-m", "twinslam.cli.main", "sim", "--covis",
+                          "geometric:300:x"], capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "geometric[:FRAMES[:SEED]]" in bad.stderr
 
 
 def test_adapt_policy_object_is_usable_by_name() -> None:

@@ -54,12 +54,31 @@ class _EnvDomain(LoopbackDomain):
 
 
 def _covis(spec: str):
+    """``FILE[@START:END]`` (a stretch of a covisibility file's frames) or
+    ``geometric[:FRAMES[:SEED]]`` (the room model; each seed walks its own trajectory)."""
     if spec.startswith("geometric"):
         from twinslam.simulator.geometric_covisibility import geometric_covisibility
 
-        _, _, frames = spec.partition(":")
-        return geometric_covisibility(n_frames=int(frames or 600))
-    return load_covisibility(Path(spec))
+        parts = spec.split(":")[1:]
+        try:
+            frames = int(parts[0]) if parts and parts[0] else 600
+            seed = int(parts[1]) if len(parts) > 1 else 0
+        except ValueError:
+            raise CovisibilityError(f"--covis {spec!r}: use geometric[:FRAMES[:SEED]]") from None
+        return geometric_covisibility(n_frames=frames, seed=seed)
+    path, at, stretch = spec.partition("@")
+    data = load_covisibility(Path(path))
+    if not at:
+        return data
+    start, colon, end = stretch.partition(":")
+    try:
+        if not colon:
+            raise ValueError
+        return data.stretch(int(start or 0), int(end) if end else data.n_frames)
+    except ValueError as exc:
+        if isinstance(exc, CovisibilityError):
+            raise
+        raise CovisibilityError(f"--covis {spec!r}: use FILE@START:END (frame indices)") from None
 
 
 def _rate_range(text: str) -> tuple[float, float]:
@@ -453,7 +472,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         dataset = _covis(args.covis)
         config = TrainConfig(channel=args.channel, rate_range=args.rate_range,
                              vmax=args.vmax, slots=args.slots, episode_slots=args.episode_slots,
-                             seed=args.seed, rate_model=args.rate_model,
+                             seed=args.seed, rate_model=args.rate_model, actor=args.actor,
                              real_fraction=args.real_fraction,
                              artificial_per_real=args.artificial)
         torch.set_num_threads(args.threads)
@@ -467,7 +486,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print(f"training on {dataset.n_frames} frames ({dataset.source or args.covis}); channel "
-          f"{args.channel}; V_max {args.vmax}; rate model {args.rate_model}; I/|Ξ| "
+          f"{args.channel}; V_max {args.vmax}; actor {args.actor}; rate model "
+          f"{args.rate_model}; I/|Ξ| "
           f"{config.real_count}/{config.batch_size}, J {config.artificial_per_real}; "
           f"{args.slots} slots", flush=True)
     log = trainer.train()
@@ -530,10 +550,11 @@ def cmd_trace(args: argparse.Namespace) -> int:
 
 def _add_setting_arguments(parser: argparse.ArgumentParser) -> None:
     """What the simulator and the trainer both take: the data, the uplink and V_max."""
-    parser.add_argument("--covis", required=True, metavar="FILE|geometric[:FRAMES]",
-                        help="covisibility .npz from `twinslam extract`, or "
-                        "'geometric[:frames]' for the geometric room model (600 frames unless "
-                        "given)")
+    parser.add_argument("--covis", required=True, metavar="FILE[@START:END]|geometric[:N[:SEED]]",
+                        help="covisibility .npz from `twinslam extract` (@START:END: only that "
+                        "stretch of its frames, e.g. to hold the rest out), or "
+                        "'geometric[:frames[:seed]]' for the geometric room model (600 frames, "
+                        "seed 0 unless given; each seed walks its own trajectory)")
     parser.add_argument("--channel", default="markov:N=2",
                         help="uplink rate model (default %(default)s). "
                         "markov:N=2[,ratio=R][,K=100][,nonstationary][,balanced]: N rates evenly "
@@ -608,6 +629,10 @@ def build_parser() -> argparse.ArgumentParser:
                        help="what augments the state and generates artificial experiences: "
                        "udt (the digital twin's latent), lstm (a point predictor), markov "
                        "(transition counts)")
+    train.add_argument("--actor", default="residual", choices=["paper", "residual"],
+                       help="paper: the paper's AMM (the GCN's score per frame, no ADAPT "
+                       "prior, no ADAPT features); residual: ADAPT + residual RL (ADAPT's "
+                       "decision as prior and node features, plus a learned correction)")
     train.add_argument("--real-fraction", type=float, default=0.5,
                        help="I/|Ξ|: share of real tuples in each batch, in (0, 1]")
     train.add_argument("--artificial", type=int, default=2,
@@ -733,7 +758,7 @@ def build_parser() -> argparse.ArgumentParser:
     exp.add_argument("--policy", action="append", metavar="LABEL[@N]=CHECKPOINT",
                      help="fig7-9: a trained policy to compare (repeat); @N: for N states "
                      "(fig8)")
-    exp.add_argument("--covis", metavar="FILE|geometric[:FRAMES]",
+    exp.add_argument("--covis", metavar="FILE[@START:END]|geometric[:N[:SEED]]",
                      default=str(REPO_ROOT / "data" / "7scenes-redkitchen-1000.covis.npz"),
                      help="fig7-9: covisibility dataset")
     exp.add_argument("--slots", type=int, default=200, help="fig7-9: slots per run")

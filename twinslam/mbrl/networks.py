@@ -7,10 +7,14 @@ and dense (issue #7 measured 64 such graphs forward + backward in 7 ms dense vs 
 sparse ``GCNConv`` over all pairs).
 
 * **Actor** — per node: [its embedding, the graph's mean embedding, the context] → a score.
-  The score starts from ADAPT's answer (``prior ·`` :func:`adapt_scores`, ``prior`` a learned
-  scalar starting at 1) and the network adds a learned correction whose last layer starts near
-  zero, so training starts from the myopic greedy policy and moves away from it
-  only where the critic says the long run gains.
+  Two variants (``ACTORS``):
+
+  - ``paper`` — the paper's AMM: the network's score is the score (its node features carry no
+    ADAPT flags, :func:`~twinslam.mbrl.state.build_state` leaves them 0).
+  - ``residual`` — "ADAPT + residual RL", ours: the score starts from ADAPT's answer
+    (``prior ·`` :func:`adapt_scores`, ``prior`` a learned scalar starting at 1) and the
+    network adds a correction whose last layer starts near zero, so training starts from the
+    myopic greedy policy and moves away from it only where the critic says the long run gains.
 * **Critic** — Q(s, a) with the action as two node features (uploaded, evicted); the readout
   is the mean embedding of all nodes and the mean over the frames the action keeps in the map.
 """
@@ -52,15 +56,31 @@ class GraphEmbedding(nn.Module):
         return torch.relu(self.conv2(h, adj, mask))
 
 
+#: the actor variants: the paper's AMM, and ADAPT's decision plus a learned correction
+ACTORS = ("paper", "residual")
+
+
 class Actor(nn.Module):
-    def __init__(self, context_size: int) -> None:
+    def __init__(self, context_size: int, variant: str = "residual") -> None:
         super().__init__()
+        if variant not in ACTORS:
+            raise ValueError(f"unknown actor {variant!r}; choose from {', '.join(ACTORS)}")
+        self.variant = variant
         self.embed = GraphEmbedding(NODE_FEATURES)
         self.head = _mlp(32 + 32 + context_size, (64, 32, 16), 1)
-        with torch.no_grad():                       # start as ADAPT plus a small correction
-            self.head[-1].weight.mul_(0.01)
-            self.head[-1].bias.zero_()
-        self.prior = nn.Parameter(torch.tensor(1.0))
+        if variant == "residual":
+            with torch.no_grad():                   # start as ADAPT plus a small correction
+                self.head[-1].weight.mul_(0.01)
+                self.head[-1].bias.zero_()
+        #: the weight of ADAPT's scores (learned; unused by the paper's actor)
+        self.prior = nn.Parameter(torch.tensor(1.0 if variant == "residual" else 0.0),
+                                  requires_grad=variant == "residual")
+
+    def base_scores(self, x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """What the correction is added to: ADAPT's scores × prior, or 0 for the paper's."""
+        if self.variant == "paper":
+            return torch.zeros(mask.shape)
+        return self.prior * adapt_scores(x) * mask.float()
 
     def correction(self, x: torch.Tensor, adj: torch.Tensor, mask: torch.Tensor,
                    context: torch.Tensor) -> torch.Tensor:
@@ -75,8 +95,7 @@ class Actor(nn.Module):
     def forward(self, x: torch.Tensor, adj: torch.Tensor, mask: torch.Tensor,
                 context: torch.Tensor) -> torch.Tensor:
         """Scores (B, n); padded nodes score 0 and are never chosen (they are not frames)."""
-        return self.prior * adapt_scores(x) * mask.float() + \
-            self.correction(x, adj, mask, context)
+        return self.base_scores(x, mask) + self.correction(x, adj, mask, context)
 
 
 def adapt_scores(x: torch.Tensor) -> torch.Tensor:

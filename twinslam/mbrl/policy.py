@@ -65,13 +65,17 @@ class MbrlPolicy:
         self.rate_model_name = str(blob["rate_model"])
         self.rate_model: RateModel = load_rate_model(self.rate_model_name,
                                                      blob["rate_model_state"])
+        #: paper (the paper's AMM) or residual (ADAPT + residual RL); older checkpoints: residual
+        self.actor_variant = str(blob["config"].get("actor", "residual"))
         self.actor = Actor(context_size(self.history, self.n_states,
-                                        self.rate_model.feature_size))
+                                        self.rate_model.feature_size), self.actor_variant)
         self.actor.load_state_dict(blob["actor"])
         self.actor.eval()
         real_only = int(blob["config"].get("artificial_per_real", 1)) == 0
-        #: e.g. mbrl-udt, as tables show it; -real for a policy trained without artificial tuples
-        self.name = f"mbrl-{self.rate_model_name}{'-real' if real_only else ''}"
+        #: as tables show it: amm-udt (the paper's AMM), mbrl-udt (ADAPT + residual RL); -real
+        #: for a policy trained without artificial tuples
+        kind = "amm" if self.actor_variant == "paper" else "mbrl"
+        self.name = f"{kind}-{self.rate_model_name}{'-real' if real_only else ''}"
         self._seen = 0
 
     def reset(self, seed: int | None = None) -> None:
@@ -107,7 +111,8 @@ class MbrlPolicy:
         elif rate_features.shape != (self.feature_size,):
             raise ValueError(f"policy {self.path} takes {self.feature_size} rate features, got "
                              f"{rate_features.shape}")
-        state = build_state(obs, rate_features, self.history)
+        state = build_state(obs, rate_features, self.history,
+                            adapt_features=self.actor_variant == "residual")
         batch = collate([state])
         scores = self.actor(batch.x, batch.adj, batch.mask, batch.context)[0].numpy()
         return action_from_scores(state, scores.astype(np.float64))[0]

@@ -9,8 +9,9 @@ node with features a GCN can combine with its neighbours':
     weight to the newest candidates · share of nodes it is covisible with ·
     ADAPT would upload it · ADAPT would evict it
 
-The last two give the actor the myopic greedy answer to start from (AdaptSLAM's logdet rule,
-one numba call per slot); what it has to learn is when the long run wants something else. The
+The last two give the residual actor the myopic greedy answer to start from (AdaptSLAM's
+logdet rule, one numba call per slot); what it has to learn is when the long run wants
+something else. The paper's AMM gets them as zeros. The
 graph-level context is Theorem 1's cardinalities, the one-hot rate history and the rate model's
 features.
 
@@ -60,10 +61,12 @@ def context_size(history: int, n_states: int, rate_features: int) -> int:
     return 3 + history * n_states + rate_features
 
 
-def build_state(obs: SlotObservation, rate_features: np.ndarray, history: int) -> GraphState:
+def build_state(obs: SlotObservation, rate_features: np.ndarray, history: int,
+                adapt_features: bool = True) -> GraphState:
     """The graph state of ``obs``; ``rate_features`` come from the rate model and
     ``history`` is the number of rate states the context holds (shorter histories are padded
-    with their oldest state, as the rate models do)."""
+    with their oldest state, as the rate models do). ``adapt_features=False`` (the paper's
+    AMM) leaves ADAPT's two flag columns 0: the actor sees no greedy answer."""
     v, f = list(obs.map_frames), list(obs.candidates)
     frames = v + f
     nv, n = len(v), len(v) + len(f)
@@ -81,10 +84,11 @@ def build_state(obs: SlotObservation, rate_features: np.ndarray, history: int) -
     x[:, 5] = log_w[:, nv:].sum(axis=1) / LOG_WEIGHT_SCALE / SIZE_SCALE
     x[:, 6] = log_w[:, n - min(NEWEST, len(f)):].sum(axis=1) / LOG_WEIGHT_SCALE / NEWEST
     x[:, 7] = (w > 0).sum(axis=1) / max(n - 1, 1)
-    greedy = adapt_action(v, f, w, obs.n_upload, obs.n_evict)
-    at = {fr: i for i, fr in enumerate(frames)}
-    x[[at[u] for u in greedy.upload], ADAPT_UPLOAD] = 1.0
-    x[[at[e] for e in greedy.evict], ADAPT_EVICT] = 1.0
+    if adapt_features:
+        greedy = adapt_action(v, f, w, obs.n_upload, obs.n_evict)
+        at = {fr: i for i, fr in enumerate(frames)}
+        x[[at[u] for u in greedy.upload], ADAPT_UPLOAD] = 1.0
+        x[[at[e] for e in greedy.evict], ADAPT_EVICT] = 1.0
     hist = list(obs.rate_history)[-history:]
     hist = [hist[0]] * (history - len(hist)) + hist if hist else [0] * history
     one_hot = np.eye(obs.n_states, dtype=np.float32)[hist].ravel()

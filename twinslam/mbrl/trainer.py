@@ -28,7 +28,7 @@ import torch
 
 from twinslam.common import table1
 from twinslam.map_management.actions import SlotObservation
-from twinslam.mbrl.networks import Actor, Critic, adapt_scores, soft_flags
+from twinslam.mbrl.networks import Actor, Critic, soft_flags
 from twinslam.mbrl.policy import CHECKPOINT_FORMAT, MbrlPolicy
 from twinslam.mbrl.replay import (
     GraphBatch,
@@ -66,6 +66,8 @@ class TrainConfig:
     episode_slots: int = 200
     seed: int = 0
     rate_model: str = "udt"           #: udt | lstm | markov
+    #: paper (the paper's AMM: GCN scores, no ADAPT prior or features) | residual (ADAPT + RL)
+    actor: str = "residual"
     retrain_every: int = 100          #: W
     history: int = 8                  #: rate states in the context
     batch_size: int = 64              #: |Ξ|
@@ -128,7 +130,7 @@ class AmmTrainer:
         self.rate_model: RateModel = make_rate_model(config.rate_model, n_states,
                                                      config.retrain_every, config.seed)
         c = context_size(config.history, n_states, self.rate_model.feature_size)
-        self.actor, self.critic = Actor(c), Critic(c)
+        self.actor, self.critic = Actor(c, config.actor), Critic(c)
         self.actor_target = copy.deepcopy(self.actor)
         self.critic_target = copy.deepcopy(self.critic)
         self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=config.actor_lr)
@@ -150,7 +152,8 @@ class AmmTrainer:
         if not np.all(np.isfinite(features)):
             raise FloatingPointError(f"slot {obs.slot}: the {self.rate_model.name} rate model's "
                                      f"features are not finite: {features}")
-        return build_state(obs, features, self.config.history)
+        return build_state(obs, features, self.config.history,
+                           adapt_features=self.config.actor == "residual")
 
     @torch.no_grad()
     def scores(self, state: GraphState) -> np.ndarray:
@@ -167,7 +170,7 @@ class AmmTrainer:
         played, episode, start = 0, 0, time.perf_counter()
         warm_rewards: list[float] = []
         if cfg.validate_every:
-            self._keep_if_best(0)                  # the untrained actor: ADAPT's decisions
+            self._keep_if_best(0)    # the untrained actor (residual: ADAPT's decisions)
         pending: list[tuple[GraphState, np.ndarray, float, GraphState, bool]] = []
         while played < cfg.slots:
             obs, _ = self.env.reset(TRAINING_SEED_BASE + 1000 * cfg.seed + episode)
@@ -266,10 +269,12 @@ class AmmTrainer:
         self.critic_opt.step()
 
         correction = self.actor.correction(s.x, s.adj, s.mask, s.context)
-        scores = self.actor.prior * adapt_scores(s.x) * s.mask.float() + correction
+        scores = self.actor.base_scores(s.x, s.mask) + correction
         relaxed = soft_flags(scores, s.x, s.mask, s.n_upload, s.n_evict, cfg.temperature)
-        actor_loss = -self.critic(s.x, s.adj, s.mask, s.context, relaxed).mean() + \
-            cfg.correction_weight * (correction ** 2).sum() / s.mask.sum()
+        actor_loss = -self.critic(s.x, s.adj, s.mask, s.context, relaxed).mean()
+        if cfg.actor == "residual":          # stay near ADAPT unless the critic says otherwise
+            actor_loss = actor_loss + cfg.correction_weight * (correction ** 2).sum() / \
+                s.mask.sum()
         self.actor_opt.zero_grad()
         actor_loss.backward()
         torch.nn.utils.clip_grad_norm_(self.actor.parameters(), 10.0)

@@ -94,6 +94,19 @@ class CovisibilityDataset:
     def points(self, frame: int) -> np.ndarray:
         return self.point_ids[self.point_offsets[frame]:self.point_offsets[frame + 1]]
 
+    def stretch(self, start: int, end: int) -> CovisibilityDataset:
+        """Frames ``start`` … ``end - 1`` as a dataset of their own: a part of the trajectory
+        to train on while another part is held out for evaluation."""
+        if not 0 <= start < end <= self.n_frames or end - start < 2:
+            raise CovisibilityError(f"frames {start}:{end} are not a stretch of >= 2 of the "
+                                    f"{self.n_frames} frames")
+        lo, hi = self.point_offsets[start], self.point_offsets[end]
+        return CovisibilityDataset(
+            self.point_offsets[start:end + 1] - lo, self.point_ids[lo:hi],
+            None if self.stamps is None else self.stamps[start:end],
+            None if self.poses is None else self.poses[start:end],
+            f"{self.source} [frames {start}:{end}]")
+
     def weights(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """|M_r ∩ M_c| for every (r, c), as a dense float64 block."""
         rows = np.asarray(rows, dtype=np.int64)
