@@ -278,12 +278,46 @@ def test_figure_sweeps_write_one_csv_row_per_point_and_policy_and_a_plot(
                     lambda _r: Setting(runs=2, slots=6), kitchen, {}, tmp_path, "ratio",
                     reference=False)
     rows = (tmp_path / "figtest.csv").read_text().strip().splitlines()
-    assert rows[0] == ("ratio,policy,mean_uncertainty,ci95,runs,lost_share,"
+    assert rows[0] == ("ratio,policy,mean_uncertainty,ci95,training_runs,episodes,lost_share,"
                        "tracked_uncertainty")
     assert len(rows) == 1 + 2 * 3                       # 2 ratios × LFF, PU, ADAPT
     assert (tmp_path / "figtest.png").stat().st_size > 0
     # more 80 Mbit/s slots upload more frames: LFF's map fills faster, υ falls
     assert results[0.7]["LFF"].mean < results[0.3]["LFF"].mean
+
+
+def test_a_learned_variant_is_reported_over_its_training_runs_with_every_episode(
+        kitchen: CovisibilityDataset, tmp_path: Path) -> None:
+    """Two untrained residual checkpoints (= ADAPT's decisions) as one variant: its mean is
+    the mean over runs, the runs CSV lists every episode of every run, and the reference,
+    started from all plans, is no worse than any policy in any episode."""
+    import csv
+
+    from twinslam.experiments.amm import REFERENCE, Setting, sweep
+
+    paths = []
+    for seed in (0, 1):
+        trainer = AmmTrainer(TrainConfig(rate_model="markov", seed=seed, validate_every=0),
+                             kitchen)
+        paths.append(tmp_path / f"untrained{seed}.pt")
+        trainer.save(paths[-1])
+    results = sweep("figvar", [0.5], lambda r: f"markov:N=2,ratio={r}",
+                    lambda _r: Setting(runs=2, slots=5), kitchen, {"Residual": paths},
+                    tmp_path, "ratio")
+    variant = results[0.5]["Residual"]
+    assert variant.run_means == pytest.approx([results[0.5]["ADAPT"].mean] * 2)
+    assert variant.mean == pytest.approx(results[0.5]["ADAPT"].mean) and variant.ci95 == 0.0
+    with (tmp_path / "figvar_runs.csv").open() as fh:
+        episodes = list(csv.DictReader(fh))
+    assert len(episodes) == (3 + 2 + 1) * 2            # rules, 2 checkpoints, reference
+    by_seed: dict[str, list[float]] = {}
+    for row in episodes:
+        by_seed.setdefault(row["seed"], []).append(float(row["mean_uncertainty"]))
+    ref = {row["seed"]: float(row["mean_uncertainty"]) for row in episodes
+           if row["policy"] == REFERENCE}
+    assert all(ref[seed] <= min(values) + 1e-9 for seed, values in by_seed.items())
+    summary = (tmp_path / "figvar.csv").read_text().splitlines()
+    assert any(line.startswith("0.5,Residual,") and ",2,4," in line for line in summary)
 
 
 def test_edge_node_with_a_missing_policy_checkpoint_says_so_and_exits(tmp_path: Path) -> None:

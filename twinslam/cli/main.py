@@ -383,10 +383,11 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return run_demo(args)
 
 
-def _learned(specs: list[str]) -> dict[str, dict[str, Path]]:
+def _learned(specs: list[str]) -> dict[str, dict[str, list[Path]]]:
     """``LABEL=PATH`` or ``LABEL@N=PATH`` (fig8: the policy for N rate states) → {N or '':
-    {label: path}}; a missing file is an error now, not after an hour of other policies."""
-    out: dict[str, dict[str, Path]] = {}
+    {label: [paths]}}; a label given more than once is one variant over several training
+    runs. A missing file is an error now, not after an hour of other policies."""
+    out: dict[str, dict[str, list[Path]]] = {}
     for spec in specs:
         label, sep, path = spec.partition("=")
         if not sep or not label or not path:
@@ -396,7 +397,7 @@ def _learned(specs: list[str]) -> dict[str, dict[str, Path]]:
         if not Path(path).is_file():
             raise ValueError(f"{path}: no such policy checkpoint (train one with "
                              "`twinslam train`)")
-        out.setdefault(n, {})[label] = Path(path)
+        out.setdefault(n, {}).setdefault(label, []).append(Path(path))
     return out
 
 
@@ -756,8 +757,9 @@ def build_parser() -> argparse.ArgumentParser:
     exp.add_argument("--runs", type=int, default=20, help="independent runs per point "
                      "(the paper's fig7-9 use 15)")
     exp.add_argument("--policy", action="append", metavar="LABEL[@N]=CHECKPOINT",
-                     help="fig7-9: a trained policy to compare (repeat); @N: for N states "
-                     "(fig8)")
+                     help="fig7-9: a trained policy to compare (repeat); the same LABEL "
+                     "repeated: one variant over several training runs (mean and CI over the "
+                     "runs); @N: for N states (fig8)")
     exp.add_argument("--covis", metavar="FILE[@START:END]|geometric[:N[:SEED]]",
                      default=str(REPO_ROOT / "data" / "7scenes-redkitchen-1000.covis.npz"),
                      help="fig7-9: covisibility dataset")

@@ -8,9 +8,12 @@ start frame was trained on).
   stationary distribution is uniform: 60 Mbit/s on 40–80 for every N).
 * **fig9** — υ vs V_max ∈ {25, …, 45} with a non-stationary chain: three intervals per episode.
 
-A learned policy is given as ``label=CHECKPOINT``; each figure's CSV has one row per (x,
-policy) with mean υ (a lost frame scoring 0), its 95 % confidence half-width (Student t over
-the runs), the runs, the share of lost next-slot frames and υ over the tracked frames.
+A learned variant is given as ``label=CHECKPOINT`` once per training run (the same label
+repeated: its runs); each figure's CSV has one row per (x, policy) with mean υ (a lost frame
+scoring 0), its 95 % confidence half-width (Student t: over the evaluation episodes for a rule
+policy, over the training runs' means for a learned variant), the training runs, the episodes,
+the share of lost next-slot frames and υ over the tracked frames; ``{figure}_runs.csv`` has
+every episode of every run.
 """
 
 from __future__ import annotations
@@ -22,11 +25,12 @@ from pathlib import Path
 import numpy as np
 
 from twinslam.common import table1
-from twinslam.common.reporting import pyplot, write_csv
+from twinslam.common.reporting import mean_ci95, pyplot, write_csv
 from twinslam.policy_registry import make_policy
 from twinslam.simulator.covisibility import CovisibilityDataset
 from twinslam.simulator.env import SimConfig
 from twinslam.simulator.evaluation import PolicyResult, evaluate
+from twinslam.uncertainty.map_uncertainty import UncertaintyTally
 
 Progress = Callable[[str], None]
 RULES = ("lff", "pu", "adapt")
@@ -40,86 +44,152 @@ class Setting:
     seed0: int = 0
 
 
-def _policies(learned: dict[str, Path], reference: bool) -> tuple[list[str], dict[str, str]]:
-    """Policy specs for ``evaluate`` and the label each result is shown with."""
-    specs = [*RULES, *(f"mbrl:{path}" for path in learned.values())]
-    labels = {name: name.upper() for name in RULES}
-    labels.update({f"mbrl:{path}": f"Proposed ({label})" for label, path in learned.items()})
+@dataclass
+class VariantResult:
+    """A learned variant over its training runs (one checkpoint each): the mean and the 95 %
+    CI are over the runs' means — how much the result depends on the training seed — never
+    the best run's; lost share and tracked υ pool every episode of every run."""
+
+    label: str
+    checkpoints: list[PolicyResult]
+
+    @property
+    def per_seed(self) -> list[float]:
+        return [v for c in self.checkpoints for v in c.per_seed]
+
+    @property
+    def run_means(self) -> list[float]:
+        return [c.mean for c in self.checkpoints]
+
+    @property
+    def mean(self) -> float:
+        return float(np.mean(self.run_means))
+
+    @property
+    def ci95(self) -> float:
+        return (mean_ci95(self.run_means)[1] if len(self.checkpoints) > 1
+                else self.checkpoints[0].ci95)
+
+    @property
+    def pooled(self) -> UncertaintyTally:
+        total = UncertaintyTally()
+        for c in self.checkpoints:
+            total = total.add(c.pooled)
+        return total
+
+    @property
+    def lost_ratio(self) -> float:
+        return self.pooled.lost_share
+
+    @property
+    def mean_tracked(self) -> float:
+        return self.pooled.tracked_mean
+
+
+Result = PolicyResult | VariantResult
+
+
+def _run(dataset: CovisibilityDataset, channel: str, setting: Setting,
+         learned: dict[str, list[Path]], reference: bool, progress: Progress | None
+         ) -> tuple[dict[str, Result], list[list[object]]]:
+    """Every rule policy, every checkpoint of every learned variant and the reference (which
+    starts from all their plans) on the same seeds; the results by label, and one row per
+    episode (label, checkpoint, seed, mean υ, lost share, tracked υ)."""
+    checkpoints = [(label, path) for label, paths in learned.items() for path in paths]
+    specs = [*RULES, *(f"mbrl:{path}" for _, path in checkpoints)]
     if reference:
         specs.append("reference")
-        labels["reference"] = "Reference (clairvoyant search)"
-    return specs, labels
-
-
-def _run(dataset: CovisibilityDataset, channel: str, setting: Setting, learned: dict[str, Path],
-         reference: bool, progress: Progress | None) -> dict[str, PolicyResult]:
-    specs, labels = _policies(learned, reference)
     seeds = list(range(setting.seed0, setting.seed0 + setting.runs))
     config = SimConfig(vmax=setting.vmax, slots=setting.slots)
-    out = {}
-    for spec in specs:
-        seeded = [spec] if spec != "reference" else specs   # the reference starts from all
-        res = evaluate(seeded, dataset, channel, config, seeds, make_policy=make_policy)[-1]
-        out[labels[spec]] = res
-        if progress:
-            progress(f"{channel} V_max {setting.vmax}: {labels[spec]} {res.mean:.1f} "
-                     f"± {res.ci95:.1f}, lost {res.lost_ratio:.1%}, tracked "
-                     f"{res.mean_tracked:.1f}")
-    return out
+    found = dict(zip(specs, evaluate(specs, dataset, channel, config, seeds,
+                                     make_policy=make_policy), strict=True))
+    out: dict[str, Result] = {name.upper(): found[name] for name in RULES}
+    for label, paths in learned.items():
+        out[label] = VariantResult(label, [found[f"mbrl:{p}"] for p in paths])
+    if reference:
+        out[REFERENCE] = found["reference"]
+    episodes = [[label, str(path) if path else "", run.seed, run.mean_uncertainty,
+                 run.lost_share, run.tracked_uncertainty]
+                for label, path, res in (
+                    *((n.upper(), None, found[n]) for n in RULES),
+                    *((label, p, found[f"mbrl:{p}"]) for label, p in checkpoints),
+                    *(((REFERENCE, None, found["reference"]),) if reference else ()))
+                for run in res.runs]
+    if progress:
+        for label, res in out.items():
+            progress(f"{channel} V_max {setting.vmax}: {label} {res.mean:.1f} ± {res.ci95:.1f}"
+                     f", lost {res.lost_ratio:.1%}, tracked {res.mean_tracked:.1f}")
+    return out, episodes
+
+
+REFERENCE = "Reference (clairvoyant search)"
 
 
 def sweep(name: str, xs: list[object], channel_of: Callable[[object], str],
           setting_of: Callable[[object], Setting], dataset: CovisibilityDataset,
-          learned: dict[str, Path], out_dir: Path, x_label: str, reference: bool = True,
-          progress: Progress | None = None) -> dict[object, dict[str, PolicyResult]]:
-    """Every policy at every x; writes ``{name}.csv`` and ``{name}.png``."""
-    results = {x: _run(dataset, channel_of(x), setting_of(x), learned, reference, progress)
-               for x in xs}
+          learned: dict[str, list[Path]], out_dir: Path, x_label: str, reference: bool = True,
+          progress: Progress | None = None, plot: bool = True
+          ) -> dict[object, dict[str, Result]]:
+    """Every policy at every x; writes ``{name}.csv`` (a row per x and policy),
+    ``{name}_runs.csv`` (a row per episode: every run reported) and ``{name}.png``."""
+    results: dict[object, dict[str, Result]] = {}
+    episodes: list[list[object]] = []
+    for x in xs:
+        results[x], rows = _run(dataset, channel_of(x), setting_of(x), learned, reference,
+                                progress)
+        episodes += [[x, *row] for row in rows]
     write_csv(out_dir / f"{name}.csv", [x_label, *COLUMNS], _rows(results))
-    _plot(out_dir / f"{name}.png", results, x_label)
+    write_csv(out_dir / f"{name}_runs.csv", [x_label, *RUN_COLUMNS], episodes)
+    if plot:
+        _plot(out_dir / f"{name}.png", results, x_label)
     return results
 
 
-COLUMNS = ["policy", "mean_uncertainty", "ci95", "runs", "lost_share", "tracked_uncertainty"]
+COLUMNS = ["policy", "mean_uncertainty", "ci95", "training_runs", "episodes", "lost_share",
+           "tracked_uncertainty"]
+RUN_COLUMNS = ["policy", "checkpoint", "seed", "mean_uncertainty", "lost_share",
+               "tracked_uncertainty"]
 
 
-def _rows(results: dict[object, dict[str, PolicyResult]]) -> list[list[object]]:
-    return [[x, label, r.mean, r.ci95, len(r.per_seed), r.lost_ratio, r.mean_tracked]
+def _rows(results: dict[object, dict[str, Result]]) -> list[list[object]]:
+    return [[x, label, r.mean, r.ci95,
+             len(r.checkpoints) if isinstance(r, VariantResult) else "", len(r.per_seed),
+             r.lost_ratio, r.mean_tracked]
             for x, by in results.items() for label, r in by.items()]
 
 
-def fig7(dataset: CovisibilityDataset, learned: dict[str, Path], out_dir: Path,
+def fig7(dataset: CovisibilityDataset, learned: dict[str, list[Path]], out_dir: Path,
          setting: Setting = Setting(), ratios: tuple[float, ...] = (0.2, 0.35, 0.5, 0.65, 0.8),
-         progress: Progress | None = None) -> dict[object, dict[str, PolicyResult]]:
+         progress: Progress | None = None) -> dict[object, dict[str, Result]]:
     return sweep("fig7", list(ratios), lambda r: f"markov:N=2,ratio={r}", lambda _r: setting,
                  dataset, learned, out_dir, "ratio of high-rate slots", progress=progress)
 
 
-def fig8(dataset: CovisibilityDataset, learned: dict[int, dict[str, Path]], out_dir: Path,
-         setting: Setting = Setting(), progress: Progress | None = None
-         ) -> dict[object, dict[str, PolicyResult]]:
+def fig8(dataset: CovisibilityDataset, learned: dict[int, dict[str, list[Path]]],
+         out_dir: Path, setting: Setting = Setting(), progress: Progress | None = None
+         ) -> dict[object, dict[str, Result]]:
     """``learned`` per N: each N has its own trained policies (the state's one-hot rate
     history has N columns)."""
-    results: dict[object, dict[str, PolicyResult]] = {}
+    results: dict[object, dict[str, Result]] = {}
     for n, policies in learned.items():
         results.update(sweep(f"fig8_n{n}", [n], lambda m: f"markov:N={m},balanced",
                              lambda _m: setting, dataset, policies, out_dir,
-                             "number of rate states N", progress=progress))
+                             "number of rate states N", progress=progress, plot=False))
     write_csv(out_dir / "fig8.csv", ["number of rate states N", *COLUMNS], _rows(results))
     _plot(out_dir / "fig8.png", results, "number of rate states N", bars=True)
     return results
 
 
-def fig9(dataset: CovisibilityDataset, learned: dict[str, Path], out_dir: Path,
+def fig9(dataset: CovisibilityDataset, learned: dict[str, list[Path]], out_dir: Path,
          setting: Setting = Setting(), vmaxes: tuple[int, ...] = (25, 30, 35, 40, 45),
-         progress: Progress | None = None) -> dict[object, dict[str, PolicyResult]]:
+         progress: Progress | None = None) -> dict[object, dict[str, Result]]:
     interval = max(1, setting.slots // 3)
     return sweep("fig9", list(vmaxes), lambda _v: f"markov:N=2,K={interval},nonstationary",
                  lambda v: Setting(setting.runs, setting.slots, int(v), setting.seed0),  # type: ignore[arg-type]
                  dataset, learned, out_dir, "V_max (frames)", progress=progress)
 
 
-def _plot(path: Path, results: dict[object, dict[str, PolicyResult]], x_label: str,
+def _plot(path: Path, results: dict[object, dict[str, Result]], x_label: str,
           bars: bool = False) -> None:
     """Mean υ (lost frame = 0) on the left, the share of lost frames beside it: a policy that
     buys a low υ by losing frames shows on the right."""

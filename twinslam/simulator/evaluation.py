@@ -81,41 +81,28 @@ def evaluate(policies: list[str], dataset: CovisibilityDataset, channel_spec: st
              rate_range: tuple[float, float] = table1.RATE_RANGE_MBPS,
              progress: Callable[[str], None] | None = None,
              make_policy: Callable[[str], MapPolicy] = make_rule_policy) -> list[PolicyResult]:
-    """Each policy (by name, built with ``make_policy``) over every seed. ``reference`` is the
-    clairvoyant :class:`ReferencePlanner`, started from the rule policies and every other
-    policy of the list. The simulator knows only the rule policies; callers above the learning
-    core pass :func:`twinslam.policy_registry.make_policy` to evaluate learned ones too."""
+    """Each policy (by name, built with ``make_policy``) over every seed, in the order given.
+    ``reference`` is the clairvoyant :class:`ReferencePlanner`: it decides with the rule
+    policies and starts from every other listed policy's plan of the same seed. The simulator
+    knows only the rule policies; callers above the learning core pass
+    :func:`twinslam.policy_registry.make_policy` to evaluate learned ones too."""
     if "oracle" in policies:
         raise ValueError("'oracle' is now called 'reference': it is a clairvoyant search, not a "
                          "bound (issue #18)")
     parse_channel(channel_spec, rate_range)      # a bad channel fails before the first run
-    results = []
-    for name in policies:
-        runs: list[RunScore] = []
-        label = name
-        for seed in seeds:
-            env = MapManagementEnv(dataset, parse_channel(channel_spec, rate_range, seed), config)
-            if name == "reference":
-                plan = ReferencePlanner(_reference_seeds(policies, make_policy)).plan(env, seed)
-            else:
-                policy = make_policy(name)
-                label = policy.name
-                plan = rollout(env, policy, seed)
-            runs.append(RunScore(label, seed, plan.tally))
+    built = {name: make_policy(name) for name in policies if name != "reference"}
+    runs: dict[str, list[RunScore]] = {name: [] for name in policies}
+    labels = {name: built[name].name if name in built else name for name in policies}
+    for seed in seeds:
+        env = MapManagementEnv(dataset, parse_channel(channel_spec, rate_range, seed), config)
+        plans = {name: rollout(env, policy, seed) for name, policy in built.items()}
+        if "reference" in policies:
+            plans["reference"] = ReferencePlanner(rule_policies()).plan(
+                env, seed, known=list(plans.values()))
+        for name in policies:
+            run = RunScore(labels[name], seed, plans[name].tally)
+            runs[name].append(run)
             if progress:
-                r = runs[-1]
-                progress(f"{label}: seed {seed} mean υ {r.mean_uncertainty:.2f}, lost "
-                         f"{r.lost_share:.1%}, υ tracked {r.tracked_uncertainty:.2f}")
-        results.append(PolicyResult(label, runs))
-    return results
-
-
-def _reference_seeds(policies: list[str], make_policy: Callable[[str], MapPolicy]
-                     ) -> list[MapPolicy]:
-    """The rule policies and every other evaluated policy, each once."""
-    seeds = {p.name: p for p in rule_policies()}
-    for name in policies:
-        if name != "reference":
-            policy = make_policy(name)
-            seeds.setdefault(policy.name, policy)
-    return list(seeds.values())
+                progress(f"{run.policy}: seed {seed} mean υ {run.mean_uncertainty:.2f}, lost "
+                         f"{run.lost_share:.1%}, υ tracked {run.tracked_uncertainty:.2f}")
+    return [PolicyResult(labels[name], runs[name]) for name in policies]

@@ -10,10 +10,12 @@ No valid lower bound at full size is known to us that is tight enough to report 
 Three stages, each keeping the best plan so far, so the reference is never worse than any
 policy it was given:
 
-1. **Roll-outs** of every given policy (the rule policies and any learned one).
-2. **Beam search**: each beam state (map after slot k) is expanded with every policy's action
-   in that state plus random one-frame swaps of them; states leaving the same map are merged
-   (the future depends only on the map), the ``beam`` with the lowest accumulated υ survive.
+1. **Roll-outs** of every given policy, and the plans it is handed (e.g. the learned
+   policies' plans an evaluation already rolled out).
+2. **Beam search**: each beam state (map after slot k) is expanded with every given policy's
+   action in that state, every handed plan's action for slot k where it is valid in that state,
+   and random one-frame swaps of them; states leaving the same map are merged (the future
+   depends only on the map), the ``beam`` with the lowest accumulated υ survive.
 3. **Swap local search** on the true objective: change one upload (u → u' of the same slot) or
    one eviction (c → c' of the same pool) of the best plan, carry the swap through the later
    slots (a later eviction of the frame swapped out now evicts the frame swapped in), replay
@@ -83,23 +85,32 @@ class ReferencePlanner:
         self.perturbations = perturbations
         self.swap_evaluations = swap_evaluations
 
-    def plan(self, env: MapManagementEnv, seed: int) -> Plan:
-        plans = [rollout(env, p, seed) for p in self.policies]
-        plans.append(self._beam_search(env, seed))
+    def plan(self, env: MapManagementEnv, seed: int, known: Sequence[Plan] = ()) -> Plan:
+        """The best plan found from ``reset(seed)``; ``known`` plans of the same episode (other
+        policies' roll-outs) are starting points too."""
+        plans = [rollout(env, p, seed) for p in self.policies] + list(known)
+        plans.append(self._beam_search(env, seed, list(known)))
         best = min(plans, key=lambda p: p.total)
         return self._local_search(env, seed, best)
 
     # -- beam search --------------------------------------------------------------------------
 
-    def _proposals(self, obs: SlotObservation, rng: np.random.Generator) -> list[MapAction]:
+    def _proposals(self, obs: SlotObservation, rng: np.random.Generator,
+                   known: list[Plan]) -> list[MapAction]:
         base = [p.decide(obs) for p in self.policies]
-        extra = [_perturb(obs, base[i % len(base)], rng) for i in range(self.perturbations)]
+        in_map = set(obs.map_frames)
+        for plan in known:               # a handed plan's action, where this state allows it
+            a = plan.actions[obs.slot]   # (sizes agree: Theorem 1 fixes them per slot)
+            if set(a.evict) <= in_map | set(a.upload):
+                base.append(a)
+        extra = ([_perturb(obs, base[i % len(base)], rng) for i in range(self.perturbations)]
+                 if base else [])
         unique: dict[tuple, MapAction] = {}
         for a in base + extra:
             unique[(tuple(sorted(a.upload)), tuple(sorted(a.evict)))] = a
         return list(unique.values())
 
-    def _beam_search(self, env: MapManagementEnv, seed: int) -> Plan:
+    def _beam_search(self, env: MapManagementEnv, seed: int, known: list[Plan]) -> Plan:
         rng = np.random.default_rng(seed)
         env.reset(seed)
         for p in self.policies:
@@ -109,7 +120,7 @@ class ReferencePlanner:
             children: dict[tuple[int, ...], _Beam] = {}
             for b in beams:
                 env.restore(b.snapshot)
-                for action in self._proposals(env.observation(), rng):
+                for action in self._proposals(env.observation(), rng, known):
                     env.restore(b.snapshot)
                     _obs, reward, _t, _tr, info = env.step(action)
                     child = _Beam(b.total - reward, [*b.actions, action],
