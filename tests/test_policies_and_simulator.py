@@ -26,6 +26,7 @@ from twinslam.simulator.covisibility import (
 from twinslam.simulator.env import MapManagementEnv, SimConfig
 from twinslam.simulator.exact_optimum import InstanceTooLarge, exact_optimum
 from twinslam.simulator.geometric_covisibility import geometric_covisibility
+from twinslam.simulator.lower_bound import episode_lower_bound, slot_lower_bounds
 from twinslam.simulator.plan import replay, rollout
 from twinslam.simulator.reference import ReferencePlanner
 from twinslam.uplink.channels import MarkovChannel, parse_channel, state_rates
@@ -157,8 +158,23 @@ def test_no_policy_nor_the_reference_beats_the_exact_optimum(seed: int) -> None:
     scores["reference"] = ReferencePlanner(beam=4, swap_evaluations=50).plan(env, seed).total
     for name, total in scores.items():
         assert optimum.total <= total + 1e-9, f"{name} beat the exact optimum"
+    assert episode_lower_bound(env, seed) <= optimum.total
     # not vacuous: on these instances the rule policies leave something on the table
     assert scores["adapt"] > optimum.total + 1.0
+
+
+def test_the_hadamard_bound_lies_below_every_policy_at_full_size(
+        room: CovisibilityDataset) -> None:
+    config = SimConfig(vmax=45, slots=12)
+    for seed in (0, 1):
+        env = MapManagementEnv(room, parse_channel("markov:N=2", seed=seed), config)
+        bounds = slot_lower_bounds(env, seed)
+        for name in ("lff", "adapt", "random"):
+            plan = rollout(env, make_policy(name), seed)
+            assert all(b <= u + 1e-9 for b, u in zip(bounds, plan.objectives, strict=True)), name
+    env.config = SimConfig(log_det_pi=1.0)
+    with pytest.raises(ValueError, match="Π = I"):
+        slot_lower_bounds(env, 0)
 
 
 def test_exact_optimum_equals_brute_force_on_a_tiny_case() -> None:

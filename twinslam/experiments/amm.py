@@ -1,5 +1,6 @@
 """Paper Figs 7–9: mean pose-estimation uncertainty υ of the learned and the rule-based
-policies beside the clairvoyant reference plan (a search, not a bound), on held-out seeds
+policies beside the clairvoyant reference plan (a search, not a bound) and the Hadamard lower
+bound (no plan scores below it), on held-out seeds
 (0, 1, … — training uses ``TRAINING_SEED_BASE`` + …, so no evaluated channel realisation or
 start frame was trained on).
 
@@ -18,6 +19,7 @@ every episode of every run.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,9 +30,11 @@ from twinslam.common import table1
 from twinslam.common.reporting import mean_ci95, pyplot, write_csv
 from twinslam.policy_registry import make_policy
 from twinslam.simulator.covisibility import CovisibilityDataset
-from twinslam.simulator.env import SimConfig
+from twinslam.simulator.env import MapManagementEnv, SimConfig
 from twinslam.simulator.evaluation import PolicyResult, evaluate
+from twinslam.simulator.lower_bound import slot_lower_bounds
 from twinslam.uncertainty.map_uncertainty import UncertaintyTally
+from twinslam.uplink.channels import parse_channel
 
 Progress = Callable[[str], None]
 RULES = ("lff", "pu", "adapt")
@@ -86,7 +90,27 @@ class VariantResult:
         return self.pooled.tracked_mean
 
 
-Result = PolicyResult | VariantResult
+@dataclass
+class BoundResult:
+    """The Hadamard lower bound per evaluation seed (:mod:`twinslam.simulator.lower_bound`):
+    no plan scores below it; it loses and tracks no frames of its own."""
+
+    per_seed: list[float]
+
+    @property
+    def mean(self) -> float:
+        return float(np.mean(self.per_seed))
+
+    @property
+    def ci95(self) -> float:
+        return mean_ci95(self.per_seed)[1]
+
+    lost_ratio = math.nan
+    mean_tracked = math.nan
+
+
+Result = PolicyResult | VariantResult | BoundResult
+BOUND = "Lower bound (Hadamard)"
 
 
 def _run(dataset: CovisibilityDataset, channel: str, setting: Setting,
@@ -108,6 +132,9 @@ def _run(dataset: CovisibilityDataset, channel: str, setting: Setting,
         out[label] = VariantResult(label, [found[f"mbrl:{p}"] for p in paths])
     if reference:
         out[REFERENCE] = found["reference"]
+        out[BOUND] = BoundResult([
+            float(np.mean(slot_lower_bounds(MapManagementEnv(
+                dataset, parse_channel(channel, seed=seed), config), seed))) for seed in seeds])
     episodes = [[label, str(path) if path else "", run.seed, run.mean_uncertainty,
                  run.lost_share, run.tracked_uncertainty]
                 for label, path, res in (
@@ -199,7 +226,8 @@ def _plot(path: Path, results: dict[object, dict[str, Result]], x_label: str,
     labels = list(next(iter(results.values())))
     for i, label in enumerate(labels):
         series = [results[x][label] for x in xs]
-        style = {"linestyle": "--", "color": "k"} if label.startswith("Reference") else {}
+        style = ({"linestyle": "--", "color": "k"} if label == REFERENCE else
+                 {"linestyle": ":", "color": "grey"} if label == BOUND else {})
         for axis, values, errs in ((ax, [r.mean for r in series], [r.ci95 for r in series]),
                                    (ax_lost, [100 * r.lost_ratio for r in series], None)):
             if bars:
