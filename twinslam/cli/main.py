@@ -415,7 +415,8 @@ def cmd_amm_experiment(args: argparse.Namespace) -> int:
     except (CovisibilityError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    setting = ex.Setting(runs=args.runs, slots=args.slots, seed0=args.seed)
+    setting = ex.Setting(runs=args.runs, slots=args.slots, seed0=args.seed,
+                         reference_swaps=args.reference_swaps)
     out = Path(args.out)
     if args.name == "fig8":
         by_n = {int(n or 2): pol for n, pol in learned.items()}
@@ -764,6 +765,9 @@ def build_parser() -> argparse.ArgumentParser:
                      default=str(REPO_ROOT / "data" / "7scenes-redkitchen-1000.covis.npz"),
                      help="fig7-9: covisibility dataset")
     exp.add_argument("--slots", type=int, default=200, help="fig7-9: slots per run")
+    exp.add_argument("--reference-swaps", type=int, default=100,
+                     help="fig7-9: plan replays the reference's swap local search may spend "
+                     "per episode (0: beam search only)")
     exp.add_argument("--seed", type=int, default=0, help="the first run's seed")
     exp.add_argument("--states", type=int, default=2, help="udt-fig5: N, rate states")
     exp.add_argument("--interval-slots", type=int, default=300,

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -46,6 +46,7 @@ class Setting:
     slots: int = 200
     vmax: int = table1.VMAX
     seed0: int = 0
+    reference_swaps: int = 100     #: the reference's local-search replays per episode
 
 
 @dataclass
@@ -126,7 +127,8 @@ def _run(dataset: CovisibilityDataset, channel: str, setting: Setting,
     seeds = list(range(setting.seed0, setting.seed0 + setting.runs))
     config = SimConfig(vmax=setting.vmax, slots=setting.slots)
     found = dict(zip(specs, evaluate(specs, dataset, channel, config, seeds,
-                                     make_policy=make_policy), strict=True))
+                                     make_policy=make_policy,
+                                     reference_swaps=setting.reference_swaps), strict=True))
     out: dict[str, Result] = {name.upper(): found[name] for name in RULES}
     for label, paths in learned.items():
         out[label] = VariantResult(label, [found[f"mbrl:{p}"] for p in paths])
@@ -212,7 +214,7 @@ def fig9(dataset: CovisibilityDataset, learned: dict[str, list[Path]], out_dir: 
          progress: Progress | None = None) -> dict[object, dict[str, Result]]:
     interval = max(1, setting.slots // 3)
     return sweep("fig9", list(vmaxes), lambda _v: f"markov:N=2,K={interval},nonstationary",
-                 lambda v: Setting(setting.runs, setting.slots, int(v), setting.seed0),  # type: ignore[arg-type]
+                 lambda v: replace(setting, vmax=int(v)),  # type: ignore[call-overload]
                  dataset, learned, out_dir, "V_max (frames)", progress=progress)
 
 

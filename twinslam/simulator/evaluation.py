@@ -80,12 +80,14 @@ def evaluate(policies: list[str], dataset: CovisibilityDataset, channel_spec: st
              config: SimConfig, seeds: list[int],
              rate_range: tuple[float, float] = table1.RATE_RANGE_MBPS,
              progress: Callable[[str], None] | None = None,
-             make_policy: Callable[[str], MapPolicy] = make_rule_policy) -> list[PolicyResult]:
+             make_policy: Callable[[str], MapPolicy] = make_rule_policy,
+             reference_swaps: int = 400) -> list[PolicyResult]:
     """Each policy (by name, built with ``make_policy``) over every seed, in the order given.
     ``reference`` is the clairvoyant :class:`ReferencePlanner`: it decides with the rule
     policies and starts from every other listed policy's plan of the same seed. The simulator
     knows only the rule policies; callers above the learning core pass
-    :func:`twinslam.policy_registry.make_policy` to evaluate learned ones too."""
+    :func:`twinslam.policy_registry.make_policy` to evaluate learned ones too.
+    ``reference_swaps``: the reference's local-search budget (plan replays per episode)."""
     if "oracle" in policies:
         raise ValueError("'oracle' is now called 'reference': it is a clairvoyant search, not a "
                          "bound (issue #18)")
@@ -97,7 +99,8 @@ def evaluate(policies: list[str], dataset: CovisibilityDataset, channel_spec: st
         env = MapManagementEnv(dataset, parse_channel(channel_spec, rate_range, seed), config)
         plans = {name: rollout(env, policy, seed) for name, policy in built.items()}
         if "reference" in policies:
-            plans["reference"] = ReferencePlanner(rule_policies()).plan(
+            plans["reference"] = ReferencePlanner(
+                rule_policies(), swap_evaluations=reference_swaps).plan(
                 env, seed, known=list(plans.values()))
         for name in policies:
             run = RunScore(labels[name], seed, plans[name].tally)
