@@ -122,11 +122,11 @@ def cmd_sim(args: argparse.Namespace) -> int:
     if args.csv:
         with open(args.csv, "w", newline="", encoding="utf-8") as fh:
             writer = csv.writer(fh)
-            writer.writerow(["policy", "seed", "mean_uncertainty", "lost_share",
+            writer.writerow(["policy", "spec", "seed", "mean_uncertainty", "lost_share",
                              "tracked_uncertainty"])
-            for r in results:
+            for spec, r in zip(policies, results, strict=True):
                 for run in r.runs:
-                    writer.writerow([r.policy, run.seed, f"{run.mean_uncertainty:.6f}",
+                    writer.writerow([r.policy, spec, run.seed, f"{run.mean_uncertainty:.6f}",
                                      f"{run.lost_share:.6f}", f"{run.tracked_uncertainty:.6f}"])
         print(f"wrote {args.csv} (one row per run)")
     return 0
@@ -614,8 +614,9 @@ def build_parser() -> argparse.ArgumentParser:
                      "own start frame and rate sequence)")
     sim.add_argument("--seed0", type=int, default=0, help="the first run's seed")
     sim.add_argument("--csv", metavar="FILE",
-                     help="also write one row per run: policy, seed, mean_uncertainty (a lost "
-                     "frame = 0), lost_share, tracked_uncertainty")
+                     help="also write one row per run: policy, spec (as given: tells two "
+                     "checkpoints apart), seed, mean_uncertainty (a lost frame = 0), lost_share, "
+                     "tracked_uncertainty")
     sim.add_argument("-v", "--verbose", action="store_true",
                      help="print every run's scores as it finishes")
     sim.set_defaults(func=cmd_sim)
