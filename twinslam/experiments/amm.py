@@ -245,7 +245,7 @@ def _plot(path: Path, results: dict[object, dict[str, Result]], x_label: str,
         axis.set_xlabel(x_label)
     ax.set_ylabel("mean υ, lost frame = 0 (lower is better)")
     ax_lost.set_ylabel("lost next-slot frames (%)")
-    ax.legend(fontsize=8)
+    ax_lost.legend(fontsize=8, loc="center right")   # the left panel holds no free space
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
