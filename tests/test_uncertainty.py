@@ -126,9 +126,7 @@ def test_pooled_scores_keep_mean_equal_lost_times_tracked() -> None:
     w = np.array([[0, 10], [10, 0]], dtype=float)
     slots = [next_slot_uncertainty(w, np.array(c, dtype=float)) for c in
              ([[3, 4], [0, 0], [5, 0]], [[1, 1]], [[0, 0], [0, 0]])]
-    pooled = UncertaintyTally()
-    for s in slots:
-        pooled = pooled.add(s)
+    pooled = UncertaintyTally.of(slots)
     assert pooled.n_frames == 6 and pooled.n_tracked == 3
     assert pooled.lost_share == pytest.approx(0.5)
     assert pooled.mean == pytest.approx((1 - pooled.lost_share) * pooled.tracked_mean)

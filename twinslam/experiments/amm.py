@@ -31,7 +31,7 @@ from twinslam.common.reporting import mean_ci95, pyplot, write_csv
 from twinslam.policy_registry import make_policy
 from twinslam.simulator.covisibility import CovisibilityDataset
 from twinslam.simulator.env import MapManagementEnv, SimConfig
-from twinslam.simulator.evaluation import PolicyResult, evaluate
+from twinslam.simulator.evaluation import PolicyResult, PooledScores, evaluate
 from twinslam.simulator.lower_bound import slot_lower_bounds
 from twinslam.uncertainty.map_uncertainty import UncertaintyTally
 from twinslam.uplink.channels import parse_channel
@@ -50,7 +50,7 @@ class Setting:
 
 
 @dataclass
-class VariantResult:
+class VariantResult(PooledScores):
     """A learned variant over its training runs (one checkpoint each): the mean and the 95 %
     CI are over the runs' means — how much the result depends on the training seed — never
     the best run's; lost share and tracked υ pool every episode of every run."""
@@ -77,18 +77,7 @@ class VariantResult:
 
     @property
     def pooled(self) -> UncertaintyTally:
-        total = UncertaintyTally()
-        for c in self.checkpoints:
-            total = total.add(c.pooled)
-        return total
-
-    @property
-    def lost_ratio(self) -> float:
-        return self.pooled.lost_share
-
-    @property
-    def mean_tracked(self) -> float:
-        return self.pooled.tracked_mean
+        return UncertaintyTally.of(c.pooled for c in self.checkpoints)
 
 
 @dataclass

@@ -40,30 +40,13 @@ class RunScore:
         return self.tally.tracked_mean
 
 
-@dataclass
-class PolicyResult:
-    policy: str
-    runs: list[RunScore]
-
-    @property
-    def per_seed(self) -> list[float]:
-        """Mean υ of each run (a lost frame scoring 0)."""
-        return [r.mean_uncertainty for r in self.runs]
+class PooledScores:
+    """Lost share and tracked υ of a result pooled over all its frames (a subclass says which
+    frames, as ``pooled``); one place for both, so every result reports them alike."""
 
     @property
     def pooled(self) -> UncertaintyTally:
-        total = UncertaintyTally()
-        for run in self.runs:
-            total = total.add(run.tally)
-        return total
-
-    @property
-    def mean(self) -> float:
-        return float(np.mean(self.per_seed))
-
-    @property
-    def ci95(self) -> float:
-        return mean_ci95(self.per_seed)[1]
+        raise NotImplementedError
 
     @property
     def lost_ratio(self) -> float:
@@ -74,6 +57,29 @@ class PolicyResult:
     def mean_tracked(self) -> float:
         """Mean υ over the tracked frames of every run."""
         return self.pooled.tracked_mean
+
+
+@dataclass
+class PolicyResult(PooledScores):
+    policy: str
+    runs: list[RunScore]
+
+    @property
+    def per_seed(self) -> list[float]:
+        """Mean υ of each run (a lost frame scoring 0)."""
+        return [r.mean_uncertainty for r in self.runs]
+
+    @property
+    def pooled(self) -> UncertaintyTally:
+        return UncertaintyTally.of(run.tally for run in self.runs)
+
+    @property
+    def mean(self) -> float:
+        return float(np.mean(self.per_seed))
+
+    @property
+    def ci95(self) -> float:
+        return mean_ci95(self.per_seed)[1]
 
 
 def evaluate(policies: list[str], dataset: CovisibilityDataset, channel_spec: str,

@@ -35,10 +35,7 @@ class Plan:
     @property
     def tally(self) -> UncertaintyTally:
         """Every slot's frames pooled: mean υ, lost share and tracked υ of the episode."""
-        total = UncertaintyTally()
-        for slot in self.slots:
-            total = total.add(slot)
-        return total
+        return UncertaintyTally.of(self.slots)
 
 
 def rollout(env: MapManagementEnv, policy: MapPolicy, seed: int) -> Plan:

@@ -15,6 +15,7 @@ disconnected, reported as u = +inf.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -148,6 +149,14 @@ class UncertaintyTally:
     tracked_sum: float = 0.0
     n_tracked: int = 0
     n_frames: int = 0
+
+    @classmethod
+    def of(cls, parts: Iterable[SlotUncertainty | UncertaintyTally]) -> UncertaintyTally:
+        """Every part's frames pooled into one tally."""
+        total = cls()
+        for part in parts:
+            total = total.add(part)
+        return total
 
     def add(self, part: SlotUncertainty | UncertaintyTally) -> UncertaintyTally:
         return UncertaintyTally(self.tracked_sum + part.tracked_sum,
