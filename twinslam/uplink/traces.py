@@ -106,7 +106,9 @@ def read_trace(path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def write_trace(path: Path, times: np.ndarray, mbps: np.ndarray) -> None:
-    """``time_s,throughput_mbps`` CSV, the spelling the reader tries first."""
+    """``time_s,throughput_mbps`` CSV, the spelling the reader tries first (its folder made
+    if missing)."""
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
     with Path(path).open("w", newline="", encoding="utf-8") as fh:
         writer = csv.writer(fh)
         writer.writerow(["time_s", "throughput_mbps"])
