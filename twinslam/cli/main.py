@@ -2,7 +2,7 @@
 
     twinslam sim --covis FILE --policy lff,pu,adapt,reference [--channel markov:N=2]
                  [--vmax 45] [--slots 200] [--seeds 5] [--csv OUT]   # mbrl:CHECKPOINT too
-    twinslam train --covis FILE --channel markov:N=2 --vmax 45 [--rate-model udt] -o OUT.pt
+    twinslam train --covis FILE --channel markov:N=2 --vmax 45 [--rate-model regime] -o OUT.pt
     twinslam extract SEQUENCE -o covis.npz [--start N] [--end N] [--features 1000]
     twinslam record SEQUENCE -o BAG [--start N] [--end N]   # the player's topics as MCAP
     twinslam trace generate -o uplink.csv --outage 300:10   # or: trace info FILE
@@ -32,7 +32,7 @@ from twinslam.node_hosts.fastdds import REPO_ROOT
 from twinslam.node_hosts.loopback import LoopbackDomain, ProcessDomain
 from twinslam.simulator.covisibility import CovisibilityError, load_covisibility
 from twinslam.simulator.env import SimConfig
-from twinslam.uplink.channels import ChannelError
+from twinslam.uplink.channels import SLOT_SECONDS, ChannelError
 
 
 class _EnvDomain(LoopbackDomain):
@@ -415,7 +415,7 @@ def cmd_amm_experiment(args: argparse.Namespace) -> int:
     except (CovisibilityError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    setting = ex.Setting(runs=args.runs, slots=args.slots, seed0=args.seed,
+    setting = ex.Setting(runs=args.runs or 20, slots=args.slots or 200, seed0=args.seed,
                          reference_swaps=args.reference_swaps)
     out = Path(args.out)
     if args.name == "fig8":
@@ -431,12 +431,61 @@ def cmd_amm_experiment(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_twin_predict(args: argparse.Namespace) -> int:
+    from twinslam.experiments import twin_predict as ex
+    from twinslam.twin.next_state import PredictionProtocol
+
+    t0 = time.monotonic()
+
+    def progress(line: str) -> None:
+        print(f"[{time.monotonic() - t0:7.1f} s] {line}", file=sys.stderr, flush=True)
+
+    sources = list(args.source or ex.DEFAULT_SOURCES)
+    sources += [f"trace:{path}" for path in args.trace or []]
+    try:
+        protocol = PredictionProtocol(n_states=args.states or 4,
+                                      retrain_every=args.retrain_every or 100,
+                                      buffer_slots=args.buffer_slots or 600)
+        from twinslam.twin.next_state import PREDICTORS, make_predictors
+
+        predictors = (PREDICTORS if args.predictor == "all" else
+                      tuple(p.strip() for p in args.predictor.split(",") if p.strip()))
+        setting = ex.Setting(slots=args.slots or 3000, seeds=args.runs or 5, seed0=args.seed,
+                             slot_seconds=args.slot_seconds, predictors=predictors,
+                             protocol=protocol)
+        make_predictors(predictors, protocol, 0)          # unknown names fail here
+        for spec in sources:
+            ex.check_source(spec)
+    except (ValueError, ChannelError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    out = Path(args.out)
+    summary = ex.twin_predict(sources, out, setting, progress, jobs=args.jobs)
+    for source in dict.fromkeys(m.source for m in summary):
+        print(f"{source}  (mean log p(next state) ± 95 % CI, nats; Brier; "
+              f"minus the best counting estimator)")
+        for m in summary:
+            if m.source == source:
+                print(f"  {m.predictor:>14} {m.log_likelihood[0]:8.4f} ± "
+                      f"{m.log_likelihood[1]:.4f}  Brier {m.brier[0]:.4f}  "
+                      f"{m.vs_counting[0]:+8.4f} ± {m.vs_counting[1]:.4f}")
+    print(f"wrote {out}/twin_predict.csv, twin_predict_runs.csv and twin_predict.png "
+          f"({time.monotonic() - t0:.0f} s)")
+    return 0
+
+
 def cmd_experiment(args: argparse.Namespace) -> int:
     if args.name in ("fig7", "fig8", "fig9"):
         return cmd_amm_experiment(args)
+    if args.name == "twin-predict":
+        return cmd_twin_predict(args)
     from twinslam.experiments import twin as ex
 
     out = Path(args.out)
+    args.states = args.states or 2
+    args.runs = args.runs or 20
+    args.retrain_every = args.retrain_every or 300
+    args.buffer_slots = args.buffer_slots or 300
     proto = ex.Protocol(interval_slots=args.interval_slots, retrain_every=args.retrain_every,
                         buffer_slots=args.buffer_slots)
     t0 = time.monotonic()
@@ -628,9 +677,12 @@ def build_parser() -> argparse.ArgumentParser:
     _add_setting_arguments(train)
     train.add_argument("--slots", type=int, default=3000, help="real slots to train on")
     train.add_argument("--episode-slots", type=int, default=200, help="slots per episode")
-    train.add_argument("--rate-model", default="udt", choices=["udt", "lstm", "markov"],
+    train.add_argument("--rate-model", default="regime",
+                       choices=["regime", "udt", "lstm", "markov"],
                        help="what augments the state and generates artificial experiences: "
-                       "udt (the digital twin's latent), lstm (a point predictor), markov "
+                       "regime (the Bayesian regime twin's posterior; the best next-state "
+                       "predictor measured, `experiment twin-predict`), udt (the variational "
+                       "twin's latent, paper §V), lstm (a point predictor), markov "
                        "(transition counts)")
     train.add_argument("--actor", default="residual", choices=["paper", "residual"],
                        help="paper: the paper's AMM (the GCN's score per frame, no ADAPT "
@@ -752,12 +804,32 @@ def build_parser() -> argparse.ArgumentParser:
     trace.set_defaults(func=cmd_trace)
     exp = sub.add_parser("experiment", help="reproduce a paper figure (CSV + PNG)",
                          description="udt-fig3/4/5: the digital twin's transition-matrix "
-                         "error (paper Figs 3-5); fig7/8/9: mean υ, lost share and υ tracked of "
-                         "the policies vs the high-rate share, N, V_max (paper Figs 7-9).")
-    exp.add_argument("name", choices=["udt-fig3", "udt-fig4", "udt-fig5", "fig7", "fig8",
-                                      "fig9"], help="which figure")
-    exp.add_argument("--runs", type=int, default=20, help="independent runs per point "
-                     "(the paper's fig7-9 use 15)")
+                         "error (paper Figs 3-5); twin-predict: every rate model predicts the "
+                         "next slot's state online on chains, generated and real traces "
+                         "(log-likelihood, Brier); fig7/8/9: mean υ, lost share and υ tracked "
+                         "of the policies vs the high-rate share, N, V_max (paper Figs 7-9).")
+    exp.add_argument("name", choices=["udt-fig3", "udt-fig4", "udt-fig5", "twin-predict",
+                                      "fig7", "fig8", "fig9"], help="which figure")
+    exp.add_argument("--runs", type=int, default=None, help="independent runs per point "
+                     "(default: 20; twin-predict: 5 seeds per source; the paper's fig7-9 "
+                     "use 15)")
+    exp.add_argument("--source", action="append", metavar="SPEC",
+                     help="twin-predict: a state sequence to predict (repeat): stationary, "
+                     "intervals:K (a new random matrix every K slots), "
+                     "generator[:REGIME_S[:OUTAGE_EVERY_S]] (a generated trace with regime "
+                     "changes and outages), trace:FILE (default: stationary, intervals:200, "
+                     "intervals:600, intervals:1500, generator)")
+    exp.add_argument("--trace", action="append", metavar="FILE",
+                     help="twin-predict: also a throughput trace file (repeat; same as "
+                     "--source trace:FILE; formats as `twinslam trace info`)")
+    exp.add_argument("--predictor", default="all",
+                     help="twin-predict: all, or comma-separated predictors: regime (the Bayesian "
+                     "twin), udt (the variational twin), lstm (softmax), lstm-point (the "
+                     "paper's point predictor, 1 - 0.05 on its prediction), markov (counts over "
+                     "the whole history), markov-window (counts over the buffer), persistence "
+                     "(0.9 on staying), uniform")
+    exp.add_argument("--slot-seconds", type=float, default=SLOT_SECONDS,
+                     help="twin-predict: seconds of trace per slot")
     exp.add_argument("--policy", action="append", metavar="LABEL[@N]=CHECKPOINT",
                      help="fig7-9: a trained policy to compare (repeat); the same LABEL "
                      "repeated: one variant over several training runs (mean and CI over the "
@@ -765,18 +837,23 @@ def build_parser() -> argparse.ArgumentParser:
     exp.add_argument("--covis", metavar="FILE[@START:END]|geometric[:N[:SEED]]",
                      default=str(REPO_ROOT / "data" / "7scenes-redkitchen-1000.covis.npz"),
                      help="fig7-9: covisibility dataset")
-    exp.add_argument("--slots", type=int, default=200, help="fig7-9: slots per run")
+    exp.add_argument("--slots", type=int, default=None,
+                     help="slots per run (default: fig7-9 200; twin-predict 3000, a trace at "
+                     "most one pass)")
     exp.add_argument("--reference-swaps", type=int, default=100,
                      help="fig7-9: plan replays the reference's swap local search may spend "
                      "per episode (0: beam search only)")
     exp.add_argument("--seed", type=int, default=0, help="the first run's seed")
-    exp.add_argument("--states", type=int, default=2, help="udt-fig5: N, rate states")
+    exp.add_argument("--states", type=int, default=None,
+                     help="N, rate states (default: udt-fig5 2, twin-predict 4)")
     exp.add_argument("--interval-slots", type=int, default=300,
                      help="udt-fig4/5: K, slots per interval of one transition matrix")
-    exp.add_argument("--retrain-every", type=int, default=300,
-                     help="udt-fig4/5: W, slots between retrains of the twin")
-    exp.add_argument("--buffer-slots", type=int, default=300,
-                     help="udt-fig4/5: latest slots a retrain learns from")
+    exp.add_argument("--retrain-every", type=int, default=None,
+                     help="W, slots between retrains of the learned predictors (default: "
+                     "udt-fig4/5 300, twin-predict 100)")
+    exp.add_argument("--buffer-slots", type=int, default=None,
+                     help="latest slots a retrain learns from; twin-predict: also "
+                     "markov-window's window (default: udt-fig4/5 300, twin-predict 600)")
     exp.add_argument("--out", default="results", metavar="FOLDER",
                      help="folder for the CSV and PNG")
     exp.add_argument("--jobs", type=int, default=1,

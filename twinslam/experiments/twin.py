@@ -12,24 +12,19 @@ against that interval's true matrix.
 from __future__ import annotations
 
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, replace
-from multiprocessing import get_context
 from pathlib import Path
-from typing import TypeVar
 
 import numpy as np
-import torch
 
 from twinslam.common.reporting import pyplot, write_csv
+from twinslam.experiments.parallel import run_all
 from twinslam.twin.baselines import LstmConfig, LstmPredictor, MarkovMle
 from twinslam.twin.digital_twin import TwinConfig, UserDigitalTwin
 from twinslam.twin.rate_history import transition_error
 from twinslam.uplink.channels import random_transition_matrix
 
 Progress = Callable[[str], None]
-T = TypeVar("T")
-R = TypeVar("R")
 
 
 @dataclass(frozen=True)
@@ -133,31 +128,6 @@ def _fig5_run(task: tuple[str, int, int, int, int, Protocol]
     return mode, errors
 
 
-def _init_worker() -> None:
-    torch.set_num_threads(1)       # jobs share the cores; one thread each uses them best
-
-
-def _run_all(fn: Callable[[T], R], tasks: list[T], jobs: int, label: Callable[[R], str],
-             progress: Progress | None) -> list[R]:
-    """``fn`` over ``tasks``, in ``jobs`` worker processes when > 1, reporting each result."""
-    results: list[R] = []
-
-    def report(res: R) -> None:
-        results.append(res)
-        if progress:
-            progress(f"{len(results)}/{len(tasks)} {label(res)}")
-
-    if jobs <= 1:
-        for task in tasks:
-            report(fn(task))
-        return results
-    with ProcessPoolExecutor(jobs, mp_context=get_context("spawn"),
-                             initializer=_init_worker) as pool:
-        for res in pool.map(fn, tasks):
-            report(res)
-    return results
-
-
 def fig4(out_dir: Path, runs: int = 20, states: tuple[int, ...] = (2, 3, 4, 5, 6),
          latent_sizes: tuple[int, int] = (2, 8), seed: int = 0,
          proto: Protocol | None = None, progress: Progress | None = None, jobs: int = 1
@@ -167,7 +137,7 @@ def fig4(out_dir: Path, runs: int = 20, states: tuple[int, ...] = (2, 3, 4, 5, 6
     proto = proto or Protocol()
     names = (*(f"udt_z{z}" for z in latent_sizes), "lstm")
     tasks = [(n, r, seed, names, proto) for n in states for r in range(runs)]
-    done = _run_all(_fig4_run, tasks, jobs, lambda res: f"fig4 N={res[0]}: " + ", ".join(
+    done = run_all(_fig4_run, tasks, jobs, lambda res: f"fig4 N={res[0]}: " + ", ".join(
         f"{k} {v:.3f}" for k, v in res[1].items()), progress)
     result: dict[str, dict[int, list[float]]] = {name: {n: [] for n in states} for name in names}
     for n, errors in done:
@@ -190,7 +160,7 @@ def fig5(out_dir: Path, runs: int = 20, n_states: int = 2, intervals: int = 15,
     names = ["udt", "markov", "markov_window"]
     modes = ("stationary", "non-stationary")
     tasks = [(mode, r, seed, n_states, intervals, proto) for mode in modes for r in range(runs)]
-    done = _run_all(_fig5_run, tasks, jobs, lambda res: f"fig5 {res[0]}: " + ", ".join(
+    done = run_all(_fig5_run, tasks, jobs, lambda res: f"fig5 {res[0]}: " + ", ".join(
         f"{k} {np.mean(v):.3f}" for k, v in res[1].items()), progress)
     result: dict[str, dict[str, np.ndarray]] = {
         mode: {name: np.array([e[name] for m, e in done if m == mode]) for name in names}

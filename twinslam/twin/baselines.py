@@ -110,6 +110,13 @@ class LstmPredictor:
         return int(self.network(x).argmax(dim=-1))
 
     @torch.no_grad()
+    def probabilities(self, states: list[int]) -> np.ndarray:
+        """The classifier's softmax over d_{k+1} after ``states`` (the distribution the point
+        prediction is the arg-max of)."""
+        x = latest_window(states, self.config.history, self.config.n_states)
+        return torch.softmax(self.network(x), dim=-1)[0].numpy().astype(np.float64)
+
+    @torch.no_grad()
     def transition_matrix(self, recent: int = 100) -> np.ndarray:
         """Rows from the predictions after each of the last ``recent`` histories; a state that
         ends none of them is answered from a history of that state alone."""
