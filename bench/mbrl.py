@@ -2,7 +2,7 @@
 and the policy's inference milliseconds per slot (state graph + ADAPT feature + rate-model
 features + actor), the work ``policy:=mbrl`` adds to the edge's plan.
 
-    python -m bench.mbrl [--slots 3000] [--rate-model udt] [--threads 2]
+    python -m bench.mbrl [--slots 3000] [--rate-model regime] [--threads 2]
     python -m bench.mbrl --policy results/amm_udt_n2.pt     # inference of a trained policy only
 
 Targets: training ≤ 10 min on 2 cores, inference ≤ 10 ms per slot (median).
@@ -33,7 +33,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--covis", default=str(COVIS), help="covisibility dataset (.npz)")
     parser.add_argument("--slots", type=int, default=3000, help="real slots to train on")
-    parser.add_argument("--rate-model", default="udt", help="udt, lstm or markov")
+    parser.add_argument("--rate-model", default="regime", help="regime, udt, lstm or markov")
     parser.add_argument("--channel", default="markov:N=2", help="uplink rate model spec")
     parser.add_argument("--threads", type=int, default=2, help="torch threads")
     parser.add_argument("--policy", type=Path, help="time this checkpoint's inference; no training")

@@ -209,7 +209,8 @@ def test_training_writes_a_policy_the_simulator_and_make_policy_run(
 def test_the_papers_amm_sees_no_adapt_answer_and_trains_into_a_policy_of_its_own_name(
         kitchen: CovisibilityDataset, tmp_path: Path) -> None:
     """actor='paper': ADAPT's flag columns stay 0, the score is the GCN's alone (no prior),
-    and the checkpoint runs as amm-<rate model>, beside mbrl-<rate model> (ADAPT + RL)."""
+    and the checkpoint runs as amm-<rate model>, beside mbrl-<rate model> (ADAPT + RL); the
+    default rate model, the regime twin, can take the udt node's latent."""
     from twinslam.mbrl.state import ADAPT_EVICT, ADAPT_UPLOAD
 
     env = _env(kitchen, seed=1)
@@ -219,9 +220,9 @@ def test_the_papers_amm_sees_no_adapt_answer_and_trains_into_a_policy_of_its_own
     assert build_state(obs, np.zeros(0, np.float32), 8).nodes[:, ADAPT_UPLOAD].sum() == \
         obs.n_upload
     config = TrainConfig(slots=30, episode_slots=15, warmup_slots=10, batch_size=8,
-                         rate_model="markov", artificial_per_real=1, replay_capacity=100,
+                         artificial_per_real=1, replay_capacity=100,
                          log_every=5, validate_every=15, validation_seeds=1,
-                         validation_slots=10, actor="paper")
+                         validation_slots=10, actor="paper")      # the default: regime twin
     trainer = AmmTrainer(config, kitchen)
     b = collate([trainer.state_of(obs)])
     assert torch.equal(trainer.actor(b.x, b.adj, b.mask, b.context),
@@ -231,8 +232,11 @@ def test_the_papers_amm_sees_no_adapt_answer_and_trains_into_a_policy_of_its_own
     path = tmp_path / "paper.pt"
     trainer.save(path)
     policy = make_policy(f"mbrl:{path}")
-    assert policy.name == "amm-markov"
-    assert len(rollout(_env(kitchen, seed=3, slots=5), policy, 3).actions) == 5
+    assert policy.name == "amm-regime" and policy.uses_twin
+    first = rollout(_env(kitchen, seed=3, slots=5), policy, 3).actions
+    assert len(first) == 5
+    # the regime twin is a filter over the run: a new run starts it afresh, so a run replays
+    assert rollout(_env(kitchen, seed=3, slots=5), policy, 3).actions == first
     with pytest.raises(ValueError, match="unknown actor"):
         AmmTrainer(TrainConfig(actor="greedy"), kitchen)
 

@@ -128,7 +128,8 @@ def test_udt_node_round_trip_refuses_bad_throughput(
     got: list = []
     sub = ros.node.create_subscription(RateLatent, topics.RATE_LATENT, got.append, qos.PROTOCOL)
     weights = tmp_path / "twin.pt"
-    proc = domain.spawn(["-m", "udt_node.node", "--ros-args", "-p", "retrain_every:=20",
+    proc = domain.spawn(["-m", "udt_node.node", "--ros-args", "-p", "model:=udt",
+                         "-p", "retrain_every:=20",
                          "-p", "steps_per_retrain:=5", "-p", "latent_dim:=4",
                          "-p", f"weights:={weights}"])
     assert ros.spin_until(lambda: pub.get_subscription_count() > 0
@@ -159,3 +160,30 @@ def test_udt_node_round_trip_refuses_bad_throughput(
     assert err.count("refused throughput 1000000000.0") == 1
     summary = re.search(r"(\d+) slots learned from, (\d+) refused", err)
     assert summary is not None and int(summary[1]) >= 60 and int(summary[2]) == 3
+
+
+def test_udt_node_runs_the_regime_twin_by_default_and_follows_the_uplink(
+        domain: LoopbackDomain, ros: RosSession) -> None:
+    """Without parameters the node runs the Bayesian regime twin: one latent a slot, μ and Σ
+    of the N x N regime matrix, the version counting slots — and after the uplink switches
+    from staying put to alternating, its next-state prediction follows within 30 slots."""
+    pub = ros.node.create_publisher(UplinkThroughput, topics.UPLINK_THROUGHPUT, qos.PROTOCOL)
+    got: list = []
+    sub = ros.node.create_subscription(RateLatent, topics.RATE_LATENT, got.append, qos.PROTOCOL)
+    proc = domain.spawn(["-m", "udt_node.node", "--ros-args", "-p", "weights:=/tmp/unused.pt"])
+    assert ros.spin_until(lambda: pub.get_subscription_count() > 0
+                          and sub.get_publisher_count() > 0, 30.0)
+    rates = [40.0, 80.0]
+    states = [0] * 60 + [1, 0] * 15                     # stays, then alternates
+    for slot, s in enumerate(states):
+        pub.publish(_throughput(slot, rates[s]))
+        ros.spin_until(lambda n=slot: len(got) > n, 5.0)
+    code, _, err = domain.stop(proc)
+    assert code == 0, err
+    assert [m.slot for m in got] == list(range(len(states)))
+    assert all(len(m.mu) == len(m.sigma) == 4 for m in got)
+    assert [m.model_version for m in got] == list(range(1, len(states) + 1))
+    assert got[59].next_state_probs[0] > 0.9              # staying put
+    assert got[-1].next_state_probs[1] > 0.8              # last was 0: 1 comes next now
+    assert "Bayesian regime twin" in err
+    assert "weights is for model:=udt" in err

@@ -2,14 +2,23 @@
 
 Subscribes ``device/uplink_throughput`` (``twinslam_msgs/UplinkThroughput``, one per slot),
 quantises the achieved throughput to the nearest of N rates spread over [``rate_min``,
-``rate_max``], keeps the real-experience buffer and publishes ``udt/rate_latent``
-(``RateLatent``: μ, Σ, p(d_{k+1}), model version) for every slot. Every ``retrain_every`` slots
-the twin is retrained on a background thread, warm-started; callbacks never wait for it, and
-the trained network is swapped in when ready (the executor's callbacks and the training thread
-share only the swap, under a lock). With ``weights`` set, the twin is loaded from
-that file at start (if present) and saved after every retrain. With ``policy_checkpoint`` set
-to a twin-driven AMM policy (``twinslam train --rate-model udt``), the twin starts as the one that
-policy was trained with, so the latents the edge feeds it mean what they meant in training.
+``rate_max``] and publishes ``udt/rate_latent`` (``RateLatent``: μ, Σ, p(d_{k+1}), model
+version) for every slot, from one of two twins (``model``):
+
+* ``regime`` (default): the Bayesian regime twin (:mod:`twinslam.twin.regime_twin`), a filter
+  updated every slot — μ, Σ are the mean and variance of the current regime's N×N matrix, the
+  version counts the slots it has seen. It predicts the next state best of the models measured
+  (docs/results.md, "twin-predict").
+* ``udt``: the paper's variational twin. It keeps the real-experience buffer; every
+  ``retrain_every`` slots it is retrained on a background thread, warm-started; callbacks never
+  wait for it, and the trained network is swapped in when ready (the executor's callbacks and
+  the training thread share only the swap, under a lock). With ``weights`` set, it is loaded
+  from that file at start (if present) and saved after every retrain.
+
+With ``policy_checkpoint`` set to a twin-driven AMM policy (``twinslam train --rate-model
+regime|udt``), the node runs that policy's twin — its model and its configuration (the
+variational twin: its weights) — so the latents the edge feeds it mean what they meant in
+training; ``model`` is then not consulted.
 
 A throughput that is NaN, infinite or negative (refused by the message validation of
 :mod:`msg_schemas.validation`) or above ``max_mbps`` (refused here) is logged as an error,
@@ -33,26 +42,33 @@ from twinslam.common import table1
 from twinslam.node_hosts.checked_subscription import CheckedSubscription
 from twinslam.node_hosts.node_main import NodeStartError, run_node
 from twinslam.node_hosts.parameters import ParamSpec, declare
-from twinslam.twin.digital_twin import TwinConfig, UserDigitalTwin
+from twinslam.twin.digital_twin import Latent, TwinConfig, UserDigitalTwin
+from twinslam.twin.regime_twin import RegimeConfig, RegimeTwin
 from twinslam.uplink.quantiser import RateQuantiser
 
+MODELS = ("regime", "udt")
+
 PARAMETERS = (
+    ParamSpec("model", "regime", "regime (Bayesian regime twin) or udt (variational twin)",
+              check=lambda v: None if v in MODELS else f"must be one of {', '.join(MODELS)}"),
     ParamSpec("states", 2, "N uplink states, spread over [rate_min, rate_max]", low=1, high=64),
-    ParamSpec("latent_dim", 8, "Z, the latent's dimensions", low=1, high=1024),
-    ParamSpec("history", 8, "tau + 1 slots of rate history the encoder reads", low=1,
+    ParamSpec("latent_dim", 8, "udt: Z, the latent's dimensions", low=1, high=1024),
+    ParamSpec("history", 8, "udt: tau + 1 slots of rate history the encoder reads", low=1,
               high=10_000),
-    ParamSpec("retrain_every", 100, "W, slots between retrains (background thread)", low=1,
-              high=1_000_000),
-    ParamSpec("buffer_slots", 600, "real experiences a retrain learns from", low=1,
+    ParamSpec("retrain_every", 100, "udt: W, slots between retrains (background thread)",
+              low=1, high=1_000_000),
+    ParamSpec("buffer_slots", 600, "udt: real experiences a retrain learns from", low=1,
               high=10_000_000),
-    ParamSpec("steps_per_retrain", 100, "optimiser steps per retrain", low=1, high=1_000_000),
+    ParamSpec("steps_per_retrain", 100, "udt: optimiser steps per retrain", low=1,
+              high=1_000_000),
     ParamSpec("rate_min", table1.RATE_MIN_MBPS, "Mbit/s of the lowest state", low=0.0, high=1e6),
     ParamSpec("rate_max", table1.RATE_MAX_MBPS, "Mbit/s of the highest state", low=0.0, high=1e6),
     ParamSpec("max_mbps", 10_000.0, "a larger throughput report is refused as absurd",
               low=0.0, high=1e9),
-    ParamSpec("weights", "", "file to load at start and save after each retrain"),
-    ParamSpec("seed", 0, "seed of the twin's training", low=0),
-    ParamSpec("policy_checkpoint", "", "start as the twin of this AMM policy (rate model udt)"),
+    ParamSpec("weights", "", "udt: file to load at start and save after each retrain"),
+    ParamSpec("seed", 0, "udt: seed of the twin's training", low=0),
+    ParamSpec("policy_checkpoint", "", "run the twin of this AMM policy (rate model regime or "
+              "udt) instead of model"),
 )
 
 
@@ -74,7 +90,8 @@ class TwinNode(Node):
         self.max_mbps = float(p["max_mbps"])
         self.weights = Path(p["weights"]) if p["weights"] else None
         try:
-            self.twin = self._load_or_create(config, str(p["policy_checkpoint"]))
+            self.twin = self._load_or_create(config, str(p["model"]),
+                                             str(p["policy_checkpoint"]))
         except (ValueError, OSError) as exc:
             raise NodeStartError(str(exc)) from None
         if self.twin.config.n_states != config.n_states:
@@ -88,25 +105,42 @@ class TwinNode(Node):
         self.sub = CheckedSubscription(self, UplinkThroughput, topics.UPLINK_THROUGHPUT,
                                        self._on_throughput, qos.PROTOCOL)
 
-    def _load_or_create(self, config: TwinConfig, policy_checkpoint: str) -> UserDigitalTwin:
+    def _load_or_create(self, config: TwinConfig, model: str, policy_checkpoint: str
+                        ) -> UserDigitalTwin | RegimeTwin:
         log = self.get_logger()
         if policy_checkpoint:
             from twinslam.mbrl.policy import MbrlPolicy
-            from twinslam.twin.rate_models import TwinRateModel
+            from twinslam.twin.rate_models import RegimeRateModel, TwinRateModel
 
             policy = MbrlPolicy(Path(policy_checkpoint))
+            if isinstance(policy.rate_model, RegimeRateModel):
+                log.info(f"the regime twin of policy {policy_checkpoint}")
+                return RegimeTwin(policy.rate_model.twin.config)
             if not isinstance(policy.rate_model, TwinRateModel):
                 raise ValueError(f"{policy_checkpoint}: a {policy.rate_model_name}-driven "
                                  "policy has no twin to start from")
             log.info(f"the twin of policy {policy_checkpoint} (version "
                      f"{policy.rate_model.twin.version})")
             return policy.rate_model.twin
+        if model == "regime":
+            if self.weights is not None:
+                log.warning("weights is for model:=udt; the regime twin has none (ignored)")
+            return RegimeTwin(RegimeConfig(n_states=config.n_states))
         if self.weights is not None and self.weights.is_file():
             twin = UserDigitalTwin.load(self.weights)
             log.info(f"loaded twin version {twin.version} ({len(twin.states)} slots) from "
                      f"{self.weights}")
             return twin
         return UserDigitalTwin(config)
+
+    def describe(self) -> str:
+        """What the twin is, for the start-up line."""
+        if isinstance(self.twin, RegimeTwin):
+            hazards = ", ".join(f"{h:.3g}" for h in self.twin.config.hazards)
+            return f"Bayesian regime twin (hazards {hazards})"
+        cfg = self.twin.config
+        return (f"variational twin, Z = {cfg.latent_dim}, retrain every "
+                f"{cfg.retrain_every} slots")
 
     def quantise(self, mbps: float) -> int:
         """Index of the state rate nearest to a measured throughput."""
@@ -122,13 +156,13 @@ class TwinNode(Node):
             return
         self.received += 1
         due = self.twin.observe(self.quantise(mbps))
-        if due and self._training is None:
+        if due and self._training is None and isinstance(self.twin, UserDigitalTwin):
             data = self.twin.take_training_data()
             self._training = threading.Thread(target=self._retrain, args=(data,),
                                               name="udt-retrain", daemon=True)
             self._training.start()
         with self._lock:
-            latent = self.twin.latent()
+            latent: Latent = self.twin.latent()
         out = new(RateLatent, slot=int(msg.slot),
                   model_version=latent.model_version,
                   mu=latent.mu.astype(np.float32), sigma=latent.sigma.astype(np.float32),
@@ -180,10 +214,8 @@ def main(args: list[str] | None = None) -> int:
 
     def started(twin_node: TwinNode) -> None:
         twin_node.get_logger().info(
-            f"twin of {twin_node.rates.size} uplink states {twin_node.rates.tolist()} Mbit/s, "
-            f"Z = {twin_node.twin.config.latent_dim}, retrain every "
-            f"{twin_node.twin.config.retrain_every} slots; listening on "
-            f"{twin_node.sub.topic_name}")
+            f"{twin_node.describe()} of {twin_node.rates.size} uplink states "
+            f"{twin_node.rates.tolist()} Mbit/s; listening on {twin_node.sub.topic_name}")
 
     return run_node("udt_node", TwinNode, args, started=started)
 

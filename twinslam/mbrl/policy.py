@@ -21,7 +21,7 @@ from twinslam.map_management.actions import MapAction, SlotObservation
 from twinslam.mbrl.networks import Actor
 from twinslam.mbrl.replay import collate
 from twinslam.mbrl.state import action_from_scores, build_state, context_size
-from twinslam.twin.rate_models import RateModel, load_rate_model, make_rate_model
+from twinslam.twin.rate_models import TWIN_RATE_MODELS, RateModel, load_rate_model
 
 CHECKPOINT_FORMAT = "twinslam-amm-policy-1"
 
@@ -79,15 +79,15 @@ class MbrlPolicy:
         self._seen = 0
 
     def reset(self, seed: int | None = None) -> None:
-        if self.rate_model_name == "markov":          # a new run: counts start afresh
-            self.rate_model = make_rate_model("markov", self.n_states)
+        self.rate_model.reset()        # a filter (regime, counts) starts afresh each run
         self._seen = 0
 
     @property
     def uses_twin(self) -> bool:
-        """Driven by the user digital twin: on the edge its features can come from the twin
-        node's ``/udt/rate_latent`` instead of the checkpoint's copy of the twin."""
-        return self.rate_model_name == "udt"
+        """Driven by a user digital twin (regime or udt): on the edge its features can come
+        from the twin node's ``/udt/rate_latent`` (the node running the same model) instead
+        of the checkpoint's copy of the twin."""
+        return self.rate_model_name in TWIN_RATE_MODELS
 
     @property
     def feature_size(self) -> int:
@@ -101,7 +101,7 @@ class MbrlPolicy:
         if obs.n_states != self.n_states:
             raise ValueError(f"policy {self.path} was trained for {self.n_states} rate states,"
                              f" the channel has {obs.n_states}")
-        if self.rate_model_name == "markov":
+        if self.rate_model.online:
             unseen = obs.slot + 1 - self._seen
             for state in obs.rate_history[-unseen:] if unseen > 0 else []:
                 self.rate_model.observe(state)       # the slots not counted yet

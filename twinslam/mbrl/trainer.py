@@ -49,7 +49,7 @@ from twinslam.mbrl.state import (
 from twinslam.simulator.covisibility import CovisibilityDataset
 from twinslam.simulator.env import MapManagementEnv, SimConfig
 from twinslam.simulator.plan import rollout
-from twinslam.twin.rate_models import RateModel, make_rate_model
+from twinslam.twin.rate_models import DEFAULT_RATE_MODEL, RateModel, make_rate_model
 from twinslam.uplink.channels import parse_channel
 
 TRAINING_SEED_BASE = 100_000
@@ -65,7 +65,7 @@ class TrainConfig:
     slots: int = 3000                 #: real slots in all
     episode_slots: int = 200
     seed: int = 0
-    rate_model: str = "udt"           #: udt | lstm | markov
+    rate_model: str = DEFAULT_RATE_MODEL   #: regime | udt | lstm | markov
     #: paper (the paper's AMM: GCN scores, no ADAPT prior or features) | residual (ADAPT + RL)
     actor: str = "residual"
     retrain_every: int = 100          #: W
@@ -147,10 +147,12 @@ class AmmTrainer:
 
     # -- acting ---------------------------------------------------------------------------
 
-    def state_of(self, obs: SlotObservation) -> GraphState:
-        features = self.rate_model.features(obs.rate_history)
+    def state_of(self, obs: SlotObservation, rate_model: RateModel | None = None
+                 ) -> GraphState:
+        model = rate_model or self.rate_model
+        features = model.features(obs.rate_history)
         if not np.all(np.isfinite(features)):
-            raise FloatingPointError(f"slot {obs.slot}: the {self.rate_model.name} rate model's "
+            raise FloatingPointError(f"slot {obs.slot}: the {model.name} rate model's "
                                      f"features are not finite: {features}")
         return build_state(obs, features, self.config.history,
                            adapt_features=self.config.actor == "residual")
@@ -174,8 +176,7 @@ class AmmTrainer:
         pending: list[tuple[GraphState, np.ndarray, float, GraphState, bool]] = []
         while played < cfg.slots:
             obs, _ = self.env.reset(TRAINING_SEED_BASE + 1000 * cfg.seed + episode)
-            if cfg.rate_model == "markov":
-                self.rate_model = make_rate_model("markov", self.env.channel.n_states)
+            self.rate_model.reset()          # a filter (regime, counts) starts each episode
             self.rate_model.observe(obs.rate_state)
             state = self.state_of(obs)
             returns: list[float] = []
@@ -185,11 +186,15 @@ class AmmTrainer:
                 noisy = scores + self.rng.normal(0.0, cfg.noise, state.size)
                 action, flags = action_from_scores(state, noisy)
                 obs, reward, _term, trunc, _info = self.env.step(action)
+                # a filter's posterior before the real next state: the artificial next states
+                # are drawn from it and observed by copies of it, never knowing the real one
+                prior = (copy.deepcopy(self.rate_model)
+                         if self.rate_model.online and cfg.artificial_per_real else None)
                 self.rate_model.observe(obs.rate_state)
                 next_state = self.state_of(obs)
                 returns.append(-reward)
                 items = [(state, flags, reward, next_state, True)]
-                items += self._artificial(state, scores, before, history)
+                items += self._artificial(state, scores, before, history, prior)
                 played += 1
                 if played <= cfg.warmup_slots:
                     warm_rewards.append(reward)
@@ -219,19 +224,26 @@ class AmmTrainer:
         return self.log
 
     def _artificial(self, state: GraphState, scores: np.ndarray, before: tuple,
-                    history: list[int]
+                    history: list[int], prior: RateModel | None = None
                     ) -> list[tuple[GraphState, np.ndarray, float, GraphState, bool]]:
         """J artificial tuples from the slot just played (paper eq. 23); ``scores`` are the
-        actor's for ``state``, explored around with the artificial noise."""
+        actor's for ``state``, explored around with the artificial noise. ``prior``: an online
+        rate model as it was before the real next state, which the d̂_{k+1} are drawn from and
+        whose copies observe them (the next state's features are then those after d̂)."""
         cfg = self.config
         out = []
         rates = self.env.channel.rates
-        for d_hat in self.rate_model.sample_next(history, cfg.artificial_per_real, self.rng):
+        model = prior or self.rate_model
+        for d_hat in model.sample_next(history, cfg.artificial_per_real, self.rng):
             noisy = scores + self.rng.normal(0.0, cfg.artificial_noise, state.size)
             action, flags = action_from_scores(state, noisy)
             obs, reward, _info = self.env.emulate(before, action,
                                                   (int(d_hat), float(rates[int(d_hat)])))
-            out.append((state, flags, reward, self.state_of(obs), False))
+            after = None
+            if prior is not None:
+                after = copy.deepcopy(prior)
+                after.observe(int(d_hat))
+            out.append((state, flags, reward, self.state_of(obs, after), False))
         return out
 
     def _store(self, state: GraphState, flags: np.ndarray, reward: float,

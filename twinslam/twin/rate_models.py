@@ -9,8 +9,13 @@ answers the same two questions, so the trainer and the policy do not care which 
   estimate's row for the current state;
 * ``sample_next(history, count, rng)`` — next states d̂_{k+1} for artificial experiences.
 
-Each learns online from the states it ``observe``s and retrains every W slots (Algorithm 2
-lines 11–13).
+Each learns online from the states it ``observe``s: the learned ones (twin, LSTM) retrain every
+W slots (Algorithm 2 lines 11–13) and keep their weights from run to run; the ``online`` ones
+(the Bayesian regime twin, Markov counting) are filters over the current run's states, so a
+new run ``reset``s them and a policy feeds them every slot it sees.
+
+The default is ``regime``: it predicts the next state best of all (``twinslam experiment
+twin-predict``, docs/results.md).
 """
 
 from __future__ import annotations
@@ -23,11 +28,16 @@ import torch
 from twinslam.twin.baselines import LstmConfig, LstmPredictor, MarkovMle
 from twinslam.twin.digital_twin import TwinConfig, UserDigitalTwin
 from twinslam.twin.latent import latent_features
+from twinslam.twin.regime_twin import RegimeConfig, RegimeTwin
 
 
 class RateModel(Protocol):
     name: str
     n_states: int
+    #: a filter over the current run's states (reset per run, fed every slot), not weights
+    online: bool
+
+    def reset(self) -> None: ...
 
     @property
     def feature_size(self) -> int: ...
@@ -46,12 +56,16 @@ class TwinRateModel:
     """The user digital twin (paper §V): features = [μ, log Σ] of q(z | d_k)."""
 
     name = "udt"
+    online = False
 
     def __init__(self, n_states: int, retrain_every: int = 100, seed: int = 0,
                  twin: UserDigitalTwin | None = None) -> None:
         self.twin = twin or UserDigitalTwin(TwinConfig(n_states=n_states,
                                                        retrain_every=retrain_every, seed=seed))
         self.n_states = self.twin.config.n_states
+
+    def reset(self) -> None:
+        """Nothing: the learned weights carry over from run to run."""
 
     @property
     def feature_size(self) -> int:
@@ -86,12 +100,16 @@ class LstmRateModel:
     artificial next states = that prediction (it has no distribution to sample)."""
 
     name = "lstm"
+    online = False
 
     def __init__(self, n_states: int, retrain_every: int = 100, seed: int = 0,
                  predictor: LstmPredictor | None = None) -> None:
         self.predictor = predictor or LstmPredictor(LstmConfig(
             n_states=n_states, retrain_every=retrain_every, seed=seed))
         self.n_states = self.predictor.config.n_states
+
+    def reset(self) -> None:
+        """Nothing: the learned weights carry over from run to run."""
 
     @property
     def feature_size(self) -> int:
@@ -127,12 +145,17 @@ class MarkovRateModel:
     current state, artificial next states drawn from it."""
 
     name = "markov"
+    online = True
 
     def __init__(self, n_states: int, counts: np.ndarray | None = None) -> None:
         self.n_states = n_states
         self.mle = MarkovMle(n_states)
         if counts is not None:
             self.mle.counts = np.asarray(counts, dtype=np.float64).copy()
+
+    def reset(self) -> None:
+        """A new run: the counts start afresh."""
+        self.mle = MarkovMle(self.n_states)
 
     @property
     def feature_size(self) -> int:
@@ -159,13 +182,65 @@ class MarkovRateModel:
         return cls(int(blob["n_states"]), np.asarray(blob["counts"], dtype=np.float64))
 
 
-RATE_MODELS = {"udt": TwinRateModel, "lstm": LstmRateModel, "markov": MarkovRateModel}
+class RegimeRateModel:
+    """The Bayesian regime twin (:mod:`twinslam.twin.regime_twin`): features = [μ, log Σ] of
+    its posterior over the current regime's matrix (2·N² numbers), artificial next states
+    drawn from its posterior predictive."""
+
+    name = "regime"
+    online = True
+
+    def __init__(self, n_states: int, config: RegimeConfig | None = None) -> None:
+        self.twin = RegimeTwin(config or RegimeConfig(n_states=n_states))
+        self.n_states = self.twin.config.n_states
+
+    @property
+    def feature_size(self) -> int:
+        return 2 * self.n_states * self.n_states
+
+    def reset(self) -> None:
+        """A new run: the posterior starts from the prior."""
+        self.twin.reset()
+
+    def observe(self, state: int) -> None:
+        self.twin.observe(state)
+
+    def features(self, history: list[int]) -> np.ndarray:
+        lat = self.twin.latent()
+        return latent_features(lat.mu, lat.sigma)
+
+    def sample_next(self, history: list[int], count: int, rng: np.random.Generator
+                    ) -> np.ndarray:
+        return self.twin.sample_next(count, rng, history[-1] if history else None)
+
+    def state_dict(self) -> dict:
+        cfg = self.twin.config
+        return {"n_states": cfg.n_states, "hazards": [float(h) for h in cfg.hazards],
+                "prior_strength": cfg.prior_strength, "max_hypotheses": cfg.max_hypotheses}
+
+    @classmethod
+    def from_state_dict(cls, blob: dict) -> RegimeRateModel:
+        return cls(int(blob["n_states"]), RegimeConfig(
+            n_states=int(blob["n_states"]),
+            hazards=tuple(float(h) for h in blob["hazards"]),
+            prior_strength=(None if blob["prior_strength"] is None
+                            else float(blob["prior_strength"])),
+            max_hypotheses=int(blob["max_hypotheses"])))
+
+
+RATE_MODELS = {"regime": RegimeRateModel, "udt": TwinRateModel, "lstm": LstmRateModel,
+               "markov": MarkovRateModel}
+DEFAULT_RATE_MODEL = "regime"
+#: the rate models the udt node can run (a policy on one of them can take the node's latent)
+TWIN_RATE_MODELS = ("regime", "udt")
 
 
 def make_rate_model(name: str, n_states: int, retrain_every: int = 100, seed: int = 0
                     ) -> RateModel:
     if name == "markov":
         return MarkovRateModel(n_states)
+    if name == "regime":
+        return RegimeRateModel(n_states)
     try:
         return RATE_MODELS[name](n_states, retrain_every, seed)
     except KeyError:
