@@ -1,5 +1,7 @@
-"""User digital twin benchmark (issue #6): seconds per retrain on W slots of data, and
-milliseconds per slot of inference (μ, Σ and p(d_{k+1}) from the latest history), on 2 cores.
+"""User digital twin benchmark (issues #6, #20): the variational twin's seconds per retrain on
+W slots of data and milliseconds per slot of inference (μ, Σ and p(d_{k+1}) from the latest
+history), beside the Bayesian regime twin's milliseconds per slot (filter update + latent), on
+the same states in one run.
 
     python -m bench.udt [--states 2] [--retrains 5]
 """
@@ -15,6 +17,7 @@ import torch
 
 from bench.gauge import cpu_gauge
 from twinslam.twin.digital_twin import TwinConfig, UserDigitalTwin
+from twinslam.twin.regime_twin import RegimeConfig, RegimeTwin
 from twinslam.uplink.channels import MarkovChannel, random_transition_matrix, state_rates
 
 
@@ -51,6 +54,19 @@ def main() -> None:
           f"(min {min(retrain_s):.2f}, max {max(retrain_s):.2f})")
     print(f"inference per slot: median {np.median(infer_ms):.2f} ms, "
           f"p99 {np.percentile(infer_ms, 99):.2f} ms")
+    regime = RegimeTwin(RegimeConfig(n_states=args.states))
+    for s in twin.states:                       # the same history, so the filter is warm
+        regime.observe(s)
+    step_ms = []
+    for _ in range(2000):
+        state = channel.step()[0]
+        t0 = time.perf_counter()
+        regime.observe(state)
+        regime.latent()
+        step_ms.append((time.perf_counter() - t0) * 1000)
+    print(f"regime twin, update + latent per slot ({len(regime.config.hazards)} hazards, "
+          f"<= {regime.config.max_hypotheses} hypotheses each): median "
+          f"{np.median(step_ms):.2f} ms, p99 {np.percentile(step_ms, 99):.2f} ms")
     print(cpu_gauge(), "(after)")
 
 

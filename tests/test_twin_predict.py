@@ -96,6 +96,13 @@ def test_bad_sources_are_refused_by_name(bad: str, says: str) -> None:
     assert says in str(err.value)
 
 
+def test_a_trace_shorter_than_two_slots_is_refused(tmp_path: Path) -> None:
+    trace = tmp_path / "short.csv"
+    write_trace(trace, np.array([0.0, 1.0, 2.0]), np.array([10.0, 20.0, 30.0]))
+    with pytest.raises(ValueError, match=r"lasts 3 s, fewer than 2 slots of 2 s"):
+        tp.check_source(f"trace:{trace}")
+
+
 def test_the_regime_twin_beats_counting_where_the_chain_changes(tmp_path: Path) -> None:
     """What the twin is for: on a chain whose matrix changes every 100 slots it predicts
     better than both counting estimators on every seed; the experiment writes every

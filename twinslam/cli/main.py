@@ -455,7 +455,7 @@ def cmd_twin_predict(args: argparse.Namespace) -> int:
                              protocol=protocol)
         make_predictors(predictors, protocol, 0)          # unknown names fail here
         for spec in sources:
-            ex.check_source(spec)
+            ex.check_source(spec, args.slot_seconds)
     except (ValueError, ChannelError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

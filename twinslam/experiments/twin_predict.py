@@ -60,7 +60,7 @@ class Setting:
     protocol: PredictionProtocol = field(default_factory=PredictionProtocol)
 
 
-def check_source(spec: str) -> None:
+def check_source(spec: str, slot_seconds: float = SLOT_SECONDS) -> None:
     """Raise ValueError for a source that cannot be read, before any run starts."""
     kind, _, arg = spec.partition(":")
     if kind == "stationary" and not arg:
@@ -82,7 +82,10 @@ def check_source(spec: str) -> None:
     if kind == "trace":
         if not Path(arg).is_file():
             raise ValueError(f"{spec!r}: no such trace file {arg!r}")
-        TraceChannel.from_csv(Path(arg), 2)              # raises TraceError on a bad file
+        channel = TraceChannel.from_csv(Path(arg), 2)   # raises TraceError on a bad file
+        if channel.duration_s < 2 * slot_seconds:
+            raise ValueError(f"{spec!r}: the trace lasts {channel.duration_s:g} s, fewer than "
+                             f"2 slots of {slot_seconds:g} s to predict")
         return
     raise ValueError(f"unknown source {spec!r}; use stationary, intervals:K, "
                      "generator[:REGIME_S[:OUTAGE_EVERY_S]] or trace:FILE")
@@ -182,7 +185,7 @@ def twin_predict(sources: Sequence[str], out_dir: Path, setting: Setting,
     """Every predictor on every (source, seed); writes twin_predict.csv (summary),
     twin_predict_runs.csv (every run) and twin_predict.png."""
     for spec in sources:
-        check_source(spec)
+        check_source(spec, setting.slot_seconds)
     tasks = [(spec, setting.seed0 + r, setting) for spec in sources
              for r in range(setting.seeds)]
     done = run_all(_run, tasks, jobs, lambda res: f"{res[0].source} seed {res[0].seed}: "
@@ -231,8 +234,10 @@ def plot(path: Path, summary: Sequence[Summary]) -> None:
         pad = 0.08 * max(hi - lo, 0.02)
         ax.set_xlim(lo - pad, hi + pad)
         for yi, v in zip(y, means, strict=True):
-            ax.annotate(f"{v:.3f}", (max(v, lo - pad), yi), xytext=(4, 4),
-                        textcoords="offset points", fontsize=7)
+            off = v < lo - pad
+            ax.annotate(f"{'◄ ' if off else ''}{v:.3f}", (max(v, lo - pad), yi),
+                        xytext=(2 if off else 4, 0 if off else 4), textcoords="offset points",
+                        fontsize=7, va="center" if off else "bottom")
         counting = [m.log_likelihood[0] for m in ms if m.predictor in COUNTING]
         if counting:
             ax.axvline(max(counting), color="tab:blue", ls="--", lw=1)
