@@ -689,9 +689,13 @@ def build_parser() -> argparse.ArgumentParser:
                        "prior, no ADAPT features); residual: ADAPT + residual RL (ADAPT's "
                        "decision as prior and node features, plus a learned correction)")
     train.add_argument("--real-fraction", type=float, default=0.5,
-                       help="I/|Ξ|: share of real tuples in each batch, in (0, 1]")
-    train.add_argument("--artificial", type=int, default=2,
-                       help="J: artificial tuples per real one (0: real experiences only)")
+                       help="I/|Ξ|: share of real tuples in each batch, in (0, 1], when "
+                       "--artificial > 0")
+    train.add_argument("--artificial", type=int, default=0,
+                       help="J: artificial tuples per real one; 0 (default): real experiences "
+                       "only — the blended replay helped at none of 300, 1000, 3000 real slots "
+                       "(docs/results.md, issue #20); the paper's configuration is "
+                       "--artificial 2 --real-fraction 0.5")
     train.add_argument("--seed", type=int, default=0, help="seed of the channel and the networks")
     train.add_argument("--threads", type=int, default=2, help="torch CPU threads")
     train.add_argument("-o", "--output", default="results/amm_policy.pt", metavar="FILE",

@@ -71,8 +71,11 @@ class TrainConfig:
     retrain_every: int = 100          #: W
     history: int = 8                  #: rate states in the context
     batch_size: int = 64              #: |Ξ|
-    real_fraction: float = 0.5        #: I / |Ξ|; 1 = no artificial experiences
-    artificial_per_real: int = 2      #: J
+    real_fraction: float = 0.5        #: I / |Ξ| when J > 0; 1 = no artificial experiences
+    #: J, artificial tuples per real slot. 0 (real experiences only) by default: the blended
+    #: replay helped at none of 300 / 1000 / 3000 real slots (docs/results.md, issue #20);
+    #: the paper's Algorithm 2 is J = 2, I / |Ξ| = 1/2
+    artificial_per_real: int = 0
     gamma: float = 0.9
     actor_lr: float = 1e-4
     critic_lr: float = 1e-3
