@@ -5,7 +5,7 @@ A source is one of
 
 * ``stationary`` — one Dirichlet(1) N-state matrix throughout;
 * ``intervals:K`` — a new Dirichlet(1) matrix every K slots, the first interval cut at a random
-  point so changes do not line up with the learned predictors' retrains (every W slots);
+  point so changes do not systematically line up with the learned predictors' retrains;
 * ``generator[:REGIME_S[:OUTAGE_EVERY_S]]`` — a trace from
   :func:`twinslam.uplink.traces.generate_trace` (regimes of random mean rate lasting
   REGIME_S s on average, noise, outages), replayed in slots at its real Mbit/s;
