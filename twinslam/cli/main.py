@@ -446,14 +446,14 @@ def cmd_twin_predict(args: argparse.Namespace) -> int:
         protocol = PredictionProtocol(n_states=args.states or 4,
                                       retrain_every=args.retrain_every or 100,
                                       buffer_slots=args.buffer_slots or 600)
-        from twinslam.twin.next_state import PREDICTORS, make_predictors
+        from twinslam.twin.next_state import PREDICTORS, check_predictors
 
         predictors = (PREDICTORS if args.predictor == "all" else
                       tuple(p.strip() for p in args.predictor.split(",") if p.strip()))
         setting = ex.Setting(slots=args.slots or 3000, seeds=args.runs or 5, seed0=args.seed,
                              slot_seconds=args.slot_seconds, predictors=predictors,
                              protocol=protocol)
-        make_predictors(predictors, protocol, 0)          # unknown names fail here
+        check_predictors(predictors)
         for spec in sources:
             ex.check_source(spec, args.slot_seconds)
     except (ValueError, ChannelError) as exc:

@@ -34,11 +34,11 @@ from twinslam.twin.next_state import (
     COUNTING,
     PREDICTORS,
     PredictionProtocol,
+    check_predictors,
     make_predictors,
     score_online,
 )
 from twinslam.uplink.channels import SLOT_SECONDS, TraceChannel, random_transition_matrix
-from twinslam.uplink.quantiser import RateQuantiser
 from twinslam.uplink.traces import TraceShape, generate_trace
 
 Progress = Callable[[str], None]
@@ -70,14 +70,7 @@ def check_source(spec: str, slot_seconds: float = SLOT_SECONDS) -> None:
             raise ValueError(f"{spec!r}: intervals:K takes K >= 1 slots")
         return
     if kind == "generator":
-        parts = arg.split(":") if arg else []
-        try:
-            values = [float(p) for p in parts]
-        except ValueError:
-            values = [-1.0]
-        if len(parts) > 2 or any(not v > 0 for v in values):
-            raise ValueError(f"{spec!r}: generator[:REGIME_S[:OUTAGE_EVERY_S]] takes "
-                             "positive seconds")
+        _generator_seconds(spec)
         return
     if kind == "trace":
         if not Path(arg).is_file():
@@ -105,20 +98,33 @@ def source_states(spec: str, seed: int, setting: Setting) -> np.ndarray:
         states = chain_states(matrices, k, rng)
         return states[k - phase:k - phase + slots]
     if kind == "generator":
-        parts = [float(p) for p in arg.split(":")] if arg else []
-        regime_s = parts[0] if parts else GENERATOR_REGIME_S
-        every_s = parts[1] if len(parts) > 1 else GENERATOR_OUTAGE_EVERY_S
+        regime_s, every_s = _generator_seconds(spec)
         shape = TraceShape(seconds=slots * setting.slot_seconds, regime_s=regime_s,
                            outage_every_s=every_s, outage_s=GENERATOR_OUTAGE_S)
         times, mbps = generate_trace(shape, seed)
-        channel = TraceChannel(times, mbps, RateQuantiser.evenly(1, 0.0, 1.0),
-                               setting.slot_seconds, start_s=0.0)
-        channel.quantiser = RateQuantiser.from_quantiles(channel.slot_rates(), n)
-        return _replay(channel, slots)
+        return _replay(TraceChannel.from_samples(times, mbps, n, slot_seconds=setting.slot_seconds,
+                                                 start_s=0.0), slots)
     channel = TraceChannel.from_csv(Path(arg), n, slot_seconds=setting.slot_seconds,
                                     seed=seed)
     one_pass = max(1, int(channel.duration_s // setting.slot_seconds))
     return _replay(channel, min(slots, one_pass))
+
+
+def _generator_seconds(spec: str) -> tuple[float, float]:
+    """(REGIME_S, OUTAGE_EVERY_S) of ``generator[:REGIME_S[:OUTAGE_EVERY_S]]``, defaults filled
+    in; ValueError unless each given one is a positive number."""
+    _, _, arg = spec.partition(":")
+    parts = arg.split(":") if arg else []
+    try:
+        values = [float(p) for p in parts]
+    except ValueError:
+        values = [-1.0]
+    if len(parts) > 2 or any(not v > 0 for v in values):
+        raise ValueError(f"{spec!r}: generator[:REGIME_S[:OUTAGE_EVERY_S]] takes positive "
+                         "seconds")
+    defaults = [GENERATOR_REGIME_S, GENERATOR_OUTAGE_EVERY_S]
+    regime_s, every_s = values + defaults[len(values):]
+    return regime_s, every_s
 
 
 def _replay(channel: TraceChannel, slots: int) -> np.ndarray:
@@ -184,6 +190,7 @@ def twin_predict(sources: Sequence[str], out_dir: Path, setting: Setting,
                  progress: Progress | None = None, jobs: int = 1) -> list[Summary]:
     """Every predictor on every (source, seed); writes twin_predict.csv (summary),
     twin_predict_runs.csv (every run) and twin_predict.png."""
+    check_predictors(setting.predictors)
     for spec in sources:
         check_source(spec, setting.slot_seconds)
     tasks = [(spec, setting.seed0 + r, setting) for spec in sources

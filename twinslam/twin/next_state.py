@@ -49,6 +49,16 @@ class PredictionProtocol:
     point_epsilon: float = 0.05   #: what a point prediction leaves for the other states
 
 
+def peaked(n_states: int, state: int, mass: float) -> np.ndarray:
+    """``mass`` on ``state``, the rest spread evenly: how a point guess becomes a distribution
+    that gives the other states a probability above 0."""
+    if n_states == 1:
+        return np.ones(1)
+    out = np.full(n_states, (1.0 - mass) / (n_states - 1))
+    out[state] = mass
+    return out
+
+
 class CountingPredictor:
     """Markov maximum likelihood, smoothed: p(j | i) = (n_ij + α) / (n_i + Nα), over the
     whole history or the last ``window`` transitions."""
@@ -75,11 +85,7 @@ class PersistencePredictor:
         self.name, self.n, self.stay, self.state = "persistence", n_states, stay, 0
 
     def predict(self) -> np.ndarray:
-        if self.n == 1:
-            return np.ones(1)
-        out = np.full(self.n, (1.0 - self.stay) / (self.n - 1))
-        out[self.state] = self.stay
-        return out
+        return peaked(self.n, self.state, self.stay)
 
     def observe(self, state: int) -> None:
         self.state = int(state)
@@ -145,12 +151,8 @@ class LstmPredictors:
         return self.lstm.probabilities(self.lstm.states)
 
     def point(self) -> np.ndarray:
-        n = self.lstm.config.n_states
-        if n == 1:
-            return np.ones(1)
-        out = np.full(n, self.epsilon / (n - 1))
-        out[self.lstm.predict(self.lstm.states)] = 1.0 - self.epsilon
-        return out
+        return peaked(self.lstm.config.n_states, self.lstm.predict(self.lstm.states),
+                      1.0 - self.epsilon)
 
     def observe(self, state: int) -> None:
         if self.lstm.observe(state):
@@ -177,13 +179,18 @@ PREDICTORS = ("regime", "udt", "lstm", "lstm-point", "markov", "markov-window", 
 COUNTING = ("markov", "markov-window")
 
 
-def make_predictors(names: Sequence[str], proto: PredictionProtocol, seed: int
-                    ) -> list[NextStatePredictor]:
-    """The named predictors, fresh; the LSTM views share one network."""
+def check_predictors(names: Sequence[str]) -> None:
+    """ValueError naming what is not a predictor (without building any network)."""
     unknown = sorted(set(names) - set(PREDICTORS))
     if unknown:
         raise ValueError(f"unknown predictor(s) {', '.join(unknown)}; choose from "
                          f"{', '.join(PREDICTORS)}")
+
+
+def make_predictors(names: Sequence[str], proto: PredictionProtocol, seed: int
+                    ) -> list[NextStatePredictor]:
+    """The named predictors, fresh; the LSTM views share one network."""
+    check_predictors(names)
     n, out = proto.n_states, []
     lstm: LstmPredictors | None = None
     for name in names:

@@ -170,8 +170,19 @@ class TraceChannel:
         """A trace file's channel; states over ``quantise_range`` (evenly) or, by default, the
         trace's own quantiles of its per-slot rates."""
         times, values = read_trace(path)
-        channel = cls(times, values, RateQuantiser.evenly(1, 0.0, 1.0), slot_seconds, rescale,
-                      start_s, seed)
+        return cls.from_samples(times, values, n_states, quantise_range, slot_seconds, rescale,
+                                start_s, seed)
+
+    @classmethod
+    def from_samples(cls, times: np.ndarray, throughput: np.ndarray, n_states: int,
+                     quantise_range: tuple[float, float] | None = None,
+                     slot_seconds: float = SLOT_SECONDS,
+                     rescale: tuple[float, float] | None = None, start_s: float | None = None,
+                     seed: int = 0) -> TraceChannel:
+        """The channel of throughput samples (e.g. a generated trace), quantised as
+        :meth:`from_csv` does."""
+        channel = cls(times, throughput, RateQuantiser.evenly(1, 0.0, 1.0), slot_seconds,
+                      rescale, start_s, seed)
         channel.quantiser = (RateQuantiser.evenly(n_states, *quantise_range) if quantise_range
                              else RateQuantiser.from_quantiles(channel.slot_rates(), n_states))
         return channel
