@@ -1,31 +1,44 @@
 """The device's work, frame by frame and slot by slot, without DDS (DESIGN.md §1 steps 1, 2, 4).
 
-The device tracks every frame against its **local map**: the points of the edge's last
-``MapUpdate`` (global ids) plus the points it created itself since then from depth on its own
-tracking keyframes (device-local **track ids**, top bit set, the namespace
-:data:`~twinslam.slam.keyframe.TRACK_ID_BIT` names) — at most those of the last
-``keep_slots`` slots, so the map stays bounded when the edge falls silent (Edge-SLAM's device,
-likewise, keeps only a few recent keyframes of its own). A lost frame is relocalised against
-that map: the edge's keyframes' points, matched by descriptor, solved by PnP RANSAC. For
-each frame it remembers M_f split by that origin, and, for the frames of the last
-``keep_slots`` slots, the features an upload needs (keypoints, descriptors, depths, the id
-each feature observes).
+Where a frame's pose comes from is the device's ``map_source``:
+
+* ``edge`` — the paper's device (its §III-A): every frame is tracked against the points of the
+  edge's last ``MapUpdate`` alone; the device builds no map. Before the first update it tracks
+  against a start-up map, the first frame's points back-projected from depth (frames tracked
+  on it carry map version 0, so evaluations count them apart). A frame the map does not
+  explain is lost, and stays lost until relocalisation against the map succeeds: what the
+  edge keeps decides whether the device tracks. The features the map does not hold are
+  followed as device-local **track ids** (:class:`~device_tracker.feature_tracks.
+  FeatureTracks`), which the frame summaries and uploads carry for the edge's covisibility
+  and triangulation; they never enter a pose.
+* ``edge+local`` — an Edge-SLAM style device: the edge's last map plus the points the device
+  created itself since then from depth on its own tracking keyframes (track ids too) — at most
+  those of the last ``keep_slots`` slots, so the map stays bounded when the edge falls silent.
+
+Track ids have the top bit set (:data:`~twinslam.slam.keyframe.TRACK_ID_BIT`). A lost frame is
+relocalised against the map the device tracks with: the keyframes' points, matched by
+descriptor, solved by PnP RANSAC. For each frame the device remembers M_f split by origin and,
+for the frames of the last ``keep_slots`` slots, the features an upload needs (keypoints,
+descriptors, depths, the id each feature observes).
 
 When a ``MapUpdate`` answering slot s arrives, the map is swapped: the global points are the
-update's (positions after the edge's bundle adjustment); the device's own points the edge
-turned into map points (the update lists those track ids) take their global id, so they are
-not kept twice — a duplicate would make the ratio test reject both; of the rest only those
-created in slot s or later are kept (older ones were not uploaded, and the edge's map, which
-the device follows, does not hold them). The tracker's pose and motion model carry on.
+update's (positions after the edge's bundle adjustment); the device's own points and tracks
+the edge turned into map points (the update lists those track ids) take their global id, so
+they are not kept twice — a duplicate would make the ratio test reject both; of the rest only
+those created in slot s or later are kept (older ones were not uploaded, and the edge's map,
+which the device follows, does not hold them). The tracker's pose and motion model carry on.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 
+from device_tracker.feature_tracks import FeatureTracks
 from device_tracker.local_map import LocalMap
+from device_tracker.map_source import EDGE, EDGE_LOCAL, check_map_source
 from device_tracker.messages import FrameRecord
 from device_tracker.slot_clock import SlotClock
 from device_tracker.tracking import Tracking, TrackingConfig, depth_at
@@ -46,24 +59,36 @@ class FrameResult:
 
 
 class DeviceTrackerCore:
-    """Tracking against the edge's map plus the device's own recent points."""
+    """Tracking against the edge's map — alone (``edge``) or with the device's own recent
+    points (``edge+local``)."""
 
     def __init__(self, intrinsics: np.ndarray, slot_frames: int = table1.SLOT_FRAMES,
                  config: TrackingConfig | None = None, keep_slots: int = 2,
-                 frame_rate_hz: float = table1.FRAME_RATE_HZ) -> None:
+                 frame_rate_hz: float = table1.FRAME_RATE_HZ,
+                 map_source: str = EDGE_LOCAL) -> None:
         """``keep_slots``: the ended slots whose frames stay uploadable; the edge asks for a
         slot's frames during the next one, or later when the link was down meanwhile. A slot
-        lasts ``slot_frames`` / ``frame_rate_hz`` seconds of frame stamps."""
+        lasts ``slot_frames`` / ``frame_rate_hz`` seconds of frame stamps. ``map_source``:
+        ``edge`` or ``edge+local`` (module docstring); it decides ``config.own_points``."""
         if keep_slots < 1:
             raise ValueError(f"keep_slots must be >= 1, got {keep_slots}")
+        reason = check_map_source(map_source)
+        if reason:
+            raise ValueError(f"map_source {map_source!r}: {reason}")
+        self.map_source = map_source
         self.keep_slots = keep_slots
         self.k = np.asarray(intrinsics, dtype=np.float64)
         self.clock = SlotClock(slot_frames, frame_rate_hz)
-        self.config = config or TrackingConfig(relocalise=True)
+        self.config = dataclasses.replace(config or TrackingConfig(relocalise=True),
+                                          own_points=map_source == EDGE_LOCAL)
         self.tracking = Tracking(self.k, self.config)
         #: per map-point row: its global id or TRACK_BIT | track id
         self.labels = np.zeros(0, dtype=np.uint64)
         self.created = np.zeros(0, dtype=np.int64)     #: per row: slot that created it
+        #: the paper's device follows the features its map lacks apart from the map
+        self.tracks = FeatureTracks(self.k, self.config) if map_source == EDGE else None
+        self.track_labels = np.zeros(0, dtype=np.uint64)   #: per track row: TRACK_BIT | id
+        self.track_created = np.zeros(0, dtype=np.int64)   #: per track row: its slot
         self.map_version = 0
         self.frames: list[FrameRecord] = []            #: the current slot's
         self.slot = 0                                  #: the slot frames are tracked in
@@ -113,12 +138,21 @@ class DeviceTrackerCore:
         self._label_new_points()
         ids = self.labels[out.observed]
         is_track = (ids & np.uint64(TRACK_BIT)) != 0
-        record = FrameRecord(out.index, stamp, out.pose, out.tracked, np.sort(ids[~is_track]),
-                             np.sort(ids[is_track]), self.slot, out.relocalised)
-        self.frames.append(record)
         assert out.features is not None and out.feature_points is not None
         assoc = out.feature_points
         point_ids = np.where(assoc >= 0, self.labels[np.maximum(assoc, 0)], np.uint64(0))
+        track_ids = ids[is_track]
+        if self.tracks is not None and out.tracked:
+            f_idx, rows, n_new = self.tracks.observe(out.features, assoc < 0, out.pose, depth,
+                                                     out.index, color.shape[:2])
+            self._label_new_tracks(n_new)
+            followed = self.track_labels[rows]
+            point_ids[f_idx] = followed
+            track_ids = np.concatenate([track_ids, followed])
+        record = FrameRecord(out.index, stamp, out.pose, out.tracked, np.sort(ids[~is_track]),
+                             np.sort(track_ids), self.slot, out.relocalised, out.inliers,
+                             self.map_version)
+        self.frames.append(record)
         slot = self.slot
         depths = (depth_at(out.features.points, depth, self.config.depth_range_m)
                   if depth is not None else np.zeros(len(assoc)))
@@ -138,27 +172,60 @@ class DeviceTrackerCore:
             oldest = self.slot - self.keep_slots + 1
             self._uploads = {f: u for f, u in self._uploads.items() if u.slot >= oldest}
             self._images = {f: i for f, i in self._images.items() if f in self._uploads}
-            self._forget_own_points_before(oldest)
+            if self.tracks is None:
+                self._forget_own_points_before(oldest)
+            else:                     # the start-up map stays until the edge's map replaces it
+                self._forget_tracks_before(oldest)
             self.slot += 1
         return frames
+
+    def _forget_tracks_before(self, oldest_slot: int) -> None:
+        """Tracks started before ``oldest_slot`` go: no frame the edge may still ask for
+        needs them, and within a slot is where the edge compares them."""
+        keep = np.flatnonzero(self.track_created >= oldest_slot)
+        if keep.size < self.track_created.size:
+            self._keep_tracks(keep)
+
+    def _keep_tracks(self, keep: np.ndarray) -> None:
+        assert self.tracks is not None
+        self.tracks.keep_rows(keep)
+        self.track_labels, self.track_created = self.track_labels[keep], self.track_created[keep]
+
+    def set_map_source(self, map_source: str) -> None:
+        """Track with ``map_source`` from the next frame on. Going to ``edge`` drops the
+        device's own points from the map it tracks with (unless no map update came yet: they
+        are its start-up map); going to ``edge+local`` lets its keyframes make points again."""
+        reason = check_map_source(map_source)
+        if reason:
+            raise ValueError(f"map_source {map_source!r}: {reason}")
+        if map_source == self.map_source:
+            return
+        self.map_source = map_source
+        self.config = dataclasses.replace(self.config, own_points=map_source == EDGE_LOCAL)
+        self.tracking.config = self.config
+        self.track_labels = np.zeros(0, dtype=np.uint64)
+        self.track_created = np.zeros(0, dtype=np.int64)
+        if map_source == EDGE_LOCAL:
+            self.tracks = None
+            return
+        self.tracks = FeatureTracks(self.k, self.config)
+        if self.map_version > 0:
+            self._keep_points(np.flatnonzero((self.labels & np.uint64(TRACK_BIT)) == 0))
 
     def _forget_own_points_before(self, oldest_slot: int) -> None:
         """Bound the local map while the edge is silent: the device's own points created
         before ``oldest_slot`` go (their frames can no longer be uploaded, so the edge's map
         will not hold them). With the edge answering, each map update prunes them sooner."""
         stale = (((self.labels & np.uint64(TRACK_BIT)) != 0) & (self.created < oldest_slot))
-        if not stale.any():
-            return
-        keep = np.flatnonzero(~stale)
+        if stale.any():
+            self._keep_points(np.flatnonzero(~stale))
+
+    def _keep_points(self, keep: np.ndarray) -> None:
+        """Only the map rows ``keep`` (ascending) stay in the map the device tracks with."""
         old = self.tracking.map
-        points = LocalMap(max(keep.size, 16))
-        rows = points.add(old.positions[keep], old.descriptors[keep], 0)
-        points.last_seen[rows] = old.last_seen[keep]
-        points.seen_count[rows] = old.seen_count[keep]
-        points.active[rows] = old.active[keep]
         old_to_new = np.full(len(old), -1, dtype=np.int64)
-        old_to_new[keep] = rows
-        self.tracking.replace_map(points, old_to_new)
+        old_to_new[keep] = np.arange(keep.size)
+        self.tracking.replace_map(old.take(keep), old_to_new)
         self.labels, self.created = self.labels[keep], self.created[keep]
 
     def upload(self, frame_id: int) -> KeyFramePayload | None:
@@ -170,14 +237,24 @@ class DeviceTrackerCore:
         """The image kept with an upload (``track(..., image=...)``); None if none or gone."""
         return self._images.get(frame_id)
 
+    def _new_track_ids(self, count: int) -> np.ndarray:
+        """``count`` fresh device-local ids, marked as tracks."""
+        ids = np.arange(self._next_track, self._next_track + count, dtype=np.uint64)
+        self._next_track += count
+        return ids | np.uint64(TRACK_BIT)
+
     def _label_new_points(self) -> None:
         n_old, n = len(self.labels), len(self.tracking.map)
         if n == n_old:
             return
-        tracks = np.arange(self._next_track, self._next_track + n - n_old, dtype=np.uint64)
-        self._next_track += n - n_old
-        self.labels = np.concatenate([self.labels, tracks | np.uint64(TRACK_BIT)])
+        self.labels = np.concatenate([self.labels, self._new_track_ids(n - n_old)])
         self.created = np.concatenate([self.created, np.full(n - n_old, self.slot, np.int64)])
+
+    def _label_new_tracks(self, count: int) -> None:
+        if count:
+            self.track_labels = np.concatenate([self.track_labels, self._new_track_ids(count)])
+            self.track_created = np.concatenate([self.track_created,
+                                                 np.full(count, self.slot, np.int64)])
 
     # -- map updates -------------------------------------------------------------------------
 
@@ -192,8 +269,14 @@ class DeviceTrackerCore:
                                strict=True))
             self.labels = np.array([relabel.get(int(x), int(x)) for x in self.labels],
                                    dtype=np.uint64)
-        keep = np.flatnonzero(((self.labels & np.uint64(TRACK_BIT)) != 0)
-                              & (self.created >= slot) & old.active)
+        own = (self.labels & np.uint64(TRACK_BIT)) != 0
+        if self.tracks is not None:
+            # the paper's device tracks against the update alone: no point of its own stays
+            # (the start-up map included); tracks the edge resolved are map points now
+            resolved = np.isin(self.track_labels, update.track_ids)
+            self._keep_tracks(np.flatnonzero(~resolved & (self.track_created >= slot)))
+            own[:] = False
+        keep = np.flatnonzero(own & (self.created >= slot) & old.active)
         points = LocalMap(max(len(update.point_ids) + keep.size, 16))
         new_global = points.add(update.positions, update.descriptors, now)
         new_track = points.add(old.positions[keep], old.descriptors[keep], now)

@@ -70,6 +70,16 @@ class LocalMap:
         self._n += k
         return ids
 
+    def take(self, rows: np.ndarray) -> LocalMap:
+        """A new map of the points ``rows`` (ascending), renumbered 0..len(rows) - 1, with
+        their positions, descriptors, sightings and activity."""
+        out = LocalMap(max(int(rows.size), 16))
+        new = out.add(self.positions[rows], self.descriptors[rows], 0)
+        out.last_seen[new] = self.last_seen[rows]
+        out.seen_count[new] = self.seen_count[rows]
+        out.active[new] = self.active[rows]
+        return out
+
     def mark_seen(self, ids: np.ndarray, frame: int) -> None:
         self._last_seen[ids] = frame
         self._seen_count[ids] += 1

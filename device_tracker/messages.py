@@ -28,6 +28,8 @@ class FrameRecord:
     track_ids: np.ndarray          #: device-local ids of new features it observes
     slot: int                      #: the slot its stamp falls in (:mod:`.slot_clock`)
     relocalised: bool = False      #: tracked again only by relocalisation (after a loss)
+    inliers: int = 0               #: matches its pose was solved with (0: not tracked)
+    map_version: int = 0           #: the map update it was tracked against (0: none yet)
 
 
 def frame_summaries_message(slot: int, rate_mbps: float, rate_state: int, map_version: int,
@@ -38,7 +40,8 @@ def frame_summaries_message(slot: int, rate_mbps: float, rate_state: int, map_ve
                           stamp=ros_time(f.stamp), pose=pose_msg(f.pose), tracked=f.tracked,
                           map_point_ids=np.asarray(f.map_point_ids, dtype=np.uint64),
                           local_track_ids=np.asarray(f.track_ids, dtype=np.uint64),
-                          relocalised=f.relocalised)
+                          relocalised=f.relocalised, inliers=f.inliers,
+                          map_version=f.map_version)
                       for f in frames])
     return set_header(msg, stamp, "map")
 

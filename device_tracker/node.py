@@ -2,8 +2,9 @@
 
 * ``camera/image_raw`` + ``camera/depth/image_raw`` (paired by stamp,
   :mod:`device_tracker.frame_pairing`) + ``camera/camera_info`` → every frame tracked against
-  the local map (:class:`~device_tracker.device_core.DeviceTrackerCore`); ``device/pose`` per
-  frame, ``device/path`` per slot;
+  the edge's last map alone (``map_source:=edge``, the paper's device) or with the device's own
+  recent points too (``edge+local``) (:class:`~device_tracker.device_core.DeviceTrackerCore`);
+  ``device/pose`` per frame, ``device/path`` per slot;
 * at each slot's end, ``device/frame_summaries`` with d_k drawn from the channel model
   (``channel:=markov:N=2`` or ``trace:FILE``, as the simulator's);
 * ``edge/upload_request`` → exactly the frames asked for go out as ``Keyframe`` s on
@@ -80,6 +81,7 @@ class DeviceTrackerNode(Node):
         except (ChannelError, ValueError) as exc:
             raise NodeStartError(str(exc)) from None
         self.map_frame = str(p["map_frame"])
+        self.map_source = str(p["map_source"])
         self.tracking_config = TrackingConfig(n_features=int(p["n_features"]), relocalise=True)
         self.core: DeviceTrackerCore | None = None
         # the publisher the tc shaper flushes exists before the shaper
@@ -131,7 +133,7 @@ class DeviceTrackerNode(Node):
         if self.core is None:
             k = np.asarray(msg.k, dtype=np.float64).reshape(3, 3)
             self.core = DeviceTrackerCore(k, self.slot_frames, self.tracking_config,
-                                          self.keep_slots, self.frame_rate_hz)
+                                          self.keep_slots, self.frame_rate_hz, self.map_source)
             self.get_logger().info(f"camera {msg.width}x{msg.height}, fx {k[0, 0]:.1f}; "
                                    "tracking starts")
         self._process_ready()
@@ -162,7 +164,12 @@ class DeviceTrackerNode(Node):
             self.get_logger().error(f"frame skipped: {exc}")
             return
         stamp = stamp_seconds(color_msg.header)
+        source = str(self.get_parameter("map_source").value)
         with self._lock:
+            if source != self.core.map_source:       # set live (ros2 param set)
+                self.core.set_map_source(source)
+                self.get_logger().info(f"map source {source} from frame "
+                                       f"{self.core.frame_count} on")
             # a slot whose last frame never came ends at the first frame of a later slot
             unfinished = self.core.take_slot() if self.core.ends_slot_before(stamp) else []
             result = self.core.track(color, depth, stamp,
@@ -262,7 +269,8 @@ def main(args: list[str] | None = None) -> int:
                   else "token bucket")
         device.get_logger().info(
             f"slots of {device.slot_frames} frames "
-            f"({device.slot_frames / device.frame_rate_hz:g} s of stamps), channel "
+            f"({device.slot_frames / device.frame_rate_hz:g} s of stamps), map source "
+            f"{device.map_source}, channel "
             f"{device.channel_spec}, uplink shaper {shaper}; waiting for "
             f"{device.resolve_topic_name(topics.CAMERA_INFO)}")
 

@@ -6,6 +6,7 @@ Defaults are the paper's Table I where it has one (F 60 frames a slot, α 5 Mbit
 
 from __future__ import annotations
 
+from device_tracker.map_source import EDGE_LOCAL, check_map_source
 from device_tracker.tc_shaper import SHAPERS
 from twinslam.common import table1
 from twinslam.node_hosts.parameters import ParamSpec
@@ -38,6 +39,11 @@ PARAMETERS = (
               "bytes on the link)"),
     ParamSpec("edge_timeout_s", 3.0, "no upload request for this long: say the edge is silent",
               low=0.01, high=3600.0),
+    ParamSpec("map_source", EDGE_LOCAL, "where poses come from: edge (only the points of the "
+              "edge's last map update, the paper's device: what the edge keeps decides "
+              "tracking) or edge+local (plus the device's own points of its last keep_slots "
+              "slots, an Edge-SLAM style device); changes live, from the next frame",
+              live=True, check=check_map_source),
     ParamSpec("keep_slots", 4, "slots whose frames stay uploadable (rides out ~5 s outages)",
               low=1, high=1000),
 )

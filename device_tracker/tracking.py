@@ -47,6 +47,11 @@ class TrackingConfig:
     #: relocalisation, without its bag of words: the device's local map is small)
     reinit_after: int = 60             #: lost this many frames in a row: start afresh from
     #: depth at the last pose (no new points from a lost frame before: its pose is a guess)
+    own_points: bool = True            #: keyframes add map points of their own (ORB-SLAM's
+    #: tracking with its local mapping). False: the map comes from elsewhere
+    #: (:meth:`Tracking.replace_map`, the paper's device tracking against the edge's map);
+    #: only the first frame's depth makes points (a start-up map), and a long loss is not
+    #: restarted from depth: the frame stays lost until relocalisation against the map succeeds
 
 
 @dataclass
@@ -61,6 +66,8 @@ class TrackedFrame:
     features: Features | None = None  #: the frame's ORB features
     feature_points: np.ndarray | None = None   #: per feature, the map point it observes or -1
     relocalised: bool = False          #: tracked only by relocalisation
+    inliers: int = 0                   #: matches the pose was solved with (0: not tracked,
+    #: or the first frame, which defines the origin)
 
 
 class Tracking:
@@ -106,12 +113,13 @@ class Tracking:
         if not tracked:
             pose, inliers = predicted, np.zeros(len(matched_ids), dtype=bool)
         observed = matched_ids[inliers]
+        n_inliers = len(observed)
         assoc[matched_feat[inliers]] = observed
         self.map.mark_seen(observed, index)
         keyframe = (len(observed) < self.config.keyframe_ratio * self._last_kf_tracked
                     or index - self._last_kf_index >= self.config.keyframe_every)
         reinitialised = self._lost >= self.config.reinit_after
-        keyframe = keyframe and (tracked or reinitialised)
+        keyframe = keyframe and (tracked or reinitialised) and self.config.own_points
         if keyframe and depth is not None:
             free = np.ones(len(feats.points), bool)
             free[matched_feat[inliers]] = False
@@ -125,7 +133,8 @@ class Tracking:
         self._pose = pose
         self._cull(index)
         return TrackedFrame(index, pose.copy(), np.sort(observed), tracked, keyframe,
-                            len(feats.points), len(matched_ids), feats, assoc, relocalised)
+                            len(feats.points), len(matched_ids), feats, assoc, relocalised,
+                            n_inliers)
 
     @property
     def frames_tracked(self) -> int:

@@ -162,7 +162,7 @@ class EdgeMapperCore:
         if not hits:
             return frame
         return FrameObservations(frame.frame_id, frame.map_points | {known[t] for t in hits},
-                                 frame.tracks - hits)
+                                 frame.tracks - hits, frame.tracked)
 
     def add_keyframe(self, data: KeyFramePayload) -> IntegrationReport | None:
         """Integrate a keyframe the plan of its slot asked for — or hold it while an earlier

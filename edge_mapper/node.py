@@ -113,7 +113,8 @@ class EdgeMapperNode(Node):
         if self.control.vmax != self.core.config.slot.vmax:
             self.core.set_vmax(self.control.vmax)
         frames = [FrameObservations(int(f.frame_id), frozenset(int(i) for i in f.map_point_ids),
-                                    frozenset(int(i) for i in f.local_track_ids))
+                                    frozenset(int(i) for i in f.local_track_ids),
+                                    bool(f.tracked))
                   for f in msg.frames]
         started = time.perf_counter()
         try:

@@ -36,6 +36,9 @@ class FrameObservations:
     frame_id: int
     map_points: frozenset[int]         #: global map-point ids
     tracks: frozenset[int] = frozenset()   #: device-local track ids (only shared in-slot)
+    #: the device tracked it; an untracked frame's pose is a guess, and a keyframe placed by
+    #: a guess would put its points in the wrong place: it is scored but never uploaded
+    tracked: bool = True
 
 
 @dataclass(frozen=True)
@@ -91,7 +94,8 @@ class SlotPlanner:
     def plan(self, slot: int, frames: list[FrameObservations], rate_mbps: float, rate_state: int,
              rate_history: list[int], arriving: dict[int, FrameObservations] | None = None,
              leaving: frozenset[int] | set[int] = frozenset()) -> SlotPlan:
-        """U_k and C_k for slot k's frames (capture order) at rate d_k.
+        """U_k and C_k for slot k's frames (capture order) at rate d_k. The policy chooses U_k
+        among the frames the device tracked; υ is scored over all of them.
 
         With earlier slots still open (their uploads on the way, their evictions not yet
         applied — slots shorter than their upload time), the map the decision is sized and
@@ -106,15 +110,16 @@ class SlotPlanner:
         arriving = {f: o for f, o in (arriving or {}).items()
                     if f not in leaving and f not in self.map.keyframes}
         map_ids = [k for k in self.map.keyframe_ids() if k not in leaving] + sorted(arriving)
-        cand = [f.frame_id for f in frames]
-        clash = set(cand) & set(map_ids)
+        every = [f.frame_id for f in frames]
+        clash = set(every) & set(map_ids)
         if clash:
             raise ValueError(f"slot {slot}: frames {sorted(clash)} are already keyframes")
+        cand = [f.frame_id for f in frames if f.tracked]
         cfg = self.config
         n_up, n_ev = theorem1_cardinalities(rate_mbps, cfg.alpha_mbit, cfg.d_req_s, cfg.vmax,
                                             len(map_ids), len(cand))
-        full = self.weight_matrix({**arriving, **by_id}, map_ids + cand)
-        pos = {x: i for i, x in enumerate(map_ids + cand)}
+        full = self.weight_matrix({**arriving, **by_id}, map_ids + every)
+        pos = {x: i for i, x in enumerate(map_ids + every)}
         obs = SlotObservation(slot, map_ids, cand, n_up, n_ev, rate_mbps, rate_state,
                               list(rate_history), self.n_states,
                               lambda a, b: full[np.ix_([pos[x] for x in a],

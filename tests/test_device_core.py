@@ -121,3 +121,119 @@ def test_own_points_stay_bounded_while_the_edge_is_silent() -> None:
     assert max(sizes) < 3 * min(sizes[1:]), f"the local map kept growing: {sizes}"
     truth = np.linalg.inv(frames[0].pose) @ frames[-1].pose
     assert np.linalg.norm(results[-1].record.pose[:3, 3] - truth[:3, 3]) < 0.05
+
+
+def _update_from_own_points(core: DeviceTrackerCore, version: int, track_ids: np.ndarray,
+                            first_global: int = 1) -> MapSnapshot:
+    """A map update that turns the device's own points ``track_ids`` into map points at the
+    positions the device gave them (what the edge does with uploaded keyframes)."""
+    rows = np.array([int(np.flatnonzero(core.labels == t)[0]) for t in track_ids])
+    ids = np.arange(first_global, first_global + len(rows), dtype=np.uint64)
+    return MapSnapshot(version, np.array([0], np.uint64), np.eye(4)[None], ids,
+                       core.tracking.map.positions[rows].copy(),
+                       core.tracking.map.descriptors[rows].copy(),
+                       np.ones(len(rows), np.uint32), [ids], track_ids, ids)
+
+
+def _foreign_update(version: int, n: int = 400) -> MapSnapshot:
+    """A map of points the camera has never seen: random descriptors in front of it."""
+    rng = np.random.default_rng(7)
+    ids = np.arange(10_000, 10_000 + n, dtype=np.uint64)
+    positions = rng.uniform([-1.0, -0.7, 1.0], [1.0, 0.7, 3.0], (n, 3))
+    return MapSnapshot(version, np.array([0], np.uint64), np.eye(4)[None], ids, positions,
+                       rng.integers(0, 256, (n, 32), dtype=np.uint8),
+                       np.ones(n, np.uint32), [ids])
+
+
+def test_edge_mode_tracks_only_against_the_map_update_and_makes_no_point() -> None:
+    """The paper's device: after the first map update every pose comes from the update's
+    points alone — the map it tracks with holds exactly those, however far it tracks — while
+    the frame summaries and uploads still carry device-local track ids for the edge."""
+    seq = SyntheticSequence(4 * SLOT, seed=0)
+    frames = list(seq)
+    core = DeviceTrackerCore(seq.intrinsics, SLOT, map_source="edge")
+    first = _track(core, frames[:SLOT])
+    records = core.take_slot()
+    assert all(r.record.tracked for r in first)
+    assert all(r.map_version == 0 for r in records), "slot 0 tracks on the start-up map"
+    startup = records[0].track_ids
+    assert len(core.tracking.map) == len(startup), "only the first frame's depth made points"
+
+    update = _update_from_own_points(core, 1, startup)
+    assert core.apply_map_update(update, 0)
+    for k in (1, 2, 3):
+        results = _track(core, frames[k * SLOT:(k + 1) * SLOT])
+        later = core.take_slot()
+        assert sorted(core.labels.tolist()) == sorted(update.point_ids.tolist()), \
+            "the map the device tracks with holds a point the update did not send"
+        assert all(r.record.tracked for r in results), f"slot {k} lost tracking"
+        assert all(r.map_version == 1 and r.inliers >= 15 for r in later)
+        assert all(len(r.map_point_ids) == r.inliers for r in later)
+        # feature tracks for the edge's covisibility: shared between the slot's frames
+        assert all(len(r.track_ids) > 0 and all(int(t) & TRACK_BIT for t in r.track_ids)
+                   for r in later)
+        assert len(set(later[0].track_ids.tolist()) & set(later[-1].track_ids.tolist())) > 20
+    payload = core.upload(3 * SLOT + 2)
+    assert payload is not None
+    sent = {int(i) for i in payload.point_ids if i}
+    record = later[2]
+    assert sent == {int(i) for i in record.map_point_ids} | {int(i) for i in record.track_ids}
+    truth = np.linalg.inv(frames[0].pose) @ frames[-1].pose
+    assert np.linalg.norm(results[-1].record.pose[:3, 3] - truth[:3, 3]) < 0.05
+
+
+def test_edge_mode_loses_a_frame_that_shares_no_point_with_the_map_update() -> None:
+    """The same frames and the same map update of points the camera never saw: the Edge-SLAM
+    style device tracks on with its own points, the paper's device loses the frames; a later
+    update that holds what the camera sees brings it back by relocalisation."""
+    seq = SyntheticSequence(3 * SLOT, seed=2)
+    frames = list(seq)
+    outcomes = {}
+    for source in ("edge", "edge+local"):
+        core = DeviceTrackerCore(seq.intrinsics, SLOT, map_source=source)
+        _track(core, frames[:SLOT])
+        core.take_slot()
+        assert core.apply_map_update(_foreign_update(1), 0)      # the answer to slot 0
+        outcomes[source] = _track(core, frames[SLOT:SLOT + 5])
+        if source == "edge":
+            records = [r.record for r in outcomes[source]]
+            assert [r.tracked for r in records] == [False] * 5
+            assert all(r.inliers == 0 and len(r.map_point_ids) == 0 for r in records)
+            assert outcomes[source][0].lost_now
+    assert all(r.record.tracked for r in outcomes["edge+local"])
+
+    core = DeviceTrackerCore(seq.intrinsics, SLOT, map_source="edge")
+    records = [r.record for r in _track(core, frames[:SLOT])]
+    core.take_slot()
+    seen = _update_from_own_points(core, 2, records[0].track_ids)   # kept for later
+    assert core.apply_map_update(_foreign_update(1), 1)
+    lost = _track(core, frames[SLOT:SLOT + 2])
+    assert not any(r.record.tracked for r in lost)
+    assert core.apply_map_update(seen, 1)
+    back = _track(core, frames[SLOT + 2:SLOT + 3])[0]
+    assert back.record.tracked and back.recovered and back.record.map_version == 2
+    truth = np.linalg.inv(frames[0].pose) @ frames[SLOT + 2].pose
+    assert np.linalg.norm(back.record.pose[:3, 3] - truth[:3, 3]) < 0.05
+
+
+def test_an_unknown_map_source_is_refused_and_a_known_one_applies_at_the_next_frame() -> None:
+    seq = SyntheticSequence(2 * SLOT, seed=0)
+    frames = list(seq)
+    try:
+        DeviceTrackerCore(seq.intrinsics, SLOT, map_source="local")
+    except ValueError as exc:
+        assert "unknown map source 'local'" in str(exc) and "edge+local" in str(exc)
+    else:
+        raise AssertionError("an unknown map source was accepted")
+    core = DeviceTrackerCore(seq.intrinsics, SLOT)
+    _track(core, frames[:SLOT])
+    records = core.take_slot()
+    update = _update_from_own_points(core, 1, records[0].track_ids)
+    assert core.apply_map_update(update, 0)
+    _track(core, frames[SLOT:SLOT + 3])
+    assert (core.labels & np.uint64(TRACK_BIT)).any(), "edge+local makes points of its own"
+    core.set_map_source("edge")
+    assert sorted(core.labels.tolist()) == sorted(update.point_ids.tolist())
+    after = _track(core, frames[SLOT + 3:])
+    assert all(r.record.tracked for r in after)
+    assert sorted(core.labels.tolist()) == sorted(update.point_ids.tolist())

@@ -1,0 +1,42 @@
+"""The device's ``map_source`` as a ROS 2 user meets it: an unknown value stops the node at start
+with the reason (exit 2), and through the standard parameter service an unknown value is
+refused with the reason while a known one is taken live."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+from rcl_interfaces.srv import DescribeParameters, SetParameters
+
+from tests.test_edge_parameters import _call
+from twinslam.node_hosts.fastdds import REPO_ROOT
+from twinslam.node_hosts.loopback import LoopbackDomain
+from twinslam.node_hosts.session import RosSession
+
+
+def _set_map_source(ros: RosSession, value: str) -> object:
+    request = SetParameters.Request(parameters=[Parameter(
+        name="map_source", value=ParameterValue(type=ParameterType.PARAMETER_STRING,
+                                                string_value=value))])
+    return _call(ros, SetParameters, "/device_tracker/set_parameters", request).results[0]
+
+
+def test_an_unknown_map_source_is_refused_at_start_and_when_set(domain: LoopbackDomain,
+                                                               ros: RosSession) -> None:
+    done = subprocess.run([sys.executable, "-m", "device_tracker.node", "--ros-args", "-p",
+                           "map_source:=local"], env=domain.env_for(None), cwd=REPO_ROOT,
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2, done.stderr[-2000:]
+    assert "unknown map source 'local'" in done.stderr and "Traceback" not in done.stderr
+
+    device = domain.spawn(["-m", "device_tracker.node"])
+    described = _call(ros, DescribeParameters, "/device_tracker/describe_parameters",
+                      DescribeParameters.Request(names=["map_source"])).descriptors[0]
+    assert not described.read_only and "paper" in described.description
+    refused = _set_map_source(ros, "cloud")
+    assert not refused.successful and "unknown map source 'cloud'" in refused.reason
+    assert _set_map_source(ros, "edge").successful
+    code, _out, err = domain.stop(device)
+    assert code == 0 and "Traceback" not in err, err[-2000:]
