@@ -14,36 +14,61 @@ from twinslam.cli.main import main
 
 def test_evaluate_runs_every_seed_and_summarises(tmp_path: Path,
                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    """Both device map sources, two runs at a time: the Edge-SLAM style device loses only the
+    covered frames and recovers; every run is calibrated against the simulator's view."""
     out = tmp_path / "live"
     # 181 frames forward then back: 361 played, 6 full slots; the lens covered for 3 s from
     # played frame 252, uncovered at 342 (inside the last full slot)
     code = main(["evaluate", "--sequence", "synthetic:181", "--frames", "181", "--policy", "lff",
-                 "--scenario", "revisit-lost", "--seeds", "2", "--out", str(out)])
+                 "--scenario", "revisit-lost", "--map-source", "edge+local,edge", "--seeds",
+                 "1", "--jobs", "2", "--out", str(out)])
     text = capsys.readouterr().out
     assert code == 0, text
     with (out / "runs.csv").open(encoding="utf-8") as fh:
         rows = list(csv.DictReader(fh))
-    assert [(r["scenario"], r["policy"], r["seed"]) for r in rows] == [
-        ("revisit-lost", "lff", "0"), ("revisit-lost", "lff", "1")]
+    assert sorted((r["scenario"], r["map_source"], r["policy"], r["seed"]) for r in rows) == [
+        ("revisit-lost", "edge", "lff", "0"), ("revisit-lost", "edge+local", "lff", "0")]
     for r in rows:
         assert int(r["slots"]) == 6 and int(r["untracked_frames"]) >= 90, r
-        assert int(r["tracking_failures"]) == 1, "the covered lens lost no frame"
-        assert 2.9 < float(r["recover_s"]) < 3.5, "tracking did not come back after the cover"
-        assert float(r["ate_m"]) < 0.3      # the 90 covered frames keep the last pose
+    local = next(r for r in rows if r["map_source"] == "edge+local")
+    assert int(local["tracking_failures"]) == 1, "the covered lens lost no frame"
+    assert 2.9 < float(local["recover_s"]) < 3.5, "tracking did not come back after the cover"
+    assert float(local["ate_m"]) < 0.3      # the 90 covered frames keep the last pose
     with (out / "summary.csv").open(encoding="utf-8") as fh:
         summary = list(csv.DictReader(fh))
-    assert len(summary) == 1 and summary[0]["runs"] == "2"
-    ates = [float(r["ate_m"]) for r in rows]
-    assert float(summary[0]["ate_m_mean"]) == pytest.approx(sum(ates) / 2)
-    assert "| revisit-lost | lff | 2 |" in (out / "summary.md").read_text(encoding="utf-8")
+    assert len(summary) == 2 and {s["runs"] for s in summary} == {"1"}
+    row = next(s for s in summary if s["map_source"] == "edge+local")
+    assert float(row["ate_m_mean"]) == pytest.approx(float(local["ate_m"]))
+    assert "| revisit-lost | edge+local | lff | 1 |" in (out / "summary.md").read_text(
+        encoding="utf-8")
     assert (out / "summary.png").stat().st_size > 10_000
     assert "[2/2] revisit-lost" in text
+
+    with (out / "calibration.csv").open(encoding="utf-8") as fh:
+        calibration = {r["map_source"]: r for r in csv.DictReader(fh)}
+    with (out / "calibration_frames.csv").open(encoding="utf-8") as fh:
+        frames = list(csv.DictReader(fh))
+    assert set(calibration) == {"edge", "edge+local"}
+    for source, c in calibration.items():
+        scored = [f for f in frames if f["map_source"] == source]
+        assert int(c["frames"]) == len(scored) > 200, c
+        failed = sum(f["device_tracked"] == "0" for f in scored)
+        assert float(c["device_failure_share"]) == pytest.approx(failed / len(scored))
+        for column in ("predicted_lost_share", "precision", "recall", "spearman_u_error",
+                       "spearman_u_inliers"):
+            assert column in c
+        # the covered lens: 90 frames no map explains, all failed, all in the scored slots
+        assert failed >= 90
+    assert all(int(f["inliers"]) >= 15 for f in frames if f["device_tracked"] == "1")
+    assert "predicted lost share vs device failure share" in text
 
 
 @pytest.mark.parametrize(("args", "why"), [
     (["--scenario", "sideways"], "unknown scenario 'sideways'"),
     (["--policy", "mbrl:/nonexistent.pt"], "no such policy checkpoint"),
     (["--seeds", "0"], "--seeds must be >= 1"),
+    (["--jobs", "0"], "--jobs must be >= 1"),
+    (["--map-source", "edge,local"], "unknown map source 'local'"),
     (["--sequence", "/nonexistent/folder"], "does not exist"),
 ])
 def test_evaluate_refuses_a_bad_request_before_running(

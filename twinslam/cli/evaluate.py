@@ -1,13 +1,20 @@
-"""``twinslam evaluate``: the live system as the judge of map management (issue #19).
+"""``twinslam evaluate``: the live system as the judge of map management (issues #19, #27).
 
 Runs the nodes — player, device, edge — as processes on a private loopback domain, once per
-scenario × policy × seed (the seed drives the uplink's channel model, and the walk when the
-sequence is the synthetic room), and reports what a user of the device would see: ATE and RPE
-against ground truth (evo), tracking failures, relocalisations and time to recover, the edge's
-υ and lost share, uploads and edge milliseconds per slot. Every run is a row of ``runs.csv``
-(written as it finishes, so an interrupted evaluation keeps what it measured); ``summary.csv``
-and ``summary.md`` hold mean ± 95 % CI over the seeds per scenario × policy, ``summary.png``
-plots them.
+scenario × device map source × policy × seed (the seed drives the uplink's channel model, and
+the walk when the sequence is the synthetic room), and reports what a user of the device would
+see: ATE and RPE against ground truth (evo), tracking failures, relocalisations and time to
+recover, the edge's υ and lost share, uploads and edge milliseconds per slot. Every run is a
+row of ``runs.csv`` (written as it finishes, so an interrupted evaluation keeps what it
+measured); ``summary.csv`` and ``summary.md`` hold mean ± 95 % CI over the seeds per scenario
+× map source × policy, ``summary.png`` plots them.
+
+Each run is also a calibration of the simulator against the device
+(:mod:`twinslam.cli.live_calibration`): ``calibration.csv`` has, per run, the share of
+next-slot frames the simulator's rule calls lost beside the share the device failed, the
+precision and recall of "lost" for "device failure", and Spearman's ρ of u with the device's
+translation error and inlier count; ``calibration_frames.csv`` has every frame. Runs go to
+``--jobs`` worker processes, each on a loopback domain of its own.
 """
 
 from __future__ import annotations
@@ -17,13 +24,22 @@ import csv
 import math
 import time
 from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, fields
+from multiprocessing import get_context
 from pathlib import Path
 
+import numpy as np
+
+from device_tracker.map_source import MAP_SOURCES
 from twinslam.cli.launcher import LaunchConfig, Launcher, RunReport
+from twinslam.cli.live_calibration import LiveFrames, live_frames, played_frames
 from twinslam.cli.scenarios import Scenario
 from twinslam.common.reporting import mean_ci95, pyplot, write_csv
 from twinslam.node_hosts.loopback import LoopbackDomain
+from twinslam.simulator.calibration import Calibration, calibrate
+from twinslam.simulator.covisibility import load_covisibility
+from twinslam.uncertainty.map_uncertainty import MIN_SHARED_POINTS
 
 #: the figures summarised per scenario × policy: (RunReport field, column title, unit)
 METRICS = (("ate_m", "ATE", "m"), ("rpe_m", "RPE 1 s", "m"),
@@ -39,8 +55,31 @@ METRICS = (("ate_m", "ATE", "m"), ("rpe_m", "RPE 1 s", "m"),
 @dataclass(frozen=True)
 class RunKey:
     scenario: str
+    map_source: str
     policy: str
     seed: int
+
+
+@dataclass(frozen=True)
+class RunTask:
+    """One live run as a worker process receives it."""
+
+    key: RunKey
+    sequence: str            #: as the player opens it (a synthetic walk carries its seed)
+    frames: int
+    scenario: Scenario
+    params: Path
+    timeout_s: float
+    covis: Path | None       #: the played frames' covisibility, for the calibration
+    verbose: bool = False    #: print every slot's status line
+
+
+@dataclass
+class RunResult:
+    key: RunKey
+    report: RunReport
+    frames: LiveFrames | None     #: None without a covisibility dataset
+    calibration: Calibration | None
 
 
 def sequence_for(sequence: str, seed: int) -> str:
@@ -51,57 +90,133 @@ def sequence_for(sequence: str, seed: int) -> str:
     return f"synthetic:{frames or 900}:{seed}"
 
 
-def run_all(sequence: str, frames: int, policies: list[str], scenarios: list[Scenario],
-            seeds: list[int], params: Path, out: Path, timeout_s: float,
-            echo: Callable[[str], None] = print, verbose: bool = False
-            ) -> list[tuple[RunKey, RunReport]]:
-    """Every scenario × policy × seed, one after the other; rows appended to runs.csv."""
+def run_one(task: RunTask) -> RunResult:
+    """Play one run on a loopback domain of its own; calibrate it when a dataset is given."""
+    key = task.key
+    config = LaunchConfig(task.sequence, key.policy, task.frames, 1.0, task.params,
+                          timeout_s=task.timeout_s, scenario=task.scenario,
+                          extra={"device_tracker": [f"seed:={key.seed}",
+                                                    f"map_source:={key.map_source}"]})
+    with LoopbackDomain() as dom:
+        dom.activate()
+        launcher = Launcher(dom, config, print if task.verbose else None)
+        report = launcher.run()
+    if task.covis is None or launcher.record is None:
+        return RunResult(key, report, None, None)
+    dataset = load_covisibility(task.covis)
+    played = played_frames(task.sequence, task.frames, task.scenario, dataset)
+    frames = live_frames(launcher.record, dataset, played)
+    return RunResult(key, report, frames,
+                     calibrate((f.calibration for f in frames.frames), MIN_SHARED_POINTS))
+
+
+RUNS_HEADER = [f.name for f in fields(RunKey)] + [f.name for f in fields(RunReport)]
+CALIBRATION_HEADER = [f.name for f in fields(RunKey)] + [
+    "min_shared", "startup_frames", "unplaced_frames", *[f.name for f in fields(Calibration)]]
+FRAMES_HEADER = [f.name for f in fields(RunKey)] + [
+    "slot", "position", "frame_id", "row", "map_version", "shared_points", "covisibility",
+    "uncertainty", "shared_points_tracked_map", "covisibility_tracked_map",
+    "uncertainty_tracked_map", "device_tracked", "inliers", "translation_error_m"]
+
+
+def _append(path: Path, rows: list[list[object]]) -> None:
+    with path.open("a", newline="", encoding="utf-8") as fh:
+        csv.writer(fh).writerows(rows)
+
+
+def _write_result(out: Path, result: RunResult) -> None:
+    key = [*asdict(result.key).values()]
+    _append(out / "runs.csv", [[*key, *asdict(result.report).values()]])
+    if result.frames is None or result.calibration is None:
+        return
+    _append(out / "calibration.csv", [[*key, MIN_SHARED_POINTS, result.frames.startup,
+                                       result.frames.unplaced,
+                                       *result.calibration.fields.values()]])
+    _append(out / "calibration_frames.csv", [
+        [*key, f.slot, f.position, f.frame_id, f.row, f.map_version,
+         f.calibration.prediction.shared_points, f.calibration.prediction.covisibility,
+         f.calibration.prediction.uncertainty, f.on_tracked_map.shared_points,
+         f.on_tracked_map.covisibility, f.on_tracked_map.uncertainty,
+         int(f.calibration.device_tracked), f.calibration.inliers,
+         f.calibration.translation_error_m]
+        for f in result.frames.frames])
+
+
+def _line(i: int, total: int, r: RunResult, started: float) -> str:
+    elapsed = time.monotonic() - started
+    eta = elapsed / i * (total - i)
+    rep, cal = r.report, r.calibration
+    side = (f", predicted lost {cal.predicted_lost_share:.1%} vs device failed "
+            f"{cal.device_failure_share:.1%}" if cal is not None else "")
+    return (f"[{i}/{total}] {r.key.scenario:<13} {r.key.map_source:<10} {rep.label:<14} seed "
+            f"{r.key.seed}: ATE {rep.ate_m:.3f} m, {rep.tracking_failures} failures, "
+            f"{rep.relocalisations} relocalisations, υ {rep.mean_uncertainty:.1f}{side} "
+            f"({elapsed / 60:.1f} min, ~{eta / 60:.1f} min left)")
+
+
+def run_all(tasks: list[RunTask], out: Path, jobs: int = 1,
+            echo: Callable[[str], None] = print) -> list[RunResult]:
+    """Every task, ``jobs`` at a time in worker processes (1: in this process, one after the
+    other); each result's rows appended as it lands, the results returned in task order."""
     out.mkdir(parents=True, exist_ok=True)
-    runs_csv = out / "runs.csv"
-    header = [f.name for f in fields(RunKey)] + [f.name for f in fields(RunReport)]
-    with runs_csv.open("w", newline="", encoding="utf-8") as fh:
-        csv.writer(fh).writerow(header)
-    keys = [RunKey(s.name, p, seed) for s in scenarios for p in policies for seed in seeds]
-    by_name = {s.name: s for s in scenarios}
-    results: list[tuple[RunKey, RunReport]] = []
+    for name, header in (("runs.csv", RUNS_HEADER), ("calibration.csv", CALIBRATION_HEADER),
+                         ("calibration_frames.csv", FRAMES_HEADER)):
+        with (out / name).open("w", newline="", encoding="utf-8") as fh:
+            csv.writer(fh).writerow(header)
     started = time.monotonic()
-    for i, key in enumerate(keys):
-        config = LaunchConfig(sequence_for(sequence, key.seed), key.policy, frames, 1.0, params,
-                              timeout_s=timeout_s, scenario=by_name[key.scenario],
-                              extra={"device_tracker": [f"seed:={key.seed}"]})
-        with LoopbackDomain() as dom:
-            dom.activate()
-            report = Launcher(dom, config, echo if verbose else None).run()
-        results.append((key, report))
-        with runs_csv.open("a", newline="", encoding="utf-8") as fh:
-            csv.writer(fh).writerow([*asdict(key).values(), *asdict(report).values()])
-        elapsed = time.monotonic() - started
-        eta = elapsed / (i + 1) * (len(keys) - i - 1)
-        echo(f"[{i + 1}/{len(keys)}] {key.scenario:<13} {report.label:<14} seed {key.seed}: "
-             f"ATE {report.ate_m:.3f} m, RPE {report.rpe_m:.3f} m, {report.tracking_failures} "
-             f"failures, {report.relocalisations} relocalisations, υ "
-             f"{report.mean_uncertainty:.1f}, lost {report.lost_ratio:.1%} "
-             f"({elapsed / 60:.1f} min, ~{eta / 60:.1f} min left)")
-    return results
+    done: dict[int, RunResult] = {}
+
+    def land(index: int, result: RunResult) -> None:
+        done[index] = result
+        _write_result(out, result)
+        echo(_line(len(done), len(tasks), result, started))
+
+    if jobs <= 1:
+        for i, task in enumerate(tasks):
+            land(i, run_one(task))
+    else:
+        with ProcessPoolExecutor(jobs, mp_context=get_context("spawn")) as pool:
+            futures = {pool.submit(run_one, task): i for i, task in enumerate(tasks)}
+            for future in as_completed(futures):
+                land(futures[future], future.result())
+    return [done[i] for i in range(len(tasks))]
+
+
+def agreement_over_runs(results: list[RunResult]) -> dict[str, tuple[float, int]]:
+    """Per map source: Pearson's r over runs between the predicted lost share and the
+    device's failure share, and how many runs (r is NaN below 3 runs or without spread)."""
+    out = {}
+    for source in dict.fromkeys(r.key.map_source for r in results):
+        pairs = [(r.calibration.predicted_lost_share, r.calibration.device_failure_share)
+                 for r in results if r.key.map_source == source and r.calibration is not None
+                 and r.calibration.frames]
+        x, y = (np.array(v, dtype=np.float64) for v in zip(*pairs, strict=True)) if pairs \
+            else (np.zeros(0), np.zeros(0))
+        r = (float(np.corrcoef(x, y)[0, 1]) if x.size >= 3 and np.ptp(x) > 0 and np.ptp(y) > 0
+             else math.nan)
+        out[source] = (r, len(pairs))
+    return out
 
 
 @dataclass
 class SummaryRow:
     scenario: str
+    map_source: str
     policy: str
     runs: int
     figures: dict[str, tuple[float, float]]      #: metric → (mean, 95 % half-width)
 
 
-def summarise(results: list[tuple[RunKey, RunReport]]) -> list[SummaryRow]:
-    """Mean ± CI over seeds per scenario × policy, in the order the runs came."""
-    groups: dict[tuple[str, str], list[RunReport]] = {}
-    for key, report in results:
-        groups.setdefault((key.scenario, report.label), []).append(report)
-    return [SummaryRow(scenario, policy, len(reports),
+def summarise(results: list[RunResult]) -> list[SummaryRow]:
+    """Mean ± CI over seeds per scenario × map source × policy, in the order the runs came."""
+    groups: dict[tuple[str, str, str], list[RunReport]] = {}
+    for r in results:
+        groups.setdefault((r.key.scenario, r.key.map_source, r.report.label), []).append(
+            r.report)
+    return [SummaryRow(scenario, source, policy, len(reports),
                        {m: mean_ci95([float(getattr(r, m)) for r in reports])
                         for m, _, _ in METRICS})
-            for (scenario, policy), reports in groups.items()]
+            for (scenario, source, policy), reports in groups.items()]
 
 
 def _cell(mean: float, half: float, metric: str) -> str:
@@ -113,20 +228,21 @@ def _cell(mean: float, half: float, metric: str) -> str:
 
 def markdown_table(rows: list[SummaryRow]) -> str:
     titles = [f"{t} ({u})" if u else t for _, t, u in METRICS]
-    lines = ["| scenario | policy | runs | " + " | ".join(titles) + " |",
-             "|" + "---|" * (3 + len(METRICS))]
+    lines = ["| scenario | map source | policy | runs | " + " | ".join(titles) + " |",
+             "|" + "---|" * (4 + len(METRICS))]
     for r in rows:
         cells = [_cell(*r.figures[m], m) for m, _, _ in METRICS]
-        lines.append(f"| {r.scenario} | {r.policy} | {r.runs} | " + " | ".join(cells) + " |")
+        lines.append(f"| {r.scenario} | {r.map_source} | {r.policy} | {r.runs} | "
+                     + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
 def write_summary(rows: list[SummaryRow], out: Path) -> None:
-    header = ["scenario", "policy", "runs"] + [f"{m}{s}" for m, _, _ in METRICS
-                                                for s in ("_mean", "_ci95")]
+    header = ["scenario", "map_source", "policy", "runs"] + [
+        f"{m}{s}" for m, _, _ in METRICS for s in ("_mean", "_ci95")]
     write_csv(out / "summary.csv", header,
-              [[r.scenario, r.policy, r.runs, *(v for m, _, _ in METRICS for v in r.figures[m])]
-               for r in rows])
+              [[r.scenario, r.map_source, r.policy, r.runs,
+                *(v for m, _, _ in METRICS for v in r.figures[m])] for r in rows])
     (out / "summary.md").write_text(markdown_table(rows) + "\n", encoding="utf-8")
     plot(rows, out / "summary.png")
 
@@ -137,7 +253,12 @@ def plot(rows: list[SummaryRow], path: Path) -> None:
     plt = pyplot()
     panels = ("ate_m", "rpe_m", "tracking_failures", "relocalisations", "mean_uncertainty",
               "lost_ratio")
-    scenarios = list(dict.fromkeys(r.scenario for r in rows))
+    sources = {r.map_source for r in rows}
+
+    def group(r: SummaryRow) -> str:
+        return r.scenario if len(sources) == 1 else f"{r.scenario}\n{r.map_source}"
+
+    scenarios = list(dict.fromkeys(group(r) for r in rows))
     policies = list(dict.fromkeys(r.policy for r in rows))
     width = 0.8 / max(len(policies), 1)
     fig, axes = plt.subplots(2, 3, figsize=(15, 7.5))
@@ -146,7 +267,7 @@ def plot(rows: list[SummaryRow], path: Path) -> None:
         for j, policy in enumerate(policies):
             xs, means, halves = [], [], []
             for i, scenario in enumerate(scenarios):
-                row = next((r for r in rows if r.scenario == scenario and r.policy == policy),
+                row = next((r for r in rows if group(r) == scenario and r.policy == policy),
                            None)
                 if row is not None:
                     mean, half = row.figures[metric]
@@ -158,7 +279,9 @@ def plot(rows: list[SummaryRow], path: Path) -> None:
         ax.set_title(f"{title} ({unit})" if unit else title)
         ax.grid(axis="y", alpha=0.3)
     axes[0, 0].legend()
-    fig.suptitle("live pipeline per scenario and policy: mean and 95 % CI over seeds")
+    fig.suptitle("live pipeline per scenario" + (" and device map source" if len(sources) > 1
+                 else f" ({next(iter(sources))} map source)") + " and policy: mean and 95 % "
+                 "CI over seeds")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -179,12 +302,25 @@ def add_arguments(parser: argparse.ArgumentParser, default_sequence: str,
     parser.add_argument("--scenario", default=",".join(scenario_names),
                         help="comma-separated, of: " + ", ".join(scenario_names)
                         + "; default all")
+    parser.add_argument("--map-source", default="edge",
+                        help="the device's map source(s), comma-separated, of: "
+                        + ", ".join(MAP_SOURCES) + " (edge: the paper's device, tracked only "
+                        "against the edge's map; edge+local: plus its own recent points); "
+                        "default %(default)s")
     parser.add_argument("--seeds", type=int, default=3,
-                        help="runs per scenario and policy (seeds 0..N-1); default %(default)s")
+                        help="runs per scenario, map source and policy; default %(default)s")
+    parser.add_argument("--first-seed", type=int, default=0,
+                        help="seeds are FIRST..FIRST+SEEDS-1 (keep tuning seeds apart from "
+                        "evaluation seeds); default %(default)s")
+    parser.add_argument("--jobs", type=int, default=1,
+                        help="runs at a time, each in a worker process on its own loopback "
+                        "domain (a run needs about one core); default %(default)s")
     parser.add_argument("--params", type=Path, default=default_params,
                         help="ROS 2 parameter file for the nodes; default %(default)s")
     parser.add_argument("--out", type=Path, default=Path("results/live"),
-                        help="folder for runs.csv, summary.csv/.md/.png; default %(default)s")
+                        help="folder for runs.csv, summary.csv/.md/.png, calibration.csv, "
+                        "calibration_frames.csv (and covis/, the played frames' "
+                        "covisibility); default %(default)s")
     parser.add_argument("--timeout", type=float, default=900.0,
                         help="seconds one run may take before its nodes are stopped; default "
                         "%(default)s")

@@ -329,51 +329,76 @@ def cmd_launch(args: argparse.Namespace) -> int:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
+    from device_tracker.map_source import check_map_source
     from twinslam.cli import evaluate as ev
+    from twinslam.cli.live_calibration import covisibility_file
     from twinslam.cli.scenarios import scenario
     from twinslam.sequence_player.playback import Playback, PlayedSequence
     from twinslam.sequence_player.readers import SequenceError, open_sequence
 
     policies = [p.strip() for p in args.policy.split(",") if p.strip()]
+    sources = [m.strip() for m in args.map_source.split(",") if m.strip()]
     try:
         scenarios = [scenario(n.strip()) for n in args.scenario.split(",") if n.strip()]
+        for source in sources:
+            reason = check_map_source(source)
+            if reason:
+                raise ValueError(f"--map-source: {reason}")
         for policy in policies:
             kind, _, path = policy.partition(":")
             if kind == "mbrl" and not Path(path).is_file():
                 raise ValueError(f"{path}: no such policy checkpoint (`twinslam train`)")
         if not args.params.is_file():
             raise ValueError(f"parameter file {args.params} does not exist")
-        if args.seeds < 1 or args.frames < 2:
-            raise ValueError("--seeds must be >= 1 and --frames >= 2")
+        for name, value, least in (("--seeds", args.seeds, 1), ("--jobs", args.jobs, 1),
+                                   ("--first-seed", args.first_seed, 0),
+                                   ("--frames", args.frames, 2)):
+            if value < least:
+                raise ValueError(f"{name} must be >= {least}, got {value}")
         for s in {s.order: s for s in scenarios}.values():     # fails now, not in run 20
             PlayedSequence(open_sequence(ev.sequence_for(args.sequence, 0), 0, args.frames),
                            Playback(s.order))
     except (ValueError, SequenceError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    if not policies or not scenarios:
-        print("error: at least one policy and one scenario", file=sys.stderr)
+    if not policies or not scenarios or not sources:
+        print("error: at least one policy, scenario and map source", file=sys.stderr)
         return 2
-    total = len(policies) * len(scenarios) * args.seeds
-    print(f"live evaluation: {total} runs ({len(scenarios)} scenarios x {len(policies)} "
-          f"policies x {args.seeds} seeds) of {args.frames} frames of {args.sequence}; "
-          f"results in {args.out}", flush=True)
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+    keys = [ev.RunKey(s.name, m, p, seed) for s in scenarios for m in sources
+            for p in policies for seed in seeds]
+    print(f"live evaluation: {len(keys)} runs ({len(scenarios)} scenarios x {len(sources)} map "
+          f"sources x {len(policies)} policies x {len(seeds)} seeds) of {args.frames} frames "
+          f"of {args.sequence}, {args.jobs} at a time; results in {args.out}", flush=True)
+    covis: dict[str, Path] = {}
     try:
-        results = ev.run_all(args.sequence, args.frames, policies, scenarios,
-                             list(range(args.seeds)), args.params, args.out, args.timeout,
-                             lambda line: print(line, flush=True), args.verbose)
+        for seed in seeds:                  # the simulator's view of every played frame
+            sequence = ev.sequence_for(args.sequence, seed)
+            if sequence not in covis:
+                covis[sequence] = covisibility_file(sequence, args.frames, args.out / "covis",
+                                                    lambda line: print(line, flush=True))
+        by_name = {s.name: s for s in scenarios}
+        tasks = [ev.RunTask(k, ev.sequence_for(args.sequence, k.seed), args.frames,
+                            by_name[k.scenario], args.params, args.timeout,
+                            covis[ev.sequence_for(args.sequence, k.seed)], args.verbose)
+                 for k in keys]
+        results = ev.run_all(tasks, args.out, args.jobs, lambda line: print(line, flush=True))
     except KeyboardInterrupt:
         print(f"interrupted: the runs that finished are in {args.out / 'runs.csv'}",
               file=sys.stderr)
         return 130
-    except RuntimeError as exc:
+    except (RuntimeError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     rows = ev.summarise(results)
     ev.write_summary(rows, args.out)
     print()
     print(ev.markdown_table(rows))
-    print(f"\nwrote {args.out / 'runs.csv'}, summary.csv, summary.md, summary.png")
+    for source, (r, n) in ev.agreement_over_runs(results).items():
+        print(f"{source}: predicted lost share vs device failure share over {n} runs: "
+              f"Pearson r = {r:.2f}")
+    print(f"\nwrote {args.out / 'runs.csv'}, summary.csv, summary.md, summary.png, "
+          "calibration.csv, calibration_frames.csv")
     return 0
 
 

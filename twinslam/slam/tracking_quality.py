@@ -102,3 +102,17 @@ def relative_pose_error(poses: Mapping[int, np.ndarray], truth: Mapping[int, np.
                       delta_unit=metrics.Unit.frames, all_pairs=True)
     rpe.process_data(paths)
     return float(rpe.get_statistic(metrics.StatisticsType.rmse))
+
+
+def translation_errors(poses: Mapping[int, np.ndarray], truth: Mapping[int, np.ndarray]
+                       ) -> dict[int, float]:
+    """Per stamp both hold: the distance (m) between the device's position and the true one
+    after the SE(3) alignment ATE uses (ATE is their RMSE); empty with fewer than 3 stamps."""
+    paths = _aligned_paths(poses, truth)
+    if paths is None:
+        return {}
+    ref, est = paths
+    common = sorted(set(poses) & set(truth))
+    gaps = np.linalg.norm(est.positions_xyz - ref.positions_xyz,  # type: ignore[attr-defined]
+                          axis=1)
+    return dict(zip(common, (float(g) for g in gaps), strict=True))

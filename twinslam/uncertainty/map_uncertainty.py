@@ -31,6 +31,12 @@ from twinslam.uncertainty.laplacian_factorization import PIVOT_RTOL, LaplacianFa
 #: to lose a third of the next slot's frames and still rank first.
 LOST_FRAME_UNCERTAINTY = 0.0
 
+#: A next-slot frame is lost when it shares fewer than this many map points with the map it is
+#: tracked against (the device needs ``min_inliers`` PnP inliers; issue #27 measures what the
+#: simulator's point sets must show for that). One constant for the simulator, the edge's
+#: MapStats, training and the figures.
+MIN_SHARED_POINTS = 1
+
 
 def laplacian(weights: np.ndarray) -> np.ndarray:
     """L = D - W of a symmetric, non-negative weight matrix with zero diagonal."""

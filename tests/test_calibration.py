@@ -1,0 +1,146 @@
+"""The calibration of the simulator against the device (issue #27) on hand-made frames: what the
+simulator predicts for a frame given the kept keyframes, the figures calibration.csv reports,
+the threshold fit, and how a live run's frames are placed on recorded frames and maps."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+from device_tracker.messages import FrameRecord, frame_summaries_message
+from twinslam.cli.launcher import RunRecord
+from twinslam.cli.live_calibration import PlayedFrames, live_frames
+from twinslam.simulator.calibration import (
+    CalibrationFrame,
+    FramePrediction,
+    balanced_accuracy,
+    calibrate,
+    fit_min_shared,
+    predict_frames,
+)
+from twinslam.simulator.covisibility import CovisibilityDataset
+from twinslam.slam.map_update import MapSnapshot
+from twinslam.uncertainty.map_uncertainty import augmented_uncertainties
+
+#: recorded frames 0..4 and the map points each observes
+SETS = [{1, 2, 3, 4}, {3, 4, 5, 6}, {2, 3, 5, 9}, {7, 8}, {4, 6, 10}]
+
+
+def test_prediction_counts_distinct_shared_points_weights_and_u() -> None:
+    data = CovisibilityDataset.from_sets([np.array(sorted(s)) for s in SETS],
+                                         stamps=np.arange(5) / 30.0)
+    preds = predict_frames(data, [0, 1], [2, 3, 4])
+    # frame 2 shares {2, 3, 5}: 3 distinct points, weights 2 (to 0) + 2 (to 1)
+    assert (preds[0].shared_points, preds[0].covisibility) == (3, 4.0)
+    # frame 3 shares nothing: lost whatever the threshold, u infinite
+    assert preds[1].shared_points == 0 and math.isinf(preds[1].uncertainty)
+    assert preds[1].lost(1) and not preds[0].lost(3) and preds[0].lost(4)
+    # u as the uncertainty library computes it for the same weights
+    w = np.array([[0.0, 2.0], [2.0, 0.0]])
+    expected = augmented_uncertainties(w, np.array([[2.0, 2.0], [0.0, 0.0], [1.0, 2.0]]))
+    assert [p.uncertainty for p in preds] == pytest.approx(list(expected))
+    # a place seen twice (the same recorded frame in the map and as a candidate) shares all
+    again = predict_frames(data, [0, 1], [1])[0]
+    assert again.shared_points == 4 and math.isfinite(again.uncertainty)
+    assert all(p.shared_points == 0 for p in predict_frames(data, [], [0, 1]))
+
+
+def _frame(shared: int, tracked: bool, inliers: int = 0, error: float = math.nan,
+           u: float | None = None) -> CalibrationFrame:
+    value = -10.0 * shared if u is None else u
+    return CalibrationFrame(FramePrediction(shared, float(shared), value if shared else math.inf),
+                            tracked, inliers, error)
+
+
+def test_calibration_figures_on_hand_made_frames() -> None:
+    frames = [
+        _frame(0, False), _frame(3, False),                   # predicted lost, device failed
+        _frame(4, True, 16, 0.30),                            # predicted lost, tracked
+        _frame(20, False),                                    # predicted fine, failed
+        _frame(30, True, 20, 0.20), _frame(50, True, 40, 0.10), _frame(70, True, 60, 0.05),
+    ]
+    c = calibrate(frames, min_shared=5)
+    assert c.frames == 7
+    assert c.predicted_lost_share == pytest.approx(3 / 7)
+    assert c.device_failure_share == pytest.approx(3 / 7)
+    assert c.precision == pytest.approx(2 / 3) and c.recall == pytest.approx(2 / 3)
+    # over the tracked frames the simulator scores: lower u, more inliers, smaller error
+    assert c.spearman_u_inliers == pytest.approx(-1.0)
+    assert c.spearman_u_error == pytest.approx(1.0)
+    nothing_lost = calibrate([_frame(30, True, 20, 0.1), _frame(40, True, 30, 0.1)], 5)
+    assert math.isnan(nothing_lost.precision) and math.isnan(nothing_lost.recall)
+    assert math.isnan(nothing_lost.spearman_u_error), "fewer than 3 pairs"
+
+
+def test_the_fitted_threshold_separates_failures_from_tracked_frames() -> None:
+    frames = ([_frame(s, False) for s in (0, 2, 5, 7, 9)]
+              + [_frame(s, True, 20) for s in (11, 12, 15, 30, 80, 8)])
+    k, score = fit_min_shared(frames, range(1, 60))
+    assert k == 10                 # 0..9 fail, 11+ track; the tracked frame at 8 is the miss
+    assert score == pytest.approx(0.5 * (5 / 5 + 5 / 6))
+    assert balanced_accuracy(frames, 1) == pytest.approx(0.5 * (1 / 5 + 1.0))
+    assert balanced_accuracy(frames, 1000) == pytest.approx(0.5)
+    with pytest.raises(ValueError, match="failures and tracked frames"):
+        fit_min_shared([_frame(5, True)])
+
+
+def test_played_stamps_find_their_recorded_frames() -> None:
+    # forward then back over recorded frames 0..3 (rows 10..13), 30 Hz, replayed at 2x
+    played = PlayedFrames(np.arange(7) / 30.0, np.array([10, 11, 12, 13, 12, 11, 10]), 2.0)
+    t0 = 100.0
+    stamps = t0 + np.array([0, 1, 2, 3, 5, 6]) / 60.0 + 0.002      # position 4 never came
+    assert played.rows_at(stamps, t0).tolist() == [10, 11, 12, 13, 11, 10]
+    assert played.rows_at(np.array([t0 + 1.0, t0 - 1.0]), t0).tolist() == [-1, -1]
+
+
+def _record(records_by_slot: dict[int, list[FrameRecord]], maps: dict[int, MapSnapshot]
+            ) -> RunRecord:
+    record = RunRecord()
+    for slot, frames in records_by_slot.items():
+        record.summaries[slot] = frame_summaries_message(slot, 40.0, 0, 0, frames, time.time())
+    record.maps = maps
+    return record
+
+
+def _snapshot(version: int, keyframes: list[int]) -> MapSnapshot:
+    none = np.zeros(0, np.uint64)
+    return MapSnapshot(version, np.array(keyframes, np.uint64), np.zeros((0, 4, 4)), none,
+                       np.zeros((0, 3)), np.zeros((0, 32), np.uint8), np.zeros(0, np.uint32))
+
+
+def test_live_frames_are_predicted_against_the_map_before_their_slot() -> None:
+    """Slot 1's frames against the map after slot 0; a frame still tracked with the older map
+    is also predicted against that one; start-up map frames are counted apart."""
+    data = CovisibilityDataset.from_sets([np.array(sorted(s)) for s in SETS],
+                                         stamps=np.arange(5) / 30.0)
+    played = PlayedFrames(np.arange(5) / 30.0, np.arange(5))
+
+    def rec(i: int, tracked: bool, inliers: int, version: int, slot: int) -> FrameRecord:
+        return FrameRecord(i, 50.0 + i / 30.0, np.eye(4), tracked, np.zeros(0, np.uint64),
+                           np.zeros(0, np.uint64), slot, False, inliers, version)
+
+    record = _record({0: [rec(0, True, 0, 0, 0), rec(1, True, 30, 0, 0)],
+                      1: [rec(2, True, 25, 1, 1), rec(3, False, 0, 1, 1),
+                          rec(4, True, 18, 2, 1)],
+                      2: []},
+                     {0: _snapshot(1, [0]), 1: _snapshot(2, [0, 1])})
+    out = live_frames(record, data, played)
+    assert out.startup == 0 and out.unplaced == 0
+    assert [(f.slot, f.position, f.row) for f in out.frames] == [(1, 0, 2), (1, 1, 3),
+                                                                   (1, 2, 4)]
+    by_row = {f.row: f for f in out.frames}
+    # against the map after slot 0 (keyframe 0 = recorded frame 0): frame 2 shares {2, 3}
+    assert by_row[2].calibration.prediction.shared_points == 2
+    assert by_row[3].calibration.prediction.lost(1) and not by_row[3].calibration.device_tracked
+    # frame 4 was tracked with map version 2 (keyframes 0 and 1): shares {4, 6}
+    assert by_row[4].calibration.prediction.shared_points == 1
+    assert by_row[4].on_tracked_map.shared_points == 2 and by_row[4].map_version == 2
+    assert by_row[2].calibration.inliers == 25
+
+    startup = _record({0: [rec(0, True, 0, 0, 0)], 1: [rec(1, True, 30, 0, 1)]},
+                      {0: _snapshot(1, [0])})
+    counted = live_frames(startup, data, played)
+    assert counted.startup == 1 and not counted.frames

@@ -1,0 +1,176 @@
+"""A live run's next-slot frames as calibration frames: the simulator's prediction beside the
+device's outcome (issue #27; the measures are :mod:`twinslam.simulator.calibration`'s).
+
+The simulator's view needs, for every frame the device tracked, the recorded frame it is (the
+player may play a sequence forward and back) and the covisibility of that recorded frame — the
+map points our front end observes in it, extracted once from the same frames the player reads
+(:func:`covisibility_file`, cached). Frames are matched to recorded frames by stamp: the player
+stamps played position p at ``t0 + recorded_time(p) / rate``, ``t0`` being the first played
+frame's stamp (the first ground-truth pose the monitor heard).
+
+Each next-slot frame of slot k + 1 is predicted against the map the edge published after slot
+k — the map the simulator scores it against — and, apart, against the map version the device
+actually tracked it with (the first frames of a slot still track against the map before, as
+uploads and optimisation take time). Frames tracked on the device's start-up map (map version
+0) are counted apart, as are frames whose recorded frame or keyframes cannot be placed.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from twinslam.cli.launcher import RunRecord
+from twinslam.cli.scenarios import Scenario
+from twinslam.sequence_player.playback import Playback, PlayedSequence
+from twinslam.sequence_player.readers import open_sequence
+from twinslam.simulator.calibration import CalibrationFrame, FramePrediction, predict_frames
+from twinslam.simulator.covisibility import CovisibilityDataset, save_covisibility
+from twinslam.simulator.extraction import extract_covisibility
+from twinslam.slam.map_update import MapSnapshot
+from twinslam.slam.tracking_quality import translation_errors
+
+
+@dataclass(frozen=True)
+class PlayedFrames:
+    """Which recorded frame the player showed at each played position, and when."""
+
+    recorded_s: np.ndarray      #: per position: recorded seconds after the first played frame
+    rows: np.ndarray            #: per position: the covisibility dataset's row (-1: none)
+    rate: float = 1.0           #: playback speed
+
+    def rows_at(self, stamps: np.ndarray, first_stamp: float) -> np.ndarray:
+        """The dataset row of the frame played at each stamp (seconds); -1 where no played
+        position lies within half a frame period."""
+        t = (np.asarray(stamps, dtype=np.float64) - first_stamp) * self.rate
+        if self.recorded_s.size == 0:
+            return np.full(t.shape, -1, dtype=np.int64)
+        pos = np.clip(np.searchsorted(self.recorded_s, t), 1, self.recorded_s.size - 1) \
+            if self.recorded_s.size > 1 else np.zeros(t.shape, dtype=np.int64)
+        if self.recorded_s.size > 1:
+            left = self.recorded_s[pos - 1]
+            pos = np.where(np.abs(t - left) <= np.abs(self.recorded_s[pos] - t), pos - 1, pos)
+        period = float(np.median(np.diff(self.recorded_s))) if self.recorded_s.size > 1 \
+            else 1.0
+        near = np.abs(self.recorded_s[pos] - t) <= 0.5 * period
+        return np.where(near, self.rows[pos], -1)
+
+
+def played_frames(sequence: str, frames: int, scenario: Scenario, dataset: CovisibilityDataset,
+                  rate: float = 1.0) -> PlayedFrames:
+    """What the player plays of ``sequence``'s first ``frames`` frames in ``scenario``'s order,
+    each position tied to the dataset row extracted from the same recorded frame (by its
+    recorded stamp)."""
+    reader = open_sequence(sequence, 0, frames)
+    played = PlayedSequence(reader, Playback(scenario.order))
+    stamps = np.array([e.stamp for e in reader.entries], dtype=np.float64)
+    sources = np.asarray(played.positions, dtype=np.int64)
+    if scenario.order == "forward":
+        recorded = stamps[sources] - stamps[0]
+    else:
+        recorded = np.arange(sources.size) * played.period_s
+    row_of = {}
+    if dataset.stamps is not None:
+        row_of = {float(s): r for r, s in enumerate(dataset.stamps)}
+    rows = np.array([row_of.get(float(stamps[s]), -1) for s in sources], dtype=np.int64)
+    return PlayedFrames(recorded, rows, rate)
+
+
+def covisibility_file(sequence: str, frames: int, cache: Path,
+                      echo: Callable[[str], None] = print) -> Path:
+    """The file holding the covisibility of ``sequence``'s first ``frames`` frames, as the
+    front end the simulator's datasets come from extracts it; extracted into ``cache`` the
+    first time, read from there afterwards."""
+    slug = "".join(c if c.isalnum() or c in "-_." else "_" for c in
+                   f"{Path(sequence).name or sequence}-{frames}")
+    path = cache / f"{slug}.covis.npz"
+    if path.is_file():
+        return path
+    reader = open_sequence(sequence, 0, frames)
+    echo(f"extracting the covisibility of {len(reader)} frames of {sequence} for the "
+         f"calibration (once; cached in {path})")
+    dataset, _, _ = extract_covisibility(reader)
+    cache.mkdir(parents=True, exist_ok=True)
+    save_covisibility(path, dataset)
+    return path
+
+
+@dataclass(frozen=True)
+class LiveFrame:
+    """One next-slot frame of a run, ready for the calibration figures and the CSV."""
+
+    slot: int
+    position: int                       #: its place in the slot (0: the slot's first frame)
+    frame_id: int
+    row: int                            #: its recorded frame's dataset row
+    map_version: int                    #: the map the device tracked it with
+    calibration: CalibrationFrame       #: predicted against the map after the previous slot
+    on_tracked_map: FramePrediction     #: predicted against the map it was tracked with
+
+
+@dataclass
+class LiveFrames:
+    frames: list[LiveFrame] = field(default_factory=list)
+    startup: int = 0        #: next-slot frames tracked on the start-up map (counted apart)
+    unplaced: int = 0       #: frames whose recorded frame or map keyframes could not be placed
+
+
+def _seconds(time: Any) -> float:
+    return int(time.sec) + int(time.nanosec) * 1e-9
+
+
+def _key(time: Any) -> int:
+    return int(time.sec) * 1_000_000_000 + int(time.nanosec)
+
+
+def live_frames(record: RunRecord, dataset: CovisibilityDataset, played: PlayedFrames,
+                log_det_pi: float = 0.0) -> LiveFrames:
+    """Every next-slot frame of the run (slots after the first whose previous map arrived),
+    predicted and paired with the device's outcome."""
+    out = LiveFrames()
+    frames = [(slot, f) for slot in sorted(record.summaries)
+              for f in record.summaries[slot].frames]
+    if not frames:
+        return out
+    stamps = np.array([_seconds(f.stamp) for _, f in frames])
+    first = (min(record.ground_truth) * 1e-9 if record.ground_truth else float(stamps.min()))
+    rows = played.rows_at(stamps, first)
+    row_of = {int(f.frame_id): int(r) for (_, f), r in zip(frames, rows, strict=True)}
+    errors = translation_errors(record.poses, record.ground_truth)
+    by_version: dict[int, MapSnapshot] = {m.version: m for m in record.maps.values()}
+
+    def keyframe_rows(snapshot: MapSnapshot) -> list[int] | None:
+        placed = [row_of.get(int(k), -1) for k in snapshot.keyframe_ids]
+        return None if any(r < 0 for r in placed) else placed
+
+    for slot in sorted(record.summaries):
+        before = record.maps.get(slot - 1)
+        if slot == 0 or before is None:
+            continue
+        slot_frames = list(record.summaries[slot].frames)
+        startup = [f for f in slot_frames if int(f.map_version) == 0]
+        out.startup += len(startup)
+        scored = [f for f in slot_frames if int(f.map_version) > 0]
+        map_rows = keyframe_rows(before)
+        placed = [f for f in scored if row_of[int(f.frame_id)] >= 0]
+        out.unplaced += len(scored) - (len(placed) if map_rows is not None else 0)
+        if map_rows is None or not placed:
+            continue
+        cand = [row_of[int(f.frame_id)] for f in placed]
+        predicted = predict_frames(dataset, map_rows, cand, log_det_pi)
+        position = {int(f.frame_id): i for i, f in enumerate(slot_frames)}
+        for f, row, pred in zip(placed, cand, predicted, strict=True):
+            used = by_version.get(int(f.map_version))
+            used_rows = keyframe_rows(used) if used is not None else None
+            on_used = (predict_frames(dataset, used_rows, [row], log_det_pi)[0]
+                       if used_rows is not None else FramePrediction(0, 0.0, math.inf))
+            error = errors.get(_key(f.stamp), math.nan)
+            out.frames.append(LiveFrame(
+                slot, position[int(f.frame_id)], int(f.frame_id), row, int(f.map_version),
+                CalibrationFrame(pred, bool(f.tracked), int(f.inliers), error), on_used))
+    return out

@@ -1,0 +1,161 @@
+"""Does the simulator's score predict the device? (issue #27, DESIGN.md §2)
+
+The simulator judges a map by the next slot's frames: a frame that shares too few map points
+with the keyframes the edge kept is *lost*, the others score u(G ∪ {f}). Policies are trained
+and ranked on that score, so it is worth what it predicts about the live device. For each
+next-slot frame of a live run this module puts the simulator's view beside the device's
+outcome:
+
+* **prediction** (:func:`predict_frames`) — from the covisibility dataset of the played
+  sequence (the map points our front end observes in each recorded frame, the simulator's
+  data) and the keyframes the edge's map held: the map points the frame shares with them,
+  its covisibility weight to them, and u(G ∪ {f});
+* **outcome** — whether the device tracked the frame against the edge's map, with how many
+  PnP inliers, and its translation error against ground truth.
+
+:func:`calibrate` condenses a run's frames into the figures ``calibration.csv`` reports:
+predicted lost share and device failure share, precision and recall of "lost" for "device
+failure", and Spearman's rank correlation of u with the translation error and with the
+inlier count (over the frames the device tracked and the simulator scores finitely).
+:func:`fit_min_shared` finds the threshold k of "lost: fewer than k shared map points" that
+best separates the device's failures from its tracked frames.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.stats import spearmanr
+
+from twinslam.simulator.covisibility import CovisibilityDataset
+from twinslam.uncertainty.map_uncertainty import augmented_uncertainties
+
+
+@dataclass(frozen=True)
+class FramePrediction:
+    """The simulator's view of one next-slot frame against a map."""
+
+    shared_points: int        #: |M_f ∩ ∪_{v ∈ map} M_v|: map points the frame could match
+    covisibility: float       #: Σ_v w(f, v), the frame's weight to the map's keyframes
+    uncertainty: float        #: u(G ∪ {f}); +inf if it shares nothing or leaves G disconnected
+
+    def lost(self, min_shared: int) -> bool:
+        """Lost by the rule "fewer than ``min_shared`` shared map points" (or no finite u)."""
+        return self.shared_points < min_shared or not math.isfinite(self.uncertainty)
+
+
+def predict_frames(dataset: CovisibilityDataset, map_frames: Sequence[int],
+                   frames: Sequence[int], log_det_pi: float = 0.0) -> list[FramePrediction]:
+    """The prediction for each of ``frames`` (dataset indices) against the map of the
+    keyframes ``map_frames`` (dataset indices; oldest first, a revisited place may appear
+    twice). An empty map predicts every frame lost."""
+    map_idx = np.asarray(map_frames, dtype=np.int64)
+    cand_idx = np.asarray(frames, dtype=np.int64)
+    if cand_idx.size == 0:
+        return []
+    if map_idx.size == 0:
+        return [FramePrediction(0, 0.0, math.inf) for _ in frames]
+    map_w = dataset.weights(map_idx, map_idx)
+    # two instances of one recorded frame are one place seen twice: their weight stays, but a
+    # frame shares no edge with itself
+    np.fill_diagonal(map_w, 0.0)
+    cand_w = dataset.weights(cand_idx, map_idx)
+    u = augmented_uncertainties(map_w, cand_w, log_det_pi)
+    union = np.unique(np.concatenate([dataset.points(int(v)) for v in map_idx]))
+    shared = [int(np.isin(dataset.points(int(f)), union, assume_unique=True).sum())
+              for f in cand_idx]
+    return [FramePrediction(s, float(w), float(x))
+            for s, w, x in zip(shared, cand_w.sum(axis=1), u, strict=True)]
+
+
+@dataclass(frozen=True)
+class CalibrationFrame:
+    """One next-slot frame: the simulator's prediction beside the device's outcome."""
+
+    prediction: FramePrediction
+    device_tracked: bool      #: tracked against the edge's map (not its start-up map)
+    inliers: int              #: PnP inliers of its pose (0 when not tracked)
+    translation_error_m: float   #: against ground truth after alignment; NaN without it
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """How well "lost" and u predicted the device over a set of frames."""
+
+    frames: int
+    predicted_lost_share: float
+    device_failure_share: float
+    precision: float          #: P(device failed | predicted lost); NaN if none predicted
+    recall: float             #: P(predicted lost | device failed); NaN if none failed
+    spearman_u_error: float   #: ρ(u, translation error) over tracked, finitely scored frames
+    spearman_u_inliers: float   #: ρ(u, inliers) over the same frames
+
+    @property
+    def fields(self) -> dict[str, float]:
+        return dict(self.__dict__)
+
+
+def _ratio(num: int, den: int) -> float:
+    return num / den if den else math.nan
+
+
+def _spearman(a: Sequence[float], b: Sequence[float]) -> float:
+    """Spearman's ρ; NaN with fewer than 3 pairs or a constant side."""
+    x, y = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    ok = np.isfinite(x) & np.isfinite(y)
+    x, y = x[ok], y[ok]
+    if x.size < 3 or np.ptp(x) == 0 or np.ptp(y) == 0:
+        return math.nan
+    return float(spearmanr(x, y).statistic)
+
+
+def calibrate(frames: Iterable[CalibrationFrame], min_shared: int) -> Calibration:
+    """The calibration figures of ``frames`` under the rule "lost: fewer than
+    ``min_shared`` shared map points"."""
+    rows = list(frames)
+    lost = [f.prediction.lost(min_shared) for f in rows]
+    failed = [not f.device_tracked for f in rows]
+    both = sum(p and d for p, d in zip(lost, failed, strict=True))
+    scored = [f for f, p in zip(rows, lost, strict=True)
+              if f.device_tracked and not p]
+    return Calibration(
+        frames=len(rows), predicted_lost_share=_ratio(sum(lost), len(rows)),
+        device_failure_share=_ratio(sum(failed), len(rows)),
+        precision=_ratio(both, sum(lost)), recall=_ratio(both, sum(failed)),
+        spearman_u_error=_spearman([f.prediction.uncertainty for f in scored],
+                                   [f.translation_error_m for f in scored]),
+        spearman_u_inliers=_spearman([f.prediction.uncertainty for f in scored],
+                                     [float(f.inliers) for f in scored]))
+
+
+def balanced_accuracy(frames: Sequence[CalibrationFrame], min_shared: int) -> float:
+    """Mean of the rule's recall on the device's failures and on its tracked frames: a rule
+    that calls everything lost (or nothing) scores 0.5, whatever the failure share."""
+    fails = [f for f in frames if not f.device_tracked]
+    tracked = [f for f in frames if f.device_tracked]
+    if not fails or not tracked:
+        return math.nan
+    hit = sum(f.prediction.lost(min_shared) for f in fails) / len(fails)
+    kept = sum(not f.prediction.lost(min_shared) for f in tracked) / len(tracked)
+    return 0.5 * (hit + kept)
+
+
+def fit_min_shared(frames: Sequence[CalibrationFrame], candidates: Iterable[int] = range(1, 201)
+                   ) -> tuple[int, float]:
+    """(k, balanced accuracy) of the threshold that best separates the device's failures
+    from its tracked frames; the smallest such k on ties. ValueError when the frames hold no
+    failure or no tracked frame (nothing to separate)."""
+    best: tuple[int, float] | None = None
+    for k in candidates:
+        score = balanced_accuracy(frames, k)
+        if math.isnan(score):
+            raise ValueError("the frames need device failures and tracked frames to fit a "
+                             "threshold")
+        if best is None or score > best[1] + 1e-12:
+            best = (k, score)
+    if best is None:
+        raise ValueError("no threshold to try")
+    return best
