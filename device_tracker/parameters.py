@@ -18,8 +18,9 @@ PARAMETERS = (
               "frame stamps, so a lost frame does not shift later slots", low=1e-3, high=1e5),
     ParamSpec("alpha_mbit", table1.ALPHA_MBIT, "alpha, uplink Mbit one uploaded frame occupies "
               "(at least)", low=1e-6, high=1e6),
-    ParamSpec("channel", "markov:N=2", "uplink rate model: markov:N=2[,K=...] or "
-              "trace:FILE[,N=4] (CSV time_s,throughput_mbps)"),
+    ParamSpec("channel", "markov:N=2", "uplink rate model: markov:N=2[,K=...], "
+              "trace:FILE[,N=4] (CSV time_s,throughput_mbps) or generated:regime=S,"
+              "outage_every=S,outage=S,range=MIN-MAX (a trace drawn from seed)"),
     ParamSpec("rate_min", table1.RATE_MIN_MBPS, "Mbit/s the channel's lowest state", low=0.0,
               high=1e6),
     ParamSpec("rate_max", table1.RATE_MAX_MBPS, "Mbit/s the channel's highest state", low=0.0,

@@ -85,7 +85,8 @@ def test_a_trace_uploads_what_its_real_rate_carries(tmp_path, mbps: float, uploa
     from twinslam.simulator.covisibility import CovisibilityDataset
     from twinslam.simulator.env import MapManagementEnv, SimConfig
 
-    data = CovisibilityDataset.from_sets([set(range(i, i + 30)) for i in range(0, 400, 2)])
+    # frames up to two slots apart share points: the next slot stays tracked (uploadable)
+    data = CovisibilityDataset.from_sets([set(range(i, i + 200)) for i in range(400)])
     env = MapManagementEnv(data, parse_channel(f"trace:{_constant(tmp_path, mbps)}", seed=3),
                            SimConfig(vmax=45, slots=6))
     obs, _ = env.reset(3)
@@ -217,3 +218,23 @@ def test_trace_cli_generates_describes_and_feeds_the_simulator(
     assert main(["sim", "--covis", "geometric:300", "--channel", f"trace:{out}", "--slots",
                  "4", "--seeds", "2", "--policy", "lff", "--csv", str(csv_out)]) == 0
     assert len(csv_out.read_text().splitlines()) == 3
+
+
+def test_a_generated_trace_replays_real_rates_with_outages_drawn_from_the_seed() -> None:
+    """generated:... draws regimes and outages from the seed and replays them like a trace file:
+    the same seed the same rates, another seed others, an outage slot 0 Mbit/s (nothing
+    uploads); a bad option is refused with the options there are."""
+    spec = "generated:regime=30,outage_every=20,outage=3,range=5-80"
+    first = [parse_channel(spec, seed=4).step()[1] for _ in range(1)]
+    a = parse_channel(spec, seed=4)
+    rates = [a.step()[1] for _ in range(200)]
+    b = parse_channel(spec, seed=4)
+    assert [b.step()[1] for _ in range(200)] == rates and rates[:1] == first
+    c = parse_channel(spec, seed=5)
+    assert [c.step()[1] for _ in range(200)] != rates
+    assert 0.0 in rates, "no outage in 400 s at one every ~20 s"
+    assert max(rates) <= 80 * 1.6 and np.mean(rates) > 5.0
+    with pytest.raises(ChannelError, match=r"unknown option.*outage_every="):
+        parse_channel("generated:every=20")
+    with pytest.raises(ChannelError, match="range= takes MIN-MAX"):
+        parse_channel("generated:range=80")

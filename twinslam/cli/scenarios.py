@@ -17,6 +17,14 @@ uplink never binds. Each scenario changes one of those:
 * ``constrained`` — ``revisit-lost`` over a 5–20 Mbit/s uplink (0–2 keyframes a slot at
   α = 5 Mbit, D_req = 0.5 s instead of 4–8).
 
+For the paper's device (``map_source: edge``), where the kept keyframes decide tracking, the
+map budget and the uplink are what bind (issue #27):
+
+* ``revisit-v25`` / ``revisit-v15`` — ``revisit`` with an edge map of 25 / 15 keyframes (the
+  paper's range is 25–45: 45 covers a few hundred frames whatever the policy keeps);
+* ``outages`` — ``revisit-v25`` over a replayed trace at real rates drawn per seed (regimes
+  of 5–80 Mbit/s lasting ~30 s, an outage of ~3 s every ~20 s: slots that upload nothing).
+
 A scenario only adds node parameters (:meth:`Scenario.node_params`); the nodes know nothing of
 it.
 """
@@ -35,6 +43,7 @@ class Scenario:
     blank_s: float = 3.0                      #: of played frames, for this many seconds
     rate_mbps: tuple[float, float] | None = None   #: the device channel's rate range
     vmax: int | None = None                   #: the edge's V_max (None: the parameter file's)
+    channel: str | None = None                #: the device's uplink channel (None: the file's)
 
     def played_frames(self, frames: int) -> int:
         """Frames played when ``frames`` of the sequence are selected (-1 / 0: unknown)."""
@@ -58,6 +67,8 @@ class Scenario:
             player.append(f"blank:={burst[0]}:{burst[1]}")
         device = ([f"rate_min:={self.rate_mbps[0]!r}", f"rate_max:={self.rate_mbps[1]!r}"]
                   if self.rate_mbps else [])
+        if self.channel:
+            device.append(f"channel:={self.channel}")
         edge = [f"vmax:={self.vmax}"] if self.vmax is not None else []
         return {"sequence_player": player, "device_tracker": device, "edge_mapper": edge}
 
@@ -72,6 +83,13 @@ SCENARIOS = {s.name: s for s in (
              order="forward_backward", blank_at=0.7, vmax=15),
     Scenario("constrained", "revisit-lost over a 5-20 Mbit/s uplink",
              order="forward_backward", blank_at=0.7, rate_mbps=(5.0, 20.0)),
+    Scenario("revisit-v25", "revisit with an edge map of 25 keyframes",
+             order="forward_backward", vmax=25),
+    Scenario("revisit-v15", "revisit with an edge map of 15 keyframes",
+             order="forward_backward", vmax=15),
+    Scenario("outages", "revisit-v25 over a trace of 5-80 Mbit/s regimes with ~3 s outages",
+             order="forward_backward", vmax=25,
+             channel="generated:regime=30,outage_every=20,outage=3,range=5-80"),
 )}
 
 

@@ -19,7 +19,7 @@ import numpy as np
 from twinslam.common import table1
 from twinslam.uplink.errors import ChannelError
 from twinslam.uplink.quantiser import RateQuantiser
-from twinslam.uplink.traces import read_trace
+from twinslam.uplink.traces import TraceShape, generate_trace, read_trace
 
 __all__ = ["ChannelError", "MarkovChannel", "TraceChannel", "parse_channel", "state_rates"]
 
@@ -283,6 +283,12 @@ def parse_channel(spec: str, rate_range: tuple[float, float] = table1.RATE_RANGE
     ``states=MIN-MAX``; ``rescale`` maps the trace's min..max onto ``rate_range`` first;
     ``start=S`` fixes where every seed starts (default: an offset per seed); ``slot=S`` the slot
     length (default F / frame rate = 2 s).
+
+    ``generated[:regime=S][,outage_every=S][,outage=S][,range=MIN-MAX][,noise=X][,seconds=S]
+    [,N=4]``: a trace drawn from ``seed`` (:func:`~twinslam.uplink.traces.generate_trace`) and
+    replayed from its start at its real Mbit/s like a trace file: regimes of random mean rate in
+    ``range`` lasting ~``regime`` s, an outage (0 Mbit/s) of ~``outage`` s every
+    ~``outage_every`` s (0: none).
     """
     kind, _, rest = spec.partition(":")
     opts: dict[str, str] = {}
@@ -323,4 +329,34 @@ def parse_channel(spec: str, rate_range: tuple[float, float] = table1.RATE_RANGE
         if isinstance(exc, ChannelError):
             raise
         raise ChannelError(f"bad channel spec {spec!r}: {exc}") from None
-    raise ChannelError(f"unknown channel {kind!r} in {spec!r}; use markov:... or trace:FILE")
+    if kind == "generated":
+        return _generated(spec, opts, flags, seed)
+    raise ChannelError(f"unknown channel {kind!r} in {spec!r}; use markov:..., trace:FILE or "
+                       "generated:...")
+
+
+def _generated(spec: str, opts: dict[str, str], flags: set[str], seed: int) -> TraceChannel:
+    """The ``generated:...`` channel of :func:`parse_channel`."""
+    known = {"regime", "outage_every", "outage", "range", "noise", "seconds", "N"}
+    if flags or set(opts) - known:
+        raise ChannelError(f"generated: unknown option(s) {sorted(flags | set(opts) - known)} "
+                           f"in {spec!r}; use " + ", ".join(f"{k}=" for k in sorted(known)))
+    default = TraceShape()
+    try:
+        shape = TraceShape(
+            seconds=float(opts.get("seconds", 3600.0)),
+            rate_range=(_pair(opts["range"], "range=") if "range" in opts
+                        else default.rate_range),
+            regime_s=float(opts.get("regime", default.regime_s)),
+            noise=float(opts.get("noise", default.noise)),
+            outage_every_s=float(opts.get("outage_every", 0.0)),
+            outage_s=float(opts.get("outage", default.outage_s)))
+        if shape.outage_every_s < 0 or shape.outage_s <= 0 or shape.noise < 0:
+            raise ValueError("outage_every must be >= 0, outage > 0 and noise >= 0")
+        times, mbps = generate_trace(shape, seed)
+        return TraceChannel.from_samples(times, mbps, int(opts.get("N", "2")), start_s=0.0,
+                                         seed=seed)
+    except ValueError as exc:
+        if isinstance(exc, ChannelError):
+            raise
+        raise ChannelError(f"bad channel spec {spec!r}: {exc}") from None
