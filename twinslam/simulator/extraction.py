@@ -1,5 +1,16 @@
 """Covisibility datasets from real frames: run the ORB front end over a sequence and keep each
-frame's observed map points M_f (and its estimated pose), in the format the simulator reads."""
+frame's observed map points M_f (and its estimated pose), in the format the simulator reads.
+
+A front end tracks against the points it saw recently (the 3000 most recently seen are its
+match candidates), so two frames far apart in time rarely share a point id even when they see
+the same wall: covisibility read off tracking alone underrates old keyframes, exactly the ones
+a map manager keeps for revisits. The **guided** pass (the default) fixes that the way
+ORB-SLAM's local map search does for a tracked frame, with the whole map: once the front end
+has built its map, every frame is matched again against every active map point its estimated
+pose sees (projection, then descriptor within ``search_radius_px``), and M_f becomes those
+matches together with the tracked ones — the points the frame could match in any map that
+holds them, which is what the device does in the paper's mode (issue #27's calibration).
+"""
 
 from __future__ import annotations
 
@@ -9,9 +20,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from device_tracker.orb_extractor import Features
 from device_tracker.tracking import Tracking, TrackingConfig
 from twinslam.sequence_player.readers import SequenceReader, pose_to_xyzq
 from twinslam.simulator.covisibility import CovisibilityDataset
+from twinslam.slam.projection_matching import match_by_projection, visible_points
 
 
 @dataclass
@@ -26,14 +39,18 @@ class ExtractionReport:
 
 
 def extract_covisibility(reader: SequenceReader, config: TrackingConfig | None = None,
-                         progress: Callable[[int, int], None] | None = None
+                         progress: Callable[[int, int], None] | None = None,
+                         guided: bool = True
                          ) -> tuple[CovisibilityDataset, np.ndarray, ExtractionReport]:
     """(dataset, estimated 4×4 poses, report) for every readable frame of ``reader``.
 
-    ``progress(done, total)`` is called after each frame.
+    ``progress(done, total)`` is called after each tracked frame (the guided pass, a few ms a
+    frame, reports nothing). ``guided``: M_f from a second pass over the finished map (module
+    docstring); otherwise the tracked observations alone.
     """
     tracker = Tracking(reader.intrinsics, config)
     sets, stamps, poses, times = [], [], [], []
+    seen: list[tuple[Features | None, tuple[int, int], bool]] = []
     untracked = keyframes = 0
     start = time.monotonic()
     total = len(reader)
@@ -46,12 +63,20 @@ def extract_covisibility(reader: SequenceReader, config: TrackingConfig | None =
         poses.append(out.pose)
         untracked += not out.tracked
         keyframes += out.keyframe
+        if guided:
+            seen.append((out.features, frame.color.shape[:2], out.tracked))
         if progress:
             progress(done, total)
     if not sets:
         raise ValueError(f"{reader.path}: no readable frame")
+    if guided:
+        for i, (features, shape, tracked) in enumerate(seen):
+            if tracked and features is not None:
+                sets[i] = np.union1d(sets[i], _guided_matches(tracker, features, poses[i],
+                                                              shape))
     source = (f"{reader.kind}:{reader.path.name} ({len(sets)} frames), twinslam ORB front end "
-              f"({tracker.config.n_features} features)")
+              f"({tracker.config.n_features} features)"
+              + (", guided over the whole map" if guided else ""))
     dataset = CovisibilityDataset.from_sets(
         sets, stamps=np.array(stamps), poses=np.array([pose_to_xyzq(p) for p in poses]),
         source=source)
@@ -59,3 +84,18 @@ def extract_covisibility(reader: SequenceReader, config: TrackingConfig | None =
                               len(tracker.map), time.monotonic() - start,
                               np.array(times) * 1000.0)
     return dataset, np.array(poses), report
+
+
+def _guided_matches(tracker: Tracking, features: Features, pose: np.ndarray,
+                    shape: tuple[int, int]) -> np.ndarray:
+    """The active map points ``pose`` sees that one of ``features`` matches (projection, then
+    descriptor: the tracker's radius, Hamming cap and ratio test)."""
+    cfg, points = tracker.config, tracker.map
+    ids, uv = visible_points(points.positions, points.active, pose, tracker.k, shape,
+                             cfg.depth_range_m)
+    if ids.size == 0 or len(features.points) == 0:
+        return np.zeros(0, dtype=np.int64)
+    _, cand = match_by_projection(features.points, features.descriptors, uv,
+                                  points.descriptors[ids], cfg.search_radius_px,
+                                  cfg.max_hamming, cfg.ratio, shape)
+    return ids[cand]
