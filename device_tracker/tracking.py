@@ -20,6 +20,7 @@ import numpy as np
 from device_tracker.local_map import LocalMap
 from device_tracker.orb_extractor import Features, OrbExtractor
 from device_tracker.pose_optimization import optimize_pose
+from twinslam.common.tracking_rule import MIN_INLIERS
 from twinslam.slam.projection_matching import back_project, match_by_projection, visible_points
 
 
@@ -30,7 +31,7 @@ class TrackingConfig:
     max_hamming: int = 64              #: of 256 bits
     search_radius_px: float = 20.0     #: match only near the predicted projection
     max_candidates: int = 3000         #: visible points matched per frame (most recently seen)
-    min_inliers: int = 15              #: fewer: the frame is not tracked (pose predicted)
+    min_inliers: int = MIN_INLIERS     #: fewer: the frame is not tracked (pose predicted)
     reprojection_px: float = 3.0       #: inlier threshold (pose refinement and RANSAC)
     min_inlier_ratio: float = 0.5      #: refined prediction keeps fewer: RANSAC instead
     keyframe_ratio: float = 0.6        #: new points when tracked < ratio × last keyframe's

@@ -18,6 +18,7 @@ import numpy as np
 
 from edge_mapper.keyframe_map import KeyFrameMap, shared_counts
 from twinslam.common import table1
+from twinslam.common.tracking_rule import MIN_INLIERS
 from twinslam.map_management.actions import MapAction, SlotObservation, check_map_action
 from twinslam.map_management.policies import MapPolicy
 from twinslam.uncertainty.map_uncertainty import (
@@ -127,8 +128,16 @@ class SlotPlanner:
         action = self.policy.decide(obs)
         check_map_action(slot, n_up, n_ev, set(cand), map_ids, action)
         # υ of F_k against the map as it is (eq. 8), None for an empty map; a keyframe holds
-        # map-point ids only, so the frame–keyframe block counts shared map points alone
+        # map-point ids only, so the frame–keyframe block counts shared map points alone. A
+        # frame is lost when its reported points (the device's matches) share fewer than the
+        # device's MIN_INLIERS with the map (twinslam.common.tracking_rule)
         m = len(map_ids)
-        upsilon = next_slot_uncertainty(full[:m, :m], full[m:, :m], self.config.log_det_pi) \
-            if m else None
+        if not m:
+            return SlotPlan(action, obs, None)
+        seen = {**arriving, **by_id}
+        in_map = np.unique(np.concatenate([self._points(seen, x) for x in map_ids]))
+        shared = np.array([np.isin(self._points(seen, f), in_map, assume_unique=True).sum()
+                           for f in every])
+        upsilon = next_slot_uncertainty(full[:m, :m], full[m:, :m], self.config.log_det_pi,
+                                        shared >= MIN_INLIERS)
         return SlotPlan(action, obs, upsilon)

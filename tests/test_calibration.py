@@ -127,7 +127,7 @@ def test_live_frames_are_predicted_against_the_map_before_their_slot() -> None:
                           rec(4, True, 18, 2, 1)],
                       2: []},
                      {0: _snapshot(1, [0]), 1: _snapshot(2, [0, 1])})
-    out = live_frames(record, data, played)
+    out = live_frames(record, data, played, lag_frames=0)
     assert out.startup == 0 and out.unplaced == 0
     assert [(f.slot, f.position, f.row) for f in out.frames] == [(1, 0, 2), (1, 1, 3),
                                                                    (1, 2, 4)]
@@ -142,5 +142,31 @@ def test_live_frames_are_predicted_against_the_map_before_their_slot() -> None:
 
     startup = _record({0: [rec(0, True, 0, 0, 0)], 1: [rec(1, True, 30, 0, 1)]},
                       {0: _snapshot(1, [0])})
-    counted = live_frames(startup, data, played)
+    counted = live_frames(startup, data, played, lag_frames=0)
     assert counted.startup == 1 and not counted.frames
+
+
+def test_the_first_frames_of_a_slot_are_predicted_against_the_map_before() -> None:
+    """With a lag of one frame, slot 2's first frame is predicted against the map after slot
+    0 (the update of slot 1 is still on its way), the second against the map after slot 1;
+    slot 1 has no map before it, so all its frames go against the map after slot 0."""
+    data = CovisibilityDataset.from_sets([np.array(sorted(s)) for s in SETS],
+                                         stamps=np.arange(5) / 30.0)
+    played = PlayedFrames(np.arange(5) / 30.0, np.arange(5))
+
+    def rec(frame_id: int, row: int, slot: int) -> FrameRecord:
+        return FrameRecord(frame_id, 50.0 + row / 30.0, np.eye(4), True, np.zeros(0, np.uint64),
+                           np.zeros(0, np.uint64), slot, False, 20, 1)
+
+    record = _record({0: [rec(0, 0, 0), rec(1, 1, 0)], 1: [rec(2, 3, 1), rec(3, 2, 1)],
+                      2: [rec(5, 4, 2), rec(6, 2, 2)]},
+                     {0: _snapshot(1, [0]), 1: _snapshot(2, [0, 1])})
+    shared = {(f.slot, f.position): f.calibration.prediction.shared_points
+              for f in live_frames(record, data, played, lag_frames=1).frames}
+    # row 4 = {4, 6, 10}: one point with map {row 0}, two with map {rows 0, 1}
+    assert shared[(2, 0)] == 1 and shared[(2, 1)] == 3
+    # slot 1: row 3 = {7, 8} shares nothing with {row 0}; row 2 shares {2, 3}
+    assert shared[(1, 0)] == 0 and shared[(1, 1)] == 2
+    without = {(f.slot, f.position): f.calibration.prediction.shared_points
+               for f in live_frames(record, data, played, lag_frames=0).frames}
+    assert without[(2, 0)] == 2

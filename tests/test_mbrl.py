@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from edge_mapper.edge_core import EdgeMapperCore
-from twinslam.map_management.policies import Adapt
+from twinslam.map_management.policies import Adapt, LatestFrameFirst
 from twinslam.mbrl.networks import Actor, soft_flags
 from twinslam.mbrl.policy import MbrlPolicy, PolicyCheckpointError
 from twinslam.mbrl.replay import ReplayBuffer, Transition, blended_batch, collate
@@ -31,17 +31,21 @@ def kitchen() -> CovisibilityDataset:
     return load_covisibility(COVIS)
 
 
-def _env(dataset: CovisibilityDataset, seed: int = 0, slots: int = 30) -> MapManagementEnv:
-    return MapManagementEnv(dataset, parse_channel("markov:N=2", seed=seed),
-                            SimConfig(slots=slots))
+def _env(dataset: CovisibilityDataset, seed: int = 0, slots: int = 30,
+         paper_rule: bool = False) -> MapManagementEnv:
+    config = SimConfig.paper_rule(slots=slots) if paper_rule else SimConfig(slots=slots)
+    return MapManagementEnv(dataset, parse_channel("markov:N=2", seed=seed), config)
 
 
-def _played(env: MapManagementEnv, slots: int, seed: int = 0):
-    """The observation after ``slots`` ADAPT slots (a full map and a fresh slot)."""
+def _played(env: MapManagementEnv, slots: int, seed: int = 0, candidates: int = 8):
+    """The observation after at least ``slots`` LFF slots, at the first slot with
+    ``candidates`` frames the device tracked (a full map and a fresh slot to upload from)."""
     obs, _ = env.reset(seed)
-    for _ in range(slots):
-        obs, *_ = env.step(Adapt().decide(obs))
-    return obs
+    for k in range(env.config.slots - 2):
+        if k >= slots and len(obs.candidates) >= candidates:
+            return obs
+        obs, *_ = env.step(LatestFrameFirst().decide(obs))
+    raise AssertionError(f"no slot with {candidates} tracked frames in the episode")
 
 
 def test_state_graph_describes_the_map_and_the_candidates(kitchen: CovisibilityDataset) -> None:
@@ -90,7 +94,8 @@ def test_untrained_actor_makes_adapts_decision(kitchen: CovisibilityDataset) -> 
     """The correction's last layer starts near zero, so before training the actor uploads and
     evicts exactly what ADAPT does — also where ADAPT evicts a frame it has just uploaded."""
     torch.manual_seed(0)
-    env = _env(kitchen, slots=30)
+    # the paper's rule: ADAPT's own walk stays tracked, so every slot has frames to choose
+    env = _env(kitchen, slots=30, paper_rule=True)
     obs, _ = env.reset(1)
     actor = Actor(context_size(8, 2, 0))
     upload_then_evict = 0
@@ -126,11 +131,11 @@ def test_relaxed_action_tends_to_the_hard_one() -> None:
 
 def test_emulated_slot_equals_the_real_one_and_leaves_the_environment_alone(
         kitchen: CovisibilityDataset) -> None:
-    env = _env(kitchen, slots=12)
+    env = _env(kitchen, slots=20)
     obs = _played(env, 6)
     before = env.snapshot()
-    action = Adapt().decide(obs)
-    real_state, real_rate = env.rate_plan[7]
+    action = LatestFrameFirst().decide(obs)            # keeps the next slot tracked
+    real_state, real_rate = env.rate_plan[obs.slot + 1]
     emu_obs, emu_reward, _ = env.emulate(before, action, (real_state, real_rate))
     other = 1 - real_state
     alt_obs, _, _ = env.emulate(before, action, (other, float(env.channel.rates[other])))
@@ -139,6 +144,7 @@ def test_emulated_slot_equals_the_real_one_and_leaves_the_environment_alone(
     assert emu_obs.map_frames == obs2.map_frames and emu_obs.n_upload == obs2.n_upload
     assert alt_obs.rate_state == other and alt_obs.rate_history[-1] == other
     assert alt_obs.map_frames == obs2.map_frames       # the rate does not move the map
+    assert alt_obs.candidates == obs2.candidates and len(obs2.candidates) >= 8
     assert alt_obs.n_upload != obs2.n_upload           # 40 vs 80 Mbit/s: 4 vs 8 frames
 
 

@@ -23,12 +23,13 @@ from twinslam.simulator.covisibility import (
     load_covisibility,
     save_covisibility,
 )
-from twinslam.simulator.env import MapManagementEnv, SimConfig
+from twinslam.simulator.env import FrameStream, MapManagementEnv, SimConfig
 from twinslam.simulator.exact_optimum import InstanceTooLarge, exact_optimum
 from twinslam.simulator.geometric_covisibility import geometric_covisibility
 from twinslam.simulator.lower_bound import episode_lower_bound, slot_lower_bounds
 from twinslam.simulator.plan import replay, rollout
 from twinslam.simulator.reference import ReferencePlanner
+from twinslam.uncertainty.map_uncertainty import UncertaintyTally
 from twinslam.uplink.channels import MarkovChannel, parse_channel, state_rates
 
 
@@ -137,20 +138,26 @@ def test_reference_local_search_improves_on_a_plan_and_keeps_it_valid(
     assert replay(env, improved.actions, 2).total == pytest.approx(improved.total)
 
 
-def _small_instance(seed: int) -> MapManagementEnv:
+def _small_instance(seed: int, device_rule: bool = False) -> MapManagementEnv:
     """≤ 6 frames a slot, V_max 4, 4 slots, 1–2 uploads: small enough for the exact optimum;
-    frames with overlapping point windows so that maps, bridges and lost frames all occur."""
+    frames with overlapping point windows so that maps, bridges and lost frames all occur.
+    Scored by the paper's rule, or (``device_rule``) by the device's shape of it at this
+    world's scale: 3 shared points needed, a slot's first 2 frames on the map before."""
     rng = np.random.default_rng(seed)
     sets = [set(rng.choice(np.arange(i, i + 14), 8, replace=False).tolist())
             for i in range(0, 120, 2)]
     data = CovisibilityDataset.from_sets(sets)
-    config = SimConfig(vmax=4, slot_frames=6, slots=4, alpha_mbit=5.0, d_req_s=0.25)
+    shape = dict(vmax=4, slot_frames=6, slots=4, alpha_mbit=5.0, d_req_s=0.25)
+    config = (SimConfig(min_shared=3, update_lag_frames=2, **shape) if device_rule
+              else SimConfig.paper_rule(**shape))
     return MapManagementEnv(data, MarkovChannel(state_rates(2, 20.0, 40.0), seed=seed), config)
 
 
-@pytest.mark.parametrize("seed", range(4))
-def test_no_policy_nor_the_reference_beats_the_exact_optimum(seed: int) -> None:
-    env = _small_instance(seed)
+@pytest.mark.parametrize(("seed", "device_rule"), [(0, False), (1, False), (2, False),
+                                                   (3, False), (0, True), (1, True)])
+def test_no_policy_nor_the_reference_beats_the_exact_optimum(seed: int,
+                                                            device_rule: bool) -> None:
+    env = _small_instance(seed, device_rule)
     optimum = exact_optimum(env, seed)
     assert replay(env, optimum.actions, seed).total == pytest.approx(optimum.total)
     scores = {name: rollout(env, make_policy(name), seed).total
@@ -183,7 +190,7 @@ def test_the_hadamard_bound_lies_below_every_policy_at_full_size(
 def test_exact_optimum_equals_brute_force_on_a_tiny_case() -> None:
     sets = [set(range(i, i + 6)) for i in range(0, 40, 2)]
     data = CovisibilityDataset.from_sets(sets)
-    config = SimConfig(vmax=3, slot_frames=4, slots=3, alpha_mbit=5.0, d_req_s=0.25)
+    config = SimConfig.paper_rule(vmax=3, slot_frames=4, slots=3, alpha_mbit=5.0, d_req_s=0.25)
     channel = MarkovChannel(state_rates(2, 20.0, 40.0), seed=0)
     env = MapManagementEnv(data, channel, config)
     plan = exact_optimum(env, seed=0)
@@ -216,17 +223,73 @@ def test_exact_optimum_refuses_an_instance_too_large() -> None:
         exact_optimum(env, 0, max_maps=10)
 
 
-def test_adapt_beats_lff_on_the_room_model(room: CovisibilityDataset) -> None:
+def test_adapt_lowers_the_tracked_frames_uncertainty_on_the_room_model(
+        room: CovisibilityDataset) -> None:
+    """ADAPT keeps the keyframes that make the map most informative: the frames it tracks
+    score a lower u than LFF's. On this fast walk it also loses more frames (a lost frame
+    cannot be uploaded, so a spread-out map does not catch up): the three figures of
+    DESIGN.md §2, printed."""
     config = SimConfig(vmax=20, slots=20)
-    totals = {}
+    figures = {}
     for name in ("lff", "adapt"):
-        vals = []
+        tally = UncertaintyTally()
         for seed in range(3):
             env = MapManagementEnv(room, parse_channel("markov:N=2", seed=seed), config)
-            vals.append(rollout(env, make_policy(name), seed).total)
-        totals[name] = np.mean(vals)
-    print(f"mean total υ over 3 seeds: {totals}")
-    assert totals["adapt"] < totals["lff"]
+            tally = UncertaintyTally.of([tally, *rollout(env, make_policy(name), seed).slots])
+        figures[name] = (tally.mean, tally.lost_share, tally.tracked_mean)
+    print("mean υ, lost share, υ tracked over 3 seeds: " + ", ".join(
+        f"{n} {m:.1f} / {lost:.1%} / {t:.1f}" for n, (m, lost, t) in figures.items()))
+    assert figures["adapt"][2] < figures["lff"][2]
+
+
+def test_a_lost_frame_is_never_an_upload_candidate(room: CovisibilityDataset) -> None:
+    env = MapManagementEnv(room, parse_channel("markov:N=2", seed=0),
+                           SimConfig(vmax=20, slots=12, min_shared=30, update_lag_frames=20))
+    obs, _ = env.reset(0)
+    assert obs.candidates == env.slot_frames(0), "slot 0 tracks on the start-up map"
+    lost_seen = 0
+    policy = make_policy("lff")
+    for _ in range(11):
+        obs, _r, _t, _trunc, info = env.step(policy.decide(obs))
+        frames = env.slot_frames(obs.slot)
+        lost = {f for f, gone in zip(frames, info["lost"], strict=True) if gone}
+        assert set(obs.candidates) == set(frames) - lost
+        assert info["uncertainty"].n_lost == len(lost)
+        lost_seen += len(lost)
+        if lost and obs.n_upload:
+            with pytest.raises(ActionError, match="not frames of this slot"):
+                env.check_action(obs, MapAction([min(lost), *obs.candidates[1:obs.n_upload]],
+                                                list(obs.map_frames[:obs.n_evict])))
+    assert lost_seen > 0
+
+
+def _line_world() -> CovisibilityDataset:
+    """Frames 0..7: frame i sees points 10i..10i+29 (its neighbours share 20, 10, 0)."""
+    return CovisibilityDataset.from_sets([np.arange(10 * i, 10 * i + 30) for i in range(8)])
+
+
+def test_the_first_frames_of_a_slot_are_tracked_against_the_map_before_the_update() -> None:
+    """Slots of 2 frames, V_max 1: slot 0 keeps frame 1, slot 1 replaces it with frame 2.
+    Frame i sees points 10i..10i+29, so neighbours share 20 points, frames two apart 10."""
+    data = _line_world()
+
+    def lost(lag: int, min_shared: int) -> tuple[int, int]:
+        env = MapManagementEnv(data, parse_channel("markov:N=2", seed=0),
+                               SimConfig(vmax=1, slot_frames=2, slots=2, alpha_mbit=1e-3,
+                                         min_shared=min_shared, update_lag_frames=lag))
+        env.reset(0)
+        env.stream = FrameStream(data, start=0, horizon=8)        # frames 0..7 in order
+        env.restore(([], np.zeros((0, 0)), 0, [0, 1]))
+        _, _, _, _, first = env.step(MapAction([1], []))           # map {1}; next: 2, 3
+        _, _, _, _, second = env.step(MapAction([2], [1]))         # map {2}; next: 4, 5
+        return int(first["uncertainty"].n_lost), int(second["uncertainty"].n_lost)
+    # the paper's rule: frame 3 shares 10 points with {1}; frame 4 shares 10 with {2}, 5 none
+    assert lost(lag=0, min_shared=1) == (0, 1)
+    # ten shared points are too few for a threshold of 15
+    assert lost(lag=0, min_shared=15) == (1, 2)
+    # frame 4, the first of its slot, still tracks with {1}: nothing shared. No lag before
+    # the first update (the device's start-up map)
+    assert lost(lag=1, min_shared=1) == (0, 2)
 
 
 def test_covisibility_file_round_trip_and_errors(tmp_path, room: CovisibilityDataset) -> None:

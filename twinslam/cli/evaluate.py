@@ -36,28 +36,62 @@ from twinslam.cli.launcher import LaunchConfig, Launcher, RunReport
 from twinslam.cli.live_calibration import LiveFrames, live_frames, played_frames
 from twinslam.cli.scenarios import Scenario
 from twinslam.common.reporting import mean_ci95, pyplot, write_csv
+from twinslam.common.tracking_rule import MIN_SHARED_POINTS
 from twinslam.node_hosts.loopback import LoopbackDomain
+from twinslam.policy_registry import LEARNED_PREFIX
 from twinslam.simulator.calibration import Calibration, calibrate
 from twinslam.simulator.covisibility import load_covisibility
-from twinslam.uncertainty.map_uncertainty import MIN_SHARED_POINTS
 
-#: the figures summarised per scenario × policy: (RunReport field, column title, unit)
+#: the figures summarised per scenario × policy: (field, column title, unit); the fields are
+#: RunReport's, and the calibration's two shares
 METRICS = (("ate_m", "ATE", "m"), ("rpe_m", "RPE 1 s", "m"),
            ("tracking_failures", "failures", ""), ("relocalisations", "relocalisations", ""),
            ("recover_s", "recover", "s"), ("untracked_frames", "untracked", "frames"),
+           # the device's failures among the scored next-slot frames, beside what the
+           # simulator's rule predicted for them (calibration.csv)
+           ("device_failure_share", "device failed", ""),
+           ("predicted_lost_share", "predicted lost", ""),
            # MapStats' υ three ways: a lost next-slot frame scoring 0, the lost share, and
            # the tracked frames only (DESIGN.md §2)
            ("mean_uncertainty", "mean υ", ""), ("lost_ratio", "lost share", ""),
            ("tracked_uncertainty", "υ tracked", ""),
            ("frames_uploaded", "uploads", "frames"), ("edge_ms_median", "edge", "ms/slot"))
+#: the figures a paired comparison with the best rule policy is made on (lower is better)
+PAIRED = ("tracking_failures", "untracked_frames", "device_failure_share", "ate_m",
+          "mean_uncertainty")
+#: the rule policies a learned one is compared with
+RULE_POLICIES = ("lff", "pu", "adapt", "random")
 
 
 @dataclass(frozen=True)
 class RunKey:
     scenario: str
     map_source: str
-    policy: str
+    policy: str              #: the label tables group by: several training runs may share one
     seed: int
+    spec: str = ""           #: the edge's policy (``mbrl:CHECKPOINT``); "" when the label is it
+
+    @property
+    def edge_policy(self) -> str:
+        return self.spec or self.policy
+
+
+def policy_variants(text: str) -> list[tuple[str, str]]:
+    """``--policy`` items as (label, edge policy): ``LABEL=POLICY`` or ``POLICY`` (labelled
+    ``mbrl:<checkpoint name>`` for a learned one); a label given to several checkpoints pools
+    their training runs in every table."""
+    out = []
+    for item in filter(None, (part.strip() for part in text.split(","))):
+        label, sep, spec = item.partition("=")
+        if not sep:
+            label, spec = item, item
+            kind, colon, path = item.partition(":")
+            if colon:
+                label = f"{kind}:{Path(path).stem}"
+        if not label.strip() or not spec.strip():
+            raise ValueError(f"--policy {item!r}: use POLICY or LABEL=POLICY")
+        out.append((label.strip(), spec.strip()))
+    return out
 
 
 @dataclass(frozen=True)
@@ -72,6 +106,7 @@ class RunTask:
     timeout_s: float
     covis: Path | None       #: the played frames' covisibility, for the calibration
     verbose: bool = False    #: print every slot's status line
+    start: int = 0           #: the sequence's first frame played
 
 
 @dataclass
@@ -91,12 +126,20 @@ def sequence_for(sequence: str, seed: int) -> str:
 
 
 def run_one(task: RunTask) -> RunResult:
-    """Play one run on a loopback domain of its own; calibrate it when a dataset is given."""
+    """Play one run on a loopback domain of its own; calibrate it when a dataset is given.
+
+    A learned policy's run also starts the twin node with the policy's checkpoint, so the
+    policy decides on the twin's latents (``/udt/rate_latent``) as on a deployed edge; without
+    it a twin-driven policy would hand every slot to the edge's fallback policy."""
     key = task.key
-    config = LaunchConfig(task.sequence, key.policy, task.frames, 1.0, task.params,
-                          timeout_s=task.timeout_s, scenario=task.scenario,
-                          extra={"device_tracker": [f"seed:={key.seed}",
-                                                    f"map_source:={key.map_source}"]})
+    extra = {"device_tracker": [f"seed:={key.seed}", f"map_source:={key.map_source}"]}
+    kind, _, checkpoint = key.edge_policy.partition(":")
+    learned = kind == LEARNED_PREFIX and bool(checkpoint)
+    if learned:
+        extra["udt_node"] = [f"policy_checkpoint:={checkpoint}"]
+    config = LaunchConfig(task.sequence, key.edge_policy, task.frames, 1.0, task.params,
+                          timeout_s=task.timeout_s, scenario=task.scenario, extra=extra,
+                          start=task.start, with_twin=learned)
     with LoopbackDomain() as dom:
         dom.activate()
         launcher = Launcher(dom, config, print if task.verbose else None)
@@ -104,7 +147,8 @@ def run_one(task: RunTask) -> RunResult:
     if task.covis is None or launcher.record is None:
         return RunResult(key, report, None, None)
     dataset = load_covisibility(task.covis)
-    played = played_frames(task.sequence, task.frames, task.scenario, dataset)
+    played = played_frames(task.sequence, task.frames, task.scenario, dataset,
+                           start=task.start)
     frames = live_frames(launcher.record, dataset, played)
     return RunResult(key, report, frames,
                      calibrate((f.calibration for f in frames.frames), MIN_SHARED_POINTS))
@@ -182,6 +226,23 @@ def run_all(tasks: list[RunTask], out: Path, jobs: int = 1,
     return [done[i] for i in range(len(tasks))]
 
 
+def side_by_side(results: list[RunResult]) -> list[str]:
+    """One line per run: what the device lived through beside what the simulator's rule
+    predicted for the same frames (the table ``make run`` prints)."""
+    lines = [f"{'policy':<14} {'map source':<10} {'fails':>5} {'reloc':>5} {'untrk':>5} "
+             f"{'ATE m':>6} {'RPE m':>6} {'predicted lost':>14} {'device failed':>13} "
+             f"{'uploads':>7} {'edge ms':>7}"]
+    for r in results:
+        rep, cal = r.report, r.calibration
+        predicted = f"{cal.predicted_lost_share:.1%}" if cal else "–"
+        failed = f"{cal.device_failure_share:.1%}" if cal else "–"
+        lines.append(f"{rep.label:<14} {r.key.map_source:<10} {rep.tracking_failures:>5d} "
+                     f"{rep.relocalisations:>5d} {rep.untracked_frames:>5d} {rep.ate_m:>6.3f} "
+                     f"{rep.rpe_m:>6.3f} {predicted:>14} {failed:>13} "
+                     f"{rep.frames_uploaded:>7d} {rep.edge_ms_median:>7.0f}")
+    return lines
+
+
 def agreement_over_runs(results: list[RunResult]) -> dict[str, tuple[float, int]]:
     """Per map source: Pearson's r over runs between the predicted lost share and the
     device's failure share, and how many runs (r is NaN below 3 runs or without spread)."""
@@ -207,16 +268,84 @@ class SummaryRow:
     figures: dict[str, tuple[float, float]]      #: metric → (mean, 95 % half-width)
 
 
+def figures_of(result: RunResult) -> dict[str, float]:
+    """Every figure of :data:`METRICS` one run measured (NaN where it could not)."""
+    cal = result.calibration
+    shares = {"device_failure_share": cal.device_failure_share if cal else math.nan,
+              "predicted_lost_share": cal.predicted_lost_share if cal else math.nan}
+    return {m: shares[m] if m in shares else float(getattr(result.report, m))
+            for m, _, _ in METRICS}
+
+
 def summarise(results: list[RunResult]) -> list[SummaryRow]:
-    """Mean ± CI over seeds per scenario × map source × policy, in the order the runs came."""
-    groups: dict[tuple[str, str, str], list[RunReport]] = {}
+    """Mean ± CI over runs per scenario × map source × policy label (a label's training runs
+    pooled with its seeds), in the order the runs came."""
+    groups: dict[tuple[str, str, str], list[dict[str, float]]] = {}
     for r in results:
-        groups.setdefault((r.key.scenario, r.key.map_source, r.report.label), []).append(
-            r.report)
-    return [SummaryRow(scenario, source, policy, len(reports),
-                       {m: mean_ci95([float(getattr(r, m)) for r in reports])
-                        for m, _, _ in METRICS})
-            for (scenario, source, policy), reports in groups.items()]
+        groups.setdefault((r.key.scenario, r.key.map_source, r.key.policy), []).append(
+            figures_of(r))
+    return [SummaryRow(scenario, source, policy, len(runs),
+                       {m: mean_ci95([f[m] for f in runs]) for m, _, _ in METRICS})
+            for (scenario, source, policy), runs in groups.items()]
+
+
+@dataclass(frozen=True)
+class PairedRow:
+    scenario: str
+    map_source: str
+    metric: str
+    best: str                 #: the rule policy with the lowest mean on this metric
+    policy: str
+    seeds: int                #: seeds both ran
+    difference: float         #: mean over seeds of (policy - best); a label's runs averaged
+    ci95: float               #: Student-t half-width over the seeds
+
+
+def paired_differences(results: list[RunResult]) -> list[PairedRow]:
+    """Per scenario, map source and metric of :data:`PAIRED`: every policy against the rule
+    policy with the lowest mean, seed by seed (the same walk and uplink draws), a label's
+    training runs averaged within a seed first."""
+    cells: dict[tuple[str, str], dict[str, dict[int, list[dict[str, float]]]]] = {}
+    for r in results:
+        cell = cells.setdefault((r.key.scenario, r.key.map_source), {})
+        cell.setdefault(r.key.policy, {}).setdefault(r.key.seed, []).append(figures_of(r))
+    rows = []
+    for (scenario, source), by_policy in cells.items():
+        for metric in PAIRED:
+            seeds = {p: _per_seed(runs, metric) for p, runs in by_policy.items()}
+            rules = [p for p in by_policy if p in RULE_POLICIES and seeds[p]]
+            if not rules:
+                continue
+            best = min(rules, key=lambda p: float(np.mean(list(seeds[p].values()))))
+            base = seeds[best]
+            for policy in by_policy:
+                if policy == best:
+                    continue
+                mine = seeds[policy]
+                common = sorted(set(mine) & set(base))
+                mean, half = mean_ci95([mine[s] - base[s] for s in common])
+                rows.append(PairedRow(scenario, source, metric, best, policy, len(common),
+                                      mean, half))
+    return rows
+
+
+def _per_seed(runs: dict[int, list[dict[str, float]]], metric: str) -> dict[int, float]:
+    """A policy's ``metric`` per seed, its runs of the seed averaged (NaN ones left out)."""
+    return {seed: float(np.nanmean([f[metric] for f in group]))
+            for seed, group in runs.items() if not all(math.isnan(f[metric]) for f in group)}
+
+
+def paired_markdown(rows: list[PairedRow]) -> str:
+    lines = ["| scenario | map source | figure | best rule policy | policy | seeds | "
+             "difference (policy - best) |", "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        digits = 3 if r.metric in ("ate_m", "device_failure_share") else 1
+        half = "" if math.isnan(r.ci95) else f" ± {r.ci95:.{digits}f}"
+        apart = " (CI excludes 0)" if not math.isnan(r.ci95) and abs(r.difference) > r.ci95 \
+            else ""
+        lines.append(f"| {r.scenario} | {r.map_source} | {r.metric} | {r.best} | {r.policy} | "
+                     f"{r.seeds} | {r.difference:+.{digits}f}{half}{apart} |")
+    return "\n".join(lines)
 
 
 def _cell(mean: float, half: float, metric: str) -> str:
@@ -247,12 +376,19 @@ def write_summary(rows: list[SummaryRow], out: Path) -> None:
     plot(rows, out / "summary.png")
 
 
+def write_paired(rows: list[PairedRow], out: Path) -> None:
+    write_csv(out / "paired.csv", [f.name for f in fields(PairedRow)],
+              [list(asdict(r).values()) for r in rows])
+    (out / "paired.md").write_text(paired_markdown(rows) + "\n", encoding="utf-8")
+
+
 def plot(rows: list[SummaryRow], path: Path) -> None:
     """Grouped bars (scenario groups, one bar per policy) with 95 % CIs, one panel per figure
-    a user weighs: ATE, RPE, failures, relocalisations, mean υ, lost share."""
+    a user weighs: ATE, failures, untracked frames, the device's failure share beside the
+    simulator's predicted lost share, mean υ."""
     plt = pyplot()
-    panels = ("ate_m", "rpe_m", "tracking_failures", "relocalisations", "mean_uncertainty",
-              "lost_ratio")
+    panels = ("ate_m", "tracking_failures", "untracked_frames", "device_failure_share",
+              "predicted_lost_share", "mean_uncertainty")
     sources = {r.map_source for r in rows}
 
     def group(r: SummaryRow) -> str:
@@ -296,9 +432,13 @@ def add_arguments(parser: argparse.ArgumentParser, default_sequence: str,
     parser.add_argument("--frames", type=int, default=300,
                         help="frames of the sequence per run (revisit scenarios play them "
                         "forward then back: 2x-1); default %(default)s")
+    parser.add_argument("--start", type=int, default=0,
+                        help="the sequence's first frame played (e.g. keep a stretch for "
+                        "tuning apart from the one evaluated); default %(default)s")
     parser.add_argument("--policy", default="lff,pu,adapt",
-                        help="comma-separated: lff, pu, adapt, random, mbrl:CHECKPOINT; "
-                        "default %(default)s")
+                        help="comma-separated: lff, pu, adapt, random, mbrl:CHECKPOINT, each "
+                        "optionally LABEL=POLICY (several checkpoints under one label: one "
+                        "variant over its training runs); default %(default)s")
     parser.add_argument("--scenario", default=",".join(scenario_names),
                         help="comma-separated, of: " + ", ".join(scenario_names)
                         + "; default all")

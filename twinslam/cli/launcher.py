@@ -93,6 +93,9 @@ class RunReport:
     recover_s: float                 #: mean seconds from a loss to tracking again (NaN: none)
     edge_ms_median: float
     seconds: float
+    #: which policy decided how many slots (``UploadRequest.policy``), e.g. "amm-regime:28
+    #: adapt:2" — a learned policy's fallback shows here
+    decided_by: str = ""
 
     ROW = ("{label:<14} {mean_uncertainty:>10.1f} {lost_ratio:>6.1%} "
            "{tracked_uncertainty:>10.1f} {ate_m:>7.3f} "
@@ -199,14 +202,22 @@ def report(policy: str, record: RunRecord, seconds: float) -> RunReport:
                      events.untracked, events.failures, events.relocalisations,
                      events.mean_recover_s,
                      float(np.median([s.slot_processing_ms for s in stats])) if stats
-                     else math.nan, seconds)
+                     else math.nan, seconds, deciders(record))
+
+
+def deciders(record: RunRecord) -> str:
+    """"name:slots" for each policy that decided a slot of the run, most slots first."""
+    counts: dict[str, int] = {}
+    for request in record.requests.values():
+        counts[str(request.policy)] = counts.get(str(request.policy), 0) + 1
+    return " ".join(f"{name}:{n}" for name, n in sorted(counts.items(), key=lambda x: -x[1]))
 
 
 @dataclass
 class LaunchConfig:
     sequence: str = "synthetic"
     policy: str = "adapt"
-    frames: int = 600                #: played from the sequence's start; -1: all
+    frames: int = 600                #: played from frame ``start`` on; -1: all
     rate: float = 1.0                #: × the recorded frame rate
     params_file: Path = DEFAULT_PARAMS
     checkpoint: Path | None = None
@@ -215,6 +226,7 @@ class LaunchConfig:
     extra: dict[str, list[str]] = field(default_factory=dict)   #: node → more "-p k:=v"
     timeout_s: float = 600.0
     scenario: Scenario = SCENARIOS["forward"]   #: order, covered-lens bursts, uplink range
+    start: int = 0                   #: the sequence's first frame played
 
 
 class Launcher:
@@ -238,7 +250,8 @@ class Launcher:
         params = {"edge_mapper": [f"policy:={c.policy}"]
                   + ([f"checkpoint:={c.checkpoint}"] if c.checkpoint else []),
                   "sequence_player": [f"sequence:={c.sequence}", f"rate:={c.rate}",
-                                      f"end:={c.frames}",
+                                      f"start:={c.start}",
+                                      f"end:={c.start + c.frames if c.frames > 0 else -1}",
                                       # the device, and the monitor when it views images
                                       f"wait_for_subscribers:={1 + c.watch_images}"]
                   }.get(name, [])

@@ -8,11 +8,12 @@ map points our front end observes in it, extracted once from the same frames the
 stamps played position p at ``t0 + recorded_time(p) / rate``, ``t0`` being the first played
 frame's stamp (the first ground-truth pose the monitor heard).
 
-Each next-slot frame of slot k + 1 is predicted against the map the edge published after slot
-k — the map the simulator scores it against — and, apart, against the map version the device
-actually tracked it with (the first frames of a slot still track against the map before, as
-uploads and optimisation take time). Frames tracked on the device's start-up map (map version
-0) are counted apart, as are frames whose recorded frame or keyframes cannot be placed.
+Each next-slot frame of slot k + 1 is predicted as the simulator scores it
+(:mod:`twinslam.common.tracking_rule`): its first frames against the map the edge published
+after slot k - 1 (the update of slot k is still on its way), the rest against the map after
+slot k; and, apart, against the map version the device actually tracked it with. Frames
+tracked on the device's start-up map (map version 0) are counted apart, as are frames whose
+recorded frame or keyframes cannot be placed.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ import numpy as np
 
 from twinslam.cli.launcher import RunRecord
 from twinslam.cli.scenarios import Scenario
+from twinslam.common.tracking_rule import MAP_UPDATE_LAG_FRAMES
 from twinslam.sequence_player.playback import Playback, PlayedSequence
 from twinslam.sequence_player.readers import open_sequence
 from twinslam.simulator.calibration import CalibrationFrame, FramePrediction, predict_frames
@@ -62,11 +64,11 @@ class PlayedFrames:
 
 
 def played_frames(sequence: str, frames: int, scenario: Scenario, dataset: CovisibilityDataset,
-                  rate: float = 1.0) -> PlayedFrames:
-    """What the player plays of ``sequence``'s first ``frames`` frames in ``scenario``'s order,
-    each position tied to the dataset row extracted from the same recorded frame (by its
-    recorded stamp)."""
-    reader = open_sequence(sequence, 0, frames)
+                  rate: float = 1.0, start: int = 0) -> PlayedFrames:
+    """What the player plays of ``sequence``'s ``frames`` frames from ``start`` in
+    ``scenario``'s order, each position tied to the dataset row extracted from the same
+    recorded frame (by its recorded stamp)."""
+    reader = open_sequence(sequence, start, start + frames)
     played = PlayedSequence(reader, Playback(scenario.order))
     stamps = np.array([e.stamp for e in reader.entries], dtype=np.float64)
     sources = np.asarray(played.positions, dtype=np.int64)
@@ -82,16 +84,16 @@ def played_frames(sequence: str, frames: int, scenario: Scenario, dataset: Covis
 
 
 def covisibility_file(sequence: str, frames: int, cache: Path,
-                      echo: Callable[[str], None] = print) -> Path:
-    """The file holding the covisibility of ``sequence``'s first ``frames`` frames, as the
-    front end the simulator's datasets come from extracts it; extracted into ``cache`` the
-    first time, read from there afterwards."""
+                      echo: Callable[[str], None] = print, start: int = 0) -> Path:
+    """The file holding the covisibility of ``sequence``'s ``frames`` frames from ``start``,
+    as the front end the simulator's datasets come from extracts it; extracted into ``cache``
+    the first time, read from there afterwards."""
     slug = "".join(c if c.isalnum() or c in "-_." else "_" for c in
-                   f"{Path(sequence).name or sequence}-{frames}")
+                   f"{Path(sequence).name or sequence}-{start}-{frames}")
     path = cache / f"{slug}.covis.npz"
     if path.is_file():
         return path
-    reader = open_sequence(sequence, 0, frames)
+    reader = open_sequence(sequence, start, start + frames)
     echo(f"extracting the covisibility of {len(reader)} frames of {sequence} for the "
          f"calibration (once; cached in {path})")
     dataset, _, _ = extract_covisibility(reader)
@@ -129,9 +131,11 @@ def _key(time: Any) -> int:
 
 
 def live_frames(record: RunRecord, dataset: CovisibilityDataset, played: PlayedFrames,
-                log_det_pi: float = 0.0) -> LiveFrames:
+                log_det_pi: float = 0.0, lag_frames: int = MAP_UPDATE_LAG_FRAMES) -> LiveFrames:
     """Every next-slot frame of the run (slots after the first whose previous map arrived),
-    predicted and paired with the device's outcome."""
+    predicted by the simulator's rule and paired with the device's outcome: the first
+    ``lag_frames`` frames of slot k + 1 against the map after slot k - 1 (where there was
+    one), the rest against the map after slot k."""
     out = LiveFrames()
     frames = [(slot, f) for slot in sorted(record.summaries)
               for f in record.summaries[slot].frames]
@@ -144,33 +148,42 @@ def live_frames(record: RunRecord, dataset: CovisibilityDataset, played: PlayedF
     errors = translation_errors(record.poses, record.ground_truth)
     by_version: dict[int, MapSnapshot] = {m.version: m for m in record.maps.values()}
 
-    def keyframe_rows(snapshot: MapSnapshot) -> list[int] | None:
+    def keyframe_rows(snapshot: MapSnapshot | None) -> list[int] | None:
+        if snapshot is None:
+            return None
         placed = [row_of.get(int(k), -1) for k in snapshot.keyframe_ids]
         return None if any(r < 0 for r in placed) else placed
 
+    def predict(snapshot: MapSnapshot | None, cand: list[int]) -> list[FramePrediction] | None:
+        map_rows = keyframe_rows(snapshot)
+        return None if map_rows is None else predict_frames(dataset, map_rows, cand, log_det_pi)
+
     for slot in sorted(record.summaries):
-        before = record.maps.get(slot - 1)
-        if slot == 0 or before is None:
+        after = record.maps.get(slot - 1)
+        if slot == 0 or after is None:
             continue
+        before = record.maps.get(slot - 2)
         slot_frames = list(record.summaries[slot].frames)
-        startup = [f for f in slot_frames if int(f.map_version) == 0]
-        out.startup += len(startup)
-        scored = [f for f in slot_frames if int(f.map_version) > 0]
-        map_rows = keyframe_rows(before)
-        placed = [f for f in scored if row_of[int(f.frame_id)] >= 0]
-        out.unplaced += len(scored) - (len(placed) if map_rows is not None else 0)
-        if map_rows is None or not placed:
-            continue
-        cand = [row_of[int(f.frame_id)] for f in placed]
-        predicted = predict_frames(dataset, map_rows, cand, log_det_pi)
-        position = {int(f.frame_id): i for i, f in enumerate(slot_frames)}
-        for f, row, pred in zip(placed, cand, predicted, strict=True):
-            used = by_version.get(int(f.map_version))
-            used_rows = keyframe_rows(used) if used is not None else None
-            on_used = (predict_frames(dataset, used_rows, [row], log_det_pi)[0]
-                       if used_rows is not None else FramePrediction(0, 0.0, math.inf))
-            error = errors.get(_key(f.stamp), math.nan)
-            out.frames.append(LiveFrame(
-                slot, position[int(f.frame_id)], int(f.frame_id), row, int(f.map_version),
-                CalibrationFrame(pred, bool(f.tracked), int(f.inliers), error), on_used))
+        out.startup += sum(int(f.map_version) == 0 for f in slot_frames)
+        scored = [(i, f) for i, f in enumerate(slot_frames) if int(f.map_version) > 0]
+        placed = [(i, f) for i, f in scored if row_of[int(f.frame_id)] >= 0]
+        out.unplaced += len(scored) - len(placed)
+        early = [(i, f) for i, f in placed if i < lag_frames and before is not None]
+        late = [(i, f) for i, f in placed if not (i < lag_frames and before is not None)]
+        for snapshot, group in ((before, early), (after, late)):
+            if not group:
+                continue
+            predicted = predict(snapshot, [row_of[int(f.frame_id)] for _, f in group])
+            if predicted is None:
+                out.unplaced += len(group)
+                continue
+            for (i, f), pred in zip(group, predicted, strict=True):
+                row = row_of[int(f.frame_id)]
+                used = predict(by_version.get(int(f.map_version)), [row])
+                error = errors.get(_key(f.stamp), math.nan)
+                out.frames.append(LiveFrame(
+                    slot, i, int(f.frame_id), row, int(f.map_version),
+                    CalibrationFrame(pred, bool(f.tracked), int(f.inliers), error),
+                    used[0] if used else FramePrediction(0, 0.0, math.inf)))
+    out.frames.sort(key=lambda f: (f.slot, f.position))
     return out

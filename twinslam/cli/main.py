@@ -96,7 +96,9 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
     try:
         dataset = _covis(args.covis)
-        config = SimConfig(vmax=args.vmax, slot_frames=args.slot_frames, slots=args.slots)
+        rule = dict(min_shared=1, update_lag_frames=0) if args.paper_rule else {}
+        config = SimConfig(vmax=args.vmax, slot_frames=args.slot_frames, slots=args.slots,
+                           start=args.walk_start, **rule)
         policies = [p.strip() for p in args.policy.split(",") if p.strip()]
         seeds = list(range(args.seed0, args.seed0 + args.seeds))
         print(f"covisibility: {dataset.n_frames} frames ({dataset.source or args.covis}); "
@@ -116,9 +118,12 @@ def cmd_sim(args: argparse.Namespace) -> int:
         gap = f"  {r.mean - reference.mean:+.2f}" if reference else ""
         print(f"{r.policy:<12} {r.mean:>11.2f} {r.ci95:>9.2f} {100 * r.lost_ratio:>7.2f} "
               f"{r.mean_tracked:>11.2f}{gap}")
-    print(f"({time.monotonic() - start:.1f} s; mean υ scores a lost frame as u = 0, a frame with "
-          "no map; 'υ tracked' averages the tracked frames; mean υ = (1 - lost) · υ tracked. "
-          "The reference is a clairvoyant search, not a bound)")
+    rule = ("the paper's rule: lost when no map point is shared" if args.paper_rule else
+            f"lost with fewer than {config.min_shared} shared map points, a slot's first "
+            f"{config.lag_frames} frames on the map before the last update")
+    print(f"({time.monotonic() - start:.1f} s; {rule}; mean υ scores a lost frame as u = 0, a "
+          "frame with no map; 'υ tracked' averages the tracked frames; mean υ = (1 - lost) · "
+          "υ tracked. The reference is a clairvoyant search, not a bound)")
     if args.csv:
         with open(args.csv, "w", newline="", encoding="utf-8") as fh:
             writer = csv.writer(fh)
@@ -302,11 +307,19 @@ def cmd_launch(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"error: --scenario: {exc}", file=sys.stderr)
         return 2
+    if args.map_source is not None:
+        from device_tracker.map_source import check_map_source
+
+        reason = check_map_source(args.map_source)
+        if reason:
+            print(f"error: --map-source: {reason}", file=sys.stderr)
+            return 2
+        extra.setdefault("device_tracker", []).append(f"map_source:={args.map_source}")
     reports = []
     for policy in [p.strip() for p in args.policy.split(",") if p.strip()]:
         config = LaunchConfig(args.sequence, policy, args.frames, args.rate, args.params,
                               with_twin=args.twin, timeout_s=args.timeout, extra=extra,
-                              scenario=chosen)
+                              scenario=chosen, start=args.start)
         with _launch_domain(args) as dom:
             if args.loopback:
                 dom.activate()
@@ -336,15 +349,15 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from twinslam.sequence_player.playback import Playback, PlayedSequence
     from twinslam.sequence_player.readers import SequenceError, open_sequence
 
-    policies = [p.strip() for p in args.policy.split(",") if p.strip()]
     sources = [m.strip() for m in args.map_source.split(",") if m.strip()]
     try:
+        policies = ev.policy_variants(args.policy)
         scenarios = [scenario(n.strip()) for n in args.scenario.split(",") if n.strip()]
         for source in sources:
             reason = check_map_source(source)
             if reason:
                 raise ValueError(f"--map-source: {reason}")
-        for policy in policies:
+        for _, policy in policies:
             kind, _, path = policy.partition(":")
             if kind == "mbrl" and not Path(path).is_file():
                 raise ValueError(f"{path}: no such policy checkpoint (`twinslam train`)")
@@ -352,12 +365,12 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
             raise ValueError(f"parameter file {args.params} does not exist")
         for name, value, least in (("--seeds", args.seeds, 1), ("--jobs", args.jobs, 1),
                                    ("--first-seed", args.first_seed, 0),
-                                   ("--frames", args.frames, 2)):
+                                   ("--frames", args.frames, 2), ("--start", args.start, 0)):
             if value < least:
                 raise ValueError(f"{name} must be >= {least}, got {value}")
         for s in {s.order: s for s in scenarios}.values():     # fails now, not in run 20
-            PlayedSequence(open_sequence(ev.sequence_for(args.sequence, 0), 0, args.frames),
-                           Playback(s.order))
+            PlayedSequence(open_sequence(ev.sequence_for(args.sequence, 0), args.start,
+                                         args.start + args.frames), Playback(s.order))
     except (ValueError, SequenceError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -365,22 +378,26 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         print("error: at least one policy, scenario and map source", file=sys.stderr)
         return 2
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
-    keys = [ev.RunKey(s.name, m, p, seed) for s in scenarios for m in sources
-            for p in policies for seed in seeds]
+    # seed by seed, so the runs a paired comparison pairs share the machine's state
+    keys = [ev.RunKey(s.name, m, label, seed, "" if spec == label else spec)
+            for s in scenarios for seed in seeds for m in sources for label, spec in policies]
     print(f"live evaluation: {len(keys)} runs ({len(scenarios)} scenarios x {len(sources)} map "
           f"sources x {len(policies)} policies x {len(seeds)} seeds) of {args.frames} frames "
-          f"of {args.sequence}, {args.jobs} at a time; results in {args.out}", flush=True)
+          f"of {args.sequence} from frame {args.start}, {args.jobs} at a time; results in "
+          f"{args.out}", flush=True)
     covis: dict[str, Path] = {}
     try:
         for seed in seeds:                  # the simulator's view of every played frame
             sequence = ev.sequence_for(args.sequence, seed)
             if sequence not in covis:
                 covis[sequence] = covisibility_file(sequence, args.frames, args.out / "covis",
-                                                    lambda line: print(line, flush=True))
+                                                    lambda line: print(line, flush=True),
+                                                    args.start)
         by_name = {s.name: s for s in scenarios}
         tasks = [ev.RunTask(k, ev.sequence_for(args.sequence, k.seed), args.frames,
                             by_name[k.scenario], args.params, args.timeout,
-                            covis[ev.sequence_for(args.sequence, k.seed)], args.verbose)
+                            covis[ev.sequence_for(args.sequence, k.seed)], args.verbose,
+                            args.start)
                  for k in keys]
         results = ev.run_all(tasks, args.out, args.jobs, lambda line: print(line, flush=True))
     except KeyboardInterrupt:
@@ -392,13 +409,18 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         return 1
     rows = ev.summarise(results)
     ev.write_summary(rows, args.out)
+    paired = ev.paired_differences(results)
+    ev.write_paired(paired, args.out)
     print()
     print(ev.markdown_table(rows))
+    if paired:
+        print("\npaired with the best rule policy, seed by seed (mean ± 95 % CI):")
+        print(ev.paired_markdown(paired))
     for source, (r, n) in ev.agreement_over_runs(results).items():
         print(f"{source}: predicted lost share vs device failure share over {n} runs: "
               f"Pearson r = {r:.2f}")
     print(f"\nwrote {args.out / 'runs.csv'}, summary.csv, summary.md, summary.png, "
-          "calibration.csv, calibration_frames.csv")
+          "paired.csv, paired.md, calibration.csv, calibration_frames.csv")
     return 0
 
 
@@ -687,6 +709,14 @@ def build_parser() -> argparse.ArgumentParser:
                      help="runs per policy, seeds --seed0 … --seed0 + N - 1 (each seed: its "
                      "own start frame and rate sequence)")
     sim.add_argument("--seed0", type=int, default=0, help="the first run's seed")
+    sim.add_argument("--walk-start", type=int, default=None, metavar="FRAME",
+                     help="every run starts at this frame of the covisibility and reads it "
+                     "forward then back (0: the live player's forward_backward walk); default: "
+                     "a random frame per seed")
+    sim.add_argument("--paper-rule", action="store_true",
+                     help="score as the paper does: a frame is lost only when it shares no map "
+                     "point, the map update there at the slot's first frame (default: the "
+                     "device's rule, twinslam/common/tracking_rule.py)")
     sim.add_argument("--csv", metavar="FILE",
                      help="also write one row per run: policy, spec (as given: tells two "
                      "checkpoints apart), seed, mean_uncertainty (a lost frame = 0), lost_share, "
@@ -765,6 +795,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="the edge's policy, one run each, comma-separated: lff, pu, adapt, "
                         "random, mbrl:CHECKPOINT")
     launch.add_argument("--frames", type=int, default=600, help="frames to play; -1: all")
+    launch.add_argument("--start", type=int, default=0,
+                        help="the sequence's first frame played; default %(default)s")
     launch.add_argument("--rate", type=float, default=1.0,
                         help="playback speed, × the recorded frame rate")
     launch.add_argument("--params", type=Path, default=REPO_ROOT / "config" / "twinslam.yaml",
@@ -779,14 +811,18 @@ def build_parser() -> argparse.ArgumentParser:
                         "carrying their image")
     launch.add_argument("--timeout", type=float, default=1800.0,
                         help="seconds a policy's run may take before its nodes are stopped")
+    from twinslam.cli.scenarios import SCENARIOS
+
     launch.add_argument("--scenario", default="forward",
-                        help="forward, revisit (forward then back), revisit-lost (+ 3 s "
-                        "covered lens), small-map (+ V_max 15), constrained (+ "
-                        "5-20 Mbit/s); default %(default)s")
+                        help="; ".join(f"{s.name}: {s.description}" for s in SCENARIOS.values()
+                                       ).replace("%", "%%") + "; default %(default)s")
+    launch.add_argument("--map-source", default=None,
+                        help="the device's map source: edge (tracked only against the edge's "
+                        "map, the paper's device) or edge+local (plus its own recent points); "
+                        "default: the parameter file's")
     launch.set_defaults(func=cmd_launch)
     from twinslam.cli.demo import REAL_SEQUENCE
     from twinslam.cli.evaluate import add_arguments
-    from twinslam.cli.scenarios import SCENARIOS
 
     evaluate = sub.add_parser(
         "evaluate", help="the live pipeline per scenario x policy x seed: ATE, RPE, tracking "
@@ -794,10 +830,11 @@ def build_parser() -> argparse.ArgumentParser:
     add_arguments(evaluate, str(REAL_SEQUENCE) if REAL_SEQUENCE.is_dir() else "synthetic:300",
                   REPO_ROOT / "config" / "twinslam.yaml", list(SCENARIOS))
     evaluate.set_defaults(func=cmd_evaluate)
-    demo = sub.add_parser("demo", help="the live pipeline per policy, then the simulator")
-    demo.add_argument("--frames", type=int, default=600,
-                      help="frames the live pipeline plays (the revisit-lost part plays half "
-                      "of them forward and back)")
+    demo = sub.add_parser("demo", help="the live pipeline per policy with the paper's device "
+                          "and the Edge-SLAM style one, then the simulator")
+    demo.add_argument("--frames", type=int, default=300,
+                      help="frames of the sequence the live runs play forward and back "
+                      "(2x-1 played); default %(default)s")
     demo.add_argument("--slots", type=int, default=40, help="simulator slots per run")
     demo.add_argument("--seeds", type=int, default=3, help="simulator runs per policy")
     demo.set_defaults(func=cmd_demo)

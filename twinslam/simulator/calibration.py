@@ -64,10 +64,8 @@ def predict_frames(dataset: CovisibilityDataset, map_frames: Sequence[int],
     np.fill_diagonal(map_w, 0.0)
     cand_w = dataset.weights(cand_idx, map_idx)
     u = augmented_uncertainties(map_w, cand_w, log_det_pi)
-    union = np.unique(np.concatenate([dataset.points(int(v)) for v in map_idx]))
-    shared = [int(np.isin(dataset.points(int(f)), union, assume_unique=True).sum())
-              for f in cand_idx]
-    return [FramePrediction(s, float(w), float(x))
+    shared = dataset.shared_points(map_idx, cand_idx)
+    return [FramePrediction(int(s), float(w), float(x))
             for s, w, x in zip(shared, cand_w.sum(axis=1), u, strict=True)]
 
 

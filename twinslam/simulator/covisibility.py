@@ -53,6 +53,9 @@ class CovisibilityDataset:
                 or np.any(np.diff(self.point_offsets) < 0):
             raise CovisibilityError("point_offsets do not index point_ids consistently")
         _, cols = np.unique(self.point_ids, return_inverse=True)
+        #: per entry of point_ids, the point as a column 0..n_points-1 (for shared counts)
+        self._cols = cols.astype(np.int64).ravel()
+        self._marks = np.zeros(int(cols.max()) + 1 if cols.size else 1, dtype=np.bool_)
         rows = np.repeat(np.arange(self.n_frames), np.diff(self.point_offsets))
         self._incidence = sp.csr_matrix(
             (np.ones(rows.size, dtype=np.float64), (rows, cols)),
@@ -119,6 +122,15 @@ class CovisibilityDataset:
         return block.toarray()
 
 
+    def shared_points(self, map_rows: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """|M_r ∩ ∪_{m ∈ map_rows} M_m| for every r of ``rows``: the map points a frame
+        could match in a map of those frames, each counted once however many of the map's
+        frames see it (the device matches a point once)."""
+        return _shared_points(self.point_offsets, self._cols, self._marks,
+                              np.asarray(map_rows, dtype=np.int64),
+                              np.asarray(rows, dtype=np.int64))
+
+
 def save_covisibility(path: Path, data: CovisibilityDataset) -> None:
     extra = {}
     if data.stamps is not None:
@@ -157,4 +169,24 @@ def _gather(dense: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray
     for i in range(rows.size):
         for j in range(cols.size):
             out[i, j] = dense[rows[i], cols[j]]
+    return out
+
+
+@njit(cache=True)
+def _shared_points(offsets: np.ndarray, cols: np.ndarray, marks: np.ndarray,
+                   map_rows: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """Mark the map's points, count each row's marked points, clear the marks (``marks`` is
+    all False before and after: one buffer per dataset, no allocation per slot)."""
+    for m in map_rows:
+        for j in range(offsets[m], offsets[m + 1]):
+            marks[cols[j]] = True
+    out = np.zeros(rows.size, dtype=np.int64)
+    for i in range(rows.size):
+        r = rows[i]
+        for j in range(offsets[r], offsets[r + 1]):
+            if marks[cols[j]]:
+                out[i] += 1
+    for m in map_rows:
+        for j in range(offsets[m], offsets[m + 1]):
+            marks[cols[j]] = False
     return out

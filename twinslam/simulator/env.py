@@ -4,6 +4,14 @@ At slot k the agent sees the map V^e_k, the slot's frames F_k and the rate d_k, 
 with U_k ⊆ F_k and C_k ⊆ V^e_k ∪ U_k of Theorem 1's sizes. The environment applies the update
 (eq. 3), draws F_{k+1} and d_{k+1}, and returns r_k = -υ_k (eq. 8, a lost frame scoring u = 0).
 
+Which next-slot frame is lost follows what the live device lives by
+(:mod:`twinslam.common.tracking_rule`): a frame that shares fewer than ``min_shared`` map
+points with the map it is tracked against is lost; the first ``lag_frames`` frames of
+slot k + 1 are tracked against V^e_k (the update of slot k is still on its way), the rest
+against V^e_{k+1}; and a lost frame, having no pose, is not among the next slot's upload
+candidates. With ``min_shared`` 1 and ``update_lag_frames`` 0 this is the paper's eq. 8
+exactly (``SimConfig.paper_rule``).
+
 Frames come from a covisibility dataset, read forwards then backwards (a walk that turns
 around) so that episodes can be longer than the recording; every frame *instance* has its own
 id, and two instances of the same recorded frame share all their points.
@@ -17,13 +25,14 @@ from typing import Any
 import numpy as np
 
 from twinslam.common import table1
+from twinslam.common.tracking_rule import MIN_SHARED_POINTS, update_lag_frames
 from twinslam.map_management.actions import MapAction, SlotObservation, check_map_action
 from twinslam.simulator.covisibility import CovisibilityDataset
 from twinslam.uncertainty import laplacian_kernels as kernels
 from twinslam.uncertainty.laplacian_factorization import PIVOT_RTOL
 from twinslam.uncertainty.map_uncertainty import (
     SlotUncertainty,
-    next_slot_uncertainty,
+    lost_frames,
     slot_uncertainty_from_scores,
     theorem1_cardinalities,
 )
@@ -41,6 +50,28 @@ class SimConfig:
     slots: int = 200
     log_det_pi: float = 0.0
     history: int = 8            #: length τ+1 of the rate history in observations
+    #: a next-slot frame sharing fewer map points with its map is lost (1: the paper's rule)
+    min_shared: int = MIN_SHARED_POINTS
+    #: the first this many frames of a slot are tracked against the map before the update
+    #: (None: D_req plus the edge's measured delay, at 30 Hz; 0: the paper's timeline)
+    update_lag_frames: int | None = None
+    #: the dataset frame every episode starts at (None: a random one per seed); 0 plays the
+    #: dataset forward then back from its first frame, as the player's forward_backward order
+    start: int | None = None
+
+    @classmethod
+    def paper_rule(cls, **kwargs: Any) -> SimConfig:
+        """The paper's scoring: lost only when no map point is shared, the map update there at
+        the slot's first frame (toy worlds of a few points a frame, and the paper's own
+        numbers, are scored so)."""
+        return cls(min_shared=1, update_lag_frames=0, **kwargs)
+
+    @property
+    def lag_frames(self) -> int:
+        """The frames of a slot tracked with the map before the last update."""
+        if self.update_lag_frames is not None:
+            return self.update_lag_frames
+        return update_lag_frames(self.d_req_s, table1.FRAME_RATE_HZ)
 
 
 class FrameStream:
@@ -84,6 +115,8 @@ class MapManagementEnv:
         #: the observation last handed out, valid until the map or the slot changes
         self._last_obs: SlotObservation | None = None
         self._plan: list[tuple[int, float]] = []   #: (state, rate) of every slot of the episode
+        #: the current slot's frames the device tracked: the upload candidates
+        self._uploadable: list[int] = []
 
     # -- weights -----------------------------------------------------------------------------
 
@@ -105,10 +138,17 @@ class MapManagementEnv:
 
     def reset(self, seed: int | None = None) -> tuple[SlotObservation, dict[str, Any]]:
         rng = np.random.default_rng(seed)
-        self.stream = FrameStream(self.dataset, start=int(rng.integers(self.dataset.n_frames)),
+        start = int(rng.integers(self.dataset.n_frames))
+        if self.config.start is not None:
+            if not 0 <= self.config.start < self.dataset.n_frames:
+                raise ValueError(f"start frame {self.config.start} is not one of the dataset's "
+                                 f"{self.dataset.n_frames}")
+            start = self.config.start
+        self.stream = FrameStream(self.dataset, start=start,
                                   horizon=(self.config.slots + 2) * self.config.slot_frames)
         self.channel.reset(seed)
         self._map, self._map_w, self._slot = [], np.zeros((0, 0)), 0
+        self._uploadable = self.slot_frames(0)       # tracked on the device's start-up map
         # The whole episode's rates are drawn up front: the agent still sees them one slot at a
         # time, but a clairvoyant planner can read ahead and snapshots stay exact.
         self._plan = [self.channel.step() for _ in range(self.config.slots + 1)]
@@ -122,7 +162,7 @@ class MapManagementEnv:
 
     def _observation(self) -> SlotObservation:
         state, rate = self._plan[self._slot]
-        cand = self.slot_frames(self._slot)
+        cand = list(self._uploadable)
         n_up, n_ev = theorem1_cardinalities(rate, self.config.alpha_mbit, self.config.d_req_s,
                                             self.config.vmax, len(self._map), len(cand))
         hist = [s for s, _ in self._plan[max(0, self._slot - self.config.history + 1):
@@ -139,10 +179,9 @@ class MapManagementEnv:
     def check_action(self, obs: SlotObservation, action: MapAction) -> None:
         """Refuse an action that breaks slot ``obs.slot``'s constraints. Frame sets come from
         the environment, not from ``obs``, so a policy that edits its observation cannot
-        smuggle frames in."""
-        first = obs.slot * self.config.slot_frames
-        check_map_action(obs.slot, obs.n_upload, obs.n_evict,
-                         range(first, first + self.config.slot_frames), self._map, action)
+        smuggle frames in (a lost frame among them)."""
+        check_map_action(obs.slot, obs.n_upload, obs.n_evict, set(self._uploadable), self._map,
+                         action)
 
     def apply(self, action: MapAction, *, weights: bool = True) -> None:
         """V^e_{k+1} = (U_k ∪ V^e_k) \\ C_k, keeping capture order (oldest = anchor first).
@@ -182,34 +221,55 @@ class MapManagementEnv:
     def step(self, action: MapAction) -> tuple[SlotObservation, float, bool, bool, dict[str, Any]]:
         obs = self.observation()
         self.check_action(obs, action)
+        before, before_w = self._map, self._map_w
         dense = self.dataset.dense
         self.apply(action, weights=not dense)
         self._slot += 1
         f = self.config.slot_frames
         frames = np.arange(self._slot * f, (self._slot + 1) * f)
-        if dense and self._map:               # map weights and reward in one kernel call
-            self._map_w, n_comp, log_det, log_tau = kernels.gathered_slot_scores(
-                self.dataset.dense_weights, self.stream.dataset_index(self._map),
-                self.stream.dataset_index(frames), PIVOT_RTOL)
-            slot_u = slot_uncertainty_from_scores(len(self._map), n_comp, log_det, log_tau,
-                                                  self.config.log_det_pi)
-        else:
-            if dense:
-                self._map_w = np.zeros((0, 0))
-            slot_u = self._evaluate(frames)
+        # the update of the slot just decided reaches the device late: its first frames are
+        # still tracked against the map before (none before the first update: start-up map)
+        lag = min(self.config.lag_frames, f) if before else 0
+        early = (self._score(before, before_w, frames[:lag])[:2] if lag
+                 else (None, np.zeros(0, dtype=bool)))
+        late, lost_late, new_w = self._score(self._map, None if dense else self._map_w,
+                                             frames[lag:])
+        self._map_w = new_w
+        slot_u = late if early[0] is None else SlotUncertainty(
+            early[0].tracked_sum + late.tracked_sum, early[0].n_tracked + late.n_tracked,
+            early[0].n_frames + late.n_frames, late.map_uncertainty)
+        lost = np.concatenate([early[1], lost_late])
+        self._uploadable = frames[~lost].tolist()
         info = {"uncertainty": slot_u, "map_size": len(self._map),
-                "map_uncertainty": slot_u.map_uncertainty}
+                "map_uncertainty": slot_u.map_uncertainty, "lost": lost}
         truncated = self._slot >= self.config.slots
         self._last_obs = self._observation()
         return self._last_obs, slot_u.reward, False, truncated, info
 
-    def _evaluate(self, frames: np.ndarray) -> SlotUncertainty:
-        """υ of the current map against ``frames`` (future frames: none is in the map)."""
-        block = self.dataset.weights(self.stream.dataset_index(frames),
-                                     self.stream.dataset_index(self._map))
-        return next_slot_uncertainty(self._map_w, block, self.config.log_det_pi)
+    def _score(self, map_frames: list[int], map_w: np.ndarray | None, frames: np.ndarray
+               ) -> tuple[SlotUncertainty, np.ndarray, np.ndarray]:
+        """(υ over ``frames``, which of them are lost, the map's weights) against the map of
+        ``map_frames`` (weights ``map_w``, or gathered here when the dataset is dense)."""
+        map_idx = self.stream.dataset_index(map_frames)
+        frame_idx = self.stream.dataset_index(frames)
+        n = len(map_frames)
+        if n == 0:
+            log_tau = np.full(frames.size, -np.inf)
+            return (slot_uncertainty_from_scores(0, 0, -np.inf, log_tau, self.config.log_det_pi),
+                    np.ones(frames.size, dtype=bool), np.zeros((0, 0)))
+        if map_w is None:                       # dense: map weights and scores in one call
+            map_w, n_comp, log_det, log_tau = kernels.gathered_slot_scores(
+                self.dataset.dense_weights, map_idx, frame_idx, PIVOT_RTOL)
+        else:
+            block = np.ascontiguousarray(self.dataset.weights(frame_idx, map_idx))
+            n_comp, log_det, log_tau = kernels.slot_scores(map_w, block, PIVOT_RTOL)
+        trackable = (self.dataset.shared_points(map_idx, frame_idx) >= self.config.min_shared
+                     if self.config.min_shared > 1 else None)
+        slot_u = slot_uncertainty_from_scores(n, n_comp, log_det, log_tau,
+                                              self.config.log_det_pi, trackable)
+        return slot_u, lost_frames(log_tau, trackable), map_w
 
-    def emulate(self, before: tuple[list[int], np.ndarray, int], action: MapAction,
+    def emulate(self, before: tuple[list[int], np.ndarray, int, list[int]], action: MapAction,
                 next_rate: tuple[int, float]) -> tuple[SlotObservation, float, dict[str, Any]]:
         """What ``step(action)`` from the snapshot ``before`` would have returned had slot
         k + 1's rate been ``next_rate`` = (state, Mbit/s): an artificial experience (paper
@@ -236,11 +296,14 @@ class MapManagementEnv:
     def map_frames(self) -> list[int]:
         return list(self._map)
 
-    def snapshot(self) -> tuple[list[int], np.ndarray, int]:
-        return list(self._map), self._map_w.copy(), self._slot
+    def snapshot(self) -> tuple[list[int], np.ndarray, int, list[int]]:
+        """(map frames, map weights, slot, the slot's upload candidates): all a later
+        ``restore`` needs to continue exactly from here."""
+        return list(self._map), self._map_w.copy(), self._slot, list(self._uploadable)
 
-    def restore(self, snap: tuple[list[int], np.ndarray, int]) -> None:
-        frames, w, self._slot = snap
+    def restore(self, snap: tuple[list[int], np.ndarray, int, list[int]]) -> None:
+        frames, w, self._slot, uploadable = snap
         self._last_obs = None
         self._map, self._map_w = list(frames), w.copy()
+        self._uploadable = list(uploadable)
 

@@ -1,10 +1,11 @@
 """The exact optimum of problem P1 on small instances, by dynamic programming over maps.
 
-Slot k's reward depends only on the map V^e_{k+1} and the frames F_{k+1}, and the rates are
-fixed by the seed, so the best total from slot k on depends only on (k, V^e_k). Forward DP keeps,
-for every map reachable after each slot, the cheapest way to reach it; the cheapest map after
-the last slot ends the optimal plan. Every action of Theorem 1's sizes is tried at every
-reachable map, so nothing is pruned: the result is the true minimum of Σ υ_k.
+Slot k's reward depends only on the maps V^e_k and V^e_{k+1} and the frames F_{k+1}, and the
+rates are fixed by the seed, so the best total from slot k on depends only on (k, V^e_k, the
+frames of F_k the device tracked — the upload candidates). Forward DP keeps, for every such
+state reachable after each slot, the cheapest way to reach it; the cheapest state after the
+last slot ends the optimal plan. Every action of Theorem 1's sizes is tried at every reachable
+state, so nothing is pruned: the result is the true minimum of Σ υ_k.
 
 Its cost is the number of distinct maps a slot can leave (up to C(frames seen, V_max)) times
 the actions per map: a few thousand maps for ≤ 6 frames a slot, V_max ≤ 4 and ≤ 4 slots.
@@ -36,21 +37,21 @@ class _Best:
 def exact_optimum(env: MapManagementEnv, seed: int, max_maps: int = 50_000) -> Plan:
     """The plan of minimum Σ_k υ_k from ``reset(seed)``: the optimum no policy can beat."""
     env.reset(seed)
-    layer = {(): _Best(0.0, [], [], env.snapshot())}
+    layer: dict[tuple, _Best] = {(): _Best(0.0, [], [], env.snapshot())}
     for slot in range(env.config.slots):
-        nxt: dict[tuple[int, ...], _Best] = {}
+        nxt: dict[tuple, _Best] = {}
         for best in layer.values():
             env.restore(best.snapshot)
             for action in all_actions(env.observation()):
-                kept = set(best.snapshot[0]).union(action.upload).difference(action.evict)
-                key = tuple(sorted(kept))
-                known = nxt.get(key)
-                if known is not None and known.total <= best.total + known.slots[-1].objective:
-                    continue                 # the same map reached at no lower cost
                 env.restore(best.snapshot)
                 _obs, reward, _t, _trunc, info = env.step(action)
+                after = env.snapshot()
+                key = (tuple(after[0]), tuple(after[3]))    # the map and the candidates
+                known = nxt.get(key)
+                if known is not None and known.total <= best.total - reward:
+                    continue                 # the same state reached at no lower cost
                 nxt[key] = _Best(best.total - reward, [*best.actions, action],
-                                 [*best.slots, info["uncertainty"]], env.snapshot())
+                                 [*best.slots, info["uncertainty"]], after)
             if len(nxt) > max_maps:
                 raise InstanceTooLarge(
                     f"slot {slot} can leave more than {max_maps} distinct maps: too large for "

@@ -29,7 +29,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from twinslam.map_management.actions import MapAction, SlotObservation
+from twinslam.map_management.actions import (
+    ActionError,
+    MapAction,
+    SlotObservation,
+    check_map_action,
+)
 from twinslam.map_management.policies import Adapt, LatestFrameFirst, MapPolicy, PeriodicalUploading
 from twinslam.simulator.env import MapManagementEnv
 from twinslam.simulator.plan import Plan, replay, rollout
@@ -101,11 +106,14 @@ class ReferencePlanner:
     def _proposals(self, obs: SlotObservation, rng: np.random.Generator,
                    known: list[Plan]) -> list[MapAction]:
         base = [p.decide(obs) for p in self.policies]
-        in_map = set(obs.map_frames)
         for plan in known:               # a handed plan's action, where this state allows it
-            a = plan.actions[obs.slot]   # (sizes agree: Theorem 1 fixes them per slot)
-            if set(a.evict) <= in_map | set(a.upload):
-                base.append(a)
+            a = plan.actions[obs.slot]   # (another state may have lost its frames: then not)
+            try:
+                check_map_action(obs.slot, obs.n_upload, obs.n_evict, obs.candidates,
+                                 obs.map_frames, a)
+            except ActionError:
+                continue
+            base.append(a)
         extra = ([_perturb(obs, base[i % len(base)], rng) for i in range(self.perturbations)]
                  if base else [])
         unique: dict[tuple, MapAction] = {}
@@ -120,15 +128,16 @@ class ReferencePlanner:
             p.reset(seed)
         beams = [_Beam(0.0, [], [], env.snapshot())]
         for _slot in range(env.config.slots):
-            children: dict[tuple[int, ...], _Beam] = {}
+            children: dict[tuple, _Beam] = {}
             for b in beams:
                 env.restore(b.snapshot)
                 for action in self._proposals(env.observation(), rng, known):
                     env.restore(b.snapshot)
                     _obs, reward, _t, _tr, info = env.step(action)
+                    after = env.snapshot()
                     child = _Beam(b.total - reward, [*b.actions, action],
-                                  [*b.slots, info["uncertainty"]], env.snapshot())
-                    key = tuple(env.map_frames)
+                                  [*b.slots, info["uncertainty"]], after)
+                    key = (tuple(after[0]), tuple(after[3]))    # map and candidates
                     if key not in children or child.total < children[key].total:
                         children[key] = child
             beams = sorted(children.values(), key=lambda c: c.total)[:self.beam]

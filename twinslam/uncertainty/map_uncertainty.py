@@ -31,12 +31,6 @@ from twinslam.uncertainty.laplacian_factorization import PIVOT_RTOL, LaplacianFa
 #: to lose a third of the next slot's frames and still rank first.
 LOST_FRAME_UNCERTAINTY = 0.0
 
-#: A next-slot frame is lost when it shares fewer than this many map points with the map it is
-#: tracked against (the device needs ``min_inliers`` PnP inliers; issue #27 measures what the
-#: simulator's point sets must show for that). One constant for the simulator, the edge's
-#: MapStats, training and the figures.
-MIN_SHARED_POINTS = 1
-
 
 def laplacian(weights: np.ndarray) -> np.ndarray:
     """L = D - W of a symmetric, non-negative weight matrix with zero diagonal."""
@@ -184,10 +178,12 @@ class UncertaintyTally:
 
 
 def next_slot_uncertainty(map_weights: np.ndarray, cand_weights: np.ndarray,
-                          log_det_pi: float = 0.0) -> SlotUncertainty:
-    """υ_k of eq. (8) for the map G^e_{k+1} and the frames F_{k+1}, never letting inf leak.
+                          log_det_pi: float = 0.0, trackable: np.ndarray | None = None
+                          ) -> SlotUncertainty:
+    """υ_k of eq. (8) for the map G^e_{k+1} and the frames F_{k+1}, never letting inf leak;
+    a frame ``trackable`` marks False counts as lost (:func:`slot_uncertainty_from_scores`).
 
-    Runs once per slot in the simulator: one kernel call (factorise + score every frame)."""
+    One kernel call (factorise + score every frame)."""
     w = np.asarray(map_weights, dtype=np.float64)
     b = np.ascontiguousarray(np.atleast_2d(cand_weights), dtype=np.float64)
     n = w.shape[0]
@@ -199,19 +195,31 @@ def next_slot_uncertainty(map_weights: np.ndarray, cand_weights: np.ndarray,
         if b.shape[1] != n:
             raise ValueError(f"candidate weights have {b.shape[1]} columns, the map {n}")
         n_comp, log_det, log_tau = kernels.slot_scores(w, b, PIVOT_RTOL)
-    return slot_uncertainty_from_scores(n, n_comp, log_det, log_tau, log_det_pi)
+    return slot_uncertainty_from_scores(n, n_comp, log_det, log_tau, log_det_pi, trackable)
 
 
 def slot_uncertainty_from_scores(n: int, n_comp: int, log_det: float, log_tau: np.ndarray,
-                                 log_det_pi: float = 0.0) -> SlotUncertainty:
+                                 log_det_pi: float = 0.0, trackable: np.ndarray | None = None
+                                 ) -> SlotUncertainty:
     """υ_k from a map of ``n`` frames with ``n_comp`` components and log det A = ``log_det``,
-    and log τ(G ∪ {f}) of each next-slot frame (-inf: the frame shares no point)."""
-    finite = log_tau[log_tau > -math.inf]
+    and log τ(G ∪ {f}) of each next-slot frame (-inf: the frame shares no point). A frame
+    ``trackable`` marks False (too few shared points: :mod:`twinslam.common.tracking_rule`)
+    is lost whatever its τ."""
+    keep = log_tau > -math.inf
+    if trackable is not None:
+        keep &= trackable
+    finite = log_tau[keep]
     n_tracked = int(finite.size)
     total = -6.0 * float(finite.sum()) - n_tracked * n * log_det_pi     # Σ u(G ∪ {f})
     map_u = -6.0 * log_det - (n - 1) * log_det_pi if n_comp == 1 else math.inf
     return SlotUncertainty(tracked_sum=total, n_tracked=n_tracked, n_frames=int(log_tau.size),
                            map_uncertainty=map_u)
+
+
+def lost_frames(log_tau: np.ndarray, trackable: np.ndarray | None = None) -> np.ndarray:
+    """Which next-slot frames :func:`slot_uncertainty_from_scores` scores as lost."""
+    lost = ~(log_tau > -math.inf)
+    return lost if trackable is None else lost | ~trackable
 
 
 def theorem1_cardinalities(rate_mbps: float, alpha_mbit: float, d_req_s: float, vmax: int,

@@ -1,0 +1,60 @@
+"""The live evaluation's tables on hand-made runs: policy labels and variants, the per-label
+summary (a variant's training runs pooled), and the paired comparison with the best rule
+policy seed by seed."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from twinslam.cli.evaluate import (
+    RunKey,
+    RunResult,
+    paired_differences,
+    paired_markdown,
+    policy_variants,
+    summarise,
+)
+from twinslam.cli.launcher import RunReport
+
+
+def _run(policy: str, seed: int, failures: int, ate: float, spec: str = "") -> RunResult:
+    report = RunReport(spec or policy, 10, -500.0, 0.1, -550.0, ate, 0.1, 20, 2_000_000, 40.0,
+                       3 * failures, failures, 1, 0.5, 80.0, 30.0)
+    return RunResult(RunKey("revisit-v15", "edge", policy, seed, spec), report, None, None)
+
+
+def test_policy_items_become_labels_and_edge_policies() -> None:
+    assert policy_variants("lff, mbrl:results/amm_s0.pt,AMM=mbrl:a.pt,AMM=mbrl:b.pt") == [
+        ("lff", "lff"), ("mbrl:amm_s0", "mbrl:results/amm_s0.pt"), ("AMM", "mbrl:a.pt"),
+        ("AMM", "mbrl:b.pt")]
+    with pytest.raises(ValueError, match="LABEL=POLICY"):
+        policy_variants("AMM=")
+
+
+def test_paired_differences_take_the_best_rule_policy_seed_by_seed() -> None:
+    results = []
+    for seed in range(4):
+        results += [_run("lff", seed, 10 + seed, 0.20), _run("adapt", seed, 20 + seed, 0.30),
+                    # two training runs of one variant: 2 and 4 fewer failures than LFF
+                    _run("AMM", seed, 8 + seed, 0.25, "mbrl:a.pt"),
+                    _run("AMM", seed, 6 + seed, 0.15, "mbrl:b.pt")]
+    rows = {(r.metric, r.policy): r for r in paired_differences(results)}
+    fails = rows[("tracking_failures", "AMM")]
+    assert fails.best == "lff" and fails.seeds == 4
+    assert fails.difference == pytest.approx(-3.0) and fails.ci95 == pytest.approx(0.0)
+    assert rows[("tracking_failures", "adapt")].difference == pytest.approx(10.0)
+    assert ("tracking_failures", "lff") not in rows, "the best is not compared with itself"
+    ate = rows[("ate_m", "AMM")]
+    assert ate.best == "lff" and ate.difference == pytest.approx(0.0)
+    # the calibration's share is unknown without a dataset: not compared
+    assert ("device_failure_share", "AMM") not in rows
+    assert ("| revisit-v15 | edge | tracking_failures | lff | AMM | 4 | -3.0 ± 0.0 (CI excludes "
+            "0) |") in paired_markdown([fails])
+
+    summary = {r.policy: r for r in summarise(results)}
+    assert summary["AMM"].runs == 8, "a variant pools its training runs"
+    mean, half = summary["AMM"].figures["tracking_failures"]
+    assert mean == pytest.approx(8.5) and half > 0
+    assert math.isnan(summary["lff"].figures["device_failure_share"][0])
