@@ -233,6 +233,9 @@ def test_a_generated_trace_replays_real_rates_with_outages_drawn_from_the_seed()
     c = parse_channel(spec, seed=5)
     assert [c.step()[1] for _ in range(200)] != rates
     assert 0.0 in rates, "no outage in 400 s at one every ~20 s"
+    # the simulator re-seeds one channel per episode: reset(4) replays the device's seed 4
+    c.reset(4)
+    assert [c.step()[1] for _ in range(200)] == rates
     assert max(rates) <= 80 * 1.6 and np.mean(rates) > 5.0
     with pytest.raises(ChannelError, match=r"unknown option.*outage_every="):
         parse_channel("generated:every=20")

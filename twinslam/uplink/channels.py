@@ -188,8 +188,13 @@ class TraceChannel:
         return channel
 
     def __post_init__(self) -> None:
-        t = np.asarray(self.times, dtype=np.float64)
-        v = np.asarray(self.throughput, dtype=np.float64)
+        self._load(self.times, self.throughput)
+        self.reset(self.seed)
+
+    def _load(self, times: np.ndarray, throughput: np.ndarray) -> None:
+        """Take ``times`` / ``throughput`` as the trace to replay (checked, rescaled)."""
+        t = np.asarray(times, dtype=np.float64)
+        v = np.asarray(throughput, dtype=np.float64)
         if t.ndim != 1 or t.shape != v.shape or t.size < 2 or np.any(np.diff(t) <= 0):
             raise ChannelError("a trace needs >= 2 samples at strictly increasing times")
         if not self.slot_seconds > 0:
@@ -205,7 +210,6 @@ class TraceChannel:
         self._period = float(held.sum())
         self._cumulative = np.concatenate([[0.0], np.cumsum(v * held)])
         self._edges = np.concatenate([t - t[0], [self._period]])
-        self.reset(self.seed)
 
     @property
     def n_states(self) -> int:
@@ -335,6 +339,32 @@ def parse_channel(spec: str, rate_range: tuple[float, float] = table1.RATE_RANGE
                        "generated:...")
 
 
+@dataclass
+class GeneratedChannel(TraceChannel):
+    """A trace drawn from a seed (:func:`~twinslam.uplink.traces.generate_trace`) and replayed
+    from its start: ``reset(seed)`` draws that seed's trace, so a sweep over seeds replays a
+    different trace each, and a simulator episode of seed s replays the device's of seed s.
+    States by the quantiles of the drawn trace's slot rates."""
+
+    shape: TraceShape = field(default_factory=TraceShape)
+    levels: int = 2                           #: N states
+    _drawn: int | None = field(init=False, default=None)
+
+    @classmethod
+    def draw(cls, shape: TraceShape, levels: int, seed: int = 0) -> GeneratedChannel:
+        times, mbps = generate_trace(shape, seed)
+        return cls(times, mbps, RateQuantiser.evenly(1, 0.0, 1.0), start_s=0.0, seed=seed,
+                   shape=shape, levels=levels)
+
+    def reset(self, seed: int | None = None) -> None:
+        seed = self.seed if seed is None else seed
+        if seed != self._drawn:
+            self._drawn = seed
+            self._load(*generate_trace(self.shape, seed))
+            self.quantiser = RateQuantiser.from_quantiles(self.slot_rates(), self.levels)
+        super().reset(seed)
+
+
 def _generated(spec: str, opts: dict[str, str], flags: set[str], seed: int) -> TraceChannel:
     """The ``generated:...`` channel of :func:`parse_channel`."""
     known = {"regime", "outage_every", "outage", "range", "noise", "seconds", "N"}
@@ -353,9 +383,7 @@ def _generated(spec: str, opts: dict[str, str], flags: set[str], seed: int) -> T
             outage_s=float(opts.get("outage", default.outage_s)))
         if shape.outage_every_s < 0 or shape.outage_s <= 0 or shape.noise < 0:
             raise ValueError("outage_every must be >= 0, outage > 0 and noise >= 0")
-        times, mbps = generate_trace(shape, seed)
-        return TraceChannel.from_samples(times, mbps, int(opts.get("N", "2")), start_s=0.0,
-                                         seed=seed)
+        return GeneratedChannel.draw(shape, int(opts.get("N", "2")), seed)
     except ValueError as exc:
         if isinstance(exc, ChannelError):
             raise
