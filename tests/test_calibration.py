@@ -19,6 +19,7 @@ from twinslam.simulator.calibration import (
     balanced_accuracy,
     calibrate,
     fit_min_shared,
+    level_min_shared,
     predict_frames,
 )
 from twinslam.simulator.covisibility import CovisibilityDataset
@@ -85,6 +86,11 @@ def test_the_fitted_threshold_separates_failures_from_tracked_frames() -> None:
     assert balanced_accuracy(frames, 1000) == pytest.approx(0.5)
     with pytest.raises(ValueError, match="failures and tracked frames"):
         fit_min_shared([_frame(5, True)])
+    # 5 of 11 frames failed: k = 10 calls 0, 2, 5, 7, 9 and the tracked 8 lost (6 of 11);
+    # k = 9 calls 0, 2, 5, 7, 8 lost (5 of 11): the first to reach the failure share
+    assert level_min_shared(frames, range(1, 60)) == 9
+    with pytest.raises(ValueError, match="no threshold"):
+        level_min_shared(frames, range(1, 3))
 
 
 def test_played_stamps_find_their_recorded_frames() -> None:

@@ -62,6 +62,14 @@ def test_evaluate_runs_every_seed_and_summarises(tmp_path: Path,
     assert all(int(f["inliers"]) >= 15 for f in frames if f["device_tracked"] == "1")
     assert "predicted lost share vs device failure share" in text
 
+    # what these runs say the rule must be: lag, thresholds, agreement, and the figure
+    assert main(["calibrate", str(out)]) == 0
+    report = capsys.readouterr().out
+    assert "edge: 1 runs" in report and "edge+local: 1 runs" in report
+    assert "frames a slot" in report and "best separation k =" in report
+    assert (out / "calibration.png").stat().st_size > 10_000
+    assert main(["calibrate", str(tmp_path / "nowhere")]) == 2
+
 
 @pytest.mark.parametrize(("args", "why"), [
     (["--scenario", "sideways"], "unknown scenario 'sideways'"),

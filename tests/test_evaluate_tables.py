@@ -5,6 +5,7 @@ policy seed by seed."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import pytest
 
@@ -17,6 +18,7 @@ from twinslam.cli.evaluate import (
     summarise,
 )
 from twinslam.cli.launcher import RunReport
+from twinslam.cli.scenarios import SCENARIOS
 
 
 def _run(policy: str, seed: int, failures: int, ate: float, spec: str = "") -> RunResult:
@@ -58,3 +60,25 @@ def test_paired_differences_take_the_best_rule_policy_seed_by_seed() -> None:
     mean, half = summary["AMM"].figures["tracking_failures"]
     assert mean == pytest.approx(8.5) and half > 0
     assert math.isnan(summary["lff"].figures["device_failure_share"][0])
+
+
+def test_a_failed_run_is_reported_and_the_others_go_on(tmp_path: Path,
+                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    from twinslam.cli import evaluate
+
+    def fake(task: evaluate.RunTask) -> RunResult:
+        if task.key.seed == 1:
+            raise RuntimeError("edge_mapper exited during the run: boom")
+        return _run(task.key.policy, task.key.seed, 3, 0.1)
+
+    monkeypatch.setattr(evaluate, "run_one", fake)
+    tasks = [evaluate.RunTask(RunKey("revisit", "edge", "lff", seed), "synthetic", 10,
+                              SCENARIOS["revisit"], Path("p.yaml"), 10.0, None)
+             for seed in range(3)]
+    lines: list[str] = []
+    results, failures = evaluate.run_all(tasks, tmp_path, jobs=1, echo=lines.append)
+    assert [r.key.seed for r in results] == [0, 2]
+    assert [f.key.seed for f in failures] == [1] and "boom" in failures[0].error
+    assert any("FAILED" in line and "seed 1" in line and "boom" in line for line in lines)
+    assert "RuntimeError: edge_mapper exited" in (tmp_path / "failures.txt").read_text()
+    assert len((tmp_path / "runs.csv").read_text().splitlines()) == 3   # header + 2 runs

@@ -23,6 +23,7 @@ import argparse
 import csv
 import math
 import time
+import traceback
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, fields
@@ -198,32 +199,64 @@ def _line(i: int, total: int, r: RunResult, started: float) -> str:
             f"({elapsed / 60:.1f} min, ~{eta / 60:.1f} min left)")
 
 
+@dataclass
+class RunFailure:
+    """A run that raised: its key and the traceback, reported while the others go on."""
+
+    key: RunKey
+    error: str
+
+
+def run_or_fail(task: RunTask) -> RunResult | RunFailure:
+    """:func:`run_one`, an exception returned as a :class:`RunFailure` instead of raised."""
+    try:
+        return run_one(task)
+    except Exception:                 # any run may fail; the sweep reports it and goes on
+        return RunFailure(task.key, traceback.format_exc())
+
+
 def run_all(tasks: list[RunTask], out: Path, jobs: int = 1,
-            echo: Callable[[str], None] = print) -> list[RunResult]:
+            echo: Callable[[str], None] = print) -> tuple[list[RunResult], list[RunFailure]]:
     """Every task, ``jobs`` at a time in worker processes (1: in this process, one after the
-    other); each result's rows appended as it lands, the results returned in task order."""
+    other); each result's rows appended as it lands, a failed run reported (its traceback in
+    ``failures.txt``) while the rest go on. The results in task order, and the failures."""
     out.mkdir(parents=True, exist_ok=True)
     for name, header in (("runs.csv", RUNS_HEADER), ("calibration.csv", CALIBRATION_HEADER),
                          ("calibration_frames.csv", FRAMES_HEADER)):
         with (out / name).open("w", newline="", encoding="utf-8") as fh:
             csv.writer(fh).writerow(header)
+    (out / "failures.txt").unlink(missing_ok=True)
     started = time.monotonic()
     done: dict[int, RunResult] = {}
+    failed: list[RunFailure] = []
 
-    def land(index: int, result: RunResult) -> None:
+    def land(index: int, result: RunResult | RunFailure) -> None:
+        count = len(done) + len(failed) + 1
+        if isinstance(result, RunFailure):
+            failed.append(result)
+            with (out / "failures.txt").open("a", encoding="utf-8") as fh:
+                fh.write(f"== {asdict(result.key)}\n{result.error}\n")
+            last = result.error.strip().splitlines()[-1] if result.error.strip() else "?"
+            echo(f"[{count}/{len(tasks)}] FAILED {result.key.scenario} {result.key.map_source} "
+                 f"{result.key.policy} seed {result.key.seed}: {last} (traceback in "
+                 f"{out / 'failures.txt'}); the other runs go on")
+            return
         done[index] = result
         _write_result(out, result)
-        echo(_line(len(done), len(tasks), result, started))
+        echo(_line(count, len(tasks), result, started))
 
     if jobs <= 1:
         for i, task in enumerate(tasks):
-            land(i, run_one(task))
+            land(i, run_or_fail(task))
     else:
-        with ProcessPoolExecutor(jobs, mp_context=get_context("spawn")) as pool:
-            futures = {pool.submit(run_one, task): i for i, task in enumerate(tasks)}
+        pool = ProcessPoolExecutor(jobs, mp_context=get_context("spawn"))
+        try:
+            futures = {pool.submit(run_or_fail, task): i for i, task in enumerate(tasks)}
             for future in as_completed(futures):
                 land(futures[future], future.result())
-    return [done[i] for i in range(len(tasks))]
+        finally:        # an interrupt must not wait for every queued run
+            pool.shutdown(wait=True, cancel_futures=True)
+    return [done[i] for i in sorted(done)], failed
 
 
 def side_by_side(results: list[RunResult]) -> list[str]:

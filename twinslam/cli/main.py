@@ -282,6 +282,7 @@ def _real_frame_uplink(sequence: str) -> dict[str, list[str]]:
 
 def cmd_launch(args: argparse.Namespace) -> int:
     from twinslam.cli.launcher import LaunchConfig, Launcher, print_table
+    from twinslam.policy_registry import LEARNED_PREFIX
 
     if not args.params.is_file():
         print(f"error: parameter file {args.params} does not exist", file=sys.stderr)
@@ -317,9 +318,14 @@ def cmd_launch(args: argparse.Namespace) -> int:
         extra.setdefault("device_tracker", []).append(f"map_source:={args.map_source}")
     reports = []
     for policy in [p.strip() for p in args.policy.split(",") if p.strip()]:
+        # a learned policy decides on the twin node's latents: start it with its checkpoint
+        kind, _, checkpoint = policy.partition(":")
+        learned = kind == LEARNED_PREFIX and bool(checkpoint)
+        run_extra = {**extra, **({"udt_node": [f"policy_checkpoint:={checkpoint}"]}
+                                 if learned else {})}
         config = LaunchConfig(args.sequence, policy, args.frames, args.rate, args.params,
-                              with_twin=args.twin, timeout_s=args.timeout, extra=extra,
-                              scenario=chosen, start=args.start)
+                              with_twin=args.twin or learned, timeout_s=args.timeout,
+                              extra=run_extra, scenario=chosen, start=args.start)
         with _launch_domain(args) as dom:
             if args.loopback:
                 dom.activate()
@@ -399,13 +405,18 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
                             covis[ev.sequence_for(args.sequence, k.seed)], args.verbose,
                             args.start)
                  for k in keys]
-        results = ev.run_all(tasks, args.out, args.jobs, lambda line: print(line, flush=True))
+        results, failures = ev.run_all(tasks, args.out, args.jobs,
+                                       lambda line: print(line, flush=True))
     except KeyboardInterrupt:
         print(f"interrupted: the runs that finished are in {args.out / 'runs.csv'}",
               file=sys.stderr)
         return 130
     except (RuntimeError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
+        return 1
+    if not results:
+        print(f"error: every run failed (tracebacks in {args.out / 'failures.txt'})",
+              file=sys.stderr)
         return 1
     rows = ev.summarise(results)
     ev.write_summary(rows, args.out)
@@ -421,6 +432,33 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
               f"Pearson r = {r:.2f}")
     print(f"\nwrote {args.out / 'runs.csv'}, summary.csv, summary.md, summary.png, "
           "paired.csv, paired.md, calibration.csv, calibration_frames.csv")
+    if failures:
+        print(f"error: {len(failures)} of {len(tasks)} runs failed (tracebacks in "
+              f"{args.out / 'failures.txt'}); the tables hold the others", file=sys.stderr)
+        return 1
+    return 0
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    from twinslam.experiments.calibration_report import (
+        calibrate_folders,
+        plot_calibration,
+        report_lines,
+    )
+
+    try:
+        results = calibrate_folders(args.folders)
+    except (FileNotFoundError, KeyError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    if not results:
+        print("error: no calibrated next-slot frame in those folders", file=sys.stderr)
+        return 2
+    for line in report_lines(results):
+        print(line)
+    out = args.out or args.folders[0] / "calibration.png"
+    plot_calibration(args.folders, results, out)
+    print(f"wrote {out}")
     return 0
 
 
@@ -801,7 +839,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="playback speed, × the recorded frame rate")
     launch.add_argument("--params", type=Path, default=REPO_ROOT / "config" / "twinslam.yaml",
                         help="ROS 2 parameter file for the nodes")
-    launch.add_argument("--twin", action="store_true", help="start udt_node too")
+    launch.add_argument("--twin", action="store_true",
+                        help="start udt_node too (a learned policy's run always does, with "
+                        "its checkpoint's twin)")
     launch.add_argument("--loopback", action="store_true",
                         help="a private loopback DDS domain instead of $ROS_DOMAIN_ID")
     launch.add_argument("--hosts", action="store_true",
@@ -830,6 +870,15 @@ def build_parser() -> argparse.ArgumentParser:
     add_arguments(evaluate, str(REAL_SEQUENCE) if REAL_SEQUENCE.is_dir() else "synthetic:300",
                   REPO_ROOT / "config" / "twinslam.yaml", list(SCENARIOS))
     evaluate.set_defaults(func=cmd_evaluate)
+    calibrate = sub.add_parser(
+        "calibrate", help="the rule of a lost frame, measured from `twinslam evaluate` runs: "
+        "lag, threshold, agreement per run (and calibration.png)")
+    calibrate.add_argument("folders", nargs="+", type=Path,
+                           help="output folders of `twinslam evaluate` (calibration.csv and "
+                           "calibration_frames.csv in each)")
+    calibrate.add_argument("--out", type=Path, default=None,
+                           help="the figure to write (default: FIRST_FOLDER/calibration.png)")
+    calibrate.set_defaults(func=cmd_calibrate)
     demo = sub.add_parser("demo", help="the live pipeline per policy with the paper's device "
                           "and the Edge-SLAM style one, then the simulator")
     demo.add_argument("--frames", type=int, default=300,

@@ -18,7 +18,9 @@ predicted lost share and device failure share, precision and recall of "lost" fo
 failure", and Spearman's rank correlation of u with the translation error and with the
 inlier count (over the frames the device tracked and the simulator scores finitely).
 :func:`fit_min_shared` finds the threshold k of "lost: fewer than k shared map points" that
-best separates the device's failures from its tracked frames.
+best separates the device's failures from its tracked frames; :func:`level_min_shared` the one
+at which the predicted lost share reaches the device's failure share (the objective counts
+lost frames, so their number is what it must get right).
 """
 
 from __future__ import annotations
@@ -157,3 +159,17 @@ def fit_min_shared(frames: Sequence[CalibrationFrame], candidates: Iterable[int]
     if best is None:
         raise ValueError("no threshold to try")
     return best
+
+
+def level_min_shared(frames: Sequence[CalibrationFrame], candidates: Iterable[int] = range(1, 201)
+                     ) -> int:
+    """The smallest k at which the share of ``frames`` predicted lost reaches the share the
+    device failed; ValueError when no candidate does (or there are no frames)."""
+    rows = list(frames)
+    if not rows:
+        raise ValueError("no frames to level a threshold on")
+    failed = sum(not f.device_tracked for f in rows) / len(rows)
+    for k in candidates:
+        if sum(f.prediction.lost(k) for f in rows) / len(rows) >= failed:
+            return k
+    raise ValueError(f"no threshold predicts the device's failure share {failed:.1%}")

@@ -1,0 +1,182 @@
+"""``twinslam calibrate``: what live runs say the rule of a lost frame must be (issue #27).
+
+Reads the ``calibration_frames.csv`` and ``calibration.csv`` that ``twinslam evaluate`` wrote in
+one or more folders and measures, per device map source:
+
+* the **lag**: how many first frames of a slot the device tracked with an older map version
+  than the slot's newest (the update of the previous slot still on its way);
+* the **threshold** k of "lost: fewer than k shared map points", fitted on every frame
+  against the map the device really held (so the lag does not blur it): the k of the best
+  balanced accuracy (:func:`~twinslam.simulator.calibration.fit_min_shared`) and the k at which
+  the predicted lost share reaches the device's failure share
+  (:func:`~twinslam.simulator.calibration.level_min_shared`);
+* how well the rule the runs were scored with predicts each run: Pearson's r over runs of the
+  predicted lost share and the device's failure share.
+
+It draws ``calibration.png``: per run, predicted lost share against device failure share (one
+colour per map source); and the device's failure rate against the shared map points, the
+fitted thresholds marked.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from twinslam.common.reporting import pyplot
+from twinslam.simulator.calibration import (
+    CalibrationFrame,
+    FramePrediction,
+    balanced_accuracy,
+    fit_min_shared,
+    level_min_shared,
+)
+
+#: what names a run: two folders may hold runs of the same scenario, policy and seed
+RUN_KEY = ("folder", "scenario", "map_source", "policy", "seed", "spec")
+
+
+@dataclass(frozen=True)
+class SourceCalibration:
+    """What one map source's runs measured."""
+
+    map_source: str
+    runs: int
+    frames: int
+    failure_share: float
+    lag_median: float               #: frames a slot tracked with the previous map version
+    lag_mean: float
+    k_balanced: int                 #: the best-separating threshold...
+    balanced_accuracy: float        #: ...and its balanced accuracy
+    k_level: int                    #: the threshold whose predicted share meets the failures
+    level_balanced_accuracy: float
+    min_shared: int                 #: the threshold the runs were scored with
+    r_over_runs: float              #: Pearson r, predicted lost share vs failure share
+
+
+def _read(path: Path) -> list[dict[str, str]]:
+    """The CSV's rows, each with the folder it came from."""
+    if not path.is_file():
+        raise FileNotFoundError(f"{path} does not exist (written by `twinslam evaluate`)")
+    with path.open(encoding="utf-8") as fh:
+        return [{**row, "folder": str(path.parent)} for row in csv.DictReader(fh)]
+
+
+def _run(row: dict[str, str]) -> tuple[str, ...]:
+    return tuple(row.get(k, "") for k in RUN_KEY)
+
+
+def _frames(rows: Iterable[dict[str, str]]) -> list[CalibrationFrame]:
+    """The frames as predicted against the map the device held when it tracked them."""
+    return [CalibrationFrame(FramePrediction(int(r["shared_points_tracked_map"]),
+                                             float(r["covisibility_tracked_map"]),
+                                             float(r["uncertainty_tracked_map"])),
+                             r["device_tracked"] == "1", int(r["inliers"]),
+                             float(r["translation_error_m"]))
+            for r in rows]
+
+
+def lag_per_slot(rows: Iterable[dict[str, str]]) -> list[int]:
+    """Per run and slot: its frames tracked with an older map version than the slot's newest."""
+    slots: dict[tuple, list[int]] = {}
+    for r in rows:
+        slots.setdefault((*_run(r), r["slot"]), []).append(int(r["map_version"]))
+    return [sum(v < max(versions) for v in versions) for versions in slots.values()]
+
+
+def calibrate_folders(folders: list[Path]) -> list[SourceCalibration]:
+    """Every map source's measurements over the runs of ``folders``."""
+    frames = [r for folder in folders for r in _read(folder / "calibration_frames.csv")]
+    runs = [r for folder in folders for r in _read(folder / "calibration.csv")]
+    out = []
+    for source in dict.fromkeys(r["map_source"] for r in runs):
+        mine = [r for r in frames if r["map_source"] == source]
+        scored = [r for r in runs if r["map_source"] == source and int(r["frames"])]
+        cal = _frames(mine)
+        if not cal:
+            continue
+        failures = sum(not f.device_tracked for f in cal) / len(cal)
+        lags = lag_per_slot(mine)
+        try:
+            k_bal, acc = fit_min_shared(cal)
+            k_level = level_min_shared(cal)
+        except ValueError:            # nothing failed (or nothing tracked): nothing to fit
+            k_bal, acc, k_level = 0, math.nan, 0
+        pred = np.array([float(r["predicted_lost_share"]) for r in scored])
+        fail = np.array([float(r["device_failure_share"]) for r in scored])
+        r_runs = (float(np.corrcoef(pred, fail)[0, 1])
+                  if pred.size >= 3 and np.ptp(pred) > 0 and np.ptp(fail) > 0 else math.nan)
+        out.append(SourceCalibration(
+            source, len(scored), len(cal), failures, float(np.median(lags)),
+            float(np.mean(lags)), k_bal, acc, k_level,
+            balanced_accuracy(cal, k_level) if k_level else math.nan,
+            int(scored[0]["min_shared"]) if scored else 0, r_runs))
+    return out
+
+
+def plot_calibration(folders: list[Path], results: list[SourceCalibration], path: Path) -> None:
+    """The figure of the module docstring."""
+    plt = pyplot()
+    runs = [r for folder in folders for r in _read(folder / "calibration.csv")]
+    frames = [r for folder in folders for r in _read(folder / "calibration_frames.csv")]
+    fig, (left, right) = plt.subplots(1, 2, figsize=(13, 5.2))
+    for res in results:
+        mine = [r for r in runs if r["map_source"] == res.map_source and int(r["frames"])]
+        left.scatter([float(r["predicted_lost_share"]) for r in mine],
+                     [float(r["device_failure_share"]) for r in mine], s=14, alpha=0.7,
+                     label=f"{res.map_source}: {res.runs} runs scored with k = "
+                     f"{res.min_shared}, r = {res.r_over_runs:.2f}")
+        shared = np.array([int(r["shared_points_tracked_map"]) for r in frames
+                           if r["map_source"] == res.map_source])
+        failed = np.array([r["device_tracked"] == "0" for r in frames
+                           if r["map_source"] == res.map_source])
+        edges = np.unique(np.round(np.geomspace(1, max(2, shared.max() + 1), 25)))
+        edges = np.concatenate([[0], edges])
+        idx = np.digitize(shared, edges) - 1
+        centres, rates = [], []
+        for b in range(len(edges) - 1):
+            inside = idx == b
+            if inside.sum() >= 20:
+                centres.append(max(0.5, float(np.median(shared[inside]))))
+                rates.append(float(failed[inside].mean()))
+        right.plot(centres, rates, marker="o", label=f"{res.map_source} ({res.frames} frames)")
+        if res.k_balanced:
+            right.axvline(res.k_balanced, ls=":", color="grey")
+    rule = results[0].min_shared if results else 0
+    if rule:
+        right.axvline(rule, ls="--", color="black", label=f"the rule: k = {rule}")
+    left.plot([0, 1], [0, 1], color="black", lw=0.8)
+    left.set_xlabel("predicted lost share (the simulator's rule, per run)")
+    left.set_ylabel("device failure share (per run)")
+    left.set_title("next-slot frames the simulator calls lost vs the device lost")
+    left.legend()
+    left.grid(alpha=0.3)
+    right.set_xscale("symlog", linthresh=1)
+    right.set_xlim(left=0)
+    right.set_xlabel("map points the frame shares with the map the device held (simulator)")
+    right.set_ylabel("device failure rate")
+    right.set_title("the device fails where few points are shared")
+    right.legend()
+    right.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def report_lines(results: list[SourceCalibration]) -> list[str]:
+    lines = []
+    for r in results:
+        lines.append(
+            f"{r.map_source}: {r.runs} runs, {r.frames} next-slot frames, device failed "
+            f"{r.failure_share:.1%}; lag: median {r.lag_median:.0f} frames a slot (mean "
+            f"{r.lag_mean:.1f}) on the previous map; threshold: best separation k = "
+            f"{r.k_balanced} (balanced accuracy {r.balanced_accuracy:.3f}), level with the "
+            f"failures k = {r.k_level} (balanced accuracy {r.level_balanced_accuracy:.3f}); "
+            f"scored with k = {r.min_shared}: predicted vs failed share over runs r = "
+            f"{r.r_over_runs:.2f}")
+    return lines
