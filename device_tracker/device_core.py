@@ -140,7 +140,9 @@ class DeviceTrackerCore:
         is_track = (ids & np.uint64(TRACK_BIT)) != 0
         assert out.features is not None and out.feature_points is not None
         assoc = out.feature_points
-        point_ids = np.where(assoc >= 0, self.labels[np.maximum(assoc, 0)], np.uint64(0))
+        point_ids = np.zeros(len(assoc), dtype=np.uint64)      # 0: the feature observes none
+        matched = assoc >= 0
+        point_ids[matched] = self.labels[assoc[matched]]      # (the map may hold no point)
         track_ids = ids[is_track]
         if self.tracks is not None and out.tracked:
             f_idx, rows, n_new = self.tracks.observe(out.features, assoc < 0, out.pose, depth,

@@ -216,6 +216,26 @@ def test_edge_mode_loses_a_frame_that_shares_no_point_with_the_map_update() -> N
     assert np.linalg.norm(back.record.pose[:3, 3] - truth[:3, 3]) < 0.05
 
 
+def test_edge_mode_survives_a_map_update_without_points() -> None:
+    """An edge map that holds no point yet (nothing uploaded, or everything evicted): the
+    paper's device loses its frames and keeps going, and tracks again on a real map."""
+    seq = SyntheticSequence(2 * SLOT, seed=0)
+    frames = list(seq)
+    core = DeviceTrackerCore(seq.intrinsics, SLOT, map_source="edge")
+    records = [r.record for r in _track(core, frames[:SLOT])]
+    core.take_slot()
+    later = _update_from_own_points(core, 2, records[0].track_ids)
+    none = np.zeros(0, np.uint64)
+    empty = MapSnapshot(1, none, np.zeros((0, 4, 4)), none, np.zeros((0, 3)),
+                        np.zeros((0, 32), np.uint8), np.zeros(0, np.uint32))
+    assert core.apply_map_update(empty, 0) and len(core.tracking.map) == 0
+    lost = _track(core, frames[SLOT:SLOT + 2])
+    assert not any(r.record.tracked for r in lost)
+    assert core.upload(SLOT) is not None and not core.upload(SLOT).point_ids.any()
+    assert core.apply_map_update(later, 1)
+    assert _track(core, frames[SLOT + 2:SLOT + 3])[0].record.tracked
+
+
 def test_an_unknown_map_source_is_refused_and_a_known_one_applies_at_the_next_frame() -> None:
     seq = SyntheticSequence(2 * SLOT, seed=0)
     frames = list(seq)

@@ -28,6 +28,7 @@ from twinslam_msgs.msg import (
     FrameSummaries,
     MapStats,
     MapUpdate,
+    RateLatent,
     UplinkThroughput,
     UploadRequest,
 )
@@ -72,6 +73,7 @@ class RunRecord:
     maps: dict[int, MapSnapshot] = field(default_factory=dict)   #: last map update per slot
     poses: dict[int, np.ndarray] = field(default_factory=dict)        #: stamp ns → pose
     ground_truth: dict[int, np.ndarray] = field(default_factory=dict)
+    latents: dict[int, Any] = field(default_factory=dict)    #: the twin's, by slot
     images_received: int = 0        #: /camera/image_raw samples, when the monitor watches them
 
 
@@ -134,6 +136,9 @@ class PipelineMonitor:
                             lambda m: r.requests.__setitem__(int(m.slot), m), qos.PROTOCOL)
         sub(UplinkThroughput, topics.UPLINK_THROUGHPUT,
             lambda m: r.throughput.__setitem__(int(m.slot), m), qos.PROTOCOL)
+        #: its publisher count says whether the twin is up (it publishes once its model is in)
+        self.latents = sub(RateLatent, topics.RATE_LATENT,
+                           lambda m: r.latents.__setitem__(int(m.slot), m), qos.PROTOCOL)
         sub(MapStats, topics.MAP_STATS, self._stats, qos.PROTOCOL)
         # every map the edge sends (not only the latest a late joiner gets)
         map_qos = rclpy.qos.QoSProfile(depth=100, durability=qos.MAP.durability,
@@ -233,7 +238,7 @@ class Launcher:
     """Starts the nodes on ``domain`` and watches them; ``run`` blocks until the sequence is
     played and the edge has answered its last full slot."""
 
-    NODES = ("edge_mapper", "device_tracker", "udt_node", "sequence_player")
+    NODES = ("edge_mapper", "udt_node", "device_tracker", "sequence_player")
 
     def __init__(self, domain: ProcessDomain, config: LaunchConfig,
                  echo: Callable[[str], None] | None = print) -> None:
@@ -297,9 +302,20 @@ class Launcher:
                 raise RuntimeError("edge_mapper did not come up within 120 s")
             if edge.poll() is not None:
                 raise RuntimeError(f"edge_mapper exited with {edge.returncode} at start")
-            for name in self.NODES[1:]:
-                if name != "udt_node" or c.with_twin:
-                    self.start(name)
+            if c.with_twin:
+                # the twin before the camera: a twin-driven policy decides a slot with the
+                # edge's fallback policy until the twin's first latent (loading torch and a
+                # model takes seconds, more on a loaded machine)
+                twin = self.start("udt_node")
+                if not session.spin_until(lambda: monitor.latents.get_publisher_count() > 0
+                                           or twin.poll() is not None, min(120.0, c.timeout_s)):
+                    raise RuntimeError("udt_node did not come up within 120 s")
+                if twin.poll() is not None:
+                    _, _, err = self.domain.stop(self.procs.pop("udt_node"))
+                    raise RuntimeError(f"udt_node exited with {twin.returncode} at start: "
+                                       f"{err.strip()[-500:]}")
+            for name in ("device_tracker", "sequence_player"):
+                self.start(name)
             player = self.procs["sequence_player"]
             deadline = started + c.timeout_s
             session.spin_until(lambda: player.poll() is not None or self._failed(),
