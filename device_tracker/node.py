@@ -101,7 +101,7 @@ class DeviceTrackerNode(Node):
         self.last_slot = -1                      #: the last slot whose summaries went out
         self.path: list[Any] = []
         DeviceTrackerCore.warm_up()
-        self._lock = threading.Lock()            # the core, between callbacks and uploads
+        self._lock = threading.Lock()            # the core, between the node's callbacks
         self.pub_pose = self.create_publisher(PoseStamped, topics.DEVICE_POSE, qos.PROTOCOL)
         self.pub_path = self.create_publisher(Path, topics.DEVICE_PATH, qos.MAP)
         self.pub_summaries = self.create_publisher(FrameSummaries, topics.FRAME_SUMMARIES,
@@ -243,9 +243,10 @@ class DeviceTrackerNode(Node):
         """A requested frame's bytes on the upload thread; None, and an error logged, when the
         device no longer holds it."""
         core = self.core
-        with self._lock:
-            data = core.upload(frame_id) if core else None
-            image = core.upload_image(frame_id) if core else None
+        # no lock: a finished frame's upload is never changed, and a dict lookup is atomic;
+        # waiting on the tracking thread's lock stalled uploads for seconds on a busy machine
+        data = core.upload(frame_id) if core else None
+        image = core.upload_image(frame_id) if core else None
         if data is None:
             self.get_logger().error(f"slot {slot}: frame {frame_id} was asked for but is "
                                     "no longer held; not sent")

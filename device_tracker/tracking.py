@@ -46,6 +46,10 @@ class TrackingConfig:
     relocalise: bool = False           #: a frame the motion model loses is matched against
     #: every active point by descriptor alone and solved by PnP RANSAC (ORB-SLAM's
     #: relocalisation, without its bag of words: the device's local map is small)
+    relocalise_every: int = 3          #: while lost, relocalisation is tried on every this
+    #: many-th frame (and at once on a new map): matching every map point costs 3-6 tracked
+    #: frames (20-55 ms against 7-17 k points on 7-Scenes), and a device that tries it on
+    #: every frame falls behind the camera exactly when it is lost
     reinit_after: int = 60             #: lost this many frames in a row: start afresh from
     #: depth at the last pose (no new points from a lost frame before: its pose is a guess)
     own_points: bool = True            #: keyframes add map points of their own (ORB-SLAM's
@@ -87,6 +91,7 @@ class Tracking:
         self._lost = 0                                  # frames lost in a row
         self._probation: list[tuple[int, np.ndarray]] = []   # (frame, ids) of new points
         self._visible = np.zeros(0, dtype=np.int64)
+        self._new_map = False                           # replaced since the last relocalisation
 
     def track(self, color: np.ndarray, depth: np.ndarray | None) -> TrackedFrame:
         index = self._count
@@ -105,7 +110,8 @@ class Tracking:
         matched_feat, matched_ids = self._match(feats, predicted, color.shape[:2])
         pose, inliers = self._solve_pose(feats.points[matched_feat], matched_ids, predicted)
         relocalised = False
-        if pose is None and self.config.relocalise:
+        if pose is None and self._relocalisation_due():
+            self._new_map = False
             matched_feat, matched_ids = self._match_all(feats)
             pose, inliers = self._solve_pose(feats.points[matched_feat], matched_ids, None)
             relocalised = pose is not None
@@ -146,6 +152,7 @@ class Tracking:
         ``old_to_new[i]`` is the new id of old point i, or -1 where it is gone. Points still on
         probation keep it; the motion model and the pose carry on."""
         self.map = points
+        self._new_map = True
         probation = []
         for frame, ids in self._probation:
             kept = old_to_new[ids]
@@ -154,6 +161,12 @@ class Tracking:
         self._visible = np.zeros(0, dtype=np.int64)
 
     # -- steps ------------------------------------------------------------------------------
+
+    def _relocalisation_due(self) -> bool:
+        """Relocalise this lost frame: the first of a loss, every ``relocalise_every``-th
+        after it, and the first after a new map (``_lost`` counts the frames lost before)."""
+        cfg = self.config
+        return cfg.relocalise and (self._new_map or self._lost % cfg.relocalise_every == 0)
 
     def _fuse(self, feats: Features, free: np.ndarray, pose: np.ndarray,
               shape: tuple[int, int], index: int) -> tuple[np.ndarray, np.ndarray]:

@@ -257,3 +257,28 @@ def test_an_unknown_map_source_is_refused_and_a_known_one_applies_at_the_next_fr
     after = _track(core, frames[SLOT + 3:])
     assert all(r.record.tracked for r in after)
     assert sorted(core.labels.tolist()) == sorted(update.point_ids.tolist())
+
+
+def test_a_lost_device_relocalises_on_every_third_frame_and_at_once_on_a_new_map() -> None:
+    """Matching every map point costs several tracked frames: while lost the device tries it
+    on the first lost frame and every third after, and again as soon as a new map arrives."""
+    seq = SyntheticSequence(SLOT + 1, seed=1)
+    frames = list(seq)
+    core = DeviceTrackerCore(seq.intrinsics, SLOT, map_source="edge")
+    records = [r.record for r in _track(core, frames[:SLOT])]
+    core.take_slot()
+    attempts: list[int] = []
+    search = core.tracking._match_all
+
+    def counted(feats):  # type: ignore[no-untyped-def]
+        attempts.append(core.tracking.frames_tracked)
+        return search(feats)
+
+    core.tracking._match_all = counted  # type: ignore[method-assign]
+    blank = np.zeros_like(frames[0].color)
+    for i in range(7):
+        assert not core.track(blank, None, frames[SLOT].stamp + i / 30).record.tracked
+    assert attempts == [SLOT + 1, SLOT + 4, SLOT + 7]       # lost frames 1, 4 and 7
+    assert core.apply_map_update(_update_from_own_points(core, 1, records[0].track_ids), 0)
+    core.track(blank, None, frames[SLOT].stamp + 7 / 30)
+    assert attempts[-1] == SLOT + 8, "a new map is tried at once"

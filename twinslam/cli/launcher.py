@@ -82,7 +82,7 @@ class RunReport:
     policy: str
     slots: int
     mean_uncertainty: float          #: mean υ over slots, a lost next-slot frame scoring 0
-    lost_ratio: float                #: mean share of next-slot frames sharing no map point
+    lost_ratio: float                #: mean share of next-slot frames MapStats calls lost
     tracked_uncertainty: float       #: mean υ over slots, tracked next-slot frames only
     ate_m: float                     #: NaN without ground truth
     rpe_m: float                     #: over 1 s (30 frames); NaN without ground truth
@@ -98,6 +98,9 @@ class RunReport:
     #: which policy decided how many slots (``UploadRequest.policy``), e.g. "amm-regime:28
     #: adapt:2" — a learned policy's fallback shows here
     decided_by: str = ""
+    #: camera frames missing from the device's complete slots (dropped or skipped): a device
+    #: that fell behind the camera (an overloaded machine) shows here
+    frames_dropped: int = 0
 
     ROW = ("{label:<14} {mean_uncertainty:>10.1f} {lost_ratio:>6.1%} "
            "{tracked_uncertainty:>10.1f} {ate_m:>7.3f} "
@@ -208,6 +211,12 @@ def report(policy: str, record: RunRecord, seconds: float) -> RunReport:
                      events.mean_recover_s,
                      float(np.median([s.slot_processing_ms for s in stats])) if stats
                      else math.nan, seconds, deciders(record))
+
+
+def dropped_frames(record: RunRecord, slot_frames: int) -> int:
+    """Frames missing from every slot but the last (which the run may end inside)."""
+    slots = sorted(record.summaries)[:-1]
+    return sum(max(0, slot_frames - len(record.summaries[s].frames)) for s in slots)
 
 
 def deciders(record: RunRecord) -> str:
@@ -339,7 +348,10 @@ class Launcher:
                 # used up most of the run's timeout
                 min(60.0, max(10.0, deadline - time.monotonic())))
             session.spin_until(lambda: False, 0.5)       # late poses and map updates
-            return report(c.policy, monitor.record, time.monotonic() - started)
+            out = report(c.policy, monitor.record, time.monotonic() - started)
+            out.frames_dropped = dropped_frames(
+                monitor.record, int(self._device_param("slot_frames", table1.SLOT_FRAMES)))
+            return out
         finally:
             self.stop()
             session.close()

@@ -34,6 +34,11 @@ class MbrlPolicy:
     name = "mbrl"
 
     def __init__(self, checkpoint: Path) -> None:
+        # a checkpoint loaded to decide (an edge node, the simulator): a GCN over a few dozen
+        # frames gains nothing from a second intra-op thread, whose spinning starves the
+        # node's other work when several nodes share the cores (two live runs on 2 cores
+        # stalled their edges' uploads for seconds)
+        torch.set_num_threads(1)
         path = Path(checkpoint)
         try:
             blob = torch.load(path, map_location="cpu", weights_only=True)

@@ -50,7 +50,8 @@ class PooledScores:
 
     @property
     def lost_ratio(self) -> float:
-        """Share of next-slot frames, over every run, that share no map point."""
+        """Share of next-slot frames, over every run, that are lost (too few shared map
+        points: twinslam/common/tracking_rule.py)."""
         return self.pooled.lost_share
 
     @property

@@ -23,7 +23,8 @@ import numpy as np
 from twinslam.uncertainty import laplacian_kernels as kernels
 from twinslam.uncertainty.laplacian_factorization import PIVOT_RTOL, LaplacianFactorization
 
-#: u of a next-slot frame that shares no map point. The paper's u is +inf there (the frame
+#: u of a lost next-slot frame (twinslam/common/tracking_rule.py: too few shared map points;
+#: in the paper, one that shares none). The paper's u is +inf there (the frame
 #: cannot be tracked); a finite objective needs a number, and DESIGN.md §2 scores such a frame
 #: as a frame with no map at all: u = 0, worse than any tracked frame (with Π = I and integer
 #: covisibility weights every tracked frame has u <= 0). The u(G) + 100 used before issue #18
@@ -122,7 +123,7 @@ class SlotUncertainty:
 
     @property
     def lost_ratio(self) -> float:
-        """Share of the next slot's frames that share no map point (they lose tracking)."""
+        """Share of the next slot's frames that are lost (too few shared map points)."""
         return self.n_lost / self.n_frames
 
     @property
