@@ -82,3 +82,43 @@ def test_a_failed_run_is_reported_and_the_others_go_on(tmp_path: Path,
     assert any("FAILED" in line and "seed 1" in line and "boom" in line for line in lines)
     assert "RuntimeError: edge_mapper exited" in (tmp_path / "failures.txt").read_text()
     assert len((tmp_path / "runs.csv").read_text().splitlines()) == 3   # header + 2 runs
+
+
+def test_an_interrupted_evaluation_resumes_with_what_it_measured(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from twinslam.cli import evaluate
+
+    ran: list[int] = []
+
+    def fake(task: evaluate.RunTask) -> RunResult:
+        ran.append(task.key.seed)
+        run = _run(task.key.policy, task.key.seed, task.key.seed + 2, 0.1 * task.key.seed,
+                   task.key.spec)
+        return RunResult(task.key, run.report, None, None)
+
+    monkeypatch.setattr(evaluate, "run_one", fake)
+    # a label over a checkpoint: runs.csv then has two policy columns, "AMM" and the spec
+    tasks = [evaluate.RunTask(RunKey("revisit", "edge", "AMM", seed, "mbrl:a.pt"), "synthetic",
+                              10,
+                              SCENARIOS["revisit"], Path("p.yaml"), 10.0, None)
+             for seed in range(4)]
+    first, _ = evaluate.run_all(tasks[:2], tmp_path, jobs=1, echo=lambda _: None)
+    lines: list[str] = []
+    results, failures = evaluate.run_all(tasks, tmp_path, jobs=1, echo=lines.append,
+                                         resume=True)
+    assert ran == [0, 1, 2, 3] and not failures          # seeds 0, 1 not run again
+    assert "resuming: 2 of 4 runs" in lines[0]
+    assert [r.key for r in results] == [t.key for t in tasks]
+    assert [r.report for r in results[:2]] == [r.report for r in first]   # read back exactly
+    assert len((tmp_path / "runs.csv").read_text().splitlines()) == 5   # one header, 4 runs
+    summary = summarise(results)[0]
+    assert summary.runs == 4
+    assert summary.figures["tracking_failures"][0] == pytest.approx(3.5)
+
+
+def test_resuming_into_a_folder_of_another_version_is_refused(tmp_path: Path) -> None:
+    from twinslam.cli import evaluate
+
+    (tmp_path / "runs.csv").write_text("scenario,policy,seed\nrevisit,lff,0\n")
+    with pytest.raises(ValueError, match="another version"):
+        evaluate.finished_runs(tmp_path)

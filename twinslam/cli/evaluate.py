@@ -187,9 +187,9 @@ def _write_result(out: Path, result: RunResult) -> None:
         for f in result.frames.frames])
 
 
-def _line(i: int, total: int, r: RunResult, started: float) -> str:
+def _line(i: int, total: int, r: RunResult, started: float, resumed: int = 0) -> str:
     elapsed = time.monotonic() - started
-    eta = elapsed / i * (total - i)
+    eta = elapsed / max(i - resumed, 1) * (total - i)
     rep, cal = r.report, r.calibration
     side = (f", predicted lost {cal.predicted_lost_share:.1%} vs device failed "
             f"{cal.device_failure_share:.1%}" if cal is not None else "")
@@ -215,19 +215,68 @@ def run_or_fail(task: RunTask) -> RunResult | RunFailure:
         return RunFailure(task.key, traceback.format_exc())
 
 
+#: how a runs.csv / calibration.csv cell is read back, by the dataclass field's annotation
+_CELL = {"int": int, "float": float, "str": str}
+
+
+def _read_rows(path: Path, header: list[str]) -> list[list[str]]:
+    """The rows of one of the tables :func:`run_all` writes, by position: runs.csv has two
+    ``policy`` columns (the label and the report's)."""
+    with path.open(newline="", encoding="utf-8") as fh:
+        rows = list(csv.reader(fh))
+    if not rows or rows[0] != header:
+        raise ValueError(f"{path} was written by another version of twinslam evaluate "
+                         f"(its columns differ); resume into a new --out folder")
+    return rows[1:]
+
+
+def _typed(cls: type, cells: list[str]) -> object:
+    """A dataclass from its fields' cells, in field order."""
+    return cls(*(_CELL[str(f.type)](c) for f, c in zip(fields(cls), cells, strict=True)))
+
+
+def finished_runs(out: Path) -> dict[RunKey, RunResult]:
+    """The runs an earlier evaluation into ``out`` finished, by key (``runs.csv`` and
+    ``calibration.csv``; the frames stay in ``calibration_frames.csv``): an evaluation that
+    was interrupted after an hour resumes where it stopped instead of starting over."""
+    if not (out / "runs.csv").is_file():
+        return {}
+    n_key = len(fields(RunKey))
+    calibrations = {}
+    if (out / "calibration.csv").is_file():
+        skip = len(CALIBRATION_HEADER) - len(fields(Calibration))   # min_shared, startup, ..
+        for row in _read_rows(out / "calibration.csv", CALIBRATION_HEADER):
+            calibrations[_typed(RunKey, row[:n_key])] = _typed(Calibration, row[skip:])
+    finished = {}
+    for row in _read_rows(out / "runs.csv", RUNS_HEADER):
+        key = _typed(RunKey, row[:n_key])
+        finished[key] = RunResult(key, _typed(RunReport, row[n_key:]), None,
+                                  calibrations.get(key))
+    return finished
+
+
 def run_all(tasks: list[RunTask], out: Path, jobs: int = 1,
-            echo: Callable[[str], None] = print) -> tuple[list[RunResult], list[RunFailure]]:
+            echo: Callable[[str], None] = print,
+            resume: bool = False) -> tuple[list[RunResult], list[RunFailure]]:
     """Every task, ``jobs`` at a time in worker processes (1: in this process, one after the
     other); each result's rows appended as it lands, a failed run reported (its traceback in
-    ``failures.txt``) while the rest go on. The results in task order, and the failures."""
+    ``failures.txt``) while the rest go on. With ``resume``, the runs ``out`` already holds
+    are read back instead of run again (a failed one is tried again). The results in task
+    order, and the failures."""
     out.mkdir(parents=True, exist_ok=True)
+    earlier = finished_runs(out) if resume else {}
     for name, header in (("runs.csv", RUNS_HEADER), ("calibration.csv", CALIBRATION_HEADER),
                          ("calibration_frames.csv", FRAMES_HEADER)):
-        with (out / name).open("w", newline="", encoding="utf-8") as fh:
-            csv.writer(fh).writerow(header)
+        if not (resume and (out / name).is_file()):
+            with (out / name).open("w", newline="", encoding="utf-8") as fh:
+                csv.writer(fh).writerow(header)
     (out / "failures.txt").unlink(missing_ok=True)
     started = time.monotonic()
-    done: dict[int, RunResult] = {}
+    done = {i: earlier[t.key] for i, t in enumerate(tasks) if t.key in earlier}
+    if done:
+        echo(f"resuming: {len(done)} of {len(tasks)} runs already in {out / 'runs.csv'}")
+    earlier_done = set(done)
+    todo = [(i, t) for i, t in enumerate(tasks) if i not in done]
     failed: list[RunFailure] = []
 
     def land(index: int, result: RunResult | RunFailure) -> None:
@@ -243,15 +292,15 @@ def run_all(tasks: list[RunTask], out: Path, jobs: int = 1,
             return
         done[index] = result
         _write_result(out, result)
-        echo(_line(count, len(tasks), result, started))
+        echo(_line(count, len(tasks), result, started, len(earlier_done)))
 
     if jobs <= 1:
-        for i, task in enumerate(tasks):
+        for i, task in todo:
             land(i, run_or_fail(task))
-    else:
+    elif todo:
         pool = ProcessPoolExecutor(jobs, mp_context=get_context("spawn"))
         try:
-            futures = {pool.submit(run_or_fail, task): i for i, task in enumerate(tasks)}
+            futures = {pool.submit(run_or_fail, task): i for i, task in todo}
             for future in as_completed(futures):
                 land(futures[future], future.result())
         finally:        # an interrupt must not wait for every queued run
@@ -494,6 +543,9 @@ def add_arguments(parser: argparse.ArgumentParser, default_sequence: str,
                         help="folder for runs.csv, summary.csv/.md/.png, calibration.csv, "
                         "calibration_frames.csv (and covis/, the played frames' "
                         "covisibility); default %(default)s")
+    parser.add_argument("--resume", action="store_true",
+                        help="keep the runs --out already holds (an interrupted evaluation) "
+                        "and run only the missing ones; the tables cover both")
     parser.add_argument("--timeout", type=float, default=900.0,
                         help="seconds one run may take before its nodes are stopped; default "
                         "%(default)s")

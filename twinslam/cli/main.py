@@ -406,10 +406,10 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
                             args.start)
                  for k in keys]
         results, failures = ev.run_all(tasks, args.out, args.jobs,
-                                       lambda line: print(line, flush=True))
+                                       lambda line: print(line, flush=True), args.resume)
     except KeyboardInterrupt:
-        print(f"interrupted: the runs that finished are in {args.out / 'runs.csv'}",
-              file=sys.stderr)
+        print(f"interrupted: the runs that finished are in {args.out / 'runs.csv'} "
+              "(the same command with --resume runs the rest)", file=sys.stderr)
         return 130
     except (RuntimeError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
