@@ -176,3 +176,33 @@ def test_the_first_frames_of_a_slot_are_predicted_against_the_map_before() -> No
     without = {(f.slot, f.position): f.calibration.prediction.shared_points
                for f in live_frames(record, data, played, lag_frames=0).frames}
     assert without[(2, 0)] == 2
+
+
+def test_agreement_per_scenario_on_hand_made_runs(tmp_path) -> None:
+    """The calibration table: per map source and scenario the mean shares, their mean absolute
+    error and r over runs; a run with no scored frame is left out."""
+    import csv
+
+    from twinslam.cli.evaluate import CALIBRATION_HEADER
+    from twinslam.experiments.calibration_report import agreement_by_scenario
+
+    runs = [("v15", 0, 0.10, 0.12), ("v15", 1, 0.20, 0.18), ("v15", 2, 0.40, 0.45),
+            ("v25", 0, 0.30, 0.10), ("v25", 1, 0.10, 0.30), ("v25", 2, 0.20, 0.20)]
+    with (tmp_path / "calibration.csv").open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(CALIBRATION_HEADER)
+        for scenario, seed, predicted, failed in runs:
+            w.writerow([scenario, "edge", "lff", seed, "", 35, 2, 0, 100, predicted, failed,
+                        0.8, 0.7, "nan", -0.2])
+        w.writerow(["v25", "edge", "lff", 3, "", 35, 2, 0, 0, "nan", "nan", "nan", "nan",
+                    "nan", "nan"])
+    rows = {a.scenario: a for a in agreement_by_scenario([tmp_path])}
+    assert list(rows) == ["v15", "v25", "all"]
+    v15, v25 = rows["v15"], rows["v25"]
+    assert v15.runs == 3 and v25.runs == 3 and rows["all"].runs == 6
+    assert v15.predicted_lost_share == pytest.approx(0.70 / 3)
+    assert v15.device_failure_share == pytest.approx(0.75 / 3)
+    assert v15.mean_abs_error == pytest.approx(0.09 / 3)
+    assert v15.r_over_runs > 0.95 and v25.r_over_runs == pytest.approx(-1.0)
+    assert v15.precision == pytest.approx(0.8) and v15.spearman_u_inliers == pytest.approx(-0.2)
+    assert math.isnan(v15.spearman_u_error)           # no run measured it

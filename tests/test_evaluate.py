@@ -68,6 +68,7 @@ def test_evaluate_runs_every_seed_and_summarises(tmp_path: Path,
     assert "edge: 1 runs" in report and "edge+local: 1 runs" in report
     assert "frames a slot" in report and "best separation k =" in report
     assert (out / "calibration.png").stat().st_size > 10_000
+    assert "| edge+local | revisit-lost | 1 |" in (out / "calibration.md").read_text()
     assert main(["calibrate", str(tmp_path / "nowhere")]) == 2
 
 

@@ -440,7 +440,13 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
+    from dataclasses import asdict, fields
+
+    from twinslam.common.reporting import write_csv
     from twinslam.experiments.calibration_report import (
+        ScenarioAgreement,
+        agreement_by_scenario,
+        agreement_markdown,
         calibrate_folders,
         plot_calibration,
         report_lines,
@@ -448,6 +454,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
     try:
         results = calibrate_folders(args.folders)
+        agreement = agreement_by_scenario(args.folders)
     except (FileNotFoundError, KeyError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -456,9 +463,15 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         return 2
     for line in report_lines(results):
         print(line)
+    table = agreement_markdown(agreement)
+    print("\nper map source and scenario (shares and measures: mean over runs):")
+    print(table)
     out = args.out or args.folders[0] / "calibration.png"
     plot_calibration(args.folders, results, out)
-    print(f"wrote {out}")
+    write_csv(out.with_suffix(".csv"), [f.name for f in fields(ScenarioAgreement)],
+              [list(asdict(a).values()) for a in agreement])
+    out.with_suffix(".md").write_text(table + "\n", encoding="utf-8")
+    print(f"wrote {out}, {out.with_suffix('.csv')} and {out.with_suffix('.md')}")
     return 0
 
 
@@ -872,12 +885,13 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.set_defaults(func=cmd_evaluate)
     calibrate = sub.add_parser(
         "calibrate", help="the rule of a lost frame, measured from `twinslam evaluate` runs: "
-        "lag, threshold, agreement per run (and calibration.png)")
+        "lag, threshold, agreement per run and per scenario (calibration.png, .csv, .md)")
     calibrate.add_argument("folders", nargs="+", type=Path,
                            help="output folders of `twinslam evaluate` (calibration.csv and "
                            "calibration_frames.csv in each)")
     calibrate.add_argument("--out", type=Path, default=None,
-                           help="the figure to write (default: FIRST_FOLDER/calibration.png)")
+                           help="the figure to write, the table beside it as .csv and .md "
+                           "(default: FIRST_FOLDER/calibration.png)")
     calibrate.set_defaults(func=cmd_calibrate)
     demo = sub.add_parser("demo", help="the live pipeline per policy with the paper's device "
                           "and the Edge-SLAM style one, then the simulator")

@@ -11,7 +11,8 @@ one or more folders and measures, per device map source:
   the predicted lost share reaches the device's failure share
   (:func:`~twinslam.simulator.calibration.level_min_shared`);
 * how well the rule the runs were scored with predicts each run: Pearson's r over runs of the
-  predicted lost share and the device's failure share.
+  predicted lost share and the device's failure share, over all runs and per scenario (the
+  calibration table: :func:`agreement_by_scenario`).
 
 It draws ``calibration.png``: per run, predicted lost share against device failure share (one
 colour per map source); and the device's failure rate against the shared map points, the
@@ -109,14 +110,81 @@ def calibrate_folders(folders: list[Path]) -> list[SourceCalibration]:
             k_bal, acc, k_level = 0, math.nan, 0
         pred = np.array([float(r["predicted_lost_share"]) for r in scored])
         fail = np.array([float(r["device_failure_share"]) for r in scored])
-        r_runs = (float(np.corrcoef(pred, fail)[0, 1])
-                  if pred.size >= 3 and np.ptp(pred) > 0 and np.ptp(fail) > 0 else math.nan)
+        r_runs = _pearson(pred, fail)
         out.append(SourceCalibration(
             source, len(scored), len(cal), failures, float(np.median(lags)),
             float(np.mean(lags)), k_bal, acc, k_level,
             balanced_accuracy(cal, k_level) if k_level else math.nan,
             int(scored[0]["min_shared"]) if scored else 0, r_runs))
     return out
+
+
+@dataclass(frozen=True)
+class ScenarioAgreement:
+    """How well the rule predicted the runs of one map source and scenario: the calibration
+    table of docs/results.md. Shares and measures are means over runs; ``r`` is over runs."""
+
+    map_source: str
+    scenario: str
+    runs: int
+    predicted_lost_share: float
+    device_failure_share: float
+    mean_abs_error: float           #: of the predicted share per run, in share points
+    r_over_runs: float              #: NaN below 3 runs or without spread
+    precision: float                #: P(device failed | predicted lost), mean over runs
+    recall: float                   #: P(predicted lost | device failed), mean over runs
+    spearman_u_error: float         #: ρ(u, translation error), mean over runs
+    spearman_u_inliers: float       #: ρ(u, inlier count), mean over runs
+
+
+def _pearson(x: np.ndarray, y: np.ndarray) -> float:
+    return (float(np.corrcoef(x, y)[0, 1])
+            if x.size >= 3 and np.ptp(x) > 0 and np.ptp(y) > 0 else math.nan)
+
+
+def _nanmean(values: Iterable[str]) -> float:
+    v = np.array([float(x) for x in values], dtype=np.float64)
+    v = v[np.isfinite(v)]
+    return float(v.mean()) if v.size else math.nan
+
+
+def agreement_by_scenario(folders: list[Path]) -> list[ScenarioAgreement]:
+    """Per map source and scenario (in the order the runs came; "all" last per map source):
+    the predicted lost share beside the device's failure share, and the per-run measures
+    ``calibration.csv`` holds. r over one scenario's runs says whether the rule follows the
+    run-to-run variation, not only the level."""
+    runs = [r for folder in folders for r in _read(folder / "calibration.csv")
+            if int(r["frames"])]
+    out = []
+    for source in dict.fromkeys(r["map_source"] for r in runs):
+        mine = [r for r in runs if r["map_source"] == source]
+        groups = {s: [r for r in mine if r["scenario"] == s]
+                  for s in dict.fromkeys(r["scenario"] for r in mine)}
+        if len(groups) > 1:
+            groups["all"] = mine
+        for scenario, rows in groups.items():
+            pred = np.array([float(r["predicted_lost_share"]) for r in rows])
+            fail = np.array([float(r["device_failure_share"]) for r in rows])
+            out.append(ScenarioAgreement(
+                source, scenario, len(rows), float(pred.mean()), float(fail.mean()),
+                float(np.abs(pred - fail).mean()), _pearson(pred, fail),
+                _nanmean(r["precision"] for r in rows), _nanmean(r["recall"] for r in rows),
+                _nanmean(r["spearman_u_error"] for r in rows),
+                _nanmean(r["spearman_u_inliers"] for r in rows)))
+    return out
+
+
+def agreement_markdown(rows: list[ScenarioAgreement]) -> str:
+    """The table :func:`agreement_by_scenario` measures, as docs/results.md shows it."""
+    lines = ["| map source | scenario | runs | predicted lost | device failed | mean abs. "
+             "error | r over runs | precision | recall | ρ(u, error) | ρ(u, inliers) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines += [f"| {a.map_source} | {a.scenario} | {a.runs} | {a.predicted_lost_share:.1%} | "
+              f"{a.device_failure_share:.1%} | {100 * a.mean_abs_error:.1f} pts | "
+              f"{a.r_over_runs:.2f} | "
+              f"{a.precision:.2f} | {a.recall:.2f} | {a.spearman_u_error:.2f} | "
+              f"{a.spearman_u_inliers:.2f} |" for a in rows]
+    return "\n".join(lines)
 
 
 def plot_calibration(folders: list[Path], results: list[SourceCalibration], path: Path) -> None:
