@@ -122,3 +122,13 @@ def test_resuming_into_a_folder_of_another_version_is_refused(tmp_path: Path) ->
     (tmp_path / "runs.csv").write_text("scenario,policy,seed\nrevisit,lff,0\n")
     with pytest.raises(ValueError, match="another version"):
         evaluate.finished_runs(tmp_path)
+
+
+def test_the_summary_table_shows_shares_to_a_tenth_of_a_percent() -> None:
+    from twinslam.cli.evaluate import METRICS, SummaryRow, markdown_table
+
+    figures = {m: (1.0, 0.5) for m, _, _ in METRICS}
+    figures["device_failure_share"] = (0.2345, 0.0412)
+    figures["predicted_lost_share"] = (0.0071, math.nan)
+    table = markdown_table([SummaryRow("revisit-v15", "edge", "lff", 10, figures)])
+    assert "| 0.234 ± 0.041 | 0.007 |" in table

@@ -433,7 +433,8 @@ def paired_markdown(rows: list[PairedRow]) -> str:
 def _cell(mean: float, half: float, metric: str) -> str:
     if math.isnan(mean):
         return "–"
-    digits = {"ate_m": 3, "rpe_m": 3, "recover_s": 2, "lost_ratio": 3}.get(metric, 1)
+    digits = {"ate_m": 3, "rpe_m": 3, "recover_s": 2, "lost_ratio": 3,
+              "device_failure_share": 3, "predicted_lost_share": 3}.get(metric, 1)
     return f"{mean:.{digits}f}" + ("" if math.isnan(half) else f" ± {half:.{digits}f}")
 
 
