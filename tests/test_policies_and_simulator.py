@@ -346,3 +346,16 @@ def test_adapt_policy_object_is_usable_by_name() -> None:
     assert isinstance(make_policy("adapt"), Adapt)
     with pytest.raises(ValueError, match="unknown policy"):
         make_policy("magic")
+
+
+def test_training_runs_of_one_learned_variant_get_rows_of_their_own() -> None:
+    """`twinslam sim --policy mbrl:a.pt,mbrl:b.pt`: both are "amm-regime-real" by kind; the
+    table must tell them apart (by checkpoint) and leave unique labels alone."""
+    from twinslam.simulator.evaluation import distinct_labels
+
+    labels = distinct_labels({"lff": "lff", "mbrl:runs/amm_s0.pt": "amm-regime-real",
+                              "mbrl:runs/amm_s1.pt": "amm-regime-real",
+                              "mbrl:other.pt": "amm-udt", "reference": "reference"})
+    assert labels == {"lff": "lff", "mbrl:runs/amm_s0.pt": "amm-regime-real (amm_s0)",
+                      "mbrl:runs/amm_s1.pt": "amm-regime-real (amm_s1)",
+                      "mbrl:other.pt": "amm-udt", "reference": "reference"}

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -83,6 +84,15 @@ class PolicyResult(PooledScores):
         return mean_ci95(self.per_seed)[1]
 
 
+def distinct_labels(labels: dict[str, str]) -> dict[str, str]:
+    """Policy name → the label tables show. Learned policies are labelled by their kind
+    ("amm-regime-real"); several checkpoints of one kind (training runs of one variant) would
+    share a row title, so each of those is told apart by its checkpoint's file name."""
+    shared = {label for label in labels.values() if list(labels.values()).count(label) > 1}
+    return {name: f"{label} ({Path(name.partition(':')[2]).stem or name})" if label in shared
+            else label for name, label in labels.items()}
+
+
 def evaluate(policies: list[str], dataset: CovisibilityDataset, channel_spec: str,
              config: SimConfig, seeds: list[int],
              rate_range: tuple[float, float] = table1.RATE_RANGE_MBPS,
@@ -101,7 +111,8 @@ def evaluate(policies: list[str], dataset: CovisibilityDataset, channel_spec: st
     parse_channel(channel_spec, rate_range)      # a bad channel fails before the first run
     built = {name: make_policy(name) for name in policies if name != "reference"}
     runs: dict[str, list[RunScore]] = {name: [] for name in policies}
-    labels = {name: built[name].name if name in built else name for name in policies}
+    labels = distinct_labels({name: built[name].name if name in built else name
+                              for name in policies})
     for seed in seeds:
         env = MapManagementEnv(dataset, parse_channel(channel_spec, rate_range, seed), config)
         plans = {name: rollout(env, policy, seed) for name, policy in built.items()}
