@@ -112,11 +112,12 @@ def cmd_sim(args: argparse.Namespace) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     reference = next((r for r in results if r.policy == "reference"), None)
-    print(f"\n{'policy':<12} {'mean υ':>11} {'± ci95':>9} {'lost %':>7} {'υ tracked':>11}"
+    width = max(12, *(len(r.policy) for r in results))
+    print(f"\n{'policy':<{width}} {'mean υ':>11} {'± ci95':>9} {'lost %':>7} {'υ tracked':>11}"
           f"{'  gap to reference' if reference else ''}")
     for r in results:
         gap = f"  {r.mean - reference.mean:+.2f}" if reference else ""
-        print(f"{r.policy:<12} {r.mean:>11.2f} {r.ci95:>9.2f} {100 * r.lost_ratio:>7.2f} "
+        print(f"{r.policy:<{width}} {r.mean:>11.2f} {r.ci95:>9.2f} {100 * r.lost_ratio:>7.2f} "
               f"{r.mean_tracked:>11.2f}{gap}")
     rule = ("the paper's rule: lost when no map point is shared" if args.paper_rule else
             f"lost with fewer than {config.min_shared} shared map points, a slot's first "
