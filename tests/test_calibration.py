@@ -184,7 +184,7 @@ def test_agreement_per_scenario_on_hand_made_runs(tmp_path) -> None:
     import csv
 
     from twinslam.cli.evaluate import CALIBRATION_HEADER
-    from twinslam.experiments.calibration_report import agreement_by_scenario
+    from twinslam.experiments.calibration_report import agreement_by_scenario, read_rows
 
     runs = [("v15", 0, 0.10, 0.12), ("v15", 1, 0.20, 0.18), ("v15", 2, 0.40, 0.45),
             ("v25", 0, 0.30, 0.10), ("v25", 1, 0.10, 0.30), ("v25", 2, 0.20, 0.20)]
@@ -196,7 +196,7 @@ def test_agreement_per_scenario_on_hand_made_runs(tmp_path) -> None:
                         0.8, 0.7, "nan", -0.2])
         w.writerow(["v25", "edge", "lff", 3, "", 35, 2, 0, 0, "nan", "nan", "nan", "nan",
                     "nan", "nan"])
-    rows = {a.scenario: a for a in agreement_by_scenario([tmp_path])}
+    rows = {a.scenario: a for a in agreement_by_scenario(read_rows([tmp_path], "calibration.csv"))}
     assert list(rows) == ["v15", "v25", "all"]
     v15, v25 = rows["v15"], rows["v25"]
     assert v15.runs == 3 and v25.runs == 3 and rows["all"].runs == 6

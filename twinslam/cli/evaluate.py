@@ -36,7 +36,7 @@ from device_tracker.map_source import MAP_SOURCES
 from twinslam.cli.launcher import LaunchConfig, Launcher, RunReport
 from twinslam.cli.live_calibration import LiveFrames, live_frames, played_frames
 from twinslam.cli.scenarios import Scenario
-from twinslam.common.reporting import mean_ci95, pyplot, write_csv
+from twinslam.common.reporting import mean_ci95, pearson_r, pyplot, write_csv
 from twinslam.common.tracking_rule import MIN_SHARED_POINTS
 from twinslam.node_hosts.loopback import LoopbackDomain
 from twinslam.policy_registry import LEARNED_PREFIX
@@ -333,11 +333,8 @@ def agreement_over_runs(results: list[RunResult]) -> dict[str, tuple[float, int]
         pairs = [(r.calibration.predicted_lost_share, r.calibration.device_failure_share)
                  for r in results if r.key.map_source == source and r.calibration is not None
                  and r.calibration.frames]
-        x, y = (np.array(v, dtype=np.float64) for v in zip(*pairs, strict=True)) if pairs \
-            else (np.zeros(0), np.zeros(0))
-        r = (float(np.corrcoef(x, y)[0, 1]) if x.size >= 3 and np.ptp(x) > 0 and np.ptp(y) > 0
-             else math.nan)
-        out[source] = (r, len(pairs))
+        predicted, failed = zip(*pairs, strict=True) if pairs else ((), ())
+        out[source] = (pearson_r(np.array(predicted), np.array(failed)), len(pairs))
     return out
 
 

@@ -194,7 +194,8 @@ def _finite_mean(values: Iterable[float]) -> float:
     return float(np.mean(finite)) if finite else math.nan
 
 
-def report(policy: str, record: RunRecord, seconds: float) -> RunReport:
+def report(policy: str, record: RunRecord, seconds: float, slot_frames: int) -> RunReport:
+    """What the run measured; ``slot_frames``: the device's F, to count dropped frames."""
     stats = [record.stats[s] for s in sorted(record.stats)]
     scored = stats[1:]         # slot 0 plans against an empty map: every policy loses it all
     tps = [t for t in record.throughput.values() if t.frames_sent]
@@ -210,7 +211,8 @@ def report(policy: str, record: RunRecord, seconds: float) -> RunReport:
                      events.untracked, events.failures, events.relocalisations,
                      events.mean_recover_s,
                      float(np.median([s.slot_processing_ms for s in stats])) if stats
-                     else math.nan, seconds, deciders(record))
+                     else math.nan, seconds, deciders(record),
+                     dropped_frames(record, slot_frames))
 
 
 def dropped_frames(record: RunRecord, slot_frames: int) -> int:
@@ -348,10 +350,8 @@ class Launcher:
                 # used up most of the run's timeout
                 min(60.0, max(10.0, deadline - time.monotonic())))
             session.spin_until(lambda: False, 0.5)       # late poses and map updates
-            out = report(c.policy, monitor.record, time.monotonic() - started)
-            out.frames_dropped = dropped_frames(
-                monitor.record, int(self._device_param("slot_frames", table1.SLOT_FRAMES)))
-            return out
+            return report(c.policy, monitor.record, time.monotonic() - started,
+                          int(self._device_param("slot_frames", table1.SLOT_FRAMES)))
         finally:
             self.stop()
             session.close()

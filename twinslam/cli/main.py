@@ -448,14 +448,17 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         ScenarioAgreement,
         agreement_by_scenario,
         agreement_markdown,
-        calibrate_folders,
+        calibrate_runs,
         plot_calibration,
+        read_rows,
         report_lines,
     )
 
     try:
-        results = calibrate_folders(args.folders)
-        agreement = agreement_by_scenario(args.folders)
+        runs = read_rows(args.folders, "calibration.csv")
+        frames = read_rows(args.folders, "calibration_frames.csv")
+        results = calibrate_runs(runs, frames)
+        agreement = agreement_by_scenario(runs)
     except (FileNotFoundError, KeyError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -468,7 +471,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     print("\nper map source and scenario (shares and measures: mean over runs):")
     print(table)
     out = args.out or args.folders[0] / "calibration.png"
-    plot_calibration(args.folders, results, out)
+    plot_calibration(runs, frames, results, out)
     write_csv(out.with_suffix(".csv"), [f.name for f in fields(ScenarioAgreement)],
               [list(asdict(a).values()) for a in agreement])
     out.with_suffix(".md").write_text(table + "\n", encoding="utf-8")

@@ -30,6 +30,15 @@ def pyplot() -> ModuleType:
     return plt
 
 
+def pearson_r(x: np.ndarray, y: np.ndarray) -> float:
+    """Pearson's r of paired values; NaN below 3 pairs or with a constant side (r is then
+    undefined, not 0: a device that never failed neither agrees nor disagrees)."""
+    x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+    if x.size < 3 or np.ptp(x) == 0 or np.ptp(y) == 0:
+        return math.nan
+    return float(np.corrcoef(x, y)[0, 1])
+
+
 def mean_ci95(values: list[float]) -> tuple[float, float]:
     """Mean and 95 % confidence half-width (Student t) of independent runs; NaN values (a
     metric a run could not measure) are left out, and the half-width is NaN under two runs."""

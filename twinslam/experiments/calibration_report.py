@@ -1,7 +1,7 @@
 """``twinslam calibrate``: what live runs say the rule of a lost frame must be (issue #27).
 
 Reads the ``calibration_frames.csv`` and ``calibration.csv`` that ``twinslam evaluate`` wrote in
-one or more folders and measures, per device map source:
+one or more folders (:func:`read_rows`, once) and measures, per device map source:
 
 * the **lag**: how many first frames of a slot the device tracked with an older map version
   than the slot's newest (the update of the previous slot still on its way);
@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from twinslam.common.reporting import pyplot
+from twinslam.common.reporting import pearson_r, pyplot
 from twinslam.simulator.calibration import (
     CalibrationFrame,
     FramePrediction,
@@ -68,6 +68,13 @@ def _read(path: Path) -> list[dict[str, str]]:
         return [{**row, "folder": str(path.parent)} for row in csv.DictReader(fh)]
 
 
+def read_rows(folders: list[Path], name: str) -> list[dict[str, str]]:
+    """The rows of ``name`` (``calibration.csv`` or ``calibration_frames.csv``) in every
+    folder, each with its folder: read once and handed to every measure and the figure (the
+    frames of a 280-run sweep are 31 MB)."""
+    return [r for folder in folders for r in _read(folder / name)]
+
+
 def _run(row: dict[str, str]) -> tuple[str, ...]:
     return tuple(row.get(k, "") for k in RUN_KEY)
 
@@ -90,10 +97,10 @@ def lag_per_slot(rows: Iterable[dict[str, str]]) -> list[int]:
     return [sum(v < max(versions) for v in versions) for versions in slots.values()]
 
 
-def calibrate_folders(folders: list[Path]) -> list[SourceCalibration]:
-    """Every map source's measurements over the runs of ``folders``."""
-    frames = [r for folder in folders for r in _read(folder / "calibration_frames.csv")]
-    runs = [r for folder in folders for r in _read(folder / "calibration.csv")]
+def calibrate_runs(runs: list[dict[str, str]], frames: list[dict[str, str]]
+                   ) -> list[SourceCalibration]:
+    """Every map source's measurements over the rows of calibration.csv (``runs``) and
+    calibration_frames.csv (``frames``)."""
     out = []
     for source in dict.fromkeys(r["map_source"] for r in runs):
         mine = [r for r in frames if r["map_source"] == source]
@@ -110,7 +117,7 @@ def calibrate_folders(folders: list[Path]) -> list[SourceCalibration]:
             k_bal, acc, k_level = 0, math.nan, 0
         pred = np.array([float(r["predicted_lost_share"]) for r in scored])
         fail = np.array([float(r["device_failure_share"]) for r in scored])
-        r_runs = _pearson(pred, fail)
+        r_runs = pearson_r(pred, fail)
         out.append(SourceCalibration(
             source, len(scored), len(cal), failures, float(np.median(lags)),
             float(np.mean(lags)), k_bal, acc, k_level,
@@ -137,24 +144,18 @@ class ScenarioAgreement:
     spearman_u_inliers: float       #: ρ(u, inlier count), mean over runs
 
 
-def _pearson(x: np.ndarray, y: np.ndarray) -> float:
-    return (float(np.corrcoef(x, y)[0, 1])
-            if x.size >= 3 and np.ptp(x) > 0 and np.ptp(y) > 0 else math.nan)
-
-
 def _nanmean(values: Iterable[str]) -> float:
     v = np.array([float(x) for x in values], dtype=np.float64)
     v = v[np.isfinite(v)]
     return float(v.mean()) if v.size else math.nan
 
 
-def agreement_by_scenario(folders: list[Path]) -> list[ScenarioAgreement]:
+def agreement_by_scenario(rows: list[dict[str, str]]) -> list[ScenarioAgreement]:
     """Per map source and scenario (in the order the runs came; "all" last per map source):
     the predicted lost share beside the device's failure share, and the per-run measures
-    ``calibration.csv`` holds. r over one scenario's runs says whether the rule follows the
-    run-to-run variation, not only the level."""
-    runs = [r for folder in folders for r in _read(folder / "calibration.csv")
-            if int(r["frames"])]
+    the rows of calibration.csv hold. r over one scenario's runs says whether the rule
+    follows the run-to-run variation, not only the level."""
+    runs = [r for r in rows if int(r["frames"])]
     out = []
     for source in dict.fromkeys(r["map_source"] for r in runs):
         mine = [r for r in runs if r["map_source"] == source]
@@ -167,7 +168,7 @@ def agreement_by_scenario(folders: list[Path]) -> list[ScenarioAgreement]:
             fail = np.array([float(r["device_failure_share"]) for r in rows])
             out.append(ScenarioAgreement(
                 source, scenario, len(rows), float(pred.mean()), float(fail.mean()),
-                float(np.abs(pred - fail).mean()), _pearson(pred, fail),
+                float(np.abs(pred - fail).mean()), pearson_r(pred, fail),
                 _nanmean(r["precision"] for r in rows), _nanmean(r["recall"] for r in rows),
                 _nanmean(r["spearman_u_error"] for r in rows),
                 _nanmean(r["spearman_u_inliers"] for r in rows)))
@@ -187,11 +188,10 @@ def agreement_markdown(rows: list[ScenarioAgreement]) -> str:
     return "\n".join(lines)
 
 
-def plot_calibration(folders: list[Path], results: list[SourceCalibration], path: Path) -> None:
-    """The figure of the module docstring."""
+def plot_calibration(runs: list[dict[str, str]], frames: list[dict[str, str]],
+                     results: list[SourceCalibration], path: Path) -> None:
+    """The figure of the module docstring, from the rows :func:`calibrate_runs` measured."""
     plt = pyplot()
-    runs = [r for folder in folders for r in _read(folder / "calibration.csv")]
-    frames = [r for folder in folders for r in _read(folder / "calibration_frames.csv")]
     fig, (left, right) = plt.subplots(1, 2, figsize=(13, 5.2))
     for res in results:
         mine = [r for r in runs if r["map_source"] == res.map_source and int(r["frames"])]
