@@ -2,11 +2,11 @@
 condensed from the files ``twinslam evaluate`` wrote (copied here as issue27-WALK-*.csv):
 per scenario and policy the device's figures, then the paired differences with the best rule
 policy on the device's failure share and ATE; and the offline yardstick: the simulator's lost
-share on the live walk (issue27-sim-SCENARIO.csv, ``twinslam sim --csv``) beside the share the
-live device failed.
+share, mean υ and υ tracked on the live walk (issue27-sim-SCENARIO.csv, ``twinslam sim
+--csv``) beside the share the live device failed.
 
-    python docs/figures/issue27_tables.py 7scenes synthetic 7scenes-local
-    python docs/figures/issue27_tables.py --yardstick
+    .venv/bin/python docs/figures/issue27_tables.py 7scenes synthetic 7scenes-local
+    .venv/bin/python docs/figures/issue27_tables.py --yardstick
 """
 
 from __future__ import annotations
@@ -16,6 +16,8 @@ import math
 import sys
 from pathlib import Path
 
+from twinslam.common.reporting import mean_ci95
+
 HERE = Path(__file__).resolve().parent
 #: (summary.csv column stem, title, digits, scale)
 COLUMNS = (("device_failure_share", "device failed (%)", 1, 100.0),
@@ -23,7 +25,9 @@ COLUMNS = (("device_failure_share", "device failed (%)", 1, 100.0),
            ("tracking_failures", "failures", 1, 1.0),
            ("relocalisations", "relocalisations", 1, 1.0),
            ("untracked_frames", "untracked frames", 0, 1.0), ("ate_m", "ATE (m)", 3, 1.0),
-           ("mean_uncertainty", "mean υ", 0, 1.0), ("frames_uploaded", "uploads", 0, 1.0))
+           # the edge's MapStats, the three figures of DESIGN.md §2 together
+           ("mean_uncertainty", "mean υ", 0, 1.0), ("lost_ratio", "lost share (%)", 1, 100.0),
+           ("tracked_uncertainty", "υ tracked", 0, 1.0), ("frames_uploaded", "uploads", 0, 1.0))
 PAIRED = {"device_failure_share": ("device failed (pts)", 1, 100.0),
           "ate_m": ("ATE (m)", 3, 1.0), "untracked_frames": ("untracked frames", 0, 1.0)}
 
@@ -64,29 +68,51 @@ def paired_table(walk: str) -> str:
 
 
 SCENARIOS = ("revisit-v15", "revisit-v25", "constrained", "outages")
-#: the simulator's policy column → the live table's label (the AMM runs pooled)
-LIVE_LABEL = {"lff": "lff", "pu": "pu", "adapt": "adapt", "random": "random", "mbrl": "AMM"}
-
-
 def yardstick_table() -> str:
-    """Per scenario and policy: the simulator's lost share on the live walk (mean over seeds;
-    a learned policy's training runs pooled) beside the live device's failure share."""
-    live = {(r["scenario"], r["policy"]): float(r["device_failure_share_mean"])
-            for r in _rows(HERE / "issue27-7scenes-summary.csv")}
-    lines = ["| policy | " + " | ".join(f"{s}: simulator / device" for s in SCENARIOS) + " |",
-             "|---|" + "---|" * len(SCENARIOS)]
-    shares: dict[str, dict[str, list[float]]] = {}
+    """Per scenario and policy: the simulator's mean υ, lost share and υ over tracked frames on
+    the live walk (mean over seeds; each training run of the learned policy on its own row)
+    beside the live device's failure share of the same policy or training run (mean over
+    seeds; a seed whose every frame was lost has no υ tracked and is left out of that mean)."""
+    live_runs: dict[tuple[str, str], list[float]] = {}
+    for r in _rows(HERE / "issue27-7scenes-calibration.csv"):
+        live_runs.setdefault((r["scenario"], r["spec"] or r["policy"]), []).append(
+            float(r["device_failure_share"]))
+    live = {key: mean_ci95(values)[0] for key, values in live_runs.items()}
+    lines = ["| scenario | policy | simulator: mean υ | lost (%) | υ tracked | live device "
+             "failed (%) |", "|---|---|---|---|---|---|"]
     for scenario in SCENARIOS:
+        runs: dict[str, list[dict[str, str]]] = {}
         for r in _rows(HERE / f"issue27-sim-{scenario}.csv"):
-            label = LIVE_LABEL.get(r["spec"].partition(":")[0], r["spec"])
-            shares.setdefault(label, {}).setdefault(scenario, []).append(float(r["lost_share"]))
-    for label, by in shares.items():
-        cells = []
-        for scenario in SCENARIOS:
-            sim = 100 * sum(by[scenario]) / len(by[scenario])
-            dev = live.get((scenario, label))
-            cells.append(f"{sim:.1f} / " + ("–" if dev is None else f"{100 * dev:.1f}"))
-        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+            kind, _, path = r["spec"].partition(":")
+            label = f"AMM ({Path(path).stem})" if kind == "mbrl" else r["spec"]
+            runs.setdefault(label, []).append(r)
+        for label, rows in runs.items():
+            mean = {c: mean_ci95([float(r[c]) for r in rows])[0]     # NaN seeds left out
+                    for c in ("mean_uncertainty", "lost_share", "tracked_uncertainty")}
+            dev = live.get((scenario, rows[0]["spec"]))
+            lines.append(f"| {scenario} | {label} | {mean['mean_uncertainty']:.1f} | "
+                         f"{100 * mean['lost_share']:.1f} | {mean['tracked_uncertainty']:.1f} | "
+                         + ("–" if dev is None else f"{100 * dev:.1f}") + " |")
+    return "\n".join(lines)
+
+
+def training_runs_table(walk: str) -> str:
+    """The learned policy live, one row per training run (the summary pools them): the
+    device's failure share and ATE, mean ± 95 % CI over seeds."""
+    failed = {(r["scenario"], r["spec"], r["seed"]): float(r["device_failure_share"])
+              for r in _rows(HERE / f"issue27-{walk}-calibration.csv")}
+    runs: dict[tuple[str, str], list[tuple[float, float]]] = {}
+    for r in _rows(HERE / f"issue27-{walk}-runs.csv"):
+        if r["spec"].startswith("mbrl:"):
+            key = (r["scenario"], r["spec"])
+            runs.setdefault(key, []).append((failed[(*key, r["seed"])], float(r["ate_m"])))
+    lines = ["| scenario | training run | runs | device failed (%) | ATE (m) |",
+             "|---|---|---|---|---|"]
+    for (scenario, spec), values in runs.items():
+        f_mean, f_half = mean_ci95([100 * f for f, _ in values])
+        a_mean, a_half = mean_ci95([a for _, a in values])
+        lines.append(f"| {scenario} | {Path(spec.partition(':')[2]).stem} | {len(values)} | "
+                     f"{f_mean:.1f} ± {f_half:.1f} | {a_mean:.3f} ± {a_half:.3f} |")
     return "\n".join(lines)
 
 
@@ -96,3 +122,5 @@ if __name__ == "__main__":
         sys.exit()
     for walk in sys.argv[1:] or ["7scenes"]:
         print(f"### {walk}\n\n{summary_table(walk)}\n\n{paired_table(walk)}\n")
+        if walk != "7scenes-local":
+            print(f"{training_runs_table(walk)}\n")
