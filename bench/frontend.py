@@ -18,8 +18,8 @@ import cv2
 import numpy as np
 
 from bench.gauge import cpu_gauge
-from device_tracker.tracking import Tracking
-from twinslam.sequence_player.readers import open_sequence
+from twinslam.sequences.opening import open_sequence
+from twinslam.slam.tracking import Tracking
 
 DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes-1000"
 

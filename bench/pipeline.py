@@ -27,7 +27,7 @@ from edge_mapper.messages import map_update_message
 from edge_mapper.slot_planner import FrameObservations
 from twinslam.cli.launcher import RunRecord
 from twinslam.policy_registry import make_policy
-from twinslam.sequence_player.readers import open_sequence
+from twinslam.sequences.opening import open_sequence
 from twinslam.slam.map_update import read_map_update
 from twinslam.slam.tracking_quality import absolute_trajectory_error
 from twinslam.uplink.channels import parse_channel

@@ -10,10 +10,10 @@ from typing import Any
 
 import numpy as np
 
-from device_tracker.uplink_shaper import SlotThroughput
 from msg_schemas import new
 from msg_schemas.headers import ros_time, set_header
 from msg_schemas.poses import pose_msg
+from twinslam.uplink.shaper import SlotThroughput
 
 
 @dataclass(frozen=True)

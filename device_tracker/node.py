@@ -14,7 +14,7 @@
 * ``edge/map_update`` (transient local) → the new local map.
 
 Topic names are relative (``-r __ns:=/ar1``). ``shaper:=tc`` hands the pacing to the kernel
-(:mod:`device_tracker.tc_shaper`); ``upload_image:=true`` sends each keyframe's colour image
+(:mod:`twinslam.uplink.tc_shaper`); ``upload_image:=true`` sends each keyframe's colour image
 too. When the edge stops answering (:mod:`device_tracker.edge_watchdog`) the device says so and
 tracks on; a lost frame is relocalised against the local map, and the node logs both ends.
 """
@@ -46,10 +46,7 @@ from device_tracker.edge_watchdog import EdgeWatchdog
 from device_tracker.frame_pairing import FramePairing
 from device_tracker.messages import frame_summaries_message, uplink_throughput_message
 from device_tracker.parameters import PARAMETERS
-from device_tracker.tc_shaper import NetemConfig, TcShaper, make_shaper
-from device_tracker.tracking import TrackingConfig
 from device_tracker.uplink_sender import Encoded, UplinkSender
-from device_tracker.uplink_shaper import ShaperError, SlotThroughput
 from msg_schemas import qos, topics
 from msg_schemas.headers import set_header, stamp_key, stamp_seconds
 from msg_schemas.poses import pose_msg
@@ -59,7 +56,10 @@ from twinslam.node_hosts.node_main import NodeStartError, run_node
 from twinslam.node_hosts.parameters import declare
 from twinslam.slam.keyframe import keyframe_message
 from twinslam.slam.map_update import read_map_update
+from twinslam.slam.tracking import TrackingConfig
 from twinslam.uplink.channels import ChannelError, initial_rate, parse_channel
+from twinslam.uplink.shaper import ShaperError, SlotThroughput
+from twinslam.uplink.tc_shaper import NetemConfig, TcShaper, make_shaper
 
 #: how long one keyframe write may keep failing (the writer's history full of unacknowledged
 #: keyframes while the link is down) before that keyframe is given up

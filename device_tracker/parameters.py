@@ -6,10 +6,10 @@ Defaults are the paper's Table I where it has one (F 60 frames a slot, α 5 Mbit
 
 from __future__ import annotations
 
-from device_tracker.map_source import EDGE_LOCAL, check_map_source
-from device_tracker.tc_shaper import SHAPERS
 from twinslam.common import table1
 from twinslam.node_hosts.parameters import ParamSpec
+from twinslam.slam.map_source import EDGE_LOCAL, check_map_source
+from twinslam.uplink.tc_shaper import SHAPERS
 
 PARAMETERS = (
     ParamSpec("slot_frames", table1.SLOT_FRAMES, "F, frames per slot", low=1, high=100_000),

@@ -17,7 +17,7 @@ import time
 from collections.abc import Callable
 from typing import Protocol
 
-from device_tracker.uplink_shaper import SlotThroughput
+from twinslam.uplink.shaper import SlotThroughput
 
 #: (frame id, serialized bytes, bytes the uplink is charged) of a frame to send
 Encoded = tuple[int, bytes, int]

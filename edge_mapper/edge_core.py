@@ -25,13 +25,13 @@ from pathlib import Path
 
 import numpy as np
 
-from edge_mapper.bundle_adjustment import BundleAdjustmentResult, Observation, bundle_adjust
-from edge_mapper.keyframe_map import KeyFrameMap
-from edge_mapper.local_mapping import IntegrationReport, LocalMapping
 from edge_mapper.slot_planner import FrameObservations, SlotConfig, SlotPlan, SlotPlanner
 from twinslam.map_management.actions import MapAction
 from twinslam.map_management.policies import MapPolicy
+from twinslam.slam.bundle_adjustment import BundleAdjustmentResult, Observation, bundle_adjust
 from twinslam.slam.keyframe import KeyFramePayload
+from twinslam.slam.keyframe_map import KeyFrameMap
+from twinslam.slam.local_mapping import IntegrationReport, LocalMapping
 from twinslam.uncertainty.map_uncertainty import map_uncertainty
 
 

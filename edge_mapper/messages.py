@@ -11,11 +11,11 @@ from typing import Any
 
 import numpy as np
 
-from edge_mapper.keyframe_map import KeyFrameMap
 from msg_schemas import new
 from msg_schemas.headers import set_header
 from msg_schemas.poses import pose_msg
 from twinslam.map_management.actions import MapAction
+from twinslam.slam.keyframe_map import KeyFrameMap
 from twinslam.uncertainty.map_uncertainty import SlotUncertainty
 
 

@@ -16,11 +16,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from edge_mapper.keyframe_map import KeyFrameMap, shared_counts
 from twinslam.common import table1
 from twinslam.common.tracking_rule import MIN_INLIERS
 from twinslam.map_management.actions import MapAction, SlotObservation, check_map_action
 from twinslam.map_management.policies import MapPolicy
+from twinslam.slam.keyframe_map import KeyFrameMap, shared_counts
 from twinslam.uncertainty.map_uncertainty import (
     SlotUncertainty,
     next_slot_uncertainty,

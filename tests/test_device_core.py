@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from device_tracker.device_core import TRACK_BIT, DeviceTrackerCore
-from twinslam.sequence_player.synthetic import SyntheticSequence
+from twinslam.sequences.synthetic import SyntheticSequence
 from twinslam.slam.map_update import MapSnapshot
 
 SLOT = 10

@@ -8,8 +8,8 @@ import pytest
 from device_tracker.edge_watchdog import EdgeWatchdog
 from device_tracker.frame_pairing import FramePairing
 from device_tracker.uplink_sender import UplinkSender, write_with_retry
-from device_tracker.uplink_shaper import UplinkShaper
 from tests.test_uplink_shaper import VirtualTime
+from twinslam.uplink.shaper import UplinkShaper
 
 
 def _drain(pairing: FramePairing) -> list[tuple[int, str | None, str | None]]:

@@ -7,7 +7,6 @@ import math
 import numpy as np
 from rclpy.serialization import deserialize_message, serialize_message
 
-from edge_mapper.keyframe_map import KeyFrameMap
 from edge_mapper.messages import (
     map_stats_message,
     map_update_message,
@@ -18,6 +17,7 @@ from msg_schemas.poses import pose_matrix, pose_msg
 from msg_schemas.validation import validate
 from twinslam.map_management.actions import MapAction
 from twinslam.slam.keyframe import TRACK_ID_BIT, KeyFramePayload, keyframe_message, read_keyframe
+from twinslam.slam.keyframe_map import KeyFrameMap
 from twinslam.slam.map_update import read_map_update
 from twinslam.uncertainty.map_uncertainty import SlotUncertainty
 

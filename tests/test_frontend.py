@@ -13,12 +13,12 @@ from evo.core import metrics
 from evo.core.trajectory import PosePath3D
 from scipy.stats import spearmanr
 
-from device_tracker.orb_extractor import OrbExtractor
-from device_tracker.pose_optimization import optimize_pose
 from tests.data_paths import SEVEN, needs_seven, seven_or_synthetic
-from twinslam.sequence_player.readers import open_sequence
+from twinslam.sequences.opening import open_sequence
 from twinslam.simulator.covisibility import load_covisibility
 from twinslam.simulator.extraction import extract_covisibility
+from twinslam.slam.orb_extractor import OrbExtractor
+from twinslam.slam.pose_optimization import optimize_pose
 from twinslam.slam.projection_matching import match_by_projection
 
 REPO = Path(__file__).resolve().parents[1]

@@ -20,12 +20,12 @@ from typing import Any
 import numpy as np
 import pytest
 
-from edge_mapper.keyframe_map import shared_counts
 from msg_schemas.headers import stamp_seconds
 from tests.data_paths import seven_or_synthetic
 from twinslam.cli.launcher import LaunchConfig, Launcher, RunRecord, RunReport
 from twinslam.cli.scenarios import SCENARIOS, Scenario
 from twinslam.node_hosts.loopback import LoopbackDomain
+from twinslam.slam.keyframe_map import shared_counts
 from twinslam.uncertainty.map_uncertainty import map_uncertainty
 
 SEQUENCE = seven_or_synthetic()

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from twinslam.sequence_player.playback import Playback, PlayedSequence, parse_bursts
-from twinslam.sequence_player.readers import SequenceError
-from twinslam.sequence_player.synthetic import SyntheticSequence
+from twinslam.sequences.frame import SequenceError
+from twinslam.sequences.synthetic import SyntheticSequence
 
 
 def test_forward_backward_revisits_every_frame_with_increasing_stamps() -> None:

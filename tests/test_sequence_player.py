@@ -14,7 +14,7 @@ from msg_schemas import qos, topics
 from twinslam.node_hosts.loopback import LoopbackDomain
 from twinslam.node_hosts.session import RosSession
 from twinslam.sequence_player.messages import depth_message
-from twinslam.sequence_player.readers import RgbdFrame
+from twinslam.sequences.frame import RgbdFrame
 
 K = np.array([[200.0, 0, 80], [0, 200.0, 60], [0, 0, 1]])
 
@@ -106,8 +106,8 @@ def test_record_to_mcap_and_replay_gives_the_same_messages(tmp_path: Path) -> No
     import subprocess
     import sys
 
-    from twinslam.sequence_player.bag import frame_messages
-    from twinslam.sequence_player.readers import open_sequence
+    from twinslam.sequence_player.recording import frame_messages
+    from twinslam.sequences.opening import open_sequence
 
     seq = _seven_scenes_fixture(tmp_path / "seq", frames=12, corrupt=5)
     bag = tmp_path / "run"

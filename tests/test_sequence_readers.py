@@ -11,7 +11,9 @@ import numpy as np
 import pytest
 
 from tests.data_paths import SEVEN, SUN3D, needs_seven, needs_sun3d
-from twinslam.sequence_player.readers import SequenceError, decode_depth, open_sequence
+from twinslam.sequences.folders import decode_depth
+from twinslam.sequences.frame import SequenceError
+from twinslam.sequences.opening import open_sequence
 
 K = np.array([[500.0, 0, 16], [0, 500.0, 12], [0, 0, 1]])
 

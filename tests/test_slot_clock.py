@@ -9,7 +9,7 @@ import pytest
 
 from device_tracker.device_core import DeviceTrackerCore
 from device_tracker.slot_clock import SlotClock
-from twinslam.sequence_player.synthetic import SyntheticSequence
+from twinslam.sequences.synthetic import SyntheticSequence
 
 SLOT = 10
 

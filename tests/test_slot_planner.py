@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from edge_mapper.keyframe_map import KeyFrameMap
 from edge_mapper.slot_planner import FrameObservations, SlotConfig, SlotPlanner
 from twinslam.map_management.actions import ActionError, MapAction
 from twinslam.policy_registry import make_policy
+from twinslam.slam.keyframe_map import KeyFrameMap
 
 
 def _windows(n: int, rng: np.random.Generator) -> list[set[int]]:

@@ -9,8 +9,9 @@ from evo.core import metrics
 from evo.core.trajectory import PosePath3D
 from scipy.stats import spearmanr
 
-from twinslam.sequence_player.readers import SequenceError, open_sequence
-from twinslam.sequence_player.synthetic import ROOM_HALF, SyntheticSequence
+from twinslam.sequences.frame import SequenceError
+from twinslam.sequences.opening import open_sequence
+from twinslam.sequences.synthetic import ROOM_HALF, SyntheticSequence
 from twinslam.simulator.extraction import extract_covisibility
 
 

@@ -7,8 +7,8 @@ import time
 
 import pytest
 
-from device_tracker.tc_shaper import NetemConfig, TcShaper, interface_tx_bytes, run_tc
-from device_tracker.uplink_shaper import ShaperError, UplinkShaper
+from twinslam.uplink.shaper import ShaperError, UplinkShaper
+from twinslam.uplink.tc_shaper import NetemConfig, TcShaper, interface_tx_bytes, run_tc
 
 ALPHA_BYTES = 5_000_000 // 8          # the paper's 5 Mbit keyframe payload
 

@@ -32,7 +32,6 @@ from pathlib import Path
 
 import numpy as np
 
-from device_tracker.map_source import MAP_SOURCES
 from twinslam.cli.launcher import LaunchConfig, Launcher, RunReport
 from twinslam.cli.live_calibration import LiveFrames, live_frames, played_frames
 from twinslam.cli.scenarios import Scenario
@@ -42,6 +41,7 @@ from twinslam.node_hosts.loopback import LoopbackDomain
 from twinslam.policy_registry import LEARNED_PREFIX
 from twinslam.simulator.calibration import Calibration, calibrate
 from twinslam.simulator.covisibility import load_covisibility
+from twinslam.slam.map_source import MAP_SOURCES
 
 #: the figures summarised per scenario × policy: (field, column title, unit); the fields are
 #: RunReport's, and the calibration's two shares

@@ -30,7 +30,7 @@ from twinslam.cli.launcher import RunRecord
 from twinslam.cli.scenarios import Scenario
 from twinslam.common.tracking_rule import MAP_UPDATE_LAG_FRAMES
 from twinslam.sequence_player.playback import Playback, PlayedSequence
-from twinslam.sequence_player.readers import open_sequence
+from twinslam.sequences.opening import open_sequence
 from twinslam.simulator.calibration import CalibrationFrame, FramePrediction, predict_frames
 from twinslam.simulator.covisibility import CovisibilityDataset, save_covisibility
 from twinslam.simulator.extraction import extract_covisibility
@@ -70,7 +70,7 @@ def played_frames(sequence: str, frames: int, scenario: Scenario, dataset: Covis
     recorded frame (by its recorded stamp)."""
     reader = open_sequence(sequence, start, start + frames)
     played = PlayedSequence(reader, Playback(scenario.order))
-    stamps = np.array([e.stamp for e in reader.entries], dtype=np.float64)
+    stamps = np.asarray(reader.stamps, dtype=np.float64)
     sources = np.asarray(played.positions, dtype=np.int64)
     if scenario.order == "forward":
         recorded = stamps[sources] - stamps[0]

@@ -139,10 +139,11 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
 
 def cmd_extract(args: argparse.Namespace) -> int:
-    from device_tracker.tracking import TrackingConfig
-    from twinslam.sequence_player.readers import SequenceError, open_sequence
+    from twinslam.sequences.frame import SequenceError
+    from twinslam.sequences.opening import open_sequence
     from twinslam.simulator.covisibility import save_covisibility
     from twinslam.simulator.extraction import extract_covisibility
+    from twinslam.slam.tracking import TrackingConfig
 
     out = Path(args.output)
     if not out.parent.is_dir():
@@ -181,8 +182,9 @@ def cmd_extract(args: argparse.Namespace) -> int:
 
 
 def cmd_record(args: argparse.Namespace) -> int:
-    from twinslam.sequence_player.bag import record_bag
-    from twinslam.sequence_player.readers import SequenceError, open_sequence
+    from twinslam.sequence_player.recording import record_bag
+    from twinslam.sequences.frame import SequenceError
+    from twinslam.sequences.opening import open_sequence
 
     try:
         reader = open_sequence(args.sequence, args.start, args.end)
@@ -275,7 +277,7 @@ def _launch_domain(args: argparse.Namespace) -> ProcessDomain:
 def _real_frame_uplink(sequence: str) -> dict[str, list[str]]:
     """tc-shaped uplink parameters whose α is the sequence's first colour image as rgb8."""
     from twinslam.cli.launcher import tc_uplink_params
-    from twinslam.sequence_player.readers import open_sequence
+    from twinslam.sequences.opening import open_sequence
 
     first = next(iter(open_sequence(sequence, 0, 1)))
     return tc_uplink_params(first.color.nbytes * 8 / 1e6)
@@ -310,7 +312,7 @@ def cmd_launch(args: argparse.Namespace) -> int:
         print(f"error: --scenario: {exc}", file=sys.stderr)
         return 2
     if args.map_source is not None:
-        from device_tracker.map_source import check_map_source
+        from twinslam.slam.map_source import check_map_source
 
         reason = check_map_source(args.map_source)
         if reason:
@@ -349,12 +351,13 @@ def cmd_launch(args: argparse.Namespace) -> int:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    from device_tracker.map_source import check_map_source
     from twinslam.cli import evaluate as ev
     from twinslam.cli.live_calibration import covisibility_file
     from twinslam.cli.scenarios import scenario
     from twinslam.sequence_player.playback import Playback, PlayedSequence
-    from twinslam.sequence_player.readers import SequenceError, open_sequence
+    from twinslam.sequences.frame import SequenceError
+    from twinslam.sequences.opening import open_sequence
+    from twinslam.slam.map_source import check_map_source
 
     sources = [m.strip() for m in args.map_source.split(",") if m.strip()]
     try:

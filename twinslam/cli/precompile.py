@@ -21,7 +21,7 @@ def main() -> int:
     from edge_mapper.edge_core import EdgeMapperCore
     from twinslam.map_management.policies import POLICIES
     from twinslam.policy_registry import make_policy
-    from twinslam.sequence_player.synthetic import SyntheticSequence
+    from twinslam.sequences.synthetic import SyntheticSequence
 
     start = time.monotonic()
     print("compiling the device, edge and synthetic-room kernels (once after a change; "

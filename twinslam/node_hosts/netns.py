@@ -12,7 +12,7 @@ stay below the link MTU, so a lost packet costs one RTPS fragment, not an IP-fra
 datagram of 45.
 
 The device's uplink is its veth: ``tc`` on the device's ``eth0`` shapes what the device sends
-(:mod:`device_tracker.tc_shaper`), and :meth:`NetnsHosts.set_link` pulls the switch-side
+(:mod:`twinslam.uplink.tc_shaper`), and :meth:`NetnsHosts.set_link` pulls the switch-side
 end of a host's cable. :class:`NetnsHosts` is a context manager with the process handling of
 :class:`~twinslam.node_hosts.loopback.LoopbackDomain`: ``spawn(args, host=...)`` runs ``python
 args``

@@ -13,7 +13,7 @@ import numpy as np
 from msg_schemas import new
 from msg_schemas.headers import set_header
 from msg_schemas.poses import pose_msg
-from twinslam.sequence_player.readers import RgbdFrame
+from twinslam.sequences.frame import RgbdFrame
 
 DEPTH_ENCODINGS = ("16UC1", "32FC1")
 

@@ -20,7 +20,7 @@ reader does not mean the reader has learnt of the writer (nor that the depth and
 readers have matched), and a reader drops samples of a writer it does not know yet. A corrupt
 image is skipped, counted and named in a warning; the run goes on. At the end it logs what it
 published and exits 0. ``sequence:=synthetic[:frames]`` (the default) renders the textured
-room of :mod:`twinslam.sequence_player.synthetic` with exact depth and ground truth.
+room of :mod:`twinslam.sequences.synthetic` with exact depth and ground truth.
 """
 
 from __future__ import annotations
@@ -43,7 +43,8 @@ from twinslam.sequence_player.messages import (
     pose_message,
 )
 from twinslam.sequence_player.playback import ORDERS, Playback, PlayedSequence, parse_bursts
-from twinslam.sequence_player.readers import RgbdFrame, SequenceError, open_sequence
+from twinslam.sequences.frame import RgbdFrame, SequenceError
+from twinslam.sequences.opening import open_sequence
 
 
 def _bursts_error(value: object) -> str | None:

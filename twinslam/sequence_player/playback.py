@@ -21,11 +21,11 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Any
+from pathlib import Path
 
 import numpy as np
 
-from twinslam.sequence_player.readers import RgbdFrame, SequenceError
+from twinslam.sequences.frame import RandomAccessSequence, RgbdFrame, Sequence, SequenceError
 
 ORDERS = ("forward", "forward_backward")
 #: the period assumed when a sequence has a single frame (no interval to measure)
@@ -80,14 +80,14 @@ class PlayedSequence:
     """A sequence reader seen through a :class:`Playback`; iterates :class:`RgbdFrame` s whose
     ``index`` is the played position and whose stamps increase."""
 
-    def __init__(self, reader: Any, playback: Playback) -> None:
-        if playback.order != "forward" and not hasattr(reader, "read"):
+    def __init__(self, reader: Sequence, playback: Playback) -> None:
+        if playback.order != "forward" and not isinstance(reader, RandomAccessSequence):
             raise SequenceError(f"{reader.path}: a {reader.kind} sequence plays forward only "
                                 f"(order {playback.order!r} needs a dataset folder or the "
                                 "synthetic room)")
         self.reader, self.playback = reader, playback
         self.positions = playback.source_indices(len(reader))
-        stamps = np.array([e.stamp for e in reader.entries], dtype=np.float64)
+        stamps = np.asarray(reader.stamps, dtype=np.float64)
         steps = np.diff(stamps)
         steps = steps[steps > 0]
         self.period_s = float(np.median(steps)) if steps.size else DEFAULT_PERIOD_S
@@ -100,7 +100,7 @@ class PlayedSequence:
         return str(self.reader.kind)
 
     @property
-    def path(self) -> Any:
+    def path(self) -> Path:
         return self.reader.path
 
     @property
@@ -119,9 +119,11 @@ class PlayedSequence:
         if self.playback.order == "forward":      # streams (bags too), stamps as recorded
             yield from self.reader
             return
-        self.reader.skipped = []
+        reader = self.reader
+        assert isinstance(reader, RandomAccessSequence)     # checked in __init__
+        reader.skipped = []
         for position, source in enumerate(self.positions):
-            frame = self.reader.read(source)
+            frame = reader.read(source)
             if frame is not None:
                 yield dataclasses.replace(frame, index=position,
                                           stamp=self.first_stamp + position * self.period_s)

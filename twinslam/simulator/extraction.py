@@ -20,11 +20,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from device_tracker.orb_extractor import Features
-from device_tracker.tracking import Tracking, TrackingConfig
-from twinslam.sequence_player.readers import SequenceReader, pose_to_xyzq
+from twinslam.sequences.frame import Sequence, pose_to_xyzq
 from twinslam.simulator.covisibility import CovisibilityDataset
+from twinslam.slam.orb_extractor import Features
 from twinslam.slam.projection_matching import match_by_projection, visible_points
+from twinslam.slam.tracking import Tracking, TrackingConfig
 
 
 @dataclass
@@ -38,7 +38,7 @@ class ExtractionReport:
     frontend_ms: np.ndarray  #: per-frame front-end time (ORB + matching + PnP + bookkeeping)
 
 
-def extract_covisibility(reader: SequenceReader, config: TrackingConfig | None = None,
+def extract_covisibility(reader: Sequence, config: TrackingConfig | None = None,
                          progress: Callable[[int, int], None] | None = None,
                          guided: bool = True
                          ) -> tuple[CovisibilityDataset, np.ndarray, ExtractionReport]:

@@ -1,5 +1,5 @@
-"""Sequences as rosbag2 (MCAP) files: record the player's messages, and read them back as a
-sequence the player replays like a folder.
+"""Recorded rosbag2 (MCAP) files as sequences the player replays like a folder (what
+:mod:`twinslam.sequence_player.recording` writes).
 
 A bag holds exactly what the player publishes — colour, depth, CameraInfo and (when known) the
 ground-truth pose on the player's topics, CDR-encoded, stamped with the recorded time — so a run
@@ -17,23 +17,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from rclpy.serialization import deserialize_message, serialize_message
-from rosbags.rosbag2 import Reader, StoragePlugin, Writer
-from rosbags.typesys import Stores, get_typestore
+from rclpy.serialization import deserialize_message
+from rosbags.rosbag2 import Reader
 
 from msg_schemas import message_class, topics
-from twinslam.sequence_player.messages import (
-    camera_info_message,
-    color_message,
-    depth_message,
-    pose_message,
-)
-from twinslam.sequence_player.readers import (
-    RgbdFrame,
-    SequenceError,
-    SequenceReader,
-    pose_from_xyzq,
-)
+from twinslam.sequences.frame import RgbdFrame, SequenceError, pose_from_xyzq
 
 log = logging.getLogger(__name__)
 
@@ -46,38 +34,6 @@ TOPICS = {
 }
 
 
-def frame_messages(frame: RgbdFrame, stamp: float, frame_id: str = "camera",
-                   world_frame_id: str = "world", depth_encoding: str = "16UC1"
-                   ) -> dict[str, Any]:
-    """The messages the player publishes for one frame, by TOPICS key."""
-    msgs = {"color": color_message(frame, stamp, frame_id),
-            "info": camera_info_message(frame, stamp, frame_id)}
-    if frame.depth is not None:
-        msgs["depth"] = depth_message(frame, stamp, frame_id, depth_encoding)
-    if frame.pose is not None:
-        msgs["pose"] = pose_message(frame.pose, stamp, world_frame_id)
-    return msgs
-
-
-def record_bag(reader: SequenceReader, path: str | Path) -> int:
-    """Write ``reader``'s frames to a new rosbag2 MCAP folder ``path``; returns the frames
-    written (corrupt ones are skipped as in playback)."""
-    out = Path(path)
-    if out.exists():
-        raise SequenceError(f"{out} exists; rosbag2 writes a new folder")
-    store = get_typestore(Stores.ROS2_JAZZY)     # the message definitions the bag records
-    written = 0
-    with Writer(out, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
-        conns = {key: writer.add_connection(topic, kind, typestore=store)
-                 for key, (topic, kind) in TOPICS.items()}
-        for frame in reader:
-            ns = round(frame.stamp * 1e9)
-            for key, msg in frame_messages(frame, frame.stamp).items():
-                writer.write(conns[key], ns, serialize_message(msg))
-            written += 1
-    return written
-
-
 @dataclass
 class _BagEntry:
     stamp: float
@@ -85,8 +41,8 @@ class _BagEntry:
 
 @dataclass
 class BagSequence:
-    """A recorded bag as a sequence: the same iteration interface as
-    :class:`~twinslam.sequence_player.readers.SequenceReader`."""
+    """A recorded bag as a :class:`~twinslam.sequences.frame.Sequence` (streamed, so not
+    random access)."""
 
     path: Path
     kind: str = "rosbag2"

@@ -17,10 +17,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from device_tracker.local_map import LocalMap
-from device_tracker.orb_extractor import Features, OrbExtractor
-from device_tracker.pose_optimization import optimize_pose
 from twinslam.common.tracking_rule import MIN_INLIERS
+from twinslam.slam.local_map import LocalMap
+from twinslam.slam.orb_extractor import Features, OrbExtractor
+from twinslam.slam.pose_optimization import optimize_pose
 from twinslam.slam.projection_matching import back_project, match_by_projection, visible_points
 
 

@@ -1,6 +1,6 @@
 """The device's uplink shaped by the kernel: Linux ``tc`` on the uplink interface (issue #8).
 
-The alternative to :class:`~device_tracker.uplink_shaper.UplinkShaper` (``shaper:=tc``): instead
+The alternative to :class:`~twinslam.uplink.shaper.UplinkShaper` (``shaper:=tc``): instead
 of pacing payloads in the process, each slot sets a token bucket filter (``tbf``) of rate d_k
 as the root qdisc of the device's uplink interface, optionally with ``netem`` delay and loss
 below it, and the device writes its keyframes as fast as DDS lets it. The kernel holds the
@@ -26,7 +26,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from device_tracker.uplink_shaper import ShaperError, SlotThroughput, UplinkShaper, check_rate
+from twinslam.uplink.shaper import ShaperError, SlotThroughput, UplinkShaper, check_rate
 
 #: bucket depth: well above rate / HZ at 80 Mbit/s, small against a slot's megabytes
 BURST = "64kb"

@@ -1,4 +1,4 @@
-"""RGB-D sequence readers: SUN3D, 7-Scenes and TUM RGB-D folders behind one iterator.
+"""Dataset folders as sequences: SUN3D, 7-Scenes and TUM RGB-D behind one iterator.
 
 Every reader yields :class:`RgbdFrame` (colour as RGB, depth in metres with 0 = no reading,
 3×3 intrinsics, camera-to-world ground truth when the dataset has it) in capture order. A
@@ -33,7 +33,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from scipy.spatial.transform import Rotation
+
+from twinslam.sequences.frame import RgbdFrame, SequenceError, pose_from_xyzq
 
 log = logging.getLogger(__name__)
 
@@ -49,21 +50,6 @@ TUM_CALIBRATION = {
 }
 
 
-class SequenceError(ValueError):
-    """A sequence that cannot be read at all (missing folder, missing intrinsics...)."""
-
-
-@dataclass
-class RgbdFrame:
-    index: int                     #: position in the sequence (0-based, after skips counted)
-    stamp: float                   #: capture time, seconds
-    color: np.ndarray              #: H×W×3 uint8, RGB
-    depth: np.ndarray | None       #: H×W float32 metres, 0 = no reading; None if absent
-    intrinsics: np.ndarray         #: 3×3
-    pose: np.ndarray | None        #: 4×4 camera-to-world (ground truth), None if unknown
-    name: str = ""                 #: the colour file, for messages
-
-
 @dataclass
 class _Entry:
     stamp: float
@@ -73,7 +59,7 @@ class _Entry:
 
 
 @dataclass
-class SequenceReader:
+class FolderSequence:
     """Frames of one sequence folder; iterate it (as often as needed) for :class:`RgbdFrame`.
 
     ``start``/``end`` select entries [start, end) of the listing (end < 0: to the end).
@@ -89,11 +75,11 @@ class SequenceReader:
     def __len__(self) -> int:
         return len(self.entries)
 
-    def select(self, start: int = 0, end: int = -1) -> SequenceReader:
+    def select(self, start: int = 0, end: int = -1) -> FolderSequence:
         if start < 0 or (end >= 0 and end < start):
             raise SequenceError(f"{self.path}: bad frame range start={start} end={end}")
         stop = len(self.entries) if end < 0 else min(end, len(self.entries))
-        return SequenceReader(self.path, self.kind, self.intrinsics, self.entries[start:stop],
+        return FolderSequence(self.path, self.kind, self.intrinsics, self.entries[start:stop],
                               self.depth_decoder)
 
     @property
@@ -148,49 +134,6 @@ def decode_depth(raw: np.ndarray, encoding: str) -> np.ndarray:
     return metres
 
 
-def open_sequence(path: str | Path, start: int = 0, end: int = -1) -> SequenceReader:
-    """Detect the layout of ``path`` and open it: a dataset folder, a rosbag2 folder or
-    ``.mcap`` file recorded by ``twinslam record``, or ``synthetic[:frames[:seed]]`` (the
-    rendered room, 900 frames by default; the seed picks the walk)."""
-    if str(path).startswith("synthetic"):
-        from twinslam.sequence_player.synthetic import SyntheticSequence
-
-        _, _, spec = str(path).partition(":")
-        frames, _, seed = spec.partition(":")
-        try:
-            n = int(frames) if frames else 900
-            walk = int(seed) if seed else 0
-        except ValueError:
-            raise SequenceError(f"synthetic[:frames[:seed]] expected, got {path!r}") from None
-        stop = n if end < 0 else min(end, n)
-        if not 0 <= start < stop:
-            raise SequenceError(f"{path}: bad frame range start={start} end={end}")
-        return SyntheticSequence(n_frames=n, seed=walk).select(  # type: ignore[return-value]
-            start, stop)
-    root = Path(path)
-    if root.suffix == ".mcap" or (root / "metadata.yaml").is_file():
-        from twinslam.sequence_player.bag import open_bag
-
-        return open_bag(root, start, end)  # type: ignore[return-value]
-    if not root.is_dir():
-        raise SequenceError(f"sequence folder {root} does not exist")
-    if (root / "image").is_dir():
-        reader = read_sun3d(root)
-    elif (root / "rgb.txt").is_file():
-        reader = read_tum(root)
-    elif any(root.glob("frame-*.color.*")):
-        reader = read_seven_scenes(root)
-    else:
-        raise SequenceError(f"{root}: not a SUN3D (image/), TUM RGB-D (rgb.txt) or 7-Scenes "
-                            "(frame-*.color.*) folder")
-    if not reader.entries:
-        raise SequenceError(f"{root}: the sequence holds no frames")
-    chosen = reader.select(start, end)
-    if not chosen.entries:
-        raise SequenceError(f"{root}: no frame in [{start}, {end}) of its {len(reader)}")
-    return chosen
-
-
 def read_matrix(path: Path, rows: int, cols: int) -> np.ndarray:
     """A whitespace-separated rows×cols matrix file, with a clear error when it is not one."""
     if not path.is_file():
@@ -209,7 +152,7 @@ def read_matrix(path: Path, rows: int, cols: int) -> np.ndarray:
 _SEVEN = re.compile(r"frame-(\d+)\.color\.(jpg|png)$")
 
 
-def read_seven_scenes(root: Path) -> SequenceReader:
+def read_seven_scenes(root: Path) -> FolderSequence:
     intrinsics = read_matrix(root / "camera-intrinsics.txt", 3, 3)
     entries = []
     for color in sorted(root.glob("frame-*.color.*")):
@@ -226,7 +169,7 @@ def read_seven_scenes(root: Path) -> SequenceReader:
             except SequenceError as exc:
                 log.warning("no ground truth for %s: %s", color.name, exc)
         entries.append(_Entry(idx / SEVEN_SCENES_HZ, color, depth, pose))
-    return SequenceReader(root, "7scenes", intrinsics, entries, "mm")
+    return FolderSequence(root, "7scenes", intrinsics, entries, "mm")
 
 
 # -- SUN3D ------------------------------------------------------------------------------------
@@ -243,7 +186,7 @@ def _sun3d_listing(folder: Path) -> list[tuple[int, float, Path]]:
     return sorted(out)
 
 
-def read_sun3d(root: Path) -> SequenceReader:
+def read_sun3d(root: Path) -> FolderSequence:
     intrinsics = read_matrix(root / "intrinsics.txt", 3, 3)
     images = _sun3d_listing(root / "image")
     depth_dir = root / "depth"
@@ -259,7 +202,7 @@ def read_sun3d(root: Path) -> SequenceReader:
                        key=lambda k: abs(depth_stamps[k] - stamp))
             depth = depths[near][2]
         entries.append(_Entry(stamp, path, depth, poses[i] if i < len(poses) else None))
-    return SequenceReader(root, "sun3d", intrinsics, entries, "sun3d")
+    return FolderSequence(root, "sun3d", intrinsics, entries, "sun3d")
 
 
 def _sun3d_extrinsics(folder: Path) -> list[np.ndarray]:
@@ -322,7 +265,7 @@ def _tum_intrinsics(root: Path) -> np.ndarray:
                         "name to pick TUM's published calibration")
 
 
-def read_tum(root: Path) -> SequenceReader:
+def read_tum(root: Path) -> FolderSequence:
     intrinsics = _tum_intrinsics(root)
     rgb = [(float(r[0]), root / r[1]) for r in _tum_list(root / "rgb.txt", 2)]
     depth_rows = [(float(r[0]), root / r[1]) for r in _tum_list(root / "depth.txt", 2)] \
@@ -340,18 +283,4 @@ def read_tum(root: Path) -> SequenceReader:
         pose = pose_from_xyzq([float(x) for x in gt_rows[g][1:8]]) if g is not None \
             else None
         entries.append(_Entry(stamp, path, depth_rows[d][1] if d is not None else None, pose))
-    return SequenceReader(root, "tum", intrinsics, entries, "tum")
-
-
-def pose_from_xyzq(values: list[float] | np.ndarray) -> np.ndarray:
-    """x y z qx qy qz qw (TUM's, the covisibility file's and PoseStamped's order) → 4×4
-    camera-to-world; the quaternion is normalised."""
-    pose = np.eye(4)
-    pose[:3, :3] = Rotation.from_quat(np.asarray(values[3:7], dtype=np.float64)).as_matrix()
-    pose[:3, 3] = values[:3]
-    return pose
-
-
-def pose_to_xyzq(pose: np.ndarray) -> np.ndarray:
-    """4×4 camera-to-world → x y z qx qy qz qw."""
-    return np.concatenate([pose[:3, 3], Rotation.from_matrix(pose[:3, :3]).as_quat()])
+    return FolderSequence(root, "tum", intrinsics, entries, "tum")

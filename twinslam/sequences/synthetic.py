@@ -18,7 +18,7 @@ import numpy as np
 from numba import njit
 from scipy.spatial.transform import Rotation
 
-from twinslam.sequence_player.readers import RgbdFrame
+from twinslam.sequences.frame import RgbdFrame
 
 ROOM_HALF = np.array([3.0, 1.4, 2.5])      #: half extents (x, y, z) in metres
 TEXEL_M = 0.004                             #: one texture pixel covers 4 mm
@@ -38,13 +38,9 @@ def _texture(name: str) -> np.ndarray:
 
 
 @dataclass
-class _Entry:
-    stamp: float
-
-
-@dataclass
 class SyntheticSequence:
-    """``n_frames`` frames at 30 Hz of the textured room (same interface as SequenceReader)."""
+    """``n_frames`` frames at 30 Hz of the textured room; a
+    :class:`~twinslam.sequences.frame.RandomAccessSequence`."""
 
     n_frames: int = 900
     seed: int = 0
@@ -61,7 +57,6 @@ class SyntheticSequence:
             raise ValueError("a synthetic sequence needs at least one frame")
         self.intrinsics = np.array([[self.fx, 0, (self.width - 1) / 2],
                                     [0, self.fx, (self.height - 1) / 2], [0, 0, 1.0]])
-        self.entries = [_Entry(i / FPS) for i in range(self.first, self.n_frames)]
         rng = np.random.default_rng(self.seed)
         self._phase = rng.uniform(0, 2 * np.pi, 6)
         self._textures = np.stack([cv2.resize(_texture(n), (TEX_SIZE, TEX_SIZE),
@@ -78,6 +73,10 @@ class SyntheticSequence:
     def select(self, start: int, stop: int) -> SyntheticSequence:
         """Frames [start, stop) of the same room and trajectory."""
         return SyntheticSequence(stop, self.seed, self.width, self.height, self.fx, first=start)
+
+    @property
+    def stamps(self) -> np.ndarray:
+        return np.arange(self.first, self.n_frames) / FPS
 
     @property
     def poses(self) -> list[np.ndarray]:

@@ -1,0 +1,1 @@
+"""RGB-D sequences: dataset folders, the synthetic room and recorded bags behind one protocol."""

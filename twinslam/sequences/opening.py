@@ -1,0 +1,62 @@
+"""One entry point for every sequence source: a path or spec in, a :class:`Sequence` out."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from twinslam.sequences.folders import FolderSequence, read_seven_scenes, read_sun3d, read_tum
+from twinslam.sequences.frame import Sequence, SequenceError
+from twinslam.sequences.synthetic import SyntheticSequence
+
+#: frames of ``synthetic`` when the spec names no count
+SYNTHETIC_DEFAULT_FRAMES = 900
+
+
+def open_sequence(path: str | Path, start: int = 0, end: int = -1) -> Sequence:
+    """Detect the layout of ``path`` and open frames [start, end) of it (end < 0: to the end):
+    a dataset folder, a rosbag2 folder or ``.mcap`` file recorded by ``twinslam record``, or
+    ``synthetic[:frames[:seed]]`` (the rendered room; the seed picks the walk)."""
+    if str(path).startswith("synthetic"):
+        return _open_synthetic(str(path), start, end)
+    root = Path(path)
+    if root.suffix == ".mcap" or (root / "metadata.yaml").is_file():
+        # imported here: reading a bag loads rclpy and rosbags, which a folder never needs
+        from twinslam.sequences.bag import open_bag
+
+        return open_bag(root, start, end)
+    return open_folder(root, start, end)
+
+
+def _open_synthetic(spec: str, start: int, end: int) -> SyntheticSequence:
+    _, _, rest = spec.partition(":")
+    frames, _, seed = rest.partition(":")
+    try:
+        n = int(frames) if frames else SYNTHETIC_DEFAULT_FRAMES
+        walk = int(seed) if seed else 0
+    except ValueError:
+        raise SequenceError(f"synthetic[:frames[:seed]] expected, got {spec!r}") from None
+    stop = n if end < 0 else min(end, n)
+    if not 0 <= start < stop:
+        raise SequenceError(f"{spec}: bad frame range start={start} end={end}")
+    return SyntheticSequence(n_frames=n, seed=walk).select(start, stop)
+
+
+def open_folder(root: Path, start: int = 0, end: int = -1) -> FolderSequence:
+    """A SUN3D, TUM RGB-D or 7-Scenes folder, told apart by what it holds."""
+    if not root.is_dir():
+        raise SequenceError(f"sequence folder {root} does not exist")
+    if (root / "image").is_dir():
+        reader = read_sun3d(root)
+    elif (root / "rgb.txt").is_file():
+        reader = read_tum(root)
+    elif any(root.glob("frame-*.color.*")):
+        reader = read_seven_scenes(root)
+    else:
+        raise SequenceError(f"{root}: not a SUN3D (image/), TUM RGB-D (rgb.txt) or 7-Scenes "
+                            "(frame-*.color.*) folder")
+    if not reader.entries:
+        raise SequenceError(f"{root}: the sequence holds no frames")
+    chosen = reader.select(start, end)
+    if not chosen.entries:
+        raise SequenceError(f"{root}: no frame in [{start}, {end}) of its {len(reader)}")
+    return chosen
