@@ -25,7 +25,7 @@ from device_tracker.device_core import DeviceTrackerCore
 from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore
 from edge_mapper.messages import map_update_message
 from edge_mapper.slot_planner import FrameObservations
-from twinslam.cli.launcher import RunRecord
+from twinslam.live.record import RunRecord
 from twinslam.policy_registry import make_policy
 from twinslam.sequences.opening import open_sequence
 from twinslam.slam.map_update import read_map_update

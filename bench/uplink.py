@@ -18,7 +18,7 @@ import statistics
 import sys
 from pathlib import Path
 
-from twinslam.cli.launcher import LaunchConfig, Launcher, tc_uplink_params
+from twinslam.live.launcher import LaunchConfig, Launcher, tc_uplink_params
 from twinslam.node_hosts.netns import NetnsHosts, unavailable_reason
 
 FRAME_MBIT = 640 * 480 * 3 * 8 / 1e6

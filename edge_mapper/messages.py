@@ -63,8 +63,8 @@ def map_stats_message(slot: int, policy: str, keyframe_map: KeyFrameMap, uncerta
     msg = new("twinslam_msgs/msg/MapStats", slot=slot, policy=policy,
               map_size=len(keyframe_map.keyframes), map_points=len(keyframe_map.points),
               uncertainty=float(uncertainty),
-              mean_next_uncertainty=upsilon.objective if upsilon else math.nan,
-              tracked_next_uncertainty=upsilon.mean_tracked if upsilon else math.nan,
-              lost_frame_ratio=upsilon.lost_ratio if upsilon else 0.0, uploads=uploads,
+              mean_uncertainty=upsilon.objective if upsilon else math.nan,
+              tracked_uncertainty=upsilon.tracked_uncertainty if upsilon else math.nan,
+              lost_share=upsilon.lost_share if upsilon else 0.0, uploads=uploads,
               optimisation_ms=float(optimisation_ms), slot_processing_ms=float(processing_ms))
     return set_header(msg, stamp, "")

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from device_tracker.messages import FrameRecord, frame_summaries_message
-from twinslam.cli.launcher import RunRecord
-from twinslam.cli.live_calibration import PlayedFrames, live_frames
+from twinslam.live.calibration import PlayedFrames, live_frames
+from twinslam.live.record import RunRecord
 from twinslam.simulator.calibration import (
     CalibrationFrame,
     FramePrediction,
@@ -183,8 +183,8 @@ def test_agreement_per_scenario_on_hand_made_runs(tmp_path) -> None:
     error and r over runs; a run with no scored frame is left out."""
     import csv
 
-    from twinslam.cli.evaluate import CALIBRATION_HEADER
     from twinslam.experiments.calibration_report import agreement_by_scenario, read_rows
+    from twinslam.live.runs import CALIBRATION_HEADER
 
     runs = [("v15", 0, 0.10, 0.12), ("v15", 1, 0.20, 0.18), ("v15", 2, 0.40, 0.45),
             ("v25", 0, 0.30, 0.10), ("v25", 1, 0.10, 0.30), ("v25", 2, 0.20, 0.20)]

@@ -81,15 +81,15 @@ def test_upload_request_and_map_stats() -> None:
     assert req.upload_frame_ids.tolist() == [31, 40] and req.evict_frame_ids.tolist() == [3]
     stats = _roundtrip(map_stats_message(2, "lff", KeyFrameMap(), math.inf, None, 2,
                                          12.0, 30.0, 1.0))
-    assert math.isinf(stats.uncertainty) and math.isnan(stats.mean_next_uncertainty)
-    assert math.isnan(stats.tracked_next_uncertainty)
-    assert stats.lost_frame_ratio == 0.0 and stats.map_size == 0
+    assert math.isinf(stats.uncertainty) and math.isnan(stats.mean_uncertainty)
+    assert math.isnan(stats.tracked_uncertainty)
+    assert stats.lost_share == 0.0 and stats.map_size == 0
     # one of four frames lost: it scores 0 in the mean, the tracked mean leaves it out
     upsilon = SlotUncertainty(tracked_sum=-300.0, n_tracked=3, n_frames=4, map_uncertainty=-90)
     stats = _roundtrip(map_stats_message(3, "lff", KeyFrameMap(), -90.0, upsilon, 2, 12.0,
                                          30.0, 1.0))
-    assert stats.mean_next_uncertainty == -75.0 and stats.tracked_next_uncertainty == -100.0
-    assert stats.lost_frame_ratio == 0.25
+    assert stats.mean_uncertainty == -75.0 and stats.tracked_uncertainty == -100.0
+    assert stats.lost_share == 0.25
 
 
 def test_device_messages_round_trip_into_the_edge_readers() -> None:

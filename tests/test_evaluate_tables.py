@@ -9,16 +9,10 @@ from pathlib import Path
 
 import pytest
 
-from twinslam.cli.evaluate import (
-    RunKey,
-    RunResult,
-    paired_differences,
-    paired_markdown,
-    policy_variants,
-    summarise,
-)
-from twinslam.cli.launcher import RunReport
-from twinslam.cli.scenarios import SCENARIOS
+from twinslam.live.report import RunReport
+from twinslam.live.runs import RunKey, RunResult, policy_variants
+from twinslam.live.scenarios import SCENARIOS
+from twinslam.live.tables import paired_differences, paired_markdown, summarise
 
 
 def _run(policy: str, seed: int, failures: int, ate: float, spec: str = "") -> RunResult:
@@ -64,7 +58,7 @@ def test_paired_differences_take_the_best_rule_policy_seed_by_seed() -> None:
 
 def test_a_failed_run_is_reported_and_the_others_go_on(tmp_path: Path,
                                                      monkeypatch: pytest.MonkeyPatch) -> None:
-    from twinslam.cli import evaluate
+    from twinslam.live import runs as evaluate
 
     def fake(task: evaluate.RunTask) -> RunResult:
         if task.key.seed == 1:
@@ -86,7 +80,7 @@ def test_a_failed_run_is_reported_and_the_others_go_on(tmp_path: Path,
 
 def test_an_interrupted_evaluation_resumes_with_what_it_measured(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    from twinslam.cli import evaluate
+    from twinslam.live import runs as evaluate
 
     ran: list[int] = []
 
@@ -117,7 +111,7 @@ def test_an_interrupted_evaluation_resumes_with_what_it_measured(
 
 
 def test_resuming_into_a_folder_of_another_version_is_refused(tmp_path: Path) -> None:
-    from twinslam.cli import evaluate
+    from twinslam.live import runs as evaluate
 
     (tmp_path / "runs.csv").write_text("scenario,policy,seed\nrevisit,lff,0\n")
     with pytest.raises(ValueError, match="another version"):
@@ -125,7 +119,7 @@ def test_resuming_into_a_folder_of_another_version_is_refused(tmp_path: Path) ->
 
 
 def test_the_summary_table_shows_shares_to_a_tenth_of_a_percent() -> None:
-    from twinslam.cli.evaluate import METRICS, SummaryRow, markdown_table
+    from twinslam.live.tables import METRICS, SummaryRow, markdown_table
 
     figures = {m: (1.0, 0.5) for m, _, _ in METRICS}
     figures["device_failure_share"] = (0.2345, 0.0412)

@@ -159,8 +159,8 @@ def test_slot_uncertainty_equals_per_frame_factorisations(w: np.ndarray, k: int,
         u.append(-6.0 * log_tau(full))
     u = np.array(u)
     tracked = np.isfinite(u)
-    assert slot.lost_ratio == pytest.approx(1 - tracked.mean())
+    assert slot.lost_share == pytest.approx(1 - tracked.mean())
     assert close(slot.map_uncertainty, map_uncertainty(w))
     if tracked.any():
-        assert close(slot.mean_tracked, float(u[tracked].mean()))
+        assert close(slot.tracked_uncertainty, float(u[tracked].mean()))
     assert close(slot.objective, float(u[tracked].sum()) / len(u))     # a lost frame: u = 0

@@ -27,14 +27,9 @@ from typing import Any
 import pytest
 
 from tests.data_paths import seven_or_synthetic
-from twinslam.cli.launcher import (
-    NODE_HOSTS,
-    LaunchConfig,
-    Launcher,
-    RunRecord,
-    RunReport,
-    tc_uplink_params,
-)
+from twinslam.live.launcher import NODE_HOSTS, LaunchConfig, Launcher, tc_uplink_params
+from twinslam.live.record import RunRecord
+from twinslam.live.report import RunReport
 from twinslam.node_hosts.netns import HOSTS, NetnsError, NetnsHosts, address_of, unavailable_reason
 
 SEQUENCE = seven_or_synthetic()

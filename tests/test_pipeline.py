@@ -22,8 +22,10 @@ import pytest
 
 from msg_schemas.headers import stamp_seconds
 from tests.data_paths import seven_or_synthetic
-from twinslam.cli.launcher import LaunchConfig, Launcher, RunRecord, RunReport
-from twinslam.cli.scenarios import SCENARIOS, Scenario
+from twinslam.live.launcher import LaunchConfig, Launcher
+from twinslam.live.record import RunRecord
+from twinslam.live.report import RunReport
+from twinslam.live.scenarios import SCENARIOS, Scenario
 from twinslam.node_hosts.loopback import LoopbackDomain
 from twinslam.slam.keyframe_map import shared_counts
 from twinslam.uncertainty.map_uncertainty import map_uncertainty
@@ -104,13 +106,13 @@ def test_policies_decide_differently_and_the_edge_reports_consistent_scores(
         and uploads["lff"] != uploads["pu"]
     print(f"\nmean υ: { {p: r[0].mean_uncertainty for p, r in runs.items()} }, tracked: "
           f"{ {p: r[0].tracked_uncertainty for p, r in runs.items()} }, lost: "
-          f"{ {p: r[0].lost_ratio for p, r in runs.items()} }")
+          f"{ {p: r[0].lost_share for p, r in runs.items()} }")
     checked = 0
     for policy, (_, record, _) in runs.items():
         for slot, stats in record.stats.items():
-            if math.isfinite(stats.tracked_next_uncertainty):
-                assert stats.mean_next_uncertainty == pytest.approx(
-                    (1 - stats.lost_frame_ratio) * stats.tracked_next_uncertainty,
+            if math.isfinite(stats.tracked_uncertainty):
+                assert stats.mean_uncertainty == pytest.approx(
+                    (1 - stats.lost_share) * stats.tracked_uncertainty,
                     rel=1e-6), f"{policy} slot {slot}"
                 checked += 1
     assert checked >= 3 * (FRAMES // 60 - 2)

@@ -236,7 +236,7 @@ def test_adapt_lowers_the_tracked_frames_uncertainty_on_the_room_model(
         for seed in range(3):
             env = MapManagementEnv(room, parse_channel("markov:N=2", seed=seed), config)
             tally = UncertaintyTally.of([tally, *rollout(env, make_policy(name), seed).slots])
-        figures[name] = (tally.mean, tally.lost_share, tally.tracked_mean)
+        figures[name] = (tally.mean, tally.lost_share, tally.tracked_uncertainty)
     print("mean υ, lost share, υ tracked over 3 seeds: " + ", ".join(
         f"{n} {m:.1f} / {lost:.1%} / {t:.1f}" for n, (m, lost, t) in figures.items()))
     assert figures["adapt"][2] < figures["lff"][2]

@@ -54,7 +54,7 @@ def test_policies_plan_theorem1_sized_actions_on_the_edge_map(policy: str) -> No
     assert len(plan.action.upload) == 6                        # floor(60 · 0.5 / 5)
     assert len(plan.action.evict) == 12 + 6 - 14
     assert set(plan.action.upload) <= {f.frame_id for f in frames}
-    assert plan.uncertainty is not None and 0 <= plan.uncertainty.lost_ratio < 1
+    assert plan.uncertainty is not None and 0 <= plan.uncertainty.lost_share < 1
     if policy == "lff":
         assert plan.action.upload == [26, 27, 28, 29, 30, 31]
         assert plan.action.evict == [0, 1, 2, 3]

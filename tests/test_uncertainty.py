@@ -111,11 +111,11 @@ def test_a_lost_frame_scores_as_a_frame_with_no_map_and_never_leaks_inf() -> Non
     w = np.array([[0, 10], [10, 0]], dtype=float)
     cand = np.array([[3, 4], [0, 0], [5, 0]], dtype=float)
     slot = next_slot_uncertainty(w, cand)
-    assert slot.lost_ratio == pytest.approx(1 / 3)
+    assert slot.lost_share == pytest.approx(1 / 3)
     u = augmented_uncertainties(w, cand)
-    assert slot.mean_tracked == pytest.approx(np.mean(u[[0, 2]]))
+    assert slot.tracked_uncertainty == pytest.approx(np.mean(u[[0, 2]]))
     assert slot.objective == pytest.approx((u[0] + u[2] + 0.0) / 3)      # lost: u = 0
-    assert slot.objective == pytest.approx((1 - slot.lost_ratio) * slot.mean_tracked)
+    assert slot.objective == pytest.approx((1 - slot.lost_share) * slot.tracked_uncertainty)
     assert slot.reward == -slot.objective
     # losing the frame is worse than tracking it, however weakly: u(G ∪ {f}) < 0
     weakly = next_slot_uncertainty(w, np.array([[3, 4], [1, 0], [5, 0]], dtype=float))
@@ -129,8 +129,8 @@ def test_pooled_scores_keep_mean_equal_lost_times_tracked() -> None:
     pooled = UncertaintyTally.of(slots)
     assert pooled.n_frames == 6 and pooled.n_tracked == 3
     assert pooled.lost_share == pytest.approx(0.5)
-    assert pooled.mean == pytest.approx((1 - pooled.lost_share) * pooled.tracked_mean)
-    assert math.isnan(slots[2].mean_tracked) and slots[2].objective == 0.0
+    assert pooled.mean == pytest.approx((1 - pooled.lost_share) * pooled.tracked_uncertainty)
+    assert math.isnan(slots[2].tracked_uncertainty) and slots[2].objective == 0.0
 
 
 def test_a_disconnected_map_that_every_next_frame_bridges_has_a_finite_objective() -> None:
@@ -140,7 +140,7 @@ def test_a_disconnected_map_that_every_next_frame_bridges_has_a_finite_objective
     w[2, 3] = w[3, 2] = 7
     cand = np.array([[1.0, 0, 2, 0], [0, 3.0, 0, 1.0]])
     slot = next_slot_uncertainty(w, cand)
-    assert slot.lost_ratio == 0.0 and slot.map_uncertainty == math.inf
+    assert slot.lost_share == 0.0 and slot.map_uncertainty == math.inf
     assert slot.objective == pytest.approx(np.mean(augmented_uncertainties(w, cand)))
     assert math.isfinite(slot.reward)
 

@@ -26,7 +26,7 @@ COLUMNS = (("device_failure_share", "device failed (%)", 1, 100.0),
            ("relocalisations", "relocalisations", 1, 1.0),
            ("untracked_frames", "untracked frames", 0, 1.0), ("ate_m", "ATE (m)", 3, 1.0),
            # the edge's MapStats, the three figures of DESIGN.md §2 together
-           ("mean_uncertainty", "mean υ", 0, 1.0), ("lost_ratio", "lost share (%)", 1, 100.0),
+           ("mean_uncertainty", "mean υ", 0, 1.0), ("lost_share", "lost share (%)", 1, 100.0),
            ("tracked_uncertainty", "υ tracked", 0, 1.0), ("frames_uploaded", "uploads", 0, 1.0))
 PAIRED = {"device_failure_share": ("device failed (pts)", 1, 100.0),
           "ate_m": ("ATE (m)", 3, 1.0), "untracked_frames": ("untracked frames", 0, 1.0)}

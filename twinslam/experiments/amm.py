@@ -95,8 +95,8 @@ class BoundResult:
     def ci95(self) -> float:
         return mean_ci95(self.per_seed)[1]
 
-    lost_ratio = math.nan
-    mean_tracked = math.nan
+    lost_share = math.nan
+    tracked_uncertainty = math.nan
 
 
 Result = PolicyResult | VariantResult | BoundResult
@@ -136,7 +136,7 @@ def _run(dataset: CovisibilityDataset, channel: str, setting: Setting,
     if progress:
         for label, res in out.items():
             progress(f"{channel} V_max {setting.vmax}: {label} {res.mean:.1f} ± {res.ci95:.1f}"
-                     f", lost {res.lost_ratio:.1%}, tracked {res.mean_tracked:.1f}")
+                     f", lost {res.lost_share:.1%}, tracked {res.tracked_uncertainty:.1f}")
     return out, episodes
 
 
@@ -172,7 +172,7 @@ RUN_COLUMNS = ["policy", "checkpoint", "seed", "mean_uncertainty", "lost_share",
 def _rows(results: dict[object, dict[str, Result]]) -> list[list[object]]:
     return [[x, label, r.mean, r.ci95,
              len(r.checkpoints) if isinstance(r, VariantResult) else "", len(r.per_seed),
-             r.lost_ratio, r.mean_tracked]
+             r.lost_share, r.tracked_uncertainty]
             for x, by in results.items() for label, r in by.items()]
 
 
@@ -220,7 +220,7 @@ def _plot(path: Path, results: dict[object, dict[str, Result]], x_label: str,
         style = ({"linestyle": "--", "color": "k"} if label == REFERENCE else
                  {"linestyle": ":", "color": "grey"} if label == BOUND else {})
         for axis, values, errs in ((ax, [r.mean for r in series], [r.ci95 for r in series]),
-                                   (ax_lost, [100 * r.lost_ratio for r in series], None)):
+                                   (ax_lost, [100 * r.lost_share for r in series], None)):
             if bars:
                 width = 0.8 / len(labels)
                 axis.bar(np.arange(len(xs)) + i * width, values, width, yerr=errs, capsize=3,

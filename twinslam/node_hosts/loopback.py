@@ -23,7 +23,13 @@ import time
 from types import TracebackType
 from typing import Any
 
-from twinslam.node_hosts.fastdds import ENV_KEYS, REPO_ROOT, ros_env
+from twinslam.node_hosts.fastdds import (
+    ENV_KEYS,
+    REPO_ROOT,
+    domain_id_from_env,
+    installed_profile,
+    ros_env,
+)
 
 
 def _discovery_port_free(domain_id: int) -> bool:
@@ -222,3 +228,18 @@ class JsonLines:
                 continue
             if item.get("event") == event:
                 return item
+
+
+class EnvironmentDomain(LoopbackDomain):
+    """The domain of the environment ($ROS_DOMAIN_ID, discovery range, static peers) as it is,
+    with the project's Fast DDS profile unless $FASTRTPS_DEFAULT_PROFILES_FILE names one: what
+    ``twinslam launch`` runs on without ``--loopback`` or ``--hosts``."""
+
+    def __init__(self) -> None:
+        super().__init__(domain_id_from_env())
+
+    @property
+    def env(self) -> dict[str, str]:
+        env = self.base_env()
+        env.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(installed_profile()))
+        return env

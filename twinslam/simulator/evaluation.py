@@ -38,7 +38,7 @@ class RunScore:
 
     @property
     def tracked_uncertainty(self) -> float:
-        return self.tally.tracked_mean
+        return self.tally.tracked_uncertainty
 
 
 class PooledScores:
@@ -50,15 +50,15 @@ class PooledScores:
         raise NotImplementedError
 
     @property
-    def lost_ratio(self) -> float:
+    def lost_share(self) -> float:
         """Share of next-slot frames, over every run, that are lost (too few shared map
         points: twinslam/common/tracking_rule.py)."""
         return self.pooled.lost_share
 
     @property
-    def mean_tracked(self) -> float:
+    def tracked_uncertainty(self) -> float:
         """Mean υ over the tracked frames of every run."""
-        return self.pooled.tracked_mean
+        return self.pooled.tracked_uncertainty
 
 
 @dataclass

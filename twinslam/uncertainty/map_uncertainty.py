@@ -122,12 +122,12 @@ class SlotUncertainty:
         return self.n_frames - self.n_tracked
 
     @property
-    def lost_ratio(self) -> float:
+    def lost_share(self) -> float:
         """Share of the next slot's frames that are lost (too few shared map points)."""
         return self.n_lost / self.n_frames
 
     @property
-    def mean_tracked(self) -> float:
+    def tracked_uncertainty(self) -> float:
         """Mean u(G ∪ {f}) over the tracked frames only; NaN when every frame is lost."""
         return self.tracked_sum / self.n_tracked if self.n_tracked else math.nan
 
@@ -174,7 +174,7 @@ class UncertaintyTally:
         return 1.0 - self.n_tracked / self.n_frames if self.n_frames else math.nan
 
     @property
-    def tracked_mean(self) -> float:
+    def tracked_uncertainty(self) -> float:
         return self.tracked_sum / self.n_tracked if self.n_tracked else math.nan
 
 

@@ -10,45 +10,23 @@ throughput achieved, frames the device could not track, and the edge's milliseco
 
 from __future__ import annotations
 
-import math
 import subprocess
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-import rclpy
 import yaml
-from geometry_msgs.msg import PoseStamped
-from rclpy.node import Node
-from sensor_msgs.msg import Image
-from twinslam_msgs.msg import (
-    FrameSummaries,
-    MapStats,
-    MapUpdate,
-    RateLatent,
-    UplinkThroughput,
-    UploadRequest,
-)
 
-from msg_schemas import qos, topics
-from msg_schemas.headers import stamp_key, stamp_seconds
-from msg_schemas.poses import pose_matrix
-from twinslam.cli.scenarios import SCENARIOS, Scenario
 from twinslam.common import table1
+from twinslam.live.monitor import PipelineMonitor, status_line
+from twinslam.live.record import RunRecord
+from twinslam.live.report import RunReport, report
+from twinslam.live.scenarios import SCENARIOS, Scenario
 from twinslam.node_hosts.fastdds import REPO_ROOT
 from twinslam.node_hosts.loopback import ProcessDomain
 from twinslam.node_hosts.session import RosSession
-from twinslam.slam.map_update import MapSnapshot, read_map_update
-from twinslam.slam.tracking_quality import (
-    FrameFlags,
-    TrackingEvents,
-    absolute_trajectory_error,
-    relative_pose_error,
-    tracking_events,
-)
 
 REPO = REPO_ROOT
 #: the module each node's process runs (``python -m``), as setup.py's console scripts do
@@ -60,173 +38,6 @@ NODE_MODULES = {"sequence_player": "twinslam.sequence_player.node",
 NODE_HOSTS = {"sequence_player": "device", "device_tracker": "device", "edge_mapper": "edge",
               "udt_node": "twin"}
 DEFAULT_PARAMS = REPO / "config" / "twinslam.yaml"
-
-
-@dataclass
-class RunRecord:
-    """Everything the monitor heard, by slot (messages as received)."""
-
-    summaries: dict[int, Any] = field(default_factory=dict)
-    requests: dict[int, Any] = field(default_factory=dict)
-    stats: dict[int, Any] = field(default_factory=dict)
-    throughput: dict[int, Any] = field(default_factory=dict)
-    maps: dict[int, MapSnapshot] = field(default_factory=dict)   #: last map update per slot
-    poses: dict[int, np.ndarray] = field(default_factory=dict)        #: stamp ns → pose
-    ground_truth: dict[int, np.ndarray] = field(default_factory=dict)
-    latents: dict[int, Any] = field(default_factory=dict)    #: the twin's, by slot
-    images_received: int = 0        #: /camera/image_raw samples, when the monitor watches them
-
-
-@dataclass
-class RunReport:
-    policy: str
-    slots: int
-    mean_uncertainty: float          #: mean υ over slots, a lost next-slot frame scoring 0
-    lost_ratio: float                #: mean share of next-slot frames MapStats calls lost
-    tracked_uncertainty: float       #: mean υ over slots, tracked next-slot frames only
-    ate_m: float                     #: NaN without ground truth
-    rpe_m: float                     #: over 1 s (30 frames); NaN without ground truth
-    frames_uploaded: int
-    bytes_uploaded: int
-    achieved_mbps: float             #: mean over slots with uploads
-    untracked_frames: int
-    tracking_failures: int           #: tracked → untracked transitions
-    relocalisations: int             #: frames tracked again by relocalisation
-    recover_s: float                 #: mean seconds from a loss to tracking again (NaN: none)
-    edge_ms_median: float
-    seconds: float
-    #: which policy decided how many slots (``UploadRequest.policy``), e.g. "amm-regime:28
-    #: adapt:2" — a learned policy's fallback shows here
-    decided_by: str = ""
-    #: camera frames missing from the device's complete slots (dropped or skipped): a device
-    #: that fell behind the camera (an overloaded machine) shows here
-    frames_dropped: int = 0
-
-    ROW = ("{label:<14} {mean_uncertainty:>10.1f} {lost_ratio:>6.1%} "
-           "{tracked_uncertainty:>10.1f} {ate_m:>7.3f} "
-           "{rpe_m:>7.3f} {frames_uploaded:>7d} {mbytes:>7.1f} {achieved_mbps:>7.1f} "
-           "{untracked_frames:>6d} {tracking_failures:>5d} {relocalisations:>6d} "
-           "{recover_s:>7.2f} {edge_ms_median:>7.0f}")
-    HEADER = (f"{'policy':<14} {'mean υ':>10} {'lost':>6} {'υ tracked':>10} {'ATE m':>7} "
-              f"{'RPE m':>7} "
-              f"{'uploads':>7} {'MB':>7} {'Mbit/s':>7} {'untrk':>6} {'fails':>5} "
-              f"{'reloc':>6} {'recov s':>7} {'edge ms':>7}")
-
-    @property
-    def label(self) -> str:
-        """The policy as the table shows it: a learned one by its checkpoint's file name."""
-        kind, sep, path = self.policy.partition(":")
-        return f"{kind}:{Path(path).stem}" if sep else self.policy
-
-    def row(self) -> str:
-        return self.ROW.format(mbytes=self.bytes_uploaded / 1e6, label=self.label,
-                               **self.__dict__)
-
-
-class PipelineMonitor:
-    """Subscribes to the run's topics with ``node`` and keeps what it hears."""
-
-    def __init__(self, node: Node, on_stats: Callable[[Any, RunRecord], None] | None = None,
-                 watch_images: bool = False) -> None:
-        self.record = RunRecord()
-        self._on_stats = on_stats
-        r = self.record
-        sub = node.create_subscription
-        sub(FrameSummaries, topics.FRAME_SUMMARIES,
-            lambda m: r.summaries.__setitem__(int(m.slot), m), qos.PROTOCOL)
-        #: its publisher count says whether the edge is up (it publishes after warming up)
-        self.requests = sub(UploadRequest, topics.UPLOAD_REQUEST,
-                            lambda m: r.requests.__setitem__(int(m.slot), m), qos.PROTOCOL)
-        sub(UplinkThroughput, topics.UPLINK_THROUGHPUT,
-            lambda m: r.throughput.__setitem__(int(m.slot), m), qos.PROTOCOL)
-        #: its publisher count says whether the twin is up (it publishes once its model is in)
-        self.latents = sub(RateLatent, topics.RATE_LATENT,
-                           lambda m: r.latents.__setitem__(int(m.slot), m), qos.PROTOCOL)
-        sub(MapStats, topics.MAP_STATS, self._stats, qos.PROTOCOL)
-        # every map the edge sends (not only the latest a late joiner gets)
-        map_qos = rclpy.qos.QoSProfile(depth=100, durability=qos.MAP.durability,
-                                       reliability=qos.MAP.reliability)
-        sub(MapUpdate, topics.MAP_UPDATE,
-            lambda m: r.maps.__setitem__(int(m.slot), read_map_update(m)), map_qos)
-        sub(PoseStamped, topics.DEVICE_POSE,
-            lambda m: r.poses.__setitem__(stamp_key(m.header), pose_matrix(m.pose)),
-            qos.PROTOCOL)
-        sub(PoseStamped, topics.GROUND_TRUTH_POSE,
-            lambda m: r.ground_truth.__setitem__(stamp_key(m.header), pose_matrix(m.pose)),
-            qos.CAMERA)
-        if watch_images:     # a viewer's subscription: best effort, undecoded, only counted
-            sub(Image, topics.CAMERA_IMAGE, self._image, qos.SENSOR_DATA, raw=True)
-
-    def _image(self, _data: bytes) -> None:
-        self.record.images_received += 1
-
-    def _stats(self, msg: Any) -> None:
-        self.record.stats[int(msg.slot)] = msg
-        if self._on_stats:
-            self._on_stats(msg, self.record)
-
-
-def status_line(msg: Any, record: RunRecord) -> str:
-    """One slot as a line: rate, decision, map, uncertainty, timing."""
-    slot = int(msg.slot)
-    req = record.requests.get(slot)
-    summ = record.summaries.get(slot)
-    rate = f"{summ.rate_mbps:4.0f}" if summ is not None else "   ?"
-    ups = len(req.upload_frame_ids) if req is not None else 0
-    ev = len(req.evict_frame_ids) if req is not None else 0
-    nu = msg.mean_next_uncertainty
-    return (f"[{msg.policy}] slot {slot:3d} | d_k {rate} Mbit/s | U {ups} C {ev} | map "
-            f"{msg.map_size:2d} kf {msg.map_points:6d} pts | u {msg.uncertainty:9.1f} | υ "
-            f"{nu:9.1f} lost {msg.lost_frame_ratio:4.0%} tracked "
-            f"{msg.tracked_next_uncertainty:9.1f} | GTSAM {msg.optimisation_ms:4.0f} ms,"
-            f" slot {msg.slot_processing_ms:4.0f} ms")
-
-
-def record_events(record: RunRecord) -> TrackingEvents:
-    """The device's tracking failures and relocalisations, from its frame summaries."""
-    return tracking_events(FrameFlags(stamp_seconds(f), bool(f.tracked), bool(f.relocalised))
-                           for s in record.summaries.values() for f in s.frames)
-
-
-def _finite_mean(values: Iterable[float]) -> float:
-    """Mean of the finite values (NaN: the edge did not know, or nothing was tracked)."""
-    finite = [v for v in values if math.isfinite(v)]
-    return float(np.mean(finite)) if finite else math.nan
-
-
-def report(policy: str, record: RunRecord, seconds: float, slot_frames: int) -> RunReport:
-    """What the run measured; ``slot_frames``: the device's F, to count dropped frames."""
-    stats = [record.stats[s] for s in sorted(record.stats)]
-    scored = stats[1:]         # slot 0 plans against an empty map: every policy loses it all
-    tps = [t for t in record.throughput.values() if t.frames_sent]
-    events = record_events(record)
-    return RunReport(policy, len(stats), _finite_mean(s.mean_next_uncertainty for s in scored),
-                     float(np.mean([s.lost_frame_ratio for s in scored])) if scored else 0.0,
-                     _finite_mean(s.tracked_next_uncertainty for s in scored),
-                     absolute_trajectory_error(record.poses, record.ground_truth),
-                     relative_pose_error(record.poses, record.ground_truth),
-                     sum(int(t.frames_sent) for t in record.throughput.values()),
-                     sum(int(t.bytes_sent) for t in record.throughput.values()),
-                     float(np.mean([t.achieved_mbps for t in tps])) if tps else 0.0,
-                     events.untracked, events.failures, events.relocalisations,
-                     events.mean_recover_s,
-                     float(np.median([s.slot_processing_ms for s in stats])) if stats
-                     else math.nan, seconds, deciders(record),
-                     dropped_frames(record, slot_frames))
-
-
-def dropped_frames(record: RunRecord, slot_frames: int) -> int:
-    """Frames missing from every slot but the last (which the run may end inside)."""
-    slots = sorted(record.summaries)[:-1]
-    return sum(max(0, slot_frames - len(record.summaries[s].frames)) for s in slots)
-
-
-def deciders(record: RunRecord) -> str:
-    """"name:slots" for each policy that decided a slot of the run, most slots first."""
-    counts: dict[str, int] = {}
-    for request in record.requests.values():
-        counts[str(request.policy)] = counts.get(str(request.policy), 0) + 1
-    return " ".join(f"{name}:{n}" for name, n in sorted(counts.items(), key=lambda x: -x[1]))
 
 
 @dataclass
@@ -415,9 +226,3 @@ def tc_uplink_params(alpha_mbit: float, **device: str) -> dict[str, list[str]]:
     return {"device_tracker": ["shaper:=tc", "upload_image:=true", alpha,
                                *(f"{k}:={v}" for k, v in device.items())],
             "edge_mapper": [alpha]}
-
-
-def print_table(reports: list[RunReport], echo: Callable[[str], None] = print) -> None:
-    echo(RunReport.HEADER)
-    for r in reports:
-        echo(r.row())

@@ -26,9 +26,9 @@ from typing import Any
 
 import numpy as np
 
-from twinslam.cli.launcher import RunRecord
-from twinslam.cli.scenarios import Scenario
 from twinslam.common.tracking_rule import MAP_UPDATE_LAG_FRAMES
+from twinslam.live.record import RunRecord
+from twinslam.live.scenarios import Scenario
 from twinslam.sequence_player.playback import Playback, PlayedSequence
 from twinslam.sequences.opening import open_sequence
 from twinslam.simulator.calibration import CalibrationFrame, FramePrediction, predict_frames

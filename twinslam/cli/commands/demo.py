@@ -1,4 +1,4 @@
-"""``make run``: the most complete real thing that exists today.
+"""``twinslam demo`` (what ``make run`` runs): the most complete real thing that exists today.
 
 1. The live pipeline — sequence_player, device_tracker and edge_mapper as separate processes
    on a private ROS domain on this machine — with **the paper's device** (``map_source:
@@ -21,35 +21,36 @@ from __future__ import annotations
 import argparse
 import time
 
+from twinslam.cli.arguments import BUNDLED_COVIS, BUNDLED_SEQUENCE
+from twinslam.cli.commands.sim import Comparison, compare
+from twinslam.cli.console import Subparsers
+from twinslam.live.calibration import covisibility_file
+from twinslam.live.launcher import DEFAULT_PARAMS
+from twinslam.live.runs import RunKey, RunTask, run_one
+from twinslam.live.scenarios import SCENARIOS
+from twinslam.live.tables import side_by_side
 from twinslam.node_hosts.fastdds import REPO_ROOT
 
-REPO = REPO_ROOT
-REAL_COVIS = REPO / "data" / "7scenes-redkitchen-1000.covis.npz"
-REAL_SEQUENCE = REPO.parent / "shared" / "data" / "7scenes-1000"
 #: what the demo's live runs play
 SCENARIO = "revisit-v15"
+#: the device's two map sources, as the demo introduces them
+DEVICES = {"edge": "the paper's device (tracked only against the edge's map)",
+           "edge+local": "the Edge-SLAM style device (edge map + its own recent points)"}
 
 
 def run_live(policies: list[str], frames: int, step: str, map_source: str) -> bool:
     """The live pipeline once per policy with the device's ``map_source``, calibrated against
     the simulator's view of the same frames; True when every run scored slots."""
-    from twinslam.cli.evaluate import RunKey, RunTask, run_one, side_by_side
-    from twinslam.cli.launcher import DEFAULT_PARAMS
-    from twinslam.cli.live_calibration import covisibility_file
-    from twinslam.cli.scenarios import SCENARIOS
-
-    if REAL_SEQUENCE.is_dir():
-        sequence, what = str(REAL_SEQUENCE), f"{frames} real 7-Scenes frames"
+    if BUNDLED_SEQUENCE.is_dir():
+        sequence, what = str(BUNDLED_SEQUENCE), f"{frames} real 7-Scenes frames"
     else:
-        sequence, what = f"synthetic:{frames}", (f"{frames} synthetic frames ({REAL_SEQUENCE} "
-                                                 "is missing)")
+        sequence, what = f"synthetic:{frames}", (f"{frames} synthetic frames "
+                                                 f"({BUNDLED_SEQUENCE} is missing)")
     chosen = SCENARIOS[SCENARIO]
-    device = {"edge": "the paper's device (tracked only against the edge's map)",
-              "edge+local": "the Edge-SLAM style device (edge map + its own recent points)"}
     print(f"{step} live pipeline (player, device, edge as processes on a loopback domain), "
-          f"{device[map_source]}, {what}, scenario {SCENARIO} ({chosen.description}), "
+          f"{DEVICES[map_source]}, {what}, scenario {SCENARIO} ({chosen.description}), "
           f"policies {', '.join(policies)}", flush=True)
-    covis = covisibility_file(sequence, frames, REPO / "results" / "demo" / "covis",
+    covis = covisibility_file(sequence, frames, REPO_ROOT / "results" / "demo" / "covis",
                               lambda line: print("      " + line, flush=True))
     results = [run_one(RunTask(RunKey(SCENARIO, map_source, policy, 0), sequence, frames,
                                chosen, DEFAULT_PARAMS, 600.0, covis, verbose=True))
@@ -60,20 +61,28 @@ def run_live(policies: list[str], frames: int, step: str, map_source: str) -> bo
     return all(r.report.slots > 0 for r in results)
 
 
-def run_demo(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:
     start = time.monotonic()
     graph_ok = run_live(["lff", "pu", "adapt"], args.frames, "[1/3]", "edge")
     graph_ok &= run_live(["lff", "pu", "adapt"], args.frames, "\n[2/3]", "edge+local")
-    if REAL_COVIS.is_file():
-        covis, what = str(REAL_COVIS), ("real covisibility: ORB map points of 1000 7-Scenes "
-                                        "frames (data/)")
+    if BUNDLED_COVIS.is_file():
+        covis, what = str(BUNDLED_COVIS), ("real covisibility: ORB map points of 1000 7-Scenes "
+                                           "frames (data/)")
     else:
-        covis, what = "geometric:600", f"the geometric room model ({REAL_COVIS} is missing)"
+        covis, what = "geometric:600", f"the geometric room model ({BUNDLED_COVIS} is missing)"
     print(f"\n[3/3] offline simulator, {args.slots} slots x {args.seeds} seeds — {what}",
           flush=True)
-    from twinslam.cli.main import main
-
-    code = main(["sim", "--policy", "lff,pu,adapt,reference", "--covis", covis,
-                 "--slots", str(args.slots), "--seeds", str(args.seeds)])
+    code = compare(Comparison(covis, slots=args.slots, seeds=args.seeds))
     print(f"\ndemo finished in {time.monotonic() - start:.0f} s")
     return 0 if graph_ok and code == 0 else 1
+
+
+def register(sub: Subparsers) -> None:
+    demo = sub.add_parser("demo", help="the live pipeline per policy with the paper's device "
+                          "and the Edge-SLAM style one, then the simulator")
+    demo.add_argument("--frames", type=int, default=300,
+                      help="frames of the sequence the live runs play forward and back "
+                      "(2x-1 played); default %(default)s")
+    demo.add_argument("--slots", type=int, default=40, help="simulator slots per run")
+    demo.add_argument("--seeds", type=int, default=3, help="simulator runs per policy")
+    demo.set_defaults(func=run)

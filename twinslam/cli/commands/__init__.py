@@ -1,0 +1,1 @@
+"""One module per ``twinslam`` command: its parser (``register``) beside its handler (``run``)."""

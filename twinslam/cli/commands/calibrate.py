@@ -1,0 +1,58 @@
+"""``twinslam calibrate``: the rule of a lost frame measured from evaluate's runs."""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import asdict, fields
+from pathlib import Path
+
+from twinslam.cli.console import Subparsers, error
+from twinslam.common.reporting import write_csv
+from twinslam.experiments.calibration_report import (
+    ScenarioAgreement,
+    agreement_by_scenario,
+    agreement_markdown,
+    calibrate_runs,
+    plot_calibration,
+    read_rows,
+    report_lines,
+)
+
+
+def run(args: argparse.Namespace) -> int:
+
+
+    try:
+        runs = read_rows(args.folders, "calibration.csv")
+        frames = read_rows(args.folders, "calibration_frames.csv")
+        results = calibrate_runs(runs, frames)
+        agreement = agreement_by_scenario(runs)
+    except (FileNotFoundError, KeyError, ValueError) as exc:
+        return error(exc)
+    if not results:
+        return error("no calibrated next-slot frame in those folders")
+    for line in report_lines(results):
+        print(line)
+    table = agreement_markdown(agreement)
+    print("\nper map source and scenario (shares and measures: mean over runs):")
+    print(table)
+    out = args.out or args.folders[0] / "calibration.png"
+    plot_calibration(runs, frames, results, out)
+    write_csv(out.with_suffix(".csv"), [f.name for f in fields(ScenarioAgreement)],
+              [list(asdict(a).values()) for a in agreement])
+    out.with_suffix(".md").write_text(table + "\n", encoding="utf-8")
+    print(f"wrote {out}, {out.with_suffix('.csv')} and {out.with_suffix('.md')}")
+    return 0
+
+
+def register(sub: Subparsers) -> None:
+    calibrate = sub.add_parser(
+        "calibrate", help="the rule of a lost frame, measured from `twinslam evaluate` runs: "
+        "lag, threshold, agreement per run and per scenario (calibration.png, .csv, .md)")
+    calibrate.add_argument("folders", nargs="+", type=Path,
+                           help="output folders of `twinslam evaluate` (calibration.csv and "
+                           "calibration_frames.csv in each)")
+    calibrate.add_argument("--out", type=Path, default=None,
+                           help="the figure to write, the table beside it as .csv and .md "
+                           "(default: FIRST_FOLDER/calibration.png)")
+    calibrate.set_defaults(func=run)

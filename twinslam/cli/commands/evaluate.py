@@ -1,0 +1,171 @@
+"""``twinslam evaluate``: the live pipeline per scenario x map source x policy x seed."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from twinslam.cli.arguments import BUNDLED_SEQUENCE
+from twinslam.cli.console import Subparsers, error
+from twinslam.live import runs, tables
+from twinslam.live.calibration import covisibility_file
+from twinslam.live.launcher import DEFAULT_PARAMS
+from twinslam.live.scenarios import SCENARIOS, Scenario, scenario
+from twinslam.sequence_player.playback import Playback, PlayedSequence
+from twinslam.sequences.frame import SequenceError
+from twinslam.sequences.opening import open_sequence
+from twinslam.slam.map_source import MAP_SOURCES, check_map_source
+
+
+def _checked(args: argparse.Namespace) -> tuple[list[tuple[str, str]], list[Scenario], list[str]]:
+    """The policies, scenarios and map sources asked for; ValueError (or SequenceError) names
+    a bad option now, not in run 20."""
+    sources = [m.strip() for m in args.map_source.split(",") if m.strip()]
+    policies = runs.policy_variants(args.policy)
+    scenarios = [scenario(n.strip()) for n in args.scenario.split(",") if n.strip()]
+    for source in sources:
+        reason = check_map_source(source)
+        if reason:
+            raise ValueError(f"--map-source: {reason}")
+    for _, policy in policies:
+        kind, _, path = policy.partition(":")
+        if kind == "mbrl" and not Path(path).is_file():
+            raise ValueError(f"{path}: no such policy checkpoint (`twinslam train`)")
+    if not args.params.is_file():
+        raise ValueError(f"parameter file {args.params} does not exist")
+    for name, value, least in (("--seeds", args.seeds, 1), ("--jobs", args.jobs, 1),
+                               ("--first-seed", args.first_seed, 0),
+                               ("--frames", args.frames, 2), ("--start", args.start, 0)):
+        if value < least:
+            raise ValueError(f"{name} must be >= {least}, got {value}")
+    for s in {s.order: s for s in scenarios}.values():
+        PlayedSequence(open_sequence(runs.sequence_for(args.sequence, 0), args.start,
+                                     args.start + args.frames), Playback(s.order))
+    if not policies or not scenarios or not sources:
+        raise ValueError("at least one policy, scenario and map source")
+    return policies, scenarios, sources
+
+
+def _tasks(args: argparse.Namespace, policies: list[tuple[str, str]],
+           scenarios: list[Scenario], sources: list[str]) -> list[runs.RunTask]:
+    """Every run, seed by seed (so the runs a paired comparison pairs share the machine's
+    state), each with the covisibility of the frames it plays (extracted once a sequence)."""
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+    keys = [runs.RunKey(s.name, m, label, seed, "" if spec == label else spec)
+            for s in scenarios for seed in seeds for m in sources for label, spec in policies]
+    print(f"live evaluation: {len(keys)} runs ({len(scenarios)} scenarios x {len(sources)} map "
+          f"sources x {len(policies)} policies x {len(seeds)} seeds) of {args.frames} frames "
+          f"of {args.sequence} from frame {args.start}, {args.jobs} at a time; results in "
+          f"{args.out}", flush=True)
+    covis: dict[str, Path] = {}
+    for seed in seeds:                  # the simulator's view of every played frame
+        sequence = runs.sequence_for(args.sequence, seed)
+        if sequence not in covis:
+            covis[sequence] = covisibility_file(sequence, args.frames, args.out / "covis",
+                                                lambda line: print(line, flush=True),
+                                                args.start)
+    by_name = {s.name: s for s in scenarios}
+    return [runs.RunTask(k, runs.sequence_for(args.sequence, k.seed), args.frames,
+                         by_name[k.scenario], args.params, args.timeout,
+                         covis[runs.sequence_for(args.sequence, k.seed)], args.verbose,
+                         args.start)
+            for k in keys]
+
+
+def _print_tables(results: list[runs.RunResult], out: Path) -> None:
+    rows = tables.summarise(results)
+    tables.write_summary(rows, out)
+    paired = tables.paired_differences(results)
+    tables.write_paired(paired, out)
+    print()
+    print(tables.markdown_table(rows))
+    if paired:
+        print("\npaired with the best rule policy, seed by seed (mean ± 95 % CI):")
+        print(tables.paired_markdown(paired))
+    for source, (r, n) in tables.agreement_over_runs(results).items():
+        print(f"{source}: predicted lost share vs device failure share over {n} runs: "
+              f"Pearson r = {r:.2f}")
+    print(f"\nwrote {out / 'runs.csv'}, summary.csv, summary.md, summary.png, "
+          "paired.csv, paired.md, calibration.csv, calibration_frames.csv")
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        policies, scenarios, sources = _checked(args)
+    except (ValueError, SequenceError) as exc:
+        return error(exc)
+    try:
+        tasks = _tasks(args, policies, scenarios, sources)
+        results, failures = runs.run_all(tasks, args.out, args.jobs,
+                                         lambda line: print(line, flush=True), args.resume)
+    except KeyboardInterrupt:
+        print(f"interrupted: the runs that finished are in {args.out / 'runs.csv'} "
+              "(the same command with --resume runs the rest)", file=sys.stderr)
+        return 130
+    except (RuntimeError, ValueError) as exc:
+        return error(exc, 1)
+    if not results:
+        return error(f"every run failed (tracebacks in {args.out / 'failures.txt'})", 1)
+    _print_tables(results, args.out)
+    if failures:
+        return error(f"{len(failures)} of {len(tasks)} runs failed (tracebacks in "
+                     f"{args.out / 'failures.txt'}); the tables hold the others", 1)
+    return 0
+
+
+def add_arguments(parser: argparse.ArgumentParser, default_sequence: str,
+                  default_params: Path, scenario_names: list[str]) -> None:
+    parser.add_argument("--sequence", default=default_sequence,
+                        help="SUN3D / 7-Scenes / TUM folder, MCAP bag (forward only), or "
+                        "synthetic[:frames] (each seed walks its own path); default: "
+                        "%(default)s")
+    parser.add_argument("--frames", type=int, default=300,
+                        help="frames of the sequence per run (revisit scenarios play them "
+                        "forward then back: 2x-1); default %(default)s")
+    parser.add_argument("--start", type=int, default=0,
+                        help="the sequence's first frame played (e.g. keep a stretch for "
+                        "tuning apart from the one evaluated); default %(default)s")
+    parser.add_argument("--policy", default="lff,pu,adapt",
+                        help="comma-separated: lff, pu, adapt, random, mbrl:CHECKPOINT, each "
+                        "optionally LABEL=POLICY (several checkpoints under one label: one "
+                        "variant over its training runs); default %(default)s")
+    parser.add_argument("--scenario", default=",".join(scenario_names),
+                        help="comma-separated, of: " + ", ".join(scenario_names)
+                        + "; default all")
+    parser.add_argument("--map-source", default="edge",
+                        help="the device's map source(s), comma-separated, of: "
+                        + ", ".join(MAP_SOURCES) + " (edge: the paper's device, tracked only "
+                        "against the edge's map; edge+local: plus its own recent points); "
+                        "default %(default)s")
+    parser.add_argument("--seeds", type=int, default=3,
+                        help="runs per scenario, map source and policy; default %(default)s")
+    parser.add_argument("--first-seed", type=int, default=0,
+                        help="seeds are FIRST..FIRST+SEEDS-1 (keep tuning seeds apart from "
+                        "evaluation seeds); default %(default)s")
+    parser.add_argument("--jobs", type=int, default=1,
+                        help="runs at a time, each in a worker process on its own loopback "
+                        "domain (a run needs about one core); default %(default)s")
+    parser.add_argument("--params", type=Path, default=default_params,
+                        help="ROS 2 parameter file for the nodes; default %(default)s")
+    parser.add_argument("--out", type=Path, default=Path("results/live"),
+                        help="folder for runs.csv, summary.csv/.md/.png, calibration.csv, "
+                        "calibration_frames.csv (and covis/, the played frames' "
+                        "covisibility); default %(default)s")
+    parser.add_argument("--resume", action="store_true",
+                        help="keep the runs --out already holds (an interrupted evaluation) "
+                        "and run only the missing ones; the tables cover both")
+    parser.add_argument("--timeout", type=float, default=900.0,
+                        help="seconds one run may take before its nodes are stopped; default "
+                        "%(default)s")
+    parser.add_argument("--verbose", action="store_true",
+                        help="print every slot's status line, not only one line per run")
+
+
+def register(sub: Subparsers) -> None:
+    evaluate = sub.add_parser(
+        "evaluate", help="the live pipeline per scenario x policy x seed: ATE, RPE, tracking "
+        "failures, relocalisations, υ, uploads (CSV, table, plot)")
+    add_arguments(evaluate, str(BUNDLED_SEQUENCE) if BUNDLED_SEQUENCE.is_dir() else
+                  "synthetic:300", DEFAULT_PARAMS, list(SCENARIOS))
+    evaluate.set_defaults(func=run)

@@ -1,0 +1,198 @@
+"""``twinslam experiment``: a paper figure reproduced (CSV + PNG)."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from twinslam.cli.arguments import BUNDLED_COVIS, covisibility
+from twinslam.cli.console import Subparsers, elapsed_progress, error
+from twinslam.experiments import amm
+from twinslam.simulator.covisibility import CovisibilityError
+from twinslam.uplink.channels import SLOT_SECONDS, ChannelError
+
+
+def learned_checkpoints(specs: list[str]) -> dict[str, dict[str, list[Path]]]:
+    """``LABEL=PATH`` or ``LABEL@N=PATH`` (fig8: the policy for N rate states) → {N or '':
+    {label: [paths]}}; a label given more than once is one variant over several training
+    runs. A missing file is an error now, not after an hour of other policies."""
+    out: dict[str, dict[str, list[Path]]] = {}
+    for spec in specs:
+        label, sep, path = spec.partition("=")
+        if not sep or not label or not path:
+            raise ValueError(f"--policy takes LABEL=CHECKPOINT (e.g. UDT=results/udt.pt), "
+                             f"got {spec!r}")
+        label, _, n = label.partition("@")
+        if not Path(path).is_file():
+            raise ValueError(f"{path}: no such policy checkpoint (train one with "
+                             "`twinslam train`)")
+        out.setdefault(n, {}).setdefault(label, []).append(Path(path))
+    return out
+
+
+def run_amm_figure(args: argparse.Namespace) -> int:
+    """fig7/8/9: the policies' mean υ, lost share and υ tracked vs a setting (paper Figs 7-9)."""
+    t0 = time.monotonic()
+    progress = elapsed_progress()
+    try:
+        learned = learned_checkpoints(args.policy or [])
+        dataset = covisibility(args.covis)
+    except (CovisibilityError, ValueError) as exc:
+        return error(exc)
+    setting = amm.Setting(runs=args.runs or 20, slots=args.slots or 200, seed0=args.seed,
+                         reference_swaps=args.reference_swaps)
+    out = Path(args.out)
+    if args.name == "fig8":
+        by_n = {int(n or 2): pol for n, pol in learned.items()}
+        results = amm.fig8(dataset, by_n, out, setting, progress)
+    else:
+        fig = amm.fig7 if args.name == "fig7" else amm.fig9
+        results = fig(dataset, learned.get("", {}), out, setting, progress=progress)
+    for x, by in results.items():
+        print(f"{x}: " + ", ".join(f"{label} {r.mean:.1f} ± {r.ci95:.1f}"
+                                    for label, r in by.items()))
+    print(f"wrote {out}/{args.name}.csv and .png ({time.monotonic() - t0:.0f} s)")
+    return 0
+
+
+def run_twin_predict(args: argparse.Namespace) -> int:
+    """twin-predict: every rate model predicts the next slot's state online."""
+    # imported here: the learned predictors load torch, which the other commands never need
+    from twinslam.experiments import twin_predict as ex
+    from twinslam.twin.next_state import PREDICTORS, PredictionProtocol, check_predictors
+
+    t0 = time.monotonic()
+    progress = elapsed_progress()
+
+    sources = list(args.source or ex.DEFAULT_SOURCES)
+    sources += [f"trace:{path}" for path in args.trace or []]
+    try:
+        protocol = PredictionProtocol(n_states=args.states or 4,
+                                      retrain_every=args.retrain_every or 100,
+                                      buffer_slots=args.buffer_slots or 600)
+        predictors = (PREDICTORS if args.predictor == "all" else
+                      tuple(p.strip() for p in args.predictor.split(",") if p.strip()))
+        setting = ex.Setting(slots=args.slots or 3000, seeds=args.runs or 5, seed0=args.seed,
+                             slot_seconds=args.slot_seconds, predictors=predictors,
+                             protocol=protocol)
+        check_predictors(predictors)
+        for spec in sources:
+            ex.check_source(spec, args.slot_seconds)
+    except (ValueError, ChannelError) as exc:
+        return error(exc)
+    out = Path(args.out)
+    summary = ex.twin_predict(sources, out, setting, progress, jobs=args.jobs)
+    for source in dict.fromkeys(m.source for m in summary):
+        print(f"{source}  (mean log p(next state) ± 95 % CI, nats; Brier; "
+              f"minus the best counting estimator)")
+        for m in summary:
+            if m.source == source:
+                print(f"  {m.predictor:>14} {m.log_likelihood[0]:8.4f} ± "
+                      f"{m.log_likelihood[1]:.4f}  Brier {m.brier[0]:.4f}  "
+                      f"{m.vs_counting[0]:+8.4f} ± {m.vs_counting[1]:.4f}")
+    print(f"wrote {out}/twin_predict.csv, twin_predict_runs.csv and twin_predict.png "
+          f"({time.monotonic() - t0:.0f} s)")
+    return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.name in ("fig7", "fig8", "fig9"):
+        return run_amm_figure(args)
+    if args.name == "twin-predict":
+        return run_twin_predict(args)
+    return run_twin_figure(args)
+
+
+def run_twin_figure(args: argparse.Namespace) -> int:
+    """udt-fig3/4/5: the variational twin's transition-matrix error (paper Figs 3-5)."""
+    # imported here: the twin loads torch, which the other commands never need
+    from twinslam.experiments import twin as ex
+
+    out = Path(args.out)
+    args.states = args.states or 2
+    args.runs = args.runs or 20
+    args.retrain_every = args.retrain_every or 300
+    args.buffer_slots = args.buffer_slots or 300
+    proto = ex.Protocol(interval_slots=args.interval_slots, retrain_every=args.retrain_every,
+                        buffer_slots=args.buffer_slots)
+    progress = elapsed_progress()
+    if args.name == "udt-fig3":
+        res = ex.fig3(out, seed=args.seed, progress=progress,
+                      proto=ex.Protocol(interval_slots=max(args.interval_slots, 1000),
+                                        retrain_every=args.retrain_every,
+                                        buffer_slots=max(args.buffer_slots, 1000)))
+        print(f"UDT error on a 4-state chain (mean |P̂ - P|): {res['error']:.4f}")
+    elif args.name == "udt-fig4":
+        res4 = ex.fig4(out, runs=args.runs, seed=args.seed, proto=proto, progress=progress,
+                       jobs=args.jobs)
+        print(f"{'N':>3} " + " ".join(f"{name:>16}" for name in res4))
+        for n in next(iter(res4.values())):
+            print(f"{n:>3} " + " ".join(f"{sum(v[n]) / len(v[n]):16.4f}" for v in res4.values()))
+    else:
+        res5 = ex.fig5(out, runs=args.runs, n_states=args.states, seed=args.seed, proto=proto,
+                       progress=progress, jobs=args.jobs)
+        for mode, by in res5.items():
+            print(mode + ": " + ", ".join(f"{name} {v.mean():.4f}" for name, v in by.items()))
+    print(f"wrote {out}/{args.name.replace('-', '_')}.csv and .png")
+    return 0
+
+
+def register(sub: Subparsers) -> None:
+    exp = sub.add_parser("experiment", help="reproduce a paper figure (CSV + PNG)",
+                         description="udt-fig3/4/5: the digital twin's transition-matrix "
+                         "error (paper Figs 3-5); twin-predict: every rate model predicts the "
+                         "next slot's state online on chains, generated and real traces "
+                         "(log-likelihood, Brier); fig7/8/9: mean υ, lost share and υ tracked "
+                         "of the policies vs the high-rate share, N, V_max (paper Figs 7-9).")
+    exp.add_argument("name", choices=["udt-fig3", "udt-fig4", "udt-fig5", "twin-predict",
+                                      "fig7", "fig8", "fig9"], help="which figure")
+    exp.add_argument("--runs", type=int, default=None, help="independent runs per point "
+                     "(default: 20; twin-predict: 5 seeds per source; the paper's fig7-9 "
+                     "use 15)")
+    exp.add_argument("--source", action="append", metavar="SPEC",
+                     help="twin-predict: a state sequence to predict (repeat): stationary, "
+                     "intervals:K (a new random matrix every K slots), "
+                     "generator[:REGIME_S[:OUTAGE_EVERY_S]] (a generated trace with regime "
+                     "changes and outages), trace:FILE (default: stationary, intervals:200, "
+                     "intervals:600, intervals:1500, generator)")
+    exp.add_argument("--trace", action="append", metavar="FILE",
+                     help="twin-predict: also a throughput trace file (repeat; same as "
+                     "--source trace:FILE; formats as `twinslam trace info`)")
+    exp.add_argument("--predictor", default="all",
+                     help="twin-predict: all, or comma-separated predictors: regime (the Bayesian "
+                     "twin), udt (the variational twin), lstm (softmax), lstm-point (the "
+                     "paper's point predictor, 1 - 0.05 on its prediction), markov (counts over "
+                     "the whole history), markov-window (counts over the buffer), persistence "
+                     "(0.9 on staying), uniform")
+    exp.add_argument("--slot-seconds", type=float, default=SLOT_SECONDS,
+                     help="twin-predict: seconds of trace per slot")
+    exp.add_argument("--policy", action="append", metavar="LABEL[@N]=CHECKPOINT",
+                     help="fig7-9: a trained policy to compare (repeat); the same LABEL "
+                     "repeated: one variant over several training runs (mean and CI over the "
+                     "runs); @N: for N states (fig8)")
+    exp.add_argument("--covis", metavar="FILE[@START:END]|geometric[:N[:SEED]]",
+                     default=str(BUNDLED_COVIS),
+                     help="fig7-9: covisibility dataset")
+    exp.add_argument("--slots", type=int, default=None,
+                     help="slots per run (default: fig7-9 200; twin-predict 3000, a trace at "
+                     "most one pass)")
+    exp.add_argument("--reference-swaps", type=int, default=100,
+                     help="fig7-9: plan replays the reference's swap local search may spend "
+                     "per episode (0: beam search only)")
+    exp.add_argument("--seed", type=int, default=0, help="the first run's seed")
+    exp.add_argument("--states", type=int, default=None,
+                     help="N, rate states (default: udt-fig5 2, twin-predict 4)")
+    exp.add_argument("--interval-slots", type=int, default=300,
+                     help="udt-fig4/5: K, slots per interval of one transition matrix")
+    exp.add_argument("--retrain-every", type=int, default=None,
+                     help="W, slots between retrains of the learned predictors (default: "
+                     "udt-fig4/5 300, twin-predict 100)")
+    exp.add_argument("--buffer-slots", type=int, default=None,
+                     help="latest slots a retrain learns from; twin-predict: also "
+                     "markov-window's window (default: udt-fig4/5 300, twin-predict 600)")
+    exp.add_argument("--out", default="results", metavar="FOLDER",
+                     help="folder for the CSV and PNG")
+    exp.add_argument("--jobs", type=int, default=1,
+                     help="runs in parallel worker processes (one torch thread each)")
+    exp.set_defaults(func=run)

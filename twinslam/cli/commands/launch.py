@@ -1,0 +1,130 @@
+"""``twinslam launch``: player, device, edge (and twin) as processes, one run per policy."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+from twinslam.cli.console import Subparsers, error
+from twinslam.live.launcher import DEFAULT_PARAMS, LaunchConfig, Launcher, tc_uplink_params
+from twinslam.live.report import RunReport, print_table
+from twinslam.live.scenarios import SCENARIOS, Scenario, scenario
+from twinslam.node_hosts.loopback import EnvironmentDomain, LoopbackDomain, ProcessDomain
+from twinslam.node_hosts.netns import NetnsHosts, unavailable_reason
+from twinslam.policy_registry import LEARNED_PREFIX
+from twinslam.sequences.frame import SequenceError
+from twinslam.sequences.opening import open_sequence
+from twinslam.slam.map_source import check_map_source
+
+
+def _launch_domain(args: argparse.Namespace) -> ProcessDomain:
+    """Where the nodes run: three namespaces, a private loopback domain, or $ROS_DOMAIN_ID."""
+    if args.hosts:
+        return NetnsHosts(prefix=f"twinslam{os.getpid()}-")
+    return LoopbackDomain() if args.loopback else EnvironmentDomain()
+
+
+def _real_frame_uplink(sequence: str) -> dict[str, list[str]]:
+    """tc-shaped uplink parameters whose α is the sequence's first colour image as rgb8."""
+    first = next(iter(open_sequence(sequence, 0, 1)))
+    return tc_uplink_params(first.color.nbytes * 8 / 1e6)
+
+
+def _checked_setup(args: argparse.Namespace) -> tuple[Scenario, dict[str, list[str]]]:
+    """The scenario and the node parameters every run adds; ValueError names a bad option."""
+    if not args.params.is_file():
+        raise ValueError(f"parameter file {args.params} does not exist")
+    if args.tc and not args.hosts:
+        raise ValueError("--tc shapes the device host's uplink: use it with --hosts")
+    if args.hosts:
+        why = unavailable_reason()
+        if why:
+            raise ValueError(f"--hosts: {why}")
+    try:
+        chosen = scenario(args.scenario)
+    except ValueError as exc:
+        raise ValueError(f"--scenario: {exc}") from None
+    extra = _real_frame_uplink(args.sequence) if args.tc else {}
+    if args.map_source is not None:
+        reason = check_map_source(args.map_source)
+        if reason:
+            raise ValueError(f"--map-source: {reason}")
+        extra.setdefault("device_tracker", []).append(f"map_source:={args.map_source}")
+    return chosen, extra
+
+
+def _run_policy(args: argparse.Namespace, policy: str, chosen: Scenario,
+                extra: dict[str, list[str]]) -> RunReport:
+    # a learned policy decides on the twin node's latents: start it with its checkpoint
+    kind, _, checkpoint = policy.partition(":")
+    learned = kind == LEARNED_PREFIX and bool(checkpoint)
+    run_extra = {**extra, **({"udt_node": [f"policy_checkpoint:={checkpoint}"]}
+                             if learned else {})}
+    config = LaunchConfig(args.sequence, policy, args.frames, args.rate, args.params,
+                          with_twin=args.twin or learned, timeout_s=args.timeout,
+                          extra=run_extra, scenario=chosen, start=args.start)
+    with _launch_domain(args) as dom:
+        if args.loopback:
+            dom.activate()
+        where = ("hosts device/edge/twin, domain" if args.hosts else
+                 "loopback domain" if args.loopback else "domain")
+        print(f"{policy}: {args.frames} frames of {args.sequence} at {args.rate}x on "
+              f"{where} {dom.domain_id}", flush=True)
+        return Launcher(dom, config, lambda line: print(line, flush=True)).run()
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        chosen, extra = _checked_setup(args)
+    except (ValueError, SequenceError) as exc:
+        return error(exc)
+    reports = []
+    for policy in [p.strip() for p in args.policy.split(",") if p.strip()]:
+        try:
+            reports.append(_run_policy(args, policy, chosen, extra))
+        except KeyboardInterrupt:
+            print("interrupted: nodes stopped", file=sys.stderr)
+            return 130
+        except RuntimeError as exc:
+            return error(exc, 1)
+    print()
+    print_table(reports)
+    return 0
+
+
+def register(sub: Subparsers) -> None:
+    launch = sub.add_parser("launch", help="run player, device, edge (and twin) as processes")
+    launch.add_argument("--sequence", default="synthetic",
+                        help="SUN3D / 7-Scenes / TUM folder, MCAP bag, or synthetic[:frames]")
+    launch.add_argument("--policy", default="adapt",
+                        help="the edge's policy, one run each, comma-separated: lff, pu, adapt, "
+                        "random, mbrl:CHECKPOINT")
+    launch.add_argument("--frames", type=int, default=600, help="frames to play; -1: all")
+    launch.add_argument("--start", type=int, default=0,
+                        help="the sequence's first frame played; default %(default)s")
+    launch.add_argument("--rate", type=float, default=1.0,
+                        help="playback speed, × the recorded frame rate")
+    launch.add_argument("--params", type=Path, default=DEFAULT_PARAMS,
+                        help="ROS 2 parameter file for the nodes")
+    launch.add_argument("--twin", action="store_true",
+                        help="start udt_node too (a learned policy's run always does, with "
+                        "its checkpoint's twin)")
+    launch.add_argument("--loopback", action="store_true",
+                        help="a private loopback DDS domain instead of $ROS_DOMAIN_ID")
+    launch.add_argument("--hosts", action="store_true",
+                        help="device, edge and twin in network namespaces of their own (root)")
+    launch.add_argument("--tc", action="store_true",
+                        help="with --hosts: the device's uplink shaped by tc at d_k, keyframes "
+                        "carrying their image")
+    launch.add_argument("--timeout", type=float, default=1800.0,
+                        help="seconds a policy's run may take before its nodes are stopped")
+    launch.add_argument("--scenario", default="forward",
+                        help="; ".join(f"{s.name}: {s.description}" for s in SCENARIOS.values()
+                                       ).replace("%", "%%") + "; default %(default)s")
+    launch.add_argument("--map-source", default=None,
+                        help="the device's map source: edge (tracked only against the edge's "
+                        "map, the paper's device) or edge+local (plus its own recent points); "
+                        "default: the parameter file's")
+    launch.set_defaults(func=run)

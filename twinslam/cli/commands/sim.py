@@ -1,0 +1,134 @@
+"""``twinslam sim``: map-management policies compared offline in the gym-style simulator."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import time
+from dataclasses import dataclass
+
+from twinslam.cli.arguments import add_setting_arguments, covisibility
+from twinslam.cli.console import Subparsers, error
+from twinslam.common import table1
+from twinslam.policy_registry import make_policy
+from twinslam.simulator.covisibility import CovisibilityError
+from twinslam.simulator.env import SimConfig
+from twinslam.simulator.evaluation import PolicyResult, evaluate
+from twinslam.uplink.channels import ChannelError
+
+DEFAULT_CHANNEL = "markov:N=2"
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """What one ``twinslam sim`` compares (the command's options; the demo asks for one too)."""
+
+    covis: str
+    policies: tuple[str, ...] = ("lff", "pu", "adapt", "reference")
+    channel: str = DEFAULT_CHANNEL
+    rate_range: tuple[float, float] = (table1.RATE_MIN_MBPS, table1.RATE_MAX_MBPS)
+    vmax: int = table1.VMAX
+    slot_frames: int = table1.SLOT_FRAMES
+    slots: int = 200
+    seeds: int = 5
+    seed0: int = 0
+    walk_start: int | None = None
+    paper_rule: bool = False
+    csv: str | None = None
+    verbose: bool = False
+
+
+def compare(c: Comparison) -> int:
+    """Run every policy over the seeds, print the table (and write the CSV); the exit code."""
+    try:
+        dataset = covisibility(c.covis)
+        rule = dict(min_shared=1, update_lag_frames=0) if c.paper_rule else {}
+        config = SimConfig(vmax=c.vmax, slot_frames=c.slot_frames, slots=c.slots,
+                           start=c.walk_start, **rule)
+        seeds = list(range(c.seed0, c.seed0 + c.seeds))
+        print(f"covisibility: {dataset.n_frames} frames ({dataset.source or c.covis}); "
+              f"channel {c.channel}; V_max {c.vmax}, F {c.slot_frames}, "
+              f"{c.slots} slots x {len(seeds)} seeds", flush=True)
+        start = time.monotonic()
+        report = (lambda m: print(f"  {m}", flush=True)) if c.verbose else None
+        results = evaluate(list(c.policies), dataset, c.channel, config, seeds,
+                           c.rate_range, progress=report, make_policy=make_policy)
+    except (ChannelError, CovisibilityError, ValueError) as exc:
+        return error(exc)
+    _print_table(results)
+    rule_text = ("the paper's rule: lost when no map point is shared" if c.paper_rule else
+                 f"lost with fewer than {config.min_shared} shared map points, a slot's first "
+                 f"{config.lag_frames} frames on the map before the last update")
+    print(f"({time.monotonic() - start:.1f} s; {rule_text}; mean υ scores a lost frame as u = "
+          "0, a frame with no map; 'υ tracked' averages the tracked frames; mean υ = (1 - lost)"
+          " · υ tracked. The reference is a clairvoyant search, not a bound)")
+    if c.csv:
+        _write_runs(c.csv, list(c.policies), results)
+        print(f"wrote {c.csv} (one row per run)")
+    return 0
+
+
+def _print_table(results: list[PolicyResult]) -> None:
+    reference = next((r for r in results if r.policy == "reference"), None)
+    width = max(12, *(len(r.policy) for r in results))
+    print(f"\n{'policy':<{width}} {'mean υ':>11} {'± ci95':>9} {'lost %':>7} {'υ tracked':>11}"
+          f"{'  gap to reference' if reference else ''}")
+    for r in results:
+        gap = f"  {r.mean - reference.mean:+.2f}" if reference else ""
+        print(f"{r.policy:<{width}} {r.mean:>11.2f} {r.ci95:>9.2f} {100 * r.lost_share:>7.2f} "
+              f"{r.tracked_uncertainty:>11.2f}{gap}")
+
+
+def _write_runs(path: str, specs: list[str], results: list[PolicyResult]) -> None:
+    with open(path, "w", newline="", encoding="utf-8") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(["policy", "spec", "seed", "mean_uncertainty", "lost_share",
+                         "tracked_uncertainty"])
+        for spec, r in zip(specs, results, strict=True):
+            for run in r.runs:
+                writer.writerow([r.policy, spec, run.seed, f"{run.mean_uncertainty:.6f}",
+                                 f"{run.lost_share:.6f}", f"{run.tracked_uncertainty:.6f}"])
+
+
+def run(args: argparse.Namespace) -> int:
+    policies = tuple(p.strip() for p in args.policy.split(",") if p.strip())
+    return compare(Comparison(args.covis, policies, args.channel, args.rate_range, args.vmax,
+                              args.slot_frames, args.slots, args.seeds, args.seed0,
+                              args.walk_start, args.paper_rule, args.csv, args.verbose))
+
+
+def register(sub: Subparsers) -> None:
+    sim = sub.add_parser("sim", help="evaluate map-management policies offline",
+                         description="Each policy over --seeds runs of the gym-style simulator "
+                         "(covisibility from real frames, a rate model): mean υ with a lost "
+                         "frame scoring 0, its 95 %% CI, the lost share and υ over tracked "
+                         "frames.")
+    sim.add_argument("--policy", default="lff,pu,adapt,reference",
+                     help="comma-separated: lff (latest frames first), pu (periodical "
+                     "uploading), adapt (AdaptSLAM's greedy log-det), random, mbrl:CHECKPOINT "
+                     "(a policy from `twinslam train`), reference (a clairvoyant search "
+                     "started from every other listed policy: beam search, then swap local "
+                     "search; not a bound)")
+    add_setting_arguments(sim)
+    sim.add_argument("--slot-frames", type=int, default=table1.SLOT_FRAMES,
+                     help="F, frames per slot (a slot lasts F / 30 Hz)")
+    sim.add_argument("--slots", type=int, default=200, help="slots per run")
+    sim.add_argument("--seeds", type=int, default=5,
+                     help="runs per policy, seeds --seed0 … --seed0 + N - 1 (each seed: its "
+                     "own start frame and rate sequence)")
+    sim.add_argument("--seed0", type=int, default=0, help="the first run's seed")
+    sim.add_argument("--walk-start", type=int, default=None, metavar="FRAME",
+                     help="every run starts at this frame of the covisibility and reads it "
+                     "forward then back (0: the live player's forward_backward walk); default: "
+                     "a random frame per seed")
+    sim.add_argument("--paper-rule", action="store_true",
+                     help="score as the paper does: a frame is lost only when it shares no map "
+                     "point, the map update there at the slot's first frame (default: the "
+                     "device's rule, twinslam/common/tracking_rule.py)")
+    sim.add_argument("--csv", metavar="FILE",
+                     help="also write one row per run: policy, spec (as given: tells two "
+                     "checkpoints apart), seed, mean_uncertainty (a lost frame = 0), lost_share, "
+                     "tracked_uncertainty")
+    sim.add_argument("-v", "--verbose", action="store_true",
+                     help="print every run's scores as it finishes")
+    sim.set_defaults(func=run)

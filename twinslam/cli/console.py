@@ -1,0 +1,43 @@
+"""How every command talks to its user: errors on stderr with the exit code they mean, and
+progress lines stamped with the seconds since the command started."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Callable
+
+#: the subparsers object every command registers itself with (argparse names no public type)
+Subparsers = argparse._SubParsersAction
+
+#: exit code of a command refused before it ran (bad options or input), as argparse's own
+USAGE_ERROR = 2
+
+
+def error(message: object, code: int = USAGE_ERROR) -> int:
+    """Print ``error: message`` on stderr and return ``code`` for the command to return."""
+    print(f"error: {message}", file=sys.stderr)
+    return code
+
+
+def elapsed_progress() -> Callable[[str], None]:
+    """A progress printer for long work: each line on stderr after the seconds elapsed."""
+    t0 = time.monotonic()
+
+    def progress(line: str) -> None:
+        print(f"[{time.monotonic() - t0:7.1f} s] {line}", file=sys.stderr, flush=True)
+
+    return progress
+
+
+class HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """Every option's help ends with its default, unless the text already gives it."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        default = action.default
+        if (action.option_strings and default is not None and default is not False
+                and default != argparse.SUPPRESS and "default" not in text):
+            text += " (default: %(default)s)"
+        return text

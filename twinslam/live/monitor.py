@@ -1,0 +1,85 @@
+"""The monitor node's subscriptions: a live run's protocol topics, poses and map updates into a
+:class:`~twinslam.live.record.RunRecord`, and one status line per slot."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import rclpy
+from geometry_msgs.msg import PoseStamped
+from rclpy.node import Node
+from sensor_msgs.msg import Image
+from twinslam_msgs.msg import (
+    FrameSummaries,
+    MapStats,
+    MapUpdate,
+    RateLatent,
+    UplinkThroughput,
+    UploadRequest,
+)
+
+from msg_schemas import qos, topics
+from msg_schemas.headers import stamp_key
+from msg_schemas.poses import pose_matrix
+from twinslam.live.record import RunRecord
+from twinslam.slam.map_update import read_map_update
+
+
+class PipelineMonitor:
+    """Subscribes to the run's topics with ``node`` and keeps what it hears."""
+
+    def __init__(self, node: Node, on_stats: Callable[[Any, RunRecord], None] | None = None,
+                 watch_images: bool = False) -> None:
+        self.record = RunRecord()
+        self._on_stats = on_stats
+        r = self.record
+        sub = node.create_subscription
+        sub(FrameSummaries, topics.FRAME_SUMMARIES,
+            lambda m: r.summaries.__setitem__(int(m.slot), m), qos.PROTOCOL)
+        #: its publisher count says whether the edge is up (it publishes after warming up)
+        self.requests = sub(UploadRequest, topics.UPLOAD_REQUEST,
+                            lambda m: r.requests.__setitem__(int(m.slot), m), qos.PROTOCOL)
+        sub(UplinkThroughput, topics.UPLINK_THROUGHPUT,
+            lambda m: r.throughput.__setitem__(int(m.slot), m), qos.PROTOCOL)
+        #: its publisher count says whether the twin is up (it publishes once its model is in)
+        self.latents = sub(RateLatent, topics.RATE_LATENT,
+                           lambda m: r.latents.__setitem__(int(m.slot), m), qos.PROTOCOL)
+        sub(MapStats, topics.MAP_STATS, self._stats, qos.PROTOCOL)
+        # every map the edge sends (not only the latest a late joiner gets)
+        map_qos = rclpy.qos.QoSProfile(depth=100, durability=qos.MAP.durability,
+                                       reliability=qos.MAP.reliability)
+        sub(MapUpdate, topics.MAP_UPDATE,
+            lambda m: r.maps.__setitem__(int(m.slot), read_map_update(m)), map_qos)
+        sub(PoseStamped, topics.DEVICE_POSE,
+            lambda m: r.poses.__setitem__(stamp_key(m.header), pose_matrix(m.pose)),
+            qos.PROTOCOL)
+        sub(PoseStamped, topics.GROUND_TRUTH_POSE,
+            lambda m: r.ground_truth.__setitem__(stamp_key(m.header), pose_matrix(m.pose)),
+            qos.CAMERA)
+        if watch_images:     # a viewer's subscription: best effort, undecoded, only counted
+            sub(Image, topics.CAMERA_IMAGE, self._image, qos.SENSOR_DATA, raw=True)
+
+    def _image(self, _data: bytes) -> None:
+        self.record.images_received += 1
+
+    def _stats(self, msg: Any) -> None:
+        self.record.stats[int(msg.slot)] = msg
+        if self._on_stats:
+            self._on_stats(msg, self.record)
+
+
+def status_line(msg: Any, record: RunRecord) -> str:
+    """One slot as a line: rate, decision, map, uncertainty, timing."""
+    slot = int(msg.slot)
+    req = record.requests.get(slot)
+    summ = record.summaries.get(slot)
+    rate = f"{summ.rate_mbps:4.0f}" if summ is not None else "   ?"
+    ups = len(req.upload_frame_ids) if req is not None else 0
+    ev = len(req.evict_frame_ids) if req is not None else 0
+    nu = msg.mean_uncertainty
+    return (f"[{msg.policy}] slot {slot:3d} | d_k {rate} Mbit/s | U {ups} C {ev} | map "
+            f"{msg.map_size:2d} kf {msg.map_points:6d} pts | u {msg.uncertainty:9.1f} | υ "
+            f"{nu:9.1f} lost {msg.lost_share:4.0%} tracked "
+            f"{msg.tracked_uncertainty:9.1f} | GTSAM {msg.optimisation_ms:4.0f} ms,"
+            f" slot {msg.slot_processing_ms:4.0f} ms")

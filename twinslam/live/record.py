@@ -1,0 +1,25 @@
+"""What a monitor hears of a live run, kept by slot: the raw material of every report."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from twinslam.slam.map_update import MapSnapshot
+
+
+@dataclass
+class RunRecord:
+    """Everything the monitor heard, by slot (messages as received)."""
+
+    summaries: dict[int, Any] = field(default_factory=dict)
+    requests: dict[int, Any] = field(default_factory=dict)
+    stats: dict[int, Any] = field(default_factory=dict)
+    throughput: dict[int, Any] = field(default_factory=dict)
+    maps: dict[int, MapSnapshot] = field(default_factory=dict)   #: last map update per slot
+    poses: dict[int, np.ndarray] = field(default_factory=dict)        #: stamp ns → pose
+    ground_truth: dict[int, np.ndarray] = field(default_factory=dict)
+    latents: dict[int, Any] = field(default_factory=dict)    #: the twin's, by slot
+    images_received: int = 0        #: /camera/image_raw samples, when the monitor watches them

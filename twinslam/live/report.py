@@ -1,0 +1,121 @@
+"""The report of one live run: mean υ, lost share, ATE/RPE (evo), uploads, the device's
+failures and relocalisations, the edge's milliseconds per slot — computed from what the monitor
+heard, and printed as a table."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from msg_schemas.headers import stamp_seconds
+from twinslam.live.record import RunRecord
+from twinslam.slam.tracking_quality import (
+    FrameFlags,
+    TrackingEvents,
+    absolute_trajectory_error,
+    relative_pose_error,
+    tracking_events,
+)
+
+
+@dataclass
+class RunReport:
+    policy: str
+    slots: int
+    mean_uncertainty: float          #: mean υ over slots, a lost next-slot frame scoring 0
+    lost_share: float                #: mean share of next-slot frames MapStats calls lost
+    tracked_uncertainty: float       #: mean υ over slots, tracked next-slot frames only
+    ate_m: float                     #: NaN without ground truth
+    rpe_m: float                     #: over 1 s (30 frames); NaN without ground truth
+    frames_uploaded: int
+    bytes_uploaded: int
+    achieved_mbps: float             #: mean over slots with uploads
+    untracked_frames: int
+    tracking_failures: int           #: tracked → untracked transitions
+    relocalisations: int             #: frames tracked again by relocalisation
+    recover_s: float                 #: mean seconds from a loss to tracking again (NaN: none)
+    edge_ms_median: float
+    seconds: float
+    #: which policy decided how many slots (``UploadRequest.policy``), e.g. "amm-regime:28
+    #: adapt:2" — a learned policy's fallback shows here
+    decided_by: str = ""
+    #: camera frames missing from the device's complete slots (dropped or skipped): a device
+    #: that fell behind the camera (an overloaded machine) shows here
+    frames_dropped: int = 0
+
+    ROW = ("{label:<14} {mean_uncertainty:>10.1f} {lost_share:>6.1%} "
+           "{tracked_uncertainty:>10.1f} {ate_m:>7.3f} "
+           "{rpe_m:>7.3f} {frames_uploaded:>7d} {mbytes:>7.1f} {achieved_mbps:>7.1f} "
+           "{untracked_frames:>6d} {tracking_failures:>5d} {relocalisations:>6d} "
+           "{recover_s:>7.2f} {edge_ms_median:>7.0f}")
+    HEADER = (f"{'policy':<14} {'mean υ':>10} {'lost':>6} {'υ tracked':>10} {'ATE m':>7} "
+              f"{'RPE m':>7} "
+              f"{'uploads':>7} {'MB':>7} {'Mbit/s':>7} {'untrk':>6} {'fails':>5} "
+              f"{'reloc':>6} {'recov s':>7} {'edge ms':>7}")
+
+    @property
+    def label(self) -> str:
+        """The policy as the table shows it: a learned one by its checkpoint's file name."""
+        kind, sep, path = self.policy.partition(":")
+        return f"{kind}:{Path(path).stem}" if sep else self.policy
+
+    def row(self) -> str:
+        return self.ROW.format(mbytes=self.bytes_uploaded / 1e6, label=self.label,
+                               **self.__dict__)
+
+
+def record_events(record: RunRecord) -> TrackingEvents:
+    """The device's tracking failures and relocalisations, from its frame summaries."""
+    return tracking_events(FrameFlags(stamp_seconds(f), bool(f.tracked), bool(f.relocalised))
+                           for s in record.summaries.values() for f in s.frames)
+
+
+def _finite_mean(values: Iterable[float]) -> float:
+    """Mean of the finite values (NaN: the edge did not know, or nothing was tracked)."""
+    finite = [v for v in values if math.isfinite(v)]
+    return float(np.mean(finite)) if finite else math.nan
+
+
+def report(policy: str, record: RunRecord, seconds: float, slot_frames: int) -> RunReport:
+    """What the run measured; ``slot_frames``: the device's F, to count dropped frames."""
+    stats = [record.stats[s] for s in sorted(record.stats)]
+    scored = stats[1:]         # slot 0 plans against an empty map: every policy loses it all
+    tps = [t for t in record.throughput.values() if t.frames_sent]
+    events = record_events(record)
+    return RunReport(policy, len(stats), _finite_mean(s.mean_uncertainty for s in scored),
+                     float(np.mean([s.lost_share for s in scored])) if scored else 0.0,
+                     _finite_mean(s.tracked_uncertainty for s in scored),
+                     absolute_trajectory_error(record.poses, record.ground_truth),
+                     relative_pose_error(record.poses, record.ground_truth),
+                     sum(int(t.frames_sent) for t in record.throughput.values()),
+                     sum(int(t.bytes_sent) for t in record.throughput.values()),
+                     float(np.mean([t.achieved_mbps for t in tps])) if tps else 0.0,
+                     events.untracked, events.failures, events.relocalisations,
+                     events.mean_recover_s,
+                     float(np.median([s.slot_processing_ms for s in stats])) if stats
+                     else math.nan, seconds, deciders(record),
+                     dropped_frames(record, slot_frames))
+
+
+def dropped_frames(record: RunRecord, slot_frames: int) -> int:
+    """Frames missing from every slot but the last (which the run may end inside)."""
+    slots = sorted(record.summaries)[:-1]
+    return sum(max(0, slot_frames - len(record.summaries[s].frames)) for s in slots)
+
+
+def deciders(record: RunRecord) -> str:
+    """"name:slots" for each policy that decided a slot of the run, most slots first."""
+    counts: dict[str, int] = {}
+    for request in record.requests.values():
+        counts[str(request.policy)] = counts.get(str(request.policy), 0) + 1
+    return " ".join(f"{name}:{n}" for name, n in sorted(counts.items(), key=lambda x: -x[1]))
+
+
+def print_table(reports: list[RunReport], echo: Callable[[str], None] = print) -> None:
+    echo(RunReport.HEADER)
+    for r in reports:
+        echo(r.row())
