@@ -16,8 +16,8 @@ import numpy as np
 import torch
 
 from bench.gauge import cpu_gauge
-from twinslam.twin.digital_twin import TwinConfig, UserDigitalTwin
 from twinslam.twin.regime_twin import RegimeConfig, RegimeTwin
+from twinslam.twin.variational_twin import VariationalConfig, VariationalTwin
 from twinslam.uplink.channels import MarkovChannel, random_transition_matrix, state_rates
 
 
@@ -28,10 +28,10 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=2, help="torch threads")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    config = TwinConfig(n_states=args.states)
+    config = VariationalConfig(n_states=args.states)
     matrix = random_transition_matrix(np.random.default_rng(0), args.states)
     channel = MarkovChannel(state_rates(args.states), matrix=matrix, seed=0)
-    twin = UserDigitalTwin(config)
+    twin = VariationalTwin(config)
     print(f"machine: {platform.node()} {platform.machine()} python "
           f"{platform.python_version()}, torch {torch.__version__}, {args.threads} threads")
     print(cpu_gauge(), "(before)")

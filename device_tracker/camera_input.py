@@ -1,14 +1,20 @@
 """Camera messages back to arrays: the inverse of :mod:`twinslam.sequence_player.messages`, for the
-device's tracker (REP 118 depth encodings; colour as RGB or grey)."""
+device's tracker (REP 118 depth encodings; colour as RGB or grey), and the intake that pairs
+and decodes them. Pure logic, no DDS."""
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 
 import numpy as np
+from sensor_msgs.msg import Image
+
+from device_tracker.frame_pairing import FramePairing
+from msg_schemas.headers import stamp_key, stamp_seconds
 
 
-def image_array(msg: Any) -> np.ndarray:
+def image_array(msg: Image) -> np.ndarray:
     """H×W×3 RGB (``rgb8``/``bgr8``) or H×W grey (``mono8``) view of a validated image."""
     h, w = int(msg.height), int(msg.width)
     data = np.asarray(msg.data, dtype=np.uint8)
@@ -20,7 +26,7 @@ def image_array(msg: Any) -> np.ndarray:
     raise ValueError(f"colour image encoding {msg.encoding!r} is not rgb8, bgr8 or mono8")
 
 
-def depth_array(msg: Any) -> np.ndarray:
+def depth_array(msg: Image) -> np.ndarray:
     """H×W float32 metres, 0 = no reading, from ``16UC1`` millimetres or ``32FC1`` metres."""
     h, w = int(msg.height), int(msg.width)
     raw = np.asarray(msg.data, dtype=np.uint8).reshape(h, int(msg.step))
@@ -30,3 +36,44 @@ def depth_array(msg: Any) -> np.ndarray:
         depth = raw[:, :4 * w].copy().view(np.float32)
         return np.where(np.isfinite(depth) & (depth > 0), depth, 0.0).astype(np.float32)
     raise ValueError(f"depth encoding {msg.encoding!r} is not 16UC1 or 32FC1")
+
+
+@dataclass(frozen=True)
+class CameraFrame:
+    """A colour image paired with its depth image by stamp, decoded."""
+
+    color: np.ndarray
+    depth: np.ndarray | None
+    stamp: float                   #: seconds
+    color_msg: Image               #: kept with the frame's upload when the device sends images
+
+
+class CameraIntake:
+    """Colour and depth messages in, decoded frames out in stamp order
+    (:mod:`device_tracker.frame_pairing`); a frame that cannot be had — a depth image whose
+    colour never came, an image that does not decode — is skipped, counted and said why."""
+
+    def __init__(self) -> None:
+        self.pairing = FramePairing()
+        self.skipped = 0
+
+    def add(self, kind: str, msg: Image) -> None:
+        """``kind``: "color" or "depth"."""
+        self.pairing.add(kind, stamp_key(msg.header), msg)
+
+    def frames(self, skip: Callable[[str], None]) -> Iterator[CameraFrame]:
+        """The frames complete now; ``skip(reason)`` for each one dropped."""
+        for frame in self.pairing.ready():
+            if frame.color is None:
+                self.skipped += 1
+                skip(f"depth image of stamp {frame.stamp_key / 1e9:.3f} s without its colour "
+                     f"image (newest colour {frame.newest_color / 1e9:.3f} s): skipped")
+                continue
+            try:
+                color = image_array(frame.color)
+                depth = depth_array(frame.depth) if frame.depth is not None else None
+            except ValueError as exc:
+                self.skipped += 1
+                skip(f"frame skipped: {exc}")
+                continue
+            yield CameraFrame(color, depth, stamp_seconds(frame.color.header), frame.color)

@@ -58,6 +58,16 @@ class FrameResult:
     recovered: bool = False        #: relocalised, or tracked again after untracked frames
 
 
+@dataclass(frozen=True)
+class FrameStep:
+    """What one stamped frame did to the slots (:meth:`DeviceTrackerCore.step`)."""
+
+    unfinished: list[FrameRecord]  #: the slot its stamp ended (that slot's last frame never came)
+    result: FrameResult
+    finished: list[FrameRecord]    #: the slot this frame was the last of
+    map_version: int
+
+
 class DeviceTrackerCore:
     """Tracking against the edge's map — alone (``edge``) or with the device's own recent
     points (``edge+local``)."""
@@ -165,6 +175,15 @@ class DeviceTrackerCore:
         return FrameResult(record, out.relocalised, self.clock.is_last(stamp),
                            lost_now=self.lost and not was_lost,
                            recovered=out.tracked and (out.relocalised or was_lost))
+
+    def step(self, color: np.ndarray, depth: np.ndarray | None, stamp: float,
+             image: object | None = None) -> FrameStep:
+        """Track a frame with its slot bookkeeping: a slot whose last frame never came ends at
+        the first frame of a later slot; a slot's last frame ends it."""
+        unfinished = self.take_slot() if self.ends_slot_before(stamp) else []
+        result = self.track(color, depth, stamp, image)
+        finished = self.take_slot() if result.slot_done else []
+        return FrameStep(unfinished, result, finished, self.map_version)
 
     def take_slot(self) -> list[FrameRecord]:
         """The finished slot's frames (F_k, each with its ``slot``); forgets the uploads of

@@ -5,14 +5,19 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from rclpy.serialization import serialize_message
+from sensor_msgs.msg import Image
 
+from device_tracker.uplink_sender import Encoded
 from msg_schemas import new
 from msg_schemas.headers import ros_time, set_header
 from msg_schemas.poses import pose_msg
+from twinslam.slam.keyframe import KeyFramePayload, keyframe_message
 from twinslam.uplink.shaper import SlotThroughput
 
 
@@ -54,3 +59,15 @@ def uplink_throughput_message(throughput: SlotThroughput, stamp: float) -> Any:
               achieved_mbps=t.achieved_mbps, bytes_sent=t.bytes_sent, duration_s=t.duration_s,
               frames_sent=t.frames_sent)
     return set_header(msg, stamp, "")
+
+
+def encoded_keyframe(data: KeyFramePayload | None, image: Image | None, slot: int,
+                     alpha_bytes: int) -> Encoded | None:
+    """A requested frame as the uplink sends it: (frame id, the serialised ``Keyframe`` of
+    ``slot``, the bytes it occupies on the link — at least α); None when the device no longer
+    holds the frame (``data`` None)."""
+    if data is None:
+        return None
+    payload = serialize_message(keyframe_message(dataclasses.replace(data, slot=slot),
+                                                 image=image))
+    return data.frame_id, payload, max(alpha_bytes, len(payload))

@@ -6,9 +6,14 @@ Defaults are the paper's Table I where it has one (F 60 frames a slot, α 5 Mbit
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
 from twinslam.common import table1
 from twinslam.node_hosts.parameters import ParamSpec
 from twinslam.slam.map_source import EDGE_LOCAL, check_map_source
+from twinslam.slam.tracking import TrackingConfig
 from twinslam.uplink.tc_shaper import SHAPERS
 
 PARAMETERS = (
@@ -28,6 +33,8 @@ PARAMETERS = (
     ParamSpec("seed", 0, "seed of the channel model", low=0),
     ParamSpec("n_features", 1000, "ORB features per frame", low=10, high=100_000),
     ParamSpec("map_frame", "map", "frame id of the device's poses and path"),
+    ParamSpec("path_window", 900, "poses device/path holds: the newest ones (900: 30 s at "
+              "30 Hz); the whole run is on device/pose", low=1, high=10_000_000),
     ParamSpec("shaper", "token_bucket", "uplink shaper: token_bucket (in process) or tc (a "
               "tbf of rate d_k on uplink_interface; CAP_NET_ADMIN)",
               check=lambda v: None if v in SHAPERS else f"must be one of {', '.join(SHAPERS)}"),
@@ -48,3 +55,34 @@ PARAMETERS = (
     ParamSpec("keep_slots", 4, "slots whose frames stay uploadable (rides out ~5 s outages)",
               low=1, high=1000),
 )
+
+
+@dataclass(frozen=True)
+class DeviceSettings:
+    """The parameters the node reads once at start, typed (the live ``map_source`` is read
+    again at every frame; the uplink's are :mod:`device_tracker.uplink_setup`'s)."""
+
+    slot_frames: int
+    frame_rate_hz: float
+    alpha_bytes: int               #: α in bytes: the least a keyframe occupies on the link
+    channel: str
+    map_frame: str
+    map_source: str
+    tracking: TrackingConfig
+    upload_image: bool
+    keep_slots: int                #: 4 ride out a link down for ~5 s
+    path_window: int
+
+    @classmethod
+    def from_parameters(cls, p: Mapping[str, Any]) -> DeviceSettings:
+        return cls(int(p["slot_frames"]), float(p["frame_rate_hz"]),
+                   int(float(p["alpha_mbit"]) * 1e6 / 8), str(p["channel"]), str(p["map_frame"]),
+                   str(p["map_source"]),
+                   TrackingConfig(n_features=int(p["n_features"]), relocalise=True),
+                   bool(p["upload_image"]), int(p["keep_slots"]), int(p["path_window"]))
+
+    def describe(self, shaper: str) -> str:
+        """The start-up line."""
+        return (f"slots of {self.slot_frames} frames ({self.slot_frames / self.frame_rate_hz:g}"
+                f" s of stamps), map source {self.map_source}, channel {self.channel}, uplink "
+                f"shaper {shaper}")

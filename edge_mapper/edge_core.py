@@ -121,12 +121,16 @@ class EdgeMapperCore:
         """The policy that decides from the next plan on."""
         self.planner.policy = policy
 
+    @property
+    def slot_config(self) -> SlotConfig:
+        """The slot's settings now, V_max included: the planner owns them (``config.slot`` is
+        only what the core started with)."""
+        return self.planner.config
+
     def set_vmax(self, vmax: int) -> None:
         """V_max from the next plan on (a smaller one evicts the excess over the next slots'
         C_k, as Theorem 1's sizes allow)."""
-        slot = dataclasses.replace(self.config.slot, vmax=int(vmax))
-        self.config = dataclasses.replace(self.config, slot=slot)
-        self.planner.config = slot
+        self.planner.config = dataclasses.replace(self.planner.config, vmax=int(vmax))
 
     # -- the protocol ------------------------------------------------------------------------
 
@@ -229,7 +233,7 @@ class EdgeMapperCore:
                           **_table_arrays(fresh, "previous_track"))
         t2 = time.perf_counter()
         w = self.map.covisibility()
-        u = map_uncertainty(w, self.config.slot.log_det_pi) if len(w) else math.inf
+        u = map_uncertainty(w, self.planner.config.log_det_pi) if len(w) else math.inf
         t3 = time.perf_counter()
         timings = {"optimise": (t1 - t0) * 1e3, "checkpoint": (t2 - t1) * 1e3,
                    "uncertainty": (t3 - t2) * 1e3}

@@ -38,7 +38,7 @@ from twinslam_msgs.msg import (
 from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, SlotOutcome
 from edge_mapper.messages import map_stats_message, map_update_message, upload_request_message
 from edge_mapper.parameters import PARAMETERS
-from edge_mapper.policy_control import LIVE, Note, PolicyControl
+from edge_mapper.policy_control import POLICY_KEYS, Note, PolicyControl
 from edge_mapper.slot_lifecycle import Closing, SlotLifecycle
 from edge_mapper.slot_planner import FrameObservations, SlotConfig
 from msg_schemas import qos, topics
@@ -90,7 +90,7 @@ class EdgeMapperNode(Node):
                                                     tracks=self.core.local_mapping.track_points))
 
     def _live_values(self) -> dict[str, Any]:
-        return {name: self.get_parameter(name).value for name in LIVE}
+        return {name: self.get_parameter(name).value for name in POLICY_KEYS}
 
     def _log(self, notes: list[Note]) -> None:
         # one call site per severity: rclpy refuses a logging line whose severity changes
@@ -110,8 +110,11 @@ class EdgeMapperNode(Node):
         slot = int(msg.slot)
         self._log(self.control.apply(self._live_values(), slot))  # set since the last slot
         self.core.set_policy(self.control.policy)
-        if self.control.vmax != self.core.config.slot.vmax:
-            self.core.set_vmax(self.control.vmax)
+        vmax = int(self.get_parameter("vmax").value)
+        if vmax != self.core.slot_config.vmax:
+            self.get_logger().info(f"slot {slot}: V_max {vmax} from this slot on (was "
+                                   f"{self.core.slot_config.vmax})")
+            self.core.set_vmax(vmax)
         frames = [FrameObservations(int(f.frame_id), frozenset(int(i) for i in f.map_point_ids),
                                     frozenset(int(i) for i in f.local_track_ids),
                                     bool(f.tracked))
@@ -200,7 +203,7 @@ class EdgeMapperNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     def started(edge: EdgeMapperNode) -> None:
-        cfg = edge.core.config.slot
+        cfg = edge.core.slot_config
         log = edge.get_logger()
         log.info(f"policy {edge.control.policy_name}, V_max {cfg.vmax}, alpha {cfg.alpha_mbit} "
                  f"Mbit, D_req {cfg.d_req_s} s; listening on "

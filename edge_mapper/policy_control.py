@@ -1,7 +1,8 @@
 """Which policy decides the edge's next slot: live parameter changes and the twin's fallback.
 
-The operator may change ``policy``, ``policy_checkpoint``, ``fallback_policy``,
-``latent_max_age`` and ``vmax`` while the edge runs (``ros2 param set``). A change takes effect
+The operator may change ``policy``, ``policy_checkpoint``, ``fallback_policy`` and
+``latent_max_age`` while the edge runs (``ros2 param set``; ``vmax`` too, which the node hands
+straight to its core, the one owner of V_max). A change takes effect
 at the next slot; a policy that cannot be made is refused with the reason, the previous one
 goes on deciding, and the same refused values are not tried again until a parameter changes.
 A twin-driven learned policy comes wrapped with its fallback (:mod:`edge_mapper.twin_feed`);
@@ -20,9 +21,8 @@ from edge_mapper.twin_feed import TwinFedPolicy
 from twinslam.map_management.policies import MapPolicy
 from twinslam.policy_registry import LEARNED_PREFIX, make_policy
 
-#: the parameters that change live, and the policy's part of them
-LIVE = ("policy", "policy_checkpoint", "vmax", "fallback_policy", "latent_max_age")
-POLICY_KEYS = frozenset(LIVE) - {"vmax"}
+#: the live parameters that say which policy decides
+POLICY_KEYS = ("policy", "policy_checkpoint", "fallback_policy", "latent_max_age")
 
 
 @dataclass(frozen=True)
@@ -82,7 +82,7 @@ def make_policies(live: dict[str, Any], warm_up: Any = None
 
 
 class PolicyControl:
-    """The deciding policy and V_max as the live parameters say, slot by slot."""
+    """The deciding policy as the live parameters say, slot by slot."""
 
     def __init__(self, live: dict[str, Any], warm_up: Any = None) -> None:
         self.warm_up = warm_up
@@ -94,10 +94,6 @@ class PolicyControl:
     @property
     def policy_name(self) -> str:
         return policy_name(self.live)
-
-    @property
-    def vmax(self) -> int:
-        return int(self.live["vmax"])
 
     def apply(self, live: dict[str, Any], slot: int) -> list[Note]:
         """Adopt the values set since the last slot; what changed (or was refused)."""
@@ -117,7 +113,7 @@ class PolicyControl:
         if adopted != self.live:
             self.live = adopted
             notes.append(Note("info", f"slot {slot}: parameters now {changed}; policy "
-                                      f"{self.policy_name}, V_max {self.vmax}"))
+                                      f"{self.policy_name}"))
         return notes
 
     def decided(self, slot: int) -> tuple[str, list[Note]]:

@@ -149,3 +149,21 @@ def test_the_worker_thread_sends_requests_in_order_and_stops() -> None:
         sender.request(slot, [slot])
     sender.close(timeout=10.0)
     assert done == [0, 1, 2]
+
+
+def test_the_device_path_keeps_only_its_newest_poses() -> None:
+    """device/path is a window (path_window poses), not the whole run re-sent every slot."""
+    from geometry_msgs.msg import PoseStamped
+
+    from device_tracker.trajectory import PathWindow
+
+    window = PathWindow(3)
+    for i in range(10):
+        pose = PoseStamped()
+        pose.pose.position.x = float(i)
+        window.add(pose)
+    path = window.message(12.5, "map")
+    assert [p.pose.position.x for p in path.poses] == [7.0, 8.0, 9.0]
+    assert path.header.frame_id == "map" and path.header.stamp.sec == 12
+    with pytest.raises(ValueError, match="at least one pose"):
+        PathWindow(0)

@@ -69,7 +69,7 @@ def _run(core: EdgeMapperCore, device: Device, slots: range, rates: list[float])
             assert core.add_keyframe(device.keyframe(f, slot, core)) is not None
         assert core.add_keyframe(device.keyframe(plan.action.upload[0], slot, core)) is None
         outcomes.append(core.finish_slot(slot))
-        assert len(core.map.keyframes) <= core.config.slot.vmax
+        assert len(core.map.keyframes) <= core.slot_config.vmax
     return outcomes
 
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from edge_mapper.parameters import PARAMETERS
-from edge_mapper.policy_control import LIVE, PolicyControl
+from edge_mapper.policy_control import POLICY_KEYS, PolicyControl
 from edge_mapper.slot_lifecycle import Closing, SlotLifecycle
 from tests.test_uplink_shaper import VirtualTime
 
@@ -54,14 +54,15 @@ def test_timeouts_follow_the_injected_clock_and_closing_forgets_the_slot() -> No
 
 
 def _live(**changes: object) -> dict[str, object]:
-    values = {"policy": "adapt", "policy_checkpoint": "", "vmax": 45,
-              "fallback_policy": "adapt", "latent_max_age": 2}
+    values = {"policy": "adapt", "policy_checkpoint": "", "fallback_policy": "adapt",
+              "latent_max_age": 2}
     return {**values, **changes}
 
 
 def test_live_parameters_are_the_nodes_live_parameters() -> None:
-    assert set(LIVE) == {p.name for p in PARAMETERS if p.live}
-    assert set(_live()) == set(LIVE)
+    """The policy's keys and V_max (the core's) are every live parameter of the node."""
+    assert set(POLICY_KEYS) | {"vmax"} == {p.name for p in PARAMETERS if p.live}
+    assert set(_live()) == set(POLICY_KEYS)
 
 
 def test_a_live_policy_change_applies_and_a_refused_one_keeps_the_old_policy() -> None:
@@ -69,18 +70,18 @@ def test_a_live_policy_change_applies_and_a_refused_one_keeps_the_old_policy() -
     control = PolicyControl(_live(), lambda p: warmed.append(p.name))
     assert control.policy.name == "adapt" and warmed == ["adapt"]
     assert control.apply(_live(), 1) == []                       # nothing changed
-    notes = control.apply(_live(policy="lff", vmax=30), 2)
-    assert control.policy.name == "lff" and control.vmax == 30
-    assert [n.level for n in notes] == ["info"] and "V_max 30" in notes[0].text
-    notes = control.apply(_live(policy="mbrl:/nowhere.pt", vmax=30), 3)
+    notes = control.apply(_live(policy="lff"), 2)
+    assert control.policy.name == "lff"
+    assert [n.level for n in notes] == ["info"] and "policy lff" in notes[0].text
+    notes = control.apply(_live(policy="mbrl:/nowhere.pt"), 3)
     assert control.policy.name == "lff" and control.policy_name == "lff"
     assert notes[0].level == "error" and "lff goes on deciding" in notes[0].text
-    assert control.apply(_live(policy="mbrl:/nowhere.pt", vmax=30), 4) == []   # not retried
+    assert control.apply(_live(policy="mbrl:/nowhere.pt"), 4) == []   # not retried
     assert control.decided(4) == ("lff", [])
 
 
 class _TwinPolicy:
-    name, feature_size, uses_twin = "mbrl-udt", 4, True
+    name, feature_size, uses_twin = "mbrl-variational", 4, True
 
     def reset(self, seed: int | None = None) -> None:
         pass

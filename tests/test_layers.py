@@ -40,3 +40,14 @@ def test_an_edge_with_a_rule_policy_imports_no_torch() -> None:
 def test_the_probe_sees_torch_where_it_is_loaded() -> None:
     """The twin node needs torch: the probe that found none above finds it here."""
     assert "torch" in _torch_modules_after("import udt_node.node\n")
+
+
+def test_a_regime_or_counting_rate_model_never_loads_torch() -> None:
+    """The rate-model registry builds the learned models on demand: a caller on the regime
+    twin or the counts (a twin node on the default model's library, the prediction
+    experiment's filters) does not pay for torch."""
+    loaded = _torch_modules_after(
+        "from twinslam.twin.registry import make_rate_model\n"
+        "for name in ('regime', 'markov', 'markov-window', 'persistence', 'uniform'):\n"
+        "    make_rate_model(name).observe(1)\n")
+    assert loaded == []

@@ -20,7 +20,8 @@ from twinslam.policy_registry import make_policy
 from twinslam.simulator.covisibility import CovisibilityDataset, load_covisibility
 from twinslam.simulator.env import MapManagementEnv, SimConfig
 from twinslam.simulator.plan import rollout
-from twinslam.twin.rate_models import MarkovRateModel, TwinRateModel
+from twinslam.twin.markov import MarkovCounts
+from twinslam.twin.variational_twin import VariationalConfig, VariationalTwin
 from twinslam.uplink.channels import parse_channel
 
 COVIS = Path(__file__).resolve().parents[1] / "data" / "7scenes-redkitchen-1000.covis.npz"
@@ -168,7 +169,7 @@ def test_blended_batch_holds_i_real_tuples(kitchen: CovisibilityDataset) -> None
 
 
 def test_markov_rate_model_is_the_count_estimate() -> None:
-    model = MarkovRateModel(2)
+    model = MarkovCounts(2)
     for s in [0, 0, 1, 0, 0, 0, 1, 1]:
         model.observe(s)
     # transitions from 0: 0→0 ×3, 0→1 ×2; from 1: 1→0, 1→1
@@ -178,7 +179,7 @@ def test_markov_rate_model_is_the_count_estimate() -> None:
 
 
 def test_twin_rate_model_gives_its_latent_and_samples_states() -> None:
-    model = TwinRateModel(3, retrain_every=1000)
+    model = VariationalTwin(VariationalConfig(n_states=3, retrain_every=1000))
     assert model.features([0, 1, 2]).shape == (model.feature_size,) == (16,)
     draws = model.sample_next([0, 1, 2], 50, np.random.default_rng(0))
     assert draws.shape == (50,) and set(draws.tolist()) <= {0, 1, 2}
@@ -344,7 +345,7 @@ def test_edge_node_with_a_missing_policy_checkpoint_says_so_and_exits(tmp_path: 
 
 
 class _Learned:
-    name, feature_size = "mbrl-udt", 4
+    name, feature_size = "mbrl-variational", 4
 
     def __init__(self) -> None:
         self.features: list[np.ndarray] = []
@@ -370,7 +371,7 @@ def test_twin_fed_policy_uses_fresh_latents_and_falls_back_without_them() -> Non
     feed = TwinFedPolicy(learned, _Fallback(), max_age=1)
     assert feed.decide(SimpleNamespace(slot=0)) == "fallback" and feed.used == "adapt"
     feed.offer(3, np.array([0.5, -0.5]), np.array([1.0, 0.0]), model_version=2)
-    assert feed.decide(SimpleNamespace(slot=4)) == "learned" and feed.used == "mbrl-udt"
+    assert feed.decide(SimpleNamespace(slot=4)) == "learned" and feed.used == "mbrl-variational"
     # [μ, log Σ] with Σ = 0 clipped, not -inf
     np.testing.assert_allclose(learned.features[-1][:3], [0.5, -0.5, 0.0])
     assert np.isfinite(learned.features[-1]).all()

@@ -235,12 +235,12 @@ def twin_policy(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
     covis = Path(__file__).resolve().parents[1] / "data" / "7scenes-redkitchen-1000.covis.npz"
     trainer = AmmTrainer(TrainConfig(slots=20, episode_slots=10, warmup_slots=10,
-                                     batch_size=4, rate_model="udt", artificial_per_real=1,
+                                     batch_size=4, rate_model="variational", artificial_per_real=1,
                                      replay_capacity=50, log_every=10, validate_every=20,
                                      validation_seeds=1, validation_slots=4),
                          load_covisibility(covis))
     trainer.train()
-    path = tmp_path_factory.mktemp("amm") / "amm-udt.pt"
+    path = tmp_path_factory.mktemp("amm") / "amm-variational.pt"
     trainer.save(path)
     return path
 

@@ -355,7 +355,7 @@ def test_training_runs_of_one_learned_variant_get_rows_of_their_own() -> None:
 
     labels = distinct_labels({"lff": "lff", "mbrl:runs/amm_s0.pt": "amm-regime-real",
                               "mbrl:runs/amm_s1.pt": "amm-regime-real",
-                              "mbrl:other.pt": "amm-udt", "reference": "reference"})
+                              "mbrl:other.pt": "amm-variational", "reference": "reference"})
     assert labels == {"lff": "lff", "mbrl:runs/amm_s0.pt": "amm-regime-real (amm_s0)",
                       "mbrl:runs/amm_s1.pt": "amm-regime-real (amm_s1)",
-                      "mbrl:other.pt": "amm-udt", "reference": "reference"}
+                      "mbrl:other.pt": "amm-variational", "reference": "reference"}

@@ -9,9 +9,10 @@ import pytest
 import torch
 
 from twinslam.experiments.twin import chain_states
-from twinslam.twin.next_state import CountingPredictor, RegimePredictor, score_online
-from twinslam.twin.rate_models import RegimeRateModel, load_rate_model, make_rate_model
+from twinslam.twin.markov import MarkovCounts
+from twinslam.twin.prediction_score import score_online
 from twinslam.twin.regime_twin import RegimeConfig, RegimeTwin
+from twinslam.twin.registry import RateModelSettings, load_rate_model, make_rate_model
 from twinslam.uplink.channels import random_transition_matrix
 
 STAY = np.array([[0.95, 0.05], [0.05, 0.95]])
@@ -23,23 +24,23 @@ def test_on_a_stationary_chain_it_predicts_as_well_as_counting_the_whole_history
     whole-history counting, and the never-changing hazard carries the posterior."""
     rng = np.random.default_rng(3)
     states = chain_states([random_transition_matrix(rng, 4)], 2000, rng).tolist()
-    regime, counting = RegimePredictor(4), CountingPredictor("markov", 4, None, 0.5)
+    regime, counting = RegimeTwin(RegimeConfig(n_states=4)), MarkovCounts(4, pseudo_count=0.5)
     scores = score_online(states, [regime, counting])
     ll, ref = scores["regime"].mean_log_likelihood, scores["markov"].mean_log_likelihood
     assert ll > ref - 0.01 * abs(ref), (ll, ref)
-    weights = regime.twin.hazard_weights()
-    assert weights[regime.twin.config.hazards.index(0.0)] == weights.max()
+    weights = regime.hazard_weights()
+    assert weights[regime.config.hazards.index(0.0)] == weights.max()
 
 
 def test_after_the_regime_changes_it_follows_the_new_matrix_and_counting_does_not() -> None:
     states = chain_states([STAY, FLIP], 400, np.random.default_rng(1))
-    twin, counting = RegimeTwin(RegimeConfig(n_states=2)), CountingPredictor("m", 2, None, 0.5)
+    twin, counting = RegimeTwin(RegimeConfig(n_states=2)), MarkovCounts(2, pseudo_count=0.5)
     for s in states[:430]:                       # 30 slots into the flipping regime
         twin.observe(int(s))
         counting.observe(int(s))
     current = int(states[429])
     assert twin.predict()[1 - current] > 0.8     # flips, as the new regime does
-    assert counting.predict()[1 - current] < 0.5
+    assert counting.predict([current])[1 - current] < 0.5
     assert twin.expected_run_length() < 60       # it knows the regime is young
     np.testing.assert_allclose(twin.transition_matrix(), FLIP, atol=0.2)
 
@@ -68,7 +69,7 @@ def test_artificial_next_states_follow_its_predictive() -> None:
     for s in chain_states([random_transition_matrix(np.random.default_rng(4), 3)], 300,
                           np.random.default_rng(5)):
         twin.observe(int(s))
-    draws = twin.sample_next(4000, np.random.default_rng(6))
+    draws = twin.sample_next([], 4000, np.random.default_rng(6))
     freq = np.bincount(draws, minlength=3) / draws.size
     np.testing.assert_allclose(freq, twin.predict(), atol=0.03)
 
@@ -94,7 +95,7 @@ def test_the_regime_rate_model_is_the_default_and_survives_a_checkpoint() -> Non
     from twinslam.mbrl.trainer import TrainConfig
 
     assert TrainConfig().rate_model == "regime"
-    model = make_rate_model("regime", 4)
+    model = make_rate_model("regime", RateModelSettings(n_states=4))
     assert model.online and model.feature_size == 32
     for s in [0, 1, 2, 3] * 30:
         model.observe(s)
@@ -102,9 +103,9 @@ def test_the_regime_rate_model_is_the_default_and_survives_a_checkpoint() -> Non
     torch.save(model.state_dict(), buf)
     buf.seek(0)
     again = load_rate_model("regime", torch.load(buf, weights_only=True))
-    assert isinstance(again, RegimeRateModel)
-    assert again.twin.config == model.twin.config
+    assert isinstance(again, RegimeTwin) and isinstance(model, RegimeTwin)
+    assert again.config == model.config
     feats = model.features([3])
     assert feats.shape == (32,) and np.all(np.isfinite(feats))
     model.reset()
-    np.testing.assert_allclose(model.twin.predict(), 0.25)
+    np.testing.assert_allclose(model.predict([]), 0.25)

@@ -6,19 +6,17 @@ import csv
 import math
 import subprocess
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from twinslam.experiments import twin_predict as tp
-from twinslam.twin.next_state import (
-    CountingPredictor,
-    PredictionProtocol,
-    UniformPredictor,
-    make_predictors,
-    score_online,
-)
+from twinslam.twin.markov import MarkovCounts
+from twinslam.twin.naive import Uniform
+from twinslam.twin.prediction_score import score_online
+from twinslam.twin.registry import RateModelSettings, make_rate_models
 from twinslam.uplink.traces import TraceShape, generate_trace, write_trace
 
 CHEAP = ("regime", "markov", "markov-window", "persistence", "uniform")
@@ -28,46 +26,44 @@ def test_scores_are_the_log_likelihood_and_brier_of_what_came() -> None:
     """Uniform over 4 states scores log(1/4) and Brier 0.75 on every slot; counting's
     smoothed predictions are the closed form (n_ij + 1/2) / (n_i + 2) on a 2-state sequence."""
     states = [0, 1, 0, 1, 1, 0]
-    s = score_online(states, [UniformPredictor(4)])["uniform"]
+    s = score_online(states, [Uniform(4)])["uniform"]
     assert s.slots == 5
     assert math.isclose(s.mean_log_likelihood, math.log(0.25))
     assert math.isclose(s.mean_brier, 0.75)
-    counting = score_online(states, [CountingPredictor("markov", 2, None, 0.5)])["markov"]
+    counting = score_online(states, [MarkovCounts(2, pseudo_count=0.5)])["markov"]
     # p(0→1)=1/2, p(1→0)=1/2, p(0→1 | 1 of 1)=3/4, p(1→1 | n10=1)=1/4, p(1→0 | n10=1, n11=1)=1/2
     expected = np.log([0.5, 0.5, 0.75, 0.25, 0.5]).mean()
     assert math.isclose(counting.mean_log_likelihood, expected)
 
 
 def test_a_predictor_that_is_not_a_distribution_is_refused() -> None:
-    class Broken:
+    class Broken(Uniform):
         name = "broken"
 
-        def predict(self) -> np.ndarray:
+        def predict(self, history: Sequence[int]) -> np.ndarray:
             return np.array([0.7, 0.7])
 
-        def observe(self, state: int) -> None:
-            pass
-
     with pytest.raises(ValueError, match=r"broken: prediction .* is not a distribution"):
-        score_online([0, 1, 0], [Broken()])
+        score_online([0, 1, 0], [Broken(2)])
 
 
-def test_the_lstm_views_share_one_network_and_the_point_view_keeps_epsilon() -> None:
-    proto = PredictionProtocol(n_states=3, retrain_every=20, buffer_slots=40,
-                               steps_per_retrain=20)
-    soft, point = make_predictors(["lstm", "lstm-point"], proto, seed=0)
-    score_online([0, 1, 2] * 10, [soft, point])
-    assert soft.predict()[0] > 0.5           # after 2 comes 0: learnt in one retrain
-    p = point.predict()
+def test_the_lstm_learns_in_one_retrain_and_the_point_predictor_keeps_epsilon() -> None:
+    settings = RateModelSettings(n_states=3, retrain_every=20, buffer_slots=40,
+                                 steps_per_retrain=20)
+    soft, point = make_rate_models(["lstm", "lstm-point"], settings)
+    history = [0, 1, 2] * 10
+    score_online(history, [soft, point])
+    assert soft.predict(history)[0] > 0.5       # after 2 comes 0: learnt in one retrain
+    p = point.predict(history)
     assert sorted(p.tolist()) == pytest.approx([0.025, 0.025, 0.95])
-    assert abs(soft.predict().sum() - 1.0) < 1e-6
-    with pytest.raises(ValueError, match="unknown predictor"):
-        make_predictors(["twin"], proto, 0)
+    assert abs(soft.predict(history).sum() - 1.0) < 1e-6
+    with pytest.raises(ValueError, match="unknown rate model"):
+        make_rate_models(["twin"], settings)
 
 
 @pytest.mark.parametrize("spec", ["stationary", "intervals:50", "generator:20:60"])
 def test_sources_give_states_in_range_and_seeds_differ(spec: str) -> None:
-    setting = tp.Setting(slots=300, protocol=PredictionProtocol(n_states=4))
+    setting = tp.Setting(slots=300, settings=RateModelSettings(n_states=4))
     a, b = (tp.source_states(spec, seed, setting) for seed in (0, 1))
     assert a.shape == b.shape == (300,)
     assert a.min() >= 0 and a.max() <= 3 and not np.array_equal(a, b)
@@ -75,7 +71,7 @@ def test_sources_give_states_in_range_and_seeds_differ(spec: str) -> None:
 
 def test_interval_changes_do_not_line_up_with_retrains() -> None:
     """The first interval is cut at a seed's random point: changes fall off the W grid."""
-    setting = tp.Setting(slots=200, protocol=PredictionProtocol(n_states=2))
+    setting = tp.Setting(slots=200, settings=RateModelSettings(n_states=2))
     firsts = set()
     for seed in range(6):
         rng = np.random.default_rng([seed, 20])
@@ -108,7 +104,7 @@ def test_the_regime_twin_beats_counting_where_the_chain_changes(tmp_path: Path) 
     better than both counting estimators on every seed; the experiment writes every
     predictor's mean, CI and paired difference, every run, and a plot."""
     setting = tp.Setting(slots=600, seeds=3, predictors=CHEAP,
-                         protocol=PredictionProtocol(n_states=3))
+                         settings=RateModelSettings(n_states=3))
     summary = tp.twin_predict(["intervals:100"], tmp_path, setting)
     rows = list(csv.DictReader((tmp_path / "twin_predict_runs.csv").open()))
     by_seed: dict[str, dict[str, float]] = {}

@@ -16,9 +16,10 @@ from msg_schemas import new, qos, topics
 from twinslam.experiments.twin import chain_states
 from twinslam.node_hosts.loopback import LoopbackDomain
 from twinslam.node_hosts.session import RosSession
-from twinslam.twin.baselines import LstmConfig, LstmPredictor, MarkovMle
-from twinslam.twin.digital_twin import TwinConfig, UserDigitalTwin
+from twinslam.twin.lstm import LstmConfig, LstmPredictor
+from twinslam.twin.markov import MarkovCounts
 from twinslam.twin.rate_history import history_windows, transition_error
+from twinslam.twin.variational_twin import VariationalConfig, VariationalTwin
 from twinslam.uplink.channels import MarkovChannel, state_rates
 
 P2 = np.array([[0.8, 0.2], [0.3, 0.7]])
@@ -37,7 +38,7 @@ def test_history_windows_pair_each_window_with_its_successor() -> None:
 
 
 def test_elbo_falls_and_the_twin_recovers_a_stationary_two_state_chain() -> None:
-    twin = UserDigitalTwin(TwinConfig(n_states=2, buffer_slots=2000, seed=0))
+    twin = VariationalTwin(VariationalConfig(n_states=2, buffer_slots=2000, seed=0))
     for s in _chain(P2, 2000, seed=1):
         twin.observe(s)
     trace = twin.retrain(steps=300)
@@ -54,26 +55,26 @@ def test_elbo_falls_and_the_twin_recovers_a_stationary_two_state_chain() -> None
     assert latent.mu.shape == latent.sigma.shape == (8,) and np.all(latent.sigma > 0)
     assert math.isclose(float(latent.next_state_probs.sum()), 1.0, rel_tol=1e-5)
     # artificial experiences: samples follow the predicted next-state distribution
-    samples = twin.sample_next(4000, generator=np.random.default_rng(0))
+    samples = twin.sample_next(twin.states, 4000, np.random.default_rng(0))
     expected = twin.transition_matrix()[twin.states[-1]]
     assert abs(np.mean(samples == 1) - expected[1]) < 0.03
 
 
 def _mle(states: list[int], n: int) -> np.ndarray:
-    mle = MarkovMle(n)
+    mle = MarkovCounts(n)
     for s in states:
         mle.observe(s)
     return mle.transition_matrix()
 
 
 def test_markov_mle_counts_transitions_whole_or_windowed() -> None:
-    mle = MarkovMle(3)
+    mle = MarkovCounts(3)
     for s in [0, 1, 0, 1, 1, 2]:
         mle.observe(s)
     # 0→1 twice; 1→0, 1→1, 1→2 once each; 2 never left: uniform
     np.testing.assert_allclose(mle.transition_matrix(),
                                [[0, 1, 0], [1 / 3, 1 / 3, 1 / 3], [1 / 3, 1 / 3, 1 / 3]])
-    windowed = MarkovMle(2, window=2)
+    windowed = MarkovCounts(2, window=2)
     for s in [0, 0, 0, 1, 1]:
         windowed.observe(s)
     np.testing.assert_allclose(windowed.transition_matrix(), [[0, 1], [0, 1]])
@@ -101,17 +102,17 @@ def test_chain_states_follow_each_interval_matrix() -> None:
 
 
 def test_twin_checkpoint_round_trip(tmp_path: Path) -> None:
-    twin = UserDigitalTwin(TwinConfig(n_states=3, latent_dim=4, seed=1))
+    twin = VariationalTwin(VariationalConfig(n_states=3, latent_dim=4, seed=1))
     for s in _chain(np.full((3, 3), 1 / 3), 120, seed=3):
         twin.observe(s)
     twin.retrain(steps=5)
     twin.save(tmp_path / "twin.pt")
-    again = UserDigitalTwin.load(tmp_path / "twin.pt")
+    again = VariationalTwin.load(tmp_path / "twin.pt")
     assert again.version == 1 and again.states == twin.states
     np.testing.assert_allclose(again.transition_matrix(), twin.transition_matrix())
     (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
     with pytest.raises(ValueError, match=r"junk\.pt"):
-        UserDigitalTwin.load(tmp_path / "junk.pt")
+        VariationalTwin.load(tmp_path / "junk.pt")
 
 
 def _throughput(slot: int, mbps: float) -> object:
@@ -155,9 +156,10 @@ def test_udt_node_round_trip_refuses_bad_throughput(
                for m in got)
     assert list(got[0].state_rates_mbps) == rates
     assert got[0].model_version == 0 and got[-1].model_version >= 2
-    assert weights.is_file() and UserDigitalTwin.load(weights).version >= 1
+    assert weights.is_file() and VariationalTwin.load(weights).version >= 1
     assert err.count("dropped a malformed twinslam_msgs/msg/UplinkThroughput") == 2  # NaN, < 0
     assert err.count("refused throughput 1000000000.0") == 1
+    assert "model:=udt is the old name of model:=variational" in err    # still accepted
     summary = re.search(r"(\d+) slots learned from, (\d+) refused", err)
     assert summary is not None and int(summary[1]) >= 60 and int(summary[2]) == 3
 
@@ -186,4 +188,4 @@ def test_udt_node_runs_the_regime_twin_by_default_and_follows_the_uplink(
     assert got[59].next_state_probs[0] > 0.9              # staying put
     assert got[-1].next_state_probs[1] > 0.8              # last was 0: 1 comes next now
     assert "Bayesian regime twin" in err
-    assert "weights is for model:=udt" in err
+    assert "weights is for model:=variational" in err

@@ -9,14 +9,14 @@ version) for every slot, from one of two twins (``model``):
   updated every slot — μ, Σ are the mean and variance of the current regime's N×N matrix, the
   version counts the slots it has seen. It predicts the next state best of the models measured
   (docs/results.md, "twin-predict").
-* ``udt``: the paper's variational twin. It keeps the real-experience buffer; every
+* ``variational``: the paper's variational twin. It keeps the real-experience buffer; every
   ``retrain_every`` slots it is retrained on a background thread, warm-started; callbacks never
   wait for it, and the trained network is swapped in when ready (the executor's callbacks and
   the training thread share only the swap, under a lock). With ``weights`` set, it is loaded
   from that file at start (if present) and saved after every retrain.
 
 With ``policy_checkpoint`` set to a twin-driven AMM policy (``twinslam train --rate-model
-regime|udt``), the node runs that policy's twin — its model and its configuration (the
+regime|variational``), the node runs that policy's twin — its model and its configuration (the
 variational twin: its weights) — so the latents the edge feeds it mean what they meant in
 training; ``model`` is then not consulted.
 
@@ -31,72 +31,46 @@ import math
 import sys
 import threading
 from pathlib import Path
+from typing import Any
 
-import numpy as np
 import torch
 from rclpy.node import Node
 from twinslam_msgs.msg import RateLatent, UplinkThroughput
 
-from msg_schemas import new, qos, topics
-from twinslam.common import table1
+from msg_schemas import qos, topics
 from twinslam.node_hosts.checked_subscription import CheckedSubscription
 from twinslam.node_hosts.node_main import NodeStartError, run_node
-from twinslam.node_hosts.parameters import ParamSpec, declare
-from twinslam.twin.digital_twin import Latent, TwinConfig, UserDigitalTwin
+from twinslam.node_hosts.parameters import declare
 from twinslam.twin.regime_twin import RegimeConfig, RegimeTwin
+from twinslam.twin.registry import TWIN_MODELS, canonical
+from twinslam.twin.variational_twin import VariationalConfig, VariationalTwin
 from twinslam.uplink.quantiser import RateQuantiser
+from udt_node.messages import rate_latent_message
+from udt_node.parameters import PARAMETERS
 
-MODELS = ("regime", "udt")
-
-PARAMETERS = (
-    ParamSpec("model", "regime", "regime (Bayesian regime twin) or udt (variational twin)",
-              check=lambda v: None if v in MODELS else f"must be one of {', '.join(MODELS)}"),
-    ParamSpec("states", 2, "N uplink states, spread over [rate_min, rate_max]", low=1, high=64),
-    ParamSpec("latent_dim", 8, "udt: Z, the latent's dimensions", low=1, high=1024),
-    ParamSpec("history", 8, "udt: tau + 1 slots of rate history the encoder reads", low=1,
-              high=10_000),
-    ParamSpec("retrain_every", 100, "udt: W, slots between retrains (background thread)",
-              low=1, high=1_000_000),
-    ParamSpec("buffer_slots", 600, "udt: real experiences a retrain learns from", low=1,
-              high=10_000_000),
-    ParamSpec("steps_per_retrain", 100, "udt: optimiser steps per retrain", low=1,
-              high=1_000_000),
-    ParamSpec("rate_min", table1.RATE_MIN_MBPS, "Mbit/s of the lowest state", low=0.0, high=1e6),
-    ParamSpec("rate_max", table1.RATE_MAX_MBPS, "Mbit/s of the highest state", low=0.0, high=1e6),
-    ParamSpec("max_mbps", 10_000.0, "a larger throughput report is refused as absurd",
-              low=0.0, high=1e9),
-    ParamSpec("weights", "", "udt: file to load at start and save after each retrain"),
-    ParamSpec("seed", 0, "udt: seed of the twin's training", low=0),
-    ParamSpec("policy_checkpoint", "", "run the twin of this AMM policy (rate model regime or "
-              "udt) instead of model"),
-)
+#: the twins the node runs (both satisfy twinslam.twin.rate_model.Twin)
+RunnableTwin = RegimeTwin | VariationalTwin
 
 
 class TwinNode(Node):
-    """Topic ↔ twin wiring; the learning lives in
-    :class:`~twinslam.twin.digital_twin.UserDigitalTwin`."""
+    """Topic ↔ twin wiring; the learning lives in the twin (:mod:`twinslam.twin`)."""
 
     def __init__(self) -> None:
         super().__init__("udt_node")
         p = declare(self, PARAMETERS)
-        config = TwinConfig(n_states=int(p["states"]), latent_dim=int(p["latent_dim"]),
-                            history=int(p["history"]), retrain_every=int(p["retrain_every"]),
-                            buffer_slots=int(p["buffer_slots"]),
-                            steps_per_retrain=int(p["steps_per_retrain"]), seed=int(p["seed"]))
         #: a measured rate's state: the nearest of N rates spread over [rate_min, rate_max]
-        self.quantiser = RateQuantiser.evenly(config.n_states, float(p["rate_min"]),
+        self.quantiser = RateQuantiser.evenly(int(p["states"]), float(p["rate_min"]),
                                               float(p["rate_max"]))
         self.rates = self.quantiser.rates
         self.max_mbps = float(p["max_mbps"])
         self.weights = Path(p["weights"]) if p["weights"] else None
         try:
-            self.twin = self._load_or_create(config, str(p["model"]),
-                                             str(p["policy_checkpoint"]))
+            self.twin = self._load_or_create(p)
         except (ValueError, OSError) as exc:
             raise NodeStartError(str(exc)) from None
-        if self.twin.config.n_states != config.n_states:
-            raise NodeStartError(f"a {self.twin.config.n_states}-state twin, states:="
-                                 f"{config.n_states} asked for")
+        if self.twin.n_states != int(p["states"]):
+            raise NodeStartError(f"a {self.twin.n_states}-state twin, states:={p['states']} "
+                                 "asked for")
         self.rejected = 0
         self.received = 0
         self._lock = threading.Lock()            # guards the twin's network swap
@@ -105,46 +79,40 @@ class TwinNode(Node):
         self.sub = CheckedSubscription(self, UplinkThroughput, topics.UPLINK_THROUGHPUT,
                                        self._on_throughput, qos.PROTOCOL)
 
-    def _load_or_create(self, config: TwinConfig, model: str, policy_checkpoint: str
-                        ) -> UserDigitalTwin | RegimeTwin:
+    def _load_or_create(self, p: dict[str, Any]) -> RunnableTwin:
         log = self.get_logger()
-        if policy_checkpoint:
-            from twinslam.mbrl.policy import MbrlPolicy
-            from twinslam.twin.rate_models import RegimeRateModel, TwinRateModel
-
-            policy = MbrlPolicy(Path(policy_checkpoint))
-            if isinstance(policy.rate_model, RegimeRateModel):
-                log.info(f"the regime twin of policy {policy_checkpoint}")
-                return RegimeTwin(policy.rate_model.twin.config)
-            if not isinstance(policy.rate_model, TwinRateModel):
-                raise ValueError(f"{policy_checkpoint}: a {policy.rate_model_name}-driven "
-                                 "policy has no twin to start from")
-            log.info(f"the twin of policy {policy_checkpoint} (version "
-                     f"{policy.rate_model.twin.version})")
-            return policy.rate_model.twin
-        if model == "regime":
+        if p["policy_checkpoint"]:
+            return self._policy_twin(str(p["policy_checkpoint"]))
+        n = int(p["states"])
+        if canonical(str(p["model"])) == "regime":
             if self.weights is not None:
-                log.warning("weights is for model:=udt; the regime twin has none (ignored)")
-            return RegimeTwin(RegimeConfig(n_states=config.n_states))
+                log.warning("weights is for model:=variational; the regime twin has none "
+                            "(ignored)")
+            return RegimeTwin(RegimeConfig(n_states=n))
+        if p["model"] != "variational":
+            log.warning(f"model:={p['model']} is the old name of model:=variational")
         if self.weights is not None and self.weights.is_file():
-            twin = UserDigitalTwin.load(self.weights)
+            twin = VariationalTwin.load(self.weights)
             log.info(f"loaded twin version {twin.version} ({len(twin.states)} slots) from "
                      f"{self.weights}")
             return twin
-        return UserDigitalTwin(config)
+        return VariationalTwin(VariationalConfig(
+            n_states=n, latent_dim=int(p["latent_dim"]), history=int(p["history"]),
+            retrain_every=int(p["retrain_every"]), buffer_slots=int(p["buffer_slots"]),
+            steps_per_retrain=int(p["steps_per_retrain"]), seed=int(p["seed"])))
 
-    def describe(self) -> str:
-        """What the twin is, for the start-up line."""
-        if isinstance(self.twin, RegimeTwin):
-            hazards = ", ".join(f"{h:.3g}" for h in self.twin.config.hazards)
-            return f"Bayesian regime twin (hazards {hazards})"
-        cfg = self.twin.config
-        return (f"variational twin, Z = {cfg.latent_dim}, retrain every "
-                f"{cfg.retrain_every} slots")
+    def _policy_twin(self, checkpoint: str) -> RunnableTwin:
+        """The twin a twin-driven policy was trained with, as it starts a run."""
+        # imported here: only a node given a policy checkpoint needs the learning layer
+        from twinslam.mbrl.policy import MbrlPolicy
 
-    def quantise(self, mbps: float) -> int:
-        """Index of the state rate nearest to a measured throughput."""
-        return self.quantiser.state(mbps)
+        model = MbrlPolicy(Path(checkpoint)).rate_model
+        if model.name not in TWIN_MODELS or not isinstance(model, RunnableTwin):
+            raise ValueError(f"{checkpoint}: a {model.name}-driven policy has no twin to start "
+                             "from")
+        model.reset()                           # a filter starts the run from its prior
+        self.get_logger().info(f"the {model.describe()} of policy {checkpoint}")
+        return model
 
     def _on_throughput(self, msg: UplinkThroughput) -> None:
         mbps = float(msg.achieved_mbps)
@@ -155,37 +123,31 @@ class TwinNode(Node):
                 f"<= max_mbps {self.max_mbps:g}); {self.refused} refused so far")
             return
         self.received += 1
-        due = self.twin.observe(self.quantise(mbps))
-        if due and self._training is None and isinstance(self.twin, UserDigitalTwin):
+        due = self.twin.observe(self.quantiser.state(mbps))
+        if due and self._training is None and isinstance(self.twin, VariationalTwin):
             data = self.twin.take_training_data()
-            self._training = threading.Thread(target=self._retrain, args=(data,),
+            self._training = threading.Thread(target=self._retrain, args=(self.twin, data),
                                               name="udt-retrain", daemon=True)
             self._training.start()
         with self._lock:
-            latent: Latent = self.twin.latent()
-        out = new(RateLatent, slot=int(msg.slot),
-                  model_version=latent.model_version,
-                  mu=latent.mu.astype(np.float32), sigma=latent.sigma.astype(np.float32),
-                  next_state_probs=latent.next_state_probs.astype(np.float32),
-                  state_rates_mbps=self.rates.astype(np.float64))
-        out.header.stamp = msg.header.stamp
-        out.header.frame_id = msg.header.frame_id
-        self.pub.publish(out)
+            latent = self.twin.latent()
+        self.pub.publish(rate_latent_message(int(msg.slot), latent, self.rates,
+                                             msg.header.stamp, msg.header.frame_id))
 
-    def _retrain(self, states: list[int]) -> None:
+    def _retrain(self, twin: VariationalTwin, states: list[int]) -> None:
         """Runs on the training thread: train a copy, swap it in, save it."""
         log = self.get_logger()
         try:
-            network, trace = self.twin.train_copy(states)
+            network, trace = twin.train_copy(states)
             with self._lock:
-                self.twin.adopt(network, trace)
+                twin.adopt(network, trace)
                 if self.weights is not None:
-                    self.twin.save(self.weights)
+                    twin.save(self.weights)
             if trace:
                 log.info(f"retrained on {len(states)} slots: model version "
-                         f"{self.twin.version}, negative ELBO {trace[0]:.3f} -> {trace[-1]:.3f}")
+                         f"{twin.version}, negative ELBO {trace[0]:.3f} -> {trace[-1]:.3f}")
         except Exception as exc:  # a failed retrain must not kill the node
-            log.error(f"retrain failed, keeping model version {self.twin.version}: {exc}")
+            log.error(f"retrain failed, keeping model version {twin.version}: {exc}")
         finally:
             self._training = None
 
@@ -214,7 +176,7 @@ def main(args: list[str] | None = None) -> int:
 
     def started(twin_node: TwinNode) -> None:
         twin_node.get_logger().info(
-            f"{twin_node.describe()} of {twin_node.rates.size} uplink states "
+            f"{twin_node.twin.describe()} of {twin_node.rates.size} uplink states "
             f"{twin_node.rates.tolist()} Mbit/s; listening on {twin_node.sub.topic_name}")
 
     return run_node("udt_node", TwinNode, args, started=started)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Mapping
 
 #: the subparsers object every command registers itself with (argparse names no public type)
 Subparsers = argparse._SubParsersAction
@@ -19,6 +19,14 @@ def error(message: object, code: int = USAGE_ERROR) -> int:
     """Print ``error: message`` on stderr and return ``code`` for the command to return."""
     print(f"error: {message}", file=sys.stderr)
     return code
+
+
+def warn_aliases(names: Iterable[str], aliases: Mapping[str, str]) -> None:
+    """A deprecation line on stderr for each old name used (it still works)."""
+    for name in dict.fromkeys(names):
+        if name in aliases:
+            print(f"note: {name!r} is the old name of {aliases[name]!r} (deprecated; it still "
+                  "works)", file=sys.stderr)
 
 
 def elapsed_progress() -> Callable[[str], None]:

@@ -19,9 +19,10 @@ import numpy as np
 
 from twinslam.common.reporting import pyplot, write_csv
 from twinslam.experiments.parallel import run_all
-from twinslam.twin.baselines import LstmConfig, LstmPredictor, MarkovMle
-from twinslam.twin.digital_twin import TwinConfig, UserDigitalTwin
+from twinslam.twin.lstm import LstmConfig, LstmPredictor
+from twinslam.twin.markov import MarkovCounts
 from twinslam.twin.rate_history import transition_error
+from twinslam.twin.variational_twin import VariationalConfig, VariationalTwin
 from twinslam.uplink.channels import random_transition_matrix
 
 Progress = Callable[[str], None]
@@ -51,18 +52,18 @@ def chain_states(matrices: list[np.ndarray], interval_slots: int,
 
 def _make(name: str, n: int, proto: Protocol, seed: int) -> object:
     if name.startswith("udt"):
-        z = int(name.split("z")[-1]) if "z" in name else TwinConfig.latent_dim
-        return UserDigitalTwin(TwinConfig(n_states=n, latent_dim=z, history=proto.history,
-                                          buffer_slots=proto.buffer_slots,
-                                          retrain_every=proto.retrain_every, seed=seed))
+        z = int(name.split("z")[-1]) if "z" in name else VariationalConfig.latent_dim
+        return VariationalTwin(VariationalConfig(
+            n_states=n, latent_dim=z, history=proto.history, buffer_slots=proto.buffer_slots,
+            retrain_every=proto.retrain_every, seed=seed))
     if name == "lstm":
         return LstmPredictor(LstmConfig(n_states=n, history=proto.history,
                                         buffer_slots=proto.buffer_slots,
                                         retrain_every=proto.retrain_every, seed=seed))
     if name == "markov":
-        return MarkovMle(n)
+        return MarkovCounts(n)
     if name == "markov_window":
-        return MarkovMle(n, window=proto.buffer_slots)
+        return MarkovCounts(n, window=proto.buffer_slots)
     raise ValueError(f"unknown estimator {name!r}")
 
 

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -30,14 +30,8 @@ import numpy as np
 from twinslam.common.reporting import mean_ci95, pyplot, write_csv
 from twinslam.experiments.parallel import run_all
 from twinslam.experiments.twin import chain_states
-from twinslam.twin.next_state import (
-    COUNTING,
-    PREDICTORS,
-    PredictionProtocol,
-    check_predictors,
-    make_predictors,
-    score_online,
-)
+from twinslam.twin.prediction_score import score_online
+from twinslam.twin.registry import PREDICTORS, RateModelSettings, check_names, make_rate_models
 from twinslam.uplink.channels import SLOT_SECONDS, TraceChannel, random_transition_matrix
 from twinslam.uplink.traces import TraceShape, generate_trace
 
@@ -50,6 +44,12 @@ DEFAULT_SOURCES = ("stationary", "intervals:200", "intervals:600", "intervals:15
 GENERATOR_REGIME_S, GENERATOR_OUTAGE_EVERY_S, GENERATOR_OUTAGE_S = 120.0, 300.0, 10.0
 
 
+#: the counting estimators the others are compared with
+COUNTING = ("markov", "markov-window")
+#: how every model is built for the experiment: the twin node's defaults, 4 states, KT counts
+PREDICTION_SETTINGS = RateModelSettings(n_states=4, pseudo_count=0.5)
+
+
 @dataclass(frozen=True)
 class Setting:
     slots: int = 3000
@@ -57,7 +57,9 @@ class Setting:
     seed0: int = 0
     slot_seconds: float = SLOT_SECONDS
     predictors: tuple[str, ...] = PREDICTORS
-    protocol: PredictionProtocol = field(default_factory=PredictionProtocol)
+    #: the learned models' protocol and the counts' KT smoothing (a maximum-likelihood 0 would
+    #: score −∞ nats)
+    settings: RateModelSettings = PREDICTION_SETTINGS
 
 
 def check_source(spec: str, slot_seconds: float = SLOT_SECONDS) -> None:
@@ -86,7 +88,7 @@ def check_source(spec: str, slot_seconds: float = SLOT_SECONDS) -> None:
 
 def source_states(spec: str, seed: int, setting: Setting) -> np.ndarray:
     """The state sequence of one run of a source (at most ``setting.slots`` states)."""
-    n, slots = setting.protocol.n_states, setting.slots
+    n, slots = setting.settings.n_states, setting.slots
     kind, _, arg = spec.partition(":")
     rng = np.random.default_rng([seed, 20])
     if kind == "stationary":
@@ -145,8 +147,8 @@ def _run(task: tuple[str, int, Setting]) -> list[RunScore]:
     """One (source, seed): every predictor over the same states."""
     spec, seed, setting = task
     states = source_states(spec, seed, setting)
-    predictors = make_predictors(setting.predictors, setting.protocol, seed)
-    scores = score_online(states.tolist(), predictors)
+    models = make_rate_models(setting.predictors, replace(setting.settings, seed=seed))
+    scores = score_online(states.tolist(), models)
     return [RunScore(spec, seed, name, s.mean_log_likelihood, s.mean_brier, s.slots)
             for name, s in scores.items()]
 
@@ -190,7 +192,7 @@ def twin_predict(sources: Sequence[str], out_dir: Path, setting: Setting,
                  progress: Progress | None = None, jobs: int = 1) -> list[Summary]:
     """Every predictor on every (source, seed); writes twin_predict.csv (summary),
     twin_predict_runs.csv (every run) and twin_predict.png."""
-    check_predictors(setting.predictors)
+    check_names(setting.predictors)
     for spec in sources:
         check_source(spec, setting.slot_seconds)
     tasks = [(spec, setting.seed0 + r, setting) for spec in sources

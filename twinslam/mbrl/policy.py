@@ -21,7 +21,8 @@ from twinslam.map_management.actions import MapAction, SlotObservation
 from twinslam.mbrl.networks import Actor
 from twinslam.mbrl.replay import collate
 from twinslam.mbrl.state import action_from_scores, build_state, context_size
-from twinslam.twin.rate_models import TWIN_RATE_MODELS, RateModel, load_rate_model
+from twinslam.twin.rate_model import RateModel
+from twinslam.twin.registry import TWIN_MODELS, load_rate_model
 
 CHECKPOINT_FORMAT = "twinslam-amm-policy-1"
 
@@ -67,9 +68,10 @@ class MbrlPolicy:
         self.path = path
         self.history = int(blob["config"]["history"])
         self.n_states = int(blob["n_states"])
-        self.rate_model_name = str(blob["rate_model"])
-        self.rate_model: RateModel = load_rate_model(self.rate_model_name,
+        self.rate_model: RateModel = load_rate_model(str(blob["rate_model"]),
                                                      blob["rate_model_state"])
+        #: the model's name now (a checkpoint of an older version may say ``udt``)
+        self.rate_model_name = self.rate_model.name
         #: paper (the paper's AMM) or residual (ADAPT + residual RL); older checkpoints: residual
         self.actor_variant = str(blob["config"].get("actor", "residual"))
         self.actor = Actor(context_size(self.history, self.n_states,
@@ -77,7 +79,8 @@ class MbrlPolicy:
         self.actor.load_state_dict(blob["actor"])
         self.actor.eval()
         real_only = int(blob["config"].get("artificial_per_real", 1)) == 0
-        #: as tables show it: amm-udt (the paper's AMM), mbrl-udt (ADAPT + residual RL); -real
+        #: as tables show it: amm-regime (the paper's AMM on the regime twin), mbrl-variational
+        #: (ADAPT + residual RL on the variational twin); -real
         #: for a policy trained without artificial tuples
         kind = "amm" if self.actor_variant == "paper" else "mbrl"
         self.name = f"{kind}-{self.rate_model_name}{'-real' if real_only else ''}"
@@ -89,10 +92,10 @@ class MbrlPolicy:
 
     @property
     def uses_twin(self) -> bool:
-        """Driven by a user digital twin (regime or udt): on the edge its features can come
+        """Driven by a user digital twin (regime or variational): on the edge its features can come
         from the twin node's ``/udt/rate_latent`` (the node running the same model) instead
         of the checkpoint's copy of the twin."""
-        return self.rate_model_name in TWIN_RATE_MODELS
+        return self.rate_model_name in TWIN_MODELS
 
     @property
     def feature_size(self) -> int:

@@ -49,7 +49,15 @@ from twinslam.mbrl.state import (
 from twinslam.simulator.covisibility import CovisibilityDataset
 from twinslam.simulator.env import MapManagementEnv, SimConfig
 from twinslam.simulator.plan import rollout
-from twinslam.twin.rate_models import DEFAULT_RATE_MODEL, RateModel, make_rate_model
+from twinslam.twin.rate_model import RateModel
+from twinslam.twin.registry import (
+    DEFAULT_RATE_MODEL,
+    POLICY_RATE_MODELS,
+    RateModelSettings,
+    canonical,
+    check_names,
+    make_rate_model,
+)
 from twinslam.uplink.channels import parse_channel
 
 TRAINING_SEED_BASE = 100_000
@@ -65,7 +73,7 @@ class TrainConfig:
     slots: int = 3000                 #: real slots in all
     episode_slots: int = 200
     seed: int = 0
-    rate_model: str = DEFAULT_RATE_MODEL   #: regime | udt | lstm | markov
+    rate_model: str = DEFAULT_RATE_MODEL   #: regime | variational | lstm | markov
     #: paper (the paper's AMM: GCN scores, no ADAPT prior or features) | residual (ADAPT + RL)
     actor: str = "residual"
     retrain_every: int = 100          #: W
@@ -130,8 +138,10 @@ class AmmTrainer:
         self.env = MapManagementEnv(dataset, parse_channel(config.channel, config.rate_range,
                                                            config.seed), config.sim_config())
         n_states = self.env.channel.n_states
-        self.rate_model: RateModel = make_rate_model(config.rate_model, n_states,
-                                                     config.retrain_every, config.seed)
+        check_names([config.rate_model], POLICY_RATE_MODELS)
+        self.rate_model: RateModel = make_rate_model(
+            canonical(config.rate_model), RateModelSettings(
+                n_states=n_states, retrain_every=config.retrain_every, seed=config.seed))
         c = context_size(config.history, n_states, self.rate_model.feature_size)
         self.actor, self.critic = Actor(c, config.actor), Critic(c)
         self.actor_target = copy.deepcopy(self.actor)
@@ -180,7 +190,7 @@ class AmmTrainer:
         while played < cfg.slots:
             obs, _ = self.env.reset(TRAINING_SEED_BASE + 1000 * cfg.seed + episode)
             self.rate_model.reset()          # a filter (regime, counts) starts each episode
-            self.rate_model.observe(obs.rate_state)
+            self._observe(obs.rate_state)
             state = self.state_of(obs)
             returns: list[float] = []
             while played < cfg.slots:
@@ -193,7 +203,7 @@ class AmmTrainer:
                 # are drawn from it and observed by copies of it, never knowing the real one
                 prior = (copy.deepcopy(self.rate_model)
                          if self.rate_model.online and cfg.artificial_per_real else None)
-                self.rate_model.observe(obs.rate_state)
+                self._observe(obs.rate_state)
                 next_state = self.state_of(obs)
                 returns.append(-reward)
                 items = [(state, flags, reward, next_state, True)]
@@ -225,6 +235,12 @@ class AmmTrainer:
         if cfg.validate_every and played % cfg.validate_every:
             self._keep_if_best(played)
         return self.log
+
+    def _observe(self, state: int) -> None:
+        """A real slot's state into the rate model; a learned one retrains when it is due
+        (Algorithm 2 lines 11–13)."""
+        if self.rate_model.observe(state):
+            self.rate_model.retrain()
 
     def _artificial(self, state: GraphState, scores: np.ndarray, before: tuple,
                     history: list[int], prior: RateModel | None = None

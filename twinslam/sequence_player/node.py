@@ -34,48 +34,18 @@ from sensor_msgs.msg import CameraInfo, Image
 from msg_schemas import qos, topics
 from twinslam.node_hosts.acks import wait_for_acks
 from twinslam.node_hosts.node_main import NodeStartError, run_node
-from twinslam.node_hosts.parameters import ParamSpec, declare
+from twinslam.node_hosts.parameters import declare
 from twinslam.sequence_player.messages import (
-    DEPTH_ENCODINGS,
     camera_info_message,
     color_message,
     depth_message,
     pose_message,
 )
-from twinslam.sequence_player.playback import ORDERS, Playback, PlayedSequence, parse_bursts
+from twinslam.sequence_player.parameters import PARAMETERS
+from twinslam.sequence_player.playback import Playback, PlayedSequence, parse_bursts
 from twinslam.sequences.frame import RgbdFrame, SequenceError
 from twinslam.sequences.opening import open_sequence
 
-
-def _bursts_error(value: object) -> str | None:
-    try:
-        parse_bursts(str(value))
-    except ValueError as exc:
-        return str(exc)
-    return None
-
-
-PARAMETERS = (
-    ParamSpec("sequence", "synthetic", "dataset folder, rosbag2 (MCAP) of `twinslam record`, "
-              "or synthetic[:frames]"),
-    ParamSpec("rate", 1.0, "playback speed, x the recorded frame rate", low=1e-3, high=1e3),
-    ParamSpec("loop", False, "start over at the end"),
-    ParamSpec("start", 0, "first frame played", low=0),
-    ParamSpec("end", -1, "first frame not played; -1: to the end", low=-1),
-    ParamSpec("depth_encoding", "16UC1", "16UC1 (millimetres) or 32FC1 (metres)",
-              check=lambda v: None if v in DEPTH_ENCODINGS
-              else f"must be one of {', '.join(DEPTH_ENCODINGS)}"),
-    ParamSpec("mono", False, "mono8 colour instead of rgb8"),
-    ParamSpec("frame_id", "camera", "frame id of the camera topics"),
-    ParamSpec("world_frame_id", "world", "frame id of the ground-truth poses"),
-    ParamSpec("wait_for_subscribers", 0, "hold the first frame until this many colour "
-              "subscribers match", low=0),
-    ParamSpec("order", "forward", "forward, or forward_backward: every place visited twice "
-              "(dataset folders and synthetic only)",
-              check=lambda v: None if v in ORDERS else f"must be one of {', '.join(ORDERS)}"),
-    ParamSpec("blank", "", "bursts of played frames shown black with no depth (a covered "
-              "lens): START:COUNT[,START:COUNT...]; empty: none", check=_bursts_error),
-)
 PROGRESS_EVERY_S = 5.0
 DISCOVERY_SETTLE_S = 1.0
 POLL_S = 0.05

@@ -37,7 +37,7 @@ def history_windows(states: np.ndarray, history: int, n_states: int
 def latest_window(states: list[int], history: int, n_states: int) -> torch.Tensor:
     """The newest ``history`` states as a (1, history, N) one-hot batch; a shorter sequence is
     padded at the front with its oldest state (no states at all: state 0)."""
-    s = list(states)[-history:]
+    s = list(states[-history:])
     s = [s[0]] * (history - len(s)) + s if s else [0] * history
     return torch.from_numpy(one_hot(np.array(s), n_states))[None]
 

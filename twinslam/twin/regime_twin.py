@@ -25,11 +25,14 @@ update per slot (O(hypotheses·N) work, no training), so ``observe`` never asks 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
-from twinslam.twin.digital_twin import Latent
+from twinslam.twin.latent import latent_features
+from twinslam.twin.rate_model import Latent
 
 
 @dataclass(frozen=True)
@@ -70,7 +73,13 @@ class _Filter:
 
 @dataclass
 class RegimeTwin:
-    """Online posterior over the current regime of a piecewise-stationary Markov chain."""
+    """Online posterior over the current regime of a piecewise-stationary Markov chain; a
+    :class:`~twinslam.twin.rate_model.Twin` and a filter (``online``: reset per run). Its
+    features are [μ, log Σ] of the posterior over the current regime's matrix (2·N² numbers),
+    its artificial next states drawn from the posterior predictive."""
+
+    name = "regime"
+    online = True
 
     config: RegimeConfig = field(default_factory=RegimeConfig)
     version: int = 0                     #: = slots: the posterior changes every slot
@@ -81,6 +90,18 @@ class RegimeTwin:
 
     def __post_init__(self) -> None:
         self.reset()
+
+    @property
+    def n_states(self) -> int:
+        return self.config.n_states
+
+    @property
+    def feature_size(self) -> int:
+        return 2 * self.config.n_states * self.config.n_states
+
+    def describe(self) -> str:
+        hazards = ", ".join(f"{h:.3g}" for h in self.config.hazards)
+        return f"Bayesian regime twin (hazards {hazards})"
 
     def reset(self) -> None:
         """Forget everything (a new run)."""
@@ -127,6 +148,10 @@ class RegimeTwin:
         self._global[prev, s] += 1.0
         return False
 
+    def retrain(self) -> list[float]:
+        """Nothing to fit: the posterior is always up to date."""
+        return []
+
     def _prune(self, f: _Filter) -> None:
         keep = np.flatnonzero(f.weights >= self.config.prune_below * f.weights.max())
         if keep.size > self.config.max_hypotheses:
@@ -143,9 +168,10 @@ class RegimeTwin:
         w = np.exp(log_e - log_e.max())
         return w / w.sum()
 
-    def predict(self, state: int | None = None) -> np.ndarray:
-        """p(d_{k+1} | everything observed), from the newest state (or ``state``)."""
-        s = self._current(state)
+    def predict(self, history: Sequence[int] = ()) -> np.ndarray:
+        """p(d_{k+1} | everything observed), from the newest state of ``history`` (the newest
+        observed when it is empty)."""
+        s = self._current(history[-1] if len(history) else None)
         a, base_now = self.config.strength, self._base()
         out = np.zeros(self.config.n_states)
         for pi, f in zip(self.hazard_weights(), self._filters, strict=True):
@@ -178,11 +204,17 @@ class RegimeTwin:
         mean, var = self._moments()
         return Latent(mean.ravel().copy(), var.ravel().copy(), self.predict(), self.version)
 
-    def sample_next(self, count: int, rng: np.random.Generator,
-                    state: int | None = None) -> np.ndarray:
-        """``count`` draws of d̂_{k+1} for artificial experiences: a hazard and a hypothesis by
-        their posterior, a row from its Dirichlet, the next state from the row."""
-        s = self._current(state)
+    def features(self, history: Sequence[int] = ()) -> np.ndarray:
+        """[μ, log Σ] of the posterior (the history is the filter's own)."""
+        lat = self.latent()
+        return latent_features(lat.mu, lat.sigma)
+
+    def sample_next(self, history: Sequence[int], count: int, rng: np.random.Generator
+                    ) -> np.ndarray:
+        """``count`` draws of d̂_{k+1} after the newest state of ``history`` for artificial
+        experiences: a hazard and a hypothesis by their posterior, a row from its Dirichlet,
+        the next state from the row."""
+        s = self._current(history[-1] if len(history) else None)
         a = self.config.strength
         pis = self.hazard_weights()
         out = np.empty(count, dtype=np.int64)
@@ -192,6 +224,20 @@ class RegimeTwin:
             row = rng.dirichlet(f.counts[r, s] + a * f.base[r, s])
             out[n] = int(rng.choice(self.config.n_states, p=row / row.sum()))
         return out
+
+    def state_dict(self) -> dict[str, Any]:
+        """The configuration (a filter has no weights: a run starts from the prior)."""
+        cfg = self.config
+        return {"n_states": cfg.n_states, "hazards": [float(h) for h in cfg.hazards],
+                "prior_strength": cfg.prior_strength, "max_hypotheses": cfg.max_hypotheses}
+
+    @classmethod
+    def from_state_dict(cls, blob: dict[str, Any]) -> RegimeTwin:
+        return cls(RegimeConfig(
+            n_states=int(blob["n_states"]), hazards=tuple(float(h) for h in blob["hazards"]),
+            prior_strength=(None if blob["prior_strength"] is None
+                            else float(blob["prior_strength"])),
+            max_hypotheses=int(blob["max_hypotheses"])))
 
     def expected_run_length(self) -> float:
         """Posterior mean of the transitions the current regime has lasted."""

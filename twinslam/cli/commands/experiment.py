@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import replace
 from pathlib import Path
 
 from twinslam.cli.arguments import BUNDLED_COVIS, covisibility
-from twinslam.cli.console import Subparsers, elapsed_progress, error
+from twinslam.cli.console import Subparsers, elapsed_progress, error, warn_aliases
 from twinslam.experiments import amm
 from twinslam.simulator.covisibility import CovisibilityError
 from twinslam.uplink.channels import SLOT_SECONDS, ChannelError
@@ -60,7 +61,7 @@ def run_twin_predict(args: argparse.Namespace) -> int:
     """twin-predict: every rate model predicts the next slot's state online."""
     # imported here: the learned predictors load torch, which the other commands never need
     from twinslam.experiments import twin_predict as ex
-    from twinslam.twin.next_state import PREDICTORS, PredictionProtocol, check_predictors
+    from twinslam.twin.registry import ALIASES, PREDICTORS, check_names
 
     t0 = time.monotonic()
     progress = elapsed_progress()
@@ -68,15 +69,16 @@ def run_twin_predict(args: argparse.Namespace) -> int:
     sources = list(args.source or ex.DEFAULT_SOURCES)
     sources += [f"trace:{path}" for path in args.trace or []]
     try:
-        protocol = PredictionProtocol(n_states=args.states or 4,
-                                      retrain_every=args.retrain_every or 100,
-                                      buffer_slots=args.buffer_slots or 600)
+        settings = replace(ex.PREDICTION_SETTINGS, n_states=args.states or 4,
+                           retrain_every=args.retrain_every or 100,
+                           buffer_slots=args.buffer_slots or 600)
         predictors = (PREDICTORS if args.predictor == "all" else
                       tuple(p.strip() for p in args.predictor.split(",") if p.strip()))
+        check_names(predictors)
+        warn_aliases(predictors, ALIASES)
         setting = ex.Setting(slots=args.slots or 3000, seeds=args.runs or 5, seed0=args.seed,
                              slot_seconds=args.slot_seconds, predictors=predictors,
-                             protocol=protocol)
-        check_predictors(predictors)
+                             settings=settings)
         for spec in sources:
             ex.check_source(spec, args.slot_seconds)
     except (ValueError, ChannelError) as exc:
@@ -161,7 +163,8 @@ def register(sub: Subparsers) -> None:
                      "--source trace:FILE; formats as `twinslam trace info`)")
     exp.add_argument("--predictor", default="all",
                      help="twin-predict: all, or comma-separated predictors: regime (the Bayesian "
-                     "twin), udt (the variational twin), lstm (softmax), lstm-point (the "
+                     "twin), variational (the paper's variational twin; udt: its old name), "
+                     "lstm (softmax), lstm-point (the "
                      "paper's point predictor, 1 - 0.05 on its prediction), markov (counts over "
                      "the whole history), markov-window (counts over the buffer), persistence "
                      "(0.9 on staying), uniform")

@@ -7,8 +7,9 @@ import time
 from pathlib import Path
 
 from twinslam.cli.arguments import add_setting_arguments, covisibility
-from twinslam.cli.console import Subparsers, elapsed_progress, error
+from twinslam.cli.console import Subparsers, elapsed_progress, error, warn_aliases
 from twinslam.simulator.covisibility import CovisibilityError
+from twinslam.twin.registry import ALIASES, POLICY_RATE_MODELS, canonical
 from twinslam.uplink.channels import ChannelError
 
 
@@ -19,11 +20,13 @@ def run(args: argparse.Namespace) -> int:
     from twinslam.mbrl.trainer import AmmTrainer, TrainConfig
 
     t0 = time.monotonic()
+    warn_aliases([args.rate_model], ALIASES)
     try:
         dataset = covisibility(args.covis)
         config = TrainConfig(channel=args.channel, rate_range=args.rate_range,
                              vmax=args.vmax, slots=args.slots, episode_slots=args.episode_slots,
-                             seed=args.seed, rate_model=args.rate_model, actor=args.actor,
+                             seed=args.seed, rate_model=canonical(args.rate_model),
+                             actor=args.actor,
                              real_fraction=args.real_fraction,
                              artificial_per_real=args.artificial)
         torch.set_num_threads(args.threads)
@@ -32,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
         return error(exc)
     print(f"training on {dataset.n_frames} frames ({dataset.source or args.covis}); channel "
           f"{args.channel}; V_max {args.vmax}; actor {args.actor}; rate model "
-          f"{args.rate_model}; I/|Ξ| "
+          f"{canonical(args.rate_model)}; I/|Ξ| "
           f"{config.real_count}/{config.batch_size}, J {config.artificial_per_real}; "
           f"{args.slots} slots", flush=True)
     log = trainer.train()
@@ -56,10 +59,10 @@ def register(sub: Subparsers) -> None:
     train.add_argument("--slots", type=int, default=3000, help="real slots to train on")
     train.add_argument("--episode-slots", type=int, default=200, help="slots per episode")
     train.add_argument("--rate-model", default="regime",
-                       choices=["regime", "udt", "lstm", "markov"],
+                       choices=[*POLICY_RATE_MODELS, *ALIASES],
                        help="what augments the state and generates artificial experiences: "
                        "regime (the Bayesian regime twin's posterior; the best next-state "
-                       "predictor measured, `experiment twin-predict`), udt (the variational "
+                       "predictor measured, `experiment twin-predict`), variational (the "
                        "twin's latent, paper §V), lstm (a point predictor), markov "
                        "(transition counts)")
     train.add_argument("--actor", default="residual", choices=["paper", "residual"],

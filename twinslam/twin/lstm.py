@@ -1,48 +1,22 @@
-"""What the twin is compared with (paper §VII-A): a Markov model-driven estimator and an LSTM
-point predictor. Both learn from the same state sequence as the twin and answer the same
-question — the current interval's transition matrix — so one error metric serves all three.
+"""The paper's "LSTM" rate model (§VII-A): a classifier of the next state, used as a point
+predictor. ``lstm`` scores its softmax; ``lstm-point`` its point prediction with 1 − ε on the
+predicted state, as the paper uses it. As the policy's rate model (paper's "Proposed (LSTM)")
+its features are the one-hot point prediction and its artificial next states that prediction
+(it has no distribution to sample). Learned weights (not ``online``), retrained every W slots.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch
 from torch import nn
 
 from twinslam.twin.rate_history import fit, history_windows, latest_window, one_hot
-
-
-class MarkovMle:
-    """Maximum-likelihood transition counts: P̂[i, j] = n_ij / n_i over the whole history, or
-    over the last ``window`` transitions. A state never left yet has a uniform row.
-
-    The counts are kept up to date as states arrive (a transition leaving the window is taken
-    off again), so a query costs O(N²) however long the history — the learned policy asks once
-    per slot over 10⁴ slots."""
-
-    def __init__(self, n_states: int, window: int | None = None) -> None:
-        if window is not None and window < 1:
-            raise ValueError("window must be >= 1 transition")
-        self.n_states, self.window = n_states, window
-        self.counts = np.zeros((n_states, n_states))
-        self._recent: list[int] = []        #: the window's states (the last one only if whole)
-
-    def observe(self, state: int) -> None:
-        s = int(state)
-        if self._recent:
-            self.counts[self._recent[-1], s] += 1.0
-        self._recent.append(s)
-        keep = 1 if self.window is None else self.window + 1
-        while len(self._recent) > keep:
-            if self.window is not None:
-                self.counts[self._recent[0], self._recent[1]] -= 1.0
-            del self._recent[0]
-
-    def transition_matrix(self) -> np.ndarray:
-        rows = self.counts.sum(axis=1, keepdims=True)
-        return np.where(rows > 0, self.counts / np.maximum(rows, 1.0), 1.0 / self.n_states)
+from twinslam.twin.rate_model import peaked
 
 
 @dataclass(frozen=True)
@@ -56,6 +30,9 @@ class LstmConfig:
     batch_size: int = 64
     learning_rate: float = 3e-3
     seed: int = 0
+    #: None: predict the softmax (``lstm``); else the point prediction with 1 − ε on it
+    #: (``lstm-point``)
+    point_epsilon: float | None = None
 
 
 class LstmNetwork(nn.Module):
@@ -73,10 +50,12 @@ class LstmNetwork(nn.Module):
 
 
 class LstmPredictor:
-    """The paper's "LSTM": trained on the next state like a classifier but used as a point
-    predictor — it outputs one next state, not a distribution. Its transition matrix is what
-    those predictions imply: row i = frequencies of the predicted next states over the recent
-    histories that end in state i."""
+    """Trained on the next state like a classifier but used as a point predictor — it outputs
+    one next state, not a distribution. Its transition matrix is what those predictions imply:
+    row i = frequencies of the predicted next states over the recent histories that end in
+    state i."""
+
+    online = False
 
     def __init__(self, config: LstmConfig | None = None) -> None:
         self.config = config or LstmConfig()
@@ -85,6 +64,18 @@ class LstmPredictor:
         self.network = LstmNetwork(self.config.n_states, self.config.lstm_hidden)
         self.states: list[int] = []
         self._since = 0
+        self.name = "lstm" if self.config.point_epsilon is None else "lstm-point"
+
+    @property
+    def n_states(self) -> int:
+        return self.config.n_states
+
+    @property
+    def feature_size(self) -> int:
+        return self.config.n_states
+
+    def reset(self) -> None:
+        """Nothing: the learned weights carry over from run to run."""
 
     def observe(self, state: int) -> bool:
         """Record a state; True when a retrain is due (every ``retrain_every`` slots)."""
@@ -103,14 +94,31 @@ class LstmPredictor:
         return fit(self.network, lambda w, t: loss(self.network(w), t), windows, targets,
                    cfg.steps_per_retrain, cfg.batch_size, cfg.learning_rate, self._rng)
 
+    def predict(self, history: Sequence[int]) -> np.ndarray:
+        """p(d_{k+1}) after ``history``: the softmax, or the point prediction made a
+        distribution (``point_epsilon``)."""
+        eps = self.config.point_epsilon
+        if eps is None:
+            return self.probabilities(history)
+        return peaked(self.config.n_states, self.point(history), 1.0 - eps)
+
+    def features(self, history: Sequence[int]) -> np.ndarray:
+        out = np.zeros(self.config.n_states, dtype=np.float32)
+        out[self.point(history)] = 1.0
+        return out
+
+    def sample_next(self, history: Sequence[int], count: int, rng: np.random.Generator
+                    ) -> np.ndarray:
+        return np.full(count, self.point(history), dtype=np.int64)
+
     @torch.no_grad()
-    def predict(self, states: list[int]) -> int:
+    def point(self, states: Sequence[int]) -> int:
         """The point prediction of d_{k+1} after the history ``states``."""
         x = latest_window(states, self.config.history, self.config.n_states)
         return int(self.network(x).argmax(dim=-1))
 
     @torch.no_grad()
-    def probabilities(self, states: list[int]) -> np.ndarray:
+    def probabilities(self, states: Sequence[int]) -> np.ndarray:
         """The classifier's softmax over d_{k+1} after ``states`` (the distribution the point
         prediction is the arg-max of)."""
         x = latest_window(states, self.config.history, self.config.n_states)
@@ -131,5 +139,14 @@ class LstmPredictor:
             np.add.at(counts, (s[idx[:, -1]], pred), 1.0)
         for i in range(n):
             if counts[i].sum() == 0:
-                counts[i, self.predict([i] * cfg.history)] = 1.0
+                counts[i, self.point([i] * cfg.history)] = 1.0
         return counts / counts.sum(axis=1, keepdims=True)
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"config": self.config.__dict__, "network": self.network.state_dict()}
+
+    @classmethod
+    def from_state_dict(cls, blob: dict[str, Any]) -> LstmPredictor:
+        predictor = cls(LstmConfig(**blob["config"]))
+        predictor.network.load_state_dict(blob["network"])
+        return predictor

@@ -1,4 +1,5 @@
-"""The user digital twin's model of the uplink (paper §V, Algorithm 1; DESIGN.md §3).
+"""The variational twin: the paper's user digital twin of the uplink (§V, Algorithm 1; DESIGN.md
+§3), a :class:`~twinslam.twin.rate_model.Twin` named ``variational``.
 
 The rate's transition matrix changes with a hidden x_t across intervals. The twin learns it by
 deep variational inference, as VariBAD does for a task's hidden parameters: an encoder reads
@@ -19,18 +20,22 @@ from __future__ import annotations
 import copy
 import io
 import pickle
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
 from torch import nn
 
+from twinslam.twin.latent import latent_features
 from twinslam.twin.rate_history import fit, history_windows, latest_window
+from twinslam.twin.rate_model import Latent
 
 
 @dataclass(frozen=True)
-class TwinConfig:
+class VariationalConfig:
     n_states: int = 2
     latent_dim: int = 8           #: Z
     history: int = 8              #: τ + 1 states in d_k
@@ -44,7 +49,7 @@ class TwinConfig:
     seed: int = 0
 
 
-class UdtNetwork(nn.Module):
+class VariationalNetwork(nn.Module):
     """Encoder 2×LSTM(300) → FC(256, 128, 128, 32) → (μ, log Σ); decoder
     FC(256, 128, 64, 16) on [newest state, z] → logits over the N next states."""
 
@@ -86,34 +91,45 @@ def _mlp(n_in: int, widths: tuple[int, ...]) -> nn.Sequential:
     return nn.Sequential(*layers)
 
 
-@dataclass
-class Latent:
-    """What the twin publishes each slot (``RateLatent``)."""
-
-    mu: np.ndarray                 #: (Z,)
-    sigma: np.ndarray              #: (Z,) diagonal variance Σ
-    next_state_probs: np.ndarray   #: (N,) p(d_{k+1} | d_k)
-    model_version: int
-
-
-class UserDigitalTwin:
+class VariationalTwin:
     """Real-experience buffer + UDT network, retrained every W slots (Algorithm 1).
 
     ``observe`` appends a slot's state; ``retrain`` fits the network to the latest
     ``buffer_slots`` states, warm-started from the current weights; the queries use the latest
     history. Training and querying never share a network: ``train_copy`` / ``adopt`` let a node
-    train in a background thread and swap the result in.
+    train in a background thread and swap the result in. Learned weights (not ``online``):
+    they carry over from run to run.
     """
 
-    def __init__(self, config: TwinConfig | None = None) -> None:
-        self.config = config or TwinConfig()
+    name = "variational"
+    online = False
+
+    def __init__(self, config: VariationalConfig | None = None) -> None:
+        self.config = config or VariationalConfig()
         torch.manual_seed(self.config.seed)
         self._rng = np.random.default_rng(self.config.seed)
-        self.network = UdtNetwork(self.config.n_states, self.config.latent_dim,
+        self.network = VariationalNetwork(self.config.n_states, self.config.latent_dim,
                                   self.config.lstm_hidden)
         self.states: list[int] = []
         self.version = 0
         self._since = 0                        #: slots observed since the last retrain
+
+    @property
+    def n_states(self) -> int:
+        return self.config.n_states
+
+    @property
+    def feature_size(self) -> int:
+        """[μ, log Σ]: 2 Z."""
+        return 2 * self.config.latent_dim
+
+    def reset(self) -> None:
+        """Nothing: the learned weights carry over from run to run."""
+
+    def describe(self) -> str:
+        cfg = self.config
+        return (f"variational twin, Z = {cfg.latent_dim}, retrain every "
+                f"{cfg.retrain_every} slots")
 
     # -- data ----------------------------------------------------------------------------
 
@@ -140,7 +156,7 @@ class UserDigitalTwin:
         return list(self.states)
 
     def train_copy(self, states: list[int], steps: int | None = None
-                   ) -> tuple[UdtNetwork, list[float]]:
+                   ) -> tuple[VariationalNetwork, list[float]]:
         """A copy of the network trained on ``states`` (the live one keeps answering
         meanwhile, so a node can run this on another thread)."""
         cfg = self.config
@@ -153,19 +169,19 @@ class UserDigitalTwin:
                     cfg.batch_size, cfg.learning_rate, self._rng)
         return net, trace
 
-    def adopt(self, network: UdtNetwork, trace: list[float]) -> None:
+    def adopt(self, network: VariationalNetwork, trace: list[float]) -> None:
         """Make a trained network the live one (a new model version)."""
         self.network = network
         self.version += 1
 
     # -- queries -------------------------------------------------------------------------
 
-    def _window(self, states: list[int] | None = None) -> torch.Tensor:
+    def _window(self, states: Sequence[int] | None = None) -> torch.Tensor:
         return latest_window(self.states if states is None else states, self.config.history,
                              self.config.n_states)
 
     @torch.no_grad()
-    def latent(self, states: list[int] | None = None) -> Latent:
+    def latent(self, states: Sequence[int] | None = None) -> Latent:
         """μ, Σ and p(d_{k+1}) from the latest history (or ``states``); the prediction uses
         z = μ."""
         window = self._window(states)
@@ -174,8 +190,17 @@ class UserDigitalTwin:
         return Latent(mu[0].numpy().copy(), torch.exp(log_var)[0].numpy().copy(),
                       probs[0].numpy().copy(), self.version)
 
+    def predict(self, history: Sequence[int]) -> np.ndarray:
+        """p(d_{k+1}) from the decoder with z = μ(``history``)."""
+        return self.latent(history).next_state_probs.astype(np.float64)
+
+    def features(self, history: Sequence[int]) -> np.ndarray:
+        """[μ, log Σ] of q(z | d_k): VariBAD gives the policy the posterior's parameters."""
+        lat = self.latent(history)
+        return latent_features(lat.mu, lat.sigma)
+
     @torch.no_grad()
-    def transition_matrix(self, states: list[int] | None = None) -> np.ndarray:
+    def transition_matrix(self, states: Sequence[int] | None = None) -> np.ndarray:
         """The current interval's estimated matrix: row i = decoder(state i, z = μ(d_k))."""
         n = self.config.n_states
         mu, _ = self.network.encode(self._window(states))
@@ -183,12 +208,12 @@ class UserDigitalTwin:
         return torch.softmax(rows, dim=-1).numpy().astype(np.float64)
 
     @torch.no_grad()
-    def sample_next(self, count: int, states: list[int] | None = None,
-                    generator: np.random.Generator | None = None) -> np.ndarray:
+    def sample_next(self, history: Sequence[int], count: int,
+                    rng: np.random.Generator | None = None) -> np.ndarray:
         """``count`` samples d̂_{k+1} for artificial experiences: z̃ ~ q(z | d_k) each, then
-        d̂ ~ decoder(d_k, z̃)."""
-        rng = generator or self._rng
-        window = self._window(states)
+        d̂ ~ decoder(d_k, z̃); d_k is ``history``."""
+        rng = rng or self._rng
+        window = self._window(history)
         mu, log_var = self.network.encode(window)
         eps = torch.from_numpy(rng.standard_normal((count, mu.shape[1])).astype(np.float32))
         z = mu + torch.exp(0.5 * log_var) * eps
@@ -198,6 +223,18 @@ class UserDigitalTwin:
         return np.minimum((u > cum).sum(axis=1), self.config.n_states - 1)
 
     # -- persistence ---------------------------------------------------------------------
+
+    def state_dict(self) -> dict[str, Any]:
+        """What a policy checkpoint stores: config, weights and version (not the buffer)."""
+        return {"config": self.config.__dict__, "network": self.network.state_dict(),
+                "version": self.version}
+
+    @classmethod
+    def from_state_dict(cls, blob: dict[str, Any]) -> VariationalTwin:
+        twin = cls(VariationalConfig(**blob["config"]))
+        twin.network.load_state_dict(blob["network"])
+        twin.version = int(blob["version"])
+        return twin
 
     def save(self, path: Path) -> None:
         """Weights, config, version and the buffer, in one torch file (written atomically)."""
@@ -210,11 +247,11 @@ class UserDigitalTwin:
         tmp.replace(path)
 
     @classmethod
-    def load(cls, path: Path) -> UserDigitalTwin:
+    def load(cls, path: Path) -> VariationalTwin:
         path = Path(path)
         try:
             blob = torch.load(path, map_location="cpu", weights_only=True)
-            twin = cls(TwinConfig(**blob["config"]))
+            twin = cls(VariationalConfig(**blob["config"]))
             twin.network.load_state_dict(blob["state_dict"])
         except (OSError, RuntimeError, KeyError, TypeError, EOFError,
                 pickle.UnpicklingError) as exc:
