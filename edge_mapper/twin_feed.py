@@ -22,7 +22,10 @@ from twinslam.twin.latent import latent_features
 
 
 @dataclass(frozen=True)
-class TwinLatent:
+class ReceivedFeatures:
+    """The twin node's latent as the edge keeps it: already the policy's features (the
+    :class:`~twinslam.twin.rate_model.Latent` it was, on the twin's side)."""
+
     slot: int                      #: the slot whose throughput the twin had last seen
     features: np.ndarray           #: [μ, log Σ]
     model_version: int
@@ -51,7 +54,7 @@ class TwinFedPolicy:
         self.learned, self.fallback, self.max_age = learned, fallback, max_age
         self.name = learned.name
         self.fallback_name = fallback.name
-        self.latent: TwinLatent | None = None
+        self.latent: ReceivedFeatures | None = None
         self.used = self.name              #: which policy decided the last slot
 
     def offer(self, slot: int, mu: np.ndarray, sigma: np.ndarray, model_version: int) -> None:
@@ -63,7 +66,7 @@ class TwinFedPolicy:
             raise ValueError(f"a latent of {features.size // 2} dimensions; the policy was "
                              f"trained on a twin of {size // 2}")
         if self.latent is None or slot >= self.latent.slot:
-            self.latent = TwinLatent(slot, features, model_version)
+            self.latent = ReceivedFeatures(slot, features, model_version)
 
     def fresh(self, slot: int) -> bool:
         return self.latent is not None and slot - self.latent.slot <= self.max_age

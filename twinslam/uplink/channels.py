@@ -249,11 +249,6 @@ class TraceChannel:
             rng = np.random.default_rng(self.seed if seed is None else seed)
             self._offset = float(rng.uniform(0.0, self._period))
 
-    @property
-    def offset_s(self) -> float:
-        """Where in the trace this run started (s after its first sample)."""
-        return self._offset
-
     def step(self) -> tuple[int, float]:
         """(state, real mean Mbit/s) of the next slot."""
         rate = self.rate_over(self._offset + self._slot * self.slot_seconds, self.slot_seconds)

@@ -4,8 +4,9 @@ The alternative to :class:`~twinslam.uplink.shaper.UplinkShaper` (``shaper:=tc``
 of pacing payloads in the process, each slot sets a token bucket filter (``tbf``) of rate d_k
 as the root qdisc of the device's uplink interface, optionally with ``netem`` delay and loss
 below it, and the device writes its keyframes as fast as DDS lets it. The kernel holds the
-packets back; the UDP socket's send buffer fills and blocks the writer, so Cyclone's reliable
-protocol and the link's rate decide when the bytes arrive, as on a real uplink.
+packets back; the UDP socket's send buffer fills and blocks the writer, so Fast DDS's reliable
+protocol (RTPS heartbeats and acknowledgements) and the link's rate decide when the bytes
+arrive, as on a real uplink.
 
 What a slot achieved is measured, not assumed: the bytes the interface transmitted between
 ``start_slot`` and the moment every reliable reader acknowledged the slot's keyframes (the
