@@ -57,11 +57,13 @@ run: venv
 test: venv
 	$(PY) -m ruff check .
 	$(VENV)/bin/lint-imports
+	$(PY) -m mypy
 	$(PY) -m pytest
 
 lint: venv
 	$(PY) -m ruff check .
 	$(VENV)/bin/lint-imports
+	$(PY) -m mypy
 
 bench: venv
 	$(PY) -m bench.dds
@@ -74,4 +76,4 @@ bench: venv
 	$(PY) -m bench.live --rounds 4 --frames 1000
 
 clean:
-	rm -rf $(VENV) build *.egg-info .pytest_cache .ruff_cache
+	rm -rf $(VENV) build *.egg-info .pytest_cache .ruff_cache .mypy_cache

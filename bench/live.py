@@ -8,6 +8,8 @@ frames of the slots in between; start-up and warm-up left out).
 
 The baseline is checked out into a temporary git worktree and run with this venv (its
 dependencies are a subset of today's); each round runs the baseline, then the working tree.
+When the baseline's ``.msg`` files differ from today's, its interface package is built
+(rosidl, as ``make`` does) into a prefix of its own that only the baseline's runs load.
 """
 
 from __future__ import annotations
@@ -47,9 +49,36 @@ def _device_cpu_s(root: Path) -> float | None:
     return max(found)[1] if found else None
 
 
-def run(root: Path, frames: int, policy: str) -> dict[str, float]:
-    """One ``twinslam launch`` from checkout ``root``; its edge ms and device CPU ms/frame."""
+def build_interfaces(root: Path, prefix: Path) -> dict[str, str]:
+    """Build checkout ``root``'s twinslam_msgs into ``prefix``; the environment its processes
+    need to load that build instead of the venv's."""
+    venv = Path(sys.executable).parent.parent
+    build = prefix.parent / "msgs-build"
+    build.mkdir(parents=True, exist_ok=True)
+    env = dict(os.environ, PATH=f"{venv / 'bin'}:{os.environ['PATH']}",
+               AMENT_PREFIX_PATH=str(venv), CMAKE_PREFIX_PATH=str(venv))
+    print(f"building the baseline's interface package into {prefix} (its .msg files differ)",
+          flush=True)
+    subprocess.run(["cmake", str(root / "msg_schemas"), f"-DCMAKE_INSTALL_PREFIX={prefix}",
+                    f"-DPython3_EXECUTABLE={sys.executable}", "-DBUILD_TESTING=OFF"],
+                   cwd=build, env=env, check=True, capture_output=True)
+    subprocess.run(["make", "-j2", "install"], cwd=build, env=env, check=True,
+                   capture_output=True)
+    site = prefix / "lib" / f"python{sys.version_info.major}.{sys.version_info.minor}" \
+        / "site-packages"
+    return {"PYTHONPATH": str(site), "LD_LIBRARY_PATH": str(prefix / "lib"),
+            "AMENT_PREFIX_PATH": str(prefix)}
+
+
+def run(root: Path, frames: int, policy: str, extra_env: dict[str, str] | None = None
+        ) -> dict[str, float]:
+    """One ``twinslam launch`` from checkout ``root``; its edge ms and device CPU ms/frame.
+    ``extra_env``: paths put before the inherited ones (a baseline's own interface build)."""
     env = dict(os.environ, PYTHONPATH=str(root), PYTHONUNBUFFERED="1")
+    for key, value in (extra_env or {}).items():     # the checkout itself stays first
+        first, then = (env.get(key, ""), value) if key == "PYTHONPATH" else (value,
+                                                                             env.get(key, ""))
+        env[key] = ":".join(v for v in (first, then) if v)
     # the command line moved under the project package (issue #17): older baselines have it
     # as a top-level package
     cli = "twinslam_cli.main" if (root / "twinslam_cli").is_dir() else "twinslam.cli.main"
@@ -113,10 +142,14 @@ def main() -> None:
         subprocess.run(["git", "worktree", "add", "--detach", str(base), args.baseline],
                        cwd=REPO, check=True, capture_output=True)
         try:
+            same = subprocess.run(["git", "diff", "--quiet", args.baseline, "--",
+                                   "msg_schemas/msg"], cwd=REPO).returncode == 0
+            base_env = {} if same else build_interfaces(base, Path(tmp) / "msgs")
             results: dict[str, list[dict[str, float]]] = {"baseline": [], "current": []}
             for i in range(args.rounds):
                 for label, root in (("baseline", base.resolve()), ("current", REPO)):
-                    res = run(root, args.frames, args.policy)
+                    res = run(root, args.frames, args.policy,
+                              base_env if label == "baseline" else None)
                     results[label].append(res)
                     print(f"round {i + 1} {label:<8} edge {res['edge_ms']:6.1f} ms/slot, device "
                           f"{res['device_ms_per_frame']:6.1f} CPU ms/frame, ATE "

@@ -22,7 +22,6 @@ from pathlib import Path
 import numpy as np
 
 from bench.gauge import cpu_gauge
-from tests.laplacian_reference import naive_greedy
 from twinslam.map_management.policies import (
     greedy_additions,
     greedy_removals,
@@ -31,6 +30,7 @@ from twinslam.policy_registry import make_policy
 from twinslam.simulator.covisibility import load_covisibility
 from twinslam.simulator.env import MapManagementEnv, SimConfig
 from twinslam.simulator.geometric_covisibility import geometric_covisibility
+from twinslam.uncertainty.naive_greedy import naive_greedy
 from twinslam.uplink.channels import parse_channel
 
 REAL_COVIS = Path(__file__).resolve().parents[1] / "data" / "7scenes-redkitchen-1000.covis.npz"

@@ -7,11 +7,10 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from rclpy.serialization import serialize_message
-from sensor_msgs.msg import Image
+from twinslam_msgs.msg import FrameSummaries, FrameSummary, UplinkThroughput
 
 from device_tracker.uplink_sender import Encoded
 from msg_schemas import new
@@ -38,10 +37,10 @@ class FrameRecord:
 
 
 def frame_summaries_message(slot: int, rate_mbps: float, rate_state: int, map_version: int,
-                            frames: list[FrameRecord], stamp: float) -> Any:
-    msg = new("twinslam_msgs/msg/FrameSummaries", slot=slot, rate_mbps=rate_mbps,
+                            frames: list[FrameRecord], stamp: float) -> FrameSummaries:
+    msg = new(FrameSummaries, slot=slot, rate_mbps=rate_mbps,
               rate_state=rate_state, map_version=map_version,
-              frames=[new("twinslam_msgs/msg/FrameSummary", frame_id=f.frame_id,
+              frames=[new(FrameSummary, frame_id=f.frame_id,
                           stamp=ros_time(f.stamp), pose=pose_msg(f.pose), tracked=f.tracked,
                           map_point_ids=np.asarray(f.map_point_ids, dtype=np.uint64),
                           local_track_ids=np.asarray(f.track_ids, dtype=np.uint64),
@@ -51,17 +50,17 @@ def frame_summaries_message(slot: int, rate_mbps: float, rate_state: int, map_ve
     return set_header(msg, stamp, "map")
 
 
-def uplink_throughput_message(throughput: SlotThroughput, stamp: float) -> Any:
+def uplink_throughput_message(throughput: SlotThroughput, stamp: float) -> UplinkThroughput:
     """What the uplink carried in a slot, as the edge and the twin read it."""
     t = throughput
-    msg = new("twinslam_msgs/msg/UplinkThroughput", slot=t.slot,
+    msg = new(UplinkThroughput, slot=t.slot,
               configured_rate_mbps=t.configured_rate_mbps, rate_state=t.rate_state,
               achieved_mbps=t.achieved_mbps, bytes_sent=t.bytes_sent, duration_s=t.duration_s,
               frames_sent=t.frames_sent)
     return set_header(msg, stamp, "")
 
 
-def encoded_keyframe(data: KeyFramePayload | None, image: Image | None, slot: int,
+def encoded_keyframe(data: KeyFramePayload | None, image: object | None, slot: int,
                      alpha_bytes: int) -> Encoded | None:
     """A requested frame as the uplink sends it: (frame id, the serialised ``Keyframe`` of
     ``slot``, the bytes it occupies on the link — at least α); None when the device no longer

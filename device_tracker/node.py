@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import sys
 import threading
-from typing import Any
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped
@@ -37,6 +36,7 @@ from device_tracker.camera_input import CameraFrame, CameraIntake
 from device_tracker.device_core import DeviceTrackerCore
 from device_tracker.edge_watchdog import EdgeWatchdog
 from device_tracker.messages import (
+    FrameRecord,
     encoded_keyframe,
     frame_summaries_message,
     uplink_throughput_message,
@@ -104,7 +104,7 @@ class DeviceTrackerNode(Node):
 
     # -- camera ------------------------------------------------------------------------------
 
-    def _on_camera_info(self, msg: Any) -> None:
+    def _on_camera_info(self, msg: CameraInfo) -> None:
         if self.core is None:
             k = np.asarray(msg.k, dtype=np.float64).reshape(3, 3)
             s = self.settings
@@ -146,7 +146,7 @@ class DeviceTrackerNode(Node):
         if step.finished:
             self._end_slot(step.finished, step.map_version, stamp)
 
-    def _end_slot(self, frames: list[Any], version: int, stamp: float) -> None:
+    def _end_slot(self, frames: list[FrameRecord], version: int, stamp: float) -> None:
         assert self.core is not None
         slot = frames[-1].slot
         for _ in range(max(slot - self.last_slot, 1)):   # on through slots no frame reached
@@ -172,7 +172,7 @@ class DeviceTrackerNode(Node):
                 self.get_logger().debug(f"map version {update.version}: "
                                         f"{len(update.point_ids)} points")
 
-    def _on_upload_request(self, msg: Any) -> None:
+    def _on_upload_request(self, msg: UploadRequest) -> None:
         slot = int(msg.slot)
         silence = self.watchdog.answered(slot)
         if silence is not None:

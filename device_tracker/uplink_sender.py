@@ -11,6 +11,7 @@ error: the slot goes on. Clock and sleep are injected for tests.
 
 from __future__ import annotations
 
+import functools
 import queue
 import threading
 import time
@@ -84,7 +85,7 @@ class UplinkSender:
         encoded = [e for f in frame_ids if (e := self.encode(slot, f)) is not None]
         self.shaper.start_slot(slot, rate, state)
         for frame_id, payload, size in encoded:
-            self.shaper.send(size, lambda b=payload, f=frame_id: self._write(slot, f, b))
+            self.shaper.send(size, functools.partial(self._write, slot, frame_id, payload))
         throughput = self.shaper.end_slot()
         self.report(throughput)
         return throughput

@@ -18,7 +18,7 @@ from twinslam.uplink.shaper import ShaperError, UplinkShaper
 from twinslam.uplink.tc_shaper import NetemConfig, TcShaper, make_shaper
 
 
-def uplink_from_parameters(p: Mapping[str, Any], flush: Callable[[], None]
+def uplink_from_parameters(p: Mapping[str, Any], flush: Callable[[], object]
                            ) -> tuple[MarkovChannel | TraceChannel, UplinkShaper | TcShaper]:
     """The channel (``channel``, ``rate_min``/``rate_max``, ``seed``) and the shaper
     (``shaper``, ``uplink_interface``, netem impairments), starting at the channel's first

@@ -79,7 +79,7 @@ class EdgeMapperCore:
         self.map = KeyFrameMap()
         extra: dict[str, np.ndarray] = {}
         self.restored_from_file = self.checkpoint is not None and self.checkpoint.is_file()
-        if self.restored_from_file:
+        if self.restored_from_file and self.checkpoint is not None:
             self.map, extra = KeyFrameMap.load(self.checkpoint)
             self.version = int(extra.get("version", 0))
             self.last_slot = int(extra.get("last_slot", -1))
@@ -275,12 +275,12 @@ class EdgeMapperCore:
                                self.k, fixed, baseline_m=self.config.baseline_m,
                                max_iterations=self.config.ba_iterations)
         for k in window:
-            kf = self.map.keyframes[k]
-            motion = result.poses[k] @ np.linalg.inv(kf.pose)
-            for p in kf.points - seen_twice:      # single-observer points ride along
+            keyframe = self.map.keyframes[k]
+            motion = result.poses[k] @ np.linalg.inv(keyframe.pose)
+            for p in keyframe.points - seen_twice:      # single-observer points ride along
                 pt = self.map.points[p]
                 pt.position = motion[:3, :3] @ pt.position + motion[:3, 3]
-            kf.pose = result.poses[k]
+            keyframe.pose = result.poses[k]
         for p in points:
             self.map.points[p].position = result.points[p]
         for ob in result.outliers:

@@ -7,9 +7,9 @@ the conversions are tested alone.
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import numpy as np
+from twinslam_msgs.msg import MapStats, MapUpdate, UploadRequest
 
 from msg_schemas import new
 from msg_schemas.headers import set_header
@@ -20,22 +20,23 @@ from twinslam.uncertainty.map_uncertainty import SlotUncertainty
 
 
 def upload_request_message(slot: int, policy: str, rate_mbps: float, action: MapAction,
-                           stamp: float) -> Any:
-    msg = new("twinslam_msgs/msg/UploadRequest", slot=slot, policy=policy, rate_mbps=rate_mbps,
+                           stamp: float) -> UploadRequest:
+    msg = new(UploadRequest, slot=slot, policy=policy, rate_mbps=rate_mbps,
               upload_frame_ids=np.asarray(action.upload, dtype=np.uint64),
               evict_frame_ids=np.asarray(action.evict, dtype=np.uint64))
     return set_header(msg, stamp, "")
 
 
 def map_update_message(keyframe_map: KeyFrameMap, slot: int, version: int, stamp: float,
-                       frame_id: str = "map", tracks: dict[int, int] | None = None) -> Any:
+                       frame_id: str = "map", tracks: dict[int, int] | None = None
+                       ) -> MapUpdate:
     """The whole map for the device: keyframe poses, points with descriptors and how many
     keyframes observe each, and the device tracks that became map points (``tracks``)."""
     tracks = {t: p for t, p in (tracks or {}).items() if p in keyframe_map.points}
     kf_ids = keyframe_map.keyframe_ids()
     pt_ids = sorted(keyframe_map.points)
     pts = [keyframe_map.points[p] for p in pt_ids]
-    msg = new("twinslam_msgs/msg/MapUpdate", slot=slot, map_version=version,
+    msg = new(MapUpdate, slot=slot, map_version=version,
               keyframe_ids=np.asarray(kf_ids, dtype=np.uint64),
               keyframe_poses=[pose_msg(keyframe_map.keyframes[k].pose) for k in kf_ids],
               point_ids=np.asarray(pt_ids, dtype=np.uint64),
@@ -55,12 +56,12 @@ def map_update_message(keyframe_map: KeyFrameMap, slot: int, version: int, stamp
 
 def map_stats_message(slot: int, policy: str, keyframe_map: KeyFrameMap, uncertainty: float,
                       upsilon: SlotUncertainty | None, uploads: int, optimisation_ms: float,
-                      processing_ms: float, stamp: float) -> Any:
+                      processing_ms: float, stamp: float) -> MapStats:
     """``MapStats``; u = +inf for a disconnected map and υ = NaN (unknown, or no tracked frame)
     are sent as they are (IEEE floats), never replaced by a number that looks valid. υ is
     reported the three ways DESIGN.md §2 asks: mean with a lost frame scoring 0, the lost
     share, and the mean over the tracked frames."""
-    msg = new("twinslam_msgs/msg/MapStats", slot=slot, policy=policy,
+    msg = new(MapStats, slot=slot, policy=policy,
               map_size=len(keyframe_map.keyframes), map_points=len(keyframe_map.points),
               uncertainty=float(uncertainty),
               mean_uncertainty=upsilon.objective if upsilon else math.nan,

@@ -15,9 +15,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
-from edge_mapper.twin_feed import TwinFedPolicy
+from edge_mapper.twin_feed import TwinDrivenPolicy, TwinFedPolicy
 from twinslam.map_management.policies import MapPolicy
 from twinslam.policy_registry import LEARNED_PREFIX, make_policy
 
@@ -77,7 +77,8 @@ def make_policies(live: dict[str, Any], warm_up: Any = None
         raise ValueError("fallback_policy must not need the twin itself")
     if warm_up:
         warm_up(fallback)
-    feed = TwinFedPolicy(policy, fallback, int(live["latent_max_age"]))
+    # uses_twin: an MbrlPolicy of a twin checkpoint, which takes the twin's features
+    feed = TwinFedPolicy(cast(TwinDrivenPolicy, policy), fallback, int(live["latent_max_age"]))
     return feed, feed
 
 

@@ -8,9 +8,10 @@ nanosecond rounding that pairs a colour image with its depth image.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Protocol, TypeVar
 
 from builtin_interfaces.msg import Time
+from std_msgs.msg import Header
 
 
 def ros_time(stamp: float) -> Time:
@@ -19,17 +20,26 @@ def ros_time(stamp: float) -> Time:
     return Time(sec=sec, nanosec=min(round((stamp - sec) * 1e9), 999_999_999))
 
 
-def stamp_seconds(header: Any) -> float:
+def stamp_seconds(header: Header) -> float:
     """A header's stamp in seconds."""
     return int(header.stamp.sec) + int(header.stamp.nanosec) * 1e-9
 
 
-def stamp_key(header: Any) -> int:
+def stamp_key(header: Header) -> int:
     """The stamp in integer nanoseconds: a colour and a depth image of one frame share it."""
     return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
 
 
-def set_header(msg: Any, stamp: float, frame_id: str) -> Any:
+class Stamped(Protocol):
+    """A message with a ``std_msgs/Header``."""
+
+    header: Header
+
+
+S = TypeVar("S", bound=Stamped)
+
+
+def set_header(msg: S, stamp: float, frame_id: str) -> S:
     """Fill ``msg.header`` with a stamp in seconds and a frame id; returns ``msg``."""
     msg.header.stamp = ros_time(stamp)
     msg.header.frame_id = frame_id

@@ -15,10 +15,12 @@ import array
 import functools
 import importlib
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar, overload
 
 import numpy as np
 
+#: a generated message class
+M = TypeVar("M")
 #: ROS package name of the custom interfaces (``msg_schemas/package.xml``)
 INTERFACE_PACKAGE = "twinslam_msgs"
 
@@ -54,7 +56,8 @@ def message_class(type_name: str) -> type:
         raise UnknownMessageType(f"{type_name!r} is not a message type name of the form "
                                  "pkg/msg/Name") from None
     try:
-        return getattr(importlib.import_module(f"{package}.msg"), name)
+        cls: type = getattr(importlib.import_module(f"{package}.msg"), name)
+        return cls
     except (ImportError, AttributeError):
         hint = (" (run `make` to build the interface package)" if package == INTERFACE_PACKAGE
                 else "")
@@ -68,7 +71,7 @@ def type_name_of(msg: Any) -> str:
 
 
 @functools.cache
-def _sequence_codes(cls: type) -> dict[str, tuple[str, str]]:
+def _sequence_codes(cls: Any) -> dict[str, tuple[str, str]]:
     """Field → (dtype, type code) for the primitive sequences of ``cls``."""
     out = {}
     for name, kind in cls.get_fields_and_field_types().items():
@@ -87,9 +90,18 @@ def as_sequence(values: Any, dtype: str, code: str) -> Any:
     return array.array(code, np.ascontiguousarray(values, dtype=dtype).tobytes())
 
 
-def new(type_name: str | type, **fields: Any) -> Any:
-    """A message of ``type_name`` (or class) with ``fields`` set; primitive sequences may be
-    given as numpy arrays, fixed-size arrays as anything numpy takes."""
+@overload
+def new(type_name: type[M], **fields: Any) -> M: ...
+
+
+@overload
+def new(type_name: str, **fields: Any) -> Any: ...
+
+
+def new(type_name: str | type[Any], **fields: Any) -> Any:
+    """A message of ``type_name`` (or class: then typed as that class) with ``fields`` set;
+    primitive sequences may be given as numpy arrays, fixed-size arrays as anything numpy
+    takes."""
     cls = message_class(type_name) if isinstance(type_name, str) else type_name
     codes = _sequence_codes(cls)
     for name, value in fields.items():

@@ -2,25 +2,24 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
+from geometry_msgs.msg import Pose
 from scipy.spatial.transform import Rotation
 
 from msg_schemas.interfaces import new
 
 
-def pose_msg(matrix: np.ndarray) -> Any:
+def pose_msg(matrix: np.ndarray) -> Pose:
     """A ``geometry_msgs/Pose`` of a 4×4 rigid transform."""
     m = np.asarray(matrix, dtype=np.float64)
     qx, qy, qz, qw = (float(v) for v in Rotation.from_matrix(m[:3, :3]).as_quat())
-    msg = new("geometry_msgs/msg/Pose")
+    msg = new(Pose)
     msg.position.x, msg.position.y, msg.position.z = (float(v) for v in m[:3, 3])
     msg.orientation.x, msg.orientation.y, msg.orientation.z, msg.orientation.w = qx, qy, qz, qw
     return msg
 
 
-def pose_matrix(msg: Any) -> np.ndarray:
+def pose_matrix(msg: Pose) -> np.ndarray:
     """The 4×4 transform of a ``geometry_msgs/Pose`` (the quaternion is normalised)."""
     q = msg.orientation
     out = np.eye(4)

@@ -1,10 +1,11 @@
-"""Reference greedy steps for the tests (and bench.sim's baseline), not used by the project.
+"""Reference greedy steps for the tests, not used by the project.
 
 ADAPT's greedy runs as one compiled loop (``twinslam.uncertainty.greedy_kernels``). To check
 its shortcuts, the tests need the same steps one at a time — removal scores, a pruned best
 removal, a bordered or downdated factorization — and a greedy that recomputes every
 determinant from scratch. The steps below call the very kernels the compiled loop calls, so
-what they verify is the one implementation; ``naive_greedy`` shares nothing with it.
+what they verify is the one implementation (``twinslam.uncertainty.naive_greedy`` is the
+from-scratch greedy that shares nothing with it).
 """
 
 from __future__ import annotations
@@ -21,7 +22,6 @@ from twinslam.uncertainty.laplacian_factorization import (
     LaplacianFactorization,
     pick_best,
 )
-from twinslam.uncertainty.map_uncertainty import logdet_spd, reduced_laplacian
 
 
 def _trivial_removals(f: LaplacianFactorization) -> np.ndarray | None:
@@ -97,35 +97,3 @@ def without_frame(f: LaplacianFactorization, v: int, log_tau_after: float
         return LaplacianFactorization(np.delete(np.delete(f.weights, v, axis=0), v, axis=1))
     w, inv = kernels.downdated(f.weights, f.inverse, f.pos, v)
     return _from_parts(w, inv, log_tau_after)
-
-
-def naive_greedy(weights: np.ndarray, start: list[int], pool: list[int], n_add: int,
-                 n_remove: int) -> tuple[list[int], list[int]]:
-    """ADAPT's greedy recomputing every determinant from scratch: additions to ``start`` from
-    ``pool``, then removals from the union (oldest frame wins ties)."""
-    current = list(start)
-    added: list[int] = []
-    remaining = list(pool)
-    for _ in range(n_add):
-        if not current:
-            scores = np.array([weights[v, remaining].sum() for v in remaining], dtype=float)
-        else:
-            scores = np.array([logdet_spd(reduced_laplacian(
-                weights[np.ix_([*current, v], [*current, v])])) for v in remaining])
-        v = remaining[pick_best(scores)]
-        added.append(v)
-        current.append(v)
-        remaining.remove(v)
-    removed: list[int] = []
-    order = sorted(current)
-    for _ in range(n_remove):
-        if len(order) <= 2:
-            v = order[0]
-        else:
-            scores = np.array([logdet_spd(reduced_laplacian(
-                weights[np.ix_([x for x in order if x != v], [x for x in order if x != v])]))
-                for v in order])
-            v = order[pick_best(scores)]
-        removed.append(v)
-        order.remove(v)
-    return added, removed

@@ -10,7 +10,6 @@ import sys
 import numpy as np
 import pytest
 
-from tests.laplacian_reference import naive_greedy
 from twinslam.map_management.actions import ActionError, MapAction
 from twinslam.map_management.policies import (
     Adapt,
@@ -30,6 +29,7 @@ from twinslam.simulator.lower_bound import episode_lower_bound, slot_lower_bound
 from twinslam.simulator.plan import replay, rollout
 from twinslam.simulator.reference import ReferencePlanner
 from twinslam.uncertainty.map_uncertainty import UncertaintyTally
+from twinslam.uncertainty.naive_greedy import naive_greedy
 from twinslam.uplink.channels import MarkovChannel, parse_channel, state_rates
 
 

@@ -7,9 +7,14 @@ import argparse
 import sys
 import time
 from collections.abc import Callable, Iterable, Mapping
+from typing import TYPE_CHECKING
 
-#: the subparsers object every command registers itself with (argparse names no public type)
-Subparsers = argparse._SubParsersAction
+#: the subparsers object every command registers itself with (argparse names no public type,
+#: and its class is generic only to type checkers)
+if TYPE_CHECKING:
+    Subparsers = argparse._SubParsersAction[argparse.ArgumentParser]
+else:
+    Subparsers = argparse._SubParsersAction
 
 #: exit code of a command refused before it ran (bad options or input), as argparse's own
 USAGE_ERROR = 2

@@ -15,14 +15,14 @@ from __future__ import annotations
 import sys
 import time
 
+from device_tracker.device_core import DeviceTrackerCore
+from edge_mapper.edge_core import EdgeMapperCore
+from twinslam.map_management.policies import POLICIES
+from twinslam.policy_registry import make_policy
+from twinslam.sequences.synthetic import SyntheticSequence
+
 
 def main() -> int:
-    from device_tracker.device_core import DeviceTrackerCore
-    from edge_mapper.edge_core import EdgeMapperCore
-    from twinslam.map_management.policies import POLICIES
-    from twinslam.policy_registry import make_policy
-    from twinslam.sequences.synthetic import SyntheticSequence
-
     start = time.monotonic()
     print("compiling the device, edge and synthetic-room kernels (once after a change; "
           "about a minute on 2 cores)", flush=True)

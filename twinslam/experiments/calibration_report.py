@@ -26,6 +26,7 @@ import math
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -91,7 +92,7 @@ def _frames(rows: Iterable[dict[str, str]]) -> list[CalibrationFrame]:
 
 def lag_per_slot(rows: Iterable[dict[str, str]]) -> list[int]:
     """Per run and slot: its frames tracked with an older map version than the slot's newest."""
-    slots: dict[tuple, list[int]] = {}
+    slots: dict[tuple[Any, ...], list[int]] = {}
     for r in rows:
         slots.setdefault((*_run(r), r["slot"]), []).append(int(r["map_version"]))
     return [sum(v < max(versions) for v in versions) for versions in slots.values()]

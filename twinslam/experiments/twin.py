@@ -22,6 +22,7 @@ from twinslam.experiments.parallel import run_all
 from twinslam.twin.lstm import LstmConfig, LstmPredictor
 from twinslam.twin.markov import MarkovCounts
 from twinslam.twin.rate_history import transition_error
+from twinslam.twin.rate_model import MatrixEstimator
 from twinslam.twin.variational_twin import VariationalConfig, VariationalTwin
 from twinslam.uplink.channels import random_transition_matrix
 
@@ -50,7 +51,7 @@ def chain_states(matrices: list[np.ndarray], interval_slots: int,
     return out
 
 
-def _make(name: str, n: int, proto: Protocol, seed: int) -> object:
+def _make(name: str, n: int, proto: Protocol, seed: int) -> MatrixEstimator:
     if name.startswith("udt"):
         z = int(name.split("z")[-1]) if "z" in name else VariationalConfig.latent_dim
         return VariationalTwin(VariationalConfig(

@@ -140,7 +140,7 @@ class Launcher:
                 self.start(name)
             player = self.procs["sequence_player"]
             deadline = started + c.timeout_s
-            session.spin_until(lambda: player.poll() is not None or self._failed(),
+            session.spin_until(lambda: player.poll() is not None or self._failed() is not None,
                                 c.timeout_s)
             failed = self._failed()
             if failed:

@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
 
 import rclpy
 from geometry_msgs.msg import PoseStamped
@@ -29,47 +28,59 @@ from twinslam.slam.map_update import read_map_update
 class PipelineMonitor:
     """Subscribes to the run's topics with ``node`` and keeps what it hears."""
 
-    def __init__(self, node: Node, on_stats: Callable[[Any, RunRecord], None] | None = None,
+    def __init__(self, node: Node,
+                 on_stats: Callable[[MapStats, RunRecord], None] | None = None,
                  watch_images: bool = False) -> None:
         self.record = RunRecord()
         self._on_stats = on_stats
-        r = self.record
         sub = node.create_subscription
-        sub(FrameSummaries, topics.FRAME_SUMMARIES,
-            lambda m: r.summaries.__setitem__(int(m.slot), m), qos.PROTOCOL)
+        sub(FrameSummaries, topics.FRAME_SUMMARIES, self._summaries, qos.PROTOCOL)
         #: its publisher count says whether the edge is up (it publishes after warming up)
-        self.requests = sub(UploadRequest, topics.UPLOAD_REQUEST,
-                            lambda m: r.requests.__setitem__(int(m.slot), m), qos.PROTOCOL)
-        sub(UplinkThroughput, topics.UPLINK_THROUGHPUT,
-            lambda m: r.throughput.__setitem__(int(m.slot), m), qos.PROTOCOL)
+        self.requests = sub(UploadRequest, topics.UPLOAD_REQUEST, self._request, qos.PROTOCOL)
+        sub(UplinkThroughput, topics.UPLINK_THROUGHPUT, self._throughput, qos.PROTOCOL)
         #: its publisher count says whether the twin is up (it publishes once its model is in)
-        self.latents = sub(RateLatent, topics.RATE_LATENT,
-                           lambda m: r.latents.__setitem__(int(m.slot), m), qos.PROTOCOL)
+        self.latents = sub(RateLatent, topics.RATE_LATENT, self._latent, qos.PROTOCOL)
         sub(MapStats, topics.MAP_STATS, self._stats, qos.PROTOCOL)
         # every map the edge sends (not only the latest a late joiner gets)
         map_qos = rclpy.qos.QoSProfile(depth=100, durability=qos.MAP.durability,
                                        reliability=qos.MAP.reliability)
-        sub(MapUpdate, topics.MAP_UPDATE,
-            lambda m: r.maps.__setitem__(int(m.slot), read_map_update(m)), map_qos)
-        sub(PoseStamped, topics.DEVICE_POSE,
-            lambda m: r.poses.__setitem__(stamp_key(m.header), pose_matrix(m.pose)),
-            qos.PROTOCOL)
-        sub(PoseStamped, topics.GROUND_TRUTH_POSE,
-            lambda m: r.ground_truth.__setitem__(stamp_key(m.header), pose_matrix(m.pose)),
-            qos.CAMERA)
+        sub(MapUpdate, topics.MAP_UPDATE, self._map, map_qos)
+        sub(PoseStamped, topics.DEVICE_POSE, self._pose, qos.PROTOCOL)
+        sub(PoseStamped, topics.GROUND_TRUTH_POSE, self._ground_truth, qos.CAMERA)
         if watch_images:     # a viewer's subscription: best effort, undecoded, only counted
             sub(Image, topics.CAMERA_IMAGE, self._image, qos.SENSOR_DATA, raw=True)
+
+    def _summaries(self, msg: FrameSummaries) -> None:
+        self.record.summaries[int(msg.slot)] = msg
+
+    def _request(self, msg: UploadRequest) -> None:
+        self.record.requests[int(msg.slot)] = msg
+
+    def _throughput(self, msg: UplinkThroughput) -> None:
+        self.record.throughput[int(msg.slot)] = msg
+
+    def _latent(self, msg: RateLatent) -> None:
+        self.record.latents[int(msg.slot)] = msg
+
+    def _map(self, msg: MapUpdate) -> None:
+        self.record.maps[int(msg.slot)] = read_map_update(msg)
+
+    def _pose(self, msg: PoseStamped) -> None:
+        self.record.poses[stamp_key(msg.header)] = pose_matrix(msg.pose)
+
+    def _ground_truth(self, msg: PoseStamped) -> None:
+        self.record.ground_truth[stamp_key(msg.header)] = pose_matrix(msg.pose)
 
     def _image(self, _data: bytes) -> None:
         self.record.images_received += 1
 
-    def _stats(self, msg: Any) -> None:
+    def _stats(self, msg: MapStats) -> None:
         self.record.stats[int(msg.slot)] = msg
         if self._on_stats:
             self._on_stats(msg, self.record)
 
 
-def status_line(msg: Any, record: RunRecord) -> str:
+def status_line(msg: MapStats, record: RunRecord) -> str:
     """One slot as a line: rate, decision, map, uncertainty, timing."""
     slot = int(msg.slot)
     req = record.requests.get(slot)

@@ -28,6 +28,10 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, fields
 from multiprocessing import get_context
 from pathlib import Path
+from typing import TYPE_CHECKING, TypeVar
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
 
 from twinslam.common.tracking_rule import MIN_SHARED_POINTS
 from twinslam.live.calibration import LiveFrames, live_frames, played_frames
@@ -192,6 +196,9 @@ def run_or_fail(task: RunTask) -> RunResult | RunFailure:
 
 
 #: how a runs.csv / calibration.csv cell is read back, by the dataclass field's annotation
+#: a dataclass read back from a CSV row
+D = TypeVar("D", bound="DataclassInstance")
+
 _CELL = {"int": int, "float": float, "str": str}
 
 
@@ -206,7 +213,7 @@ def _read_rows(path: Path, header: list[str]) -> list[list[str]]:
     return rows[1:]
 
 
-def _typed(cls: type, cells: list[str]) -> object:
+def _typed(cls: type[D], cells: list[str]) -> D:
     """A dataclass from its fields' cells, in field order."""
     return cls(*(_CELL[str(f.type)](c) for f, c in zip(fields(cls), cells, strict=True)))
 

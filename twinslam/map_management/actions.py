@@ -39,7 +39,7 @@ class SlotObservation:
     weights: Any = field(repr=False, default=None)   #: callable(ids_a, ids_b) -> block
 
     def weight_block(self, a: list[int], b: list[int]) -> np.ndarray:
-        return self.weights(a, b)
+        return np.asarray(self.weights(a, b))
 
 
 def check_map_action(slot: int, n_upload: int, n_evict: int, candidates: Collection[int],

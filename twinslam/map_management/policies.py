@@ -17,6 +17,7 @@ C_k of the sizes Theorem 1 fixes. The rule-based ones are the paper's benchmarks
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Protocol
 
 import numpy as np
@@ -110,7 +111,7 @@ def greedy_additions(set_w: np.ndarray, cand_set_w: np.ndarray, cand_w: np.ndarr
         np.ascontiguousarray(cand_set_w, dtype=np.float64),
         np.ascontiguousarray(cand_w, dtype=np.float64), int(count), TIE_RTOL, BOUND_RTOL,
         PIVOT_RTOL)
-    return picks.tolist()
+    return [int(i) for i in picks]
 
 
 def greedy_removals(set_w: np.ndarray, count: int) -> list[int]:
@@ -123,9 +124,9 @@ def greedy_removals(set_w: np.ndarray, count: int) -> list[int]:
     n = np.asarray(set_w).shape[0]
     if count > n:
         raise ValueError(f"cannot remove {count} of {n} frames")
-    return greedy_kernels.greedy_removals(np.ascontiguousarray(set_w, dtype=np.float64),
-                                          int(count), TIE_RTOL, BOUND_RTOL,
-                                          PIVOT_RTOL).tolist()
+    picks = greedy_kernels.greedy_removals(np.ascontiguousarray(set_w, dtype=np.float64),
+                                           int(count), TIE_RTOL, BOUND_RTOL, PIVOT_RTOL)
+    return [int(i) for i in picks]
 
 
 class Adapt:
@@ -159,8 +160,8 @@ def adapt_action(map_frames: list[int], candidates: list[int], weights: np.ndarr
     return MapAction(upload, evict)
 
 
-POLICIES = {"lff": LatestFrameFirst, "pu": PeriodicalUploading, "adapt": Adapt,
-            "random": RandomPolicy}
+POLICIES: dict[str, Callable[[], MapPolicy]] = {
+    "lff": LatestFrameFirst, "pu": PeriodicalUploading, "adapt": Adapt, "random": RandomPolicy}
 
 
 def make_rule_policy(name: str) -> MapPolicy:

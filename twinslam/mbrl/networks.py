@@ -70,8 +70,10 @@ class Actor(nn.Module):
         self.head = _mlp(32 + 32 + context_size, (64, 32, 16), 1)
         if variant == "residual":
             with torch.no_grad():                   # start as ADAPT plus a small correction
-                self.head[-1].weight.mul_(0.01)
-                self.head[-1].bias.zero_()
+                last = self.head[-1]
+                assert isinstance(last, nn.Linear)
+                last.weight.mul_(0.01)
+                last.bias.zero_()
         #: the weight of ADAPT's scores (learned; unused by the paper's actor)
         self.prior = nn.Parameter(torch.tensor(1.0 if variant == "residual" else 0.0),
                                   requires_grad=variant == "residual")
@@ -90,7 +92,8 @@ class Actor(nn.Module):
         n = h.shape[1]
         joint = torch.cat([h, pooled.unsqueeze(1).expand(-1, n, -1),
                            context.unsqueeze(1).expand(-1, n, -1)], dim=-1)
-        return self.head(joint).squeeze(-1) * mask.float()
+        scores: torch.Tensor = self.head(joint).squeeze(-1) * mask.float()
+        return scores
 
     def forward(self, x: torch.Tensor, adj: torch.Tensor, mask: torch.Tensor,
                 context: torch.Tensor) -> torch.Tensor:
@@ -121,7 +124,8 @@ class Critic(nn.Module):
         h = self.embed(torch.cat([x, flags], dim=-1), adj, mask)
         kept = (x[..., IN_MAP] + flags[..., 0]) * (1.0 - flags[..., 1]) * m
         joint = torch.cat([masked_mean(h, m), masked_mean(h, kept), context], dim=-1)
-        return self.head(joint).squeeze(-1)
+        value: torch.Tensor = self.head(joint).squeeze(-1)
+        return value
 
 
 def soft_flags(scores: torch.Tensor, x: torch.Tensor, mask: torch.Tensor,

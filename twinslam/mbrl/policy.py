@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import pickle
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -57,14 +58,14 @@ class MbrlPolicy:
                                         f"checkpoint ({type(exc).__name__}: {exc})") from None
 
     @classmethod
-    def from_blob(cls, blob: dict, origin: str = "<memory>") -> MbrlPolicy:
+    def from_blob(cls, blob: dict[str, Any], origin: str = "<memory>") -> MbrlPolicy:
         """The policy of a checkpoint dictionary not written to disk (training validates
         its current actor this way)."""
         policy = cls.__new__(cls)
         policy._adopt(blob, Path(origin))
         return policy
 
-    def _adopt(self, blob: dict, path: Path) -> None:
+    def _adopt(self, blob: dict[str, Any], path: Path) -> None:
         self.path = path
         self.history = int(blob["config"]["history"])
         self.n_states = int(blob["n_states"])
@@ -119,8 +120,8 @@ class MbrlPolicy:
         elif rate_features.shape != (self.feature_size,):
             raise ValueError(f"policy {self.path} takes {self.feature_size} rate features, got "
                              f"{rate_features.shape}")
-        state = build_state(obs, rate_features, self.history,
+        graph = build_state(obs, rate_features, self.history,
                             adapt_features=self.actor_variant == "residual")
-        batch = collate([state])
+        batch = collate([graph])
         scores = self.actor(batch.x, batch.adj, batch.mask, batch.context)[0].numpy()
-        return action_from_scores(state, scores.astype(np.float64))[0]
+        return action_from_scores(graph, scores.astype(np.float64))[0]

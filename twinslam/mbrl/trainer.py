@@ -22,6 +22,7 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -156,7 +157,7 @@ class AmmTrainer:
         #: (slot, validation υ) of every validation; the best actor's checkpoint
         self.validations: list[tuple[int, float]] = []
         self.best_validation = math.inf
-        self.best_blob: dict | None = None
+        self.best_blob: dict[str, Any] | None = None
 
     # -- acting ---------------------------------------------------------------------------
 
@@ -173,7 +174,7 @@ class AmmTrainer:
     @torch.no_grad()
     def scores(self, state: GraphState) -> np.ndarray:
         b = collate([state])
-        return self.actor(b.x, b.adj, b.mask, b.context)[0].numpy()
+        return np.asarray(self.actor(b.x, b.adj, b.mask, b.context)[0].numpy())
 
     def _norm(self, reward: float) -> float:
         return (reward - self.reward_mean) / self.reward_std
@@ -242,7 +243,7 @@ class AmmTrainer:
         if self.rate_model.observe(state):
             self.rate_model.retrain()
 
-    def _artificial(self, state: GraphState, scores: np.ndarray, before: tuple,
+    def _artificial(self, state: GraphState, scores: np.ndarray, before: tuple[Any, ...],
                     history: list[int], prior: RateModel | None = None
                     ) -> list[tuple[GraphState, np.ndarray, float, GraphState, bool]]:
         """J artificial tuples from the slot just played (paper eq. 23); ``scores`` are the
@@ -332,7 +333,7 @@ class AmmTrainer:
 
     # -- persistence ----------------------------------------------------------------------
 
-    def checkpoint_blob(self) -> dict:
+    def checkpoint_blob(self) -> dict[str, Any]:
         """Actor, rate model and the settings needed to run them."""
         return {"format": CHECKPOINT_FORMAT, "config": asdict(self.config),
                 "n_states": self.env.channel.n_states,

@@ -34,12 +34,15 @@ class CheckedSubscription:
         self.received = 0
         self.rejected = 0
         self._logger = node.get_logger()
-        self.subscription = node.create_subscription(msg_type, topic, self.handle, qos,
+        self.subscription = node.create_subscription(msg_type, topic, self._on_data, qos,
                                                      raw=True, **kwargs)
+
+    def _on_data(self, data: bytes) -> None:
+        self.handle(data)
 
     @property
     def topic_name(self) -> str:
-        return self.subscription.topic_name
+        return str(self.subscription.topic_name)
 
     def get_publisher_count(self) -> int:
         return self.subscription.get_publisher_count()

@@ -94,10 +94,9 @@ class ProcessDomain:
               **kwargs: object) -> subprocess.Popen[str]:
         """Start ``python args...`` on this domain (on ``host`` where the domain has hosts);
         stdout/stderr are captured as text."""
-        proc = subprocess.Popen(self.command(host, [sys.executable, *args]),
-                                env=self.env_for(host), text=True,
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                cwd=str(REPO_ROOT), **kwargs)  # type: ignore[call-overload]
+        proc: subprocess.Popen[str] = subprocess.Popen(  # type: ignore[call-overload]
+            self.command(host, [sys.executable, *args]), env=self.env_for(host), text=True,
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=str(REPO_ROOT), **kwargs)
         self.processes.append(proc)
         lines: list[str] = []
         self._logs[proc.pid] = lines
@@ -204,7 +203,7 @@ class JsonLines:
 
     def __init__(self, proc: subprocess.Popen[str]) -> None:
         self.proc = proc
-        self.lines: queue.Queue[dict] = queue.Queue()
+        self.lines: queue.Queue[dict[str, Any]] = queue.Queue()
         self._thread = threading.Thread(target=self._pump, daemon=True)
         self._thread.start()
 
@@ -215,7 +214,7 @@ class JsonLines:
             if line.startswith("{"):
                 self.lines.put(json.loads(line))
 
-    def next(self, event: str, timeout: float) -> dict:
+    def next(self, event: str, timeout: float) -> dict[str, Any]:
         deadline = time.monotonic() + timeout
         while True:
             remaining = deadline - time.monotonic()

@@ -194,13 +194,13 @@ class NetnsHosts(ProcessDomain):
 
     # -- running inside a host --------------------------------------------------------------------
 
-    def env_for(self, host: str) -> dict[str, str]:
+    def env_for(self, host: str | None) -> dict[str, str]:
         env = self.base_env()
         env.update(host_env(self.domain_id, self.profile))
         return env
 
-    def command(self, host: str, argv: list[str]) -> list[str]:
-        if host not in self.namespaces:
+    def command(self, host: str | None, argv: list[str]) -> list[str]:
+        if host is None or host not in self.namespaces:
             raise ValueError(f"unknown host {host!r}; hosts are {', '.join(HOSTS)}")
         return ["ip", "netns", "exec", self.namespaces[host], *argv]
 

@@ -6,9 +6,9 @@ same messages to a bag.
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
+from geometry_msgs.msg import PoseStamped
+from sensor_msgs.msg import CameraInfo, Image
 
 from msg_schemas import new
 from msg_schemas.headers import set_header
@@ -18,7 +18,7 @@ from twinslam.sequences.frame import RgbdFrame
 DEPTH_ENCODINGS = ("16UC1", "32FC1")
 
 
-def color_message(frame: RgbdFrame, stamp: float, frame_id: str, mono: bool = False) -> Any:
+def color_message(frame: RgbdFrame, stamp: float, frame_id: str, mono: bool = False) -> Image:
     """``rgb8`` (or ``mono8``) image of the frame's colour."""
     if mono:
         gray = (frame.color @ np.array([0.299, 0.587, 0.114])).round().astype(np.uint8)
@@ -26,13 +26,13 @@ def color_message(frame: RgbdFrame, stamp: float, frame_id: str, mono: bool = Fa
     else:
         data, encoding, channels = frame.color, "rgb8", 3
     h, w = data.shape[:2]
-    msg = new("sensor_msgs/msg/Image", height=h, width=w, encoding=encoding,
+    msg = new(Image, height=h, width=w, encoding=encoding,
               step=w * channels, data=np.ascontiguousarray(data).reshape(-1))
     return set_header(msg, stamp, frame_id)
 
 
 def depth_message(frame: RgbdFrame, stamp: float, frame_id: str, encoding: str = "16UC1"
-                  ) -> Any:
+                  ) -> Image:
     """Depth as ``16UC1`` millimetres (0 = no reading) or ``32FC1`` metres (NaN = none), the
     two REP 118 encodings."""
     if frame.depth is None:
@@ -46,23 +46,23 @@ def depth_message(frame: RgbdFrame, stamp: float, frame_id: str, encoding: str =
     else:
         raise ValueError(f"depth encoding must be one of {DEPTH_ENCODINGS}, got {encoding!r}")
     h, w = data.shape
-    msg = new("sensor_msgs/msg/Image", height=h, width=w, encoding=encoding, step=w * bpp,
+    msg = new(Image, height=h, width=w, encoding=encoding, step=w * bpp,
               data=np.ascontiguousarray(data).view(np.uint8).reshape(-1))
     return set_header(msg, stamp, frame_id)
 
 
-def camera_info_message(frame: RgbdFrame, stamp: float, frame_id: str) -> Any:
+def camera_info_message(frame: RgbdFrame, stamp: float, frame_id: str) -> CameraInfo:
     """Pinhole CameraInfo (no distortion; the datasets ship rectified images)."""
     k = np.asarray(frame.intrinsics, dtype=np.float64)
     p = np.zeros((3, 4))
     p[:, :3] = k
     h, w = frame.color.shape[:2]
-    msg = new("sensor_msgs/msg/CameraInfo", height=h, width=w, distortion_model="plumb_bob",
+    msg = new(CameraInfo, height=h, width=w, distortion_model="plumb_bob",
               d=np.zeros(5), k=k.reshape(-1), r=np.eye(3).reshape(-1), p=p.reshape(-1))
     return set_header(msg, stamp, frame_id)
 
 
-def pose_message(pose: np.ndarray, stamp: float, frame_id: str) -> Any:
+def pose_message(pose: np.ndarray, stamp: float, frame_id: str) -> PoseStamped:
     """Camera-to-world 4×4 as a PoseStamped in ``frame_id`` (the world frame)."""
-    msg = new("geometry_msgs/msg/PoseStamped", pose=pose_msg(pose))
+    msg = new(PoseStamped, pose=pose_msg(pose))
     return set_header(msg, stamp, frame_id)

@@ -139,5 +139,7 @@ def open_bag(path: str | Path, start: int = 0, end: int = -1) -> BagSequence:
     chosen = ordered[start:stop]
     if not chosen:
         raise SequenceError(f"{root}: the bag holds no frames in [{start}, {end})")
+    if intrinsics is None:
+        raise SequenceError(f"{root}: no camera_info in the bag")
     return BagSequence(root, entries=[_BagEntry(t * 1e-9) for t in chosen],
                        intrinsics=intrinsics, stamps_ns=chosen)

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -119,7 +120,7 @@ class CovisibilityDataset:
         if self._dense is not None:
             return _gather(self._dense, rows, cols)
         block = self._incidence[rows] @ self._incidence[cols].T
-        return block.toarray()
+        return np.asarray(block.toarray())
 
 
     def shared_points(self, map_rows: np.ndarray, rows: np.ndarray) -> np.ndarray:
@@ -132,7 +133,7 @@ class CovisibilityDataset:
 
 
 def save_covisibility(path: Path, data: CovisibilityDataset) -> None:
-    extra = {}
+    extra: dict[str, Any] = {}       # Any: numpy's stubs would match a key to allow_pickle
     if data.stamps is not None:
         extra["stamps"] = np.asarray(data.stamps, dtype=np.float64)
     if data.poses is not None:

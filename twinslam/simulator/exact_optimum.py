@@ -15,6 +15,7 @@ Beyond ``max_maps`` it refuses rather than run for hours.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 from twinslam.map_management.actions import MapAction
 from twinslam.simulator.env import MapManagementEnv
@@ -31,15 +32,15 @@ class _Best:
     total: float
     actions: list[MapAction]
     slots: list[SlotUncertainty]
-    snapshot: tuple
+    snapshot: tuple[Any, ...]
 
 
 def exact_optimum(env: MapManagementEnv, seed: int, max_maps: int = 50_000) -> Plan:
     """The plan of minimum Σ_k υ_k from ``reset(seed)``: the optimum no policy can beat."""
     env.reset(seed)
-    layer: dict[tuple, _Best] = {(): _Best(0.0, [], [], env.snapshot())}
+    layer: dict[tuple[Any, ...], _Best] = {(): _Best(0.0, [], [], env.snapshot())}
     for slot in range(env.config.slots):
-        nxt: dict[tuple, _Best] = {}
+        nxt: dict[tuple[Any, ...], _Best] = {}
         for best in layer.values():
             env.restore(best.snapshot)
             for action in all_actions(env.observation()):

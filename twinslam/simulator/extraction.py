@@ -98,4 +98,4 @@ def _guided_matches(tracker: Tracking, features: Features, pose: np.ndarray,
     _, cand = match_by_projection(features.points, features.descriptors, uv,
                                   points.descriptors[ids], cfg.search_radius_px,
                                   cfg.max_hamming, cfg.ratio, shape)
-    return ids[cand]
+    return np.asarray(ids[cand])

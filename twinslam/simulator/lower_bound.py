@@ -35,7 +35,7 @@ def _top_sums(weights: np.ndarray, counts: np.ndarray, own: np.ndarray, k: int) 
     mult = np.take_along_axis(per_row, order, axis=1)
     before = np.cumsum(mult, axis=1) - mult
     take = np.clip(k - before, 0, mult)
-    return (values * take).sum(axis=1)
+    return np.asarray((values * take).sum(axis=1))
 
 
 def _top_positive(values: np.ndarray, counts: np.ndarray, k: int) -> float:

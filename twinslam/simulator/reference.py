@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -71,7 +72,7 @@ class _Beam:
     total: float
     actions: list[MapAction]
     slots: list[SlotUncertainty]
-    snapshot: tuple
+    snapshot: tuple[Any, ...]
 
 
 class ReferencePlanner:
@@ -116,7 +117,7 @@ class ReferencePlanner:
             base.append(a)
         extra = ([_perturb(obs, base[i % len(base)], rng) for i in range(self.perturbations)]
                  if base else [])
-        unique: dict[tuple, MapAction] = {}
+        unique: dict[tuple[Any, ...], MapAction] = {}
         for a in base + extra:
             unique[(tuple(sorted(a.upload)), tuple(sorted(a.evict)))] = a
         return list(unique.values())
@@ -128,7 +129,7 @@ class ReferencePlanner:
             p.reset(seed)
         beams = [_Beam(0.0, [], [], env.snapshot())]
         for _slot in range(env.config.slots):
-            children: dict[tuple, _Beam] = {}
+            children: dict[tuple[Any, ...], _Beam] = {}
             for b in beams:
                 env.restore(b.snapshot)
                 for action in self._proposals(env.observation(), rng, known):
@@ -171,7 +172,7 @@ class ReferencePlanner:
 
     @staticmethod
     def _trace(env: MapManagementEnv, actions: list[MapAction], seed: int
-               ) -> tuple[list[tuple], list[SlotObservation]]:
+               ) -> tuple[list[tuple[Any, ...]], list[SlotObservation]]:
         env.reset(seed)
         snaps, observations = [], []
         for action in actions:

@@ -115,8 +115,7 @@ def bundle_adjust(poses: dict[int, np.ndarray], points: dict[int, np.ndarray],
     except RuntimeError:        # an ill-posed corner (e.g. two nearly parallel rays): damped
         lm = gtsam.LevenbergMarquardtParams()
         lm.setMaxIterations(max_iterations)
-        optimizer = gtsam.LevenbergMarquardtOptimizer(graph, initial, lm)
-        result = optimizer.optimize()
+        result = gtsam.LevenbergMarquardtOptimizer(graph, initial, lm).optimize()
     out_poses = {kf: np.asarray(poses[kf], dtype=np.float64) if kf in fixed
                  else result.atPose3(X(kf)).matrix() for kf in poses}
     out_points = {pid: np.asarray(result.atPoint3(L(pid))) if pid in determined

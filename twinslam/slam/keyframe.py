@@ -10,9 +10,9 @@ set, or 0 for a feature associated with nothing.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
+from twinslam_msgs.msg import Keyframe
 
 from msg_schemas import new
 from msg_schemas.headers import set_header, stamp_seconds
@@ -38,7 +38,7 @@ class KeyFramePayload:
 
 
 def keyframe_message(payload: KeyFramePayload, camera_frame: str = "camera",
-                     image: Any = None) -> Any:
+                     image: object | None = None) -> Keyframe:
     """The ``Keyframe`` of a payload; with ``image`` (a ``sensor_msgs/Image``) the frame
     itself too, otherwise features only. Inconsistent array sizes are refused (ValueError)
     here, before anything is sent."""
@@ -50,7 +50,7 @@ def keyframe_message(payload: KeyFramePayload, camera_frame: str = "camera",
         raise ValueError(f"frame {payload.frame_id}: {n} keypoints need n×"
                          f"{ORB_DESCRIPTOR_BYTES} descriptors and n depths and ids, got "
                          f"{desc.shape}, {len(payload.depths)}, {len(payload.point_ids)}")
-    msg = new("twinslam_msgs/msg/Keyframe", slot=payload.slot, frame_id=payload.frame_id,
+    msg = new(Keyframe, slot=payload.slot, frame_id=payload.frame_id,
               pose_estimate=pose_msg(payload.pose),
               k=np.asarray(payload.intrinsics, dtype=np.float64).reshape(-1),
               keypoints_xy=xy.reshape(-1),
@@ -62,7 +62,7 @@ def keyframe_message(payload: KeyFramePayload, camera_frame: str = "camera",
     return set_header(msg, payload.stamp, camera_frame)
 
 
-def read_keyframe(msg: Any) -> KeyFramePayload:
+def read_keyframe(msg: Keyframe) -> KeyFramePayload:
     """Unpack a (validated) ``Keyframe``; depths or ids missing altogether read as zeros."""
     xy = np.asarray(msg.keypoints_xy, dtype=np.float32).reshape(-1, 2)
     n = len(xy)

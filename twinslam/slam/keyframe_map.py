@@ -16,6 +16,7 @@ import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy import sparse
@@ -57,7 +58,7 @@ def shared_counts(sets: list[np.ndarray]) -> np.ndarray:
                             shape=(len(sets), int(cols.max(initial=-1)) + 1))
     w = (inc @ inc.T).toarray()
     np.fill_diagonal(w, 0.0)
-    return w
+    return np.asarray(w)
 
 
 class KeyFrameMap:
@@ -157,8 +158,9 @@ class KeyFrameMap:
 
     # -- checkpoint ------------------------------------------------------------------------
 
-    def save(self, path: Path, **extra: np.ndarray) -> None:
-        """Write the map (and ``extra`` arrays, e.g. the slot) atomically to ``path``."""
+    def save(self, path: Path, **extra: Any) -> None:
+        """Write the map (and ``extra`` arrays, e.g. the slot) atomically to ``path``
+        (``Any``: numpy's stubs would match an array key to ``allow_pickle``)."""
         path = Path(path)
         kf_ids = self.keyframe_ids()
         pt_ids = sorted(self.points)

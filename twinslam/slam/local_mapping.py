@@ -107,19 +107,21 @@ class LocalMapping:
         for i in pending_tracks:
             if not free[i]:                   # matched to an existing point by projection
                 self._remember_track(int(ids[i]), self._feature_point[i])
-            elif world[i] is not None:
-                pid = m.add_point(world[i], descriptors[i])
-                self._remember_track(int(ids[i]), pid)
-                self._observe(kf_id, pid, free, i)
+            elif (position := world[i]) is not None:
+                created = m.add_point(position, descriptors[i])
+                self._remember_track(int(ids[i]), created)
+                self._observe(kf_id, created, free, i)
                 counts["tracked"] += 1
                 counts["created_from_tracks"] += 1
-        for i in np.flatnonzero(free):
-            if world[i] is not None:
-                self._observe(kf_id, m.add_point(world[i], descriptors[i]), free, i)
+        for i in map(int, np.flatnonzero(free)):
+            if (position := world[i]) is not None:
+                self._observe(kf_id, m.add_point(position, descriptors[i]), free, i)
                 counts["created"] += 1
         self._flush(kf_id)
         unused = int(free.sum())
-        return IntegrationReport(unused=unused, **counts)
+        return IntegrationReport(counts["associated"], counts["tracked"],
+                                 counts["created_from_tracks"], counts["matched"],
+                                 counts["created"], unused)
 
     def _remember_track(self, track: int, pid: int) -> None:
         self.track_points[track] = pid

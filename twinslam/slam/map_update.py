@@ -7,9 +7,9 @@ reads it — the device's tracker, the launcher's monitor, the benches — reads
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
+from twinslam_msgs.msg import MapUpdate
 
 from msg_schemas.poses import pose_matrix
 from msg_schemas.validation import ORB_DESCRIPTOR_BYTES
@@ -32,7 +32,7 @@ class MapSnapshot:
     track_point_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint64))
 
 
-def read_map_update(msg: Any) -> MapSnapshot:
+def read_map_update(msg: MapUpdate) -> MapSnapshot:
     n = len(msg.point_ids)
     return MapSnapshot(int(msg.map_version), np.asarray(msg.keyframe_ids, dtype=np.uint64),
                     np.array([pose_matrix(p) for p in msg.keyframe_poses]).reshape(-1, 4, 4),

@@ -34,7 +34,7 @@ class OrbExtractor:
             raise ValueError("n_features must be >= 1")
         self.n_features = n_features
         self.grid = grid
-        self._orb = cv2.ORB_create(nfeatures=int(n_features * surplus), scaleFactor=scale_factor,
+        self._orb = cv2.ORB.create(nfeatures=int(n_features * surplus), scaleFactor=scale_factor,
                                    nlevels=n_levels, fastThreshold=fast_threshold,
                                    # ranked by FAST response, as ORB-SLAM does (Harris costs
                                    # ~1 ms more per frame and is not what it ranks by)
@@ -50,7 +50,7 @@ class OrbExtractor:
         if desc is None or not keypoints:
             return Features(np.zeros((0, 2), np.float32),
                             np.zeros((0, ORB_DESCRIPTOR_BYTES), np.uint8), np.zeros(0, np.float32))
-        pts = cv2.KeyPoint_convert(keypoints).reshape(-1, 2).astype(np.float32)
+        pts = np.asarray(cv2.KeyPoint.convert(keypoints)).reshape(-1, 2).astype(np.float32)
         resp = np.array([k.response for k in keypoints], dtype=np.float32)
         keep = self._bucket(pts, resp, gray.shape)
         return Features(pts[keep], desc[keep], resp[keep])

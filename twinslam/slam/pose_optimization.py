@@ -29,7 +29,7 @@ def _rodrigues(w: np.ndarray) -> np.ndarray:
     kx, ky, kz = w[0] / theta, w[1] / theta, w[2] / theta
     s, c = np.sin(theta), np.cos(theta)
     kk = np.array([[0.0, -kz, ky], [kz, 0.0, -kx], [-ky, kx, 0.0]])
-    return r + s * kk + (1.0 - c) * (kk @ kk)
+    return np.asarray(r + s * kk + (1.0 - c) * (kk @ kk))
 
 
 @njit(cache=True)

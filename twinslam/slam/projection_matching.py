@@ -9,21 +9,29 @@ cells one radius wide, so a point looks at the 3×3 cells around it.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any, cast
+
 import numpy as np
 from numba import njit, types
 from numba.extending import intrinsic
 
 
 @intrinsic
-def _popcount(typingctx, x):
+def _popcount_intrinsic(typingctx: Any, x: Any) -> Any:
     """Set bits of a uint64 via LLVM's ctpop: one POPCNT instruction on x86-64 instead of a
     dozen bit operations, in a loop over ~70 000 descriptor pairs per frame."""
     sig = types.int64(types.uint64)
 
-    def codegen(context, builder, signature, args):
+    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
         return builder.zext(builder.ctpop(args[0]), context.get_value_type(types.int64))
 
     return sig, codegen
+
+
+#: what the kernels call: a uint64's set bits (typed for mypy, which cannot see numba's
+#: intrinsic protocol)
+_popcount = cast(Callable[[int], int], _popcount_intrinsic)
 
 
 @njit(cache=True)
@@ -165,4 +173,4 @@ def back_project(uv: np.ndarray, depth: np.ndarray, k: np.ndarray,
     z = np.asarray(depth, dtype=np.float64)
     cam = np.column_stack([(uv[:, 0] - k[0, 2]) * z / k[0, 0],
                            (uv[:, 1] - k[1, 2]) * z / k[1, 1], z])
-    return cam @ camera_to_world[:3, :3].T + camera_to_world[:3, 3]
+    return np.asarray(cam @ camera_to_world[:3, :3].T + camera_to_world[:3, 3])

@@ -117,7 +117,7 @@ class Tracking:
             relocalised = pose is not None
         tracked = pose is not None
         self._lost = 0 if tracked else self._lost + 1
-        if not tracked:
+        if pose is None:                    # not tracked: the motion model's guess
             pose, inliers = predicted, np.zeros(len(matched_ids), dtype=bool)
         observed = matched_ids[inliers]
         n_inliers = len(observed)

@@ -46,7 +46,8 @@ class LstmNetwork(nn.Module):
 
     def forward(self, windows: torch.Tensor) -> torch.Tensor:
         out, _ = self.lstm(windows)
-        return self.head(out[:, -1])
+        logits: torch.Tensor = self.head(out[:, -1])
+        return logits
 
 
 class LstmPredictor:
@@ -140,7 +141,7 @@ class LstmPredictor:
         for i in range(n):
             if counts[i].sum() == 0:
                 counts[i, self.point([i] * cfg.history)] = 1.0
-        return counts / counts.sum(axis=1, keepdims=True)
+        return np.asarray(counts / counts.sum(axis=1, keepdims=True))
 
     def state_dict(self) -> dict[str, Any]:
         return {"config": self.config.__dict__, "network": self.network.state_dict()}

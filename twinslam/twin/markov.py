@@ -75,7 +75,7 @@ class MarkovCounts:
         return np.where(rows > 0, smoothed / np.where(rows > 0, rows, 1.0), 1.0 / self._n)
 
     def predict(self, history: Sequence[int]) -> np.ndarray:
-        return self.transition_matrix()[current_state(history)]
+        return np.asarray(self.transition_matrix()[current_state(history)])
 
     def features(self, history: Sequence[int]) -> np.ndarray:
         return self.predict(history).astype(np.float32)

@@ -7,7 +7,7 @@ d_k = [d_{k−τ} … d_k] (one-hot, τ+1 steps) and its successor d_{k+1}.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import torch
@@ -34,7 +34,7 @@ def history_windows(states: np.ndarray, history: int, n_states: int
     return (torch.from_numpy(one_hot(s[idx], n_states)), torch.from_numpy(s[history:].copy()))
 
 
-def latest_window(states: list[int], history: int, n_states: int) -> torch.Tensor:
+def latest_window(states: Sequence[int], history: int, n_states: int) -> torch.Tensor:
     """The newest ``history`` states as a (1, history, N) one-hot batch; a shorter sequence is
     padded at the front with its oldest state (no states at all: state 0)."""
     s = list(states[-history:])

@@ -111,3 +111,12 @@ def peaked(n_states: int, state: int, mass: float) -> np.ndarray:
     out = np.full(n_states, (1.0 - mass) / (n_states - 1))
     out[state] = mass
     return out
+
+
+class MatrixEstimator(RateModel, Protocol):
+    """A rate model whose estimate of the current interval's transition matrix can be read
+    (what the twin's Figs 3–5 score against the true matrix)."""
+
+    def transition_matrix(self) -> np.ndarray:
+        """P̂, rows the current state."""
+        ...

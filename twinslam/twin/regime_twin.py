@@ -115,7 +115,7 @@ class RegimeTwin:
     def _base(self) -> np.ndarray:
         """The base measure a regime starting now gets: Laplace-smoothed global frequencies."""
         n = self.config.n_states
-        return (self._global + 1.0) / (self._global.sum(axis=1, keepdims=True) + n)
+        return np.asarray((self._global + 1.0) / (self._global.sum(axis=1, keepdims=True) + n))
 
     # -- the filter update -------------------------------------------------------------------
 
@@ -166,7 +166,7 @@ class RegimeTwin:
         """Posterior probability of each configured hazard (uniform prior over them)."""
         log_e = np.array([f.log_evidence for f in self._filters])
         w = np.exp(log_e - log_e.max())
-        return w / w.sum()
+        return np.asarray(w / w.sum())
 
     def predict(self, history: Sequence[int] = ()) -> np.ndarray:
         """p(d_{k+1} | everything observed), from the newest state of ``history`` (the newest
@@ -177,7 +177,7 @@ class RegimeTwin:
         for pi, f in zip(self.hazard_weights(), self._filters, strict=True):
             row = f.weights @ _predictive(f, s, a)
             out += pi * ((1.0 - f.hazard) * row + f.hazard * base_now[s])
-        return out / out.sum()
+        return np.asarray(out / out.sum())
 
     def transition_matrix(self) -> np.ndarray:
         """E[P_x | observed] of the current regime (rows: current state)."""
@@ -256,4 +256,4 @@ class RegimeTwin:
 def _predictive(f: _Filter, state: int, strength: float) -> np.ndarray:
     """(R, N): each hypothesis' posterior predictive row for the current ``state``."""
     alpha = f.counts[:, state] + strength * f.base[:, state]
-    return alpha / alpha.sum(axis=1, keepdims=True)
+    return np.asarray(alpha / alpha.sum(axis=1, keepdims=True))

@@ -71,7 +71,8 @@ class VariationalNetwork(nn.Module):
 
     def decode(self, current: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
         """Logits of d_{k+1} given the one-hot current state (B, N) and z (B, Z)."""
-        return self.decoder(torch.cat([current, z], dim=-1))
+        logits: torch.Tensor = self.decoder(torch.cat([current, z], dim=-1))
+        return logits
 
     def negative_elbo(self, windows: torch.Tensor, targets: torch.Tensor, kl_weight: float
                       ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -220,7 +221,7 @@ class VariationalTwin:
         probs = torch.softmax(self.network.decode(window[:, -1].expand(count, -1), z), dim=-1)
         cum = probs.numpy().cumsum(axis=1)
         u = rng.random((count, 1))
-        return np.minimum((u > cum).sum(axis=1), self.config.n_states - 1)
+        return np.asarray(np.minimum((u > cum).sum(axis=1), self.config.n_states - 1))
 
     # -- persistence ---------------------------------------------------------------------
 

@@ -83,7 +83,7 @@ def map_uncertainty(weights: np.ndarray, log_det_pi: float = 0.0) -> float:
     ld = logdet_spd(reduced_laplacian(weights))
     if ld == -math.inf:
         return math.inf
-    return -6.0 * ld - (n - 1) * log_det_pi
+    return float(-6.0 * ld - (n - 1) * log_det_pi)
 
 
 def augmented_uncertainties(map_weights: np.ndarray, cand_weights: np.ndarray,

@@ -79,7 +79,7 @@ class TcShaper:
     """``tbf`` of the slot's rate on ``interface``; the same slot interface as UplinkShaper."""
 
     def __init__(self, interface: str, netem: NetemConfig | None = None,
-                 flush: Callable[[], None] = lambda: None,
+                 flush: Callable[[], object] = lambda: None,
                  tc: Callable[..., None] = run_tc,
                  tx_bytes: Callable[[], int] | None = None,
                  clock: Callable[[], float] = time.monotonic) -> None:
@@ -160,7 +160,7 @@ SHAPERS = ("token_bucket", "tc")
 
 def make_shaper(kind: str, initial_rate_mbps: float, interface: str = "eth0",
                 netem: NetemConfig | None = None,
-                flush: Callable[[], None] = lambda: None) -> UplinkShaper | TcShaper:
+                flush: Callable[[], object] = lambda: None) -> UplinkShaper | TcShaper:
     """The uplink shaper a device is configured with: ``token_bucket`` paces in the process,
     ``tc`` installs a tbf on ``interface`` at ``initial_rate_mbps`` (CAP_NET_ADMIN).
     ValueError for another kind, ShaperError when tc cannot be set up."""

@@ -66,7 +66,7 @@ def _run_policy(args: argparse.Namespace, policy: str, chosen: Scenario,
                           with_twin=args.twin or learned, timeout_s=args.timeout,
                           extra=run_extra, scenario=chosen, start=args.start)
     with _launch_domain(args) as dom:
-        if args.loopback:
+        if isinstance(dom, LoopbackDomain) and args.loopback:
             dom.activate()
         where = ("hosts device/edge/twin, domain" if args.hosts else
                  "loopback domain" if args.loopback else "domain")
