@@ -34,3 +34,17 @@ def test_the_simulators_help_names_the_learned_policy_and_the_reference() -> Non
     for words in ("mbrl:CHECKPOINT", "reference", "not a bound", "trace:FILE", "Mbit/s",
                   "lost_share"):
         assert words in " ".join(text.split()), words
+
+
+def test_the_old_name_of_the_variational_twin_is_accepted_with_a_deprecation_line(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """``--rate-model udt`` still parses (scripts written before the rename keep working) and
+    the command says once what the model is called now."""
+    from twinslam.cli.console import warn_aliases
+    from twinslam.twin.registry import ALIASES, canonical
+
+    args = _subcommands()["train"].parse_args(["--covis", "x.npz", "--rate-model", "udt"])
+    assert canonical(args.rate_model) == "variational"
+    warn_aliases([args.rate_model, "regime", "udt"], ALIASES)
+    err = capsys.readouterr().err
+    assert err.count("'udt' is the old name of 'variational'") == 1

@@ -380,3 +380,15 @@ def test_twin_fed_policy_uses_fresh_latents_and_falls_back_without_them() -> Non
     assert feed.latent is not None and feed.latent.slot == 3
     with pytest.raises(ValueError, match="a latent of 3 dimensions"):
         feed.offer(6, np.zeros(3), np.ones(3), 3)
+
+
+def test_a_checkpoint_naming_the_old_udt_rate_model_loads_as_the_variational_twin() -> None:
+    """Policies trained before the variational twin got its name say ``udt``: they load."""
+    from twinslam.twin.registry import load_rate_model
+
+    model = VariationalTwin(VariationalConfig(n_states=3, retrain_every=1000))
+    again = load_rate_model("udt", model.state_dict())
+    assert isinstance(again, VariationalTwin) and again.name == "variational"
+    np.testing.assert_allclose(again.features([0, 1, 2]), model.features([0, 1, 2]))
+    with pytest.raises(ValueError, match="unknown rate model"):
+        load_rate_model("persistence", {})        # a baseline, never a policy's model
