@@ -117,6 +117,13 @@ class EdgeMapperCore:
         core.plan(0, frames, 40.0, 0)
         core.finish_slot(0)
 
+    def restored_summary(self) -> str:
+        """What a restart resumed from, in one line."""
+        return (f"restored map version {self.version} (slot {self.last_slot}, "
+                f"{len(self.map.keyframes)} keyframes, {len(self.map.points)} points, "
+                f"{len(self.local_mapping.track_points)} device tracks resolved) from "
+                f"{self.checkpoint}")
+
     def set_policy(self, policy: MapPolicy) -> None:
         """The policy that decides from the next plan on."""
         self.planner.policy = policy

@@ -5,7 +5,9 @@
   (:mod:`edge_mapper.slot_lifecycle`: all in, all the device sent in, or ``slot_timeout_s``),
   C_k is evicted, the newest keyframes bundle-adjusted (GTSAM), the map checkpointed, and the
   new map goes out on ``edge/map_update`` (transient local: a device that joins or restarts
-  gets the latest) with ``edge/map_stats`` (u(G), υ, lost share, uploads, timings);
+  gets the latest) with ``edge/map_stats`` (u(G), υ, lost share, uploads, timings) and, for a
+  viewer, the map points, keyframes and the slot's decisions in standard messages
+  (:mod:`edge_mapper.visual_messages`);
 * ``udt/rate_latent`` → the twin's features for a twin-driven policy, which falls back to
   ``fallback_policy`` without fresh ones (:mod:`edge_mapper.twin_feed`).
 
@@ -24,7 +26,9 @@ import time
 from typing import Any
 
 import numpy as np
+from geometry_msgs.msg import PoseArray
 from rclpy.node import Node
+from sensor_msgs.msg import PointCloud2
 from twinslam_msgs.msg import (
     FrameSummaries,
     Keyframe,
@@ -34,13 +38,15 @@ from twinslam_msgs.msg import (
     UplinkThroughput,
     UploadRequest,
 )
+from visualization_msgs.msg import MarkerArray
 
-from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, SlotOutcome
+from edge_mapper.edge_core import EdgeMapperCore, SlotOutcome
 from edge_mapper.messages import map_stats_message, map_update_message, upload_request_message
-from edge_mapper.parameters import PARAMETERS
+from edge_mapper.parameters import PARAMETERS, edge_config
 from edge_mapper.policy_control import POLICY_KEYS, Note, PolicyControl
 from edge_mapper.slot_lifecycle import Closing, SlotLifecycle
-from edge_mapper.slot_planner import FrameObservations, SlotConfig
+from edge_mapper.slot_planner import FrameObservations
+from edge_mapper.visual_messages import decisions_message, keyframes_message, map_points_message
 from msg_schemas import qos, topics
 from twinslam.node_hosts.checked_subscription import CheckedSubscription
 from twinslam.node_hosts.node_main import NodeStartError, run_node
@@ -52,13 +58,9 @@ class EdgeMapperNode(Node):
     def __init__(self) -> None:
         super().__init__("edge_mapper")
         p = declare(self, PARAMETERS)
-        config = EdgeConfig(slot=SlotConfig(vmax=int(p["vmax"]), alpha_mbit=float(p["alpha_mbit"]),
-                                            d_req_s=float(p["d_req_s"])),
-                            ba_window=int(p["ba_window"]),
-                            image_shape=(int(p["image_height"]), int(p["image_width"])))
         try:
             self.control = PolicyControl(self._live_values(), EdgeMapperCore.warm_up)
-            self.core = EdgeMapperCore(self.control.policy, None, config,
+            self.core = EdgeMapperCore(self.control.policy, None, edge_config(p),
                                        p["checkpoint"] or None, int(p["states"]))
         except ValueError as exc:
             raise NodeStartError(str(exc)) from None
@@ -67,6 +69,10 @@ class EdgeMapperNode(Node):
                                                  qos.PROTOCOL)
         self.pub_map = self.create_publisher(MapUpdate, topics.MAP_UPDATE, qos.MAP)
         self.pub_stats = self.create_publisher(MapStats, topics.MAP_STATS, qos.PROTOCOL)
+        self.pub_views = ((self.create_publisher(PointCloud2, topics.MAP_POINTS, qos.MAP),
+                           self.create_publisher(PoseArray, topics.KEYFRAME_POSES, qos.MAP),
+                           self.create_publisher(MarkerArray, topics.DECISIONS, qos.MAP))
+                          if p["visualisation"] else None)
         self.subscriptions_checked = [
             CheckedSubscription(self, FrameSummaries, topics.FRAME_SUMMARIES,
                                 self._on_summaries, qos.PROTOCOL),
@@ -79,11 +85,7 @@ class EdgeMapperNode(Node):
         ]
         self.create_timer(0.2, self._finish_due)     # timeouts
         if self.core.restored:
-            self.get_logger().info(
-                f"restored map version {self.core.version} (slot {self.core.last_slot}, "
-                f"{len(self.core.map.keyframes)} keyframes, {len(self.core.map.points)} "
-                f"points, {len(self.core.local_mapping.track_points)} device tracks resolved) "
-                f"from {self.core.checkpoint}")
+            self.get_logger().info(self.core.restored_summary())
             # with the whole track table: the device may still hold tracks of before the stop
             self.pub_map.publish(map_update_message(self.core.map, self.core.last_slot,
                                                     self.core.version, self._now(),
@@ -186,6 +188,7 @@ class EdgeMapperNode(Node):
     def _finish(self, slot: int) -> None:
         started = time.perf_counter()
         entry = self.slots.close(slot, self.control.policy_name)
+        before = {k: kf.pose for k, kf in self.core.map.keyframes.items()}   # evicted: where
         out: SlotOutcome = self.core.finish_slot(slot)
         now = self._now()
         self.pub_map.publish(map_update_message(self.core.map, slot, out.version, now,
@@ -195,6 +198,11 @@ class EdgeMapperNode(Node):
             slot, entry.decided_by, self.core.map, out.map_uncertainty, entry.uncertainty,
             len(out.integrated), ba_ms,
             (entry.compute_s + time.perf_counter() - started) * 1000, now))
+        if self.pub_views is not None:         # after MapStats: not in its compute time
+            m, (cloud, poses, marks) = self.core.map, self.pub_views
+            cloud.publish(map_points_message(m, now))
+            poses.publish(keyframes_message(m, now))
+            marks.publish(decisions_message(m, out.integrated, out.evicted, before, now))
         self.get_logger().info(
             f"slot {slot}: +{len(out.integrated)} keyframes, -{len(out.evicted)}, map "
             f"{len(self.core.map.keyframes)} keyframes / {len(self.core.map.points)} points, "

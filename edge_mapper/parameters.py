@@ -7,11 +7,16 @@ that cannot be made is refused with the reason (:mod:`edge_mapper.policy_control
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from typing import Any
+
+from edge_mapper.edge_core import EdgeConfig
 from edge_mapper.policy_control import (
     checkpoint_refused,
     fallback_refused,
     policy_refused,
 )
+from edge_mapper.slot_planner import SlotConfig
 from msg_schemas import topics
 from twinslam.common import table1
 from twinslam.node_hosts.parameters import ParamSpec
@@ -41,4 +46,15 @@ PARAMETERS = (
               f"{topics.RATE_LATENT}", live=True, check=fallback_refused),
     ParamSpec("latent_max_age", 2, "slots a twin latent stays fresh", low=0, high=1_000_000,
               live=True),
+    ParamSpec("visualisation", True, f"publish {topics.MAP_POINTS} (PointCloud2), "
+              f"{topics.KEYFRAME_POSES} (PoseArray) and {topics.DECISIONS} (MarkerArray) once a "
+              "slot, latched, for RViz / Foxglove"),
 )
+
+
+def edge_config(p: Mapping[str, Any]) -> EdgeConfig:
+    """The core's configuration from the node's parameters (V_max, α, D_req as they start)."""
+    return EdgeConfig(slot=SlotConfig(vmax=int(p["vmax"]), alpha_mbit=float(p["alpha_mbit"]),
+                                      d_req_s=float(p["d_req_s"])),
+                      ba_window=int(p["ba_window"]),
+                      image_shape=(int(p["image_height"]), int(p["image_width"])))

@@ -19,5 +19,9 @@ UPLINK_THROUGHPUT = "device/uplink_throughput"
 UPLOAD_REQUEST = "edge/upload_request"
 MAP_UPDATE = "edge/map_update"
 MAP_STATS = "edge/map_stats"
+#: what a viewer shows (standard messages, edge_mapper.visual_messages)
+MAP_POINTS = "edge/map_points"
+KEYFRAME_POSES = "edge/keyframes"
+DECISIONS = "edge/decisions"
 
 RATE_LATENT = "udt/rate_latent"

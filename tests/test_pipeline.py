@@ -203,3 +203,63 @@ def test_a_device_that_lost_tracking_relocalises_against_the_edges_map() -> None
     print(f"\nrelocalised frame {first.frame_id}: {len(first.map_point_ids)} map points, "
           f"position error {error * 100:.1f} cm; {report.row()}")
     assert error < 0.05
+
+
+def test_a_viewer_sees_the_edges_map_points_keyframes_and_decisions() -> None:
+    """What RViz or Foxglove would subscribe to: every slot the edge's map as a PointCloud2
+    with one point per map point, the kept keyframes as a PoseArray (at most V_max), and the
+    slot's decisions as markers — integrated keyframes as many as MapStats counts uploads,
+    kept ones the rest of the map — read by a subscriber outside the pipeline, latched for a
+    viewer that joins late."""
+    from geometry_msgs.msg import PoseArray
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import PointCloud2, PointField
+    from visualization_msgs.msg import Marker, MarkerArray
+
+    from msg_schemas import topics
+    from msg_schemas.headers import stamp_key
+    from twinslam.node_hosts.session import RosSession
+
+    seen: dict[str, dict[int, Any]] = {"cloud": {}, "poses": {}, "marks": {}}
+    viewer: list[RosSession] = []
+    latched = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+    def watch(_msg: Any, _record: RunRecord, _launcher: Launcher) -> None:
+        if not viewer:              # joins after the first slot: the latched one comes too
+            viewer.append(RosSession("viewer"))
+            for key, kind, topic, header in (
+                    ("cloud", PointCloud2, topics.MAP_POINTS, lambda m: m.header),
+                    ("poses", PoseArray, topics.KEYFRAME_POSES, lambda m: m.header),
+                    ("marks", MarkerArray, topics.DECISIONS, lambda m: m.markers[0].header)):
+                viewer[0].node.create_subscription(
+                    kind, topic, lambda m, k=key, h=header: seen[k].__setitem__(
+                        stamp_key(h(m)), m), latched)
+        viewer[0].spin_until(lambda: False, 0.05)
+
+    try:
+        _, record, _ = _run("lff", frames=360, on_stats=watch)
+        viewer[0].spin_until(lambda: False, 1.0)
+    finally:
+        for session in viewer:
+            session.close()
+    stats = {stamp_key(s.header): s for s in record.stats.values()}
+    slots = [k for k in stats if all(k in by for by in seen.values())]
+    assert len(slots) >= 3, f"the viewer saw {len(slots)} of {len(stats)} slots"
+    for key in slots:
+        s, cloud, poses, marks = (stats[key], seen["cloud"][key], seen["poses"][key],
+                                  seen["marks"][key])
+        assert cloud.header.frame_id == poses.header.frame_id == "map"
+        assert [f.name for f in cloud.fields] == ["x", "y", "z", "intensity"]
+        assert [(f.offset, f.datatype) for f in cloud.fields] == [
+            (4 * i, PointField.FLOAT32) for i in range(4)] and cloud.point_step == 16
+        xyzi = np.frombuffer(bytes(cloud.data), dtype=np.float32).reshape(-1, 4)
+        assert len(xyzi) == cloud.width == s.map_points
+        assert np.isfinite(xyzi).all() and (xyzi[:, 3] >= 1).all()    # observed by >= 1
+        assert len(poses.poses) == s.map_size <= VMAX
+        by_ns = {m.ns: m for m in marks.markers}
+        assert set(by_ns) == {"integrated", "evicted", "kept"}
+        added = len(by_ns["integrated"].points) if by_ns["integrated"].action == Marker.ADD \
+            else 0
+        kept = len(by_ns["kept"].points) if by_ns["kept"].action == Marker.ADD else 0
+        assert added == s.uploads and added + kept == s.map_size
