@@ -5,7 +5,7 @@
   the edge's last map alone (``map_source:=edge``, the paper's device) or with the device's own
   recent points too (``edge+local``) (:class:`~device_tracker.device_core.DeviceTrackerCore`);
   ``device/pose`` per frame, ``device/path`` per slot (the newest ``path_window`` poses,
-  :mod:`device_tracker.trajectory`);
+  :mod:`msg_schemas.paths`);
 * at each slot's end, ``device/frame_summaries`` with d_k drawn from the channel model
   (``channel:=markov:N=2`` or ``trace:FILE``, as the simulator's);
 * ``edge/upload_request`` → exactly the frames asked for go out as ``Keyframe`` s on
@@ -42,11 +42,11 @@ from device_tracker.messages import (
     uplink_throughput_message,
 )
 from device_tracker.parameters import PARAMETERS, DeviceSettings
-from device_tracker.trajectory import PathWindow
 from device_tracker.uplink_sender import Encoded, UplinkSender
 from device_tracker.uplink_setup import uplink_from_parameters
 from msg_schemas import qos, topics
 from msg_schemas.headers import set_header
+from msg_schemas.paths import PathWindow
 from msg_schemas.poses import pose_msg
 from twinslam.node_hosts.acks import wait_for_acks
 from twinslam.node_hosts.checked_subscription import CheckedSubscription

@@ -9,6 +9,7 @@ CAMERA_IMAGE = "camera/image_raw"
 CAMERA_DEPTH = "camera/depth/image_raw"
 CAMERA_INFO = "camera/camera_info"
 GROUND_TRUTH_POSE = "camera/ground_truth_pose"
+GROUND_TRUTH_PATH = "camera/ground_truth_path"
 
 DEVICE_POSE = "device/pose"
 DEVICE_PATH = "device/path"

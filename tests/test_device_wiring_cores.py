@@ -155,7 +155,7 @@ def test_the_device_path_keeps_only_its_newest_poses() -> None:
     """device/path is a window (path_window poses), not the whole run re-sent every slot."""
     from geometry_msgs.msg import PoseStamped
 
-    from device_tracker.trajectory import PathWindow
+    from msg_schemas.paths import PathWindow
 
     window = PathWindow(3)
     for i in range(10):

@@ -8,6 +8,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import Path as PathMsg
 from sensor_msgs.msg import CameraInfo, Image
 
 from msg_schemas import qos, topics
@@ -49,12 +50,17 @@ def test_player_delivers_every_frame_at_30_hz_and_skips_a_corrupt_jpeg(
                              ("pose", topics.GROUND_TRUTH_POSE, PoseStamped)]:
         ros.node.create_subscription(kind, topic, lambda m, k=key: got[k].append(m),
                                      qos.CAMERA)
+    paths: list[PathMsg] = []
+    ros.node.create_subscription(PathMsg, topics.GROUND_TRUTH_PATH, paths.append, qos.MAP)
     player = domain.spawn(["-m", "twinslam.sequence_player.node", "--ros-args",
-                           "-p", f"sequence:={seq}", "-p", "wait_for_subscribers:=1"])
+                           "-p", f"sequence:={seq}", "-p", "wait_for_subscribers:=1",
+                           "-p", "path_window:=50"])
     start = time.monotonic()
     # 99 frames at 30 Hz take 3.3 s; generous bound for a loaded CI machine
     ros.spin_until(lambda: player.poll() is not None and len(got["color"]) >= 99, 40.0)
-    ros.spin_until(lambda: len(got["info"]) >= 99 and len(got["pose"]) >= 99, 5.0)
+    ros.spin_until(lambda: len(got["info"]) >= 99 and len(got["pose"]) >= 99
+                   and bool(paths) and len(paths[-1].poses) == 50
+                   and _stamp(paths[-1]) == _stamp(got["pose"][-1]), 5.0)
     code, _, err = domain.stop(player)
     assert code == 0, err
     assert len(got["color"]) == 99, f"received {len(got['color'])} of 99 frames"
@@ -74,6 +80,9 @@ def test_player_delivers_every_frame_at_30_hz_and_skips_a_corrupt_jpeg(
     assert got["depth"][0].encoding == "16UC1" and np.all(depth0 == 1000)
     assert abs(got["pose"][40].pose.position.x - 0.41) < 1e-12   # 40th received: frame 41
     assert "frame-000040.color.jpg" in err and "1 skipped" in err
+    # the ground-truth path: once a second and at the end, the newest path_window poses
+    assert len(paths) >= 3 and paths[-1].header.frame_id == "world"
+    assert [_stamp(p) for p in paths[-1].poses] == [_stamp(m) for m in got["pose"][-50:]]
     assert 3.0 < time.monotonic() - start
 
 

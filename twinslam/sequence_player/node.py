@@ -8,7 +8,9 @@ every header:
 * ``camera/depth/image_raw`` — ``16UC1`` millimetres or ``32FC1`` metres (``depth_encoding``)
 * ``camera/camera_info`` — ``sensor_msgs/CameraInfo``
 * ``camera/ground_truth_pose`` — ``geometry_msgs/PoseStamped`` in ``world`` when the dataset
-  has ground truth (for evaluation only; nothing in the pipeline subscribes to it)
+  has ground truth (for evaluation only; nothing in the pipeline subscribes to it), and
+  ``camera/ground_truth_path`` — ``nav_msgs/Path`` of the newest ``path_window`` of them, once
+  a second and at the end, latched (for a viewer, beside ``device/path``)
 
 at the recorded rate × ``rate``, frames [``start``, ``end``), once or with ``loop``, forward or
 ``order:=forward_backward``, with ``blank:=START:COUNT`` bursts of covered-lens frames
@@ -28,10 +30,13 @@ from __future__ import annotations
 import sys
 
 from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import Path
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 
 from msg_schemas import qos, topics
+from msg_schemas.headers import stamp_seconds
+from msg_schemas.paths import PathWindow
 from twinslam.node_hosts.acks import wait_for_acks
 from twinslam.node_hosts.node_main import NodeStartError, run_node
 from twinslam.node_hosts.parameters import declare
@@ -47,6 +52,8 @@ from twinslam.sequences.frame import RgbdFrame, SequenceError
 from twinslam.sequences.opening import open_sequence
 
 PROGRESS_EVERY_S = 5.0
+#: camera/ground_truth_path goes out once this many frames (a second at 30 Hz) and at the end
+PATH_EVERY_FRAMES = 30
 DISCOVERY_SETTLE_S = 1.0
 POLL_S = 0.05
 
@@ -69,6 +76,8 @@ class SequencePlayer(Node):
         self.pub_depth = self.create_publisher(Image, topics.CAMERA_DEPTH, qos.CAMERA)
         self.pub_info = self.create_publisher(CameraInfo, topics.CAMERA_INFO, qos.CAMERA)
         self.pub_pose = self.create_publisher(PoseStamped, topics.GROUND_TRUTH_POSE, qos.CAMERA)
+        self.pub_path = self.create_publisher(Path, topics.GROUND_TRUTH_PATH, qos.MAP)
+        self.path = PathWindow(int(p["path_window"]))
         self.published = 0
         self.skipped = 0
         self.finished = False
@@ -144,8 +153,12 @@ class SequencePlayer(Node):
                                                  self.depth_encoding))
         self.pub_info.publish(camera_info_message(frame, stamp, self.frame_id))
         if frame.pose is not None:
-            self.pub_pose.publish(pose_message(frame.pose, stamp, self.world_frame_id))
+            pose = pose_message(frame.pose, stamp, self.world_frame_id)
+            self.pub_pose.publish(pose)
+            self.path.add(pose)
         self.published += 1
+        if self.published % PATH_EVERY_FRAMES == 0:
+            self._publish_path()
         now = self._now_ns()
         if now - self._last_progress >= PROGRESS_EVERY_S * 1e9:
             self._last_progress = now
@@ -155,12 +168,18 @@ class SequencePlayer(Node):
         self._next = self._read_next()
         self._schedule()
 
+    def _publish_path(self) -> None:
+        if self.path.poses:                   # stamped as its newest pose
+            newest = stamp_seconds(self.path.poses[-1].header)
+            self.pub_path.publish(self.path.message(newest, self.world_frame_id))
+
     def _finish(self) -> None:
         self.finished = True
+        self._publish_path()
         elapsed = (self._now_ns() - self._start_ns) * 1e-9
         # the last frames may still be in flight: let reliable readers acknowledge them before
         # the process (and its participant) goes away
-        for pub in (self.pub_color, self.pub_depth, self.pub_info, self.pub_pose):
+        for pub in (self.pub_color, self.pub_depth, self.pub_info, self.pub_pose, self.pub_path):
             wait_for_acks(pub, 2.0)
         skipped = f" ({', '.join(self.reader.skipped)})" if self.reader.skipped else ""
         self.get_logger().info(f"done: {self.published} frames published in {elapsed:.1f} s, "

@@ -28,6 +28,9 @@ PARAMETERS = (
     ParamSpec("mono", False, "mono8 colour instead of rgb8"),
     ParamSpec("frame_id", "camera", "frame id of the camera topics"),
     ParamSpec("world_frame_id", "world", "frame id of the ground-truth poses"),
+    ParamSpec("path_window", 900, "poses camera/ground_truth_path holds: the newest ones "
+              "(900: 30 s at 30 Hz, as device/path), published once a second", low=1,
+              high=10_000_000),
     ParamSpec("wait_for_subscribers", 0, "hold the first frame until this many colour "
               "subscribers match", low=0),
     ParamSpec("order", "forward", "forward, or forward_backward: every place visited twice "

@@ -1,9 +1,10 @@
-"""The device's recent trajectory as ``device/path``: a bounded window, not the whole run.
+"""A recent trajectory as ``nav_msgs/Path``: a bounded window, not the whole run.
 
-A viewer needs the device's recent motion; the whole run's path grows without bound (a
-60-minute run at 30 Hz is 108 000 poses, re-sent every slot) and ``device/pose`` already
-carries every pose. So the path holds the newest ``path_window`` poses (a parameter: 900, i.e.
-30 s at 30 Hz, by default), and is published once per slot. Pure logic, no DDS.
+A viewer needs the recent motion; a whole run's path grows without bound (a 60-minute run at
+30 Hz is 108 000 poses, re-sent each time) while the per-frame pose topics already carry every
+pose. So ``device/path`` and ``camera/ground_truth_path`` hold the newest ``path_window`` poses
+(a parameter of the device and the player: 900, i.e. 30 s at 30 Hz, by default), the same
+window on both so that they compare in a viewer. Pure conversion, no DDS.
 """
 
 from __future__ import annotations
