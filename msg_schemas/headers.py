@@ -20,14 +20,25 @@ def ros_time(stamp: float) -> Time:
     return Time(sec=sec, nanosec=min(round((stamp - sec) * 1e9), 999_999_999))
 
 
+def time_seconds(time: Time) -> float:
+    """A ``builtin_interfaces/Time`` in seconds."""
+    return int(time.sec) + int(time.nanosec) * 1e-9
+
+
+def time_key(time: Time) -> int:
+    """A ``builtin_interfaces/Time`` in integer nanoseconds: the key that pairs a colour and
+    a depth image of one frame, and a frame's summary with its pose."""
+    return int(time.sec) * 1_000_000_000 + int(time.nanosec)
+
+
 def stamp_seconds(header: Header) -> float:
     """A header's stamp in seconds."""
-    return int(header.stamp.sec) + int(header.stamp.nanosec) * 1e-9
+    return time_seconds(header.stamp)
 
 
 def stamp_key(header: Header) -> int:
-    """The stamp in integer nanoseconds: a colour and a depth image of one frame share it."""
-    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+    """A header's stamp in integer nanoseconds (:func:`time_key`)."""
+    return time_key(header.stamp)
 
 
 class Stamped(Protocol):

@@ -42,6 +42,10 @@ def test_evaluate_runs_every_seed_and_summarises(tmp_path: Path,
     assert "| revisit-lost | edge+local | lff | 1 |" in (out / "summary.md").read_text(
         encoding="utf-8")
     assert (out / "summary.png").stat().st_size > 10_000
+    # a picture of every run (twinslam.live.run_picture), named by the run
+    pictures = sorted(p.name for p in (out / "runs").glob("*.png"))
+    assert pictures == ["revisit-lost_edge+local_lff_s0.png", "revisit-lost_edge_lff_s0.png"]
+    assert all((out / "runs" / p).stat().st_size > 30_000 for p in pictures)
     assert "[2/2] revisit-lost" in text
 
     with (out / "calibration.csv").open(encoding="utf-8") as fh:

@@ -263,3 +263,19 @@ def test_a_viewer_sees_the_edges_map_points_keyframes_and_decisions() -> None:
             else 0
         kept = len(by_ns["kept"].points) if by_ns["kept"].action == Marker.ADD else 0
         assert added == s.uploads and added + kept == s.map_size
+
+
+def test_the_picture_of_a_run_shows_its_map_trajectories_and_slots(
+        runs: dict, tmp_path: Path) -> None:
+    """One PNG a run: written, the size it is drawn at, and not blank — the map's points,
+    the trajectories and four per-slot curves put thousands of non-white pixels on it."""
+    from matplotlib.image import imread
+
+    from twinslam.live.run_picture import plot_run
+
+    _, record, _ = runs["adapt"]
+    path = tmp_path / "adapt.png"
+    plot_run(record, "adapt on the sample", path)
+    image = imread(path)
+    assert image.shape[:2] == (650, 1300)
+    assert (image[:, :, :3] < 0.9).any(axis=2).sum() > 20_000

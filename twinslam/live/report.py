@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from msg_schemas.headers import stamp_seconds
+from msg_schemas.headers import time_seconds
 from twinslam.live.record import RunRecord
 from twinslam.slam.tracking_quality import (
     FrameFlags,
@@ -70,7 +70,7 @@ class RunReport:
 
 def record_events(record: RunRecord) -> TrackingEvents:
     """The device's tracking failures and relocalisations, from its frame summaries."""
-    return tracking_events(FrameFlags(stamp_seconds(f), bool(f.tracked), bool(f.relocalised))
+    return tracking_events(FrameFlags(time_seconds(f.stamp), bool(f.tracked), bool(f.relocalised))
                            for s in record.summaries.values() for f in s.frames)
 
 

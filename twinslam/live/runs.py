@@ -37,6 +37,7 @@ from twinslam.common.tracking_rule import MIN_SHARED_POINTS
 from twinslam.live.calibration import LiveFrames, live_frames, played_frames
 from twinslam.live.launcher import LaunchConfig, Launcher
 from twinslam.live.report import RunReport
+from twinslam.live.run_picture import plot_run
 from twinslam.live.scenarios import Scenario
 from twinslam.node_hosts.loopback import LoopbackDomain
 from twinslam.policy_registry import LEARNED_PREFIX
@@ -55,6 +56,15 @@ class RunKey:
     @property
     def edge_policy(self) -> str:
         return self.spec or self.policy
+
+    @property
+    def file_stem(self) -> str:
+        """The run as a file name: scenario, map source, policy (a checkpoint by its name),
+        seed."""
+        path = self.edge_policy.partition(":")[2]
+        policy = f"{self.policy}-{Path(path).stem}" if path and self.spec else self.policy
+        raw = f"{self.scenario}_{self.map_source}_{policy}_s{self.seed}"
+        return "".join(c if c.isalnum() or c in "+-_." else "-" for c in raw)
 
 
 def policy_variants(text: str) -> list[tuple[str, str]]:
@@ -88,6 +98,7 @@ class RunTask:
     covis: Path | None       #: the played frames' covisibility, for the calibration
     verbose: bool = False    #: print every slot's status line
     start: int = 0           #: the sequence's first frame played
+    picture: Path | None = None   #: where the run's PNG goes (run_picture); None: none
 
 
 @dataclass
@@ -125,6 +136,10 @@ def run_one(task: RunTask) -> RunResult:
         dom.activate()
         launcher = Launcher(dom, config, print if task.verbose else None)
         report = launcher.run()
+    if task.picture is not None and launcher.record is not None:
+        plot_run(launcher.record, f"{key.policy}, {key.map_source} device, {key.scenario}, "
+                 f"seed {key.seed}: {report.tracking_failures} failures, ATE "
+                 f"{report.ate_m:.3f} m", task.picture)
     if task.covis is None or launcher.record is None:
         return RunResult(key, report, None, None)
     dataset = load_covisibility(task.covis)

@@ -76,6 +76,25 @@ def _aligned_paths(poses: Mapping[int, np.ndarray], truth: Mapping[int, np.ndarr
     return ref, est
 
 
+def truth_in_map(poses: Mapping[int, np.ndarray], truth: Mapping[int, np.ndarray]
+                 ) -> dict[int, np.ndarray]:
+    """The ground truth moved into the device's map frame by the inverse of the SE(3)
+    alignment ATE uses (so a picture shows it beside the map); empty with fewer than 3 common
+    stamps."""
+    from evo.core import geometry
+
+    common = sorted(set(poses) & set(truth))
+    if len(common) < 3:
+        return {}
+    est = np.array([poses[s][:3, 3] for s in common]).T
+    ref = np.array([truth[s][:3, 3] for s in common]).T
+    rotation, translation, _ = geometry.umeyama_alignment(est, ref, False)
+    world_from_map = np.eye(4)
+    world_from_map[:3, :3], world_from_map[:3, 3] = rotation, translation
+    map_from_world = np.linalg.inv(world_from_map)
+    return {s: map_from_world @ pose for s, pose in truth.items()}
+
+
 def absolute_trajectory_error(poses: Mapping[int, np.ndarray],
                               truth: Mapping[int, np.ndarray]) -> float:
     """ATE (m) over the stamps both hold; NaN with fewer than 3 common stamps."""

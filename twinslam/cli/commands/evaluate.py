@@ -69,7 +69,7 @@ def _tasks(args: argparse.Namespace, policies: list[tuple[str, str]],
     return [runs.RunTask(k, runs.sequence_for(args.sequence, k.seed), args.frames,
                          by_name[k.scenario], args.params, args.timeout,
                          covis[runs.sequence_for(args.sequence, k.seed)], args.verbose,
-                         args.start)
+                         args.start, args.out / "runs" / f"{k.file_stem}.png")
             for k in keys]
 
 
@@ -87,7 +87,8 @@ def _print_tables(results: list[runs.RunResult], out: Path) -> None:
         print(f"{source}: predicted lost share vs device failure share over {n} runs: "
               f"Pearson r = {r:.2f}")
     print(f"\nwrote {out / 'runs.csv'}, summary.csv, summary.md, summary.png, "
-          "paired.csv, paired.md, calibration.csv, calibration_frames.csv")
+          "paired.csv, paired.md, calibration.csv, calibration_frames.csv and a picture of "
+          f"every run in {out / 'runs'}/")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -149,7 +150,8 @@ def add_arguments(parser: argparse.ArgumentParser, default_sequence: str,
     parser.add_argument("--params", type=Path, default=default_params,
                         help="ROS 2 parameter file for the nodes; default %(default)s")
     parser.add_argument("--out", type=Path, default=Path("results/live"),
-                        help="folder for runs.csv, summary.csv/.md/.png, calibration.csv, "
+                        help="folder for runs.csv, summary.csv/.md/.png, runs/*.png (a picture of "
+                        "every run), calibration.csv, "
                         "calibration_frames.csv (and covis/, the played frames' "
                         "covisibility); default %(default)s")
     parser.add_argument("--resume", action="store_true",

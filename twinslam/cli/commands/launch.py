@@ -10,6 +10,7 @@ from pathlib import Path
 from twinslam.cli.console import Subparsers, error
 from twinslam.live.launcher import DEFAULT_PARAMS, LaunchConfig, Launcher, tc_uplink_params
 from twinslam.live.report import RunReport, print_table
+from twinslam.live.run_picture import plot_run
 from twinslam.live.scenarios import SCENARIOS, Scenario, scenario
 from twinslam.node_hosts.loopback import EnvironmentDomain, LoopbackDomain, ProcessDomain
 from twinslam.node_hosts.netns import NetnsHosts, unavailable_reason
@@ -72,7 +73,14 @@ def _run_policy(args: argparse.Namespace, policy: str, chosen: Scenario,
                  "loopback domain" if args.loopback else "domain")
         print(f"{policy}: {args.frames} frames of {args.sequence} at {args.rate}x on "
               f"{where} {dom.domain_id}", flush=True)
-        return Launcher(dom, config, lambda line: print(line, flush=True)).run()
+        launcher = Launcher(dom, config, lambda line: print(line, flush=True))
+        report = launcher.run()
+    if launcher.record is not None:
+        picture = args.out / f"{report.label.replace(':', '-').replace('/', '-')}.png"
+        plot_run(launcher.record, f"{report.label}: {args.frames} frames of {args.sequence}, "
+                 f"scenario {args.scenario}", picture)
+        print(f"wrote {picture}", flush=True)
+    return report
 
 
 def run(args: argparse.Namespace) -> int:
@@ -123,6 +131,10 @@ def register(sub: Subparsers) -> None:
     launch.add_argument("--scenario", default="forward",
                         help="; ".join(f"{s.name}: {s.description}" for s in SCENARIOS.values()
                                        ).replace("%", "%%") + "; default %(default)s")
+    launch.add_argument("--out", type=Path, default=Path("results/launch"),
+                        help="folder for a picture of each policy's run (POLICY.png: the "
+                        "final map from above with the trajectories, per-slot map size, υ, "
+                        "lost share and uplink rate)")
     launch.add_argument("--map-source", default=None,
                         help="the device's map source: edge (tracked only against the edge's "
                         "map, the paper's device) or edge+local (plus its own recent points); "
