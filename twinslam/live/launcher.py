@@ -23,6 +23,7 @@ from twinslam.common import table1
 from twinslam.live.monitor import PipelineMonitor, status_line
 from twinslam.live.record import RunRecord
 from twinslam.live.report import RunReport, report
+from twinslam.live.run_recording import RecordingSummary, RunRecorder
 from twinslam.live.scenarios import SCENARIOS, Scenario
 from twinslam.node_hosts.fastdds import REPO_ROOT
 from twinslam.node_hosts.loopback import ProcessDomain
@@ -54,6 +55,8 @@ class LaunchConfig:
     timeout_s: float = 600.0
     scenario: Scenario = SCENARIOS["forward"]   #: order, covered-lens bursts, uplink range
     start: int = 0                   #: the sequence's first frame played
+    record: Path | None = None       #: a rosbag2 (MCAP) folder to record the run into
+    record_camera_every: int = 10    #: the recording keeps one camera sample in this many
 
 
 class Launcher:
@@ -70,6 +73,8 @@ class Launcher:
         self._killed: set[int] = set()         #: pids killed on purpose (``kill``)
         #: what the monitor heard, by slot: filled while ``run`` plays, kept afterwards
         self.record: RunRecord | None = None
+        #: what ``config.record`` holds after the run (None: not recorded)
+        self.recording: RecordingSummary | None = None
 
     def node_args(self, name: str) -> list[str]:
         c = self.config
@@ -79,8 +84,10 @@ class Launcher:
                   "sequence_player": [f"sequence:={c.sequence}", f"rate:={c.rate}",
                                       f"start:={c.start}",
                                       f"end:={c.start + c.frames if c.frames > 0 else -1}",
-                                      # the device, and the monitor when it views images
-                                      f"wait_for_subscribers:={1 + c.watch_images}"]
+                                      # the device, and the monitor when it views or
+                                      # records images
+                                      f"wait_for_subscribers:="
+                                      f"{1 + c.watch_images + (c.record is not None)}"]
                   }.get(name, [])
         params += c.scenario.node_params(c.frames, self._device_param(
             "frame_rate_hz", table1.FRAME_RATE_HZ)).get(name, []) + c.extra.get(name, [])
@@ -106,6 +113,7 @@ class Launcher:
     def _run(self, on_stats: Callable[[Any, RunRecord], None] | None) -> RunReport:
         c = self.config
         session = RosSession("twinslam_monitor")
+        recorder: RunRecorder | None = None
         try:
             def stats(msg: Any, record: RunRecord) -> None:
                 if self.echo:
@@ -114,6 +122,8 @@ class Launcher:
                     on_stats(msg, record)
 
             monitor = PipelineMonitor(session.node, stats, c.watch_images)
+            if c.record is not None:
+                recorder = RunRecorder(session.node, c.record, c.record_camera_every)
             self.record = monitor.record
             started = time.monotonic()
             # the edge first, and the rest once it listens: summaries published before the
@@ -165,6 +175,8 @@ class Launcher:
                           int(self._device_param("slot_frames", table1.SLOT_FRAMES)))
         finally:
             self.stop()
+            if recorder is not None:
+                self.recording = recorder.close()
             session.close()
 
     def _expected_slots(self) -> int | None:

@@ -11,6 +11,7 @@ from twinslam.cli.console import Subparsers, error
 from twinslam.live.launcher import DEFAULT_PARAMS, LaunchConfig, Launcher, tc_uplink_params
 from twinslam.live.report import RunReport, print_table
 from twinslam.live.run_picture import plot_run
+from twinslam.live.run_recording import check_destination
 from twinslam.live.scenarios import SCENARIOS, Scenario, scenario
 from twinslam.node_hosts.loopback import EnvironmentDomain, LoopbackDomain, ProcessDomain
 from twinslam.node_hosts.netns import NetnsHosts, unavailable_reason
@@ -56,8 +57,32 @@ def _checked_setup(args: argparse.Namespace) -> tuple[Scenario, dict[str, list[s
     return chosen, extra
 
 
+def _recordings(args: argparse.Namespace, policies: list[str]) -> dict[str, Path | None]:
+    """Where each policy's run is recorded: ``--record DIR`` itself for one policy, DIR/POLICY
+    for several; every destination checked before any run (ValueError)."""
+    if args.record is None:
+        return dict.fromkeys(policies)
+    if args.record_camera_every < 1:
+        raise ValueError(f"--record-camera-every must be >= 1, got {args.record_camera_every}")
+    if len(policies) == 1:
+        out: dict[str, Path | None] = {policies[0]: args.record}
+    else:
+        args.record.mkdir(parents=True, exist_ok=True)
+        out = {p: args.record / _file_name(p) for p in policies}
+    for folder in out.values():
+        assert folder is not None
+        check_destination(folder)
+    return out
+
+
+def _file_name(policy: str) -> str:
+    kind, sep, path = policy.partition(":")
+    label = f"{kind}-{Path(path).stem}" if sep else policy
+    return "".join(c if c.isalnum() or c in "+-_." else "-" for c in label)
+
+
 def _run_policy(args: argparse.Namespace, policy: str, chosen: Scenario,
-                extra: dict[str, list[str]]) -> RunReport:
+                extra: dict[str, list[str]], record: Path | None) -> RunReport:
     # a learned policy decides on the twin node's latents: start it with its checkpoint
     kind, _, checkpoint = policy.partition(":")
     learned = kind == LEARNED_PREFIX and bool(checkpoint)
@@ -65,7 +90,8 @@ def _run_policy(args: argparse.Namespace, policy: str, chosen: Scenario,
                              if learned else {})}
     config = LaunchConfig(args.sequence, policy, args.frames, args.rate, args.params,
                           with_twin=args.twin or learned, timeout_s=args.timeout,
-                          extra=run_extra, scenario=chosen, start=args.start)
+                          extra=run_extra, scenario=chosen, start=args.start,
+                          record=record, record_camera_every=args.record_camera_every)
     with _launch_domain(args) as dom:
         if isinstance(dom, LoopbackDomain) and args.loopback:
             dom.activate()
@@ -75,8 +101,12 @@ def _run_policy(args: argparse.Namespace, policy: str, chosen: Scenario,
               f"{where} {dom.domain_id}", flush=True)
         launcher = Launcher(dom, config, lambda line: print(line, flush=True))
         report = launcher.run()
+    if launcher.recording is not None:
+        r = launcher.recording
+        print(f"recorded {r.messages} messages, {r.bytes / 1e6:.1f} MB in {r.path} "
+              f"({r.mb_per_minute:.0f} MB a minute of run)", flush=True)
     if launcher.record is not None:
-        picture = args.out / f"{report.label.replace(':', '-').replace('/', '-')}.png"
+        picture = args.out / f"{_file_name(policy)}.png"
         plot_run(launcher.record, f"{report.label}: {args.frames} frames of {args.sequence}, "
                  f"scenario {args.scenario}", picture)
         print(f"wrote {picture}", flush=True)
@@ -84,14 +114,16 @@ def _run_policy(args: argparse.Namespace, policy: str, chosen: Scenario,
 
 
 def run(args: argparse.Namespace) -> int:
+    policies = [p.strip() for p in args.policy.split(",") if p.strip()]
     try:
         chosen, extra = _checked_setup(args)
+        records = _recordings(args, policies)
     except (ValueError, SequenceError) as exc:
         return error(exc)
     reports = []
-    for policy in [p.strip() for p in args.policy.split(",") if p.strip()]:
+    for policy in policies:
         try:
-            reports.append(_run_policy(args, policy, chosen, extra))
+            reports.append(_run_policy(args, policy, chosen, extra, records[policy]))
         except KeyboardInterrupt:
             print("interrupted: nodes stopped", file=sys.stderr)
             return 130
@@ -135,6 +167,14 @@ def register(sub: Subparsers) -> None:
                         help="folder for a picture of each policy's run (POLICY.png: the "
                         "final map from above with the trajectories, per-slot map size, υ, "
                         "lost share and uplink rate)")
+    launch.add_argument("--record", type=Path, default=None, metavar="DIR",
+                        help="record each run as a rosbag2 (MCAP) that RViz, Foxglove and "
+                        "rosbags open: every topic, the camera decimated (DIR itself for one "
+                        "policy, DIR/POLICY for several; refused before the run when DIR "
+                        "exists, is not writable or the disk is nearly full)")
+    launch.add_argument("--record-camera-every", type=int, default=10, metavar="N",
+                        help="with --record: keep one camera sample (image, depth, "
+                        "camera_info) in N")
     launch.add_argument("--map-source", default=None,
                         help="the device's map source: edge (tracked only against the edge's "
                         "map, the paper's device) or edge+local (plus its own recent points); "
