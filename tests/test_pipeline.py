@@ -52,9 +52,57 @@ def _run(policy: str, frames: int = FRAMES, checkpoint: Path | None = None,
     return report, launcher.record, launcher
 
 
+class _Viewer:
+    """An outside subscriber to the edge's viewer topics (a viewer's, latched QoS), joining
+    after the first slot and spun at every MapStats of the run it watches."""
+
+    def __init__(self) -> None:
+        self.seen: dict[str, dict[int, Any]] = {"cloud": {}, "poses": {}, "marks": {}}
+        self.session: Any = None
+
+    def __call__(self, _msg: Any, _record: RunRecord, _launcher: Launcher) -> None:
+        from geometry_msgs.msg import PoseArray
+        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+        from sensor_msgs.msg import PointCloud2
+        from visualization_msgs.msg import MarkerArray
+
+        from msg_schemas import topics
+        from msg_schemas.headers import stamp_key
+        from twinslam.node_hosts.session import RosSession
+
+        if self.session is None:
+            self.session = RosSession("viewer")
+            latched = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE,
+                                 durability=DurabilityPolicy.TRANSIENT_LOCAL)
+            for key, kind, topic, header in (
+                    ("cloud", PointCloud2, topics.MAP_POINTS, lambda m: m.header),
+                    ("poses", PoseArray, topics.KEYFRAME_POSES, lambda m: m.header),
+                    ("marks", MarkerArray, topics.DECISIONS, lambda m: m.markers[0].header)):
+                self.session.node.create_subscription(
+                    kind, topic, lambda m, k=key, h=header: self.seen[k].__setitem__(
+                        stamp_key(h(m)), m), latched)
+        self.session.spin_until(lambda: False, 0.05)
+
+    def close(self) -> None:
+        if self.session is not None:
+            self.session.spin_until(lambda: False, 1.0)      # the last slot's messages
+            self.session.close()
+
+
 @pytest.fixture(scope="module")
-def runs() -> dict[str, tuple[RunReport, RunRecord, Launcher]]:
-    return {p: _run(p) for p in ("lff", "pu", "adapt")}
+def viewed_lff() -> tuple[tuple[RunReport, RunRecord, Launcher], dict[str, dict[int, Any]]]:
+    """The LFF run, watched by an outside viewer of the edge's viewer topics."""
+    viewer = _Viewer()
+    try:
+        run = _run("lff", on_stats=viewer)
+    finally:
+        viewer.close()
+    return run, viewer.seen
+
+
+@pytest.fixture(scope="module")
+def runs(viewed_lff: tuple) -> dict[str, tuple[RunReport, RunRecord, Launcher]]:
+    return {"lff": viewed_lff[0], **{p: _run(p) for p in ("pu", "adapt")}}
 
 
 def test_protocol_holds_every_slot(runs: dict) -> None:
@@ -205,44 +253,18 @@ def test_a_device_that_lost_tracking_relocalises_against_the_edges_map() -> None
     assert error < 0.05
 
 
-def test_a_viewer_sees_the_edges_map_points_keyframes_and_decisions() -> None:
+def test_a_viewer_sees_the_edges_map_points_keyframes_and_decisions(viewed_lff: tuple) -> None:
     """What RViz or Foxglove would subscribe to: every slot the edge's map as a PointCloud2
     with one point per map point, the kept keyframes as a PoseArray (at most V_max), and the
     slot's decisions as markers — integrated keyframes as many as MapStats counts uploads,
-    kept ones the rest of the map — read by a subscriber outside the pipeline, latched for a
-    viewer that joins late."""
-    from geometry_msgs.msg import PoseArray
-    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-    from sensor_msgs.msg import PointCloud2, PointField
-    from visualization_msgs.msg import Marker, MarkerArray
+    kept ones the rest of the map — read by a subscriber outside the pipeline that joined
+    after the first slot (the topics are latched)."""
+    from sensor_msgs.msg import PointField
+    from visualization_msgs.msg import Marker
 
-    from msg_schemas import topics
     from msg_schemas.headers import stamp_key
-    from twinslam.node_hosts.session import RosSession
 
-    seen: dict[str, dict[int, Any]] = {"cloud": {}, "poses": {}, "marks": {}}
-    viewer: list[RosSession] = []
-    latched = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
-
-    def watch(_msg: Any, _record: RunRecord, _launcher: Launcher) -> None:
-        if not viewer:              # joins after the first slot: the latched one comes too
-            viewer.append(RosSession("viewer"))
-            for key, kind, topic, header in (
-                    ("cloud", PointCloud2, topics.MAP_POINTS, lambda m: m.header),
-                    ("poses", PoseArray, topics.KEYFRAME_POSES, lambda m: m.header),
-                    ("marks", MarkerArray, topics.DECISIONS, lambda m: m.markers[0].header)):
-                viewer[0].node.create_subscription(
-                    kind, topic, lambda m, k=key, h=header: seen[k].__setitem__(
-                        stamp_key(h(m)), m), latched)
-        viewer[0].spin_until(lambda: False, 0.05)
-
-    try:
-        _, record, _ = _run("lff", frames=360, on_stats=watch)
-        viewer[0].spin_until(lambda: False, 1.0)
-    finally:
-        for session in viewer:
-            session.close()
+    (_, record, _), seen = viewed_lff
     stats = {stamp_key(s.header): s for s in record.stats.values()}
     slots = [k for k in stats if all(k in by for by in seen.values())]
     assert len(slots) >= 3, f"the viewer saw {len(slots)} of {len(stats)} slots"
