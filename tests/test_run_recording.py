@@ -31,7 +31,8 @@ def test_launch_records_every_topic_and_the_camera_decimated_and_draws_the_run(
         counts = {c.topic: c.msgcount for c in reader.connections}
         stats = [raw for c, _, raw in reader.messages()
                  if c.topic == "/edge/map_stats"]
-    for topic in ("/device/frame_summaries", "/edge/upload_request", "/edge/map_stats",
+    for topic in ("/device/frame_summaries", "/device/keyframes", "/edge/upload_request",
+                  "/edge/map_stats",
                   "/edge/map_update", "/edge/map_points", "/edge/keyframes", "/edge/decisions",
                   "/device/pose", "/device/path", "/camera/ground_truth_path"):
         assert counts[topic] > 0, topic

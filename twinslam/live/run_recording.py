@@ -25,6 +25,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from twinslam_msgs.msg import (
     FrameSummaries,
+    Keyframe,
     MapStats,
     MapUpdate,
     RateLatent,
@@ -39,10 +40,10 @@ from msg_schemas.interfaces import type_name_of
 
 #: a recording refuses to start with less free space than this where it writes
 MIN_FREE_BYTES = 200 * 1024 * 1024
-#: every topic of a run but the camera's and the keyframes (their images are large; a
-#: keyframe's content is in the edge's map): (topic, message class, QoS)
+#: every topic of a run but the camera's: (topic, message class, QoS)
 RUN_TOPICS: tuple[tuple[str, type[Any], Any], ...] = (
     (topics.FRAME_SUMMARIES, FrameSummaries, qos.PROTOCOL),
+    (topics.KEYFRAMES, Keyframe, qos.PROTOCOL),
     (topics.UPLOAD_REQUEST, UploadRequest, qos.PROTOCOL),
     (topics.UPLINK_THROUGHPUT, UplinkThroughput, qos.PROTOCOL),
     (topics.MAP_STATS, MapStats, qos.PROTOCOL),
