@@ -188,7 +188,8 @@ class EdgeMapperNode(Node):
     def _finish(self, slot: int) -> None:
         started = time.perf_counter()
         entry = self.slots.close(slot, self.control.policy_name)
-        before = {k: kf.pose for k, kf in self.core.map.keyframes.items()}   # evicted: where
+        before = ({k: kf.pose for k, kf in self.core.map.keyframes.items()}  # evicted: where
+                  if self.pub_views is not None else {})
         out: SlotOutcome = self.core.finish_slot(slot)
         now = self._now()
         self.pub_map.publish(map_update_message(self.core.map, slot, out.version, now,

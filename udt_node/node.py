@@ -42,7 +42,7 @@ from twinslam.node_hosts.checked_subscription import CheckedSubscription
 from twinslam.node_hosts.node_main import NodeStartError, run_node
 from twinslam.node_hosts.parameters import declare
 from twinslam.twin.regime_twin import RegimeConfig, RegimeTwin
-from twinslam.twin.registry import TWIN_MODELS, canonical
+from twinslam.twin.registry import canonical
 from twinslam.twin.variational_twin import VariationalConfig, VariationalTwin
 from twinslam.uplink.quantiser import RateQuantiser
 from udt_node.messages import rate_latent_message
@@ -107,7 +107,7 @@ class TwinNode(Node):
         from twinslam.mbrl.policy import MbrlPolicy
 
         model = MbrlPolicy(Path(checkpoint)).rate_model
-        if model.name not in TWIN_MODELS or not isinstance(model, RunnableTwin):
+        if not isinstance(model, RunnableTwin):        # the registry's TWIN_MODELS
             raise ValueError(f"{checkpoint}: a {model.name}-driven policy has no twin to start "
                              "from")
         model.reset()                           # a filter starts the run from its prior

@@ -15,6 +15,9 @@ from twinslam.simulator.covisibility import (
 )
 from twinslam.simulator.geometric_covisibility import geometric_covisibility
 
+#: the uplink rate model when none is named: the paper's two-state Markov chain
+DEFAULT_CHANNEL = "markov:N=2"
+
 
 def covisibility(spec: str) -> CovisibilityDataset:
     """``FILE[@START:END]`` (a stretch of a covisibility file's frames) or
@@ -58,7 +61,7 @@ def add_setting_arguments(parser: argparse.ArgumentParser) -> None:
                         "stretch of its frames, e.g. to hold the rest out), or "
                         "'geometric[:frames[:seed]]' for the geometric room model (600 frames, "
                         "seed 0 unless given; each seed walks its own trajectory)")
-    parser.add_argument("--channel", default="markov:N=2",
+    parser.add_argument("--channel", default=DEFAULT_CHANNEL,
                         help="uplink rate model (default %(default)s). "
                         "markov:N=2[,ratio=R][,K=100][,nonstationary][,balanced]: N rates evenly "
                         "over --rate-range; ratio=R: share of high-rate slots (N=2); K: slots "

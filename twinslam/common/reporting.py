@@ -12,6 +12,12 @@ import numpy as np
 from scipy import stats
 
 
+def file_name(text: str, allowed: str = "+-_.", filler: str = "-") -> str:
+    """``text`` as a file name: letters, digits and ``allowed`` kept, anything else (a path's
+    slash, a policy's colon) replaced by ``filler``."""
+    return "".join(c if c.isalnum() or c in allowed else filler for c in text)
+
+
 def write_csv(path: Path, header: list[str], rows: list[list[object]]) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("w", newline="", encoding="utf-8") as fh:

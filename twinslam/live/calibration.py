@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from twinslam.common.reporting import file_name
 from twinslam.common.tracking_rule import MAP_UPDATE_LAG_FRAMES
 from twinslam.live.record import RunRecord
 from twinslam.live.scenarios import Scenario
@@ -88,8 +89,7 @@ def covisibility_file(sequence: str, frames: int, cache: Path,
     """The file holding the covisibility of ``sequence``'s ``frames`` frames from ``start``,
     as the front end the simulator's datasets come from extracts it; extracted into ``cache``
     the first time, read from there afterwards."""
-    slug = "".join(c if c.isalnum() or c in "-_." else "_" for c in
-                   f"{Path(sequence).name or sequence}-{start}-{frames}")
+    slug = file_name(f"{Path(sequence).name or sequence}-{start}-{frames}", "-_.", "_")
     path = cache / f"{slug}.covis.npz"
     if path.is_file():
         return path

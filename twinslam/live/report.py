@@ -59,13 +59,19 @@ class RunReport:
 
     @property
     def label(self) -> str:
-        """The policy as the table shows it: a learned one by its checkpoint's file name."""
-        kind, sep, path = self.policy.partition(":")
-        return f"{kind}:{Path(path).stem}" if sep else self.policy
+        """The policy as the table shows it (:func:`policy_label`)."""
+        return policy_label(self.policy)
 
     def row(self) -> str:
         return self.ROW.format(mbytes=self.bytes_uploaded / 1e6, label=self.label,
                                **self.__dict__)
+
+
+def policy_label(policy: str) -> str:
+    """A policy as tables and file names show it: a learned one (``mbrl:CHECKPOINT``) by its
+    checkpoint's file name, ``mbrl:amm_s0``."""
+    kind, sep, path = policy.partition(":")
+    return f"{kind}:{Path(path).stem}" if sep else policy
 
 
 def record_events(record: RunRecord) -> TrackingEvents:

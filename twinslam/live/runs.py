@@ -33,10 +33,11 @@ from typing import TYPE_CHECKING, TypeVar
 if TYPE_CHECKING:
     from _typeshed import DataclassInstance
 
+from twinslam.common.reporting import file_name
 from twinslam.common.tracking_rule import MIN_SHARED_POINTS
 from twinslam.live.calibration import LiveFrames, live_frames, played_frames
 from twinslam.live.launcher import LaunchConfig, Launcher
-from twinslam.live.report import RunReport
+from twinslam.live.report import RunReport, policy_label
 from twinslam.live.run_picture import plot_run
 from twinslam.live.scenarios import Scenario
 from twinslam.node_hosts.loopback import LoopbackDomain
@@ -63,8 +64,7 @@ class RunKey:
         seed."""
         path = self.edge_policy.partition(":")[2]
         policy = f"{self.policy}-{Path(path).stem}" if path and self.spec else self.policy
-        raw = f"{self.scenario}_{self.map_source}_{policy}_s{self.seed}"
-        return "".join(c if c.isalnum() or c in "+-_." else "-" for c in raw)
+        return file_name(f"{self.scenario}_{self.map_source}_{policy}_s{self.seed}")
 
 
 def policy_variants(text: str) -> list[tuple[str, str]]:
@@ -75,10 +75,7 @@ def policy_variants(text: str) -> list[tuple[str, str]]:
     for item in filter(None, (part.strip() for part in text.split(","))):
         label, sep, spec = item.partition("=")
         if not sep:
-            label, spec = item, item
-            kind, colon, path = item.partition(":")
-            if colon:
-                label = f"{kind}:{Path(path).stem}"
+            label, spec = policy_label(item), item
         if not label.strip() or not spec.strip():
             raise ValueError(f"--policy {item!r}: use POLICY or LABEL=POLICY")
         out.append((label.strip(), spec.strip()))

@@ -15,35 +15,24 @@ from typing import Any
 
 import numpy as np
 
-from twinslam.twin.rate_model import current_state
+from twinslam.twin.rate_model import PredictiveFilter, current_state
 
 
-class MarkovCounts:
+class MarkovCounts(PredictiveFilter):
     """A filter (``online``): counts over the current run, reset per run. Features: the
     estimated row of the current state; artificial next states drawn from it."""
 
-    online = True
-
     def __init__(self, n_states: int, window: int | None = None, pseudo_count: float = 0.0,
                  name: str | None = None) -> None:
-        if n_states < 1:
-            raise ValueError(f"n_states must be >= 1, got {n_states}")
+        super().__init__(n_states)
         if window is not None and window < 1:
             raise ValueError("window must be >= 1 transition")
         if pseudo_count < 0:
             raise ValueError(f"pseudo_count must be >= 0, got {pseudo_count}")
-        self._n, self.window, self.pseudo_count = n_states, window, pseudo_count
+        self.window, self.pseudo_count = window, pseudo_count
         self.name = name or ("markov" if window is None else "markov-window")
         self.counts = np.zeros((n_states, n_states))
         self._recent: list[int] = []        #: the window's states (the last one only if whole)
-
-    @property
-    def n_states(self) -> int:
-        return self._n
-
-    @property
-    def feature_size(self) -> int:
-        return self._n
 
     def reset(self) -> None:
         """A new run: the counts start afresh."""
@@ -64,10 +53,6 @@ class MarkovCounts:
             del self._recent[0]
         return False
 
-    def retrain(self) -> list[float]:
-        """Nothing to fit: the counts are always up to date."""
-        return []
-
     def transition_matrix(self) -> np.ndarray:
         """P̂ (rows: current state); a row never left yet (and α = 0) is uniform."""
         smoothed = self.counts + self.pseudo_count
@@ -77,15 +62,8 @@ class MarkovCounts:
     def predict(self, history: Sequence[int]) -> np.ndarray:
         return np.asarray(self.transition_matrix()[current_state(history)])
 
-    def features(self, history: Sequence[int]) -> np.ndarray:
-        return self.predict(history).astype(np.float32)
-
-    def sample_next(self, history: Sequence[int], count: int, rng: np.random.Generator
-                    ) -> np.ndarray:
-        return rng.choice(self._n, size=count, p=self.predict(history))
-
     def state_dict(self) -> dict[str, Any]:
-        return {"n_states": self._n, "counts": self.counts.tolist(), "window": self.window,
+        return {**super().state_dict(), "counts": self.counts.tolist(), "window": self.window,
                 "pseudo_count": self.pseudo_count}
 
     @classmethod

@@ -120,3 +120,47 @@ class MatrixEstimator(RateModel, Protocol):
     def transition_matrix(self) -> np.ndarray:
         """P̂, rows the current state."""
         ...
+
+
+class PredictiveFilter:
+    """What the counts and the naive baselines share: a filter (``online``) whose features are
+    its own p(d_{k+1}) and whose artificial next states are drawn from it. A subclass says how
+    it predicts (and, when it learns from the states, how it observes and resets)."""
+
+    online = True
+
+    def __init__(self, n_states: int) -> None:
+        if n_states < 1:
+            raise ValueError(f"n_states must be >= 1, got {n_states}")
+        self._n = n_states
+
+    @property
+    def n_states(self) -> int:
+        return self._n
+
+    @property
+    def feature_size(self) -> int:
+        return self._n
+
+    def reset(self) -> None:
+        """Nothing to forget: the prediction reads only the history it is given."""
+
+    def observe(self, state: int) -> bool:
+        return False
+
+    def retrain(self) -> list[float]:
+        """Nothing to fit."""
+        return []
+
+    def predict(self, history: Sequence[int]) -> np.ndarray:
+        raise NotImplementedError
+
+    def features(self, history: Sequence[int]) -> np.ndarray:
+        return self.predict(history).astype(np.float32)
+
+    def sample_next(self, history: Sequence[int], count: int, rng: np.random.Generator
+                    ) -> np.ndarray:
+        return rng.choice(self._n, size=count, p=self.predict(history))
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"n_states": self._n}

@@ -8,8 +8,9 @@ import sys
 from pathlib import Path
 
 from twinslam.cli.console import Subparsers, error
+from twinslam.common.reporting import file_name
 from twinslam.live.launcher import DEFAULT_PARAMS, LaunchConfig, Launcher, tc_uplink_params
-from twinslam.live.report import RunReport, print_table
+from twinslam.live.report import RunReport, policy_label, print_table
 from twinslam.live.run_picture import plot_run
 from twinslam.live.run_recording import check_destination
 from twinslam.live.scenarios import SCENARIOS, Scenario, scenario
@@ -68,17 +69,11 @@ def _recordings(args: argparse.Namespace, policies: list[str]) -> dict[str, Path
         out: dict[str, Path | None] = {policies[0]: args.record}
     else:
         args.record.mkdir(parents=True, exist_ok=True)
-        out = {p: args.record / _file_name(p) for p in policies}
+        out = {p: args.record / file_name(policy_label(p)) for p in policies}
     for folder in out.values():
         assert folder is not None
         check_destination(folder)
     return out
-
-
-def _file_name(policy: str) -> str:
-    kind, sep, path = policy.partition(":")
-    label = f"{kind}-{Path(path).stem}" if sep else policy
-    return "".join(c if c.isalnum() or c in "+-_." else "-" for c in label)
 
 
 def _run_policy(args: argparse.Namespace, policy: str, chosen: Scenario,
@@ -106,7 +101,7 @@ def _run_policy(args: argparse.Namespace, policy: str, chosen: Scenario,
         print(f"recorded {r.messages} messages, {r.bytes / 1e6:.1f} MB in {r.path} "
               f"({r.mb_per_minute:.0f} MB a minute of run)", flush=True)
     if launcher.record is not None:
-        picture = args.out / f"{_file_name(policy)}.png"
+        picture = args.out / f"{file_name(policy_label(policy))}.png"
         plot_run(launcher.record, f"{report.label}: {args.frames} frames of {args.sequence}, "
                  f"scenario {args.scenario}", picture)
         print(f"wrote {picture}", flush=True)

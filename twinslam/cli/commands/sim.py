@@ -7,7 +7,7 @@ import csv
 import time
 from dataclasses import dataclass
 
-from twinslam.cli.arguments import add_setting_arguments, covisibility
+from twinslam.cli.arguments import DEFAULT_CHANNEL, add_setting_arguments, covisibility
 from twinslam.cli.console import Subparsers, error
 from twinslam.common import table1
 from twinslam.policy_registry import make_policy
@@ -15,8 +15,6 @@ from twinslam.simulator.covisibility import CovisibilityError
 from twinslam.simulator.env import SimConfig
 from twinslam.simulator.evaluation import PolicyResult, evaluate
 from twinslam.uplink.channels import ChannelError
-
-DEFAULT_CHANNEL = "markov:N=2"
 
 
 @dataclass(frozen=True)
@@ -103,20 +101,20 @@ def register(sub: Subparsers) -> None:
                          "(covisibility from real frames, a rate model): mean υ with a lost "
                          "frame scoring 0, its 95 %% CI, the lost share and υ over tracked "
                          "frames.")
-    sim.add_argument("--policy", default="lff,pu,adapt,reference",
+    sim.add_argument("--policy", default=",".join(Comparison.policies),
                      help="comma-separated: lff (latest frames first), pu (periodical "
                      "uploading), adapt (AdaptSLAM's greedy log-det), random, mbrl:CHECKPOINT "
                      "(a policy from `twinslam train`), reference (a clairvoyant search "
                      "started from every other listed policy: beam search, then swap local "
                      "search; not a bound)")
     add_setting_arguments(sim)
-    sim.add_argument("--slot-frames", type=int, default=table1.SLOT_FRAMES,
+    sim.add_argument("--slot-frames", type=int, default=Comparison.slot_frames,
                      help="F, frames per slot (a slot lasts F / 30 Hz)")
-    sim.add_argument("--slots", type=int, default=200, help="slots per run")
-    sim.add_argument("--seeds", type=int, default=5,
+    sim.add_argument("--slots", type=int, default=Comparison.slots, help="slots per run")
+    sim.add_argument("--seeds", type=int, default=Comparison.seeds,
                      help="runs per policy, seeds --seed0 … --seed0 + N - 1 (each seed: its "
                      "own start frame and rate sequence)")
-    sim.add_argument("--seed0", type=int, default=0, help="the first run's seed")
+    sim.add_argument("--seed0", type=int, default=Comparison.seed0, help="the first run's seed")
     sim.add_argument("--walk-start", type=int, default=None, metavar="FRAME",
                      help="every run starts at this frame of the covisibility and reads it "
                      "forward then back (0: the live player's forward_backward walk); default: "
