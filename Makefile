@@ -6,11 +6,15 @@ PY := $(VENV)/bin/python
 # the editable install maps each top-level package: a package added or renamed reinstalls it
 STAMP := $(VENV)/.installed-$(shell (cat requirements.txt setup.py; ls -d */__init__.py) \
 	| md5sum | cut -c1-12)
-# the interface package is rebuilt whenever a .msg file or its CMake/package files change
+# an interface package is rebuilt whenever one of its .msg files or its CMake/package files
+# change: twinslam_msgs (the protocol) and tf2_msgs (msg_schemas/standard: no wheel carries it)
 MSG_SOURCES := $(sort $(wildcard msg_schemas/msg/*.msg)) msg_schemas/CMakeLists.txt \
-	msg_schemas/package.xml
+	msg_schemas/package.xml msg_schemas/cmake/drop_missing_include_dirs.cmake
 MSGS_STAMP := $(VENV)/.twinslam_msgs-$(shell cat $(MSG_SOURCES) | md5sum | cut -c1-12)
-MSGS_BUILD := build/twinslam_msgs
+TF2_DIR := msg_schemas/standard/tf2_msgs
+TF2_SOURCES := $(sort $(wildcard $(TF2_DIR)/msg/*.msg)) $(TF2_DIR)/CMakeLists.txt \
+	$(TF2_DIR)/package.xml msg_schemas/cmake/drop_missing_include_dirs.cmake
+TF2_STAMP := $(VENV)/.tf2_msgs-$(shell cat $(TF2_SOURCES) | md5sum | cut -c1-12)
 # the modules with numba kernels (compiled once at set-up, recompiled when one changes)
 KERNEL_SOURCES := $(sort $(shell grep -l -r --include=*.py "@njit" device_tracker edge_mapper \
 	udt_node twinslam))
@@ -18,7 +22,7 @@ KERNELS_STAMP := $(VENV)/.kernels-$(shell cat $(KERNEL_SOURCES) | md5sum | cut -
 
 .PHONY: venv msgs kernels run test lint bench clean
 
-venv: $(STAMP) $(MSGS_STAMP) $(KERNELS_STAMP)
+venv: $(STAMP) $(MSGS_STAMP) $(TF2_STAMP) $(KERNELS_STAMP)
 
 $(STAMP): requirements.txt setup.py
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -29,25 +33,32 @@ $(STAMP): requirements.txt setup.py
 # rosidl through CMake into the venv prefix, which the ROS wheels made an ament prefix: the
 # generated Python package lands in site-packages, its libraries in .venv/lib (on the loader
 # path the wheels' bootstrapper sets). Fresh build directory each time: a removed .msg must not
-# leave its generated code behind.
-msgs: $(MSGS_STAMP)
-
-$(MSGS_STAMP): $(STAMP) $(MSG_SOURCES)
-	@echo "building the twinslam_msgs interface package (rosidl, ~40 s)"
-	@rm -rf $(MSGS_BUILD) && mkdir -p $(MSGS_BUILD)
-	cd $(MSGS_BUILD) && PATH=$(VENV)/bin:$$PATH AMENT_PREFIX_PATH=$(VENV) \
-	  CMAKE_PREFIX_PATH=$(VENV) cmake $(CURDIR)/msg_schemas -DCMAKE_INSTALL_PREFIX=$(VENV) \
+# leave its generated code behind. $(call rosidl_build,PACKAGE,SOURCE_DIR,A MESSAGE TO IMPORT)
+define rosidl_build
+	@echo "building the $(1) interface package (rosidl, ~40 s)"
+	@rm -rf build/$(1) && mkdir -p build/$(1)
+	cd build/$(1) && PATH=$(VENV)/bin:$$PATH AMENT_PREFIX_PATH=$(VENV) \
+	  CMAKE_PREFIX_PATH=$(VENV) cmake $(CURDIR)/$(2) -DCMAKE_INSTALL_PREFIX=$(VENV) \
 	  -DPython3_EXECUTABLE=$(PY) -DBUILD_TESTING=OFF > configure.log 2>&1 \
 	  || { tail -40 configure.log; exit 1; }
-	cd $(MSGS_BUILD) && PATH=$(VENV)/bin:$$PATH $(MAKE) --no-print-directory -j2 install \
+	cd build/$(1) && PATH=$(VENV)/bin:$$PATH $(MAKE) --no-print-directory -j2 install \
 	  > build.log 2>&1 || { grep -iE -B2 -A8 "error" build.log | tail -60; exit 1; }
-	$(PY) -c "from twinslam_msgs.msg import MapStats, Keyframe"
-	@rm -f $(VENV)/.twinslam_msgs-* && touch $@
+	$(PY) -c "from $(1).msg import $(3)"
+	@rm -f $(VENV)/.$(1)-* && touch $@
+endef
+
+msgs: $(MSGS_STAMP) $(TF2_STAMP)
+
+$(MSGS_STAMP): $(STAMP) $(MSG_SOURCES)
+	$(call rosidl_build,twinslam_msgs,msg_schemas,MapStats)
+
+$(TF2_STAMP): $(STAMP) $(TF2_SOURCES)
+	$(call rosidl_build,tf2_msgs,$(TF2_DIR),TFMessage)
 
 # numba compiles on first use: done here, not in the first node start (twinslam/cli/precompile.py)
 kernels: $(KERNELS_STAMP)
 
-$(KERNELS_STAMP): $(STAMP) $(MSGS_STAMP) $(KERNEL_SOURCES)
+$(KERNELS_STAMP): $(STAMP) $(MSGS_STAMP) $(TF2_STAMP) $(KERNEL_SOURCES)
 	$(PY) -m twinslam.cli.precompile
 	@rm -f $(VENV)/.kernels-* && touch $@
 

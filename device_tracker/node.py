@@ -5,7 +5,8 @@
   the edge's last map alone (``map_source:=edge``, the paper's device) or with the device's own
   recent points too (``edge+local``) (:class:`~device_tracker.device_core.DeviceTrackerCore`);
   ``device/pose`` per frame, ``device/path`` per slot (the newest ``path_window`` poses,
-  :mod:`msg_schemas.paths`);
+  :mod:`msg_schemas.paths`), and ``map`` → camera on ``/tf`` per tracked frame (the camera's
+  frame id from the images unless ``camera_frame`` names one; ``publish_tf:=false`` stops it);
 * at each slot's end, ``device/frame_summaries`` with d_k drawn from the channel model
   (``channel:=markov:N=2`` or ``trace:FILE``, as the simulator's);
 * ``edge/upload_request`` → exactly the frames asked for go out as ``Keyframe`` s on
@@ -30,6 +31,7 @@ from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
+from tf2_msgs.msg import TFMessage
 from twinslam_msgs.msg import FrameSummaries, Keyframe, MapUpdate, UplinkThroughput, UploadRequest
 
 from device_tracker.camera_input import CameraFrame, CameraIntake
@@ -48,6 +50,7 @@ from msg_schemas import qos, topics
 from msg_schemas.headers import set_header
 from msg_schemas.paths import PathWindow
 from msg_schemas.poses import pose_msg
+from msg_schemas.transforms import tf_message, transform_stamped
 from twinslam.node_hosts.acks import wait_for_acks
 from twinslam.node_hosts.checked_subscription import CheckedSubscription
 from twinslam.node_hosts.node_main import NodeStartError, run_node
@@ -66,11 +69,11 @@ class DeviceTrackerNode(Node):
     def __init__(self) -> None:
         super().__init__("device_tracker")
         p = declare(self, PARAMETERS)
-        self.settings = s = DeviceSettings.from_parameters(p)
         self.core: DeviceTrackerCore | None = None
         # the publisher the tc shaper flushes exists before the shaper
         self.pub_keyframes = self.create_publisher(Keyframe, topics.KEYFRAMES, qos.PROTOCOL)
         try:
+            self.settings = s = DeviceSettings.from_parameters(p)
             self.channel, self.shaper = uplink_from_parameters(
                 p, flush=lambda: wait_for_acks(self.pub_keyframes, WRITE_RETRY_S))
             self.path = PathWindow(s.path_window)
@@ -82,6 +85,8 @@ class DeviceTrackerNode(Node):
         self._lock = threading.Lock()            # the core, between the node's callbacks
         self.pub_pose = self.create_publisher(PoseStamped, topics.DEVICE_POSE, qos.PROTOCOL)
         self.pub_path = self.create_publisher(Path, topics.DEVICE_PATH, qos.MAP)
+        self.pub_tf = (self.create_publisher(TFMessage, topics.TF, qos.TF) if s.publish_tf
+                       else None)
         self.pub_summaries = self.create_publisher(FrameSummaries, topics.FRAME_SUMMARIES,
                                                    qos.PROTOCOL)
         self.pub_throughput = self.create_publisher(UplinkThroughput, topics.UPLINK_THROUGHPUT,
@@ -140,11 +145,27 @@ class DeviceTrackerNode(Node):
                                       "against the local map")
         elif result.recovered:
             self.get_logger().info(f"frame {record.frame_id}: relocalised")
-        pose = set_header(PoseStamped(pose=pose_msg(record.pose)), stamp, self.settings.map_frame)
+        s = self.settings
+        pose = set_header(PoseStamped(pose=pose_msg(record.pose)), stamp, s.map_frame)
         self.pub_pose.publish(pose)
+        if self.pub_tf is not None and record.tracked:   # an untracked pose is only a guess
+            self._broadcast(record.pose, stamp, frame.color_msg.header.frame_id)
         self.path.add(pose)
         if step.finished:
             self._end_slot(step.finished, step.map_version, stamp)
+
+    def _broadcast(self, pose: np.ndarray, stamp: float, image_frame: str) -> None:
+        """``map`` → camera on /tf; stops, saying why, when the images' frame is the map's."""
+        assert self.pub_tf is not None
+        s = self.settings
+        child = s.camera_frame or image_frame or "camera"
+        if child == s.map_frame:
+            self.get_logger().error(f"the camera images are in frame {child!r}, the device's "
+                                    "map frame: no transform on /tf (set camera_frame)")
+            self.destroy_publisher(self.pub_tf)
+            self.pub_tf = None
+            return
+        self.pub_tf.publish(tf_message(transform_stamped(pose, stamp, s.map_frame, child)))
 
     def _end_slot(self, frames: list[FrameRecord], version: int, stamp: float) -> None:
         assert self.core is not None

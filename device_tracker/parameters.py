@@ -32,7 +32,12 @@ PARAMETERS = (
               high=1e6),
     ParamSpec("seed", 0, "seed of the channel model", low=0),
     ParamSpec("n_features", 1000, "ORB features per frame", low=10, high=100_000),
-    ParamSpec("map_frame", "map", "frame id of the device's poses and path"),
+    ParamSpec("map_frame", "map", "frame id of the device's poses and path (its first "
+              "frame's camera frame) and parent of the camera on /tf"),
+    ParamSpec("camera_frame", "", "child frame of the device's pose on /tf; empty: the camera "
+              "images' own frame id (the player's frame_id), so a viewer places the images"),
+    ParamSpec("publish_tf", True, "broadcast map_frame -> camera on /tf for every tracked "
+              "frame (off where another node owns that transform)"),
     ParamSpec("path_window", 900, "poses device/path holds: the newest ones (900: 30 s at "
               "30 Hz); the whole run is on device/pose", low=1, high=10_000_000),
     ParamSpec("shaper", "token_bucket", "uplink shaper: token_bucket (in process) or tc (a "
@@ -67,6 +72,8 @@ class DeviceSettings:
     alpha_bytes: int               #: α in bytes: the least a keyframe occupies on the link
     channel: str
     map_frame: str
+    camera_frame: str              #: "" takes the images' frame id
+    publish_tf: bool
     map_source: str
     tracking: TrackingConfig
     upload_image: bool
@@ -75,9 +82,13 @@ class DeviceSettings:
 
     @classmethod
     def from_parameters(cls, p: Mapping[str, Any]) -> DeviceSettings:
+        """ValueError where two parameters contradict each other."""
+        if p["camera_frame"] and p["camera_frame"] == p["map_frame"]:
+            raise ValueError(f"camera_frame and map_frame are both {p['map_frame']!r}: the "
+                             "camera's pose on /tf needs two frames")
         return cls(int(p["slot_frames"]), float(p["frame_rate_hz"]),
                    int(float(p["alpha_mbit"]) * 1e6 / 8), str(p["channel"]), str(p["map_frame"]),
-                   str(p["map_source"]),
+                   str(p["camera_frame"]), bool(p["publish_tf"]), str(p["map_source"]),
                    TrackingConfig(n_features=int(p["n_features"]), relocalise=True),
                    bool(p["upload_image"]), int(p["keep_slots"]), int(p["path_window"]))
 

@@ -65,6 +65,7 @@ class EdgeMapperNode(Node):
         except ValueError as exc:
             raise NodeStartError(str(exc)) from None
         self.slots = SlotLifecycle(float(p["slot_timeout_s"]))
+        self.map_frame = str(p["map_frame"])
         self.pub_request = self.create_publisher(UploadRequest, topics.UPLOAD_REQUEST,
                                                  qos.PROTOCOL)
         self.pub_map = self.create_publisher(MapUpdate, topics.MAP_UPDATE, qos.MAP)
@@ -89,6 +90,7 @@ class EdgeMapperNode(Node):
             # with the whole track table: the device may still hold tracks of before the stop
             self.pub_map.publish(map_update_message(self.core.map, self.core.last_slot,
                                                     self.core.version, self._now(),
+                                                    self.map_frame,
                                                     tracks=self.core.local_mapping.track_points))
 
     def _live_values(self) -> dict[str, Any]:
@@ -193,7 +195,7 @@ class EdgeMapperNode(Node):
         out: SlotOutcome = self.core.finish_slot(slot)
         now = self._now()
         self.pub_map.publish(map_update_message(self.core.map, slot, out.version, now,
-                                                tracks=out.tracks))
+                                                self.map_frame, tracks=out.tracks))
         ba_ms = out.bundle_adjustment.milliseconds if out.bundle_adjustment else 0.0
         self.pub_stats.publish(map_stats_message(
             slot, entry.decided_by, self.core.map, out.map_uncertainty, entry.uncertainty,
@@ -201,9 +203,10 @@ class EdgeMapperNode(Node):
             (entry.compute_s + time.perf_counter() - started) * 1000, now))
         if self.pub_views is not None:         # after MapStats: not in its compute time
             m, (cloud, poses, marks) = self.core.map, self.pub_views
-            cloud.publish(map_points_message(m, now))
-            poses.publish(keyframes_message(m, now))
-            marks.publish(decisions_message(m, out.integrated, out.evicted, before, now))
+            cloud.publish(map_points_message(m, now, self.map_frame))
+            poses.publish(keyframes_message(m, now, self.map_frame))
+            marks.publish(decisions_message(m, out.integrated, out.evicted, before, now,
+                                            self.map_frame))
         self.get_logger().info(
             f"slot {slot}: +{len(out.integrated)} keyframes, -{len(out.evicted)}, map "
             f"{len(self.core.map.keyframes)} keyframes / {len(self.core.map.points)} points, "

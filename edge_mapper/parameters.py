@@ -49,6 +49,8 @@ PARAMETERS = (
     ParamSpec("visualisation", True, f"publish {topics.MAP_POINTS} (PointCloud2), "
               f"{topics.KEYFRAME_POSES} (PoseArray) and {topics.DECISIONS} (MarkerArray) once a "
               "slot, latched, for RViz / Foxglove"),
+    ParamSpec("map_frame", "map", "frame id of the map the edge publishes (the device's "
+              "map_frame: its first frame's camera frame)"),
 )
 
 

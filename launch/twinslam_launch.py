@@ -9,8 +9,9 @@ On separate machines, ``host:=device`` (camera player + device tracker), ``host:
     ros2 launch twinslam twinslam_launch.py host:=edge policy:=adapt
 
 ``namespace:=/ar1`` puts a device/edge pair under ``/ar1`` (a second pair under ``/ar2`` shares
-the domain). The nodes run with the package's Fast DDS profile (``config/fastdds.xml``) unless
-``FASTRTPS_DEFAULT_PROFILES_FILE`` names another.
+the domain); ``/tf`` is shared by every pair, so give each its own frames as well:
+``map_frame:=ar1/map camera_frame:=ar1/camera``. The nodes run with the package's Fast DDS
+profile (``config/fastdds.xml``) unless ``FASTRTPS_DEFAULT_PROFILES_FILE`` names another.
 
 Needs the ROS 2 ``launch`` / ``launch_ros`` packages (never PyPI's unrelated ``launch``).
 """
@@ -44,6 +45,10 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("params_file", default_value=params),
         DeclareLaunchArgument("namespace", default_value="",
                               description="namespace of this device/edge pair, e.g. /ar1"),
+        DeclareLaunchArgument("map_frame", default_value="map",
+                              description="the pair's map frame on /tf (e.g. ar1/map)"),
+        DeclareLaunchArgument("camera_frame", default_value="camera",
+                              description="the pair's camera frame on /tf (e.g. ar1/camera)"),
         DeclareLaunchArgument("sequence", default_value="synthetic"),
         DeclareLaunchArgument("policy", default_value="adapt"),
         DeclareLaunchArgument("rate", default_value="1.0"),
@@ -52,11 +57,14 @@ def generate_launch_description() -> LaunchDescription:
                               description="all | device | edge | twin: this machine's nodes"),
         Node(package="twinslam", executable="edge_mapper", name="edge_mapper",
              namespace=arg("namespace"),
-             parameters=[arg("params_file"), {"policy": arg("policy")}], output="screen",
-             condition=on("edge")),
+             parameters=[arg("params_file"), {"policy": arg("policy"),
+                                               "map_frame": arg("map_frame")}],
+             output="screen", condition=on("edge")),
         Node(package="twinslam", executable="device_tracker", name="device_tracker",
              namespace=arg("namespace"),
-             parameters=[arg("params_file")], output="screen", condition=on("device")),
+             parameters=[arg("params_file"), {"map_frame": arg("map_frame"),
+                                               "camera_frame": arg("camera_frame")}],
+             output="screen", condition=on("device")),
         Node(package="twinslam", executable="udt_node", name="udt_node", namespace=arg("namespace"),
              parameters=[arg("params_file")], output="screen",
              condition=IfCondition(PythonExpression([
@@ -65,6 +73,9 @@ def generate_launch_description() -> LaunchDescription:
         Node(package="twinslam", executable="sequence_player", name="sequence_player",
              namespace=arg("namespace"),
              parameters=[arg("params_file"), {"sequence": arg("sequence"),
-                                               "rate": arg("rate")}], output="screen",
+                                               "rate": arg("rate"),
+                                               "map_frame": arg("map_frame"),
+                                               "frame_id": arg("camera_frame")}],
+             output="screen",
              condition=on("device")),
     ])

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 from geometry_msgs.msg import Pose
 from scipy.spatial.transform import Rotation
@@ -21,8 +23,13 @@ def pose_msg(matrix: np.ndarray) -> Pose:
 
 def pose_matrix(msg: Pose) -> np.ndarray:
     """The 4×4 transform of a ``geometry_msgs/Pose`` (the quaternion is normalised)."""
-    q = msg.orientation
+    q, t = msg.orientation, msg.position
+    return rigid_matrix((t.x, t.y, t.z), (q.x, q.y, q.z, q.w))
+
+
+def rigid_matrix(translation: Sequence[float], quaternion_xyzw: Sequence[float]) -> np.ndarray:
+    """The 4×4 of a translation and a quaternion in ROS order (x, y, z, w; normalised here)."""
     out = np.eye(4)
-    out[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
-    out[:3, 3] = [msg.position.x, msg.position.y, msg.position.z]
+    out[:3, :3] = Rotation.from_quat(list(quaternion_xyzw)).as_matrix()
+    out[:3, 3] = translation
     return out

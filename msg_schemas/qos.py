@@ -8,6 +8,9 @@
   deep. A reader keeps the last ``depth`` samples not yet taken; a device that falls behind by
   more loses frames (a clean checkout's device lagged 2.5 s over its first frames on a 2-core
   host). A best-effort reader (a viewer, ``SENSOR_DATA``) still matches a reliable writer.
+* ``TF`` and ``TF_STATIC``: tf2's own profiles for ``/tf`` (reliable, volatile, 100 deep) and
+  ``/tf_static`` (reliable, transient local: a late viewer still gets the static transforms),
+  so RViz's and Foxglove's TF listeners match them.
 """
 
 from rclpy.qos import (
@@ -26,6 +29,11 @@ MAP = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST, reliability=Reliabili
 CAMERA = QoSProfile(depth=150, history=HistoryPolicy.KEEP_LAST,
                     reliability=ReliabilityPolicy.RELIABLE,
                     durability=DurabilityPolicy.VOLATILE)
+TF = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
+               reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+TF_STATIC = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
+                       reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
 SENSOR_DATA = qos_profile_sensor_data
 
-__all__ = ["CAMERA", "MAP", "PROTOCOL", "SENSOR_DATA", "QoSProfile"]
+__all__ = ["CAMERA", "MAP", "PROTOCOL", "SENSOR_DATA", "TF", "TF_STATIC", "QoSProfile"]

@@ -26,3 +26,8 @@ KEYFRAME_POSES = "edge/keyframes"
 DECISIONS = "edge/decisions"
 
 RATE_LATENT = "udt/rate_latent"
+
+#: the TF tree (msg_schemas.transforms): absolute, as tf2 and every viewer expect, so a
+#: namespace does not move them; devices sharing a domain keep apart by their frame ids
+TF = "/tf"
+TF_STATIC = "/tf_static"

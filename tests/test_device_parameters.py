@@ -7,6 +7,7 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import pytest
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import DescribeParameters, SetParameters
 
@@ -40,3 +41,14 @@ def test_an_unknown_map_source_is_refused_at_start_and_when_set(domain: Loopback
     assert _set_map_source(ros, "edge").successful
     code, _out, err = domain.stop(device)
     assert code == 0 and "Traceback" not in err, err[-2000:]
+
+
+def test_a_camera_frame_equal_to_the_map_frame_is_refused_with_the_reason() -> None:
+    """The pose on /tf goes from map_frame to camera_frame: one frame for both is no
+    transform, so the settings (and the node's start, exit 2 as above) refuse it."""
+    from device_tracker.parameters import PARAMETERS, DeviceSettings
+
+    values = {spec.name: spec.default for spec in PARAMETERS}
+    assert DeviceSettings.from_parameters(values).camera_frame == ""   # the images' frame id
+    with pytest.raises(ValueError, match="camera_frame and map_frame are both 'map'"):
+        DeviceSettings.from_parameters(dict(values, camera_frame="map"))

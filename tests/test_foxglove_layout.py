@@ -28,7 +28,8 @@ def test_the_layout_shows_topics_and_fields_the_nodes_publish() -> None:
     layout = json.loads(LAYOUT.read_text(encoding="utf-8"))
     panels = _panels(layout["layout"])
     assert sorted(panels) == sorted(layout["configById"])
-    published = {f"/{v}" for k, v in vars(topics).items() if k.isupper()}
+    published = {v if v.startswith("/") else f"/{v}" for k, v in vars(topics).items()
+                 if k.isupper()}
     config = layout["configById"]
     shown = set(config["3D!map"]["topics"]) | {config["Image!camera"]["imageMode"]["imageTopic"]}
     assert shown <= published, shown - published

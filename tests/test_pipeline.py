@@ -27,6 +27,7 @@ from twinslam.live.record import RunRecord
 from twinslam.live.report import RunReport
 from twinslam.live.scenarios import SCENARIOS, Scenario
 from twinslam.node_hosts.loopback import LoopbackDomain
+from twinslam.sequences.opening import open_sequence
 from twinslam.slam.keyframe_map import shared_counts
 from twinslam.uncertainty.map_uncertainty import map_uncertainty
 
@@ -53,11 +54,13 @@ def _run(policy: str, frames: int = FRAMES, checkpoint: Path | None = None,
 
 
 class _Viewer:
-    """An outside subscriber to the edge's viewer topics (a viewer's, latched QoS), joining
-    after the first slot and spun at every MapStats of the run it watches."""
+    """An outside subscriber to the edge's viewer topics (a viewer's, latched QoS) and the TF
+    tree (tf2's QoS), joining after the first slot and spun at every MapStats of the run it
+    watches."""
 
     def __init__(self) -> None:
-        self.seen: dict[str, dict[int, Any]] = {"cloud": {}, "poses": {}, "marks": {}}
+        self.seen: dict[str, dict[int, Any]] = {"cloud": {}, "poses": {}, "marks": {}, "tf": {},
+                                                "tf_static": {}}
         self.session: Any = None
 
     def __call__(self, _msg: Any, _record: RunRecord, _launcher: Launcher) -> None:
@@ -81,6 +84,17 @@ class _Viewer:
                 self.session.node.create_subscription(
                     kind, topic, lambda m, k=key, h=header: self.seen[k].__setitem__(
                         stamp_key(h(m)), m), latched)
+            from rclpy.qos import HistoryPolicy
+            from tf2_msgs.msg import TFMessage
+
+            from msg_schemas import qos
+            deep_tf = QoSProfile(depth=1000, history=HistoryPolicy.KEEP_LAST,
+                                 reliability=ReliabilityPolicy.RELIABLE)
+            for key, topic, profile in (("tf", topics.TF, deep_tf),
+                                        ("tf_static", topics.TF_STATIC, qos.TF_STATIC)):
+                self.session.node.create_subscription(
+                    TFMessage, topic, lambda m, k=key: self.seen[k].update(
+                        (stamp_key(t.header), t) for t in m.transforms), profile)
         self.session.spin_until(lambda: False, 0.05)
 
     def close(self) -> None:
@@ -266,7 +280,7 @@ def test_a_viewer_sees_the_edges_map_points_keyframes_and_decisions(viewed_lff: 
 
     (_, record, _), seen = viewed_lff
     stats = {stamp_key(s.header): s for s in record.stats.values()}
-    slots = [k for k in stats if all(k in by for by in seen.values())]
+    slots = [k for k in stats if all(k in seen[by] for by in ("cloud", "poses", "marks"))]
     assert len(slots) >= 3, f"the viewer saw {len(slots)} of {len(stats)} slots"
     for key in slots:
         s, cloud, poses, marks = (stats[key], seen["cloud"][key], seen["poses"][key],
@@ -285,6 +299,38 @@ def test_a_viewer_sees_the_edges_map_points_keyframes_and_decisions(viewed_lff: 
             else 0
         kept = len(by_ns["kept"].points) if by_ns["kept"].action == Marker.ADD else 0
         assert added == s.uploads and added + kept == s.map_size
+
+
+def test_a_viewer_follows_the_device_on_the_tf_tree(viewed_lff: tuple) -> None:
+    """The TF tree a viewer follows: map → camera on /tf at every frame the device tracked
+    (the transform is its pose on device/pose, stamped alike) and none at a frame it did not;
+    world → map on /tf_static (latched: the viewer joined after it went out) at the first
+    played frame's ground truth, where the device's map frame starts."""
+    from msg_schemas.headers import time_key
+    from msg_schemas.poses import pose_matrix, pose_msg
+    from msg_schemas.transforms import transform_matrix
+
+    (_, record, _), seen = viewed_lff
+    tf = seen["tf"]
+    assert len(tf) >= 60, f"the viewer saw {len(tf)} transforms on /tf"
+    tracked = {time_key(f.stamp): bool(f.tracked) for s in record.summaries.values()
+               for f in s.frames}
+    first, last = min(tf), max(tf)
+    window = {k for k, ok in tracked.items() if ok and first <= k <= last}
+    assert set(tf) <= window | {k for k in tf if k > max(tracked)}, \
+        "a transform at a frame the device did not track"
+    assert len(window - set(tf)) <= 0.02 * len(window), "tracked frames missing on /tf"
+    for key, transform in tf.items():
+        assert (transform.header.frame_id, transform.child_frame_id) == ("map", "camera")
+        np.testing.assert_allclose(transform_matrix(transform), record.poses[key], atol=1e-6)
+    (anchor,) = seen["tf_static"].values()
+    assert (anchor.header.frame_id, anchor.child_frame_id) == ("world", "map")
+    # the sequence's own first frame (the monitor may have missed the first ground truth), as
+    # a pose message carries it (the dataset's float32 rotation made orthonormal)
+    first_frame = next(iter(open_sequence(SEQUENCE, 0, 1)))
+    assert first_frame.pose is not None
+    np.testing.assert_allclose(transform_matrix(anchor),
+                               pose_matrix(pose_msg(first_frame.pose)), atol=1e-6)
 
 
 def test_the_picture_of_a_run_shows_its_map_trajectories_and_slots(

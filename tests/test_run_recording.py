@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from rosbags.interfaces import QosDurability
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
@@ -29,14 +30,24 @@ def test_launch_records_every_topic_and_the_camera_decimated_and_draws_the_run(
     assert "MB a minute of run" in out
     with Reader(bag) as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
+        offered = {c.topic: c.ext.offered_qos_profiles for c in reader.connections}
         stats = [raw for c, _, raw in reader.messages()
                  if c.topic == "/edge/map_stats"]
+        static = [raw for c, _, raw in reader.messages() if c.topic == "/tf_static"]
     for topic in ("/device/frame_summaries", "/device/keyframes", "/edge/upload_request",
                   "/edge/map_stats",
                   "/edge/map_update", "/edge/map_points", "/edge/keyframes", "/edge/decisions",
                   "/device/pose", "/device/path", "/camera/ground_truth_path"):
         assert counts[topic] > 0, topic
     assert counts["/device/pose"] == 150                     # every pose
+    # the TF tree: the device's pose at its tracked frames, the map's anchor once, latched
+    # in the bag's metadata so that `ros2 bag play` offers it to a late viewer again
+    assert 0 < counts["/tf"] <= 150 and counts["/tf_static"] == 1
+    assert offered["/tf_static"][0].durability == QosDurability.TRANSIENT_LOCAL
+    assert offered["/edge/map_points"][0].durability == QosDurability.TRANSIENT_LOCAL
+    assert offered["/tf"][0].durability == QosDurability.VOLATILE
+    anchor = get_typestore(Stores.ROS2_JAZZY).deserialize_cdr(static[0], "tf2_msgs/msg/TFMessage")
+    assert [(t.header.frame_id, t.child_frame_id) for t in anchor.transforms] == [("world", "map")]
     assert counts["/camera/image_raw"] == 30                 # one in five of 150 frames
     assert counts["/camera/camera_info"] == counts["/camera/depth/image_raw"] == 30
     # a reader without twinslam decodes its own messages from the .msg definitions

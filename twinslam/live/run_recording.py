@@ -20,9 +20,19 @@ from typing import Any
 from geometry_msgs.msg import PoseArray, PoseStamped
 from nav_msgs.msg import Path as PathMsg
 from rclpy.node import Node
+from rclpy.qos import QoSProfile
+from rosbags.interfaces import (
+    Qos,
+    QosDurability,
+    QosHistory,
+    QosLiveliness,
+    QosReliability,
+    QosTime,
+)
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from tf2_msgs.msg import TFMessage
 from twinslam_msgs.msg import (
     FrameSummaries,
     Keyframe,
@@ -56,6 +66,8 @@ RUN_TOPICS: tuple[tuple[str, type[Any], Any], ...] = (
     (topics.DEVICE_PATH, PathMsg, qos.MAP),
     (topics.GROUND_TRUTH_POSE, PoseStamped, qos.CAMERA),
     (topics.GROUND_TRUTH_PATH, PathMsg, qos.MAP),
+    (topics.TF, TFMessage, qos.TF),
+    (topics.TF_STATIC, TFMessage, qos.TF_STATIC),
 )
 #: the camera's topics, kept one sample in ``camera_every``
 CAMERA_TOPICS: tuple[tuple[str, type[Any]], ...] = (
@@ -120,7 +132,8 @@ class RunRecorder:
     def _subscribe(self, node: Node, topic: str, cls: type[Any], profile: Any, every: int
                    ) -> None:
         name = node.resolve_topic_name(topic)
-        conn = self.writer.add_connection(name, type_name_of(cls), typestore=self.store)
+        conn = self.writer.add_connection(name, type_name_of(cls), typestore=self.store,
+                                          offered_qos_profiles=[bag_qos(profile)])
         self._seen[name] = 0
 
         def write(data: bytes) -> None:
@@ -141,6 +154,15 @@ class RunRecorder:
         size = sum(f.stat().st_size for f in self.folder.rglob("*") if f.is_file())
         span = (self._last_ns - (self._first_ns or self._last_ns)) * 1e-9
         return RecordingSummary(self.folder, self.messages, size, span)
+
+
+def bag_qos(profile: QoSProfile) -> Qos:
+    """The QoS a topic was offered with, as the bag's metadata keeps it: ``ros2 bag play``
+    offers it again, so the latched topics (the map, ``/tf_static``) reach a late viewer."""
+    never = QosTime(0, 0)                 # rosbag2's "default": no deadline, lifespan, lease
+    return Qos(QosHistory(profile.history.value), profile.depth,
+               QosReliability(profile.reliability.value), QosDurability(profile.durability.value),
+               never, never, QosLiveliness.AUTOMATIC, never, False)
 
 
 def _custom_types() -> dict[str, Any]:

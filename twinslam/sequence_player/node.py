@@ -10,7 +10,9 @@ every header:
 * ``camera/ground_truth_pose`` — ``geometry_msgs/PoseStamped`` in ``world`` when the dataset
   has ground truth (for evaluation only; nothing in the pipeline subscribes to it), and
   ``camera/ground_truth_path`` — ``nav_msgs/Path`` of the newest ``path_window`` of them, once
-  a second and at the end, latched (for a viewer, beside ``device/path``)
+  a second and at the end, latched (for a viewer, beside ``device/path``); and ``world`` →
+  ``map`` on ``/tf_static`` from the first played frame's ground truth, which is where a device
+  that starts with that frame puts its map's origin (``map_frame:=''`` turns it off)
 
 at the recorded rate × ``rate``, frames [``start``, ``end``), once or with ``loop``, forward or
 ``order:=forward_backward``, with ``blank:=START:COUNT`` bursts of covered-lens frames
@@ -33,10 +35,12 @@ from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
+from tf2_msgs.msg import TFMessage
 
 from msg_schemas import qos, topics
 from msg_schemas.headers import stamp_seconds
 from msg_schemas.paths import PathWindow
+from msg_schemas.transforms import tf_message, transform_stamped
 from twinslam.node_hosts.acks import wait_for_acks
 from twinslam.node_hosts.node_main import NodeStartError, run_node
 from twinslam.node_hosts.parameters import declare
@@ -78,6 +82,13 @@ class SequencePlayer(Node):
         self.pub_pose = self.create_publisher(PoseStamped, topics.GROUND_TRUTH_POSE, qos.CAMERA)
         self.pub_path = self.create_publisher(Path, topics.GROUND_TRUTH_PATH, qos.MAP)
         self.path = PathWindow(int(p["path_window"]))
+        self.map_frame = str(p["map_frame"])
+        if self.map_frame == self.world_frame_id:
+            raise NodeStartError(f"map_frame and world_frame_id are both {self.map_frame!r}: "
+                                 "the map's anchor needs two frames")
+        self.pub_static = (self.create_publisher(TFMessage, topics.TF_STATIC, qos.TF_STATIC)
+                           if self.map_frame else None)
+        self.anchored = False                 #: world -> map went out
         self.published = 0
         self.skipped = 0
         self.finished = False
@@ -153,6 +164,10 @@ class SequencePlayer(Node):
                                                  self.depth_encoding))
         self.pub_info.publish(camera_info_message(frame, stamp, self.frame_id))
         if frame.pose is not None:
+            if self.pub_static is not None and not self.anchored:   # the first ground truth
+                self.pub_static.publish(tf_message(transform_stamped(
+                    frame.pose, stamp, self.world_frame_id, self.map_frame)))
+                self.anchored = True
             pose = pose_message(frame.pose, stamp, self.world_frame_id)
             self.pub_pose.publish(pose)
             self.path.add(pose)
@@ -179,8 +194,10 @@ class SequencePlayer(Node):
         elapsed = (self._now_ns() - self._start_ns) * 1e-9
         # the last frames may still be in flight: let reliable readers acknowledge them before
         # the process (and its participant) goes away
-        for pub in (self.pub_color, self.pub_depth, self.pub_info, self.pub_pose, self.pub_path):
-            wait_for_acks(pub, 2.0)
+        for pub in (self.pub_color, self.pub_depth, self.pub_info, self.pub_pose, self.pub_path,
+                    self.pub_static):
+            if pub is not None:
+                wait_for_acks(pub, 2.0)
         skipped = f" ({', '.join(self.reader.skipped)})" if self.reader.skipped else ""
         self.get_logger().info(f"done: {self.published} frames published in {elapsed:.1f} s, "
                                f"{self.skipped} skipped{skipped}")

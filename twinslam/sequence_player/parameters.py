@@ -28,6 +28,9 @@ PARAMETERS = (
     ParamSpec("mono", False, "mono8 colour instead of rgb8"),
     ParamSpec("frame_id", "camera", "frame id of the camera topics"),
     ParamSpec("world_frame_id", "world", "frame id of the ground-truth poses"),
+    ParamSpec("map_frame", "map", "the device's map frame, put in world_frame_id on "
+              "/tf_static at the first played frame's ground truth (a device's map frame is its "
+              "first frame's camera frame); empty: no static transform"),
     ParamSpec("path_window", 900, "poses camera/ground_truth_path holds: the newest ones "
               "(900: 30 s at 30 Hz, as device/path), published once a second", low=1,
               high=10_000_000),
