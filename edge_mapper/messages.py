@@ -1,5 +1,6 @@
 """The edge's side of the per-slot protocol as messages (DESIGN.md §1): what it writes as
-``UploadRequest``, ``MapUpdate`` and ``MapStats`` (it reads ``Keyframe`` with
+``UploadRequest``, ``MapUpdate``, ``MapStats`` and, serving several devices,
+``KeyframeBudget`` (it reads ``Keyframe`` with
 :mod:`twinslam.slam.keyframe`). Pure conversion, no DDS, so the node stays a thin shell and
 the conversions are tested alone.
 """
@@ -9,8 +10,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from twinslam_msgs.msg import KeyframeBudget as KeyframeBudgetMsg
 from twinslam_msgs.msg import MapStats, MapUpdate, UploadRequest
 
+from edge_mapper.keyframe_budget import KeyframeBudget, Presence
 from msg_schemas import new
 from msg_schemas.headers import set_header
 from msg_schemas.poses import pose_msg
@@ -56,16 +59,30 @@ def map_update_message(keyframe_map: KeyFrameMap, slot: int, version: int, stamp
 
 def map_stats_message(slot: int, policy: str, keyframe_map: KeyFrameMap, uncertainty: float,
                       upsilon: SlotUncertainty | None, uploads: int, optimisation_ms: float,
-                      processing_ms: float, stamp: float) -> MapStats:
+                      processing_ms: float, stamp: float, keyframe_budget: int = 0
+                      ) -> MapStats:
     """``MapStats``; u = +inf for a disconnected map and υ = NaN (unknown, or no tracked frame)
     are sent as they are (IEEE floats), never replaced by a number that looks valid. υ is
     reported the three ways DESIGN.md §2 asks: mean with a lost frame scoring 0, the lost
     share, and the mean over the tracked frames."""
     msg = new(MapStats, slot=slot, policy=policy,
               map_size=len(keyframe_map.keyframes), map_points=len(keyframe_map.points),
-              uncertainty=float(uncertainty),
+              keyframe_budget=keyframe_budget, uncertainty=float(uncertainty),
               mean_uncertainty=upsilon.objective if upsilon else math.nan,
               tracked_uncertainty=upsilon.tracked_uncertainty if upsilon else math.nan,
               lost_share=upsilon.lost_share if upsilon else 0.0, uploads=uploads,
               optimisation_ms=float(optimisation_ms), slot_processing_ms=float(processing_ms))
+    return set_header(msg, stamp, "")
+
+
+def keyframe_budget_message(budget: KeyframeBudget, stamp: float) -> KeyframeBudgetMsg:
+    """How ``budget`` stands now, every device it serves in one message."""
+    accounts = list(budget.accounts.values())
+    msg = new(KeyframeBudgetMsg, allocator=budget.allocator, total=budget.total,
+              devices=[a.device for a in accounts],
+              targets=np.array([a.target for a in accounts], dtype=np.uint32),
+              granted=np.array([a.granted for a in accounts], dtype=np.uint32),
+              map_sizes=np.array([a.map_size for a in accounts], dtype=np.uint32),
+              committed=np.array([a.committed for a in accounts], dtype=np.uint32),
+              active=[a.presence is Presence.ACTIVE for a in accounts])
     return set_header(msg, stamp, "")

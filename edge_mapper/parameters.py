@@ -7,9 +7,11 @@ that cannot be made is refused with the reason (:mod:`edge_mapper.policy_control
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from typing import Any
 
+from edge_mapper.device_link import LinkSettings
 from edge_mapper.edge_core import EdgeConfig
 from edge_mapper.policy_control import (
     checkpoint_refused,
@@ -19,7 +21,23 @@ from edge_mapper.policy_control import (
 from edge_mapper.slot_planner import SlotConfig
 from msg_schemas import topics
 from twinslam.common import table1
+from twinslam.map_management.allocation import ALLOCATORS
 from twinslam.node_hosts.parameters import ParamSpec
+
+
+def _devices_refused(value: object) -> str | None:
+    """Why a device list is not one (None: it is): namespace names, each once."""
+    names = [str(v).strip("/") for v in value] if isinstance(value, list | tuple) else []
+    bad = [n for n in names if not DEVICE_NAME.fullmatch(n)]
+    if bad:
+        return (f"{', '.join(map(repr, bad))}: a device is a namespace name (letters, digits, "
+                "_ and / between them, e.g. ar1 or lab/ar1)")
+    if len(set(names)) != len(names):
+        return "a device is listed twice"
+    return None
+
+#: a device's namespace, relative to the edge's: ROS name tokens joined by /
+DEVICE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*")
 
 PARAMETERS = (
     ParamSpec("policy", "adapt", "map-management policy: lff | pu | adapt | random | "
@@ -50,7 +68,29 @@ PARAMETERS = (
               f"{topics.KEYFRAME_POSES} (PoseArray) and {topics.DECISIONS} (MarkerArray) once a "
               "slot, latched, for RViz / Foxglove"),
     ParamSpec("map_frame", "map", "frame id of the map the edge publishes (the device's "
-              "map_frame: its first frame's camera frame)"),
+              "map_frame: its first frame's camera frame); with several devices, each device's "
+              "is DEVICE/map_frame"),
+    # one edge, many devices (issue #32)
+    ParamSpec("devices", (), "device namespaces this edge serves, e.g. [ar1, ar2] (their "
+              "ar1/device/... topics, relative to the edge's namespace); empty: the one device "
+              "of the edge's own namespace", check=_devices_refused),
+    ParamSpec("discover_devices", False, "also serve every device namespace that appears on "
+              "the graph (a DEVICE/device/frame_summaries publisher)"),
+    ParamSpec("vmax_total", 0, "V_total: keyframes of every served device's map together, "
+              "split by allocator slot by slot; 0: each device has vmax", low=0, high=1_000_000),
+    ParamSpec("allocator", "equal", "how vmax_total is split: equal, motion (by each "
+              "device's novelty: the share of its frames' points its map lacks) or twin (by "
+              "the tracked share each keyframe buys a device, its rate twin's expected uploads "
+              "included)", check=lambda v: None if v in ALLOCATORS
+              else f"must be one of {', '.join(ALLOCATORS)}"),
+    ParamSpec("min_keyframes", 5, "the least share of vmax_total a device gets", low=1,
+              high=1_000_000),
+    ParamSpec("fairness", 0.0, "alpha of the twin allocator's alpha-fair sum (0: total "
+              "tracked share; 1: proportional fairness)", low=0.0, high=10.0),
+    ParamSpec("device_silent_s", 10.0, "a device without summaries this long is silent: its "
+              "map is kept, its share goes to the others", low=0.1, high=86_400.0),
+    ParamSpec("device_reclaim_s", 60.0, "a device silent this much longer loses its map and "
+              "its share", low=0.0, high=86_400.0),
 )
 
 
@@ -60,3 +100,15 @@ def edge_config(p: Mapping[str, Any]) -> EdgeConfig:
                                       d_req_s=float(p["d_req_s"])),
                       ba_window=int(p["ba_window"]),
                       image_shape=(int(p["image_height"]), int(p["image_width"])))
+
+
+def link_settings(p: Mapping[str, Any]) -> LinkSettings:
+    """What every device link of the node shares."""
+    return LinkSettings(edge_config(p), str(p["checkpoint"]), int(p["states"]),
+                        float(p["slot_timeout_s"]), bool(p["visualisation"]),
+                        str(p["map_frame"]))
+
+
+def device_names(p: Mapping[str, Any]) -> list[str]:
+    """The ``devices`` parameter as namespace names (no leading or trailing /)."""
+    return [str(d).strip("/") for d in p["devices"]]

@@ -38,6 +38,7 @@ class OpenSlot:
     compute_s: float             #: edge compute spent on the slot so far
     uncertainty: SlotUncertainty | None
     decided_by: str              #: the policy that decided U_k and C_k
+    vmax: int = 0                #: the V_max it was planned with (the device's share)
     sent: int | None = None      #: frames the device says it sent (its UplinkThroughput)
 
 
@@ -52,8 +53,8 @@ class SlotLifecycle:
         self.open_slots: dict[int, OpenSlot] = {}
 
     def open(self, slot: int, compute_s: float, uncertainty: SlotUncertainty | None,
-             decided_by: str) -> None:
-        self.open_slots[slot] = OpenSlot(self.clock(), compute_s, uncertainty, decided_by)
+             decided_by: str, vmax: int = 0) -> None:
+        self.open_slots[slot] = OpenSlot(self.clock(), compute_s, uncertainty, decided_by, vmax)
 
     def charge(self, slot: int, seconds: float) -> None:
         """Compute spent on an open slot (integrating one of its keyframes)."""

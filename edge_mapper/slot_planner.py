@@ -78,9 +78,9 @@ class SlotPlanner:
 
     def weight_matrix(self, frames: dict[int, FrameObservations], ids: list[int]) -> np.ndarray:
         """w among ``ids`` (keyframes and slot frames) as one sparse product."""
-        return shared_counts([self._points(frames, x) for x in ids])
+        return shared_counts([self.points_of(frames, x) for x in ids])
 
-    def _points(self, frames: dict[int, FrameObservations], frame_id: int) -> np.ndarray:
+    def points_of(self, frames: dict[int, FrameObservations], frame_id: int) -> np.ndarray:
         """The ids a keyframe or slot frame observes as one int64 key set: map points as
         they are, track ids (their own namespace) as negative keys so they never equal a
         map-point id."""
@@ -135,8 +135,8 @@ class SlotPlanner:
         if not m:
             return SlotPlan(action, obs, None)
         seen = {**arriving, **by_id}
-        in_map = np.unique(np.concatenate([self._points(seen, x) for x in map_ids]))
-        shared = np.array([np.isin(self._points(seen, f), in_map, assume_unique=True).sum()
+        in_map = np.unique(np.concatenate([self.points_of(seen, x) for x in map_ids]))
+        shared = np.array([np.isin(self.points_of(seen, f), in_map, assume_unique=True).sum()
                            for f in every])
         upsilon = next_slot_uncertainty(full[:m, :m], full[m:, :m], self.config.log_det_pi,
                                         shared >= MIN_INLIERS)

@@ -24,6 +24,8 @@ MAP_STATS = "edge/map_stats"
 MAP_POINTS = "edge/map_points"
 KEYFRAME_POSES = "edge/keyframes"
 DECISIONS = "edge/decisions"
+#: an edge serving several devices: how it splits its keyframe budget (issue #32)
+KEYFRAME_BUDGET = "edge/keyframe_budget"
 
 RATE_LATENT = "udt/rate_latent"
 

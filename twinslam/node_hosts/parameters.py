@@ -37,7 +37,8 @@ from twinslam.node_hosts.node_main import NodeStartError
 Check = Callable[[Any], "str | None"]
 
 _TYPES = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
-          float: ParameterType.PARAMETER_DOUBLE, str: ParameterType.PARAMETER_STRING}
+          float: ParameterType.PARAMETER_DOUBLE, str: ParameterType.PARAMETER_STRING,
+          tuple: ParameterType.PARAMETER_STRING_ARRAY}
 
 
 @dataclass(frozen=True)
@@ -45,7 +46,7 @@ class ParamSpec:
     """One parameter: default (whose type is the parameter's), description, range, liveness."""
 
     name: str
-    default: bool | int | float | str
+    default: bool | int | float | str | tuple[str, ...]    #: a tuple: a string array
     description: str
     low: float | None = None          #: inclusive bounds of an int or float parameter
     high: float | None = None
@@ -92,9 +93,13 @@ def declare(node: Node, specs: Sequence[ParamSpec]) -> dict[str, Any]:
     node.add_on_set_parameters_callback(on_set)
     values = {}
     for spec in specs:
+        # an empty array has no type of its own: rclpy takes the descriptor's (value unset)
+        default: Any = (list(spec.default) or Parameter.Type.STRING_ARRAY
+                         if isinstance(spec.default, tuple) else spec.default)
         try:
-            values[spec.name] = node.declare_parameter(spec.name, spec.default,
-                                                       spec.descriptor()).value
+            value = node.declare_parameter(spec.name, default, spec.descriptor()).value
+            values[spec.name] = (list(value or []) if isinstance(spec.default, tuple)
+                                 else value)
         except InvalidParameterTypeException as exc:
             raise ParameterStartError(
                 f"parameter {spec.name} takes a {type(spec.default).__name__} "

@@ -229,12 +229,13 @@ def theorem1_cardinalities(rate_mbps: float, alpha_mbit: float, d_req_s: float, 
 
     |U_k| = floor(d_k · D_req / α) (eq. 10), at most |F_k|. The paper prints
     |C_k| = V_max - |U_k| (eq. 11), but its own proof (eq. 12) keeps the map at V_max:
-    |C_k| = |V_k| + |U_k| - V_max, never negative. We use eq. 12.
+    |C_k| = |V_k| + |U_k| - V_max, never negative. We use eq. 12. V_max 0 (a device an edge
+    has no keyframes for yet, issue #32) uploads nothing and keeps nothing.
     """
     if not math.isfinite(rate_mbps) or rate_mbps < 0:
         raise ValueError(f"uplink rate must be finite and >= 0, got {rate_mbps}")
-    if alpha_mbit <= 0 or d_req_s <= 0 or vmax < 1:
-        raise ValueError("alpha, D_req must be > 0 and V_max >= 1")
+    if alpha_mbit <= 0 or d_req_s <= 0 or vmax < 0:
+        raise ValueError("alpha, D_req must be > 0 and V_max >= 0")
     n_up = min(math.floor(rate_mbps * d_req_s / alpha_mbit + 1e-9), slot_size)
     n_up = min(n_up, vmax)
     n_evict = max(0, map_size + n_up - vmax)

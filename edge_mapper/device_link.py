@@ -1,0 +1,279 @@
+"""One device's topics on the edge node: its protocol in, its map and decisions out
+(DESIGN.md §1 steps 3, 5, 6). The edge node holds one link when it serves the device of its
+own namespace, and one per device namespace when it serves several (issue #32); the work is
+the link's :class:`~edge_mapper.edge_core.EdgeMapperCore`'s, the link only moves messages.
+
+* ``<device>/device/frame_summaries`` → the policy's U_k and C_k on
+  ``<device>/edge/upload_request``, planned with the V_max the edge's keyframe budget grants
+  this device for this slot (:mod:`edge_mapper.keyframe_budget`), or the node's ``vmax``;
+* ``<device>/device/keyframes`` → integrated when the slot's plan asked for them; when the
+  slot closes (:mod:`edge_mapper.slot_lifecycle`) C_k is evicted, the newest keyframes
+  bundle-adjusted, the map checkpointed, and ``<device>/edge/map_update``,
+  ``<device>/edge/map_stats`` and the viewer topics go out;
+* ``<device>/udt/rate_latent`` → the twin's features for a twin-driven policy, and the
+  expected uploads the ``twin`` allocator weighs the device by.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from geometry_msgs.msg import PoseArray
+from rclpy.node import Node
+from sensor_msgs.msg import PointCloud2
+from twinslam_msgs.msg import (
+    FrameSummaries,
+    Keyframe,
+    MapStats,
+    MapUpdate,
+    RateLatent,
+    UplinkThroughput,
+    UploadRequest,
+)
+from visualization_msgs.msg import MarkerArray
+
+from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, SlotOutcome
+from edge_mapper.messages import map_stats_message, map_update_message, upload_request_message
+from edge_mapper.policy_control import POLICY_KEYS, Note, PolicyControl
+from edge_mapper.slot_lifecycle import Closing, SlotLifecycle
+from edge_mapper.slot_planner import FrameObservations
+from edge_mapper.visual_messages import decisions_message, keyframes_message, map_points_message
+from msg_schemas import qos, topics
+from twinslam.node_hosts.checked_subscription import CheckedSubscription
+from twinslam.slam.keyframe import read_keyframe
+
+
+@dataclass(frozen=True)
+class LinkSettings:
+    """What every link of one edge shares (the node's read-only parameters)."""
+
+    config: EdgeConfig
+    checkpoint: str                          #: "" none; with several devices, one file each
+    n_states: int
+    slot_timeout_s: float
+    visualisation: bool
+    map_frame: str
+
+
+#: the budget's hooks, for an edge serving several devices: (device, slot, frames, d_k, latent,
+#: core) → the V_max this slot is planned with; and (device, slot, map size) when it finished
+Granting = Callable[[str, int, list[FrameObservations], float, RateLatent | None,
+                     EdgeMapperCore], int]
+Finishing = Callable[[str, int, int], None]
+
+
+def checkpoint_of(path: str, device: str) -> Path | None:
+    """A device's own checkpoint beside the node's: ``edge.npz`` → ``edge.ar1.npz``."""
+    if not path:
+        return None
+    if not device:
+        return Path(path)
+    p = Path(path)
+    return p.with_name(f"{p.stem}.{device.replace('/', '_')}{p.suffix}")
+
+
+class DeviceLink:
+    """The topics of one device (``device`` "" = the node's own namespace) on ``node``."""
+
+    def __init__(self, node: Node, device: str, settings: LinkSettings,
+                 live: Callable[[], dict[str, Any]],
+                 grant: Granting | None = None, finished: Finishing | None = None) -> None:
+        self.node, self.device, self.settings = node, device, settings
+        self.live, self.grant, self.finished = live, grant, finished
+        self.control = PolicyControl({k: v for k, v in live().items() if k in POLICY_KEYS},
+                                     EdgeMapperCore.warm_up)
+        self.core = EdgeMapperCore(self.control.policy, None, settings.config,
+                                   checkpoint_of(settings.checkpoint, device),
+                                   settings.n_states)
+        self.slots = SlotLifecycle(settings.slot_timeout_s)
+        #: the frame of this device's map: with several devices each has its own on /tf
+        self.map_frame = f"{device}/{settings.map_frame}" if device else settings.map_frame
+        self.latent: RateLatent | None = None    #: the twin's newest, for the allocator
+        self.last_heard = time.monotonic()
+        self.prefix = f"{device}/" if device else ""
+        pub = node.create_publisher
+        self.pub_request = pub(UploadRequest, self.topic(topics.UPLOAD_REQUEST), qos.PROTOCOL)
+        self.pub_map = pub(MapUpdate, self.topic(topics.MAP_UPDATE), qos.MAP)
+        self.pub_stats = pub(MapStats, self.topic(topics.MAP_STATS), qos.PROTOCOL)
+        self.pub_views = ((pub(PointCloud2, self.topic(topics.MAP_POINTS), qos.MAP),
+                           pub(PoseArray, self.topic(topics.KEYFRAME_POSES), qos.MAP),
+                           pub(MarkerArray, self.topic(topics.DECISIONS), qos.MAP))
+                          if settings.visualisation else None)
+        self.subscriptions = [
+            CheckedSubscription(node, FrameSummaries, self.topic(topics.FRAME_SUMMARIES),
+                                self._on_summaries, qos.PROTOCOL),
+            CheckedSubscription(node, Keyframe, self.topic(topics.KEYFRAMES), self._on_keyframe,
+                                qos.PROTOCOL),
+            CheckedSubscription(node, UplinkThroughput, self.topic(topics.UPLINK_THROUGHPUT),
+                                self._on_throughput, qos.PROTOCOL),
+            CheckedSubscription(node, RateLatent, self.topic(topics.RATE_LATENT),
+                                self._on_latent, qos.PROTOCOL),
+        ]
+        if self.core.restored:
+            self.info(self.core.restored_summary())
+            # with the whole track table: the device may still hold tracks of before the stop
+            self.pub_map.publish(map_update_message(self.core.map, self.core.last_slot,
+                                                    self.core.version, self._now(),
+                                                    self.map_frame,
+                                                    tracks=self.core.local_mapping.track_points))
+
+    def topic(self, name: str) -> str:
+        """A topic of this device, relative to the node's namespace."""
+        return self.prefix + name
+
+    # -- logging -----------------------------------------------------------------------------
+
+    def _text(self, text: str) -> str:
+        return f"[{self.device}] {text}" if self.device else text
+
+    def info(self, text: str) -> None:
+        self.node.get_logger().info(self._text(text))
+
+    def warning(self, text: str) -> None:
+        self.node.get_logger().warning(self._text(text))
+
+    def error(self, text: str) -> None:
+        self.node.get_logger().error(self._text(text))
+
+    def _log(self, notes: list[Note]) -> None:
+        # one call site per severity: rclpy refuses a logging line whose severity changes
+        for note in notes:
+            if note.level == "error":
+                self.error(note.text)
+            elif note.level == "warning":
+                self.warning(note.text)
+            else:
+                self.info(note.text)
+
+    def _now(self) -> float:
+        return self.node.get_clock().now().nanoseconds * 1e-9
+
+    # -- the protocol ------------------------------------------------------------------------
+
+    def _on_summaries(self, msg: FrameSummaries) -> None:
+        slot = int(msg.slot)
+        self.last_heard = time.monotonic()
+        live = self.live()
+        self._log(self.control.apply({k: live[k] for k in POLICY_KEYS}, slot))
+        self.core.set_policy(self.control.policy)
+        frames = [FrameObservations(int(f.frame_id), frozenset(int(i) for i in f.map_point_ids),
+                                    frozenset(int(i) for i in f.local_track_ids),
+                                    bool(f.tracked))
+                  for f in msg.frames]
+        started = time.perf_counter()
+        vmax = (self.grant(self.device, slot, frames, float(msg.rate_mbps), self.latent,
+                           self.core)
+                if self.grant is not None else int(live["vmax"]))
+        if vmax != self.core.slot_config.vmax:
+            if self.grant is None:
+                self.info(f"slot {slot}: V_max {vmax} from this slot on (was "
+                          f"{self.core.slot_config.vmax})")
+            self.core.set_vmax(vmax)
+        try:
+            plan = self.core.plan(slot, frames, float(msg.rate_mbps), int(msg.rate_state))
+        except ValueError as exc:
+            self.error(f"slot {slot}: cannot plan: {exc}")
+            if self.finished is not None:      # the grant was never used
+                self.finished(self.device, slot, len(self.core.map.keyframes))
+            return
+        decided_by, notes = self.control.decided(slot)
+        self._log(notes)
+        self.pub_request.publish(upload_request_message(slot, decided_by,
+                                                        float(msg.rate_mbps), plan.action,
+                                                        self._now()))
+        self.slots.open(slot, time.perf_counter() - started, plan.uncertainty, decided_by, vmax)
+        self.finish_due()                        # a slot that uploads nothing is due at once
+
+    def _on_latent(self, msg: RateLatent) -> None:
+        self.latent = msg
+        if self.control.feed is None:
+            return
+        try:
+            self.control.feed.offer(int(msg.slot), np.asarray(msg.mu), np.asarray(msg.sigma),
+                                    int(msg.model_version))
+        except ValueError as exc:
+            self.error(f"rate latent of slot {msg.slot} refused: {exc}")
+
+    def _on_keyframe(self, msg: Keyframe) -> None:
+        started = time.perf_counter()
+        data = read_keyframe(msg)
+        report = self.core.add_keyframe(data)
+        self.slots.charge(data.slot, time.perf_counter() - started)
+        if report is None:
+            self.warning(f"keyframe {data.frame_id} of slot {data.slot} was not asked for, came "
+                         "twice or after its slot closed: ignored")
+            return
+        self.finish_due()
+
+    def _on_throughput(self, msg: UplinkThroughput) -> None:
+        """The device's account of a slot: once what it sent is in, nothing more will come."""
+        slot = int(msg.slot)
+        if slot in self.core.pending:
+            self.slots.device_sent(slot, int(msg.frames_sent))
+            self.finish_due()
+
+    def finish_due(self) -> None:
+        """Finish open slots, oldest first, while the oldest is due (slots finish in order so
+        that no map the edge publishes holds more than its V_max keyframes)."""
+        while (slot := self.core.oldest_open) is not None:
+            action, received = self.core.pending[slot]
+            closing = self.slots.closing(slot, action.upload, received)
+            if closing is None:
+                return
+            if closing is Closing.SHORT:
+                self.warning(f"slot {slot}: the device sent {self.slots.open_slots[slot].sent} "
+                             f"of {len(action.upload)} requested keyframes (the rest were no "
+                             "longer held); finishing without them")
+            elif closing is Closing.TIMEOUT:
+                self.warning(f"slot {slot}: {len(set(action.upload) - received)} requested "
+                             f"keyframe(s) did not arrive within {self.slots.timeout_s:g} s; "
+                             "finishing without them")
+            self._finish(slot)
+            started = time.perf_counter()
+            if self.core.integrate_held() and self.core.oldest_open is not None:
+                self.slots.charge(self.core.oldest_open, time.perf_counter() - started)
+
+    def _finish(self, slot: int) -> None:
+        started = time.perf_counter()
+        entry = self.slots.close(slot, self.control.policy_name)
+        before = ({k: kf.pose for k, kf in self.core.map.keyframes.items()}  # evicted: where
+                  if self.pub_views is not None else {})
+        out: SlotOutcome = self.core.finish_slot(slot)
+        if self.finished is not None:
+            self.finished(self.device, slot, len(self.core.map.keyframes))
+        now, frame = self._now(), self.map_frame
+        self.pub_map.publish(map_update_message(self.core.map, slot, out.version, now, frame,
+                                                tracks=out.tracks))
+        ba_ms = out.bundle_adjustment.milliseconds if out.bundle_adjustment else 0.0
+        self.pub_stats.publish(map_stats_message(
+            slot, entry.decided_by, self.core.map, out.map_uncertainty, entry.uncertainty,
+            len(out.integrated), ba_ms,
+            (entry.compute_s + time.perf_counter() - started) * 1000, now, entry.vmax))
+        if self.pub_views is not None:         # after MapStats: not in its compute time
+            m, (cloud, poses, marks) = self.core.map, self.pub_views
+            cloud.publish(map_points_message(m, now, frame))
+            poses.publish(keyframes_message(m, now, frame))
+            marks.publish(decisions_message(m, out.integrated, out.evicted, before, now, frame))
+        u = out.map_uncertainty
+        self.info(f"slot {slot}: +{len(out.integrated)} keyframes, -{len(out.evicted)}, map "
+                  f"{len(self.core.map.keyframes)} keyframes / {len(self.core.map.points)} "
+                  f"points, u(G) {u:.1f}{'' if math.isfinite(u) else ' (disconnected)'}, BA "
+                  f"{ba_ms:.0f} ms, version {out.version}")
+
+    def close(self) -> None:
+        """Stop listening and publishing (a reclaimed device): its slots are dropped and its
+        checkpoint, if any, moved aside to ``FILE.reclaimed`` so that the device, should it
+        come back, starts afresh (the file is still there to inspect or restore)."""
+        checkpoint = self.core.checkpoint
+        if checkpoint is not None and checkpoint.is_file():
+            checkpoint.replace(checkpoint.with_name(checkpoint.name + ".reclaimed"))
+        for sub in self.subscriptions:
+            self.node.destroy_subscription(sub.subscription)
+        for pub in (self.pub_request, self.pub_map, self.pub_stats, *(self.pub_views or ())):
+            self.node.destroy_publisher(pub)

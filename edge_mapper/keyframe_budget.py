@@ -1,0 +1,190 @@
+"""One edge, many devices: the shared keyframe budget V_total, slot by slot (issue #32).
+
+Devices keep their own slot clocks, so the budget is granted per device-slot: when device i
+plans slot k, the allocator (:mod:`twinslam.map_management.allocation`) splits V_total between
+the active devices by their latest demands, and i plans with
+
+    grant_i = min(target_i, V_total − Σ_{j≠i} committed_j),
+
+where committed_j = max(j's map size, the grants of j's open slots) is the most j's map can
+hold until its open slots finish. A device's map after a slot is at most that slot's grant
+(the planner's Theorem 1 sizes), so Σ_i map_i ≤ Σ_i committed_i ≤ V_total at every moment
+— a device whose share shrank frees its keyframes at its next slot before another device can
+grow into them. Map sizes here are those of the maps the edge publishes, at slot ends: while
+slots overlap, the edge may hold the next slot's uploads a moment before that slot's
+evictions apply (:mod:`edge_mapper.edge_core`), never in a map a device receives. A new device may get less than its share (or nothing: it then uploads nothing
+that slot) until the others have shrunk.
+
+A device that sends no summaries for ``silent_after_s`` is silent: it keeps its map and its
+committed keyframes but drops out of the split; after ``reclaim_after_s`` more its budget is
+reclaimed (its map released) and the others grow into it at their next slots. A silent device
+that speaks again is active again; a reclaimed one starts afresh.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from enum import Enum
+
+import numpy as np
+
+from edge_mapper.edge_core import EdgeMapperCore
+from edge_mapper.slot_planner import FrameObservations
+from twinslam.common.tracking_rule import MIN_INLIERS
+from twinslam.map_management.allocation import (
+    ALLOCATORS,
+    BudgetError,
+    DeviceDemand,
+    allocate,
+    check_budget,
+)
+from twinslam.map_management.budget_value import budget_value, expected_uploads
+
+
+class Presence(Enum):
+    ACTIVE = "active"
+    SILENT = "silent"
+
+
+@dataclass
+class DeviceAccount:
+    """One device's side of the ledger."""
+
+    device: str
+    demand: DeviceDemand
+    last_seen: float                        #: monotonic seconds of its last summaries
+    map_size: int = 0                       #: keyframes of its last published map
+    target: int = 0                         #: the allocator's share at its last plan
+    granted: int = 0                        #: V_max its last plan was given
+    open_grants: dict[int, int] = field(default_factory=dict)   #: slot → grant
+    presence: Presence = Presence.ACTIVE
+
+    @property
+    def committed(self) -> int:
+        """The most keyframes its map can hold until its open slots finish."""
+        return max([self.map_size, *self.open_grants.values()])
+
+
+@dataclass(frozen=True)
+class BudgetEvent:
+    """A change of a device's presence, for the node to log and act on."""
+
+    device: str
+    event: str                               #: "silent", "active" or "reclaimed"
+    seconds: float                           #: how long it had been quiet
+
+
+class KeyframeBudget:
+    """The ledger of V_total across devices (no DDS, no clocks of its own: callers pass
+    monotonic seconds)."""
+
+    def __init__(self, total: int, allocator: str = "equal", minimum: int = 5,
+                 fairness: float = 0.0, silent_after_s: float = 10.0,
+                 reclaim_after_s: float = 60.0) -> None:
+        if allocator not in ALLOCATORS:
+            raise ValueError(f"unknown allocator {allocator!r}: one of {', '.join(ALLOCATORS)}")
+        check_budget(total, 1, minimum)
+        if not (silent_after_s > 0 and reclaim_after_s >= 0):
+            raise ValueError("silent_after_s must be > 0 and reclaim_after_s >= 0")
+        self.total, self.allocator, self.minimum = int(total), allocator, int(minimum)
+        self.fairness = float(fairness)
+        self.silent_after_s, self.reclaim_after_s = silent_after_s, reclaim_after_s
+        self.accounts: dict[str, DeviceAccount] = {}
+        self._events: list[BudgetEvent] = []     #: silent devices heard again, until swept
+
+    @property
+    def active(self) -> list[str]:
+        return [d for d, a in self.accounts.items() if a.presence is Presence.ACTIVE]
+
+    def join(self, device: str, now: float) -> None:
+        """Take ``device`` in; BudgetError when V_total cannot give every active device its
+        minimum with it (the device is then not served)."""
+        if device in self.accounts:
+            return
+        check_budget(self.total, len(self.active) + 1, self.minimum)
+        self.accounts[device] = DeviceAccount(device, DeviceDemand(device), now)
+
+    def grant(self, device: str, slot: int, demand: DeviceDemand, now: float) -> int:
+        """The V_max ``device`` plans ``slot`` with (see the module's rule); its demand and
+        presence are brought up to date first."""
+        account = self.accounts[device]
+        account.demand = demand
+        if account.presence is Presence.SILENT:
+            check_budget(self.total, len(self.active) + 1, self.minimum)
+            self._events.append(BudgetEvent(device, "active", now - account.last_seen))
+            account.presence = Presence.ACTIVE
+        account.last_seen = now
+        active = [self.accounts[d] for d in self.active]
+        targets = allocate(self.allocator, self.total, [a.demand for a in active],
+                           self.minimum, self.fairness)
+        for a, target in zip(active, targets, strict=True):
+            a.target = target
+        others = sum(a.committed for d, a in self.accounts.items() if d != device)
+        grant = max(0, min(account.target, self.total - others))
+        account.granted = grant
+        account.open_grants[slot] = grant
+        return grant
+
+    def finished(self, device: str, slot: int, map_size: int) -> None:
+        """``device``'s ``slot`` finished with ``map_size`` keyframes: the map it publishes
+        (between two slot ends the edge may already hold the next slot's uploads before that
+        slot's evictions apply — at most one slot's uploads, never in a published map)."""
+        account = self.accounts.get(device)
+        if account is None:
+            return
+        account.open_grants.pop(slot, None)
+        account.map_size = map_size
+
+    def sweep(self, now: float) -> list[BudgetEvent]:
+        """Silence and reclaim by the clock; what changed since the last sweep."""
+        events, self._events = self._events, []
+        for device, account in list(self.accounts.items()):
+            quiet = now - account.last_seen
+            if account.presence is Presence.ACTIVE and quiet >= self.silent_after_s:
+                account.presence = Presence.SILENT
+                events.append(BudgetEvent(device, "silent", quiet))
+            elif (account.presence is Presence.SILENT
+                  and quiet >= self.silent_after_s + self.reclaim_after_s):
+                del self.accounts[device]
+                events.append(BudgetEvent(device, "reclaimed", quiet))
+        return events
+
+    def committed_total(self) -> int:
+        return sum(a.committed for a in self.accounts.values())
+
+    def check(self) -> None:
+        """AssertionError when the ledger breaks its invariant (tests and debugging)."""
+        assert self.committed_total() <= self.total, (
+            f"{self.committed_total()} keyframes committed of {self.total}")
+
+
+def device_demand(device: str, core: EdgeMapperCore, frames: Sequence[FrameObservations],
+                  rate_mbps: float, max_budget: int, with_value: bool,
+                  next_state_probs: Sequence[float] = (),
+                  state_rates_mbps: Sequence[float] = ()) -> DeviceDemand:
+    """What ``device``'s slot says of its need: its map size, its novelty (the share of the
+    points its tracked frames observe that are its own tracks, not the edge's map points)
+    and, for the ``twin`` allocator, its value curve over budgets 0 … ``max_budget``. The
+    uploads the curve expects come from its twin's next-state distribution when one is given
+    (``next_state_probs`` over ``state_rates_mbps``), else from this slot's rate."""
+    planner, cfg = core.planner, core.slot_config
+    by_id = {f.frame_id: f for f in frames}
+    points = [planner.points_of(by_id, f.frame_id) for f in frames if f.tracked]
+    shares = [float(np.count_nonzero(p < 0)) / p.size for p in points if p.size]
+    novelty = float(np.mean(shares)) if shares else 1.0
+    value = None
+    if with_value:
+        if len(next_state_probs) and len(next_state_probs) == len(state_rates_mbps):
+            uploads = expected_uploads(next_state_probs, state_rates_mbps, cfg.alpha_mbit,
+                                       cfg.d_req_s, len(frames))
+        else:
+            uploads = min(math.floor(rate_mbps * cfg.d_req_s / cfg.alpha_mbit + 1e-9),
+                          len(frames))
+        keyframes = [core.map.point_array(k) for k in core.map.keyframe_ids()]
+        value = budget_value(keyframes, points, uploads, MIN_INLIERS, max_budget)
+    return DeviceDemand(device, len(core.map.keyframes), novelty, value)
+
+
+__all__ = ["BudgetError", "BudgetEvent", "DeviceAccount", "KeyframeBudget", "Presence"]

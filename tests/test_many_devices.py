@@ -1,0 +1,103 @@
+"""One edge serving three devices within one keyframe budget (issue #32), every node its own
+process on a loopback domain: two devices listed, the third found on the graph; each device is
+tracked and answered on its own namespace, each map stays within the share the edge granted
+it, the maps together never exceed V_total, and a device that vanishes mid-run has its share
+reclaimed by the others."""
+
+from __future__ import annotations
+
+import signal
+from typing import Any
+
+from twinslam_msgs.msg import FrameSummaries, KeyframeBudget, MapStats, UploadRequest
+
+from msg_schemas import qos
+from twinslam.node_hosts.loopback import LoopbackDomain
+from twinslam.node_hosts.session import RosSession
+
+#: per device: slot length, channel seed, first frame of the synthetic room played
+DEVICES = {"ar1": (30, 0, 0), "ar2": (30, 1, 200), "ar3": (45, 2, 400)}
+FRAMES, V_TOTAL, MINIMUM = 420, 24, 5
+GONE = "ar3"                               #: killed after a few slots
+
+
+def test_one_edge_serves_three_devices_within_one_budget_and_reclaims_a_lost_ones_share(
+        domain: LoopbackDomain, ros: RosSession) -> None:
+    got: dict[str, dict[str, list[Any]]] = {d: {"summaries": [], "requests": [], "stats": []}
+                                           for d in DEVICES}
+    budgets: list[KeyframeBudget] = []
+    sizes: dict[str, int] = {}                # each device's map size, as MapStats last said
+    overfull: list[tuple[str, int, int]] = []
+
+    def on_stats(device: str, msg: MapStats) -> None:
+        got[device]["stats"].append(msg)
+        sizes[device] = int(msg.map_size)
+        if sum(sizes.values()) > V_TOTAL:
+            overfull.append((device, int(msg.slot), sum(sizes.values())))
+
+    sub = ros.node.create_subscription
+    for d, rec in got.items():
+        sub(FrameSummaries, f"/{d}/device/frame_summaries", rec["summaries"].append,
+            qos.PROTOCOL)
+        sub(UploadRequest, f"/{d}/edge/upload_request", rec["requests"].append, qos.PROTOCOL)
+        sub(MapStats, f"/{d}/edge/map_stats", lambda m, d=d: on_stats(d, m), qos.PROTOCOL)
+    def on_budget(msg: KeyframeBudget) -> None:
+        budgets.append(msg)
+        for device in set(sizes) - set(msg.devices):     # reclaimed: its map released
+            sizes.pop(device)
+
+    sub(KeyframeBudget, "/edge/keyframe_budget", on_budget, qos.PROTOCOL)
+    edge = domain.spawn(["-m", "edge_mapper.node", "--ros-args", "-p", "policy:=lff",
+                         "-p", "devices:=[ar1, ar2]", "-p", "discover_devices:=true",
+                         "-p", f"vmax_total:={V_TOTAL}",
+                         "-p", "allocator:=motion", "-p", f"min_keyframes:={MINIMUM}",
+                         "-p", "device_silent_s:=2.0", "-p", "device_reclaim_s:=2.0",
+                         "-p", "visualisation:=false"])
+    assert domain.wait_for_log(edge, "listening on /ar2/device/frame_summaries", 90), \
+        domain.log(edge)[-2000:]
+    procs = {}
+    for d, (slot_frames, seed, start) in DEVICES.items():
+        procs[d] = [
+            domain.spawn(["-m", "device_tracker.node", "--ros-args", "-r", f"__ns:=/{d}",
+                          "-p", f"slot_frames:={slot_frames}", "-p", f"seed:={seed}",
+                          "-p", f"map_frame:={d}/map"]),
+            domain.spawn(["-m", "twinslam.sequence_player.node", "--ros-args",
+                          "-r", f"__ns:=/{d}", "-p", f"sequence:=synthetic:{start + FRAMES}",
+                          "-p", f"start:={start}", "-p", "wait_for_subscribers:=1",
+                          "-p", f"frame_id:={d}/camera", "-p", f"map_frame:={d}/map"])]
+    # the third device goes away after three slots of its own: camera and tracker killed
+    assert ros.spin_until(lambda: len(got[GONE]["stats"]) >= 3, 120.0), \
+        {d: {k: len(v) for k, v in r.items()} for d, r in got.items()}
+    for proc in procs[GONE]:
+        proc.send_signal(signal.SIGKILL)
+    assert ros.spin_until(lambda: all(p.poll() is not None for d in DEVICES if d != GONE
+                                      for p in procs[d][1:]), 180.0), "the players did not end"
+    ros.spin_until(lambda: False, 3.0)        # the last slots' maps and stats
+    log = domain.log(edge)
+    assert "serving device ar3 (its /ar3/device/frame_summaries)" in log, log[-3000:]
+    assert f"device {GONE}: silent for" in log and "reclaimed" in log, log[-3000:]
+    assert not overfull, f"maps held more than V_total together: {overfull[:5]}"
+    for d, rec in got.items():
+        summaries = rec["summaries"]
+        tracked = sum(f.tracked for s in summaries for f in s.frames)
+        frames = sum(len(s.frames) for s in summaries)
+        assert frames and tracked / frames > 0.8, f"{d}: {tracked}/{frames} frames tracked"
+        # answered on its own namespace, slot by slot, for its own frames
+        own = {int(s.slot): {f.frame_id for f in s.frames} for s in summaries}
+        for req in rec["requests"]:
+            assert set(req.upload_frame_ids) <= own[int(req.slot)], d
+        for stats in rec["stats"]:
+            assert stats.map_size <= stats.keyframe_budget, \
+                (d, stats.slot, stats.map_size, stats.keyframe_budget)
+        # a device may wait a slot for the others to shrink, never longer
+        assert all(s.keyframe_budget >= MINIMUM for s in rec["stats"][2:]), d
+    for b in budgets:
+        assert sum(b.map_sizes) <= b.total == V_TOTAL and sum(b.committed) <= V_TOTAL
+        assert all(t >= MINIMUM for t, a in zip(b.targets, b.active, strict=True) if a)
+    early = next(b for b in budgets if len(b.devices) == 3 and all(b.active))
+    late = budgets[-1]
+    assert GONE in early.devices and GONE not in late.devices
+    assert sum(late.targets) == V_TOTAL and len(late.devices) == 2
+    # the two that stayed hold more than a third of the budget each by the end
+    assert max(s.keyframe_budget for s in got["ar1"]["stats"][-2:]) > V_TOTAL // 3
+    assert max(s.keyframe_budget for s in got["ar2"]["stats"][-2:]) > V_TOTAL // 3

@@ -1,0 +1,186 @@
+"""One edge, many devices: splitting the keyframe budget V_total between the devices' maps
+(DESIGN.md §10, the paper's future work).
+
+Each device's map is managed by its own policy exactly as with one device; what changes is
+its V_max, which is the share an allocator gives it, slot by slot. Three allocators:
+
+* ``equal`` — V_total / N each (the remainder to the devices holding most now, so nobody
+  evicts for a rounding).
+* ``motion`` — in proportion to each device's *novelty*: the share of the points its last
+  slot's frames saw that its map does not hold. A device walking into new ground needs
+  keyframes to keep up with it; one standing still is served by the map it has.
+* ``value`` — each device's predicted tracked share as a function of its budget
+  (:mod:`twinslam.map_management.budget_value`: its recent frames against its map and the
+  uploads its rate twin expects), keyframes handed out one at a time to the largest gain in
+  Σ U(value), with U α-fair (``fairness`` 0: the sum itself; 1: Σ log, proportional
+  fairness). The issue calls it ``twin``: the twin is what says how many uploads to expect.
+
+Every allocator gives each device at least ``minimum`` keyframes; V_total below N × minimum
+is refused with the reason. Jain's index says how evenly a per-device figure came out.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+#: allocator names (``twin`` is ``value`` fed by the devices' rate twins)
+ALLOCATORS = ("equal", "motion", "twin")
+
+
+class BudgetError(ValueError):
+    """A budget that cannot be split as asked (V_total below N × the minimum)."""
+
+
+@dataclass(frozen=True)
+class DeviceDemand:
+    """What the edge knows of one device when it splits the budget: nothing of the future.
+
+    ``value[b]`` (for ``twin``) is the device's predicted tracked share with a budget of b
+    keyframes, b = 0 … len − 1 (beyond, it stays at the last value)."""
+
+    device: str
+    map_size: int = 0
+    novelty: float = 0.0
+    value: np.ndarray | None = None
+
+
+def check_budget(total: int, n_devices: int, minimum: int) -> None:
+    """BudgetError naming why ``total`` keyframes cannot serve ``n_devices``."""
+    if minimum < 1:
+        raise BudgetError(f"each device needs a budget of at least 1 keyframe, got {minimum}")
+    if n_devices and total < n_devices * minimum:
+        raise BudgetError(f"V_total {total} is below {n_devices} devices x {minimum} keyframes "
+                          "each: serve fewer devices, lower the minimum or raise V_total")
+
+
+def split_equal(total: int, held: Sequence[int], minimum: int) -> list[int]:
+    """V_total / N each; the remainder to the devices holding most now (``held``)."""
+    n = len(held)
+    check_budget(total, n, minimum)
+    if n == 0:
+        return []
+    base, extra = divmod(total, n)
+    order = sorted(range(n), key=lambda i: (-held[i], i))
+    shares = [base] * n
+    for i in order[:extra]:
+        shares[i] += 1
+    return shares
+
+
+def split_proportional(total: int, weights: Sequence[float], minimum: int) -> list[int]:
+    """``minimum`` each and the rest in proportion to ``weights`` (largest remainders; equal
+    shares when every weight is 0)."""
+    n = len(weights)
+    check_budget(total, n, minimum)
+    if n == 0:
+        return []
+    w = np.asarray(weights, dtype=np.float64)
+    if not np.all(np.isfinite(w)) or np.any(w < 0):
+        raise ValueError(f"weights must be finite and >= 0, got {list(weights)}")
+    if w.sum() <= 0:
+        w = np.ones(n)
+    spare = total - n * minimum
+    exact = spare * w / w.sum()
+    shares = np.floor(exact).astype(np.int64)
+    left = spare - int(shares.sum())
+    order = np.lexsort((np.arange(n), -(exact - shares)))     # largest remainder first
+    shares[order[:left]] += 1
+    return [int(s) + minimum for s in shares]
+
+
+def utility(share: np.ndarray, fairness: float) -> np.ndarray:
+    """α-fair utility of tracked shares: α = 0 the share itself, α = 1 its log, else
+    x^(1-α)/(1-α); a share is floored at 1e-3 so a device tracking nothing still counts."""
+    x = np.maximum(np.asarray(share, dtype=np.float64), 1e-3)
+    if fairness == 0:
+        return x
+    if fairness == 1:
+        return np.log(x)
+    return np.power(x, 1 - fairness) / (1 - fairness)
+
+
+def split_by_value(total: int, values: Sequence[np.ndarray], minimum: int,
+                   fairness: float = 0.0) -> list[int]:
+    """Maximise Σ_i U(values_i[b_i]) over Σ b_i = ``total``, b_i ≥ ``minimum``: greedy on
+    each curve's concave envelope, which is exact for concave utilities of concave curves
+    and a sound heuristic otherwise (a curve that rises late is still reached through its
+    envelope's average gain). Keyframes no curve gains from go round-robin to the smallest
+    shares: a spare keyframe still helps a device that turns back."""
+    n = len(values)
+    check_budget(total, n, minimum)
+    if fairness < 0 or not math.isfinite(fairness):
+        raise ValueError(f"fairness must be >= 0, got {fairness}")
+    if n == 0:
+        return []
+    shares = [minimum] * n
+    gains = [_envelope_gains(utility(_extend(v, total), fairness)) for v in values]
+    for _ in range(total - n * minimum):
+        best, best_gain = -1, 1e-12
+        for i in range(n):
+            b = shares[i]
+            gain = gains[i][b] if b < len(gains[i]) else 0.0
+            if gain > best_gain:
+                best, best_gain = i, gain
+        if best < 0:                                   # nobody gains: spread the rest evenly
+            best = min(range(n), key=lambda i: (shares[i], i))
+        shares[best] += 1
+    return shares
+
+
+def _extend(value: np.ndarray, total: int) -> np.ndarray:
+    """``value`` over budgets 0 … total (flat past its end)."""
+    v = np.asarray(value, dtype=np.float64)
+    if v.ndim != 1 or v.size == 0 or not np.all(np.isfinite(v)):
+        raise ValueError("a value curve is a non-empty 1-d array of finite shares")
+    if v.size > total + 1:
+        return v[:total + 1]
+    return np.concatenate([v, np.full(total + 1 - v.size, v[-1])])
+
+
+def _envelope_gains(u: np.ndarray) -> np.ndarray:
+    """Gains g[b] = U(b+1) − U(b) of the least concave majorant of ``u`` (upper hull)."""
+    hull: list[int] = [0]
+    for b in range(1, u.size):
+        while len(hull) >= 2:
+            a, c = hull[-2], hull[-1]
+            # drop c when it lies on or under the chord from a to b
+            if (u[c] - u[a]) * (b - a) <= (u[b] - u[a]) * (c - a):
+                hull.pop()
+            else:
+                break
+        hull.append(b)
+    gains = np.zeros(max(u.size - 1, 0))
+    for a, b in itertools.pairwise(hull):
+        gains[a:b] = (u[b] - u[a]) / (b - a)
+    return gains
+
+
+def allocate(allocator: str, total: int, demands: Sequence[DeviceDemand], minimum: int,
+             fairness: float = 0.0) -> list[int]:
+    """Each device's keyframe budget by ``allocator`` (one of :data:`ALLOCATORS`)."""
+    if allocator == "equal":
+        return split_equal(total, [d.map_size for d in demands], minimum)
+    if allocator == "motion":
+        return split_proportional(total, [max(d.novelty, 0.0) for d in demands], minimum)
+    if allocator == "twin":
+        missing = [d.device for d in demands if d.value is None]
+        if missing:
+            raise ValueError(f"the twin allocator needs a value curve for {', '.join(missing)}")
+        return split_by_value(total, [d.value for d in demands if d.value is not None],
+                              minimum, fairness)
+    raise ValueError(f"unknown allocator {allocator!r}: one of {', '.join(ALLOCATORS)}")
+
+
+def jain_index(values: Sequence[float]) -> float:
+    """Jain's fairness index (Σx)² / (N Σx²): 1 when all are equal, 1/N when one has all;
+    NaN without values, 1 when all are 0."""
+    x = np.asarray([v for v in values if math.isfinite(v)], dtype=np.float64)
+    if x.size == 0:
+        return math.nan
+    square = float(np.sum(x * x))
+    return 1.0 if square == 0 else float(np.sum(x) ** 2 / (x.size * square))
