@@ -12,8 +12,9 @@ hold until its open slots finish. A device's map after a slot is at most that sl
 — a device whose share shrank frees its keyframes at its next slot before another device can
 grow into them. Map sizes here are those of the maps the edge publishes, at slot ends: while
 slots overlap, the edge may hold the next slot's uploads a moment before that slot's
-evictions apply (:mod:`edge_mapper.edge_core`), never in a map a device receives. A new device may get less than its share (or nothing: it then uploads nothing
-that slot) until the others have shrunk.
+evictions apply (:mod:`edge_mapper.edge_core`), never in a map a device receives. A new
+device joins the split at its first summaries and may get less than its share (or nothing: it
+then uploads nothing that slot) until the others have shrunk.
 
 A device that sends no summaries for ``silent_after_s`` is silent: it keeps its map and its
 committed keyframes but drops out of the split; after ``reclaim_after_s`` more its budget is
