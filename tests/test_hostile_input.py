@@ -34,7 +34,8 @@ from twinslam.node_hosts.checked_subscription import CheckedSubscription
 from twinslam.node_hosts.session import RosSession
 
 REPO = Path(__file__).resolve().parents[1]
-NODE_FILES = ["device_tracker/node.py", "edge_mapper/node.py", "udt_node/node.py"]
+NODE_FILES = ["device_tracker/node.py", "edge_mapper/node.py", "edge_mapper/device_link.py",
+              "udt_node/node.py"]
 SUBSCRIBED = sorted({"sensor_msgs/msg/Image", "sensor_msgs/msg/CameraInfo",
                      "twinslam_msgs/msg/UploadRequest", "twinslam_msgs/msg/MapUpdate",
                      "twinslam_msgs/msg/FrameSummaries", "twinslam_msgs/msg/Keyframe",
@@ -66,7 +67,7 @@ def test_the_fuzzed_types_are_every_type_the_nodes_subscribe_to() -> None:
     found = set()
     for rel in NODE_FILES:
         text = (REPO / rel).read_text()
-        found |= set(re.findall(r"CheckedSubscription\(\s*self,\s*(\w+),", text))
+        found |= set(re.findall(r"CheckedSubscription\(\s*(?:self|node),\s*(\w+),", text))
     assert found == {t.rsplit("/", 1)[1] for t in SUBSCRIBED}
 
 

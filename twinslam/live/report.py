@@ -125,3 +125,4 @@ def print_table(reports: list[RunReport], echo: Callable[[str], None] = print) -
     echo(RunReport.HEADER)
     for r in reports:
         echo(r.row())
+

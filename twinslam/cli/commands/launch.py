@@ -9,6 +9,13 @@ from pathlib import Path
 
 from twinslam.cli.console import Subparsers, error
 from twinslam.common.reporting import file_name
+from twinslam.live.fleet import (
+    FleetConfig,
+    FleetLauncher,
+    FleetReport,
+    device_sequence,
+    print_fleet_table,
+)
 from twinslam.live.launcher import DEFAULT_PARAMS, LaunchConfig, Launcher, tc_uplink_params
 from twinslam.live.report import RunReport, policy_label, print_table
 from twinslam.live.run_picture import plot_run
@@ -108,10 +115,73 @@ def _run_policy(args: argparse.Namespace, policy: str, chosen: Scenario,
     return report
 
 
+def _fleet_settings(args: argparse.Namespace) -> list[FleetConfig]:
+    """One fleet configuration per allocator asked for; ValueError names a bad option."""
+    if args.record is not None or args.hosts:
+        raise ValueError("--devices runs on a loopback or the environment's domain, without "
+                         "--record or --hosts")
+    allocators = [a.strip() for a in args.allocator.split(",") if a.strip()]
+    fleets = [FleetConfig(args.devices, args.vmax_total, a, args.min_keyframes, args.stride)
+              for a in allocators]
+    for fleet in fleets:
+        fleet.check()
+    return fleets
+
+
+def _run_fleet(args: argparse.Namespace, policy: str, fleet: FleetConfig, chosen: Scenario,
+               extra: dict[str, list[str]]) -> FleetReport:
+    length = None if args.sequence.startswith("synthetic") else len(open_sequence(
+        args.sequence, 0, -1))
+    starts = [device_sequence(args.sequence, i, fleet.devices, args.frames, args.start,
+                              fleet.stride, length) for i in range(fleet.devices)]
+    config = LaunchConfig(args.sequence, policy, args.frames, args.rate, args.params,
+                          timeout_s=args.timeout, extra=extra, scenario=chosen, start=args.start)
+    with _launch_domain(args) as dom:
+        if isinstance(dom, LoopbackDomain) and args.loopback:
+            dom.activate()
+        budget = (f"V_total {fleet.vmax_total} split {fleet.allocator}" if fleet.vmax_total
+                  else "each its own V_max")
+        print(f"{policy}: {fleet.devices} devices, one edge ({budget}), {args.frames} frames "
+              f"each on domain {dom.domain_id}", flush=True)
+        launcher = FleetLauncher(dom, config, fleet, starts, lambda line: print(line, flush=True))
+        result = launcher.run_fleet()
+    args.out.mkdir(parents=True, exist_ok=True)
+    for device, monitor in launcher.records.items():
+        picture = args.out / file_name(f"{policy_label(policy)}_{fleet.allocator}_{device}.png")
+        plot_run(monitor.record, f"{policy_label(policy)}, {fleet.allocator}: device {device}",
+                 picture)
+    print(f"wrote {len(launcher.records)} pictures into {args.out}", flush=True)
+    return result
+
+
+def _run_fleets(args: argparse.Namespace, policies: list[str], chosen: Scenario,
+                extra: dict[str, list[str]]) -> int:
+    try:
+        fleets = _fleet_settings(args)
+    except ValueError as exc:
+        return error(exc)
+    results = []
+    for policy in policies:
+        for fleet in fleets:
+            try:
+                results.append(_run_fleet(args, policy, fleet, chosen, extra))
+            except KeyboardInterrupt:
+                print("interrupted: nodes stopped", file=sys.stderr)
+                return 130
+            except RuntimeError as exc:
+                return error(exc, 1)
+    print()
+    for result in results:
+        print_fleet_table(result)
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     policies = [p.strip() for p in args.policy.split(",") if p.strip()]
     try:
         chosen, extra = _checked_setup(args)
+        if args.devices:
+            return _run_fleets(args, policies, chosen, extra)
         records = _recordings(args, policies)
     except (ValueError, SequenceError) as exc:
         return error(exc)
@@ -170,6 +240,23 @@ def register(sub: Subparsers) -> None:
     launch.add_argument("--record-camera-every", type=int, default=10, metavar="N",
                         help="with --record: keep one camera sample (image, depth, "
                         "camera_info) in N")
+    fleet = launch.add_argument_group(
+        "one edge, many devices", "--devices N plays N devices (namespaces ar1 … arN, each its "
+        "own walk and uplink seed) against one edge; a table per device, their mean and "
+        "Jain's index of the tracked shares")
+    fleet.add_argument("--devices", type=int, default=0, metavar="N",
+                       help="devices served by one edge (0: one device/edge pair, as before)")
+    fleet.add_argument("--vmax-total", type=int, default=0, metavar="V",
+                       help="keyframes of every device's map together (0: each device has "
+                       "the parameter file's vmax)")
+    fleet.add_argument("--allocator", default="equal",
+                       help="how --vmax-total is split, comma-separated to compare: equal, "
+                       "motion, twin; default %(default)s")
+    fleet.add_argument("--min-keyframes", type=int, default=5,
+                       help="the least share a device gets; default %(default)s")
+    fleet.add_argument("--stride", type=int, default=0,
+                       help="on a dataset, frames between two devices' first frames (0: "
+                       "spread evenly over the sequence)")
     launch.add_argument("--map-source", default=None,
                         help="the device's map source: edge (tracked only against the edge's "
                         "map, the paper's device) or edge+local (plus its own recent points); "

@@ -1,0 +1,48 @@
+"""``twinslam launch --devices N``: one edge and N devices as processes, a table per device,
+their mean and Jain's index, and the settings that cannot run refused before anything starts
+(issue #32)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from twinslam.cli.main import main
+from twinslam.live.fleet import FleetConfig, device_sequence
+
+
+def test_every_device_plays_its_own_walk() -> None:
+    assert [device_sequence("synthetic:300", i, 3, 300, 0, 0, None) for i in range(3)] == [
+        ("synthetic:300:0", 0), ("synthetic:300:1", 0), ("synthetic:300:2", 0)]
+    assert [device_sequence("/data/7scenes", i, 4, 200, 0, 0, 1000)[1] for i in range(4)] == [
+        0, 250, 500, 750]
+    assert [device_sequence("/data/7scenes", i, 3, 200, 900, 100, 1000)[1]
+            for i in range(3)] == [900, 0, 100]
+
+
+def test_settings_that_cannot_run_are_refused_before_any_node_starts(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(ValueError, match="V_total 8 is below 2 devices x 5 keyframes"):
+        FleetConfig(2, 8, "equal", 5).check()
+    assert main(["launch", "--devices", "2", "--allocator", "fifo", "--loopback"]) == 2
+    assert "unknown allocator 'fifo'" in capsys.readouterr().err
+    assert main(["launch", "--devices", "2", "--record", "bag", "--loopback"]) == 2
+    assert "without --record" in capsys.readouterr().err
+
+
+def test_launch_serves_two_devices_from_one_edge_and_reports_each(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    code = main(["launch", "--loopback", "--devices", "2", "--vmax-total", "12",
+                 "--allocator", "motion", "--sequence", "synthetic:120", "--frames", "120",
+                 "--policy", "lff", "--out", str(tmp_path)])
+    out = capsys.readouterr().out
+    assert code == 0, out[-3000:]
+    assert "lff, allocator motion: 2 devices" in out and "Jain's index" in out
+    rows = {line.split()[0]: line.split() for line in out.splitlines()
+            if line.split() and line.split()[0] in ("ar1", "ar2", "mean")}
+    assert set(rows) == {"ar1", "ar2", "mean"}
+    budgets = [float(rows[d][-2]) for d in ("ar1", "ar2")]
+    assert all(0 < b <= 12 for b in budgets) and sum(budgets) <= 12 + 1e-9
+    assert sorted(p.name for p in tmp_path.glob("*.png")) == ["lff_motion_ar1.png",
+                                                            "lff_motion_ar2.png"]

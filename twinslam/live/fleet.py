@@ -1,0 +1,219 @@
+"""``twinslam launch --devices N``: one edge serving N devices (issue #32) — a player and a
+device per namespace (``/ar1`` … ``/arN``), each on its own walk and uplink seed, one
+``edge_mapper`` with ``devices:=[ar1, …]`` and, with ``vmax_total``, one keyframe budget split
+by an allocator; a monitor per namespace and one report per device, their mean and Jain's
+index of the devices' tracked shares.
+
+Walks: on the synthetic room each device plays its own seed's walk (``synthetic:F:i``); on a
+dataset folder device i starts ``stride`` frames after device i − 1 (wrapping round), so the
+devices see different places at a time.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+from twinslam_msgs.msg import MapStats
+
+from twinslam.common import table1
+from twinslam.live.launcher import LaunchConfig, Launcher
+from twinslam.live.monitor import PipelineMonitor
+from twinslam.live.record import RunRecord
+from twinslam.live.report import RunReport, report
+from twinslam.map_management.allocation import ALLOCATORS, check_budget, jain_index
+from twinslam.node_hosts.loopback import ProcessDomain
+from twinslam.node_hosts.session import RosSession
+
+
+@dataclass(frozen=True)
+class FleetConfig:
+    devices: int = 3
+    vmax_total: int = 0              #: 0: each device has the parameter file's vmax
+    allocator: str = "equal"
+    min_keyframes: int = 5
+    stride: int = 0                  #: frames between devices' starts on a dataset (0: even)
+
+    def names(self) -> list[str]:
+        return [f"ar{i + 1}" for i in range(self.devices)]
+
+    def check(self) -> None:
+        """ValueError naming a setting that cannot run."""
+        if self.devices < 1:
+            raise ValueError(f"--devices must be >= 1, got {self.devices}")
+        if self.allocator not in ALLOCATORS:
+            raise ValueError(f"unknown allocator {self.allocator!r}: one of "
+                             f"{', '.join(ALLOCATORS)}")
+        if self.vmax_total:
+            check_budget(self.vmax_total, self.devices, self.min_keyframes)
+
+
+@dataclass
+class FleetReport:
+    """Each device's report, in device order, and what they add up to."""
+
+    allocator: str
+    devices: list[str]
+    reports: list[RunReport]
+    budgets: list[float]              #: each device's mean keyframe budget over its slots
+    frames: list[int]                 #: frames each device's slots held
+
+    def tracked_shares(self) -> list[float]:
+        """Each device's share of its frames it tracked."""
+        return [1.0 - r.untracked_frames / n if n else math.nan
+                for r, n in zip(self.reports, self.frames, strict=True)]
+
+    @property
+    def jain_tracked(self) -> float:
+        """Jain's index of the devices' tracked shares (1: all alike)."""
+        return jain_index(self.tracked_shares())
+
+
+def device_sequence(sequence: str, index: int, devices: int, frames: int, start: int,
+                    stride: int, length: int | None) -> tuple[str, int]:
+    """(sequence, first frame) device ``index`` of ``devices`` plays: its own walk of the
+    synthetic room, or the dataset (``length`` frames) from ``start + index × stride``,
+    wrapping round (a stride of 0 spreads the devices evenly over it)."""
+    if sequence.startswith("synthetic"):
+        parts = sequence.split(":")
+        count = parts[1] if len(parts) > 1 and parts[1] else str(max(frames, 1) + start)
+        return f"synthetic:{count}:{index}", start
+    if not length:
+        return sequence, start
+    step = stride or max(1, length // max(1, devices))
+    return sequence, (start + index * step) % length
+
+
+class FleetLauncher(Launcher):
+    """One edge, ``fleet.devices`` devices, on ``domain``."""
+
+    def __init__(self, domain: ProcessDomain, config: LaunchConfig, fleet: FleetConfig,
+                 starts: Sequence[tuple[str, int]],
+                 echo: Callable[[str], None] | None = print) -> None:
+        super().__init__(domain, config, echo)
+        fleet.check()
+        self.fleet, self.starts = fleet, list(starts)
+        self.records: dict[str, PipelineMonitor] = {}
+
+    def edge_args(self) -> list[str]:
+        f = self.fleet
+        args = [*self.node_args("edge_mapper"), "-p", f"devices:=[{', '.join(f.names())}]",
+                "-p", f"allocator:={f.allocator}", "-p", f"min_keyframes:={f.min_keyframes}"]
+        if f.vmax_total:
+            args += ["-p", f"vmax_total:={f.vmax_total}"]
+        return args
+
+    def device_args(self, name: str, index: int) -> list[str]:
+        """``name`` (device or player) of device ``index``: its namespace, walk and seed."""
+        device = self.fleet.names()[index]
+        sequence, start = self.starts[index]
+        c = replace(self.config, sequence=sequence, start=start)
+        saved, self.config = self.config, c
+        try:
+            args = self.node_args(name)
+        finally:
+            self.config = saved
+        args += ["-r", f"__ns:=/{device}", "-p", f"map_frame:={device}/map"]
+        if name == "device_tracker":
+            args += ["-p", f"seed:={index}"]
+        else:
+            args += ["-p", f"frame_id:={device}/camera"]
+        return args
+
+    def run_fleet(self) -> FleetReport:
+        """Play every device's walk at once and report each."""
+        with self.domain.monitor_scope():
+            return self._run_fleet()
+
+    def _run_fleet(self) -> FleetReport:
+        c, names = self.config, self.fleet.names()
+        sessions = {d: RosSession("twinslam_monitor", namespace=f"/{d}") for d in names}
+        try:
+            monitors = {d: PipelineMonitor(s.node, self._status(d)) for d, s in sessions.items()}
+            self.records = monitors
+            started = time.monotonic()
+            edge = self.domain.spawn(self.edge_args())
+            self.procs["edge_mapper"] = edge
+            first = sessions[names[-1]]
+            if not first.spin_until(lambda: monitors[names[-1]].requests.get_publisher_count()
+                                    > 0 or edge.poll() is not None, min(120.0, c.timeout_s)):
+                raise RuntimeError("edge_mapper did not come up within 120 s")
+            if edge.poll() is not None:
+                _, _, err = self.domain.stop(self.procs.pop("edge_mapper"))
+                raise RuntimeError(f"edge_mapper exited with {edge.returncode} at start: "
+                                   f"{err.strip()[-500:]}")
+            for i, d in enumerate(names):
+                for node in ("device_tracker", "sequence_player"):
+                    self.procs[f"{node}:{d}"] = self.domain.spawn(self.device_args(node, i))
+            players = [self.procs[f"sequence_player:{d}"] for d in names]
+            deadline = started + c.timeout_s
+
+            def spin_all(until: Callable[[], bool], seconds: float) -> bool:
+                end = time.monotonic() + seconds
+                while time.monotonic() < end and not until():
+                    for s in sessions.values():
+                        s.spin_once(0.02)
+                return until()
+
+            spin_all(lambda: all(p.poll() is not None for p in players)
+                     or self._failed_fleet() is not None, c.timeout_s)
+            failed = self._failed_fleet()
+            if failed:
+                _, _, err = self.domain.stop(self.procs.pop(failed))
+                raise RuntimeError(f"{failed} exited during the run: {err.strip()[-800:]}")
+            expected = self._expected_slots()
+            spin_all(lambda: all(
+                (expected is None or expected - 1 in m.record.stats) for m in monitors.values()),
+                min(60.0, max(10.0, deadline - time.monotonic())))
+            spin_all(lambda: False, 0.5)
+            slot_frames = int(self._device_param("slot_frames", table1.SLOT_FRAMES))
+            elapsed = time.monotonic() - started
+            reports = [report(c.policy, monitors[d].record, elapsed, slot_frames) for d in names]
+            frames = [sum(len(s.frames) for s in monitors[d].record.summaries.values())
+                      for d in names]
+            budgets = [_mean_budget(monitors[d]) for d in names]
+            return FleetReport(self.fleet.allocator, names, reports, budgets, frames)
+        finally:
+            self.stop()
+            for s in sessions.values():
+                s.close()
+
+    def _status(self, device: str) -> Callable[[MapStats, RunRecord], None]:
+        def line(msg: MapStats, _record: RunRecord) -> None:
+            if self.echo:
+                self.echo(f"[{self.config.policy} {device}] slot {msg.slot:>3} | map "
+                          f"{msg.map_size:>3} of {msg.keyframe_budget:>3} kf | lost "
+                          f"{msg.lost_share:4.0%} | edge {msg.slot_processing_ms:5.0f} ms")
+        return line
+
+    def _failed_fleet(self) -> str | None:
+        return next((name for name, proc in self.procs.items()
+                     if not name.startswith("sequence_player") and proc.pid not in self._killed
+                     and proc.poll() not in (None, 0)), None)
+
+
+def _mean_budget(monitor: PipelineMonitor) -> float:
+    budgets = [int(s.keyframe_budget) for s in monitor.record.stats.values()]
+    return float(np.mean(budgets)) if budgets else math.nan
+
+
+def print_fleet_table(fleet: FleetReport, echo: Callable[[str], None] = print) -> None:
+    """One row a device (labelled by it), their mean, and Jain's index of the tracked
+    shares, under the policy and allocator."""
+    policy = fleet.reports[0].label if fleet.reports else "?"
+    echo(f"{policy}, allocator {fleet.allocator}: {len(fleet.devices)} devices")
+    echo(f"{RunReport.HEADER.replace('policy', 'device', 1)} {'budget':>7} {'tracked':>8}")
+    shares = fleet.tracked_shares()
+    for device, r, budget, share in zip(fleet.devices, fleet.reports, fleet.budgets, shares,
+                                        strict=True):
+        echo(f"{r.row().replace(r.label.ljust(14), device.ljust(14), 1)} {budget:>7.1f} "
+             f"{share:>8.1%}")
+    mean = [float(np.nanmean([getattr(r, k) for r in fleet.reports]))
+            for k in ("mean_uncertainty", "lost_share", "tracked_uncertainty", "ate_m")]
+    head = f"{'mean':<14} {mean[0]:>10.1f} {mean[1]:>6.1%} {mean[2]:>10.1f} {mean[3]:>7.3f}"
+    echo(f"{head:<{len(RunReport.HEADER)}} {float(np.nanmean(fleet.budgets)):>7.1f} "
+         f"{float(np.nanmean(shares)):>8.1%}")
+    echo(f"Jain's index of the tracked shares: {fleet.jain_tracked:.3f}")
