@@ -76,22 +76,24 @@ def test_jains_index() -> None:
     assert jain_index([0.0, 0.0]) == 1.0 and np.isnan(jain_index([]))
 
 
-def test_a_budget_is_worth_the_frames_it_lets_the_device_track() -> None:
+def test_a_budget_is_worth_the_frames_its_old_keyframes_let_the_device_track() -> None:
     """Frames sharing points with keyframes as the tracking rule counts them: a frame is
-    tracked once the map holds ``min_shared`` of its points, the most covisible keyframes
-    come first, and the expected uploads (here none) add their own points."""
+    tracked once the kept keyframes hold ``min_shared`` of its points, the most covisible
+    keyframes are kept first, and the expected uploads take their place in the budget."""
     near = np.arange(0, 100)            # a keyframe the frames see well
     far = np.arange(1000, 1100)         # one they do not see at all
     half = np.arange(50, 80)            # one that shares 30 points with each frame
     frames = [np.arange(0, 60), np.arange(10, 70), np.arange(20, 80)]
     value = budget_value([far, half, near], frames, 0.0, 35, 4)
-    # budget 1 holds `near` (most covisible): all three frames share >= 35 points with it
-    assert value.tolist() == [0.0, 1.0, 1.0, 1.0, 1.0]
+    # budget 1 holds `near` (most covisible): all three frames share >= 35 points with it;
+    # the curve ends where the keyframes do (flat beyond)
+    assert value.tolist() == [0.0, 1.0, 1.0, 1.0]
     value = budget_value([far, half], frames, 0.0, 35, 3)
-    assert value.tolist() == [0.0, 0.0, 0.0, 0.0]              # `half` gives 10-30 points
-    # uploads come from the frames themselves (evenly spaced) and cover their neighbours
-    value = budget_value([far], frames, 1.0, 35, 2)
-    assert value[0] == 0.0 and value[1] == pytest.approx(1.0)
+    assert value.tolist() == [0.0, 0.0, 0.0]                   # `half` gives 10-30 points
+    # two expected uploads come first: the old keyframe `near` needs a budget of three
+    value = budget_value([far, near], frames, 2.0, 35, 4)
+    assert value.tolist() == [0.0, 0.0, 0.0, 1.0, 1.0]
+    assert budget_value([near], [], 0.0, 35, 2).tolist() == [0.0, 0.0]
 
 
 def test_expected_uploads_follow_theorem_ones_count() -> None:

@@ -178,7 +178,7 @@ def test_a_devices_demand_reads_its_slot_and_map() -> None:
               FrameObservations(102, frozenset(), frozenset(range(9)), False)]   # untracked
     demand = device_demand("ar1", core, frames, 0.0, 3, with_value=True)
     assert demand.novelty == pytest.approx(0.25) and demand.map_size == 1
-    assert demand.value is not None and demand.value.tolist() == [0.0, 1.0, 1.0, 1.0]
+    assert demand.value is not None and demand.value.tolist() == [0.0, 1.0]
     assert device_demand("ar1", core, frames[2:], 0.0, 3, with_value=False).novelty == 1.0
 
     budget = KeyframeBudget(20, "equal", minimum=5)

@@ -21,6 +21,7 @@ is refused with the reason. Jain's index says how evenly a per-device figure cam
 
 from __future__ import annotations
 
+import heapq
 import itertools
 import math
 from collections.abc import Sequence
@@ -118,28 +119,37 @@ def split_by_value(total: int, values: Sequence[np.ndarray], minimum: int,
     if n == 0:
         return []
     shares = [minimum] * n
-    gains = [_envelope_gains(utility(_extend(v, total), fairness)) for v in values]
-    for _ in range(total - n * minimum):
-        best, best_gain = -1, 1e-12
-        for i in range(n):
-            b = shares[i]
-            gain = gains[i][b] if b < len(gains[i]) else 0.0
-            if gain > best_gain:
-                best, best_gain = i, gain
-        if best < 0:                                   # nobody gains: spread the rest evenly
-            best = min(range(n), key=lambda i: (shares[i], i))
-        shares[best] += 1
+    # each curve's own length: past its end it is flat, and a flat stretch gains nothing
+    gains = [_envelope_gains(utility(_clip(v, total), fairness)) for v in values]
+
+    def gain(i: int) -> float:
+        return float(gains[i][shares[i]]) if shares[i] < len(gains[i]) else 0.0
+
+    # the largest gain first (ties: the lower index), by a heap: O(V_total log N)
+    heap = [(-gain(i), i) for i in range(n)]
+    heapq.heapify(heap)
+    left = total - n * minimum
+    while left and heap and -heap[0][0] > 1e-12:
+        _, i = heapq.heappop(heap)
+        shares[i] += 1
+        left -= 1
+        heapq.heappush(heap, (-gain(i), i))
+    # keyframes nobody gains from: evenly, the smallest shares first
+    smallest = [(shares[j], j) for j in range(n)]
+    heapq.heapify(smallest)
+    for _ in range(left):
+        _, i = heapq.heappop(smallest)
+        shares[i] += 1
+        heapq.heappush(smallest, (shares[i], i))
     return shares
 
 
-def _extend(value: np.ndarray, total: int) -> np.ndarray:
-    """``value`` over budgets 0 … total (flat past its end)."""
+def _clip(value: np.ndarray, total: int) -> np.ndarray:
+    """``value`` over budgets 0 … at most ``total`` (checked: finite, non-empty, 1-d)."""
     v = np.asarray(value, dtype=np.float64)
     if v.ndim != 1 or v.size == 0 or not np.all(np.isfinite(v)):
         raise ValueError("a value curve is a non-empty 1-d array of finite shares")
-    if v.size > total + 1:
-        return v[:total + 1]
-    return np.concatenate([v, np.full(total + 1 - v.size, v[-1])])
+    return v[:total + 1]
 
 
 def _envelope_gains(u: np.ndarray) -> np.ndarray:

@@ -19,7 +19,7 @@ id, and two instances of the same recorded frame share all their points.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -175,6 +175,25 @@ class MapManagementEnv:
         if self._last_obs is None:
             self._last_obs = self._observation()
         return self._last_obs
+
+    def set_vmax(self, vmax: int) -> None:
+        """V_max from the current slot's decision on: an edge that splits one keyframe budget
+        between devices changes each device's share slot by slot (issue #32); a smaller one
+        evicts the excess at once (Theorem 1's |C_k|)."""
+        if vmax < 0:
+            raise ValueError(f"V_max must be >= 0, got {vmax}")
+        if vmax != self.config.vmax:
+            self.config = replace(self.config, vmax=int(vmax))
+            self._last_obs = None
+
+    def set_rate(self, rate_mbps: float) -> None:
+        """The current slot's rate instead of the channel's (a device's share of a cell that
+        several devices' uplinks share); its state stays the channel's."""
+        if not np.isfinite(rate_mbps) or rate_mbps < 0:
+            raise ValueError(f"a rate must be finite and >= 0, got {rate_mbps}")
+        state, _ = self._plan[self._slot]
+        self._plan[self._slot] = (state, float(rate_mbps))
+        self._last_obs = None
 
     def check_action(self, obs: SlotObservation, action: MapAction) -> None:
         """Refuse an action that breaks slot ``obs.slot``'s constraints. Frame sets come from

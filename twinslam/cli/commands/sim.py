@@ -8,6 +8,7 @@ import time
 from dataclasses import dataclass
 
 from twinslam.cli.arguments import DEFAULT_CHANNEL, add_setting_arguments, covisibility
+from twinslam.cli.commands.sim_fleet import run_fleet
 from twinslam.cli.console import Subparsers, error
 from twinslam.common import table1
 from twinslam.policy_registry import make_policy
@@ -89,6 +90,8 @@ def _write_runs(path: str, specs: list[str], results: list[PolicyResult]) -> Non
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.devices:
+        return run_fleet(args)
     policies = tuple(p.strip() for p in args.policy.split(",") if p.strip())
     return compare(Comparison(args.covis, policies, args.channel, args.rate_range, args.vmax,
                               args.slot_frames, args.slots, args.seeds, args.seed0,
@@ -127,6 +130,25 @@ def register(sub: Subparsers) -> None:
                      help="also write one row per run: policy, spec (as given: tells two "
                      "checkpoints apart), seed, mean_uncertainty (a lost frame = 0), lost_share, "
                      "tracked_uncertainty")
+    fleet = sim.add_argument_group(
+        "one edge, many devices", "--devices N: N devices (each its own walk and uplink) "
+        "inside one keyframe budget, one row per allocator, paired by seed against equal")
+    fleet.add_argument("--devices", type=int, default=0, metavar="N",
+                       help="devices sharing one edge's budget (0: one device, as above)")
+    fleet.add_argument("--vmax-total", type=int, default=0, metavar="V",
+                       help="V_total, keyframes of every map together (0: --vmax x N)")
+    fleet.add_argument("--allocator", default="equal,motion,twin",
+                       help="comma-separated: equal, motion (by novelty), twin (by the tracked "
+                       "share a keyframe buys, with each device's regime twin); default "
+                       "%(default)s")
+    fleet.add_argument("--min-keyframes", type=int, default=5,
+                       help="the least share a device gets; default %(default)s")
+    fleet.add_argument("--fairness", type=float, default=0.0,
+                       help="alpha of the twin allocator's alpha-fair sum (0: total, 1: "
+                       "proportional fairness); default %(default)s")
+    fleet.add_argument("--cell-capacity", type=float, default=0.0, metavar="MBPS",
+                       help="the devices' uplinks share one cell of this many Mbit/s, each "
+                       "getting its link rate x min(1, capacity / their sum); 0: no cell")
     sim.add_argument("-v", "--verbose", action="store_true",
                      help="print every run's scores as it finishes")
     sim.set_defaults(func=run)
