@@ -166,7 +166,7 @@ class DeviceLink:
                                     frozenset(int(i) for i in f.local_track_ids),
                                     bool(f.tracked))
                   for f in msg.frames]
-        started = time.perf_counter()
+        started, received = time.perf_counter(), self.slots.clock()
         vmax = (self.grant(self.device, slot, frames, float(msg.rate_mbps), self.latent,
                            self.core)
                 if self.grant is not None else int(live["vmax"]))
@@ -187,7 +187,8 @@ class DeviceLink:
         self.pub_request.publish(upload_request_message(slot, decided_by,
                                                         float(msg.rate_mbps), plan.action,
                                                         self._now()))
-        self.slots.open(slot, time.perf_counter() - started, plan.uncertainty, decided_by, vmax)
+        self.slots.open(slot, time.perf_counter() - started, plan.uncertainty, decided_by, vmax,
+                        received)
         self.finish_due()                        # a slot that uploads nothing is due at once
 
     def _on_latent(self, msg: RateLatent) -> None:
@@ -254,7 +255,8 @@ class DeviceLink:
         self.pub_stats.publish(map_stats_message(
             slot, entry.decided_by, self.core.map, out.map_uncertainty, entry.uncertainty,
             len(out.integrated), ba_ms,
-            (entry.compute_s + time.perf_counter() - started) * 1000, now, entry.vmax))
+            (entry.compute_s + time.perf_counter() - started) * 1000, now, entry.vmax,
+            entry.latency_s(self.slots.clock()) * 1000))
         if self.pub_views is not None:         # after MapStats: not in its compute time
             m, (cloud, poses, marks) = self.core.map, self.pub_views
             cloud.publish(map_points_message(m, now, frame))

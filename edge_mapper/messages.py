@@ -59,8 +59,8 @@ def map_update_message(keyframe_map: KeyFrameMap, slot: int, version: int, stamp
 
 def map_stats_message(slot: int, policy: str, keyframe_map: KeyFrameMap, uncertainty: float,
                       upsilon: SlotUncertainty | None, uploads: int, optimisation_ms: float,
-                      processing_ms: float, stamp: float, keyframe_budget: int = 0
-                      ) -> MapStats:
+                      processing_ms: float, stamp: float, keyframe_budget: int = 0,
+                      latency_ms: float = math.nan) -> MapStats:
     """``MapStats``; u = +inf for a disconnected map and υ = NaN (unknown, or no tracked frame)
     are sent as they are (IEEE floats), never replaced by a number that looks valid. υ is
     reported the three ways DESIGN.md §2 asks: mean with a lost frame scoring 0, the lost
@@ -71,7 +71,8 @@ def map_stats_message(slot: int, policy: str, keyframe_map: KeyFrameMap, uncerta
               mean_uncertainty=upsilon.objective if upsilon else math.nan,
               tracked_uncertainty=upsilon.tracked_uncertainty if upsilon else math.nan,
               lost_share=upsilon.lost_share if upsilon else 0.0, uploads=uploads,
-              optimisation_ms=float(optimisation_ms), slot_processing_ms=float(processing_ms))
+              optimisation_ms=float(optimisation_ms), slot_processing_ms=float(processing_ms),
+              slot_latency_ms=float(latency_ms))
     return set_header(msg, stamp, "")
 
 

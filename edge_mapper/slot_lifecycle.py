@@ -39,7 +39,12 @@ class OpenSlot:
     uncertainty: SlotUncertainty | None
     decided_by: str              #: the policy that decided U_k and C_k
     vmax: int = 0                #: the V_max it was planned with (the device's share)
+    received_at: float | None = None   #: clock time its frame summaries came (None: opened_at)
     sent: int | None = None      #: frames the device says it sent (its UplinkThroughput)
+
+    def latency_s(self, now: float) -> float:
+        """Seconds from the slot's summaries to ``now``."""
+        return now - (self.received_at if self.received_at is not None else self.opened_at)
 
 
 class SlotLifecycle:
@@ -53,8 +58,9 @@ class SlotLifecycle:
         self.open_slots: dict[int, OpenSlot] = {}
 
     def open(self, slot: int, compute_s: float, uncertainty: SlotUncertainty | None,
-             decided_by: str, vmax: int = 0) -> None:
-        self.open_slots[slot] = OpenSlot(self.clock(), compute_s, uncertainty, decided_by, vmax)
+             decided_by: str, vmax: int = 0, received_at: float | None = None) -> None:
+        self.open_slots[slot] = OpenSlot(self.clock(), compute_s, uncertainty, decided_by, vmax,
+                                         received_at)
 
     def charge(self, slot: int, seconds: float) -> None:
         """Compute spent on an open slot (integrating one of its keyframes)."""

@@ -89,6 +89,8 @@ def test_one_edge_serves_three_devices_within_one_budget_and_reclaims_a_lost_one
         for stats in rec["stats"]:
             assert stats.map_size <= stats.keyframe_budget, \
                 (d, stats.slot, stats.map_size, stats.keyframe_budget)
+            # from the summaries to the map: at least the edge's own work on the slot
+            assert stats.slot_latency_ms >= stats.slot_processing_ms > 0, (d, stats.slot)
         # a device may wait a slot for the others to shrink, never longer
         assert all(s.keyframe_budget >= MINIMUM for s in rec["stats"][2:]), d
     for b in budgets:

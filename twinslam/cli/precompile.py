@@ -1,4 +1,5 @@
-"""Compile the numba kernels of the device, the edge and the synthetic room once, at set-up.
+"""Compile the numba kernels of the device, the edge (its policies and its twin allocator) and
+the synthetic room once, at set-up.
 
 The kernels are compiled on first use and cached beside their sources (``cache=True``). On a
 fresh checkout that first use is the first node start: the edge took 58 s to reach "listening
@@ -15,8 +16,11 @@ from __future__ import annotations
 import sys
 import time
 
+import numpy as np
+
 from device_tracker.device_core import DeviceTrackerCore
 from edge_mapper.edge_core import EdgeMapperCore
+from twinslam.map_management.budget_value import budget_value
 from twinslam.map_management.policies import POLICIES
 from twinslam.policy_registry import make_policy
 from twinslam.sequences.synthetic import SyntheticSequence
@@ -30,6 +34,8 @@ def main() -> int:
     for name in POLICIES:
         EdgeMapperCore.warm_up(make_policy(name))
     next(iter(SyntheticSequence(n_frames=1)))
+    points = np.arange(40)                  # the twin allocator's value curve (issue #32)
+    budget_value([points], [points], 0.0, 1, 2)
     print(f"kernels ready in {time.monotonic() - start:.0f} s", flush=True)
     return 0
 
