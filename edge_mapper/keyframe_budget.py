@@ -107,9 +107,13 @@ class KeyframeBudget:
         check_budget(self.total, len(self.active) + 1, self.minimum)
         self.accounts[device] = DeviceAccount(device, DeviceDemand(device), now)
 
-    def grant(self, device: str, slot: int, demand: DeviceDemand, now: float) -> int:
+    def grant(self, device: str, slot: int, demand: DeviceDemand, now: float,
+              uploads: int | None = None) -> int:
         """The V_max ``device`` plans ``slot`` with (see the module's rule); its demand and
-        presence are brought up to date first."""
+        presence are brought up to date first. ``uploads``: the most keyframes this slot can
+        add (Theorem 1's |U_k|); a grant never exceeds what the map can reach with them, so
+        a device does not hold keyframes it cannot fill while another waits for room (the
+        first device of a run would otherwise hold all of V_total for its first slot)."""
         account = self.accounts[device]
         account.demand = demand
         if account.presence is Presence.SILENT:
@@ -124,6 +128,8 @@ class KeyframeBudget:
             a.target = target
         others = sum(a.committed for d, a in self.accounts.items() if d != device)
         grant = max(0, min(account.target, self.total - others))
+        if uploads is not None:
+            grant = min(grant, account.committed + max(0, uploads))
         account.granted = grant
         account.open_grants[slot] = grant
         return grant

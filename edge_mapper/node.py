@@ -30,6 +30,7 @@ unrequested or repeated one logged and ignored.
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 from typing import Any
@@ -120,7 +121,9 @@ class EdgeMapperNode(Node):
                                budget.allocator == "twin",
                                list(latent.next_state_probs) if latent is not None else [],
                                list(latent.state_rates_mbps) if latent is not None else [])
-        granted = budget.grant(device, slot, demand, now)
+        cfg = core.slot_config
+        uploads = min(math.floor(rate_mbps * cfg.d_req_s / cfg.alpha_mbit + 1e-9), len(frames))
+        granted = budget.grant(device, slot, demand, now, uploads)
         if self.pub_budget is not None:
             self.pub_budget.publish(keyframe_budget_message(budget, self._now()))
         return granted

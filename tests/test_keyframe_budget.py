@@ -24,7 +24,7 @@ class _Device:
 
     def plan(self, budget: KeyframeBudget, now: float, novelty: float, rate: float) -> None:
         grant = budget.grant(self.name, self.slot, DeviceDemand(self.name, self.map, novelty),
-                             now)
+                             now, uploads=int(rate * 0.5 / 5.0))
         # the planner sizes against the map the open slots leave (EdgeMapperCore.plan)
         after_open = self.open[max(self.open)] if self.open else self.map
         n_up, n_ev = theorem1_cardinalities(rate, 5.0, 0.5, grant, after_open, 60)
@@ -190,3 +190,14 @@ def test_a_devices_demand_reads_its_slot_and_map() -> None:
     assert (msg.allocator, msg.total, list(msg.devices)) == ("equal", 20, ["ar1", "ar2"])
     assert list(msg.targets) == [10, 10] and list(msg.granted) == [10, 0]
     assert list(msg.committed) == [10, 0] and list(msg.active) == [True, True]
+
+
+def test_the_first_device_of_a_run_does_not_hold_what_its_slot_cannot_fill() -> None:
+    """Alone at first, a device's share is all of V_total, but its first slot can add only
+    |U_k| keyframes: it is granted those, and the next device finds room at once."""
+    budget = KeyframeBudget(90, "equal", minimum=5)
+    budget.join("a", 0.0)
+    assert budget.grant("a", 0, DeviceDemand("a"), 0.0, uploads=4) == 4
+    budget.join("b", 0.1)
+    assert budget.grant("b", 0, DeviceDemand("b"), 0.1, uploads=8) == 8
+    assert budget.accounts["a"].target == budget.accounts["b"].target == 45

@@ -1,0 +1,252 @@
+"""How many devices one edge keeps up with (issue #32): one ``edge_mapper`` process serving N
+emulated devices, edge compute per device-slot, the latency from a slot's summaries to its map
+update, and the share of device-slots whose map came later than a slot period (missed
+deadlines: the device then tracks its next slot on an older map), for N = 1, 2, 4, ….
+
+Real device trackers cost ~13 CPU ms a frame each, so on this 2-core machine three of them
+and their cameras already load both cores and the edge would be measured starved of CPU by its
+own clients. The devices are emulated instead: one live run of the pipeline is recorded
+(``twinslam launch --record``: the device's frame summaries and every keyframe it uploaded),
+and each emulated device replays that protocol into its own namespace at the recorded pace —
+summaries every slot period, the keyframes the edge asks for paced at d_k — from this process
+(no tracking, no images). The edge does its whole work per device: plan, integrate, GTSAM,
+the keyframe budget (V_total = 45 × N, equal shares), map updates and viewer topics.
+
+    python -m bench.edge_scaling [--devices 1,2,4,8,12,16] [--recording DIR] [--csv FILE]
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rclpy.serialization import deserialize_message
+from rosbags.rosbag2 import Reader
+from twinslam_msgs.msg import (
+    FrameSummaries,
+    Keyframe,
+    MapStats,
+    UplinkThroughput,
+    UploadRequest,
+)
+
+from msg_schemas import qos, topics
+from twinslam.common import table1
+from twinslam.node_hosts.loopback import LoopbackDomain
+from twinslam.node_hosts.session import RosSession
+
+REPO = Path(__file__).resolve().parents[1]
+SEVEN = REPO.parent / "shared" / "data" / "7scenes-1000"
+SLOT_S = table1.SLOT_FRAMES / table1.FRAME_RATE_HZ
+
+
+@dataclass
+class Recording:
+    """One device's side of a recorded run: summaries by slot, keyframes by frame id."""
+
+    summaries: dict[int, bytes]
+    rates: dict[int, float]
+    keyframes: dict[int, bytes]
+
+    @classmethod
+    def read(cls, folder: Path) -> Recording:
+        summaries, rates, keyframes = {}, {}, {}
+        with Reader(folder) as reader:
+            for conn, _, raw in reader.messages():
+                if conn.topic == "/" + topics.FRAME_SUMMARIES:
+                    msg = deserialize_message(raw, FrameSummaries)
+                    summaries[int(msg.slot)] = bytes(raw)
+                    rates[int(msg.slot)] = float(msg.rate_mbps)
+                elif conn.topic == "/" + topics.KEYFRAMES:
+                    kf = deserialize_message(raw, Keyframe)
+                    keyframes[int(kf.frame_id)] = bytes(raw)
+        if not summaries:
+            raise SystemExit(f"{folder}: no frame summaries recorded")
+        return cls(summaries, rates, keyframes)
+
+
+@dataclass
+class EmulatedDevice:
+    """A device namespace replaying a recording against the edge."""
+
+    name: str
+    recording: Recording
+    start: float
+    pubs: dict[str, Any] = field(default_factory=dict)
+    next_slot: int = 0
+    sent_at: dict[int, float] = field(default_factory=dict)
+    uploads: list[tuple[float, int, bytes | None]] = field(default_factory=list)  #: due, slot
+    stats: dict[int, MapStats] = field(default_factory=dict)
+    missing: int = 0                                 #: keyframes asked for, not recorded
+    sent: dict[int, int] = field(default_factory=dict)    #: keyframes sent, by slot
+
+    def tick(self, now: float) -> None:
+        slots = sorted(self.recording.summaries)
+        if self.next_slot < len(slots) and now >= self.start + self.next_slot * SLOT_S:
+            slot = slots[self.next_slot]
+            self.pubs["summaries"].publish(self.recording.summaries[slot])
+            self.sent_at[slot] = now
+            self.next_slot += 1
+        while self.uploads and self.uploads[0][0] <= now:
+            _, slot, raw = self.uploads.pop(0)
+            if raw is not None:
+                self.pubs["keyframes"].publish(raw)
+            else:                                    # the slot's uploads are done: its account
+                self._throughput(slot)
+
+    def on_request(self, msg: UploadRequest) -> None:
+        slot, now = int(msg.slot), time.monotonic()
+        rate = max(self.recording.rates.get(slot, 40.0), 1e-3)
+        due = now
+        self.sent[slot] = 0
+        for frame in msg.upload_frame_ids:
+            raw = self.recording.keyframes.get(int(frame))
+            if raw is None:
+                self.missing += 1
+                continue
+            due += table1.ALPHA_MBIT / rate            # a frame occupies α at d_k
+            self.uploads.append((due, slot, raw))
+            self.sent[slot] += 1
+        self.uploads.append((due, slot, None))
+        self.uploads.sort(key=lambda u: (u[0], u[2] is None))
+
+    def _throughput(self, slot: int) -> None:
+        n = self.sent.get(slot, 0)
+        rate = self.recording.rates.get(slot, 40.0)
+        msg = UplinkThroughput(slot=slot, configured_rate_mbps=rate, rate_state=0,
+                               achieved_mbps=rate if n else 0.0,
+                               bytes_sent=int(n * table1.ALPHA_MBIT * 1e6 / 8),
+                               duration_s=n * table1.ALPHA_MBIT / rate, frames_sent=n)
+        self.pubs["throughput"].publish(msg)
+
+    @property
+    def done(self) -> bool:
+        return self.next_slot >= len(self.recording.summaries)
+
+
+def record(folder: Path) -> None:
+    """One live run of 600 frames (7-Scenes sample, or the synthetic room) recorded."""
+    sequence = str(SEVEN) if SEVEN.is_dir() else "synthetic:600"
+    print(f"recording one device's protocol: 600 frames of {sequence} into {folder}", flush=True)
+    subprocess.run([sys.executable, "-m", "twinslam.cli.main", "launch", "--loopback",
+                    "--sequence", sequence, "--frames", "600", "--policy", "lff", "--record",
+                    str(folder), "--record-camera-every", "1000000", "--out",
+                    str(folder.parent / "pictures")], check=True, cwd=REPO,
+                   stdout=subprocess.DEVNULL)
+
+
+def cpu_seconds(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def measure(n: int, recording: Recording, policy: str) -> dict[str, float]:
+    names = [f"ar{i + 1}" for i in range(n)]
+    with LoopbackDomain() as dom:
+        dom.activate()
+        edge = dom.spawn(["-m", "edge_mapper.node", "--ros-args", "-p", f"policy:={policy}",
+                          "-p", f"devices:=[{', '.join(names)}]", "-p", f"vmax_total:={45 * n}",
+                          "-p", "allocator:=equal", "-p", "slot_timeout_s:=5.0"])
+        if not dom.wait_for_log(edge, f"listening on /{names[-1]}", 120):
+            raise SystemExit(f"the edge did not come up: {dom.log(edge)[-2000:]}")
+        with RosSession("bench_devices") as ros:
+            now = time.monotonic() + 2.0
+            devices = [EmulatedDevice(d, recording, now + i * SLOT_S / n)
+                       for i, d in enumerate(names)]
+            for dev in devices:
+                pub, sub = ros.node.create_publisher, ros.node.create_subscription
+                dev.pubs = {"summaries": pub(FrameSummaries,
+                                             f"{dev.name}/{topics.FRAME_SUMMARIES}",
+                                             qos.PROTOCOL),
+                            "keyframes": pub(Keyframe, f"{dev.name}/{topics.KEYFRAMES}",
+                                             qos.PROTOCOL),
+                            "throughput": pub(UplinkThroughput,
+                                              f"{dev.name}/{topics.UPLINK_THROUGHPUT}",
+                                              qos.PROTOCOL)}
+                sub(UploadRequest, f"{dev.name}/{topics.UPLOAD_REQUEST}", dev.on_request,
+                    qos.PROTOCOL)
+                sub(MapStats, f"{dev.name}/{topics.MAP_STATS}",
+                    lambda m, d=dev: d.stats.__setitem__(int(m.slot), m), qos.PROTOCOL)
+            ready = ros.spin_until(lambda: all(
+                d.pubs["summaries"].get_subscription_count() > 0 for d in devices), 30.0)
+            if not ready:
+                raise SystemExit("the edge did not subscribe to every device")
+            cpu0, wall0 = cpu_seconds(edge.pid), time.monotonic()
+            # every slot played and answered, or 15 s past the last slot's period
+            deadline = max(d.start for d in devices) + (len(recording.summaries) + 7.5) * SLOT_S
+            while time.monotonic() < deadline and not all(
+                    d.done and not d.uploads and len(d.stats) >= len(recording.summaries)
+                    for d in devices):
+                t = time.monotonic()
+                for d in devices:
+                    d.tick(t)
+                ros.spin_once(0.005)
+            cpu, wall = cpu_seconds(edge.pid) - cpu0, time.monotonic() - wall0
+        dom.stop(edge)
+    stats = [s for d in devices for s in d.stats.values()]
+    expected = n * len(recording.summaries)
+    late = sum(1 for s in stats if s.slot_latency_ms > SLOT_S * 1000)
+    if os.environ.get("TWINSLAM_BENCH_VERBOSE"):
+        for d in devices:
+            print(d.name, {k: round(s.slot_latency_ms) for k, s in sorted(d.stats.items())})
+    compute = [s.slot_processing_ms for s in stats]
+    latency = [s.slot_latency_ms for s in stats]
+    return {"devices": n, "device_slots": expected, "answered": len(stats),
+            "compute_ms_median": float(np.median(compute)) if compute else math.nan,
+            "compute_ms_p95": float(np.percentile(compute, 95)) if compute else math.nan,
+            "latency_ms_median": float(np.median(latency)) if latency else math.nan,
+            "latency_ms_p95": float(np.percentile(latency, 95)) if latency else math.nan,
+            "missed_share": (late + expected - len(stats)) / expected,
+            "edge_cpu_share": cpu / wall, "missing_keyframes": sum(d.missing for d in devices)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--devices", default="1,2,4,8,12,16", help="fleet sizes, comma-separated")
+    parser.add_argument("--recording", type=Path, default=None,
+                        help="a `twinslam launch --record` folder (default: one is made)")
+    parser.add_argument("--policy", default="lff", help="the edge's policy (lff: the recording's)")
+    parser.add_argument("--csv", type=Path, default=None, help="also write the table here")
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory(prefix="twinslam-scaling-") as tmp:
+        folder = args.recording
+        if folder is None:
+            folder = Path(tmp) / "run"
+            record(folder)
+        recording = Recording.read(folder)
+    print(f"machine: {platform.machine()}, {os.cpu_count()} cores, python "
+          f"{platform.python_version()}; {len(recording.summaries)} slots a device, "
+          f"{len(recording.keyframes)} keyframes recorded; policy {args.policy}; slot period "
+          f"{SLOT_S:g} s", flush=True)
+    rows = []
+    header = (f"{'devices':>7} {'answered':>9} {'edge ms/slot':>12} {'p95':>6} "
+              f"{'latency ms':>10} {'p95':>6} {'missed':>7} {'edge CPU':>8}")
+    print(header, flush=True)
+    for n in [int(x) for x in args.devices.split(",")]:
+        row = measure(n, recording, args.policy)
+        rows.append(row)
+        print(f"{n:>7} {row['answered']:>4.0f}/{row['device_slots']:<4.0f} "
+              f"{row['compute_ms_median']:>12.0f} {row['compute_ms_p95']:>6.0f} "
+              f"{row['latency_ms_median']:>10.0f} {row['latency_ms_p95']:>6.0f} "
+              f"{row['missed_share']:>7.1%} {row['edge_cpu_share']:>8.0%}", flush=True)
+    if args.csv:
+        with args.csv.open("w", newline="", encoding="utf-8") as fh:
+            writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+            writer.writeheader()
+            writer.writerows(rows)
+        print(f"wrote {args.csv}")
+
+
+if __name__ == "__main__":
+    main()
