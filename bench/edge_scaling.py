@@ -151,13 +151,15 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def measure(n: int, recording: Recording, policy: str) -> dict[str, float]:
+def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0.0
+            ) -> dict[str, float]:
     names = [f"ar{i + 1}" for i in range(n)]
     with LoopbackDomain() as dom:
         dom.activate()
         edge = dom.spawn(["-m", "edge_mapper.node", "--ros-args", "-p", f"policy:={policy}",
                           "-p", f"devices:=[{', '.join(names)}]", "-p", f"vmax_total:={45 * n}",
-                          "-p", "allocator:=equal", "-p", "slot_timeout_s:=5.0"])
+                          "-p", "allocator:=equal", "-p", "slot_timeout_s:=5.0",
+                          "-p", f"compute_budget:={compute_budget}"])
         if not dom.wait_for_log(edge, f"listening on /{names[-1]}", 120):
             raise SystemExit(f"the edge did not come up: {dom.log(edge)[-2000:]}")
         with RosSession("bench_devices") as ros:
@@ -193,7 +195,7 @@ def measure(n: int, recording: Recording, policy: str) -> dict[str, float]:
                     d.tick(t)
                 ros.spin_once(0.005)
             cpu, wall = cpu_seconds(edge.pid) - cpu0, time.monotonic() - wall0
-        dom.stop(edge)
+        _, _, log = dom.stop(edge)
     stats = [s for d in devices for s in d.stats.values()]
     expected = n * len(recording.summaries)
     late = sum(1 for s in stats if s.slot_latency_ms > SLOT_S * 1000)
@@ -208,7 +210,8 @@ def measure(n: int, recording: Recording, policy: str) -> dict[str, float]:
             "latency_ms_median": float(np.median(latency)) if latency else math.nan,
             "latency_ms_p95": float(np.percentile(latency, 95)) if latency else math.nan,
             "missed_share": (late + expected - len(stats)) / expected,
-            "edge_cpu_share": cpu / wall, "missing_keyframes": sum(d.missing for d in devices)}
+            "edge_cpu_share": cpu / wall, "missing_keyframes": sum(d.missing for d in devices),
+            "compute_budget": compute_budget, "trimmed": log.count("compute: slot work takes")}
 
 
 def main() -> None:
@@ -218,6 +221,8 @@ def main() -> None:
                         help="a `twinslam launch --record` folder (default: one is made)")
     parser.add_argument("--policy", default="lff", help="the edge's policy (lff: the recording's)")
     parser.add_argument("--csv", type=Path, default=None, help="also write the table here")
+    parser.add_argument("--compute-budget", type=float, default=0.0,
+                        help="the edge's compute_budget (a share of one core; 0: none)")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="twinslam-scaling-") as tmp:
         folder = args.recording
@@ -228,13 +233,13 @@ def main() -> None:
     print(f"machine: {platform.machine()}, {os.cpu_count()} cores, python "
           f"{platform.python_version()}; {len(recording.summaries)} slots a device, "
           f"{len(recording.keyframes)} keyframes recorded; policy {args.policy}; slot period "
-          f"{SLOT_S:g} s", flush=True)
+          f"{SLOT_S:g} s; compute budget {args.compute_budget:g} of a core", flush=True)
     rows = []
     header = (f"{'devices':>7} {'answered':>9} {'edge ms/slot':>12} {'p95':>6} "
               f"{'latency ms':>10} {'p95':>6} {'missed':>7} {'edge CPU':>8}")
     print(header, flush=True)
     for n in [int(x) for x in args.devices.split(",")]:
-        row = measure(n, recording, args.policy)
+        row = measure(n, recording, args.policy, args.compute_budget)
         rows.append(row)
         print(f"{n:>7} {row['answered']:>4.0f}/{row['device_slots']:<4.0f} "
               f"{row['compute_ms_median']:>12.0f} {row['compute_ms_p95']:>6.0f} "

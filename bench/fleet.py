@@ -13,6 +13,7 @@ phase of this VM's speed compare.
 from __future__ import annotations
 
 import argparse
+import csv
 import platform
 import re
 import time
@@ -44,6 +45,8 @@ def main() -> None:
     parser.add_argument("--devices", default="10,100,300", help="fleet sizes, comma-separated")
     parser.add_argument("--slots", type=int, default=20, help="slots per measured episode")
     parser.add_argument("--policy", default="lff", help="every device's policy")
+    parser.add_argument("--csv", type=Path, default=None,
+                        help="also write devices, allocator, device-slots/s, per M steps/s")
     args = parser.parse_args()
     sizes = [int(x) for x in args.devices.split(",")]
     print(f"machine: {platform.machine()}, python {platform.python_version()}; 7-Scenes "
@@ -52,11 +55,19 @@ def main() -> None:
     print(before, "(before)")
     steps = float(re.search(r"([\d.]+) M Python", before).group(1))   # type: ignore[union-attr]
     print(f"{'devices':>8} {'allocator':>9} {'device-slots/s':>15} {'per M steps/s':>14}")
+    rows = []
     for n in sizes:
         for allocator in ("equal", "motion", "twin"):
             rate = device_slots_per_s(n, allocator, args.policy, args.slots)
+            rows.append((n, allocator, rate, rate / steps))
             print(f"{n:>8} {allocator:>9} {rate:>15.0f} {rate / steps:>14.1f}", flush=True)
     print(cpu_gauge(), "(after)")
+    if args.csv:
+        with args.csv.open("w", newline="", encoding="utf-8") as fh:
+            writer = csv.writer(fh)
+            writer.writerow(["devices", "allocator", "device_slots_per_s", "per_m_steps"])
+            writer.writerows((n, a, f"{r:.1f}", f"{g:.2f}") for n, a, r, g in rows)
+        print(f"wrote {args.csv}")
 
 
 if __name__ == "__main__":

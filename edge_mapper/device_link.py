@@ -62,10 +62,12 @@ class LinkSettings:
 
 
 #: the budget's hooks, for an edge serving several devices: (device, slot, frames, d_k, latent,
-#: core) → the V_max this slot is planned with; and (device, slot, map size) when it finished
+#: core) → the V_max this slot is planned with; and (device, slot, map size) when it finished;
+#: and the compute a finished slot took (seconds), for the edge's compute budget
 Granting = Callable[[str, int, list[FrameObservations], float, RateLatent | None,
                      EdgeMapperCore], int]
 Finishing = Callable[[str, int, int], None]
+Spending = Callable[[float], None]
 
 
 def checkpoint_of(path: str, device: str) -> Path | None:
@@ -83,9 +85,10 @@ class DeviceLink:
 
     def __init__(self, node: Node, device: str, settings: LinkSettings,
                  live: Callable[[], dict[str, Any]],
-                 grant: Granting | None = None, finished: Finishing | None = None) -> None:
+                 grant: Granting | None = None, finished: Finishing | None = None,
+                 spent: Spending | None = None) -> None:
         self.node, self.device, self.settings = node, device, settings
-        self.live, self.grant, self.finished = live, grant, finished
+        self.live, self.grant, self.finished, self.spent = live, grant, finished, spent
         self.control = PolicyControl({k: v for k, v in live().items() if k in POLICY_KEYS},
                                      EdgeMapperCore.warm_up)
         self.core = EdgeMapperCore(self.control.policy, None, settings.config,
@@ -252,11 +255,13 @@ class DeviceLink:
         self.pub_map.publish(map_update_message(self.core.map, slot, out.version, now, frame,
                                                 tracks=out.tracks))
         ba_ms = out.bundle_adjustment.milliseconds if out.bundle_adjustment else 0.0
+        compute_s = entry.compute_s + time.perf_counter() - started
         self.pub_stats.publish(map_stats_message(
             slot, entry.decided_by, self.core.map, out.map_uncertainty, entry.uncertainty,
-            len(out.integrated), ba_ms,
-            (entry.compute_s + time.perf_counter() - started) * 1000, now, entry.vmax,
+            len(out.integrated), ba_ms, compute_s * 1000, now, entry.vmax,
             entry.latency_s(self.slots.clock()) * 1000))
+        if self.spent is not None:
+            self.spent(compute_s)
         if self.pub_views is not None:         # after MapStats: not in its compute time
             m, (cloud, poses, marks) = self.core.map, self.pub_views
             cloud.publish(map_points_message(m, now, frame))

@@ -134,6 +134,13 @@ class EdgeMapperCore:
         only what the core started with)."""
         return self.planner.config
 
+    def set_bundle_adjustment(self, window: int, points: int | None) -> None:
+        """The local bundle adjustment from the next slot on: ``window`` newest keyframes (0:
+        none), at most ``points`` points (an edge over its compute budget trims it,
+        :mod:`edge_mapper.compute_governor`)."""
+        self.config = dataclasses.replace(self.config, ba_window=max(0, int(window)),
+                                          ba_points=points)
+
     def set_vmax(self, vmax: int) -> None:
         """V_max from the next plan on (a smaller one evicts the excess over the next slots'
         C_k, as Theorem 1's sizes allow)."""
@@ -222,7 +229,8 @@ class EdgeMapperCore:
                 orphans += len(self.map.evict(kf))
                 evicted.append(kf)
         t0 = time.perf_counter()
-        ba = self.optimise() if len(self.map.keyframes) >= 2 else None
+        ba = (self.optimise() if len(self.map.keyframes) >= 2 and self.config.ba_window > 0
+              else None)
         t1 = time.perf_counter()
         self.version += 1
         self.last_slot = slot

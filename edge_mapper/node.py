@@ -39,6 +39,7 @@ from rclpy.node import Node
 from twinslam_msgs.msg import KeyframeBudget as KeyframeBudgetMsg
 from twinslam_msgs.msg import RateLatent
 
+from edge_mapper.compute_governor import ComputeGovernor
 from edge_mapper.device_link import DeviceLink
 from edge_mapper.edge_core import EdgeMapperCore
 from edge_mapper.keyframe_budget import KeyframeBudget, device_demand
@@ -68,6 +69,7 @@ class EdgeMapperNode(Node):
         self.links: dict[str, DeviceLink] = {}
         self.listed = devices                  #: served from the start, again after a reclaim
         self.refused: set[str] = set()         #: devices the budget had no room for (said once)
+        self.governor = ComputeGovernor(float(p["compute_budget"]))
         try:
             if self.several and int(p["vmax_total"]) > 0:
                 self.budget = KeyframeBudget(
@@ -94,8 +96,12 @@ class EdgeMapperNode(Node):
         first summaries come (a device that never speaks holds no share)."""
         grant = self._grant if self.budget is not None else None
         finished = self.budget.finished if self.budget is not None else None
-        self.links[device] = DeviceLink(self, device, self.settings, self._live_values, grant,
-                                        finished)
+        link = DeviceLink(self, device, self.settings, self._live_values, grant, finished,
+                          self._spent)
+        level = self.governor.levels[self.governor.level]
+        if self.governor.level:                # a device that joins gets today's level
+            link.core.set_bundle_adjustment(level.window, level.points)
+        self.links[device] = link
         if device:
             self.get_logger().info(f"serving device {device} (its "
                                    f"{self.resolve_topic_name(device + SUMMARIES_SUFFIX)})")
@@ -127,6 +133,22 @@ class EdgeMapperNode(Node):
         if self.pub_budget is not None:
             self.pub_budget.publish(keyframe_budget_message(budget, self._now()))
         return granted
+
+    def _spent(self, seconds: float) -> None:
+        """A slot's compute, against the edge's compute budget."""
+        now, before = time.monotonic(), self.governor.level
+        self.governor.charge(seconds, now)
+        level = self.governor.step(now)
+        if level is None:
+            return
+        for link in self.links.values():
+            link.core.set_bundle_adjustment(level.window, level.points)
+        line = (f"compute: slot work takes {self.governor.load(now):.0%} of a core (budget "
+                f"{self.governor.budget:.0%}); {level.describe()} from the next slots on")
+        if self.governor.level > before:
+            self.get_logger().warning(line)
+        else:
+            self.get_logger().info(line)
 
     def _now(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9

@@ -4,6 +4,7 @@ their mean and Jain's index, and the settings that cannot run refused before any
 
 from __future__ import annotations
 
+import csv
 from pathlib import Path
 
 import pytest
@@ -46,3 +47,8 @@ def test_launch_serves_two_devices_from_one_edge_and_reports_each(
     assert all(0 < b <= 12 for b in budgets) and sum(budgets) <= 12 + 1e-9
     assert sorted(p.name for p in tmp_path.glob("*.png")) == ["lff_motion_ar1.png",
                                                             "lff_motion_ar2.png"]
+    with (tmp_path / "fleet_runs.csv").open(encoding="utf-8") as fh:
+        table = list(csv.DictReader(fh))
+    assert [(r["device"], r["allocator"], r["seed"]) for r in table] == [
+        ("ar1", "motion", "0"), ("ar2", "motion", "0")]
+    assert all(int(r["frames"]) > 0 and float(r["latency_ms_median"]) > 0 for r in table)

@@ -83,3 +83,26 @@ def test_sim_compares_allocators_for_many_devices(capsys: pytest.CaptureFixture[
     assert main(["sim", "--covis", "geometric:300", "--devices", "6", "--vmax-total", "20",
                  "--policy", "lff"]) == 2
     assert "V_total 20 is below 6 devices x 5 keyframes" in capsys.readouterr().err
+
+
+def test_devices_walk_at_their_own_speeds_and_uplinks(capsys: pytest.CaptureFixture[str]
+                                                      ) -> None:
+    """A walking speed maps camera frames onto recorded ones (0: standing still, 2: every
+    other frame); a device standing still sees nothing new, one walking fast a lot."""
+    from twinslam.simulator.env import FrameStream
+
+    assert FrameStream(DATA, start=5, horizon=4, speed=0.0).dataset_index([0, 1, 2, 3]).tolist() \
+        == [5, 5, 5, 5]
+    assert FrameStream(DATA, start=5, horizon=4, speed=2.0).dataset_index([0, 1, 2, 3]).tolist() \
+        == [5, 7, 9, 11]
+    config = FleetConfig(2, 20, "motion", 4, sim=SimConfig(slots=6))
+    sim = FleetSimulator([(DATA, parse_channel("markov:N=2", seed=i)) for i in range(2)], config,
+                         lambda: make_rule_policy("lff"), speeds=[0.0, 3.0])
+    result = sim.run(0)
+    # the walker's novelty draws the budget: its share exceeds the standing device's
+    assert sum(result.devices[1].budgets[2:]) > sum(result.devices[0].budgets[2:])
+    assert main(["sim", "--covis", "geometric:300", "--devices", "4", "--vmax-total", "40",
+                 "--policy", "lff", "--slots", "4", "--seeds", "1", "--speeds", "0,2",
+                 "--device-rates", "5-20,40-80", "--allocator", "equal,motion"]) == 0
+    assert "walking speeds [0.0, 2.0] and uplink ranges ['5-20', '40-80']" in \
+        capsys.readouterr().out

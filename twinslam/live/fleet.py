@@ -36,6 +36,10 @@ class FleetConfig:
     allocator: str = "equal"
     min_keyframes: int = 5
     stride: int = 0                  #: frames between devices' starts on a dataset (0: even)
+    seed: int = 0                    #: device i's channel (and synthetic walk): 100 seed + i
+
+    def device_seed(self, index: int) -> int:
+        return 100 * self.seed + index
 
     def names(self) -> list[str]:
         return [f"ar{i + 1}" for i in range(self.devices)]
@@ -73,14 +77,16 @@ class FleetReport:
 
 
 def device_sequence(sequence: str, index: int, devices: int, frames: int, start: int,
-                    stride: int, length: int | None) -> tuple[str, int]:
+                    stride: int, length: int | None, walk_seed: int | None = None
+                    ) -> tuple[str, int]:
     """(sequence, first frame) device ``index`` of ``devices`` plays: its own walk of the
-    synthetic room, or the dataset (``length`` frames) from ``start + index × stride``,
-    wrapping round (a stride of 0 spreads the devices evenly over it)."""
+    synthetic room (seed ``walk_seed``, default ``index``), or the dataset (``length``
+    frames) from ``start + index × stride``, wrapping round (a stride of 0 spreads the
+    devices evenly over it)."""
     if sequence.startswith("synthetic"):
         parts = sequence.split(":")
         count = parts[1] if len(parts) > 1 and parts[1] else str(max(frames, 1) + start)
-        return f"synthetic:{count}:{index}", start
+        return f"synthetic:{count}:{index if walk_seed is None else walk_seed}", start
     if not length:
         return sequence, start
     step = stride or max(1, length // max(1, devices))
@@ -118,7 +124,7 @@ class FleetLauncher(Launcher):
             self.config = saved
         args += ["-r", f"__ns:=/{device}", "-p", f"map_frame:={device}/map"]
         if name == "device_tracker":
-            args += ["-p", f"seed:={index}"]
+            args += ["-p", f"seed:={self.fleet.device_seed(index)}"]
         else:
             args += ["-p", f"frame_id:={device}/camera"]
         return args
@@ -181,6 +187,11 @@ class FleetLauncher(Launcher):
             for s in sessions.values():
                 s.close()
 
+    def slot_period_s(self) -> float:
+        """Seconds of camera stamps a device's slot spans (F / frame rate)."""
+        return (self._device_param("slot_frames", table1.SLOT_FRAMES)
+                / self._device_param("frame_rate_hz", table1.FRAME_RATE_HZ))
+
     def _status(self, device: str) -> Callable[[MapStats, RunRecord], None]:
         def line(msg: MapStats, _record: RunRecord) -> None:
             if self.echo:
@@ -217,3 +228,33 @@ def print_fleet_table(fleet: FleetReport, echo: Callable[[str], None] = print) -
     echo(f"{head:<{len(RunReport.HEADER)}} {float(np.nanmean(fleet.budgets)):>7.1f} "
          f"{float(np.nanmean(shares)):>8.1%}")
     echo(f"Jain's index of the tracked shares: {fleet.jain_tracked:.3f}")
+
+
+#: the columns of a fleet run's rows (``twinslam launch --devices N --out DIR``: fleet_runs.csv)
+FLEET_COLUMNS = ("policy", "allocator", "seed", "device", "slots", "frames", "mean_uncertainty",
+                 "lost_share", "tracked_uncertainty", "untracked_frames", "tracking_failures",
+                 "relocalisations", "ate_m", "mean_budget", "frames_dropped", "edge_ms_median",
+                 "latency_ms_median", "late_slots")
+
+
+def fleet_rows(fleet: FleetReport, seed: int, records: dict[str, RunRecord],
+               slot_period_s: float) -> list[dict[str, object]]:
+    """One row a device of ``fleet``: its figures, its mean share of V_total, and how many of
+    its slots' maps came later than ``slot_period_s`` after its summaries."""
+    rows = []
+    for device, r, budget, frames in zip(fleet.devices, fleet.reports, fleet.budgets,
+                                         fleet.frames, strict=True):
+        stats = list(records[device].stats.values())
+        latency = [s.slot_latency_ms for s in stats if math.isfinite(s.slot_latency_ms)]
+        rows.append({"policy": r.policy, "allocator": fleet.allocator, "seed": seed,
+                     "device": device, "slots": r.slots, "frames": frames,
+                     "mean_uncertainty": r.mean_uncertainty, "lost_share": r.lost_share,
+                     "tracked_uncertainty": r.tracked_uncertainty,
+                     "untracked_frames": r.untracked_frames,
+                     "tracking_failures": r.tracking_failures,
+                     "relocalisations": r.relocalisations, "ate_m": r.ate_m,
+                     "mean_budget": budget, "frames_dropped": r.frames_dropped,
+                     "edge_ms_median": r.edge_ms_median,
+                     "latency_ms_median": float(np.median(latency)) if latency else math.nan,
+                     "late_slots": sum(1 for v in latency if v > slot_period_s * 1000)})
+    return rows

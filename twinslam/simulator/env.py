@@ -58,6 +58,9 @@ class SimConfig:
     #: the dataset frame every episode starts at (None: a random one per seed); 0 plays the
     #: dataset forward then back from its first frame, as the player's forward_backward order
     start: int | None = None
+    #: recorded frames a device walks per camera frame: 1 as recorded, 2 twice as fast, 0.5
+    #: half as fast (each frame seen twice), 0 standing still (many devices, issue #32)
+    speed: float = 1.0
 
     @classmethod
     def paper_rule(cls, **kwargs: Any) -> SimConfig:
@@ -77,14 +80,18 @@ class SimConfig:
 class FrameStream:
     """Maps frame-instance ids to dataset frames, reading the dataset forth and back."""
 
-    def __init__(self, dataset: CovisibilityDataset, start: int = 0, horizon: int = 0) -> None:
+    def __init__(self, dataset: CovisibilityDataset, start: int = 0, horizon: int = 0,
+                 speed: float = 1.0) -> None:
+        if not np.isfinite(speed) or speed < 0:
+            raise ValueError(f"a walking speed must be >= 0, got {speed}")
         self.n = dataset.n_frames
-        self.start = start
+        self.start, self.speed = start, speed
         #: dataset index of instances 0..horizon-1, looked up instead of recomputed per query
         self._table = self._compute(np.arange(horizon))
 
     def _compute(self, instance: np.ndarray) -> np.ndarray:
-        t = instance + self.start
+        t = (instance if self.speed == 1.0
+             else np.floor(instance * self.speed).astype(np.int64)) + self.start
         period = 2 * (self.n - 1) if self.n > 1 else 1
         phase = t % period
         return np.where(phase < self.n, phase, period - phase)
@@ -145,7 +152,8 @@ class MapManagementEnv:
                                  f"{self.dataset.n_frames}")
             start = self.config.start
         self.stream = FrameStream(self.dataset, start=start,
-                                  horizon=(self.config.slots + 2) * self.config.slot_frames)
+                                  horizon=(self.config.slots + 2) * self.config.slot_frames,
+                                  speed=self.config.speed)
         self.channel.reset(seed)
         self._map, self._map_w, self._slot = [], np.zeros((0, 0)), 0
         self._uploadable = self.slot_frames(0)       # tracked on the device's start-up map

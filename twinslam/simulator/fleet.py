@@ -112,12 +112,15 @@ class FleetSimulator:
 
     def __init__(self, devices: Sequence[tuple[CovisibilityDataset,
                                                MarkovChannel | TraceChannel]],
-                 config: FleetConfig, make_policy: Callable[[], MapPolicy]) -> None:
+                 config: FleetConfig, make_policy: Callable[[], MapPolicy],
+                 speeds: Sequence[float] | None = None) -> None:
         config.check()
         if len(devices) != config.devices:
             raise ValueError(f"{len(devices)} devices given for a fleet of {config.devices}")
         self.config = config
-        self.envs = [MapManagementEnv(data, channel, config.sim) for data, channel in devices]
+        speeds = list(speeds) if speeds is not None else [config.sim.speed] * len(devices)
+        self.envs = [MapManagementEnv(data, channel, replace(config.sim, speed=speed))
+                     for (data, channel), speed in zip(devices, speeds, strict=True)]
         self.policies = [make_policy() for _ in devices]
         self.twins = [RegimeTwin(RegimeConfig(n_states=channel.n_states))
                       for _, channel in devices]
@@ -220,15 +223,18 @@ class AllocatorResult:
 def evaluate_fleet(dataset: CovisibilityDataset, channel: Callable[[int], MarkovChannel |
                    TraceChannel], config: FleetConfig, allocators: Sequence[str],
                    make_policy: Callable[[], MapPolicy], seeds: Sequence[int],
-                   progress: Callable[[str], None] | None = None) -> list[AllocatorResult]:
+                   progress: Callable[[str], None] | None = None,
+                   speed: Callable[[int], float] | None = None) -> list[AllocatorResult]:
     """Every allocator over ``seeds``, the same walks and uplinks for each (device i of seed s:
-    walk and channel of seed s × 1000 + i; ``channel(i)`` builds device i's channel)."""
+    walk and channel of seed s × 1000 + i; ``channel(i)`` builds device i's channel,
+    ``speed(i)`` gives its walking speed)."""
     results = []
     for allocator in allocators:
         cfg = replace(config, allocator=allocator)
         cfg.check()
         sim = FleetSimulator([(dataset, channel(i)) for i in range(cfg.devices)], cfg,
-                             make_policy)
+                             make_policy, [speed(i) if speed else cfg.sim.speed
+                                           for i in range(cfg.devices)])
         runs = []
         for seed in seeds:
             run = sim.run(seed)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import csv
 import os
 import sys
 from pathlib import Path
@@ -10,10 +11,12 @@ from pathlib import Path
 from twinslam.cli.console import Subparsers, error
 from twinslam.common.reporting import file_name
 from twinslam.live.fleet import (
+    FLEET_COLUMNS,
     FleetConfig,
     FleetLauncher,
     FleetReport,
     device_sequence,
+    fleet_rows,
     print_fleet_table,
 )
 from twinslam.live.launcher import DEFAULT_PARAMS, LaunchConfig, Launcher, tc_uplink_params
@@ -121,8 +124,8 @@ def _fleet_settings(args: argparse.Namespace) -> list[FleetConfig]:
         raise ValueError("--devices runs on a loopback or the environment's domain, without "
                          "--record or --hosts")
     allocators = [a.strip() for a in args.allocator.split(",") if a.strip()]
-    fleets = [FleetConfig(args.devices, args.vmax_total, a, args.min_keyframes, args.stride)
-              for a in allocators]
+    fleets = [FleetConfig(args.devices, args.vmax_total, a, args.min_keyframes, args.stride,
+                          args.seed) for a in allocators]
     for fleet in fleets:
         fleet.check()
     return fleets
@@ -133,7 +136,8 @@ def _run_fleet(args: argparse.Namespace, policy: str, fleet: FleetConfig, chosen
     length = None if args.sequence.startswith("synthetic") else len(open_sequence(
         args.sequence, 0, -1))
     starts = [device_sequence(args.sequence, i, fleet.devices, args.frames, args.start,
-                              fleet.stride, length) for i in range(fleet.devices)]
+                              fleet.stride, length, fleet.device_seed(i))
+              for i in range(fleet.devices)]
     config = LaunchConfig(args.sequence, policy, args.frames, args.rate, args.params,
                           timeout_s=args.timeout, extra=extra, scenario=chosen, start=args.start)
     with _launch_domain(args) as dom:
@@ -151,6 +155,16 @@ def _run_fleet(args: argparse.Namespace, policy: str, fleet: FleetConfig, chosen
         plot_run(monitor.record, f"{policy_label(policy)}, {fleet.allocator}: device {device}",
                  picture)
     print(f"wrote {len(launcher.records)} pictures into {args.out}", flush=True)
+    table = args.out / "fleet_runs.csv"
+    fresh = not table.exists()
+    with table.open("a", newline="", encoding="utf-8") as fh:
+        writer = csv.DictWriter(fh, fieldnames=FLEET_COLUMNS)
+        if fresh:
+            writer.writeheader()
+        period = float(launcher.slot_period_s())
+        writer.writerows(fleet_rows(result, fleet.seed, {d: m.record for d, m in
+                                                         launcher.records.items()}, period))
+    print(f"appended {fleet.devices} rows to {table}", flush=True)
     return result
 
 
@@ -254,6 +268,9 @@ def register(sub: Subparsers) -> None:
                        "motion, twin; default %(default)s")
     fleet.add_argument("--min-keyframes", type=int, default=5,
                        help="the least share a device gets; default %(default)s")
+    fleet.add_argument("--seed", type=int, default=0,
+                       help="device i's uplink channel (and synthetic-room walk) is seed "
+                       "100 x SEED + i; default %(default)s")
     fleet.add_argument("--stride", type=int, default=0,
                        help="on a dataset, frames between two devices' first frames (0: "
                        "spread evenly over the sequence)")

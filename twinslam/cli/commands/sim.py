@@ -146,6 +146,12 @@ def register(sub: Subparsers) -> None:
     fleet.add_argument("--fairness", type=float, default=0.0,
                        help="alpha of the twin allocator's alpha-fair sum (0: total, 1: "
                        "proportional fairness); default %(default)s")
+    fleet.add_argument("--speeds", default="",
+                       help="walking speeds the devices cycle through, comma-separated: 1 as "
+                       "recorded, 2 twice as fast, 0.5 half as fast, 0 standing still")
+    fleet.add_argument("--device-rates", default="",
+                       help="uplink rate ranges the devices cycle through, MIN-MAX Mbit/s "
+                       "comma-separated (e.g. 5-20,40-80); default: --rate-range for all")
     fleet.add_argument("--cell-capacity", type=float, default=0.0, metavar="MBPS",
                        help="the devices' uplinks share one cell of this many Mbit/s, each "
                        "getting its link rate x min(1, capacity / their sum); 0: no cell")

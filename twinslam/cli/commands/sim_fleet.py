@@ -7,6 +7,8 @@ import argparse
 import csv
 import math
 import time
+from collections.abc import Callable
+from typing import TypeVar
 
 from twinslam.cli.arguments import covisibility
 from twinslam.cli.console import error
@@ -15,6 +17,8 @@ from twinslam.simulator.covisibility import CovisibilityError
 from twinslam.simulator.env import SimConfig
 from twinslam.simulator.fleet import AllocatorResult, FleetConfig, evaluate_fleet
 from twinslam.uplink.channels import ChannelError, parse_channel
+
+T = TypeVar("T")
 
 
 def run_fleet(args: argparse.Namespace) -> int:
@@ -32,8 +36,13 @@ def run_fleet(args: argparse.Namespace) -> int:
                              SimConfig(slot_frames=args.slot_frames, slots=args.slots))
         for allocator in allocators or [""]:
             FleetConfig(config.devices, total, allocator, config.min_keyframes).check()
+        speeds = _cycled(args.speeds, float, "--speeds")
+        rates = _cycled(args.device_rates, _rate_range, "--device-rates") or [args.rate_range]
+        if any(s < 0 for s in speeds):
+            raise ValueError(f"--speeds must be >= 0, got {args.speeds}")
         dataset = covisibility(args.covis)
-        parse_channel(args.channel, args.rate_range)
+        for r in rates:
+            parse_channel(args.channel, r)
     except (ChannelError, CovisibilityError, ValueError) as exc:
         return error(exc)
     seeds = list(range(args.seed0, args.seed0 + args.seeds))
@@ -43,9 +52,13 @@ def run_fleet(args: argparse.Namespace) -> int:
           f"{args.slots} slots x {len(seeds)} seeds", flush=True)
     started = time.monotonic()
     report = (lambda m: print(f"  {m}", flush=True)) if args.verbose else None
-    results = evaluate_fleet(dataset, lambda i: parse_channel(args.channel, args.rate_range, i),
+    if speeds or len(rates) > 1:
+        print(f"devices cycle through walking speeds {speeds or [1.0]} and uplink ranges "
+              f"{[f'{lo:g}-{hi:g}' for lo, hi in rates]} Mbit/s", flush=True)
+    results = evaluate_fleet(dataset,
+                             lambda i: parse_channel(args.channel, rates[i % len(rates)], i),
                              config, allocators, lambda: make_rule_policy(policies[0]), seeds,
-                             report)
+                             report, (lambda i: speeds[i % len(speeds)]) if speeds else None)
     print_allocators(results)
     print(f"({time.monotonic() - started:.1f} s; per seed the mean over devices; Δ: paired "
           "by seed against equal, the same walks and uplinks; Jain's index of the devices' "
@@ -54,6 +67,21 @@ def run_fleet(args: argparse.Namespace) -> int:
         write_runs(args.csv, results)
         print(f"wrote {args.csv} (one row per device and seed)")
     return 0
+
+
+def _rate_range(text: str) -> tuple[float, float]:
+    low, sep, high = text.partition("-")
+    if not sep:
+        raise ValueError(f"a rate range is MIN-MAX Mbit/s, got {text!r}")
+    return float(low), float(high)
+
+
+def _cycled(text: str, parse: Callable[[str], T], option: str) -> list[T]:
+    """A comma-separated option's values (device i takes value i mod their number)."""
+    try:
+        return [parse(v.strip()) for v in text.split(",") if v.strip()]
+    except ValueError as exc:
+        raise ValueError(f"{option}: {exc}") from None
 
 
 def print_allocators(results: list[AllocatorResult]) -> None:

@@ -1,0 +1,164 @@
+"""The tables and the figure of docs/results.md § "One edge, many devices" (issue #32), from the
+files the commands wrote (every command is in results.md beside its table):
+
+* ``scaling`` — issue32-edge-scaling.csv (``python -m bench.edge_scaling``) and
+  issue32-sim-scaling.csv (``python -m bench.fleet``) → issue32-scaling.png: live, the edge's
+  compute per device-slot, the latency to the map update and the missed deadlines vs N; in the
+  simulator, milliseconds a fleet slot vs N;
+* ``sim FILE…`` — ``twinslam sim --devices N --csv`` files: per allocator the fleet mean (over
+  devices, then seeds) of mean υ, lost share and υ tracked, Jain's index of the devices'
+  tracked shares, and the paired differences with ``equal`` on the same seeds;
+* ``live FILE`` — a ``twinslam launch --devices N`` fleet_runs.csv: per allocator the devices'
+  failure share (frames they could not track), ATE, the edge's lost share and keyframe shares,
+  paired by seed with ``equal``.
+
+    .venv/bin/python docs/figures/issue32_tables.py scaling
+    .venv/bin/python docs/figures/issue32_tables.py sim docs/figures/issue32-sim-n10-lff.csv
+    .venv/bin/python docs/figures/issue32_tables.py live docs/figures/issue32-live-runs.csv
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+from twinslam.common.reporting import mean_ci95
+from twinslam.map_management.allocation import jain_index
+
+HERE = Path(__file__).resolve().parent
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    with path.open(encoding="utf-8") as fh:
+        return list(csv.DictReader(fh))
+
+
+def _fleet_means(rows: list[dict[str, str]], figures: dict[str, str]
+                 ) -> dict[str, dict[int, dict[str, float]]]:
+    """allocator → seed → figure → the mean over that seed's devices (``figures``: name →
+    column; "jain" is Jain's index of the devices' tracked shares)."""
+    by: dict[tuple[str, int], list[dict[str, str]]] = defaultdict(list)
+    for r in rows:
+        by[(r["allocator"], int(r["seed"]))].append(r)
+    out: dict[str, dict[int, dict[str, float]]] = defaultdict(dict)
+    for (allocator, seed), devices in by.items():
+        means = {}
+        for name, column in figures.items():
+            values = [float(d[column]) for d in devices if math.isfinite(float(d[column]))]
+            means[name] = sum(values) / len(values) if values else math.nan
+        tracked = [1 - float(d["lost_share"]) for d in devices]
+        if "untracked_frames" in devices[0]:
+            tracked = [1 - int(d["untracked_frames"]) / max(1, int(d["frames"]))
+                       for d in devices]
+            means["failed"] = 1 - sum(tracked) / len(tracked)
+        means["jain"] = jain_index(tracked)
+        out[allocator][seed] = means
+    return out
+
+
+def _cell(values: list[float], digits: int, scale: float = 1.0) -> str:
+    mean, half = mean_ci95([v * scale for v in values])
+    return f"{mean:.{digits}f} ± {half:.{digits}f}" if math.isfinite(half) else \
+        f"{mean:.{digits}f}"
+
+
+def _table(path: Path, figures: dict[str, str], shown: list[tuple[str, str, int, float]],
+           paired: list[tuple[str, str, int, float]]) -> None:
+    means = _fleet_means(_rows(path), figures)
+    base = means.get("equal")
+    seeds = sorted(next(iter(means.values())))
+    devices = len({r["device"] for r in _rows(path)})
+    print(f"\n{path.name}: {devices} devices, {len(seeds)} seeds (mean ± 95 % CI over seeds "
+          "of the mean over devices; Δ paired by seed against equal)\n")
+    head = [title for _, title, _, _ in shown] + [f"Δ {t} vs equal" for _, t, _, _ in paired]
+    print("| allocator | " + " | ".join(head) + " |")
+    print("|---" * (len(head) + 1) + "|")
+    for allocator, by_seed in means.items():
+        cells = [_cell([by_seed[s][name] for s in seeds], d, k) for name, _, d, k in shown]
+        for name, _, d, k in paired:
+            if base is None or allocator == "equal":
+                cells.append("—")
+            else:
+                cells.append(_cell([by_seed[s][name] - base[s][name] for s in seeds], d, k))
+        print(f"| {allocator} | " + " | ".join(cells) + " |")
+
+
+def sim(paths: list[str]) -> None:
+    figures = {"mean": "mean_uncertainty", "lost": "lost_share",
+               "tracked": "tracked_uncertainty", "budget": "mean_budget"}
+    for path in paths:
+        _table(Path(path), figures,
+               [("mean", "mean υ", 1, 1.0), ("lost", "lost (%)", 2, 100.0),
+                ("tracked", "υ tracked", 1, 1.0), ("jain", "Jain", 3, 1.0)],
+               [("lost", "lost (pts)", 2, 100.0), ("mean", "mean υ", 1, 1.0)])
+
+
+def live(paths: list[str]) -> None:
+    figures = {"mean": "mean_uncertainty", "lost": "lost_share", "ate": "ate_m",
+               "budget": "mean_budget", "late": "late_slots", "dropped": "frames_dropped"}
+    for path in paths:
+        _table(Path(path), figures,
+               [("failed", "device failed (%)", 1, 100.0), ("ate", "ATE (m)", 3, 1.0),
+                ("lost", "edge lost (%)", 1, 100.0), ("mean", "mean υ", 0, 1.0),
+                ("jain", "Jain", 3, 1.0), ("late", "late slots", 1, 1.0),
+                ("dropped", "frames dropped", 1, 1.0)],
+               [("failed", "device failed (pts)", 1, 100.0), ("ate", "ATE (m)", 3, 1.0)])
+
+
+def scaling() -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    live_rows = _rows(HERE / "issue32-edge-scaling.csv")
+    n = [int(r["devices"]) for r in live_rows]
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    ax = axes[0]
+    for column, label, style in (("compute_ms_median", "edge compute, median", "o-"),
+                                 ("compute_ms_p95", "edge compute, p95", "o--"),
+                                 ("latency_ms_median", "summaries → map, median", "s-"),
+                                 ("latency_ms_p95", "summaries → map, p95", "s--")):
+        ax.plot(n, [float(r[column]) for r in live_rows], style, label=label)
+    ax.axhline(2000, color="grey", lw=1)
+    ax.text(n[0], 2080, "slot period (2 s)", color="grey", fontsize=8)
+    ax.set(xlabel="devices served by one edge", ylabel="ms per device-slot", yscale="log",
+           title="live edge (2 cores): time per device-slot")
+    ax.legend(fontsize=8)
+    ax = axes[1]
+    ax.plot(n, [100 * float(r["missed_share"]) for r in live_rows], "o-",
+            label="device-slots whose map came after a slot period")
+    ax.plot(n, [100 * float(r["edge_cpu_share"]) for r in live_rows], "s-",
+            label="edge process CPU (% of one core)")
+    ax.set(xlabel="devices served by one edge", ylabel="%", ylim=(0, 105),
+           title="live edge: missed deadlines and its CPU")
+    ax.legend(fontsize=8)
+    ax = axes[2]
+    sim_rows = _rows(HERE / "issue32-sim-scaling.csv")
+    for allocator in ("equal", "motion", "twin"):
+        mine = [r for r in sim_rows if r["allocator"] == allocator]
+        ax.plot([int(r["devices"]) for r in mine],
+                [1000 * int(r["devices"]) / float(r["device_slots_per_s"]) for r in mine],
+                "o-", label=allocator)
+    ax.set(xlabel="devices", ylabel="ms per slot of the whole fleet", xscale="log",
+           yscale="log", title="simulator (one core): a slot of N devices")
+    ax.legend(fontsize=8, title="allocator")
+    fig.tight_layout()
+    out = HERE / "issue32-scaling.png"
+    fig.savefig(out, dpi=110)
+    print(f"wrote {out}")
+
+
+def main(argv: list[str]) -> int:
+    if not argv or argv[0] not in ("scaling", "sim", "live"):
+        print(__doc__)
+        return 2
+    {"scaling": lambda a: scaling(), "sim": sim, "live": live}[argv[0]](argv[1:])
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,79 @@
+"""The edge's compute budget (issue #32): an edge serving many devices must answer each slot
+within its period, and past ~16 devices a 2-core edge does not (BENCHMARKS.md,
+bench.edge_scaling). Of an edge's per-slot work — planning, integrating keyframes, local
+bundle adjustment, the map update — the bundle adjustment is the part that can shrink without
+breaking the protocol: a smaller window of keyframes optimised, fewer points, or none.
+
+The governor measures the compute the edge spends (seconds of slot work per second of wall
+time, over a sliding window) against ``budget`` (a share of one core: the edge's Python work
+runs on one) and steps through :data:`LEVELS` — trimming the bundle adjustment when over the
+budget, restoring it when the load has fallen below ``relax`` × the budget, at most one step
+per half window so that each step's effect is seen before the next. Pure logic: the node
+charges it and applies the level it returns to every device's core.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class BundleAdjustmentLevel:
+    window: int                      #: newest keyframes optimised (0: no bundle adjustment)
+    points: int | None               #: points in it at most (None: all)
+
+    def describe(self) -> str:
+        if self.window == 0:
+            return "no local bundle adjustment"
+        return f"bundle adjustment of {self.window} keyframes, {self.points or 'all'} points"
+
+
+#: from the full local bundle adjustment (the edge's defaults) down to none
+LEVELS = (BundleAdjustmentLevel(5, 120), BundleAdjustmentLevel(3, 60),
+          BundleAdjustmentLevel(1, 30), BundleAdjustmentLevel(0, 0))
+
+
+class ComputeGovernor:
+    """``budget``: the share of one core the edge's slot work may take (0: no budget)."""
+
+    def __init__(self, budget: float, window_s: float = 10.0, relax: float = 0.6,
+                 levels: tuple[BundleAdjustmentLevel, ...] = LEVELS) -> None:
+        if budget < 0 or window_s <= 0 or not 0 < relax < 1:
+            raise ValueError("budget must be >= 0, window_s > 0 and relax in (0, 1)")
+        self.budget, self.window_s, self.relax, self.levels = budget, window_s, relax, levels
+        self.level = 0
+        self._spent: deque[tuple[float, float]] = deque()     #: (time, seconds of work)
+        self._started: float | None = None
+        self._last_step = -float("inf")
+
+    def charge(self, seconds: float, now: float) -> None:
+        """``seconds`` of slot work finished at ``now`` (monotonic seconds)."""
+        if self._started is None:
+            self._started = now
+        self._spent.append((now, max(0.0, seconds)))
+        while self._spent and self._spent[0][0] < now - self.window_s:
+            self._spent.popleft()
+
+    def load(self, now: float) -> float:
+        """Seconds of work per second over the last window (a share of one core)."""
+        if self._started is None:
+            return 0.0
+        span = min(self.window_s, max(now - self._started, 1e-3))
+        return sum(s for t, s in self._spent if t >= now - self.window_s) / span
+
+    def step(self, now: float) -> BundleAdjustmentLevel | None:
+        """The new level when the load calls for one (None: unchanged)."""
+        if self.budget <= 0 or now - self._last_step < self.window_s / 2:
+            return None
+        if self._started is None or now - self._started < self.window_s / 2:
+            return None                  # too little seen to judge
+        load = self.load(now)
+        if load > self.budget and self.level < len(self.levels) - 1:
+            self.level += 1
+        elif load < self.relax * self.budget and self.level > 0:
+            self.level -= 1
+        else:
+            return None
+        self._last_step = now
+        return self.levels[self.level]
