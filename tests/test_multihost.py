@@ -337,3 +337,31 @@ def test_hosts_command_builds_and_removes_the_three_hosts() -> None:
                               text=True, timeout=60)
     assert down.returncode == 0 and "removed" in down.stdout
     assert not NetnsHosts(prefix=prefix).exists()
+
+
+def test_two_devices_on_hosts_of_their_own_share_one_edge_each_uplink_its_own_cable() -> None:
+    """Issue #32's test bed: two device hosts (each a camera and a device tracker) and one
+    edge host; each device's keyframes cross its own cable, shaped by tc at its own d_k, and
+    the one edge answers both within one keyframe budget."""
+    from twinslam.live.fleet import FleetConfig, FleetLauncher, device_sequence
+
+    _remove_stale_namespaces()
+    fleet = FleetConfig(2, 30, "equal", 5)
+    names = fleet.names()
+    with NetnsHosts(prefix=f"tc{os.getpid()}-", hosts=(*names, "edge")) as made:
+        starts = [device_sequence("synthetic:150", i, 2, 150, 0, 0, None) for i in range(2)]
+        launcher = FleetLauncher(made, LaunchConfig("synthetic:150", "lff", 150,
+                                                    timeout_s=240.0, extra=_tc_uplink()),
+                                 fleet, starts, echo=print)
+        result = launcher.run_fleet()
+        carried = {d: made.port_bytes(d) for d in names}    # what crossed each cable
+    assert not made.exists(), "namespaces left behind"
+    for d, report in zip(result.devices, result.reports, strict=True):
+        record = launcher.records[d].record
+        sent = sum(int(t.bytes_sent) for t in record.throughput.values())
+        assert report.slots >= 2 and report.untracked_frames == 0, d
+        assert sent > 0 and carried[d] >= sent, f"{d}: {carried[d]} bytes on its cable, {sent} sent"
+        for t in record.throughput.values():
+            if t.frames_sent:      # tc paced the keyframes at d_k (not faster)
+                assert t.duration_s >= 0.9 * t.bytes_sent * 8 / (t.configured_rate_mbps * 1e6)
+        assert all(s.map_size <= s.keyframe_budget for s in record.stats.values()), d

@@ -4,6 +4,10 @@ device per namespace (``/ar1`` … ``/arN``), each on its own walk and uplink se
 by an allocator; a monitor per namespace and one report per device, their mean and Jain's
 index of the devices' tracked shares.
 
+On network-namespace hosts (``--hosts``) each device and its camera run on a host of their
+own, named as the device, the edge on ``edge`` (the monitor beside it), each device's uplink
+its own cable (``--tc`` shapes each at its d_k).
+
 Walks: on the synthetic room each device plays its own seed's walk (``synthetic:F:i``); on a
 dataset folder device i starts ``stride`` frames after device i − 1 (wrapping round), so the
 devices see different places at a time.
@@ -141,7 +145,7 @@ class FleetLauncher(Launcher):
             monitors = {d: PipelineMonitor(s.node, self._status(d)) for d, s in sessions.items()}
             self.records = monitors
             started = time.monotonic()
-            edge = self.domain.spawn(self.edge_args())
+            edge = self.domain.spawn(self.edge_args(), host="edge")
             self.procs["edge_mapper"] = edge
             first = sessions[names[-1]]
             if not first.spin_until(lambda: monitors[names[-1]].requests.get_publisher_count()
@@ -153,7 +157,8 @@ class FleetLauncher(Launcher):
                                    f"{err.strip()[-500:]}")
             for i, d in enumerate(names):
                 for node in ("device_tracker", "sequence_player"):
-                    self.procs[f"{node}:{d}"] = self.domain.spawn(self.device_args(node, i))
+                    self.procs[f"{node}:{d}"] = self.domain.spawn(self.device_args(node, i),
+                                                                  host=d)
             players = [self.procs[f"sequence_player:{d}"] for d in names]
             deadline = started + c.timeout_s
 

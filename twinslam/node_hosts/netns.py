@@ -105,11 +105,13 @@ def unavailable_reason() -> str | None:
     return None
 
 
-def host_env(domain_id: int, profile: Path, hosts: tuple[str, ...] = HOSTS) -> dict[str, str]:
+def host_env(domain_id: int, profile: Path, hosts: tuple[str, ...] = HOSTS,
+             addresses: tuple[str, ...] | None = None) -> dict[str, str]:
     """The DDS environment of a node on a host: the hosts' addresses as static peers (the
     namespaces have no route for multicast, as a LAN whose switch drops it) and the host
     profile."""
-    return ros_env(domain_id, "SUBNET", profile, tuple(address_of(h) for h in hosts))
+    peers = addresses if addresses is not None else tuple(address_of(h) for h in hosts)
+    return ros_env(domain_id, "SUBNET", profile, peers)
 
 
 def address_of(host: str) -> str:
@@ -138,12 +140,17 @@ def _setns(path: str) -> None:
 
 
 class NetnsHosts(ProcessDomain):
-    """The device, edge and twin hosts and their switch; ``up()`` builds, ``close()`` removes."""
+    """The hosts (device, edge and twin unless ``hosts`` names others, e.g. one per device of
+    a fleet: ``("ar1", "ar2", "edge")``) and their switch; ``up()`` builds, ``close()``
+    removes. Host i of ``hosts`` has the address SUBNET.(2 + i)."""
 
-    def __init__(self, prefix: str = "twinslam-", domain_id: int = 0) -> None:
+    def __init__(self, prefix: str = "twinslam-", domain_id: int = 0,
+                 hosts: tuple[str, ...] = HOSTS) -> None:
         super().__init__(domain_id)
-        self.prefix = prefix
-        self.namespaces = {h: f"{prefix}{h}" for h in HOSTS}
+        if len(set(hosts)) != len(hosts) or not 0 < len(hosts) <= 200:
+            raise ValueError(f"hosts must be 1 to 200 distinct names, got {hosts}")
+        self.prefix, self.hosts = prefix, tuple(hosts)
+        self.namespaces = {h: f"{prefix}{h}" for h in self.hosts}
         self.switch = f"{prefix}switch"
         self._bpffs: Path | None = None         # where loss programs are pinned
         self._profile_dir = Path(tempfile.mkdtemp(prefix=f"{prefix}dds-"))
@@ -174,7 +181,7 @@ class NetnsHosts(ProcessDomain):
                 _ip("link", "add", self.port(host), "mtu", str(MTU), "type", "veth", "peer",
                     "name", INTERFACE, "mtu", str(MTU), "netns", ns, netns=self.switch)
                 _ip("link", "set", self.port(host), "master", "br0", "up", netns=self.switch)
-                _ip("addr", "add", f"{address_of(host)}/24", "dev", INTERFACE, netns=ns)
+                _ip("addr", "add", f"{self.address(host)}/24", "dev", INTERFACE, netns=ns)
                 _ip("link", "set", INTERFACE, "up", netns=ns)
         except NetnsError:
             self.down()
@@ -194,14 +201,26 @@ class NetnsHosts(ProcessDomain):
 
     # -- running inside a host --------------------------------------------------------------------
 
+    def address(self, host: str) -> str:
+        """``host``'s address on the switch."""
+        if host not in self.namespaces:
+            raise ValueError(f"unknown host {host!r}; hosts are {', '.join(self.hosts)}")
+        if self.hosts == HOSTS:
+            return address_of(host)
+        return f"{SUBNET}.{2 + self.hosts.index(host)}"
+
+    def _host_env(self) -> dict[str, str]:
+        return host_env(self.domain_id, self.profile,
+                        addresses=tuple(self.address(h) for h in self.hosts))
+
     def env_for(self, host: str | None) -> dict[str, str]:
         env = self.base_env()
-        env.update(host_env(self.domain_id, self.profile))
+        env.update(self._host_env())
         return env
 
     def command(self, host: str | None, argv: list[str]) -> list[str]:
         if host is None or host not in self.namespaces:
-            raise ValueError(f"unknown host {host!r}; hosts are {', '.join(HOSTS)}")
+            raise ValueError(f"unknown host {host!r}; hosts are {', '.join(self.hosts)}")
         return ["ip", "netns", "exec", self.namespaces[host], *argv]
 
     def run_in(self, host: str, *argv: str, check: bool = True) -> str:
@@ -219,7 +238,7 @@ class NetnsHosts(ProcessDomain):
         saved = {k: os.environ.get(k) for k in ENV_KEYS}
         try:
             _setns(f"/run/netns/{self.namespaces[host]}")
-            os.environ.update(host_env(self.domain_id, self.profile))
+            os.environ.update(self._host_env())
             yield
         finally:
             _setns(f"/proc/self/fd/{home}")

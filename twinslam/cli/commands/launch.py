@@ -120,9 +120,8 @@ def _run_policy(args: argparse.Namespace, policy: str, chosen: Scenario,
 
 def _fleet_settings(args: argparse.Namespace) -> list[FleetConfig]:
     """One fleet configuration per allocator asked for; ValueError names a bad option."""
-    if args.record is not None or args.hosts:
-        raise ValueError("--devices runs on a loopback or the environment's domain, without "
-                         "--record or --hosts")
+    if args.record is not None:
+        raise ValueError("--devices does not record yet: run without --record")
     allocators = [a.strip() for a in args.allocator.split(",") if a.strip()]
     fleets = [FleetConfig(args.devices, args.vmax_total, a, args.min_keyframes, args.stride,
                           args.seed) for a in allocators]
@@ -140,7 +139,10 @@ def _run_fleet(args: argparse.Namespace, policy: str, fleet: FleetConfig, chosen
               for i in range(fleet.devices)]
     config = LaunchConfig(args.sequence, policy, args.frames, args.rate, args.params,
                           timeout_s=args.timeout, extra=extra, scenario=chosen, start=args.start)
-    with _launch_domain(args) as dom:
+    domain: ProcessDomain = (NetnsHosts(prefix=f"twinslam{os.getpid()}-",
+                                        hosts=(*fleet.names(), "edge"))
+                             if args.hosts else _launch_domain(args))
+    with domain as dom:
         if isinstance(dom, LoopbackDomain) and args.loopback:
             dom.activate()
         budget = (f"V_total {fleet.vmax_total} split {fleet.allocator}" if fleet.vmax_total
