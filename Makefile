@@ -84,6 +84,9 @@ bench: venv
 	$(PY) -m bench.udt
 	$(PY) -m bench.pipeline
 	$(PY) -m bench.mbrl
+	$(PY) -m bench.fleet
+	$(PY) -m bench.edge_scaling
+	$(PY) -m bench.visual
 	$(PY) -m bench.live --rounds 4 --frames 1000
 
 clean:

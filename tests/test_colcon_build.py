@@ -77,16 +77,23 @@ def test_colcon_workspace_resolves_and_runs_every_executable(workspace: Path) ->
              "udt_node": "listening on"}
     procs = {name: _in_workspace(workspace, f"exec {lib / name}", start_new_session=True)
              for name in ready}                                   # started side by side
-    for name, proc in procs.items():
-        seen = ""
-        deadline = time.monotonic() + 120
-        assert proc.stderr is not None
-        while time.monotonic() < deadline and ready[name] not in seen and proc.poll() is None:
-            seen += proc.stderr.readline()
-        os.killpg(proc.pid, signal.SIGINT)
-        _, rest = proc.communicate(timeout=30)
-        assert ready[name] in seen, f"{name}: {(seen + rest)[-2000:]}"
-        assert proc.returncode == 0, f"{name} exited {proc.returncode}: {rest[-2000:]}"
+    try:
+        for name, proc in procs.items():
+            seen = ""
+            deadline = time.monotonic() + 120
+            assert proc.stderr is not None
+            while time.monotonic() < deadline and ready[name] not in seen and \
+                    proc.poll() is None:
+                seen += proc.stderr.readline()
+            os.killpg(proc.pid, signal.SIGINT)
+            _, rest = proc.communicate(timeout=30)
+            assert ready[name] in seen, f"{name}: {(seen + rest)[-2000:]}"
+            assert proc.returncode == 0, f"{name} exited {proc.returncode}: {rest[-2000:]}"
+    finally:                          # a failed check leaves no node running behind it
+        for proc in procs.values():
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait(timeout=10)
     cli = _in_workspace(workspace, f"{lib / 'twinslam'} --help")
     out, err = cli.communicate(timeout=60)
     assert cli.returncode == 0 and "launch" in out, err

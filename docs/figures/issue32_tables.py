@@ -124,10 +124,10 @@ def scaling() -> None:
                                  ("latency_ms_p95", "summaries → map, p95", "s--")):
         ax.plot(n, [float(r[column]) for r in live_rows], style, label=label)
     ax.axhline(2000, color="grey", lw=1)
-    ax.text(n[0], 2080, "slot period (2 s)", color="grey", fontsize=8)
+    ax.text(n[-1], 2150, "slot period (2 s)", color="grey", fontsize=8, ha="right")
     ax.set(xlabel="devices served by one edge", ylabel="ms per device-slot", yscale="log",
            title="live edge (2 cores): time per device-slot")
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper left")
     ax = axes[1]
     ax.plot(n, [100 * float(r["missed_share"]) for r in live_rows], "o-",
             label="device-slots whose map came after a slot period")
@@ -135,7 +135,7 @@ def scaling() -> None:
             label="edge process CPU (% of one core)")
     ax.set(xlabel="devices served by one edge", ylabel="%", ylim=(0, 105),
            title="live edge: missed deadlines and its CPU")
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper left")
     ax = axes[2]
     sim_rows = _rows(HERE / "issue32-sim-scaling.csv")
     for allocator in ("equal", "motion", "twin"):

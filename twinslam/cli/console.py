@@ -7,7 +7,7 @@ import argparse
 import sys
 import time
 from collections.abc import Callable, Iterable, Mapping
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypeVar
 
 #: the subparsers object every command registers itself with (argparse names no public type,
 #: and its class is generic only to type checkers)
@@ -18,6 +18,8 @@ else:
 
 #: exit code of a command refused before it ran (bad options or input), as argparse's own
 USAGE_ERROR = 2
+
+R = TypeVar("R")
 
 
 def error(message: object, code: int = USAGE_ERROR) -> int:
@@ -54,3 +56,18 @@ class HelpFormatter(argparse.RawDescriptionHelpFormatter):
                 and default != argparse.SUPPRESS and "default" not in text):
             text += " (default: %(default)s)"
         return text
+
+
+def each_run(runs: list[Callable[[], R]]) -> list[R] | int:
+    """Every run in turn (live runs of nodes); instead, the exit code when one is interrupted
+    (130: its nodes were stopped) or fails (1, with the reason)."""
+    done = []
+    for one in runs:
+        try:
+            done.append(one())
+        except KeyboardInterrupt:
+            print("interrupted: nodes stopped", file=sys.stderr)
+            return 130
+        except RuntimeError as exc:
+            return error(exc, 1)
+    return done

@@ -28,7 +28,7 @@ from twinslam.live.launcher import LaunchConfig, Launcher
 from twinslam.live.monitor import PipelineMonitor
 from twinslam.live.record import RunRecord
 from twinslam.live.report import RunReport, report
-from twinslam.map_management.allocation import ALLOCATORS, check_budget, jain_index
+from twinslam.map_management.allocation import check_fleet, jain_index
 from twinslam.node_hosts.loopback import ProcessDomain
 from twinslam.node_hosts.session import RosSession
 
@@ -50,13 +50,7 @@ class FleetConfig:
 
     def check(self) -> None:
         """ValueError naming a setting that cannot run."""
-        if self.devices < 1:
-            raise ValueError(f"--devices must be >= 1, got {self.devices}")
-        if self.allocator not in ALLOCATORS:
-            raise ValueError(f"unknown allocator {self.allocator!r}: one of "
-                             f"{', '.join(ALLOCATORS)}")
-        if self.vmax_total:
-            check_budget(self.vmax_total, self.devices, self.min_keyframes)
+        check_fleet(self.devices, self.allocator, self.vmax_total, self.min_keyframes)
 
 
 @dataclass

@@ -59,6 +59,17 @@ def check_budget(total: int, n_devices: int, minimum: int) -> None:
                           "each: serve fewer devices, lower the minimum or raise V_total")
 
 
+def check_fleet(devices: int, allocator: str, total: int, minimum: int) -> None:
+    """ValueError naming what stops ``devices`` from sharing ``total`` keyframes by
+    ``allocator`` (``total`` 0: no shared budget, only the rest is checked)."""
+    if devices < 1:
+        raise ValueError(f"a fleet needs at least one device, got {devices}")
+    if allocator not in ALLOCATORS:
+        raise ValueError(f"unknown allocator {allocator!r}: one of {', '.join(ALLOCATORS)}")
+    if total:
+        check_budget(total, devices, minimum)
+
+
 def split_equal(total: int, held: Sequence[int], minimum: int) -> list[int]:
     """V_total / N each; the remainder to the devices holding most now (``held``)."""
     n = len(held)

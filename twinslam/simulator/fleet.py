@@ -30,10 +30,10 @@ import numpy as np
 
 from twinslam.common.reporting import mean_ci95
 from twinslam.map_management.allocation import (
-    ALLOCATORS,
     DeviceDemand,
     allocate,
     check_budget,
+    check_fleet,
     jain_index,
 )
 from twinslam.map_management.budget_value import budget_value, expected_uploads
@@ -56,12 +56,8 @@ class FleetConfig:
     sim: SimConfig = field(default_factory=SimConfig)
 
     def check(self) -> None:
-        if self.devices < 1:
-            raise ValueError(f"a fleet needs at least one device, got {self.devices}")
-        if self.allocator not in ALLOCATORS:
-            raise ValueError(f"unknown allocator {self.allocator!r}: one of "
-                             f"{', '.join(ALLOCATORS)}")
-        check_budget(self.vmax_total, self.devices, self.min_keyframes)
+        check_fleet(self.devices, self.allocator, self.vmax_total, self.min_keyframes)
+        check_budget(self.vmax_total, self.devices, self.min_keyframes)   # 0 is no budget
         if not math.isfinite(self.cell_capacity_mbps) or self.cell_capacity_mbps < 0:
             raise ValueError(f"cell capacity must be >= 0 Mbit/s, got {self.cell_capacity_mbps}")
 

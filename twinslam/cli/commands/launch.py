@@ -3,40 +3,26 @@
 from __future__ import annotations
 
 import argparse
-import csv
-import os
-import sys
+import functools
 from pathlib import Path
+from typing import TypeVar
 
-from twinslam.cli.console import Subparsers, error
+from twinslam.cli.commands.launch_fleet import add_fleet_arguments, domain_for, run_fleets
+from twinslam.cli.console import Subparsers, each_run, error
 from twinslam.common.reporting import file_name
-from twinslam.live.fleet import (
-    FLEET_COLUMNS,
-    FleetConfig,
-    FleetLauncher,
-    FleetReport,
-    device_sequence,
-    fleet_rows,
-    print_fleet_table,
-)
 from twinslam.live.launcher import DEFAULT_PARAMS, LaunchConfig, Launcher, tc_uplink_params
 from twinslam.live.report import RunReport, policy_label, print_table
 from twinslam.live.run_picture import plot_run
 from twinslam.live.run_recording import check_destination
 from twinslam.live.scenarios import SCENARIOS, Scenario, scenario
-from twinslam.node_hosts.loopback import EnvironmentDomain, LoopbackDomain, ProcessDomain
-from twinslam.node_hosts.netns import NetnsHosts, unavailable_reason
+from twinslam.node_hosts.loopback import LoopbackDomain
+from twinslam.node_hosts.netns import unavailable_reason
 from twinslam.policy_registry import LEARNED_PREFIX
 from twinslam.sequences.frame import SequenceError
 from twinslam.sequences.opening import open_sequence
 from twinslam.slam.map_source import check_map_source
 
-
-def _launch_domain(args: argparse.Namespace) -> ProcessDomain:
-    """Where the nodes run: three namespaces, a private loopback domain, or $ROS_DOMAIN_ID."""
-    if args.hosts:
-        return NetnsHosts(prefix=f"twinslam{os.getpid()}-")
-    return LoopbackDomain() if args.loopback else EnvironmentDomain()
+R = TypeVar("R")
 
 
 def _real_frame_uplink(sequence: str) -> dict[str, list[str]]:
@@ -97,7 +83,7 @@ def _run_policy(args: argparse.Namespace, policy: str, chosen: Scenario,
                           with_twin=args.twin or learned, timeout_s=args.timeout,
                           extra=run_extra, scenario=chosen, start=args.start,
                           record=record, record_camera_every=args.record_camera_every)
-    with _launch_domain(args) as dom:
+    with domain_for(args) as dom:
         if isinstance(dom, LoopbackDomain) and args.loopback:
             dom.activate()
         where = ("hosts device/edge/twin, domain" if args.hosts else
@@ -118,98 +104,19 @@ def _run_policy(args: argparse.Namespace, policy: str, chosen: Scenario,
     return report
 
 
-def _fleet_settings(args: argparse.Namespace) -> list[FleetConfig]:
-    """One fleet configuration per allocator asked for; ValueError names a bad option."""
-    if args.record is not None:
-        raise ValueError("--devices does not record yet: run without --record")
-    allocators = [a.strip() for a in args.allocator.split(",") if a.strip()]
-    fleets = [FleetConfig(args.devices, args.vmax_total, a, args.min_keyframes, args.stride,
-                          args.seed) for a in allocators]
-    for fleet in fleets:
-        fleet.check()
-    return fleets
-
-
-def _run_fleet(args: argparse.Namespace, policy: str, fleet: FleetConfig, chosen: Scenario,
-               extra: dict[str, list[str]]) -> FleetReport:
-    length = None if args.sequence.startswith("synthetic") else len(open_sequence(
-        args.sequence, 0, -1))
-    starts = [device_sequence(args.sequence, i, fleet.devices, args.frames, args.start,
-                              fleet.stride, length, fleet.device_seed(i))
-              for i in range(fleet.devices)]
-    config = LaunchConfig(args.sequence, policy, args.frames, args.rate, args.params,
-                          timeout_s=args.timeout, extra=extra, scenario=chosen, start=args.start)
-    domain: ProcessDomain = (NetnsHosts(prefix=f"twinslam{os.getpid()}-",
-                                        hosts=(*fleet.names(), "edge"))
-                             if args.hosts else _launch_domain(args))
-    with domain as dom:
-        if isinstance(dom, LoopbackDomain) and args.loopback:
-            dom.activate()
-        budget = (f"V_total {fleet.vmax_total} split {fleet.allocator}" if fleet.vmax_total
-                  else "each its own V_max")
-        print(f"{policy}: {fleet.devices} devices, one edge ({budget}), {args.frames} frames "
-              f"each on domain {dom.domain_id}", flush=True)
-        launcher = FleetLauncher(dom, config, fleet, starts, lambda line: print(line, flush=True))
-        result = launcher.run_fleet()
-    args.out.mkdir(parents=True, exist_ok=True)
-    for device, monitor in launcher.records.items():
-        picture = args.out / file_name(f"{policy_label(policy)}_{fleet.allocator}_{device}.png")
-        plot_run(monitor.record, f"{policy_label(policy)}, {fleet.allocator}: device {device}",
-                 picture)
-    print(f"wrote {len(launcher.records)} pictures into {args.out}", flush=True)
-    table = args.out / "fleet_runs.csv"
-    fresh = not table.exists()
-    with table.open("a", newline="", encoding="utf-8") as fh:
-        writer = csv.DictWriter(fh, fieldnames=FLEET_COLUMNS)
-        if fresh:
-            writer.writeheader()
-        period = float(launcher.slot_period_s())
-        writer.writerows(fleet_rows(result, fleet.seed, {d: m.record for d, m in
-                                                         launcher.records.items()}, period))
-    print(f"appended {fleet.devices} rows to {table}", flush=True)
-    return result
-
-
-def _run_fleets(args: argparse.Namespace, policies: list[str], chosen: Scenario,
-                extra: dict[str, list[str]]) -> int:
-    try:
-        fleets = _fleet_settings(args)
-    except ValueError as exc:
-        return error(exc)
-    results = []
-    for policy in policies:
-        for fleet in fleets:
-            try:
-                results.append(_run_fleet(args, policy, fleet, chosen, extra))
-            except KeyboardInterrupt:
-                print("interrupted: nodes stopped", file=sys.stderr)
-                return 130
-            except RuntimeError as exc:
-                return error(exc, 1)
-    print()
-    for result in results:
-        print_fleet_table(result)
-    return 0
-
-
 def run(args: argparse.Namespace) -> int:
     policies = [p.strip() for p in args.policy.split(",") if p.strip()]
     try:
         chosen, extra = _checked_setup(args)
         if args.devices:
-            return _run_fleets(args, policies, chosen, extra)
+            return run_fleets(args, policies, chosen, extra)
         records = _recordings(args, policies)
     except (ValueError, SequenceError) as exc:
         return error(exc)
-    reports = []
-    for policy in policies:
-        try:
-            reports.append(_run_policy(args, policy, chosen, extra, records[policy]))
-        except KeyboardInterrupt:
-            print("interrupted: nodes stopped", file=sys.stderr)
-            return 130
-        except RuntimeError as exc:
-            return error(exc, 1)
+    reports = each_run([functools.partial(_run_policy, args, policy, chosen, extra,
+                                       records[policy]) for policy in policies])
+    if isinstance(reports, int):
+        return reports
     print()
     print_table(reports)
     return 0
@@ -256,26 +163,7 @@ def register(sub: Subparsers) -> None:
     launch.add_argument("--record-camera-every", type=int, default=10, metavar="N",
                         help="with --record: keep one camera sample (image, depth, "
                         "camera_info) in N")
-    fleet = launch.add_argument_group(
-        "one edge, many devices", "--devices N plays N devices (namespaces ar1 … arN, each its "
-        "own walk and uplink seed) against one edge; a table per device, their mean and "
-        "Jain's index of the tracked shares")
-    fleet.add_argument("--devices", type=int, default=0, metavar="N",
-                       help="devices served by one edge (0: one device/edge pair, as before)")
-    fleet.add_argument("--vmax-total", type=int, default=0, metavar="V",
-                       help="keyframes of every device's map together (0: each device has "
-                       "the parameter file's vmax)")
-    fleet.add_argument("--allocator", default="equal",
-                       help="how --vmax-total is split, comma-separated to compare: equal, "
-                       "motion, twin; default %(default)s")
-    fleet.add_argument("--min-keyframes", type=int, default=5,
-                       help="the least share a device gets; default %(default)s")
-    fleet.add_argument("--seed", type=int, default=0,
-                       help="device i's uplink channel (and synthetic-room walk) is seed "
-                       "100 x SEED + i; default %(default)s")
-    fleet.add_argument("--stride", type=int, default=0,
-                       help="on a dataset, frames between two devices' first frames (0: "
-                       "spread evenly over the sequence)")
+    add_fleet_arguments(launch)
     launch.add_argument("--map-source", default=None,
                         help="the device's map source: edge (tracked only against the edge's "
                         "map, the paper's device) or edge+local (plus its own recent points); "

@@ -1,0 +1,130 @@
+"""``twinslam launch --devices N``: one edge serving N devices (issue #32) — the options, one
+fleet run per policy and allocator, the tables and ``OUT/fleet_runs.csv``; and where any launch
+runs its nodes (:func:`domain_for`)."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import functools
+import os
+
+from twinslam.cli.console import each_run, error
+from twinslam.common.reporting import file_name
+from twinslam.live.fleet import (
+    FLEET_COLUMNS,
+    FleetConfig,
+    FleetLauncher,
+    FleetReport,
+    device_sequence,
+    fleet_rows,
+    print_fleet_table,
+)
+from twinslam.live.launcher import LaunchConfig
+from twinslam.live.report import policy_label
+from twinslam.live.run_picture import plot_run
+from twinslam.live.scenarios import Scenario
+from twinslam.node_hosts.loopback import EnvironmentDomain, LoopbackDomain, ProcessDomain
+from twinslam.node_hosts.netns import NetnsHosts
+from twinslam.sequences.opening import open_sequence
+
+
+def domain_for(args: argparse.Namespace, hosts: tuple[str, ...] | None = None
+               ) -> ProcessDomain:
+    """Where the nodes run: network-namespace hosts (device/edge/twin, or ``hosts``), a
+    private loopback domain, or $ROS_DOMAIN_ID."""
+    if args.hosts:
+        prefix = f"twinslam{os.getpid()}-"
+        return NetnsHosts(prefix=prefix, hosts=hosts) if hosts else NetnsHosts(prefix=prefix)
+    return LoopbackDomain() if args.loopback else EnvironmentDomain()
+
+
+def fleet_settings(args: argparse.Namespace) -> list[FleetConfig]:
+    """One fleet configuration per allocator asked for; ValueError names a bad option."""
+    if args.record is not None:
+        raise ValueError("--devices does not record yet: run without --record")
+    allocators = [a.strip() for a in args.allocator.split(",") if a.strip()]
+    fleets = [FleetConfig(args.devices, args.vmax_total, a, args.min_keyframes, args.stride,
+                          args.seed) for a in allocators]
+    for fleet in fleets:
+        fleet.check()
+    return fleets
+
+
+def run_fleet(args: argparse.Namespace, policy: str, fleet: FleetConfig, chosen: Scenario,
+              extra: dict[str, list[str]]) -> FleetReport:
+    """One fleet run: its nodes, a picture per device, its rows in OUT/fleet_runs.csv."""
+    length = None if args.sequence.startswith("synthetic") else len(open_sequence(
+        args.sequence, 0, -1))
+    starts = [device_sequence(args.sequence, i, fleet.devices, args.frames, args.start,
+                              fleet.stride, length, fleet.device_seed(i))
+              for i in range(fleet.devices)]
+    config = LaunchConfig(args.sequence, policy, args.frames, args.rate, args.params,
+                          timeout_s=args.timeout, extra=extra, scenario=chosen, start=args.start)
+    with domain_for(args, (*fleet.names(), "edge")) as dom:
+        if isinstance(dom, LoopbackDomain) and args.loopback:
+            dom.activate()
+        budget = (f"V_total {fleet.vmax_total} split {fleet.allocator}" if fleet.vmax_total
+                  else "each its own V_max")
+        print(f"{policy}: {fleet.devices} devices, one edge ({budget}), {args.frames} frames "
+              f"each on domain {dom.domain_id}", flush=True)
+        launcher = FleetLauncher(dom, config, fleet, starts, lambda line: print(line, flush=True))
+        result = launcher.run_fleet()
+    args.out.mkdir(parents=True, exist_ok=True)
+    for device, monitor in launcher.records.items():
+        picture = args.out / file_name(f"{policy_label(policy)}_{fleet.allocator}_{device}.png")
+        plot_run(monitor.record, f"{policy_label(policy)}, {fleet.allocator}: device {device}",
+                 picture)
+    print(f"wrote {len(launcher.records)} pictures into {args.out}", flush=True)
+    table = args.out / "fleet_runs.csv"
+    fresh = not table.exists()
+    with table.open("a", newline="", encoding="utf-8") as fh:
+        writer = csv.DictWriter(fh, fieldnames=FLEET_COLUMNS)
+        if fresh:
+            writer.writeheader()
+        period = float(launcher.slot_period_s())
+        writer.writerows(fleet_rows(result, fleet.seed, {d: m.record for d, m in
+                                                         launcher.records.items()}, period))
+    print(f"appended {fleet.devices} rows to {table}", flush=True)
+    return result
+
+
+def run_fleets(args: argparse.Namespace, policies: list[str], chosen: Scenario,
+               extra: dict[str, list[str]]) -> int:
+    """Every policy × allocator asked for, then their tables; the exit code."""
+    try:
+        fleets = fleet_settings(args)
+    except ValueError as exc:
+        return error(exc)
+    results = each_run([functools.partial(run_fleet, args, policy, fleet, chosen, extra)
+                        for policy in policies for fleet in fleets])
+    if isinstance(results, int):
+        return results
+    print()
+    for result in results:
+        print_fleet_table(result)
+    return 0
+
+
+def add_fleet_arguments(launch: argparse.ArgumentParser) -> None:
+    """``twinslam launch``'s options of a fleet."""
+    fleet = launch.add_argument_group(
+        "one edge, many devices", "--devices N plays N devices (namespaces ar1 … arN, each its "
+        "own walk and uplink seed) against one edge; a table per device, their mean and "
+        "Jain's index of the tracked shares")
+    fleet.add_argument("--devices", type=int, default=0, metavar="N",
+                       help="devices served by one edge (0: one device/edge pair, as before)")
+    fleet.add_argument("--vmax-total", type=int, default=0, metavar="V",
+                       help="keyframes of every device's map together (0: each device has "
+                       "the parameter file's vmax)")
+    fleet.add_argument("--allocator", default="equal",
+                       help="how --vmax-total is split, comma-separated to compare: equal, "
+                       "motion, twin; default %(default)s")
+    fleet.add_argument("--min-keyframes", type=int, default=5,
+                       help="the least share a device gets; default %(default)s")
+    fleet.add_argument("--seed", type=int, default=0,
+                       help="device i's uplink channel (and synthetic-room walk) is seed "
+                       "100 x SEED + i; default %(default)s")
+    fleet.add_argument("--stride", type=int, default=0,
+                       help="on a dataset, frames between two devices' first frames (0: "
+                       "spread evenly over the sequence)")
