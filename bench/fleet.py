@@ -21,7 +21,7 @@ from pathlib import Path
 
 from bench.gauge import cpu_gauge
 from twinslam.map_management.policies import make_rule_policy
-from twinslam.simulator.covisibility import load_covisibility
+from twinslam.simulator.covisibility import CovisibilityDataset, load_covisibility
 from twinslam.simulator.env import SimConfig
 from twinslam.simulator.fleet import FleetConfig, FleetSimulator
 from twinslam.uplink.channels import parse_channel
@@ -29,8 +29,10 @@ from twinslam.uplink.channels import parse_channel
 REAL_COVIS = Path(__file__).resolve().parents[1] / "data" / "7scenes-redkitchen-1000.covis.npz"
 
 
-def device_slots_per_s(n: int, allocator: str, policy: str, slots: int) -> float:
-    data = load_covisibility(REAL_COVIS)
+def device_slots_per_s(n: int, allocator: str, policy: str, slots: int,
+                       data: CovisibilityDataset | None = None) -> float:
+    """Device-slots a second of a fleet of ``n`` (a warm-up episode first, then one timed)."""
+    data = data if data is not None else load_covisibility(REAL_COVIS)
     config = FleetConfig(n, 15 * n, allocator, 5, sim=SimConfig(slots=slots))
     sim = FleetSimulator([(data, parse_channel("markov:N=2", seed=i)) for i in range(n)],
                          config, lambda: make_rule_policy(policy))

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.fleet import device_slots_per_s as fleet_device_slots_per_s
 from bench.gauge import cpu_gauge
 from twinslam.map_management.policies import (
     greedy_additions,
@@ -94,6 +95,9 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5, help="runs per policy")
     parser.add_argument("--rule", choices=("both", "device", "paper"), default="both",
                         help="the rule of a lost frame the slots are scored by (default both)")
+    parser.add_argument("--devices", type=int, default=100,
+                        help="also a fleet of this many devices inside one keyframe budget, "
+                        "per allocator (issue #32); 0: none")
     args = parser.parse_args()
     dataset = geometric_covisibility(n_frames=1000, n_points=4000) if args.covis == "room" \
         else load_covisibility(args.covis)
@@ -110,6 +114,11 @@ def main() -> None:
     inc, naive = adapt_ratio(dataset)
     print(f"ADAPT decision (V_max 45, 60 candidates, 8 up / 8 evict): incremental "
           f"{inc * 1000:.2f} ms, naive {naive * 1000:.1f} ms, ratio {naive / inc:.1f}x")
+    if args.devices:      # issue #32: one budget over many devices (bench.fleet has more sizes)
+        for allocator in ("equal", "motion", "twin"):
+            rate = fleet_device_slots_per_s(args.devices, allocator, "lff", 20, dataset)
+            print(f"fleet   {args.devices} devices, LFF, {allocator:<6} {rate:8.0f} "
+                  "device-slots/s")
     print(cpu_gauge(), "(after)")
 
 

@@ -133,6 +133,12 @@ def scaling() -> None:
             label="device-slots whose map came after a slot period")
     ax.plot(n, [100 * float(r["edge_cpu_share"]) for r in live_rows], "s-",
             label="edge process CPU (% of one core)")
+    budget = HERE / "issue32-edge-scaling-budget.csv"
+    if budget.is_file():                  # the same with compute_budget (one run a point)
+        rows = _rows(budget)
+        share = float(rows[0]["compute_budget"])
+        ax.plot([int(r["devices"]) for r in rows], [100 * float(r["missed_share"]) for r in rows],
+                "o--", color="C0", label=f"late, with compute_budget {share:g}")
     ax.set(xlabel="devices served by one edge", ylabel="%", ylim=(0, 105),
            title="live edge: missed deadlines and its CPU")
     ax.legend(fontsize=8, loc="upper left")
