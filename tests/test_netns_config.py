@@ -72,3 +72,15 @@ def test_fast_dds_accepts_every_element_of_the_profiles(which: str, tmp_path) ->
     said = done.stdout + done.stderr
     assert done.returncode == 0, said
     assert "XMLPARSER" not in said and "Error" not in said, said
+
+
+def test_a_fleets_hosts_get_addresses_of_their_own_and_the_edge_keeps_its_own() -> None:
+    from twinslam.node_hosts.netns import SUBNET
+
+    fleet = NetnsHosts(prefix="tq-", hosts=("ar1", "ar2", "edge"))
+    assert [fleet.address(h) for h in ("ar1", "ar2", "edge")] == [
+        f"{SUBNET}.10", f"{SUBNET}.11", address_of("edge")]
+    env = fleet.env_for("ar1")
+    assert all(fleet.address(h) in env["ROS_STATIC_PEERS"] for h in fleet.hosts)
+    with pytest.raises(ValueError, match="unknown host 'twin'"):
+        fleet.address("twin")

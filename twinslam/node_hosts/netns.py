@@ -142,7 +142,7 @@ def _setns(path: str) -> None:
 class NetnsHosts(ProcessDomain):
     """The hosts (device, edge and twin unless ``hosts`` names others, e.g. one per device of
     a fleet: ``("ar1", "ar2", "edge")``) and their switch; ``up()`` builds, ``close()``
-    removes. Host i of ``hosts`` has the address SUBNET.(2 + i)."""
+    removes. Addresses: :meth:`address`."""
 
     def __init__(self, prefix: str = "twinslam-", domain_id: int = 0,
                  hosts: tuple[str, ...] = HOSTS) -> None:
@@ -202,12 +202,18 @@ class NetnsHosts(ProcessDomain):
     # -- running inside a host --------------------------------------------------------------------
 
     def address(self, host: str) -> str:
-        """``host``'s address on the switch."""
+        """``host``'s address on the switch: device, edge and twin always have theirs
+        (:func:`address_of`), other hosts SUBNET.10, .11, … in the order given. The edge keeps
+        its address whatever the set: Fast DDS takes a process's network interfaces from its
+        first participant, so a monitor of a later set in the same process announces the
+        edge host's address of the first (measured: a fleet whose edge was .4 after a run
+        whose edge was .3 was never discovered)."""
         if host not in self.namespaces:
             raise ValueError(f"unknown host {host!r}; hosts are {', '.join(self.hosts)}")
-        if self.hosts == HOSTS:
+        if host in HOST_NUMBER:
             return address_of(host)
-        return f"{SUBNET}.{2 + self.hosts.index(host)}"
+        others = [h for h in self.hosts if h not in HOST_NUMBER]
+        return f"{SUBNET}.{10 + others.index(host)}"
 
     def _host_env(self) -> dict[str, str]:
         return host_env(self.domain_id, self.profile,
