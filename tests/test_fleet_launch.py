@@ -52,3 +52,44 @@ def test_launch_serves_two_devices_from_one_edge_and_reports_each(
     assert [(r["device"], r["allocator"], r["seed"]) for r in table] == [
         ("ar1", "motion", "0"), ("ar2", "motion", "0")]
     assert all(int(r["frames"]) > 0 and float(r["latency_ms_median"]) > 0 for r in table)
+
+
+def test_a_terminated_launch_stops_the_nodes_it_started(tmp_path: Path) -> None:
+    """SIGTERM (``kill``, a scheduler) ends ``twinslam launch`` as Ctrl-C does: exit 130 and
+    none of its node processes left running."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    cli = subprocess.Popen([sys.executable, "-m", "twinslam.cli.main", "launch", "--loopback",
+                            "--sequence", "synthetic:900", "--frames", "900", "--policy", "lff",
+                            "--out", str(tmp_path)], text=True, stdout=subprocess.PIPE,
+                           stderr=subprocess.PIPE, cwd=Path(__file__).resolve().parents[1])
+    assert cli.stdout is not None
+    seen, deadline = "", time.monotonic() + 120
+    while "slot   0" not in seen and time.monotonic() < deadline and cli.poll() is None:
+        seen += cli.stdout.readline()
+    children = [int(pid) for pid in os.listdir("/proc") if pid.isdigit()
+                and _parent(int(pid)) == cli.pid]
+    assert "slot   0" in seen and len(children) >= 3, (seen[-2000:], children)
+    cli.send_signal(signal.SIGTERM)
+    _, err = cli.communicate(timeout=60)
+    assert cli.returncode == 130 and "interrupted: nodes stopped" in err, err[-2000:]
+    assert not [pid for pid in children if _alive(pid)], "nodes left running"
+
+
+def _parent(pid: int) -> int:
+    try:
+        return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
+    except (OSError, IndexError, ValueError):
+        return -1
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return False
+    return state != "Z"
