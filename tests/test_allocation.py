@@ -102,3 +102,29 @@ def test_expected_uploads_follow_theorem_ones_count() -> None:
     assert expected_uploads([1.0, 0.0], [0.0, 80.0], 5.0, 0.5, 60) == 0.0   # an outage
     with pytest.raises(ValueError):
         expected_uploads([1.0], [40.0, 80.0], 5.0, 0.5, 60)
+
+
+def test_a_cells_capacity_is_split_by_weight_and_no_device_gets_more_than_its_link() -> None:
+    from twinslam.map_management.allocation import split_capacity
+
+    assert split_capacity(100.0, [40.0, 40.0], [1.0, 3.0]) == [40.0, 40.0]   # room for all
+    assert split_capacity(60.0, [40.0, 40.0], [1.0, 3.0]) == pytest.approx([20.0, 40.0])
+    # the capped device's leftover goes to the others in their proportions
+    assert split_capacity(90.0, [10.0, 80.0, 80.0], [2.0, 1.0, 1.0]) == pytest.approx(
+        [10.0, 40.0, 40.0])
+    assert split_capacity(30.0, [40.0, 40.0, 40.0], [0.0, 0.0, 0.0]) == pytest.approx(
+        [10.0, 10.0, 10.0])
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(0, 500), st.lists(st.tuples(st.floats(0, 100), st.floats(0, 5)),
+                                   min_size=1, max_size=12))
+def test_a_split_never_exceeds_the_cell_or_a_link_and_leaves_nothing_unused(
+        capacity: float, devices: list[tuple[float, float]]) -> None:
+    from twinslam.map_management.allocation import split_capacity
+
+    links, weights = [d[0] for d in devices], [d[1] for d in devices]
+    shares = split_capacity(capacity, links, weights)
+    assert all(-1e-9 <= s <= link + 1e-9 for s, link in zip(shares, links, strict=True))
+    assert sum(shares) <= capacity + 1e-6 or sum(shares) == pytest.approx(sum(links))
+    assert sum(shares) == pytest.approx(min(capacity, sum(links)), abs=1e-6)

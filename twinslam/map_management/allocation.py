@@ -197,6 +197,40 @@ def allocate(allocator: str, total: int, demands: Sequence[DeviceDemand], minimu
     raise ValueError(f"unknown allocator {allocator!r}: one of {', '.join(ALLOCATORS)}")
 
 
+def split_capacity(capacity: float, links: Sequence[float], weights: Sequence[float]
+                   ) -> list[float]:
+    """A shared cell's ``capacity`` split in proportion to ``weights``, no device above its
+    own link's rate (``links``): what a capped device cannot use goes to the others in the
+    same proportions (water-filling). Equal weights when all are 0; every device gets its link
+    when the capacity covers them all."""
+    n = len(links)
+    if len(weights) != n:
+        raise ValueError(f"{len(weights)} weights for {n} links")
+    link = np.asarray(links, dtype=np.float64)
+    w = np.asarray(weights, dtype=np.float64)
+    if capacity < 0 or np.any(link < 0) or np.any(w < 0) or not np.all(np.isfinite(w)):
+        raise ValueError("capacity, link rates and weights must be >= 0")
+    if n == 0 or link.sum() <= capacity:
+        return [float(x) for x in link]
+    w = w if w.sum() > 0 else np.ones(n)
+    out = np.zeros(n)
+    free = np.ones(n, dtype=bool)
+    left = float(capacity)
+    while left > 1e-12 and free.any():
+        weight = np.where(free, w, 0.0)
+        if weight.sum() <= 0:                      # the rest have no weight: equal among them
+            weight = free.astype(np.float64)
+        offer = left * weight / weight.sum()
+        capped = free & (out + offer >= link)
+        if not capped.any():
+            out += offer
+            break
+        left -= float((link[capped] - out[capped]).sum())
+        out[capped] = link[capped]
+        free &= ~capped
+    return [float(x) for x in out]
+
+
 def jain_index(values: Sequence[float]) -> float:
     """Jain's fairness index (Σx)² / (N Σx²): 1 when all are equal, 1/N when one has all;
     NaN without values, 1 when all are 0."""

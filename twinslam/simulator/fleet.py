@@ -16,7 +16,9 @@ through :mod:`edge_mapper.keyframe_budget` instead.) What each allocator reads i
   of the device's channel states) expects next slot.
 
 A shared cell of capacity C gives each device d_i · min(1, C / Σ_j d_j) (proportional shares of
-what the links could carry alone).
+what the links could carry alone), or (``cell_split="allocator"``) a share by the allocator's
+own signal — equal, novelty, or the share of its frames its map would not track — each device
+at most its own link's rate d_i and what a capped device leaves going to the others.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from twinslam.map_management.allocation import (
     check_budget,
     check_fleet,
     jain_index,
+    split_capacity,
 )
 from twinslam.map_management.budget_value import budget_value, expected_uploads
 from twinslam.map_management.policies import MapPolicy
@@ -43,6 +46,9 @@ from twinslam.simulator.env import MapManagementEnv, SimConfig
 from twinslam.twin.regime_twin import RegimeConfig, RegimeTwin
 from twinslam.uncertainty.map_uncertainty import SlotUncertainty, UncertaintyTally
 from twinslam.uplink.channels import MarkovChannel, TraceChannel
+
+#: how a shared cell's capacity is split (FleetConfig.cell_split)
+CELL_SPLITS = ("proportional", "allocator")
 
 
 @dataclass(frozen=True)
@@ -53,11 +59,18 @@ class FleetConfig:
     min_keyframes: int = 5
     fairness: float = 0.0
     cell_capacity_mbps: float = 0.0          #: 0: every device has its link to itself
+    #: how a cell is shared: "proportional" to what each link could carry alone, or by the
+    #: "allocator" (equal shares; motion: by novelty; twin: by the frames its map would
+    #: not track), no device above its own link
+    cell_split: str = "proportional"
     sim: SimConfig = field(default_factory=SimConfig)
 
     def check(self) -> None:
         check_fleet(self.devices, self.allocator, self.vmax_total, self.min_keyframes)
         check_budget(self.vmax_total, self.devices, self.min_keyframes)   # 0 is no budget
+        if self.cell_split not in CELL_SPLITS:
+            raise ValueError(f"unknown cell split {self.cell_split!r}: one of "
+                             f"{', '.join(CELL_SPLITS)}")
         if not math.isfinite(self.cell_capacity_mbps) or self.cell_capacity_mbps < 0:
             raise ValueError(f"cell capacity must be >= 0 Mbit/s, got {self.cell_capacity_mbps}")
 
@@ -138,13 +151,13 @@ class FleetSimulator:
         tallies: list[list[SlotUncertainty]] = [[] for _ in range(n)]
         results = [DeviceResult(UncertaintyTally(), []) for _ in range(n)]
         for _slot in range(cfg.sim.slots):
-            if cfg.cell_capacity_mbps > 0:
-                self._share_cell()
             for env, twin in zip(self.envs, self.twins, strict=True):
                 twin.observe(env.observation().rate_state)     # d_k, as the device reports it
-            shares = allocate(cfg.allocator, cfg.vmax_total,
-                              [self._demand(i) for i in range(n)], cfg.min_keyframes,
+            demands = [self._demand(i) for i in range(n)]
+            shares = allocate(cfg.allocator, cfg.vmax_total, demands, cfg.min_keyframes,
                               cfg.fairness)
+            if cfg.cell_capacity_mbps > 0:
+                self._share_cell(demands)
             for i, (env, policy) in enumerate(zip(self.envs, self.policies, strict=True)):
                 env.set_vmax(shares[i])
                 obs = env.observation()
@@ -157,14 +170,20 @@ class FleetSimulator:
             result.tally = UncertaintyTally.of(slots)
         return FleetResult(cfg.allocator, seed, results, time.perf_counter() - started)
 
-    def _share_cell(self) -> None:
-        """Scale every device's current rate into the cell's capacity."""
-        rates = [env.observation().rate_mbps for env in self.envs]
-        total = sum(rates)
-        if total > self.config.cell_capacity_mbps:
-            scale = self.config.cell_capacity_mbps / total
-            for env, rate in zip(self.envs, rates, strict=True):
-                env.set_rate(rate * scale)
+    def _share_cell(self, demands: list[DeviceDemand]) -> None:
+        """Every device's rate this slot within the cell's capacity (:data:`CELL_SPLITS`)."""
+        cfg = self.config
+        links = [env.observation().rate_mbps for env in self.envs]
+        if cfg.cell_split == "proportional" or cfg.allocator == "equal":
+            weights = links if cfg.cell_split == "proportional" else [1.0] * len(links)
+        elif cfg.allocator == "motion":
+            weights = [d.novelty for d in demands]
+        else:                # twin: the share of its frames its map would not track
+            weights = [1.0 - float(d.value[min(d.map_size, d.value.size - 1)])
+                       if d.value is not None else 1.0 for d in demands]
+        for env, rate in zip(self.envs, split_capacity(cfg.cell_capacity_mbps, links, weights),
+                             strict=True):
+            env.set_rate(rate)
 
     def _demand(self, i: int) -> DeviceDemand:
         cfg, env = self.config, self.envs[i]

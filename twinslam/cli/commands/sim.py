@@ -155,6 +155,11 @@ def register(sub: Subparsers) -> None:
     fleet.add_argument("--cell-capacity", type=float, default=0.0, metavar="MBPS",
                        help="the devices' uplinks share one cell of this many Mbit/s, each "
                        "getting its link rate x min(1, capacity / their sum); 0: no cell")
+    fleet.add_argument("--cell-split", default="proportional",
+                       choices=("proportional", "allocator"),
+                       help="how --cell-capacity is shared: proportional to each link's rate, "
+                       "or by the allocator (equal; motion: novelty; twin: the frames its map "
+                       "would not track), each at most its link; default %(default)s")
     sim.add_argument("-v", "--verbose", action="store_true",
                      help="print every run's scores as it finishes")
     sim.set_defaults(func=run)

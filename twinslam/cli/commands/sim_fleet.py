@@ -33,7 +33,8 @@ def run_fleet(args: argparse.Namespace) -> int:
         total = args.vmax_total or args.vmax * args.devices
         config = FleetConfig(args.devices, total, allocators[0] if allocators else "",
                              args.min_keyframes, args.fairness, args.cell_capacity,
-                             SimConfig(slot_frames=args.slot_frames, slots=args.slots))
+                             cell_split=args.cell_split,
+                             sim=SimConfig(slot_frames=args.slot_frames, slots=args.slots))
         for allocator in allocators or [""]:
             FleetConfig(config.devices, total, allocator, config.min_keyframes).check()
         speeds = _cycled(args.speeds, float, "--speeds")
@@ -46,7 +47,8 @@ def run_fleet(args: argparse.Namespace) -> int:
     except (ChannelError, CovisibilityError, ValueError) as exc:
         return error(exc)
     seeds = list(range(args.seed0, args.seed0 + args.seeds))
-    cell = (f", one cell of {args.cell_capacity:g} Mbit/s" if args.cell_capacity else "")
+    cell = (f", one cell of {args.cell_capacity:g} Mbit/s split {args.cell_split}"
+            if args.cell_capacity else "")
     print(f"{args.devices} devices, one edge: V_total {total} (at least {args.min_keyframes} "
           f"each){cell}; policy {policies[0]}; channel {args.channel} per device; "
           f"{args.slots} slots x {len(seeds)} seeds", flush=True)
