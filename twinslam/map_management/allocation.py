@@ -212,7 +212,8 @@ def split_capacity(capacity: float, links: Sequence[float], weights: Sequence[fl
         raise ValueError("capacity, link rates and weights must be >= 0")
     if n == 0 or link.sum() <= capacity:
         return [float(x) for x in link]
-    w = w if w.sum() > 0 else np.ones(n)
+    # scaled by the largest first: a denormal weight alone would otherwise round its share up
+    w = w / w.max() if w.max() > 0 else np.ones(n)
     out = np.zeros(n)
     free = np.ones(n, dtype=bool)
     left = float(capacity)
@@ -220,7 +221,7 @@ def split_capacity(capacity: float, links: Sequence[float], weights: Sequence[fl
         weight = np.where(free, w, 0.0)
         if weight.sum() <= 0:                      # the rest have no weight: equal among them
             weight = free.astype(np.float64)
-        offer = left * weight / weight.sum()
+        offer = left * (weight / weight.sum())
         capped = free & (out + offer >= link)
         if not capped.any():
             out += offer
