@@ -95,6 +95,16 @@ class CovisibilityDataset:
     def n_frames(self) -> int:
         return int(self.point_offsets.size - 1)
 
+    @property
+    def n_points(self) -> int:
+        """Distinct points over all frames (columns 0 … n_points - 1)."""
+        return int(self._marks.size)
+
+    @property
+    def point_columns(self) -> np.ndarray:
+        """Per entry of ``point_ids``, its point as a column 0 … n_points - 1."""
+        return self._cols
+
     def points(self, frame: int) -> np.ndarray:
         return self.point_ids[self.point_offsets[frame]:self.point_offsets[frame + 1]]
 

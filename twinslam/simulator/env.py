@@ -28,6 +28,7 @@ from twinslam.common import table1
 from twinslam.common.tracking_rule import MIN_SHARED_POINTS, update_lag_frames
 from twinslam.map_management.actions import MapAction, SlotObservation, check_map_action
 from twinslam.simulator.covisibility import CovisibilityDataset
+from twinslam.simulator.map_points import MapPointCounts
 from twinslam.uncertainty import laplacian_kernels as kernels
 from twinslam.uncertainty.laplacian_factorization import PIVOT_RTOL
 from twinslam.uncertainty.map_uncertainty import (
@@ -124,6 +125,8 @@ class MapManagementEnv:
         self._plan: list[tuple[int, float]] = []   #: (state, rate) of every slot of the episode
         #: the current slot's frames the device tracked: the upload candidates
         self._uploadable: list[int] = []
+        #: the map's points per point, moved with the map (the device's rule only)
+        self._points: MapPointCounts | None = None
 
     # -- weights -----------------------------------------------------------------------------
 
@@ -290,8 +293,10 @@ class MapManagementEnv:
         else:
             block = np.ascontiguousarray(self.dataset.weights(frame_idx, map_idx))
             n_comp, log_det, log_tau = kernels.slot_scores(map_w, block, PIVOT_RTOL)
-        trackable = (self.dataset.shared_points(map_idx, frame_idx) >= self.config.min_shared
-                     if self.config.min_shared > 1 else None)
+        trackable = None
+        if self.config.min_shared > 1:
+            self._points = self._points or MapPointCounts(self.dataset)
+            trackable = self._points.shared(map_idx, frame_idx) >= self.config.min_shared
         slot_u = slot_uncertainty_from_scores(n, n_comp, log_det, log_tau,
                                               self.config.log_det_pi, trackable)
         return slot_u, lost_frames(log_tau, trackable), map_w
