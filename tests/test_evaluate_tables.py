@@ -70,7 +70,7 @@ def test_a_failed_run_is_reported_and_the_others_go_on(tmp_path: Path,
                               SCENARIOS["revisit"], Path("p.yaml"), 10.0, None)
              for seed in range(3)]
     lines: list[str] = []
-    results, failures = evaluate.run_all(tasks, tmp_path, jobs=1, echo=lines.append)
+    results, failures = evaluate.run_all(tasks, tmp_path, echo=lines.append)
     assert [r.key.seed for r in results] == [0, 2]
     assert [f.key.seed for f in failures] == [1] and "boom" in failures[0].error
     assert any("FAILED" in line and "seed 1" in line and "boom" in line for line in lines)
@@ -96,9 +96,9 @@ def test_an_interrupted_evaluation_resumes_with_what_it_measured(
                               10,
                               SCENARIOS["revisit"], Path("p.yaml"), 10.0, None)
              for seed in range(4)]
-    first, _ = evaluate.run_all(tasks[:2], tmp_path, jobs=1, echo=lambda _: None)
+    first, _ = evaluate.run_all(tasks[:2], tmp_path, echo=lambda _: None)
     lines: list[str] = []
-    results, failures = evaluate.run_all(tasks, tmp_path, jobs=1, echo=lines.append,
+    results, failures = evaluate.run_all(tasks, tmp_path, echo=lines.append,
                                          resume=True)
     assert ran == [0, 1, 2, 3] and not failures          # seeds 0, 1 not run again
     assert "resuming: 2 of 4 runs" in lines[0]

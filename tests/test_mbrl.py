@@ -286,7 +286,7 @@ def test_figure_sweeps_write_one_csv_row_per_point_and_policy_and_a_plot(
     from twinslam.experiments.amm import Setting, sweep
 
     results = sweep("figtest", [0.3, 0.7], lambda r: f"markov:N=2,ratio={r}",
-                    lambda _r: Setting(runs=2, slots=6), kitchen, {}, tmp_path, "ratio",
+                    lambda _r: Setting(runs=2, slots=6), str(COVIS), {}, tmp_path, "ratio",
                     reference=False)
     rows = (tmp_path / "figtest.csv").read_text().strip().splitlines()
     assert rows[0] == ("ratio,policy,mean_uncertainty,ci95,training_runs,episodes,lost_share,"
@@ -313,7 +313,7 @@ def test_a_learned_variant_is_reported_over_its_training_runs_with_every_episode
         paths.append(tmp_path / f"untrained{seed}.pt")
         trainer.save(paths[-1])
     results = sweep("figvar", [0.5], lambda r: f"markov:N=2,ratio={r}",
-                    lambda _r: Setting(runs=2, slots=5), kitchen, {"Residual": paths},
+                    lambda _r: Setting(runs=2, slots=5), str(COVIS), {"Residual": paths},
                     tmp_path, "ratio")
     variant = results[0.5]["Residual"]
     assert variant.run_means == pytest.approx([results[0.5]["ADAPT"].mean] * 2)

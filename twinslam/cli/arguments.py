@@ -4,16 +4,13 @@ range, V_max (the simulator and the trainer take the same setting)."""
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
+from collections.abc import Callable
 
 from twinslam.common import table1
+from twinslam.common.executor import EXECUTORS, Executor, make_executor
 from twinslam.node_hosts.fastdds import REPO_ROOT
-from twinslam.simulator.covisibility import (
-    CovisibilityDataset,
-    CovisibilityError,
-    load_covisibility,
-)
-from twinslam.simulator.geometric_covisibility import geometric_covisibility
+from twinslam.simulator.covisibility import CovisibilityDataset
+from twinslam.simulator.covisibility_spec import open_covisibility
 
 #: the uplink rate model when none is named: the paper's two-state Markov chain
 DEFAULT_CHANNEL = "markov:N=2"
@@ -22,27 +19,7 @@ DEFAULT_CHANNEL = "markov:N=2"
 def covisibility(spec: str) -> CovisibilityDataset:
     """``FILE[@START:END]`` (a stretch of a covisibility file's frames) or
     ``geometric[:FRAMES[:SEED]]`` (the room model; each seed walks its own trajectory)."""
-    if spec.startswith("geometric"):
-        parts = spec.split(":")[1:]
-        try:
-            frames = int(parts[0]) if parts and parts[0] else 600
-            seed = int(parts[1]) if len(parts) > 1 else 0
-        except ValueError:
-            raise CovisibilityError(f"--covis {spec!r}: use geometric[:FRAMES[:SEED]]") from None
-        return geometric_covisibility(n_frames=frames, seed=seed)
-    path, at, stretch = spec.partition("@")
-    data = load_covisibility(Path(path))
-    if not at:
-        return data
-    start, colon, end = stretch.partition(":")
-    try:
-        if not colon:
-            raise ValueError
-        return data.stretch(int(start or 0), int(end) if end else data.n_frames)
-    except ValueError as exc:
-        if isinstance(exc, CovisibilityError):
-            raise
-        raise CovisibilityError(f"--covis {spec!r}: use FILE@START:END (frame indices)") from None
+    return open_covisibility(spec)
 
 
 def rate_range(text: str) -> tuple[float, float]:
@@ -84,3 +61,28 @@ def add_setting_arguments(parser: argparse.ArgumentParser) -> None:
 BUNDLED_SEQUENCE = REPO_ROOT.parent / "shared" / "data" / "7scenes-1000"
 #: the covisibility the ORB front end extracted from 1000 of them (shipped in data/)
 BUNDLED_COVIS = REPO_ROOT / "data" / "7scenes-redkitchen-1000.covis.npz"
+
+
+def add_executor_arguments(parser: argparse.ArgumentParser, unit: str) -> None:
+    """``--executor``, ``--jobs`` and ``--ray-address``: where a sweep's ``unit``s run."""
+    parser.add_argument("--executor", choices=EXECUTORS, default="local",
+                        help=f"where the {unit}s run: local (this machine's worker processes, "
+                        "--jobs at a time; default) or ray (Ray tasks: a Ray started on this "
+                        "machine with --jobs CPUs, or the cluster at --ray-address); the same "
+                        "seeds give the same numbers on either")
+    parser.add_argument("--jobs", type=int, default=None, metavar="N",
+                        help=f"local: {unit}s at a time in worker processes, one torch thread "
+                        "each (default 1: in this process); ray without --ray-address: the "
+                        "CPUs of the Ray started here (default all)")
+    parser.add_argument("--ray-address", default=None, metavar="ADDR",
+                        help="with --executor ray: join this Ray cluster (host:port as `ray "
+                        "start --head` printed it, ray://host:10001, or auto) instead of "
+                        "starting one; every node needs twinslam installed and the data files "
+                        "at the same paths")
+
+
+def open_executor(args: argparse.Namespace, initializer: Callable[[], None] | None = None
+                  ) -> Executor:
+    """The executor ``args`` ask for (a bad combination or an unreachable Ray raises
+    ValueError / RuntimeError, each saying which option)."""
+    return make_executor(args.executor, args.jobs, args.ray_address, initializer)

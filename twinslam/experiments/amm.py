@@ -27,11 +27,13 @@ from pathlib import Path
 import numpy as np
 
 from twinslam.common import table1
+from twinslam.common.executor import Executor, TaskFailure
 from twinslam.common.reporting import mean_ci95, pyplot, write_csv
+from twinslam.experiments.parallel import run_all
 from twinslam.policy_registry import make_policy
-from twinslam.simulator.covisibility import CovisibilityDataset
+from twinslam.simulator.covisibility_spec import absolute_spec, cached_covisibility
 from twinslam.simulator.env import MapManagementEnv, SimConfig
-from twinslam.simulator.evaluation import PolicyResult, PooledScores, evaluate
+from twinslam.simulator.evaluation import PolicyResult, PooledScores, RunScore, evaluate
 from twinslam.simulator.lower_bound import slot_lower_bounds
 from twinslam.uncertainty.map_uncertainty import UncertaintyTally
 from twinslam.uplink.channels import parse_channel
@@ -103,62 +105,120 @@ Result = PolicyResult | VariantResult | BoundResult
 BOUND = "Lower bound (Hadamard)"
 
 
-def _run(dataset: CovisibilityDataset, channel: str, setting: Setting,
-         learned: dict[str, list[Path]], reference: bool, progress: Progress | None
-         ) -> tuple[dict[str, Result], list[list[object]]]:
-    """Every rule policy, every checkpoint of every learned variant and the reference (which
-    starts from all their plans) on the same seeds; the results by label, and one row per
-    episode (label, checkpoint, seed, mean υ, lost share, tracked υ)."""
-    checkpoints = [(label, path) for label, paths in learned.items() for path in paths]
-    specs = [*RULES, *(f"mbrl:{path}" for _, path in checkpoints)]
-    if reference:
-        specs.append("reference")
-    seeds = list(range(setting.seed0, setting.seed0 + setting.runs))
+@dataclass(frozen=True)
+class Episode:
+    """One task of a sweep: every policy (``specs``) on one seed of one x. The dataset
+    travels as its spec (:mod:`twinslam.simulator.covisibility_spec`), each worker loading
+    it once."""
+
+    x: object
+    covis: str
+    channel: str
+    setting: Setting
+    specs: tuple[str, ...]
+    seed: int
+    reference: bool
+
+
+@dataclass
+class EpisodeResult:
+    """An :class:`Episode`'s score per policy spec (its label among them), and the Hadamard
+    bound of its seed (NaN without the reference)."""
+
+    episode: Episode
+    runs: dict[str, tuple[str, RunScore]]
+    bound: float
+
+
+def play_episode(episode: Episode) -> EpisodeResult:
+    """Every policy of ``episode`` on its seed (the reference starts from all their plans)."""
+    dataset = cached_covisibility(episode.covis)
+    setting = episode.setting
     config = SimConfig(vmax=setting.vmax, slots=setting.slots)
-    found = dict(zip(specs, evaluate(specs, dataset, channel, config, seeds,
-                                     make_policy=make_policy,
-                                     reference_swaps=setting.reference_swaps), strict=True))
+    results = evaluate(list(episode.specs), dataset, episode.channel, config, [episode.seed],
+                       make_policy=make_policy, reference_swaps=setting.reference_swaps)
+    bound = math.nan
+    if episode.reference:
+        env = MapManagementEnv(dataset, parse_channel(episode.channel, seed=episode.seed),
+                               config)
+        bound = float(np.mean(slot_lower_bounds(env, episode.seed)))
+    return EpisodeResult(episode, {spec: (res.policy, res.runs[0])
+                                   for spec, res in zip(episode.specs, results, strict=True)},
+                         bound)
+
+
+def _collect(episodes: list[EpisodeResult], learned: dict[str, list[Path]], reference: bool
+             ) -> tuple[dict[str, Result], list[list[object]]]:
+    """One x's results by label from its episodes (in seed order), and one row per episode
+    (label, checkpoint, seed, mean υ, lost share, tracked υ)."""
+    episodes = sorted(episodes, key=lambda e: e.episode.seed)
+    specs = episodes[0].episode.specs
+
+    def result(spec: str) -> PolicyResult:
+        return PolicyResult(episodes[0].runs[spec][0], [e.runs[spec][1] for e in episodes])
+
+    found = {spec: result(spec) for spec in specs}
     out: dict[str, Result] = {name.upper(): found[name] for name in RULES}
     for label, paths in learned.items():
         out[label] = VariantResult(label, [found[f"mbrl:{p}"] for p in paths])
     if reference:
         out[REFERENCE] = found["reference"]
-        out[BOUND] = BoundResult([
-            float(np.mean(slot_lower_bounds(MapManagementEnv(
-                dataset, parse_channel(channel, seed=seed), config), seed))) for seed in seeds])
-    episodes = [[label, str(path) if path else "", run.seed, run.mean_uncertainty,
-                 run.lost_share, run.tracked_uncertainty]
-                for label, path, res in (
-                    *((n.upper(), None, found[n]) for n in RULES),
-                    *((label, p, found[f"mbrl:{p}"]) for label, p in checkpoints),
-                    *(((REFERENCE, None, found["reference"]),) if reference else ()))
-                for run in res.runs]
-    if progress:
-        for label, res in out.items():
-            progress(f"{channel} V_max {setting.vmax}: {label} {res.mean:.1f} ± {res.ci95:.1f}"
-                     f", lost {res.lost_share:.1%}, tracked {res.tracked_uncertainty:.1f}")
-    return out, episodes
+        out[BOUND] = BoundResult([e.bound for e in episodes])
+    rows = [[label, str(path) if path else "", run.seed, run.mean_uncertainty,
+             run.lost_share, run.tracked_uncertainty]
+            for label, path, res in (
+                *((n.upper(), None, found[n]) for n in RULES),
+                *((label, p, found[f"mbrl:{p}"]) for label, paths in learned.items()
+                  for p in paths),
+                *(((REFERENCE, None, found["reference"]),) if reference else ()))
+            for run in res.runs]
+    return out, rows
 
 
 REFERENCE = "Reference (clairvoyant search)"
 
 
 def sweep(name: str, xs: list[object], channel_of: Callable[[object], str],
-          setting_of: Callable[[object], Setting], dataset: CovisibilityDataset,
+          setting_of: Callable[[object], Setting], covis: str,
           learned: dict[str, list[Path]], out_dir: Path, x_label: str, reference: bool = True,
-          progress: Progress | None = None, plot: bool = True
+          progress: Progress | None = None, plot: bool = True,
+          executor: Executor | None = None, failures: list[TaskFailure] | None = None
           ) -> dict[object, dict[str, Result]]:
-    """Every policy at every x; writes ``{name}.csv`` (a row per x and policy),
-    ``{name}_runs.csv`` (a row per episode: every run reported) and ``{name}.png``."""
+    """Every policy at every x, one task per (x, seed) on ``executor`` (None: this process);
+    writes ``{name}.csv`` (a row per x and policy), ``{name}_runs.csv`` (a row per episode:
+    every run reported) and ``{name}.png``. A failed episode is added to ``failures`` (its
+    traceback in ``{name}_failures.txt``) and its seed is left out of that x, for every
+    policy alike (the comparisons stay paired)."""
+    specs = (*RULES, *(f"mbrl:{p}" for paths in learned.values() for p in paths),
+             *(("reference",) if reference else ()))
+    covis = absolute_spec(covis)
+    tasks = [Episode(x, covis, channel_of(x), setting_of(x), specs, seed, reference)
+             for x in xs
+             for seed in range(setting_of(x).seed0, setting_of(x).seed0 + setting_of(x).runs)]
+    done = run_all(play_episode, tasks, executor,
+                   lambda e: f"{name} x={e.x} seed {e.seed}",
+                   lambda r: f"{name} x={r.episode.x} seed {r.episode.seed}: " + ", ".join(
+                       f"{label} {run.mean_uncertainty:.1f}" for label, run in
+                       (r.runs[n] for n in RULES)), progress,
+                   out_dir / f"{name}_failures.txt")
+    if failures is not None:
+        failures += done.failures
     results: dict[object, dict[str, Result]] = {}
     episodes: list[list[object]] = []
     for x in xs:
-        results[x], rows = _run(dataset, channel_of(x), setting_of(x), learned, reference,
-                                progress)
+        mine = [r for r in done.in_order() if r.episode.x == x]
+        if not mine:
+            continue
+        results[x], rows = _collect(mine, learned, reference)
         episodes += [[x, *row] for row in rows]
+        if progress:
+            for label, res in results[x].items():
+                progress(f"{channel_of(x)} V_max {setting_of(x).vmax}: {label} "
+                         f"{res.mean:.1f} ± {res.ci95:.1f}, lost {res.lost_share:.1%}, "
+                         f"tracked {res.tracked_uncertainty:.1f}")
     write_csv(out_dir / f"{name}.csv", [x_label, *COLUMNS], _rows(results))
     write_csv(out_dir / f"{name}_runs.csv", [x_label, *RUN_COLUMNS], episodes)
-    if plot:
+    if plot and results:
         _plot(out_dir / f"{name}.png", results, x_label)
     return results
 
@@ -176,35 +236,42 @@ def _rows(results: dict[object, dict[str, Result]]) -> list[list[object]]:
             for x, by in results.items() for label, r in by.items()]
 
 
-def fig7(dataset: CovisibilityDataset, learned: dict[str, list[Path]], out_dir: Path,
+def fig7(covis: str, learned: dict[str, list[Path]], out_dir: Path,
          setting: Setting = Setting(), ratios: tuple[float, ...] = (0.2, 0.35, 0.5, 0.65, 0.8),
-         progress: Progress | None = None) -> dict[object, dict[str, Result]]:
+         progress: Progress | None = None, executor: Executor | None = None,
+         failures: list[TaskFailure] | None = None) -> dict[object, dict[str, Result]]:
     return sweep("fig7", list(ratios), lambda r: f"markov:N=2,ratio={r}", lambda _r: setting,
-                 dataset, learned, out_dir, "ratio of high-rate slots", progress=progress)
+                 covis, learned, out_dir, "ratio of high-rate slots", progress=progress,
+                 executor=executor, failures=failures)
 
 
-def fig8(dataset: CovisibilityDataset, learned: dict[int, dict[str, list[Path]]],
-         out_dir: Path, setting: Setting = Setting(), progress: Progress | None = None
+def fig8(covis: str, learned: dict[int, dict[str, list[Path]]],
+         out_dir: Path, setting: Setting = Setting(), progress: Progress | None = None,
+         executor: Executor | None = None, failures: list[TaskFailure] | None = None
          ) -> dict[object, dict[str, Result]]:
     """``learned`` per N: each N has its own trained policies (the state's one-hot rate
     history has N columns)."""
     results: dict[object, dict[str, Result]] = {}
     for n, policies in learned.items():
         results.update(sweep(f"fig8_n{n}", [n], lambda m: f"markov:N={m},balanced",
-                             lambda _m: setting, dataset, policies, out_dir,
-                             "number of rate states N", progress=progress, plot=False))
+                             lambda _m: setting, covis, policies, out_dir,
+                             "number of rate states N", progress=progress, plot=False,
+                             executor=executor, failures=failures))
     write_csv(out_dir / "fig8.csv", ["number of rate states N", *COLUMNS], _rows(results))
-    _plot(out_dir / "fig8.png", results, "number of rate states N", bars=True)
+    if results:
+        _plot(out_dir / "fig8.png", results, "number of rate states N", bars=True)
     return results
 
 
-def fig9(dataset: CovisibilityDataset, learned: dict[str, list[Path]], out_dir: Path,
+def fig9(covis: str, learned: dict[str, list[Path]], out_dir: Path,
          setting: Setting = Setting(), vmaxes: tuple[int, ...] = (25, 30, 35, 40, 45),
-         progress: Progress | None = None) -> dict[object, dict[str, Result]]:
+         progress: Progress | None = None, executor: Executor | None = None,
+         failures: list[TaskFailure] | None = None) -> dict[object, dict[str, Result]]:
     interval = max(1, setting.slots // 3)
     return sweep("fig9", list(vmaxes), lambda _v: f"markov:N=2,K={interval},nonstationary",
                  lambda v: replace(setting, vmax=int(v)),  # type: ignore[call-overload]
-                 dataset, learned, out_dir, "V_max (frames)", progress=progress)
+                 covis, learned, out_dir, "V_max (frames)", progress=progress,
+                 executor=executor, failures=failures)
 
 
 def _plot(path: Path, results: dict[object, dict[str, Result]], x_label: str,

@@ -1,39 +1,38 @@
-"""Independent experiment runs over worker processes, each result reported as it lands."""
+"""The experiments' sweeps on an executor (:mod:`twinslam.common.executor`: this process,
+local worker processes or Ray), each result reported as it lands."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor
-from multiprocessing import get_context
+from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import TypeVar
 
 import torch
+
+from twinslam.common.executor import Executor, LocalExecutor, Sweep, make_executor, run_tasks
 
 T = TypeVar("T")
 R = TypeVar("R")
 
 
-def _init_worker() -> None:
-    torch.set_num_threads(1)       # jobs share the cores; one thread each uses them best
+def one_torch_thread() -> None:
+    """A local worker's torch: one thread (the workers share the cores)."""
+    torch.set_num_threads(1)
 
 
-def run_all(fn: Callable[[T], R], tasks: list[T], jobs: int, label: Callable[[R], str],
-            progress: Callable[[str], None] | None) -> list[R]:
-    """``fn`` over ``tasks`` in order, in ``jobs`` spawned worker processes when > 1 (``fn``
-    must then be a module-level function), reporting "i/n label" after each result."""
-    results: list[R] = []
+def executor_for(name: str = "local", jobs: int | None = None,
+                 address: str | None = None) -> Executor:
+    """The executor of a command's ``--executor``/``--jobs``/``--ray-address``."""
+    return make_executor(name, jobs, address, initializer=one_torch_thread)
 
-    def report(res: R) -> None:
-        results.append(res)
-        if progress:
-            progress(f"{len(results)}/{len(tasks)} {label(res)}")
 
-    if jobs <= 1:
-        for task in tasks:
-            report(fn(task))
-        return results
-    with ProcessPoolExecutor(jobs, mp_context=get_context("spawn"),
-                             initializer=_init_worker) as pool:
-        for res in pool.map(fn, tasks):
-            report(res)
-    return results
+def run_all(fn: Callable[[T], R], tasks: Sequence[T], executor: Executor | None,
+            describe: Callable[[T], str], label: Callable[[R], str],
+            progress: Callable[[str], None] | None,
+            failures_file: Path | None = None) -> Sweep[R]:
+    """``fn`` (a module-level function) over ``tasks`` on ``executor`` (None: in this
+    process), reporting "[i/n] label (elapsed, ETA)" after each; a failed task is reported
+    with ``describe(task)`` and its traceback while the others finish."""
+    if executor is None:
+        executor = LocalExecutor(1)
+    return run_tasks(fn, tasks, executor, describe, label, progress, failures_file)

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from twinslam.common.executor import Executor, TaskFailure
 from twinslam.common.reporting import pyplot, write_csv
 from twinslam.experiments.parallel import run_all
 from twinslam.twin.lstm import LstmConfig, LstmPredictor
@@ -132,15 +133,21 @@ def _fig5_run(task: tuple[str, int, int, int, int, Protocol]
 
 def fig4(out_dir: Path, runs: int = 20, states: tuple[int, ...] = (2, 3, 4, 5, 6),
          latent_sizes: tuple[int, int] = (2, 8), seed: int = 0,
-         proto: Protocol | None = None, progress: Progress | None = None, jobs: int = 1
+         proto: Protocol | None = None, progress: Progress | None = None,
+         executor: Executor | None = None, failures: list[TaskFailure] | None = None
          ) -> dict[str, dict[int, list[float]]]:
     """Error vs N for the twin with two latent sizes and the LSTM; each run = 3 intervals with
-    different matrices, its error the mean over the intervals' ends."""
+    different matrices, its error the mean over the intervals' ends. The runs go to
+    ``executor`` (None: this process); one that fails is added to ``failures`` and left out."""
     proto = proto or Protocol()
     names = (*(f"udt_z{z}" for z in latent_sizes), "lstm")
     tasks = [(n, r, seed, names, proto) for n in states for r in range(runs)]
-    done = run_all(_fig4_run, tasks, jobs, lambda res: f"fig4 N={res[0]}: " + ", ".join(
-        f"{k} {v:.3f}" for k, v in res[1].items()), progress)
+    sweep = run_all(_fig4_run, tasks, executor, lambda t: f"fig4 N={t[0]} run {t[1]}",
+                    lambda res: f"fig4 N={res[0]}: " + ", ".join(
+                        f"{k} {v:.3f}" for k, v in res[1].items()), progress)
+    done = sweep.in_order()
+    if failures is not None:
+        failures += sweep.failures
     result: dict[str, dict[int, list[float]]] = {name: {n: [] for n in states} for name in names}
     for n, errors in done:
         for name in names:
@@ -155,15 +162,21 @@ def fig4(out_dir: Path, runs: int = 20, states: tuple[int, ...] = (2, 3, 4, 5, 6
 
 def fig5(out_dir: Path, runs: int = 20, n_states: int = 2, intervals: int = 15,
          seed: int = 0, proto: Protocol | None = None, progress: Progress | None = None,
-         jobs: int = 1) -> dict[str, dict[str, np.ndarray]]:
+         executor: Executor | None = None, failures: list[TaskFailure] | None = None
+         ) -> dict[str, dict[str, np.ndarray]]:
     """Twin vs Markov model-driven (whole history; and a sliding window of the twin's buffer)
-    across 15 intervals, stationary and non-stationary: error per interval, mean of runs."""
+    across 15 intervals, stationary and non-stationary: error per interval, mean of runs
+    (``executor`` and ``failures`` as :func:`fig4`)."""
     proto = proto or Protocol()
     names = ["udt", "markov", "markov_window"]
     modes = ("stationary", "non-stationary")
     tasks = [(mode, r, seed, n_states, intervals, proto) for mode in modes for r in range(runs)]
-    done = run_all(_fig5_run, tasks, jobs, lambda res: f"fig5 {res[0]}: " + ", ".join(
-        f"{k} {np.mean(v):.3f}" for k, v in res[1].items()), progress)
+    sweep = run_all(_fig5_run, tasks, executor, lambda t: f"fig5 {t[0]} run {t[1]}",
+                    lambda res: f"fig5 {res[0]}: " + ", ".join(
+                        f"{k} {np.mean(v):.3f}" for k, v in res[1].items()), progress)
+    done = sweep.in_order()
+    if failures is not None:
+        failures += sweep.failures
     result: dict[str, dict[str, np.ndarray]] = {
         mode: {name: np.array([e[name] for m, e in done if m == mode]) for name in names}
         for mode in modes}

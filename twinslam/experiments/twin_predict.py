@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from twinslam.common.executor import Executor, TaskFailure
 from twinslam.common.reporting import mean_ci95, pyplot, write_csv
 from twinslam.experiments.parallel import run_all
 from twinslam.experiments.twin import chain_states
@@ -189,17 +190,26 @@ def summarise(scores: Sequence[RunScore]) -> list[Summary]:
 
 
 def twin_predict(sources: Sequence[str], out_dir: Path, setting: Setting,
-                 progress: Progress | None = None, jobs: int = 1) -> list[Summary]:
+                 progress: Progress | None = None, executor: Executor | None = None,
+                 failures: list[TaskFailure] | None = None) -> list[Summary]:
     """Every predictor on every (source, seed); writes twin_predict.csv (summary),
-    twin_predict_runs.csv (every run) and twin_predict.png."""
+    twin_predict_runs.csv (every run) and twin_predict.png. The runs go to ``executor``
+    (None: this process); a run that fails is added to ``failures`` (its traceback also in
+    ``out_dir``/failures.txt) and the summary is over the others."""
     check_names(setting.predictors)
     for spec in sources:
         check_source(spec, setting.slot_seconds)
     tasks = [(spec, setting.seed0 + r, setting) for spec in sources
              for r in range(setting.seeds)]
-    done = run_all(_run, tasks, jobs, lambda res: f"{res[0].source} seed {res[0].seed}: "
-                   + ", ".join(f"{s.predictor} {s.mean_log_likelihood:.3f}" for s in res),
-                   progress)
+    sweep = run_all(_run, tasks, executor, lambda t: f"{t[0]} seed {t[1]}",
+                    lambda res: f"{res[0].source} seed {res[0].seed}: "
+                    + ", ".join(f"{s.predictor} {s.mean_log_likelihood:.3f}" for s in res),
+                    progress, out_dir / "failures.txt")
+    done = sweep.in_order()
+    if failures is not None:
+        failures += sweep.failures
+    if not done:
+        return []
     scores = [s for res in done for s in res]
     write_csv(out_dir / "twin_predict_runs.csv",
               ["source", "seed", "predictor", "mean_log_likelihood", "mean_brier", "slots"],

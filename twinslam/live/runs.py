@@ -15,7 +15,8 @@ Each run is also a calibration of the simulator against the device
 next-slot frames the simulator's rule calls lost beside the share the device failed, the
 precision and recall of "lost" for "device failure", and Spearman's ρ of u with the device's
 translation error and inlier count; ``calibration_frames.csv`` has every frame. Runs go to
-``--jobs`` worker processes, each on a loopback domain of its own.
+``--jobs`` worker processes or as Ray tasks (``--executor ray``), each on a loopback domain
+of its own.
 """
 
 from __future__ import annotations
@@ -24,15 +25,14 @@ import csv
 import time
 import traceback
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, fields
-from multiprocessing import get_context
 from pathlib import Path
 from typing import TYPE_CHECKING, TypeVar
 
 if TYPE_CHECKING:
     from _typeshed import DataclassInstance
 
+from twinslam.common.executor import Executor, LocalExecutor
 from twinslam.common.reporting import file_name
 from twinslam.common.tracking_rule import MIN_SHARED_POINTS
 from twinslam.live.calibration import LiveFrames, live_frames, played_frames
@@ -250,14 +250,14 @@ def finished_runs(out: Path) -> dict[RunKey, RunResult]:
     return finished
 
 
-def run_all(tasks: list[RunTask], out: Path, jobs: int = 1,
+def run_all(tasks: list[RunTask], out: Path, executor: Executor | None = None,
             echo: Callable[[str], None] = print,
             resume: bool = False) -> tuple[list[RunResult], list[RunFailure]]:
-    """Every task, ``jobs`` at a time in worker processes (1: in this process, one after the
-    other); each result's rows appended as it lands, a failed run reported (its traceback in
-    ``failures.txt``) while the rest go on. With ``resume``, the runs ``out`` already holds
-    are read back instead of run again (a failed one is tried again). The results in task
-    order, and the failures."""
+    """Every task on ``executor`` (local worker processes or Ray; None: in this process, one
+    after the other); each result's rows appended as it lands, a failed run reported (its
+    traceback in ``failures.txt``) while the rest go on. With ``resume``, the runs ``out``
+    already holds are read back instead of run again (a failed one is tried again). The
+    results in task order, and the failures."""
     out.mkdir(parents=True, exist_ok=True)
     earlier = finished_runs(out) if resume else {}
     for name, header in (("runs.csv", RUNS_HEADER), ("calibration.csv", CALIBRATION_HEADER),
@@ -289,15 +289,9 @@ def run_all(tasks: list[RunTask], out: Path, jobs: int = 1,
         _write_result(out, result)
         echo(_line(count, len(tasks), result, started, len(earlier_done)))
 
-    if jobs <= 1:
-        for i, task in todo:
-            land(i, run_or_fail(task))
-    elif todo:
-        pool = ProcessPoolExecutor(jobs, mp_context=get_context("spawn"))
-        try:
-            futures = {pool.submit(run_or_fail, task): i for i, task in todo}
-            for future in as_completed(futures):
-                land(futures[future], future.result())
-        finally:        # an interrupt must not wait for every queued run
-            pool.shutdown(wait=True, cancel_futures=True)
+    executor = executor or LocalExecutor(1)
+    for at, outcome in executor.submit_all(run_or_fail, [task for _, task in todo]):
+        index, task = todo[at]
+        land(index, RunFailure(task.key, outcome.error) if outcome.error
+             else outcome.value)  # type: ignore[arg-type]
     return [done[i] for i in sorted(done)], failed

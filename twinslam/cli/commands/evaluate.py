@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from twinslam.cli.arguments import BUNDLED_SEQUENCE
+from twinslam.cli.arguments import BUNDLED_SEQUENCE, add_executor_arguments, open_executor
 from twinslam.cli.console import Subparsers, error
 from twinslam.live import runs, tables
 from twinslam.live.calibration import covisibility_file
@@ -34,7 +34,8 @@ def _checked(args: argparse.Namespace) -> tuple[list[tuple[str, str]], list[Scen
             raise ValueError(f"{path}: no such policy checkpoint (`twinslam train`)")
     if not args.params.is_file():
         raise ValueError(f"parameter file {args.params} does not exist")
-    for name, value, least in (("--seeds", args.seeds, 1), ("--jobs", args.jobs, 1),
+    jobs = 1 if args.jobs is None else args.jobs
+    for name, value, least in (("--seeds", args.seeds, 1), ("--jobs", jobs, 1),
                                ("--first-seed", args.first_seed, 0),
                                ("--frames", args.frames, 2), ("--start", args.start, 0)):
         if value < least:
@@ -47,6 +48,12 @@ def _checked(args: argparse.Namespace) -> tuple[list[tuple[str, str]], list[Scen
     return policies, scenarios, sources
 
 
+def _where(args: argparse.Namespace) -> str:
+    if args.executor == "ray":
+        return f"on Ray ({args.ray_address or 'started here'})"
+    return f"{args.jobs or 1} at a time"
+
+
 def _tasks(args: argparse.Namespace, policies: list[tuple[str, str]],
            scenarios: list[Scenario], sources: list[str]) -> list[runs.RunTask]:
     """Every run, seed by seed (so the runs a paired comparison pairs share the machine's
@@ -56,7 +63,7 @@ def _tasks(args: argparse.Namespace, policies: list[tuple[str, str]],
             for s in scenarios for seed in seeds for m in sources for label, spec in policies]
     print(f"live evaluation: {len(keys)} runs ({len(scenarios)} scenarios x {len(sources)} map "
           f"sources x {len(policies)} policies x {len(seeds)} seeds) of {args.frames} frames "
-          f"of {args.sequence} from frame {args.start}, {args.jobs} at a time; results in "
+          f"of {args.sequence} from frame {args.start}, {_where(args)}; results in "
           f"{args.out}", flush=True)
     covis: dict[str, Path] = {}
     for seed in seeds:                  # the simulator's view of every played frame
@@ -97,9 +104,10 @@ def run(args: argparse.Namespace) -> int:
     except (ValueError, SequenceError) as exc:
         return error(exc)
     try:
-        tasks = _tasks(args, policies, scenarios, sources)
-        results, failures = runs.run_all(tasks, args.out, args.jobs,
-                                         lambda line: print(line, flush=True), args.resume)
+        with open_executor(args) as executor:    # an unreachable Ray fails before any work
+            tasks = _tasks(args, policies, scenarios, sources)
+            results, failures = runs.run_all(tasks, args.out, executor,
+                                             lambda line: print(line, flush=True), args.resume)
     except KeyboardInterrupt:
         print(f"interrupted: the runs that finished are in {args.out / 'runs.csv'} "
               "(the same command with --resume runs the rest)", file=sys.stderr)
@@ -144,9 +152,8 @@ def add_arguments(parser: argparse.ArgumentParser, default_sequence: str,
     parser.add_argument("--first-seed", type=int, default=0,
                         help="seeds are FIRST..FIRST+SEEDS-1 (keep tuning seeds apart from "
                         "evaluation seeds); default %(default)s")
-    parser.add_argument("--jobs", type=int, default=1,
-                        help="runs at a time, each in a worker process on its own loopback "
-                        "domain (a run needs about one core); default %(default)s")
+    add_executor_arguments(parser, "run (each on a loopback domain of its own, about one "
+                           "core)")
     parser.add_argument("--params", type=Path, default=default_params,
                         help="ROS 2 parameter file for the nodes; default %(default)s")
     parser.add_argument("--out", type=Path, default=Path("results/live"),

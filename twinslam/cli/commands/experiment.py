@@ -7,8 +7,14 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from twinslam.cli.arguments import BUNDLED_COVIS, covisibility
+from twinslam.cli.arguments import (
+    BUNDLED_COVIS,
+    add_executor_arguments,
+    covisibility,
+    open_executor,
+)
 from twinslam.cli.console import Subparsers, elapsed_progress, error, warn_aliases
+from twinslam.common.executor import Executor, TaskFailure
 from twinslam.experiments import amm
 from twinslam.simulator.covisibility import CovisibilityError
 from twinslam.uplink.channels import SLOT_SECONDS, ChannelError
@@ -38,23 +44,43 @@ def run_amm_figure(args: argparse.Namespace) -> int:
     progress = elapsed_progress()
     try:
         learned = learned_checkpoints(args.policy or [])
-        dataset = covisibility(args.covis)
-    except (CovisibilityError, ValueError) as exc:
+        covisibility(args.covis)                  # a bad file fails before any worker starts
+        executor = _executor(args)
+    except (CovisibilityError, ValueError, RuntimeError) as exc:
         return error(exc)
     setting = amm.Setting(runs=args.runs or 20, slots=args.slots or 200, seed0=args.seed,
                          reference_swaps=args.reference_swaps)
     out = Path(args.out)
-    if args.name == "fig8":
-        by_n = {int(n or 2): pol for n, pol in learned.items()}
-        results = amm.fig8(dataset, by_n, out, setting, progress)
-    else:
-        fig = amm.fig7 if args.name == "fig7" else amm.fig9
-        results = fig(dataset, learned.get("", {}), out, setting, progress=progress)
+    out.mkdir(parents=True, exist_ok=True)
+    failures: list[TaskFailure] = []
+    with executor:
+        if args.name == "fig8":
+            by_n = {int(n or 2): pol for n, pol in learned.items()}
+            results = amm.fig8(args.covis, by_n, out, setting, progress, executor, failures)
+        else:
+            fig = amm.fig7 if args.name == "fig7" else amm.fig9
+            results = fig(args.covis, learned.get("", {}), out, setting, progress=progress,
+                          executor=executor, failures=failures)
     for x, by in results.items():
         print(f"{x}: " + ", ".join(f"{label} {r.mean:.1f} ± {r.ci95:.1f}"
                                     for label, r in by.items()))
     print(f"wrote {out}/{args.name}.csv and .png ({time.monotonic() - t0:.0f} s)")
-    return 0
+    return _failed(failures, out)
+
+
+def _executor(args: argparse.Namespace) -> Executor:
+    """The sweep's executor (imported here: the torch initializer loads torch)."""
+    from twinslam.experiments.parallel import one_torch_thread
+    return open_executor(args, one_torch_thread)
+
+
+def _failed(failures: list[TaskFailure], out: Path) -> int:
+    """0, or 1 after naming the tasks that failed (their tracebacks are in ``out``)."""
+    if not failures:
+        return 0
+    return error(f"{len(failures)} task(s) failed: " + "; ".join(
+        f"{f.task} ({f.last_line})" for f in failures) + f" — tracebacks in {out}/"
+        "*failures.txt; the tables hold the others", 1)
 
 
 def run_twin_predict(args: argparse.Namespace) -> int:
@@ -81,10 +107,14 @@ def run_twin_predict(args: argparse.Namespace) -> int:
                              settings=settings)
         for spec in sources:
             ex.check_source(spec, args.slot_seconds)
-    except (ValueError, ChannelError) as exc:
+        executor = _executor(args)
+    except (ValueError, ChannelError, RuntimeError) as exc:
         return error(exc)
     out = Path(args.out)
-    summary = ex.twin_predict(sources, out, setting, progress, jobs=args.jobs)
+    out.mkdir(parents=True, exist_ok=True)
+    failures: list[TaskFailure] = []
+    with executor:
+        summary = ex.twin_predict(sources, out, setting, progress, executor, failures)
     for source in dict.fromkeys(m.source for m in summary):
         print(f"{source}  (mean log p(next state) ± 95 % CI, nats; Brier; "
               f"minus the best counting estimator)")
@@ -93,9 +123,10 @@ def run_twin_predict(args: argparse.Namespace) -> int:
                 print(f"  {m.predictor:>14} {m.log_likelihood[0]:8.4f} ± "
                       f"{m.log_likelihood[1]:.4f}  Brier {m.brier[0]:.4f}  "
                       f"{m.vs_counting[0]:+8.4f} ± {m.vs_counting[1]:.4f}")
-    print(f"wrote {out}/twin_predict.csv, twin_predict_runs.csv and twin_predict.png "
-          f"({time.monotonic() - t0:.0f} s)")
-    return 0
+    if summary:
+        print(f"wrote {out}/twin_predict.csv, twin_predict_runs.csv and twin_predict.png "
+              f"({time.monotonic() - t0:.0f} s)")
+    return _failed(failures, out)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -119,25 +150,34 @@ def run_twin_figure(args: argparse.Namespace) -> int:
     proto = ex.Protocol(interval_slots=args.interval_slots, retrain_every=args.retrain_every,
                         buffer_slots=args.buffer_slots)
     progress = elapsed_progress()
-    if args.name == "udt-fig3":
+    try:              # udt-fig3 is one run: it needs no executor
+        executor = _executor(args) if args.name != "udt-fig3" else None
+    except (ValueError, RuntimeError) as exc:
+        return error(exc)
+    failures: list[TaskFailure] = []
+    if executor is None:
         res = ex.fig3(out, seed=args.seed, progress=progress,
                       proto=ex.Protocol(interval_slots=max(args.interval_slots, 1000),
                                         retrain_every=args.retrain_every,
                                         buffer_slots=max(args.buffer_slots, 1000)))
         print(f"UDT error on a 4-state chain (mean |P̂ - P|): {res['error']:.4f}")
     elif args.name == "udt-fig4":
-        res4 = ex.fig4(out, runs=args.runs, seed=args.seed, proto=proto, progress=progress,
-                       jobs=args.jobs)
+        with executor:
+            res4 = ex.fig4(out, runs=args.runs, seed=args.seed, proto=proto,
+                           progress=progress, executor=executor, failures=failures)
         print(f"{'N':>3} " + " ".join(f"{name:>16}" for name in res4))
         for n in next(iter(res4.values())):
-            print(f"{n:>3} " + " ".join(f"{sum(v[n]) / len(v[n]):16.4f}" for v in res4.values()))
+            print(f"{n:>3} " + " ".join(f"{sum(v[n]) / max(1, len(v[n])):16.4f}"
+                                        for v in res4.values()))
     else:
-        res5 = ex.fig5(out, runs=args.runs, n_states=args.states, seed=args.seed, proto=proto,
-                       progress=progress, jobs=args.jobs)
+        with executor:
+            res5 = ex.fig5(out, runs=args.runs, n_states=args.states, seed=args.seed,
+                           proto=proto, progress=progress, executor=executor,
+                           failures=failures)
         for mode, by in res5.items():
             print(mode + ": " + ", ".join(f"{name} {v.mean():.4f}" for name, v in by.items()))
     print(f"wrote {out}/{args.name.replace('-', '_')}.csv and .png")
-    return 0
+    return _failed(failures, out)
 
 
 def register(sub: Subparsers) -> None:
@@ -196,6 +236,5 @@ def register(sub: Subparsers) -> None:
                      "markov-window's window (default: udt-fig4/5 300, twin-predict 600)")
     exp.add_argument("--out", default="results", metavar="FOLDER",
                      help="folder for the CSV and PNG")
-    exp.add_argument("--jobs", type=int, default=1,
-                     help="runs in parallel worker processes (one torch thread each)")
+    add_executor_arguments(exp, "run")
     exp.set_defaults(func=run)

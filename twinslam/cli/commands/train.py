@@ -1,4 +1,5 @@
-"""``twinslam train``: the learned (MBRL) map-management policy trained in the simulator."""
+"""``twinslam train``: the learned (MBRL) map-management policy trained in the simulator, one
+run or several (``--runs``) on any executor."""
 
 from __future__ import annotations
 
@@ -6,8 +7,13 @@ import argparse
 import time
 from pathlib import Path
 
-from twinslam.cli.arguments import add_setting_arguments, covisibility
-from twinslam.cli.console import Subparsers, elapsed_progress, error, warn_aliases
+from twinslam.cli.arguments import (
+    add_executor_arguments,
+    add_setting_arguments,
+    covisibility,
+    open_executor,
+)
+from twinslam.cli.console import Subparsers, error, warn_aliases
 from twinslam.simulator.covisibility import CovisibilityError
 from twinslam.twin.registry import ALIASES, POLICY_RATE_MODELS, canonical
 from twinslam.uplink.channels import ChannelError
@@ -15,13 +21,17 @@ from twinslam.uplink.channels import ChannelError
 
 def run(args: argparse.Namespace) -> int:
     # imported here: the trainer loads torch, which the other commands never need
-    import torch
-
+    from twinslam.common.executor import run_tasks
+    from twinslam.experiments.parallel import one_torch_thread
+    from twinslam.experiments.training import TrainOutcome, train_one, train_tasks
     from twinslam.mbrl.trainer import AmmTrainer, TrainConfig
+    from twinslam.simulator.covisibility_spec import absolute_spec
 
     t0 = time.monotonic()
     warn_aliases([args.rate_model], ALIASES)
     try:
+        if args.runs < 1:
+            raise ValueError(f"--runs must be >= 1, got {args.runs}")
         dataset = covisibility(args.covis)
         config = TrainConfig(channel=args.channel, rate_range=args.rate_range,
                              vmax=args.vmax, slots=args.slots, episode_slots=args.episode_slots,
@@ -29,23 +39,37 @@ def run(args: argparse.Namespace) -> int:
                              actor=args.actor,
                              real_fraction=args.real_fraction,
                              artificial_per_real=args.artificial)
-        torch.set_num_threads(args.threads)
-        trainer = AmmTrainer(config, dataset, elapsed_progress())
-    except (ChannelError, CovisibilityError, ValueError) as exc:
+        AmmTrainer(config, dataset)          # a bad setting fails here, before any worker
+        executor = open_executor(args, one_torch_thread)
+    except (ChannelError, CovisibilityError, ValueError, RuntimeError) as exc:
         return error(exc)
+    seeds = list(range(args.seed, args.seed + args.runs))
+    tasks = train_tasks(config, absolute_spec(args.covis), Path(args.output), seeds,
+                        args.threads, verbose=args.runs == 1 or args.verbose)
     print(f"training on {dataset.n_frames} frames ({dataset.source or args.covis}); channel "
           f"{args.channel}; V_max {args.vmax}; actor {args.actor}; rate model "
           f"{canonical(args.rate_model)}; I/|Ξ| "
           f"{config.real_count}/{config.batch_size}, J {config.artificial_per_real}; "
-          f"{args.slots} slots", flush=True)
-    log = trainer.train()
-    out = Path(args.output)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    trainer.save(out)
-    log_path = out.with_suffix(".csv")
-    log.write_csv(log_path)
-    print(f"wrote {out} (use it as --policy mbrl:{out}) and the training log {log_path} "
+          f"{args.slots} slots; {len(seeds)} run(s), seed(s) {seeds[0]}..{seeds[-1]}",
+          flush=True)
+
+    def label(out: TrainOutcome) -> str:
+        return (f"seed {out.seed}: {out.checkpoint} kept the actor of slot {out.kept_slot} "
+                f"(validation υ {out.best_validation:.1f}, {out.seconds:.0f} s)")
+
+    failures_file = Path(args.output).with_name(Path(args.output).stem + "_failures.txt")
+    with executor:
+        sweep = run_tasks(train_one, tasks, executor, lambda t: f"training seed {t.config.seed}",
+                          label, lambda line: print(line, flush=True), failures_file)
+    for out in sweep.in_order():
+        print(f"wrote {out.checkpoint} (use it as --policy mbrl:{out.checkpoint}) and the "
+              f"training log {out.log}")
+    print(f"{len(sweep.results)} of {len(tasks)} run(s) trained "
           f"({time.monotonic() - t0:.0f} s)")
+    if sweep.failures:
+        return error(f"{len(sweep.failures)} training run(s) failed: " + "; ".join(
+            f"{f.task} ({f.last_line})" for f in sweep.failures)
+            + f" — tracebacks in {failures_file}", 1)
     return 0
 
 
@@ -54,7 +78,8 @@ def register(sub: Subparsers) -> None:
                            description="Actor-critic on the map graph (paper §VI), the state "
                            "augmented by a rate model; checkpoints are validated on seeds "
                            "training never plays and the best validation is kept. Writes the "
-                           "checkpoint and a CSV training log beside it.")
+                           "checkpoint and a CSV training log beside it; --runs R trains R "
+                           "seeds (FILE_s<seed>.pt each) on the chosen executor.")
     add_setting_arguments(train)
     train.add_argument("--slots", type=int, default=3000, help="real slots to train on")
     train.add_argument("--episode-slots", type=int, default=200, help="slots per episode")
@@ -77,8 +102,16 @@ def register(sub: Subparsers) -> None:
                        "only — the blended replay helped at none of 300, 1000, 3000 real slots "
                        "(docs/results.md, issue #20); the paper's configuration is "
                        "--artificial 2 --real-fraction 0.5")
-    train.add_argument("--seed", type=int, default=0, help="seed of the channel and the networks")
-    train.add_argument("--threads", type=int, default=2, help="torch CPU threads")
+    train.add_argument("--seed", type=int, default=0,
+                       help="seed of the channel and the networks (the first run's, with --runs)")
+    train.add_argument("--runs", type=int, default=1,
+                       help="training runs, seeds SEED..SEED+RUNS-1; more than one writes "
+                       "FILE_s<seed>.pt and .csv per run; default %(default)s")
+    train.add_argument("--threads", type=int, default=2, help="torch CPU threads per run")
+    train.add_argument("-v", "--verbose", action="store_true",
+                       help="with --runs > 1: every run's progress lines too (prefixed by its "
+                       "seed)")
+    add_executor_arguments(train, "training run")
     train.add_argument("-o", "--output", default="results/amm_policy.pt", metavar="FILE",
                        help="checkpoint to write (then --policy mbrl:FILE)")
     train.set_defaults(func=run)
