@@ -290,8 +290,9 @@ def test_figure_sweeps_write_one_csv_row_per_point_and_policy_and_a_plot(
                     reference=False)
     rows = (tmp_path / "figtest.csv").read_text().strip().splitlines()
     assert rows[0] == ("ratio,policy,mean_uncertainty,ci95,training_runs,episodes,lost_share,"
-                       "tracked_uncertainty")
-    assert len(rows) == 1 + 2 * 3                       # 2 ratios × LFF, PU, ADAPT
+                       "tracked_uncertainty,best_rule,paired_vs_best_rule,paired_ci_low,"
+                       "paired_ci_high")
+    assert len(rows) == 1 + 2 * 4                       # 2 ratios × LFF, PU, ADAPT, RANDOM
     assert (tmp_path / "figtest.png").stat().st_size > 0
     # more 80 Mbit/s slots upload more frames: LFF's map fills faster, υ falls
     assert results[0.7]["LFF"].mean < results[0.3]["LFF"].mean
@@ -320,7 +321,7 @@ def test_a_learned_variant_is_reported_over_its_training_runs_with_every_episode
     assert variant.mean == pytest.approx(results[0.5]["ADAPT"].mean) and variant.ci95 == 0.0
     with (tmp_path / "figvar_runs.csv").open() as fh:
         episodes = list(csv.DictReader(fh))
-    assert len(episodes) == (3 + 2 + 1) * 2            # rules, 2 checkpoints, reference
+    assert len(episodes) == (3 + 1 + 2 + 1) * 2        # rules, random, 2 checkpoints, reference
     by_seed: dict[str, list[float]] = {}
     for row in episodes:
         by_seed.setdefault(row["seed"], []).append(float(row["mean_uncertainty"]))

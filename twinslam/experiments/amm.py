@@ -29,7 +29,9 @@ import numpy as np
 from twinslam.common import table1
 from twinslam.common.executor import Executor, TaskFailure
 from twinslam.common.reporting import mean_ci95, pyplot, write_csv
+from twinslam.experiments.paired import PairedDifference, paired_difference
 from twinslam.experiments.parallel import run_all
+from twinslam.mbrl.trainer import AmmTrainer, TrainConfig
 from twinslam.policy_registry import make_policy
 from twinslam.simulator.covisibility_spec import absolute_spec, cached_covisibility
 from twinslam.simulator.env import MapManagementEnv, SimConfig
@@ -40,6 +42,10 @@ from twinslam.uplink.channels import parse_channel
 
 Progress = Callable[[str], None]
 RULES = ("lff", "pu", "adapt")
+#: the control every figure has beside the rules: uniform random uploads and evictions
+CONTROLS = ("random",)
+#: the label of the untrained paper's actor (the initial actor of training runs 0, 1, …)
+UNTRAINED = "Untrained AMM"
 
 
 @dataclass(frozen=True)
@@ -158,7 +164,7 @@ def _collect(episodes: list[EpisodeResult], learned: dict[str, list[Path]], refe
         return PolicyResult(episodes[0].runs[spec][0], [e.runs[spec][1] for e in episodes])
 
     found = {spec: result(spec) for spec in specs}
-    out: dict[str, Result] = {name.upper(): found[name] for name in RULES}
+    out: dict[str, Result] = {name.upper(): found[name] for name in (*RULES, *CONTROLS)}
     for label, paths in learned.items():
         out[label] = VariantResult(label, [found[f"mbrl:{p}"] for p in paths])
     if reference:
@@ -167,7 +173,7 @@ def _collect(episodes: list[EpisodeResult], learned: dict[str, list[Path]], refe
     rows = [[label, str(path) if path else "", run.seed, run.mean_uncertainty,
              run.lost_share, run.tracked_uncertainty]
             for label, path, res in (
-                *((n.upper(), None, found[n]) for n in RULES),
+                *((n.upper(), None, found[n]) for n in (*RULES, *CONTROLS)),
                 *((label, p, found[f"mbrl:{p}"]) for label, paths in learned.items()
                   for p in paths),
                 *(((REFERENCE, None, found["reference"]),) if reference else ()))
@@ -189,7 +195,7 @@ def sweep(name: str, xs: list[object], channel_of: Callable[[object], str],
     every run reported) and ``{name}.png``. A failed episode is added to ``failures`` (its
     traceback in ``{name}_failures.txt``) and its seed is left out of that x, for every
     policy alike (the comparisons stay paired)."""
-    specs = (*RULES, *(f"mbrl:{p}" for paths in learned.values() for p in paths),
+    specs = (*RULES, *CONTROLS, *(f"mbrl:{p}" for paths in learned.values() for p in paths),
              *(("reference",) if reference else ()))
     covis = absolute_spec(covis)
     tasks = [Episode(x, covis, channel_of(x), setting_of(x), specs, seed, reference)
@@ -224,22 +230,84 @@ def sweep(name: str, xs: list[object], channel_of: Callable[[object], str],
 
 
 COLUMNS = ["policy", "mean_uncertainty", "ci95", "training_runs", "episodes", "lost_share",
-           "tracked_uncertainty"]
+           "tracked_uncertainty", "best_rule", "paired_vs_best_rule", "paired_ci_low",
+           "paired_ci_high"]
 RUN_COLUMNS = ["policy", "checkpoint", "seed", "mean_uncertainty", "lost_share",
                "tracked_uncertainty"]
 
 
+def run_episode_scores(result: Result) -> np.ndarray | None:
+    """Mean υ per training run × evaluation episode (a rule policy: one run); None for the
+    bound, which pairs with nothing."""
+    if isinstance(result, VariantResult):
+        return np.array([c.per_seed for c in result.checkpoints])
+    if isinstance(result, PolicyResult):
+        return np.array([result.per_seed])
+    return None
+
+
+def best_rule(by: dict[str, Result]) -> str:
+    """The rule policy with the lowest mean υ at one point: what every other is paired with."""
+    return min((name.upper() for name in RULES), key=lambda label: by[label].mean)
+
+
+def paired_rows(by: dict[str, Result]) -> dict[str, tuple[str, PairedDifference | None]]:
+    """Per label: the best rule and the paired difference to it (two-level bootstrap over
+    training runs and episodes, :mod:`twinslam.experiments.paired`)."""
+    best = best_rule(by)
+    baseline = by[best].per_seed
+    out: dict[str, tuple[str, PairedDifference | None]] = {}
+    for label, result in by.items():
+        scores = run_episode_scores(result)
+        out[label] = (best, None if scores is None else paired_difference(scores, baseline))
+    return out
+
+
 def _rows(results: dict[object, dict[str, Result]]) -> list[list[object]]:
-    return [[x, label, r.mean, r.ci95,
-             len(r.checkpoints) if isinstance(r, VariantResult) else "", len(r.per_seed),
-             r.lost_share, r.tracked_uncertainty]
-            for x, by in results.items() for label, r in by.items()]
+    rows: list[list[object]] = []
+    for x, by in results.items():
+        paired = paired_rows(by)
+        for label, r in by.items():
+            best, diff = paired[label]
+            rows.append([x, label, r.mean, r.ci95,
+                         len(r.checkpoints) if isinstance(r, VariantResult) else "",
+                         len(r.per_seed), r.lost_share, r.tracked_uncertainty, best,
+                         *((diff.mean, diff.low, diff.high) if diff else ("", "", ""))])
+    return rows
+
+
+def untrained_checkpoints(covis: str, channel: str, out_dir: Path, inits: int) -> list[Path]:
+    """The paper's actor as training runs 0 … ``inits`` - 1 start it (their seeds draw its
+    initial weights), saved untrained under ``out_dir``/untrained: the control that says
+    whether training did anything."""
+    dataset = cached_covisibility(absolute_spec(covis))
+    n_states = parse_channel(channel).n_states
+    folder = out_dir / "untrained"
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for seed in range(inits):
+        path = folder / f"paper_n{n_states}_s{seed}.pt"
+        AmmTrainer(TrainConfig(channel=channel, actor="paper", seed=seed, validate_every=0),
+                   dataset).save(path)
+        paths.append(path)
+    return paths
+
+
+def _with_controls(learned: dict[str, list[Path]], covis: str, channel: str, out_dir: Path,
+                   controls: int) -> dict[str, list[Path]]:
+    if controls <= 0:
+        return learned
+    return {UNTRAINED: untrained_checkpoints(covis, channel, out_dir, controls), **learned}
 
 
 def fig7(covis: str, learned: dict[str, list[Path]], out_dir: Path,
          setting: Setting = Setting(), ratios: tuple[float, ...] = (0.2, 0.35, 0.5, 0.65, 0.8),
          progress: Progress | None = None, executor: Executor | None = None,
-         failures: list[TaskFailure] | None = None) -> dict[object, dict[str, Result]]:
+         failures: list[TaskFailure] | None = None, controls: int = 5
+         ) -> dict[object, dict[str, Result]]:
+    """``controls``: untrained initialisations of the paper's actor beside the rules and
+    random (0: none)."""
+    learned = _with_controls(learned, covis, "markov:N=2", out_dir, controls)
     return sweep("fig7", list(ratios), lambda r: f"markov:N=2,ratio={r}", lambda _r: setting,
                  covis, learned, out_dir, "ratio of high-rate slots", progress=progress,
                  executor=executor, failures=failures)
@@ -247,12 +315,14 @@ def fig7(covis: str, learned: dict[str, list[Path]], out_dir: Path,
 
 def fig8(covis: str, learned: dict[int, dict[str, list[Path]]],
          out_dir: Path, setting: Setting = Setting(), progress: Progress | None = None,
-         executor: Executor | None = None, failures: list[TaskFailure] | None = None
-         ) -> dict[object, dict[str, Result]]:
+         executor: Executor | None = None, failures: list[TaskFailure] | None = None,
+         controls: int = 5) -> dict[object, dict[str, Result]]:
     """``learned`` per N: each N has its own trained policies (the state's one-hot rate
-    history has N columns)."""
+    history has N columns), and its own untrained controls."""
     results: dict[object, dict[str, Result]] = {}
-    for n, policies in learned.items():
+    for n, policies in (learned or {2: {}}).items():
+        channel = f"markov:N={n},balanced"
+        policies = _with_controls(policies, covis, channel, out_dir, controls)
         results.update(sweep(f"fig8_n{n}", [n], lambda m: f"markov:N={m},balanced",
                              lambda _m: setting, covis, policies, out_dir,
                              "number of rate states N", progress=progress, plot=False,
@@ -266,9 +336,12 @@ def fig8(covis: str, learned: dict[int, dict[str, list[Path]]],
 def fig9(covis: str, learned: dict[str, list[Path]], out_dir: Path,
          setting: Setting = Setting(), vmaxes: tuple[int, ...] = (25, 30, 35, 40, 45),
          progress: Progress | None = None, executor: Executor | None = None,
-         failures: list[TaskFailure] | None = None) -> dict[object, dict[str, Result]]:
+         failures: list[TaskFailure] | None = None, controls: int = 5
+         ) -> dict[object, dict[str, Result]]:
     interval = max(1, setting.slots // 3)
-    return sweep("fig9", list(vmaxes), lambda _v: f"markov:N=2,K={interval},nonstationary",
+    channel = f"markov:N=2,K={interval},nonstationary"
+    learned = _with_controls(learned, covis, channel, out_dir, controls)
+    return sweep("fig9", list(vmaxes), lambda _v: channel,
                  lambda v: replace(setting, vmax=int(v)),  # type: ignore[call-overload]
                  covis, learned, out_dir, "V_max (frames)", progress=progress,
                  executor=executor, failures=failures)

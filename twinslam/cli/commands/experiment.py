@@ -56,14 +56,21 @@ def run_amm_figure(args: argparse.Namespace) -> int:
     with executor:
         if args.name == "fig8":
             by_n = {int(n or 2): pol for n, pol in learned.items()}
-            results = amm.fig8(args.covis, by_n, out, setting, progress, executor, failures)
+            results = amm.fig8(args.covis, by_n, out, setting, progress, executor, failures,
+                               controls=args.controls)
         else:
             fig = amm.fig7 if args.name == "fig7" else amm.fig9
             results = fig(args.covis, learned.get("", {}), out, setting, progress=progress,
-                          executor=executor, failures=failures)
+                          executor=executor, failures=failures, controls=args.controls)
     for x, by in results.items():
-        print(f"{x}: " + ", ".join(f"{label} {r.mean:.1f} ± {r.ci95:.1f}"
-                                    for label, r in by.items()))
+        paired = amm.paired_rows(by)
+        print(f"{x} (mean υ ± 95 % CI; paired with the best rule {amm.best_rule(by)}, "
+              "mean [95 % CI over training runs and episodes]):")
+        for label, r in by.items():
+            diff = paired[label][1]
+            print(f"  {label:<34} {r.mean:9.1f} ± {r.ci95:6.1f}"
+                  + (f"   {diff.mean:+8.1f} [{diff.low:+.1f}, {diff.high:+.1f}]"
+                     if diff else ""))
     print(f"wrote {out}/{args.name}.csv and .png ({time.monotonic() - t0:.0f} s)")
     return _failed(failures, out)
 
@@ -220,6 +227,11 @@ def register(sub: Subparsers) -> None:
     exp.add_argument("--slots", type=int, default=None,
                      help="slots per run (default: fig7-9 200; twin-predict 3000, a trace at "
                      "most one pass)")
+    exp.add_argument("--controls", type=int, default=5, metavar="N",
+                     help="fig7-9: beside the rules and random, the paper's actor untrained, "
+                     "N initialisations (those training runs 0..N-1 start from), as one "
+                     "variant: whether training beats its own starting point; 0: none; "
+                     "default %(default)s")
     exp.add_argument("--reference-swaps", type=int, default=100,
                      help="fig7-9: plan replays the reference's swap local search may spend "
                      "per episode (0: beam search only)")

@@ -1,0 +1,55 @@
+"""The figures' controls and paired column (issue #29): a paired difference is taken episode by
+episode with a two-level bootstrap interval, and fig7 reports random and the untrained actor
+beside the rules, each paired with the best rule on the same episodes."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from twinslam.experiments import amm
+from twinslam.experiments.paired import paired_difference
+
+COVIS = Path(__file__).resolve().parents[1] / "data" / "7scenes-redkitchen-1000.covis.npz"
+
+
+def test_a_constant_gap_is_found_exactly_and_noise_widens_the_interval() -> None:
+    base = np.array([-500.0, -400.0, -900.0, -650.0])
+    same_gap = paired_difference(np.array([base + 3.0, base + 3.0]), base)
+    assert (same_gap.mean, same_gap.low, same_gap.high) == pytest.approx((3.0, 3.0, 3.0))
+    assert same_gap.apart
+    rng = np.random.default_rng(1)
+    noisy = paired_difference(base + rng.normal(0, 20, size=(5, 4)), base)
+    assert noisy.low < noisy.mean < noisy.high and not noisy.apart
+    # the episodes' spread is paired away: a large spread between episodes, a small gap
+    assert paired_difference(np.array([base - 1.0]), base).high == pytest.approx(-1.0)
+
+
+def test_episodes_that_do_not_pair_are_refused() -> None:
+    with pytest.raises(ValueError, match="the same episodes"):
+        paired_difference(np.zeros((2, 3)), np.zeros(4))
+
+
+def test_fig7_has_random_and_the_untrained_actor_paired_with_the_best_rule(
+        tmp_path: Path) -> None:
+    setting = amm.Setting(runs=3, slots=6, reference_swaps=0)
+    results = amm.fig7(str(COVIS), {}, tmp_path, setting, ratios=(0.5,), controls=2)
+    by = results[0.5]
+    assert {"LFF", "PU", "ADAPT", "RANDOM", amm.UNTRAINED} <= set(by)
+    untrained = by[amm.UNTRAINED]
+    assert isinstance(untrained, amm.VariantResult) and len(untrained.checkpoints) == 2
+    assert sorted(p.name for p in (tmp_path / "untrained").iterdir()) == [
+        "paper_n2_s0.pt", "paper_n2_s1.pt"]
+    with (tmp_path / "fig7.csv").open() as fh:
+        rows = {r["policy"]: r for r in csv.DictReader(fh)}
+    best = amm.best_rule(by)
+    assert rows[best]["paired_vs_best_rule"] == "0.0"
+    random_gap = (np.mean(by["RANDOM"].per_seed) - np.mean(by[best].per_seed))
+    assert float(rows["RANDOM"]["paired_vs_best_rule"]) == pytest.approx(random_gap)
+    low, high = (float(rows[amm.UNTRAINED][k]) for k in ("paired_ci_low", "paired_ci_high"))
+    assert low <= float(rows[amm.UNTRAINED]["paired_vs_best_rule"]) <= high
+    assert rows[amm.UNTRAINED]["training_runs"] == "2"
+    assert rows[amm.BOUND]["paired_vs_best_rule"] == ""
