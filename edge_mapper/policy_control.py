@@ -36,9 +36,12 @@ def policy_refused(name: str) -> str | None:
     if name == LEARNED_PREFIX:            # its checkpoint comes from policy_checkpoint
         return None
     try:
-        make_policy(name)
+        policy = make_policy(name)
     except ValueError as exc:
         return str(exc)
+    if getattr(policy, "needs_simulator", False):
+        return (f"{name} plans in the simulator's world model (twinslam sim / experiment); "
+                "the edge runs lff, pu, adapt, random or mbrl")
     return None
 
 

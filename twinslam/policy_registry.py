@@ -14,12 +14,14 @@ from pathlib import Path
 from twinslam.map_management.policies import POLICIES, MapPolicy, make_rule_policy
 
 LEARNED_PREFIX = "mbrl"          #: ``mbrl:CHECKPOINT`` names a policy `twinslam train` wrote
+MPC = "mpc"                      #: ``mpc[:H=3/S=4/...]``: the causal planner (simulator only)
 
 
 def make_policy(name: str) -> MapPolicy:
-    """A policy by name: ``lff``, ``pu``, ``adapt``, ``random``, or ``mbrl:PATH`` for the
-    learned policy of the checkpoint at PATH. Unknown names raise ValueError listing the
-    choices."""
+    """A policy by name: ``lff``, ``pu``, ``adapt``, ``random``, ``mbrl:PATH`` for the
+    learned policy of the checkpoint at PATH, or ``mpc[:OPTIONS]`` for the causal planner
+    (:mod:`twinslam.simulator.mpc`; it plans in the simulator's world model). Unknown names
+    raise ValueError listing the choices."""
     kind, _, path = name.partition(":")
     if kind == LEARNED_PREFIX:
         if not path:
@@ -27,7 +29,11 @@ def make_policy(name: str) -> MapPolicy:
                              "`twinslam train`)")
         from twinslam.mbrl.policy import MbrlPolicy  # torch loads only for this policy
         return MbrlPolicy(Path(path))
+    if kind == MPC:
+        from twinslam.simulator.mpc import MpcPlanner, parse_mpc
+        return MpcPlanner(parse_mpc(name))
     if name not in POLICIES:
         raise ValueError(f"unknown policy {name!r}; choose from {sorted(POLICIES)}, "
-                         "mbrl:CHECKPOINT (or 'reference' in the simulator)")
+                         "mbrl:CHECKPOINT (or, in the simulator, mpc[:H=../S=..] and "
+                         "'reference')")
     return make_rule_policy(name)

@@ -19,6 +19,8 @@ id, and two instances of the same recorded frame share all their points.
 
 from __future__ import annotations
 
+import copy
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -322,7 +324,27 @@ class MapManagementEnv:
             self._last_obs = last_obs
         return obs, reward, info
 
-    # -- planning support (the clairvoyant references) ----------------------------------------
+    # -- planning support (the clairvoyant references, the causal planner) ------------------
+
+    def imagine(self, rates: Sequence[tuple[int, float]] | None = None,
+                stream: Any = None) -> MapManagementEnv:
+        """A copy of this environment at its current state whose future is the one given:
+        (state, rate) of the slots after this one (None: the true ones) and the stream that
+        maps frame instances to the dataset (None: the true one; anything with
+        ``dataset_index``). A planner steps and restores it freely; this one is untouched."""
+        world = copy.copy(self)
+        world._map, world._map_w = list(self._map), self._map_w.copy()
+        world._uploadable = list(self._uploadable)
+        world._points, world._last_obs = None, None
+        world._plan = list(self._plan)
+        if rates is not None:
+            for i, rate in enumerate(rates, start=self._slot + 1):
+                if i < len(world._plan):
+                    world._plan[i] = (int(rate[0]), float(rate[1]))
+        if stream is not None:
+            world.stream = stream
+        return world
+
 
     @property
     def map_frames(self) -> list[int]:

@@ -42,6 +42,9 @@ def rollout(env: MapManagementEnv, policy: MapPolicy, seed: int) -> Plan:
     """Run ``policy`` for a whole episode from ``reset(seed)``."""
     obs, _ = env.reset(seed)
     policy.reset(seed)
+    attach = getattr(policy, "attach", None)   # a planner imagines the future in env's world
+    if attach is not None:
+        attach(env)
     actions, slots = [], []
     while True:
         action = policy.decide(obs)

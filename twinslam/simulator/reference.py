@@ -46,7 +46,7 @@ def rule_policies() -> list[MapPolicy]:
     return [LatestFrameFirst(), PeriodicalUploading(), Adapt()]
 
 
-def _perturb(obs: SlotObservation, base: MapAction, rng: np.random.Generator) -> MapAction:
+def swap_one(obs: SlotObservation, base: MapAction, rng: np.random.Generator) -> MapAction:
     """Swap one upload and one eviction of ``base`` at random (keeps Theorem 1's sizes)."""
     up = list(base.upload)
     others = [f for f in obs.candidates if f not in up]
@@ -115,7 +115,7 @@ class ReferencePlanner:
             except ActionError:
                 continue
             base.append(a)
-        extra = ([_perturb(obs, base[i % len(base)], rng) for i in range(self.perturbations)]
+        extra = ([swap_one(obs, base[i % len(base)], rng) for i in range(self.perturbations)]
                  if base else [])
         unique: dict[tuple[Any, ...], MapAction] = {}
         for a in base + extra:

@@ -107,7 +107,11 @@ def register(sub: Subparsers) -> None:
     sim.add_argument("--policy", default=",".join(Comparison.policies),
                      help="comma-separated: lff (latest frames first), pu (periodical "
                      "uploading), adapt (AdaptSLAM's greedy log-det), random, mbrl:CHECKPOINT "
-                     "(a policy from `twinslam train`), reference (a clairvoyant search "
+                     "(a policy from `twinslam train`), mpc[:H=3/S=4/rates=regime/frames=motion] "
+                     "(the causal planner: H slots ahead over S rate scenarios of the regime "
+                     "twin, the frames extrapolated from the camera's motion; rates=oracle, "
+                     "frames=persistence|oracle for the ablations), reference (a clairvoyant "
+                     "search "
                      "started from every other listed policy: beam search, then swap local "
                      "search; not a bound)")
     add_setting_arguments(sim)

@@ -1,0 +1,296 @@
+"""``mpc``: a causal planner that looks H slots ahead (issue #29).
+
+Each slot it scores candidate actions (U_k, C_k) by the objective they lead to over the next
+H slots in an *imagined* future, and takes the best:
+
+    a_k = argmin_a  1/S Σ_s [ υ_k(a) + min over the H - 1 later slots' plans of Σ υ ]
+
+in S scenarios. What it may know is only what a device and an edge know at slot k:
+
+* **rates** — ``regime``: S state paths drawn from the Bayesian regime twin fed with the
+  states observed so far (the next state from its posterior predictive, later ones from its
+  mean regime matrix), each state at the mean rate observed in it (the current rate before it
+  was seen); ``oracle``: the true future rates (the known-future control only);
+* **frames** — ``motion``: the camera keeps moving through the sequence as it did across this
+  slot (constant velocity in frames, turned back at the sequence's ends) — in the simulator the
+  covisibility of the frames at the extrapolated poses, live it would be the frusta's overlap
+  there; ``persistence``: the next slots see what this slot saw; ``oracle``: the true frames.
+
+The later slots' plans: every action exactly (dynamic programming over maps, as
+:mod:`~twinslam.simulator.exact_optimum`) while the instance is small enough, else the best of
+the base policies' (LFF, ADAPT) roll-outs. Candidate first actions: all of them when there are
+at most ``max_actions``, else the base policies' actions and random swaps of them. With a known
+future and H covering the rest of the episode it is the exact optimum (tests).
+
+It plans in the simulator's world model, so it runs where one exists (``twinslam sim``,
+``experiment``); the edge refuses it by name.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from twinslam.map_management.actions import MapAction, SlotObservation
+from twinslam.map_management.policies import Adapt, LatestFrameFirst, MapPolicy
+from twinslam.simulator.env import FrameStream, MapManagementEnv
+from twinslam.simulator.plan import all_actions
+from twinslam.simulator.reference import swap_one
+from twinslam.twin.regime_twin import RegimeConfig, RegimeTwin
+
+RATE_MODELS = ("regime", "oracle")
+FRAME_PREDICTORS = ("motion", "persistence", "oracle")
+
+
+@dataclass(frozen=True)
+class MpcConfig:
+    horizon: int = 3             #: H, slots planned (this one included)
+    scenarios: int = 4           #: S, rate scenarios the plan is averaged over
+    rates: str = "regime"
+    frames: str = "motion"
+    max_actions: int = 64        #: first actions tried exhaustively up to this many
+    max_states: int = 2_000      #: maps the exact plan of the later slots may visit
+    swaps: int = 6               #: random swaps of the base actions when not exhaustive
+
+    def label(self) -> str:
+        """``mpc``, or ``mpc:`` and the options that differ from the defaults."""
+        keys = {"horizon": "H", "scenarios": "S", "rates": "rates", "frames": "frames",
+                "max_actions": "actions", "swaps": "swaps"}
+        default = MpcConfig()
+        changed = [f"{short}={getattr(self, name)}" for name, short in keys.items()
+                   if getattr(self, name) != getattr(default, name)]
+        return "mpc" + (":" + "/".join(changed) if changed else "")
+
+    def check(self) -> None:
+        if self.horizon < 1 or self.scenarios < 1 or self.max_actions < 1 or self.swaps < 0:
+            raise ValueError("mpc: H and S must be >= 1, swaps >= 0")
+        if self.rates not in RATE_MODELS:
+            raise ValueError(f"mpc: rates {self.rates!r}, one of {', '.join(RATE_MODELS)}")
+        if self.frames not in FRAME_PREDICTORS:
+            raise ValueError(f"mpc: frames {self.frames!r}, one of "
+                             f"{', '.join(FRAME_PREDICTORS)}")
+
+
+def parse_mpc(spec: str) -> MpcConfig:
+    """``mpc`` or ``mpc:H=4/S=8/rates=regime/frames=motion`` (any subset, ``/`` or ``,``
+    between them: ``/`` where a comma separates policies, as in ``--policy lff,mpc:H=4/S=8``)."""
+    _, _, options = spec.partition(":")
+    config = MpcConfig()
+    keys = {"H": "horizon", "S": "scenarios", "rates": "rates", "frames": "frames",
+            "actions": "max_actions", "swaps": "swaps"}
+    for part in filter(None, (p.strip() for p in options.replace("/", ",").split(","))):
+        key, eq, value = part.partition("=")
+        if not eq or key not in keys:
+            raise ValueError(f"mpc option {part!r}: use {', '.join(f'{k}=' for k in keys)}")
+        field_name = keys[key]
+        try:
+            typed: Any = value if field_name in ("rates", "frames") else int(value)
+        except ValueError:
+            raise ValueError(f"mpc option {part!r}: {key} takes an integer") from None
+        config = replace(config, **{field_name: typed})
+    config.check()
+    return config
+
+
+class PredictedStream:
+    """The frames as the planner imagines them: the instances seen so far as they were, the
+    later ones by ``mode`` (module docstring) from the last slot seen."""
+
+    def __init__(self, base: FrameStream, seen: int, slot_frames: int, n_frames: int,
+                 mode: str) -> None:
+        self.base, self.seen, self.slot_frames, self.n, self.mode = (
+            base, seen, slot_frames, n_frames, mode)
+        first = int(base.dataset_index(max(0, seen - slot_frames)))
+        self.last = int(base.dataset_index(seen - 1))
+        #: frames moved per instance across the last slot seen (signed: backwards too)
+        self.velocity = (self.last - first) / max(1, slot_frames - 1)
+
+    def dataset_index(self, instance: np.ndarray | list[int] | int) -> np.ndarray:
+        idx = np.asarray(instance, dtype=np.int64)
+        future = idx >= self.seen
+        if self.mode == "persistence":
+            src = np.where(future, self.seen - self.slot_frames
+                           + (idx - self.seen) % self.slot_frames, idx)
+            return self.base.dataset_index(src)
+        out = self.base.dataset_index(np.where(future, self.seen - 1, idx))
+        t = np.rint(self.last + self.velocity * (idx - (self.seen - 1))).astype(np.int64)
+        period = max(1, 2 * (self.n - 1))
+        phase = t % period
+        reflected = np.where(phase < self.n, phase, period - phase)   # back at the ends
+        return np.where(future, reflected, out)
+
+
+class MpcPlanner:
+    """The ``mpc`` policy (module docstring). ``attach(env)`` hands it the simulator's
+    environment whose world it imagines; :func:`~twinslam.simulator.plan.rollout` does."""
+
+    name = "mpc"
+    needs_simulator = True
+
+    def __init__(self, config: MpcConfig | None = None,
+                 base: Sequence[MapPolicy] | None = None) -> None:
+        self.config = config or MpcConfig()
+        self.config.check()
+        self.name = self.config.label()
+        self.base: list[MapPolicy] = (list(base) if base is not None
+                                      else [LatestFrameFirst(), Adapt()])
+        self._env: MapManagementEnv | None = None
+        self.reset(0)
+
+    def attach(self, env: MapManagementEnv) -> None:
+        self._env = env
+
+    def reset(self, seed: int | None = None) -> None:
+        self._rng = np.random.default_rng(seed)
+        self._twin: RegimeTwin | None = None
+        self._rates: dict[int, list[float]] = {}
+        self._observed = -1
+
+    # -- what it knows ------------------------------------------------------------------------
+
+    def _observe(self, obs: SlotObservation) -> None:
+        if obs.slot == self._observed:
+            return
+        if self._twin is None or self._twin.n_states != obs.n_states:
+            self._twin = RegimeTwin(RegimeConfig(n_states=obs.n_states))
+        self._twin.observe(obs.rate_state)
+        self._rates.setdefault(obs.rate_state, []).append(obs.rate_mbps)
+        self._observed = obs.slot
+
+    def _scenarios(self, obs: SlotObservation, env: MapManagementEnv
+                   ) -> list[list[tuple[int, float]] | None]:
+        """Rates of slots k+1 … k+H-1 per scenario (None: the true ones)."""
+        cfg = self.config
+        if cfg.rates == "oracle" or cfg.horizon == 1:
+            return [None]
+        assert self._twin is not None
+        matrix = self._twin.transition_matrix()
+        out: list[list[tuple[int, float]] | None] = []
+        for _ in range(cfg.scenarios):
+            state = int(self._rng.choice(obs.n_states, p=self._twin.predict([obs.rate_state])))
+            path = []
+            for _h in range(cfg.horizon - 1):
+                seen = self._rates.get(state)
+                path.append((state, float(np.mean(seen)) if seen else obs.rate_mbps))
+                row = matrix[state]
+                state = int(self._rng.choice(obs.n_states, p=row / row.sum()))
+            out.append(path)
+        return out
+
+    def _world(self, env: MapManagementEnv, rates: list[tuple[int, float]] | None
+               ) -> MapManagementEnv:
+        stream = None
+        if self.config.frames != "oracle":
+            f = env.config.slot_frames
+            seen = (env.observation().slot + 1) * f
+            stream = PredictedStream(env.stream, seen, f, env.dataset.n_frames,
+                                     self.config.frames)
+        return env.imagine(rates, stream)
+
+    # -- deciding -----------------------------------------------------------------------------
+
+    def decide(self, obs: SlotObservation) -> MapAction:
+        env = self._env
+        if env is None:
+            raise RuntimeError("mpc plans in the simulator's world model: attach(env) first "
+                               "(twinslam sim / experiment do; the edge cannot run it)")
+        self._observe(obs)
+        first = self._first_actions(obs)
+        if len(first) == 1:
+            return first[0]
+        worlds = [self._world(env, rates) for rates in self._scenarios(obs, env)]
+        costs = np.zeros(len(first))
+        for world in worlds:
+            start = world.snapshot()
+            for i, action in enumerate(first):
+                world.restore(start)
+                _o, reward, _t, trunc, _info = world.step(action)
+                costs[i] += -reward + (0.0 if trunc else
+                                       self._cost_to_go(world, self.config.horizon - 1))
+            world.restore(start)
+        return first[int(np.argmin(costs))]
+
+    def _first_actions(self, obs: SlotObservation) -> list[MapAction]:
+        every = _bounded_actions(obs, self.config.max_actions)
+        if every is not None:
+            return every
+        proposals = [p.decide(obs) for p in self.base]
+        for _ in range(self.config.swaps):
+            proposals.append(swap_one(obs, proposals[int(self._rng.integers(len(self.base)))],
+                                   self._rng))
+        unique: dict[tuple[tuple[int, ...], tuple[int, ...]], MapAction] = {}
+        for a in proposals:
+            unique.setdefault((tuple(sorted(a.upload)), tuple(sorted(a.evict))), a)
+        return list(unique.values())
+
+    def _cost_to_go(self, world: MapManagementEnv, slots: int) -> float:
+        """The least Σ υ of the next ``slots`` slots from the world's state: exact while the
+        maps they can leave stay under ``max_states``, else the best base roll-out."""
+        if slots <= 0:
+            return 0.0
+        start = world.snapshot()
+        try:
+            return _exact_cost(world, slots, self.config.max_states)
+        except _TooLarge:
+            pass
+        best = np.inf
+        for policy in self.base:
+            world.restore(start)
+            total = 0.0
+            for _ in range(slots):
+                _o, reward, _t, trunc, _i = world.step(policy.decide(world.observation()))
+                total -= reward
+                if trunc:
+                    break
+            best = min(best, total)
+        world.restore(start)
+        return float(best)
+
+
+class _TooLarge(Exception):
+    pass
+
+
+def _bounded_actions(obs: SlotObservation, limit: int) -> list[MapAction] | None:
+    """Every action of Theorem 1's sizes, or None when there are more than ``limit``."""
+    from math import comb
+    count = comb(len(obs.candidates), obs.n_upload) * comb(len(obs.map_frames) + obs.n_upload,
+                                                           obs.n_evict)
+    return all_actions(obs) if count <= limit else None
+
+
+def _exact_cost(world: MapManagementEnv, slots: int, max_states: int) -> float:
+    """Forward DP over the maps the next ``slots`` slots can leave (every action tried)."""
+    layer: dict[tuple[Any, ...], tuple[float, tuple[Any, ...]]] = {(): (0.0, world.snapshot())}
+    visited = 0
+    best_end = np.inf
+    for _ in range(slots):
+        nxt: dict[tuple[Any, ...], tuple[float, tuple[Any, ...]]] = {}
+        for total, snap in layer.values():
+            world.restore(snap)
+            actions = _bounded_actions(world.observation(), max_states)
+            if actions is None:
+                raise _TooLarge
+            for action in actions:
+                world.restore(snap)
+                _o, reward, _t, trunc, _i = world.step(action)
+                cost = total - reward
+                if trunc:
+                    best_end = min(best_end, cost)
+                    continue
+                after = world.snapshot()
+                key = (tuple(after[0]), tuple(after[3]))
+                if key not in nxt or nxt[key][0] > cost:
+                    nxt[key] = (cost, after)
+                visited += 1
+                if visited > max_states:
+                    raise _TooLarge
+        layer = nxt
+        if not layer:
+            break
+    ends = [c for c, _ in layer.values()]
+    return float(min([best_end, *ends]))
+
