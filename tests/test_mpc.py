@@ -44,7 +44,8 @@ def test_with_a_known_future_it_is_the_exact_optimum(seed: int, device_rule: boo
     assert optimum <= causal + 1e-9                    # nothing causal beats the optimum
 
 
-@pytest.mark.parametrize("spec", ["mpc:H=2,S=2", "mpc:H=2,S=2,frames=persistence"])
+@pytest.mark.parametrize("spec", ["mpc:H=2,S=2", "mpc:H=2/S=2/frames=persistence",
+                                  "mpc:H=2/rates=markov/S=2", "mpc:H=2/rates=last"])
 def test_at_full_size_every_slot_keeps_theorem_1_and_v_max(
         kitchen: CovisibilityDataset, spec: str) -> None:
     """The environment refuses any action of the wrong sizes (check_action): a whole episode

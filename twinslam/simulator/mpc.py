@@ -10,7 +10,9 @@ in S scenarios. What it may know is only what a device and an edge know at slot 
 * **rates** — ``regime``: S state paths drawn from the Bayesian regime twin fed with the
   states observed so far (the next state from its posterior predictive, later ones from its
   mean regime matrix), each state at the mean rate observed in it (the current rate before it
-  was seen); ``oracle``: the true future rates (the known-future control only);
+  was seen); ``markov``: the same from transition counts (the paper's Markov model, KT
+  smoothed); ``last``: no model, the current state and rate persist; ``oracle``: the true
+  future rates (the known-future control only);
 * **frames** — ``motion``: the camera keeps moving through the sequence as it did across this
   slot (constant velocity in frames, turned back at the sequence's ends) — in the simulator the
   covisibility of the frames at the extrapolated poses, live it would be the frusta's overlap
@@ -39,9 +41,10 @@ from twinslam.map_management.policies import Adapt, LatestFrameFirst, MapPolicy
 from twinslam.simulator.env import FrameStream, MapManagementEnv
 from twinslam.simulator.plan import all_actions
 from twinslam.simulator.reference import swap_one
+from twinslam.twin.markov import MarkovCounts
 from twinslam.twin.regime_twin import RegimeConfig, RegimeTwin
 
-RATE_MODELS = ("regime", "oracle")
+RATE_MODELS = ("regime", "markov", "last", "oracle")
 FRAME_PREDICTORS = ("motion", "persistence", "oracle")
 
 
@@ -145,7 +148,7 @@ class MpcPlanner:
 
     def reset(self, seed: int | None = None) -> None:
         self._rng = np.random.default_rng(seed)
-        self._twin: RegimeTwin | None = None
+        self._twin: RegimeTwin | MarkovCounts | None = None
         self._rates: dict[int, list[float]] = {}
         self._observed = -1
 
@@ -155,7 +158,9 @@ class MpcPlanner:
         if obs.slot == self._observed:
             return
         if self._twin is None or self._twin.n_states != obs.n_states:
-            self._twin = RegimeTwin(RegimeConfig(n_states=obs.n_states))
+            self._twin = (MarkovCounts(obs.n_states, pseudo_count=0.5)
+                          if self.config.rates == "markov"
+                          else RegimeTwin(RegimeConfig(n_states=obs.n_states)))
         self._twin.observe(obs.rate_state)
         self._rates.setdefault(obs.rate_state, []).append(obs.rate_mbps)
         self._observed = obs.slot
@@ -166,6 +171,8 @@ class MpcPlanner:
         cfg = self.config
         if cfg.rates == "oracle" or cfg.horizon == 1:
             return [None]
+        if cfg.rates == "last":
+            return [[(obs.rate_state, obs.rate_mbps)] * (cfg.horizon - 1)]
         assert self._twin is not None
         matrix = self._twin.transition_matrix()
         out: list[list[tuple[int, float]] | None] = []

@@ -1,0 +1,87 @@
+"""The planner tables of docs/results.md § "A causal planner" (issue #29), from ``twinslam sim
+--csv`` files (each command is in results.md beside its table): per policy the mean υ (a lost
+frame scoring 0) ± 95 % CI over the episodes, the lost share, and the paired difference with
+the best rule policy on the same episodes; with a ``reference`` row, also the share of the
+best rule's gap to the reference that each policy closes (a bootstrap over episodes).
+
+Several files of the same episodes (the same --covis, --seeds, --seed0, --slots and channel)
+may be given: their rows are pooled, each (policy, seed) once.
+
+    .venv/bin/python docs/figures/issue29_tables.py FILE.csv [FILE.csv …]
+"""
+
+from __future__ import annotations
+
+import csv
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from twinslam.common.reporting import mean_ci95
+from twinslam.experiments.paired import paired_difference
+
+RULES = ("lff", "pu", "adapt")
+
+
+def episodes(paths: list[Path]) -> dict[str, dict[int, dict[str, float]]]:
+    """policy → seed → {mean_uncertainty, lost_share}, pooled over the files."""
+    out: dict[str, dict[int, dict[str, float]]] = {}
+    for path in paths:
+        with path.open(encoding="utf-8") as fh:
+            for row in csv.DictReader(fh):
+                out.setdefault(row["policy"], {})[int(row["seed"])] = {
+                    "mean": float(row["mean_uncertainty"]), "lost": float(row["lost_share"])}
+    return out
+
+
+def gap_closed(policy: np.ndarray, best: np.ndarray, reference: np.ndarray,
+               draws: int = 4000, seed: int = 0) -> tuple[float, float, float]:
+    """(best − policy) / (best − reference) over the episodes' means, and its 95 % bootstrap
+    interval (episodes drawn with replacement)."""
+    rng = np.random.default_rng(seed)
+    n = policy.size
+    picks = rng.integers(0, n, size=(draws, n))
+    gap = (best[picks].mean(1) - reference[picks].mean(1))
+    closed = (best[picks].mean(1) - policy[picks].mean(1)) / np.where(gap == 0, np.nan, gap)
+    value = (best.mean() - policy.mean()) / (best.mean() - reference.mean())
+    low, high = np.nanpercentile(closed, [2.5, 97.5])
+    return float(value), float(low), float(high)
+
+
+def table(paths: list[Path]) -> str:
+    by = episodes(paths)
+    seeds = sorted(set.intersection(*(set(v) for v in by.values())))
+    mean = {p: np.array([by[p][s]["mean"] for s in seeds]) for p in by}
+    lost = {p: np.array([by[p][s]["lost"] for s in seeds]) for p in by}
+    best = min((p for p in RULES if p in mean), key=lambda p: mean[p].mean())
+    reference = mean.get("reference")
+    head = ["policy", "mean υ ± 95 % CI", "lost (%)", f"paired vs {best.upper()}"]
+    if reference is not None:
+        head.append("gap to the reference closed")
+    lines = [f"{', '.join(p.name for p in paths)}: {len(seeds)} episodes (seeds "
+             f"{seeds[0]}–{seeds[-1]}); paired: mean [95 % bootstrap CI] over the same "
+             "episodes", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for p in by:
+        m, ci = mean_ci95(mean[p].tolist())
+        d = paired_difference(mean[p][None, :], mean[best])
+        cells = [p, f"{m:.1f} ± {ci:.1f}", f"{100 * lost[p].mean():.2f}",
+                 "—" if p == best else f"{d.mean:+.1f} [{d.low:+.1f}, {d.high:+.1f}]"]
+        if reference is not None:
+            if p in (best, "reference"):
+                cells.append("—")
+            else:
+                v, lo, hi = gap_closed(mean[p], mean[best], reference)
+                cells.append(f"{100 * v:.0f} % [{100 * lo:.0f}, {100 * hi:.0f}]")
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str]) -> None:
+    if not argv:
+        raise SystemExit(__doc__)
+    print(table([Path(a) for a in argv]))
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
