@@ -206,13 +206,11 @@ def sweep(name: str, xs: list[object], channel_of: Callable[[object], str],
                    lambda r: f"{name} x={r.episode.x} seed {r.episode.seed}: " + ", ".join(
                        f"{label} {run.mean_uncertainty:.1f}" for label, run in
                        (r.runs[n] for n in RULES)), progress,
-                   out_dir / f"{name}_failures.txt")
-    if failures is not None:
-        failures += done.failures
+                   out_dir / f"{name}_failures.txt", failures)
     results: dict[object, dict[str, Result]] = {}
     episodes: list[list[object]] = []
     for x in xs:
-        mine = [r for r in done.in_order() if r.episode.x == x]
+        mine = [r for r in done if r.episode.x == x]
         if not mine:
             continue
         results[x], rows = _collect(mine, learned, reference)

@@ -9,7 +9,13 @@ from typing import TypeVar
 
 import torch
 
-from twinslam.common.executor import Executor, LocalExecutor, Sweep, make_executor, run_tasks
+from twinslam.common.executor import (
+    Executor,
+    LocalExecutor,
+    TaskFailure,
+    make_executor,
+    run_tasks,
+)
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -29,10 +35,14 @@ def executor_for(name: str = "local", jobs: int | None = None,
 def run_all(fn: Callable[[T], R], tasks: Sequence[T], executor: Executor | None,
             describe: Callable[[T], str], label: Callable[[R], str],
             progress: Callable[[str], None] | None,
-            failures_file: Path | None = None) -> Sweep[R]:
+            failures_file: Path | None = None,
+            failures: list[TaskFailure] | None = None) -> list[R]:
     """``fn`` (a module-level function) over ``tasks`` on ``executor`` (None: in this
-    process), reporting "[i/n] label (elapsed, ETA)" after each; a failed task is reported
-    with ``describe(task)`` and its traceback while the others finish."""
-    if executor is None:
-        executor = LocalExecutor(1)
-    return run_tasks(fn, tasks, executor, describe, label, progress, failures_file)
+    process), reporting "[i/n] label (elapsed, ETA)" after each; the results of the tasks
+    that finished, in task order. A failed task is reported with ``describe(task)`` and its
+    traceback (also in ``failures_file``) and added to ``failures``; the others finish."""
+    sweep = run_tasks(fn, tasks, executor or LocalExecutor(1), describe, label, progress,
+                      failures_file)
+    if failures is not None:
+        failures += sweep.failures
+    return sweep.in_order()

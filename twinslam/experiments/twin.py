@@ -142,12 +142,10 @@ def fig4(out_dir: Path, runs: int = 20, states: tuple[int, ...] = (2, 3, 4, 5, 6
     proto = proto or Protocol()
     names = (*(f"udt_z{z}" for z in latent_sizes), "lstm")
     tasks = [(n, r, seed, names, proto) for n in states for r in range(runs)]
-    sweep = run_all(_fig4_run, tasks, executor, lambda t: f"fig4 N={t[0]} run {t[1]}",
-                    lambda res: f"fig4 N={res[0]}: " + ", ".join(
-                        f"{k} {v:.3f}" for k, v in res[1].items()), progress)
-    done = sweep.in_order()
-    if failures is not None:
-        failures += sweep.failures
+    done = run_all(_fig4_run, tasks, executor, lambda t: f"fig4 N={t[0]} run {t[1]}",
+                   lambda res: f"fig4 N={res[0]}: " + ", ".join(
+                       f"{k} {v:.3f}" for k, v in res[1].items()), progress,
+                   failures=failures)
     result: dict[str, dict[int, list[float]]] = {name: {n: [] for n in states} for name in names}
     for n, errors in done:
         for name in names:
@@ -171,12 +169,10 @@ def fig5(out_dir: Path, runs: int = 20, n_states: int = 2, intervals: int = 15,
     names = ["udt", "markov", "markov_window"]
     modes = ("stationary", "non-stationary")
     tasks = [(mode, r, seed, n_states, intervals, proto) for mode in modes for r in range(runs)]
-    sweep = run_all(_fig5_run, tasks, executor, lambda t: f"fig5 {t[0]} run {t[1]}",
-                    lambda res: f"fig5 {res[0]}: " + ", ".join(
-                        f"{k} {np.mean(v):.3f}" for k, v in res[1].items()), progress)
-    done = sweep.in_order()
-    if failures is not None:
-        failures += sweep.failures
+    done = run_all(_fig5_run, tasks, executor, lambda t: f"fig5 {t[0]} run {t[1]}",
+                   lambda res: f"fig5 {res[0]}: " + ", ".join(
+                       f"{k} {np.mean(v):.3f}" for k, v in res[1].items()), progress,
+                   failures=failures)
     result: dict[str, dict[str, np.ndarray]] = {
         mode: {name: np.array([e[name] for m, e in done if m == mode]) for name in names}
         for mode in modes}

@@ -201,13 +201,10 @@ def twin_predict(sources: Sequence[str], out_dir: Path, setting: Setting,
         check_source(spec, setting.slot_seconds)
     tasks = [(spec, setting.seed0 + r, setting) for spec in sources
              for r in range(setting.seeds)]
-    sweep = run_all(_run, tasks, executor, lambda t: f"{t[0]} seed {t[1]}",
-                    lambda res: f"{res[0].source} seed {res[0].seed}: "
-                    + ", ".join(f"{s.predictor} {s.mean_log_likelihood:.3f}" for s in res),
-                    progress, out_dir / "failures.txt")
-    done = sweep.in_order()
-    if failures is not None:
-        failures += sweep.failures
+    done = run_all(_run, tasks, executor, lambda t: f"{t[0]} seed {t[1]}",
+                   lambda res: f"{res[0].source} seed {res[0].seed}: "
+                   + ", ".join(f"{s.predictor} {s.mean_log_likelihood:.3f}" for s in res),
+                   progress, out_dir / "failures.txt", failures)
     if not done:
         return []
     scores = [s for res in done for s in res]
