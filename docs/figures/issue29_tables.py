@@ -7,7 +7,10 @@ best rule's gap to the reference that each policy closes (a bootstrap over episo
 Several files of the same episodes (the same --covis, --seeds, --seed0, --slots and channel)
 may be given: their rows are pooled, each (policy, seed) once.
 
-    .venv/bin/python docs/figures/issue29_tables.py FILE.csv [FILE.csv …]
+    .venv/bin/python docs/figures/issue29_tables.py FILE.csv [FILE.csv …] [--against POLICY]
+
+``--against POLICY`` pairs every policy with that one instead of the best rule (the
+ablations: each variant against the planner it varies).
 """
 
 from __future__ import annotations
@@ -49,14 +52,17 @@ def gap_closed(policy: np.ndarray, best: np.ndarray, reference: np.ndarray,
     return float(value), float(low), float(high)
 
 
-def table(paths: list[Path]) -> str:
+def table(paths: list[Path], against: str | None = None) -> str:
     by = episodes(paths)
     seeds = sorted(set.intersection(*(set(v) for v in by.values())))
     mean = {p: np.array([by[p][s]["mean"] for s in seeds]) for p in by}
     lost = {p: np.array([by[p][s]["lost"] for s in seeds]) for p in by}
-    best = min((p for p in RULES if p in mean), key=lambda p: mean[p].mean())
-    reference = mean.get("reference")
-    head = ["policy", "mean υ ± 95 % CI", "lost (%)", f"paired vs {best.upper()}"]
+    best = against or min((p for p in RULES if p in mean), key=lambda p: mean[p].mean())
+    if best not in mean:
+        raise SystemExit(f"--against {best}: no such policy in {', '.join(mean)}")
+    reference = mean.get("reference") if against is None else None
+    head = ["policy", "mean υ ± 95 % CI", "lost (%)", f"paired vs {best}",
+            f"lost (pts) vs {best}"]
     if reference is not None:
         head.append("gap to the reference closed")
     lines = [f"{', '.join(p.name for p in paths)}: {len(seeds)} episodes (seeds "
@@ -65,8 +71,10 @@ def table(paths: list[Path]) -> str:
     for p in by:
         m, ci = mean_ci95(mean[p].tolist())
         d = paired_difference(mean[p][None, :], mean[best])
+        dl = paired_difference(100 * lost[p][None, :], 100 * lost[best])
         cells = [p, f"{m:.1f} ± {ci:.1f}", f"{100 * lost[p].mean():.2f}",
-                 "—" if p == best else f"{d.mean:+.1f} [{d.low:+.1f}, {d.high:+.1f}]"]
+                 "—" if p == best else f"{d.mean:+.1f} [{d.low:+.1f}, {d.high:+.1f}]",
+                 "—" if p == best else f"{dl.mean:+.2f} [{dl.low:+.2f}, {dl.high:+.2f}]"]
         if reference is not None:
             if p in (best, "reference"):
                 cells.append("—")
@@ -78,9 +86,14 @@ def table(paths: list[Path]) -> str:
 
 
 def main(argv: list[str]) -> None:
-    if not argv:
+    against = None
+    if "--against" in argv:
+        at = argv.index("--against")
+        against = argv[at + 1] if at + 1 < len(argv) else None
+        argv = argv[:at] + argv[at + 2:]
+    if not argv or (against is None and "--against" in sys.argv):
         raise SystemExit(__doc__)
-    print(table([Path(a) for a in argv]))
+    print(table([Path(a) for a in argv], against))
 
 
 if __name__ == "__main__":
