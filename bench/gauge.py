@@ -11,6 +11,19 @@ import time
 import numpy as np
 
 
+def python_steps_per_s() -> float:
+    """Millions of pure-Python loop steps per second (best of three short runs): the unit
+    issue #30's simulator targets are divided by, so that the machine's phase cancels."""
+    best = 0.0
+    for _ in range(3):
+        t0 = time.perf_counter()
+        total = 0
+        for i in range(200_000):
+            total += i
+        best = max(best, 200_000 / (time.perf_counter() - t0))
+    return best / 1e6
+
+
 def cpu_gauge() -> str:
     """'gauge: …' line: millions of pure-Python loop steps and of 64×64 float64 matrix
     products' multiply-adds per second (best of three short runs each)."""

@@ -10,19 +10,31 @@ paper's, side by side in one run (``--rule``); their trajectories differ (a lost
 uploaded under the device's rule), so the decisions differ too.
 
     python -m bench.sim [--covis FILE|room] [--slots 100] [--repeats 5] [--rule both]
+                        [--baseline COMMIT --rounds 3]
+
+Every slots/s is also printed divided by the gauge's M Python loop steps/s taken beside it
+(issue #30's unit: the machine's phase cancels). ``--baseline COMMIT`` runs that commit's
+simulator (a temporary git worktree, this venv) and the working tree's alternately, round by
+round, the same policies and rules, and prints both side by side.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import platform
+import statistics
+import subprocess
+import sys
+import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
 from bench.fleet import device_slots_per_s as fleet_device_slots_per_s
-from bench.gauge import cpu_gauge
+from bench.gauge import cpu_gauge, python_steps_per_s
 from twinslam.map_management.policies import (
     greedy_additions,
     greedy_removals,
@@ -86,6 +98,62 @@ def adapt_ratio(dataset, repeats: int = 9) -> tuple[float, float]:
     return float(np.median(inc)), float(np.median(naive))
 
 
+REPO = Path(__file__).resolve().parents[1]
+POLICIES = ("lff", "pu", "random", "adapt")
+#: run in a tree (the baseline's or this one): slots/s per policy and rule as JSON; only
+#: functions the baselines have too
+_DRIVER = """
+import json, sys
+from bench.sim import slots_per_second
+from twinslam.simulator.covisibility import load_covisibility
+covis, slots, repeats, names, rules = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), \\
+    sys.argv[4].split(','), sys.argv[5].split(',')
+data = load_covisibility(covis)
+import twinslam
+assert twinslam.__file__.startswith(sys.argv[6]), twinslam.__file__   # this tree's code
+print(json.dumps({f"{n} {r}": slots_per_second(data, n, slots, repeats, r == 'paper')[0]
+                  for n in names for r in rules}))
+"""
+
+
+def _in_tree(root: Path, covis: str, slots: int, repeats: int, rules: tuple[str, ...]
+             ) -> dict[str, float]:
+    done = subprocess.run([sys.executable, "-c", _DRIVER, covis, str(slots), str(repeats),
+                           ",".join(POLICIES), ",".join(rules), str(root)], cwd=root,
+                          check=True, capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": str(root)})
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def compare(baseline: str, covis: str, slots: int, repeats: int, rounds: int,
+            rules: tuple[str, ...]) -> None:
+    """The baseline commit's simulator and this tree's, alternately, ``rounds`` times; the
+    median slots/s of each and its ratio to the gauge taken just before."""
+    with tempfile.TemporaryDirectory(prefix="twinslam-sim-baseline-") as tmp:
+        base = Path(tmp) / "baseline"
+        subprocess.run(["git", "worktree", "add", "--detach", str(base), baseline], cwd=REPO,
+                       check=True, capture_output=True)
+        runs: dict[str, list[tuple[dict[str, float], float]]] = {"baseline": [], "current": []}
+        try:
+            for r in range(rounds):
+                for label, root in (("baseline", base), ("current", REPO)):
+                    gauge = python_steps_per_s()
+                    runs[label].append((_in_tree(root, covis, slots, repeats, rules), gauge))
+                    print(f"round {r + 1} {label}: gauge {gauge:.1f} M steps/s", flush=True)
+        finally:
+            subprocess.run(["git", "worktree", "remove", "--force", str(base)], cwd=REPO,
+                           check=False, capture_output=True)
+    print(f"\n{'policy rule':<15} {'baseline ' + baseline:>22} {'current':>22}   "
+          "(median slots/s, and / M gauge steps/s)")
+    for key in runs["current"][0][0]:
+        cells = []
+        for label in ("baseline", "current"):
+            rates = [res[key] for res, _ in runs[label]]
+            ratios = [res[key] / g for res, g in runs[label]]
+            cells.append(f"{statistics.median(rates):8.0f} ({statistics.median(ratios):6.1f})")
+        print(f"{key:<15} {cells[0]:>22} {cells[1]:>22}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--covis", default=str(REAL_COVIS),
@@ -98,19 +166,30 @@ def main() -> None:
     parser.add_argument("--devices", type=int, default=100,
                         help="also a fleet of this many devices inside one keyframe budget, "
                         "per allocator (issue #32); 0: none")
+    parser.add_argument("--baseline", metavar="COMMIT",
+                        help="compare with this commit's simulator, side by side (issue #30)")
+    parser.add_argument("--rounds", type=int, default=3,
+                        help="with --baseline: baseline/current pairs (default 3)")
     args = parser.parse_args()
+    rules = ("device", "paper") if args.rule == "both" else (args.rule,)
+    if args.baseline:
+        if args.covis == "room":
+            parser.error("--baseline takes a covisibility file")
+        compare(args.baseline, str(Path(args.covis).resolve()), args.slots, args.repeats,
+                args.rounds, rules)
+        return
     dataset = geometric_covisibility(n_frames=1000, n_points=4000) if args.covis == "room" \
         else load_covisibility(args.covis)
     print(f"machine: {platform.node()} {platform.machine()} python {platform.python_version()}; "
           f"covisibility: {dataset.source or args.covis} ({dataset.n_frames} frames)")
     print(cpu_gauge(), "(before)")
-    rules = ("device", "paper") if args.rule == "both" else (args.rule,)
-    for name in ("lff", "pu", "random", "adapt"):
+    for name in POLICIES:
         for rule in rules:
+            gauge = python_steps_per_s()
             full, decide = slots_per_second(dataset, name, args.slots, args.repeats,
                                             paper_rule=rule == "paper")
-            print(f"{name:<7} {rule:<7} {full:8.0f} slots/s (decide+update+reward)   "
-                  f"{decide:9.0f} decisions/s")
+            print(f"{name:<7} {rule:<7} {full:8.0f} slots/s (decide+update+reward), "
+                  f"{full / gauge:6.1f} per M gauge steps/s   {decide:9.0f} decisions/s")
     inc, naive = adapt_ratio(dataset)
     print(f"ADAPT decision (V_max 45, 60 candidates, 8 up / 8 evict): incremental "
           f"{inc * 1000:.2f} ms, naive {naive * 1000:.1f} ms, ratio {naive / inc:.1f}x")

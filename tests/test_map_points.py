@@ -24,6 +24,9 @@ def test_counts_follow_any_sequence_of_maps(maps: list[list[int]]) -> None:
     for m in maps:
         expected = DATA.shared_points(np.array(m, dtype=np.int64), rows)
         assert counts.shared(np.array(m, dtype=np.int64), rows).tolist() == expected.tolist()
+        for need in (1, 4, 9):
+            assert (counts.reaching(np.array(m, dtype=np.int64), rows, need).tolist()
+                    == (expected >= need).tolist())
 
 
 def test_a_frame_in_the_map_twice_still_counts_each_point_once() -> None:

@@ -298,7 +298,7 @@ class MapManagementEnv:
         trackable = None
         if self.config.min_shared > 1:
             self._points = self._points or MapPointCounts(self.dataset)
-            trackable = self._points.shared(map_idx, frame_idx) >= self.config.min_shared
+            trackable = self._points.reaching(map_idx, frame_idx, self.config.min_shared)
         slot_u = slot_uncertainty_from_scores(n, n_comp, log_det, log_tau,
                                               self.config.log_det_pi, trackable)
         return slot_u, lost_frames(log_tau, trackable), map_w
