@@ -120,6 +120,14 @@ def _throughput(slot: int, mbps: float) -> object:
                configured_rate_mbps=mbps if math.isfinite(mbps) else 0.0)
 
 
+def _settle(ros: RosSession) -> None:
+    """Our side has matched the node's reader and writer; give the node's side a second to
+    match ours: the protocol is volatile, so a latent its writer sends before it has matched
+    our reader is lost, and every later slot's wait would then time out one behind (seen once
+    in CI)."""
+    ros.spin_until(lambda: False, 1.0)
+
+
 def test_udt_node_round_trip_refuses_bad_throughput(
         tmp_path: Path, domain: LoopbackDomain, ros: RosSession) -> None:
     """Throughput in from this process, RateLatent out of udt_node's: one latent per valid
@@ -135,6 +143,7 @@ def test_udt_node_round_trip_refuses_bad_throughput(
                          "-p", f"weights:={weights}"])
     assert ros.spin_until(lambda: pub.get_subscription_count() > 0
                           and sub.get_publisher_count() > 0, 30.0)
+    _settle(ros)
     rates = [40.0, 80.0]
     states = _chain(P2, 60, seed=4)
     bad = {10: float("nan"), 25: -3.0, 40: 1e9}
@@ -175,11 +184,13 @@ def test_udt_node_runs_the_regime_twin_by_default_and_follows_the_uplink(
     proc = domain.spawn(["-m", "udt_node.node", "--ros-args", "-p", "weights:=/tmp/unused.pt"])
     assert ros.spin_until(lambda: pub.get_subscription_count() > 0
                           and sub.get_publisher_count() > 0, 30.0)
+    _settle(ros)
     rates = [40.0, 80.0]
     states = [0] * 60 + [1, 0] * 15                     # stays, then alternates
     for slot, s in enumerate(states):
         pub.publish(_throughput(slot, rates[s]))
-        ros.spin_until(lambda n=slot: len(got) > n, 5.0)
+        assert ros.spin_until(lambda n=slot: len(got) > n, 10.0), (
+            f"no latent for slot {slot} ({len(got)} received)")
     code, _, err = domain.stop(proc)
     assert code == 0, err
     assert [m.slot for m in got] == list(range(len(states)))
