@@ -124,6 +124,7 @@ class LocalExecutor(Executor):
             done, pending = wait(pending, return_when=FIRST_COMPLETED)
             for future in done:
                 yield futures[future], future.result()
+        self.close()                   # a sweep's workers go with it (fig8 runs one per N)
 
     def close(self) -> None:
         if self._pool is not None:       # an interrupt must not wait for every queued task
