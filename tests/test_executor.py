@@ -6,6 +6,7 @@ by name."""
 from __future__ import annotations
 
 import csv
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -105,3 +106,15 @@ def test_the_cli_says_when_ray_cannot_be_joined(tmp_path: Path) -> None:
     assert done.returncode == 2
     assert "could not start or join Ray at 127.0.0.1:1" in done.stderr
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("executor", ["local-2", "ray"])
+def test_a_worker_that_dies_is_a_failed_task_not_a_dead_sweep(executor: str) -> None:
+    """A task that takes its worker process down (os._exit: a segfault, the OOM killer) is
+    reported as that task's failure; the command goes on to write what it has."""
+    chosen = RayExecutor(cpus=2) if executor == "ray" else LocalExecutor(2)
+    with chosen:
+        done = run_tasks(os._exit, [3], chosen, lambda code: f"exit {code}", str)
+    assert not done.results
+    [failure] = done.failures
+    assert failure.task == "exit 3" and failure.error

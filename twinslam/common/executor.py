@@ -21,6 +21,7 @@ import traceback
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass
+from functools import partial
 from multiprocessing import get_context
 from pathlib import Path
 from types import TracebackType
@@ -60,6 +61,15 @@ def _call(fn: Callable[[T], R], task: T) -> Outcome[R]:
     try:
         return Outcome(fn(task))
     except Exception:            # reported with its task; the sweep goes on
+        return Outcome(None, traceback.format_exc())
+
+
+def _outcome_of(get: Callable[[], Outcome[R]]) -> Outcome[R]:
+    """A worker's outcome, or — when the worker itself died (a crash, a killed process: the
+    pool or Ray raises instead of handing one back) — that error as the task's failure."""
+    try:
+        return get()
+    except Exception:
         return Outcome(None, traceback.format_exc())
 
 
@@ -123,7 +133,7 @@ class LocalExecutor(Executor):
         while pending:
             done, pending = wait(pending, return_when=FIRST_COMPLETED)
             for future in done:
-                yield futures[future], future.result()
+                yield futures[future], _outcome_of(future.result)
         self.close()                   # a sweep's workers go with it (fig8 runs one per N)
 
     def close(self) -> None:
@@ -171,7 +181,8 @@ class RayExecutor(Executor):
         self._pending = list(refs)
         while self._pending:
             ready, self._pending = ray.wait(self._pending, num_returns=1)
-            yield refs[ready[0]], ray.get(ready[0])
+            ref = ready[0]
+            yield refs[ref], _outcome_of(partial(ray.get, ref))
 
     def close(self) -> None:
         for ref in self._pending:           # interrupted: nothing left running on the cluster
