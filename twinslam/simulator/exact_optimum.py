@@ -19,7 +19,7 @@ from typing import Any
 
 from twinslam.map_management.actions import MapAction
 from twinslam.simulator.env import MapManagementEnv
-from twinslam.simulator.plan import Plan, all_actions
+from twinslam.simulator.plan import Plan, action_count, all_actions
 from twinslam.uncertainty.map_uncertainty import SlotUncertainty
 
 
@@ -38,12 +38,26 @@ class _Best:
 def exact_optimum(env: MapManagementEnv, seed: int, max_maps: int = 50_000) -> Plan:
     """The plan of minimum Σ_k υ_k from ``reset(seed)``: the optimum no policy can beat."""
     env.reset(seed)
+    return best_continuation(env, env.config.slots, max_maps)
+
+
+def best_continuation(env: MapManagementEnv, slots: int, max_maps: int = 50_000,
+                      max_actions: int | None = None) -> Plan:
+    """The plan of minimum Σ υ over the next ``slots`` slots from the environment's current
+    state (the forward DP of the module docstring; the environment is left wherever the
+    search last stepped it). :class:`InstanceTooLarge` when a slot can leave more than
+    ``max_maps`` maps, or a state offers more than ``max_actions`` actions (counted before
+    any is built: at full size there are ~10¹¹)."""
     layer: dict[tuple[Any, ...], _Best] = {(): _Best(0.0, [], [], env.snapshot())}
-    for slot in range(env.config.slots):
+    for slot in range(slots):
         nxt: dict[tuple[Any, ...], _Best] = {}
         for best in layer.values():
             env.restore(best.snapshot)
-            for action in all_actions(env.observation()):
+            obs = env.observation()
+            if max_actions is not None and action_count(obs) > max_actions:
+                raise InstanceTooLarge(f"slot {obs.slot} offers more than {max_actions} "
+                                       "actions")
+            for action in all_actions(obs):
                 env.restore(best.snapshot)
                 _obs, reward, _t, _trunc, info = env.step(action)
                 after = env.snapshot()

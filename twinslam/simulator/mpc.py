@@ -39,7 +39,8 @@ import numpy as np
 from twinslam.map_management.actions import MapAction, SlotObservation
 from twinslam.map_management.policies import Adapt, LatestFrameFirst, MapPolicy
 from twinslam.simulator.env import FrameStream, MapManagementEnv
-from twinslam.simulator.plan import all_actions
+from twinslam.simulator.exact_optimum import InstanceTooLarge, best_continuation
+from twinslam.simulator.plan import action_count, all_actions
 from twinslam.simulator.reference import swap_one
 from twinslam.twin.markov import MarkovCounts
 from twinslam.twin.regime_twin import RegimeConfig, RegimeTwin
@@ -55,7 +56,7 @@ class MpcConfig:
     rates: str = "regime"
     frames: str = "motion"
     max_actions: int = 64        #: first actions tried exhaustively up to this many
-    max_states: int = 2_000      #: maps the exact plan of the later slots may visit
+    max_states: int = 2_000      #: maps a slot, actions a state, of an exact later plan
     swaps: int = 6               #: random swaps of the base actions when not exhaustive
 
     def label(self) -> str:
@@ -221,9 +222,8 @@ class MpcPlanner:
         return first[int(np.argmin(costs))]
 
     def _first_actions(self, obs: SlotObservation) -> list[MapAction]:
-        every = _bounded_actions(obs, self.config.max_actions)
-        if every is not None:
-            return every
+        if action_count(obs) <= self.config.max_actions:
+            return all_actions(obs)
         proposals = [p.decide(obs) for p in self.base]
         for _ in range(self.config.swaps):
             proposals.append(swap_one(obs, proposals[int(self._rng.integers(len(self.base)))],
@@ -234,70 +234,25 @@ class MpcPlanner:
         return list(unique.values())
 
     def _cost_to_go(self, world: MapManagementEnv, slots: int) -> float:
-        """The least Σ υ of the next ``slots`` slots from the world's state: exact while the
-        maps they can leave stay under ``max_states``, else the best base roll-out."""
+        """The least Σ υ of the next ``slots`` slots (at most to the episode's end) from the
+        world's state: exact while the maps they can leave stay under ``max_states``, else
+        the best base roll-out."""
+        slots = min(slots, world.config.slots - world.observation().slot)
         if slots <= 0:
             return 0.0
         start = world.snapshot()
         try:
-            return _exact_cost(world, slots, self.config.max_states)
-        except _TooLarge:
+            return best_continuation(world, slots, self.config.max_states,
+                                     self.config.max_states).total
+        except InstanceTooLarge:
             pass
         best = np.inf
         for policy in self.base:
             world.restore(start)
             total = 0.0
             for _ in range(slots):
-                _o, reward, _t, trunc, _i = world.step(policy.decide(world.observation()))
+                _o, reward, _t, _trunc, _i = world.step(policy.decide(world.observation()))
                 total -= reward
-                if trunc:
-                    break
             best = min(best, total)
         world.restore(start)
         return float(best)
-
-
-class _TooLarge(Exception):
-    pass
-
-
-def _bounded_actions(obs: SlotObservation, limit: int) -> list[MapAction] | None:
-    """Every action of Theorem 1's sizes, or None when there are more than ``limit``."""
-    from math import comb
-    count = comb(len(obs.candidates), obs.n_upload) * comb(len(obs.map_frames) + obs.n_upload,
-                                                           obs.n_evict)
-    return all_actions(obs) if count <= limit else None
-
-
-def _exact_cost(world: MapManagementEnv, slots: int, max_states: int) -> float:
-    """Forward DP over the maps the next ``slots`` slots can leave (every action tried)."""
-    layer: dict[tuple[Any, ...], tuple[float, tuple[Any, ...]]] = {(): (0.0, world.snapshot())}
-    visited = 0
-    best_end = np.inf
-    for _ in range(slots):
-        nxt: dict[tuple[Any, ...], tuple[float, tuple[Any, ...]]] = {}
-        for total, snap in layer.values():
-            world.restore(snap)
-            actions = _bounded_actions(world.observation(), max_states)
-            if actions is None:
-                raise _TooLarge
-            for action in actions:
-                world.restore(snap)
-                _o, reward, _t, trunc, _i = world.step(action)
-                cost = total - reward
-                if trunc:
-                    best_end = min(best_end, cost)
-                    continue
-                after = world.snapshot()
-                key = (tuple(after[0]), tuple(after[3]))
-                if key not in nxt or nxt[key][0] > cost:
-                    nxt[key] = (cost, after)
-                visited += 1
-                if visited > max_states:
-                    raise _TooLarge
-        layer = nxt
-        if not layer:
-            break
-    ends = [c for c, _ in layer.values()]
-    return float(min([best_end, *ends]))
-

@@ -8,6 +8,7 @@ tracked frames of a plan obey mean = (1 - lost) · tracked (DESIGN.md §2).
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -63,6 +64,12 @@ def replay(env: MapManagementEnv, actions: list[MapAction], seed: int) -> Plan:
         _obs, _r, _t, _trunc, info = env.step(action)
         slots.append(info["uncertainty"])
     return Plan(list(actions), slots)
+
+
+def action_count(obs: SlotObservation) -> int:
+    """How many actions :func:`all_actions` would list, without listing them."""
+    return (math.comb(len(obs.candidates), obs.n_upload)
+            * math.comb(len(obs.map_frames) + obs.n_upload, obs.n_evict))
 
 
 def all_actions(obs: SlotObservation) -> list[MapAction]:
