@@ -249,24 +249,23 @@ def best_rule(by: dict[str, Result]) -> str:
     return min((name.upper() for name in RULES), key=lambda label: by[label].mean)
 
 
-def paired_rows(by: dict[str, Result]) -> dict[str, tuple[str, PairedDifference | None]]:
-    """Per label: the best rule and the paired difference to it (two-level bootstrap over
-    training runs and episodes, :mod:`twinslam.experiments.paired`)."""
-    best = best_rule(by)
-    baseline = by[best].per_seed
-    out: dict[str, tuple[str, PairedDifference | None]] = {}
+def paired_rows(by: dict[str, Result]) -> dict[str, PairedDifference | None]:
+    """Per label: the paired difference to :func:`best_rule` (two-level bootstrap over
+    training runs and episodes, :mod:`twinslam.experiments.paired`); None for the bound."""
+    baseline = by[best_rule(by)].per_seed
+    out: dict[str, PairedDifference | None] = {}
     for label, result in by.items():
         scores = run_episode_scores(result)
-        out[label] = (best, None if scores is None else paired_difference(scores, baseline))
+        out[label] = None if scores is None else paired_difference(scores, baseline)
     return out
 
 
 def _rows(results: dict[object, dict[str, Result]]) -> list[list[object]]:
     rows: list[list[object]] = []
     for x, by in results.items():
-        paired = paired_rows(by)
+        best, paired = best_rule(by), paired_rows(by)
         for label, r in by.items():
-            best, diff = paired[label]
+            diff = paired[label]
             rows.append([x, label, r.mean, r.ci95,
                          len(r.checkpoints) if isinstance(r, VariantResult) else "",
                          len(r.per_seed), r.lost_share, r.tracked_uncertainty, best,
@@ -318,10 +317,12 @@ def fig8(covis: str, learned: dict[int, dict[str, list[Path]]],
     """``learned`` per N: each N has its own trained policies (the state's one-hot rate
     history has N columns), and its own untrained controls."""
     results: dict[object, dict[str, Result]] = {}
+    def channel(n: object) -> str:
+        return f"markov:N={n},balanced"
+
     for n, policies in (learned or {2: {}}).items():
-        channel = f"markov:N={n},balanced"
-        policies = _with_controls(policies, covis, channel, out_dir, controls)
-        results.update(sweep(f"fig8_n{n}", [n], lambda m: f"markov:N={m},balanced",
+        policies = _with_controls(policies, covis, channel(n), out_dir, controls)
+        results.update(sweep(f"fig8_n{n}", [n], channel,
                              lambda _m: setting, covis, policies, out_dir,
                              "number of rate states N", progress=progress, plot=False,
                              executor=executor, failures=failures))

@@ -67,7 +67,7 @@ def run_amm_figure(args: argparse.Namespace) -> int:
         print(f"{x} (mean υ ± 95 % CI; paired with the best rule {amm.best_rule(by)}, "
               "mean [95 % CI over training runs and episodes]):")
         for label, r in by.items():
-            diff = paired[label][1]
+            diff = paired[label]
             print(f"  {label:<34} {r.mean:9.1f} ± {r.ci95:6.1f}"
                   + (f"   {diff.mean:+8.1f} [{diff.low:+.1f}, {diff.high:+.1f}]"
                      if diff else ""))
