@@ -166,8 +166,7 @@ class MpcPlanner:
         self._rates.setdefault(obs.rate_state, []).append(obs.rate_mbps)
         self._observed = obs.slot
 
-    def _scenarios(self, obs: SlotObservation, env: MapManagementEnv
-                   ) -> list[list[tuple[int, float]] | None]:
+    def _scenarios(self, obs: SlotObservation) -> list[list[tuple[int, float]] | None]:
         """Rates of slots k+1 … k+H-1 per scenario (None: the true ones)."""
         cfg = self.config
         if cfg.rates == "oracle" or cfg.horizon == 1:
@@ -176,9 +175,10 @@ class MpcPlanner:
             return [[(obs.rate_state, obs.rate_mbps)] * (cfg.horizon - 1)]
         assert self._twin is not None
         matrix = self._twin.transition_matrix()
+        following = self._twin.predict([obs.rate_state])
         out: list[list[tuple[int, float]] | None] = []
         for _ in range(cfg.scenarios):
-            state = int(self._rng.choice(obs.n_states, p=self._twin.predict([obs.rate_state])))
+            state = int(self._rng.choice(obs.n_states, p=following))
             path = []
             for _h in range(cfg.horizon - 1):
                 seen = self._rates.get(state)
@@ -188,12 +188,12 @@ class MpcPlanner:
             out.append(path)
         return out
 
-    def _world(self, env: MapManagementEnv, rates: list[tuple[int, float]] | None
-               ) -> MapManagementEnv:
+    def _world(self, env: MapManagementEnv, obs: SlotObservation,
+               rates: list[tuple[int, float]] | None) -> MapManagementEnv:
         stream = None
         if self.config.frames != "oracle":
             f = env.config.slot_frames
-            seen = (env.observation().slot + 1) * f
+            seen = (obs.slot + 1) * f
             stream = PredictedStream(env.stream, seen, f, env.dataset.n_frames,
                                      self.config.frames)
         return env.imagine(rates, stream)
@@ -209,7 +209,7 @@ class MpcPlanner:
         first = self._first_actions(obs)
         if len(first) == 1:
             return first[0]
-        worlds = [self._world(env, rates) for rates in self._scenarios(obs, env)]
+        worlds = [self._world(env, obs, rates) for rates in self._scenarios(obs)]
         costs = np.zeros(len(first))
         for world in worlds:
             start = world.snapshot()
@@ -218,7 +218,6 @@ class MpcPlanner:
                 _o, reward, _t, trunc, _info = world.step(action)
                 costs[i] += -reward + (0.0 if trunc else
                                        self._cost_to_go(world, self.config.horizon - 1))
-            world.restore(start)
         return first[int(np.argmin(costs))]
 
     def _first_actions(self, obs: SlotObservation) -> list[MapAction]:
