@@ -6,8 +6,10 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import TYPE_CHECKING, TypeVar
+
+from twinslam.common.executor import TaskFailure
 
 #: the subparsers object every command registers itself with (argparse names no public type,
 #: and its class is generic only to type checkers)
@@ -26,6 +28,15 @@ def error(message: object, code: int = USAGE_ERROR) -> int:
     """Print ``error: message`` on stderr and return ``code`` for the command to return."""
     print(f"error: {message}", file=sys.stderr)
     return code
+
+
+def failed_tasks(failures: Sequence[TaskFailure], what: str, where: str) -> int:
+    """0 when no task failed, else 1 after naming each failed ``what`` and its last line,
+    and ``where`` its traceback is."""
+    if not failures:
+        return 0
+    return error(f"{len(failures)} {what} failed: " + "; ".join(
+        f"{f.task} ({f.last_line})" for f in failures) + f" — tracebacks in {where}", 1)
 
 
 def warn_aliases(names: Iterable[str], aliases: Mapping[str, str]) -> None:

@@ -13,7 +13,13 @@ from twinslam.cli.arguments import (
     covisibility,
     open_executor,
 )
-from twinslam.cli.console import Subparsers, elapsed_progress, error, warn_aliases
+from twinslam.cli.console import (
+    Subparsers,
+    elapsed_progress,
+    error,
+    failed_tasks,
+    warn_aliases,
+)
 from twinslam.common.executor import Executor, TaskFailure
 from twinslam.experiments import amm
 from twinslam.simulator.covisibility import CovisibilityError
@@ -83,11 +89,7 @@ def _executor(args: argparse.Namespace) -> Executor:
 
 def _failed(failures: list[TaskFailure], out: Path) -> int:
     """0, or 1 after naming the tasks that failed (their tracebacks are in ``out``)."""
-    if not failures:
-        return 0
-    return error(f"{len(failures)} task(s) failed: " + "; ".join(
-        f"{f.task} ({f.last_line})" for f in failures) + f" — tracebacks in {out}/"
-        "*failures.txt; the tables hold the others", 1)
+    return failed_tasks(failures, "task(s)", f"{out}/*failures.txt; the tables hold the others")
 
 
 def run_twin_predict(args: argparse.Namespace) -> int:

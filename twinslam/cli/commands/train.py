@@ -13,7 +13,7 @@ from twinslam.cli.arguments import (
     covisibility,
     open_executor,
 )
-from twinslam.cli.console import Subparsers, error, warn_aliases
+from twinslam.cli.console import Subparsers, error, failed_tasks, warn_aliases
 from twinslam.simulator.covisibility import CovisibilityError
 from twinslam.twin.registry import ALIASES, POLICY_RATE_MODELS, canonical
 from twinslam.uplink.channels import ChannelError
@@ -66,11 +66,7 @@ def run(args: argparse.Namespace) -> int:
               f"training log {out.log}")
     print(f"{len(sweep.results)} of {len(tasks)} run(s) trained "
           f"({time.monotonic() - t0:.0f} s)")
-    if sweep.failures:
-        return error(f"{len(sweep.failures)} training run(s) failed: " + "; ".join(
-            f"{f.task} ({f.last_line})" for f in sweep.failures)
-            + f" — tracebacks in {failures_file}", 1)
-    return 0
+    return failed_tasks(sweep.failures, "training run(s)", str(failures_file))
 
 
 def register(sub: Subparsers) -> None:
