@@ -1,6 +1,7 @@
 """The planner tables of docs/results.md § "A causal planner" (issue #29), from ``twinslam sim
 --csv`` files (each command is in results.md beside its table): per policy the mean υ (a lost
-frame scoring 0) ± 95 % CI over the episodes, the lost share, and the paired difference with
+frame scoring 0) ± 95 % CI over the episodes, the lost share, υ over the tracked frames
+(pooled), and the paired difference with
 the best rule policy on the same episodes; with a ``reference`` row, also the share of the
 best rule's gap to the reference that each policy closes (a bootstrap over episodes).
 
@@ -28,14 +29,25 @@ RULES = ("lff", "pu", "adapt")
 
 
 def episodes(paths: list[Path]) -> dict[str, dict[int, dict[str, float]]]:
-    """policy → seed → {mean_uncertainty, lost_share}, pooled over the files."""
+    """policy → seed → {mean, lost, tracked}, pooled over the files."""
     out: dict[str, dict[int, dict[str, float]]] = {}
     for path in paths:
         with path.open(encoding="utf-8") as fh:
             for row in csv.DictReader(fh):
                 out.setdefault(row["policy"], {})[int(row["seed"])] = {
-                    "mean": float(row["mean_uncertainty"]), "lost": float(row["lost_share"])}
+                    "mean": float(row["mean_uncertainty"]), "lost": float(row["lost_share"]),
+                    "tracked": float(row["tracked_uncertainty"])}
     return out
+
+
+def tracked(runs: dict[int, dict[str, float]], seeds: list[int]) -> float:
+    """υ over the tracked frames of all the episodes: each episode's tracked mean weighted by
+    its tracked share (every episode has as many frames), so mean υ = (1 - lost) · tracked
+    holds for the pooled figures too."""
+    kept = np.array([1.0 - runs[s]["lost"] for s in seeds])
+    values = np.array([runs[s]["tracked"] if kept[i] > 0 else 0.0
+                       for i, s in enumerate(seeds)])
+    return float((kept * values).sum() / kept.sum()) if kept.sum() > 0 else float("nan")
 
 
 def gap_closed(policy: np.ndarray, best: np.ndarray, reference: np.ndarray,
@@ -61,7 +73,7 @@ def table(paths: list[Path], against: str | None = None) -> str:
     if best not in mean:
         raise SystemExit(f"--against {best}: no such policy in {', '.join(mean)}")
     reference = mean.get("reference") if against is None else None
-    head = ["policy", "mean υ ± 95 % CI", "lost (%)", f"paired vs {best}",
+    head = ["policy", "mean υ ± 95 % CI", "lost (%)", "υ tracked", f"paired vs {best}",
             f"lost (pts) vs {best}"]
     if reference is not None:
         head.append("gap to the reference closed")
@@ -73,6 +85,7 @@ def table(paths: list[Path], against: str | None = None) -> str:
         d = paired_difference(mean[p][None, :], mean[best])
         dl = paired_difference(100 * lost[p][None, :], 100 * lost[best])
         cells = [p, f"{m:.1f} ± {ci:.1f}", f"{100 * lost[p].mean():.2f}",
+                 f"{tracked(by[p], seeds):.1f}",
                  "—" if p == best else f"{d.mean:+.1f} [{d.low:+.1f}, {d.high:+.1f}]",
                  "—" if p == best else f"{dl.mean:+.2f} [{dl.low:+.2f}, {dl.high:+.2f}]"]
         if reference is not None:
