@@ -8,12 +8,18 @@ files the commands wrote (every command is in results.md beside its table):
 * ``sim FILE…`` — ``twinslam sim --devices N --csv`` files: per allocator the fleet mean (over
   devices, then seeds) of mean υ, lost share and υ tracked, Jain's index of the devices'
   tracked shares, and the paired differences with ``equal`` on the same seeds;
+* ``split BEFORE.csv AFTER.csv`` — two ``twinslam sim --devices N --csv`` files of the same
+  fleets and seeds that differ in one setting (``--cell-split``): per allocator the second
+  minus the first, paired by seed;
 * ``live FILE`` — a ``twinslam launch --devices N`` fleet_runs.csv: per allocator the devices'
   failure share (frames they could not track), ATE, the edge's lost share and keyframe shares,
   paired by seed with ``equal``.
 
     .venv/bin/python docs/figures/issue32_tables.py scaling
     .venv/bin/python docs/figures/issue32_tables.py sim docs/figures/issue32-sim-n10-lff.csv
+    .venv/bin/python docs/figures/issue32_tables.py split \
+        docs/figures/issue32-sim-n10-lff-cell400.csv \
+        docs/figures/issue32-sim-n10-lff-cell400-split.csv
     .venv/bin/python docs/figures/issue32_tables.py live docs/figures/issue32-live-runs.csv
 """
 
@@ -96,6 +102,26 @@ def sim(paths: list[str]) -> None:
                [("lost", "lost (pts)", 2, 100.0), ("mean", "mean υ", 1, 1.0)])
 
 
+def split(paths: list[str]) -> None:
+    """Two runs of the same fleets and seeds that differ in one setting (the cell split):
+    per allocator, the second minus the first, paired by seed."""
+    if len(paths) != 2:
+        raise SystemExit("split takes two files: BEFORE.csv AFTER.csv")
+    figures = {"mean": "mean_uncertainty", "lost": "lost_share",
+               "tracked": "tracked_uncertainty"}
+    before, after = (_fleet_means(_rows(Path(p)), figures) for p in paths)
+    print(f"\n{Path(paths[1]).name} minus {Path(paths[0]).name}, paired by seed (mean ± 95 % "
+          "CI over seeds of the mean over devices)\n")
+    print("| allocator | Δ lost (pts) | Δ mean υ | Δ lost (pts) per seed |")
+    print("|---|---|---|---|")
+    for allocator, by_seed in after.items():
+        seeds = sorted(set(by_seed) & set(before.get(allocator, {})))
+        lost = [100 * (by_seed[s]["lost"] - before[allocator][s]["lost"]) for s in seeds]
+        mean = [by_seed[s]["mean"] - before[allocator][s]["mean"] for s in seeds]
+        print(f"| {allocator} | {_cell(lost, 2)} | {_cell(mean, 1)} | "
+              + ", ".join(f"{v:+.2f}" for v in sorted(lost)) + " |")
+
+
 def live(paths: list[str]) -> None:
     figures = {"mean": "mean_uncertainty", "lost": "lost_share", "ate": "ate_m",
                "budget": "mean_budget", "late": "late_slots", "dropped": "frames_dropped"}
@@ -159,10 +185,11 @@ def scaling() -> None:
 
 
 def main(argv: list[str]) -> int:
-    if not argv or argv[0] not in ("scaling", "sim", "live"):
+    if not argv or argv[0] not in ("scaling", "sim", "split", "live"):
         print(__doc__)
         return 2
-    {"scaling": lambda a: scaling(), "sim": sim, "live": live}[argv[0]](argv[1:])
+    {"scaling": lambda a: scaling(), "sim": sim, "split": split,
+     "live": live}[argv[0]](argv[1:])
     return 0
 
 
