@@ -4,6 +4,8 @@ features + actor), the work ``policy:=mbrl`` adds to the edge's plan.
 
     python -m bench.mbrl [--slots 3000] [--rate-model regime] [--threads 2]
     python -m bench.mbrl --policy results/amm_udt_n2.pt     # inference of a trained policy only
+    python -m bench.mbrl --actor paper --slots 600 --validate-every 0 --threads 1 --profile
+                                                  # where a training's time goes (cProfile)
 
 Targets: training ≤ 10 min on 2 cores, inference ≤ 10 ms per slot (median).
 """
@@ -11,7 +13,9 @@ Targets: training ≤ 10 min on 2 cores, inference ≤ 10 ms per slot (median).
 from __future__ import annotations
 
 import argparse
+import cProfile
 import platform
+import pstats
 import tempfile
 import time
 from pathlib import Path
@@ -22,7 +26,7 @@ import torch
 from bench.gauge import cpu_gauge
 from twinslam.mbrl.policy import MbrlPolicy
 from twinslam.mbrl.trainer import AmmTrainer, TrainConfig
-from twinslam.simulator.covisibility import load_covisibility
+from twinslam.simulator.covisibility_spec import open_covisibility
 from twinslam.simulator.env import MapManagementEnv, SimConfig
 from twinslam.uplink.channels import parse_channel
 
@@ -31,15 +35,22 @@ COVIS = Path(__file__).resolve().parents[1] / "data" / "7scenes-redkitchen-1000.
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--covis", default=str(COVIS), help="covisibility dataset (.npz)")
+    parser.add_argument("--covis", default=str(COVIS),
+                        help="covisibility dataset: FILE[@START:END] or geometric[:N[:SEED]]")
     parser.add_argument("--slots", type=int, default=3000, help="real slots to train on")
     parser.add_argument("--rate-model", default="regime", help="regime, udt, lstm or markov")
     parser.add_argument("--channel", default="markov:N=2", help="uplink rate model spec")
     parser.add_argument("--threads", type=int, default=2, help="torch threads")
+    parser.add_argument("--actor", default="residual", choices=["paper", "residual"],
+                        help="the actor trained (default %(default)s)")
+    parser.add_argument("--validate-every", type=int, default=500,
+                        help="slots between validations (0: none; default %(default)s)")
+    parser.add_argument("--profile", action="store_true",
+                        help="also print the training's 15 largest items by own time (cProfile)")
     parser.add_argument("--policy", type=Path, help="time this checkpoint's inference; no training")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    dataset = load_covisibility(Path(args.covis))
+    dataset = open_covisibility(args.covis)
     print(f"machine: {platform.machine()} python {platform.python_version()}, torch "
           f"{torch.__version__}, {args.threads} threads; {args.rate_model}, {args.channel}")
     print(cpu_gauge(), "(before)")
@@ -48,10 +59,18 @@ def main() -> None:
         policy = MbrlPolicy(args.policy)
     else:
         trainer = AmmTrainer(TrainConfig(channel=args.channel, slots=args.slots,
-                                         rate_model=args.rate_model), dataset)
+                                         rate_model=args.rate_model, actor=args.actor,
+                                         validate_every=args.validate_every), dataset)
+        profiler = cProfile.Profile() if args.profile else None
         t0 = time.perf_counter()
+        if profiler:
+            profiler.enable()
         trainer.train()
+        if profiler:
+            profiler.disable()
         train_s = time.perf_counter() - t0
+        if profiler:
+            pstats.Stats(profiler).sort_stats("tottime").print_stats(15)
         with tempfile.TemporaryDirectory() as tmp:
             path = Path(tmp) / "policy.pt"
             trainer.save(path)
