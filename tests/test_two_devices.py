@@ -41,8 +41,15 @@ def test_two_pairs_share_a_domain_without_cross_talk(domain: LoopbackDomain,
                       "-p", f"sequence:=synthetic:{start + FRAMES}", "-p", f"start:={start}",
                       "-p", "wait_for_subscribers:=1"])
     slots = {ns: FRAMES // f for ns, (f, _, _) in PAIRS.items()}
-    assert ros.spin_until(lambda: all(len(got[ns]["stats"]) >= slots[ns] for ns in PAIRS),
-                          180.0), {ns: len(r["stats"]) for ns, r in got.items()}
+
+    def every_slot_reported() -> bool:
+        # a slot's MapStats can arrive before the device's UplinkThroughput of the same slot
+        return all(len(got[ns]["stats"]) >= slots[ns]
+                   and {int(t.slot) for t in got[ns]["throughput"]} >= set(range(slots[ns]))
+                   for ns in PAIRS)
+
+    assert ros.spin_until(every_slot_reported, 180.0), {
+        ns: (len(r["stats"]), len(r["throughput"])) for ns, r in got.items()}
     for ns, rec in got.items():
         slot_frames = PAIRS[ns][0]
         summaries = {int(m.slot): m for m in rec["summaries"]}
