@@ -6,6 +6,8 @@ features + actor), the work ``policy:=mbrl`` adds to the edge's plan.
     python -m bench.mbrl --policy results/amm_udt_n2.pt     # inference of a trained policy only
     python -m bench.mbrl --actor paper --slots 600 --validate-every 0 --threads 1 --profile
                                                   # where a training's time goes (cProfile)
+    python -m bench.mbrl --actor paper --slots 600 --validate-every 0 --threads 1 \
+        --baseline COMMIT [--rounds 2]             # that commit's training beside this tree's
 
 Targets: training ≤ 10 min on 2 cores, inference ≤ 10 ms per slot (median).
 """
@@ -23,7 +25,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from bench.gauge import cpu_gauge
+from bench.baseline import REPO, baseline_tree, run_in_tree
+from bench.gauge import cpu_gauge, python_steps_per_s
 from twinslam.mbrl.policy import MbrlPolicy
 from twinslam.mbrl.trainer import AmmTrainer, TrainConfig
 from twinslam.simulator.covisibility_spec import open_covisibility
@@ -31,6 +34,47 @@ from twinslam.simulator.env import MapManagementEnv, SimConfig
 from twinslam.uplink.channels import parse_channel
 
 COVIS = Path(__file__).resolve().parents[1] / "data" / "7scenes-redkitchen-1000.covis.npz"
+
+
+#: a training's wall time in a tree (the baseline's or this one), as JSON; only what the
+#: baselines have too
+_DRIVER = """
+import json, sys, time
+import torch
+from twinslam.mbrl.trainer import AmmTrainer, TrainConfig
+from twinslam.simulator.covisibility_spec import open_covisibility
+covis, slots, threads, actor, rate_model, channel, every = sys.argv[1:8]
+torch.set_num_threads(int(threads))
+trainer = AmmTrainer(TrainConfig(channel=channel, slots=int(slots), rate_model=rate_model,
+                                 actor=actor, validate_every=int(every)),
+                     open_covisibility(covis))
+t0 = time.perf_counter()
+trainer.train()
+print(json.dumps({"seconds": time.perf_counter() - t0}))
+"""
+
+
+def compare(args: argparse.Namespace) -> None:
+    """The baseline commit's training and this tree's, alternately, ``--rounds`` times (the
+    same configuration and seed), with the gauge before each."""
+    runs: dict[str, list[tuple[float, float]]] = {"baseline": [], "current": []}
+    with baseline_tree(args.baseline) as base:
+        for r in range(args.rounds):
+            for label, root in (("baseline", base), ("current", REPO)):
+                gauge = python_steps_per_s()
+                out = run_in_tree(root, _DRIVER, args.covis, str(args.slots), str(args.threads),
+                                  args.actor, args.rate_model, args.channel,
+                                  str(args.validate_every))
+                ms = out["seconds"] / args.slots * 1e3
+                runs[label].append((ms, gauge))
+                print(f"round {r + 1} {label}: {ms:.1f} ms a slot (gauge {gauge:.1f} M "
+                      f"steps/s)", flush=True)
+    print(f"\n{'':<10} {'baseline ' + args.baseline:>24} {'current':>12}")
+    medians = {label: float(np.median([ms for ms, _ in rows])) for label, rows in runs.items()}
+    print(f"{'ms a slot':<10} {medians['baseline']:>24.1f} {medians['current']:>12.1f}"
+          f"   (median of {args.rounds}; {medians['baseline'] / medians['current']:.2f}× faster)")
+    print(f"30 000 slots: {medians['baseline'] * 0.5:.1f} min → {medians['current'] * 0.5:.1f} "
+          "min at these paces")
 
 
 def main() -> None:
@@ -48,7 +92,20 @@ def main() -> None:
     parser.add_argument("--profile", action="store_true",
                         help="also print the training's 15 largest items by own time (cProfile)")
     parser.add_argument("--policy", type=Path, help="time this checkpoint's inference; no training")
+    parser.add_argument("--baseline", metavar="COMMIT",
+                        help="train in this commit's tree and in this one, alternately, and "
+                             "print both (issue #30's before/after)")
+    parser.add_argument("--rounds", type=int, default=2,
+                        help="with --baseline: baseline/current pairs (default %(default)s)")
     args = parser.parse_args()
+    if args.baseline:
+        if args.policy or args.profile:
+            parser.error("--baseline times trainings only (no --policy, no --profile)")
+        file, at, window = args.covis.partition("@")
+        if Path(file).exists():               # the baseline runs in its own directory
+            args.covis = str(Path(file).resolve()) + at + window
+        compare(args)
+        return
     torch.set_num_threads(args.threads)
     dataset = open_covisibility(args.covis)
     print(f"machine: {platform.machine()} python {platform.python_version()}, torch "

@@ -21,18 +21,14 @@ round, the same policies and rules, and prints both side by side.
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import platform
 import statistics
-import subprocess
-import sys
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
+from bench.baseline import REPO, baseline_tree, run_in_tree
 from bench.fleet import device_slots_per_s as fleet_device_slots_per_s
 from bench.gauge import cpu_gauge, python_steps_per_s
 from twinslam.map_management.policies import (
@@ -98,7 +94,6 @@ def adapt_ratio(dataset, repeats: int = 9) -> tuple[float, float]:
     return float(np.median(inc)), float(np.median(naive))
 
 
-REPO = Path(__file__).resolve().parents[1]
 POLICIES = ("lff", "pu", "random", "adapt")
 #: run in a tree (the baseline's or this one): slots/s per policy and rule as JSON; only
 #: functions the baselines have too
@@ -109,8 +104,6 @@ from twinslam.simulator.covisibility import load_covisibility
 covis, slots, repeats, names, rules = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), \\
     sys.argv[4].split(','), sys.argv[5].split(',')
 data = load_covisibility(covis)
-import twinslam
-assert twinslam.__file__.startswith(sys.argv[6]), twinslam.__file__   # this tree's code
 print(json.dumps({f"{n} {r}": slots_per_second(data, n, slots, repeats, r == 'paper')[0]
                   for n in names for r in rules}))
 """
@@ -118,31 +111,22 @@ print(json.dumps({f"{n} {r}": slots_per_second(data, n, slots, repeats, r == 'pa
 
 def _in_tree(root: Path, covis: str, slots: int, repeats: int, rules: tuple[str, ...]
              ) -> dict[str, float]:
-    done = subprocess.run([sys.executable, "-c", _DRIVER, covis, str(slots), str(repeats),
-                           ",".join(POLICIES), ",".join(rules), str(root)], cwd=root,
-                          check=True, capture_output=True, text=True,
-                          env={**os.environ, "PYTHONPATH": str(root)})
-    return json.loads(done.stdout.strip().splitlines()[-1])
+    result: dict[str, float] = run_in_tree(root, _DRIVER, covis, str(slots), str(repeats),
+                                           ",".join(POLICIES), ",".join(rules))
+    return result
 
 
 def compare(baseline: str, covis: str, slots: int, repeats: int, rounds: int,
             rules: tuple[str, ...]) -> None:
     """The baseline commit's simulator and this tree's, alternately, ``rounds`` times; the
     median slots/s of each and its ratio to the gauge taken just before."""
-    with tempfile.TemporaryDirectory(prefix="twinslam-sim-baseline-") as tmp:
-        base = Path(tmp) / "baseline"
-        subprocess.run(["git", "worktree", "add", "--detach", str(base), baseline], cwd=REPO,
-                       check=True, capture_output=True)
-        runs: dict[str, list[tuple[dict[str, float], float]]] = {"baseline": [], "current": []}
-        try:
-            for r in range(rounds):
-                for label, root in (("baseline", base), ("current", REPO)):
-                    gauge = python_steps_per_s()
-                    runs[label].append((_in_tree(root, covis, slots, repeats, rules), gauge))
-                    print(f"round {r + 1} {label}: gauge {gauge:.1f} M steps/s", flush=True)
-        finally:
-            subprocess.run(["git", "worktree", "remove", "--force", str(base)], cwd=REPO,
-                           check=False, capture_output=True)
+    runs: dict[str, list[tuple[dict[str, float], float]]] = {"baseline": [], "current": []}
+    with baseline_tree(baseline) as base:
+        for r in range(rounds):
+            for label, root in (("baseline", base), ("current", REPO)):
+                gauge = python_steps_per_s()
+                runs[label].append((_in_tree(root, covis, slots, repeats, rules), gauge))
+                print(f"round {r + 1} {label}: gauge {gauge:.1f} M steps/s", flush=True)
     print(f"\n{'policy rule':<15} {'baseline ' + baseline:>22} {'current':>22}   "
           "(median slots/s, and / M gauge steps/s)")
     for key in runs["current"][0][0]:

@@ -11,7 +11,7 @@ import torch
 
 from edge_mapper.edge_core import EdgeMapperCore
 from twinslam.map_management.policies import Adapt, LatestFrameFirst
-from twinslam.mbrl.networks import Actor, soft_flags
+from twinslam.mbrl.networks import Actor, hard_flags, soft_flags
 from twinslam.mbrl.policy import MbrlPolicy, PolicyCheckpointError
 from twinslam.mbrl.replay import ReplayBuffer, Transition, blended_batch, collate
 from twinslam.mbrl.state import NODE_FEATURES, action_from_scores, build_state, context_size, select
@@ -104,7 +104,7 @@ def test_untrained_actor_makes_adapts_decision(kitchen: CovisibilityDataset) -> 
         state = build_state(obs, np.zeros(0, np.float32), history=8)
         b = collate([state])
         with torch.no_grad():
-            scores = actor(b.x, b.adj, b.mask, b.context)[0].numpy()
+            scores = actor(b.x, b.prop, b.mask, b.context)[0].numpy()
         action, _ = action_from_scores(state, scores)
         greedy = Adapt().decide(obs)
         assert action.upload == greedy.upload and action.evict == greedy.evict
@@ -128,6 +128,33 @@ def test_relaxed_action_tends_to_the_hard_one() -> None:
     scores.requires_grad_(True)
     soft_flags(scores, x, mask, torch.tensor([3]), torch.tensor([3]), 0.5).sum().backward()
     assert scores.grad is not None and scores.grad.abs().sum() > 0
+
+
+def test_batched_hard_action_is_select_graph_by_graph() -> None:
+    """The training's batched hard action (the target actor's, and the relaxed action's
+    thresholds) picks what ``select`` picks for each graph alone — padded graphs of other
+    sizes, tied scores (earlier node first), nothing or everything to upload or evict."""
+    rng = np.random.default_rng(7)
+    sizes = [(0, 5), (4, 0), (6, 9), (12, 3), (3, 12), (8, 8)]
+    n = max(m + c for m, c in sizes)
+    for trial in range(40):
+        x = torch.zeros(len(sizes), n, NODE_FEATURES)
+        mask = torch.zeros(len(sizes), n, dtype=torch.bool)
+        scores = torch.zeros(len(sizes), n)
+        picks = []
+        for i, (m, c) in enumerate(sizes):
+            x[i, :m, 0], x[i, m:m + c, 1], mask[i, :m + c] = 1.0, 1.0, True
+            # few distinct values, so ties are common
+            scores[i, :m + c] = torch.from_numpy(rng.integers(-2, 3, m + c).astype(np.float32))
+            scores[i, m + c:] = 9.0                      # padding never chosen, whatever it scores
+            n_up = int(rng.integers(0, c + 1)) if trial % 5 else c
+            picks.append((m, n_up, int(rng.integers(0, m + n_up + 1))))
+        flags = hard_flags(scores, x, mask, torch.tensor([p[1] for p in picks]),
+                           torch.tensor([p[2] for p in picks]))
+        for i, ((m, c), (_, n_up, n_ev)) in enumerate(zip(sizes, picks, strict=True)):
+            expect = select(scores[i, :m + c].numpy(), m, n_up, n_ev)
+            assert np.array_equal(flags[i, :m + c].numpy(), expect), (trial, i)
+            assert not flags[i, m + c:].any()
 
 
 def test_emulated_slot_equals_the_real_one_and_leaves_the_environment_alone(
@@ -232,8 +259,8 @@ def test_the_papers_amm_sees_no_adapt_answer_and_trains_into_a_policy_of_its_own
                          validation_slots=10, actor="paper")      # the default: regime twin
     trainer = AmmTrainer(config, kitchen)
     b = collate([trainer.state_of(obs)])
-    assert torch.equal(trainer.actor(b.x, b.adj, b.mask, b.context),
-                       trainer.actor.correction(b.x, b.adj, b.mask, b.context))
+    assert torch.equal(trainer.actor(b.x, b.prop, b.mask, b.context),
+                       trainer.actor.correction(b.x, b.prop, b.mask, b.context))
     trainer.train()
     assert trainer.actor.prior.item() == 0.0          # never trained: not part of the score
     path = tmp_path / "paper.pt"

@@ -123,5 +123,5 @@ class MbrlPolicy:
         graph = build_state(obs, rate_features, self.history,
                             adapt_features=self.actor_variant == "residual")
         batch = collate([graph])
-        scores = self.actor(batch.x, batch.adj, batch.mask, batch.context)[0].numpy()
+        scores = self.actor(batch.x, batch.prop, batch.mask, batch.context)[0].numpy()
         return action_from_scores(graph, scores.astype(np.float64))[0]

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from twinslam.mbrl.networks import propagation
 from twinslam.mbrl.state import GraphState
 
 
@@ -65,7 +66,7 @@ class GraphBatch:
     """States padded to the largest graph of the batch, as the networks take them."""
 
     x: torch.Tensor                #: (B, n, NODE_FEATURES)
-    adj: torch.Tensor              #: (B, n, n)
+    prop: torch.Tensor             #: (B, n, n) the GCN's propagation matrix of the adjacency
     mask: torch.Tensor             #: (B, n) bool
     context: torch.Tensor          #: (B, C)
     n_upload: torch.Tensor         #: (B,) long
@@ -82,7 +83,8 @@ def collate(states: list[GraphState], size: int | None = None) -> GraphBatch:
         x[i, :s.size] = s.nodes
         adj[i, :s.size, :s.size] = s.adjacency
         mask[i, :s.size] = True
-    return GraphBatch(torch.from_numpy(x), torch.from_numpy(adj), torch.from_numpy(mask),
+    return GraphBatch(torch.from_numpy(x), propagation(torch.from_numpy(adj)),
+                      torch.from_numpy(mask),
                       torch.from_numpy(np.stack([s.context for s in states])),
                       torch.tensor([s.n_upload for s in states]),
                       torch.tensor([s.n_evict for s in states]))

@@ -29,10 +29,9 @@ import torch
 
 from twinslam.common import table1
 from twinslam.map_management.actions import SlotObservation
-from twinslam.mbrl.networks import Actor, Critic, soft_flags
+from twinslam.mbrl.networks import Actor, Critic, hard_flags, soft_flags
 from twinslam.mbrl.policy import CHECKPOINT_FORMAT, MbrlPolicy
 from twinslam.mbrl.replay import (
-    GraphBatch,
     ReplayBuffer,
     Transition,
     blended_batch,
@@ -40,12 +39,10 @@ from twinslam.mbrl.replay import (
     collate_flags,
 )
 from twinslam.mbrl.state import (
-    IN_MAP,
     GraphState,
     action_from_scores,
     build_state,
     context_size,
-    select,
 )
 from twinslam.simulator.covisibility import CovisibilityDataset
 from twinslam.simulator.env import MapManagementEnv, SimConfig
@@ -174,7 +171,7 @@ class AmmTrainer:
     @torch.no_grad()
     def scores(self, state: GraphState) -> np.ndarray:
         b = collate([state])
-        return np.asarray(self.actor(b.x, b.adj, b.mask, b.context)[0].numpy())
+        return np.asarray(self.actor(b.x, b.prop, b.mask, b.context)[0].numpy())
 
     def _norm(self, reward: float) -> float:
         return (reward - self.reward_mean) / self.reward_std
@@ -286,11 +283,11 @@ class AmmTrainer:
         flags = collate_flags(batch, n)
         reward = torch.tensor([t.reward for t in batch], dtype=torch.float32)
         with torch.no_grad():
-            a2 = self.actor_target(s2.x, s2.adj, s2.mask, s2.context)
-            f2 = _hard_flags(a2, s2)
-            target = reward + cfg.gamma * self.critic_target(s2.x, s2.adj, s2.mask,
+            a2 = self.actor_target(s2.x, s2.prop, s2.mask, s2.context)
+            f2 = hard_flags(a2, s2.x, s2.mask, s2.n_upload, s2.n_evict)
+            target = reward + cfg.gamma * self.critic_target(s2.x, s2.prop, s2.mask,
                                                              s2.context, f2)
-        q = self.critic(s.x, s.adj, s.mask, s.context, flags)
+        q = self.critic(s.x, s.prop, s.mask, s.context, flags)
         critic_loss = torch.nn.functional.mse_loss(q, target)
         if not torch.isfinite(critic_loss):
             raise FloatingPointError("the critic's TD loss is not finite: a state feature or "
@@ -300,10 +297,10 @@ class AmmTrainer:
         torch.nn.utils.clip_grad_norm_(self.critic.parameters(), 10.0)
         self.critic_opt.step()
 
-        correction = self.actor.correction(s.x, s.adj, s.mask, s.context)
+        correction = self.actor.correction(s.x, s.prop, s.mask, s.context)
         scores = self.actor.base_scores(s.x, s.mask) + correction
         relaxed = soft_flags(scores, s.x, s.mask, s.n_upload, s.n_evict, cfg.temperature)
-        actor_loss = -self.critic(s.x, s.adj, s.mask, s.context, relaxed).mean()
+        actor_loss = -self.critic(s.x, s.prop, s.mask, s.context, relaxed).mean()
         if cfg.actor == "residual":          # stay near ADAPT unless the critic says otherwise
             actor_loss = actor_loss + cfg.correction_weight * (correction ** 2).sum() / \
                 s.mask.sum()
@@ -375,13 +372,3 @@ class AmmTrainer:
             self.progress(f"validation at slot {played}: υ {score:.1f} (best "
                           f"{self.best_validation:.1f})")
 
-
-def _hard_flags(scores: torch.Tensor, batch: GraphBatch) -> torch.Tensor:
-    """The (uploaded, evicted) flags of the hard action the scores stand for, batched."""
-    out = torch.zeros(*scores.shape, 2)
-    for i in range(scores.shape[0]):
-        n = int(batch.mask[i].sum())
-        n_map = int((batch.x[i, :n, IN_MAP] > 0.5).sum())
-        out[i, :n] = torch.from_numpy(select(scores[i, :n].numpy(), n_map,
-                                             int(batch.n_upload[i]), int(batch.n_evict[i])))
-    return out

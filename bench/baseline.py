@@ -1,0 +1,54 @@
+"""Another commit's code beside this tree's, for before/after benchmarks in one run (issue #30:
+"compare side by side in one run"): a temporary git worktree of the commit, and a driver
+script run in a tree with only that tree's packages on the path (this venv's interpreter)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+REPO = Path(__file__).resolve().parents[1]
+
+#: prepended to every driver: the tree's own twinslam must be the one imported
+_CHECK_TREE = """
+import sys
+import twinslam
+assert twinslam.__file__.startswith(sys.argv[-1]), twinslam.__file__
+"""
+
+
+@contextmanager
+def baseline_tree(commit: str) -> Iterator[Path]:
+    """A detached worktree of ``commit``, removed on exit (a bad commit fails here, before
+    anything is measured)."""
+    with tempfile.TemporaryDirectory(prefix="twinslam-bench-baseline-") as tmp:
+        base = Path(tmp) / "baseline"
+        done = subprocess.run(["git", "worktree", "add", "--detach", str(base), commit],
+                              cwd=REPO, capture_output=True, text=True)
+        if done.returncode:
+            raise SystemExit(f"--baseline {commit}: git worktree add failed: "
+                             f"{done.stderr.strip()}")
+        try:
+            yield base
+        finally:
+            subprocess.run(["git", "worktree", "remove", "--force", str(base)], cwd=REPO,
+                           check=False, capture_output=True)
+
+
+def run_in_tree(root: Path, driver: str, *args: str) -> Any:
+    """Run ``driver`` (Python source whose last stdout line is JSON) with ``root`` as the
+    working directory and the only project path; returns that JSON. The driver may use only
+    what both trees have."""
+    done = subprocess.run([sys.executable, "-c", _CHECK_TREE + driver, *args, str(root)],
+                          cwd=root, capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": str(root)})
+    if done.returncode:
+        raise SystemExit(f"the benchmark failed in {root}:\n{done.stderr[-3000:]}")
+    return json.loads(done.stdout.strip().splitlines()[-1])
