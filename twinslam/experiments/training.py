@@ -23,6 +23,7 @@ class TrainTask:
     output: Path
     threads: int = 1
     verbose: bool = False
+    snapshots: bool = False        #: also write every validated actor (a learning curve's)
 
 
 @dataclass(frozen=True)
@@ -45,9 +46,14 @@ def run_outputs(output: Path, seeds: list[int]) -> list[Path]:
     return [output.with_name(f"{output.stem}_s{seed}{output.suffix}") for seed in seeds]
 
 
+def snapshots_path(checkpoint: Path) -> Path:
+    """Where a run's snapshots go: ``FILE.snapshots.pt`` beside ``FILE.pt``."""
+    return checkpoint.with_suffix(".snapshots.pt")
+
+
 def train_tasks(config: TrainConfig, covis: str, output: Path, seeds: list[int],
-                threads: int, verbose: bool) -> list[TrainTask]:
-    return [TrainTask(replace(config, seed=seed), covis, path, threads, verbose)
+                threads: int, verbose: bool, snapshots: bool = False) -> list[TrainTask]:
+    return [TrainTask(replace(config, seed=seed), covis, path, threads, verbose, snapshots)
             for seed, path in zip(seeds, run_outputs(output, seeds), strict=True)]
 
 
@@ -58,10 +64,12 @@ def train_one(task: TrainTask) -> TrainOutcome:
     seed = task.config.seed
     trainer = AmmTrainer(task.config, cached_covisibility(task.covis),
                          (lambda line: print(f"[seed {seed}] {line}", flush=True))
-                         if task.verbose else None)
+                         if task.verbose else None, snapshots=task.snapshots)
     log = trainer.train()
     task.output.parent.mkdir(parents=True, exist_ok=True)
     trainer.save(task.output)
+    if task.snapshots:
+        trainer.save_snapshots(snapshots_path(task.output))
     log_path = task.output.with_suffix(".csv")
     log.write_csv(log_path)
     kept = min(trainer.validations, key=lambda v: v[1])[0] if trainer.validations else -1

@@ -60,6 +60,7 @@ from twinslam.uplink.channels import parse_channel
 
 TRAINING_SEED_BASE = 100_000
 VALIDATION_SEED_BASE = 50_000    #: the actor kept is the best on these (never evaluated on)
+SNAPSHOTS_FORMAT = "twinslam-amm-snapshots/1"
 
 
 @dataclass(frozen=True)
@@ -127,8 +128,14 @@ class TrainLog:
 
 class AmmTrainer:
     def __init__(self, config: TrainConfig, dataset: CovisibilityDataset,
-                 progress: Callable[[str], None] | None = None) -> None:
+                 progress: Callable[[str], None] | None = None,
+                 snapshots: bool = False) -> None:
+        """``snapshots``: also keep the checkpoint of every validated actor, not only the
+        best (:meth:`save_snapshots`; what a learning curve evaluates on held-out data)."""
         self.config = config
+        self.keep_snapshots = snapshots
+        #: (slot, checkpoint blob) of every validation, with ``snapshots``
+        self.snapshots: list[tuple[int, dict[str, Any]]] = []
         self.dataset = dataset
         self.progress = progress
         torch.manual_seed(config.seed)
@@ -348,6 +355,18 @@ class AmmTrainer:
         torch.save(blob, tmp)
         tmp.replace(path)
 
+    def save_snapshots(self, path: Path) -> None:
+        """Every validated actor's checkpoint (slot, blob), in training order, and the slot
+        of the one kept, atomically; :func:`load_snapshots` reads them back."""
+        if not self.keep_snapshots:
+            raise RuntimeError("this trainer keeps no snapshots (snapshots=False)")
+        path = Path(path)
+        kept = min(self.validations, key=lambda v: v[1])[0] if self.validations else -1
+        tmp = path.with_name(path.name + ".tmp")
+        torch.save({"format": SNAPSHOTS_FORMAT, "seed": self.config.seed, "kept_slot": kept,
+                    "snapshots": [[slot, blob] for slot, blob in self.snapshots]}, tmp)
+        tmp.replace(path)
+
     def validate(self) -> float:
         """Mean υ of the current actor (no noise) over the validation seeds' episodes."""
         cfg = self.config
@@ -365,6 +384,8 @@ class AmmTrainer:
     def _keep_if_best(self, played: int) -> None:
         score = self.validate()
         self.validations.append((played, score))
+        if self.keep_snapshots:
+            self.snapshots.append((played, self.checkpoint_blob()))
         if score < self.best_validation:
             self.best_validation = score
             self.best_blob = self.checkpoint_blob()
@@ -372,3 +393,16 @@ class AmmTrainer:
             self.progress(f"validation at slot {played}: υ {score:.1f} (best "
                           f"{self.best_validation:.1f})")
 
+
+def load_snapshots(path: Path) -> tuple[int, int, list[tuple[int, dict[str, Any]]]]:
+    """(training seed, kept slot, [(slot, checkpoint blob)]) of a :meth:`save_snapshots`
+    file; anything else is a ValueError naming the file."""
+    try:
+        blob = torch.load(Path(path), map_location="cpu", weights_only=False)
+    except (OSError, RuntimeError, EOFError) as exc:
+        raise ValueError(f"{path}: not a readable snapshots file ({exc})") from exc
+    if not isinstance(blob, dict) or blob.get("format") != SNAPSHOTS_FORMAT:
+        raise ValueError(f"{path}: not a training's snapshots (`twinslam train --snapshots` "
+                         f"writes them; expected format {SNAPSHOTS_FORMAT})")
+    return (int(blob["seed"]), int(blob["kept_slot"]),
+            [(int(slot), b) for slot, b in blob["snapshots"]])

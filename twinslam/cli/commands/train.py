@@ -23,7 +23,12 @@ def run(args: argparse.Namespace) -> int:
     # imported here: the trainer loads torch, which the other commands never need
     from twinslam.common.executor import run_tasks
     from twinslam.experiments.parallel import one_torch_thread
-    from twinslam.experiments.training import TrainOutcome, train_one, train_tasks
+    from twinslam.experiments.training import (
+        TrainOutcome,
+        snapshots_path,
+        train_one,
+        train_tasks,
+    )
     from twinslam.mbrl.trainer import AmmTrainer, TrainConfig
     from twinslam.simulator.covisibility_spec import absolute_spec
 
@@ -38,14 +43,19 @@ def run(args: argparse.Namespace) -> int:
                              seed=args.seed, rate_model=canonical(args.rate_model),
                              actor=args.actor,
                              real_fraction=args.real_fraction,
-                             artificial_per_real=args.artificial)
+                             artificial_per_real=args.artificial,
+                             validate_every=args.validate_every)
+        if args.snapshots and not args.validate_every:
+            raise ValueError("--snapshots keeps the validated actors: it needs "
+                             "--validate-every > 0")
         AmmTrainer(config, dataset)          # a bad setting fails here, before any worker
         executor = open_executor(args, one_torch_thread)
     except (ChannelError, CovisibilityError, ValueError, RuntimeError) as exc:
         return error(exc)
     seeds = list(range(args.seed, args.seed + args.runs))
     tasks = train_tasks(config, absolute_spec(args.covis), Path(args.output), seeds,
-                        args.threads, verbose=args.runs == 1 or args.verbose)
+                        args.threads, verbose=args.runs == 1 or args.verbose,
+                        snapshots=args.snapshots)
     print(f"training on {dataset.n_frames} frames ({dataset.source or args.covis}); channel "
           f"{args.channel}; V_max {args.vmax}; actor {args.actor}; rate model "
           f"{canonical(args.rate_model)}; I/|Ξ| "
@@ -63,7 +73,8 @@ def run(args: argparse.Namespace) -> int:
                           label, lambda line: print(line, flush=True), failures_file)
     for out in sweep.in_order():
         print(f"wrote {out.checkpoint} (use it as --policy mbrl:{out.checkpoint}) and the "
-              f"training log {out.log}")
+              f"training log {out.log}"
+              + (f"; snapshots {snapshots_path(out.checkpoint)}" if args.snapshots else ""))
     print(f"{len(sweep.results)} of {len(tasks)} run(s) trained "
           f"({time.monotonic() - t0:.0f} s)")
     return failed_tasks(sweep.failures, "training run(s)", str(failures_file))
@@ -103,6 +114,13 @@ def register(sub: Subparsers) -> None:
     train.add_argument("--runs", type=int, default=1,
                        help="training runs, seeds SEED..SEED+RUNS-1; more than one writes "
                        "FILE_s<seed>.pt and .csv per run; default %(default)s")
+    train.add_argument("--validate-every", type=int, default=500, metavar="SLOTS",
+                       help="slots between validations on the training split's validation "
+                       "seeds (the best is kept; 0: never, keep the last) (default "
+                       "%(default)s)")
+    train.add_argument("--snapshots", action="store_true",
+                       help="also write every validated actor to FILE.snapshots.pt: what "
+                       "`twinslam experiment learning-curve` evaluates on held-out data")
     train.add_argument("--threads", type=int, default=2, help="torch CPU threads per run")
     train.add_argument("-v", "--verbose", action="store_true",
                        help="with --runs > 1: every run's progress lines too (prefixed by its "
