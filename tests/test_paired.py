@@ -31,6 +31,16 @@ def test_a_constant_gap_is_found_exactly_and_noise_widens_the_interval() -> None
 def test_episodes_that_do_not_pair_are_refused() -> None:
     with pytest.raises(ValueError, match="the same episodes"):
         paired_difference(np.zeros((2, 3)), np.zeros(4))
+    with pytest.raises(ValueError, match="the same runs and episodes"):
+        paired_difference(np.zeros((2, 3)), np.zeros((3, 3)))
+
+
+def test_each_run_against_its_own_baseline() -> None:
+    """A trained actor against its own run's untrained one: run r's gap is taken from run r's
+    baseline, not a shared one (runs far apart, the same small gain in each)."""
+    start = np.array([[-900.0, -800.0, -850.0], [-300.0, -200.0, -250.0]])
+    gain = paired_difference(start - 5.0, start)
+    assert (gain.mean, gain.low, gain.high) == pytest.approx((-5.0, -5.0, -5.0))
 
 
 def test_fig7_has_random_and_the_untrained_actor_paired_with_the_best_rule(

@@ -37,14 +37,20 @@ def paired_difference(scores: np.ndarray, baseline: np.ndarray | Sequence[float]
                       draws: int = 2000,
                       seed: int = 0) -> PairedDifference:
     """``scores``: R runs × E episodes of a policy; ``baseline``: the E episodes of the
-    policy it is compared with, in the same order. A fixed ``seed`` makes the interval
-    reproducible."""
+    policy it is compared with, in the same order — or R × E, each run against its own
+    baseline (a trained actor against the same run's untrained one). A fixed ``seed`` makes
+    the interval reproducible."""
     scores = np.atleast_2d(np.asarray(scores, dtype=np.float64))
     base = np.asarray(baseline, dtype=np.float64)
-    if scores.shape[1] != base.size or base.size == 0:
+    if base.ndim == 2:
+        if base.shape != scores.shape:
+            raise ValueError(f"a per-run baseline of shape {base.shape} against scores of "
+                             f"{scores.shape}: a paired difference needs the same runs and "
+                             "episodes")
+    elif scores.shape[1] != base.size or base.size == 0:
         raise ValueError(f"{scores.shape[1]} episodes per run against {base.size} of the "
                          "baseline: a paired difference needs the same episodes")
-    diff = scores - base[None, :]
+    diff = scores - (base if base.ndim == 2 else base[None, :])
     runs, episodes = diff.shape
     if runs * episodes == 1:
         value = float(diff[0, 0])

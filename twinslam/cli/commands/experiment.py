@@ -138,9 +138,45 @@ def run_twin_predict(args: argparse.Namespace) -> int:
     return _failed(failures, out)
 
 
+def run_learning_curve(args: argparse.Namespace) -> int:
+    """learning-curve: every snapshot of every training run on held-out episodes."""
+    # imported here: the learned policy loads torch, which the other commands never need
+    from twinslam.experiments import learning_curve as ex
+
+    t0 = time.monotonic()
+    progress = elapsed_progress()
+    files = [Path(f) for f in args.snapshots or []]
+    episodes, slots = args.runs or 10, args.slots or 100
+    try:
+        covisibility(args.covis)
+        ex.setup_of(files, args.covis, episodes, slots, args.seed)   # fails before any worker
+        executor = _executor(args)
+    except (CovisibilityError, ValueError, RuntimeError) as exc:
+        return error(exc)
+    out = Path(args.out)
+    failures: list[TaskFailure] = []
+    with executor:
+        points = ex.learning_curve(files, args.covis, out, episodes, slots, args.seed,
+                                   progress, executor, failures)
+    if not points:
+        return _failed(failures, out)
+    paired = ex.paired_summary(points, ex.setup_of(files, args.covis, episodes, slots,
+                                                   args.seed)[1])
+    print(f"paired by episode ({episodes} held-out episodes of {slots} slots; mean "
+          "[95 % CI over training runs and episodes]):")
+    for label, (n_runs, d) in paired.items():
+        print(f"  {label:<42} {d.mean:+8.1f} [{d.low:+.1f}, {d.high:+.1f}]  ({n_runs} runs"
+              f"{', apart' if d.apart else ''})")
+    print(f"wrote {out}/learning_curve.csv, learning_curve_runs.csv, learning_curve_paired.csv "
+          f"and learning_curve.png ({time.monotonic() - t0:.0f} s)")
+    return _failed(failures, out)
+
+
 def run(args: argparse.Namespace) -> int:
     if args.name in ("fig7", "fig8", "fig9"):
         return run_amm_figure(args)
+    if args.name == "learning-curve":
+        return run_learning_curve(args)
     if args.name == "twin-predict":
         return run_twin_predict(args)
     return run_twin_figure(args)
@@ -195,12 +231,15 @@ def register(sub: Subparsers) -> None:
                          "error (paper Figs 3-5); twin-predict: every rate model predicts the "
                          "next slot's state online on chains, generated and real traces "
                          "(log-likelihood, Brier); fig7/8/9: mean υ, lost share and υ tracked "
-                         "of the policies vs the high-rate share, N, V_max (paper Figs 7-9).")
+                         "of the policies vs the high-rate share, N, V_max (paper Figs 7-9); "
+                         "learning-curve: every validated actor of `twinslam train --snapshots` "
+                         "runs scored on held-out episodes beside the rules.")
     exp.add_argument("name", choices=["udt-fig3", "udt-fig4", "udt-fig5", "twin-predict",
-                                      "fig7", "fig8", "fig9"], help="which figure")
+                                      "fig7", "fig8", "fig9", "learning-curve"],
+                     help="which figure")
     exp.add_argument("--runs", type=int, default=None, help="independent runs per point "
-                     "(default: 20; twin-predict: 5 seeds per source; the paper's fig7-9 "
-                     "use 15)")
+                     "(default: 20; twin-predict: 5 seeds per source; learning-curve: 10 "
+                     "held-out episodes; the paper's fig7-9 use 15)")
     exp.add_argument("--source", action="append", metavar="SPEC",
                      help="twin-predict: a state sequence to predict (repeat): stationary, "
                      "intervals:K (a new random matrix every K slots), "
@@ -223,12 +262,17 @@ def register(sub: Subparsers) -> None:
                      help="fig7-9: a trained policy to compare (repeat); the same LABEL "
                      "repeated: one variant over several training runs (mean and CI over the "
                      "runs); @N: for N states (fig8)")
+    exp.add_argument("--snapshots", action="append", metavar="FILE",
+                     help="learning-curve: a training run's FILE.snapshots.pt from `twinslam "
+                     "train --snapshots` (repeat: one line per run; all of one setting)")
     exp.add_argument("--covis", metavar="FILE[@START:END]|geometric[:N[:SEED]]",
                      default=str(BUNDLED_COVIS),
-                     help="fig7-9: covisibility dataset")
+                     help="fig7-9, learning-curve: covisibility dataset (learning-curve: "
+                     "frames the training never saw, e.g. FILE@600:1000 after training on "
+                     "FILE@0:600)")
     exp.add_argument("--slots", type=int, default=None,
-                     help="slots per run (default: fig7-9 200; twin-predict 3000, a trace at "
-                     "most one pass)")
+                     help="slots per run (default: fig7-9 200; learning-curve 100; "
+                     "twin-predict 3000, a trace at most one pass)")
     exp.add_argument("--controls", type=int, default=5, metavar="N",
                      help="fig7-9: beside the rules and random, the paper's actor untrained, "
                      "N initialisations (those training runs 0..N-1 start from), as one "

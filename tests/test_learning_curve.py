@@ -1,0 +1,78 @@
+"""Learning curves (issue #29): a training run's validated actors are kept as snapshots and
+scored on held-out episodes beside the rules; slot 0 is the run's own untrained actor, the kept
+one is marked, and each trained actor is paired with its own run's untrained one."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from twinslam.experiments import learning_curve
+from twinslam.mbrl.trainer import AmmTrainer, TrainConfig, load_snapshots
+from twinslam.policy_registry import make_policy
+from twinslam.simulator.covisibility_spec import open_covisibility
+from twinslam.simulator.env import SimConfig
+from twinslam.simulator.evaluation import evaluate
+
+COVIS = Path(__file__).resolve().parents[1] / "data" / "7scenes-redkitchen-1000.covis.npz"
+HELD_OUT = f"{COVIS}@600:1000"
+
+
+def _train(tmp: Path, seed: int) -> tuple[Path, AmmTrainer]:
+    config = TrainConfig(actor="paper", slots=30, warmup_slots=10, validate_every=10,
+                         validation_seeds=1, validation_slots=5, batch_size=8, seed=seed)
+    trainer = AmmTrainer(config, open_covisibility(f"{COVIS}@0:600"), snapshots=True)
+    trainer.train()
+    path = tmp / f"run{seed}.snapshots.pt"
+    trainer.save_snapshots(path)
+    trainer.save(tmp / f"run{seed}.pt")
+    return path, trainer
+
+
+def test_snapshots_are_scored_on_held_out_episodes_beside_the_rules(tmp_path: Path) -> None:
+    files = [_train(tmp_path, seed)[0] for seed in (0, 1)]
+    seed, kept, snaps = load_snapshots(files[1])
+    assert seed == 1 and [slot for slot, _ in snaps] == [0, 20, 30] and kept in (0, 20, 30)
+
+    points = learning_curve.learning_curve(files, HELD_OUT, tmp_path / "out", episodes=2,
+                                           slots=6)
+    with (tmp_path / "out" / "learning_curve.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert {r["policy"] for r in rows} == {"LFF", "PU", "ADAPT", "RANDOM", "AMM snapshot"}
+    for run in ("0", "1"):
+        mine = [r for r in rows if r["training_seed"] == run]
+        assert [int(r["training_slot"]) for r in mine] == [0, 20, 30]
+        assert sum(r["kept"] == "True" for r in mine) == 1     # exactly the kept checkpoint
+    # the rules play the episodes a plain evaluation of the held-out seeds plays
+    channel = points[0].task.setup.channel
+    lff = next(p for p in points if p.task.policy == "lff")
+    direct = evaluate(["lff"], open_covisibility(HELD_OUT), channel, SimConfig(slots=6),
+                      [0, 1], make_policy=make_policy)[0]
+    assert np.allclose(lff.per_episode, [r.mean_uncertainty for r in direct.runs])
+    # slot 0 is the run's untrained actor: it plays exactly what that actor plays
+    AmmTrainer(TrainConfig(actor="paper", seed=1, validate_every=0),
+               open_covisibility(f"{COVIS}@0:600")).save(tmp_path / "untrained1.pt")
+    again = evaluate([f"mbrl:{tmp_path / 'untrained1.pt'}"], open_covisibility(HELD_OUT),
+                     channel, SimConfig(slots=6), [0, 1], make_policy=make_policy)[0]
+    untrained = next(p for p in points if p.task.slot == 0 and "run1" in p.task.snapshots)
+    assert np.allclose(untrained.per_episode, [r.mean_uncertainty for r in again.runs])
+    with (tmp_path / "out" / "learning_curve_paired.csv").open() as fh:
+        paired = {r["comparison"]: r for r in csv.DictReader(fh)}
+    best = min((p for p in points if p.task.policy in ("lff", "pu", "adapt")),
+               key=lambda p: p.per_episode.mean()).task.policy.upper()
+    assert set(paired) == {f"{which} actor - {other}" for which in ("kept", "last")
+                           for other in ("untrained actor (same run)", f"best rule ({best})")}
+    assert all(int(r["runs"]) == 2 for r in paired.values())
+    assert (tmp_path / "out" / "learning_curve.png").stat().st_size > 10_000
+
+
+def test_a_checkpoint_is_not_a_snapshots_file(tmp_path: Path) -> None:
+    _, trainer = _train(tmp_path, 0)
+    with pytest.raises(ValueError, match="not a training's snapshots"):
+        learning_curve.setup_of([tmp_path / "run0.pt"], HELD_OUT, 2, 6)
+    with pytest.raises(ValueError, match="no such snapshots file"):
+        learning_curve.setup_of([tmp_path / "missing.snapshots.pt"], HELD_OUT, 2, 6)
+    assert trainer.snapshots
