@@ -17,6 +17,7 @@ from twinslam.map_management.policies import (
     greedy_removals,
 )
 from twinslam.policy_registry import make_policy
+from twinslam.simulator import covisibility as covisibility_module
 from twinslam.simulator.covisibility import (
     CovisibilityDataset,
     load_covisibility,
@@ -290,6 +291,36 @@ def test_the_first_frames_of_a_slot_are_tracked_against_the_map_before_the_updat
     # frame 4, the first of its slot, still tracks with {1}: nothing shared. No lag before
     # the first update (the device's start-up map)
     assert lost(lag=1, min_shared=1) == (0, 2)
+
+
+@pytest.mark.parametrize("dense", [True, False])
+def test_a_slot_scores_alike_with_or_without_the_kept_factorisation(
+        room: CovisibilityDataset, dense: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A slot's first frames are scored against the factorisation kept from the previous
+    slot's scoring (issue #30); forgetting it before every step — and jumping around with
+    emulate and restore, as training does — gives the same rewards, lost frames and maps,
+    with dense weights and with sparse ones (a dataset too large to keep dense)."""
+    if not dense:
+        monkeypatch.setattr(covisibility_module, "DENSE_LIMIT", 0)
+    data = CovisibilityDataset(room.point_offsets, room.point_ids)
+    assert data.dense == dense
+
+    def play(forget: bool) -> list[tuple[float, list[int], list[bool]]]:
+        env = MapManagementEnv(data, parse_channel("markov:N=2", seed=3),
+                               SimConfig(vmax=12, slot_frames=10, slots=12))
+        obs, _ = env.reset(3)
+        policy, out = make_policy("adapt"), []
+        for _ in range(12):
+            before = env.snapshot()
+            action = policy.decide(obs)
+            if obs.slot % 3 == 1:                       # an artificial slot in between
+                env.emulate(before, action, (0, float(env.channel.rates[0])))
+            if forget:
+                env._factor = None
+            obs, reward, _, _, info = env.step(action)
+            out.append((reward, obs.map_frames, info["lost"].tolist()))
+        return out
+    assert play(forget=False) == play(forget=True)
 
 
 def test_covisibility_file_round_trip_and_errors(tmp_path, room: CovisibilityDataset) -> None:

@@ -129,6 +129,10 @@ class MapManagementEnv:
         self._uploadable: list[int] = []
         #: the map's points per point, moved with the map (the device's rule only)
         self._points: MapPointCounts | None = None
+        #: the last map scored: (its key, its factorisation, its weights). A slot's first
+        #: frames are scored against the map the previous slot's frames were, so one
+        #: factorisation serves both (issue #30)
+        self._factor: tuple[tuple[int, bytes], tuple[Any, ...], np.ndarray] | None = None
 
     # -- weights -----------------------------------------------------------------------------
 
@@ -289,12 +293,25 @@ class MapManagementEnv:
             log_tau = np.full(frames.size, -np.inf)
             return (slot_uncertainty_from_scores(0, 0, -np.inf, log_tau, self.config.log_det_pi),
                     np.ones(frames.size, dtype=bool), np.zeros((0, 0)))
-        if map_w is None:                       # dense: map weights and scores in one call
-            map_w, n_comp, log_det, log_tau = kernels.gathered_slot_scores(
-                self.dataset.dense_weights, map_idx, frame_idx, PIVOT_RTOL)
-        else:
+        # the weights, and so the factorisation, are a function of the dataset frames alone
+        key = (id(self.dataset), map_idx.tobytes())
+        if self._factor is not None and self._factor[0] == key:
+            factor, map_w = self._factor[1], self._factor[2]
+            inv, pos, comp, n_comp, log_det = factor
             block = np.ascontiguousarray(self.dataset.weights(frame_idx, map_idx))
-            n_comp, log_det, log_tau = kernels.slot_scores(map_w, block, PIVOT_RTOL)
+            log_tau = kernels.augmented_log_taus(inv, pos, comp, n_comp, block,
+                                                 np.arange(frame_idx.size), None, log_det,
+                                                 0.0, 0.0, PIVOT_RTOL)
+        else:
+            if map_w is None:                   # dense: map weights and scores in one call
+                map_w, inv, pos, comp, n_comp, log_det, log_tau = \
+                    kernels.gathered_factored_scores(self.dataset.dense_weights, map_idx,
+                                                     frame_idx, PIVOT_RTOL)
+            else:
+                block = np.ascontiguousarray(self.dataset.weights(frame_idx, map_idx))
+                inv, pos, comp, n_comp, log_det, log_tau = kernels.factored_slot_scores(
+                    map_w, block, PIVOT_RTOL)
+            self._factor = (key, (inv, pos, comp, n_comp, log_det), map_w)
         trackable = None
         if self.config.min_shared > 1:
             self._points = self._points or MapPointCounts(self.dataset)

@@ -610,6 +610,39 @@ def slot_scores(weights: np.ndarray, cand: np.ndarray, rtol: float
 
 
 @njit(cache=True)
+def factored_slot_scores(weights: np.ndarray, cand: np.ndarray, rtol: float
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, float, np.ndarray]:
+    """:func:`slot_scores` that also returns the factorisation it scored against: (A⁻¹, pos,
+    comp, components, log det A, log τ(G ∪ {f}) per candidate row). The simulator scores the
+    next slot's first frames against this same map (the update reaches the device late), so
+    it keeps the factorisation for :func:`augmented_log_taus` instead of factorising twice."""
+    _, inv, pos, comp, n_comp, log_det = factorise(weights, rtol)
+    rows = np.arange(cand.shape[0])
+    return inv, pos, comp, n_comp, log_det, augmented_log_taus(
+        inv, pos, comp, n_comp, cand, rows, None, log_det, 0.0, 0.0, rtol)
+
+
+@njit(cache=True)
+def gathered_factored_scores(dense: np.ndarray, map_idx: np.ndarray, cand_idx: np.ndarray,
+                             rtol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                   np.ndarray, int, float, np.ndarray]:
+    """:func:`gathered_slot_scores` that also returns the factorisation (see
+    :func:`factored_slot_scores`): (map weights, A⁻¹, pos, comp, components, log det A,
+    log τ per candidate)."""
+    n, m = map_idx.size, cand_idx.size
+    w = np.empty((n, n))
+    for i in range(n):
+        for j in range(n):
+            w[i, j] = 0.0 if i == j else dense[map_idx[i], map_idx[j]]
+    cand = np.empty((m, n))
+    for i in range(m):
+        for j in range(n):
+            cand[i, j] = dense[cand_idx[i], map_idx[j]]
+    inv, pos, comp, n_comp, log_det, log_tau = factored_slot_scores(w, cand, rtol)
+    return w, inv, pos, comp, n_comp, log_det, log_tau
+
+
+@njit(cache=True)
 def gathered_slot_scores(dense: np.ndarray, map_idx: np.ndarray, cand_idx: np.ndarray,
                          rtol: float) -> tuple[np.ndarray, int, float, np.ndarray]:
     """:func:`slot_scores` with the weights gathered from a dataset's dense weight matrix:
