@@ -66,6 +66,14 @@ def test_snapshots_are_scored_on_held_out_episodes_beside_the_rules(tmp_path: Pa
     assert set(paired) == {f"{which} actor - {other}" for which in ("kept", "last")
                            for other in ("untrained actor (same run)", f"best rule ({best})")}
     assert all(int(r["runs"]) == 2 for r in paired.values())
+    with (tmp_path / "out" / "learning_curve_controls.csv").open() as fh:
+        controls = {r["policy"]: r for r in csv.DictReader(fh)}
+    assert set(controls) == {"LFF", "PU", "ADAPT", "RANDOM", "Untrained AMM (slot 0)",
+                             "Trained AMM, kept (validation)", "Trained AMM, last"}
+    assert controls["Untrained AMM (slot 0)"]["training_runs"] == "2"
+    assert float(controls["Untrained AMM (slot 0)"]["mean_uncertainty"]) == pytest.approx(
+        np.mean([p.per_episode.mean() for p in points if p.task.slot == 0]))
+    assert controls[best]["paired_vs_best_rule"] == ""          # the baseline itself
     assert (tmp_path / "out" / "learning_curve.png").stat().st_size > 10_000
 
 

@@ -12,8 +12,9 @@ scoring 0, its 95 % CI over the episodes, lost share, υ over the tracked frames
 validation υ and whether the run kept it), ``learning_curve_runs.csv`` (every episode of every
 snapshot and rule), ``learning_curve_paired.csv`` (each run's kept and last actor against its
 own untrained actor and against the best rule, paired by episode, two-level bootstrap over runs
-and episodes) and ``learning_curve.png`` (one line per run, the rules and the untrained level as
-horizontal lines, each run's kept snapshot marked).
+and episodes), ``learning_curve_controls.csv`` (rules, random, the untrained, kept and last
+actors side by side, each paired with the best rule) and ``learning_curve.png`` (one line per
+run, the rules and the untrained level as horizontal lines, each run's kept snapshot marked).
 """
 
 from __future__ import annotations
@@ -173,6 +174,8 @@ def learning_curve(snapshot_files: list[Path], covis: str, out_dir: Path, episod
                "apart"],
               [[label, n_runs, episodes, d.mean, d.low, d.high, d.apart]
                for label, (n_runs, d) in paired.items()])
+    write_csv(out_dir / "learning_curve_controls.csv", CONTROL_COLUMNS,
+              controls_table(points, runs))
     if points:
         plot(out_dir / "learning_curve.png", points, runs)
     return points
@@ -236,6 +239,48 @@ def paired_summary(points: list[CurvePoint], runs: dict[str, tuple[int, int, lis
             out[f"{which} actor - best rule ({best.task.policy.upper()})"] = (
                 len(pairs), paired_difference(trained, best.per_episode))
     return out
+
+
+def controls_table(points: list[CurvePoint], runs: dict[str, tuple[int, int, list[int]]]
+                   ) -> list[list[object]]:
+    """The controls beside the trained actor on the held-out episodes (issue #29): each rule
+    and random, the untrained actor of every run (slot 0: one variant over the runs'
+    initialisations), the kept and the last actor of every run. Per row: mean υ, its 95 % CI
+    (over the episodes for a rule, over the runs' means for a variant), runs, lost share and υ
+    tracked pooled over every frame, and the paired difference with the best rule (two-level
+    bootstrap over runs and episodes)."""
+    singles = {p.task.policy.upper(): [p] for p in points if p.task.policy}
+    rules = {k: v for k, v in singles.items() if k != "RANDOM"}
+    if not rules:
+        return []
+    best_label, best = min(((k, v[0]) for k, v in rules.items()),
+                           key=lambda kv: kv[1].per_episode.mean())
+    by_run = _by_run(points)
+    variants = {
+        "Untrained AMM (slot 0)": [s[0] for s in by_run.values() if 0 in s],
+        "Trained AMM, kept (validation)": [s[runs[f][1]] for f, s in by_run.items()
+                                           if runs[f][1] in s],
+        "Trained AMM, last": [s[max(s)] for s in by_run.values() if s],
+    }
+    rows: list[list[object]] = []
+    for label, group in {**singles, **variants}.items():
+        if not group:
+            continue
+        scores = np.array([p.per_episode for p in group])
+        # a rule: the CI over its episodes; a variant: over its runs' means (NaN under 2)
+        _, ci = mean_ci95(list(scores[0] if label in singles else scores.mean(axis=1)))
+        pooled = UncertaintyTally.of(r.tally for p in group for r in p.runs)
+        diff = paired_difference(scores, best.per_episode)
+        rows.append([label, "" if label in singles else len(group), scores.shape[1],
+                     float(scores.mean()), ci, pooled.lost_share, pooled.tracked_uncertainty,
+                     best_label, *(("", "", "") if label == best_label else
+                                   (diff.mean, diff.low, diff.high))])
+    return rows
+
+
+CONTROL_COLUMNS = ["policy", "training_runs", "episodes", "mean_uncertainty", "ci95",
+                   "lost_share", "tracked_uncertainty", "best_rule", "paired_vs_best_rule",
+                   "paired_ci_low", "paired_ci_high"]
 
 
 def plot(path: Path, points: list[CurvePoint],

@@ -160,15 +160,21 @@ def run_learning_curve(args: argparse.Namespace) -> int:
                                    progress, executor, failures)
     if not points:
         return _failed(failures, out)
-    paired = ex.paired_summary(points, ex.setup_of(files, args.covis, episodes, slots,
-                                                   args.seed)[1])
+    runs = ex.setup_of(files, args.covis, episodes, slots, args.seed)[1]
+    print("held-out controls (mean υ ± 95 % CI, lost share; paired with the best rule: mean "
+          "[95 % CI]):")
+    for row in ex.controls_table(points, runs):
+        label, _, _, mean, ci, lost, _, best, diff, low, high = row
+        print(f"  {label:<32} {mean:9.1f} ± {ci:6.1f}  lost {lost:6.1%}"
+              + (f"   vs {best} {diff:+8.1f} [{low:+.1f}, {high:+.1f}]" if diff != "" else ""))
+    paired = ex.paired_summary(points, runs)
     print(f"paired by episode ({episodes} held-out episodes of {slots} slots; mean "
           "[95 % CI over training runs and episodes]):")
     for label, (n_runs, d) in paired.items():
         print(f"  {label:<42} {d.mean:+8.1f} [{d.low:+.1f}, {d.high:+.1f}]  ({n_runs} runs"
               f"{', apart' if d.apart else ''})")
-    print(f"wrote {out}/learning_curve.csv, learning_curve_runs.csv, learning_curve_paired.csv "
-          f"and learning_curve.png ({time.monotonic() - t0:.0f} s)")
+    print(f"wrote {out}/learning_curve.csv, learning_curve_runs.csv, learning_curve_paired.csv, "
+          f"learning_curve_controls.csv and learning_curve.png ({time.monotonic() - t0:.0f} s)")
     return _failed(failures, out)
 
 
