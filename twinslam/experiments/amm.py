@@ -223,7 +223,7 @@ def sweep(name: str, xs: list[object], channel_of: Callable[[object], str],
     write_csv(out_dir / f"{name}.csv", [x_label, *COLUMNS], _rows(results))
     write_csv(out_dir / f"{name}_runs.csv", [x_label, *RUN_COLUMNS], episodes)
     if plot and results:
-        _plot(out_dir / f"{name}.png", results, x_label)
+        plot_figure(out_dir / f"{name}.png", results, x_label)
     return results
 
 
@@ -328,7 +328,7 @@ def fig8(covis: str, learned: dict[int, dict[str, list[Path]]],
                              executor=executor, failures=failures))
     write_csv(out_dir / "fig8.csv", ["number of rate states N", *COLUMNS], _rows(results))
     if results:
-        _plot(out_dir / "fig8.png", results, "number of rate states N", bars=True)
+        plot_figure(out_dir / "fig8.png", results, "number of rate states N", bars=True)
     return results
 
 
@@ -346,7 +346,7 @@ def fig9(covis: str, learned: dict[str, list[Path]], out_dir: Path,
                  executor=executor, failures=failures)
 
 
-def _plot(path: Path, results: dict[object, dict[str, Result]], x_label: str,
+def plot_figure(path: Path, results: dict[object, dict[str, Result]], x_label: str,
           bars: bool = False) -> None:
     """Mean υ (lost frame = 0) on the left, the share of lost frames beside it: a policy that
     buys a low υ by losing frames shows on the right."""
