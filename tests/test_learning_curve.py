@@ -77,6 +77,12 @@ def test_snapshots_are_scored_on_held_out_episodes_beside_the_rules(tmp_path: Pa
     assert (tmp_path / "out" / "learning_curve.png").stat().st_size > 10_000
 
 
+def test_thinning_keeps_the_first_the_last_and_the_kept_snapshot() -> None:
+    slots = [0, 500, 1000, 1500, 2000, 2500, 2700]
+    assert learning_curve.thinned(slots, 1500, 1000) == [0, 1000, 1500, 2000, 2700]
+    assert learning_curve.thinned(slots, 1000, 0) == slots
+
+
 def test_a_checkpoint_is_not_a_snapshots_file(tmp_path: Path) -> None:
     _, trainer = _train(tmp_path, 0)
     with pytest.raises(ValueError, match="not a training's snapshots"):

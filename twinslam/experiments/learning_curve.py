@@ -147,16 +147,26 @@ def setup_of(snapshot_files: list[Path], covis: str, episodes: int, slots: int,
                  episodes, slots, seed0), runs
 
 
+def thinned(slots: list[int], kept: int, every: int) -> list[int]:
+    """The snapshot slots scored when only one every ``every`` training slots is wanted:
+    those on the grid, and always the first, the last and the kept one (0: all)."""
+    if every <= 0:
+        return list(slots)
+    return [s for s in slots if s % every == 0 or s in (slots[0], slots[-1], kept)]
+
+
 def learning_curve(snapshot_files: list[Path], covis: str, out_dir: Path, episodes: int = 10,
                    slots: int = 100, seed0: int = 0, progress: Progress | None = None,
                    executor: Executor | None = None,
-                   failures: list[TaskFailure] | None = None) -> list[CurvePoint]:
-    """Score every snapshot of every run and the rules on the held-out episodes; write the
-    CSVs and the figure (module docstring). Returns the points that were scored."""
+                   failures: list[TaskFailure] | None = None,
+                   every: int = 0) -> list[CurvePoint]:
+    """Score every snapshot of every run (``every`` > 0: one every that many training slots,
+    see :func:`thinned`) and the rules on the held-out episodes; write the CSVs and the
+    figure (module docstring). Returns the points that were scored."""
     setup, runs = setup_of(snapshot_files, covis, episodes, slots, seed0)
     tasks = [CurveTask(setup, rule) for rule in RULES]
-    tasks += [CurveTask(setup, "", path, slot) for path, (_, _, slots_) in runs.items()
-              for slot in slots_]
+    tasks += [CurveTask(setup, "", path, slot) for path, (_, kept, slots_) in runs.items()
+              for slot in thinned(slots_, kept, every)]
     points = run_all(score_point, tasks, executor, _describe,
                      lambda p: f"{_describe(p.task)}: υ {p.per_episode.mean():.1f}, lost "
                                f"{p.pooled.lost_share:.1%}",

@@ -157,7 +157,7 @@ def run_learning_curve(args: argparse.Namespace) -> int:
     failures: list[TaskFailure] = []
     with executor:
         points = ex.learning_curve(files, args.covis, out, episodes, slots, args.seed,
-                                   progress, executor, failures)
+                                   progress, executor, failures, every=args.snapshot_every)
     if not points:
         return _failed(failures, out)
     runs = ex.setup_of(files, args.covis, episodes, slots, args.seed)[1]
@@ -271,6 +271,9 @@ def register(sub: Subparsers) -> None:
     exp.add_argument("--snapshots", action="append", metavar="FILE",
                      help="learning-curve: a training run's FILE.snapshots.pt from `twinslam "
                      "train --snapshots` (repeat: one line per run; all of one setting)")
+    exp.add_argument("--snapshot-every", type=int, default=0, metavar="SLOTS",
+                     help="learning-curve: score one snapshot every SLOTS training slots (and "
+                     "always the first, the last and the kept one); default 0: every one")
     exp.add_argument("--covis", metavar="FILE[@START:END]|geometric[:N[:SEED]]",
                      default=str(BUNDLED_COVIS),
                      help="fig7-9, learning-curve: covisibility dataset (learning-curve: "
