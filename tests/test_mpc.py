@@ -82,7 +82,7 @@ def test_the_predicted_frames_come_from_the_frames_seen() -> None:
 def test_bad_options_and_the_edge_are_refused_by_name() -> None:
     assert parse_mpc("mpc:H=5,S=2,frames=persistence") == MpcConfig(
         horizon=5, scenarios=2, frames="persistence")
-    with pytest.raises(ValueError, match="H and S must be >= 1"):
+    with pytest.raises(ValueError, match="H, S and W must be >= 1"):
         parse_mpc("mpc:H=0")
     with pytest.raises(ValueError, match="frames 'psychic'"):
         parse_mpc("mpc:frames=psychic")
@@ -92,5 +92,22 @@ def test_bad_options_and_the_edge_are_refused_by_name() -> None:
         MpcPlanner().decide(MapManagementEnv(
             CovisibilityDataset.from_sets([{1, 2}, {2, 3}]), parse_channel("markov:N=2"),
             SimConfig(vmax=2, slot_frames=1, slots=2)).reset(0)[0])
+    with pytest.raises(ValueError, match="needs the variational twin"):
+        MpcPlanner(parse_mpc("mpc:rates=variational"))       # the simulator cannot build it
     reason = policy_refused("mpc")
     assert reason is not None and "simulator's world model" in reason
+
+
+def test_the_variational_twin_plans_and_learns_within_the_episode(
+        kitchen: CovisibilityDataset) -> None:
+    """``rates=variational`` (the policy registry builds the twin, torch and all): retrained
+    every W slots on what the episode showed, its scenarios plan a valid episode."""
+    config = SimConfig(vmax=20, slots=9)
+    env = MapManagementEnv(kitchen, parse_channel("markov:N=2", seed=4), config)
+    policy = make_policy("mpc:H=2/S=2/rates=variational/W=4")
+    assert isinstance(policy, MpcPlanner)
+    plan = rollout(env, policy, 4)
+    assert len(plan.actions) == config.slots
+    twin = policy._twin
+    assert twin is not None and twin.version == 2        # retrained at slots 4 and 8
+    assert replay(env, plan.actions, 4).total == pytest.approx(plan.total)

@@ -31,9 +31,19 @@ def make_policy(name: str) -> MapPolicy:
         return MbrlPolicy(Path(path))
     if kind == MPC:
         from twinslam.simulator.mpc import MpcPlanner, parse_mpc
-        return MpcPlanner(parse_mpc(name))
+        config = parse_mpc(name)
+        return MpcPlanner(config, learned_rates=_variational_twin
+                          if config.rates == "variational" else None)
     if name not in POLICIES:
         raise ValueError(f"unknown policy {name!r}; choose from {sorted(POLICIES)}, "
                          "mbrl:CHECKPOINT (or, in the simulator, mpc[:H=../S=..] and "
                          "'reference')")
     return make_rule_policy(name)
+
+
+def _variational_twin(n_states: int, seed: int, retrain_every: int) -> object:
+    """The variational twin for ``mpc:rates=variational``, fresh each episode (seeded by it)
+    and retrained every ``retrain_every`` slots on the states it has seen (torch loads here)."""
+    from twinslam.twin.registry import RateModelSettings, make_rate_model
+    return make_rate_model("variational", RateModelSettings(
+        n_states=n_states, retrain_every=retrain_every, seed=seed))

@@ -11,8 +11,10 @@ in S scenarios. What it may know is only what a device and an edge know at slot 
   states observed so far (the next state from its posterior predictive, later ones from its
   mean regime matrix), each state at the mean rate observed in it (the current rate before it
   was seen); ``markov``: the same from transition counts (the paper's Markov model, KT
-  smoothed); ``last``: no model, the current state and rate persist; ``oracle``: the true
-  future rates (the known-future control only);
+  smoothed); ``variational``: the same from the variational twin (paper §V), learning within
+  the episode — retrained every ``W`` slots on the states seen (the policy registry builds
+  it: it loads torch, which the simulator never does); ``last``: no model, the current state
+  and rate persist; ``oracle``: the true future rates (the known-future control only);
 * **frames** — ``motion``: the camera keeps moving through the sequence as it did across this
   slot (constant velocity in frames, turned back at the sequence's ends) — in the simulator the
   covisibility of the frames at the extrapolated poses, live it would be the frusta's overlap
@@ -30,7 +32,7 @@ It plans in the simulator's world model, so it runs where one exists (``twinslam
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -45,7 +47,10 @@ from twinslam.simulator.reference import swap_one
 from twinslam.twin.markov import MarkovCounts
 from twinslam.twin.regime_twin import RegimeConfig, RegimeTwin
 
-RATE_MODELS = ("regime", "markov", "last", "oracle")
+RATE_MODELS = ("regime", "markov", "variational", "last", "oracle")
+#: builds a learned rate model the simulator cannot (torch): (N states, seed, W) → a model
+#: with observe/retrain/predict/transition_matrix (:mod:`twinslam.twin.rate_model`)
+LearnedRates = Callable[[int, int, int], Any]
 FRAME_PREDICTORS = ("motion", "persistence", "oracle")
 
 
@@ -58,19 +63,21 @@ class MpcConfig:
     max_actions: int = 64        #: first actions tried exhaustively up to this many
     max_states: int = 2_000      #: maps a slot, actions a state, of an exact later plan
     swaps: int = 6               #: random swaps of the base actions when not exhaustive
+    retrain: int = 20            #: W, slots between retrains of a learned rate model
 
     def label(self) -> str:
         """``mpc``, or ``mpc:`` and the options that differ from the defaults."""
         keys = {"horizon": "H", "scenarios": "S", "rates": "rates", "frames": "frames",
-                "max_actions": "actions", "swaps": "swaps"}
+                "max_actions": "actions", "swaps": "swaps", "retrain": "W"}
         default = MpcConfig()
         changed = [f"{short}={getattr(self, name)}" for name, short in keys.items()
                    if getattr(self, name) != getattr(default, name)]
         return "mpc" + (":" + "/".join(changed) if changed else "")
 
     def check(self) -> None:
-        if self.horizon < 1 or self.scenarios < 1 or self.max_actions < 1 or self.swaps < 0:
-            raise ValueError("mpc: H and S must be >= 1, swaps >= 0")
+        if self.horizon < 1 or self.scenarios < 1 or self.max_actions < 1 or self.swaps < 0 \
+                or self.retrain < 1:
+            raise ValueError("mpc: H, S and W must be >= 1, swaps >= 0")
         if self.rates not in RATE_MODELS:
             raise ValueError(f"mpc: rates {self.rates!r}, one of {', '.join(RATE_MODELS)}")
         if self.frames not in FRAME_PREDICTORS:
@@ -84,7 +91,7 @@ def parse_mpc(spec: str) -> MpcConfig:
     _, _, options = spec.partition(":")
     config = MpcConfig()
     keys = {"H": "horizon", "S": "scenarios", "rates": "rates", "frames": "frames",
-            "actions": "max_actions", "swaps": "swaps"}
+            "actions": "max_actions", "swaps": "swaps", "W": "retrain"}
     for part in filter(None, (p.strip() for p in options.replace("/", ",").split(","))):
         key, eq, value = part.partition("=")
         if not eq or key not in keys:
@@ -135,9 +142,14 @@ class MpcPlanner:
     needs_simulator = True
 
     def __init__(self, config: MpcConfig | None = None,
-                 base: Sequence[MapPolicy] | None = None) -> None:
+                 base: Sequence[MapPolicy] | None = None,
+                 learned_rates: LearnedRates | None = None) -> None:
         self.config = config or MpcConfig()
         self.config.check()
+        if self.config.rates == "variational" and learned_rates is None:
+            raise ValueError("mpc: rates=variational needs the variational twin, which the "
+                             "policy registry builds (make_policy('mpc:rates=variational'))")
+        self._learned = learned_rates
         self.name = self.config.label()
         self.base: list[MapPolicy] = (list(base) if base is not None
                                       else [LatestFrameFirst(), Adapt()])
@@ -149,7 +161,8 @@ class MpcPlanner:
 
     def reset(self, seed: int | None = None) -> None:
         self._rng = np.random.default_rng(seed)
-        self._twin: RegimeTwin | MarkovCounts | None = None
+        self._seed = seed or 0
+        self._twin: Any = None     # RegimeTwin, MarkovCounts or a learned model
         self._rates: dict[int, list[float]] = {}
         self._observed = -1
 
@@ -159,10 +172,13 @@ class MpcPlanner:
         if obs.slot == self._observed:
             return
         if self._twin is None or self._twin.n_states != obs.n_states:
-            self._twin = (MarkovCounts(obs.n_states, pseudo_count=0.5)
-                          if self.config.rates == "markov"
+            rates = self.config.rates
+            self._twin = (MarkovCounts(obs.n_states, pseudo_count=0.5) if rates == "markov"
+                          else self._learned(obs.n_states, self._seed, self.config.retrain)
+                          if rates == "variational" and self._learned is not None
                           else RegimeTwin(RegimeConfig(n_states=obs.n_states)))
-        self._twin.observe(obs.rate_state)
+        if self._twin.observe(obs.rate_state):      # a learned model's retrain is due
+            self._twin.retrain()
         self._rates.setdefault(obs.rate_state, []).append(obs.rate_mbps)
         self._observed = obs.slot
 
@@ -175,7 +191,12 @@ class MpcPlanner:
             return [[(obs.rate_state, obs.rate_mbps)] * (cfg.horizon - 1)]
         assert self._twin is not None
         matrix = self._twin.transition_matrix()
-        following = self._twin.predict([obs.rate_state])
+        # a filter reads the newest state only; a learned model its window of them
+        if self.config.rates == "variational":
+            following = self._twin.predict(obs.rate_history)
+            following = following / following.sum()        # a float32 softmax's rounding
+        else:
+            following = self._twin.predict([obs.rate_state])
         out: list[list[tuple[int, float]] | None] = []
         for _ in range(cfg.scenarios):
             state = int(self._rng.choice(obs.n_states, p=following))
