@@ -39,6 +39,8 @@ from twinslam.policy_registry import make_policy
 from twinslam.simulator.covisibility import load_covisibility
 from twinslam.simulator.env import MapManagementEnv, SimConfig
 from twinslam.simulator.geometric_covisibility import geometric_covisibility
+from twinslam.uncertainty import laplacian_kernels as kernels
+from twinslam.uncertainty.laplacian_factorization import PIVOT_RTOL
 from twinslam.uncertainty.naive_greedy import naive_greedy
 from twinslam.uplink.channels import parse_channel
 
@@ -70,6 +72,36 @@ def _one_run(dataset, name: str, slots: int, paper_rule: bool) -> tuple[float, f
         obs, *_ = env.step(action)
     total = time.perf_counter() - start
     return slots / total, slots / decide_s
+
+
+def reward_kernel_seconds(dataset, slots: int = 100) -> float:
+    """Median seconds a slot spends in the reward's arithmetic alone under the device's rule:
+    one factorisation of the new map with the late frames scored against it, and the early
+    frames scored against the map before (whose factorisation the slot before kept) — the
+    kernels and nothing around them, on the maps and frames an LFF episode meets. A floor
+    under any slot loop built on these kernels."""
+    config = SimConfig(vmax=45, slot_frames=60, slots=slots + 30)
+    env = MapManagementEnv(dataset, parse_channel("markov:N=2", seed=0), config)
+    policy = make_policy("lff")
+    obs, _ = env.reset(seed=0)
+    lag, dense = config.lag_frames, dataset.dense_weights
+    times = []
+    for k in range(slots + 30):
+        before = env.stream.dataset_index(obs.map_frames)
+        obs, *_ = env.step(policy.decide(obs))
+        frames = env.stream.dataset_index(np.arange(obs.slot * 60, (obs.slot + 1) * 60))
+        after = env.stream.dataset_index(obs.map_frames)
+        if k < 30 or before.size == 0:
+            continue                      # the map fills first, as in slots_per_second
+        _, inv, pos, comp, n_comp, log_det, _ = kernels.gathered_factored_scores(
+            dense, before, frames[:1], PIVOT_RTOL)
+        early = np.ascontiguousarray(dense[np.ix_(frames[:lag], before)], dtype=np.float64)
+        t0 = time.perf_counter()
+        kernels.augmented_log_taus(inv, pos, comp, n_comp, early, np.arange(lag), None,
+                                   log_det, 0.0, 0.0, PIVOT_RTOL)
+        kernels.gathered_factored_scores(dense, after, frames[lag:], PIVOT_RTOL)
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
 
 
 def adapt_ratio(dataset, repeats: int = 9) -> tuple[float, float]:
@@ -174,6 +206,10 @@ def main() -> None:
                                             paper_rule=rule == "paper")
             print(f"{name:<7} {rule:<7} {full:8.0f} slots/s (decide+update+reward), "
                   f"{full / gauge:6.1f} per M gauge steps/s   {decide:9.0f} decisions/s")
+    floor = reward_kernel_seconds(dataset)
+    gauge = python_steps_per_s()
+    print(f"reward kernels alone (device's rule, LFF's maps): {floor * 1e6:.0f} µs a slot — "
+          f"at most {1 / floor:.0f} slots/s, {1 / floor / gauge:.1f} per M gauge steps/s")
     inc, naive = adapt_ratio(dataset)
     print(f"ADAPT decision (V_max 45, 60 candidates, 8 up / 8 evict): incremental "
           f"{inc * 1000:.2f} ms, naive {naive * 1000:.1f} ms, ratio {naive / inc:.1f}x")
