@@ -97,6 +97,23 @@ def test_bad_executor_options_are_refused_by_name() -> None:
         make_executor("dask")
 
 
+def test_training_runs_in_workers_get_one_torch_thread_each() -> None:
+    """Two torch threads a run in two workers oversubscribed a 2-core machine and ran its
+    trainings ~5× slower: runs that share the cores get one thread each unless told."""
+    from argparse import Namespace
+
+    from twinslam.cli.commands.train import threads_per_run
+
+    def threads(**kw: object) -> int:
+        return threads_per_run(Namespace(**{"threads": None, "jobs": None,
+                                            "executor": "local", **kw}))
+    assert threads() == 2                           # one run, in this process
+    assert threads(jobs=2) == 1 and threads(executor="ray") == 1
+    assert threads(jobs=2, threads=3) == 3          # asked for
+    with pytest.raises(ValueError, match="--threads must be >= 1"):
+        threads(threads=0)
+
+
 def test_the_cli_says_when_ray_cannot_be_joined(tmp_path: Path) -> None:
     done = subprocess.run(
         [sys.executable, "-m", "twinslam.cli.main", "experiment", "twin-predict",

@@ -49,12 +49,13 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError("--snapshots keeps the validated actors: it needs "
                              "--validate-every > 0")
         AmmTrainer(config, dataset)          # a bad setting fails here, before any worker
+        threads_per_run(args)
         executor = open_executor(args, one_torch_thread)
     except (ChannelError, CovisibilityError, ValueError, RuntimeError) as exc:
         return error(exc)
     seeds = list(range(args.seed, args.seed + args.runs))
     tasks = train_tasks(config, absolute_spec(args.covis), Path(args.output), seeds,
-                        args.threads, verbose=args.runs == 1 or args.verbose,
+                        threads_per_run(args), verbose=args.runs == 1 or args.verbose,
                         snapshots=args.snapshots)
     print(f"training on {dataset.n_frames} frames ({dataset.source or args.covis}); channel "
           f"{args.channel}; V_max {args.vmax}; actor {args.actor}; rate model "
@@ -78,6 +79,19 @@ def run(args: argparse.Namespace) -> int:
     print(f"{len(sweep.results)} of {len(tasks)} run(s) trained "
           f"({time.monotonic() - t0:.0f} s)")
     return failed_tasks(sweep.failures, "training run(s)", str(failures_file))
+
+
+def threads_per_run(args: argparse.Namespace) -> int:
+    """torch threads each run gets: ``--threads``, else 2 for runs in this process and 1 in
+    workers (local ``--jobs`` > 1 or Ray), where the runs already share the cores — two
+    threads each there oversubscribe them, and torch's spinning threads then ran a 2-core
+    machine's two trainings ~5× slower (measured: 280 vs ~56 ms a slot)."""
+    if args.threads is not None:
+        if args.threads < 1:
+            raise ValueError(f"--threads must be >= 1, got {args.threads}")
+        return int(args.threads)
+    in_workers = args.executor == "ray" or (args.jobs or 1) > 1
+    return 1 if in_workers else 2
 
 
 def register(sub: Subparsers) -> None:
@@ -121,7 +135,9 @@ def register(sub: Subparsers) -> None:
     train.add_argument("--snapshots", action="store_true",
                        help="also write every validated actor to FILE.snapshots.pt: what "
                        "`twinslam experiment learning-curve` evaluates on held-out data")
-    train.add_argument("--threads", type=int, default=2, help="torch CPU threads per run")
+    train.add_argument("--threads", type=int, default=None,
+                       help="torch CPU threads per run (default: 2 in this process; 1 a run "
+                       "with --jobs > 1 or --executor ray, where the runs share the cores)")
     train.add_argument("-v", "--verbose", action="store_true",
                        help="with --runs > 1: every run's progress lines too (prefixed by its "
                        "seed)")
