@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from twinslam.experiments import learning_curve
+from twinslam.experiments.training import TrainTask, snapshots_path, train_one
 from twinslam.mbrl.trainer import AmmTrainer, TrainConfig, load_snapshots
 from twinslam.policy_registry import make_policy
 from twinslam.simulator.covisibility_spec import open_covisibility
@@ -75,6 +76,27 @@ def test_snapshots_are_scored_on_held_out_episodes_beside_the_rules(tmp_path: Pa
         np.mean([p.per_episode.mean() for p in points if p.task.slot == 0]))
     assert controls[best]["paired_vs_best_rule"] == ""          # the baseline itself
     assert (tmp_path / "out" / "learning_curve.png").stat().st_size > 10_000
+
+
+def test_a_training_stopped_half_way_keeps_its_checkpoint_and_snapshots_so_far(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each validation saves what there is (a 30 000-slot run killed at slot 20 000 keeps
+    its curve to there): here the run dies right after its second validation."""
+    original = AmmTrainer._keep_if_best
+
+    def dies_after_two(self: AmmTrainer, played: int) -> None:
+        original(self, played)
+        if len(self.validations) == 2:
+            raise KeyboardInterrupt
+    monkeypatch.setattr(AmmTrainer, "_keep_if_best", dies_after_two)
+    config = TrainConfig(actor="paper", slots=30, warmup_slots=10, validate_every=10,
+                         validation_seeds=1, validation_slots=5, batch_size=8)
+    task = TrainTask(config, f"{COVIS}@0:600", tmp_path / "run.pt", snapshots=True)
+    with pytest.raises(KeyboardInterrupt):
+        train_one(task)
+    _, kept, snaps = load_snapshots(snapshots_path(tmp_path / "run.pt"))
+    assert [slot for slot, _ in snaps] == [0, 20] and kept in (0, 20)
+    assert (tmp_path / "run.pt").is_file()
 
 
 def test_thinning_keeps_the_first_the_last_and_the_kept_snapshot() -> None:

@@ -62,14 +62,21 @@ def train_one(task: TrainTask) -> TrainOutcome:
     started = time.monotonic()
     torch.set_num_threads(task.threads)
     seed = task.config.seed
+    task.output.parent.mkdir(parents=True, exist_ok=True)
+
+    def save(trainer: AmmTrainer) -> None:
+        """What there is so far (after every validation, and at the end): a run stopped
+        half-way keeps its best actor and its snapshots."""
+        trainer.save(task.output)
+        if task.snapshots:
+            trainer.save_snapshots(snapshots_path(task.output))
+
     trainer = AmmTrainer(task.config, cached_covisibility(task.covis),
                          (lambda line: print(f"[seed {seed}] {line}", flush=True))
-                         if task.verbose else None, snapshots=task.snapshots)
+                         if task.verbose else None, snapshots=task.snapshots,
+                         on_validation=save)
     log = trainer.train()
-    task.output.parent.mkdir(parents=True, exist_ok=True)
-    trainer.save(task.output)
-    if task.snapshots:
-        trainer.save_snapshots(snapshots_path(task.output))
+    save(trainer)
     log_path = task.output.with_suffix(".csv")
     log.write_csv(log_path)
     kept = min(trainer.validations, key=lambda v: v[1])[0] if trainer.validations else -1

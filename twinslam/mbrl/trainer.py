@@ -129,10 +129,14 @@ class TrainLog:
 class AmmTrainer:
     def __init__(self, config: TrainConfig, dataset: CovisibilityDataset,
                  progress: Callable[[str], None] | None = None,
-                 snapshots: bool = False) -> None:
+                 snapshots: bool = False,
+                 on_validation: Callable[[AmmTrainer], None] | None = None) -> None:
         """``snapshots``: also keep the checkpoint of every validated actor, not only the
-        best (:meth:`save_snapshots`; what a learning curve evaluates on held-out data)."""
+        best (:meth:`save_snapshots`; what a learning curve evaluates on held-out data).
+        ``on_validation``: called after every validation (e.g. to save what there is so far:
+        a long training that is stopped keeps its kept actor and its curve)."""
         self.config = config
+        self.on_validation = on_validation
         self.keep_snapshots = snapshots
         #: (slot, checkpoint blob) of every validation, with ``snapshots``
         self.snapshots: list[tuple[int, dict[str, Any]]] = []
@@ -392,6 +396,8 @@ class AmmTrainer:
         if self.progress:
             self.progress(f"validation at slot {played}: υ {score:.1f} (best "
                           f"{self.best_validation:.1f})")
+        if self.on_validation:
+            self.on_validation(self)
 
 
 def load_snapshots(path: Path) -> tuple[int, int, list[tuple[int, dict[str, Any]]]]:
