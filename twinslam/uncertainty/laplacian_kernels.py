@@ -603,10 +603,8 @@ def slot_scores(weights: np.ndarray, cand: np.ndarray, rtol: float
     scores every slot this way, and at ~45 frames the Python round trips of a
     :class:`~twinslam.uncertainty.laplacian_factorization.LaplacianFactorization` cost as much
     as the arithmetic."""
-    _, inv, pos, comp, n_comp, log_det = factorise(weights, rtol)
-    rows = np.arange(cand.shape[0])
-    return n_comp, log_det, augmented_log_taus(inv, pos, comp, n_comp, cand, rows, None,
-                                               log_det, 0.0, 0.0, rtol)
+    _, _, _, n_comp, log_det, log_tau = factored_slot_scores(weights, cand, rtol)
+    return n_comp, log_det, log_tau
 
 
 @njit(cache=True)
@@ -626,9 +624,10 @@ def factored_slot_scores(weights: np.ndarray, cand: np.ndarray, rtol: float
 def gathered_factored_scores(dense: np.ndarray, map_idx: np.ndarray, cand_idx: np.ndarray,
                              rtol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray,
                                                    np.ndarray, int, float, np.ndarray]:
-    """:func:`gathered_slot_scores` that also returns the factorisation (see
-    :func:`factored_slot_scores`): (map weights, A⁻¹, pos, comp, components, log det A,
-    log τ per candidate)."""
+    """:func:`factored_slot_scores` with the weights gathered from a dataset's dense weight
+    matrix: (map weights, A⁻¹, pos, comp, components, log det A, log τ per candidate). The
+    simulator's slot then costs one kernel call; the map weights (zero diagonal: an instance
+    shares no edge with itself) are returned for the policies and snapshots."""
     n, m = map_idx.size, cand_idx.size
     w = np.empty((n, n))
     for i in range(n):
@@ -640,23 +639,3 @@ def gathered_factored_scores(dense: np.ndarray, map_idx: np.ndarray, cand_idx: n
             cand[i, j] = dense[cand_idx[i], map_idx[j]]
     inv, pos, comp, n_comp, log_det, log_tau = factored_slot_scores(w, cand, rtol)
     return w, inv, pos, comp, n_comp, log_det, log_tau
-
-
-@njit(cache=True)
-def gathered_slot_scores(dense: np.ndarray, map_idx: np.ndarray, cand_idx: np.ndarray,
-                         rtol: float) -> tuple[np.ndarray, int, float, np.ndarray]:
-    """:func:`slot_scores` with the weights gathered from a dataset's dense weight matrix:
-    (map weights, components, log det A, log τ(G ∪ {f}) per candidate). The simulator's slot
-    then costs one kernel call; the map weights (zero diagonal: an instance shares no edge
-    with itself) are returned for the policies and snapshots."""
-    n, m = map_idx.size, cand_idx.size
-    w = np.empty((n, n))
-    for i in range(n):
-        for j in range(n):
-            w[i, j] = 0.0 if i == j else dense[map_idx[i], map_idx[j]]
-    cand = np.empty((m, n))
-    for i in range(m):
-        for j in range(n):
-            cand[i, j] = dense[cand_idx[i], map_idx[j]]
-    n_comp, log_det, log_tau = slot_scores(w, cand, rtol)
-    return w, n_comp, log_det, log_tau
