@@ -9,6 +9,10 @@ Several files of the same episodes (the same --covis, --seeds, --seed0, --slots 
 may be given: their rows are pooled, each (policy, seed) once.
 
     .venv/bin/python docs/figures/issue29_tables.py FILE.csv [FILE.csv …] [--against POLICY]
+    .venv/bin/python docs/figures/issue29_tables.py learning-curve FOLDER
+
+``learning-curve FOLDER``: the controls table and the paired comparisons that ``twinslam
+experiment learning-curve --out FOLDER`` wrote, as markdown.
 
 ``--against POLICY`` pairs every policy with that one instead of the best rule (the
 ablations: each variant against the planner it varies).
@@ -98,7 +102,39 @@ def table(paths: list[Path], against: str | None = None) -> str:
     return "\n".join(lines)
 
 
+def curve_tables(folder: Path) -> str:
+    """The learning curve's controls table and its paired comparisons (``twinslam experiment
+    learning-curve`` wrote both CSVs into ``folder``) as markdown."""
+    with (folder / "learning_curve_controls.csv").open(encoding="utf-8") as fh:
+        controls = list(csv.DictReader(fh))
+    with (folder / "learning_curve_paired.csv").open(encoding="utf-8") as fh:
+        paired = list(csv.DictReader(fh))
+    best = controls[0]["best_rule"] if controls else ""
+    lines = ["| policy | training runs | episodes | mean υ ± 95 % CI | lost (%) | υ tracked | "
+             f"paired vs {best} |", "|---|---|---|---|---|---|---|"]
+    for r in controls:
+        ci = float(r["ci95"])
+        diff = ("—" if r["paired_vs_best_rule"] == "" else
+                f"{float(r['paired_vs_best_rule']):+.1f} [{float(r['paired_ci_low']):+.1f}, "
+                f"{float(r['paired_ci_high']):+.1f}]")
+        lines.append(f"| {r['policy']} | {r['training_runs'] or '—'} | {r['episodes']} | "
+                     f"{float(r['mean_uncertainty']):.1f} ± "
+                     f"{'n/a' if np.isnan(ci) else f'{ci:.1f}'} | "
+                     f"{100 * float(r['lost_share']):.2f} | "
+                     f"{float(r['tracked_uncertainty']):.1f} | {diff} |")
+    lines += ["", "| comparison (paired by episode) | runs | mean difference [95 % CI] | "
+              "told apart |", "|---|---|---|---|"]
+    for r in paired:
+        lines.append(f"| {r['comparison']} | {r['runs']} | {float(r['mean_difference']):+.1f} "
+                     f"[{float(r['ci_low']):+.1f}, {float(r['ci_high']):+.1f}] | "
+                     f"{'yes' if r['apart'] == 'True' else 'no'} |")
+    return "\n".join(lines)
+
+
 def main(argv: list[str]) -> None:
+    if argv[:1] == ["learning-curve"] and len(argv) == 2:
+        print(curve_tables(Path(argv[1])))
+        return
     against = None
     if "--against" in argv:
         at = argv.index("--against")
