@@ -316,15 +316,26 @@ def plot(path: Path, points: list[CurvePoint],
                    label="untrained (mean of runs)")
         ax_lost.axhline(100 * np.mean([p.pooled.lost_share for p in untrained]), color="k",
                         ls=":")
+    # the runs (and their untrained start) set the υ scale; a rule far off it is named in the
+    # legend with its value rather than squashing the curves flat
+    curve = [p.per_episode.mean() for s in _by_run(points).values() for p in s.values()]
+    lo, hi = (min(curve), max(curve)) if curve else (0.0, 1.0)
+    pad = max(0.5 * (hi - lo), 20.0)
     for j, (label, p) in enumerate(lines):
         style = {"color": "grey", "ls": ("--", "-.", (0, (5, 1)), (0, (1, 2)))[j % 4]}
-        ax.axhline(p.per_episode.mean(), label=label, **style)
-        ax_lost.axhline(100 * p.pooled.lost_share, **style)
+        value = p.per_episode.mean()
+        off = not lo - pad <= value <= hi + pad
+        ax.axhline(value, label=f"{label} (off scale: {value:.0f})" if off else label,
+                   **style)
+        ax_lost.axhline(100 * p.pooled.lost_share, label=label, **style)
+    ax.set_ylim(lo - pad, hi + pad)
     ax.set_ylabel("held-out mean υ, lost frame = 0 (lower is better)")
     ax_lost.set_ylabel("held-out lost next-slot frames (%)")
     for axis in (ax, ax_lost):
         axis.set_xlabel("training slots (ringed: the kept checkpoint, chosen on validation)")
     ax.legend(fontsize=7, ncol=2)
+    ax_lost.set_yscale("symlog", linthresh=1.0)       # 0.8 % and 50 % on one axis
+    ax_lost.set_ylim(bottom=0.0)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
