@@ -234,11 +234,13 @@ def paired_summary(points: list[CurvePoint], runs: dict[str, tuple[int, int, lis
     rules = {p.task.policy: p for p in points if p.task.policy and p.task.policy != "random"}
     out: dict[str, tuple[int, PairedDifference]] = {}
     by_run = _by_run(points)
-    pick = {"kept": lambda path, snaps: snaps.get(runs[path][1]),
-            "last": lambda path, snaps: snaps.get(max(snaps)) if snaps else None}
-    for which, choose in pick.items():
-        pairs = [(choose(path, snaps), snaps.get(0)) for path, snaps in by_run.items()]
-        pairs = [(a, b) for a, b in pairs if a is not None and b is not None]
+    for which in ("kept", "last"):
+        pairs: list[tuple[CurvePoint, CurvePoint]] = []
+        for path, snaps in by_run.items():
+            trained_point = snaps.get(runs[path][1] if which == "kept" else max(snaps))
+            start = snaps.get(0)
+            if trained_point is not None and start is not None:
+                pairs.append((trained_point, start))
         if pairs:
             trained = np.array([a.per_episode for a, _ in pairs])
             untrained = np.array([b.per_episode for _, b in pairs])

@@ -66,6 +66,7 @@ def gcn_layer(conv: DenseGCNConv, h: torch.Tensor, prop: torch.Tensor,
     """``conv`` applied to node features ``h`` (B, n, F) with a precomputed propagation
     matrix: P (h W) + b on the real nodes, 0 on the padded ones. P (h W) = (P h) W, so the
     matmul with P runs on the narrower side of the layer."""
+    out: torch.Tensor
     if conv.in_channels < conv.out_channels:
         out = conv.lin(torch.matmul(prop, h))
     else:
