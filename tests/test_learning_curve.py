@@ -39,7 +39,7 @@ def test_snapshots_are_scored_on_held_out_episodes_beside_the_rules(tmp_path: Pa
     assert seed == 1 and [slot for slot, _ in snaps] == [0, 20, 30] and kept in (0, 20, 30)
 
     points = learning_curve.learning_curve(files, HELD_OUT, tmp_path / "out", episodes=2,
-                                           slots=6)
+                                           slots=6).points
     with (tmp_path / "out" / "learning_curve.csv").open() as fh:
         rows = list(csv.DictReader(fh))
     assert {r["policy"] for r in rows} == {"LFF", "PU", "ADAPT", "RANDOM", "AMM snapshot"}

@@ -155,14 +155,25 @@ def thinned(slots: list[int], kept: int, every: int) -> list[int]:
     return [s for s in slots if s % every == 0 or s in (slots[0], slots[-1], kept)]
 
 
+@dataclass(frozen=True)
+class CurveResult:
+    """What :func:`learning_curve` scored and wrote: the points, the runs (file → training
+    seed, kept slot, snapshot slots), the controls table's rows and the paired comparisons."""
+
+    points: list[CurvePoint]
+    runs: dict[str, tuple[int, int, list[int]]]
+    controls: list[list[object]]
+    paired: dict[str, tuple[int, PairedDifference]]
+
+
 def learning_curve(snapshot_files: list[Path], covis: str, out_dir: Path, episodes: int = 10,
                    slots: int = 100, seed0: int = 0, progress: Progress | None = None,
                    executor: Executor | None = None,
                    failures: list[TaskFailure] | None = None,
-                   every: int = 0) -> list[CurvePoint]:
+                   every: int = 0) -> CurveResult:
     """Score every snapshot of every run (``every`` > 0: one every that many training slots,
     see :func:`thinned`) and the rules on the held-out episodes; write the CSVs and the
-    figure (module docstring). Returns the points that were scored."""
+    figure (module docstring)."""
     setup, runs = setup_of(snapshot_files, covis, episodes, slots, seed0)
     tasks = [CurveTask(setup, rule) for rule in RULES]
     tasks += [CurveTask(setup, "", path, slot) for path, (_, kept, slots_) in runs.items()
@@ -184,11 +195,11 @@ def learning_curve(snapshot_files: list[Path], covis: str, out_dir: Path, episod
                "apart"],
               [[label, n_runs, episodes, d.mean, d.low, d.high, d.apart]
                for label, (n_runs, d) in paired.items()])
-    write_csv(out_dir / "learning_curve_controls.csv", CONTROL_COLUMNS,
-              controls_table(points, runs))
+    controls = controls_table(points, runs)
+    write_csv(out_dir / "learning_curve_controls.csv", CONTROL_COLUMNS, controls)
     if points:
         plot(out_dir / "learning_curve.png", points, runs)
-    return points
+    return CurveResult(points, runs, controls, paired)
 
 
 COLUMNS = ["policy", "training_seed", "training_slot", "kept", "validation_uncertainty",
@@ -226,28 +237,45 @@ def _by_run(points: list[CurvePoint]) -> dict[str, dict[int, CurvePoint]]:
     return out
 
 
+def _best_rule(points: list[CurvePoint]) -> CurvePoint | None:
+    """The rule policy (random is a control, not a rule) with the lowest mean υ: what every
+    other row is paired with."""
+    rules = [p for p in points if p.task.policy and p.task.policy != "random"]
+    return min(rules, key=lambda p: p.per_episode.mean()) if rules else None
+
+
+#: each run's actor a comparison takes: its untrained one, the kept one, the last one
+ACTORS = ("untrained", "kept", "last")
+
+
+def _actor(snaps: dict[int, CurvePoint], kept: int, which: str) -> CurvePoint | None:
+    """Run's ``which`` actor (:data:`ACTORS`) among its scored snapshots, or None when that
+    point failed."""
+    return snaps.get({"untrained": 0, "kept": kept, "last": max(snaps)}[which])
+
+
 def paired_summary(points: list[CurvePoint], runs: dict[str, tuple[int, int, list[int]]]
                    ) -> dict[str, tuple[int, PairedDifference]]:
     """The kept and the last actor of every run against that run's untrained actor (slot 0)
     and against the best rule, paired by episode: (runs compared, difference). Runs missing
     a needed point (a failed task) are left out of that comparison."""
-    rules = {p.task.policy: p for p in points if p.task.policy and p.task.policy != "random"}
+    best = _best_rule(points)
     out: dict[str, tuple[int, PairedDifference]] = {}
     by_run = _by_run(points)
     for which in ("kept", "last"):
         pairs: list[tuple[CurvePoint, CurvePoint]] = []
         for path, snaps in by_run.items():
-            trained_point = snaps.get(runs[path][1] if which == "kept" else max(snaps))
-            start = snaps.get(0)
+            trained_point = _actor(snaps, runs[path][1], which)
+            start = _actor(snaps, runs[path][1], "untrained")
             if trained_point is not None and start is not None:
                 pairs.append((trained_point, start))
-        if pairs:
-            trained = np.array([a.per_episode for a, _ in pairs])
-            untrained = np.array([b.per_episode for _, b in pairs])
-            out[f"{which} actor - untrained actor (same run)"] = (
-                len(pairs), paired_difference(trained, untrained))
-        if rules and pairs:
-            best = min(rules.values(), key=lambda p: p.per_episode.mean())
+        if not pairs:
+            continue
+        trained = np.array([a.per_episode for a, _ in pairs])
+        untrained = np.array([b.per_episode for _, b in pairs])
+        out[f"{which} actor - untrained actor (same run)"] = (
+            len(pairs), paired_difference(trained, untrained))
+        if best is not None:
             out[f"{which} actor - best rule ({best.task.policy.upper()})"] = (
                 len(pairs), paired_difference(trained, best.per_episode))
     return out
@@ -261,19 +289,18 @@ def controls_table(points: list[CurvePoint], runs: dict[str, tuple[int, int, lis
     (over the episodes for a rule, over the runs' means for a variant), runs, lost share and υ
     tracked pooled over every frame, and the paired difference with the best rule (two-level
     bootstrap over runs and episodes)."""
-    singles = {p.task.policy.upper(): [p] for p in points if p.task.policy}
-    rules = {k: v for k, v in singles.items() if k != "RANDOM"}
-    if not rules:
+    best = _best_rule(points)
+    if best is None:
         return []
-    best_label, best = min(((k, v[0]) for k, v in rules.items()),
-                           key=lambda kv: kv[1].per_episode.mean())
+    best_label = best.task.policy.upper()
+    singles = {p.task.policy.upper(): [p] for p in points if p.task.policy}
     by_run = _by_run(points)
-    variants = {
-        "Untrained AMM (slot 0)": [s[0] for s in by_run.values() if 0 in s],
-        "Trained AMM, kept (validation)": [s[runs[f][1]] for f, s in by_run.items()
-                                           if runs[f][1] in s],
-        "Trained AMM, last": [s[max(s)] for s in by_run.values() if s],
-    }
+    labels = {"untrained": "Untrained AMM (slot 0)", "kept": "Trained AMM, kept (validation)",
+              "last": "Trained AMM, last"}
+    variants: dict[str, list[CurvePoint]] = {}
+    for which in ACTORS:
+        chosen = (_actor(snaps, runs[path][1], which) for path, snaps in by_run.items())
+        variants[labels[which]] = [p for p in chosen if p is not None]
     rows: list[list[object]] = []
     for label, group in {**singles, **variants}.items():
         if not group:

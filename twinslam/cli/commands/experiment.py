@@ -156,18 +156,17 @@ def run_learning_curve(args: argparse.Namespace) -> int:
     out = Path(args.out)
     failures: list[TaskFailure] = []
     with executor:
-        points = ex.learning_curve(files, args.covis, out, episodes, slots, args.seed,
+        result = ex.learning_curve(files, args.covis, out, episodes, slots, args.seed,
                                    progress, executor, failures, every=args.snapshot_every)
-    if not points:
+    if not result.points:
         return _failed(failures, out)
-    runs = ex.setup_of(files, args.covis, episodes, slots, args.seed)[1]
     print("held-out controls (mean υ ± 95 % CI, lost share; paired with the best rule: mean "
           "[95 % CI]):")
-    for row in ex.controls_table(points, runs):
+    for row in result.controls:
         label, _, _, mean, ci, lost, _, best, diff, low, high = row
         print(f"  {label:<32} {mean:9.1f} ± {ci:6.1f}  lost {lost:6.1%}"
               + (f"   vs {best} {diff:+8.1f} [{low:+.1f}, {high:+.1f}]" if diff != "" else ""))
-    paired = ex.paired_summary(points, runs)
+    paired = result.paired
     print(f"paired by episode ({episodes} held-out episodes of {slots} slots; mean "
           "[95 % CI over training runs and episodes]):")
     for label, (n_runs, d) in paired.items():
