@@ -89,7 +89,7 @@ def reward_kernel_seconds(dataset, slots: int = 100) -> float:
     for k in range(slots + 30):
         before = env.stream.dataset_index(obs.map_frames)
         obs, *_ = env.step(policy.decide(obs))
-        frames = env.stream.dataset_index(np.arange(obs.slot * 60, (obs.slot + 1) * 60))
+        frames = env.stream.dataset_index(env.slot_frames(obs.slot))
         after = env.stream.dataset_index(obs.map_frames)
         if k < 30 or before.size == 0:
             continue                      # the map fills first, as in slots_per_second
