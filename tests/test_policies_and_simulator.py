@@ -351,19 +351,32 @@ def test_sim_cli_prints_a_table_and_writes_csv(tmp_path) -> None:
     row (V_max 8 on the room loses frames, so the identity is not 0 = 0)."""
     out = tmp_path / "res.csv"
     proc = subprocess.run([sys.executable, "-m", "twinslam.cli.main", "sim", "--policy",
-                           "lff,adapt,reference", "--covis", "geometric:300", "--slots", "5",
-                           "--seeds", "2", "--vmax", "8", "--csv", str(out)],
+                           "lff,adapt,random,reference", "--covis", "geometric:300", "--slots",
+                           "5", "--seeds", "2", "--vmax", "8", "--csv", str(out)],
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     assert "adapt" in proc.stdout and "ci95" in proc.stdout and "gap to reference" in proc.stdout
     rows = list(csv.DictReader(out.read_text().splitlines()))
     assert [(r["policy"], r["seed"]) for r in rows] == [
-        (p, s) for p in ("lff", "adapt", "reference") for s in ("0", "1")]
+        (p, s) for p in ("lff", "adapt", "random", "reference") for s in ("0", "1")]
     for r in rows:
         mean, lost, tracked = (float(r[k]) for k in ("mean_uncertainty", "lost_share",
                                                      "tracked_uncertainty"))
         assert mean == pytest.approx((1 - lost) * tracked, rel=1e-5)   # 6-digit rounding
     assert any(float(r["lost_share"]) > 0 for r in rows)
+    assert "[2/2] seed 1" in proc.stdout                  # a progress line per seed
+    # the seeds on two worker processes: the same rows, whichever process ran which seed
+    parallel = tmp_path / "parallel.csv"
+    proc = subprocess.run([sys.executable, "-m", "twinslam.cli.main", "sim", "--policy",
+                           "lff,adapt,random,reference", "--covis", "geometric:300", "--slots",
+                           "5", "--seeds", "2", "--vmax", "8", "--csv", str(parallel),
+                           "--jobs", "2"], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert parallel.read_text() == out.read_text()
+    bad = subprocess.run([sys.executable, "-m", "twinslam.cli.main", "sim", "--covis",
+                          "geometric:300", "--devices", "2", "--jobs", "2"],
+                         capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "--devices" in bad.stderr
     bad = subprocess.run([sys.executable, "-m", "twinslam.cli.main", "sim", "--covis",
                           "geometric:300", "--channel", "wifi:fast"],
                          capture_output=True, text=True, timeout=120)

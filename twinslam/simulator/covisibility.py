@@ -69,6 +69,12 @@ class CovisibilityDataset:
         if self.n_frames <= DENSE_LIMIT:
             self._dense = (self._incidence @ self._incidence.T).toarray().astype(np.int32)
 
+    def __reduce__(self) -> tuple[type[CovisibilityDataset], tuple[Any, ...]]:
+        """Pickled as its fields alone (a sweep's worker rebuilds the incidence and weight
+        matrices): a task carries the point sets, not up to 64 MB of derived weights."""
+        return (CovisibilityDataset, (self.point_offsets, self.point_ids, self.stamps,
+                                      self.poses, self.source))
+
     @classmethod
     def from_sets(cls, sets: list[np.ndarray] | list[set[int]], **kwargs: object
                   ) -> CovisibilityDataset:

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from twinslam.common import table1
+from twinslam.common.executor import Executor, LocalExecutor, run_tasks
 from twinslam.common.reporting import mean_ci95
 from twinslam.map_management.policies import MapPolicy, make_rule_policy
 from twinslam.simulator.covisibility import CovisibilityDataset
@@ -93,37 +94,90 @@ def distinct_labels(labels: dict[str, str]) -> dict[str, str]:
             else label for name, label in labels.items()}
 
 
+@dataclass(frozen=True)
+class SeedTask:
+    """Every policy on one seed's episode: a sweep's task (it pickles, so a worker process or
+    a Ray task can run it). Policies are built afresh from their names in the worker."""
+
+    policies: tuple[str, ...]
+    dataset: CovisibilityDataset
+    channel_spec: str
+    rate_range: tuple[float, float]
+    config: SimConfig
+    seed: int
+    make_policy: Callable[[str], MapPolicy]
+    reference_swaps: int
+
+
+@dataclass(frozen=True)
+class SeedScores:
+    """What a :class:`SeedTask` sends back: each policy's tally, in the task's order."""
+
+    seed: int
+    tallies: tuple[UncertaintyTally, ...]
+
+
+def score_seed(task: SeedTask, built: dict[str, MapPolicy] | None = None) -> SeedScores:
+    """Roll out every policy of ``task`` on its seed's episode (``reference`` last, started
+    from the others' plans). ``built``: policies already made (the in-process path reuses
+    them across seeds; each rollout resets its policy to the seed, so the scores do not
+    depend on which process or which order ran the seeds)."""
+    if built is None:
+        built = {name: task.make_policy(name) for name in task.policies if name != "reference"}
+    env = MapManagementEnv(task.dataset,
+                           parse_channel(task.channel_spec, task.rate_range, task.seed),
+                           task.config)
+    plans = {name: rollout(env, policy, task.seed) for name, policy in built.items()}
+    if "reference" in task.policies:
+        plans["reference"] = ReferencePlanner(
+            rule_policies(), swap_evaluations=task.reference_swaps).plan(
+            env, task.seed, known=list(plans.values()))
+    return SeedScores(task.seed, tuple(plans[name].tally for name in task.policies))
+
+
 def evaluate(policies: list[str], dataset: CovisibilityDataset, channel_spec: str,
              config: SimConfig, seeds: list[int],
              rate_range: tuple[float, float] = table1.RATE_RANGE_MBPS,
              progress: Callable[[str], None] | None = None,
              make_policy: Callable[[str], MapPolicy] = make_rule_policy,
-             reference_swaps: int = 400) -> list[PolicyResult]:
+             reference_swaps: int = 400,
+             executor: Executor | None = None,
+             scores_in_progress: bool = True) -> list[PolicyResult]:
     """Each policy (by name, built with ``make_policy``) over every seed, in the order given.
     ``reference`` is the clairvoyant :class:`ReferencePlanner`: it decides with the rule
     policies and starts from every other listed policy's plan of the same seed. The simulator
     knows only the rule policies; callers above the learning core pass
     :func:`twinslam.policy_registry.make_policy` to evaluate learned ones too.
-    ``reference_swaps``: the reference's local-search budget (plan replays per episode)."""
+    ``reference_swaps``: the reference's local-search budget (plan replays per episode).
+    ``executor``: where the seeds run (None or one job: in this process, in order; the same
+    numbers either way). ``progress`` hears a line per seed as it lands ("[i/n] seed S", its
+    policies' scores too with ``scores_in_progress``, and the elapsed time and ETA)."""
     if "oracle" in policies:
         raise ValueError("'oracle' is now called 'reference': it is a clairvoyant search, not a "
                          "bound (issue #18)")
     parse_channel(channel_spec, rate_range)      # a bad channel fails before the first run
     built = {name: make_policy(name) for name in policies if name != "reference"}
-    runs: dict[str, list[RunScore]] = {name: [] for name in policies}
     labels = distinct_labels({name: built[name].name if name in built else name
                               for name in policies})
-    for seed in seeds:
-        env = MapManagementEnv(dataset, parse_channel(channel_spec, rate_range, seed), config)
-        plans = {name: rollout(env, policy, seed) for name, policy in built.items()}
-        if "reference" in policies:
-            plans["reference"] = ReferencePlanner(
-                rule_policies(), swap_evaluations=reference_swaps).plan(
-                env, seed, known=list(plans.values()))
-        for name in policies:
-            run = RunScore(labels[name], seed, plans[name].tally)
-            runs[name].append(run)
-            if progress:
-                progress(f"{run.policy}: seed {seed} mean υ {run.mean_uncertainty:.2f}, lost "
-                         f"{run.lost_share:.1%}, υ tracked {run.tracked_uncertainty:.2f}")
-    return [PolicyResult(labels[name], runs[name]) for name in policies]
+    tasks = [SeedTask(tuple(policies), dataset, channel_spec, rate_range, config, seed,
+                      make_policy, reference_swaps) for seed in seeds]
+    executor = executor or LocalExecutor(1)
+    in_process = isinstance(executor, LocalExecutor) and executor.jobs <= 1
+
+    def label(scores: SeedScores) -> str:
+        if not scores_in_progress:
+            return f"seed {scores.seed}"
+        return f"seed {scores.seed}: " + ", ".join(
+            f"{labels[name]} {tally.mean:.2f} ({tally.lost_share:.1%} lost)"
+            for name, tally in zip(policies, scores.tallies, strict=True))
+
+    sweep = run_tasks((lambda task: score_seed(task, built)) if in_process else score_seed,
+                      tasks, executor, lambda task: f"seed {task.seed}", label, progress)
+    if sweep.failures:
+        failure = sweep.failures[0]
+        raise RuntimeError(f"{len(sweep.failures)} of {len(tasks)} seeds failed; "
+                           f"{failure.task}:\n{failure.error.rstrip()}")
+    scores = sweep.in_order()
+    return [PolicyResult(labels[name], [RunScore(labels[name], s.seed, s.tallies[i])
+                                        for s in scores])
+            for i, name in enumerate(policies)]

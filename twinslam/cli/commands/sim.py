@@ -7,10 +7,16 @@ import csv
 import time
 from dataclasses import dataclass
 
-from twinslam.cli.arguments import DEFAULT_CHANNEL, add_setting_arguments, covisibility
+from twinslam.cli.arguments import (
+    DEFAULT_CHANNEL,
+    add_executor_arguments,
+    add_setting_arguments,
+    covisibility,
+)
 from twinslam.cli.commands.sim_fleet import run_fleet
 from twinslam.cli.console import Subparsers, error
 from twinslam.common import table1
+from twinslam.common.executor import make_executor
 from twinslam.policy_registry import make_policy
 from twinslam.simulator.covisibility import CovisibilityError
 from twinslam.simulator.env import SimConfig
@@ -35,6 +41,9 @@ class Comparison:
     paper_rule: bool = False
     csv: str | None = None
     verbose: bool = False
+    executor: str = "local"
+    jobs: int | None = None
+    ray_address: str | None = None
 
 
 def compare(c: Comparison) -> int:
@@ -49,10 +58,12 @@ def compare(c: Comparison) -> int:
               f"channel {c.channel}; V_max {c.vmax}, F {c.slot_frames}, "
               f"{c.slots} slots x {len(seeds)} seeds", flush=True)
         start = time.monotonic()
-        report = (lambda m: print(f"  {m}", flush=True)) if c.verbose else None
-        results = evaluate(list(c.policies), dataset, c.channel, config, seeds,
-                           c.rate_range, progress=report, make_policy=make_policy)
-    except (ChannelError, CovisibilityError, ValueError) as exc:
+        with make_executor(c.executor, c.jobs, c.ray_address) as executor:
+            results = evaluate(list(c.policies), dataset, c.channel, config, seeds,
+                               c.rate_range, progress=lambda m: print(f"  {m}", flush=True),
+                               make_policy=make_policy, executor=executor,
+                               scores_in_progress=c.verbose)
+    except (ChannelError, CovisibilityError, ValueError, RuntimeError) as exc:
         return error(exc)
     _print_table(results)
     rule_text = ("the paper's rule: lost when no map point is shared" if c.paper_rule else
@@ -91,11 +102,15 @@ def _write_runs(path: str, specs: list[str], results: list[PolicyResult]) -> Non
 
 def run(args: argparse.Namespace) -> int:
     if args.devices:
+        if args.executor != "local" or (args.jobs or 1) > 1:
+            return error("--executor/--jobs run the seeds of one device's comparison; with "
+                         "--devices the allocators run in this process (leave them out)")
         return run_fleet(args)
     policies = tuple(p.strip() for p in args.policy.split(",") if p.strip())
     return compare(Comparison(args.covis, policies, args.channel, args.rate_range, args.vmax,
                               args.slot_frames, args.slots, args.seeds, args.seed0,
-                              args.walk_start, args.paper_rule, args.csv, args.verbose))
+                              args.walk_start, args.paper_rule, args.csv, args.verbose,
+                              args.executor, args.jobs, args.ray_address))
 
 
 def register(sub: Subparsers) -> None:
@@ -164,6 +179,8 @@ def register(sub: Subparsers) -> None:
                        help="how --cell-capacity is shared: proportional to each link's rate, "
                        "or by the allocator (equal; motion: novelty; twin: the frames its map "
                        "would not track), each at most its link; default %(default)s")
+    add_executor_arguments(sim, "seed")
     sim.add_argument("-v", "--verbose", action="store_true",
-                     help="print every run's scores as it finishes")
+                     help="print every seed's scores as it finishes (without: its progress "
+                     "line alone)")
     sim.set_defaults(func=run)
