@@ -114,6 +114,42 @@ def test_training_runs_in_workers_get_one_torch_thread_each() -> None:
         threads(threads=0)
 
 
+WORKER_SCRIPT = """
+import torch   # loaded before the pool starts: a spawned worker re-imports this module first
+from twinslam.common.executor import LocalExecutor
+
+def threads(_: int) -> int:
+    return torch.get_num_threads()
+
+if __name__ == "__main__":
+    with LocalExecutor(2) as pool:
+        print(sorted(outcome.value for _, outcome in pool.submit_all(threads, [0, 1])))
+"""
+
+
+def test_a_worker_runs_torch_on_one_thread_even_when_its_main_module_loaded_it(
+        tmp_path: Path) -> None:
+    """`twinslam sim --jobs N` with torch policies: the workers' torch was loaded by the
+    re-imported main module before OMP_NUM_THREADS=1 was set, so each ran a thread per core
+    (16 workers x 16 threads on a 16-core machine). The worker's set-up now sets it directly."""
+    script = tmp_path / "pool.py"
+    script.write_text(WORKER_SCRIPT)
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                          timeout=120, cwd=REPO)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "[1, 1]"
+
+
+def test_the_commands_that_run_no_torch_do_not_load_it() -> None:
+    """torch costs seconds to import and each spawned worker re-imports the command line:
+    `twinslam sim` and the node commands must not pay for it."""
+    probe = "import sys, twinslam.cli.main; print('torch' in sys.modules)"
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                          timeout=120, cwd=REPO)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "False"
+
+
 def test_the_cli_says_when_ray_cannot_be_joined(tmp_path: Path) -> None:
     done = subprocess.run(
         [sys.executable, "-m", "twinslam.cli.main", "experiment", "twin-predict",

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import os
 import socket
+import sys
 import time
 import traceback
 from collections.abc import Callable, Iterator, Sequence
@@ -74,10 +75,15 @@ def _outcome_of(get: Callable[[], Outcome[R]]) -> Outcome[R]:
 
 
 def _one_thread_per_worker() -> None:
-    """Workers share the cores: one BLAS/OpenMP thread each uses them best (torch reads
-    OMP_NUM_THREADS when a task first imports it)."""
+    """Workers share the cores: one BLAS/OpenMP thread each uses them best. torch reads
+    OMP_NUM_THREADS when a task first imports it; a torch the worker already loaded (a spawned
+    worker re-imports the main module, and a script's imports may load it) is set directly —
+    else each of N workers runs as many threads as the machine has cores."""
     os.environ["OMP_NUM_THREADS"] = "1"
     os.environ["MKL_NUM_THREADS"] = "1"
+    torch = sys.modules.get("torch")
+    if torch is not None:
+        torch.set_num_threads(1)
 
 
 def _init_worker(initializer: Callable[[], None] | None) -> None:

@@ -7,8 +7,6 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TypeVar
 
-import torch
-
 from twinslam.common.executor import (
     Executor,
     LocalExecutor,
@@ -22,7 +20,10 @@ R = TypeVar("R")
 
 
 def one_torch_thread() -> None:
-    """A local worker's torch: one thread (the workers share the cores)."""
+    """A local worker's torch: one thread (the workers share the cores). Imported here, not
+    at the top: a command that runs no torch (``twinslam sim``) must not load it."""
+    import torch
+
     torch.set_num_threads(1)
 
 

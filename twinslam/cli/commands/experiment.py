@@ -21,7 +21,6 @@ from twinslam.cli.console import (
     warn_aliases,
 )
 from twinslam.common.executor import Executor, TaskFailure
-from twinslam.experiments import amm
 from twinslam.simulator.covisibility import CovisibilityError
 from twinslam.uplink.channels import SLOT_SECONDS, ChannelError
 
@@ -46,6 +45,9 @@ def learned_checkpoints(specs: list[str]) -> dict[str, dict[str, list[Path]]]:
 
 def run_amm_figure(args: argparse.Namespace) -> int:
     """fig7/8/9: the policies' mean υ, lost share and υ tracked vs a setting (paper Figs 7-9)."""
+    # imported here: the figures load the trainer (torch), which the other commands never need
+    from twinslam.experiments import amm
+
     t0 = time.monotonic()
     progress = elapsed_progress()
     try:
