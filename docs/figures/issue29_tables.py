@@ -9,17 +9,20 @@ Several files of the same episodes (the same --covis, --seeds, --seed0, --slots 
 may be given: their rows are pooled, each (policy, seed) once.
 
     .venv/bin/python docs/figures/issue29_tables.py FILE.csv [FILE.csv …] [--against POLICY]
+        [--rows POLICY,POLICY,…]
     .venv/bin/python docs/figures/issue29_tables.py learning-curve FOLDER
 
 ``learning-curve FOLDER``: the controls table and the paired comparisons that ``twinslam
 experiment learning-curve --out FOLDER`` wrote, as markdown.
 
 ``--against POLICY`` pairs every policy with that one instead of the best rule (the
-ablations: each variant against the planner it varies).
+ablations: each variant against the planner it varies). ``--rows`` prints those policies
+alone, in that order (a table of results.md that shows some of the files' policies).
 """
 
 from __future__ import annotations
 
+import argparse
 import csv
 import sys
 from pathlib import Path
@@ -68,8 +71,12 @@ def gap_closed(policy: np.ndarray, best: np.ndarray, reference: np.ndarray,
     return float(value), float(low), float(high)
 
 
-def table(paths: list[Path], against: str | None = None) -> str:
+def table(paths: list[Path], against: str | None = None,
+          rows: list[str] | None = None) -> str:
     by = episodes(paths)
+    missing = [p for p in rows or [] if p not in by]
+    if missing:
+        raise SystemExit(f"--rows {', '.join(missing)}: no such policy in {', '.join(by)}")
     seeds = sorted(set.intersection(*(set(v) for v in by.values())))
     mean = {p: np.array([by[p][s]["mean"] for s in seeds]) for p in by}
     lost = {p: np.array([by[p][s]["lost"] for s in seeds]) for p in by}
@@ -84,7 +91,7 @@ def table(paths: list[Path], against: str | None = None) -> str:
     lines = [f"{', '.join(p.name for p in paths)}: {len(seeds)} episodes (seeds "
              f"{seeds[0]}–{seeds[-1]}); paired: mean [95 % bootstrap CI] over the same "
              "episodes", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for p in by:
+    for p in rows or list(by):
         m, ci = mean_ci95(mean[p].tolist())
         d = paired_difference(mean[p][None, :], mean[best])
         dl = paired_difference(100 * lost[p][None, :], 100 * lost[best])
@@ -135,14 +142,18 @@ def main(argv: list[str]) -> None:
     if argv[:1] == ["learning-curve"] and len(argv) == 2:
         print(curve_tables(Path(argv[1])))
         return
-    against = None
-    if "--against" in argv:
-        at = argv.index("--against")
-        against = argv[at + 1] if at + 1 < len(argv) else None
-        argv = argv[:at] + argv[at + 2:]
-    if not argv or (against is None and "--against" in sys.argv):
-        raise SystemExit(__doc__)
-    print(table([Path(a) for a in argv], against))
+    parser = argparse.ArgumentParser(
+        prog="issue29_tables.py", description=__doc__.split("\n\n")[0],
+        epilog="or: issue29_tables.py learning-curve FOLDER (the learning curve's tables)")
+    parser.add_argument("csv", nargs="+", type=Path,
+                        help="`twinslam sim --csv` files of the same episodes")
+    parser.add_argument("--against", metavar="POLICY",
+                        help="pair every policy with this one (default: the best rule)")
+    parser.add_argument("--rows", metavar="POLICY,POLICY,…",
+                        help="print these policies alone, in this order (default: all)")
+    args = parser.parse_args(argv)
+    rows = [r.strip() for r in args.rows.split(",")] if args.rows else None
+    print(table(args.csv, args.against, rows))
 
 
 if __name__ == "__main__":
