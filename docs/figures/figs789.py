@@ -3,11 +3,14 @@ wrote (issue #29: every table and figure of the map-management part comes from a
 command):
 
     .venv/bin/python docs/figures/figs789.py table docs/figures/fig7.csv     # the markdown table
+    .venv/bin/python docs/figures/figs789.py paired docs/figures/issue29-fig7/fig7.csv
     .venv/bin/python docs/figures/figs789.py redraw docs/figures/fig7.csv    # fig7.png beside it
     .venv/bin/python docs/figures/figs789.py fig8-join docs/figures          # fig8.csv, fig8.png
 
 ``table``: one row per policy, one column per x, each cell "mean υ ± 95 % CI · lost share · υ
-over the tracked frames" (the bound: mean ± CI only). ``redraw``: the figure as the experiment
+over the tracked frames" (the bound: mean ± CI only). ``paired``: each policy's paired
+difference with the best rule at each x, "mean [95 % CI]" (the columns the experiment writes
+since issue #29; a CSV without them is refused). ``redraw``: the figure as the experiment
 draws it (``amm.plot_figure``), from the CSV alone. ``fig8-join``: fig8.csv from fig8_n2.csv
 and fig8_n4.csv — the file one ``twinslam experiment fig8`` process writes when the two N were
 run as separate processes (as docs/results.md's were).
@@ -72,6 +75,35 @@ def table(path: Path) -> str:
     return "\n".join(lines)
 
 
+def paired(path: Path) -> str:
+    """Each policy minus the best rule policy at each x, on the same episodes (a two-level
+    bootstrap over training runs and episodes: ``twinslam experiment`` computed it)."""
+    with path.open(encoding="utf-8") as fh:
+        reader = csv.DictReader(fh)
+        x_label = (reader.fieldnames or [""])[0]
+        if "paired_vs_best_rule" not in (reader.fieldnames or []):
+            raise SystemExit(f"{path}: no paired columns (written before issue #29)")
+        rows = list(reader)
+    xs = list(dict.fromkeys(r[x_label] for r in rows))
+    best = {r[x_label]: r["best_rule"] for r in rows}
+    cell = {(r[x_label], r["policy"]): r for r in rows}
+    lines = ["| paired with the best rule | " + " | ".join(
+        f"{x_label} {x} (vs {best[x]})" for x in xs) + " |", "|---" * (len(xs) + 1) + "|"]
+    for policy in dict.fromkeys(r["policy"] for r in rows):
+        cells = []
+        for x in xs:
+            r = cell.get((x, policy))
+            if r is None or r["paired_vs_best_rule"] == "" or r["policy"] == best[x]:
+                cells.append("—")
+            else:
+                cells.append(f"{float(r['paired_vs_best_rule']):+.1f} "
+                             f"[{float(r['paired_ci_low']):+.1f}, "
+                             f"{float(r['paired_ci_high']):+.1f}]".replace("-", "−"))
+        if any(c != "—" for c in cells):
+            lines.append(f"| {policy} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def redraw(path: Path) -> Path:
     x_label, by_x = read(path)
     png = path.with_suffix(".png")
@@ -109,11 +141,13 @@ def fig8_join(folder: Path) -> Path:
 
 
 def main() -> None:
-    if len(sys.argv) != 3 or sys.argv[1] not in ("table", "redraw", "fig8-join"):
+    if len(sys.argv) != 3 or sys.argv[1] not in ("table", "paired", "redraw", "fig8-join"):
         raise SystemExit(__doc__)
     command, target = sys.argv[1], Path(sys.argv[2])
     if command == "table":
         print(table(target))
+    elif command == "paired":
+        print(paired(target))
     elif command == "redraw":
         print(f"wrote {redraw(target)}")
     else:
