@@ -111,10 +111,14 @@ def register(sub: Subparsers) -> None:
                        "predictor measured, `experiment twin-predict`), variational (the "
                        "twin's latent, paper §V), lstm (a point predictor), markov "
                        "(transition counts)")
-    train.add_argument("--actor", default="residual", choices=["paper", "residual"],
+    train.add_argument("--actor", default="paper", choices=["paper", "residual"],
                        help="paper: the paper's AMM (the GCN's score per frame, no ADAPT "
-                       "prior, no ADAPT features); residual: ADAPT + residual RL (ADAPT's "
-                       "decision as prior and node features, plus a learned correction)")
+                       "prior, no ADAPT features; default: under the device's rule it learns "
+                       "LFF's level with fewer lost frames); residual: ADAPT + residual RL "
+                       "(ADAPT's decision as prior and node features, plus a learned "
+                       "correction; it starts at ADAPT, which loses half the frames under "
+                       "the device's rule, and stayed worse than LFF to 12 000 slots — "
+                       "docs/results.md, issue #29)")
     train.add_argument("--real-fraction", type=float, default=0.5,
                        help="I/|Ξ|: share of real tuples in each batch, in (0, 1], when "
                        "--artificial > 0")
