@@ -9,10 +9,12 @@ import os
 import subprocess
 import sys
 import tempfile
-from collections.abc import Iterator
-from contextlib import contextmanager
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
+
+T = TypeVar("T")
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -52,3 +54,17 @@ def run_in_tree(root: Path, driver: str, *args: str) -> Any:
     if done.returncode:
         raise SystemExit(f"the benchmark failed in {root}:\n{done.stderr[-3000:]}")
     return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def alternately(baseline: str | None, rounds: int,
+                measure: Callable[[int, str, Path], T]) -> dict[str, list[T]]:
+    """``measure(round, label, root)`` on the baseline commit's tree ("baseline") and this one
+    ("current"), the two alternating round by round so both see the same machine load;
+    ``rounds`` results of each, by label. Without a baseline: this tree alone."""
+    runs: dict[str, list[T]] = {"current": []} if baseline is None else {"baseline": [],
+                                                                         "current": []}
+    with baseline_tree(baseline) if baseline else nullcontext(REPO) as base:
+        for r in range(rounds):
+            for label, results in runs.items():
+                results.append(measure(r, label, base if label == "baseline" else REPO))
+    return runs

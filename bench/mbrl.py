@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from bench.baseline import REPO, baseline_tree, run_in_tree
+from bench.baseline import alternately, run_in_tree
 from bench.gauge import cpu_gauge, python_steps_per_s
 from twinslam.mbrl.policy import MbrlPolicy
 from twinslam.mbrl.trainer import AmmTrainer, TrainConfig
@@ -57,18 +57,16 @@ print(json.dumps({"seconds": time.perf_counter() - t0}))
 def compare(args: argparse.Namespace) -> None:
     """The baseline commit's training and this tree's, alternately, ``--rounds`` times (the
     same configuration and seed), with the gauge before each."""
-    runs: dict[str, list[tuple[float, float]]] = {"baseline": [], "current": []}
-    with baseline_tree(args.baseline) as base:
-        for r in range(args.rounds):
-            for label, root in (("baseline", base), ("current", REPO)):
-                gauge = python_steps_per_s()
-                out = run_in_tree(root, _DRIVER, args.covis, str(args.slots), str(args.threads),
-                                  args.actor, args.rate_model, args.channel,
-                                  str(args.validate_every))
-                ms = out["seconds"] / args.slots * 1e3
-                runs[label].append((ms, gauge))
-                print(f"round {r + 1} {label}: {ms:.1f} ms a slot (gauge {gauge:.1f} M "
-                      f"steps/s)", flush=True)
+    def measure(r: int, label: str, root: Path) -> tuple[float, float]:
+        gauge = python_steps_per_s()
+        out = run_in_tree(root, _DRIVER, args.covis, str(args.slots), str(args.threads),
+                          args.actor, args.rate_model, args.channel, str(args.validate_every))
+        ms = out["seconds"] / args.slots * 1e3
+        print(f"round {r + 1} {label}: {ms:.1f} ms a slot (gauge {gauge:.1f} M steps/s)",
+              flush=True)
+        return ms, gauge
+
+    runs = alternately(args.baseline, args.rounds, measure)
     print(f"\n{'':<10} {'baseline ' + args.baseline:>24} {'current':>12}")
     medians = {label: float(np.median([ms for ms, _ in rows])) for label, rows in runs.items()}
     print(f"{'ms a slot':<10} {medians['baseline']:>24.1f} {medians['current']:>12.1f}"

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.baseline import REPO, baseline_tree, run_in_tree
+from bench.baseline import alternately, run_in_tree
 from bench.fleet import device_slots_per_s as fleet_device_slots_per_s
 from bench.gauge import cpu_gauge, python_steps_per_s
 from twinslam.map_management.policies import (
@@ -152,13 +152,13 @@ def compare(baseline: str, covis: str, slots: int, repeats: int, rounds: int,
             rules: tuple[str, ...]) -> None:
     """The baseline commit's simulator and this tree's, alternately, ``rounds`` times; the
     median slots/s of each and its ratio to the gauge taken just before."""
-    runs: dict[str, list[tuple[dict[str, float], float]]] = {"baseline": [], "current": []}
-    with baseline_tree(baseline) as base:
-        for r in range(rounds):
-            for label, root in (("baseline", base), ("current", REPO)):
-                gauge = python_steps_per_s()
-                runs[label].append((_in_tree(root, covis, slots, repeats, rules), gauge))
-                print(f"round {r + 1} {label}: gauge {gauge:.1f} M steps/s", flush=True)
+    def measure(r: int, label: str, root: Path) -> tuple[dict[str, float], float]:
+        gauge = python_steps_per_s()
+        result = _in_tree(root, covis, slots, repeats, rules)
+        print(f"round {r + 1} {label}: gauge {gauge:.1f} M steps/s", flush=True)
+        return result, gauge
+
+    runs = alternately(baseline, rounds, measure)
     print(f"\n{'policy rule':<15} {'baseline ' + baseline:>22} {'current':>22}   "
           "(median slots/s, and / M gauge steps/s)")
     for key in runs["current"][0][0]:

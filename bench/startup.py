@@ -12,10 +12,9 @@ from __future__ import annotations
 
 import argparse
 import statistics
-from contextlib import nullcontext
 from pathlib import Path
 
-from bench.baseline import REPO, baseline_tree, run_in_tree
+from bench.baseline import alternately, run_in_tree
 
 #: one fresh interpreter's import of the command line, timed from inside it after start-up
 _DRIVER = """
@@ -26,11 +25,6 @@ print(json.dumps({"seconds": time.perf_counter() - t0, "torch": "torch" in sys.m
 """
 
 
-def measure(root: Path) -> dict[str, float | bool]:
-    result: dict[str, float | bool] = run_in_tree(root, _DRIVER)
-    return result
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--rounds", type=int, default=10,
@@ -38,15 +32,15 @@ def main() -> None:
     parser.add_argument("--baseline", metavar="COMMIT",
                         help="also time this commit's tree, alternating with this one")
     args = parser.parse_args()
-    trees: dict[str, list[dict[str, float | bool]]] = {"this tree": []}
-    if args.baseline:
-        trees[args.baseline] = []
-    with baseline_tree(args.baseline) if args.baseline else nullcontext(REPO) as base:
-        for i in range(args.rounds):
-            for name, runs in trees.items():
-                runs.append(measure(REPO if name == "this tree" else base))
-            print(f"round {i + 1}/{args.rounds}", flush=True)
-    for name, runs in trees.items():
+
+    def measure(r: int, label: str, root: Path) -> dict[str, float | bool]:
+        result: dict[str, float | bool] = run_in_tree(root, _DRIVER)
+        print(f"round {r + 1} {label}: {float(result['seconds']):.2f} s", flush=True)
+        return result
+
+    trees = alternately(args.baseline, args.rounds, measure)
+    for label, runs in trees.items():
+        name = args.baseline if label == "baseline" else "this tree"
         seconds = [float(r["seconds"]) for r in runs]
         print(f"{name:<12} import twinslam.cli.main: median {statistics.median(seconds):.2f} s "
               f"(min {min(seconds):.2f}, max {max(seconds):.2f}, {len(seconds)} runs); "
