@@ -35,6 +35,8 @@ class Row:
     ci95: float
     lost_share: float
     tracked_uncertainty: float
+    best_rule: str = ""                                #: at this x ("" before issue #29)
+    paired: tuple[float, float, float] | None = None   #: vs best_rule: mean, CI low, high
 
 
 def read(path: Path) -> tuple[str, dict[str, dict[str, Row]]]:
@@ -44,9 +46,13 @@ def read(path: Path) -> tuple[str, dict[str, dict[str, Row]]]:
         x_label = (reader.fieldnames or [""])[0]
         out: dict[str, dict[str, Row]] = {}
         for r in reader:
+            paired = (None if not r.get("paired_vs_best_rule") else
+                      (float(r["paired_vs_best_rule"]), float(r["paired_ci_low"]),
+                       float(r["paired_ci_high"])))
             out.setdefault(r[x_label], {})[r["policy"]] = Row(
                 float(r["mean_uncertainty"]), float(r["ci95"]),
-                float(r["lost_share"] or "nan"), float(r["tracked_uncertainty"] or "nan"))
+                float(r["lost_share"] or "nan"), float(r["tracked_uncertainty"] or "nan"),
+                r.get("best_rule", ""), paired)
     return x_label, out
 
 
@@ -78,27 +84,22 @@ def table(path: Path) -> str:
 def paired(path: Path) -> str:
     """Each policy minus the best rule policy at each x, on the same episodes (a two-level
     bootstrap over training runs and episodes: ``twinslam experiment`` computed it)."""
-    with path.open(encoding="utf-8") as fh:
-        reader = csv.DictReader(fh)
-        x_label = (reader.fieldnames or [""])[0]
-        if "paired_vs_best_rule" not in (reader.fieldnames or []):
-            raise SystemExit(f"{path}: no paired columns (written before issue #29)")
-        rows = list(reader)
-    xs = list(dict.fromkeys(r[x_label] for r in rows))
-    best = {r[x_label]: r["best_rule"] for r in rows}
-    cell = {(r[x_label], r["policy"]): r for r in rows}
+    x_label, by_x = read(path)
+    xs = list(by_x)
+    best = {x: next(iter(by_x[x].values())).best_rule for x in xs}
+    if not all(best.values()):
+        raise SystemExit(f"{path}: no paired columns (written before issue #29)")
     lines = ["| paired with the best rule | " + " | ".join(
         f"{x_label} {x} (vs {best[x]})" for x in xs) + " |", "|---" * (len(xs) + 1) + "|"]
-    for policy in dict.fromkeys(r["policy"] for r in rows):
+    for policy in dict.fromkeys(p for x in xs for p in by_x[x]):
         cells = []
         for x in xs:
-            r = cell.get((x, policy))
-            if r is None or r["paired_vs_best_rule"] == "" or r["policy"] == best[x]:
+            r = by_x[x].get(policy)
+            if r is None or r.paired is None or policy == best[x]:
                 cells.append("—")
             else:
-                cells.append(f"{float(r['paired_vs_best_rule']):+.1f} "
-                             f"[{float(r['paired_ci_low']):+.1f}, "
-                             f"{float(r['paired_ci_high']):+.1f}]".replace("-", "−"))
+                d, low, high = r.paired
+                cells.append(f"{d:+.1f} [{low:+.1f}, {high:+.1f}]".replace("-", "−"))
         if any(c != "—" for c in cells):
             lines.append(f"| {policy} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
