@@ -4,7 +4,6 @@ range, V_max (the simulator and the trainer take the same setting)."""
 from __future__ import annotations
 
 import argparse
-from collections.abc import Callable
 
 from twinslam.common import table1
 from twinslam.common.executor import EXECUTORS, Executor, make_executor
@@ -81,8 +80,7 @@ def add_executor_arguments(parser: argparse.ArgumentParser, unit: str) -> None:
                         "at the same paths")
 
 
-def open_executor(args: argparse.Namespace, initializer: Callable[[], None] | None = None
-                  ) -> Executor:
+def open_executor(args: argparse.Namespace) -> Executor:
     """The executor ``args`` ask for (a bad combination or an unreachable Ray raises
     ValueError / RuntimeError, each saying which option)."""
-    return make_executor(args.executor, args.jobs, args.ray_address, initializer)
+    return make_executor(args.executor, args.jobs, args.ray_address)

@@ -1,5 +1,6 @@
 """The experiments' sweeps on an executor (:mod:`twinslam.common.executor`: this process,
-local worker processes or Ray), each result reported as it lands."""
+local worker processes or Ray), each result reported as it lands. A local worker's torch runs
+one thread (the executor's worker set-up sees to it, whether torch is loaded yet or not)."""
 
 from __future__ import annotations
 
@@ -7,30 +8,10 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TypeVar
 
-from twinslam.common.executor import (
-    Executor,
-    LocalExecutor,
-    TaskFailure,
-    make_executor,
-    run_tasks,
-)
+from twinslam.common.executor import Executor, LocalExecutor, TaskFailure, run_tasks
 
 T = TypeVar("T")
 R = TypeVar("R")
-
-
-def one_torch_thread() -> None:
-    """A local worker's torch: one thread (the workers share the cores). Imported here, not
-    at the top: a command that runs no torch (``twinslam sim``) must not load it."""
-    import torch
-
-    torch.set_num_threads(1)
-
-
-def executor_for(name: str = "local", jobs: int | None = None,
-                 address: str | None = None) -> Executor:
-    """The executor of a command's ``--executor``/``--jobs``/``--ray-address``."""
-    return make_executor(name, jobs, address, initializer=one_torch_thread)
 
 
 def run_all(fn: Callable[[T], R], tasks: Sequence[T], executor: Executor | None,

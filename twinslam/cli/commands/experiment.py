@@ -20,7 +20,7 @@ from twinslam.cli.console import (
     failed_tasks,
     warn_aliases,
 )
-from twinslam.common.executor import Executor, TaskFailure
+from twinslam.common.executor import TaskFailure
 from twinslam.simulator.covisibility import CovisibilityError
 from twinslam.uplink.channels import SLOT_SECONDS, ChannelError
 
@@ -53,7 +53,7 @@ def run_amm_figure(args: argparse.Namespace) -> int:
     try:
         learned = learned_checkpoints(args.policy or [])
         covisibility(args.covis)                  # a bad file fails before any worker starts
-        executor = _executor(args)
+        executor = open_executor(args)
     except (CovisibilityError, ValueError, RuntimeError) as exc:
         return error(exc)
     setting = amm.Setting(runs=args.runs or 20, slots=args.slots or 200, seed0=args.seed,
@@ -81,12 +81,6 @@ def run_amm_figure(args: argparse.Namespace) -> int:
                      if diff else ""))
     print(f"wrote {out}/{args.name}.csv and .png ({time.monotonic() - t0:.0f} s)")
     return _failed(failures, out)
-
-
-def _executor(args: argparse.Namespace) -> Executor:
-    """The sweep's executor (imported here: the torch initializer loads torch)."""
-    from twinslam.experiments.parallel import one_torch_thread
-    return open_executor(args, one_torch_thread)
 
 
 def _failed(failures: list[TaskFailure], out: Path) -> int:
@@ -118,7 +112,7 @@ def run_twin_predict(args: argparse.Namespace) -> int:
                              settings=settings)
         for spec in sources:
             ex.check_source(spec, args.slot_seconds)
-        executor = _executor(args)
+        executor = open_executor(args)
     except (ValueError, ChannelError, RuntimeError) as exc:
         return error(exc)
     out = Path(args.out)
@@ -152,7 +146,7 @@ def run_learning_curve(args: argparse.Namespace) -> int:
     try:
         covisibility(args.covis)
         ex.setup_of(files, args.covis, episodes, slots, args.seed)   # fails before any worker
-        executor = _executor(args)
+        executor = open_executor(args)
     except (CovisibilityError, ValueError, RuntimeError) as exc:
         return error(exc)
     out = Path(args.out)
@@ -203,7 +197,7 @@ def run_twin_figure(args: argparse.Namespace) -> int:
                         buffer_slots=args.buffer_slots)
     progress = elapsed_progress()
     try:              # udt-fig3 is one run: it needs no executor
-        executor = _executor(args) if args.name != "udt-fig3" else None
+        executor = open_executor(args) if args.name != "udt-fig3" else None
     except (ValueError, RuntimeError) as exc:
         return error(exc)
     failures: list[TaskFailure] = []

@@ -22,7 +22,6 @@ from twinslam.uplink.channels import ChannelError
 def run(args: argparse.Namespace) -> int:
     # imported here: the trainer loads torch, which the other commands never need
     from twinslam.common.executor import run_tasks
-    from twinslam.experiments.parallel import one_torch_thread
     from twinslam.experiments.training import (
         TrainOutcome,
         snapshots_path,
@@ -50,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
                              "--validate-every > 0")
         AmmTrainer(config, dataset)          # a bad setting fails here, before any worker
         threads_per_run(args)
-        executor = open_executor(args, one_torch_thread)
+        executor = open_executor(args)
     except (ChannelError, CovisibilityError, ValueError, RuntimeError) as exc:
         return error(exc)
     seeds = list(range(args.seed, args.seed + args.runs))
