@@ -17,8 +17,12 @@ from twinslam.node_hosts.session import RosSession
 
 #: per device: slot length, channel seed, first frame of the synthetic room played
 DEVICES = {"ar1": (30, 0, 0), "ar2": (30, 1, 200), "ar3": (45, 2, 400)}
-FRAMES, V_TOTAL, MINIMUM = 420, 24, 5
+#: frames each device plays: 20 slots of 30 — enough that the two that stay still have
+#: several slots after the lost one is reclaimed (killed at its third slot, silent 2 s, then
+#: reclaimed 2 s later: around the tenth slot of the others when the graph is slow to show it)
+FRAMES, V_TOTAL, MINIMUM = 600, 24, 5
 GONE = "ar3"                               #: killed after a few slots
+AFTER_RECLAIM = 3                          #: slots each staying device must plan after it
 
 
 def test_one_edge_serves_three_devices_within_one_budget_and_reclaims_a_lost_ones_share(
@@ -41,10 +45,15 @@ def test_one_edge_serves_three_devices_within_one_budget_and_reclaims_a_lost_one
             qos.PROTOCOL)
         sub(UploadRequest, f"/{d}/edge/upload_request", rec["requests"].append, qos.PROTOCOL)
         sub(MapStats, f"/{d}/edge/map_stats", lambda m, d=d: on_stats(d, m), qos.PROTOCOL)
+    stats_at_reclaim: dict[str, int] = {}     # each device's MapStats count when it came
+
     def on_budget(msg: KeyframeBudget) -> None:
         budgets.append(msg)
         for device in set(sizes) - set(msg.devices):     # reclaimed: its map released
             sizes.pop(device)
+        served = any(GONE in b.devices for b in budgets)   # before it joined: not a reclaim
+        if served and GONE not in msg.devices and not stats_at_reclaim:
+            stats_at_reclaim.update({d: len(r["stats"]) for d, r in got.items()})
 
     sub(KeyframeBudget, "/edge/keyframe_budget", on_budget, qos.PROTOCOL)
     edge = domain.spawn(["-m", "edge_mapper.node", "--ros-args", "-p", "policy:=lff",
@@ -70,6 +79,8 @@ def test_one_edge_serves_three_devices_within_one_budget_and_reclaims_a_lost_one
         {d: {k: len(v) for k, v in r.items()} for d, r in got.items()}
     for proc in procs[GONE]:
         proc.send_signal(signal.SIGKILL)
+    assert ros.spin_until(lambda: bool(stats_at_reclaim), 60.0), \
+        f"{GONE}'s share was not reclaimed: {domain.log(edge)[-2000:]}"
     assert ros.spin_until(lambda: all(p.poll() is not None for d in DEVICES if d != GONE
                                       for p in procs[d][1:]), 180.0), "the players did not end"
     ros.spin_until(lambda: False, 3.0)        # the last slots' maps and stats
@@ -100,6 +111,15 @@ def test_one_edge_serves_three_devices_within_one_budget_and_reclaims_a_lost_one
     late = budgets[-1]
     assert GONE in early.devices and GONE not in late.devices
     assert sum(late.targets) == V_TOTAL and len(late.devices) == 2
-    # the two that stayed hold more than a third of the budget each by the end
-    assert max(s.keyframe_budget for s in got["ar1"]["stats"][-2:]) > V_TOTAL // 3
-    assert max(s.keyframe_budget for s in got["ar2"]["stats"][-2:]) > V_TOTAL // 3
+    # the two that stayed grow into the keyframes the lost one held: granted together more
+    # than they could have been beside its map (how the split goes between the two is the
+    # motion allocator's business; each grant also waits for the uploads that can fill it)
+    stayed = [d for d in DEVICES if d != GONE]
+    for d in stayed:
+        assert len(got[d]["stats"]) - stats_at_reclaim[d] >= AFTER_RECLAIM, \
+            f"{d} ended {len(got[d]['stats']) - stats_at_reclaim[d]} slots after the reclaim"
+    before = next(b for b in reversed(budgets) if GONE in b.devices)
+    held_by_gone = before.committed[list(before.devices).index(GONE)]
+    after = [b for b in budgets if GONE not in b.devices and len(b.devices) == len(stayed)]
+    assert max(sum(b.granted) for b in after) > V_TOTAL - held_by_gone, \
+        ([list(b.granted) for b in after], held_by_gone)
