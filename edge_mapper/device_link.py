@@ -45,6 +45,7 @@ from edge_mapper.slot_lifecycle import Closing, SlotLifecycle
 from edge_mapper.slot_planner import FrameObservations
 from edge_mapper.visual_messages import decisions_message, keyframes_message, map_points_message
 from msg_schemas import qos, topics
+from msg_schemas.poses import pose_matrix
 from twinslam.node_hosts.checked_subscription import CheckedSubscription
 from twinslam.slam.keyframe import read_keyframe
 
@@ -167,7 +168,7 @@ class DeviceLink:
         self.core.set_policy(self.control.policy)
         frames = [FrameObservations(int(f.frame_id), frozenset(int(i) for i in f.map_point_ids),
                                     frozenset(int(i) for i in f.local_track_ids),
-                                    bool(f.tracked))
+                                    bool(f.tracked), pose_matrix(f.pose))
                   for f in msg.frames]
         started, received = time.perf_counter(), self.slots.clock()
         vmax = (self.grant(self.device, slot, frames, float(msg.rate_mbps), self.latent,

@@ -156,7 +156,7 @@ class EdgeMapperCore:
         frames = [self._resolve_tracks(f) for f in frames]
         leaving = {kf for action, _ in self.pending.values() for kf in action.evict}
         plan = self.planner.plan(slot, frames, rate_mbps, rate_state, self.rate_history,
-                                 self._arriving, leaving)
+                                 self._arriving, leaving, (self.k, self.config.image_shape))
         self.pending[slot] = (plan.action, set())
         by_id = {f.frame_id: f for f in frames}
         self._arriving.update({f: by_id[f] for f in plan.action.upload})

@@ -41,7 +41,9 @@ DEVICE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*")
 
 PARAMETERS = (
     ParamSpec("policy", "adapt", "map-management policy: lff | pu | adapt | random | "
-              "mbrl (with policy_checkpoint) | mbrl:CHECKPOINT", live=True,
+              "mbrl (with policy_checkpoint) | mbrl:CHECKPOINT | mpc[:H=2/S=4/...] (the "
+              "causal planner) | delay:SECONDS:POLICY (a control: POLICY's decisions, late)",
+              live=True,
               check=policy_refused),
     ParamSpec("policy_checkpoint", "", "the trained policy of policy:=mbrl "
               "(`twinslam train -o FILE`)", live=True, check=checkpoint_refused),

@@ -17,9 +17,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, cast
 
+from edge_mapper.planning_world import LiveMpc, live_refused
 from edge_mapper.twin_feed import TwinDrivenPolicy, TwinFedPolicy
+from twinslam.map_management.delayed import DelayedPolicy
 from twinslam.map_management.policies import MapPolicy
 from twinslam.policy_registry import LEARNED_PREFIX, make_policy
+from twinslam.simulator.mpc import MpcPlanner
 
 #: the live parameters that say which policy decides
 POLICY_KEYS = ("policy", "policy_checkpoint", "fallback_policy", "latent_max_age")
@@ -39,9 +42,13 @@ def policy_refused(name: str) -> str | None:
         policy = make_policy(name)
     except ValueError as exc:
         return str(exc)
+    if isinstance(policy, DelayedPolicy):
+        policy = policy.policy
+    if isinstance(policy, MpcPlanner):
+        return live_refused(policy.config)
     if getattr(policy, "needs_simulator", False):
         return (f"{name} plans in the simulator's world model (twinslam sim / experiment); "
-                "the edge runs lff, pu, adapt, random or mbrl")
+                "the edge runs lff, pu, adapt, random, mpc or mbrl")
     return None
 
 
@@ -70,7 +77,7 @@ def make_policies(live: dict[str, Any], warm_up: Any = None
     """The policy the live values name (warmed up by ``warm_up(policy)`` if given) and its
     twin feed: a twin-driven policy comes wrapped with its fallback (the wrapper is both), any
     other with no feed. ValueError when it cannot be made."""
-    policy = make_policy(policy_name(live))
+    policy = _at_the_edge(make_policy(policy_name(live)))
     if warm_up:
         warm_up(policy)
     if not getattr(policy, "uses_twin", False):
@@ -83,6 +90,16 @@ def make_policies(live: dict[str, Any], warm_up: Any = None
     # uses_twin: an MbrlPolicy of a twin checkpoint, which takes the twin's features
     feed = TwinFedPolicy(cast(TwinDrivenPolicy, policy), fallback, int(live["latent_max_age"]))
     return feed, feed
+
+
+def _at_the_edge(policy: MapPolicy) -> MapPolicy:
+    """``policy`` as the edge runs it: ``mpc`` plans in a world built from the live map
+    (also under a delay)."""
+    if isinstance(policy, MpcPlanner):
+        return LiveMpc(policy)
+    if isinstance(policy, DelayedPolicy):
+        return DelayedPolicy(_at_the_edge(policy.policy), policy.seconds)
+    return policy
 
 
 class PolicyControl:

@@ -12,7 +12,8 @@ of the previous decision.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -40,6 +41,9 @@ class FrameObservations:
     #: the device tracked it; an untracked frame's pose is a guess, and a keyframe placed by
     #: a guess would put its points in the wrong place: it is scored but never uploaded
     tracked: bool = True
+    #: the device's camera-to-map pose estimate (4×4), when the summary carried one: where the
+    #: camera is heading, for a planner that predicts the next frames (edge_mapper.planning_world)
+    pose: np.ndarray | None = field(default=None, compare=False)
 
 
 @dataclass(frozen=True)
@@ -48,6 +52,21 @@ class SlotConfig:
     alpha_mbit: float = table1.ALPHA_MBIT
     d_req_s: float = table1.D_REQ_S
     log_det_pi: float = 0.0
+
+
+@dataclass(frozen=True)
+class SlotView:
+    """What the edge knows of a slot when it decides, beyond the policy's observation: the
+    map, the frames (poses included) and the camera. The slot planner hands it to a policy
+    that asks for it (``see_slot``) just before ``decide``."""
+
+    keyframe_map: KeyFrameMap
+    map_ids: list[int]                        #: the observation's map (arriving uploads too)
+    frames: list[FrameObservations]           #: the slot's frames, capture order
+    points_of: Callable[[int], np.ndarray]    #: the int64 keys a keyframe or frame observes
+    intrinsics: np.ndarray
+    image_shape: tuple[int, int]              #: (height, width)
+    config: SlotConfig
 
 
 @dataclass
@@ -94,7 +113,8 @@ class SlotPlanner:
 
     def plan(self, slot: int, frames: list[FrameObservations], rate_mbps: float, rate_state: int,
              rate_history: list[int], arriving: dict[int, FrameObservations] | None = None,
-             leaving: frozenset[int] | set[int] = frozenset()) -> SlotPlan:
+             leaving: frozenset[int] | set[int] = frozenset(),
+             camera: tuple[np.ndarray, tuple[int, int]] | None = None) -> SlotPlan:
         """U_k and C_k for slot k's frames (capture order) at rate d_k. The policy chooses U_k
         among the frames the device tracked; υ is scored over all of them.
 
@@ -102,6 +122,8 @@ class SlotPlanner:
         applied — slots shorter than their upload time), the map the decision is sized and
         scored against is the one those slots will leave: ``arriving`` uploads (not yet in the
         map, as their frames were observed) join it, ``leaving`` keyframes are left out.
+        ``camera`` (intrinsics, image shape) goes with the map and frames to a policy that
+        predicts what the camera will see (``see_slot``, the edge's ``mpc``).
         """
         if not frames:
             raise ValueError(f"slot {slot}: no frames to plan with")
@@ -125,6 +147,12 @@ class SlotPlanner:
                               list(rate_history), self.n_states,
                               lambda a, b: full[np.ix_([pos[x] for x in a],
                                                        [pos[x] for x in b])])
+        see_slot = getattr(self.policy, "see_slot", None)
+        if see_slot is not None:
+            seen_frames = {**arriving, **by_id}
+            k, shape = camera if camera is not None else (np.eye(3), (480, 640))
+            see_slot(SlotView(self.map, map_ids, list(frames),
+                              lambda x: self.points_of(seen_frames, x), k, shape, cfg))
         action = self.policy.decide(obs)
         check_map_action(slot, n_up, n_ev, set(cand), map_ids, action)
         # υ of F_k against the map as it is (eq. 8), None for an empty map; a keyframe holds

@@ -239,6 +239,24 @@ def test_slots_shorter_than_their_uploads_never_leave_more_than_vmax() -> None:
     assert overlapped, "no slot overlapped its predecessor: the test tests nothing"
 
 
+def test_the_edge_plans_with_mpc_in_a_world_of_its_live_map() -> None:
+    """Issue #29: ``policy:=mpc:H=2`` decides every slot at the edge (from the live map and the
+    device's poses, edge_mapper/planning_world.py): Theorem 1's sizes, uploads among the
+    slot's frames, evictions once the small map is full, never more than V_max."""
+    vmax = 12
+    report, record, _ = _run("mpc:H=2", frames=300, extra={"edge_mapper": [f"vmax:={vmax}"]})
+    assert report.slots == 300 // 60 and set(record.requests) == set(record.summaries)
+    for slot, summary in record.summaries.items():
+        request = record.requests[slot]
+        assert request.policy == "mpc:H=2", f"slot {slot} decided by {request.policy}"
+        expected = min(math.floor(summary.rate_mbps * D_REQ / ALPHA + 1e-9),
+                       sum(f.tracked for f in summary.frames))
+        assert len(request.upload_frame_ids) == expected, f"slot {slot}"
+        assert set(request.upload_frame_ids) <= {f.frame_id for f in summary.frames if f.tracked}
+    assert any(len(r.evict_frame_ids) for r in record.requests.values()), "the map never filled"
+    assert all(s.map_size <= vmax for s in record.stats.values())
+
+
 def test_a_device_that_lost_tracking_relocalises_against_the_edges_map() -> None:
     """Issue #19: the synthetic room played forward then backward, the lens covered for 3 s on
     the way back (the camera walks on meanwhile). The device loses tracking once, then

@@ -11,18 +11,26 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from twinslam.map_management.delayed import DELAY_PREFIX, DelayedPolicy, parse_delay
 from twinslam.map_management.policies import POLICIES, MapPolicy, make_rule_policy
 
 LEARNED_PREFIX = "mbrl"          #: ``mbrl:CHECKPOINT`` names a policy `twinslam train` wrote
-MPC = "mpc"                      #: ``mpc[:H=3/S=4/...]``: the causal planner (simulator only)
+MPC = "mpc"                      #: ``mpc[:H=3/S=4/...]``: the causal planner
 
 
 def make_policy(name: str) -> MapPolicy:
     """A policy by name: ``lff``, ``pu``, ``adapt``, ``random``, ``mbrl:PATH`` for the
     learned policy of the checkpoint at PATH, or ``mpc[:OPTIONS]`` for the causal planner
-    (:mod:`twinslam.simulator.mpc`; it plans in the simulator's world model). Unknown names
-    raise ValueError listing the choices."""
+    (:mod:`twinslam.simulator.mpc`; the simulator's world model in ``twinslam sim``, a world
+    built from the live map at the edge), or ``delay:SECONDS:POLICY`` for a policy's decisions
+    handed back late (a control for the cost of deciding slowly). Unknown names raise
+    ValueError listing the choices."""
     kind, _, path = name.partition(":")
+    if kind == DELAY_PREFIX:
+        seconds, inner = parse_delay(name)
+        if inner.partition(":")[0] in (LEARNED_PREFIX, DELAY_PREFIX):
+            raise ValueError(f"policy {name!r}: a delay wraps a rule policy or mpc")
+        return DelayedPolicy(make_policy(inner), seconds)
     if kind == LEARNED_PREFIX:
         if not path:
             raise ValueError("policy 'mbrl' needs its checkpoint: mbrl:PATH (from "
@@ -36,8 +44,8 @@ def make_policy(name: str) -> MapPolicy:
                           if config.rates == "variational" else None)
     if name not in POLICIES:
         raise ValueError(f"unknown policy {name!r}; choose from {sorted(POLICIES)}, "
-                         "mbrl:CHECKPOINT (or, in the simulator, mpc[:H=../S=..] and "
-                         "'reference')")
+                         "mbrl:CHECKPOINT, mpc[:H=../S=..], delay:SECONDS:POLICY (or, in "
+                         "the simulator, 'reference')")
     return make_rule_policy(name)
 
 

@@ -13,6 +13,7 @@ import numpy as np
 
 from msg_schemas.headers import time_seconds
 from twinslam.live.record import RunRecord
+from twinslam.policy_registry import LEARNED_PREFIX
 from twinslam.slam.tracking_quality import (
     FrameFlags,
     TrackingEvents,
@@ -69,9 +70,9 @@ class RunReport:
 
 def policy_label(policy: str) -> str:
     """A policy as tables and file names show it: a learned one (``mbrl:CHECKPOINT``) by its
-    checkpoint's file name, ``mbrl:amm_s0``."""
+    checkpoint's file name, ``mbrl:amm_s0``; any other as it is named (``mpc:H=2/S=1``)."""
     kind, sep, path = policy.partition(":")
-    return f"{kind}:{Path(path).stem}" if sep else policy
+    return f"{kind}:{Path(path).stem}" if sep and kind == LEARNED_PREFIX else policy
 
 
 def record_events(record: RunRecord) -> TrackingEvents:

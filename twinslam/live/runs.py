@@ -40,8 +40,10 @@ from twinslam.live.launcher import LaunchConfig, Launcher
 from twinslam.live.report import RunReport, policy_label
 from twinslam.live.run_picture import plot_run
 from twinslam.live.scenarios import Scenario
+from twinslam.map_management.delayed import DELAY_PREFIX
+from twinslam.map_management.policies import POLICIES
 from twinslam.node_hosts.loopback import LoopbackDomain
-from twinslam.policy_registry import LEARNED_PREFIX
+from twinslam.policy_registry import LEARNED_PREFIX, MPC
 from twinslam.simulator.calibration import Calibration, calibrate
 from twinslam.simulator.covisibility import load_covisibility
 
@@ -67,13 +69,20 @@ class RunKey:
         return file_name(f"{self.scenario}_{self.map_source}_{policy}_s{self.seed}")
 
 
+#: what a policy name starts with: a rule, a learned checkpoint, the planner or a delay
+POLICY_KINDS = frozenset({*POLICIES, LEARNED_PREFIX, MPC, DELAY_PREFIX})
+
+
 def policy_variants(text: str) -> list[tuple[str, str]]:
     """``--policy`` items as (label, edge policy): ``LABEL=POLICY`` or ``POLICY`` (labelled
     ``mbrl:<checkpoint name>`` for a learned one); a label given to several checkpoints pools
-    their training runs in every table."""
+    their training runs in every table. ``mpc:H=2`` is a policy with options, not a label: a
+    label has no ``:``, and what follows its ``=`` names a policy (``planner=mpc:H=2``)."""
     out = []
     for item in filter(None, (part.strip() for part in text.split(","))):
         label, sep, spec = item.partition("=")
+        if sep and ":" in label and spec.partition(":")[0].strip() not in POLICY_KINDS:
+            sep = ""                         # an option's '=' (mpc:H=2), not a label's
         if not sep:
             label, spec = policy_label(item), item
         if not label.strip() or not spec.strip():

@@ -134,6 +134,24 @@ class MapManagementEnv:
         #: factorisation serves both (issue #30)
         self._factor: tuple[tuple[int, bytes], tuple[Any, ...], np.ndarray] | None = None
 
+    @classmethod
+    def standing_at(cls, dataset: CovisibilityDataset, config: SimConfig, n_states: int,
+                    slot: int, map_frames: Sequence[int], uploadable: Sequence[int],
+                    plan: Sequence[tuple[int, float]], stream: Any) -> MapManagementEnv:
+        """An environment standing at slot ``slot`` that nobody walked to: a world a planner
+        builds from what it knows (the edge's live map, its slot's frames and the frames it
+        predicts) instead of one that ``reset`` drew. ``map_frames`` and ``uploadable`` are
+        frame instances, ``stream`` maps instances to ``dataset`` rows (anything with
+        ``dataset_index``), ``plan`` is (state, rate) of slots 0 … ``config.slots``."""
+        if len(plan) <= config.slots or not 0 <= slot < config.slots:
+            raise ValueError(f"slot {slot} with a plan of {len(plan)} slots: the plan must "
+                             f"cover slots 0 … {config.slots} and the slot lie before the last")
+        env = cls(dataset, MarkovChannel(np.zeros(n_states)), config)
+        env.stream, env._slot, env._plan = stream, int(slot), list(plan)
+        env._map, env._uploadable = list(map_frames), list(uploadable)
+        env._map_w = env.weights(env._map, env._map)
+        return env
+
     # -- weights -----------------------------------------------------------------------------
 
     def weights(self, a: list[int], b: list[int]) -> np.ndarray:

@@ -26,8 +26,9 @@ the base policies' (LFF, ADAPT) roll-outs. Candidate first actions: all of them 
 at most ``max_actions``, else the base policies' actions and random swaps of them. With a known
 future and H covering the rest of the episode it is the exact optimum (tests).
 
-It plans in the simulator's world model, so it runs where one exists (``twinslam sim``,
-``experiment``); the edge refuses it by name.
+It plans in the simulator's world model here; at the edge
+(:mod:`edge_mapper.planning_world`) the same planner plans in a world built each slot from the
+live map, the device's poses and the frames predicted at its extrapolated poses.
 """
 
 from __future__ import annotations
@@ -68,7 +69,8 @@ class MpcConfig:
     def label(self) -> str:
         """``mpc``, or ``mpc:`` and the options that differ from the defaults."""
         keys = {"horizon": "H", "scenarios": "S", "rates": "rates", "frames": "frames",
-                "max_actions": "actions", "swaps": "swaps", "retrain": "W"}
+                "max_actions": "actions", "max_states": "states", "swaps": "swaps",
+                "retrain": "W"}
         default = MpcConfig()
         changed = [f"{short}={getattr(self, name)}" for name, short in keys.items()
                    if getattr(self, name) != getattr(default, name)]
@@ -76,8 +78,8 @@ class MpcConfig:
 
     def check(self) -> None:
         if self.horizon < 1 or self.scenarios < 1 or self.max_actions < 1 or self.swaps < 0 \
-                or self.retrain < 1:
-            raise ValueError("mpc: H, S and W must be >= 1, swaps >= 0")
+                or self.retrain < 1 or self.max_states < 1:
+            raise ValueError("mpc: H, S, W, actions and states must be >= 1, swaps >= 0")
         if self.rates not in RATE_MODELS:
             raise ValueError(f"mpc: rates {self.rates!r}, one of {', '.join(RATE_MODELS)}")
         if self.frames not in FRAME_PREDICTORS:
@@ -91,7 +93,7 @@ def parse_mpc(spec: str) -> MpcConfig:
     _, _, options = spec.partition(":")
     config = MpcConfig()
     keys = {"H": "horizon", "S": "scenarios", "rates": "rates", "frames": "frames",
-            "actions": "max_actions", "swaps": "swaps", "W": "retrain"}
+            "actions": "max_actions", "states": "max_states", "swaps": "swaps", "W": "retrain"}
     for part in filter(None, (p.strip() for p in options.replace("/", ",").split(","))):
         key, eq, value = part.partition("=")
         if not eq or key not in keys:
@@ -155,6 +157,10 @@ class MpcPlanner:
                                       else [LatestFrameFirst(), Adapt()])
         self._env: MapManagementEnv | None = None
         self.reset(0)
+
+    def with_config(self, config: MpcConfig) -> MpcPlanner:
+        """A fresh planner with other options, the same base policies and rate model maker."""
+        return MpcPlanner(config, self.base, self._learned)
 
     def attach(self, env: MapManagementEnv) -> None:
         self._env = env

@@ -136,9 +136,12 @@ def add_arguments(parser: argparse.ArgumentParser, default_sequence: str,
                         help="the sequence's first frame played (e.g. keep a stretch for "
                         "tuning apart from the one evaluated); default %(default)s")
     parser.add_argument("--policy", default="lff,pu,adapt",
-                        help="comma-separated: lff, pu, adapt, random, mbrl:CHECKPOINT, each "
-                        "optionally LABEL=POLICY (several checkpoints under one label: one "
-                        "variant over its training runs); default %(default)s")
+                        help="comma-separated: lff, pu, adapt, random, mbrl:CHECKPOINT, "
+                        "mpc[:H=2/S=4/...] (the causal planner, '/' between its options), "
+                        "delay:SECONDS:POLICY (POLICY's decisions handed back SECONDS late: "
+                        "what deciding slowly costs), each optionally LABEL=POLICY (several "
+                        "checkpoints under one label: one variant over its training runs); "
+                        "default %(default)s")
     parser.add_argument("--scenario", default=",".join(scenario_names),
                         help="comma-separated, of: " + ", ".join(scenario_names)
                         + "; default all")
