@@ -84,3 +84,20 @@ def test_a_row_that_is_not_in_the_files_is_refused() -> None:
     with pytest.raises(SystemExit, match="--rows mpc:H=9: no such policy"):
         _script("issue29_tables").main(_expand(["issue29-mpc-eval-main.csv", "--rows",
                                                 "lff,mpc:H=9"]))
+
+
+def test_the_live_planner_tables_are_what_evaluate_prints_from_their_runs(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`twinslam evaluate … --resume` on the committed runs.csv runs nothing and prints the
+    tables results.md shows for `mpc` live."""
+    from twinslam.cli.main import main
+    for name in ("runs.csv", "calibration.csv"):
+        (tmp_path / name).write_bytes((FIGURES / "issue29-mpc-live" / name).read_bytes())
+    code = main(["evaluate", "--policy", "lff,mpc:H=2,delay:0.3:lff", "--scenario",
+                 "forward,revisit-v15", "--seeds", "10", "--start", "300", "--frames", "300",
+                 "--out", str(tmp_path), "--resume"])
+    printed = capsys.readouterr().out
+    assert code == 0 and "resuming: 60 of 60 runs" in printed, printed[-2000:]
+    rows = [line for line in printed.splitlines() if line.startswith("| ")]
+    # 2 scenarios x 3 policies, 2 x 2 policies x 5 paired figures, and the two headers
+    assert len(rows) == 6 + 20 + 2 and _missing(printed) == []
