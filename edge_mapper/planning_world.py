@@ -136,10 +136,9 @@ def overlap_decay(sets: Sequence[np.ndarray]) -> Callable[[int], float]:
     """ρ(Δ): the share of the points a frame Δ frames after the slot's last one still sees,
     relative to the next frame, as the slot's frames (``sets``, capture order) show it:
     exp(-(Δ-1)/τ), τ fitted to the slot's mean overlaps at Δ = 1, 2, 4, … up to half the
-    slot. Frames
-    share ever fewer points as the camera moves on; the planner's next frames do the same.
-    (Relative to Δ = 1: a single frame re-detects only about half of its neighbour's
-    features, but it matches the map's points all the same.)"""
+    slot (8 frame pairs each). Frames share ever fewer points as the camera moves on; the
+    planner's next frames do the same. (Relative to Δ = 1: a single frame re-detects only
+    about half of its neighbour's features, but it matches the map's points all the same.)"""
     n = len(sets)
     deltas = [d for d in (2 ** i for i in range(12)) if d <= max(1, n // 2) and d < n]
     means = np.array([np.mean([np.intersect1d(sets[i], sets[i + d], assume_unique=True).size
