@@ -6,7 +6,8 @@ nodes do, without DDS and without the uplink's deliberate delay.
     python -m bench.pipeline [SEQUENCE] [--frames 600] [--policy adapt]
 
 SEQUENCE defaults to ../shared/data/7scenes-1000. Targets: device ≤ 15 ms, edge ≤ 150 ms
-(medians).
+(medians). ``plan`` is the policy's decision with its observation: the time the device waits
+for the upload request beyond the summaries' trip (``--policy mpc:H=2`` for the planner).
 """
 
 from __future__ import annotations
@@ -75,8 +76,11 @@ def main() -> None:
             frames = device.take_slot()
             slot = frames[-1].slot
             state, rate = channel.step()
+            # as the edge node reads a summary: tracked flag and pose too (mpc predicts from
+            # the poses; an untracked frame is never uploaded)
             sets = [FrameObservations(f.frame_id, frozenset(f.map_point_ids.tolist()),
-                                      frozenset(f.track_ids.tolist())) for f in frames]
+                                      frozenset(f.track_ids.tolist()), bool(f.tracked), f.pose)
+                    for f in frames]
             t0 = time.perf_counter()
             plan = edge.plan(slot, sets, rate, state)
             t1 = time.perf_counter()

@@ -17,6 +17,7 @@ integrated, while an earlier slot is open (``integrate_held`` after that slot fi
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 import time
@@ -25,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from edge_mapper.planning_world import at_the_edge
 from edge_mapper.slot_planner import FrameObservations, SlotConfig, SlotPlan, SlotPlanner
 from twinslam.map_management.actions import MapAction
 from twinslam.map_management.policies import MapPolicy
@@ -91,7 +93,7 @@ class EdgeMapperCore:
         if self.restored_from_file:      # a restarted edge resolves the device's tracks as before
             self.local_mapping.track_points = _table(extra, "track")
             self._previous_tracks = _table(extra, "previous_track")
-        self.planner = SlotPlanner(self.map, policy, self.config.slot, n_states)
+        self.planner = SlotPlanner(self.map, at_the_edge(policy), self.config.slot, n_states)
         self.pending: dict[int, tuple[MapAction, set[int]]] = {}   #: slot → (action, received)
         #: requested uploads not integrated yet, as the slot's summaries observed them
         self._arriving: dict[int, FrameObservations] = {}
@@ -103,8 +105,10 @@ class EdgeMapperCore:
     def warm_up(policy: MapPolicy) -> None:
         """One slot of a tiny made-up map through ``policy``, υ, eviction and the optimiser,
         so the compiled kernels are loaded (or compiled, in a fresh checkout: tens of seconds)
-        before the first real slot arrives instead of while the device waits for its map."""
-        core = EdgeMapperCore(policy, None, EdgeConfig(slot=SlotConfig(vmax=3)))
+        before the first real slot arrives instead of while the device waits for its map.
+        A copy of ``policy`` decides, so one that learns from its slots (``mpc``'s rate twin)
+        starts the real run from nothing."""
+        core = EdgeMapperCore(copy.deepcopy(policy), None, EdgeConfig(slot=SlotConfig(vmax=3)))
         for kf in range(3):
             core.map.add_keyframe(kf, np.eye(4))
         for p in range(40):
@@ -125,8 +129,9 @@ class EdgeMapperCore:
                 f"{self.checkpoint}")
 
     def set_policy(self, policy: MapPolicy) -> None:
-        """The policy that decides from the next plan on."""
-        self.planner.policy = policy
+        """The policy that decides from the next plan on (``mpc`` planning in a world of this
+        map, :func:`~edge_mapper.planning_world.at_the_edge`)."""
+        self.planner.policy = at_the_edge(policy)
 
     @property
     def slot_config(self) -> SlotConfig:

@@ -37,6 +37,8 @@ from scipy.linalg import expm, logm
 from edge_mapper.slot_planner import FrameObservations, SlotView
 from twinslam.common.tracking_rule import MIN_INLIERS
 from twinslam.map_management.actions import MapAction, SlotObservation
+from twinslam.map_management.delayed import DelayedPolicy
+from twinslam.map_management.policies import MapPolicy
 from twinslam.simulator.covisibility import CovisibilityDataset
 from twinslam.simulator.env import MapManagementEnv, SimConfig
 from twinslam.simulator.mpc import MpcConfig, MpcPlanner
@@ -281,3 +283,14 @@ class LiveMpc:
         seen = replace(world.env.observation(), slot=obs.slot,
                        rate_history=list(obs.rate_history))
         return world.action(self.planner.decide(seen))
+
+
+def at_the_edge(policy: MapPolicy) -> MapPolicy:
+    """``policy`` as the edge runs it: ``mpc`` plans in a world built from the live map (also
+    under a delay); any other, and one already made for the edge, as it is."""
+    if isinstance(policy, MpcPlanner):
+        return LiveMpc(policy)
+    if isinstance(policy, DelayedPolicy):
+        inner = at_the_edge(policy.policy)
+        return policy if inner is policy.policy else DelayedPolicy(inner, policy.seconds)
+    return policy

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, cast
 
-from edge_mapper.planning_world import LiveMpc, live_refused
+from edge_mapper.planning_world import at_the_edge, live_refused
 from edge_mapper.twin_feed import TwinDrivenPolicy, TwinFedPolicy
 from twinslam.map_management.delayed import DelayedPolicy
 from twinslam.map_management.policies import MapPolicy
@@ -77,7 +77,7 @@ def make_policies(live: dict[str, Any], warm_up: Any = None
     """The policy the live values name (warmed up by ``warm_up(policy)`` if given) and its
     twin feed: a twin-driven policy comes wrapped with its fallback (the wrapper is both), any
     other with no feed. ValueError when it cannot be made."""
-    policy = _at_the_edge(make_policy(policy_name(live)))
+    policy = at_the_edge(make_policy(policy_name(live)))
     if warm_up:
         warm_up(policy)
     if not getattr(policy, "uses_twin", False):
@@ -90,16 +90,6 @@ def make_policies(live: dict[str, Any], warm_up: Any = None
     # uses_twin: an MbrlPolicy of a twin checkpoint, which takes the twin's features
     feed = TwinFedPolicy(cast(TwinDrivenPolicy, policy), fallback, int(live["latent_max_age"]))
     return feed, feed
-
-
-def _at_the_edge(policy: MapPolicy) -> MapPolicy:
-    """``policy`` as the edge runs it: ``mpc`` plans in a world built from the live map
-    (also under a delay)."""
-    if isinstance(policy, MpcPlanner):
-        return LiveMpc(policy)
-    if isinstance(policy, DelayedPolicy):
-        return DelayedPolicy(_at_the_edge(policy.policy), policy.seconds)
-    return policy
 
 
 class PolicyControl:

@@ -230,8 +230,9 @@ class MpcPlanner:
     def decide(self, obs: SlotObservation) -> MapAction:
         env = self._env
         if env is None:
-            raise RuntimeError("mpc plans in the simulator's world model: attach(env) first "
-                               "(twinslam sim / experiment do; the edge cannot run it)")
+            raise RuntimeError("mpc plans in a world model: attach(env) first (twinslam sim "
+                               "and experiment do; at the edge edge_mapper.planning_world's "
+                               "LiveMpc builds one from the live map each slot)")
         self._observe(obs)
         first = self._first_actions(obs)
         if len(first) == 1:
