@@ -68,6 +68,13 @@ def extrapolate(poses: Sequence[np.ndarray], positions: Sequence[int], ahead: Se
         return [last.copy() for _ in ahead]
     relative = np.linalg.inv(np.asarray(poses[0], dtype=np.float64)) @ last
     twist = np.real(logm(relative)) / (positions[-1] - positions[0])    # per frame
+    if list(ahead) == list(range(ahead[0], ahead[0] + len(ahead))):   # one step a frame
+        step, pose = np.real(expm(twist)), last @ np.real(expm(twist * ahead[0]))
+        out = [pose]
+        for _ in ahead[1:]:
+            pose = pose @ step
+            out.append(pose)
+        return out
     return [last @ np.real(expm(twist * n)) for n in ahead]
 
 
@@ -107,10 +114,7 @@ def predict_frames(view: SlotView, slots: int, max_depth_m: float = MAX_DEPTH_M
     if not posed or not has_camera(view.intrinsics):
         last = view.points_of(frames[-1].frame_id)
         return [last.copy() for _ in range(slots * n)]
-    point_ids = np.fromiter(view.keyframe_map.points, dtype=np.int64,
-                            count=len(view.keyframe_map.points))
-    positions = (np.array([view.keyframe_map.points[int(p)].position for p in point_ids])
-                 if point_ids.size else np.zeros((0, 3)))
+    points = view.keyframe_map.points
     views = _viewpoints(view, [f for _, f in posed])
     centres = np.array([p[:3, 3] for p, _ in views])
     axes = np.array([p[:3, 2] for p, _ in views])
@@ -119,17 +123,24 @@ def predict_frames(view: SlotView, slots: int, max_depth_m: float = MAX_DEPTH_M
     poses = extrapolate([f.pose for _, f in posed if f.pose is not None],
                         [i for i, _ in posed], ahead)
     decay = overlap_decay([view.points_of(f.frame_id) for _, f in posed])
+    #: per view: its map points still in the map, and where they are (gathered once a view)
+    located: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     out = []
     for offset, pose in zip(ahead, poses, strict=True):
-        in_view = point_ids[visible_points(positions, pose, view.intrinsics,
-                                           view.image_shape, max_depth_m)]
         distance = np.linalg.norm(centres - pose[:3, 3], axis=1)
         turned = np.degrees(np.arccos(np.clip(axes @ pose[:3, 2], -1.0, 1.0)))
-        seen = views[int(np.argmin(distance / NEAR_M + turned / NEAR_DEG))][1]
-        mapped = seen[seen >= 0]
-        kept = np.isin(mapped, in_view)
+        nearest = int(np.argmin(distance / NEAR_M + turned / NEAR_DEG))
+        seen = views[nearest][1]
+        if nearest not in located:
+            mapped = np.array([p for p in seen[seen >= 0].tolist() if p in points],
+                              dtype=np.int64)
+            located[nearest] = (mapped, np.array([points[p].position for p in mapped.tolist()])
+                                if mapped.size else np.zeros((0, 3)))
+        mapped, positions = located[nearest]
+        kept = visible_points(positions, pose, view.intrinsics, view.image_shape, max_depth_m)
+        share = float(kept.sum()) / max(1, int(np.count_nonzero(seen >= 0)))
         tracks = seen[seen < 0]                    # no 3-D position yet: kept in the share
-        keys = np.concatenate([mapped[kept], _thinned(tracks, kept.mean() if kept.size else 0)])
+        keys = np.concatenate([mapped[kept], _thinned(tracks, share)])
         out.append(np.sort(_thinned(keys, decay(offset))))
     return out
 
