@@ -86,13 +86,14 @@ def test_a_row_that_is_not_in_the_files_is_refused() -> None:
                                                 "lff,mpc:H=9"]))
 
 
+@pytest.mark.parametrize("folder", ["issue29-mpc-live", "issue29-mpc-live-2"])
 def test_the_live_planner_tables_are_what_evaluate_prints_from_their_runs(
-        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+        folder: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """`twinslam evaluate … --resume` on the committed runs.csv runs nothing and prints the
-    tables results.md shows for `mpc` live."""
+    tables results.md shows for `mpc` live (the evaluation, and its re-run)."""
     from twinslam.cli.main import main
     for name in ("runs.csv", "calibration.csv"):
-        (tmp_path / name).write_bytes((FIGURES / "issue29-mpc-live" / name).read_bytes())
+        (tmp_path / name).write_bytes((FIGURES / folder / name).read_bytes())
     code = main(["evaluate", "--policy", "lff,mpc:H=2,delay:0.3:lff", "--scenario",
                  "forward,revisit-v15", "--seeds", "10", "--start", "300", "--frames", "300",
                  "--out", str(tmp_path), "--resume"])
