@@ -17,12 +17,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, cast
 
-from edge_mapper.planning_world import at_the_edge, live_refused
+from edge_mapper.planning_world import at_the_edge
 from edge_mapper.twin_feed import TwinDrivenPolicy, TwinFedPolicy
-from twinslam.map_management.delayed import DelayedPolicy
 from twinslam.map_management.policies import MapPolicy
 from twinslam.policy_registry import LEARNED_PREFIX, make_policy
-from twinslam.simulator.mpc import MpcPlanner
 
 #: the live parameters that say which policy decides
 POLICY_KEYS = ("policy", "policy_checkpoint", "fallback_policy", "latent_max_age")
@@ -38,17 +36,10 @@ def policy_refused(name: str) -> str | None:
     """Why ``name`` is not a policy the edge can run (None: it is)."""
     if name == LEARNED_PREFIX:            # its checkpoint comes from policy_checkpoint
         return None
-    try:
-        policy = make_policy(name)
+    try:                  # made as the edge runs it: mpc's simulator-only options refused
+        at_the_edge(make_policy(name))
     except ValueError as exc:
         return str(exc)
-    if isinstance(policy, DelayedPolicy):
-        policy = policy.policy
-    if isinstance(policy, MpcPlanner):
-        return live_refused(policy.config)
-    if getattr(policy, "needs_simulator", False):
-        return (f"{name} plans in the simulator's world model (twinslam sim / experiment); "
-                "the edge runs lff, pu, adapt, random, mpc or mbrl")
     return None
 
 

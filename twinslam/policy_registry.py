@@ -16,6 +16,8 @@ from twinslam.map_management.policies import POLICIES, MapPolicy, make_rule_poli
 
 LEARNED_PREFIX = "mbrl"          #: ``mbrl:CHECKPOINT`` names a policy `twinslam train` wrote
 MPC = "mpc"                      #: ``mpc[:H=3/S=4/...]``: the causal planner
+#: what a policy name starts with: a rule, a learned checkpoint, the planner or a delay
+POLICY_KINDS = frozenset({*POLICIES, LEARNED_PREFIX, MPC, DELAY_PREFIX})
 
 
 def make_policy(name: str) -> MapPolicy:

@@ -40,10 +40,8 @@ from twinslam.live.launcher import LaunchConfig, Launcher
 from twinslam.live.report import RunReport, policy_label
 from twinslam.live.run_picture import plot_run
 from twinslam.live.scenarios import Scenario
-from twinslam.map_management.delayed import DELAY_PREFIX
-from twinslam.map_management.policies import POLICIES
 from twinslam.node_hosts.loopback import LoopbackDomain
-from twinslam.policy_registry import LEARNED_PREFIX, MPC
+from twinslam.policy_registry import LEARNED_PREFIX, POLICY_KINDS
 from twinslam.simulator.calibration import Calibration, calibrate
 from twinslam.simulator.covisibility import load_covisibility
 
@@ -67,10 +65,6 @@ class RunKey:
         path = self.edge_policy.partition(":")[2]
         policy = f"{self.policy}-{Path(path).stem}" if path and self.spec else self.policy
         return file_name(f"{self.scenario}_{self.map_source}_{policy}_s{self.seed}")
-
-
-#: what a policy name starts with: a rule, a learned checkpoint, the planner or a delay
-POLICY_KINDS = frozenset({*POLICIES, LEARNED_PREFIX, MPC, DELAY_PREFIX})
 
 
 def policy_variants(text: str) -> list[tuple[str, str]]:

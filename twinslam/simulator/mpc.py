@@ -141,7 +141,6 @@ class MpcPlanner:
     environment whose world it imagines; :func:`~twinslam.simulator.plan.rollout` does."""
 
     name = "mpc"
-    needs_simulator = True
 
     def __init__(self, config: MpcConfig | None = None,
                  base: Sequence[MapPolicy] | None = None,
