@@ -259,8 +259,6 @@ def live_refused(config: MpcConfig) -> str | None:
 class LiveMpc:
     """``mpc`` at the edge: each slot the planner plans in :func:`planning_world`."""
 
-    uses_twin = False
-
     def __init__(self, planner: MpcPlanner, max_depth_m: float = MAX_DEPTH_M) -> None:
         reason = live_refused(planner.config)
         if reason:

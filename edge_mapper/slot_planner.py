@@ -141,7 +141,11 @@ class SlotPlanner:
         cfg = self.config
         n_up, n_ev = theorem1_cardinalities(rate_mbps, cfg.alpha_mbit, cfg.d_req_s, cfg.vmax,
                                             len(map_ids), len(cand))
-        full = self.weight_matrix({**arriving, **by_id}, map_ids + every)
+        seen = {**arriving, **by_id}
+        # each keyframe's and frame's point keys, made once: the weights, the policy's view
+        # and the slot's υ all read them
+        keys = {x: self.points_of(seen, x) for x in map_ids + every}
+        full = shared_counts([keys[x] for x in map_ids + every])
         pos = {x: i for i, x in enumerate(map_ids + every)}
         obs = SlotObservation(slot, map_ids, cand, n_up, n_ev, rate_mbps, rate_state,
                               list(rate_history), self.n_states,
@@ -149,10 +153,10 @@ class SlotPlanner:
                                                        [pos[x] for x in b])])
         see_slot = getattr(self.policy, "see_slot", None)
         if see_slot is not None:
-            seen_frames = {**arriving, **by_id}
             k, shape = camera if camera is not None else (np.eye(3), (480, 640))
             see_slot(SlotView(self.map, map_ids, list(frames),
-                              lambda x: self.points_of(seen_frames, x), k, shape, cfg))
+                              lambda x: keys[x] if x in keys else self.points_of(seen, x),
+                              k, shape, cfg))
         action = self.policy.decide(obs)
         check_map_action(slot, n_up, n_ev, set(cand), map_ids, action)
         # υ of F_k against the map as it is (eq. 8), None for an empty map; a keyframe holds
@@ -162,10 +166,8 @@ class SlotPlanner:
         m = len(map_ids)
         if not m:
             return SlotPlan(action, obs, None)
-        seen = {**arriving, **by_id}
-        in_map = np.unique(np.concatenate([self.points_of(seen, x) for x in map_ids]))
-        shared = np.array([np.isin(self.points_of(seen, f), in_map, assume_unique=True).sum()
-                           for f in every])
+        in_map = np.unique(np.concatenate([keys[x] for x in map_ids]))
+        shared = np.array([np.isin(keys[f], in_map, assume_unique=True).sum() for f in every])
         upsilon = next_slot_uncertainty(full[:m, :m], full[m:, :m], self.config.log_det_pi,
                                         shared >= MIN_INLIERS)
         return SlotPlan(action, obs, upsilon)
