@@ -1,15 +1,16 @@
 """A private ROS 2 domain on this machine, for tests, benchmarks and the demo.
 
-Every ``LoopbackDomain`` gets a domain id no other live domain on this machine uses (checked
-by binding its discovery port) and discovery limited to this machine
-(``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``), with the project's Fast DDS profile. Node
-processes started through it inherit that environment and are stopped (SIGTERM, then SIGKILL)
-when the domain closes, so a failing test never leaves processes behind.
+Every ``LoopbackDomain`` holds a domain id no other live domain on this machine uses (claimed
+with a lock file while it is open, and checked by binding its discovery port) and discovery
+limited to this machine (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``), with the project's Fast
+DDS profile. Node processes started through it inherit that environment and are stopped
+(SIGTERM, then SIGKILL) when the domain closes, so a failing test never leaves processes behind.
 """
 
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import json
 import os
 import queue
@@ -18,8 +19,10 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
 import time
+from pathlib import Path
 from types import TracebackType
 from typing import Any
 
@@ -43,15 +46,59 @@ def _discovery_port_free(domain_id: int) -> bool:
     return True
 
 
+def _claims_dir() -> Path:
+    """Where this machine's users of loopback domains hold their claims (one lock file an id)."""
+    folder = Path(tempfile.gettempdir()) / f"twinslam-ros-domains-{os.getuid()}"
+    folder.mkdir(mode=0o700, exist_ok=True)
+    return folder
+
+
+class DomainClaim:
+    """A domain id in 100..229 held by this process until :meth:`release` (or its exit).
+
+    A free discovery port alone does not reserve an id: two processes that look at the same
+    moment (parallel test workers, ``evaluate --jobs``) both see it free until their first
+    participant binds it, and their nodes would then talk across runs. The claim is an
+    exclusive ``flock`` on a file of the id, which the kernel drops when the holder exits, so a
+    killed run never leaves an id taken; the port check still skips an id that something
+    outside this scheme (a ROS system on the machine) is using.
+    """
+
+    def __init__(self, rng: random.Random | None = None) -> None:
+        rng = rng or random.Random(os.getpid() ^ time.monotonic_ns())
+        candidates = list(range(100, 230))
+        rng.shuffle(candidates)
+        folder = _claims_dir()
+        for domain_id in candidates:
+            fd = os.open(folder / f"{domain_id}.lock", os.O_RDWR | os.O_CREAT, 0o600)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                os.close(fd)
+                continue
+            if _discovery_port_free(domain_id):
+                self.domain_id, self._fd = domain_id, fd
+                return
+            os.close(fd)
+        raise RuntimeError("no free DDS domain id in 100..229 on this machine")
+
+    def release(self) -> None:
+        """Give the id back (closing the file drops the lock); idempotent."""
+        if self._fd >= 0:
+            os.close(self._fd)
+            self._fd = -1
+
+
 def pick_domain_id(rng: random.Random | None = None) -> int:
-    """A domain id in 100..229 whose discovery port is unused right now."""
-    rng = rng or random.Random(os.getpid() ^ time.monotonic_ns())
-    candidates = list(range(100, 230))
-    rng.shuffle(candidates)
-    for domain_id in candidates:
-        if _discovery_port_free(domain_id):
-            return domain_id
-    raise RuntimeError("no free DDS domain id in 100..229 on this machine")
+    """A domain id in 100..229 claimed for the rest of this process's life (see
+    :class:`DomainClaim`; a :class:`LoopbackDomain` gives its id back when it closes)."""
+    claim = DomainClaim(rng)
+    _HELD_FOR_LIFE.append(claim)
+    return claim.domain_id
+
+
+#: claims of :func:`pick_domain_id`, held until the process exits
+_HELD_FOR_LIFE: list[DomainClaim] = []
 
 
 class ProcessDomain:
@@ -159,7 +206,11 @@ class LoopbackDomain(ProcessDomain):
     """Context manager: a domain id on this machine only + the processes started in it."""
 
     def __init__(self, domain_id: int | None = None) -> None:
-        super().__init__(pick_domain_id() if domain_id is None else domain_id)
+        self._claim: DomainClaim | None = None
+        if domain_id is None:
+            self._claim = DomainClaim()
+            domain_id = self._claim.domain_id
+        super().__init__(domain_id)
         self._saved_env: dict[str, str | None] = {}
 
     @property
@@ -185,6 +236,8 @@ class LoopbackDomain(ProcessDomain):
 
     def close(self) -> None:
         super().close()
+        if self._claim is not None:
+            self._claim.release()
         for key, value in self._saved_env.items():
             if value is None:
                 os.environ.pop(key, None)
