@@ -65,3 +65,30 @@ def test_a_transform_serialises_as_one_tf_sample() -> None:
 def test_a_transform_needs_two_named_frames(parent: str, child: str) -> None:
     with pytest.raises(ValueError, match="frame"):
         transform_stamped(np.eye(4), 0.0, parent, child)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.floats(-1, 1), min_size=4, max_size=4).filter(
+    lambda q: np.linalg.norm(q) > 1e-3), st.floats(1e-9, 1e-4))
+def test_rotations_convert_as_scipy_converts_them_even_slightly_off_orthonormal(
+        quat: list[float], noise: float) -> None:
+    """The nodes' NumPy conversions (twinslam.common.rotations) against SciPy's ``Rotation``:
+    the same matrix of a quaternion and the same quaternion of a matrix, sign included, also for
+    a matrix a dataset stored in float32 and a little off orthonormal."""
+    from twinslam.common.rotations import (
+        matrix_from_quaternion,
+        matrix_from_yaw_pitch_roll,
+        quaternion_from_matrix,
+    )
+
+    rotation = Rotation.from_quat(quat)
+    np.testing.assert_allclose(matrix_from_quaternion(quat), rotation.as_matrix(), atol=1e-12)
+    off = rotation.as_matrix() + noise * np.sin(np.arange(9.0)).reshape(3, 3)
+    np.testing.assert_allclose(quaternion_from_matrix(off), Rotation.from_matrix(off).as_quat(),
+                               atol=1e-9)
+    yaw, pitch, roll = (float(v) for v in 3 * np.asarray(quat[:3]))
+    np.testing.assert_allclose(matrix_from_yaw_pitch_roll(yaw, pitch, roll),
+                               Rotation.from_euler("yxz", [yaw, pitch, roll]).as_matrix(),
+                               atol=1e-12)
+    with pytest.raises(ValueError, match="not a rotation quaternion"):
+        matrix_from_quaternion([0.0, 0.0, 0.0, 0.0])

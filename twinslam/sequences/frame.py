@@ -13,7 +13,8 @@ from pathlib import Path
 from typing import Protocol, runtime_checkable
 
 import numpy as np
-from scipy.spatial.transform import Rotation
+
+from twinslam.common.rotations import matrix_from_quaternion, quaternion_from_matrix
 
 
 class SequenceError(ValueError):
@@ -64,11 +65,11 @@ def pose_from_xyzq(values: list[float] | np.ndarray) -> np.ndarray:
     """x y z qx qy qz qw (TUM's, the covisibility file's and PoseStamped's order) → 4×4
     camera-to-world; the quaternion is normalised."""
     pose = np.eye(4)
-    pose[:3, :3] = Rotation.from_quat(np.asarray(values[3:7], dtype=np.float64)).as_matrix()
+    pose[:3, :3] = matrix_from_quaternion(np.asarray(values[3:7], dtype=np.float64))
     pose[:3, 3] = values[:3]
     return pose
 
 
 def pose_to_xyzq(pose: np.ndarray) -> np.ndarray:
     """4×4 camera-to-world → x y z qx qy qz qw."""
-    return np.concatenate([pose[:3, 3], Rotation.from_matrix(pose[:3, :3]).as_quat()])
+    return np.concatenate([pose[:3, 3], quaternion_from_matrix(pose[:3, :3])])

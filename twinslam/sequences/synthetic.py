@@ -16,8 +16,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 from numba import njit
-from scipy.spatial.transform import Rotation
 
+from twinslam.common.rotations import matrix_from_yaw_pitch_roll
 from twinslam.sequences.frame import RgbdFrame
 
 ROOM_HALF = np.array([3.0, 1.4, 2.5])      #: half extents (x, y, z) in metres
@@ -93,7 +93,7 @@ class SyntheticSequence:
         pitch = np.radians(8) * np.sin(0.41 * t + p[4])
         roll = np.radians(4) * np.sin(0.37 * t + p[5])
         pose = np.eye(4)
-        pose[:3, :3] = Rotation.from_euler("yxz", [yaw, pitch, roll]).as_matrix()
+        pose[:3, :3] = matrix_from_yaw_pitch_roll(yaw, pitch, roll)
         pose[:3, 3] = position
         return pose
 
