@@ -59,4 +59,5 @@ def matrix_from_yaw_pitch_roll(yaw: float, pitch: float, roll: float) -> np.ndar
     r_y = np.array([[cy, 0.0, sy], [0.0, 1.0, 0.0], [-sy, 0.0, cy]])
     r_x = np.array([[1.0, 0.0, 0.0], [0.0, cp, -sp], [0.0, sp, cp]])
     r_z = np.array([[cr, -sr, 0.0], [sr, cr, 0.0], [0.0, 0.0, 1.0]])
-    return r_z @ r_x @ r_y
+    rotation: np.ndarray = r_z @ r_x @ r_y
+    return rotation
