@@ -65,11 +65,15 @@ $(KERNELS_STAMP): $(STAMP) $(MSGS_STAMP) $(TF2_STAMP) $(KERNEL_SOURCES)
 run: venv
 	$(VENV)/bin/twinslam demo
 
+# the lint stage first (seconds), then the suite on parallel workers (pytest-xdist; live tests
+# mostly wait on real-time playback, so a few more workers than cores pay: README, "Tests")
+TEST_WORKERS ?= 3
+
 test: venv
 	$(PY) -m ruff check .
 	$(VENV)/bin/lint-imports
 	$(PY) -m mypy
-	$(PY) -m pytest
+	$(PY) -m pytest -n $(TEST_WORKERS)
 
 lint: venv
 	$(PY) -m ruff check .

@@ -1,4 +1,5 @@
-"""Shared fixtures: a private ROS domain per test, and an in-process rclpy node on it."""
+"""Shared fixtures: a private ROS domain per test, and an in-process rclpy node on it; and the
+order in which parallel workers (pytest-xdist, ``make test``) take the tests."""
 
 from __future__ import annotations
 
@@ -8,6 +9,12 @@ import pytest
 
 from twinslam.node_hosts.loopback import LoopbackDomain
 from twinslam.node_hosts.session import RosSession
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The ``slow`` tests first (stable otherwise): handed out last, a minute-long test would
+    keep one worker busy after the others ran out of work."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
 
 
 @pytest.fixture

@@ -4,58 +4,82 @@ runs — a free discovery port alone is no reservation between two processes tha
 
 from __future__ import annotations
 
+import fcntl
+import os
 import random
 import subprocess
 import sys
+from pathlib import Path
 
-from twinslam.node_hosts.loopback import DomainClaim, LoopbackDomain
+import pytest
 
-#: every id a claim may hand out
-IDS = 130
+from twinslam.node_hosts.loopback import DomainClaim, LoopbackDomain, _claims_dir
+
+#: the ids these tests claim among themselves, in claims of their own (tmp_path): the suite's
+#: other tests run beside them on parallel workers and need the machine's ids
+IDS = range(220, 230)
 
 
-def test_open_domains_hold_distinct_ids_until_they_close() -> None:
-    claims = [DomainClaim() for _ in range(IDS)]
+def test_open_domains_hold_distinct_ids_until_they_close(tmp_path: Path) -> None:
+    claims = [DomainClaim(ids=IDS, folder=tmp_path) for _ in IDS]
     try:
-        assert len({c.domain_id for c in claims}) == IDS
-        try:
-            DomainClaim()
-        except RuntimeError as exc:
-            assert "no free DDS domain id" in str(exc)
-        else:
-            raise AssertionError("a claim was handed out while every id was held")
+        assert sorted(c.domain_id for c in claims) == list(IDS)
+        with pytest.raises(RuntimeError, match=r"no free DDS domain id in 220\.\.229"):
+            DomainClaim(ids=IDS, folder=tmp_path)
         freed = claims.pop(7)
         freed.release()
-        assert DomainClaim(random.Random(1)).domain_id == freed.domain_id
+        again = DomainClaim(random.Random(1), ids=IDS, folder=tmp_path)
+        assert again.domain_id == freed.domain_id
+        claims.append(again)
     finally:
         for c in claims:
             c.release()
 
 
-def test_an_id_held_by_another_process_is_never_handed_out_and_comes_back_when_it_exits() -> None:
+def test_an_id_held_by_another_process_is_never_handed_out_and_comes_back_when_it_exits(
+        tmp_path: Path) -> None:
     """The same candidate order in both processes: the child takes the first, this process
     must skip it while the child lives and may have it once the child is gone (killed: the
     kernel drops its lock)."""
-    first = DomainClaim(random.Random(3))
+    first = DomainClaim(random.Random(3), ids=IDS, folder=tmp_path)
     wanted = first.domain_id
     first.release()
     child = subprocess.Popen(
         [sys.executable, "-c",
          "import random, sys, time\n"
+         "from pathlib import Path\n"
          "from twinslam.node_hosts.loopback import DomainClaim\n"
-         "c = DomainClaim(random.Random(3)); print(c.domain_id, flush=True); time.sleep(60)"],
+         f"c = DomainClaim(random.Random(3), ids=range({IDS.start}, {IDS.stop}), "
+         f"folder=Path({str(tmp_path)!r}))\n"
+         "print(c.domain_id, flush=True); time.sleep(60)"],
         stdout=subprocess.PIPE, text=True)
     try:
         assert child.stdout is not None
         assert int(child.stdout.readline()) == wanted
-        with LoopbackDomain() as other:
-            assert other.domain_id != wanted
-        beside = DomainClaim(random.Random(3))
+        beside = DomainClaim(random.Random(3), ids=IDS, folder=tmp_path)
         assert beside.domain_id != wanted
         beside.release()
     finally:
         child.kill()
         child.wait(timeout=10)
-    again = DomainClaim(random.Random(3))
+    again = DomainClaim(random.Random(3), ids=IDS, folder=tmp_path)
     assert again.domain_id == wanted
     again.release()
+
+
+def test_a_loopback_domain_holds_its_id_while_open_and_gives_it_back_when_it_closes() -> None:
+    def lockable(domain_id: int) -> bool:
+        fd = os.open(_claims_dir() / f"{domain_id}.lock", os.O_RDWR)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            return False
+        finally:
+            os.close(fd)
+        return True
+
+    with LoopbackDomain() as domain:
+        held = domain.domain_id
+        assert domain.env["ROS_DOMAIN_ID"] == str(held)
+        assert not lockable(held)
+    assert lockable(held)

@@ -1,6 +1,6 @@
 """The live pipeline on a loopback domain: sequence_player → device_tracker ⇄ edge_mapper, every
-node its own process, on the first 600 real 7-Scenes frames (issue #5's acceptance), or 600
-frames of the synthetic room where the sample is absent (``tests/data_paths.py``).
+node its own process, on the first 360 real 7-Scenes frames (six slots), or 360 frames of the
+synthetic room where the sample is absent (``tests/data_paths.py``).
 
 Per slot the edge asks for exactly ⌊d_k·D_req/α⌋ frames, the map never exceeds V_max, every
 upload takes at least its bytes / d_k, the device's ATE stays under 0.15 m, and MapStats.u is
@@ -32,8 +32,10 @@ from twinslam.slam.keyframe_map import shared_counts
 from twinslam.uncertainty.map_uncertainty import map_uncertainty
 
 SEQUENCE = seven_or_synthetic()
-FRAMES, VMAX, ALPHA, D_REQ = 600, 45, 5.0, 0.5
-
+FRAMES, VMAX, ALPHA, D_REQ = 360, 45, 5.0, 0.5
+pytestmark = pytest.mark.slow
+#: the tests that read the three policy runs: one worker makes the runs once for all of them
+READS_THE_POLICY_RUNS = pytest.mark.xdist_group("pipeline-policy-runs")
 
 
 def _run(policy: str, frames: int = FRAMES, checkpoint: Path | None = None,
@@ -119,6 +121,7 @@ def runs(viewed_lff: tuple) -> dict[str, tuple[RunReport, RunRecord, Launcher]]:
     return {"lff": viewed_lff[0], **{p: _run(p) for p in ("pu", "adapt")}}
 
 
+@READS_THE_POLICY_RUNS
 def test_protocol_holds_every_slot(runs: dict) -> None:
     report, record, _ = runs["adapt"]
     assert report.slots == FRAMES // 60, f"{report.slots} slots answered"
@@ -140,6 +143,7 @@ def test_protocol_holds_every_slot(runs: dict) -> None:
     assert report.ate_m < 0.15
 
 
+@READS_THE_POLICY_RUNS
 def test_map_stats_uncertainty_is_the_published_maps(runs: dict) -> None:
     _, record, _ = runs["adapt"]
     checked = 0
@@ -155,6 +159,7 @@ def test_map_stats_uncertainty_is_the_published_maps(runs: dict) -> None:
     assert checked >= FRAMES // 60 - 1
 
 
+@READS_THE_POLICY_RUNS
 def test_policies_decide_differently_and_the_edge_reports_consistent_scores(
         runs: dict) -> None:
     """Each policy asks for its own frames, and every MapStats obeys
@@ -285,6 +290,7 @@ def test_a_device_that_lost_tracking_relocalises_against_the_edges_map() -> None
     assert error < 0.05
 
 
+@READS_THE_POLICY_RUNS
 def test_a_viewer_sees_the_edges_map_points_keyframes_and_decisions(viewed_lff: tuple) -> None:
     """What RViz or Foxglove would subscribe to: every slot the edge's map as a PointCloud2
     with one point per map point, the kept keyframes as a PoseArray (at most V_max), and the
@@ -319,6 +325,7 @@ def test_a_viewer_sees_the_edges_map_points_keyframes_and_decisions(viewed_lff: 
         assert added == s.uploads and added + kept == s.map_size
 
 
+@READS_THE_POLICY_RUNS
 def test_a_viewer_follows_the_device_on_the_tf_tree(viewed_lff: tuple) -> None:
     """The TF tree a viewer follows: map → camera on /tf at every frame the device tracked
     (the transform is its pose on device/pose, stamped alike) and none at a frame it did not;
@@ -351,6 +358,7 @@ def test_a_viewer_follows_the_device_on_the_tf_tree(viewed_lff: tuple) -> None:
                                pose_matrix(pose_msg(first_frame.pose)), atol=1e-6)
 
 
+@READS_THE_POLICY_RUNS
 def test_the_picture_of_a_run_shows_its_map_trajectories_and_slots(
         runs: dict, tmp_path: Path) -> None:
     """One PNG a run: written, the size it is drawn at, and not blank — the map's points,

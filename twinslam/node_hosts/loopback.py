@@ -54,7 +54,8 @@ def _claims_dir() -> Path:
 
 
 class DomainClaim:
-    """A domain id in 100..229 held by this process until :meth:`release` (or its exit).
+    """A domain id of ``ids`` (100..229) held by this process until :meth:`release` (or its
+    exit), claimed in ``folder`` (this machine's claims unless given).
 
     A free discovery port alone does not reserve an id: two processes that look at the same
     moment (parallel test workers, ``evaluate --jobs``) both see it free until their first
@@ -64,11 +65,12 @@ class DomainClaim:
     outside this scheme (a ROS system on the machine) is using.
     """
 
-    def __init__(self, rng: random.Random | None = None) -> None:
+    def __init__(self, rng: random.Random | None = None, ids: range = range(100, 230),
+                 folder: Path | None = None) -> None:
         rng = rng or random.Random(os.getpid() ^ time.monotonic_ns())
-        candidates = list(range(100, 230))
+        candidates = list(ids)
         rng.shuffle(candidates)
-        folder = _claims_dir()
+        folder = folder or _claims_dir()
         for domain_id in candidates:
             fd = os.open(folder / f"{domain_id}.lock", os.O_RDWR | os.O_CREAT, 0o600)
             try:
@@ -80,7 +82,8 @@ class DomainClaim:
                 self.domain_id, self._fd = domain_id, fd
                 return
             os.close(fd)
-        raise RuntimeError("no free DDS domain id in 100..229 on this machine")
+        raise RuntimeError(f"no free DDS domain id in {ids.start}..{ids.stop - 1} on this "
+                           "machine")
 
     def release(self) -> None:
         """Give the id back (closing the file drops the lock); idempotent."""
