@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import math
 import re
+import subprocess
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -120,12 +122,16 @@ def _throughput(slot: int, mbps: float) -> object:
                configured_rate_mbps=mbps if math.isfinite(mbps) else 0.0)
 
 
-def _settle(ros: RosSession) -> None:
-    """Our side has matched the node's reader and writer; give the node's side a second to
-    match ours: the protocol is volatile, so a latent its writer sends before it has matched
-    our reader is lost, and every later slot's wait would then time out one behind (seen once
-    in CI)."""
-    ros.spin_until(lambda: False, 1.0)
+def _matched_both_ways(domain: LoopbackDomain, ros: RosSession, proc: subprocess.Popen[str],
+                       pub: Any, sub: Any) -> None:
+    """Our writer has matched the node's reader, our reader its writer, and — what only the
+    node can see — its writer our reader: the protocol is volatile, so a latent written before
+    that is lost, and every later slot's wait would then time out one behind (seen in CI when
+    the test waited a fixed second instead)."""
+    assert ros.spin_until(lambda: pub.get_subscription_count() > 0
+                          and sub.get_publisher_count() > 0, 60.0)
+    assert domain.wait_for_log(proc, "udt/rate_latent: 1 reader(s) matched", 60.0), \
+        domain.log(proc)[-2000:]
 
 
 def test_udt_node_round_trip_refuses_bad_throughput(
@@ -141,9 +147,7 @@ def test_udt_node_round_trip_refuses_bad_throughput(
                          "-p", "retrain_every:=20",
                          "-p", "steps_per_retrain:=5", "-p", "latent_dim:=4",
                          "-p", f"weights:={weights}"])
-    assert ros.spin_until(lambda: pub.get_subscription_count() > 0
-                          and sub.get_publisher_count() > 0, 30.0)
-    _settle(ros)
+    _matched_both_ways(domain, ros, proc, pub, sub)
     rates = [40.0, 80.0]
     states = _chain(P2, 60, seed=4)
     bad = {10: float("nan"), 25: -3.0, 40: 1e9}
@@ -152,12 +156,13 @@ def test_udt_node_round_trip_refuses_bad_throughput(
             pub.publish(_throughput(slot, bad[slot]))
         pub.publish(_throughput(slot, rates[s] + 0.7))
         ros.spin_until(lambda: False, 0.01)
-    ros.spin_until(lambda: len(got) >= 60 and got[-1].model_version >= 1
-                   and weights.is_file(), 40.0)
-    deadline = time.monotonic() + 20
-    while got[-1].model_version < 2 and time.monotonic() < deadline:   # a retrain at slot 40
+    assert ros.spin_until(lambda: len(got) >= 60, 30.0), f"{len(got)} latents of 60"
+    # retrains run beside the slots (every 20, one at a time): a slot a fifth of a second
+    # until a latent comes from the twice-retrained model
+    deadline = time.monotonic() + 60
+    while got[-1].model_version < 2 and time.monotonic() < deadline:
         pub.publish(_throughput(len(got), 40.0))
-        ros.spin_until(lambda: False, 0.2)
+        ros.spin_until(lambda: got[-1].model_version >= 2, 0.2)
     code, _, err = domain.stop(proc)
     assert code == 0, err
     assert [m.slot for m in got[:60]] == list(range(60))
@@ -182,9 +187,7 @@ def test_udt_node_runs_the_regime_twin_by_default_and_follows_the_uplink(
     got: list = []
     sub = ros.node.create_subscription(RateLatent, topics.RATE_LATENT, got.append, qos.PROTOCOL)
     proc = domain.spawn(["-m", "udt_node.node", "--ros-args", "-p", "weights:=/tmp/unused.pt"])
-    assert ros.spin_until(lambda: pub.get_subscription_count() > 0
-                          and sub.get_publisher_count() > 0, 30.0)
-    _settle(ros)
+    _matched_both_ways(domain, ros, proc, pub, sub)
     rates = [40.0, 80.0]
     states = [0] * 60 + [1, 0] * 15                     # stays, then alternates
     for slot, s in enumerate(states):

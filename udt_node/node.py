@@ -39,6 +39,7 @@ from twinslam_msgs.msg import RateLatent, UplinkThroughput
 
 from msg_schemas import qos, topics
 from twinslam.node_hosts.checked_subscription import CheckedSubscription
+from twinslam.node_hosts.matched_readers import logging_matches
 from twinslam.node_hosts.node_main import NodeStartError, run_node
 from twinslam.node_hosts.parameters import declare
 from twinslam.twin.regime_twin import RegimeConfig, RegimeTwin
@@ -75,7 +76,8 @@ class TwinNode(Node):
         self.received = 0
         self._lock = threading.Lock()            # guards the twin's network swap
         self._training: threading.Thread | None = None
-        self.pub = self.create_publisher(RateLatent, topics.RATE_LATENT, qos.PROTOCOL)
+        self.pub = self.create_publisher(RateLatent, topics.RATE_LATENT, qos.PROTOCOL,
+                                         event_callbacks=logging_matches(self, topics.RATE_LATENT))
         self.sub = CheckedSubscription(self, UplinkThroughput, topics.UPLINK_THROUGHPUT,
                                        self._on_throughput, qos.PROTOCOL)
 

@@ -5,6 +5,7 @@
 * :mod:`twinslam.node_hosts.parameters` — parameters declared with descriptors, ranges and live
   checks;
 * :mod:`twinslam.node_hosts.checked_subscription` — subscriptions that validate content first;
+* :mod:`twinslam.node_hosts.matched_readers` — a writer that logs when its readers match;
 * :mod:`twinslam.node_hosts.fastdds` — the DDS environment: domain, discovery range, Fast DDS
   profile;
 * :mod:`twinslam.node_hosts.loopback` — a private domain on this machine and the processes in it;
