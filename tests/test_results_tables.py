@@ -57,11 +57,40 @@ def _expand(args: list[str]) -> list[str]:
     return out
 
 
-def _missing(printed: str) -> list[str]:
-    """The printed table rows (header and separator included) that results.md does not hold;
-    the line naming a planner table's files is not always shown above it."""
-    return [line for line in printed.splitlines() if line.strip().startswith("|")
-            and line.strip() not in RESULTS]
+def _tables(printed: str) -> list[list[str]]:
+    """The markdown tables of a printout: each run of consecutive ``|`` lines, stripped."""
+    tables: list[list[str]] = []
+    previous_was_row = False
+    for line in printed.splitlines():
+        row = line.strip().startswith("|")
+        if row and previous_was_row:
+            tables[-1].append(line.strip())
+        elif row:
+            tables.append([line.strip()])
+        previous_was_row = row
+    return tables
+
+
+RESULT_LINES = [line.strip() for line in RESULTS.splitlines()]
+
+
+def _missing(printed: str) -> list[list[str]]:
+    """The printed tables that results.md does not hold as they are printed: every table of
+    the printout must stand in results.md as one block, its header, separator and rows in
+    that order and nothing between them (a row of another table is not this table). A
+    printout without a table is missing too."""
+    tables = _tables(printed)
+    if not tables:
+        return [["(no table printed)"]]
+    missing = []
+    for table in tables:
+        if len(table) < 3 or not set(table[1]) <= set("|-: "):
+            missing.append(["(not a table: no header, separator and row)", *table])
+            continue
+        n = len(table)
+        if not any(RESULT_LINES[i:i + n] == table for i in range(len(RESULT_LINES) - n + 1)):
+            missing.append(table)
+    return missing
 
 
 @pytest.mark.parametrize("args", PLANNER_TABLES, ids=lambda a: " ".join(a)[:60])
@@ -101,4 +130,16 @@ def test_the_live_planner_tables_are_what_evaluate_prints_from_their_runs(
     assert code == 0 and "resuming: 60 of 60 runs" in printed, printed[-2000:]
     rows = [line for line in printed.splitlines() if line.startswith("| ")]
     # 2 scenarios x 3 policies, 2 x 2 policies x 5 paired figures, and the two headers
-    assert len(rows) == 6 + 20 + 2 and _missing(printed) == []
+    assert len(rows) == 6 + 20 + 2 and len(_tables(printed)) == 2 and _missing(printed) == []
+
+
+def test_a_table_is_matched_as_a_whole_and_an_empty_printout_is_not_a_table() -> None:
+    """The check itself: a printout with no table fails, and so does a table whose rows all
+    stand in results.md but in another table, or in another order."""
+    assert _missing("nothing printed") == [["(no table printed)"]]
+    first, second = [t for t in _tables(RESULTS) if len(t) >= 4 and t[2] != t[3]][:2]
+    assert _missing("\n".join(first)) == []
+    swapped = [first[0], first[1], first[3], first[2], *first[4:]]
+    assert _missing("\n".join(swapped)) == [swapped]
+    mixed = [*first[:3], second[2]]
+    assert _missing("\n".join(mixed)) == [mixed]
