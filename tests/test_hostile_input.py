@@ -254,7 +254,11 @@ def test_running_nodes_survive_hostile_samples_and_still_answer(
             writer.write(payload)
             sent += 1
             ros.spin_once(0.005)
-    ros.spin_until(lambda: False, 2.0)       # let them arrive
+    # the storm has arrived when every node logged a rejection of each of its types
+    assert ros.spin_until(lambda: all(
+        f"dropped a malformed {type_name}" in domain.log(procs[name])
+        for name, topics in NODE_TOPICS.items() for type_name, _topic in topics), 60.0), \
+        {name: domain.log(proc)[-500:] for name, proc in procs.items()}
     # well-formed messages after the storm: each node still answers
     good["twinslam_msgs/msg/UplinkThroughput"].publish(
         new("twinslam_msgs/msg/UplinkThroughput", slot=901, configured_rate_mbps=40.0,
