@@ -11,6 +11,7 @@
     twinslam evaluate --policy lff,pu,adapt --seeds 3     # live: policy x scenario x seed
     twinslam experiment fig7 --policy UDT=results/amm_udt.pt   # paper figures
     twinslam demo                         # what `make run` runs
+    twinslam precompile                   # the numba kernels, once after an install
 
 `twinslam COMMAND --help` documents every option of a command.
 """
@@ -34,6 +35,7 @@ from twinslam.cli.commands import (
     hosts,
     launch,
     nodes,
+    precompile,
     record,
     sim,
     trace,
@@ -43,7 +45,7 @@ from twinslam.cli.console import HelpFormatter
 
 #: the commands in the order ``twinslam --help`` lists them
 COMMANDS = (sim, train, extract, record, nodes, hosts, launch, evaluate, calibrate, demo, trace,
-            experiment)
+            experiment, precompile)
 
 
 def build_parser() -> argparse.ArgumentParser:
