@@ -12,6 +12,7 @@ import pytest
 from twinslam.cli.main import main
 
 
+@pytest.mark.slow
 def test_evaluate_runs_every_seed_and_summarises(tmp_path: Path,
                                                  capsys: pytest.CaptureFixture[str]) -> None:
     """Both device map sources, two runs at a time: the Edge-SLAM style device loses only the
@@ -55,7 +56,9 @@ def test_evaluate_runs_every_seed_and_summarises(tmp_path: Path,
     assert set(calibration) == {"edge", "edge+local"}
     for source, c in calibration.items():
         scored = [f for f in frames if f["map_source"] == source]
-        assert int(c["frames"]) == len(scored) > 200, c
+        # how many come before the edge's first map depends on how fast it answered (a loaded
+        # machine: later), so the covered lens' 90 frames are the floor
+        assert int(c["frames"]) == len(scored) >= 90, c
         failed = sum(f["device_tracked"] == "0" for f in scored)
         assert float(c["device_failure_share"]) == pytest.approx(failed / len(scored))
         for column in ("predicted_lost_share", "precision", "recall", "spearman_u_error",

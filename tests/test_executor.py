@@ -9,11 +9,18 @@ import csv
 import os
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
-from twinslam.common.executor import LocalExecutor, RayExecutor, make_executor, run_tasks
+from twinslam.common.executor import (
+    Executor,
+    LocalExecutor,
+    RayExecutor,
+    make_executor,
+    run_tasks,
+)
 from twinslam.experiments.amm import Setting, sweep
 from twinslam.simulator.covisibility import CovisibilityDataset
 from twinslam.simulator.covisibility_spec import open_covisibility
@@ -22,6 +29,23 @@ REPO = Path(__file__).resolve().parents[1]
 COVIS = REPO / "data" / "7scenes-redkitchen-1000.covis.npz"
 #: two good specs around one that names no file: the middle task must fail in its worker
 SPECS = ["geometric:40:1", str(REPO / "no-such.covis.npz"), "geometric:30:2"]
+
+
+#: the tests that run tasks on this process's Ray: one worker starts it once for all of them
+ON_ONE_RAY = pytest.mark.xdist_group("local-ray")
+
+
+@pytest.fixture(scope="module")
+def local_ray() -> Iterator[None]:
+    """A local Ray of 2 CPUs for this module's in-process Ray tests (started once: a start
+    costs seconds of CPU); an executor made while it runs joins it and leaves it running."""
+    with RayExecutor(cpus=2):
+        yield
+
+
+def _chosen(executor: str, local_ray: None) -> Executor:
+    return RayExecutor(cpus=2) if executor == "ray" else \
+        LocalExecutor(int(executor.rpartition("-")[2]))
 
 
 def _frames(data: CovisibilityDataset) -> str:
@@ -41,6 +65,7 @@ def _twin_predict(tmp_path: Path, name: str, *executor: str) -> list[dict[str, s
         return list(csv.DictReader(fh))
 
 
+@pytest.mark.slow
 def test_twin_predict_gives_the_same_numbers_on_ray_as_locally(tmp_path: Path) -> None:
     """The issue's acceptance command on a local Ray with 2 CPUs and on the local executor:
     the same runs, to the digit."""
@@ -50,13 +75,13 @@ def test_twin_predict_gives_the_same_numbers_on_ray_as_locally(tmp_path: Path) -
     assert on_ray == local
 
 
+@ON_ONE_RAY
 @pytest.mark.parametrize("executor", ["local-1", "local-2", "ray"])
 def test_a_failing_task_is_reported_with_its_traceback_and_the_others_finish(
-        executor: str, tmp_path: Path) -> None:
+        executor: str, tmp_path: Path, local_ray: None) -> None:
     lines: list[str] = []
     failures = tmp_path / "failures.txt"
-    chosen = (RayExecutor(cpus=2) if executor == "ray" else
-              LocalExecutor(int(executor.rpartition("-")[2])))
+    chosen = _chosen(executor, local_ray)
     with chosen:
         done = run_tasks(open_covisibility, SPECS, chosen, lambda spec: f"covis {spec}",
                          _frames, lines.append, failures)
@@ -70,6 +95,7 @@ def test_a_failing_task_is_reported_with_its_traceback_and_the_others_finish(
     assert "no-such.covis.npz" in failures.read_text()
 
 
+@pytest.mark.slow
 def test_figure_points_are_the_same_in_one_process_and_in_two_workers(tmp_path: Path) -> None:
     """A figure's episodes spread over worker processes: every policy's score per seed is the
     one the single process computed."""
@@ -161,11 +187,13 @@ def test_the_cli_says_when_ray_cannot_be_joined(tmp_path: Path) -> None:
     assert not (tmp_path / "out").exists()
 
 
+@ON_ONE_RAY
 @pytest.mark.parametrize("executor", ["local-2", "ray"])
-def test_a_worker_that_dies_is_a_failed_task_not_a_dead_sweep(executor: str) -> None:
+def test_a_worker_that_dies_is_a_failed_task_not_a_dead_sweep(executor: str,
+                                                               local_ray: None) -> None:
     """A task that takes its worker process down (os._exit: a segfault, the OOM killer) is
     reported as that task's failure; the command goes on to write what it has."""
-    chosen = RayExecutor(cpus=2) if executor == "ray" else LocalExecutor(2)
+    chosen = _chosen(executor, local_ray)
     with chosen:
         done = run_tasks(os._exit, [3], chosen, lambda code: f"exit {code}", str)
     assert not done.results

@@ -32,6 +32,7 @@ def test_settings_that_cannot_run_are_refused_before_any_node_starts(
     assert "without --record" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_launch_serves_two_devices_from_one_edge_and_reports_each(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     code = main(["launch", "--loopback", "--devices", "2", "--vmax-total", "12",
@@ -54,6 +55,7 @@ def test_launch_serves_two_devices_from_one_edge_and_reports_each(
     assert all(int(r["frames"]) > 0 and float(r["latency_ms_median"]) > 0 for r in table)
 
 
+@pytest.mark.slow
 def test_a_terminated_launch_stops_the_nodes_it_started(tmp_path: Path) -> None:
     """SIGTERM (``kill``, a scheduler) ends ``twinslam launch`` as Ctrl-C does: exit 130 and
     none of its node processes left running."""

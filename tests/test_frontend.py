@@ -9,6 +9,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pytest
 from evo.core import metrics
 from evo.core.trajectory import PosePath3D
 from scipy.stats import spearmanr
@@ -93,6 +94,7 @@ def test_pose_refinement_recovers_the_pose_and_rejects_outliers() -> None:
     assert np.array_equal(inliers, ~wrong)
 
 
+@pytest.mark.slow
 def test_front_end_trajectory_error_on_the_seven_scenes_sample() -> None:
     """On the 7-Scenes sample (the synthetic room without it)."""
     cv2.setNumThreads(1)
@@ -148,6 +150,7 @@ def test_extracted_covisibility_falls_with_viewpoint_distance() -> None:
     assert far.sum() > 500 and all_w[far].mean() < 1.0
 
 
+@pytest.mark.slow
 def test_extract_command_writes_a_file_the_simulator_reads(tmp_path: Path) -> None:
     """120 frames of the 7-Scenes sample (the synthetic room without it) extracted by the
     command and simulated on."""
@@ -168,6 +171,7 @@ def test_extract_command_writes_a_file_the_simulator_reads(tmp_path: Path) -> No
     assert "adapt" in sim.stdout
 
 
+@pytest.mark.slow
 @needs_seven
 def test_the_committed_covisibility_is_what_extraction_makes() -> None:
     """data/7scenes-redkitchen-1000.covis.npz is derived data: extracting the whole sample

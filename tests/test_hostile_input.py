@@ -209,6 +209,7 @@ def _hostile(type_name: str, rng: np.random.Generator) -> list[bytes]:
     return [*out, serialize_message(new(type_name, **INCONSISTENT[type_name]))]
 
 
+@pytest.mark.slow
 def test_running_nodes_survive_hostile_samples_and_still_answer(
         domain: Any, ros: RosSession) -> None:
     """The real node processes, sent hostile samples over DDS on every topic they read by a

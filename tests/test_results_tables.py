@@ -115,6 +115,7 @@ def test_a_row_that_is_not_in_the_files_is_refused() -> None:
                                                 "lff,mpc:H=9"]))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("folder", ["issue29-mpc-live", "issue29-mpc-live-2"])
 def test_the_live_planner_tables_are_what_evaluate_prints_from_their_runs(
         folder: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

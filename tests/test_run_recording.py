@@ -19,6 +19,7 @@ from twinslam.live import run_recording
 from twinslam.live.run_recording import check_destination
 
 
+@pytest.mark.slow
 def test_launch_records_every_topic_and_the_camera_decimated_and_draws_the_run(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     bag, pictures = tmp_path / "bag", tmp_path / "pictures"

@@ -46,6 +46,7 @@ def test_open_sequence_understands_synthetic_with_frames_and_ranges() -> None:
         open_sequence("synthetic:many")
 
 
+@pytest.mark.slow
 def test_front_end_on_the_synthetic_room_tracks_and_sees_real_covisibility() -> None:
     """Exact ground truth, and what the 7-Scenes sample lacks: views 2 m and > 90° apart."""
     cv2.setNumThreads(1)

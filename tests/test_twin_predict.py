@@ -121,6 +121,7 @@ def test_the_regime_twin_beats_counting_where_the_chain_changes(tmp_path: Path) 
     assert (tmp_path / "twin_predict.png").stat().st_size > 10_000
 
 
+@pytest.mark.slow
 def test_the_cli_runs_on_a_trace_file_and_refuses_a_bad_source(tmp_path: Path) -> None:
     trace = tmp_path / "uplink.csv"
     write_trace(trace, *generate_trace(TraceShape(seconds=900, regime_s=40,

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections import Counter
 
+import pytest
 from twinslam_msgs.msg import FrameSummaries, MapStats, MapUpdate, UplinkThroughput, UploadRequest
 
 from msg_schemas import qos
@@ -17,6 +18,7 @@ PAIRS = {"/ar1": (30, 0, 0), "/ar2": (45, 1, 300)}
 FRAMES = 180
 
 
+@pytest.mark.slow
 def test_two_pairs_share_a_domain_without_cross_talk(domain: LoopbackDomain,
                                                      ros: RosSession) -> None:
     got: dict[str, dict[str, list]] = {}
