@@ -3,9 +3,16 @@ order in which parallel workers (pytest-xdist, ``make test``) take the tests."""
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 
 import pytest
+
+# One math thread in every test process and in the processes a test starts (set before torch
+# or NumPy's OpenBLAS load): parallel workers share the cores, and a thread pool per core in each
+# of them oversubscribes the machine (measured on 2 cores, 3 workers: the twin's ELBO test took
+# 65 s of CPU instead of 15). A test of thread settings clears it for what it starts.
+os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 from twinslam.node_hosts.loopback import LoopbackDomain
 from twinslam.node_hosts.session import RosSession

@@ -66,11 +66,16 @@ def _twin_predict(tmp_path: Path, name: str, *executor: str) -> list[dict[str, s
 
 
 @pytest.mark.slow
-def test_twin_predict_gives_the_same_numbers_on_ray_as_locally(tmp_path: Path) -> None:
-    """The issue's acceptance command on a local Ray with 2 CPUs and on the local executor:
-    the same runs, to the digit."""
+@ON_ONE_RAY
+def test_twin_predict_gives_the_same_numbers_on_ray_as_locally(tmp_path: Path,
+                                                                local_ray: None) -> None:
+    """The sweep command on the local executor and on a running Ray of 2 CPUs that it joins
+    by address (as a cluster's `ray start --head` prints it): the same runs, to the digit."""
+    import ray
+
+    address = ray.get_runtime_context().gcs_address
     local = _twin_predict(tmp_path, "local", "--executor", "local")
-    on_ray = _twin_predict(tmp_path, "ray", "--executor", "ray", "--jobs", "2")
+    on_ray = _twin_predict(tmp_path, "ray", "--executor", "ray", "--ray-address", address)
     assert len(local) == 2 and {r["seed"] for r in local} == {"0", "1"}
     assert on_ray == local
 
@@ -160,8 +165,9 @@ def test_a_worker_runs_torch_on_one_thread_even_when_its_main_module_loaded_it(
     (16 workers x 16 threads on a 16-core machine). The worker's set-up now sets it directly."""
     script = tmp_path / "pool.py"
     script.write_text(WORKER_SCRIPT)
+    unset = {k: v for k, v in os.environ.items() if k != "OMP_NUM_THREADS"}   # (conftest's)
     done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
-                          timeout=120, cwd=REPO)
+                          timeout=120, cwd=REPO, env=unset)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "[1, 1]"
 

@@ -14,7 +14,7 @@ from evo.core import metrics
 from evo.core.trajectory import PosePath3D
 from scipy.stats import spearmanr
 
-from tests.data_paths import SEVEN, needs_seven, seven_or_synthetic
+from tests.data_paths import HAVE_SEVEN, SEVEN, needs_seven, seven_or_synthetic
 from twinslam.sequences.opening import open_sequence
 from twinslam.simulator.covisibility import load_covisibility
 from twinslam.simulator.extraction import extract_covisibility
@@ -150,18 +150,32 @@ def test_extracted_covisibility_falls_with_viewpoint_distance() -> None:
     assert far.sum() > 500 and all_w[far].mean() < 1.0
 
 
-@pytest.mark.slow
-def test_extract_command_writes_a_file_the_simulator_reads(tmp_path: Path) -> None:
-    """120 frames of the 7-Scenes sample (the synthetic room without it) extracted by the
-    command and simulated on."""
-    out = tmp_path / "covis.npz"
+#: the tests that read one extraction of the whole sample (a minute of CPU): one worker runs it
+READS_THE_EXTRACTION = pytest.mark.xdist_group("frontend-extraction")
+
+
+@pytest.fixture(scope="module")
+def extracted(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, int, str]:
+    """`twinslam extract` over the whole 7-Scenes sample (120 frames of the synthetic room
+    without it): the file, its frame count and what the command printed."""
+    out = tmp_path_factory.mktemp("extract") / "covis.npz"
+    frames = 1000 if HAVE_SEVEN else 120
     run = subprocess.run([sys.executable, "-m", "twinslam.cli.main", "extract",
-                          seven_or_synthetic(), "-o", str(out), "--end", "120"],
-                         capture_output=True, text=True, timeout=240, cwd=REPO)
+                          seven_or_synthetic(), "-o", str(out), "--end", str(frames)],
+                         capture_output=True, text=True, timeout=600, cwd=REPO)
     assert run.returncode == 0, run.stderr
-    assert "120/120 frames" in run.stdout and "wrote" in run.stdout
+    return out, frames, run.stdout
+
+
+@pytest.mark.slow
+@READS_THE_EXTRACTION
+def test_extract_command_writes_a_file_the_simulator_reads(
+        extracted: tuple[Path, int, str]) -> None:
+    """The sample extracted by the command and simulated on."""
+    out, frames, printed = extracted
+    assert f"{frames}/{frames} frames" in printed and "wrote" in printed
     data = load_covisibility(out)
-    assert data.n_frames == 120 and data.poses.shape == (120, 7)
+    assert data.n_frames == frames and data.poses.shape == (frames, 7)
     assert "guided over the whole map" in data.source
     sim = subprocess.run([sys.executable, "-m", "twinslam.cli.main", "sim", "--covis", str(out),
                           "--policy", "lff,adapt", "--slots", "5", "--seeds", "1",
@@ -173,14 +187,16 @@ def test_extract_command_writes_a_file_the_simulator_reads(tmp_path: Path) -> No
 
 @pytest.mark.slow
 @needs_seven
-def test_the_committed_covisibility_is_what_extraction_makes() -> None:
+@READS_THE_EXTRACTION
+def test_the_committed_covisibility_is_what_extraction_makes(
+        extracted: tuple[Path, int, str]) -> None:
     """data/7scenes-redkitchen-1000.covis.npz is derived data: extracting the whole sample
     again gives it back — up to the CPU: OpenCV's SIMD paths and float rounding differ between
     machines, a pose moves by a millimetre, a point is created or not and the ids shift
     (measured on a second VM: poses 2.7 mm apart, weights correlated 0.997, totals 0.4 %
     apart), so the file is compared as covisibility, not bit for bit. The guided pass
     matches every frame against the whole map, so only the whole sample reproduces it."""
-    data, _, _ = extract_covisibility(open_sequence(SEVEN))
+    data = load_covisibility(extracted[0])
     committed = load_covisibility(COVIS_7SCENES)
     assert data.n_frames == committed.n_frames == 1000
     idx = np.arange(1000)

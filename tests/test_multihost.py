@@ -207,10 +207,12 @@ def test_edge_host_node_killed_and_restarted_restores_its_map(hosts: NetnsHosts,
             state["after"] = slot                        # answered: in its host by now
             state["restarted_in"] = _namespace_of(state["restarted"].pid)
 
-    # 900 frames: the restarted edge warms up for 5-15 s on 2 cores, and summaries the device
-    # sends while no edge listens are not kept for it (volatile): slots must remain after that
-    report, record, launcher = _run(hosts, 900, _tc_uplink(), kill_edge,
-                                    checkpoint=tmp_path / "edge.npz")
+    # 8 slots of 4 s (half speed): the restarted edge warms up for 5-15 s on 2 cores, and
+    # summaries the device sends while no edge listens are not kept for it (volatile): slots
+    # must remain after that (what is tested is the restore, not real-time tracking)
+    frames = 480
+    report, record, launcher = _run(hosts, frames, _tc_uplink(), kill_edge,
+                                    checkpoint=tmp_path / "edge.npz", rate=0.5)
     killed_slot, kept = state["killed"]
     after = record.maps[state["after"]]
     # kept unless a decision after that map evicted it
@@ -223,7 +225,7 @@ def test_edge_host_node_killed_and_restarted_restores_its_map(hosts: NetnsHosts,
     # the run completes; a device that fell more than its 5 s camera queue behind while the
     # edge restarted may lose frames, and its frame-count slot clock then never closes the last
     # slot (issue #19: slots by stamps) — at most that one may go
-    assert max(record.stats) >= 900 // 60 - 2, "the run did not complete"
+    assert max(record.stats) >= frames // 60 - 2, "the run did not complete"
     assert report.ate_m < 0.15
 
 
@@ -268,11 +270,12 @@ def test_twin_absent_edge_falls_back_and_returns_when_latents_flow(
     extra = _tc_uplink()
     extra["edge_mapper"] += ["fallback_policy:=adapt", "latent_max_age:=1"]
     extra["udt_node"] = [f"policy_checkpoint:={twin_policy}"]
-    # 15 slots: the twin's start (torch, the policy's checkpoint) takes several slots on 2 cores;
-    # played at 0.6x so that the device keeps up while the twin starts beside it (what is
+    # 9 slots of 5.7 s (played at 0.35x): the twin's start (torch, the policy's checkpoint)
+    # takes 5-15 s on 2 cores, and the device keeps up while the twin starts beside it (what is
     # tested is who decides, not real-time tracking)
-    _, record, launcher = _run(hosts, 900, extra, start_then_kill_twin, policy=learned,
-                               rate=0.6)
+    frames = 540
+    _, record, launcher = _run(hosts, frames, extra, start_then_kill_twin, policy=learned,
+                               rate=0.35)
     deciders = [record.requests[s].policy for s in sorted(record.requests)]
     print(f"\ndecided by: {deciders}")
     assert deciders[0] == deciders[1] == "adapt (fallback)"
@@ -286,7 +289,7 @@ def test_twin_absent_edge_falls_back_and_returns_when_latents_flow(
     # every slot answered is consistent; under the load of the twin's start a device that falls
     # more than its 5 s camera queue behind loses frames, and its frame-count slot clock then
     # never closes the run's last slot (issue #19: slots by stamps) — at most one may go so
-    assert len(record.stats) >= 14, sorted(record.stats)
+    assert len(record.stats) >= frames // 60 - 1, sorted(record.stats)
     _assert_slots_consistent(record, len(record.stats))
 
 
