@@ -59,7 +59,7 @@ $(TF2_STAMP): $(STAMP) $(TF2_SOURCES)
 kernels: $(KERNELS_STAMP)
 
 $(KERNELS_STAMP): $(STAMP) $(MSGS_STAMP) $(TF2_STAMP) $(KERNEL_SOURCES)
-	$(PY) -m twinslam.cli.precompile
+	$(VENV)/bin/twinslam precompile
 	@rm -f $(VENV)/.kernels-* && touch $@
 
 run: venv
