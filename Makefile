@@ -30,19 +30,21 @@ $(STAMP): requirements.txt setup.py
 	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e .
 	@rm -f $(VENV)/.installed-* && touch $@
 
-# rosidl through CMake into the venv prefix, which the ROS wheels made an ament prefix: the
-# generated Python package lands in site-packages, its libraries in .venv/lib (on the loader
-# path the wheels' bootstrapper sets). Fresh build directory each time: a removed .msg must not
-# leave its generated code behind. $(call rosidl_build,PACKAGE,SOURCE_DIR,A MESSAGE TO IMPORT)
+# colcon, as a ROS 2 host builds (tests/test_colcon_build.py builds the twinslam package over
+# what this installs), merge-installs each interface package into the venv prefix, which the ROS
+# wheels made an ament prefix: the generated Python package lands in site-packages, its
+# libraries in .venv/lib (on the loader path the wheels' bootstrapper sets). Fresh build
+# directory each time: a removed .msg must not leave its generated code behind.
+# $(call rosidl_build,PACKAGE,SOURCE_DIR,A MESSAGE TO IMPORT)
 define rosidl_build
-	@echo "building the $(1) interface package (rosidl, ~40 s)"
-	@rm -rf build/$(1) && mkdir -p build/$(1)
-	cd build/$(1) && PATH=$(VENV)/bin:$$PATH AMENT_PREFIX_PATH=$(VENV) \
-	  CMAKE_PREFIX_PATH=$(VENV) cmake $(CURDIR)/$(2) -DCMAKE_INSTALL_PREFIX=$(VENV) \
-	  -DPython3_EXECUTABLE=$(PY) -DBUILD_TESTING=OFF > configure.log 2>&1 \
-	  || { tail -40 configure.log; exit 1; }
-	cd build/$(1) && PATH=$(VENV)/bin:$$PATH $(MAKE) --no-print-directory -j2 install \
-	  > build.log 2>&1 || { grep -iE -B2 -A8 "error" build.log | tail -60; exit 1; }
+	@echo "building the $(1) interface package with colcon (rosidl, ~30 s)"
+	@rm -rf build/colcon/$(1) && mkdir -p build/colcon
+	PATH=$(VENV)/bin:$$PATH AMENT_PREFIX_PATH=$(VENV) CMAKE_PREFIX_PATH=$(VENV) \
+	  $(VENV)/bin/colcon --log-base build/colcon/log build --paths $(2) \
+	  --build-base build/colcon --install-base $(VENV) --merge-install \
+	  --cmake-args -DPython3_EXECUTABLE=$(PY) -DBUILD_TESTING=OFF > build/colcon/$(1).log 2>&1 \
+	  || { grep -iE -B2 -A8 "error" build/colcon/log/latest_build/$(1)/stdout_stderr.log \
+	       | tail -60; tail -20 build/colcon/$(1).log; exit 1; }
 	$(PY) -c "from $(1).msg import $(3)"
 	@rm -f $(VENV)/.$(1)-* && touch $@
 endef
