@@ -42,6 +42,7 @@ from twinslam.cli.commands import (
     train,
 )
 from twinslam.cli.console import HelpFormatter
+from twinslam.node_hosts.interrupts import interrupt
 
 #: the commands in the order ``twinslam --help`` lists them
 COMMANDS = (sim, train, extract, record, nodes, hosts, launch, evaluate, calibrate, demo, trace,
@@ -69,19 +70,18 @@ def main(argv: list[str] | None = None) -> int:
 def sigterm_as_interrupt() -> Iterator[None]:
     """SIGTERM (``kill``, a job scheduler, a container stopping) ends a command as Ctrl-C
     does: a live run stops the nodes it started instead of leaving them running (measured:
-    a killed ``twinslam launch`` left its player, devices and edge behind)."""
+    a killed ``twinslam launch`` left its player, devices and edge behind). Both arrive as
+    KeyboardInterrupt, held back while the main thread is inside rclpy's executor
+    (:mod:`twinslam.node_hosts.interrupts`)."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-
-    def interrupt(_signum: int, _frame: object) -> None:
-        raise KeyboardInterrupt
-
-    previous = signal.signal(signal.SIGTERM, interrupt)
+    previous = {sig: signal.signal(sig, interrupt) for sig in (signal.SIGTERM, signal.SIGINT)}
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 if __name__ == "__main__":

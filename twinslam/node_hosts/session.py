@@ -17,6 +17,8 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
+from twinslam.node_hosts.interrupts import Spinning
+
 
 class RosSession:
     """``node`` on a fresh context (the environment's domain and DDS settings at creation)."""
@@ -31,7 +33,8 @@ class RosSession:
         self.executor.add_node(self.node)
 
     def spin_once(self, timeout_s: float = 0.0) -> None:
-        self.executor.spin_once(timeout_sec=timeout_s)
+        with Spinning():           # a Ctrl-C meanwhile is raised as the spin returns
+            self.executor.spin_once(timeout_sec=timeout_s)
 
     def spin_until(self, predicate: Callable[[], bool], timeout_s: float) -> bool:
         """Run callbacks until ``predicate()`` holds or ``timeout_s`` passes; returns it."""
@@ -40,7 +43,7 @@ class RosSession:
             remaining = deadline - time.monotonic()
             if remaining <= 0 or not self.context.ok():
                 break
-            self.executor.spin_once(timeout_sec=min(remaining, 0.1))
+            self.spin_once(min(remaining, 0.1))
         return bool(predicate())
 
     def close(self) -> None:
