@@ -67,15 +67,16 @@ $(KERNELS_STAMP): $(STAMP) $(MSGS_STAMP) $(TF2_STAMP) $(KERNEL_SOURCES)
 run: venv
 	$(VENV)/bin/twinslam demo
 
-# the lint stage first (seconds), then the suite on parallel workers (pytest-xdist; live tests
-# mostly wait on real-time playback, so a few more workers than cores pay: README, "Tests")
+# the lint stage first (seconds), then the suite on parallel workers (pytest-xdist: README,
+# "Tests", has the worker counts measured); bytecode is cached even where the environment says
+# not to, or every node process a test starts compiles the project's modules again
 TEST_WORKERS ?= 3
 
 test: venv
 	$(PY) -m ruff check .
 	$(VENV)/bin/lint-imports
 	$(PY) -m mypy
-	$(PY) -m pytest -n $(TEST_WORKERS)
+	env -u PYTHONDONTWRITEBYTECODE $(PY) -m pytest -n $(TEST_WORKERS)
 
 lint: venv
 	$(PY) -m ruff check .
