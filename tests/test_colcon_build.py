@@ -3,10 +3,11 @@
 installation (an underlay: /opt/ros/jazzy and the message packages installed with it), and
 colcon builds ``twinslam`` over it into a fresh workspace with ``--symlink-install`` (the
 Python sources linked, not copied: edits need no rebuild, and the numba kernels ``make``
-compiled for them are found); every executable is started through the path ``ament_index_python`` resolves for it — what
-``ros2 run twinslam <exe>`` does (ros2cli itself is not on PyPI) — from a shell that sourced the
-workspace's ``setup.bash``. A copying ``colcon build`` installs new source files, whose kernels
-``twinslam precompile`` compiles once (README; ``make`` runs that command)."""
+compiled for them are found); every executable is started through the path
+``ament_index_python`` resolves for it — what ``ros2 run twinslam <exe>`` does (ros2cli itself
+is not on PyPI) — from a shell that sourced the workspace's ``setup.bash``. A copying ``colcon
+build`` installs new source files, whose kernels ``twinslam precompile`` compiles once
+(README; ``make`` runs that command)."""
 
 from __future__ import annotations
 
