@@ -137,11 +137,16 @@ class KeyframeBudget:
     def finished(self, device: str, slot: int, map_size: int) -> None:
         """``device``'s ``slot`` finished with ``map_size`` keyframes: the map it publishes
         (between two slot ends the edge may already hold the next slot's uploads before that
-        slot's evictions apply — at most one slot's uploads, never in a published map)."""
+        slot's evictions apply — at most one slot's uploads, never in a published map). Its
+        earlier slots are over too."""
         account = self.accounts.get(device)
         if account is None:
             return
-        account.open_grants.pop(slot, None)
+        # a device's slots finish in order: one that never finished before this one (planned,
+        # then dropped) must not hold its grant for ever — measured under load, a stale grant
+        # of 11 kept a joining device below its minimum for the rest of the run
+        for done in [k for k in account.open_grants if k <= slot]:
+            del account.open_grants[done]
         account.map_size = map_size
 
     def sweep(self, now: float) -> list[BudgetEvent]:

@@ -201,3 +201,19 @@ def test_the_first_device_of_a_run_does_not_hold_what_its_slot_cannot_fill() -> 
     budget.join("b", 0.1)
     assert budget.grant("b", 0, DeviceDemand("b"), 0.1, uploads=8) == 8
     assert budget.accounts["a"].target == budget.accounts["b"].target == 45
+
+
+def test_a_slot_that_never_finished_does_not_hold_its_grant_once_a_later_one_did() -> None:
+    """Slots finish in order: a grant whose slot was planned but never finished (dropped while
+    the device was silent under load) is released when a later slot finishes, so a device that
+    joins gets its minimum (a stale grant of 11 kept one at 4 of 5 for a whole run)."""
+    budget = KeyframeBudget(24, "equal", minimum=5)
+    for device in ("ar1", "ar2"):
+        budget.join(device, 0.0)
+    budget.grant("ar1", 3, DeviceDemand("ar1"), 0.0)          # planned, then never finished
+    budget.grant("ar1", 4, DeviceDemand("ar1"), 0.0)
+    budget.finished("ar1", 4, 3)
+    assert budget.accounts["ar1"].committed == 3
+    budget.join("ar3", 0.0)
+    assert budget.grant("ar3", 0, DeviceDemand("ar3"), 0.0) >= 5
+    budget.check()

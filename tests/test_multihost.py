@@ -64,9 +64,10 @@ def hosts() -> Iterator[NetnsHosts]:
     assert not made.exists(), "namespaces left behind"
 
 
-def _tc_uplink() -> dict[str, list[str]]:
-    """Node parameters of a run whose device uploads real frames through tc."""
-    return tc_uplink_params(FRAME_MBIT)
+def _tc_uplink(**device: str) -> dict[str, list[str]]:
+    """Node parameters of a run whose device uploads real frames through tc (``device``: more
+    device parameters)."""
+    return tc_uplink_params(FRAME_MBIT, **device)
 
 
 def _run(hosts: NetnsHosts, frames: int, extra: dict[str, list[str]],
@@ -177,10 +178,10 @@ def test_link_down_for_5_s_device_tracks_on_and_uploads_resume(hosts: NetnsHosts
 
             threading.Timer(5.0, plug).start()
 
-    # slots of 4 s (half speed): after the cable is back the edge answers the slots it missed
-    # one by one (a loaded machine: seconds late), and a slot's frames stay uploadable for
-    # keep_slots slots — at full speed, under load, a request came after its frames were gone
-    report, record, launcher = _run(hosts, 540, _tc_uplink(), pull_cable, rate=0.5)
+    # after the cable is back the edge answers the slots it missed one by one, on a loaded
+    # machine seconds late: the device keeps 6 slots' frames uploadable (12 s; the default 4
+    # rides out the outage itself, but a request came after its frames had gone under load)
+    report, record, launcher = _run(hosts, 540, _tc_uplink(keep_slots="6"), pull_cable)
     assert outage["up"] - outage["down"] >= 5.0
     device_log = launcher.logs["device_tracker"]
     assert "tracking on the local map" in device_log
