@@ -115,12 +115,12 @@ def test_a_row_that_is_not_in_the_files_is_refused() -> None:
                                                 "lff,mpc:H=9"]))
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("folder", ["issue29-mpc-live", "issue29-mpc-live-2"])
 def test_the_live_planner_tables_are_what_evaluate_prints_from_their_runs(
         folder: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """`twinslam evaluate … --resume` on the committed runs.csv runs nothing and prints the
-    tables results.md shows for `mpc` live (the evaluation, and its re-run)."""
+    """`twinslam evaluate … --resume` on the committed runs.csv runs nothing — nor extracts the
+    played frames' covisibility, which only runs still to do need — and prints the tables
+    results.md shows for `mpc` live (the evaluation, and its re-run)."""
     from twinslam.cli.main import main
     for name in ("runs.csv", "calibration.csv"):
         (tmp_path / name).write_bytes((FIGURES / folder / name).read_bytes())
@@ -129,6 +129,7 @@ def test_the_live_planner_tables_are_what_evaluate_prints_from_their_runs(
                  "--out", str(tmp_path), "--resume"])
     printed = capsys.readouterr().out
     assert code == 0 and "resuming: 60 of 60 runs" in printed, printed[-2000:]
+    assert "extracting" not in printed and not (tmp_path / "covis").exists()  # nothing to run
     rows = [line for line in printed.splitlines() if line.startswith("| ")]
     # 2 scenarios x 3 policies, 2 x 2 policies x 5 paired figures, and the two headers
     assert len(rows) == 6 + 20 + 2 and len(_tables(printed)) == 2 and _missing(printed) == []

@@ -57,7 +57,8 @@ def _where(args: argparse.Namespace) -> str:
 def _tasks(args: argparse.Namespace, policies: list[tuple[str, str]],
            scenarios: list[Scenario], sources: list[str]) -> list[runs.RunTask]:
     """Every run, seed by seed (so the runs a paired comparison pairs share the machine's
-    state), each with the covisibility of the frames it plays (extracted once a sequence)."""
+    state), each still to do with the covisibility of the frames it plays (extracted once a
+    sequence)."""
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     keys = [runs.RunKey(s.name, m, label, seed, "" if spec == label else spec)
             for s in scenarios for seed in seeds for m in sources for label, spec in policies]
@@ -65,17 +66,20 @@ def _tasks(args: argparse.Namespace, policies: list[tuple[str, str]],
           f"sources x {len(policies)} policies x {len(seeds)} seeds) of {args.frames} frames "
           f"of {args.sequence} from frame {args.start}, {_where(args)}; results in "
           f"{args.out}", flush=True)
+    # the simulator's view of every frame a run still to do plays (a resumed evaluation whose
+    # runs are all in runs.csv extracts nothing: it only prints the tables)
+    done = runs.finished_runs(args.out) if args.resume else {}
     covis: dict[str, Path] = {}
-    for seed in seeds:                  # the simulator's view of every played frame
-        sequence = runs.sequence_for(args.sequence, seed)
-        if sequence not in covis:
+    for key in keys:
+        sequence = runs.sequence_for(args.sequence, key.seed)
+        if key not in done and sequence not in covis:
             covis[sequence] = covisibility_file(sequence, args.frames, args.out / "covis",
                                                 lambda line: print(line, flush=True),
                                                 args.start)
     by_name = {s.name: s for s in scenarios}
     return [runs.RunTask(k, runs.sequence_for(args.sequence, k.seed), args.frames,
                          by_name[k.scenario], args.params, args.timeout,
-                         covis[runs.sequence_for(args.sequence, k.seed)], args.verbose,
+                         covis.get(runs.sequence_for(args.sequence, k.seed)), args.verbose,
                          args.start, args.out / "runs" / f"{k.file_stem}.png")
             for k in keys]
 
