@@ -20,9 +20,14 @@ KERNEL_SOURCES := $(sort $(shell grep -l -r --include=*.py "@njit" device_tracke
 	udt_node twinslam))
 KERNELS_STAMP := $(VENV)/.kernels-$(shell cat $(KERNEL_SOURCES) | md5sum | cut -c1-12)
 
-.PHONY: venv msgs kernels run test lint bench clean
+.PHONY: venv venv-parts msgs kernels run test lint bench clean
 
-venv: $(STAMP) $(MSGS_STAMP) $(TF2_STAMP) $(KERNELS_STAMP)
+# the two interface packages build side by side, and the kernels compile beside the second
+# (they need twinslam_msgs, not tf2_msgs): a sub-make with two jobs, whatever -j make was given
+venv:
+	@$(MAKE) --no-print-directory -j2 venv-parts
+
+venv-parts: $(STAMP) $(MSGS_STAMP) $(TF2_STAMP) $(KERNELS_STAMP)
 
 $(STAMP): requirements.txt setup.py
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -40,10 +45,10 @@ define rosidl_build
 	@echo "building the $(1) interface package with colcon (rosidl, ~30 s)"
 	@rm -rf build/colcon/$(1) && mkdir -p build/colcon
 	PATH=$(VENV)/bin:$$PATH AMENT_PREFIX_PATH=$(VENV) CMAKE_PREFIX_PATH=$(VENV) \
-	  $(VENV)/bin/colcon --log-base build/colcon/log build --paths $(2) \
+	  $(VENV)/bin/colcon --log-base build/colcon/log-$(1) build --paths $(2) \
 	  --build-base build/colcon --install-base $(VENV) --merge-install \
 	  --cmake-args -DPython3_EXECUTABLE=$(PY) -DBUILD_TESTING=OFF > build/colcon/$(1).log 2>&1 \
-	  || { grep -iE -B2 -A8 "error" build/colcon/log/latest_build/$(1)/stdout_stderr.log \
+	  || { grep -iE -B2 -A8 "error" build/colcon/log-$(1)/latest_build/$(1)/stdout_stderr.log \
 	       | tail -60; tail -20 build/colcon/$(1).log; exit 1; }
 	$(PY) -c "from $(1).msg import $(3)"
 	@rm -f $(VENV)/.$(1)-* && touch $@
@@ -60,7 +65,7 @@ $(TF2_STAMP): $(STAMP) $(TF2_SOURCES)
 # numba compiles on first use: done here, not in the first node start (twinslam/cli/precompile.py)
 kernels: $(KERNELS_STAMP)
 
-$(KERNELS_STAMP): $(STAMP) $(MSGS_STAMP) $(TF2_STAMP) $(KERNEL_SOURCES)
+$(KERNELS_STAMP): $(STAMP) $(MSGS_STAMP) $(KERNEL_SOURCES)
 	$(VENV)/bin/twinslam precompile
 	@rm -f $(VENV)/.kernels-* && touch $@
 
