@@ -27,7 +27,7 @@ GONE = "ar3"                               #: killed after a few slots
 AFTER_RECLAIM = 3                          #: slots each staying device must plan after it
 
 
-@pytest.mark.slow
+@pytest.mark.slow(seconds=50)
 def test_one_edge_serves_three_devices_within_one_budget_and_reclaims_a_lost_ones_share(
         domain: LoopbackDomain, ros: RosSession) -> None:
     got: dict[str, dict[str, list[Any]]] = {d: {"summaries": [], "requests": [], "stats": []}
@@ -125,18 +125,25 @@ def test_one_edge_serves_three_devices_within_one_budget_and_reclaims_a_lost_one
         assert sum(b.map_sizes) <= b.total == V_TOTAL and sum(b.committed) <= V_TOTAL
         assert all(t >= MINIMUM for t, a in zip(b.targets, b.active, strict=True) if a)
     early = next(b for b in budgets if len(b.devices) == 3 and all(b.active))
-    late = budgets[-1]
-    assert GONE in early.devices and GONE not in late.devices
-    assert sum(late.targets) == V_TOTAL and len(late.devices) == 2
+    assert GONE in early.devices
+    # the budgets from the reclaim on, while both staying devices are served (once their
+    # players end, each goes silent and is reclaimed in turn: a slow machine ends them apart)
+    stayed = [d for d in DEVICES if d != GONE]
+    joined = next(k for k, b in enumerate(budgets) if GONE in b.devices)
+    reclaim = next(k for k, b in enumerate(budgets) if k > joined and GONE not in b.devices)
+    after = [b for b in budgets[reclaim:] if sorted(b.devices) == stayed]
+    assert after, [list(b.devices) for b in budgets[reclaim:]]
+    # between them, the two active ones are allotted all of V_total
+    assert all(sum(b.targets) == V_TOTAL for b in after if all(b.active)), \
+        [(list(b.targets), list(b.active)) for b in after]
+    assert any(all(b.active) for b in after)
     # the two that stayed grow into the keyframes the lost one held: granted together more
     # than they could have been beside its map (how the split goes between the two is the
     # motion allocator's business; each grant also waits for the uploads that can fill it)
-    stayed = [d for d in DEVICES if d != GONE]
     for d in stayed:
         assert len(got[d]["stats"]) - stats_at_reclaim[d] >= AFTER_RECLAIM, \
             f"{d} ended {len(got[d]['stats']) - stats_at_reclaim[d]} slots after the reclaim"
     before = next(b for b in reversed(budgets) if GONE in b.devices)
     held_by_gone = before.committed[list(before.devices).index(GONE)]
-    after = [b for b in budgets if GONE not in b.devices and len(b.devices) == len(stayed)]
     assert max(sum(b.granted) for b in after) > V_TOTAL - held_by_gone, \
         ([list(b.granted) for b in after], held_by_gone)
