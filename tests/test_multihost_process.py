@@ -50,7 +50,8 @@ def test_every_multihost_test_runs_in_exactly_one_process() -> None:
     assert sorted(named) == sorted(_tests_of_the_module())
 
 
-@pytest.mark.slow
+@pytest.mark.slow(seconds=110)
+@pytest.mark.timeout(900)               # its tests run one after another, each within 300 s
 @pytest.mark.skipif(_why_not is not None, reason=f"multi-host tests: {_why_not}")
 @pytest.mark.parametrize("process", sorted(PROCESSES))
 def test_the_multihost_tests_pass_in_a_fresh_process(process: str) -> None:
