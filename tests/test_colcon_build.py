@@ -28,7 +28,7 @@ REPO = Path(__file__).resolve().parents[1]
 VENV = Path(sys.prefix)
 EXECUTABLES = {"device_tracker", "edge_mapper", "sequence_player", "twinslam", "udt_node"}
 
-pytestmark = [pytest.mark.slow,
+pytestmark = [pytest.mark.slow(seconds=40),
               pytest.mark.skipif(shutil.which("colcon", path=str(VENV / "bin")) is None,
                                  reason="colcon is not installed in this environment")]
 _claims: list[DomainClaim] = []

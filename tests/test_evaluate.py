@@ -12,7 +12,7 @@ import pytest
 from twinslam.cli.main import main
 
 
-@pytest.mark.slow
+@pytest.mark.slow(seconds=45)
 def test_evaluate_runs_every_seed_and_summarises(tmp_path: Path,
                                                  capsys: pytest.CaptureFixture[str]) -> None:
     """Both device map sources, two runs at a time: the Edge-SLAM style device loses only the

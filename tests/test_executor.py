@@ -65,7 +65,7 @@ def _twin_predict(tmp_path: Path, name: str, *executor: str) -> list[dict[str, s
         return list(csv.DictReader(fh))
 
 
-@pytest.mark.slow
+@pytest.mark.slow(seconds=60)
 @ON_ONE_RAY
 def test_twin_predict_gives_the_same_numbers_on_ray_as_locally(tmp_path: Path,
                                                                 local_ray: None) -> None:
@@ -100,7 +100,7 @@ def test_a_failing_task_is_reported_with_its_traceback_and_the_others_finish(
     assert "no-such.covis.npz" in failures.read_text()
 
 
-@pytest.mark.slow
+@pytest.mark.slow(seconds=20)
 def test_figure_points_are_the_same_in_one_process_and_in_two_workers(tmp_path: Path) -> None:
     """A figure's episodes spread over worker processes: every policy's score per seed is the
     one the single process computed."""

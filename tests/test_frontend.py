@@ -167,7 +167,7 @@ def extracted(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, int, str]
     return out, frames, run.stdout
 
 
-@pytest.mark.slow
+@pytest.mark.slow(seconds=65)
 @READS_THE_EXTRACTION
 def test_extract_command_writes_a_file_the_simulator_reads(
         extracted: tuple[Path, int, str]) -> None:
@@ -185,7 +185,7 @@ def test_extract_command_writes_a_file_the_simulator_reads(
     assert "adapt" in sim.stdout
 
 
-@pytest.mark.slow
+@pytest.mark.slow(seconds=65)
 @needs_seven
 @READS_THE_EXTRACTION
 def test_the_committed_covisibility_is_what_extraction_makes(

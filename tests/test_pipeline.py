@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -34,8 +35,13 @@ from twinslam.uncertainty.map_uncertainty import map_uncertainty
 SEQUENCE = seven_or_synthetic()
 FRAMES, VMAX, ALPHA, D_REQ = 360, 45, 5.0, 0.5
 pytestmark = pytest.mark.slow
-#: the tests that read the three policy runs: one worker makes the runs once for all of them
-READS_THE_POLICY_RUNS = pytest.mark.xdist_group("pipeline-policy-runs")
+
+
+def reads_the_policy_runs(test: Callable[..., None]) -> Callable[..., None]:
+    """A test that reads the three policy runs: one worker makes the runs once for all of them
+    (about 70 s), so these tests are handed out among the first."""
+    grouped = pytest.mark.xdist_group("pipeline-policy-runs")(test)
+    return pytest.mark.slow(seconds=75)(grouped)  # type: ignore[no-any-return]
 
 
 def _run(policy: str, frames: int = FRAMES, checkpoint: Path | None = None,
@@ -121,7 +127,7 @@ def runs(viewed_lff: tuple) -> dict[str, tuple[RunReport, RunRecord, Launcher]]:
     return {"lff": viewed_lff[0], **{p: _run(p) for p in ("pu", "adapt")}}
 
 
-@READS_THE_POLICY_RUNS
+@reads_the_policy_runs
 def test_protocol_holds_every_slot(runs: dict) -> None:
     report, record, _ = runs["adapt"]
     assert report.slots == FRAMES // 60, f"{report.slots} slots answered"
@@ -143,7 +149,7 @@ def test_protocol_holds_every_slot(runs: dict) -> None:
     assert report.ate_m < 0.15
 
 
-@READS_THE_POLICY_RUNS
+@reads_the_policy_runs
 def test_map_stats_uncertainty_is_the_published_maps(runs: dict) -> None:
     _, record, _ = runs["adapt"]
     checked = 0
@@ -159,7 +165,7 @@ def test_map_stats_uncertainty_is_the_published_maps(runs: dict) -> None:
     assert checked >= FRAMES // 60 - 1
 
 
-@READS_THE_POLICY_RUNS
+@reads_the_policy_runs
 def test_policies_decide_differently_and_the_edge_reports_consistent_scores(
         runs: dict) -> None:
     """Each policy asks for its own frames, and every MapStats obeys
@@ -185,6 +191,7 @@ def test_policies_decide_differently_and_the_edge_reports_consistent_scores(
     assert checked >= 3 * (FRAMES // 60 - 2)
 
 
+@pytest.mark.slow(seconds=45)
 def test_edge_killed_mid_run_resumes_from_its_checkpoint(tmp_path: Path) -> None:
     state: dict[str, Any] = {}
 
@@ -293,7 +300,7 @@ def test_a_device_that_lost_tracking_relocalises_against_the_edges_map() -> None
     assert error < 0.05
 
 
-@READS_THE_POLICY_RUNS
+@reads_the_policy_runs
 def test_a_viewer_sees_the_edges_map_points_keyframes_and_decisions(viewed_lff: tuple) -> None:
     """What RViz or Foxglove would subscribe to: every slot the edge's map as a PointCloud2
     with one point per map point, the kept keyframes as a PoseArray (at most V_max), and the
@@ -328,7 +335,7 @@ def test_a_viewer_sees_the_edges_map_points_keyframes_and_decisions(viewed_lff: 
         assert added == s.uploads and added + kept == s.map_size
 
 
-@READS_THE_POLICY_RUNS
+@reads_the_policy_runs
 def test_a_viewer_follows_the_device_on_the_tf_tree(viewed_lff: tuple) -> None:
     """The TF tree a viewer follows: map → camera on /tf at every frame the device tracked
     (the transform is its pose on device/pose, stamped alike) and none at a frame it did not;
@@ -361,7 +368,7 @@ def test_a_viewer_follows_the_device_on_the_tf_tree(viewed_lff: tuple) -> None:
                                pose_matrix(pose_msg(first_frame.pose)), atol=1e-6)
 
 
-@READS_THE_POLICY_RUNS
+@reads_the_policy_runs
 def test_the_picture_of_a_run_shows_its_map_trajectories_and_slots(
         runs: dict, tmp_path: Path) -> None:
     """One PNG a run: written, the size it is drawn at, and not blank — the map's points,

@@ -346,7 +346,7 @@ def test_a_stretch_of_frames_is_a_dataset_of_its_own(room: CovisibilityDataset) 
         room.stretch(300, 500)
 
 
-@pytest.mark.slow
+@pytest.mark.slow(seconds=25)
 def test_sim_cli_prints_a_table_and_writes_csv(tmp_path) -> None:
     """One CSV row per run; a lost frame scores 0, so mean = (1 - lost) · tracked in every
     row (V_max 8 on the room loses frames, so the identity is not 0 = 0)."""

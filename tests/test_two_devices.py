@@ -18,7 +18,7 @@ PAIRS = {"/ar1": (30, 0, 0), "/ar2": (45, 1, 300)}
 FRAMES = 180
 
 
-@pytest.mark.slow
+@pytest.mark.slow(seconds=20)
 def test_two_pairs_share_a_domain_without_cross_talk(domain: LoopbackDomain,
                                                      ros: RosSession) -> None:
     got: dict[str, dict[str, list]] = {}

@@ -39,7 +39,7 @@ def test_history_windows_pair_each_window_with_its_successor() -> None:
     assert windows[1].argmax(dim=1).tolist() == [1, 1, 0]
 
 
-@pytest.mark.slow
+@pytest.mark.slow(seconds=20)
 def test_elbo_falls_and_the_twin_recovers_a_stationary_two_state_chain() -> None:
     twin = VariationalTwin(VariationalConfig(n_states=2, buffer_slots=2000, seed=0))
     for s in _chain(P2, 2000, seed=1):
