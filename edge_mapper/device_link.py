@@ -269,7 +269,8 @@ class DeviceLink:
             poses.publish(keyframes_message(m, now, frame))
             marks.publish(decisions_message(m, out.integrated, out.evicted, before, now, frame))
         u = out.map_uncertainty
-        self.info(f"slot {slot}: +{len(out.integrated)} keyframes, -{len(out.evicted)}, map "
+        kept = f" (kept {len(out.spared)} of C_k: uploads missing)" if out.spared else ""
+        self.info(f"slot {slot}: +{len(out.integrated)} keyframes, -{len(out.evicted)}{kept}, map "
                   f"{len(self.core.map.keyframes)} keyframes / {len(self.core.map.points)} "
                   f"points, u(G) {u:.1f}{'' if math.isfinite(u) else ' (disconnected)'}, BA "
                   f"{ba_ms:.0f} ms, version {out.version}")

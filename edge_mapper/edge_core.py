@@ -2,8 +2,9 @@
 
 ``plan`` answers a slot's frame summaries with U_k and C_k (and υ of those frames against the
 map, the previous decision's reward); ``add_keyframe`` integrates each uploaded keyframe the
-plan asked for; ``finish_slot`` evicts C_k, runs a local bundle adjustment over the newest
-keyframes, bumps the map version and writes the checkpoint. The node (``edge_mapper/node.py``)
+plan asked for; ``finish_slot`` evicts C_k (less what uploads that never came would have
+needed: the map never shrinks for lack of uploads), runs a local bundle adjustment over the
+newest keyframes, bumps the map version and writes the checkpoint. The node (``edge_mapper/node.py``)
 only moves messages in and out of this class; a restarted node resumes from the checkpoint.
 
 Slots may overlap: a slot shorter than its uploads take (D_req) is planned while the one
@@ -21,6 +22,7 @@ import copy
 import dataclasses
 import math
 import time
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -55,6 +57,8 @@ class SlotOutcome:
     integrated: list[int]            #: keyframes added this slot
     missing: list[int]               #: asked for, never received
     evicted: list[int]
+    #: of C_k, kept because uploads it made room for never came (:func:`applied_evictions`)
+    spared: list[int]
     orphaned_points: int
     bundle_adjustment: BundleAdjustmentResult | None
     map_uncertainty: float           #: u(G) after the slot (+inf if disconnected)
@@ -95,6 +99,7 @@ class EdgeMapperCore:
             self._previous_tracks = _table(extra, "previous_track")
         self.planner = SlotPlanner(self.map, at_the_edge(policy), self.config.slot, n_states)
         self.pending: dict[int, tuple[MapAction, set[int]]] = {}   #: slot → (action, received)
+        self._planned_vmax: dict[int, int] = {}   #: open slot → the V_max it was planned with
         #: requested uploads not integrated yet, as the slot's summaries observed them
         self._arriving: dict[int, FrameObservations] = {}
         #: keyframes of a slot that arrived while an earlier slot was open
@@ -163,6 +168,7 @@ class EdgeMapperCore:
         plan = self.planner.plan(slot, frames, rate_mbps, rate_state, self.rate_history,
                                  self._arriving, leaving, (self.k, self.config.image_shape))
         self.pending[slot] = (plan.action, set())
+        self._planned_vmax[slot] = self.planner.config.vmax
         by_id = {f.frame_id: f for f in frames}
         self._arriving.update({f: by_id[f] for f in plan.action.upload})
         return plan
@@ -217,22 +223,24 @@ class EdgeMapperCore:
         return [d.frame_id for d in held]
 
     def finish_slot(self, slot: int) -> SlotOutcome:
-        """Evict C_k, optimise, publish a new map version, checkpoint. Slots finish in order:
-        finishing a later slot while an earlier one is open is refused (ValueError)."""
+        """Evict C_k (as much of it as the uploads that came need room for, see
+        :func:`applied_evictions`), optimise, publish a new map version, checkpoint. Slots
+        finish in order: finishing a later slot while an earlier one is open is refused
+        (ValueError)."""
         if slot in self.pending and slot != self.oldest_open:
             raise ValueError(f"slot {slot} cannot finish before slot {self.oldest_open}")
         action, received = self.pending.pop(slot, (MapAction([], []), set()))
+        vmax = self._planned_vmax.pop(slot, self.planner.config.vmax)
         for frame in action.upload:                  # what has not come will not be used
             self._arriving.pop(frame, None)
         # keyframes held while an older slot was open, if the caller finished this slot
         # without integrate_held() first (the node always calls it; a bare core user may not)
         for data in self._held.pop(slot, []):
             self._integrate(data)
-        evicted, orphans = [], 0
-        for kf in action.evict:
-            if kf in self.map.keyframes:
-                orphans += len(self.map.evict(kf))
-                evicted.append(kf)
+        missing = set(action.upload) - received
+        evicted = applied_evictions(action.evict, self.map.keyframe_ids(), missing, vmax)
+        orphans = sum(len(self.map.evict(kf)) for kf in evicted)
+        spared = sorted(set(action.evict) - set(evicted) - missing)
         t0 = time.perf_counter()
         ba = (self.optimise() if len(self.map.keyframes) >= 2 and self.config.ba_window > 0
               else None)
@@ -257,8 +265,8 @@ class EdgeMapperCore:
         t3 = time.perf_counter()
         timings = {"optimise": (t1 - t0) * 1e3, "checkpoint": (t2 - t1) * 1e3,
                    "uncertainty": (t3 - t2) * 1e3}
-        return SlotOutcome(slot, sorted(received), sorted(set(action.upload) - received),
-                           evicted, orphans, ba, u, self.version, tracks, timings)
+        return SlotOutcome(slot, sorted(received), sorted(missing), evicted, spared, orphans, ba,
+                           u, self.version, tracks, timings)
 
     # -- optimisation ------------------------------------------------------------------------
 
@@ -307,6 +315,32 @@ class EdgeMapperCore:
             if ob.point in self.map.points:
                 self.map.unobserve(ob.keyframe, ob.point)
         return result
+
+
+def applied_evictions(evict: Sequence[int], map_ids: Sequence[int], missing: Collection[int],
+                      vmax: int) -> list[int]:
+    """The keyframes a slot evicts once its uploads are in: C_k, less one for each requested
+    keyframe that never came, and never fewer than keep the map within ``vmax``.
+
+    Theorem 1 sizes C_k to make room for U_k; evicting all of it when uploads are lost (the
+    device no longer held the frames, the link dropped them, the device was lost and uploaded
+    nothing) shrinks the map for uploads that never came — slot after slot, down to a
+    disconnected handful of keyframes. ``map_ids`` is the map with the slot's arrived uploads
+    in, oldest first; a keyframe of C_k that is not in it (a lost upload the plan also meant
+    to evict) costs nothing. C_k leaves in the order the policy lists it (the rules list it
+    by frame id: the oldest first); where C_k cannot bring the map within ``vmax`` (slots
+    overlapped and an earlier one spared keyframes the next plan counted out) the oldest other
+    keyframes follow.
+    """
+    in_map = set(map_ids)
+    planned = [kf for kf in evict if kf in in_map]
+    spare = len(set(missing) - set(evict))
+    n = max(len(planned) - spare, len(map_ids) - vmax, 0)
+    chosen = planned[:n]
+    if n > len(chosen):
+        taken = set(chosen)
+        chosen += [kf for kf in map_ids if kf not in taken][:n - len(chosen)]
+    return chosen
 
 
 def _table_arrays(table: dict[int, int], name: str) -> dict[str, np.ndarray]:

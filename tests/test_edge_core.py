@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore
+from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, applied_evictions
 from edge_mapper.slot_planner import FrameObservations, SlotConfig
 from twinslam.policy_registry import make_policy
 from twinslam.slam.keyframe import TRACK_ID_BIT, KeyFramePayload
@@ -151,5 +151,65 @@ def test_overlapping_slots_never_leave_more_than_vmax_keyframes() -> None:
         core.add_keyframe(device.keyframe(f, 7, core))
     assert core.is_complete(7)
     core.finish_slot(7)
-    # slot 7 was sized counting slot 6's missing keyframe in: one short of V_max, not over
-    assert len(core.map.keyframes) == vmax - 1 and core.oldest_open is None
+    # slot 7 was sized counting slot 6's missing keyframe in, and slot 6 spared the eviction
+    # that keyframe would have needed: the map is full, not over, and not one short
+    assert len(core.map.keyframes) == vmax and core.oldest_open is None
+
+
+def _full_map(vmax: int, slots: int = 3) -> tuple[EdgeMapperCore, Device]:
+    """An edge whose map has reached V_max, every upload delivered."""
+    device = Device(np.random.default_rng(5))
+    core = EdgeMapperCore(make_policy("lff"), K, EdgeConfig(slot=SlotConfig(vmax=vmax)))
+    _run(core, device, range(slots), rates=[80.0])
+    assert len(core.map.keyframes) == vmax
+    return core, device
+
+
+def test_a_slot_whose_uploads_never_came_keeps_the_map() -> None:
+    """The device sent none of a slot's uploads (it no longer held the frames, or was lost):
+    the slot evicts nothing, and the next slot, whose uploads come, evicts only for them."""
+    core, device = _full_map(vmax=10)
+    before = core.map.keyframe_ids()
+    frames = [device.summary(f, core) for f in range(3 * F, 4 * F)]
+    plan = core.plan(3, frames, 80.0, 1)
+    assert len(plan.action.evict) == 8                       # C_k made room for 8 uploads
+    out = core.finish_slot(3)                                # none came
+    assert out.missing == sorted(plan.action.upload) and not out.evicted
+    assert out.spared == sorted(plan.action.evict)
+    assert core.map.keyframe_ids() == before and np.isfinite(out.map_uncertainty)
+    # three of the next slot's eight uploads come: three keyframes leave, the oldest of C_k
+    frames = [device.summary(f, core) for f in range(4 * F, 5 * F)]
+    plan = core.plan(4, frames, 80.0, 1)
+    for f in plan.action.upload[:3]:
+        core.add_keyframe(device.keyframe(f, 4, core))
+    out = core.finish_slot(4)
+    assert out.evicted == sorted(plan.action.evict)[:3] and len(out.missing) == 5
+    assert len(core.map.keyframes) == 10
+
+
+def test_an_edge_behind_by_several_slots_catches_up_without_emptying_the_map() -> None:
+    """Four slots planned back to back while no upload gets through (a stalled uplink, an
+    edge that fell behind), then finished in a row: the map keeps all its keyframes, and a
+    fifth slot whose uploads all arrive fills it to V_max again — where evicting every C_k
+    left a map of none."""
+    core, device = _full_map(vmax=10)
+    for slot in range(3, 7):
+        core.plan(slot, [device.summary(f, core) for f in range(slot * F, (slot + 1) * F)],
+                  80.0, 1)
+    outs = [core.finish_slot(slot) for slot in range(3, 7)]
+    assert all(not o.evicted for o in outs) and len(core.map.keyframes) == 10
+    _run(core, device, range(7, 8), rates=[80.0])
+    assert len(core.map.keyframes) == 10
+
+
+def test_applied_evictions_make_room_for_what_came_and_keep_vmax() -> None:
+    """C_k = {1, 2, 3} for U_k = {20, 21, 22}; the map lists what arrived, oldest first."""
+    assert applied_evictions([1, 2, 3], [1, 2, 3, 4, 20, 21, 22], [], 4) == [1, 2, 3]
+    assert applied_evictions([1, 2, 3], [1, 2, 3, 4, 21], [20, 22], 4) == [1]
+    assert applied_evictions([1, 2, 3], [1, 2, 3, 4], [20, 21, 22], 4) == []
+    # an upload the plan also meant to evict that did not come spares nothing more
+    assert applied_evictions([1, 2, 20], [1, 2, 3, 4, 21, 22], [20], 4) == [1, 2]
+    # V_max holds whatever came: over it (an earlier slot spared keyframes the next plan
+    # counted out), the oldest others follow C_k
+    assert applied_evictions([3], [1, 2, 3, 4, 5, 6], [], 4) == [3, 1]
+    assert applied_evictions([], [1, 2, 3], [9], 4) == []
