@@ -4,8 +4,9 @@
 map, the previous decision's reward); ``add_keyframe`` integrates each uploaded keyframe the
 plan asked for; ``finish_slot`` evicts C_k (less what uploads that never came would have
 needed: the map never shrinks for lack of uploads), runs a local bundle adjustment over the
-newest keyframes, bumps the map version and writes the checkpoint. The node (``edge_mapper/node.py``)
-only moves messages in and out of this class; a restarted node resumes from the checkpoint.
+newest keyframes, bumps the map version and writes the checkpoint. The node
+(``edge_mapper/node.py``) only moves messages in and out of this class; a restarted node
+resumes from the checkpoint.
 
 Slots may overlap: a slot shorter than its uploads take (D_req) is planned while the one
 before still waits for keyframes. The map then never holds more than V_max keyframes when a
