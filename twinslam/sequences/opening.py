@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from twinslam.sequences.folders import FolderSequence, read_seven_scenes, read_sun3d, read_tum
 from twinslam.sequences.frame import Sequence, SequenceError
-from twinslam.sequences.synthetic import SyntheticSequence
+
+if TYPE_CHECKING:
+    from twinslam.sequences.synthetic import SyntheticSequence
 
 #: frames of ``synthetic`` when the spec names no count
 SYNTHETIC_DEFAULT_FRAMES = 900
@@ -38,6 +41,10 @@ def _open_synthetic(spec: str, start: int, end: int) -> SyntheticSequence:
     stop = n if end < 0 else min(end, n)
     if not 0 <= start < stop:
         raise SequenceError(f"{spec}: bad frame range start={start} end={end}")
+    # imported here: the renderer loads numba (0.4-0.5 s a process), which a player of a
+    # dataset folder never needs
+    from twinslam.sequences.synthetic import SyntheticSequence
+
     return SyntheticSequence(n_frames=n, seed=walk).select(start, stop)
 
 
