@@ -88,7 +88,7 @@ run: venv
 # the kernels compile beside it); the suite starts only when both passed. Bytecode is cached
 # even where the environment says not to, or every node process a test starts compiles the
 # project's modules again.
-TEST_WORKERS ?= 3
+TEST_WORKERS ?= 4
 LINT_STEPS := lint-ruff lint-imports lint-types
 
 test:
