@@ -1,0 +1,97 @@
+"""The gate of every change as CI runs it: ``.ci/run`` (the README's ``make test``) on fresh
+clones of this repository, one after another, each with the bundled data folder beside it —
+the set-up from nothing (a warm pip cache is the machine's), the lint stage and the suite.
+
+    .venv/bin/python -m bench.clean_clone [--runs 5] [--load 2] [--csv FILE]
+
+Prints, per run: the exit status, the wall time of ``.ci/run``, the seconds pytest reported,
+the passed / failed / skipped counts and the failed tests' ids; ``--load N`` keeps N busy loops
+running beside the runs (a user doing other work on the machine), ``--csv`` appends one row a
+run. The clones live in a temporary folder removed after each run; each run's output is kept
+in ``build/clean-clone/COMMIT-STAMP.log``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from datetime import UTC, datetime
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED = REPO.parent / "shared"
+FIELDS = ["date_utc", "commit", "load", "rc", "wall_s", "pytest_s", "passed", "failed",
+          "skipped", "failures"]
+
+
+def _summary(log: str) -> dict[str, object]:
+    """pytest's closing line and the FAILED lines of a run's output."""
+    closing = re.findall(r"^=+ (.*) in ([\d.]+)s", log, flags=re.MULTILINE)
+    counts = {word: int(n) for n, word in
+              re.findall(r"(\d+) (passed|failed|skipped)", closing[-1][0] if closing else "")}
+    failures = re.findall(r"^FAILED (\S+)", log, flags=re.MULTILINE)
+    return {"pytest_s": float(closing[-1][1]) if closing else float("nan"),
+            "passed": counts.get("passed", 0), "failed": counts.get("failed", len(failures)),
+            "skipped": counts.get("skipped", 0), "failures": " ".join(failures)}
+
+
+def clean_run(load: int) -> dict[str, object]:
+    """One ``.ci/run`` on a fresh clone of HEAD, ``load`` busy loops beside it."""
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, text=True,
+                            capture_output=True, check=True).stdout.strip()
+    loops = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(load)]
+    try:
+        with tempfile.TemporaryDirectory(prefix="twinslam-clean-") as tmp:
+            root = Path(tmp)
+            (root / "shared").symlink_to(SHARED.resolve())
+            subprocess.run(["git", "clone", "-q", str(REPO), str(root / "main")], check=True)
+            started = time.monotonic()
+            done = subprocess.run([str(root / "main" / ".ci" / "run")], cwd=root / "main",
+                                  text=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+            wall = time.monotonic() - started
+            logs = REPO / "build" / "clean-clone"
+            logs.mkdir(parents=True, exist_ok=True)
+            stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S")
+            (logs / f"{commit}-{stamp}.log").write_text(done.stdout, encoding="utf-8")
+    finally:
+        for loop in loops:
+            loop.kill()
+            loop.wait()
+    return {"date_utc": datetime.now(UTC).strftime("%Y-%m-%d %H:%M"), "commit": commit,
+            "load": load, "rc": done.returncode, "wall_s": round(wall),
+            **_summary(done.stdout.strip())}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--runs", type=int, default=1, help="runs, one after another "
+                        "(default %(default)s)")
+    parser.add_argument("--load", type=int, default=0,
+                        help="busy loops beside every run (default %(default)s)")
+    parser.add_argument("--csv", type=Path, help="append one row a run to this CSV")
+    args = parser.parse_args()
+    if not SHARED.is_dir():
+        print(f"note: {SHARED} is missing: the runs play the synthetic room", file=sys.stderr)
+    for k in range(args.runs):
+        print(f"run {k + 1}/{args.runs}: .ci/run on a fresh clone"
+              + (f", {args.load} busy loops beside it" if args.load else ""), flush=True)
+        row = clean_run(args.load)
+        print(f"  rc {row['rc']}, {row['wall_s']} s wall, pytest {row['pytest_s']} s, "
+              f"{row['passed']} passed, {row['failed']} failed, {row['skipped']} skipped"
+              + (f": {row['failures']}" if row["failures"] else ""), flush=True)
+        if args.csv:
+            new = not args.csv.exists()
+            with args.csv.open("a", newline="", encoding="utf-8") as fh:
+                writer = csv.DictWriter(fh, fieldnames=FIELDS)
+                if new:
+                    writer.writeheader()
+                writer.writerow(row)
+
+
+if __name__ == "__main__":
+    main()
