@@ -126,3 +126,44 @@ def test_the_summary_table_shows_shares_to_a_tenth_of_a_percent() -> None:
     figures["predicted_lost_share"] = (0.0071, math.nan)
     table = markdown_table([SummaryRow("revisit-v15", "edge", "lff", 10, figures)])
     assert "| 0.234 ± 0.041 | 0.007 |" in table
+
+
+def test_runs_whose_device_dropped_camera_frames_are_flagged(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+        ) -> None:
+    """A device that fell behind its camera (a machine short of CPU) is said to have done so
+    on the run's progress line, below the summary table and at the end of the evaluation; an
+    evaluation none of whose devices dropped a frame says nothing of it."""
+    import dataclasses
+
+    from twinslam.cli.commands import evaluate as command
+    from twinslam.live import runs as evaluate
+    from twinslam.live.tables import dropped_frames_note, summarise, write_summary
+
+    def fake(task: evaluate.RunTask) -> RunResult:
+        run = _run(task.key.policy, task.key.seed, 3, 0.1)
+        return dataclasses.replace(run, report=dataclasses.replace(
+            run.report, frames_dropped=75 if task.key.seed == 1 else 0))
+
+    monkeypatch.setattr(evaluate, "run_one", fake)
+    tasks = [evaluate.RunTask(RunKey("revisit", "edge", "lff", seed), "synthetic", 10,
+                              SCENARIOS["revisit"], Path("p.yaml"), 10.0, None)
+             for seed in range(3)]
+    lines: list[str] = []
+    results, _ = evaluate.run_all(tasks, tmp_path, echo=lines.append)
+    flagged = [line for line in lines if "DROPPED" in line]
+    assert len(flagged) == 1 and "seed 1" in flagged[0] and "DROPPED 75 camera frames" \
+        in flagged[0]
+    note = dropped_frames_note(results)
+    assert note is not None and note.startswith("1 of 3 runs dropped camera frames")
+    assert "revisit-v15 edge lff seed 1: 75" in note and "seed 0" not in note
+    write_summary(summarise(results), tmp_path, note)
+    assert f"**Warning.** {note}" in (tmp_path / "summary.md").read_text(encoding="utf-8")
+    command._print_tables(results, tmp_path)
+    assert capsys.readouterr().err.strip() == f"warning: {note}"
+
+    clean = [r for r in results if r.report.frames_dropped == 0]
+    assert dropped_frames_note(clean) is None
+    command._print_tables(clean, tmp_path)
+    assert "Warning" not in (tmp_path / "summary.md").read_text(encoding="utf-8")
+    assert capsys.readouterr().err == ""

@@ -188,10 +188,12 @@ def _line(i: int, total: int, r: RunResult, started: float, resumed: int = 0) ->
     rep, cal = r.report, r.calibration
     side = (f", predicted lost {cal.predicted_lost_share:.1%} vs device failed "
             f"{cal.device_failure_share:.1%}" if cal is not None else "")
+    dropped = (f", DROPPED {rep.frames_dropped} camera frames (short of CPU)"
+               if rep.frames_dropped else "")
     return (f"[{i}/{total}] {r.key.scenario:<13} {r.key.map_source:<10} {rep.label:<14} seed "
             f"{r.key.seed}: ATE {rep.ate_m:.3f} m, {rep.tracking_failures} failures, "
-            f"{rep.relocalisations} relocalisations, υ {rep.mean_uncertainty:.1f}{side} "
-            f"({elapsed / 60:.1f} min, ~{eta / 60:.1f} min left)")
+            f"{rep.relocalisations} relocalisations, υ {rep.mean_uncertainty:.1f}{side}"
+            f"{dropped} ({elapsed / 60:.1f} min, ~{eta / 60:.1f} min left)")
 
 
 @dataclass

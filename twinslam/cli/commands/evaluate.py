@@ -86,7 +86,8 @@ def _tasks(args: argparse.Namespace, policies: list[tuple[str, str]],
 
 def _print_tables(results: list[runs.RunResult], out: Path) -> None:
     rows = tables.summarise(results)
-    tables.write_summary(rows, out)
+    dropped = tables.dropped_frames_note(results)
+    tables.write_summary(rows, out, dropped)
     paired = tables.paired_differences(results)
     tables.write_paired(paired, out)
     print()
@@ -100,6 +101,8 @@ def _print_tables(results: list[runs.RunResult], out: Path) -> None:
     print(f"\nwrote {out / 'runs.csv'}, summary.csv, summary.md, summary.png, "
           "paired.csv, paired.md, calibration.csv, calibration_frames.csv and a picture of "
           f"every run in {out / 'runs'}/")
+    if dropped:                 # last, where a reader of the tables looks for what went wrong
+        print(f"warning: {dropped}", file=sys.stderr)
 
 
 def run(args: argparse.Namespace) -> int:
