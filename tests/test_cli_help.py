@@ -89,3 +89,12 @@ def test_the_old_name_of_the_variational_twin_is_accepted_with_a_deprecation_lin
     warn_aliases([args.rate_model, "regime", "udt"], ALIASES)
     err = capsys.readouterr().err
     assert err.count("'udt' is the old name of 'variational'") == 1
+
+
+def test_help_texts_read_as_plain_text() -> None:
+    """The docstrings a description is made of are reStructuredText; a terminal shows their
+    literals as plain words (``twinslam --help`` began with two backticks)."""
+    texts = {"twinslam": build_parser().format_help(),
+             **{name: p.format_help() for name, p in _subcommands().items()}}
+    assert texts["twinslam"].split("\n\n")[1].startswith("twinslam: the command-line entry")
+    assert not [name for name, text in texts.items() if "``" in text]

@@ -4,6 +4,7 @@ progress lines stamped with the seconds since the command started."""
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -58,7 +59,12 @@ def elapsed_progress() -> Callable[[str], None]:
 
 
 class HelpFormatter(argparse.RawDescriptionHelpFormatter):
-    """Every option's help ends with its default, unless the text already gives it."""
+    """Every option's help ends with its default, unless the text already gives it; the
+    reStructuredText literals of the docstrings a description is made of (````twinslam````)
+    read as plain words."""
+
+    def format_help(self) -> str:
+        return re.sub(r"``([^`\n]+)``", r"\1", super().format_help())
 
     def _get_help_string(self, action: argparse.Action) -> str | None:
         text = action.help or ""
