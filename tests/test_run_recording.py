@@ -28,6 +28,7 @@ def test_launch_records_every_topic_and_the_camera_decimated_and_draws_the_run(
                  "--out", str(pictures)])
     out = capsys.readouterr().out
     assert code == 0, out
+    assert "lff: 150 frames of synthetic:150 at 1.0x on loopback domain" in out
     assert "MB a minute of run" in out
     with Reader(bag) as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}

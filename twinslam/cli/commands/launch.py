@@ -54,6 +54,17 @@ def _checked_setup(args: argparse.Namespace) -> tuple[Scenario, dict[str, list[s
     return chosen, extra
 
 
+def played_frames(args: argparse.Namespace, chosen: Scenario) -> str:
+    """The frames a run plays, as its header says it: the sequence's frames in [start,
+    start + frames) (to its end with -1, or when it holds fewer), forward — or forward then
+    back, the turning frame once. SequenceError for a range the sequence does not hold."""
+    end = -1 if args.frames < 0 else args.start + args.frames
+    selected = len(open_sequence(args.sequence, args.start, end))
+    if chosen.order == "forward":
+        return f"{selected} frames"
+    return f"{chosen.played_frames(selected)} frames ({selected} forward then back)"
+
+
 def _recordings(args: argparse.Namespace, policies: list[str]) -> dict[str, Path | None]:
     """Where each policy's run is recorded: ``--record DIR`` itself for one policy, DIR/POLICY
     for several; every destination checked before any run (ValueError)."""
@@ -73,7 +84,7 @@ def _recordings(args: argparse.Namespace, policies: list[str]) -> dict[str, Path
 
 
 def _run_policy(args: argparse.Namespace, policy: str, chosen: Scenario,
-                extra: dict[str, list[str]], record: Path | None) -> RunReport:
+                extra: dict[str, list[str]], record: Path | None, played: str) -> RunReport:
     # a learned policy decides on the twin node's latents: start it with its checkpoint
     kind, _, checkpoint = policy.partition(":")
     learned = kind == LEARNED_PREFIX and bool(checkpoint)
@@ -88,8 +99,8 @@ def _run_policy(args: argparse.Namespace, policy: str, chosen: Scenario,
             dom.activate()
         where = ("hosts device/edge/twin, domain" if args.hosts else
                  "loopback domain" if args.loopback else "domain")
-        print(f"{policy}: {args.frames} frames of {args.sequence} at {args.rate}x on "
-              f"{where} {dom.domain_id}", flush=True)
+        print(f"{policy}: {played} of {args.sequence} at {args.rate}x on {where} "
+              f"{dom.domain_id}", flush=True)
         launcher = Launcher(dom, config, lambda line: print(line, flush=True))
         report = launcher.run()
     if launcher.recording is not None:
@@ -98,7 +109,7 @@ def _run_policy(args: argparse.Namespace, policy: str, chosen: Scenario,
               f"({r.mb_per_minute:.0f} MB a minute of run)", flush=True)
     if launcher.record is not None:
         picture = args.out / f"{file_name(policy_label(policy))}.png"
-        plot_run(launcher.record, f"{report.label}: {args.frames} frames of {args.sequence}, "
+        plot_run(launcher.record, f"{report.label}: {played} of {args.sequence}, "
                  f"scenario {args.scenario}", picture)
         print(f"wrote {picture}", flush=True)
     return report
@@ -111,10 +122,11 @@ def run(args: argparse.Namespace) -> int:
         if args.devices:
             return run_fleets(args, policies, chosen, extra)
         records = _recordings(args, policies)
+        played = played_frames(args, chosen)
     except (ValueError, SequenceError) as exc:
         return error(exc)
     reports = each_run([functools.partial(_run_policy, args, policy, chosen, extra,
-                                       records[policy]) for policy in policies])
+                                       records[policy], played) for policy in policies])
     if isinstance(reports, int):
         return reports
     print()
