@@ -53,6 +53,11 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("policy", default_value="adapt"),
         DeclareLaunchArgument("rate", default_value="1.0"),
         DeclareLaunchArgument("twin", default_value="false"),
+        DeclareLaunchArgument(
+            "wait_for_subscribers", default_value="1",
+            description="the player holds its first frame until this many readers of the "
+            "camera match (the device's): nodes start in any order — an edge and device that "
+            "take 30 s to start on a busy machine still see every frame; 0: play at once"),
         DeclareLaunchArgument("host", default_value="all",
                               description="all | device | edge | twin: this machine's nodes"),
         Node(package="twinslam", executable="edge_mapper", name="edge_mapper",
@@ -75,7 +80,9 @@ def generate_launch_description() -> LaunchDescription:
              parameters=[arg("params_file"), {"sequence": arg("sequence"),
                                                "rate": arg("rate"),
                                                "map_frame": arg("map_frame"),
-                                               "frame_id": arg("camera_frame")}],
+                                               "frame_id": arg("camera_frame"),
+                                               "wait_for_subscribers":
+                                                   arg("wait_for_subscribers")}],
              output="screen",
              condition=on("device")),
     ])
