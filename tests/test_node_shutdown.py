@@ -1,0 +1,52 @@
+"""Every node ends cleanly on Ctrl-C (SIGINT) and on SIGTERM (``ros2 launch`` stopping it, a
+service manager) in the middle of a run: exit code 0 and no traceback. Tried as a ROS 2 user,
+Ctrl-C on ``ros2 launch`` once left the edge printing a ``KeyboardInterrupt`` traceback from
+``destroy_node`` and "process has died … exit code -2"."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+
+import pytest
+from twinslam_msgs.msg import MapStats
+
+from msg_schemas import qos
+from tests.test_launch_start_order import PARAMS_FILE, launch_parameters
+from twinslam.node_hosts.loopback import LoopbackDomain
+from twinslam.node_hosts.session import RosSession
+
+#: each node's executable and module, in the order they are started (as ``ros2 launch``
+#: with ``twin:=true`` starts them: the parameter file and the launch file's parameters)
+NODES = {"edge_mapper": "edge_mapper.node", "udt_node": "udt_node.node",
+         "device_tracker": "device_tracker.node",
+         "sequence_player": "twinslam.sequence_player.node"}
+
+
+@pytest.mark.slow(seconds=20)
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_every_node_ends_cleanly_when_signalled_mid_run(
+        signum: signal.Signals, domain: LoopbackDomain, ros: RosSession) -> None:
+    stats: list[MapStats] = []
+    ros.node.create_subscription(MapStats, "/edge/map_stats", stats.append, qos.PROTOCOL)
+    procs: dict[str, subprocess.Popen[str]] = {}
+    for name, module in NODES.items():
+        extra = {"sequence": "synthetic:900"} if name == "sequence_player" else {}
+        procs[name] = domain.spawn(["-m", module, "--ros-args", "--params-file",
+                                    str(PARAMS_FILE), *launch_parameters(name, **extra)])
+    # mid-run: the edge has answered a slot, the device tracks, the player plays on
+    assert ros.spin_until(lambda: len(stats) >= 1, 120.0), \
+        {n: domain.log(p)[-1500:] for n, p in procs.items()}
+    assert all(p.poll() is None for p in procs.values())
+    for proc in procs.values():
+        proc.send_signal(signum)
+    for name, proc in procs.items():
+        try:
+            proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            pytest.fail(f"{name} did not end within 30 s of {signum.name}: "
+                        f"{domain.log(proc)[-2000:]}")
+    for name, proc in procs.items():
+        log = domain.log(proc)
+        assert proc.returncode == 0, f"{name} exited {proc.returncode}: {log[-2000:]}"
+        assert "Traceback" not in log, f"{name}: {log[-3000:]}"
