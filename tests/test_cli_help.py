@@ -115,3 +115,5 @@ def test_help_texts_read_as_plain_text() -> None:
              **{name: p.format_help() for name, p in _subcommands().items()}}
     assert texts["twinslam"].split("\n\n")[1].startswith("twinslam: the command-line entry")
     assert not [name for name, text in texts.items() if "``" in text]
+    # a description is not %-formatted as an option's help is: "%%" there shows as written
+    assert not [name for name, text in texts.items() if "%%" in text]

@@ -117,7 +117,7 @@ def register(sub: Subparsers) -> None:
     sim = sub.add_parser("sim", help="evaluate map-management policies offline",
                          description="Each policy over --seeds runs of the gym-style simulator "
                          "(covisibility from real frames, a rate model): mean υ with a lost "
-                         "frame scoring 0, its 95 %% CI, the lost share and υ over tracked "
+                         "frame scoring 0, its 95 % CI, the lost share and υ over tracked "
                          "frames.")
     sim.add_argument("--policy", default=",".join(Comparison.policies),
                      help="comma-separated: lff (latest frames first), pu (periodical "
