@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from twinslam.live.report import RunReport
-from twinslam.live.runs import RunKey, RunResult, policy_variants
+from twinslam.live.runs import RunKey, RunResult, RunTask, policy_variants
 from twinslam.live.scenarios import SCENARIOS
 from twinslam.live.tables import paired_differences, paired_markdown, summarise
 
@@ -19,6 +19,13 @@ def _run(policy: str, seed: int, failures: int, ate: float, spec: str = "") -> R
     report = RunReport(spec or policy, 10, -500.0, 0.1, -550.0, ate, 0.1, 20, 2_000_000, 40.0,
                        3 * failures, failures, 1, 0.5, 80.0, 30.0)
     return RunResult(RunKey("revisit-v15", "edge", policy, seed, spec), report, None, None)
+
+
+def _tasks(policy: str, seeds: int, spec: str = "") -> list[RunTask]:
+    """``seeds`` runs of ``policy`` on the revisit scenario, as a sweep hands them out (the
+    tests replace the run itself)."""
+    return [RunTask(RunKey("revisit", "edge", policy, seed, spec), "synthetic", 10,
+                    SCENARIOS["revisit"], Path("p.yaml"), 10.0, None) for seed in range(seeds)]
 
 
 def test_policy_items_become_labels_and_edge_policies() -> None:
@@ -66,9 +73,7 @@ def test_a_failed_run_is_reported_and_the_others_go_on(tmp_path: Path,
         return _run(task.key.policy, task.key.seed, 3, 0.1)
 
     monkeypatch.setattr(evaluate, "run_one", fake)
-    tasks = [evaluate.RunTask(RunKey("revisit", "edge", "lff", seed), "synthetic", 10,
-                              SCENARIOS["revisit"], Path("p.yaml"), 10.0, None)
-             for seed in range(3)]
+    tasks = _tasks("lff", 3)
     lines: list[str] = []
     results, failures = evaluate.run_all(tasks, tmp_path, echo=lines.append)
     assert [r.key.seed for r in results] == [0, 2]
@@ -92,10 +97,7 @@ def test_an_interrupted_evaluation_resumes_with_what_it_measured(
 
     monkeypatch.setattr(evaluate, "run_one", fake)
     # a label over a checkpoint: runs.csv then has two policy columns, "AMM" and the spec
-    tasks = [evaluate.RunTask(RunKey("revisit", "edge", "AMM", seed, "mbrl:a.pt"), "synthetic",
-                              10,
-                              SCENARIOS["revisit"], Path("p.yaml"), 10.0, None)
-             for seed in range(4)]
+    tasks = _tasks("AMM", 4, "mbrl:a.pt")
     first, _ = evaluate.run_all(tasks[:2], tmp_path, echo=lambda _: None)
     lines: list[str] = []
     results, failures = evaluate.run_all(tasks, tmp_path, echo=lines.append,
@@ -146,9 +148,7 @@ def test_runs_whose_device_dropped_camera_frames_are_flagged(
             run.report, frames_dropped=75 if task.key.seed == 1 else 0))
 
     monkeypatch.setattr(evaluate, "run_one", fake)
-    tasks = [evaluate.RunTask(RunKey("revisit", "edge", "lff", seed), "synthetic", 10,
-                              SCENARIOS["revisit"], Path("p.yaml"), 10.0, None)
-             for seed in range(3)]
+    tasks = _tasks("lff", 3)
     lines: list[str] = []
     results, _ = evaluate.run_all(tasks, tmp_path, echo=lines.append)
     flagged = [line for line in lines if "DROPPED" in line]
