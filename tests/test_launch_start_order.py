@@ -63,6 +63,14 @@ def launch_parameters(executable: str, **arguments: str) -> list[str]:
     return out
 
 
+def spawn_as_launched(domain: LoopbackDomain, module: str, executable: str,
+                      **arguments: str) -> subprocess.Popen[str]:
+    """``executable``'s node (``python -m module``) on ``domain`` with the parameter file and
+    the parameters the launch file gives it."""
+    return domain.spawn(["-m", module, "--ros-args", "--params-file", str(PARAMS_FILE),
+                         *launch_parameters(executable, **arguments)])
+
+
 def test_the_launch_files_player_waits_for_the_device() -> None:
     assert "wait_for_subscribers:=1" in launch_parameters("sequence_player")
 
@@ -74,17 +82,13 @@ def test_nodes_started_late_after_the_player_still_track_every_frame(
     ros.node.create_subscription(FrameSummaries, "/device/frame_summaries", summaries.append,
                                  qos.PROTOCOL)
 
-    def start(module: str, executable: str, **arguments: str) -> subprocess.Popen[str]:
-        return domain.spawn(["-m", module, "--ros-args", "--params-file", str(PARAMS_FILE),
-                             *launch_parameters(executable, **arguments)])
-
-    player = start("twinslam.sequence_player.node", "sequence_player",
-                   sequence=f"synthetic:{FRAMES}")
+    player = spawn_as_launched(domain, "twinslam.sequence_player.node", "sequence_player",
+                               sequence=f"synthetic:{FRAMES}")
     assert domain.wait_for_log(player, "waiting for 1 subscriber(s)", 60), domain.log(player)
     time.sleep(LATE_S)                              # the edge and device start late
     assert player.poll() is None and "published" not in domain.log(player), domain.log(player)
-    start("edge_mapper.node", "edge_mapper")
-    start("device_tracker.node", "device_tracker")
+    spawn_as_launched(domain, "edge_mapper.node", "edge_mapper")
+    spawn_as_launched(domain, "device_tracker.node", "device_tracker")
     assert ros.spin_until(lambda: player.poll() is not None and len(summaries) >= 2, 120.0), \
         (len(summaries), domain.log(player)[-2000:])
     assert player.returncode == 0 and f"done: {FRAMES} frames published" in domain.log(player)

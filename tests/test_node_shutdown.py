@@ -12,7 +12,7 @@ import pytest
 from twinslam_msgs.msg import MapStats
 
 from msg_schemas import qos
-from tests.test_launch_start_order import PARAMS_FILE, launch_parameters
+from tests.test_launch_start_order import spawn_as_launched
 from twinslam.node_hosts.loopback import LoopbackDomain
 from twinslam.node_hosts.session import RosSession
 
@@ -32,8 +32,7 @@ def test_every_node_ends_cleanly_when_signalled_mid_run(
     procs: dict[str, subprocess.Popen[str]] = {}
     for name, module in NODES.items():
         extra = {"sequence": "synthetic:900"} if name == "sequence_player" else {}
-        procs[name] = domain.spawn(["-m", module, "--ros-args", "--params-file",
-                                    str(PARAMS_FILE), *launch_parameters(name, **extra)])
+        procs[name] = spawn_as_launched(domain, module, name, **extra)
     # mid-run: the edge has answered a slot, the device tracks, the player plays on
     assert ros.spin_until(lambda: len(stats) >= 1, 120.0), \
         {n: domain.log(p)[-1500:] for n, p in procs.items()}
