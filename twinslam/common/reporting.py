@@ -9,7 +9,6 @@ from pathlib import Path
 from types import ModuleType
 
 import numpy as np
-from scipy import stats
 
 
 def file_name(text: str, allowed: str = "+-_.", filler: str = "-") -> str:
@@ -53,5 +52,8 @@ def mean_ci95(values: list[float]) -> tuple[float, float]:
         return math.nan, math.nan
     if x.size < 2:
         return float(x.mean()), math.nan
+    # scipy.stats takes 0.4 s to import: loaded only where a CI is computed
+    from scipy import stats
+
     half = stats.t.ppf(0.975, x.size - 1) * x.std(ddof=1) / math.sqrt(x.size)
     return float(x.mean()), float(half)

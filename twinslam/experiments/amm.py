@@ -31,7 +31,6 @@ from twinslam.common.executor import Executor, TaskFailure
 from twinslam.common.reporting import mean_ci95, pyplot, write_csv
 from twinslam.experiments.paired import PairedDifference, paired_difference
 from twinslam.experiments.parallel import run_all
-from twinslam.mbrl.trainer import AmmTrainer, TrainConfig
 from twinslam.policy_registry import make_policy
 from twinslam.simulator.covisibility_spec import absolute_spec, cached_covisibility
 from twinslam.simulator.env import MapManagementEnv, SimConfig
@@ -277,6 +276,10 @@ def untrained_checkpoints(covis: str, channel: str, out_dir: Path, inits: int) -
     """The paper's actor as training runs 0 … ``inits`` - 1 start it (their seeds draw its
     initial weights), saved untrained under ``out_dir``/untrained: the control that says
     whether training did anything."""
+    # torch loads here, not with the module: a sweep of the rules (and each of its worker
+    # processes) never needs it, and it costs seconds of CPU per process
+    from twinslam.mbrl.trainer import AmmTrainer, TrainConfig
+
     dataset = cached_covisibility(absolute_spec(covis))
     n_states = parse_channel(channel).n_states
     folder = out_dir / "untrained"

@@ -11,15 +11,18 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-from matplotlib.axes import Axes
-from matplotlib.ticker import MaxNLocator
 
 from msg_schemas.headers import time_key
 from twinslam.common.reporting import pyplot
 from twinslam.live.record import RunRecord
 from twinslam.slam.tracking_quality import truth_in_map
+
+# matplotlib loads when a run is drawn, not with every module that imports this one
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
 
 #: at most this many map points drawn (a random subset beyond it: the picture, not the data)
 MAX_POINTS_DRAWN = 20_000
@@ -90,5 +93,7 @@ def _over_slots(axes: list[Axes], record: RunRecord) -> None:
     rate_ax.plot(sent, [record.throughput[s].achieved_mbps for s in sent], c="k", ls="",
                  marker="o", ms=3, label="achieved")
     rate_ax.set(xlabel="slot", ylabel="uplink (Mbit/s)")
+    from matplotlib.ticker import MaxNLocator
+
     rate_ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     rate_ax.legend(loc="best", fontsize=8)

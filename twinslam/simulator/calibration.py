@@ -30,7 +30,6 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import spearmanr
 
 from twinslam.simulator.covisibility import CovisibilityDataset
 from twinslam.uncertainty.map_uncertainty import augmented_uncertainties
@@ -109,6 +108,9 @@ def _spearman(a: Sequence[float], b: Sequence[float]) -> float:
     x, y = x[ok], y[ok]
     if x.size < 3 or np.ptp(x) == 0 or np.ptp(y) == 0:
         return math.nan
+    # scipy.stats takes 0.4 s to import: loaded only where a ρ is measured
+    from scipy.stats import spearmanr
+
     return float(spearmanr(x, y).statistic)
 
 

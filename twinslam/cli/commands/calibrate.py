@@ -8,19 +8,19 @@ from pathlib import Path
 
 from twinslam.cli.console import Subparsers, error
 from twinslam.common.reporting import write_csv
-from twinslam.experiments.calibration_report import (
-    ScenarioAgreement,
-    agreement_by_scenario,
-    agreement_markdown,
-    calibrate_runs,
-    plot_calibration,
-    read_rows,
-    report_lines,
-)
 
 
 def run(args: argparse.Namespace) -> int:
-
+    # scipy and matplotlib load with the command, not with every `twinslam` start
+    from twinslam.experiments.calibration_report import (
+        ScenarioAgreement,
+        agreement_by_scenario,
+        agreement_markdown,
+        calibrate_runs,
+        plot_calibration,
+        read_rows,
+        report_lines,
+    )
 
     try:
         runs = read_rows(args.folders, "calibration.csv")
