@@ -39,9 +39,12 @@ def test_history_windows_pair_each_window_with_its_successor() -> None:
     assert windows[1].argmax(dim=1).tolist() == [1, 1, 0]
 
 
-@pytest.mark.slow(seconds=20)
 def test_elbo_falls_and_the_twin_recovers_a_stationary_two_state_chain() -> None:
-    twin = VariationalTwin(VariationalConfig(n_states=2, buffer_slots=2000, seed=0))
+    """The variational twin learns a chain from its rates alone. Its LSTMs have 100 units
+    here, not the paper's 300 (the checkpoint and node tests run those): the same inference
+    at a sixth of the CPU (measured: 300 steps in 2.7 s instead of 16.6 s on one thread)."""
+    twin = VariationalTwin(VariationalConfig(n_states=2, buffer_slots=2000, seed=0,
+                                             lstm_hidden=100))
     for s in _chain(P2, 2000, seed=1):
         twin.observe(s)
     trace = twin.retrain(steps=300)
