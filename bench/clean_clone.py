@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import os
 import re
 import subprocess
 import sys
@@ -40,6 +41,27 @@ def _summary(log: str) -> dict[str, object]:
             "skipped": counts.get("skipped", 0), "failures": " ".join(failures)}
 
 
+def clone_environment() -> dict[str, str]:
+    """This process's environment without what this checkout's venv put into it. The ROS
+    wheels' bootstrapper re-executes Python with ``LD_LIBRARY_PATH`` listing the venv's
+    libraries and a guard variable set; inherited by a clone's processes, the guard stops
+    their own bootstrap and the loader takes this venv's generated message libraries instead
+    of the clone's — a run of an older commit then fails on a field a newer message has
+    (measured: 14 failures, "'MapStats' object has no attribute 'archived_keyframes'")."""
+    env = dict(os.environ)
+    env.pop("_ROS_WHEELS_BOOTSTRAP_COMPLETE", None)
+    env.pop("VIRTUAL_ENV", None)
+    venv = str(REPO / ".venv")
+    for name in ("LD_LIBRARY_PATH", "PATH"):
+        kept = [part for part in env.get(name, "").split(os.pathsep)
+                if part and not part.startswith(venv)]
+        if kept:
+            env[name] = os.pathsep.join(kept)
+        else:
+            env.pop(name, None)
+    return env
+
+
 def clean_run(load: int) -> dict[str, object]:
     """One ``.ci/run`` on a fresh clone of HEAD, ``load`` busy loops beside it."""
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, text=True,
@@ -52,7 +74,8 @@ def clean_run(load: int) -> dict[str, object]:
             subprocess.run(["git", "clone", "-q", str(REPO), str(root / "main")], check=True)
             started = time.monotonic()
             done = subprocess.run([str(root / "main" / ".ci" / "run")], cwd=root / "main",
-                                  text=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+                                  text=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                  env=clone_environment())
             wall = time.monotonic() - started
             logs = REPO / "build" / "clean-clone"
             logs.mkdir(parents=True, exist_ok=True)
