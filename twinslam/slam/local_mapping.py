@@ -106,7 +106,7 @@ class LocalMapping:
         world = self._back_project(pose, keypoints, depths)
         for i in pending_tracks:
             if not free[i]:                   # matched to an existing point by projection
-                self._remember_track(int(ids[i]), self._feature_point[i])
+                self._remember_track(int(ids[i]), int(self._feature_point[i]))
             elif (position := world[i]) is not None:
                 created = m.add_point(position, descriptors[i])
                 self._remember_track(int(ids[i]), created)
