@@ -17,6 +17,7 @@ the link's :class:`~edge_mapper.edge_core.EdgeMapperCore`'s, the link only moves
 from __future__ import annotations
 
 import math
+import shutil
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -38,7 +39,7 @@ from twinslam_msgs.msg import (
 )
 from visualization_msgs.msg import MarkerArray
 
-from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, SlotOutcome
+from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, SlotOutcome, archive_folder
 from edge_mapper.messages import map_stats_message, map_update_message, upload_request_message
 from edge_mapper.policy_control import POLICY_KEYS, Note, PolicyControl
 from edge_mapper.slot_lifecycle import Closing, SlotLifecycle
@@ -119,6 +120,8 @@ class DeviceLink:
             CheckedSubscription(node, RateLatent, self.topic(topics.RATE_LATENT),
                                 self._on_latent, qos.PROTOCOL),
         ]
+        for problem in self.core.archive_problems:
+            self.warning(f"archived keyframe skipped: {problem}")
         if self.core.restored:
             self.info(self.core.restored_summary())
             # with the whole track table: the device may still hold tracks of before the stop
@@ -260,7 +263,7 @@ class DeviceLink:
         self.pub_stats.publish(map_stats_message(
             slot, entry.decided_by, self.core.map, out.map_uncertainty, entry.uncertainty,
             len(out.integrated), ba_ms, compute_s * 1000, now, entry.vmax,
-            entry.latency_s(self.slots.clock()) * 1000))
+            entry.latency_s(self.slots.clock()) * 1000, len(self.core.archive)))
         if self.spent is not None:
             self.spent(compute_s)
         if self.pub_views is not None:         # after MapStats: not in its compute time
@@ -270,6 +273,8 @@ class DeviceLink:
             marks.publish(decisions_message(m, out.integrated, out.evicted, before, now, frame))
         u = out.map_uncertainty
         kept = f" (kept {len(out.spared)} of C_k: uploads missing)" if out.spared else ""
+        if out.restored:
+            kept += f", {len(out.restored)} restored from the archive {out.restored}"
         self.info(f"slot {slot}: +{len(out.integrated)} keyframes, -{len(out.evicted)}{kept}, map "
                   f"{len(self.core.map.keyframes)} keyframes / {len(self.core.map.points)} "
                   f"points, u(G) {u:.1f}{'' if math.isfinite(u) else ' (disconnected)'}, BA "
@@ -280,8 +285,13 @@ class DeviceLink:
         checkpoint, if any, moved aside to ``FILE.reclaimed`` so that the device, should it
         come back, starts afresh (the file is still there to inspect or restore)."""
         checkpoint = self.core.checkpoint
-        if checkpoint is not None and checkpoint.is_file():
-            checkpoint.replace(checkpoint.with_name(checkpoint.name + ".reclaimed"))
+        if checkpoint is not None:
+            for kept in (checkpoint, archive_folder(checkpoint)):
+                aside = kept.with_name(kept.name + ".reclaimed")
+                if kept.exists():
+                    if aside.is_dir():          # an earlier reclaim's archive
+                        shutil.rmtree(aside)
+                    kept.replace(aside)
         for sub in self.subscriptions:
             self.node.destroy_subscription(sub.subscription)
         for pub in (self.pub_request, self.pub_map, self.pub_stats, *(self.pub_views or ())):

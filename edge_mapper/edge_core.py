@@ -4,7 +4,9 @@
 map, the previous decision's reward); ``add_keyframe`` integrates each uploaded keyframe the
 plan asked for; ``finish_slot`` evicts C_k (less what uploads that never came would have
 needed: the map never shrinks for lack of uploads), runs a local bundle adjustment over the
-newest keyframes, bumps the map version and writes the checkpoint. The node
+newest keyframes, bumps the map version and writes the checkpoint. An evicted keyframe leaves
+the managed map (V_max: what is optimised and sent to the device) for the edge's archive
+(:mod:`twinslam.slam.keyframe_archive`), which keeps it up to ``archive_keyframes``. The node
 (``edge_mapper/node.py``) only moves messages in and out of this class; a restarted node
 resumes from the checkpoint.
 
@@ -29,12 +31,14 @@ from pathlib import Path
 
 import numpy as np
 
-from edge_mapper.planning_world import at_the_edge
+from edge_mapper.planning_world import at_the_edge, extrapolate, has_camera
+from edge_mapper.restores import plan_restores
 from edge_mapper.slot_planner import FrameObservations, SlotConfig, SlotPlan, SlotPlanner
 from twinslam.map_management.actions import MapAction
 from twinslam.map_management.policies import MapPolicy
 from twinslam.slam.bundle_adjustment import BundleAdjustmentResult, Observation, bundle_adjust
 from twinslam.slam.keyframe import KeyFramePayload
+from twinslam.slam.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive, restore_into
 from twinslam.slam.keyframe_map import KeyFrameMap
 from twinslam.slam.local_mapping import IntegrationReport, LocalMapping
 from twinslam.uncertainty.map_uncertainty import map_uncertainty
@@ -50,6 +54,12 @@ class EdgeConfig:
     ba_points: int | None = 120
     baseline_m: float = 0.08         #: RGB-D virtual stereo baseline of the BA
     image_shape: tuple[int, int] = (480, 640)
+    #: evicted keyframes the edge keeps for relocalisation and restores (0: none; ~90 kB a
+    #: keyframe of 1000 points, see ArchivedKeyFrame.nbytes)
+    archive_keyframes: int = 500
+    #: archived keyframes brought back a slot at most, where the camera is heading
+    #: (:mod:`edge_mapper.restores`); 0: none
+    restore_keyframes: int = 0
 
 
 @dataclass
@@ -66,8 +76,12 @@ class SlotOutcome:
     version: int
     #: device tracks resolved to map points in this slot and the previous one
     tracks: dict[int, int] = field(default_factory=dict)
-    #: milliseconds of each step of ``finish_slot``: optimise, checkpoint, uncertainty
+    #: milliseconds of each step of ``finish_slot``: archive, optimise, checkpoint, uncertainty
     timings_ms: dict[str, float] = field(default_factory=dict)
+    #: archived keyframes that left the archive to keep its capacity
+    forgotten: list[int] = field(default_factory=list)
+    #: archived keyframes brought back into the map (each replacing one of ``evicted``)
+    restored: list[int] = field(default_factory=list)
 
 
 class EdgeMapperCore:
@@ -98,6 +112,9 @@ class EdgeMapperCore:
         if self.restored_from_file:      # a restarted edge resolves the device's tracks as before
             self.local_mapping.track_points = _table(extra, "track")
             self._previous_tracks = _table(extra, "previous_track")
+        #: what the archive could not read back after a restart (the node logs it)
+        self.archive_problems: list[str] = []
+        self.archive = self._open_archive()
         self.planner = SlotPlanner(self.map, at_the_edge(policy), self.config.slot, n_states)
         self.pending: dict[int, tuple[MapAction, set[int]]] = {}   #: slot → (action, received)
         self._planned_vmax: dict[int, int] = {}   #: open slot → the V_max it was planned with
@@ -106,6 +123,24 @@ class EdgeMapperCore:
         #: keyframes of a slot that arrived while an earlier slot was open
         self._held: dict[int, list[KeyFramePayload]] = {}
         self.restored = self.last_slot >= 0
+        #: where the camera is predicted to be over the next slot (restores look there)
+        self._heading: list[np.ndarray] = []
+
+    def _open_archive(self) -> KeyFrameArchive:
+        """The archive beside the checkpoint (``edge.npz`` → ``edge.npz.archive/``), restored
+        with the map; a fresh start (no map checkpoint) clears what an earlier run left
+        there, whose keyframe ids a new device run would reuse."""
+        capacity = self.config.archive_keyframes
+        if self.checkpoint is None:
+            return KeyFrameArchive(capacity)
+        folder = archive_folder(self.checkpoint)
+        if self.restored_from_file:
+            archive, self.archive_problems = KeyFrameArchive.restore(
+                capacity, folder, set(self.map.keyframes))
+            return archive
+        for stale in folder.glob("keyframe-*.npz") if folder.is_dir() else ():
+            stale.unlink()
+        return KeyFrameArchive(capacity, folder)
 
     @staticmethod
     def warm_up(policy: MapPolicy) -> None:
@@ -131,8 +166,8 @@ class EdgeMapperCore:
         """What a restart resumed from, in one line."""
         return (f"restored map version {self.version} (slot {self.last_slot}, "
                 f"{len(self.map.keyframes)} keyframes, {len(self.map.points)} points, "
-                f"{len(self.local_mapping.track_points)} device tracks resolved) from "
-                f"{self.checkpoint}")
+                f"{len(self.local_mapping.track_points)} device tracks resolved, "
+                f"{len(self.archive)} archived keyframes) from {self.checkpoint}")
 
     def set_policy(self, policy: MapPolicy) -> None:
         """The policy that decides from the next plan on (``mpc`` planning in a world of this
@@ -170,6 +205,7 @@ class EdgeMapperCore:
                                  self._arriving, leaving, (self.k, self.config.image_shape))
         self.pending[slot] = (plan.action, set())
         self._planned_vmax[slot] = self.planner.config.vmax
+        self._heading = heading(frames) or self._heading
         by_id = {f.frame_id: f for f in frames}
         self._arriving.update({f: by_id[f] for f in plan.action.upload})
         return plan
@@ -240,8 +276,14 @@ class EdgeMapperCore:
             self._integrate(data)
         missing = set(action.upload) - received
         evicted = applied_evictions(action.evict, self.map.keyframe_ids(), missing, vmax)
+        ta = time.perf_counter()
+        forgotten = [dropped for kf in evicted
+                     for dropped in self.archive.add(ArchivedKeyFrame.of(self.map, kf, slot))]
         orphans = sum(len(self.map.evict(kf)) for kf in evicted)
         spared = sorted(set(action.evict) - set(evicted) - missing)
+        restored, replaced, dropped = self._restore(slot, received)
+        evicted += replaced
+        forgotten += dropped
         t0 = time.perf_counter()
         ba = (self.optimise() if len(self.map.keyframes) >= 2 and self.config.ba_window > 0
               else None)
@@ -264,10 +306,30 @@ class EdgeMapperCore:
         w = self.map.covisibility()
         u = map_uncertainty(w, self.planner.config.log_det_pi) if len(w) else math.inf
         t3 = time.perf_counter()
-        timings = {"optimise": (t1 - t0) * 1e3, "checkpoint": (t2 - t1) * 1e3,
-                   "uncertainty": (t3 - t2) * 1e3}
+        timings = {"archive": (t0 - ta) * 1e3, "optimise": (t1 - t0) * 1e3,
+                   "checkpoint": (t2 - t1) * 1e3, "uncertainty": (t3 - t2) * 1e3}
         return SlotOutcome(slot, sorted(received), sorted(missing), evicted, spared, orphans, ba,
-                           u, self.version, tracks, timings)
+                           u, self.version, tracks, timings, forgotten, restored)
+
+    def _restore(self, slot: int, received: set[int]
+                 ) -> tuple[list[int], list[int], list[int]]:
+        """Bring archived keyframes the camera is heading for back into the map, each in
+        place of the keyframe that sees least of that view (into the archive in its turn);
+        (restored, evicted for them, forgotten by the archive to make room for those)."""
+        limit = self.config.restore_keyframes
+        if limit <= 0 or not self._heading or not has_camera(self.k):
+            return [], [], []
+        chosen = plan_restores(self.map, self.archive, self._heading, self.k,
+                               self.config.image_shape, self.planner.config.vmax, limit, slot,
+                               received)
+        back = [self.archive.take(kf) for kf in chosen.restore]
+        dropped = []
+        for victim in chosen.evict:
+            dropped += self.archive.add(ArchivedKeyFrame.of(self.map, victim, slot))
+            self.map.evict(victim)
+        for archived in back:
+            restore_into(self.map, archived)
+        return chosen.restore, chosen.evict, dropped
 
     # -- optimisation ------------------------------------------------------------------------
 
@@ -342,6 +404,25 @@ def applied_evictions(evict: Sequence[int], map_ids: Sequence[int], missing: Col
         taken = set(chosen)
         chosen += [kf for kf in map_ids if kf not in taken][:n - len(chosen)]
     return chosen
+
+
+def heading(frames: Sequence[FrameObservations]) -> list[np.ndarray]:
+    """Where the camera will be over the next slot, from the slot's tracked frames with a
+    pose: half a slot and a whole slot past its last frame, at constant velocity (empty when
+    no frame of the slot was tracked: the device is lost, its poses are guesses)."""
+    posed = [(i, f.pose) for i, f in enumerate(frames) if f.tracked and f.pose is not None]
+    if not posed:
+        return []
+    positions = [i for i, _ in posed]
+    n = len(frames)
+    after_last = n - 1 - positions[-1]
+    return extrapolate([p for _, p in posed], positions,
+                       [after_last + max(n // 2, 1), after_last + n])
+
+
+def archive_folder(checkpoint: Path) -> Path:
+    """Where the archive of the map checkpointed at ``checkpoint`` lives."""
+    return checkpoint.with_name(checkpoint.name + ".archive")
 
 
 def _table_arrays(table: dict[int, int], name: str) -> dict[str, np.ndarray]:

@@ -57,6 +57,14 @@ PARAMETERS = (
               "restart; empty: none"),
     ParamSpec("states", 2, "N uplink channel states (the rate history's alphabet)", low=1,
               high=64),
+    ParamSpec("archive_keyframes", 500, "evicted keyframes the edge keeps (pose, map points, "
+              "descriptors; ~90 kB a keyframe of 1000 points) for relocalisation and restores, "
+              "the least recently useful leaving first; 0: an evicted keyframe is forgotten",
+              low=0, high=1_000_000),
+    ParamSpec("restore_keyframes", 0, "archived keyframes brought back into the map a slot "
+              "at most: those the camera is heading for (the device's poses continued at "
+              "constant velocity), each in place of the keyframe that sees least of that view; "
+              "0: none (the paper's edge)", low=0, high=1000),
     ParamSpec("ba_window", 5, "newest keyframes bundle-adjusted each slot", low=1, high=1000),
     ParamSpec("slot_timeout_s", 10.0, "finish a slot without keyframes that never came after "
               "this many seconds", low=0.1, high=3600.0),
@@ -105,6 +113,8 @@ def edge_config(p: Mapping[str, Any]) -> EdgeConfig:
     return EdgeConfig(slot=SlotConfig(vmax=int(p["vmax"]), alpha_mbit=float(p["alpha_mbit"]),
                                       d_req_s=float(p["d_req_s"])),
                       ba_window=int(p["ba_window"]),
+                      archive_keyframes=int(p["archive_keyframes"]),
+                      restore_keyframes=int(p["restore_keyframes"]),
                       image_shape=(int(p["image_height"]), int(p["image_width"])))
 
 

@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, applied_evictions
+from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, applied_evictions, archive_folder
+from edge_mapper.planning_world import visible_points
 from edge_mapper.slot_planner import FrameObservations, SlotConfig
 from twinslam.policy_registry import make_policy
 from twinslam.slam.keyframe import TRACK_ID_BIT, KeyFramePayload
@@ -111,6 +112,114 @@ def test_edge_slot_loop_keeps_vmax_optimises_and_resumes(tmp_path: Path) -> None
     before = core._previous_tracks                  # resolved in slot 5, the last before
     assert before and before.items() <= after[0].tracks.items()
     assert resumed.version == 8
+
+
+def test_evicted_keyframes_are_archived_with_their_points_and_survive_a_restart(
+        tmp_path: Path) -> None:
+    """What a slot evicts leaves the managed map for the archive — its pose and, for every
+    point it observed, position, descriptor and where it saw it, as they were when it left —
+    the least recently useful leaving past ``archive_keyframes``; a restarted edge has the
+    same archive; with ``archive_keyframes`` 0 an evicted keyframe is forgotten."""
+    device = Device(np.random.default_rng(1))
+    config = EdgeConfig(slot=SlotConfig(vmax=8), archive_keyframes=6)
+    ckpt = tmp_path / "edge.npz"
+    core = EdgeMapperCore(make_policy("lff"), K, config, ckpt)
+    seen: dict[int, tuple[np.ndarray, dict[int, np.ndarray], dict[int, tuple]]] = {}
+    evicted: list[int] = []
+    for slot in range(8):
+        # each keyframe as the map held it at the end of the slot before its eviction
+        seen.update({k: (kf.pose.copy(),
+                         {p: core.map.points[p].descriptor.copy() for p in kf.points},
+                         dict(kf.measurements)) for k, kf in core.map.keyframes.items()})
+        out = _run(core, device, range(slot, slot + 1), rates=[80.0])[0]
+        evicted += out.evicted
+        assert not set(out.evicted) & set(core.map.keyframes)
+    assert len(evicted) > 6, "too few evictions to test the capacity"
+    archived = sorted(kf.id for kf in core.archive)
+    assert archived == sorted(evicted)[-6:], "the least recently useful did not leave first"
+    for kf in core.archive:
+        pose, descriptors, measurements = seen[kf.id]
+        # poses and points move in later bundle adjustments; not after the eviction
+        assert kf.pose.shape == (4, 4) and np.allclose(kf.pose, pose, atol=0.05)
+        assert set(kf.point_ids.tolist()) == set(descriptors)
+        for pid, desc, meas in zip(kf.point_ids, kf.descriptors, kf.measurements, strict=True):
+            np.testing.assert_array_equal(desc, descriptors[int(pid)])
+            np.testing.assert_allclose(meas, measurements[int(pid)])
+    assert len(list(archive_folder(ckpt).glob("keyframe-*.npz"))) == 6
+    resumed = EdgeMapperCore(make_policy("lff"), K, config, ckpt)
+    assert sorted(kf.id for kf in resumed.archive) == archived
+    assert "6 archived keyframes" in resumed.restored_summary()
+    for kf in resumed.archive:
+        np.testing.assert_array_equal(kf.descriptors, core.archive.get(kf.id).descriptors)
+    # a fresh start (no map checkpoint) clears what an earlier run archived
+    ckpt.unlink()
+    assert len(EdgeMapperCore(make_policy("lff"), K, config, ckpt).archive) == 0
+    assert not list(archive_folder(ckpt).glob("keyframe-*.npz"))
+    forgetful = EdgeMapperCore(make_policy("lff"), K, EdgeConfig(slot=SlotConfig(vmax=8),
+                                                                 archive_keyframes=0))
+    outs = _run(forgetful, Device(np.random.default_rng(1)), range(8), rates=[80.0])
+    assert len(forgetful.archive) == 0
+    assert [k for o in outs for k in o.forgotten] == [k for o in outs for k in o.evicted]
+
+
+class ReturningDevice(Device):
+    """Walks 10 cm a frame along a near wall (1.2-2 m: a frame sees about 1.5 m of it) for
+    ``turn`` frames, then back the way it came; its summaries carry its poses (where the edge
+    sees it heading)."""
+
+    def __init__(self, rng: np.random.Generator, turn: int) -> None:
+        super().__init__(rng)
+        self.world = rng.uniform([-2, -1, 1.2], [8, 1, 2], (3000, 3))
+        self.descs = rng.integers(0, 256, (3000, 32), dtype=np.uint8)
+        self.turn = turn
+
+    def pose(self, frame: int) -> np.ndarray:
+        p = np.eye(4)
+        p[0, 3] = 0.1 * (frame if frame < self.turn else 2 * self.turn - frame)
+        return p
+
+    def summary(self, frame: int, core: EdgeMapperCore) -> FrameObservations:
+        seen = super().summary(frame, core)
+        return FrameObservations(seen.frame_id, seen.map_points, seen.tracks, True,
+                                 self.pose(frame))
+
+
+def test_walking_back_brings_evicted_keyframes_back_before_the_camera_gets_there() -> None:
+    """A small map (V_max 4, two uploads a slot) on a walk out and back: on the way out the
+    policy evicts the keyframes behind; on the way back the edge restores archived keyframes
+    of the places the camera is heading for, each in place of one it has left behind, never
+    above V_max, never in place of the slot's uploads, with the map connected. Frames of the
+    way back find half as many map points again in their view (the points a device can
+    match); with four uploads a slot (all of V_max) nothing can be replaced."""
+    slots, turn = 16, 8 * F
+    in_view = {}
+    for limit, rate in ((0, 20.0), (2, 20.0), (2, 40.0)):
+        device = ReturningDevice(np.random.default_rng(3), turn)
+        core = EdgeMapperCore(make_policy("lff"), K, EdgeConfig(slot=SlotConfig(vmax=4),
+                                                                restore_keyframes=limit))
+        outs, seen = [], []
+        for slot in range(slots):
+            if slot > turn // F:         # the way back: map points in each frame's view
+                points = np.array([p.position for p in core.map.points.values()])
+                seen += [int(visible_points(points, device.pose(f), K, (480, 640)).sum())
+                         for f in range(slot * F, (slot + 1) * F)]
+            outs += _run(core, device, range(slot, slot + 1), rates=[rate])
+        in_view[limit, rate] = float(np.mean(seen))
+        restored = [k for o in outs for k in o.restored]
+        if (limit, rate) != (2, 20.0):
+            assert not restored, (limit, rate)
+            continue
+        assert restored, "nothing was brought back on the way back"
+        assert set(restored) <= {k for o in outs for k in o.evicted}
+        for o in outs:
+            assert len(o.restored) <= limit and np.isfinite(o.map_uncertainty), o.slot
+            assert not set(o.restored) & set(o.integrated)
+            assert len(o.evicted) >= len(o.restored)
+        # restores happen on the way back only, where the camera heads for archived places
+        assert min(o.slot for o in outs if o.restored) >= turn // F
+        assert len(core.map.keyframes) <= 4
+    print(f"\nmap points in a frame's view on the way back: {in_view}")
+    assert in_view[2, 20.0] > 1.3 * in_view[0, 20.0]
 
 
 def test_overlapping_slots_never_leave_more_than_vmax_keyframes() -> None:

@@ -100,6 +100,8 @@ def test_edge_node_protocol_corrupt_keyframe_and_restart(
         return {bytes(i.endpoint_gid) for i in
                 node.get_subscriptions_info_by_topic(f"/{topics.FRAME_SUMMARIES}")}
 
+    archived = got["stats"][-1].archived_keyframes     # evicted, kept in the edge's archive
+    assert archived > 0
     killed_readers = summary_readers()
     edge.send_signal(signal.SIGKILL)                                    # the edge host dies
     edge.wait(timeout=10)
@@ -118,3 +120,6 @@ def test_edge_node_protocol_corrupt_keyframe_and_restart(
     code, _, err = domain.stop(edge)
     assert code == 0, err
     assert "restored map version 3" in err
+    # the archive came back with the map, and MapStats counts it on
+    assert f"{archived} archived keyframes" in err
+    assert got["stats"][-1].archived_keyframes >= archived

@@ -289,6 +289,13 @@ def test_the_edge_plans_with_mpc_in_a_world_of_its_live_map() -> None:
         assert set(request.upload_frame_ids) <= {f.frame_id for f in summary.frames if f.tracked}
     assert any(len(r.evict_frame_ids) for r in record.requests.values()), "the map never filled"
     assert all(s.map_size <= vmax for s in record.stats.values())
+    # every keyframe the edge integrated is in its map or its archive (500 by default: none
+    # forgotten), and MapStats counts the archive
+    integrated = np.cumsum([record.stats[k].uploads for k in sorted(record.stats)])
+    assert [s.archived_keyframes for _, s in sorted(record.stats.items())] == [
+        int(n) - record.stats[k].map_size for n, k in zip(integrated, sorted(record.stats),
+                                                          strict=True)]
+    assert max(s.archived_keyframes for s in record.stats.values()) > 0
 
 
 def test_a_device_that_lost_tracking_relocalises_against_the_edges_map() -> None:
@@ -317,6 +324,29 @@ def test_a_device_that_lost_tracking_relocalises_against_the_edges_map() -> None
     print(f"\nrelocalised frame {first.frame_id}: {len(first.map_point_ids)} map points, "
           f"position error {error * 100:.1f} cm; {report.row()}")
     assert error < 0.05
+
+
+def test_an_evicted_keyframe_comes_back_from_the_archive_on_the_way_back() -> None:
+    """The synthetic room forward then back with the paper's device (it tracks against the
+    edge's map only) and a map of 8 keyframes: the keyframes evicted on the way out stay in
+    the edge's archive (MapStats counts them), and on the way back the edge restores some of
+    them where the camera is heading — a keyframe the device's map lost comes back into it —
+    and the device tracks the way back."""
+    # 91 frames: 181 played in 6 slots of 30 frames at half speed
+    report, record, launcher = _run(
+        "lff", frames=91, scenario=SCENARIOS["revisit"], sequence="synthetic:91", rate=RATE,
+        extra={"edge_mapper": ["vmax:=8", "restore_keyframes:=3"],
+               "device_tracker": [f"slot_frames:={SLOT_FRAMES}", "map_source:=edge"]})
+    maps = [set(record.maps[k].keyframe_ids.tolist()) for k in sorted(record.maps)]
+    back = [kf for i, now in enumerate(maps) for kf in now
+            if any(kf in m for m in maps[:i]) and any(kf not in m for m in maps[:i])]
+    log = launcher.logs["edge_mapper"]
+    assert back, f"no keyframe came back into the device's map: {maps}"
+    assert "restored from the archive" in log, log[-3000:]
+    assert max(s.archived_keyframes for s in record.stats.values()) > 0
+    assert all(s.map_size <= 8 for s in record.stats.values())
+    print(f"\ncame back: {sorted(set(back))}; {report.row()}")
+    assert report.untracked_frames < 0.1 * 181, report.row()
 
 
 @reads_the_policy_runs

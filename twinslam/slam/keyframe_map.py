@@ -86,6 +86,16 @@ class KeyFrameMap:
                                     np.asarray(descriptor, dtype=np.uint8).copy())
         return pid
 
+    def readd_point(self, point_id: int, position: np.ndarray, descriptor: np.ndarray) -> None:
+        """Put back a point the map had (``point_id`` below ``next_point_id``: ids are never
+        reused, so it cannot clash with a newer point) and has no more — a keyframe restored
+        from the edge's archive brings its points back under their own ids."""
+        if point_id in self.points or not 0 < point_id < self.next_point_id:
+            raise MapError(f"point {point_id} cannot come back: it is in the map or was never "
+                           "one of it")
+        self.points[point_id] = MapPoint(point_id, np.asarray(position, dtype=np.float64).copy(),
+                                         np.asarray(descriptor, dtype=np.uint8).copy())
+
     def observe(self, kf_id: int, point_id: int,
                 uv: tuple[float, float] = (math.nan, math.nan), depth: float = math.nan
                 ) -> None:

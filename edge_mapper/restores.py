@@ -1,0 +1,112 @@
+"""Which archived keyframes to bring back into the managed map before the device needs them.
+
+A keyframe the policy evicted is gone from the map the device tracks against, so the device
+walking back into an evicted place fails there even though the edge still remembers the place
+(:mod:`twinslam.slam.keyframe_archive`). Each slot the edge knows where the camera is heading:
+the device's poses of the slot's tracked frames, continued at constant velocity
+(:func:`edge_mapper.planning_world.extrapolate`). An archived keyframe is worth bringing back
+when many of its map points fall in the camera's view from those predicted poses; the map
+keeps V_max by evicting, in exchange, the keyframe that sees the least of that view (never
+one integrated this slot). A swap is made only when the archived keyframe sees clearly more
+of the coming view than the one it replaces, and only while the map's covisibility graph stays
+connected (a disconnected map has no finite uncertainty, and its parts no common frame).
+
+This is a step after the policy's decision (the policy chose U_k and C_k as the paper's rules
+do); the restores and the evictions they cost are reported beside them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from edge_mapper.planning_world import MAX_DEPTH_M, visible_points
+from twinslam.slam.keyframe_archive import KeyFrameArchive
+from twinslam.slam.keyframe_map import KeyFrameMap
+
+#: an archived keyframe is brought back only if this many of its points are in the coming
+#: view (the device's tracking rule asks for 30 map points a frame: fewer would not keep a
+#: frame tracked on their own)
+MIN_VISIBLE = 30
+#: and only if it sees more than this many times what the keyframe it replaces sees
+REPLACE_RATIO = 2.0
+
+
+@dataclass(frozen=True)
+class RestorePlan:
+    restore: list[int]          #: archived keyframes back into the map, most useful first
+    evict: list[int]            #: map keyframes evicted to make room for them
+
+
+def view_score(positions: np.ndarray, poses: Sequence[np.ndarray], intrinsics: np.ndarray,
+               image_shape: tuple[int, int], max_depth_m: float = MAX_DEPTH_M) -> int:
+    """How many of a keyframe's points (``positions``, N×3) the camera sees from the best of
+    ``poses``."""
+    if not len(positions):
+        return 0
+    return max(int(visible_points(positions, pose, intrinsics, image_shape, max_depth_m).sum())
+               for pose in poses)
+
+
+def plan_restores(m: KeyFrameMap, archive: KeyFrameArchive, poses: Sequence[np.ndarray],
+                  intrinsics: np.ndarray, image_shape: tuple[int, int], vmax: int, limit: int,
+                  slot: int, protected: Iterable[int] = ()) -> RestorePlan:
+    """At most ``limit`` archived keyframes to restore, each with the map keyframe it
+    replaces (none while the map has room below ``vmax``); ``protected`` keyframes (this
+    slot's uploads) are never replaced. Archived keyframes in the coming view count as useful
+    in ``slot`` (the archive forgets them last)."""
+    if limit <= 0 or not len(archive) or not poses:
+        return RestorePlan([], [])
+    candidates = sorted(((view_score(kf.positions, poses, intrinsics, image_shape), kf.id)
+                         for kf in archive), key=lambda sk: (-sk[0], sk[1]))
+    candidates = [(s, k) for s, k in candidates if s >= MIN_VISIBLE]
+    if not candidates:
+        return RestorePlan([], [])
+    archive.touch([k for _, k in candidates], slot)
+    keep = set(protected)
+    sets = {k: m.point_array(k) for k in m.keyframes}
+    scores = {k: view_score(np.array([m.points[int(p)].position for p in sets[k]]).reshape(-1, 3),
+                            poses, intrinsics, image_shape) for k in m.keyframes}
+    restore: list[int] = []
+    evict: list[int] = []
+    for score, kf_id in candidates:
+        if len(restore) >= limit:
+            break
+        victim = None
+        if len(sets) >= vmax:
+            replaceable = [k for k in sets if k not in keep]
+            if not replaceable:
+                break
+            victim = min(replaceable, key=lambda k: (scores[k], k))
+            if score <= REPLACE_RATIO * scores[victim]:
+                break                    # the others are better still: nothing more to gain
+        trial = {k: v for k, v in sets.items() if k != victim}
+        trial[kf_id] = archive.get(kf_id).point_ids
+        if not connected(list(trial.values())):
+            continue
+        sets = trial
+        restore.append(kf_id)
+        if victim is not None:
+            evict.append(victim)
+            del scores[victim]
+        scores[kf_id] = score
+        keep.add(kf_id)
+    return RestorePlan(restore, evict)
+
+
+def connected(point_sets: list[np.ndarray]) -> bool:
+    """Whether keyframes observing these point-id sets form one covisibility component."""
+    n = len(point_sets)
+    if n <= 1:
+        return True
+    reached, frontier = {0}, [0]
+    lookup = [set(s.tolist()) for s in point_sets]
+    while frontier:
+        i = frontier.pop()
+        for j in range(n):
+            if j not in reached and not lookup[i].isdisjoint(lookup[j]):
+                reached.add(j)
+                frontier.append(j)
+    return len(reached) == n

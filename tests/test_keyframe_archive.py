@@ -1,0 +1,95 @@
+"""The edge's archive of evicted keyframes: place recognition over it on real ORB features of
+the synthetic room, the capacity (least recently useful first), and its files on disk."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from twinslam.sequences.opening import open_sequence
+from twinslam.slam.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive
+from twinslam.slam.orb_extractor import OrbExtractor
+
+
+def _keyframe(kf_id: int, descriptors: np.ndarray, first_point: int, slot: int = 0
+              ) -> ArchivedKeyFrame:
+    n = len(descriptors)
+    pose = np.eye(4)
+    pose[0, 3] = 0.01 * kf_id
+    return ArchivedKeyFrame(kf_id, pose, np.arange(first_point, first_point + n),
+                            np.full((n, 3), float(kf_id)), descriptors,
+                            np.full((n, 3), 1.5), slot)
+
+
+def _random_keyframe(kf_id: int, slot: int, n: int = 50) -> ArchivedKeyFrame:
+    rng = np.random.default_rng(kf_id)
+    return _keyframe(kf_id, rng.integers(0, 256, (n, 32), dtype=np.uint8), 1000 * kf_id + 1,
+                     slot)
+
+
+def test_a_revisited_place_is_recognised_among_the_archived_keyframes() -> None:
+    """Keyframes every 30 frames of the room's walk: a frame a few frames past one of them
+    votes for it first; descriptors of no place vote for nothing."""
+    seq = open_sequence("synthetic:300", 0, 300)
+    orb = OrbExtractor()
+    archive = KeyFrameArchive(100)
+    first = 1
+    for slot, frame in enumerate(range(0, 300, 30)):
+        desc = orb.extract(seq.read(frame).color).descriptors
+        archive.add(_keyframe(frame, desc, first, slot))
+        first += len(desc)
+    for query, place in ((3, 0), (123, 120), (243, 240)):
+        found = archive.recognise(orb.extract(seq.read(query).color).descriptors)
+        assert found and found[0][0] == place, (query, found)
+        assert len(found) <= 3 and all(votes > 0 for _, votes in found)
+        assert found[0][1] > 2 * found[1][1] if len(found) > 1 else True, found
+    noise = np.random.default_rng(0).integers(0, 256, (1000, 32), dtype=np.uint8)
+    assert archive.recognise(noise) == []
+    assert archive.recognise(np.zeros((0, 32), np.uint8)) == []
+    with pytest.raises(ValueError, match=r"\(n, 32\) uint8"):
+        archive.recognise(np.zeros((10, 16), np.uint8))
+
+
+def test_past_its_capacity_the_least_recently_useful_keyframe_leaves() -> None:
+    archive = KeyFrameArchive(3)
+    assert [archive.add(_random_keyframe(k, slot=k)) for k in (1, 2, 3)] == [[], [], []]
+    archive.touch([1], slot=10)                   # recognised lately: it stays
+    assert archive.add(_random_keyframe(4, slot=4)) == [2]
+    assert sorted(kf.id for kf in archive) == [1, 3, 4] and len(archive) == 3
+    assert archive.nbytes == sum(kf.nbytes for kf in archive) == 3 * (50 * 88 + 128)
+    taken = archive.take(3)                       # restored into the managed map
+    assert taken.id == 3 and 3 not in archive and len(archive) == 2
+    with pytest.raises(ValueError, match="archived already"):
+        archive.add(_random_keyframe(1, slot=11))
+    forgetful = KeyFrameArchive(0)
+    assert forgetful.add(_random_keyframe(5, slot=5)) == [5] and len(forgetful) == 0
+    with pytest.raises(ValueError, match="0 or more"):
+        KeyFrameArchive(-1)
+
+
+def test_the_archive_on_disk_comes_back_and_an_unreadable_file_is_named(
+        tmp_path: Path) -> None:
+    """One file an archived keyframe, removed when it leaves; read back in archival order, a
+    keyframe the managed map holds again dropped, an unreadable file skipped and named."""
+    folder = tmp_path / "edge.npz.archive"
+    archive = KeyFrameArchive(3, folder)
+    for k in (1, 2, 3, 4):
+        archive.add(_random_keyframe(k, slot=k))
+    assert sorted(p.name for p in folder.iterdir()) == [
+        f"keyframe-{k:09d}.npz" for k in (2, 3, 4)]
+    (folder / "keyframe-000000009.npz").write_bytes(b"not an archived keyframe")
+    again, problems = KeyFrameArchive.restore(3, folder, in_map={3})
+    assert sorted(kf.id for kf in again) == [2, 4]
+    assert not (folder / "keyframe-000000003.npz").exists()
+    assert len(problems) == 1 and "keyframe-000000009.npz" in problems[0]
+    kept = again.get(4)
+    original = _random_keyframe(4, slot=4)
+    for name in ("pose", "point_ids", "positions", "descriptors", "measurements"):
+        np.testing.assert_array_equal(getattr(kept, name), getattr(original, name))
+    assert kept.archived_slot == 4
+    smaller, _ = KeyFrameArchive.restore(1, folder)
+    assert [kf.id for kf in smaller] == [4]       # the capacity holds after a restart too
+    empty, problems = KeyFrameArchive.restore(3, tmp_path / "none")
+    assert len(empty) == 0 and problems == []

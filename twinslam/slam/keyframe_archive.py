@@ -1,0 +1,285 @@
+"""The edge's archive: every keyframe the managed map evicted, kept with what relocalisation
+and a restore need — its pose, the map points it observed (position and descriptor) and where
+it saw them — up to a capacity, the least recently useful leaving first.
+
+V_max bounds the managed map: what the edge optimises and synchronises with the device every
+slot (the paper's lever). It does not bound what the edge may remember. Evicting a keyframe
+from the managed map moves it here instead of deleting it, as ORB-SLAM3's Atlas keeps every
+map it built; a revisit of an evicted place can then be recognised and its keyframes brought
+back, where before every revisit of an evicted place was a failure no policy could avoid.
+
+Place recognition over the archive votes with binary descriptors in faiss' exact Hamming
+index (``IndexBinaryFlat``): each ORB descriptor of the query frame votes for the archived
+keyframe holding its nearest neighbour, when that neighbour is near (``max_distance`` bits) and
+clearly nearer than the runner-up (``ratio``, Lowe's test). Exact search over the few hundred
+thousand descriptors of a few hundred keyframes takes a fraction of a second; the index is
+rebuilt only after the archive changed.
+
+With a folder, each archived keyframe is also one ``.npz`` file there, written when it is
+archived (to a temporary name, then renamed) and deleted when it leaves: the archive survives
+an edge restart without rewriting all of it every slot. What a restart forgets is how recently
+each keyframe was useful after it was archived (it restarts from the archival slots).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from twinslam.slam.keyframe_map import KeyFrameMap
+
+ARCHIVE_FORMAT = "twinslam-archived-keyframe-1"
+#: an ORB descriptor: 256 bits
+DESCRIPTOR_BITS = 256
+
+
+class ArchiveError(ValueError):
+    """An archived keyframe that cannot be read back, or one archived twice."""
+
+
+@dataclass(frozen=True)
+class ArchivedKeyFrame:
+    """One evicted keyframe as it was when it left the managed map."""
+
+    id: int
+    pose: np.ndarray            #: 4×4 camera-to-map
+    point_ids: np.ndarray       #: (n,) int64: the map points it observed
+    positions: np.ndarray       #: (n, 3) their positions in the map frame
+    descriptors: np.ndarray     #: (n, 32) uint8: their ORB descriptors
+    measurements: np.ndarray    #: (n, 3): where it saw them, u, v and depth (NaN: none)
+    archived_slot: int          #: the slot that evicted it
+
+    @classmethod
+    def of(cls, m: KeyFrameMap, kf_id: int, slot: int) -> ArchivedKeyFrame:
+        """Keyframe ``kf_id`` of ``m`` with its points, before it is evicted."""
+        kf = m.keyframes[kf_id]
+        ids = np.array(sorted(kf.points), dtype=np.int64)
+        points = [m.points[int(p)] for p in ids]
+        nan3 = (np.nan, np.nan, np.nan)
+        return cls(kf_id, kf.pose.copy(), ids,
+                   np.array([p.position for p in points], dtype=np.float64).reshape(-1, 3),
+                   np.array([p.descriptor for p in points], dtype=np.uint8).reshape(-1, 32),
+                   np.array([kf.measurements.get(int(p), nan3) for p in ids],
+                            dtype=np.float64).reshape(-1, 3), slot)
+
+    @property
+    def nbytes(self) -> int:
+        """Memory its arrays take: 88 bytes a point (id, position, descriptor, measurement)
+        and 128 for the pose."""
+        return sum(a.nbytes for a in (self.pose, self.point_ids, self.positions,
+                                      self.descriptors, self.measurements))
+
+    def save(self, path: Path) -> None:
+        """Write it to ``path`` atomically (temporary file, fsync, rename)."""
+        tmp = path.with_name(path.name + ".tmp")
+        with tmp.open("wb") as fh:
+            np.savez(fh, format=np.array(ARCHIVE_FORMAT), id=np.array(self.id),
+                     pose=self.pose, point_ids=self.point_ids, positions=self.positions,
+                     descriptors=self.descriptors, measurements=self.measurements,
+                     archived_slot=np.array(self.archived_slot))
+            fh.flush()
+            os.fsync(fh.fileno())
+        tmp.replace(path)
+
+    @classmethod
+    def load(cls, path: Path) -> ArchivedKeyFrame:
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                if str(z["format"]) != ARCHIVE_FORMAT:
+                    raise ArchiveError(f"{path}: not a {ARCHIVE_FORMAT} file")
+                kf = cls(int(z["id"]), z["pose"].reshape(4, 4), z["point_ids"].astype(np.int64),
+                         z["positions"].reshape(-1, 3), z["descriptors"].astype(np.uint8),
+                         z["measurements"].reshape(-1, 3), int(z["archived_slot"]))
+        except (OSError, ValueError, EOFError, KeyError) as exc:
+            raise ArchiveError(f"{path}: not a readable archived keyframe ({exc})") from None
+        n = len(kf.point_ids)
+        if kf.descriptors.shape != (n, 32) or len(kf.positions) != n or \
+                len(kf.measurements) != n:
+            raise ArchiveError(f"{path}: its point arrays disagree in length")
+        return kf
+
+
+def restore_into(m: KeyFrameMap, kf: ArchivedKeyFrame) -> int:
+    """Put an archived keyframe back into the managed map ``m``: its pose, and its view of
+    every point it observed — a point the map still holds keeps its current (optimised)
+    position, one that left with the last of its observers comes back as archived. Returns
+    how many points came back."""
+    m.add_keyframe(kf.id, kf.pose)
+    back = 0
+    for pid, xyz, desc in zip(kf.point_ids.tolist(), kf.positions, kf.descriptors,
+                              strict=True):
+        if pid not in m.points:
+            m.readd_point(pid, xyz, desc)
+            back += 1
+    m.observe_many(kf.id, kf.point_ids.tolist(), kf.measurements[:, :2].tolist(),
+                   kf.measurements[:, 2].tolist())
+    return back
+
+
+class KeyFrameArchive:
+    """Archived keyframes by id, at most ``capacity`` (0: none kept), with place recognition.
+
+    "Useful" is the slot a keyframe was last archived, recognised or otherwise used
+    (:meth:`touch`); past the capacity the least recently useful one leaves (the oldest id
+    among equals)."""
+
+    def __init__(self, capacity: int, folder: Path | None = None) -> None:
+        if capacity < 0:
+            raise ValueError(f"an archive holds 0 or more keyframes, not {capacity}")
+        self.capacity = int(capacity)
+        self.folder = Path(folder) if folder is not None else None
+        self._entries: dict[int, ArchivedKeyFrame] = {}
+        self._useful: dict[int, int] = {}
+        self._index: object | None = None
+        self._row_keyframe = np.zeros(0, dtype=np.int64)   #: index row -> keyframe id
+        self._row_point = np.zeros(0, dtype=np.int64)      #: index row -> map point id
+
+    # -- contents ---------------------------------------------------------------------------
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    def __contains__(self, kf_id: object) -> bool:
+        return kf_id in self._entries
+
+    def __iter__(self) -> Iterator[ArchivedKeyFrame]:
+        return iter(self._entries.values())
+
+    def get(self, kf_id: int) -> ArchivedKeyFrame:
+        return self._entries[kf_id]
+
+    @property
+    def nbytes(self) -> int:
+        """Memory the archived keyframes' arrays take."""
+        return sum(kf.nbytes for kf in self._entries.values())
+
+    # -- edits ------------------------------------------------------------------------------
+
+    def add(self, kf: ArchivedKeyFrame) -> list[int]:
+        """Archive ``kf`` (useful as of its archival slot); returns the ids that left to keep
+        the capacity — ``kf`` itself when the capacity is 0."""
+        if kf.id in self._entries:
+            raise ArchiveError(f"keyframe {kf.id} is archived already")
+        if self.capacity == 0:
+            return [kf.id]
+        self._entries[kf.id] = kf
+        self._useful[kf.id] = kf.archived_slot
+        if self.folder is not None:
+            self.folder.mkdir(parents=True, exist_ok=True)
+            kf.save(self._path(kf.id))
+        self._index = None
+        dropped = []
+        while len(self._entries) > self.capacity:
+            stale = min(self._entries, key=lambda k: (self._useful[k], k))
+            self._remove(stale)
+            dropped.append(stale)
+        return dropped
+
+    def touch(self, kf_ids: list[int], slot: int) -> None:
+        """Mark archived keyframes useful as of ``slot`` (recognised, planned for a restore)."""
+        for k in kf_ids:
+            if k in self._useful:
+                self._useful[k] = max(self._useful[k], slot)
+
+    def take(self, kf_id: int) -> ArchivedKeyFrame:
+        """Remove and return an archived keyframe (it goes back into the managed map)."""
+        kf = self._entries[kf_id]
+        self._remove(kf_id)
+        return kf
+
+    def _remove(self, kf_id: int) -> None:
+        del self._entries[kf_id]
+        del self._useful[kf_id]
+        self._index = None
+        if self.folder is not None:
+            self._path(kf_id).unlink(missing_ok=True)
+
+    def _path(self, kf_id: int) -> Path:
+        assert self.folder is not None
+        return self.folder / f"keyframe-{kf_id:09d}.npz"
+
+    # -- persistence ------------------------------------------------------------------------
+
+    @classmethod
+    def restore(cls, capacity: int, folder: Path, in_map: set[int] | frozenset[int] = frozenset()
+                ) -> tuple[KeyFrameArchive, list[str]]:
+        """The archive saved in ``folder`` (empty when there is none) and a note per file that
+        could not be read (skipped, left in place). A keyframe that is also in the managed
+        map (``in_map``: the edge stopped after archiving it, before its map checkpoint) is
+        the map's: its file is removed."""
+        archive = cls(capacity, folder)
+        problems: list[str] = []
+        if not folder.is_dir():
+            return archive, problems
+        kfs = []
+        for path in sorted(folder.glob("keyframe-*.npz")):
+            try:
+                kfs.append(ArchivedKeyFrame.load(path))
+            except ArchiveError as exc:
+                problems.append(str(exc))
+        for kf in sorted(kfs, key=lambda k: (k.archived_slot, k.id)):
+            if kf.id in in_map:
+                archive._path(kf.id).unlink(missing_ok=True)
+                continue
+            archive._entries[kf.id] = kf
+            archive._useful[kf.id] = kf.archived_slot
+        while len(archive._entries) > archive.capacity:
+            stale = min(archive._entries, key=lambda k: (archive._useful[k], k))
+            archive._remove(stale)
+        return archive, problems
+
+    # -- place recognition ------------------------------------------------------------------
+
+    def recognise(self, descriptors: np.ndarray, top: int = 3, max_distance: int = 50,
+                  ratio: float = 0.8) -> list[tuple[int, int]]:
+        """The archived keyframes that best explain a frame's ORB ``descriptors`` ((n, 32)
+        uint8): (keyframe id, votes), most votes first, at most ``top``, none without a vote.
+        A descriptor votes for the keyframe of its nearest archived descriptor when that one
+        is within ``max_distance`` bits and nearer than ``ratio`` × the runner-up's distance
+        (the runner-up of another point: one point seen by several keyframes is one
+        descriptor per keyframe, and those must not cancel each other's vote)."""
+        query = np.ascontiguousarray(descriptors, dtype=np.uint8)
+        if query.ndim != 2 or query.shape[1] != DESCRIPTOR_BITS // 8:
+            raise ValueError(f"ORB descriptors are (n, 32) uint8, got {query.shape}")
+        if not self._entries or not len(query):
+            return []
+        index = self._built_index()
+        if not len(self._row_keyframe):
+            return []
+        k = min(8, len(self._row_keyframe))
+        distances, rows = index.search(query, k)           # type: ignore[attr-defined]
+        votes: dict[int, int] = {}
+        point_of = self._row_point
+        for d, r in zip(distances, rows, strict=True):
+            if r[0] < 0 or d[0] > max_distance:
+                continue
+            # the runner-up: the nearest descriptor of a different map point
+            other = next((int(d[j]) for j in range(1, k)
+                          if r[j] >= 0 and point_of[r[j]] != point_of[r[0]]), None)
+            if other is not None and d[0] >= ratio * other:
+                continue
+            kf = int(self._row_keyframe[r[0]])
+            votes[kf] = votes.get(kf, 0) + 1
+        ranked = sorted(votes.items(), key=lambda kv: (-kv[1], kv[0]))
+        return ranked[:top]
+
+    def _built_index(self) -> object:
+        if self._index is None:
+            # faiss loads with the first recognition, not with every importer of the map
+            import faiss
+
+            kfs = list(self._entries.values())
+            index = faiss.IndexBinaryFlat(DESCRIPTOR_BITS)
+            if kfs:
+                index.add(np.ascontiguousarray(np.concatenate([k.descriptors for k in kfs])))
+            self._row_keyframe = np.concatenate(
+                [np.full(len(k.point_ids), k.id, dtype=np.int64) for k in kfs]) if kfs \
+                else np.zeros(0, dtype=np.int64)
+            self._row_point = np.concatenate([k.point_ids for k in kfs]) if kfs \
+                else np.zeros(0, dtype=np.int64)
+            self._index = index
+        return self._index
