@@ -302,6 +302,7 @@ class EdgeMapperCore:
                           rate_history=np.array(self.rate_history, dtype=np.int64),
                           **_table_arrays(known, "track"),
                           **_table_arrays(fresh, "previous_track"))
+        self.archive.release_taken()          # restored keyframes are in the checkpoint now
         t2 = time.perf_counter()
         w = self.map.covisibility()
         u = map_uncertainty(w, self.planner.config.log_det_pi) if len(w) else math.inf

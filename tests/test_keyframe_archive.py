@@ -89,6 +89,11 @@ def test_the_archive_on_disk_comes_back_and_an_unreadable_file_is_named(
     for name in ("pose", "point_ids", "positions", "descriptors", "measurements"):
         np.testing.assert_array_equal(getattr(kept, name), getattr(original, name))
     assert kept.archived_slot == 4
+    # a keyframe taken back keeps its file until the map holding it is checkpointed
+    again.take(2)
+    assert (folder / "keyframe-000000002.npz").exists()
+    again.release_taken()
+    assert not (folder / "keyframe-000000002.npz").exists()
     smaller, _ = KeyFrameArchive.restore(1, folder)
     assert [kf.id for kf in smaller] == [4]       # the capacity holds after a restart too
     empty, problems = KeyFrameArchive.restore(3, tmp_path / "none")

@@ -16,8 +16,9 @@ thousand descriptors of a few hundred keyframes takes a fraction of a second; th
 rebuilt only after the archive changed.
 
 With a folder, each archived keyframe is also one ``.npz`` file there, written when it is
-archived (to a temporary name, then renamed) and deleted when it leaves: the archive survives
-an edge restart without rewriting all of it every slot. What a restart forgets is how recently
+archived (to a temporary name, then renamed) and deleted when it leaves — one taken back into
+the map only once that map is checkpointed: the archive survives an edge restart, at any point
+of a slot, without rewriting all of it every slot. What a restart forgets is how recently
 each keyframe was useful after it was archived (it restarts from the archival slots).
 """
 
@@ -137,6 +138,7 @@ class KeyFrameArchive:
         self._index: object | None = None
         self._row_keyframe = np.zeros(0, dtype=np.int64)   #: index row -> keyframe id
         self._row_point = np.zeros(0, dtype=np.int64)      #: index row -> map point id
+        self._taken: list[Path] = []       #: files of taken keyframes, until the checkpoint
 
     # -- contents ---------------------------------------------------------------------------
 
@@ -186,16 +188,27 @@ class KeyFrameArchive:
                 self._useful[k] = max(self._useful[k], slot)
 
     def take(self, kf_id: int) -> ArchivedKeyFrame:
-        """Remove and return an archived keyframe (it goes back into the managed map)."""
+        """Remove and return an archived keyframe (it goes back into the managed map). Its
+        file stays until :meth:`release_taken`, which the edge calls once the map holding it
+        is checkpointed: an edge stopped in between restarts from the older map, which lacks
+        the keyframe, and finds it in the archive still."""
         kf = self._entries[kf_id]
-        self._remove(kf_id)
+        self._remove(kf_id, keep_file=True)
+        if self.folder is not None:
+            self._taken.append(self._path(kf_id))
         return kf
 
-    def _remove(self, kf_id: int) -> None:
+    def release_taken(self) -> None:
+        """Delete the files of the keyframes taken back since the last call."""
+        for path in self._taken:
+            path.unlink(missing_ok=True)
+        self._taken = []
+
+    def _remove(self, kf_id: int, keep_file: bool = False) -> None:
         del self._entries[kf_id]
         del self._useful[kf_id]
         self._index = None
-        if self.folder is not None:
+        if self.folder is not None and not keep_file:
             self._path(kf_id).unlink(missing_ok=True)
 
     def _path(self, kf_id: int) -> Path:
