@@ -17,6 +17,7 @@ do); the restores and the evictions they cost are reported beside them.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
@@ -24,7 +25,8 @@ import numpy as np
 
 from edge_mapper.planning_world import MAX_DEPTH_M, visible_points
 from twinslam.slam.keyframe_archive import KeyFrameArchive
-from twinslam.slam.keyframe_map import KeyFrameMap
+from twinslam.slam.keyframe_map import KeyFrameMap, shared_counts
+from twinslam.uncertainty.map_uncertainty import map_uncertainty
 
 #: an archived keyframe is brought back only if this many of its points are in the coming
 #: view (the device's tracking rule asks for 30 map points a frame: fewer would not keep a
@@ -84,7 +86,8 @@ def plan_restores(m: KeyFrameMap, archive: KeyFrameArchive, poses: Sequence[np.n
                 break                    # the others are better still: nothing more to gain
         trial = {k: v for k, v in sets.items() if k != victim}
         trial[kf_id] = archive.get(kf_id).point_ids
-        if not connected(list(trial.values())):
+        # connected exactly when u(G) is finite: the check the map's uncertainty makes
+        if not math.isfinite(map_uncertainty(shared_counts(list(trial.values())))):
             continue
         sets = trial
         restore.append(kf_id)
@@ -94,19 +97,3 @@ def plan_restores(m: KeyFrameMap, archive: KeyFrameArchive, poses: Sequence[np.n
         scores[kf_id] = score
         keep.add(kf_id)
     return RestorePlan(restore, evict)
-
-
-def connected(point_sets: list[np.ndarray]) -> bool:
-    """Whether keyframes observing these point-id sets form one covisibility component."""
-    n = len(point_sets)
-    if n <= 1:
-        return True
-    reached, frontier = {0}, [0]
-    lookup = [set(s.tolist()) for s in point_sets]
-    while frontier:
-        i = frontier.pop()
-        for j in range(n):
-            if j not in reached and not lookup[i].isdisjoint(lookup[j]):
-                reached.add(j)
-                frontier.append(j)
-    return len(reached) == n

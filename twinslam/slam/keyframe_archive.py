@@ -174,6 +174,10 @@ class KeyFrameArchive:
             self.folder.mkdir(parents=True, exist_ok=True)
             kf.save(self._path(kf.id))
         self._index = None
+        return self._trim()
+
+    def _trim(self) -> list[int]:
+        """Drop the least recently useful keyframes past the capacity; their ids."""
         dropped = []
         while len(self._entries) > self.capacity:
             stale = min(self._entries, key=lambda k: (self._useful[k], k))
@@ -240,9 +244,7 @@ class KeyFrameArchive:
                 continue
             archive._entries[kf.id] = kf
             archive._useful[kf.id] = kf.archived_slot
-        while len(archive._entries) > archive.capacity:
-            stale = min(archive._entries, key=lambda k: (archive._useful[k], k))
-            archive._remove(stale)
+        archive._trim()
         return archive, problems
 
     # -- place recognition ------------------------------------------------------------------
