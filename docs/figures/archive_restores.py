@@ -6,8 +6,8 @@ the runs.csv of two ``twinslam evaluate`` folders that differ only in the edge's
         docs/figures/archive-restores/revisit-v15-lff-restore0-runs.csv \\
         docs/figures/archive-restores/revisit-v15-lff-restore3-runs.csv
 
-One row per seed (untracked frames, the edge's lost share, ATE, camera frames the device
-dropped), then the paired difference, restores minus none, mean [95 % CI] over the seeds
+One row per seed (untracked frames; the edge's mean υ, lost share and υ over the tracked
+frames; ATE), then the paired difference, restores minus none, mean [95 % CI] over the seeds
 (twinslam.experiments.paired, bootstrap over seeds). A run whose device dropped camera frames
 is refused: it measures the machine.
 """
@@ -22,8 +22,9 @@ import numpy as np
 
 from twinslam.experiments.paired import paired_difference
 
-METRICS = (("untracked_frames", "untracked frames", "{:.0f}"), ("lost_share", "lost share",
-           "{:.3f}"), ("ate_m", "ATE (m)", "{:.3f}"))
+METRICS = (("untracked_frames", "untracked frames", "{:.0f}"),
+           ("mean_uncertainty", "mean υ", "{:.1f}"), ("lost_share", "lost share", "{:.3f}"),
+           ("tracked_uncertainty", "υ tracked", "{:.1f}"), ("ate_m", "ATE (m)", "{:.3f}"))
 
 
 def _runs(path: Path) -> dict[int, dict[str, str]]:
