@@ -11,14 +11,26 @@ The nodes spin on rclpy's C++ ``EventsExecutor`` (``rclpy.experimental``, in Jaz
 On ``bench.dds``'s camera path it cut the median latency from 5.1 to 3.8 ms (BENCHMARKS.md;
 measured on a loaded machine). ``TWINSLAM_EXECUTOR=single`` runs a node on rclpy's
 ``SingleThreadedExecutor`` instead, should the experimental executor misbehave somewhere.
-Freed memory stays in the process (:mod:`twinslam.node_hosts.allocator`): a frame's buffers are
-reused
-instead of page-faulted in anew.
+Freed memory stays in the process (:mod:`twinslam.node_hosts.allocator`): a frame's buffers
+are reused instead of page-faulted in anew.
+
+Signals only ever *ask* for the stop; the main loop acts on it between two executor turns.
+rclpy's own handlers are not installed (``SignalHandlerOptions.NO``): they shut the context
+down from rclpy's signal thread, and Python's default handler raises ``KeyboardInterrupt`` in
+whatever Python code runs — both can land while the EventsExecutor registers the node's
+entities (its first turn calls back into Python for every subscription and waitable). A
+registration cut in half leaves callbacks the executor no longer tracks, and its destructor
+then aborts the process ("Destroying callback manager with callbacks remaining", exit -6):
+26 of 88 edge nodes signalled the moment they logged "listening on" did so, 0 of 80 since.
+While the EventsExecutor exists it takes SIGINT/SIGTERM with its own signal set and shuts
+the context down after a turn; destroyed, that signal set leaves the default disposition
+behind, so the stop handler is installed again for the rest of the teardown.
 """
 
 from __future__ import annotations
 
 import os
+import signal
 import sys
 from collections.abc import Callable
 from typing import TypeVar
@@ -56,6 +68,27 @@ def executor_name() -> str:
     return name
 
 
+class StopRequest:
+    """SIGINT/SIGTERM recorded as a request to stop, read by the spin loop between turns."""
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self) -> None:
+        self.signal: int | None = None
+
+    def __call__(self, signum: int, _frame: object) -> None:
+        self.signal = signum
+
+    @property
+    def requested(self) -> bool:
+        return self.signal is not None
+
+    def install(self) -> None:
+        """Make this the process's handler of SIGINT and SIGTERM (again)."""
+        for sig in self.SIGNALS:
+            signal.signal(sig, self)
+
+
 class NodeStartError(Exception):
     """Raised by a node's constructor when it cannot start; the message says why."""
 
@@ -71,9 +104,11 @@ def run_node(name: str, factory: Callable[[], N], args: list[str] | None = None,
         rclpy.logging.get_logger(name).fatal(str(exc))
         return 2
     keep_freed_memory()
+    stop = StopRequest()
+    stop.install()
     try:
         rclpy.init(args=sys.argv if args is None else args,
-                   signal_handler_options=SignalHandlerOptions.ALL)
+                   signal_handler_options=SignalHandlerOptions.NO)
     except Exception as exc:          # rclpy's RCLError: arguments, domain, security enclave
         rclpy.logging.get_logger(name).fatal(f"cannot start ROS 2: {exc}{_init_hint()}")
         return 2
@@ -85,27 +120,27 @@ def run_node(name: str, factory: Callable[[], N], args: list[str] | None = None,
         except NodeStartError as exc:
             rclpy.logging.get_logger(name).fatal(str(exc))
             return 2
-        except Exception:
-            if not rclpy.ok():        # SIGINT/SIGTERM while it was starting: not a failure
-                return 0
-            raise
+        if stop.requested:            # SIGINT/SIGTERM while it was starting: not a failure
+            return 0
         if started is not None:
             started(node)
         executor = make_executor()
         executor.add_node(node)
-        while rclpy.ok() and (until is None or not until(node)):
+        while not stop.requested and rclpy.ok() and (until is None or not until(node)):
             try:
                 executor.spin_once(timeout_sec=0.1)
             except Exception:
                 if rclpy.ok():
                     raise
-                break                 # a signal shut the context down mid-spin: a clean stop
+                break                 # the context was shut down mid-spin: a clean stop
         return 0
-    except (KeyboardInterrupt, ExternalShutdownException):
+    except ExternalShutdownException:
         return 0
     finally:
         if executor is not None:
             executor.shutdown()       # before the node goes: no callback runs on a dead node
+            executor = None           # its signal set goes with it ...
+            stop.install()            # ... leaving the default disposition: ours again
         if node is not None:
             close = getattr(node, "close", None)
             if close is not None:
