@@ -123,8 +123,10 @@ class EdgeMapperCore:
         #: keyframes of a slot that arrived while an earlier slot was open
         self._held: dict[int, list[KeyFramePayload]] = {}
         self.restored = self.last_slot >= 0
-        #: where the camera is predicted to be over the next slot (restores look there)
-        self._heading: list[np.ndarray] = []
+        #: open slot → where the camera is predicted to be after it (that slot's restores look
+        #: there, whenever the slot finishes: a late slot does not borrow a newer slot's view)
+        self._headings: dict[int, list[np.ndarray]] = {}
+        self._last_heading: list[np.ndarray] = []   #: kept while the device is lost
 
     def _open_archive(self) -> KeyFrameArchive:
         """The archive beside the checkpoint (``edge.npz`` → ``edge.npz.archive/``), restored
@@ -205,7 +207,7 @@ class EdgeMapperCore:
                                  self._arriving, leaving, (self.k, self.config.image_shape))
         self.pending[slot] = (plan.action, set())
         self._planned_vmax[slot] = self.planner.config.vmax
-        self._heading = heading(frames) or self._heading
+        self._last_heading = self._headings[slot] = heading(frames) or self._last_heading
         by_id = {f.frame_id: f for f in frames}
         self._arriving.update({f: by_id[f] for f in plan.action.upload})
         return plan
@@ -281,7 +283,8 @@ class EdgeMapperCore:
                      for dropped in self.archive.add(ArchivedKeyFrame.of(self.map, kf, slot))]
         orphans = sum(len(self.map.evict(kf)) for kf in evicted)
         spared = sorted(set(action.evict) - set(evicted) - missing)
-        restored, replaced, dropped = self._restore(slot, received)
+        restored, replaced, dropped = self._restore(slot, received,
+                                                    self._headings.pop(slot, []))
         evicted += replaced
         forgotten += dropped
         t0 = time.perf_counter()
@@ -312,15 +315,16 @@ class EdgeMapperCore:
         return SlotOutcome(slot, sorted(received), sorted(missing), evicted, spared, orphans, ba,
                            u, self.version, tracks, timings, forgotten, restored)
 
-    def _restore(self, slot: int, received: set[int]
+    def _restore(self, slot: int, received: set[int], poses: list[np.ndarray]
                  ) -> tuple[list[int], list[int], list[int]]:
-        """Bring archived keyframes the camera is heading for back into the map, each in
-        place of the keyframe that sees least of that view (into the archive in its turn);
-        (restored, evicted for them, forgotten by the archive to make room for those)."""
+        """Bring archived keyframes seen from ``poses`` (where the camera is heading after
+        ``slot``) back into the map, each in place of the keyframe that sees least of that
+        view (into the archive in its turn); (restored, evicted for them, forgotten by the
+        archive to make room for those)."""
         limit = self.config.restore_keyframes
-        if limit <= 0 or not self._heading or not has_camera(self.k):
+        if limit <= 0 or not poses or not has_camera(self.k):
             return [], [], []
-        chosen = plan_restores(self.map, self.archive, self._heading, self.k,
+        chosen = plan_restores(self.map, self.archive, poses, self.k,
                                self.config.image_shape, self.planner.config.vmax, limit, slot,
                                received)
         back = [self.archive.take(kf) for kf in chosen.restore]

@@ -222,6 +222,38 @@ def test_walking_back_brings_evicted_keyframes_back_before_the_camera_gets_there
     assert in_view[2, 20.0] > 1.3 * in_view[0, 20.0]
 
 
+def test_a_slot_that_finishes_late_restores_for_where_the_camera_headed_in_it() -> None:
+    """On a loaded edge the next slot's summaries can come before this slot's uploads are in:
+    slot k+1 is planned while slot k is open. Slot k's restores still look where the camera
+    was heading in slot k, not where slot k+1's frames point (here: back out to the far end)
+    — the same keyframes come back as when slot k finished first."""
+    turn = 8 * F
+
+    def walk(late: int | None = None) -> list[list[int]]:
+        """Restores per slot; with ``late``, slot late+1 is planned before slot late
+        finishes, and the walk ends there."""
+        device = ReturningDevice(np.random.default_rng(3), turn)
+        core = EdgeMapperCore(make_policy("lff"), K, EdgeConfig(slot=SlotConfig(vmax=4),
+                                                                restore_keyframes=2))
+        restored = []
+        for slot in range(16):
+            frames = [device.summary(f, core) for f in range(slot * F, (slot + 1) * F)]
+            plan = core.plan(slot, frames, 20.0, slot % 2)
+            for f in plan.action.upload:
+                core.add_keyframe(device.keyframe(f, slot, core))
+            if slot == late:
+                outwards = [device.summary(f, core) for f in range(turn - F, turn)]
+                core.plan(slot + 1, outwards, 20.0, (slot + 1) % 2)
+            restored.append(core.finish_slot(slot).restored)
+            if slot == late:
+                break
+        return restored
+
+    in_order = walk()
+    first = next(k for k, r in enumerate(in_order) if r)
+    assert walk(late=first)[first] == in_order[first]
+
+
 def test_overlapping_slots_never_leave_more_than_vmax_keyframes() -> None:
     """Slots shorter than their uploads (issue #19): slot k+1 is planned before slot k's
     keyframes arrive, keyframes come late, out of order, some never, one after its slot
