@@ -6,23 +6,31 @@ from __future__ import annotations
 
 import csv
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
 
-from twinslam.experiments import learning_curve
-from twinslam.experiments.training import TrainTask, snapshots_path, train_one
-from twinslam.mbrl.trainer import AmmTrainer, TrainConfig, load_snapshots
 from twinslam.policy_registry import make_policy
 from twinslam.simulator.covisibility_spec import open_covisibility
 from twinslam.simulator.env import SimConfig
 from twinslam.simulator.evaluation import evaluate
 
+#: torch (and torch_geometric) load inside the tests, and the tests that load them run on one
+#: worker: every xdist worker collects every module, and collecting the suite costs 3 s of CPU
+#: without torch, 7 s with it
+pytestmark = pytest.mark.xdist_group("torch")
+
 COVIS = Path(__file__).resolve().parents[1] / "data" / "7scenes-redkitchen-1000.covis.npz"
 HELD_OUT = f"{COVIS}@600:1000"
 
+if TYPE_CHECKING:
+    from twinslam.mbrl.trainer import AmmTrainer
+
 
 def _train(tmp: Path, seed: int) -> tuple[Path, AmmTrainer]:
+    from twinslam.mbrl.trainer import AmmTrainer, TrainConfig
+
     config = TrainConfig(actor="paper", slots=30, warmup_slots=10, validate_every=10,
                          validation_seeds=1, validation_slots=5, batch_size=8, seed=seed)
     trainer = AmmTrainer(config, open_covisibility(f"{COVIS}@0:600"), snapshots=True)
@@ -34,6 +42,9 @@ def _train(tmp: Path, seed: int) -> tuple[Path, AmmTrainer]:
 
 
 def test_snapshots_are_scored_on_held_out_episodes_beside_the_rules(tmp_path: Path) -> None:
+    from twinslam.experiments import learning_curve
+    from twinslam.mbrl.trainer import AmmTrainer, TrainConfig, load_snapshots
+
     files = [_train(tmp_path, seed)[0] for seed in (0, 1)]
     seed, kept, snaps = load_snapshots(files[1])
     assert seed == 1 and [slot for slot, _ in snaps] == [0, 20, 30] and kept in (0, 20, 30)
@@ -82,6 +93,9 @@ def test_a_training_stopped_half_way_keeps_its_checkpoint_and_snapshots_so_far(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Each validation saves what there is (a 30 000-slot run killed at slot 20 000 keeps
     its curve to there): here the run dies right after its second validation."""
+    from twinslam.experiments.training import TrainTask, snapshots_path, train_one
+    from twinslam.mbrl.trainer import AmmTrainer, TrainConfig, load_snapshots
+
     original = AmmTrainer._keep_if_best
 
     def dies_after_two(self: AmmTrainer, played: int) -> None:
@@ -100,12 +114,16 @@ def test_a_training_stopped_half_way_keeps_its_checkpoint_and_snapshots_so_far(
 
 
 def test_thinning_keeps_the_first_the_last_and_the_kept_snapshot() -> None:
+    from twinslam.experiments import learning_curve
+
     slots = [0, 500, 1000, 1500, 2000, 2500, 2700]
     assert learning_curve.thinned(slots, 1500, 1000) == [0, 1000, 1500, 2000, 2700]
     assert learning_curve.thinned(slots, 1000, 0) == slots
 
 
 def test_a_checkpoint_is_not_a_snapshots_file(tmp_path: Path) -> None:
+    from twinslam.experiments import learning_curve
+
     _, trainer = _train(tmp_path, 0)
     with pytest.raises(ValueError, match="not a training's snapshots"):
         learning_curve.setup_of([tmp_path / "run0.pt"], HELD_OUT, 2, 6)

@@ -7,22 +7,21 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 
 from edge_mapper.edge_core import EdgeMapperCore
 from twinslam.map_management.policies import Adapt, LatestFrameFirst
-from twinslam.mbrl.networks import Actor, hard_flags, soft_flags
-from twinslam.mbrl.policy import MbrlPolicy, PolicyCheckpointError
-from twinslam.mbrl.replay import ReplayBuffer, Transition, blended_batch, collate
 from twinslam.mbrl.state import NODE_FEATURES, action_from_scores, build_state, context_size, select
-from twinslam.mbrl.trainer import AmmTrainer, TrainConfig
 from twinslam.policy_registry import make_policy
 from twinslam.simulator.covisibility import CovisibilityDataset, load_covisibility
 from twinslam.simulator.env import MapManagementEnv, SimConfig
 from twinslam.simulator.plan import rollout
 from twinslam.twin.markov import MarkovCounts
-from twinslam.twin.variational_twin import VariationalConfig, VariationalTwin
 from twinslam.uplink.channels import parse_channel
+
+#: torch (and torch_geometric) load inside the tests, and the tests that load them run on one
+#: worker: every xdist worker collects every module, and collecting the suite costs 3 s of CPU
+#: without torch, 7 s with it
+pytestmark = pytest.mark.xdist_group("torch")
 
 COVIS = Path(__file__).resolve().parents[1] / "data" / "7scenes-redkitchen-1000.covis.npz"
 
@@ -94,6 +93,11 @@ def test_scores_pick_the_best_candidates_and_evict_the_worst_kept() -> None:
 def test_untrained_actor_makes_adapts_decision(kitchen: CovisibilityDataset) -> None:
     """The correction's last layer starts near zero, so before training the actor uploads and
     evicts exactly what ADAPT does — also where ADAPT evicts a frame it has just uploaded."""
+    import torch
+
+    from twinslam.mbrl.networks import Actor
+    from twinslam.mbrl.replay import collate
+
     torch.manual_seed(0)
     # the paper's rule: ADAPT's own walk stays tracked, so every slot has frames to choose
     env = _env(kitchen, slots=30, paper_rule=True)
@@ -114,6 +118,10 @@ def test_untrained_actor_makes_adapts_decision(kitchen: CovisibilityDataset) -> 
 
 
 def test_relaxed_action_tends_to_the_hard_one() -> None:
+    import torch
+
+    from twinslam.mbrl.networks import soft_flags
+
     rng = np.random.default_rng(2)
     n_map, n_cand = 6, 9
     x = torch.zeros(1, n_map + n_cand, NODE_FEATURES)
@@ -134,6 +142,10 @@ def test_batched_hard_action_is_select_graph_by_graph() -> None:
     """The training's batched hard action (the target actor's, and the relaxed action's
     thresholds) picks what ``select`` picks for each graph alone — padded graphs of other
     sizes, tied scores (earlier node first), nothing or everything to upload or evict."""
+    import torch
+
+    from twinslam.mbrl.networks import hard_flags
+
     rng = np.random.default_rng(7)
     sizes = [(0, 5), (4, 0), (6, 9), (12, 3), (3, 12), (8, 8)]
     n = max(m + c for m, c in sizes)
@@ -177,6 +189,8 @@ def test_emulated_slot_equals_the_real_one_and_leaves_the_environment_alone(
 
 
 def test_blended_batch_holds_i_real_tuples(kitchen: CovisibilityDataset) -> None:
+    from twinslam.mbrl.replay import ReplayBuffer, Transition, blended_batch
+
     obs = _played(_env(kitchen), 3)
     state = build_state(obs, np.zeros(0, np.float32), history=8)
     flags = np.zeros((state.size, 2), np.float32)
@@ -206,6 +220,8 @@ def test_markov_rate_model_is_the_count_estimate() -> None:
 
 
 def test_twin_rate_model_gives_its_latent_and_samples_states() -> None:
+    from twinslam.twin.variational_twin import VariationalConfig, VariationalTwin
+
     model = VariationalTwin(VariationalConfig(n_states=3, retrain_every=1000))
     assert model.features([0, 1, 2]).shape == (model.feature_size,) == (16,)
     draws = model.sample_next([0, 1, 2], 50, np.random.default_rng(0))
@@ -214,6 +230,11 @@ def test_twin_rate_model_gives_its_latent_and_samples_states() -> None:
 
 def test_training_writes_a_policy_the_simulator_and_make_policy_run(
         kitchen: CovisibilityDataset, tmp_path: Path) -> None:
+    import torch
+
+    from twinslam.mbrl.policy import MbrlPolicy
+    from twinslam.mbrl.trainer import AmmTrainer, TrainConfig
+
     config = TrainConfig(slots=40, episode_slots=20, warmup_slots=15, batch_size=8,
                          rate_model="markov", artificial_per_real=1, replay_capacity=100,
                          log_every=5, validate_every=20, validation_seeds=1,
@@ -245,7 +266,11 @@ def test_the_papers_amm_sees_no_adapt_answer_and_trains_into_a_policy_of_its_own
     """actor='paper': ADAPT's flag columns stay 0, the score is the GCN's alone (no prior),
     and the checkpoint runs as amm-<rate model>, beside mbrl-<rate model> (ADAPT + RL); the
     default rate model, the regime twin, can take the udt node's latent."""
+    import torch
+
+    from twinslam.mbrl.replay import collate
     from twinslam.mbrl.state import ADAPT_EVICT, ADAPT_UPLOAD
+    from twinslam.mbrl.trainer import AmmTrainer, TrainConfig
 
     env = _env(kitchen, seed=1)
     obs, _ = env.reset(1)
@@ -276,6 +301,10 @@ def test_the_papers_amm_sees_no_adapt_answer_and_trains_into_a_policy_of_its_own
 
 
 def test_bad_policy_checkpoints_are_refused_by_name(tmp_path: Path) -> None:
+    import torch
+
+    from twinslam.mbrl.policy import MbrlPolicy, PolicyCheckpointError
+
     with pytest.raises(ValueError, match="needs its checkpoint"):
         make_policy("mbrl")
     with pytest.raises(PolicyCheckpointError, match="no such policy checkpoint"):
@@ -333,6 +362,7 @@ def test_a_learned_variant_is_reported_over_its_training_runs_with_every_episode
     import csv
 
     from twinslam.experiments.amm import REFERENCE, Setting, sweep
+    from twinslam.mbrl.trainer import AmmTrainer, TrainConfig
 
     paths = []
     for seed in (0, 1):
@@ -413,6 +443,7 @@ def test_twin_fed_policy_uses_fresh_latents_and_falls_back_without_them() -> Non
 def test_a_checkpoint_naming_the_old_udt_rate_model_loads_as_the_variational_twin() -> None:
     """Policies trained before the variational twin got its name say ``udt``: they load."""
     from twinslam.twin.registry import load_rate_model
+    from twinslam.twin.variational_twin import VariationalConfig, VariationalTwin
 
     model = VariationalTwin(VariationalConfig(n_states=3, retrain_every=1000))
     again = load_rate_model("udt", model.state_dict())

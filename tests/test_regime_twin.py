@@ -6,14 +6,17 @@ import io
 
 import numpy as np
 import pytest
-import torch
 
-from twinslam.experiments.twin import chain_states
 from twinslam.twin.markov import MarkovCounts
 from twinslam.twin.prediction_score import score_online
 from twinslam.twin.regime_twin import RegimeConfig, RegimeTwin
 from twinslam.twin.registry import RateModelSettings, load_rate_model, make_rate_model
-from twinslam.uplink.channels import random_transition_matrix
+from twinslam.uplink.channels import chain_states, random_transition_matrix
+
+#: torch (and torch_geometric) load inside the tests, and the tests that load them run on one
+#: worker: every xdist worker collects every module, and collecting the suite costs 3 s of CPU
+#: without torch, 7 s with it
+pytestmark = pytest.mark.xdist_group("torch")
 
 STAY = np.array([[0.95, 0.05], [0.05, 0.95]])
 FLIP = np.array([[0.05, 0.95], [0.95, 0.05]])
@@ -92,6 +95,8 @@ def test_reset_forgets_and_bad_states_and_configs_are_refused() -> None:
 def test_the_regime_rate_model_is_the_default_and_survives_a_checkpoint() -> None:
     """Its configuration round-trips through torch's weights-only loader (what a policy
     checkpoint goes through); each run starts afresh."""
+    import torch
+
     from twinslam.mbrl.trainer import TrainConfig
 
     assert TrainConfig().rate_model == "regime"

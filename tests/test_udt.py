@@ -15,14 +15,15 @@ import pytest
 from twinslam_msgs.msg import RateLatent, UplinkThroughput
 
 from msg_schemas import new, qos, topics
-from twinslam.experiments.twin import chain_states
 from twinslam.node_hosts.loopback import LoopbackDomain
 from twinslam.node_hosts.session import RosSession
-from twinslam.twin.lstm import LstmConfig, LstmPredictor
 from twinslam.twin.markov import MarkovCounts
-from twinslam.twin.rate_history import history_windows, transition_error
-from twinslam.twin.variational_twin import VariationalConfig, VariationalTwin
-from twinslam.uplink.channels import MarkovChannel, state_rates
+from twinslam.uplink.channels import MarkovChannel, chain_states, state_rates
+
+#: torch (and torch_geometric) load inside the tests, and the tests that load them run on one
+#: worker: every xdist worker collects every module, and collecting the suite costs 3 s of CPU
+#: without torch, 7 s with it
+ON_THE_TORCH_WORKER = pytest.mark.xdist_group("torch")
 
 P2 = np.array([[0.8, 0.2], [0.3, 0.7]])
 
@@ -32,17 +33,24 @@ def _chain(matrix: np.ndarray, slots: int, seed: int) -> list[int]:
     return [channel.step()[0] for _ in range(slots)]
 
 
+@ON_THE_TORCH_WORKER
 def test_history_windows_pair_each_window_with_its_successor() -> None:
+    from twinslam.twin.rate_history import history_windows
+
     windows, targets = history_windows(np.array([0, 1, 1, 0, 1]), 3, 2)
     assert windows.shape == (2, 3, 2)
     assert windows[0].argmax(dim=1).tolist() == [0, 1, 1] and targets.tolist() == [0, 1]
     assert windows[1].argmax(dim=1).tolist() == [1, 1, 0]
 
 
+@ON_THE_TORCH_WORKER
 def test_elbo_falls_and_the_twin_recovers_a_stationary_two_state_chain() -> None:
     """The variational twin learns a chain from its rates alone. Its LSTMs have 100 units
     here, not the paper's 300 (the checkpoint and node tests run those): the same inference
     at a sixth of the CPU (measured: 300 steps in 2.7 s instead of 16.6 s on one thread)."""
+    from twinslam.twin.rate_history import transition_error
+    from twinslam.twin.variational_twin import VariationalConfig, VariationalTwin
+
     twin = VariationalTwin(VariationalConfig(n_states=2, buffer_slots=2000, seed=0,
                                              lstm_hidden=100))
     for s in _chain(P2, 2000, seed=1):
@@ -86,9 +94,13 @@ def test_markov_mle_counts_transitions_whole_or_windowed() -> None:
     np.testing.assert_allclose(windowed.transition_matrix(), [[0, 1], [0, 1]])
 
 
+@ON_THE_TORCH_WORKER
 def test_lstm_point_predictor_gives_deterministic_rows() -> None:
     """The paper's point: an LSTM predicting the next state gives one answer per history, so
     the matrix it implies is far from a spread-out truth, where the twin's is not."""
+    from twinslam.twin.lstm import LstmConfig, LstmPredictor
+    from twinslam.twin.rate_history import transition_error
+
     truth = np.array([[0.5, 0.5], [0.5, 0.5]])
     states = _chain(truth, 800, seed=2)
     lstm = LstmPredictor(LstmConfig(n_states=2, buffer_slots=800, steps_per_retrain=60))
@@ -107,7 +119,10 @@ def test_chain_states_follow_each_interval_matrix() -> None:
     assert np.all(np.diff(s[50:]) != 0)                      # alternates every slot
 
 
+@ON_THE_TORCH_WORKER
 def test_twin_checkpoint_round_trip(tmp_path: Path) -> None:
+    from twinslam.twin.variational_twin import VariationalConfig, VariationalTwin
+
     twin = VariationalTwin(VariationalConfig(n_states=3, latent_dim=4, seed=1))
     for s in _chain(np.full((3, 3), 1 / 3), 120, seed=3):
         twin.observe(s)
@@ -143,6 +158,8 @@ def test_udt_node_round_trip_refuses_bad_throughput(
     """Throughput in from this process, RateLatent out of udt_node's: one latent per valid
     slot, a retrain in the background (model version rises, weights saved), and NaN,
     negative and absurd values refused and counted."""
+    from twinslam.twin.variational_twin import VariationalTwin
+
     pub = ros.node.create_publisher(UplinkThroughput, topics.UPLINK_THROUGHPUT, qos.PROTOCOL)
     got: list = []
     sub = ros.node.create_subscription(RateLatent, topics.RATE_LATENT, got.append, qos.PROTOCOL)

@@ -25,7 +25,7 @@ from twinslam.twin.markov import MarkovCounts
 from twinslam.twin.rate_history import transition_error
 from twinslam.twin.rate_model import MatrixEstimator
 from twinslam.twin.variational_twin import VariationalConfig, VariationalTwin
-from twinslam.uplink.channels import random_transition_matrix
+from twinslam.uplink.channels import chain_states, random_transition_matrix
 
 Progress = Callable[[str], None]
 
@@ -36,20 +36,6 @@ class Protocol:
     retrain_every: int = 300       #: W; = K here, so every interval ends with a retrain...
     buffer_slots: int = 300        #: ...on that interval's slots
     history: int = 8
-
-
-def chain_states(matrices: list[np.ndarray], interval_slots: int,
-                 rng: np.random.Generator) -> np.ndarray:
-    """States of a chain that follows ``matrices[t]`` during interval t."""
-    n = matrices[0].shape[0]
-    out = np.empty(len(matrices) * interval_slots, dtype=np.int64)
-    state = int(rng.integers(n))
-    for t, m in enumerate(matrices):
-        cum = m.cumsum(axis=1)
-        for k in range(interval_slots):
-            state = min(int((rng.random() > cum[state]).sum()), n - 1)
-            out[t * interval_slots + k] = state
-    return out
 
 
 def _make(name: str, n: int, proto: Protocol, seed: int) -> MatrixEstimator:

@@ -30,10 +30,14 @@ import numpy as np
 from twinslam.common.executor import Executor, TaskFailure
 from twinslam.common.reporting import mean_ci95, pyplot, write_csv
 from twinslam.experiments.parallel import run_all
-from twinslam.experiments.twin import chain_states
 from twinslam.twin.prediction_score import score_online
 from twinslam.twin.registry import PREDICTORS, RateModelSettings, check_names, make_rate_models
-from twinslam.uplink.channels import SLOT_SECONDS, TraceChannel, random_transition_matrix
+from twinslam.uplink.channels import (
+    SLOT_SECONDS,
+    TraceChannel,
+    chain_states,
+    random_transition_matrix,
+)
 from twinslam.uplink.traces import TraceShape, generate_trace
 
 Progress = Callable[[str], None]

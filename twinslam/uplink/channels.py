@@ -42,6 +42,21 @@ def random_transition_matrix(rng: np.random.Generator, n_states: int,
     return rng.dirichlet(np.full(n_states, concentration), size=n_states)
 
 
+def chain_states(matrices: list[np.ndarray], interval_slots: int,
+                 rng: np.random.Generator) -> np.ndarray:
+    """States of a chain that follows ``matrices[t]`` during interval t (a drifting channel:
+    the twin experiments' ground truth)."""
+    n = matrices[0].shape[0]
+    out = np.empty(len(matrices) * interval_slots, dtype=np.int64)
+    state = int(rng.integers(n))
+    for t, m in enumerate(matrices):
+        cum = m.cumsum(axis=1)
+        for k in range(interval_slots):
+            state = min(int((rng.random() > cum[state]).sum()), n - 1)
+            out[t * interval_slots + k] = state
+    return out
+
+
 def balanced_transition_matrix(rng: np.random.Generator, n_states: int,
                                concentration: float = 1.0, sweeps: int = 200) -> np.ndarray:
     """A random doubly stochastic matrix (Dirichlet rows, then Sinkhorn sweeps): its
