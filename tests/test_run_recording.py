@@ -3,6 +3,7 @@ play) or rosbags — and refused before the run when it could not be written (is
 
 from __future__ import annotations
 
+import csv
 import os
 import shutil
 from pathlib import Path
@@ -60,6 +61,11 @@ def test_launch_records_every_topic_and_the_camera_decimated_and_draws_the_run(
     last = store.deserialize_cdr(stats[-1], "twinslam_msgs/msg/MapStats")
     assert last.map_size > 0 and np.isfinite(last.uncertainty)
     assert (pictures / "lff.png").stat().st_size > 30_000
+    with (pictures / "lff.slots.csv").open() as fh:       # the run slot by slot
+        slots = list(csv.DictReader(fh))
+    assert len(slots) >= 2 and {s["policy"] for s in slots} == {"lff"}
+    same = next(s for s in slots if int(s["slot"]) == last.slot)   # as the bag has it
+    assert int(same["map_size"]) == last.map_size and int(same["uploads"]) == last.uploads
 
 
 def test_a_recording_that_cannot_be_written_is_refused_before_the_run(

@@ -41,8 +41,9 @@ class RunReport:
     recover_s: float                 #: mean seconds from a loss to tracking again (NaN: none)
     edge_ms_median: float
     seconds: float
-    #: which policy decided how many slots (``UploadRequest.policy``), e.g. "amm-regime:28
-    #: adapt:2" — a learned policy's fallback shows here
+    #: which policy decided how many slots (``UploadRequest.policy``), in the order they first
+    #: decided, e.g. "adapt (fallback):2, mbrl:amm.pt:28" — a learned policy's fallback and a
+    #: policy set during the run (``ros2 param set``) show here
     decided_by: str = ""
     #: camera frames missing from the device's complete slots (dropped or skipped): a device
     #: that fell behind the camera (an overloaded machine) shows here
@@ -60,8 +61,11 @@ class RunReport:
 
     @property
     def label(self) -> str:
-        """The policy as the table shows it (:func:`policy_label`)."""
-        return policy_label(self.policy)
+        """The policy as the table shows it (:func:`policy_label`); a run whose policy was
+        changed while it ran names each one that decided, in order: ``lff→pu``."""
+        others = [p for p in decided_policies(self.decided_by)
+                  if p != self.policy and not p.endswith(FALLBACK)]
+        return "→".join(policy_label(p) for p in [self.policy, *others])
 
     def row(self) -> str:
         return self.ROW.format(mbytes=self.bytes_uploaded / 1e6, label=self.label,
@@ -114,12 +118,28 @@ def dropped_frames(record: RunRecord, slot_frames: int) -> int:
     return sum(max(0, slot_frames - len(record.summaries[s].frames)) for s in slots)
 
 
+#: how the edge names a slot its learned policy left to the fallback rule ("adapt (fallback)")
+FALLBACK = " (fallback)"
+
+
 def deciders(record: RunRecord) -> str:
-    """"name:slots" for each policy that decided a slot of the run, most slots first."""
+    """"name:slots" for each policy that decided a slot of the run, comma-separated, in the
+    order they first decided."""
     counts: dict[str, int] = {}
-    for request in record.requests.values():
-        counts[str(request.policy)] = counts.get(str(request.policy), 0) + 1
-    return " ".join(f"{name}:{n}" for name, n in sorted(counts.items(), key=lambda x: -x[1]))
+    for slot in sorted(record.requests):
+        name = str(record.requests[slot].policy)
+        counts[name] = counts.get(name, 0) + 1
+    return ", ".join(f"{name}:{n}" for name, n in counts.items())
+
+
+def decided_policies(decided_by: str) -> list[str]:
+    """The policies a :func:`deciders` cell names, in its order."""
+    names = []
+    for entry in decided_by.split(", "):
+        name, _, slots = entry.rpartition(":")
+        if name and slots.isdigit():
+            names.append(name)
+    return names
 
 
 def print_table(reports: list[RunReport], echo: Callable[[str], None] = print) -> None:

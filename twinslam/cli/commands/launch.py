@@ -15,6 +15,7 @@ from twinslam.live.report import RunReport, policy_label, print_table
 from twinslam.live.run_picture import plot_run
 from twinslam.live.run_recording import check_destination
 from twinslam.live.scenarios import SCENARIOS, Scenario, scenario
+from twinslam.live.slot_table import write_slot_table
 from twinslam.node_hosts.loopback import LoopbackDomain
 from twinslam.node_hosts.netns import unavailable_reason
 from twinslam.policy_registry import LEARNED_PREFIX
@@ -111,7 +112,9 @@ def _run_policy(args: argparse.Namespace, policy: str, chosen: Scenario,
         picture = args.out / f"{file_name(policy_label(policy))}.png"
         plot_run(launcher.record, f"{report.label}: {played} of {args.sequence}, "
                  f"scenario {args.scenario}", picture)
-        print(f"wrote {picture}", flush=True)
+        slots = picture.with_suffix(".slots.csv")
+        write_slot_table(launcher.record, slots)
+        print(f"wrote {picture} and {slots}", flush=True)
     return report
 
 
@@ -166,7 +169,9 @@ def register(sub: Subparsers) -> None:
     launch.add_argument("--out", type=Path, default=Path("results/launch"),
                         help="folder for a picture of each policy's run (POLICY.png: the "
                         "final map from above with the trajectories, per-slot map size, υ, "
-                        "lost share and uplink rate)")
+                        "lost share and uplink rate) and its slots (POLICY.slots.csv: which "
+                        "policy decided each slot, what it asked for and the map after it); "
+                        "default %(default)s")
     launch.add_argument("--record", type=Path, default=None, metavar="DIR",
                         help="record each run as a rosbag2 (MCAP) that RViz, Foxglove and "
                         "rosbags open: every topic, the camera decimated (DIR itself for one "
