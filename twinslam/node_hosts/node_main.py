@@ -147,3 +147,8 @@ def run_node(name: str, factory: Callable[[], N], args: list[str] | None = None,
                 close()
             node.destroy_node()
         rclpy.try_shutdown()
+        # the node is gone and the process is ending: a signal now has nothing left to stop.
+        # Ignored, not left to Python's exit, which puts the default action back (the process
+        # would die of a SIGTERM that lands while the interpreter and DDS wind down)
+        for sig in StopRequest.SIGNALS:
+            signal.signal(sig, signal.SIG_IGN)
