@@ -56,6 +56,7 @@ class FrameResult:
     slot_done: bool                #: this frame was its slot's last (take the slot now)
     lost_now: bool = False         #: tracking was lost at this frame (the one before tracked)
     recovered: bool = False        #: relocalised, or tracked again after untracked frames
+    refused: str = ""              #: why the pose gate refused this frame's relocalisation
 
 
 @dataclass(frozen=True)
@@ -174,7 +175,8 @@ class DeviceTrackerCore:
         was_lost, self.lost = self.lost, not out.tracked
         return FrameResult(record, out.relocalised, self.clock.is_last(stamp),
                            lost_now=self.lost and not was_lost,
-                           recovered=out.tracked and (out.relocalised or was_lost))
+                           recovered=out.tracked and (out.relocalised or was_lost),
+                           refused=out.refused)
 
     def step(self, color: np.ndarray, depth: np.ndarray | None, stamp: float,
              image: object | None = None) -> FrameStep:

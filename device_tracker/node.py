@@ -145,6 +145,9 @@ class DeviceTrackerNode(Node):
                                       "against the local map")
         elif result.recovered:
             self.get_logger().info(f"frame {record.frame_id}: relocalised")
+        elif result.refused:
+            self.get_logger().info(f"frame {record.frame_id}: relocalisation refused: "
+                                   f"{result.refused}", throttle_duration_sec=1.0)
         s = self.settings
         pose = set_header(PoseStamped(pose=pose_msg(record.pose)), stamp, s.map_frame)
         self.pub_pose.publish(pose)

@@ -9,6 +9,7 @@ import numpy as np
 from device_tracker.device_core import TRACK_BIT, DeviceTrackerCore
 from twinslam.sequences.synthetic import SyntheticSequence
 from twinslam.slam.map_update import MapSnapshot
+from twinslam.slam.tracking import TrackingConfig
 
 SLOT = 10
 
@@ -70,23 +71,60 @@ def test_map_update_relabels_resolved_tracks_and_keeps_tracking() -> None:
     np.testing.assert_array_equal(payload.intrinsics, seq.intrinsics)
 
 
-def test_a_frame_the_motion_model_loses_is_relocalised() -> None:
-    seq = SyntheticSequence(12, seed=0)
+def test_a_frame_the_motion_model_loses_is_relocalised_then_tracked_after_probation() -> None:
+    """The relocalised pose is right at once, but the device counts itself tracked (and its
+    frames uploadable) only after ``reloc_probation_frames`` frames tracked by the motion
+    model from it; that first counted frame reports the relocalisation."""
+    probation = TrackingConfig().reloc_probation_frames
+    seq = SyntheticSequence(12 + probation, seed=0)
     frames = list(seq)
-    core = DeviceTrackerCore(seq.intrinsics, SLOT)
+    core = DeviceTrackerCore(seq.intrinsics, 60)
     _track(core, frames[:10])
-    core.take_slot()
     wrong = np.eye(4)
     wrong[:3, 3] = [0.6, -0.4, 0.5]           # a motion model 80 cm off: nothing projects near
     core.tracking._velocity = wrong
-    result = core.track(frames[10].color, frames[10].depth, frames[10].stamp)
-    assert result.relocalised and result.record.tracked
-    assert result.recovered and not result.lost_now          # what the node logs
-    truth = np.linalg.inv(frames[0].pose) @ frames[10].pose
-    assert np.linalg.norm(result.record.pose[:3, 3] - truth[:3, 3]) < 0.05
-    after = core.track(frames[11].color, frames[11].depth, frames[11].stamp)
+    on_probation = [core.track(f.color, f.depth, f.stamp) for f in frames[10:10 + probation]]
+    assert not any(r.record.tracked or r.relocalised for r in on_probation)
+    assert on_probation[0].lost_now and not on_probation[0].refused
+    for r, f in zip(on_probation, frames[10:], strict=False):   # posed all along
+        truth = np.linalg.inv(frames[0].pose) @ f.pose
+        assert np.linalg.norm(r.record.pose[:3, 3] - truth[:3, 3]) < 0.05
+    back = core.track(frames[10 + probation].color, frames[10 + probation].depth,
+                      frames[10 + probation].stamp)
+    assert back.relocalised and back.record.tracked and back.recovered   # what the node logs
+    after = core.track(frames[11 + probation].color, frames[11 + probation].depth,
+                       frames[11 + probation].stamp)
     assert after.record.tracked and not after.relocalised
     assert not after.recovered and not after.lost_now
+
+
+def test_the_pose_gate_refuses_a_relocalisation_to_the_wrong_place() -> None:
+    """A hand-made wrong match: the map moved 2 m, as if the room had a twin elsewhere — every
+    descriptor matches and RANSAC finds a consistent pose with hundreds of inliers, 2 m from
+    where the device was lost a frame earlier. The gate refuses it (the device stays lost,
+    no probation starts), and a pose solved with too few inliers is refused as well."""
+    seq = SyntheticSequence(12, seed=0)
+    frames = list(seq)
+    core = DeviceTrackerCore(seq.intrinsics, 60)
+    _track(core, frames[:10])
+    tracking = core.tracking
+    tracking.map.positions[:] += np.array([2.0, 0.0, 0.0])
+    wrong = np.eye(4)
+    wrong[:3, 3] = [0.6, -0.4, 0.5]
+    tracking._velocity = wrong
+    refused = core.track(frames[10].color, frames[10].depth, frames[10].stamp)
+    assert "m from the last tracked pose" in refused.refused, refused.refused
+    assert not refused.record.tracked and not refused.relocalised and refused.lost_now
+    feats = tracking.extractor.extract(frames[11].color)
+    _, _, pose, inliers = tracking.relocalise(feats)
+    assert pose is not None and inliers.sum() >= 100        # the wrong place, found well
+    config = tracking.config
+    assert tracking.gate(pose, config.reloc_min_inliers - 1).startswith(
+        f"{config.reloc_min_inliers - 1} inliers")
+    assert tracking._last_tracked is not None
+    near = tracking._last_tracked.copy()
+    near[:3, 3] += [0.2, 0.0, 0.0]
+    assert tracking.gate(near, config.reloc_min_inliers) == ""    # within reach: accepted
 
 
 def test_tracking_lost_and_recovered_are_reported_once_each() -> None:

@@ -5,6 +5,7 @@ policy seed by seed."""
 from __future__ import annotations
 
 import math
+from dataclasses import asdict
 from pathlib import Path
 
 import pytest
@@ -105,11 +106,31 @@ def test_an_interrupted_evaluation_resumes_with_what_it_measured(
     assert ran == [0, 1, 2, 3] and not failures          # seeds 0, 1 not run again
     assert "resuming: 2 of 4 runs" in lines[0]
     assert [r.key for r in results] == [t.key for t in tasks]
-    assert [r.report for r in results[:2]] == [r.report for r in first]   # read back exactly
+    # read back exactly (repr: a NaN figure reads back as NaN, which == does not see)
+    assert [repr(r.report) for r in results[:2]] == [repr(r.report) for r in first]
     assert len((tmp_path / "runs.csv").read_text().splitlines()) == 5   # one header, 4 runs
     summary = summarise(results)[0]
     assert summary.runs == 4
     assert summary.figures["tracking_failures"][0] == pytest.approx(3.5)
+
+
+def test_a_folder_of_a_version_without_the_jumps_column_resumes_with_jumps_not_measured(
+        tmp_path: Path) -> None:
+    """runs.csv written before ``jumps`` existed: its runs read back with jumps NaN (not
+    measured), and the file is rewritten with today's columns before new rows append."""
+    from twinslam.live import runs as evaluate
+
+    header = evaluate.RUNS_HEADER
+    assert header[-1] == "jumps"
+    done = _run("lff", 0, 2, 0.1, "lff")
+    row = [str(v) for v in [*asdict(done.key).values(), *asdict(done.report).values()][:-1]]
+    assert len(row) == len(header) - 1
+    (tmp_path / "runs.csv").write_text(",".join(header[:-1]) + "\n" + ",".join(row) + "\n")
+    (back,) = evaluate.finished_runs(tmp_path).values()
+    assert math.isnan(back.report.jumps)
+    assert repr(back.report).replace("jumps=nan", "") == repr(done.report).replace(
+        f"jumps={done.report.jumps}", "")
+    assert (tmp_path / "runs.csv").read_text().splitlines()[0] == ",".join(header)
 
 
 def test_resuming_into_a_folder_of_another_version_is_refused(tmp_path: Path) -> None:

@@ -11,15 +11,17 @@ from pathlib import Path
 
 import numpy as np
 
-from msg_schemas.headers import time_seconds
+from msg_schemas.headers import time_key, time_seconds
 from twinslam.live.record import RunRecord
 from twinslam.policy_registry import LEARNED_PREFIX
 from twinslam.slam.tracking_quality import (
+    JUMP_M,
     FrameFlags,
     TrackingEvents,
     absolute_trajectory_error,
     relative_pose_error,
     tracking_events,
+    translation_errors,
 )
 
 
@@ -48,16 +50,19 @@ class RunReport:
     #: camera frames missing from the device's complete slots (dropped or skipped): a device
     #: that fell behind the camera (an overloaded machine) shows here
     frames_dropped: int = 0
+    #: relocalisations the device accepted more than ``JUMP_M`` from the aligned ground truth
+    #: (NaN: not measured — no ground truth, or a run of an older version)
+    jumps: float = math.nan
 
     ROW = ("{label:<14} {mean_uncertainty:>10.1f} {lost_share:>6.1%} "
            "{tracked_uncertainty:>10.1f} {ate_m:>7.3f} "
            "{rpe_m:>7.3f} {frames_uploaded:>7d} {mbytes:>7.1f} {achieved_mbps:>7.1f} "
            "{untracked_frames:>6d} {tracking_failures:>5d} {relocalisations:>6d} "
-           "{recover_s:>7.2f} {edge_ms_median:>7.0f}")
+           "{jumps:>5.0f} {recover_s:>7.2f} {edge_ms_median:>7.0f}")
     HEADER = (f"{'policy':<14} {'mean υ':>10} {'lost':>6} {'υ tracked':>10} {'ATE m':>7} "
               f"{'RPE m':>7} "
               f"{'uploads':>7} {'MB':>7} {'Mbit/s':>7} {'untrk':>6} {'fails':>5} "
-              f"{'reloc':>6} {'recov s':>7} {'edge ms':>7}")
+              f"{'reloc':>6} {'jumps':>5} {'recov s':>7} {'edge ms':>7}")
 
     @property
     def label(self) -> str:
@@ -109,13 +114,24 @@ def report(policy: str, record: RunRecord, seconds: float, slot_frames: int) -> 
                      events.mean_recover_s,
                      float(np.median([s.slot_processing_ms for s in stats])) if stats
                      else math.nan, seconds, deciders(record),
-                     dropped_frames(record, slot_frames))
+                     dropped_frames(record, slot_frames), jumps(record))
 
 
 def dropped_frames(record: RunRecord, slot_frames: int) -> int:
     """Frames missing from every slot but the last (which the run may end inside)."""
     slots = sorted(record.summaries)[:-1]
     return sum(max(0, slot_frames - len(record.summaries[s].frames)) for s in slots)
+
+
+def jumps(record: RunRecord) -> float:
+    """The device's relocalisations (its first counted frame after one) whose pose is more
+    than ``JUMP_M`` from the truth, after the alignment ATE uses; NaN without ground truth."""
+    errors = translation_errors(record.poses, record.ground_truth)
+    if not errors:
+        return math.nan
+    back = [time_key(f.stamp) for s in record.summaries.values() for f in s.frames
+            if f.tracked and f.relocalised]
+    return float(sum(errors.get(stamp, 0.0) > JUMP_M for stamp in back))
 
 
 #: how the edge names a slot its learned policy left to the fallback rule ("adapt (fallback)")

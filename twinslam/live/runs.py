@@ -33,7 +33,7 @@ if TYPE_CHECKING:
     from _typeshed import DataclassInstance
 
 from twinslam.common.executor import Executor, LocalExecutor
-from twinslam.common.reporting import file_name
+from twinslam.common.reporting import file_name, write_csv
 from twinslam.common.tracking_rule import MIN_SHARED_POINTS
 from twinslam.live.calibration import LiveFrames, live_frames, played_frames
 from twinslam.live.launcher import LaunchConfig, Launcher
@@ -219,15 +219,27 @@ D = TypeVar("D", bound="DataclassInstance")
 _CELL = {"int": int, "float": float, "str": str}
 
 
+#: columns a later version added at the end of runs.csv, and what the rows of an older file
+#: read for them: not measured then
+ADDED_COLUMNS = {"jumps": "nan"}
+
+
 def _read_rows(path: Path, header: list[str]) -> list[list[str]]:
     """The rows of one of the tables :func:`run_all` writes, by position: runs.csv has two
-    ``policy`` columns (the label and the report's)."""
+    ``policy`` columns (the label and the report's). A file written before columns of
+    :data:`ADDED_COLUMNS` existed is rewritten with them (its rows unchanged, the new cells
+    "nan"), so that the runs still to do append rows of today's columns."""
     with path.open(newline="", encoding="utf-8") as fh:
         rows = list(csv.reader(fh))
-    if not rows or rows[0] != header:
+    old = rows[0] if rows else []
+    missing = header[len(old):]
+    if not rows or header[:len(old)] != old or any(c not in ADDED_COLUMNS for c in missing):
         raise ValueError(f"{path} was written by another version of twinslam evaluate "
                          f"(its columns differ); resume into a new --out folder")
-    return rows[1:]
+    body = [row + [ADDED_COLUMNS[c] for c in missing] for row in rows[1:]]
+    if missing:
+        write_csv(path, header, body)
+    return body
 
 
 def _typed(cls: type[D], cells: list[str]) -> D:

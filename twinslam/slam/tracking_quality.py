@@ -123,6 +123,11 @@ def relative_pose_error(poses: Mapping[int, np.ndarray], truth: Mapping[int, np.
     return float(rpe.get_statistic(metrics.StatisticsType.rmse))
 
 
+#: an accepted pose farther than this from the aligned ground truth is a *jump*: a wrong
+#: relocalisation, which a user sees as the virtual content leaping across the room
+JUMP_M = 0.3
+
+
 def translation_errors(poses: Mapping[int, np.ndarray], truth: Mapping[int, np.ndarray]
                        ) -> dict[int, float]:
     """Per stamp both hold: the distance (m) between the device's position and the true one
