@@ -354,16 +354,20 @@ def test_an_evicted_keyframe_comes_back_from_the_archive_on_the_way_back() -> No
     the edge's archive (MapStats counts them), and on the way back the edge restores some of
     them where the camera is heading — a keyframe the device's map lost comes back into it —
     and the device tracks the way back."""
-    # 91 frames: 181 played in 6 slots of 30 frames at half speed
+    # 91 frames: 181 played in 6 slots of 30 frames at a quarter speed: the one slot that
+    # restores (the 5th: the camera heads back past the evicted keyframes) decides from where
+    # its frames say the camera heads, so none may be dropped on a loaded machine
     report, record, launcher = _run(
-        "lff", frames=91, scenario=SCENARIOS["revisit"], sequence="synthetic:91", rate=RATE,
+        "lff", frames=91, scenario=SCENARIOS["revisit"], sequence="synthetic:91",
+        rate=RATE / 2,
         extra={"edge_mapper": ["vmax:=8", "restore_keyframes:=3"],
                "device_tracker": [f"slot_frames:={SLOT_FRAMES}", "map_source:=edge"]})
     maps = [set(record.maps[k].keyframe_ids.tolist()) for k in sorted(record.maps)]
     back = sorted(came_back(maps))
     log = launcher.logs["edge_mapper"]
-    assert back, f"no keyframe came back into the device's map: {maps}"
-    assert "restored from the archive" in log, log[-3000:]
+    seen = {k: len(s.frames) for k, s in sorted(record.summaries.items())}
+    assert back, f"no keyframe came back into the device's map: {maps}; frames a slot {seen}"
+    assert "restored from the archive" in log, f"frames a slot {seen}; {log[-3000:]}"
     assert max(s.archived_keyframes for s in record.stats.values()) > 0
     assert all(s.map_size <= 8 for s in record.stats.values())
     print(f"\ncame back: {back}; {report.row()}")
