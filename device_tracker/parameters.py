@@ -32,6 +32,12 @@ PARAMETERS = (
               high=1e6),
     ParamSpec("seed", 0, "seed of the channel model", low=0),
     ParamSpec("n_features", 1000, "ORB features per frame", low=10, high=100_000),
+    ParamSpec("reloc_min_inliers", TrackingConfig.reloc_min_inliers, "the pose gate: RANSAC "
+              "inliers a relocalised pose needs after refinement (bench.relocalisation_gate)",
+              low=4, high=100_000),
+    ParamSpec("reloc_probation_frames", TrackingConfig.reloc_probation_frames, "frames a "
+              "relocalised device must track by its motion model before it counts itself "
+              "tracked and uploads again (0: none)", low=0, high=100_000),
     ParamSpec("map_frame", "map", "frame id of the device's poses and path (its first "
               "frame's camera frame) and parent of the camera on /tf"),
     ParamSpec("camera_frame", "", "child frame of the device's pose on /tf; empty: the camera "
@@ -89,7 +95,9 @@ class DeviceSettings:
         return cls(int(p["slot_frames"]), float(p["frame_rate_hz"]),
                    int(float(p["alpha_mbit"]) * 1e6 / 8), str(p["channel"]), str(p["map_frame"]),
                    str(p["camera_frame"]), bool(p["publish_tf"]), str(p["map_source"]),
-                   TrackingConfig(n_features=int(p["n_features"]), relocalise=True),
+                   TrackingConfig(n_features=int(p["n_features"]), relocalise=True,
+                                  reloc_min_inliers=int(p["reloc_min_inliers"]),
+                                  reloc_probation_frames=int(p["reloc_probation_frames"])),
                    bool(p["upload_image"]), int(p["keep_slots"]), int(p["path_window"]))
 
     def describe(self, shaper: str) -> str:

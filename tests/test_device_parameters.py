@@ -52,3 +52,15 @@ def test_a_camera_frame_equal_to_the_map_frame_is_refused_with_the_reason() -> N
     assert DeviceSettings.from_parameters(values).camera_frame == ""   # the images' frame id
     with pytest.raises(ValueError, match="camera_frame and map_frame are both 'map'"):
         DeviceSettings.from_parameters(dict(values, camera_frame="map"))
+
+
+def test_the_pose_gate_is_set_by_parameters() -> None:
+    """``reloc_min_inliers`` and ``reloc_probation_frames`` reach the tracker (a user loosens
+    or tightens the gate for a camera of their own, or measures without it)."""
+    from device_tracker.parameters import PARAMETERS, DeviceSettings
+
+    values = {spec.name: spec.default for spec in PARAMETERS}
+    tracking = DeviceSettings.from_parameters(
+        dict(values, reloc_min_inliers=50, reloc_probation_frames=0)).tracking
+    assert (tracking.reloc_min_inliers, tracking.reloc_probation_frames) == (50, 0)
+    assert tracking.relocalise
