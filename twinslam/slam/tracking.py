@@ -113,6 +113,7 @@ class Tracking:
         self._visible = np.zeros(0, dtype=np.int64)
         self._new_map = False                           # replaced since the last relocalisation
         self._last_tracked: np.ndarray | None = None    # camera-to-world, last counted frame
+        self._last_tracked_index = -1                   # ... and its index
         self._probation_left = 0                        # posed frames before it counts again
         self._back_after_probation = False              # the next counted frame is a recovery
 
@@ -167,7 +168,7 @@ class Tracking:
                           else np.eye(4))
         self._pose = pose
         if tracked:
-            self._last_tracked = pose
+            self._last_tracked, self._last_tracked_index = pose, index
         self._cull(index)
         return TrackedFrame(index, pose.copy(), np.sort(observed), tracked, keyframe,
                             len(feats.points), len(matched_ids), feats, assoc, recovered,
@@ -193,18 +194,19 @@ class Tracking:
     # -- steps ------------------------------------------------------------------------------
 
     def gate(self, pose: np.ndarray, inliers: int) -> str:
-        """Why a relocalised ``pose`` (camera-to-world, solved with ``inliers``) is refused, or
-        "" to accept it: too few inliers, or farther from the last tracked pose than the
-        device could have moved while it was lost (``_lost`` frames before this one)."""
+        """Why a relocalised ``pose`` (camera-to-world, solved with ``inliers``) for the frame
+        being tracked is refused, or "" to accept it: too few inliers, or farther from the
+        last frame counted as tracked than the device could have moved since."""
         cfg = self.config
         if inliers < cfg.reloc_min_inliers:
             return f"{inliers} inliers, fewer than {cfg.reloc_min_inliers}"
         if self._last_tracked is not None:
-            reach = cfg.reloc_margin_m + cfg.reloc_reach_m_per_frame * (self._lost + 1)
+            frames = self._count - 1 - self._last_tracked_index
+            reach = cfg.reloc_margin_m + cfg.reloc_reach_m_per_frame * frames
             moved = float(np.linalg.norm(pose[:3, 3] - self._last_tracked[:3, 3]))
             if moved > reach:
                 return (f"{moved:.2f} m from the last tracked pose, farther than "
-                        f"{reach:.2f} m in {self._lost + 1} frames")
+                        f"{reach:.2f} m in {frames} frames")
         return ""
 
     def _relocalisation_probation(self, posed: bool, relocalised: bool) -> tuple[bool, bool]:
