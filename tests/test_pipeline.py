@@ -331,6 +331,11 @@ def test_a_device_that_lost_tracking_relocalises_against_the_edges_map() -> None
     key = first.stamp.sec * 10**9 + first.stamp.nanosec
     expected = np.linalg.inv(origin) @ truth[key]
     error = np.linalg.norm(record.poses[key][:3, 3] - expected[:3, 3])
+    # the run's picture marks it where the device put it (twinslam.live.run_picture)
+    from twinslam.live.run_picture import relocalised_positions
+    marked = relocalised_positions(record)
+    assert len(marked) == report.relocalisations
+    assert np.allclose(marked[0], record.poses[key][:3, 3])
     print(f"\nrelocalised frame {first.frame_id}: {len(first.map_point_ids)} map points, "
           f"position error {error * 100:.1f} cm; {report.row()}")
     assert error < 0.05

@@ -63,6 +63,11 @@ def _top_down(ax_: Axes, record: RunRecord) -> None:
         ax_.plot(xyz[:, 0], xyz[:, 2], c="tab:green", lw=1.0, label="device")
         ax_.scatter(xyz[~ok, 0], xyz[~ok, 2], s=6, c="tab:red",
                     label=f"device, not tracked ({int((~ok).sum())} frames)")
+        back = relocalised_positions(record)
+        if len(back):
+            ax_.scatter(back[:, 0], back[:, 2], marker="*", s=90, c="tab:orange",
+                        edgecolors="k", linewidths=0.5, zorder=5,
+                        label=f"relocalised ({len(back)})")
     truth = truth_in_map(record.poses, record.ground_truth)
     if truth:
         gt = np.array([truth[s][:3, 3] for s in sorted(truth)])
@@ -71,6 +76,15 @@ def _top_down(ax_: Axes, record: RunRecord) -> None:
     ax_.set(xlabel="x (m)", ylabel="z (m)", title="the edge's final map, from above")
     ax_.set_aspect("equal", adjustable="datalim")
     ax_.legend(loc="best", fontsize=8, markerscale=2)
+
+
+def relocalised_positions(record: RunRecord) -> np.ndarray:
+    """Where the device counted itself tracked again after a relocalisation (N×3, its own
+    estimates): the places a wrong relocalisation would show as a jump in the trajectory."""
+    back = [time_key(f.stamp) for s in record.summaries.values() for f in s.frames
+            if f.tracked and f.relocalised]
+    xyz = [record.poses[k][:3, 3] for k in back if k in record.poses]
+    return np.array(xyz).reshape(-1, 3)
 
 
 def _over_slots(axes: list[Axes], record: RunRecord) -> None:
