@@ -129,9 +129,14 @@ def jumps(record: RunRecord) -> float:
     errors = translation_errors(record.poses, record.ground_truth)
     if not errors:
         return math.nan
-    back = [time_key(f.stamp) for s in record.summaries.values() for f in s.frames
+    return float(sum(errors.get(stamp, 0.0) > JUMP_M for stamp in relocalised_stamps(record)))
+
+
+def relocalised_stamps(record: RunRecord) -> list[int]:
+    """The stamps (ns) of the frames the device counted as tracked again after a
+    relocalisation (and its probation)."""
+    return [time_key(f.stamp) for s in record.summaries.values() for f in s.frames
             if f.tracked and f.relocalised]
-    return float(sum(errors.get(stamp, 0.0) > JUMP_M for stamp in back))
 
 
 #: how the edge names a slot its learned policy left to the fallback rule ("adapt (fallback)")

@@ -18,6 +18,7 @@ import numpy as np
 from msg_schemas.headers import time_key
 from twinslam.common.reporting import pyplot
 from twinslam.live.record import RunRecord
+from twinslam.live.report import relocalised_stamps
 from twinslam.slam.tracking_quality import truth_in_map
 
 # matplotlib loads when a run is drawn, not with every module that imports this one
@@ -81,9 +82,7 @@ def _top_down(ax_: Axes, record: RunRecord) -> None:
 def relocalised_positions(record: RunRecord) -> np.ndarray:
     """Where the device counted itself tracked again after a relocalisation (N×3, its own
     estimates): the places a wrong relocalisation would show as a jump in the trajectory."""
-    back = [time_key(f.stamp) for s in record.summaries.values() for f in s.frames
-            if f.tracked and f.relocalised]
-    xyz = [record.poses[k][:3, 3] for k in back if k in record.poses]
+    xyz = [record.poses[k][:3, 3] for k in relocalised_stamps(record) if k in record.poses]
     return np.array(xyz).reshape(-1, 3)
 
 
