@@ -11,6 +11,7 @@ import pytest
 
 from twinslam.cli.main import main
 from twinslam.live.fleet import FleetConfig, device_sequence
+from twinslam.node_hosts.forked import process_name
 
 
 def test_every_device_plays_its_own_walk() -> None:
@@ -73,9 +74,13 @@ def test_a_terminated_launch_stops_the_nodes_it_started(tmp_path: Path) -> None:
     seen, deadline = "", time.monotonic() + 120
     while "slot   0" not in seen and time.monotonic() < deadline and cli.poll() is None:
         seen += cli.stdout.readline()
-    children = [int(pid) for pid in os.listdir("/proc") if pid.isdigit()
-                and _parent(int(pid)) == cli.pid]
-    assert "slot   0" in seen and len(children) >= 3, (seen[-2000:], children)
+    # the nodes: the launcher's children, or its fork server's (twinslam.live.node_fork_server)
+    pids = [int(pid) for pid in os.listdir("/proc") if pid.isdigit()]
+    servers = [pid for pid in pids if _parent(pid) == cli.pid]
+    children = [pid for pid in pids if _parent(pid) in (cli.pid, *servers)]
+    names = {_name(pid) for pid in children}
+    assert "slot   0" in seen and {"edge_mapper", "device_tracker", "sequence_player"} <= names, \
+        (seen[-2000:], names)
     cli.send_signal(signal.SIGTERM)
     _, err = cli.communicate(timeout=60)
     assert cli.returncode == 130 and "interrupted: nodes stopped" in err, err[-2000:]
@@ -87,6 +92,18 @@ def _parent(pid: int) -> int:
         return int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
     except (OSError, IndexError, ValueError):
         return -1
+
+
+def _name(pid: int) -> str:
+    """A node process's name: the one a forked node gives itself, or its ``-m`` module's."""
+    try:
+        comm = Path(f"/proc/{pid}/comm").read_text().strip()
+        argv = Path(f"/proc/{pid}/cmdline").read_bytes().decode().split("\0")
+    except OSError:
+        return ""
+    if not comm.startswith("python"):
+        return comm
+    return process_name(argv[argv.index("-m") + 1]) if "-m" in argv[:-1] else comm
 
 
 def _alive(pid: int) -> bool:

@@ -13,6 +13,7 @@ import pytest
 from twinslam_msgs.msg import FrameSummaries, KeyframeBudget, MapStats, UploadRequest
 
 from msg_schemas import qos
+from twinslam.live.launcher import preloaded_nodes
 from twinslam.node_hosts.loopback import LoopbackDomain
 from twinslam.node_hosts.session import RosSession
 
@@ -30,6 +31,9 @@ RATE, FRAME_RATE_HZ = 0.5, 30.0
 FRAMES, V_TOTAL, MINIMUM = 600, 24, 5
 GONE = "ar3"                               #: killed after a few slots
 AFTER_RECLAIM = 3                          #: slots each staying device must plan after it
+
+#: the nodes are forked from the launchers' fork server (twinslam.live.node_fork_server)
+FORKS = preloaded_nodes()
 
 
 @pytest.mark.slow(seconds=50)
@@ -72,7 +76,7 @@ def test_one_edge_serves_three_devices_within_one_budget_and_reclaims_a_lost_one
                          # late summaries flickered devices silent, and the others took the
                          # joining device's share each time (it stayed below its minimum)
                          "-p", "device_silent_s:=3.0", "-p", "device_reclaim_s:=2.0",
-                         "-p", "visualisation:=false"])
+                         "-p", "visualisation:=false"], forks=FORKS)
     assert domain.wait_for_log(edge, "listening on /ar2/device/frame_summaries", 90), \
         domain.log(edge)[-2000:]
     procs = {}
@@ -81,12 +85,12 @@ def test_one_edge_serves_three_devices_within_one_budget_and_reclaims_a_lost_one
             domain.spawn(["-m", "device_tracker.node", "--ros-args", "-r", f"__ns:=/{d}",
                           "-p", f"slot_frames:={slot_frames}", "-p", f"seed:={seed}",
                           "-p", f"frame_rate_hz:={FRAME_RATE_HZ * RATE}",
-                          "-p", f"map_frame:={d}/map"]),
+                          "-p", f"map_frame:={d}/map"], forks=FORKS),
             domain.spawn(["-m", "twinslam.sequence_player.node", "--ros-args",
                           "-r", f"__ns:=/{d}", "-p", f"sequence:=synthetic:{start + FRAMES}",
                           "-p", f"start:={start}", "-p", "wait_for_subscribers:=1",
                           "-p", f"rate:={RATE}",
-                          "-p", f"frame_id:={d}/camera", "-p", f"map_frame:={d}/map"])]
+                          "-p", f"frame_id:={d}/camera", "-p", f"map_frame:={d}/map"], forks=FORKS)]
     # the third device goes away once it has been granted its minimum (it joined last and
     # waited for the others' maps to shrink) and planned three slots: camera and tracker killed
     assert ros.spin_until(lambda: len(got[GONE]["stats"]) >= 3 and any(

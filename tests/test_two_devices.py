@@ -9,6 +9,7 @@ import pytest
 from twinslam_msgs.msg import FrameSummaries, MapStats, MapUpdate, UplinkThroughput, UploadRequest
 
 from msg_schemas import qos
+from twinslam.live.launcher import preloaded_nodes
 from twinslam.node_hosts.loopback import LoopbackDomain
 from twinslam.node_hosts.session import RosSession
 
@@ -16,6 +17,9 @@ from twinslam.node_hosts.session import RosSession
 #: first frame of the synthetic room played (different views)
 PAIRS = {"/ar1": (30, 0, 0), "/ar2": (45, 1, 300)}
 FRAMES = 180
+
+#: the nodes are forked from the launchers' fork server (twinslam.live.node_fork_server)
+FORKS = preloaded_nodes()
 
 
 @pytest.mark.slow(seconds=20)
@@ -34,14 +38,14 @@ def test_two_pairs_share_a_domain_without_cross_talk(domain: LoopbackDomain,
             qos.PROTOCOL)
         sub(MapUpdate, f"{ns}/edge/map_update", rec["maps"].append, qos.MAP)
     edges = {ns: domain.spawn(["-m", "edge_mapper.node", "--ros-args", "-r", f"__ns:={ns}",
-                               "-p", "policy:=lff", "-p", "vmax:=6"]) for ns in PAIRS}
+                               "-p", "policy:=lff", "-p", "vmax:=6"], forks=FORKS) for ns in PAIRS}
     assert all(domain.wait_for_log(e, "listening on", 90) for e in edges.values())
     for ns, (slot_frames, seed, start) in PAIRS.items():
         domain.spawn(["-m", "device_tracker.node", "--ros-args", "-r", f"__ns:={ns}",
-                      "-p", f"slot_frames:={slot_frames}", "-p", f"seed:={seed}"])
+                      "-p", f"slot_frames:={slot_frames}", "-p", f"seed:={seed}"], forks=FORKS)
         domain.spawn(["-m", "twinslam.sequence_player.node", "--ros-args", "-r", f"__ns:={ns}",
                       "-p", f"sequence:=synthetic:{start + FRAMES}", "-p", f"start:={start}",
-                      "-p", "wait_for_subscribers:=1"])
+                      "-p", "wait_for_subscribers:=1"], forks=FORKS)
     slots = {ns: FRAMES // f for ns, (f, _, _) in PAIRS.items()}
 
     def every_slot_reported() -> bool:

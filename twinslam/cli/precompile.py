@@ -16,26 +16,14 @@ from __future__ import annotations
 import sys
 import time
 
-import numpy as np
-
-from device_tracker.device_core import DeviceTrackerCore
-from edge_mapper.edge_core import EdgeMapperCore
-from twinslam.map_management.budget_value import budget_value
-from twinslam.map_management.policies import POLICIES
-from twinslam.policy_registry import make_policy
-from twinslam.sequences.synthetic import SyntheticSequence
+from twinslam.live.node_fork_server import load_kernels
 
 
 def main() -> int:
     start = time.monotonic()
     print("compiling the device, edge and synthetic-room kernels (once after a change; "
           "about a minute on 2 cores)", flush=True)
-    DeviceTrackerCore.warm_up()
-    for name in POLICIES:
-        EdgeMapperCore.warm_up(make_policy(name))
-    next(iter(SyntheticSequence(n_frames=1)))
-    points = np.arange(40)                  # the twin allocator's value curve (issue #32)
-    budget_value([points], [points], 0.0, 1, 2)
+    load_kernels()
     print(f"kernels ready in {time.monotonic() - start:.0f} s", flush=True)
     return 0
 

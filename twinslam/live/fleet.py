@@ -24,7 +24,7 @@ import numpy as np
 from twinslam_msgs.msg import MapStats
 
 from twinslam.common import table1
-from twinslam.live.launcher import LaunchConfig, Launcher
+from twinslam.live.launcher import LaunchConfig, Launcher, preloaded_nodes
 from twinslam.live.monitor import PipelineMonitor
 from twinslam.live.record import RunRecord
 from twinslam.live.report import RunReport, report
@@ -139,7 +139,7 @@ class FleetLauncher(Launcher):
             monitors = {d: PipelineMonitor(s.node, self._status(d)) for d, s in sessions.items()}
             self.records = monitors
             started = time.monotonic()
-            edge = self.domain.spawn(self.edge_args(), host="edge")
+            edge = self.domain.spawn(self.edge_args(), host="edge", forks=preloaded_nodes())
             self.procs["edge_mapper"] = edge
             first = sessions[names[-1]]
             if not first.spin_until(lambda: monitors[names[-1]].requests.get_publisher_count()
@@ -151,8 +151,8 @@ class FleetLauncher(Launcher):
                                    f"{err.strip()[-500:]}")
             for i, d in enumerate(names):
                 for node in ("device_tracker", "sequence_player"):
-                    self.procs[f"{node}:{d}"] = self.domain.spawn(self.device_args(node, i),
-                                                                  host=d)
+                    self.procs[f"{node}:{d}"] = self.domain.spawn(
+                        self.device_args(node, i), host=d, forks=preloaded_nodes())
             players = [self.procs[f"sequence_player:{d}"] for d in names]
             deadline = started + c.timeout_s
 

@@ -10,7 +10,7 @@ throughput achieved, frames the device could not track, and the edge's milliseco
 
 from __future__ import annotations
 
-import subprocess
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -21,11 +21,13 @@ import yaml
 
 from twinslam.common import table1
 from twinslam.live.monitor import PipelineMonitor, status_line
+from twinslam.live.node_fork_server import SWITCH, fork_servers
 from twinslam.live.record import RunRecord
 from twinslam.live.report import RunReport, report
 from twinslam.live.run_recording import RecordingSummary, RunRecorder
 from twinslam.live.scenarios import SCENARIOS, Scenario
 from twinslam.node_hosts.fastdds import REPO_ROOT
+from twinslam.node_hosts.forked import ForkServers, NodeProcess
 from twinslam.node_hosts.loopback import ProcessDomain
 from twinslam.node_hosts.session import RosSession
 
@@ -68,7 +70,7 @@ class Launcher:
     def __init__(self, domain: ProcessDomain, config: LaunchConfig,
                  echo: Callable[[str], None] | None = print) -> None:
         self.domain, self.config, self.echo = domain, config, echo
-        self.procs: dict[str, subprocess.Popen[str]] = {}
+        self.procs: dict[str, NodeProcess] = {}
         self.logs: dict[str, str] = {}         #: each node's stderr (its log), after stop
         self._killed: set[int] = set()         #: pids killed on purpose (``kill``)
         #: what the monitor heard, by slot: filled while ``run`` plays, kept afterwards
@@ -99,8 +101,9 @@ class Launcher:
             args += ["-p", p]
         return args
 
-    def start(self, name: str) -> subprocess.Popen[str]:
-        proc = self.domain.spawn(self.node_args(name), host=NODE_HOSTS[name])
+    def start(self, name: str) -> NodeProcess:
+        proc = self.domain.spawn(self.node_args(name), host=NODE_HOSTS[name],
+                                 forks=preloaded_nodes())
         self.procs[name] = proc
         return proc
 
@@ -218,6 +221,12 @@ class Launcher:
             if code not in (0, -15) and self.echo:
                 self.echo(f"{name} exited with {code}: {err.strip()[-2000:]}")
         return codes
+
+
+def preloaded_nodes() -> ForkServers | None:
+    """The fork servers the launchers start their nodes from (``twinslam.live.node_fork_server``),
+    unless ``TWINSLAM_FORK_SERVER=0`` asks for a ``python -m`` process each."""
+    return None if os.environ.get(SWITCH, "1") == "0" else fork_servers(REPO)
 
 
 def node_parameters(params_file: Path, node: str) -> dict[str, Any]:

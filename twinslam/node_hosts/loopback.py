@@ -33,6 +33,7 @@ from twinslam.node_hosts.fastdds import (
     installed_profile,
     ros_env,
 )
+from twinslam.node_hosts.forked import ForkServers, NodeProcess
 
 
 def _discovery_port_free(domain_id: int) -> bool:
@@ -112,7 +113,7 @@ class ProcessDomain:
 
     def __init__(self, domain_id: int) -> None:
         self.domain_id = domain_id
-        self.processes: list[subprocess.Popen[str]] = []
+        self.processes: list[NodeProcess] = []
         #: each process's stderr (its log) so far, by pid, read by a thread as it comes: a
         #: chatty node must never block on a full pipe (64 KB) that nobody reads
         self._logs: dict[int, list[str]] = {}
@@ -140,13 +141,21 @@ class ProcessDomain:
         """Where this process's own participants must be made to watch the domain."""
         return contextlib.nullcontext()
 
-    def spawn(self, args: list[str], host: str | None = None,
-              **kwargs: object) -> subprocess.Popen[str]:
+    def spawn(self, args: list[str], host: str | None = None, forks: ForkServers | None = None,
+              **kwargs: object) -> NodeProcess:
         """Start ``python args...`` on this domain (on ``host`` where the domain has hosts);
-        stdout/stderr are captured as text."""
-        proc: subprocess.Popen[str] = subprocess.Popen(  # type: ignore[call-overload]
-            self.command(host, [sys.executable, *args]), env=self.env_for(host), text=True,
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=str(REPO_ROOT), **kwargs)
+        stdout/stderr are captured as text. With ``forks``, a preloaded module is forked from
+        its fork server where the host is this machine's own network."""
+        argv = [sys.executable, *args]
+        env = self.env_for(host)
+        proc: NodeProcess | None = None
+        if forks is not None and not kwargs and self.command(host, argv) == argv:
+            proc = forks.spawn(args, env)
+        if proc is None:
+            proc = subprocess.Popen(  # type: ignore[call-overload]
+                self.command(host, argv), env=env, text=True, stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE, cwd=str(REPO_ROOT), **kwargs)
+            assert proc is not None
         self.processes.append(proc)
         lines: list[str] = []
         self._logs[proc.pid] = lines
@@ -156,11 +165,11 @@ class ProcessDomain:
         self._log_threads[proc.pid] = thread
         return proc
 
-    def log(self, proc: subprocess.Popen[str]) -> str:
+    def log(self, proc: NodeProcess) -> str:
         """What ``proc`` has written to stderr so far."""
         return "".join(self._logs.get(proc.pid, []))
 
-    def wait_for_log(self, proc: subprocess.Popen[str], text: str, timeout: float) -> bool:
+    def wait_for_log(self, proc: NodeProcess, text: str, timeout: float) -> bool:
         """Wait (bounded) until ``proc`` logged ``text``; False if it did not, or exited."""
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
@@ -172,7 +181,7 @@ class ProcessDomain:
             time.sleep(0.05)
         return False
 
-    def stop(self, proc: subprocess.Popen[str], timeout: float = 5.0) -> tuple[int, str, str]:
+    def stop(self, proc: NodeProcess, timeout: float = 5.0) -> tuple[int, str, str]:
         """SIGTERM, wait up to ``timeout`` s, SIGKILL if needed; returns (code, out, err)."""
         if proc.poll() is None:
             proc.send_signal(signal.SIGTERM)
@@ -181,6 +190,7 @@ class ProcessDomain:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait(timeout=5)
+        assert proc.returncode is not None
         thread = self._log_threads.get(proc.pid)
         if thread is not None:
             thread.join(timeout=5)
@@ -257,7 +267,7 @@ class JsonLines:
     Tests and benchmarks talk to the node processes they spawn through such lines.
     """
 
-    def __init__(self, proc: subprocess.Popen[str]) -> None:
+    def __init__(self, proc: NodeProcess) -> None:
         self.proc = proc
         self.lines: queue.Queue[dict[str, Any]] = queue.Queue()
         self._thread = threading.Thread(target=self._pump, daemon=True)
