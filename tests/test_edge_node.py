@@ -14,11 +14,15 @@ from twinslam_msgs.msg import FrameSummaries, Keyframe, MapStats, MapUpdate, Upl
 from device_tracker.messages import FrameRecord, frame_summaries_message
 from msg_schemas import qos, topics
 from tests.test_edge_core import Device, K
+from twinslam.live.launcher import preloaded_nodes
 from twinslam.node_hosts.loopback import LoopbackDomain
 from twinslam.node_hosts.session import RosSession
 from twinslam.slam.keyframe import TRACK_ID_BIT, KeyFramePayload, keyframe_message
 
 F = 8
+
+#: node processes forked as the launchers fork theirs (twinslam.live.node_fork_server)
+FORKS = preloaded_nodes()
 
 
 def _summaries(device: Device, slot: int, rate: float) -> object:
@@ -83,7 +87,7 @@ def test_edge_node_protocol_corrupt_keyframe_and_restart(
         assert ros.spin_until(lambda: len(got["map"]) > n_map and got["map"][-1].slot == slot,
                               60.0), f"no map update for slot {slot}"
 
-    edge = domain.spawn(args)
+    edge = domain.spawn(args, forks=FORKS)
     assert ros.spin_until(lambda: pub_sum.get_subscription_count() > 0
                           and pub_kf.get_subscription_count() > 0, 30.0)
     for slot, rate in enumerate([40.0, 80.0, 60.0]):
@@ -108,7 +112,7 @@ def test_edge_node_protocol_corrupt_keyframe_and_restart(
     _, _, err_before = domain.stop(edge)
     assert "dropped a malformed twinslam_msgs/msg/Keyframe" in err_before
     last = got["map"][-1]
-    edge = domain.spawn(args)                                           # ... and comes back
+    edge = domain.spawn(args, forks=FORKS)                              # ... and comes back
     assert ros.spin_until(lambda: len(got["map"]) > 3, 30.0), "no latched map after restart"
     restored = got["map"][-1]
     assert restored.map_version == 3 and list(restored.keyframe_ids) == list(last.keyframe_ids)

@@ -30,6 +30,7 @@ from rclpy.serialization import serialize_message
 
 from msg_schemas import message_class, new, qos
 from tests import cyclone_peer
+from twinslam.live.launcher import preloaded_nodes
 from twinslam.node_hosts.checked_subscription import CheckedSubscription
 from twinslam.node_hosts.session import RosSession
 
@@ -42,6 +43,9 @@ SUBSCRIBED = sorted({"sensor_msgs/msg/Image", "sensor_msgs/msg/CameraInfo",
                      "twinslam_msgs/msg/UplinkThroughput", "twinslam_msgs/msg/RateLatent"})
 BUDGET_S = 16.0                       #: hypothesis time over all types
 tried: dict[str, int] = {}
+
+#: node processes forked as the launchers fork theirs (twinslam.live.node_fork_server)
+FORKS = preloaded_nodes()
 
 
 @functools.cache
@@ -219,7 +223,7 @@ def test_running_nodes_survive_hostile_samples_and_still_answer(
 
     from device_tracker.messages import FrameRecord, frame_summaries_message
 
-    procs = {name: domain.spawn(["-m", f"{name}.node"]) for name in NODE_TOPICS}
+    procs = {name: domain.spawn(["-m", f"{name}.node"], forks=FORKS) for name in NODE_TOPICS}
     got: dict[str, list[Any]] = {"latent": [], "request": [], "throughput": [], "stats": []}
     node = ros.node
     node.create_subscription(RateLatent, "/udt/rate_latent", got["latent"].append, qos.PROTOCOL)

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from edge_mapper.edge_core import EdgeMapperCore
+from twinslam.live.launcher import preloaded_nodes
 from twinslam.map_management.policies import Adapt, LatestFrameFirst
 from twinslam.mbrl.state import NODE_FEATURES, action_from_scores, build_state, context_size, select
 from twinslam.policy_registry import make_policy
@@ -24,6 +25,9 @@ from twinslam.uplink.channels import parse_channel
 pytestmark = pytest.mark.xdist_group("torch")
 
 COVIS = Path(__file__).resolve().parents[1] / "data" / "7scenes-redkitchen-1000.covis.npz"
+
+#: node processes forked as the launchers fork theirs (twinslam.live.node_fork_server)
+FORKS = preloaded_nodes()
 
 
 @pytest.fixture(scope="module")
@@ -395,7 +399,7 @@ def test_edge_node_with_a_missing_policy_checkpoint_says_so_and_exits(tmp_path: 
     missing = tmp_path / "gone.pt"
     with LoopbackDomain() as domain:
         proc = domain.spawn(["-m", "edge_mapper.node", "--ros-args", "-p", "policy:=mbrl",
-                             "-p", f"policy_checkpoint:={missing}"])
+                             "-p", f"policy_checkpoint:={missing}"], forks=FORKS)
         proc.wait(timeout=120)
         code, _out, err = domain.stop(proc)
     assert code == 2

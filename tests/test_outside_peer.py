@@ -13,7 +13,11 @@ from rmw_dds_common.msg import ParticipantEntitiesInfo
 from sensor_msgs.msg import Image
 
 from tests import cyclone_peer
+from twinslam.live.launcher import preloaded_nodes
 from twinslam.node_hosts.loopback import LoopbackDomain
+
+#: node processes forked as the launchers fork theirs (twinslam.live.node_fork_server)
+FORKS = preloaded_nodes()
 
 
 def test_cyclone_reads_the_players_640x480_images(domain: LoopbackDomain) -> None:
@@ -27,7 +31,7 @@ def test_cyclone_reads_the_players_640x480_images(domain: LoopbackDomain) -> Non
                              Policy.History.KeepLast(100))
     player = domain.spawn(["-m", "twinslam.sequence_player.node", "--ros-args", "-p",
                            "sequence:=synthetic:30", "-p", "rate:=2.0",
-                           "-p", "wait_for_subscribers:=1"])
+                           "-p", "wait_for_subscribers:=1"], forks=FORKS)
     got: list = []
     deadline = time.monotonic() + 60
     quiet_since = None                         # the player has exited: 2 s more to arrive

@@ -12,12 +12,16 @@ from nav_msgs.msg import Path as PathMsg
 from sensor_msgs.msg import CameraInfo, Image
 
 from msg_schemas import qos, topics
+from twinslam.live.launcher import preloaded_nodes
 from twinslam.node_hosts.loopback import LoopbackDomain
 from twinslam.node_hosts.session import RosSession
 from twinslam.sequence_player.messages import depth_message
 from twinslam.sequences.frame import RgbdFrame
 
 K = np.array([[200.0, 0, 80], [0, 200.0, 60], [0, 0, 1]])
+
+#: node processes forked as the launchers fork theirs (twinslam.live.node_fork_server)
+FORKS = preloaded_nodes()
 
 
 def _seven_scenes_fixture(root: Path, frames: int, corrupt: int) -> Path:
@@ -54,7 +58,7 @@ def test_player_delivers_every_frame_at_30_hz_and_skips_a_corrupt_jpeg(
     ros.node.create_subscription(PathMsg, topics.GROUND_TRUTH_PATH, paths.append, qos.MAP)
     player = domain.spawn(["-m", "twinslam.sequence_player.node", "--ros-args",
                            "-p", f"sequence:={seq}", "-p", "wait_for_subscribers:=1",
-                           "-p", "path_window:=50"])
+                           "-p", "path_window:=50"], forks=FORKS)
     start = time.monotonic()
     # 99 frames at 30 Hz take 3.3 s; generous bound for a loaded CI machine
     ros.spin_until(lambda: player.poll() is not None and len(got["color"]) >= 99, 40.0)
