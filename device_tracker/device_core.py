@@ -57,6 +57,7 @@ class FrameResult:
     lost_now: bool = False         #: tracking was lost at this frame (the one before tracked)
     recovered: bool = False        #: relocalised, or tracked again after untracked frames
     refused: str = ""              #: why the pose gate refused this frame's relocalisation
+    on_probation: bool = False     #: posed after a relocalisation, not counted tracked yet
 
 
 @dataclass(frozen=True)
@@ -176,7 +177,7 @@ class DeviceTrackerCore:
         return FrameResult(record, out.relocalised, self.clock.is_last(stamp),
                            lost_now=self.lost and not was_lost,
                            recovered=out.tracked and (out.relocalised or was_lost),
-                           refused=out.refused)
+                           refused=out.refused, on_probation=out.on_probation)
 
     def step(self, color: np.ndarray, depth: np.ndarray | None, stamp: float,
              image: object | None = None) -> FrameStep:

@@ -44,6 +44,7 @@ from device_tracker.messages import (
     uplink_throughput_message,
 )
 from device_tracker.parameters import PARAMETERS, DeviceSettings
+from device_tracker.relocalisation_requests import EdgeRelocalisation
 from device_tracker.uplink_sender import Encoded, UplinkSender
 from device_tracker.uplink_setup import uplink_from_parameters
 from msg_schemas import qos, topics
@@ -101,6 +102,7 @@ class DeviceTrackerNode(Node):
                                                self._on_upload_request, qos.PROTOCOL)
         self.sub_map = CheckedSubscription(self, MapUpdate, topics.MAP_UPDATE,
                                            self._on_map_update, qos.MAP)
+        self.edge_relocalisation = EdgeRelocalisation(self, s.reloc_period_s)
         self.create_timer(0.5, self._check_edge)
         self.sender = UplinkSender(self.shaper, self._encode_keyframe, self.pub_keyframes.publish,
                                    self._report_throughput, self.get_logger().error,
@@ -148,6 +150,9 @@ class DeviceTrackerNode(Node):
         elif result.refused:
             self.get_logger().info(f"frame {record.frame_id}: relocalisation refused: "
                                    f"{result.refused}", throttle_duration_sec=1.0)
+        if self.edge_relocalisation.due(record.tracked or result.on_probation, stamp):
+            self.edge_relocalisation.ask(core.upload(record.frame_id), stamp,
+                                         frame.color_msg.header.frame_id)
         s = self.settings
         pose = set_header(PoseStamped(pose=pose_msg(record.pose)), stamp, s.map_frame)
         self.pub_pose.publish(pose)

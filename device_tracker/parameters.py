@@ -38,6 +38,10 @@ PARAMETERS = (
     ParamSpec("reloc_probation_frames", TrackingConfig.reloc_probation_frames, "frames a "
               "relocalised device must track by its motion model before it counts itself "
               "tracked and uploads again (0: none)", low=0, high=100_000),
+    ParamSpec("reloc_period_s", 0.0, "while lost, the newest lost frame's features (~40 kB, "
+              "no image) go to the edge for relocalisation against its archive this often "
+              "(seconds of frame stamps; the first at once; 0.5 as Edge-SLAM; the edge's "
+              "reloc_restore_keyframes must be on); 0: never", low=0.0, high=3600.0),
     ParamSpec("map_frame", "map", "frame id of the device's poses and path (its first "
               "frame's camera frame) and parent of the camera on /tf"),
     ParamSpec("camera_frame", "", "child frame of the device's pose on /tf; empty: the camera "
@@ -85,6 +89,7 @@ class DeviceSettings:
     upload_image: bool
     keep_slots: int                #: 4 ride out a link down for ~5 s
     path_window: int
+    reloc_period_s: float = 0.0    #: while lost, a frame to the edge's archive this often
 
     @classmethod
     def from_parameters(cls, p: Mapping[str, Any]) -> DeviceSettings:
@@ -98,7 +103,8 @@ class DeviceSettings:
                    TrackingConfig(n_features=int(p["n_features"]), relocalise=True,
                                   reloc_min_inliers=int(p["reloc_min_inliers"]),
                                   reloc_probation_frames=int(p["reloc_probation_frames"])),
-                   bool(p["upload_image"]), int(p["keep_slots"]), int(p["path_window"]))
+                   bool(p["upload_image"]), int(p["keep_slots"]), int(p["path_window"]),
+                   float(p["reloc_period_s"]))
 
     def describe(self, shaper: str) -> str:
         """The start-up line."""

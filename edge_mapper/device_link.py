@@ -34,13 +34,20 @@ from twinslam_msgs.msg import (
     MapStats,
     MapUpdate,
     RateLatent,
+    Relocalisation,
+    RelocalisationRequest,
     UplinkThroughput,
     UploadRequest,
 )
 from visualization_msgs.msg import MarkerArray
 
 from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, SlotOutcome, archive_folder
-from edge_mapper.messages import map_stats_message, map_update_message, upload_request_message
+from edge_mapper.messages import (
+    map_stats_message,
+    map_update_message,
+    relocalisation_message,
+    upload_request_message,
+)
 from edge_mapper.policy_control import POLICY_KEYS, Note, PolicyControl
 from edge_mapper.slot_lifecycle import Closing, SlotLifecycle
 from edge_mapper.slot_planner import FrameObservations
@@ -106,6 +113,8 @@ class DeviceLink:
         self.pub_request = pub(UploadRequest, self.topic(topics.UPLOAD_REQUEST), qos.PROTOCOL)
         self.pub_map = pub(MapUpdate, self.topic(topics.MAP_UPDATE), qos.MAP)
         self.pub_stats = pub(MapStats, self.topic(topics.MAP_STATS), qos.PROTOCOL)
+        self.pub_relocalisation = pub(Relocalisation, self.topic(topics.RELOCALISATION),
+                                      qos.PROTOCOL)
         self.pub_views = ((pub(PointCloud2, self.topic(topics.MAP_POINTS), qos.MAP),
                            pub(PoseArray, self.topic(topics.KEYFRAME_POSES), qos.MAP),
                            pub(MarkerArray, self.topic(topics.DECISIONS), qos.MAP))
@@ -119,6 +128,9 @@ class DeviceLink:
                                 self._on_throughput, qos.PROTOCOL),
             CheckedSubscription(node, RateLatent, self.topic(topics.RATE_LATENT),
                                 self._on_latent, qos.PROTOCOL),
+            CheckedSubscription(node, RelocalisationRequest,
+                                self.topic(topics.RELOCALISATION_REQUEST),
+                                self._on_relocalisation_request, qos.PROTOCOL),
         ]
         for problem in self.core.archive_problems:
             self.warning(f"archived keyframe skipped: {problem}")
@@ -162,6 +174,21 @@ class DeviceLink:
         return self.node.get_clock().now().nanoseconds * 1e-9
 
     # -- the protocol ------------------------------------------------------------------------
+
+    def _on_relocalisation_request(self, msg: RelocalisationRequest) -> None:
+        """A lost device's frame: looked for in the archive, answered at once."""
+        slot, frame_id = int(msg.slot), int(msg.frame_id)
+        found = self.core.relocalise(np.asarray(msg.keypoints_xy, np.float64).reshape(-1, 2),
+                                     np.asarray(msg.descriptors, np.uint8).reshape(-1, 32))
+        if found.found:
+            self.info(f"slot {slot}: lost frame {frame_id} found in the archive (keyframe "
+                      f"{found.keyframe}, {found.inliers} inliers): that place comes back with "
+                      "the slot's map update")
+        else:
+            self.info(f"slot {slot}: lost frame {frame_id} not found in the archive: "
+                      f"{found.reason}")
+        self.pub_relocalisation.publish(relocalisation_message(
+            slot, frame_id, found, self._now(), self.map_frame))
 
     def _on_summaries(self, msg: FrameSummaries) -> None:
         slot = int(msg.slot)

@@ -32,10 +32,15 @@ from pathlib import Path
 import numpy as np
 
 from edge_mapper.planning_world import at_the_edge, extrapolate, has_camera
-from edge_mapper.restores import plan_restores
+from edge_mapper.restores import plan_relocation_restores, plan_restores
 from edge_mapper.slot_planner import FrameObservations, SlotConfig, SlotPlan, SlotPlanner
 from twinslam.map_management.actions import MapAction
 from twinslam.map_management.policies import MapPolicy
+from twinslam.slam.archive_relocalisation import (
+    ArchiveLocation,
+    ArchiveRelocalisationConfig,
+    locate_in_archive,
+)
 from twinslam.slam.bundle_adjustment import BundleAdjustmentResult, Observation, bundle_adjust
 from twinslam.slam.keyframe import KeyFramePayload
 from twinslam.slam.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive, restore_into
@@ -60,6 +65,14 @@ class EdgeConfig:
     #: archived keyframes brought back a slot at most, where the camera is heading
     #: (:mod:`edge_mapper.restores`); 0: none
     restore_keyframes: int = 0
+    #: archived keyframes brought back at the end of a slot around the pose the edge found in
+    #: its archive for a lost device's frame (:meth:`EdgeMapperCore.relocalise`); 0: the edge
+    #: does not relocalise devices. Off by default: on the 7-Scenes revisit-v15 walk (LFF, 300
+    #: frames, one seed) it lost more frames than without (19.6 % / 19.2 % of next-slot frames
+    #: with 3 / 15 against 11.0 %, BENCHMARKS.md)
+    reloc_restore_keyframes: int = 0
+    #: the edge's gate on such a pose: RANSAC inliers after refinement (the device's default)
+    reloc_min_inliers: int = 20
 
 
 @dataclass
@@ -127,6 +140,9 @@ class EdgeMapperCore:
         #: there, whenever the slot finishes: a late slot does not borrow a newer slot's view)
         self._headings: dict[int, list[np.ndarray]] = {}
         self._last_heading: list[np.ndarray] = []   #: kept while the device is lost
+        #: poses found in the archive for the lost device's frames since the last finished slot:
+        #: where the next restores look instead of the heading
+        self._relocalised_views: list[np.ndarray] = []
 
     def _open_archive(self) -> KeyFrameArchive:
         """The archive beside the checkpoint (``edge.npz`` → ``edge.npz.archive/``), restored
@@ -283,8 +299,9 @@ class EdgeMapperCore:
                      for dropped in self.archive.add(ArchivedKeyFrame.of(self.map, kf, slot))]
         orphans = sum(len(self.map.evict(kf)) for kf in evicted)
         spared = sorted(set(action.evict) - set(evicted) - missing)
+        views, self._relocalised_views = self._relocalised_views, []
         restored, replaced, dropped = self._restore(slot, received,
-                                                    self._headings.pop(slot, []))
+                                                    self._headings.pop(slot, []), views)
         evicted += replaced
         forgotten += dropped
         t0 = time.perf_counter()
@@ -315,18 +332,26 @@ class EdgeMapperCore:
         return SlotOutcome(slot, sorted(received), sorted(missing), evicted, spared, orphans, ba,
                            u, self.version, tracks, timings, forgotten, restored)
 
-    def _restore(self, slot: int, received: set[int], poses: list[np.ndarray]
-                 ) -> tuple[list[int], list[int], list[int]]:
+    def _restore(self, slot: int, received: set[int], poses: list[np.ndarray],
+                 relocalised: list[np.ndarray]) -> tuple[list[int], list[int], list[int]]:
         """Bring archived keyframes seen from ``poses`` (where the camera is heading after
-        ``slot``) back into the map, each in place of the keyframe that sees least of that
-        view (into the archive in its turn); (restored, evicted for them, forgotten by the
-        archive to make room for those)."""
-        limit = self.config.restore_keyframes
-        if limit <= 0 or not poses or not has_camera(self.k):
+        ``slot``) — or, where the edge relocalised the lost device in its archive, from the
+        ``relocalised`` poses — back into the map, each in place of the keyframe that sees
+        least of that view (into the archive in its turn); (restored, evicted for them,
+        forgotten by the archive to make room for those)."""
+        if not has_camera(self.k):
             return [], [], []
-        chosen = plan_restores(self.map, self.archive, poses, self.k,
-                               self.config.image_shape, self.planner.config.vmax, limit, slot,
-                               received)
+        vmax = self.planner.config.vmax
+        if relocalised and self.config.reloc_restore_keyframes > 0:
+            chosen = plan_relocation_restores(self.map, self.archive, relocalised, self.k,
+                                              self.config.image_shape, vmax,
+                                              self.config.reloc_restore_keyframes, slot, received)
+        elif self.config.restore_keyframes > 0 and poses:
+            chosen = plan_restores(self.map, self.archive, poses, self.k,
+                                   self.config.image_shape, vmax,
+                                   self.config.restore_keyframes, slot, received)
+        else:
+            return [], [], []
         back = [self.archive.take(kf) for kf in chosen.restore]
         dropped = []
         for victim in chosen.evict:
@@ -335,6 +360,25 @@ class EdgeMapperCore:
         for archived in back:
             restore_into(self.map, archived)
         return chosen.restore, chosen.evict, dropped
+
+    def relocalise(self, points_xy: np.ndarray, descriptors: np.ndarray) -> ArchiveLocation:
+        """Find a lost device's frame (its ORB keypoints and descriptors) in the archive. A pose
+        that passes the gate is where the keyframes restored at the end of the open slot are
+        chosen (the device relocalises itself against the map update that brings them); the
+        recognised keyframes count as useful now. Nothing is found while the edge does not
+        relocalise (``reloc_restore_keyframes`` 0) or has no camera yet."""
+        if self.config.reloc_restore_keyframes <= 0:
+            return ArchiveLocation(None, 0, -1, (), "the edge does not relocalise devices "
+                                   "(reloc_restore_keyframes is 0)")
+        if not has_camera(self.k):
+            return ArchiveLocation(None, 0, -1, (), "no keyframe has told the edge the camera yet")
+        found = locate_in_archive(self.archive, points_xy, descriptors, self.k,
+                                  ArchiveRelocalisationConfig(
+                                      min_inliers=self.config.reloc_min_inliers))
+        if found.pose is not None:
+            self._relocalised_views.append(found.pose)
+            self.archive.touch(list(found.keyframes), self.last_slot + 1)
+        return found
 
     # -- optimisation ------------------------------------------------------------------------
 

@@ -1,5 +1,5 @@
 """The edge's side of the per-slot protocol as messages (DESIGN.md §1): what it writes as
-``UploadRequest``, ``MapUpdate``, ``MapStats`` and, serving several devices,
+``UploadRequest``, ``MapUpdate``, ``MapStats``, ``Relocalisation`` and, serving several devices,
 ``KeyframeBudget`` (it reads ``Keyframe`` with
 :mod:`twinslam.slam.keyframe`). Pure conversion, no DDS, so the node stays a thin shell and
 the conversions are tested alone.
@@ -11,15 +11,26 @@ import math
 
 import numpy as np
 from twinslam_msgs.msg import KeyframeBudget as KeyframeBudgetMsg
-from twinslam_msgs.msg import MapStats, MapUpdate, UploadRequest
+from twinslam_msgs.msg import MapStats, MapUpdate, Relocalisation, UploadRequest
 
 from edge_mapper.keyframe_budget import KeyframeBudget, Presence
 from msg_schemas import new
 from msg_schemas.headers import set_header
 from msg_schemas.poses import pose_msg
 from twinslam.map_management.actions import MapAction
+from twinslam.slam.archive_relocalisation import ArchiveLocation
 from twinslam.slam.keyframe_map import KeyFrameMap
 from twinslam.uncertainty.map_uncertainty import SlotUncertainty
+
+
+def relocalisation_message(slot: int, frame_id: int, found: ArchiveLocation, stamp: float,
+                           map_frame: str) -> Relocalisation:
+    """The edge's answer to a lost device's relocalisation request."""
+    msg = new(Relocalisation, slot=slot, frame_id=frame_id, found=found.found,
+              inliers=found.inliers, keyframe_id=max(found.keyframe, 0), reason=found.reason)
+    if found.pose is not None:
+        msg.pose = pose_msg(found.pose)
+    return set_header(msg, stamp, map_frame)
 
 
 def upload_request_message(slot: int, policy: str, rate_mbps: float, action: MapAction,

@@ -65,6 +65,11 @@ PARAMETERS = (
               "at most: those the camera is heading for (the device's poses continued at "
               "constant velocity), each in place of the keyframe that sees least of that view; "
               "0: none (the paper's edge)", low=0, high=1000),
+    ParamSpec("reloc_restore_keyframes", 0, "archived keyframes brought back at the end of a "
+              "slot around the pose the edge found in its archive for a lost device's frame "
+              "(device/relocalisation_request, the device's reloc_period_s), the map keyframes "
+              "not connected to them leaving; 0: the edge does not relocalise devices "
+              "(default: measured to lose more frames, BENCHMARKS.md)", low=0, high=1000),
     ParamSpec("ba_window", 5, "newest keyframes bundle-adjusted each slot", low=1, high=1000),
     ParamSpec("slot_timeout_s", 10.0, "finish a slot without keyframes that never came after "
               "this many seconds", low=0.1, high=3600.0),
@@ -115,6 +120,7 @@ def edge_config(p: Mapping[str, Any]) -> EdgeConfig:
                       ba_window=int(p["ba_window"]),
                       archive_keyframes=int(p["archive_keyframes"]),
                       restore_keyframes=int(p["restore_keyframes"]),
+                      reloc_restore_keyframes=int(p["reloc_restore_keyframes"]),
                       image_shape=(int(p["image_height"]), int(p["image_width"])))
 
 

@@ -97,3 +97,64 @@ def plan_restores(m: KeyFrameMap, archive: KeyFrameArchive, poses: Sequence[np.n
         scores[kf_id] = score
         keep.add(kf_id)
     return RestorePlan(restore, evict)
+
+
+def plan_relocation_restores(m: KeyFrameMap, archive: KeyFrameArchive,
+                             poses: Sequence[np.ndarray], intrinsics: np.ndarray,
+                             image_shape: tuple[int, int], vmax: int, limit: int, slot: int,
+                             protected: Iterable[int] = ()) -> RestorePlan:
+    """The managed map moved to where the edge relocalised a lost device (``poses``, found in
+    the archive): up to ``limit`` archived keyframes that see most from there, those among
+    them covisible with the best one. The map keyframes not connected to them by shared
+    points leave (the device is not there; a map in two parts has no finite uncertainty),
+    then the ones that see least of the view while the map is above ``vmax``. Nothing moves
+    when a ``protected`` keyframe (this slot's uploads) would be cut off, or nothing of the
+    archive is in view."""
+    if limit <= 0 or not len(archive) or not poses:
+        return RestorePlan([], [])
+    scored = sorted(((view_score(kf.positions, poses, intrinsics, image_shape), kf.id)
+                     for kf in archive), key=lambda sk: (-sk[0], sk[1]))
+    scored = [(s, k) for s, k in scored if s >= MIN_VISIBLE]
+    if not scored:
+        return RestorePlan([], [])
+    archive.touch([k for _, k in scored], slot)
+    sets = {k: archive.get(k).point_ids for _, k in scored[:limit]}
+    sets.update({k: m.point_array(k) for k in m.keyframes})
+    best = scored[0][1]
+    connected = _component(sets, best)
+    restore = [k for _, k in scored[:limit] if k in connected]
+    keep = set(protected)
+    if not keep <= connected:
+        return RestorePlan([], [])
+    evict = sorted(k for k in m.keyframes if k not in connected)
+    stay = [k for k in m.keyframes if k in connected]
+    while len(stay) + len(restore) > vmax:
+        replaceable = [k for k in stay if k not in keep]
+        if not replaceable:
+            restore = restore[:max(vmax - len(stay), 0)]
+            break
+        positions = {k: np.array([m.points[int(p)].position for p in sets[k]]).reshape(-1, 3)
+                     for k in replaceable}
+        victim = min(replaceable, key=lambda k: (view_score(positions[k], poses, intrinsics,
+                                                            image_shape), k))
+        stay.remove(victim)
+        evict.append(victim)
+    final = {k: sets[k] for k in [*stay, *restore]}
+    if not restore or not math.isfinite(map_uncertainty(shared_counts(list(final.values())))):
+        return RestorePlan([], [])
+    return RestorePlan(restore, evict)
+
+
+def _component(sets: dict[int, np.ndarray], start: int) -> set[int]:
+    """The keyframes of ``sets`` connected to ``start`` through shared points."""
+    ids = list(sets)
+    shared = shared_counts([sets[k] for k in ids]) > 0
+    index = {k: i for i, k in enumerate(ids)}
+    seen, todo = {start}, [start]
+    while todo:
+        row = shared[index[todo.pop()]]
+        for j in np.flatnonzero(row):
+            if ids[j] not in seen:
+                seen.add(ids[j])
+                todo.append(ids[j])
+    return seen

@@ -16,6 +16,9 @@ DEVICE_PATH = "device/path"
 FRAME_SUMMARIES = "device/frame_summaries"
 KEYFRAMES = "device/keyframes"
 UPLINK_THROUGHPUT = "device/uplink_throughput"
+#: a lost device's frame for relocalisation at the edge, and the edge's answer
+RELOCALISATION_REQUEST = "device/relocalisation_request"
+RELOCALISATION = "edge/relocalisation"
 
 UPLOAD_REQUEST = "edge/upload_request"
 MAP_UPDATE = "edge/map_update"

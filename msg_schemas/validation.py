@@ -106,6 +106,26 @@ def validate_keyframe(msg: Any) -> None:
         raise MessageError("keyframe carries neither an image nor features")
 
 
+def validate_relocalisation_request(msg: Any) -> None:
+    n = len(msg.keypoints_xy) // 2
+    if len(msg.keypoints_xy) % 2:
+        raise MessageError(f"keypoints_xy has odd length {len(msg.keypoints_xy)}")
+    if n == 0:
+        raise MessageError("a relocalisation request carries no features")
+    if len(msg.descriptors) != n * ORB_DESCRIPTOR_BYTES:
+        raise MessageError(f"descriptors hold {len(msg.descriptors)} bytes for {n} keypoints "
+                           f"(expected {n * ORB_DESCRIPTOR_BYTES})")
+    if not np.all(np.isfinite(msg.keypoints_xy)):
+        raise MessageError("keypoints_xy holds non-finite values")
+    if not np.all(np.isfinite(np.asarray(msg.k))):
+        raise MessageError("intrinsics k hold non-finite values")
+
+
+def validate_relocalisation(msg: Any) -> None:
+    if msg.found:
+        _pose("pose", msg.pose)
+
+
 def validate_map_update(msg: Any) -> None:
     if len(msg.keyframe_ids) != len(msg.keyframe_poses):
         raise MessageError(f"{len(msg.keyframe_ids)} keyframe ids but "
@@ -160,6 +180,8 @@ VALIDATORS: dict[str, Callable[[Any], None]] = {
     "twinslam_msgs/msg/FrameSummaries": validate_frame_summaries,
     "twinslam_msgs/msg/UploadRequest": validate_upload_request,
     "twinslam_msgs/msg/Keyframe": validate_keyframe,
+    "twinslam_msgs/msg/RelocalisationRequest": validate_relocalisation_request,
+    "twinslam_msgs/msg/Relocalisation": validate_relocalisation,
     "twinslam_msgs/msg/MapUpdate": validate_map_update,
     "twinslam_msgs/msg/UplinkThroughput": validate_uplink_throughput,
     "twinslam_msgs/msg/RateLatent": validate_rate_latent,

@@ -64,3 +64,19 @@ def test_the_pose_gate_is_set_by_parameters() -> None:
         dict(values, reloc_min_inliers=50, reloc_probation_frames=0)).tracking
     assert (tracking.reloc_min_inliers, tracking.reloc_probation_frames) == (50, 0)
     assert tracking.relocalise
+
+
+def test_relocalisation_at_the_edge_is_asked_for_by_a_parameter_on_each_side() -> None:
+    """Off by default on both sides (measured to lose more frames); ``reloc_period_s`` on the
+    device and ``reloc_restore_keyframes`` on the edge turn it on."""
+    from device_tracker.parameters import PARAMETERS as DEVICE
+    from device_tracker.parameters import DeviceSettings
+    from edge_mapper.parameters import PARAMETERS as EDGE
+    from edge_mapper.parameters import edge_config
+
+    device = {spec.name: spec.default for spec in DEVICE}
+    edge = {spec.name: spec.default for spec in EDGE}
+    assert DeviceSettings.from_parameters(device).reloc_period_s == 0.0
+    assert edge_config(edge).reloc_restore_keyframes == 0
+    assert DeviceSettings.from_parameters(dict(device, reloc_period_s=0.5)).reloc_period_s == 0.5
+    assert edge_config(dict(edge, reloc_restore_keyframes=3)).reloc_restore_keyframes == 3

@@ -222,6 +222,46 @@ def test_walking_back_brings_evicted_keyframes_back_before_the_camera_gets_there
     assert in_view[2, 20.0] > 1.3 * in_view[0, 20.0]
 
 
+def test_a_lost_device_found_in_the_archive_gets_that_place_back_with_the_slot(
+        ) -> None:
+    """Out along the wall with V_max 4 and no restores planned ahead: the start of the walk
+    is archived. The device is lost there (its slot's summaries carry no pose); the edge finds
+    the lost frame's features — keypoints and descriptors, no image — in its archive at the
+    frame's true pose, and the slot's end brings that place's keyframes back into the map,
+    within V_max. An edge that does not relocalise (``reloc_restore_keyframes`` 0) says so,
+    and a frame of no archived place is not found."""
+    turn = 8 * F
+    for relocalising in (3, 0):
+        device = ReturningDevice(np.random.default_rng(3), turn)
+        core = EdgeMapperCore(make_policy("lff"), K, EdgeConfig(
+            slot=SlotConfig(vmax=4), reloc_restore_keyframes=relocalising))
+        _run(core, device, range(turn // F), rates=[20.0])
+        start = {kf.id for kf in core.archive if kf.pose[0, 3] < 1.5}   # in view of 0.5 m
+        assert start and not start & set(core.map.keyframes)     # evicted, archived
+        slot = turn // F
+        lost = [FrameObservations(f, frozenset(), frozenset(), False, None)
+                for f in range(slot * F, (slot + 1) * F)]
+        plan = core.plan(slot, lost, 20.0, 0)
+        seen, uv, _, _ = device.observe(5, core)                 # lost at frame 5's place
+        found = core.relocalise(uv, device.descs[seen])
+        noise = np.random.default_rng(9).integers(0, 256, (len(seen), 32), dtype=np.uint8)
+        assert not core.relocalise(uv, noise).found
+        for f in plan.action.upload:
+            core.add_keyframe(device.keyframe(f, slot, core))
+        out = core.finish_slot(slot)
+        assert len(core.map.keyframes) <= 4
+        if not relocalising:
+            assert not found.found and "does not relocalise" in found.reason
+            assert not out.restored
+            continue
+        assert found.found, found.reason
+        assert np.linalg.norm(found.pose[:3, 3] - device.pose(5)[:3, 3]) < 0.05
+        assert found.inliers >= 100 and found.keyframe in start
+        assert out.restored and set(out.restored) <= start, (out.restored, start)
+        # the map moved there whole: the far end it held is not connected to that place
+        assert set(core.map.keyframes) == set(out.restored) and np.isfinite(out.map_uncertainty)
+
+
 def test_a_slot_that_finishes_late_restores_for_where_the_camera_headed_in_it() -> None:
     """On a loaded edge the next slot's summaries can come before this slot's uploads are in:
     slot k+1 is planned while slot k is open. Slot k's restores still look where the camera

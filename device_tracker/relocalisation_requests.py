@@ -1,0 +1,81 @@
+"""When a lost device asks the edge to relocalise it, and what it sends.
+
+The device relocalises itself against the map it holds; a place the edge evicted is not in
+it, and only the edge's archive remembers it (:mod:`twinslam.slam.archive_relocalisation`).
+While lost, the device sends its newest lost frame's ORB features — keypoints and
+descriptors, no image: ~40 kB for 1000 features — at most every ``period_s`` of frame stamps
+(Edge-SLAM's device sends a frame every 500 ms); off by default, as the edge's side is (see
+``reloc_restore_keyframes``). The requests are published directly, not yet paced by the
+uplink shaper nor counted in the slot's throughput. The edge answers on ``edge/relocalisation``;
+a place it finds comes back with the slot's map update, against which the device relocalises.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from rclpy.node import Node
+from twinslam_msgs.msg import Relocalisation, RelocalisationRequest
+
+from msg_schemas import new, qos, topics
+from msg_schemas.headers import set_header
+from twinslam.node_hosts.checked_subscription import CheckedSubscription
+from twinslam.slam.keyframe import KeyFramePayload
+
+
+class RelocalisationPacer:
+    """Says which lost frames to send: the first of a loss, then one every ``period_s``
+    seconds of stamps (0: none)."""
+
+    def __init__(self, period_s: float) -> None:
+        if period_s < 0:
+            raise ValueError(f"reloc_period_s must be >= 0, got {period_s}")
+        self.period_s = period_s
+        self._last: float | None = None     #: stamp of the last request of this loss
+
+    def due(self, tracked: bool, stamp: float) -> bool:
+        """Whether the frame of ``stamp`` (``tracked`` or not) is sent for relocalisation."""
+        if tracked or self.period_s <= 0:
+            self._last = None
+            return False
+        if self._last is not None and stamp - self._last < self.period_s:
+            return False
+        self._last = stamp
+        return True
+
+
+def relocalisation_request_message(frame: KeyFramePayload, stamp: float, camera_frame: str
+                                   ) -> RelocalisationRequest:
+    """The request for a lost frame: its features as the device holds them for an upload."""
+    msg = new(RelocalisationRequest, slot=frame.slot, frame_id=frame.frame_id,
+              k=np.asarray(frame.intrinsics, dtype=np.float64).ravel(),
+              keypoints_xy=np.asarray(frame.keypoints, dtype=np.float32).ravel(),
+              descriptors=np.ascontiguousarray(frame.descriptors, dtype=np.uint8).ravel())
+    return set_header(msg, stamp, camera_frame)
+
+
+class EdgeRelocalisation:
+    """The device node's requests to the edge and its answers (``node``'s topics)."""
+
+    def __init__(self, node: Node, period_s: float) -> None:
+        self.node = node
+        self.pacer = RelocalisationPacer(period_s)
+        self.publisher = node.create_publisher(RelocalisationRequest,
+                                               topics.RELOCALISATION_REQUEST, qos.PROTOCOL)
+        self.answers = CheckedSubscription(node, Relocalisation, topics.RELOCALISATION,
+                                           self._on_answer, qos.PROTOCOL)
+        self.sent = 0
+
+    def due(self, tracked: bool, stamp: float) -> bool:
+        return self.pacer.due(tracked, stamp)
+
+    def ask(self, frame: KeyFramePayload | None, stamp: float, camera_frame: str) -> None:
+        """Send the lost ``frame`` (None: no longer held, nothing to send)."""
+        if frame is not None and len(frame.keypoints):
+            self.publisher.publish(relocalisation_request_message(frame, stamp, camera_frame))
+            self.sent += 1
+
+    def _on_answer(self, msg: Relocalisation) -> None:
+        if msg.found:
+            self.node.get_logger().info(
+                f"frame {msg.frame_id}: the edge found it in its archive ({msg.inliers} "
+                "inliers); relocalising against the map update that brings that place back")

@@ -1,0 +1,79 @@
+"""Relocalising a lost frame against the edge's archive, on real ORB features of the synthetic
+room: the pose of a frame near an archived keyframe is found to within centimetres, and a
+hand-made wrong match (the frame's features with their pixel positions shuffled) is refused
+by the inlier gate, as is a frame of no archived place."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from twinslam.sequences.opening import open_sequence
+from twinslam.slam.archive_relocalisation import (
+    ArchiveRelocalisationConfig,
+    locate_in_archive,
+)
+from twinslam.slam.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive
+from twinslam.slam.orb_extractor import OrbExtractor
+from twinslam.slam.projection_matching import back_project
+from twinslam.slam.tracking import depth_at
+
+KEYFRAMES = range(0, 300, 30)
+
+
+@pytest.fixture(scope="module")
+def room() -> tuple[object, KeyFrameArchive, OrbExtractor]:
+    """Keyframes every 30 frames of the room's walk, archived with their points placed by
+    depth and the true pose (as the edge's map would hold them)."""
+    seq = open_sequence("synthetic:300", 0, 300)
+    orb = OrbExtractor()
+    archive = KeyFrameArchive(100)
+    first = 1
+    for slot, index in enumerate(KEYFRAMES):
+        frame = seq.read(index)
+        feats = orb.extract(frame.color)
+        z = depth_at(feats.points, frame.depth, (0.2, 8.0))
+        keep = z > 0
+        world = back_project(feats.points[keep], z[keep], seq.intrinsics, frame.pose)
+        n = int(keep.sum())
+        measurements = np.column_stack([feats.points[keep], z[keep]])
+        archive.add(ArchivedKeyFrame(index, frame.pose.copy(), np.arange(first, first + n),
+                                     world, feats.descriptors[keep], measurements, slot))
+        first += n
+    return seq, archive, orb
+
+
+@pytest.mark.parametrize("query", [4, 127, 251])
+def test_a_frame_near_an_archived_keyframe_is_found_where_it_is(
+        room: tuple[object, KeyFrameArchive, OrbExtractor], query: int) -> None:
+    seq, archive, orb = room
+    frame = seq.read(query)                                    # type: ignore[attr-defined]
+    feats = orb.extract(frame.color)
+    found = locate_in_archive(archive, feats.points, feats.descriptors,
+                              seq.intrinsics)                  # type: ignore[attr-defined]
+    assert found.found, found.reason
+    assert found.keyframe in KEYFRAMES and abs(found.keyframe - query) <= 30
+    assert found.inliers >= 50
+    moved = np.linalg.norm(found.pose[:3, 3] - frame.pose[:3, 3])  # type: ignore[index]
+    assert moved < 0.03, moved
+
+
+def test_a_wrong_match_and_an_unknown_place_are_refused(
+        room: tuple[object, KeyFrameArchive, OrbExtractor]) -> None:
+    seq, archive, orb = room
+    feats = orb.extract(seq.read(127).color)                  # type: ignore[attr-defined]
+    shuffled = np.random.default_rng(0).permutation(feats.points)
+    wrong = locate_in_archive(archive, shuffled, feats.descriptors,
+                              seq.intrinsics)                 # type: ignore[attr-defined]
+    assert not wrong.found and wrong.pose is None
+    assert wrong.keyframe == 120                             # recognised, but no pose holds
+    assert wrong.inliers < ArchiveRelocalisationConfig().min_inliers
+    assert "fewer than 20" in wrong.reason
+    noise = np.random.default_rng(1).integers(0, 256, (500, 32), dtype=np.uint8)
+    nowhere = locate_in_archive(archive, feats.points[:500], noise,
+                                seq.intrinsics)              # type: ignore[attr-defined]
+    assert not nowhere.found and nowhere.keyframe == -1
+    assert "recognises no place" in nowhere.reason
+    with pytest.raises(ValueError, match="keypoints but"):
+        locate_in_archive(archive, feats.points[:10], feats.descriptors[:9],
+                          seq.intrinsics)                    # type: ignore[attr-defined]

@@ -1,0 +1,132 @@
+"""Relocalising a lost device's frame against the edge's archive (Edge-SLAM's server-side
+relocalisation, ORB-SLAM's Relocalization over a keyframe database).
+
+A device tracks against the managed map it was sent; once it walks into a place the map
+evicted, nothing it holds can relocalise it. The edge still remembers the place
+(:mod:`twinslam.slam.keyframe_archive`). From the lost frame's ORB features alone (no image:
+a few tens of kilobytes) the archive's place recognition proposes the keyframes that share the
+most descriptors with it; each candidate's map points, with those of the archived keyframes
+that observe the same points (its covisible neighbours: a frame seldom sees exactly one
+keyframe's view), are matched by descriptor (Lowe's ratio test) and the pose solved by PnP
+RANSAC and refined on the inliers. The best candidate's pose is accepted only with
+``min_inliers`` inliers — the device's own gate (:class:`~twinslam.slam.tracking.
+TrackingConfig`) — and the device checks it once more against where it last tracked.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from twinslam.slam.keyframe_archive import KeyFrameArchive
+
+
+@dataclass(frozen=True)
+class ArchiveRelocalisationConfig:
+    candidates: int = 3              #: archived keyframes place recognition proposes
+    min_inliers: int = 20            #: the gate (as the device's reloc_min_inliers)
+    neighbours: int = 4              #: archived keyframes sharing the most points added
+    ratio: float = 0.8               #: Lowe's ratio test on Hamming distances
+    max_hamming: int = 64            #: of 256 bits
+    reprojection_px: float = 3.0     #: RANSAC's inlier threshold
+
+
+@dataclass(frozen=True)
+class ArchiveLocation:
+    """Where a lost frame was found in the archive, or why it was not."""
+
+    pose: np.ndarray | None          #: camera-to-map (None: not found)
+    inliers: int                     #: of the best candidate
+    keyframe: int                    #: the best candidate keyframe (-1: none proposed)
+    keyframes: tuple[int, ...]       #: the archived keyframes its points came from
+    reason: str = ""                 #: why not found ("" when found)
+
+    @property
+    def found(self) -> bool:
+        return self.pose is not None
+
+
+def locate_in_archive(archive: KeyFrameArchive, points_xy: np.ndarray, descriptors: np.ndarray,
+                      intrinsics: np.ndarray,
+                      config: ArchiveRelocalisationConfig = ArchiveRelocalisationConfig()
+                      ) -> ArchiveLocation:
+    """The pose of a frame with ORB features (``points_xy`` (n, 2) pixels, ``descriptors``
+    (n, 32) uint8) seen by camera ``intrinsics``, among the archive's keyframes."""
+    xy = np.asarray(points_xy, dtype=np.float64).reshape(-1, 2)
+    desc = np.ascontiguousarray(descriptors, dtype=np.uint8).reshape(-1, 32)
+    if len(xy) != len(desc):
+        raise ValueError(f"{len(xy)} keypoints but {len(desc)} descriptors")
+    proposed = archive.recognise(desc, top=config.candidates) if len(desc) else []
+    if not proposed:
+        return ArchiveLocation(None, 0, -1, (), "the archive recognises no place in the frame")
+    best = ArchiveLocation(None, 0, proposed[0][0], (), "")
+    for kf_id, _votes in proposed:
+        group = _with_neighbours(archive, kf_id, config.neighbours)
+        pose, inliers = _solve(archive, group, xy, desc, intrinsics, config)
+        if inliers > best.inliers:
+            best = ArchiveLocation(pose, inliers, kf_id, tuple(group), "")
+    if best.pose is None or best.inliers < config.min_inliers:
+        return ArchiveLocation(None, best.inliers, best.keyframe, best.keyframes,
+                               f"{best.inliers} inliers, fewer than {config.min_inliers}")
+    return best
+
+
+def _with_neighbours(archive: KeyFrameArchive, kf_id: int, count: int) -> list[int]:
+    """``kf_id`` and the ``count`` archived keyframes sharing the most of its points."""
+    own = set(archive.get(kf_id).point_ids.tolist())
+    shared = sorted(((len(own.intersection(kf.point_ids.tolist())), kf.id)
+                     for kf in archive if kf.id != kf_id), key=lambda sk: (-sk[0], sk[1]))
+    return [kf_id] + [k for s, k in shared[:count] if s > 0]
+
+
+def _solve(archive: KeyFrameArchive, group: list[int], xy: np.ndarray, desc: np.ndarray,
+           intrinsics: np.ndarray, config: ArchiveRelocalisationConfig
+           ) -> tuple[np.ndarray | None, int]:
+    """PnP RANSAC of the frame against the points of the archived keyframes ``group`` (each
+    map point once): (camera-to-map or None, inliers)."""
+    seen: dict[int, int] = {}
+    positions: list[np.ndarray] = []
+    point_desc: list[np.ndarray] = []
+    for kf_id in group:
+        kf = archive.get(kf_id)
+        for pid, position, d in zip(kf.point_ids.tolist(), kf.positions, kf.descriptors,
+                                    strict=True):
+            if pid not in seen:
+                seen[pid] = len(positions)
+                positions.append(position)
+                point_desc.append(d)
+    if len(positions) < config.min_inliers:
+        return None, 0
+    world = np.asarray(positions, dtype=np.float64)
+    pairs = cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(
+        desc, np.ascontiguousarray(point_desc, dtype=np.uint8), k=2)
+    f_idx, p_idx = [], []
+    taken: set[int] = set()
+    for pair in pairs:
+        if len(pair) == 2 and pair[0].distance <= config.max_hamming and \
+                pair[0].distance < config.ratio * pair[1].distance and \
+                pair[0].trainIdx not in taken:
+            taken.add(pair[0].trainIdx)
+            f_idx.append(pair[0].queryIdx)
+            p_idx.append(pair[0].trainIdx)
+    if len(f_idx) < max(config.min_inliers, 6):
+        return None, 0
+    obj, img = world[p_idx], xy[f_idx]
+    k = np.asarray(intrinsics, dtype=np.float64)
+    ok, rvec, tvec, inl = cv2.solvePnPRansac(obj, img, k, None, iterationsCount=200,
+                                             reprojectionError=config.reprojection_px,
+                                             confidence=0.999, flags=cv2.SOLVEPNP_EPNP)
+    if not ok or inl is None or len(inl) < 6:
+        return None, 0 if inl is None else len(inl)
+    mask = inl.ravel()
+    rvec, tvec = cv2.solvePnPRefineLM(obj[mask], img[mask], k, None, rvec, tvec)
+    projected, _ = cv2.projectPoints(obj, rvec, tvec, k, None)
+    err = np.linalg.norm(projected.reshape(-1, 2) - img, axis=1)
+    rot, _ = cv2.Rodrigues(rvec)
+    cam = obj @ rot.T + tvec.ravel()
+    inliers = int(np.sum((err <= config.reprojection_px) & (cam[:, 2] > 0)))
+    cw = np.eye(4)
+    cw[:3, :3], cw[:3, 3] = rot, tvec.ravel()
+    return np.linalg.inv(cw), inliers
