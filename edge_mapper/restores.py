@@ -52,6 +52,19 @@ def view_score(positions: np.ndarray, poses: Sequence[np.ndarray], intrinsics: n
                for pose in poses)
 
 
+def archived_in_view(archive: KeyFrameArchive, poses: Sequence[np.ndarray],
+                     intrinsics: np.ndarray, image_shape: tuple[int, int], slot: int
+                     ) -> list[tuple[int, int]]:
+    """(view score, id) of the archived keyframes with at least ``MIN_VISIBLE`` points in the
+    view from ``poses``, most first; they count as useful in ``slot`` (the archive forgets
+    them last)."""
+    scored = sorted(((view_score(kf.positions, poses, intrinsics, image_shape), kf.id)
+                     for kf in archive), key=lambda sk: (-sk[0], sk[1]))
+    scored = [(s, k) for s, k in scored if s >= MIN_VISIBLE]
+    archive.touch([k for _, k in scored], slot)
+    return scored
+
+
 def plan_restores(m: KeyFrameMap, archive: KeyFrameArchive, poses: Sequence[np.ndarray],
                   intrinsics: np.ndarray, image_shape: tuple[int, int], vmax: int, limit: int,
                   slot: int, protected: Iterable[int] = ()) -> RestorePlan:
@@ -59,14 +72,11 @@ def plan_restores(m: KeyFrameMap, archive: KeyFrameArchive, poses: Sequence[np.n
     replaces (none while the map has room below ``vmax``); ``protected`` keyframes (this
     slot's uploads) are never replaced. Archived keyframes in the coming view count as useful
     in ``slot`` (the archive forgets them last)."""
-    if limit <= 0 or not len(archive) or not poses:
+    if limit <= 0 or not poses:
         return RestorePlan([], [])
-    candidates = sorted(((view_score(kf.positions, poses, intrinsics, image_shape), kf.id)
-                         for kf in archive), key=lambda sk: (-sk[0], sk[1]))
-    candidates = [(s, k) for s, k in candidates if s >= MIN_VISIBLE]
+    candidates = archived_in_view(archive, poses, intrinsics, image_shape, slot)
     if not candidates:
         return RestorePlan([], [])
-    archive.touch([k for _, k in candidates], slot)
     keep = set(protected)
     sets = {k: m.point_array(k) for k in m.keyframes}
     scores = {k: view_score(np.array([m.points[int(p)].position for p in sets[k]]).reshape(-1, 3),
@@ -110,14 +120,11 @@ def plan_relocation_restores(m: KeyFrameMap, archive: KeyFrameArchive,
     then the ones that see least of the view while the map is above ``vmax``. Nothing moves
     when a ``protected`` keyframe (this slot's uploads) would be cut off, or nothing of the
     archive is in view."""
-    if limit <= 0 or not len(archive) or not poses:
+    if limit <= 0 or not poses:
         return RestorePlan([], [])
-    scored = sorted(((view_score(kf.positions, poses, intrinsics, image_shape), kf.id)
-                     for kf in archive), key=lambda sk: (-sk[0], sk[1]))
-    scored = [(s, k) for s, k in scored if s >= MIN_VISIBLE]
+    scored = archived_in_view(archive, poses, intrinsics, image_shape, slot)
     if not scored:
         return RestorePlan([], [])
-    archive.touch([k for _, k in scored], slot)
     sets = {k: archive.get(k).point_ids for _, k in scored[:limit]}
     sets.update({k: m.point_array(k) for k in m.keyframes})
     best = scored[0][1]

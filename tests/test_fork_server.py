@@ -14,8 +14,7 @@ from pathlib import Path
 import pytest
 
 from twinslam.live.node_fork_server import fork_servers
-from twinslam.node_hosts.forked import ForkedProcess, ForkServer, ForkServers
-from twinslam.node_hosts.loopback import LoopbackDomain
+from twinslam.node_hosts.forked import ForkServer, ForkServers
 
 REPO = Path(__file__).resolve().parents[1]
 PROBE = "tests.nodes.fork_probe"
@@ -112,28 +111,3 @@ def test_the_launchers_edge_is_forked_and_refuses_a_bad_parameter_as_it_would_al
     log = proc.stderr.read()
     assert "unknown policy 'bogus'" in log and "Traceback" not in log
 
-
-class _WrappedDomain(LoopbackDomain):
-    """A domain whose processes run under a command, as a network namespace's hosts do under
-    ``ip netns exec``."""
-
-    def command(self, host: str | None, argv: list[str]) -> list[str]:
-        return ["env", "PROBE_WRAPPED=1", *argv]
-
-
-def test_a_hosts_fork_server_runs_under_its_command_and_ends_with_the_domain(tmp_path: Path
-                                                                             ) -> None:
-    servers = ForkServers(PROBE, frozenset({"probe"}), REPO)
-    try:
-        with _WrappedDomain() as domain:
-            proc = domain.spawn(["-m", "probe", "exit", "0"], forks=servers)
-            assert isinstance(proc, ForkedProcess)
-            seen = _first_line(proc)
-            assert proc.wait(timeout=20) == 0
-            server = servers.server_for(domain.env, ["env", "PROBE_WRAPPED=1"])
-            assert seen["ppid"] == server._proc.pid
-            wrapped = Path(f"/proc/{server._proc.pid}/environ").read_bytes().split(b"\0")
-            assert b"PROBE_WRAPPED=1" in wrapped            # started under the command
-        assert server._proc.poll() is not None            # and ended with the domain
-    finally:
-        servers.close()

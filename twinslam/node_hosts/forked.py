@@ -38,7 +38,7 @@ import sys
 import tempfile
 import threading
 import traceback
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import IO, Any, Protocol
 
@@ -256,10 +256,7 @@ class ForkedProcess:
 class ForkServer:
     """A running server process (``python -m server_module``) and the children it forked."""
 
-    def __init__(self, server_module: str, env: Mapping[str, str], cwd: Path,
-                 prefix: Sequence[str] = ()) -> None:
-        """``prefix``: the command the server runs under (``ip netns exec NS``: its children
-        are in that network namespace)."""
+    def __init__(self, server_module: str, env: Mapping[str, str], cwd: Path) -> None:
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         self.modules: frozenset[str] = frozenset()
         self._sock = ours
@@ -272,8 +269,7 @@ class ForkServer:
         self._errors = tempfile.TemporaryFile(mode="w+")   #: the server's own stderr
         try:
             self._proc = subprocess.Popen(
-                [*prefix, sys.executable, "-m", server_module, str(theirs.fileno())],
-                env=dict(env),
+                [sys.executable, "-m", server_module, str(theirs.fileno())], env=dict(env),
                 cwd=str(cwd), pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL,
                 stdout=subprocess.DEVNULL, stderr=self._errors)
         finally:
@@ -371,57 +367,47 @@ class ForkServer:
         self._errors.close()
 
 
-#: a server's key: the command it runs under, and the environment it was started with
-ServerKey = tuple[tuple[str, ...], tuple[tuple[str, str], ...]]
-
-
 class ForkServers:
-    """One :class:`ForkServer` of ``server_module`` (which preloads ``modules``) per command
-    prefix and import-time environment, started on first use and kept until closed (at the
-    latest when this process exits)."""
+    """One :class:`ForkServer` of ``server_module`` (which preloads ``modules``) per import-time
+    environment, started on first use and kept for the life of this process."""
 
     def __init__(self, server_module: str, modules: frozenset[str], cwd: Path) -> None:
         self.server_module, self.modules, self.cwd = server_module, modules, cwd
-        self._servers: dict[ServerKey, ForkServer] = {}
-        self._failed: dict[ServerKey, str] = {}   #: not tried again
+        self._servers: dict[tuple[tuple[str, str], ...], ForkServer] = {}
+        self._failed: dict[tuple[tuple[str, str], ...], str] = {}   #: not tried again
         self._lock = threading.Lock()
         atexit.register(self.close)
 
-    def server_for(self, env: Mapping[str, str], prefix: Sequence[str] = ()) -> ForkServer:
-        key = (tuple(prefix), import_time_env(env))
+    def server_for(self, env: Mapping[str, str]) -> ForkServer:
+        key = import_time_env(env)
         with self._lock:
             if key in self._failed:
                 raise ForkServerError(self._failed[key])
             server = self._servers.get(key)
             if server is None or not server.alive:
                 try:
-                    server = ForkServer(self.server_module, env, self.cwd, prefix)
+                    server = ForkServer(self.server_module, env, self.cwd)
                 except ForkServerError as exc:
                     self._failed[key] = str(exc)
                     raise
                 self._servers[key] = server
             return server
 
-    def spawn(self, args: list[str], env: Mapping[str, str], prefix: Sequence[str] = ()
-              ) -> NodeProcess | None:
-        """``python args...`` (run under ``prefix``) forked when ``args`` is ``-m MODULE ...``
-        of a preloaded module (None otherwise, or when no server could be started: the caller
-        starts it itself)."""
+    def spawn(self, args: list[str], env: Mapping[str, str]) -> NodeProcess | None:
+        """``python args...`` forked when ``args`` is ``-m MODULE ...`` of a preloaded module
+        (None otherwise, or when no server could be started: the caller starts it itself)."""
         if len(args) < 2 or args[0] != "-m" or args[1] not in self.modules:
             return None
         try:
-            return self.server_for(env, prefix).spawn(args[1], args[2:], env, self.cwd)
+            return self.server_for(env).spawn(args[1], args[2:], env, self.cwd)
         except (ForkServerError, OSError) as exc:
             print(f"twinslam: starting {args[1]} without the fork server ({exc})",
                   file=sys.stderr)
             return None
 
-    def close(self, prefix: Sequence[str] | None = None) -> None:
-        """End the servers running under ``prefix`` (all when None): a network namespace's
-        before it is deleted."""
+    def close(self) -> None:
         with self._lock:
-            gone = [key for key in self._servers if prefix is None or key[0] == tuple(prefix)]
-            servers = [self._servers.pop(key) for key in gone]
+            servers, self._servers = list(self._servers.values()), {}
         for server in servers:
             server.close()
 

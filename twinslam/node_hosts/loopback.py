@@ -118,8 +118,6 @@ class ProcessDomain:
         #: chatty node must never block on a full pipe (64 KB) that nobody reads
         self._logs: dict[int, list[str]] = {}
         self._log_threads: dict[int, threading.Thread] = {}
-        #: the fork servers started under a host's command, ended when the domain closes
-        self._fork_prefixes: list[tuple[ForkServers, tuple[str, ...]]] = []
 
     def base_env(self) -> dict[str, str]:
         """The current environment with this domain's id and the repository on the path."""
@@ -150,13 +148,9 @@ class ProcessDomain:
         its fork server where the host is this machine's own network."""
         argv = [sys.executable, *args]
         env = self.env_for(host)
-        command = self.command(host, argv)
         proc: NodeProcess | None = None
-        if forks is not None and not kwargs and command[len(command) - len(argv):] == argv:
-            prefix = tuple(command[:len(command) - len(argv)])
-            if prefix:                  # a host's own server: ended with the domain
-                self._fork_prefixes.append((forks, prefix))
-            proc = forks.spawn(args, env, prefix)
+        if forks is not None and not kwargs and self.command(host, argv) == argv:
+            proc = forks.spawn(args, env)
         if proc is None:
             proc = subprocess.Popen(  # type: ignore[call-overload]
                 self.command(host, argv), env=env, text=True, stdout=subprocess.PIPE,
@@ -207,9 +201,6 @@ class ProcessDomain:
         for proc in self.processes:
             if proc.poll() is None:
                 self.stop(proc)
-        for forks, prefix in self._fork_prefixes:
-            forks.close(prefix)
-        self._fork_prefixes = []
 
     def __enter__(self) -> ProcessDomain:
         return self
