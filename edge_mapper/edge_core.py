@@ -68,8 +68,8 @@ class EdgeConfig:
     #: archived keyframes brought back at the end of a slot around the pose the edge found in
     #: its archive for a lost device's frame (:meth:`EdgeMapperCore.relocalise`); 0: the edge
     #: does not relocalise devices. Off by default: on the 7-Scenes revisit-v15 walk (LFF, 300
-    #: frames, one seed) it lost more frames than without (19.6 % / 19.2 % of next-slot frames
-    #: with 3 / 15 against 11.0 %, BENCHMARKS.md)
+    #: frames, 3 seeds) it lost more frames than without (15.0 % / 16.4 % of next-slot frames
+    #: with 3 / 15 against 10.8 %, every seed; BENCHMARKS.md)
     reloc_restore_keyframes: int = 0
     #: the edge's gate on such a pose: RANSAC inliers after refinement (the device's default)
     reloc_min_inliers: int = 20

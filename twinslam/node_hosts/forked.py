@@ -85,6 +85,7 @@ def serve(sock: socket.socket, mains: Mapping[str, Callable[[list[str] | None], 
                 if not data:
                     return
                 request = json.loads(data)
+                request["server_pid"] = os.getpid()
                 try:
                     pid = os.fork()
                 except OSError as exc:
@@ -131,6 +132,8 @@ def _become_child(request: dict[str, Any], fds: list[int],
     code = 1
     try:
         _die_with_parent(process_name(request["module"]))
+        if os.getppid() != request["server_pid"]:    # the server died before the line above
+            os._exit(1)
         signal.set_wakeup_fd(-1)
         signal.signal(signal.SIGCHLD, signal.SIG_DFL)
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
