@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from twinslam.live.node_fork_server import fork_servers
-from twinslam.node_hosts.forked import ForkServer, ForkServers
+from twinslam.node_hosts.forked import ForkServer, ForkServerError, ForkServers
 
 REPO = Path(__file__).resolve().parents[1]
 PROBE = "tests.nodes.fork_probe"
@@ -95,7 +95,7 @@ def _running(pid: int) -> bool:
 
 def test_a_server_that_cannot_start_says_why(tmp_path: Path) -> None:
     servers = ForkServers("tests.nodes.no_such_server", frozenset({"probe"}), tmp_path)
-    with pytest.raises(Exception, match="No module named"):
+    with pytest.raises(ForkServerError, match="No module named"):
         servers.server_for(_env())
     assert servers.spawn(["-m", "probe", "exit", "0"], _env()) is None   # the caller starts it
 

@@ -47,6 +47,9 @@ from typing import IO, Any, Protocol
 PER_CHILD_PREFIXES = ("ROS_", "RMW_", "FASTRTPS_", "FASTDDS_", "CYCLONEDDS_", "RCUTILS_")
 #: the largest request (the environment dominates it)
 MAX_MESSAGE = 1 << 20
+#: how long a server may take to preload before it is given up (a fresh checkout compiles the
+#: kernels: about a minute on 2 cores)
+READY_TIMEOUT_S = 300.0
 PR_SET_NAME = 15                #: prctl options (linux/prctl.h)
 PR_SET_PDEATHSIG = 1
 
@@ -277,11 +280,19 @@ class ForkServer:
                 stdout=subprocess.DEVNULL, stderr=self._errors)
         finally:
             theirs.close()
-        ready = self._sock.recv(MAX_MESSAGE)    # the server says which modules it preloaded
+        self._sock.settimeout(READY_TIMEOUT_S)
+        try:                                    # the server says which modules it preloaded
+            ready = self._sock.recv(MAX_MESSAGE)
+        except TimeoutError:
+            self._proc.kill()
+            ready = b""
+        self._sock.settimeout(None)
         if not ready:
             self._proc.wait()
             self._errors.seek(0)
             err = self._errors.read()
+            self._errors.close()
+            self._sock.close()
             raise ForkServerError(f"the fork server {server_module} ended at start "
                                   f"({self._proc.returncode}): {err.strip()[-1500:]}")
         self.modules = frozenset(json.loads(ready)["modules"])
@@ -307,6 +318,11 @@ class ForkServer:
                        "cwd": str(cwd)}
             try:
                 socket.send_fds(self._sock, [json.dumps(message).encode()], [out_w, err_w])
+            except OSError:
+                del self._pending[ref]
+                os.close(out_r)
+                os.close(err_r)
+                raise
             finally:
                 os.close(out_w)
                 os.close(err_w)
