@@ -63,7 +63,6 @@ class EdgeRelocalisation:
                                                topics.RELOCALISATION_REQUEST, qos.PROTOCOL)
         self.answers = CheckedSubscription(node, Relocalisation, topics.RELOCALISATION,
                                            self._on_answer, qos.PROTOCOL)
-        self.sent = 0
 
     def due(self, tracked: bool, stamp: float) -> bool:
         return self.pacer.due(tracked, stamp)
@@ -72,7 +71,6 @@ class EdgeRelocalisation:
         """Send the lost ``frame`` (None: no longer held, nothing to send)."""
         if frame is not None and len(frame.keypoints):
             self.publisher.publish(relocalisation_request_message(frame, stamp, camera_frame))
-            self.sent += 1
 
     def _on_answer(self, msg: Relocalisation) -> None:
         if msg.found:

@@ -79,8 +79,7 @@ def plan_restores(m: KeyFrameMap, archive: KeyFrameArchive, poses: Sequence[np.n
         return RestorePlan([], [])
     keep = set(protected)
     sets = {k: m.point_array(k) for k in m.keyframes}
-    scores = {k: view_score(np.array([m.points[int(p)].position for p in sets[k]]).reshape(-1, 3),
-                            poses, intrinsics, image_shape) for k in m.keyframes}
+    scores = _map_view_scores(m, sets, poses, intrinsics, image_shape)
     restore: list[int] = []
     evict: list[int] = []
     for score, kf_id in candidates:
@@ -135,21 +134,26 @@ def plan_relocation_restores(m: KeyFrameMap, archive: KeyFrameArchive,
         return RestorePlan([], [])
     evict = sorted(k for k in m.keyframes if k not in connected)
     stay = [k for k in m.keyframes if k in connected]
+    scores = _map_view_scores(m, {k: sets[k] for k in stay}, poses, intrinsics, image_shape)
     while len(stay) + len(restore) > vmax:
         replaceable = [k for k in stay if k not in keep]
         if not replaceable:
             restore = restore[:max(vmax - len(stay), 0)]
             break
-        positions = {k: np.array([m.points[int(p)].position for p in sets[k]]).reshape(-1, 3)
-                     for k in replaceable}
-        victim = min(replaceable, key=lambda k: (view_score(positions[k], poses, intrinsics,
-                                                            image_shape), k))
+        victim = min(replaceable, key=lambda k: (scores[k], k))
         stay.remove(victim)
         evict.append(victim)
     final = {k: sets[k] for k in [*stay, *restore]}
     if not restore or not math.isfinite(map_uncertainty(shared_counts(list(final.values())))):
         return RestorePlan([], [])
     return RestorePlan(restore, evict)
+
+
+def _map_view_scores(m: KeyFrameMap, sets: dict[int, np.ndarray], poses: Sequence[np.ndarray],
+                     intrinsics: np.ndarray, image_shape: tuple[int, int]) -> dict[int, int]:
+    """:func:`view_score` of the map keyframes ``sets`` (id → its point ids)."""
+    return {k: view_score(np.array([m.points[int(p)].position for p in ids]).reshape(-1, 3),
+                          poses, intrinsics, image_shape) for k, ids in sets.items()}
 
 
 def _component(sets: dict[int, np.ndarray], start: int) -> set[int]:

@@ -84,21 +84,29 @@ def validate_upload_request(msg: Any) -> None:
         raise MessageError("upload_frame_ids repeat an id")
 
 
-def validate_keyframe(msg: Any) -> None:
+def _features(msg: Any) -> int:
+    """The keypoint count of a message carrying ORB features (``keypoints_xy``,
+    ``descriptors``) and intrinsics ``k``, checked: pairs of finite pixels, 32 descriptor
+    bytes a keypoint, finite intrinsics."""
     n = len(msg.keypoints_xy) // 2
     if len(msg.keypoints_xy) % 2:
         raise MessageError(f"keypoints_xy has odd length {len(msg.keypoints_xy)}")
     if len(msg.descriptors) != n * ORB_DESCRIPTOR_BYTES:
         raise MessageError(f"descriptors hold {len(msg.descriptors)} bytes for {n} keypoints "
                            f"(expected {n * ORB_DESCRIPTOR_BYTES})")
-    for field, arr in (("keypoint_depths", msg.keypoint_depths),
-                       ("map_point_ids", msg.map_point_ids)):
-        if len(arr) not in (0, n):
-            raise MessageError(f"{field} has {len(arr)} entries for {n} keypoints")
     if n and not np.all(np.isfinite(msg.keypoints_xy)):
         raise MessageError("keypoints_xy holds non-finite values")
     if not np.all(np.isfinite(np.asarray(msg.k))):
         raise MessageError("intrinsics k hold non-finite values")
+    return n
+
+
+def validate_keyframe(msg: Any) -> None:
+    n = _features(msg)
+    for field, arr in (("keypoint_depths", msg.keypoint_depths),
+                       ("map_point_ids", msg.map_point_ids)):
+        if len(arr) not in (0, n):
+            raise MessageError(f"{field} has {len(arr)} entries for {n} keypoints")
     _pose("pose_estimate", msg.pose_estimate)
     validate_image(msg.image, "image", allow_empty=True)
     validate_image(msg.depth, "depth", allow_empty=True)
@@ -107,18 +115,8 @@ def validate_keyframe(msg: Any) -> None:
 
 
 def validate_relocalisation_request(msg: Any) -> None:
-    n = len(msg.keypoints_xy) // 2
-    if len(msg.keypoints_xy) % 2:
-        raise MessageError(f"keypoints_xy has odd length {len(msg.keypoints_xy)}")
-    if n == 0:
+    if _features(msg) == 0:
         raise MessageError("a relocalisation request carries no features")
-    if len(msg.descriptors) != n * ORB_DESCRIPTOR_BYTES:
-        raise MessageError(f"descriptors hold {len(msg.descriptors)} bytes for {n} keypoints "
-                           f"(expected {n * ORB_DESCRIPTOR_BYTES})")
-    if not np.all(np.isfinite(msg.keypoints_xy)):
-        raise MessageError("keypoints_xy holds non-finite values")
-    if not np.all(np.isfinite(np.asarray(msg.k))):
-        raise MessageError("intrinsics k hold non-finite values")
 
 
 def validate_relocalisation(msg: Any) -> None:

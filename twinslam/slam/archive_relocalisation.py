@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from twinslam.slam.descriptor_matching import match_descriptors
 from twinslam.slam.keyframe_archive import KeyFrameArchive
 
 
@@ -100,17 +101,8 @@ def _solve(archive: KeyFrameArchive, group: list[int], xy: np.ndarray, desc: np.
     if len(positions) < config.min_inliers:
         return None, 0
     world = np.asarray(positions, dtype=np.float64)
-    pairs = cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(
-        desc, np.ascontiguousarray(point_desc, dtype=np.uint8), k=2)
-    f_idx, p_idx = [], []
-    taken: set[int] = set()
-    for pair in pairs:
-        if len(pair) == 2 and pair[0].distance <= config.max_hamming and \
-                pair[0].distance < config.ratio * pair[1].distance and \
-                pair[0].trainIdx not in taken:
-            taken.add(pair[0].trainIdx)
-            f_idx.append(pair[0].queryIdx)
-            p_idx.append(pair[0].trainIdx)
+    f_idx, p_idx = match_descriptors(desc, np.ascontiguousarray(point_desc, dtype=np.uint8),
+                                     config.max_hamming, config.ratio)
     if len(f_idx) < max(config.min_inliers, 6):
         return None, 0
     obj, img = world[p_idx], xy[f_idx]

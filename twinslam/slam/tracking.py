@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 
 from twinslam.common.tracking_rule import MIN_INLIERS
+from twinslam.slam.descriptor_matching import match_descriptors
 from twinslam.slam.local_map import LocalMap
 from twinslam.slam.orb_extractor import Features, OrbExtractor
 from twinslam.slam.pose_optimization import optimize_pose
@@ -310,19 +311,9 @@ class Tracking:
         ids = np.flatnonzero(self.map.active)
         if ids.size < self.config.min_inliers or len(feats.points) == 0:
             return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-        pairs = cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(feats.descriptors,
-                                                         self.map.descriptors[ids], k=2)
-        f_idx, p_idx = [], []
-        for pair in pairs:
-            if len(pair) == 2 and pair[0].distance <= self.config.max_hamming and \
-                    pair[0].distance < self.config.ratio * pair[1].distance:
-                f_idx.append(pair[0].queryIdx)
-                p_idx.append(pair[0].trainIdx)
-        f_arr = np.array(f_idx, dtype=np.int64)
-        p_arr = ids[np.array(p_idx, dtype=np.int64)]
-        _, first = np.unique(p_arr, return_index=True)     # one feature per point
-        first.sort()
-        return f_arr[first], p_arr[first]
+        f_idx, p_idx = match_descriptors(feats.descriptors, self.map.descriptors[ids],
+                                         self.config.max_hamming, self.config.ratio)
+        return f_idx, ids[p_idx]
 
     def _solve_pose(self, pixels: np.ndarray, ids: np.ndarray, predicted: np.ndarray | None
                     ) -> tuple[np.ndarray | None, np.ndarray]:
