@@ -42,7 +42,7 @@ from twinslam.common import table1
 from twinslam.slam.feature_tracks import FeatureTracks
 from twinslam.slam.keyframe import TRACK_ID_BIT, KeyFramePayload
 from twinslam.slam.local_map import LocalMap
-from twinslam.slam.map_source import EDGE, EDGE_LOCAL, check_map_source
+from twinslam.slam.map_source import DEFAULT_MAP_SOURCE, EDGE, EDGE_LOCAL, check_map_source
 from twinslam.slam.map_update import MapSnapshot
 from twinslam.slam.tracking import Tracking, TrackingConfig, depth_at
 
@@ -77,7 +77,7 @@ class DeviceTrackerCore:
     def __init__(self, intrinsics: np.ndarray, slot_frames: int = table1.SLOT_FRAMES,
                  config: TrackingConfig | None = None, keep_slots: int = 2,
                  frame_rate_hz: float = table1.FRAME_RATE_HZ,
-                 map_source: str = EDGE_LOCAL) -> None:
+                 map_source: str = DEFAULT_MAP_SOURCE) -> None:
         """``keep_slots``: the ended slots whose frames stay uploadable; the edge asks for a
         slot's frames during the next one, or later when the link was down meanwhile. A slot
         lasts ``slot_frames`` / ``frame_rate_hz`` seconds of frame stamps. ``map_source``:

@@ -12,7 +12,7 @@ from typing import Any
 
 from twinslam.common import table1
 from twinslam.node_hosts.parameters import ParamSpec
-from twinslam.slam.map_source import EDGE_LOCAL, check_map_source
+from twinslam.slam.map_source import DEFAULT_MAP_SOURCE, check_map_source
 from twinslam.slam.tracking import TrackingConfig
 from twinslam.uplink.tc_shaper import SHAPERS
 
@@ -62,10 +62,10 @@ PARAMETERS = (
               "bytes on the link)"),
     ParamSpec("edge_timeout_s", 3.0, "no upload request for this long: say the edge is silent",
               low=0.01, high=3600.0),
-    ParamSpec("map_source", EDGE_LOCAL, "where poses come from: edge (only the points of the "
-              "edge's last map update, the paper's device: what the edge keeps decides "
-              "tracking) or edge+local (plus the device's own points of its last keep_slots "
-              "slots, an Edge-SLAM style device); changes live, from the next frame",
+    ParamSpec("map_source", DEFAULT_MAP_SOURCE, "where poses come from: edge (only the points "
+              "of the edge's last map update, the paper's device: what the edge keeps decides "
+              "tracking; the default) or edge+local (plus the device's own points of its last "
+              "keep_slots slots, an Edge-SLAM style device); changes live, from the next frame",
               live=True, check=check_map_source),
     ParamSpec("keep_slots", 4, "slots whose frames stay uploadable (rides out ~5 s outages)",
               low=1, high=1000),

@@ -148,7 +148,7 @@ def test_own_points_stay_bounded_while_the_edge_is_silent() -> None:
     keep_slots slots (the edge can no longer get the older ones) and tracks on."""
     seq = SyntheticSequence(6 * SLOT, seed=3)
     frames = list(seq)
-    core = DeviceTrackerCore(seq.intrinsics, SLOT, keep_slots=2)
+    core = DeviceTrackerCore(seq.intrinsics, SLOT, keep_slots=2, map_source="edge+local")
     sizes = []
     for k in range(6):
         results = _track(core, frames[k * SLOT:(k + 1) * SLOT])
@@ -283,7 +283,7 @@ def test_an_unknown_map_source_is_refused_and_a_known_one_applies_at_the_next_fr
         assert "unknown map source 'local'" in str(exc) and "edge+local" in str(exc)
     else:
         raise AssertionError("an unknown map source was accepted")
-    core = DeviceTrackerCore(seq.intrinsics, SLOT)
+    core = DeviceTrackerCore(seq.intrinsics, SLOT, map_source="edge+local")
     _track(core, frames[:SLOT])
     records = core.take_slot()
     update = _update_from_own_points(core, 1, records[0].track_ids)

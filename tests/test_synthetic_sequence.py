@@ -11,7 +11,8 @@ from scipy.stats import spearmanr
 
 from twinslam.sequences.frame import SequenceError
 from twinslam.sequences.opening import open_sequence
-from twinslam.sequences.synthetic import ROOM_HALF, SyntheticSequence
+from twinslam.sequences.synthetic import SyntheticSequence
+from twinslam.sequences.synthetic_worlds import ROOM_HALF
 from twinslam.simulator.extraction import extract_covisibility
 
 

@@ -58,6 +58,9 @@ def add_setting_arguments(parser: argparse.ArgumentParser) -> None:
 
 #: the 7-Scenes frames ../shared/data ships (the demo's and evaluate's default sequence)
 BUNDLED_SEQUENCE = REPO_ROOT.parent / "shared" / "data" / "7scenes-1000"
+#: what the demo and evaluate play when that folder is missing: the synthetic world where the
+#: edge's map decides tracking (twinslam.sequences.synthetic_worlds)
+FALLBACK_SEQUENCE = "synthetic-corridor"
 #: the covisibility the ORB front end extracted from 1000 of them (shipped in data/)
 BUNDLED_COVIS = REPO_ROOT / "data" / "7scenes-redkitchen-1000.covis.npz"
 

@@ -31,6 +31,7 @@ from twinslam.live.report import RunReport, report
 from twinslam.map_management.allocation import check_fleet, jain_index
 from twinslam.node_hosts.loopback import ProcessDomain
 from twinslam.node_hosts.session import RosSession
+from twinslam.sequences.opening import is_synthetic, synthetic_walk
 
 
 @dataclass(frozen=True)
@@ -81,10 +82,9 @@ def device_sequence(sequence: str, index: int, devices: int, frames: int, start:
     synthetic room (seed ``walk_seed``, default ``index``), or the dataset (``length``
     frames) from ``start + index × stride``, wrapping round (a stride of 0 spreads the
     devices evenly over it)."""
-    if sequence.startswith("synthetic"):
-        parts = sequence.split(":")
-        count = parts[1] if len(parts) > 1 and parts[1] else str(max(frames, 1) + start)
-        return f"synthetic:{count}:{index if walk_seed is None else walk_seed}", start
+    if is_synthetic(sequence):
+        return synthetic_walk(sequence, index if walk_seed is None else walk_seed,
+                              max(frames, 1) + start), start
     if not length:
         return sequence, start
     step = stride or max(1, length // max(1, devices))

@@ -42,6 +42,7 @@ from twinslam.live.run_picture import plot_run
 from twinslam.live.scenarios import Scenario
 from twinslam.node_hosts.loopback import LoopbackDomain
 from twinslam.policy_registry import LEARNED_PREFIX, POLICY_KINDS
+from twinslam.sequences.opening import is_synthetic, synthetic_walk
 from twinslam.simulator.calibration import Calibration, calibrate
 from twinslam.simulator.covisibility import load_covisibility
 
@@ -110,11 +111,8 @@ class RunResult:
 
 
 def sequence_for(sequence: str, seed: int) -> str:
-    """The synthetic room walks a seed's own path; a recorded sequence is what it is."""
-    if not sequence.startswith("synthetic"):
-        return sequence
-    frames = sequence.partition(":")[2].partition(":")[0]
-    return f"synthetic:{frames or 900}:{seed}"
+    """A synthetic world is walked on a seed's own path; a recorded sequence is what it is."""
+    return synthetic_walk(sequence, seed) if is_synthetic(sequence) else sequence
 
 
 def run_one(task: RunTask) -> RunResult:

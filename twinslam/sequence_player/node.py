@@ -24,7 +24,8 @@ reader does not mean the reader has learnt of the writer (nor that the depth and
 readers have matched), and a reader drops samples of a writer it does not know yet. A corrupt
 image is skipped, counted and named in a warning; the run goes on. At the end it logs what it
 published and exits 0. ``sequence:=synthetic[:frames]`` (the default) renders the textured
-room of :mod:`twinslam.sequences.synthetic` with exact depth and ground truth.
+room of :mod:`twinslam.sequences.synthetic_worlds` with exact depth and ground truth,
+``synthetic-corridor[:frames]`` its corridor walked out and back.
 """
 
 from __future__ import annotations

@@ -17,7 +17,7 @@ def _bursts_error(value: object) -> str | None:
 
 PARAMETERS = (
     ParamSpec("sequence", "synthetic", "dataset folder, rosbag2 (MCAP) of `twinslam record`, "
-              "or synthetic[:frames]"),
+              "or synthetic[:frames] (the room) / synthetic-corridor[:frames]"),
     ParamSpec("rate", 1.0, "playback speed, x the recorded frame rate", low=1e-3, high=1e3),
     ParamSpec("loop", False, "start over at the end"),
     ParamSpec("start", 0, "first frame played", low=0),

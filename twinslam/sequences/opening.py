@@ -18,8 +18,11 @@ SYNTHETIC_DEFAULT_FRAMES = 900
 def open_sequence(path: str | Path, start: int = 0, end: int = -1) -> Sequence:
     """Detect the layout of ``path`` and open frames [start, end) of it (end < 0: to the end):
     a dataset folder, a rosbag2 folder or ``.mcap`` file recorded by ``twinslam record``, or
-    ``synthetic[:frames[:seed]]`` (the rendered room; the seed picks the walk)."""
+    ``synthetic[:frames[:seed]]`` (the rendered room) or ``synthetic-corridor[:frames[:seed]]``
+    (the corridor walked out and back, where the edge's map decides tracking; the seed picks
+    the walk)."""
     if str(path).startswith("synthetic"):
+        # a misspelt world is refused with the worlds' names, never read as a folder
         return _open_synthetic(str(path), start, end)
     root = Path(path)
     if root.suffix == ".mcap" or (root / "metadata.yaml").is_file():
@@ -30,14 +33,34 @@ def open_sequence(path: str | Path, start: int = 0, end: int = -1) -> Sequence:
     return open_folder(root, start, end)
 
 
+def is_synthetic(spec: str | Path) -> bool:
+    """Whether ``spec`` names a rendered world (``synthetic[:…]``, ``synthetic-corridor[:…]``)
+    rather than a path."""
+    from twinslam.sequences.synthetic_worlds import SPECS
+
+    return str(spec).partition(":")[0] in SPECS
+
+
+def synthetic_walk(spec: str, seed: int, frames: int | None = None) -> str:
+    """The spec of the same synthetic world walked by ``seed``: its frame count kept, or
+    ``frames`` where it names none (the world's default without either)."""
+    name, _, rest = spec.partition(":")
+    count = rest.partition(":")[0] or (str(frames) if frames else str(SYNTHETIC_DEFAULT_FRAMES))
+    return f"{name}:{count}:{seed}"
+
+
 def _open_synthetic(spec: str, start: int, end: int) -> SyntheticSequence:
-    _, _, rest = spec.partition(":")
+    from twinslam.sequences.synthetic_worlds import SPECS
+
+    name, _, rest = spec.partition(":")
     frames, _, seed = rest.partition(":")
+    if name not in SPECS:
+        raise SequenceError(f"unknown synthetic world {name!r}: one of {', '.join(SPECS)}")
     try:
         n = int(frames) if frames else SYNTHETIC_DEFAULT_FRAMES
         walk = int(seed) if seed else 0
     except ValueError:
-        raise SequenceError(f"synthetic[:frames[:seed]] expected, got {spec!r}") from None
+        raise SequenceError(f"{name}[:frames[:seed]] expected, got {spec!r}") from None
     stop = n if end < 0 else min(end, n)
     if not 0 <= start < stop:
         raise SequenceError(f"{spec}: bad frame range start={start} end={end}")
@@ -45,7 +68,8 @@ def _open_synthetic(spec: str, start: int, end: int) -> SyntheticSequence:
     # dataset folder never needs
     from twinslam.sequences.synthetic import SyntheticSequence
 
-    return SyntheticSequence(n_frames=n, seed=walk).select(start, stop)
+    return SyntheticSequence(n_frames=n, seed=walk, path=Path(name),
+                             world_name=SPECS[name]).select(start, stop)
 
 
 def open_folder(root: Path, start: int = 0, end: int = -1) -> FolderSequence:

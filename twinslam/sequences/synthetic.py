@@ -1,45 +1,28 @@
-"""A synthetic RGB-D sequence for machines without a dataset: a room whose walls, floor and
-ceiling carry real photographs (scikit-image's bundled sample images), seen by a hand-held
-camera on a smooth AR-like trajectory, ray-cast per pixel, so depth and ground-truth poses are
-exact. Deterministic from a seed.
+"""A synthetic RGB-D sequence for machines without a dataset: a textured world
+(:mod:`twinslam.sequences.synthetic_worlds`: the room, the corridor) seen by a hand-held camera
+on a smooth AR-like walk, ray-cast per pixel, so depth and ground-truth poses are exact.
+Deterministic from a seed (the seed picks the walk, never the place).
 
-World frame: x right, y down, z forward (the camera convention), origin at the room's centre.
+World frame: x right, y down, z forward (the camera convention), origin at the world's centre.
 """
 
 from __future__ import annotations
 
-import importlib.resources
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import cv2
 import numpy as np
 from numba import njit
 
-from twinslam.common.rotations import matrix_from_yaw_pitch_roll
 from twinslam.sequences.frame import RgbdFrame
-
-ROOM_HALF = np.array([3.0, 1.4, 2.5])      #: half extents (x, y, z) in metres
-TEXEL_M = 0.004                             #: one texture pixel covers 4 mm
-FPS = 30.0
-TEX_SIZE = 512                              #: textures are resampled to this square size
-#: texture of each face, in order -x, +x, -y (ceiling), +y (floor), -z, +z
-FACE_IMAGES = ("brick.png", "coffee.png", "camera.png", "gravel.png", "astronaut.png",
-               "chelsea.png")
-
-
-def _texture(name: str) -> np.ndarray:
-    path = importlib.resources.files("skimage.data") / name
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
-        raise FileNotFoundError(f"scikit-image sample image {path} is missing")
-    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+from twinslam.sequences.synthetic_worlds import FPS, WORLDS, SyntheticWorld, spec_name
 
 
 @dataclass
 class SyntheticSequence:
-    """``n_frames`` frames at 30 Hz of the textured room; a
+    """``n_frames`` frames at 30 Hz of the ``world`` (a name of
+    :data:`~twinslam.sequences.synthetic_worlds.WORLDS`); a
     :class:`~twinslam.sequences.frame.RandomAccessSequence`."""
 
     n_frames: int = 900
@@ -51,17 +34,20 @@ class SyntheticSequence:
     kind: str = "synthetic"
     skipped: list[str] = field(default_factory=list)
     first: int = 0                 #: frames [first, n_frames) are played (see select)
+    world_name: str = "room"
 
     def __post_init__(self) -> None:
         if self.n_frames < 1:
             raise ValueError("a synthetic sequence needs at least one frame")
+        if self.world_name not in WORLDS:
+            raise ValueError(f"unknown synthetic world {self.world_name!r}: one of "
+                             f"{', '.join(WORLDS)}")
+        self.world: SyntheticWorld = WORLDS[self.world_name]()
         self.intrinsics = np.array([[self.fx, 0, (self.width - 1) / 2],
                                     [0, self.fx, (self.height - 1) / 2], [0, 0, 1.0]])
         rng = np.random.default_rng(self.seed)
         self._phase = rng.uniform(0, 2 * np.pi, 6)
-        self._textures = np.stack([cv2.resize(_texture(n), (TEX_SIZE, TEX_SIZE),
-                                              interpolation=cv2.INTER_AREA)
-                                   for n in FACE_IMAGES])
+        self._textures = self.world.packed_textures()
         u, v = np.meshgrid(np.arange(self.width), np.arange(self.height))
         self._rays = np.stack([(u - self.intrinsics[0, 2]) / self.fx,
                                (v - self.intrinsics[1, 2]) / self.fx,
@@ -71,8 +57,9 @@ class SyntheticSequence:
         return self.n_frames - self.first
 
     def select(self, start: int, stop: int) -> SyntheticSequence:
-        """Frames [start, stop) of the same room and trajectory."""
-        return SyntheticSequence(stop, self.seed, self.width, self.height, self.fx, first=start)
+        """Frames [start, stop) of the same world and walk."""
+        return SyntheticSequence(stop, self.seed, self.width, self.height, self.fx, self.path,
+                                 first=start, world_name=self.world_name)
 
     @property
     def stamps(self) -> np.ndarray:
@@ -83,27 +70,19 @@ class SyntheticSequence:
         return [self.pose(i) for i in range(self.first, self.n_frames)]
 
     def pose(self, i: int) -> np.ndarray:
-        """Camera-to-world at frame i: a slow walk around the room's middle, looking around
-        (yaw ±70°), with a hand's small pitch and roll."""
-        t = i / FPS
-        p = self._phase
-        position = np.array([1.2 * np.sin(0.21 * t + p[0]), 0.15 * np.sin(0.53 * t + p[1]),
-                             0.9 * np.sin(0.17 * t + p[2])])
-        yaw = np.radians(70) * np.sin(0.25 * t + p[3])
-        pitch = np.radians(8) * np.sin(0.41 * t + p[4])
-        roll = np.radians(4) * np.sin(0.37 * t + p[5])
-        pose = np.eye(4)
-        pose[:3, :3] = matrix_from_yaw_pitch_roll(yaw, pitch, roll)
-        pose[:3, 3] = position
-        return pose
+        """Camera-to-world at frame i of the world's walk."""
+        return self.world.walk(i / FPS, self._phase)
 
     def render(self, i: int) -> tuple[np.ndarray, np.ndarray]:
-        """(RGB image, depth in metres) of frame i, by ray casting against the room's faces."""
+        """(RGB image, depth in metres, 0 past the sensor's range) of frame i, by ray casting
+        against the world's faces."""
         pose = self.pose(i)
         color = np.empty((self.height, self.width, 3), dtype=np.uint8)
         depth = np.empty((self.height, self.width), dtype=np.float32)
+        flat, offsets, widths, heights = self._textures
         _cast(self._rays, np.ascontiguousarray(pose[:3, :3]), np.ascontiguousarray(pose[:3, 3]),
-              ROOM_HALF, self._textures, TEXEL_M, color.reshape(-1, 3), depth.reshape(-1))
+              self.world.half, flat, offsets, widths, heights, self.world.texel_m,
+              self.world.max_depth_m, color.reshape(-1, 3), depth.reshape(-1))
         return color, depth
 
     def __iter__(self) -> Iterator[RgbdFrame]:
@@ -115,15 +94,16 @@ class SyntheticSequence:
         j = self.first + i
         color, depth = self.render(j)
         return RgbdFrame(i, j / FPS, color, depth, self.intrinsics, self.pose(j),
-                         f"synthetic-{j:06d}")
+                         f"{spec_name(self.world_name)}-{j:06d}")
 
 
 @njit(cache=True)
 def _cast(rays: np.ndarray, rot: np.ndarray, origin: np.ndarray, half: np.ndarray,
-          textures: np.ndarray, texel: float, color: np.ndarray, depth: np.ndarray) -> None:
-    """Per pixel: the nearest wall the ray leaves the box through, its texel, its depth (the
-    rays have camera z = 1, so the ray parameter is the depth)."""
-    size = textures.shape[1]
+          texels: np.ndarray, offsets: np.ndarray, widths: np.ndarray, heights: np.ndarray,
+          texel: float, max_depth: float, color: np.ndarray, depth: np.ndarray) -> None:
+    """Per pixel: the nearest face the ray leaves the box through, its texel (a face's texture
+    tiles), its depth (the rays have camera z = 1, so the ray parameter is the depth; 0 past
+    ``max_depth``, as a depth sensor past its range)."""
     for p in range(rays.shape[0]):
         d0 = rot[0, 0] * rays[p, 0] + rot[0, 1] * rays[p, 1] + rot[0, 2] * rays[p, 2]
         d1 = rot[1, 0] * rays[p, 0] + rot[1, 1] * rays[p, 1] + rot[1, 2] * rays[p, 2]
@@ -137,12 +117,13 @@ def _cast(rays: np.ndarray, rot: np.ndarray, origin: np.ndarray, half: np.ndarra
                 if 0.0 < t < best:
                     best, axis = t, a
         face = 2 * axis + (1 if d[axis] > 0.0 else 0)
-        s_ax = 1 if axis == 0 else 0
-        t_ax = 1 if axis == 2 else 2
+        s_ax = 0 if axis == 2 else 2          # a texture's columns: along z but on the z faces
+        t_ax = 0 if axis == 1 else 1          # its rows: along y but on the floor and ceiling
         hs = origin[s_ax] + d[s_ax] * best + half[s_ax]
         ht = origin[t_ax] + d[t_ax] * best + half[t_ax]
-        su = int(hs / texel) % size
-        sv = int(ht / texel) % size
+        su = int(hs / texel) % widths[face]
+        sv = int(ht / texel) % heights[face]
+        texel_index = offsets[face] + sv * widths[face] + su
         for c in range(3):
-            color[p, c] = textures[face, sv, su, c]
-        depth[p] = best
+            color[p, c] = texels[texel_index, c]
+        depth[p] = best if best <= max_depth else 0.0

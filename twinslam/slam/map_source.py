@@ -12,6 +12,11 @@ from __future__ import annotations
 EDGE = "edge"
 EDGE_LOCAL = "edge+local"
 MAP_SOURCES = (EDGE, EDGE_LOCAL)
+#: the product's one default — the device node's parameter, the bundled parameter file,
+#: ``twinslam launch`` and ``twinslam evaluate`` alike: the paper's device, because it is the
+#: mode in which the edge's map management decides tracking, the one the simulator models and
+#: the evaluations are judged in (``edge+local`` is asked for by name)
+DEFAULT_MAP_SOURCE = EDGE
 
 
 def check_map_source(value: object) -> str | None:

@@ -4,11 +4,13 @@
    on a private ROS domain on this machine — with **the paper's device** (``map_source:
    edge``: every frame tracked only against the edge's last map), once per policy (LFF, PU,
    ADAPT) on the ``revisit-v15`` scenario: the first 300 real 7-Scenes frames of
-   ``../shared/data`` forward then back (the synthetic room when that is missing, and then
-   said so) with an edge map of 15 keyframes, so what the edge kept decides whether the
-   device tracks on the way back. A status line per slot, then per policy: tracking failures,
-   relocalisations, untracked frames, ATE and RPE (evo), and the share of next-slot frames the
-   simulator's rule predicts lost beside the share the device really failed.
+   ``../shared/data`` forward then back (when that is missing, and then said so, the
+   synthetic corridor of :mod:`twinslam.sequences.synthetic_worlds`: a place that never
+   repeats, out of sight a few metres on) with an edge map of 15 keyframes, so what the edge
+   kept decides whether the device tracks on the way back. A status line per slot, then per
+   policy: tracking failures, relocalisations, untracked frames, ATE and RPE (evo), and the
+   share of next-slot frames the simulator's rule predicts lost beside the share the device
+   really failed.
 2. The same with the Edge-SLAM style device (``edge+local``), which also tracks on its own
    recent points: the map hardly matters to it.
 3. The offline simulator with LFF, PU, ADAPT and the clairvoyant reference on the covisibility
@@ -21,7 +23,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from twinslam.cli.arguments import BUNDLED_COVIS, BUNDLED_SEQUENCE
+from twinslam.cli.arguments import BUNDLED_COVIS, BUNDLED_SEQUENCE, FALLBACK_SEQUENCE
 from twinslam.cli.commands.sim import Comparison, compare
 from twinslam.cli.console import Subparsers
 from twinslam.live.calibration import covisibility_file
@@ -44,8 +46,8 @@ def run_live(policies: list[str], frames: int, step: str, map_source: str) -> bo
     if BUNDLED_SEQUENCE.is_dir():
         sequence, what = str(BUNDLED_SEQUENCE), f"{frames} real 7-Scenes frames"
     else:
-        sequence, what = f"synthetic:{frames}", (f"{frames} synthetic frames "
-                                                 f"({BUNDLED_SEQUENCE} is missing)")
+        sequence, what = f"{FALLBACK_SEQUENCE}:{frames}", (
+            f"{frames} frames of the synthetic corridor ({BUNDLED_SEQUENCE} is missing)")
     chosen = SCENARIOS[SCENARIO]
     print(f"{step} live pipeline (player, device, edge as processes on a loopback domain), "
           f"{DEVICES[map_source]}, {what}, scenario {SCENARIO} ({chosen.description}), "

@@ -6,7 +6,12 @@ import argparse
 import sys
 from pathlib import Path
 
-from twinslam.cli.arguments import BUNDLED_SEQUENCE, add_executor_arguments, open_executor
+from twinslam.cli.arguments import (
+    BUNDLED_SEQUENCE,
+    FALLBACK_SEQUENCE,
+    add_executor_arguments,
+    open_executor,
+)
 from twinslam.cli.console import Subparsers, error
 from twinslam.live import runs, tables
 from twinslam.live.calibration import covisibility_file
@@ -15,7 +20,7 @@ from twinslam.live.scenarios import SCENARIOS, Scenario, scenario
 from twinslam.sequence_player.playback import Playback, PlayedSequence
 from twinslam.sequences.frame import SequenceError
 from twinslam.sequences.opening import open_sequence
-from twinslam.slam.map_source import MAP_SOURCES, check_map_source
+from twinslam.slam.map_source import DEFAULT_MAP_SOURCE, MAP_SOURCES, check_map_source
 
 
 def _checked(args: argparse.Namespace) -> tuple[list[tuple[str, str]], list[Scenario], list[str]]:
@@ -134,7 +139,8 @@ def add_arguments(parser: argparse.ArgumentParser, default_sequence: str,
                   default_params: Path, scenario_names: list[str]) -> None:
     parser.add_argument("--sequence", default=default_sequence,
                         help="SUN3D / 7-Scenes / TUM folder, MCAP bag (forward only), or "
-                        "synthetic[:frames] (each seed walks its own path); default: "
+                        "synthetic[:frames] (the room) / synthetic-corridor[:frames] (each "
+                        "seed walks its own path); default: "
                         "%(default)s")
     parser.add_argument("--frames", type=int, default=300,
                         help="frames of the sequence per run (revisit scenarios play them "
@@ -152,11 +158,11 @@ def add_arguments(parser: argparse.ArgumentParser, default_sequence: str,
     parser.add_argument("--scenario", default=",".join(scenario_names),
                         help="comma-separated, of: " + ", ".join(scenario_names)
                         + "; default all")
-    parser.add_argument("--map-source", default="edge",
+    parser.add_argument("--map-source", default=DEFAULT_MAP_SOURCE,
                         help="the device's map source(s), comma-separated, of: "
                         + ", ".join(MAP_SOURCES) + " (edge: the paper's device, tracked only "
                         "against the edge's map; edge+local: plus its own recent points); "
-                        "default %(default)s")
+                        "default %(default)s, the product's default, as twinslam launch's")
     parser.add_argument("--seeds", type=int, default=3,
                         help="runs per scenario, map source and policy; default %(default)s")
     parser.add_argument("--first-seed", type=int, default=0,
@@ -186,5 +192,5 @@ def register(sub: Subparsers) -> None:
         "evaluate", help="the live pipeline per scenario x policy x seed: ATE, RPE, tracking "
         "failures, relocalisations, υ, uploads (CSV, table, plot)")
     add_arguments(evaluate, str(BUNDLED_SEQUENCE) if BUNDLED_SEQUENCE.is_dir() else
-                  "synthetic:300", DEFAULT_PARAMS, list(SCENARIOS))
+                  f"{FALLBACK_SEQUENCE}:300", DEFAULT_PARAMS, list(SCENARIOS))
     evaluate.set_defaults(func=run)

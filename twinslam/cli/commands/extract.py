@@ -57,7 +57,7 @@ def register(sub: Subparsers) -> None:
                              "sequence and stores which map points every frame observes (the "
                              "simulator's and the trainer's --covis).")
     extract.add_argument("sequence", help="a SUN3D, 7-Scenes or TUM RGB-D folder, a recorded "
-                         "bag, or synthetic[:frames]")
+                         "bag, or synthetic[:frames] (the room) / synthetic-corridor[:frames]")
     extract.add_argument("-o", "--output", required=True, help="covisibility .npz to write")
     extract.add_argument("--start", type=int, default=0, help="index of the first frame read")
     extract.add_argument("--end", type=int, default=-1,

@@ -26,7 +26,7 @@ from twinslam.live.run_picture import plot_run
 from twinslam.live.scenarios import Scenario
 from twinslam.node_hosts.loopback import EnvironmentDomain, LoopbackDomain, ProcessDomain
 from twinslam.node_hosts.netns import NetnsHosts
-from twinslam.sequences.opening import open_sequence
+from twinslam.sequences.opening import is_synthetic, open_sequence
 
 
 def domain_for(args: argparse.Namespace, hosts: tuple[str, ...] | None = None
@@ -54,7 +54,7 @@ def fleet_settings(args: argparse.Namespace) -> list[FleetConfig]:
 def run_fleet(args: argparse.Namespace, policy: str, fleet: FleetConfig, chosen: Scenario,
               extra: dict[str, list[str]]) -> FleetReport:
     """One fleet run: its nodes, a picture per device, its rows in OUT/fleet_runs.csv."""
-    length = None if args.sequence.startswith("synthetic") else len(open_sequence(
+    length = None if is_synthetic(args.sequence) else len(open_sequence(
         args.sequence, 0, -1))
     starts = [device_sequence(args.sequence, i, fleet.devices, args.frames, args.start,
                               fleet.stride, length, fleet.device_seed(i))
