@@ -1,23 +1,31 @@
 """A live run recorded as a rosbag2 (MCAP) a ROS user opens in Foxglove, RViz (via ros2 bag
-play) or rosbags — and refused before the run when it could not be written (issue #31)."""
+play) or rosbags, its camera compressed where a user asks — and refused before the run when
+it could not be written."""
 
 from __future__ import annotations
 
 import csv
 import os
 import shutil
+import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from rosbags.interfaces import QosDurability
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from sensor_msgs.msg import Image
 
 import msg_schemas
+from msg_schemas import qos, topics
 from twinslam.cli.main import main
 from twinslam.live import run_recording
-from twinslam.live.run_recording import check_destination
+from twinslam.live.run_recording import RecordingOptions, RunRecorder, check_destination
+from twinslam.node_hosts.session import RosSession
+from twinslam.sequence_player.messages import color_message, depth_message
+from twinslam.sequences.synthetic import SyntheticSequence
 
 
 @pytest.mark.slow
@@ -89,3 +97,52 @@ def test_a_recording_that_cannot_be_written_is_refused_before_the_run(
     monkeypatch.setattr(run_recording.shutil, "disk_usage", lambda _path: full)
     with pytest.raises(ValueError, match="only 50 MiB free"):
         check_destination(tmp_path / "bag")
+
+
+def test_camera_images_recorded_compressed_decode_back_to_what_was_published(
+        ros: RosSession, tmp_path: Path) -> None:
+    """``--record-images compressed``: colour as JPEG (close to the published image), 16-bit
+    depth as PNG (exactly it), on image_transport's .../compressed topics, in zstd chunks that
+    the bag's reader opens; 32FC1 depth, which the compressed transport cannot carry, stays
+    raw on the raw topic; the bag is smaller than the raw recording of the same images."""
+    frame = SyntheticSequence(1, seed=0).read(0)
+    published = [color_message(frame, 1.0, "camera"), depth_message(frame, 1.0, "camera"),
+                 depth_message(frame, 1.0, "camera", "32FC1")]
+    sizes = {}
+    for images in ("raw", "compressed"):
+        bag = tmp_path / images
+        recorder = RunRecorder(ros.node, bag, RecordingOptions(1, images, "zstd"))
+        color = ros.node.create_publisher(Image, topics.CAMERA_IMAGE, qos.CAMERA)
+        depth = ros.node.create_publisher(Image, topics.CAMERA_DEPTH, qos.CAMERA)
+        for msg, pub in zip(published, (color, depth, depth), strict=True):
+            # the camera's topics are volatile: sent again until the recorder heard it
+            before, deadline = recorder.messages, time.monotonic() + 20.0
+            while recorder.messages == before and time.monotonic() < deadline:
+                pub.publish(msg)
+                ros.spin_until(lambda r=recorder, b=before: r.messages > b, 0.2)
+            assert recorder.messages > before, f"{images}: {msg.encoding} never recorded"
+        summary = recorder.close()
+        sizes[images] = summary.bytes
+        ros.node.destroy_publisher(color)
+        ros.node.destroy_publisher(depth)
+    with Reader(tmp_path / "compressed") as reader:
+        got = {c.topic: c.msgtype for c in reader.connections if c.msgcount}
+        raws = {c.topic: raw for c, _, raw in reader.messages()}
+    assert got == {"/camera/image_raw/compressed": "sensor_msgs/msg/CompressedImage",
+                   "/camera/depth/image_raw/compressed": "sensor_msgs/msg/CompressedImage",
+                   "/camera/depth/image_raw": "sensor_msgs/msg/Image"}
+    store = get_typestore(Stores.ROS2_JAZZY)
+    jpeg = store.deserialize_cdr(raws["/camera/image_raw/compressed"],
+                                 "sensor_msgs/msg/CompressedImage")
+    png = store.deserialize_cdr(raws["/camera/depth/image_raw/compressed"],
+                                "sensor_msgs/msg/CompressedImage")
+    assert jpeg.format == "rgb8; jpeg compressed bgr8" and png.format == "16UC1; png compressed"
+    rgb = cv2.cvtColor(cv2.imdecode(jpeg.data, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+    assert np.abs(rgb.astype(int) - frame.color.astype(int)).mean() < 8
+    mm = cv2.imdecode(png.data, cv2.IMREAD_UNCHANGED)
+    assert mm.dtype == np.uint16
+    np.testing.assert_array_equal(mm, np.frombuffer(bytes(published[1].data), np.uint16)
+                                  .reshape(mm.shape))
+    raw_bytes = len(published[0].data) + len(published[1].data)
+    assert len(jpeg.data) + len(png.data) < 0.35 * raw_bytes
+    assert sizes["compressed"] < sizes["raw"]

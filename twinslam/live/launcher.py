@@ -24,7 +24,7 @@ from twinslam.live.monitor import PipelineMonitor, status_line
 from twinslam.live.node_fork_server import SWITCH, fork_servers
 from twinslam.live.record import RunRecord
 from twinslam.live.report import RunReport, report
-from twinslam.live.run_recording import RecordingSummary, RunRecorder
+from twinslam.live.run_recording import RecordingOptions, RecordingSummary, RunRecorder
 from twinslam.live.scenarios import SCENARIOS, Scenario
 from twinslam.node_hosts.fastdds import REPO_ROOT
 from twinslam.node_hosts.forked import ForkServers, NodeProcess
@@ -58,7 +58,8 @@ class LaunchConfig:
     scenario: Scenario = SCENARIOS["forward"]   #: order, covered-lens bursts, uplink range
     start: int = 0                   #: the sequence's first frame played
     record: Path | None = None       #: a rosbag2 (MCAP) folder to record the run into
-    record_camera_every: int = 10    #: the recording keeps one camera sample in this many
+    #: what the recording keeps, and how
+    recording: RecordingOptions = field(default_factory=RecordingOptions)
 
 
 class Launcher:
@@ -126,7 +127,7 @@ class Launcher:
 
             monitor = PipelineMonitor(session.node, stats, c.watch_images)
             if c.record is not None:
-                recorder = RunRecorder(session.node, c.record, c.record_camera_every)
+                recorder = RunRecorder(session.node, c.record, c.recording)
             self.record = monitor.record
             started = time.monotonic()
             # the edge first, and the rest once it listens: summaries published before the

@@ -4,9 +4,12 @@ open (``twinslam launch --record DIR``, issue #31).
 The monitor's node subscribes to every topic of the run — the protocol, the twin's latents, the
 viewer topics, the poses and paths, and the camera — and writes each sample as it arrived on
 the wire (CDR, undecoded), stamped with its receive time. The camera's images are kept one in
-``camera_every`` (their bytes dominate: ~1 MB a 640×480 colour frame). The custom interfaces
-are written with their definitions (from ``msg_schemas/msg``), so a reader without twinslam
-decodes them too.
+``camera_every`` (their bytes dominate: ~1 MB a 640×480 colour frame), raw or — ``images:
+compressed`` — as ``sensor_msgs/CompressedImage`` on image_transport's ``…/compressed`` topics
+(colour JPEG, 16-bit depth lossless PNG, the ``format`` field as image_transport writes it, so
+Foxglove and RViz show them). The MCAP chunks are zstd-compressed unless ``chunks: none``
+(lossless; every MCAP reader decodes them). The custom interfaces are written with their
+definitions (from ``msg_schemas/msg``), so a reader without twinslam decodes them too.
 """
 
 from __future__ import annotations
@@ -17,11 +20,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import cv2
+import numpy as np
 from geometry_msgs.msg import PoseArray, PoseStamped
 from nav_msgs.msg import Path as PathMsg
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
+from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.interfaces import (
+    Connection,
     Qos,
     QosDurability,
     QosHistory,
@@ -29,9 +36,9 @@ from rosbags.interfaces import (
     QosReliability,
     QosTime,
 )
-from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 from tf2_msgs.msg import TFMessage
 from twinslam_msgs.msg import (
     FrameSummaries,
@@ -75,6 +82,64 @@ CAMERA_TOPICS: tuple[tuple[str, type[Any]], ...] = (
     (topics.CAMERA_INFO, CameraInfo))
 
 
+#: how the camera's images are kept
+IMAGE_MODES = ("raw", "compressed")
+#: how the MCAP chunks are stored
+CHUNK_MODES = ("zstd", "none")
+#: the JPEG quality of a recorded colour image (image_transport's default is 95)
+JPEG_QUALITY = 90
+
+
+@dataclass(frozen=True)
+class RecordingOptions:
+    """What a recording keeps of the camera and how it stores it."""
+
+    camera_every: int = 10          #: one camera sample (image, depth, camera_info) in this many
+    images: str = "raw"             #: one of IMAGE_MODES
+    chunks: str = "zstd"            #: one of CHUNK_MODES
+
+    def check(self) -> None:
+        """ValueError naming the option a user got wrong."""
+        if self.camera_every < 1:
+            raise ValueError(f"camera_every must be >= 1, got {self.camera_every}")
+        if self.images not in IMAGE_MODES:
+            raise ValueError(f"images must be one of {', '.join(IMAGE_MODES)}, got "
+                             f"{self.images!r}")
+        if self.chunks not in CHUNK_MODES:
+            raise ValueError(f"chunks must be one of {', '.join(CHUNK_MODES)}, got "
+                             f"{self.chunks!r}")
+
+
+def compress_image(data: bytes) -> bytes | None:
+    """A CDR ``sensor_msgs/Image`` as a CDR ``sensor_msgs/CompressedImage``: colour and mono8
+    as JPEG, 16UC1 depth as lossless PNG, with image_transport's ``format`` ("rgb8; jpeg
+    compressed bgr8", "16UC1; png compressed"); None for an encoding it does not compress
+    (32FC1 depth: the caller keeps it raw)."""
+    img = deserialize_message(data, Image)
+    h, w, enc = img.height, img.width, img.encoding
+    buf = np.frombuffer(bytes(img.data), dtype=np.uint8)
+    if enc in ("rgb8", "bgr8"):
+        pixels = buf.reshape(h, img.step)[:, :w * 3].reshape(h, w, 3)
+        bgr = cv2.cvtColor(pixels, cv2.COLOR_RGB2BGR) if enc == "rgb8" else pixels
+        ok, out = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+        fmt = f"{enc}; jpeg compressed bgr8"
+    elif enc == "mono8":
+        ok, out = cv2.imencode(".jpg", buf.reshape(h, img.step)[:, :w],
+                               [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+        fmt = "mono8; jpeg compressed mono8"
+    elif enc in ("16UC1", "mono16"):
+        dtype = np.dtype(">u2" if img.is_bigendian else "<u2")
+        depth = buf.view(dtype).reshape(h, img.step // 2)[:, :w].astype(np.uint16)
+        ok, out = cv2.imencode(".png", depth)
+        fmt = f"{enc}; png compressed"
+    else:
+        return None
+    if not ok:
+        return None
+    return bytes(serialize_message(CompressedImage(header=img.header, format=fmt,
+                                                   data=out.tobytes())))
+
+
 def check_destination(folder: Path) -> None:
     """ValueError naming why ``folder`` cannot take a recording: it exists already (rosbag2
     writes a new folder), its parent is missing or not writable, or the disk is nearly full.
@@ -111,14 +176,17 @@ class RecordingSummary:
 class RunRecorder:
     """Subscribes with ``node`` and writes what it hears to the MCAP bag ``folder``."""
 
-    def __init__(self, node: Node, folder: Path, camera_every: int = 10) -> None:
-        if camera_every < 1:
-            raise ValueError(f"camera_every must be >= 1, got {camera_every}")
+    def __init__(self, node: Node, folder: Path,
+                 options: RecordingOptions = RecordingOptions()) -> None:
+        options.check()
         check_destination(folder)
-        self.folder, self.camera_every = folder, camera_every
+        self.folder, self.options, self.node = folder, options, node
+        self._subscriptions: list[Any] = []
         self.store = get_typestore(Stores.ROS2_JAZZY)
         self.store.register(_custom_types())
         self.writer = Writer(folder, version=9, storage_plugin=StoragePlugin.MCAP)
+        if options.chunks == "zstd":
+            self.writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
         self.writer.open()
         self.messages = 0
         self._first_ns: int | None = None
@@ -127,29 +195,47 @@ class RunRecorder:
         for topic, cls, profile in RUN_TOPICS:
             self._subscribe(node, topic, cls, profile, every=1)
         for topic, cls in CAMERA_TOPICS:
-            self._subscribe(node, topic, cls, qos.CAMERA, every=camera_every)
+            self._subscribe(node, topic, cls, qos.CAMERA, every=options.camera_every,
+                            compressed=options.images == "compressed" and cls is Image)
 
-    def _subscribe(self, node: Node, topic: str, cls: type[Any], profile: Any, every: int
-                   ) -> None:
+    def _subscribe(self, node: Node, topic: str, cls: type[Any], profile: Any, every: int,
+                   compressed: bool = False) -> None:
         name = node.resolve_topic_name(topic)
-        conn = self.writer.add_connection(name, type_name_of(cls), typestore=self.store,
-                                          offered_qos_profiles=[bag_qos(profile)])
+        # a compressed image goes to image_transport's topic instead of the raw one; an
+        # encoding it cannot compress (32FC1 depth) stays raw, on a raw topic made when needed
+        packed = self._connection(f"{name}/compressed", CompressedImage, profile) \
+            if compressed else None
+        raw = None if compressed else self._connection(name, cls, profile)
         self._seen[name] = 0
 
         def write(data: bytes) -> None:
+            nonlocal raw
             self._seen[name] += 1
             if (self._seen[name] - 1) % every:
                 return
             now = time.time_ns()
             self._first_ns = now if self._first_ns is None else self._first_ns
             self._last_ns = now
-            self.writer.write(conn, now, data)
+            small = compress_image(data) if packed is not None else None
+            if packed is not None and small is not None:
+                self.writer.write(packed, now, small)
+            else:
+                raw = raw or self._connection(name, cls, profile)
+                self.writer.write(raw, now, data)
             self.messages += 1
 
-        node.create_subscription(cls, topic, write, profile, raw=True)
+        self._subscriptions.append(node.create_subscription(cls, topic, write, profile,
+                                                            raw=True))
+
+    def _connection(self, topic: str, cls: type[Any], profile: Any) -> Connection:
+        return self.writer.add_connection(topic, type_name_of(cls), typestore=self.store,
+                                          offered_qos_profiles=[bag_qos(profile)])
 
     def close(self) -> RecordingSummary:
-        """Finish the bag; what it holds."""
+        """Stop listening and finish the bag; what it holds."""
+        for sub in self._subscriptions:
+            self.node.destroy_subscription(sub)
+        self._subscriptions.clear()
         self.writer.close()
         size = sum(f.stat().st_size for f in self.folder.rglob("*") if f.is_file())
         span = (self._last_ns - (self._first_ns or self._last_ns)) * 1e-9

@@ -13,7 +13,12 @@ from twinslam.common.reporting import file_name
 from twinslam.live.launcher import DEFAULT_PARAMS, LaunchConfig, Launcher, tc_uplink_params
 from twinslam.live.report import RunReport, policy_label, print_table
 from twinslam.live.run_picture import plot_run
-from twinslam.live.run_recording import check_destination
+from twinslam.live.run_recording import (
+    CHUNK_MODES,
+    IMAGE_MODES,
+    RecordingOptions,
+    check_destination,
+)
 from twinslam.live.scenarios import SCENARIOS, Scenario, scenario
 from twinslam.live.slot_table import write_slot_table
 from twinslam.node_hosts.loopback import LoopbackDomain
@@ -21,7 +26,7 @@ from twinslam.node_hosts.netns import unavailable_reason
 from twinslam.policy_registry import LEARNED_PREFIX
 from twinslam.sequences.frame import SequenceError
 from twinslam.sequences.opening import open_sequence
-from twinslam.slam.map_source import check_map_source
+from twinslam.slam.map_source import DEFAULT_MAP_SOURCE, check_map_source
 
 R = TypeVar("R")
 
@@ -94,7 +99,8 @@ def _run_policy(args: argparse.Namespace, policy: str, chosen: Scenario,
     config = LaunchConfig(args.sequence, policy, args.frames, args.rate, args.params,
                           with_twin=args.twin or learned, timeout_s=args.timeout,
                           extra=run_extra, scenario=chosen, start=args.start,
-                          record=record, record_camera_every=args.record_camera_every)
+                          record=record, recording=RecordingOptions(
+                              args.record_camera_every, args.record_images, args.record_chunks))
     with domain_for(args) as dom:
         if isinstance(dom, LoopbackDomain) and args.loopback:
             dom.activate()
@@ -140,7 +146,8 @@ def run(args: argparse.Namespace) -> int:
 def register(sub: Subparsers) -> None:
     launch = sub.add_parser("launch", help="run player, device, edge (and twin) as processes")
     launch.add_argument("--sequence", default="synthetic",
-                        help="SUN3D / 7-Scenes / TUM folder, MCAP bag, or synthetic[:frames]")
+                        help="SUN3D / 7-Scenes / TUM folder, MCAP bag, synthetic[:frames] "
+                        "(the room) or synthetic-corridor[:frames] (where the map matters)")
     launch.add_argument("--policy", default="adapt",
                         help="the edge's policy, one run each, comma-separated: lff, pu, adapt, "
                         "random, mbrl:CHECKPOINT")
@@ -180,9 +187,18 @@ def register(sub: Subparsers) -> None:
     launch.add_argument("--record-camera-every", type=int, default=10, metavar="N",
                         help="with --record: keep one camera sample (image, depth, "
                         "camera_info) in N")
+    launch.add_argument("--record-images", choices=IMAGE_MODES, default="raw",
+                        help="with --record: the camera's images as they were published (raw) "
+                        "or as sensor_msgs/CompressedImage on image_transport's .../compressed "
+                        "topics (colour JPEG, 16-bit depth lossless PNG: README, 'Recording', "
+                        "has the MB a minute both ways); default %(default)s")
+    launch.add_argument("--record-chunks", choices=CHUNK_MODES, default="zstd",
+                        help="with --record: the MCAP chunks zstd-compressed (lossless; every "
+                        "MCAP reader decodes them) or stored as they are; default %(default)s")
     add_fleet_arguments(launch)
     launch.add_argument("--map-source", default=None,
                         help="the device's map source: edge (tracked only against the edge's "
                         "map, the paper's device) or edge+local (plus its own recent points); "
-                        "default: the parameter file's")
+                        "default: the parameter file's, which is "
+                        f"{DEFAULT_MAP_SOURCE} in the bundled one, as twinslam evaluate's")
     launch.set_defaults(func=run)
