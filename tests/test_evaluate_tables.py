@@ -13,7 +13,7 @@ import pytest
 from twinslam.live.report import RunReport
 from twinslam.live.runs import RunKey, RunResult, RunTask, policy_variants
 from twinslam.live.scenarios import SCENARIOS
-from twinslam.live.tables import paired_differences, paired_markdown, summarise
+from twinslam.live.tables import paired_differences, paired_markdown, side_by_side, summarise
 
 
 def _run(policy: str, seed: int, failures: int, ate: float, spec: str = "") -> RunResult:
@@ -188,3 +188,14 @@ def test_runs_whose_device_dropped_camera_frames_are_flagged(
     command._print_tables(clean, tmp_path)
     assert "Warning" not in (tmp_path / "summary.md").read_text(encoding="utf-8")
     assert capsys.readouterr().err == ""
+
+
+def test_the_side_by_side_table_flags_a_run_whose_device_dropped_camera_frames() -> None:
+    calm, busy = _run("lff", 0, 3, 0.2), _run("pu", 0, 3, 0.2)
+    busy.report.frames_dropped = 75
+    header, *rows = side_by_side([calm])
+    assert header.split()[-1] == "dropped" and rows[0].split()[-1] == "0" and len(rows) == 1
+    lines = side_by_side([calm, busy])
+    assert lines[2].split()[-1] == "75!"
+    assert lines[3].startswith("! 1 of 2 runs dropped camera frames")
+    assert "pu seed 0: 75" in lines[3]

@@ -1,5 +1,5 @@
 """Compile the numba kernels of the device, the edge (its policies and its twin allocator) and
-the synthetic room once, at set-up.
+the synthetic worlds once, at set-up.
 
 The kernels are compiled on first use and cached beside their sources (``cache=True``). On a
 fresh checkout that first use is the first node start: the edge took 58 s to reach "listening
@@ -21,7 +21,7 @@ from twinslam.live.node_fork_server import load_kernels
 
 def main() -> int:
     start = time.monotonic()
-    print("compiling the device, edge and synthetic-room kernels (once after a change; "
+    print("compiling the device, edge and synthetic-world kernels (once after a change; "
           "about a minute on 2 cores)", flush=True)
     load_kernels()
     print(f"kernels ready in {time.monotonic() - start:.0f} s", flush=True)

@@ -23,7 +23,7 @@ SWITCH = "TWINSLAM_FORK_SERVER"
 
 def load_kernels() -> None:
     """Load (in a fresh checkout: compile) the numba kernels of the device, the edge with each
-    rule policy, the synthetic room and the twin allocator's value curve."""
+    rule policy, the synthetic worlds and the twin allocator's value curve."""
     import numpy as np
 
     from device_tracker.device_core import DeviceTrackerCore

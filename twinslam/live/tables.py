@@ -35,19 +35,23 @@ RULE_POLICIES = ("lff", "pu", "adapt", "random")
 
 def side_by_side(results: list[RunResult]) -> list[str]:
     """One line per run: what the device lived through beside what the simulator's rule
-    predicted for the same frames (the table ``make run`` prints)."""
+    predicted for the same frames, and the camera frames it dropped (the table ``make run``
+    prints; a run that dropped any is marked ``!`` and explained below the table)."""
     lines = [f"{'policy':<14} {'map source':<10} {'fails':>5} {'reloc':>5} {'untrk':>5} "
              f"{'ATE m':>6} {'RPE m':>6} {'predicted lost':>14} {'device failed':>13} "
-             f"{'uploads':>7} {'edge ms':>7}"]
+             f"{'uploads':>7} {'edge ms':>7} {'dropped':>7}"]
     for r in results:
         rep, cal = r.report, r.calibration
         predicted = f"{cal.predicted_lost_share:.1%}" if cal else "–"
         failed = f"{cal.device_failure_share:.1%}" if cal else "–"
+        # a run whose device fell behind its camera is flagged where its figures are read
+        dropped = f"{rep.frames_dropped:d}{'!' if rep.frames_dropped else ''}"
         lines.append(f"{rep.label:<14} {r.key.map_source:<10} {rep.tracking_failures:>5d} "
                      f"{rep.relocalisations:>5d} {rep.untracked_frames:>5d} {rep.ate_m:>6.3f} "
                      f"{rep.rpe_m:>6.3f} {predicted:>14} {failed:>13} "
-                     f"{rep.frames_uploaded:>7d} {rep.edge_ms_median:>7.0f}")
-    return lines
+                     f"{rep.frames_uploaded:>7d} {rep.edge_ms_median:>7.0f} {dropped:>7}")
+    note = dropped_frames_note(results)
+    return lines + ([f"! {note}"] if note else [])
 
 
 def dropped_frames_note(results: list[RunResult]) -> str | None:
