@@ -1,5 +1,5 @@
-"""Another commit's code beside this tree's, for before/after benchmarks in one run (issue #30:
-"compare side by side in one run"): a temporary git worktree of the commit, and a driver
+"""Another commit's code beside this tree's, for before/after benchmarks in one run
+("compare side by side in one run"): a temporary git worktree of the commit, and a driver
 script run in a tree with only that tree's packages on the path (this venv's interpreter)."""
 
 from __future__ import annotations

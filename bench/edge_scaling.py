@@ -1,4 +1,4 @@
-"""How many devices one edge keeps up with (issue #32): one ``edge_mapper`` process serving N
+"""How many devices one edge keeps up with: one ``edge_mapper`` process serving N
 emulated devices, edge compute per device-slot, the latency from a slot's summaries to its map
 update, and the share of device-slots whose map came later than a slot period (missed
 deadlines: the device then tracks its next slot on an older map), for N = 1, 2, 4, ….

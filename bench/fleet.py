@@ -1,9 +1,9 @@
-"""Many devices in the simulator (issue #32): device-slots per second of one edge's budget
+"""Many devices in the simulator: device-slots per second of one edge's budget
 split between N devices, per allocator, on one core — each device a full simulator slot
 (decide, map update, υ of the next slot under the device's rule) plus what its allocator reads
 (novelty, or the value curve with the device's regime twin).
 
-The issue's bar is ≥ 1 000 device-slots/s at ≥ 100 devices; the gauge (M Python steps/s) is
+The bar set for it is ≥ 1 000 device-slots/s at ≥ 100 devices; the gauge (M Python steps/s) is
 printed before and after, with each figure divided by it, so that readings taken in another
 phase of this VM's speed compare.
 

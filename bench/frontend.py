@@ -1,4 +1,4 @@
-"""Front-end benchmark (issue #4): ms per 640×480 frame for ORB extraction + projection
+"""Front-end benchmark: ms per 640×480 frame for ORB extraction + projection
 matching + PnP + map-point bookkeeping, on one core, and the extraction time of a sequence.
 
     python -m bench.frontend [SEQUENCE] [--frames 1000]

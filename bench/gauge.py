@@ -13,7 +13,7 @@ import numpy as np
 
 def python_steps_per_s() -> float:
     """Millions of pure-Python loop steps per second (best of three short runs): the unit
-    issue #30's simulator targets are divided by, so that the machine's phase cancels."""
+    the simulator benchmark's targets are divided by, so that the machine's phase cancels."""
     best = 0.0
     for _ in range(3):
         t0 = time.perf_counter()

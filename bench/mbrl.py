@@ -1,4 +1,4 @@
-"""Learned-policy benchmark (issue #7): wall time of a training run on this machine's cores,
+"""Learned-policy benchmark: wall time of a training run on this machine's cores,
 and the policy's inference milliseconds per slot (state graph + ADAPT feature + rate-model
 features + actor), the work ``policy:=mbrl`` adds to the edge's plan.
 
@@ -92,7 +92,7 @@ def main() -> None:
     parser.add_argument("--policy", type=Path, help="time this checkpoint's inference; no training")
     parser.add_argument("--baseline", metavar="COMMIT",
                         help="train in this commit's tree and in this one, alternately, and "
-                             "print both (issue #30's before/after)")
+                             "print both, before and after")
     parser.add_argument("--rounds", type=int, default=2,
                         help="with --baseline: baseline/current pairs (default %(default)s)")
     args = parser.parse_args()

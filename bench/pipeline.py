@@ -1,4 +1,4 @@
-"""Pipeline benchmark (issue #5): the device's ms per frame (tracking against the edge's map,
+"""Pipeline benchmark: the device's ms per frame (tracking against the edge's map,
 no image decoding) and the edge's ms per slot (plan + keyframe integration + GTSAM + eviction
 + checkpoint), with the device and edge cores driven in one process — exactly the work the
 nodes do, without DDS and without the uplink's deliberate delay.
@@ -23,13 +23,13 @@ import numpy as np
 
 from bench.gauge import cpu_gauge
 from device_tracker.device_core import DeviceTrackerCore
+from device_tracker.messages import read_map_update
 from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore
 from edge_mapper.messages import map_update_message
 from edge_mapper.slot_planner import FrameObservations
 from twinslam.live.record import RunRecord
 from twinslam.policy_registry import make_policy
 from twinslam.sequences.opening import open_sequence
-from twinslam.slam.map_update import read_map_update
 from twinslam.slam.tracking_quality import absolute_trajectory_error
 from twinslam.uplink.channels import parse_channel
 

@@ -1,4 +1,4 @@
-"""Simulator benchmark (issue #3): slots/s per policy at V_max 45, F 60, and ADAPT's
+"""Simulator benchmark: slots/s per policy at V_max 45, F 60, and ADAPT's
 incremental greedy against a naive greedy that recomputes every determinant.
 
 A slot is decide + map update + the reward υ_k (eq. 8: 60 log-determinants of 45x45 reduced
@@ -13,7 +13,7 @@ uploaded under the device's rule), so the decisions differ too.
                         [--baseline COMMIT --rounds 3]
 
 Every slots/s is also printed divided by the gauge's M Python loop steps/s taken beside it
-(issue #30's unit: the machine's phase cancels). ``--baseline COMMIT`` runs that commit's
+(the gauge's unit: the machine's phase cancels). ``--baseline COMMIT`` runs that commit's
 simulator (a temporary git worktree, this venv) and the working tree's alternately, round by
 round, the same policies and rules, and prints both side by side.
 """
@@ -181,9 +181,9 @@ def main() -> None:
                         help="the rule of a lost frame the slots are scored by (default both)")
     parser.add_argument("--devices", type=int, default=100,
                         help="also a fleet of this many devices inside one keyframe budget, "
-                        "per allocator (issue #32); 0: none")
+                        "per allocator; 0: none")
     parser.add_argument("--baseline", metavar="COMMIT",
-                        help="compare with this commit's simulator, side by side (issue #30)")
+                        help="compare with this commit's simulator, side by side")
     parser.add_argument("--rounds", type=int, default=3,
                         help="with --baseline: baseline/current pairs (default 3)")
     args = parser.parse_args()
@@ -213,7 +213,7 @@ def main() -> None:
     inc, naive = adapt_ratio(dataset)
     print(f"ADAPT decision (V_max 45, 60 candidates, 8 up / 8 evict): incremental "
           f"{inc * 1000:.2f} ms, naive {naive * 1000:.1f} ms, ratio {naive / inc:.1f}x")
-    if args.devices:      # issue #32: one budget over many devices (bench.fleet has more sizes)
+    if args.devices:      # one budget over many devices (bench.fleet has more sizes)
         for allocator in ("equal", "motion", "twin"):
             rate = fleet_device_slots_per_s(args.devices, allocator, "lff", 20, dataset)
             print(f"fleet   {args.devices} devices, LFF, {allocator:<6} {rate:8.0f} "

@@ -1,4 +1,4 @@
-"""User digital twin benchmark (issues #6, #20): the variational twin's seconds per retrain on
+"""User digital twin benchmark: the variational twin's seconds per retrain on
 W slots of data and milliseconds per slot of inference (μ, Σ and p(d_{k+1}) from the latest
 history), beside the Bayesian regime twin's milliseconds per slot (filter update + latent), on
 the same states in one run.

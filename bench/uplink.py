@@ -1,4 +1,4 @@
-"""Uplink benchmark (issue #8): the device's uplink shaped by ``tc`` across network namespaces.
+"""Uplink benchmark: the device's uplink shaped by ``tc`` across network namespaces.
 
 The pipeline runs on three hosts (``twinslam.node_hosts.netns``) with ``shaper:=tc`` and real frames
 as keyframes (``upload_image:=true``); per slot it prints the rate d_k the ``tbf`` was set to,

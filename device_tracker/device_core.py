@@ -1,4 +1,5 @@
-"""The device's work, frame by frame and slot by slot, without DDS (DESIGN.md §1 steps 1, 2, 4).
+"""The device's work, frame by frame and slot by slot, without DDS (docs/architecture.md §1 steps
+1, 2, 4).
 
 Where a frame's pose comes from is the device's ``map_source``:
 

@@ -1,6 +1,7 @@
-"""The device's side of the per-slot protocol as messages (DESIGN.md §1 steps 2 and 4): the slot's
-``FrameSummaries``, built from plain arrays (the ``Keyframe`` uploads are
-:mod:`twinslam.slam.keyframe`'s). Pure conversion, no DDS.
+"""The device's side of the per-slot protocol as messages (docs/architecture.md §1 steps 2, 4
+and 6): the slot's ``FrameSummaries`` and the ``Keyframe`` uploads built from plain arrays, and
+the edge's ``MapUpdate`` read into a :class:`~twinslam.slam.map_update.MapSnapshot`. Pure
+conversion, no DDS.
 """
 
 from __future__ import annotations
@@ -10,13 +11,15 @@ from dataclasses import dataclass
 
 import numpy as np
 from rclpy.serialization import serialize_message
-from twinslam_msgs.msg import FrameSummaries, FrameSummary, UplinkThroughput
+from twinslam_msgs.msg import FrameSummaries, FrameSummary, Keyframe, MapUpdate, UplinkThroughput
 
 from device_tracker.uplink_sender import Encoded
 from msg_schemas import new
 from msg_schemas.headers import ros_time, set_header
-from msg_schemas.poses import pose_msg
-from twinslam.slam.keyframe import KeyFramePayload, keyframe_message
+from msg_schemas.poses import pose_matrix, pose_msg
+from msg_schemas.validation import ORB_DESCRIPTOR_BYTES
+from twinslam.slam.keyframe import KeyFramePayload
+from twinslam.slam.map_update import MapSnapshot
 from twinslam.uplink.shaper import SlotThroughput
 
 
@@ -70,3 +73,46 @@ def encoded_keyframe(data: KeyFramePayload | None, image: object | None, slot: i
     payload = serialize_message(keyframe_message(dataclasses.replace(data, slot=slot),
                                                  image=image))
     return data.frame_id, payload, max(alpha_bytes, len(payload))
+
+
+def keyframe_message(payload: KeyFramePayload, camera_frame: str = "camera",
+                     image: object | None = None) -> Keyframe:
+    """The ``Keyframe`` of a payload; with ``image`` (a ``sensor_msgs/Image``) the frame
+    itself too, otherwise features only. Inconsistent array sizes are refused (ValueError)
+    here, before anything is sent."""
+    xy = np.asarray(payload.keypoints, dtype=np.float32).reshape(-1, 2)
+    n = len(xy)
+    desc = np.asarray(payload.descriptors, dtype=np.uint8)
+    if (desc.shape != (n, ORB_DESCRIPTOR_BYTES) or len(payload.depths) != n
+            or len(payload.point_ids) != n):
+        raise ValueError(f"frame {payload.frame_id}: {n} keypoints need n×"
+                         f"{ORB_DESCRIPTOR_BYTES} descriptors and n depths and ids, got "
+                         f"{desc.shape}, {len(payload.depths)}, {len(payload.point_ids)}")
+    msg = new(Keyframe, slot=payload.slot, frame_id=payload.frame_id,
+              pose_estimate=pose_msg(payload.pose),
+              k=np.asarray(payload.intrinsics, dtype=np.float64).reshape(-1),
+              keypoints_xy=xy.reshape(-1),
+              keypoint_depths=np.asarray(payload.depths, np.float32),
+              descriptors=desc.reshape(-1),
+              map_point_ids=np.asarray(payload.point_ids, np.uint64))
+    if image is not None:
+        msg.image = image
+    return set_header(msg, payload.stamp, camera_frame)
+
+
+def read_map_update(msg: MapUpdate) -> MapSnapshot:
+    """The edge's map as a ``MapUpdate`` carries it, as arrays (what the device tracks
+    against; the monitors and the benches read it the same way)."""
+    n = len(msg.point_ids)
+    counts = np.asarray(msg.keyframe_point_counts, dtype=np.int64)
+    keyframe_points = (np.split(np.asarray(msg.keyframe_point_ids, dtype=np.uint64),
+                                np.cumsum(counts)[:-1]) if len(counts) else [])
+    return MapSnapshot(
+        int(msg.map_version), np.asarray(msg.keyframe_ids, dtype=np.uint64),
+        np.array([pose_matrix(p) for p in msg.keyframe_poses]).reshape(-1, 4, 4),
+        np.asarray(msg.point_ids, dtype=np.uint64),
+        np.asarray(msg.point_positions, dtype=np.float64).reshape(n, 3),
+        np.asarray(msg.point_descriptors, dtype=np.uint8).reshape(n, ORB_DESCRIPTOR_BYTES),
+        np.asarray(msg.point_observations, dtype=np.uint32), keyframe_points,
+        np.asarray(msg.track_ids, dtype=np.uint64),
+        np.asarray(msg.track_point_ids, dtype=np.uint64))

@@ -1,12 +1,11 @@
-"""device_tracker: the device's side of the per-slot protocol as a ROS 2 node (DESIGN.md §1).
+"""device_tracker: the device side of the slot protocol as a ROS 2 node (docs/architecture.md §1).
 
 * ``camera/image_raw`` + ``camera/depth/image_raw`` (paired by stamp,
   :mod:`device_tracker.frame_pairing`) + ``camera/camera_info`` → every frame tracked against
   the edge's last map alone (``map_source:=edge``, the paper's device) or with the device's own
   recent points too (``edge+local``) (:class:`~device_tracker.device_core.DeviceTrackerCore`);
-  ``device/pose`` per frame, ``device/path`` per slot (the newest ``path_window`` poses,
-  :mod:`msg_schemas.paths`), and ``map`` → camera on ``/tf`` per tracked frame (the camera's
-  frame id from the images unless ``camera_frame`` names one; ``publish_tf:=false`` stops it);
+  ``device/pose``, ``device/path`` and ``map`` → camera on ``/tf`` for viewers
+  (:mod:`device_tracker.pose_outputs`);
 * at each slot's end, ``device/frame_summaries`` with d_k drawn from the channel model
   (``channel:=markov:N=2`` or ``trace:FILE``, as the simulator's);
 * ``edge/upload_request`` → exactly the frames asked for go out as ``Keyframe`` s on
@@ -27,11 +26,8 @@ import sys
 import threading
 
 import numpy as np
-from geometry_msgs.msg import PoseStamped
-from nav_msgs.msg import Path
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
-from tf2_msgs.msg import TFMessage
 from twinslam_msgs.msg import FrameSummaries, Keyframe, MapUpdate, UplinkThroughput, UploadRequest
 
 from device_tracker.camera_input import CameraFrame, CameraIntake
@@ -41,22 +37,19 @@ from device_tracker.messages import (
     FrameRecord,
     encoded_keyframe,
     frame_summaries_message,
+    read_map_update,
     uplink_throughput_message,
 )
 from device_tracker.parameters import PARAMETERS, DeviceSettings
+from device_tracker.pose_outputs import PoseOutputs
 from device_tracker.relocalisation_requests import EdgeRelocalisation
 from device_tracker.uplink_sender import Encoded, UplinkSender
 from device_tracker.uplink_setup import uplink_from_parameters
 from msg_schemas import qos, topics
-from msg_schemas.headers import set_header
-from msg_schemas.paths import PathWindow
-from msg_schemas.poses import pose_msg
-from msg_schemas.transforms import tf_message, transform_stamped
 from twinslam.node_hosts.acks import wait_for_acks
 from twinslam.node_hosts.checked_subscription import CheckedSubscription
 from twinslam.node_hosts.node_main import NodeStartError, run_node
 from twinslam.node_hosts.parameters import declare
-from twinslam.slam.map_update import read_map_update
 from twinslam.uplink.channels import initial_rate
 from twinslam.uplink.shaper import SlotThroughput
 from twinslam.uplink.tc_shaper import TcShaper
@@ -77,17 +70,13 @@ class DeviceTrackerNode(Node):
             self.settings = s = DeviceSettings.from_parameters(p)
             self.channel, self.shaper = uplink_from_parameters(
                 p, flush=lambda: wait_for_acks(self.pub_keyframes, WRITE_RETRY_S))
-            self.path = PathWindow(s.path_window)
         except ValueError as exc:
             raise NodeStartError(str(exc)) from None
         self.watchdog, self.camera = EdgeWatchdog(float(p["edge_timeout_s"])), CameraIntake()
         self.last_slot = -1                      #: the last slot whose summaries went out
         DeviceTrackerCore.warm_up()
         self._lock = threading.Lock()            # the core, between the node's callbacks
-        self.pub_pose = self.create_publisher(PoseStamped, topics.DEVICE_POSE, qos.PROTOCOL)
-        self.pub_path = self.create_publisher(Path, topics.DEVICE_PATH, qos.MAP)
-        self.pub_tf = (self.create_publisher(TFMessage, topics.TF, qos.TF) if s.publish_tf
-                       else None)
+        self.poses = PoseOutputs(self, s)
         self.pub_summaries = self.create_publisher(FrameSummaries, topics.FRAME_SUMMARIES,
                                                    qos.PROTOCOL)
         self.pub_throughput = self.create_publisher(UplinkThroughput, topics.UPLINK_THROUGHPUT,
@@ -153,27 +142,9 @@ class DeviceTrackerNode(Node):
         if self.edge_relocalisation.due(record.tracked or result.on_probation, stamp):
             self.edge_relocalisation.ask(core.upload(record.frame_id), stamp,
                                          frame.color_msg.header.frame_id)
-        s = self.settings
-        pose = set_header(PoseStamped(pose=pose_msg(record.pose)), stamp, s.map_frame)
-        self.pub_pose.publish(pose)
-        if self.pub_tf is not None and record.tracked:   # an untracked pose is only a guess
-            self._broadcast(record.pose, stamp, frame.color_msg.header.frame_id)
-        self.path.add(pose)
+        self.poses.frame(record.pose, record.tracked, stamp, frame.color_msg.header.frame_id)
         if step.finished:
             self._end_slot(step.finished, step.map_version, stamp)
-
-    def _broadcast(self, pose: np.ndarray, stamp: float, image_frame: str) -> None:
-        """``map`` → camera on /tf; stops, saying why, when the images' frame is the map's."""
-        assert self.pub_tf is not None
-        s = self.settings
-        child = s.camera_frame or image_frame or "camera"
-        if child == s.map_frame:
-            self.get_logger().error(f"the camera images are in frame {child!r}, the device's "
-                                    "map frame: no transform on /tf (set camera_frame)")
-            self.destroy_publisher(self.pub_tf)
-            self.pub_tf = None
-            return
-        self.pub_tf.publish(tf_message(transform_stamped(pose, stamp, s.map_frame, child)))
 
     def _end_slot(self, frames: list[FrameRecord], version: int, stamp: float) -> None:
         assert self.core is not None
@@ -185,7 +156,7 @@ class DeviceTrackerNode(Node):
         self.watchdog.asked(slot)
         self.pub_summaries.publish(frame_summaries_message(slot, rate, state, version, frames,
                                                            stamp))
-        self.pub_path.publish(self.path.message(stamp, self.settings.map_frame))
+        self.poses.slot_end(stamp)
         self.get_logger().info(
             f"slot {slot}: {len(frames)} frames ({sum(f.tracked for f in frames)} tracked, "
             f"{self.camera.skipped} skipped so far; {self.sub_color.received} colour / "

@@ -1,5 +1,6 @@
 """The device's upload worker, without DDS: each slot's requested keyframes through the uplink
-shaper on a thread of its own, so tracking never waits for the link (DESIGN.md §1 step 4).
+shaper on a thread of its own, so tracking never waits for the link (docs/architecture.md §1 step
+4).
 
 For every ``UploadRequest`` the worker encodes the frames first (so the link never waits for
 the CPU), starts the shaper's slot at the rate the device drew for it, sends each frame — the

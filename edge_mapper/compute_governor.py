@@ -1,4 +1,4 @@
-"""The edge's compute budget (issue #32): an edge serving many devices must answer each slot
+"""The edge's compute budget: an edge serving many devices must answer each slot
 within its period, and past ~16 devices a 2-core edge does not (BENCHMARKS.md,
 bench.edge_scaling). Of an edge's per-slot work — planning, integrating keyframes, local
 bundle adjustment, the map update — the bundle adjustment is the part that can shrink without

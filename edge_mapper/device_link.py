@@ -1,6 +1,6 @@
 """One device's topics on the edge node: its protocol in, its map and decisions out
-(DESIGN.md §1 steps 3, 5, 6). The edge node holds one link when it serves the device of its
-own namespace, and one per device namespace when it serves several (issue #32); the work is
+(docs/architecture.md §1 steps 3, 5, 6). The edge node holds one link when it serves the device of
+its own namespace, and one per device namespace when it serves several; the work is
 the link's :class:`~edge_mapper.edge_core.EdgeMapperCore`'s, the link only moves messages.
 
 * ``<device>/device/frame_summaries`` → the policy's U_k and C_k on
@@ -45,6 +45,7 @@ from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, SlotOutcome, archi
 from edge_mapper.messages import (
     map_stats_message,
     map_update_message,
+    read_keyframe,
     relocalisation_message,
     upload_request_message,
 )
@@ -55,7 +56,6 @@ from edge_mapper.visual_messages import decisions_message, keyframes_message, ma
 from msg_schemas import qos, topics
 from msg_schemas.poses import pose_matrix
 from twinslam.node_hosts.checked_subscription import CheckedSubscription
-from twinslam.slam.keyframe import read_keyframe
 
 
 @dataclass(frozen=True)

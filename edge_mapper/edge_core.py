@@ -1,4 +1,5 @@
-"""The edge's work for one device, slot by slot, without DDS (DESIGN.md §1 steps 3, 5, 6).
+"""The edge's work for one device, slot by slot, without DDS (docs/architecture.md §1 steps 3, 5,
+6).
 
 ``plan`` answers a slot's frame summaries with U_k and C_k (and υ of those frames against the
 map, the previous decision's reward); ``add_keyframe`` integrates each uploaded keyframe the

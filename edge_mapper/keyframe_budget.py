@@ -1,4 +1,4 @@
-"""One edge, many devices: the shared keyframe budget V_total, slot by slot (issue #32).
+"""One edge, many devices: the shared keyframe budget V_total, slot by slot.
 
 Devices keep their own slot clocks, so the budget is granted per device-slot: when device i
 plans slot k, the allocator (:mod:`twinslam.map_management.allocation`) splits V_total between
@@ -24,7 +24,6 @@ that speaks again is active again; a reclaimed one starts afresh.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import Enum
@@ -42,6 +41,7 @@ from twinslam.map_management.allocation import (
     check_budget,
 )
 from twinslam.map_management.budget_value import budget_value, expected_uploads
+from twinslam.uncertainty.map_uncertainty import theorem1_uploads
 
 
 class Presence(Enum):
@@ -192,11 +192,17 @@ def device_demand(device: str, core: EdgeMapperCore, frames: Sequence[FrameObser
             uploads = expected_uploads(next_state_probs, state_rates_mbps, cfg.alpha_mbit,
                                        cfg.d_req_s, len(frames))
         else:
-            uploads = min(math.floor(rate_mbps * cfg.d_req_s / cfg.alpha_mbit + 1e-9),
-                          len(frames))
+            uploads = slot_uploads(core, rate_mbps, len(frames))
         keyframes = [core.map.point_array(k) for k in core.map.keyframe_ids()]
         value = budget_value(keyframes, points, uploads, MIN_INLIERS, max_budget)
     return DeviceDemand(device, len(core.map.keyframes), novelty, value)
 
 
 __all__ = ["BudgetError", "BudgetEvent", "DeviceAccount", "KeyframeBudget", "Presence"]
+
+
+def slot_uploads(core: EdgeMapperCore, rate_mbps: float, n_frames: int) -> int:
+    """Theorem 1's |U_k| for a slot of ``n_frames`` of ``core``'s device at ``rate_mbps``:
+    the most keyframes the slot can add, which bounds the device's grant."""
+    cfg = core.slot_config
+    return theorem1_uploads(rate_mbps, cfg.alpha_mbit, cfg.d_req_s, n_frames)

@@ -1,4 +1,4 @@
-"""The edge's side of the per-slot protocol as messages (DESIGN.md §1): what it writes as
+"""The edge's side of the per-slot protocol as messages (docs/architecture.md §1): what it writes as
 ``UploadRequest``, ``MapUpdate``, ``MapStats``, ``Relocalisation`` and, serving several devices,
 ``KeyframeBudget`` (it reads ``Keyframe`` with
 :mod:`twinslam.slam.keyframe`). Pure conversion, no DDS, so the node stays a thin shell and
@@ -10,15 +10,17 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from twinslam_msgs.msg import Keyframe, MapStats, MapUpdate, Relocalisation, UploadRequest
 from twinslam_msgs.msg import KeyframeBudget as KeyframeBudgetMsg
-from twinslam_msgs.msg import MapStats, MapUpdate, Relocalisation, UploadRequest
 
 from edge_mapper.keyframe_budget import KeyframeBudget, Presence
 from msg_schemas import new
-from msg_schemas.headers import set_header
-from msg_schemas.poses import pose_msg
+from msg_schemas.headers import set_header, stamp_seconds
+from msg_schemas.poses import pose_matrix, pose_msg
+from msg_schemas.validation import ORB_DESCRIPTOR_BYTES
 from twinslam.map_management.actions import MapAction
 from twinslam.slam.archive_relocalisation import ArchiveLocation
+from twinslam.slam.keyframe import KeyFramePayload
 from twinslam.slam.keyframe_map import KeyFrameMap
 from twinslam.uncertainty.map_uncertainty import SlotUncertainty
 
@@ -74,7 +76,7 @@ def map_stats_message(slot: int, policy: str, keyframe_map: KeyFrameMap, uncerta
                       latency_ms: float = math.nan, archived: int = 0) -> MapStats:
     """``MapStats``; u = +inf for a disconnected map and υ = NaN (unknown, or no tracked frame)
     are sent as they are (IEEE floats), never replaced by a number that looks valid. υ is
-    reported the three ways DESIGN.md §2 asks: mean with a lost frame scoring 0, the lost
+    reported the three ways docs/architecture.md §2 asks: mean with a lost frame scoring 0, the lost
     share, and the mean over the tracked frames."""
     msg = new(MapStats, slot=slot, policy=policy,
               map_size=len(keyframe_map.keyframes), map_points=len(keyframe_map.points),
@@ -99,3 +101,17 @@ def keyframe_budget_message(budget: KeyframeBudget, stamp: float) -> KeyframeBud
               committed=np.array([a.committed for a in accounts], dtype=np.uint32),
               active=[a.presence is Presence.ACTIVE for a in accounts])
     return set_header(msg, stamp, "")
+
+
+def read_keyframe(msg: Keyframe) -> KeyFramePayload:
+    """Unpack a (validated) ``Keyframe``; depths or ids missing altogether read as zeros."""
+    xy = np.asarray(msg.keypoints_xy, dtype=np.float32).reshape(-1, 2)
+    n = len(xy)
+    depths = np.asarray(msg.keypoint_depths, dtype=np.float32)
+    ids = np.asarray(msg.map_point_ids, dtype=np.uint64)
+    return KeyFramePayload(
+        int(msg.frame_id), int(msg.slot), stamp_seconds(msg.header),
+        pose_matrix(msg.pose_estimate), np.asarray(msg.k, dtype=np.float64).reshape(3, 3), xy,
+        depths if depths.size == n else np.zeros(n, np.float32),
+        np.asarray(msg.descriptors, dtype=np.uint8).reshape(n, ORB_DESCRIPTOR_BYTES),
+        ids if ids.size == n else np.zeros(n, np.uint64))

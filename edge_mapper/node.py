@@ -1,4 +1,4 @@
-"""edge_mapper: the edge's side of the per-slot protocol as a ROS 2 node (DESIGN.md §1).
+"""edge_mapper: the edge's side of the per-slot protocol as a ROS 2 node (docs/architecture.md §1).
 
 Per device (:mod:`edge_mapper.device_link`):
 
@@ -30,7 +30,6 @@ unrequested or repeated one logged and ignored.
 
 from __future__ import annotations
 
-import math
 import sys
 import time
 from typing import Any
@@ -42,7 +41,7 @@ from twinslam_msgs.msg import RateLatent
 from edge_mapper.compute_governor import ComputeGovernor
 from edge_mapper.device_link import DeviceLink
 from edge_mapper.edge_core import EdgeMapperCore
-from edge_mapper.keyframe_budget import KeyframeBudget, device_demand
+from edge_mapper.keyframe_budget import KeyframeBudget, device_demand, slot_uploads
 from edge_mapper.messages import keyframe_budget_message
 from edge_mapper.parameters import DEVICE_NAME, PARAMETERS, device_names, link_settings
 from edge_mapper.policy_control import POLICY_KEYS
@@ -127,9 +126,8 @@ class EdgeMapperNode(Node):
                                budget.allocator == "twin",
                                list(latent.next_state_probs) if latent is not None else [],
                                list(latent.state_rates_mbps) if latent is not None else [])
-        cfg = core.slot_config
-        uploads = min(math.floor(rate_mbps * cfg.d_req_s / cfg.alpha_mbit + 1e-9), len(frames))
-        granted = budget.grant(device, slot, demand, now, uploads)
+        granted = budget.grant(device, slot, demand, now,
+                               slot_uploads(core, rate_mbps, len(frames)))
         if self.pub_budget is not None:
             self.pub_budget.publish(keyframe_budget_message(budget, self._now()))
         return granted

@@ -85,7 +85,7 @@ PARAMETERS = (
     ParamSpec("map_frame", "map", "frame id of the map the edge publishes (the device's "
               "map_frame: its first frame's camera frame); with several devices, each device's "
               "is DEVICE/map_frame"),
-    # one edge, many devices (issue #32)
+    # one edge, many devices
     ParamSpec("devices", (), "device namespaces this edge serves, e.g. [ar1, ar2] (their "
               "ar1/device/... topics, relative to the edge's namespace); empty: the one device "
               "of the edge's own namespace", check=_devices_refused),

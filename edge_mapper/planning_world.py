@@ -1,4 +1,4 @@
-"""The world the causal planner ``mpc`` imagines at the edge, built from the live map (issue #29).
+"""The world the causal planner ``mpc`` imagines at the edge, built from the live map.
 
 In the simulator ``mpc`` (:mod:`twinslam.simulator.mpc`) plans in the simulator's own world:
 the covisibility dataset tells it which points the next frames see. Live nothing tells it; the

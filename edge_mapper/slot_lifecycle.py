@@ -1,4 +1,5 @@
-"""When the edge closes a slot: the completion rule and the timeout, without DDS (DESIGN.md §1).
+"""When the edge closes a slot: the completion rule and the timeout, without DDS
+(docs/architecture.md §1).
 
 A slot opens when its ``UploadRequest`` goes out and closes — C_k evicted, bundle adjustment,
 the new map published — at the first of:

@@ -1,4 +1,5 @@
-"""The edge's per-slot decision from a device's frame summaries (DESIGN.md §1 steps 3 and 6).
+"""The edge's per-slot decision from a device's frame summaries (docs/architecture.md §1 steps 3
+and 6).
 
 The device reports each frame of slot k as the sets of ids it observes: global map-point ids
 from the last map update and device-local track ids of new features. The covisibility weight

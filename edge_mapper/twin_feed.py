@@ -1,4 +1,4 @@
-"""A twin-driven policy on the edge, fed by the twin node, with a declared fallback (issue #8).
+"""A twin-driven policy on the edge, fed by the twin node, with a declared fallback.
 
 In the paper's system the user digital twin runs beside the edge and hands the policy its
 latent features every slot (§V, Fig. 2). On the edge that is ``/udt/rate_latent``: the learned

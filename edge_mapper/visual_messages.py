@@ -1,5 +1,5 @@
 """What a viewer (RViz, Foxglove) sees of the edge's map: standard messages only, built once a
-slot when the slot closes (issue #31). Pure conversion, no DDS.
+slot when the slot closes. Pure conversion, no DDS.
 
 * ``edge/map_points`` — ``sensor_msgs/PointCloud2`` of every map point: x, y, z (float32,
   metres, the map frame) and ``intensity`` = how many keyframes observe it;

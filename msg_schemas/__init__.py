@@ -1,9 +1,9 @@
 """Message schemas of twinslam: the custom ``.msg`` files and what the nodes share about them.
 
-``msg_schemas/msg/*.msg`` define the per-slot protocol (DESIGN.md §1) as the ROS 2 interface
-package ``twinslam_msgs``, which rosidl generates (``make`` builds it into the venv; colcon on a
-ROS host). Here: :func:`new` to fill a generated message from numpy arrays, the topic names and
-QoS profiles, header stamps, and the validation of decoded content.
+``msg_schemas/msg/*.msg`` define the per-slot protocol (docs/architecture.md §1) as the
+ROS 2 interface package ``twinslam_msgs``, which rosidl generates (``make`` builds it into the
+venv; colcon on a ROS host). Here: :func:`new` to fill a generated message from numpy
+arrays, the topic names and QoS profiles, header stamps, and the validation of decoded content.
 """
 
 from msg_schemas.interfaces import (

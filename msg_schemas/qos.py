@@ -1,4 +1,4 @@
-"""QoS profiles of twinslam's topics (DESIGN.md §6), as rclpy profiles.
+"""QoS profiles of twinslam's topics (docs/architecture.md §6), as rclpy profiles.
 
 * ``PROTOCOL``: the per-slot protocol — reliable and deep enough that a slow slot (a retrain,
   a bundle adjustment next door) loses nothing (a KEEP_LAST 10 queue dropped 11 slots in a test).

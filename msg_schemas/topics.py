@@ -1,4 +1,4 @@
-"""Topic names of the per-slot protocol and the camera, written once (DESIGN.md §1).
+"""Topic names of the per-slot protocol and the camera, written once (docs/architecture.md §1).
 
 All are relative, so a node's namespace moves them: ``-r __ns:=/ar1`` on a device and its edge
 puts the pair on ``/ar1/device/...`` and ``/ar1/edge/...``, and a second pair under ``/ar2``
@@ -27,7 +27,7 @@ MAP_STATS = "edge/map_stats"
 MAP_POINTS = "edge/map_points"
 KEYFRAME_POSES = "edge/keyframes"
 DECISIONS = "edge/decisions"
-#: an edge serving several devices: how it splits its keyframe budget (issue #32)
+#: an edge serving several devices: how it splits its keyframe budget
 KEYFRAME_BUDGET = "edge/keyframe_budget"
 
 RATE_LATENT = "udt/rate_latent"

@@ -3,8 +3,8 @@
 The middleware drops payloads that are not valid CDR of the topic type before they reach Python
 (Fast DDS's type support refuses them); what reaches us can still be malformed as a message:
 an image whose buffer is shorter than ``height * step``, a NaN pose, descriptor arrays that do
-not match the keypoint count. A node must refuse those with a logged reason (DESIGN.md §8)
-instead of crashing deep in a callback.
+not match the keypoint count. A node must refuse those with a logged reason (docs/architecture.md
+§8) instead of crashing deep in a callback.
 Each validator raises :class:`MessageError` with a reason a user can act on.
 """
 

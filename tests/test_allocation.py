@@ -1,4 +1,4 @@
-"""Splitting one edge's keyframe budget between devices (issue #32): every allocator hands out
+"""Splitting one edge's keyframe budget between devices: every allocator hands out
 exactly V_total with at least the minimum each, refuses a budget too small for the devices,
 and gives more to the device its signal says needs more; the value curves read covisibility
 as the device's tracking rule does."""

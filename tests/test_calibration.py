@@ -1,4 +1,4 @@
-"""The calibration of the simulator against the device (issue #27) on hand-made frames: what the
+"""The calibration of the simulator against the device on hand-made frames: what the
 simulator predicts for a frame given the kept keyframes, the figures calibration.csv reports,
 the threshold fit, and how a live run's frames are placed on recorded frames and maps."""
 

@@ -1,4 +1,4 @@
-"""``twinslam COMMAND --help`` documents every option a user can pass (issue #18 item 6)."""
+"""``twinslam COMMAND --help`` documents every option a user can pass."""
 
 from __future__ import annotations
 

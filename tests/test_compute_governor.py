@@ -1,4 +1,4 @@
-"""The edge's compute budget (issue #32): over its share of a core the edge trims its local
+"""The edge's compute budget: over its share of a core the edge trims its local
 bundle adjustment step by step, below 60 % of it it restores it, one step per half window;
 without a budget nothing changes; a core told to skip bundle adjustment finishes its slots
 without one."""

@@ -99,7 +99,7 @@ def test_edge_slot_loop_keeps_vmax_optimises_and_resumes(tmp_path: Path) -> None
     assert resumed.restored and resumed.version == 6 and resumed.last_slot == 5
     assert resumed.map.keyframe_ids() == core.map.keyframe_ids()
     np.testing.assert_array_equal(resumed.map.covisibility(), core.map.covisibility())
-    # the device's tracks keep their map points across the restart (issue #19): a frame that
+    # the device's tracks keep their map points across the restart: a frame that
     # still reports a track the edge resolved before the stop counts it as that point
     table = core.local_mapping.track_points
     assert table and resumed.local_mapping.track_points == table
@@ -295,7 +295,7 @@ def test_a_slot_that_finishes_late_restores_for_where_the_camera_headed_in_it() 
 
 
 def test_overlapping_slots_never_leave_more_than_vmax_keyframes() -> None:
-    """Slots shorter than their uploads (issue #19): slot k+1 is planned before slot k's
+    """Slots shorter than their uploads: slot k+1 is planned before slot k's
     keyframes arrive, keyframes come late, out of order, some never, one after its slot
     closed. Each plan counts the open slots' uploads in and their evictions out, slots finish
     in order, and a later slot's keyframes wait for the earlier slot: no finished slot leaves

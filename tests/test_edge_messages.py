@@ -7,18 +7,19 @@ import math
 import numpy as np
 from rclpy.serialization import deserialize_message, serialize_message
 
+from device_tracker.messages import keyframe_message, read_map_update
 from edge_mapper.messages import (
     map_stats_message,
     map_update_message,
+    read_keyframe,
     upload_request_message,
 )
 from msg_schemas import new, type_name_of
 from msg_schemas.poses import pose_matrix, pose_msg
 from msg_schemas.validation import validate
 from twinslam.map_management.actions import MapAction
-from twinslam.slam.keyframe import TRACK_ID_BIT, KeyFramePayload, keyframe_message, read_keyframe
+from twinslam.slam.keyframe import TRACK_ID_BIT, KeyFramePayload
 from twinslam.slam.keyframe_map import KeyFrameMap
-from twinslam.slam.map_update import read_map_update
 from twinslam.uncertainty.map_uncertainty import SlotUncertainty
 
 

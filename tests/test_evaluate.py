@@ -1,4 +1,4 @@
-"""``twinslam evaluate`` (issue #19): the live nodes per scenario × policy × seed, every run a
+"""``twinslam evaluate``: the live nodes per scenario × policy × seed, every run a
 CSV row, mean ± CI per scenario and policy as CSV, markdown and plot; bad requests refused
 before the first run."""
 

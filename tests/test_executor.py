@@ -1,4 +1,4 @@
-"""Sweeps on either executor (issue #30): the same seeds give the same numbers in this
+"""Sweeps on either executor: the same seeds give the same numbers in this
 process, in local worker processes and on a local Ray of 2 CPUs; a task that fails is reported
 with what it was and its traceback while the others finish; bad executor options are refused
 by name."""

@@ -1,6 +1,6 @@
 """``twinslam launch --devices N``: one edge and N devices as processes, a table per device,
 their mean and Jain's index, and the settings that cannot run refused before anything starts
-(issue #32)."""
+."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Many devices inside one edge's keyframe budget in the simulator (issue #32): every slot the
+"""Many devices inside one edge's keyframe budget in the simulator: every slot the
 allocator hands out exactly V_total, every map stays within its share, a shared cell never
 carries more than its capacity, one device alone is the single-device simulator, and the same
 seeds give the same numbers."""

@@ -1,5 +1,5 @@
 """The edge's ledger of a keyframe budget shared by devices with their own slot clocks
-(issue #32): whatever order the devices plan and finish their slots in, the maps never hold
+: whatever order the devices plan and finish their slots in, the maps never hold
 more than V_total together; a share freed by a device that shrinks or vanishes goes to the
 others; a budget too small for one more device refuses it with the reason."""
 

@@ -1,4 +1,4 @@
-"""The layers of DESIGN.md §5 as a user meets them: an edge that runs a rule-based policy
+"""The layers of docs/architecture.md §5 as a user meets them: an edge that runs a rule-based policy
 never loads torch (seconds of start-up and ~1 GB of address space it does not need).
 
 `make test` checks the static contract (``lint-imports``, pyproject.toml); these tests check

@@ -1,4 +1,4 @@
-"""Learning curves (issue #29): a training run's validated actors are kept as snapshots and
+"""Learning curves: a training run's validated actors are kept as snapshots and
 scored on held-out episodes beside the rules; slot 0 is the run's own untrained actor, the kept
 one is marked, and each trained actor is paired with its own run's untrained one."""
 

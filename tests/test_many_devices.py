@@ -85,7 +85,9 @@ def test_one_edge_serves_three_devices_within_one_budget_and_reclaims_a_lost_one
             domain.spawn(["-m", "device_tracker.node", "--ros-args", "-r", f"__ns:=/{d}",
                           "-p", f"slot_frames:={slot_frames}", "-p", f"seed:={seed}",
                           "-p", f"frame_rate_hz:={FRAME_RATE_HZ * RATE}",
-                          "-p", f"map_frame:={d}/map"], forks=FORKS),
+                          "-p", f"map_frame:={d}/map",
+                          # devices that track every frame: what is tested is the edge's budget
+                          "-p", "map_source:=edge+local"], forks=FORKS),
             domain.spawn(["-m", "twinslam.sequence_player.node", "--ros-args",
                           "-r", f"__ns:=/{d}", "-p", f"sequence:=synthetic:{start + FRAMES}",
                           "-p", f"start:={start}", "-p", "wait_for_subscribers:=1",

@@ -1,4 +1,4 @@
-"""The simulator's running count of the map's points (issue #30) gives the device's rule the
+"""The simulator's running count of the map's points gives the device's rule the
 same shared-point counts as marking the map afresh, whatever sequence of maps it is moved
 through (uploads, evictions, a place seen twice, an empty map, a restored snapshot)."""
 

@@ -1,4 +1,4 @@
-"""The learned map-management policy (issue #7): state graph, actions, artificial experiences,
+"""The learned map-management policy: state graph, actions, artificial experiences,
 blended replay, training and the trained policy behind the common policy interface."""
 
 from __future__ import annotations

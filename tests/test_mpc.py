@@ -1,4 +1,4 @@
-"""The causal planner ``mpc`` (issue #29): with a known future and a horizon over the rest of
+"""The causal planner ``mpc``: with a known future and a horizon over the rest of
 the episode it is the exact optimum; causally it keeps Theorem 1's sizes and V_max in every
 slot, leaves the real environment as it found it, and is refused where no world model exists
 (the edge)."""

@@ -1,4 +1,4 @@
-"""``mpc`` at the edge (issue #29): the planner plans in a world built from the live map — the
+"""``mpc`` at the edge: the planner plans in a world built from the live map — the
 camera's poses continued at constant velocity, the map points in the frustum there — and its
 answer is a legal slot decision in the edge's frame ids. What the edge accepts by name, and
 what stays simulator-only."""

@@ -1,4 +1,4 @@
-"""The figures' controls and paired column (issue #29): a paired difference is taken episode by
+"""The figures' controls and paired column: a paired difference is taken episode by
 episode with a two-level bootstrap interval, and fig7 reports random and the untrained actor
 beside the rules, each paired with the best rule on the same episodes."""
 

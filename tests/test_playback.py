@@ -1,4 +1,4 @@
-"""Scenario playback (issue #19): forward then backward with stamps that keep increasing,
+"""Scenario playback: forward then backward with stamps that keep increasing,
 covered-lens bursts that keep the ground truth, and clear refusals."""
 
 from __future__ import annotations

@@ -229,7 +229,7 @@ def test_adapt_lowers_the_tracked_frames_uncertainty_on_the_room_model(
     """ADAPT keeps the keyframes that make the map most informative: the frames it tracks
     score a lower u than LFF's. On this fast walk it also loses more frames (a lost frame
     cannot be uploaded, so a spread-out map does not catch up): the three figures of
-    DESIGN.md §2, printed."""
+    docs/architecture.md §2, printed."""
     config = SimConfig(vmax=20, slots=20)
     figures = {}
     for name in ("lff", "adapt"):
@@ -297,7 +297,7 @@ def test_the_first_frames_of_a_slot_are_tracked_against_the_map_before_the_updat
 def test_a_slot_scores_alike_with_or_without_the_kept_factorisation(
         room: CovisibilityDataset, dense: bool, monkeypatch: pytest.MonkeyPatch) -> None:
     """A slot's first frames are scored against the factorisation kept from the previous
-    slot's scoring (issue #30); forgetting it before every step — and jumping around with
+    slot's scoring; forgetting it before every step — and jumping around with
     emulate and restore, as training does — gives the same rewards, lost frames and maps,
     with dense weights and with sparse ones (a dataset too large to keep dense)."""
     if not dense:

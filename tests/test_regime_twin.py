@@ -1,4 +1,4 @@
-"""The Bayesian regime twin: what a policy and the udt node rely on it for (issue #20)."""
+"""The Bayesian regime twin: what a policy and the udt node rely on it for."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """docs/results.md's map-management tables are printed by committed commands from committed
-CSVs (issue #29): re-running each command written beside a table must print that table. A
+CSVs: re-running each command written beside a table must print that table. A
 results.md edited by hand, or a CSV re-run without its table, fails here."""
 
 from __future__ import annotations
@@ -19,20 +19,21 @@ MPC_ABLATIONS = ("mpc:H=2,mpc:H=1,mpc,mpc:H=2/S=1,mpc:H=2/frames=persistence,"
                  "mpc:H=2/frames=oracle,mpc:H=2/rates=last,mpc:H=2/rates=markov,"
                  "mpc:H=2/rates=variational,mpc:H=2/rates=oracle,"
                  "mpc:H=2/rates=oracle/frames=oracle")
-#: issue29_tables.py's arguments, as results.md writes them beside each table
+#: planner_tables.py's arguments, as results.md writes them beside each table
 PLANNER_TABLES = [
-    ["issue29-mpc-tune.csv"],
-    ["issue29-mpc-eval-*.csv", "--rows", "lff,pu,adapt,random,mpc:H=2,reference"],
-    ["issue29-mpc-eval-*.csv", "--against", "mpc:H=2", "--rows", MPC_ABLATIONS],
-    ["issue29-mpc-nonstationary-*.csv", "--against", "mpc", "--rows",
+    ["planner/mpc-tune.csv"],
+    ["planner/mpc-eval-*.csv", "--rows", "lff,pu,adapt,random,mpc:H=2,reference"],
+    ["planner/mpc-eval-*.csv", "--against", "mpc:H=2", "--rows", MPC_ABLATIONS],
+    ["planner/mpc-nonstationary-*.csv", "--against", "mpc", "--rows",
      "lff,mpc:rates=last,mpc:rates=markov,mpc,mpc:rates=variational,mpc:rates=oracle"],
-    ["learning-curve", "issue29-learning-curve"],
-    ["learning-curve", "issue29-learning-curve-residual"],
-    ["learning-curve", "issue29-learning-curve-residual-12k"],
+    ["learning-curve", "learning-curves/actor"],
+    ["learning-curve", "learning-curves/residual"],
+    ["learning-curve", "learning-curves/residual-12k"],
 ]
 #: figs789.py's (mode, CSV) pairs
 FIGURE_TABLES = [("table", "fig7.csv"), ("table", "fig8.csv"), ("table", "fig9.csv")] + [
-    (mode, f"issue29-fig{n}/fig{n}.csv") for n in (7, 8, 9) for mode in ("table", "paired")]
+    (mode, f"figs-with-controls/fig{n}/fig{n}.csv") for n in (7, 8, 9)
+    for mode in ("table", "paired")]
 
 
 def _script(name: str) -> ModuleType:
@@ -50,7 +51,7 @@ def _expand(args: list[str]) -> list[str]:
     for arg in args:
         if "*" in arg:
             out += sorted(str(p) for p in FIGURES.glob(arg))
-        elif arg.endswith(".csv") or arg.startswith("issue29-"):
+        elif arg.endswith(".csv") or (FIGURES / arg).is_dir():   # a file or folder of figures
             out.append(str(FIGURES / arg))
         else:
             out.append(arg)
@@ -96,7 +97,7 @@ def _missing(printed: str) -> list[list[str]]:
 @pytest.mark.parametrize("args", PLANNER_TABLES, ids=lambda a: " ".join(a)[:60])
 def test_each_planner_table_is_what_its_command_prints(
         args: list[str], capsys: pytest.CaptureFixture[str]) -> None:
-    _script("issue29_tables").main(_expand(args))
+    _script("planner_tables").main(_expand(args))
     assert _missing(capsys.readouterr().out) == []
 
 
@@ -111,11 +112,11 @@ def test_each_figure_table_is_what_its_command_prints(
 
 def test_a_row_that_is_not_in_the_files_is_refused() -> None:
     with pytest.raises(SystemExit, match="--rows mpc:H=9: no such policy"):
-        _script("issue29_tables").main(_expand(["issue29-mpc-eval-main.csv", "--rows",
+        _script("planner_tables").main(_expand(["planner/mpc-eval-main.csv", "--rows",
                                                 "lff,mpc:H=9"]))
 
 
-@pytest.mark.parametrize("folder", ["issue29-mpc-live", "issue29-mpc-live-2"])
+@pytest.mark.parametrize("folder", ["planner/mpc-live", "planner/mpc-live-2"])
 def test_the_live_planner_tables_are_what_evaluate_prints_from_their_runs(
         folder: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """`twinslam evaluate … --resume` on the committed runs.csv runs nothing — nor extracts the

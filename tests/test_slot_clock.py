@@ -1,4 +1,4 @@
-"""Slots cut by frame stamps (issue #19): a frame lost before the device does not shift the
+"""Slots cut by frame stamps: a frame lost before the device does not shift the
 slots after it, a jittering stamp stays in its slot, and a slot whose last frame never came
 ends when the next slot's first frame arrives."""
 

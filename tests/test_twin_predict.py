@@ -1,4 +1,4 @@
-"""Online next-state prediction (issue #20): the scores, the sources, the experiment's CLI."""
+"""Online next-state prediction: the scores, the sources, the experiment's CLI."""
 
 from __future__ import annotations
 

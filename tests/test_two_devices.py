@@ -42,7 +42,9 @@ def test_two_pairs_share_a_domain_without_cross_talk(domain: LoopbackDomain,
     assert all(domain.wait_for_log(e, "listening on", 90) for e in edges.values())
     for ns, (slot_frames, seed, start) in PAIRS.items():
         domain.spawn(["-m", "device_tracker.node", "--ros-args", "-r", f"__ns:={ns}",
-                      "-p", f"slot_frames:={slot_frames}", "-p", f"seed:={seed}"], forks=FORKS)
+                      "-p", f"slot_frames:={slot_frames}", "-p", f"seed:={seed}",
+                      # devices that track every frame: what is tested is the isolation
+                      "-p", "map_source:=edge+local"], forks=FORKS)
         domain.spawn(["-m", "twinslam.sequence_player.node", "--ros-args", "-r", f"__ns:={ns}",
                       "-p", f"sequence:=synthetic:{start + FRAMES}", "-p", f"start:={start}",
                       "-p", "wait_for_subscribers:=1"], forks=FORKS)

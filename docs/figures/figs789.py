@@ -1,19 +1,19 @@
 """The Figs 7–9 files of docs/results.md, from the CSVs ``twinslam experiment fig7|fig8|fig9``
-wrote (issue #29: every table and figure of the map-management part comes from a committed
+wrote (every table and figure of the map-management part comes from a committed
 command):
 
     .venv/bin/python docs/figures/figs789.py table docs/figures/fig7.csv     # the markdown table
-    .venv/bin/python docs/figures/figs789.py paired docs/figures/issue29-fig7/fig7.csv
+    .venv/bin/python docs/figures/figs789.py paired docs/figures/figs-with-controls/fig7/fig7.csv
     .venv/bin/python docs/figures/figs789.py redraw docs/figures/fig7.csv    # fig7.png beside it
     .venv/bin/python docs/figures/figs789.py fig8-join docs/figures          # fig8.csv, fig8.png
 
 ``table``: one row per policy, one column per x, each cell "mean υ ± 95 % CI · lost share · υ
 over the tracked frames" (the bound: mean ± CI only). ``paired``: each policy's paired
-difference with the best rule at each x, "mean [95 % CI]" (the columns the experiment writes
-since issue #29; a CSV without them is refused). ``redraw``: the figure as the experiment
-draws it (``amm.plot_figure``), from the CSV alone. ``fig8-join``: fig8.csv from fig8_n2.csv
-and fig8_n4.csv — the file one ``twinslam experiment fig8`` process writes when the two N were
-run as separate processes (as docs/results.md's were).
+difference with the best rule at each x, "mean [95 % CI]" (the columns the experiment
+writes since the controls were added; a CSV without them is refused). ``redraw``: the figure
+as the experiment draws it (``amm.plot_figure``), from the CSV alone. ``fig8-join``:
+fig8.csv from fig8_n2.csv and fig8_n4.csv — the file one ``twinslam experiment fig8``
+process writes when the two N were run as separate processes (as docs/results.md's were).
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ class Row:
     ci95: float
     lost_share: float
     tracked_uncertainty: float
-    best_rule: str = ""                                #: at this x ("" before issue #29)
+    best_rule: str = ""                                #: at this x ("" in a CSV without controls)
     paired: tuple[float, float, float] | None = None   #: vs best_rule: mean, CI low, high
 
 
@@ -88,7 +88,7 @@ def paired(path: Path) -> str:
     xs = list(by_x)
     best = {x: next(iter(by_x[x].values())).best_rule for x in xs}
     if not all(best.values()):
-        raise SystemExit(f"{path}: no paired columns (written before issue #29)")
+        raise SystemExit(f"{path}: no paired columns (written before the controls were added)")
     lines = ["| paired with the best rule | " + " | ".join(
         f"{x_label} {x} (vs {best[x]})" for x in xs) + " |", "|---" * (len(xs) + 1) + "|"]
     for policy in dict.fromkeys(p for x in xs for p in by_x[x]):

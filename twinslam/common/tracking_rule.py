@@ -1,5 +1,5 @@
 """When a frame loses tracking: the rule the simulator, the edge's MapStats, training and every
-figure share, measured on the live device (issue #27, ``twinslam evaluate``'s calibration).
+figure share, measured on the live device (``twinslam evaluate``'s calibration).
 
 One rule — the device tracks a frame when it matches enough points of the map it holds — in
 the units of whoever counts: the device and the edge's ``MapStats`` count the device's own

@@ -1,4 +1,4 @@
-"""``twinslam calibrate``: what live runs say the rule of a lost frame must be (issue #27).
+"""``twinslam calibrate``: what live runs say the rule of a lost frame must be.
 
 Reads the ``calibration_frames.csv`` and ``calibration.csv`` that ``twinslam evaluate`` wrote in
 one or more folders (:func:`read_rows`, once) and measures, per device map source:

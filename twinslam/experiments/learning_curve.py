@@ -1,4 +1,4 @@
-"""Learning curves (issue #29): does training beat the actor it started from, and when?
+"""Learning curves: does training beat the actor it started from, and when?
 
 ``twinslam train --snapshots`` keeps every validated actor of a run (every ``--validate-every``
 slots, the untrained one at slot 0 first). Here each snapshot is scored on held-out episodes —
@@ -283,7 +283,7 @@ def paired_summary(points: list[CurvePoint], runs: dict[str, tuple[int, int, lis
 
 def controls_table(points: list[CurvePoint], runs: dict[str, tuple[int, int, list[int]]]
                    ) -> list[list[object]]:
-    """The controls beside the trained actor on the held-out episodes (issue #29): each rule
+    """The controls beside the trained actor on the held-out episodes: each rule
     and random, the untrained actor of every run (slot 0: one variant over the runs'
     initialisations), the kept and the last actor of every run. Per row: mean υ, its 95 % CI
     (over the episodes for a rule, over the runs' means for a variant), runs, lost share and υ

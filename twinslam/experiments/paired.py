@@ -1,6 +1,6 @@
 """Paired differences between policies scored on the same episodes, with a confidence
 interval that counts both sources of spread a learned variant has: which training run, and
-which evaluation episode (issue #29).
+which evaluation episode.
 
 A rule policy is one "run"; a learned variant has R training runs, each scored on the same E
 episodes. The difference to a baseline rule is taken episode by episode (the same channel

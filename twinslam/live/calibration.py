@@ -1,5 +1,5 @@
 """A live run's next-slot frames as calibration frames: the simulator's prediction beside the
-device's outcome (issue #27; the measures are :mod:`twinslam.simulator.calibration`'s).
+device's outcome (the measures are :mod:`twinslam.simulator.calibration`'s).
 
 The simulator's view needs, for every frame the device tracked, the recorded frame it is (the
 player may play a sequence forward and back) and the covisibility of that recorded frame — the

@@ -1,4 +1,4 @@
-"""``twinslam launch --devices N``: one edge serving N devices (issue #32) — a player and a
+"""``twinslam launch --devices N``: one edge serving N devices — a player and a
 device per namespace (``/ar1`` … ``/arN``), each on its own walk and uplink seed, one
 ``edge_mapper`` with ``devices:=[ar1, …]`` and, with ``vmax_total``, one keyframe budget split
 by an allocator; a monitor per namespace and one report per device, their mean and Jain's

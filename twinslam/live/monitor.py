@@ -18,11 +18,11 @@ from twinslam_msgs.msg import (
     UploadRequest,
 )
 
+from device_tracker.messages import read_map_update
 from msg_schemas import qos, topics
 from msg_schemas.headers import stamp_key
 from msg_schemas.poses import pose_matrix
 from twinslam.live.record import RunRecord
-from twinslam.slam.map_update import read_map_update
 
 
 class PipelineMonitor:

@@ -1,4 +1,4 @@
-"""A live run at a glance: one PNG beside its table (issue #31).
+"""A live run at a glance: one PNG beside its table.
 
 Left, the edge's final map from above (x right, z forward: the camera convention's ground
 plane) — its points, its kept keyframes — with the device's trajectory, frames it tracked and

@@ -1,5 +1,5 @@
 """A live run recorded as a rosbag2 (MCAP) that RViz, Foxglove, ``ros2 bag`` and ``rosbags``
-open (``twinslam launch --record DIR``, issue #31).
+open (``twinslam launch --record DIR``).
 
 The monitor's node subscribes to every topic of the run — the protocol, the twin's latents, the
 viewer topics, the poses and paths, and the camera — and writes each sample as it arrived on

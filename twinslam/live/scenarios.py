@@ -1,4 +1,4 @@
-"""Live scenarios: how a run plays its sequence and shapes its uplink (issue #19).
+"""Live scenarios: how a run plays its sequence and shapes its uplink.
 
 On a sequence played once forward at 40–80 Mbit/s the edge's choice of keyframes decides
 nothing a user sees: the device tracks from its own recent points, never comes back, and the
@@ -18,7 +18,7 @@ uplink never binds. Each scenario changes one of those:
   α = 5 Mbit, D_req = 0.5 s instead of 4–8).
 
 For the paper's device (``map_source: edge``), where the kept keyframes decide tracking, the
-map budget and the uplink are what bind (issue #27):
+map budget and the uplink are what bind:
 
 * ``revisit-v25`` / ``revisit-v15`` — ``revisit`` with an edge map of 25 / 15 keyframes (the
   paper's range is 25–45: 45 covers a few hundred frames whatever the policy keeps);

@@ -1,4 +1,4 @@
-"""What a map-management policy sees and answers each slot (DESIGN.md §2, Theorem 1).
+"""What a map-management policy sees and answers each slot (docs/architecture.md §2, Theorem 1).
 
 The simulator, the edge's slot planner and every policy exchange these types, so they live
 below all of them: a policy can be written, tested and run without the simulator or a node.

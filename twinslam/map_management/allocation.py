@@ -1,5 +1,5 @@
 """One edge, many devices: splitting the keyframe budget V_total between the devices' maps
-(DESIGN.md §10, the paper's future work).
+(docs/architecture.md §10, the paper's future work).
 
 Each device's map is managed by its own policy exactly as with one device; what changes is
 its V_max, which is the share an allocator gives it, slot by slot. Three allocators:
@@ -13,7 +13,7 @@ its V_max, which is the share an allocator gives it, slot by slot. Three allocat
   (:mod:`twinslam.map_management.budget_value`: its recent frames against its map and the
   uploads its rate twin expects), keyframes handed out one at a time to the largest gain in
   Σ U(value), with U α-fair (``fairness`` 0: the sum itself; 1: Σ log, proportional
-  fairness). The issue calls it ``twin``: the twin is what says how many uploads to expect.
+  fairness). It is called ``twin``: the twin is what says how many uploads to expect.
 
 Every allocator gives each device at least ``minimum`` keyframes; V_total below N × minimum
 is refused with the reason. Jain's index says how evenly a per-device figure came out.

@@ -21,6 +21,8 @@ from collections.abc import Sequence
 import numpy as np
 from numba import njit
 
+from twinslam.uncertainty.map_uncertainty import theorem1_uploads
+
 
 def expected_uploads(state_probs: Sequence[float] | np.ndarray,
                      state_rates_mbps: Sequence[float] | np.ndarray,
@@ -31,7 +33,8 @@ def expected_uploads(state_probs: Sequence[float] | np.ndarray,
     rates = np.asarray(state_rates_mbps, dtype=np.float64)
     if p.shape != rates.shape or p.size == 0:
         raise ValueError(f"{p.size} state probabilities for {rates.size} state rates")
-    counts = np.minimum(np.floor(rates * d_req_s / alpha_mbit + 1e-9), slot_frames)
+    counts = np.array([theorem1_uploads(float(r), alpha_mbit, d_req_s, slot_frames)
+                       for r in rates], dtype=np.float64)
     return float(np.dot(p / p.sum(), counts))
 
 

@@ -11,7 +11,7 @@ C_k of the sizes Theorem 1 fixes. The rule-based ones are the paper's benchmarks
   with the largest resulting logdet. Greedy is a heuristic here: the log-submodularity
   that gives greedy its (1 - 1/e) guarantee (Khosoussi et al.) holds for choosing *edges* of a
   graph on fixed vertices, not for choosing frames (vertices, each bringing all its edges),
-  so no approximation bound is claimed (DESIGN.md §2).
+  so no approximation bound is claimed (docs/architecture.md §2).
 * **random** — a sanity floor.
 """
 

@@ -1,4 +1,4 @@
-"""Model-based RL map management (the paper's AMM, §VI and Algorithm 2; DESIGN.md §3).
+"""Model-based RL map management (the paper's AMM, §VI and Algorithm 2; docs/architecture.md §3).
 
 An actor-critic learns which frames to upload and which to evict from the map graph and the
 slot's candidate frames, augmented with the uplink's rate history and a rate model's latent

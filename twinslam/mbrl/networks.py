@@ -3,13 +3,13 @@
 
 Both embed the state graph with two ``torch_geometric`` ``DenseGCNConv`` layers on the batched
 dense adjacency (padded nodes masked out): a map of ≤ 45 frames plus 60 candidates is small
-and dense (issue #7 measured 64 such graphs forward + backward in 7 ms dense vs 590 ms with a
+and dense (measured: 64 such graphs forward + backward in 7 ms dense vs 590 ms with a
 sparse ``GCNConv`` over all pairs). The layers' parameters are ``DenseGCNConv``'s (same
 initialisation, same checkpoints), but they are applied by :func:`gcn_layer` to a propagation
 matrix computed once per batch (:func:`propagation`) — ``DenseGCNConv.forward`` normalises the
 adjacency again in every layer of every network call, ten times an update — and the first,
 widening layer propagates its 10–12 input features before the linear map rather than its 128
-outputs after it (the same product, a matmul ~10× smaller; issue #30's training profile).
+outputs after it (the same product, a matmul ~10× smaller; measured in a training profile).
 
 * **Actor** — per node: [its embedding, the graph's mean embedding, the context] → a score.
   Two variants (``ACTORS``):

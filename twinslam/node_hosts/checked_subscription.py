@@ -5,8 +5,8 @@ raw subscription) and decodes them itself, so that every refusal is the node's o
 with its reason and counted: bytes that are not CDR of the topic's type (a truncated sample,
 a 4 GB sequence length — Fast DDS would otherwise drop them without a word), and well-formed
 CDR whose content is nonsense (an image shorter than ``height × step``, a NaN pose, descriptors
-that do not match the keypoint count; :mod:`msg_schemas.validation`, DESIGN.md §8). The node
-goes on with what it had.
+that do not match the keypoint count; :mod:`msg_schemas.validation`, docs/architecture.md §8). The
+node goes on with what it had.
 """
 
 from __future__ import annotations

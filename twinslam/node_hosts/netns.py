@@ -1,4 +1,4 @@
-"""Three hosts on one machine: network namespaces ``device``, ``edge`` and ``twin`` (issue #8).
+"""Three hosts on one machine: network namespaces ``device``, ``edge`` and ``twin``.
 
 Each host is a network namespace with one interface, ``eth0``, holding an address on a private
 /24 that exists only inside these namespaces; the three ``eth0`` are veth pairs whose other

@@ -2,7 +2,7 @@
 
 Map management only shows in tracking when the camera comes back to places it left (the
 device then tracks against keyframes the edge chose to keep) and when tracking is lost and
-must be regained against the edge's map (issue #19). A sequence recorded once forward rarely
+must be regained against the edge's map. A sequence recorded once forward rarely
 does either, so the player can
 
 * play it **forward then backward** (``order: forward_backward``): every place is visited

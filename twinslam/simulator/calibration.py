@@ -1,4 +1,4 @@
-"""Does the simulator's score predict the device? (issue #27, DESIGN.md §2)
+"""Does the simulator's score predict the device? (docs/architecture.md §2)
 
 The simulator judges a map by the next slot's frames: a frame that shares too few map points
 with the keyframes the edge kept is *lost*, the others score u(G ∪ {f}). Policies are trained

@@ -1,4 +1,5 @@
-"""Gymnasium-style environment: one ``step`` is one slot of map management (DESIGN.md §4).
+"""Gymnasium-style environment: one ``step`` is one slot of map management (docs/architecture.md
+§4).
 
 At slot k the agent sees the map V^e_k, the slot's frames F_k and the rate d_k, and answers
 with U_k ⊆ F_k and C_k ⊆ V^e_k ∪ U_k of Theorem 1's sizes. The environment applies the update
@@ -62,7 +63,7 @@ class SimConfig:
     #: dataset forward then back from its first frame, as the player's forward_backward order
     start: int | None = None
     #: recorded frames a device walks per camera frame: 1 as recorded, 2 twice as fast, 0.5
-    #: half as fast (each frame seen twice), 0 standing still (many devices, issue #32)
+    #: half as fast (each frame seen twice), 0 standing still (many devices)
     speed: float = 1.0
 
     @classmethod
@@ -131,7 +132,7 @@ class MapManagementEnv:
         self._points: MapPointCounts | None = None
         #: the last map scored: (its key, its factorisation, its weights). A slot's first
         #: frames are scored against the map the previous slot's frames were, so one
-        #: factorisation serves both (issue #30)
+        #: factorisation serves both
         self._factor: tuple[tuple[int, bytes], tuple[Any, ...], np.ndarray] | None = None
 
     @classmethod
@@ -213,7 +214,7 @@ class MapManagementEnv:
 
     def set_vmax(self, vmax: int) -> None:
         """V_max from the current slot's decision on: an edge that splits one keyframe budget
-        between devices changes each device's share slot by slot (issue #32); a smaller one
+        between devices changes each device's share slot by slot; a smaller one
         evicts the excess at once (Theorem 1's |C_k|)."""
         if vmax < 0:
             raise ValueError(f"V_max must be >= 0, got {vmax}")

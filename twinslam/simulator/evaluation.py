@@ -1,5 +1,5 @@
 """Evaluating policies over seeds: per run and per policy, mean υ (a lost frame scoring 0),
-the share of lost frames and υ over the tracked frames (DESIGN.md §2, §9)."""
+the share of lost frames and υ over the tracked frames (docs/architecture.md §2, §9)."""
 
 from __future__ import annotations
 
@@ -154,7 +154,7 @@ def evaluate(policies: list[str], dataset: CovisibilityDataset, channel_spec: st
     policies' scores too with ``scores_in_progress``, and the elapsed time and ETA)."""
     if "oracle" in policies:
         raise ValueError("'oracle' is now called 'reference': it is a clairvoyant search, not a "
-                         "bound (issue #18)")
+                         "bound")
     parse_channel(channel_spec, rate_range)      # a bad channel fails before the first run
     built = {name: make_policy(name) for name in policies if name != "reference"}
     labels = distinct_labels({name: built[name].name if name in built else name

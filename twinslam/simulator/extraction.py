@@ -9,7 +9,7 @@ ORB-SLAM's local map search does for a tracked frame, with the whole map: once t
 has built its map, every frame is matched again against every active map point its estimated
 pose sees (projection, then descriptor within ``search_radius_px``), and M_f becomes those
 matches together with the tracked ones — the points the frame could match in any map that
-holds them, which is what the device does in the paper's mode (issue #27's calibration).
+holds them, which is what the device does in the paper's mode (what the calibration compares).
 """
 
 from __future__ import annotations

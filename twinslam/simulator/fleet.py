@@ -1,4 +1,4 @@
-"""Many devices, one edge, in the simulator (issue #32): each device a
+"""Many devices, one edge, in the simulator: each device a
 :class:`~twinslam.simulator.env.MapManagementEnv` of its own walk and uplink, all inside one
 keyframe budget V_total that an allocator (:mod:`twinslam.map_management.allocation`) splits
 every slot, and optionally one cell whose capacity their uplinks share.

@@ -1,4 +1,4 @@
-"""``mpc``: a causal planner that looks H slots ahead (issue #29).
+"""``mpc``: a causal planner that looks H slots ahead.
 
 Each slot it scores candidate actions (U_k, C_k) by the objective they lead to over the next
 H slots in an *imagined* future, and takes the best:

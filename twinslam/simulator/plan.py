@@ -2,7 +2,7 @@
 
 A plan is what every scorer of map management compares: the actions U_k, C_k of each slot and
 the υ_k the environment returned, pooled by frames so that mean υ, the lost share and υ over the
-tracked frames of a plan obey mean = (1 - lost) · tracked (DESIGN.md §2).
+tracked frames of a plan obey mean = (1 - lost) · tracked (docs/architecture.md §2).
 """
 
 from __future__ import annotations

@@ -5,7 +5,8 @@ bound: problem P1 has ~10¹¹–10¹⁸ action sequences per episode at the pape
 nothing here proves the result optimal. A policy that scores below the reference has found a
 plan the search missed (that is a finding about the search, not a violation). Only
 :func:`~twinslam.simulator.exact_optimum.exact_optimum` is the true optimum, on small instances.
-No valid lower bound at full size is known to us that is tight enough to report (DESIGN.md §9).
+No valid lower bound at full size is known to us that is tight enough to report
+(docs/architecture.md §9).
 
 Three stages, each keeping the best plan so far, so the reference is never worse than any
 policy it was given:

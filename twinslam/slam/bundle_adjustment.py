@@ -1,4 +1,4 @@
-"""Local bundle adjustment of the edge's keyframe map with GTSAM (issue #5's back end).
+"""Local bundle adjustment of the edge's keyframe map with GTSAM.
 
 The factor graph reads like ORB-SLAM's RGB-D local BA: a keyframe pose x_i (camera-to-world,
 ``gtsam.Pose3``) and a map point l_j (``gtsam.Point3``) are linked by one factor per

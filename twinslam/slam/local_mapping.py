@@ -1,4 +1,4 @@
-"""Adding an uploaded keyframe to the edge's map (DESIGN.md §1 step 5; ORB-SLAM's
+"""Adding an uploaded keyframe to the edge's map (docs/architecture.md §1 step 5; ORB-SLAM's
 LocalMapping: associate, then create points).
 
 A keyframe arrives with its features (pixel, ORB descriptor, depth) and, per feature, the id

@@ -1,4 +1,4 @@
-"""Where the device's poses come from (``map_source``, DESIGN.md §1 step 1).
+"""Where the device's poses come from (``map_source``, docs/architecture.md §1 step 1).
 
 * ``edge`` — the paper's device: only the points of the edge's last map update (a start-up map
   from the first frame's depth before the first update). What the edge keeps decides whether

@@ -1,7 +1,8 @@
-"""Reading a ``MapUpdate``: the edge's map as the device and monitors receive it.
+"""The edge's map as a map update carries it: what the device tracks against and monitors read.
 
-The edge writes the message from its keyframe map (``edge_mapper.messages``); everyone who
-reads it — the device's tracker, the launcher's monitor, the benches — reads it here.
+The edge writes the ``twinslam_msgs/MapUpdate`` from its keyframe map
+(:mod:`edge_mapper.messages`); the device reads it into a :class:`MapSnapshot`
+(:func:`device_tracker.messages.read_map_update`, which the monitors and benches use too).
 """
 
 from __future__ import annotations
@@ -9,10 +10,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from twinslam_msgs.msg import MapUpdate
-
-from msg_schemas.poses import pose_matrix
-from msg_schemas.validation import ORB_DESCRIPTOR_BYTES
 
 
 @dataclass
@@ -30,19 +27,3 @@ class MapSnapshot:
     keyframe_points: list[np.ndarray] = field(default_factory=list)   #: M_f per keyframe
     track_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint64))
     track_point_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint64))
-
-
-def read_map_update(msg: MapUpdate) -> MapSnapshot:
-    n = len(msg.point_ids)
-    return MapSnapshot(int(msg.map_version), np.asarray(msg.keyframe_ids, dtype=np.uint64),
-                    np.array([pose_matrix(p) for p in msg.keyframe_poses]).reshape(-1, 4, 4),
-                    np.asarray(msg.point_ids, dtype=np.uint64),
-                    np.asarray(msg.point_positions, dtype=np.float64).reshape(n, 3),
-                    np.asarray(msg.point_descriptors, dtype=np.uint8).reshape(n,
-                                                                              ORB_DESCRIPTOR_BYTES),
-                    np.asarray(msg.point_observations, dtype=np.uint32),
-                    np.split(np.asarray(msg.keyframe_point_ids, dtype=np.uint64),
-                             np.cumsum(np.asarray(msg.keyframe_point_counts, dtype=np.int64)
-                                       )[:-1]) if len(msg.keyframe_point_counts) else [],
-                    np.asarray(msg.track_ids, dtype=np.uint64),
-                    np.asarray(msg.track_point_ids, dtype=np.uint64))

@@ -1,7 +1,7 @@
 """The twin as exact Bayesian inference of the uplink's hidden regime.
 
-The paper's uplink (§III, DESIGN.md §3) is a Markov chain over N rate states whose transition
-matrix P_x changes with a hidden x_t at unknown times. The variational twin
+The paper's uplink (§III, docs/architecture.md §3) is a Markov chain over N rate states whose
+transition matrix P_x changes with a hidden x_t at unknown times. The variational twin
 (:mod:`twinslam.twin.digital_twin`) learns q(z | d_k) from an 8-slot window; what the hidden
 x_t is worth for prediction, though, lies in *how long the current regime has lasted* and
 *what its transitions have been* — information far older than 8 slots. This twin infers it

@@ -26,7 +26,7 @@ PREDICTORS = ("regime", "variational", "lstm", "lstm-point", "markov", "markov-w
               "persistence", "uniform")
 #: the models the twin node runs (a policy on one of them can take the node's latent)
 TWIN_MODELS = ("regime", "variational")
-#: old names still accepted (``udt`` named the variational twin before issue #28)
+#: old names still accepted (``udt`` named the variational twin before the twins were told apart)
 ALIASES = {"udt": "variational"}
 
 

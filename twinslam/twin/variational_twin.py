@@ -1,5 +1,5 @@
-"""The variational twin: the paper's user digital twin of the uplink (§V, Algorithm 1; DESIGN.md
-§3), a :class:`~twinslam.twin.rate_model.Twin` named ``variational``.
+"""The variational twin: the paper's user digital twin of the uplink (§V, Algorithm 1;
+docs/architecture.md §3), a :class:`~twinslam.twin.rate_model.Twin` named ``variational``.
 
 The rate's transition matrix changes with a hidden x_t across intervals. The twin learns it by
 deep variational inference, as VariBAD does for a task's hidden parameters: an encoder reads

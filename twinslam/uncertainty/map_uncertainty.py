@@ -1,4 +1,4 @@
-"""Pose estimation uncertainty of a keyframe map (paper eq. 6 and 8, DESIGN.md §2).
+"""Pose estimation uncertainty of a keyframe map (paper eq. 6 and 8, docs/architecture.md §2).
 
 The map is a weighted covisibility graph: w(f, f') = |M_f ∩ M_f'|. Its uncertainty is
 
@@ -25,9 +25,9 @@ from twinslam.uncertainty.laplacian_factorization import PIVOT_RTOL, LaplacianFa
 
 #: u of a lost next-slot frame (twinslam/common/tracking_rule.py: too few shared map points;
 #: in the paper, one that shares none). The paper's u is +inf there (the frame
-#: cannot be tracked); a finite objective needs a number, and DESIGN.md §2 scores such a frame
-#: as a frame with no map at all: u = 0, worse than any tracked frame (with Π = I and integer
-#: covisibility weights every tracked frame has u <= 0). The u(G) + 100 used before issue #18
+#: cannot be tracked); a finite objective needs a number, and docs/architecture.md §2 scores such a
+#: frame as a frame with no map at all: u = 0, worse than any tracked frame (with Π = I and integer
+#: covisibility weights every tracked frame has u <= 0). The u(G) + 100 used before
 #: made a lost frame cost ~4 % more than a tracked one at V_max 45: cheap enough for a policy
 #: to lose a third of the next slot's frames and still rank first.
 LOST_FRAME_UNCERTAINTY = 0.0
@@ -110,7 +110,7 @@ def _augmented(factor: LaplacianFactorization, cand_weights: np.ndarray, log_det
 class SlotUncertainty:
     """υ_k over the next slot's frames, kept as sums so that every aggregate over slots, runs
     and seeds stays consistent: mean = (1 - lost share) · tracked mean for any pooling
-    (DESIGN.md §2, §9)."""
+    (docs/architecture.md §2, §9)."""
 
     tracked_sum: float         #: Σ u(G ∪ {f}) over the frames that share a point with the map
     n_tracked: int             #: frames that share a point with the map
@@ -223,6 +223,16 @@ def lost_frames(log_tau: np.ndarray, trackable: np.ndarray | None = None) -> np.
     return lost if trackable is None else lost | ~trackable
 
 
+def theorem1_uploads(rate_mbps: float, alpha_mbit: float, d_req_s: float,
+                     slot_size: int) -> int:
+    """|U_k| of paper Theorem 1: floor(d_k · D_req / α) (eq. 10), at most the slot's |F_k| —
+    the frames that fit the uplink within D_req. The one place the count is written: the
+    cardinalities below, the twin allocator's expected uploads and the edge's grants use it.
+    (The 1e-9 keeps a rate whose count is an integer, e.g. 40 Mbit/s · 0.5 s / 5 Mbit = 4,
+    from losing a frame to float rounding.)"""
+    return min(math.floor(rate_mbps * d_req_s / alpha_mbit + 1e-9), slot_size)
+
+
 def theorem1_cardinalities(rate_mbps: float, alpha_mbit: float, d_req_s: float, vmax: int,
                            map_size: int, slot_size: int) -> tuple[int, int]:
     """(|U_k|, |C_k|) of paper Theorem 1, clamped to what the slot and the map hold.
@@ -230,13 +240,12 @@ def theorem1_cardinalities(rate_mbps: float, alpha_mbit: float, d_req_s: float, 
     |U_k| = floor(d_k · D_req / α) (eq. 10), at most |F_k|. The paper prints
     |C_k| = V_max - |U_k| (eq. 11), but its own proof (eq. 12) keeps the map at V_max:
     |C_k| = |V_k| + |U_k| - V_max, never negative. We use eq. 12. V_max 0 (a device an edge
-    has no keyframes for yet, issue #32) uploads nothing and keeps nothing.
+    has no keyframes for yet) uploads nothing and keeps nothing.
     """
     if not math.isfinite(rate_mbps) or rate_mbps < 0:
         raise ValueError(f"uplink rate must be finite and >= 0, got {rate_mbps}")
     if alpha_mbit <= 0 or d_req_s <= 0 or vmax < 0:
         raise ValueError("alpha, D_req must be > 0 and V_max >= 0")
-    n_up = min(math.floor(rate_mbps * d_req_s / alpha_mbit + 1e-9), slot_size)
-    n_up = min(n_up, vmax)
+    n_up = min(theorem1_uploads(rate_mbps, alpha_mbit, d_req_s, slot_size), vmax)
     n_evict = max(0, map_size + n_up - vmax)
     return n_up, n_evict

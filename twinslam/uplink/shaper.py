@@ -1,4 +1,4 @@
-"""The device's uplink as a link of the slot's rate d_k (paper §III-C; issue #5's shaper).
+"""The device's uplink as a link of the slot's rate d_k (paper §III-C).
 
 On loopback or a LAN, DDS delivers a 5 Mbit keyframe in milliseconds; the paper's uplink takes
 α / d_k seconds for it. The shaper makes the bytes take that time: it models the uplink as one

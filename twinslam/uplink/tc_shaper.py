@@ -1,4 +1,4 @@
-"""The device's uplink shaped by the kernel: Linux ``tc`` on the uplink interface (issue #8).
+"""The device's uplink shaped by the kernel: Linux ``tc`` on the uplink interface.
 
 The alternative to :class:`~twinslam.uplink.shaper.UplinkShaper` (``shaper:=tc``): instead
 of pacing payloads in the process, each slot sets a token bucket filter (``tbf``) of rate d_k

@@ -1,4 +1,4 @@
-"""``twinslam launch --devices N``: one edge serving N devices (issue #32) — the options, one
+"""``twinslam launch --devices N``: one edge serving N devices — the options, one
 fleet run per policy and allocator, the tables and ``OUT/fleet_runs.csv``; and where any launch
 runs its nodes (:func:`domain_for`)."""
 

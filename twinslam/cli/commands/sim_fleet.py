@@ -1,5 +1,5 @@
 """``twinslam sim --devices N``: allocators of one edge's keyframe budget compared offline
-(issue #32), each device on its own walk and uplink, paired by seed against ``equal``."""
+, each device on its own walk and uplink, paired by seed against ``equal``."""
 
 from __future__ import annotations
 

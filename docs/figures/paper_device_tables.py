@@ -1,12 +1,12 @@
-"""The live tables of docs/results.md § "The map decides the device's tracking" (issue #27),
-condensed from the files ``twinslam evaluate`` wrote (copied here as issue27-WALK-*.csv):
+"""The live tables of docs/results.md § "The map decides the device's tracking",
+condensed from the files ``twinslam evaluate`` wrote (copied here as paper-device/WALK-*.csv):
 per scenario and policy the device's figures, then the paired differences with the best rule
 policy on the device's failure share and ATE; and the offline yardstick: the simulator's lost
-share, mean υ and υ tracked on the live walk (issue27-sim-SCENARIO.csv, ``twinslam sim
+share, mean υ and υ tracked on the live walk (paper-device/sim-SCENARIO.csv, ``twinslam sim
 --csv``) beside the share the live device failed.
 
-    .venv/bin/python docs/figures/issue27_tables.py 7scenes synthetic 7scenes-local
-    .venv/bin/python docs/figures/issue27_tables.py --yardstick
+    .venv/bin/python docs/figures/paper_device_tables.py 7scenes synthetic 7scenes-local
+    .venv/bin/python docs/figures/paper_device_tables.py --yardstick
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ COLUMNS = (("device_failure_share", "device failed (%)", 1, 100.0),
            ("tracking_failures", "failures", 1, 1.0),
            ("relocalisations", "relocalisations", 1, 1.0),
            ("untracked_frames", "untracked frames", 0, 1.0), ("ate_m", "ATE (m)", 3, 1.0),
-           # the edge's MapStats, the three figures of DESIGN.md §2 together
+           # the edge's MapStats, the three figures of docs/architecture.md §2 together
            ("mean_uncertainty", "mean υ", 0, 1.0), ("lost_share", "lost share (%)", 1, 100.0),
            ("tracked_uncertainty", "υ tracked", 0, 1.0), ("frames_uploaded", "uploads", 0, 1.0))
 PAIRED = {"device_failure_share": ("device failed (pts)", 1, 100.0),
@@ -47,7 +47,7 @@ def _cell(mean: str, half: str, digits: int, scale: float) -> str:
 def summary_table(walk: str) -> str:
     lines = ["| scenario | policy | runs | " + " | ".join(t for _, t, _, _ in COLUMNS) + " |",
              "|---|---|---|" + "---|" * len(COLUMNS)]
-    for r in _rows(HERE / f"issue27-{walk}-summary.csv"):
+    for r in _rows(HERE / f"paper-device/{walk}-summary.csv"):
         cells = [_cell(r[f"{c}_mean"], r[f"{c}_ci95"], d, s) for c, _, d, s in COLUMNS]
         lines.append(f"| {r['scenario']} | {r['policy']} | {r['runs']} | " + " | ".join(cells)
                      + " |")
@@ -55,7 +55,7 @@ def summary_table(walk: str) -> str:
 
 
 def paired_table(walk: str) -> str:
-    rows = [r for r in _rows(HERE / f"issue27-{walk}-paired.csv") if r["metric"] in PAIRED]
+    rows = [r for r in _rows(HERE / f"paper-device/{walk}-paired.csv") if r["metric"] in PAIRED]
     lines = ["| scenario | figure | best rule policy | policy | seeds | policy − best |",
              "|---|---|---|---|---|---|"]
     for r in rows:
@@ -74,7 +74,7 @@ def yardstick_table() -> str:
     beside the live device's failure share of the same policy or training run (mean over
     seeds; a seed whose every frame was lost has no υ tracked and is left out of that mean)."""
     live_runs: dict[tuple[str, str], list[float]] = {}
-    for r in _rows(HERE / "issue27-7scenes-calibration.csv"):
+    for r in _rows(HERE / "paper-device/7scenes-calibration.csv"):
         live_runs.setdefault((r["scenario"], r["spec"] or r["policy"]), []).append(
             float(r["device_failure_share"]))
     live = {key: mean_ci95(values)[0] for key, values in live_runs.items()}
@@ -82,7 +82,7 @@ def yardstick_table() -> str:
              "failed (%) |", "|---|---|---|---|---|---|"]
     for scenario in SCENARIOS:
         runs: dict[str, list[dict[str, str]]] = {}
-        for r in _rows(HERE / f"issue27-sim-{scenario}.csv"):
+        for r in _rows(HERE / f"paper-device/sim-{scenario}.csv"):
             kind, _, path = r["spec"].partition(":")
             label = f"AMM ({Path(path).stem})" if kind == "mbrl" else r["spec"]
             runs.setdefault(label, []).append(r)
@@ -100,9 +100,9 @@ def training_runs_table(walk: str) -> str:
     """The learned policy live, one row per training run (the summary pools them): the
     device's failure share and ATE, mean ± 95 % CI over seeds."""
     failed = {(r["scenario"], r["spec"], r["seed"]): float(r["device_failure_share"])
-              for r in _rows(HERE / f"issue27-{walk}-calibration.csv")}
+              for r in _rows(HERE / f"paper-device/{walk}-calibration.csv")}
     runs: dict[tuple[str, str], list[tuple[float, float]]] = {}
-    for r in _rows(HERE / f"issue27-{walk}-runs.csv"):
+    for r in _rows(HERE / f"paper-device/{walk}-runs.csv"):
         if r["spec"].startswith("mbrl:"):
             key = (r["scenario"], r["spec"])
             runs.setdefault(key, []).append((failed[(*key, r["seed"])], float(r["ate_m"])))

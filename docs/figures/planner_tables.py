@@ -1,4 +1,4 @@
-"""The planner tables of docs/results.md § "A causal planner" (issue #29), from ``twinslam sim
+"""The planner tables of docs/results.md § "A causal planner", from ``twinslam sim
 --csv`` files (each command is in results.md beside its table): per policy the mean υ (a lost
 frame scoring 0) ± 95 % CI over the episodes, the lost share, υ over the tracked frames
 (pooled), and the paired difference with
@@ -8,9 +8,9 @@ best rule's gap to the reference that each policy closes (a bootstrap over episo
 Several files of the same episodes (the same --covis, --seeds, --seed0, --slots and channel)
 may be given: their rows are pooled, each (policy, seed) once.
 
-    .venv/bin/python docs/figures/issue29_tables.py FILE.csv [FILE.csv …] [--against POLICY]
+    .venv/bin/python docs/figures/planner_tables.py FILE.csv [FILE.csv …] [--against POLICY]
         [--rows POLICY,POLICY,…]
-    .venv/bin/python docs/figures/issue29_tables.py learning-curve FOLDER
+    .venv/bin/python docs/figures/planner_tables.py learning-curve FOLDER
 
 ``learning-curve FOLDER``: the controls table and the paired comparisons that ``twinslam
 experiment learning-curve --out FOLDER`` wrote, as markdown.
@@ -143,8 +143,8 @@ def main(argv: list[str]) -> None:
         print(curve_tables(Path(argv[1])))
         return
     parser = argparse.ArgumentParser(
-        prog="issue29_tables.py", description=__doc__.split("\n\n")[0],
-        epilog="or: issue29_tables.py learning-curve FOLDER (the learning curve's tables)")
+        prog="planner_tables.py", description=__doc__.split("\n\n")[0],
+        epilog="or: planner_tables.py learning-curve FOLDER (the learning curve's tables)")
     parser.add_argument("csv", nargs="+", type=Path,
                         help="`twinslam sim --csv` files of the same episodes")
     parser.add_argument("--against", metavar="POLICY",

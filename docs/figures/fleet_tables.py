@@ -1,8 +1,8 @@
-"""The tables and the figure of docs/results.md § "One edge, many devices" (issue #32), from the
+"""The tables and the figure of docs/results.md § "One edge, many devices", from the
 files the commands wrote (every command is in results.md beside its table):
 
-* ``scaling`` — issue32-edge-scaling.csv (``python -m bench.edge_scaling``) and
-  issue32-sim-scaling.csv (``python -m bench.fleet``) → issue32-scaling.png: live, the edge's
+* ``scaling`` — fleet/edge-scaling.csv (``python -m bench.edge_scaling``) and
+  fleet/sim-scaling.csv (``python -m bench.fleet``) → fleet/scaling.png: live, the edge's
   compute per device-slot, the latency to the map update and the missed deadlines vs N; in the
   simulator, milliseconds a fleet slot vs N;
 * ``sim FILE…`` — ``twinslam sim --devices N --csv`` files: per allocator the fleet mean (over
@@ -15,12 +15,12 @@ files the commands wrote (every command is in results.md beside its table):
   failure share (frames they could not track), ATE, the edge's lost share and keyframe shares,
   paired by seed with ``equal``.
 
-    .venv/bin/python docs/figures/issue32_tables.py scaling
-    .venv/bin/python docs/figures/issue32_tables.py sim docs/figures/issue32-sim-n10-lff.csv
-    .venv/bin/python docs/figures/issue32_tables.py split \
-        docs/figures/issue32-sim-n10-lff-cell400.csv \
-        docs/figures/issue32-sim-n10-lff-cell400-split.csv
-    .venv/bin/python docs/figures/issue32_tables.py live docs/figures/issue32-live-runs.csv
+    .venv/bin/python docs/figures/fleet_tables.py scaling
+    .venv/bin/python docs/figures/fleet_tables.py sim docs/figures/fleet/sim-n10-lff.csv
+    .venv/bin/python docs/figures/fleet_tables.py split \
+        docs/figures/fleet/sim-n10-lff-cell400.csv \
+        docs/figures/fleet/sim-n10-lff-cell400-split.csv
+    .venv/bin/python docs/figures/fleet_tables.py live docs/figures/fleet/live-runs.csv
 """
 
 from __future__ import annotations
@@ -140,7 +140,7 @@ def scaling() -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    live_rows = _rows(HERE / "issue32-edge-scaling.csv")
+    live_rows = _rows(HERE / "fleet/edge-scaling.csv")
     n = [int(r["devices"]) for r in live_rows]
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
     ax = axes[0]
@@ -159,7 +159,7 @@ def scaling() -> None:
             label="device-slots whose map came after a slot period")
     ax.plot(n, [100 * float(r["edge_cpu_share"]) for r in live_rows], "s-",
             label="edge process CPU (% of one core)")
-    budget = HERE / "issue32-edge-scaling-budget.csv"
+    budget = HERE / "fleet/edge-scaling-budget.csv"
     if budget.is_file():                  # the same with compute_budget (one run a point)
         rows = _rows(budget)
         share = float(rows[0]["compute_budget"])
@@ -169,7 +169,7 @@ def scaling() -> None:
            title="live edge: missed deadlines and its CPU")
     ax.legend(fontsize=8, loc="upper left")
     ax = axes[2]
-    sim_rows = _rows(HERE / "issue32-sim-scaling.csv")
+    sim_rows = _rows(HERE / "fleet/sim-scaling.csv")
     for allocator in ("equal", "motion", "twin"):
         mine = [r for r in sim_rows if r["allocator"] == allocator]
         ax.plot([int(r["devices"]) for r in mine],
@@ -179,7 +179,7 @@ def scaling() -> None:
            yscale="log", title="simulator (one core): a slot of N devices")
     ax.legend(fontsize=8, title="allocator")
     fig.tight_layout()
-    out = HERE / "issue32-scaling.png"
+    out = HERE / "fleet/scaling.png"
     fig.savefig(out, dpi=110)
     print(f"wrote {out}")
 
