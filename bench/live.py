@@ -79,7 +79,7 @@ def run(root: Path, frames: int, policy: str, extra_env: dict[str, str] | None =
         first, then = (env.get(key, ""), value) if key == "PYTHONPATH" else (value,
                                                                              env.get(key, ""))
         env[key] = ":".join(v for v in (first, then) if v)
-    # the command line moved under the project package (issue #17): older baselines have it
+    # the command line moved under the project package: older baselines have it
     # as a top-level package
     cli = "twinslam_cli.main" if (root / "twinslam_cli").is_dir() else "twinslam.cli.main"
     cmd = [sys.executable, "-m", cli, "launch", "--loopback", "--sequence",
@@ -116,12 +116,14 @@ def run(root: Path, frames: int, policy: str, extra_env: dict[str, str] | None =
     (first, cpu0), (last, cpu1) = marks[0], marks[-1]
     slot_frames = frames // (max(s for s, _ in marks) + 1)
     values = re.split(r"\s+", row.strip())
-    # tables since issue #19 carry RPE, failures, relocalisations and recovery after ATE;
-    # since issue #18 a "υ tracked" column before ATE
+    # newer tables carry RPE, failures, relocalisations and recovery after ATE, and
+    # later a "υ tracked" column before ATE
     header = next((line for line in out.splitlines() if line.startswith("policy ")), "")
     ate = 4 if "υ tracked" in header else 3
     untracked = values[ate + 5] if "untrk" in header else values[-2]
-    return {"edge_ms": float(values[-1]),
+    # the newest end with the camera frames the device dropped, after the edge's ms
+    edge_ms = values[-2] if header.rstrip().endswith("dropped") else values[-1]
+    return {"edge_ms": float(edge_ms),
             "device_ms_per_frame": (cpu1 - cpu0) / ((last - first) * slot_frames) * 1000,
             "untracked": float(untracked), "ate_m": float(values[ate])}
 

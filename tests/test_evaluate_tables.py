@@ -114,22 +114,24 @@ def test_an_interrupted_evaluation_resumes_with_what_it_measured(
     assert summary.figures["tracking_failures"][0] == pytest.approx(3.5)
 
 
-def test_a_folder_of_a_version_without_the_jumps_column_resumes_with_jumps_not_measured(
+def test_a_folder_of_an_older_version_resumes_with_the_later_columns_not_measured(
         tmp_path: Path) -> None:
-    """runs.csv written before ``jumps`` existed: its runs read back with jumps NaN (not
-    measured), and the file is rewritten with today's columns before new rows append."""
+    """runs.csv written before the columns added since (``jumps``, the losses' shares and
+    durations): its runs read back with those NaN (not measured), and the file is rewritten
+    with today's columns before new rows append."""
     from twinslam.live import runs as evaluate
 
-    header = evaluate.RUNS_HEADER
-    assert header[-1] == "jumps"
+    header, added = evaluate.RUNS_HEADER, list(evaluate.ADDED_COLUMNS)
+    assert header[-len(added):] == added
     done = _run("lff", 0, 2, 0.1, "lff")
-    row = [str(v) for v in [*asdict(done.key).values(), *asdict(done.report).values()][:-1]]
-    assert len(row) == len(header) - 1
-    (tmp_path / "runs.csv").write_text(",".join(header[:-1]) + "\n" + ",".join(row) + "\n")
+    values = [*asdict(done.key).values(), *asdict(done.report).values()]
+    row = [str(v) for v in values[:-len(added)]]
+    (tmp_path / "runs.csv").write_text(",".join(header[:-len(added)]) + "\n" + ",".join(row)
+                                       + "\n")
     (back,) = evaluate.finished_runs(tmp_path).values()
-    assert math.isnan(back.report.jumps)
-    assert repr(back.report).replace("jumps=nan", "") == repr(done.report).replace(
-        f"jumps={done.report.jumps}", "")
+    assert all(math.isnan(getattr(back.report, c)) for c in added)
+    kept = [f for f in asdict(done.report) if f not in added]
+    assert [getattr(back.report, f) for f in kept] == [getattr(done.report, f) for f in kept]
     assert (tmp_path / "runs.csv").read_text().splitlines()[0] == ",".join(header)
 
 

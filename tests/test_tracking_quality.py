@@ -1,4 +1,4 @@
-"""What the live report counts (issue #19): failures, relocalisations and recovery times from
+"""What the live report counts: failures, relocalisations and recovery times from
 the device's per-frame flags; ATE and RPE against ground truth."""
 
 from __future__ import annotations
@@ -26,7 +26,14 @@ def test_losses_relocalisations_and_recovery_times_are_counted() -> None:
     assert events.relocalisations == 1 and events.unrecovered == 1
     assert events.recover_s == pytest.approx([0.3, 0.2])
     assert events.mean_recover_s == pytest.approx(0.25)
-    assert math.isnan(tracking_events([]).mean_recover_s)
+    # the loss still open at the end counts until the last frame (1.8 s to 1.9 s)
+    assert events.loss_s == pytest.approx([0.3, 0.2, 0.1])
+    assert events.longest_loss_s == pytest.approx(0.3)
+    assert events.loss_p95_s == pytest.approx(0.29)          # between 0.2 and 0.3
+    assert events.failed_share == pytest.approx(7 / 20)
+    nothing = tracking_events([])
+    assert math.isnan(nothing.mean_recover_s) and math.isnan(nothing.failed_share)
+    assert nothing.loss_p95_s == nothing.longest_loss_s == 0.0
 
 
 def _walk(n: int) -> dict[int, np.ndarray]:

@@ -53,16 +53,23 @@ class RunReport:
     #: relocalisations the device accepted more than ``JUMP_M`` from the aligned ground truth
     #: (NaN: not measured — no ground truth, or a run of an older version)
     jumps: float = math.nan
+    #: the share of the device's frames it did not track (NaN: no frames)
+    failed_share: float = math.nan
+    #: the 95th percentile and the longest of its losses, seconds without a pose (0: none)
+    loss_p95_s: float = math.nan
+    longest_loss_s: float = math.nan
 
     ROW = ("{label:<14} {mean_uncertainty:>10.1f} {lost_share:>6.1%} "
            "{tracked_uncertainty:>10.1f} {ate_m:>7.3f} "
            "{rpe_m:>7.3f} {frames_uploaded:>7d} {mbytes:>7.1f} {achieved_mbps:>7.1f} "
-           "{untracked_frames:>6d} {tracking_failures:>5d} {relocalisations:>6d} "
-           "{jumps:>5.0f} {recover_s:>7.2f} {edge_ms_median:>7.0f}")
+           "{untracked_frames:>6d} {failed_share:>6.1%} {tracking_failures:>5d} "
+           "{relocalisations:>6d} {jumps:>5.0f} {recover_s:>7.2f} {loss_p95_s:>7.2f} "
+           "{longest_loss_s:>7.2f} {edge_ms_median:>7.0f} {dropped:>7}")
     HEADER = (f"{'policy':<14} {'mean υ':>10} {'lost':>6} {'υ tracked':>10} {'ATE m':>7} "
               f"{'RPE m':>7} "
-              f"{'uploads':>7} {'MB':>7} {'Mbit/s':>7} {'untrk':>6} {'fails':>5} "
-              f"{'reloc':>6} {'jumps':>5} {'recov s':>7} {'edge ms':>7}")
+              f"{'uploads':>7} {'MB':>7} {'Mbit/s':>7} {'untrk':>6} {'failed':>6} "
+              f"{'fails':>5} {'reloc':>6} {'jumps':>5} {'recov s':>7} {'p95 s':>7} "
+              f"{'max s':>7} {'edge ms':>7} {'dropped':>7}")
 
     @property
     def label(self) -> str:
@@ -73,8 +80,11 @@ class RunReport:
         return "→".join(policy_label(p) for p in [self.policy, *others])
 
     def row(self) -> str:
+        """The run's line of the table; ``!`` marks camera frames the device dropped (it fell
+        behind: the machine was short of CPU, and the figures measure that too)."""
+        dropped = f"{self.frames_dropped}{'!' if self.frames_dropped else ''}"
         return self.ROW.format(mbytes=self.bytes_uploaded / 1e6, label=self.label,
-                               **self.__dict__)
+                               dropped=dropped, **self.__dict__)
 
 
 def policy_label(policy: str) -> str:
@@ -114,7 +124,8 @@ def report(policy: str, record: RunRecord, seconds: float, slot_frames: int) -> 
                      events.mean_recover_s,
                      float(np.median([s.slot_processing_ms for s in stats])) if stats
                      else math.nan, seconds, deciders(record),
-                     dropped_frames(record, slot_frames), jumps(record))
+                     dropped_frames(record, slot_frames), jumps(record), events.failed_share,
+                     events.loss_p95_s, events.longest_loss_s)
 
 
 def dropped_frames(record: RunRecord, slot_frames: int) -> int:

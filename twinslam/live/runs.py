@@ -1,5 +1,5 @@
 """Sweeps of live runs (``twinslam evaluate``): the live system as the judge of map
-management (issues #19, #27).
+management.
 
 Runs the nodes — player, device, edge — as processes on a private loopback domain, once per
 scenario × device map source × policy × seed (the seed drives the uplink's channel model, and
@@ -219,7 +219,8 @@ _CELL = {"int": int, "float": float, "str": str}
 
 #: columns a later version added at the end of runs.csv, and what the rows of an older file
 #: read for them: not measured then
-ADDED_COLUMNS = {"jumps": "nan"}
+ADDED_COLUMNS = {"jumps": "nan", "failed_share": "nan", "loss_p95_s": "nan",
+                 "longest_loss_s": "nan"}
 
 
 def _read_rows(path: Path, header: list[str]) -> list[list[str]]:

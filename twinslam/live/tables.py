@@ -23,10 +23,16 @@ METRICS = (("ate_m", "ATE", "m"), ("rpe_m", "RPE 1 s", "m"),
            ("device_failure_share", "device failed", ""),
            ("predicted_lost_share", "predicted lost", ""),
            # MapStats' υ three ways: a lost next-slot frame scoring 0, the lost share, and
-           # the tracked frames only (DESIGN.md §2)
+           # the tracked frames only (docs/architecture.md §2)
            ("mean_uncertainty", "mean υ", ""), ("lost_share", "lost share", ""),
            ("tracked_uncertainty", "υ tracked", ""),
-           ("frames_uploaded", "uploads", "frames"), ("edge_ms_median", "edge", "ms/slot"))
+           ("frames_uploaded", "uploads", "frames"), ("edge_ms_median", "edge", "ms/slot"),
+           # what a user of the device lives through: the share of frames without a pose,
+           # how long a loss lasts nearly at worst and at worst, poses that jumped, and the
+           # camera frames the device dropped (a run that dropped any measured the machine)
+           ("failed_share", "failed", ""), ("loss_p95_s", "loss p95", "s"),
+           ("longest_loss_s", "longest loss", "s"), ("jumps", "jumps", ""),
+           ("frames_dropped", "dropped", "frames"))
 #: the figures a paired comparison with the best rule policy is made on (lower is better)
 PAIRED = ("tracking_failures", "untracked_frames", "device_failure_share", "ate_m",
           "mean_uncertainty")

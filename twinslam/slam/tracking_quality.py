@@ -1,4 +1,4 @@
-"""How well the device tracked, as a user of the live system measures it (issue #19).
+"""How well the device tracked, as a user of the live system measures it.
 
 * **ATE** — RMSE of the device's positions against ground truth after one SE(3) alignment
   (evo's APE, translation part): the drift and jumps of the whole run.
@@ -36,18 +36,38 @@ class TrackingEvents:
     relocalisations: int = 0
     unrecovered: int = 0                  #: losses still lost at the last frame
     recover_s: list[float] = field(default_factory=list)   #: per recovered loss
+    #: every loss's seconds untracked: a recovered one until tracking again, one still lost
+    #: at the end until the last frame (what the run saw of it)
+    loss_s: list[float] = field(default_factory=list)
 
     @property
     def mean_recover_s(self) -> float:
         """Mean seconds from a loss to tracking again (NaN when nothing was lost)."""
         return float(np.mean(self.recover_s)) if self.recover_s else math.nan
 
+    @property
+    def failed_share(self) -> float:
+        """The share of frames not tracked (NaN without frames)."""
+        return self.untracked / self.frames if self.frames else math.nan
+
+    @property
+    def loss_p95_s(self) -> float:
+        """The 95th percentile of the losses' durations, seconds (0: nothing was lost): how
+        long a user is left without a pose, nearly at worst."""
+        return float(np.percentile(self.loss_s, 95)) if self.loss_s else 0.0
+
+    @property
+    def longest_loss_s(self) -> float:
+        """The longest loss, seconds (0: nothing was lost)."""
+        return max(self.loss_s, default=0.0)
+
 
 def tracking_events(frames: Iterable[FrameFlags]) -> TrackingEvents:
-    """Count failures, relocalisations and recovery times over frames in stamp order."""
+    """Count failures, relocalisations, recovery times and losses over frames in stamp
+    order."""
     out = TrackingEvents()
     lost_since: float | None = None
-    previous_tracked = True
+    previous_tracked, last = True, 0.0
     for f in sorted(frames, key=lambda f: f.stamp):
         out.frames += 1
         out.untracked += not f.tracked
@@ -57,9 +77,13 @@ def tracking_events(frames: Iterable[FrameFlags]) -> TrackingEvents:
             lost_since = f.stamp
         elif f.tracked and lost_since is not None:
             out.recover_s.append(f.stamp - lost_since)
+            out.loss_s.append(f.stamp - lost_since)
             lost_since = None
         previous_tracked = f.tracked
+        last = f.stamp
     out.unrecovered = int(lost_since is not None)
+    if lost_since is not None:
+        out.loss_s.append(last - lost_since)
     return out
 
 
