@@ -19,7 +19,7 @@ from typing import Any, cast
 
 from edge_mapper.planning_world import at_the_edge
 from edge_mapper.twin_feed import TwinDrivenPolicy, TwinFedPolicy
-from twinslam.map_management.policies import MapPolicy
+from twinslam.map_management.policies import MapPolicy, needs_twin
 from twinslam.policy_registry import LEARNED_PREFIX, make_policy
 
 #: the live parameters that say which policy decides
@@ -71,10 +71,10 @@ def make_policies(live: dict[str, Any], warm_up: Any = None
     policy = at_the_edge(make_policy(policy_name(live)))
     if warm_up:
         warm_up(policy)
-    if not getattr(policy, "uses_twin", False):
+    if not needs_twin(policy):
         return policy, None
     fallback = make_policy(str(live["fallback_policy"]))
-    if getattr(fallback, "uses_twin", False):
+    if needs_twin(fallback):
         raise ValueError("fallback_policy must not need the twin itself")
     if warm_up:
         warm_up(fallback)

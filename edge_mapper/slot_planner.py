@@ -21,7 +21,7 @@ import numpy as np
 from twinslam.common import table1
 from twinslam.common.tracking_rule import MIN_INLIERS
 from twinslam.map_management.actions import MapAction, SlotObservation, check_map_action
-from twinslam.map_management.policies import MapPolicy
+from twinslam.map_management.policies import MapPolicy, SlotViewer
 from twinslam.slam.keyframe_map import KeyFrameMap, shared_counts
 from twinslam.uncertainty.map_uncertainty import (
     SlotUncertainty,
@@ -152,10 +152,9 @@ class SlotPlanner:
                               list(rate_history), self.n_states,
                               lambda a, b: full[np.ix_([pos[x] for x in a],
                                                        [pos[x] for x in b])])
-        see_slot = getattr(self.policy, "see_slot", None)
-        if see_slot is not None:
+        if isinstance(self.policy, SlotViewer):
             k, shape = camera if camera is not None else (np.eye(3), (480, 640))
-            see_slot(SlotView(self.map, map_ids, list(frames),
+            self.policy.see_slot(SlotView(self.map, map_ids, list(frames),
                               lambda x: keys[x] if x in keys else self.points_of(seen, x),
                               k, shape, cfg))
         action = self.policy.decide(obs)

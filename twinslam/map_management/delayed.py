@@ -12,7 +12,7 @@ import math
 import time
 
 from twinslam.map_management.actions import MapAction, SlotObservation
-from twinslam.map_management.policies import MapPolicy
+from twinslam.map_management.policies import MapPolicy, SlotViewer
 
 DELAY_PREFIX = "delay"
 
@@ -45,9 +45,8 @@ class DelayedPolicy:
     def see_slot(self, view: object) -> None:
         """What the slot planner shows a policy that predicts the camera's view (``mpc`` at
         the edge), passed on to the wrapped one."""
-        see = getattr(self.policy, "see_slot", None)
-        if see is not None:
-            see(view)
+        if isinstance(self.policy, SlotViewer):
+            self.policy.see_slot(view)
 
     def decide(self, obs: SlotObservation) -> MapAction:
         started = time.perf_counter()

@@ -18,7 +18,7 @@ C_k of the sizes Theorem 1 fixes. The rule-based ones are the paper's benchmarks
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Protocol
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -33,6 +33,40 @@ class MapPolicy(Protocol):
     def reset(self, seed: int | None = None) -> None: ...
 
     def decide(self, obs: SlotObservation) -> MapAction: ...
+
+
+# Optional capabilities a policy declares by having the method or attribute; callers test
+# them with isinstance against these protocols, never by probing for a name.
+
+@runtime_checkable
+class SlotViewer(Protocol):
+    """A policy that looks at the slot's camera view before it decides: the edge's slot
+    planner shows it a ``SlotView`` (``mpc`` at the edge predicts the next frames from it)."""
+
+    def see_slot(self, view: Any) -> None: ...
+
+
+@runtime_checkable
+class WorldPlanner(Protocol):
+    """A policy that plans in the simulator's world: a roll-out attaches it to the
+    environment before the episode (``mpc`` imagines the future there)."""
+
+    def attach(self, env: Any) -> None: ...
+
+
+@runtime_checkable
+class TwinCapable(Protocol):
+    """A policy that may decide on the twin's features in place of its own rate model's (the
+    learned policy; ``uses_twin`` says whether this checkpoint does)."""
+
+    @property
+    def uses_twin(self) -> bool: ...
+
+
+def needs_twin(policy: object) -> bool:
+    """Whether ``policy`` decides on the twin's features (the edge then feeds it latents and
+    keeps a fallback for when none are fresh)."""
+    return isinstance(policy, TwinCapable) and bool(policy.uses_twin)
 
 
 def _evict_oldest(obs: SlotObservation, upload: list[int]) -> list[int]:

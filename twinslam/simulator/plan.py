@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from twinslam.map_management.actions import MapAction, SlotObservation
-from twinslam.map_management.policies import MapPolicy
+from twinslam.map_management.policies import MapPolicy, WorldPlanner
 from twinslam.simulator.env import MapManagementEnv
 from twinslam.uncertainty.map_uncertainty import SlotUncertainty, UncertaintyTally
 
@@ -43,9 +43,8 @@ def rollout(env: MapManagementEnv, policy: MapPolicy, seed: int) -> Plan:
     """Run ``policy`` for a whole episode from ``reset(seed)``."""
     obs, _ = env.reset(seed)
     policy.reset(seed)
-    attach = getattr(policy, "attach", None)   # a planner imagines the future in env's world
-    if attach is not None:
-        attach(env)
+    if isinstance(policy, WorldPlanner):       # a planner imagines the future in env's world
+        policy.attach(env)
     actions, slots = [], []
     while True:
         action = policy.decide(obs)
