@@ -15,6 +15,7 @@ import pytest
 
 from twinslam.live.node_fork_server import fork_servers
 from twinslam.node_hosts.forked import ForkServer, ForkServerError, ForkServers
+from twinslam.node_hosts.netns import unavailable_reason
 
 REPO = Path(__file__).resolve().parents[1]
 PROBE = "tests.nodes.fork_probe"
@@ -55,6 +56,31 @@ def test_a_forked_child_has_its_arguments_environment_pipes_and_exit_code(tmp_pa
         assert servers.spawn(["tests/nodes/fork_probe.py"], env) is None
     finally:
         servers.close()
+
+
+@pytest.mark.skipif(unavailable_reason() is not None,
+                    reason=f"network namespaces: {unavailable_reason()}")
+def test_a_child_forked_for_a_host_lives_in_the_hosts_network_namespace(tmp_path: Path
+                                                                       ) -> None:
+    """A node of a ``--hosts`` run forked from the one server: in the host's namespace, as
+    ``ip netns exec`` would have run it, its server and its siblings in this machine's."""
+    name = f"twinslam-fork-{os.getpid()}"
+    subprocess.run(["ip", "netns", "add", name], check=True)
+    server = ForkServer(PROBE, _env(), tmp_path)
+    try:
+        there = subprocess.run(["ip", "netns", "exec", name, "readlink", "/proc/self/ns/net"],
+                               capture_output=True, text=True, check=True).stdout.strip()
+        here = os.readlink("/proc/self/ns/net")
+        assert there != here
+        inside = server.spawn("probe", ["exit", "0"], _env(), tmp_path,
+                              netns=f"/run/netns/{name}")
+        outside = server.spawn("probe", ["exit", "0"], _env(), tmp_path)
+        assert _first_line(inside)["netns"] == there and inside.wait(timeout=20) == 0
+        assert _first_line(outside)["netns"] == here and outside.wait(timeout=20) == 0
+        assert os.readlink(f"/proc/{server._proc.pid}/ns/net") == here
+    finally:
+        server.close()
+        subprocess.run(["ip", "netns", "delete", name], check=False)
 
 
 def test_a_signalled_child_reports_the_signal_as_popen_does(tmp_path: Path) -> None:

@@ -19,7 +19,8 @@ def probe(_args: list[str] | None) -> int:
     print(json.dumps({"argv": sys.argv, "cwd": os.getcwd(), "pid": os.getpid(),
                       "ppid": os.getppid(), "preloaded_by": PRELOADED,
                       "ros": os.environ.get("ROS_DOMAIN_ID"),
-                      "marker": os.environ.get("PROBE_MARKER")}))
+                      "marker": os.environ.get("PROBE_MARKER"),
+                      "netns": os.readlink("/proc/thread-self/ns/net")}))
     print("probe on stderr", file=sys.stderr)
     if sys.argv[1] == "wait":
         time.sleep(60)

@@ -10,8 +10,11 @@ code, DDS participant) with the environment, arguments and working directory it 
 for, and its stdout and stderr on the asker's pipes — the same contract as ``python -m``.
 
 Protocol (one ``AF_UNIX`` ``SOCK_SEQPACKET`` socket, JSON messages): the client sends
-``{"ref", "module", "argv", "env", "cwd"}`` with the child's stdout and stderr as ancillary file
-descriptors (``SCM_RIGHTS``); the server answers ``{"ref", "pid"}`` once forked and
+``{"ref", "module", "argv", "env", "cwd", "netns"}`` with the child's stdout and stderr as
+ancillary file descriptors (``SCM_RIGHTS``); ``netns``, when not null, is a network
+namespace the child enters before it runs (a host of :mod:`twinslam.node_hosts.netns`: its
+DDS participants then live on that host's interfaces, and ``/proc/net`` shows them, as under
+``ip netns exec``); the server answers ``{"ref", "pid"}`` once forked and
 ``{"pid", "code"}`` when the child has exited (``code`` as :attr:`subprocess.Popen.returncode`:
 negative for a signal). The server ends when its socket closes; its children are killed with
 it (``PR_SET_PDEATHSIG``), so no node outlives the process that asked for it unseen.
@@ -52,10 +55,25 @@ MAX_MESSAGE = 1 << 20
 READY_TIMEOUT_S = 300.0
 PR_SET_NAME = 15                #: prctl options (linux/prctl.h)
 PR_SET_PDEATHSIG = 1
+CLONE_NEWNET = 0x40000000       #: setns(2)'s namespace type of a network namespace
 
 
 class ForkServerError(RuntimeError):
     """The fork server could not be started, or failed to fork a child."""
+
+
+def enter_network_namespace(path: str) -> None:
+    """Move the calling thread into the network namespace at ``path`` (``/run/netns/NAME``, or
+    a ``/proc/…/ns/net`` to come back); OSError naming it when the kernel refuses (it needs
+    CAP_SYS_ADMIN). Threads and participants made afterwards live there."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        if libc.setns(fd, CLONE_NEWNET) != 0:
+            err = ctypes.get_errno()
+            raise OSError(err, f"setns({path}) failed: {os.strerror(err)}")
+    finally:
+        os.close(fd)
 
 
 def import_time_env(env: Mapping[str, str]) -> tuple[tuple[str, str], ...]:
@@ -152,6 +170,8 @@ def _become_child(request: dict[str, Any], fds: list[int],
         sys.stdout = open(1, "w", buffering=1, encoding="utf-8", closefd=False)
         sys.stderr = open(2, "w", buffering=1, encoding="utf-8", errors="backslashreplace",
                           closefd=False)
+        if request.get("netns"):
+            enter_network_namespace(request["netns"])
         os.chdir(request["cwd"])
         os.environ.clear()
         os.environ.update(request["env"])
@@ -304,8 +324,9 @@ class ForkServer:
         return self._alive
 
     def spawn(self, module: str, args: list[str], env: Mapping[str, str], cwd: Path,
-              timeout: float = 30.0) -> ForkedProcess:
-        """Fork ``python -m module args...`` with ``env`` and ``cwd``."""
+              timeout: float = 30.0, netns: str | None = None) -> ForkedProcess:
+        """Fork ``python -m module args...`` with ``env`` and ``cwd`` (in the network
+        namespace at ``netns`` if given)."""
         out_r, out_w = os.pipe()
         err_r, err_w = os.pipe()
         with self._lock:
@@ -315,7 +336,7 @@ class ForkServer:
             reply: dict[str, Any] = {}
             self._pending[ref] = (answered, reply)
             message = {"ref": ref, "module": module, "argv": [module, *args], "env": dict(env),
-                       "cwd": str(cwd)}
+                       "cwd": str(cwd), "netns": netns}
             try:
                 socket.send_fds(self._sock, [json.dumps(message).encode()], [out_w, err_w])
             except OSError:
@@ -412,13 +433,15 @@ class ForkServers:
                 self._servers[key] = server
             return server
 
-    def spawn(self, args: list[str], env: Mapping[str, str]) -> NodeProcess | None:
-        """``python args...`` forked when ``args`` is ``-m MODULE ...`` of a preloaded module
-        (None otherwise, or when no server could be started: the caller starts it itself)."""
+    def spawn(self, args: list[str], env: Mapping[str, str], netns: str | None = None
+              ) -> NodeProcess | None:
+        """``python args...`` forked when ``args`` is ``-m MODULE ...`` of a preloaded module,
+        in the network namespace at ``netns`` if given (None otherwise, or when no server
+        could be started: the caller starts it itself)."""
         if len(args) < 2 or args[0] != "-m" or args[1] not in self.modules:
             return None
         try:
-            return self.server_for(env).spawn(args[1], args[2:], env, self.cwd)
+            return self.server_for(env).spawn(args[1], args[2:], env, self.cwd, netns=netns)
         except (ForkServerError, OSError) as exc:
             print(f"twinslam: starting {args[1]} without the fork server ({exc})",
                   file=sys.stderr)

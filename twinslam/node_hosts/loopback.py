@@ -137,6 +137,11 @@ class ProcessDomain:
         """``argv`` as it must be run to execute on ``host``."""
         return argv
 
+    def network_namespace(self, host: str | None) -> str | None:
+        """The network namespace a process on ``host`` runs in, where it is not this
+        process's own (None: this machine's network)."""
+        return None
+
     def monitor_scope(self) -> contextlib.AbstractContextManager[None]:
         """Where this process's own participants must be made to watch the domain."""
         return contextlib.nullcontext()
@@ -145,12 +150,14 @@ class ProcessDomain:
               **kwargs: object) -> NodeProcess:
         """Start ``python args...`` on this domain (on ``host`` where the domain has hosts);
         stdout/stderr are captured as text. With ``forks``, a preloaded module is forked from
-        its fork server where the host is this machine's own network."""
+        its fork server, the child entering the host's network namespace where the host has
+        one (what ``ip netns exec`` would run it in)."""
         argv = [sys.executable, *args]
         env = self.env_for(host)
         proc: NodeProcess | None = None
-        if forks is not None and not kwargs and self.command(host, argv) == argv:
-            proc = forks.spawn(args, env)
+        netns = self.network_namespace(host)
+        if forks is not None and not kwargs and (netns or self.command(host, argv) == argv):
+            proc = forks.spawn(args, env, netns)
         if proc is None:
             proc = subprocess.Popen(  # type: ignore[call-overload]
                 self.command(host, argv), env=env, text=True, stdout=subprocess.PIPE,

@@ -24,7 +24,6 @@ Creating namespaces needs root (CAP_SYS_ADMIN and CAP_NET_ADMIN) and ``iproute2`
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import json
 import os
 import shutil
@@ -35,6 +34,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from twinslam.node_hosts.fastdds import ENV_KEYS, ros_env
+from twinslam.node_hosts.forked import enter_network_namespace
 from twinslam.node_hosts.loopback import ProcessDomain
 
 HOSTS = ("device", "edge", "twin")
@@ -42,7 +42,6 @@ SUBNET = "10.210.0"                      #: the hosts' /24; addresses exist only
 HOST_NUMBER = {"device": 2, "edge": 3, "twin": 4}
 INTERFACE = "eth0"
 MTU = 1500
-CLONE_NEWNET = 0x40000000
 
 #: Fast DDS profile of a host: UDPv4 only (shared memory would carry a device's samples to the
 #: edge past the shaped cable, the namespaces sharing /dev/shm) with datagrams below the link MTU
@@ -129,14 +128,10 @@ def _ip(*args: str, netns: str | None = None) -> str:
 
 
 def _setns(path: str) -> None:
-    libc = ctypes.CDLL(None, use_errno=True)
-    fd = os.open(path, os.O_RDONLY)
     try:
-        if libc.setns(fd, CLONE_NEWNET) != 0:
-            err = ctypes.get_errno()
-            raise NetnsError(f"setns({path}) failed: {os.strerror(err)}")
-    finally:
-        os.close(fd)
+        enter_network_namespace(path)
+    except OSError as exc:
+        raise NetnsError(str(exc.strerror)) from None
 
 
 class NetnsHosts(ProcessDomain):
@@ -223,6 +218,9 @@ class NetnsHosts(ProcessDomain):
         env = self.base_env()
         env.update(self._host_env())
         return env
+
+    def network_namespace(self, host: str | None) -> str | None:
+        return f"/run/netns/{self.namespaces[host]}" if host in self.namespaces else None
 
     def command(self, host: str | None, argv: list[str]) -> list[str]:
         if host is None or host not in self.namespaces:
