@@ -33,6 +33,7 @@ which the device follows, does not hold them). The tracker's pose and motion mod
 from __future__ import annotations
 
 import dataclasses
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -145,6 +146,7 @@ class DeviceTrackerCore:
                                "is tracked (ends_slot_before)")
         # a late stamp (older than the current slot) joins the current slot: ended is ended
         self.slot = max(self.slot, self.clock.slot_of(stamp))
+        started = time.thread_time()             # this thread's CPU, not the machine's wall
         out = self.tracking.track(color, depth)
         if image is not None:
             self._images[out.index] = image
@@ -166,7 +168,7 @@ class DeviceTrackerCore:
             track_ids = np.concatenate([track_ids, followed])
         record = FrameRecord(out.index, stamp, out.pose, out.tracked, np.sort(ids[~is_track]),
                              np.sort(track_ids), self.slot, out.relocalised, out.inliers,
-                             self.map_version)
+                             self.map_version, (time.thread_time() - started) * 1000.0)
         self.frames.append(record)
         slot = self.slot
         depths = (depth_at(out.features.points, depth, self.config.depth_range_m)

@@ -37,6 +37,7 @@ class FrameRecord:
     relocalised: bool = False      #: tracked again only by relocalisation (after a loss)
     inliers: int = 0               #: matches its pose was solved with (0: not tracked)
     map_version: int = 0           #: the map update it was tracked against (0: none yet)
+    cpu_ms: float = 0.0            #: the tracking thread's CPU time on it, milliseconds
 
 
 def frame_summaries_message(slot: int, rate_mbps: float, rate_state: int, map_version: int,
@@ -48,7 +49,7 @@ def frame_summaries_message(slot: int, rate_mbps: float, rate_state: int, map_ve
                           map_point_ids=np.asarray(f.map_point_ids, dtype=np.uint64),
                           local_track_ids=np.asarray(f.track_ids, dtype=np.uint64),
                           relocalised=f.relocalised, inliers=f.inliers,
-                          map_version=f.map_version)
+                          map_version=f.map_version, cpu_ms=f.cpu_ms)
                       for f in frames])
     return set_header(msg, stamp, "map")
 

@@ -76,6 +76,10 @@ def validate_frame_summaries(msg: Any) -> None:
     for frame in msg.frames:
         if frame.tracked:
             _pose(f"frames[{frame.frame_id}].pose", frame.pose)
+        _finite(f"frames[{frame.frame_id}].cpu_ms", frame.cpu_ms)
+        if frame.cpu_ms < 0:
+            raise MessageError(f"frames[{frame.frame_id}].cpu_ms must be >= 0, got "
+                               f"{frame.cpu_ms}")
 
 
 def validate_upload_request(msg: Any) -> None:

@@ -7,7 +7,12 @@ import math
 import numpy as np
 from rclpy.serialization import deserialize_message, serialize_message
 
-from device_tracker.messages import keyframe_message, read_map_update
+from device_tracker.messages import (
+    FrameRecord,
+    frame_summaries_message,
+    keyframe_message,
+    read_map_update,
+)
 from edge_mapper.messages import (
     map_stats_message,
     map_update_message,
@@ -16,7 +21,7 @@ from edge_mapper.messages import (
 )
 from msg_schemas import new, type_name_of
 from msg_schemas.poses import pose_matrix, pose_msg
-from msg_schemas.validation import validate
+from msg_schemas.validation import MessageError, validate
 from twinslam.map_management.actions import MapAction
 from twinslam.slam.keyframe import TRACK_ID_BIT, KeyFramePayload
 from twinslam.slam.keyframe_map import KeyFrameMap
@@ -112,3 +117,21 @@ def test_device_messages_round_trip_into_the_edge_readers() -> None:
     assert kf.frame_id == 41 and kf.point_ids.tolist() == [9] and kf.depths.tolist() == [2.5]
     assert kf.stamp == 12.25 and kf.slot == 7
     np.testing.assert_allclose(kf.intrinsics, sent.intrinsics)
+
+
+def test_a_summary_carries_each_frames_cpu_time_and_a_bad_one_is_refused() -> None:
+    """The device reports its tracking thread's CPU milliseconds a frame (what the live
+    tables show as device CPU); a negative or non-finite figure is refused by name."""
+    record = FrameRecord(7, 1.5, np.eye(4), True, np.array([3], np.uint64),
+                         np.zeros(0, np.uint64), 0, cpu_ms=12.5)
+    msg = _roundtrip(frame_summaries_message(0, 40.0, 0, 1, [record], 1.6))
+    assert msg.frames[0].cpu_ms == 12.5
+    validate("twinslam_msgs/msg/FrameSummaries", msg)
+    for bad in (-1.0, math.nan):
+        msg.frames[0].cpu_ms = bad
+        try:
+            validate("twinslam_msgs/msg/FrameSummaries", msg)
+        except MessageError as exc:
+            assert "frames[7].cpu_ms" in str(exc)
+        else:
+            raise AssertionError(f"cpu_ms {bad} accepted")

@@ -171,6 +171,22 @@ def test_protocol_holds_every_slot(runs: dict) -> None:
 
 
 @reads_the_policy_runs
+def test_the_report_measures_the_downlink_and_the_devices_cpu(runs: dict) -> None:
+    """What a user reads beside the tracking: the MB the edge sent down (every map update,
+    as serialised), the device's CPU milliseconds a frame from its own summaries, and the
+    share of frames it failed."""
+    report, record, _ = runs["adapt"]
+    assert len(record.maps) >= SLOTS - 1
+    # a map update carries at least each point's id, position and descriptor
+    floor_mb = sum(len(m.point_ids) * (8 + 24 + 32) for m in record.maps.values()) / 1e6
+    assert floor_mb <= report.downlink_mb < 20 * floor_mb, (floor_mb, report.downlink_mb)
+    cpu = [f.cpu_ms for s in record.summaries.values() for f in s.frames]
+    assert all(c > 0 for c in cpu) and 1.0 < report.device_cpu_ms < 1000.0
+    frames = sum(len(s.frames) for s in record.summaries.values())
+    assert report.failed_share == pytest.approx(report.untracked_frames / frames)
+
+
+@reads_the_policy_runs
 def test_map_stats_uncertainty_is_the_published_maps(runs: dict) -> None:
     _, record, _ = runs["adapt"]
     checked = 0

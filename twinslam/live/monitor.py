@@ -14,6 +14,7 @@ from twinslam_msgs.msg import (
     MapStats,
     MapUpdate,
     RateLatent,
+    Relocalisation,
     UplinkThroughput,
     UploadRequest,
 )
@@ -45,6 +46,9 @@ class PipelineMonitor:
         map_qos = rclpy.qos.QoSProfile(depth=100, durability=qos.MAP.durability,
                                        reliability=qos.MAP.reliability)
         sub(MapUpdate, topics.MAP_UPDATE, self._map, map_qos)
+        # the same samples undecoded, for their size on the downlink (and the relocalisations)
+        sub(MapUpdate, topics.MAP_UPDATE, self._downlink, map_qos, raw=True)
+        sub(Relocalisation, topics.RELOCALISATION, self._downlink, qos.PROTOCOL, raw=True)
         sub(PoseStamped, topics.DEVICE_POSE, self._pose, qos.PROTOCOL)
         sub(PoseStamped, topics.GROUND_TRUTH_POSE, self._ground_truth, qos.CAMERA)
         if watch_images:     # a viewer's subscription: best effort, undecoded, only counted
@@ -70,6 +74,9 @@ class PipelineMonitor:
 
     def _ground_truth(self, msg: PoseStamped) -> None:
         self.record.ground_truth[stamp_key(msg.header)] = pose_matrix(msg.pose)
+
+    def _downlink(self, data: bytes) -> None:
+        self.record.downlink_bytes += len(data)
 
     def _image(self, _data: bytes) -> None:
         self.record.images_received += 1

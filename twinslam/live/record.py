@@ -23,3 +23,5 @@ class RunRecord:
     ground_truth: dict[int, np.ndarray] = field(default_factory=dict)
     latents: dict[int, RateLatent] = field(default_factory=dict)    #: the twin's, by slot
     images_received: int = 0        #: /camera/image_raw samples, when the monitor watches them
+    #: bytes the edge sent the device: map updates and relocalisation answers, as serialised
+    downlink_bytes: int = 0

@@ -58,18 +58,23 @@ class RunReport:
     #: the 95th percentile and the longest of its losses, seconds without a pose (0: none)
     loss_p95_s: float = math.nan
     longest_loss_s: float = math.nan
+    #: the device's CPU time a frame (its tracking thread; NaN: not reported)
+    device_cpu_ms: float = math.nan
+    #: what the edge sent the device, MB (map updates, relocalisation answers)
+    downlink_mb: float = math.nan
 
     ROW = ("{label:<14} {mean_uncertainty:>10.1f} {lost_share:>6.1%} "
            "{tracked_uncertainty:>10.1f} {ate_m:>7.3f} "
            "{rpe_m:>7.3f} {frames_uploaded:>7d} {mbytes:>7.1f} {achieved_mbps:>7.1f} "
            "{untracked_frames:>6d} {failed_share:>6.1%} {tracking_failures:>5d} "
            "{relocalisations:>6d} {jumps:>5.0f} {recover_s:>7.2f} {loss_p95_s:>7.2f} "
-           "{longest_loss_s:>7.2f} {edge_ms_median:>7.0f} {dropped:>7}")
+           "{longest_loss_s:>7.2f} {downlink_mb:>7.1f} {device_cpu_ms:>7.1f} "
+           "{edge_ms_median:>7.0f} {dropped:>7}")
     HEADER = (f"{'policy':<14} {'mean υ':>10} {'lost':>6} {'υ tracked':>10} {'ATE m':>7} "
               f"{'RPE m':>7} "
               f"{'uploads':>7} {'MB':>7} {'Mbit/s':>7} {'untrk':>6} {'failed':>6} "
               f"{'fails':>5} {'reloc':>6} {'jumps':>5} {'recov s':>7} {'p95 s':>7} "
-              f"{'max s':>7} {'edge ms':>7} {'dropped':>7}")
+              f"{'max s':>7} {'down MB':>7} {'dev ms':>7} {'edge ms':>7} {'dropped':>7}")
 
     @property
     def label(self) -> str:
@@ -125,7 +130,16 @@ def report(policy: str, record: RunRecord, seconds: float, slot_frames: int) -> 
                      float(np.median([s.slot_processing_ms for s in stats])) if stats
                      else math.nan, seconds, deciders(record),
                      dropped_frames(record, slot_frames), jumps(record), events.failed_share,
-                     events.loss_p95_s, events.longest_loss_s)
+                     events.loss_p95_s, events.longest_loss_s, device_cpu_ms(record),
+                     record.downlink_bytes / 1e6)
+
+
+def device_cpu_ms(record: RunRecord) -> float:
+    """The device's mean CPU milliseconds a frame, over the frames that report it (NaN when
+    none does: a device of a version before the field)."""
+    spent = [float(f.cpu_ms) for s in record.summaries.values() for f in s.frames
+             if f.cpu_ms > 0]
+    return float(np.mean(spent)) if spent else math.nan
 
 
 def dropped_frames(record: RunRecord, slot_frames: int) -> int:

@@ -220,7 +220,7 @@ _CELL = {"int": int, "float": float, "str": str}
 #: columns a later version added at the end of runs.csv, and what the rows of an older file
 #: read for them: not measured then
 ADDED_COLUMNS = {"jumps": "nan", "failed_share": "nan", "loss_p95_s": "nan",
-                 "longest_loss_s": "nan"}
+                 "longest_loss_s": "nan", "device_cpu_ms": "nan", "downlink_mb": "nan"}
 
 
 def _read_rows(path: Path, header: list[str]) -> list[list[str]]:

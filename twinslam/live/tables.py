@@ -32,6 +32,7 @@ METRICS = (("ate_m", "ATE", "m"), ("rpe_m", "RPE 1 s", "m"),
            # camera frames the device dropped (a run that dropped any measured the machine)
            ("failed_share", "failed", ""), ("loss_p95_s", "loss p95", "s"),
            ("longest_loss_s", "longest loss", "s"), ("jumps", "jumps", ""),
+           ("downlink_mb", "downlink", "MB"), ("device_cpu_ms", "device CPU", "ms/frame"),
            ("frames_dropped", "dropped", "frames"))
 #: the figures a paired comparison with the best rule policy is made on (lower is better)
 PAIRED = ("tracking_failures", "untracked_frames", "device_failure_share", "ate_m",
