@@ -8,6 +8,7 @@ from collections.abc import Callable
 import rclpy
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
+from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Image
 from twinslam_msgs.msg import (
     FrameSummaries,
@@ -45,9 +46,8 @@ class PipelineMonitor:
         # every map the edge sends (not only the latest a late joiner gets)
         map_qos = rclpy.qos.QoSProfile(depth=100, durability=qos.MAP.durability,
                                        reliability=qos.MAP.reliability)
-        sub(MapUpdate, topics.MAP_UPDATE, self._map, map_qos)
-        # the same samples undecoded, for their size on the downlink (and the relocalisations)
-        sub(MapUpdate, topics.MAP_UPDATE, self._downlink, map_qos, raw=True)
+        # taken undecoded, to count their size on the downlink, then decoded once
+        sub(MapUpdate, topics.MAP_UPDATE, self._map, map_qos, raw=True)
         sub(Relocalisation, topics.RELOCALISATION, self._downlink, qos.PROTOCOL, raw=True)
         sub(PoseStamped, topics.DEVICE_POSE, self._pose, qos.PROTOCOL)
         sub(PoseStamped, topics.GROUND_TRUTH_POSE, self._ground_truth, qos.CAMERA)
@@ -66,7 +66,9 @@ class PipelineMonitor:
     def _latent(self, msg: RateLatent) -> None:
         self.record.latents[int(msg.slot)] = msg
 
-    def _map(self, msg: MapUpdate) -> None:
+    def _map(self, data: bytes) -> None:
+        self._downlink(data)
+        msg = deserialize_message(data, MapUpdate)
         self.record.maps[int(msg.slot)] = read_map_update(msg)
 
     def _pose(self, msg: PoseStamped) -> None:

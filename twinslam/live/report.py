@@ -84,12 +84,17 @@ class RunReport:
                   if p != self.policy and not p.endswith(FALLBACK)]
         return "→".join(policy_label(p) for p in [self.policy, *others])
 
+    @property
+    def dropped_cell(self) -> str:
+        """The camera frames the device dropped as a table shows them, ``!`` marking any: it
+        fell behind its camera, the machine was short of CPU, and the figures measure that
+        too."""
+        return f"{self.frames_dropped}{'!' if self.frames_dropped else ''}"
+
     def row(self) -> str:
-        """The run's line of the table; ``!`` marks camera frames the device dropped (it fell
-        behind: the machine was short of CPU, and the figures measure that too)."""
-        dropped = f"{self.frames_dropped}{'!' if self.frames_dropped else ''}"
+        """The run's line of the table."""
         return self.ROW.format(mbytes=self.bytes_uploaded / 1e6, label=self.label,
-                               dropped=dropped, **self.__dict__)
+                               dropped=self.dropped_cell, **self.__dict__)
 
 
 def policy_label(policy: str) -> str:

@@ -51,12 +51,10 @@ def side_by_side(results: list[RunResult]) -> list[str]:
         rep, cal = r.report, r.calibration
         predicted = f"{cal.predicted_lost_share:.1%}" if cal else "–"
         failed = f"{cal.device_failure_share:.1%}" if cal else "–"
-        # a run whose device fell behind its camera is flagged where its figures are read
-        dropped = f"{rep.frames_dropped:d}{'!' if rep.frames_dropped else ''}"
         lines.append(f"{rep.label:<14} {r.key.map_source:<10} {rep.tracking_failures:>5d} "
                      f"{rep.relocalisations:>5d} {rep.untracked_frames:>5d} {rep.ate_m:>6.3f} "
                      f"{rep.rpe_m:>6.3f} {predicted:>14} {failed:>13} "
-                     f"{rep.frames_uploaded:>7d} {rep.edge_ms_median:>7.0f} {dropped:>7}")
+                     f"{rep.frames_uploaded:>7d} {rep.edge_ms_median:>7.0f} {rep.dropped_cell:>7}")
     note = dropped_frames_note(results)
     return lines + ([f"! {note}"] if note else [])
 
