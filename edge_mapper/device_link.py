@@ -290,14 +290,16 @@ class DeviceLink:
         self.pub_stats.publish(map_stats_message(
             slot, entry.decided_by, self.core.map, out.map_uncertainty, entry.uncertainty,
             len(out.integrated), ba_ms, compute_s * 1000, now, entry.vmax,
-            entry.latency_s(self.slots.clock()) * 1000, len(self.core.archive)))
+            entry.latency_s(self.slots.clock()) * 1000, len(self.core.archive),
+            len(out.restored)))
         if self.spent is not None:
             self.spent(compute_s)
         if self.pub_views is not None:         # after MapStats: not in its compute time
             m, (cloud, poses, marks) = self.core.map, self.pub_views
             cloud.publish(map_points_message(m, now, frame))
             poses.publish(keyframes_message(m, now, frame))
-            marks.publish(decisions_message(m, out.integrated, out.evicted, before, now, frame))
+            marks.publish(decisions_message(m, out.integrated, out.evicted, before, now, frame,
+                                            out.restored))
         u = out.map_uncertainty
         kept = f" (kept {len(out.spared)} of C_k: uploads missing)" if out.spared else ""
         if out.restored:

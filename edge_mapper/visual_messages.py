@@ -6,9 +6,10 @@ slot when the slot closes. Pure conversion, no DDS.
 * ``edge/keyframes`` — ``geometry_msgs/PoseArray`` of the kept keyframes' camera-to-map poses
   (at most V_max);
 * ``edge/decisions`` — ``visualization_msgs/MarkerArray`` of what the slot did: one sphere list
-  each for the keyframes it integrated (green), evicted (red, where they were) and kept (grey),
-  in namespaces ``integrated``, ``evicted``, ``kept``; a namespace with nothing this slot is
-  sent with ``DELETE`` so the viewer clears last slot's.
+  each for the keyframes it integrated (green), evicted (red, where they were), brought back
+  from the archive (blue) and kept (grey), in namespaces ``integrated``, ``evicted``,
+  ``restored``, ``kept``; a namespace with nothing this slot is sent with ``DELETE`` so the
+  viewer clears last slot's.
 
 Frame id ``map`` (the edge's map frame, the frame of ``edge/map_update`` and ``device/pose``),
 stamps the slot's close.
@@ -16,7 +17,7 @@ stamps the slot's close.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 from geometry_msgs.msg import Point, PoseArray
@@ -35,7 +36,7 @@ POINT_FIELDS = tuple(PointField(name=name, offset=4 * i, datatype=PointField.FLO
 KEYFRAME_MARKER_M = 0.06
 #: colour of each decision, RGBA
 DECISION_COLOURS = {"integrated": (0.1, 0.8, 0.2, 1.0), "evicted": (0.9, 0.1, 0.1, 1.0),
-                    "kept": (0.6, 0.6, 0.6, 0.8)}
+                    "restored": (0.1, 0.4, 0.95, 1.0), "kept": (0.6, 0.6, 0.6, 0.8)}
 
 
 def map_points_message(keyframe_map: KeyFrameMap, stamp: float, frame_id: str = "map"
@@ -63,14 +64,16 @@ def keyframes_message(keyframe_map: KeyFrameMap, stamp: float, frame_id: str = "
 
 def decisions_message(keyframe_map: KeyFrameMap, integrated: list[int], evicted: list[int],
                       poses_before: Mapping[int, np.ndarray], stamp: float,
-                      frame_id: str = "map") -> MarkerArray:
-    """The slot's integrated, evicted and kept keyframes as three sphere lists; ``poses_before``
-    holds where the evicted ones were (they are gone from the map)."""
-    kept = [k for k in sorted(keyframe_map.keyframes) if k not in set(integrated)]
-    where = {"integrated": [keyframe_map.keyframes[k].pose for k in integrated
-                            if k in keyframe_map.keyframes],
+                      frame_id: str = "map", restored: Sequence[int] = ()) -> MarkerArray:
+    """The slot's integrated, evicted, restored and kept keyframes as four sphere lists;
+    ``poses_before`` holds where the evicted ones were (they are gone from the map)."""
+    new = set(integrated) | set(restored)
+    kept = [k for k in sorted(keyframe_map.keyframes) if k not in new]
+    in_map = keyframe_map.keyframes
+    where = {"integrated": [in_map[k].pose for k in integrated if k in in_map],
              "evicted": [poses_before[k] for k in evicted if k in poses_before],
-             "kept": [keyframe_map.keyframes[k].pose for k in kept]}
+             "restored": [in_map[k].pose for k in restored if k in in_map],
+             "kept": [in_map[k].pose for k in kept]}
     return MarkerArray(markers=[_spheres(ns, poses, stamp, frame_id)
                                 for ns, poses in where.items()])
 

@@ -135,3 +135,31 @@ def test_a_summary_carries_each_frames_cpu_time_and_a_bad_one_is_refused() -> No
             assert "frames[7].cpu_ms" in str(exc)
         else:
             raise AssertionError(f"cpu_ms {bad} accepted")
+
+
+def test_map_stats_count_the_keyframes_restored_from_the_archive() -> None:
+    stats = _roundtrip(map_stats_message(4, "lff", KeyFrameMap(), -90.0, None, 1, 1.0, 2.0,
+                                         1.0, archived=7, restored=2))
+    assert (stats.archived_keyframes, stats.restored_keyframes) == (7, 2)
+
+
+def test_decision_markers_tell_integrated_evicted_restored_and_kept_keyframes_apart() -> None:
+    """What a viewer draws of one slot: the uploads integrated, the keyframes evicted (where
+    they were), those brought back from the archive and the rest of the map, each its own
+    namespace and colour; a namespace with nothing this slot clears the viewer's last."""
+    from visualization_msgs.msg import Marker
+
+    from edge_mapper.visual_messages import decisions_message
+
+    m = KeyFrameMap()
+    for kf in (2, 3, 5, 8):
+        m.add_keyframe(kf, _pose(0.0, [float(kf), 0.0, 1.0]))
+    before = {9: _pose(0.0, [9.0, 0.0, 1.0])}
+    marks = {mk.ns: mk for mk in decisions_message(m, [8], [9], before, 1.0, "map",
+                                                   restored=[3]).markers}
+    xs = {ns: [p.x for p in mk.points] for ns, mk in marks.items()}
+    assert xs == {"integrated": [8.0], "evicted": [9.0], "restored": [3.0], "kept": [2.0, 5.0]}
+    colours = {(mk.color.r, mk.color.g, mk.color.b) for mk in marks.values()}
+    assert len(colours) == 4 and all(mk.action == Marker.ADD for mk in marks.values())
+    quiet = {mk.ns: mk.action for mk in decisions_message(m, [8], [], {}, 2.0).markers}
+    assert quiet["restored"] == quiet["evicted"] == Marker.DELETE

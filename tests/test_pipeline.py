@@ -381,7 +381,7 @@ def test_came_back_needs_a_gap() -> None:
     assert came_back([{1, 2}, {2}, {1, 2}, {3}]) == {1}
 
 
-def test_an_evicted_keyframe_comes_back_from_the_archive_on_the_way_back() -> None:
+def test_an_evicted_keyframe_comes_back_from_the_archive_on_the_way_back(tmp_path: Path) -> None:
     """The synthetic room forward then back with the paper's device (it tracks against the
     edge's map only) and a map of 8 keyframes: the keyframes evicted on the way out stay in
     the edge's archive (MapStats counts them), and on the way back the edge restores some of
@@ -404,6 +404,12 @@ def test_an_evicted_keyframe_comes_back_from_the_archive_on_the_way_back() -> No
     assert "restored from the archive" in log, f"frames a slot {seen}; {log[-3000:]}"
     assert max(s.archived_keyframes for s in record.stats.values()) > 0
     assert all(s.map_size <= 8 for s in record.stats.values())
+    # MapStats counts what came back, and the run's row and picture show it
+    assert report.restores == sum(s.restored_keyframes for s in record.stats.values()) \
+        >= len(back)
+    from twinslam.live.run_picture import plot_run
+    plot_run(record, "restores", tmp_path / "restores.png")
+    assert (tmp_path / "restores.png").stat().st_size > 30_000
     print(f"\ncame back: {back}; {report.row()}")
     assert report.untracked_frames < 0.1 * 181, report.row()
 
@@ -436,11 +442,11 @@ def test_a_viewer_sees_the_edges_map_points_keyframes_and_decisions(viewed_lff: 
         assert np.isfinite(xyzi).all() and (xyzi[:, 3] >= 1).all()    # observed by >= 1
         assert len(poses.poses) == s.map_size <= VMAX
         by_ns = {m.ns: m for m in marks.markers}
-        assert set(by_ns) == {"integrated", "evicted", "kept"}
-        added = len(by_ns["integrated"].points) if by_ns["integrated"].action == Marker.ADD \
-            else 0
-        kept = len(by_ns["kept"].points) if by_ns["kept"].action == Marker.ADD else 0
-        assert added == s.uploads and added + kept == s.map_size
+        assert set(by_ns) == {"integrated", "evicted", "restored", "kept"}
+        added, restored, kept = (len(by_ns[ns].points) if by_ns[ns].action == Marker.ADD else 0
+                                 for ns in ("integrated", "restored", "kept"))
+        assert added == s.uploads and restored == s.restored_keyframes
+        assert added + restored + kept == s.map_size
 
 
 @reads_the_policy_runs

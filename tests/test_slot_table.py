@@ -26,7 +26,8 @@ def _record(decided: list[str], missed_request: int | None = None) -> RunRecord:
                                         evict_frame_ids=np.arange(slot % 2))
         record.stats[slot] = new(MapStats, slot=slot, policy=policy, map_size=slot + 1,
                                  uploads=4, uncertainty=math.inf if slot == 0 else -100.0 - slot,
-                                 mean_uncertainty=math.nan, lost_share=0.25)
+                                 mean_uncertainty=math.nan, lost_share=0.25,
+                                 restored_keyframes=slot % 2)
     return record
 
 
@@ -44,6 +45,9 @@ def test_a_policy_set_during_the_run_is_named_in_the_table_and_per_slot(tmp_path
     assert rows[3]["requested"] == "" and rows[2]["requested"] == "4"
     assert rows[1]["evicted"] == "1" and rows[0]["uncertainty"] == "inf"
     assert rows[4]["map_size"] == "5" and rows[4]["mean_uncertainty"] == "nan"
+    # the keyframes the edge brought back from its archive: per slot, and summed in the row
+    assert [r["restored_keyframes"] for r in rows] == ["0", "1", "0", "1", "0"]
+    assert run.restores == 2
 
 
 def test_a_run_that_kept_its_policy_or_fell_back_keeps_its_label() -> None:

@@ -62,18 +62,20 @@ class RunReport:
     device_cpu_ms: float = math.nan
     #: what the edge sent the device, MB (map updates, relocalisation answers)
     downlink_mb: float = math.nan
+    #: archived keyframes the edge brought back into the map over the run (NaN: not reported)
+    restores: float = math.nan
 
     ROW = ("{label:<14} {mean_uncertainty:>10.1f} {lost_share:>6.1%} "
            "{tracked_uncertainty:>10.1f} {ate_m:>7.3f} "
            "{rpe_m:>7.3f} {frames_uploaded:>7d} {mbytes:>7.1f} {achieved_mbps:>7.1f} "
            "{untracked_frames:>6d} {failed_share:>6.1%} {tracking_failures:>5d} "
-           "{relocalisations:>6d} {jumps:>5.0f} {recover_s:>7.2f} {loss_p95_s:>7.2f} "
-           "{longest_loss_s:>7.2f} {downlink_mb:>7.1f} {device_cpu_ms:>7.1f} "
+           "{relocalisations:>6d} {jumps:>5.0f} {restores:>6.0f} {recover_s:>7.2f} "
+           "{loss_p95_s:>7.2f} {longest_loss_s:>7.2f} {downlink_mb:>7.1f} {device_cpu_ms:>7.1f} "
            "{edge_ms_median:>7.0f} {dropped:>7}")
     HEADER = (f"{'policy':<14} {'mean υ':>10} {'lost':>6} {'υ tracked':>10} {'ATE m':>7} "
               f"{'RPE m':>7} "
               f"{'uploads':>7} {'MB':>7} {'Mbit/s':>7} {'untrk':>6} {'failed':>6} "
-              f"{'fails':>5} {'reloc':>6} {'jumps':>5} {'recov s':>7} {'p95 s':>7} "
+              f"{'fails':>5} {'reloc':>6} {'jumps':>5} {'restor':>6} {'recov s':>7} {'p95 s':>7} "
               f"{'max s':>7} {'down MB':>7} {'dev ms':>7} {'edge ms':>7} {'dropped':>7}")
 
     @property
@@ -136,7 +138,8 @@ def report(policy: str, record: RunRecord, seconds: float, slot_frames: int) -> 
                      else math.nan, seconds, deciders(record),
                      dropped_frames(record, slot_frames), jumps(record), events.failed_share,
                      events.loss_p95_s, events.longest_loss_s, device_cpu_ms(record),
-                     record.downlink_bytes / 1e6)
+                     record.downlink_bytes / 1e6,
+                     float(sum(int(s.restored_keyframes) for s in stats)))
 
 
 def device_cpu_ms(record: RunRecord) -> float:

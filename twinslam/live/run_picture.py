@@ -3,8 +3,9 @@
 Left, the edge's final map from above (x right, z forward: the camera convention's ground
 plane) — its points, its kept keyframes — with the device's trajectory, frames it tracked and
 frames it did not told apart, and the ground truth moved into the map frame by ATE's alignment.
-Right, per slot: the map's size, υ (a lost next-slot frame scoring 0) with the lost share, and
-the uplink rate d_k with what the device achieved.
+Relocalisations are starred on the trajectory. Right, per slot: the map's size (the slots
+where the edge brought archived keyframes back marked, with how many), υ (a lost next-slot
+frame scoring 0) with the lost share, and the uplink rate d_k with what the device achieved.
 """
 
 from __future__ import annotations
@@ -91,6 +92,17 @@ def _over_slots(axes: list[Axes], record: RunRecord) -> None:
     stats = [record.stats[s] for s in slots]
     size_ax, u_ax, rate_ax = axes
     size_ax.plot(slots, [s.map_size for s in stats], c="tab:blue", marker=".")
+    restores = [(slot, s.map_size, int(s.restored_keyframes)) for slot, s in zip(slots, stats,
+                                                                               strict=True)
+                if s.restored_keyframes > 0]
+    if restores:
+        x, y, n = zip(*restores, strict=True)
+        size_ax.scatter(x, y, marker="P", s=60, c="tab:green", edgecolors="k", linewidths=0.5,
+                        zorder=5, label=f"restores from the archive ({sum(n)} keyframes)")
+        for slot, size, count in restores:
+            size_ax.annotate(f"+{count}", (slot, size), textcoords="offset points",
+                             xytext=(0, 6), ha="center", fontsize=7, color="tab:green")
+        size_ax.legend(loc="best", fontsize=8)
     size_ax.set(ylabel="map (keyframes)", title="per slot")
     u_ax.plot(slots, [s.mean_uncertainty if math.isfinite(s.mean_uncertainty) else np.nan
                       for s in stats], c="tab:purple", marker=".", label="mean υ")

@@ -100,6 +100,10 @@ class RunTask:
     verbose: bool = False    #: print every slot's status line
     start: int = 0           #: the sequence's first frame played
     picture: Path | None = None   #: where the run's PNG goes (run_picture); None: none
+    #: edge parameters over the parameter file's (``name:=value``), and what the tables call
+    #: that edge ("": the parameter file's own)
+    edge_params: tuple[str, ...] = ()
+    edge_variant: str = ""
 
 
 @dataclass
@@ -108,6 +112,7 @@ class RunResult:
     report: RunReport
     frames: LiveFrames | None     #: None without a covisibility dataset
     calibration: Calibration | None
+    edge_variant: str = ""        #: the task's
 
 
 def sequence_for(sequence: str, seed: int) -> str:
@@ -122,7 +127,8 @@ def run_one(task: RunTask) -> RunResult:
     policy decides on the twin's latents (``/udt/rate_latent``) as on a deployed edge; without
     it a twin-driven policy would hand every slot to the edge's fallback policy."""
     key = task.key
-    extra = {"device_tracker": [f"seed:={key.seed}", f"map_source:={key.map_source}"]}
+    extra = {"device_tracker": [f"seed:={key.seed}", f"map_source:={key.map_source}"],
+             "edge_mapper": list(task.edge_params)}
     kind, _, checkpoint = key.edge_policy.partition(":")
     learned = kind == LEARNED_PREFIX and bool(checkpoint)
     if learned:
@@ -139,13 +145,14 @@ def run_one(task: RunTask) -> RunResult:
                  f"seed {key.seed}: {report.tracking_failures} failures, ATE "
                  f"{report.ate_m:.3f} m", task.picture)
     if task.covis is None or launcher.record is None:
-        return RunResult(key, report, None, None)
+        return RunResult(key, report, None, None, task.edge_variant)
     dataset = load_covisibility(task.covis)
     played = played_frames(task.sequence, task.frames, task.scenario, dataset,
                            start=task.start)
     frames = live_frames(launcher.record, dataset, played)
     return RunResult(key, report, frames,
-                     calibrate((f.calibration for f in frames.frames), MIN_SHARED_POINTS))
+                     calibrate((f.calibration for f in frames.frames), MIN_SHARED_POINTS),
+                     task.edge_variant)
 
 
 RUNS_HEADER = [f.name for f in fields(RunKey)] + [f.name for f in fields(RunReport)]
@@ -220,7 +227,8 @@ _CELL = {"int": int, "float": float, "str": str}
 #: columns a later version added at the end of runs.csv, and what the rows of an older file
 #: read for them: not measured then
 ADDED_COLUMNS = {"jumps": "nan", "failed_share": "nan", "loss_p95_s": "nan",
-                 "longest_loss_s": "nan", "device_cpu_ms": "nan", "downlink_mb": "nan"}
+                 "longest_loss_s": "nan", "device_cpu_ms": "nan", "downlink_mb": "nan",
+                 "restores": "nan"}
 
 
 def _read_rows(path: Path, header: list[str]) -> list[list[str]]:

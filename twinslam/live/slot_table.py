@@ -18,6 +18,7 @@ from twinslam.live.record import RunRecord
 #: one row a slot, in slot order
 SLOT_COLUMNS = ["slot", "policy", "rate_mbps", "requested", "evicted", "uploads",
                 "map_size", "keyframe_budget", "map_points", "archived_keyframes",
+                "restored_keyframes",
                 "uncertainty", "mean_uncertainty", "tracked_uncertainty", "lost_share",
                 "optimisation_ms", "slot_processing_ms", "slot_latency_ms"]
 
@@ -40,11 +41,12 @@ def slot_rows(record: RunRecord) -> list[list[object]]:
         after: list[object] = (
             [int(stats.uploads), int(stats.map_size), int(stats.keyframe_budget),
              int(stats.map_points), int(stats.archived_keyframes),
+             int(stats.restored_keyframes),
              *(_cell(float(v)) for v in (stats.uncertainty, stats.mean_uncertainty,
                                          stats.tracked_uncertainty)),
              round(float(stats.lost_share), 4), round(float(stats.optimisation_ms), 1),
              round(float(stats.slot_processing_ms), 1), round(float(stats.slot_latency_ms), 1)]
-            if stats is not None else [""] * 11)
+            if stats is not None else [""] * 12)
         rows.append([slot, policy, *decision, *after])
     return rows
 

@@ -33,7 +33,9 @@ METRICS = (("ate_m", "ATE", "m"), ("rpe_m", "RPE 1 s", "m"),
            ("failed_share", "failed", ""), ("loss_p95_s", "loss p95", "s"),
            ("longest_loss_s", "longest loss", "s"), ("jumps", "jumps", ""),
            ("downlink_mb", "downlink", "MB"), ("device_cpu_ms", "device CPU", "ms/frame"),
-           ("frames_dropped", "dropped", "frames"))
+           ("frames_dropped", "dropped", "frames"),
+           # archived keyframes the edge brought back (restore_keyframes)
+           ("restores", "restores", "keyframes"))
 #: the figures a paired comparison with the best rule policy is made on (lower is better)
 PAIRED = ("tracking_failures", "untracked_frames", "device_failure_share", "ate_m",
           "mean_uncertainty")
@@ -43,16 +45,20 @@ RULE_POLICIES = ("lff", "pu", "adapt", "random")
 def side_by_side(results: list[RunResult]) -> list[str]:
     """One line per run: what the device lived through beside what the simulator's rule
     predicted for the same frames, and the camera frames it dropped (the table ``make run``
-    prints; a run that dropped any is marked ``!`` and explained below the table)."""
-    lines = [f"{'policy':<14} {'map source':<10} {'fails':>5} {'reloc':>5} {'untrk':>5} "
-             f"{'ATE m':>6} {'RPE m':>6} {'predicted lost':>14} {'device failed':>13} "
+    prints; a run that dropped any is marked ``!`` and explained below the table). The edge
+    column names a run's edge variant (``paper``: the parameter file's)."""
+    lines = [f"{'policy':<14} {'map source':<10} {'edge':<9} {'fails':>5} {'reloc':>5} "
+             f"{'restor':>6} {'untrk':>5} {'ATE m':>6} {'RPE m':>6} {'predicted lost':>14} "
+             f"{'device failed':>13} "
              f"{'uploads':>7} {'edge ms':>7} {'dropped':>7}"]
     for r in results:
         rep, cal = r.report, r.calibration
         predicted = f"{cal.predicted_lost_share:.1%}" if cal else "–"
         failed = f"{cal.device_failure_share:.1%}" if cal else "–"
-        lines.append(f"{rep.label:<14} {r.key.map_source:<10} {rep.tracking_failures:>5d} "
-                     f"{rep.relocalisations:>5d} {rep.untracked_frames:>5d} {rep.ate_m:>6.3f} "
+        lines.append(f"{rep.label:<14} {r.key.map_source:<10} {r.edge_variant or 'paper':<9} "
+                     f"{rep.tracking_failures:>5d} {rep.relocalisations:>5d} "
+                     f"{rep.restores:>6.0f} "
+                     f"{rep.untracked_frames:>5d} {rep.ate_m:>6.3f} "
                      f"{rep.rpe_m:>6.3f} {predicted:>14} {failed:>13} "
                      f"{rep.frames_uploaded:>7d} {rep.edge_ms_median:>7.0f} {rep.dropped_cell:>7}")
     note = dropped_frames_note(results)

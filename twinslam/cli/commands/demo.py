@@ -10,7 +10,9 @@
    kept decides whether the device tracks on the way back. A status line per slot, then per
    policy: tracking failures, relocalisations, untracked frames, ATE and RPE (evo), and the
    share of next-slot frames the simulator's rule predicts lost beside the share the device
-   really failed.
+   really failed. Each policy runs twice, side by side: with the paper's edge (what it evicts
+   is gone for the device) and with the edge bringing keyframes back from its archive where
+   the camera heads (:data:`ARCHIVE_RESTORES`, :mod:`edge_mapper.restores`).
 2. The same with the Edge-SLAM style device (``edge+local``), which also tracks on its own
    recent points: the map hardly matters to it.
 3. The offline simulator with LFF, PU, ADAPT and the clairvoyant reference on the covisibility
@@ -38,6 +40,13 @@ SCENARIO = "revisit-v15"
 #: the device's two map sources, as the demo introduces them
 DEVICES = {"edge": "the paper's device (tracked only against the edge's map)",
            "edge+local": "the Edge-SLAM style device (edge map + its own recent points)"}
+#: the edge variant the paper's device also runs with: archived keyframes brought back where
+#: the camera heads, at most 3 a slot (measured on this walk: fewer frames lost on every seed;
+#: docs/results.md, "The edge's archive and restores")
+ARCHIVE_RESTORES: tuple[str, tuple[str, ...]] = ("restores", ("restore_keyframes:=3",))
+#: the edges each device runs with: (name in the table, edge parameters; "": the paper's)
+EDGES: dict[str, list[tuple[str, tuple[str, ...]]]] = {
+    "edge": [("", ()), ARCHIVE_RESTORES], "edge+local": [("", ())]}
 
 
 def run_live(policies: list[str], frames: int, step: str, map_source: str) -> bool:
@@ -49,14 +58,17 @@ def run_live(policies: list[str], frames: int, step: str, map_source: str) -> bo
         sequence, what = f"{FALLBACK_SEQUENCE}:{frames}", (
             f"{frames} frames of the synthetic corridor ({BUNDLED_SEQUENCE} is missing)")
     chosen = SCENARIOS[SCENARIO]
+    edges = " and ".join(f"the edge {variant} ({', '.join(params)})" if variant
+                         else "the paper's edge" for variant, params in EDGES[map_source])
     print(f"{step} live pipeline (player, device, edge as processes on a loopback domain), "
           f"{DEVICES[map_source]}, {what}, scenario {SCENARIO} ({chosen.description}), "
-          f"policies {', '.join(policies)}", flush=True)
+          f"policies {', '.join(policies)}, each with {edges}", flush=True)
     covis = covisibility_file(sequence, frames, REPO_ROOT / "results" / "demo" / "covis",
                               lambda line: print("      " + line, flush=True))
     results = [run_one(RunTask(RunKey(SCENARIO, map_source, policy, 0), sequence, frames,
-                               chosen, DEFAULT_PARAMS, 600.0, covis, verbose=True))
-               for policy in policies]
+                               chosen, DEFAULT_PARAMS, 600.0, covis, verbose=True,
+                               edge_params=params, edge_variant=variant))
+               for policy in policies for variant, params in EDGES[map_source]]
     print()
     for line in side_by_side(results):
         print("      " + line)
