@@ -60,7 +60,7 @@ def uplink_throughput_message(throughput: SlotThroughput, stamp: float) -> Uplin
     msg = new(UplinkThroughput, slot=t.slot,
               configured_rate_mbps=t.configured_rate_mbps, rate_state=t.rate_state,
               achieved_mbps=t.achieved_mbps, bytes_sent=t.bytes_sent, duration_s=t.duration_s,
-              frames_sent=t.frames_sent)
+              frames_sent=t.frames_sent, request_bytes=t.request_bytes)
     return set_header(msg, stamp, "")
 
 

@@ -12,7 +12,8 @@
   ``device/keyframes`` through the uplink shaper on an upload thread
   (:mod:`device_tracker.uplink_sender`), each occupying the link for ``alpha_mbit`` or its real
   size if larger; then the slot's ``device/uplink_throughput``;
-* ``edge/map_update`` (transient local) → the new local map.
+* ``edge/map_update`` (transient local) → the new local map; while lost, the lost frame's
+  features up the same uplink to the edge (:mod:`device_tracker.relocalisation_requests`).
 
 Topic names are relative (``-r __ns:=/ar1``). ``shaper:=tc`` hands the pacing to the kernel
 (:mod:`twinslam.uplink.tc_shaper`); ``upload_image:=true`` sends each keyframe's colour image
@@ -91,12 +92,13 @@ class DeviceTrackerNode(Node):
                                                self._on_upload_request, qos.PROTOCOL)
         self.sub_map = CheckedSubscription(self, MapUpdate, topics.MAP_UPDATE,
                                            self._on_map_update, qos.MAP)
-        self.edge_relocalisation = EdgeRelocalisation(self, s.reloc_period_s)
         self.create_timer(0.5, self._check_edge)
         self.sender = UplinkSender(self.shaper, self._encode_keyframe, self.pub_keyframes.publish,
                                    self._report_throughput, self.get_logger().error,
                                    initial_rate(self.channel), WRITE_RETRY_S)
         self.sender.start()
+        self.edge_relocalisation = EdgeRelocalisation(self, s.reloc_period_s, self.sender,
+                                                      lambda: self.last_slot)
 
     # -- camera ------------------------------------------------------------------------------
 
@@ -182,14 +184,12 @@ class DeviceTrackerNode(Node):
 
     def _check_edge(self) -> None:
         """Say once when the edge stops answering: the device keeps tracking regardless."""
-        silent = self.watchdog.check()
-        if silent is not None:
-            slot, waited = silent
-            points = len(self.core.tracking.map) if self.core else 0
-            version = self.core.map_version if self.core else 0
+        if (silent := self.watchdog.check()) is not None:
+            (slot, waited), core = silent, self.core
             self.get_logger().warning(
                 f"slot {slot}: no upload request from the edge for {waited:.1f} s (link down "
-                f"or edge gone?); tracking on the local map (version {version}, {points} "
+                f"or edge gone?); tracking on the local map (version "
+                f"{core.map_version if core else 0}, {len(core.tracking.map) if core else 0} "
                 "points) until it answers")
 
     def _encode_keyframe(self, slot: int, frame_id: int) -> Encoded | None:

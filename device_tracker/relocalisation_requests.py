@@ -5,17 +5,24 @@ it, and only the edge's archive remembers it (:mod:`twinslam.slam.archive_reloca
 While lost, the device sends its newest lost frame's ORB features — keypoints and
 descriptors, no image: ~40 kB for 1000 features — at most every ``period_s`` of frame stamps
 (Edge-SLAM's device sends a frame every 500 ms); off by default, as the edge's side is (see
-``reloc_restore_keyframes``). The requests are published directly, not yet paced by the
-uplink shaper nor counted in the slot's throughput. The edge answers on ``edge/relocalisation``;
-a place it finds comes back with the slot's map update, against which the device relocalises.
+``reloc_restore_keyframes``). A request goes up the same uplink as the keyframes: queued on the
+upload thread behind the keyframes asked for before it, paced by the shaper at the slot's rate
+(an outage sends none), and counted in the next slot's ``UplinkThroughput.request_bytes``
+(:meth:`device_tracker.uplink_sender.UplinkSender.carry`). The edge answers on
+``edge/relocalisation``; a place it finds comes back with the slot's map update, against which
+the device relocalises.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from rclpy.node import Node
+from rclpy.serialization import serialize_message
 from twinslam_msgs.msg import Relocalisation, RelocalisationRequest
 
+from device_tracker.uplink_sender import Carried, UplinkSender
 from msg_schemas import new, qos, topics
 from msg_schemas.headers import set_header
 from twinslam.node_hosts.checked_subscription import CheckedSubscription
@@ -54,10 +61,12 @@ def relocalisation_request_message(frame: KeyFramePayload, stamp: float, camera_
 
 
 class EdgeRelocalisation:
-    """The device node's requests to the edge and its answers (``node``'s topics)."""
+    """The device node's requests to the edge (up ``uplink``, at the rate of the slot
+    ``last_slot()`` says ended last) and its answers (``node``'s topics)."""
 
-    def __init__(self, node: Node, period_s: float) -> None:
-        self.node = node
+    def __init__(self, node: Node, period_s: float, uplink: UplinkSender,
+                 last_slot: Callable[[], int]) -> None:
+        self.node, self.uplink, self.last_slot = node, uplink, last_slot
         self.pacer = RelocalisationPacer(period_s)
         self.publisher = node.create_publisher(RelocalisationRequest,
                                                topics.RELOCALISATION_REQUEST, qos.PROTOCOL)
@@ -70,7 +79,10 @@ class EdgeRelocalisation:
     def ask(self, frame: KeyFramePayload | None, stamp: float, camera_frame: str) -> None:
         """Send the lost ``frame`` (None: no longer held, nothing to send)."""
         if frame is not None and len(frame.keypoints):
-            self.publisher.publish(relocalisation_request_message(frame, stamp, camera_frame))
+            msg = relocalisation_request_message(frame, stamp, camera_frame)
+            self.uplink.carry(Carried(self.last_slot(), serialize_message(msg),
+                                      self.publisher.publish,
+                                      f"relocalisation request (frame {frame.frame_id})"))
 
     def _on_answer(self, msg: Relocalisation) -> None:
         if msg.found:

@@ -1,6 +1,8 @@
 """The device's upload worker, without DDS: each slot's requested keyframes through the uplink
 shaper on a thread of its own, so tracking never waits for the link (docs/architecture.md §1 step
-4).
+4) — and, between them, whatever else the device sends up (a lost device's relocalisation
+requests: :meth:`UplinkSender.carry`), queued on the same link so that it costs uplink time as
+a keyframe does and is counted in the next slot's report.
 
 For every ``UploadRequest`` the worker encodes the frames first (so the link never waits for
 the CPU), starts the shaper's slot at the rate the device drew for it, sends each frame — the
@@ -17,6 +19,7 @@ import queue
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, replace
 from typing import Protocol
 
 from twinslam.uplink.shaper import SlotThroughput
@@ -30,7 +33,20 @@ class Shaper(Protocol):
 
     def send(self, n_bytes: int, deliver: Callable[[], None]) -> float: ...
 
+    def carry(self, n_bytes: int, deliver: Callable[[], None], rate_mbps: float) -> float: ...
+
     def end_slot(self) -> SlotThroughput: ...
+
+
+@dataclass(frozen=True)
+class Carried:
+    """A payload besides the keyframes: sent at the rate drawn for ``slot`` (the last one
+    ended when it was queued: the link's rate until the next slot ends)."""
+
+    slot: int
+    payload: bytes
+    write: Callable[[bytes], None]
+    what: str                   #: for the log, e.g. "relocalisation request (frame 212)"
 
 
 def write_with_retry(write: Callable[[], None], retry_s: float,
@@ -66,30 +82,60 @@ class UplinkSender:
         self.retry_s, self.clock, self.sleep = retry_s, clock, sleep
         #: slot → (d_k Mbit/s, rate state) the device drew when the slot ended
         self.rates: dict[int, tuple[float, int]] = {}
-        self._jobs: queue.Queue[tuple[int, list[int]] | None] = queue.Queue()
+        self._jobs: queue.Queue[tuple[int, list[int]] | Carried | None] = queue.Queue()
         self._thread: threading.Thread | None = None
+        self._carried_bytes = 0     #: carried since the last slot report (the uplink thread's)
 
     def request(self, slot: int, frame_ids: list[int]) -> None:
         """The edge asked for ``frame_ids`` of ``slot``; sent in order behind earlier slots."""
         self._jobs.put((slot, list(frame_ids)))
 
+    def carry(self, item: Carried) -> None:
+        """Send ``item`` behind the requests queued before it."""
+        self._jobs.put(item)
+
     def send_slot(self, slot: int, frame_ids: list[int]) -> SlotThroughput:
-        """One request, synchronously: encode, send through the shaper, report."""
+        """One request, synchronously: encode, send through the shaper, report (with the
+        bytes carried since the last report)."""
         rate, state = self.rates.get(slot, (self.default_rate, 0))
         if rate <= 0:                   # an outage: the link carries nothing this slot
             if frame_ids:
                 self.log_error(f"slot {slot}: the uplink is down (0 Mbit/s); "
                                f"{len(frame_ids)} requested keyframe(s) not sent")
             throughput = SlotThroughput(slot, 0.0, state, 0, 0.0, 0)
-            self.report(throughput)
-            return throughput
-        encoded = [e for f in frame_ids if (e := self.encode(slot, f)) is not None]
-        self.shaper.start_slot(slot, rate, state)
-        for frame_id, payload, size in encoded:
-            self.shaper.send(size, functools.partial(self._write, slot, frame_id, payload))
-        throughput = self.shaper.end_slot()
+        else:
+            encoded = [e for f in frame_ids if (e := self.encode(slot, f)) is not None]
+            self.shaper.start_slot(slot, rate, state)
+            for frame_id, payload, size in encoded:
+                self.shaper.send(size, functools.partial(self._write, slot, frame_id, payload))
+            throughput = self.shaper.end_slot()
+        throughput = replace(throughput, request_bytes=self._carried_bytes)
+        self._carried_bytes = 0
         self.report(throughput)
         return throughput
+
+    def send_carried(self, item: Carried) -> bool:
+        """One carried payload, synchronously, at its slot's rate; False (logged) when the
+        uplink is down then or the write failed."""
+        rate, _ = self.rates.get(item.slot, (self.default_rate, 0))
+        if rate <= 0:
+            self.log_error(f"slot {item.slot}: the uplink is down (0 Mbit/s); {item.what} "
+                           "not sent")
+            return False
+        failure: list[Exception] = []
+
+        def deliver() -> None:
+            if (exc := write_with_retry(lambda: item.write(item.payload), self.retry_s,
+                                        self.clock, self.sleep)) is not None:
+                failure.append(exc)
+
+        self.shaper.carry(len(item.payload), deliver, rate)
+        if failure:
+            self.log_error(f"{item.what} not written within {self.retry_s:g} s "
+                           f"({failure[0]}); given up")
+            return False
+        self._carried_bytes += len(item.payload)
+        return True
 
     def _write(self, slot: int, frame_id: int, payload: bytes) -> None:
         failure = write_with_retry(lambda: self.write(payload), self.retry_s, self.clock,
@@ -104,7 +150,10 @@ class UplinkSender:
 
     def _loop(self) -> None:
         while (job := self._jobs.get()) is not None:
-            self.send_slot(*job)
+            if isinstance(job, Carried):
+                self.send_carried(job)
+            else:
+                self.send_slot(*job)
 
     def close(self, timeout: float = 5.0) -> None:
         """Stop after the slot being sent (queued requests are dropped with the process)."""

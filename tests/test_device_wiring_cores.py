@@ -7,7 +7,7 @@ import pytest
 
 from device_tracker.edge_watchdog import EdgeWatchdog
 from device_tracker.frame_pairing import FramePairing
-from device_tracker.uplink_sender import UplinkSender, write_with_retry
+from device_tracker.uplink_sender import Carried, UplinkSender, write_with_retry
 from tests.test_uplink_shaper import VirtualTime
 from twinslam.uplink.shaper import UplinkShaper
 
@@ -122,6 +122,45 @@ def test_an_outage_slot_sends_nothing_and_reports_zero_instead_of_crashing_the_w
     out = sender.send_slot(5, [50, 51])
     assert written == [] and reports[-1] is out and out.frames_sent == 0
     assert "uplink is down" in errors[0]
+
+
+def test_a_relocalisation_request_costs_uplink_time_and_is_counted_in_the_next_report() -> None:
+    """A lost device's request goes up the keyframes' link: it waits for the keyframes queued
+    before it, takes its bytes' time at the rate of the slot that ended last, delays the
+    keyframes after it, and the next slot's report counts it apart from the keyframes; in an
+    outage it is not sent, and the log says so."""
+    clock = VirtualTime()
+    clock.now = 0.0
+    written: list[tuple[float, bytes]] = []
+    reports, errors = [], []
+    sender = UplinkSender(UplinkShaper(clock.clock, clock.sleep),
+                          lambda s, f: (f, b"k", 625_000), lambda b: written.append((clock.now, b)),
+                          reports.append, errors.append, default_rate=40.0, clock=clock.clock,
+                          sleep=clock.sleep)
+    sender.rates.update({0: (50.0, 1), 1: (0.0, 0)})
+    sender.send_slot(0, [10])                                     # 5 Mbit: done at 0.1 s
+    request = Carried(0, b"r" * 125_000, lambda b: written.append((clock.now, b)), "request")
+    assert sender.send_carried(request)                           # 1 Mbit at 50: 0.02 s
+    out = sender.send_slot(0, [11])                               # after it: 0.12 + 0.1 s
+    assert [(round(t, 3), b[:1]) for t, b in written] == [(0.1, b"k"), (0.12, b"r"), (0.22, b"k")]
+    assert (reports[0].request_bytes, out.request_bytes) == (0, 125_000)
+    assert out.bytes_sent == 625_000 and out.frames_sent == 1     # keyframes apart
+    assert sender.send_slot(0, []).request_bytes == 0             # counted once
+    assert not sender.send_carried(Carried(1, b"r", written.append, "request (frame 7)"))
+    assert len(written) == 3 and "uplink is down" in errors[-1] and "frame 7" in errors[-1]
+
+
+def test_the_worker_thread_sends_a_carried_request_between_slots_in_order() -> None:
+    order: list[str] = []
+    sender = UplinkSender(UplinkShaper(), lambda s, f: (f, b"x", 10),
+                          lambda b: order.append(b.decode()), lambda t: None, lambda m: None,
+                          default_rate=1000.0)
+    sender.start()
+    sender.request(0, [0])
+    sender.carry(Carried(0, b"r", lambda b: order.append(b.decode()), "request"))
+    sender.request(1, [1])
+    sender.close(timeout=10.0)
+    assert order == ["x", "r", "x"]
 
 
 def test_a_keyframe_that_cannot_be_written_is_given_up_and_the_slot_goes_on() -> None:

@@ -66,6 +66,11 @@ def test_bad_rates_and_sizes_are_refused() -> None:
     link.start_slot(3, 10.0)
     with pytest.raises(ShaperError, match=">= 0 bytes"):
         link.send(-1, lambda: None)
+    # a payload carried besides the keyframes is refused alike
+    with pytest.raises(ShaperError, match="carried payload"):
+        link.carry(10, lambda: None, 0.0)
+    with pytest.raises(ShaperError, match=">= 0 bytes"):
+        link.carry(-1, lambda: None, 10.0)
 
 
 def test_real_time_uploads_are_paced() -> None:

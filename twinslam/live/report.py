@@ -35,7 +35,7 @@ class RunReport:
     ate_m: float                     #: NaN without ground truth
     rpe_m: float                     #: over 1 s (30 frames); NaN without ground truth
     frames_uploaded: int
-    bytes_uploaded: int
+    bytes_uploaded: int              #: keyframes and relocalisation requests
     achieved_mbps: float             #: mean over slots with uploads
     untracked_frames: int
     tracking_failures: int           #: tracked → untracked transitions
@@ -130,7 +130,9 @@ def report(policy: str, record: RunRecord, seconds: float, slot_frames: int) -> 
                      absolute_trajectory_error(record.poses, record.ground_truth),
                      relative_pose_error(record.poses, record.ground_truth),
                      sum(int(t.frames_sent) for t in record.throughput.values()),
-                     sum(int(t.bytes_sent) for t in record.throughput.values()),
+                     # keyframes and the relocalisation requests the link carried
+                     sum(int(t.bytes_sent) + int(t.request_bytes)
+                         for t in record.throughput.values()),
                      float(np.mean([t.achieved_mbps for t in tps])) if tps else 0.0,
                      events.untracked, events.failures, events.relocalisations,
                      events.mean_recover_s,

@@ -34,6 +34,8 @@ class SlotThroughput:
     bytes_sent: int
     duration_s: float
     frames_sent: int
+    #: relocalisation requests the link carried since the previous slot's report (bytes)
+    request_bytes: int = 0
 
     @property
     def achieved_mbps(self) -> float:
@@ -85,15 +87,29 @@ class UplinkShaper:
     def send(self, n_bytes: int, deliver: Callable[[], None]) -> float:
         """Occupy the link for ``n_bytes``, then call ``deliver`` (which writes the message);
         returns the seconds from the call to delivery (queueing + transfer)."""
-        duration = self.transfer_time(n_bytes)
+        waited = self._occupy(self.transfer_time(n_bytes), deliver)
+        self._bytes += n_bytes
+        self._frames += 1
+        return waited
+
+    def carry(self, n_bytes: int, deliver: Callable[[], None], rate_mbps: float) -> float:
+        """A payload besides the slot's keyframes (a lost device's relocalisation request): it
+        queues on the link with them at ``rate_mbps`` (the rate of the moment, which the slot
+        may not have started with yet) and delays what follows as a keyframe would, but is not
+        counted in the slot's keyframe throughput."""
+        check_rate(rate_mbps, "carried payload")
+        if n_bytes < 0:
+            raise ShaperError(f"payload size must be >= 0 bytes, got {n_bytes}")
+        return self._occupy(n_bytes * 8 / (rate_mbps * 1e6), deliver)
+
+    def _occupy(self, duration: float, deliver: Callable[[], None]) -> float:
+        """Hold the link ``duration`` seconds after its backlog, then ``deliver``."""
         called = self._clock()
         done = max(called, self._free_at) + duration
         self._free_at = done
         while (wait := done - self._clock()) > 0:
             self._sleep(wait)
         deliver()
-        self._bytes += n_bytes
-        self._frames += 1
         return self._clock() - called
 
     def end_slot(self) -> SlotThroughput:

@@ -134,6 +134,14 @@ class TcShaper:
         self._frames += 1
         return self._clock() - called
 
+    def carry(self, n_bytes: int, deliver: Callable[[], None], rate_mbps: float) -> float:
+        """Write a payload besides the slot's keyframes now: the kernel paces it at the
+        installed rate with everything else the device sends (``n_bytes`` and ``rate_mbps``
+        are not used)."""
+        called = self._clock()
+        deliver()
+        return self._clock() - called
+
     def end_slot(self) -> SlotThroughput:
         """Wait until the slot's keyframes are acknowledged, then measure."""
         if self._slot is None:
