@@ -58,17 +58,23 @@ def run_live(policies: list[str], frames: int, step: str, map_source: str) -> bo
         sequence, what = f"{FALLBACK_SEQUENCE}:{frames}", (
             f"{frames} frames of the synthetic corridor ({BUNDLED_SEQUENCE} is missing)")
     chosen = SCENARIOS[SCENARIO]
-    edges = " and ".join(f"the edge {variant} ({', '.join(params)})" if variant
-                         else "the paper's edge" for variant, params in EDGES[map_source])
+    edges = {variant: f"the edge {variant} ({', '.join(params)})" if variant
+             else "the paper's edge" for variant, params in EDGES[map_source]}
     print(f"{step} live pipeline (player, device, edge as processes on a loopback domain), "
           f"{DEVICES[map_source]}, {what}, scenario {SCENARIO} ({chosen.description}), "
-          f"policies {', '.join(policies)}, each with {edges}", flush=True)
+          f"policies {', '.join(policies)}, each with {' and '.join(edges.values())}",
+          flush=True)
     covis = covisibility_file(sequence, frames, REPO_ROOT / "results" / "demo" / "covis",
                               lambda line: print("      " + line, flush=True))
-    results = [run_one(RunTask(RunKey(SCENARIO, map_source, policy, 0), sequence, frames,
-                               chosen, DEFAULT_PARAMS, 600.0, covis, verbose=True,
-                               edge_params=params, edge_variant=variant))
-               for policy in policies for variant, params in EDGES[map_source]]
+    results = []
+    for policy in policies:
+        for variant, params in EDGES[map_source]:
+            if len(edges) > 1:               # the status lines below say the policy, not this
+                print(f"      {policy}, {edges[variant]}:", flush=True)
+            results.append(run_one(RunTask(
+                RunKey(SCENARIO, map_source, policy, 0), sequence, frames, chosen,
+                DEFAULT_PARAMS, 600.0, covis, verbose=True, edge_params=params,
+                edge_variant=variant)))
     print()
     for line in side_by_side(results):
         print("      " + line)
