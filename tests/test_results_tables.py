@@ -116,6 +116,19 @@ def test_a_row_that_is_not_in_the_files_is_refused() -> None:
                                                 "lff,mpc:H=9"]))
 
 
+#: archive_restores.py's (without, with restores) runs.csv pairs
+ARCHIVE_TABLES = [("archive-restores/revisit-v15-lff-restore0-runs.csv",
+                   "archive-restores/revisit-v15-lff-restore3-runs.csv")]
+
+
+@pytest.mark.parametrize(("without", "with_restores"), ARCHIVE_TABLES)
+def test_each_archive_restores_table_is_what_its_command_prints(
+        without: str, with_restores: str, capsys: pytest.CaptureFixture[str]) -> None:
+    _script("archive_restores").main(FIGURES / without, FIGURES / with_restores)
+    printed = capsys.readouterr().out
+    assert len(_tables(printed)) == 1 and _missing(printed) == []
+
+
 @pytest.mark.parametrize("folder", ["planner/mpc-live", "planner/mpc-live-2"])
 def test_the_live_planner_tables_are_what_evaluate_prints_from_their_runs(
         folder: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
