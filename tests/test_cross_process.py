@@ -1,5 +1,6 @@
 """Nodes as separate OS processes on a private ROS domain: delivery, names and parameters,
-malformed content, the ROS graph, and clean shutdown on signals."""
+malformed content, the ROS graph, and acknowledgements (clean shutdown on signals: every node,
+mid-run and as it comes up, is tests/test_node_shutdown.py's)."""
 
 from __future__ import annotations
 
@@ -138,17 +139,6 @@ def test_malformed_content_is_logged_dropped_and_the_next_one_arrives(
     code, _out, err = domain.stop(proc)
     assert code == 0
     assert "dropped a malformed sensor_msgs/msg/Image" in err and "truncated" in err
-
-
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
-def test_signal_stops_a_node_cleanly(domain: LoopbackDomain, sig) -> None:
-    proc = domain.spawn(["-m", "edge_mapper.node"])
-    assert domain.wait_for_log(proc, "listening on", 60)    # the node has started
-    start = time.monotonic()
-    proc.send_signal(sig)
-    code = proc.wait(timeout=20)
-    print(f"{sig.name}: exited {code} in {(time.monotonic() - start) * 1000:.0f} ms")
-    assert code == 0
 
 
 def test_the_ros_graph_lists_every_node_and_twinslam_nodes_prints_them(
