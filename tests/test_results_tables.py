@@ -118,7 +118,9 @@ def test_a_row_that_is_not_in_the_files_is_refused() -> None:
 
 #: archive_restores.py's (without, with restores) runs.csv pairs
 ARCHIVE_TABLES = [("archive-restores/revisit-v15-lff-restore0-runs.csv",
-                   "archive-restores/revisit-v15-lff-restore3-runs.csv")]
+                   "archive-restores/revisit-v15-lff-restore3-runs.csv"),
+                  ("archive-restores/all-rules-none-runs.csv",
+                   "archive-restores/all-rules-restores-runs.csv")]
 
 
 @pytest.mark.parametrize(("without", "with_restores"), ARCHIVE_TABLES)
