@@ -31,9 +31,9 @@ Encoded = tuple[int, bytes, int]
 class Shaper(Protocol):
     def start_slot(self, slot: int, rate_mbps: float, rate_state: int = 0) -> None: ...
 
-    def send(self, n_bytes: int, deliver: Callable[[], None]) -> float: ...
+    def send(self, n_bytes: int, deliver: Callable[[], object]) -> float: ...
 
-    def carry(self, n_bytes: int, deliver: Callable[[], None], rate_mbps: float) -> float: ...
+    def carry(self, n_bytes: int, deliver: Callable[[], object], rate_mbps: float) -> float: ...
 
     def end_slot(self) -> SlotThroughput: ...
 
@@ -107,7 +107,8 @@ class UplinkSender:
             encoded = [e for f in frame_ids if (e := self.encode(slot, f)) is not None]
             self.shaper.start_slot(slot, rate, state)
             for frame_id, payload, size in encoded:
-                self.shaper.send(size, functools.partial(self._write, slot, frame_id, payload))
+                self.shaper.send(size, functools.partial(
+                    self._write, self.write, payload, f"slot {slot}: keyframe {frame_id}"))
             throughput = self.shaper.end_slot()
         throughput = replace(throughput, request_bytes=self._carried_bytes)
         self._carried_bytes = 0
@@ -122,27 +123,21 @@ class UplinkSender:
             self.log_error(f"slot {item.slot}: the uplink is down (0 Mbit/s); {item.what} "
                            "not sent")
             return False
-        failure: list[Exception] = []
+        written: list[bool] = []
+        self.shaper.carry(len(item.payload), lambda: written.append(
+            self._write(item.write, item.payload, item.what)), rate)
+        if written[0]:
+            self._carried_bytes += len(item.payload)
+        return written[0]
 
-        def deliver() -> None:
-            if (exc := write_with_retry(lambda: item.write(item.payload), self.retry_s,
-                                        self.clock, self.sleep)) is not None:
-                failure.append(exc)
-
-        self.shaper.carry(len(item.payload), deliver, rate)
-        if failure:
-            self.log_error(f"{item.what} not written within {self.retry_s:g} s "
-                           f"({failure[0]}); given up")
-            return False
-        self._carried_bytes += len(item.payload)
-        return True
-
-    def _write(self, slot: int, frame_id: int, payload: bytes) -> None:
-        failure = write_with_retry(lambda: self.write(payload), self.retry_s, self.clock,
-                                   self.sleep)
+    def _write(self, write: Callable[[bytes], None], payload: bytes, what: str) -> bool:
+        """``write(payload)``, retried for ``retry_s``; False, and ``what`` logged as given
+        up, when it kept failing."""
+        failure = write_with_retry(lambda: write(payload), self.retry_s, self.clock, self.sleep)
         if failure is not None:
-            self.log_error(f"slot {slot}: keyframe {frame_id} not written within "
-                           f"{self.retry_s:g} s ({failure}); given up")
+            self.log_error(f"{what} not written within {self.retry_s:g} s ({failure}); "
+                           "given up")
+        return failure is None
 
     def start(self) -> None:
         self._thread = threading.Thread(target=self._loop, name="uplink", daemon=True)

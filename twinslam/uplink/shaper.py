@@ -49,6 +49,13 @@ def check_rate(rate_mbps: float, slot: object) -> None:
                           f"{rate_mbps}")
 
 
+def _seconds(n_bytes: int, rate_bps: float) -> float:
+    """How long ``n_bytes`` occupy a link of ``rate_bps`` bit/s."""
+    if n_bytes < 0:
+        raise ShaperError(f"payload size must be >= 0 bytes, got {n_bytes}")
+    return n_bytes * 8 / rate_bps
+
+
 class UplinkShaper:
     """Serialises payloads at the current slot's rate; ``send`` blocks until delivery."""
 
@@ -80,11 +87,9 @@ class UplinkShaper:
         """Seconds ``n_bytes`` occupy the link at the current rate."""
         if self._slot is None:
             raise ShaperError("no slot started: call start_slot(slot, rate) first")
-        if n_bytes < 0:
-            raise ShaperError(f"payload size must be >= 0 bytes, got {n_bytes}")
-        return n_bytes * 8 / self._rate_bps
+        return _seconds(n_bytes, self._rate_bps)
 
-    def send(self, n_bytes: int, deliver: Callable[[], None]) -> float:
+    def send(self, n_bytes: int, deliver: Callable[[], object]) -> float:
         """Occupy the link for ``n_bytes``, then call ``deliver`` (which writes the message);
         returns the seconds from the call to delivery (queueing + transfer)."""
         waited = self._occupy(self.transfer_time(n_bytes), deliver)
@@ -92,17 +97,15 @@ class UplinkShaper:
         self._frames += 1
         return waited
 
-    def carry(self, n_bytes: int, deliver: Callable[[], None], rate_mbps: float) -> float:
+    def carry(self, n_bytes: int, deliver: Callable[[], object], rate_mbps: float) -> float:
         """A payload besides the slot's keyframes (a lost device's relocalisation request): it
         queues on the link with them at ``rate_mbps`` (the rate of the moment, which the slot
         may not have started with yet) and delays what follows as a keyframe would, but is not
         counted in the slot's keyframe throughput."""
         check_rate(rate_mbps, "carried payload")
-        if n_bytes < 0:
-            raise ShaperError(f"payload size must be >= 0 bytes, got {n_bytes}")
-        return self._occupy(n_bytes * 8 / (rate_mbps * 1e6), deliver)
+        return self._occupy(_seconds(n_bytes, rate_mbps * 1e6), deliver)
 
-    def _occupy(self, duration: float, deliver: Callable[[], None]) -> float:
+    def _occupy(self, duration: float, deliver: Callable[[], object]) -> float:
         """Hold the link ``duration`` seconds after its backlog, then ``deliver``."""
         called = self._clock()
         done = max(called, self._free_at) + duration

@@ -124,7 +124,7 @@ class TcShaper:
         self._start = self._clock()
         self._start_bytes = self._tx_bytes()
 
-    def send(self, n_bytes: int, deliver: Callable[[], None]) -> float:
+    def send(self, n_bytes: int, deliver: Callable[[], object]) -> float:
         """Write now; the kernel paces the packets (``n_bytes`` is the caller's estimate and
         not used: the interface counts what really went out)."""
         if self._slot is None:
@@ -134,7 +134,7 @@ class TcShaper:
         self._frames += 1
         return self._clock() - called
 
-    def carry(self, n_bytes: int, deliver: Callable[[], None], rate_mbps: float) -> float:
+    def carry(self, n_bytes: int, deliver: Callable[[], object], rate_mbps: float) -> float:
         """Write a payload besides the slot's keyframes now: the kernel paces it at the
         installed rate with everything else the device sends (``n_bytes`` and ``rate_mbps``
         are not used)."""
