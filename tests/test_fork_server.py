@@ -47,9 +47,16 @@ def test_a_forked_child_has_its_arguments_environment_pipes_and_exit_code(tmp_pa
         assert seen["pid"] == proc.pid and seen["ppid"] == server._proc.pid
         assert seen["preloaded_by"] == server._proc.pid       # forked, not started anew
         assert proc.stderr is not None and proc.stderr.read() == "probe on stderr\n"
-        # a per-child ROS setting is served by the same server; an import-time one is not
+        # a per-child ROS setting is served by the same server, and so is the next test's
+        # name (pytest's PYTEST_CURRENT_TEST), which the child sees as its own; an
+        # import-time setting is not
         other_domain = _env(ROS_DOMAIN_ID="118")
         assert servers.server_for(other_domain) is server
+        next_test = _env(ROS_DOMAIN_ID="118", PYTEST_CURRENT_TEST="tests/x.py::test_y (call)")
+        assert servers.server_for(next_test) is server
+        proc = servers.spawn(["-m", "probe", "exit", "0"], next_test)
+        assert proc is not None and proc.wait(timeout=20) == 0
+        assert _first_line(proc)["test"] == "tests/x.py::test_y (call)"
         assert servers.server_for(_env(PROBE_MARKER="x")) is not server
         # what the server did not preload is left to the caller
         assert servers.spawn(["-m", "json.tool"], env) is None

@@ -20,6 +20,7 @@ def probe(_args: list[str] | None) -> int:
                       "ppid": os.getppid(), "preloaded_by": PRELOADED,
                       "ros": os.environ.get("ROS_DOMAIN_ID"),
                       "marker": os.environ.get("PROBE_MARKER"),
+                      "test": os.environ.get("PYTEST_CURRENT_TEST"),
                       "netns": os.readlink("/proc/thread-self/ns/net")}))
     print("probe on stderr", file=sys.stderr)
     if sys.argv[1] == "wait":

@@ -23,7 +23,8 @@ Only what fork keeps is preloaded: modules and compiled kernels — no rclpy con
 participant, no thread. Whatever a library reads from the environment at import (threads of
 the BLAS, numba's settings, ``PYTHONPATH``) must be what the child would have read, so a
 server serves only requests whose environment equals its own but for the ROS/DDS settings
-(:data:`PER_CHILD_PREFIXES`); :class:`ForkServers` starts one server per such environment.
+(:data:`PER_CHILD_PREFIXES`) and what changes with every call (:data:`PER_CHILD_NAMES`);
+:class:`ForkServers` starts one server per such environment.
 """
 
 from __future__ import annotations
@@ -48,6 +49,10 @@ from typing import IO, Any, Protocol
 #: environment variables a forked child may set for itself: read when the child makes its
 #: rclpy context and DDS participant, never at import
 PER_CHILD_PREFIXES = ("ROS_", "RMW_", "FASTRTPS_", "FASTDDS_", "CYCLONEDDS_", "RCUTILS_")
+#: variables that change with every call of the asker and that no module reads at import:
+#: pytest names the running test in PYTEST_CURRENT_TEST, and keying on it started a server
+#: (~4 s of CPU) for every test that launched nodes — 25 in one run of the suite
+PER_CHILD_NAMES = frozenset({"PYTEST_CURRENT_TEST"})
 #: the largest request (the environment dominates it)
 MAX_MESSAGE = 1 << 20
 #: how long a server may take to preload before it is given up (a fresh checkout compiles the
@@ -79,7 +84,8 @@ def enter_network_namespace(path: str) -> None:
 def import_time_env(env: Mapping[str, str]) -> tuple[tuple[str, str], ...]:
     """The part of ``env`` a preloaded process has already read: all but the per-child
     settings."""
-    return tuple(sorted((k, v) for k, v in env.items() if not k.startswith(PER_CHILD_PREFIXES)))
+    return tuple(sorted((k, v) for k, v in env.items()
+                        if not k.startswith(PER_CHILD_PREFIXES) and k not in PER_CHILD_NAMES))
 
 
 # -- the server ------------------------------------------------------------------------------
