@@ -14,10 +14,14 @@ from device_tracker.messages import FrameRecord, frame_summaries_message
 from twinslam.live.calibration import PlayedFrames, live_frames
 from twinslam.live.record import RunRecord
 from twinslam.simulator.calibration import (
+    LEFT_OUT,
+    MAP_COVERED,
+    NEW_GROUND,
     CalibrationFrame,
     FramePrediction,
     balanced_accuracy,
     calibrate,
+    failure_cause,
     fit_min_shared,
     level_min_shared,
     predict_frames,
@@ -206,3 +210,68 @@ def test_agreement_per_scenario_on_hand_made_runs(tmp_path) -> None:
     assert v15.r_over_runs > 0.95 and v25.r_over_runs == pytest.approx(-1.0)
     assert v15.precision == pytest.approx(0.8) and v15.spearman_u_inliers == pytest.approx(-0.2)
     assert math.isnan(v15.spearman_u_error)           # no run measured it
+
+
+def test_a_failed_frame_is_new_ground_left_out_or_covered_by_what_the_edge_had() -> None:
+    """The archive's reach is every keyframe a map up to the device's held: a frame no such
+    keyframe covers is new ground, one they cover but the device's map does not was left out,
+    one the device's map covers failed in tracking."""
+    data = CovisibilityDataset.from_sets([np.array(sorted(s)) for s in SETS],
+                                         stamps=np.arange(5) / 30.0)
+    played = PlayedFrames(np.arange(5) / 30.0, np.arange(5))
+
+    def rec(frame_id: int, row: int, version: int, slot: int) -> FrameRecord:
+        return FrameRecord(frame_id, 50.0 + row / 30.0, np.eye(4), version == 0,
+                           np.zeros(0, np.uint64), np.zeros(0, np.uint64), slot, False, 0,
+                           version)
+
+    # map 1 holds recorded frames 0 and 1, map 2 only 1 (0 evicted, still in the archive)
+    record = _record({0: [rec(0, 0, 0, 0), rec(1, 1, 0, 0)], 1: [rec(5, 3, 1, 1)],
+                      2: [rec(6, 0, 2, 2), rec(7, 2, 2, 2), rec(8, 4, 1, 2)]},
+                     {0: _snapshot(1, [0, 1]), 1: _snapshot(2, [1])})
+    frames = {f.row: f for f in live_frames(record, data, played, lag_frames=0).frames}
+    # row 0 = {1, 2, 3, 4}: map 2 = {3, 4, 5, 6} shares 2, the archive (rows 0, 1) all 4
+    assert (frames[0].on_tracked_map.shared_points, frames[0].archive_shared_points) == (2, 4)
+    # row 2 = {2, 3, 5, 9}: 2 with map 2, 3 with the archive; row 3 = {7, 8}: none with either
+    assert (frames[2].on_tracked_map.shared_points, frames[2].archive_shared_points) == (2, 3)
+    assert frames[3].archive_shared_points == 0
+    # row 4 = {4, 6, 10} tracked with map 1: the archive of map 1 is maps up to version 1
+    assert (frames[4].on_tracked_map.shared_points, frames[4].archive_shared_points) == (2, 2)
+    causes = {row: failure_cause(f.on_tracked_map.shared_points, f.archive_shared_points, 3)
+              for row, f in frames.items()}
+    assert causes == {0: LEFT_OUT, 2: LEFT_OUT, 3: NEW_GROUND, 4: NEW_GROUND}
+    assert failure_cause(3, 4, 3) == MAP_COVERED and failure_cause(2, 3, 2) == MAP_COVERED
+
+
+def test_the_failure_causes_table_counts_each_groups_failed_frames(tmp_path) -> None:
+    """Per folder, scenario, map source and policy: failed frames by cause, as shares of the
+    scored frames; frames of an older evaluate (no failure_cause column) are refused."""
+    import csv
+
+    from twinslam.experiments.calibration_report import (
+        failure_causes,
+        failure_causes_markdown,
+        read_rows,
+    )
+    from twinslam.live.runs import FRAMES_HEADER
+
+    def row(policy: str, seed: int, tracked: bool, cause: str) -> list[object]:
+        return ["revisit-v15", "edge", policy, seed, "", 1, 0, 7, 7, 1, 40, 1.0, -5.0, 40, 1.0,
+                -5.0, int(tracked), 30 if tracked else 0, 0.01, 80, cause]
+
+    with (tmp_path / "calibration_frames.csv").open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(FRAMES_HEADER)
+        w.writerows([row("lff", 0, True, ""), row("lff", 0, False, NEW_GROUND),
+                     row("lff", 1, False, LEFT_OUT), row("lff", 1, False, LEFT_OUT),
+                     row("pu", 0, True, ""), row("pu", 0, False, MAP_COVERED)])
+    lff, pu = failure_causes(read_rows([tmp_path], "calibration_frames.csv"))
+    assert (lff.policy, lff.runs, lff.frames, lff.failed) == ("lff", 2, 4, 3)
+    assert (lff.new_ground, lff.left_out, lff.map_covered) == (1, 2, 0)
+    assert (pu.runs, pu.frames, pu.failed, pu.map_covered) == (1, 2, 1, 1)
+    table = failure_causes_markdown([lff, pu])
+    assert "| lff | 2 | 4 | 75.0% (3) | 25.0% (1) | 50.0% (2) | 0.0% (0) |" in table
+    old = [{k: v for k, v in r.items() if k != "failure_cause"}
+           for r in read_rows([tmp_path], "calibration_frames.csv")]
+    with pytest.raises(ValueError, match="no failure_cause column"):
+        failure_causes(old)

@@ -135,6 +135,26 @@ def test_a_folder_of_an_older_version_resumes_with_the_later_columns_not_measure
     assert (tmp_path / "runs.csv").read_text().splitlines()[0] == ",".join(header)
 
 
+def test_resumed_frames_of_an_older_version_gain_the_archive_columns_unmeasured(
+        tmp_path: Path) -> None:
+    """calibration_frames.csv written before the archive's reach and the failure cause were:
+    resuming rewrites it with today's header, its rows' new cells not measured, so that the
+    runs still to do append aligned rows; a file of another layout is refused."""
+    from twinslam.live import runs as evaluate
+
+    header, added = evaluate.FRAMES_HEADER, list(evaluate.ADDED_FRAME_COLUMNS)
+    assert header[-len(added):] == added
+    old_row = ["revisit-v15", "edge", "lff", "0", "", *["1"] * (len(header) - len(added) - 5)]
+    frames = tmp_path / "calibration_frames.csv"
+    frames.write_text(",".join(header[:-len(added)]) + "\n" + ",".join(old_row) + "\n")
+    evaluate.run_all([], tmp_path, resume=True)
+    lines = frames.read_text().splitlines()
+    assert lines == [",".join(header), ",".join([*old_row, "nan", ""])]
+    frames.write_text("scenario,slot\nrevisit,1\n")
+    with pytest.raises(ValueError, match="another version"):
+        evaluate.run_all([], tmp_path, resume=True)
+
+
 def test_resuming_into_a_folder_of_another_version_is_refused(tmp_path: Path) -> None:
     from twinslam.live import runs as evaluate
 

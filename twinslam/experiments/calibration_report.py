@@ -12,7 +12,10 @@ one or more folders (:func:`read_rows`, once) and measures, per device map sourc
   (:func:`~twinslam.simulator.calibration.level_min_shared`);
 * how well the rule the runs were scored with predicts each run: Pearson's r over runs of the
   predicted lost share and the device's failure share, over all runs and per scenario (the
-  calibration table: :func:`agreement_by_scenario`).
+  calibration table: :func:`agreement_by_scenario`);
+* where the device's failed frames come from (:func:`failure_causes`): new ground no upload
+  had reached, places integrated keyframes covered but the device's map left out, or places
+  its map covered where tracking still failed.
 
 It draws ``calibration.png``: per run, predicted lost share against device failure share (one
 colour per map source); and the device's failure rate against the shared map points, the
@@ -32,6 +35,10 @@ import numpy as np
 
 from twinslam.common.reporting import pearson_r, pyplot
 from twinslam.simulator.calibration import (
+    FAILURE_CAUSES,
+    LEFT_OUT,
+    MAP_COVERED,
+    NEW_GROUND,
     CalibrationFrame,
     FramePrediction,
     balanced_accuracy,
@@ -249,3 +256,60 @@ def report_lines(results: list[SourceCalibration]) -> list[str]:
             f"scored with k = {r.min_shared}: predicted vs failed share over runs r = "
             f"{r.r_over_runs:.2f}")
     return lines
+
+
+@dataclass(frozen=True)
+class FailureCauses:
+    """Where one group's failed frames came from
+    (:func:`~twinslam.simulator.calibration.failure_cause`): counts over its runs' scored
+    next-slot frames."""
+
+    folder: str
+    scenario: str
+    map_source: str
+    policy: str
+    runs: int
+    frames: int
+    failed: int
+    new_ground: int             #: no keyframe the edge had integrated covered the place
+    left_out: int               #: integrated keyframes covered it, the device's map did not
+    map_covered: int            #: the device's map covered it and tracking still failed
+
+
+def failure_causes(frames: list[dict[str, str]]) -> list[FailureCauses]:
+    """Per folder, scenario, map source and policy (in the order the rows came), the causes of
+    the device's failed frames from the ``failure_cause`` column of calibration_frames.csv;
+    a ValueError where the frames were written before that column existed."""
+    if frames and "failure_cause" not in frames[0]:
+        raise ValueError("calibration_frames.csv has no failure_cause column: written by an "
+                         "older twinslam evaluate")
+    groups: dict[tuple[str, ...], list[dict[str, str]]] = {}
+    for r in frames:
+        groups.setdefault((r["folder"], r["scenario"], r["map_source"], r["policy"]),
+                          []).append(r)
+    out = []
+    for (folder, scenario, source, policy), rows in groups.items():
+        causes = [r["failure_cause"] for r in rows if r["device_tracked"] != "1"]
+        if any(c not in FAILURE_CAUSES for c in causes):
+            raise ValueError(f"{folder}: a failed frame without a known failure_cause "
+                             f"(resumed into a folder of an older twinslam evaluate?)")
+        out.append(FailureCauses(folder, scenario, source, policy,
+                                 len({r["seed"] for r in rows}), len(rows), len(causes),
+                                 causes.count(NEW_GROUND), causes.count(LEFT_OUT),
+                                 causes.count(MAP_COVERED)))
+    return out
+
+
+def failure_causes_markdown(rows: list[FailureCauses]) -> str:
+    """The table of :func:`failure_causes`: each cause's share of the scored frames (they add
+    up to the failed share), its count in brackets."""
+    def cell(n: int, of: int) -> str:
+        return f"{n / of:.1%} ({n})" if of else "–"
+
+    lines = ["| folder | scenario | map source | policy | runs | frames | failed | "
+             f"{' | '.join(FAILURE_CAUSES)} |", "|---|---|---|---|---|---|---|---|---|---|"]
+    lines += [f"| {Path(c.folder).name} | {c.scenario} | {c.map_source} | {c.policy} | "
+              f"{c.runs} | {c.frames} | {cell(c.failed, c.frames)} | "
+              f"{cell(c.new_ground, c.frames)} | {cell(c.left_out, c.frames)} | "
+              f"{cell(c.map_covered, c.frames)} |" for c in rows]
+    return "\n".join(lines)

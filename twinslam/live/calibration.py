@@ -113,6 +113,10 @@ class LiveFrame:
     map_version: int                    #: the map the device tracked it with
     calibration: CalibrationFrame       #: predicted against the map after the previous slot
     on_tracked_map: FramePrediction     #: predicted against the map it was tracked with
+    #: map points it shares with every keyframe the edge had integrated by the map it was
+    #: tracked with — the most any map the edge could have sent then would share (the edge
+    #: keeps what it evicts in its archive)
+    archive_shared_points: int = 0
 
 
 @dataclass
@@ -128,6 +132,19 @@ def _seconds(time: Any) -> float:
 
 def _key(time: Any) -> int:
     return int(time.sec) * 1_000_000_000 + int(time.nanosec)
+
+
+def _integrated_rows(by_version: dict[int, MapSnapshot], row_of: dict[int, int]
+                     ) -> dict[int, np.ndarray]:
+    """For each map version, the dataset rows of every keyframe a map up to it held: what the
+    edge had integrated by then (each upload enters a map once)."""
+    seen: set[int] = set()
+    out = {}
+    for version in sorted(by_version):
+        seen.update(r for k in by_version[version].keyframe_ids
+                    if (r := row_of.get(int(k), -1)) >= 0)
+        out[version] = np.array(sorted(seen), dtype=np.int64)
+    return out
 
 
 def live_frames(record: RunRecord, dataset: CovisibilityDataset, played: PlayedFrames,
@@ -147,6 +164,7 @@ def live_frames(record: RunRecord, dataset: CovisibilityDataset, played: PlayedF
     row_of = {int(f.frame_id): int(r) for (_, f), r in zip(frames, rows, strict=True)}
     errors = translation_errors(record.poses, record.ground_truth)
     by_version: dict[int, MapSnapshot] = {m.version: m for m in record.maps.values()}
+    integrated = _integrated_rows(by_version, row_of)
 
     def keyframe_rows(snapshot: MapSnapshot | None) -> list[int] | None:
         if snapshot is None:
@@ -181,9 +199,12 @@ def live_frames(record: RunRecord, dataset: CovisibilityDataset, played: PlayedF
                 row = row_of[int(f.frame_id)]
                 used = predict(by_version.get(int(f.map_version)), [row])
                 error = errors.get(_key(f.stamp), math.nan)
+                archive = integrated.get(int(f.map_version), np.zeros(0, np.int64))
                 out.frames.append(LiveFrame(
                     slot, i, int(f.frame_id), row, int(f.map_version),
                     CalibrationFrame(pred, bool(f.tracked), int(f.inliers), error),
-                    used[0] if used else FramePrediction(0, 0.0, math.inf)))
+                    used[0] if used else FramePrediction(0, 0.0, math.inf),
+                    int(dataset.shared_points(archive, np.array([row]))[0])
+                    if archive.size else 0))
     out.frames.sort(key=lambda f: (f.slot, f.position))
     return out

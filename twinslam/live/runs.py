@@ -43,7 +43,7 @@ from twinslam.live.scenarios import Scenario
 from twinslam.node_hosts.loopback import LoopbackDomain
 from twinslam.policy_registry import LEARNED_PREFIX, POLICY_KINDS
 from twinslam.sequences.opening import is_synthetic, synthetic_walk
-from twinslam.simulator.calibration import Calibration, calibrate
+from twinslam.simulator.calibration import Calibration, calibrate, failure_cause
 from twinslam.simulator.covisibility import load_covisibility
 
 
@@ -161,7 +161,8 @@ CALIBRATION_HEADER = [f.name for f in fields(RunKey)] + [
 FRAMES_HEADER = [f.name for f in fields(RunKey)] + [
     "slot", "position", "frame_id", "row", "map_version", "shared_points", "covisibility",
     "uncertainty", "shared_points_tracked_map", "covisibility_tracked_map",
-    "uncertainty_tracked_map", "device_tracked", "inliers", "translation_error_m"]
+    "uncertainty_tracked_map", "device_tracked", "inliers", "translation_error_m",
+    "shared_points_archive", "failure_cause"]
 
 
 def _append(path: Path, rows: list[list[object]]) -> None:
@@ -183,7 +184,9 @@ def _write_result(out: Path, result: RunResult) -> None:
          f.calibration.prediction.uncertainty, f.on_tracked_map.shared_points,
          f.on_tracked_map.covisibility, f.on_tracked_map.uncertainty,
          int(f.calibration.device_tracked), f.calibration.inliers,
-         f.calibration.translation_error_m]
+         f.calibration.translation_error_m, f.archive_shared_points,
+         "" if f.calibration.device_tracked else failure_cause(
+             f.on_tracked_map.shared_points, f.archive_shared_points, MIN_SHARED_POINTS)]
         for f in result.frames.frames])
 
 
@@ -229,21 +232,24 @@ _CELL = {"int": int, "float": float, "str": str}
 ADDED_COLUMNS = {"jumps": "nan", "failed_share": "nan", "loss_p95_s": "nan",
                  "longest_loss_s": "nan", "device_cpu_ms": "nan", "downlink_mb": "nan",
                  "restores": "nan"}
+#: the same for calibration_frames.csv
+ADDED_FRAME_COLUMNS = {"shared_points_archive": "nan", "failure_cause": ""}
 
 
-def _read_rows(path: Path, header: list[str]) -> list[list[str]]:
+def _read_rows(path: Path, header: list[str], added: dict[str, str] = ADDED_COLUMNS
+               ) -> list[list[str]]:
     """The rows of one of the tables :func:`run_all` writes, by position: runs.csv has two
-    ``policy`` columns (the label and the report's). A file written before columns of
-    :data:`ADDED_COLUMNS` existed is rewritten with them (its rows unchanged, the new cells
-    "nan"), so that the runs still to do append rows of today's columns."""
+    ``policy`` columns (the label and the report's). A file written before the columns of
+    ``added`` existed is rewritten with them (its rows unchanged, the new cells what ``added``
+    says: not measured), so that the runs still to do append rows of today's columns."""
     with path.open(newline="", encoding="utf-8") as fh:
         rows = list(csv.reader(fh))
     old = rows[0] if rows else []
     missing = header[len(old):]
-    if not rows or header[:len(old)] != old or any(c not in ADDED_COLUMNS for c in missing):
+    if not rows or header[:len(old)] != old or any(c not in added for c in missing):
         raise ValueError(f"{path} was written by another version of twinslam evaluate "
                          f"(its columns differ); resume into a new --out folder")
-    body = [row + [ADDED_COLUMNS[c] for c in missing] for row in rows[1:]]
+    body = [row + [added[c] for c in missing] for row in rows[1:]]
     if missing:
         write_csv(path, header, body)
     return body
@@ -284,6 +290,8 @@ def run_all(tasks: list[RunTask], out: Path, executor: Executor | None = None,
     results in task order, and the failures."""
     out.mkdir(parents=True, exist_ok=True)
     earlier = finished_runs(out) if resume else {}
+    if resume and (out / "calibration_frames.csv").is_file():     # today's columns, or refused
+        _read_rows(out / "calibration_frames.csv", FRAMES_HEADER, ADDED_FRAME_COLUMNS)
     for name, header in (("runs.csv", RUNS_HEADER), ("calibration.csv", CALIBRATION_HEADER),
                          ("calibration_frames.csv", FRAMES_HEADER)):
         if not (resume and (out / name).is_file()):

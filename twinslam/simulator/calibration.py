@@ -70,6 +70,28 @@ def predict_frames(dataset: CovisibilityDataset, map_frames: Sequence[int],
             for s, w, x in zip(shared, cand_w.sum(axis=1), u, strict=True)]
 
 
+#: why the device failed a frame (:func:`failure_cause`)
+NEW_GROUND = "new ground"
+LEFT_OUT = "left out of the map"
+MAP_COVERED = "map covered it"
+FAILURE_CAUSES = (NEW_GROUND, LEFT_OUT, MAP_COVERED)
+
+
+def failure_cause(shared_tracked_map: int, shared_archive: int, min_shared: int) -> str:
+    """Why the device failed a frame, by what the edge could have sent it: **new ground**
+    when even every keyframe the edge had integrated shares fewer than ``min_shared`` map
+    points with it (no map could have held the place: only an earlier upload would have);
+    **left out of the map** when those keyframes cover it but the map the device held did
+    not (which keyframes to keep or restore: the policy's choice); **map covered it** when the
+    device's map shared enough points and it still failed (tracking: matching, the motion
+    model, relocalisation). The shares of the three say which lever a run is short of."""
+    if shared_archive < min_shared:
+        return NEW_GROUND
+    if shared_tracked_map < min_shared:
+        return LEFT_OUT
+    return MAP_COVERED
+
+
 @dataclass(frozen=True)
 class CalibrationFrame:
     """One next-slot frame: the simulator's prediction beside the device's outcome."""

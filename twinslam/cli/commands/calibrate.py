@@ -13,10 +13,13 @@ from twinslam.common.reporting import write_csv
 def run(args: argparse.Namespace) -> int:
     # scipy and matplotlib load with the command, not with every `twinslam` start
     from twinslam.experiments.calibration_report import (
+        FailureCauses,
         ScenarioAgreement,
         agreement_by_scenario,
         agreement_markdown,
         calibrate_runs,
+        failure_causes,
+        failure_causes_markdown,
         plot_calibration,
         read_rows,
         report_lines,
@@ -27,6 +30,7 @@ def run(args: argparse.Namespace) -> int:
         frames = read_rows(args.folders, "calibration_frames.csv")
         results = calibrate_runs(runs, frames)
         agreement = agreement_by_scenario(runs)
+        causes = failure_causes(frames)
     except (FileNotFoundError, KeyError, ValueError) as exc:
         return error(exc)
     if not results:
@@ -40,15 +44,22 @@ def run(args: argparse.Namespace) -> int:
     plot_calibration(runs, frames, results, out)
     write_csv(out.with_suffix(".csv"), [f.name for f in fields(ScenarioAgreement)],
               [list(asdict(a).values()) for a in agreement])
-    out.with_suffix(".md").write_text(table + "\n", encoding="utf-8")
-    print(f"wrote {out}, {out.with_suffix('.csv')} and {out.with_suffix('.md')}")
+    causes_table = failure_causes_markdown(causes)
+    print("\nwhere the failed frames come from (share of the scored frames, count):")
+    print(causes_table)
+    write_csv(out.with_name(f"{out.stem}-failures.csv"),
+              [f.name for f in fields(FailureCauses)], [list(asdict(c).values()) for c in causes])
+    out.with_suffix(".md").write_text(f"{table}\n\n{causes_table}\n", encoding="utf-8")
+    print(f"wrote {out}, {out.with_suffix('.csv')}, {out.stem}-failures.csv and "
+          f"{out.with_suffix('.md')}")
     return 0
 
 
 def register(sub: Subparsers) -> None:
     calibrate = sub.add_parser(
         "calibrate", help="the rule of a lost frame, measured from `twinslam evaluate` runs: "
-        "lag, threshold, agreement per run and per scenario (calibration.png, .csv, .md)")
+        "lag, threshold, agreement per run and per scenario, where the failed frames come from "
+        "(calibration.png, .csv, -failures.csv, .md)")
     calibrate.add_argument("folders", nargs="+", type=Path,
                            help="output folders of `twinslam evaluate` (calibration.csv and "
                            "calibration_frames.csv in each)")
