@@ -120,7 +120,9 @@ def test_a_row_that_is_not_in_the_files_is_refused() -> None:
 ARCHIVE_TABLES = [("archive-restores/revisit-v15-lff-restore0-runs.csv",
                    "archive-restores/revisit-v15-lff-restore3-runs.csv"),
                   ("archive-restores/all-rules-none-runs.csv",
-                   "archive-restores/all-rules-restores-runs.csv")]
+                   "archive-restores/all-rules-restores-runs.csv"),
+                  ("archive-restores/failure-causes/none/runs.csv",
+                   "archive-restores/failure-causes/restores/runs.csv")]
 
 
 @pytest.mark.parametrize(("without", "with_restores"), ARCHIVE_TABLES)
@@ -129,6 +131,32 @@ def test_each_archive_restores_table_is_what_its_command_prints(
     _script("archive_restores").main(FIGURES / without, FIGURES / with_restores)
     printed = capsys.readouterr().out
     assert len(_tables(printed)) == 1 and _missing(printed) == []
+
+
+def test_the_failure_causes_tables_are_what_calibrate_prints_from_their_frames(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`twinslam calibrate none restores` on the committed frames (gzipped) prints the
+    calibration and failure-cause tables results.md shows, and the CSV committed beside."""
+    import gzip
+
+    from twinslam.cli.main import main
+    committed = FIGURES / "archive-restores" / "failure-causes"
+    folders = []
+    for name in ("none", "restores"):
+        folder = tmp_path / name
+        folder.mkdir()
+        (folder / "calibration.csv").write_bytes((committed / name / "calibration.csv")
+                                                 .read_bytes())
+        (folder / "calibration_frames.csv").write_bytes(
+            gzip.decompress((committed / name / "calibration_frames.csv.gz").read_bytes()))
+        folders.append(str(folder))
+    assert main(["calibrate", *folders, "--out", str(tmp_path / "calibration.png")]) == 0
+    printed = capsys.readouterr().out
+    assert len(_tables(printed)) == 2 and _missing(printed) == []
+    # the committed CSV names each folder as results.md's commands do (none, restores)
+    assert ((tmp_path / "calibration-failures.csv").read_text(encoding="utf-8")
+            .replace(f"{tmp_path}/", "")
+            == (committed / "calibration-failures.csv").read_text(encoding="utf-8"))
 
 
 @pytest.mark.parametrize("folder", ["planner/mpc-live", "planner/mpc-live-2"])
