@@ -119,6 +119,7 @@ bench: venv
 	$(PY) -m bench.edge_scaling
 	$(PY) -m bench.visual
 	$(PY) -m bench.live --rounds 4 --frames 1000
+	$(PY) -m bench.update_loop
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .ruff_cache .mypy_cache

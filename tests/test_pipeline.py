@@ -187,6 +187,26 @@ def test_the_report_measures_the_downlink_and_the_devices_cpu(runs: dict) -> Non
 
 
 @reads_the_policy_runs
+def test_the_update_loop_of_every_answered_slot_is_measured_stage_by_stage(runs: dict) -> None:
+    """The monitor hears each slot's summaries, the request they caused and the throughput
+    report the request caused — in that order — then the slot's map, and a later frame of
+    the device is tracked on it: every stage is measured; the uploads take at least what the
+    device's report says sending them took."""
+    from twinslam.live.update_loop import STAGES, update_loop_latencies
+
+    _, record, _ = runs["adapt"]
+    loops = {x.slot: x for x in update_loop_latencies(record)}
+    assert sorted(loops) == sorted(record.summaries)
+    for slot, x in loops.items():
+        stages = [getattr(x, s) for s in STAGES]
+        if slot == max(loops):          # the run ends: no frame comes on its last map
+            stages = stages[:-1]
+        assert all(math.isfinite(v) for v in stages), (slot, stages)
+        assert min(x.summaries_s, x.decision_s, x.uploads_s) > 0, (slot, stages)
+        assert x.uploads_s >= record.throughput[slot].duration_s - 0.05, slot
+
+
+@reads_the_policy_runs
 def test_map_stats_uncertainty_is_the_published_maps(runs: dict) -> None:
     _, record, _ = runs["adapt"]
     checked = 0

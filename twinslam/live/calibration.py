@@ -22,10 +22,10 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
+from msg_schemas.headers import time_key, time_seconds
 from twinslam.common.reporting import file_name
 from twinslam.common.tracking_rule import MAP_UPDATE_LAG_FRAMES
 from twinslam.live.record import RunRecord
@@ -126,14 +126,6 @@ class LiveFrames:
     unplaced: int = 0       #: frames whose recorded frame or map keyframes could not be placed
 
 
-def _seconds(time: Any) -> float:
-    return int(time.sec) + int(time.nanosec) * 1e-9
-
-
-def _key(time: Any) -> int:
-    return int(time.sec) * 1_000_000_000 + int(time.nanosec)
-
-
 def _integrated_rows(by_version: dict[int, MapSnapshot], row_of: dict[int, int]
                      ) -> dict[int, np.ndarray]:
     """For each map version, the dataset rows of every keyframe a map up to it held: what the
@@ -158,7 +150,7 @@ def live_frames(record: RunRecord, dataset: CovisibilityDataset, played: PlayedF
               for f in record.summaries[slot].frames]
     if not frames:
         return out
-    stamps = np.array([_seconds(f.stamp) for _, f in frames])
+    stamps = np.array([time_seconds(f.stamp) for _, f in frames])
     first = (min(record.ground_truth) * 1e-9 if record.ground_truth else float(stamps.min()))
     rows = played.rows_at(stamps, first)
     row_of = {int(f.frame_id): int(r) for (_, f), r in zip(frames, rows, strict=True)}
@@ -198,7 +190,7 @@ def live_frames(record: RunRecord, dataset: CovisibilityDataset, played: PlayedF
             for (i, f), pred in zip(group, predicted, strict=True):
                 row = row_of[int(f.frame_id)]
                 used = predict(by_version.get(int(f.map_version)), [row])
-                error = errors.get(_key(f.stamp), math.nan)
+                error = errors.get(time_key(f.stamp), math.nan)
                 archive = integrated.get(int(f.map_version), np.zeros(0, np.int64))
                 out.frames.append(LiveFrame(
                     slot, i, int(f.frame_id), row, int(f.map_version),

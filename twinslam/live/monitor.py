@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 
 import rclpy
@@ -55,21 +56,28 @@ class PipelineMonitor:
             sub(Image, topics.CAMERA_IMAGE, self._image, qos.SENSOR_DATA, raw=True)
 
     def _summaries(self, msg: FrameSummaries) -> None:
+        self.record.hear("summaries", int(msg.slot), time.time())
         self.record.summaries[int(msg.slot)] = msg
 
     def _request(self, msg: UploadRequest) -> None:
+        self.record.hear("request", int(msg.slot), time.time())
         self.record.requests[int(msg.slot)] = msg
 
     def _throughput(self, msg: UplinkThroughput) -> None:
+        self.record.hear("throughput", int(msg.slot), time.time())
         self.record.throughput[int(msg.slot)] = msg
 
     def _latent(self, msg: RateLatent) -> None:
         self.record.latents[int(msg.slot)] = msg
 
     def _map(self, data: bytes) -> None:
+        heard = time.time()
         self._downlink(data)
         msg = deserialize_message(data, MapUpdate)
-        self.record.maps[int(msg.slot)] = read_map_update(msg)
+        self.record.hear("map", int(msg.slot), heard)
+        snapshot = read_map_update(msg)
+        self.record.first_map_versions.setdefault(int(msg.slot), snapshot.version)
+        self.record.maps[int(msg.slot)] = snapshot
 
     def _pose(self, msg: PoseStamped) -> None:
         self.record.poses[stamp_key(msg.header)] = pose_matrix(msg.pose)
@@ -84,6 +92,7 @@ class PipelineMonitor:
         self.record.images_received += 1
 
     def _stats(self, msg: MapStats) -> None:
+        self.record.hear("stats", int(msg.slot), time.time())
         self.record.stats[int(msg.slot)] = msg
         if self._on_stats:
             self._on_stats(msg, self.record)

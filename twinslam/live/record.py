@@ -25,3 +25,16 @@ class RunRecord:
     images_received: int = 0        #: /camera/image_raw samples, when the monitor watches them
     #: bytes the edge sent the device: map updates and relocalisation answers, as serialised
     downlink_bytes: int = 0
+    #: when the monitor first heard each slot's message of a protocol topic ("summaries",
+    #: "request", "throughput", "map", "stats" → slot → seconds on the system clock, the
+    #: clock the player stamps frames with): the update loop's stages
+    #: (:mod:`twinslam.live.update_loop`)
+    heard: dict[str, dict[int, float]] = field(default_factory=dict)
+    #: the version of each slot's first map update (``maps`` keeps the last: a relocalisation
+    #: answer may send the slot's map again, newer)
+    first_map_versions: dict[int, int] = field(default_factory=dict)
+
+    def hear(self, topic: str, slot: int, now: float) -> None:
+        """Note ``now`` as when ``topic``'s message of ``slot`` came, unless one came
+        before."""
+        self.heard.setdefault(topic, {}).setdefault(slot, now)
