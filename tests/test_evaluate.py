@@ -68,6 +68,12 @@ def test_evaluate_runs_every_seed_and_summarises(tmp_path: Path,
         assert failed >= 90
     assert all(int(f["inliers"]) >= 15 for f in frames if f["device_tracked"] == "1")
     assert "predicted lost share vs device failure share" in text
+    # where the failed frames came from, a row per run's group, the edge device's counting
+    # the covered lens' 90 frames among its failures
+    assert "where the device's failed next-slot frames come from" in text
+    edge_row = next(line for line in text.splitlines()
+                    if line.startswith("| live | revisit-lost | edge | lff | 1 |"))
+    assert int(edge_row.split("|")[7].split("(")[1].rstrip(") ")) >= 90, edge_row
 
     # what these runs say the rule must be: lag, thresholds, agreement, and the figure
     assert main(["calibrate", str(out)]) == 0

@@ -89,6 +89,25 @@ def _tasks(args: argparse.Namespace, policies: list[tuple[str, str]],
             for k in keys]
 
 
+def _print_failure_causes(out: Path) -> None:
+    """Where the device's failed frames came from, per policy (nothing where no frame was
+    calibrated: a run without a dataset, or a folder resumed from an older version)."""
+    from twinslam.experiments.calibration_report import (
+        failure_causes,
+        failure_causes_markdown,
+        read_rows,
+    )
+    try:
+        causes = failure_causes(read_rows([out], "calibration_frames.csv"))
+    except (FileNotFoundError, ValueError) as exc:
+        print(f"\nno failure causes: {exc}")
+        return
+    if causes:
+        print("\nwhere the device's failed next-slot frames come from (share of the scored "
+              "frames, count; twinslam calibrate tells more):")
+        print(failure_causes_markdown(causes))
+
+
 def _print_tables(results: list[runs.RunResult], out: Path) -> None:
     rows = tables.summarise(results)
     dropped = tables.dropped_frames_note(results)
@@ -103,6 +122,7 @@ def _print_tables(results: list[runs.RunResult], out: Path) -> None:
     for source, (r, n) in tables.agreement_over_runs(results).items():
         print(f"{source}: predicted lost share vs device failure share over {n} runs: "
               f"Pearson r = {r:.2f}")
+    _print_failure_causes(out)
     print(f"\nwrote {out / 'runs.csv'}, summary.csv, summary.md, summary.png, "
           "paired.csv, paired.md, calibration.csv, calibration_frames.csv and a picture of "
           f"every run in {out / 'runs'}/")
