@@ -227,9 +227,13 @@ def test_a_failed_frame_is_new_ground_left_out_or_covered_by_what_the_edge_had()
 
     # map 1 holds recorded frames 0 and 1, map 2 only 1 (0 evicted, still in the archive)
     record = _record({0: [rec(0, 0, 0, 0), rec(1, 1, 0, 0)], 1: [rec(5, 3, 1, 1)],
-                      2: [rec(6, 0, 2, 2), rec(7, 2, 2, 2), rec(8, 4, 1, 2)]},
-                     {0: _snapshot(1, [0, 1]), 1: _snapshot(2, [1])})
-    frames = {f.row: f for f in live_frames(record, data, played, lag_frames=0).frames}
+                      2: [rec(6, 0, 2, 2), rec(7, 2, 2, 2), rec(8, 4, 1, 2)],
+                      3: [rec(9, 2, 4, 3)]},
+                     {0: _snapshot(1, [0, 1]), 1: _snapshot(2, [1]), 2: _snapshot(3, [1])})
+    scored = live_frames(record, data, played, lag_frames=0).frames
+    # map version 4 never reached the monitor: its archive is that of version 3 (rows 0, 1)
+    assert [(f.map_version, f.archive_shared_points) for f in scored if f.slot == 3] == [(4, 3)]
+    frames = {f.row: f for f in scored if f.slot < 3}
     # row 0 = {1, 2, 3, 4}: map 2 = {3, 4, 5, 6} shares 2, the archive (rows 0, 1) all 4
     assert (frames[0].on_tracked_map.shared_points, frames[0].archive_shared_points) == (2, 4)
     # row 2 = {2, 3, 5, 9}: 2 with map 2, 3 with the archive; row 3 = {7, 8}: none with either
@@ -275,3 +279,29 @@ def test_the_failure_causes_table_counts_each_groups_failed_frames(tmp_path) -> 
            for r in read_rows([tmp_path], "calibration_frames.csv")]
     with pytest.raises(ValueError, match="no failure_cause column"):
         failure_causes(old)
+
+
+def test_calibrate_still_reads_frames_written_before_the_failure_causes(
+        tmp_path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A folder of an older evaluate (no shared_points_archive, failure_cause columns): the
+    calibration is measured and written as before, the causes are said to be missing."""
+    import csv
+    import gzip
+    from pathlib import Path
+
+    from twinslam.cli.main import main
+
+    committed = (Path(__file__).resolve().parents[1] / "docs" / "figures" / "archive-restores"
+                 / "failure-causes" / "none")
+    (tmp_path / "calibration.csv").write_bytes((committed / "calibration.csv").read_bytes())
+    rows = list(csv.reader(gzip.decompress(
+        (committed / "calibration_frames.csv.gz").read_bytes()).decode().splitlines()))
+    assert rows[0][-2:] == ["shared_points_archive", "failure_cause"]
+    with (tmp_path / "calibration_frames.csv").open("w", newline="") as fh:
+        csv.writer(fh).writerows(row[:-2] for row in rows)
+    assert main(["calibrate", str(tmp_path)]) == 0
+    printed = capsys.readouterr().out
+    assert "no failure causes: calibration_frames.csv has no failure_cause column" in printed
+    assert "| edge | revisit-v15 | 20 |" in printed and "left out of the map" not in printed
+    assert (tmp_path / "calibration.png").is_file()
+    assert not (tmp_path / "calibration-failures.csv").exists()

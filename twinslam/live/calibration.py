@@ -139,6 +139,14 @@ def _integrated_rows(by_version: dict[int, MapSnapshot], row_of: dict[int, int]
     return out
 
 
+def _at_or_before(integrated: dict[int, np.ndarray], version: int) -> np.ndarray:
+    """The rows integrated by map ``version``: those of the newest recorded version not after
+    it (the monitor keeps a slot's last map, so a version sent and replaced within one slot
+    is not among them); none before the first."""
+    known = [v for v in integrated if v <= version]
+    return integrated[max(known)] if known else np.zeros(0, np.int64)
+
+
 def live_frames(record: RunRecord, dataset: CovisibilityDataset, played: PlayedFrames,
                 log_det_pi: float = 0.0, lag_frames: int = MAP_UPDATE_LAG_FRAMES) -> LiveFrames:
     """Every next-slot frame of the run (slots after the first whose previous map arrived),
@@ -191,7 +199,7 @@ def live_frames(record: RunRecord, dataset: CovisibilityDataset, played: PlayedF
                 row = row_of[int(f.frame_id)]
                 used = predict(by_version.get(int(f.map_version)), [row])
                 error = errors.get(time_key(f.stamp), math.nan)
-                archive = integrated.get(int(f.map_version), np.zeros(0, np.int64))
+                archive = _at_or_before(integrated, int(f.map_version))
                 out.frames.append(LiveFrame(
                     slot, i, int(f.frame_id), row, int(f.map_version),
                     CalibrationFrame(pred, bool(f.tracked), int(f.inliers), error),

@@ -30,9 +30,13 @@ def run(args: argparse.Namespace) -> int:
         frames = read_rows(args.folders, "calibration_frames.csv")
         results = calibrate_runs(runs, frames)
         agreement = agreement_by_scenario(runs)
-        causes = failure_causes(frames)
     except (FileNotFoundError, KeyError, ValueError) as exc:
         return error(exc)
+    try:
+        causes: list[FailureCauses] | None = failure_causes(frames)
+    except ValueError as exc:        # frames of an older evaluate: the rest still stands
+        print(f"no failure causes: {exc}")
+        causes = None
     if not results:
         return error("no calibrated next-slot frame in those folders")
     for line in report_lines(results):
@@ -44,6 +48,10 @@ def run(args: argparse.Namespace) -> int:
     plot_calibration(runs, frames, results, out)
     write_csv(out.with_suffix(".csv"), [f.name for f in fields(ScenarioAgreement)],
               [list(asdict(a).values()) for a in agreement])
+    if causes is None:
+        out.with_suffix(".md").write_text(table + "\n", encoding="utf-8")
+        print(f"wrote {out}, {out.with_suffix('.csv')} and {out.with_suffix('.md')}")
+        return 0
     causes_table = failure_causes_markdown(causes)
     print("\nwhere the failed frames come from (share of the scored frames, count):")
     print(causes_table)
