@@ -19,6 +19,7 @@ import time
 from dataclasses import asdict
 from pathlib import Path
 
+from twinslam.cli.console import HelpFormatter
 from twinslam.common.reporting import write_csv
 from twinslam.live.launcher import LaunchConfig, Launcher
 from twinslam.live.scenarios import scenario as scenario_named
@@ -45,7 +46,7 @@ def run(sequence: str, policy: str, frames: int, map_source: str, scenario: str,
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+                                     formatter_class=HelpFormatter)
     parser.add_argument("sequence", nargs="?", default=str(SEQUENCE),
                         help="an RGB-D sequence (default: the bundled 7-Scenes sample)")
     parser.add_argument("--frames", type=int, default=300, help="frames played a run")
