@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 import platform
 import time
-from dataclasses import asdict
+from dataclasses import asdict, fields
 from pathlib import Path
 
 from twinslam.cli.console import HelpFormatter
@@ -78,7 +78,7 @@ def main() -> None:
         for name, median, p95, n in stage_table(slots):
             print(f"| {name.replace('_', ' ')} | {1000 * median:.0f} | {1000 * p95:.0f} | {n} |")
     if args.csv is not None:
-        write_csv(args.csv, ["policy", "seed", *SlotLatency.__dataclass_fields__], rows)
+        write_csv(args.csv, ["policy", "seed", *(f.name for f in fields(SlotLatency))], rows)
         print(f"\nwrote {args.csv}")
 
 

@@ -92,7 +92,6 @@ class PipelineMonitor:
         self.record.images_received += 1
 
     def _stats(self, msg: MapStats) -> None:
-        self.record.hear("stats", int(msg.slot), time.time())
         self.record.stats[int(msg.slot)] = msg
         if self._on_stats:
             self._on_stats(msg, self.record)

@@ -26,7 +26,7 @@ class RunRecord:
     #: bytes the edge sent the device: map updates and relocalisation answers, as serialised
     downlink_bytes: int = 0
     #: when the monitor first heard each slot's message of a protocol topic ("summaries",
-    #: "request", "throughput", "map", "stats" → slot → seconds on the system clock, the
+    #: "request", "throughput", "map" → slot → seconds on the system clock, the
     #: clock the player stamps frames with): the update loop's stages
     #: (:mod:`twinslam.live.update_loop`)
     heard: dict[str, dict[int, float]] = field(default_factory=dict)

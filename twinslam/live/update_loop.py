@@ -34,6 +34,8 @@ from twinslam.live.record import RunRecord
 
 #: the stages in loop order, as :class:`SlotLatency` names them
 STAGES = ("summaries_s", "decision_s", "uploads_s", "integration_s", "to_device_s")
+#: the protocol topics whose receipt ends a stage, in loop order (RunRecord.heard's keys)
+HEARD = ("summaries", "request", "throughput", "map")
 
 
 @dataclass(frozen=True)
@@ -65,16 +67,14 @@ def _first_frame_on(record: RunRecord, after_slot: int, version: int) -> float:
 
 def update_loop_latencies(record: RunRecord) -> list[SlotLatency]:
     """One :class:`SlotLatency` per slot whose frame summaries were heard."""
-    heard = {topic: record.heard.get(topic, {}) for topic in
-             ("summaries", "request", "throughput", "map")}
+    heard = {topic: record.heard.get(topic, {}) for topic in HEARD}
     out = []
     for slot in sorted(heard["summaries"]):
         summary = record.summaries.get(slot)
         if summary is None or not summary.frames:
             continue
         times = [time_seconds(summary.frames[-1].stamp)]
-        times += [heard[t].get(slot, math.nan) for t in ("summaries", "request", "throughput",
-                                                          "map")]
+        times += [heard[t].get(slot, math.nan) for t in HEARD]
         version = record.first_map_versions.get(slot)
         times.append(math.nan if version is None else _first_frame_on(record, slot, version))
         out.append(SlotLatency(slot, *np.diff(times).tolist()))

@@ -48,18 +48,18 @@ def run(args: argparse.Namespace) -> int:
     plot_calibration(runs, frames, results, out)
     write_csv(out.with_suffix(".csv"), [f.name for f in fields(ScenarioAgreement)],
               [list(asdict(a).values()) for a in agreement])
-    if causes is None:
-        out.with_suffix(".md").write_text(table + "\n", encoding="utf-8")
-        print(f"wrote {out}, {out.with_suffix('.csv')} and {out.with_suffix('.md')}")
-        return 0
-    causes_table = failure_causes_markdown(causes)
-    print("\nwhere the failed frames come from (share of the scored frames, count):")
-    print(causes_table)
-    write_csv(out.with_name(f"{out.stem}-failures.csv"),
-              [f.name for f in fields(FailureCauses)], [list(asdict(c).values()) for c in causes])
-    out.with_suffix(".md").write_text(f"{table}\n\n{causes_table}\n", encoding="utf-8")
-    print(f"wrote {out}, {out.with_suffix('.csv')}, {out.stem}-failures.csv and "
-          f"{out.with_suffix('.md')}")
+    markdown, written = table, [str(out), str(out.with_suffix(".csv"))]
+    if causes is not None:
+        causes_table = failure_causes_markdown(causes)
+        print("\nwhere the failed frames come from (share of the scored frames, count):")
+        print(causes_table)
+        write_csv(out.with_name(f"{out.stem}-failures.csv"),
+                  [f.name for f in fields(FailureCauses)],
+                  [list(asdict(c).values()) for c in causes])
+        markdown += f"\n\n{causes_table}"
+        written.append(f"{out.stem}-failures.csv")
+    out.with_suffix(".md").write_text(markdown + "\n", encoding="utf-8")
+    print(f"wrote {', '.join(written)} and {out.with_suffix('.md')}")
     return 0
 
 
