@@ -4,6 +4,7 @@ the threshold fit, and how a live run's frames are placed on recorded frames and
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 
@@ -11,8 +12,10 @@ import numpy as np
 import pytest
 
 from device_tracker.messages import FrameRecord, frame_summaries_message
-from twinslam.live.calibration import PlayedFrames, live_frames
+from twinslam.live.calibration import PlayedFrames, live_frames, played_frames
 from twinslam.live.record import RunRecord
+from twinslam.live.scenarios import Scenario
+from twinslam.sequences.opening import open_sequence
 from twinslam.simulator.calibration import (
     LEFT_OUT,
     MAP_COVERED,
@@ -104,6 +107,22 @@ def test_played_stamps_find_their_recorded_frames() -> None:
     stamps = t0 + np.array([0, 1, 2, 3, 5, 6]) / 60.0 + 0.002      # position 4 never came
     assert played.rows_at(stamps, t0).tolist() == [10, 11, 12, 13, 11, 10]
     assert played.rows_at(np.array([t0 + 1.0, t0 - 1.0]), t0).tolist() == [-1, -1]
+
+
+def test_a_covered_lens_shows_no_recorded_frame_so_the_calibration_counts_it_apart() -> None:
+    """The scenario's covered-lens burst, placed as the launcher places it, has no dataset
+    row: no map could have tracked those frames, so none of them is blamed on a map."""
+    reader = open_sequence("synthetic:10")
+    data = CovisibilityDataset.from_sets([np.arange(5) + i for i in range(10)],
+                                         stamps=np.asarray(reader.stamps, dtype=np.float64))
+    covered = Scenario("covered", "forward and back, lens covered", order="forward_backward",
+                       blank_at=0.5, blank_s=0.1)
+    burst = covered.blank_burst(10, 30.0)
+    assert burst == (9, 3)
+    rows = played_frames("synthetic:10", 10, covered, data).rows
+    assert rows.tolist() == [*range(9), -1, -1, -1, *range(6, -1, -1)]
+    plain = dataclasses.replace(covered, blank_at=None)
+    assert (played_frames("synthetic:10", 10, plain, data).rows >= 0).all()
 
 
 def _record(records_by_slot: dict[int, list[FrameRecord]], maps: dict[int, MapSnapshot]

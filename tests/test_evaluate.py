@@ -56,24 +56,22 @@ def test_evaluate_runs_every_seed_and_summarises(tmp_path: Path,
     assert set(calibration) == {"edge", "edge+local"}
     for source, c in calibration.items():
         scored = [f for f in frames if f["map_source"] == source]
-        # how many come before the edge's first map depends on how fast it answered (a loaded
-        # machine: later), so the covered lens' 90 frames are the floor
-        assert int(c["frames"]) == len(scored) >= 90, c
+        assert int(c["frames"]) == len(scored) > 0, c
         failed = sum(f["device_tracked"] == "0" for f in scored)
         assert float(c["device_failure_share"]) == pytest.approx(failed / len(scored))
         for column in ("predicted_lost_share", "precision", "recall", "spearman_u_error",
                        "spearman_u_inliers"):
             assert column in c
-        # the covered lens: 90 frames no map explains, all failed, all in the scored slots
-        assert failed >= 90
+        # the covered lens: 90 frames no map could track, counted apart, none scored (the
+        # device numbers its frames by played position: none was dropped)
+        assert int(c["unplaced_frames"]) >= 90, c
+        assert not [f for f in scored if 252 <= int(f["frame_id"]) < 342]
     assert all(int(f["inliers"]) >= 15 for f in frames if f["device_tracked"] == "1")
     assert "predicted lost share vs device failure share" in text
-    # where the failed frames came from, a row per run's group, the edge device's counting
-    # the covered lens' 90 frames among its failures
+    # where the failed frames came from, a row per run's group
     assert "where the device's failed next-slot frames come from" in text
-    edge_row = next(line for line in text.splitlines()
-                    if line.startswith("| live | revisit-lost | edge | lff | 1 |"))
-    assert int(edge_row.split("|")[7].split("(")[1].rstrip(") ")) >= 90, edge_row
+    assert any(line.startswith("| live | revisit-lost | edge | lff | 1 |")
+               for line in text.splitlines())
 
     # what these runs say the rule must be: lag, thresholds, agreement, and the figure
     assert main(["calibrate", str(out)]) == 0

@@ -13,7 +13,7 @@ Each next-slot frame of slot k + 1 is predicted as the simulator scores it
 after slot k - 1 (the update of slot k is still on its way), the rest against the map after
 slot k; and, apart, against the map version the device actually tracked it with. Frames
 tracked on the device's start-up map (map version 0) are counted apart, as are frames whose
-recorded frame or keyframes cannot be placed.
+recorded frame or keyframes cannot be placed — a covered-lens frame shows no recorded frame.
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from msg_schemas.headers import time_key, time_seconds
+from twinslam.common import table1
 from twinslam.common.reporting import file_name
 from twinslam.common.tracking_rule import MAP_UPDATE_LAG_FRAMES
 from twinslam.live.record import RunRecord
@@ -65,10 +66,14 @@ class PlayedFrames:
 
 
 def played_frames(sequence: str, frames: int, scenario: Scenario, dataset: CovisibilityDataset,
-                  rate: float = 1.0, start: int = 0) -> PlayedFrames:
+                  rate: float = 1.0, start: int = 0,
+                  frame_rate_hz: float = table1.FRAME_RATE_HZ) -> PlayedFrames:
     """What the player plays of ``sequence``'s ``frames`` frames from ``start`` in
     ``scenario``'s order, each position tied to the dataset row extracted from the same
-    recorded frame (by its recorded stamp)."""
+    recorded frame (by its recorded stamp). The scenario's covered-lens burst (placed as the
+    launcher places it, at the device's nominal ``frame_rate_hz``) shows no recorded frame:
+    those positions have no row, so the calibration counts them apart instead of blaming a
+    map for a frame no map could track."""
     reader = open_sequence(sequence, start, start + frames)
     played = PlayedSequence(reader, Playback(scenario.order))
     stamps = np.asarray(reader.stamps, dtype=np.float64)
@@ -81,6 +86,9 @@ def played_frames(sequence: str, frames: int, scenario: Scenario, dataset: Covis
     if dataset.stamps is not None:
         row_of = {float(s): r for r, s in enumerate(dataset.stamps)}
     rows = np.array([row_of.get(float(stamps[s]), -1) for s in sources], dtype=np.int64)
+    burst = scenario.blank_burst(frames, frame_rate_hz)
+    if burst is not None:
+        rows[burst[0]:burst[0] + burst[1]] = -1
     return PlayedFrames(recorded, rows, rate)
 
 
