@@ -16,6 +16,18 @@ Where a frame's pose comes from is the device's ``map_source``:
   created itself since then from depth on its own tracking keyframes (track ids too) — at most
   those of the last ``keep_slots`` slots, so the map stays bounded when the edge falls silent.
 
+A paper's device lost for ``own_map_after`` frames in a row (0: never, the paper's) stops
+waiting for the edge: the features it has been following as tracks — points back-projected
+from depth at poses the edge's map gave, under the ids the edge already knows from the frame
+summaries — join the map it tracks with, and it tracks on with them and the edge's points as
+``edge+local`` does (relocalised against them at once when the motion model misses; started
+afresh from depth after the tracker's ``reinit_after`` frames, as ORB-SLAM3 starts a new
+map). Its frames have poses again, so the edge can ask for them and the map grows into the
+ground the camera went to; without it a device lost in ground no upload has reached stays
+lost, since a lost frame has no pose and is never uploaded. As soon as a frame is tracked by
+``min_inliers`` of the edge's points, it is the paper's device again: its own points go back
+to being tracks.
+
 Track ids have the top bit set (:data:`~twinslam.slam.keyframe.TRACK_ID_BIT`). A lost frame is
 relocalised against the map the device tracks with: the keyframes' points, matched by
 descriptor, solved by PnP RANSAC. For each frame the device remembers M_f split by origin and,
@@ -60,6 +72,7 @@ class FrameResult:
     recovered: bool = False        #: relocalised, or tracked again after untracked frames
     refused: str = ""              #: why the pose gate refused this frame's relocalisation
     on_probation: bool = False     #: posed after a relocalisation, not counted tracked yet
+    own_map: str = ""              #: "started" / "ended": tracking with its own points since
 
 
 @dataclass(frozen=True)
@@ -79,13 +92,16 @@ class DeviceTrackerCore:
     def __init__(self, intrinsics: np.ndarray, slot_frames: int = table1.SLOT_FRAMES,
                  config: TrackingConfig | None = None, keep_slots: int = 2,
                  frame_rate_hz: float = table1.FRAME_RATE_HZ,
-                 map_source: str = DEFAULT_MAP_SOURCE) -> None:
+                 map_source: str = DEFAULT_MAP_SOURCE, own_map_after: int = 0) -> None:
         """``keep_slots``: the ended slots whose frames stay uploadable; the edge asks for a
         slot's frames during the next one, or later when the link was down meanwhile. A slot
         lasts ``slot_frames`` / ``frame_rate_hz`` seconds of frame stamps. ``map_source``:
-        ``edge`` or ``edge+local`` (module docstring); it decides ``config.own_points``."""
+        ``edge`` or ``edge+local`` (module docstring); it decides ``config.own_points``.
+        ``own_map_after``: frames lost in a row before the paper's device maps by itself."""
         if keep_slots < 1:
             raise ValueError(f"keep_slots must be >= 1, got {keep_slots}")
+        if own_map_after < 0:
+            raise ValueError(f"own_map_after must be >= 0 frames, got {own_map_after}")
         reason = check_map_source(map_source)
         if reason:
             raise ValueError(f"map_source {map_source!r}: {reason}")
@@ -111,6 +127,9 @@ class DeviceTrackerCore:
         self._images: dict[int, object] = {}
         self._next_track = 1
         self.lost = False                              #: the last frame was not tracked
+        self.own_map_after = own_map_after
+        #: the paper's device tracks with points of its own since a long loss
+        self.own_map = False
 
     @property
     def frame_count(self) -> int:
@@ -147,6 +166,10 @@ class DeviceTrackerCore:
         # a late stamp (older than the current slot) joins the current slot: ended is ended
         self.slot = max(self.slot, self.clock.slot_of(stamp))
         started = time.thread_time()             # this thread's CPU, not the machine's wall
+        own_map = ""
+        if self._lost_too_long():
+            self._start_own_map()
+            own_map = "started"
         out = self.tracking.track(color, depth)
         if image is not None:
             self._images[out.index] = image
@@ -177,10 +200,13 @@ class DeviceTrackerCore:
             out.index, slot, stamp, out.pose, self.k, out.features.points,
             depths.astype(np.float32), out.features.descriptors, point_ids.astype(np.uint64))
         was_lost, self.lost = self.lost, not out.tracked
+        if self.own_map and out.tracked and (~is_track).sum() >= self.config.min_inliers:
+            self._end_own_map()          # the edge's map explains the view again
+            own_map = "ended"
         return FrameResult(record, out.relocalised, self.clock.is_last(stamp),
                            lost_now=self.lost and not was_lost,
                            recovered=out.tracked and (out.relocalised or was_lost),
-                           refused=out.refused, on_probation=out.on_probation)
+                           refused=out.refused, on_probation=out.on_probation, own_map=own_map)
 
     def step(self, color: np.ndarray, depth: np.ndarray | None, stamp: float,
              image: object | None = None) -> FrameStep:
@@ -206,6 +232,41 @@ class DeviceTrackerCore:
             self.slot += 1
         return frames
 
+    def _lost_too_long(self) -> bool:
+        """A paper's device has lost the last ``own_map_after`` frames in a row."""
+        return (self.own_map_after > 0 and self.tracks is not None and not self.own_map
+                and self.tracking.lost_in_a_row >= self.own_map_after)
+
+    def _start_own_map(self) -> None:
+        """Track as ``edge+local`` from this frame on, the feature tracks joining the map as
+        the device's own points (their ids and slots kept)."""
+        assert self.tracks is not None
+        self.own_map = True
+        self.tracking.config = dataclasses.replace(self.config, own_points=True)
+        old, tracks = self.tracking.map, self.tracks.points
+        points = old.take(np.arange(len(old)))
+        rows = points.add(tracks.positions, tracks.descriptors, 0)
+        points.last_seen[rows] = tracks.last_seen
+        points.seen_count[rows] = tracks.seen_count
+        points.active[rows] = tracks.active
+        self.tracking.replace_map(points, np.arange(len(old)))
+        self.labels = np.concatenate([self.labels, self.track_labels])
+        self.created = np.concatenate([self.created, self.track_created])
+        self.tracks = None
+        self.track_labels = np.zeros(0, dtype=np.uint64)
+        self.track_created = np.zeros(0, dtype=np.int64)
+
+    def _end_own_map(self) -> None:
+        """The paper's device again: only the edge's points stay in the map it tracks with;
+        its own points go back to being feature tracks."""
+        self.own_map = False
+        self.tracking.config = self.config
+        own = (self.labels & np.uint64(TRACK_BIT)) != 0
+        self.tracks = FeatureTracks(self.k, self.config)
+        self.tracks.points = self.tracking.map.take(np.flatnonzero(own))
+        self.track_labels, self.track_created = self.labels[own], self.created[own]
+        self._keep_points(np.flatnonzero(~own))
+
     def _forget_tracks_before(self, oldest_slot: int) -> None:
         """Tracks started before ``oldest_slot`` go: no frame the edge may still ask for
         needs them, and within a slot is where the edge compares them."""
@@ -227,6 +288,7 @@ class DeviceTrackerCore:
             raise ValueError(f"map_source {map_source!r}: {reason}")
         if map_source == self.map_source:
             return
+        self.own_map = False
         self.map_source = map_source
         self.config = dataclasses.replace(self.config, own_points=map_source == EDGE_LOCAL)
         self.tracking.config = self.config

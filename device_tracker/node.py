@@ -34,6 +34,7 @@ from twinslam_msgs.msg import FrameSummaries, Keyframe, MapUpdate, UplinkThrough
 from device_tracker.camera_input import CameraFrame, CameraIntake
 from device_tracker.device_core import DeviceTrackerCore
 from device_tracker.edge_watchdog import EdgeWatchdog
+from device_tracker.frame_log import frame_log_lines
 from device_tracker.messages import (
     FrameRecord,
     encoded_keyframe,
@@ -107,7 +108,7 @@ class DeviceTrackerNode(Node):
             k = np.asarray(msg.k, dtype=np.float64).reshape(3, 3)
             s = self.settings
             self.core = DeviceTrackerCore(k, s.slot_frames, s.tracking, s.keep_slots,
-                                          s.frame_rate_hz, s.map_source)
+                                          s.frame_rate_hz, s.map_source, s.own_map_after)
             self.get_logger().info(f"camera {msg.width}x{msg.height}, fx {k[0, 0]:.1f}; "
                                    "tracking starts")
         self._process_ready()
@@ -133,14 +134,13 @@ class DeviceTrackerNode(Node):
         if step.unfinished:
             self._end_slot(step.unfinished, step.map_version, stamp)
         result, record = step.result, step.result.record
-        if result.lost_now:
-            self.get_logger().warning(f"frame {record.frame_id}: tracking lost; relocalising "
-                                      "against the local map")
-        elif result.recovered:
-            self.get_logger().info(f"frame {record.frame_id}: relocalised")
-        elif result.refused:
-            self.get_logger().info(f"frame {record.frame_id}: relocalisation refused: "
-                                   f"{result.refused}", throttle_duration_sec=1.0)
+        for line in frame_log_lines(result):      # one call site a severity (rclpy's rule)
+            if line.warning:
+                self.get_logger().warning(line.text)
+            elif line.throttled:
+                self.get_logger().info(line.text, throttle_duration_sec=1.0)
+            else:
+                self.get_logger().info(line.text)
         if self.edge_relocalisation.due(record.tracked or result.on_probation, stamp):
             self.edge_relocalisation.ask(core.upload(record.frame_id), stamp,
                                          frame.color_msg.header.frame_id)

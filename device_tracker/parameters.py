@@ -42,6 +42,11 @@ PARAMETERS = (
               "no image) go to the edge for relocalisation against its archive this often "
               "(seconds of frame stamps; the first at once; 0.5 as Edge-SLAM; the edge's "
               "reloc_restore_keyframes must be on); 0: never", low=0.0, high=3600.0),
+    ParamSpec("own_map_after_s", 0.0, "the paper's device (map_source edge) lost this long "
+              "(seconds of frame stamps) tracks on with points of its own — the features it "
+              "follows for the edge, from depth — and the edge's map, as edge+local, until "
+              "the edge's map explains its view again, so its frames can be uploaded; 0: "
+              "never, it waits for the edge's map", low=0.0, high=3600.0),
     ParamSpec("map_frame", "map", "frame id of the device's poses and path (its first "
               "frame's camera frame) and parent of the camera on /tf"),
     ParamSpec("camera_frame", "", "child frame of the device's pose on /tf; empty: the camera "
@@ -90,6 +95,7 @@ class DeviceSettings:
     keep_slots: int                #: 4 ride out a link down for ~5 s
     path_window: int
     reloc_period_s: float = 0.0    #: while lost, a frame to the edge's archive this often
+    own_map_after: int = 0         #: frames lost in a row before the paper's device maps itself
 
     @classmethod
     def from_parameters(cls, p: Mapping[str, Any]) -> DeviceSettings:
@@ -104,7 +110,8 @@ class DeviceSettings:
                                   reloc_min_inliers=int(p["reloc_min_inliers"]),
                                   reloc_probation_frames=int(p["reloc_probation_frames"])),
                    bool(p["upload_image"]), int(p["keep_slots"]), int(p["path_window"]),
-                   float(p["reloc_period_s"]))
+                   float(p["reloc_period_s"]),
+                   round(float(p["own_map_after_s"]) * float(p["frame_rate_hz"])))
 
     def describe(self, shaper: str) -> str:
         """The start-up line."""

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from device_tracker.device_core import TRACK_BIT, DeviceTrackerCore
+from device_tracker.frame_log import frame_log_lines
 from twinslam.sequences.synthetic import SyntheticSequence
 from twinslam.slam.map_update import MapSnapshot
 from twinslam.slam.tracking import TrackingConfig
@@ -252,6 +253,49 @@ def test_edge_mode_loses_a_frame_that_shares_no_point_with_the_map_update() -> N
     assert back.record.tracked and back.recovered and back.record.map_version == 2
     truth = np.linalg.inv(frames[0].pose) @ frames[SLOT + 2].pose
     assert np.linalg.norm(back.record.pose[:3, 3] - truth[:3, 3]) < 0.05
+
+
+def test_a_paper_device_lost_too_long_tracks_with_its_own_points_until_the_edge_map_holds_them(
+) -> None:
+    """The paper's device after a map update of points the camera never saw: without
+    ``own_map_after`` it stays lost (nothing it sees can be uploaded); with 3 its feature
+    tracks — under the ids its summaries already gave the edge — join its map after the third
+    lost frame and it tracks on with them: poses near the truth, frames the edge can ask for,
+    the log saying so. Once the edge's map holds those points it is the paper's device again,
+    tracking with the edge's points alone, the rest of its own points tracks again."""
+    seq = SyntheticSequence(3 * SLOT, seed=2)
+    frames = list(seq)
+    core = DeviceTrackerCore(seq.intrinsics, SLOT, map_source="edge", own_map_after=3)
+    _track(core, frames[:SLOT])
+    reported = {int(t) for r in core.take_slot() for t in r.track_ids}
+    assert core.apply_map_update(_foreign_update(1), 0)
+    results = _track(core, frames[SLOT:2 * SLOT])
+    assert [r.record.tracked for r in results[:3]] == [False] * 3
+    assert [r.own_map for r in results] == ["", "", "", "started"] + [""] * (SLOT - 4)
+    assert any("points of its own" in line.text and line.warning
+               for line in frame_log_lines(results[3]))
+    assert core.own_map and all(r.record.tracked for r in results[3:])
+    assert all(core.upload(r.record.frame_id) is not None for r in results[3:])
+    for r in results[3:]:
+        truth = np.linalg.inv(frames[0].pose) @ frames[r.record.frame_id].pose
+        assert np.linalg.norm(r.record.pose[:3, 3] - truth[:3, 3]) < 0.05
+    records = core.take_slot()
+    own = records[-1].track_ids
+    assert len(own) >= 30 and not len(records[-1].map_point_ids)
+    assert {int(t) for t in own} & reported, "the tracks the edge knew lost their ids"
+
+    assert core.apply_map_update(_update_from_own_points(core, 2, own), 1)   # uploaded
+    back = _track(core, frames[2 * SLOT:2 * SLOT + 3])
+    assert all(r.record.tracked and r.record.map_version == 2 for r in back)
+    assert back[0].own_map == "ended" and not core.own_map
+    assert not any(int(x) & TRACK_BIT for x in core.labels), "own points stayed in the map"
+    assert all(len(r.record.track_ids) for r in back), "no feature tracks for the edge"
+
+    core = DeviceTrackerCore(seq.intrinsics, SLOT, map_source="edge")
+    _track(core, frames[:SLOT])
+    core.take_slot()
+    assert core.apply_map_update(_foreign_update(1), 0)
+    assert not any(r.record.tracked for r in _track(core, frames[SLOT:2 * SLOT]))
 
 
 def test_edge_mode_survives_a_map_update_without_points() -> None:

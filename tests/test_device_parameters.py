@@ -80,3 +80,14 @@ def test_relocalisation_at_the_edge_is_asked_for_by_a_parameter_on_each_side() -
     assert edge_config(edge).reloc_restore_keyframes == 0
     assert DeviceSettings.from_parameters(dict(device, reloc_period_s=0.5)).reloc_period_s == 0.5
     assert edge_config(dict(edge, reloc_restore_keyframes=3)).reloc_restore_keyframes == 3
+
+
+def test_a_lost_device_tracks_with_its_own_points_after_the_seconds_a_parameter_says() -> None:
+    """``own_map_after_s`` is seconds of frame stamps: at 30 Hz 0.1 s is the third lost frame;
+    off (0) by default, the paper's device."""
+    from device_tracker.parameters import PARAMETERS, DeviceSettings
+
+    values = {spec.name: spec.default for spec in PARAMETERS}
+    assert DeviceSettings.from_parameters(values).own_map_after == 0
+    assert DeviceSettings.from_parameters(
+        dict(values, own_map_after_s=0.1, frame_rate_hz=30.0)).own_map_after == 3

@@ -69,7 +69,8 @@ class TrackingConfig:
     #: device counts itself tracked — and uploads — again (ORB-SLAM3's probation; 0: none)
     reloc_probation_frames: int = 5
     reinit_after: int = 60             #: lost this many frames in a row: start afresh from
-    #: depth at the last pose (no new points from a lost frame before: its pose is a guess)
+    #: depth at the last pose (no new points from a lost frame before: its pose is a guess;
+    #: a device with ``own_points`` off never does, unless it switches them on)
     own_points: bool = True            #: keyframes add map points of their own (ORB-SLAM's
     #: tracking with its local mapping). False: the map comes from elsewhere
     #: (:meth:`Tracking.replace_map`, the paper's device tracking against the edge's map);
@@ -178,6 +179,11 @@ class Tracking:
     @property
     def frames_tracked(self) -> int:
         return self._count
+
+    @property
+    def lost_in_a_row(self) -> int:
+        """Frames without a pose since the last posed one (0: the last frame had one)."""
+        return self._lost
 
     def replace_map(self, points: LocalMap, old_to_new: np.ndarray) -> None:
         """Track from now on against ``points`` (the device's copy of a new edge map);
