@@ -322,5 +322,5 @@ def test_calibrate_still_reads_frames_written_before_the_failure_causes(
     printed = capsys.readouterr().out
     assert "no failure causes: calibration_frames.csv has no failure_cause column" in printed
     assert "| edge | revisit-v15 | 20 |" in printed and "left out of the map" not in printed
-    assert (tmp_path / "calibration.png").is_file()
-    assert not (tmp_path / "calibration-failures.csv").exists()
+    assert (tmp_path / "rule-calibration.png").is_file()
+    assert not (tmp_path / "rule-calibration-failures.csv").exists()

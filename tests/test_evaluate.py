@@ -78,8 +78,12 @@ def test_evaluate_runs_every_seed_and_summarises(tmp_path: Path,
     report = capsys.readouterr().out
     assert "edge: 1 runs" in report and "edge+local: 1 runs" in report
     assert "frames a slot" in report and "best separation k =" in report
-    assert (out / "calibration.png").stat().st_size > 10_000
-    assert "| edge+local | revisit-lost | 1 |" in (out / "calibration.md").read_text()
+    assert (out / "rule-calibration.png").stat().st_size > 10_000
+    assert "| edge+local | revisit-lost | 1 |" in (out / "rule-calibration.md").read_text()
+    # evaluate's own files stay as they were: calibrate reads them, it never writes over them
+    assert (out / "calibration.csv").read_text(encoding="utf-8").startswith("scenario,")
+    assert main(["calibrate", str(out), "--out", str(out / "calibration.png")]) == 2
+    assert "would overwrite" in capsys.readouterr().err
     assert main(["calibrate", str(tmp_path / "nowhere")]) == 2
 
 

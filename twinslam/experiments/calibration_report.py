@@ -17,7 +17,7 @@ one or more folders (:func:`read_rows`, once) and measures, per device map sourc
   had reached, places integrated keyframes covered but the device's map left out, or places
   its map covered where tracking still failed.
 
-It draws ``calibration.png``: per run, predicted lost share against device failure share (one
+It draws ``rule-calibration.png``: per run, predicted lost share against device failure share (one
 colour per map source); and the device's failure rate against the shared map points, the
 fitted thresholds marked.
 """

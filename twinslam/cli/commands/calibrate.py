@@ -9,6 +9,12 @@ from pathlib import Path
 from twinslam.cli.console import Subparsers, error
 from twinslam.common.reporting import write_csv
 
+#: where the figure goes in the first folder, its tables beside it (.csv, .md, -failures.csv):
+#: never evaluate's own calibration.csv, which holds the runs this command reads
+DEFAULT_FIGURE = "rule-calibration.png"
+#: what evaluate wrote in a folder and calibrate reads: never written over
+EVALUATE_FILES = ("calibration.csv", "calibration_frames.csv", "runs.csv")
+
 
 def run(args: argparse.Namespace) -> int:
     # scipy and matplotlib load with the command, not with every `twinslam` start
@@ -44,7 +50,14 @@ def run(args: argparse.Namespace) -> int:
     table = agreement_markdown(agreement)
     print("\nper map source and scenario (shares and measures: mean over runs):")
     print(table)
-    out = args.out or args.folders[0] / "calibration.png"
+    out = args.out or args.folders[0] / DEFAULT_FIGURE
+    inputs = {(f / name).resolve() for f in args.folders for name in EVALUATE_FILES}
+    clash = sorted(str(p) for p in (out, out.with_suffix(".csv"), out.with_suffix(".md"),
+                                    out.with_name(f"{out.stem}-failures.csv"))
+                   if p.resolve() in inputs)
+    if clash:
+        return error(f"--out {out} would overwrite {', '.join(clash)}, which evaluate wrote "
+                     "and calibrate reads; name another figure")
     plot_calibration(runs, frames, results, out)
     write_csv(out.with_suffix(".csv"), [f.name for f in fields(ScenarioAgreement)],
               [list(asdict(a).values()) for a in agreement])
@@ -67,11 +80,12 @@ def register(sub: Subparsers) -> None:
     calibrate = sub.add_parser(
         "calibrate", help="the rule of a lost frame, measured from `twinslam evaluate` runs: "
         "lag, threshold, agreement per run and per scenario, where the failed frames come from "
-        "(calibration.png, .csv, -failures.csv, .md)")
+        "(rule-calibration.png, .csv, -failures.csv, .md)")
     calibrate.add_argument("folders", nargs="+", type=Path,
                            help="output folders of `twinslam evaluate` (calibration.csv and "
                            "calibration_frames.csv in each)")
     calibrate.add_argument("--out", type=Path, default=None,
                            help="the figure to write, the table beside it as .csv and .md "
-                           "(default: FIRST_FOLDER/calibration.png)")
+                           "(default: FIRST_FOLDER/rule-calibration.png; never one of "
+                           "evaluate's files)")
     calibrate.set_defaults(func=run)
