@@ -4,6 +4,7 @@ results.md edited by hand, or a CSV re-run without its table, fails here."""
 
 from __future__ import annotations
 
+import csv
 import importlib.util
 import sys
 from pathlib import Path
@@ -201,3 +202,44 @@ def test_a_table_is_matched_as_a_whole_and_an_empty_printout_is_not_a_table() ->
     assert _missing("\n".join(swapped)) == [swapped]
     mixed = [*first[:3], second[2]]
     assert _missing("\n".join(mixed)) == [mixed]
+
+
+#: device_variants.py's LABEL=FOLDER arguments (folders under docs/figures/own-map), as
+#: results.md writes them beside each table
+DEVICE_VARIANT_TABLES = [
+    ["paper=constrained-restores", "own-map=constrained-own-map",
+     "edge+local=constrained-edge-local"],
+    ["table-i=revisit-1000-table1", "own-map=revisit-1000-own-map",
+     "short-loop=revisit-1000-short-loop", "short-loop+own-map=revisit-1000-short-loop-own-map",
+     "edge+local=revisit-1000-edge-local"],
+    ["own-map=constrained-1000-own-map"],
+    ["table-i=revisit-v25-300-table1", "short-loop+own-map=revisit-v25-300-short-loop-own-map"],
+    ["table-i=outages-300-table1", "short-loop+own-map=outages-300-short-loop-own-map"],
+]
+
+
+@pytest.mark.parametrize("args", DEVICE_VARIANT_TABLES, ids=lambda a: a[0])
+def test_each_device_variant_table_is_what_its_command_prints(
+        args: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    module = _script("device_variants")
+    module.main([(label, FIGURES / "own-map" / folder)
+                 for label, folder in (a.split("=", 1) for a in args)])
+    assert _missing(capsys.readouterr().out) == []
+
+
+def test_a_device_variant_table_refuses_a_run_that_dropped_frames(tmp_path: Path) -> None:
+    """A run whose device dropped camera frames measured the machine: the table refuses it."""
+    folder = tmp_path / "dropped"
+    folder.mkdir()
+    source = FIGURES / "own-map" / "constrained-own-map"
+    (folder / "calibration_frames.csv.gz").write_bytes(
+        (source / "calibration_frames.csv.gz").read_bytes())
+    with (source / "runs.csv").open(encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    rows[0]["frames_dropped"] = "12"
+    with (folder / "runs.csv").open("w", newline="", encoding="utf-8") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    with pytest.raises(SystemExit, match="dropped camera frames"):
+        _script("device_variants").main([("x", folder)])

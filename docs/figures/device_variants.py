@@ -1,0 +1,139 @@
+"""The tables of docs/results.md, "A device that tracks with its own points when lost": devices
+and edges of several ``twinslam evaluate`` folders side by side, each against the first over
+the same seeds:
+
+    .venv/bin/python docs/figures/device_variants.py \\
+        restores=docs/figures/own-map/constrained-restores \\
+        own-map=docs/figures/own-map/constrained-own-map ...
+
+Each ``LABEL=FOLDER`` holds the runs.csv and calibration_frames.csv (or .csv.gz) of one evaluate
+run (one scenario, map source and policy). The first table gives each folder's figures a user
+judges a device by, mean ± 95 % CI half-width over its runs (Student t, as evaluate's tables):
+the share of played frames without a pose (a covered lens counted in), the share of the scored
+next-slot frames the device failed (the covered lens counted apart, as calibrate does), the 95th
+percentile and the longest loss, jumps, ATE, the edge's mean υ, lost share and υ over the
+tracked frames (a lost frame scores 0; υ is undefined for a run whose map stayed empty, left out
+of its mean), the uploads and the runs that uploaded nothing, the downlink, the device's CPU a
+frame and the camera frames it dropped. The second says where each folder's failed frames come
+from (calibrate's causes). The third gives each later folder minus the first, paired by seed:
+mean [95 % CI] (twinslam.experiments.paired, bootstrap over seeds). A run whose device dropped
+camera frames is refused: it measures the machine.
+"""
+
+from __future__ import annotations
+
+import csv
+import gzip
+import io
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from twinslam.common.reporting import mean_ci95
+from twinslam.experiments.calibration_report import failure_causes, failure_causes_markdown
+from twinslam.experiments.paired import paired_difference
+
+#: (column, heading, format); "scored_failed" is the share of the run's scored frames
+#: (calibration_frames.csv) the device did not track
+FIGURES = (("failed_share", "failed (played frames)", "{:.1%}"),
+           ("scored_failed", "failed (scored, lens apart)", "{:.1%}"),
+           ("loss_p95_s", "loss p95 (s)", "{:.2f}"), ("longest_loss_s", "longest loss (s)",
+                                                      "{:.2f}"),
+           ("jumps", "jumps", "{:.1f}"), ("ate_m", "ATE (m)", "{:.3f}"),
+           ("mean_uncertainty", "mean υ", "{:.1f}"), ("lost_share", "lost share", "{:.3f}"),
+           ("tracked_uncertainty", "υ tracked", "{:.1f}"),
+           ("frames_uploaded", "uploads (frames)", "{:.1f}"),
+           ("downlink_mb", "downlink (MB)", "{:.1f}"),
+           ("device_cpu_ms", "device CPU (ms/frame)", "{:.1f}"),
+           ("frames_dropped", "dropped (frames)", "{:.0f}"))
+PAIRED = ("failed_share", "scored_failed", "ate_m", "frames_uploaded")
+
+
+def _frames(folder: Path) -> list[dict[str, str]]:
+    """calibration_frames.csv (or its .gz, as committed) of one folder."""
+    plain = folder / "calibration_frames.csv"
+    packed = plain.with_suffix(".csv.gz")
+    if plain.is_file():
+        text = plain.read_text(encoding="utf-8")
+    elif packed.is_file():
+        text = gzip.decompress(packed.read_bytes()).decode("utf-8")
+    else:
+        raise SystemExit(f"{folder}: no calibration_frames.csv (written by twinslam evaluate)")
+    return list(csv.DictReader(io.StringIO(text)))
+
+
+def _runs(folder: Path, label: str
+          ) -> tuple[str, dict[int, dict[str, float]], list[dict[str, str]]]:
+    """("scenario, map source, policy", seed → the run's figures, the scored frames labelled
+    with ``label``) of one folder."""
+    with (folder / "runs.csv").open(encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    kinds = {(r["scenario"], r["map_source"], r["policy"]) for r in rows}
+    if len(kinds) != 1:
+        raise SystemExit(f"{folder}: expected one scenario, map source and policy, got "
+                         f"{sorted(kinds)}")
+    dropped = [int(r["seed"]) for r in rows if int(r["frames_dropped"] or 0)]
+    if dropped:
+        raise SystemExit(f"{folder}: seeds {dropped} dropped camera frames; rerun with fewer "
+                         "jobs")
+    frames = [{**f, "folder": label} for f in _frames(folder)]
+    runs = {}
+    for r in rows:
+        seed = int(r["seed"])
+        runs[seed] = {k: float(r[k]) for k, _, _ in FIGURES if k in r}
+        tracked = [f["device_tracked"] == "1" for f in frames if int(f["seed"]) == seed]
+        runs[seed]["scored_failed"] = (1.0 - float(np.mean(tracked))) if tracked else math.nan
+    return ", ".join(sorted(kinds)[0]), runs, frames
+
+
+def main(folders: list[tuple[str, Path]]) -> None:
+    loaded = [(label, *_runs(path, label)) for label, path in folders]
+    print("| variant | scenario, map source, policy | runs | runs without an upload | "
+          + " | ".join(h for _, h, _ in FIGURES) + " |")
+    print("|---|---|---|---|" + "---|" * len(FIGURES))
+    for label, kind, runs, _ in loaded:
+        cells = []
+        for key, _, fmt in FIGURES:
+            mean, half = mean_ci95([r[key] for r in runs.values()])   # NaN υ left out
+            cells.append("–" if math.isnan(mean) else f"{fmt.format(mean)} ± {fmt.format(half)}")
+        idle = sum(r["frames_uploaded"] == 0 for r in runs.values())
+        print(f"| {label} | {kind} | {len(runs)} | {idle} | " + " | ".join(cells) + " |")
+    print()
+    print(failure_causes_markdown(failure_causes([f for *_, frames in loaded for f in frames])))
+    if len(loaded) < 2:
+        return
+    base_label, _, base, _ = loaded[0]
+    formats = {k: f for k, _, f in FIGURES}
+    print()
+    print(f"| variant − {base_label}, paired by seed | seeds | "
+          + " | ".join(h for k, h, _ in FIGURES if k in PAIRED) + " |")
+    print("|---|---|" + "---|" * len(PAIRED))
+    for label, _, runs, _ in loaded[1:]:
+        seeds = sorted(set(runs) & set(base))
+        if seeds != sorted(runs) or seeds != sorted(base):
+            raise SystemExit(f"{label} and {base_label} hold different seeds: no pairing")
+        cells = []
+        for key in PAIRED:
+            d = paired_difference(np.array([[runs[s][key] for s in seeds]]),
+                                  [base[s][key] for s in seeds])
+            fmt = formats[key]
+            cells.append(f"{fmt.format(d.mean)} [{fmt.format(d.low)}, {fmt.format(d.high)}]")
+        print(f"| {label} | {len(seeds)} | " + " | ".join(cells) + " |")
+
+
+def _parse(items: list[str]) -> list[tuple[str, Path]]:
+    out = []
+    for item in items:
+        label, sep, path = item.partition("=")
+        if not sep or not label or not path:
+            raise SystemExit(f"{item!r}: expected LABEL=FOLDER\n\n{__doc__}")
+        out.append((label, Path(path)))
+    return out
+
+
+if __name__ == "__main__":
+    if len(sys.argv) < 2:
+        raise SystemExit(__doc__)
+    main(_parse(sys.argv[1:]))
