@@ -72,7 +72,9 @@ class FrameResult:
     recovered: bool = False        #: relocalised, or tracked again after untracked frames
     refused: str = ""              #: why the pose gate refused this frame's relocalisation
     on_probation: bool = False     #: posed after a relocalisation, not counted tracked yet
-    own_map: str = ""              #: "started" / "ended": tracking with its own points since
+    #: "started" or "ended" at this frame: tracking with the device's own points too ("": no
+    #: change)
+    own_map: str = ""
 
 
 @dataclass(frozen=True)
