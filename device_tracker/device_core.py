@@ -130,8 +130,12 @@ class DeviceTrackerCore:
         self._next_track = 1
         self.lost = False                              #: the last frame was not tracked
         self.own_map_after = own_map_after
-        #: the paper's device tracks with points of its own since a long loss
-        self.own_map = False
+
+    @property
+    def own_map(self) -> bool:
+        """A paper's device tracking with points of its own since a long loss: the only
+        time it follows no feature tracks."""
+        return self.map_source == EDGE and self.tracks is None
 
     @property
     def frame_count(self) -> int:
@@ -236,14 +240,13 @@ class DeviceTrackerCore:
 
     def _lost_too_long(self) -> bool:
         """A paper's device has lost the last ``own_map_after`` frames in a row."""
-        return (self.own_map_after > 0 and self.tracks is not None and not self.own_map
+        return (self.own_map_after > 0 and self.tracks is not None
                 and self.tracking.lost_in_a_row >= self.own_map_after)
 
     def _start_own_map(self) -> None:
         """Track as ``edge+local`` from this frame on, the feature tracks joining the map as
         the device's own points (their ids and slots kept)."""
         assert self.tracks is not None
-        self.own_map = True
         self.tracking.config = dataclasses.replace(self.config, own_points=True)
         old, tracks = self.tracking.map, self.tracks.points
         points = old.take(np.arange(len(old)))
@@ -261,7 +264,6 @@ class DeviceTrackerCore:
     def _end_own_map(self) -> None:
         """The paper's device again: only the edge's points stay in the map it tracks with;
         its own points go back to being feature tracks."""
-        self.own_map = False
         self.tracking.config = self.config
         own = (self.labels & np.uint64(TRACK_BIT)) != 0
         self.tracks = FeatureTracks(self.k, self.config)
@@ -290,7 +292,6 @@ class DeviceTrackerCore:
             raise ValueError(f"map_source {map_source!r}: {reason}")
         if map_source == self.map_source:
             return
-        self.own_map = False
         self.map_source = map_source
         self.config = dataclasses.replace(self.config, own_points=map_source == EDGE_LOCAL)
         self.tracking.config = self.config
