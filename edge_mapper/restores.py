@@ -24,16 +24,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from edge_mapper.planning_world import MAX_DEPTH_M, visible_points
+from twinslam.map_management.restoring import MIN_VIEW_POINTS, REPLACE_RATIO
 from twinslam.slam.keyframe_archive import KeyFrameArchive
 from twinslam.slam.keyframe_map import KeyFrameMap, shared_counts
 from twinslam.uncertainty.map_uncertainty import map_uncertainty
 
 #: an archived keyframe is brought back only if this many of its points are in the coming
-#: view (the device's tracking rule asks for 30 map points a frame: fewer would not keep a
-#: frame tracked on their own)
-MIN_VISIBLE = 30
-#: and only if it sees more than this many times what the keyframe it replaces sees
-REPLACE_RATIO = 2.0
+#: view, and only if it sees more than REPLACE_RATIO times what the keyframe it replaces
+#: sees: the thresholds of the simulator's restoring rule (the same step in frames' terms)
+MIN_VISIBLE = MIN_VIEW_POINTS
 
 
 @dataclass(frozen=True)

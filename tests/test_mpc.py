@@ -14,9 +14,9 @@ from edge_mapper.policy_control import policy_refused
 from tests.test_policies_and_simulator import _small_instance
 from twinslam.policy_registry import make_policy
 from twinslam.simulator.covisibility import CovisibilityDataset, load_covisibility
-from twinslam.simulator.env import FrameStream, MapManagementEnv, SimConfig
+from twinslam.simulator.env import FrameStream, MapManagementEnv, PredictedStream, SimConfig
 from twinslam.simulator.exact_optimum import exact_optimum
-from twinslam.simulator.mpc import MpcConfig, MpcPlanner, PredictedStream, parse_mpc
+from twinslam.simulator.mpc import MpcConfig, MpcPlanner, parse_mpc
 from twinslam.simulator.plan import replay, rollout
 from twinslam.uplink.channels import parse_channel
 

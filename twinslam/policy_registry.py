@@ -13,11 +13,12 @@ from pathlib import Path
 
 from twinslam.map_management.delayed import DELAY_PREFIX, DelayedPolicy, parse_delay
 from twinslam.map_management.policies import POLICIES, MapPolicy, make_rule_policy
+from twinslam.map_management.restoring import RESTORE_PREFIX, RestoringPolicy
 
 LEARNED_PREFIX = "mbrl"          #: ``mbrl:CHECKPOINT`` names a policy `twinslam train` wrote
 MPC = "mpc"                      #: ``mpc[:H=3/S=4/...]``: the causal planner
 #: what a policy name starts with: a rule, a learned checkpoint, the planner or a delay
-POLICY_KINDS = frozenset({*POLICIES, LEARNED_PREFIX, MPC, DELAY_PREFIX})
+POLICY_KINDS = frozenset({*POLICIES, LEARNED_PREFIX, MPC, DELAY_PREFIX, RESTORE_PREFIX})
 
 
 def make_policy(name: str) -> MapPolicy:
@@ -25,9 +26,15 @@ def make_policy(name: str) -> MapPolicy:
     learned policy of the checkpoint at PATH, or ``mpc[:OPTIONS]`` for the causal planner
     (:mod:`twinslam.simulator.mpc`; the simulator's world model in ``twinslam sim``, a world
     built from the live map at the edge), or ``delay:SECONDS:POLICY`` for a policy's decisions
-    handed back late (a control for the cost of deciding slowly). Unknown names raise
-    ValueError listing the choices."""
+    handed back late (a control for the cost of deciding slowly), or ``restore:POLICY`` for a
+    policy that also brings archived keyframes back where the device is (the simulator with
+    an archive; the live edge restores by its ``restore_keyframes`` parameter instead). Unknown
+    names raise ValueError listing the choices."""
     kind, _, path = name.partition(":")
+    if kind == RESTORE_PREFIX:
+        if not path or path.partition(":")[0] == RESTORE_PREFIX:
+            raise ValueError(f"policy {name!r}: use restore:POLICY, e.g. restore:lff")
+        return RestoringPolicy(make_policy(path))
     if kind == DELAY_PREFIX:
         seconds, inner = parse_delay(name)
         if inner.partition(":")[0] in (LEARNED_PREFIX, DELAY_PREFIX):
@@ -46,8 +53,8 @@ def make_policy(name: str) -> MapPolicy:
                           if config.rates == "variational" else None)
     if name not in POLICIES:
         raise ValueError(f"unknown policy {name!r}; choose from {sorted(POLICIES)}, "
-                         "mbrl:CHECKPOINT, mpc[:H=../S=..], delay:SECONDS:POLICY (or, in "
-                         "the simulator, 'reference')")
+                         "mbrl:CHECKPOINT, mpc[:H=../S=..], delay:SECONDS:POLICY, "
+                         "restore:POLICY (or, in the simulator, 'reference')")
     return make_rule_policy(name)
 
 

@@ -19,8 +19,15 @@ class ActionError(ValueError):
 
 @dataclass
 class MapAction:
+    """U_k, C_k and the archived keyframes R_k brought back: V_{k+1} = (V_k ∪ U_k ∪ R_k) \\ C_k.
+
+    ``restore`` is empty for the paper's policies; a restoring one (:mod:`.restoring`) names
+    archived keyframes the map takes back over the downlink, and evicts one more map keyframe
+    for each that does not fit under V_max."""
+
     upload: list[int]
     evict: list[int]
+    restore: list[int] = field(default_factory=list)
 
 
 @dataclass
@@ -37,16 +44,45 @@ class SlotObservation:
     rate_history: list[int]            #: state indices d_{k-τ..k}
     n_states: int
     weights: Any = field(repr=False, default=None)   #: callable(ids_a, ids_b) -> block
+    #: keyframes evicted earlier that the edge still holds, least recently useful first
+    archive: list[int] = field(default_factory=list)
+    n_restore: int = 0                 #: at most this many of them may come back this slot
+    vmax: int | None = None            #: V_max (restores beyond it cost an eviction each)
 
     def weight_block(self, a: list[int], b: list[int]) -> np.ndarray:
         return np.asarray(self.weights(a, b))
 
+    def evictions_with(self, n_restored: int) -> int:
+        """|C_k| when ``n_restored`` archived keyframes come back: Theorem 1's, plus one for
+        each that does not fit under V_max."""
+        return restore_evictions(self.n_evict, len(self.map_frames) + self.n_upload,
+                                 n_restored, self.vmax)
+
+
+def restore_evictions(n_evict: int, pool: int, n_restored: int, vmax: int | None) -> int:
+    """Evictions a slot makes: Theorem 1's ``n_evict`` out of ``pool`` = |V_k| + |U_k|
+    keyframes, plus the restores that would push the map over ``vmax``."""
+    if vmax is None or n_restored == 0:
+        return n_evict
+    return n_evict + max(0, pool - n_evict + n_restored - vmax)
+
 
 def check_map_action(slot: int, n_upload: int, n_evict: int, candidates: Collection[int],
-                     map_frames: Collection[int], action: MapAction) -> None:
+                     map_frames: Collection[int], action: MapAction,
+                     archive: Collection[int] = (), n_restore: int = 0,
+                     vmax: int | None = None) -> None:
     """Raise :class:`ActionError` unless ``action`` uploads ``n_upload`` distinct frames of
-    ``candidates`` and evicts ``n_evict`` distinct frames of the map or the uploads (Theorem 1's
-    sizes); used by the simulator and by the edge node alike."""
+    ``candidates``, restores at most ``n_restore`` distinct keyframes of ``archive`` and evicts
+    distinct frames of the map or the uploads, as many as Theorem 1 says plus one a restore
+    beyond ``vmax``; used by the simulator and by the edge node alike."""
+    restore = list(action.restore)
+    if len(set(restore)) != len(restore) or len(restore) > n_restore:
+        raise ActionError(f"slot {slot}: restore {len(restore)} distinct keyframes, at most "
+                          f"{n_restore} may come back")
+    unknown = [f for f in restore if f not in archive]
+    if unknown:
+        raise ActionError(f"slot {slot}: restores {sorted(unknown)} are not in the archive")
+    n_evict = restore_evictions(n_evict, len(map_frames) + n_upload, len(restore), vmax)
     up, ev = list(action.upload), list(action.evict)
     up_set, ev_set = set(up), set(ev)
     if len(up) != n_upload or len(up_set) != len(up):

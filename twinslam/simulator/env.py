@@ -13,6 +13,13 @@ against V^e_{k+1}; and a lost frame, having no pose, is not among the next slot'
 candidates. With ``min_shared`` 1 and ``update_lag_frames`` 0 this is the paper's eq. 8
 exactly (``SimConfig.paper_rule``).
 
+With an archive (``SimConfig.archive_keyframes``) the environment is the edge of the
+archive: an evicted keyframe is kept, up to that many, the least recently useful leaving
+first, and a policy may bring up to ``restore_keyframes`` of them back a slot
+(``MapAction.restore``, over the downlink: no uplink time), evicting one more map keyframe for
+each that does not fit under V_max. Without one (the default) it is the paper's edge, where
+what is evicted is gone.
+
 Frames come from a covisibility dataset, read forwards then backwards (a walk that turns
 around) so that episodes can be longer than the recording; every frame *instance* has its own
 id, and two instances of the same recorded frame share all their points.
@@ -65,6 +72,20 @@ class SimConfig:
     #: recorded frames a device walks per camera frame: 1 as recorded, 2 twice as fast, 0.5
     #: half as fast (each frame seen twice), 0 standing still (many devices)
     speed: float = 1.0
+    #: evicted keyframes the edge keeps (0: none, the paper's edge)
+    archive_keyframes: int = 0
+    #: archived keyframes a policy may bring back a slot (0: none)
+    restore_keyframes: int = 0
+
+    def __post_init__(self) -> None:
+        if not 0 < self.d_req_s < float("inf"):
+            raise ValueError(f"D_req must be a positive number of seconds, got {self.d_req_s}")
+        if self.archive_keyframes < 0 or self.restore_keyframes < 0:
+            raise ValueError("archive and restore keyframes must be >= 0, got "
+                             f"{self.archive_keyframes} and {self.restore_keyframes}")
+        if self.restore_keyframes and not self.archive_keyframes:
+            raise ValueError(f"restoring {self.restore_keyframes} keyframes a slot needs an "
+                             "archive to restore from (archive keyframes > 0)")
 
     @classmethod
     def paper_rule(cls, **kwargs: Any) -> SimConfig:
@@ -79,6 +100,17 @@ class SimConfig:
         if self.update_lag_frames is not None:
             return self.update_lag_frames
         return update_lag_frames(self.d_req_s, table1.FRAME_RATE_HZ)
+
+
+#: what :meth:`MapManagementEnv.snapshot` returns: (map frames, map weights, slot, upload
+#: candidates, archive); the future depends on all of them but the weights
+Snapshot = tuple[list[int], np.ndarray, int, list[int], list[int]]
+
+
+def state_key(snap: Snapshot) -> tuple[tuple[int, ...], ...]:
+    """What two snapshots must share to have the same future: the map, the candidates and
+    the archive (a search merges the states with one key)."""
+    return tuple(snap[0]), tuple(snap[3]), tuple(snap[4])
 
 
 class FrameStream:
@@ -108,6 +140,34 @@ class FrameStream:
             return self._compute(idx)
 
 
+class PredictedStream:
+    """The frames as the planner imagines them: the instances seen so far as they were, the
+    later ones by ``mode`` (module docstring) from the last slot seen."""
+
+    def __init__(self, base: FrameStream, seen: int, slot_frames: int, n_frames: int,
+                 mode: str) -> None:
+        self.base, self.seen, self.slot_frames, self.n, self.mode = (
+            base, seen, slot_frames, n_frames, mode)
+        first = int(base.dataset_index(max(0, seen - slot_frames)))
+        self.last = int(base.dataset_index(seen - 1))
+        #: frames moved per instance across the last slot seen (signed: backwards too)
+        self.velocity = (self.last - first) / max(1, slot_frames - 1)
+
+    def dataset_index(self, instance: np.ndarray | list[int] | int) -> np.ndarray:
+        idx = np.asarray(instance, dtype=np.int64)
+        future = idx >= self.seen
+        if self.mode == "persistence":
+            src = np.where(future, self.seen - self.slot_frames
+                           + (idx - self.seen) % self.slot_frames, idx)
+            return self.base.dataset_index(src)
+        out = self.base.dataset_index(np.where(future, self.seen - 1, idx))
+        t = np.rint(self.last + self.velocity * (idx - (self.seen - 1))).astype(np.int64)
+        period = max(1, 2 * (self.n - 1))
+        phase = t % period
+        reflected = np.where(phase < self.n, phase, period - phase)   # back at the ends
+        return np.where(future, reflected, out)
+
+
 class MapManagementEnv:
     """Gym-style: ``reset(seed) -> (obs, info)``;
     ``step(action) -> (obs, reward, terminated, truncated, info)``."""
@@ -128,6 +188,8 @@ class MapManagementEnv:
         self._plan: list[tuple[int, float]] = []   #: (state, rate) of every slot of the episode
         #: the current slot's frames the device tracked: the upload candidates
         self._uploadable: list[int] = []
+        #: evicted keyframes the edge still holds, least recently useful first
+        self._archive: list[int] = []
         #: the map's points per point, moved with the map (the device's rule only)
         self._points: MapPointCounts | None = None
         #: the last map scored: (its key, its factorisation, its weights). A slot's first
@@ -184,6 +246,7 @@ class MapManagementEnv:
                                   speed=self.config.speed)
         self.channel.reset(seed)
         self._map, self._map_w, self._slot = [], np.zeros((0, 0)), 0
+        self._archive = []
         self._uploadable = self.slot_frames(0)       # tracked on the device's start-up map
         # The whole episode's rates are drawn up front: the agent still sees them one slot at a
         # time, but a clairvoyant planner can read ahead and snapshots stay exact.
@@ -203,8 +266,10 @@ class MapManagementEnv:
                                             self.config.vmax, len(self._map), len(cand))
         hist = [s for s, _ in self._plan[max(0, self._slot - self.config.history + 1):
                                          self._slot + 1]]
+        n_restore = self.config.restore_keyframes if self.config.archive_keyframes > 0 else 0
         return SlotObservation(self._slot, list(self._map), cand, n_up, n_ev, rate, state, hist,
-                               self.channel.n_states, self.weights)
+                               self.channel.n_states, self.weights, list(self._archive),
+                               n_restore, self.config.vmax)
 
     def observation(self) -> SlotObservation:
         """What the agent sees now (after ``reset``, ``step`` or ``restore``)."""
@@ -236,21 +301,24 @@ class MapManagementEnv:
         the environment, not from ``obs``, so a policy that edits its observation cannot
         smuggle frames in (a lost frame among them)."""
         check_map_action(obs.slot, obs.n_upload, obs.n_evict, set(self._uploadable), self._map,
-                         action)
+                         action, set(self._archive), obs.n_restore, self.config.vmax)
 
     def apply(self, action: MapAction, *, weights: bool = True) -> None:
         """V^e_{k+1} = (U_k ∪ V^e_k) \\ C_k, keeping capture order (oldest = anchor first).
 
         ``weights=False`` leaves the map's weight matrix for the caller to set (``step`` on a
-        dense dataset gathers it in the same kernel call as the reward)."""
+        dense dataset gathers it in the same kernel call as the reward). Restored keyframes
+        leave the archive, evicted ones join it."""
         self._last_obs = None
+        self._archive_update(action)
         if not weights:
-            self._map = sorted(set(self._map).union(action.upload).difference(action.evict))
+            self._map = sorted(set(self._map).union(action.upload, action.restore)
+                               .difference(action.evict))
             return
         evict = set(action.evict)
         src = np.array([i for i, f in enumerate(self._map) if f not in evict], dtype=np.int64)
         kept = [self._map[i] for i in src]
-        new = sorted(f for f in action.upload if f not in evict)
+        new = sorted(f for f in [*action.upload, *action.restore] if f not in evict)
         merged = sorted(kept + new)
         if self.dataset.dense:               # a gather of the whole block is the cheapest
             ds = self.stream.dataset_index(merged)
@@ -272,6 +340,16 @@ class MapManagementEnv:
             w[new_pos, :] = block
             w[:, new_pos] = block.T
         self._map, self._map_w = merged, w
+
+    def _archive_update(self, action: MapAction) -> None:
+        """The archive after ``action``: its restores leave, its evictions join as the most
+        recently useful, the least recently useful leave beyond ``archive_keyframes``."""
+        keep = self.config.archive_keyframes
+        if keep <= 0:
+            return
+        back = set(action.restore)
+        archive = [f for f in self._archive if f not in back] + sorted(action.evict)
+        self._archive = archive[max(0, len(archive) - keep):]
 
     def step(self, action: MapAction) -> tuple[SlotObservation, float, bool, bool, dict[str, Any]]:
         obs = self.observation()
@@ -296,7 +374,8 @@ class MapManagementEnv:
         lost = np.concatenate([early[1], lost_late])
         self._uploadable = frames[~lost].tolist()
         info = {"uncertainty": slot_u, "map_size": len(self._map),
-                "map_uncertainty": slot_u.map_uncertainty, "lost": lost}
+                "map_uncertainty": slot_u.map_uncertainty, "lost": lost,
+                "restored": len(action.restore)}
         truncated = self._slot >= self.config.slots
         self._last_obs = self._observation()
         return self._last_obs, slot_u.reward, False, truncated, info
@@ -339,7 +418,7 @@ class MapManagementEnv:
                                               self.config.log_det_pi, trackable)
         return slot_u, lost_frames(log_tau, trackable), map_w
 
-    def emulate(self, before: tuple[list[int], np.ndarray, int, list[int]], action: MapAction,
+    def emulate(self, before: Snapshot, action: MapAction,
                 next_rate: tuple[int, float]) -> tuple[SlotObservation, float, dict[str, Any]]:
         """What ``step(action)`` from the snapshot ``before`` would have returned had slot
         k + 1's rate been ``next_rate`` = (state, Mbit/s): an artificial experience (paper
@@ -371,6 +450,7 @@ class MapManagementEnv:
         world = copy.copy(self)
         world._map, world._map_w = list(self._map), self._map_w.copy()
         world._uploadable = list(self._uploadable)
+        world._archive = list(self._archive)
         world._points, world._last_obs = None, None
         world._plan = list(self._plan)
         if rates is not None:
@@ -382,18 +462,30 @@ class MapManagementEnv:
         return world
 
 
+    def coming_view(self, slot: int) -> tuple[Any, list[int]]:
+        """The next slot's frames as a causal planner predicts them at the end of ``slot``:
+        the camera moving on at the velocity it had across ``slot`` (in recorded frames,
+        turned back at the sequence's ends; :class:`PredictedStream` "motion", what the live
+        edge's extrapolated poses are), as (a weights function that knows them, their
+        instance ids)."""
+        f = self.config.slot_frames
+        world = self.imagine(None, PredictedStream(self.stream, (slot + 1) * f, f,
+                                                   self.dataset.n_frames, "motion"))
+        return world.weights, world.slot_frames(slot + 1)
+
     @property
     def map_frames(self) -> list[int]:
         return list(self._map)
 
-    def snapshot(self) -> tuple[list[int], np.ndarray, int, list[int]]:
-        """(map frames, map weights, slot, the slot's upload candidates): all a later
-        ``restore`` needs to continue exactly from here."""
-        return list(self._map), self._map_w.copy(), self._slot, list(self._uploadable)
+    def snapshot(self) -> Snapshot:
+        """(map frames, map weights, slot, the slot's upload candidates, the archive): all a
+        later ``restore`` needs to continue exactly from here."""
+        return (list(self._map), self._map_w.copy(), self._slot, list(self._uploadable),
+                list(self._archive))
 
-    def restore(self, snap: tuple[list[int], np.ndarray, int, list[int]]) -> None:
-        frames, w, self._slot, uploadable = snap
+    def restore(self, snap: Snapshot) -> None:
+        frames, w, self._slot, uploadable, archive = snap
         self._last_obs = None
         self._map, self._map_w = list(frames), w.copy()
-        self._uploadable = list(uploadable)
+        self._uploadable, self._archive = list(uploadable), list(archive)
 

@@ -28,6 +28,7 @@ class RunScore:
     policy: str
     seed: int
     tally: UncertaintyTally
+    restored: int = 0           #: archived keyframes its plan brought back (downlink only)
 
     @property
     def mean_uncertainty(self) -> float:
@@ -84,6 +85,11 @@ class PolicyResult(PooledScores):
     def ci95(self) -> float:
         return mean_ci95(self.per_seed)[1]
 
+    @property
+    def restored_per_run(self) -> float:
+        """Archived keyframes brought back a run, on average."""
+        return float(np.mean([r.restored for r in self.runs])) if self.runs else 0.0
+
 
 def distinct_labels(labels: dict[str, str]) -> dict[str, str]:
     """Policy name → the label tables show. Learned policies are labelled by their kind
@@ -115,6 +121,7 @@ class SeedScores:
 
     seed: int
     tallies: tuple[UncertaintyTally, ...]
+    restored: tuple[int, ...] = ()     #: each policy's restores, in the task's order
 
 
 def score_seed(task: SeedTask, built: dict[str, MapPolicy] | None = None) -> SeedScores:
@@ -132,7 +139,8 @@ def score_seed(task: SeedTask, built: dict[str, MapPolicy] | None = None) -> See
         plans["reference"] = ReferencePlanner(
             rule_policies(), swap_evaluations=task.reference_swaps).plan(
             env, task.seed, known=list(plans.values()))
-    return SeedScores(task.seed, tuple(plans[name].tally for name in task.policies))
+    return SeedScores(task.seed, tuple(plans[name].tally for name in task.policies),
+                      tuple(plans[name].restored for name in task.policies))
 
 
 def evaluate(policies: list[str], dataset: CovisibilityDataset, channel_spec: str,
@@ -178,6 +186,7 @@ def evaluate(policies: list[str], dataset: CovisibilityDataset, channel_spec: st
         raise RuntimeError(f"{len(sweep.failures)} of {len(tasks)} seeds failed; "
                            f"{failure.task}:\n{failure.error.rstrip()}")
     scores = sweep.in_order()
-    return [PolicyResult(labels[name], [RunScore(labels[name], s.seed, s.tallies[i])
+    return [PolicyResult(labels[name], [RunScore(labels[name], s.seed, s.tallies[i],
+                                                 s.restored[i] if s.restored else 0)
                                         for s in scores])
             for i, name in enumerate(policies)]

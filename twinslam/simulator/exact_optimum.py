@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from twinslam.map_management.actions import MapAction
-from twinslam.simulator.env import MapManagementEnv
+from twinslam.simulator.env import MapManagementEnv, state_key
 from twinslam.simulator.plan import Plan, action_count, all_actions
 from twinslam.uncertainty.map_uncertainty import SlotUncertainty
 
@@ -61,7 +61,7 @@ def best_continuation(env: MapManagementEnv, slots: int, max_maps: int = 50_000,
                 env.restore(best.snapshot)
                 _obs, reward, _t, _trunc, info = env.step(action)
                 after = env.snapshot()
-                key = (tuple(after[0]), tuple(after[3]))    # the map and the candidates
+                key = state_key(after)
                 known = nxt.get(key)
                 if known is not None and known.total <= best.total - reward:
                     continue                 # the same state reached at no lower cost

@@ -20,6 +20,11 @@ in S scenarios. What it may know is only what a device and an edge know at slot 
   covisibility of the frames at the extrapolated poses, live it would be the frusta's overlap
   there; ``persistence``: the next slots see what this slot saw; ``oracle``: the true frames.
 
+With an archive (the environment's ``archive_keyframes``) each candidate first action is
+also tried with the archived keyframes the predicted next-slot frames need brought back
+(:func:`~twinslam.map_management.restoring.with_restores`): ``mpc`` plans restores with the
+same imagined future it plans uploads with.
+
 The later slots' plans: every action exactly (dynamic programming over maps, as
 :mod:`~twinslam.simulator.exact_optimum`) while the instance is small enough, else the best of
 the base policies' (LFF, ADAPT) roll-outs. Candidate first actions: all of them when there are
@@ -41,7 +46,8 @@ import numpy as np
 
 from twinslam.map_management.actions import MapAction, SlotObservation
 from twinslam.map_management.policies import Adapt, LatestFrameFirst, MapPolicy
-from twinslam.simulator.env import FrameStream, MapManagementEnv
+from twinslam.map_management.restoring import with_restores
+from twinslam.simulator.env import MapManagementEnv, PredictedStream
 from twinslam.simulator.exact_optimum import InstanceTooLarge, best_continuation
 from twinslam.simulator.plan import action_count, all_actions
 from twinslam.simulator.reference import swap_one
@@ -106,34 +112,6 @@ def parse_mpc(spec: str) -> MpcConfig:
         config = replace(config, **{field_name: typed})
     config.check()
     return config
-
-
-class PredictedStream:
-    """The frames as the planner imagines them: the instances seen so far as they were, the
-    later ones by ``mode`` (module docstring) from the last slot seen."""
-
-    def __init__(self, base: FrameStream, seen: int, slot_frames: int, n_frames: int,
-                 mode: str) -> None:
-        self.base, self.seen, self.slot_frames, self.n, self.mode = (
-            base, seen, slot_frames, n_frames, mode)
-        first = int(base.dataset_index(max(0, seen - slot_frames)))
-        self.last = int(base.dataset_index(seen - 1))
-        #: frames moved per instance across the last slot seen (signed: backwards too)
-        self.velocity = (self.last - first) / max(1, slot_frames - 1)
-
-    def dataset_index(self, instance: np.ndarray | list[int] | int) -> np.ndarray:
-        idx = np.asarray(instance, dtype=np.int64)
-        future = idx >= self.seen
-        if self.mode == "persistence":
-            src = np.where(future, self.seen - self.slot_frames
-                           + (idx - self.seen) % self.slot_frames, idx)
-            return self.base.dataset_index(src)
-        out = self.base.dataset_index(np.where(future, self.seen - 1, idx))
-        t = np.rint(self.last + self.velocity * (idx - (self.seen - 1))).astype(np.int64)
-        period = max(1, 2 * (self.n - 1))
-        phase = t % period
-        reflected = np.where(phase < self.n, phase, period - phase)   # back at the ends
-        return np.where(future, reflected, out)
 
 
 class MpcPlanner:
@@ -233,10 +211,12 @@ class MpcPlanner:
                                "and experiment do; at the edge edge_mapper.planning_world's "
                                "LiveMpc builds one from the live map each slot)")
         self._observe(obs)
+        worlds = [self._world(env, obs, rates) for rates in self._scenarios(obs)]
         first = self._first_actions(obs)
+        if obs.n_restore > 0:           # with an archive: each also with the restores that
+            first += self._restoring(obs, first, worlds[0])   # the predicted frames need
         if len(first) == 1:
             return first[0]
-        worlds = [self._world(env, obs, rates) for rates in self._scenarios(obs)]
         costs = np.zeros(len(first))
         for world in worlds:
             start = world.snapshot()
@@ -258,6 +238,20 @@ class MpcPlanner:
         for a in proposals:
             unique.setdefault((tuple(sorted(a.upload)), tuple(sorted(a.evict))), a)
         return list(unique.values())
+
+    @staticmethod
+    def _restoring(obs: SlotObservation, first: list[MapAction], world: MapManagementEnv
+                   ) -> list[MapAction]:
+        """``first``'s actions with archived keyframes brought back for the next slot's
+        frames as ``world`` predicts them (:func:`with_restores`), those that restore any."""
+        predicted = replace(obs, weights=world.weights)
+        coming = world.slot_frames(obs.slot + 1)
+        out = []
+        for action in first:
+            restoring = with_restores(predicted, action, coming)
+            if restoring.restore:
+                out.append(restoring)
+        return out
 
     def _cost_to_go(self, world: MapManagementEnv, slots: int) -> float:
         """The least Σ υ of the next ``slots`` slots (at most to the episode's end) from the

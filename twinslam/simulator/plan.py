@@ -34,6 +34,11 @@ class Plan:
         return float(np.sum(self.objectives))
 
     @property
+    def restored(self) -> int:
+        """Archived keyframes the plan brings back, over the episode."""
+        return sum(len(a.restore) for a in self.actions)
+
+    @property
     def tally(self) -> UncertaintyTally:
         """Every slot's frames pooled: mean υ, lost share and tracked υ of the episode."""
         return UncertaintyTally.of(self.slots)

@@ -15,8 +15,11 @@ policy it was given:
    policies' plans an evaluation already rolled out).
 2. **Beam search**: each beam state (map after slot k) is expanded with every given policy's
    action in that state, every handed plan's action for slot k where it is valid in that state,
-   and random one-frame swaps of them; states leaving the same map are merged (the future
-   depends only on the map), the ``beam`` with the lowest accumulated υ survive.
+   and random one-frame swaps of them — with an archive, each also with the archived keyframes
+   the next slot's true frames need brought back (:mod:`~twinslam.map_management.restoring`:
+   the restores made with the future known); states leaving the same map, candidates and
+   archive are merged (the future depends on nothing else), the ``beam`` with the lowest
+   accumulated υ survive.
 3. **Swap local search** on the true objective: change one upload (u → u' of the same slot) or
    one eviction (c → c' of the same pool) of the best plan, carry the swap through the later
    slots (a later eviction of the frame swapped out now evicts the frame swapped in), replay
@@ -38,7 +41,8 @@ from twinslam.map_management.actions import (
     check_map_action,
 )
 from twinslam.map_management.policies import Adapt, LatestFrameFirst, MapPolicy, PeriodicalUploading
-from twinslam.simulator.env import MapManagementEnv
+from twinslam.map_management.restoring import with_restores
+from twinslam.simulator.env import MapManagementEnv, state_key
 from twinslam.simulator.plan import Plan, replay, rollout
 from twinslam.uncertainty.map_uncertainty import SlotUncertainty
 
@@ -48,7 +52,8 @@ def rule_policies() -> list[MapPolicy]:
 
 
 def swap_one(obs: SlotObservation, base: MapAction, rng: np.random.Generator) -> MapAction:
-    """Swap one upload and one eviction of ``base`` at random (keeps Theorem 1's sizes)."""
+    """Swap one upload and one eviction of ``base`` at random (keeps Theorem 1's sizes and
+    ``base``'s restores)."""
     up = list(base.upload)
     others = [f for f in obs.candidates if f not in up]
     if up and others:
@@ -56,16 +61,17 @@ def swap_one(obs: SlotObservation, base: MapAction, rng: np.random.Generator) ->
     pool = sorted(obs.map_frames + up)
     evict = [f for f in base.evict if f in pool]
     rest = [f for f in pool if f not in evict]
-    while len(evict) < obs.n_evict:                  # an evicted upload was swapped out
+    while len(evict) < obs.evictions_with(len(base.restore)):   # an evicted upload swapped out
         evict.append(rest.pop(int(rng.integers(len(rest)))))
     if evict and rest and rng.random() < 0.5:
         evict[rng.integers(len(evict))] = rest[rng.integers(len(rest))]
-    return MapAction(sorted(up), sorted(evict))
+    return MapAction(sorted(up), sorted(evict), list(base.restore))
 
 
 def _renamed(action: MapAction, old: int, new: int) -> MapAction:
     """``action`` with frame ``old`` evicted as ``new`` (the swap carried into a later slot)."""
-    return MapAction(list(action.upload), sorted(new if f == old else f for f in action.evict))
+    return MapAction(list(action.upload), sorted(new if f == old else f for f in action.evict),
+                     list(action.restore))
 
 
 @dataclass
@@ -106,21 +112,27 @@ class ReferencePlanner:
     # -- beam search --------------------------------------------------------------------------
 
     def _proposals(self, obs: SlotObservation, rng: np.random.Generator,
-                   known: list[Plan]) -> list[MapAction]:
+                   known: list[Plan], coming: list[int]) -> list[MapAction]:
+        """The actions a beam state is expanded with; with an archive, each also with the
+        archived keyframes the ``coming`` slot's true frames need brought back."""
         base = [p.decide(obs) for p in self.policies]
         for plan in known:               # a handed plan's action, where this state allows it
             a = plan.actions[obs.slot]   # (another state may have lost its frames: then not)
             try:
                 check_map_action(obs.slot, obs.n_upload, obs.n_evict, obs.candidates,
-                                 obs.map_frames, a)
+                                 obs.map_frames, a, obs.archive, obs.n_restore, obs.vmax)
             except ActionError:
                 continue
             base.append(a)
         extra = ([swap_one(obs, base[i % len(base)], rng) for i in range(self.perturbations)]
                  if base else [])
+        if obs.n_restore > 0:            # the future known: restore for the frames to come
+            extra += [with_restores(obs, MapAction(a.upload, a.evict), coming)
+                      for a in base if not a.restore]
         unique: dict[tuple[Any, ...], MapAction] = {}
         for a in base + extra:
-            unique[(tuple(sorted(a.upload)), tuple(sorted(a.evict)))] = a
+            unique[(tuple(sorted(a.upload)), tuple(sorted(a.evict)),
+                    tuple(sorted(a.restore)))] = a
         return list(unique.values())
 
     def _beam_search(self, env: MapManagementEnv, seed: int, known: list[Plan]) -> Plan:
@@ -133,13 +145,14 @@ class ReferencePlanner:
             children: dict[tuple[Any, ...], _Beam] = {}
             for b in beams:
                 env.restore(b.snapshot)
-                for action in self._proposals(env.observation(), rng, known):
+                coming = env.slot_frames(_slot + 1)
+                for action in self._proposals(env.observation(), rng, known, coming):
                     env.restore(b.snapshot)
                     _obs, reward, _t, _tr, info = env.step(action)
                     after = env.snapshot()
                     child = _Beam(b.total - reward, [*b.actions, action],
                                   [*b.slots, info["uncertainty"]], after)
-                    key = (tuple(after[0]), tuple(after[3]))    # map and candidates
+                    key = state_key(after)
                     if key not in children or child.total < children[key].total:
                         children[key] = child
             beams = sorted(children.values(), key=lambda c: c.total)[:self.beam]
@@ -194,7 +207,8 @@ class ReferencePlanner:
             old = act.upload[int(rng.integers(len(act.upload)))]
             new = others[int(rng.integers(len(others)))]
             changed = MapAction(sorted(new if f == old else f for f in act.upload),
-                                sorted(new if f == old else f for f in act.evict))
+                                sorted(new if f == old else f for f in act.evict),
+                                list(act.restore))
         elif act.evict:
             pool = sorted(obs.map_frames + list(act.upload))
             kept = [f for f in pool if f not in act.evict]
@@ -203,7 +217,8 @@ class ReferencePlanner:
             old = act.evict[int(rng.integers(len(act.evict)))]   # now kept ...
             new = kept[int(rng.integers(len(kept)))]             # ... and this one evicted
             changed = MapAction(list(act.upload), sorted(new if f == old else f
-                                                         for f in act.evict))
+                                                         for f in act.evict),
+                                list(act.restore))
             old, new = new, old         # later slots that evicted ``new`` evict ``old`` instead
         else:
             return None

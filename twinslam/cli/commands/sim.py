@@ -34,11 +34,14 @@ class Comparison:
     rate_range: tuple[float, float] = (table1.RATE_MIN_MBPS, table1.RATE_MAX_MBPS)
     vmax: int = table1.VMAX
     slot_frames: int = table1.SLOT_FRAMES
+    d_req_s: float = table1.D_REQ_S
     slots: int = 200
     seeds: int = 5
     seed0: int = 0
     walk_start: int | None = None
     paper_rule: bool = False
+    archive_keyframes: int = 0
+    restore_keyframes: int = 0
     csv: str | None = None
     verbose: bool = False
     executor: str = "local"
@@ -51,12 +54,17 @@ def compare(c: Comparison) -> int:
     try:
         dataset = covisibility(c.covis)
         rule = dict(min_shared=1, update_lag_frames=0) if c.paper_rule else {}
-        config = SimConfig(vmax=c.vmax, slot_frames=c.slot_frames, slots=c.slots,
-                           start=c.walk_start, **rule)
+        config = SimConfig(vmax=c.vmax, slot_frames=c.slot_frames, d_req_s=c.d_req_s,
+                           slots=c.slots,
+                           start=c.walk_start, archive_keyframes=c.archive_keyframes,
+                           restore_keyframes=c.restore_keyframes, **rule)
         seeds = list(range(c.seed0, c.seed0 + c.seeds))
         print(f"covisibility: {dataset.n_frames} frames ({dataset.source or c.covis}); "
-              f"channel {c.channel}; V_max {c.vmax}, F {c.slot_frames}, "
-              f"{c.slots} slots x {len(seeds)} seeds", flush=True)
+              f"channel {c.channel}; V_max {c.vmax}, F {c.slot_frames}, D_req {c.d_req_s:g} s, "
+              f"{c.slots} slots x {len(seeds)} seeds"
+              + (f"; an archive of {c.archive_keyframes} keyframes, up to "
+                 f"{c.restore_keyframes} restored a slot" if c.archive_keyframes else ""),
+              flush=True)
         start = time.monotonic()
         with make_executor(c.executor, c.jobs, c.ray_address) as executor:
             results = evaluate(list(c.policies), dataset, c.channel, config, seeds,
@@ -65,7 +73,7 @@ def compare(c: Comparison) -> int:
                                scores_in_progress=c.verbose)
     except (ChannelError, CovisibilityError, ValueError, RuntimeError) as exc:
         return error(exc)
-    _print_table(results)
+    _print_table(results, restores=config.restore_keyframes > 0)
     rule_text = ("the paper's rule: lost when no map point is shared" if c.paper_rule else
                  f"lost with fewer than {config.min_shared} shared map points, a slot's first "
                  f"{config.lag_frames} frames on the map before the last update")
@@ -78,26 +86,29 @@ def compare(c: Comparison) -> int:
     return 0
 
 
-def _print_table(results: list[PolicyResult]) -> None:
+def _print_table(results: list[PolicyResult], restores: bool = False) -> None:
+    """The policies' table; ``restores``: with the archived keyframes each brought back."""
     reference = next((r for r in results if r.policy == "reference"), None)
     width = max(12, *(len(r.policy) for r in results))
     print(f"\n{'policy':<{width}} {'mean υ':>11} {'± ci95':>9} {'lost %':>7} {'υ tracked':>11}"
-          f"{'  gap to reference' if reference else ''}")
+          f"{' restored/run' if restores else ''}{'  gap to reference' if reference else ''}")
     for r in results:
         gap = f"  {r.mean - reference.mean:+.2f}" if reference else ""
+        back = f" {r.restored_per_run:>12.1f}" if restores else ""
         print(f"{r.policy:<{width}} {r.mean:>11.2f} {r.ci95:>9.2f} {100 * r.lost_share:>7.2f} "
-              f"{r.tracked_uncertainty:>11.2f}{gap}")
+              f"{r.tracked_uncertainty:>11.2f}{back}{gap}")
 
 
 def _write_runs(path: str, specs: list[str], results: list[PolicyResult]) -> None:
     with open(path, "w", newline="", encoding="utf-8") as fh:
         writer = csv.writer(fh)
         writer.writerow(["policy", "spec", "seed", "mean_uncertainty", "lost_share",
-                         "tracked_uncertainty"])
+                         "tracked_uncertainty", "restored"])
         for spec, r in zip(specs, results, strict=True):
             for run in r.runs:
                 writer.writerow([r.policy, spec, run.seed, f"{run.mean_uncertainty:.6f}",
-                                 f"{run.lost_share:.6f}", f"{run.tracked_uncertainty:.6f}"])
+                                 f"{run.lost_share:.6f}", f"{run.tracked_uncertainty:.6f}",
+                                 run.restored])
 
 
 def run(args: argparse.Namespace) -> int:
@@ -108,8 +119,9 @@ def run(args: argparse.Namespace) -> int:
         return run_fleet(args)
     policies = tuple(p.strip() for p in args.policy.split(",") if p.strip())
     return compare(Comparison(args.covis, policies, args.channel, args.rate_range, args.vmax,
-                              args.slot_frames, args.slots, args.seeds, args.seed0,
-                              args.walk_start, args.paper_rule, args.csv, args.verbose,
+                              args.slot_frames, args.d_req, args.slots, args.seeds, args.seed0,
+                              args.walk_start, args.paper_rule, args.archive_keyframes,
+                              args.restore_keyframes, args.csv, args.verbose,
                               args.executor, args.jobs, args.ray_address))
 
 
@@ -125,13 +137,18 @@ def register(sub: Subparsers) -> None:
                      "(a policy from `twinslam train`), mpc[:H=3/S=4/rates=regime/frames=motion] "
                      "(the causal planner: H slots ahead over S rate scenarios of the regime "
                      "twin, the frames extrapolated from the camera's motion; rates=oracle, "
-                     "frames=persistence|oracle for the ablations), reference (a clairvoyant "
-                     "search "
+                     "frames=persistence|oracle for the ablations), restore:POLICY (POLICY's "
+                     "decisions, then archived keyframes brought back where the camera's "
+                     "motion leads; with --archive-keyframes), reference (a clairvoyant search "
                      "started from every other listed policy: beam search, then swap local "
-                     "search; not a bound)")
+                     "search; not a bound; with an archive it restores with the future known)")
     add_setting_arguments(sim)
     sim.add_argument("--slot-frames", type=int, default=Comparison.slot_frames,
                      help="F, frames per slot (a slot lasts F / 30 Hz)")
+    sim.add_argument("--d-req", type=float, default=Comparison.d_req_s, metavar="SECONDS",
+                     help="D_req, the seconds a slot's uploads may take (Theorem 1 sizes U_k "
+                     "by it; the first D_req of the next slot is tracked on the map before "
+                     "the update)")
     sim.add_argument("--slots", type=int, default=Comparison.slots, help="slots per run")
     sim.add_argument("--seeds", type=int, default=Comparison.seeds,
                      help="runs per policy, seeds --seed0 … --seed0 + N - 1 (each seed: its "
@@ -145,6 +162,12 @@ def register(sub: Subparsers) -> None:
                      help="score as the paper does: a frame is lost only when it shares no map "
                      "point, the map update there at the slot's first frame (default: the "
                      "device's rule, twinslam/common/tracking_rule.py)")
+    sim.add_argument("--archive-keyframes", type=int, default=0, metavar="N",
+                     help="the edge keeps up to N evicted keyframes (the least recently useful "
+                     "leave first) instead of forgetting them; 0 (default): the paper's edge")
+    sim.add_argument("--restore-keyframes", type=int, default=0, metavar="N",
+                     help="archived keyframes a policy may bring back a slot (restore:POLICY, "
+                     "mpc and the reference do; needs --archive-keyframes)")
     sim.add_argument("--csv", metavar="FILE",
                      help="also write one row per run: policy, spec (as given: tells two "
                      "checkpoints apart), seed, mean_uncertainty (a lost frame = 0), lost_share, "

@@ -1,0 +1,138 @@
+"""Archived keyframes brought back into the map where the device is: ``restore:POLICY``.
+
+The paper's edge forgets what it evicts, so a device walking back into an evicted place fails
+there whatever the policy chose. An edge with an archive can bring keyframes back over the
+downlink (no uplink time): the live edge does it after the policy's decision, from the view
+at the device's extrapolated poses (:mod:`edge_mapper.restores`). This module is the same
+step in terms every policy sees — frames and their covisibility weights — so the simulator
+can score it, a planner can plan it and the clairvoyant reference can do it with the future
+known:
+
+an archived keyframe comes back when it shares at least :data:`MIN_VIEW_POINTS` map points
+with a frame of the *view*; once the map is full it takes the place of the map keyframe that
+shares least with the view (never one uploaded this slot), and only when it shares more than
+:data:`REPLACE_RATIO` times what that one shares; a restore that would cut the map in two is
+skipped (a disconnected map has no finite uncertainty, its parts no common frame).
+
+What the view is decides what kind of policy it is: ``restore:POLICY`` looks at the next
+slot's frames where the camera's motion across this slot leads (in the simulator
+:meth:`~twinslam.simulator.env.MapManagementEnv.coming_view`, causal, as the live edge's
+extrapolated poses; the slot's newest tracked frames where no world predicts them), the
+reference at the next slot's true frames, ``mpc`` at the frames its world model predicts.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import replace
+from typing import Any, Protocol, runtime_checkable
+
+from twinslam.map_management.actions import MapAction, SlotObservation
+from twinslam.map_management.policies import MapPolicy, WorldPlanner
+from twinslam.uncertainty.map_uncertainty import map_uncertainty
+
+RESTORE_PREFIX = "restore"
+#: an archived keyframe is worth bringing back only if a frame of the view shares this many
+#: of its points (the device's rule asks for 30 map points a frame: fewer would not keep a
+#: frame tracked on their own)
+MIN_VIEW_POINTS = 30
+#: and, in a full map, only if it shares more than this many times what the keyframe it
+#: replaces shares with the view
+REPLACE_RATIO = 2.0
+#: the slot's newest tracked frames that stand for where the device is going
+VIEW_FRAMES = 3
+
+
+def with_restores(obs: SlotObservation, action: MapAction, view: Sequence[int]) -> MapAction:
+    """``action`` with up to ``obs.n_restore`` archived keyframes brought back for ``view``
+    (frame instances whose weights ``obs.weights`` knows), and the map keyframes they replace
+    added to its evictions (the module docstring's rule); ``action`` itself when nothing of
+    the archive is in view."""
+    if obs.n_restore <= 0 or not obs.archive or not len(view):
+        return action
+    view = list(view)
+    seen = obs.weight_block(obs.archive, view).max(axis=1)
+    candidates = sorted(((float(s), a) for s, a in zip(seen, obs.archive, strict=True)
+                         if s >= MIN_VIEW_POINTS), key=lambda sa: (-sa[0], sa[1]))
+    if not candidates:
+        return action
+    current = sorted((set(obs.map_frames) | set(action.upload)) - set(action.evict))
+    scores: dict[int, float] = {}
+    if current:
+        scores = dict(zip(current, obs.weight_block(current, view).max(axis=1).tolist(),
+                          strict=True))
+    room = (obs.vmax - len(current)) if obs.vmax is not None else obs.n_restore
+    protected = set(action.upload)
+    restore: list[int] = []
+    evict = list(action.evict)
+    for score, kf in candidates:
+        if len(restore) >= obs.n_restore:
+            break
+        victim = None
+        if room <= 0:
+            replaceable = [k for k in current if k not in protected]
+            if not replaceable:
+                break
+            victim = min(replaceable, key=lambda k: (scores[k], k))
+            if score <= REPLACE_RATIO * scores[victim]:
+                break                        # the rest see less still: nothing more to gain
+        trial = [k for k in current if k != victim] + [kf]
+        if not math.isfinite(map_uncertainty(obs.weight_block(trial, trial))):
+            continue
+        current, scores[kf] = trial, score
+        restore.append(kf)
+        protected.add(kf)
+        if victim is None:
+            room -= 1
+        else:
+            evict.append(victim)
+    if not restore:
+        return action
+    return MapAction(list(action.upload), sorted(evict), restore)
+
+
+@runtime_checkable
+class ViewPredictor(Protocol):
+    """A world that predicts the next slot's frames at the end of a slot (the simulator's
+    environment does): (a weights function that knows them, their ids)."""
+
+    def coming_view(self, slot: int) -> tuple[Callable[[list[int], list[int]], Any],
+                                              list[int]]: ...
+
+
+def newest_view(obs: SlotObservation) -> list[int]:
+    """The slot's newest tracked frames: where a causal rule assumes the device goes on."""
+    return list(obs.candidates[-VIEW_FRAMES:])
+
+
+class RestoringPolicy:
+    """``policy``'s uploads and evictions, then archived keyframes brought back for the
+    coming view (:func:`with_restores`): the next slot's frames as the world it is attached
+    to predicts them from the camera's motion, else the slot's newest tracked frames. Without
+    an archive (the paper's edge) it is ``policy``."""
+
+    def __init__(self, policy: MapPolicy) -> None:
+        self.policy = policy
+        self.name = f"{RESTORE_PREFIX}:{policy.name}"
+        self._world: ViewPredictor | None = None
+
+    def reset(self, seed: int | None = None) -> None:
+        self.policy.reset(seed)
+
+    def attach(self, env: Any) -> None:
+        """The world whose coming view it restores for; passed on to a wrapped planner
+        (``mpc`` imagines its future in ``env``)."""
+        self._world = env if isinstance(env, ViewPredictor) else None
+        if isinstance(self.policy, WorldPlanner):
+            self.policy.attach(env)
+
+    def decide(self, obs: SlotObservation) -> MapAction:
+        action = self.policy.decide(obs)
+        if obs.n_restore <= 0:
+            return action
+        if self._world is None:
+            return with_restores(obs, action, newest_view(obs))
+        weights, coming = self._world.coming_view(obs.slot)
+        return with_restores(replace(obs, weights=weights), action, coming)
+
