@@ -49,8 +49,8 @@ MAX_DEPTH_M = 6.0
 #: maps (and actions from a map) of a later slot planned exactly at the edge, unless the
 #: policy's states= option says otherwise: the simulator's default (2 000) took up to 2 s a
 #: slot on 60-frame slots, and LFF's decisions handed back 300 ms late left the device 17-18
-#: more frames untracked a run (docs/results.md, "mpc live"); above it the later slots are
-#: the base policies' roll-outs
+#: more frames untracked a run (docs/results/planning.md, "`mpc` live"); above it the later
+#: slots are the base policies' roll-outs
 LIVE_MAX_STATES = 64
 #: a predicted frame sees what the nearest view saw, nearest by distance and turn: a view
 #: this many metres away counts as far as one turned this many degrees

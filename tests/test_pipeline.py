@@ -229,7 +229,7 @@ def test_policies_decide_differently_and_the_edge_reports_consistent_scores(
     mean = (1 - lost) · tracked (a lost frame scores 0): the edge reports the three
     figures of one slot. Which policy scores best live is not asserted: on 10 slots the
     margins between ADAPT and LFF are a few percent and depend on timing (the simulator's
-    tests compare policies; docs/results.md has the live evaluation)."""
+    tests compare policies; docs/results/paper-device.md has the live evaluation)."""
     uploads = {p: [sorted(r[1].requests[s].upload_frame_ids) for s in sorted(r[1].requests)]
                for p, r in runs.items()}
     assert uploads["lff"] != uploads["adapt"] and uploads["pu"] != uploads["adapt"] \

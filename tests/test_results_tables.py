@@ -1,6 +1,6 @@
-"""docs/results.md's map-management tables are printed by committed commands from committed
-CSVs: re-running each command written beside a table must print that table. A
-results.md edited by hand, or a CSV re-run without its table, fails here."""
+"""The tables of the results pages (docs/results/*.md) are printed by committed commands from
+committed CSVs: re-running each command written beside a table must print that table. A page
+edited by hand, or a CSV re-run without its table, fails here."""
 
 from __future__ import annotations
 
@@ -14,13 +14,16 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 FIGURES = REPO / "docs" / "figures"
-RESULTS = (REPO / "docs" / "results.md").read_text(encoding="utf-8")
+#: every results page, the findings page first
+RESULTS = "\n".join(path.read_text(encoding="utf-8") for path in
+                    [REPO / "docs" / "results.md",
+                     *sorted((REPO / "docs" / "results").glob("*.md"))])
 
 MPC_ABLATIONS = ("mpc:H=2,mpc:H=1,mpc,mpc:H=2/S=1,mpc:H=2/frames=persistence,"
                  "mpc:H=2/frames=oracle,mpc:H=2/rates=last,mpc:H=2/rates=markov,"
                  "mpc:H=2/rates=variational,mpc:H=2/rates=oracle,"
                  "mpc:H=2/rates=oracle/frames=oracle")
-#: planner_tables.py's arguments, as results.md writes them beside each table
+#: planner_tables.py's arguments, as the results pages write them beside each table
 PLANNER_TABLES = [
     ["planner/mpc-tune.csv"],
     ["planner/mpc-eval-*.csv", "--rows", "lff,pu,adapt,random,mpc:H=2,reference"],
@@ -77,8 +80,8 @@ RESULT_LINES = [line.strip() for line in RESULTS.splitlines()]
 
 
 def _missing(printed: str) -> list[list[str]]:
-    """The printed tables that results.md does not hold as they are printed: every table of
-    the printout must stand in results.md as one block, its header, separator and rows in
+    """The printed tables that the results pages do not hold as they are printed: every table
+    of the printout must stand on a page as one block, its header, separator and rows in
     that order and nothing between them (a row of another table is not this table). A
     printout without a table is missing too."""
     tables = _tables(printed)
@@ -136,7 +139,7 @@ def test_each_archive_restores_table_is_what_its_command_prints(
     assert len(_tables(printed)) == 1 and _missing(printed) == []
 
 
-#: the folders (docs/figures/…/NAME, frames gzipped) results.md runs `twinslam calibrate` on
+#: the folders (docs/figures/…/NAME, frames gzipped) the results pages run `twinslam calibrate` on
 CALIBRATED_FOLDERS = [("archive-restores/failure-causes", ("none", "restores")),
                       ("slot-length", ("slot30-dreq025-none", "slot30-dreq025-restores",
                                        "slot30-restores"))]
@@ -147,7 +150,7 @@ def test_the_failure_causes_tables_are_what_calibrate_prints_from_their_frames(
         where: str, names: tuple[str, ...], tmp_path: Path,
         capsys: pytest.CaptureFixture[str]) -> None:
     """`twinslam calibrate FOLDER...` on the committed frames (gzipped) prints the
-    calibration and failure-cause tables results.md shows (and, where committed, the CSV
+    calibration and failure-cause tables the results pages show (and, where committed, the CSV
     beside them)."""
     import gzip
 
@@ -165,7 +168,7 @@ def test_the_failure_causes_tables_are_what_calibrate_prints_from_their_frames(
     assert main(["calibrate", *folders, "--out", str(tmp_path / "calibration.png")]) == 0
     printed = capsys.readouterr().out
     assert len(_tables(printed)) == 2 and _missing(printed) == []
-    # the committed CSV names each folder as results.md's commands do
+    # the committed CSV names each folder as the pages' commands do
     if (committed / "calibration-failures.csv").is_file():
         assert ((tmp_path / "calibration-failures.csv").read_text(encoding="utf-8")
                 .replace(f"{tmp_path}/", "")
@@ -177,7 +180,7 @@ def test_the_live_planner_tables_are_what_evaluate_prints_from_their_runs(
         folder: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """`twinslam evaluate … --resume` on the committed runs.csv runs nothing — nor extracts the
     played frames' covisibility, which only runs still to do need — and prints the tables
-    results.md shows for `mpc` live (the evaluation, and its re-run)."""
+    docs/results/planning.md shows for `mpc` live (the evaluation, and its re-run)."""
     from twinslam.cli.main import main
     for name in ("runs.csv", "calibration.csv"):
         (tmp_path / name).write_bytes((FIGURES / folder / name).read_bytes())
@@ -194,7 +197,7 @@ def test_the_live_planner_tables_are_what_evaluate_prints_from_their_runs(
 
 def test_a_table_is_matched_as_a_whole_and_an_empty_printout_is_not_a_table() -> None:
     """The check itself: a printout with no table fails, and so does a table whose rows all
-    stand in results.md but in another table, or in another order."""
+    stand on a page but in another table, or in another order."""
     assert _missing("nothing printed") == [["(no table printed)"]]
     first, second = [t for t in _tables(RESULTS) if len(t) >= 4 and t[2] != t[3]][:2]
     assert _missing("\n".join(first)) == []
@@ -205,7 +208,7 @@ def test_a_table_is_matched_as_a_whole_and_an_empty_printout_is_not_a_table() ->
 
 
 #: device_variants.py's LABEL=FOLDER arguments (folders under docs/figures/own-map), as
-#: results.md writes them beside each table
+#: the results pages write them beside each table
 DEVICE_VARIANT_TABLES = [
     ["paper=constrained-restores", "own-map=constrained-own-map",
      "edge+local=constrained-edge-local"],
@@ -243,3 +246,31 @@ def test_a_device_variant_table_refuses_a_run_that_dropped_frames(tmp_path: Path
         writer.writerows(rows)
     with pytest.raises(SystemExit, match="dropped camera frames"):
         _script("device_variants").main([("x", folder)])
+
+
+#: simulated_restores.py's (paper's edge, archive) CSV pairs under docs/figures/simulated-restores
+SIMULATED_RESTORES_TABLES = [(f"{cell}-paper-edge.csv", f"{cell}-archive.csv")
+                             for cell in ("v15", "v15-short-loop", "v25")]
+
+
+@pytest.mark.parametrize(("paper", "archive"), SIMULATED_RESTORES_TABLES,
+                         ids=lambda name: name)
+def test_each_simulated_restores_table_is_what_its_command_prints(
+        paper: str, archive: str, capsys: pytest.CaptureFixture[str]) -> None:
+    folder = FIGURES / "simulated-restores"
+    _script("simulated_restores").main([str(folder / paper), str(folder / archive)])
+    assert _missing(capsys.readouterr().out) == []
+
+
+def test_a_simulated_restores_table_refuses_other_episodes(tmp_path: Path) -> None:
+    """The paired columns compare the same episodes: a file of other seeds is refused."""
+    folder = FIGURES / "simulated-restores"
+    with (folder / "v15-archive.csv").open(encoding="utf-8") as fh:
+        rows = [row for row in csv.DictReader(fh) if row["seed"] != "9"]
+    fewer = tmp_path / "fewer.csv"
+    with fewer.open("w", newline="", encoding="utf-8") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    with pytest.raises(SystemExit, match="not the same episodes"):
+        _script("simulated_restores").main([str(folder / "v15-paper-edge.csv"), str(fewer)])

@@ -8,7 +8,7 @@ version) for every slot, from one of two twins (``model``):
 * ``regime`` (default): the Bayesian regime twin (:mod:`twinslam.twin.regime_twin`), a filter
   updated every slot — μ, Σ are the mean and variance of the current regime's N×N matrix, the
   version counts the slots it has seen. It predicts the next state best of the models measured
-  (docs/results.md, "twin-predict").
+  (docs/results/twin.md).
 * ``variational``: the paper's variational twin. It keeps the real-experience buffer; every
   ``retrain_every`` slots it is retrained on a background thread, warm-started; callbacks never
   wait for it, and the trained network is swapped in when ready (the executor's callbacks and

@@ -1,4 +1,5 @@
-"""The tables of docs/results.md, "A device that tracks with its own points when lost": devices
+"""The tables of docs/results/paper-device.md, "A device that tracks with its own points when
+lost": devices
 and edges of several ``twinslam evaluate`` folders side by side, each against the first over
 the same seeds:
 

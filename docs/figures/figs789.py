@@ -1,4 +1,5 @@
-"""The Figs 7–9 files of docs/results.md, from the CSVs ``twinslam experiment fig7|fig8|fig9``
+"""The Figs 7–9 files of docs/results/learning.md, from the CSVs ``twinslam experiment
+fig7|fig8|fig9``
 wrote (every table and figure of the map-management part comes from a committed
 command):
 
@@ -13,7 +14,7 @@ difference with the best rule at each x, "mean [95 % CI]" (the columns the exper
 writes since the controls were added; a CSV without them is refused). ``redraw``: the figure
 as the experiment draws it (``amm.plot_figure``), from the CSV alone. ``fig8-join``:
 fig8.csv from fig8_n2.csv and fig8_n4.csv — the file one ``twinslam experiment fig8``
-process writes when the two N were run as separate processes (as docs/results.md's were).
+process writes when the two N were run as separate processes (as docs/results/learning.md's were).
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
-"""The tables and the figure of docs/results.md § "One edge, many devices", from the
-files the commands wrote (every command is in results.md beside its table):
+"""The tables and the figure of docs/results/many-devices.md, from the
+files the commands wrote (every command is on that page beside its table):
 
 * ``scaling`` — fleet/edge-scaling.csv (``python -m bench.edge_scaling``) and
   fleet/sim-scaling.csv (``python -m bench.fleet``) → fleet/scaling.png: live, the edge's

@@ -1,4 +1,4 @@
-"""The live tables of docs/results.md § "The map decides the device's tracking",
+"""The live tables of docs/results/paper-device.md, "The map decides the device's tracking",
 condensed from the files ``twinslam evaluate`` wrote (copied here as paper-device/WALK-*.csv):
 per scenario and policy the device's figures, then the paired differences with the best rule
 policy on the device's failure share and ATE; and the offline yardstick: the simulator's lost

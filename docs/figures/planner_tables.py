@@ -1,5 +1,6 @@
-"""The planner tables of docs/results.md § "A causal planner", from ``twinslam sim
---csv`` files (each command is in results.md beside its table): per policy the mean υ (a lost
+"""The planner tables of docs/results/planning.md and the controls of
+docs/results/learning.md, from ``twinslam sim
+--csv`` files (each command is on those pages beside its table): per policy the mean υ (a lost
 frame scoring 0) ± 95 % CI over the episodes, the lost share, υ over the tracked frames
 (pooled), and the paired difference with
 the best rule policy on the same episodes; with a ``reference`` row, also the share of the
@@ -17,7 +18,7 @@ experiment learning-curve --out FOLDER`` wrote, as markdown.
 
 ``--against POLICY`` pairs every policy with that one instead of the best rule (the
 ablations: each variant against the planner it varies). ``--rows`` prints those policies
-alone, in that order (a table of results.md that shows some of the files' policies).
+alone, in that order (a table of those pages that shows some of the files' policies).
 """
 
 from __future__ import annotations

@@ -137,7 +137,8 @@ def calibrate_runs(runs: list[dict[str, str]], frames: list[dict[str, str]]
 @dataclass(frozen=True)
 class ScenarioAgreement:
     """How well the rule predicted the runs of one map source and scenario: the calibration
-    table of docs/results.md. Shares and measures are means over runs; ``r`` is over runs."""
+    table of docs/results/paper-device.md. Shares and measures are means over runs; ``r`` is
+    over runs."""
 
     map_source: str
     scenario: str
@@ -184,7 +185,8 @@ def agreement_by_scenario(rows: list[dict[str, str]]) -> list[ScenarioAgreement]
 
 
 def agreement_markdown(rows: list[ScenarioAgreement]) -> str:
-    """The table :func:`agreement_by_scenario` measures, as docs/results.md shows it."""
+    """The table :func:`agreement_by_scenario` measures, as docs/results/paper-device.md shows
+    it."""
     lines = ["| map source | scenario | runs | predicted lost | device failed | mean abs. "
              "error | r over runs | precision | recall | ρ(u, error) | ρ(u, inliers) |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]

@@ -2,7 +2,7 @@
 
 A control for live runs: a planner that thinks longer at the edge delays the slot's upload
 request, the keyframes and so the device's next map. Running a rule policy with the planner's
-decision time added tells that cost apart from the planner's choices (docs/results.md: the
+decision time added tells that cost apart from the planner's choices (docs/results/planning.md: the
 causal planner live). Only wall time changes; the decisions are the wrapped policy's.
 """
 

@@ -80,7 +80,7 @@ class TrainConfig:
     batch_size: int = 64              #: |Ξ|
     real_fraction: float = 0.5        #: I / |Ξ| when J > 0; 1 = no artificial experiences
     #: J, artificial tuples per real slot. 0 (real experiences only) by default: the blended
-    #: replay helped at none of 300 / 1000 / 3000 real slots (docs/results.md);
+    #: replay helped at none of 300 / 1000 / 3000 real slots (docs/results/twin.md);
     #: the paper's Algorithm 2 is J = 2, I / |Ξ| = 1/2
     artificial_per_real: int = 0
     gamma: float = 0.9

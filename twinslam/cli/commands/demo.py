@@ -42,7 +42,7 @@ DEVICES = {"edge": "the paper's device (tracked only against the edge's map)",
            "edge+local": "the Edge-SLAM style device (edge map + its own recent points)"}
 #: the edge variant the paper's device also runs with: archived keyframes brought back where
 #: the camera heads, at most 3 a slot (measured on this walk: fewer frames lost on every seed;
-#: docs/results.md, "The edge's archive and restores")
+#: docs/results/paper-device.md, "The edge's archive and restores")
 ARCHIVE_RESTORES: tuple[str, tuple[str, ...]] = ("restores", ("restore_keyframes:=3",))
 #: the edges each device runs with: (name in the table, edge parameters; "": the paper's)
 EDGES: dict[str, list[tuple[str, tuple[str, ...]]]] = {

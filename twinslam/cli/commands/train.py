@@ -117,14 +117,14 @@ def register(sub: Subparsers) -> None:
                        "(ADAPT's decision as prior and node features, plus a learned "
                        "correction; it starts at ADAPT, which loses half the frames under "
                        "the device's rule, and stayed worse than LFF to 12 000 slots — "
-                       "docs/results.md)")
+                       "docs/results/learning.md)")
     train.add_argument("--real-fraction", type=float, default=0.5,
                        help="I/|Ξ|: share of real tuples in each batch, in (0, 1], when "
                        "--artificial > 0")
     train.add_argument("--artificial", type=int, default=0,
                        help="J: artificial tuples per real one; 0 (default): real experiences "
                        "only — the blended replay helped at none of 300, 1000, 3000 real slots "
-                       "(docs/results.md); the paper's configuration is "
+                       "(docs/results/twin.md); the paper's configuration is "
                        "--artificial 2 --real-fraction 0.5")
     train.add_argument("--seed", type=int, default=0,
                        help="seed of the channel and the networks (the first run's, with --runs)")
