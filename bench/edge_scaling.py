@@ -42,9 +42,9 @@ from twinslam_msgs.msg import (
 )
 
 from msg_schemas import qos, topics
-from twinslam.common import table1
 from twinslam.node_hosts.loopback import LoopbackDomain
 from twinslam.node_hosts.session import RosSession
+from twinslam.slot_protocol import table1
 
 REPO = Path(__file__).resolve().parents[1]
 SEVEN = REPO.parent / "shared" / "data" / "7scenes-1000"

@@ -27,9 +27,9 @@ import numpy as np
 from evo.core import geometry
 
 from twinslam.cli.console import HelpFormatter
+from twinslam.live.tracking_quality import absolute_trajectory_error
 from twinslam.sequences.opening import open_sequence
-from twinslam.slam.tracking import Tracking, TrackingConfig
-from twinslam.slam.tracking_quality import absolute_trajectory_error
+from twinslam.slam.front_end.tracking import Tracking, TrackingConfig
 
 REPO = Path(__file__).resolve().parents[1]
 SEQUENCE = REPO.parent / "shared" / "data" / "7scenes-1000"

@@ -19,7 +19,7 @@ import numpy as np
 
 from bench.gauge import cpu_gauge
 from twinslam.sequences.opening import open_sequence
-from twinslam.slam.tracking import Tracking
+from twinslam.slam.front_end.tracking import Tracking
 
 DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes-1000"
 

@@ -28,9 +28,9 @@ from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore
 from edge_mapper.messages import map_update_message
 from edge_mapper.slot_planner import FrameObservations
 from twinslam.live.record import RunRecord
+from twinslam.live.tracking_quality import absolute_trajectory_error
 from twinslam.policy_registry import make_policy
 from twinslam.sequences.opening import open_sequence
-from twinslam.slam.tracking_quality import absolute_trajectory_error
 from twinslam.uplink.channels import parse_channel
 
 DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes-1000"

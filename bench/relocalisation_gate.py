@@ -22,10 +22,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from twinslam.common.reporting import write_csv
+from twinslam.live.tracking_quality import JUMP_M
+from twinslam.reporting import write_csv
 from twinslam.sequences.opening import open_sequence
-from twinslam.slam.tracking import Tracking, TrackingConfig
-from twinslam.slam.tracking_quality import JUMP_M
+from twinslam.slam.front_end.tracking import Tracking, TrackingConfig
 
 
 def attempts(tracking: Tracking, sequence_path: str, frames: range, origin: np.ndarray | None,

@@ -4,7 +4,7 @@ incremental greedy against a naive greedy that recomputes every determinant.
 A slot is decide + map update + the reward υ_k (eq. 8: 60 log-determinants of 45x45 reduced
 Laplacians). Both the full slot rate and the decision-only rate are printed, because the
 reward's cost is the same for every policy and bounds them all. Each policy runs under the
-device's rule of a lost frame (``twinslam/common/tracking_rule.py``: shared-point counts, a
+device's rule of a lost frame (``twinslam/slot_protocol/lost_frame_rule.py``: shared-point counts, a
 second scoring of the slot's first frames against the map before the update) and under the
 paper's, side by side in one run (``--rule``); their trajectories differ (a lost frame is not
 uploaded under the device's rule), so the decisions differ too.

@@ -20,7 +20,7 @@ from rclpy.serialization import serialize_message
 
 from bench.gauge import cpu_gauge
 from edge_mapper.visual_messages import decisions_message, keyframes_message, map_points_message
-from twinslam.slam.keyframe_map import KeyFrameMap
+from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 
 
 def full_map(keyframes: int, points: int, seed: int = 0) -> KeyFrameMap:

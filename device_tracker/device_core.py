@@ -9,7 +9,7 @@ Where a frame's pose comes from is the device's ``map_source``:
   on it carry map version 0, so evaluations count them apart). A frame the map does not
   explain is lost, and stays lost until relocalisation against the map succeeds: what the
   edge keeps decides whether the device tracks. The features the map does not hold are
-  followed as device-local **track ids** (:class:`~twinslam.slam.feature_tracks.
+  followed as device-local **track ids** (:class:`~twinslam.slam.front_end.feature_tracks.
   FeatureTracks`), which the frame summaries and uploads carry for the edge's covisibility
   and triangulation; they never enter a pose.
 * ``edge+local`` — an Edge-SLAM style device: the edge's last map plus the points the device
@@ -52,13 +52,18 @@ import numpy as np
 
 from device_tracker.messages import FrameRecord
 from device_tracker.slot_clock import SlotClock
-from twinslam.common import table1
-from twinslam.slam.feature_tracks import FeatureTracks
+from twinslam.slam.front_end.feature_tracks import FeatureTracks
+from twinslam.slam.front_end.local_map import LocalMap
+from twinslam.slam.front_end.map_source import (
+    DEFAULT_MAP_SOURCE,
+    EDGE,
+    EDGE_LOCAL,
+    check_map_source,
+)
+from twinslam.slam.front_end.tracking import Tracking, TrackingConfig, depth_at
 from twinslam.slam.keyframe import TRACK_ID_BIT, KeyFramePayload
-from twinslam.slam.local_map import LocalMap
-from twinslam.slam.map_source import DEFAULT_MAP_SOURCE, EDGE, EDGE_LOCAL, check_map_source
 from twinslam.slam.map_update import MapSnapshot
-from twinslam.slam.tracking import Tracking, TrackingConfig, depth_at
+from twinslam.slot_protocol import table1
 
 TRACK_BIT = int(TRACK_ID_BIT)
 

@@ -10,10 +10,10 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from twinslam.common import table1
 from twinslam.node_hosts.parameters import ParamSpec
-from twinslam.slam.map_source import DEFAULT_MAP_SOURCE, check_map_source
-from twinslam.slam.tracking import TrackingConfig
+from twinslam.slam.front_end.map_source import DEFAULT_MAP_SOURCE, check_map_source
+from twinslam.slam.front_end.tracking import TrackingConfig
+from twinslam.slot_protocol import table1
 from twinslam.uplink.tc_shaper import SHAPERS
 
 PARAMETERS = (

@@ -1,7 +1,7 @@
 """When a lost device asks the edge to relocalise it, and what it sends.
 
 The device relocalises itself against the map it holds; a place the edge evicted is not in
-it, and only the edge's archive remembers it (:mod:`twinslam.slam.archive_relocalisation`).
+it, and only the edge's archive remembers it (:mod:`twinslam.slam.back_end.archive_relocalisation`).
 While lost, the device sends its newest lost frame's ORB features — keypoints and
 descriptors, no image: ~40 kB for 1000 features — at most every ``period_s`` of frame stamps
 (Edge-SLAM's device sends a frame every 500 ms); off by default, as the edge's side is (see

@@ -7,8 +7,8 @@ plan asked for; ``finish_slot`` evicts C_k (less what uploads that never came wo
 needed: the map never shrinks for lack of uploads), runs a local bundle adjustment over the
 newest keyframes, bumps the map version and writes the checkpoint. An evicted keyframe leaves
 the managed map (V_max: what is optimised and sent to the device) for the edge's archive
-(:mod:`twinslam.slam.keyframe_archive`), which keeps it up to ``archive_keyframes``. The node
-(``edge_mapper/node.py``) only moves messages in and out of this class; a restarted node
+(:mod:`twinslam.slam.back_end.keyframe_archive`), which keeps it up to ``archive_keyframes``. The
+node (``edge_mapper/node.py``) only moves messages in and out of this class; a restarted node
 resumes from the checkpoint.
 
 Slots may overlap: a slot shorter than its uploads take (D_req) is planned while the one
@@ -37,16 +37,20 @@ from edge_mapper.restores import plan_relocation_restores, plan_restores
 from edge_mapper.slot_planner import FrameObservations, SlotConfig, SlotPlan, SlotPlanner
 from twinslam.map_management.actions import MapAction
 from twinslam.map_management.policies import MapPolicy
-from twinslam.slam.archive_relocalisation import (
+from twinslam.slam.back_end.archive_relocalisation import (
     ArchiveLocation,
     ArchiveRelocalisationConfig,
     locate_in_archive,
 )
-from twinslam.slam.bundle_adjustment import BundleAdjustmentResult, Observation, bundle_adjust
+from twinslam.slam.back_end.bundle_adjustment import (
+    BundleAdjustmentResult,
+    Observation,
+    bundle_adjust,
+)
+from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive, restore_into
+from twinslam.slam.back_end.keyframe_map import KeyFrameMap
+from twinslam.slam.back_end.local_mapping import IntegrationReport, LocalMapping
 from twinslam.slam.keyframe import KeyFramePayload
-from twinslam.slam.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive, restore_into
-from twinslam.slam.keyframe_map import KeyFrameMap
-from twinslam.slam.local_mapping import IntegrationReport, LocalMapping
 from twinslam.uncertainty.map_uncertainty import map_uncertainty
 
 

@@ -32,7 +32,6 @@ import numpy as np
 
 from edge_mapper.edge_core import EdgeMapperCore
 from edge_mapper.slot_planner import FrameObservations
-from twinslam.common.tracking_rule import MIN_INLIERS
 from twinslam.map_management.allocation import (
     ALLOCATORS,
     BudgetError,
@@ -41,6 +40,7 @@ from twinslam.map_management.allocation import (
     check_budget,
 )
 from twinslam.map_management.budget_value import budget_value, expected_uploads
+from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
 from twinslam.uncertainty.map_uncertainty import theorem1_uploads
 
 

@@ -35,13 +35,13 @@ import numpy as np
 from scipy.linalg import expm, logm
 
 from edge_mapper.slot_planner import FrameObservations, SlotView
-from twinslam.common.tracking_rule import MIN_INLIERS
 from twinslam.map_management.actions import MapAction, SlotObservation
 from twinslam.map_management.delayed import DelayedPolicy
 from twinslam.map_management.policies import MapPolicy
 from twinslam.simulator.covisibility import CovisibilityDataset
 from twinslam.simulator.env import MapManagementEnv, SimConfig
 from twinslam.simulator.mpc import MpcConfig, MpcPlanner
+from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
 
 #: farther than this a map point is taken to be out of an RGB-D camera's view (7-Scenes' and
 #: TUM's Kinect-class sensors give depth to ~4-5 m)

@@ -2,8 +2,8 @@
 
 A keyframe the policy evicted is gone from the map the device tracks against, so the device
 walking back into an evicted place fails there even though the edge still remembers the place
-(:mod:`twinslam.slam.keyframe_archive`). Each slot the edge knows where the camera is heading:
-the device's poses of the slot's tracked frames, continued at constant velocity
+(:mod:`twinslam.slam.back_end.keyframe_archive`). Each slot the edge knows where the camera is
+heading: the device's poses of the slot's tracked frames, continued at constant velocity
 (:func:`edge_mapper.planning_world.extrapolate`). An archived keyframe is worth bringing back
 when many of its map points fall in the camera's view from those predicted poses; the map
 keeps V_max by evicting, in exchange, the keyframe that sees the least of that view (never
@@ -25,8 +25,8 @@ import numpy as np
 
 from edge_mapper.planning_world import MAX_DEPTH_M, visible_points
 from twinslam.map_management.restoring import MIN_VIEW_POINTS, REPLACE_RATIO
-from twinslam.slam.keyframe_archive import KeyFrameArchive
-from twinslam.slam.keyframe_map import KeyFrameMap, shared_counts
+from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
+from twinslam.slam.back_end.keyframe_map import KeyFrameMap, shared_counts
 from twinslam.uncertainty.map_uncertainty import map_uncertainty
 
 #: an archived keyframe is brought back only if this many of its points are in the coming

@@ -18,11 +18,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from twinslam.common import table1
-from twinslam.common.tracking_rule import MIN_INLIERS
 from twinslam.map_management.actions import MapAction, SlotObservation, check_map_action
 from twinslam.map_management.policies import MapPolicy, SlotViewer
-from twinslam.slam.keyframe_map import KeyFrameMap, shared_counts
+from twinslam.slam.back_end.keyframe_map import KeyFrameMap, shared_counts
+from twinslam.slot_protocol import table1
+from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
 from twinslam.uncertainty.map_uncertainty import (
     SlotUncertainty,
     next_slot_uncertainty,
@@ -162,7 +162,7 @@ class SlotPlanner:
         # υ of F_k against the map as it is (eq. 8), None for an empty map; a keyframe holds
         # map-point ids only, so the frame–keyframe block counts shared map points alone. A
         # frame is lost when its reported points (the device's matches) share fewer than the
-        # device's MIN_INLIERS with the map (twinslam.common.tracking_rule)
+        # device's MIN_INLIERS with the map (twinslam.slot_protocol.lost_frame_rule)
         m = len(map_ids)
         if not m:
             return SlotPlan(action, obs, None)

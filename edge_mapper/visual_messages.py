@@ -27,7 +27,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from msg_schemas.headers import ros_time, set_header
 from msg_schemas.poses import pose_msg
-from twinslam.slam.keyframe_map import KeyFrameMap
+from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 
 #: x, y, z, intensity as float32: 16 bytes a point
 POINT_FIELDS = tuple(PointField(name=name, offset=4 * i, datatype=PointField.FLOAT32, count=1)

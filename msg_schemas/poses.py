@@ -8,7 +8,7 @@ import numpy as np
 from geometry_msgs.msg import Pose
 
 from msg_schemas.interfaces import new
-from twinslam.common.rotations import matrix_from_quaternion, quaternion_from_matrix
+from twinslam.rotations import matrix_from_quaternion, quaternion_from_matrix
 
 
 def pose_msg(matrix: np.ndarray) -> Pose:

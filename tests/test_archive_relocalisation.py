@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 
 from twinslam.sequences.opening import open_sequence
-from twinslam.slam.archive_relocalisation import (
+from twinslam.slam.back_end.archive_relocalisation import (
     ArchiveRelocalisationConfig,
     locate_in_archive,
 )
-from twinslam.slam.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive
-from twinslam.slam.orb_extractor import OrbExtractor
+from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive
+from twinslam.slam.front_end.orb_extractor import OrbExtractor
+from twinslam.slam.front_end.tracking import depth_at
 from twinslam.slam.projection_matching import back_project
-from twinslam.slam.tracking import depth_at
 
 KEYFRAMES = range(0, 300, 30)
 

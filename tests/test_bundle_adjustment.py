@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from twinslam.slam.bundle_adjustment import Observation, bundle_adjust
+from twinslam.slam.back_end.bundle_adjustment import Observation, bundle_adjust
 
 K = np.array([[525.0, 0, 320], [0, 525, 240], [0, 0, 1]])
 

@@ -9,8 +9,8 @@ import numpy as np
 from device_tracker.device_core import TRACK_BIT, DeviceTrackerCore
 from device_tracker.frame_log import frame_log_lines
 from twinslam.sequences.synthetic import SyntheticSequence
+from twinslam.slam.front_end.tracking import TrackingConfig
 from twinslam.slam.map_update import MapSnapshot
-from twinslam.slam.tracking import TrackingConfig
 
 SLOT = 10
 

@@ -14,16 +14,16 @@ from pathlib import Path
 
 import pytest
 
-from twinslam.common.executor import (
+from twinslam.experiments.amm import Setting, sweep
+from twinslam.simulator.covisibility import CovisibilityDataset
+from twinslam.simulator.covisibility_spec import open_covisibility
+from twinslam.sweeps import (
     Executor,
     LocalExecutor,
     RayExecutor,
     make_executor,
     run_tasks,
 )
-from twinslam.experiments.amm import Setting, sweep
-from twinslam.simulator.covisibility import CovisibilityDataset
-from twinslam.simulator.covisibility_spec import open_covisibility
 
 REPO = Path(__file__).resolve().parents[1]
 COVIS = REPO / "data" / "7scenes-redkitchen-1000.covis.npz"
@@ -147,7 +147,7 @@ def test_training_runs_in_workers_get_one_torch_thread_each() -> None:
 
 WORKER_SCRIPT = """
 import torch   # loaded before the pool starts: a spawned worker re-imports this module first
-from twinslam.common.executor import LocalExecutor
+from twinslam.sweeps import LocalExecutor
 
 def threads(_: int) -> int:
     return torch.get_num_threads()

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from twinslam.sequences.opening import open_sequence
-from twinslam.slam.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive
-from twinslam.slam.orb_extractor import OrbExtractor
+from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive
+from twinslam.slam.front_end.orb_extractor import OrbExtractor
 
 
 def _keyframe(kf_id: int, descriptors: np.ndarray, first_point: int, slot: int = 0

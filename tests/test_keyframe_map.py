@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from twinslam.slam.keyframe_map import KeyFrameMap, MapError
+from twinslam.slam.back_end.keyframe_map import KeyFrameMap, MapError
 
 
 def _map() -> KeyFrameMap:

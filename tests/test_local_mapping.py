@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from twinslam.slam.back_end.keyframe_map import KeyFrameMap
+from twinslam.slam.back_end.local_mapping import LocalMapping
 from twinslam.slam.keyframe import TRACK_ID_BIT
-from twinslam.slam.keyframe_map import KeyFrameMap
-from twinslam.slam.local_mapping import LocalMapping
 
 K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
 

@@ -11,7 +11,7 @@ import yaml
 from device_tracker.parameters import PARAMETERS
 from twinslam.cli.main import build_parser
 from twinslam.live.launcher import DEFAULT_PARAMS
-from twinslam.slam.map_source import DEFAULT_MAP_SOURCE, EDGE
+from twinslam.slam.front_end.map_source import DEFAULT_MAP_SOURCE, EDGE
 
 
 def _command(name: str) -> argparse.ArgumentParser:

@@ -30,8 +30,8 @@ from twinslam.live.report import RunReport
 from twinslam.live.scenarios import SCENARIOS, Scenario
 from twinslam.node_hosts.loopback import LoopbackDomain
 from twinslam.sequences.opening import open_sequence
-from twinslam.slam.keyframe_map import shared_counts
-from twinslam.slam.tracking import TrackingConfig
+from twinslam.slam.back_end.keyframe_map import shared_counts
+from twinslam.slam.front_end.tracking import TrackingConfig
 from twinslam.uncertainty.map_uncertainty import map_uncertainty
 
 SEQUENCE = seven_or_synthetic()

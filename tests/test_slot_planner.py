@@ -8,7 +8,7 @@ import pytest
 from edge_mapper.slot_planner import FrameObservations, SlotConfig, SlotPlanner
 from twinslam.map_management.actions import ActionError, MapAction
 from twinslam.policy_registry import make_policy
-from twinslam.slam.keyframe_map import KeyFrameMap
+from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 
 
 def _windows(n: int, rng: np.random.Generator) -> list[set[int]]:

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from twinslam.slam.tracking_quality import (
+from twinslam.live.tracking_quality import (
     FrameFlags,
     absolute_trajectory_error,
     relative_pose_error,

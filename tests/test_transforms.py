@@ -72,10 +72,10 @@ def test_a_transform_needs_two_named_frames(parent: str, child: str) -> None:
     lambda q: np.linalg.norm(q) > 1e-3), st.floats(1e-9, 1e-4))
 def test_rotations_convert_as_scipy_converts_them_even_slightly_off_orthonormal(
         quat: list[float], noise: float) -> None:
-    """The nodes' NumPy conversions (twinslam.common.rotations) against SciPy's ``Rotation``:
+    """The nodes' NumPy conversions (twinslam.rotations) against SciPy's ``Rotation``:
     the same matrix of a quaternion and the same quaternion of a matrix, sign included, also for
     a matrix a dataset stored in float32 and a little off orthonormal."""
-    from twinslam.common.rotations import (
+    from twinslam.rotations import (
         matrix_from_quaternion,
         matrix_from_yaw_pitch_roll,
         quaternion_from_matrix,

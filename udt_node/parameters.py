@@ -3,8 +3,8 @@ describe /udt_node states`` shows them; a value out of range stops the node with
 
 from __future__ import annotations
 
-from twinslam.common import table1
 from twinslam.node_hosts.parameters import ParamSpec
+from twinslam.slot_protocol import table1
 from twinslam.twin.registry import ALIASES, TWIN_MODELS
 
 #: what ``model`` accepts: the twins, and ``udt`` (the variational twin's old name)

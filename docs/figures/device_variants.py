@@ -32,9 +32,9 @@ from pathlib import Path
 
 import numpy as np
 
-from twinslam.common.reporting import mean_ci95
 from twinslam.experiments.calibration_report import failure_causes, failure_causes_markdown
 from twinslam.experiments.paired import paired_difference
+from twinslam.reporting import mean_ci95
 
 #: (column, heading, format); "scored_failed" is the share of the run's scored frames
 #: (calibration_frames.csv) the device did not track

@@ -31,8 +31,8 @@ import sys
 from collections import defaultdict
 from pathlib import Path
 
-from twinslam.common.reporting import mean_ci95
 from twinslam.map_management.allocation import jain_index
+from twinslam.reporting import mean_ci95
 
 HERE = Path(__file__).resolve().parent
 

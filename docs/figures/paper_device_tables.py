@@ -16,7 +16,7 @@ import math
 import sys
 from pathlib import Path
 
-from twinslam.common.reporting import mean_ci95
+from twinslam.reporting import mean_ci95
 
 HERE = Path(__file__).resolve().parent
 #: (summary.csv column stem, title, digits, scale)

@@ -30,8 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-from twinslam.common.reporting import mean_ci95
 from twinslam.experiments.paired import paired_difference
+from twinslam.reporting import mean_ci95
 
 RULES = ("lff", "pu", "adapt")
 

@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import argparse
 
-from twinslam.common import table1
-from twinslam.common.executor import EXECUTORS, Executor, make_executor
 from twinslam.node_hosts.fastdds import REPO_ROOT
 from twinslam.simulator.covisibility import CovisibilityDataset
 from twinslam.simulator.covisibility_spec import open_covisibility
+from twinslam.slot_protocol import table1
+from twinslam.sweeps import EXECUTORS, Executor, make_executor
 
 #: the uplink rate model when none is named: the paper's two-state Markov chain
 DEFAULT_CHANNEL = "markov:N=2"

@@ -10,7 +10,7 @@ import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import TYPE_CHECKING, TypeVar
 
-from twinslam.common.executor import TaskFailure
+from twinslam.sweeps import TaskFailure
 
 #: the subparsers object every command registers itself with (argparse names no public type,
 #: and its class is generic only to type checkers)

@@ -26,16 +26,16 @@ from pathlib import Path
 
 import numpy as np
 
-from twinslam.common import table1
-from twinslam.common.executor import Executor, TaskFailure
-from twinslam.common.reporting import mean_ci95, pyplot, write_csv
 from twinslam.experiments.paired import PairedDifference, paired_difference
 from twinslam.experiments.parallel import run_all
 from twinslam.policy_registry import make_policy
+from twinslam.reporting import mean_ci95, pyplot, write_csv
 from twinslam.simulator.covisibility_spec import absolute_spec, cached_covisibility
 from twinslam.simulator.env import MapManagementEnv, SimConfig
 from twinslam.simulator.evaluation import PolicyResult, PooledScores, RunScore, evaluate
 from twinslam.simulator.lower_bound import slot_lower_bounds
+from twinslam.slot_protocol import table1
+from twinslam.sweeps import Executor, TaskFailure
 from twinslam.uncertainty.map_uncertainty import UncertaintyTally
 from twinslam.uplink.channels import parse_channel
 

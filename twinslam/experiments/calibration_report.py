@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from twinslam.common.reporting import pearson_r, pyplot
+from twinslam.reporting import pearson_r, pyplot
 from twinslam.simulator.calibration import (
     FAILURE_CAUSES,
     LEFT_OUT,

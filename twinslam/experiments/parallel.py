@@ -1,4 +1,4 @@
-"""The experiments' sweeps on an executor (:mod:`twinslam.common.executor`: this process,
+"""The experiments' sweeps on an executor (:mod:`twinslam.sweeps`: this process,
 local worker processes or Ray), each result reported as it lands. A local worker's torch runs
 one thread (the executor's worker set-up sees to it, whether torch is loaded yet or not)."""
 
@@ -8,7 +8,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TypeVar
 
-from twinslam.common.executor import Executor, LocalExecutor, TaskFailure, run_tasks
+from twinslam.sweeps import Executor, LocalExecutor, TaskFailure, run_tasks
 
 T = TypeVar("T")
 R = TypeVar("R")

@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from twinslam.common.executor import Executor, TaskFailure
-from twinslam.common.reporting import pyplot, write_csv
 from twinslam.experiments.parallel import run_all
+from twinslam.reporting import pyplot, write_csv
+from twinslam.sweeps import Executor, TaskFailure
 from twinslam.twin.lstm import LstmConfig, LstmPredictor
 from twinslam.twin.markov import MarkovCounts
 from twinslam.twin.rate_history import transition_error

@@ -27,9 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
-from twinslam.common.executor import Executor, TaskFailure
-from twinslam.common.reporting import mean_ci95, pyplot, write_csv
 from twinslam.experiments.parallel import run_all
+from twinslam.reporting import mean_ci95, pyplot, write_csv
+from twinslam.sweeps import Executor, TaskFailure
 from twinslam.twin.prediction_score import score_online
 from twinslam.twin.registry import PREDICTORS, RateModelSettings, check_names, make_rate_models
 from twinslam.uplink.channels import (

@@ -9,7 +9,7 @@ stamps played position p at ``t0 + recorded_time(p) / rate``, ``t0`` being the f
 frame's stamp (the first ground-truth pose the monitor heard).
 
 Each next-slot frame of slot k + 1 is predicted as the simulator scores it
-(:mod:`twinslam.common.tracking_rule`): its first frames against the map the edge published
+(:mod:`twinslam.slot_protocol.lost_frame_rule`): its first frames against the map the edge published
 after slot k - 1 (the update of slot k is still on its way), the rest against the map after
 slot k; and, apart, against the map version the device actually tracked it with. Frames
 tracked on the device's start-up map (map version 0) are counted apart, as are frames whose
@@ -26,18 +26,18 @@ from pathlib import Path
 import numpy as np
 
 from msg_schemas.headers import time_key, time_seconds
-from twinslam.common import table1
-from twinslam.common.reporting import file_name
-from twinslam.common.tracking_rule import MAP_UPDATE_LAG_FRAMES
 from twinslam.live.record import RunRecord
 from twinslam.live.scenarios import Scenario
+from twinslam.live.tracking_quality import translation_errors
+from twinslam.reporting import file_name
 from twinslam.sequence_player.playback import Playback, PlayedSequence
 from twinslam.sequences.opening import open_sequence
 from twinslam.simulator.calibration import CalibrationFrame, FramePrediction, predict_frames
 from twinslam.simulator.covisibility import CovisibilityDataset, save_covisibility
 from twinslam.simulator.extraction import extract_covisibility
 from twinslam.slam.map_update import MapSnapshot
-from twinslam.slam.tracking_quality import translation_errors
+from twinslam.slot_protocol import table1
+from twinslam.slot_protocol.lost_frame_rule import MAP_UPDATE_LAG_FRAMES
 
 
 @dataclass(frozen=True)

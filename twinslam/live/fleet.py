@@ -23,7 +23,6 @@ from dataclasses import dataclass, replace
 import numpy as np
 from twinslam_msgs.msg import MapStats
 
-from twinslam.common import table1
 from twinslam.live.launcher import LaunchConfig, Launcher, preloaded_nodes
 from twinslam.live.monitor import PipelineMonitor
 from twinslam.live.record import RunRecord
@@ -32,6 +31,7 @@ from twinslam.map_management.allocation import check_fleet, jain_index
 from twinslam.node_hosts.loopback import ProcessDomain
 from twinslam.node_hosts.session import RosSession
 from twinslam.sequences.opening import is_synthetic, synthetic_walk
+from twinslam.slot_protocol import table1
 
 
 @dataclass(frozen=True)

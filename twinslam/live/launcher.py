@@ -19,7 +19,6 @@ from typing import Any
 
 import yaml
 
-from twinslam.common import table1
 from twinslam.live.monitor import PipelineMonitor, status_line
 from twinslam.live.node_fork_server import SWITCH, fork_servers
 from twinslam.live.record import RunRecord
@@ -30,6 +29,7 @@ from twinslam.node_hosts.fastdds import REPO_ROOT
 from twinslam.node_hosts.forked import ForkServers, NodeProcess
 from twinslam.node_hosts.loopback import ProcessDomain
 from twinslam.node_hosts.session import RosSession
+from twinslam.slot_protocol import table1
 
 REPO = REPO_ROOT
 #: the module each node's process runs (``python -m``), as setup.py's console scripts do

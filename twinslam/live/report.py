@@ -13,8 +13,7 @@ import numpy as np
 
 from msg_schemas.headers import time_key, time_seconds
 from twinslam.live.record import RunRecord
-from twinslam.policy_registry import LEARNED_PREFIX
-from twinslam.slam.tracking_quality import (
+from twinslam.live.tracking_quality import (
     JUMP_M,
     FrameFlags,
     TrackingEvents,
@@ -23,6 +22,7 @@ from twinslam.slam.tracking_quality import (
     tracking_events,
     translation_errors,
 )
+from twinslam.policy_registry import LEARNED_PREFIX
 
 
 @dataclass

@@ -17,10 +17,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from msg_schemas.headers import time_key
-from twinslam.common.reporting import pyplot
 from twinslam.live.record import RunRecord
 from twinslam.live.report import relocalised_stamps
-from twinslam.slam.tracking_quality import truth_in_map
+from twinslam.live.tracking_quality import truth_in_map
+from twinslam.reporting import pyplot
 
 # matplotlib loads when a run is drawn, not with every module that imports this one
 if TYPE_CHECKING:

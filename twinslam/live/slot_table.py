@@ -12,8 +12,8 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from twinslam.common.reporting import write_csv
 from twinslam.live.record import RunRecord
+from twinslam.reporting import write_csv
 
 #: one row a slot, in slot order
 SLOT_COLUMNS = ["slot", "policy", "rate_mbps", "requested", "evicted", "uploads",

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from twinslam.common.reporting import mean_ci95, pearson_r, pyplot, write_csv
 from twinslam.live.runs import RunResult
+from twinslam.reporting import mean_ci95, pearson_r, pyplot, write_csv
 
 #: the figures summarised per scenario × policy: (field, column title, unit); the fields are
 #: RunReport's, and the calibration's two shares

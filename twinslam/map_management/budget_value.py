@@ -9,7 +9,7 @@ their place in the map whatever the budget (they are what the device moves on wi
 budget of b keyframes keeps b − uploads of the old ones, the most covisible with the last
 slot's frames first; value[b] is the share of those frames that share at least ``min_shared``
 points with the kept old keyframes — the rule the device lives by
-(:mod:`twinslam.common.tracking_rule`). The curve is what the old map is worth: flat for a
+(:mod:`twinslam.slot_protocol.lost_frame_rule`). The curve is what the old map is worth: flat for a
 device walking into new ground (its uploads carry it), rising for one that comes back to
 places its map holds, and shifted right by a good uplink's uploads.
 """

@@ -32,7 +32,7 @@ NODE_FEATURES = 10
 #: the node feature columns other modules read (the order of the list above)
 IN_MAP, CANDIDATE, ADAPT_UPLOAD, ADAPT_EVICT = 0, 1, 8, 9
 #: scale of map sizes and ages in the features (the paper's largest V_max); fixed, not the
-#: configured default (twinslam.common.table1): trained checkpoints depend on it
+#: configured default (twinslam.slot_protocol.table1): trained checkpoints depend on it
 SIZE_SCALE = 45.0
 #: log(1 + w) of a strong covisibility edge is ~5-6; features are divided by this
 LOG_WEIGHT_SCALE = 8.0

@@ -27,7 +27,6 @@ from typing import Any
 import numpy as np
 import torch
 
-from twinslam.common import table1
 from twinslam.map_management.actions import SlotObservation
 from twinslam.mbrl.networks import Actor, Critic, hard_flags, soft_flags
 from twinslam.mbrl.policy import CHECKPOINT_FORMAT, MbrlPolicy
@@ -47,6 +46,7 @@ from twinslam.mbrl.state import (
 from twinslam.simulator.covisibility import CovisibilityDataset
 from twinslam.simulator.env import MapManagementEnv, SimConfig
 from twinslam.simulator.plan import rollout
+from twinslam.slot_protocol import table1
 from twinslam.twin.rate_model import RateModel
 from twinslam.twin.registry import (
     DEFAULT_RATE_MODEL,

@@ -14,7 +14,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from twinslam.common.rotations import matrix_from_quaternion, quaternion_from_matrix
+from twinslam.rotations import matrix_from_quaternion, quaternion_from_matrix
 
 
 class SequenceError(ValueError):

@@ -28,7 +28,7 @@ from functools import cache
 import cv2
 import numpy as np
 
-from twinslam.common.rotations import matrix_from_yaw_pitch_roll
+from twinslam.rotations import matrix_from_yaw_pitch_roll
 
 FPS = 30.0
 #: a walk: (frame time in seconds, the seed's six phases) → 4×4 camera-to-world

@@ -6,7 +6,7 @@ with U_k ⊆ F_k and C_k ⊆ V^e_k ∪ U_k of Theorem 1's sizes. The environment
 (eq. 3), draws F_{k+1} and d_{k+1}, and returns r_k = -υ_k (eq. 8, a lost frame scoring u = 0).
 
 Which next-slot frame is lost follows what the live device lives by
-(:mod:`twinslam.common.tracking_rule`): a frame that shares fewer than ``min_shared`` map
+(:mod:`twinslam.slot_protocol.lost_frame_rule`): a frame that shares fewer than ``min_shared`` map
 points with the map it is tracked against is lost; the first ``lag_frames`` frames of
 slot k + 1 are tracked against V^e_k (the update of slot k is still on its way), the rest
 against V^e_{k+1}; and a lost frame, having no pose, is not among the next slot's upload
@@ -34,11 +34,11 @@ from typing import Any
 
 import numpy as np
 
-from twinslam.common import table1
-from twinslam.common.tracking_rule import MIN_SHARED_POINTS, update_lag_frames
 from twinslam.map_management.actions import MapAction, SlotObservation, check_map_action
 from twinslam.simulator.covisibility import CovisibilityDataset
 from twinslam.simulator.map_points import MapPointCounts
+from twinslam.slot_protocol import table1
+from twinslam.slot_protocol.lost_frame_rule import MIN_SHARED_POINTS, update_lag_frames
 from twinslam.uncertainty import laplacian_kernels as kernels
 from twinslam.uncertainty.laplacian_factorization import PIVOT_RTOL
 from twinslam.uncertainty.map_uncertainty import (

@@ -9,14 +9,14 @@ from pathlib import Path
 
 import numpy as np
 
-from twinslam.common import table1
-from twinslam.common.executor import Executor, LocalExecutor, run_tasks
-from twinslam.common.reporting import mean_ci95
 from twinslam.map_management.policies import MapPolicy, make_rule_policy
+from twinslam.reporting import mean_ci95
 from twinslam.simulator.covisibility import CovisibilityDataset
 from twinslam.simulator.env import MapManagementEnv, SimConfig
 from twinslam.simulator.plan import rollout
 from twinslam.simulator.reference import ReferencePlanner, rule_policies
+from twinslam.slot_protocol import table1
+from twinslam.sweeps import Executor, LocalExecutor, run_tasks
 from twinslam.uncertainty.map_uncertainty import UncertaintyTally
 from twinslam.uplink.channels import parse_channel
 
@@ -54,7 +54,7 @@ class PooledScores:
     @property
     def lost_share(self) -> float:
         """Share of next-slot frames, over every run, that are lost (too few shared map
-        points: twinslam/common/tracking_rule.py)."""
+        points: twinslam/slot_protocol/lost_frame_rule.py)."""
         return self.pooled.lost_share
 
     @property

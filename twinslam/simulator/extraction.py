@@ -22,9 +22,9 @@ import numpy as np
 
 from twinslam.sequences.frame import Sequence, pose_to_xyzq
 from twinslam.simulator.covisibility import CovisibilityDataset
-from twinslam.slam.orb_extractor import Features
+from twinslam.slam.front_end.orb_extractor import Features
+from twinslam.slam.front_end.tracking import Tracking, TrackingConfig
 from twinslam.slam.projection_matching import match_by_projection, visible_points
-from twinslam.slam.tracking import Tracking, TrackingConfig
 
 
 @dataclass

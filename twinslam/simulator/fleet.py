@@ -30,7 +30,6 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from twinslam.common.reporting import mean_ci95
 from twinslam.map_management.allocation import (
     DeviceDemand,
     allocate,
@@ -41,6 +40,7 @@ from twinslam.map_management.allocation import (
 )
 from twinslam.map_management.budget_value import budget_value, expected_uploads
 from twinslam.map_management.policies import MapPolicy
+from twinslam.reporting import mean_ci95
 from twinslam.simulator.covisibility import CovisibilityDataset
 from twinslam.simulator.env import MapManagementEnv, SimConfig
 from twinslam.twin.regime_twin import RegimeConfig, RegimeTwin

@@ -1,7 +1,7 @@
 """How many of a map's points each frame sees, kept up to date as keyframes come and go.
 
-The device's rule of a lost frame (``twinslam/common/tracking_rule.py``) counts, for each of a
-slot's frames, the points it shares with the union of the map's keyframes — each point once.
+The device's rule of a lost frame (``twinslam/slot_protocol/lost_frame_rule.py``) counts, for each
+of a slot's frames, the points it shares with the union of the map's keyframes — each point once.
 Marking the union afresh costs every keyframe's ~1 000 point ids twice a slot (mark, then
 clear), about half the simulator's time under that rule; consecutive maps differ by a few
 uploads and evictions, so :class:`MapPointCounts` keeps, per point, how many of the map's

@@ -23,8 +23,8 @@ import numpy as np
 from twinslam.uncertainty import laplacian_kernels as kernels
 from twinslam.uncertainty.laplacian_factorization import PIVOT_RTOL, LaplacianFactorization
 
-#: u of a lost next-slot frame (twinslam/common/tracking_rule.py: too few shared map points;
-#: in the paper, one that shares none). The paper's u is +inf there (the frame
+#: u of a lost next-slot frame (twinslam/slot_protocol/lost_frame_rule.py: too few shared map
+#: points; in the paper, one that shares none). The paper's u is +inf there (the frame
 #: cannot be tracked); a finite objective needs a number, and docs/architecture.md §2 scores such a
 #: frame as a frame with no map at all: u = 0, worse than any tracked frame (with Π = I and integer
 #: covisibility weights every tracked frame has u <= 0). The u(G) + 100 used before
@@ -204,7 +204,7 @@ def slot_uncertainty_from_scores(n: int, n_comp: int, log_det: float, log_tau: n
                                  ) -> SlotUncertainty:
     """υ_k from a map of ``n`` frames with ``n_comp`` components and log det A = ``log_det``,
     and log τ(G ∪ {f}) of each next-slot frame (-inf: the frame shares no point). A frame
-    ``trackable`` marks False (too few shared points: :mod:`twinslam.common.tracking_rule`)
+    ``trackable`` marks False (too few shared points: :mod:`twinslam.slot_protocol.lost_frame_rule`)
     is lost whatever its τ."""
     keep = log_tau > -math.inf
     if trackable is not None:

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from twinslam.common import table1
+from twinslam.slot_protocol import table1
 from twinslam.uplink.errors import ChannelError
 from twinslam.uplink.quantiser import RateQuantiser
 from twinslam.uplink.traces import TraceShape, generate_trace, read_trace

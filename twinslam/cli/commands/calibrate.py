@@ -7,7 +7,7 @@ from dataclasses import asdict, fields
 from pathlib import Path
 
 from twinslam.cli.console import Subparsers, error
-from twinslam.common.reporting import write_csv
+from twinslam.reporting import write_csv
 
 #: where the figure goes in the first folder, its tables beside it (.csv, .md, -failures.csv):
 #: never evaluate's own calibration.csv, which holds the runs this command reads

@@ -17,7 +17,7 @@
    recent points: the map hardly matters to it.
 3. The offline simulator with LFF, PU, ADAPT and the clairvoyant reference on the covisibility
    the ORB front end extracted from 1000 real 7-Scenes frames (shipped in ``data/``), scored
-   by the same rule of a lost frame (:mod:`twinslam.common.tracking_rule`).
+   by the same rule of a lost frame (:mod:`twinslam.slot_protocol.lost_frame_rule`).
 """
 
 from __future__ import annotations

@@ -20,7 +20,7 @@ from twinslam.live.scenarios import SCENARIOS, Scenario, scenario
 from twinslam.sequence_player.playback import Playback, PlayedSequence
 from twinslam.sequences.frame import SequenceError
 from twinslam.sequences.opening import open_sequence
-from twinslam.slam.map_source import DEFAULT_MAP_SOURCE, MAP_SOURCES, check_map_source
+from twinslam.slam.front_end.map_source import DEFAULT_MAP_SOURCE, MAP_SOURCES, check_map_source
 
 
 def _checked(args: argparse.Namespace) -> tuple[list[tuple[str, str]], list[Scenario], list[str]]:

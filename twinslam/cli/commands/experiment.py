@@ -20,8 +20,8 @@ from twinslam.cli.console import (
     failed_tasks,
     warn_aliases,
 )
-from twinslam.common.executor import TaskFailure
 from twinslam.simulator.covisibility import CovisibilityError
+from twinslam.sweeps import TaskFailure
 from twinslam.uplink.channels import SLOT_SECONDS, ChannelError
 
 

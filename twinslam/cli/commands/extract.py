@@ -13,7 +13,7 @@ from twinslam.sequences.frame import SequenceError
 from twinslam.sequences.opening import open_sequence
 from twinslam.simulator.covisibility import save_covisibility
 from twinslam.simulator.extraction import extract_covisibility
-from twinslam.slam.tracking import TrackingConfig
+from twinslam.slam.front_end.tracking import TrackingConfig
 
 
 def run(args: argparse.Namespace) -> int:

@@ -9,7 +9,6 @@ from typing import TypeVar
 
 from twinslam.cli.commands.launch_fleet import add_fleet_arguments, domain_for, run_fleets
 from twinslam.cli.console import Subparsers, each_run, error
-from twinslam.common.reporting import file_name
 from twinslam.live.launcher import DEFAULT_PARAMS, LaunchConfig, Launcher, tc_uplink_params
 from twinslam.live.report import RunReport, policy_label, print_table
 from twinslam.live.run_picture import plot_run
@@ -24,9 +23,10 @@ from twinslam.live.slot_table import write_slot_table
 from twinslam.node_hosts.loopback import LoopbackDomain
 from twinslam.node_hosts.netns import unavailable_reason
 from twinslam.policy_registry import LEARNED_PREFIX
+from twinslam.reporting import file_name
 from twinslam.sequences.frame import SequenceError
 from twinslam.sequences.opening import open_sequence
-from twinslam.slam.map_source import DEFAULT_MAP_SOURCE, check_map_source
+from twinslam.slam.front_end.map_source import DEFAULT_MAP_SOURCE, check_map_source
 
 R = TypeVar("R")
 

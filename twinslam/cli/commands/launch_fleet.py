@@ -10,7 +10,6 @@ import functools
 import os
 
 from twinslam.cli.console import each_run, error
-from twinslam.common.reporting import file_name
 from twinslam.live.fleet import (
     FLEET_COLUMNS,
     FleetConfig,
@@ -26,6 +25,7 @@ from twinslam.live.run_picture import plot_run
 from twinslam.live.scenarios import Scenario
 from twinslam.node_hosts.loopback import EnvironmentDomain, LoopbackDomain, ProcessDomain
 from twinslam.node_hosts.netns import NetnsHosts
+from twinslam.reporting import file_name
 from twinslam.sequences.opening import is_synthetic, open_sequence
 
 

@@ -15,12 +15,12 @@ from twinslam.cli.arguments import (
 )
 from twinslam.cli.commands.sim_fleet import run_fleet
 from twinslam.cli.console import Subparsers, error
-from twinslam.common import table1
-from twinslam.common.executor import make_executor
 from twinslam.policy_registry import make_policy
 from twinslam.simulator.covisibility import CovisibilityError
 from twinslam.simulator.env import SimConfig
 from twinslam.simulator.evaluation import PolicyResult, evaluate
+from twinslam.slot_protocol import table1
+from twinslam.sweeps import make_executor
 from twinslam.uplink.channels import ChannelError
 
 
@@ -161,7 +161,7 @@ def register(sub: Subparsers) -> None:
     sim.add_argument("--paper-rule", action="store_true",
                      help="score as the paper does: a frame is lost only when it shares no map "
                      "point, the map update there at the slot's first frame (default: the "
-                     "device's rule, twinslam/common/tracking_rule.py)")
+                     "device's rule, twinslam/slot_protocol/lost_frame_rule.py)")
     sim.add_argument("--archive-keyframes", type=int, default=0, metavar="N",
                      help="the edge keeps up to N evicted keyframes (the least recently useful "
                      "leave first) instead of forgetting them; 0 (default): the paper's edge")

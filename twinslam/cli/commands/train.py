@@ -21,7 +21,6 @@ from twinslam.uplink.channels import ChannelError
 
 def run(args: argparse.Namespace) -> int:
     # imported here: the trainer loads torch, which the other commands never need
-    from twinslam.common.executor import run_tasks
     from twinslam.experiments.training import (
         TrainOutcome,
         snapshots_path,
@@ -30,6 +29,7 @@ def run(args: argparse.Namespace) -> int:
     )
     from twinslam.mbrl.trainer import AmmTrainer, TrainConfig
     from twinslam.simulator.covisibility_spec import absolute_spec
+    from twinslam.sweeps import run_tasks
 
     t0 = time.monotonic()
     warn_aliases([args.rate_model], ALIASES)

@@ -33,7 +33,7 @@ edge (``FrameObservations.tracked``), never uploads one.
 
 from __future__ import annotations
 
-from twinslam.common import table1
+from twinslam.slot_protocol import table1
 
 #: PnP inliers the device needs to track a frame; the edge's MapStats calls a next-slot frame
 #: lost when its reported map points share fewer with the map than this

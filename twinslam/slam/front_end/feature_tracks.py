@@ -8,18 +8,18 @@ follows the features the map does not explain from frame to frame: matched by pr
 the pose the map gave, new tracks back-projected from depth now and then. Tracks have no say in
 the pose; they are ids the frame summaries and uploads carry, nothing more.
 
-Stored like the map (:class:`~twinslam.slam.local_map.LocalMap` columns); the core labels each
-row with a device-local track id and forgets rows older than the slots it can still upload.
+Stored like the map (:class:`~twinslam.slam.front_end.local_map.LocalMap` columns); the core labels
+each row with a device-local track id and forgets rows older than the slots it can still upload.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from twinslam.slam.local_map import LocalMap
-from twinslam.slam.orb_extractor import Features
+from twinslam.slam.front_end.local_map import LocalMap
+from twinslam.slam.front_end.orb_extractor import Features
+from twinslam.slam.front_end.tracking import TrackingConfig, depth_at
 from twinslam.slam.projection_matching import back_project, match_by_projection, visible_points
-from twinslam.slam.tracking import TrackingConfig, depth_at
 
 
 class FeatureTracks:

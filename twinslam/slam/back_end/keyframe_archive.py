@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from twinslam.slam.keyframe_map import KeyFrameMap
+from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 
 ARCHIVE_FORMAT = "twinslam-archived-keyframe-1"
 #: an ORB descriptor: 256 bits

@@ -17,12 +17,12 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from twinslam.common.tracking_rule import MIN_INLIERS
 from twinslam.slam.descriptor_matching import match_descriptors
-from twinslam.slam.local_map import LocalMap
-from twinslam.slam.orb_extractor import Features, OrbExtractor
-from twinslam.slam.pose_optimization import optimize_pose
+from twinslam.slam.front_end.local_map import LocalMap
+from twinslam.slam.front_end.orb_extractor import Features, OrbExtractor
+from twinslam.slam.front_end.pose_optimization import optimize_pose
 from twinslam.slam.projection_matching import back_project, match_by_projection, visible_points
+from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
 
 
 @dataclass(frozen=True)

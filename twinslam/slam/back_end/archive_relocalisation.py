@@ -3,13 +3,14 @@ relocalisation, ORB-SLAM's Relocalization over a keyframe database).
 
 A device tracks against the managed map it was sent; once it walks into a place the map
 evicted, nothing it holds can relocalise it. The edge still remembers the place
-(:mod:`twinslam.slam.keyframe_archive`). From the lost frame's ORB features alone (no image:
+(:mod:`twinslam.slam.back_end.keyframe_archive`). From the lost frame's ORB features alone (no
+image:
 a few tens of kilobytes) the archive's place recognition proposes the keyframes that share the
 most descriptors with it; each candidate's map points, with those of the archived keyframes
 that observe the same points (its covisible neighbours: a frame seldom sees exactly one
 keyframe's view), are matched by descriptor (Lowe's ratio test) and the pose solved by PnP
 RANSAC and refined on the inliers. The best candidate's pose is accepted only with
-``min_inliers`` inliers — the device's own gate (:class:`~twinslam.slam.tracking.
+``min_inliers`` inliers — the device's own gate (:class:`~twinslam.slam.front_end.tracking.
 TrackingConfig`) — and the device checks it once more against where it last tracked.
 """
 
@@ -20,8 +21,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
 from twinslam.slam.descriptor_matching import match_descriptors
-from twinslam.slam.keyframe_archive import KeyFrameArchive
 
 
 @dataclass(frozen=True)

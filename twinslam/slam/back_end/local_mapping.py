@@ -24,8 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.keyframe import TRACK_ID_BIT
-from twinslam.slam.keyframe_map import KeyFrameMap
 from twinslam.slam.projection_matching import back_project, match_by_projection, visible_points
 
 
