@@ -20,9 +20,9 @@ import time
 from pathlib import Path
 
 from bench.gauge import cpu_gauge
-from twinslam.map_management.policies import make_rule_policy
-from twinslam.simulator.covisibility import CovisibilityDataset, load_covisibility
-from twinslam.simulator.env import SimConfig
+from twinslam.covisibility.dataset import CovisibilityDataset, load_covisibility
+from twinslam.policies.rules import make_rule_policy
+from twinslam.policies.world_model import SimConfig
 from twinslam.simulator.fleet import FleetConfig, FleetSimulator
 from twinslam.uplink.channels import parse_channel
 

@@ -27,10 +27,10 @@ import torch
 
 from bench.baseline import alternately, run_in_tree
 from bench.gauge import cpu_gauge, python_steps_per_s
-from twinslam.mbrl.policy import MbrlPolicy
-from twinslam.mbrl.trainer import AmmTrainer, TrainConfig
+from twinslam.policies.learned.policy import MbrlPolicy
+from twinslam.policies.world_model import MapManagementEnv, SimConfig
 from twinslam.simulator.covisibility_spec import open_covisibility
-from twinslam.simulator.env import MapManagementEnv, SimConfig
+from twinslam.training.trainer import AmmTrainer, TrainConfig
 from twinslam.uplink.channels import parse_channel
 
 COVIS = Path(__file__).resolve().parents[1] / "data" / "7scenes-redkitchen-1000.covis.npz"
@@ -41,7 +41,7 @@ COVIS = Path(__file__).resolve().parents[1] / "data" / "7scenes-redkitchen-1000.
 _DRIVER = """
 import json, sys, time
 import torch
-from twinslam.mbrl.trainer import AmmTrainer, TrainConfig
+from twinslam.training.trainer import AmmTrainer, TrainConfig
 from twinslam.simulator.covisibility_spec import open_covisibility
 covis, slots, threads, actor, rate_model, channel, every = sys.argv[1:8]
 torch.set_num_threads(int(threads))

@@ -29,7 +29,7 @@ from edge_mapper.messages import map_update_message
 from edge_mapper.slot_planner import FrameObservations
 from twinslam.live.record import RunRecord
 from twinslam.live.tracking_quality import absolute_trajectory_error
-from twinslam.policy_registry import make_policy
+from twinslam.policies.registry import make_policy
 from twinslam.sequences.opening import open_sequence
 from twinslam.uplink.channels import parse_channel
 

@@ -31,14 +31,11 @@ import numpy as np
 from bench.baseline import alternately, run_in_tree
 from bench.fleet import device_slots_per_s as fleet_device_slots_per_s
 from bench.gauge import cpu_gauge, python_steps_per_s
-from twinslam.map_management.policies import (
-    greedy_additions,
-    greedy_removals,
-)
-from twinslam.policy_registry import make_policy
-from twinslam.simulator.covisibility import load_covisibility
-from twinslam.simulator.env import MapManagementEnv, SimConfig
-from twinslam.simulator.geometric_covisibility import geometric_covisibility
+from twinslam.covisibility.dataset import load_covisibility
+from twinslam.covisibility.geometric import geometric_covisibility
+from twinslam.policies.registry import make_policy
+from twinslam.policies.rules import greedy_additions, greedy_removals
+from twinslam.policies.world_model import MapManagementEnv, SimConfig
 from twinslam.uncertainty import laplacian_kernels as kernels
 from twinslam.uncertainty.laplacian_factorization import PIVOT_RTOL
 from twinslam.uncertainty.naive_greedy import naive_greedy
@@ -132,7 +129,7 @@ POLICIES = ("lff", "pu", "random", "adapt")
 _DRIVER = """
 import json, sys
 from bench.sim import slots_per_second
-from twinslam.simulator.covisibility import load_covisibility
+from twinslam.covisibility.dataset import load_covisibility
 covis, slots, repeats, names, rules = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), \\
     sys.argv[4].split(','), sys.argv[5].split(',')
 data = load_covisibility(covis)

@@ -35,8 +35,8 @@ import numpy as np
 from edge_mapper.planning_world import at_the_edge, extrapolate, has_camera
 from edge_mapper.restores import plan_relocation_restores, plan_restores
 from edge_mapper.slot_planner import FrameObservations, SlotConfig, SlotPlan, SlotPlanner
-from twinslam.map_management.actions import MapAction
-from twinslam.map_management.policies import MapPolicy
+from twinslam.policies.actions import MapAction
+from twinslam.policies.protocol import MapPolicy
 from twinslam.slam.back_end.archive_relocalisation import (
     ArchiveLocation,
     ArchiveRelocalisationConfig,

@@ -1,7 +1,7 @@
 """One edge, many devices: the shared keyframe budget V_total, slot by slot.
 
 Devices keep their own slot clocks, so the budget is granted per device-slot: when device i
-plans slot k, the allocator (:mod:`twinslam.map_management.allocation`) splits V_total between
+plans slot k, the allocator (:mod:`twinslam.allocation.allocators`) splits V_total between
 the active devices by their latest demands, and i plans with
 
     grant_i = min(target_i, V_total − Σ_{j≠i} committed_j),
@@ -32,14 +32,14 @@ import numpy as np
 
 from edge_mapper.edge_core import EdgeMapperCore
 from edge_mapper.slot_planner import FrameObservations
-from twinslam.map_management.allocation import (
+from twinslam.allocation.allocators import (
     ALLOCATORS,
     BudgetError,
     DeviceDemand,
     allocate,
     check_budget,
 )
-from twinslam.map_management.budget_value import budget_value, expected_uploads
+from twinslam.allocation.budget_value import budget_value, expected_uploads
 from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
 from twinslam.uncertainty.map_uncertainty import theorem1_uploads
 

@@ -18,7 +18,7 @@ from msg_schemas import new
 from msg_schemas.headers import set_header, stamp_seconds
 from msg_schemas.poses import pose_matrix, pose_msg
 from msg_schemas.validation import ORB_DESCRIPTOR_BYTES
-from twinslam.map_management.actions import MapAction
+from twinslam.policies.actions import MapAction
 from twinslam.slam.back_end.archive_relocalisation import ArchiveLocation
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.keyframe import KeyFramePayload

@@ -47,7 +47,7 @@ from edge_mapper.parameters import DEVICE_NAME, PARAMETERS, device_names, link_s
 from edge_mapper.policy_control import POLICY_KEYS
 from edge_mapper.slot_planner import FrameObservations
 from msg_schemas import qos, topics
-from twinslam.map_management.allocation import BudgetError, check_budget
+from twinslam.allocation.allocators import BudgetError, check_budget
 from twinslam.node_hosts.node_main import NodeStartError, run_node
 from twinslam.node_hosts.parameters import declare
 

@@ -1,6 +1,6 @@
 """The world the causal planner ``mpc`` imagines at the edge, built from the live map.
 
-In the simulator ``mpc`` (:mod:`twinslam.simulator.mpc`) plans in the simulator's own world:
+In the simulator ``mpc`` (:mod:`twinslam.policies.mpc`) plans in the simulator's own world:
 the covisibility dataset tells it which points the next frames see. Live nothing tells it; the
 edge has to predict the next slots' frames from what it knows when it decides:
 
@@ -17,7 +17,7 @@ edge has to predict the next slots' frames from what it knows when it decides:
   holds unless the newest frames are uploaded (:func:`predict_frames`).
 
 :func:`planning_world` lays the map's keyframes, the slot's frames and the predicted frames out
-as the frame instances of a :class:`~twinslam.simulator.env.MapManagementEnv` standing at the
+as the frame instances of a :class:`~twinslam.policies.world_model.MapManagementEnv` standing at the
 slot; :class:`LiveMpc` hands that world to the simulator's planner each slot and translates
 its answer back to frame ids. Weights are shared point counts as the edge's own planner counts
 them, and a frame is lost by the edge's rule (fewer than ``MIN_INLIERS`` map points shared).
@@ -35,12 +35,12 @@ import numpy as np
 from scipy.linalg import expm, logm
 
 from edge_mapper.slot_planner import FrameObservations, SlotView
-from twinslam.map_management.actions import MapAction, SlotObservation
-from twinslam.map_management.delayed import DelayedPolicy
-from twinslam.map_management.policies import MapPolicy
-from twinslam.simulator.covisibility import CovisibilityDataset
-from twinslam.simulator.env import MapManagementEnv, SimConfig
-from twinslam.simulator.mpc import MpcConfig, MpcPlanner
+from twinslam.covisibility.dataset import CovisibilityDataset
+from twinslam.policies.actions import MapAction, SlotObservation
+from twinslam.policies.delayed import DelayedPolicy
+from twinslam.policies.mpc import MpcConfig, MpcPlanner
+from twinslam.policies.protocol import MapPolicy
+from twinslam.policies.world_model import MapManagementEnv, SimConfig
 from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
 
 #: farther than this a map point is taken to be out of an RGB-D camera's view (7-Scenes' and

@@ -19,8 +19,8 @@ from typing import Any, cast
 
 from edge_mapper.planning_world import at_the_edge
 from edge_mapper.twin_feed import TwinDrivenPolicy, TwinFedPolicy
-from twinslam.map_management.policies import MapPolicy, needs_twin
-from twinslam.policy_registry import LEARNED_PREFIX, make_policy
+from twinslam.policies.protocol import MapPolicy, needs_twin
+from twinslam.policies.registry import LEARNED_PREFIX, make_policy
 
 #: the live parameters that say which policy decides
 POLICY_KEYS = ("policy", "policy_checkpoint", "fallback_policy", "latent_max_age")

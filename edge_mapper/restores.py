@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from edge_mapper.planning_world import MAX_DEPTH_M, visible_points
-from twinslam.map_management.restoring import MIN_VIEW_POINTS, REPLACE_RATIO
+from twinslam.policies.restoring import MIN_VIEW_POINTS, REPLACE_RATIO
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap, shared_counts
 from twinslam.uncertainty.map_uncertainty import map_uncertainty

@@ -5,7 +5,7 @@ The device reports each frame of slot k as the sets of ids it observes: global m
 from the last map update and device-local track ids of new features. The covisibility weight
 between two frames is the size of the intersection of those sets, and between a frame and a
 keyframe of the edge's map the number of map points both observe. With these weights the
-planner builds the same :class:`~twinslam.map_management.actions.SlotObservation` the
+planner builds the same :class:`~twinslam.policies.actions.SlotObservation` the
 simulator gives the policies, asks the configured policy for U_k and C_k (Theorem 1's sizes),
 checks the answer, and scores the slot: υ over F_k against the current map (eq. 8), the reward
 of the previous decision.
@@ -18,8 +18,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from twinslam.map_management.actions import MapAction, SlotObservation, check_map_action
-from twinslam.map_management.policies import MapPolicy, SlotViewer
+from twinslam.policies.actions import MapAction, SlotObservation, check_map_action
+from twinslam.policies.protocol import MapPolicy, SlotViewer
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap, shared_counts
 from twinslam.slot_protocol import table1
 from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS

@@ -16,8 +16,8 @@ from typing import Protocol
 
 import numpy as np
 
-from twinslam.map_management.actions import MapAction, SlotObservation
-from twinslam.map_management.policies import MapPolicy
+from twinslam.policies.actions import MapAction, SlotObservation
+from twinslam.policies.protocol import MapPolicy
 from twinslam.twin.latent import latent_features
 
 

@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from twinslam.map_management.allocation import (
+from twinslam.allocation.allocators import (
     BudgetError,
     DeviceDemand,
     allocate,
@@ -19,7 +19,7 @@ from twinslam.map_management.allocation import (
     split_equal,
     split_proportional,
 )
-from twinslam.map_management.budget_value import budget_value, expected_uploads
+from twinslam.allocation.budget_value import budget_value, expected_uploads
 
 
 @settings(max_examples=200, deadline=None)
@@ -105,7 +105,7 @@ def test_expected_uploads_follow_theorem_ones_count() -> None:
 
 
 def test_a_cells_capacity_is_split_by_weight_and_no_device_gets_more_than_its_link() -> None:
-    from twinslam.map_management.allocation import split_capacity
+    from twinslam.allocation.allocators import split_capacity
 
     assert split_capacity(100.0, [40.0, 40.0], [1.0, 3.0]) == [40.0, 40.0]   # room for all
     assert split_capacity(60.0, [40.0, 40.0], [1.0, 3.0]) == pytest.approx([20.0, 40.0])
@@ -121,7 +121,7 @@ def test_a_cells_capacity_is_split_by_weight_and_no_device_gets_more_than_its_li
                                    min_size=1, max_size=12))
 def test_a_split_never_exceeds_the_cell_or_a_link_and_leaves_nothing_unused(
         capacity: float, devices: list[tuple[float, float]]) -> None:
-    from twinslam.map_management.allocation import split_capacity
+    from twinslam.allocation.allocators import split_capacity
 
     links, weights = [d[0] for d in devices], [d[1] for d in devices]
     shares = split_capacity(capacity, links, weights)

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from device_tracker.messages import FrameRecord, frame_summaries_message
+from twinslam.covisibility.dataset import CovisibilityDataset
 from twinslam.live.calibration import PlayedFrames, live_frames, played_frames
 from twinslam.live.record import RunRecord
 from twinslam.live.scenarios import Scenario
@@ -29,7 +30,6 @@ from twinslam.simulator.calibration import (
     level_min_shared,
     predict_frames,
 )
-from twinslam.simulator.covisibility import CovisibilityDataset
 from twinslam.slam.map_update import MapSnapshot
 from twinslam.uncertainty.map_uncertainty import augmented_uncertainties
 

@@ -8,7 +8,7 @@ import itertools
 import numpy as np
 import pytest
 
-from twinslam.map_management.actions import MapAction
+from twinslam.policies.actions import MapAction
 from twinslam.uplink.channels import (
     ChannelError,
     MarkovChannel,
@@ -82,8 +82,8 @@ def _constant(tmp_path, mbps: float, seconds: int = 120) -> str:
 def test_a_trace_uploads_what_its_real_rate_carries(tmp_path, mbps: float, uploads: int) -> None:
     """|U_k| = ⌊d_k · D_req / α⌋ from the trace's own Mbit/s (α 5 Mbit, D_req 0.5 s), whatever
     the rate range of the Markov channels is."""
-    from twinslam.simulator.covisibility import CovisibilityDataset
-    from twinslam.simulator.env import MapManagementEnv, SimConfig
+    from twinslam.covisibility.dataset import CovisibilityDataset
+    from twinslam.policies.world_model import MapManagementEnv, SimConfig
 
     # frames up to two slots apart share points: the next slot stays tracked (uploadable)
     data = CovisibilityDataset.from_sets([set(range(i, i + 200)) for i in range(400)])

@@ -11,7 +11,7 @@ import numpy as np
 
 from edge_mapper.compute_governor import LEVELS, ComputeGovernor
 from edge_mapper.edge_core import EdgeMapperCore
-from twinslam.map_management.policies import make_rule_policy
+from twinslam.policies.rules import make_rule_policy
 
 
 def _drive(governor: ComputeGovernor, load: float, start: float, seconds: float

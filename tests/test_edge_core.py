@@ -11,7 +11,7 @@ import pytest
 from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, applied_evictions, archive_folder
 from edge_mapper.planning_world import visible_points
 from edge_mapper.slot_planner import FrameObservations, SlotConfig
-from twinslam.policy_registry import make_policy
+from twinslam.policies.registry import make_policy
 from twinslam.slam.keyframe import TRACK_ID_BIT, KeyFramePayload
 
 K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])

@@ -22,7 +22,7 @@ from edge_mapper.messages import (
 from msg_schemas import new, type_name_of
 from msg_schemas.poses import pose_matrix, pose_msg
 from msg_schemas.validation import MessageError, validate
-from twinslam.map_management.actions import MapAction
+from twinslam.policies.actions import MapAction
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.keyframe import TRACK_ID_BIT, KeyFramePayload
 from twinslam.uncertainty.map_uncertainty import SlotUncertainty

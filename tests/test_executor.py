@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
+from twinslam.covisibility.dataset import CovisibilityDataset
 from twinslam.experiments.amm import Setting, sweep
-from twinslam.simulator.covisibility import CovisibilityDataset
 from twinslam.simulator.covisibility_spec import open_covisibility
 from twinslam.sweeps import (
     Executor,

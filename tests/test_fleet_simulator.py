@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from twinslam.cli.main import main
-from twinslam.map_management.policies import make_rule_policy
-from twinslam.simulator.env import MapManagementEnv, SimConfig
+from twinslam.covisibility.geometric import geometric_covisibility
+from twinslam.policies.plan import rollout
+from twinslam.policies.rules import make_rule_policy
+from twinslam.policies.world_model import MapManagementEnv, SimConfig
 from twinslam.simulator.fleet import FleetConfig, FleetSimulator, evaluate_fleet
-from twinslam.simulator.geometric_covisibility import geometric_covisibility
-from twinslam.simulator.plan import rollout
 from twinslam.uplink.channels import parse_channel
 
 DATA = geometric_covisibility(n_frames=400, n_points=2000, seed=3)
@@ -96,7 +96,7 @@ def test_devices_walk_at_their_own_speeds_and_uplinks(capsys: pytest.CaptureFixt
                                                       ) -> None:
     """A walking speed maps camera frames onto recorded ones (0: standing still, 2: every
     other frame); a device standing still sees nothing new, one walking fast a lot."""
-    from twinslam.simulator.env import FrameStream
+    from twinslam.policies.world_model import FrameStream
 
     assert FrameStream(DATA, start=5, horizon=4, speed=0.0).dataset_index([0, 1, 2, 3]).tolist() \
         == [5, 5, 5, 5]

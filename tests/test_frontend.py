@@ -16,9 +16,9 @@ from evo.core.trajectory import PosePath3D
 from scipy.stats import spearmanr
 
 from tests.data_paths import HAVE_SEVEN, SEVEN, needs_seven, seven_or_synthetic
+from twinslam.covisibility.dataset import load_covisibility
 from twinslam.sequences.frame import pose_from_xyzq
 from twinslam.sequences.opening import open_sequence
-from twinslam.simulator.covisibility import load_covisibility
 from twinslam.slam.front_end.orb_extractor import OrbExtractor
 from twinslam.slam.front_end.pose_optimization import optimize_pose
 from twinslam.slam.projection_matching import match_by_projection

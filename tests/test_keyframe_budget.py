@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from edge_mapper.keyframe_budget import KeyframeBudget, Presence
-from twinslam.map_management.allocation import BudgetError, DeviceDemand
+from twinslam.allocation.allocators import BudgetError, DeviceDemand
 from twinslam.uncertainty.map_uncertainty import theorem1_cardinalities
 
 
@@ -165,7 +165,7 @@ def test_a_devices_demand_reads_its_slot_and_map() -> None:
     from edge_mapper.keyframe_budget import device_demand
     from edge_mapper.messages import keyframe_budget_message
     from edge_mapper.slot_planner import FrameObservations
-    from twinslam.map_management.policies import make_rule_policy
+    from twinslam.policies.rules import make_rule_policy
 
     core = EdgeMapperCore(make_rule_policy("lff"))
     core.map.add_keyframe(0, np.eye(4))

@@ -31,7 +31,7 @@ def _torch_modules_after(imports: str) -> list[str]:
 def test_an_edge_with_a_rule_policy_imports_no_torch() -> None:
     loaded = _torch_modules_after(
         "import edge_mapper.node\n"
-        "from twinslam.policy_registry import make_policy\n"
+        "from twinslam.policies.registry import make_policy\n"
         "for name in ('lff', 'pu', 'adapt', 'random'):\n"
         "    make_policy(name)\n")
     assert loaded == []

@@ -11,9 +11,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pytest
 
-from twinslam.policy_registry import make_policy
+from twinslam.policies.registry import make_policy
+from twinslam.policies.world_model import SimConfig
 from twinslam.simulator.covisibility_spec import open_covisibility
-from twinslam.simulator.env import SimConfig
 from twinslam.simulator.evaluation import evaluate
 
 #: torch (and torch_geometric) load inside the tests, and the tests that load them run on one
@@ -25,11 +25,11 @@ COVIS = Path(__file__).resolve().parents[1] / "data" / "7scenes-redkitchen-1000.
 HELD_OUT = f"{COVIS}@600:1000"
 
 if TYPE_CHECKING:
-    from twinslam.mbrl.trainer import AmmTrainer
+    from twinslam.training.trainer import AmmTrainer
 
 
 def _train(tmp: Path, seed: int) -> tuple[Path, AmmTrainer]:
-    from twinslam.mbrl.trainer import AmmTrainer, TrainConfig
+    from twinslam.training.trainer import AmmTrainer, TrainConfig
 
     config = TrainConfig(actor="paper", slots=30, warmup_slots=10, validate_every=10,
                          validation_seeds=1, validation_slots=5, batch_size=8, seed=seed)
@@ -43,7 +43,7 @@ def _train(tmp: Path, seed: int) -> tuple[Path, AmmTrainer]:
 
 def test_snapshots_are_scored_on_held_out_episodes_beside_the_rules(tmp_path: Path) -> None:
     from twinslam.experiments import learning_curve
-    from twinslam.mbrl.trainer import AmmTrainer, TrainConfig, load_snapshots
+    from twinslam.training.trainer import AmmTrainer, TrainConfig, load_snapshots
 
     files = [_train(tmp_path, seed)[0] for seed in (0, 1)]
     seed, kept, snaps = load_snapshots(files[1])
@@ -94,7 +94,7 @@ def test_a_training_stopped_half_way_keeps_its_checkpoint_and_snapshots_so_far(
     """Each validation saves what there is (a 30 000-slot run killed at slot 20 000 keeps
     its curve to there): here the run dies right after its second validation."""
     from twinslam.experiments.training import TrainTask, snapshots_path, train_one
-    from twinslam.mbrl.trainer import AmmTrainer, TrainConfig, load_snapshots
+    from twinslam.training.trainer import AmmTrainer, TrainConfig, load_snapshots
 
     original = AmmTrainer._keep_if_best
 

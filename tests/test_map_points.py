@@ -8,8 +8,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from twinslam.simulator.covisibility import CovisibilityDataset
-from twinslam.simulator.map_points import MapPointCounts
+from twinslam.covisibility.dataset import CovisibilityDataset
+from twinslam.covisibility.map_points import MapPointCounts
 
 #: 12 frames over 40 points, overlapping as a walk's frames do
 DATA = CovisibilityDataset.from_sets([set(range(3 * i, 3 * i + 8)) | {39 - i}

@@ -9,13 +9,19 @@ import numpy as np
 import pytest
 
 from edge_mapper.edge_core import EdgeMapperCore
+from twinslam.covisibility.dataset import CovisibilityDataset, load_covisibility
 from twinslam.live.launcher import preloaded_nodes
-from twinslam.map_management.policies import Adapt, LatestFrameFirst
-from twinslam.mbrl.state import NODE_FEATURES, action_from_scores, build_state, context_size, select
-from twinslam.policy_registry import make_policy
-from twinslam.simulator.covisibility import CovisibilityDataset, load_covisibility
-from twinslam.simulator.env import MapManagementEnv, SimConfig
-from twinslam.simulator.plan import rollout
+from twinslam.policies.learned.state import (
+    NODE_FEATURES,
+    action_from_scores,
+    build_state,
+    context_size,
+    select,
+)
+from twinslam.policies.plan import rollout
+from twinslam.policies.registry import make_policy
+from twinslam.policies.rules import Adapt, LatestFrameFirst
+from twinslam.policies.world_model import MapManagementEnv, SimConfig
 from twinslam.twin.markov import MarkovCounts
 from twinslam.uplink.channels import parse_channel
 
@@ -99,8 +105,8 @@ def test_untrained_actor_makes_adapts_decision(kitchen: CovisibilityDataset) -> 
     evicts exactly what ADAPT does — also where ADAPT evicts a frame it has just uploaded."""
     import torch
 
-    from twinslam.mbrl.networks import Actor
-    from twinslam.mbrl.replay import collate
+    from twinslam.policies.learned.networks import Actor
+    from twinslam.policies.learned.replay import collate
 
     torch.manual_seed(0)
     # the paper's rule: ADAPT's own walk stays tracked, so every slot has frames to choose
@@ -124,7 +130,7 @@ def test_untrained_actor_makes_adapts_decision(kitchen: CovisibilityDataset) -> 
 def test_relaxed_action_tends_to_the_hard_one() -> None:
     import torch
 
-    from twinslam.mbrl.networks import soft_flags
+    from twinslam.policies.learned.networks import soft_flags
 
     rng = np.random.default_rng(2)
     n_map, n_cand = 6, 9
@@ -148,7 +154,7 @@ def test_batched_hard_action_is_select_graph_by_graph() -> None:
     sizes, tied scores (earlier node first), nothing or everything to upload or evict."""
     import torch
 
-    from twinslam.mbrl.networks import hard_flags
+    from twinslam.policies.learned.networks import hard_flags
 
     rng = np.random.default_rng(7)
     sizes = [(0, 5), (4, 0), (6, 9), (12, 3), (3, 12), (8, 8)]
@@ -193,7 +199,7 @@ def test_emulated_slot_equals_the_real_one_and_leaves_the_environment_alone(
 
 
 def test_blended_batch_holds_i_real_tuples(kitchen: CovisibilityDataset) -> None:
-    from twinslam.mbrl.replay import ReplayBuffer, Transition, blended_batch
+    from twinslam.policies.learned.replay import ReplayBuffer, Transition, blended_batch
 
     obs = _played(_env(kitchen), 3)
     state = build_state(obs, np.zeros(0, np.float32), history=8)
@@ -236,8 +242,8 @@ def test_training_writes_a_policy_the_simulator_and_make_policy_run(
         kitchen: CovisibilityDataset, tmp_path: Path) -> None:
     import torch
 
-    from twinslam.mbrl.policy import MbrlPolicy
-    from twinslam.mbrl.trainer import AmmTrainer, TrainConfig
+    from twinslam.policies.learned.policy import MbrlPolicy
+    from twinslam.training.trainer import AmmTrainer, TrainConfig
 
     config = TrainConfig(slots=40, episode_slots=20, warmup_slots=15, batch_size=8,
                          rate_model="markov", artificial_per_real=1, replay_capacity=100,
@@ -272,9 +278,9 @@ def test_the_papers_amm_sees_no_adapt_answer_and_trains_into_a_policy_of_its_own
     default rate model, the regime twin, can take the udt node's latent."""
     import torch
 
-    from twinslam.mbrl.replay import collate
-    from twinslam.mbrl.state import ADAPT_EVICT, ADAPT_UPLOAD
-    from twinslam.mbrl.trainer import AmmTrainer, TrainConfig
+    from twinslam.policies.learned.replay import collate
+    from twinslam.policies.learned.state import ADAPT_EVICT, ADAPT_UPLOAD
+    from twinslam.training.trainer import AmmTrainer, TrainConfig
 
     env = _env(kitchen, seed=1)
     obs, _ = env.reset(1)
@@ -307,7 +313,7 @@ def test_the_papers_amm_sees_no_adapt_answer_and_trains_into_a_policy_of_its_own
 def test_bad_policy_checkpoints_are_refused_by_name(tmp_path: Path) -> None:
     import torch
 
-    from twinslam.mbrl.policy import MbrlPolicy, PolicyCheckpointError
+    from twinslam.policies.learned.policy import MbrlPolicy, PolicyCheckpointError
 
     with pytest.raises(ValueError, match="needs its checkpoint"):
         make_policy("mbrl")
@@ -366,7 +372,7 @@ def test_a_learned_variant_is_reported_over_its_training_runs_with_every_episode
     import csv
 
     from twinslam.experiments.amm import REFERENCE, Setting, sweep
-    from twinslam.mbrl.trainer import AmmTrainer, TrainConfig
+    from twinslam.training.trainer import AmmTrainer, TrainConfig
 
     paths = []
     for seed in (0, 1):

@@ -12,12 +12,12 @@ import pytest
 
 from edge_mapper.policy_control import policy_refused
 from tests.test_policies_and_simulator import _small_instance
-from twinslam.policy_registry import make_policy
-from twinslam.simulator.covisibility import CovisibilityDataset, load_covisibility
-from twinslam.simulator.env import FrameStream, MapManagementEnv, PredictedStream, SimConfig
-from twinslam.simulator.exact_optimum import exact_optimum
-from twinslam.simulator.mpc import MpcConfig, MpcPlanner, parse_mpc
-from twinslam.simulator.plan import replay, rollout
+from twinslam.covisibility.dataset import CovisibilityDataset, load_covisibility
+from twinslam.policies.exact_optimum import exact_optimum
+from twinslam.policies.mpc import MpcConfig, MpcPlanner, parse_mpc
+from twinslam.policies.plan import replay, rollout
+from twinslam.policies.registry import make_policy
+from twinslam.policies.world_model import FrameStream, MapManagementEnv, PredictedStream, SimConfig
 from twinslam.uplink.channels import parse_channel
 
 COVIS = Path(__file__).resolve().parents[1] / "data" / "7scenes-redkitchen-1000.covis.npz"

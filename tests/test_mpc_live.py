@@ -24,10 +24,10 @@ from edge_mapper.planning_world import (
 from edge_mapper.policy_control import make_policies, policy_refused
 from edge_mapper.slot_planner import FrameObservations, SlotConfig, SlotView
 from twinslam.live.runs import policy_variants
-from twinslam.map_management.actions import check_map_action
-from twinslam.map_management.delayed import DelayedPolicy
-from twinslam.policy_registry import make_policy
-from twinslam.simulator.mpc import MpcPlanner, parse_mpc
+from twinslam.policies.actions import check_map_action
+from twinslam.policies.delayed import DelayedPolicy
+from twinslam.policies.mpc import MpcPlanner, parse_mpc
+from twinslam.policies.registry import make_policy
 
 K = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
 SHAPE = (480, 640)

@@ -255,8 +255,8 @@ def test_edge_host_node_killed_and_restarted_restores_its_map(hosts: NetnsHosts,
 @pytest.fixture(scope="module")
 def twin_policy(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A twin-driven AMM policy, trained for a few slots (its quality is not the point)."""
-    from twinslam.mbrl.trainer import AmmTrainer, TrainConfig
-    from twinslam.simulator.covisibility import load_covisibility
+    from twinslam.covisibility.dataset import load_covisibility
+    from twinslam.training.trainer import AmmTrainer, TrainConfig
 
     covis = Path(__file__).resolve().parents[1] / "data" / "7scenes-redkitchen-1000.covis.npz"
     trainer = AmmTrainer(TrainConfig(slots=20, episode_slots=10, warmup_slots=10,

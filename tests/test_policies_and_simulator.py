@@ -10,25 +10,21 @@ import sys
 import numpy as np
 import pytest
 
-from twinslam.map_management.actions import ActionError, MapAction
-from twinslam.map_management.policies import (
-    Adapt,
-    greedy_additions,
-    greedy_removals,
-)
-from twinslam.policy_registry import make_policy
-from twinslam.simulator import covisibility as covisibility_module
-from twinslam.simulator.covisibility import (
+from twinslam.covisibility import dataset as covisibility_module
+from twinslam.covisibility.dataset import (
     CovisibilityDataset,
     load_covisibility,
     save_covisibility,
 )
-from twinslam.simulator.env import FrameStream, MapManagementEnv, SimConfig
-from twinslam.simulator.exact_optimum import InstanceTooLarge, exact_optimum
-from twinslam.simulator.geometric_covisibility import geometric_covisibility
+from twinslam.covisibility.geometric import geometric_covisibility
+from twinslam.policies.actions import ActionError, MapAction
+from twinslam.policies.exact_optimum import InstanceTooLarge, exact_optimum
+from twinslam.policies.plan import replay, rollout
+from twinslam.policies.reference import ReferencePlanner
+from twinslam.policies.registry import make_policy
+from twinslam.policies.rules import Adapt, greedy_additions, greedy_removals
+from twinslam.policies.world_model import FrameStream, MapManagementEnv, SimConfig
 from twinslam.simulator.lower_bound import episode_lower_bound, slot_lower_bounds
-from twinslam.simulator.plan import replay, rollout
-from twinslam.simulator.reference import ReferencePlanner
 from twinslam.uncertainty.map_uncertainty import UncertaintyTally
 from twinslam.uncertainty.naive_greedy import naive_greedy
 from twinslam.uplink.channels import MarkovChannel, parse_channel, state_rates

@@ -97,7 +97,7 @@ def test_the_regime_rate_model_is_the_default_and_survives_a_checkpoint() -> Non
     checkpoint goes through); each run starts afresh."""
     import torch
 
-    from twinslam.mbrl.trainer import TrainConfig
+    from twinslam.training.trainer import TrainConfig
 
     assert TrainConfig().rate_model == "regime"
     model = make_rate_model("regime", RateModelSettings(n_states=4))

@@ -1,5 +1,5 @@
 """The simulator's edge with an archive: evicted keyframes kept, restores scored, planned and
-made with the future known (twinslam.map_management.restoring)."""
+made with the future known (twinslam.policies.restoring)."""
 
 from __future__ import annotations
 
@@ -11,15 +11,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from twinslam.map_management.actions import ActionError, MapAction
-from twinslam.map_management.policies import LatestFrameFirst
-from twinslam.map_management.restoring import RestoringPolicy
-from twinslam.policy_registry import make_policy
-from twinslam.simulator.covisibility import CovisibilityDataset
-from twinslam.simulator.env import MapManagementEnv, SimConfig
-from twinslam.simulator.mpc import MpcConfig, MpcPlanner
-from twinslam.simulator.plan import rollout
-from twinslam.simulator.reference import ReferencePlanner
+from twinslam.covisibility.dataset import CovisibilityDataset
+from twinslam.policies.actions import ActionError, MapAction
+from twinslam.policies.mpc import MpcConfig, MpcPlanner
+from twinslam.policies.plan import rollout
+from twinslam.policies.reference import ReferencePlanner
+from twinslam.policies.registry import make_policy
+from twinslam.policies.restoring import RestoringPolicy
+from twinslam.policies.rules import LatestFrameFirst
+from twinslam.policies.world_model import MapManagementEnv, SimConfig
 from twinslam.uplink.channels import TraceChannel
 
 #: a corridor of 40 frames: frame i sees points 3i … 3i+59, so frames k apart share 60 - 3k

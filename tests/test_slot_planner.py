@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from edge_mapper.slot_planner import FrameObservations, SlotConfig, SlotPlanner
-from twinslam.map_management.actions import ActionError, MapAction
-from twinslam.policy_registry import make_policy
+from twinslam.policies.actions import ActionError, MapAction
+from twinslam.policies.registry import make_policy
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 
 

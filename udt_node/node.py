@@ -106,7 +106,7 @@ class TwinNode(Node):
     def _policy_twin(self, checkpoint: str) -> RunnableTwin:
         """The twin a twin-driven policy was trained with, as it starts a run."""
         # imported here: only a node given a policy checkpoint needs the learning layer
-        from twinslam.mbrl.policy import MbrlPolicy
+        from twinslam.policies.learned.policy import MbrlPolicy
 
         model = MbrlPolicy(Path(checkpoint)).rate_model
         if not isinstance(model, RunnableTwin):        # the registry's TWIN_MODELS

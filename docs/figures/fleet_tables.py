@@ -31,7 +31,7 @@ import sys
 from collections import defaultdict
 from pathlib import Path
 
-from twinslam.map_management.allocation import jain_index
+from twinslam.allocation.allocators import jain_index
 from twinslam.reporting import mean_ci95
 
 HERE = Path(__file__).resolve().parent

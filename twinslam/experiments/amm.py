@@ -28,10 +28,10 @@ import numpy as np
 
 from twinslam.experiments.paired import PairedDifference, paired_difference
 from twinslam.experiments.parallel import run_all
-from twinslam.policy_registry import make_policy
+from twinslam.policies.registry import make_policy
+from twinslam.policies.world_model import MapManagementEnv, SimConfig
 from twinslam.reporting import mean_ci95, pyplot, write_csv
 from twinslam.simulator.covisibility_spec import absolute_spec, cached_covisibility
-from twinslam.simulator.env import MapManagementEnv, SimConfig
 from twinslam.simulator.evaluation import PolicyResult, PooledScores, RunScore, evaluate
 from twinslam.simulator.lower_bound import slot_lower_bounds
 from twinslam.slot_protocol import table1
@@ -278,7 +278,7 @@ def untrained_checkpoints(covis: str, channel: str, out_dir: Path, inits: int) -
     whether training did anything."""
     # torch loads here, not with the module: a sweep of the rules (and each of its worker
     # processes) never needs it, and it costs seconds of CPU per process
-    from twinslam.mbrl.trainer import AmmTrainer, TrainConfig
+    from twinslam.training.trainer import AmmTrainer, TrainConfig
 
     dataset = cached_covisibility(absolute_spec(covis))
     n_states = parse_channel(channel).n_states

@@ -29,15 +29,15 @@ import numpy as np
 
 from twinslam.experiments.paired import PairedDifference, paired_difference
 from twinslam.experiments.parallel import run_all
-from twinslam.map_management.policies import MapPolicy
-from twinslam.mbrl.policy import MbrlPolicy
-from twinslam.mbrl.trainer import load_snapshots
-from twinslam.policy_registry import make_policy
+from twinslam.policies.learned.policy import MbrlPolicy
+from twinslam.policies.protocol import MapPolicy
+from twinslam.policies.registry import make_policy
+from twinslam.policies.world_model import SimConfig
 from twinslam.reporting import mean_ci95, pyplot, write_csv
 from twinslam.simulator.covisibility_spec import absolute_spec, cached_covisibility
-from twinslam.simulator.env import SimConfig
 from twinslam.simulator.evaluation import RunScore, evaluate
 from twinslam.sweeps import Executor, TaskFailure
+from twinslam.training.trainer import load_snapshots
 from twinslam.uncertainty.map_uncertainty import UncertaintyTally
 
 Progress = Callable[[str], None]

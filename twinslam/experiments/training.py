@@ -9,8 +9,8 @@ from pathlib import Path
 
 import torch
 
-from twinslam.mbrl.trainer import AmmTrainer, TrainConfig
 from twinslam.simulator.covisibility_spec import cached_covisibility
+from twinslam.training.trainer import AmmTrainer, TrainConfig
 
 
 @dataclass(frozen=True)

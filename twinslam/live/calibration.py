@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from msg_schemas.headers import time_key, time_seconds
+from twinslam.covisibility.dataset import CovisibilityDataset, save_covisibility
 from twinslam.live.record import RunRecord
 from twinslam.live.scenarios import Scenario
 from twinslam.live.tracking_quality import translation_errors
@@ -33,7 +34,6 @@ from twinslam.reporting import file_name
 from twinslam.sequence_player.playback import Playback, PlayedSequence
 from twinslam.sequences.opening import open_sequence
 from twinslam.simulator.calibration import CalibrationFrame, FramePrediction, predict_frames
-from twinslam.simulator.covisibility import CovisibilityDataset, save_covisibility
 from twinslam.simulator.extraction import extract_covisibility
 from twinslam.slam.map_update import MapSnapshot
 from twinslam.slot_protocol import table1

@@ -23,11 +23,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 from twinslam_msgs.msg import MapStats
 
+from twinslam.allocation.allocators import check_fleet, jain_index
 from twinslam.live.launcher import LaunchConfig, Launcher, preloaded_nodes
 from twinslam.live.monitor import PipelineMonitor
 from twinslam.live.record import RunRecord
 from twinslam.live.report import RunReport, report
-from twinslam.map_management.allocation import check_fleet, jain_index
 from twinslam.node_hosts.loopback import ProcessDomain
 from twinslam.node_hosts.session import RosSession
 from twinslam.sequences.opening import is_synthetic, synthetic_walk

@@ -28,9 +28,9 @@ def load_kernels() -> None:
 
     from device_tracker.device_core import DeviceTrackerCore
     from edge_mapper.edge_core import EdgeMapperCore
-    from twinslam.map_management.budget_value import budget_value
-    from twinslam.map_management.policies import POLICIES
-    from twinslam.policy_registry import make_policy
+    from twinslam.allocation.budget_value import budget_value
+    from twinslam.policies.registry import make_policy
+    from twinslam.policies.rules import POLICIES
     from twinslam.sequences.synthetic import SyntheticSequence
 
     DeviceTrackerCore.warm_up()

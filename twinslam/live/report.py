@@ -22,7 +22,7 @@ from twinslam.live.tracking_quality import (
     tracking_events,
     translation_errors,
 )
-from twinslam.policy_registry import LEARNED_PREFIX
+from twinslam.policies.registry import LEARNED_PREFIX
 
 
 @dataclass

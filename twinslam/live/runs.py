@@ -32,17 +32,17 @@ from typing import TYPE_CHECKING, TypeVar
 if TYPE_CHECKING:
     from _typeshed import DataclassInstance
 
+from twinslam.covisibility.dataset import load_covisibility
 from twinslam.live.calibration import LiveFrames, live_frames, played_frames
 from twinslam.live.launcher import LaunchConfig, Launcher
 from twinslam.live.report import RunReport, policy_label
 from twinslam.live.run_picture import plot_run
 from twinslam.live.scenarios import Scenario
 from twinslam.node_hosts.loopback import LoopbackDomain
-from twinslam.policy_registry import LEARNED_PREFIX, POLICY_KINDS
+from twinslam.policies.registry import LEARNED_PREFIX, POLICY_KINDS
 from twinslam.reporting import file_name, write_csv
 from twinslam.sequences.opening import is_synthetic, synthetic_walk
 from twinslam.simulator.calibration import Calibration, calibrate, failure_cause
-from twinslam.simulator.covisibility import load_covisibility
 from twinslam.slot_protocol.lost_frame_rule import MIN_SHARED_POINTS
 from twinslam.sweeps import Executor, LocalExecutor
 

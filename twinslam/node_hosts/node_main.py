@@ -33,7 +33,7 @@ import os
 import signal
 import sys
 from collections.abc import Callable
-from typing import TypeVar
+from typing import Protocol, TypeVar, runtime_checkable
 
 import rclpy
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
@@ -44,6 +44,15 @@ from rclpy.signals import SignalHandlerOptions
 from twinslam.node_hosts.allocator import keep_freed_memory
 
 N = TypeVar("N", bound=Node)
+
+
+@runtime_checkable
+class Closable(Protocol):
+    """A node with work of its own to finish before it is destroyed (a background thread, a
+    file to flush): its ``close`` runs after the executor stops, before ``destroy_node``."""
+
+    def close(self) -> None: ...
+
 
 
 def _init_hint() -> str:
@@ -142,9 +151,9 @@ def run_node(name: str, factory: Callable[[], N], args: list[str] | None = None,
             executor = None           # its signal set goes with it ...
             stop.install()            # ... leaving the default disposition: ours again
         if node is not None:
-            close = getattr(node, "close", None)
-            if close is not None:
-                close()
+            finishing: object = node      # a node class may add close(): Node has none
+            if isinstance(finishing, Closable):
+                finishing.close()
             node.destroy_node()
         rclpy.try_shutdown()
         # the node is gone and the process is ending: a signal now has nothing left to stop.

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from twinslam.simulator.covisibility import CovisibilityDataset
+from twinslam.covisibility.dataset import CovisibilityDataset
 from twinslam.uncertainty.map_uncertainty import augmented_uncertainties
 
 

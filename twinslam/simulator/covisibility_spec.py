@@ -8,12 +8,12 @@ from __future__ import annotations
 from functools import lru_cache
 from pathlib import Path
 
-from twinslam.simulator.covisibility import (
+from twinslam.covisibility.dataset import (
     CovisibilityDataset,
     CovisibilityError,
     load_covisibility,
 )
-from twinslam.simulator.geometric_covisibility import geometric_covisibility
+from twinslam.covisibility.geometric import geometric_covisibility
 
 
 def open_covisibility(spec: str) -> CovisibilityDataset:

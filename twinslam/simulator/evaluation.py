@@ -9,12 +9,13 @@ from pathlib import Path
 
 import numpy as np
 
-from twinslam.map_management.policies import MapPolicy, make_rule_policy
+from twinslam.covisibility.dataset import CovisibilityDataset
+from twinslam.policies.plan import rollout
+from twinslam.policies.protocol import MapPolicy
+from twinslam.policies.reference import ReferencePlanner, rule_policies
+from twinslam.policies.rules import make_rule_policy
+from twinslam.policies.world_model import MapManagementEnv, SimConfig
 from twinslam.reporting import mean_ci95
-from twinslam.simulator.covisibility import CovisibilityDataset
-from twinslam.simulator.env import MapManagementEnv, SimConfig
-from twinslam.simulator.plan import rollout
-from twinslam.simulator.reference import ReferencePlanner, rule_policies
 from twinslam.slot_protocol import table1
 from twinslam.sweeps import Executor, LocalExecutor, run_tasks
 from twinslam.uncertainty.map_uncertainty import UncertaintyTally
@@ -155,7 +156,7 @@ def evaluate(policies: list[str], dataset: CovisibilityDataset, channel_spec: st
     ``reference`` is the clairvoyant :class:`ReferencePlanner`: it decides with the rule
     policies and starts from every other listed policy's plan of the same seed. The simulator
     knows only the rule policies; callers above the learning core pass
-    :func:`twinslam.policy_registry.make_policy` to evaluate learned ones too.
+    :func:`twinslam.policies.registry.make_policy` to evaluate learned ones too.
     ``reference_swaps``: the reference's local-search budget (plan replays per episode).
     ``executor``: where the seeds run (None or one job: in this process, in order; the same
     numbers either way). ``progress`` hears a line per seed as it lands ("[i/n] seed S", its

@@ -20,8 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from twinslam.covisibility.dataset import CovisibilityDataset
 from twinslam.sequences.frame import Sequence, pose_to_xyzq
-from twinslam.simulator.covisibility import CovisibilityDataset
 from twinslam.slam.front_end.orb_extractor import Features
 from twinslam.slam.front_end.tracking import Tracking, TrackingConfig
 from twinslam.slam.projection_matching import match_by_projection, visible_points

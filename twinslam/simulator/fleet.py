@@ -1,6 +1,6 @@
 """Many devices, one edge, in the simulator: each device a
-:class:`~twinslam.simulator.env.MapManagementEnv` of its own walk and uplink, all inside one
-keyframe budget V_total that an allocator (:mod:`twinslam.map_management.allocation`) splits
+:class:`~twinslam.policies.world_model.MapManagementEnv` of its own walk and uplink, all inside one
+keyframe budget V_total that an allocator (:mod:`twinslam.allocation.allocators`) splits
 every slot, and optionally one cell whose capacity their uplinks share.
 
 The devices step in lockstep here (one slot for all, then the next), so a device's share is its
@@ -11,7 +11,7 @@ through :mod:`edge_mapper.keyframe_budget` instead.) What each allocator reads i
 * ``equal`` — nothing;
 * ``motion`` — the novelty of each device's slot: the share of its frames' points its map
   does not hold;
-* ``twin`` — each device's value curve (:mod:`twinslam.map_management.budget_value`): its slot's
+* ``twin`` — each device's value curve (:mod:`twinslam.allocation.budget_value`): its slot's
   frames against its map's keyframes and the uploads its rate twin (the Bayesian regime twin
   of the device's channel states) expects next slot.
 
@@ -30,7 +30,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from twinslam.map_management.allocation import (
+from twinslam.allocation.allocators import (
     DeviceDemand,
     allocate,
     check_budget,
@@ -38,11 +38,11 @@ from twinslam.map_management.allocation import (
     jain_index,
     split_capacity,
 )
-from twinslam.map_management.budget_value import budget_value, expected_uploads
-from twinslam.map_management.policies import MapPolicy
+from twinslam.allocation.budget_value import budget_value, expected_uploads
+from twinslam.covisibility.dataset import CovisibilityDataset
+from twinslam.policies.protocol import MapPolicy
+from twinslam.policies.world_model import MapManagementEnv, SimConfig
 from twinslam.reporting import mean_ci95
-from twinslam.simulator.covisibility import CovisibilityDataset
-from twinslam.simulator.env import MapManagementEnv, SimConfig
 from twinslam.twin.regime_twin import RegimeConfig, RegimeTwin
 from twinslam.uncertainty.map_uncertainty import SlotUncertainty, UncertaintyTally
 from twinslam.uplink.channels import MarkovChannel, TraceChannel

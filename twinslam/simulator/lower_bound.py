@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from twinslam.simulator.env import MapManagementEnv
+from twinslam.policies.world_model import MapManagementEnv
 
 
 def _top_sums(weights: np.ndarray, counts: np.ndarray, own: np.ndarray, k: int) -> np.ndarray:

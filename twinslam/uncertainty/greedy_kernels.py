@@ -55,7 +55,7 @@ def _connected_parts(n: int) -> tuple[np.ndarray, np.ndarray]:
 def greedy_additions(set_w: np.ndarray, cand_set_w: np.ndarray, cand_w: np.ndarray,
                      count: int, tie_rtol: float, bound_rtol: float, rtol: float) -> np.ndarray:
     """Candidate indices, in pick order, of ``count`` greedy additions (see
-    :func:`twinslam.map_management.policies.greedy_additions` for the rule)."""
+    :func:`twinslam.policies.rules.greedy_additions` for the rule)."""
     m = cand_set_w.shape[0]
     chosen = np.empty(count, dtype=np.int64)
     n_chosen = 0
@@ -124,7 +124,7 @@ def greedy_additions(set_w: np.ndarray, cand_set_w: np.ndarray, cand_w: np.ndarr
 def greedy_removals(set_w: np.ndarray, count: int, tie_rtol: float, bound_rtol: float,
                     rtol: float) -> np.ndarray:
     """Indices into the set, in removal order, of ``count`` greedy removals (see
-    :func:`twinslam.map_management.policies.greedy_removals` for the rule)."""
+    :func:`twinslam.policies.rules.greedy_removals` for the rule)."""
     w, inv, pos, comp, n_comp, log_det = factorise(np.ascontiguousarray(set_w), rtol)
     alive = np.arange(set_w.shape[0])
     removed = np.empty(count, dtype=np.int64)

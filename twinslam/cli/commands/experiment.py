@@ -20,7 +20,7 @@ from twinslam.cli.console import (
     failed_tasks,
     warn_aliases,
 )
-from twinslam.simulator.covisibility import CovisibilityError
+from twinslam.covisibility.dataset import CovisibilityError
 from twinslam.sweeps import TaskFailure
 from twinslam.uplink.channels import SLOT_SECONDS, ChannelError
 

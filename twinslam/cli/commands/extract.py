@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 
 from twinslam.cli.console import Subparsers, error
+from twinslam.covisibility.dataset import save_covisibility
 from twinslam.sequences.frame import SequenceError
 from twinslam.sequences.opening import open_sequence
-from twinslam.simulator.covisibility import save_covisibility
 from twinslam.simulator.extraction import extract_covisibility
 from twinslam.slam.front_end.tracking import TrackingConfig
 

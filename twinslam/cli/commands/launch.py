@@ -22,7 +22,7 @@ from twinslam.live.scenarios import SCENARIOS, Scenario, scenario
 from twinslam.live.slot_table import write_slot_table
 from twinslam.node_hosts.loopback import LoopbackDomain
 from twinslam.node_hosts.netns import unavailable_reason
-from twinslam.policy_registry import LEARNED_PREFIX
+from twinslam.policies.registry import LEARNED_PREFIX
 from twinslam.reporting import file_name
 from twinslam.sequences.frame import SequenceError
 from twinslam.sequences.opening import open_sequence

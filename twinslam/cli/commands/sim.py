@@ -15,9 +15,9 @@ from twinslam.cli.arguments import (
 )
 from twinslam.cli.commands.sim_fleet import run_fleet
 from twinslam.cli.console import Subparsers, error
-from twinslam.policy_registry import make_policy
-from twinslam.simulator.covisibility import CovisibilityError
-from twinslam.simulator.env import SimConfig
+from twinslam.covisibility.dataset import CovisibilityError
+from twinslam.policies.registry import make_policy
+from twinslam.policies.world_model import SimConfig
 from twinslam.simulator.evaluation import PolicyResult, evaluate
 from twinslam.slot_protocol import table1
 from twinslam.sweeps import make_executor

@@ -12,9 +12,9 @@ from typing import TypeVar
 
 from twinslam.cli.arguments import covisibility
 from twinslam.cli.console import error
-from twinslam.map_management.policies import make_rule_policy
-from twinslam.simulator.covisibility import CovisibilityError
-from twinslam.simulator.env import SimConfig
+from twinslam.covisibility.dataset import CovisibilityError
+from twinslam.policies.rules import make_rule_policy
+from twinslam.policies.world_model import SimConfig
 from twinslam.simulator.fleet import AllocatorResult, FleetConfig, evaluate_fleet
 from twinslam.uplink.channels import ChannelError, parse_channel
 

@@ -14,7 +14,7 @@ from twinslam.cli.arguments import (
     open_executor,
 )
 from twinslam.cli.console import Subparsers, error, failed_tasks, warn_aliases
-from twinslam.simulator.covisibility import CovisibilityError
+from twinslam.covisibility.dataset import CovisibilityError
 from twinslam.twin.registry import ALIASES, POLICY_RATE_MODELS, canonical
 from twinslam.uplink.channels import ChannelError
 
@@ -27,9 +27,9 @@ def run(args: argparse.Namespace) -> int:
         train_one,
         train_tasks,
     )
-    from twinslam.mbrl.trainer import AmmTrainer, TrainConfig
     from twinslam.simulator.covisibility_spec import absolute_spec
     from twinslam.sweeps import run_tasks
+    from twinslam.training.trainer import AmmTrainer, TrainConfig
 
     t0 = time.monotonic()
     warn_aliases([args.rate_model], ALIASES)

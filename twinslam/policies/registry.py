@@ -1,6 +1,6 @@
 """Every map-management policy by name, the learned one included: what nodes and the CLI take.
 
-The rule-based policies (:mod:`twinslam.map_management.policies`) need numpy; the learned AMM
+The rule-based policies (:mod:`twinslam.policies.rules`) need numpy; the learned AMM
 policy needs torch and its checkpoint. This registry sits above both, at the level of the
 nodes and the command line, and imports the learned policy only when one is asked for: an edge
 on ``policy:=lff`` never loads torch (tests/test_layers.py), and the libraries below never
@@ -11,9 +11,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from twinslam.map_management.delayed import DELAY_PREFIX, DelayedPolicy, parse_delay
-from twinslam.map_management.policies import POLICIES, MapPolicy, make_rule_policy
-from twinslam.map_management.restoring import RESTORE_PREFIX, RestoringPolicy
+from twinslam.policies.delayed import DELAY_PREFIX, DelayedPolicy, parse_delay
+from twinslam.policies.protocol import MapPolicy
+from twinslam.policies.restoring import RESTORE_PREFIX, RestoringPolicy
+from twinslam.policies.rules import POLICIES, make_rule_policy
 
 LEARNED_PREFIX = "mbrl"          #: ``mbrl:CHECKPOINT`` names a policy `twinslam train` wrote
 MPC = "mpc"                      #: ``mpc[:H=3/S=4/...]``: the causal planner
@@ -24,7 +25,7 @@ POLICY_KINDS = frozenset({*POLICIES, LEARNED_PREFIX, MPC, DELAY_PREFIX, RESTORE_
 def make_policy(name: str) -> MapPolicy:
     """A policy by name: ``lff``, ``pu``, ``adapt``, ``random``, ``mbrl:PATH`` for the
     learned policy of the checkpoint at PATH, or ``mpc[:OPTIONS]`` for the causal planner
-    (:mod:`twinslam.simulator.mpc`; the simulator's world model in ``twinslam sim``, a world
+    (:mod:`twinslam.policies.mpc`; the simulator's world model in ``twinslam sim``, a world
     built from the live map at the edge), or ``delay:SECONDS:POLICY`` for a policy's decisions
     handed back late (a control for the cost of deciding slowly), or ``restore:POLICY`` for a
     policy that also brings archived keyframes back where the device is (the simulator with
@@ -44,10 +45,10 @@ def make_policy(name: str) -> MapPolicy:
         if not path:
             raise ValueError("policy 'mbrl' needs its checkpoint: mbrl:PATH (from "
                              "`twinslam train`)")
-        from twinslam.mbrl.policy import MbrlPolicy  # torch loads only for this policy
+        from twinslam.policies.learned.policy import MbrlPolicy  # torch loads only for this policy
         return MbrlPolicy(Path(path))
     if kind == MPC:
-        from twinslam.simulator.mpc import MpcPlanner, parse_mpc
+        from twinslam.policies.mpc import MpcPlanner, parse_mpc
         config = parse_mpc(name)
         return MpcPlanner(config, learned_rates=_variational_twin
                           if config.rates == "variational" else None)

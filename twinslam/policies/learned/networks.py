@@ -15,7 +15,7 @@ outputs after it (the same product, a matmul ~10× smaller; measured in a traini
   Two variants (``ACTORS``):
 
   - ``paper`` — the paper's AMM: the network's score is the score (its node features carry no
-    ADAPT flags, :func:`~twinslam.mbrl.state.build_state` leaves them 0).
+    ADAPT flags, :func:`~twinslam.policies.learned.state.build_state` leaves them 0).
   - ``residual`` — "ADAPT + residual RL", ours: the score starts from ADAPT's answer
     (``prior ·`` :func:`adapt_scores`, ``prior`` a learned scalar starting at 1) and the
     network adds a correction whose last layer starts near zero, so training starts from the
@@ -32,7 +32,13 @@ import torch
 from torch import nn
 from torch_geometric.nn import DenseGCNConv
 
-from twinslam.mbrl.state import ADAPT_EVICT, ADAPT_UPLOAD, CANDIDATE, IN_MAP, NODE_FEATURES
+from twinslam.policies.learned.state import (
+    ADAPT_EVICT,
+    ADAPT_UPLOAD,
+    CANDIDATE,
+    IN_MAP,
+    NODE_FEATURES,
+)
 
 
 def _mlp(n_in: int, widths: tuple[int, ...], n_out: int) -> nn.Sequential:
@@ -169,7 +175,7 @@ def hard_action(scores: torch.Tensor, x: torch.Tensor, mask: torch.Tensor,
     """The action each graph's scores stand for, batched (no Python loop over graphs — it
     was a tenth of a training update): the ``n_upload`` best-scored candidates, then the
     ``n_evict`` lowest-scored frames of the map and the uploads, ties to the earlier node
-    (stable sorts), as :func:`~twinslam.mbrl.state.select` decides one graph.
+    (stable sorts), as :func:`~twinslam.policies.learned.state.select` decides one graph.
 
     Returns (uploaded, evicted) as (B, n) bools and the thresholds between chosen and not
     chosen (B,): t_up halfway between the |U_k|-th and the next best candidate score, t_ev

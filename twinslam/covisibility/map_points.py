@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from twinslam.simulator.covisibility import CovisibilityDataset
+from twinslam.covisibility.dataset import CovisibilityDataset
 
 
 class MapPointCounts:

@@ -1,7 +1,8 @@
-"""Map-management policies behind one interface, used by the simulator and the edge node.
+"""The paper's rule policies and the random control, used by the simulator and the edge node.
 
-A policy sees a :class:`~twinslam.map_management.actions.SlotObservation` and returns U_k and
-C_k of the sizes Theorem 1 fixes. The rule-based ones are the paper's benchmarks (§VII):
+A policy (:class:`~twinslam.policies.protocol.MapPolicy`) sees a
+:class:`~twinslam.policies.actions.SlotObservation` and returns U_k and C_k of the sizes
+Theorem 1 fixes. The rule-based ones are the paper's benchmarks (§VII):
 
 * **LFF** — latest frames first: upload the last |U_k| frames, evict the oldest map frames.
 * **PU** — periodical uploading: upload frames spread evenly over the slot, evict the oldest.
@@ -18,55 +19,13 @@ C_k of the sizes Theorem 1 fixes. The rule-based ones are the paper's benchmarks
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from twinslam.map_management.actions import MapAction, SlotObservation
+from twinslam.policies.actions import MapAction, SlotObservation
+from twinslam.policies.protocol import MapPolicy
 from twinslam.uncertainty import greedy_kernels
 from twinslam.uncertainty.laplacian_factorization import BOUND_RTOL, PIVOT_RTOL, TIE_RTOL
-
-
-class MapPolicy(Protocol):
-    name: str
-
-    def reset(self, seed: int | None = None) -> None: ...
-
-    def decide(self, obs: SlotObservation) -> MapAction: ...
-
-
-# Optional capabilities a policy declares by having the method or attribute; callers test
-# them with isinstance against these protocols, never by probing for a name.
-
-@runtime_checkable
-class SlotViewer(Protocol):
-    """A policy that looks at the slot's camera view before it decides: the edge's slot
-    planner shows it a ``SlotView`` (``mpc`` at the edge predicts the next frames from it)."""
-
-    def see_slot(self, view: Any) -> None: ...
-
-
-@runtime_checkable
-class WorldPlanner(Protocol):
-    """A policy that plans in the simulator's world: a roll-out attaches it to the
-    environment before the episode (``mpc`` imagines the future there)."""
-
-    def attach(self, env: Any) -> None: ...
-
-
-@runtime_checkable
-class TwinCapable(Protocol):
-    """A policy that may decide on the twin's features in place of its own rate model's (the
-    learned policy; ``uses_twin`` says whether this checkpoint does)."""
-
-    @property
-    def uses_twin(self) -> bool: ...
-
-
-def needs_twin(policy: object) -> bool:
-    """Whether ``policy`` decides on the twin's features (the edge then feeds it latents and
-    keeps a fallback for when none are fresh)."""
-    return isinstance(policy, TwinCapable) and bool(policy.uses_twin)
 
 
 def _evict_oldest(obs: SlotObservation, upload: list[int]) -> list[int]:
@@ -200,7 +159,7 @@ POLICIES: dict[str, Callable[[], MapPolicy]] = {
 
 def make_rule_policy(name: str) -> MapPolicy:
     """A rule-based policy by name (the learned ones are reached through
-    :mod:`twinslam.policy_registry`, so that nothing here needs torch)."""
+    :mod:`twinslam.policies.registry`, so that nothing here needs torch)."""
     try:
         return POLICIES[name]()
     except KeyError:

@@ -1,6 +1,6 @@
 """The trained AMM actor as a map-management policy (``policy:=mbrl``).
 
-It answers the same :class:`~twinslam.map_management.actions.SlotObservation` as LFF, PU and ADAPT,
+It answers the same :class:`~twinslam.policies.actions.SlotObservation` as LFF, PU and ADAPT,
 in the
 simulator and in the edge node alike: the observation becomes the graph state (with the rate
 model's features of the rate history), the actor scores every frame, and U_k / C_k are Theorem
@@ -18,10 +18,10 @@ from typing import Any
 import numpy as np
 import torch
 
-from twinslam.map_management.actions import MapAction, SlotObservation
-from twinslam.mbrl.networks import Actor
-from twinslam.mbrl.replay import collate
-from twinslam.mbrl.state import action_from_scores, build_state, context_size
+from twinslam.policies.actions import MapAction, SlotObservation
+from twinslam.policies.learned.networks import Actor
+from twinslam.policies.learned.replay import collate
+from twinslam.policies.learned.state import action_from_scores, build_state, context_size
 from twinslam.twin.rate_model import RateModel
 from twinslam.twin.registry import TWIN_MODELS, load_rate_model
 

@@ -11,8 +11,8 @@ from __future__ import annotations
 import math
 import time
 
-from twinslam.map_management.actions import MapAction, SlotObservation
-from twinslam.map_management.policies import MapPolicy, SlotViewer
+from twinslam.policies.actions import MapAction, SlotObservation
+from twinslam.policies.protocol import MapPolicy, SlotViewer
 
 DELAY_PREFIX = "delay"
 

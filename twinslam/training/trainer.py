@@ -27,25 +27,25 @@ from typing import Any
 import numpy as np
 import torch
 
-from twinslam.map_management.actions import SlotObservation
-from twinslam.mbrl.networks import Actor, Critic, hard_flags, soft_flags
-from twinslam.mbrl.policy import CHECKPOINT_FORMAT, MbrlPolicy
-from twinslam.mbrl.replay import (
+from twinslam.covisibility.dataset import CovisibilityDataset
+from twinslam.policies.actions import SlotObservation
+from twinslam.policies.learned.networks import Actor, Critic, hard_flags, soft_flags
+from twinslam.policies.learned.policy import CHECKPOINT_FORMAT, MbrlPolicy
+from twinslam.policies.learned.replay import (
     ReplayBuffer,
     Transition,
     blended_batch,
     collate,
     collate_flags,
 )
-from twinslam.mbrl.state import (
+from twinslam.policies.learned.state import (
     GraphState,
     action_from_scores,
     build_state,
     context_size,
 )
-from twinslam.simulator.covisibility import CovisibilityDataset
-from twinslam.simulator.env import MapManagementEnv, SimConfig
-from twinslam.simulator.plan import rollout
+from twinslam.policies.plan import rollout
+from twinslam.policies.world_model import MapManagementEnv, SimConfig
 from twinslam.slot_protocol import table1
 from twinslam.twin.rate_model import RateModel
 from twinslam.twin.registry import (

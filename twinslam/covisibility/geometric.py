@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from twinslam.simulator.covisibility import CovisibilityDataset
+from twinslam.covisibility.dataset import CovisibilityDataset
 
 
 def room_points(rng: np.random.Generator, n_points: int, size: float = 6.0,

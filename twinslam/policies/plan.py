@@ -13,9 +13,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from twinslam.map_management.actions import MapAction, SlotObservation
-from twinslam.map_management.policies import MapPolicy, WorldPlanner
-from twinslam.simulator.env import MapManagementEnv
+from twinslam.policies.actions import MapAction, SlotObservation
+from twinslam.policies.protocol import MapPolicy, WorldPlanner
+from twinslam.policies.world_model import MapManagementEnv
 from twinslam.uncertainty.map_uncertainty import SlotUncertainty, UncertaintyTally
 
 

@@ -14,8 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from twinslam.mbrl.networks import propagation
-from twinslam.mbrl.state import GraphState
+from twinslam.policies.learned.networks import propagation
+from twinslam.policies.learned.state import GraphState
 
 
 @dataclass(frozen=True)

@@ -17,9 +17,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from twinslam.map_management.actions import MapAction
-from twinslam.simulator.env import MapManagementEnv, state_key
-from twinslam.simulator.plan import Plan, action_count, all_actions
+from twinslam.policies.actions import MapAction
+from twinslam.policies.plan import Plan, action_count, all_actions
+from twinslam.policies.world_model import MapManagementEnv, state_key
 from twinslam.uncertainty.map_uncertainty import SlotUncertainty
 
 

@@ -1,6 +1,6 @@
 """What a keyframe budget is worth to one device: its predicted tracked share as a function of
 the budget, the curve the ``twin`` allocator splits V_total by
-(:mod:`twinslam.map_management.allocation`).
+(:mod:`twinslam.allocation.allocators`).
 
 Only what the edge knows when it decides: the device's map (each keyframe's point ids), the
 frames of its last slot (their point ids; they stand for the next slot's frames, which the

@@ -10,7 +10,7 @@ its V_max, which is the share an allocator gives it, slot by slot. Three allocat
   slot's frames saw that its map does not hold. A device walking into new ground needs
   keyframes to keep up with it; one standing still is served by the map it has.
 * ``value`` — each device's predicted tracked share as a function of its budget
-  (:mod:`twinslam.map_management.budget_value`: its recent frames against its map and the
+  (:mod:`twinslam.allocation.budget_value`: its recent frames against its map and the
   uploads its rate twin expects), keyframes handed out one at a time to the largest gain in
   Σ U(value), with U α-fair (``fairness`` 0: the sum itself; 1: Σ log, proportional
   fairness). It is called ``twin``: the twin is what says how many uploads to expect.

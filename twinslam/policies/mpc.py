@@ -22,16 +22,16 @@ in S scenarios. What it may know is only what a device and an edge know at slot 
 
 With an archive (the environment's ``archive_keyframes``) each candidate first action is
 also tried with the archived keyframes the predicted next-slot frames need brought back
-(:func:`~twinslam.map_management.restoring.with_restores`): ``mpc`` plans restores with the
+(:func:`~twinslam.policies.restoring.with_restores`): ``mpc`` plans restores with the
 same imagined future it plans uploads with.
 
 The later slots' plans: every action exactly (dynamic programming over maps, as
-:mod:`~twinslam.simulator.exact_optimum`) while the instance is small enough, else the best of
+:mod:`~twinslam.policies.exact_optimum`) while the instance is small enough, else the best of
 the base policies' (LFF, ADAPT) roll-outs. Candidate first actions: all of them when there are
 at most ``max_actions``, else the base policies' actions and random swaps of them. With a known
 future and H covering the rest of the episode it is the exact optimum (tests).
 
-It plans in the simulator's world model here; at the edge
+It plans in the world model (:mod:`twinslam.policies.world_model`) here; at the edge
 (:mod:`edge_mapper.planning_world`) the same planner plans in a world built each slot from the
 live map, the device's poses and the frames predicted at its extrapolated poses.
 """
@@ -44,13 +44,14 @@ from typing import Any
 
 import numpy as np
 
-from twinslam.map_management.actions import MapAction, SlotObservation
-from twinslam.map_management.policies import Adapt, LatestFrameFirst, MapPolicy
-from twinslam.map_management.restoring import with_restores
-from twinslam.simulator.env import MapManagementEnv, PredictedStream
-from twinslam.simulator.exact_optimum import InstanceTooLarge, best_continuation
-from twinslam.simulator.plan import action_count, all_actions
-from twinslam.simulator.reference import swap_one
+from twinslam.policies.actions import MapAction, SlotObservation
+from twinslam.policies.exact_optimum import InstanceTooLarge, best_continuation
+from twinslam.policies.plan import action_count, all_actions
+from twinslam.policies.protocol import MapPolicy
+from twinslam.policies.reference import swap_one
+from twinslam.policies.restoring import with_restores
+from twinslam.policies.rules import Adapt, LatestFrameFirst
+from twinslam.policies.world_model import MapManagementEnv, PredictedStream
 from twinslam.twin.markov import MarkovCounts
 from twinslam.twin.regime_twin import RegimeConfig, RegimeTwin
 
@@ -116,7 +117,7 @@ def parse_mpc(spec: str) -> MpcConfig:
 
 class MpcPlanner:
     """The ``mpc`` policy (module docstring). ``attach(env)`` hands it the simulator's
-    environment whose world it imagines; :func:`~twinslam.simulator.plan.rollout` does."""
+    environment whose world it imagines; :func:`~twinslam.policies.plan.rollout` does."""
 
     name = "mpc"
 

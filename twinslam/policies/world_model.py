@@ -1,5 +1,6 @@
-"""Gymnasium-style environment: one ``step`` is one slot of map management (docs/architecture.md
-§4).
+"""The world model: a gymnasium-style environment where one ``step`` is one slot of map
+management (docs/architecture.md §4). The simulator scores policies in it, the learned policy
+trains in it, ``mpc`` imagines its futures in it and the edge builds one from its live map.
 
 At slot k the agent sees the map V^e_k, the slot's frames F_k and the rate d_k, and answers
 with U_k ⊆ F_k and C_k ⊆ V^e_k ∪ U_k of Theorem 1's sizes. The environment applies the update
@@ -34,9 +35,9 @@ from typing import Any
 
 import numpy as np
 
-from twinslam.map_management.actions import MapAction, SlotObservation, check_map_action
-from twinslam.simulator.covisibility import CovisibilityDataset
-from twinslam.simulator.map_points import MapPointCounts
+from twinslam.covisibility.dataset import CovisibilityDataset
+from twinslam.covisibility.map_points import MapPointCounts
+from twinslam.policies.actions import MapAction, SlotObservation, check_map_action
 from twinslam.slot_protocol import table1
 from twinslam.slot_protocol.lost_frame_rule import MIN_SHARED_POINTS, update_lag_frames
 from twinslam.uncertainty import laplacian_kernels as kernels

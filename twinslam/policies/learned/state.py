@@ -25,8 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from twinslam.map_management.actions import MapAction, SlotObservation
-from twinslam.map_management.policies import adapt_action
+from twinslam.policies.actions import MapAction, SlotObservation
+from twinslam.policies.rules import adapt_action
 
 NODE_FEATURES = 10
 #: the node feature columns other modules read (the order of the list above)

@@ -4,7 +4,7 @@ It knows every future frame and rate and plans the whole episode, but it is a *s
 bound: problem P1 has ~10¹¹–10¹⁸ action sequences per episode at the paper's sizes, and
 nothing here proves the result optimal. A policy that scores below the reference has found a
 plan the search missed (that is a finding about the search, not a violation). Only
-:func:`~twinslam.simulator.exact_optimum.exact_optimum` is the true optimum, on small instances.
+:func:`~twinslam.policies.exact_optimum.exact_optimum` is the true optimum, on small instances.
 No valid lower bound at full size is known to us that is tight enough to report
 (docs/architecture.md §9).
 
@@ -16,7 +16,7 @@ policy it was given:
 2. **Beam search**: each beam state (map after slot k) is expanded with every given policy's
    action in that state, every handed plan's action for slot k where it is valid in that state,
    and random one-frame swaps of them — with an archive, each also with the archived keyframes
-   the next slot's true frames need brought back (:mod:`~twinslam.map_management.restoring`:
+   the next slot's true frames need brought back (:mod:`~twinslam.policies.restoring`:
    the restores made with the future known); states leaving the same map, candidates and
    archive are merged (the future depends on nothing else), the ``beam`` with the lowest
    accumulated υ survive.
@@ -34,16 +34,17 @@ from typing import Any
 
 import numpy as np
 
-from twinslam.map_management.actions import (
+from twinslam.policies.actions import (
     ActionError,
     MapAction,
     SlotObservation,
     check_map_action,
 )
-from twinslam.map_management.policies import Adapt, LatestFrameFirst, MapPolicy, PeriodicalUploading
-from twinslam.map_management.restoring import with_restores
-from twinslam.simulator.env import MapManagementEnv, state_key
-from twinslam.simulator.plan import Plan, replay, rollout
+from twinslam.policies.plan import Plan, replay, rollout
+from twinslam.policies.protocol import MapPolicy
+from twinslam.policies.restoring import with_restores
+from twinslam.policies.rules import Adapt, LatestFrameFirst, PeriodicalUploading
+from twinslam.policies.world_model import MapManagementEnv, state_key
 from twinslam.uncertainty.map_uncertainty import SlotUncertainty
 
 

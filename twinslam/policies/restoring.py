@@ -16,7 +16,7 @@ skipped (a disconnected map has no finite uncertainty, its parts no common frame
 
 What the view is decides what kind of policy it is: ``restore:POLICY`` looks at the next
 slot's frames where the camera's motion across this slot leads (in the simulator
-:meth:`~twinslam.simulator.env.MapManagementEnv.coming_view`, causal, as the live edge's
+:meth:`~twinslam.policies.world_model.MapManagementEnv.coming_view`, causal, as the live edge's
 extrapolated poses; the slot's newest tracked frames where no world predicts them), the
 reference at the next slot's true frames, ``mpc`` at the frames its world model predicts.
 """
@@ -28,8 +28,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import replace
 from typing import Any, Protocol, runtime_checkable
 
-from twinslam.map_management.actions import MapAction, SlotObservation
-from twinslam.map_management.policies import MapPolicy, WorldPlanner
+from twinslam.policies.actions import MapAction, SlotObservation
+from twinslam.policies.protocol import MapPolicy, WorldPlanner
 from twinslam.uncertainty.map_uncertainty import map_uncertainty
 
 RESTORE_PREFIX = "restore"

@@ -1,1 +1,0 @@
-"""Map-management policies (LFF, PU, ADAPT) and the action/observation types they exchange."""
