@@ -27,7 +27,7 @@ from device_tracker.messages import read_map_update
 from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore
 from edge_mapper.messages import map_update_message
 from edge_mapper.slot_planner import FrameObservations
-from twinslam.live.record import RunRecord
+from twinslam.live.run_log import RunLog
 from twinslam.live.tracking_quality import absolute_trajectory_error
 from twinslam.policies.registry import make_policy
 from twinslam.sequences.opening import open_sequence
@@ -56,7 +56,7 @@ def main() -> None:
     device = DeviceTrackerCore(reader.intrinsics, 60)
     channel = parse_channel("markov:N=2", seed=0)
     device_ms, edge_ms = [], []
-    record = RunRecord()                      # poses and ground truth, for the ATE
+    record = RunLog()                      # poses and ground truth, for the ATE
     parts: dict[str, list[float]] = {"plan": [], "integrate": [], "finish": [], "optimise": [],
                                      "checkpoint": [], "uncertainty": []}
     with tempfile.TemporaryDirectory() as tmp:

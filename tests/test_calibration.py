@@ -14,7 +14,7 @@ import pytest
 from device_tracker.messages import FrameRecord, frame_summaries_message
 from twinslam.covisibility.dataset import CovisibilityDataset
 from twinslam.live.calibration import PlayedFrames, live_frames, played_frames
-from twinslam.live.record import RunRecord
+from twinslam.live.run_log import RunLog
 from twinslam.live.scenarios import Scenario
 from twinslam.sequences.opening import open_sequence
 from twinslam.simulator.calibration import (
@@ -126,8 +126,8 @@ def test_a_covered_lens_shows_no_recorded_frame_so_the_calibration_counts_it_apa
 
 
 def _record(records_by_slot: dict[int, list[FrameRecord]], maps: dict[int, MapSnapshot]
-            ) -> RunRecord:
-    record = RunRecord()
+            ) -> RunLog:
+    record = RunLog()
     for slot, frames in records_by_slot.items():
         record.summaries[slot] = frame_summaries_message(slot, 40.0, 0, 0, frames, time.time())
     record.maps = maps

@@ -28,8 +28,8 @@ import pytest
 
 from tests.data_paths import seven_or_synthetic
 from twinslam.live.launcher import NODE_HOSTS, LaunchConfig, Launcher, tc_uplink_params
-from twinslam.live.record import RunRecord
 from twinslam.live.report import RunReport
+from twinslam.live.run_log import RunLog
 from twinslam.node_hosts.netns import HOSTS, NetnsError, NetnsHosts, address_of, unavailable_reason
 
 SEQUENCE = seven_or_synthetic()
@@ -71,8 +71,8 @@ def _tc_uplink(**device: str) -> dict[str, list[str]]:
 
 
 def _run(hosts: NetnsHosts, frames: int, extra: dict[str, list[str]],
-         on_stats: Callable[[Any, RunRecord, Launcher], None] | None = None,
-         **config: Any) -> tuple[RunReport, RunRecord, Launcher]:
+         on_stats: Callable[[Any, RunLog, Launcher], None] | None = None,
+         **config: Any) -> tuple[RunReport, RunLog, Launcher]:
     config.setdefault("policy", "adapt")
     # the Edge-SLAM style device unless a test names the map source: the faults tested here
     # need a device that tracks on where the paper's device is lost with the map's lag
@@ -97,7 +97,7 @@ def _namespace_of(pid: int) -> str:
                           text=True).stdout.strip()
 
 
-def _assert_slots_consistent(record: RunRecord, slots: int) -> None:
+def _assert_slots_consistent(record: RunLog, slots: int) -> None:
     """Every slot answered once, in full: what the edge asked for is what the device sent and
     what the edge integrated, and the map stays within V_max."""
     assert sorted(record.stats) == list(range(slots)), sorted(record.stats)
@@ -145,7 +145,7 @@ def _udp_reaches(hosts: NetnsHosts, src: str, dst: str) -> bool:
 def test_device_uplink_through_tc_follows_the_configured_rate(hosts: NetnsHosts) -> None:
     where: dict[str, str] = {}
 
-    def note_hosts(msg: Any, record: RunRecord, launcher: Launcher) -> None:
+    def note_hosts(msg: Any, record: RunLog, launcher: Launcher) -> None:
         if not where:
             where.update({n: _namespace_of(p.pid) for n, p in launcher.procs.items()})
 
@@ -174,7 +174,7 @@ def test_device_uplink_through_tc_follows_the_configured_rate(hosts: NetnsHosts)
 def test_link_down_for_5_s_device_tracks_on_and_uploads_resume(hosts: NetnsHosts) -> None:
     outage: dict[str, float] = {}
 
-    def pull_cable(msg: Any, record: RunRecord, launcher: Launcher) -> None:
+    def pull_cable(msg: Any, record: RunLog, launcher: Launcher) -> None:
         if int(msg.slot) == 1 and "down" not in outage:
             outage["down"] = time.monotonic()
             hosts.set_link("device", False)
@@ -214,7 +214,7 @@ def test_edge_host_node_killed_and_restarted_restores_its_map(hosts: NetnsHosts,
                                                               tmp_path: Path) -> None:
     state: dict[str, Any] = {}
 
-    def kill_edge(msg: Any, record: RunRecord, launcher: Launcher) -> None:
+    def kill_edge(msg: Any, record: RunLog, launcher: Launcher) -> None:
         slot = int(msg.slot)
         # the newest map the monitor holds (a slot's MapUpdate may arrive after its MapStats)
         acked = max(record.maps, default=-1)
@@ -279,7 +279,7 @@ def test_twin_absent_edge_falls_back_and_returns_when_latents_flow(
     learned = f"mbrl:{twin_policy}"
     twin: dict[str, Any] = {}
 
-    def start_then_kill_twin(msg: Any, record: RunRecord, launcher: Launcher) -> None:
+    def start_then_kill_twin(msg: Any, record: RunLog, launcher: Launcher) -> None:
         slot = int(msg.slot)
         decided = [record.requests[s].policy for s in sorted(record.requests) if s <= slot]
         if slot == 1 and "proc" not in twin:
@@ -329,7 +329,7 @@ def test_5_percent_loss_reliable_topics_deliver_best_effort_images_degrade(
         pytest.skip(f"no way to lose packets here: {exc}")
     seen: dict[str, int] = {}
 
-    def start_losing(msg: Any, record: RunRecord, launcher: Launcher) -> None:
+    def start_losing(msg: Any, record: RunLog, launcher: Launcher) -> None:
         if not seen:
             seen["before"] = record.images_received
             hosts.lose_packets("device", 5.0)

@@ -25,8 +25,8 @@ import pytest
 from msg_schemas.headers import stamp_seconds
 from tests.data_paths import seven_or_synthetic
 from twinslam.live.launcher import LaunchConfig, Launcher
-from twinslam.live.record import RunRecord
 from twinslam.live.report import RunReport
+from twinslam.live.run_log import RunLog
 from twinslam.live.scenarios import SCENARIOS, Scenario
 from twinslam.node_hosts.loopback import LoopbackDomain
 from twinslam.sequences.opening import open_sequence
@@ -54,7 +54,7 @@ def reads_the_policy_runs(test: Callable[..., None]) -> Callable[..., None]:
 def _run(policy: str, frames: int = FRAMES, checkpoint: Path | None = None,
          on_stats: Any = None, extra: dict[str, list[str]] | None = None,
          scenario: Scenario = SCENARIOS["forward"], sequence: str = SEQUENCE, rate: float = 1.0
-         ) -> tuple[RunReport, RunRecord, Launcher]:
+         ) -> tuple[RunReport, RunLog, Launcher]:
     """One run of ``frames`` played at ``rate`` × their recorded speed; ``extra``: node
     parameters beside the launch file's. The device is the Edge-SLAM style one unless
     ``extra`` names its map source: what these tests check — the protocol, the edge's
@@ -87,7 +87,7 @@ class _Viewer:
                                                 "tf_static": {}}
         self.session: Any = None
 
-    def __call__(self, _msg: Any, _record: RunRecord, _launcher: Launcher) -> None:
+    def __call__(self, _msg: Any, _record: RunLog, _launcher: Launcher) -> None:
         from geometry_msgs.msg import PoseArray
         from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
         from sensor_msgs.msg import PointCloud2
@@ -127,13 +127,13 @@ class _Viewer:
             self.session.close()
 
 
-def _policy_run(policy: str, on_stats: Any = None) -> tuple[RunReport, RunRecord, Launcher]:
+def _policy_run(policy: str, on_stats: Any = None) -> tuple[RunReport, RunLog, Launcher]:
     return _run(policy, on_stats=on_stats, rate=RATE,
                 extra={"device_tracker": [f"slot_frames:={SLOT_FRAMES}"]})
 
 
 @pytest.fixture(scope="module")
-def viewed_lff() -> tuple[tuple[RunReport, RunRecord, Launcher], dict[str, dict[int, Any]]]:
+def viewed_lff() -> tuple[tuple[RunReport, RunLog, Launcher], dict[str, dict[int, Any]]]:
     """The LFF run, watched by an outside viewer of the edge's viewer topics."""
     viewer = _Viewer()
     try:
@@ -144,7 +144,7 @@ def viewed_lff() -> tuple[tuple[RunReport, RunRecord, Launcher], dict[str, dict[
 
 
 @pytest.fixture(scope="module")
-def runs(viewed_lff: tuple) -> dict[str, tuple[RunReport, RunRecord, Launcher]]:
+def runs(viewed_lff: tuple) -> dict[str, tuple[RunReport, RunLog, Launcher]]:
     return {"lff": viewed_lff[0], **{p: _policy_run(p) for p in ("pu", "adapt")}}
 
 
@@ -252,7 +252,7 @@ def test_policies_decide_differently_and_the_edge_reports_consistent_scores(
 def test_edge_killed_mid_run_resumes_from_its_checkpoint(tmp_path: Path) -> None:
     state: dict[str, Any] = {}
 
-    def fault(msg: Any, record: RunRecord, launcher: Launcher) -> None:
+    def fault(msg: Any, record: RunLog, launcher: Launcher) -> None:
         # MapStats and MapUpdate travel on different topics, and a slot's map often comes
         # after its stats: "before" is the newest map the edge had acknowledged when killed
         slot = int(msg.slot)
@@ -265,7 +265,7 @@ def test_edge_killed_mid_run_resumes_from_its_checkpoint(tmp_path: Path) -> None
         elif "killed" in state and "after" not in state:
             state["after"] = slot            # its map is read once the run is over
 
-    def msg_evictions(record: RunRecord, slot: int) -> list[int]:
+    def msg_evictions(record: RunLog, slot: int) -> list[int]:
         req = record.requests.get(slot)
         return [int(f) for f in req.evict_frame_ids] if req is not None else []
 

@@ -119,7 +119,7 @@ def test_record_to_mcap_and_replay_gives_the_same_messages(tmp_path: Path) -> No
     import subprocess
     import sys
 
-    from twinslam.sequence_player.recording import frame_messages
+    from twinslam.sequence_player.sequence_bag import frame_messages
     from twinslam.sequences.opening import open_sequence
 
     seq = _seven_scenes_fixture(tmp_path / "seq", frames=12, corrupt=5)

@@ -12,13 +12,13 @@ import numpy as np
 from twinslam_msgs.msg import MapStats, UploadRequest
 
 from msg_schemas import new
-from twinslam.live.record import RunRecord
 from twinslam.live.report import report
+from twinslam.live.run_log import RunLog
 from twinslam.live.slot_table import SLOT_COLUMNS, write_slot_table
 
 
-def _record(decided: list[str], missed_request: int | None = None) -> RunRecord:
-    record = RunRecord()
+def _record(decided: list[str], missed_request: int | None = None) -> RunLog:
+    record = RunLog()
     for slot, policy in enumerate(decided):
         if slot != missed_request:
             record.requests[slot] = new(UploadRequest, slot=slot, policy=policy,

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from device_tracker.messages import FrameRecord, frame_summaries_message
-from twinslam.live.record import RunRecord
+from twinslam.live.run_log import RunLog
 from twinslam.live.update_loop import stage_table, update_loop_latencies
 
 
@@ -18,8 +18,8 @@ def _frame(frame_id: int, stamp: float, version: int, slot: int) -> FrameRecord:
                        np.zeros(0, np.uint64), slot, False, 40, version)
 
 
-def _run() -> RunRecord:
-    record = RunRecord()
+def _run() -> RunLog:
+    record = RunLog()
     slots = {0: [_frame(0, 10.0, 0, 0), _frame(1, 10.1, 0, 0)],
              1: [_frame(2, 10.2, 0, 1), _frame(3, 10.3, 0, 1)],
              2: [_frame(4, 11.05, 1, 2), _frame(5, 11.1, 1, 2)]}

@@ -27,7 +27,7 @@ import numpy as np
 
 from msg_schemas.headers import time_key, time_seconds
 from twinslam.covisibility.dataset import CovisibilityDataset, save_covisibility
-from twinslam.live.record import RunRecord
+from twinslam.live.run_log import RunLog
 from twinslam.live.scenarios import Scenario
 from twinslam.live.tracking_quality import translation_errors
 from twinslam.reporting import file_name
@@ -155,7 +155,7 @@ def _at_or_before(integrated: dict[int, np.ndarray], version: int) -> np.ndarray
     return integrated[max(known)] if known else np.zeros(0, np.int64)
 
 
-def live_frames(record: RunRecord, dataset: CovisibilityDataset, played: PlayedFrames,
+def live_frames(record: RunLog, dataset: CovisibilityDataset, played: PlayedFrames,
                 log_det_pi: float = 0.0, lag_frames: int = MAP_UPDATE_LAG_FRAMES) -> LiveFrames:
     """Every next-slot frame of the run (slots after the first whose previous map arrived),
     predicted by the simulator's rule and paired with the device's outcome: the first

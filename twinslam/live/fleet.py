@@ -26,8 +26,8 @@ from twinslam_msgs.msg import MapStats
 from twinslam.allocation.allocators import check_fleet, jain_index
 from twinslam.live.launcher import LaunchConfig, Launcher, preloaded_nodes
 from twinslam.live.monitor import PipelineMonitor
-from twinslam.live.record import RunRecord
 from twinslam.live.report import RunReport, report
+from twinslam.live.run_log import RunLog
 from twinslam.node_hosts.loopback import ProcessDomain
 from twinslam.node_hosts.session import RosSession
 from twinslam.sequences.opening import is_synthetic, synthetic_walk
@@ -191,8 +191,8 @@ class FleetLauncher(Launcher):
         return (self._device_param("slot_frames", table1.SLOT_FRAMES)
                 / self._device_param("frame_rate_hz", table1.FRAME_RATE_HZ))
 
-    def _status(self, device: str) -> Callable[[MapStats, RunRecord], None]:
-        def line(msg: MapStats, _record: RunRecord) -> None:
+    def _status(self, device: str) -> Callable[[MapStats, RunLog], None]:
+        def line(msg: MapStats, _record: RunLog) -> None:
             if self.echo:
                 self.echo(f"[{self.config.policy} {device}] slot {msg.slot:>3} | map "
                           f"{msg.map_size:>3} of {msg.keyframe_budget:>3} kf | lost "
@@ -236,7 +236,7 @@ FLEET_COLUMNS = ("policy", "allocator", "seed", "device", "slots", "frames", "me
                  "latency_ms_median", "late_slots")
 
 
-def fleet_rows(fleet: FleetReport, seed: int, records: dict[str, RunRecord],
+def fleet_rows(fleet: FleetReport, seed: int, records: dict[str, RunLog],
                slot_period_s: float) -> list[dict[str, object]]:
     """One row a device of ``fleet``: its figures, its mean share of V_total, and how many of
     its slots' maps came later than ``slot_period_s`` after its summaries."""

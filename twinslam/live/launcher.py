@@ -21,9 +21,9 @@ import yaml
 
 from twinslam.live.monitor import PipelineMonitor, status_line
 from twinslam.live.node_fork_server import SWITCH, fork_servers
-from twinslam.live.record import RunRecord
 from twinslam.live.report import RunReport, report
-from twinslam.live.run_recording import RecordingOptions, RecordingSummary, RunRecorder
+from twinslam.live.run_bag import RecordingOptions, RecordingSummary, RunRecorder
+from twinslam.live.run_log import RunLog
 from twinslam.live.scenarios import SCENARIOS, Scenario
 from twinslam.node_hosts.fastdds import REPO_ROOT
 from twinslam.node_hosts.forked import ForkServers, NodeProcess
@@ -75,7 +75,7 @@ class Launcher:
         self.logs: dict[str, str] = {}         #: each node's stderr (its log), after stop
         self._killed: set[int] = set()         #: pids killed on purpose (``kill``)
         #: what the monitor heard, by slot: filled while ``run`` plays, kept afterwards
-        self.record: RunRecord | None = None
+        self.record: RunLog | None = None
         #: what ``config.record`` holds after the run (None: not recorded)
         self.recording: RecordingSummary | None = None
 
@@ -108,18 +108,18 @@ class Launcher:
         self.procs[name] = proc
         return proc
 
-    def run(self, on_stats: Callable[[Any, RunRecord], None] | None = None) -> RunReport:
+    def run(self, on_stats: Callable[[Any, RunLog], None] | None = None) -> RunReport:
         """Play, watch, stop; ``on_stats(msg, record)`` runs on every ``MapStats`` (tests use
         it to inject faults mid-run)."""
         with self.domain.monitor_scope():
             return self._run(on_stats)
 
-    def _run(self, on_stats: Callable[[Any, RunRecord], None] | None) -> RunReport:
+    def _run(self, on_stats: Callable[[Any, RunLog], None] | None) -> RunReport:
         c = self.config
         session = RosSession("twinslam_monitor")
         recorder: RunRecorder | None = None
         try:
-            def stats(msg: Any, record: RunRecord) -> None:
+            def stats(msg: Any, record: RunLog) -> None:
                 if self.echo:
                     self.echo(status_line(msg, record))
                 if on_stats:

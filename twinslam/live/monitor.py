@@ -1,5 +1,5 @@
 """The monitor node's subscriptions: a live run's protocol topics, poses and map updates into a
-:class:`~twinslam.live.record.RunRecord`, and one status line per slot."""
+:class:`~twinslam.live.run_log.RunLog`, and one status line per slot."""
 
 from __future__ import annotations
 
@@ -25,16 +25,16 @@ from device_tracker.messages import read_map_update
 from msg_schemas import qos, topics
 from msg_schemas.headers import stamp_key
 from msg_schemas.poses import pose_matrix
-from twinslam.live.record import RunRecord
+from twinslam.live.run_log import RunLog
 
 
 class PipelineMonitor:
     """Subscribes to the run's topics with ``node`` and keeps what it hears."""
 
     def __init__(self, node: Node,
-                 on_stats: Callable[[MapStats, RunRecord], None] | None = None,
+                 on_stats: Callable[[MapStats, RunLog], None] | None = None,
                  watch_images: bool = False) -> None:
-        self.record = RunRecord()
+        self.record = RunLog()
         self._on_stats = on_stats
         sub = node.create_subscription
         sub(FrameSummaries, topics.FRAME_SUMMARIES, self._summaries, qos.PROTOCOL)
@@ -97,7 +97,7 @@ class PipelineMonitor:
             self._on_stats(msg, self.record)
 
 
-def status_line(msg: MapStats, record: RunRecord) -> str:
+def status_line(msg: MapStats, record: RunLog) -> str:
     """One slot as a line: rate, decision, map, uncertainty, timing."""
     slot = int(msg.slot)
     req = record.requests.get(slot)

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from msg_schemas.headers import time_key, time_seconds
-from twinslam.live.record import RunRecord
+from twinslam.live.run_log import RunLog
 from twinslam.live.tracking_quality import (
     JUMP_M,
     FrameFlags,
@@ -106,7 +106,7 @@ def policy_label(policy: str) -> str:
     return f"{kind}:{Path(path).stem}" if sep and kind == LEARNED_PREFIX else policy
 
 
-def record_events(record: RunRecord) -> TrackingEvents:
+def record_events(record: RunLog) -> TrackingEvents:
     """The device's tracking failures and relocalisations, from its frame summaries."""
     return tracking_events(FrameFlags(time_seconds(f.stamp), bool(f.tracked), bool(f.relocalised))
                            for s in record.summaries.values() for f in s.frames)
@@ -118,7 +118,7 @@ def _finite_mean(values: Iterable[float]) -> float:
     return float(np.mean(finite)) if finite else math.nan
 
 
-def report(policy: str, record: RunRecord, seconds: float, slot_frames: int) -> RunReport:
+def report(policy: str, record: RunLog, seconds: float, slot_frames: int) -> RunReport:
     """What the run measured; ``slot_frames``: the device's F, to count dropped frames."""
     stats = [record.stats[s] for s in sorted(record.stats)]
     scored = stats[1:]         # slot 0 plans against an empty map: every policy loses it all
@@ -144,7 +144,7 @@ def report(policy: str, record: RunRecord, seconds: float, slot_frames: int) -> 
                      float(sum(int(s.restored_keyframes) for s in stats)))
 
 
-def device_cpu_ms(record: RunRecord) -> float:
+def device_cpu_ms(record: RunLog) -> float:
     """The device's mean CPU milliseconds a frame, over the frames that report it (NaN when
     none does: a device of a version before the field)."""
     spent = [float(f.cpu_ms) for s in record.summaries.values() for f in s.frames
@@ -152,13 +152,13 @@ def device_cpu_ms(record: RunRecord) -> float:
     return float(np.mean(spent)) if spent else math.nan
 
 
-def dropped_frames(record: RunRecord, slot_frames: int) -> int:
+def dropped_frames(record: RunLog, slot_frames: int) -> int:
     """Frames missing from every slot but the last (which the run may end inside)."""
     slots = sorted(record.summaries)[:-1]
     return sum(max(0, slot_frames - len(record.summaries[s].frames)) for s in slots)
 
 
-def jumps(record: RunRecord) -> float:
+def jumps(record: RunLog) -> float:
     """The device's relocalisations (its first counted frame after one) whose pose is more
     than ``JUMP_M`` from the truth, after the alignment ATE uses; NaN without ground truth."""
     errors = translation_errors(record.poses, record.ground_truth)
@@ -167,7 +167,7 @@ def jumps(record: RunRecord) -> float:
     return float(sum(errors.get(stamp, 0.0) > JUMP_M for stamp in relocalised_stamps(record)))
 
 
-def relocalised_stamps(record: RunRecord) -> list[int]:
+def relocalised_stamps(record: RunLog) -> list[int]:
     """The stamps (ns) of the frames the device counted as tracked again after a
     relocalisation (and its probation)."""
     return [time_key(f.stamp) for s in record.summaries.values() for f in s.frames
@@ -178,7 +178,7 @@ def relocalised_stamps(record: RunRecord) -> list[int]:
 FALLBACK = " (fallback)"
 
 
-def deciders(record: RunRecord) -> str:
+def deciders(record: RunLog) -> str:
     """"name:slots" for each policy that decided a slot of the run, comma-separated, in the
     order they first decided."""
     counts: dict[str, int] = {}

@@ -17,8 +17,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from msg_schemas.headers import time_key
-from twinslam.live.record import RunRecord
 from twinslam.live.report import relocalised_stamps
+from twinslam.live.run_log import RunLog
 from twinslam.live.tracking_quality import truth_in_map
 from twinslam.reporting import pyplot
 
@@ -30,7 +30,7 @@ if TYPE_CHECKING:
 MAX_POINTS_DRAWN = 20_000
 
 
-def plot_run(record: RunRecord, title: str, path: Path) -> None:
+def plot_run(record: RunLog, title: str, path: Path) -> None:
     """Write ``path`` (PNG) for the run ``record`` holds."""
     plt = pyplot()
     fig = plt.figure(figsize=(13, 6.5), layout="constrained")
@@ -45,7 +45,7 @@ def plot_run(record: RunRecord, title: str, path: Path) -> None:
     plt.close(fig)
 
 
-def _top_down(ax_: Axes, record: RunRecord) -> None:
+def _top_down(ax_: Axes, record: RunLog) -> None:
     if record.maps:
         final = record.maps[max(record.maps)]
         pts = final.positions
@@ -80,14 +80,14 @@ def _top_down(ax_: Axes, record: RunRecord) -> None:
     ax_.legend(loc="best", fontsize=8, markerscale=2)
 
 
-def relocalised_positions(record: RunRecord) -> np.ndarray:
+def relocalised_positions(record: RunLog) -> np.ndarray:
     """Where the device counted itself tracked again after a relocalisation (N×3, its own
     estimates): the places a wrong relocalisation would show as a jump in the trajectory."""
     xyz = [record.poses[k][:3, 3] for k in relocalised_stamps(record) if k in record.poses]
     return np.array(xyz).reshape(-1, 3)
 
 
-def _over_slots(axes: list[Axes], record: RunRecord) -> None:
+def _over_slots(axes: list[Axes], record: RunLog) -> None:
     slots = sorted(record.stats)
     stats = [record.stats[s] for s in slots]
     size_ax, u_ax, rate_ax = axes

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from twinslam.live.record import RunRecord
+from twinslam.live.run_log import RunLog
 from twinslam.reporting import write_csv
 
 #: one row a slot, in slot order
@@ -23,14 +23,14 @@ SLOT_COLUMNS = ["slot", "policy", "rate_mbps", "requested", "evicted", "uploads"
                 "optimisation_ms", "slot_processing_ms", "slot_latency_ms"]
 
 
-def slot_policies(record: RunRecord) -> dict[int, str]:
+def slot_policies(record: RunLog) -> dict[int, str]:
     """slot → the policy that decided it, for every slot the monitor heard of."""
     decided = {slot: str(m.policy) for slot, m in record.stats.items()}
     decided.update({slot: str(r.policy) for slot, r in record.requests.items()})
     return dict(sorted(decided.items()))
 
 
-def slot_rows(record: RunRecord) -> list[list[object]]:
+def slot_rows(record: RunLog) -> list[list[object]]:
     """The rows of :data:`SLOT_COLUMNS`; a cell the monitor did not hear is empty."""
     rows: list[list[object]] = []
     for slot, policy in slot_policies(record).items():
@@ -56,5 +56,5 @@ def _cell(value: float) -> object:
     return round(value, 3) if math.isfinite(value) else str(value)
 
 
-def write_slot_table(record: RunRecord, path: Path) -> None:
+def write_slot_table(record: RunLog, path: Path) -> None:
     write_csv(path, SLOT_COLUMNS, slot_rows(record))

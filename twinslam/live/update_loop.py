@@ -3,7 +3,7 @@ frame the device tracks with the map that slot produced.
 
 Past a slot period the device tracks the next slot on an older map (the lag the calibration
 measures); this says where the time goes. Each stage is read off what the run's monitor heard
-and when (:attr:`~twinslam.live.record.RunRecord.heard`, the system clock the player stamps
+and when (:attr:`~twinslam.live.run_log.RunLog.heard`, the system clock the player stamps
 frames with; the monitor listens beside the device, so "heard" is when the device could have
 it too):
 
@@ -30,11 +30,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from msg_schemas.headers import time_seconds
-from twinslam.live.record import RunRecord
+from twinslam.live.run_log import RunLog
 
 #: the stages in loop order, as :class:`SlotLatency` names them
 STAGES = ("summaries_s", "decision_s", "uploads_s", "integration_s", "to_device_s")
-#: the protocol topics whose receipt ends a stage, in loop order (RunRecord.heard's keys)
+#: the protocol topics whose receipt ends a stage, in loop order (RunLog.heard's keys)
 HEARD = ("summaries", "request", "throughput", "map")
 
 
@@ -55,7 +55,7 @@ class SlotLatency:
         return float(sum(getattr(self, s) for s in STAGES))
 
 
-def _first_frame_on(record: RunRecord, after_slot: int, version: int) -> float:
+def _first_frame_on(record: RunLog, after_slot: int, version: int) -> float:
     """Capture time of the first frame after ``after_slot`` tracked with map ``version`` or a
     newer one; NaN if none came."""
     for slot in sorted(s for s in record.summaries if s > after_slot):
@@ -65,7 +65,7 @@ def _first_frame_on(record: RunRecord, after_slot: int, version: int) -> float:
     return math.nan
 
 
-def update_loop_latencies(record: RunRecord) -> list[SlotLatency]:
+def update_loop_latencies(record: RunLog) -> list[SlotLatency]:
     """One :class:`SlotLatency` per slot whose frame summaries were heard."""
     heard = {topic: record.heard.get(topic, {}) for topic in HEARD}
     out = []

@@ -1,4 +1,4 @@
-"""Every map-management policy, in one package (docs/architecture.md §12).
+"""Every map-management policy, in one package (docs/architecture.md §13).
 
 What a policy sees and answers (``actions.py``), the one :class:`MapPolicy` protocol with its
 optional capabilities (``protocol.py``), the paper's rules and the random control

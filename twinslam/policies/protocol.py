@@ -1,5 +1,5 @@
 """The one interface every map-management policy has, and the optional capabilities a policy
-declares (docs/architecture.md §12).
+declares (docs/architecture.md §13).
 
 A policy sees a :class:`~twinslam.policies.actions.SlotObservation` and answers a
 :class:`~twinslam.policies.actions.MapAction` of Theorem 1's sizes. What else a policy can do

@@ -1,5 +1,5 @@
 """Recorded rosbag2 (MCAP) files as sequences the player replays like a folder (what
-:mod:`twinslam.sequence_player.recording` writes).
+:mod:`twinslam.sequence_player.sequence_bag` writes).
 
 A bag holds exactly what the player publishes — colour, depth, CameraInfo and (when known) the
 ground-truth pose on the player's topics, CDR-encoded, stamped with the recorded time — so a run

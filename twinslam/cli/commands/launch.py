@@ -11,13 +11,13 @@ from twinslam.cli.commands.launch_fleet import add_fleet_arguments, domain_for, 
 from twinslam.cli.console import Subparsers, each_run, error
 from twinslam.live.launcher import DEFAULT_PARAMS, LaunchConfig, Launcher, tc_uplink_params
 from twinslam.live.report import RunReport, policy_label, print_table
-from twinslam.live.run_picture import plot_run
-from twinslam.live.run_recording import (
+from twinslam.live.run_bag import (
     CHUNK_MODES,
     IMAGE_MODES,
     RecordingOptions,
     check_destination,
 )
+from twinslam.live.run_picture import plot_run
 from twinslam.live.scenarios import SCENARIOS, Scenario, scenario
 from twinslam.live.slot_table import write_slot_table
 from twinslam.node_hosts.loopback import LoopbackDomain

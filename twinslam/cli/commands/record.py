@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from twinslam.cli.console import Subparsers, error
-from twinslam.sequence_player.recording import record_bag
+from twinslam.sequence_player.sequence_bag import record_bag
 from twinslam.sequences.frame import SequenceError
 from twinslam.sequences.opening import open_sequence
 

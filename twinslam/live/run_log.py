@@ -11,7 +11,7 @@ from twinslam.slam.map_update import MapSnapshot
 
 
 @dataclass
-class RunRecord:
+class RunLog:
     """Everything the monitor heard, by slot (messages as received)."""
 
     summaries: dict[int, FrameSummaries] = field(default_factory=dict)

@@ -21,8 +21,8 @@ from sensor_msgs.msg import Image
 import msg_schemas
 from msg_schemas import qos, topics
 from twinslam.cli.main import main
-from twinslam.live import run_recording
-from twinslam.live.run_recording import RecordingOptions, RunRecorder, check_destination
+from twinslam.live import run_bag
+from twinslam.live.run_bag import RecordingOptions, RunRecorder, check_destination
 from twinslam.node_hosts.session import RosSession
 from twinslam.sequence_player.messages import color_message, depth_message
 from twinslam.sequences.synthetic import SyntheticSequence
@@ -94,7 +94,7 @@ def test_a_recording_that_cannot_be_written_is_refused_before_the_run(
                  str(tmp_path / "taken")])
     assert code == 2 and "exists" in capsys.readouterr().err
     full = shutil.disk_usage(tmp_path)._replace(free=50 * 2**20)
-    monkeypatch.setattr(run_recording.shutil, "disk_usage", lambda _path: full)
+    monkeypatch.setattr(run_bag.shutil, "disk_usage", lambda _path: full)
     with pytest.raises(ValueError, match="only 50 MiB free"):
         check_destination(tmp_path / "bag")
 
