@@ -13,6 +13,7 @@ import pytest
 
 from twinslam.covisibility.dataset import CovisibilityDataset
 from twinslam.policies.actions import ActionError, MapAction
+from twinslam.policies.exact_optimum import exact_optimum
 from twinslam.policies.mpc import MpcConfig, MpcPlanner
 from twinslam.policies.plan import rollout
 from twinslam.policies.reference import ReferencePlanner
@@ -113,6 +114,12 @@ def test_the_reference_and_a_known_future_planner_restore_and_lose_least() -> No
     assert planned.restored > 0
     assert planned.tally.lost_share < rollout(walk(archive=20), LatestFrameFirst(),
                                               0).tally.lost_share
+
+
+def test_the_exact_optimum_refuses_a_world_with_restores() -> None:
+    """It searches uploads and evictions only: with restores it would not be the optimum."""
+    with pytest.raises(ValueError, match="would not be the optimum"):
+        exact_optimum(walk(archive=20), 0)
 
 
 def test_restores_without_an_archive_are_refused() -> None:

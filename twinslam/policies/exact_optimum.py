@@ -36,7 +36,12 @@ class _Best:
 
 
 def exact_optimum(env: MapManagementEnv, seed: int, max_maps: int = 50_000) -> Plan:
-    """The plan of minimum Σ_k υ_k from ``reset(seed)``: the optimum no policy can beat."""
+    """The plan of minimum Σ_k υ_k from ``reset(seed)``: the optimum no policy can beat.
+    Refused (ValueError) on a world whose policies may restore archived keyframes: the search
+    tries Theorem 1's uploads and evictions only, so there it would not be the optimum."""
+    if env.config.restore_keyframes > 0:
+        raise ValueError("the exact optimum searches uploads and evictions, not restores: on a "
+                         "world with restore_keyframes > 0 it would not be the optimum")
     env.reset(seed)
     return best_continuation(env, env.config.slots, max_maps)
 
