@@ -2,13 +2,14 @@
 clones of this repository, one after another, each with the bundled data folder beside it —
 the set-up from nothing (a warm pip cache is the machine's), the lint stage and the suite.
 
-    .venv/bin/python -m bench.clean_clone [--runs 5] [--load 2] [--csv FILE]
+    .venv/bin/python -m bench.clean_clone [--runs 5] [--load 2] [--baseline REV] [--csv FILE]
 
 Prints, per run: the exit status, the wall time of ``.ci/run``, the seconds pytest reported,
 the passed / failed / skipped counts and the failed tests' ids; ``--load N`` keeps N busy loops
-running beside the runs (a user doing other work on the machine), ``--csv`` appends one row a
-run. The clones live in a temporary folder removed after each run; each run's output is kept
-in ``build/clean-clone/COMMIT-STAMP.log``.
+running beside the runs (a user doing other work on the machine), ``--baseline REV`` runs a
+clone of REV before each run of HEAD (the side-by-side comparison a "no slower" claim needs),
+``--csv`` appends one row a run. The clones live in a temporary folder removed after each
+run; each run's output is kept in ``build/clean-clone/COMMIT-STAMP.log``.
 """
 
 from __future__ import annotations
@@ -62,9 +63,9 @@ def clone_environment() -> dict[str, str]:
     return env
 
 
-def clean_run(load: int) -> dict[str, object]:
-    """One ``.ci/run`` on a fresh clone of HEAD, ``load`` busy loops beside it."""
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, text=True,
+def clean_run(load: int, revision: str = "HEAD") -> dict[str, object]:
+    """One ``.ci/run`` on a fresh clone of ``revision``, ``load`` busy loops beside it."""
+    commit = subprocess.run(["git", "rev-parse", "--short", revision], cwd=REPO, text=True,
                             capture_output=True, check=True).stdout.strip()
     loops = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(load)]
     try:
@@ -72,6 +73,7 @@ def clean_run(load: int) -> dict[str, object]:
             root = Path(tmp)
             (root / "shared").symlink_to(SHARED.resolve())
             subprocess.run(["git", "clone", "-q", str(REPO), str(root / "main")], check=True)
+            subprocess.run(["git", "checkout", "-q", commit], cwd=root / "main", check=True)
             started = time.monotonic()
             done = subprocess.run([str(root / "main" / ".ci" / "run")], cwd=root / "main",
                                   text=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
@@ -96,24 +98,29 @@ def main() -> None:
                         "(default %(default)s)")
     parser.add_argument("--load", type=int, default=0,
                         help="busy loops beside every run (default %(default)s)")
+    parser.add_argument("--baseline", metavar="REV",
+                        help="before each run of HEAD, one of this revision's clone")
     parser.add_argument("--csv", type=Path, help="append one row a run to this CSV")
     args = parser.parse_args()
     if not SHARED.is_dir():
         print(f"note: {SHARED} is missing: the runs play the synthetic room", file=sys.stderr)
+    revisions = [args.baseline, "HEAD"] if args.baseline else ["HEAD"]
     for k in range(args.runs):
-        print(f"run {k + 1}/{args.runs}: .ci/run on a fresh clone"
-              + (f", {args.load} busy loops beside it" if args.load else ""), flush=True)
-        row = clean_run(args.load)
-        print(f"  rc {row['rc']}, {row['wall_s']} s wall, pytest {row['pytest_s']} s, "
-              f"{row['passed']} passed, {row['failed']} failed, {row['skipped']} skipped"
-              + (f": {row['failures']}" if row["failures"] else ""), flush=True)
-        if args.csv:
-            new = not args.csv.exists()
-            with args.csv.open("a", newline="", encoding="utf-8") as fh:
-                writer = csv.DictWriter(fh, fieldnames=FIELDS)
-                if new:
-                    writer.writeheader()
-                writer.writerow(row)
+        for revision in revisions:
+            print(f"run {k + 1}/{args.runs}: .ci/run on a fresh clone of {revision}"
+                  + (f", {args.load} busy loops beside it" if args.load else ""), flush=True)
+            row = clean_run(args.load, revision)
+            print(f"  {row['commit']}: rc {row['rc']}, {row['wall_s']} s wall, pytest "
+                  f"{row['pytest_s']} s, {row['passed']} passed, {row['failed']} failed, "
+                  f"{row['skipped']} skipped"
+                  + (f": {row['failures']}" if row["failures"] else ""), flush=True)
+            if args.csv:
+                new = not args.csv.exists()
+                with args.csv.open("a", newline="", encoding="utf-8") as fh:
+                    writer = csv.DictWriter(fh, fieldnames=FIELDS)
+                    if new:
+                        writer.writeheader()
+                    writer.writerow(row)
 
 
 if __name__ == "__main__":
