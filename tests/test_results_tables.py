@@ -230,6 +230,29 @@ def test_each_device_variant_table_is_what_its_command_prints(
     assert _missing(capsys.readouterr().out) == []
 
 
+#: device_variants.py's LABEL=FOLDER arguments with folders from the repository's root, as
+#: docs/results/paper-device.md's "The whole walk on every scenario" writes them
+WHOLE_WALK_TABLES = [
+    ["table-i=docs/figures/own-map/revisit-1000-table1",
+     "table-i+restores=docs/figures/whole-walk/revisit-1000-table1-restores",
+     "short-loop=docs/figures/own-map/revisit-1000-short-loop"],
+    ["table-i=docs/figures/whole-walk/revisit-v25-1000-table1",
+     "short-loop+own-map=docs/figures/whole-walk/revisit-v25-1000-short-loop-own-map",
+     "edge+local=docs/figures/whole-walk/revisit-v25-1000-edge-local"],
+    ["table-i=docs/figures/whole-walk/outages-1000-table1",
+     "short-loop+own-map=docs/figures/whole-walk/outages-1000-short-loop-own-map",
+     "edge+local=docs/figures/whole-walk/outages-1000-edge-local"],
+]
+
+
+@pytest.mark.parametrize("args", WHOLE_WALK_TABLES, ids=lambda a: a[1].split("/")[-1])
+def test_each_whole_walk_table_is_what_its_command_prints(
+        args: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    module = _script("device_variants")
+    module.main([(label, REPO / folder) for label, folder in (a.split("=", 1) for a in args)])
+    assert _missing(capsys.readouterr().out) == []
+
+
 def test_a_device_variant_table_refuses_a_run_that_dropped_frames(tmp_path: Path) -> None:
     """A run whose device dropped camera frames measured the machine: the table refuses it."""
     folder = tmp_path / "dropped"
