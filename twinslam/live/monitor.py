@@ -4,7 +4,8 @@
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from typing import TypeVar, cast
 
 import rclpy
 from geometry_msgs.msg import PoseStamped
@@ -27,6 +28,23 @@ from msg_schemas.headers import stamp_key
 from msg_schemas.poses import pose_matrix
 from twinslam.live.run_log import RunLog
 
+M = TypeVar("M")
+
+
+def received_s(info: Mapping[str, int]) -> float:
+    """When a sample reached the monitor's reader (the DDS reception time, system clock, in
+    seconds), not when its callback ran: a callback waits while the executor decodes a map,
+    and the update loop's stages (:mod:`twinslam.live.update_loop`) would count that wait.
+    The callback's time where the middleware gives none."""
+    stamp = int(info.get("received_timestamp", 0)) if info else 0
+    return stamp * 1e-9 if stamp > 0 else time.time()
+
+
+def with_info(callback: Callable[[M, Mapping[str, int]], None]) -> Callable[[M], None]:
+    """``callback`` as a subscription's: rclpy hands a callback of two parameters the sample's
+    message info too (its annotation names only the one-parameter form)."""
+    return cast(Callable[[M], None], callback)
+
 
 class PipelineMonitor:
     """Subscribes to the run's topics with ``node`` and keeps what it hears."""
@@ -37,10 +55,12 @@ class PipelineMonitor:
         self.record = RunLog()
         self._on_stats = on_stats
         sub = node.create_subscription
-        sub(FrameSummaries, topics.FRAME_SUMMARIES, self._summaries, qos.PROTOCOL)
+        sub(FrameSummaries, topics.FRAME_SUMMARIES, with_info(self._summaries), qos.PROTOCOL)
         #: its publisher count says whether the edge is up (it publishes after warming up)
-        self.requests = sub(UploadRequest, topics.UPLOAD_REQUEST, self._request, qos.PROTOCOL)
-        sub(UplinkThroughput, topics.UPLINK_THROUGHPUT, self._throughput, qos.PROTOCOL)
+        self.requests = sub(UploadRequest, topics.UPLOAD_REQUEST, with_info(self._request),
+                            qos.PROTOCOL)
+        sub(UplinkThroughput, topics.UPLINK_THROUGHPUT, with_info(self._throughput),
+            qos.PROTOCOL)
         #: its publisher count says whether the twin is up (it publishes once its model is in)
         self.latents = sub(RateLatent, topics.RATE_LATENT, self._latent, qos.PROTOCOL)
         sub(MapStats, topics.MAP_STATS, self._stats, qos.PROTOCOL)
@@ -48,30 +68,30 @@ class PipelineMonitor:
         map_qos = rclpy.qos.QoSProfile(depth=100, durability=qos.MAP.durability,
                                        reliability=qos.MAP.reliability)
         # taken undecoded, to count their size on the downlink, then decoded once
-        sub(MapUpdate, topics.MAP_UPDATE, self._map, map_qos, raw=True)
+        sub(MapUpdate, topics.MAP_UPDATE, with_info(self._map), map_qos, raw=True)
         sub(Relocalisation, topics.RELOCALISATION, self._downlink, qos.PROTOCOL, raw=True)
         sub(PoseStamped, topics.DEVICE_POSE, self._pose, qos.PROTOCOL)
         sub(PoseStamped, topics.GROUND_TRUTH_POSE, self._ground_truth, qos.CAMERA)
         if watch_images:     # a viewer's subscription: best effort, undecoded, only counted
             sub(Image, topics.CAMERA_IMAGE, self._image, qos.SENSOR_DATA, raw=True)
 
-    def _summaries(self, msg: FrameSummaries) -> None:
-        self.record.hear("summaries", int(msg.slot), time.time())
+    def _summaries(self, msg: FrameSummaries, info: Mapping[str, int]) -> None:
+        self.record.hear("summaries", int(msg.slot), received_s(info))
         self.record.summaries[int(msg.slot)] = msg
 
-    def _request(self, msg: UploadRequest) -> None:
-        self.record.hear("request", int(msg.slot), time.time())
+    def _request(self, msg: UploadRequest, info: Mapping[str, int]) -> None:
+        self.record.hear("request", int(msg.slot), received_s(info))
         self.record.requests[int(msg.slot)] = msg
 
-    def _throughput(self, msg: UplinkThroughput) -> None:
-        self.record.hear("throughput", int(msg.slot), time.time())
+    def _throughput(self, msg: UplinkThroughput, info: Mapping[str, int]) -> None:
+        self.record.hear("throughput", int(msg.slot), received_s(info))
         self.record.throughput[int(msg.slot)] = msg
 
     def _latent(self, msg: RateLatent) -> None:
         self.record.latents[int(msg.slot)] = msg
 
-    def _map(self, data: bytes) -> None:
-        heard = time.time()
+    def _map(self, data: bytes, info: Mapping[str, int]) -> None:
+        heard = received_s(info)
         self._downlink(data)
         msg = deserialize_message(data, MapUpdate)
         self.record.hear("map", int(msg.slot), heard)

@@ -3,9 +3,10 @@ frame the device tracks with the map that slot produced.
 
 Past a slot period the device tracks the next slot on an older map (the lag the calibration
 measures); this says where the time goes. Each stage is read off what the run's monitor heard
-and when (:attr:`~twinslam.live.run_log.RunLog.heard`, the system clock the player stamps
-frames with; the monitor listens beside the device, so "heard" is when the device could have
-it too):
+and when (:attr:`~twinslam.live.run_log.RunLog.heard`: the time its reader received the
+sample, the system clock the player stamps frames with — not when its callback ran, which
+waits while the monitor decodes a map; the monitor listens beside the device, so "heard" is
+when the device could have it too):
 
 * **summaries** — the slot's last frame captured → the device's frame summaries of the slot
   (the slot's end is seen at the next slot's first frame; then the summary goes out);
