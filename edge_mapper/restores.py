@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from edge_mapper.planning_world import MAX_DEPTH_M, visible_points
-from twinslam.policies.restoring import MIN_VIEW_POINTS, REPLACE_RATIO
+from twinslam.policies.restoring import MIN_VIEW_POINTS, victim_for
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap, shared_counts
 from twinslam.uncertainty.map_uncertainty import map_uncertainty
@@ -86,11 +86,8 @@ def plan_restores(m: KeyFrameMap, archive: KeyFrameArchive, poses: Sequence[np.n
             break
         victim = None
         if len(sets) >= vmax:
-            replaceable = [k for k in sets if k not in keep]
-            if not replaceable:
-                break
-            victim = min(replaceable, key=lambda k: (scores[k], k))
-            if score <= REPLACE_RATIO * scores[victim]:
+            victim = victim_for(score, scores, keep)
+            if victim is None:
                 break                    # the others are better still: nothing more to gain
         trial = {k: v for k, v in sets.items() if k != victim}
         trial[kf_id] = archive.get(kf_id).point_ids

@@ -24,7 +24,7 @@ reference at the next slot's true frames, ``mpc`` at the frames its world model 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import replace
 from typing import Any, Protocol, runtime_checkable
 
@@ -42,6 +42,18 @@ MIN_VIEW_POINTS = 30
 REPLACE_RATIO = 2.0
 #: the slot's newest tracked frames that stand for where the device is going
 VIEW_FRAMES = 3
+
+
+def victim_for(score: float, scores: Mapping[int, float], keep: Collection[int]) -> int | None:
+    """The map keyframe an archived one whose view score is ``score`` replaces in a full map:
+    of ``scores`` (each map keyframe's view score) the lowest not in ``keep``; None when none
+    may go or the archived one would not see more than :data:`REPLACE_RATIO` times what it
+    does — the candidates come best first, so the restores stop there."""
+    replaceable = [k for k in scores if k not in keep]
+    if not replaceable:
+        return None
+    victim = min(replaceable, key=lambda k: (scores[k], k))
+    return victim if score > REPLACE_RATIO * scores[victim] else None
 
 
 def with_restores(obs: SlotObservation, action: MapAction, view: Sequence[int]) -> MapAction:
@@ -71,12 +83,9 @@ def with_restores(obs: SlotObservation, action: MapAction, view: Sequence[int]) 
             break
         victim = None
         if room <= 0:
-            replaceable = [k for k in current if k not in protected]
-            if not replaceable:
+            victim = victim_for(score, scores, protected)
+            if victim is None:
                 break
-            victim = min(replaceable, key=lambda k: (scores[k], k))
-            if score <= REPLACE_RATIO * scores[victim]:
-                break                        # the rest see less still: nothing more to gain
         trial = [k for k in current if k != victim] + [kf]
         if not math.isfinite(map_uncertainty(obs.weight_block(trial, trial))):
             continue
@@ -87,6 +96,7 @@ def with_restores(obs: SlotObservation, action: MapAction, view: Sequence[int]) 
             room -= 1
         else:
             evict.append(victim)
+            del scores[victim]
     if not restore:
         return action
     return MapAction(list(action.upload), sorted(evict), restore)
