@@ -9,8 +9,9 @@ table).
 A row pairs a policy of the paper's edge with its variant on the archive's edge:
 ``restore:POLICY`` with ``POLICY``, and ``mpc`` and ``reference`` (which plan restores where
 there is an archive) with themselves. Per side: the lost share and mean υ (a lost frame
-scoring 0) as mean ± 95 % CI over the episodes, and restores a run; then the paired
-differences archive − paper edge on the same episodes with their bootstrap intervals.
+scoring 0) as mean ± 95 % CI over the episodes, υ over the tracked frames, and restores a
+run; then the paired differences archive − paper edge on the same episodes with their
+bootstrap intervals.
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ RESTORE_PREFIX = "restore:"
 class Episode:
     mean: float          #: mean υ of the run, a lost frame scoring 0
     lost: float          #: share of next-slot frames lost
+    tracked: float       #: υ over the tracked frames
     restored: int        #: archived keyframes brought back
 
 
@@ -43,7 +45,7 @@ def read_runs(path: Path) -> dict[str, dict[int, Episode]]:
         for row in csv.DictReader(fh):
             out.setdefault(row["policy"], {})[int(row["seed"])] = Episode(
                 float(row["mean_uncertainty"]), float(row["lost_share"]),
-                int(row.get("restored") or 0))
+                float(row["tracked_uncertainty"]), int(row.get("restored") or 0))
     return out
 
 
@@ -70,8 +72,9 @@ def table(paper: dict[str, dict[int, Episode]], archive: dict[str, dict[int, Epi
     same seeds."""
     lines = ["| policy (paper's edge → with the archive) | episodes | lost % paper's edge "
              "| lost % with archive | Δ lost (points) | mean υ paper's edge | mean υ with "
-             "archive | Δ mean υ | restores a run |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "archive | Δ mean υ | υ tracked paper's edge | υ tracked with archive "
+             "| restores a run |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for name, runs in archive.items():
         base = paper.get(paper_policy(name))
         if base is None:
@@ -89,6 +92,7 @@ def table(paper: dict[str, dict[int, Episode]], archive: dict[str, dict[int, Epi
             f"| {_paired([e.lost for e in a], [e.lost for e in p], 100)} "
             f"| {_ci([e.mean for e in p])} | {_ci([e.mean for e in a])} "
             f"| {_paired([e.mean for e in a], [e.mean for e in p])} "
+            f"| {_ci([e.tracked for e in p])} | {_ci([e.tracked for e in a])} "
             f"| {np.mean([e.restored for e in a]):.1f} |")
     if len(lines) == 2:
         raise SystemExit("no policy of the archive's file has its paper's-edge policy in the "
