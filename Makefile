@@ -40,9 +40,12 @@ $(STAMP): requirements.txt setup.py
 
 # every installed module compiled once (a process that imports one before would compile it
 # itself, each time where PYTHONDONTWRITEBYTECODE is set); a file that is not Python 3 (some
-# packages ship test data as .py) is skipped, as pip skips it
+# packages ship test data as .py) is skipped, as pip skips it. Left out: the packages' own test
+# suites and pip, which no process of ours imports (a fifth of the files; 19.5 s instead of
+# 23.7 s on 2 cores, measured one after the other)
 $(BYTECODE_STAMP): $(STAMP)
-	@$(PY) -m compileall -q -j 2 $(VENV)/lib > /dev/null 2>&1 || true
+	@$(PY) -m compileall -q -j 2 -x '/site-packages/(pip/|[^/]+/(.*/)?tests?/)' $(VENV)/lib \
+	  > /dev/null 2>&1 || true
 	@touch $@
 
 # colcon, as a ROS 2 host builds (tests/test_colcon_build.py builds the twinslam package over
