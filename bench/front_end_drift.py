@@ -2,32 +2,39 @@
 never forgets (ORB-SLAM's tracking and local mapping without loop closing), no edge, over a
 sequence played forward and back as the live scenarios play it.
 
-    python -m bench.front_end_drift [SEQUENCE] [--frames 1000] [--colour-focal F]
+    python -m bench.front_end_drift [SEQUENCE] [--frames 1000] [--colour-focal F |
+        --colour-intrinsics FILE] [--errors-csv FILE]
 
 Prints the frames it could not track, the ATE (SE(3)-aligned, as every live table) and the
 scale of the best similarity alignment (1 when the trajectory's size is right). It is the
 floor a device tracking against an edge's map built from its own poses cannot go under
 without loop closing: a goal below it needs the edge to close loops, not a better policy.
 
-``--colour-focal F``: the colour camera's focal length in pixels when it is not the depth
-camera's. 7-Scenes publishes only its depth camera's intrinsics (focal 585, the
-``camera-intrinsics.txt`` of the bundled sample) and ships colour and depth unregistered; its
-colour camera's focal is about 525 (the figure re-localisation work uses). With F each depth
-image is registered to the colour camera (its points moved to the colour camera's pixels,
-the nearest kept; the few-centimetre baseline between the two is unknown and left out) and
-the colour images are tracked with focal F.
+``--colour-focal F`` / ``--colour-intrinsics FILE``: the colour camera when it is not the
+camera of the folder's intrinsics file. 7-Scenes publishes only its depth camera's intrinsics
+(focal 585, the ``camera-intrinsics.txt`` of the bundled sample) and ships colour and depth
+unregistered; its colour camera's focal is about 525 (the figure relocalisation work uses,
+``config/7scenes-colour-intrinsics.txt``). Each depth image is then registered to the colour
+camera (:mod:`twinslam.sequences.registration`; the few-centimetre baseline between the two
+is unknown and left out), as the player does with its ``colour_intrinsics`` parameter.
+``--errors-csv`` writes each tracked frame's distance from the truth (after the alignment):
+where along the walk the error is.
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from evo.core import geometry
 
 from twinslam.cli.console import HelpFormatter
-from twinslam.live.tracking_quality import absolute_trajectory_error
+from twinslam.live.tracking_quality import absolute_trajectory_error, translation_errors
+from twinslam.sequences.folders import FolderSequence, read_matrix
+from twinslam.sequences.frame import RandomAccessSequence, SequenceError
 from twinslam.sequences.opening import open_sequence
 from twinslam.slam.front_end.tracking import Tracking, TrackingConfig
 
@@ -40,26 +47,6 @@ def forward_and_back(n: int) -> list[int]:
     return list(range(n)) + list(range(n - 2, -1, -1))
 
 
-def register_depth(depth: np.ndarray, depth_intrinsics: np.ndarray,
-                   colour_intrinsics: np.ndarray) -> np.ndarray:
-    """``depth`` (metres, 0 = none) of a camera with ``depth_intrinsics`` as a camera at the
-    same place with ``colour_intrinsics`` sees it: each reading moved to the pixel its point
-    projects to, the nearest kept where several land; pixels no reading lands on are 0."""
-    h, w = depth.shape
-    v, u = np.nonzero(depth > 0)
-    z = depth[v, u].astype(np.float64)
-    kd, kc = depth_intrinsics, colour_intrinsics
-    x = (u - kd[0, 2]) / kd[0, 0]
-    y = (v - kd[1, 2]) / kd[1, 1]
-    uc = np.rint(kc[0, 0] * x + kc[0, 2]).astype(np.int64)
-    vc = np.rint(kc[1, 1] * y + kc[1, 2]).astype(np.int64)
-    inside = (uc >= 0) & (uc < w) & (vc >= 0) & (vc < h)
-    out = np.full((h, w), np.inf)
-    np.minimum.at(out, (vc[inside], uc[inside]), z[inside])
-    out[np.isinf(out)] = 0.0
-    return out.astype(depth.dtype)
-
-
 def similarity_scale(poses: dict[int, np.ndarray], truth: dict[int, np.ndarray]) -> float:
     """The scale of the similarity that best aligns the tracked positions with ground truth
     (evo's Umeyama): how much larger the truth's trajectory is than the tracker's."""
@@ -69,34 +56,75 @@ def similarity_scale(poses: dict[int, np.ndarray], truth: dict[int, np.ndarray])
     return float(geometry.umeyama_alignment(est, ref, True)[2])
 
 
-def drift(sequence: str, frames: int, colour_focal: float | None = None
-          ) -> tuple[int, int, float, float]:
-    """(frames played, frames not tracked, ATE in metres, similarity scale) of the front end
-    alone; ``colour_focal``: track with that focal, the depth registered to it."""
-    reader = open_sequence(sequence, 0, frames)
+@dataclass
+class Drift:
+    """What the front end alone made of the walk."""
+
+    played: int                         #: frames played (forward and back)
+    poses: dict[int, np.ndarray]        #: play position → tracked camera-to-map pose
+    truth: dict[int, np.ndarray]        #: play position → ground truth
+    frames: list[int]                   #: play position → the sequence's frame
+
+    @property
+    def lost(self) -> int:
+        return self.played - len(self.poses)
+
+
+def drift(sequence: str, frames: int, colour_intrinsics: np.ndarray | None = None,
+          depth_to_colour: np.ndarray | None = None) -> Drift:
+    """The front end alone over ``frames`` of ``sequence`` played forward and back;
+    ``colour_intrinsics``: seen by that colour camera (at ``depth_to_colour`` from the depth
+    camera), the depth registered to it."""
+    reader = open_sequence(sequence, 0, frames, colour_intrinsics)
+    if depth_to_colour is not None:
+        if not isinstance(reader, FolderSequence) or colour_intrinsics is None:
+            raise SystemExit("--depth-to-colour needs a dataset folder and a colour camera")
+        reader = reader.with_colour_camera(colour_intrinsics, depth_to_colour)
+    if not isinstance(reader, RandomAccessSequence):
+        raise SystemExit(f"{sequence}: a dataset folder or a synthetic world is needed "
+                         "(a bag plays forward only)")
     order = forward_and_back(len(reader))
-    intrinsics = reader.intrinsics
-    if colour_focal is not None:
-        intrinsics = intrinsics.copy()
-        intrinsics[0, 0] = intrinsics[1, 1] = colour_focal
-    tracking = Tracking(intrinsics, TrackingConfig(relocalise=True))
+    tracking = Tracking(reader.intrinsics, TrackingConfig(relocalise=True))
     poses: dict[int, np.ndarray] = {}
     truth: dict[int, np.ndarray] = {}
     for position, index in enumerate(order):
         frame = reader.read(index)
         if frame is None:
             raise SystemExit(f"{sequence}: frame {index} cannot be read")
-        depth = (frame.depth if colour_focal is None
-                 else register_depth(frame.depth, reader.intrinsics, intrinsics))
-        out = tracking.track(frame.color, depth)
+        out = tracking.track(frame.color, frame.depth)
         if out.tracked:
             poses[position] = out.pose
         if frame.pose is not None:
             truth[position] = frame.pose
         if position % 200 == 0:
             print(f"  frame {position}/{len(order)}", flush=True)
-    return (len(order), len(order) - len(poses), absolute_trajectory_error(poses, truth),
-            similarity_scale(poses, truth))
+    return Drift(len(order), poses, truth, order)
+
+
+def write_errors(result: Drift, path: Path) -> None:
+    """One row a tracked frame with ground truth: its play position, the sequence's frame,
+    the pass and its distance from the truth after the SE(3) alignment ATE uses."""
+    errors = translation_errors(result.poses, result.truth)
+    half = (result.played + 1) // 2
+    with path.open("w", newline="", encoding="utf-8") as fh:
+        out = csv.writer(fh)
+        out.writerow(["position", "frame", "pass", "translation_error_m"])
+        for position, error in sorted(errors.items()):
+            out.writerow([position, result.frames[position],
+                          "forward" if position < half else "back", f"{error:.5f}"])
+
+
+def colour_camera(sequence: str, focal: float | None, intrinsics_file: str | None
+                  ) -> np.ndarray | None:
+    """The colour camera the options name: a file's intrinsics, or the sequence's with
+    another focal length; None: the sequence's own."""
+    if intrinsics_file:
+        return read_matrix(Path(intrinsics_file), 3, 3)
+    if focal is None:
+        return None
+    k = open_sequence(sequence, 0, 1).intrinsics.copy()
+    k[0, 0] = k[1, 1] = focal
+    return k
 
 
 def main() -> None:
@@ -109,13 +137,32 @@ def main() -> None:
                         help="the colour camera's focal in pixels when it is not the "
                         "intrinsics file's (7-Scenes: ~525, the file's 585 is the depth "
                         "camera's); the depth is registered to it")
+    parser.add_argument("--colour-intrinsics", default=None, metavar="FILE",
+                        help="the colour camera's 3×3 intrinsics file instead "
+                        "(config/7scenes-colour-intrinsics.txt for 7-Scenes)")
+    parser.add_argument("--depth-to-colour", default=None, metavar="FILE",
+                        help="with a colour camera: the 4×4 transform from the depth camera's "
+                        "frame to the colour camera's (default: the same place)")
+    parser.add_argument("--errors-csv", type=Path, default=None, metavar="FILE",
+                        help="write every tracked frame's distance from the truth here")
     args = parser.parse_args()
     if args.colour_focal is not None and not args.colour_focal > 0:
         parser.error(f"--colour-focal must be a positive number of pixels, got "
                      f"{args.colour_focal}")
-    played, lost, ate, scale = drift(args.sequence, args.frames, args.colour_focal)
-    print(f"{args.frames} frames forward and back: {played} played, {lost} not tracked, "
-          f"ATE {ate:.3f} m, similarity scale {scale:.3f}")
+    try:
+        colour = colour_camera(args.sequence, args.colour_focal, args.colour_intrinsics)
+        placed = (read_matrix(Path(args.depth_to_colour), 4, 4) if args.depth_to_colour
+                  else None)
+        result = drift(args.sequence, args.frames, colour, placed)
+    except SequenceError as exc:
+        parser.error(str(exc))
+    ate = absolute_trajectory_error(result.poses, result.truth)
+    scale = similarity_scale(result.poses, result.truth)
+    print(f"{args.frames} frames forward and back: {result.played} played, {result.lost} not "
+          f"tracked, ATE {ate:.3f} m, similarity scale {scale:.3f}")
+    if args.errors_csv is not None:
+        write_errors(result, args.errors_csv)
+        print(f"wrote {args.errors_csv}")
 
 
 if __name__ == "__main__":

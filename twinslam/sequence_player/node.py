@@ -70,7 +70,8 @@ class SequencePlayer(Node):
         super().__init__("sequence_player")
         p = declare(self, PARAMETERS)
         try:
-            self.reader = PlayedSequence(open_sequence(p["sequence"], p["start"], p["end"]),
+            self.reader = PlayedSequence(open_sequence(p["sequence"], p["start"], p["end"],
+                                                       str(p["colour_intrinsics"])),
                                          Playback(str(p["order"]), parse_bursts(p["blank"])))
         except SequenceError as exc:
             raise NodeStartError(str(exc)) from None

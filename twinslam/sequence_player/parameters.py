@@ -22,6 +22,9 @@ PARAMETERS = (
     ParamSpec("loop", False, "start over at the end"),
     ParamSpec("start", 0, "first frame played", low=0),
     ParamSpec("end", -1, "first frame not played; -1: to the end", low=-1),
+    ParamSpec("colour_intrinsics", "", "a 3×3 intrinsics file of the colour camera where the "
+              "folder's is its depth camera's (7-Scenes: config/7scenes-colour-intrinsics.txt): "
+              "each depth image is registered to it; empty: the folder's"),
     ParamSpec("depth_encoding", "16UC1", "16UC1 (millimetres) or 32FC1 (metres)",
               check=lambda v: None if v in DEPTH_ENCODINGS
               else f"must be one of {', '.join(DEPTH_ENCODINGS)}"),

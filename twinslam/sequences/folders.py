@@ -35,6 +35,7 @@ import cv2
 import numpy as np
 
 from twinslam.sequences.frame import RgbdFrame, SequenceError, pose_from_xyzq
+from twinslam.sequences.registration import register_depth
 
 log = logging.getLogger(__name__)
 
@@ -71,6 +72,12 @@ class FolderSequence:
     entries: list[_Entry]
     depth_decoder: str                                  #: "mm", "sun3d", "tum"
     skipped: list[str] = field(default_factory=list)    #: files skipped in the last pass
+    #: the depth camera's intrinsics where they are not the colour camera's (``intrinsics``):
+    #: each depth image is then registered to the colour camera as it is read
+    depth_intrinsics: np.ndarray | None = None
+    #: with ``depth_intrinsics``: the 4×4 transform from the depth camera's frame to the colour
+    #: camera's (None: the same place, the baseline unknown)
+    depth_to_colour: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.entries)
@@ -80,7 +87,26 @@ class FolderSequence:
             raise SequenceError(f"{self.path}: bad frame range start={start} end={end}")
         stop = len(self.entries) if end < 0 else min(end, len(self.entries))
         return FolderSequence(self.path, self.kind, self.intrinsics, self.entries[start:stop],
-                              self.depth_decoder)
+                              self.depth_decoder, depth_intrinsics=self.depth_intrinsics,
+                              depth_to_colour=self.depth_to_colour)
+
+    def with_colour_camera(self, colour_intrinsics: np.ndarray,
+                           depth_to_colour: np.ndarray | None = None) -> FolderSequence:
+        """The same frames seen by a colour camera with ``colour_intrinsics`` (placed at
+        ``depth_to_colour`` from the depth camera, a 4×4; None: at the same place), where the
+        folder's intrinsics file is the depth camera's (7-Scenes): frames carry those
+        intrinsics and depth registered to them (:mod:`twinslam.sequences.registration`)."""
+        k = np.asarray(colour_intrinsics, dtype=np.float64)
+        if k.shape != (3, 3) or not np.all(np.isfinite(k)) or k[0, 0] <= 0 or k[1, 1] <= 0:
+            raise SequenceError(f"colour intrinsics must be a finite 3×3 matrix with positive "
+                                f"focal lengths, got {k.tolist()}")
+        t = None if depth_to_colour is None else np.asarray(depth_to_colour, dtype=np.float64)
+        if t is not None and (t.shape != (4, 4) or not np.all(np.isfinite(t))):
+            raise SequenceError(f"the depth-to-colour transform must be a finite 4×4 matrix, "
+                                f"got shape {t.shape}")
+        depth_k = self.intrinsics if self.depth_intrinsics is None else self.depth_intrinsics
+        return FolderSequence(self.path, self.kind, k.copy(), self.entries, self.depth_decoder,
+                              depth_intrinsics=depth_k, depth_to_colour=t)
 
     @property
     def stamps(self) -> np.ndarray:
@@ -113,6 +139,9 @@ class FolderSequence:
                                         "(or its size differs from the colour image)")
                 return None
             depth = decode_depth(raw, self.depth_decoder)
+            if self.depth_intrinsics is not None:
+                depth = register_depth(depth, self.depth_intrinsics, self.intrinsics,
+                                       self.depth_to_colour)
         return RgbdFrame(i, entry.stamp, cv2.cvtColor(color, cv2.COLOR_BGR2RGB), depth,
                          self.intrinsics, entry.pose, entry.color.name)
 

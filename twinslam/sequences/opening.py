@@ -5,7 +5,15 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from twinslam.sequences.folders import FolderSequence, read_seven_scenes, read_sun3d, read_tum
+import numpy as np
+
+from twinslam.sequences.folders import (
+    FolderSequence,
+    read_matrix,
+    read_seven_scenes,
+    read_sun3d,
+    read_tum,
+)
 from twinslam.sequences.frame import Sequence, SequenceError
 
 if TYPE_CHECKING:
@@ -15,12 +23,25 @@ if TYPE_CHECKING:
 SYNTHETIC_DEFAULT_FRAMES = 900
 
 
-def open_sequence(path: str | Path, start: int = 0, end: int = -1) -> Sequence:
+def open_sequence(path: str | Path, start: int = 0, end: int = -1,
+                  colour_intrinsics: np.ndarray | str | Path | None = None) -> Sequence:
     """Detect the layout of ``path`` and open frames [start, end) of it (end < 0: to the end):
     a dataset folder, a rosbag2 folder or ``.mcap`` file recorded by ``twinslam record``, or
     ``synthetic[:frames[:seed]]`` (the rendered room) or ``synthetic-corridor[:frames[:seed]]``
     (the corridor walked out and back, where the edge's map decides tracking; the seed picks
-    the walk)."""
+    the walk). ``colour_intrinsics``: a dataset folder whose intrinsics file is its depth
+    camera's (7-Scenes) is seen by a colour camera with these (a 3×3 matrix or the file of
+    one), its depth registered to it; None or "": the folder's own intrinsics."""
+    if isinstance(colour_intrinsics, (str, Path)):
+        colour_intrinsics = (read_matrix(Path(colour_intrinsics), 3, 3)
+                             if str(colour_intrinsics) else None)
+    if colour_intrinsics is not None:
+        if str(path).startswith("synthetic") or Path(path).suffix == ".mcap" \
+                or (Path(path) / "metadata.yaml").is_file():
+            raise SequenceError(f"{path}: colour intrinsics apply to a dataset folder's raw "
+                                "depth; a synthetic world or a recorded bag is registered "
+                                "already")
+        return open_folder(Path(path), start, end).with_colour_camera(colour_intrinsics)
     if str(path).startswith("synthetic"):
         # a misspelt world is refused with the worlds' names, never read as a folder
         return _open_synthetic(str(path), start, end)
