@@ -3,10 +3,12 @@ never forgets (ORB-SLAM's tracking and local mapping without loop closing), no e
 sequence played forward and back as the live scenarios play it.
 
     python -m bench.front_end_drift [SEQUENCE] [--frames 1000] [--colour-focal F |
-        --colour-intrinsics FILE] [--errors-csv FILE]
+        --colour-intrinsics FILE [--depth-to-colour FILE]] [--window 200] [--errors-csv FILE]
 
-Prints the frames it could not track, the ATE (SE(3)-aligned, as every live table) and the
-scale of the best similarity alignment (1 when the trajectory's size is right). It is the
+Prints the frames it could not track, the ATE (SE(3)-aligned, as every live table), the
+scale of the best similarity alignment (1 when the trajectory's size is right) and the RMS
+error when each ``--window`` played frames are aligned on their own (the error without the
+drift between windows: what loop closing, which removes drift, could at best reach). It is the
 floor a device tracking against an edge's map built from its own poses cannot go under
 without loop closing: a goal below it needs the edge to close loops, not a better policy.
 
@@ -101,6 +103,19 @@ def drift(sequence: str, frames: int, colour_intrinsics: np.ndarray | None = Non
     return Drift(len(order), poses, truth, order)
 
 
+def windowed_ate(result: Drift, window: int) -> float:
+    """RMS error of the frames when each run of ``window`` played frames is aligned to the
+    truth on its own: the error left without the drift between windows — what closing
+    loops (which removes drift, not local error) could at best bring the ATE down to."""
+    squared: list[float] = []
+    for start in range(0, result.played, window):
+        inside = range(start, min(start + window, result.played))
+        poses = {k: result.poses[k] for k in inside if k in result.poses}
+        truth = {k: result.truth[k] for k in inside if k in result.truth}
+        squared.extend(e ** 2 for e in translation_errors(poses, truth).values())
+    return float(np.sqrt(np.mean(squared))) if squared else float("nan")
+
+
 def write_errors(result: Drift, path: Path) -> None:
     """One row a tracked frame with ground truth: its play position, the sequence's frame,
     the pass and its distance from the truth after the SE(3) alignment ATE uses."""
@@ -143,9 +158,13 @@ def main() -> None:
     parser.add_argument("--depth-to-colour", default=None, metavar="FILE",
                         help="with a colour camera: the 4×4 transform from the depth camera's "
                         "frame to the colour camera's (default: the same place)")
+    parser.add_argument("--window", type=int, default=200,
+                        help="played frames aligned on their own for the drift-free figure")
     parser.add_argument("--errors-csv", type=Path, default=None, metavar="FILE",
                         help="write every tracked frame's distance from the truth here")
     args = parser.parse_args()
+    if args.window < 3:
+        parser.error(f"--window must be at least 3 frames, got {args.window}")
     if args.colour_focal is not None and not args.colour_focal > 0:
         parser.error(f"--colour-focal must be a positive number of pixels, got "
                      f"{args.colour_focal}")
@@ -160,6 +179,8 @@ def main() -> None:
     scale = similarity_scale(result.poses, result.truth)
     print(f"{args.frames} frames forward and back: {result.played} played, {result.lost} not "
           f"tracked, ATE {ate:.3f} m, similarity scale {scale:.3f}")
+    print(f"each {args.window} played frames aligned on their own: "
+          f"{windowed_ate(result, args.window):.3f} m (the error without drift between them)")
     if args.errors_csv is not None:
         write_errors(result, args.errors_csv)
         print(f"wrote {args.errors_csv}")
