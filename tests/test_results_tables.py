@@ -253,6 +253,37 @@ def test_each_whole_walk_table_is_what_its_command_prints(
     assert _missing(capsys.readouterr().out) == []
 
 
+COLOUR_CAMERA_TABLES = [
+    ["depth-camera=docs/figures/colour-camera/revisit-1000-short-loop-own-map",
+     "colour-camera=docs/figures/colour-camera/revisit-1000-short-loop-own-map-colour"],
+    ["edge+local=docs/figures/own-map/revisit-1000-edge-local",
+     "edge+local+colour=docs/figures/colour-camera/revisit-1000-edge-local-colour"],
+]
+
+
+@pytest.mark.parametrize("args", COLOUR_CAMERA_TABLES, ids=lambda a: a[1].split("/")[-1])
+def test_each_colour_camera_table_is_what_its_command_prints(
+        args: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    module = _script("device_variants")
+    module.main([(label, REPO / folder) for label, folder in (a.split("=", 1) for a in args)])
+    assert _missing(capsys.readouterr().out) == []
+
+
+def test_the_error_along_the_walk_table_is_what_its_command_prints() -> None:
+    """The bins of every tracked frame's error: two front-end walks and four live folders."""
+    module = _script("error_along_the_walk")
+    inputs = {"front-end": "trajectory-error/front-end-depth-camera.csv",
+              "front-end+colour": "trajectory-error/front-end-colour-camera.csv",
+              "paper-device": "own-map/revisit-1000-short-loop-own-map",
+              "paper-device+colour": "colour-camera/revisit-1000-short-loop-own-map-colour",
+              "edge+local": "own-map/revisit-1000-edge-local",
+              "edge+local+colour": "colour-camera/revisit-1000-edge-local-colour"}
+    errors = {}
+    for label, path in inputs.items():
+        errors.update(module.read_errors(label, FIGURES / path))
+    assert _missing(module.table(errors, 100)) == []
+
+
 def test_a_device_variant_table_refuses_a_run_that_dropped_frames(tmp_path: Path) -> None:
     """A run whose device dropped camera frames measured the machine: the table refuses it."""
     folder = tmp_path / "dropped"

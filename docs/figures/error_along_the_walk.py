@@ -91,11 +91,14 @@ def draw(errors: Errors, bin_frames: int, png: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(10, 4.5))
-    for (label, way), (frames, err) in errors.items():
+    labels = list(dict.fromkeys(label for label, _ in errors))
+    colours = plt.get_cmap("tab10")
+    for (label, way), (frames, err) in errors.items():          # a colour a label, a style a pass
         starts = np.arange(0, int(frames.max()) + 1, bin_frames)
         curve = [100 * rms(err[(frames >= a) & (frames < a + bin_frames)]) for a in starts]
         ax.plot(starts + bin_frames / 2, curve, "-" if way == "forward" else "--",
-                marker="o", markersize=3, label=f"{label}, {way}")
+                color=colours(labels.index(label) % 10), marker="o", markersize=3,
+                label=f"{label}, {way}")
     ax.set_xlabel("sequence frame")
     ax.set_ylabel(f"RMS position error over {bin_frames} frames (cm)")
     ax.set_title("Where along the walk the trajectory error is (SE(3)-aligned, tracked frames)")
