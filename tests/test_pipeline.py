@@ -186,20 +186,30 @@ def test_the_report_measures_the_downlink_and_the_devices_cpu(runs: dict) -> Non
     assert report.failed_share == pytest.approx(report.untracked_frames / frames)
 
 
+#: how long after a map update is heard the device may still track frames on the older map
+GRACE_S = 1.0
+
+
 @reads_the_policy_runs
 def test_the_update_loop_of_every_answered_slot_is_measured_stage_by_stage(runs: dict) -> None:
     """The monitor hears each slot's summaries, the request they caused and the throughput
-    report the request caused — in that order — then the slot's map, and a later frame of
-    the device is tracked on it: every stage is measured; the uploads take at least what the
-    device's report says sending them took."""
+    report the request caused — in that order — then the slot's map, and a frame the camera
+    captured later is tracked on it: every stage is measured; the uploads take at least what
+    the device's report says sending them took."""
+    from msg_schemas.headers import time_seconds
     from twinslam.live.update_loop import STAGES, update_loop_latencies
 
     _, record, _ = runs["adapt"]
     loops = {x.slot: x for x in update_loop_latencies(record)}
     assert sorted(loops) == sorted(record.summaries)
+    last_capture = max(time_seconds(f.stamp) for s in record.summaries.values() for f in s.frames)
     for slot, x in loops.items():
         stages = [getattr(x, s) for s in STAGES]
-        if slot == max(loops):          # the run ends: no frame comes on its last map
+        # a map heard after the run's last frames (the last slot's always; on a loaded machine
+        # the one before too: a clean clone's suite heard slot 4's map 3.0 s after the slot's
+        # last frame, after the run's) has no frame to be tracked on; one heard with frames
+        # still to come must be used by them (GRACE_S: the device decodes it first)
+        if not record.heard.get("map", {}).get(slot, math.inf) < last_capture - GRACE_S:
             stages = stages[:-1]
         assert all(math.isfinite(v) for v in stages), (slot, stages)
         assert min(x.summaries_s, x.decision_s, x.uploads_s) > 0, (slot, stages)
