@@ -24,15 +24,17 @@ camera frames is refused: it measures the machine.
 from __future__ import annotations
 
 import csv
-import gzip
-import io
 import math
 import sys
 from pathlib import Path
 
 import numpy as np
 
-from twinslam.experiments.calibration_report import failure_causes, failure_causes_markdown
+from twinslam.experiments.calibration_report import (
+    failure_causes,
+    failure_causes_markdown,
+    read_rows,
+)
 from twinslam.experiments.paired import paired_difference
 from twinslam.reporting import mean_ci95
 
@@ -52,19 +54,6 @@ FIGURES = (("failed_share", "failed (played frames)", "{:.1%}"),
 PAIRED = ("failed_share", "scored_failed", "ate_m", "frames_uploaded")
 
 
-def _frames(folder: Path) -> list[dict[str, str]]:
-    """calibration_frames.csv (or its .gz, as committed) of one folder."""
-    plain = folder / "calibration_frames.csv"
-    packed = plain.with_suffix(".csv.gz")
-    if plain.is_file():
-        text = plain.read_text(encoding="utf-8")
-    elif packed.is_file():
-        text = gzip.decompress(packed.read_bytes()).decode("utf-8")
-    else:
-        raise SystemExit(f"{folder}: no calibration_frames.csv (written by twinslam evaluate)")
-    return list(csv.DictReader(io.StringIO(text)))
-
-
 def _runs(folder: Path, label: str
           ) -> tuple[str, dict[int, dict[str, float]], list[dict[str, str]]]:
     """("scenario, map source, policy", seed → the run's figures, the scored frames labelled
@@ -79,7 +68,11 @@ def _runs(folder: Path, label: str
     if dropped:
         raise SystemExit(f"{folder}: seeds {dropped} dropped camera frames; rerun with fewer "
                          "jobs")
-    frames = [{**f, "folder": label} for f in _frames(folder)]
+    try:
+        frames = [{**f, "folder": label}
+                  for f in read_rows([folder], "calibration_frames.csv")]
+    except FileNotFoundError as exc:
+        raise SystemExit(str(exc)) from None
     runs = {}
     for r in rows:
         seed = int(r["seed"])

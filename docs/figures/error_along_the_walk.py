@@ -19,27 +19,28 @@ from seed to seed is what the map the device tracked against added.
 from __future__ import annotations
 
 import argparse
-import csv
-import gzip
-import io
 import math
 from pathlib import Path
 
 import numpy as np
+
+from twinslam.experiments.calibration_report import read_rows
 
 #: (label, pass) → (sequence frame, error in metres) of every tracked frame
 Errors = dict[tuple[str, str], tuple[np.ndarray, np.ndarray]]
 
 
 def _rows(path: Path) -> list[dict[str, str]]:
-    if path.is_dir():
-        plain = path / "calibration_frames.csv"
-        path = plain if plain.is_file() else plain.with_suffix(".csv.gz")
-    if not path.is_file():
-        raise SystemExit(f"{path}: no calibration_frames.csv(.gz) or errors CSV there")
-    text = (gzip.decompress(path.read_bytes()).decode("utf-8") if path.suffix == ".gz"
-            else path.read_text(encoding="utf-8"))
-    return list(csv.DictReader(io.StringIO(text)))
+    """An evaluate folder's scored frames, or a front-end errors CSV's rows."""
+    if not path.exists():
+        raise SystemExit(f"{path}: neither a twinslam evaluate folder nor a "
+                         "bench.front_end_drift --errors-csv")
+    try:
+        if path.is_dir():
+            return read_rows([path], "calibration_frames.csv")
+        return read_rows([path.parent], path.name)
+    except FileNotFoundError as exc:
+        raise SystemExit(str(exc)) from None
 
 
 def read_errors(label: str, path: Path) -> Errors:

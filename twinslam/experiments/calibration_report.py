@@ -25,6 +25,8 @@ fitted thresholds marked.
 from __future__ import annotations
 
 import csv
+import gzip
+import io
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -69,17 +71,22 @@ class SourceCalibration:
 
 
 def _read(path: Path) -> list[dict[str, str]]:
-    """The CSV's rows, each with the folder it came from."""
-    if not path.is_file():
+    """The CSV's rows, each with the folder it came from; the CSV as ``twinslam evaluate``
+    wrote it or gzipped beside where it was (``NAME.csv.gz``, as the results commit it)."""
+    packed = path.with_name(path.name + ".gz")
+    if path.is_file():
+        text = path.read_text(encoding="utf-8")
+    elif packed.is_file():
+        text = gzip.decompress(packed.read_bytes()).decode("utf-8")
+    else:
         raise FileNotFoundError(f"{path} does not exist (written by `twinslam evaluate`)")
-    with path.open(encoding="utf-8") as fh:
-        return [{**row, "folder": str(path.parent)} for row in csv.DictReader(fh)]
+    return [{**row, "folder": str(path.parent)} for row in csv.DictReader(io.StringIO(text))]
 
 
 def read_rows(folders: list[Path], name: str) -> list[dict[str, str]]:
-    """The rows of ``name`` (``calibration.csv`` or ``calibration_frames.csv``) in every
-    folder, each with its folder: read once and handed to every measure and the figure (the
-    frames of a 280-run sweep are 31 MB)."""
+    """The rows of ``name`` (``calibration.csv`` or ``calibration_frames.csv``, or either
+    gzipped) in every folder, each with its folder: read once and handed to every measure and
+    the figure (the frames of a 280-run sweep are 31 MB)."""
     return [r for folder in folders for r in _read(folder / name)]
 
 
