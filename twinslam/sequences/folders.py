@@ -35,7 +35,7 @@ import cv2
 import numpy as np
 
 from twinslam.sequences.frame import RgbdFrame, SequenceError, pose_from_xyzq
-from twinslam.sequences.registration import register_depth
+from twinslam.sequences.registration import camera_matrix, camera_placement, register_depth
 
 log = logging.getLogger(__name__)
 
@@ -96,16 +96,13 @@ class FolderSequence:
         ``depth_to_colour`` from the depth camera, a 4×4; None: at the same place), where the
         folder's intrinsics file is the depth camera's (7-Scenes): frames carry those
         intrinsics and depth registered to them (:mod:`twinslam.sequences.registration`)."""
-        k = np.asarray(colour_intrinsics, dtype=np.float64)
-        if k.shape != (3, 3) or not np.all(np.isfinite(k)) or k[0, 0] <= 0 or k[1, 1] <= 0:
-            raise SequenceError(f"colour intrinsics must be a finite 3×3 matrix with positive "
-                                f"focal lengths, got {k.tolist()}")
-        t = None if depth_to_colour is None else np.asarray(depth_to_colour, dtype=np.float64)
-        if t is not None and (t.shape != (4, 4) or not np.all(np.isfinite(t))):
-            raise SequenceError(f"the depth-to-colour transform must be a finite 4×4 matrix, "
-                                f"got shape {t.shape}")
+        try:         # checked once here, not at the first frame a replay reaches
+            k = camera_matrix(colour_intrinsics, "colour").copy()
+            t = None if depth_to_colour is None else camera_placement(depth_to_colour).copy()
+        except ValueError as exc:
+            raise SequenceError(f"{self.path}: {exc}") from None
         depth_k = self.intrinsics if self.depth_intrinsics is None else self.depth_intrinsics
-        return FolderSequence(self.path, self.kind, k.copy(), self.entries, self.depth_decoder,
+        return FolderSequence(self.path, self.kind, k, self.entries, self.depth_decoder,
                               depth_intrinsics=depth_k, depth_to_colour=t)
 
     @property

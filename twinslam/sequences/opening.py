@@ -35,13 +35,17 @@ def open_sequence(path: str | Path, start: int = 0, end: int = -1,
     if isinstance(colour_intrinsics, (str, Path)):
         colour_intrinsics = (read_matrix(Path(colour_intrinsics), 3, 3)
                              if str(colour_intrinsics) else None)
-    if colour_intrinsics is not None:
-        if str(path).startswith("synthetic") or Path(path).suffix == ".mcap" \
-                or (Path(path) / "metadata.yaml").is_file():
-            raise SequenceError(f"{path}: colour intrinsics apply to a dataset folder's raw "
-                                "depth; a synthetic world or a recorded bag is registered "
-                                "already")
-        return open_folder(Path(path), start, end).with_colour_camera(colour_intrinsics)
+    sequence = _open(path, start, end)
+    if colour_intrinsics is None:
+        return sequence
+    if not isinstance(sequence, FolderSequence):
+        raise SequenceError(f"{path}: colour intrinsics apply to a dataset folder's raw depth; "
+                            "a synthetic world or a recorded bag is registered already")
+    return sequence.with_colour_camera(colour_intrinsics)
+
+
+def _open(path: str | Path, start: int, end: int) -> Sequence:
+    """The sequence ``path`` names, by its layout (:func:`open_sequence`)."""
     if str(path).startswith("synthetic"):
         # a misspelt world is refused with the worlds' names, never read as a folder
         return _open_synthetic(str(path), start, end)

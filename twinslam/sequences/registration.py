@@ -31,21 +31,14 @@ def register_depth(depth: np.ndarray, depth_intrinsics: np.ndarray,
     depth = np.asarray(depth)
     if depth.ndim != 2:
         raise ValueError(f"a depth image is H×W, got shape {depth.shape}")
-    for name, k in (("depth", depth_intrinsics), ("colour", colour_intrinsics)):
-        k = np.asarray(k, dtype=np.float64)
-        if k.shape != (3, 3) or not np.all(np.isfinite(k)) or k[0, 0] <= 0 or k[1, 1] <= 0:
-            raise ValueError(f"the {name} camera's intrinsics must be a finite 3×3 matrix "
-                             f"with positive focal lengths, got {k.tolist()}")
-    kd = np.asarray(depth_intrinsics, dtype=np.float64)
-    kc = np.asarray(colour_intrinsics, dtype=np.float64)
+    kd = camera_matrix(depth_intrinsics, "depth")
+    kc = camera_matrix(colour_intrinsics, "colour")
     h, w = depth.shape
     v, u = np.nonzero(depth > 0)
     z = depth[v, u].astype(np.float64)
     points = np.column_stack([(u - kd[0, 2]) / kd[0, 0] * z, (v - kd[1, 2]) / kd[1, 1] * z, z])
     if depth_to_colour is not None:
-        t = np.asarray(depth_to_colour, dtype=np.float64)
-        if t.shape != (4, 4) or not np.all(np.isfinite(t)):
-            raise ValueError(f"depth_to_colour must be a finite 4×4 transform, got {t.shape}")
+        t = camera_placement(depth_to_colour)
         points = points @ t[:3, :3].T + t[:3, 3]
     zc = points[:, 2]
     ahead = zc > 0
@@ -57,3 +50,22 @@ def register_depth(depth: np.ndarray, depth_intrinsics: np.ndarray,
     np.minimum.at(nearest, vc[inside] * w + uc[inside], zc[inside])
     nearest[np.isinf(nearest)] = 0.0
     return nearest.reshape(h, w).astype(depth.dtype)
+
+
+def camera_matrix(k: np.ndarray, camera: str) -> np.ndarray:
+    """``k`` as a float 3×3 intrinsics matrix; ValueError naming the ``camera`` unless it is
+    finite with positive focal lengths."""
+    m = np.asarray(k, dtype=np.float64)
+    if m.shape != (3, 3) or not np.all(np.isfinite(m)) or m[0, 0] <= 0 or m[1, 1] <= 0:
+        raise ValueError(f"the {camera} camera's intrinsics must be a finite 3×3 matrix with "
+                         f"positive focal lengths, got {m.tolist()}")
+    return m
+
+
+def camera_placement(t: np.ndarray) -> np.ndarray:
+    """``t`` as a float 4×4 depth-to-colour transform; ValueError unless it is a finite one."""
+    m = np.asarray(t, dtype=np.float64)
+    if m.shape != (4, 4) or not np.all(np.isfinite(m)):
+        raise ValueError(f"the depth-to-colour transform must be a finite 4×4 matrix, got "
+                         f"shape {m.shape}")
+    return m
