@@ -22,11 +22,9 @@ import cv2
 import numpy as np
 
 from bench.gauge import cpu_gauge
+from bench.in_process import serve_slot
 from device_tracker.device_core import DeviceTrackerCore
-from device_tracker.messages import read_map_update
 from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore
-from edge_mapper.messages import map_update_message
-from edge_mapper.slot_planner import FrameObservations
 from twinslam.live.run_log import RunLog
 from twinslam.live.tracking_quality import absolute_trajectory_error
 from twinslam.policies.registry import make_policy
@@ -73,33 +71,12 @@ def main() -> None:
                 record.ground_truth[frame.index] = frame.pose
             if not result.slot_done:
                 continue
-            frames = device.take_slot()
-            slot = frames[-1].slot
             state, rate = channel.step()
-            # as the edge node reads a summary: tracked flag and pose too (mpc predicts from
-            # the poses; an untracked frame is never uploaded)
-            sets = [FrameObservations(f.frame_id, frozenset(f.map_point_ids.tolist()),
-                                      frozenset(f.track_ids.tolist()), bool(f.tracked), f.pose)
-                    for f in frames]
-            t0 = time.perf_counter()
-            plan = edge.plan(slot, sets, rate, state)
-            t1 = time.perf_counter()
-            for fid in plan.action.upload:
-                payload = device.upload(fid)
-                assert payload is not None
-                edge.add_keyframe(payload)
-            t2 = time.perf_counter()
-            out = edge.finish_slot(slot)
-            t3 = time.perf_counter()
-            edge_ms.append((t3 - t0) * 1000)
-            for key, dt in zip(("plan", "integrate", "finish"), (t1 - t0, t2 - t1, t3 - t2),
-                               strict=True):
-                parts[key].append(dt * 1000)
-            for key, ms in out.timings_ms.items():
-                parts[key].append(ms)
-            msg = map_update_message(edge.map, slot, out.version, time.time(),
-                                     tracks=out.tracks)
-            device.apply_map_update(read_map_update(msg), slot)
+            served = serve_slot(device, edge, rate, state)
+            edge_ms.append(served.plan_ms + served.integrate_ms + served.finish_ms)
+            for key, ms in (("plan", served.plan_ms), ("integrate", served.integrate_ms),
+                            ("finish", served.finish_ms), *served.outcome.timings_ms.items()):
+                parts.setdefault(key, []).append(ms)
     print(cpu_gauge(), "(after)")
     print(f"{platform.processor() or platform.machine()}, {reader.kind} {reader.path.name}, "
           f"{len(device_ms)} frames, policy {args.policy}, BA window {args.ba_window}, "
