@@ -121,7 +121,7 @@ def bundle_adjust(poses: dict[int, np.ndarray], points: dict[int, np.ndarray],
     out_points = {pid: np.asarray(result.atPoint3(L(pid))) if pid in determined
                   else np.asarray(xyz, dtype=np.float64) for pid, xyz in points.items()}
     used = [ob for ob in observations if ob.point in determined]
-    errors = _reprojection_sq(out_poses, out_points, k, used)
+    errors = reprojection_sq(out_poses, out_points, k, used)
     outliers = [ob for ob, e in zip(used, errors, strict=True)
                 if e > CHI2_MONO * pixel_sigma ** 2]
     return BundleAdjustmentResult(out_poses, out_points, initial_error, graph.error(result),
@@ -129,10 +129,11 @@ def bundle_adjust(poses: dict[int, np.ndarray], points: dict[int, np.ndarray],
                                   (time.perf_counter() - start) * 1000)
 
 
-def _reprojection_sq(poses: dict[int, np.ndarray], points: dict[int, np.ndarray],
+def reprojection_sq(poses: dict[int, np.ndarray], points: dict[int, np.ndarray],
                      k: np.ndarray, observations: list[Observation]) -> np.ndarray:
     """Squared pixel distance between each observation's ``uv`` and its point's projection
-    (inf behind the camera), all observations at once."""
+    (inf behind the camera), all observations at once: the outlier test after an adjustment,
+    and how well a set of poses (the ground truth's, say) explains the images."""
     if not observations:
         return np.zeros(0)
     world_to_cam = {kf: np.linalg.inv(p) for kf, p in poses.items()}
