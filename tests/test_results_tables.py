@@ -273,6 +273,27 @@ def test_the_error_along_the_walk_table_is_what_its_command_prints() -> None:
     assert _missing(module.table(errors, 100)) == []
 
 
+def test_the_ate_floor_table_is_what_its_command_prints(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """The floor of the walk's ATE: two cameras, the whole walk and its first half."""
+    module = _script("ate_floor_table")
+    module.main([f"{camera}|{frames}=" + str(FIGURES / "ate-floor" / f"{name}-{frames}.csv")
+                 for camera, name in (("colour, 525 px (registered)", "colour-camera"),
+                                      ("the file's 585 px", "depth-camera"))
+                 for frames in ("1000", "500")])
+    printed = capsys.readouterr().out
+    assert _missing(printed) == []
+    assert printed.count("| ground truth, points free |") == 4
+
+
+def test_the_ate_floor_table_refuses_a_file_that_is_not_the_bench_s(tmp_path: Path) -> None:
+    other = tmp_path / "runs.csv"
+    other.write_text("seed,ate_m\n0,0.05\n", encoding="utf-8")
+    module = _script("ate_floor_table")
+    with pytest.raises(SystemExit, match=r"not a bench\.ate_floor --csv file"):
+        module.main([f"colour|1000={other}"])
+
+
 def test_a_device_variant_table_refuses_a_run_that_dropped_frames(tmp_path: Path) -> None:
     """A run whose device dropped camera frames measured the machine: the table refuses it."""
     folder = tmp_path / "dropped"
