@@ -3,7 +3,7 @@ of the whole walk optimised as a whole, loops closed, and the ground truth's own
 images beside it.
 
     python -m bench.ate_floor [SEQUENCE] [--frames 1000] [--colour-intrinsics FILE]
-        [--loop-gap 60] [--csv FILE]
+        [--loop-gap 60] [--baseline-m 0.08] [--csv FILE]
 
 The paper's device tracks the walk played forward once against the edge's map (the settings
 of the live paper's device, ``docs/figures/colour-camera/short-loop-own-map.yaml``: slots of
@@ -199,8 +199,9 @@ def stage(name: str, poses: dict[int, np.ndarray], points: dict[int, np.ndarray]
                  float(np.median(errors)), float(np.mean(errors <= INLIER_PX)))
 
 
-def floors(walk: WalkMap, gap: int) -> list[Stage]:
-    """The four stages of the module's docstring."""
+def floors(walk: WalkMap, gap: int, baseline_m: float) -> list[Stage]:
+    """The four stages of the module's docstring, the offline adjustments weighing depth with
+    a virtual stereo ``baseline_m``."""
     m, k = walk.map, walk.intrinsics
     ids = m.keyframe_ids()
     truth = {i: walk.truth[i] for i in ids if i in walk.truth}
@@ -210,19 +211,21 @@ def floors(walk: WalkMap, gap: int) -> list[Stage]:
     rows = [stage("online (local BA of the newest 5)", online_poses, online_points, obs, k,
                   truth)]
     print("  full bundle adjustment ...", flush=True)
-    full = bundle_adjust(online_poses, online_points, obs, k, {ids[0]}, max_iterations=10)
+    full = bundle_adjust(online_poses, online_points, obs, k, {ids[0]}, baseline_m=baseline_m,
+                         max_iterations=10)
     rows.append(stage("full BA", full.poses, full.points, obs, k, truth))
     print("  loop fusion ...", flush=True)
     fused_obs, merged = fuse_loops(m, full.poses, full.points, obs, k, walk.image_shape, gap)
     fused_points = {p: full.points[p] for p in {ob.point for ob in fused_obs}}
-    fused = bundle_adjust(full.poses, fused_points, fused_obs, k, {ids[0]}, max_iterations=10)
+    fused = bundle_adjust(full.poses, fused_points, fused_obs, k, {ids[0]},
+                          baseline_m=baseline_m, max_iterations=10)
     rows.append(stage(f"full BA, loops fused ({merged} points merged)", fused.poses,
                       fused.points, fused_obs, k, truth))
     print("  the ground truth's fit ...", flush=True)
     held = {i: p for i, p in truth_in_map(fused.poses, truth).items() if i in fused.poses}
     on_truth = bundle_adjust(held, fused.points,
                              [ob for ob in fused_obs if ob.keyframe in held], k, set(held),
-                             max_iterations=10)
+                             baseline_m=baseline_m, max_iterations=10)
     rows.append(stage("ground truth, points free", on_truth.poses, on_truth.points,
                       [ob for ob in fused_obs if ob.keyframe in held], k, None))
     return rows
@@ -241,11 +244,17 @@ def main() -> None:
                         help="frames apart two keyframes must be for loop fusion to merge "
                         "their points (nearer ones the edge's local mapping associates "
                         "already)")
+    parser.add_argument("--baseline-m", type=float, default=EdgeConfig().baseline_m,
+                        metavar="B", help="the virtual stereo baseline the offline adjustments "
+                        "weigh a depth reading with (the edge's; larger: depth counts more, "
+                        "one pixel of disparity being a smaller depth error)")
     parser.add_argument("--csv", type=Path, default=None, metavar="FILE",
                         help="write the stages here too")
     args = parser.parse_args()
     if args.frames < 60:
         parser.error(f"--frames must be at least 60 (two slots), got {args.frames}")
+    if not args.baseline_m > 0:
+        parser.error(f"--baseline-m must be a positive number of metres, got {args.baseline_m}")
     if args.loop_gap < 1:
         parser.error(f"--loop-gap must be at least 1 frame, got {args.loop_gap}")
     cv2.setNumThreads(1)
@@ -255,7 +264,7 @@ def main() -> None:
         parser.error(str(exc))
     if len(walk.truth) < 3:
         parser.error(f"{args.sequence}: fewer than 3 keyframes have ground truth")
-    rows = floors(walk, args.loop_gap)
+    rows = floors(walk, args.loop_gap, args.baseline_m)
     camera = (f"the depth registered to {args.colour_intrinsics}" if args.colour_intrinsics
               else "the folder's own intrinsics")
     print(f"\n{args.frames} frames forward, {len(walk.map.keyframes)} keyframes, {camera}")

@@ -275,15 +275,23 @@ def test_the_error_along_the_walk_table_is_what_its_command_prints() -> None:
 
 def test_the_ate_floor_table_is_what_its_command_prints(
         capsys: pytest.CaptureFixture[str]) -> None:
-    """The floor of the walk's ATE: two cameras, the whole walk and its first half."""
+    """The floor of the walk's ATE: two cameras, the whole walk and its first half; three
+    weights of a depth reading."""
     module = _script("ate_floor_table")
-    module.main([f"{camera}|{frames}=" + str(FIGURES / "ate-floor" / f"{name}-{frames}.csv")
-                 for camera, name in (("colour, 525 px (registered)", "colour-camera"),
-                                      ("the file's 585 px", "depth-camera"))
-                 for frames in ("1000", "500")])
-    printed = capsys.readouterr().out
-    assert _missing(printed) == []
-    assert printed.count("| ground truth, points free |") == 4
+    cameras = [f"{camera}|{frames}=" + str(FIGURES / "ate-floor" / f"{name}-{frames}.csv")
+               for camera, name in (("colour, 525 px (registered)", "colour-camera"),
+                                    ("the file's 585 px", "depth-camera"))
+               for frames in ("1000", "500")]
+    weights = [f"{label}|1000=" + str(FIGURES / "ate-floor" / f"colour-camera-1000{tail}.csv")
+               for label, tail in (("colour, depth weighed with a 0.02 m baseline",
+                                    "-baseline-0.02"),
+                                   ("colour, 0.08 m (the edge's)", ""),
+                                   ("colour, 0.3 m", "-baseline-0.3"))]
+    for args, stages in ((cameras, 4), (weights, 3)):
+        module.main(args)
+        printed = capsys.readouterr().out
+        assert _missing(printed) == []
+        assert printed.count("| ground truth, points free |") == stages
 
 
 def test_the_ate_floor_table_refuses_a_file_that_is_not_the_bench_s(tmp_path: Path) -> None:
