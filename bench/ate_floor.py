@@ -100,7 +100,7 @@ def build_map(sequence: str, frames: int, colour_intrinsics: str | None) -> Walk
     device = DeviceTrackerCore(k, 30, tracking, keep_slots=4, frame_rate_hz=30.0,
                                map_source="edge", own_map_after=3)
     truth: dict[int, np.ndarray] = {}
-    first = None
+    shape = (480, 640)
     with tempfile.TemporaryDirectory() as tmp:
         config = EdgeConfig(slot=SlotConfig(vmax=100_000, d_req_s=0.25))
         edge = EdgeMapperCore(make_policy("lff"), k, config, Path(tmp) / "edge.npz")
@@ -108,15 +108,13 @@ def build_map(sequence: str, frames: int, colour_intrinsics: str | None) -> Walk
             result = device.track(frame.color, frame.depth, n / 30.0)
             if frame.pose is not None:
                 truth[result.record.frame_id] = frame.pose
-            if first is None:
-                first = frame.color.shape[:2]
+            shape = (int(frame.color.shape[0]), int(frame.color.shape[1]))
             if result.slot_done:
                 serve_slot(device, edge, 60.0, 1)
             if n % 200 == 0:
                 print(f"  frame {n}/{len(reader)}: {len(edge.map.keyframes)} keyframes",
                       flush=True)
-        shape = first or (480, 640)
-        return WalkMap(edge.map, edge.k, truth, (int(shape[0]), int(shape[1])))
+        return WalkMap(edge.map, edge.k, truth, shape)
 
 
 def observations(m: KeyFrameMap) -> list[Observation]:

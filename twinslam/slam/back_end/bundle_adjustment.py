@@ -130,7 +130,7 @@ def bundle_adjust(poses: dict[int, np.ndarray], points: dict[int, np.ndarray],
 
 
 def reprojection_sq(poses: dict[int, np.ndarray], points: dict[int, np.ndarray],
-                     k: np.ndarray, observations: list[Observation]) -> np.ndarray:
+                    k: np.ndarray, observations: list[Observation]) -> np.ndarray:
     """Squared pixel distance between each observation's ``uv`` and its point's projection
     (inf behind the camera), all observations at once: the outlier test after an adjustment,
     and how well a set of poses (the ground truth's, say) explains the images."""
