@@ -247,6 +247,10 @@ WHOLE_WALK_TABLES = [
      "colour-camera=docs/figures/colour-camera/revisit-1000-short-loop-own-map-colour"],
     ["edge+local=docs/figures/own-map/revisit-1000-edge-local",
      "edge+local+colour=docs/figures/colour-camera/revisit-1000-edge-local-colour"],
+    ["depth-camera=docs/figures/whole-walk/revisit-v25-1000-short-loop-own-map",
+     "colour-camera=docs/figures/colour-camera/revisit-v25-1000-short-loop-own-map-colour"],
+    ["depth-camera=docs/figures/whole-walk/outages-1000-short-loop-own-map",
+     "colour-camera=docs/figures/colour-camera/outages-1000-short-loop-own-map-colour"],
 ]
 
 
