@@ -32,6 +32,8 @@ from twinslam.node_hosts.session import RosSession
 from twinslam.slot_protocol import table1
 
 REPO = REPO_ROOT
+#: seconds a run's end waits at most for the device's pose of the last frame played
+LAST_POSE_WAIT_S = 5.0
 #: the module each node's process runs (``python -m``), as setup.py's console scripts do
 NODE_MODULES = {"sequence_player": "twinslam.sequence_player.node",
                 "device_tracker": "device_tracker.node", "edge_mapper": "edge_mapper.node",
@@ -174,7 +176,13 @@ class Launcher:
                 # at least 10 s even when a slow start (a fresh checkout compiles its kernels)
                 # used up most of the run's timeout
                 min(60.0, max(10.0, deadline - time.monotonic())))
-            session.spin_until(lambda: False, 0.5)       # late poses and map updates
+            # the device's pose of the last frame played: a device behind the camera (a loaded
+            # machine) publishes it after the player has ended, and a recording closed before
+            # it lacks the last poses (bounded: a device that dropped that frame never sends it)
+            truth = monitor.record.ground_truth
+            session.spin_until(lambda: not truth or max(truth) in monitor.record.poses,
+                               min(LAST_POSE_WAIT_S, max(0.0, deadline - time.monotonic())))
+            session.spin_until(lambda: False, 0.5)       # late map updates
             return report(c.policy, monitor.record, time.monotonic() - started,
                           int(self._device_param("slot_frames", table1.SLOT_FRAMES)))
         finally:
