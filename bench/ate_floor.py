@@ -55,7 +55,7 @@ from twinslam.sequences.opening import open_sequence
 from twinslam.slam.back_end.bundle_adjustment import Observation, bundle_adjust, reprojection_sq
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.front_end.tracking import TrackingConfig
-from twinslam.slam.projection_matching import match_by_projection
+from twinslam.slam.projection_matching import match_by_projection, visible_points
 
 #: pixels: a reprojection error within this is an inlier (the trackers' threshold)
 INLIER_PX = 3.0
@@ -145,7 +145,6 @@ def fuse_loops(m: KeyFrameMap, poses: dict[int, np.ndarray], points: dict[int, n
 
     merged = 0
     ids = sorted(poses)
-    fx, fy = k[0, 0], k[1, 1]
     for j in ids:
         kf = m.keyframes[j]
         own = [p for p in sorted(kf.points) if p in points
@@ -155,24 +154,20 @@ def fuse_loops(m: KeyFrameMap, poses: dict[int, np.ndarray], points: dict[int, n
         far = [p for p in far if p in points]
         if not own or not far:
             continue
-        world_to_cam = np.linalg.inv(poses[j])
-        cam = np.array([points[p] for p in far]) @ world_to_cam[:3, :3].T + world_to_cam[:3, 3]
-        z = cam[:, 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            uv = np.stack([cam[:, 0] / z * fx + k[0, 2], cam[:, 1] / z * fy + k[1, 2]], axis=1)
-        seen = (z > 0.1) & (uv[:, 0] >= 0) & (uv[:, 0] < shape[1]) & (uv[:, 1] >= 0) & \
-            (uv[:, 1] < shape[0])
-        rows = np.flatnonzero(seen)
+        world = np.array([points[p] for p in far])
+        rows, uv = visible_points(world, np.ones(len(far), dtype=bool), poses[j], k, shape,
+                                  (0.1, math.inf))
         if rows.size == 0:
             continue
+        depth_row = np.linalg.inv(poses[j])[2]          # a point's depth in keyframe j
         feature_xy = np.array([kf.measurements[p][:2] for p in own])
         feature_desc = np.array([m.points[p].descriptor for p in own], dtype=np.uint8)
         far_desc = np.array([m.points[far[r]].descriptor for r in rows], dtype=np.uint8)
-        f_idx, c_idx = match_by_projection(feature_xy, feature_desc, uv[rows], far_desc,
+        f_idx, c_idx = match_by_projection(feature_xy, feature_desc, uv, far_desc,
                                            FUSE_RADIUS_PX, FUSE_MAX_HAMMING, FUSE_RATIO, shape)
         for f, c in zip(f_idx.tolist(), c_idx.tolist(), strict=True):
             depth = kf.measurements[own[f]][2]
-            projected = z[rows[c]]
+            projected = float(depth_row[:3] @ world[rows[c]] + depth_row[3])
             if math.isfinite(depth) and abs(depth - projected) > FUSE_DEPTH_SHARE * depth:
                 continue
             a, b = root(own[f]), root(far[rows[c]])
@@ -221,11 +216,11 @@ def floors(walk: WalkMap, gap: int, baseline_m: float) -> list[Stage]:
                       fused.points, fused_obs, k, truth))
     print("  the ground truth's fit ...", flush=True)
     held = {i: p for i, p in truth_in_map(fused.poses, truth).items() if i in fused.poses}
-    on_truth = bundle_adjust(held, fused.points,
-                             [ob for ob in fused_obs if ob.keyframe in held], k, set(held),
+    seen_by_held = [ob for ob in fused_obs if ob.keyframe in held]
+    on_truth = bundle_adjust(held, fused.points, seen_by_held, k, set(held),
                              baseline_m=baseline_m, max_iterations=10)
     rows.append(stage("ground truth, points free", on_truth.poses, on_truth.points,
-                      [ob for ob in fused_obs if ob.keyframe in held], k, None))
+                      seen_by_held, k, None))
     return rows
 
 
