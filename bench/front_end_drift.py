@@ -35,7 +35,7 @@ from evo.core import geometry
 
 from twinslam.cli.console import HelpFormatter
 from twinslam.live.tracking_quality import absolute_trajectory_error, translation_errors
-from twinslam.sequences.folders import FolderSequence, read_matrix
+from twinslam.sequences.folders import read_matrix
 from twinslam.sequences.frame import RandomAccessSequence, SequenceError
 from twinslam.sequences.opening import open_sequence
 from twinslam.slam.front_end.tracking import Tracking, TrackingConfig
@@ -77,14 +77,7 @@ def drift(sequence: str, frames: int, colour_intrinsics: np.ndarray | None = Non
     """The front end alone over ``frames`` of ``sequence`` played forward and back;
     ``colour_intrinsics``: seen by that colour camera (at ``depth_to_colour`` from the depth
     camera), the depth registered to it."""
-    reader = open_sequence(sequence, 0, frames)
-    if colour_intrinsics is not None:
-        if not isinstance(reader, FolderSequence):
-            raise SystemExit(f"{sequence}: a colour camera applies to a dataset folder's raw "
-                             "depth only")
-        reader = reader.with_colour_camera(colour_intrinsics, depth_to_colour)
-    elif depth_to_colour is not None:
-        raise SystemExit("--depth-to-colour needs a colour camera")
+    reader = open_sequence(sequence, 0, frames, colour_intrinsics, depth_to_colour)
     if not isinstance(reader, RandomAccessSequence):
         raise SystemExit(f"{sequence}: a dataset folder or a synthetic world is needed "
                          "(a bag plays forward only)")

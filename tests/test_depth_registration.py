@@ -109,6 +109,23 @@ def test_colour_intrinsics_that_cannot_apply_are_clear_errors(tmp_path: Path) ->
         open_sequence(folder, 0, -1, str(bad))
     with pytest.raises(SequenceError, match="registered already"):
         open_sequence("synthetic:10", 0, -1, COLOUR_K)
+    with pytest.raises(SequenceError, match="needs the colour camera"):
+        open_sequence(folder, 0, -1, None, np.eye(4))
+
+
+def test_a_colour_camera_placed_off_the_depth_camera_moves_the_folder_s_readings(
+        tmp_path: Path) -> None:
+    """``open_sequence``'s depth-to-colour transform reaches the registration: the colour
+    camera 10 cm right of the depth camera sees the wall's readings shifted left."""
+    folder = _seven_scenes_folder(tmp_path / "seven")
+    beside = np.eye(4)
+    beside[0, 3] = -0.10                       # a depth-frame point is 10 cm left of the colour
+    same = next(iter(open_sequence(folder, 0, -1, COLOUR_K))).depth
+    moved = next(iter(open_sequence(folder, 0, -1, COLOUR_K, beside))).depth
+    assert same is not None and moved is not None
+    shift = 52.5 * 0.10 / 2.0                   # f·b/z pixels at the wall's 2 m
+    assert int(np.flatnonzero(moved[24] > 0).max()) == pytest.approx(
+        int(np.flatnonzero(same[24] > 0).max()) - shift, abs=1)
 
 
 @needs_seven

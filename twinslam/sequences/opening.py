@@ -24,24 +24,28 @@ SYNTHETIC_DEFAULT_FRAMES = 900
 
 
 def open_sequence(path: str | Path, start: int = 0, end: int = -1,
-                  colour_intrinsics: np.ndarray | str | Path | None = None) -> Sequence:
+                  colour_intrinsics: np.ndarray | str | Path | None = None,
+                  depth_to_colour: np.ndarray | None = None) -> Sequence:
     """Detect the layout of ``path`` and open frames [start, end) of it (end < 0: to the end):
     a dataset folder, a rosbag2 folder or ``.mcap`` file recorded by ``twinslam record``, or
     ``synthetic[:frames[:seed]]`` (the rendered room) or ``synthetic-corridor[:frames[:seed]]``
     (the corridor walked out and back, where the edge's map decides tracking; the seed picks
     the walk). ``colour_intrinsics``: a dataset folder whose intrinsics file is its depth
     camera's (7-Scenes) is seen by a colour camera with these (a 3×3 matrix or the file of
-    one), its depth registered to it; None or "": the folder's own intrinsics."""
+    one), its depth registered to it, the colour camera at ``depth_to_colour`` (4×4) from the
+    depth camera (None: the same place); None or "": the folder's own intrinsics."""
     if isinstance(colour_intrinsics, (str, Path)):
         colour_intrinsics = (read_matrix(Path(colour_intrinsics), 3, 3)
                              if str(colour_intrinsics) else None)
+    if colour_intrinsics is None and depth_to_colour is not None:
+        raise SequenceError("a depth-to-colour transform needs the colour camera's intrinsics")
     sequence = _open(path, start, end)
     if colour_intrinsics is None:
         return sequence
     if not isinstance(sequence, FolderSequence):
         raise SequenceError(f"{path}: colour intrinsics apply to a dataset folder's raw depth; "
                             "a synthetic world or a recorded bag is registered already")
-    return sequence.with_colour_camera(colour_intrinsics)
+    return sequence.with_colour_camera(colour_intrinsics, depth_to_colour)
 
 
 def _open(path: str | Path, start: int, end: int) -> Sequence:
