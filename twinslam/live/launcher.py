@@ -178,10 +178,11 @@ class Launcher:
                 min(60.0, max(10.0, deadline - time.monotonic())))
             # the device's pose of the last frame played: a device behind the camera (a loaded
             # machine) publishes it after the player has ended, and a recording closed before
-            # it lacks the last poses (bounded: a device that dropped that frame never sends it)
+            # it lacks the last poses (bounded: a device that dropped that frame never sends it;
+            # not cut by the run's deadline, which a slow start — a lagging device — used up)
             truth = monitor.record.ground_truth
             session.spin_until(lambda: not truth or max(truth) in monitor.record.poses,
-                               min(LAST_POSE_WAIT_S, max(0.0, deadline - time.monotonic())))
+                               LAST_POSE_WAIT_S)
             session.spin_until(lambda: False, 0.5)       # late map updates
             return report(c.policy, monitor.record, time.monotonic() - started,
                           int(self._device_param("slot_frames", table1.SLOT_FRAMES)))
