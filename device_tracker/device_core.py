@@ -77,6 +77,8 @@ class FrameResult:
     recovered: bool = False        #: relocalised, or tracked again after untracked frames
     refused: str = ""              #: why the pose gate refused this frame's relocalisation
     on_probation: bool = False     #: posed after a relocalisation, not counted tracked yet
+    #: why the motion gate refused the pose the motion model solved (the frame is lost)
+    implausible: str = ""
     #: "started" or "ended" at this frame: tracking with the device's own points too ("": no
     #: change)
     own_map: str = ""
@@ -117,7 +119,8 @@ class DeviceTrackerCore:
         self.k = np.asarray(intrinsics, dtype=np.float64)
         self.clock = SlotClock(slot_frames, frame_rate_hz)
         self.config = dataclasses.replace(config or TrackingConfig(relocalise=True),
-                                          own_points=map_source == EDGE_LOCAL)
+                                          own_points=map_source == EDGE_LOCAL,
+                                          frame_rate_hz=frame_rate_hz)
         self.tracking = Tracking(self.k, self.config)
         #: per map-point row: its global id or TRACK_BIT | track id
         self.labels = np.zeros(0, dtype=np.uint64)
@@ -202,7 +205,8 @@ class DeviceTrackerCore:
             track_ids = np.concatenate([track_ids, followed])
         record = FrameRecord(out.index, stamp, out.pose, out.tracked, np.sort(ids[~is_track]),
                              np.sort(track_ids), self.slot, out.relocalised, out.inliers,
-                             self.map_version, (time.thread_time() - started) * 1000.0)
+                             self.map_version, (time.thread_time() - started) * 1000.0,
+                             bool(out.refused or out.implausible))
         self.frames.append(record)
         slot = self.slot
         depths = (depth_at(out.features.points, depth, self.config.depth_range_m)
@@ -217,7 +221,8 @@ class DeviceTrackerCore:
         return FrameResult(record, out.relocalised, self.clock.is_last(stamp),
                            lost_now=self.lost and not was_lost,
                            recovered=out.tracked and (out.relocalised or was_lost),
-                           refused=out.refused, on_probation=out.on_probation, own_map=own_map)
+                           refused=out.refused, on_probation=out.on_probation, own_map=own_map,
+                           implausible=out.implausible)
 
     def step(self, color: np.ndarray, depth: np.ndarray | None, stamp: float,
              image: object | None = None) -> FrameStep:
@@ -388,7 +393,7 @@ class DeviceTrackerCore:
         points.last_seen[old_to_new[moved]] = old.last_seen[moved]
         points.seen_count[old_to_new[moved]] = old.seen_count[moved]
         points.active[new_track] = old.active[keep]
-        self.tracking.replace_map(points, old_to_new)
+        self.tracking.replace_map(points, old_to_new, corrected=True)
         self.labels = np.concatenate([update.point_ids.astype(np.uint64), self.labels[keep]])
         self.created = np.concatenate([np.full(len(update.point_ids), self.slot, np.int64),
                                        self.created[keep]])

@@ -1,7 +1,8 @@
 """What the device's log says about one tracked frame, without DDS.
 
 A user watching a device wants the moments its tracking changes — lost, relocalised, a
-relocalisation refused, a map of its own started or handed back to the edge's — once each,
+relocalisation refused, a pose refused as an impossible motion, a map of its own started or
+handed back to the edge's — once each,
 not a line a frame. The node writes these lines to its logger; tests read them here.
 """
 
@@ -23,6 +24,9 @@ def frame_log_lines(result: FrameResult) -> list[LogLine]:
     """The lines ``result`` is worth, in the order they happened."""
     frame = result.record.frame_id
     lines = []
+    if result.implausible:
+        lines.append(LogLine(f"frame {frame}: pose refused, {result.implausible} (an impossible "
+                             "motion)", warning=True, throttled=True))
     if result.lost_now:
         lines.append(LogLine(f"frame {frame}: tracking lost; relocalising against the local map",
                              warning=True))

@@ -38,6 +38,9 @@ class FrameRecord:
     inliers: int = 0               #: matches its pose was solved with (0: not tracked)
     map_version: int = 0           #: the map update it was tracked against (0: none yet)
     cpu_ms: float = 0.0            #: the tracking thread's CPU time on it, milliseconds
+    #: a pose solved for it was refused by a gate (an impossible motion, or a relocalisation
+    #: the pose gate refused): not tracked
+    pose_refused: bool = False
 
 
 def frame_summaries_message(slot: int, rate_mbps: float, rate_state: int, map_version: int,
@@ -49,7 +52,8 @@ def frame_summaries_message(slot: int, rate_mbps: float, rate_state: int, map_ve
                           map_point_ids=np.asarray(f.map_point_ids, dtype=np.uint64),
                           local_track_ids=np.asarray(f.track_ids, dtype=np.uint64),
                           relocalised=f.relocalised, inliers=f.inliers,
-                          map_version=f.map_version, cpu_ms=f.cpu_ms)
+                          map_version=f.map_version, cpu_ms=f.cpu_ms,
+                          pose_refused=f.pose_refused)
                       for f in frames])
     return set_header(msg, stamp, "map")
 

@@ -135,7 +135,9 @@ class DeviceTrackerNode(Node):
             self._end_slot(step.unfinished, step.map_version, stamp)
         result, record = step.result, step.result.record
         for line in frame_log_lines(result):      # one call site a severity (rclpy's rule)
-            if line.warning:
+            if line.warning and line.throttled:    # a state that may repeat a frame
+                self.get_logger().warning(line.text, throttle_duration_sec=1.0)
+            elif line.warning:
                 self.get_logger().warning(line.text)
             elif line.throttled:
                 self.get_logger().info(line.text, throttle_duration_sec=1.0)

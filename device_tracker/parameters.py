@@ -13,6 +13,7 @@ from typing import Any
 from twinslam.node_hosts.parameters import ParamSpec
 from twinslam.slam.front_end.map_source import DEFAULT_MAP_SOURCE, check_map_source
 from twinslam.slam.front_end.tracking import TrackingConfig
+from twinslam.slam.pose_plausibility import MotionBounds
 from twinslam.slot_protocol import table1
 from twinslam.uplink.tc_shaper import SHAPERS
 
@@ -38,6 +39,15 @@ PARAMETERS = (
     ParamSpec("reloc_probation_frames", TrackingConfig.reloc_probation_frames, "frames a "
               "relocalised device must track by its motion model before it counts itself "
               "tracked and uploads again (0: none)", low=0, high=100_000),
+    ParamSpec("max_step_m", MotionBounds.max_step_m, "the motion gate: metres the camera may "
+              "move between two frames; a tracked pose farther from the last posed frame is "
+              "refused and the frame lost, for relocalisation to bring back "
+              "(twinslam/slam/pose_plausibility.py; bench.motion_bounds measures a sequence)",
+              low=1e-3, high=1e3),
+    ParamSpec("max_turn_deg", MotionBounds.max_turn_deg, "the motion gate: degrees the camera "
+              "may turn between two frames", low=1e-3, high=180.0),
+    ParamSpec("max_speed_m_s", MotionBounds.max_speed_m_s, "the motion gate: metres a second "
+              "the camera may move, sustained over half a second", low=1e-3, high=1e4),
     ParamSpec("reloc_period_s", 0.0, "while lost, the newest lost frame's features (~40 kB, "
               "no image) go to the edge for relocalisation against its archive this often "
               "(seconds of frame stamps; the first at once; 0.5 as Edge-SLAM; the edge's "
@@ -108,7 +118,13 @@ class DeviceSettings:
                    str(p["camera_frame"]), bool(p["publish_tf"]), str(p["map_source"]),
                    TrackingConfig(n_features=int(p["n_features"]), relocalise=True,
                                   reloc_min_inliers=int(p["reloc_min_inliers"]),
-                                  reloc_probation_frames=int(p["reloc_probation_frames"])),
+                                  reloc_probation_frames=int(p["reloc_probation_frames"]),
+                                  motion=MotionBounds(
+                                      max_step_m=float(p["max_step_m"]),
+                                      max_turn_deg=float(p["max_turn_deg"]),
+                                      max_speed_m_s=float(p["max_speed_m_s"]),
+                                      speed_window=max(2, round(float(p["frame_rate_hz"]) / 2))),
+                                  frame_rate_hz=float(p["frame_rate_hz"])),
                    bool(p["upload_image"]), int(p["keep_slots"]), int(p["path_window"]),
                    float(p["reloc_period_s"]),
                    round(float(p["own_map_after_s"]) * float(p["frame_rate_hz"])))

@@ -291,7 +291,13 @@ class DeviceLink:
             slot, entry.decided_by, self.core.map, out.map_uncertainty, entry.uncertainty,
             len(out.integrated), ba_ms, compute_s * 1000, now, entry.vmax,
             entry.latency_s(self.slots.clock()) * 1000, len(self.core.archive),
-            len(out.restored)))
+            len(out.restored), len(out.refused)))
+        if out.optimisation_refused:
+            self.warning(f"slot {slot}: the bundle adjustment's answer not applied, "
+                         f"{out.optimisation_refused}")
+        for frame_id, why in sorted(out.refused.items()):
+            self.warning(f"slot {slot}: keyframe {frame_id} refused, {why}: it enters neither "
+                         "the map nor the archive")
         if self.spent is not None:
             self.spent(compute_s)
         if self.pub_views is not None:         # after MapStats: not in its compute time

@@ -48,6 +48,7 @@ from twinslam.slam.back_end.bundle_adjustment import (
     bundle_adjust,
 )
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive, restore_into
+from twinslam.slam.back_end.keyframe_gate import KeyFrameGateConfig, implausible_keyframe
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.back_end.local_mapping import IntegrationReport, LocalMapping
 from twinslam.slam.keyframe import KeyFramePayload
@@ -78,6 +79,9 @@ class EdgeConfig:
     reloc_restore_keyframes: int = 0
     #: the edge's gate on such a pose: RANSAC inliers after refinement (the device's default)
     reloc_min_inliers: int = 20
+    #: the gate every uploaded keyframe passes before it enters the map (a non-finite pose,
+    #: one out of the map's reach, one its own matched points contradict are refused)
+    keyframe_gate: KeyFrameGateConfig = field(default_factory=KeyFrameGateConfig)
 
 
 @dataclass
@@ -100,6 +104,10 @@ class SlotOutcome:
     forgotten: list[int] = field(default_factory=list)
     #: archived keyframes brought back into the map (each replacing one of ``evicted``)
     restored: list[int] = field(default_factory=list)
+    #: uploads the keyframe gate refused, with why: they count as never received
+    refused: dict[int, str] = field(default_factory=dict)
+    #: why the bundle adjustment's answer was not applied ("": applied, or none ran)
+    optimisation_refused: str = ""
 
 
 class EdgeMapperCore:
@@ -140,6 +148,9 @@ class EdgeMapperCore:
         self._arriving: dict[int, FrameObservations] = {}
         #: keyframes of a slot that arrived while an earlier slot was open
         self._held: dict[int, list[KeyFramePayload]] = {}
+        #: open slot → its uploads the keyframe gate refused, with why
+        self._refused: dict[int, dict[int, str]] = {}
+        self._optimisation_refused = ""     #: why the last optimise() applied nothing
         self.restored = self.last_slot >= 0
         #: open slot → where the camera is predicted to be after it (that slot's restores look
         #: there, whenever the slot finishes: a late slot does not borrow a newer slot's view)
@@ -269,6 +280,11 @@ class EdgeMapperCore:
 
     def _integrate(self, data: KeyFramePayload) -> IntegrationReport:
         self._arriving.pop(data.frame_id, None)
+        refused = implausible_keyframe(data, self.map, ((kf.id, kf.pose) for kf in self.archive),
+                                       self.config.keyframe_gate)
+        if refused:
+            self._refused.setdefault(data.slot, {})[data.frame_id] = refused
+            return IntegrationReport.refusal(refused)
         self.k = self.local_mapping.k = np.asarray(data.intrinsics, dtype=np.float64)
         return self.local_mapping.integrate(data.frame_id, data.pose, data.keypoints,
                                             data.descriptors, data.depths, data.point_ids)
@@ -297,6 +313,8 @@ class EdgeMapperCore:
         # without integrate_held() first (the node always calls it; a bare core user may not)
         for data in self._held.pop(slot, []):
             self._integrate(data)
+        refused = self._refused.pop(slot, {})
+        received -= refused.keys()            # a refused upload is as good as lost
         missing = set(action.upload) - received
         evicted = applied_evictions(action.evict, self.map.keyframe_ids(), missing, vmax)
         ta = time.perf_counter()
@@ -312,6 +330,7 @@ class EdgeMapperCore:
         t0 = time.perf_counter()
         ba = (self.optimise() if len(self.map.keyframes) >= 2 and self.config.ba_window > 0
               else None)
+        ba_refused, self._optimisation_refused = self._optimisation_refused, ""
         t1 = time.perf_counter()
         self.version += 1
         self.last_slot = slot
@@ -335,7 +354,8 @@ class EdgeMapperCore:
         timings = {"archive": (t0 - ta) * 1e3, "optimise": (t1 - t0) * 1e3,
                    "checkpoint": (t2 - t1) * 1e3, "uncertainty": (t3 - t2) * 1e3}
         return SlotOutcome(slot, sorted(received), sorted(missing), evicted, spared, orphans, ba,
-                           u, self.version, tracks, timings, forgotten, restored)
+                           u, self.version, tracks, timings, forgotten, restored, refused,
+                           ba_refused)
 
     def _restore(self, slot: int, received: set[int], poses: list[np.ndarray],
                  relocalised: list[np.ndarray]) -> tuple[list[int], list[int], list[int]]:
@@ -419,6 +439,9 @@ class EdgeMapperCore:
                                {p: self.map.points[p].position for p in points}, observations,
                                self.k, fixed, baseline_m=self.config.baseline_m,
                                max_iterations=self.config.ba_iterations)
+        self._optimisation_refused = self._implausible_adjustment(result, window)
+        if self._optimisation_refused:
+            return result
         for k in window:
             keyframe = self.map.keyframes[k]
             motion = result.poses[k] @ np.linalg.inv(keyframe.pose)
@@ -432,6 +455,23 @@ class EdgeMapperCore:
             if ob.point in self.map.points:
                 self.map.unobserve(ob.keyframe, ob.point)
         return result
+
+
+    def _implausible_adjustment(self, result: BundleAdjustmentResult, window: set[int]) -> str:
+        """Why the adjustment's answer must not be applied, or "": a non-finite pose or point
+        (a diverged solve), or a keyframe moved farther than the correction a device accepts
+        on a map swap (``MotionBounds.correction_m``): a local adjustment with its neighbours
+        held still has no reason to move one so far."""
+        if not all(np.isfinite(result.poses[k]).all() for k in window) or \
+                not all(np.isfinite(p).all() for p in result.points.values()):
+            return "a non-finite pose or point"
+        reach = self.config.keyframe_gate.motion.correction_m
+        for k in sorted(window):
+            before = self.map.keyframes[k].pose
+            moved = float(np.linalg.norm(result.poses[k][:3, 3] - before[:3, 3]))
+            if moved > reach:
+                return f"keyframe {k} moved {moved:.3g} m, more than {reach:g} m"
+        return ""
 
 
 def applied_evictions(evict: Sequence[int], map_ids: Sequence[int], missing: Collection[int],

@@ -73,8 +73,8 @@ def map_update_message(keyframe_map: KeyFrameMap, slot: int, version: int, stamp
 def map_stats_message(slot: int, policy: str, keyframe_map: KeyFrameMap, uncertainty: float,
                       upsilon: SlotUncertainty | None, uploads: int, optimisation_ms: float,
                       processing_ms: float, stamp: float, keyframe_budget: int = 0,
-                      latency_ms: float = math.nan, archived: int = 0, restored: int = 0
-                      ) -> MapStats:
+                      latency_ms: float = math.nan, archived: int = 0, restored: int = 0,
+                      refused: int = 0) -> MapStats:
     """``MapStats``; u = +inf for a disconnected map and υ = NaN (unknown, or no tracked frame)
     are sent as they are (IEEE floats), never replaced by a number that looks valid. υ is
     reported the three ways docs/architecture.md §2 asks: mean with a lost frame scoring 0, the lost
@@ -82,7 +82,8 @@ def map_stats_message(slot: int, policy: str, keyframe_map: KeyFrameMap, uncerta
     msg = new(MapStats, slot=slot, policy=policy,
               map_size=len(keyframe_map.keyframes), map_points=len(keyframe_map.points),
               archived_keyframes=archived, restored_keyframes=restored,
-              keyframe_budget=keyframe_budget, uncertainty=float(uncertainty),
+              refused_keyframes=refused, keyframe_budget=keyframe_budget,
+              uncertainty=float(uncertainty),
               mean_uncertainty=upsilon.objective if upsilon else math.nan,
               tracked_uncertainty=upsilon.tracked_uncertainty if upsilon else math.nan,
               lost_share=upsilon.lost_share if upsilon else 0.0, uploads=uploads,

@@ -50,10 +50,17 @@ class IntegrationReport:
     created: int           #: new points from depth
     unused: int            #: no match, no depth
     deferred: bool = False  #: held until an earlier slot finishes (counts above not known yet)
+    #: why the edge's gate refused the keyframe ("" when integrated): nothing of it entered
+    #: the map (:mod:`twinslam.slam.back_end.keyframe_gate`)
+    refused: str = ""
 
     @classmethod
     def held(cls) -> IntegrationReport:
         return cls(0, 0, 0, 0, 0, 0, deferred=True)
+
+    @classmethod
+    def refusal(cls, reason: str) -> IntegrationReport:
+        return cls(0, 0, 0, 0, 0, 0, refused=reason)
 
 
 class LocalMapping:

@@ -12,7 +12,7 @@ mode creates "close" points from depth.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -21,7 +21,14 @@ from twinslam.slam.descriptor_matching import match_descriptors
 from twinslam.slam.front_end.local_map import LocalMap
 from twinslam.slam.front_end.orb_extractor import Features, OrbExtractor
 from twinslam.slam.front_end.pose_optimization import optimize_pose
+from twinslam.slam.pose_plausibility import (
+    MotionBounds,
+    implausible_speed,
+    implausible_step,
+    non_finite,
+)
 from twinslam.slam.projection_matching import back_project, match_by_projection, visible_points
+from twinslam.slot_protocol import table1
 from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
 
 
@@ -76,6 +83,11 @@ class TrackingConfig:
     #: (:meth:`Tracking.replace_map`, the paper's device tracking against the edge's map);
     #: only the first frame's depth makes points (a start-up map), and a long loss is not
     #: restarted from depth: the frame stays lost until relocalisation against the map succeeds
+    #: the motion gate on every pose the motion model solves: a pose farther, or turned more,
+    #: from the last posed frame than a hand-held or head-worn camera can move is refused and
+    #: the frame lost (relocalisation, with its own gate, brings it back); None: no gate
+    motion: MotionBounds | None = field(default_factory=MotionBounds)
+    frame_rate_hz: float = table1.FRAME_RATE_HZ   #: the camera's, for the speed bound
 
 
 @dataclass
@@ -95,6 +107,8 @@ class TrackedFrame:
     #: or the first frame, which defines the origin)
     on_probation: bool = False         #: posed since a relocalisation, not counted tracked yet
     refused: str = ""                  #: why the pose gate refused this frame's relocalisation
+    implausible: str = ""              #: why the motion gate refused the pose the motion
+    #: model solved for this frame (an impossible motion: the frame is lost)
 
 
 class Tracking:
@@ -118,6 +132,10 @@ class Tracking:
         self._last_tracked_index = -1                   # ... and its index
         self._probation_left = 0                        # posed frames before it counts again
         self._back_after_probation = False              # the next counted frame is a recovery
+        #: (frame, camera-to-world) of the posed frames of the last ``motion.speed_window``
+        #: frames, the newest last: what the motion gate measures a new pose against
+        self._posed: list[tuple[int, np.ndarray]] = []
+        self._map_changed_at = -1             # the first frame tracked on a corrected map
 
     def track(self, color: np.ndarray, depth: np.ndarray | None) -> TrackedFrame:
         index = self._count
@@ -135,6 +153,9 @@ class Tracking:
         predicted = self._pose @ self._velocity
         matched_feat, matched_ids = self._match(feats, predicted, color.shape[:2])
         pose, inliers = self._solve_pose(feats.points[matched_feat], matched_ids, predicted)
+        implausible = self.implausible(pose, index) if pose is not None else ""
+        if implausible:
+            pose, inliers = None, np.zeros(len(matched_ids), dtype=bool)
         relocalised, refused = False, ""
         if pose is None and self._relocalisation_due():
             self._new_map = False
@@ -171,10 +192,12 @@ class Tracking:
         self._pose = pose
         if tracked:
             self._last_tracked, self._last_tracked_index = pose, index
+        if posed:
+            self._remember_posed(index, pose)
         self._cull(index)
         return TrackedFrame(index, pose.copy(), np.sort(observed), tracked, keyframe,
                             len(feats.points), len(matched_ids), feats, assoc, recovered,
-                            n_inliers, on_probation, refused)
+                            n_inliers, on_probation, refused, implausible)
 
     @property
     def frames_tracked(self) -> int:
@@ -185,12 +208,18 @@ class Tracking:
         """Frames without a pose since the last posed one (0: the last frame had one)."""
         return self._lost
 
-    def replace_map(self, points: LocalMap, old_to_new: np.ndarray) -> None:
+    def replace_map(self, points: LocalMap, old_to_new: np.ndarray, corrected: bool = False
+                    ) -> None:
         """Track from now on against ``points`` (the device's copy of a new edge map);
         ``old_to_new[i]`` is the new id of old point i, or -1 where it is gone. Points still on
-        probation keep it; the motion model and the pose carry on."""
+        probation keep it; the motion model and the pose carry on. ``corrected``: the points
+        moved (a map the edge optimised), so the next pose may move by the correction on top
+        of the camera's motion (:class:`MotionBounds`' ``correction_m``); False for the same
+        points, fewer or more of them."""
         self.map = points
         self._new_map = True
+        if corrected:
+            self._map_changed_at = self._count
         probation = []
         for frame, ids in self._probation:
             kept = old_to_new[ids]
@@ -200,11 +229,42 @@ class Tracking:
 
     # -- steps ------------------------------------------------------------------------------
 
+    def implausible(self, pose: np.ndarray, index: int) -> str:
+        """Why the motion gate refuses ``pose`` (camera-to-world) solved by the motion model
+        for frame ``index``, or "" to accept it: non-finite, or a step or turn from the last
+        posed frame, or a speed over the last half second, no camera could have made
+        (:mod:`twinslam.slam.pose_plausibility`; a map swapped in between adds its
+        correction to the reach)."""
+        bounds = self.config.motion
+        if bounds is None:
+            return ""
+        if non_finite(pose):
+            return "a non-finite pose"
+        if not self._posed:
+            return ""
+        last_index, last = self._posed[-1]
+        reason = implausible_step(last, pose, index - last_index, bounds,
+                                  map_changed=self._map_changed_at > last_index)
+        if reason:
+            return reason
+        first_index, first = self._posed[0]
+        return implausible_speed(first, pose, index - first_index, self.config.frame_rate_hz,
+                                 bounds, map_changed=self._map_changed_at > first_index)
+
+    def _remember_posed(self, index: int, pose: np.ndarray) -> None:
+        """Keep ``pose`` of frame ``index`` for the motion gate, with the posed frames of the
+        last ``speed_window`` frames before it."""
+        window = self.config.motion.speed_window if self.config.motion else 1
+        self._posed = [(i, p) for i, p in self._posed if index - i < window]
+        self._posed.append((index, pose))
+
     def gate(self, pose: np.ndarray, inliers: int) -> str:
         """Why a relocalised ``pose`` (camera-to-world, solved with ``inliers``) for the frame
-        being tracked is refused, or "" to accept it: too few inliers, or farther from the
-        last frame counted as tracked than the device could have moved since."""
+        being tracked is refused, or "" to accept it: non-finite, too few inliers, or farther
+        from the last frame counted as tracked than the device could have moved since."""
         cfg = self.config
+        if non_finite(pose):
+            return "a non-finite pose"
         if inliers < cfg.reloc_min_inliers:
             return f"{inliers} inliers, fewer than {cfg.reloc_min_inliers}"
         if self._last_tracked is not None:
