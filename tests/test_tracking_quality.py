@@ -1,5 +1,6 @@
 """What the live report counts: failures, relocalisations and recovery times from
-the device's per-frame flags; ATE and RPE against ground truth."""
+the device's per-frame flags; ATE and RPE against ground truth; jumps of any published pose and
+the jitter of the published positions."""
 
 from __future__ import annotations
 
@@ -11,6 +12,8 @@ import pytest
 from twinslam.live.tracking_quality import (
     FrameFlags,
     absolute_trajectory_error,
+    jitter,
+    jump_count,
     relative_pose_error,
     tracking_events,
 )
@@ -61,3 +64,31 @@ def test_ate_ignores_a_rigid_offset_and_rpe_sees_a_jump() -> None:
     assert relative_pose_error(jumped, truth, delta=10) > 0.02
     assert math.isnan(absolute_trajectory_error({0: np.eye(4)}, truth))
     assert math.isnan(relative_pose_error(truth, truth, delta=100))
+
+
+def test_a_jump_is_any_pose_whose_error_rises_by_more_than_30_cm_at_once() -> None:
+    """Not only relocalisations: a pose that drifts off slowly is no jump, one that leaps is,
+    also across untracked frames (the content moves at once when the pose comes back), and a
+    pose that comes back from far off is no jump either (the error falls)."""
+    errors = {0: 0.01, 1: 0.02, 2: 0.40, 3: 0.05, 4: 0.10, 5: 0.20, 6: 0.30, 7: 0.45,
+              20: 1.2e12, 21: 0.02}
+    assert jump_count(errors) == 2                     # 0.02 -> 0.40 and 0.45 -> 1.2e12
+    assert jump_count({}) == 0
+
+
+def test_jitter_is_the_second_difference_of_consecutive_positions() -> None:
+    """A steady walk has none; one position 1 cm off shakes its three triples by 10, 20 and
+    10 mm; a lost frame breaks the triples it is in."""
+    frames = list(range(10))
+    walk = {i: np.array([0.01 * i, 0.0, 0.0]) for i in frames}
+    assert jitter(walk, frames).rms_mm == pytest.approx(0.0, abs=1e-9)
+    shaken = dict(walk)
+    shaken[5] = walk[5] + [0.0, 0.01, 0.0]
+    out = jitter(shaken, frames)
+    assert out.triples == 8 and out.over_visible == 0
+    assert out.rms_mm == pytest.approx(math.sqrt((10 ** 2 + 20 ** 2 + 10 ** 2) / 8))
+    assert out.median_mm == pytest.approx(0.0, abs=1e-9)
+    del shaken[4]                  # lost: triples 2-4, 3-5, 4-6 go; 5-7 still shakes 10 mm
+    out = jitter(shaken, frames)
+    assert out.triples == 5 and out.rms_mm == pytest.approx(math.sqrt(10 ** 2 / 5))
+    assert math.isnan(jitter({}, frames).rms_mm)

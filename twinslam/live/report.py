@@ -14,10 +14,12 @@ import numpy as np
 from msg_schemas.headers import time_key, time_seconds
 from twinslam.live.run_log import RunLog
 from twinslam.live.tracking_quality import (
-    JUMP_M,
     FrameFlags,
+    Jitter,
     TrackingEvents,
     absolute_trajectory_error,
+    jitter,
+    jump_count,
     relative_pose_error,
     tracking_events,
     translation_errors,
@@ -50,8 +52,10 @@ class RunReport:
     #: camera frames missing from the device's complete slots (dropped or skipped): a device
     #: that fell behind the camera (an overloaded machine) shows here
     frames_dropped: int = 0
-    #: relocalisations the device accepted more than ``JUMP_M`` from the aligned ground truth
-    #: (NaN: not measured — no ground truth, or a run of an older version)
+    #: published tracked poses whose aligned error rose by more than ``JUMP_M`` from the
+    #: one before
+    #: (:func:`~twinslam.live.tracking_quality.jump_count`; NaN: no ground truth). Runs of
+    #: versions before it counted only relocalisations landing that far off
     jumps: float = math.nan
     #: the share of the device's frames it did not track (NaN: no frames)
     failed_share: float = math.nan
@@ -64,19 +68,37 @@ class RunReport:
     downlink_mb: float = math.nan
     #: archived keyframes the edge brought back into the map over the run (NaN: not reported)
     restores: float = math.nan
+    #: the largest aligned error of a published tracked pose, m (NaN: no ground truth)
+    max_error_m: float = math.nan
+    #: the published position's shake over tracked frames, mm (:class:`~twinslam.live.
+    #: tracking_quality.Jitter`), the frames over 20 mm, and the truth's RMS over the same
+    jitter_rms_mm: float = math.nan
+    jitter_median_mm: float = math.nan
+    jitter_p95_mm: float = math.nan
+    jitter_over_20mm: float = math.nan
+    truth_jitter_rms_mm: float = math.nan
+    #: frames whose solved pose a gate refused (an impossible motion, a relocalisation the
+    #: pose gate refused), and uploads the edge's keyframe gate refused
+    poses_refused: float = math.nan
+    keyframes_refused: float = math.nan
+    #: the longest run of slots in which the device uploaded no keyframe (NaN: no slot)
+    longest_no_upload_slots: float = math.nan
 
     ROW = ("{label:<14} {mean_uncertainty:>10.1f} {lost_share:>6.1%} "
            "{tracked_uncertainty:>10.1f} {ate_m:>7.3f} "
            "{rpe_m:>7.3f} {frames_uploaded:>7d} {mbytes:>7.1f} {achieved_mbps:>7.1f} "
            "{untracked_frames:>6d} {failed_share:>6.1%} {tracking_failures:>5d} "
-           "{relocalisations:>6d} {jumps:>5.0f} {restores:>6.0f} {recover_s:>7.2f} "
+           "{relocalisations:>6d} {jumps:>5.0f} {max_error_m:>7.3f} {jitter_rms_mm:>7.1f} "
+           "{truth_jitter_rms_mm:>7.1f} {restores:>6.0f} {recover_s:>7.2f} "
            "{loss_p95_s:>7.2f} {longest_loss_s:>7.2f} {downlink_mb:>7.1f} {device_cpu_ms:>7.1f} "
-           "{edge_ms_median:>7.0f} {dropped:>7}")
+           "{edge_ms_median:>7.0f} {longest_no_upload_slots:>5.0f} {dropped:>7}")
     HEADER = (f"{'policy':<14} {'mean υ':>10} {'lost':>6} {'υ tracked':>10} {'ATE m':>7} "
               f"{'RPE m':>7} "
               f"{'uploads':>7} {'MB':>7} {'Mbit/s':>7} {'untrk':>6} {'failed':>6} "
-              f"{'fails':>5} {'reloc':>6} {'jumps':>5} {'restor':>6} {'recov s':>7} {'p95 s':>7} "
-              f"{'max s':>7} {'down MB':>7} {'dev ms':>7} {'edge ms':>7} {'dropped':>7}")
+              f"{'fails':>5} {'reloc':>6} {'jumps':>5} {'max e m':>7} {'jit mm':>7} "
+              f"{'gt jit':>7} {'restor':>6} {'recov s':>7} {'p95 s':>7} "
+              f"{'max s':>7} {'down MB':>7} {'dev ms':>7} {'edge ms':>7} {'no up':>5} "
+              f"{'dropped':>7}")
 
     @property
     def label(self) -> str:
@@ -124,6 +146,11 @@ def report(policy: str, record: RunLog, seconds: float, slot_frames: int) -> Run
     scored = stats[1:]         # slot 0 plans against an empty map: every policy loses it all
     tps = [t for t in record.throughput.values() if t.frames_sent]
     events = record_events(record)
+    # the tracked poses' errors, after the alignment ATE makes of every published pose (an
+    # untracked frame's pose is the motion model's guess, published but flagged)
+    tracked = tracked_stamps(record)
+    errors = {s: e for s, e in translation_errors(record.poses, record.ground_truth).items()
+              if s in tracked}
     return RunReport(policy, len(stats), _finite_mean(s.mean_uncertainty for s in scored),
                      float(np.mean([s.lost_share for s in scored])) if scored else 0.0,
                      _finite_mean(s.tracked_uncertainty for s in scored),
@@ -138,10 +165,59 @@ def report(policy: str, record: RunLog, seconds: float, slot_frames: int) -> Run
                      events.mean_recover_s,
                      float(np.median([s.slot_processing_ms for s in stats])) if stats
                      else math.nan, seconds, deciders(record),
-                     dropped_frames(record, slot_frames), jumps(record), events.failed_share,
+                     dropped_frames(record, slot_frames),
+                     float(jump_count(errors)) if errors else math.nan, events.failed_share,
                      events.loss_p95_s, events.longest_loss_s, device_cpu_ms(record),
                      record.downlink_bytes / 1e6,
-                     float(sum(int(s.restored_keyframes) for s in stats)))
+                     float(sum(int(s.restored_keyframes) for s in stats)),
+                     max(errors.values()) if errors else math.nan, *_jitter_cells(record),
+                     float(sum(bool(f.pose_refused) for s in record.summaries.values()
+                               for f in s.frames)),
+                     float(sum(int(s.refused_keyframes) for s in stats)),
+                     longest_without_upload(record))
+
+
+def longest_without_upload(record: RunLog) -> float:
+    """The longest run of the device's slots in which it sent no keyframe (a slot whose
+    throughput report never came sent none); NaN without slots."""
+    slots = sorted(record.summaries)
+    if not slots:
+        return math.nan
+    longest = run = 0
+    for slot in slots:
+        sent = record.throughput.get(slot)
+        run = 0 if sent is not None and sent.frames_sent > 0 else run + 1
+        longest = max(longest, run)
+    return float(longest)
+
+
+def tracked_stamps(record: RunLog) -> set[int]:
+    """The stamps (ns) of the frames the device counted as tracked."""
+    return {time_key(f.stamp) for s in record.summaries.values() for f in s.frames
+            if f.tracked}
+
+
+def frame_stamps(record: RunLog) -> list[int]:
+    """The stamps (ns) of every frame the device tracked or lost, in frame order: the
+    consecutive frames jitter is measured over."""
+    frames = sorted((int(f.frame_id), time_key(f.stamp)) for s in record.summaries.values()
+                    for f in s.frames)
+    return [stamp for _, stamp in frames]
+
+
+def run_jitter(record: RunLog) -> tuple[Jitter, Jitter]:
+    """The jitter of the published positions of tracked frames and of the ground truth over
+    the same frames (the truth's is NaN without one)."""
+    stamps, tracked = frame_stamps(record), tracked_stamps(record)
+    published = {s: p[:3, 3] for s, p in record.poses.items() if s in tracked}
+    truth = {s: record.ground_truth[s][:3, 3] for s in published if s in record.ground_truth}
+    return jitter(published, stamps), jitter(truth, stamps)
+
+
+def _jitter_cells(record: RunLog) -> tuple[float, float, float, float, float]:
+    shake, truth = run_jitter(record)
+    return (shake.rms_mm, shake.median_mm, shake.p95_mm, float(shake.over_visible),
+            truth.rms_mm)
 
 
 def device_cpu_ms(record: RunLog) -> float:
@@ -156,15 +232,6 @@ def dropped_frames(record: RunLog, slot_frames: int) -> int:
     """Frames missing from every slot but the last (which the run may end inside)."""
     slots = sorted(record.summaries)[:-1]
     return sum(max(0, slot_frames - len(record.summaries[s].frames)) for s in slots)
-
-
-def jumps(record: RunLog) -> float:
-    """The device's relocalisations (its first counted frame after one) whose pose is more
-    than ``JUMP_M`` from the truth, after the alignment ATE uses; NaN without ground truth."""
-    errors = translation_errors(record.poses, record.ground_truth)
-    if not errors:
-        return math.nan
-    return float(sum(errors.get(stamp, 0.0) > JUMP_M for stamp in relocalised_stamps(record)))
 
 
 def relocalised_stamps(record: RunLog) -> list[int]:

@@ -231,7 +231,10 @@ _CELL = {"int": int, "float": float, "str": str}
 #: read for them: not measured then
 ADDED_COLUMNS = {"jumps": "nan", "failed_share": "nan", "loss_p95_s": "nan",
                  "longest_loss_s": "nan", "device_cpu_ms": "nan", "downlink_mb": "nan",
-                 "restores": "nan"}
+                 "restores": "nan", "max_error_m": "nan", "jitter_rms_mm": "nan",
+                 "jitter_median_mm": "nan", "jitter_p95_mm": "nan", "jitter_over_20mm": "nan",
+                 "truth_jitter_rms_mm": "nan", "poses_refused": "nan",
+                 "keyframes_refused": "nan", "longest_no_upload_slots": "nan"}
 #: the same for calibration_frames.csv
 ADDED_FRAME_COLUMNS = {"shared_points_archive": "nan", "failure_cause": ""}
 

@@ -32,6 +32,16 @@ METRICS = (("ate_m", "ATE", "m"), ("rpe_m", "RPE 1 s", "m"),
            # camera frames the device dropped (a run that dropped any measured the machine)
            ("failed_share", "failed", ""), ("loss_p95_s", "loss p95", "s"),
            ("longest_loss_s", "longest loss", "s"), ("jumps", "jumps", ""),
+           # how far off and how shaky the published pose was: the largest aligned error, the
+           # second difference of positions (RMS, median, p95, frames over 20 mm) beside the
+           # ground truth's own, and the poses and uploads the plausibility gates refused
+           ("max_error_m", "largest error", "m"), ("jitter_rms_mm", "jitter RMS", "mm"),
+           ("jitter_median_mm", "jitter median", "mm"), ("jitter_p95_mm", "jitter p95", "mm"),
+           ("jitter_over_20mm", "jitter > 20 mm", "frames"),
+           ("truth_jitter_rms_mm", "truth's jitter", "mm"),
+           ("poses_refused", "poses refused", "frames"),
+           ("keyframes_refused", "keyframes refused", ""),
+           ("longest_no_upload_slots", "longest without upload", "slots"),
            ("downlink_mb", "downlink", "MB"), ("device_cpu_ms", "device CPU", "ms/frame"),
            ("frames_dropped", "dropped", "frames"),
            # archived keyframes the edge brought back (restore_keyframes)
@@ -48,7 +58,8 @@ def side_by_side(results: list[RunResult]) -> list[str]:
     prints; a run that dropped any is marked ``!`` and explained below the table). The edge
     column names a run's edge variant (``paper``: the parameter file's)."""
     lines = [f"{'policy':<14} {'map source':<10} {'edge':<9} {'fails':>5} {'reloc':>5} "
-             f"{'restor':>6} {'untrk':>5} {'ATE m':>6} {'RPE m':>6} {'predicted lost':>14} "
+             f"{'restor':>6} {'untrk':>5} {'ATE m':>6} {'RPE m':>6} {'jumps':>5} "
+             f"{'max e m':>7} {'jit mm':>6} {'gt jit':>6} {'predicted lost':>14} "
              f"{'device failed':>13} "
              f"{'uploads':>7} {'edge ms':>7} {'dropped':>7}"]
     for r in results:
@@ -59,7 +70,9 @@ def side_by_side(results: list[RunResult]) -> list[str]:
                      f"{rep.tracking_failures:>5d} {rep.relocalisations:>5d} "
                      f"{rep.restores:>6.0f} "
                      f"{rep.untracked_frames:>5d} {rep.ate_m:>6.3f} "
-                     f"{rep.rpe_m:>6.3f} {predicted:>14} {failed:>13} "
+                     f"{rep.rpe_m:>6.3f} {rep.jumps:>5.0f} {rep.max_error_m:>7.3f} "
+                     f"{rep.jitter_rms_mm:>6.1f} {rep.truth_jitter_rms_mm:>6.1f} "
+                     f"{predicted:>14} {failed:>13} "
                      f"{rep.frames_uploaded:>7d} {rep.edge_ms_median:>7.0f} {rep.dropped_cell:>7}")
     note = dropped_frames_note(results)
     return lines + ([f"! {note}"] if note else [])

@@ -14,8 +14,9 @@
 
 from __future__ import annotations
 
+import itertools
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -147,8 +148,9 @@ def relative_pose_error(poses: Mapping[int, np.ndarray], truth: Mapping[int, np.
     return float(rpe.get_statistic(metrics.StatisticsType.rmse))
 
 
-#: an accepted pose farther than this from the aligned ground truth is a *jump*: a wrong
-#: relocalisation, which a user sees as the virtual content leaping across the room
+#: a published pose whose aligned error is this much larger than the one before it is a
+#: *jump*: a wrong relocalisation, a diverged solve, a map swap gone astray — what a user sees
+#: as the virtual content leaping across the room
 JUMP_M = 0.3
 
 
@@ -164,3 +166,45 @@ def translation_errors(poses: Mapping[int, np.ndarray], truth: Mapping[int, np.n
     gaps = np.linalg.norm(est.positions_xyz - ref.positions_xyz,  # type: ignore[attr-defined]
                           axis=1)
     return dict(zip(common, (float(g) for g in gaps), strict=True))
+
+
+def jump_count(errors: Mapping[int, float], threshold_m: float = JUMP_M) -> int:
+    """The published poses (``errors``: stamp → aligned error, m) whose error rose by more
+    than ``threshold_m`` from the pose published before it, however many untracked frames lie
+    between: the content a user anchored moves that much at once, whatever the cause."""
+    ordered = [errors[s] for s in sorted(errors)]
+    return sum(b - a > threshold_m for a, b in itertools.pairwise(ordered))
+
+
+#: a frame-to-frame wobble of the published position above this (mm) a user sees as a shake
+JITTER_VISIBLE_MM = 20.0
+
+
+@dataclass(frozen=True)
+class Jitter:
+    """How much the published position shakes from frame to frame: the second difference
+    ‖p(i+1) − 2 p(i) + p(i−1)‖ over every three consecutive frames that all have one — an
+    acceleration a frame, blind to steady motion and to drift, in millimetres."""
+
+    rms_mm: float = math.nan
+    median_mm: float = math.nan
+    p95_mm: float = math.nan
+    over_visible: int = 0          #: triples over :data:`JITTER_VISIBLE_MM`
+    triples: int = 0
+
+
+def jitter(positions: Mapping[int, np.ndarray], frames: Sequence[int]) -> Jitter:
+    """The :class:`Jitter` of ``positions`` (key → xyz in metres) over ``frames``, the keys of
+    consecutive camera frames in order (a triple counts only where all three are in
+    ``positions``: a lost frame breaks it)."""
+    second = []
+    for a, b, c in zip(frames, frames[1:], frames[2:], strict=False):
+        if a in positions and b in positions and c in positions:
+            d = np.asarray(positions[c][:3]) - 2.0 * np.asarray(positions[b][:3]) \
+                + np.asarray(positions[a][:3])
+            second.append(float(np.linalg.norm(d)) * 1000.0)
+    if not second:
+        return Jitter()
+    mm = np.asarray(second)
+    return Jitter(float(np.sqrt(np.mean(mm ** 2))), float(np.median(mm)),
+                  float(np.percentile(mm, 95)), int((mm > JITTER_VISIBLE_MM).sum()), mm.size)

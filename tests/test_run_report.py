@@ -1,0 +1,74 @@
+"""A live run's report from what the monitor heard: a pose that leaps counts as a jump whatever
+its cause, the largest error, the jitter of the published positions beside the truth's, the
+poses and keyframes the gates refused, and the longest stretch of slots without an upload."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from device_tracker.messages import FrameRecord, frame_summaries_message, uplink_throughput_message
+from edge_mapper.messages import map_stats_message
+from msg_schemas.headers import time_key
+from twinslam.live.report import report
+from twinslam.live.run_log import RunLog
+from twinslam.slam.back_end.keyframe_map import KeyFrameMap
+from twinslam.uplink.shaper import SlotThroughput
+
+SLOT = 10
+
+
+def _truth(i: int) -> np.ndarray:
+    """Frame ``i`` of a walk curving off x: 1 cm a frame along x, 0.5 mm·i² along y (its
+    second difference: 1 mm a frame)."""
+    pose = np.eye(4)
+    pose[:2, 3] = 0.01 * i, 0.0005 * i * i
+    return pose
+
+
+def _off(pose: np.ndarray, dx: float) -> np.ndarray:
+    moved = pose.copy()
+    moved[0, 3] += dx
+    return moved
+
+
+def _run() -> RunLog:
+    """Four slots of 10 frames of :func:`_truth`'s walk. The device's estimate shakes by
+    ±2 mm, leaps 0.5 m off at frame 25 (tracked: a wrong solve no relocalisation made) and
+    is back at 26; frames 30-31 are lost, 31 with a refused pose. Keyframes go up in slots
+    0 and 3 only; the edge refused one keyframe of slot 3."""
+    log = RunLog()
+    for slot in range(4):
+        frames = []
+        for i in range(slot * SLOT, (slot + 1) * SLOT):
+            estimate = _off(_truth(i), 0.002 if i % 2 else -0.002)
+            if i == 25:
+                estimate = _off(_truth(i), 0.5)
+            tracked = i not in (30, 31)
+            frames.append(FrameRecord(i, i / 30.0, estimate, tracked, np.zeros(0, np.uint64),
+                                      np.zeros(0, np.uint64), slot, pose_refused=i == 31))
+        msg = frame_summaries_message(slot, 40.0, 0, slot, frames, frames[-1].stamp)
+        log.summaries[slot] = msg
+        for f, record in zip(msg.frames, frames, strict=True):
+            log.poses[time_key(f.stamp)] = record.pose
+            log.ground_truth[time_key(f.stamp)] = _truth(record.frame_id)
+        sent = 2 if slot in (0, 3) else 0
+        log.throughput[slot] = uplink_throughput_message(
+            SlotThroughput(slot, 40.0, 0, sent * 625_000, 0.5, sent), slot + 0.5)
+        log.stats[slot] = map_stats_message(slot, "lff", KeyFrameMap(), 0.0, None, sent, 0.0,
+                                            1.0, slot + 0.6, refused=int(slot == 3))
+    return log
+
+
+def test_the_report_counts_a_leap_jitter_refusals_and_slots_without_upload() -> None:
+    rep = report("lff", _run(), 2.0, SLOT)
+    assert rep.jumps == 1                                    # the leap at 25; 26 falls back
+    assert rep.max_error_m == pytest.approx(0.5, abs=0.02)
+    # the ±2 mm shake alone is 8 mm a triple; the leap's triples shake by 0.5 and 1 m
+    assert rep.jitter_median_mm == pytest.approx(8.0, abs=0.5)
+    assert rep.jitter_over_20mm == 3 and rep.jitter_p95_mm > 100
+    assert rep.truth_jitter_rms_mm == pytest.approx(1.0)   # the walk's own curve
+    assert rep.poses_refused == 1 and rep.keyframes_refused == 1
+    assert rep.longest_no_upload_slots == 2                   # slots 1 and 2
+    # launch's table shows it, in the column before the dropped frames
+    assert rep.HEADER.endswith("no up dropped") and rep.row().split()[-2:] == ["2", "0"]
