@@ -53,6 +53,10 @@ PARAMETERS = (
               low=1e-6, high=1e6),
     ParamSpec("d_req_s", table1.D_REQ_S, "D_req, seconds a slot's uploads may take", low=1e-3,
               high=1e3),
+    ParamSpec("progress_uploads", True, "where Theorem 1's floor(d_k D_req / alpha) is 0 but "
+              "the uplink carries alpha within the slot (d_k under alpha / D_req), ask for one "
+              "frame, its deadline stretched to the slot's end, so a slow uplink still grows "
+              "the map; false: Theorem 1 exactly (the paper's preset)"),
     ParamSpec("checkpoint", "", "map file written every slot and resumed from after a "
               "restart; empty: none"),
     ParamSpec("states", 2, "N uplink channel states (the rate history's alphabet)", low=1,
@@ -116,7 +120,8 @@ PARAMETERS = (
 def edge_config(p: Mapping[str, Any]) -> EdgeConfig:
     """The core's configuration from the node's parameters (V_max, α, D_req as they start)."""
     return EdgeConfig(slot=SlotConfig(vmax=int(p["vmax"]), alpha_mbit=float(p["alpha_mbit"]),
-                                      d_req_s=float(p["d_req_s"])),
+                                      d_req_s=float(p["d_req_s"]),
+                                      progress=bool(p["progress_uploads"])),
                       ba_window=int(p["ba_window"]),
                       archive_keyframes=int(p["archive_keyframes"]),
                       restore_keyframes=int(p["restore_keyframes"]),

@@ -53,6 +53,15 @@ class SlotConfig:
     alpha_mbit: float = table1.ALPHA_MBIT
     d_req_s: float = table1.D_REQ_S
     log_det_pi: float = 0.0
+    #: the progress rule: where D_req carries no frame but the slot does, one goes
+    #: (:func:`~twinslam.uncertainty.map_uncertainty.theorem1_uploads`); False: Theorem 1
+    #: exactly, the paper's
+    progress: bool = True
+
+    def slot_seconds(self, slot_frames: int) -> float:
+        """The deadline the progress rule stretches to for a slot of ``slot_frames`` camera
+        frames (0 with the rule off)."""
+        return slot_frames / table1.FRAME_RATE_HZ if self.progress else 0.0
 
 
 @dataclass(frozen=True)
@@ -141,7 +150,8 @@ class SlotPlanner:
         cand = [f.frame_id for f in frames if f.tracked]
         cfg = self.config
         n_up, n_ev = theorem1_cardinalities(rate_mbps, cfg.alpha_mbit, cfg.d_req_s, cfg.vmax,
-                                            len(map_ids), len(cand))
+                                            len(map_ids), len(cand),
+                                            cfg.slot_seconds(len(frames)))
         seen = {**arriving, **by_id}
         # each keyframe's and frame's point keys, made once: the weights, the policy's view
         # and the slot's υ all read them

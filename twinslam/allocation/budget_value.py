@@ -26,14 +26,15 @@ from twinslam.uncertainty.map_uncertainty import theorem1_uploads
 
 def expected_uploads(state_probs: Sequence[float] | np.ndarray,
                      state_rates_mbps: Sequence[float] | np.ndarray,
-                     alpha_mbit: float, d_req_s: float, slot_frames: int) -> float:
+                     alpha_mbit: float, d_req_s: float, slot_frames: int,
+                     slot_s: float = 0.0) -> float:
     """E[|U_{k+1}|] under a predictive distribution over the rate states: Σ_s p(s)·⌊d_s D_req/α⌋
-    (Theorem 1's count), at most a slot's frames."""
+    (Theorem 1's count; ``slot_s`` > 0 with its progress rule), at most a slot's frames."""
     p = np.asarray(state_probs, dtype=np.float64)
     rates = np.asarray(state_rates_mbps, dtype=np.float64)
     if p.shape != rates.shape or p.size == 0:
         raise ValueError(f"{p.size} state probabilities for {rates.size} state rates")
-    counts = np.array([theorem1_uploads(float(r), alpha_mbit, d_req_s, slot_frames)
+    counts = np.array([theorem1_uploads(float(r), alpha_mbit, d_req_s, slot_frames, slot_s)
                        for r in rates], dtype=np.float64)
     return float(np.dot(p / p.sum(), counts))
 

@@ -77,6 +77,9 @@ class SimConfig:
     archive_keyframes: int = 0
     #: archived keyframes a policy may bring back a slot (0: none)
     restore_keyframes: int = 0
+    #: the progress rule (as the edge's ``progress_uploads``): where D_req carries no frame
+    #: but the slot does, one goes; False: Theorem 1 exactly, the paper's
+    progress: bool = True
 
     def __post_init__(self) -> None:
         if not 0 < self.d_req_s < float("inf"):
@@ -93,7 +96,12 @@ class SimConfig:
         """The paper's scoring: lost only when no map point is shared, the map update there at
         the slot's first frame (toy worlds of a few points a frame, and the paper's own
         numbers, are scored so)."""
-        return cls(min_shared=1, update_lag_frames=0, **kwargs)
+        return cls(min_shared=1, update_lag_frames=0, **{"progress": False, **kwargs})
+
+    @property
+    def slot_seconds(self) -> float:
+        """The deadline the progress rule stretches to: the slot's length (0: rule off)."""
+        return self.slot_frames / table1.FRAME_RATE_HZ if self.progress else 0.0
 
     @property
     def lag_frames(self) -> int:
@@ -264,7 +272,8 @@ class MapManagementEnv:
         state, rate = self._plan[self._slot]
         cand = list(self._uploadable)
         n_up, n_ev = theorem1_cardinalities(rate, self.config.alpha_mbit, self.config.d_req_s,
-                                            self.config.vmax, len(self._map), len(cand))
+                                            self.config.vmax, len(self._map), len(cand),
+                                            self.config.slot_seconds)
         hist = [s for s, _ in self._plan[max(0, self._slot - self.config.history + 1):
                                          self._slot + 1]]
         n_restore = self.config.restore_keyframes if self.config.archive_keyframes > 0 else 0

@@ -202,7 +202,7 @@ class FleetSimulator:
         twin = self.twins[i]
         probs = twin.predict([obs.rate_state])
         uploads = expected_uploads(probs, self.rates[i], cfg.sim.alpha_mbit, cfg.sim.d_req_s,
-                                   len(frames))
+                                   len(frames), cfg.sim.slot_seconds)
         keyframes = [data.points(int(k)) for k in stream.dataset_index(obs.map_frames)]
         value = budget_value(keyframes, [data.points(int(f)) for f in frames], uploads,
                              cfg.sim.min_shared, cfg.vmax_total, id_bound=self.id_bounds[i])

@@ -224,18 +224,29 @@ def lost_frames(log_tau: np.ndarray, trackable: np.ndarray | None = None) -> np.
 
 
 def theorem1_uploads(rate_mbps: float, alpha_mbit: float, d_req_s: float,
-                     slot_size: int) -> int:
+                     slot_size: int, slot_s: float = 0.0) -> int:
     """|U_k| of paper Theorem 1: floor(d_k · D_req / α) (eq. 10), at most the slot's |F_k| —
     the frames that fit the uplink within D_req. The one place the count is written: the
     cardinalities below, the twin allocator's expected uploads and the edge's grants use it.
     (The 1e-9 keeps a rate whose count is an integer, e.g. 40 Mbit/s · 0.5 s / 5 Mbit = 4,
-    from losing a frame to float rounding.)"""
-    return min(math.floor(rate_mbps * d_req_s / alpha_mbit + 1e-9), slot_size)
+    from losing a frame to float rounding.)
+
+    ``slot_s`` > 0 adds the **progress rule** (DESIGN.md §7b): where D_req carries no frame
+    (d_k < α / D_req: below 10 Mbit/s at Table I's α and D_req) but the uplink carries one
+    within the slot's ``slot_s`` seconds, one frame goes, its deadline stretched to the slot's
+    end — else an uplink under α / D_req uploads nothing, ever, and the edge never gets a map
+    of the ground the device walks into. 0: Theorem 1 exactly (the paper's preset)."""
+    n = min(math.floor(rate_mbps * d_req_s / alpha_mbit + 1e-9), slot_size)
+    if n == 0 and slot_s > 0 and slot_size > 0 and rate_mbps * slot_s >= alpha_mbit - 1e-9:
+        return 1
+    return n
 
 
 def theorem1_cardinalities(rate_mbps: float, alpha_mbit: float, d_req_s: float, vmax: int,
-                           map_size: int, slot_size: int) -> tuple[int, int]:
-    """(|U_k|, |C_k|) of paper Theorem 1, clamped to what the slot and the map hold.
+                           map_size: int, slot_size: int, slot_s: float = 0.0
+                           ) -> tuple[int, int]:
+    """(|U_k|, |C_k|) of paper Theorem 1, clamped to what the slot and the map hold
+    (``slot_s`` > 0: with :func:`theorem1_uploads`' progress rule).
 
     |U_k| = floor(d_k · D_req / α) (eq. 10), at most |F_k|. The paper prints
     |C_k| = V_max - |U_k| (eq. 11), but its own proof (eq. 12) keeps the map at V_max:
@@ -246,6 +257,6 @@ def theorem1_cardinalities(rate_mbps: float, alpha_mbit: float, d_req_s: float, 
         raise ValueError(f"uplink rate must be finite and >= 0, got {rate_mbps}")
     if alpha_mbit <= 0 or d_req_s <= 0 or vmax < 0:
         raise ValueError("alpha, D_req must be > 0 and V_max >= 0")
-    n_up = min(theorem1_uploads(rate_mbps, alpha_mbit, d_req_s, slot_size), vmax)
+    n_up = min(theorem1_uploads(rate_mbps, alpha_mbit, d_req_s, slot_size, slot_s), vmax)
     n_evict = max(0, map_size + n_up - vmax)
     return n_up, n_evict

@@ -53,11 +53,10 @@ def compare(c: Comparison) -> int:
     """Run every policy over the seeds, print the table (and write the CSV); the exit code."""
     try:
         dataset = covisibility(c.covis)
-        rule = dict(min_shared=1, update_lag_frames=0) if c.paper_rule else {}
-        config = SimConfig(vmax=c.vmax, slot_frames=c.slot_frames, d_req_s=c.d_req_s,
-                           slots=c.slots,
-                           start=c.walk_start, archive_keyframes=c.archive_keyframes,
-                           restore_keyframes=c.restore_keyframes, **rule)
+        config = (SimConfig.paper_rule if c.paper_rule else SimConfig)(
+            vmax=c.vmax, slot_frames=c.slot_frames, d_req_s=c.d_req_s, slots=c.slots,
+            start=c.walk_start, archive_keyframes=c.archive_keyframes,
+            restore_keyframes=c.restore_keyframes)
         seeds = list(range(c.seed0, c.seed0 + c.seeds))
         print(f"covisibility: {dataset.n_frames} frames ({dataset.source or c.covis}); "
               f"channel {c.channel}; V_max {c.vmax}, F {c.slot_frames}, D_req {c.d_req_s:g} s, "
@@ -160,8 +159,10 @@ def register(sub: Subparsers) -> None:
                      "a random frame per seed")
     sim.add_argument("--paper-rule", action="store_true",
                      help="score as the paper does: a frame is lost only when it shares no map "
-                     "point, the map update there at the slot's first frame (default: the "
-                     "device's rule, twinslam/slot_protocol/lost_frame_rule.py)")
+                     "point, the map update there at the slot's first frame, and |U_k| is "
+                     "Theorem 1's exactly (default: the device's rule, twinslam/slot_protocol/"
+                     "lost_frame_rule.py, and one upload a slot where the uplink carries one "
+                     "within the slot but not within D_req)")
     sim.add_argument("--archive-keyframes", type=int, default=0, metavar="N",
                      help="the edge keeps up to N evicted keyframes (the least recently useful "
                      "leave first) instead of forgetting them; 0 (default): the paper's edge")
