@@ -25,13 +25,21 @@ map budget and the uplink are what bind:
 * ``outages`` — ``revisit-v25`` over a replayed trace at real rates drawn per seed (regimes
   of 5–80 Mbit/s lasting ~30 s, an outage of ~3 s every ~20 s: slots that upload nothing).
 
+Any scenario runs over an uplink family instead of its own uplink when its name says so:
+``revisit-v15@lte`` (:mod:`twinslam.uplink.families`: ``table1``, ``lte``, ``mmwave``,
+``constrained``); ``outages@FAMILY`` adds its ~3 s outages every ~20 s to a family's trace
+(a family with outages of its own, or a Markov one, refuses).
+
 A scenario only adds node parameters (:meth:`Scenario.node_params`); the nodes know nothing of
 it.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
+
+from twinslam.uplink.families import uplink_family
 
 
 @dataclass(frozen=True)
@@ -44,6 +52,8 @@ class Scenario:
     rate_mbps: tuple[float, float] | None = None   #: the device channel's rate range
     vmax: int | None = None                   #: the edge's V_max (None: the parameter file's)
     channel: str | None = None                #: the device's uplink channel (None: the file's)
+    #: (every, seconds): the outages its channel has, which it adds to an uplink family's
+    outages: tuple[float, float] | None = None
 
     def played_frames(self, frames: int) -> int:
         """Frames played when ``frames`` of the sequence are selected (-1 / 0: unknown)."""
@@ -89,13 +99,25 @@ SCENARIOS = {s.name: s for s in (
              order="forward_backward", vmax=15),
     Scenario("outages", "revisit-v25 over a trace of 5-80 Mbit/s regimes with ~3 s outages",
              order="forward_backward", vmax=25,
-             channel="generated:regime=30,outage_every=20,outage=3,range=5-80"),
+             channel="generated:regime=30,outage_every=20,outage=3,range=5-80",
+             outages=(20.0, 3.0)),
 )}
 
 
 def scenario(name: str) -> Scenario:
-    """The scenario called ``name``; ValueError naming the known ones otherwise."""
+    """The scenario called ``name`` — ``NAME`` or ``NAME@FAMILY``, over an uplink family;
+    ValueError naming the known ones otherwise."""
+    base, at, family_name = name.partition("@")
     try:
-        return SCENARIOS[name]
+        chosen = SCENARIOS[base]
     except KeyError:
-        raise ValueError(f"unknown scenario {name!r}; known: {', '.join(SCENARIOS)}") from None
+        raise ValueError(f"unknown scenario {base!r}; known: {', '.join(SCENARIOS)}") from None
+    if not at:
+        return chosen
+    family = uplink_family(family_name)
+    if chosen.outages is not None:
+        family = family.with_outages(*chosen.outages)
+    return dataclasses.replace(chosen, name=name,
+                               description=f"{chosen.description}, over {family.description}",
+                               channel=family.channel, rate_mbps=family.rate_mbps,
+                               outages=None)

@@ -301,8 +301,8 @@ def parse_channel(spec: str, rate_range: tuple[float, float] = table1.RATE_RANGE
     ``generated[:regime=S][,outage_every=S][,outage=S][,range=MIN-MAX][,noise=X][,seconds=S]
     [,N=4]``: a trace drawn from ``seed`` (:func:`~twinslam.uplink.traces.generate_trace`) and
     replayed from its start at its real Mbit/s like a trace file: regimes of random mean rate in
-    ``range`` lasting ~``regime`` s, an outage (0 Mbit/s) of ~``outage`` s every
-    ~``outage_every`` s (0: none).
+    ``range`` lasting ~``regime`` s, an outage (0 Mbit/s) of ~``outage`` s (exponential; or
+    ``outage=MIN-MAX``: uniform between, a blockage) every ~``outage_every`` s (0: none).
     """
     kind, _, rest = spec.partition(":")
     opts: dict[str, str] = {}
@@ -390,9 +390,14 @@ def _generated(spec: str, opts: dict[str, str], flags: set[str], seed: int) -> T
             regime_s=float(opts.get("regime", default.regime_s)),
             noise=float(opts.get("noise", default.noise)),
             outage_every_s=float(opts.get("outage_every", 0.0)),
-            outage_s=float(opts.get("outage", default.outage_s)))
+            outage_s=(default.outage_s if "-" in opts.get("outage", "")
+                      else float(opts.get("outage", default.outage_s))),
+            outage_range_s=(_pair(opts["outage"], "outage=") if "-" in opts.get("outage", "")
+                            else None))
         if shape.outage_every_s < 0 or shape.outage_s <= 0 or shape.noise < 0:
             raise ValueError("outage_every must be >= 0, outage > 0 and noise >= 0")
+        if shape.outage_range_s and not 0 < shape.outage_range_s[0] <= shape.outage_range_s[1]:
+            raise ValueError("outage=MIN-MAX needs 0 < MIN <= MAX")
         return GeneratedChannel.draw(shape, int(opts.get("N", "2")), seed)
     except ValueError as exc:
         if isinstance(exc, ChannelError):

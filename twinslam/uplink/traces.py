@@ -127,7 +127,9 @@ class TraceShape:
     noise: float = 0.15                 #: relative std of the samples around a regime's mean
     outages: tuple[tuple[float, float], ...] = ()   #: (start s, duration s), always placed
     outage_every_s: float = 0.0         #: also random outages, one per this many s on average
-    outage_s: float = 5.0               #: mean duration of a random outage
+    outage_s: float = 5.0               #: mean duration of a random outage (exponential)
+    #: or a random outage lasts between these many seconds (uniform): a mmWave blockage
+    outage_range_s: tuple[float, float] | None = None
 
 
 def generate_trace(shape: TraceShape, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -150,8 +152,10 @@ def generate_trace(shape: TraceShape, seed: int = 0) -> tuple[np.ndarray, np.nda
     if shape.outage_every_s > 0:
         t = rng.exponential(shape.outage_every_s)
         while t < shape.seconds:
-            outages.append((t, rng.exponential(shape.outage_s)))
-            t += rng.exponential(shape.outage_every_s)
+            length = (rng.uniform(*shape.outage_range_s) if shape.outage_range_s
+                      else rng.exponential(shape.outage_s))
+            outages.append((t, length))
+            t += rng.exponential(shape.outage_every_s)      # (outages may overlap)
     for start, duration in outages:
         mbps[(times >= start) & (times < start + duration)] = 0.0
     return times, mbps

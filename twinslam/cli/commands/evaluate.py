@@ -21,6 +21,7 @@ from twinslam.sequence_player.playback import Playback, PlayedSequence
 from twinslam.sequences.frame import SequenceError
 from twinslam.sequences.opening import open_sequence
 from twinslam.slam.front_end.map_source import DEFAULT_MAP_SOURCE, MAP_SOURCES, check_map_source
+from twinslam.uplink.families import FAMILIES
 
 
 def _checked(args: argparse.Namespace) -> tuple[list[tuple[str, str]], list[Scenario], list[str]]:
@@ -177,7 +178,8 @@ def add_arguments(parser: argparse.ArgumentParser, default_sequence: str,
                         "default %(default)s")
     parser.add_argument("--scenario", default=",".join(scenario_names),
                         help="comma-separated, of: " + ", ".join(scenario_names)
-                        + "; default all")
+                        + "; NAME@FAMILY runs it over an uplink family (" + ", ".join(FAMILIES)
+                        + "; twinslam trace family NAME describes one); default all")
     parser.add_argument("--map-source", default=DEFAULT_MAP_SOURCE,
                         help="the device's map source(s), comma-separated, of: "
                         + ", ".join(MAP_SOURCES) + " (edge: the paper's device, tracked only "

@@ -27,6 +27,7 @@ from twinslam.reporting import file_name
 from twinslam.sequences.frame import SequenceError
 from twinslam.sequences.opening import open_sequence
 from twinslam.slam.front_end.map_source import DEFAULT_MAP_SOURCE, check_map_source
+from twinslam.uplink.families import FAMILIES
 
 R = TypeVar("R")
 
@@ -172,7 +173,8 @@ def register(sub: Subparsers) -> None:
                         help="seconds a policy's run may take before its nodes are stopped")
     launch.add_argument("--scenario", default="forward",
                         help="; ".join(f"{s.name}: {s.description}" for s in SCENARIOS.values()
-                                       ).replace("%", "%%") + "; default %(default)s")
+                                       ).replace("%", "%%") + "; NAME@FAMILY: over an uplink "
+                        "family (" + ", ".join(FAMILIES) + "); default %(default)s")
     launch.add_argument("--out", type=Path, default=Path("results/launch"),
                         help="folder for a picture of each policy's run (POLICY.png: the "
                         "final map from above with the trajectories, per-slot map size, υ, "
