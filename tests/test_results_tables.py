@@ -262,6 +262,34 @@ def test_each_whole_walk_table_is_what_its_command_prints(
     assert _missing(capsys.readouterr().out) == []
 
 
+#: device_variants.py --user's arguments of docs/results/any-uplink.md: Theorem 1 exactly
+#: against the progress rule, one folder each, one scenario of it a table
+PROGRESS_TABLES = [[f"theorem1-exact=docs/figures/progress-uploads/theorem1-exact#{scenario}",
+                    f"progress=docs/figures/progress-uploads/with-progress#{scenario}"]
+                   for scenario in ("revisit-v15@constrained", "revisit-v15@lte")]
+
+
+@pytest.mark.parametrize("args", PROGRESS_TABLES, ids=lambda a: a[0].split("#")[1])
+def test_each_progress_rule_table_is_what_its_command_prints(
+        args: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    module = _script("device_variants")
+    module.main([(label, REPO / folder) for label, folder in (a.split("=", 1) for a in args)],
+                user=True)
+    assert _missing(capsys.readouterr().out) == []
+
+
+def test_a_device_variant_folder_without_the_scenario_asked_for_is_refused() -> None:
+    module = _script("device_variants")
+    with pytest.raises(SystemExit, match="no run of scenario revisit-v25@lte"):
+        module.main([("x", REPO / "docs/figures/progress-uploads/with-progress#revisit-v25@lte")])
+
+
+def test_the_uplink_families_table_is_what_its_command_prints(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    _script("uplink_families_table").main(["--seeds", "10", "--minutes", "10"])
+    assert _missing(capsys.readouterr().out) == []
+
+
 def test_the_error_along_the_walk_table_is_what_its_command_prints() -> None:
     """The bins of every tracked frame's error: two front-end walks and four live folders."""
     module = _script("error_along_the_walk")

@@ -8,7 +8,11 @@ the same seeds:
         own-map=docs/figures/own-map/constrained-own-map ...
 
 Each ``LABEL=FOLDER`` holds the runs.csv and calibration_frames.csv (or .csv.gz) of one evaluate
-run (one scenario, map source and policy). The first table gives each folder's figures a user
+run (one scenario, map source and policy); ``LABEL=FOLDER#SCENARIO`` takes that scenario's runs
+of a folder that holds several. ``--user`` (first) gives the figures of runs made since the
+plausibility gates instead (:data:`USER_FIGURES`: jumps of any tracked pose, the largest
+error, jitter beside the truth's, the longest run of slots without an upload, the poses the
+gates refused). The first table gives each folder's figures a user
 judges a device by, mean ± 95 % CI half-width over its runs (Student t, as evaluate's tables):
 the share of played frames without a pose (a covered lens counted in), the share of the scored
 next-slot frames the device failed (the covered lens counted apart, as calibrate does), the 95th
@@ -52,14 +56,30 @@ FIGURES = (("failed_share", "failed (played frames)", "{:.1%}"),
            ("device_cpu_ms", "device CPU (ms/frame)", "{:.1f}"),
            ("frames_dropped", "dropped (frames)", "{:.0f}"))
 PAIRED = ("failed_share", "scored_failed", "ate_m", "frames_uploaded")
+#: ``--user``: what a user of AR feels, as every live table reports it since the gates
+USER_FIGURES = (("failed_share", "failed (played frames)", "{:.1%}"),
+                ("longest_loss_s", "longest loss (s)", "{:.2f}"), ("jumps", "jumps", "{:.1f}"),
+                ("max_error_m", "largest error (m)", "{:.3f}"), ("ate_m", "ATE (m)", "{:.3f}"),
+                ("jitter_rms_mm", "jitter RMS (mm)", "{:.1f}"),
+                ("jitter_p95_mm", "jitter p95 (mm)", "{:.1f}"),
+                ("truth_jitter_rms_mm", "truth's jitter (mm)", "{:.1f}"),
+                ("frames_uploaded", "uploads (frames)", "{:.1f}"),
+                ("longest_no_upload_slots", "longest without upload (slots)", "{:.1f}"),
+                ("poses_refused", "poses refused", "{:.1f}"),
+                ("device_cpu_ms", "device CPU (ms/frame)", "{:.1f}"),
+                ("frames_dropped", "dropped (frames)", "{:.0f}"))
+USER_PAIRED = ("failed_share", "max_error_m", "ate_m", "jitter_rms_mm", "frames_uploaded")
 
 
-def _runs(folder: Path, label: str
+def _runs(folder: Path, label: str, figures: tuple[tuple[str, str, str], ...] = FIGURES,
+          scenario: str | None = None
           ) -> tuple[str, dict[int, dict[str, float]], list[dict[str, str]]]:
     """("scenario, map source, policy", seed → the run's figures, the scored frames labelled
-    with ``label``) of one folder."""
+    with ``label``) of one folder (of its runs of ``scenario`` only, when given)."""
     with (folder / "runs.csv").open(encoding="utf-8") as fh:
-        rows = list(csv.DictReader(fh))
+        rows = [r for r in csv.DictReader(fh) if scenario in (None, r["scenario"])]
+    if not rows:
+        raise SystemExit(f"{folder}: no run{f' of scenario {scenario}' if scenario else ''}")
     kinds = {(r["scenario"], r["map_source"], r["policy"]) for r in rows}
     if len(kinds) != 1:
         raise SystemExit(f"{folder}: expected one scenario, map source and policy, got "
@@ -70,26 +90,33 @@ def _runs(folder: Path, label: str
                          "jobs")
     try:
         frames = [{**f, "folder": label}
-                  for f in read_rows([folder], "calibration_frames.csv")]
+                  for f in read_rows([folder], "calibration_frames.csv")
+                  if scenario in (None, f["scenario"])]
     except FileNotFoundError as exc:
         raise SystemExit(str(exc)) from None
     runs = {}
     for r in rows:
         seed = int(r["seed"])
-        runs[seed] = {k: float(r[k]) for k, _, _ in FIGURES if k in r}
+        runs[seed] = {k: float(r[k]) for k, _, _ in figures if k in r}
         tracked = [f["device_tracked"] == "1" for f in frames if int(f["seed"]) == seed]
         runs[seed]["scored_failed"] = (1.0 - float(np.mean(tracked))) if tracked else math.nan
     return ", ".join(sorted(kinds)[0]), runs, frames
 
 
-def main(folders: list[tuple[str, Path]]) -> None:
-    loaded = [(label, *_runs(path, label)) for label, path in folders]
+def main(folders: list[tuple[str, Path]], user: bool = False) -> None:
+    """Print the tables of ``folders`` (label, folder, or folder#scenario); ``user``: the
+    figures of :data:`USER_FIGURES` and :data:`USER_PAIRED`."""
+    figures, paired = (USER_FIGURES, USER_PAIRED) if user else (FIGURES, PAIRED)
+    loaded = []
+    for label, path in folders:
+        folder, _, scenario = str(path).partition("#")
+        loaded.append((label, *_runs(Path(folder), label, figures, scenario or None)))
     print("| variant | scenario, map source, policy | runs | runs without an upload | "
-          + " | ".join(h for _, h, _ in FIGURES) + " |")
-    print("|---|---|---|---|" + "---|" * len(FIGURES))
+          + " | ".join(h for _, h, _ in figures) + " |")
+    print("|---|---|---|---|" + "---|" * len(figures))
     for label, kind, runs, _ in loaded:
         cells = []
-        for key, _, fmt in FIGURES:
+        for key, _, fmt in figures:
             mean, half = mean_ci95([r[key] for r in runs.values()])   # NaN υ left out
             cells.append("–" if math.isnan(mean) else f"{fmt.format(mean)} ± {fmt.format(half)}")
         idle = sum(r["frames_uploaded"] == 0 for r in runs.values())
@@ -99,17 +126,17 @@ def main(folders: list[tuple[str, Path]]) -> None:
     if len(loaded) < 2:
         return
     base_label, _, base, _ = loaded[0]
-    formats = {k: f for k, _, f in FIGURES}
+    formats = {k: f for k, _, f in figures}
     print()
     print(f"| variant − {base_label}, paired by seed | seeds | "
-          + " | ".join(h for k, h, _ in FIGURES if k in PAIRED) + " |")
-    print("|---|---|" + "---|" * len(PAIRED))
+          + " | ".join(h for k, h, _ in figures if k in paired) + " |")
+    print("|---|---|" + "---|" * len(paired))
     for label, _, runs, _ in loaded[1:]:
         seeds = sorted(set(runs) & set(base))
         if seeds != sorted(runs) or seeds != sorted(base):
             raise SystemExit(f"{label} and {base_label} hold different seeds: no pairing")
         cells = []
-        for key in PAIRED:
+        for key in paired:
             d = paired_difference(np.array([[runs[s][key] for s in seeds]]),
                                   [base[s][key] for s in seeds])
             fmt = formats[key]
@@ -122,12 +149,16 @@ def _parse(items: list[str]) -> list[tuple[str, Path]]:
     for item in items:
         label, sep, path = item.partition("=")
         if not sep or not label or not path:
-            raise SystemExit(f"{item!r}: expected LABEL=FOLDER\n\n{__doc__}")
+            raise SystemExit(f"{item!r}: expected LABEL=FOLDER[#SCENARIO]\n\n{__doc__}")
         out.append((label, Path(path)))
     return out
 
 
 if __name__ == "__main__":
-    if len(sys.argv) < 2:
+    args = sys.argv[1:]
+    user = bool(args) and args[0] == "--user"
+    if user:
+        args = args[1:]
+    if not args:
         raise SystemExit(__doc__)
-    main(_parse(sys.argv[1:]))
+    main(_parse(args), user)

@@ -152,10 +152,13 @@ def generate_trace(shape: TraceShape, seed: int = 0) -> tuple[np.ndarray, np.nda
     if shape.outage_every_s > 0:
         t = rng.exponential(shape.outage_every_s)
         while t < shape.seconds:
-            length = (rng.uniform(*shape.outage_range_s) if shape.outage_range_s
-                      else rng.exponential(shape.outage_s))
-            outages.append((t, length))
-            t += rng.exponential(shape.outage_every_s)      # (outages may overlap)
+            if shape.outage_range_s:            # a blockage: the next starts after it ends
+                length = rng.uniform(*shape.outage_range_s)
+                outages.append((t, length))
+                t += length + rng.exponential(shape.outage_every_s)
+            else:                               # (these may overlap, as they always did)
+                outages.append((t, rng.exponential(shape.outage_s)))
+                t += rng.exponential(shape.outage_every_s)
     for start, duration in outages:
         mbps[(times >= start) & (times < start + duration)] = 0.0
     return times, mbps
