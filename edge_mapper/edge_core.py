@@ -150,7 +150,6 @@ class EdgeMapperCore:
         self._held: dict[int, list[KeyFramePayload]] = {}
         #: open slot → its uploads the keyframe gate refused, with why
         self._refused: dict[int, dict[int, str]] = {}
-        self._optimisation_refused = ""     #: why the last optimise() applied nothing
         self.restored = self.last_slot >= 0
         #: open slot → where the camera is predicted to be after it (that slot's restores look
         #: there, whenever the slot finishes: a late slot does not borrow a newer slot's view)
@@ -330,7 +329,6 @@ class EdgeMapperCore:
         t0 = time.perf_counter()
         ba = (self.optimise() if len(self.map.keyframes) >= 2 and self.config.ba_window > 0
               else None)
-        ba_refused, self._optimisation_refused = self._optimisation_refused, ""
         t1 = time.perf_counter()
         self.version += 1
         self.last_slot = slot
@@ -355,7 +353,7 @@ class EdgeMapperCore:
                    "checkpoint": (t2 - t1) * 1e3, "uncertainty": (t3 - t2) * 1e3}
         return SlotOutcome(slot, sorted(received), sorted(missing), evicted, spared, orphans, ba,
                            u, self.version, tracks, timings, forgotten, restored, refused,
-                           ba_refused)
+                           ba.refused if ba is not None else "")
 
     def _restore(self, slot: int, received: set[int], poses: list[np.ndarray],
                  relocalised: list[np.ndarray]) -> tuple[list[int], list[int], list[int]]:
@@ -412,7 +410,8 @@ class EdgeMapperCore:
         keyframe move; the other keyframes that see those points hold still (and the oldest
         always does). A point only one keyframe sees constrains no pose: it moves rigidly with
         its keyframe instead of entering the graph. Observations the optimiser finds to be
-        outliers are removed from the map (ORB-SLAM's local BA does the same)."""
+        outliers are removed from the map (ORB-SLAM's local BA does the same). An answer
+        :meth:`_implausible_adjustment` refuses changes nothing (its ``refused`` says why)."""
         ids = self.map.keyframe_ids()
         window = set(ids[-self.config.ba_window:]) - {ids[0]}
         if not window:
@@ -439,9 +438,9 @@ class EdgeMapperCore:
                                {p: self.map.points[p].position for p in points}, observations,
                                self.k, fixed, baseline_m=self.config.baseline_m,
                                max_iterations=self.config.ba_iterations)
-        self._optimisation_refused = self._implausible_adjustment(result, window)
-        if self._optimisation_refused:
-            return result
+        refused = self._implausible_adjustment(result, window)
+        if refused:
+            return dataclasses.replace(result, refused=refused)
         for k in window:
             keyframe = self.map.keyframes[k]
             motion = result.poses[k] @ np.linalg.inv(keyframe.pose)
@@ -455,7 +454,6 @@ class EdgeMapperCore:
             if ob.point in self.map.points:
                 self.map.unobserve(ob.keyframe, ob.point)
         return result
-
 
     def _implausible_adjustment(self, result: BundleAdjustmentResult, window: set[int]) -> str:
         """Why the adjustment's answer must not be applied, or "": a non-finite pose or point

@@ -186,3 +186,35 @@ def test_a_keyframe_of_a_user_walking_on_passes_the_gate() -> None:
     assert reports and all(r is not None and not r.refused for r in reports)
     out = core.finish_slot(slot)
     assert not out.refused and out.integrated == sorted(plan.action.upload)
+
+
+def test_a_bundle_adjustment_that_diverged_is_not_applied(monkeypatch: pytest.MonkeyPatch
+                                                          ) -> None:
+    """The optimiser answers with the newest keyframe moved 5 m: the edge keeps the map as it
+    was and says why in the slot's outcome."""
+    import edge_mapper.edge_core as edge_core
+
+    core, device = _edge()
+    solve = edge_core.bundle_adjust
+
+    def diverged(*args: object, **kwargs: object):
+        result = solve(*args, **kwargs)            # type: ignore[arg-type]
+        newest = max(result.poses)
+        result.poses[newest] = result.poses[newest].copy()
+        result.poses[newest][0, 3] += 5.0
+        return result
+
+    monkeypatch.setattr(edge_core, "bundle_adjust", diverged)
+    slot = 3
+    frames = [device.summary(f, core) for f in range(slot * F, (slot + 1) * F)]
+    plan = core.plan(slot, frames, 80.0, 1)
+    for f in plan.action.upload:
+        core.add_keyframe(device.keyframe(f, slot, core))
+    before = {k: kf.pose.copy() for k, kf in core.map.keyframes.items()}
+    out = core.finish_slot(slot)
+    newest = max(plan.action.upload)
+    assert out.optimisation_refused.startswith(f"keyframe {newest} moved 4.9")
+    assert out.bundle_adjustment is not None and out.bundle_adjustment.refused
+    for k, kf in core.map.keyframes.items():
+        if k in before:
+            np.testing.assert_array_equal(kf.pose, before[k])

@@ -52,6 +52,8 @@ class BundleAdjustmentResult:
     iterations: int
     outliers: list[Observation] = field(default_factory=list)
     milliseconds: float = 0.0
+    #: why its caller did not apply it ("": applied), e.g. the edge's check of a diverged solve
+    refused: str = ""
 
 
 def bundle_adjust(poses: dict[int, np.ndarray], points: dict[int, np.ndarray],
