@@ -269,8 +269,18 @@ PROGRESS_TABLES = [[f"theorem1-exact=docs/figures/progress-uploads/theorem1-exac
                    for scenario in ("revisit-v15@constrained", "revisit-v15@lte")]
 
 
-@pytest.mark.parametrize("args", PROGRESS_TABLES, ids=lambda a: a[0].split("#")[1])
-def test_each_progress_rule_table_is_what_its_command_prints(
+#: the pilot of the default-device sweep, as docs/results/any-uplink.md writes its command
+PILOT_TABLES = [[f"{label}=docs/figures/default-device/pilot-300/{folder}-300#{scenario}"
+                 for label, folder in (("table-i", "table-i"),
+                                       ("short-loop-own-map", "short-loop-own-map"),
+                                       ("edge+local", "edge-local"))]
+                for scenario in ("revisit-v15@table1", "revisit-v15@lte", "revisit-v15@mmwave",
+                                 "revisit-v15@constrained", "outages@lte")]
+
+
+@pytest.mark.parametrize("args", PROGRESS_TABLES + PILOT_TABLES,
+                         ids=lambda a: a[0].split("/")[-1])
+def test_each_progress_rule_and_pilot_table_is_what_its_command_prints(
         args: list[str], capsys: pytest.CaptureFixture[str]) -> None:
     module = _script("device_variants")
     module.main([(label, REPO / folder) for label, folder in (a.split("=", 1) for a in args)],
