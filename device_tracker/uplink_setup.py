@@ -25,8 +25,10 @@ def uplink_from_parameters(p: Mapping[str, Any], flush: Callable[[], object]
     rate; ``flush`` waits for the keyframes in flight (the tc shaper calls it before a rate
     change)."""
     try:
+        # a trace advances one of the device's slots a slot: its real rates, whatever F is
         channel = parse_channel(str(p["channel"]), (float(p["rate_min"]), float(p["rate_max"])),
-                                int(p["seed"]))
+                                int(p["seed"]),
+                                float(p["slot_frames"]) / float(p["frame_rate_hz"]))
         shaper = make_shaper(str(p["shaper"]), initial_rate(channel), str(p["uplink_interface"]),
                              NetemConfig(float(p["netem_delay_ms"]),
                                          float(p["netem_loss_percent"])), flush=flush)

@@ -49,3 +49,19 @@ def test_a_scenario_over_a_family_gives_the_device_the_familys_channel() -> None
         scenario("revisit@wifi")
     with pytest.raises(ValueError, match="unknown scenario 'nowhere'"):
         scenario("nowhere@lte")
+
+
+def test_a_device_with_short_slots_replays_a_trace_at_its_real_speed() -> None:
+    """A device of 1 s slots (30 frames at 30 Hz) steps its trace a second a slot: the
+    blockages of the mmWave family last as long in its run as in the trace (stepped 2 s a
+    slot, as a channel's default, they had passed twice as fast)."""
+    from device_tracker.parameters import PARAMETERS
+    from device_tracker.uplink_setup import uplink_from_parameters
+
+    params = {p.name: p.default for p in PARAMETERS}
+    params.update(channel=FAMILIES["mmwave"].channel, slot_frames=30, seed=2)
+    channel, _ = uplink_from_parameters(params, lambda: None)
+    assert isinstance(channel, TraceChannel) and channel.slot_seconds == 1.0
+    channel.reset(2)
+    stepped = [channel.step()[1] for _ in range(60)]
+    assert stepped == pytest.approx([channel.rate_over(float(s), 1.0) for s in range(60)])

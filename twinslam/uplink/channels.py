@@ -286,7 +286,8 @@ def _pair(text: str, what: str) -> tuple[float, float]:
 
 
 def parse_channel(spec: str, rate_range: tuple[float, float] = table1.RATE_RANGE_MBPS,
-                  seed: int = 0) -> MarkovChannel | TraceChannel:
+                  seed: int = 0, slot_seconds: float = SLOT_SECONDS
+                  ) -> MarkovChannel | TraceChannel:
     """Build a channel from a CLI spec.
 
     ``markov:N=2[,ratio=0.5][,K=100][,nonstationary][,balanced]``: N rates evenly over
@@ -296,7 +297,9 @@ def parse_channel(spec: str, rate_range: tuple[float, float] = table1.RATE_RANGE
     (an outage uploads nothing); states by the trace's quantiles, or evenly over
     ``states=MIN-MAX``; ``rescale`` maps the trace's min..max onto ``rate_range`` first;
     ``start=S`` fixes where every seed starts (default: an offset per seed); ``slot=S`` the slot
-    length (default F / frame rate = 2 s).
+    length (default ``slot_seconds``: the slots of whoever steps the channel — Table I's F /
+    frame rate = 2 s unless given; a device with shorter slots must say so, or each of its
+    slots would replay a 2 s stretch of the trace, the trace at more than its real speed).
 
     ``generated[:regime=S][,outage_every=S][,outage=S][,range=MIN-MAX][,noise=X][,seconds=S]
     [,N=4]``: a trace drawn from ``seed`` (:func:`~twinslam.uplink.traces.generate_trace`) and
@@ -336,7 +339,7 @@ def parse_channel(spec: str, rate_range: tuple[float, float] = table1.RATE_RANGE
             return TraceChannel.from_csv(
                 Path(target), n,
                 _pair(opts["states"], "states=") if "states" in opts else None,
-                float(opts.get("slot", SLOT_SECONDS)),
+                float(opts.get("slot", slot_seconds)),
                 rate_range if "rescale" in flags else None,
                 float(opts["start"]) if "start" in opts else None, seed)
     except (KeyError, ValueError) as exc:
@@ -344,7 +347,7 @@ def parse_channel(spec: str, rate_range: tuple[float, float] = table1.RATE_RANGE
             raise
         raise ChannelError(f"bad channel spec {spec!r}: {exc}") from None
     if kind == "generated":
-        return _generated(spec, opts, flags, seed)
+        return _generated(spec, opts, flags, seed, slot_seconds)
     raise ChannelError(f"unknown channel {kind!r} in {spec!r}; use markov:..., trace:FILE or "
                        "generated:...")
 
@@ -361,10 +364,11 @@ class GeneratedChannel(TraceChannel):
     _drawn: int | None = field(init=False, default=None)
 
     @classmethod
-    def draw(cls, shape: TraceShape, levels: int, seed: int = 0) -> GeneratedChannel:
+    def draw(cls, shape: TraceShape, levels: int, seed: int = 0,
+             slot_seconds: float = SLOT_SECONDS) -> GeneratedChannel:
         times, mbps = generate_trace(shape, seed)
-        return cls(times, mbps, RateQuantiser.evenly(1, 0.0, 1.0), start_s=0.0, seed=seed,
-                   shape=shape, levels=levels)
+        return cls(times, mbps, RateQuantiser.evenly(1, 0.0, 1.0), slot_seconds, start_s=0.0,
+                   seed=seed, shape=shape, levels=levels)
 
     def reset(self, seed: int | None = None) -> None:
         seed = self.seed if seed is None else seed
@@ -375,7 +379,8 @@ class GeneratedChannel(TraceChannel):
         super().reset(seed)
 
 
-def _generated(spec: str, opts: dict[str, str], flags: set[str], seed: int) -> TraceChannel:
+def _generated(spec: str, opts: dict[str, str], flags: set[str], seed: int,
+               slot_seconds: float = SLOT_SECONDS) -> TraceChannel:
     """The ``generated:...`` channel of :func:`parse_channel`."""
     known = {"regime", "outage_every", "outage", "range", "noise", "seconds", "N"}
     if flags or set(opts) - known:
@@ -398,7 +403,7 @@ def _generated(spec: str, opts: dict[str, str], flags: set[str], seed: int) -> T
             raise ValueError("outage_every must be >= 0, outage > 0 and noise >= 0")
         if shape.outage_range_s and not 0 < shape.outage_range_s[0] <= shape.outage_range_s[1]:
             raise ValueError("outage=MIN-MAX needs 0 < MIN <= MAX")
-        return GeneratedChannel.draw(shape, int(opts.get("N", "2")), seed)
+        return GeneratedChannel.draw(shape, int(opts.get("N", "2")), seed, slot_seconds)
     except ValueError as exc:
         if isinstance(exc, ChannelError):
             raise

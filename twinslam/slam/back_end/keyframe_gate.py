@@ -60,6 +60,8 @@ def implausible_keyframe(keyframe: KeyFramePayload, keyframe_map: KeyFrameMap,
 
 def _out_of_reach(frame_id: int, pose: np.ndarray, keyframe_map: KeyFrameMap,
                   anchors: Iterable[tuple[int, np.ndarray]], config: KeyFrameGateConfig) -> str:
+    """Farther from the keyframe nearest in frame ids than a camera gets in the time between
+    (the later one of two equally near: the newer pose, after the newer optimisation)."""
     known = [(0, np.eye(4)), *anchors,
              *((kf.id, kf.pose) for kf in keyframe_map.keyframes.values())]
     nearest_id, nearest = min(known, key=lambda a: (abs(a[0] - frame_id), -a[0]))
@@ -74,6 +76,8 @@ def _out_of_reach(frame_id: int, pose: np.ndarray, keyframe_map: KeyFrameMap,
 
 def _inconsistent(keyframe: KeyFramePayload, pose: np.ndarray, keyframe_map: KeyFrameMap,
                   config: KeyFrameGateConfig) -> str:
+    """Too few of the map points the device matched the keyframe's features with reproject
+    near those features from its pose: the pose and its own evidence disagree."""
     ids = np.asarray(keyframe.point_ids, dtype=np.uint64)
     rows = [i for i, pid in enumerate(ids.tolist())
             if pid and not pid & int(TRACK_ID_BIT) and pid in keyframe_map.points]
