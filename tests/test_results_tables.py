@@ -278,7 +278,16 @@ PILOT_TABLES = [[f"{label}=docs/figures/default-device/pilot-300/{folder}-300#{s
                                  "revisit-v15@constrained", "outages@lte")]
 
 
-@pytest.mark.parametrize("args", PROGRESS_TABLES + PILOT_TABLES,
+#: the whole walk of the default-device sweep (seeds 0-2 so far)
+WALK_TABLES = [[f"{label}=docs/figures/default-device/{folder}-1000#{scenario}"
+                for label, folder in (("table-i", "table-i"),
+                                      ("short-loop-own-map", "short-loop-own-map"),
+                                      ("edge+local", "edge-local"))]
+               for scenario in ("revisit-v15@table1", "revisit-v15@lte", "revisit-v15@mmwave",
+                                "revisit-v15@constrained")]
+
+
+@pytest.mark.parametrize("args", PROGRESS_TABLES + PILOT_TABLES + WALK_TABLES,
                          ids=lambda a: a[0].split("/")[-1])
 def test_each_progress_rule_and_pilot_table_is_what_its_command_prints(
         args: list[str], capsys: pytest.CaptureFixture[str]) -> None:
