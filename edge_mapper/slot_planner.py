@@ -26,6 +26,7 @@ from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
 from twinslam.uncertainty.map_uncertainty import (
     SlotUncertainty,
     next_slot_uncertainty,
+    progress_deadline_s,
     theorem1_cardinalities,
 )
 
@@ -61,7 +62,7 @@ class SlotConfig:
     def slot_seconds(self, slot_frames: int) -> float:
         """The deadline the progress rule stretches to for a slot of ``slot_frames`` camera
         frames (0 with the rule off)."""
-        return slot_frames / table1.FRAME_RATE_HZ if self.progress else 0.0
+        return progress_deadline_s(slot_frames, self.progress)
 
 
 @dataclass(frozen=True)

@@ -170,7 +170,7 @@ def report(policy: str, record: RunLog, seconds: float, slot_frames: int) -> Run
                      events.loss_p95_s, events.longest_loss_s, device_cpu_ms(record),
                      record.downlink_bytes / 1e6,
                      float(sum(int(s.restored_keyframes) for s in stats)),
-                     max(errors.values()) if errors else math.nan, *_jitter_cells(record),
+                     max(errors.values()) if errors else math.nan, *_jitter_cells(record, tracked),
                      float(sum(bool(f.pose_refused) for s in record.summaries.values()
                                for f in s.frames)),
                      float(sum(int(s.refused_keyframes) for s in stats)),
@@ -205,17 +205,18 @@ def frame_stamps(record: RunLog) -> list[int]:
     return [stamp for _, stamp in frames]
 
 
-def run_jitter(record: RunLog) -> tuple[Jitter, Jitter]:
+def run_jitter(record: RunLog, tracked: set[int] | None = None) -> tuple[Jitter, Jitter]:
     """The jitter of the published positions of tracked frames and of the ground truth over
     the same frames (the truth's is NaN without one)."""
-    stamps, tracked = frame_stamps(record), tracked_stamps(record)
+    stamps = frame_stamps(record)
+    tracked = tracked_stamps(record) if tracked is None else tracked
     published = {s: p[:3, 3] for s, p in record.poses.items() if s in tracked}
     truth = {s: record.ground_truth[s][:3, 3] for s in published if s in record.ground_truth}
     return jitter(published, stamps), jitter(truth, stamps)
 
 
-def _jitter_cells(record: RunLog) -> tuple[float, float, float, float, float]:
-    shake, truth = run_jitter(record)
+def _jitter_cells(record: RunLog, tracked: set[int]) -> tuple[float, float, float, float, float]:
+    shake, truth = run_jitter(record, tracked)
     return (shake.rms_mm, shake.median_mm, shake.p95_mm, float(shake.over_visible),
             truth.rms_mm)
 

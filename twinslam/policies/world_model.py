@@ -45,6 +45,7 @@ from twinslam.uncertainty.laplacian_factorization import PIVOT_RTOL
 from twinslam.uncertainty.map_uncertainty import (
     SlotUncertainty,
     lost_frames,
+    progress_deadline_s,
     slot_uncertainty_from_scores,
     theorem1_cardinalities,
 )
@@ -101,7 +102,7 @@ class SimConfig:
     @property
     def slot_seconds(self) -> float:
         """The deadline the progress rule stretches to: the slot's length (0: rule off)."""
-        return self.slot_frames / table1.FRAME_RATE_HZ if self.progress else 0.0
+        return progress_deadline_s(self.slot_frames, self.progress)
 
     @property
     def lag_frames(self) -> int:
