@@ -322,8 +322,12 @@ class EdgeMapperCore:
         orphans = sum(len(self.map.evict(kf)) for kf in evicted)
         spared = sorted(set(action.evict) - set(evicted) - missing)
         views, self._relocalised_views = self._relocalised_views, []
+        # restores fill the map up to the smaller of this slot's V_max and the next one's: an
+        # edge serving several devices may already have granted this device more for the next
+        # slot, which this slot's map (and its MapStats' budget) must not anticipate
         restored, replaced, dropped = self._restore(slot, received,
-                                                    self._headings.pop(slot, []), views)
+                                                    self._headings.pop(slot, []), views,
+                                                    min(vmax, self.planner.config.vmax))
         evicted += replaced
         forgotten += dropped
         t0 = time.perf_counter()
@@ -356,15 +360,15 @@ class EdgeMapperCore:
                            ba.refused if ba is not None else "")
 
     def _restore(self, slot: int, received: set[int], poses: list[np.ndarray],
-                 relocalised: list[np.ndarray]) -> tuple[list[int], list[int], list[int]]:
+                 relocalised: list[np.ndarray], vmax: int
+                 ) -> tuple[list[int], list[int], list[int]]:
         """Bring archived keyframes seen from ``poses`` (where the camera is heading after
         ``slot``) — or, where the edge relocalised the lost device in its archive, from the
         ``relocalised`` poses — back into the map, each in place of the keyframe that sees
         least of that view (into the archive in its turn); (restored, evicted for them,
-        forgotten by the archive to make room for those)."""
+        forgotten by the archive to make room for those); the map stays within ``vmax``."""
         if not has_camera(self.k):
             return [], [], []
-        vmax = self.planner.config.vmax
         if relocalised and self.config.reloc_restore_keyframes > 0:
             chosen = plan_relocation_restores(self.map, self.archive, relocalised, self.k,
                                               self.config.image_shape, vmax,

@@ -222,6 +222,27 @@ def test_walking_back_brings_evicted_keyframes_back_before_the_camera_gets_there
     assert in_view[2, 20.0] > 1.3 * in_view[0, 20.0]
 
 
+def test_restores_keep_the_map_within_the_slots_budget_when_the_next_grant_is_larger() -> None:
+    """An edge serving several devices grants a device its V_max for the next slot before the
+    open one finishes: a larger grant must not let this slot's restores fill the map beyond
+    the V_max the slot was planned with (what its MapStats reports as the budget)."""
+    turn = 8 * F
+    device = ReturningDevice(np.random.default_rng(3), turn)
+    core = EdgeMapperCore(make_policy("lff"), K, EdgeConfig(slot=SlotConfig(vmax=4),
+                                                            restore_keyframes=2))
+    restored = []
+    for slot in range(16):
+        frames = [device.summary(f, core) for f in range(slot * F, (slot + 1) * F)]
+        plan = core.plan(slot, frames, 20.0, slot % 2)
+        for f in plan.action.upload:
+            core.add_keyframe(device.keyframe(f, slot, core))
+        core.set_vmax(7)                     # the next slot's grant, larger
+        restored += core.finish_slot(slot).restored
+        assert len(core.map.keyframes) <= 4, f"slot {slot}: the map outgrew its budget"
+        core.set_vmax(4)
+    assert restored, "nothing was brought back on the way back: the test tests nothing"
+
+
 def test_a_lost_device_found_in_the_archive_gets_that_place_back_with_the_slot(
         ) -> None:
     """Out along the wall with V_max 4 and no restores planned ahead: the start of the walk
