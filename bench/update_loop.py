@@ -4,7 +4,8 @@ when it heard each slot's summaries, request, throughput report and map, and the
 frames saying which map they were tracked with.
 
     python -m bench.update_loop [SEQUENCE] [--frames 300] [--policy lff,adapt] \\
-        [--map-source edge] [--scenario revisit-v15] [--seeds 2] [--csv OUT.csv]
+        [--map-source edge] [--scenario revisit-v15] [--seeds 2] [--csv OUT.csv] \\
+        [--params config/paper-table1.yaml]
 
 Prints, per policy, the median and p95 of each stage over the runs' slots (a slot whose
 stage was not heard is left out of that stage) and the camera frames the device dropped (a
@@ -20,7 +21,7 @@ from dataclasses import asdict, fields
 from pathlib import Path
 
 from twinslam.cli.console import HelpFormatter
-from twinslam.live.launcher import LaunchConfig, Launcher
+from twinslam.live.launcher import DEFAULT_PARAMS, LaunchConfig, Launcher
 from twinslam.live.scenarios import scenario as scenario_named
 from twinslam.live.update_loop import SlotLatency, stage_table, update_loop_latencies
 from twinslam.node_hosts.loopback import LoopbackDomain
@@ -31,11 +32,11 @@ SEQUENCE = REPO.parent / "shared" / "data" / "7scenes-1000"
 
 
 def run(sequence: str, policy: str, frames: int, map_source: str, scenario: str,
-        seed: int) -> tuple[list[SlotLatency], int]:
+        seed: int, params: Path = DEFAULT_PARAMS) -> tuple[list[SlotLatency], int]:
     """One run's slots and the camera frames its device dropped."""
     extra = {"device_tracker": [f"seed:={seed}", f"map_source:={map_source}"]}
-    config = LaunchConfig(sequence, policy, frames, scenario=scenario_named(scenario),
-                          extra=extra, timeout_s=600.0)
+    config = LaunchConfig(sequence, policy, frames, params_file=params,
+                          scenario=scenario_named(scenario), extra=extra, timeout_s=600.0)
     with LoopbackDomain() as dom:
         dom.activate()
         launcher = Launcher(dom, config, echo=None)
@@ -55,6 +56,10 @@ def main() -> None:
                         help="the device's map source (edge: the paper's device)")
     parser.add_argument("--scenario", default="revisit-v15", help="the run's scenario")
     parser.add_argument("--seeds", type=int, default=2, help="runs per policy (seeds 0..N-1)")
+    parser.add_argument("--params", type=Path, default=DEFAULT_PARAMS,
+                        help="the nodes' parameter file (default: the default device's; the "
+                        "figures in BENCHMARKS.md before 2026-11-28 are the paper's Table I "
+                        "device's, config/paper-table1.yaml)")
     parser.add_argument("--csv", type=Path, default=None,
                         help="write every slot's stages (policy, seed, slot, stages) here")
     args = parser.parse_args()
@@ -67,7 +72,7 @@ def main() -> None:
         dropped = 0
         for seed in range(args.seeds):
             found, lost = run(args.sequence, policy, args.frames, args.map_source,
-                              args.scenario, seed)
+                              args.scenario, seed, args.params)
             slots += found
             dropped += lost
             rows += [[policy, seed, *asdict(s).values()] for s in found]

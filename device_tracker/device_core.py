@@ -55,7 +55,6 @@ from device_tracker.slot_clock import SlotClock
 from twinslam.slam.front_end.feature_tracks import FeatureTracks
 from twinslam.slam.front_end.local_map import LocalMap
 from twinslam.slam.front_end.map_source import (
-    DEFAULT_MAP_SOURCE,
     EDGE,
     EDGE_LOCAL,
     check_map_source,
@@ -101,7 +100,7 @@ class DeviceTrackerCore:
     def __init__(self, intrinsics: np.ndarray, slot_frames: int = table1.SLOT_FRAMES,
                  config: TrackingConfig | None = None, keep_slots: int = 2,
                  frame_rate_hz: float = table1.FRAME_RATE_HZ,
-                 map_source: str = DEFAULT_MAP_SOURCE, own_map_after: int = 0) -> None:
+                 map_source: str = EDGE, own_map_after: int = 0) -> None:
         """``keep_slots``: the ended slots whose frames stay uploadable; the edge asks for a
         slot's frames during the next one, or later when the link was down meanwhile. A slot
         lasts ``slot_frames`` / ``frame_rate_hz`` seconds of frame stamps. ``map_source``:

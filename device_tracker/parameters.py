@@ -1,7 +1,9 @@
 """The device node's ROS parameters: name, default, description and range.
 
-Defaults are the paper's Table I where it has one (F 60 frames a slot, α 5 Mbit, 40–80 Mbit/s);
-``ros2 param describe /device_tracker channel`` shows the description.
+Defaults are the default device's (:mod:`twinslam.slot_protocol.default_device`: 30-frame
+slots, the edge's map and the device's own points) and the paper's Table I elsewhere (α 5 Mbit,
+40–80 Mbit/s); ``config/paper-table1.yaml`` is the paper's device. ``ros2 param describe
+/device_tracker channel`` shows the description.
 """
 
 from __future__ import annotations
@@ -14,11 +16,12 @@ from twinslam.node_hosts.parameters import ParamSpec
 from twinslam.slam.front_end.map_source import DEFAULT_MAP_SOURCE, check_map_source
 from twinslam.slam.front_end.tracking import TrackingConfig
 from twinslam.slam.pose_plausibility import MotionBounds
-from twinslam.slot_protocol import table1
+from twinslam.slot_protocol import default_device, table1
 from twinslam.uplink.tc_shaper import SHAPERS
 
 PARAMETERS = (
-    ParamSpec("slot_frames", table1.SLOT_FRAMES, "F, frames per slot", low=1, high=100_000),
+    ParamSpec("slot_frames", default_device.SLOT_FRAMES, "F, frames per slot (Table I: 60)",
+              low=1, high=100_000),
     ParamSpec("frame_rate_hz", table1.FRAME_RATE_HZ, "nominal camera rate (Hz, x the player's "
               "rate when replaying faster); a slot is slot_frames / frame_rate_hz seconds of "
               "frame stamps, so a lost frame does not shift later slots", low=1e-3, high=1e5),
@@ -52,7 +55,8 @@ PARAMETERS = (
               "no image) go to the edge for relocalisation against its archive this often "
               "(seconds of frame stamps; the first at once; 0.5 as Edge-SLAM; the edge's "
               "reloc_restore_keyframes must be on); 0: never", low=0.0, high=3600.0),
-    ParamSpec("own_map_after_s", 0.0, "the paper's device (map_source edge) lost this long "
+    ParamSpec("own_map_after_s", default_device.OWN_MAP_AFTER_S, "the paper's device "
+              "(map_source edge) lost this long "
               "(seconds of frame stamps) tracks on with points of its own — the features it "
               "follows for the edge, from depth — and the edge's map, as edge+local, until "
               "the edge's map explains its view again, so its frames can be uploaded; 0: "
@@ -79,8 +83,9 @@ PARAMETERS = (
               low=0.01, high=3600.0),
     ParamSpec("map_source", DEFAULT_MAP_SOURCE, "where poses come from: edge (only the points "
               "of the edge's last map update, the paper's device: what the edge keeps decides "
-              "tracking; the default) or edge+local (plus the device's own points of its last "
-              "keep_slots slots, an Edge-SLAM style device); changes live, from the next frame",
+              "tracking) or edge+local (plus the device's own points of its last "
+              "keep_slots slots, an Edge-SLAM style device; the default, measured best on "
+              "every uplink family); changes live, from the next frame",
               live=True, check=check_map_source),
     ParamSpec("keep_slots", 4, "slots whose frames stay uploadable (rides out ~5 s outages)",
               low=1, high=1000),

@@ -1,6 +1,8 @@
 """The edge node's ROS parameters: name, default, description, range, and which change live.
 
-Defaults are the paper's Table I (V_max 45 keyframes, α 5 Mbit, D_req 0.5 s). ``ros2 param
+Defaults are the default device's edge (:mod:`twinslam.slot_protocol.default_device`: LFF,
+D_req 0.25 s, three restores a slot) and the paper's Table I elsewhere (V_max 45 keyframes,
+α 5 Mbit); ``config/paper-table1.yaml`` is the paper's edge. ``ros2 param
 describe /edge_mapper vmax`` shows the description and range; a value out of range or a policy
 that cannot be made is refused with the reason (:mod:`edge_mapper.policy_control`).
 """
@@ -22,7 +24,7 @@ from edge_mapper.slot_planner import SlotConfig
 from msg_schemas import topics
 from twinslam.allocation.allocators import ALLOCATORS
 from twinslam.node_hosts.parameters import ParamSpec
-from twinslam.slot_protocol import table1
+from twinslam.slot_protocol import default_device, table1
 
 
 def _devices_refused(value: object) -> str | None:
@@ -40,7 +42,7 @@ def _devices_refused(value: object) -> str | None:
 DEVICE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*")
 
 PARAMETERS = (
-    ParamSpec("policy", "adapt", "map-management policy: lff | pu | adapt | random | "
+    ParamSpec("policy", default_device.POLICY, "map-management policy: lff | pu | adapt | random | "
               "mbrl (with policy_checkpoint) | mbrl:CHECKPOINT | mpc[:H=2/S=4/...] (the "
               "causal planner) | delay:SECONDS:POLICY (a control: POLICY's decisions, late)",
               live=True,
@@ -51,7 +53,8 @@ PARAMETERS = (
               high=10_000, live=True),
     ParamSpec("alpha_mbit", table1.ALPHA_MBIT, "alpha, uplink Mbit one uploaded frame occupies",
               low=1e-6, high=1e6),
-    ParamSpec("d_req_s", table1.D_REQ_S, "D_req, seconds a slot's uploads may take", low=1e-3,
+    ParamSpec("d_req_s", default_device.D_REQ_S, "D_req, seconds a slot's uploads may take "
+              "(Table I: 0.5)", low=1e-3,
               high=1e3),
     ParamSpec("progress_uploads", True, "where Theorem 1's floor(d_k D_req / alpha) is 0 but "
               "the uplink carries alpha within the slot (d_k under alpha / D_req), ask for one "
@@ -65,7 +68,8 @@ PARAMETERS = (
               "descriptors; ~90 kB a keyframe of 1000 points) for relocalisation and restores, "
               "the least recently useful leaving first; 0: an evicted keyframe is forgotten",
               low=0, high=1_000_000),
-    ParamSpec("restore_keyframes", 0, "archived keyframes brought back into the map a slot "
+    ParamSpec("restore_keyframes", default_device.RESTORE_KEYFRAMES, "archived keyframes "
+              "brought back into the map a slot "
               "at most: those the camera is heading for (the device's poses continued at "
               "constant velocity), each in place of the keyframe that sees least of that view; "
               "0: none (the paper's edge)", low=0, high=1000),
@@ -79,7 +83,8 @@ PARAMETERS = (
               "this many seconds", low=0.1, high=3600.0),
     ParamSpec("image_width", 640, "camera image width in pixels", low=1, high=100_000),
     ParamSpec("image_height", 480, "camera image height in pixels", low=1, high=100_000),
-    ParamSpec("fallback_policy", "adapt", "decides when a twin-driven policy has no fresh "
+    ParamSpec("fallback_policy", default_device.POLICY, "decides when a twin-driven policy "
+              "has no fresh "
               f"{topics.RATE_LATENT}", live=True, check=fallback_refused),
     ParamSpec("latent_max_age", 2, "slots a twin latent stays fresh", low=0, high=1_000_000,
               live=True),

@@ -1,7 +1,7 @@
 """ROS 2 launch file (``ros2 launch twinslam twinslam_launch.py``) for hosts with ROS 2: the
 same nodes and parameter file as ``twinslam launch`` (which needs no ROS).
 
-    ros2 launch twinslam twinslam_launch.py sequence:=/data/7scenes policy:=adapt twin:=true
+    ros2 launch twinslam twinslam_launch.py sequence:=/data/7scenes policy:=lff twin:=true
 
 On separate machines, ``host:=device`` (camera player + device tracker), ``host:=edge`` or
 ``host:=twin`` starts that machine's share, with the same ``ROS_DOMAIN_ID`` everywhere:
@@ -42,17 +42,26 @@ def generate_launch_description() -> LaunchDescription:
 
     return LaunchDescription([
         SetEnvironmentVariable("FASTRTPS_DEFAULT_PROFILES_FILE", profile),
-        DeclareLaunchArgument("params_file", default_value=params),
+        DeclareLaunchArgument("params_file", default_value=params,
+                              description="ROS 2 parameter file of every node: the default "
+                              "device (config/twinslam.yaml) or the paper's Table I device "
+                              "(config/paper-table1.yaml, in the same share folder)"),
         DeclareLaunchArgument("namespace", default_value="",
                               description="namespace of this device/edge pair, e.g. /ar1"),
         DeclareLaunchArgument("map_frame", default_value="map",
                               description="the pair's map frame on /tf (e.g. ar1/map)"),
         DeclareLaunchArgument("camera_frame", default_value="camera",
                               description="the pair's camera frame on /tf (e.g. ar1/camera)"),
-        DeclareLaunchArgument("sequence", default_value="synthetic"),
-        DeclareLaunchArgument("policy", default_value="adapt"),
-        DeclareLaunchArgument("rate", default_value="1.0"),
-        DeclareLaunchArgument("twin", default_value="false"),
+        DeclareLaunchArgument("sequence", default_value="synthetic",
+                              description="SUN3D / 7-Scenes / TUM RGB-D folder, a bag of "
+                              "twinslam record, or synthetic[:frames]"),
+        DeclareLaunchArgument("policy", default_value="lff",
+                              description="the edge's map management: lff (the default "
+                              "device's) | pu | adapt (the paper's) | random | mbrl | mpc"),
+        DeclareLaunchArgument("rate", default_value="1.0",
+                              description="playback speed, x the recorded frame rate"),
+        DeclareLaunchArgument("twin", default_value="false",
+                              description="start udt_node, the user digital twin, too"),
         DeclareLaunchArgument(
             "wait_for_subscribers", default_value="1",
             description="the player holds its first frame until this many readers of the "

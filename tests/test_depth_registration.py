@@ -99,6 +99,24 @@ def test_a_folder_read_through_its_colour_camera_carries_its_intrinsics_and_regi
     assert open_sequence(folder, 0, -1, "").intrinsics[0, 0] == DEPTH_K[0, 0]
 
 
+def test_auto_sees_a_seven_scenes_scene_through_its_colour_camera_and_nothing_else(
+        tmp_path: Path) -> None:
+    """The player's default: a 7-Scenes scene (its file holds the dataset's depth camera, 585
+    px) through the colour camera the bundled file writes; a 7-Scenes-like folder with a
+    camera of its own and a synthetic world as they are."""
+    scene = _seven_scenes_folder(tmp_path / "scene")
+    np.savetxt(scene / "camera-intrinsics.txt", [[585, 0, 320], [0, 585, 240], [0, 0, 1]])
+    colour = np.loadtxt(Path(__file__).resolve().parents[1] / "config"
+                        / "7scenes-colour-intrinsics.txt")
+    seen = open_sequence(scene, 0, -1, "auto")
+    assert np.array_equal(seen.intrinsics, colour)
+    assert np.array_equal(next(iter(seen)).intrinsics, colour)
+    own = _seven_scenes_folder(tmp_path / "own-camera")
+    assert np.array_equal(open_sequence(own, 0, -1, "auto").intrinsics, DEPTH_K)
+    synthetic = open_sequence("synthetic:5", 0, -1, "auto")
+    assert np.array_equal(synthetic.intrinsics, open_sequence("synthetic:5").intrinsics)
+
+
 def test_colour_intrinsics_that_cannot_apply_are_clear_errors(tmp_path: Path) -> None:
     folder = _seven_scenes_folder(tmp_path / "seven")
     with pytest.raises(SequenceError, match="missing file"):

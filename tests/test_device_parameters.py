@@ -83,11 +83,11 @@ def test_relocalisation_at_the_edge_is_asked_for_by_a_parameter_on_each_side() -
 
 
 def test_a_lost_device_tracks_with_its_own_points_after_the_seconds_a_parameter_says() -> None:
-    """``own_map_after_s`` is seconds of frame stamps: at 30 Hz 0.1 s is the third lost frame;
-    off (0) by default, the paper's device."""
+    """``own_map_after_s`` is seconds of frame stamps: at 30 Hz the default 0.1 s is the third
+    lost frame, at 60 Hz the sixth; 0 is the paper's device, which waits for the edge's map."""
     from device_tracker.parameters import PARAMETERS, DeviceSettings
 
     values = {spec.name: spec.default for spec in PARAMETERS}
-    assert DeviceSettings.from_parameters(values).own_map_after == 0
-    assert DeviceSettings.from_parameters(
-        dict(values, own_map_after_s=0.1, frame_rate_hz=30.0)).own_map_after == 3
+    assert DeviceSettings.from_parameters(dict(values, frame_rate_hz=30.0)).own_map_after == 3
+    assert DeviceSettings.from_parameters(dict(values, frame_rate_hz=60.0)).own_map_after == 6
+    assert DeviceSettings.from_parameters(dict(values, own_map_after_s=0.0)).own_map_after == 0

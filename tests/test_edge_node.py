@@ -69,7 +69,8 @@ def test_edge_node_protocol_corrupt_keyframe_and_restart(
     node.create_subscription(MapStats, topics.MAP_STATS, got["stats"].append, qos.PROTOCOL)
     ckpt = tmp_path / "edge.npz"
     args = ["-m", "edge_mapper.node", "--ros-args", "-p", "policy:=lff", "-p", "vmax:=10",
-            "-p", f"checkpoint:={ckpt}", "-p", "ba_window:=6"]
+            "-p", f"checkpoint:={ckpt}", "-p", "ba_window:=6", "-p", "d_req_s:=0.5",
+            "-p", "restore_keyframes:=0"]
 
     def run_slot(slot: int, rate: float) -> None:
         n_req, n_map = len(got["request"]), len(got["map"])

@@ -69,18 +69,18 @@ def test_edge_parameters_are_listed_refused_with_reasons_and_changed_live(
     assert ros.spin_until(lambda: pub.get_subscription_count() > 0, 30.0)
     pub.publish(_summaries(0))
     assert ros.spin_until(lambda: len(requests) == 1, 30.0)
-    assert requests[0].policy == "adapt"
-    assert all(r.successful for r in _set(ros, policy="lff", vmax=12))   # from the next slot
+    assert requests[0].policy == "lff"                                   # the default
+    assert all(r.successful for r in _set(ros, policy="pu", vmax=12))    # from the next slot
     pub.publish(_summaries(1))
     assert ros.spin_until(lambda: len(requests) == 2, 30.0)
-    assert requests[1].policy == "lff"
+    assert requests[1].policy == "pu"
     # accepted when set (its checkpoint may follow), but not makeable at the next slot: the
     # edge says so once and goes on with the policy it has
     assert all(r.successful for r in _set(ros, policy="mbrl"))
     for slot in (2, 3):
         pub.publish(_summaries(slot))
     assert ros.spin_until(lambda: len(requests) == 4, 30.0), domain.log(edge)[-3000:]
-    assert [r.policy for r in requests[2:]] == ["lff", "lff"]
+    assert [r.policy for r in requests[2:]] == ["pu", "pu"]
     code, _, err = domain.stop(edge)
     assert code == 0, err[-2000:]
     assert "slot 1: parameters now" in err and "V_max 12" in err

@@ -18,8 +18,9 @@ def test_evaluate_runs_every_seed_and_summarises(tmp_path: Path,
     """Both device map sources, two runs at a time: the Edge-SLAM style device loses only the
     covered frames and recovers; every run is calibrated against the simulator's view."""
     out = tmp_path / "live"
-    # 181 frames forward then back: 361 played, 6 full slots; the lens covered for 3 s from
-    # played frame 252, uncovered at 342 (inside the last full slot)
+    # 181 frames forward then back: 361 played, 12 full slots of the default device's 30
+    # frames; the lens covered for 3 s from played frame 252, uncovered at 342 (inside the
+    # last full slot)
     code = main(["evaluate", "--sequence", "synthetic:181", "--frames", "181", "--policy", "lff",
                  "--scenario", "revisit-lost", "--map-source", "edge+local,edge", "--seeds",
                  "1", "--jobs", "2", "--out", str(out)])
@@ -30,7 +31,7 @@ def test_evaluate_runs_every_seed_and_summarises(tmp_path: Path,
     assert sorted((r["scenario"], r["map_source"], r["policy"], r["seed"]) for r in rows) == [
         ("revisit-lost", "edge", "lff", "0"), ("revisit-lost", "edge+local", "lff", "0")]
     for r in rows:
-        assert int(r["slots"]) == 6 and int(r["untracked_frames"]) >= 90, r
+        assert int(r["slots"]) == 12 and int(r["untracked_frames"]) >= 90, r
     local = next(r for r in rows if r["map_source"] == "edge+local")
     assert int(local["tracking_failures"]) == 1, "the covered lens lost no frame"
     assert 2.9 < float(local["recover_s"]) < 3.5, "tracking did not come back after the cover"

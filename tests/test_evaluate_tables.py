@@ -223,13 +223,13 @@ def test_the_side_by_side_table_flags_a_run_whose_device_dropped_camera_frames()
     assert "pu seed 0: 75" in lines[3]
 
 
-def test_the_side_by_side_table_names_each_runs_edge_and_its_restores() -> None:
-    """make run's rows of one policy with two edges: which edge each row ran (the parameter
-    file's is ``paper``) and how many keyframes it brought back."""
-    paper, restoring = _run("lff", 0, 3, 0.2), _run("lff", 0, 1, 0.1)
-    restoring.edge_variant, restoring.report.restores = "restores", 16.0
-    header, *rows = side_by_side([paper, restoring])
-    column = header.split().index("edge") - 1        # "map source" is two words, "edge" one
+def test_the_side_by_side_table_names_each_runs_device_and_its_restores() -> None:
+    """make run's rows of one policy with two devices: which device each row ran (``-`` where
+    the run names none) and how many keyframes its edge brought back."""
+    plain, default = _run("lff", 0, 3, 0.2), _run("lff", 0, 1, 0.1)
+    default.variant, default.report.restores = "default", 16.0
+    header, *rows = side_by_side([plain, default])
+    column = header.split().index("device") - 1      # "map source" is two words, "device" one
     restores = header.split().index("restor") - 1
-    assert [r.split()[column] for r in rows] == ["paper", "restores"]
+    assert [r.split()[column] for r in rows] == ["-", "default"]
     assert [r.split()[restores] for r in rows] == ["nan", "16"]

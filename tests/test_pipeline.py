@@ -32,10 +32,12 @@ from twinslam.node_hosts.loopback import LoopbackDomain
 from twinslam.sequences.opening import open_sequence
 from twinslam.slam.back_end.keyframe_map import shared_counts
 from twinslam.slam.front_end.tracking import TrackingConfig
+from twinslam.slot_protocol import default_device
 from twinslam.uncertainty.map_uncertainty import map_uncertainty
 
 SEQUENCE = seven_or_synthetic()
-FRAMES, VMAX, ALPHA, D_REQ = 180, 45, 5.0, 0.5
+#: the bundled parameter file's (the default device's) V_max, α and D_req
+FRAMES, VMAX, ALPHA, D_REQ = 180, 45, 5.0, default_device.D_REQ_S
 #: the policy runs: slots of 30 frames at half speed last 2 s, as 60-frame slots at full speed
 #: do (the uploads a slot asks for follow d_k and D_req, not the frame count), on half the
 #: frames to extract and track
@@ -56,11 +58,11 @@ def _run(policy: str, frames: int = FRAMES, checkpoint: Path | None = None,
          scenario: Scenario = SCENARIOS["forward"], sequence: str = SEQUENCE, rate: float = 1.0
          ) -> tuple[RunReport, RunLog, Launcher]:
     """One run of ``frames`` played at ``rate`` × their recorded speed; ``extra``: node
-    parameters beside the launch file's. The device is the Edge-SLAM style one unless
-    ``extra`` names its map source: what these tests check — the protocol, the edge's
-    restore, its planners — needs a device that tracks every frame of the walk, which the
-    paper's device (the product's default) does not promise; the tests of the paper's device
-    ask for it by name."""
+    parameters beside the launch file's. The device is the Edge-SLAM style one (the default
+    device's map source, written out) unless ``extra`` names its map source: what these tests
+    check — the protocol, the edge's restore, its planners — needs a device that tracks every
+    frame of the walk, which the paper's device does not promise; the tests of the paper's
+    device ask for it by name."""
     device = (extra or {}).get("device_tracker", [])
     if not any(a.startswith("map_source:=") for a in device):
         extra = {**(extra or {}), "device_tracker": [*device, "map_source:=edge+local"]}
@@ -314,7 +316,8 @@ def test_slots_shorter_than_their_uploads_never_leave_more_than_vmax() -> None:
     before plans counted the open slots' uploads in)."""
     vmax = 15
     report, record, _ = _run("adapt", frames=200, extra={"device_tracker": ["slot_frames:=10"],
-                                                         "edge_mapper": [f"vmax:={vmax}"]})
+                                                         "edge_mapper": [f"vmax:={vmax}",
+                                                                         "d_req_s:=0.5"]})
     assert report.slots >= 15 and len(record.stats) >= 15
     sizes = {slot: s.map_size for slot, s in record.stats.items()}
     assert max(sizes.values()) <= vmax, sizes

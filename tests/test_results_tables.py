@@ -186,6 +186,7 @@ def test_the_live_planner_tables_are_what_evaluate_prints_from_their_runs(
         (tmp_path / name).write_bytes((FIGURES / folder / name).read_bytes())
     code = main(["evaluate", "--policy", "lff,mpc:H=2,delay:0.3:lff", "--scenario",
                  "forward,revisit-v15", "--seeds", "10", "--start", "300", "--frames", "300",
+                 "--map-source", "edge", "--params", "config/paper-table1.yaml",
                  "--out", str(tmp_path), "--resume"])
     printed = capsys.readouterr().out
     assert code == 0 and "resuming: 60 of 60 runs" in printed, printed[-2000:]

@@ -31,7 +31,7 @@ from twinslam.live.run_log import RunLog
 from twinslam.node_hosts.loopback import ProcessDomain
 from twinslam.node_hosts.session import RosSession
 from twinslam.sequences.opening import is_synthetic, synthetic_walk
-from twinslam.slot_protocol import table1
+from twinslam.slot_protocol import default_device, table1
 
 
 @dataclass(frozen=True)
@@ -174,7 +174,7 @@ class FleetLauncher(Launcher):
                 (expected is None or expected - 1 in m.record.stats) for m in monitors.values()),
                 min(60.0, max(10.0, deadline - time.monotonic())))
             spin_all(lambda: False, 0.5)
-            slot_frames = int(self._device_param("slot_frames", table1.SLOT_FRAMES))
+            slot_frames = int(self._device_param("slot_frames", default_device.SLOT_FRAMES))
             elapsed = time.monotonic() - started
             reports = [report(c.policy, monitors[d].record, elapsed, slot_frames) for d in names]
             frames = [sum(len(s.frames) for s in monitors[d].record.summaries.values())
@@ -188,7 +188,7 @@ class FleetLauncher(Launcher):
 
     def slot_period_s(self) -> float:
         """Seconds of camera stamps a device's slot spans (F / frame rate)."""
-        return (self._device_param("slot_frames", table1.SLOT_FRAMES)
+        return (self._device_param("slot_frames", default_device.SLOT_FRAMES)
                 / self._device_param("frame_rate_hz", table1.FRAME_RATE_HZ))
 
     def _status(self, device: str) -> Callable[[MapStats, RunLog], None]:

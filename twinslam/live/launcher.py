@@ -29,7 +29,7 @@ from twinslam.node_hosts.fastdds import REPO_ROOT
 from twinslam.node_hosts.forked import ForkServers, NodeProcess
 from twinslam.node_hosts.loopback import ProcessDomain
 from twinslam.node_hosts.session import RosSession
-from twinslam.slot_protocol import table1
+from twinslam.slot_protocol import default_device, table1
 
 REPO = REPO_ROOT
 #: seconds a run's end waits at most for the device's pose of the last frame played
@@ -42,7 +42,10 @@ NODE_MODULES = {"sequence_player": "twinslam.sequence_player.node",
 #: device's
 NODE_HOSTS = {"sequence_player": "device", "device_tracker": "device", "edge_mapper": "edge",
               "udt_node": "twin"}
+#: the default device's parameter file (twinslam/slot_protocol/default_device.py)
 DEFAULT_PARAMS = REPO / "config" / "twinslam.yaml"
+#: the paper's Table I device: the file every committed figure of the paper's device takes
+PAPER_PARAMS = REPO / "config" / "paper-table1.yaml"
 
 
 @dataclass
@@ -185,7 +188,7 @@ class Launcher:
                                LAST_POSE_WAIT_S)
             session.spin_until(lambda: False, 0.5)       # late map updates
             return report(c.policy, monitor.record, time.monotonic() - started,
-                          int(self._device_param("slot_frames", table1.SLOT_FRAMES)))
+                          int(self._device_param("slot_frames", default_device.SLOT_FRAMES)))
         finally:
             self.stop()
             if recorder is not None:
@@ -197,7 +200,7 @@ class Launcher:
         if self.config.frames <= 0:
             return None
         played = self.config.scenario.played_frames(self.config.frames)
-        return played // int(self._device_param("slot_frames", table1.SLOT_FRAMES))
+        return played // int(self._device_param("slot_frames", default_device.SLOT_FRAMES))
 
     def _device_param(self, name: str, default: float) -> float:
         """A device parameter as the node will read it: ``extra`` over the parameter file

@@ -101,9 +101,9 @@ class RunTask:
     start: int = 0           #: the sequence's first frame played
     picture: Path | None = None   #: where the run's PNG goes (run_picture); None: none
     #: edge parameters over the parameter file's (``name:=value``), and what the tables call
-    #: that edge ("": the parameter file's own)
+    #: this run's device and edge ("": none, one device in the table)
     edge_params: tuple[str, ...] = ()
-    edge_variant: str = ""
+    variant: str = ""
 
 
 @dataclass
@@ -112,7 +112,7 @@ class RunResult:
     report: RunReport
     frames: LiveFrames | None     #: None without a covisibility dataset
     calibration: Calibration | None
-    edge_variant: str = ""        #: the task's
+    variant: str = ""        #: the task's
 
 
 def sequence_for(sequence: str, seed: int) -> str:
@@ -145,14 +145,14 @@ def run_one(task: RunTask) -> RunResult:
                  f"seed {key.seed}: {report.tracking_failures} failures, ATE "
                  f"{report.ate_m:.3f} m", task.picture)
     if task.covis is None or launcher.record is None:
-        return RunResult(key, report, None, None, task.edge_variant)
+        return RunResult(key, report, None, None, task.variant)
     dataset = load_covisibility(task.covis)
     played = played_frames(task.sequence, task.frames, task.scenario, dataset,
                            start=task.start)
     frames = live_frames(launcher.record, dataset, played)
     return RunResult(key, report, frames,
                      calibrate((f.calibration for f in frames.frames), MIN_SHARED_POINTS),
-                     task.edge_variant)
+                     task.variant)
 
 
 RUNS_HEADER = [f.name for f in fields(RunKey)] + [f.name for f in fields(RunReport)]

@@ -55,9 +55,9 @@ RULE_POLICIES = ("lff", "pu", "adapt", "random")
 def side_by_side(results: list[RunResult]) -> list[str]:
     """One line per run: what the device lived through beside what the simulator's rule
     predicted for the same frames, and the camera frames it dropped (the table ``make run``
-    prints; a run that dropped any is marked ``!`` and explained below the table). The edge
-    column names a run's edge variant (``paper``: the parameter file's)."""
-    lines = [f"{'policy':<14} {'map source':<10} {'edge':<9} {'fails':>5} {'reloc':>5} "
+    prints; a run that dropped any is marked ``!`` and explained below the table). The device
+    column names a run's variant (its parameter file and edge; ``-``: none given)."""
+    lines = [f"{'policy':<14} {'map source':<10} {'device':<9} {'fails':>5} {'reloc':>5} "
              f"{'restor':>6} {'untrk':>5} {'ATE m':>6} {'RPE m':>6} {'jumps':>5} "
              f"{'max e m':>7} {'jit mm':>6} {'gt jit':>6} {'predicted lost':>14} "
              f"{'device failed':>13} "
@@ -66,7 +66,7 @@ def side_by_side(results: list[RunResult]) -> list[str]:
         rep, cal = r.report, r.calibration
         predicted = f"{cal.predicted_lost_share:.1%}" if cal else "–"
         failed = f"{cal.device_failure_share:.1%}" if cal else "–"
-        lines.append(f"{rep.label:<14} {r.key.map_source:<10} {r.edge_variant or 'paper':<9} "
+        lines.append(f"{rep.label:<14} {r.key.map_source:<10} {r.variant or '-':<9} "
                      f"{rep.tracking_failures:>5d} {rep.relocalisations:>5d} "
                      f"{rep.restores:>6.0f} "
                      f"{rep.untracked_frames:>5d} {rep.ate_m:>6.3f} "

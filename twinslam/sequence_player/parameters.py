@@ -5,6 +5,7 @@ from __future__ import annotations
 from twinslam.node_hosts.parameters import ParamSpec
 from twinslam.sequence_player.messages import DEPTH_ENCODINGS
 from twinslam.sequence_player.playback import ORDERS, parse_bursts
+from twinslam.sequences.opening import AUTO
 
 
 def _bursts_error(value: object) -> str | None:
@@ -22,9 +23,10 @@ PARAMETERS = (
     ParamSpec("loop", False, "start over at the end"),
     ParamSpec("start", 0, "first frame played", low=0),
     ParamSpec("end", -1, "first frame not played; -1: to the end", low=-1),
-    ParamSpec("colour_intrinsics", "", "a 3×3 intrinsics file of the colour camera where the "
-              "folder's is its depth camera's (7-Scenes: config/7scenes-colour-intrinsics.txt): "
-              "each depth image is registered to it; empty: the folder's"),
+    ParamSpec("colour_intrinsics", AUTO, "the camera a dataset folder is seen through: auto "
+              "(a 7-Scenes folder, whose intrinsics file is its depth camera's, through its "
+              "colour camera, 525 px, each depth image registered to it; any other source as "
+              "it is), a 3×3 intrinsics file of the colour camera, or empty: the folder's own"),
     ParamSpec("depth_encoding", "16UC1", "16UC1 (millimetres) or 32FC1 (metres)",
               check=lambda v: None if v in DEPTH_ENCODINGS
               else f"must be one of {', '.join(DEPTH_ENCODINGS)}"),

@@ -178,6 +178,17 @@ def read_matrix(path: Path, rows: int, cols: int) -> np.ndarray:
 _SEVEN = re.compile(r"frame-(\d+)\.color\.(jpg|png)$")
 
 
+#: Microsoft 7-Scenes' colour camera (Kinect v1, 640×480): the dataset calibrates only its depth
+#: camera (each scene's camera-intrinsics.txt, focal 585 px); its colour camera's focal is about
+#: 525 px, the figure relocalisation work on 7-Scenes uses, the principal point at the centre
+#: (config/7scenes-colour-intrinsics.txt holds the same matrix for the player's parameter)
+SEVEN_SCENES_COLOUR_INTRINSICS = np.array([[525.0, 0.0, 320.0], [0.0, 525.0, 240.0],
+                                           [0.0, 0.0, 1.0]])
+#: what every 7-Scenes scene's camera-intrinsics.txt holds: its depth camera's
+SEVEN_SCENES_DEPTH_INTRINSICS = np.array([[585.0, 0.0, 320.0], [0.0, 585.0, 240.0],
+                                          [0.0, 0.0, 1.0]])
+
+
 def read_seven_scenes(root: Path) -> FolderSequence:
     intrinsics = read_matrix(root / "camera-intrinsics.txt", 3, 3)
     entries = []

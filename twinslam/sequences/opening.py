@@ -8,6 +8,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from twinslam.sequences.folders import (
+    SEVEN_SCENES_COLOUR_INTRINSICS,
+    SEVEN_SCENES_DEPTH_INTRINSICS,
     FolderSequence,
     read_matrix,
     read_seven_scenes,
@@ -21,6 +23,11 @@ if TYPE_CHECKING:
 
 #: frames of ``synthetic`` when the spec names no count
 SYNTHETIC_DEFAULT_FRAMES = 900
+#: ``colour_intrinsics`` that sees each dataset through its colour camera: a 7-Scenes folder
+#: whose intrinsics file is the dataset's depth camera's (585 px) through
+#: :data:`~twinslam.sequences.folders.SEVEN_SCENES_COLOUR_INTRINSICS`, anything else — another
+#: dataset, a 7-Scenes-like folder with a camera of its own — as it is
+AUTO = "auto"
 
 
 def open_sequence(path: str | Path, start: int = 0, end: int = -1,
@@ -33,7 +40,14 @@ def open_sequence(path: str | Path, start: int = 0, end: int = -1,
     the walk). ``colour_intrinsics``: a dataset folder whose intrinsics file is its depth
     camera's (7-Scenes) is seen by a colour camera with these (a 3×3 matrix or the file of
     one), its depth registered to it, the colour camera at ``depth_to_colour`` (4×4) from the
-    depth camera (None: the same place); None or "": the folder's own intrinsics."""
+    depth camera (None: the same place); None or "": the folder's own intrinsics; ``"auto"``
+    (:data:`AUTO`): a 7-Scenes scene's colour camera, any other source as it is."""
+    if isinstance(colour_intrinsics, str) and colour_intrinsics == AUTO:
+        sequence = _open(path, start, end)
+        if (isinstance(sequence, FolderSequence) and sequence.kind == "7scenes"
+                and np.allclose(sequence.intrinsics, SEVEN_SCENES_DEPTH_INTRINSICS)):
+            return sequence.with_colour_camera(SEVEN_SCENES_COLOUR_INTRINSICS, depth_to_colour)
+        return sequence
     if isinstance(colour_intrinsics, (str, Path)):
         colour_intrinsics = (read_matrix(Path(colour_intrinsics), 3, 3)
                              if str(colour_intrinsics) else None)

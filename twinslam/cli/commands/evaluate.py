@@ -193,7 +193,9 @@ def add_arguments(parser: argparse.ArgumentParser, default_sequence: str,
     add_executor_arguments(parser, "run (each on a loopback domain of its own, about one "
                            "core)")
     parser.add_argument("--params", type=Path, default=default_params,
-                        help="ROS 2 parameter file for the nodes; default %(default)s")
+                        help="ROS 2 parameter file for the nodes; default %(default)s (the "
+                        "default device's edge and slots); config/paper-table1.yaml with "
+                        "--map-source edge: the paper's Table I device")
     parser.add_argument("--out", type=Path, default=Path("results/live"),
                         help="folder for runs.csv, summary.csv/.md/.png, runs/*.png (a picture of "
                         "every run), calibration.csv, "

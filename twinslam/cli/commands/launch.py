@@ -27,6 +27,7 @@ from twinslam.reporting import file_name
 from twinslam.sequences.frame import SequenceError
 from twinslam.sequences.opening import open_sequence
 from twinslam.slam.front_end.map_source import DEFAULT_MAP_SOURCE, check_map_source
+from twinslam.slot_protocol import default_device
 from twinslam.uplink.families import FAMILIES
 
 R = TypeVar("R")
@@ -149,16 +150,18 @@ def register(sub: Subparsers) -> None:
     launch.add_argument("--sequence", default="synthetic",
                         help="SUN3D / 7-Scenes / TUM folder, MCAP bag, synthetic[:frames] "
                         "(the room) or synthetic-corridor[:frames] (where the map matters)")
-    launch.add_argument("--policy", default="adapt",
+    launch.add_argument("--policy", default=default_device.POLICY,
                         help="the edge's policy, one run each, comma-separated: lff, pu, adapt, "
-                        "random, mbrl:CHECKPOINT")
+                        "random, mbrl:CHECKPOINT; default %(default)s (the default device's)")
     launch.add_argument("--frames", type=int, default=600, help="frames to play; -1: all")
     launch.add_argument("--start", type=int, default=0,
                         help="the sequence's first frame played; default %(default)s")
     launch.add_argument("--rate", type=float, default=1.0,
                         help="playback speed, × the recorded frame rate")
     launch.add_argument("--params", type=Path, default=DEFAULT_PARAMS,
-                        help="ROS 2 parameter file for the nodes")
+                        help="ROS 2 parameter file for the nodes; default the bundled "
+                        "config/twinslam.yaml (the default device); config/paper-table1.yaml: "
+                        "the paper's Table I device")
     launch.add_argument("--twin", action="store_true",
                         help="start udt_node too (a learned policy's run always does, with "
                         "its checkpoint's twin)")
