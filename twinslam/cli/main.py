@@ -11,6 +11,7 @@
     twinslam evaluate --policy lff,pu,adapt --seeds 3     # live: policy x scenario x seed
     twinslam experiment fig7 --policy UDT=results/amm_udt.pt   # paper figures
     twinslam demo                         # what `make run` runs
+    twinslam parameters --write           # docs/parameters.md from the nodes' declarations
     twinslam precompile                   # the numba kernels, once after an install
 
 `twinslam COMMAND --help` documents every option of a command.
@@ -35,6 +36,7 @@ from twinslam.cli.commands import (
     hosts,
     launch,
     nodes,
+    parameters,
     precompile,
     record,
     sim,
@@ -46,7 +48,7 @@ from twinslam.node_hosts.interrupts import interrupt
 
 #: the commands in the order ``twinslam --help`` lists them
 COMMANDS = (sim, train, extract, record, nodes, hosts, launch, evaluate, calibrate, demo, trace,
-            experiment, precompile)
+            experiment, parameters, precompile)
 
 
 def build_parser() -> argparse.ArgumentParser:
