@@ -1,6 +1,6 @@
 """tf2 transforms of 4×4 poses: what makes the suite's frames one TF tree in a viewer.
 
-The tree (README, "What a viewer shows"): ``world`` → ``map`` (static, from the player: the
+The tree (docs/running.md, "What a viewer shows"): ``world`` → ``map`` (static, from the player: the
 device's map frame is its first frame's camera frame, which the ground truth places in the
 world) → the camera's frame (the device, per tracked frame). A child has one parent, so the
 ground truth stays a path and a pose in ``world`` rather than a second parent of the camera.

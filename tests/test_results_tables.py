@@ -232,7 +232,7 @@ def test_each_device_variant_table_is_what_its_command_prints(
 
 
 #: device_variants.py's LABEL=FOLDER arguments with folders from the repository's root, as
-#: docs/results/paper-device.md's "The whole walk on every scenario" writes them
+#: docs/results/update-loop.md's "The whole walk on every scenario" writes them
 WHOLE_WALK_TABLES = [
     ["table-i=docs/figures/own-map/revisit-1000-table1",
      "table-i+restores=docs/figures/whole-walk/revisit-1000-table1-restores",

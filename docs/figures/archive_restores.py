@@ -1,4 +1,4 @@
-"""The tables of docs/results/paper-device.md, "The edge's archive and restores", from the
+"""The tables of docs/results/restores.md, "The edge's archive and restores", from the
 runs.csv of two
 ``twinslam evaluate`` folders that differ only in the edge's ``restore_keyframes`` (the same
 scenario, map source, policies and seeds):

@@ -1,4 +1,4 @@
-"""The tables of docs/results/paper-device.md, "A device that tracks with its own points when
+"""The tables of docs/results/update-loop.md, "A device that tracks with its own points when
 lost": devices
 and edges of several ``twinslam evaluate`` folders side by side, each against the first over
 the same seeds:

@@ -60,7 +60,7 @@ def _init_hint() -> str:
     if os.environ.get("ROS_SECURITY_ENABLE", "").lower() == "true":
         return ("; ROS 2 security (SROS2) is asked for: ROS_SECURITY_KEYSTORE must hold this "
                 "node's enclave, and the middleware must have DDS Security — the Fast DDS of "
-                "the ROS 2 wheels on PyPI is built without it (README, Security)")
+                "the ROS 2 wheels on PyPI is built without it (docs/running.md, \"Security\")")
     return "; check ROS_DOMAIN_ID (0..232) and the --ros-args given"
 
 

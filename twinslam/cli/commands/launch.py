@@ -195,8 +195,9 @@ def register(sub: Subparsers) -> None:
     launch.add_argument("--record-images", choices=IMAGE_MODES, default="raw",
                         help="with --record: the camera's images as they were published (raw) "
                         "or as sensor_msgs/CompressedImage on image_transport's .../compressed "
-                        "topics (colour JPEG, 16-bit depth lossless PNG: README, 'Recording', "
-                        "has the MB a minute both ways); default %(default)s")
+                        "topics (colour JPEG, 16-bit depth lossless PNG: docs/running.md, "
+                        "'Pictures, slot logs and recordings', has the MB a minute both ways); "
+                        "default %(default)s")
     launch.add_argument("--record-chunks", choices=CHUNK_MODES, default="zstd",
                         help="with --record: the MCAP chunks zstd-compressed (lossless; every "
                         "MCAP reader decodes them) or stored as they are; default %(default)s")
