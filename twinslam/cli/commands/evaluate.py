@@ -16,6 +16,7 @@ from twinslam.cli.console import Subparsers, error
 from twinslam.live import runs, tables
 from twinslam.live.calibration import covisibility_file
 from twinslam.live.launcher import DEFAULT_PARAMS
+from twinslam.live.run_checks import params_file_problem, policy_problem
 from twinslam.live.scenarios import SCENARIOS, Scenario, scenario
 from twinslam.sequence_player.playback import Playback, PlayedSequence
 from twinslam.sequences.frame import SequenceError
@@ -35,11 +36,12 @@ def _checked(args: argparse.Namespace) -> tuple[list[tuple[str, str]], list[Scen
         if reason:
             raise ValueError(f"--map-source: {reason}")
     for _, policy in policies:
-        kind, _, path = policy.partition(":")
-        if kind == "mbrl" and not Path(path).is_file():
-            raise ValueError(f"{path}: no such policy checkpoint (`twinslam train`)")
-    if not args.params.is_file():
-        raise ValueError(f"parameter file {args.params} does not exist")
+        problem = policy_problem(policy)
+        if problem:
+            raise ValueError(f"--policy: {problem}")
+    problem = params_file_problem(args.params)
+    if problem:
+        raise ValueError(f"--params: {problem}")
     jobs = 1 if args.jobs is None else args.jobs
     for name, value, least in (("--seeds", args.seeds, 1), ("--jobs", jobs, 1),
                                ("--first-seed", args.first_seed, 0),

@@ -17,6 +17,7 @@ from twinslam.live.run_bag import (
     RecordingOptions,
     check_destination,
 )
+from twinslam.live.run_checks import params_file_problem, policy_problem
 from twinslam.live.run_picture import plot_run
 from twinslam.live.scenarios import SCENARIOS, Scenario, scenario
 from twinslam.live.slot_table import write_slot_table
@@ -39,10 +40,19 @@ def _real_frame_uplink(sequence: str) -> dict[str, list[str]]:
     return tc_uplink_params(first.color.nbytes * 8 / 1e6)
 
 
-def _checked_setup(args: argparse.Namespace) -> tuple[Scenario, dict[str, list[str]]]:
-    """The scenario and the node parameters every run adds; ValueError names a bad option."""
-    if not args.params.is_file():
-        raise ValueError(f"parameter file {args.params} does not exist")
+def _checked_setup(args: argparse.Namespace, policies: list[str]
+                   ) -> tuple[Scenario, dict[str, list[str]]]:
+    """The scenario and the node parameters every run adds; ValueError names a bad option
+    before any node starts."""
+    problem = params_file_problem(args.params)
+    if problem:
+        raise ValueError(f"--params: {problem}")
+    if not policies:
+        raise ValueError("--policy: name at least one policy")
+    for policy in policies:
+        problem = policy_problem(policy)
+        if problem:
+            raise ValueError(f"--policy: {problem}")
     if args.tc and not args.hosts:
         raise ValueError("--tc shapes the device host's uplink: use it with --hosts")
     if args.hosts:
@@ -129,7 +139,7 @@ def _run_policy(args: argparse.Namespace, policy: str, chosen: Scenario,
 def run(args: argparse.Namespace) -> int:
     policies = [p.strip() for p in args.policy.split(",") if p.strip()]
     try:
-        chosen, extra = _checked_setup(args)
+        chosen, extra = _checked_setup(args, policies)
         if args.devices:
             return run_fleets(args, policies, chosen, extra)
         records = _recordings(args, policies)
