@@ -16,6 +16,17 @@ TF2_DIR := msg_schemas/standard/tf2_msgs
 TF2_SOURCES := $(sort $(wildcard $(TF2_DIR)/msg/*.msg)) $(TF2_DIR)/CMakeLists.txt \
 	$(TF2_DIR)/package.xml msg_schemas/cmake/drop_missing_include_dirs.cmake
 TF2_STAMP := $(VENV)/.tf2_msgs-$(shell cat $(TF2_SOURCES) | md5sum | cut -c1-12)
+# composition_interfaces (msg_schemas/standard: launch_ros imports it, no wheel carries it)
+COMPOSITION_DIR := msg_schemas/standard/composition_interfaces
+COMPOSITION_SOURCES := $(sort $(wildcard $(COMPOSITION_DIR)/srv/*.srv)) \
+	$(COMPOSITION_DIR)/CMakeLists.txt $(COMPOSITION_DIR)/package.xml \
+	msg_schemas/cmake/drop_missing_include_dirs.cmake
+COMPOSITION_STAMP := $(VENV)/.composition_interfaces-$(shell cat $(COMPOSITION_SOURCES) \
+	| md5sum | cut -c1-12)
+# the twinslam package in the venv's ament index (ros2 launch / ros2 run find it there): the
+# editable install leaves setup.py's data_files out, so its share folder links to the checkout
+AMENT_STAMP := $(VENV)/.ament-twinslam-$(shell (cat setup.py Makefile; ls launch config) \
+	| md5sum | cut -c1-12)
 # the modules with numba kernels (compiled once at set-up, recompiled when one changes)
 KERNEL_SOURCES := $(sort $(shell grep -l -r --include=*.py "@njit" device_tracker edge_mapper \
 	udt_node twinslam))
@@ -30,7 +41,8 @@ KERNELS_STAMP := $(VENV)/.kernels-$(shell cat $(KERNEL_SOURCES) | md5sum | cut -
 venv:
 	@$(MAKE) --no-print-directory -j2 --output-sync=target venv-parts
 
-venv-parts: $(STAMP) $(MSGS_STAMP) $(TF2_STAMP) $(BYTECODE_STAMP) $(KERNELS_STAMP)
+venv-parts: $(STAMP) $(MSGS_STAMP) $(TF2_STAMP) $(COMPOSITION_STAMP) $(AMENT_STAMP) \
+	$(BYTECODE_STAMP) $(KERNELS_STAMP)
 
 $(STAMP): requirements.txt setup.py
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -53,7 +65,7 @@ $(BYTECODE_STAMP): $(STAMP)
 # wheels made an ament prefix: the generated Python package lands in site-packages, its
 # libraries in .venv/lib (on the loader path the wheels' bootstrapper sets). Fresh build
 # directory each time: a removed .msg must not leave its generated code behind.
-# $(call rosidl_build,PACKAGE,SOURCE_DIR,A MESSAGE TO IMPORT)
+# $(call rosidl_build,PACKAGE,SOURCE_DIR,A MESSAGE TO IMPORT[,MODULE: msg or srv])
 define rosidl_build
 	@echo "building the $(1) interface package with colcon (rosidl, ~30 s)"
 	@rm -rf build/colcon/$(1) && mkdir -p build/colcon
@@ -63,17 +75,35 @@ define rosidl_build
 	  --cmake-args -DPython3_EXECUTABLE=$(PY) -DBUILD_TESTING=OFF > build/colcon/$(1).log 2>&1 \
 	  || { grep -iE -B2 -A8 "error" build/colcon/log-$(1)/latest_build/$(1)/stdout_stderr.log \
 	       | tail -60; tail -20 build/colcon/$(1).log; exit 1; }
-	$(PY) -c "from $(1).msg import $(3)"
+	$(PY) -c "from $(1).$(or $(4),msg) import $(3)"
 	@rm -f $(VENV)/.$(1)-* && touch $@
 endef
 
-msgs: $(MSGS_STAMP) $(TF2_STAMP)
+msgs: $(MSGS_STAMP) $(TF2_STAMP) $(COMPOSITION_STAMP)
 
 $(MSGS_STAMP): $(STAMP) $(MSG_SOURCES)
 	$(call rosidl_build,twinslam_msgs,msg_schemas,MapStats)
 
 $(TF2_STAMP): $(STAMP) $(TF2_SOURCES)
 	$(call rosidl_build,tf2_msgs,$(TF2_DIR),TFMessage)
+
+$(COMPOSITION_STAMP): $(STAMP) $(COMPOSITION_SOURCES)
+	$(call rosidl_build,composition_interfaces,$(COMPOSITION_DIR),LoadNode,srv)
+
+# share/twinslam (package.xml and each file of launch/ and config/ linked to the checkout: ros2
+# launch searches the share folder without following a linked folder), the package's marker in
+# the ament index, and lib/twinslam/NODE for ros2 run (links to the venv's console scripts)
+$(AMENT_STAMP): $(STAMP) setup.py
+	@rm -rf $(VENV)/share/twinslam $(VENV)/lib/twinslam
+	@mkdir -p $(VENV)/share/ament_index/resource_index/packages $(VENV)/share/twinslam/launch \
+	  $(VENV)/share/twinslam/config $(VENV)/lib/twinslam
+	@touch $(VENV)/share/ament_index/resource_index/packages/twinslam
+	@ln -sfn $(CURDIR)/package.xml $(VENV)/share/twinslam/package.xml
+	@for f in launch/*_launch.py config/*.yaml config/*.xml config/*.json; do \
+	  ln -sfn $(CURDIR)/$$f $(VENV)/share/twinslam/$$f; done
+	@for node in sequence_player device_tracker edge_mapper udt_node; do \
+	  ln -sfn ../../bin/$$node $(VENV)/lib/twinslam/$$node; done
+	@rm -f $(VENV)/.ament-twinslam-* && touch $@
 
 # numba compiles on first use: done here, not in the first node start (twinslam/cli/precompile.py)
 kernels: $(KERNELS_STAMP)

@@ -1,7 +1,9 @@
 """ROS 2 launch file (``ros2 launch twinslam twinslam_launch.py``) for hosts with ROS 2: the
 same nodes and parameter file as ``twinslam launch`` (which needs no ROS).
 
-    ros2 launch twinslam twinslam_launch.py sequence:=/data/7scenes policy:=lff twin:=true
+    ros2 launch twinslam twinslam_launch.py sequence:=/data/7scenes twin:=true
+    ros2 launch twinslam twinslam_launch.py \\
+        params_file:=$(ros2 pkg prefix twinslam)/share/twinslam/config/paper-table1.yaml
 
 On separate machines, ``host:=device`` (camera player + device tracker), ``host:=edge`` or
 ``host:=twin`` starts that machine's share, with the same ``ROS_DOMAIN_ID`` everywhere:
@@ -36,9 +38,16 @@ def generate_launch_description() -> LaunchDescription:
                              os.path.join(share, "config", "fastdds.xml"))
     arg = LaunchConfiguration
 
-    def on(*hosts: str) -> IfCondition:
-        """Start the node when this machine is one of ``hosts`` (or runs them all)."""
-        return IfCondition(PythonExpression(["'", arg("host"), f"' in {('all', *hosts)!r}"]))
+    def on(*hosts: str, given: str = "", empty: str = "") -> IfCondition:
+        """Start the node when this machine is one of ``hosts`` (or runs them all) — and, for
+        the two variants of a node, when the launch argument ``given`` was given a value or
+        ``empty`` was left empty (the parameter file's value then stands)."""
+        test = ["'", arg("host"), f"' in {('all', *hosts)!r}"]
+        if given:
+            test += [" and '", arg(given), "' != ''"]
+        if empty:
+            test += [" and '", arg(empty), "' == ''"]
+        return IfCondition(PythonExpression(test))
 
     return LaunchDescription([
         SetEnvironmentVariable("FASTRTPS_DEFAULT_PROFILES_FILE", profile),
@@ -55,9 +64,20 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("sequence", default_value="synthetic",
                               description="SUN3D / 7-Scenes / TUM RGB-D folder, a bag of "
                               "twinslam record, or synthetic[:frames]"),
-        DeclareLaunchArgument("policy", default_value="lff",
-                              description="the edge's map management: lff (the default "
-                              "device's) | pu | adapt (the paper's) | random | mbrl | mpc"),
+        DeclareLaunchArgument("policy", default_value="",
+                              description="the edge's map management: lff | pu | adapt | "
+                              "random | mbrl | mpc; empty: the parameter file's (lff in "
+                              "twinslam.yaml, adapt in paper-table1.yaml)"),
+        DeclareLaunchArgument("map_source", default_value="",
+                              description="where the device's poses come from: edge+local "
+                              "(the edge's map and its own recent points) | edge (only the "
+                              "edge's map, the paper's device); empty: the parameter file's"),
+        DeclareLaunchArgument("start", default_value="0",
+                              description="the sequence's first frame played"),
+        DeclareLaunchArgument("end", default_value="-1",
+                              description="the first frame not played; -1: to the end"),
+        DeclareLaunchArgument("loop", default_value="false",
+                              description="play the sequence again from start at its end"),
         DeclareLaunchArgument("rate", default_value="1.0",
                               description="playback speed, x the recorded frame rate"),
         DeclareLaunchArgument("twin", default_value="false",
@@ -69,16 +89,28 @@ def generate_launch_description() -> LaunchDescription:
             "take 30 s to start on a busy machine still see every frame; 0: play at once"),
         DeclareLaunchArgument("host", default_value="all",
                               description="all | device | edge | twin: this machine's nodes"),
+        # each of edge and device in two variants: with the launch argument that overrides the
+        # parameter file where it was given, without it where it was left empty
         Node(package="twinslam", executable="edge_mapper", name="edge_mapper",
              namespace=arg("namespace"),
              parameters=[arg("params_file"), {"policy": arg("policy"),
                                                "map_frame": arg("map_frame")}],
-             output="screen", condition=on("edge")),
+             output="screen", condition=on("edge", given="policy")),
+        Node(package="twinslam", executable="edge_mapper", name="edge_mapper",
+             namespace=arg("namespace"),
+             parameters=[arg("params_file"), {"map_frame": arg("map_frame")}],
+             output="screen", condition=on("edge", empty="policy")),
+        Node(package="twinslam", executable="device_tracker", name="device_tracker",
+             namespace=arg("namespace"),
+             parameters=[arg("params_file"), {"map_frame": arg("map_frame"),
+                                               "camera_frame": arg("camera_frame"),
+                                               "map_source": arg("map_source")}],
+             output="screen", condition=on("device", given="map_source")),
         Node(package="twinslam", executable="device_tracker", name="device_tracker",
              namespace=arg("namespace"),
              parameters=[arg("params_file"), {"map_frame": arg("map_frame"),
                                                "camera_frame": arg("camera_frame")}],
-             output="screen", condition=on("device")),
+             output="screen", condition=on("device", empty="map_source")),
         Node(package="twinslam", executable="udt_node", name="udt_node", namespace=arg("namespace"),
              parameters=[arg("params_file")], output="screen",
              condition=IfCondition(PythonExpression([
@@ -88,6 +120,9 @@ def generate_launch_description() -> LaunchDescription:
              namespace=arg("namespace"),
              parameters=[arg("params_file"), {"sequence": arg("sequence"),
                                                "rate": arg("rate"),
+                                               "start": arg("start"),
+                                               "end": arg("end"),
+                                               "loop": arg("loop"),
                                                "map_frame": arg("map_frame"),
                                                "frame_id": arg("camera_frame"),
                                                "wait_for_subscribers":

@@ -23,7 +23,7 @@ from twinslam.node_hosts.session import RosSession
 REPO = Path(__file__).resolve().parents[1]
 LAUNCH_FILE = REPO / "launch" / "twinslam_launch.py"
 PARAMS_FILE = REPO / "config" / "twinslam.yaml"     #: the launch file's params_file default
-FRAMES = 120                                       #: two slots of the parameter file's 60
+FRAMES = 120                                       #: four slots of the parameter file's 30
 LATE_S = 5.0                                       #: the player alone this long first
 
 
@@ -46,8 +46,11 @@ def launch_parameters(executable: str, **arguments: str) -> list[str]:
         if isinstance(call.args[0], ast.Constant) and isinstance(default, ast.Constant):
             defaults[call.args[0].value] = str(default.value)
     defaults.update(arguments)
-    (node,) = [c for c in _calls("Node") if isinstance(exe := _keyword(c, "executable"),
-                                                         ast.Constant) and exe.value == executable]
+    variants = [c for c in _calls("Node") if isinstance(exe := _keyword(c, "executable"),
+                                                          ast.Constant) and exe.value == executable]
+    # a node the launch file declares twice (with and without an overriding argument) runs as
+    # the variant that leaves the parameter file's value: the argument's default is empty
+    node = min(variants, key=lambda c: len(ast.unparse(_keyword(c, "parameters") or c)))
     params = _keyword(node, "parameters")
     assert isinstance(params, ast.List)
     out = []
