@@ -324,3 +324,24 @@ def test_calibrate_still_reads_frames_written_before_the_failure_causes(
     assert "| edge | revisit-v15 | 20 |" in printed and "left out of the map" not in printed
     assert (tmp_path / "rule-calibration.png").is_file()
     assert not (tmp_path / "rule-calibration-failures.csv").exists()
+
+
+def test_calibrate_writes_its_figure_into_a_folder_it_makes(
+        tmp_path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``--out`` in a folder that does not exist yet: made, not a FileNotFoundError traceback."""
+    import gzip
+    from pathlib import Path
+
+    from twinslam.cli.main import main
+
+    committed = (Path(__file__).resolve().parents[1] / "docs" / "figures" / "archive-restores"
+                 / "failure-causes" / "none")
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    (runs / "calibration.csv").write_bytes((committed / "calibration.csv").read_bytes())
+    (runs / "calibration_frames.csv").write_bytes(
+        gzip.decompress((committed / "calibration_frames.csv.gz").read_bytes()))
+    out = tmp_path / "new" / "folder" / "rule.png"
+    assert main(["calibrate", str(runs), "--out", str(out)]) == 0
+    assert out.is_file() and out.with_suffix(".csv").is_file()
+    assert "Traceback" not in capsys.readouterr().err

@@ -58,6 +58,10 @@ def run(args: argparse.Namespace) -> int:
     if clash:
         return error(f"--out {out} would overwrite {', '.join(clash)}, which evaluate wrote "
                      "and calibrate reads; name another figure")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        return error(f"--out {out}: cannot make its folder: {exc}")
     plot_calibration(runs, frames, results, out)
     write_csv(out.with_suffix(".csv"), [f.name for f in fields(ScenarioAgreement)],
               [list(asdict(a).values()) for a in agreement])
