@@ -345,3 +345,40 @@ def test_calibrate_writes_its_figure_into_a_folder_it_makes(
     assert main(["calibrate", str(runs), "--out", str(out)]) == 0
     assert out.is_file() and out.with_suffix(".csv").is_file()
     assert "Traceback" not in capsys.readouterr().err
+
+
+def test_the_calibration_sees_the_played_frames_through_the_players_camera(
+        tmp_path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The simulator's view of a run's frames is extracted through the camera the player
+    shows the device (its colour_intrinsics): a 7-Scenes scene through its colour camera with
+    the default device's ``auto``, through the file's own with the paper's preset — each
+    cached under a name of its own, never one for the other."""
+    from pathlib import Path
+
+    import cv2
+
+    from twinslam.live import calibration
+
+    scene = tmp_path / "scene"
+    scene.mkdir()
+    np.savetxt(scene / "camera-intrinsics.txt", [[585, 0, 320], [0, 585, 240], [0, 0, 1]])
+    for i in range(2):
+        cv2.imwrite(str(scene / f"frame-{i:06d}.color.png"), np.zeros((48, 64, 3), np.uint8))
+        cv2.imwrite(str(scene / f"frame-{i:06d}.depth.png"), np.full((48, 64), 2000, np.uint16))
+        np.savetxt(scene / f"frame-{i:06d}.pose.txt", np.eye(4))
+    seen: list[float] = []
+
+    def extract(reader: object) -> tuple[str, None, None]:
+        seen.append(float(reader.intrinsics[0, 0]))  # type: ignore[attr-defined]
+        return "dataset", None, None
+
+    monkeypatch.setattr(calibration, "extract_covisibility", extract)
+    monkeypatch.setattr(calibration, "save_covisibility",
+                        lambda path, _: Path(path).write_text("covis", encoding="utf-8"))
+    auto = calibration.covisibility_file(str(scene), 2, tmp_path / "covis", lambda _: None,
+                                         colour_intrinsics="auto")
+    own = calibration.covisibility_file(str(scene), 2, tmp_path / "covis", lambda _: None)
+    assert seen == [525.0, 585.0] and auto != own
+    assert calibration.covisibility_file(str(scene), 2, tmp_path / "covis", lambda _: None,
+                                         colour_intrinsics="auto") == auto     # cached
+    assert seen == [525.0, 585.0]

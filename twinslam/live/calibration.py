@@ -32,7 +32,7 @@ from twinslam.live.scenarios import Scenario
 from twinslam.live.tracking_quality import translation_errors
 from twinslam.reporting import file_name
 from twinslam.sequence_player.playback import Playback, PlayedSequence
-from twinslam.sequences.opening import open_sequence
+from twinslam.sequences.opening import AUTO, open_sequence
 from twinslam.simulator.calibration import CalibrationFrame, FramePrediction, predict_frames
 from twinslam.simulator.extraction import extract_covisibility
 from twinslam.slam.map_update import MapSnapshot
@@ -93,15 +93,19 @@ def played_frames(sequence: str, frames: int, scenario: Scenario, dataset: Covis
 
 
 def covisibility_file(sequence: str, frames: int, cache: Path,
-                      echo: Callable[[str], None] = print, start: int = 0) -> Path:
+                      echo: Callable[[str], None] = print, start: int = 0,
+                      colour_intrinsics: str = "") -> Path:
     """The file holding the covisibility of ``sequence``'s ``frames`` frames from ``start``,
-    as the front end the simulator's datasets come from extracts it; extracted into ``cache``
-    the first time, read from there afterwards."""
-    slug = file_name(f"{Path(sequence).name or sequence}-{start}-{frames}", "-_.", "_")
+    as the front end the simulator's datasets come from extracts it, seen through the camera
+    the player shows the device (its ``colour_intrinsics``: "" the folder's own, ``auto``, or
+    a file); extracted into ``cache`` the first time, read from there afterwards."""
+    camera = "" if not colour_intrinsics else (
+        "-auto" if colour_intrinsics == AUTO else f"-{Path(colour_intrinsics).stem}")
+    slug = file_name(f"{Path(sequence).name or sequence}-{start}-{frames}{camera}", "-_.", "_")
     path = cache / f"{slug}.covis.npz"
     if path.is_file():
         return path
-    reader = open_sequence(sequence, start, start + frames)
+    reader = open_sequence(sequence, start, start + frames, colour_intrinsics)
     echo(f"extracting the covisibility of {len(reader)} frames of {sequence} for the "
          f"calibration (once; cached in {path})")
     dataset, _, _ = extract_covisibility(reader)

@@ -29,6 +29,7 @@ from twinslam.node_hosts.fastdds import REPO_ROOT
 from twinslam.node_hosts.forked import ForkServers, NodeProcess
 from twinslam.node_hosts.loopback import ProcessDomain
 from twinslam.node_hosts.session import RosSession
+from twinslam.sequences.opening import AUTO
 from twinslam.slot_protocol import default_device, table1
 
 REPO = REPO_ROOT
@@ -250,6 +251,13 @@ def node_parameters(params_file: Path, node: str) -> dict[str, Any]:
     for key in ("/**", node, f"/{node}"):
         out.update((doc.get(key) or {}).get("ros__parameters", {}))
     return out
+
+
+def player_camera(params_file: Path) -> str:
+    """The camera the player shows the device with ``params_file``: its ``colour_intrinsics``
+    (the node's default, ``auto``, where the file names none) — the camera the simulator's
+    view of the same frames must be extracted through."""
+    return str(node_parameters(params_file, "sequence_player").get("colour_intrinsics", AUTO))
 
 
 def tc_uplink_params(alpha_mbit: float, **device: str) -> dict[str, list[str]]:

@@ -31,7 +31,7 @@ from twinslam.cli.arguments import BUNDLED_COVIS, BUNDLED_SEQUENCE, FALLBACK_SEQ
 from twinslam.cli.commands.sim import Comparison, compare
 from twinslam.cli.console import Subparsers
 from twinslam.live.calibration import covisibility_file
-from twinslam.live.launcher import DEFAULT_PARAMS, PAPER_PARAMS
+from twinslam.live.launcher import DEFAULT_PARAMS, PAPER_PARAMS, player_camera
 from twinslam.live.runs import RunKey, RunResult, RunTask, run_one
 from twinslam.live.scenarios import SCENARIOS
 from twinslam.live.tables import side_by_side
@@ -74,7 +74,8 @@ def run_live(device: Device, frames: int, step: str) -> list[RunResult]:
           f"{device.description}, {what}, scenario {SCENARIO} ({chosen.description}), "
           f"policies {', '.join(POLICIES)}", flush=True)
     covis = covisibility_file(sequence, frames, REPO_ROOT / "results" / "demo" / "covis",
-                              lambda line: print("      " + line, flush=True))
+                              lambda line: print("      " + line, flush=True),
+                              colour_intrinsics=player_camera(device.params))
     return [run_one(RunTask(RunKey(SCENARIO, device.map_source, policy, 0), sequence, frames,
                             chosen, device.params, 600.0, covis, verbose=True,
                             variant=device.name))

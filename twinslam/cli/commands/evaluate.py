@@ -15,7 +15,7 @@ from twinslam.cli.arguments import (
 from twinslam.cli.console import Subparsers, error
 from twinslam.live import runs, tables
 from twinslam.live.calibration import covisibility_file
-from twinslam.live.launcher import DEFAULT_PARAMS
+from twinslam.live.launcher import DEFAULT_PARAMS, player_camera
 from twinslam.live.run_checks import params_file_problem, policy_problem
 from twinslam.live.scenarios import SCENARIOS, Scenario, scenario
 from twinslam.sequence_player.playback import Playback, PlayedSequence
@@ -83,7 +83,7 @@ def _tasks(args: argparse.Namespace, policies: list[tuple[str, str]],
         if key not in done and sequence not in covis:
             covis[sequence] = covisibility_file(sequence, args.frames, args.out / "covis",
                                                 lambda line: print(line, flush=True),
-                                                args.start)
+                                                args.start, player_camera(args.params))
     by_name = {s.name: s for s in scenarios}
     return [runs.RunTask(k, runs.sequence_for(args.sequence, k.seed), args.frames,
                          by_name[k.scenario], args.params, args.timeout,
