@@ -279,7 +279,7 @@ PILOT_TABLES = [[f"{label}=docs/figures/default-device/pilot-300/{folder}-300#{s
                                  "revisit-v15@constrained", "outages@lte")]
 
 
-#: the whole walk of the default-device sweep (seeds 0-2 so far)
+#: the whole walk of the default-device sweep, ten seeds
 WALK_TABLES = [[f"{label}=docs/figures/default-device/{folder}-1000#{scenario}"
                 for label, folder in (("table-i", "table-i"),
                                       ("short-loop-own-map", "short-loop-own-map"),
@@ -398,3 +398,11 @@ def test_a_simulated_restores_table_refuses_other_episodes(tmp_path: Path) -> No
         writer.writerows(rows)
     with pytest.raises(SystemExit, match="not the same episodes"):
         _script("simulated_restores").main([str(folder / "v15-paper-edge.csv"), str(fewer)])
+
+
+def test_the_readmes_default_device_table_is_what_its_script_prints() -> None:
+    """The README's first screen says which device is the default and why, with the sweep's
+    figures: the lines docs/figures/default_device_summary.py prints from the runs.csv files."""
+    lines = _script("default_device_summary").table()
+    readme = (REPO / "README.md").read_text(encoding="utf-8")
+    assert all(line in readme.splitlines() for line in lines), "\n".join(lines)

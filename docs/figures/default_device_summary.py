@@ -1,0 +1,60 @@
+"""The README's table of the default-device sweep: per device variant, over every run of every
+uplink family of ``docs/figures/default-device/VARIANT-1000/runs.csv`` (the whole
+``revisit-v15`` walk), the figures a user judges a device by — the failed share of played
+frames (mean, and the worst run), the runs whose largest aligned error passed 0.3 m, jumps, the
+ATE, the jitter of the published position against the truth's, the device's CPU a frame and the
+camera frames dropped. Means are over runs; every family weighs the same (the same seeds each).
+
+    .venv/bin/python docs/figures/default_device_summary.py
+"""
+
+from __future__ import annotations
+
+import csv
+import sys
+from pathlib import Path
+
+SWEEP = Path(__file__).resolve().parent / "default-device"
+#: (folder, what the README calls it)
+VARIANTS = (("edge-local-1000", "**default**: edge+local, 1 s slots, restores"),
+            ("short-loop-own-map-1000", "tuned paper device: edge, 1 s slots, restores, own "
+             "points when lost"),
+            ("table-i-1000", "Table I's device: edge, 2 s slots"))
+
+
+def _runs(folder: Path) -> list[dict[str, str]]:
+    with (folder / "runs.csv").open(newline="", encoding="utf-8") as fh:
+        return list(csv.DictReader(fh))
+
+
+def _mean(rows: list[dict[str, str]], column: str) -> float:
+    return sum(float(r[column]) for r in rows) / len(rows)
+
+
+def table(sweep: Path = SWEEP) -> list[str]:
+    """The Markdown lines of the table."""
+    lines = ["| device | runs | failed frames (mean / worst run) | runs with an error > 0.3 m "
+             "| jumps | ATE (m) | jitter RMS (mm; truth) | device CPU (ms/frame) | dropped |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for folder, name in VARIANTS:
+        rows = _runs(sweep / folder)
+        worst = max(float(r["failed_share"]) for r in rows)
+        over = sum(float(r["max_error_m"]) > 0.3 for r in rows)
+        jumps = sum(float(r["jumps"]) for r in rows)
+        dropped = sum(int(float(r["frames_dropped"])) for r in rows)
+        lines.append(f"| {name} | {len(rows)} | {_mean(rows, 'failed_share'):.1%} / "
+                     f"{worst:.1%} | {over} | {jumps:.0f} | {_mean(rows, 'ate_m'):.3f} | "
+                     f"{_mean(rows, 'jitter_rms_mm'):.1f} "
+                     f"({_mean(rows, 'truth_jitter_rms_mm'):.1f}) | "
+                     f"{_mean(rows, 'device_cpu_ms'):.1f} | {dropped} |")
+    return lines
+
+
+def main(argv: list[str]) -> int:
+    sweep = Path(argv[0]) if argv else SWEEP
+    print("\n".join(table(sweep)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
