@@ -53,7 +53,7 @@ def test_ros2_launch_runs_the_pipeline_on_a_private_domain() -> None:
     """``ros2 launch twinslam twinslam_launch.py sequence:=synthetic:90``: the device's slot
     summaries arrive, and Ctrl-C (SIGINT) stops every node."""
     with LoopbackDomain() as domain:
-        env = dict(domain.env(), AMENT_PREFIX_PATH=str(VENV))
+        env = dict(domain.env, AMENT_PREFIX_PATH=str(VENV))
         proc = subprocess.Popen(
             [sys.executable, "-c", "import sys; from ros2cli.cli import main; "
              "sys.argv[0] = 'ros2'; sys.exit(main())", "launch", "twinslam",
