@@ -291,7 +291,7 @@ class DeviceLink:
             slot, entry.decided_by, self.core.map, out.map_uncertainty, entry.uncertainty,
             len(out.integrated), ba_ms, compute_s * 1000, now, entry.vmax,
             entry.latency_s(self.slots.clock()) * 1000, len(self.core.archive),
-            len(out.restored), len(out.refused)))
+            len(out.restored), len(out.refused), frame))
         if out.optimisation_refused:
             self.warning(f"slot {slot}: the bundle adjustment's answer not applied, "
                          f"{out.optimisation_refused}")

@@ -74,11 +74,13 @@ def map_stats_message(slot: int, policy: str, keyframe_map: KeyFrameMap, uncerta
                       upsilon: SlotUncertainty | None, uploads: int, optimisation_ms: float,
                       processing_ms: float, stamp: float, keyframe_budget: int = 0,
                       latency_ms: float = math.nan, archived: int = 0, restored: int = 0,
-                      refused: int = 0) -> MapStats:
-    """``MapStats``; u = +inf for a disconnected map and υ = NaN (unknown, or no tracked frame)
-    are sent as they are (IEEE floats), never replaced by a number that looks valid. υ is
-    reported the three ways docs/architecture.md §2 asks: mean with a lost frame scoring 0, the lost
-    share, and the mean over the tracked frames."""
+                      refused: int = 0, frame_id: str = "") -> MapStats:
+    """``MapStats``, its header in ``frame_id`` (the map frame its keyframe counts describe, so
+    a viewer or a bag reader can tell one device's map from another's); u = +inf for a
+    disconnected map and υ = NaN (unknown, or no tracked frame) are sent as they are (IEEE
+    floats), never replaced by a number that looks valid. υ is reported the three ways
+    docs/architecture.md §2 asks: mean with a lost frame scoring 0, the lost share, and the mean
+    over the tracked frames."""
     msg = new(MapStats, slot=slot, policy=policy,
               map_size=len(keyframe_map.keyframes), map_points=len(keyframe_map.points),
               archived_keyframes=archived, restored_keyframes=restored,
@@ -89,7 +91,7 @@ def map_stats_message(slot: int, policy: str, keyframe_map: KeyFrameMap, uncerta
               lost_share=upsilon.lost_share if upsilon else 0.0, uploads=uploads,
               optimisation_ms=float(optimisation_ms), slot_processing_ms=float(processing_ms),
               slot_latency_ms=float(latency_ms))
-    return set_header(msg, stamp, "")
+    return set_header(msg, stamp, frame_id)
 
 
 def keyframe_budget_message(budget: KeyframeBudget, stamp: float) -> KeyframeBudgetMsg:

@@ -86,7 +86,8 @@ def test_upload_request_and_map_stats() -> None:
     req = _roundtrip(upload_request_message(2, "adapt", 60.0, MapAction([31, 40], [3]), 1.0))
     assert req.upload_frame_ids.tolist() == [31, 40] and req.evict_frame_ids.tolist() == [3]
     stats = _roundtrip(map_stats_message(2, "lff", KeyFrameMap(), math.inf, None, 2,
-                                         12.0, 30.0, 1.0))
+                                         12.0, 30.0, 1.0, frame_id="ar1/map"))
+    assert stats.header.frame_id == "ar1/map"              # whose map the counts describe
     assert math.isinf(stats.uncertainty) and math.isnan(stats.mean_uncertainty)
     assert math.isnan(stats.tracked_uncertainty)
     assert stats.lost_share == 0.0 and stats.map_size == 0
