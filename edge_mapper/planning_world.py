@@ -41,6 +41,7 @@ from twinslam.policies.delayed import DelayedPolicy
 from twinslam.policies.mpc import MpcConfig, MpcPlanner
 from twinslam.policies.protocol import MapPolicy
 from twinslam.policies.world_model import MapManagementEnv, SimConfig
+from twinslam.slam.projection_matching import visible_points as projected_points
 from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
 
 #: farther than this a map point is taken to be out of an RGB-D camera's view (7-Scenes' and
@@ -88,19 +89,17 @@ def visible_points(positions: np.ndarray, pose: np.ndarray, intrinsics: np.ndarr
                    image_shape: tuple[int, int], max_depth_m: float = MAX_DEPTH_M
                    ) -> np.ndarray:
     """Which of the map points at ``positions`` (N×3, map frame) project into the image of a
-    camera at ``pose`` (camera-to-map), in front of it and nearer than ``max_depth_m``."""
+    camera at ``pose`` (camera-to-map), in front of it and nearer than ``max_depth_m``: the
+    front end's visibility test (:func:`twinslam.slam.projection_matching.visible_points`, one
+    kernel for the device, the edge's mapping, its restores and its planner), as a mask."""
+    mask = np.zeros(len(positions), dtype=bool)
     if positions.size == 0:
-        return np.zeros(0, dtype=bool)
-    rotation, origin = pose[:3, :3], pose[:3, 3]
-    cam = (positions - origin) @ rotation          # = R^T (p - t), row by row
-    z = cam[:, 2]
-    ahead = (z > 1e-3) & (z <= max_depth_m)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = intrinsics[0, 0] * cam[:, 0] / z + intrinsics[0, 2]
-        v = intrinsics[1, 1] * cam[:, 1] / z + intrinsics[1, 2]
-    height, width = image_shape
-    inside: np.ndarray = ahead & (u >= 0) & (u < width) & (v >= 0) & (v < height)
-    return inside
+        return mask
+    ids, _ = projected_points(np.asarray(positions, dtype=np.float64),
+                              np.ones(len(positions), dtype=bool), pose, intrinsics,
+                              image_shape, (1e-3, max_depth_m))
+    mask[ids] = True
+    return mask
 
 
 def predict_frames(view: SlotView, slots: int, max_depth_m: float = MAX_DEPTH_M
