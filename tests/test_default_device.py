@@ -6,23 +6,19 @@ one named parameter file that keeps Table I exactly."""
 from __future__ import annotations
 
 import argparse
+from collections.abc import Sequence
 from typing import Any
 
 import yaml
 
-from device_tracker.parameters import PARAMETERS as DEVICE
-from edge_mapper.parameters import PARAMETERS as EDGE_PARAMETERS
+from twinslam.cli.commands.parameters import NODES as REFERENCE_NODES
 from twinslam.cli.main import build_parser
 from twinslam.live.launcher import DEFAULT_PARAMS, PAPER_PARAMS
 from twinslam.node_hosts.parameters import ParamSpec
-from twinslam.sequence_player.parameters import PARAMETERS as PLAYER
 from twinslam.slam.front_end.map_source import DEFAULT_MAP_SOURCE, EDGE, EDGE_LOCAL
 from twinslam.slot_protocol import default_device, table1
-from udt_node.parameters import PARAMETERS as TWIN
 
-NODES: dict[str, tuple[ParamSpec, ...]] = {
-    "device_tracker": DEVICE, "edge_mapper": EDGE_PARAMETERS, "sequence_player": PLAYER,
-    "udt_node": TWIN}
+NODES: dict[str, Sequence[ParamSpec]] = {name: specs for name, _, specs in REFERENCE_NODES}
 #: set in the bundled file on purpose, not the node's default: a player started by hand plays
 #: at once; one the launch starts waits for the device
 LAUNCH_CHOICES = {("sequence_player", "wait_for_subscribers")}

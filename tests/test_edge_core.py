@@ -222,20 +222,29 @@ def test_walking_back_brings_evicted_keyframes_back_before_the_camera_gets_there
     assert in_view[2, 20.0] > 1.3 * in_view[0, 20.0]
 
 
+def _returning_walk_edge(turn: int) -> tuple[ReturningDevice, EdgeMapperCore]:
+    """The walk out and back with the small map (V_max 4) and two restores a slot."""
+    return (ReturningDevice(np.random.default_rng(3), turn),
+            EdgeMapperCore(make_policy("lff"), K, EdgeConfig(slot=SlotConfig(vmax=4),
+                                                             restore_keyframes=2)))
+
+
+def _plan_and_upload(core: EdgeMapperCore, device: ReturningDevice, slot: int) -> None:
+    """Slot ``slot``'s summaries to the edge at 20 Mbit/s, and the keyframes it asks for."""
+    frames = [device.summary(f, core) for f in range(slot * F, (slot + 1) * F)]
+    plan = core.plan(slot, frames, 20.0, slot % 2)
+    for f in plan.action.upload:
+        core.add_keyframe(device.keyframe(f, slot, core))
+
+
 def test_restores_keep_the_map_within_the_slots_budget_when_the_next_grant_is_larger() -> None:
     """An edge serving several devices grants a device its V_max for the next slot before the
     open one finishes: a larger grant must not let this slot's restores fill the map beyond
     the V_max the slot was planned with (what its MapStats reports as the budget)."""
-    turn = 8 * F
-    device = ReturningDevice(np.random.default_rng(3), turn)
-    core = EdgeMapperCore(make_policy("lff"), K, EdgeConfig(slot=SlotConfig(vmax=4),
-                                                            restore_keyframes=2))
+    device, core = _returning_walk_edge(8 * F)
     restored = []
     for slot in range(16):
-        frames = [device.summary(f, core) for f in range(slot * F, (slot + 1) * F)]
-        plan = core.plan(slot, frames, 20.0, slot % 2)
-        for f in plan.action.upload:
-            core.add_keyframe(device.keyframe(f, slot, core))
+        _plan_and_upload(core, device, slot)
         core.set_vmax(7)                     # the next slot's grant, larger
         restored += core.finish_slot(slot).restored
         assert len(core.map.keyframes) <= 4, f"slot {slot}: the map outgrew its budget"
@@ -293,15 +302,10 @@ def test_a_slot_that_finishes_late_restores_for_where_the_camera_headed_in_it() 
     def walk(late: int | None = None) -> list[list[int]]:
         """Restores per slot; with ``late``, slot late+1 is planned before slot late
         finishes, and the walk ends there."""
-        device = ReturningDevice(np.random.default_rng(3), turn)
-        core = EdgeMapperCore(make_policy("lff"), K, EdgeConfig(slot=SlotConfig(vmax=4),
-                                                                restore_keyframes=2))
+        device, core = _returning_walk_edge(turn)
         restored = []
         for slot in range(16):
-            frames = [device.summary(f, core) for f in range(slot * F, (slot + 1) * F)]
-            plan = core.plan(slot, frames, 20.0, slot % 2)
-            for f in plan.action.upload:
-                core.add_keyframe(device.keyframe(f, slot, core))
+            _plan_and_upload(core, device, slot)
             if slot == late:
                 outwards = [device.summary(f, core) for f in range(turn - F, turn)]
                 core.plan(slot + 1, outwards, 20.0, (slot + 1) % 2)
