@@ -206,4 +206,4 @@ def slot_uploads(core: EdgeMapperCore, rate_mbps: float, n_frames: int) -> int:
     the most keyframes the slot can add, which bounds the device's grant."""
     cfg = core.slot_config
     return theorem1_uploads(rate_mbps, cfg.alpha_mbit, cfg.d_req_s, n_frames,
-                            cfg.slot_seconds(n_frames))
+                            cfg.slot_seconds(n_frames), core.planner.waited_mbit)

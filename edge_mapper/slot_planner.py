@@ -25,9 +25,11 @@ from twinslam.slot_protocol import table1
 from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
 from twinslam.uncertainty.map_uncertainty import (
     SlotUncertainty,
+    needs_map,
     next_slot_uncertainty,
     progress_deadline_s,
     theorem1_cardinalities,
+    waited_after,
 )
 
 TRACK_MASK = (1 << 63) - 1          #: a track id without its marker bit
@@ -96,6 +98,9 @@ class SlotPlanner:
         self.policy = policy
         self.config = config or SlotConfig()
         self.n_states = n_states
+        #: what the uplink carried while this device, needing a map, waited for an upload
+        #: (:func:`~twinslam.uncertainty.map_uncertainty.waited_after`): it is served first
+        self.waited_mbit = 0.0
 
     def weights(self, frames: dict[int, FrameObservations], a: list[int], b: list[int]
                 ) -> np.ndarray:
@@ -150,13 +155,22 @@ class SlotPlanner:
             raise ValueError(f"slot {slot}: frames {sorted(clash)} are already keyframes")
         cand = [f.frame_id for f in frames if f.tracked]
         cfg = self.config
-        n_up, n_ev = theorem1_cardinalities(rate_mbps, cfg.alpha_mbit, cfg.d_req_s, cfg.vmax,
-                                            len(map_ids), len(cand),
-                                            cfg.slot_seconds(len(frames)))
         seen = {**arriving, **by_id}
         # each keyframe's and frame's point keys, made once: the weights, the policy's view
         # and the slot's υ all read them
         keys = {x: self.points_of(seen, x) for x in map_ids + every}
+        # a frame is lost when its reported points (the device's matches) share fewer than
+        # the device's MIN_INLIERS with the map (twinslam.slot_protocol.lost_frame_rule); a
+        # keyframe holds map-point ids only, so this counts shared map points alone
+        in_map = (np.unique(np.concatenate([keys[x] for x in map_ids])) if map_ids
+                  else np.zeros(0, dtype=np.int64))
+        shared = np.array([np.isin(keys[f], in_map, assume_unique=True).sum() for f in every])
+        lost = [not f.tracked or n < MIN_INLIERS for f, n in zip(frames, shared, strict=True)]
+        slot_s = cfg.slot_seconds(len(frames))
+        n_up, n_ev = theorem1_cardinalities(rate_mbps, cfg.alpha_mbit, cfg.d_req_s, cfg.vmax,
+                                            len(map_ids), len(cand), slot_s, self.waited_mbit)
+        self.waited_mbit = waited_after(n_up, rate_mbps, slot_s, self.waited_mbit,
+                                        needs_map(lost))
         full = shared_counts([keys[x] for x in map_ids + every])
         pos = {x: i for i, x in enumerate(map_ids + every)}
         obs = SlotObservation(slot, map_ids, cand, n_up, n_ev, rate_mbps, rate_state,
@@ -170,15 +184,10 @@ class SlotPlanner:
                               k, shape, cfg))
         action = self.policy.decide(obs)
         check_map_action(slot, n_up, n_ev, set(cand), map_ids, action)
-        # υ of F_k against the map as it is (eq. 8), None for an empty map; a keyframe holds
-        # map-point ids only, so the frame–keyframe block counts shared map points alone. A
-        # frame is lost when its reported points (the device's matches) share fewer than the
-        # device's MIN_INLIERS with the map (twinslam.slot_protocol.lost_frame_rule)
+        # υ of F_k against the map as it is (eq. 8), None for an empty map
         m = len(map_ids)
         if not m:
             return SlotPlan(action, obs, None)
-        in_map = np.unique(np.concatenate([keys[x] for x in map_ids]))
-        shared = np.array([np.isin(keys[f], in_map, assume_unique=True).sum() for f in every])
         upsilon = next_slot_uncertainty(full[:m, :m], full[m:, :m], self.config.log_det_pi,
                                         shared >= MIN_INLIERS)
         return SlotPlan(action, obs, upsilon)

@@ -45,9 +45,11 @@ from twinslam.uncertainty.laplacian_factorization import PIVOT_RTOL
 from twinslam.uncertainty.map_uncertainty import (
     SlotUncertainty,
     lost_frames,
+    needs_map,
     progress_deadline_s,
     slot_uncertainty_from_scores,
     theorem1_cardinalities,
+    waited_after,
 )
 from twinslam.uplink.channels import MarkovChannel, TraceChannel
 
@@ -113,14 +115,15 @@ class SimConfig:
 
 
 #: what :meth:`MapManagementEnv.snapshot` returns: (map frames, map weights, slot, upload
-#: candidates, archive); the future depends on all of them but the weights
-Snapshot = tuple[list[int], np.ndarray, int, list[int], list[int]]
+#: candidates, archive, Mbit the uplink carried while the device waited for a map); the
+#: future depends on all of them but the weights
+Snapshot = tuple[list[int], np.ndarray, int, list[int], list[int], float]
 
 
-def state_key(snap: Snapshot) -> tuple[tuple[int, ...], ...]:
-    """What two snapshots must share to have the same future: the map, the candidates and
-    the archive (a search merges the states with one key)."""
-    return tuple(snap[0]), tuple(snap[3]), tuple(snap[4])
+def state_key(snap: Snapshot) -> tuple[Any, ...]:
+    """What two snapshots must share to have the same future: the map, the candidates, the
+    archive and the uplink waited for (a search merges the states with one key)."""
+    return tuple(snap[0]), tuple(snap[3]), tuple(snap[4]), snap[5]
 
 
 class FrameStream:
@@ -200,6 +203,9 @@ class MapManagementEnv:
         self._uploadable: list[int] = []
         #: evicted keyframes the edge still holds, least recently useful first
         self._archive: list[int] = []
+        #: Mbit the uplink carried while the device, needing a map, waited for an upload
+        #: (:func:`~twinslam.uncertainty.map_uncertainty.waited_after`, as the edge's planner)
+        self._waited = 0.0
         #: the map's points per point, moved with the map (the device's rule only)
         self._points: MapPointCounts | None = None
         #: the last map scored: (its key, its factorisation, its weights). A slot's first
@@ -256,7 +262,7 @@ class MapManagementEnv:
                                   speed=self.config.speed)
         self.channel.reset(seed)
         self._map, self._map_w, self._slot = [], np.zeros((0, 0)), 0
-        self._archive = []
+        self._archive, self._waited = [], 0.0
         self._uploadable = self.slot_frames(0)       # tracked on the device's start-up map
         # The whole episode's rates are drawn up front: the agent still sees them one slot at a
         # time, but a clairvoyant planner can read ahead and snapshots stay exact.
@@ -274,7 +280,7 @@ class MapManagementEnv:
         cand = list(self._uploadable)
         n_up, n_ev = theorem1_cardinalities(rate, self.config.alpha_mbit, self.config.d_req_s,
                                             self.config.vmax, len(self._map), len(cand),
-                                            self.config.slot_seconds)
+                                            self.config.slot_seconds, self._waited)
         hist = [s for s, _ in self._plan[max(0, self._slot - self.config.history + 1):
                                          self._slot + 1]]
         n_restore = self.config.restore_keyframes if self.config.archive_keyframes > 0 else 0
@@ -365,6 +371,10 @@ class MapManagementEnv:
     def step(self, action: MapAction) -> tuple[SlotObservation, float, bool, bool, dict[str, Any]]:
         obs = self.observation()
         self.check_action(obs, action)
+        uploadable = set(self._uploadable)
+        self._waited = waited_after(
+            obs.n_upload, obs.rate_mbps, self.config.slot_seconds, self._waited,
+            needs_map(f not in uploadable for f in self.slot_frames(self._slot)))
         before, before_w = self._map, self._map_w
         dense = self.dataset.dense
         self.apply(action, weights=not dense)
@@ -489,13 +499,13 @@ class MapManagementEnv:
         return list(self._map)
 
     def snapshot(self) -> Snapshot:
-        """(map frames, map weights, slot, the slot's upload candidates, the archive): all a
-        later ``restore`` needs to continue exactly from here."""
+        """(map frames, map weights, slot, the slot's upload candidates, the archive, the
+        uplink waited for): all a later ``restore`` needs to continue exactly from here."""
         return (list(self._map), self._map_w.copy(), self._slot, list(self._uploadable),
-                list(self._archive))
+                list(self._archive), self._waited)
 
     def restore(self, snap: Snapshot) -> None:
-        frames, w, self._slot, uploadable, archive = snap
+        frames, w, self._slot, uploadable, archive, self._waited = snap
         self._last_obs = None
         self._map, self._map_w = list(frames), w.copy()
         self._uploadable, self._archive = list(uploadable), list(archive)

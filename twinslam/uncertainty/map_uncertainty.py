@@ -225,7 +225,7 @@ def lost_frames(log_tau: np.ndarray, trackable: np.ndarray | None = None) -> np.
 
 
 def theorem1_uploads(rate_mbps: float, alpha_mbit: float, d_req_s: float,
-                     slot_size: int, slot_s: float = 0.0) -> int:
+                     slot_size: int, slot_s: float = 0.0, waited_mbit: float = 0.0) -> int:
     """|U_k| of paper Theorem 1: floor(d_k · D_req / α) (eq. 10), at most the slot's |F_k| —
     the frames that fit the uplink within D_req. The one place the count is written: the
     cardinalities below, the twin allocator's expected uploads and the edge's grants use it.
@@ -236,11 +236,40 @@ def theorem1_uploads(rate_mbps: float, alpha_mbit: float, d_req_s: float,
     (d_k < α / D_req: below 10 Mbit/s at Table I's α and D_req) but the uplink carries one
     within the slot's ``slot_s`` seconds, one frame goes, its deadline stretched to the slot's
     end — else an uplink under α / D_req uploads nothing, ever, and the edge never gets a map
-    of the ground the device walks into. 0: Theorem 1 exactly (the paper's preset)."""
+    of the ground the device walks into. 0: Theorem 1 exactly (the paper's preset).
+
+    ``waited_mbit``: what the uplink carried over the slots a device that needs a map has
+    waited without an upload (:func:`waited_after`): a device in new ground or lost is served
+    first, its deadline stretched over as many slots as a frame takes, so that an uplink
+    under α a slot still brings it a keyframe every α / d_k seconds."""
     n = min(math.floor(rate_mbps * d_req_s / alpha_mbit + 1e-9), slot_size)
-    if n == 0 and slot_s > 0 and slot_size > 0 and rate_mbps * slot_s >= alpha_mbit - 1e-9:
+    if (n == 0 and slot_s > 0 and slot_size > 0
+            and rate_mbps * slot_s + waited_mbit >= alpha_mbit - 1e-9):
         return 1
     return n
+
+
+def waited_after(uploads: int, rate_mbps: float, slot_s: float, waited_mbit: float,
+                 needs_map: bool) -> float:
+    """:func:`theorem1_uploads`' ``waited_mbit`` for the next slot: what the uplink carried
+    while a device that needs a map (:func:`needs_map`) went without an upload, this slot's
+    ``rate_mbps`` · ``slot_s`` added. Nothing is carried after an upload, for a device its map
+    still tracks (it loses nothing by waiting for a slot that carries a frame), or with the
+    progress rule off (``slot_s`` 0, the paper's preset). The edge and the simulator both
+    keep it this way, so both stretch the same deadlines."""
+    if uploads > 0 or not needs_map or slot_s <= 0:
+        return 0.0
+    return waited_mbit + max(rate_mbps, 0.0) * slot_s
+
+
+def needs_map(lost: Iterable[bool]) -> bool:
+    """Whether a device needs keyframes of where it is now, from which of its slot's frames
+    (capture order) are lost against the map (:mod:`twinslam.slot_protocol.lost_frame_rule`:
+    too few shared map points, or the device could not track it): the newest one is — it
+    walked into new ground or lost its map. The one test the edge and the simulator give
+    priority by (:func:`waited_after`); a slot without frames needs nothing."""
+    flags = list(lost)
+    return bool(flags and flags[-1])
 
 
 def progress_deadline_s(slot_frames: int, progress: bool) -> float:
@@ -250,10 +279,11 @@ def progress_deadline_s(slot_frames: int, progress: bool) -> float:
 
 
 def theorem1_cardinalities(rate_mbps: float, alpha_mbit: float, d_req_s: float, vmax: int,
-                           map_size: int, slot_size: int, slot_s: float = 0.0
-                           ) -> tuple[int, int]:
+                           map_size: int, slot_size: int, slot_s: float = 0.0,
+                           waited_mbit: float = 0.0) -> tuple[int, int]:
     """(|U_k|, |C_k|) of paper Theorem 1, clamped to what the slot and the map hold
-    (``slot_s`` > 0: with :func:`theorem1_uploads`' progress rule).
+    (``slot_s`` > 0: with :func:`theorem1_uploads`' progress rule, ``waited_mbit`` its
+    priority for a device that needs a map).
 
     |U_k| = floor(d_k · D_req / α) (eq. 10), at most |F_k|. The paper prints
     |C_k| = V_max - |U_k| (eq. 11), but its own proof (eq. 12) keeps the map at V_max:
@@ -264,6 +294,7 @@ def theorem1_cardinalities(rate_mbps: float, alpha_mbit: float, d_req_s: float, 
         raise ValueError(f"uplink rate must be finite and >= 0, got {rate_mbps}")
     if alpha_mbit <= 0 or d_req_s <= 0 or vmax < 0:
         raise ValueError("alpha, D_req must be > 0 and V_max >= 0")
-    n_up = min(theorem1_uploads(rate_mbps, alpha_mbit, d_req_s, slot_size, slot_s), vmax)
+    n_up = min(theorem1_uploads(rate_mbps, alpha_mbit, d_req_s, slot_size, slot_s,
+                                waited_mbit), vmax)
     n_evict = max(0, map_size + n_up - vmax)
     return n_up, n_evict
