@@ -1,8 +1,8 @@
 """DDS image benchmark through rclpy: 640×480 rgb8 at 30 Hz for 10 s between two processes.
 
 For RELIABLE and sensor-data (best effort) QoS, each as the nodes run (the project's Fast DDS
-profile ``config/fastdds.xml``, processes set up as ``twinslam.node_hosts.node_main`` does: the C++
-EventsExecutor, freed memory kept), with the profile alone (rclpy's SingleThreadedExecutor,
+profile ``config/fastdds.xml``, processes set up as ``twinslam.node_runtime.node_main`` does:
+the C++ EventsExecutor, freed memory kept), with the profile alone (rclpy's SingleThreadedExecutor,
 glibc's defaults), and with all defaults, side by side in one run: images
 delivered and one-way latency median / p99 (header stamp → the receiver's callback, after the
 nodes' own decoding and validation; one host clock). Each configuration runs a fresh sender and
@@ -20,7 +20,7 @@ import signal
 
 import numpy as np
 
-from twinslam.node_hosts.loopback import JsonLines, LoopbackDomain
+from twinslam.hosts.loopback import JsonLines, LoopbackDomain
 
 
 class _Domain(LoopbackDomain):

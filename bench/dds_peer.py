@@ -1,8 +1,7 @@
 """The two processes of ``bench.dds``: ``receive`` records the arrival time and header stamp of
 every image (through the nodes' own decoding and validation path,
-:class:`~twinslam.node_hosts.checked_subscription.CheckedSubscription`); ``send`` publishes 640×480
-rgb8
-images at a fixed rate, stamped with the wall clock just before each publish.
+:class:`~twinslam.node_runtime.checked_subscription.CheckedSubscription`); ``send``
+publishes 640×480 rgb8 images at a fixed rate, stamped with the wall clock just before each publish.
 
     python -m bench.dds_peer receive|send --qos reliable|sensor_data [--seconds S --rate R]
 """
@@ -23,9 +22,9 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
 
 from msg_schemas import new
-from twinslam.node_hosts.acks import wait_for_acks
-from twinslam.node_hosts.allocator import keep_freed_memory
-from twinslam.node_hosts.checked_subscription import CheckedSubscription
+from twinslam.node_runtime.acks import wait_for_acks
+from twinslam.node_runtime.allocator import keep_freed_memory
+from twinslam.node_runtime.checked_subscription import CheckedSubscription
 
 TOPIC = "bench/image"
 
@@ -94,8 +93,8 @@ def main() -> int:
     parser.add_argument("--rate", type=float, default=30.0, help="images per second (send)")
     parser.add_argument("--as-nodes", action="store_true",
                         help="set the process up as twinslam's nodes are "
-                        "(twinslam.node_hosts.node_main): the C++ EventsExecutor and freed memory "
-                        "kept (twinslam.node_hosts.allocator); "
+                        "(twinslam.node_runtime.node_main): the C++ EventsExecutor and "
+                        "freed memory kept (twinslam.node_runtime.allocator); "
                         "without it, rclpy's SingleThreadedExecutor and glibc's defaults")
     args = parser.parse_args()
     if args.as_nodes:

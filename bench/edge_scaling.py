@@ -42,8 +42,8 @@ from twinslam_msgs.msg import (
 )
 
 from msg_schemas import qos, topics
-from twinslam.node_hosts.loopback import LoopbackDomain
-from twinslam.node_hosts.session import RosSession
+from twinslam.hosts.loopback import LoopbackDomain
+from twinslam.node_runtime.session import RosSession
 from twinslam.slot_protocol import table1
 
 REPO = Path(__file__).resolve().parents[1]

@@ -21,10 +21,10 @@ from dataclasses import asdict, fields
 from pathlib import Path
 
 from twinslam.cli.console import HelpFormatter
+from twinslam.hosts.loopback import LoopbackDomain
 from twinslam.live.launcher import DEFAULT_PARAMS, LaunchConfig, Launcher
 from twinslam.live.scenarios import scenario as scenario_named
 from twinslam.live.update_loop import SlotLatency, stage_table, update_loop_latencies
-from twinslam.node_hosts.loopback import LoopbackDomain
 from twinslam.reporting import write_csv
 
 REPO = Path(__file__).resolve().parents[1]

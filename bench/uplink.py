@@ -1,6 +1,6 @@
 """Uplink benchmark: the device's uplink shaped by ``tc`` across network namespaces.
 
-The pipeline runs on three hosts (``twinslam.node_hosts.netns``) with ``shaper:=tc`` and real frames
+The pipeline runs on three hosts (``twinslam.hosts.netns``) with ``shaper:=tc`` and real frames
 as keyframes (``upload_image:=true``); per slot it prints the rate d_k the ``tbf`` was set to,
 what the device measured on its interface until its keyframes were acknowledged, and the bytes
 the switch received from the device's cable over the whole run.
@@ -18,8 +18,8 @@ import statistics
 import sys
 from pathlib import Path
 
+from twinslam.hosts.netns import NetnsHosts, unavailable_reason
 from twinslam.live.launcher import LaunchConfig, Launcher, tc_uplink_params
-from twinslam.node_hosts.netns import NetnsHosts, unavailable_reason
 
 FRAME_MBIT = 640 * 480 * 3 * 8 / 1e6
 

@@ -48,10 +48,10 @@ from device_tracker.relocalisation_requests import EdgeRelocalisation
 from device_tracker.uplink_sender import Encoded, UplinkSender
 from device_tracker.uplink_setup import uplink_from_parameters
 from msg_schemas import qos, topics
-from twinslam.node_hosts.acks import wait_for_acks
-from twinslam.node_hosts.checked_subscription import CheckedSubscription
-from twinslam.node_hosts.node_main import NodeStartError, run_node
-from twinslam.node_hosts.parameters import declare
+from twinslam.node_runtime.acks import wait_for_acks
+from twinslam.node_runtime.checked_subscription import CheckedSubscription
+from twinslam.node_runtime.node_main import NodeStartError, run_node
+from twinslam.node_runtime.parameters import declare
 from twinslam.uplink.channels import initial_rate
 from twinslam.uplink.shaper import SlotThroughput
 from twinslam.uplink.tc_shaper import TcShaper

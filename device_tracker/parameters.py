@@ -12,7 +12,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from twinslam.node_hosts.parameters import ParamSpec
+from twinslam.node_runtime.parameters import ParamSpec
 from twinslam.slam.front_end.map_source import DEFAULT_MAP_SOURCE, check_map_source
 from twinslam.slam.front_end.tracking import TrackingConfig
 from twinslam.slam.pose_plausibility import MotionBounds

@@ -25,7 +25,7 @@ from twinslam_msgs.msg import Relocalisation, RelocalisationRequest
 from device_tracker.uplink_sender import Carried, UplinkSender
 from msg_schemas import new, qos, topics
 from msg_schemas.headers import set_header
-from twinslam.node_hosts.checked_subscription import CheckedSubscription
+from twinslam.node_runtime.checked_subscription import CheckedSubscription
 from twinslam.slam.keyframe import KeyFramePayload
 
 

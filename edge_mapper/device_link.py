@@ -55,7 +55,7 @@ from edge_mapper.slot_planner import FrameObservations
 from edge_mapper.visual_messages import decisions_message, keyframes_message, map_points_message
 from msg_schemas import qos, topics
 from msg_schemas.poses import pose_matrix
-from twinslam.node_hosts.checked_subscription import CheckedSubscription
+from twinslam.node_runtime.checked_subscription import CheckedSubscription
 
 
 @dataclass(frozen=True)

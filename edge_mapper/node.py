@@ -48,8 +48,8 @@ from edge_mapper.policy_control import POLICY_KEYS
 from edge_mapper.slot_planner import FrameObservations
 from msg_schemas import qos, topics
 from twinslam.allocation.allocators import BudgetError, check_budget
-from twinslam.node_hosts.node_main import NodeStartError, run_node
-from twinslam.node_hosts.parameters import declare
+from twinslam.node_runtime.node_main import NodeStartError, run_node
+from twinslam.node_runtime.parameters import declare
 
 #: seconds between looks at the graph for new devices, and at the devices' silence
 DISCOVERY_PERIOD_S = 1.0

@@ -23,7 +23,7 @@ from edge_mapper.policy_control import (
 from edge_mapper.slot_planner import SlotConfig
 from msg_schemas import topics
 from twinslam.allocation.allocators import ALLOCATORS
-from twinslam.node_hosts.parameters import ParamSpec
+from twinslam.node_runtime.parameters import ParamSpec
 from twinslam.slot_protocol import default_device, table1
 
 

@@ -14,8 +14,8 @@ import pytest
 # 65 s of CPU instead of 15). A test of thread settings clears it for what it starts.
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-from twinslam.node_hosts.loopback import LoopbackDomain
-from twinslam.node_hosts.session import RosSession
+from twinslam.hosts.loopback import LoopbackDomain
+from twinslam.node_runtime.session import RosSession
 
 
 def _expected_seconds(item: pytest.Item) -> float:

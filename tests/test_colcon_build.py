@@ -21,8 +21,8 @@ from pathlib import Path
 
 import pytest
 
-from twinslam.node_hosts.fastdds import ros_env
-from twinslam.node_hosts.loopback import DomainClaim
+from twinslam.hosts.fastdds import ros_env
+from twinslam.hosts.loopback import DomainClaim
 
 REPO = Path(__file__).resolve().parents[1]
 VENV = Path(sys.prefix)

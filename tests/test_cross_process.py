@@ -17,8 +17,8 @@ from twinslam_msgs.msg import FrameSummaries, FrameSummary
 
 from msg_schemas import message_class, new, qos
 from tests.nodes.digest import content_digest
-from twinslam.node_hosts.loopback import JsonLines, LoopbackDomain
-from twinslam.node_hosts.session import RosSession
+from twinslam.hosts.loopback import JsonLines, LoopbackDomain
+from twinslam.node_runtime.session import RosSession
 
 LISTENER = ["-m", "tests.nodes.listener"]
 
@@ -167,7 +167,7 @@ def test_waiting_for_acknowledgements_lets_the_other_threads_run(domain: Loopbac
 
     from std_msgs.msg import String
 
-    from twinslam.node_hosts.acks import wait_for_acks
+    from twinslam.node_runtime.acks import wait_for_acks
 
     wait_s = 3.0
     proc = domain.spawn([*LISTENER])

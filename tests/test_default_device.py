@@ -14,7 +14,7 @@ import yaml
 from twinslam.cli.commands.parameters import NODES as REFERENCE_NODES
 from twinslam.cli.main import build_parser
 from twinslam.live.launcher import DEFAULT_PARAMS, PAPER_PARAMS
-from twinslam.node_hosts.parameters import ParamSpec
+from twinslam.node_runtime.parameters import ParamSpec
 from twinslam.slam.front_end.map_source import DEFAULT_MAP_SOURCE, EDGE, EDGE_LOCAL
 from twinslam.slot_protocol import default_device, table1
 

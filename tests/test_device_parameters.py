@@ -12,9 +12,9 @@ from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import DescribeParameters, SetParameters
 
 from tests.test_edge_parameters import _call
-from twinslam.node_hosts.fastdds import REPO_ROOT
-from twinslam.node_hosts.loopback import LoopbackDomain
-from twinslam.node_hosts.session import RosSession
+from twinslam.hosts.fastdds import REPO_ROOT
+from twinslam.hosts.loopback import LoopbackDomain
+from twinslam.node_runtime.session import RosSession
 
 
 def _set_map_source(ros: RosSession, value: str) -> object:

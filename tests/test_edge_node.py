@@ -14,9 +14,9 @@ from twinslam_msgs.msg import FrameSummaries, Keyframe, MapStats, MapUpdate, Upl
 from device_tracker.messages import FrameRecord, frame_summaries_message, keyframe_message
 from msg_schemas import qos, topics
 from tests.test_edge_core import Device, K
+from twinslam.hosts.loopback import LoopbackDomain
 from twinslam.live.launcher import preloaded_nodes
-from twinslam.node_hosts.loopback import LoopbackDomain
-from twinslam.node_hosts.session import RosSession
+from twinslam.node_runtime.session import RosSession
 from twinslam.slam.keyframe import TRACK_ID_BIT, KeyFramePayload
 
 F = 8

@@ -13,8 +13,8 @@ from twinslam_msgs.msg import FrameSummaries, UploadRequest
 
 from device_tracker.messages import FrameRecord, frame_summaries_message
 from msg_schemas import qos, topics
-from twinslam.node_hosts.loopback import LoopbackDomain
-from twinslam.node_hosts.session import RosSession
+from twinslam.hosts.loopback import LoopbackDomain
+from twinslam.node_runtime.session import RosSession
 
 
 def _call(ros: RosSession, srv_type: type, name: str, request: object) -> object:

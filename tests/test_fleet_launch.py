@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 
 from twinslam.cli.main import main
+from twinslam.hosts.forked import process_name
 from twinslam.live.fleet import FleetConfig, device_sequence
-from twinslam.node_hosts.forked import process_name
 
 
 def test_every_device_plays_its_own_walk() -> None:

@@ -1,4 +1,4 @@
-"""Node processes forked from a preloaded server (twinslam.node_hosts.forked): each child is
+"""Node processes forked from a preloaded server (twinslam.hosts.forked): each child is
 the process ``python -m module`` would have been — its arguments, environment, working
 directory, pipes, exit code and signals — and none outlives its server."""
 
@@ -13,9 +13,9 @@ from pathlib import Path
 
 import pytest
 
+from twinslam.hosts.forked import ForkServer, ForkServerError, ForkServers
+from twinslam.hosts.netns import unavailable_reason
 from twinslam.live.node_fork_server import fork_servers
-from twinslam.node_hosts.forked import ForkServer, ForkServerError, ForkServers
-from twinslam.node_hosts.netns import unavailable_reason
 
 REPO = Path(__file__).resolve().parents[1]
 PROBE = "tests.nodes.fork_probe"

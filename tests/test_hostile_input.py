@@ -1,8 +1,8 @@
 """Hostile bytes at every message type a twinslam node subscribes to.
 
 In process, each payload goes through the subscription's own path
-(:meth:`~twinslam.node_hosts.checked_subscription.CheckedSubscription.handle`: rclpy's CDR decoding,
-validation, the callback or a logged rejection), as a sample taken off the wire would:
+(:meth:`~twinslam.node_runtime.checked_subscription.CheckedSubscription.handle`: rclpy's CDR
+decoding, validation, the callback or a logged rejection), as a sample taken off the wire would:
 Hypothesis draws truncated, extended and random payloads and bit flips of real ones (~16 s); a
 deterministic sweep writes 0xFFFFFFFF (a 4 GB length) into every aligned word of each type's
 sample under ``tracemalloc``. Over DDS, the real device, edge and twin processes get hostile
@@ -32,8 +32,8 @@ from rclpy.serialization import serialize_message
 from msg_schemas import message_class, new, qos
 from tests import cyclone_peer
 from twinslam.live.launcher import preloaded_nodes
-from twinslam.node_hosts.checked_subscription import CheckedSubscription
-from twinslam.node_hosts.session import RosSession
+from twinslam.node_runtime.checked_subscription import CheckedSubscription
+from twinslam.node_runtime.session import RosSession
 
 REPO = Path(__file__).resolve().parents[1]
 NODE_FILES = ["device_tracker/node.py", "device_tracker/relocalisation_requests.py",

@@ -8,7 +8,7 @@ import signal
 
 import pytest
 
-from twinslam.node_hosts.interrupts import Spinning, interrupt
+from twinslam.node_runtime.interrupts import Spinning, interrupt
 
 
 def test_an_interrupt_outside_a_spin_is_raised_at_once() -> None:

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from twinslam.node_hosts.loopback import DomainClaim, LoopbackDomain, _claims_dir
+from twinslam.hosts.loopback import DomainClaim, LoopbackDomain, _claims_dir
 
 #: the ids these tests claim among themselves, in claims of their own (tmp_path): 230..232,
 #: beyond the machine's 100..229 that the suite's other tests claim on parallel workers — the
@@ -50,7 +50,7 @@ def test_an_id_held_by_another_process_is_never_handed_out_and_comes_back_when_i
         [sys.executable, "-c",
          "import random, sys, time\n"
          "from pathlib import Path\n"
-         "from twinslam.node_hosts.loopback import DomainClaim\n"
+         "from twinslam.hosts.loopback import DomainClaim\n"
          f"c = DomainClaim(random.Random(3), ids=range({IDS.start}, {IDS.stop}), "
          f"folder=Path({str(tmp_path)!r}))\n"
          "print(c.domain_id, flush=True); time.sleep(60)"],

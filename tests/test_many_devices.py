@@ -13,9 +13,9 @@ import pytest
 from twinslam_msgs.msg import FrameSummaries, KeyframeBudget, MapStats, UploadRequest
 
 from msg_schemas import qos
+from twinslam.hosts.loopback import LoopbackDomain
 from twinslam.live.launcher import preloaded_nodes
-from twinslam.node_hosts.loopback import LoopbackDomain
-from twinslam.node_hosts.session import RosSession
+from twinslam.node_runtime.session import RosSession
 
 #: per device: slot length in frames, channel seed, first frame of the synthetic room played.
 #: The cameras play at half speed (RATE): slots of 1 s and 1.5 s, as 30 and 45 frames at full

@@ -400,7 +400,7 @@ def test_a_learned_variant_is_reported_over_its_training_runs_with_every_episode
 
 
 def test_edge_node_with_a_missing_policy_checkpoint_says_so_and_exits(tmp_path: Path) -> None:
-    from twinslam.node_hosts.loopback import LoopbackDomain
+    from twinslam.hosts.loopback import LoopbackDomain
 
     missing = tmp_path / "gone.pt"
     with LoopbackDomain() as domain:

@@ -2,7 +2,7 @@
 namespace with its own address, the device's uplink a veth shaped by ``tc``, and faults
 injected while the 7-Scenes sample plays (the synthetic room without it).
 
-Needs root and iproute2 (``twinslam.node_hosts.netns``); without them every test here is
+Needs root and iproute2 (``twinslam.hosts.netns``); without them every test here is
 skipped with the reason. The namespaces of a test are removed when it ends, failed or not.
 
 These tests run in a process of their own (``tests/test_multihost_process.py`` starts it):
@@ -27,10 +27,10 @@ from typing import Any
 import pytest
 
 from tests.data_paths import seven_or_synthetic
+from twinslam.hosts.netns import HOSTS, NetnsError, NetnsHosts, address_of, unavailable_reason
 from twinslam.live.launcher import NODE_HOSTS, LaunchConfig, Launcher, tc_uplink_params
 from twinslam.live.report import RunReport
 from twinslam.live.run_log import RunLog
-from twinslam.node_hosts.netns import HOSTS, NetnsError, NetnsHosts, address_of, unavailable_reason
 
 SEQUENCE = seven_or_synthetic()
 VMAX = 45

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from twinslam.node_hosts.netns import unavailable_reason
+from twinslam.hosts.netns import unavailable_reason
 
 REPO = Path(__file__).resolve().parents[1]
 MODULE = REPO / "tests" / "test_multihost.py"

@@ -11,9 +11,9 @@ import xml.etree.ElementTree as ET
 
 import pytest
 
-from twinslam.node_hosts.ebpf_loss import random_drop_program
-from twinslam.node_hosts.fastdds import PROFILE, ros_env
-from twinslam.node_hosts.netns import HOST_PROFILE, HOSTS, NetnsHosts, address_of, host_env
+from twinslam.hosts.ebpf_loss import random_drop_program
+from twinslam.hosts.fastdds import PROFILE, ros_env
+from twinslam.hosts.netns import HOST_PROFILE, HOSTS, NetnsHosts, address_of, host_env
 
 NS = {"f": "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"}
 
@@ -75,7 +75,7 @@ def test_fast_dds_accepts_every_element_of_the_profiles(which: str, tmp_path) ->
 
 
 def test_a_fleets_hosts_get_addresses_of_their_own_and_the_edge_keeps_its_own() -> None:
-    from twinslam.node_hosts.netns import SUBNET
+    from twinslam.hosts.netns import SUBNET
 
     fleet = NetnsHosts(prefix="tq-", hosts=("ar1", "ar2", "edge"))
     assert [fleet.address(h) for h in ("ar1", "ar2", "edge")] == [

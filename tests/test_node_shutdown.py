@@ -14,8 +14,8 @@ from twinslam_msgs.msg import MapStats
 
 from msg_schemas import qos
 from tests.test_launch_start_order import spawn_as_launched
-from twinslam.node_hosts.loopback import LoopbackDomain
-from twinslam.node_hosts.session import RosSession
+from twinslam.hosts.loopback import LoopbackDomain
+from twinslam.node_runtime.session import RosSession
 
 #: each node's executable and module, in the order they are started (as ``ros2 launch``
 #: with ``twin:=true`` starts them: the parameter file and the launch file's parameters)

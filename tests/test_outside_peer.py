@@ -13,8 +13,8 @@ from rmw_dds_common.msg import ParticipantEntitiesInfo
 from sensor_msgs.msg import Image
 
 from tests import cyclone_peer
+from twinslam.hosts.loopback import LoopbackDomain
 from twinslam.live.launcher import preloaded_nodes
-from twinslam.node_hosts.loopback import LoopbackDomain
 
 #: node processes forked as the launchers fork theirs (twinslam.live.node_fork_server)
 FORKS = preloaded_nodes()

@@ -24,11 +24,11 @@ import pytest
 
 from msg_schemas.headers import stamp_seconds
 from tests.data_paths import seven_or_synthetic
+from twinslam.hosts.loopback import LoopbackDomain
 from twinslam.live.launcher import LaunchConfig, Launcher
 from twinslam.live.report import RunReport
 from twinslam.live.run_log import RunLog
 from twinslam.live.scenarios import SCENARIOS, Scenario
-from twinslam.node_hosts.loopback import LoopbackDomain
 from twinslam.sequences.opening import open_sequence
 from twinslam.slam.back_end.keyframe_map import shared_counts
 from twinslam.slam.front_end.tracking import TrackingConfig
@@ -97,7 +97,7 @@ class _Viewer:
 
         from msg_schemas import topics
         from msg_schemas.headers import stamp_key
-        from twinslam.node_hosts.session import RosSession
+        from twinslam.node_runtime.session import RosSession
 
         if self.session is None:
             self.session = RosSession("viewer")

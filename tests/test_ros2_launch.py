@@ -19,8 +19,8 @@ import pytest
 from twinslam_msgs.msg import FrameSummaries
 
 from msg_schemas import qos
-from twinslam.node_hosts.loopback import LoopbackDomain
-from twinslam.node_hosts.session import RosSession
+from twinslam.hosts.loopback import LoopbackDomain
+from twinslam.node_runtime.session import RosSession
 
 REPO = Path(__file__).resolve().parents[1]
 VENV = Path(sys.prefix)

@@ -23,7 +23,7 @@ from msg_schemas import qos, topics
 from twinslam.cli.main import main
 from twinslam.live import run_bag
 from twinslam.live.run_bag import RecordingOptions, RunRecorder, check_destination
-from twinslam.node_hosts.session import RosSession
+from twinslam.node_runtime.session import RosSession
 from twinslam.sequence_player.messages import color_message, depth_message
 from twinslam.sequences.synthetic import SyntheticSequence
 

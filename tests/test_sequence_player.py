@@ -12,9 +12,9 @@ from nav_msgs.msg import Path as PathMsg
 from sensor_msgs.msg import CameraInfo, Image
 
 from msg_schemas import qos, topics
+from twinslam.hosts.loopback import LoopbackDomain
 from twinslam.live.launcher import preloaded_nodes
-from twinslam.node_hosts.loopback import LoopbackDomain
-from twinslam.node_hosts.session import RosSession
+from twinslam.node_runtime.session import RosSession
 from twinslam.sequence_player.messages import depth_message
 from twinslam.sequences.frame import RgbdFrame
 

@@ -9,9 +9,9 @@ import pytest
 from twinslam_msgs.msg import FrameSummaries, MapStats, MapUpdate, UplinkThroughput, UploadRequest
 
 from msg_schemas import qos
+from twinslam.hosts.loopback import LoopbackDomain
 from twinslam.live.launcher import preloaded_nodes
-from twinslam.node_hosts.loopback import LoopbackDomain
-from twinslam.node_hosts.session import RosSession
+from twinslam.node_runtime.session import RosSession
 
 #: per pair: slot length (different, so a frame id tells whose slot it is), channel seed,
 #: first frame of the synthetic room played (different views)

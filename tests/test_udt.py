@@ -15,8 +15,8 @@ import pytest
 from twinslam_msgs.msg import RateLatent, UplinkThroughput
 
 from msg_schemas import new, qos, topics
-from twinslam.node_hosts.loopback import LoopbackDomain
-from twinslam.node_hosts.session import RosSession
+from twinslam.hosts.loopback import LoopbackDomain
+from twinslam.node_runtime.session import RosSession
 from twinslam.twin.markov import MarkovCounts
 from twinslam.uplink.channels import MarkovChannel, chain_states, state_rates
 

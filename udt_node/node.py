@@ -38,10 +38,10 @@ from rclpy.node import Node
 from twinslam_msgs.msg import RateLatent, UplinkThroughput
 
 from msg_schemas import qos, topics
-from twinslam.node_hosts.checked_subscription import CheckedSubscription
-from twinslam.node_hosts.matched_readers import logging_matches
-from twinslam.node_hosts.node_main import NodeStartError, run_node
-from twinslam.node_hosts.parameters import declare
+from twinslam.node_runtime.checked_subscription import CheckedSubscription
+from twinslam.node_runtime.matched_readers import logging_matches
+from twinslam.node_runtime.node_main import NodeStartError, run_node
+from twinslam.node_runtime.parameters import declare
 from twinslam.twin.regime_twin import RegimeConfig, RegimeTwin
 from twinslam.twin.registry import canonical
 from twinslam.twin.variational_twin import VariationalConfig, VariationalTwin

@@ -3,7 +3,7 @@ describe /udt_node states`` shows them; a value out of range stops the node with
 
 from __future__ import annotations
 
-from twinslam.node_hosts.parameters import ParamSpec
+from twinslam.node_runtime.parameters import ParamSpec
 from twinslam.slot_protocol import table1
 from twinslam.twin.registry import ALIASES, TWIN_MODELS
 

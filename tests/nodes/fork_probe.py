@@ -9,7 +9,7 @@ import os
 import sys
 import time
 
-from twinslam.node_hosts.forked import run_server
+from twinslam.hosts.forked import run_server
 
 PRELOADED = os.getpid()        #: the server's pid, as the children see it (a preloaded value)
 

@@ -1,7 +1,7 @@
 """A listener node run as its own OS process by the cross-process tests.
 
 It subscribes to one topic (parameters ``topic`` and ``type``) through a
-:class:`~twinslam.node_hosts.checked_subscription.CheckedSubscription`, prints one JSON line when
+:class:`~twinslam.node_runtime.checked_subscription.CheckedSubscription`, prints one JSON line when
 it is
 ready (its resolved names and parameters) and one JSON line per message it accepts, holding
 the digest of its content (:mod:`tests.nodes.digest`).
@@ -16,8 +16,8 @@ from rclpy.node import Node
 
 from msg_schemas import message_class, qos
 from tests.nodes.digest import content_digest
-from twinslam.node_hosts.checked_subscription import CheckedSubscription
-from twinslam.node_hosts.node_main import run_node
+from twinslam.node_runtime.checked_subscription import CheckedSubscription
+from twinslam.node_runtime.node_main import run_node
 
 
 class Listener(Node):

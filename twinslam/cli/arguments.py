@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 
 from twinslam.covisibility.dataset import CovisibilityDataset
-from twinslam.node_hosts.fastdds import REPO_ROOT
+from twinslam.hosts.fastdds import REPO_ROOT
 from twinslam.simulator.covisibility_spec import open_covisibility
 from twinslam.slot_protocol import table1
 from twinslam.sweeps import EXECUTORS, Executor, make_executor

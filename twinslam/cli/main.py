@@ -44,7 +44,7 @@ from twinslam.cli.commands import (
     train,
 )
 from twinslam.cli.console import HelpFormatter
-from twinslam.node_hosts.interrupts import interrupt
+from twinslam.node_runtime.interrupts import interrupt
 
 #: the commands in the order ``twinslam --help`` lists them
 COMMANDS = (sim, train, extract, record, nodes, hosts, launch, evaluate, calibrate, demo, trace,
@@ -74,7 +74,7 @@ def sigterm_as_interrupt() -> Iterator[None]:
     does: a live run stops the nodes it started instead of leaving them running (measured:
     a killed ``twinslam launch`` left its player, devices and edge behind). Both arrive as
     KeyboardInterrupt, held back while the main thread is inside rclpy's executor
-    (:mod:`twinslam.node_hosts.interrupts`)."""
+    (:mod:`twinslam.node_runtime.interrupts`)."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return

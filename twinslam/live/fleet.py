@@ -24,12 +24,12 @@ import numpy as np
 from twinslam_msgs.msg import MapStats
 
 from twinslam.allocation.allocators import check_fleet, jain_index
+from twinslam.hosts.loopback import ProcessDomain
 from twinslam.live.launcher import LaunchConfig, Launcher, preloaded_nodes
 from twinslam.live.monitor import PipelineMonitor
 from twinslam.live.report import RunReport, report
 from twinslam.live.run_log import RunLog
-from twinslam.node_hosts.loopback import ProcessDomain
-from twinslam.node_hosts.session import RosSession
+from twinslam.node_runtime.session import RosSession
 from twinslam.sequences.opening import is_synthetic, synthetic_walk
 from twinslam.slot_protocol import default_device, table1
 

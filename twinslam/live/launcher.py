@@ -19,16 +19,16 @@ from typing import Any
 
 import yaml
 
+from twinslam.hosts.fastdds import REPO_ROOT
+from twinslam.hosts.forked import ForkServers, NodeProcess
+from twinslam.hosts.loopback import ProcessDomain
 from twinslam.live.monitor import PipelineMonitor, status_line
 from twinslam.live.node_fork_server import SWITCH, fork_servers
 from twinslam.live.report import RunReport, report
 from twinslam.live.run_bag import RecordingOptions, RecordingSummary, RunRecorder
 from twinslam.live.run_log import RunLog
 from twinslam.live.scenarios import SCENARIOS, Scenario
-from twinslam.node_hosts.fastdds import REPO_ROOT
-from twinslam.node_hosts.forked import ForkServers, NodeProcess
-from twinslam.node_hosts.loopback import ProcessDomain
-from twinslam.node_hosts.session import RosSession
+from twinslam.node_runtime.session import RosSession
 from twinslam.sequences.opening import AUTO
 from twinslam.slot_protocol import default_device, table1
 
@@ -39,7 +39,7 @@ LAST_POSE_WAIT_S = 5.0
 NODE_MODULES = {"sequence_player": "twinslam.sequence_player.node",
                 "device_tracker": "device_tracker.node", "edge_mapper": "edge_mapper.node",
                 "udt_node": "udt_node.node"}
-#: where each node runs when the domain has hosts (twinslam.node_hosts.netns): the camera is the
+#: where each node runs when the domain has hosts (twinslam.hosts.netns): the camera is the
 #: device's
 NODE_HOSTS = {"sequence_player": "device", "device_tracker": "device", "edge_mapper": "edge",
               "udt_node": "twin"}

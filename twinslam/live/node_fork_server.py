@@ -1,4 +1,4 @@
-"""The fork server of the launchers' nodes (:mod:`twinslam.node_hosts.forked`): the player,
+"""The fork server of the launchers' nodes (:mod:`twinslam.hosts.forked`): the player,
 the device and the edge imported and their kernels loaded once, each node then forked from
 here in a fraction of the ~1.5 s of CPU it takes to start from nothing.
 
@@ -12,7 +12,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from twinslam.node_hosts.forked import ForkServers, run_server
+from twinslam.hosts.forked import ForkServers, run_server
 
 #: the node modules a fork server preloads (as the launchers run them: ``python -m``)
 PRELOADED = frozenset({"twinslam.sequence_player.node", "device_tracker.node",

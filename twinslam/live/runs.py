@@ -33,12 +33,12 @@ if TYPE_CHECKING:
     from _typeshed import DataclassInstance
 
 from twinslam.covisibility.dataset import load_covisibility
+from twinslam.hosts.loopback import LoopbackDomain
 from twinslam.live.calibration import LiveFrames, live_frames, played_frames
 from twinslam.live.launcher import LaunchConfig, Launcher
 from twinslam.live.report import RunReport, policy_label
 from twinslam.live.run_picture import plot_run
 from twinslam.live.scenarios import Scenario
-from twinslam.node_hosts.loopback import LoopbackDomain
 from twinslam.policies.registry import LEARNED_PREFIX, POLICY_KINDS
 from twinslam.reporting import file_name, write_csv
 from twinslam.sequences.opening import is_synthetic, synthetic_walk

@@ -42,9 +42,9 @@ from msg_schemas import qos, topics
 from msg_schemas.headers import stamp_seconds
 from msg_schemas.paths import PathWindow
 from msg_schemas.transforms import tf_message, transform_stamped
-from twinslam.node_hosts.acks import wait_for_acks
-from twinslam.node_hosts.node_main import NodeStartError, run_node
-from twinslam.node_hosts.parameters import declare
+from twinslam.node_runtime.acks import wait_for_acks
+from twinslam.node_runtime.node_main import NodeStartError, run_node
+from twinslam.node_runtime.parameters import declare
 from twinslam.sequence_player.messages import (
     camera_info_message,
     color_message,

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from twinslam.node_hosts.parameters import ParamSpec
+from twinslam.node_runtime.parameters import ParamSpec
 from twinslam.sequence_player.messages import DEPTH_ENCODINGS
 from twinslam.sequence_player.playback import ORDERS, parse_bursts
 from twinslam.sequences.opening import AUTO

@@ -30,12 +30,12 @@ from pathlib import Path
 from twinslam.cli.arguments import BUNDLED_COVIS, BUNDLED_SEQUENCE, FALLBACK_SEQUENCE
 from twinslam.cli.commands.sim import Comparison, compare
 from twinslam.cli.console import Subparsers
+from twinslam.hosts.fastdds import REPO_ROOT
 from twinslam.live.calibration import covisibility_file
 from twinslam.live.launcher import DEFAULT_PARAMS, PAPER_PARAMS, player_camera
 from twinslam.live.runs import RunKey, RunResult, RunTask, run_one
 from twinslam.live.scenarios import SCENARIOS
 from twinslam.live.tables import side_by_side
-from twinslam.node_hosts.fastdds import REPO_ROOT
 from twinslam.slam.front_end.map_source import EDGE, EDGE_LOCAL
 
 #: what the demo's live runs play

@@ -6,7 +6,7 @@ import argparse
 import sys
 
 from twinslam.cli.console import Subparsers
-from twinslam.node_hosts.netns import (
+from twinslam.hosts.netns import (
     HOST_PROFILE,
     HOSTS,
     NetnsError,

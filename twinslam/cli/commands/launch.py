@@ -9,6 +9,8 @@ from typing import TypeVar
 
 from twinslam.cli.commands.launch_fleet import add_fleet_arguments, domain_for, run_fleets
 from twinslam.cli.console import Subparsers, each_run, error
+from twinslam.hosts.loopback import LoopbackDomain
+from twinslam.hosts.netns import unavailable_reason
 from twinslam.live.launcher import DEFAULT_PARAMS, LaunchConfig, Launcher, tc_uplink_params
 from twinslam.live.report import RunReport, policy_label, print_table
 from twinslam.live.run_bag import (
@@ -21,8 +23,6 @@ from twinslam.live.run_checks import params_file_problem, policy_problem
 from twinslam.live.run_picture import plot_run
 from twinslam.live.scenarios import SCENARIOS, Scenario, scenario
 from twinslam.live.slot_table import write_slot_table
-from twinslam.node_hosts.loopback import LoopbackDomain
-from twinslam.node_hosts.netns import unavailable_reason
 from twinslam.policies.registry import LEARNED_PREFIX
 from twinslam.reporting import file_name
 from twinslam.sequences.frame import SequenceError

@@ -10,6 +10,8 @@ import functools
 import os
 
 from twinslam.cli.console import each_run, error
+from twinslam.hosts.loopback import EnvironmentDomain, LoopbackDomain, ProcessDomain
+from twinslam.hosts.netns import NetnsHosts
 from twinslam.live.fleet import (
     FLEET_COLUMNS,
     FleetConfig,
@@ -23,8 +25,6 @@ from twinslam.live.launcher import LaunchConfig
 from twinslam.live.report import policy_label
 from twinslam.live.run_picture import plot_run
 from twinslam.live.scenarios import Scenario
-from twinslam.node_hosts.loopback import EnvironmentDomain, LoopbackDomain, ProcessDomain
-from twinslam.node_hosts.netns import NetnsHosts
 from twinslam.reporting import file_name
 from twinslam.sequences.opening import is_synthetic, open_sequence
 

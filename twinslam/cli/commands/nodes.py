@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 
 from twinslam.cli.console import Subparsers, error
-from twinslam.node_hosts.fastdds import domain_id_from_env
-from twinslam.node_hosts.session import RosSession
+from twinslam.hosts.fastdds import domain_id_from_env
+from twinslam.node_runtime.session import RosSession
 
 
 def run(args: argparse.Namespace) -> int:

@@ -1,6 +1,6 @@
 """``twinslam parameters``: the nodes' parameter reference, generated from their declarations.
 
-Every node lists its parameters once, as :class:`~twinslam.node_hosts.parameters.ParamSpec` s
+Every node lists its parameters once, as :class:`~twinslam.node_runtime.parameters.ParamSpec` s
 (name, default, description, range, whether it changes live); ``ros2 param describe`` reads the
 same declarations from a running node. This command writes them as one Markdown page
 (``docs/parameters.md``), so the reference a user reads is never older than the code:
@@ -17,7 +17,7 @@ from pathlib import Path
 from device_tracker.parameters import PARAMETERS as DEVICE
 from edge_mapper.parameters import PARAMETERS as EDGE
 from twinslam.cli.console import Subparsers
-from twinslam.node_hosts.parameters import ParamSpec
+from twinslam.node_runtime.parameters import ParamSpec
 from twinslam.sequence_player.parameters import PARAMETERS as PLAYER
 from udt_node.parameters import PARAMETERS as TWIN
 

@@ -12,7 +12,7 @@ for, and its stdout and stderr on the asker's pipes — the same contract as ``p
 Protocol (one ``AF_UNIX`` ``SOCK_SEQPACKET`` socket, JSON messages): the client sends
 ``{"ref", "module", "argv", "env", "cwd", "netns"}`` with the child's stdout and stderr as
 ancillary file descriptors (``SCM_RIGHTS``); ``netns``, when not null, is a network
-namespace the child enters before it runs (a host of :mod:`twinslam.node_hosts.netns`: its
+namespace the child enters before it runs (a host of :mod:`twinslam.hosts.netns`: its
 DDS participants then live on that host's interfaces, and ``/proc/net`` shows them, as under
 ``ip netns exec``); the server answers ``{"ref", "pid"}`` once forked and
 ``{"pid", "code"}`` when the child has exited (``code`` as :attr:`subprocess.Popen.returncode`:

@@ -14,7 +14,7 @@ datagram of 45.
 The device's uplink is its veth: ``tc`` on the device's ``eth0`` shapes what the device sends
 (:mod:`twinslam.uplink.tc_shaper`), and :meth:`NetnsHosts.set_link` pulls the switch-side
 end of a host's cable. :class:`NetnsHosts` is a context manager with the process handling of
-:class:`~twinslam.node_hosts.loopback.LoopbackDomain`: ``spawn(args, host=...)`` runs ``python
+:class:`~twinslam.hosts.loopback.LoopbackDomain`: ``spawn(args, host=...)`` runs ``python
 args``
 inside a host, ``close()`` stops them and deletes every namespace, even after a failure.
 Creating namespaces needs root (CAP_SYS_ADMIN and CAP_NET_ADMIN) and ``iproute2``;
@@ -33,9 +33,9 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
-from twinslam.node_hosts.fastdds import ENV_KEYS, ros_env
-from twinslam.node_hosts.forked import enter_network_namespace
-from twinslam.node_hosts.loopback import ProcessDomain
+from twinslam.hosts.fastdds import ENV_KEYS, ros_env
+from twinslam.hosts.forked import enter_network_namespace
+from twinslam.hosts.loopback import ProcessDomain
 
 HOSTS = ("device", "edge", "twin")
 SUBNET = "10.210.0"                      #: the hosts' /24; addresses exist only in the namespaces
@@ -265,14 +265,14 @@ class NetnsHosts(ProcessDomain):
 
     def lose_packets(self, host: str, percent: float) -> str:
         """Drop ``percent`` % of what ``host`` sends, at random, on its ``eth0``: ``tc netem``
-        where the kernel has it, else an eBPF classifier (:mod:`twinslam.node_hosts.ebpf_loss`).
+        where the kernel has it, else an eBPF classifier (:mod:`twinslam.hosts.ebpf_loss`).
         Returns which; raises :class:`NetnsError` when neither can be installed."""
         ns = self.namespaces[host]
         netem = subprocess.run(["tc", "-n", ns, "qdisc", "replace", "dev", INTERFACE, "root",
                                 "netem", "loss", f"{percent:g}%"], capture_output=True, text=True)
         if netem.returncode == 0:
             return "netem"
-        from twinslam.node_hosts.ebpf_loss import EbpfError, pin_random_drop
+        from twinslam.hosts.ebpf_loss import EbpfError, pin_random_drop
 
         if self._bpffs is None:
             self._bpffs = Path(tempfile.mkdtemp(prefix=f"{self.prefix}bpffs-"))

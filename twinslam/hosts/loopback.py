@@ -26,14 +26,14 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
-from twinslam.node_hosts.fastdds import (
+from twinslam.hosts.fastdds import (
     ENV_KEYS,
     REPO_ROOT,
     domain_id_from_env,
     installed_profile,
     ros_env,
 )
-from twinslam.node_hosts.forked import ForkServers, NodeProcess
+from twinslam.hosts.forked import ForkServers, NodeProcess
 
 
 def _discovery_port_free(domain_id: int) -> bool:
@@ -109,7 +109,7 @@ class ProcessDomain:
     """The processes of one DDS domain: each started with that domain's environment, each
     stopped (SIGTERM, then SIGKILL) when the domain closes, so a failing test never leaves
     processes behind. Subclasses say where a host's processes run and with which DDS
-    environment (:class:`LoopbackDomain`, :class:`twinslam.node_hosts.netns.NetnsHosts`)."""
+    environment (:class:`LoopbackDomain`, :class:`twinslam.hosts.netns.NetnsHosts`)."""
 
     def __init__(self, domain_id: int) -> None:
         self.domain_id = domain_id

@@ -6,7 +6,7 @@ an executor's ``spin_once``, the next bytecodes may be those of rclpy turning a 
 argument of a callback; an exception raised there comes out of pybind11 as "Unable to convert
 call argument '0' to Python object" (seen: ``twinslam launch`` exited 1 instead of 130 on
 SIGTERM). :func:`interrupt` notes the signal there instead, and the session raises
-KeyboardInterrupt as the spin returns (:meth:`twinslam.node_hosts.session.RosSession.spin_once`).
+KeyboardInterrupt as the spin returns (:meth:`twinslam.node_runtime.session.RosSession.spin_once`).
 No rclpy here: the command line installs the handler before it knows whether it will spin.
 """
 

@@ -17,7 +17,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
-from twinslam.node_hosts.interrupts import Spinning
+from twinslam.node_runtime.interrupts import Spinning
 
 
 class RosSession:

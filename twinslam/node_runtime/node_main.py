@@ -11,7 +11,7 @@ The nodes spin on rclpy's C++ ``EventsExecutor`` (``rclpy.experimental``, in Jaz
 On ``bench.dds``'s camera path it cut the median latency from 5.1 to 3.8 ms (BENCHMARKS.md;
 measured on a loaded machine). ``TWINSLAM_EXECUTOR=single`` runs a node on rclpy's
 ``SingleThreadedExecutor`` instead, should the experimental executor misbehave somewhere.
-Freed memory stays in the process (:mod:`twinslam.node_hosts.allocator`): a frame's buffers
+Freed memory stays in the process (:mod:`twinslam.node_runtime.allocator`): a frame's buffers
 are reused instead of page-faulted in anew.
 
 Signals only ever *ask* for the stop; the main loop acts on it between two executor turns.
@@ -41,7 +41,7 @@ from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
-from twinslam.node_hosts.allocator import keep_freed_memory
+from twinslam.node_runtime.allocator import keep_freed_memory
 
 N = TypeVar("N", bound=Node)
 

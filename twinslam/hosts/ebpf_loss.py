@@ -6,7 +6,7 @@ direct-action program is in far more kernels: this one draws ``bpf_get_prandom_u
 packet and answers ``TC_ACT_SHOT`` (drop) when the draw falls below ``percent`` % of 2³², else
 ``TC_ACT_OK``. It is loaded with the ``bpf(2)`` system call, pinned on a private ``bpffs``
 mount, and attached by ``tc`` to the ``clsact`` egress hook of an interface
-(:meth:`twinslam.node_hosts.netns.NetnsHosts.lose_packets`). Linux x86-64 and arm64, root only.
+(:meth:`twinslam.hosts.netns.NetnsHosts.lose_packets`). Linux x86-64 and arm64, root only.
 """
 
 from __future__ import annotations

@@ -31,7 +31,7 @@ from rclpy.exceptions import (
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from twinslam.node_hosts.node_main import NodeStartError
+from twinslam.node_runtime.node_main import NodeStartError
 
 #: a check of one value: None when fine, else the reason it is refused
 Check = Callable[[Any], "str | None"]
