@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from edge_mapper.planning_world import MAX_DEPTH_M, visible_points
-from twinslam.policies.restoring import MIN_VIEW_POINTS, victim_for
+from twinslam.policies.restoring import MIN_VIEW_POINTS, choose_restores
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap, shared_counts
 from twinslam.uncertainty.map_uncertainty import map_uncertainty
@@ -76,31 +76,17 @@ def plan_restores(m: KeyFrameMap, archive: KeyFrameArchive, poses: Sequence[np.n
     candidates = archived_in_view(archive, poses, intrinsics, image_shape, slot)
     if not candidates:
         return RestorePlan([], [])
-    keep = set(protected)
     sets = {k: m.point_array(k) for k in m.keyframes}
-    scores = _map_view_scores(m, sets, poses, intrinsics, image_shape)
-    restore: list[int] = []
-    evict: list[int] = []
-    for score, kf_id in candidates:
-        if len(restore) >= limit:
-            break
-        victim = None
-        if len(sets) >= vmax:
-            victim = victim_for(score, scores, keep)
-            if victim is None:
-                break                    # the others are better still: nothing more to gain
-        trial = {k: v for k, v in sets.items() if k != victim}
-        trial[kf_id] = archive.get(kf_id).point_ids
+    sets.update({k: archive.get(k).point_ids for _, k in candidates})
+
+    def connected(keyframes: list[int]) -> bool:
         # connected exactly when u(G) is finite: the check the map's uncertainty makes
-        if not math.isfinite(map_uncertainty(shared_counts(list(trial.values())))):
-            continue
-        sets = trial
-        restore.append(kf_id)
-        if victim is not None:
-            evict.append(victim)
-            del scores[victim]
-        scores[kf_id] = score
-        keep.add(kf_id)
+        return math.isfinite(map_uncertainty(shared_counts([sets[k] for k in keyframes])))
+
+    scores = _map_view_scores(m, {k: sets[k] for k in m.keyframes}, poses, intrinsics,
+                              image_shape)
+    restore, evict = choose_restores(candidates, scores, vmax - len(m.keyframes), limit,
+                                     set(protected), connected)
     return RestorePlan(restore, evict)
 
 

@@ -56,6 +56,44 @@ def victim_for(score: float, scores: Mapping[int, float], keep: Collection[int])
     return victim if score > REPLACE_RATIO * scores[victim] else None
 
 
+def choose_restores(candidates: Sequence[tuple[float, int]], map_scores: Mapping[int, float],
+                    room: int, limit: int, protected: Collection[int],
+                    connected: Callable[[list[int]], bool]) -> tuple[list[int], list[int]]:
+    """The restore rule (the module docstring's), in whatever terms a caller scores a view:
+    (restored, evicted). ``candidates`` are (view score, archived keyframe) at or above
+    :data:`MIN_VIEW_POINTS`, best first; ``map_scores`` each map keyframe's view score (its
+    keys are the map); ``room`` the keyframes the map may still add under V_max; ``limit``
+    the most to restore; ``protected`` keyframes are never replaced (this slot's uploads);
+    ``connected(keyframes)`` whether a map of those keyframes is one covisibility graph. The
+    edge calls it with points seen from predicted poses (:mod:`edge_mapper.restores`), the
+    simulator with covisibility weights (:func:`with_restores`): one rule decides for both."""
+    scores = dict(map_scores)
+    current = list(scores)
+    keep = set(protected)
+    restore: list[int] = []
+    evict: list[int] = []
+    for score, kf in candidates:
+        if len(restore) >= limit:
+            break
+        victim = None
+        if room <= 0:
+            victim = victim_for(score, scores, keep)
+            if victim is None:
+                break                    # the others are better still: nothing more to gain
+        trial = [k for k in current if k != victim] + [kf]
+        if not connected(trial):
+            continue
+        current, scores[kf] = trial, score
+        restore.append(kf)
+        keep.add(kf)
+        if victim is None:
+            room -= 1
+        else:
+            evict.append(victim)
+            del scores[victim]
+    return restore, evict
+
+
 def with_restores(obs: SlotObservation, action: MapAction, view: Sequence[int]) -> MapAction:
     """``action`` with up to ``obs.n_restore`` archived keyframes brought back for ``view``
     (frame instances whose weights ``obs.weights`` knows), and the map keyframes they replace
@@ -75,31 +113,12 @@ def with_restores(obs: SlotObservation, action: MapAction, view: Sequence[int]) 
         scores = dict(zip(current, obs.weight_block(current, view).max(axis=1).tolist(),
                           strict=True))
     room = (obs.vmax - len(current)) if obs.vmax is not None else obs.n_restore
-    protected = set(action.upload)
-    restore: list[int] = []
-    evict = list(action.evict)
-    for score, kf in candidates:
-        if len(restore) >= obs.n_restore:
-            break
-        victim = None
-        if room <= 0:
-            victim = victim_for(score, scores, protected)
-            if victim is None:
-                break
-        trial = [k for k in current if k != victim] + [kf]
-        if not math.isfinite(map_uncertainty(obs.weight_block(trial, trial))):
-            continue
-        current, scores[kf] = trial, score
-        restore.append(kf)
-        protected.add(kf)
-        if victim is None:
-            room -= 1
-        else:
-            evict.append(victim)
-            del scores[victim]
+    restore, evict = choose_restores(
+        candidates, scores, room, obs.n_restore, action.upload,
+        lambda trial: math.isfinite(map_uncertainty(obs.weight_block(trial, trial))))
     if not restore:
         return action
-    return MapAction(list(action.upload), sorted(evict), restore)
+    return MapAction(list(action.upload), sorted([*action.evict, *evict]), restore)
 
 
 @runtime_checkable
