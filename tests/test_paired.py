@@ -1,6 +1,7 @@
-"""The figures' controls and paired column: a paired difference is taken episode by
-episode with a two-level bootstrap interval, and fig7 reports random and the untrained actor
-beside the rules, each paired with the best rule on the same episodes."""
+"""The figures' controls and paired column: a paired difference is taken episode by episode —
+Student's t over the episodes for one run, a two-level bootstrap over training runs and
+episodes for several — and fig7 reports random and the untrained actor beside the rules,
+each paired with the best rule on the same episodes."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ import numpy as np
 import pytest
 
 from twinslam.experiments import amm
-from twinslam.experiments.paired import paired_difference
+from twinslam.reporting import mean_ci95, paired_difference
 
 COVIS = Path(__file__).resolve().parents[1] / "data" / "7scenes-redkitchen-1000.covis.npz"
 
@@ -26,6 +27,19 @@ def test_a_constant_gap_is_found_exactly_and_noise_widens_the_interval() -> None
     assert noisy.low < noisy.mean < noisy.high and not noisy.apart
     # the episodes' spread is paired away: a large spread between episodes, a small gap
     assert paired_difference(np.array([base - 1.0]), base).high == pytest.approx(-1.0)
+
+
+def test_one_run_gets_student_t_over_its_paired_differences() -> None:
+    """Three seeds of a device variant against a baseline: differences 1, 2, 3 give the mean
+    2 ± t(0.975, 2 df) · s / √3 = 2 ± 4.303 · 1 / √3 — what every table's mean ± CI gives a
+    list of runs (mean_ci95), not a bootstrap's narrower interval over three values."""
+    base = np.array([10.0, 20.0, 30.0])
+    d = paired_difference(np.array([base + np.array([1.0, 2.0, 3.0])]), base)
+    assert (d.mean, d.high - d.mean) == pytest.approx((2.0, 4.302653 / np.sqrt(3)))
+    assert (d.mean, d.high - d.mean) == pytest.approx(mean_ci95([1.0, 2.0, 3.0]))
+    assert not d.apart
+    # a seed a variant could not measure (NaN) is left out, as in mean_ci95
+    assert paired_difference(np.array([[1.0, np.nan, 3.0, 2.0]]), np.zeros(4)).mean == 2.0
 
 
 def test_episodes_that_do_not_pair_are_refused() -> None:

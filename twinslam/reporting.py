@@ -1,11 +1,17 @@
-"""Writing experiment results: one CSV per figure, means with confidence intervals, and a
-headless matplotlib."""
+"""Writing experiment results: one CSV per figure, means with confidence intervals, paired
+differences, and a headless matplotlib.
+
+Every table's interval comes from here: :func:`mean_ci95` (Student's t over independent
+runs) and :func:`paired_difference` (the same t over the differences of runs paired by seed
+or episode; a two-level bootstrap only where a learned variant adds training runs on top of
+the episodes)."""
 
 from __future__ import annotations
 
 import csv
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
 
@@ -58,3 +64,54 @@ def mean_ci95(values: list[float]) -> tuple[float, float]:
 
     half = stats.t.ppf(0.975, x.size - 1) * x.std(ddof=1) / math.sqrt(x.size)
     return float(x.mean()), float(half)
+
+
+@dataclass(frozen=True)
+class PairedDifference:
+    """Mean of (policy − baseline) over paired runs, and its 95 % interval."""
+
+    mean: float
+    low: float
+    high: float
+
+    @property
+    def apart(self) -> bool:
+        """Whether the interval excludes 0: the two are told apart."""
+        return self.low > 0 or self.high < 0
+
+
+def paired_difference(scores: np.ndarray | Sequence[Sequence[float]],
+                      baseline: np.ndarray | Sequence[float], draws: int = 2000,
+                      seed: int = 0) -> PairedDifference:
+    """The one paired difference of the project's tables. ``scores``: R runs × E episodes
+    (or seeds) of a variant; ``baseline``: the E episodes of what it is compared with, in the
+    same order — or R × E, each run against its own baseline (a trained actor against the
+    same run's untrained one).
+
+    One run (a rule, a device variant: R = 1) gets Student's t over its E paired differences,
+    as :func:`mean_ci95` (NaN pairs left out; a constant gap has an interval of width 0). A
+    learned variant's R training runs on the same E episodes have two sources of spread —
+    which run, which episode — and neither the run means alone nor the R × E cells taken as
+    independent count both: there the interval comes from a two-level bootstrap (runs drawn
+    with replacement, then episodes), reproducible through ``seed``."""
+    scores = np.atleast_2d(np.asarray(scores, dtype=np.float64))
+    base = np.asarray(baseline, dtype=np.float64)
+    if base.ndim == 2:
+        if base.shape != scores.shape:
+            raise ValueError(f"a per-run baseline of shape {base.shape} against scores of "
+                             f"{scores.shape}: a paired difference needs the same runs and "
+                             "episodes")
+    elif scores.shape[1] != base.size or base.size == 0:
+        raise ValueError(f"{scores.shape[1]} episodes per run against {base.size} of the "
+                         "baseline: a paired difference needs the same episodes")
+    diff = scores - (base if base.ndim == 2 else base[None, :])
+    runs, episodes = diff.shape
+    if runs == 1:
+        mean, half = mean_ci95(diff[0].tolist())
+        return PairedDifference(mean, mean - half, mean + half)
+    rng = np.random.default_rng(seed)
+    r = rng.integers(0, runs, size=(draws, runs))
+    e = rng.integers(0, episodes, size=(draws, episodes))
+    means = np.array([diff[np.ix_(r[b], e[b])].mean() for b in range(draws)])
+    low, high = np.percentile(means, [2.5, 97.5])
+    return PairedDifference(float(diff.mean()), float(low), float(high))

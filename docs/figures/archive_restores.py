@@ -10,8 +10,8 @@ scenario, map source, policies and seeds):
 One row per policy and seed (untracked frames; the edge's mean υ, lost share and υ over the
 tracked frames; ATE; the keyframes restored where the file counts them), then per policy the
 paired difference, restores minus none, mean [95 % CI] over the seeds
-(twinslam.experiments.paired, bootstrap over seeds). A run whose device dropped camera frames
-is refused: it measures the machine.
+(twinslam.reporting.paired_difference, Student's t over seeds). A run whose device dropped
+camera frames is refused: it measures the machine.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from twinslam.experiments.paired import paired_difference
+from twinslam.reporting import paired_difference
 
 METRICS = (("untracked_frames", "untracked frames", "{:.0f}"),
            ("mean_uncertainty", "mean υ", "{:.1f}"), ("lost_share", "lost share", "{:.3f}"),

@@ -21,8 +21,8 @@ tracked frames (a lost frame scores 0; υ is undefined for a run whose map staye
 of its mean), the uploads and the runs that uploaded nothing, the downlink, the device's CPU a
 frame and the camera frames it dropped. The second says where each folder's failed frames come
 from (calibrate's causes). The third gives each later folder minus the first, paired by seed:
-mean [95 % CI] (twinslam.experiments.paired, bootstrap over seeds). A run whose device dropped
-camera frames is refused: it measures the machine.
+mean [95 % CI] (twinslam.reporting.paired_difference, Student's t over seeds). A run whose
+device dropped camera frames is refused: it measures the machine.
 """
 
 from __future__ import annotations
@@ -39,8 +39,7 @@ from twinslam.experiments.calibration_report import (
     failure_causes_markdown,
     read_rows,
 )
-from twinslam.experiments.paired import paired_difference
-from twinslam.reporting import mean_ci95
+from twinslam.reporting import mean_ci95, paired_difference
 
 #: (column, heading, format); "scored_failed" is the share of the run's scored frames
 #: (calibration_frames.csv) the device did not track

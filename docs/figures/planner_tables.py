@@ -30,8 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from twinslam.experiments.paired import paired_difference
-from twinslam.reporting import mean_ci95
+from twinslam.reporting import mean_ci95, paired_difference
 
 RULES = ("lff", "pu", "adapt")
 
@@ -90,8 +89,8 @@ def table(paths: list[Path], against: str | None = None,
     if reference is not None:
         head.append("gap to the reference closed")
     lines = [f"{', '.join(p.name for p in paths)}: {len(seeds)} episodes (seeds "
-             f"{seeds[0]}–{seeds[-1]}); paired: mean [95 % bootstrap CI] over the same "
-             "episodes", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+             f"{seeds[0]}–{seeds[-1]}); paired: mean [95 % CI, Student's t] over the "
+             "same episodes", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for p in rows or list(by):
         m, ci = mean_ci95(mean[p].tolist())
         d = paired_difference(mean[p][None, :], mean[best])

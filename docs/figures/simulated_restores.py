@@ -11,7 +11,7 @@ A row pairs a policy of the paper's edge with its variant on the archive's edge:
 there is an archive) with themselves. Per side: the lost share and mean υ (a lost frame
 scoring 0) as mean ± 95 % CI over the episodes, υ over the tracked frames, and restores a
 run; then the paired differences archive − paper edge on the same episodes with their
-bootstrap intervals.
+Student-t intervals (twinslam.reporting.paired_difference).
 """
 
 from __future__ import annotations
@@ -24,8 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from twinslam.experiments.paired import paired_difference
-from twinslam.reporting import mean_ci95
+from twinslam.reporting import mean_ci95, paired_difference
 
 RESTORE_PREFIX = "restore:"
 

@@ -26,11 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
-from twinslam.experiments.paired import PairedDifference, paired_difference
 from twinslam.experiments.parallel import run_all
 from twinslam.policies.registry import make_policy
 from twinslam.policies.world_model import MapManagementEnv, SimConfig
-from twinslam.reporting import mean_ci95, pyplot, write_csv
+from twinslam.reporting import PairedDifference, mean_ci95, paired_difference, pyplot, write_csv
 from twinslam.simulator.covisibility_spec import absolute_spec, cached_covisibility
 from twinslam.simulator.evaluation import PolicyResult, PooledScores, RunScore, evaluate
 from twinslam.simulator.lower_bound import slot_lower_bounds
@@ -249,8 +248,9 @@ def best_rule(by: dict[str, Result]) -> str:
 
 
 def paired_rows(by: dict[str, Result]) -> dict[str, PairedDifference | None]:
-    """Per label: the paired difference to :func:`best_rule` (two-level bootstrap over
-    training runs and episodes, :mod:`twinslam.experiments.paired`); None for the bound."""
+    """Per label: the paired difference to :func:`best_rule` on the same episodes
+    (:func:`twinslam.reporting.paired_difference`: Student's t for a rule, a two-level
+    bootstrap over training runs and episodes for a learned variant); None for the bound."""
     baseline = by[best_rule(by)].per_seed
     out: dict[str, PairedDifference | None] = {}
     for label, result in by.items():

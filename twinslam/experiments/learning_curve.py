@@ -27,13 +27,12 @@ from typing import Any
 
 import numpy as np
 
-from twinslam.experiments.paired import PairedDifference, paired_difference
 from twinslam.experiments.parallel import run_all
 from twinslam.policies.learned.policy import MbrlPolicy
 from twinslam.policies.protocol import MapPolicy
 from twinslam.policies.registry import make_policy
 from twinslam.policies.world_model import SimConfig
-from twinslam.reporting import mean_ci95, pyplot, write_csv
+from twinslam.reporting import PairedDifference, mean_ci95, paired_difference, pyplot, write_csv
 from twinslam.simulator.covisibility_spec import absolute_spec, cached_covisibility
 from twinslam.simulator.evaluation import RunScore, evaluate
 from twinslam.sweeps import Executor, TaskFailure

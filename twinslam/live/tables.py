@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from twinslam.live.runs import RunResult
-from twinslam.reporting import mean_ci95, pearson_r, pyplot, write_csv
+from twinslam.reporting import mean_ci95, paired_difference, pearson_r, pyplot, write_csv
 
 #: the figures summarised per scenario × policy: (field, column title, unit); the fields are
 #: RunReport's, and the calibration's two shares
@@ -172,9 +172,9 @@ def paired_differences(results: list[RunResult]) -> list[PairedRow]:
                     continue
                 mine = seeds[policy]
                 common = sorted(set(mine) & set(base))
-                mean, half = mean_ci95([mine[s] - base[s] for s in common])
+                d = paired_difference([[mine[s] for s in common]], [base[s] for s in common])
                 rows.append(PairedRow(scenario, source, metric, best, policy, len(common),
-                                      mean, half))
+                                      d.mean, d.high - d.mean))
     return rows
 
 

@@ -42,7 +42,7 @@ from twinslam.allocation.budget_value import budget_value, expected_uploads
 from twinslam.covisibility.dataset import CovisibilityDataset
 from twinslam.policies.protocol import MapPolicy
 from twinslam.policies.world_model import MapManagementEnv, SimConfig
-from twinslam.reporting import mean_ci95
+from twinslam.reporting import mean_ci95, paired_difference
 from twinslam.twin.regime_twin import RegimeConfig, RegimeTwin
 from twinslam.uncertainty.map_uncertainty import SlotUncertainty, UncertaintyTally
 from twinslam.uplink.channels import MarkovChannel, TraceChannel
@@ -225,8 +225,12 @@ class AllocatorResult:
     def paired(self, other: AllocatorResult, figure: str) -> tuple[float, float]:
         """Mean and 95 % CI of this − ``other`` on the same seeds (the same walks and
         uplinks)."""
-        return mean_ci95([a - b for a, b in zip(self.per_seed(figure), other.per_seed(figure),
-                                                strict=True)])
+        mine, theirs = self.per_seed(figure), other.per_seed(figure)
+        if len(mine) != len(theirs):
+            raise ValueError(f"{len(mine)} seeds against {len(theirs)}: a paired difference "
+                             "needs the same seeds")
+        d = paired_difference([mine], theirs)
+        return d.mean, d.high - d.mean
 
     @property
     def device_slots_per_s(self) -> float:
