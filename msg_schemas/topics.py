@@ -36,3 +36,7 @@ RATE_LATENT = "udt/rate_latent"
 #: namespace does not move them; devices sharing a domain keep apart by their frame ids
 TF = "/tf"
 TF_STATIC = "/tf_static"
+#: node health (diagnostic_msgs/DiagnosticArray): absolute, where ROS 2's diagnostic
+#: aggregator, rqt_runtime_monitor and Foxglove look; the player says there what it played
+#: and what it skipped
+DIAGNOSTICS = "/diagnostics"

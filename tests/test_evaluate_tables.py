@@ -223,6 +223,23 @@ def test_the_side_by_side_table_flags_a_run_whose_device_dropped_camera_frames()
     assert "pu seed 0: 75" in lines[3]
 
 
+def test_the_summaries_say_which_runs_played_frames_the_player_skipped(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A sequence with an unreadable image: the player skips it, and make run's table and
+    evaluate's summary say so apart from frames a busy device dropped."""
+    from twinslam.cli.commands import evaluate as command
+
+    clean, corrupt = _run("lff", 0, 3, 0.2), _run("pu", 0, 3, 0.2)
+    corrupt.report.frames_skipped = 2
+    assert len(side_by_side([clean])) == 2                      # nothing to say: no note
+    note = side_by_side([clean, corrupt])[-1]
+    assert note.startswith("! 1 of 2 runs played a sequence with unreadable frames")
+    assert "pu seed 0: 2" in note and "dropped" not in note
+    command._print_tables([clean, corrupt], tmp_path)
+    assert "unreadable frames" in (tmp_path / "summary.md").read_text(encoding="utf-8")
+    assert "runs played a sequence with unreadable frames" in capsys.readouterr().err
+
+
 def test_the_side_by_side_table_names_each_runs_device_and_its_restores() -> None:
     """make run's rows of one policy with two devices: which device each row ran (``-`` where
     the run names none) and how many keyframes its edge brought back."""

@@ -70,5 +70,28 @@ def test_the_report_counts_a_leap_jitter_refusals_and_slots_without_upload() -> 
     assert rep.truth_jitter_rms_mm == pytest.approx(1.0)   # the walk's own curve
     assert rep.poses_refused == 1 and rep.keyframes_refused == 1
     assert rep.longest_no_upload_slots == 2                   # slots 1 and 2
-    # launch's table shows it, in the column before the dropped frames
-    assert rep.HEADER.endswith("no up dropped") and rep.row().split()[-2:] == ["2", "0"]
+    # launch's table shows it, in the column before the dropped (and skipped) frames; a
+    # player that said nothing of its skips leaves that cell unknown
+    assert rep.HEADER.endswith("no up dropped skipped")
+    assert rep.row().split()[-3:] == ["2", "0", "nan"]
+
+
+def _short_of(log: RunLog, slot: int, frames: int) -> None:
+    """``log``'s ``slot`` with its last ``frames`` frames gone (never reached the device)."""
+    del log.summaries[slot].frames[-frames:]
+
+
+def test_frames_the_player_skipped_are_not_counted_as_dropped() -> None:
+    """Three frames of slot 1 never reached the device. The player skipped one of them (an
+    unreadable file, as it says on /diagnostics): two were dropped — the machine's fault —
+    and one skipped — the data's; without the player's word all three count as dropped."""
+    log = _run()
+    _short_of(log, 1, 3)
+    assert report("lff", log, 2.0, SLOT).frames_dropped == 3
+    log.frames_skipped = 1
+    rep = report("lff", log, 2.0, SLOT)
+    assert (rep.frames_dropped, rep.frames_skipped) == (2, 1)
+    assert rep.row().split()[-2:] == ["2!", "1"]
+    # a run of an unreadable sequence, not a slow machine: nothing left to call dropped
+    log.frames_skipped = 5
+    assert report("lff", log, 2.0, SLOT).frames_dropped == 0

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path as PathMsg
 from sensor_msgs.msg import CameraInfo, Image
@@ -15,7 +16,7 @@ from msg_schemas import qos, topics
 from twinslam.hosts.loopback import LoopbackDomain
 from twinslam.live.launcher import preloaded_nodes
 from twinslam.node_runtime.session import RosSession
-from twinslam.sequence_player.messages import depth_message
+from twinslam.sequence_player.messages import depth_message, skipped_frames
 from twinslam.sequences.frame import RgbdFrame
 
 K = np.array([[200.0, 0, 80], [0, 200.0, 60], [0, 0, 1]])
@@ -56,6 +57,9 @@ def test_player_delivers_every_frame_at_30_hz_and_skips_a_corrupt_jpeg(
                                      qos.CAMERA)
     paths: list[PathMsg] = []
     ros.node.create_subscription(PathMsg, topics.GROUND_TRUTH_PATH, paths.append, qos.MAP)
+    statuses: list[DiagnosticArray] = []
+    ros.node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, statuses.append,
+                                 qos.PROTOCOL)
     player = domain.spawn(["-m", "twinslam.sequence_player.node", "--ros-args",
                            "-p", f"sequence:={seq}", "-p", "wait_for_subscribers:=1",
                            "-p", "path_window:=50"], forks=FORKS)
@@ -64,7 +68,8 @@ def test_player_delivers_every_frame_at_30_hz_and_skips_a_corrupt_jpeg(
     ros.spin_until(lambda: player.poll() is not None and len(got["color"]) >= 99, 40.0)
     ros.spin_until(lambda: len(got["info"]) >= 99 and len(got["pose"]) >= 99
                    and bool(paths) and len(paths[-1].poses) == 50
-                   and _stamp(paths[-1]) == _stamp(got["pose"][-1]), 5.0)
+                   and _stamp(paths[-1]) == _stamp(got["pose"][-1])
+                   and any(skipped_frames(s) == 1 for s in statuses), 5.0)
     code, _, err = domain.stop(player)
     assert code == 0, err
     assert len(got["color"]) == 99, f"received {len(got['color'])} of 99 frames"
@@ -84,6 +89,12 @@ def test_player_delivers_every_frame_at_30_hz_and_skips_a_corrupt_jpeg(
     assert got["depth"][0].encoding == "16UC1" and np.all(depth0 == 1000)
     assert abs(got["pose"][40].pose.position.x - 0.41) < 1e-12   # 40th received: frame 41
     assert "frame-000040.color.jpg" in err and "1 skipped" in err
+    # and on /diagnostics, where a run's monitor counts it apart from frames a device dropped
+    (done,) = statuses[-1].status
+    values = {kv.key: kv.value for kv in done.values}
+    assert done.level == DiagnosticStatus.WARN and skipped_frames(statuses[-1]) == 1
+    assert values["published"] == "99" and values["finished"] == "true"
+    assert "frame-000040.color.jpg" in values["skipped_files"]
     # the ground-truth path: once a second and at the end, the newest path_window poses
     assert len(paths) >= 3 and paths[-1].header.frame_id == "world"
     assert [_stamp(p) for p in paths[-1].poses] == [_stamp(m) for m in got["pose"][-50:]]

@@ -8,6 +8,7 @@ from collections.abc import Callable, Mapping
 from typing import TypeVar, cast
 
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
@@ -27,6 +28,7 @@ from msg_schemas import qos, topics
 from msg_schemas.headers import stamp_key
 from msg_schemas.poses import pose_matrix
 from twinslam.live.run_log import RunLog
+from twinslam.sequence_player.messages import skipped_frames
 
 M = TypeVar("M")
 
@@ -72,6 +74,7 @@ class PipelineMonitor:
         sub(Relocalisation, topics.RELOCALISATION, self._downlink, qos.PROTOCOL, raw=True)
         sub(PoseStamped, topics.DEVICE_POSE, self._pose, qos.PROTOCOL)
         sub(PoseStamped, topics.GROUND_TRUTH_POSE, self._ground_truth, qos.CAMERA)
+        sub(DiagnosticArray, topics.DIAGNOSTICS, self._diagnostics, qos.PROTOCOL)
         if watch_images:     # a viewer's subscription: best effort, undecoded, only counted
             sub(Image, topics.CAMERA_IMAGE, self._image, qos.SENSOR_DATA, raw=True)
 
@@ -107,6 +110,11 @@ class PipelineMonitor:
 
     def _downlink(self, data: bytes) -> None:
         self.record.downlink_bytes += len(data)
+
+    def _diagnostics(self, msg: DiagnosticArray) -> None:
+        skipped = skipped_frames(msg)
+        if skipped is not None:
+            self.record.frames_skipped = skipped
 
     def _image(self, _data: bytes) -> None:
         self.record.images_received += 1

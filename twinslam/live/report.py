@@ -49,8 +49,8 @@ class RunReport:
     #: decided, e.g. "adapt (fallback):2, mbrl:amm.pt:28" — a learned policy's fallback and a
     #: policy set during the run (``ros2 param set``) show here
     decided_by: str = ""
-    #: camera frames missing from the device's complete slots (dropped or skipped): a device
-    #: that fell behind the camera (an overloaded machine) shows here
+    #: camera frames missing from the device's complete slots, the player's skipped ones left
+    #: out: a device that fell behind the camera (an overloaded machine) shows here
     frames_dropped: int = 0
     #: published tracked poses whose aligned error rose by more than ``JUMP_M`` from the
     #: one before
@@ -83,6 +83,9 @@ class RunReport:
     keyframes_refused: float = math.nan
     #: the longest run of slots in which the device uploaded no keyframe (NaN: no slot)
     longest_no_upload_slots: float = math.nan
+    #: frames the player could not read (a corrupt or empty image) and left out, as it said
+    #: on /diagnostics (NaN: it said nothing)
+    frames_skipped: float = math.nan
 
     ROW = ("{label:<14} {mean_uncertainty:>10.1f} {lost_share:>6.1%} "
            "{tracked_uncertainty:>10.1f} {ate_m:>7.3f} "
@@ -91,14 +94,15 @@ class RunReport:
            "{relocalisations:>6d} {jumps:>5.0f} {max_error_m:>7.3f} {jitter_rms_mm:>7.1f} "
            "{truth_jitter_rms_mm:>7.1f} {restores:>6.0f} {recover_s:>7.2f} "
            "{loss_p95_s:>7.2f} {longest_loss_s:>7.2f} {downlink_mb:>7.1f} {device_cpu_ms:>7.1f} "
-           "{edge_ms_median:>7.0f} {longest_no_upload_slots:>5.0f} {dropped:>7}")
+           "{edge_ms_median:>7.0f} {longest_no_upload_slots:>5.0f} {dropped:>7} "
+           "{frames_skipped:>7.0f}")
     HEADER = (f"{'policy':<14} {'mean υ':>10} {'lost':>6} {'υ tracked':>10} {'ATE m':>7} "
               f"{'RPE m':>7} "
               f"{'uploads':>7} {'MB':>7} {'Mbit/s':>7} {'untrk':>6} {'failed':>6} "
               f"{'fails':>5} {'reloc':>6} {'jumps':>5} {'max e m':>7} {'jit mm':>7} "
               f"{'gt jit':>7} {'restor':>6} {'recov s':>7} {'p95 s':>7} "
               f"{'max s':>7} {'down MB':>7} {'dev ms':>7} {'edge ms':>7} {'no up':>5} "
-              f"{'dropped':>7}")
+              f"{'dropped':>7} {'skipped':>7}")
 
     @property
     def label(self) -> str:
@@ -165,7 +169,7 @@ def report(policy: str, record: RunLog, seconds: float, slot_frames: int) -> Run
                      events.mean_recover_s,
                      float(np.median([s.slot_processing_ms for s in stats])) if stats
                      else math.nan, seconds, deciders(record),
-                     dropped_frames(record, slot_frames),
+                     dropped_frames(record, slot_frames, record.frames_skipped or 0),
                      float(jump_count(errors)) if errors else math.nan, events.failed_share,
                      events.loss_p95_s, events.longest_loss_s, device_cpu_ms(record),
                      record.downlink_bytes / 1e6,
@@ -174,7 +178,8 @@ def report(policy: str, record: RunLog, seconds: float, slot_frames: int) -> Run
                      float(sum(bool(f.pose_refused) for s in record.summaries.values()
                                for f in s.frames)),
                      float(sum(int(s.refused_keyframes) for s in stats)),
-                     longest_without_upload(record))
+                     longest_without_upload(record),
+                     math.nan if record.frames_skipped is None else float(record.frames_skipped))
 
 
 def longest_without_upload(record: RunLog) -> float:
@@ -229,10 +234,14 @@ def device_cpu_ms(record: RunLog) -> float:
     return float(np.mean(spent)) if spent else math.nan
 
 
-def dropped_frames(record: RunLog, slot_frames: int) -> int:
-    """Frames missing from every slot but the last (which the run may end inside)."""
+def dropped_frames(record: RunLog, slot_frames: int, skipped: int = 0) -> int:
+    """Frames missing from every slot but the last (which the run may end inside), less the
+    ``skipped`` frames the player never published (unreadable files: the data's fault, not
+    the machine's). A skip in the last slot takes one off a drop elsewhere: the player counts
+    its skips, it does not say in which slot they fell."""
     slots = sorted(record.summaries)[:-1]
-    return sum(max(0, slot_frames - len(record.summaries[s].frames)) for s in slots)
+    missing = sum(max(0, slot_frames - len(record.summaries[s].frames)) for s in slots)
+    return max(0, missing - skipped)
 
 
 def relocalised_stamps(record: RunLog) -> list[int]:

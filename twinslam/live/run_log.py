@@ -23,6 +23,9 @@ class RunLog:
     ground_truth: dict[int, np.ndarray] = field(default_factory=dict)
     latents: dict[int, RateLatent] = field(default_factory=dict)    #: the twin's, by slot
     images_received: int = 0        #: /camera/image_raw samples, when the monitor watches them
+    #: frames the player could not read and left out, as its last status on /diagnostics said
+    #: (None: it said nothing)
+    frames_skipped: int | None = None
     #: bytes the edge sent the device: map updates and relocalisation answers, as serialised
     downlink_bytes: int = 0
     #: when the monitor first heard each slot's message of a protocol topic ("summaries",

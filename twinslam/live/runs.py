@@ -198,6 +198,8 @@ def _line(i: int, total: int, r: RunResult, started: float, resumed: int = 0) ->
             f"{cal.device_failure_share:.1%}" if cal is not None else "")
     dropped = (f", DROPPED {rep.frames_dropped} camera frames (short of CPU)"
                if rep.frames_dropped else "")
+    if rep.frames_skipped > 0:
+        dropped += f", {rep.frames_skipped:.0f} unreadable frames skipped by the player"
     return (f"[{i}/{total}] {r.key.scenario:<13} {r.key.map_source:<10} {rep.label:<14} seed "
             f"{r.key.seed}: ATE {rep.ate_m:.3f} m, {rep.tracking_failures} failures, "
             f"{rep.relocalisations} relocalisations, υ {rep.mean_uncertainty:.1f}{side}"
@@ -234,7 +236,8 @@ ADDED_COLUMNS = {"jumps": "nan", "failed_share": "nan", "loss_p95_s": "nan",
                  "restores": "nan", "max_error_m": "nan", "jitter_rms_mm": "nan",
                  "jitter_median_mm": "nan", "jitter_p95_mm": "nan", "jitter_over_20mm": "nan",
                  "truth_jitter_rms_mm": "nan", "poses_refused": "nan",
-                 "keyframes_refused": "nan", "longest_no_upload_slots": "nan"}
+                 "keyframes_refused": "nan", "longest_no_upload_slots": "nan",
+                 "frames_skipped": "nan"}
 #: the same for calibration_frames.csv
 ADDED_FRAME_COLUMNS = {"shared_points_archive": "nan", "failure_cause": ""}
 

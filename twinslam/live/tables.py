@@ -74,8 +74,9 @@ def side_by_side(results: list[RunResult]) -> list[str]:
                      f"{rep.jitter_rms_mm:>6.1f} {rep.truth_jitter_rms_mm:>6.1f} "
                      f"{predicted:>14} {failed:>13} "
                      f"{rep.frames_uploaded:>7d} {rep.edge_ms_median:>7.0f} {rep.dropped_cell:>7}")
-    note = dropped_frames_note(results)
-    return lines + ([f"! {note}"] if note else [])
+    notes = [note for note in (dropped_frames_note(results), skipped_frames_note(results))
+             if note]
+    return lines + [f"! {note}" for note in notes]
 
 
 def dropped_frames_note(results: list[RunResult]) -> str | None:
@@ -93,6 +94,18 @@ def dropped_frames_note(results: list[RunResult]) -> str | None:
             f"behind the camera: the machine was short of CPU), and their figures measure the "
             f"machine as much as the policy — {runs}. Run such an evaluation with fewer "
             "--jobs (each run takes about a core).")
+
+
+def skipped_frames_note(results: list[RunResult]) -> str | None:
+    """The runs in which the player skipped frames it could not read (a corrupt or empty
+    image: the data's fault, not the machine's; the device never saw them), or None."""
+    skipped = [r for r in results if r.report.frames_skipped > 0]
+    if not skipped:
+        return None
+    runs = "; ".join(f"{r.key.scenario} {r.key.map_source} {r.key.policy} seed {r.key.seed}: "
+                     f"{r.report.frames_skipped:.0f}" for r in skipped)
+    return (f"{len(skipped)} of {len(results)} runs played a sequence with unreadable frames, "
+            f"which the player skipped (the sequence player's log names the files) — {runs}.")
 
 
 def agreement_over_runs(results: list[RunResult]) -> dict[str, tuple[float, int]]:

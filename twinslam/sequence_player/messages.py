@@ -1,4 +1,5 @@
-"""RgbdFrame → ROS 2 messages (sensor_msgs/Image, CameraInfo, geometry_msgs/PoseStamped).
+"""RgbdFrame → ROS 2 messages (sensor_msgs/Image, CameraInfo, geometry_msgs/PoseStamped), and
+the player's playback status (diagnostic_msgs/DiagnosticArray).
 
 Pure conversion, no DDS: the node publishes what these return, and a recorder can write the
 same messages to a bag.
@@ -7,6 +8,7 @@ same messages to a bag.
 from __future__ import annotations
 
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseStamped
 from sensor_msgs.msg import CameraInfo, Image
 
@@ -16,6 +18,11 @@ from msg_schemas.poses import pose_msg
 from twinslam.sequences.frame import RgbdFrame
 
 DEPTH_ENCODINGS = ("16UC1", "32FC1")
+#: the player's status on /diagnostics (``DiagnosticStatus.name``): a run's monitor reads its
+#: skipped frames there, so that a corrupt image is not taken for a frame the device dropped
+PLAYBACK_STATUS = "sequence_player: playback"
+#: the most skipped file names one status lists (the count is always whole)
+LISTED_SKIPS = 10
 
 
 def color_message(frame: RgbdFrame, stamp: float, frame_id: str, mono: bool = False) -> Image:
@@ -66,3 +73,33 @@ def pose_message(pose: np.ndarray, stamp: float, frame_id: str) -> PoseStamped:
     """Camera-to-world 4×4 as a PoseStamped in ``frame_id`` (the world frame)."""
     msg = new(PoseStamped, pose=pose_msg(pose))
     return set_header(msg, stamp, frame_id)
+
+
+def playback_status(published: int, skipped: int, skipped_paths: list[str], finished: bool,
+                    stamp: float, sequence: str) -> DiagnosticArray:
+    """The player's playback as a diagnostics message: frames published and skipped (a file
+    that could not be read: it is counted, named and left out, the run goes on), WARN while
+    any was skipped, and whether the sequence is played to its end."""
+    status = DiagnosticStatus(
+        level=DiagnosticStatus.WARN if skipped else DiagnosticStatus.OK,
+        name=PLAYBACK_STATUS, hardware_id=sequence,
+        message=(f"{'done' if finished else 'playing'}: {published} frames published, "
+                 f"{skipped} skipped"))
+    listed = ", ".join(skipped_paths[-LISTED_SKIPS:])
+    status.values = [KeyValue(key="published", value=str(published)),
+                     KeyValue(key="skipped", value=str(skipped)),
+                     KeyValue(key="finished", value=str(finished).lower()),
+                     KeyValue(key="skipped_files", value=listed)]
+    return set_header(DiagnosticArray(status=[status]), stamp, "")
+
+
+def skipped_frames(msg: DiagnosticArray) -> int | None:
+    """The frames the player skipped, from its status in ``msg`` (None: not the player's)."""
+    for status in msg.status:
+        if status.name == PLAYBACK_STATUS:
+            values = {kv.key: kv.value for kv in status.values}
+            try:
+                return int(values["skipped"])
+            except (KeyError, ValueError):
+                return None
+    return None

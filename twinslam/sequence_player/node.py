@@ -22,9 +22,11 @@ holds the first frame until N subscribers match the colour topic (DDS does not d
 published before a reader matched), then ``DISCOVERY_SETTLE_S`` more: the writer learning of a
 reader does not mean the reader has learnt of the writer (nor that the depth and camera-info
 readers have matched), and a reader drops samples of a writer it does not know yet. A corrupt
-image is skipped, counted and named in a warning; the run goes on. At the end it logs what it
-published and exits 0. ``sequence:=synthetic[:frames]`` (the default) renders the textured
-room of :mod:`twinslam.sequences.synthetic_worlds` with exact depth and ground truth,
+image is skipped, counted and named in a warning; the run goes on. Every few seconds and at the
+end it says on ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``) what it published and
+skipped — a run's monitor reads the skipped frames there — logs it, and exits 0.
+``sequence:=synthetic[:frames]`` (the default) renders the textured room of
+:mod:`twinslam.sequences.synthetic_worlds` with exact depth and ground truth,
 ``synthetic-corridor[:frames]`` its corridor walked out and back.
 """
 
@@ -32,6 +34,7 @@ from __future__ import annotations
 
 import sys
 
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
 from rclpy.node import Node
@@ -49,6 +52,7 @@ from twinslam.sequence_player.messages import (
     camera_info_message,
     color_message,
     depth_message,
+    playback_status,
     pose_message,
 )
 from twinslam.sequence_player.parameters import PARAMETERS
@@ -90,6 +94,9 @@ class SequencePlayer(Node):
                                  "the map's anchor needs two frames")
         self.pub_static = (self.create_publisher(TFMessage, topics.TF_STATIC, qos.TF_STATIC)
                            if self.map_frame else None)
+        self.pub_status = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS,
+                                                qos.PROTOCOL)
+        self.sequence = str(p["sequence"])
         self.anchored = False                 #: world -> map went out
         self.published = 0
         self.skipped = 0
@@ -182,6 +189,7 @@ class SequencePlayer(Node):
             self.get_logger().info(
                 f"frame {frame.index + 1}/{len(self.reader)} ({self.published} published, "
                 f"{self.skipped + len(self.reader.skipped)} skipped)")
+            self._publish_status(self.skipped + len(self.reader.skipped), finished=False)
         self._next = self._read_next()
         self._schedule()
 
@@ -190,14 +198,21 @@ class SequencePlayer(Node):
             newest = stamp_seconds(self.path.poses[-1].header)
             self.pub_path.publish(self.path.message(newest, self.world_frame_id))
 
+    def _publish_status(self, skipped: int, finished: bool) -> None:
+        """Playback so far on /diagnostics (what a run's monitor counts skipped frames by)."""
+        self.pub_status.publish(playback_status(self.published, skipped,
+                                                list(self.reader.skipped), finished,
+                                                self._now_ns() * 1e-9, self.sequence))
+
     def _finish(self) -> None:
         self.finished = True
         self._publish_path()
+        self._publish_status(self.skipped, finished=True)
         elapsed = (self._now_ns() - self._start_ns) * 1e-9
         # the last frames may still be in flight: let reliable readers acknowledge them before
         # the process (and its participant) goes away
         for pub in (self.pub_color, self.pub_depth, self.pub_info, self.pub_pose, self.pub_path,
-                    self.pub_static):
+                    self.pub_static, self.pub_status):
             if pub is not None:
                 wait_for_acks(pub, 2.0)
         skipped = f" ({', '.join(self.reader.skipped)})" if self.reader.skipped else ""

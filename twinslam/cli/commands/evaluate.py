@@ -113,8 +113,9 @@ def _print_failure_causes(out: Path) -> None:
 
 def _print_tables(results: list[runs.RunResult], out: Path) -> None:
     rows = tables.summarise(results)
-    dropped = tables.dropped_frames_note(results)
-    tables.write_summary(rows, out, dropped)
+    notes = [n for n in (tables.dropped_frames_note(results),
+                         tables.skipped_frames_note(results)) if n]
+    tables.write_summary(rows, out, " ".join(notes) or None)
     paired = tables.paired_differences(results)
     tables.write_paired(paired, out)
     print()
@@ -129,8 +130,8 @@ def _print_tables(results: list[runs.RunResult], out: Path) -> None:
     print(f"\nwrote {out / 'runs.csv'}, summary.csv, summary.md, summary.png, "
           "paired.csv, paired.md, calibration.csv, calibration_frames.csv and a picture of "
           f"every run in {out / 'runs'}/")
-    if dropped:                 # last, where a reader of the tables looks for what went wrong
-        print(f"warning: {dropped}", file=sys.stderr)
+    for note in notes:          # last, where a reader of the tables looks for what went wrong
+        print(f"warning: {note}", file=sys.stderr)
 
 
 def run(args: argparse.Namespace) -> int:
