@@ -21,13 +21,12 @@ import numpy as np
 from twinslam.policies.actions import MapAction, SlotObservation, check_map_action
 from twinslam.policies.protocol import MapPolicy, SlotViewer
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap, shared_counts
-from twinslam.slot_protocol import table1
 from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
+from twinslam.slot_protocol.slot_settings import SlotSettings
 from twinslam.uncertainty.map_uncertainty import (
     SlotUncertainty,
     needs_map,
     next_slot_uncertainty,
-    progress_deadline_s,
     theorem1_cardinalities,
     waited_after,
 )
@@ -51,20 +50,17 @@ class FrameObservations:
 
 
 @dataclass(frozen=True)
-class SlotConfig:
-    vmax: int = table1.VMAX
-    alpha_mbit: float = table1.ALPHA_MBIT
-    d_req_s: float = table1.D_REQ_S
+class SlotConfig(SlotSettings):
+    """The slot protocol's settings (:class:`~twinslam.slot_protocol.slot_settings.
+    SlotSettings`: V_max, α, D_req, the progress rule) and the edge's Π; the slot's length F
+    comes with each slot's summaries."""
+
     log_det_pi: float = 0.0
-    #: the progress rule: where D_req carries no frame but the slot does, one goes
-    #: (:func:`~twinslam.uncertainty.map_uncertainty.theorem1_uploads`); False: Theorem 1
-    #: exactly, the paper's
-    progress: bool = True
 
     def slot_seconds(self, slot_frames: int) -> float:
         """The deadline the progress rule stretches to for a slot of ``slot_frames`` camera
         frames (0 with the rule off)."""
-        return progress_deadline_s(slot_frames, self.progress)
+        return self.deadline_s(slot_frames)
 
 
 @dataclass(frozen=True)

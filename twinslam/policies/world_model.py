@@ -40,13 +40,13 @@ from twinslam.covisibility.map_points import MapPointCounts
 from twinslam.policies.actions import MapAction, SlotObservation, check_map_action
 from twinslam.slot_protocol import table1
 from twinslam.slot_protocol.lost_frame_rule import MIN_SHARED_POINTS, update_lag_frames
+from twinslam.slot_protocol.slot_settings import SlotSettings
 from twinslam.uncertainty import laplacian_kernels as kernels
 from twinslam.uncertainty.laplacian_factorization import PIVOT_RTOL
 from twinslam.uncertainty.map_uncertainty import (
     SlotUncertainty,
     lost_frames,
     needs_map,
-    progress_deadline_s,
     slot_uncertainty_from_scores,
     theorem1_cardinalities,
     waited_after,
@@ -55,13 +55,12 @@ from twinslam.uplink.channels import MarkovChannel, TraceChannel
 
 
 @dataclass(frozen=True)
-class SimConfig:
-    """Paper Table I defaults."""
+class SimConfig(SlotSettings):
+    """The slot protocol's settings (:class:`~twinslam.slot_protocol.slot_settings.
+    SlotSettings`: V_max, α, D_req, the progress rule — the edge's too), the slot's length F
+    and the episode's; paper Table I defaults."""
 
-    vmax: int = table1.VMAX
     slot_frames: int = table1.SLOT_FRAMES
-    alpha_mbit: float = table1.ALPHA_MBIT
-    d_req_s: float = table1.D_REQ_S
     slots: int = 200
     log_det_pi: float = 0.0
     history: int = 8            #: length τ+1 of the rate history in observations
@@ -80,13 +79,11 @@ class SimConfig:
     archive_keyframes: int = 0
     #: archived keyframes a policy may bring back a slot (0: none)
     restore_keyframes: int = 0
-    #: the progress rule (as the edge's ``progress_uploads``): where D_req carries no frame
-    #: but the slot does, one goes; False: Theorem 1 exactly, the paper's
-    progress: bool = True
 
     def __post_init__(self) -> None:
-        if not 0 < self.d_req_s < float("inf"):
-            raise ValueError(f"D_req must be a positive number of seconds, got {self.d_req_s}")
+        super().__post_init__()
+        if self.slot_frames < 1:
+            raise ValueError(f"a slot needs at least one frame, got {self.slot_frames}")
         if self.archive_keyframes < 0 or self.restore_keyframes < 0:
             raise ValueError("archive and restore keyframes must be >= 0, got "
                              f"{self.archive_keyframes} and {self.restore_keyframes}")
@@ -104,7 +101,7 @@ class SimConfig:
     @property
     def slot_seconds(self) -> float:
         """The deadline the progress rule stretches to: the slot's length (0: rule off)."""
-        return progress_deadline_s(self.slot_frames, self.progress)
+        return self.deadline_s(self.slot_frames)
 
     @property
     def lag_frames(self) -> int:

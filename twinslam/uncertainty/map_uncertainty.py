@@ -20,7 +20,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from twinslam.slot_protocol import table1
 from twinslam.uncertainty import laplacian_kernels as kernels
 from twinslam.uncertainty.laplacian_factorization import PIVOT_RTOL, LaplacianFactorization
 
@@ -270,12 +269,6 @@ def needs_map(lost: Iterable[bool]) -> bool:
     priority by (:func:`waited_after`); a slot without frames needs nothing."""
     flags = list(lost)
     return bool(flags and flags[-1])
-
-
-def progress_deadline_s(slot_frames: int, progress: bool) -> float:
-    """The deadline the progress rule stretches to (:func:`theorem1_uploads`' ``slot_s``): a
-    slot of ``slot_frames`` camera frames' length at the camera's rate; 0 with the rule off."""
-    return slot_frames / table1.FRAME_RATE_HZ if progress else 0.0
 
 
 def theorem1_cardinalities(rate_mbps: float, alpha_mbit: float, d_req_s: float, vmax: int,
