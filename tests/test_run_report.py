@@ -1,8 +1,11 @@
 """A live run's report from what the monitor heard: a pose that leaps counts as a jump whatever
 its cause, the largest error, the jitter of the published positions beside the truth's, the
-poses and keyframes the gates refused, and the longest stretch of slots without an upload."""
+poses and keyframes the gates refused, the longest stretch of slots without an upload, and the
+error of a place revisited."""
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 import pytest
@@ -70,6 +73,9 @@ def test_the_report_counts_a_leap_jitter_refusals_and_slots_without_upload() -> 
     assert rep.truth_jitter_rms_mm == pytest.approx(1.0)   # the walk's own curve
     assert rep.poses_refused == 1 and rep.keyframes_refused == 1
     assert rep.longest_no_upload_slots == 2                   # slots 1 and 2
+    # 1.3 s of a walk that never comes back: no place is revisited, nothing to measure
+    assert rep.revisit_pairs == 0 and math.isnan(rep.revisit_error_m)
+    assert "revis m" in rep.HEADER
     # launch's table shows it, in the column before the dropped (and skipped) frames; a
     # player that said nothing of its skips leaves that cell unknown
     assert rep.HEADER.endswith("no up dropped skipped")

@@ -1,6 +1,6 @@
 """What the live report counts: failures, relocalisations and recovery times from
-the device's per-frame flags; ATE and RPE against ground truth; jumps of any published pose and
-the jitter of the published positions."""
+the device's per-frame flags; ATE and RPE against ground truth; jumps of any published pose, the
+jitter of the published positions and the error of a place revisited."""
 
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ from twinslam.live.tracking_quality import (
     jitter,
     jump_count,
     relative_pose_error,
+    revisit_error,
     tracking_events,
 )
 
@@ -92,3 +93,48 @@ def test_jitter_is_the_second_difference_of_consecutive_positions() -> None:
     out = jitter(shaken, frames)
     assert out.triples == 5 and out.rms_mm == pytest.approx(math.sqrt(10 ** 2 / 5))
     assert math.isnan(jitter({}, frames).rms_mm)
+
+
+def _pose(x: float, y: float = 0.0, yaw_deg: float = 0.0) -> np.ndarray:
+    pose = np.eye(4)
+    c, s = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
+    pose[:2, :2] = [[c, -s], [s, c]]
+    pose[:2, 3] = x, y
+    return pose
+
+
+def test_a_revisit_error_is_the_drift_between_two_visits_of_one_place() -> None:
+    """A camera standing at one place for 30 s (a frame a second) looks at it again and
+    again. A device that drifts 1 cm a second sideways misplaces an anchor from a visit t
+    seconds earlier by 1 cm · t; the same device moved as a whole (any map frame) does not;
+    frames under 10 s apart are no revisit."""
+    stamps = [int(i * 1e9) for i in range(30)]
+    truth = {s: _pose(0.0) for s in stamps}
+    drift = {s: _pose(0.0, 0.01 * i) for i, s in enumerate(stamps)}
+    error = revisit_error(drift, truth, stamps)
+    gaps = np.array([j - i for i in range(30) for j in range(i + 10, 30)], dtype=float)
+    assert error.pairs == gaps.size == 210
+    assert error.rms_m == pytest.approx(0.01 * math.sqrt(np.mean(gaps ** 2)))
+    assert error.median_m == pytest.approx(0.01 * np.median(gaps))
+    moved = {s: _pose(5.0, -2.0, 30.0) @ p for s, p in truth.items()}
+    assert revisit_error(moved, truth, stamps).rms_m == pytest.approx(0.0, abs=1e-12)
+    assert revisit_error(drift, truth, stamps, gap_s=31.0).pairs == 0
+
+
+def test_a_place_seen_from_elsewhere_or_turned_away_from_is_no_revisit() -> None:
+    """Only pairs within 0.3 m and 20° of each other count; untracked frames (not in
+    ``stamps``) and frames without a pose are left out."""
+    stamps = [int(i * 1e9) for i in range(40)]
+    # 0-9 at the origin, 10-19 a metre away, 20-29 back at the origin turned by 90°,
+    # 30-39 at the origin turned by 15°
+    truth = {s: _pose(1.0 if 10 <= i < 20 else 0.0, 0.0,
+                      90.0 if 20 <= i < 30 else 15.0 if i >= 30 else 0.0)
+             for i, s in enumerate(stamps)}
+    est = dict(truth)
+    # frames 0-9 pair with 30-39 (15°, ≥ 21 s apart): 100 pairs; 10-19 with nothing
+    assert revisit_error(est, truth, stamps).pairs == 100
+    assert revisit_error(est, truth, stamps[5:]).pairs == 50          # 0-4 untracked
+    del est[stamps[35]]
+    assert revisit_error(est, truth, stamps).pairs == 90
+    empty = revisit_error({}, truth, stamps)
+    assert empty.pairs == 0 and math.isnan(empty.rms_m)

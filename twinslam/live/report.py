@@ -21,6 +21,7 @@ from twinslam.live.tracking_quality import (
     jitter,
     jump_count,
     relative_pose_error,
+    revisit_error,
     tracking_events,
     translation_errors,
 )
@@ -86,13 +87,19 @@ class RunReport:
     #: frames the player could not read (a corrupt or empty image) and left out, as it said
     #: on /diagnostics (NaN: it said nothing)
     frames_skipped: float = math.nan
+    #: how far an anchor placed on a first visit appears moved on the return, RMS over the
+    #: run's revisits, m (:class:`~twinslam.live.tracking_quality.RevisitError`), and how many
+    #: pairs of frames revisit a place (NaN: no ground truth)
+    revisit_error_m: float = math.nan
+    revisit_pairs: float = math.nan
 
     ROW = ("{label:<14} {mean_uncertainty:>10.1f} {lost_share:>6.1%} "
            "{tracked_uncertainty:>10.1f} {ate_m:>7.3f} "
            "{rpe_m:>7.3f} {frames_uploaded:>7d} {mbytes:>7.1f} {achieved_mbps:>7.1f} "
            "{untracked_frames:>6d} {failed_share:>6.1%} {tracking_failures:>5d} "
            "{relocalisations:>6d} {jumps:>5.0f} {max_error_m:>7.3f} {jitter_rms_mm:>7.1f} "
-           "{truth_jitter_rms_mm:>7.1f} {restores:>6.0f} {recover_s:>7.2f} "
+           "{truth_jitter_rms_mm:>7.1f} {revisit_error_m:>7.3f} {restores:>6.0f} "
+           "{recover_s:>7.2f} "
            "{loss_p95_s:>7.2f} {longest_loss_s:>7.2f} {downlink_mb:>7.1f} {device_cpu_ms:>7.1f} "
            "{edge_ms_median:>7.0f} {longest_no_upload_slots:>5.0f} {dropped:>7} "
            "{frames_skipped:>7.0f}")
@@ -100,7 +107,7 @@ class RunReport:
               f"{'RPE m':>7} "
               f"{'uploads':>7} {'MB':>7} {'Mbit/s':>7} {'untrk':>6} {'failed':>6} "
               f"{'fails':>5} {'reloc':>6} {'jumps':>5} {'max e m':>7} {'jit mm':>7} "
-              f"{'gt jit':>7} {'restor':>6} {'recov s':>7} {'p95 s':>7} "
+              f"{'gt jit':>7} {'revis m':>7} {'restor':>6} {'recov s':>7} {'p95 s':>7} "
               f"{'max s':>7} {'down MB':>7} {'dev ms':>7} {'edge ms':>7} {'no up':>5} "
               f"{'dropped':>7} {'skipped':>7}")
 
@@ -179,7 +186,16 @@ def report(policy: str, record: RunLog, seconds: float, slot_frames: int) -> Run
                                for f in s.frames)),
                      float(sum(int(s.refused_keyframes) for s in stats)),
                      longest_without_upload(record),
-                     math.nan if record.frames_skipped is None else float(record.frames_skipped))
+                     math.nan if record.frames_skipped is None else float(record.frames_skipped),
+                     *_revisit_cells(record, tracked))
+
+
+def _revisit_cells(record: RunLog, tracked: set[int]) -> tuple[float, float]:
+    """(RMS revisit error m, revisits) of the tracked poses; NaN without ground truth."""
+    if not record.ground_truth:
+        return math.nan, math.nan
+    revisits = revisit_error(record.poses, record.ground_truth, tracked)
+    return revisits.rms_m, float(revisits.pairs)
 
 
 def longest_without_upload(record: RunLog) -> float:
