@@ -4,7 +4,8 @@
   :mod:`device_tracker.frame_pairing`) + ``camera/camera_info`` → every frame tracked against
   the edge's last map alone (``map_source:=edge``, the paper's device) or with the device's own
   recent points too (``edge+local``) (:class:`~device_tracker.device_core.DeviceTrackerCore`);
-  ``device/pose``, ``device/path`` and ``map`` → camera on ``/tf`` for viewers
+  ``device/pose``, ``device/path``, ``device/odom`` and REP 105's ``map`` → ``odom`` →
+  camera on ``/tf`` for viewers
   (:mod:`device_tracker.pose_outputs`);
 * at each slot's end, ``device/frame_summaries`` with d_k drawn from the channel model
   (``channel:=markov:N=2`` or ``trace:FILE``, as the simulator's);
@@ -146,7 +147,7 @@ class DeviceTrackerNode(Node):
         if self.edge_relocalisation.due(record.tracked or result.on_probation, stamp):
             self.edge_relocalisation.ask(core.upload(record.frame_id), stamp,
                                          frame.color_msg.header.frame_id)
-        self.poses.frame(record.pose, record.tracked, stamp, frame.color_msg.header.frame_id)
+        self.poses.frame(record, stamp, frame.color_msg.header.frame_id)
         if step.finished:
             self._end_slot(step.finished, step.map_version, stamp)
 

@@ -65,8 +65,13 @@ PARAMETERS = (
               "frame's camera frame) and parent of the camera on /tf"),
     ParamSpec("camera_frame", "", "child frame of the device's pose on /tf; empty: the camera "
               "images' own frame id (the player's frame_id), so a viewer places the images"),
-    ParamSpec("publish_tf", True, "broadcast map_frame -> camera on /tf for every tracked "
-              "frame (off where another node owns that transform)"),
+    ParamSpec("publish_tf", True, "broadcast the camera's pose on /tf for every tracked frame "
+              "(off where another node owns those transforms)"),
+    ParamSpec("odom_frame", "odom", "REP 105's continuous frame: /tf carries map_frame -> "
+              "odom_frame (every correction of the map pose: map updates, relocalisations) "
+              "and odom_frame -> camera (the device's own motion, never leaping), and "
+              "device/odom the camera in it; empty: map_frame -> camera directly, no "
+              "device/odom"),
     ParamSpec("path_window", 900, "poses device/path holds: the newest ones (900: 30 s at "
               "30 Hz); the whole run is on device/pose", low=1, high=10_000_000),
     ParamSpec("shaper", "token_bucket", "uplink shaper: token_bucket (in process) or tc (a "
@@ -111,6 +116,7 @@ class DeviceSettings:
     path_window: int
     reloc_period_s: float = 0.0    #: while lost, a frame to the edge's archive this often
     own_map_after: int = 0         #: frames lost in a row before the paper's device maps itself
+    odom_frame: str = "odom"       #: REP 105's continuous frame ("": none, map -> camera)
 
     @classmethod
     def from_parameters(cls, p: Mapping[str, Any]) -> DeviceSettings:
@@ -118,6 +124,9 @@ class DeviceSettings:
         if p["camera_frame"] and p["camera_frame"] == p["map_frame"]:
             raise ValueError(f"camera_frame and map_frame are both {p['map_frame']!r}: the "
                              "camera's pose on /tf needs two frames")
+        if p["odom_frame"] and p["odom_frame"] in (p["map_frame"], p["camera_frame"]):
+            raise ValueError(f"odom_frame {p['odom_frame']!r} is also the map or camera "
+                             "frame: map -> odom -> camera needs three frames")
         return cls(int(p["slot_frames"]), float(p["frame_rate_hz"]),
                    int(float(p["alpha_mbit"]) * 1e6 / 8), str(p["channel"]), str(p["map_frame"]),
                    str(p["camera_frame"]), bool(p["publish_tf"]), str(p["map_source"]),
@@ -132,7 +141,8 @@ class DeviceSettings:
                                   frame_rate_hz=float(p["frame_rate_hz"])),
                    bool(p["upload_image"]), int(p["keep_slots"]), int(p["path_window"]),
                    float(p["reloc_period_s"]),
-                   round(float(p["own_map_after_s"]) * float(p["frame_rate_hz"])))
+                   round(float(p["own_map_after_s"]) * float(p["frame_rate_hz"])),
+                   str(p["odom_frame"]))
 
     def describe(self, shaper: str) -> str:
         """The start-up line."""

@@ -12,8 +12,9 @@ On separate machines, ``host:=device`` (camera player + device tracker), ``host:
 
 ``namespace:=/ar1`` puts a device/edge pair under ``/ar1`` (a second pair under ``/ar2`` shares
 the domain); ``/tf`` is shared by every pair, so give each its own frames as well:
-``map_frame:=ar1/map camera_frame:=ar1/camera``. The nodes run with the package's Fast DDS
-profile (``config/fastdds.xml``) unless ``FASTRTPS_DEFAULT_PROFILES_FILE`` names another.
+``map_frame:=ar1/map camera_frame:=ar1/camera odom_frame:=ar1/odom``. The nodes run with the
+package's Fast DDS profile (``config/fastdds.xml``) unless ``FASTRTPS_DEFAULT_PROFILES_FILE``
+names another.
 
 Needs the ROS 2 ``launch`` / ``launch_ros`` packages (never PyPI's unrelated ``launch``).
 """
@@ -61,6 +62,9 @@ def generate_launch_description() -> LaunchDescription:
                               description="the pair's map frame on /tf (e.g. ar1/map)"),
         DeclareLaunchArgument("camera_frame", default_value="camera",
                               description="the pair's camera frame on /tf (e.g. ar1/camera)"),
+        DeclareLaunchArgument("odom_frame", default_value="odom",
+                              description="the pair's REP 105 odom frame on /tf, between map "
+                              "and camera (e.g. ar1/odom)"),
         DeclareLaunchArgument("sequence", default_value="synthetic",
                               description="SUN3D / 7-Scenes / TUM RGB-D folder, a bag of "
                               "twinslam record, or synthetic[:frames]"),
@@ -104,12 +108,14 @@ def generate_launch_description() -> LaunchDescription:
              namespace=arg("namespace"),
              parameters=[arg("params_file"), {"map_frame": arg("map_frame"),
                                                "camera_frame": arg("camera_frame"),
+                                               "odom_frame": arg("odom_frame"),
                                                "map_source": arg("map_source")}],
              output="screen", condition=on("device", given="map_source")),
         Node(package="twinslam", executable="device_tracker", name="device_tracker",
              namespace=arg("namespace"),
              parameters=[arg("params_file"), {"map_frame": arg("map_frame"),
-                                               "camera_frame": arg("camera_frame")}],
+                                               "camera_frame": arg("camera_frame"),
+                                               "odom_frame": arg("odom_frame")}],
              output="screen", condition=on("device", empty="map_source")),
         Node(package="twinslam", executable="udt_node", name="udt_node", namespace=arg("namespace"),
              parameters=[arg("params_file")], output="screen",

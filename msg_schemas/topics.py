@@ -13,6 +13,8 @@ GROUND_TRUTH_PATH = "camera/ground_truth_path"
 
 DEVICE_POSE = "device/pose"
 DEVICE_PATH = "device/path"
+#: the camera in REP 105's continuous odom frame (nav_msgs/Odometry, pose only)
+DEVICE_ODOM = "device/odom"
 FRAME_SUMMARIES = "device/frame_summaries"
 KEYFRAMES = "device/keyframes"
 UPLINK_THROUGHPUT = "device/uplink_throughput"

@@ -119,9 +119,16 @@ class _Viewer:
             for key, topic, profile in (("tf", topics.TF, deep_tf),
                                         ("tf_static", topics.TF_STATIC, qos.TF_STATIC)):
                 self.session.node.create_subscription(
-                    TFMessage, topic, lambda m, k=key: self.seen[k].update(
-                        (stamp_key(t.header), t) for t in m.transforms), profile)
+                    TFMessage, topic, lambda m, k=key: self._transforms(k, m), profile)
         self.session.spin_until(lambda: False, 0.05)
+
+    def _transforms(self, key: str, msg: Any) -> None:
+        """stamp → (parent, child) → transform, as a viewer's TF buffer keys them."""
+        from msg_schemas.headers import stamp_key
+
+        for t in msg.transforms:
+            self.seen[key].setdefault(stamp_key(t.header), {})[
+                (t.header.frame_id, t.child_frame_id)] = t
 
     def close(self) -> None:
         if self.session is not None:
@@ -484,10 +491,10 @@ def test_a_viewer_sees_the_edges_map_points_keyframes_and_decisions(viewed_lff: 
 
 @reads_the_policy_runs
 def test_a_viewer_follows_the_device_on_the_tf_tree(viewed_lff: tuple) -> None:
-    """The TF tree a viewer follows: map → camera on /tf at every frame the device tracked
-    (the transform is its pose on device/pose, stamped alike) and none at a frame it did not;
-    world → map on /tf_static (latched: the viewer joined after it went out) at the first
-    played frame's ground truth, where the device's map frame starts."""
+    """The TF tree a viewer follows (REP 105): map → odom → camera on /tf at every frame the
+    device tracked (their product is its pose on device/pose, stamped alike) and none at a
+    frame it did not; world → map on /tf_static (latched: the viewer joined after it went
+    out) at the first played frame's ground truth, where the device's map frame starts."""
     from msg_schemas.headers import time_key
     from msg_schemas.poses import pose_matrix, pose_msg
     from msg_schemas.transforms import transform_matrix
@@ -502,10 +509,13 @@ def test_a_viewer_follows_the_device_on_the_tf_tree(viewed_lff: tuple) -> None:
     assert set(tf) <= window | {k for k in tf if k > max(tracked)}, \
         "a transform at a frame the device did not track"
     assert len(window - set(tf)) <= 0.02 * len(window), "tracked frames missing on /tf"
-    for key, transform in tf.items():
-        assert (transform.header.frame_id, transform.child_frame_id) == ("map", "camera")
-        np.testing.assert_allclose(transform_matrix(transform), record.poses[key], atol=1e-6)
-    (anchor,) = seen["tf_static"].values()
+    for key, transforms in tf.items():
+        assert set(transforms) == {("map", "odom"), ("odom", "camera")}
+        np.testing.assert_allclose(transform_matrix(transforms["map", "odom"])
+                                   @ transform_matrix(transforms["odom", "camera"]),
+                                   record.poses[key], atol=1e-6)
+    (statics,) = seen["tf_static"].values()
+    (anchor,) = statics.values()
     assert (anchor.header.frame_id, anchor.child_frame_id) == ("world", "map")
     # the sequence's own first frame (the monitor may have missed the first ground truth), as
     # a pose message carries it (the dataset's float32 rotation made orthonormal)

@@ -73,6 +73,8 @@ def test_the_report_counts_a_leap_jitter_refusals_and_slots_without_upload() -> 
     assert rep.truth_jitter_rms_mm == pytest.approx(1.0)   # the walk's own curve
     assert rep.poses_refused == 1 and rep.keyframes_refused == 1
     assert rep.longest_no_upload_slots == 2                   # slots 1 and 2
+    # no device/odom heard: nothing to say of the odom frame
+    assert math.isnan(rep.odom_jitter_rms_mm) and math.isnan(rep.odom_step_excess_mm)
     # 1.3 s of a walk that never comes back: no place is revisited, nothing to measure
     assert rep.revisit_pairs == 0 and math.isnan(rep.revisit_error_m)
     assert "revis m" in rep.HEADER
@@ -101,3 +103,22 @@ def test_frames_the_player_skipped_are_not_counted_as_dropped() -> None:
     # a run of an unreadable sequence, not a slow machine: nothing left to call dropped
     log.frames_skipped = 5
     assert report("lff", log, 2.0, SLOT).frames_dropped == 0
+
+
+def test_the_odom_frame_is_judged_by_its_jitter_and_its_largest_leap() -> None:
+    """The same run with device/odom heard: an odom pose that follows the walk without the
+    map pose's leap at frame 25 shakes like the truth and never steps further than the
+    camera moved; one that leaps 5 cm at frame 12 shows the 5 cm."""
+    log = _run()
+    for summary in log.summaries.values():
+        for f in summary.frames:
+            log.odom_poses[time_key(f.stamp)] = _truth(int(f.frame_id))
+    rep = report("lff", log, 2.0, SLOT)
+    assert rep.odom_jitter_rms_mm == pytest.approx(1.0)          # the walk's own curve
+    assert rep.odom_step_excess_mm == pytest.approx(0.0, abs=1e-9)
+    key = time_key(log.summaries[1].frames[2].stamp)                  # frame 12
+    log.odom_poses[key] = _off(log.odom_poses[key], 0.05)
+    leapt = log.odom_poses[key][:3, 3] - _truth(11)[:3, 3]
+    walked = _truth(12)[:3, 3] - _truth(11)[:3, 3]
+    expected = (np.linalg.norm(leapt) - np.linalg.norm(walked)) * 1000.0     # ~46 mm
+    assert report("lff", log, 2.0, SLOT).odom_step_excess_mm == pytest.approx(expected)

@@ -16,6 +16,7 @@ from twinslam.live.tracking_quality import (
     jump_count,
     relative_pose_error,
     revisit_error,
+    step_excess_mm,
     tracking_events,
 )
 
@@ -138,3 +139,14 @@ def test_a_place_seen_from_elsewhere_or_turned_away_from_is_no_revisit() -> None
     assert revisit_error(est, truth, stamps).pairs == 90
     empty = revisit_error({}, truth, stamps)
     assert empty.pairs == 0 and math.isnan(empty.rms_m)
+
+
+def test_a_step_beyond_the_truths_is_what_content_anchored_there_leaps() -> None:
+    """A camera walking 1 cm a frame: a track that steps 1 cm too goes no further than it,
+    one that leaps 3 cm once goes 2 cm beyond; frames without a position are left out."""
+    frames = list(range(10))
+    truth = {i: np.array([0.01 * i, 0.0, 0.0]) for i in frames}
+    assert step_excess_mm(truth, truth, frames) == pytest.approx(0.0)
+    leap = {i: p + (np.array([0.02, 0, 0]) if i >= 5 else 0.0) for i, p in truth.items()}
+    assert step_excess_mm(leap, truth, frames) == pytest.approx(20.0)
+    assert math.isnan(step_excess_mm({}, truth, frames))

@@ -122,7 +122,8 @@ class FleetLauncher(Launcher):
             self.config = saved
         args += ["-r", f"__ns:=/{device}", "-p", f"map_frame:={device}/map"]
         if name == "device_tracker":
-            args += ["-p", f"seed:={self.fleet.device_seed(index)}"]
+            args += ["-p", f"seed:={self.fleet.device_seed(index)}",
+                     "-p", f"odom_frame:={device}/odom"]
         else:
             args += ["-p", f"frame_id:={device}/camera"]
         return args

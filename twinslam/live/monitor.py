@@ -10,6 +10,7 @@ from typing import TypeVar, cast
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Image
@@ -73,6 +74,7 @@ class PipelineMonitor:
         sub(MapUpdate, topics.MAP_UPDATE, with_info(self._map), map_qos, raw=True)
         sub(Relocalisation, topics.RELOCALISATION, self._downlink, qos.PROTOCOL, raw=True)
         sub(PoseStamped, topics.DEVICE_POSE, self._pose, qos.PROTOCOL)
+        sub(Odometry, topics.DEVICE_ODOM, self._odom, qos.PROTOCOL)
         sub(PoseStamped, topics.GROUND_TRUTH_POSE, self._ground_truth, qos.CAMERA)
         sub(DiagnosticArray, topics.DIAGNOSTICS, self._diagnostics, qos.PROTOCOL)
         if watch_images:     # a viewer's subscription: best effort, undecoded, only counted
@@ -104,6 +106,9 @@ class PipelineMonitor:
 
     def _pose(self, msg: PoseStamped) -> None:
         self.record.poses[stamp_key(msg.header)] = pose_matrix(msg.pose)
+
+    def _odom(self, msg: Odometry) -> None:
+        self.record.odom_poses[stamp_key(msg.header)] = pose_matrix(msg.pose.pose)
 
     def _ground_truth(self, msg: PoseStamped) -> None:
         self.record.ground_truth[stamp_key(msg.header)] = pose_matrix(msg.pose)

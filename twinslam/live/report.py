@@ -22,6 +22,7 @@ from twinslam.live.tracking_quality import (
     jump_count,
     relative_pose_error,
     revisit_error,
+    step_excess_mm,
     tracking_events,
     translation_errors,
 )
@@ -92,13 +93,19 @@ class RunReport:
     #: pairs of frames revisit a place (NaN: no ground truth)
     revisit_error_m: float = math.nan
     revisit_pairs: float = math.nan
+    #: REP 105's odom frame (device/odom): the RMS jitter of its positions over tracked
+    #: frames, mm, and its largest frame-to-frame step beyond the truth's, mm (NaN: no odom,
+    #: or no ground truth for the step)
+    odom_jitter_rms_mm: float = math.nan
+    odom_step_excess_mm: float = math.nan
 
     ROW = ("{label:<14} {mean_uncertainty:>10.1f} {lost_share:>6.1%} "
            "{tracked_uncertainty:>10.1f} {ate_m:>7.3f} "
            "{rpe_m:>7.3f} {frames_uploaded:>7d} {mbytes:>7.1f} {achieved_mbps:>7.1f} "
            "{untracked_frames:>6d} {failed_share:>6.1%} {tracking_failures:>5d} "
            "{relocalisations:>6d} {jumps:>5.0f} {max_error_m:>7.3f} {jitter_rms_mm:>7.1f} "
-           "{truth_jitter_rms_mm:>7.1f} {revisit_error_m:>7.3f} {restores:>6.0f} "
+           "{truth_jitter_rms_mm:>7.1f} {odom_jitter_rms_mm:>7.1f} {odom_step_excess_mm:>7.1f} "
+           "{revisit_error_m:>7.3f} {restores:>6.0f} "
            "{recover_s:>7.2f} "
            "{loss_p95_s:>7.2f} {longest_loss_s:>7.2f} {downlink_mb:>7.1f} {device_cpu_ms:>7.1f} "
            "{edge_ms_median:>7.0f} {longest_no_upload_slots:>5.0f} {dropped:>7} "
@@ -107,7 +114,8 @@ class RunReport:
               f"{'RPE m':>7} "
               f"{'uploads':>7} {'MB':>7} {'Mbit/s':>7} {'untrk':>6} {'failed':>6} "
               f"{'fails':>5} {'reloc':>6} {'jumps':>5} {'max e m':>7} {'jit mm':>7} "
-              f"{'gt jit':>7} {'revis m':>7} {'restor':>6} {'recov s':>7} {'p95 s':>7} "
+              f"{'gt jit':>7} {'odo jit':>7} {'odo st':>7} {'revis m':>7} {'restor':>6} "
+              f"{'recov s':>7} {'p95 s':>7} "
               f"{'max s':>7} {'down MB':>7} {'dev ms':>7} {'edge ms':>7} {'no up':>5} "
               f"{'dropped':>7} {'skipped':>7}")
 
@@ -187,7 +195,18 @@ def report(policy: str, record: RunLog, seconds: float, slot_frames: int) -> Run
                      float(sum(int(s.refused_keyframes) for s in stats)),
                      longest_without_upload(record),
                      math.nan if record.frames_skipped is None else float(record.frames_skipped),
-                     *_revisit_cells(record, tracked))
+                     *_revisit_cells(record, tracked), *_odom_cells(record, tracked))
+
+
+def _odom_cells(record: RunLog, tracked: set[int]) -> tuple[float, float]:
+    """(RMS jitter, largest step beyond the truth's) of the odom positions of tracked
+    frames, mm; NaN without device/odom."""
+    odom = {s: p[:3, 3] for s, p in record.odom_poses.items() if s in tracked}
+    if not odom:
+        return math.nan, math.nan
+    stamps = frame_stamps(record)
+    truth = {s: record.ground_truth[s][:3, 3] for s in odom if s in record.ground_truth}
+    return jitter(odom, stamps).rms_mm, step_excess_mm(odom, truth, stamps)
 
 
 def _revisit_cells(record: RunLog, tracked: set[int]) -> tuple[float, float]:

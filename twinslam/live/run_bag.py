@@ -22,7 +22,9 @@ from typing import Any
 
 import cv2
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseArray, PoseStamped
+from nav_msgs.msg import Odometry
 from nav_msgs.msg import Path as PathMsg
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
@@ -71,6 +73,8 @@ RUN_TOPICS: tuple[tuple[str, type[Any], Any], ...] = (
     (topics.DECISIONS, MarkerArray, qos.MAP),
     (topics.DEVICE_POSE, PoseStamped, qos.PROTOCOL),
     (topics.DEVICE_PATH, PathMsg, qos.MAP),
+    (topics.DEVICE_ODOM, Odometry, qos.PROTOCOL),
+    (topics.DIAGNOSTICS, DiagnosticArray, qos.PROTOCOL),
     (topics.GROUND_TRUTH_POSE, PoseStamped, qos.CAMERA),
     (topics.GROUND_TRUTH_PATH, PathMsg, qos.MAP),
     (topics.TF, TFMessage, qos.TF),

@@ -20,6 +20,8 @@ class RunLog:
     throughput: dict[int, UplinkThroughput] = field(default_factory=dict)
     maps: dict[int, MapSnapshot] = field(default_factory=dict)   #: last map update per slot
     poses: dict[int, np.ndarray] = field(default_factory=dict)        #: stamp ns → pose
+    #: stamp ns → the camera's pose in REP 105's odom frame (device/odom)
+    odom_poses: dict[int, np.ndarray] = field(default_factory=dict)
     ground_truth: dict[int, np.ndarray] = field(default_factory=dict)
     latents: dict[int, RateLatent] = field(default_factory=dict)    #: the twin's, by slot
     images_received: int = 0        #: /camera/image_raw samples, when the monitor watches them

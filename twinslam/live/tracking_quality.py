@@ -267,3 +267,16 @@ def revisit_error(poses: Mapping[int, np.ndarray], truth: Mapping[int, np.ndarra
     e = np.concatenate(errors)
     return RevisitError(float(np.sqrt(np.mean(e ** 2))), float(np.median(e)),
                         float(np.percentile(e, 95)), int(e.size))
+
+
+def step_excess_mm(positions: Mapping[int, np.ndarray], truth: Mapping[int, np.ndarray],
+                   frames: Sequence[int]) -> float:
+    """The largest frame-to-frame step of ``positions`` beyond the truth's step over the same
+    two frames, mm (keys as :func:`jitter`'s; a pair counts where both frames have a position
+    and a true one): how far content anchored in that frame leaps at once more than the
+    camera moved. NaN where no pair counts."""
+    excess = [float(np.linalg.norm(np.asarray(positions[b][:3]) - np.asarray(positions[a][:3]))
+                    - np.linalg.norm(np.asarray(truth[b][:3]) - np.asarray(truth[a][:3])))
+              for a, b in itertools.pairwise(frames)
+              if a in positions and b in positions and a in truth and b in truth]
+    return max(excess) * 1000.0 if excess else math.nan
