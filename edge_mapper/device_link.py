@@ -310,6 +310,8 @@ class DeviceLink:
         kept = f" (kept {len(out.spared)} of C_k: uploads missing)" if out.spared else ""
         if out.restored:
             kept += f", {len(out.restored)} restored from the archive {out.restored}"
+            if out.fused_points:
+                kept += f" ({out.fused_points} of their points fused with the map's)"
         self.info(f"slot {slot}: +{len(out.integrated)} keyframes, -{len(out.evicted)}{kept}, map "
                   f"{len(self.core.map.keyframes)} keyframes / {len(self.core.map.points)} "
                   f"points, u(G) {u:.1f}{'' if math.isfinite(u) else ' (disconnected)'}, BA "

@@ -51,6 +51,7 @@ from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameAr
 from twinslam.slam.back_end.keyframe_gate import KeyFrameGateConfig, implausible_keyframe
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.back_end.local_mapping import IntegrationReport, LocalMapping
+from twinslam.slam.back_end.point_fusion import fuse_restored
 from twinslam.slam.keyframe import KeyFramePayload
 from twinslam.uncertainty.map_uncertainty import map_uncertainty
 
@@ -108,6 +109,9 @@ class SlotOutcome:
     refused: dict[int, str] = field(default_factory=dict)
     #: why the bundle adjustment's answer was not applied ("": applied, or none ran)
     optimisation_refused: str = ""
+    #: points the restored keyframes brought back that duplicated map points and were fused
+    #: into them (:mod:`twinslam.slam.back_end.point_fusion`)
+    fused_points: int = 0
 
 
 class EdgeMapperCore:
@@ -325,9 +329,9 @@ class EdgeMapperCore:
         # restores fill the map up to the smaller of this slot's V_max and the next one's: an
         # edge serving several devices may already have granted this device more for the next
         # slot, which this slot's map (and its MapStats' budget) must not anticipate
-        restored, replaced, dropped = self._restore(slot, received,
-                                                    self._headings.pop(slot, []), views,
-                                                    min(vmax, self.planner.config.vmax))
+        restored, replaced, dropped, fused = self._restore(
+            slot, received, self._headings.pop(slot, []), views,
+            min(vmax, self.planner.config.vmax))
         evicted += replaced
         forgotten += dropped
         t0 = time.perf_counter()
@@ -357,18 +361,20 @@ class EdgeMapperCore:
                    "checkpoint": (t2 - t1) * 1e3, "uncertainty": (t3 - t2) * 1e3}
         return SlotOutcome(slot, sorted(received), sorted(missing), evicted, spared, orphans, ba,
                            u, self.version, tracks, timings, forgotten, restored, refused,
-                           ba.refused if ba is not None else "")
+                           ba.refused if ba is not None else "", fused)
 
     def _restore(self, slot: int, received: set[int], poses: list[np.ndarray],
                  relocalised: list[np.ndarray], vmax: int
-                 ) -> tuple[list[int], list[int], list[int]]:
+                 ) -> tuple[list[int], list[int], list[int], int]:
         """Bring archived keyframes seen from ``poses`` (where the camera is heading after
         ``slot``) — or, where the edge relocalised the lost device in its archive, from the
         ``relocalised`` poses — back into the map, each in place of the keyframe that sees
         least of that view (into the archive in its turn); (restored, evicted for them,
-        forgotten by the archive to make room for those); the map stays within ``vmax``."""
+        forgotten by the archive to make room for those, points fused); the map stays within
+        ``vmax``. The points a restored keyframe brings back that the map made again since are
+        fused into the map's (:func:`~twinslam.slam.back_end.point_fusion.fuse_restored`)."""
         if not has_camera(self.k):
-            return [], [], []
+            return [], [], [], 0
         if relocalised and self.config.reloc_restore_keyframes > 0:
             chosen = plan_relocation_restores(self.map, self.archive, relocalised, self.k,
                                               self.config.image_shape, vmax,
@@ -378,15 +384,16 @@ class EdgeMapperCore:
                                    self.config.image_shape, vmax,
                                    self.config.restore_keyframes, slot, received)
         else:
-            return [], [], []
+            return [], [], [], 0
         back = [self.archive.take(kf) for kf in chosen.restore]
         dropped = []
         for victim in chosen.evict:
             dropped += self.archive.add(ArchivedKeyFrame.of(self.map, victim, slot))
             self.map.evict(victim)
-        for archived in back:
-            restore_into(self.map, archived)
-        return chosen.restore, chosen.evict, dropped
+        returned = {archived.id: restore_into(self.map, archived) for archived in back}
+        fused = sum(len(fuse_restored(self.map, kf, points, self.k, self.config.image_shape))
+                    for kf, points in returned.items())
+        return chosen.restore, chosen.evict, dropped, fused
 
     def relocalise(self, points_xy: np.ndarray, descriptors: np.ndarray) -> ArchiveLocation:
         """Find a lost device's frame (its ORB keypoints and descriptors) in the archive. A pose

@@ -104,18 +104,19 @@ class ArchivedKeyFrame:
         return kf
 
 
-def restore_into(m: KeyFrameMap, kf: ArchivedKeyFrame) -> int:
+def restore_into(m: KeyFrameMap, kf: ArchivedKeyFrame) -> list[int]:
     """Put an archived keyframe back into the managed map ``m``: its pose, and its view of
     every point it observed — a point the map still holds keeps its current (optimised)
     position, one that left with the last of its observers comes back as archived. Returns
-    how many points came back."""
+    the points that came back (which may duplicate points made since:
+    :mod:`twinslam.slam.back_end.point_fusion`)."""
     m.add_keyframe(kf.id, kf.pose)
-    back = 0
+    back = []
     for pid, xyz, desc in zip(kf.point_ids.tolist(), kf.positions, kf.descriptors,
                               strict=True):
         if pid not in m.points:
             m.readd_point(pid, xyz, desc)
-            back += 1
+            back.append(pid)
     m.observe_many(kf.id, kf.point_ids.tolist(), kf.measurements[:, :2].tolist(),
                    kf.measurements[:, 2].tolist())
     return back

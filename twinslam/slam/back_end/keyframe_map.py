@@ -129,6 +129,27 @@ class KeyFrameMap:
             return True
         return False
 
+    def fuse(self, keep: int, drop: int) -> int:
+        """Point ``drop`` is point ``keep`` seen again (a duplicate): every keyframe that
+        observes ``drop`` observes ``keep`` instead, where it saw ``drop`` (one that sees
+        both keeps its own view of ``keep``), and ``drop`` leaves the map. Returns how many
+        observations moved to ``keep``."""
+        if keep == drop or keep not in self.points or drop not in self.points:
+            raise MapError(f"cannot fuse point {drop} into {keep}: the same point, or not in "
+                           "the map")
+        kept, moved = self.points[keep], 0
+        for kf_id in sorted(self.points[drop].observers):
+            kf = self.keyframes[kf_id]
+            seen = kf.measurements.pop(drop)
+            kf.points.discard(drop)
+            if keep not in kf.points:
+                kf.points.add(keep)
+                kf.measurements[keep] = seen
+                kept.observers.add(kf_id)
+                moved += 1
+        del self.points[drop]
+        return moved
+
     def evict(self, kf_id: int) -> list[int]:
         """Remove a keyframe and its observations; returns the ids of the points that lost
         their last observer and were removed with it."""
