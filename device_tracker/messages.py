@@ -41,6 +41,9 @@ class FrameRecord:
     #: a pose solved for it was refused by a gate (an impossible motion, or a relocalisation
     #: the pose gate refused): not tracked
     pose_refused: bool = False
+    #: its pose came from PnP RANSAC: the motion model's refinement kept too few of its
+    #: matches against the map
+    pnp_ransac: bool = False
 
 
 def frame_summaries_message(slot: int, rate_mbps: float, rate_state: int, map_version: int,
@@ -53,7 +56,7 @@ def frame_summaries_message(slot: int, rate_mbps: float, rate_state: int, map_ve
                           local_track_ids=np.asarray(f.track_ids, dtype=np.uint64),
                           relocalised=f.relocalised, inliers=f.inliers,
                           map_version=f.map_version, cpu_ms=f.cpu_ms,
-                          pose_refused=f.pose_refused)
+                          pose_refused=f.pose_refused, pnp_ransac=f.pnp_ransac)
                       for f in frames])
     return set_header(msg, stamp, "map")
 

@@ -21,6 +21,7 @@ from twinslam.sequences.frame import pose_from_xyzq
 from twinslam.sequences.opening import open_sequence
 from twinslam.slam.front_end.orb_extractor import OrbExtractor
 from twinslam.slam.front_end.pose_optimization import optimize_pose
+from twinslam.slam.front_end.tracking import Tracking
 from twinslam.slam.projection_matching import match_by_projection
 
 REPO = Path(__file__).resolve().parents[1]
@@ -96,6 +97,24 @@ def test_pose_refinement_recovers_the_pose_and_rejects_outliers() -> None:
 
 
 @needs_seven
+def test_a_map_that_disagrees_with_itself_sends_the_pose_to_pnp_ransac_and_says_so() -> None:
+    """Twenty frames of the synthetic room tracked by the motion model alone; then 60 % of the
+    map's points moved by ~3 cm (a map inconsistent with itself, as duplicated or badly fused
+    points make it): the refinement keeps too few of its matches, PnP RANSAC finds the pose
+    among the consistent ones, and the frame says so (the share a run reports)."""
+    sequence = open_sequence("synthetic:21", 0, 21)
+    frames = list(sequence)
+    tracker = Tracking(sequence.intrinsics)
+    steady = [tracker.track(f.color, f.depth) for f in frames[:20]]
+    assert all(f.tracked and not f.pnp_ransac for f in steady)
+    rng = np.random.default_rng(0)
+    active = np.flatnonzero(tracker.map.active)
+    moved = rng.choice(active, int(0.6 * active.size), replace=False)
+    tracker.map.positions[moved] += rng.normal(0.0, 0.03, (moved.size, 3))
+    disagreeing = tracker.track(frames[20].color, frames[20].depth)
+    assert disagreeing.tracked and disagreeing.pnp_ransac
+
+
 def test_extracted_covisibility_falls_with_viewpoint_distance() -> None:
     """Committed covisibility of the 7-Scenes sample against its ground truth.
 

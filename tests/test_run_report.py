@@ -49,7 +49,8 @@ def _run() -> RunLog:
                 estimate = _off(_truth(i), 0.5)
             tracked = i not in (30, 31)
             frames.append(FrameRecord(i, i / 30.0, estimate, tracked, np.zeros(0, np.uint64),
-                                      np.zeros(0, np.uint64), slot, pose_refused=i == 31))
+                                      np.zeros(0, np.uint64), slot, pose_refused=i == 31,
+                                      pnp_ransac=i in (5, 6, 31)))
         msg = frame_summaries_message(slot, 40.0, 0, slot, frames, frames[-1].stamp)
         log.summaries[slot] = msg
         for f, record in zip(msg.frames, frames, strict=True):
@@ -72,6 +73,8 @@ def test_the_report_counts_a_leap_jitter_refusals_and_slots_without_upload() -> 
     assert rep.jitter_over_20mm == 3 and rep.jitter_p95_mm > 100
     assert rep.truth_jitter_rms_mm == pytest.approx(1.0)   # the walk's own curve
     assert rep.poses_refused == 1 and rep.keyframes_refused == 1
+    # frames 5 and 6 of the 38 tracked were posed by PnP RANSAC (31, untracked, counts not)
+    assert rep.pnp_ransac_share == pytest.approx(2 / 38)
     assert rep.longest_no_upload_slots == 2                   # slots 1 and 2
     # no device/odom heard: nothing to say of the odom frame
     assert math.isnan(rep.odom_jitter_rms_mm) and math.isnan(rep.odom_step_excess_mm)

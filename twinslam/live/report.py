@@ -98,6 +98,11 @@ class RunReport:
     #: or no ground truth for the step)
     odom_jitter_rms_mm: float = math.nan
     odom_step_excess_mm: float = math.nan
+    #: the share of the tracked frames whose pose came from PnP RANSAC because the motion
+    #: model's refinement kept too few of its matches against the map: matches that disagree
+    #: (a map inconsistent with itself, duplicated points, a motion the model missed); NaN:
+    #: nothing tracked
+    pnp_ransac_share: float = math.nan
 
     ROW = ("{label:<14} {mean_uncertainty:>10.1f} {lost_share:>6.1%} "
            "{tracked_uncertainty:>10.1f} {ate_m:>7.3f} "
@@ -105,7 +110,7 @@ class RunReport:
            "{untracked_frames:>6d} {failed_share:>6.1%} {tracking_failures:>5d} "
            "{relocalisations:>6d} {jumps:>5.0f} {max_error_m:>7.3f} {jitter_rms_mm:>7.1f} "
            "{truth_jitter_rms_mm:>7.1f} {odom_jitter_rms_mm:>7.1f} {odom_step_excess_mm:>7.1f} "
-           "{revisit_error_m:>7.3f} {restores:>6.0f} "
+           "{revisit_error_m:>7.3f} {pnp_ransac_share:>6.1%} {restores:>6.0f} "
            "{recover_s:>7.2f} "
            "{loss_p95_s:>7.2f} {longest_loss_s:>7.2f} {downlink_mb:>7.1f} {device_cpu_ms:>7.1f} "
            "{edge_ms_median:>7.0f} {longest_no_upload_slots:>5.0f} {dropped:>7} "
@@ -114,7 +119,8 @@ class RunReport:
               f"{'RPE m':>7} "
               f"{'uploads':>7} {'MB':>7} {'Mbit/s':>7} {'untrk':>6} {'failed':>6} "
               f"{'fails':>5} {'reloc':>6} {'jumps':>5} {'max e m':>7} {'jit mm':>7} "
-              f"{'gt jit':>7} {'odo jit':>7} {'odo st':>7} {'revis m':>7} {'restor':>6} "
+              f"{'gt jit':>7} {'odo jit':>7} {'odo st':>7} {'revis m':>7} {'ransac':>6} "
+              f"{'restor':>6} "
               f"{'recov s':>7} {'p95 s':>7} "
               f"{'max s':>7} {'down MB':>7} {'dev ms':>7} {'edge ms':>7} {'no up':>5} "
               f"{'dropped':>7} {'skipped':>7}")
@@ -195,7 +201,16 @@ def report(policy: str, record: RunLog, seconds: float, slot_frames: int) -> Run
                      float(sum(int(s.refused_keyframes) for s in stats)),
                      longest_without_upload(record),
                      math.nan if record.frames_skipped is None else float(record.frames_skipped),
-                     *_revisit_cells(record, tracked), *_odom_cells(record, tracked))
+                     *_revisit_cells(record, tracked), *_odom_cells(record, tracked),
+                     pnp_ransac_share(record))
+
+
+def pnp_ransac_share(record: RunLog) -> float:
+    """The share of the tracked frames whose pose fell back to PnP RANSAC (NaN: none
+    tracked)."""
+    tracked = [bool(f.pnp_ransac) for s in record.summaries.values() for f in s.frames
+               if f.tracked]
+    return float(np.mean(tracked)) if tracked else math.nan
 
 
 def _odom_cells(record: RunLog, tracked: set[int]) -> tuple[float, float]:

@@ -109,6 +109,10 @@ class TrackedFrame:
     refused: str = ""                  #: why the pose gate refused this frame's relocalisation
     implausible: str = ""              #: why the motion gate refused the pose the motion
     #: model solved for this frame (an impossible motion: the frame is lost)
+    #: the motion model's refinement kept fewer than ``min_inlier_ratio`` of its matches and
+    #: the pose came from PnP RANSAC instead: matches against the map that disagree with each
+    #: other (a map inconsistent with itself, or a motion the model missed)
+    pnp_ransac: bool = False
 
 
 class Tracking:
@@ -125,6 +129,7 @@ class Tracking:
         self._last_kf_index = -1
         self._count = 0
         self._lost = 0                                  # frames lost in a row
+        self._solved_by_ransac = False      # the last _solve_pose fell back to PnP RANSAC
         self._probation: list[tuple[int, np.ndarray]] = []   # (frame, ids) of new points
         self._visible = np.zeros(0, dtype=np.int64)
         self._new_map = False                           # replaced since the last relocalisation
@@ -153,6 +158,7 @@ class Tracking:
         predicted = self._pose @ self._velocity
         matched_feat, matched_ids = self._match(feats, predicted, color.shape[:2])
         pose, inliers = self._solve_pose(feats.points[matched_feat], matched_ids, predicted)
+        pnp_ransac = pose is not None and self._solved_by_ransac
         implausible = self.implausible(pose, index) if pose is not None else ""
         if implausible:
             pose, inliers = None, np.zeros(len(matched_ids), dtype=bool)
@@ -197,7 +203,8 @@ class Tracking:
         self._cull(index)
         return TrackedFrame(index, pose.copy(), np.sort(observed), tracked, keyframe,
                             len(feats.points), len(matched_ids), feats, assoc, recovered,
-                            n_inliers, on_probation, refused, implausible)
+                            n_inliers, on_probation, refused, implausible,
+                            pnp_ransac and tracked and not relocalised)
 
     @property
     def frames_tracked(self) -> int:
@@ -389,6 +396,7 @@ class Tracking:
         RANSAC only when that keeps too few of the matches (a motion the model missed). With
         no prediction (relocalisation), RANSAC alone."""
         cfg = self.config
+        self._solved_by_ransac = False
         if len(ids) < cfg.min_inliers:
             return None, np.zeros(len(ids), dtype=bool)
         world = self.map.positions[ids]
@@ -413,6 +421,7 @@ class Tracking:
         mask[inl.ravel()] = True
         rvec, tvec = cv2.solvePnPRefineLM(world[mask], pixels[mask].astype(np.float64), self.k,
                                           None, rvec, tvec)
+        self._solved_by_ransac = True
         rot, _ = cv2.Rodrigues(rvec)
         cw = np.eye(4)
         cw[:3, :3], cw[:3, 3] = rot, tvec.ravel()
