@@ -16,6 +16,7 @@ TrackingConfig`) — and the device checks it once more against where it last tr
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -52,20 +53,25 @@ class ArchiveLocation:
 
 def locate_in_archive(archive: KeyFrameArchive, points_xy: np.ndarray, descriptors: np.ndarray,
                       intrinsics: np.ndarray,
-                      config: ArchiveRelocalisationConfig = ArchiveRelocalisationConfig()
-                      ) -> ArchiveLocation:
+                      config: ArchiveRelocalisationConfig = ArchiveRelocalisationConfig(),
+                      eligible: Callable[[int], bool] | None = None) -> ArchiveLocation:
     """The pose of a frame with ORB features (``points_xy`` (n, 2) pixels, ``descriptors``
-    (n, 32) uint8) seen by camera ``intrinsics``, among the archive's keyframes."""
+    (n, 32) uint8) seen by camera ``intrinsics``, among the archive's keyframes — those
+    ``eligible`` says may be (a loop's: only keyframes far older than the new one)."""
     xy = np.asarray(points_xy, dtype=np.float64).reshape(-1, 2)
     desc = np.ascontiguousarray(descriptors, dtype=np.uint8).reshape(-1, 32)
     if len(xy) != len(desc):
         raise ValueError(f"{len(xy)} keypoints but {len(desc)} descriptors")
-    proposed = archive.recognise(desc, top=config.candidates) if len(desc) else []
+    wanted = config.candidates * (4 if eligible else 1)      # some may not be eligible
+    proposed = archive.recognise(desc, top=wanted) if len(desc) else []
+    if eligible is not None:
+        proposed = [(k, v) for k, v in proposed if eligible(k)][:config.candidates]
     if not proposed:
         return ArchiveLocation(None, 0, -1, (), "the archive recognises no place in the frame")
     best = ArchiveLocation(None, 0, proposed[0][0], (), "")
     for kf_id, _votes in proposed:
-        group = _with_neighbours(archive, kf_id, config.neighbours)
+        group = [k for k in _with_neighbours(archive, kf_id, config.neighbours)
+                 if eligible is None or eligible(k)]
         pose, inliers = _solve(archive, group, xy, desc, intrinsics, config)
         if inliers > best.inliers:
             best = ArchiveLocation(pose, inliers, kf_id, tuple(group), "")

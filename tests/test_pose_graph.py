@@ -1,0 +1,70 @@
+"""Closing a loop with a pose graph: a walk round a room that drifts comes back to where it
+started; the loop measured between its first and last keyframe takes the drift out of every
+keyframe, and each point moves with its keyframe."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from twinslam.slam.back_end.pose_graph import close_loop, move_with_keyframes
+
+
+def _yaw(angle: float, x: float = 0.0, y: float = 0.0) -> np.ndarray:
+    pose = np.eye(4)
+    c, s = math.cos(angle), math.sin(angle)
+    pose[:2, :2] = [[c, -s], [s, c]]
+    pose[:2, 3] = x, y
+    return pose
+
+
+def _walk(n: int, drift_rad: float) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray]]:
+    """(truth, estimate): ``n`` keyframes on a circle of 2 m, the last one back beside the
+    first; the estimate chains the true steps, each turned by ``drift_rad`` too far."""
+    truth = {i: _yaw(2 * math.pi * i / n, 2 * math.cos(2 * math.pi * i / n),
+                     2 * math.sin(2 * math.pi * i / n)) for i in range(n)}
+    estimate = {0: truth[0].copy()}
+    for i in range(1, n):
+        step = np.linalg.inv(truth[i - 1]) @ truth[i]
+        estimate[i] = estimate[i - 1] @ step @ _yaw(drift_rad)
+    return truth, estimate
+
+
+def _largest_error(poses: dict[int, np.ndarray], truth: dict[int, np.ndarray]) -> float:
+    return max(float(np.linalg.norm(poses[i][:3, 3] - truth[i][:3, 3])) for i in truth)
+
+
+def test_a_loop_with_a_known_drift_is_closed_and_the_drift_removed() -> None:
+    truth, estimate = _walk(40, math.radians(0.5))
+    drifted = _largest_error(estimate, truth)
+    assert drifted > 0.5                                  # the walk ends ~0.7 m off
+    measured = np.linalg.inv(truth[0]) @ truth[39]        # the geometric check's answer
+    closed = close_loop(estimate, 0, 39, measured)
+    assert closed.final_error < 0.01 * closed.initial_error
+    assert _largest_error(closed.poses, truth) < 0.1 * drifted
+    np.testing.assert_allclose(closed.poses[0], estimate[0], atol=1e-5)    # the gauge
+    # the loop itself closes to what was measured
+    np.testing.assert_allclose(np.linalg.inv(closed.poses[0]) @ closed.poses[39], measured,
+                               atol=0.02)
+    # a point seen from the last keyframe moves with it, one of the first stays
+    point = estimate[39][:3, 3] + [0.0, 0.0, 1.0]
+    moved = move_with_keyframes({1: point, 2: np.zeros(3)}, {1: 39, 2: 0}, closed.corrections)
+    c = closed.corrections[39]
+    np.testing.assert_allclose(moved[1], c[:3, :3] @ point + c[:3, 3])
+    np.testing.assert_allclose(moved[2], np.zeros(3), atol=1e-5)
+
+
+def test_a_walk_without_drift_is_left_where_it_is() -> None:
+    truth, estimate = _walk(20, 0.0)
+    closed = close_loop(estimate, 0, 19, np.linalg.inv(truth[0]) @ truth[19])
+    assert _largest_error(closed.poses, truth) < 1e-6
+
+
+def test_a_loop_must_join_two_keyframes_of_the_graph() -> None:
+    _, estimate = _walk(5, 0.0)
+    with pytest.raises(ValueError, match="two keyframes"):
+        close_loop(estimate, 0, 7, np.eye(4))
+    with pytest.raises(ValueError, match="two keyframes"):
+        close_loop(estimate, 3, 3, np.eye(4))

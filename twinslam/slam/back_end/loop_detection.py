@@ -1,0 +1,62 @@
+"""Finding a loop: a keyframe just integrated that the archive recognises as a place seen long
+before, confirmed by geometry.
+
+ORB-SLAM's LoopClosing asks its keyframe database for candidates that share words with the new
+keyframe but are not its covisible neighbours, then solves a similarity between the two and
+accepts it with enough inliers. Here the archive's place recognition proposes the archived
+keyframes far older than the new one (``min_gap`` keyframe ids: not the recent walk, which
+the new keyframe resembles trivially), and the new keyframe's features are solved against
+their points by PnP RANSAC with the pose gate's inlier threshold
+(:func:`~twinslam.slam.back_end.archive_relocalisation.locate_in_archive`, the relocalisation
+the edge already runs for a lost device): a look-alike place whose points do not fit one
+camera pose is refused. An accepted loop gives the pose the old place puts the new keyframe
+at; its relative pose to the old keyframe is the loop factor of the pose graph
+(:mod:`twinslam.slam.back_end.pose_graph`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from twinslam.slam.back_end.archive_relocalisation import (
+    ArchiveRelocalisationConfig,
+    locate_in_archive,
+)
+from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
+
+#: a loop joins keyframes at least this many keyframe ids apart (ids are frame indices: 10 s
+#: of a 30 Hz camera); the recent walk is no loop
+MIN_GAP = 300
+
+
+@dataclass(frozen=True)
+class LoopCandidate:
+    """A loop the geometric check accepted, or why none was."""
+
+    old: int                           #: the archived keyframe of the place (-1: none)
+    pose: np.ndarray | None            #: the new keyframe's camera-to-map as the old place puts it
+    measured: np.ndarray | None        #: old⁻¹ · pose: the loop factor's relative pose
+    inliers: int
+    reason: str = ""
+
+    @property
+    def found(self) -> bool:
+        return self.pose is not None
+
+
+def detect_loop(archive: KeyFrameArchive, keyframe: int, points_xy: np.ndarray,
+                descriptors: np.ndarray, intrinsics: np.ndarray, min_gap: int = MIN_GAP,
+                config: ArchiveRelocalisationConfig | None = None) -> LoopCandidate:
+    """The loop keyframe ``keyframe`` (its ORB features ``points_xy``, ``descriptors``) closes
+    with an archived keyframe at least ``min_gap`` ids older, if the geometry confirms one."""
+    found = locate_in_archive(archive, points_xy, descriptors, intrinsics,
+                              config or ArchiveRelocalisationConfig(),
+                              eligible=lambda k: k <= keyframe - min_gap)
+    if not found.found or found.pose is None:
+        return LoopCandidate(-1, None, None, found.inliers,
+                             found.reason or "no place older than the recent walk")
+    old = archive.get(found.keyframe).pose
+    return LoopCandidate(found.keyframe, found.pose, np.linalg.inv(old) @ found.pose,
+                         found.inliers)

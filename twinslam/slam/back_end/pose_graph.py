@@ -1,0 +1,84 @@
+"""Closing a loop: a pose graph over every keyframe the edge has seen, with GTSAM.
+
+A walk that comes back to a place it saw long ago finds it again in the archive (place
+recognition and a geometric check, :mod:`twinslam.slam.back_end.archive_relocalisation`), and
+the pose the old place gives the new keyframe disagrees with the pose the walk carried to it:
+the drift accumulated in between. ORB-SLAM's loop closing spreads that disagreement over the
+loop with an essential-graph optimisation; here the graph reads like the math:
+
+* a pose x_i (camera-to-map, ``gtsam.Pose3``) for every keyframe, archived or managed;
+* between consecutive keyframes (by id: capture order) a **between factor** holding the
+  relative pose the map has now — the walk's own motion, which the loop does not question;
+* one **loop factor** between the old keyframe and the new one, holding the relative pose the
+  geometric check measured — stiffer than a step of the walk, as it is measured directly;
+* a **prior** on the oldest keyframe (the gauge: the map frame stays where it is).
+
+Levenberg–Marquardt moves every pose so that the loop closes and the walk's steps bend as
+little as they can; :func:`move_with_keyframes` then carries each point with its reference
+keyframe's correction. No ROS, no threads: the edge runs it off the slot's critical path.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import X
+
+#: σ of a walk's step (rad for the three rotations, m for the three translations): what the
+#: tracker's relative motion between two keyframes is trusted to
+STEP_SIGMAS = (0.01, 0.01, 0.01, 0.02, 0.02, 0.02)
+#: σ of the loop's measured relative pose: a PnP solve against the old place's points
+LOOP_SIGMAS = (0.005, 0.005, 0.005, 0.01, 0.01, 0.01)
+PRIOR_SIGMA = 1e-6
+
+
+@dataclass(frozen=True)
+class LoopClosure:
+    poses: dict[int, np.ndarray]          #: keyframe id → corrected 4×4 camera-to-map
+    #: keyframe id → its correction, corrected · before⁻¹ (what moves its points)
+    corrections: dict[int, np.ndarray]
+    initial_error: float
+    final_error: float
+
+
+def close_loop(poses: Mapping[int, np.ndarray], old: int, new: int,
+               measured: np.ndarray) -> LoopClosure:
+    """The keyframe ``poses`` (id → camera-to-map, every keyframe of the walk) after closing
+    the loop between keyframe ``old`` and keyframe ``new``, whose relative pose old⁻¹ · new
+    was ``measured``; the oldest keyframe holds still."""
+    ids = sorted(poses)
+    if old not in poses or new not in poses or old == new:
+        raise ValueError(f"a loop joins two keyframes of the graph, got {old} and {new}")
+    graph = gtsam.NonlinearFactorGraph()
+    initial = gtsam.Values()
+    step = gtsam.noiseModel.Diagonal.Sigmas(np.array(STEP_SIGMAS))
+    for i in ids:
+        initial.insert(X(i), gtsam.Pose3(np.asarray(poses[i], dtype=np.float64)))
+    graph.add(gtsam.PriorFactorPose3(X(ids[0]), gtsam.Pose3(np.asarray(poses[ids[0]])),
+                                     gtsam.noiseModel.Isotropic.Sigma(6, PRIOR_SIGMA)))
+    for a, b in itertools.pairwise(ids):
+        relative = np.linalg.inv(poses[a]) @ poses[b]
+        graph.add(gtsam.BetweenFactorPose3(X(a), X(b), gtsam.Pose3(relative), step))
+    graph.add(gtsam.BetweenFactorPose3(X(old), X(new), gtsam.Pose3(np.asarray(measured)),
+                                       gtsam.noiseModel.Diagonal.Sigmas(np.array(LOOP_SIGMAS))))
+    before = graph.error(initial)
+    result = gtsam.LevenbergMarquardtOptimizer(graph, initial).optimize()
+    corrected = {i: result.atPose3(X(i)).matrix() for i in ids}
+    corrections = {i: corrected[i] @ np.linalg.inv(poses[i]) for i in ids}
+    return LoopClosure(corrected, corrections, float(before), float(graph.error(result)))
+
+
+def move_with_keyframes(points: Mapping[int, np.ndarray], reference: Mapping[int, int],
+                        corrections: Mapping[int, np.ndarray]) -> dict[int, np.ndarray]:
+    """Each point (id → xyz in the map) moved by its reference keyframe's correction
+    (``reference``: point id → keyframe id); a point without one stays."""
+    moved = {}
+    for pid, xyz in points.items():
+        c = corrections.get(reference.get(pid, -1))
+        moved[pid] = (c[:3, :3] @ np.asarray(xyz) + c[:3, 3]) if c is not None \
+            else np.asarray(xyz, dtype=np.float64).copy()
+    return moved
