@@ -72,6 +72,9 @@ class EdgeConfig:
     #: archived keyframes brought back a slot at most, where the camera is heading
     #: (:mod:`edge_mapper.restores`); 0: none
     restore_keyframes: int = 0
+    #: the points a restored keyframe brings back that the map made again since are fused into
+    #: the map's (:mod:`twinslam.slam.back_end.point_fusion`); False: they stay as copies
+    point_fusion: bool = True
     #: archived keyframes brought back at the end of a slot around the pose the edge found in
     #: its archive for a lost device's frame (:meth:`EdgeMapperCore.relocalise`); 0: the edge
     #: does not relocalise devices. Off by default: on the 7-Scenes revisit-v15 walk (LFF, 300
@@ -392,7 +395,7 @@ class EdgeMapperCore:
             self.map.evict(victim)
         returned = {archived.id: restore_into(self.map, archived) for archived in back}
         fused = sum(len(fuse_restored(self.map, kf, points, self.k, self.config.image_shape))
-                    for kf, points in returned.items())
+                    for kf, points in returned.items()) if self.config.point_fusion else 0
         return chosen.restore, chosen.evict, dropped, fused
 
     def relocalise(self, points_xy: np.ndarray, descriptors: np.ndarray) -> ArchiveLocation:

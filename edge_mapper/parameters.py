@@ -73,6 +73,9 @@ PARAMETERS = (
               "at most: those the camera is heading for (the device's poses continued at "
               "constant velocity), each in place of the keyframe that sees least of that view; "
               "0: none (the paper's edge)", low=0, high=1000),
+    ParamSpec("point_fusion", True, "the points a restored keyframe brings back that the map "
+              "made again since are fused into the map's (one corner, one point); false: they "
+              "stay as copies, as before the fusion (for measuring what it changes)"),
     ParamSpec("reloc_restore_keyframes", 0, "archived keyframes brought back at the end of a "
               "slot around the pose the edge found in its archive for a lost device's frame "
               "(device/relocalisation_request, the device's reloc_period_s), the map keyframes "
@@ -130,6 +133,7 @@ def edge_config(p: Mapping[str, Any]) -> EdgeConfig:
                       ba_window=int(p["ba_window"]),
                       archive_keyframes=int(p["archive_keyframes"]),
                       restore_keyframes=int(p["restore_keyframes"]),
+                      point_fusion=bool(p["point_fusion"]),
                       reloc_restore_keyframes=int(p["reloc_restore_keyframes"]),
                       image_shape=(int(p["image_height"]), int(p["image_width"])))
 
