@@ -5,6 +5,7 @@ seed, the predicted-vs-failed agreement, and the side-by-side lines ``make run``
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
@@ -85,25 +86,29 @@ def dropped_frames_note(results: list[RunResult]) -> str | None:
     run measures the machine as much as the policy — measured on an idle 2-core machine,
     ``--jobs 2`` dropped 75-154 of ~600 frames in every LFF and PU run, and LFF's seed 0
     failed 45 % of its frames there against 15.8 % with ``--jobs 1`` (0 dropped)."""
-    dropped = [r for r in results if r.report.frames_dropped > 0]
+    dropped, runs = _runs_with(results, lambda r: r.report.frames_dropped)
     if not dropped:
         return None
-    runs = "; ".join(f"{r.key.scenario} {r.key.map_source} {r.key.policy} seed {r.key.seed}: "
-                     f"{r.report.frames_dropped}" for r in dropped)
     return (f"{len(dropped)} of {len(results)} runs dropped camera frames (the device fell "
             f"behind the camera: the machine was short of CPU), and their figures measure the "
             f"machine as much as the policy — {runs}. Run such an evaluation with fewer "
             "--jobs (each run takes about a core).")
 
 
+def _runs_with(results: list[RunResult], frames: Callable[[RunResult], float]
+               ) -> tuple[list[RunResult], str]:
+    """The runs with ``frames`` > 0 (NaN: not reported), and them named with their count."""
+    chosen = [r for r in results if frames(r) > 0]
+    return chosen, "; ".join(f"{r.key.scenario} {r.key.map_source} {r.key.policy} seed "
+                             f"{r.key.seed}: {frames(r):.0f}" for r in chosen)
+
+
 def skipped_frames_note(results: list[RunResult]) -> str | None:
     """The runs in which the player skipped frames it could not read (a corrupt or empty
     image: the data's fault, not the machine's; the device never saw them), or None."""
-    skipped = [r for r in results if r.report.frames_skipped > 0]
+    skipped, runs = _runs_with(results, lambda r: r.report.frames_skipped)
     if not skipped:
         return None
-    runs = "; ".join(f"{r.key.scenario} {r.key.map_source} {r.key.policy} seed {r.key.seed}: "
-                     f"{r.report.frames_skipped:.0f}" for r in skipped)
     return (f"{len(skipped)} of {len(results)} runs played a sequence with unreadable frames, "
             f"which the player skipped (the sequence player's log names the files) — {runs}.")
 
