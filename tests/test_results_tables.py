@@ -141,6 +141,7 @@ def test_each_archive_restores_table_is_what_its_command_prints(
 
 #: the folders (docs/figures/…/NAME, frames gzipped) the results pages run `twinslam calibrate` on
 CALIBRATED_FOLDERS = [("archive-restores/failure-causes", ("none", "restores")),
+                      ("default-device", ("table-i-300",)),
                       ("slot-length", ("slot30-dreq025-none", "slot30-dreq025-restores",
                                        "slot30-restores"))]
 
@@ -288,13 +289,46 @@ WALK_TABLES = [[f"{label}=docs/figures/default-device/{folder}-1000#{scenario}"
                                 "revisit-v15@constrained")]
 
 
-@pytest.mark.parametrize("args", PROGRESS_TABLES + PILOT_TABLES + WALK_TABLES,
+#: the default-device sweep's revisits and outages, 300 frames forward and back, ten seeds
+SCENARIO_TABLES = [[f"{label}=docs/figures/default-device/{folder}-300#{scenario}"
+                    for label, folder in (("table-i", "table-i"),
+                                          ("short-loop-own-map", "short-loop-own-map"),
+                                          ("edge+local", "edge-local"))]
+                   for scenario in ("revisit-v25@table1", "revisit-v25@lte", "revisit-v25@mmwave",
+                                    "revisit-v25@constrained", "outages@lte",
+                                    "outages@constrained")]
+
+
+@pytest.mark.parametrize("args", PROGRESS_TABLES + PILOT_TABLES + WALK_TABLES + SCENARIO_TABLES,
                          ids=lambda a: a[0].split("/")[-1])
 def test_each_progress_rule_and_pilot_table_is_what_its_command_prints(
         args: list[str], capsys: pytest.CaptureFixture[str]) -> None:
     module = _script("device_variants")
     module.main([(label, REPO / folder) for label, folder in (a.split("=", 1) for a in args)],
                 user=True)
+    assert _missing(capsys.readouterr().out) == []
+
+
+#: device_variants.py --steady's arguments: the point fusion's runs
+STEADY_TABLES = [[f"{name}=docs/figures/point-fusion/{name}#revisit-v15@lte"
+                  for name in ("no-fusion", "fusion")]]
+
+
+@pytest.mark.parametrize("args", STEADY_TABLES, ids=lambda a: a[0].split("/")[-1])
+def test_each_steadiness_table_is_what_its_command_prints(
+        args: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    module = _script("device_variants")
+    module.main([(label, REPO / folder) for label, folder in (a.split("=", 1) for a in args)],
+                steady=True)
+    assert _missing(capsys.readouterr().out) == []
+
+
+def test_the_starved_slots_table_is_what_its_command_prints(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """docs/figures/default-device/starved_slots.py on the default device's folder: every
+    stretch without an upload beside the uplink's stretch under α."""
+    _script("default-device/starved_slots").main(
+        [str(FIGURES / "default-device" / "edge-local-300")])
     assert _missing(capsys.readouterr().out) == []
 
 

@@ -10,9 +10,11 @@ the same seeds:
 Each ``LABEL=FOLDER`` holds the runs.csv and calibration_frames.csv (or .csv.gz) of one evaluate
 run (one scenario, map source and policy); ``LABEL=FOLDER#SCENARIO`` takes that scenario's runs
 of a folder that holds several. ``--user`` (first) gives the figures of runs made since the
-plausibility gates instead (:data:`USER_FIGURES`: jumps of any tracked pose, the largest
-error, jitter beside the truth's, the longest run of slots without an upload, the poses the
-gates refused). The first table gives each folder's figures a user
+plausibility gates instead (:data:`USER_FIGURES`: jumps of any tracked pose, the largest error,
+jitter beside the truth's, the longest run of slots without an upload, the poses the gates
+refused); ``--steady`` those of runs made since REP 105 (:data:`STEADY_FIGURES`: the revisit
+error, the jitter in ``map`` and in ``odom``, the odom frame's largest step beyond the truth's,
+the share of frames posed by PnP RANSAC). The first table gives each folder's figures a user
 judges a device by, mean ± 95 % CI half-width over its runs (Student t, as evaluate's tables):
 the share of played frames without a pose (a covered lens counted in), the share of the scored
 next-slot frames the device failed (the covered lens counted apart, as calibrate does), the 95th
@@ -68,6 +70,20 @@ USER_FIGURES = (("failed_share", "failed (played frames)", "{:.1%}"),
                 ("device_cpu_ms", "device CPU (ms/frame)", "{:.1f}"),
                 ("frames_dropped", "dropped (frames)", "{:.0f}"))
 USER_PAIRED = ("failed_share", "max_error_m", "ate_m", "jitter_rms_mm", "frames_uploaded")
+#: ``--steady``: how steady and consistent the poses are, as runs report it since REP 105,
+#: the revisit error and the PnP-RANSAC share
+STEADY_FIGURES = (("failed_share", "failed (played frames)", "{:.1%}"),
+                  ("max_error_m", "largest error (m)", "{:.3f}"), ("ate_m", "ATE (m)", "{:.3f}"),
+                  ("revisit_error_m", "revisit error (m)", "{:.3f}"),
+                  ("jitter_rms_mm", "jitter RMS (mm)", "{:.1f}"),
+                  ("odom_jitter_rms_mm", "odom jitter RMS (mm)", "{:.1f}"),
+                  ("odom_step_excess_mm", "odom step beyond the truth's (mm)", "{:.1f}"),
+                  ("pnp_ransac_share", "PnP-RANSAC fallback", "{:.1%}"),
+                  ("frames_uploaded", "uploads (frames)", "{:.1f}"),
+                  ("device_cpu_ms", "device CPU (ms/frame)", "{:.1f}"),
+                  ("frames_dropped", "dropped (frames)", "{:.0f}"))
+STEADY_PAIRED = ("max_error_m", "ate_m", "revisit_error_m", "jitter_rms_mm",
+                 "pnp_ransac_share")
 
 
 def _runs(folder: Path, label: str, figures: tuple[tuple[str, str, str], ...] = FIGURES,
@@ -102,10 +118,12 @@ def _runs(folder: Path, label: str, figures: tuple[tuple[str, str, str], ...] = 
     return ", ".join(sorted(kinds)[0]), runs, frames
 
 
-def main(folders: list[tuple[str, Path]], user: bool = False) -> None:
+def main(folders: list[tuple[str, Path]], user: bool = False, steady: bool = False) -> None:
     """Print the tables of ``folders`` (label, folder, or folder#scenario); ``user``: the
-    figures of :data:`USER_FIGURES` and :data:`USER_PAIRED`."""
-    figures, paired = (USER_FIGURES, USER_PAIRED) if user else (FIGURES, PAIRED)
+    figures of :data:`USER_FIGURES` and :data:`USER_PAIRED`; ``steady``: those of
+    :data:`STEADY_FIGURES` and :data:`STEADY_PAIRED`."""
+    figures, paired = ((STEADY_FIGURES, STEADY_PAIRED) if steady else
+                       (USER_FIGURES, USER_PAIRED) if user else (FIGURES, PAIRED))
     loaded = []
     for label, path in folders:
         folder, _, scenario = str(path).partition("#")
@@ -155,9 +173,9 @@ def _parse(items: list[str]) -> list[tuple[str, Path]]:
 
 if __name__ == "__main__":
     args = sys.argv[1:]
-    user = bool(args) and args[0] == "--user"
-    if user:
+    mode = args[0] if args and args[0] in ("--user", "--steady") else ""
+    if mode:
         args = args[1:]
     if not args:
         raise SystemExit(__doc__)
-    main(_parse(args), user)
+    main(_parse(args), user=mode == "--user", steady=mode == "--steady")
