@@ -13,11 +13,8 @@ import pytest
 
 from device_tracker.messages import FrameRecord, frame_summaries_message
 from twinslam.covisibility.dataset import CovisibilityDataset
-from twinslam.live.calibration import PlayedFrames, live_frames, played_frames
-from twinslam.live.run_log import RunLog
-from twinslam.live.scenarios import Scenario
-from twinslam.sequences.opening import open_sequence
-from twinslam.simulator.calibration import (
+from twinslam.live.calibration.frames import PlayedFrames, live_frames, played_frames
+from twinslam.live.calibration.prediction import (
     LEFT_OUT,
     MAP_COVERED,
     NEW_GROUND,
@@ -30,6 +27,9 @@ from twinslam.simulator.calibration import (
     level_min_shared,
     predict_frames,
 )
+from twinslam.live.run_log import RunLog
+from twinslam.live.scenarios import Scenario
+from twinslam.sequences.opening import open_sequence
 from twinslam.slam.map_update import MapSnapshot
 from twinslam.uncertainty.map_uncertainty import augmented_uncertainties
 
@@ -206,7 +206,7 @@ def test_agreement_per_scenario_on_hand_made_runs(tmp_path) -> None:
     error and r over runs; a run with no scored frame is left out."""
     import csv
 
-    from twinslam.experiments.calibration_report import agreement_by_scenario, read_rows
+    from twinslam.live.calibration.report import agreement_by_scenario, read_rows
     from twinslam.live.runs import CALIBRATION_HEADER
 
     runs = [("v15", 0, 0.10, 0.12), ("v15", 1, 0.20, 0.18), ("v15", 2, 0.40, 0.45),
@@ -271,7 +271,7 @@ def test_the_failure_causes_table_counts_each_groups_failed_frames(tmp_path) -> 
     scored frames; frames of an older evaluate (no failure_cause column) are refused."""
     import csv
 
-    from twinslam.experiments.calibration_report import (
+    from twinslam.live.calibration.report import (
         failure_causes,
         failure_causes_markdown,
         read_rows,

@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from twinslam.experiments.calibration_report import (
+from twinslam.live.calibration.report import (
     failure_causes,
     failure_causes_markdown,
     read_rows,

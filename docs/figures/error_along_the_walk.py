@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from twinslam.experiments.calibration_report import read_rows
+from twinslam.live.calibration.report import read_rows
 
 #: (label, pass) → (sequence frame, error in metres) of every tracked frame
 Errors = dict[tuple[str, str], tuple[np.ndarray, np.ndarray]]

@@ -11,7 +11,7 @@ measured); ``summary.csv`` and ``summary.md`` hold mean ± 95 % CI over the seed
 × map source × policy, ``summary.png`` plots them.
 
 Each run is also a calibration of the simulator against the device
-(:mod:`twinslam.live.calibration`): ``calibration.csv`` has, per run, the share of
+(:mod:`twinslam.live.calibration.frames`): ``calibration.csv`` has, per run, the share of
 next-slot frames the simulator's rule calls lost beside the share the device failed, the
 precision and recall of "lost" for "device failure", and Spearman's ρ of u with the device's
 translation error and inlier count; ``calibration_frames.csv`` has every frame. Runs go to
@@ -34,7 +34,8 @@ if TYPE_CHECKING:
 
 from twinslam.covisibility.dataset import load_covisibility
 from twinslam.hosts.loopback import LoopbackDomain
-from twinslam.live.calibration import LiveFrames, live_frames, played_frames
+from twinslam.live.calibration.frames import LiveFrames, live_frames, played_frames
+from twinslam.live.calibration.prediction import Calibration, calibrate, failure_cause
 from twinslam.live.launcher import LaunchConfig, Launcher
 from twinslam.live.report import RunReport, policy_label
 from twinslam.live.run_picture import plot_run
@@ -42,7 +43,6 @@ from twinslam.live.scenarios import Scenario
 from twinslam.policies.registry import LEARNED_PREFIX, POLICY_KINDS
 from twinslam.reporting import file_name, write_csv
 from twinslam.sequences.opening import is_synthetic, synthetic_walk
-from twinslam.simulator.calibration import Calibration, calibrate, failure_cause
 from twinslam.slot_protocol.lost_frame_rule import MIN_SHARED_POINTS
 from twinslam.sweeps import Executor, LocalExecutor
 

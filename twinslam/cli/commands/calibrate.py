@@ -18,7 +18,7 @@ EVALUATE_FILES = ("calibration.csv", "calibration_frames.csv", "runs.csv")
 
 def run(args: argparse.Namespace) -> int:
     # scipy and matplotlib load with the command, not with every `twinslam` start
-    from twinslam.experiments.calibration_report import (
+    from twinslam.live.calibration.report import (
         FailureCauses,
         ScenarioAgreement,
         agreement_by_scenario,

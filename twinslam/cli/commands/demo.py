@@ -31,7 +31,7 @@ from twinslam.cli.arguments import BUNDLED_COVIS, BUNDLED_SEQUENCE, FALLBACK_SEQ
 from twinslam.cli.commands.sim import Comparison, compare
 from twinslam.cli.console import Subparsers
 from twinslam.hosts.fastdds import REPO_ROOT
-from twinslam.live.calibration import covisibility_file
+from twinslam.live.calibration.frames import covisibility_file
 from twinslam.live.launcher import DEFAULT_PARAMS, PAPER_PARAMS, player_camera
 from twinslam.live.runs import RunKey, RunResult, RunTask, run_one
 from twinslam.live.scenarios import SCENARIOS

@@ -14,7 +14,7 @@ from twinslam.cli.arguments import (
 )
 from twinslam.cli.console import Subparsers, error
 from twinslam.live import runs, tables
-from twinslam.live.calibration import covisibility_file
+from twinslam.live.calibration.frames import covisibility_file
 from twinslam.live.launcher import DEFAULT_PARAMS, player_camera
 from twinslam.live.run_checks import params_file_problem, policy_problem
 from twinslam.live.scenarios import SCENARIOS, Scenario, scenario
@@ -95,7 +95,7 @@ def _tasks(args: argparse.Namespace, policies: list[tuple[str, str]],
 def _print_failure_causes(out: Path) -> None:
     """Where the device's failed frames came from, per policy (nothing where no frame was
     calibrated: a run without a dataset, or a folder resumed from an older version)."""
-    from twinslam.experiments.calibration_report import (
+    from twinslam.live.calibration.report import (
         failure_causes,
         failure_causes_markdown,
         read_rows,

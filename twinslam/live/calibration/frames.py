@@ -1,5 +1,5 @@
 """A live run's next-slot frames as calibration frames: the simulator's prediction beside the
-device's outcome (the measures are :mod:`twinslam.simulator.calibration`'s).
+device's outcome (the measures are :mod:`twinslam.live.calibration.prediction`'s).
 
 The simulator's view needs, for every frame the device tracked, the recorded frame it is (the
 player may play a sequence forward and back) and the covisibility of that recorded frame — the
@@ -27,13 +27,13 @@ import numpy as np
 
 from msg_schemas.headers import time_key, time_seconds
 from twinslam.covisibility.dataset import CovisibilityDataset, save_covisibility
+from twinslam.live.calibration.prediction import CalibrationFrame, FramePrediction, predict_frames
 from twinslam.live.run_log import RunLog
 from twinslam.live.scenarios import Scenario
 from twinslam.live.tracking_quality import translation_errors
 from twinslam.reporting import file_name
 from twinslam.sequence_player.playback import Playback, PlayedSequence
 from twinslam.sequences.opening import AUTO, open_sequence
-from twinslam.simulator.calibration import CalibrationFrame, FramePrediction, predict_frames
 from twinslam.simulator.extraction import extract_covisibility
 from twinslam.slam.map_update import MapSnapshot
 from twinslam.slot_protocol import table1

@@ -7,9 +7,9 @@ one or more folders (:func:`read_rows`, once) and measures, per device map sourc
   than the slot's newest (the update of the previous slot still on its way);
 * the **threshold** k of "lost: fewer than k shared map points", fitted on every frame
   against the map the device really held (so the lag does not blur it): the k of the best
-  balanced accuracy (:func:`~twinslam.simulator.calibration.fit_min_shared`) and the k at which
-  the predicted lost share reaches the device's failure share
-  (:func:`~twinslam.simulator.calibration.level_min_shared`);
+  balanced accuracy (:func:`~twinslam.live.calibration.prediction.fit_min_shared`) and the k at
+  which the predicted lost share reaches the device's failure share
+  (:func:`~twinslam.live.calibration.prediction.level_min_shared`);
 * how well the rule the runs were scored with predicts each run: Pearson's r over runs of the
   predicted lost share and the device's failure share, over all runs and per scenario (the
   calibration table: :func:`agreement_by_scenario`);
@@ -35,8 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from twinslam.reporting import pearson_r, pyplot
-from twinslam.simulator.calibration import (
+from twinslam.live.calibration.prediction import (
     FAILURE_CAUSES,
     LEFT_OUT,
     MAP_COVERED,
@@ -47,6 +46,7 @@ from twinslam.simulator.calibration import (
     fit_min_shared,
     level_min_shared,
 )
+from twinslam.reporting import pearson_r, pyplot
 
 #: what names a run: two folders may hold runs of the same scenario, policy and seed
 RUN_KEY = ("folder", "scenario", "map_source", "policy", "seed", "spec")
@@ -270,7 +270,7 @@ def report_lines(results: list[SourceCalibration]) -> list[str]:
 @dataclass(frozen=True)
 class FailureCauses:
     """Where one group's failed frames came from
-    (:func:`~twinslam.simulator.calibration.failure_cause`): counts over its runs' scored
+    (:func:`~twinslam.live.calibration.prediction.failure_cause`): counts over its runs' scored
     next-slot frames."""
 
     folder: str
