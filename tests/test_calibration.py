@@ -357,7 +357,7 @@ def test_the_calibration_sees_the_played_frames_through_the_players_camera(
 
     import cv2
 
-    from twinslam.live import calibration
+    from twinslam.live.calibration import frames as calibration
 
     scene = tmp_path / "scene"
     scene.mkdir()
