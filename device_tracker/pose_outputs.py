@@ -47,22 +47,19 @@ class PoseOutputs:
         self.pub_pose.publish(msg)
         self.path.add(msg)
         child = s.camera_frame or image_frame or "camera"
-        if self.odometry is None or self.pub_odom is None:
-            if record.tracked and self._may_broadcast(child):
-                assert self.pub_tf is not None
-                self.pub_tf.publish(tf_message(
-                    transform_stamped(record.pose, stamp, s.map_frame, child)))
-            return
-        odom, map_from_odom = self.odometry.update(record.pose, record.tracked,
-                                                   record.map_version, record.relocalised)
-        odometry = set_header(Odometry(child_frame_id=child), stamp, s.odom_frame)
-        odometry.pose.pose = pose_msg(odom)
-        self.pub_odom.publish(odometry)
+        # the transforms down to the camera: (parent from child, parent, child)
+        chain = [(record.pose, s.map_frame, child)]
+        if self.odometry is not None and self.pub_odom is not None:
+            odom, map_from_odom = self.odometry.update(record.pose, record.tracked,
+                                                       record.map_version, record.relocalised)
+            odometry = set_header(Odometry(child_frame_id=child), stamp, s.odom_frame)
+            odometry.pose.pose = pose_msg(odom)
+            self.pub_odom.publish(odometry)
+            chain = [(map_from_odom, s.map_frame, s.odom_frame), (odom, s.odom_frame, child)]
         if record.tracked and self._may_broadcast(child):
             assert self.pub_tf is not None
-            self.pub_tf.publish(tf_message(
-                transform_stamped(map_from_odom, stamp, s.map_frame, s.odom_frame),
-                transform_stamped(odom, stamp, s.odom_frame, child)))
+            self.pub_tf.publish(tf_message(*(transform_stamped(pose, stamp, parent, name)
+                                             for pose, parent, name in chain)))
 
     def slot_end(self, stamp: float) -> None:
         """The path as it stands at a slot's end."""

@@ -190,7 +190,7 @@ def device_demand(device: str, core: EdgeMapperCore, frames: Sequence[FrameObser
     if with_value:
         if len(next_state_probs) and len(next_state_probs) == len(state_rates_mbps):
             uploads = expected_uploads(next_state_probs, state_rates_mbps, cfg.alpha_mbit,
-                                       cfg.d_req_s, len(frames), cfg.slot_seconds(len(frames)))
+                                       cfg.d_req_s, len(frames), cfg.deadline_s(len(frames)))
         else:
             uploads = slot_uploads(core, rate_mbps, len(frames))
         keyframes = [core.map.point_array(k) for k in core.map.keyframe_ids()]
@@ -206,4 +206,4 @@ def slot_uploads(core: EdgeMapperCore, rate_mbps: float, n_frames: int) -> int:
     the most keyframes the slot can add, which bounds the device's grant."""
     cfg = core.slot_config
     return theorem1_uploads(rate_mbps, cfg.alpha_mbit, cfg.d_req_s, n_frames,
-                            cfg.slot_seconds(n_frames), core.planner.waited_mbit)
+                            cfg.deadline_s(n_frames), core.planner.waited_mbit)

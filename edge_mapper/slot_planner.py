@@ -52,15 +52,10 @@ class FrameObservations:
 @dataclass(frozen=True)
 class SlotConfig(SlotSettings):
     """The slot protocol's settings (:class:`~twinslam.slot_protocol.slot_settings.
-    SlotSettings`: V_max, α, D_req, the progress rule) and the edge's Π; the slot's length F
-    comes with each slot's summaries."""
+    SlotSettings`: V_max, α, D_req, the progress rule, the deadline it stretches to) and the
+    edge's Π; the slot's length F comes with each slot's summaries."""
 
     log_det_pi: float = 0.0
-
-    def slot_seconds(self, slot_frames: int) -> float:
-        """The deadline the progress rule stretches to for a slot of ``slot_frames`` camera
-        frames (0 with the rule off)."""
-        return self.deadline_s(slot_frames)
 
 
 @dataclass(frozen=True)
@@ -162,7 +157,7 @@ class SlotPlanner:
                   else np.zeros(0, dtype=np.int64))
         shared = np.array([np.isin(keys[f], in_map, assume_unique=True).sum() for f in every])
         lost = [not f.tracked or n < MIN_INLIERS for f, n in zip(frames, shared, strict=True)]
-        slot_s = cfg.slot_seconds(len(frames))
+        slot_s = cfg.deadline_s(len(frames))
         n_up, n_ev = theorem1_cardinalities(rate_mbps, cfg.alpha_mbit, cfg.d_req_s, cfg.vmax,
                                             len(map_ids), len(cand), slot_s, self.waited_mbit)
         self.waited_mbit = waited_after(n_up, rate_mbps, slot_s, self.waited_mbit,

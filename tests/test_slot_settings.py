@@ -29,9 +29,9 @@ def test_the_edge_and_the_simulator_stretch_the_same_deadline() -> None:
     assert (edge.vmax, edge.alpha_mbit, edge.d_req_s) == (sim.vmax, sim.alpha_mbit, sim.d_req_s)
     assert (edge.vmax, edge.alpha_mbit, edge.d_req_s) == (
         table1.VMAX, table1.ALPHA_MBIT, table1.D_REQ_S)
-    assert edge.slot_seconds(30) == sim.slot_seconds == pytest.approx(1.0)     # 30 Hz
+    assert edge.deadline_s(30) == sim.slot_seconds == pytest.approx(1.0)       # 30 Hz
     # the paper's preset: Theorem 1 exactly, no deadline to stretch
-    assert SlotConfig(progress=False).slot_seconds(30) == 0.0
+    assert SlotConfig(progress=False).deadline_s(30) == 0.0
     assert SimConfig.paper_rule(slot_frames=30).slot_seconds == 0.0
     with pytest.raises(ValueError, match="at least one frame"):
         SimConfig(slot_frames=0)
