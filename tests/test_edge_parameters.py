@@ -46,6 +46,10 @@ def _summaries(slot: int) -> FrameSummaries:
 def test_edge_parameters_are_listed_refused_with_reasons_and_changed_live(
         domain: LoopbackDomain, ros: RosSession) -> None:
     edge = domain.spawn(["-m", "edge_mapper.node", "--ros-args", "-p", "vmax:=10"])
+    # rclpy offers a node's parameter services as the node is made, before the edge has built
+    # its cores and spins: a request then waits for the spin (measured on a loaded clean clone:
+    # no answer within 30 s). The edge says it listens just before it spins
+    assert domain.wait_for_log(edge, "listening on", 120), domain.log(edge)
     listed = _call(ros, ListParameters, "/edge_mapper/list_parameters",
                    ListParameters.Request()).result.names
     assert {"policy", "vmax", "alpha_mbit", "fallback_policy", "latent_max_age",
