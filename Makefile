@@ -10,17 +10,17 @@ BYTECODE_STAMP := $(subst .installed-,.bytecode-,$(STAMP))
 # an interface package is rebuilt whenever one of its .msg files or its CMake/package files
 # change: twinslam_msgs (the protocol) and tf2_msgs (msg_schemas/standard: no wheel carries it)
 MSG_SOURCES := $(sort $(wildcard msg_schemas/msg/*.msg)) msg_schemas/CMakeLists.txt \
-	msg_schemas/package.xml msg_schemas/cmake/drop_missing_include_dirs.cmake
+	msg_schemas/package.xml $(sort $(wildcard msg_schemas/cmake/*.cmake))
 MSGS_STAMP := $(VENV)/.twinslam_msgs-$(shell cat $(MSG_SOURCES) | md5sum | cut -c1-12)
 TF2_DIR := msg_schemas/standard/tf2_msgs
 TF2_SOURCES := $(sort $(wildcard $(TF2_DIR)/msg/*.msg)) $(TF2_DIR)/CMakeLists.txt \
-	$(TF2_DIR)/package.xml msg_schemas/cmake/drop_missing_include_dirs.cmake
+	$(TF2_DIR)/package.xml $(sort $(wildcard msg_schemas/cmake/*.cmake))
 TF2_STAMP := $(VENV)/.tf2_msgs-$(shell cat $(TF2_SOURCES) | md5sum | cut -c1-12)
 # composition_interfaces (msg_schemas/standard: launch_ros imports it, no wheel carries it)
 COMPOSITION_DIR := msg_schemas/standard/composition_interfaces
 COMPOSITION_SOURCES := $(sort $(wildcard $(COMPOSITION_DIR)/srv/*.srv)) \
 	$(COMPOSITION_DIR)/CMakeLists.txt $(COMPOSITION_DIR)/package.xml \
-	msg_schemas/cmake/drop_missing_include_dirs.cmake
+	$(sort $(wildcard msg_schemas/cmake/*.cmake))
 COMPOSITION_STAMP := $(VENV)/.composition_interfaces-$(shell cat $(COMPOSITION_SOURCES) \
 	| md5sum | cut -c1-12)
 # the twinslam package in the venv's ament index (ros2 launch / ros2 run find it there): the
@@ -64,15 +64,17 @@ $(BYTECODE_STAMP): $(STAMP)
 # what this installs), merge-installs each interface package into the venv prefix, which the ROS
 # wheels made an ament prefix: the generated Python package lands in site-packages, its
 # libraries in .venv/lib (on the loader path the wheels' bootstrapper sets). Fresh build
-# directory each time: a removed .msg must not leave its generated code behind.
+# directory each time: a removed .msg must not leave its generated code behind. C and Python
+# only (msg_schemas/cmake/python_only_generators.cmake): every node in the venv is rclpy.
 # $(call rosidl_build,PACKAGE,SOURCE_DIR,A MESSAGE TO IMPORT[,MODULE: msg or srv])
 define rosidl_build
-	@echo "building the $(1) interface package with colcon (rosidl, ~30 s)"
+	@echo "building the $(1) interface package with colcon (rosidl, ~10-20 s)"
 	@rm -rf build/colcon/$(1) && mkdir -p build/colcon
 	PATH=$(VENV)/bin:$$PATH AMENT_PREFIX_PATH=$(VENV) CMAKE_PREFIX_PATH=$(VENV) \
 	  $(VENV)/bin/colcon --log-base build/colcon/log-$(1) build --paths $(2) \
 	  --build-base build/colcon --install-base $(VENV) --merge-install \
-	  --cmake-args -DPython3_EXECUTABLE=$(PY) -DBUILD_TESTING=OFF > build/colcon/$(1).log 2>&1 \
+	  --cmake-args -DPython3_EXECUTABLE=$(PY) -DBUILD_TESTING=OFF -DTWINSLAM_PYTHON_ONLY=ON \
+	  > build/colcon/$(1).log 2>&1 \
 	  || { grep -iE -B2 -A8 "error" build/colcon/log-$(1)/latest_build/$(1)/stdout_stderr.log \
 	       | tail -60; tail -20 build/colcon/$(1).log; exit 1; }
 	$(PY) -c "from $(1).$(or $(4),msg) import $(3)"
