@@ -291,7 +291,13 @@ class DeviceLink:
             slot, entry.decided_by, self.core.map, out.map_uncertainty, entry.uncertainty,
             len(out.integrated), ba_ms, compute_s * 1000, now, entry.vmax,
             entry.latency_s(self.slots.clock()) * 1000, len(self.core.archive),
-            len(out.restored), len(out.refused), frame))
+            len(out.restored), len(out.refused), frame, self.core.loops_closed,
+            out.loop.worker_ms if out.loop else 0.0))
+        if out.loop is not None:
+            self.info(f"slot {slot}: loop closed between keyframes {out.loop.old} and "
+                      f"{out.loop.new} ({out.loop.inliers} inliers), the map moved up to "
+                      f"{out.loop.moved_m:.3f} m; the loop closer took "
+                      f"{out.loop.worker_ms:.0f} ms beside the slots")
         if out.optimisation_refused:
             self.warning(f"slot {slot}: the bundle adjustment's answer not applied, "
                          f"{out.optimisation_refused}")
@@ -329,6 +335,7 @@ class DeviceLink:
                     if aside.is_dir():          # an earlier reclaim's archive
                         shutil.rmtree(aside)
                     kept.replace(aside)
+        self.core.close()
         for sub in self.subscriptions:
             self.node.destroy_subscription(sub.subscription)
         for pub in (self.pub_request, self.pub_map, self.pub_stats, *(self.pub_views or ())):

@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from edge_mapper.loop_closer import LoopCloser, LoopJob, LoopQuery, LoopResult
 from edge_mapper.planning_world import at_the_edge, extrapolate, has_camera
 from edge_mapper.restores import plan_relocation_restores, plan_restores
 from edge_mapper.slot_planner import FrameObservations, SlotConfig, SlotPlan, SlotPlanner
@@ -51,6 +52,8 @@ from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameAr
 from twinslam.slam.back_end.keyframe_gate import KeyFrameGateConfig, implausible_keyframe
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.back_end.local_mapping import IntegrationReport, LocalMapping
+from twinslam.slam.back_end.loop_correction import correct_map, correction_for
+from twinslam.slam.back_end.loop_detection import MIN_GAP
 from twinslam.slam.back_end.point_fusion import fuse_restored
 from twinslam.slam.keyframe import KeyFramePayload
 from twinslam.uncertainty.map_uncertainty import map_uncertainty
@@ -86,6 +89,25 @@ class EdgeConfig:
     #: the gate every uploaded keyframe passes before it enters the map (a non-finite pose,
     #: one out of the map's reach, one its own matched points contradict are refused)
     keyframe_gate: KeyFrameGateConfig = field(default_factory=KeyFrameGateConfig)
+    #: look for loops from every integrated keyframe against the archive and the map's far
+    #: older keyframes, and close them with a pose graph (:mod:`edge_mapper.loop_closer`)
+    loop_closing: bool = False
+    #: the loop closer's work on a worker thread (the node); False: in ``finish_slot`` itself
+    #: (offline pipelines, whose results must not depend on thread timing)
+    loop_background: bool = True
+    #: a loop joins keyframes at least this many ids (frames) apart: the recent walk is none
+    loop_min_gap: int = MIN_GAP
+
+
+@dataclass(frozen=True)
+class ClosedLoop:
+    """A loop the edge closed at the end of a slot."""
+
+    old: int                         #: the keyframe of the place seen long before
+    new: int                         #: the keyframe that saw it again
+    inliers: int                     #: of the geometric check
+    moved_m: float                   #: the farthest a managed keyframe moved
+    worker_ms: float                 #: the loop closer's time (detection and pose graph)
 
 
 @dataclass
@@ -115,6 +137,8 @@ class SlotOutcome:
     #: points the restored keyframes brought back that duplicated map points and were fused
     #: into them (:mod:`twinslam.slam.back_end.point_fusion`)
     fused_points: int = 0
+    #: the loop closed at this slot's end, its corrections in the map sent next (None: none)
+    loop: ClosedLoop | None = None
 
 
 class EdgeMapperCore:
@@ -165,6 +189,10 @@ class EdgeMapperCore:
         #: poses found in the archive for the lost device's frames since the last finished slot:
         #: where the next restores look instead of the heading
         self._relocalised_views: list[np.ndarray] = []
+        self.loop_closer = LoopCloser(self.config.loop_background, self.config.loop_min_gap)
+        #: keyframes integrated since the last loop job, newest last
+        self._loop_queries: list[LoopQuery] = []
+        self.loops_closed = int(extra.get("loops_closed", 0))
 
     def _open_archive(self) -> KeyFrameArchive:
         """The archive beside the checkpoint (``edge.npz`` → ``edge.npz.archive/``), restored
@@ -292,8 +320,12 @@ class EdgeMapperCore:
             self._refused.setdefault(data.slot, {})[data.frame_id] = refused
             return IntegrationReport.refusal(refused)
         self.k = self.local_mapping.k = np.asarray(data.intrinsics, dtype=np.float64)
-        return self.local_mapping.integrate(data.frame_id, data.pose, data.keypoints,
-                                            data.descriptors, data.depths, data.point_ids)
+        report = self.local_mapping.integrate(data.frame_id, data.pose, data.keypoints,
+                                              data.descriptors, data.depths, data.point_ids)
+        if self.config.loop_closing and data.frame_id in self.map.keyframes:
+            self._loop_queries = [*self._loop_queries[-(LOOP_QUERIES - 1):],
+                                  LoopQuery(data.frame_id, data.keypoints, data.descriptors)]
+        return report
 
     def integrate_held(self) -> list[int]:
         """The held keyframes of the slot that is now the oldest open one, integrated (call
@@ -321,9 +353,12 @@ class EdgeMapperCore:
             self._integrate(data)
         refused = self._refused.pop(slot, {})
         received -= refused.keys()            # a refused upload is as good as lost
+        tl = time.perf_counter()
+        loop = self._apply_loop(self.loop_closer.take())
         missing = set(action.upload) - received
         evicted = applied_evictions(action.evict, self.map.keyframe_ids(), missing, vmax)
         ta = time.perf_counter()
+        loop_ms = (ta - tl) * 1e3
         forgotten = [dropped for kf in evicted
                      for dropped in self.archive.add(ArchivedKeyFrame.of(self.map, kf, slot))]
         orphans = sum(len(self.map.evict(kf)) for kf in evicted)
@@ -353,6 +388,7 @@ class EdgeMapperCore:
             self.map.save(self.checkpoint, version=np.array(self.version),
                           last_slot=np.array(slot),
                           rate_history=np.array(self.rate_history, dtype=np.int64),
+                          loops_closed=np.array(self.loops_closed),
                           **_table_arrays(known, "track"),
                           **_table_arrays(fresh, "previous_track"))
         self.archive.release_taken()          # restored keyframes are in the checkpoint now
@@ -360,11 +396,57 @@ class EdgeMapperCore:
         w = self.map.covisibility()
         u = map_uncertainty(w, self.planner.config.log_det_pi) if len(w) else math.inf
         t3 = time.perf_counter()
+        self._start_loop_job(slot)
+        t4 = time.perf_counter()
         timings = {"archive": (t0 - ta) * 1e3, "optimise": (t1 - t0) * 1e3,
-                   "checkpoint": (t2 - t1) * 1e3, "uncertainty": (t3 - t2) * 1e3}
+                   "checkpoint": (t2 - t1) * 1e3, "uncertainty": (t3 - t2) * 1e3,
+                   "loop": loop_ms + (t4 - t3) * 1e3}
         return SlotOutcome(slot, sorted(received), sorted(missing), evicted, spared, orphans, ba,
                            u, self.version, tracks, timings, forgotten, restored, refused,
-                           ba.refused if ba is not None else "", fused)
+                           ba.refused if ba is not None else "", fused, loop)
+
+    # -- loop closing ------------------------------------------------------------------------
+
+    def _start_loop_job(self, slot: int) -> None:
+        """Hand the keyframes integrated since the last job to the loop closer, with a
+        snapshot of the archive, the map's keyframes far older than them and every pose;
+        kept for the next slot while a job runs."""
+        queries = [q for q in self._loop_queries if q.keyframe in self.map.keyframes
+                   and q.keyframe in self.loop_closer.wanted([q.keyframe])]
+        if not queries or self.loop_closer.busy or not has_camera(self.k):
+            self._loop_queries = queries
+            return
+        newest = max(q.keyframe for q in queries)
+        old = [ArchivedKeyFrame.of(self.map, k, slot) for k in self.map.keyframes
+               if k <= newest - self.loop_closer.min_gap]
+        poses = {kf.id: kf.pose for kf in self.archive}
+        poses.update({k: kf.pose.copy() for k, kf in self.map.keyframes.items()})
+        job = LoopJob(tuple(reversed(queries)), self.archive.snapshot(old), poses, self.k.copy(),
+                      {k: frozenset(kf.points) for k, kf in self.map.keyframes.items()})
+        if self.loop_closer.submit(job):
+            self._loop_queries = []
+
+    def _apply_loop(self, result: LoopResult | None) -> ClosedLoop | None:
+        """A finished loop job's corrections, applied to the managed map and the archive
+        (between slots: the map the device gets next is corrected); the old place, where it is
+        in the map, has its points fused with the ones the walk made again."""
+        if result is None or result.closure is None:
+            return None
+        corrections = result.closure.corrections
+        moved = correct_map(self.map, corrections)
+        self.archive.correct({kf.id: c for kf in self.archive
+                              if (c := correction_for(corrections, kf.id)) is not None})
+        old = result.candidate.old
+        if self.config.point_fusion and old in self.map.keyframes and has_camera(self.k):
+            fuse_restored(self.map, old, sorted(self.map.keyframes[old].points), self.k,
+                          self.config.image_shape)
+        self.loops_closed += 1
+        return ClosedLoop(old, result.query, result.candidate.inliers, moved,
+                          result.seconds * 1e3)
+
+    def close(self) -> None:
+        """Stop the loop closer's worker (the node calls it at shutdown)."""
+        self.loop_closer.close()
 
     def _restore(self, slot: int, received: set[int], poses: list[np.ndarray],
                  relocalised: list[np.ndarray], vmax: int
@@ -484,6 +566,10 @@ class EdgeMapperCore:
             if moved > reach:
                 return f"keyframe {k} moved {moved:.3g} m, more than {reach:g} m"
         return ""
+
+
+#: integrated keyframes a loop job looks from at most (the newest)
+LOOP_QUERIES = 3
 
 
 def applied_evictions(evict: Sequence[int], map_ids: Sequence[int], missing: Collection[int],

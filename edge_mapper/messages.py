@@ -74,7 +74,8 @@ def map_stats_message(slot: int, policy: str, keyframe_map: KeyFrameMap, uncerta
                       upsilon: SlotUncertainty | None, uploads: int, optimisation_ms: float,
                       processing_ms: float, stamp: float, keyframe_budget: int = 0,
                       latency_ms: float = math.nan, archived: int = 0, restored: int = 0,
-                      refused: int = 0, frame_id: str = "") -> MapStats:
+                      refused: int = 0, frame_id: str = "", loops_closed: int = 0,
+                      loop_ms: float = 0.0) -> MapStats:
     """``MapStats``, its header in ``frame_id`` (the map frame its keyframe counts describe, so
     a viewer or a bag reader can tell one device's map from another's); u = +inf for a
     disconnected map and υ = NaN (unknown, or no tracked frame) are sent as they are (IEEE
@@ -90,7 +91,8 @@ def map_stats_message(slot: int, policy: str, keyframe_map: KeyFrameMap, uncerta
               tracked_uncertainty=upsilon.tracked_uncertainty if upsilon else math.nan,
               lost_share=upsilon.lost_share if upsilon else 0.0, uploads=uploads,
               optimisation_ms=float(optimisation_ms), slot_processing_ms=float(processing_ms),
-              slot_latency_ms=float(latency_ms))
+              slot_latency_ms=float(latency_ms), loops_closed=int(loops_closed),
+              loop_closing_ms=float(loop_ms))
     return set_header(msg, stamp, frame_id)
 
 

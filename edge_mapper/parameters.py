@@ -76,6 +76,10 @@ PARAMETERS = (
     ParamSpec("point_fusion", True, "the points a restored keyframe brings back that the map "
               "made again since are fused into the map's (one corner, one point); false: they "
               "stay as copies, as before the fusion (for measuring what it changes)"),
+    ParamSpec("loop_closing", default_device.LOOP_CLOSING, "look for a loop from every "
+              "keyframe the edge integrates (a place its archive or map saw far earlier, "
+              "confirmed by PnP) and close it with a pose graph over every keyframe, on a worker "
+              "thread; the corrected map goes to the device in the next map update"),
     ParamSpec("reloc_restore_keyframes", 0, "archived keyframes brought back at the end of a "
               "slot around the pose the edge found in its archive for a lost device's frame "
               "(device/relocalisation_request, the device's reloc_period_s), the map keyframes "
@@ -134,6 +138,7 @@ def edge_config(p: Mapping[str, Any]) -> EdgeConfig:
                       archive_keyframes=int(p["archive_keyframes"]),
                       restore_keyframes=int(p["restore_keyframes"]),
                       point_fusion=bool(p["point_fusion"]),
+                      loop_closing=bool(p["loop_closing"]),
                       reloc_restore_keyframes=int(p["reloc_restore_keyframes"]),
                       image_shape=(int(p["image_height"]), int(p["image_width"])))
 

@@ -79,6 +79,8 @@ STEADY_FIGURES = (("failed_share", "failed (played frames)", "{:.1%}"),
                   ("odom_jitter_rms_mm", "odom jitter RMS (mm)", "{:.1f}"),
                   ("odom_step_excess_mm", "odom step beyond the truth's (mm)", "{:.1f}"),
                   ("pnp_ransac_share", "PnP-RANSAC fallback", "{:.1%}"),
+                  ("loops_closed", "loops closed", "{:.1f}"),
+                  ("loop_closing_ms", "loop closing (ms)", "{:.0f}"),
                   ("frames_uploaded", "uploads (frames)", "{:.1f}"),
                   ("device_cpu_ms", "device CPU (ms/frame)", "{:.1f}"),
                   ("frames_dropped", "dropped (frames)", "{:.0f}"))
@@ -128,13 +130,16 @@ def main(folders: list[tuple[str, Path]], user: bool = False, steady: bool = Fal
     for label, path in folders:
         folder, _, scenario = str(path).partition("#")
         loaded.append((label, *_runs(Path(folder), label, figures, scenario or None)))
+    # a figure no run measured (runs.csv written before its column) is left out of the table
+    figures = tuple(f for f in figures
+                    if any(f[0] in r for _, _, runs, _ in loaded for r in runs.values()))
     print("| variant | scenario, map source, policy | runs | runs without an upload | "
           + " | ".join(h for _, h, _ in figures) + " |")
     print("|---|---|---|---|" + "---|" * len(figures))
     for label, kind, runs, _ in loaded:
         cells = []
         for key, _, fmt in figures:
-            mean, half = mean_ci95([r[key] for r in runs.values()])   # NaN υ left out
+            mean, half = mean_ci95([r.get(key, math.nan) for r in runs.values()])  # NaN out
             cells.append("–" if math.isnan(mean) else f"{fmt.format(mean)} ± {fmt.format(half)}")
         idle = sum(r["frames_uploaded"] == 0 for r in runs.values())
         print(f"| {label} | {kind} | {len(runs)} | {idle} | " + " | ".join(cells) + " |")
@@ -147,6 +152,7 @@ def main(folders: list[tuple[str, Path]], user: bool = False, steady: bool = Fal
     print()
     print(f"| variant − {base_label}, paired by seed | seeds | "
           + " | ".join(h for k, h, _ in figures if k in paired) + " |")
+    paired = tuple(k for k in paired if k in formats)
     print("|---|---|" + "---|" * len(paired))
     for label, _, runs, _ in loaded[1:]:
         seeds = sorted(set(runs) & set(base))

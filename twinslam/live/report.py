@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from twinslam_msgs.msg import MapStats
 
 from msg_schemas.headers import time_key, time_seconds
 from twinslam.live.run_log import RunLog
@@ -103,6 +104,10 @@ class RunReport:
     #: (a map inconsistent with itself, duplicated points, a motion the model missed); NaN:
     #: nothing tracked
     pnp_ransac_share: float = math.nan
+    #: loops the edge closed over the run (``loop_closing``), and the loop closer's mean time
+    #: on one, ms, off the slot's critical path (NaN: no loop closed, or not reported)
+    loops_closed: float = math.nan
+    loop_closing_ms: float = math.nan
 
     ROW = ("{label:<14} {mean_uncertainty:>10.1f} {lost_share:>6.1%} "
            "{tracked_uncertainty:>10.1f} {ate_m:>7.3f} "
@@ -111,6 +116,7 @@ class RunReport:
            "{relocalisations:>6d} {jumps:>5.0f} {max_error_m:>7.3f} {jitter_rms_mm:>7.1f} "
            "{truth_jitter_rms_mm:>7.1f} {odom_jitter_rms_mm:>7.1f} {odom_step_excess_mm:>7.1f} "
            "{revisit_error_m:>7.3f} {pnp_ransac_share:>6.1%} {restores:>6.0f} "
+           "{loops_closed:>5.0f} "
            "{recover_s:>7.2f} "
            "{loss_p95_s:>7.2f} {longest_loss_s:>7.2f} {downlink_mb:>7.1f} {device_cpu_ms:>7.1f} "
            "{edge_ms_median:>7.0f} {longest_no_upload_slots:>5.0f} {dropped:>7} "
@@ -120,7 +126,7 @@ class RunReport:
               f"{'uploads':>7} {'MB':>7} {'Mbit/s':>7} {'untrk':>6} {'failed':>6} "
               f"{'fails':>5} {'reloc':>6} {'jumps':>5} {'max e m':>7} {'jit mm':>7} "
               f"{'gt jit':>7} {'odo jit':>7} {'odo st':>7} {'revis m':>7} {'ransac':>6} "
-              f"{'restor':>6} "
+              f"{'restor':>6} {'loops':>5} "
               f"{'recov s':>7} {'p95 s':>7} "
               f"{'max s':>7} {'down MB':>7} {'dev ms':>7} {'edge ms':>7} {'no up':>5} "
               f"{'dropped':>7} {'skipped':>7}")
@@ -202,7 +208,17 @@ def report(policy: str, record: RunLog, seconds: float, slot_frames: int) -> Run
                      longest_without_upload(record),
                      math.nan if record.frames_skipped is None else float(record.frames_skipped),
                      *_revisit_cells(record, tracked), *_odom_cells(record, tracked),
-                     pnp_ransac_share(record))
+                     pnp_ransac_share(record), *_loop_cells(stats))
+
+
+def _loop_cells(stats: list[MapStats]) -> tuple[float, float]:
+    """(loops the edge closed, its mean ms on one) from its MapStats (no slot: NaN, NaN; no
+    loop: 0, NaN)."""
+    if not stats:
+        return math.nan, math.nan
+    times = [float(s.loop_closing_ms) for s in stats if s.loop_closing_ms > 0]
+    return float(max(int(s.loops_closed) for s in stats)), \
+        float(np.mean(times)) if times else math.nan
 
 
 def pnp_ransac_share(record: RunLog) -> float:

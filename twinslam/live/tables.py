@@ -46,7 +46,9 @@ METRICS = (("ate_m", "ATE", "m"), ("rpe_m", "RPE 1 s", "m"),
            ("downlink_mb", "downlink", "MB"), ("device_cpu_ms", "device CPU", "ms/frame"),
            ("frames_dropped", "dropped", "frames"),
            # archived keyframes the edge brought back (restore_keyframes)
-           ("restores", "restores", "keyframes"))
+           ("restores", "restores", "keyframes"),
+           # loops the edge closed (loop_closing) and the loop closer's time on one
+           ("loops_closed", "loops closed", ""), ("loop_closing_ms", "loop closing", "ms"))
 #: the figures a paired comparison with the best rule policy is made on (lower is better)
 PAIRED = ("tracking_failures", "untracked_frames", "device_failure_share", "ate_m",
           "mean_uncertainty")

@@ -24,3 +24,6 @@ POLICY = "lff"                   #: the edge's map management (the paper's ADAPT
                                  #: wherever the map binds: docs/results/paper-device.md)
 RESTORE_KEYFRAMES = 3            #: archived keyframes brought back a slot where the camera heads
 OWN_MAP_AFTER_S = 0.1            #: map source ``edge``: lost this long, track on own points too
+#: the edge closes loops over its archive and map (docs/results/loop-closing.md); off until its
+#: live measurement shows it does not harm the default device
+LOOP_CLOSING = False

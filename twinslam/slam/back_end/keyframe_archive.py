@@ -24,8 +24,9 @@ each keyframe was useful after it was archived (it restarts from the archival sl
 
 from __future__ import annotations
 
+import dataclasses
 import os
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -191,6 +192,47 @@ class KeyFrameArchive:
         for k in kf_ids:
             if k in self._useful:
                 self._useful[k] = max(self._useful[k], slot)
+
+    def correct(self, corrections: Mapping[int, np.ndarray], min_move_m: float = 1e-3
+                ) -> list[int]:
+        """Move archived keyframes by a loop's corrections (keyframe id → 4×4 map-frame
+        correction, corrected · before⁻¹): each one's pose and the points it keeps, as the
+        managed map's keyframes move (:mod:`twinslam.slam.back_end.loop_correction`). Their
+        files are written again, so a restarted edge reads the corrected archive; a correction
+        that moves none of the keyframe's points (nor its camera) by ``min_move_m`` is left
+        out — a loop bends the walk where it drifted, and rewriting hundreds of files for
+        sub-millimetre moves would stall the slot. The place index stays: descriptors do not
+        move. Returns the ids moved."""
+        moved = []
+        for kf_id in sorted(corrections.keys() & self._entries.keys()):
+            c = np.asarray(corrections[kf_id], dtype=np.float64)
+            kf = self._entries[kf_id]
+            reach = np.vstack([kf.pose[:3, 3], kf.positions])
+            shift = reach @ (c[:3, :3] - np.eye(3)).T + c[:3, 3]      # where each moves
+            if np.linalg.norm(shift, axis=1).max(initial=0.0) < min_move_m:
+                continue
+            self._entries[kf_id] = dataclasses.replace(
+                kf, pose=c @ kf.pose, positions=kf.positions @ c[:3, :3].T + c[:3, 3])
+            if self.folder is not None:
+                self._entries[kf_id].save(self._path(kf_id))
+            moved.append(kf_id)
+        return moved
+
+    def snapshot(self, extra: Iterable[ArchivedKeyFrame] = ()) -> KeyFrameArchive:
+        """A read-only view for another thread: the same archived keyframes (immutable, shared)
+        plus ``extra`` ones, no folder; later edits of this archive do not reach it. Without
+        ``extra`` it shares the place index when one is built (faiss searches it read-only)."""
+        added = list(extra)
+        view = KeyFrameArchive(len(self._entries) + len(added))
+        view._entries = dict(self._entries)
+        view._useful = dict(self._useful)
+        for kf in added:
+            view._entries[kf.id] = kf
+            view._useful[kf.id] = kf.archived_slot
+        if not added and self._index is not None:
+            view._index, view._row_keyframe, view._row_point = \
+                self._index, self._row_keyframe, self._row_point
+        return view
 
     def take(self, kf_id: int) -> ArchivedKeyFrame:
         """Remove and return an archived keyframe (it goes back into the managed map). Its

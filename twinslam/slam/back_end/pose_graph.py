@@ -8,7 +8,10 @@ loop with an essential-graph optimisation; here the graph reads like the math:
 
 * a pose x_i (camera-to-map, ``gtsam.Pose3``) for every keyframe, archived or managed;
 * between consecutive keyframes (by id: capture order) a **between factor** holding the
-  relative pose the map has now — the walk's own motion, which the loop does not question;
+  relative pose the map has now — the walk's own motion, which the loop does not question —
+  as stiff as the two keyframes' covisibility makes it: a step whose keyframes share many map
+  points was tracked on common ground, one that shares none (the camera moved on between two
+  uploads) is where drift could enter, and the loop's correction bends the walk there most;
 * one **loop factor** between the old keyframe and the new one, holding the relative pose the
   geometric check measured — stiffer than a step of the walk, as it is measured directly;
 * a **prior** on the oldest keyframe (the gauge: the map frame stays where it is).
@@ -34,6 +37,16 @@ STEP_SIGMAS = (0.01, 0.01, 0.01, 0.02, 0.02, 0.02)
 #: σ of the loop's measured relative pose: a PnP solve against the old place's points
 LOOP_SIGMAS = (0.005, 0.005, 0.005, 0.01, 0.01, 0.01)
 PRIOR_SIGMA = 1e-6
+#: shared map points at which a step has STEP_SIGMAS; fewer loosen it by √(SHARED_REF / shared)
+SHARED_REF = 100
+#: the loosest a step gets (no shared point): STEP_SIGMAS times this
+MAX_STEP_SCALE = 30.0
+
+
+def step_scale(shared: int) -> float:
+    """How much looser than STEP_SIGMAS a walk's step is whose keyframes share ``shared``
+    points: 1 from SHARED_REF on, MAX_STEP_SCALE for none."""
+    return float(np.clip(np.sqrt(SHARED_REF / max(shared, 0.1)), 1.0, MAX_STEP_SCALE))
 
 
 @dataclass(frozen=True)
@@ -46,22 +59,25 @@ class LoopClosure:
 
 
 def close_loop(poses: Mapping[int, np.ndarray], old: int, new: int,
-               measured: np.ndarray) -> LoopClosure:
+               measured: np.ndarray, shared: Mapping[tuple[int, int], int] | None = None
+               ) -> LoopClosure:
     """The keyframe ``poses`` (id → camera-to-map, every keyframe of the walk) after closing
     the loop between keyframe ``old`` and keyframe ``new``, whose relative pose old⁻¹ · new
-    was ``measured``; the oldest keyframe holds still."""
+    was ``measured``; the oldest keyframe holds still. ``shared``: the map points each pair
+    of consecutive keyframes (a, b) shares (without: every step as stiff as STEP_SIGMAS)."""
     ids = sorted(poses)
     if old not in poses or new not in poses or old == new:
         raise ValueError(f"a loop joins two keyframes of the graph, got {old} and {new}")
     graph = gtsam.NonlinearFactorGraph()
     initial = gtsam.Values()
-    step = gtsam.noiseModel.Diagonal.Sigmas(np.array(STEP_SIGMAS))
     for i in ids:
         initial.insert(X(i), gtsam.Pose3(np.asarray(poses[i], dtype=np.float64)))
     graph.add(gtsam.PriorFactorPose3(X(ids[0]), gtsam.Pose3(np.asarray(poses[ids[0]])),
                                      gtsam.noiseModel.Isotropic.Sigma(6, PRIOR_SIGMA)))
     for a, b in itertools.pairwise(ids):
         relative = np.linalg.inv(poses[a]) @ poses[b]
+        scale = 1.0 if shared is None else step_scale(shared.get((a, b), 0))
+        step = gtsam.noiseModel.Diagonal.Sigmas(scale * np.array(STEP_SIGMAS))
         graph.add(gtsam.BetweenFactorPose3(X(a), X(b), gtsam.Pose3(relative), step))
     graph.add(gtsam.BetweenFactorPose3(X(old), X(new), gtsam.Pose3(np.asarray(measured)),
                                        gtsam.noiseModel.Diagonal.Sigmas(np.array(LOOP_SIGMAS))))

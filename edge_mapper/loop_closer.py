@@ -1,0 +1,155 @@
+"""The edge's loop closer: place recognition and the pose graph on a worker thread, off the
+slot's critical path, their answer applied between slots.
+
+Each finished slot hands the closer the keyframes it integrated (their ORB features) with a
+snapshot of what the edge knows: the archive's keyframes, the managed map's keyframes far
+older than the query (restores bring old places back into the map, and a loop may close
+with one of those), and every keyframe's pose. The worker looks for a loop
+(:func:`~twinslam.slam.back_end.loop_detection.detect_loop`: place recognition, then PnP
+with the gate's inliers) and, on one, solves the pose graph over archive ∪ managed keyframes
+(:func:`~twinslam.slam.back_end.pose_graph.close_loop`). The snapshot shares nothing mutable
+with the edge: archived keyframes never change in place, poses are copies. The next slot's
+end takes the answer (:meth:`LoopCloser.take`) and applies it
+(:mod:`twinslam.slam.back_end.loop_correction`): the map the device gets next is corrected.
+
+``background=False`` runs the same work in the caller, for the offline pipelines whose
+results must not depend on thread timing.
+"""
+
+from __future__ import annotations
+
+import itertools
+import time
+from collections.abc import Mapping, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
+from twinslam.slam.back_end.loop_detection import MIN_GAP, LoopCandidate, detect_loop
+from twinslam.slam.back_end.pose_graph import LoopClosure, close_loop
+
+#: after a loop closes at keyframe q, keyframes up to q + COOLDOWN ids look for none (the walk
+#: goes on through the same place: each of them would find the loop just closed again)
+COOLDOWN = 90
+
+
+@dataclass(frozen=True)
+class LoopQuery:
+    """A keyframe the edge integrated, with what place recognition needs."""
+
+    keyframe: int
+    points_xy: np.ndarray        #: (n, 2) its ORB keypoints
+    descriptors: np.ndarray      #: (n, 32) uint8
+
+
+@dataclass(frozen=True)
+class LoopJob:
+    queries: tuple[LoopQuery, ...]       #: newest first: the first loop found is closed
+    archive: KeyFrameArchive             #: a snapshot (:meth:`KeyFrameArchive.snapshot`)
+    poses: Mapping[int, np.ndarray]      #: every keyframe's camera-to-map, archive ∪ map
+    intrinsics: np.ndarray
+    #: the managed map's keyframes' map points (the archive's are in its snapshot)
+    map_points: Mapping[int, frozenset[int]]
+
+
+@dataclass(frozen=True)
+class LoopResult:
+    """What one job found: the loop and its pose graph's answer, or none."""
+
+    candidate: LoopCandidate
+    query: int                            #: the keyframe the loop was looked for from
+    closure: LoopClosure | None
+    seconds: float                        #: the worker's time on the job
+
+
+def run_job(job: LoopJob, min_gap: int = MIN_GAP) -> LoopResult:
+    """Look for a loop from each query, newest first; close the first one found."""
+    start = time.perf_counter()
+    candidate, query = LoopCandidate(-1, None, None, 0, "no query"), -1
+    for q in job.queries:
+        candidate, query = detect_loop(job.archive, q.keyframe, q.points_xy, q.descriptors,
+                                       job.intrinsics, min_gap), q.keyframe
+        if candidate.found:
+            break
+    closure = None
+    if candidate.found and candidate.measured is not None and query in job.poses:
+        closure = close_loop(job.poses, candidate.old, query, candidate.measured,
+                             consecutive_shared(job))
+    return LoopResult(candidate, query, closure, time.perf_counter() - start)
+
+
+def consecutive_shared(job: LoopJob) -> dict[tuple[int, int], int]:
+    """The map points each pair of consecutive keyframes (by id) of the job's graph shares:
+    the covisibility that makes a step of the walk stiff."""
+    ids = sorted(job.poses)
+    points = dict(job.map_points)
+    for kf in job.archive:
+        if kf.id not in points:
+            points[kf.id] = frozenset(kf.point_ids.tolist())
+    empty: frozenset[int] = frozenset()
+    return {(a, b): len(points.get(a, empty) & points.get(b, empty))
+            for a, b in itertools.pairwise(ids)}
+
+
+class LoopCloser:
+    """One loop job at a time, on a worker thread (or in the caller)."""
+
+    def __init__(self, background: bool = True, min_gap: int = MIN_GAP,
+                 cooldown: int = COOLDOWN) -> None:
+        self.background = background
+        self.min_gap = min_gap
+        self.cooldown = cooldown
+        self._executor: ThreadPoolExecutor | None = None
+        self._running: Future[LoopResult] | None = None
+        self._done: LoopResult | None = None
+        self._quiet_until = -1           #: keyframe ids up to this look for no loop
+
+    @property
+    def busy(self) -> bool:
+        return self._running is not None and not self._running.done()
+
+    def wanted(self, keyframes: Sequence[int]) -> list[int]:
+        """Of ``keyframes``, those that may look for a loop now (not in a closed loop's
+        cooldown)."""
+        return [k for k in keyframes if k > self._quiet_until]
+
+    def submit(self, job: LoopJob) -> bool:
+        """Start ``job``; False (nothing started) while one runs or waits to be taken."""
+        if self.busy or self._running is not None or self._done is not None or not job.queries:
+            return False
+        if not self.background:
+            self._done = run_job(job, self.min_gap)
+            return True
+        if self._executor is None:
+            self._executor = ThreadPoolExecutor(1, thread_name_prefix="loop-closer")
+        self._running = self._executor.submit(run_job, job, self.min_gap)
+        return True
+
+    def take(self, wait_s: float = 0.0) -> LoopResult | None:
+        """The finished job's result (once), waiting up to ``wait_s`` for a running one; None
+        while it runs or when none was started. A job that raised is reported as no loop."""
+        if self._running is not None:
+            try:
+                self._done = self._running.result(timeout=wait_s) if wait_s > 0 or \
+                    self._running.done() else None
+            except TimeoutError:
+                return None
+            except Exception as exc:             # a failed job is reported, not lost
+                self._done = LoopResult(LoopCandidate(-1, None, None, 0,
+                                                      f"the loop job failed: {exc!r}"),
+                                        -1, None, 0.0)
+            if self._done is None:
+                return None
+            self._running = None
+        done, self._done = self._done, None
+        if done is not None and done.closure is not None:
+            self._quiet_until = done.query + self.cooldown
+        return done
+
+    def close(self) -> None:
+        """Stop the worker (a running job finishes first)."""
+        if self._executor is not None:
+            self._executor.shutdown(wait=True)
+            self._executor = None

@@ -1,0 +1,154 @@
+"""The edge closes a loop: on a walk out and back whose keyframes drift on the way back, a
+keyframe that sees a place the archive holds from the way out is found by place recognition,
+confirmed by PnP, and the pose graph puts the drift where the walk had nothing to hold on to
+(a step between keyframes that share no point), not over the well-tracked keyframes around it;
+the corrected map and archive survive a restart; the worker thread answers as the caller would."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, SlotOutcome
+from edge_mapper.loop_closer import LoopCloser, LoopJob, LoopQuery
+from edge_mapper.slot_planner import SlotConfig
+from tests.test_edge_core import F, K, ReturningDevice, _run
+from twinslam.policies.registry import make_policy
+from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive
+from twinslam.slam.keyframe import KeyFramePayload
+
+#: metres a frame the device's pose estimate drifts along the wall on the way back
+DRIFT_M = 0.005
+
+
+class DriftingDevice(ReturningDevice):
+    """The walk out and back along the wall; on the way back its keyframes' pose estimates
+    drift DRIFT_M a frame (a tracker with nothing from the way out to hold on to)."""
+
+    def keyframe(self, frame: int, slot: int, core: EdgeMapperCore) -> KeyFramePayload:
+        kf = super().keyframe(frame, slot, core)
+        kf.pose[0, 3] += DRIFT_M * max(0, frame - self.turn)
+        return kf
+
+
+def _edge(loops: bool, checkpoint: Path | None = None) -> EdgeMapperCore:
+    """V_max 4, no restores (the way out is in the archive only); a loop joins keyframes 40
+    frames apart (the walk is 128 frames long), closed in finish_slot itself."""
+    return EdgeMapperCore(make_policy("lff"), K,
+                          EdgeConfig(slot=SlotConfig(vmax=4), loop_closing=loops,
+                                     loop_background=False, loop_min_gap=40), checkpoint)
+
+
+def _errors(core: EdgeMapperCore, device: ReturningDevice) -> dict[int, float]:
+    """Each managed keyframe's distance from where it truly was (m)."""
+    return {k: float(np.linalg.norm(kf.pose[:3, 3] - device.pose(k)[:3, 3]))
+            for k, kf in core.map.keyframes.items()}
+
+
+def _point_error(core: EdgeMapperCore, device: ReturningDevice) -> float:
+    """Mean distance of the map's points from the nearest wall corner (m)."""
+    return float(np.mean([np.linalg.norm(device.world - p.position, axis=1).min()
+                          for p in core.map.points.values()]))
+
+
+def _walk_until_a_loop(core: EdgeMapperCore, device: ReturningDevice, slots: int = 16
+                       ) -> SlotOutcome | None:
+    for slot in range(slots):
+        out = _run(core, device, range(slot, slot + 1), rates=[20.0])[0]
+        if out.loop is not None:
+            return out
+    return None
+
+
+def test_the_edge_closes_a_loop_and_takes_the_drift_out_of_the_map() -> None:
+    """The loop closes from the first keyframe of the way back that sees the way out's
+    places; that keyframe drifted 15 cm and is put back within 2 cm, the keyframes around it,
+    tracked on common ground, stay where they were (within 3 cm, as without a loop), and the
+    map's points come back to the wall. Without loop closing the same slot keeps the drift."""
+    device = DriftingDevice(np.random.default_rng(3), 8 * F)
+    core = _edge(loops=True)
+    out = _walk_until_a_loop(core, device)
+    assert out is not None and core.loops_closed == 1, "no loop closed on the way back"
+    loop = out.loop
+    assert loop is not None and loop.new > device.turn and loop.new - loop.old >= 40
+    assert loop.inliers >= 100 and loop.moved_m > 0.1
+    assert out.timings_ms["loop"] >= 0.0 and loop.worker_ms > 0.0
+
+    plain, same = _edge(loops=False), DriftingDevice(np.random.default_rng(3), 8 * F)
+    for slot in range(out.slot + 1):
+        _run(plain, same, range(slot, slot + 1), rates=[20.0])
+    assert sorted(plain.map.keyframes) == sorted(core.map.keyframes)
+    drifted, closed = _errors(plain, same), _errors(core, device)
+    assert drifted[loop.new] > 0.1
+    assert closed[loop.new] < 0.02, closed
+    assert max(closed.values()) < 0.03, closed
+    assert _point_error(core, device) < 0.5 * _point_error(plain, same)
+
+
+def test_the_loop_corrected_map_and_archive_survive_a_restart(tmp_path: Path) -> None:
+    """A loop's corrections reach the checkpoint: an edge restarted from it holds the
+    corrected keyframes, counts the loop, and reads back an archived keyframe the loop moved
+    as moved."""
+    device = DriftingDevice(np.random.default_rng(3), 8 * F)
+    checkpoint = tmp_path / "edge.npz"
+    core = _edge(loops=True, checkpoint=checkpoint)
+    out = _walk_until_a_loop(core, device)
+    assert out is not None and out.loop is not None
+    again = _edge(loops=True, checkpoint=checkpoint)
+    assert again.loops_closed == 1
+    for k, kf in core.map.keyframes.items():
+        np.testing.assert_allclose(again.map.keyframes[k].pose, kf.pose, atol=1e-9)
+    # a correction of an archived keyframe is written to its file
+    some = next(iter(core.archive))
+    shift = np.eye(4)
+    shift[:3, 3] = (0.0, 0.02, 0.0)
+    assert core.archive.correct({some.id: shift}) == [some.id]
+    reread = _edge(loops=True, checkpoint=checkpoint).archive.get(some.id)
+    up = np.array([0.0, 0.02, 0.0])
+    np.testing.assert_allclose(reread.pose[:3, 3], some.pose[:3, 3] + up)
+    np.testing.assert_allclose(reread.positions, some.positions + up)
+    # a sub-millimetre one is not worth a file
+    shift[:3, 3] = (0.0, 0.0002, 0.0)
+    assert core.archive.correct({some.id: shift}) == []
+
+
+def _job(device: ReturningDevice) -> LoopJob:
+    """An archive of the way out (true poses, points at their corners) and one frame of the way
+    back, 60 frames later, at the place of frame 30, whose pose drifted 10 cm."""
+    archive = KeyFrameArchive(100)
+    poses = {}
+    for kf in range(0, 64, 8):
+        seen, uv, depth, _ = device.observe(kf, EdgeMapperCore(make_policy("lff"), K))
+        measurements = np.column_stack([uv, depth])
+        archive.add(ArchivedKeyFrame(kf, device.pose(kf), seen.astype(np.int64) + 1,
+                                     device.world[seen], device.descs[seen], measurements, 0))
+        poses[kf] = device.pose(kf)
+    frame = 2 * device.turn - 30
+    seen, uv, _, _ = device.observe(frame, EdgeMapperCore(make_policy("lff"), K))
+    poses[frame] = device.pose(frame) @ np.array([[1, 0, 0, 0.1], [0, 1, 0, 0], [0, 0, 1, 0],
+                                                  [0, 0, 0, 1.0]])
+    return LoopJob((LoopQuery(frame, uv, device.descs[seen]),), archive, poses, K,
+                   {frame: frozenset((seen + 1).tolist())})
+
+
+def test_the_worker_thread_answers_as_the_caller_would_and_takes_one_job_at_a_time() -> None:
+    device = ReturningDevice(np.random.default_rng(5), 64)
+    job = _job(device)
+    inline, worker = LoopCloser(background=False, min_gap=40), LoopCloser(min_gap=40)
+    try:
+        assert inline.submit(job) and worker.submit(job)
+        assert not worker.submit(job)                 # one job at a time, until taken
+        here, there = inline.take(), worker.take(wait_s=30.0)
+        assert here is not None and there is not None
+        assert here.candidate.old == there.candidate.old and here.closure is not None
+        assert there.closure is not None
+        for k, pose in here.closure.poses.items():
+            np.testing.assert_allclose(there.closure.poses[k], pose, atol=1e-9)
+        assert worker.take() is None and worker.submit(job)    # taken: the next one may start
+        assert worker.take(wait_s=30.0) is not None
+        # after a loop closes, the keyframes just after it look for none
+        assert worker.wanted([job.queries[0].keyframe + 1, job.queries[0].keyframe + 500]) \
+            == [job.queries[0].keyframe + 500]
+    finally:
+        worker.close()

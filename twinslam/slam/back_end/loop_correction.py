@@ -1,0 +1,53 @@
+"""Carrying a closed loop's corrections into a map that kept changing while it was solved.
+
+The pose graph (:mod:`twinslam.slam.back_end.pose_graph`) is solved off the slot's critical
+path, on the keyframe poses of the moment the loop was found; by the time its answer is applied
+the map has moved on — a bundle adjustment nudged the newest keyframes, new keyframes came in,
+some left for the archive. Each correction is a rigid motion of the map frame
+(corrected · before⁻¹), so it applies to a keyframe's pose as it is now by left
+multiplication, whatever small change the pose had since; a keyframe newer than the graph
+was placed by tracking on the drifted walk and takes the newest graph keyframe's correction
+(as ORB-SLAM corrects the keyframes connected to the loop's current one). A map point moves
+with its reference keyframe — here its oldest observer in the map, the keyframe that made it
+or, once fused, the old place that saw it first.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+
+from twinslam.slam.back_end.keyframe_map import KeyFrameMap
+from twinslam.slam.back_end.pose_graph import move_with_keyframes
+
+
+def correction_for(corrections: Mapping[int, np.ndarray], kf_id: int) -> np.ndarray | None:
+    """Keyframe ``kf_id``'s correction: its own, or — for a keyframe newer than every keyframe
+    of the graph — the newest one's; None for an older keyframe the graph did not hold."""
+    own = corrections.get(kf_id)
+    if own is not None:
+        return own
+    newest = max(corrections, default=None)
+    return corrections[newest] if newest is not None and kf_id > newest else None
+
+
+def correct_map(m: KeyFrameMap, corrections: Mapping[int, np.ndarray]) -> float:
+    """Move every keyframe of ``m`` by its correction and every point with its reference
+    keyframe; returns the largest distance a keyframe moved (m)."""
+    moved = 0.0
+    applied: dict[int, np.ndarray] = {}
+    for kf_id, kf in m.keyframes.items():
+        c = correction_for(corrections, kf_id)
+        if c is None:
+            continue
+        applied[kf_id] = c
+        before = kf.pose[:3, 3].copy()
+        kf.pose = c @ kf.pose
+        moved = max(moved, float(np.linalg.norm(kf.pose[:3, 3] - before)))
+    positions = move_with_keyframes(
+        {pid: pt.position for pid, pt in m.points.items()},
+        {pid: min(pt.observers, default=-1) for pid, pt in m.points.items()}, applied)
+    for pid, xyz in positions.items():
+        m.points[pid].position = xyz
+    return moved
