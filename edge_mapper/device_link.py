@@ -293,7 +293,10 @@ class DeviceLink:
             entry.latency_s(self.slots.clock()) * 1000, len(self.core.archive),
             len(out.restored), len(out.refused), frame, self.core.loops_closed,
             out.loop.worker_ms if out.loop else 0.0))
-        if out.loop is not None:
+        if out.loop is not None and out.loop.refused:
+            self.warning(f"slot {slot}: loop between keyframes {out.loop.old} and "
+                         f"{out.loop.new} refused, {out.loop.refused}")
+        elif out.loop is not None:
             self.info(f"slot {slot}: loop closed between keyframes {out.loop.old} and "
                       f"{out.loop.new} ({out.loop.inliers} inliers), the map moved up to "
                       f"{out.loop.moved_m:.3f} m; the loop closer took "

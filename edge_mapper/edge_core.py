@@ -52,7 +52,7 @@ from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameAr
 from twinslam.slam.back_end.keyframe_gate import KeyFrameGateConfig, implausible_keyframe
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.back_end.local_mapping import IntegrationReport, LocalMapping
-from twinslam.slam.back_end.loop_correction import correct_map, correction_for
+from twinslam.slam.back_end.loop_correction import correct_map, correction_for, farthest_move
 from twinslam.slam.back_end.loop_detection import MIN_GAP
 from twinslam.slam.back_end.point_fusion import fuse_restored
 from twinslam.slam.keyframe import KeyFramePayload
@@ -106,8 +106,10 @@ class ClosedLoop:
     old: int                         #: the keyframe of the place seen long before
     new: int                         #: the keyframe that saw it again
     inliers: int                     #: of the geometric check
-    moved_m: float                   #: the farthest a managed keyframe moved
+    moved_m: float                   #: the farthest a managed keyframe moved (or would have)
     worker_ms: float                 #: the loop closer's time (detection and pose graph)
+    #: why its corrections were not applied ("": applied)
+    refused: str = ""
 
 
 @dataclass
@@ -193,6 +195,7 @@ class EdgeMapperCore:
         #: keyframes integrated since the last loop job, newest last
         self._loop_queries: list[LoopQuery] = []
         self.loops_closed = int(extra.get("loops_closed", 0))
+        self.loops_refused = 0                 #: loops whose corrections went too far
 
     def _open_archive(self) -> KeyFrameArchive:
         """The archive beside the checkpoint (``edge.npz`` → ``edge.npz.archive/``), restored
@@ -429,10 +432,20 @@ class EdgeMapperCore:
     def _apply_loop(self, result: LoopResult | None) -> ClosedLoop | None:
         """A finished loop job's corrections, applied to the managed map and the archive
         (between slots: the map the device gets next is corrected); the old place, where it is
-        in the map, has its points fused with the ones the walk made again."""
+        in the map, has its points fused with the ones the walk made again. A loop that would
+        move a keyframe of the map farther than a device accepts on a map swap
+        (``MotionBounds.correction_m``: its tracking would refuse every pose on that map) is
+        refused, as the bundle adjustment's answer would be: a place that only looked alike."""
         if result is None or result.closure is None:
             return None
         corrections = result.closure.corrections
+        reach = self.config.keyframe_gate.motion.correction_m
+        farthest = farthest_move(self.map, corrections)
+        if farthest > reach:
+            self.loops_refused += 1
+            return ClosedLoop(result.candidate.old, result.query, result.candidate.inliers,
+                              farthest, result.seconds * 1e3,
+                              f"it would move the map {farthest:.3g} m, more than {reach:g} m")
         moved = correct_map(self.map, corrections)
         self.archive.correct({kf.id: c for kf in self.archive
                               if (c := correction_for(corrections, kf.id)) is not None})

@@ -6,6 +6,7 @@ the corrected map and archive survive a restart; the worker thread answers as th
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +17,9 @@ from edge_mapper.slot_planner import SlotConfig
 from tests.test_edge_core import F, K, ReturningDevice, _run
 from twinslam.policies.registry import make_policy
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive
+from twinslam.slam.back_end.keyframe_gate import KeyFrameGateConfig
 from twinslam.slam.keyframe import KeyFramePayload
+from twinslam.slam.pose_plausibility import MotionBounds
 
 #: metres a frame the device's pose estimate drifts along the wall on the way back
 DRIFT_M = 0.005
@@ -32,12 +35,17 @@ class DriftingDevice(ReturningDevice):
         return kf
 
 
-def _edge(loops: bool, checkpoint: Path | None = None) -> EdgeMapperCore:
+def _edge(loops: bool, checkpoint: Path | None = None, reach_m: float | None = None
+          ) -> EdgeMapperCore:
     """V_max 4, no restores (the way out is in the archive only); a loop joins keyframes 40
-    frames apart (the walk is 128 frames long), closed in finish_slot itself."""
+    frames apart (the walk is 128 frames long), closed in finish_slot itself; ``reach_m``:
+    the correction a device accepts on a map swap, if not the default."""
+    gate = KeyFrameGateConfig() if reach_m is None else \
+        KeyFrameGateConfig(dataclasses.replace(MotionBounds(), correction_m=reach_m))
     return EdgeMapperCore(make_policy("lff"), K,
                           EdgeConfig(slot=SlotConfig(vmax=4), loop_closing=loops,
-                                     loop_background=False, loop_min_gap=40), checkpoint)
+                                     loop_background=False, loop_min_gap=40,
+                                     keyframe_gate=gate), checkpoint)
 
 
 def _errors(core: EdgeMapperCore, device: ReturningDevice) -> dict[int, float]:
@@ -70,6 +78,7 @@ def test_the_edge_closes_a_loop_and_takes_the_drift_out_of_the_map() -> None:
     core = _edge(loops=True)
     out = _walk_until_a_loop(core, device)
     assert out is not None and core.loops_closed == 1, "no loop closed on the way back"
+    assert out.loop is not None and not out.loop.refused
     loop = out.loop
     assert loop is not None and loop.new > device.turn and loop.new - loop.old >= 40
     assert loop.inliers >= 100 and loop.moved_m > 0.1
@@ -84,6 +93,19 @@ def test_the_edge_closes_a_loop_and_takes_the_drift_out_of_the_map() -> None:
     assert closed[loop.new] < 0.02, closed
     assert max(closed.values()) < 0.03, closed
     assert _point_error(core, device) < 0.5 * _point_error(plain, same)
+
+
+def test_a_loop_that_would_move_the_map_beyond_a_devices_reach_is_refused() -> None:
+    """A device accepts a map that moved at most ``correction_m`` under it; a loop whose
+    corrections go farther (here: 15 cm against a reach of 5 cm) is refused and counted, the
+    map left as it was."""
+    device = DriftingDevice(np.random.default_rng(3), 8 * F)
+    core = _edge(loops=True, reach_m=0.05)
+    out = _walk_until_a_loop(core, device)
+    assert out is not None and out.loop is not None
+    assert "more than 0.05 m" in out.loop.refused and out.loop.moved_m > 0.1
+    assert core.loops_closed == 0 and core.loops_refused == 1
+    assert _errors(core, device)[out.loop.new] > 0.1          # the drift stays
 
 
 def test_the_loop_corrected_map_and_archive_survive_a_restart(tmp_path: Path) -> None:

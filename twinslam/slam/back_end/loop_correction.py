@@ -32,6 +32,14 @@ def correction_for(corrections: Mapping[int, np.ndarray], kf_id: int) -> np.ndar
     return corrections[newest] if newest is not None and kf_id > newest else None
 
 
+def farthest_move(m: KeyFrameMap, corrections: Mapping[int, np.ndarray]) -> float:
+    """The farthest ``corrections`` would move a keyframe of ``m`` (m)."""
+    moves = [float(np.linalg.norm((c @ kf.pose)[:3, 3] - kf.pose[:3, 3]))
+             for kf_id, kf in m.keyframes.items()
+             if (c := correction_for(corrections, kf_id)) is not None]
+    return max(moves, default=0.0)
+
+
 def correct_map(m: KeyFrameMap, corrections: Mapping[int, np.ndarray]) -> float:
     """Move every keyframe of ``m`` by its correction and every point with its reference
     keyframe; returns the largest distance a keyframe moved (m)."""
