@@ -205,7 +205,8 @@ class DeviceTrackerCore:
         record = FrameRecord(out.index, stamp, out.pose, out.tracked, np.sort(ids[~is_track]),
                              np.sort(track_ids), self.slot, out.relocalised, out.inliers,
                              self.map_version, (time.thread_time() - started) * 1000.0,
-                             bool(out.refused or out.implausible), out.pnp_ransac)
+                             bool(out.refused or out.implausible), out.pnp_ransac,
+                             out.n_matches)
         self.frames.append(record)
         slot = self.slot
         depths = (depth_at(out.features.points, depth, self.config.depth_range_m)

@@ -44,6 +44,8 @@ class FrameRecord:
     #: its pose came from PnP RANSAC: the motion model's refinement kept too few of its
     #: matches against the map
     pnp_ransac: bool = False
+    #: its features matched to map points before the pose solve (``inliers`` are of these)
+    matches: int = 0
 
 
 def frame_summaries_message(slot: int, rate_mbps: float, rate_state: int, map_version: int,
@@ -56,7 +58,8 @@ def frame_summaries_message(slot: int, rate_mbps: float, rate_state: int, map_ve
                           local_track_ids=np.asarray(f.track_ids, dtype=np.uint64),
                           relocalised=f.relocalised, inliers=f.inliers,
                           map_version=f.map_version, cpu_ms=f.cpu_ms,
-                          pose_refused=f.pose_refused, pnp_ransac=f.pnp_ransac)
+                          pose_refused=f.pose_refused, pnp_ransac=f.pnp_ransac,
+                          matches=f.matches)
                       for f in frames])
     return set_header(msg, stamp, "map")
 

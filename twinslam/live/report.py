@@ -108,6 +108,10 @@ class RunReport:
     #: on one, ms, off the slot's critical path (NaN: no loop closed, or not reported)
     loops_closed: float = math.nan
     loop_closing_ms: float = math.nan
+    #: the share of the device's matches against its map that its pose disagreed with (1 −
+    #: inliers / matches over the frames the motion model tracked): a map inconsistent with
+    #: itself shows here (NaN: none tracked, or a device that did not report its matches)
+    outlier_share: float = math.nan
 
     ROW = ("{label:<14} {mean_uncertainty:>10.1f} {lost_share:>6.1%} "
            "{tracked_uncertainty:>10.1f} {ate_m:>7.3f} "
@@ -115,7 +119,8 @@ class RunReport:
            "{untracked_frames:>6d} {failed_share:>6.1%} {tracking_failures:>5d} "
            "{relocalisations:>6d} {jumps:>5.0f} {max_error_m:>7.3f} {jitter_rms_mm:>7.1f} "
            "{truth_jitter_rms_mm:>7.1f} {odom_jitter_rms_mm:>7.1f} {odom_step_excess_mm:>7.1f} "
-           "{revisit_error_m:>7.3f} {pnp_ransac_share:>6.1%} {restores:>6.0f} "
+           "{revisit_error_m:>7.3f} {pnp_ransac_share:>6.1%} {outlier_share:>6.1%} "
+           "{restores:>6.0f} "
            "{loops_closed:>5.0f} "
            "{recover_s:>7.2f} "
            "{loss_p95_s:>7.2f} {longest_loss_s:>7.2f} {downlink_mb:>7.1f} {device_cpu_ms:>7.1f} "
@@ -126,6 +131,7 @@ class RunReport:
               f"{'uploads':>7} {'MB':>7} {'Mbit/s':>7} {'untrk':>6} {'failed':>6} "
               f"{'fails':>5} {'reloc':>6} {'jumps':>5} {'max e m':>7} {'jit mm':>7} "
               f"{'gt jit':>7} {'odo jit':>7} {'odo st':>7} {'revis m':>7} {'ransac':>6} "
+              f"{'outl':>6} "
               f"{'restor':>6} {'loops':>5} "
               f"{'recov s':>7} {'p95 s':>7} "
               f"{'max s':>7} {'down MB':>7} {'dev ms':>7} {'edge ms':>7} {'no up':>5} "
@@ -208,7 +214,16 @@ def report(policy: str, record: RunLog, seconds: float, slot_frames: int) -> Run
                      longest_without_upload(record),
                      math.nan if record.frames_skipped is None else float(record.frames_skipped),
                      *_revisit_cells(record, tracked), *_odom_cells(record, tracked),
-                     pnp_ransac_share(record), *_loop_cells(stats))
+                     pnp_ransac_share(record), *_loop_cells(stats), outlier_share(record))
+
+
+def outlier_share(record: RunLog) -> float:
+    """1 − inliers / matches over the tracked frames that were not relocalised (NaN: none,
+    or no matches reported)."""
+    frames = [f for s in record.summaries.values() for f in s.frames
+              if f.tracked and not f.relocalised]
+    matches = sum(int(f.matches) for f in frames)
+    return 1.0 - sum(int(f.inliers) for f in frames) / matches if matches else math.nan
 
 
 def _loop_cells(stats: list[MapStats]) -> tuple[float, float]:
