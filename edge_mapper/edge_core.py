@@ -447,8 +447,10 @@ class EdgeMapperCore:
                               farthest, result.seconds * 1e3,
                               f"it would move the map {farthest:.3g} m, more than {reach:g} m")
         moved = correct_map(self.map, corrections)
-        self.archive.correct({kf.id: c for kf in self.archive
-                              if (c := correction_for(corrections, kf.id)) is not None})
+        archived = self.archive.correct({kf.id: c for kf in self.archive
+                                         if (c := correction_for(corrections, kf.id))
+                                         is not None}, write=False)
+        self.loop_closer.after(lambda: self.archive.save(archived))   # files beside the slots
         old = result.candidate.old
         if self.config.point_fusion and old in self.map.keyframes and has_camera(self.k):
             fuse_restored(self.map, old, sorted(self.map.keyframes[old].points), self.k,

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import itertools
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -147,6 +147,16 @@ class LoopCloser:
         if done is not None and done.closure is not None:
             self._quiet_until = done.query + self.cooldown
         return done
+
+    def after(self, work: Callable[[], object]) -> None:
+        """Run ``work`` on the worker after what it has queued (in the caller without one):
+        the archive's files of a correction, written beside the slots."""
+        if not self.background:
+            work()
+            return
+        if self._executor is None:
+            self._executor = ThreadPoolExecutor(1, thread_name_prefix="loop-closer")
+        self._executor.submit(work)
 
     def close(self) -> None:
         """Stop the worker (a running job finishes first)."""

@@ -83,9 +83,8 @@ def locate_in_archive(archive: KeyFrameArchive, points_xy: np.ndarray, descripto
 
 def _with_neighbours(archive: KeyFrameArchive, kf_id: int, count: int) -> list[int]:
     """``kf_id`` and the ``count`` archived keyframes sharing the most of its points."""
-    own = set(archive.get(kf_id).point_ids.tolist())
-    shared = sorted(((len(own.intersection(kf.point_ids.tolist())), kf.id)
-                     for kf in archive if kf.id != kf_id), key=lambda sk: (-sk[0], sk[1]))
+    shared = sorted(((s, k) for k, s in archive.shared_with(kf_id).items()),
+                    key=lambda sk: (-sk[0], sk[1]))
     return [kf_id] + [k for s, k in shared[:count] if s > 0]
 
 

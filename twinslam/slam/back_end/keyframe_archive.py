@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import threading
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -141,6 +142,9 @@ class KeyFrameArchive:
         self._row_keyframe = np.zeros(0, dtype=np.int64)   #: index row -> keyframe id
         self._row_point = np.zeros(0, dtype=np.int64)      #: index row -> map point id
         self._taken: list[Path] = []       #: files of taken keyframes, until the checkpoint
+        #: one writer of a keyframe's file at a time: the loop closer's worker rewrites files
+        #: of corrected keyframes while the edge archives and removes others
+        self._files = threading.Lock()
 
     # -- contents ---------------------------------------------------------------------------
 
@@ -174,7 +178,8 @@ class KeyFrameArchive:
         self._useful[kf.id] = kf.archived_slot
         if self.folder is not None:
             self.folder.mkdir(parents=True, exist_ok=True)
-            kf.save(self._path(kf.id))
+            with self._files:
+                kf.save(self._path(kf.id))
         self._index = None
         return self._trim()
 
@@ -193,12 +198,13 @@ class KeyFrameArchive:
             if k in self._useful:
                 self._useful[k] = max(self._useful[k], slot)
 
-    def correct(self, corrections: Mapping[int, np.ndarray], min_move_m: float = 1e-3
-                ) -> list[int]:
+    def correct(self, corrections: Mapping[int, np.ndarray], min_move_m: float = 1e-3,
+                write: bool = True) -> list[int]:
         """Move archived keyframes by a loop's corrections (keyframe id → 4×4 map-frame
         correction, corrected · before⁻¹): each one's pose and the points it keeps, as the
         managed map's keyframes move (:mod:`twinslam.slam.back_end.loop_correction`). Their
-        files are written again, so a restarted edge reads the corrected archive; a correction
+        files are written again (``write``; else :meth:`save` them later, off the slot's path),
+        so a restarted edge reads the corrected archive; a correction
         that moves none of the keyframe's points (nor its camera) by ``min_move_m`` is left
         out — a loop bends the walk where it drifted, and rewriting hundreds of files for
         sub-millimetre moves would stall the slot. The place index stays: descriptors do not
@@ -213,10 +219,22 @@ class KeyFrameArchive:
                 continue
             self._entries[kf_id] = dataclasses.replace(
                 kf, pose=c @ kf.pose, positions=kf.positions @ c[:3, :3].T + c[:3, 3])
-            if self.folder is not None:
-                self._entries[kf_id].save(self._path(kf_id))
             moved.append(kf_id)
+        if write:
+            self.save(moved)
         return moved
+
+    def save(self, kf_ids: Iterable[int]) -> None:
+        """Write the files of the archived keyframes ``kf_ids`` as they are now (one that left
+        the archive meanwhile is skipped): the loop closer's worker calls it after a
+        correction, beside the slots."""
+        if self.folder is None:
+            return
+        for kf_id in kf_ids:
+            with self._files:
+                kf = self._entries.get(kf_id)
+                if kf is not None:
+                    kf.save(self._path(kf_id))
 
     def snapshot(self, extra: Iterable[ArchivedKeyFrame] = ()) -> KeyFrameArchive:
         """A read-only view for another thread: the same archived keyframes (immutable, shared)
@@ -247,8 +265,9 @@ class KeyFrameArchive:
 
     def release_taken(self) -> None:
         """Delete the files of the keyframes taken back since the last call."""
-        for path in self._taken:
-            path.unlink(missing_ok=True)
+        with self._files:
+            for path in self._taken:
+                path.unlink(missing_ok=True)
         self._taken = []
 
     def _remove(self, kf_id: int, keep_file: bool = False) -> None:
@@ -256,7 +275,8 @@ class KeyFrameArchive:
         del self._useful[kf_id]
         self._index = None
         if self.folder is not None and not keep_file:
-            self._path(kf_id).unlink(missing_ok=True)
+            with self._files:
+                self._path(kf_id).unlink(missing_ok=True)
 
     def _path(self, kf_id: int) -> Path:
         assert self.folder is not None
@@ -291,6 +311,15 @@ class KeyFrameArchive:
         return archive, problems
 
     # -- place recognition ------------------------------------------------------------------
+
+    def shared_with(self, kf_id: int) -> dict[int, int]:
+        """How many map points each other archived keyframe shares with ``kf_id`` (those that
+        share none left out): one pass over the index's rows, not a set per keyframe."""
+        self._built_index()
+        own = self._entries[kf_id].point_ids
+        rows = np.isin(self._row_point, own) & (self._row_keyframe != kf_id)
+        ids, counts = np.unique(self._row_keyframe[rows], return_counts=True)
+        return dict(zip(ids.tolist(), counts.tolist(), strict=True))
 
     def recognise(self, descriptors: np.ndarray, top: int = 3, max_distance: int = 50,
                   ratio: float = 0.8) -> list[tuple[int, int]]:

@@ -91,10 +91,16 @@ def close_loop(poses: Mapping[int, np.ndarray], old: int, new: int,
 def move_with_keyframes(points: Mapping[int, np.ndarray], reference: Mapping[int, int],
                         corrections: Mapping[int, np.ndarray]) -> dict[int, np.ndarray]:
     """Each point (id → xyz in the map) moved by its reference keyframe's correction
-    (``reference``: point id → keyframe id); a point without one stays."""
-    moved = {}
-    for pid, xyz in points.items():
-        c = corrections.get(reference.get(pid, -1))
-        moved[pid] = (c[:3, :3] @ np.asarray(xyz) + c[:3, 3]) if c is not None \
-            else np.asarray(xyz, dtype=np.float64).copy()
+    (``reference``: point id → keyframe id); a point without one stays. The points of one
+    keyframe move in one product (a map holds tens of thousands)."""
+    groups: dict[int, list[int]] = {}
+    for pid in points:
+        groups.setdefault(reference.get(pid, -1), []).append(pid)
+    moved: dict[int, np.ndarray] = {}
+    for kf, pids in groups.items():
+        xyz = np.array([points[p] for p in pids], dtype=np.float64).reshape(-1, 3)
+        c = corrections.get(kf)
+        if c is not None:
+            xyz = xyz @ np.asarray(c)[:3, :3].T + np.asarray(c)[:3, 3]
+        moved.update(zip(pids, xyz, strict=True))
     return moved
