@@ -1,0 +1,194 @@
+"""How long the edge's loop closer takes, and what it costs the slot beside it: an archive of
+real keyframes of an RGB-D walk (ORB features, points from depth at the true poses), frames of
+the same walk looking for a loop in it, the pose graph over archive and map, and the
+corrections applied to a managed map and the archive.
+
+    python -m bench.loop_closer [SEQUENCE] [--archive 500] [--queries 20] [--map 45]
+
+Prints the medians and 95th percentiles of: the archive's snapshot (on the slot's path), place
+recognition with the geometric check, the pose graph, the whole job (the worker thread's
+time), the corrections applied to the map and the archive (on the slot's path) and the
+archive's files written again (the worker); then a slot's work on the main thread (the map's keyframes archived, as at an
+eviction) alone and while the worker closes loops back to back: the worker's share of the
+interpreter (the GIL) shows as the slot's work taking longer.
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import statistics
+import tempfile
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+from edge_mapper.loop_closer import LoopJob, LoopQuery, consecutive_shared, run_job
+from twinslam.cli.console import HelpFormatter
+from twinslam.sequences.opening import open_sequence
+from twinslam.slam.back_end.keyframe_archive import (
+    ArchivedKeyFrame,
+    KeyFrameArchive,
+    restore_into,
+)
+from twinslam.slam.back_end.keyframe_map import KeyFrameMap
+from twinslam.slam.back_end.loop_correction import correct_map
+from twinslam.slam.back_end.loop_detection import detect_loop
+from twinslam.slam.back_end.pose_graph import close_loop
+from twinslam.slam.front_end.orb_extractor import OrbExtractor
+from twinslam.slam.front_end.tracking import depth_at
+from twinslam.slam.projection_matching import back_project
+
+REPO = Path(__file__).resolve().parents[1]
+SEQUENCE = REPO.parent / "shared" / "data" / "7scenes-1000"
+#: query keyframe ids: the walk's frames seen again this much later
+LATER = 10_000
+
+
+@contextmanager
+def _timed(runs: list[float]) -> Iterator[None]:
+    """Append the milliseconds the block took to ``runs``."""
+    start = time.perf_counter()
+    yield
+    runs.append((time.perf_counter() - start) * 1e3)
+
+
+def _line(name: str, runs: list[float]) -> str:
+    p95 = float(np.percentile(runs, 95)) if runs else float("nan")
+    median = statistics.median(runs) if runs else float("nan")
+    return f"  {name:<44} {median:8.1f} ms median, {p95:8.1f} ms p95 ({len(runs)} runs)"
+
+
+def build(sequence: str, keyframes: int, orb: OrbExtractor
+          ) -> tuple[KeyFrameArchive, object]:
+    """An archive of ``keyframes`` keyframes spread over the walk, placed at the true poses."""
+    reader = open_sequence(sequence)
+    frames = np.linspace(0, len(reader) - 1, keyframes).round().astype(int)
+    archive = KeyFrameArchive(keyframes)
+    first = 1
+    for kf in frames.tolist():
+        frame = reader.read(kf)
+        feats = orb.extract(frame.color)
+        z = depth_at(feats.points, frame.depth, (0.2, 8.0))
+        keep = z > 0
+        n = int(keep.sum())
+        archive.add(ArchivedKeyFrame(
+            kf, frame.pose.copy(), np.arange(first, first + n),
+            back_project(feats.points[keep], z[keep], reader.intrinsics, frame.pose),
+            feats.descriptors[keep], np.column_stack([feats.points[keep], z[keep]]), 0))
+        first += n
+    return archive, reader
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=HelpFormatter)
+    parser.add_argument("sequence", nargs="?", default=str(SEQUENCE),
+                        help="an RGB-D sequence with poses (default: the bundled 7-Scenes "
+                        "sample)")
+    parser.add_argument("--archive", type=int, default=500,
+                        help="archived keyframes (the edge's archive_keyframes default)")
+    parser.add_argument("--queries", type=int, default=20,
+                        help="frames of the walk that look for a loop")
+    parser.add_argument("--map", type=int, default=45,
+                        help="keyframes of the managed map the corrections move (V_max)")
+    args = parser.parse_args()
+    print(f"loop closer: {platform.processor() or platform.machine()}, "
+          f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; {args.archive} archived "
+          f"keyframes of {args.sequence}, {args.queries} queries, a map of {args.map}")
+    orb = OrbExtractor()
+    archive, reader = build(args.sequence, args.archive, orb)
+    k = reader.intrinsics                                       # type: ignore[attr-defined]
+    kept = list(archive)
+    managed = KeyFrameMap()
+    managed.next_point_id = 1 + sum(len(kf.point_ids) for kf in kept)
+    for kf in kept[-args.map:]:
+        restore_into(managed, kf)
+    poses = {kf.id: kf.pose for kf in kept}
+    points = {kf.id: frozenset(kf.point_ids.tolist()) for kf in kept}
+    times: dict[str, list[float]] = {name: [] for name in (
+        "snapshot", "detect", "graph", "job", "map", "archive", "files")}
+    found = 0
+    n_frames = len(reader)                                      # type: ignore[arg-type]
+    for q, index in enumerate(np.linspace(1, n_frames - 2, args.queries).round().astype(int)):
+        frame = reader.read(int(index))                         # type: ignore[attr-defined]
+        feats = orb.extract(frame.color)
+        query = LATER + int(index)
+        drifted = frame.pose.copy()
+        drifted[:3, 3] += (0.05, 0.0, 0.02)                     # the walk's drift at the loop
+        with _timed(times["snapshot"]):
+            snapshot = archive.snapshot()
+        with _timed(times["detect"]):
+            loop = detect_loop(snapshot, query, feats.points, feats.descriptors, k)
+        job = LoopJob((LoopQuery(query, feats.points, feats.descriptors),), snapshot,
+                      {**poses, query: drifted}, k, {**points, query: frozenset()})
+        if not loop.found or loop.measured is None:
+            continue
+        found += 1
+        shared = consecutive_shared(job)
+        with _timed(times["graph"]):
+            closure = close_loop(job.poses, loop.old, query, loop.measured, shared)
+        with _timed(times["job"]):
+            run_job(job)
+        with _timed(times["map"]):
+            correct_map(managed, closure.corrections)
+        if q < 5:                                 # files rewritten: a few rounds are enough
+            with tempfile.TemporaryDirectory() as tmp:
+                on_disk = KeyFrameArchive(args.archive, Path(tmp))
+                for kf in kept:
+                    on_disk.add(kf)
+                with _timed(times["archive"]):
+                    moved = on_disk.correct(closure.corrections, write=False)
+                with _timed(times["files"]):
+                    on_disk.save(moved)
+    print(f"  loops found: {found} of {args.queries} queries")
+    labels = {"snapshot": "archive snapshot (slot's path)",
+              "detect": "place recognition + PnP (worker)",
+              "graph": f"pose graph over {args.archive + 1} keyframes (worker)",
+              "job": "the whole job (worker)",
+              "map": f"corrections on a map of {args.map} (slot's path)",
+              "archive": "corrections on the archive (slot's path)",
+              "files": "the corrected archive's files (worker)"}
+    for name, label in labels.items():
+        print(_line(label, times[name]))
+    print(contention(archive, managed, k, reader, orb))
+
+
+def contention(archive: KeyFrameArchive, managed: KeyFrameMap, k: np.ndarray, reader: object,
+               orb: OrbExtractor, rounds: int = 20) -> str:
+    """A slot's work on the main thread (every map keyframe archived, as evictions do) alone,
+    then while the worker runs loop jobs back to back."""
+    def slot_work() -> None:
+        for kf in list(managed.keyframes):
+            ArchivedKeyFrame.of(managed, kf, 0)
+    frame = reader.read(3)                                      # type: ignore[attr-defined]
+    feats = orb.extract(frame.color)
+    job = LoopJob((LoopQuery(LATER + 3, feats.points, feats.descriptors),), archive.snapshot(),
+                  {**{kf.id: kf.pose for kf in archive}, LATER + 3: frame.pose}, k, {})
+    alone: list[float] = []
+    for _ in range(rounds):
+        with _timed(alone):
+            slot_work()
+    busy: list[float] = []
+    stop = threading.Event()
+
+    def worker() -> None:
+        while not stop.is_set():
+            run_job(job)
+    thread = threading.Thread(target=worker, daemon=True)
+    thread.start()
+    time.sleep(0.2)
+    for _ in range(rounds):
+        with _timed(busy):
+            slot_work()
+    stop.set()
+    thread.join(timeout=60)
+    return "\n".join([_line("a slot's work alone (main thread)", alone),
+                      _line("the same beside the loop closer", busy)])
+
+
+if __name__ == "__main__":
+    main()
