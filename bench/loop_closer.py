@@ -8,9 +8,9 @@ corrections applied to a managed map and the archive.
 Prints the medians and 95th percentiles of: the archive's snapshot (on the slot's path), place
 recognition with the geometric check, the pose graph, the whole job (the worker thread's
 time), the corrections applied to the map and the archive (on the slot's path) and the
-archive's files written again (the worker); then a slot's work on the main thread (the map's keyframes archived, as at an
-eviction) alone and while the worker closes loops back to back: the worker's share of the
-interpreter (the GIL) shows as the slot's work taking longer.
+archive's files written again (the worker); then a slot's work on the main thread (the map's
+keyframes archived, as at an eviction) alone and while the worker closes loops back to back:
+the worker's share of the interpreter (the GIL) shows as the slot's work taking longer.
 """
 
 from __future__ import annotations
