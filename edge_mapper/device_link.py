@@ -293,7 +293,10 @@ class DeviceLink:
             entry.latency_s(self.slots.clock()) * 1000, len(self.core.archive),
             len(out.restored), len(out.refused), frame, self.core.loops_closed,
             out.loop.worker_ms if out.loop else 0.0))
-        if out.loop is not None and out.loop.refused:
+        if out.loop is not None and out.loop.old < 0:
+            self.warning(f"slot {slot}: {out.loop.refused} (looking from keyframe "
+                         f"{out.loop.new}); the edge goes on without it")
+        elif out.loop is not None and out.loop.refused:
             self.warning(f"slot {slot}: loop between keyframes {out.loop.old} and "
                          f"{out.loop.new} refused, {out.loop.refused}")
         elif out.loop is not None:

@@ -436,6 +436,9 @@ class EdgeMapperCore:
         move a keyframe of the map farther than a device accepts on a map swap
         (``MotionBounds.correction_m``: its tracking would refuse every pose on that map) is
         refused, as the bundle adjustment's answer would be: a place that only looked alike."""
+        if result is not None and result.error:
+            return ClosedLoop(-1, result.query, 0, 0.0, result.seconds * 1e3,
+                              f"the loop closer failed: {result.error}")
         if result is None or result.closure is None:
             return None
         corrections = result.closure.corrections

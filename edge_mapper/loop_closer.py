@@ -62,6 +62,20 @@ class LoopResult:
     query: int                            #: the keyframe the loop was looked for from
     closure: LoopClosure | None
     seconds: float                        #: the worker's time on the job
+    #: why the job failed (an exception in the search or the graph: the edge logs it and
+    #: goes on without the loop); "": it did not
+    error: str = ""
+
+
+def guarded_job(job: LoopJob, min_gap: int = MIN_GAP) -> LoopResult:
+    """:func:`run_job`, a failure reported in the result instead of raised: a loop closer
+    that fails must not take the edge's slots down with it."""
+    try:
+        return run_job(job, min_gap)
+    except Exception as exc:             # reported in the result, logged by the edge
+        return LoopResult(LoopCandidate(-1, None, None, 0, "the loop job failed"),
+                          job.queries[0].keyframe if job.queries else -1, None, 0.0,
+                          f"{type(exc).__name__}: {exc}")
 
 
 def run_job(job: LoopJob, min_gap: int = MIN_GAP) -> LoopResult:
@@ -120,26 +134,22 @@ class LoopCloser:
         if self.busy or self._running is not None or self._done is not None or not job.queries:
             return False
         if not self.background:
-            self._done = run_job(job, self.min_gap)
+            self._done = guarded_job(job, self.min_gap)
             return True
         if self._executor is None:
             self._executor = ThreadPoolExecutor(1, thread_name_prefix="loop-closer")
-        self._running = self._executor.submit(run_job, job, self.min_gap)
+        self._running = self._executor.submit(guarded_job, job, self.min_gap)
         return True
 
     def take(self, wait_s: float = 0.0) -> LoopResult | None:
         """The finished job's result (once), waiting up to ``wait_s`` for a running one; None
-        while it runs or when none was started. A job that raised is reported as no loop."""
+        while it runs or when none was started."""
         if self._running is not None:
             try:
                 self._done = self._running.result(timeout=wait_s) if wait_s > 0 or \
                     self._running.done() else None
             except TimeoutError:
                 return None
-            except Exception as exc:             # a failed job is reported, not lost
-                self._done = LoopResult(LoopCandidate(-1, None, None, 0,
-                                                      f"the loop job failed: {exc!r}"),
-                                        -1, None, 0.0)
             if self._done is None:
                 return None
             self._running = None

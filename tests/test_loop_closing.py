@@ -10,6 +10,7 @@ import dataclasses
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, SlotOutcome
 from edge_mapper.loop_closer import LoopCloser, LoopJob, LoopQuery
@@ -174,3 +175,20 @@ def test_the_worker_thread_answers_as_the_caller_would_and_takes_one_job_at_a_ti
             == [job.queries[0].keyframe + 500]
     finally:
         worker.close()
+
+
+def test_a_loop_job_that_fails_is_reported_and_the_slots_go_on(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A loop closer that raises (here: its place recognition) is reported in the slot's
+    outcome, which the edge logs, and the edge's slots go on without a loop."""
+    def broken(*args: object, **kwargs: object) -> None:
+        raise RuntimeError("the index is corrupt")
+    monkeypatch.setattr("edge_mapper.loop_closer.detect_loop", broken)
+    device = DriftingDevice(np.random.default_rng(3), 8 * F)
+    core = _edge(loops=True)
+    outs = [_run(core, device, range(slot, slot + 1), rates=[20.0])[0] for slot in range(16)]
+    failed = [o.loop for o in outs if o.loop is not None]
+    assert failed, "no loop job ran"
+    assert all(f.old == -1 and "RuntimeError: the index is corrupt" in f.refused
+               for f in failed)
+    assert core.loops_closed == 0 and len(core.map.keyframes) <= 4

@@ -309,9 +309,11 @@ def test_each_progress_rule_and_pilot_table_is_what_its_command_prints(
     assert _missing(capsys.readouterr().out) == []
 
 
-#: device_variants.py --steady's arguments: the point fusion's runs
+#: device_variants.py --steady's arguments: the point fusion's runs, loop closing's
 STEADY_TABLES = [[f"{name}=docs/figures/point-fusion/{name}#revisit-v15@lte"
-                  for name in ("no-fusion", "fusion")]]
+                  for name in ("no-fusion", "fusion")],
+                 [f"{name}=docs/figures/loop-closing/{name}#revisit-v15@lte"
+                  for name in ("no-loops", "loops-20-inliers", "loops")]]
 
 
 @pytest.mark.parametrize("args", STEADY_TABLES, ids=lambda a: a[0].split("/")[-1])

@@ -48,7 +48,15 @@ METRICS = (("ate_m", "ATE", "m"), ("rpe_m", "RPE 1 s", "m"),
            # archived keyframes the edge brought back (restore_keyframes)
            ("restores", "restores", "keyframes"),
            # loops the edge closed (loop_closing) and the loop closer's time on one
-           ("loops_closed", "loops closed", ""), ("loop_closing_ms", "loop closing", "ms"))
+           ("loops_closed", "loops closed", ""), ("loop_closing_ms", "loop closing", "ms"),
+           # steady, consistent poses: an anchor's error on a return, REP 105's odom frame
+           # (its jitter, its largest step beyond the truth's), how often the pose came from
+           # PnP RANSAC and how many of the device's matches its pose disagreed with
+           ("revisit_error_m", "revisit error", "m"),
+           ("odom_jitter_rms_mm", "odom jitter RMS", "mm"),
+           ("odom_step_excess_mm", "odom step beyond truth", "mm"),
+           ("pnp_ransac_share", "PnP-RANSAC fallback", ""),
+           ("outlier_share", "outliers of the matches", ""))
 #: the figures a paired comparison with the best rule policy is made on (lower is better)
 PAIRED = ("tracking_failures", "untracked_frames", "device_failure_share", "ate_m",
           "mean_uncertainty")

@@ -30,10 +30,9 @@ from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
 #: of a 30 Hz camera); the recent walk is no loop
 MIN_GAP = 300
 #: PnP inliers a loop needs: more than a relocalisation's 20 — a relocalised pose is checked
-#: again by the device's own gate, a loop moves the whole map at once. The live revisit walk
-#: (docs/results/loop-closing.md) closed loops on 35-47 inliers that moved the map 0.13-0.20 m
-#: where the device's own error was under 0.05 m; ORB-SLAM accepts a loop on 40 or more
-#: matches after its guided search
+#: again by the device's own gate, a loop moves the whole map at once. On the live revisit
+#: walk (docs/results/loop-closing.md) loops on 20 inliers left two runs of ten 0.6 and 1.06 m
+#: off; ORB-SLAM accepts a loop on 40 or more matches after its guided search
 MIN_INLIERS = 50
 
 
