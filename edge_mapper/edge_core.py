@@ -414,8 +414,9 @@ class EdgeMapperCore:
         """Hand the keyframes integrated since the last job to the loop closer, with a
         snapshot of the archive, the map's keyframes far older than them and every pose;
         kept for the next slot while a job runs."""
-        queries = [q for q in self._loop_queries if q.keyframe in self.map.keyframes
-                   and q.keyframe in self.loop_closer.wanted([q.keyframe])]
+        in_map = [q for q in self._loop_queries if q.keyframe in self.map.keyframes]
+        wanted = set(self.loop_closer.wanted([q.keyframe for q in in_map]))
+        queries = [q for q in in_map if q.keyframe in wanted]
         if not queries or self.loop_closer.busy or not has_camera(self.k):
             self._loop_queries = queries
             return
@@ -449,7 +450,7 @@ class EdgeMapperCore:
             return ClosedLoop(result.candidate.old, result.query, result.candidate.inliers,
                               farthest, result.seconds * 1e3,
                               f"it would move the map {farthest:.3g} m, more than {reach:g} m")
-        moved = correct_map(self.map, corrections)
+        correct_map(self.map, corrections)
         archived = self.archive.correct({kf.id: c for kf in self.archive
                                          if (c := correction_for(corrections, kf.id))
                                          is not None}, write=False)
@@ -459,7 +460,7 @@ class EdgeMapperCore:
             fuse_restored(self.map, old, sorted(self.map.keyframes[old].points), self.k,
                           self.config.image_shape)
         self.loops_closed += 1
-        return ClosedLoop(old, result.query, result.candidate.inliers, moved,
+        return ClosedLoop(old, result.query, result.candidate.inliers, farthest,
                           result.seconds * 1e3)
 
     def close(self) -> None:

@@ -131,14 +131,12 @@ class LoopCloser:
 
     def submit(self, job: LoopJob) -> bool:
         """Start ``job``; False (nothing started) while one runs or waits to be taken."""
-        if self.busy or self._running is not None or self._done is not None or not job.queries:
+        if self._running is not None or self._done is not None or not job.queries:
             return False
         if not self.background:
             self._done = guarded_job(job, self.min_gap)
             return True
-        if self._executor is None:
-            self._executor = ThreadPoolExecutor(1, thread_name_prefix="loop-closer")
-        self._running = self._executor.submit(guarded_job, job, self.min_gap)
+        self._running = self._worker().submit(guarded_job, job, self.min_gap)
         return True
 
     def take(self, wait_s: float = 0.0) -> LoopResult | None:
@@ -164,9 +162,13 @@ class LoopCloser:
         if not self.background:
             work()
             return
+        self._worker().submit(work)
+
+    def _worker(self) -> ThreadPoolExecutor:
+        """The one worker thread, started with the first work it gets."""
         if self._executor is None:
             self._executor = ThreadPoolExecutor(1, thread_name_prefix="loop-closer")
-        self._executor.submit(work)
+        return self._executor
 
     def close(self) -> None:
         """Stop the worker (a running job finishes first)."""

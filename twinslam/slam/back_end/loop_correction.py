@@ -40,22 +40,17 @@ def farthest_move(m: KeyFrameMap, corrections: Mapping[int, np.ndarray]) -> floa
     return max(moves, default=0.0)
 
 
-def correct_map(m: KeyFrameMap, corrections: Mapping[int, np.ndarray]) -> float:
+def correct_map(m: KeyFrameMap, corrections: Mapping[int, np.ndarray]) -> None:
     """Move every keyframe of ``m`` by its correction and every point with its reference
-    keyframe; returns the largest distance a keyframe moved (m)."""
-    moved = 0.0
+    keyframe (how far a keyframe moves: :func:`farthest_move`, asked before)."""
     applied: dict[int, np.ndarray] = {}
     for kf_id, kf in m.keyframes.items():
         c = correction_for(corrections, kf_id)
-        if c is None:
-            continue
-        applied[kf_id] = c
-        before = kf.pose[:3, 3].copy()
-        kf.pose = c @ kf.pose
-        moved = max(moved, float(np.linalg.norm(kf.pose[:3, 3] - before)))
+        if c is not None:
+            applied[kf_id] = c
+            kf.pose = c @ kf.pose
     positions = move_with_keyframes(
         {pid: pt.position for pid, pt in m.points.items()},
         {pid: min(pt.observers, default=-1) for pid, pt in m.points.items()}, applied)
     for pid, xyz in positions.items():
         m.points[pid].position = xyz
-    return moved
