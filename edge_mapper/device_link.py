@@ -304,6 +304,9 @@ class DeviceLink:
                       f"{out.loop.new} ({out.loop.inliers} inliers), the map moved up to "
                       f"{out.loop.moved_m:.3f} m; the loop closer took "
                       f"{out.loop.worker_ms:.0f} ms beside the slots")
+        for failure in out.loop_failures:
+            self.error(f"slot {slot}: {failure}; the map is corrected, the archive on disk "
+                       "is not (a restart reads the poses before the loop)")
         if out.optimisation_refused:
             self.warning(f"slot {slot}: the bundle adjustment's answer not applied, "
                          f"{out.optimisation_refused}")

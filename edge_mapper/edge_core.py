@@ -141,6 +141,9 @@ class SlotOutcome:
     fused_points: int = 0
     #: the loop closed at this slot's end, its corrections in the map sent next (None: none)
     loop: ClosedLoop | None = None
+    #: why the loop closer's work beside the slots failed since the last slot (the corrected
+    #: archive's files not written: a restart would read the poses before the loop)
+    loop_failures: list[str] = field(default_factory=list)
 
 
 class EdgeMapperCore:
@@ -406,7 +409,8 @@ class EdgeMapperCore:
                    "loop": loop_ms + (t4 - t3) * 1e3}
         return SlotOutcome(slot, sorted(received), sorted(missing), evicted, spared, orphans, ba,
                            u, self.version, tracks, timings, forgotten, restored, refused,
-                           ba.refused if ba is not None else "", fused, loop)
+                           ba.refused if ba is not None else "", fused, loop,
+                           self.loop_closer.failures())
 
     # -- loop closing ------------------------------------------------------------------------
 
@@ -454,7 +458,8 @@ class EdgeMapperCore:
         archived = self.archive.correct({kf.id: c for kf in self.archive
                                          if (c := correction_for(corrections, kf.id))
                                          is not None}, write=False)
-        self.loop_closer.after(lambda: self.archive.save(archived))   # files beside the slots
+        self.loop_closer.after(lambda: self.archive.save(archived),   # files beside the slots
+                               "writing the loop-corrected archive's files")
         old = result.candidate.old
         if self.config.point_fusion and old in self.map.keyframes and has_camera(self.k):
             fuse_restored(self.map, old, sorted(self.map.keyframes[old].points), self.k,

@@ -119,6 +119,9 @@ class LoopCloser:
         self._running: Future[LoopResult] | None = None
         self._done: LoopResult | None = None
         self._quiet_until = -1           #: keyframe ids up to this look for no loop
+        #: why work handed to :meth:`after` failed, until :meth:`failures` takes them (a
+        #: list's append and a swap of the list are atomic: the worker and the slot share it)
+        self._failed: list[str] = []
 
     @property
     def busy(self) -> bool:
@@ -156,13 +159,26 @@ class LoopCloser:
             self._quiet_until = done.query + self.cooldown
         return done
 
-    def after(self, work: Callable[[], object]) -> None:
-        """Run ``work`` on the worker after what it has queued (in the caller without one):
-        the archive's files of a correction, written beside the slots."""
+    def after(self, work: Callable[[], object], what: str) -> None:
+        """Run ``work`` (``what`` it does, for its failure's message) on the worker after what
+        it has queued (in the caller without one): the archive's files of a correction,
+        written beside the slots. Its failure (a full disk) is kept for :meth:`failures`, never
+        raised: the edge's map is corrected already, and only the files lag behind it."""
+        def guarded() -> None:
+            try:
+                work()
+            except Exception as exc:         # reported by the edge's next slot
+                self._failed.append(f"{what} failed: {type(exc).__name__}: {exc}")
+
         if not self.background:
-            work()
+            guarded()
             return
-        self._worker().submit(work)
+        self._worker().submit(guarded)
+
+    def failures(self) -> list[str]:
+        """What the work handed to :meth:`after` failed on since the last call (once each)."""
+        failed, self._failed = self._failed, []
+        return failed
 
     def _worker(self) -> ThreadPoolExecutor:
         """The one worker thread, started with the first work it gets."""

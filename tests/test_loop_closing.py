@@ -192,3 +192,36 @@ def test_a_loop_job_that_fails_is_reported_and_the_slots_go_on(
     assert all(f.old == -1 and "RuntimeError: the index is corrupt" in f.refused
                for f in failed)
     assert core.loops_closed == 0 and len(core.map.keyframes) <= 4
+
+
+def test_the_archive_files_a_loop_could_not_write_are_reported_once(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Writing the loop-corrected archive's files happens beside the slots; when it fails (a
+    full disk) the slot's outcome says so, which the edge logs as an error, once; the map
+    keeps its correction and the slots go on."""
+    def full(self: KeyFrameArchive, *args: object, **kwargs: object) -> None:
+        raise OSError(28, "No space left on device")
+    monkeypatch.setattr(KeyFrameArchive, "save", full)
+    device = DriftingDevice(np.random.default_rng(3), 8 * F)
+    core = _edge(loops=True, checkpoint=tmp_path / "edge.npz")
+    out = _walk_until_a_loop(core, device)
+    assert out is not None and out.loop is not None and not out.loop.refused
+    assert core.loops_closed == 1 and _errors(core, device)[out.loop.new] < 0.02
+    assert len(out.loop_failures) == 1
+    assert "loop-corrected archive" in out.loop_failures[0]
+    assert "No space left on device" in out.loop_failures[0]
+    after = _run(core, device, range(out.slot + 1, out.slot + 2), rates=[20.0])[0]
+    assert after.loop_failures == []
+
+
+def test_work_the_worker_fails_beside_the_slots_is_kept_until_taken() -> None:
+    """On the worker thread too, a failure of work handed to ``after`` is not lost in its
+    future: ``failures`` gives it once, after the work ran."""
+    closer = LoopCloser()
+    try:
+        closer.after(lambda: 1 / 0, "dividing")
+        closer.after(lambda: None, "nothing")
+    finally:
+        closer.close()                                # waits for the queued work
+    assert closer.failures() == ["dividing failed: ZeroDivisionError: division by zero"]
+    assert closer.failures() == []
