@@ -35,9 +35,9 @@ KERNELS_STAMP := $(VENV)/.kernels-$(shell cat $(KERNEL_SOURCES) | md5sum | cut -
 .PHONY: venv venv-parts msgs kernels run test lint lint-ruff lint-imports lint-types bench clean
 
 # After pip, the set-up steps run side by side in a sub-make with two jobs (whatever -j make was
-# given): the two interface packages, the bytecode of the installed packages (pip compiles it
-# on one core, 44 of its 91 s measured; here it compiles on both, beside the builds), and the
-# kernels (they need twinslam_msgs, not tf2_msgs).
+# given): the three interface packages, the bytecode of what the project imports (pip would
+# compile all it installs on one core, 44 of its 91 s measured; pip runs with --no-compile),
+# and the kernels (they need twinslam_msgs, not tf2_msgs).
 venv:
 	@$(MAKE) --no-print-directory -j2 --output-sync=target venv-parts
 
@@ -50,13 +50,15 @@ $(STAMP): requirements.txt setup.py
 	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e .
 	@rm -f $(VENV)/.installed-* $(VENV)/.bytecode-* && touch $@
 
-# every installed module compiled once (a process that imports one before would compile it
-# itself, each time where PYTHONDONTWRITEBYTECODE is set); a file that is not Python 3 (some
-# packages ship test data as .py) is skipped, as pip skips it. Left out: the packages' own test
-# suites and pip, which no process of ours imports (a fifth of the files; 19.5 s instead of
-# 23.7 s on 2 cores, measured one after the other)
-$(BYTECODE_STAMP): $(STAMP)
-	@$(PY) -m compileall -q -j 2 -x '/site-packages/(pip/|[^/]+/(.*/)?tests?/)' $(VENV)/lib \
+# the bytecode of what the project's processes import, written once by the suite's collection
+# (it imports every test module, so every module of the project and what they import; a process
+# writes the bytecode of what it imports where PYTHONDONTWRITEBYTECODE is unset), before the
+# suite's parallel workers would each compile the same modules side by side. 1 840 files in 9 s
+# on one core, where compiling all of site-packages took 33 s of CPU (most of it never
+# imported: sympy, pandas, most of ray and torch); a module imported only later is compiled by
+# its first process. It needs the interface packages: test modules import them.
+$(BYTECODE_STAMP): $(STAMP) $(MSGS_STAMP) $(TF2_STAMP) $(COMPOSITION_STAMP)
+	@env -u PYTHONDONTWRITEBYTECODE $(PY) -m pytest --collect-only -q -n0 -p no:cacheprovider \
 	  > /dev/null 2>&1 || true
 	@touch $@
 
