@@ -48,6 +48,11 @@ def test_evaluate_runs_every_seed_and_summarises(tmp_path: Path,
     pictures = sorted(p.name for p in (out / "runs").glob("*.png"))
     assert pictures == ["revisit-lost_edge+local_lff_s0.png", "revisit-lost_edge_lff_s0.png"]
     assert all((out / "runs" / p).stat().st_size > 30_000 for p in pictures)
+    # and every node's log beside it: what the edge said of its slots
+    for picture in pictures:
+        log = (out / "runs" / picture).with_suffix(".log").read_text(encoding="utf-8")
+        assert "===== edge_mapper =====" in log and "===== device_tracker =====" in log
+        assert "listening on" in log
     assert "[2/2] revisit-lost" in text
 
     with (out / "calibration.csv").open(encoding="utf-8") as fh:

@@ -99,7 +99,8 @@ class RunTask:
     covis: Path | None       #: the played frames' covisibility, for the calibration
     verbose: bool = False    #: print every slot's status line
     start: int = 0           #: the sequence's first frame played
-    picture: Path | None = None   #: where the run's PNG goes (run_picture); None: none
+    #: where the run's PNG goes (run_picture), its nodes' logs beside it (.log); None: neither
+    picture: Path | None = None
     #: edge parameters over the parameter file's (``name:=value``), and what the tables call
     #: this run's device and edge ("": none, one device in the table)
     edge_params: tuple[str, ...] = ()
@@ -118,6 +119,14 @@ class RunResult:
 def sequence_for(sequence: str, seed: int) -> str:
     """A synthetic world is walked on a seed's own path; a recorded sequence is what it is."""
     return synthetic_walk(sequence, seed) if is_synthetic(sequence) else sequence
+
+
+def write_logs(logs: dict[str, str], path: Path) -> None:
+    """Every node's log of a run in one file, node by node: what the edge said of each loop,
+    restore or refused upload, kept with the run's figures (a sweep's console shows none)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("".join(f"===== {name} =====\n{text.rstrip()}\n\n"
+                            for name, text in sorted(logs.items())), encoding="utf-8")
 
 
 def run_one(task: RunTask) -> RunResult:
@@ -140,6 +149,8 @@ def run_one(task: RunTask) -> RunResult:
         dom.activate()
         launcher = Launcher(dom, config, print if task.verbose else None)
         report = launcher.run()
+    if task.picture is not None:
+        write_logs(launcher.logs, task.picture.with_suffix(".log"))
     if task.picture is not None and launcher.record is not None:
         plot_run(launcher.record, f"{key.policy}, {key.map_source} device, {key.scenario}, "
                  f"seed {key.seed}: {report.tracking_failures} failures, ATE "

@@ -128,8 +128,8 @@ def _print_tables(results: list[runs.RunResult], out: Path) -> None:
               f"Pearson r = {r:.2f}")
     _print_failure_causes(out)
     print(f"\nwrote {out / 'runs.csv'}, summary.csv, summary.md, summary.png, "
-          "paired.csv, paired.md, calibration.csv, calibration_frames.csv and a picture of "
-          f"every run in {out / 'runs'}/")
+          "paired.csv, paired.md, calibration.csv, calibration_frames.csv and a picture and "
+          f"the nodes' logs of every run in {out / 'runs'}/")
     for note in notes:          # last, where a reader of the tables looks for what went wrong
         print(f"warning: {note}", file=sys.stderr)
 
@@ -200,8 +200,8 @@ def add_arguments(parser: argparse.ArgumentParser, default_sequence: str,
                         "default device's edge and slots); config/paper-table1.yaml with "
                         "--map-source edge: the paper's Table I device")
     parser.add_argument("--out", type=Path, default=Path("results/live"),
-                        help="folder for runs.csv, summary.csv/.md/.png, runs/*.png (a picture of "
-                        "every run), calibration.csv, "
+                        help="folder for runs.csv, summary.csv/.md/.png, runs/*.png and runs/*.log "
+                        "(a picture and the nodes' logs of every run), calibration.csv, "
                         "calibration_frames.csv (and covis/, the played frames' "
                         "covisibility); default %(default)s")
     parser.add_argument("--resume", action="store_true",
