@@ -19,6 +19,7 @@ results must not depend on thread timing.
 from __future__ import annotations
 
 import itertools
+import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -119,9 +120,10 @@ class LoopCloser:
         self._running: Future[LoopResult] | None = None
         self._done: LoopResult | None = None
         self._quiet_until = -1           #: keyframe ids up to this look for no loop
-        #: why work handed to :meth:`after` failed, until :meth:`failures` takes them (a
-        #: list's append and a swap of the list are atomic: the worker and the slot share it)
+        #: why work handed to :meth:`after` failed, until :meth:`failures` takes them (the
+        #: worker appends, the slot takes: under the lock, none is lost between the two)
         self._failed: list[str] = []
+        self._failed_lock = threading.Lock()
 
     @property
     def busy(self) -> bool:
@@ -168,7 +170,8 @@ class LoopCloser:
             try:
                 work()
             except Exception as exc:         # reported by the edge's next slot
-                self._failed.append(f"{what} failed: {type(exc).__name__}: {exc}")
+                with self._failed_lock:
+                    self._failed.append(f"{what} failed: {type(exc).__name__}: {exc}")
 
         if not self.background:
             guarded()
@@ -177,7 +180,8 @@ class LoopCloser:
 
     def failures(self) -> list[str]:
         """What the work handed to :meth:`after` failed on since the last call (once each)."""
-        failed, self._failed = self._failed, []
+        with self._failed_lock:
+            failed, self._failed = self._failed, []
         return failed
 
     def _worker(self) -> ThreadPoolExecutor:
