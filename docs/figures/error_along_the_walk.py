@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from twinslam.live.calibration.report import read_rows
+from twinslam.reporting import pyplot
 
 #: (label, pass) → (sequence frame, error in metres) of every tracked frame
 Errors = dict[tuple[str, str], tuple[np.ndarray, np.ndarray]]
@@ -86,11 +87,7 @@ def table(errors: Errors, bin_frames: int) -> str:
 
 
 def draw(errors: Errors, bin_frames: int, png: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(10, 4.5))
     labels = list(dict.fromkeys(label for label, _ in errors))
     colours = plt.get_cmap("tab10")

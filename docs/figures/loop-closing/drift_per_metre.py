@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from twinslam.live.calibration.report import read_rows
-from twinslam.reporting import mean_ci95, paired_difference
+from twinslam.reporting import mean_ci95, paired_difference, pyplot
 from twinslam.sequences.opening import open_sequence
 
 
@@ -140,11 +140,7 @@ def tables(variants: dict[str, list[Run]], bin_m: float) -> str:
 
 
 def draw(variants: dict[str, list[Run]], bin_m: float, png: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(10, 4.5))
     colours = plt.get_cmap("tab10")
     edges = bins(variants, bin_m)
