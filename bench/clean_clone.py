@@ -4,8 +4,12 @@ the set-up from nothing (a warm pip cache is the machine's), the lint stage and 
 
     .venv/bin/python -m bench.clean_clone [--runs 5] [--load 2] [--baseline REV] [--csv FILE]
 
-Prints, per run: the exit status, the wall time of ``.ci/run``, the seconds pytest reported,
-the passed / failed / skipped counts and the failed tests' ids; ``--load N`` keeps N busy loops
+Prints, per run: the exit status, the wall time of ``.ci/run`` beside the CPU seconds its
+processes used (user + system, every process it started: a slower change uses more CPU, a
+busier machine only more wall time), the seconds a fixed pure-Python workload took on one core
+just before the run (the machine's speed: a slower machine takes longer on it and on the
+suite's CPU alike), the seconds pytest reported, the passed / failed / skipped counts and the
+failed tests' ids; ``--load N`` keeps N busy loops
 running beside the runs (a user doing other work on the machine), ``--baseline REV`` runs a
 clone of REV before each run of HEAD (the side-by-side comparison a "no slower" claim needs),
 ``--csv`` appends one row a run. The clones live in a temporary folder removed after each
@@ -16,8 +20,10 @@ from __future__ import annotations
 
 import argparse
 import csv
+import ctypes
 import os
 import re
+import resource
 import subprocess
 import sys
 import tempfile
@@ -27,8 +33,12 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / "shared"
-FIELDS = ["date_utc", "commit", "load", "rc", "wall_s", "pytest_s", "passed", "failed",
-          "skipped", "failures"]
+FIELDS = ["date_utc", "commit", "load", "rc", "wall_s", "cpu_s", "probe_s", "pytest_s",
+          "passed", "failed", "skipped", "failures"]
+#: prctl's PR_SET_CHILD_SUBREAPER (linux/prctl.h)
+PR_SET_CHILD_SUBREAPER = 36
+#: iterations of the speed probe's loop: ~0.7 s of one core on the development machine
+PROBE_ITERATIONS = 30_000_000
 
 
 def _summary(log: str) -> dict[str, object]:
@@ -63,10 +73,61 @@ def clone_environment() -> dict[str, str]:
     return env
 
 
+def speed_probe() -> float:
+    """Seconds a fixed pure-Python loop takes on one core (the interpreter's bytecode, as most
+    of the suite's CPU is): what tells a slower machine from a slower change."""
+    started = time.process_time()
+    total = 0
+    for i in range(PROBE_ITERATIONS):
+        total += i & 7
+    return round(time.process_time() - started, 3)
+
+
+def adopt_orphans() -> None:
+    """Make this process the reaper of the processes its runs leave orphaned (a node whose
+    parent exited first): reaped here, their CPU seconds count in the run's, not lost with
+    init's. Linux only; elsewhere nothing changes."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(PR_SET_CHILD_SUBREAPER, 1, 0, 0, 0)
+    except (OSError, AttributeError):
+        pass
+
+
+def reap_orphans(keep: set[int]) -> None:
+    """Reap every child that exited, except ``keep`` (the busy loops, reaped by their
+    ``Popen``); one still running is left alone (its CPU is not counted)."""
+    for pid in _children() - keep:
+        try:
+            os.waitpid(pid, os.WNOHANG)
+        except ChildProcessError:
+            pass
+
+
+def _children() -> set[int]:
+    """This process's child pids (orphans adopted included), from /proc."""
+    found = set()
+    me = os.getpid()
+    for task in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = task.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == me:
+            found.add(int(task.parent.name))
+    return found
+
+
+def children_cpu_s() -> float:
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
 def clean_run(load: int, revision: str = "HEAD") -> dict[str, object]:
     """One ``.ci/run`` on a fresh clone of ``revision``, ``load`` busy loops beside it."""
     commit = subprocess.run(["git", "rev-parse", "--short", revision], cwd=REPO, text=True,
                             capture_output=True, check=True).stdout.strip()
+    probe = speed_probe()
     loops = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(load)]
     try:
         with tempfile.TemporaryDirectory(prefix="twinslam-clean-") as tmp:
@@ -74,11 +135,13 @@ def clean_run(load: int, revision: str = "HEAD") -> dict[str, object]:
             (root / "shared").symlink_to(SHARED.resolve())
             subprocess.run(["git", "clone", "-q", str(REPO), str(root / "main")], check=True)
             subprocess.run(["git", "checkout", "-q", commit], cwd=root / "main", check=True)
-            started = time.monotonic()
+            started, cpu_before = time.monotonic(), children_cpu_s()
             done = subprocess.run([str(root / "main" / ".ci" / "run")], cwd=root / "main",
                                   text=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                   env=clone_environment())
             wall = time.monotonic() - started
+            reap_orphans({loop.pid for loop in loops})
+            cpu = children_cpu_s() - cpu_before
             logs = REPO / "build" / "clean-clone"
             logs.mkdir(parents=True, exist_ok=True)
             stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S")
@@ -88,8 +151,27 @@ def clean_run(load: int, revision: str = "HEAD") -> dict[str, object]:
             loop.kill()
             loop.wait()
     return {"date_utc": datetime.now(UTC).strftime("%Y-%m-%d %H:%M"), "commit": commit,
-            "load": load, "rc": done.returncode, "wall_s": round(wall),
-            **_summary(done.stdout.strip())}
+            "load": load, "rc": done.returncode, "wall_s": round(wall), "cpu_s": round(cpu),
+            "probe_s": probe, **_summary(done.stdout.strip())}
+
+
+def append_row(path: Path, row: dict[str, object]) -> None:
+    """One row onto ``path``'s CSV; a file written before a column was added gets it (empty
+    in its older rows), so every run of the benchmark stays in one table."""
+    rows: list[dict[str, str]] = []
+    rewrite = not path.exists()
+    if path.exists():
+        with path.open(newline="", encoding="utf-8") as fh:
+            reader = csv.DictReader(fh)
+            if reader.fieldnames != FIELDS:
+                rows, rewrite = list(reader), True
+    if rewrite:
+        with path.open("w", newline="", encoding="utf-8") as fh:
+            writer = csv.DictWriter(fh, fieldnames=FIELDS, restval="")
+            writer.writeheader()
+            writer.writerows(rows)
+    with path.open("a", newline="", encoding="utf-8") as fh:
+        csv.DictWriter(fh, fieldnames=FIELDS).writerow(row)
 
 
 def main() -> None:
@@ -105,22 +187,19 @@ def main() -> None:
     if not SHARED.is_dir():
         print(f"note: {SHARED} is missing: the runs play the synthetic room", file=sys.stderr)
     revisions = [args.baseline, "HEAD"] if args.baseline else ["HEAD"]
+    adopt_orphans()
     for k in range(args.runs):
         for revision in revisions:
             print(f"run {k + 1}/{args.runs}: .ci/run on a fresh clone of {revision}"
                   + (f", {args.load} busy loops beside it" if args.load else ""), flush=True)
             row = clean_run(args.load, revision)
-            print(f"  {row['commit']}: rc {row['rc']}, {row['wall_s']} s wall, pytest "
+            print(f"  {row['commit']}: rc {row['rc']}, {row['wall_s']} s wall, "
+                  f"{row['cpu_s']} s CPU, probe {row['probe_s']} s, pytest "
                   f"{row['pytest_s']} s, {row['passed']} passed, {row['failed']} failed, "
                   f"{row['skipped']} skipped"
                   + (f": {row['failures']}" if row["failures"] else ""), flush=True)
             if args.csv:
-                new = not args.csv.exists()
-                with args.csv.open("a", newline="", encoding="utf-8") as fh:
-                    writer = csv.DictWriter(fh, fieldnames=FIELDS)
-                    if new:
-                        writer.writeheader()
-                    writer.writerow(row)
+                append_row(args.csv, row)
 
 
 if __name__ == "__main__":

@@ -99,7 +99,8 @@ def _namespace_of(pid: int) -> str:
 
 def _assert_slots_consistent(record: RunLog, slots: int) -> None:
     """Every slot answered once, in full: what the edge asked for is what the device sent and
-    what the edge integrated, and the map stays within V_max."""
+    what the edge integrated or its keyframe gate refused (counted in MapStats), and the map
+    stays within V_max."""
     assert sorted(record.stats) == list(range(slots)), sorted(record.stats)
     versions = [record.maps[s].version for s in sorted(record.maps)]
     assert versions == sorted(versions)
@@ -107,8 +108,9 @@ def _assert_slots_consistent(record: RunLog, slots: int) -> None:
         asked = len(record.requests[slot].upload_frame_ids)
         sent = record.throughput[slot]
         assert sent.frames_sent == asked, f"slot {slot}: {sent.frames_sent} sent of {asked}"
-        assert record.stats[slot].uploads == asked, f"slot {slot}: integrated " \
-            f"{record.stats[slot].uploads} of {asked}"
+        stats = record.stats[slot]
+        assert stats.uploads + stats.refused_keyframes == asked, f"slot {slot}: integrated " \
+            f"{stats.uploads} and refused {stats.refused_keyframes} of {asked}"
         assert record.stats[slot].map_size <= VMAX
 
 
@@ -171,42 +173,64 @@ def test_device_uplink_through_tc_follows_the_configured_rate(hosts: NetnsHosts)
     assert report.frames_uploaded * FRAME_MBIT * 1e6 / 8 <= crossed
 
 
+#: the longest a test's cable stays down waiting for the device to say it noticed
+NOTICE_WAIT_S = 60.0
+
+
 def test_link_down_for_5_s_device_tracks_on_and_uploads_resume(hosts: NetnsHosts) -> None:
+    """The device's cable is pulled at slot 1 for at least 5 s, and plugged back once the
+    device said it tracks on its local map (a device lagging its camera on a loaded machine
+    notices the silence later); the playback goes on until uploads resumed for three slots."""
     outage: dict[str, float] = {}
+    resumed: list[int] = []
 
     def pull_cable(msg: Any, record: RunLog, launcher: Launcher) -> None:
-        if int(msg.slot) == 1 and "down" not in outage:
+        slot = int(msg.slot)
+        if slot == 1 and "down" not in outage:
             outage["down"] = time.monotonic()
+            outage["slot"] = slot
             hosts.set_link("device", False)
 
             def plug() -> None:
+                time.sleep(5.0)
+                deadline = time.monotonic() + NOTICE_WAIT_S
+                while ("tracking on the local map" not in launcher.log("device_tracker")
+                       and time.monotonic() < deadline):
+                    time.sleep(0.1)
                 hosts.set_link("device", True)
                 outage["up"] = time.monotonic()
 
-            threading.Timer(5.0, plug).start()
+            threading.Thread(target=plug, daemon=True).start()
+        elif "up" in outage:
+            # the device's throughput reports cross its cable and may come after the edge's
+            # MapStats of the same slot: every report heard so far counts
+            resumed[:] = sorted(k for k, t in record.throughput.items()
+                                if k > outage["slot"] + 1 and t.frames_sent)
+            if len(resumed) >= 3:
+                launcher.end_playback()
 
     # after the cable is back the edge answers the slots it missed one by one, on a loaded
     # machine seconds late: the device keeps 6 slots' frames uploadable (12 s; the default 4
     # rides out the outage itself, but a request came after its frames had gone under load).
-    # Nine slots of 2 s: 30 frames each, played at half speed. The device calls the edge
-    # silent after 1.5 s without an answer (3 s by default): a device that lags its camera
-    # under load sent its first summaries of the outage late, and the 5 s outage ended 2.7 s
-    # after them, before it noticed (seen with five test workers on 2 cores)
+    # Slots of 2 s: 30 frames each, played at half speed, until uploads resumed (at most 30
+    # slots). The device calls the edge silent after 1.5 s without an answer (3 s by default).
     # The Edge-SLAM style device: it tracks on its own points while no map comes (the
     # paper's device, tracked only against the edge's map, is lost where the map ends)
     device = _tc_uplink(keep_slots="6", slot_frames="30", edge_timeout_s="1.5",
                         map_source="edge+local")
-    report, record, launcher = _run(hosts, 270, device, pull_cable, rate=0.5)
+    report, record, launcher = _run(hosts, 900, device, pull_cable, rate=0.5)
     assert outage["up"] - outage["down"] >= 5.0
     device_log = launcher.logs["device_tracker"]
     assert "tracking on the local map" in device_log
     assert "the edge answers again" in device_log and "uploads resume" in device_log
-    _assert_slots_consistent(record, 9)
+    expected = launcher.expected_slots()
+    assert expected is not None
+    _assert_slots_consistent(record, expected)
     # the device tracked through the outage (its summaries arrived once the link was back)
     for slot in (2, 3, 4):
         frames = record.summaries[slot].frames
         assert sum(f.tracked for f in frames) >= 0.9 * len(frames), f"slot {slot}"
-    assert all(record.throughput[s].frames_sent for s in (6, 7, 8)), "uploads did not resume"
+    assert len(resumed) >= 3, f"uploads did not resume: slots with uploads after {resumed}"
     assert report.ate_m < 0.15
 
 
@@ -225,13 +249,14 @@ def test_edge_host_node_killed_and_restarted_restores_its_map(hosts: NetnsHosts,
         elif "killed" in state and "after" not in state:
             state["after"] = slot                        # answered: in its host by now
             state["restarted_in"] = _namespace_of(state["restarted"].pid)
+            launcher.end_playback()
 
-    # 8 slots of 4 s (30 frames at a quarter speed): the restarted edge warms up for 5-15 s on
-    # 2 cores, and summaries the device sends while no edge listens are not kept for it
-    # (volatile): slots must remain after that (what is tested is the restore, not real-time
-    # tracking). The Edge-SLAM style device tracks on its own points while the edge is down,
-    # so the ATE below measures the restore, not the outage
-    frames, slot_frames = 240, 30
+    # slots of 4 s (30 frames at a quarter speed) until the restarted edge answered one: it
+    # warms up for 5-15 s on 2 cores, more on a loaded machine, and summaries the device sends
+    # while no edge listens are not kept for it (volatile); at most 20 slots (what is tested is
+    # the restore, not real-time tracking). The Edge-SLAM style device tracks on its own points
+    # while the edge is down, so the ATE below measures the restore, not the outage
+    frames, slot_frames = 600, 30
     report, record, launcher = _run(hosts, frames,
                                     _tc_uplink(slot_frames=str(slot_frames),
                                                map_source="edge+local"),
@@ -248,7 +273,8 @@ def test_edge_host_node_killed_and_restarted_restores_its_map(hosts: NetnsHosts,
     # the run completes; a device that fell more than its 5 s camera queue behind while the
     # edge restarted may lose frames, and its frame-count slot clock then never closes the last
     # slot (slots by stamps) — at most that one may go
-    assert max(record.stats) >= frames // slot_frames - 2, "the run did not complete"
+    expected = launcher.expected_slots()
+    assert expected is not None and max(record.stats) >= expected - 2, "the run did not complete"
     assert report.ate_m < 0.15
 
 
@@ -275,7 +301,8 @@ def test_twin_absent_edge_falls_back_and_returns_when_latents_flow(
     """No twin at first: the fallback decides. The twin host's node starts after slot 1: the
     learned policy takes over once its latents arrive. The twin dies once the learned policy
     decided two slots: fallback again once the last latent is more than latent_max_age slots
-    old."""
+    old. The playback goes on until that fallback decided two slots, however long the twin's
+    start took."""
     learned = f"mbrl:{twin_policy}"
     twin: dict[str, Any] = {}
 
@@ -289,19 +316,21 @@ def test_twin_absent_edge_falls_back_and_returns_when_latents_flow(
         if decided.count(learned) >= 2 and "killed" not in twin:
             twin["killed"] = slot
             launcher.kill("udt_node")
+        # the last latent is 2 slots old two slots after the kill: two slots decided after
+        # that show the fallback (or that it never came)
+        if "killed" in twin and len(decided) >= twin["killed"] + 4:
+            launcher.end_playback()
 
     slot_frames = 15
     extra = _tc_uplink(slot_frames=str(slot_frames))
     extra["edge_mapper"] += ["fallback_policy:=adapt", "latent_max_age:=1"]
     extra["udt_node"] = [f"policy_checkpoint:={twin_policy}"]
-    # 12 slots of 5.7 s (15 frames played at 0.0875x): the twin's start (torch, the policy's
-    # checkpoint) takes 5-15 s on 2 cores — and 25-30 s beside a loaded suite, where its
-    # latents came at slot 6, it was killed at slot 7 and a run of 9 slots ended before the
-    # fallback could show — and the device keeps up while the twin starts beside it (what is
-    # tested is who decides, not real-time tracking)
-    frames = 180
-    _, record, launcher = _run(hosts, frames, extra, start_then_kill_twin, policy=learned,
-                               rate=0.0875)
+    # slots of 5.7 s (15 frames played at 0.0875x): the device keeps up while the twin starts
+    # beside it (what is tested is who decides, not real-time tracking). The twin's start
+    # (torch, the policy's checkpoint) takes 5-15 s on 2 cores and ~50 s beside a loaded suite
+    # on a slower machine: the run plays until the fallback showed, at most 30 slots
+    _, record, launcher = _run(hosts, 30 * slot_frames, extra, start_then_kill_twin,
+                               policy=learned, rate=0.0875)
     deciders = [record.requests[s].policy for s in sorted(record.requests)]
     print(f"\ndecided by: {deciders}")
     assert deciders[0] == deciders[1] == "adapt (fallback)"
@@ -315,7 +344,8 @@ def test_twin_absent_edge_falls_back_and_returns_when_latents_flow(
     # every slot answered is consistent; under the load of the twin's start a device that falls
     # more than its 5 s camera queue behind loses frames, and its frame-count slot clock then
     # never closes the run's last slot (slots by stamps) — at most one may go so
-    assert len(record.stats) >= frames // slot_frames - 1, sorted(record.stats)
+    expected = launcher.expected_slots()
+    assert expected is not None and len(record.stats) >= expected - 1, sorted(record.stats)
     _assert_slots_consistent(record, len(record.stats))
 
 

@@ -150,3 +150,58 @@ def test_record_to_mcap_and_replay_gives_the_same_messages(tmp_path: Path) -> No
                         frame_messages(again, again.stamp))
     sub = open_sequence(bag, start=2, end=5)
     assert [round(f.stamp * 30) for f in sub] == [2, 3, 4]
+
+
+def test_a_playback_ends_where_a_run_asks_while_it_plays(
+        domain: LoopbackDomain, ros: RosSession) -> None:
+    """``stop_after`` set while the player plays (as ``Launcher.end_playback`` sets it): a
+    count already passed is refused with the count, the next slot boundary is asked, and the
+    player publishes exactly that many frames, says so, and exits 0."""
+    from twinslam.live.playback_end import PlaybackEnd
+
+    colour: list[Image] = []
+    ros.node.create_subscription(Image, topics.CAMERA_IMAGE, colour.append, qos.CAMERA)
+    statuses: list[DiagnosticArray] = []
+    ros.node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, statuses.append,
+                                 qos.PROTOCOL)
+    # 600 frames at 30 Hz would take 20 s: the run ends it after a few slots of 10 frames
+    player = domain.spawn(["-m", "twinslam.sequence_player.node", "--ros-args",
+                           "-p", "sequence:=synthetic:600", "-p", "wait_for_subscribers:=1"],
+                          forks=FORKS)
+    end = PlaybackEnd(ros.node, slot_frames=10, most_frames=600)
+    assert ros.spin_until(lambda: len(colour) >= 25, 60.0), domain.log(player)[-2000:]
+    end.request()
+    # a first guess behind the player (it published 25 or more): refused, then the next ones
+    assert ros.spin_until(lambda: (end.poll(0), end.frames is not None)[1], 20.0)
+    assert end.refused >= 2 and end.frames is not None and end.frames % 10 == 0
+    assert end.frames >= 30
+    assert ros.spin_until(lambda: player.poll() is not None, 30.0), domain.log(player)[-2000:]
+    code, _, err = domain.stop(player)
+    assert code == 0, err
+    assert f"done: {end.frames} frames published" in err
+    assert ros.spin_until(lambda: len(colour) >= end.frames, 5.0)
+    assert len(colour) == end.frames
+    values = {kv.key: kv.value for kv in statuses[-1].status[0].values}
+    assert values["published"] == str(end.frames) and values["finished"] == "true"
+
+
+def test_a_playback_end_before_what_was_played_is_refused(
+        domain: LoopbackDomain, ros: RosSession) -> None:
+    """What ``ros2 param set /sequence_player stop_after N`` answers for a count already
+    passed: refused, with the count; the playback goes on."""
+    from rclpy.parameter import Parameter
+    from rclpy.parameter_client import AsyncParameterClient
+
+    colour: list[Image] = []
+    ros.node.create_subscription(Image, topics.CAMERA_IMAGE, colour.append, qos.CAMERA)
+    player = domain.spawn(["-m", "twinslam.sequence_player.node", "--ros-args",
+                           "-p", "sequence:=synthetic:300", "-p", "wait_for_subscribers:=1"],
+                          forks=FORKS)
+    client = AsyncParameterClient(ros.node, "sequence_player")
+    assert ros.spin_until(lambda: len(colour) >= 5 and client.services_are_ready(), 60.0)
+    future = client.set_parameters([Parameter("stop_after", value=1)])
+    assert ros.spin_until(future.done, 10.0)
+    (result,) = future.result().results
+    assert not result.successful and "frames are published already" in result.reason
+    assert player.poll() is None, "a refused end ended the playback"
+    domain.stop(player)

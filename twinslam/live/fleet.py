@@ -170,7 +170,7 @@ class FleetLauncher(Launcher):
             if failed:
                 _, _, err = self.domain.stop(self.procs.pop(failed))
                 raise RuntimeError(f"{failed} exited during the run: {err.strip()[-800:]}")
-            expected = self._expected_slots()
+            expected = self.expected_slots()
             spin_all(lambda: all(
                 (expected is None or expected - 1 in m.record.stats) for m in monitors.values()),
                 min(60.0, max(10.0, deadline - time.monotonic())))

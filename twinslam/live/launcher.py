@@ -24,6 +24,7 @@ from twinslam.hosts.forked import ForkServers, NodeProcess
 from twinslam.hosts.loopback import ProcessDomain
 from twinslam.live.monitor import PipelineMonitor, status_line
 from twinslam.live.node_fork_server import SWITCH, fork_servers
+from twinslam.live.playback_end import PlaybackEnd
 from twinslam.live.report import RunReport, report
 from twinslam.live.run_bag import RecordingOptions, RecordingSummary, RunRecorder
 from twinslam.live.run_log import RunLog
@@ -84,6 +85,9 @@ class Launcher:
         self.record: RunLog | None = None
         #: what ``config.record`` holds after the run (None: not recorded)
         self.recording: RecordingSummary | None = None
+        #: the playback's end, when a run asks for it (``end_playback``)
+        self._end: PlaybackEnd | None = None
+        self._end_requested = False
 
     def node_args(self, name: str) -> list[str]:
         c = self.config
@@ -116,7 +120,8 @@ class Launcher:
 
     def run(self, on_stats: Callable[[Any, RunLog], None] | None = None) -> RunReport:
         """Play, watch, stop; ``on_stats(msg, record)`` runs on every ``MapStats`` (tests use
-        it to inject faults mid-run)."""
+        it to inject faults mid-run, and to end the playback once what they wait for came:
+        ``end_playback``)."""
         with self.domain.monitor_scope():
             return self._run(on_stats)
 
@@ -135,6 +140,11 @@ class Launcher:
             if c.record is not None:
                 recorder = RunRecorder(session.node, c.record, c.recording)
             self.record = monitor.record
+            slot_frames = int(self._device_param("slot_frames", default_device.SLOT_FRAMES))
+            self._end = PlaybackEnd(session.node, slot_frames,
+                                    c.scenario.played_frames(c.frames) if c.frames > 0 else None)
+            if self._end_requested:
+                self._end.request()
             started = time.monotonic()
             # the edge first, and the rest once it listens: summaries published before the
             # edge's reader matched would be lost (the device starts the slots with the player)
@@ -160,8 +170,14 @@ class Launcher:
                 self.start(name)
             player = self.procs["sequence_player"]
             deadline = started + c.timeout_s
-            session.spin_until(lambda: player.poll() is not None or self._failed() is not None,
-                                c.timeout_s)
+
+            def played() -> bool:
+                assert self._end is not None
+                self._end.poll(max(len(monitor.record.ground_truth),
+                                   (max(monitor.record.summaries, default=-1) + 1) * slot_frames))
+                return player.poll() is not None or self._failed() is not None
+
+            session.spin_until(played, c.timeout_s)
             failed = self._failed()
             if failed:
                 _, _, err = self.domain.stop(self.procs.pop(failed))
@@ -173,7 +189,7 @@ class Launcher:
             # the device's last summaries may still be in flight (a lossy link retransmits):
             # wait for every full slot of the frames played, or what arrived when unknown
             summaries = monitor.record.summaries
-            expected = self._expected_slots()
+            expected = self.expected_slots()
             last = expected - 1 if expected else (max(summaries) if summaries else -1)
             session.spin_until(lambda: last in monitor.record.stats and all(
                 s in monitor.record.throughput for s in monitor.record.requests),
@@ -188,20 +204,35 @@ class Launcher:
             session.spin_until(lambda: not truth or max(truth) in monitor.record.poses,
                                LAST_POSE_WAIT_S)
             session.spin_until(lambda: False, 0.5)       # late map updates
-            return report(c.policy, monitor.record, time.monotonic() - started,
-                          int(self._device_param("slot_frames", default_device.SLOT_FRAMES)))
+            return report(c.policy, monitor.record, time.monotonic() - started, slot_frames)
         finally:
             self.stop()
             if recorder is not None:
                 self.recording = recorder.close()
             session.close()
 
-    def _expected_slots(self) -> int | None:
-        """Full slots in the frames played (None when the whole sequence plays)."""
+    def expected_slots(self) -> int | None:
+        """Full slots in the frames played (None when the whole sequence plays and no end was
+        asked for)."""
+        slot_frames = int(self._device_param("slot_frames", default_device.SLOT_FRAMES))
+        if self._end is not None and self._end.frames is not None:
+            return self._end.frames // slot_frames
         if self.config.frames <= 0:
             return None
-        played = self.config.scenario.played_frames(self.config.frames)
-        return played // int(self._device_param("slot_frames", default_device.SLOT_FRAMES))
+        return self.config.scenario.played_frames(self.config.frames) // slot_frames
+
+    def end_playback(self) -> None:
+        """End the playback at the end of the next slot the player has not passed (from
+        ``on_stats`` or before ``run``): a run that waits for an event plays generously many
+        frames and ends once the event came, so that a slower machine plays more, not a run
+        too short for what it checks. ``config.frames`` stays the most it plays."""
+        self._end_requested = True
+        if self._end is not None:
+            self._end.request()
+
+    def log(self, name: str) -> str:
+        """What node ``name`` has logged so far (its stderr), while the run goes on."""
+        return self.domain.log(self.procs[name]) if name in self.procs else ""
 
     def _device_param(self, name: str, default: float) -> float:
         """A device parameter as the node will read it: ``extra`` over the parameter file

@@ -16,7 +16,10 @@ every header:
 
 at the recorded rate × ``rate``, frames [``start``, ``end``), once or with ``loop``, forward or
 ``order:=forward_backward``, with ``blank:=START:COUNT`` bursts of covered-lens frames
-(:mod:`twinslam.sequence_player.playback`: the scenarios where the edge's map matters). Topic names
+(:mod:`twinslam.sequence_player.playback`: the scenarios where the edge's map matters), until
+``stop_after`` frames are published where it is set — also while playing (``ros2 param set
+/sequence_player stop_after N``): a run that waits for an event plays on until it came, then
+ends at a slot's end of its choosing (:mod:`twinslam.live.playback_end`). Topic names
 are relative: ``-r __ns:=/ar1`` plays into ``/ar1/camera/...``. ``wait_for_subscribers:=N``
 holds the first frame until N subscribers match the colour topic (DDS does not deliver what was
 published before a reader matched), then ``DISCOVERY_SETTLE_S`` more: the writer learning of a
@@ -37,7 +40,9 @@ import sys
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo, Image
 from tf2_msgs.msg import TFMessage
 
@@ -80,6 +85,7 @@ class SequencePlayer(Node):
         except SequenceError as exc:
             raise NodeStartError(str(exc)) from None
         self.rate, self.loop = float(p["rate"]), bool(p["loop"])
+        self.stop_after = int(p["stop_after"])         #: 0: no limit
         self.depth_encoding, self.mono = str(p["depth_encoding"]), bool(p["mono"])
         self.frame_id, self.world_frame_id = str(p["frame_id"]), str(p["world_frame_id"])
         self.pub_color = self.create_publisher(Image, topics.CAMERA_IMAGE, qos.CAMERA)
@@ -110,11 +116,38 @@ class SequencePlayer(Node):
         self._wait_for = int(p["wait_for_subscribers"])
         self._settling = False
         self.timer = self.create_timer(POLL_S, self._tick)
+        self.add_on_set_parameters_callback(self._stop_after_refused)
+        self.add_post_set_parameters_callback(self._stop_after_set)
         if self._wait_for > 0:
             self.get_logger().info(f"waiting for {self._wait_for} subscriber(s) on "
                                    f"{self.pub_color.topic_name}")
         else:
             self._schedule()
+
+    def _stop_after_refused(self, params: list[Parameter]) -> SetParametersResult:
+        """A ``stop_after`` below the frames already published cannot be honoured: refused
+        with the count, so a caller can choose a later one."""
+        for param in params:
+            if param.name == "stop_after" and 0 < int(param.value) < self.published:
+                return SetParametersResult(
+                    successful=False, reason=f"stop_after := {param.value}: {self.published} "
+                    "frames are published already")
+        return SetParametersResult(successful=True)
+
+    def _stop_after_set(self, params: list[Parameter]) -> None:
+        """Apply a new ``stop_after``; one just reached ends the playback now."""
+        for param in params:
+            if param.name == "stop_after":
+                self.stop_after = int(param.value)
+                self.get_logger().info(
+                    f"stopping after {self.stop_after} frames ({self.published} published)"
+                    if self.stop_after else "playing without a frame limit")
+                if self._limit_reached() and self._next is not None and not self._wait_for:
+                    self._next = None
+                    self._schedule()
+
+    def _limit_reached(self) -> bool:
+        return 0 < self.stop_after <= self.published
 
     def _now_ns(self) -> int:
         return self.get_clock().now().nanoseconds
@@ -190,7 +223,7 @@ class SequencePlayer(Node):
                 f"frame {frame.index + 1}/{len(self.reader)} ({self.published} published, "
                 f"{self.skipped + len(self.reader.skipped)} skipped)")
             self._publish_status(self.skipped + len(self.reader.skipped), finished=False)
-        self._next = self._read_next()
+        self._next = None if self._limit_reached() else self._read_next()
         self._schedule()
 
     def _publish_path(self) -> None:
@@ -225,7 +258,8 @@ def main(args: list[str] | None = None) -> int:
         reader = player.reader
         player.get_logger().info(
             f"playing {len(reader)} frames of {reader.kind} sequence {reader.path} at "
-            f"{player.rate}x{' in a loop' if player.loop else ''}, order "
+            f"{player.rate}x{' in a loop' if player.loop else ''}"
+            f"{f', stopping after {player.stop_after}' if player.stop_after else ''}, order "
             f"{reader.playback.order}"
             + (f", blanked {reader.playback.blank}" if reader.playback.blank else ""))
 

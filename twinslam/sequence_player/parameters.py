@@ -23,6 +23,9 @@ PARAMETERS = (
     ParamSpec("loop", False, "start over at the end"),
     ParamSpec("start", 0, "first frame played", low=0),
     ParamSpec("end", -1, "first frame not played; -1: to the end", low=-1),
+    ParamSpec("stop_after", 0, "end the playback once this many frames are published (0: "
+              "no limit); live: `ros2 param set` ends a long or looping playback where one "
+              "chooses (a slot's end); a count already passed is refused", low=0, live=True),
     ParamSpec("colour_intrinsics", AUTO, "the camera a dataset folder is seen through: auto "
               "(a 7-Scenes folder, whose intrinsics file is its depth camera's, through its "
               "colour camera, 525 px, each depth image registered to it; any other source as "
