@@ -2,7 +2,8 @@
 clones of this repository, one after another, each with the bundled data folder beside it —
 the set-up from nothing (a warm pip cache is the machine's), the lint stage and the suite.
 
-    .venv/bin/python -m bench.clean_clone [--runs 5] [--load 2] [--baseline REV] [--csv FILE]
+    .venv/bin/python -m bench.clean_clone [--runs 5] [--load 2] [--baseline REV] [--revision REV]
+        [--csv FILE]
 
 Prints, per run: the exit status, the wall time of ``.ci/run`` beside the CPU seconds its
 processes used (user + system, every process it started: a slower change uses more CPU, a
@@ -181,16 +182,21 @@ def main() -> None:
     parser.add_argument("--load", type=int, default=0,
                         help="busy loops beside every run (default %(default)s)")
     parser.add_argument("--baseline", metavar="REV",
-                        help="before each run of HEAD, one of this revision's clone")
+                        help="before each run of the revision, one of this revision's clone")
+    parser.add_argument("--revision", metavar="REV", default="HEAD",
+                        help="the revision measured (default %(default)s, resolved once at the "
+                        "start: commits made while the runs go on are not measured)")
     parser.add_argument("--csv", type=Path, help="append one row a run to this CSV")
     args = parser.parse_args()
     if not SHARED.is_dir():
         print(f"note: {SHARED} is missing: the runs play the synthetic room", file=sys.stderr)
-    revisions = [args.baseline, "HEAD"] if args.baseline else ["HEAD"]
+    measured = subprocess.run(["git", "rev-parse", args.revision], cwd=REPO, text=True,
+                              capture_output=True, check=True).stdout.strip()
+    revisions = [args.baseline, measured] if args.baseline else [measured]
     adopt_orphans()
     for k in range(args.runs):
         for revision in revisions:
-            print(f"run {k + 1}/{args.runs}: .ci/run on a fresh clone of {revision}"
+            print(f"run {k + 1}/{args.runs}: .ci/run on a fresh clone of {revision[:10]}"
                   + (f", {args.load} busy loops beside it" if args.load else ""), flush=True)
             row = clean_run(args.load, revision)
             print(f"  {row['commit']}: rc {row['rc']}, {row['wall_s']} s wall, "

@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -157,6 +158,18 @@ def test_the_ros_graph_lists_every_node_and_twinslam_nodes_prints_them(
     assert {f"/lab/{n}" for n in names} <= set(out.stdout.split())
 
 
+def _wait_for_state(pid: int, state: str, timeout_s: float) -> bool:
+    """Whether process ``pid`` reached scheduler state ``state`` (/proc's, e.g. T: stopped)
+    within ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+        if stat.rsplit(")", 1)[1].split()[0] == state:
+            return True
+        time.sleep(0.005)
+    return False
+
+
 def test_waiting_for_acknowledgements_lets_the_other_threads_run(domain: LoopbackDomain,
                                                                  ros: RosSession) -> None:
     """A reader that stopped acknowledging (its process frozen) makes the wait fail after its
@@ -171,11 +184,21 @@ def test_waiting_for_acknowledgements_lets_the_other_threads_run(domain: Loopbac
 
     wait_s = 3.0
     proc = domain.spawn([*LISTENER])
-    JsonLines(proc).next("ready", timeout=30)
+    lines = JsonLines(proc)
+    lines.next("ready", timeout=30)
     pub = ros.node.create_publisher(String, "chatter", qos.PROTOCOL)
     assert ros.spin_until(lambda: pub.get_subscription_count() > 0, 10)
+    # matched both ways and acknowledging before it freezes: a message it received and
+    # acknowledged (a reader that had not learnt of the writer yet would leave what follows
+    # to discovery, not to the frozen process)
+    pub.publish(String(data="hello"))
+    lines.next("msg", timeout=30)
+    assert wait_for_acks(pub, 30.0), "the running reader did not acknowledge"
     os.kill(proc.pid, signal.SIGSTOP)
     try:
+        # frozen for certain before anything is published: a stop signal takes effect when
+        # the process is next scheduled, on a loaded machine later than kill() returns
+        assert _wait_for_state(proc.pid, "T", 10.0), "the reader did not stop"
         for _ in range(5):
             pub.publish(String(data="x" * 100_000))
         ticks: list[float] = []
