@@ -44,10 +44,11 @@ def upload_request_message(slot: int, policy: str, rate_mbps: float, action: Map
 
 
 def map_update_message(keyframe_map: KeyFrameMap, slot: int, version: int, stamp: float,
-                       frame_id: str = "map", tracks: dict[int, int] | None = None
-                       ) -> MapUpdate:
+                       frame_id: str = "map", tracks: dict[int, int] | None = None,
+                       frame_correction: np.ndarray | None = None) -> MapUpdate:
     """The whole map for the device: keyframe poses, points with descriptors and how many
-    keyframes observe each, and the device tracks that became map points (``tracks``)."""
+    keyframes observe each, the device tracks that became map points (``tracks``), and the
+    loops' corrections so far at the walk's head (``frame_correction``; None: none)."""
     tracks = {t: p for t, p in (tracks or {}).items() if p in keyframe_map.points}
     kf_ids = keyframe_map.keyframe_ids()
     pt_ids = sorted(keyframe_map.points)
@@ -66,7 +67,9 @@ def map_update_message(keyframe_map: KeyFrameMap, slot: int, version: int, stamp
                                            for p in sorted(keyframe_map.keyframes[k].points)],
                                           dtype=np.uint64),
               track_ids=np.array(list(tracks), dtype=np.uint64),
-              track_point_ids=np.array(list(tracks.values()), dtype=np.uint64))
+              track_point_ids=np.array(list(tracks.values()), dtype=np.uint64),
+              frame_correction=pose_msg(np.eye(4) if frame_correction is None
+                                        else frame_correction))
     return set_header(msg, stamp, frame_id)
 
 
@@ -75,7 +78,7 @@ def map_stats_message(slot: int, policy: str, keyframe_map: KeyFrameMap, uncerta
                       processing_ms: float, stamp: float, keyframe_budget: int = 0,
                       latency_ms: float = math.nan, archived: int = 0, restored: int = 0,
                       refused: int = 0, frame_id: str = "", loops_closed: int = 0,
-                      loop_ms: float = 0.0) -> MapStats:
+                      loop_ms: float = 0.0, loops_refused: int = 0) -> MapStats:
     """``MapStats``, its header in ``frame_id`` (the map frame its keyframe counts describe, so
     a viewer or a bag reader can tell one device's map from another's); u = +inf for a
     disconnected map and υ = NaN (unknown, or no tracked frame) are sent as they are (IEEE
@@ -92,6 +95,7 @@ def map_stats_message(slot: int, policy: str, keyframe_map: KeyFrameMap, uncerta
               lost_share=upsilon.lost_share if upsilon else 0.0, uploads=uploads,
               optimisation_ms=float(optimisation_ms), slot_processing_ms=float(processing_ms),
               slot_latency_ms=float(latency_ms), loops_closed=int(loops_closed),
+              loops_refused=int(loops_refused),
               loop_closing_ms=float(loop_ms))
     return set_header(msg, stamp, frame_id)
 

@@ -112,6 +112,9 @@ class RunReport:
     #: inliers / matches over the frames the motion model tracked): a map inconsistent with
     #: itself shows here (NaN: none tracked, or a device that did not report its matches)
     outlier_share: float = math.nan
+    #: loops the edge found but refused over the run: their corrections would have moved the
+    #: map farther than a device accepts (NaN: not reported)
+    loops_refused: float = math.nan
 
     ROW = ("{label:<14} {mean_uncertainty:>10.1f} {lost_share:>6.1%} "
            "{tracked_uncertainty:>10.1f} {ate_m:>7.3f} "
@@ -214,7 +217,8 @@ def report(policy: str, record: RunLog, seconds: float, slot_frames: int) -> Run
                      longest_without_upload(record),
                      math.nan if record.frames_skipped is None else float(record.frames_skipped),
                      *_revisit_cells(record, tracked), *_odom_cells(record, tracked),
-                     pnp_ransac_share(record), *_loop_cells(stats), outlier_share(record))
+                     pnp_ransac_share(record), *_loop_cells(stats), outlier_share(record),
+                     float(max(int(s.loops_refused) for s in stats)) if stats else math.nan)
 
 
 def outlier_share(record: RunLog) -> float:
