@@ -128,6 +128,11 @@ class FleetLauncher(Launcher):
             args += ["-p", f"frame_id:={device}/camera"]
         return args
 
+    def end_playback(self) -> None:
+        """Not for a fleet: each device's player plays its own walk to its end."""
+        raise NotImplementedError("a fleet's players each play their walk to its end; "
+                                  "end_playback ends a single device's run")
+
     def run_fleet(self) -> FleetReport:
         """Play every device's walk at once and report each."""
         with self.domain.monitor_scope():
