@@ -13,6 +13,7 @@ from nav_msgs.msg import Path as PathMsg
 from sensor_msgs.msg import CameraInfo, Image
 
 from msg_schemas import qos, topics
+from twinslam.hosts.forked import NodeProcess
 from twinslam.hosts.loopback import LoopbackDomain
 from twinslam.live.launcher import preloaded_nodes
 from twinslam.node_runtime.session import RosSession
@@ -41,6 +42,23 @@ def _seven_scenes_fixture(root: Path, frames: int, corrupt: int) -> Path:
     return root
 
 
+def _play(domain: LoopbackDomain, *params: str) -> NodeProcess:
+    """The player as its own process (forked as the launchers fork it), holding its first
+    frame until this test's reader matched; ``params``: more ``name:=value``."""
+    args = ["-m", "twinslam.sequence_player.node", "--ros-args", "-p", "wait_for_subscribers:=1"]
+    for param in params:
+        args += ["-p", param]
+    return domain.spawn(args, forks=FORKS)
+
+
+def _statuses(ros: RosSession) -> list[DiagnosticArray]:
+    """What the player says of its playback on /diagnostics, as it comes."""
+    statuses: list[DiagnosticArray] = []
+    ros.node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, statuses.append,
+                                 qos.PROTOCOL)
+    return statuses
+
+
 def _stamp(msg: object) -> float:
     return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9  # type: ignore[attr-defined]
 
@@ -57,12 +75,8 @@ def test_player_delivers_every_frame_at_30_hz_and_skips_a_corrupt_jpeg(
                                      qos.CAMERA)
     paths: list[PathMsg] = []
     ros.node.create_subscription(PathMsg, topics.GROUND_TRUTH_PATH, paths.append, qos.MAP)
-    statuses: list[DiagnosticArray] = []
-    ros.node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, statuses.append,
-                                 qos.PROTOCOL)
-    player = domain.spawn(["-m", "twinslam.sequence_player.node", "--ros-args",
-                           "-p", f"sequence:={seq}", "-p", "wait_for_subscribers:=1",
-                           "-p", "path_window:=50"], forks=FORKS)
+    statuses = _statuses(ros)
+    player = _play(domain, f"sequence:={seq}", "path_window:=50")
     start = time.monotonic()
     # 99 frames at 30 Hz take 3.3 s; generous bound for a loaded CI machine
     ros.spin_until(lambda: player.poll() is not None and len(got["color"]) >= 99, 40.0)
@@ -161,13 +175,9 @@ def test_a_playback_ends_where_a_run_asks_while_it_plays(
 
     colour: list[Image] = []
     ros.node.create_subscription(Image, topics.CAMERA_IMAGE, colour.append, qos.CAMERA)
-    statuses: list[DiagnosticArray] = []
-    ros.node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, statuses.append,
-                                 qos.PROTOCOL)
+    statuses = _statuses(ros)
     # 600 frames at 30 Hz would take 20 s: the run ends it after a few slots of 10 frames
-    player = domain.spawn(["-m", "twinslam.sequence_player.node", "--ros-args",
-                           "-p", "sequence:=synthetic:600", "-p", "wait_for_subscribers:=1"],
-                          forks=FORKS)
+    player = _play(domain, "sequence:=synthetic:600")
     end = PlaybackEnd(ros.node, slot_frames=10, most_frames=600)
     assert ros.spin_until(lambda: len(colour) >= 25, 60.0), domain.log(player)[-2000:]
     end.request()
@@ -195,9 +205,7 @@ def test_a_playback_end_before_what_was_played_is_refused(
 
     colour: list[Image] = []
     ros.node.create_subscription(Image, topics.CAMERA_IMAGE, colour.append, qos.CAMERA)
-    player = domain.spawn(["-m", "twinslam.sequence_player.node", "--ros-args",
-                           "-p", "sequence:=synthetic:300", "-p", "wait_for_subscribers:=1"],
-                          forks=FORKS)
+    player = _play(domain, "sequence:=synthetic:300")
     client = AsyncParameterClient(ros.node, "sequence_player")
     assert ros.spin_until(lambda: len(colour) >= 5 and client.services_are_ready(), 60.0)
     future = client.set_parameters([Parameter("stop_after", value=1)])
