@@ -193,10 +193,8 @@ def test_link_down_for_5_s_device_tracks_on_and_uploads_resume(hosts: NetnsHosts
 
             def plug() -> None:
                 time.sleep(5.0)
-                deadline = time.monotonic() + NOTICE_WAIT_S
-                while ("tracking on the local map" not in launcher.log("device_tracker")
-                       and time.monotonic() < deadline):
-                    time.sleep(0.1)
+                hosts.wait_for_log(launcher.procs["device_tracker"],
+                                   "tracking on the local map", NOTICE_WAIT_S)
                 hosts.set_link("device", True)
                 outage["up"] = time.monotonic()
 

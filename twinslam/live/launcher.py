@@ -230,10 +230,6 @@ class Launcher:
         if self._end is not None:
             self._end.request()
 
-    def log(self, name: str) -> str:
-        """What node ``name`` has logged so far (its stderr), while the run goes on."""
-        return self.domain.log(self.procs[name]) if name in self.procs else ""
-
     def _device_param(self, name: str, default: float) -> float:
         """A device parameter as the node will read it: ``extra`` over the parameter file
         over the node's default."""
