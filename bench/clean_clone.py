@@ -95,28 +95,16 @@ def adopt_orphans() -> None:
         pass
 
 
-def reap_orphans(keep: set[int]) -> None:
-    """Reap every child that exited, except ``keep`` (the busy loops, reaped by their
-    ``Popen``); one still running is left alone (its CPU is not counted)."""
-    for pid in _children() - keep:
+def reap_orphans() -> None:
+    """Reap every child that has exited (orphans adopted included); one still running — a busy
+    loop, a process left behind — is left alone (its CPU is not counted)."""
+    while True:
         try:
-            os.waitpid(pid, os.WNOHANG)
+            pid, _ = os.waitpid(-1, os.WNOHANG)
         except ChildProcessError:
-            pass
-
-
-def _children() -> set[int]:
-    """This process's child pids (orphans adopted included), from /proc."""
-    found = set()
-    me = os.getpid()
-    for task in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            fields = task.read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if int(fields[1]) == me:
-            found.add(int(task.parent.name))
-    return found
+            return
+        if pid == 0:
+            return
 
 
 def children_cpu_s() -> float:
@@ -141,7 +129,7 @@ def clean_run(load: int, revision: str = "HEAD") -> dict[str, object]:
                                   text=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                   env=clone_environment())
             wall = time.monotonic() - started
-            reap_orphans({loop.pid for loop in loops})
+            reap_orphans()
             cpu = children_cpu_s() - cpu_before
             logs = REPO / "build" / "clean-clone"
             logs.mkdir(parents=True, exist_ok=True)
