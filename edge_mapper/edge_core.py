@@ -330,7 +330,8 @@ class EdgeMapperCore:
                                               data.descriptors, data.depths, data.point_ids)
         if self.config.loop_closing and data.frame_id in self.map.keyframes:
             self._loop_queries = [*self._loop_queries[-(LOOP_QUERIES - 1):],
-                                  LoopQuery(data.frame_id, data.keypoints, data.descriptors)]
+                                  LoopQuery(data.frame_id, data.keypoints, data.descriptors,
+                                            data.depths)]
         return report
 
     def integrate_held(self) -> list[int]:

@@ -43,6 +43,8 @@ class LoopQuery:
     keyframe: int
     points_xy: np.ndarray        #: (n, 2) its ORB keypoints
     descriptors: np.ndarray      #: (n, 32) uint8
+    #: (n,) the keypoints' depths, metres (0: none); None: a camera without depth
+    depths: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -85,7 +87,7 @@ def run_job(job: LoopJob, min_gap: int = MIN_GAP) -> LoopResult:
     candidate, query = LoopCandidate(-1, None, None, 0, "no query"), -1
     for q in job.queries:
         candidate, query = detect_loop(job.archive, q.keyframe, q.points_xy, q.descriptors,
-                                       job.intrinsics, min_gap), q.keyframe
+                                       job.intrinsics, min_gap, depths=q.depths), q.keyframe
         if candidate.found:
             break
     closure = None

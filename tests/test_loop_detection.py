@@ -4,12 +4,15 @@ camera pose, are no loop."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from tests.test_archive_relocalisation import room  # noqa: F401 (the archived room fixture)
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
 from twinslam.slam.back_end.loop_detection import detect_loop
 from twinslam.slam.front_end.orb_extractor import OrbExtractor
+from twinslam.slam.front_end.tracking import depth_at
 
 Room = tuple[object, KeyFrameArchive, OrbExtractor]
 
@@ -42,3 +45,60 @@ def test_the_recent_walk_and_a_look_alike_are_no_loop(room: Room) -> None:  # no
     alike = detect_loop(archive, 1000, shuffled, feats.descriptors,
                         seq.intrinsics)                        # type: ignore[attr-defined]
     assert not alike.found and "inliers" in alike.reason
+
+
+def _turned(archive: KeyFrameArchive, degrees: float) -> KeyFrameArchive:
+    """The archive with every point turned ``degrees`` about the vertical through keyframe
+    0's camera — points a bundle adjustment or a fusion moved after the keyframes saw them —
+    while each keyframe's pose and its own measurements stay as they were."""
+    a = np.radians(degrees)
+    turn = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+    centre = archive.get(0).pose[:3, 3]
+    moved = KeyFrameArchive(len(archive))
+    for kf in archive:
+        moved.add(dataclasses.replace(kf, positions=(kf.positions - centre) @ turn.T + centre))
+    return moved
+
+
+def _rotation_deg(off: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip((np.trace(off[:3, :3]) - 1) / 2, -1, 1))))
+
+
+def test_a_loop_measured_from_the_keyframes_depths_is_not_bent_by_moved_points(
+        room: Room) -> None:  # noqa: F811
+    """The map's points turned 2° since the old keyframe saw them: PnP against them measures
+    the loop that far off, the two keyframes' own depths measure it within a centimetre and a
+    fifth of a degree — the pose graph then bends the map by the drift, not by the points."""
+    seq, archive, orb = room
+    frame = seq.read(4)                                        # type: ignore[attr-defined]
+    feats = orb.extract(frame.color)
+    depths = depth_at(feats.points, frame.depth, (0.2, 8.0))
+    truth = np.linalg.inv(seq.read(0).pose) @ frame.pose      # type: ignore[attr-defined]
+    moved = _turned(archive, 2.0)
+    by_pnp = detect_loop(moved, 1000, feats.points, feats.descriptors,
+                         seq.intrinsics)                       # type: ignore[attr-defined]
+    by_depth = detect_loop(moved, 1000, feats.points, feats.descriptors,
+                           seq.intrinsics, depths=depths)      # type: ignore[attr-defined]
+    assert by_pnp.found and by_depth.found, (by_pnp.reason, by_depth.reason)
+    assert by_pnp.measured is not None and by_depth.measured is not None
+    assert _rotation_deg(np.linalg.inv(truth) @ by_pnp.measured) > 1.0
+    off = np.linalg.inv(truth) @ by_depth.measured
+    assert _rotation_deg(off) < 0.2 and np.linalg.norm(off[:3, 3]) < 0.01
+    assert by_depth.old == 0 and by_depth.inliers >= 50
+    # the loop's pose of the new keyframe is the old keyframe's pose times that measurement
+    np.testing.assert_allclose(by_depth.pose, moved.get(0).pose @ by_depth.measured)
+
+
+def test_a_look_alike_whose_depths_fit_no_motion_is_no_loop(room: Room) -> None:  # noqa: F811
+    """The place's picture seen at half again its distance (a poster of it, a screen): its
+    features fit the old keyframe's view — PnP accepts it — but no rigid motion carries
+    its depths onto the place's."""
+    seq, archive, orb = room
+    frame = seq.read(4)                                        # type: ignore[attr-defined]
+    feats = orb.extract(frame.color)
+    depths = depth_at(feats.points, frame.depth, (0.2, 8.0))
+    assert detect_loop(archive, 1000, feats.points, feats.descriptors,
+                       seq.intrinsics).found                   # type: ignore[attr-defined]
+    alike = detect_loop(archive, 1000, feats.points, feats.descriptors,
+                        seq.intrinsics, depths=1.5 * depths)   # type: ignore[attr-defined]
+    assert not alike.found and "agree in depth" in alike.reason

@@ -24,7 +24,9 @@ from twinslam.slam.back_end.archive_relocalisation import (
     ArchiveRelocalisationConfig,
     locate_in_archive,
 )
-from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
+from twinslam.slam.back_end.depth_alignment import DepthAlignment, align_with_depth, lift
+from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive
+from twinslam.slam.descriptor_matching import match_descriptors
 
 #: a loop joins keyframes at least this many keyframe ids apart (ids are frame indices: 10 s
 #: of a 30 Hz camera); the recent walk is no loop
@@ -53,15 +55,45 @@ class LoopCandidate:
 
 def detect_loop(archive: KeyFrameArchive, keyframe: int, points_xy: np.ndarray,
                 descriptors: np.ndarray, intrinsics: np.ndarray, min_gap: int = MIN_GAP,
-                config: ArchiveRelocalisationConfig | None = None) -> LoopCandidate:
-    """The loop keyframe ``keyframe`` (its ORB features ``points_xy``, ``descriptors``) closes
-    with an archived keyframe at least ``min_gap`` ids older, if the geometry confirms one."""
-    found = locate_in_archive(archive, points_xy, descriptors, intrinsics,
-                              config or ArchiveRelocalisationConfig(min_inliers=MIN_INLIERS),
+                config: ArchiveRelocalisationConfig | None = None,
+                depths: np.ndarray | None = None) -> LoopCandidate:
+    """The loop keyframe ``keyframe`` (its ORB features ``points_xy``, ``descriptors`` and,
+    from a depth camera, their ``depths``) closes with an archived keyframe at least
+    ``min_gap`` ids older, if the geometry confirms one."""
+    config = config or ArchiveRelocalisationConfig(min_inliers=MIN_INLIERS)
+    found = locate_in_archive(archive, points_xy, descriptors, intrinsics, config,
                               eligible=lambda k: k <= keyframe - min_gap)
     if not found.found or found.pose is None:
         return LoopCandidate(-1, None, None, found.inliers,
                              found.reason or "no place older than the recent walk")
-    old = archive.get(found.keyframe).pose
-    return LoopCandidate(found.keyframe, found.pose, np.linalg.inv(old) @ found.pose,
-                         found.inliers)
+    old = archive.get(found.keyframe)
+    measured = np.linalg.inv(old.pose) @ found.pose
+    if depths is None:
+        return LoopCandidate(found.keyframe, found.pose, measured, found.inliers)
+    between = measure_between(old, points_xy, descriptors, depths, intrinsics, measured, config)
+    if between.pose is None:
+        return LoopCandidate(-1, None, None, between.inliers,
+                             f"{between.inliers} of the matches with keyframe {old.id} agree "
+                             f"in depth, fewer than {config.min_inliers}")
+    return LoopCandidate(found.keyframe, old.pose @ between.pose, between.pose,
+                         between.inliers)
+
+
+def measure_between(old: ArchivedKeyFrame, points_xy: np.ndarray, descriptors: np.ndarray,
+                    depths: np.ndarray, intrinsics: np.ndarray, start: np.ndarray,
+                    config: ArchiveRelocalisationConfig) -> DepthAlignment:
+    """The new keyframe's pose relative to the ``old`` one (old⁻¹ · new) from the two
+    keyframes' own depth measurements alone, started at ``start`` (PnP's): the new
+    keyframe's features matched to the points the old one saw, both lifted by their depths
+    into their cameras. No map point's position enters — a point a bundle adjustment or a
+    fusion moved since the old keyframe saw it cannot bend the loop."""
+    f_idx, p_idx = match_descriptors(np.ascontiguousarray(descriptors, dtype=np.uint8),
+                                     old.descriptors, config.max_hamming, config.ratio)
+    if len(f_idx) < config.min_inliers:
+        return DepthAlignment(None, len(f_idx), float("nan"))
+    z = np.asarray(depths, dtype=np.float64).reshape(-1)[f_idx]
+    new_points = lift(np.asarray(points_xy, dtype=np.float64).reshape(-1, 2)[f_idx],
+                      np.where(z > 0, z, np.nan), intrinsics)
+    seen = old.measurements[p_idx]
+    old_points = lift(seen[:, :2], seen[:, 2], intrinsics)
+    return align_with_depth(start, new_points, old_points, config.min_inliers)
