@@ -129,6 +129,8 @@ class DeviceTrackerCore:
         self.track_labels = np.zeros(0, dtype=np.uint64)   #: per track row: TRACK_BIT | id
         self.track_created = np.zeros(0, dtype=np.int64)   #: per track row: its slot
         self.map_version = 0
+        #: the edge's frame correction of the map held (MapUpdate.frame_correction)
+        self.frame_correction = np.eye(4)
         self.frames: list[FrameRecord] = []            #: the current slot's
         self.slot = 0                                  #: the slot frames are tracked in
         self._uploads: dict[int, KeyFramePayload] = {}      #: the last keep_slots slots' frames
@@ -372,6 +374,16 @@ class DeviceTrackerCore:
             self.labels = np.array([relabel.get(int(x), int(x)) for x in self.labels],
                                    dtype=np.uint64)
         own = (self.labels & np.uint64(TRACK_BIT)) != 0
+        moved_frame = update.frame_correction @ np.linalg.inv(self.frame_correction)
+        if not np.allclose(moved_frame, np.eye(4), atol=1e-12):
+            # a loop closed at the edge corrected the map's frame: what the device holds of
+            # the old frame — its own points, its tracks, its poses — moves with it, so it
+            # never tracks on the corrected map and its own uncorrected copy at once
+            old.move(moved_frame)
+            if self.tracks is not None:
+                self.tracks.points.move(moved_frame)
+            self.tracking.move_frame(moved_frame)
+        self.frame_correction = np.asarray(update.frame_correction, dtype=np.float64)
         if self.tracks is not None:
             # the paper's device tracks against the update alone: no point of its own stays
             # (the start-up map included); tracks the edge resolved are map points now

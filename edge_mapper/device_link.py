@@ -140,7 +140,8 @@ class DeviceLink:
             self.pub_map.publish(map_update_message(self.core.map, self.core.last_slot,
                                                     self.core.version, self._now(),
                                                     self.map_frame,
-                                                    tracks=self.core.local_mapping.track_points))
+                                                    tracks=self.core.local_mapping.track_points,
+                                                    frame_correction=self.core.frame_correction))
 
     def topic(self, name: str) -> str:
         """A topic of this device, relative to the node's namespace."""
@@ -198,7 +199,7 @@ class DeviceLink:
         self.core.set_policy(self.control.policy)
         frames = [FrameObservations(int(f.frame_id), frozenset(int(i) for i in f.map_point_ids),
                                     frozenset(int(i) for i in f.local_track_ids),
-                                    bool(f.tracked), pose_matrix(f.pose))
+                                    bool(f.tracked), pose_matrix(f.pose), int(f.map_version))
                   for f in msg.frames]
         started, received = time.perf_counter(), self.slots.clock()
         vmax = (self.grant(self.device, slot, frames, float(msg.rate_mbps), self.latent,
@@ -284,7 +285,8 @@ class DeviceLink:
             self.finished(self.device, slot, len(self.core.map.keyframes))
         now, frame = self._now(), self.map_frame
         self.pub_map.publish(map_update_message(self.core.map, slot, out.version, now, frame,
-                                                tracks=out.tracks))
+                                                tracks=out.tracks,
+                                                frame_correction=self.core.frame_correction))
         ba_ms = out.bundle_adjustment.milliseconds if out.bundle_adjustment else 0.0
         compute_s = entry.compute_s + time.perf_counter() - started
         self.pub_stats.publish(map_stats_message(

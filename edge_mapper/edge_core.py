@@ -199,6 +199,12 @@ class EdgeMapperCore:
         self._loop_queries: list[LoopQuery] = []
         self.loops_closed = int(extra.get("loops_closed", 0))
         self.loops_refused = 0                 #: loops whose corrections went too far
+        #: the applied loops' corrections at the walk's head, composed: the frame the map is in
+        #: relative to the one the walk started in (MapUpdate.frame_correction)
+        self.frame_correction = np.asarray(extra.get("frame_correction", np.eye(4)),
+                                           dtype=np.float64).reshape(4, 4)
+        #: (first map version carrying it, frame_correction): the frame each version is in
+        self._frames_since: list[tuple[int, np.ndarray]] = [(0, self.frame_correction.copy())]
 
     def _open_archive(self) -> KeyFrameArchive:
         """The archive beside the checkpoint (``edge.npz`` → ``edge.npz.archive/``), restored
@@ -301,8 +307,8 @@ class EdgeMapperCore:
         hits = known.keys() & frame.tracks
         if not hits:
             return frame
-        return FrameObservations(frame.frame_id, frame.map_points | {known[t] for t in hits},
-                                 frame.tracks - hits, frame.tracked)
+        return dataclasses.replace(frame, map_points=frame.map_points | {known[t] for t in hits},
+                                   tracks=frame.tracks - hits)
 
     def add_keyframe(self, data: KeyFramePayload) -> IntegrationReport | None:
         """Integrate a keyframe the plan of its slot asked for — or hold it while an earlier
@@ -319,7 +325,8 @@ class EdgeMapperCore:
         return self._integrate(data)
 
     def _integrate(self, data: KeyFramePayload) -> IntegrationReport:
-        self._arriving.pop(data.frame_id, None)
+        observed = self._arriving.pop(data.frame_id, None)
+        data = self.in_current_frame(data, observed.map_version if observed else -1)
         refused = implausible_keyframe(data, self.map, ((kf.id, kf.pose) for kf in self.archive),
                                        self.config.keyframe_gate)
         if refused:
@@ -333,6 +340,25 @@ class EdgeMapperCore:
                                   LoopQuery(data.frame_id, data.keypoints, data.descriptors,
                                             data.depths)]
         return report
+
+    def frame_correction_at(self, version: int) -> np.ndarray:
+        """The frame map version ``version`` was in (its ``frame_correction``)."""
+        return next((c for first, c in reversed(self._frames_since) if first <= version),
+                    self._frames_since[0][1])
+
+    def in_current_frame(self, data: KeyFramePayload, tracked_on: int) -> KeyFramePayload:
+        """A keyframe the device tracked against map version ``tracked_on`` (-1: unknown), in
+        the frame the map is in now: a loop corrected since then did not reach the device
+        before it posed this frame (the map update comes a slot or two after the slot that
+        closed it), so its pose moves by the corrections applied since — else it would enter
+        the corrected map where the uncorrected one had it, its points a second copy of the
+        place."""
+        if tracked_on < 0:
+            return data
+        since = self.frame_correction @ np.linalg.inv(self.frame_correction_at(tracked_on))
+        if np.allclose(since, np.eye(4), atol=1e-12):
+            return data
+        return dataclasses.replace(data, pose=since @ data.pose)
 
     def integrate_held(self) -> list[int]:
         """The held keyframes of the slot that is now the oldest open one, integrated (call
@@ -396,6 +422,7 @@ class EdgeMapperCore:
                           last_slot=np.array(slot),
                           rate_history=np.array(self.rate_history, dtype=np.int64),
                           loops_closed=np.array(self.loops_closed),
+                          frame_correction=self.frame_correction,
                           **_table_arrays(known, "track"),
                           **_table_arrays(fresh, "previous_track"))
         self.archive.release_taken()          # restored keyframes are in the checkpoint now
@@ -456,6 +483,10 @@ class EdgeMapperCore:
                               farthest, result.seconds * 1e3,
                               f"it would move the map {farthest:.3g} m, more than {reach:g} m")
         correct_map(self.map, corrections)
+        # the walk's head (the newest keyframe of the graph, and every later one) moves by the
+        # newest correction: the frame the next map version is in
+        self.frame_correction = corrections[max(corrections)] @ self.frame_correction
+        self._frames_since.append((self.version + 1, self.frame_correction.copy()))
         archived = self.archive.correct({kf.id: c for kf in self.archive
                                          if (c := correction_for(corrections, kf.id))
                                          is not None}, write=False)

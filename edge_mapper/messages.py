@@ -44,10 +44,11 @@ def upload_request_message(slot: int, policy: str, rate_mbps: float, action: Map
 
 
 def map_update_message(keyframe_map: KeyFrameMap, slot: int, version: int, stamp: float,
-                       frame_id: str = "map", tracks: dict[int, int] | None = None
-                       ) -> MapUpdate:
+                       frame_id: str = "map", tracks: dict[int, int] | None = None,
+                       frame_correction: np.ndarray | None = None) -> MapUpdate:
     """The whole map for the device: keyframe poses, points with descriptors and how many
-    keyframes observe each, and the device tracks that became map points (``tracks``)."""
+    keyframes observe each, the device tracks that became map points (``tracks``), and the
+    loops' corrections so far at the walk's head (``frame_correction``; None: none)."""
     tracks = {t: p for t, p in (tracks or {}).items() if p in keyframe_map.points}
     kf_ids = keyframe_map.keyframe_ids()
     pt_ids = sorted(keyframe_map.points)
@@ -66,7 +67,9 @@ def map_update_message(keyframe_map: KeyFrameMap, slot: int, version: int, stamp
                                            for p in sorted(keyframe_map.keyframes[k].points)],
                                           dtype=np.uint64),
               track_ids=np.array(list(tracks), dtype=np.uint64),
-              track_point_ids=np.array(list(tracks.values()), dtype=np.uint64))
+              track_point_ids=np.array(list(tracks.values()), dtype=np.uint64),
+              frame_correction=pose_msg(np.eye(4) if frame_correction is None
+                                        else frame_correction))
     return set_header(msg, stamp, frame_id)
 
 

@@ -47,6 +47,9 @@ class FrameObservations:
     #: the device's camera-to-map pose estimate (4×4), when the summary carried one: where the
     #: camera is heading, for a planner that predicts the next frames (edge_mapper.planning_world)
     pose: np.ndarray | None = field(default=None, compare=False)
+    #: the map version the device tracked it against (FrameSummary.map_version; -1: unknown):
+    #: a loop's correction applied after that version has not reached its pose yet
+    map_version: int = -1
 
 
 @dataclass(frozen=True)

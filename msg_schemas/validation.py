@@ -134,6 +134,7 @@ def validate_map_update(msg: Any) -> None:
                            f"{len(msg.keyframe_poses)} poses")
     for i, pose in enumerate(msg.keyframe_poses):
         _pose(f"keyframe_poses[{i}]", pose)
+    _pose("frame_correction", msg.frame_correction)
     n = len(msg.point_ids)
     if len(msg.point_positions) != 3 * n:
         raise MessageError(f"point_positions has {len(msg.point_positions)} values for {n} points")

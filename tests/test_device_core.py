@@ -364,3 +364,45 @@ def test_a_lost_device_relocalises_on_every_third_frame_and_at_once_on_a_new_map
     assert core.apply_map_update(_update_from_own_points(core, 1, records[0].track_ids), 0)
     core.track(blank, None, frames[SLOT].stamp + 7 / 30)
     assert attempts[-1] == SLOT + 8, "a new map is tried at once"
+
+
+def test_a_loop_corrected_map_moves_the_devices_own_points_and_pose_with_it() -> None:
+    """The edge closed a loop: its update carries the map moved by a correction C (10 cm and
+    a degree) and says so (``frame_correction``). The device's own recent points and its
+    poses move with it, so it goes on tracking in the corrected frame — each next pose C times
+    where it was, no jump the motion gate would refuse — on one map, not on the corrected map
+    and its own uncorrected copy of the same walls."""
+    seq = SyntheticSequence(3 * SLOT, seed=0)
+    frames = list(seq)
+    core = DeviceTrackerCore(seq.intrinsics, SLOT, map_source="edge+local")
+    _track(core, frames[:SLOT])
+    records = core.take_slot()
+    _track(core, frames[SLOT:SLOT + 5])           # slot 1 under way when slot 0's map comes
+    correction = np.eye(4)
+    angle = np.radians(1.0)
+    correction[:3, :3] = [[np.cos(angle), -np.sin(angle), 0], [np.sin(angle), np.cos(angle), 0],
+                          [0, 0, 1]]
+    correction[:3, 3] = (0.1, 0.0, 0.02)
+    update = _update_from_own_points(core, 1, records[0].track_ids)
+    update.positions = update.positions @ correction[:3, :3].T + correction[:3, 3]
+    update.frame_correction = correction
+    own = (core.labels & np.uint64(TRACK_BIT)) != 0
+    resolved = set(records[0].track_ids.tolist())
+    active = core.tracking.map.active
+    before = {int(label): core.tracking.map.positions[row].copy()
+              for row, label in enumerate(core.labels)
+              if own[row] and active[row] and int(label) not in resolved}
+    assert before, "the device holds no point of its own beside the update's"
+    assert core.apply_map_update(update, 0)
+    np.testing.assert_array_equal(core.frame_correction, correction)
+    rows = {int(label): row for row, label in enumerate(core.labels)}
+    for label, xyz in before.items():
+        np.testing.assert_allclose(core.tracking.map.positions[rows[label]],
+                                   correction[:3, :3] @ xyz + correction[:3, 3], atol=1e-9)
+    results = _track(core, frames[SLOT + 5:2 * SLOT])
+    assert all(r.record.tracked for r in results), [r.record for r in results]
+    for r, frame in zip(results, frames[SLOT + 5:2 * SLOT], strict=True):
+        expected = correction @ np.linalg.inv(frames[0].pose) @ frame.pose
+        assert np.linalg.norm(r.record.pose[:3, 3] - expected[:3, 3]) < 0.02
+    # the same update again changes nothing: the frame is corrected once
+    assert not core.apply_map_update(update, 0)

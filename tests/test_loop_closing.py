@@ -14,7 +14,7 @@ import pytest
 
 from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, SlotOutcome
 from edge_mapper.loop_closer import LoopCloser, LoopJob, LoopQuery
-from edge_mapper.slot_planner import SlotConfig
+from edge_mapper.slot_planner import FrameObservations, SlotConfig
 from tests.test_edge_core import F, K, ReturningDevice, _run
 from twinslam.policies.registry import make_policy
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive
@@ -225,3 +225,51 @@ def test_work_the_worker_fails_beside_the_slots_is_kept_until_taken() -> None:
         closer.close()                                # waits for the queued work
     assert closer.failures() == ["dividing failed: ZeroDivisionError: division by zero"]
     assert closer.failures() == []
+
+
+class LaggingDevice(DriftingDevice):
+    """The drifting walk, its summaries saying which map version each frame was tracked on
+    (``tracked_on``; -1: unknown): the map a loop corrected reaches a device a slot or two
+    after the slot that closed it, and the frames it tracks meanwhile are posed on the map
+    before the correction — with that map's drift, which stops growing from ``held_from`` on
+    (the frame the loop was closed from: the old map is all the device tracks on)."""
+
+    tracked_on = -1
+    held_from: int | None = None
+
+    def summary(self, frame: int, core: EdgeMapperCore) -> FrameObservations:
+        return dataclasses.replace(super().summary(frame, core), map_version=self.tracked_on)
+
+    def keyframe(self, frame: int, slot: int, core: EdgeMapperCore) -> KeyFramePayload:
+        kf = super().keyframe(frame, slot, core)
+        if self.held_from is not None and frame > self.held_from:
+            kf.pose[0, 3] -= DRIFT_M * (frame - self.held_from)
+        return kf
+
+
+def test_keyframes_tracked_on_the_map_before_a_loop_enter_the_corrected_map_corrected() -> None:
+    """The slot after a loop: the device still tracks on the map before the correction (its
+    update is on the way), so its keyframes carry the drift the loop took out. The edge knows
+    which version each frame was tracked on and moves them by the corrections since: they
+    enter the corrected map where the corrected walk is, not a loop's drift away; an edge that
+    does not know the version (-1) takes them as they come, and its keyframe gate refuses
+    them (their map points no longer reproject where they were seen): the slot's uploads are
+    lost."""
+    errors, refused = {}, {}
+    for knows in (True, False):
+        device = LaggingDevice(np.random.default_rng(3), 8 * F)
+        core = _edge(loops=True)
+        out = _walk_until_a_loop(core, device)
+        assert out is not None and out.loop is not None and core.loops_closed == 1
+        moved = core.frame_correction
+        assert np.linalg.norm(moved[:3, 3]) > 0.1, "the loop corrected no drift at the head"
+        device.tracked_on = out.version - 1 if knows else -1    # the map before the loop
+        device.held_from = out.loop.new
+        after = _run(core, device, range(out.slot + 1, out.slot + 2), rates=[20.0])[0]
+        new = [k for k in core.map.keyframes if k >= (out.slot + 1) * F]
+        refused[knows] = sorted(after.refused)
+        errors[knows] = max((float(np.linalg.norm(core.map.keyframes[k].pose[:3, 3]
+                                                  - device.pose(k)[:3, 3])) for k in new),
+                            default=np.inf)
+    assert not refused[True] and errors[True] < 0.03, (refused, errors)
+    assert refused[False] or errors[False] > 0.1, (refused, errors)

@@ -27,3 +27,6 @@ class MapSnapshot:
     keyframe_points: list[np.ndarray] = field(default_factory=list)   #: M_f per keyframe
     track_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint64))
     track_point_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint64))
+    #: the loops' corrections at the walk's head so far, composed (4×4; identity: none): what
+    #: a device holds from an update with another one moves by this · that⁻¹
+    frame_correction: np.ndarray = field(default_factory=lambda: np.eye(4))

@@ -51,6 +51,12 @@ class LocalMap:
     def cull(self, ids: np.ndarray) -> None:
         self._active[ids] = False
 
+    def move(self, correction: np.ndarray) -> None:
+        """Every point moved by the rigid ``correction`` (4×4): the frame they are in was
+        corrected (a loop closed at the edge)."""
+        c = np.asarray(correction, dtype=np.float64)
+        self.positions[:] = self.positions @ c[:3, :3].T + c[:3, 3]
+
     def add(self, positions: np.ndarray, descriptors: np.ndarray, frame: int) -> np.ndarray:
         """Append points first seen in ``frame``; returns their new ids."""
         k = positions.shape[0]

@@ -234,6 +234,19 @@ class Tracking:
         self._probation = probation
         self._visible = np.zeros(0, dtype=np.int64)
 
+    def move_frame(self, correction: np.ndarray) -> None:
+        """The world frame was corrected by ``correction`` (4×4, a loop closed at the edge):
+        every pose the tracker holds moves with it — the last pose the motion model starts
+        from, the last counted one, the recent ones the motion gate measures from — so the next
+        frame is solved in the corrected frame, as continuous as before (the frame-to-frame
+        motion is relative and stays). The caller moves the points it tracks against."""
+        c = np.asarray(correction, dtype=np.float64)
+        if self._pose is not None:
+            self._pose = c @ self._pose
+        if self._last_tracked is not None:
+            self._last_tracked = c @ self._last_tracked
+        self._posed = [(i, c @ pose) for i, pose in self._posed]
+
     # -- steps ------------------------------------------------------------------------------
 
     def implausible(self, pose: np.ndarray, index: int) -> str:
