@@ -572,7 +572,9 @@ class EdgeMapperCore:
         points = seen_twice = {p for p in seen if len(self.map.points[p].observers) >= 2}
         cap = self.config.ba_points
         if cap is not None and len(points) > cap:
-            points = balanced_points(self.map, window, points, cap)
+            # the best-observed points constrain the poses most; the rest hold still
+            ranked = sorted(points, key=lambda p: (-len(self.map.points[p].observers), p))
+            points = set(ranked[:cap])
         observers = set().union(*(self.map.points[p].observers for p in points)) | window
         observations = []
         for kf in observers:
@@ -624,26 +626,6 @@ class EdgeMapperCore:
 
 #: integrated keyframes a loop job looks from at most (the newest)
 LOOP_QUERIES = 3
-
-
-def balanced_points(m: KeyFrameMap, window: Collection[int], points: Collection[int],
-                    cap: int) -> set[int]:
-    """At most ``cap`` of ``points`` for a local adjustment of the keyframes ``window``: each
-    keyframe of the window its own best-observed points first (an equal share of ``cap``),
-    then the best-observed of the rest. The best-observed points constrain the poses most —
-    but the newest keyframe's points are seen by few keyframes yet, and taken by rank alone
-    it got two or three of them: a pose held by two points turns freely about them, and on
-    the synthetic corridor's far end the adjustment turned keyframes the device had posed
-    within millimetres by 10–24° (bench.map_consistency; docs/results/map-consistency.md)."""
-    ranked = sorted(points, key=lambda p: (-len(m.points[p].observers), p))
-    share = max(cap // max(len(window), 1), 1)
-    chosen: set[int] = set()
-    for k in sorted(window):
-        own = m.keyframes[k].points
-        chosen.update([p for p in ranked if p in own][:share])
-    rest = [p for p in ranked if p not in chosen]
-    chosen.update(rest[:max(cap - len(chosen), 0)])
-    return chosen
 
 
 def applied_evictions(evict: Sequence[int], map_ids: Sequence[int], missing: Collection[int],

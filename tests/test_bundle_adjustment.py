@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from twinslam.slam.back_end.bundle_adjustment import MIN_VIEWS, Observation, bundle_adjust
+from twinslam.slam.back_end.bundle_adjustment import Observation, bundle_adjust
 
 K = np.array([[525.0, 0, 320], [0, 525, 240], [0, 0, 1]])
 
@@ -94,59 +94,3 @@ def test_bundle_adjustment_needs_a_fixed_keyframe_and_known_ids() -> None:
         bundle_adjust(poses, points, obs, K, fixed=set())
     with pytest.raises(ValueError, match="point 999"):
         bundle_adjust(poses, points, [*obs, Observation(0, 999, (1.0, 1.0))], K, fixed={0})
-
-
-def test_a_keyframe_few_observations_hold_stays_where_it_is() -> None:
-    """A keyframe that sees only a handful of the adjusted points (fewer than MIN_VIEWS) is
-    held, not turned about them; the others still move towards the truth."""
-    rng = np.random.default_rng(3)
-    poses, points, obs, _ = _scene(rng)
-    start_poses, start_points = _perturb(rng, poses, points)
-    few = [ob for ob in obs if ob.keyframe == 5][:MIN_VIEWS - 1]
-    obs = [ob for ob in obs if ob.keyframe != 5] + few
-    res = bundle_adjust(start_poses, start_points, obs, K, fixed={0}, max_iterations=10)
-    np.testing.assert_allclose(res.poses[5], start_poses[5])
-    def off(pose: np.ndarray) -> float:
-        return float(np.linalg.norm(pose[:3, 3] - poses[3][:3, 3]))
-
-    assert off(res.poses[3]) < 0.5 * off(start_poses[3])
-    # given MIN_VIEWS of them, it moves too
-    enough = [ob for ob in _scene(np.random.default_rng(3))[2] if ob.keyframe == 5][:MIN_VIEWS]
-    assert len(enough) == MIN_VIEWS
-    moved = bundle_adjust(start_poses, start_points, obs[:-len(few)] + enough, K, fixed={0},
-                          max_iterations=10)
-    assert not np.allclose(moved.poses[5], start_poses[5])
-
-
-def test_a_gauss_newton_answer_that_raises_the_error_is_not_returned(
-        monkeypatch: pytest.MonkeyPatch) -> None:
-    """A Gauss–Newton run that ends with a larger error than it started (a step out of a
-    poorly held corner) gives way to the damped solver, whose answer never raises it."""
-    import gtsam
-
-    from twinslam.slam.back_end import bundle_adjustment as ba
-
-    class Overshooting:
-        """Gauss–Newton that ends a long way off where it began."""
-
-        def __init__(self, graph: object, initial: gtsam.Values, params: object) -> None:
-            self.values = gtsam.Values(initial)
-            for key in list(initial.keys()):
-                if gtsam.Symbol(key).chr() == ord("x"):
-                    pose = initial.atPose3(key)
-                    turn = gtsam.Pose3(gtsam.Rot3.Yaw(2.0), np.zeros(3))
-                    self.values.update(key, pose.compose(turn))
-
-        def optimize(self) -> gtsam.Values:
-            return self.values
-
-        def iterations(self) -> int:
-            return 1
-
-    rng = np.random.default_rng(4)
-    poses, points, obs, _ = _scene(rng)
-    start_poses, start_points = _perturb(rng, poses, points)
-    monkeypatch.setattr(ba.gtsam, "GaussNewtonOptimizer", Overshooting)
-    res = bundle_adjust(start_poses, start_points, obs, K, fixed={0})
-    assert res.final_error <= res.initial_error
-    assert max(np.linalg.norm(res.poses[i][:3, 3] - poses[i][:3, 3]) for i in poses) < 0.05

@@ -9,17 +9,10 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from edge_mapper.edge_core import (
-    EdgeConfig,
-    EdgeMapperCore,
-    applied_evictions,
-    archive_folder,
-    balanced_points,
-)
+from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, applied_evictions, archive_folder
 from edge_mapper.planning_world import visible_points
 from edge_mapper.slot_planner import FrameObservations, SlotConfig
 from twinslam.policies.registry import make_policy
-from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.keyframe import TRACK_ID_BIT, KeyFramePayload
 
 K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
@@ -448,29 +441,3 @@ def test_applied_evictions_make_room_for_what_came_and_keep_vmax() -> None:
     # counted out), the oldest others follow C_k
     assert applied_evictions([3], [1, 2, 3, 4, 5, 6], [], 4) == [3, 1]
     assert applied_evictions([], [1, 2, 3], [9], 4) == []
-
-
-def test_the_local_adjustment_gives_the_newest_keyframe_its_share_of_points() -> None:
-    """Four older keyframes share 200 points among them; the newest shares its 30 with one
-    other keyframe only. Taken by how often they are seen, the 40 points the adjustment may
-    hold would all be the older ones' and leave the newest keyframe none to be held by; each
-    keyframe of the window gets its share first."""
-    m = KeyFrameMap()
-    for kf in range(6):
-        m.add_keyframe(kf, np.eye(4))
-    desc = np.zeros(32, np.uint8)
-    for _ in range(200):
-        pid = m.add_point(np.zeros(3), desc)
-        for kf in range(4):
-            m.observe(kf, pid, (1.0, 1.0), 1.0)
-    newest = []
-    for _ in range(30):
-        pid = m.add_point(np.zeros(3), desc)
-        newest.append(pid)
-        for kf in (4, 5):
-            m.observe(kf, pid, (1.0, 1.0), 1.0)
-    everything = set(m.points)
-    by_rank = set(sorted(everything, key=lambda p: (-len(m.points[p].observers), p))[:40])
-    assert not by_rank & set(newest)
-    chosen = balanced_points(m, [3, 5], everything, 40)
-    assert len(chosen) == 40 and len(chosen & set(newest)) == 20
