@@ -609,12 +609,18 @@ class EdgeMapperCore:
 
     def _implausible_adjustment(self, result: BundleAdjustmentResult, window: set[int]) -> str:
         """Why the adjustment's answer must not be applied, or "": a non-finite pose or point
-        (a diverged solve), or a keyframe moved farther than the correction a device accepts
-        on a map swap (``MotionBounds.correction_m``): a local adjustment with its neighbours
-        held still has no reason to move one so far."""
+        (a diverged solve), an error larger than it started from (Gauss–Newton takes its
+        steps whatever they do to the error: on the synthetic corridor one raised it from
+        1.2e3 to 1.0e6 and turned a keyframe 115°, bench.map_consistency), or a keyframe
+        moved farther than the correction a device accepts on a map swap
+        (``MotionBounds.correction_m``): a local adjustment with its neighbours held still has
+        no reason to move one so far."""
         if not all(np.isfinite(result.poses[k]).all() for k in window) or \
                 not all(np.isfinite(p).all() for p in result.points.values()):
             return "a non-finite pose or point"
+        if not result.final_error <= result.initial_error:
+            return (f"the adjustment raised its error from {result.initial_error:.3g} to "
+                    f"{result.final_error:.3g}")
         reach = self.config.keyframe_gate.motion.correction_m
         for k in sorted(window):
             before = self.map.keyframes[k].pose

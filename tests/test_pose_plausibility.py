@@ -218,3 +218,37 @@ def test_a_bundle_adjustment_that_diverged_is_not_applied(monkeypatch: pytest.Mo
     for k, kf in core.map.keyframes.items():
         if k in before:
             np.testing.assert_array_equal(kf.pose, before[k])
+
+
+def test_a_bundle_adjustment_that_raised_its_error_is_not_applied(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Gauss–Newton takes its steps whatever they do to the error: an answer whose error is
+    larger than where it started (here the newest keyframe turned 115° in place, within the
+    distance bound) is refused, and the keyframes stay where the device posed them."""
+    import edge_mapper.edge_core as edge_core
+
+    core, device = _edge()
+    solve = edge_core.bundle_adjust
+
+    def overshot(*args: object, **kwargs: object):
+        result = solve(*args, **kwargs)            # type: ignore[arg-type]
+        newest = max(result.poses)
+        turn = np.eye(4)
+        a = np.radians(115.0)
+        turn[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+        result.poses[newest] = result.poses[newest] @ turn
+        result.final_error = 1000.0 * result.initial_error + 1.0
+        return result
+
+    monkeypatch.setattr(edge_core, "bundle_adjust", overshot)
+    slot = 3
+    frames = [device.summary(f, core) for f in range(slot * F, (slot + 1) * F)]
+    plan = core.plan(slot, frames, 80.0, 1)
+    for f in plan.action.upload:
+        core.add_keyframe(device.keyframe(f, slot, core))
+    before = {k: kf.pose.copy() for k, kf in core.map.keyframes.items()}
+    out = core.finish_slot(slot)
+    assert out.optimisation_refused.startswith("the adjustment raised its error")
+    for k, kf in core.map.keyframes.items():
+        if k in before:
+            np.testing.assert_array_equal(kf.pose, before[k])
