@@ -14,6 +14,7 @@ from device_tracker.messages import read_map_update
 from edge_mapper.edge_core import EdgeMapperCore, SlotOutcome
 from edge_mapper.messages import map_update_message
 from edge_mapper.slot_planner import FrameObservations
+from twinslam.slam.map_update import MapSnapshot
 
 
 @dataclass(frozen=True)
@@ -24,18 +25,22 @@ class ServedSlot:
     plan_ms: float          #: the policy's decision with its observation
     integrate_ms: float     #: the requested keyframes added to the map
     finish_ms: float        #: eviction, bundle adjustment, checkpoint, uncertainty
+    #: the map update, when the caller applies it itself (``hold``); None: applied already
+    update: MapSnapshot | None = None
 
 
 def serve_slot(device: DeviceTrackerCore, edge: EdgeMapperCore, rate_mbps: float,
-               rate_state: int) -> ServedSlot:
+               rate_state: int, hold: bool = False) -> ServedSlot:
     """The device's finished slot through the edge, and the new map applied at the device
     at once. The summaries carry what the edge node reads from the wire: the observed points
     and tracks, the tracked flag and the pose (``mpc`` predicts from the poses; an untracked
-    frame is never uploaded)."""
+    frame is never uploaded). ``hold``: the update is returned for the caller to apply later
+    (as a live device gets it some frames into the next slot)."""
     frames = device.take_slot()
     slot = frames[-1].slot
     summaries = [FrameObservations(f.frame_id, frozenset(f.map_point_ids.tolist()),
-                                   frozenset(f.track_ids.tolist()), bool(f.tracked), f.pose)
+                                   frozenset(f.track_ids.tolist()), bool(f.tracked), f.pose,
+                                   f.map_version)
                  for f in frames]
     t0 = time.perf_counter()
     plan = edge.plan(slot, summaries, rate_mbps, rate_state)
@@ -50,6 +55,9 @@ def serve_slot(device: DeviceTrackerCore, edge: EdgeMapperCore, rate_mbps: float
     outcome = edge.finish_slot(slot)
     t3 = time.perf_counter()
     update = map_update_message(edge.map, slot, outcome.version, time.time(),
-                                tracks=outcome.tracks)
-    device.apply_map_update(read_map_update(update), slot)
+                                tracks=outcome.tracks, frame_correction=edge.frame_correction)
+    snapshot = read_map_update(update)
+    if hold:
+        return ServedSlot(outcome, (t1 - t0) * 1e3, (t2 - t1) * 1e3, (t3 - t2) * 1e3, snapshot)
+    device.apply_map_update(snapshot, slot)
     return ServedSlot(outcome, (t1 - t0) * 1e3, (t2 - t1) * 1e3, (t3 - t2) * 1e3)

@@ -1,0 +1,355 @@
+"""Whether the edge's map agrees with itself: the default device and edge driven in one
+process over a walk that comes back, with the archive's and the map's keyframes checked
+against the truth after every slot.
+
+    python -m bench.map_consistency [SEQUENCE] [--frames 5400] [--seed 4] [--uplink lte]
+        [--loops] [--update-delay 8] [--ba-window 5] [--csv FILE] [--keyframes-csv FILE]
+
+A walk that returns to a place finds it twice at the edge: in the archive (the keyframes
+evicted on the way out) and in the managed map (the keyframes made on the way back, or the
+archived ones restored). Where the two disagree, a loop looks too far to close and a restore
+puts a second copy of the wall into the map the device tracks on. This measures that
+disagreement without DDS and without threads, so a run is repeatable: each slot's
+summaries, uploads and map update pass through the cores
+(:func:`bench.in_process.serve_slot`), the loop closer works in the caller, and the map
+update reaches the device ``--update-delay`` frames into the next slot (8: the default
+device's D_req of 0.25 s; 0: at once — the device's drift depends on it, see
+docs/results/map-consistency.md).
+
+Per slot it prints (every ``--every`` slots, and at each loop) and writes to ``--csv``:
+
+* **archive vs map** — for every archived and managed keyframe whose true poses lie within
+  0.3 m and 20° (the revisit's bound), the translation error of their relative pose against
+  the truth's (RMS and largest pair): how far the archive's copy of a place lies from the
+  map's;
+* **within the map** — the same for pairs of managed keyframes ≥ 300 frames apart (a
+  restored keyframe beside the walk's own);
+* the loops closed and refused and the keyframes restored so far; for each loop, how far
+  apart its two keyframes truly were, how far its measured relative pose is from the truth's,
+  and how far the graph's answer is from the truth against the poses before it.
+
+At the end: the frames tracked, the device's ATE and revisit error, and the ATE of the
+edge's final keyframes (archive and map). ``--keyframes-csv`` writes every keyframe's
+history — integrated, evicted, restored, moved by a loop — with its position then and the
+truth's: where a disagreement was born.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import math
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from bench.in_process import serve_slot
+from device_tracker.device_core import DeviceTrackerCore
+from device_tracker.parameters import PARAMETERS as DEVICE_PARAMETERS
+from device_tracker.parameters import DeviceSettings
+from edge_mapper.edge_core import EdgeMapperCore
+from edge_mapper.loop_closer import LoopResult
+from edge_mapper.parameters import PARAMETERS as EDGE_PARAMETERS
+from edge_mapper.parameters import edge_config
+from twinslam.cli.console import HelpFormatter
+from twinslam.live.tracking_quality import (
+    REVISIT_ANGLE_DEG,
+    REVISIT_RADIUS_M,
+    absolute_trajectory_error,
+    revisit_error,
+    truth_in_map,
+)
+from twinslam.policies.registry import make_policy
+from twinslam.sequences.opening import open_sequence
+from twinslam.slam.back_end.depth_alignment import lift
+from twinslam.slot_protocol import default_device
+from twinslam.uplink.channels import parse_channel
+from twinslam.uplink.families import uplink_family
+
+#: two managed keyframes this many frames apart that see one place: one was restored
+RESTORED_GAP = 300
+
+
+@dataclass(frozen=True)
+class Disagreement:
+    """Relative-pose errors of keyframe pairs that truly see one place (m)."""
+
+    pairs: int = 0
+    rms_m: float = math.nan
+    max_m: float = math.nan
+    #: the worst pair (a, b) and its error
+    worst: tuple[int, int] = (-1, -1)
+
+
+def disagreement(first: dict[int, np.ndarray], second: dict[int, np.ndarray],
+                 truth: dict[int, np.ndarray], min_gap: int = 0) -> Disagreement:
+    """For each keyframe a of ``first`` and b of ``second`` (id → camera-to-map) whose true
+    poses lie within the revisit's bound and ≥ ``min_gap`` ids apart, the translation error
+    of a⁻¹·b against the truth's. A relative pose needs no alignment: a map shifted as a
+    whole disagrees with nothing; two copies of one place do."""
+    a_ids = [k for k in first if k in truth]
+    b_ids = [k for k in second if k in truth]
+    if not a_ids or not b_ids:
+        return Disagreement()
+    ta = np.array([truth[k] for k in a_ids])
+    tb = np.array([truth[k] for k in b_ids])
+    ea = np.array([first[k] for k in a_ids])
+    eb = np.array([second[k] for k in b_ids])
+    cos_max = math.cos(math.radians(REVISIT_ANGLE_DEG))
+    errors: list[float] = []
+    worst, worst_e = (-1, -1), -1.0
+    for i, a in enumerate(a_ids):
+        near = np.linalg.norm(tb[:, :3, 3] - ta[i, :3, 3], axis=1) <= REVISIT_RADIUS_M
+        cos = (np.einsum("ab,nab->n", ta[i, :3, :3], tb[:, :3, :3]) - 1.0) / 2.0
+        gap = np.abs(np.array(b_ids) - a) >= max(min_gap, 1)
+        for j in np.flatnonzero(near & (cos >= cos_max) & gap):
+            off = np.linalg.inv(np.linalg.inv(ta[i]) @ tb[j]) @ (np.linalg.inv(ea[i]) @ eb[j])
+            e = float(np.linalg.norm(off[:3, 3]))
+            errors.append(e)
+            if e > worst_e:
+                worst, worst_e = (a, b_ids[j]), e
+    if not errors:
+        return Disagreement()
+    arr = np.array(errors)
+    return Disagreement(len(errors), float(np.sqrt(np.mean(arr ** 2))), float(arr.max()), worst)
+
+
+@dataclass
+class KeyframeHistory:
+    """What happened to one keyframe: (slot, event, its pose then)."""
+
+    events: list[tuple[int, str, np.ndarray]] = field(default_factory=list)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0],
+                                     epilog=__doc__.split("\n", 2)[2],
+                                     formatter_class=HelpFormatter)
+    parser.add_argument("sequence", nargs="?", default="synthetic-corridor:5400",
+                        help="the walk (a sequence the player reads; default: the synthetic "
+                             "corridor out and back twice)")
+    parser.add_argument("--frames", type=int, default=5400, help="frames to play")
+    parser.add_argument("--seed", type=int, default=4,
+                        help="the uplink's seed, and a synthetic walk's (its sway and gaze)")
+    parser.add_argument("--uplink", default="lte", help="uplink family (table1, lte, mmwave, "
+                        "constrained)")
+    parser.add_argument("--loops", action="store_true", help="the edge closes loops")
+    parser.add_argument("--restores", type=int, default=default_device.RESTORE_KEYFRAMES,
+                        help="archived keyframes restored a slot where the camera heads")
+    parser.add_argument("--update-delay", type=int, default=0,
+                        help="frames of the next slot the device tracks before the map update "
+                             "reaches it (0: at once; the live default device's D_req is 8)")
+    parser.add_argument("--ba-window", type=int, default=5,
+                        help="keyframes the edge's local bundle adjustment moves (0: none)")
+    parser.add_argument("--every", type=int, default=10, help="print every N slots")
+    parser.add_argument("--csv", type=Path, help="write the per-slot figures here")
+    parser.add_argument("--keyframes-csv", type=Path,
+                        help="write every keyframe's history (events and errors) here")
+    args = parser.parse_args()
+    cv2.setNumThreads(1)
+    spec = args.sequence
+    if spec.startswith("synthetic") and spec.count(":") == 1:
+        spec = f"{spec}:{args.seed}"
+    reader = open_sequence(spec, end=args.frames)
+    device_params = {p.name: p.default for p in DEVICE_PARAMETERS}
+    settings = DeviceSettings.from_parameters(device_params)
+    DeviceTrackerCore.warm_up(reader.intrinsics)
+    device = DeviceTrackerCore(reader.intrinsics, settings.slot_frames, settings.tracking,
+                               settings.keep_slots, settings.frame_rate_hz, settings.map_source,
+                               settings.own_map_after)
+    edge_params = {p.name: p.default for p in EDGE_PARAMETERS}
+    edge_params.update(loop_closing=args.loops, restore_keyframes=args.restores,
+                       ba_window=max(args.ba_window, 1))
+    config = edge_config(edge_params)
+    config = dataclasses.replace(config, loop_background=False, ba_window=args.ba_window)
+    family = uplink_family(args.uplink)
+    channel = parse_channel(family.channel, family.rate_mbps or (5.0, 45.0), seed=args.seed,
+                            slot_seconds=settings.slot_frames / settings.frame_rate_hz)
+    truth: dict[int, np.ndarray] = {}
+    poses: dict[int, np.ndarray] = {}
+    tracked: list[int] = []
+    stamp_ns: dict[int, int] = {}
+    history: dict[int, KeyframeHistory] = {}
+    rows: list[dict[str, object]] = []
+    started = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        edge = EdgeMapperCore(make_policy(default_device.POLICY), reader.intrinsics, config,
+                              Path(tmp) / "edge.npz")
+        restored_total = 0
+        held = None
+        taken: list[LoopResult] = []
+        take = edge.loop_closer.take
+
+        def keep(wait_s: float = 0.0) -> LoopResult | None:
+            result = take(wait_s)
+            if result is not None and result.closure is not None:
+                taken.append(result)
+            return result
+
+        edge.loop_closer.take = keep  # type: ignore[method-assign]
+        for frame in reader:
+            result = device.track(frame.color, frame.depth, frame.stamp)
+            if held is not None and (result.slot_done or
+                                     frame.index - held[2] >= args.update_delay):
+                device.apply_map_update(held[0], held[1])
+                held = None
+            if frame.pose is not None:
+                truth[frame.index] = frame.pose
+                stamp_ns[frame.index] = round(frame.stamp * 1e9)
+                if result.record.tracked:
+                    poses[frame.index] = result.record.pose
+                    tracked.append(frame.index)
+            if not result.slot_done:
+                continue
+            state, rate = channel.step()
+            before = {k: kf.pose.copy() for k, kf in edge.map.keyframes.items()}
+            served = serve_slot(device, edge, rate, state, hold=args.update_delay > 0)
+            out = served.outcome
+            if served.update is not None:
+                held = (served.update, out.slot, frame.index)
+            restored_total += len(out.restored)
+            for k in out.integrated:
+                if k in edge.map.keyframes:
+                    history.setdefault(k, KeyframeHistory()).events.append(
+                        (out.slot, "integrated", edge.map.keyframes[k].pose.copy()))
+            for k in out.evicted:
+                history.setdefault(k, KeyframeHistory()).events.append(
+                    (out.slot, "evicted", before.get(k, np.full((4, 4), np.nan))))
+            for k in out.restored:
+                history.setdefault(k, KeyframeHistory()).events.append(
+                    (out.slot, "restored", edge.map.keyframes[k].pose.copy()))
+            if out.loop is not None and not out.loop.refused:
+                for k, kf in edge.map.keyframes.items():
+                    history.setdefault(k, KeyframeHistory()).events.append(
+                        (out.slot, "loop", kf.pose.copy()))
+            archived = {kf.id: kf.pose for kf in edge.archive}
+            managed = {k: kf.pose for k, kf in edge.map.keyframes.items()}
+            across = disagreement(archived, managed, truth)
+            within = disagreement(managed, managed, truth, RESTORED_GAP)
+            row = {"slot": out.slot, "frame": frame.index, "map": len(managed),
+                   "archive": len(archived), "restored": restored_total,
+                   "loops_closed": edge.loops_closed, "loops_refused": edge.loops_refused,
+                   "loop": "" if out.loop is None else
+                   f"{out.loop.old}->{out.loop.new} {out.loop.inliers} inl "
+                   f"{out.loop.moved_m:.3f} m {out.loop.refused or 'applied'}",
+                   "archive_pairs": across.pairs, "archive_rms_m": across.rms_m,
+                   "archive_max_m": across.max_m, "archive_worst": across.worst,
+                   "map_pairs": within.pairs, "map_rms_m": within.rms_m,
+                   "map_max_m": within.max_m, "map_worst": within.worst,
+                   "edge_ms": served.plan_ms + served.integrate_ms + served.finish_ms}
+            rows.append(row)
+            if out.loop is not None and taken:
+                print(loop_report(edge, taken[-1], truth, reader.intrinsics))
+            if out.slot % args.every == 0 or out.loop is not None:
+                print(f"slot {out.slot:4d} frame {frame.index:5d} map {len(managed):2d} "
+                      f"archive {len(archived):3d} restored {restored_total:3d} "
+                      f"loops {edge.loops_closed}/{edge.loops_refused} | archive vs map "
+                      f"{across.pairs:4d} pairs rms {across.rms_m:.3f} max {across.max_m:.3f} "
+                      f"{across.worst} | within map {within.pairs:3d} rms {within.rms_m:.3f} "
+                      f"max {within.max_m:.3f} {within.worst} {row['loop']}", flush=True)
+        edge.close()
+        final = {kf.id: kf.pose for kf in edge.archive}
+        final.update({k: kf.pose for k, kf in edge.map.keyframes.items()})
+    ate = absolute_trajectory_error(poses, truth)
+    stamps = {stamp_ns[k]: k for k in tracked}
+    rev = revisit_error({s: poses[k] for s, k in stamps.items()},
+                        {s: truth[k] for s, k in stamps.items()}, stamps)
+    print(f"{len(tracked)} of {len(truth)} frames tracked, ATE {ate:.3f} m, revisit error "
+          f"RMS {rev.rms_m:.3f} m ({rev.pairs} pairs), loops {edge.loops_closed} closed "
+          f"{edge.loops_refused} refused, {time.perf_counter() - started:.0f} s")
+    print(f"the edge's final keyframes (archive and map, {len(final)}): ATE "
+          f"{absolute_trajectory_error(final, truth):.3f} m")
+    largest = max((float(r["archive_max_m"]) for r in rows
+                   if not math.isnan(float(r["archive_max_m"]))), default=math.nan)
+    print(f"archive vs map: at the end RMS {rows[-1]['archive_rms_m']:.3f} m, the largest "
+          f"pair over the walk {largest:.3f} m")
+    if args.csv:
+        with args.csv.open("w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+            writer.writeheader()
+            writer.writerows(rows)
+    if args.keyframes_csv:
+        write_histories(args.keyframes_csv, history, truth)
+
+
+def loop_report(edge: EdgeMapperCore, result: LoopResult, truth: dict[int, np.ndarray],
+                intrinsics: np.ndarray) -> str:
+    """A loop against the truth: how far apart its keyframes were, how far its measurement
+    is from the truth's relative pose, what the graph did to the keyframes' error, and how
+    well the old keyframe's points still fit its own measurements."""
+    q, o, measured = result.query, result.candidate.old, result.candidate.measured
+    if q not in truth or o not in truth or measured is None or result.closure is None:
+        return f"    loop {o}->{q}: no truth for it"
+    true_rel = np.linalg.inv(truth[o]) @ truth[q]
+    off = np.linalg.inv(true_rel) @ measured
+    turn = math.degrees(math.acos(np.clip((np.trace(off[:3, :3]) - 1) / 2, -1, 1)))
+    return (f"    loop {o}->{q}: truly {np.linalg.norm(true_rel[:3, 3]):.2f} m apart; measured "
+            f"off by {np.linalg.norm(off[:3, 3]):.3f} m, {turn:.2f} deg; graph error "
+            f"{result.closure.initial_error:.1f} -> {result.closure.final_error:.1f}\n"
+            f"    loop {o}->{q}: keyframes against the truth {graph_vs_truth(result, truth)}\n"
+            f"    loop {o}->{q}: the old keyframe against its points "
+            f"{self_disagreement(edge, o, intrinsics)}")
+
+
+def graph_vs_truth(result: LoopResult, truth: dict[int, np.ndarray]) -> str:
+    """RMS and largest position error of the loop graph's keyframes against the truth, before
+    and after the graph (each aligned to the truth on its own, as the ATE)."""
+    closure = result.closure
+    if closure is None:
+        return ""
+    ids = [k for k in sorted(closure.poses) if k in truth]
+    after = {k: closure.poses[k] for k in ids}
+    before = {k: np.linalg.inv(closure.corrections[k]) @ closure.poses[k] for k in ids}
+    out = []
+    for name, poses in (("before", before), ("after", after)):
+        in_map = truth_in_map(poses, {k: truth[k] for k in ids})
+        e = np.array([np.linalg.norm(poses[k][:3, 3] - in_map[k][:3, 3]) for k in ids])
+        worst = ids[int(np.argmax(e))]
+        out.append(f"{name} rms {np.sqrt(np.mean(e ** 2)):.3f} max {e.max():.3f} ({worst})")
+    return "; ".join(out)
+
+
+def self_disagreement(edge: EdgeMapperCore, kf_id: int, intrinsics: np.ndarray) -> str:
+    """How far keyframe ``kf_id``'s own measurements (lifted by its pose) lie from the
+    points it observes: median and 90th percentile (m), and the share beyond 5 cm."""
+    if kf_id in edge.archive:
+        kf = edge.archive.get(kf_id)
+        pose, positions, meas = kf.pose, kf.positions, kf.measurements
+    elif kf_id in edge.map.keyframes:
+        k = edge.map.keyframes[kf_id]
+        ids = sorted(k.points)
+        pose = k.pose
+        positions = np.array([edge.map.points[p].position for p in ids])
+        meas = np.array([k.measurements[p] for p in ids])
+    else:
+        return "gone"
+    ok = np.isfinite(meas).all(axis=1) & (meas[:, 2] > 0)
+    cam = lift(meas[ok, :2], meas[ok, 2], intrinsics)
+    d = np.linalg.norm(cam @ pose[:3, :3].T + pose[:3, 3] - positions[ok], axis=1)
+    if not len(d):
+        return "no depth"
+    return (f"median {np.median(d):.3f} p90 {np.percentile(d, 90):.3f} m, "
+            f"{np.mean(d > 0.05):.0%} beyond 5 cm of {len(d)}")
+
+
+def write_histories(path: Path, history: dict[int, KeyframeHistory],
+                    truth: dict[int, np.ndarray]) -> None:
+    """Each keyframe's events with its position then and the truth's."""
+    with path.open("w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(["keyframe", "slot", "event", "x", "y", "z", "true_x", "true_y",
+                         "true_z"])
+        for k in sorted(history):
+            t = truth.get(k, np.full((4, 4), np.nan))
+            for slot, event, pose in history[k].events:
+                writer.writerow([k, slot, event, *np.round(pose[:3, 3], 4),
+                                 *np.round(t[:3, 3], 4)])
+
+
+if __name__ == "__main__":
+    main()

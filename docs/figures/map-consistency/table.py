@@ -1,0 +1,92 @@
+"""The map-consistency runs as tables: each run's figures from its log (the last lines
+``python -m bench.map_consistency`` prints), the mean ± its 95 % half-width (Student's t) per
+variant and the paired differences against a reference variant by seed.
+
+    python docs/figures/map-consistency/table.py FOLDER [--reference NAME] [--csv FILE]
+
+FOLDER holds logs named ``VARIANT-SEED.log``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import re
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[3]
+sys.path.insert(0, str(REPO))
+
+from twinslam.reporting import mean_ci95, paired_difference  # noqa: E402
+
+FINAL = re.compile(r"(\d+) of (\d+) frames tracked, ATE ([\d.]+) m, revisit error RMS "
+                   r"([\d.na]+) m .*loops (\d+) closed (\d+) refused")
+KEYFRAMES = re.compile(r"final keyframes \(archive and map, (\d+)\): ATE ([\d.]+) m")
+FIGURES = ("ate_m", "revisit_m", "keyframe_ate_m", "untracked", "loops_closed",
+           "loops_refused")
+
+
+def read_run(path: Path) -> dict[str, float] | None:
+    """A run's figures, or None for a log that did not finish."""
+    text = path.read_text()
+    final, keyframes = FINAL.search(text), KEYFRAMES.search(text)
+    if final is None or keyframes is None:
+        return None
+    tracked, frames, ate, revisit, closed, refused = final.groups()
+    return {"ate_m": float(ate), "revisit_m": float(revisit),
+            "keyframe_ate_m": float(keyframes.group(2)),
+            "untracked": float(int(frames) - int(tracked)), "loops_closed": float(closed),
+            "loops_refused": float(refused)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("folder", type=Path, help="the logs, VARIANT-SEED.log")
+    parser.add_argument("--reference", help="the variant the others are paired against")
+    parser.add_argument("--csv", type=Path, help="write every run's figures here")
+    args = parser.parse_args()
+    runs: dict[str, dict[int, dict[str, float]]] = {}
+    for log in sorted(args.folder.glob("*.log")):
+        variant, _, seed = log.stem.rpartition("-")
+        figures = read_run(log)
+        if figures is not None:
+            runs.setdefault(variant, {})[int(seed)] = figures
+    if args.csv:
+        with args.csv.open("w", newline="") as f:
+            writer = csv.writer(f)
+            writer.writerow(["variant", "seed", *FIGURES])
+            for variant, by_seed in runs.items():
+                for seed, fig in sorted(by_seed.items()):
+                    writer.writerow([variant, seed, *(fig[k] for k in FIGURES)])
+    print("| variant | runs | ATE (m) | revisit error (m) | the edge's final keyframes, ATE (m) "
+          "| untracked frames | loops closed | loops refused |")
+    print("|---|---|---|---|---|---|---|---|")
+    for variant, by_seed in runs.items():
+        cells = []
+        for key in FIGURES:
+            mean, half = mean_ci95([fig[key] for fig in by_seed.values()])
+            digits = 3 if key.endswith("_m") else 1
+            cells.append(f"{mean:.{digits}f} ± {half:.{digits}f}")
+        print(f"| {variant} | {len(by_seed)} | " + " | ".join(cells) + " |")
+    if not args.reference or args.reference not in runs:
+        return
+    print()
+    print(f"| variant − {args.reference}, paired by seed | seeds | ATE (m) | revisit error (m) | "
+          "final keyframes, ATE (m) |")
+    print("|---|---|---|---|---|")
+    base = runs[args.reference]
+    for variant, by_seed in runs.items():
+        if variant == args.reference:
+            continue
+        seeds = sorted(set(by_seed) & set(base))
+        cells = []
+        for key in ("ate_m", "revisit_m", "keyframe_ate_m"):
+            d = paired_difference([[by_seed[s][key] for s in seeds]],
+                                  [base[s][key] for s in seeds])
+            cells.append(f"{d.mean:+.3f} [{d.low:+.3f}, {d.high:+.3f}]")
+        print(f"| {variant} | {len(seeds)} | " + " | ".join(cells) + " |")
+
+
+if __name__ == "__main__":
+    main()
