@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from edge_mapper.loop_closer import LoopJob, LoopQuery, consecutive_shared, run_job
+from edge_mapper.loop_closer import LoopJob, LoopQuery, run_job, shared_points
 from twinslam.cli.console import HelpFormatter
 from twinslam.sequences.opening import open_sequence
 from twinslam.slam.back_end.keyframe_archive import (
@@ -128,7 +128,7 @@ def main() -> None:
         if not loop.found or loop.measured is None:
             continue
         found += 1
-        shared = consecutive_shared(job)
+        shared = shared_points(job)
         with _timed(times["graph"]):
             closure = close_loop(job.poses, loop.old, query, loop.measured, shared)
         with _timed(times["job"]):

@@ -55,6 +55,7 @@ from twinslam.slam.back_end.local_mapping import IntegrationReport, LocalMapping
 from twinslam.slam.back_end.loop_correction import correct_map, correction_for, farthest_move
 from twinslam.slam.back_end.loop_detection import MIN_GAP
 from twinslam.slam.back_end.point_fusion import fuse_restored
+from twinslam.slam.back_end.pose_graph import LoopEdge
 from twinslam.slam.keyframe import KeyFramePayload
 from twinslam.uncertainty.map_uncertainty import map_uncertainty
 
@@ -198,6 +199,9 @@ class EdgeMapperCore:
         #: keyframes integrated since the last loop job, newest last
         self._loop_queries: list[LoopQuery] = []
         self.loops_closed = int(extra.get("loops_closed", 0))
+        #: every loop applied: the next loop's graph holds them too (a new loop must not undo
+        #: an older one)
+        self.loop_edges: list[LoopEdge] = _loop_edges(extra)
         self.loops_refused = 0                 #: loops whose corrections went too far
         #: the applied loops' corrections at the walk's head, composed: the frame the map is in
         #: relative to the one the walk started in (MapUpdate.frame_correction)
@@ -422,6 +426,7 @@ class EdgeMapperCore:
                           last_slot=np.array(slot),
                           rate_history=np.array(self.rate_history, dtype=np.int64),
                           loops_closed=np.array(self.loops_closed),
+                          **_loop_arrays(self.loop_edges),
                           frame_correction=self.frame_correction,
                           **_table_arrays(known, "track"),
                           **_table_arrays(fresh, "previous_track"))
@@ -458,7 +463,8 @@ class EdgeMapperCore:
         poses = {kf.id: kf.pose for kf in self.archive}
         poses.update({k: kf.pose.copy() for k, kf in self.map.keyframes.items()})
         job = LoopJob(tuple(reversed(queries)), self.archive.snapshot(old), poses, self.k.copy(),
-                      {k: frozenset(kf.points) for k, kf in self.map.keyframes.items()})
+                      {k: frozenset(kf.points) for k, kf in self.map.keyframes.items()},
+                      tuple(self.loop_edges))
         if self.loop_closer.submit(job):
             self._loop_queries = []
 
@@ -497,6 +503,8 @@ class EdgeMapperCore:
             fuse_restored(self.map, old, sorted(self.map.keyframes[old].points), self.k,
                           self.config.image_shape)
         self.loops_closed += 1
+        if result.candidate.measured is not None:
+            self.loop_edges.append(LoopEdge(old, result.query, result.candidate.measured))
         return ClosedLoop(old, result.query, result.candidate.inliers, farthest,
                           result.seconds * 1e3)
 
@@ -677,6 +685,21 @@ def heading(frames: Sequence[FrameObservations]) -> list[np.ndarray]:
 def archive_folder(checkpoint: Path) -> Path:
     """Where the archive of the map checkpointed at ``checkpoint`` lives."""
     return checkpoint.with_name(checkpoint.name + ".archive")
+
+
+def _loop_arrays(edges: Sequence[LoopEdge]) -> dict[str, np.ndarray]:
+    """The loops applied as the checkpoint's arrays."""
+    return {"loop_old": np.array([e.old for e in edges], dtype=np.int64),
+            "loop_new": np.array([e.new for e in edges], dtype=np.int64),
+            "loop_measured": np.array([e.measured for e in edges],
+                                      dtype=np.float64).reshape(-1, 4, 4)}
+
+
+def _loop_edges(extra: dict[str, np.ndarray]) -> list[LoopEdge]:
+    """The loops :func:`_loop_arrays` wrote (none in a checkpoint written before them)."""
+    measured = np.asarray(extra.get("loop_measured", np.zeros((0, 4, 4)))).reshape(-1, 4, 4)
+    return [LoopEdge(int(o), int(n), m) for o, n, m in
+            zip(extra.get("loop_old", []), extra.get("loop_new", []), measured, strict=True)]
 
 
 def _table_arrays(table: dict[int, int], name: str) -> dict[str, np.ndarray]:

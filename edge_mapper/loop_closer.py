@@ -28,8 +28,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
+from twinslam.slam.back_end.keyframe_map import shared_counts
 from twinslam.slam.back_end.loop_detection import MIN_GAP, LoopCandidate, detect_loop
-from twinslam.slam.back_end.pose_graph import LoopClosure, close_loop
+from twinslam.slam.back_end.pose_graph import LoopClosure, LoopEdge, close_loop
 
 #: after a loop closes at keyframe q, keyframes up to q + COOLDOWN ids look for none (the walk
 #: goes on through the same place: each of them would find the loop just closed again)
@@ -55,6 +56,8 @@ class LoopJob:
     intrinsics: np.ndarray
     #: the managed map's keyframes' map points (the archive's are in its snapshot)
     map_points: Mapping[int, frozenset[int]]
+    #: the loops closed before, held by the new loop's graph too
+    earlier: tuple[LoopEdge, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -93,21 +96,26 @@ def run_job(job: LoopJob, min_gap: int = MIN_GAP) -> LoopResult:
     closure = None
     if candidate.found and candidate.measured is not None and query in job.poses:
         closure = close_loop(job.poses, candidate.old, query, candidate.measured,
-                             consecutive_shared(job))
+                             shared_points(job), job.earlier)
     return LoopResult(candidate, query, closure, time.perf_counter() - start)
 
 
-def consecutive_shared(job: LoopJob) -> dict[tuple[int, int], int]:
-    """The map points each pair of consecutive keyframes (by id) of the job's graph shares:
-    the covisibility that makes a step of the walk stiff."""
+def shared_points(job: LoopJob) -> dict[tuple[int, int], int]:
+    """The map points pairs of keyframes (a < b) of the job's graph share: each consecutive
+    pair (by id: how stiff a step of the walk is, 0 included) and every other pair that
+    shares any (the covisibility that holds keyframes seeing one place together)."""
     ids = sorted(job.poses)
-    points = dict(job.map_points)
+    points = {k: np.fromiter(v, dtype=np.int64) for k, v in job.map_points.items()}
     for kf in job.archive:
         if kf.id not in points:
-            points[kf.id] = frozenset(kf.point_ids.tolist())
-    empty: frozenset[int] = frozenset()
-    return {(a, b): len(points.get(a, empty) & points.get(b, empty))
-            for a, b in itertools.pairwise(ids)}
+            points[kf.id] = np.unique(kf.point_ids.astype(np.int64))
+    empty = np.zeros(0, dtype=np.int64)
+    counts = shared_counts([points.get(k, empty) for k in ids])
+    shared = {(a, b): 0 for a, b in itertools.pairwise(ids)}
+    rows, cols = np.nonzero(np.triu(counts, 1))
+    shared.update({(ids[i], ids[j]): int(counts[i, j])
+                   for i, j in zip(rows.tolist(), cols.tolist(), strict=True)})
+    return shared
 
 
 class LoopCloser:

@@ -111,8 +111,8 @@ def test_a_loop_that_would_move_the_map_beyond_a_devices_reach_is_refused() -> N
 
 def test_the_loop_corrected_map_and_archive_survive_a_restart(tmp_path: Path) -> None:
     """A loop's corrections reach the checkpoint: an edge restarted from it holds the
-    corrected keyframes, counts the loop, and reads back an archived keyframe the loop moved
-    as moved."""
+    corrected keyframes, counts the loop, keeps it for the next loop's graph, and reads back
+    an archived keyframe the loop moved as moved."""
     device = DriftingDevice(np.random.default_rng(3), 8 * F)
     checkpoint = tmp_path / "edge.npz"
     core = _edge(loops=True, checkpoint=checkpoint)
@@ -120,6 +120,8 @@ def test_the_loop_corrected_map_and_archive_survive_a_restart(tmp_path: Path) ->
     assert out is not None and out.loop is not None
     again = _edge(loops=True, checkpoint=checkpoint)
     assert again.loops_closed == 1
+    assert [(e.old, e.new) for e in again.loop_edges] == [(out.loop.old, out.loop.new)]
+    np.testing.assert_allclose(again.loop_edges[0].measured, core.loop_edges[0].measured)
     for k, kf in core.map.keyframes.items():
         np.testing.assert_allclose(again.map.keyframes[k].pose, kf.pose, atol=1e-9)
     # a correction of an archived keyframe is written to its file

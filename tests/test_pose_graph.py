@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from twinslam.slam.back_end.pose_graph import close_loop, move_with_keyframes
+from twinslam.slam.back_end.pose_graph import LoopEdge, close_loop, move_with_keyframes
 
 
 def _yaw(angle: float, x: float = 0.0, y: float = 0.0) -> np.ndarray:
@@ -68,3 +68,56 @@ def test_a_loop_must_join_two_keyframes_of_the_graph() -> None:
         close_loop(estimate, 0, 7, np.eye(4))
     with pytest.raises(ValueError, match="two keyframes"):
         close_loop(estimate, 3, 3, np.eye(4))
+
+
+def test_a_second_loop_holds_the_first() -> None:
+    """Two laps of the room, each drifting: the first lap's loop (0 → 39) is closed, then the
+    second lap comes past keyframe 20 again (60). Its graph holds the first loop too, so the
+    first lap stays closed (within 2 cm); a graph made of the new loop alone spreads the
+    second lap's drift over the first lap's steps and opens it again."""
+    drift = math.radians(0.5)
+    truth = {i: _yaw(2 * math.pi * i / 40, 2 * math.cos(2 * math.pi * i / 40),
+                     2 * math.sin(2 * math.pi * i / 40)) for i in range(80)}
+    estimate = {0: truth[0].copy()}
+    for i in range(1, 80):
+        estimate[i] = estimate[i - 1] @ np.linalg.inv(truth[i - 1]) @ truth[i] @ _yaw(drift)
+    first = LoopEdge(0, 39, np.linalg.inv(truth[0]) @ truth[39])
+    lap = {i: p for i, p in estimate.items() if i < 40}
+    closed = close_loop(lap, first.old, first.new, first.measured).poses
+    # the second lap continues from the corrected first one, drifting as before
+    for i in range(40, 80):
+        closed[i] = closed[i - 1] @ np.linalg.inv(truth[i - 1]) @ truth[i] @ _yaw(drift)
+    second = np.linalg.inv(truth[20]) @ truth[60]
+
+    def first_lap_gap(poses: dict[int, np.ndarray]) -> float:
+        relative = np.linalg.inv(poses[0]) @ poses[39]
+        return float(np.linalg.norm(relative[:3, 3] - first.measured[:3, 3]))
+
+    assert first_lap_gap(closed) < 0.02
+    held = close_loop(closed, 20, 60, second, earlier=[first]).poses
+    alone = close_loop(closed, 20, 60, second).poses
+    assert first_lap_gap(held) < 0.02
+    assert first_lap_gap(alone) > 0.1
+    # both close the second loop
+    for poses in (held, alone):
+        relative = np.linalg.inv(poses[20]) @ poses[60]
+        assert np.linalg.norm(relative[:3, 3] - second[:3, 3]) < 0.05
+
+
+def test_keyframes_that_see_one_place_move_together() -> None:
+    """Keyframes 5 and 35 share many points (both see the wall between them across the
+    room): the loop's correction moves the two alike, where without the covisibility factor
+    the correction spread over the steps between them pulls them apart."""
+    truth, estimate = _walk(40, math.radians(0.5))
+    measured = np.linalg.inv(truth[0]) @ truth[39]
+    shared = {(a, a + 1): 150 for a in range(39)}
+
+    def apart(poses: dict[int, np.ndarray]) -> np.ndarray:
+        return np.linalg.inv(poses[5]) @ poses[35]
+
+    before = apart(estimate)
+    together = close_loop(estimate, 0, 39, measured, {**shared, (5, 35): 400}).poses
+    loose = close_loop(estimate, 0, 39, measured, shared).poses
+    held = np.linalg.norm(apart(together)[:3, 3] - before[:3, 3])
+    pulled = np.linalg.norm(apart(loose)[:3, 3] - before[:3, 3])
+    assert held < 0.5 * pulled

@@ -12,8 +12,15 @@ loop with an essential-graph optimisation; here the graph reads like the math:
   as stiff as the two keyframes' covisibility makes it: a step whose keyframes share many map
   points was tracked on common ground, one that shares none (the camera moved on between two
   uploads) is where drift could enter, and the loop's correction bends the walk there most;
-* one **loop factor** between the old keyframe and the new one, holding the relative pose the
-  geometric check measured — stiffer than a step of the walk, as it is measured directly;
+* between two keyframes that are not consecutive but see many of the same points (≥
+  COVISIBLE_MIN, ORB-SLAM's essential graph takes 100) a **covisibility factor** with their
+  relative pose now: keyframes that see one wall move together, or a correction that reaches
+  one and not the other splits the wall in two (the walk comes back past the same place, and
+  a keyframe of the way out beside one of the way back is far from it in capture order);
+* a **loop factor** between the old keyframe and the new one, holding the relative pose the
+  geometric check measured — stiffer than a step of the walk, as it is measured directly —
+  and one for every loop closed before whose keyframes are still known: a new loop must not
+  undo an older one (the graph is made anew for each loop, from the poses as they are);
 * a **prior** on the oldest keyframe (the gauge: the map frame stays where it is).
 
 Levenberg–Marquardt moves every pose so that the loop closes and the walk's steps bend as
@@ -24,7 +31,7 @@ keyframe's correction. No ROS, no threads: the edge runs it off the slot's criti
 from __future__ import annotations
 
 import itertools
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import gtsam
@@ -41,6 +48,18 @@ PRIOR_SIGMA = 1e-6
 SHARED_REF = 100
 #: the loosest a step gets (no shared point): STEP_SIGMAS times this
 MAX_STEP_SCALE = 30.0
+#: shared map points from which two keyframes that are not consecutive are held together
+COVISIBLE_MIN = 100
+
+
+@dataclass(frozen=True)
+class LoopEdge:
+    """A loop closed: keyframe ``new`` seen from keyframe ``old`` at relative pose
+    ``measured`` (old⁻¹ · new)."""
+
+    old: int
+    new: int
+    measured: np.ndarray
 
 
 def step_scale(shared: int) -> float:
@@ -59,12 +78,14 @@ class LoopClosure:
 
 
 def close_loop(poses: Mapping[int, np.ndarray], old: int, new: int,
-               measured: np.ndarray, shared: Mapping[tuple[int, int], int] | None = None
-               ) -> LoopClosure:
+               measured: np.ndarray, shared: Mapping[tuple[int, int], int] | None = None,
+               earlier: Sequence[LoopEdge] = ()) -> LoopClosure:
     """The keyframe ``poses`` (id → camera-to-map, every keyframe of the walk) after closing
     the loop between keyframe ``old`` and keyframe ``new``, whose relative pose old⁻¹ · new
-    was ``measured``; the oldest keyframe holds still. ``shared``: the map points each pair
-    of consecutive keyframes (a, b) shares (without: every step as stiff as STEP_SIGMAS)."""
+    was ``measured``; the oldest keyframe holds still. ``shared``: the map points pairs of
+    keyframes (a, b), a < b, share — each pair of consecutive keyframes, and the covisible
+    others (without: every step as stiff as STEP_SIGMAS, no covisibility factor).
+    ``earlier``: the loops closed before (those whose two keyframes are in ``poses`` hold)."""
     ids = sorted(poses)
     if old not in poses or new not in poses or old == new:
         raise ValueError(f"a loop joins two keyframes of the graph, got {old} and {new}")
@@ -74,13 +95,20 @@ def close_loop(poses: Mapping[int, np.ndarray], old: int, new: int,
         initial.insert(X(i), gtsam.Pose3(np.asarray(poses[i], dtype=np.float64)))
     graph.add(gtsam.PriorFactorPose3(X(ids[0]), gtsam.Pose3(np.asarray(poses[ids[0]])),
                                      gtsam.noiseModel.Isotropic.Sigma(6, PRIOR_SIGMA)))
-    for a, b in itertools.pairwise(ids):
+    steps = set(itertools.pairwise(ids))
+    covisible = {pair for pair, n in (shared or {}).items()
+                 if n >= COVISIBLE_MIN and pair[0] in poses and pair[1] in poses}
+    for a, b in sorted(steps | covisible):
         relative = np.linalg.inv(poses[a]) @ poses[b]
         scale = 1.0 if shared is None else step_scale(shared.get((a, b), 0))
         step = gtsam.noiseModel.Diagonal.Sigmas(scale * np.array(STEP_SIGMAS))
         graph.add(gtsam.BetweenFactorPose3(X(a), X(b), gtsam.Pose3(relative), step))
-    graph.add(gtsam.BetweenFactorPose3(X(old), X(new), gtsam.Pose3(np.asarray(measured)),
-                                       gtsam.noiseModel.Diagonal.Sigmas(np.array(LOOP_SIGMAS))))
+    loop_noise = gtsam.noiseModel.Diagonal.Sigmas(np.array(LOOP_SIGMAS))
+    for edge in [*earlier, LoopEdge(old, new, measured)]:
+        if edge.old in poses and edge.new in poses:
+            graph.add(gtsam.BetweenFactorPose3(X(edge.old), X(edge.new),
+                                               gtsam.Pose3(np.asarray(edge.measured)),
+                                               loop_noise))
     before = graph.error(initial)
     result = gtsam.LevenbergMarquardtOptimizer(graph, initial).optimize()
     corrected = {i: result.atPose3(X(i)).matrix() for i in ids}
