@@ -78,14 +78,16 @@ PARAMETERS = (
               "stay as copies, as before the fusion (for measuring what it changes)"),
     ParamSpec("loop_closing", default_device.LOOP_CLOSING, "look for a loop from every "
               "keyframe the edge integrates (a place its archive or map saw far earlier, "
-              "confirmed by PnP) and close it with a pose graph over every keyframe, on a worker "
-              "thread; the corrected map goes to the device in the next map update"),
+              "found by PnP, measured from the two keyframes' depths) and close it with a pose "
+              "graph over every keyframe and the loops before, on a worker thread; the "
+              "corrected map goes to the device in the next map update"),
     ParamSpec("reloc_restore_keyframes", 0, "archived keyframes brought back at the end of a "
               "slot around the pose the edge found in its archive for a lost device's frame "
               "(device/relocalisation_request, the device's reloc_period_s), the map keyframes "
               "not connected to them leaving; 0: the edge does not relocalise devices "
               "(default: measured to lose more frames, BENCHMARKS.md)", low=0, high=1000),
-    ParamSpec("ba_window", 5, "newest keyframes bundle-adjusted each slot", low=1, high=1000),
+    ParamSpec("ba_window", 5, "newest keyframes bundle-adjusted each slot (0: none)", low=0,
+              high=1000),
     ParamSpec("slot_timeout_s", 10.0, "finish a slot without keyframes that never came after "
               "this many seconds", low=0.1, high=3600.0),
     ParamSpec("image_width", 640, "camera image width in pixels", low=1, high=100_000),
