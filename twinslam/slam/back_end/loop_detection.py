@@ -9,8 +9,14 @@ the new keyframe resembles trivially), and the new keyframe's features are solve
 their points by PnP RANSAC, accepted on ``MIN_INLIERS`` inliers
 (:func:`~twinslam.slam.back_end.archive_relocalisation.locate_in_archive`, the relocalisation
 the edge already runs for a lost device): a look-alike place whose points do not fit one
-camera pose is refused. An accepted loop gives the pose the old place puts the new keyframe
-at; its relative pose to the old keyframe is the loop factor of the pose graph
+camera pose is refused. With depths (an RGB-D keyframe) the loop is then measured between the
+two keyframes alone, from PnP's start: the new keyframe's features matched to the points the
+old keyframe saw, both lifted by their own depths, fitted rigidly
+(:func:`measure_between`; ORB-SLAM closes RGB-D loops with its Sim3 solver at scale one, the
+same 3D–3D fit). PnP mistakes a small turn for a sideways step in front of one wall, and the
+map's points may have moved since the old keyframe saw them; the depths do neither
+(docs/results/map-consistency.md). An accepted loop gives the pose the old place puts the new
+keyframe at; its relative pose to the old keyframe is the loop factor of the pose graph
 (:mod:`twinslam.slam.back_end.pose_graph`).
 """
 
