@@ -12,9 +12,9 @@ puts a second copy of the wall into the map the device tracks on. This measures 
 disagreement without DDS and without threads, so a run is repeatable: each slot's
 summaries, uploads and map update pass through the cores
 (:func:`bench.in_process.serve_slot`), the loop closer works in the caller, and the map
-update reaches the device ``--update-delay`` frames into the next slot (8: the default
-device's D_req of 0.25 s; 0: at once — the device's drift depends on it, see
-docs/results/map-consistency.md).
+update reaches the device ``--update-delay`` frames into the next slot (default 8: the
+default device's D_req of 0.25 s; 0: at once — with the local adjustment the device's drift
+depended on it, docs/results/map-consistency.md).
 
 Per slot it prints (every ``--every`` slots, and at each loop) and writes to ``--csv``:
 
@@ -141,9 +141,10 @@ def main() -> None:
     parser.add_argument("--loops", action="store_true", help="the edge closes loops")
     parser.add_argument("--restores", type=int, default=default_device.RESTORE_KEYFRAMES,
                         help="archived keyframes restored a slot where the camera heads")
-    parser.add_argument("--update-delay", type=int, default=0,
+    parser.add_argument("--update-delay", type=int, default=8,
                         help="frames of the next slot the device tracks before the map update "
-                             "reaches it (0: at once; the live default device's D_req is 8)")
+                             "reaches it (default 8: the default device's D_req of 0.25 s, as "
+                             "a live update arrives; 0: at once)")
     parser.add_argument("--ba-window", type=int, default=5,
                         help="keyframes the edge's local bundle adjustment moves (0: none)")
     parser.add_argument("--every", type=int, default=10, help="print every N slots")

@@ -12,7 +12,7 @@ import pytest
 
 from device_tracker.device_core import DeviceTrackerCore
 from device_tracker.frame_log import frame_log_lines
-from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore
+from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, SlotOutcome
 from edge_mapper.slot_planner import SlotConfig
 from tests.test_edge_core import Device, F, K
 from twinslam.policies.registry import make_policy
@@ -188,6 +188,18 @@ def test_a_keyframe_of_a_user_walking_on_passes_the_gate() -> None:
     assert not out.refused and out.integrated == sorted(plan.action.upload)
 
 
+def _finish_a_slot(core: EdgeMapperCore, device: Device, slot: int = 3
+                   ) -> tuple[SlotOutcome, int, dict[int, np.ndarray]]:
+    """One slot of the walk through the edge: (its outcome, the newest keyframe it asked for,
+    the map's keyframe poses before its end)."""
+    frames = [device.summary(f, core) for f in range(slot * F, (slot + 1) * F)]
+    plan = core.plan(slot, frames, 80.0, 1)
+    for f in plan.action.upload:
+        core.add_keyframe(device.keyframe(f, slot, core))
+    before = {k: kf.pose.copy() for k, kf in core.map.keyframes.items()}
+    return core.finish_slot(slot), max(plan.action.upload), before
+
+
 def test_a_bundle_adjustment_that_diverged_is_not_applied(monkeypatch: pytest.MonkeyPatch
                                                           ) -> None:
     """The optimiser answers with the newest keyframe moved 5 m: the edge keeps the map as it
@@ -205,14 +217,7 @@ def test_a_bundle_adjustment_that_diverged_is_not_applied(monkeypatch: pytest.Mo
         return result
 
     monkeypatch.setattr(edge_core, "bundle_adjust", diverged)
-    slot = 3
-    frames = [device.summary(f, core) for f in range(slot * F, (slot + 1) * F)]
-    plan = core.plan(slot, frames, 80.0, 1)
-    for f in plan.action.upload:
-        core.add_keyframe(device.keyframe(f, slot, core))
-    before = {k: kf.pose.copy() for k, kf in core.map.keyframes.items()}
-    out = core.finish_slot(slot)
-    newest = max(plan.action.upload)
+    out, newest, before = _finish_a_slot(core, device)
     assert out.optimisation_refused.startswith(f"keyframe {newest} moved 4.9")
     assert out.bundle_adjustment is not None and out.bundle_adjustment.refused
     for k, kf in core.map.keyframes.items():
@@ -241,13 +246,7 @@ def test_a_bundle_adjustment_that_raised_its_error_is_not_applied(
         return result
 
     monkeypatch.setattr(edge_core, "bundle_adjust", overshot)
-    slot = 3
-    frames = [device.summary(f, core) for f in range(slot * F, (slot + 1) * F)]
-    plan = core.plan(slot, frames, 80.0, 1)
-    for f in plan.action.upload:
-        core.add_keyframe(device.keyframe(f, slot, core))
-    before = {k: kf.pose.copy() for k, kf in core.map.keyframes.items()}
-    out = core.finish_slot(slot)
+    out, _, before = _finish_a_slot(core, device)
     assert out.optimisation_refused.startswith("the adjustment raised its error")
     for k, kf in core.map.keyframes.items():
         if k in before:
