@@ -102,3 +102,7 @@ def test_a_look_alike_whose_depths_fit_no_motion_is_no_loop(room: Room) -> None:
     alike = detect_loop(archive, 1000, feats.points, feats.descriptors,
                         seq.intrinsics, depths=1.5 * depths)   # type: ignore[attr-defined]
     assert not alike.found and "agree in depth" in alike.reason
+    # a keyframe without any depth (0: none) is measured by PnP, as without depths
+    no_depth = detect_loop(archive, 1000, feats.points, feats.descriptors,
+                           seq.intrinsics, depths=np.zeros(len(depths)))  # type: ignore[attr-defined]
+    assert no_depth.found and no_depth.inliers >= 50

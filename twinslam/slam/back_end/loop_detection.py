@@ -74,7 +74,7 @@ def detect_loop(archive: KeyFrameArchive, keyframe: int, points_xy: np.ndarray,
                              found.reason or "no place older than the recent walk")
     old = archive.get(found.keyframe)
     measured = np.linalg.inv(old.pose) @ found.pose
-    if depths is None:
+    if depths is None or not np.any(np.asarray(depths) > 0):    # no depth camera: PnP's
         return LoopCandidate(found.keyframe, found.pose, measured, found.inliers)
     between = measure_between(old, points_xy, descriptors, depths, intrinsics, measured, config)
     if between.pose is None:
