@@ -42,7 +42,7 @@ import dataclasses
 import math
 import tempfile
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -52,7 +52,7 @@ from bench.in_process import serve_slot
 from device_tracker.device_core import DeviceTrackerCore
 from device_tracker.parameters import PARAMETERS as DEVICE_PARAMETERS
 from device_tracker.parameters import DeviceSettings
-from edge_mapper.edge_core import EdgeMapperCore
+from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore
 from edge_mapper.loop_closer import LoopResult
 from edge_mapper.parameters import PARAMETERS as EDGE_PARAMETERS
 from edge_mapper.parameters import edge_config
@@ -62,11 +62,13 @@ from twinslam.live.tracking_quality import (
     REVISIT_RADIUS_M,
     absolute_trajectory_error,
     revisit_error,
+    seen_alike,
     truth_in_map,
 )
 from twinslam.policies.registry import make_policy
+from twinslam.rotations import rotation_angle_deg
 from twinslam.sequences.opening import open_sequence
-from twinslam.slam.back_end.depth_alignment import lift
+from twinslam.slam.projection_matching import back_project
 from twinslam.slot_protocol import default_device
 from twinslam.uplink.channels import parse_channel
 from twinslam.uplink.families import uplink_family
@@ -93,37 +95,32 @@ def disagreement(first: dict[int, np.ndarray], second: dict[int, np.ndarray],
     of a⁻¹·b against the truth's. A relative pose needs no alignment: a map shifted as a
     whole disagrees with nothing; two copies of one place do."""
     a_ids = [k for k in first if k in truth]
-    b_ids = [k for k in second if k in truth]
-    if not a_ids or not b_ids:
+    b_ids = np.array([k for k in second if k in truth], dtype=np.int64)
+    if not a_ids or not len(b_ids):
         return Disagreement()
-    ta = np.array([truth[k] for k in a_ids])
-    tb = np.array([truth[k] for k in b_ids])
-    ea = np.array([first[k] for k in a_ids])
-    eb = np.array([second[k] for k in b_ids])
+    tb = np.array([truth[int(k)] for k in b_ids])
+    eb = np.array([second[int(k)] for k in b_ids])
     cos_max = math.cos(math.radians(REVISIT_ANGLE_DEG))
-    errors: list[float] = []
-    worst, worst_e = (-1, -1), -1.0
-    for i, a in enumerate(a_ids):
-        near = np.linalg.norm(tb[:, :3, 3] - ta[i, :3, 3], axis=1) <= REVISIT_RADIUS_M
-        cos = (np.einsum("ab,nab->n", ta[i, :3, :3], tb[:, :3, :3]) - 1.0) / 2.0
-        gap = np.abs(np.array(b_ids) - a) >= max(min_gap, 1)
-        for j in np.flatnonzero(near & (cos >= cos_max) & gap):
-            off = np.linalg.inv(np.linalg.inv(ta[i]) @ tb[j]) @ (np.linalg.inv(ea[i]) @ eb[j])
-            e = float(np.linalg.norm(off[:3, 3]))
-            errors.append(e)
-            if e > worst_e:
-                worst, worst_e = (a, b_ids[j]), e
+    errors: list[np.ndarray] = []
+    pairs: list[tuple[int, int]] = []
+    for a in a_ids:
+        js = np.flatnonzero(seen_alike(truth[a], tb, REVISIT_RADIUS_M, cos_max)
+                            & (np.abs(b_ids - a) >= max(min_gap, 1)))
+        if not js.size:
+            continue
+        true_rel = np.linalg.inv(truth[a]) @ tb[js]
+        off = np.linalg.inv(true_rel) @ (np.linalg.inv(first[a]) @ eb[js])
+        errors.append(np.linalg.norm(off[:, :3, 3], axis=1))
+        pairs += [(a, int(b)) for b in b_ids[js]]
     if not errors:
         return Disagreement()
-    arr = np.array(errors)
-    return Disagreement(len(errors), float(np.sqrt(np.mean(arr ** 2))), float(arr.max()), worst)
+    arr = np.concatenate(errors)
+    return Disagreement(len(arr), float(np.sqrt(np.mean(arr ** 2))), float(arr.max()),
+                        pairs[int(np.argmax(arr))])
 
 
-@dataclass
-class KeyframeHistory:
-    """What happened to one keyframe: (slot, event, its pose then)."""
-
-    events: list[tuple[int, str, np.ndarray]] = field(default_factory=list)
+#: what happened to one keyframe: (slot, event, its pose then), in order
+History = list[tuple[int, str, np.ndarray]]
 
 
 def main() -> None:
@@ -145,7 +142,7 @@ def main() -> None:
                         help="frames of the next slot the device tracks before the map update "
                              "reaches it (default 8: the default device's D_req of 0.25 s, as "
                              "a live update arrives; 0: at once)")
-    parser.add_argument("--ba-window", type=int, default=5,
+    parser.add_argument("--ba-window", type=int, default=EdgeConfig().ba_window,
                         help="keyframes the edge's local bundle adjustment moves (0: none)")
     parser.add_argument("--every", type=int, default=10, help="print every N slots")
     parser.add_argument("--csv", type=Path, help="write the per-slot figures here")
@@ -165,9 +162,8 @@ def main() -> None:
                                settings.own_map_after)
     edge_params = {p.name: p.default for p in EDGE_PARAMETERS}
     edge_params.update(loop_closing=args.loops, restore_keyframes=args.restores,
-                       ba_window=max(args.ba_window, 1))
-    config = edge_config(edge_params)
-    config = dataclasses.replace(config, loop_background=False, ba_window=args.ba_window)
+                       ba_window=args.ba_window)
+    config = dataclasses.replace(edge_config(edge_params), loop_background=False)
     family = uplink_family(args.uplink)
     channel = parse_channel(family.channel, family.rate_mbps or (5.0, 45.0), seed=args.seed,
                             slot_seconds=settings.slot_frames / settings.frame_rate_hz)
@@ -175,8 +171,9 @@ def main() -> None:
     poses: dict[int, np.ndarray] = {}
     tracked: list[int] = []
     stamp_ns: dict[int, int] = {}
-    history: dict[int, KeyframeHistory] = {}
+    history: dict[int, History] = {}
     rows: list[dict[str, object]] = []
+    disagreements: list[Disagreement] = []      #: archive vs map, each slot
     started = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         edge = EdgeMapperCore(make_policy(default_device.POLICY), reader.intrinsics, config,
@@ -216,21 +213,22 @@ def main() -> None:
             restored_total += len(out.restored)
             for k in out.integrated:
                 if k in edge.map.keyframes:
-                    history.setdefault(k, KeyframeHistory()).events.append(
+                    history.setdefault(k, []).append(
                         (out.slot, "integrated", edge.map.keyframes[k].pose.copy()))
             for k in out.evicted:
-                history.setdefault(k, KeyframeHistory()).events.append(
+                history.setdefault(k, []).append(
                     (out.slot, "evicted", before.get(k, np.full((4, 4), np.nan))))
             for k in out.restored:
-                history.setdefault(k, KeyframeHistory()).events.append(
+                history.setdefault(k, []).append(
                     (out.slot, "restored", edge.map.keyframes[k].pose.copy()))
             if out.loop is not None and not out.loop.refused:
                 for k, kf in edge.map.keyframes.items():
-                    history.setdefault(k, KeyframeHistory()).events.append(
+                    history.setdefault(k, []).append(
                         (out.slot, "loop", kf.pose.copy()))
             archived = {kf.id: kf.pose for kf in edge.archive}
             managed = {k: kf.pose for k, kf in edge.map.keyframes.items()}
             across = disagreement(archived, managed, truth)
+            disagreements.append(across)
             within = disagreement(managed, managed, truth, RESTORED_GAP)
             row = {"slot": out.slot, "frame": frame.index, "map": len(managed),
                    "archive": len(archived), "restored": restored_total,
@@ -265,9 +263,8 @@ def main() -> None:
           f"{edge.loops_refused} refused, {time.perf_counter() - started:.0f} s")
     print(f"the edge's final keyframes (archive and map, {len(final)}): ATE "
           f"{absolute_trajectory_error(final, truth):.3f} m")
-    largest = max((float(r["archive_max_m"]) for r in rows
-                   if not math.isnan(float(r["archive_max_m"]))), default=math.nan)
-    print(f"archive vs map: at the end RMS {rows[-1]['archive_rms_m']:.3f} m, the largest "
+    largest = max((d.max_m for d in disagreements if not math.isnan(d.max_m)), default=math.nan)
+    print(f"archive vs map: at the end RMS {disagreements[-1].rms_m:.3f} m, the largest "
           f"pair over the walk {largest:.3f} m")
     if args.csv:
         with args.csv.open("w", newline="") as f:
@@ -288,7 +285,7 @@ def loop_report(edge: EdgeMapperCore, result: LoopResult, truth: dict[int, np.nd
         return f"    loop {o}->{q}: no truth for it"
     true_rel = np.linalg.inv(truth[o]) @ truth[q]
     off = np.linalg.inv(true_rel) @ measured
-    turn = math.degrees(math.acos(np.clip((np.trace(off[:3, :3]) - 1) / 2, -1, 1)))
+    turn = rotation_angle_deg(off[:3, :3])
     return (f"    loop {o}->{q}: truly {np.linalg.norm(true_rel[:3, 3]):.2f} m apart; measured "
             f"off by {np.linalg.norm(off[:3, 3]):.3f} m, {turn:.2f} deg; graph error "
             f"{result.closure.initial_error:.1f} -> {result.closure.final_error:.1f}\n"
@@ -330,15 +327,15 @@ def self_disagreement(edge: EdgeMapperCore, kf_id: int, intrinsics: np.ndarray) 
     else:
         return "gone"
     ok = np.isfinite(meas).all(axis=1) & (meas[:, 2] > 0)
-    cam = lift(meas[ok, :2], meas[ok, 2], intrinsics)
-    d = np.linalg.norm(cam @ pose[:3, :3].T + pose[:3, 3] - positions[ok], axis=1)
+    seen = back_project(meas[ok, :2], meas[ok, 2], intrinsics, pose)
+    d = np.linalg.norm(seen - positions[ok], axis=1)
     if not len(d):
         return "no depth"
     return (f"median {np.median(d):.3f} p90 {np.percentile(d, 90):.3f} m, "
             f"{np.mean(d > 0.05):.0%} beyond 5 cm of {len(d)}")
 
 
-def write_histories(path: Path, history: dict[int, KeyframeHistory],
+def write_histories(path: Path, history: dict[int, History],
                     truth: dict[int, np.ndarray]) -> None:
     """Each keyframe's events with its position then and the truth's."""
     with path.open("w", newline="") as f:
@@ -347,7 +344,7 @@ def write_histories(path: Path, history: dict[int, KeyframeHistory],
                          "true_z"])
         for k in sorted(history):
             t = truth.get(k, np.full((4, 4), np.nan))
-            for slot, event, pose in history[k].events:
+            for slot, event, pose in history[k]:
                 writer.writerow([k, slot, event, *np.round(pose[:3, 3], 4),
                                  *np.round(t[:3, 3], 4)])
 

@@ -1,5 +1,6 @@
-"""A pose from 3D–3D matches: the closed form finds a known rigid motion, and the fit started at
-an imperfect pose keeps the matches that agree in depth and leaves the ones that do not."""
+"""A pose from 3D–3D matches: the closed form finds a known rigid motion, the fit started at
+an imperfect pose keeps the matches that agree in depth and leaves the ones that do not, and
+the keypoints lifted into the camera by their depths project back where they were seen."""
 
 from __future__ import annotations
 
@@ -8,7 +9,9 @@ import math
 import numpy as np
 import pytest
 
-from twinslam.slam.back_end.depth_alignment import align_with_depth, lift, rigid_fit
+from twinslam.rotations import rotation_angle_deg
+from twinslam.slam.back_end.depth_alignment import align_with_depth, rigid_fit
+from twinslam.slam.projection_matching import back_project
 
 
 def _pose(yaw_deg: float, pitch_deg: float, t: tuple[float, float, float]) -> np.ndarray:
@@ -50,7 +53,7 @@ def test_the_fit_from_a_poor_start_keeps_the_matches_that_agree_in_depth() -> No
     assert fitted.pose is not None and fitted.inliers == 200
     off = np.linalg.inv(pose) @ fitted.pose
     assert np.linalg.norm(off[:3, 3]) < 1e-3
-    assert math.degrees(math.acos(np.clip((np.trace(off[:3, :3]) - 1) / 2, -1, 1))) < 0.01
+    assert rotation_angle_deg(off[:3, :3]) < 0.01
     assert fitted.rms_m < 0.005
     # too few agree: no pose, and how many did
     few = align_with_depth(start, camera[:40], world[:40], min_inliers=50)
@@ -60,7 +63,7 @@ def test_the_fit_from_a_poor_start_keeps_the_matches_that_agree_in_depth() -> No
 def test_lifted_pixels_project_back_where_they_were() -> None:
     k = np.array([[525.0, 0, 320], [0, 525.0, 240], [0, 0, 1]])
     xy = np.array([[10.0, 20.0], [320.0, 240.0], [600.0, 400.0]])
-    points = lift(xy, np.array([1.0, 2.5, 4.0]), k)
+    points = back_project(xy, np.array([1.0, 2.5, 4.0]), k, np.eye(4))
     projected = points @ k.T
     np.testing.assert_allclose(projected[:, :2] / projected[:, 2:], xy)
     np.testing.assert_allclose(points[:, 2], [1.0, 2.5, 4.0])

@@ -9,6 +9,7 @@ import dataclasses
 import numpy as np
 
 from tests.test_archive_relocalisation import room  # noqa: F401 (the archived room fixture)
+from twinslam.rotations import rotation_angle_deg
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
 from twinslam.slam.back_end.loop_detection import detect_loop
 from twinslam.slam.front_end.orb_extractor import OrbExtractor
@@ -60,10 +61,6 @@ def _turned(archive: KeyFrameArchive, degrees: float) -> KeyFrameArchive:
     return moved
 
 
-def _rotation_deg(off: np.ndarray) -> float:
-    return float(np.degrees(np.arccos(np.clip((np.trace(off[:3, :3]) - 1) / 2, -1, 1))))
-
-
 def test_a_loop_measured_from_the_keyframes_depths_is_not_bent_by_moved_points(
         room: Room) -> None:  # noqa: F811
     """The map's points turned 2° since the old keyframe saw them: PnP against them measures
@@ -81,9 +78,9 @@ def test_a_loop_measured_from_the_keyframes_depths_is_not_bent_by_moved_points(
                            seq.intrinsics, depths=depths)      # type: ignore[attr-defined]
     assert by_pnp.found and by_depth.found, (by_pnp.reason, by_depth.reason)
     assert by_pnp.measured is not None and by_depth.measured is not None
-    assert _rotation_deg(np.linalg.inv(truth) @ by_pnp.measured) > 1.0
+    assert rotation_angle_deg((np.linalg.inv(truth) @ by_pnp.measured)[:3, :3]) > 1.0
     off = np.linalg.inv(truth) @ by_depth.measured
-    assert _rotation_deg(off) < 0.2 and np.linalg.norm(off[:3, 3]) < 0.01
+    assert rotation_angle_deg(off[:3, :3]) < 0.2 and np.linalg.norm(off[:3, 3]) < 0.01
     assert by_depth.old == 0 and by_depth.inliers >= 50
     # the loop's pose of the new keyframe is the old keyframe's pose times that measurement
     np.testing.assert_allclose(by_depth.pose, moved.get(0).pose @ by_depth.measured)

@@ -233,6 +233,16 @@ class RevisitError:
     pairs: int = 0
 
 
+def seen_alike(pose: np.ndarray, others: np.ndarray, radius_m: float, cos_max: float
+               ) -> np.ndarray:
+    """Which of the camera poses ``others`` (n, 4, 4) lie within ``radius_m`` of ``pose`` and
+    turned from it by an angle whose cosine is at least ``cos_max``: cameras that see one
+    place again (the angle from the trace of their relative rotation)."""
+    near = np.linalg.norm(others[:, :3, 3] - pose[:3, 3], axis=1) <= radius_m
+    cos = (np.einsum("ab,nab->n", pose[:3, :3], others[:, :3, :3]) - 1.0) / 2.0
+    return np.asarray(near & (cos >= cos_max))
+
+
 def revisit_error(poses: Mapping[int, np.ndarray], truth: Mapping[int, np.ndarray],
                   stamps: Iterable[int], gap_s: float = REVISIT_GAP_S,
                   radius_m: float = REVISIT_RADIUS_M,
@@ -252,10 +262,7 @@ def revisit_error(poses: Mapping[int, np.ndarray], truth: Mapping[int, np.ndarra
         later = np.flatnonzero(ns[i + 1:] - ns[i] >= gap_ns) + i + 1
         if not later.size:
             break                              # stamps are sorted: nothing later either
-        near = np.linalg.norm(ref[later, :3, 3] - ref[i, :3, 3], axis=1) <= radius_m
-        # the angle between two rotations from the trace of their relative rotation
-        cos = (np.einsum("ab,nab->n", ref[i, :3, :3], ref[later, :3, :3]) - 1.0) / 2.0
-        js = later[near & (cos >= cos_max)]
+        js = later[seen_alike(ref[i], ref[later], radius_m, cos_max)]
         if not js.size:
             continue
         true_rel = np.linalg.inv(ref[i]) @ ref[js]

@@ -57,15 +57,6 @@ def rigid_fit(source: np.ndarray, target: np.ndarray) -> np.ndarray:
     return fit
 
 
-def lift(points_xy: np.ndarray, depths: np.ndarray, intrinsics: np.ndarray) -> np.ndarray:
-    """Pixels ``points_xy`` (n, 2) at ``depths`` (n,) as points in the camera's frame."""
-    k = np.asarray(intrinsics, dtype=np.float64)
-    xy = np.asarray(points_xy, dtype=np.float64).reshape(-1, 2)
-    z = np.asarray(depths, dtype=np.float64).reshape(-1)
-    return np.column_stack([(xy[:, 0] - k[0, 2]) * z / k[0, 0],
-                            (xy[:, 1] - k[1, 2]) * z / k[1, 1], z])
-
-
 def align_with_depth(start: np.ndarray, camera_points: np.ndarray, world: np.ndarray,
                      min_inliers: int) -> DepthAlignment:
     """The camera-to-map pose that best carries ``camera_points`` (n, 3: matched keypoints

@@ -30,9 +30,10 @@ from twinslam.slam.back_end.archive_relocalisation import (
     ArchiveRelocalisationConfig,
     locate_in_archive,
 )
-from twinslam.slam.back_end.depth_alignment import DepthAlignment, align_with_depth, lift
+from twinslam.slam.back_end.depth_alignment import DepthAlignment, align_with_depth
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive
 from twinslam.slam.descriptor_matching import match_descriptors
+from twinslam.slam.projection_matching import back_project
 
 #: a loop joins keyframes at least this many keyframe ids apart (ids are frame indices: 10 s
 #: of a 30 Hz camera); the recent walk is no loop
@@ -98,8 +99,9 @@ def measure_between(old: ArchivedKeyFrame, points_xy: np.ndarray, descriptors: n
     if len(f_idx) < config.min_inliers:
         return DepthAlignment(None, len(f_idx), float("nan"))
     z = np.asarray(depths, dtype=np.float64).reshape(-1)[f_idx]
-    new_points = lift(np.asarray(points_xy, dtype=np.float64).reshape(-1, 2)[f_idx],
-                      np.where(z > 0, z, np.nan), intrinsics)
+    k, in_camera = np.asarray(intrinsics, dtype=np.float64), np.eye(4)
+    new_points = back_project(np.asarray(points_xy, dtype=np.float64).reshape(-1, 2)[f_idx],
+                              np.where(z > 0, z, np.nan), k, in_camera)
     seen = old.measurements[p_idx]
-    old_points = lift(seen[:, :2], seen[:, 2], intrinsics)
+    old_points = back_project(seen[:, :2], seen[:, 2], k, in_camera)
     return align_with_depth(start, new_points, old_points, config.min_inliers)
