@@ -20,16 +20,25 @@ def _yaw(angle: float, x: float = 0.0, y: float = 0.0) -> np.ndarray:
     return pose
 
 
-def _walk(n: int, drift_rad: float) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray]]:
-    """(truth, estimate): ``n`` keyframes on a circle of 2 m, the last one back beside the
-    first; the estimate chains the true steps, each turned by ``drift_rad`` too far."""
-    truth = {i: _yaw(2 * math.pi * i / n, 2 * math.cos(2 * math.pi * i / n),
-                     2 * math.sin(2 * math.pi * i / n)) for i in range(n)}
+def _walk(n: int, drift_rad: float, per_lap: int | None = None
+          ) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray]]:
+    """(truth, estimate): ``n`` keyframes on a circle of 2 m, ``per_lap`` of them a lap
+    (default ``n``: the last one back beside the first); the estimate chains the true steps,
+    each turned by ``drift_rad`` too far."""
+    lap = per_lap or n
+    truth = {i: _yaw(2 * math.pi * i / lap, 2 * math.cos(2 * math.pi * i / lap),
+                     2 * math.sin(2 * math.pi * i / lap)) for i in range(n)}
     estimate = {0: truth[0].copy()}
     for i in range(1, n):
-        step = np.linalg.inv(truth[i - 1]) @ truth[i]
-        estimate[i] = estimate[i - 1] @ step @ _yaw(drift_rad)
+        estimate[i] = _drifted_step(estimate[i - 1], truth, i, drift_rad)
     return truth, estimate
+
+
+def _drifted_step(previous: np.ndarray, truth: dict[int, np.ndarray], i: int,
+                  drift_rad: float) -> np.ndarray:
+    """Keyframe ``i``'s estimate: the true step from ``i - 1`` chained onto ``previous``,
+    turned ``drift_rad`` too far."""
+    return previous @ np.linalg.inv(truth[i - 1]) @ truth[i] @ _yaw(drift_rad)
 
 
 def _largest_error(poses: dict[int, np.ndarray], truth: dict[int, np.ndarray]) -> float:
@@ -76,17 +85,13 @@ def test_a_second_loop_holds_the_first() -> None:
     first lap stays closed (within 2 cm); a graph made of the new loop alone spreads the
     second lap's drift over the first lap's steps and opens it again."""
     drift = math.radians(0.5)
-    truth = {i: _yaw(2 * math.pi * i / 40, 2 * math.cos(2 * math.pi * i / 40),
-                     2 * math.sin(2 * math.pi * i / 40)) for i in range(80)}
-    estimate = {0: truth[0].copy()}
-    for i in range(1, 80):
-        estimate[i] = estimate[i - 1] @ np.linalg.inv(truth[i - 1]) @ truth[i] @ _yaw(drift)
+    truth, estimate = _walk(80, drift, per_lap=40)
     first = LoopEdge(0, 39, np.linalg.inv(truth[0]) @ truth[39])
     lap = {i: p for i, p in estimate.items() if i < 40}
     closed = close_loop(lap, first.old, first.new, first.measured).poses
     # the second lap continues from the corrected first one, drifting as before
     for i in range(40, 80):
-        closed[i] = closed[i - 1] @ np.linalg.inv(truth[i - 1]) @ truth[i] @ _yaw(drift)
+        closed[i] = _drifted_step(closed[i - 1], truth, i, drift)
     second = np.linalg.inv(truth[20]) @ truth[60]
 
     def first_lap_gap(poses: dict[int, np.ndarray]) -> float:
