@@ -18,10 +18,13 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[3]
 sys.path.insert(0, str(REPO))
 
+import numpy as np  # noqa: E402
+
 from twinslam.reporting import mean_ci95, paired_difference  # noqa: E402
 
 FINAL = re.compile(r"(\d+) of (\d+) frames tracked, ATE ([\d.]+) m, revisit error RMS "
                    r"([\d.na]+) m .*loops (\d+) closed (\d+) refused")
+LOOP = re.compile(r"measured off by ([\d.]+) m, ([\d.]+) deg")
 KEYFRAMES = re.compile(r"final keyframes \(archive and map, (\d+)\): ATE ([\d.]+) m")
 FIGURES = ("ate_m", "revisit_m", "keyframe_ate_m", "untracked", "loops_closed",
            "loops_refused")
@@ -45,6 +48,9 @@ def main() -> None:
     parser.add_argument("folder", type=Path, help="the logs, VARIANT-SEED.log")
     parser.add_argument("--reference", help="the variant the others are paired against")
     parser.add_argument("--csv", type=Path, help="write every run's figures here")
+    parser.add_argument("--loop-errors", action="store_true",
+                        help="also each variant's loop measurements against the truth (the "
+                        "logs' 'measured off by' lines): median, 95th percentile and largest")
     args = parser.parse_args()
     runs: dict[str, dict[int, dict[str, float]]] = {}
     for log in sorted(args.folder.glob("*.log")):
@@ -69,6 +75,8 @@ def main() -> None:
             digits = 3 if key.endswith("_m") else 1
             cells.append(f"{mean:.{digits}f} ± {half:.{digits}f}")
         print(f"| {variant} | {len(by_seed)} | " + " | ".join(cells) + " |")
+    if args.loop_errors:
+        print_loop_errors(args.folder)
     if not args.reference or args.reference not in runs:
         return
     print()
@@ -86,6 +94,27 @@ def main() -> None:
                                   [base[s][key] for s in seeds])
             cells.append(f"{d.mean:+.3f} [{d.low:+.3f}, {d.high:+.3f}]")
         print(f"| {variant} | {len(seeds)} | " + " | ".join(cells) + " |")
+
+
+def print_loop_errors(folder: Path) -> None:
+    """Each variant's loops (every run's) against the truth's relative pose."""
+    errors: dict[str, list[tuple[float, float]]] = {}
+    for log in sorted(folder.glob("*.log")):
+        variant = log.stem.rpartition("-")[0]
+        errors.setdefault(variant, []).extend(
+            (float(m), float(d)) for m, d in LOOP.findall(log.read_text()))
+    print()
+    print("| variant | loops measured | off (m): median / p95 / largest | off (°): median / p95 / "
+          "largest | over 1° |")
+    print("|---|---|---|---|---|")
+    for variant, found in errors.items():
+        if not found:
+            continue
+        metres, degrees = (np.array(column) for column in zip(*found, strict=True))
+        cells = [" / ".join(f"{f(x):.3f}" for f in (np.median, lambda v: np.percentile(v, 95),
+                                                     np.max)) for x in (metres, degrees)]
+        print(f"| {variant} | {len(found)} | {cells[0]} | {cells[1]} | "
+              f"{int(np.sum(degrees > 1.0))} |")
 
 
 if __name__ == "__main__":
