@@ -327,3 +327,23 @@ def test_a_security_enclave_that_cannot_be_had_is_refused_with_the_reason(domain
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 2, done.stderr[-2000:]
     assert "security" in done.stderr.lower() and "Traceback" not in done.stderr
+
+
+def test_the_run_monitor_drops_a_map_update_cut_short(ros: Any) -> None:
+    """An edge killed while it wrote a map update leaves a sample cut short on the wire (8
+    bytes, seen in a clean clone's edge-restart test): the run's monitor drops it as the
+    nodes' checked subscriptions do, instead of raising into the executor and ending the run,
+    and still reads the next whole update."""
+    from rclpy.serialization import serialize_message
+
+    from edge_mapper.messages import map_update_message
+    from twinslam.live.monitor import PipelineMonitor
+    from twinslam.slam.back_end.keyframe_map import KeyFrameMap
+
+    monitor = PipelineMonitor(ros.node)
+    info = {"received_timestamp": 0, "source_timestamp": 0}
+    monitor._map(b"\x00\x01\x00\x00\x00\x00\x00\x00", info)
+    assert monitor.record.maps == {} and monitor.record.downlink_bytes == 8
+    whole = serialize_message(map_update_message(KeyFrameMap(), 3, 1, 0.0))
+    monitor._map(whole, info)
+    assert list(monitor.record.maps) == [3]

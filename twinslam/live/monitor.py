@@ -57,6 +57,7 @@ class PipelineMonitor:
                  watch_images: bool = False) -> None:
         self.record = RunLog()
         self._on_stats = on_stats
+        self._logger = node.get_logger()
         sub = node.create_subscription
         sub(FrameSummaries, topics.FRAME_SUMMARIES, with_info(self._summaries), qos.PROTOCOL)
         #: its publisher count says whether the edge is up (it publishes after warming up)
@@ -98,7 +99,13 @@ class PipelineMonitor:
     def _map(self, data: bytes, info: Mapping[str, int]) -> None:
         heard = received_s(info)
         self._downlink(data)
-        msg = deserialize_message(data, MapUpdate)
+        try:
+            msg = deserialize_message(data, MapUpdate)
+        except Exception as exc:     # rclpy's RMW error: a sample cut short (an edge killed
+            # while it wrote one) is refused as the nodes' checked subscriptions refuse it,
+            # not raised into the executor, which would end the run
+            self._logger.error(f"dropped a malformed MapUpdate ({len(data)} bytes): {exc}")
+            return
         self.record.hear("map", int(msg.slot), heard)
         snapshot = read_map_update(msg)
         self.record.first_map_versions.setdefault(int(msg.slot), snapshot.version)
