@@ -32,7 +32,13 @@ from pathlib import Path
 
 import numpy as np
 
-from edge_mapper.loop_closer import LoopCloser, LoopJob, LoopQuery, LoopResult
+from edge_mapper.loop_closer import (
+    CONFIRMATIONS,
+    LoopCloser,
+    LoopJob,
+    LoopQuery,
+    LoopResult,
+)
 from edge_mapper.planning_world import at_the_edge, extrapolate, has_camera
 from edge_mapper.restores import plan_relocation_restores, plan_restores
 from edge_mapper.slot_planner import FrameObservations, SlotConfig, SlotPlan, SlotPlanner
@@ -98,6 +104,10 @@ class EdgeConfig:
     loop_background: bool = True
     #: a loop joins keyframes at least this many ids (frames) apart: the recent walk is none
     loop_min_gap: int = MIN_GAP
+    #: later keyframes that must find a loop's place again before it closes
+    #: (:class:`edge_mapper.loop_closer.LoopConfirmation`); 0: the first keyframe that finds it
+    #: closes it
+    loop_confirmations: int = CONFIRMATIONS
 
 
 @dataclass(frozen=True)
@@ -195,7 +205,8 @@ class EdgeMapperCore:
         #: poses found in the archive for the lost device's frames since the last finished slot:
         #: where the next restores look instead of the heading
         self._relocalised_views: list[np.ndarray] = []
-        self.loop_closer = LoopCloser(self.config.loop_background, self.config.loop_min_gap)
+        self.loop_closer = LoopCloser(self.config.loop_background, self.config.loop_min_gap,
+                                      confirmations=self.config.loop_confirmations)
         #: keyframes integrated since the last loop job, newest last
         self._loop_queries: list[LoopQuery] = []
         self.loops_closed = int(extra.get("loops_closed", 0))

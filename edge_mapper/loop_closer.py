@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from twinslam.rotations import rotation_angle_deg
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
 from twinslam.slam.back_end.keyframe_map import shared_counts
 from twinslam.slam.back_end.loop_detection import MIN_GAP, LoopCandidate, detect_loop
@@ -35,6 +36,24 @@ from twinslam.slam.back_end.pose_graph import LoopClosure, LoopEdge, close_loop
 #: after a loop closes at keyframe q, keyframes up to q + COOLDOWN ids look for none (the walk
 #: goes on through the same place: each of them would find the loop just closed again)
 COOLDOWN = 90
+#: later keyframes that must find a loop's place again, each put where the first detection's
+#: correction puts it, before the loop closes (ORB-SLAM3 closes on three keyframes in all): a
+#: poster that hangs in two rooms fools one keyframe, not the ones that look on past it
+CONFIRMATIONS = 2
+#: later keyframes that fail to find it so before a candidate is dropped (ORB-SLAM3: two)
+MISSES = 2
+#: two detections agree when the corrections they imply put the later keyframe within this
+#: distance (m, plus DRIFT_RATE of the walk between the two) and angle (degrees) of each
+#: other: a loop measured from depth is within 2.3 cm and 0.34° of the truth
+#: (docs/results/map-consistency.md), the walk between two keyframes adds its drift
+AGREE_M = 0.05
+AGREE_DEG = 2.0
+#: the drift a walk can have gathered, metres a metre walked: a loop implying more between its
+#: two ends than DRIFT_SLACK_M + DRIFT_RATE × the walk's length between them is a look-alike
+#: place, not drift (visual odometry drifts about 1 %; the default device's, 0.2-0.5 % on the
+#: corridor)
+DRIFT_RATE = 0.05
+DRIFT_SLACK_M = 0.10
 
 
 @dataclass(frozen=True)
@@ -73,28 +92,129 @@ class LoopResult:
     error: str = ""
 
 
-def guarded_job(job: LoopJob, min_gap: int = MIN_GAP) -> LoopResult:
+@dataclass
+class PendingLoop:
+    """A loop one keyframe found, waiting for the next keyframes to find it too."""
+
+    candidate: LoopCandidate
+    query: int
+    #: the map correction it implies at its keyframe: the pose the old place gives the
+    #: keyframe · the pose the walk gave it⁻¹
+    correction: np.ndarray
+    hits: int = 1
+    misses: int = 0
+
+
+class LoopConfirmation:
+    """ORB-SLAM3's temporal consistency: a loop closes once ``confirmations`` later keyframes
+    found the place again where its correction puts them; ``misses`` keyframes that did not
+    drop it. Kept across jobs (the worker's alone: one job runs at a time)."""
+
+    def __init__(self, confirmations: int = CONFIRMATIONS, misses: int = MISSES) -> None:
+        self.confirmations = confirmations
+        self.misses = misses
+        self.pending: PendingLoop | None = None
+        self.dropped = 0                      #: candidates never confirmed
+
+    def judge(self, query: int, candidate: LoopCandidate, pose: np.ndarray,
+              walked_m: float = 0.0) -> bool:
+        """Keyframe ``query`` (at ``pose`` by the walk, ``walked_m`` from the pending
+        candidate's keyframe) found ``candidate`` (or none): True when that confirms a loop,
+        which closes now from this keyframe."""
+        found = candidate.found and candidate.pose is not None
+        correction = candidate.pose @ np.linalg.inv(pose) if found and \
+            candidate.pose is not None else None
+        pending = self.pending
+        if pending is None:
+            if correction is None:
+                return False
+            self.pending = PendingLoop(candidate, query, correction)
+            return self._confirmed()
+        if correction is not None and _agree(pending.correction @ pose, correction @ pose,
+                                             AGREE_M + DRIFT_RATE * walked_m):
+            self.pending = PendingLoop(candidate, query, correction, pending.hits + 1,
+                                       pending.misses)
+            return self._confirmed()
+        pending.misses += 1
+        if pending.misses >= self.misses:
+            self.dropped += 1
+            self.pending = PendingLoop(candidate, query, correction) \
+                if correction is not None else None
+            return self._confirmed()
+        return False
+
+    def _confirmed(self) -> bool:
+        if self.pending is not None and self.pending.hits > self.confirmations:
+            self.pending = None
+            return True
+        return False
+
+
+def _agree(a: np.ndarray, b: np.ndarray, within_m: float) -> bool:
+    """Two poses of one keyframe within ``within_m`` and AGREE_DEG of each other."""
+    return float(np.linalg.norm(a[:3, 3] - b[:3, 3])) <= within_m and \
+        rotation_angle_deg(a[:3, :3].T @ b[:3, :3]) <= AGREE_DEG
+
+
+def walk_length(poses: Mapping[int, np.ndarray], first: int, last: int) -> float:
+    """Metres the walk went from keyframe ``first`` to keyframe ``last``: the steps between
+    the keyframes of ``poses`` in capture (id) order."""
+    ids = [k for k in sorted(poses) if first <= k <= last]
+    return float(sum(np.linalg.norm(poses[b][:3, 3] - poses[a][:3, 3])
+                     for a, b in itertools.pairwise(ids)))
+
+
+def beyond_drift(candidate: LoopCandidate, query: int, poses: Mapping[int, np.ndarray]) -> str:
+    """Why ``candidate``, found from keyframe ``query``, moves it farther than the walk from
+    the old place can have drifted (DRIFT_SLACK_M + DRIFT_RATE × its length): a look-alike
+    place; "" when it does not."""
+    if not candidate.found or candidate.pose is None or query not in poses:
+        return ""
+    moved = float(np.linalg.norm(candidate.pose[:3, 3] - poses[query][:3, 3]))
+    walked = walk_length(poses, candidate.old, query)
+    bound = DRIFT_SLACK_M + DRIFT_RATE * walked
+    if moved <= bound:
+        return ""
+    return (f"keyframe {candidate.old}'s place would move keyframe {query} {moved:.3g} m, "
+            f"more than the {bound:.3g} m a {walked:.3g} m walk can have drifted")
+
+
+def guarded_job(job: LoopJob, min_gap: int = MIN_GAP,
+                confirmation: LoopConfirmation | None = None) -> LoopResult:
     """:func:`run_job`, a failure reported in the result instead of raised: a loop closer
     that fails must not take the edge's slots down with it."""
     try:
-        return run_job(job, min_gap)
+        return run_job(job, min_gap, confirmation)
     except Exception as exc:             # reported in the result, logged by the edge
         return LoopResult(LoopCandidate(-1, None, None, 0, "the loop job failed"),
                           job.queries[0].keyframe if job.queries else -1, None, 0.0,
                           f"{type(exc).__name__}: {exc}")
 
 
-def run_job(job: LoopJob, min_gap: int = MIN_GAP) -> LoopResult:
-    """Look for a loop from each query, newest first; close the first one found."""
+def run_job(job: LoopJob, min_gap: int = MIN_GAP,
+            confirmation: LoopConfirmation | None = None) -> LoopResult:
+    """Look for a loop from each query, oldest first; close the first one ``confirmation``
+    confirms (without one: the first found)."""
     start = time.perf_counter()
     candidate, query = LoopCandidate(-1, None, None, 0, "no query"), -1
-    for q in job.queries:
+    confirmed = False
+    for q in sorted(job.queries, key=lambda q: q.keyframe):
         candidate, query = detect_loop(job.archive, q.keyframe, q.points_xy, q.descriptors,
                                        job.intrinsics, min_gap, depths=q.depths), q.keyframe
-        if candidate.found:
+        if refused := beyond_drift(candidate, q.keyframe, job.poses):
+            candidate = LoopCandidate(-1, None, None, candidate.inliers, refused)
+        if confirmation is None or q.keyframe not in job.poses:
+            confirmed = candidate.found
+        else:
+            pending = confirmation.pending
+            walked = 0.0 if pending is None else \
+                walk_length(job.poses, pending.query, q.keyframe)
+            confirmed = confirmation.judge(q.keyframe, candidate, job.poses[q.keyframe],
+                                           walked)
+        if confirmed:
             break
     closure = None
-    if candidate.found and candidate.measured is not None and query in job.poses:
+    if confirmed and candidate.measured is not None and query in job.poses:
         closure = close_loop(job.poses, candidate.old, query, candidate.measured,
                              shared_points(job), job.earlier)
     return LoopResult(candidate, query, closure, time.perf_counter() - start)
@@ -122,10 +242,12 @@ class LoopCloser:
     """One loop job at a time, on a worker thread (or in the caller)."""
 
     def __init__(self, background: bool = True, min_gap: int = MIN_GAP,
-                 cooldown: int = COOLDOWN) -> None:
+                 cooldown: int = COOLDOWN, confirmations: int = CONFIRMATIONS) -> None:
         self.background = background
         self.min_gap = min_gap
         self.cooldown = cooldown
+        #: the loops found and waiting for later keyframes (the worker's: one job at a time)
+        self.confirmation = LoopConfirmation(confirmations)
         self._executor: ThreadPoolExecutor | None = None
         self._running: Future[LoopResult] | None = None
         self._done: LoopResult | None = None
@@ -149,9 +271,10 @@ class LoopCloser:
         if self._running is not None or self._done is not None or not job.queries:
             return False
         if not self.background:
-            self._done = guarded_job(job, self.min_gap)
+            self._done = guarded_job(job, self.min_gap, self.confirmation)
             return True
-        self._running = self._worker().submit(guarded_job, job, self.min_gap)
+        self._running = self._worker().submit(guarded_job, job, self.min_gap,
+                                              self.confirmation)
         return True
 
     def take(self, wait_s: float = 0.0) -> LoopResult | None:

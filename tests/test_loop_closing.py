@@ -36,16 +36,19 @@ class DriftingDevice(ReturningDevice):
         return kf
 
 
-def _edge(loops: bool, checkpoint: Path | None = None, reach_m: float | None = None
-          ) -> EdgeMapperCore:
+def _edge(loops: bool, checkpoint: Path | None = None, reach_m: float | None = None,
+          confirmations: int = 0) -> EdgeMapperCore:
     """V_max 4, no restores (the way out is in the archive only); a loop joins keyframes 40
     frames apart (the walk is 128 frames long), closed in finish_slot itself; ``reach_m``:
-    the correction a device accepts on a map swap, if not the default."""
+    the correction a device accepts on a map swap, if not the default; ``confirmations``:
+    later keyframes that must find the place again (0: the first keyframe that finds it
+    closes the loop, which these tests of the graph look at)."""
     gate = KeyFrameGateConfig() if reach_m is None else \
         KeyFrameGateConfig(dataclasses.replace(MotionBounds(), correction_m=reach_m))
     return EdgeMapperCore(make_policy("lff"), K,
                           EdgeConfig(slot=SlotConfig(vmax=4), loop_closing=loops,
                                      loop_background=False, loop_min_gap=40,
+                                     loop_confirmations=confirmations,
                                      keyframe_gate=gate), checkpoint)
 
 
@@ -138,6 +141,42 @@ def test_the_loop_corrected_map_and_archive_survive_a_restart(tmp_path: Path) ->
     assert core.archive.correct({some.id: shift}) == []
 
 
+def _archive_disagreement(core: EdgeMapperCore, device: ReturningDevice) -> float:
+    """The largest error, against the truth's, of the relative position of an archived and a
+    managed keyframe that truly stand within 0.3 m of each other (m; 0 without such pairs):
+    how far the archive's copy of a place lies from the map's."""
+    errors = [0.0]
+    for archived in core.archive:
+        for k, kf in core.map.keyframes.items():
+            truth_a, truth_k = device.pose(archived.id), device.pose(k)
+            if np.linalg.norm(truth_a[:3, 3] - truth_k[:3, 3]) > 0.3:
+                continue
+            seen = np.linalg.inv(archived.pose) @ kf.pose
+            true = np.linalg.inv(truth_a) @ truth_k
+            errors.append(float(np.linalg.norm(seen[:3, 3] - true[:3, 3])))
+    return max(errors)
+
+
+def test_archive_and_map_agree_after_evictions_restores_and_a_loop() -> None:
+    """The drifting walk out and back with V_max 4: the way out is evicted into the archive,
+    the way back restores archived keyframes where the camera heads and drifts 5 mm a frame.
+    Before the loop the archive and the map disagree by the drift (over 20 cm); once the
+    loop closes (confirmed by later keyframes, the default) every archived keyframe lies
+    where the map's keyframes of its place put it, within the keyframes' own noise (5 cm)."""
+    spread = {}
+    for loops in (True, False):
+        device = DriftingDevice(np.random.default_rng(3), 8 * F)
+        core = EdgeMapperCore(make_policy("lff"), K, EdgeConfig(
+            slot=SlotConfig(vmax=4), loop_closing=loops, loop_background=False,
+            loop_min_gap=40, restore_keyframes=2))
+        outs = [_run(core, device, range(slot, slot + 1), rates=[20.0])[0]
+                for slot in range(16)]
+        assert any(o.restored for o in outs) and any(o.evicted for o in outs)
+        spread[loops] = _archive_disagreement(core, device)
+        assert core.loops_closed == int(loops)
+    assert spread[False] > 0.2 and spread[True] < 0.05, spread
+
+
 def _job(device: ReturningDevice) -> LoopJob:
     """An archive of the way out (true poses, points at their corners) and one frame of the way
     back, 60 frames later, at the place of frame 30, whose pose drifted 10 cm."""
@@ -160,7 +199,8 @@ def _job(device: ReturningDevice) -> LoopJob:
 def test_the_worker_thread_answers_as_the_caller_would_and_takes_one_job_at_a_time() -> None:
     device = ReturningDevice(np.random.default_rng(5), 64)
     job = _job(device)
-    inline, worker = LoopCloser(background=False, min_gap=40), LoopCloser(min_gap=40)
+    inline = LoopCloser(background=False, min_gap=40, confirmations=0)
+    worker = LoopCloser(min_gap=40, confirmations=0)
     try:
         assert inline.submit(job) and worker.submit(job)
         assert not worker.submit(job)                 # one job at a time, until taken
@@ -177,6 +217,95 @@ def test_the_worker_thread_answers_as_the_caller_would_and_takes_one_job_at_a_ti
             == [job.queries[0].keyframe + 500]
     finally:
         worker.close()
+
+
+def _way_out_archive(device: ReturningDevice) -> tuple[KeyFrameArchive, dict[int, np.ndarray]]:
+    """The way out's keyframes (every 8th frame of 64) archived at their true poses."""
+    archive, poses = KeyFrameArchive(100), {}
+    for kf in range(0, 64, 8):
+        seen, uv, depth, _ = device.observe(kf, EdgeMapperCore(make_policy("lff"), K))
+        archive.add(ArchivedKeyFrame(kf, device.pose(kf), seen.astype(np.int64) + 1,
+                                     device.world[seen], device.descs[seen],
+                                     np.column_stack([uv, depth]), 0))
+        poses[kf] = device.pose(kf)
+    return archive, poses
+
+
+def _looking_at(device: ReturningDevice, frame: int, query: int) -> LoopQuery:
+    """Keyframe ``query`` seeing what the camera saw at ``frame`` of the walk."""
+    seen, uv, _, _ = device.observe(frame, EdgeMapperCore(make_policy("lff"), K))
+    return LoopQuery(query, uv, device.descs[seen])
+
+
+def _new_ground(query: int, rng: np.random.Generator) -> LoopQuery:
+    """Keyframe ``query`` looking at a place the archive never saw."""
+    return LoopQuery(query, rng.uniform([5, 5], [635, 475], (300, 2)),
+                     rng.integers(0, 256, (300, 32), dtype=np.uint8))
+
+
+def _moved(pose: np.ndarray, dx: float) -> np.ndarray:
+    out = pose.copy()
+    out[0, 3] += dx
+    return out
+
+
+def test_a_loop_closes_once_later_keyframes_find_the_place_again() -> None:
+    """Three keyframes of the way back see the way out's places, their poses 10 cm off: the
+    loop closes from the third (ORB-SLAM3's temporal consistency), not before."""
+    device = ReturningDevice(np.random.default_rng(5), 64)
+    archive, poses = _way_out_archive(device)
+    queries = [_looking_at(device, frame, q) for frame, q in ((30, 200), (28, 202), (26, 204))]
+    for q, frame in zip((200, 202, 204), (30, 28, 26), strict=True):
+        poses[q] = _moved(device.pose(frame), 0.1)
+    closer = LoopCloser(background=False, min_gap=40)
+    for n in (1, 2):                               # one keyframe a job: not yet
+        assert closer.submit(LoopJob(tuple(queries[:n][-1:]), archive, poses, K, {}))
+        result = closer.take()
+        assert result is not None and result.candidate.found and result.closure is None
+    assert closer.submit(LoopJob((queries[2],), archive, poses, K, {}))
+    result = closer.take()
+    assert result is not None and result.query == 204 and result.closure is not None
+    corrected = result.closure.poses[204][:3, 3]
+    assert np.linalg.norm(corrected - device.pose(26)[:3, 3]) < 0.02
+
+
+def test_a_look_alike_place_one_keyframe_finds_is_refused_by_the_next_ones() -> None:
+    """A keyframe of the way back sees a poster that also hangs on the way out — its
+    features are those the camera saw at frame 30, while it is 30 cm from there (within the
+    drift a walk can have gathered); the next two keyframes look at ground the archive never
+    saw. The candidate is dropped: no loop closes, the map is not bent to the look-alike."""
+    rng = np.random.default_rng(9)
+    device = ReturningDevice(np.random.default_rng(5), 64)
+    archive, poses = _way_out_archive(device)
+    poses[200] = _moved(device.pose(30), 0.3)
+    poses[202], poses[204] = _moved(device.pose(29), 0.3), _moved(device.pose(28), 0.3)
+    closer = LoopCloser(background=False, min_gap=40)
+    results = []
+    for query in (_looking_at(device, 30, 200), _new_ground(202, rng), _new_ground(204, rng)):
+        assert closer.submit(LoopJob((query,), archive, poses, K, {}))
+        results.append(closer.take())
+    assert results[0] is not None and results[0].candidate.found     # the poster fooled one
+    assert all(r is not None and r.closure is None for r in results)
+    assert closer.confirmation.dropped == 1 and closer.confirmation.pending is None
+    # without the confirmation the first keyframe would have closed it
+    eager = LoopCloser(background=False, min_gap=40, confirmations=0)
+    assert eager.submit(LoopJob((_looking_at(device, 30, 200),), archive, poses, K, {}))
+    taken = eager.take()
+    assert taken is not None and taken.closure is not None
+
+
+def test_a_loop_farther_than_the_walk_can_have_drifted_is_refused() -> None:
+    """The same poster seen 2 m from where it hangs, after a walk of 6 m from there: the loop
+    would call 2 m drift, more than 10 cm + 5 % of the walk; refused even where the first
+    keyframe that finds a place closes it."""
+    device = ReturningDevice(np.random.default_rng(5), 64)
+    archive, poses = _way_out_archive(device)
+    poses[200] = _moved(device.pose(30), 2.0)
+    closer = LoopCloser(background=False, min_gap=40, confirmations=0)
+    assert closer.submit(LoopJob((_looking_at(device, 30, 200),), archive, poses, K, {}))
+    result = closer.take()
+    assert result is not None and result.closure is None and not result.candidate.found
+    assert "can have drifted" in result.candidate.reason
 
 
 def test_a_loop_job_that_fails_is_reported_and_the_slots_go_on(

@@ -18,7 +18,8 @@ loop with an essential-graph optimisation; here the graph reads like the math:
   one and not the other splits the wall in two (the walk comes back past the same place, and
   a keyframe of the way out beside one of the way back is far from it in capture order);
 * a **loop factor** between the old keyframe and the new one, holding the relative pose the
-  geometric check measured — stiffer than a step of the walk, as it is measured directly —
+  geometric check measured — stiffer than a step of the walk, as it is measured directly,
+  under a Cauchy loss, so that a loop the rest of the graph contradicts cannot drag it far —
   and one for every loop closed before whose keyframes are still known: a new loop must not
   undo an older one (the graph is made anew for each loop, from the poses as they are);
 * a **prior** on the oldest keyframe (the gauge: the map frame stays where it is).
@@ -43,6 +44,10 @@ from gtsam.symbol_shorthand import X
 STEP_SIGMAS = (0.01, 0.01, 0.01, 0.02, 0.02, 0.02)
 #: σ of the loop's measured relative pose: a PnP solve against the old place's points
 LOOP_SIGMAS = (0.005, 0.005, 0.005, 0.01, 0.01, 0.01)
+#: the Cauchy kernel's width on loop factors, in σ: a loop the others and the walk contradict
+#: by many σ pulls with a bounded force instead of one growing with its error (COVINS closes
+#: its loops under a Cauchy loss)
+LOOP_CAUCHY = 10.0
 PRIOR_SIGMA = 1e-6
 #: shared map points at which a step has STEP_SIGMAS; fewer loosen it by √(SHARED_REF / shared)
 SHARED_REF = 100
@@ -103,7 +108,9 @@ def close_loop(poses: Mapping[int, np.ndarray], old: int, new: int,
         scale = 1.0 if shared is None else step_scale(shared.get((a, b), 0))
         step = gtsam.noiseModel.Diagonal.Sigmas(scale * np.array(STEP_SIGMAS))
         graph.add(gtsam.BetweenFactorPose3(X(a), X(b), gtsam.Pose3(relative), step))
-    loop_noise = gtsam.noiseModel.Diagonal.Sigmas(np.array(LOOP_SIGMAS))
+    loop_noise = gtsam.noiseModel.Robust.Create(
+        gtsam.noiseModel.mEstimator.Cauchy.Create(LOOP_CAUCHY),
+        gtsam.noiseModel.Diagonal.Sigmas(np.array(LOOP_SIGMAS)))
     for edge in [*earlier, LoopEdge(old, new, measured)]:
         if edge.old in poses and edge.new in poses:
             graph.add(gtsam.BetweenFactorPose3(X(edge.old), X(edge.new),
