@@ -34,6 +34,15 @@ LEVELS = (BundleAdjustmentLevel(5, 120), BundleAdjustmentLevel(3, 60),
           BundleAdjustmentLevel(1, 30), BundleAdjustmentLevel(0, 0))
 
 
+def levels_within(window: int, points: int | None) -> tuple[BundleAdjustmentLevel, ...]:
+    """The levels a governor may step through for an edge configured with ``window`` and
+    ``points``: that adjustment first, then the smaller of :data:`LEVELS` — a budget only
+    trims, it never turns on an adjustment the edge was told not to run (``window`` 0: the
+    one level, none)."""
+    first = BundleAdjustmentLevel(window, points if window else 0)
+    return (first, *(level for level in LEVELS if level.window < window))
+
+
 class ComputeGovernor:
     """``budget``: the share of one core the edge's slot work may take (0: no budget)."""
 

@@ -38,7 +38,7 @@ from rclpy.node import Node
 from twinslam_msgs.msg import KeyframeBudget as KeyframeBudgetMsg
 from twinslam_msgs.msg import RateLatent
 
-from edge_mapper.compute_governor import ComputeGovernor
+from edge_mapper.compute_governor import ComputeGovernor, levels_within
 from edge_mapper.device_link import DeviceLink
 from edge_mapper.edge_core import EdgeMapperCore
 from edge_mapper.keyframe_budget import KeyframeBudget, device_demand, slot_uploads
@@ -68,7 +68,9 @@ class EdgeMapperNode(Node):
         self.links: dict[str, DeviceLink] = {}
         self.listed = devices                  #: served from the start, again after a reclaim
         self.refused: set[str] = set()         #: devices the budget had no room for (said once)
-        self.governor = ComputeGovernor(float(p["compute_budget"]))
+        config = self.settings.config
+        self.governor = ComputeGovernor(float(p["compute_budget"]),
+                                        levels=levels_within(config.ba_window, config.ba_points))
         try:
             if self.several and int(p["vmax_total"]) > 0:
                 self.budget = KeyframeBudget(

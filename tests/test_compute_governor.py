@@ -9,7 +9,7 @@ import itertools
 
 import numpy as np
 
-from edge_mapper.compute_governor import LEVELS, ComputeGovernor
+from edge_mapper.compute_governor import LEVELS, ComputeGovernor, levels_within
 from edge_mapper.edge_core import EdgeMapperCore
 from twinslam.policies.rules import make_rule_policy
 
@@ -52,3 +52,12 @@ def test_a_core_without_bundle_adjustment_still_finishes_its_slots() -> None:
     assert out.bundle_adjustment is None and out.version == 1
     core.set_bundle_adjustment(*(LEVELS[0].window, LEVELS[0].points))
     assert core.config.ba_window == 5 and core.config.ba_points == 120
+
+
+def test_a_budget_never_turns_on_an_adjustment_the_edge_was_told_not_to_run() -> None:
+    """An edge started without local bundle adjustment (ba_window 0, the default device) has
+    one level, none, however its load goes; one started with 3 keyframes trims from 3."""
+    assert [level.window for level in levels_within(0, 120)] == [0]
+    governor = ComputeGovernor(0.8, window_s=4.0, levels=levels_within(0, 120))
+    assert set(_drive(governor, 1.2, 0.0, 20.0)) | set(_drive(governor, 0.1, 20.0, 20.0)) == {0}
+    assert [level.window for level in levels_within(3, 60)] == [3, 1, 0]
