@@ -28,6 +28,7 @@ from twinslam.live.tracking_quality import (
     translation_errors,
 )
 from twinslam.policies.registry import LEARNED_PREFIX
+from twinslam.slam.duplicate_points import duplicate_share
 
 
 @dataclass
@@ -115,6 +116,10 @@ class RunReport:
     #: loops the edge found but refused over the run: their corrections would have moved the
     #: map farther than a device accepts (NaN: not reported)
     loops_refused: float = math.nan
+    #: the share of the map's points with a look-alike within 5 cm (one corner twice: the
+    #: device's matches split between copies), over the map updates the device received
+    #: (:mod:`twinslam.slam.duplicate_points`; NaN: none received)
+    duplicate_share: float = math.nan
 
     ROW = ("{label:<14} {mean_uncertainty:>10.1f} {lost_share:>6.1%} "
            "{tracked_uncertainty:>10.1f} {ate_m:>7.3f} "
@@ -123,6 +128,7 @@ class RunReport:
            "{relocalisations:>6d} {jumps:>5.0f} {max_error_m:>7.3f} {jitter_rms_mm:>7.1f} "
            "{truth_jitter_rms_mm:>7.1f} {odom_jitter_rms_mm:>7.1f} {odom_step_excess_mm:>7.1f} "
            "{revisit_error_m:>7.3f} {pnp_ransac_share:>6.1%} {outlier_share:>6.1%} "
+           "{duplicate_share:>6.1%} "
            "{restores:>6.0f} "
            "{loops_closed:>5.0f} "
            "{recover_s:>7.2f} "
@@ -134,7 +140,7 @@ class RunReport:
               f"{'uploads':>7} {'MB':>7} {'Mbit/s':>7} {'untrk':>6} {'failed':>6} "
               f"{'fails':>5} {'reloc':>6} {'jumps':>5} {'max e m':>7} {'jit mm':>7} "
               f"{'gt jit':>7} {'odo jit':>7} {'odo st':>7} {'revis m':>7} {'ransac':>6} "
-              f"{'outl':>6} "
+              f"{'outl':>6} {'dupl':>6} "
               f"{'restor':>6} {'loops':>5} "
               f"{'recov s':>7} {'p95 s':>7} "
               f"{'max s':>7} {'down MB':>7} {'dev ms':>7} {'edge ms':>7} {'no up':>5} "
@@ -218,7 +224,18 @@ def report(policy: str, record: RunLog, seconds: float, slot_frames: int) -> Run
                      math.nan if record.frames_skipped is None else float(record.frames_skipped),
                      *_revisit_cells(record, tracked), *_odom_cells(record, tracked),
                      pnp_ransac_share(record), *_loop_cells(stats), outlier_share(record),
-                     float(max(int(s.loops_refused) for s in stats)) if stats else math.nan)
+                     float(max(int(s.loops_refused) for s in stats)) if stats else math.nan,
+                     map_duplicate_share(record))
+
+
+def map_duplicate_share(record: RunLog) -> float:
+    """The duplicate share of every slot's map update, points of all of them counted together
+    (NaN: no map update)."""
+    maps = [m for m in record.maps.values() if len(m.positions)]
+    if not maps:
+        return math.nan
+    shares = [duplicate_share(m.positions, m.descriptors) for m in maps]
+    return float(np.average(shares, weights=[len(m.positions) for m in maps]))
 
 
 def outlier_share(record: RunLog) -> float:

@@ -26,8 +26,10 @@ FINAL = re.compile(r"(\d+) of (\d+) frames tracked, ATE ([\d.]+) m, revisit erro
                    r"([\d.na]+) m .*loops (\d+) closed (\d+) refused")
 LOOP = re.compile(r"measured off by ([\d.]+) m, ([\d.]+) deg")
 KEYFRAMES = re.compile(r"final keyframes \(archive and map, (\d+)\): ATE ([\d.]+) m")
+#: printed since the bench counted them (older logs: NaN)
+SHARES = re.compile(r"matches: ([\d.]+)% outliers; .*, ([\d.]+)% with a look-alike")
 FIGURES = ("ate_m", "revisit_m", "keyframe_ate_m", "untracked", "loops_closed",
-           "loops_refused")
+           "loops_refused", "outlier_share", "duplicate_share")
 
 
 def read_run(path: Path) -> dict[str, float] | None:
@@ -37,10 +39,14 @@ def read_run(path: Path) -> dict[str, float] | None:
     if final is None or keyframes is None:
         return None
     tracked, frames, ate, revisit, closed, refused = final.groups()
+    shares = SHARES.search(text)
+    outliers, duplicates = (float(x) / 100 for x in shares.groups()) if shares else \
+        (float("nan"), float("nan"))
     return {"ate_m": float(ate), "revisit_m": float(revisit),
             "keyframe_ate_m": float(keyframes.group(2)),
             "untracked": float(int(frames) - int(tracked)), "loops_closed": float(closed),
-            "loops_refused": float(refused)}
+            "loops_refused": float(refused), "outlier_share": outliers,
+            "duplicate_share": duplicates}
 
 
 def main() -> None:
@@ -66,12 +72,16 @@ def main() -> None:
                 for seed, fig in sorted(by_seed.items()):
                     writer.writerow([variant, seed, *(fig[k] for k in FIGURES)])
     print("| variant | runs | ATE (m) | revisit error (m) | the edge's final keyframes, ATE (m) "
-          "| untracked frames | loops closed | loops refused |")
-    print("|---|---|---|---|---|---|---|---|")
+          "| untracked frames | loops closed | loops refused | the device's outliers | "
+          "map points with a look-alike |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for variant, by_seed in runs.items():
         cells = []
         for key in FIGURES:
             mean, half = mean_ci95([fig[key] for fig in by_seed.values()])
+            if key.endswith("_share"):
+                cells.append(f"{mean:.1%} ± {half:.1%}" if np.isfinite(mean) else "not counted")
+                continue
             digits = 3 if key.endswith("_m") else 1
             cells.append(f"{mean:.{digits}f} ± {half:.{digits}f}")
         print(f"| {variant} | {len(by_seed)} | " + " | ".join(cells) + " |")
@@ -81,18 +91,23 @@ def main() -> None:
         return
     print()
     print(f"| variant − {args.reference}, paired by seed | seeds | ATE (m) | revisit error (m) | "
-          "final keyframes, ATE (m) |")
-    print("|---|---|---|---|---|")
+          "final keyframes, ATE (m) | the device's outliers |")
+    print("|---|---|---|---|---|---|")
     base = runs[args.reference]
     for variant, by_seed in runs.items():
         if variant == args.reference:
             continue
         seeds = sorted(set(by_seed) & set(base))
         cells = []
-        for key in ("ate_m", "revisit_m", "keyframe_ate_m"):
+        for key in ("ate_m", "revisit_m", "keyframe_ate_m", "outlier_share"):
             d = paired_difference([[by_seed[s][key] for s in seeds]],
                                   [base[s][key] for s in seeds])
-            cells.append(f"{d.mean:+.3f} [{d.low:+.3f}, {d.high:+.3f}]")
+            if not np.isfinite(d.mean):
+                cells.append("not counted")
+            elif key.endswith("share"):
+                cells.append(f"{d.mean:+.1%} [{d.low:+.1%}, {d.high:+.1%}]")
+            else:
+                cells.append(f"{d.mean:+.3f} [{d.low:+.3f}, {d.high:+.3f}]")
         print(f"| {variant} | {len(seeds)} | " + " | ".join(cells) + " |")
 
 
