@@ -3,7 +3,8 @@ process over a walk that comes back, with the archive's and the map's keyframes 
 against the truth after every slot.
 
     python -m bench.map_consistency [SEQUENCE] [--frames 5400] [--seed 4] [--uplink lte]
-        [--loops] [--update-delay 8] [--ba-window 5] [--csv FILE] [--keyframes-csv FILE]
+        [--loops] [--update-delay 8] [--ba-window 5] [--no-point-culling] [--csv FILE]
+        [--keyframes-csv FILE]
 
 A walk that returns to a place finds it twice at the edge: in the archive (the keyframes
 evicted on the way out) and in the managed map (the keyframes made on the way back, or the
@@ -28,8 +29,10 @@ Per slot it prints (every ``--every`` slots, and at each loop) and writes to ``-
   apart its two keyframes truly were, how far its measured relative pose is from the truth's,
   and how far the graph's answer is from the truth against the poses before it.
 
-At the end: the frames tracked, the device's ATE and revisit error, and the ATE of the
-edge's final keyframes (archive and map). ``--keyframes-csv`` writes every keyframe's
+At the end: the frames tracked, the device's ATE and revisit error, the ATE of the edge's
+final keyframes (archive and map), the share of the device's matches its poses disagreed with
+(outliers) and the share of the final map's points with a look-alike within 5 cm
+(duplicates). ``--keyframes-csv`` writes every keyframe's
 history — integrated, evicted, restored, moved by a loop — with its position then and the
 truth's: where a disagreement was born.
 """
@@ -68,6 +71,7 @@ from twinslam.live.tracking_quality import (
 from twinslam.policies.registry import make_policy
 from twinslam.rotations import rotation_angle_deg
 from twinslam.sequences.opening import open_sequence
+from twinslam.slam.duplicate_points import DUPLICATE_RADIUS_M, duplicate_share
 from twinslam.slam.projection_matching import back_project
 from twinslam.slot_protocol import default_device
 from twinslam.uplink.channels import parse_channel
@@ -144,6 +148,9 @@ def main() -> None:
                              "a live update arrives; 0: at once)")
     parser.add_argument("--ba-window", type=int, default=EdgeConfig().ba_window,
                         help="keyframes the edge's local bundle adjustment moves (0: none)")
+    parser.add_argument("--point-culling", action=argparse.BooleanOptionalAction,
+                        default=EdgeConfig().point_culling,
+                        help="the edge removes map points later keyframes never find again")
     parser.add_argument("--every", type=int, default=10, help="print every N slots")
     parser.add_argument("--csv", type=Path, help="write the per-slot figures here")
     parser.add_argument("--keyframes-csv", type=Path,
@@ -162,7 +169,7 @@ def main() -> None:
                                settings.own_map_after)
     edge_params = {p.name: p.default for p in EDGE_PARAMETERS}
     edge_params.update(loop_closing=args.loops, restore_keyframes=args.restores,
-                       ba_window=args.ba_window)
+                       ba_window=args.ba_window, point_culling=args.point_culling)
     config = dataclasses.replace(edge_config(edge_params), loop_background=False)
     family = uplink_family(args.uplink)
     channel = parse_channel(family.channel, family.rate_mbps or (5.0, 45.0), seed=args.seed,
@@ -171,6 +178,7 @@ def main() -> None:
     poses: dict[int, np.ndarray] = {}
     tracked: list[int] = []
     stamp_ns: dict[int, int] = {}
+    matches = inliers = 0              #: the device's, over the frames its motion model posed
     history: dict[int, History] = {}
     rows: list[dict[str, object]] = []
     disagreements: list[Disagreement] = []      #: archive vs map, each slot
@@ -202,6 +210,9 @@ def main() -> None:
                 if result.record.tracked:
                     poses[frame.index] = result.record.pose
                     tracked.append(frame.index)
+            if result.record.tracked and not result.record.relocalised:
+                matches += result.record.matches
+                inliers += result.record.inliers
             if not result.slot_done:
                 continue
             state, rate = channel.step()
@@ -252,6 +263,9 @@ def main() -> None:
                       f"{across.worst} | within map {within.pairs:3d} rms {within.rms_m:.3f} "
                       f"max {within.max_m:.3f} {within.worst} {row['loop']}", flush=True)
         edge.close()
+        points = list(edge.map.points.values())
+        duplicates = duplicate_share(np.array([p.position for p in points]).reshape(-1, 3),
+                                     np.array([p.descriptor for p in points]).reshape(-1, 32))
         final = {kf.id: kf.pose for kf in edge.archive}
         final.update({k: kf.pose for k, kf in edge.map.keyframes.items()})
     ate = absolute_trajectory_error(poses, truth)
@@ -263,6 +277,9 @@ def main() -> None:
           f"{edge.loops_refused} refused, {time.perf_counter() - started:.0f} s")
     print(f"the edge's final keyframes (archive and map, {len(final)}): ATE "
           f"{absolute_trajectory_error(final, truth):.3f} m")
+    print(f"the device's matches: {1 - inliers / max(matches, 1):.1%} outliers; the edge's map "
+          f"at the end: {len(edge.map.points)} points, {duplicates:.1%} with a look-alike "
+          f"within {DUPLICATE_RADIUS_M * 100:.0f} cm")
     largest = max((d.max_m for d in disagreements if not math.isnan(d.max_m)), default=math.nan)
     print(f"archive vs map: at the end RMS {disagreements[-1].rms_m:.3f} m, the largest "
           f"pair over the walk {largest:.3f} m")

@@ -57,9 +57,14 @@ from twinslam.slam.back_end.bundle_adjustment import (
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive, restore_into
 from twinslam.slam.back_end.keyframe_gate import KeyFrameGateConfig, implausible_keyframe
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
-from twinslam.slam.back_end.local_mapping import IntegrationReport, LocalMapping
+from twinslam.slam.back_end.local_mapping import (
+    IntegrationReport,
+    LocalMapping,
+    LocalMappingConfig,
+)
 from twinslam.slam.back_end.loop_correction import correct_map, correction_for, farthest_move
 from twinslam.slam.back_end.loop_detection import MIN_GAP
+from twinslam.slam.back_end.point_culling import PointCullingConfig
 from twinslam.slam.back_end.point_fusion import fuse_restored
 from twinslam.slam.back_end.pose_graph import LoopEdge
 from twinslam.slam.keyframe import KeyFramePayload
@@ -85,6 +90,9 @@ class EdgeConfig:
     #: the points a restored keyframe brings back that the map made again since are fused into
     #: the map's (:mod:`twinslam.slam.back_end.point_fusion`); False: they stay as copies
     point_fusion: bool = True
+    #: a map point later keyframes should see and never find leaves the map
+    #: (:mod:`twinslam.slam.back_end.point_culling`); False: it stays until its last observer
+    point_culling: bool = False
     #: archived keyframes brought back at the end of a slot around the pose the edge found in
     #: its archive for a lost device's frame (:meth:`EdgeMapperCore.relocalise`); 0: the edge
     #: does not relocalise devices. Off by default: on the 7-Scenes revisit-v15 walk (LFF, 300
@@ -178,7 +186,10 @@ class EdgeMapperCore:
             self.version = int(extra.get("version", 0))
             self.last_slot = int(extra.get("last_slot", -1))
             self.rate_history = [int(x) for x in extra.get("rate_history", [])]
-        self.local_mapping = LocalMapping(self.map, self.k, self.config.image_shape)
+        self.local_mapping = LocalMapping(
+            self.map, self.k, self.config.image_shape,
+            LocalMappingConfig(culling=PointCullingConfig() if self.config.point_culling
+                               else None))
         #: the device's tracks resolved in the last finished slot: the next map update lists
         #: them again, in case the device missed the update that first did
         self._previous_tracks: dict[int, int] = {}

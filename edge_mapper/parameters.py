@@ -76,6 +76,9 @@ PARAMETERS = (
     ParamSpec("point_fusion", True, "the points a restored keyframe brings back that the map "
               "made again since are fused into the map's (one corner, one point); false: they "
               "stay as copies, as before the fusion (for measuring what it changes)"),
+    ParamSpec("point_culling", False, "a map point that later keyframes look at and find in "
+              "fewer than a quarter of their views (after four) leaves the map (ORB-SLAM's "
+              "map-point culling); false: a point stays until its last observer leaves"),
     ParamSpec("loop_closing", default_device.LOOP_CLOSING, "look for a loop from every "
               "keyframe the edge integrates (a place its archive or map saw far earlier, "
               "found by PnP, measured from the two keyframes' depths) and close it with a pose "
@@ -140,6 +143,7 @@ def edge_config(p: Mapping[str, Any]) -> EdgeConfig:
                       archive_keyframes=int(p["archive_keyframes"]),
                       restore_keyframes=int(p["restore_keyframes"]),
                       point_fusion=bool(p["point_fusion"]),
+                      point_culling=bool(p["point_culling"]),
                       loop_closing=bool(p["loop_closing"]),
                       reloc_restore_keyframes=int(p["reloc_restore_keyframes"]),
                       image_shape=(int(p["image_height"]), int(p["image_width"])))

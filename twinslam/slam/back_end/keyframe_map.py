@@ -43,6 +43,10 @@ class MapPoint:
     position: np.ndarray                   #: xyz in the map frame
     descriptor: np.ndarray                 #: 32-byte ORB descriptor (representative)
     observers: set[int] = field(default_factory=set)  #: keyframe ids
+    #: keyframes whose view held it, and those of them that observed it (its creator counts
+    #: in both): the found ratio :mod:`twinslam.slam.back_end.point_culling` judges it by
+    visible: int = 1
+    found: int = 1
 
 
 def shared_counts(sets: list[np.ndarray]) -> np.ndarray:
@@ -128,6 +132,17 @@ class KeyFrameMap:
             del self.points[point_id]
             return True
         return False
+
+    def remove_point(self, point_id: int) -> None:
+        """Remove a point and every keyframe's observation of it (a point culled for never
+        being found again)."""
+        point = self.points.pop(point_id, None)
+        if point is None:
+            raise MapError(f"cannot remove point {point_id}: not in the map")
+        for kf_id in point.observers:
+            kf = self.keyframes[kf_id]
+            kf.points.discard(point_id)
+            kf.measurements.pop(point_id, None)
 
     def fuse(self, keep: int, drop: int) -> int:
         """Point ``drop`` is point ``keep`` seen again (a duplicate): every keyframe that
@@ -216,6 +231,8 @@ class KeyFrameMap:
                                                 dtype=np.uint8).reshape(-1, 32),
                      observations=obs.reshape(-1, 2),
                      measurements=uvd.reshape(-1, 3),
+                     point_views=np.array([(self.points[p].visible, self.points[p].found)
+                                           for p in pt_ids], dtype=np.int64).reshape(-1, 2),
                      next_point_id=np.array(self.next_point_id), **extra)
             fh.flush()
             os.fsync(fh.fileno())
@@ -244,6 +261,11 @@ class KeyFrameMap:
                                          strict=True):
                 m.observe(int(k), int(p), (u, v), d)
             m.next_point_id = int(data.pop("next_point_id"))
+            # a checkpoint written before points counted their views: each starts afresh
+            views = data.pop("point_views", None)
+            if views is not None:
+                for p, (visible, found) in zip(sorted(m.points), views, strict=True):
+                    m.points[p].visible, m.points[p].found = int(visible), int(found)
         except (KeyError, ValueError) as exc:
             raise MapError(f"{path}: inconsistent map checkpoint ({exc})") from None
         return m, data

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
+from twinslam.slam.back_end.point_culling import PointCullingConfig, count_and_cull, facing
 from twinslam.slam.keyframe import TRACK_ID_BIT
 from twinslam.slam.projection_matching import back_project, match_by_projection, visible_points
 
@@ -37,6 +38,10 @@ class LocalMappingConfig:
     max_hamming: int = 50
     ratio: float = 0.8
     depth_range_m: tuple[float, float] = (0.2, 8.0)
+    #: the points later keyframes should see and never find are removed
+    #: (:mod:`twinslam.slam.back_end.point_culling`); None: every point stays until its last
+    #: observer leaves (the edge's ``point_culling`` decides)
+    culling: PointCullingConfig | None = None
 
 
 @dataclass(frozen=True)
@@ -49,6 +54,9 @@ class IntegrationReport:
     matched: int           #: by projection at the edge
     created: int           #: new points from depth
     unused: int            #: no match, no depth
+    #: map points removed after this keyframe's view held them and they were not found once
+    #: too often (:mod:`twinslam.slam.back_end.point_culling`)
+    culled: int = 0
     deferred: bool = False  #: held until an earlier slot finishes (counts above not known yet)
     #: why the edge's gate refused the keyframe ("" when integrated): nothing of it entered
     #: the map (:mod:`twinslam.slam.back_end.keyframe_gate`)
@@ -108,8 +116,11 @@ class LocalMapping:
             elif dev in m.points:
                 self._observe(kf_id, dev, free, i)
                 counts["associated"] += 1
-        self._flush(kf_id)                        # _match needs the keyframe's points
-        counts["matched"] = self._match(kf_id, pose, keypoints, descriptors, free)
+        self._flush(kf_id)                        # the local map needs the keyframe's points
+        in_view, uv = self._in_view(kf_id, pose)
+        counts["matched"] = self._match(kf_id, keypoints, descriptors, free, in_view, uv)
+        # the map's points this keyframe found (those it makes below start counted)
+        found = m.keyframes[kf_id].points | self._taken.keys()
         world = self._back_project(pose, keypoints, depths)
         for i in pending_tracks:
             if not free[i]:                   # matched to an existing point by projection
@@ -126,9 +137,20 @@ class LocalMapping:
                 counts["created"] += 1
         self._flush(kf_id)
         unused = int(free.sum())
+        culled = self._cull(pose, found, in_view)
         return IntegrationReport(counts["associated"], counts["tracked"],
                                  counts["created_from_tracks"], counts["matched"],
-                                 counts["created"], unused)
+                                 counts["created"], unused, len(culled))
+
+    def _cull(self, pose: np.ndarray, found: set[int], in_view: np.ndarray) -> list[int]:
+        """The keyframe's views counted and the points never found again removed (none
+        without ``culling``); the points a device track became stay resolvable until the
+        slot's end prunes the table."""
+        culling = self.config.culling
+        if culling is None:
+            return []
+        held = in_view[facing(self.map, in_view, pose, culling.max_view_angle_deg)]
+        return count_and_cull(self.map, found, held.tolist(), culling)
 
     def _remember_track(self, track: int, pid: int) -> None:
         self.track_points[track] = pid
@@ -153,16 +175,15 @@ class LocalMapping:
                                   self._depths[rows].tolist())
             self._taken = {}
 
-    def _match(self, kf_id: int, pose: np.ndarray, keypoints: np.ndarray,
-               descriptors: np.ndarray, free: np.ndarray) -> int:
-        """Free features matched to visible points of the keyframe's local map that it does
-        not observe yet. The local map, as in ORB-SLAM, is the points of the keyframes that
-        share the most points with it (by the device's associations), or of the newest
-        keyframes when it shares none: searching the whole map cost ~20 ms a keyframe."""
+    def _in_view(self, kf_id: int, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(ids, pixels) of the local map's points the keyframe does not observe yet that its
+        view holds. The local map, as in ORB-SLAM, is the points of the keyframes that share
+        the most points with it (by the device's associations), or of the newest keyframes
+        when it shares none: searching the whole map cost ~20 ms a keyframe."""
         m, cfg = self.map, self.config
-        f_free = np.flatnonzero(free)
-        if f_free.size == 0 or not m.points:
-            return 0
+        none = np.zeros(0, dtype=np.int64), np.zeros((0, 2))
+        if not m.points:
+            return none
         own = m.keyframes[kf_id].points
         shared = Counter(k for p in own for k in m.points[p].observers)
         del shared[kf_id]
@@ -174,20 +195,27 @@ class LocalMapping:
             else set(m.points)
         pids = np.array(sorted(local - own), dtype=np.int64)
         if pids.size == 0:
-            return 0
-        pts = [m.points[p] for p in pids.tolist()]
-        positions = np.array([pt.position for pt in pts])
+            return none
+        positions = np.array([m.points[p].position for p in pids.tolist()])
         vis, uv = visible_points(positions, np.ones(len(pids), dtype=bool), pose, self.k,
                                  self.shape, cfg.depth_range_m)
-        if vis.size == 0:
+        return pids[vis], uv
+
+    def _match(self, kf_id: int, keypoints: np.ndarray, descriptors: np.ndarray,
+               free: np.ndarray, in_view: np.ndarray, uv: np.ndarray) -> int:
+        """Free features matched to the points ``in_view`` (at pixels ``uv``)."""
+        cfg = self.config
+        f_free = np.flatnonzero(free)
+        if f_free.size == 0 or in_view.size == 0:
             return 0
-        desc = np.array([pts[i].descriptor for i in vis.tolist()], dtype=np.uint8)
+        desc = np.array([self.map.points[p].descriptor for p in in_view.tolist()],
+                        dtype=np.uint8)
         f_idx, c_idx = match_by_projection(np.asarray(keypoints)[f_free],
                                            np.asarray(descriptors)[f_free], uv, desc,
                                            cfg.search_radius_px, cfg.max_hamming, cfg.ratio,
                                            self.shape)
         for fi, ci in zip(f_idx, c_idx, strict=True):
-            self._observe(kf_id, int(pids[vis[ci]]), free, int(f_free[fi]))
+            self._observe(kf_id, int(in_view[ci]), free, int(f_free[fi]))
         return len(f_idx)
 
     def _back_project(self, pose: np.ndarray, keypoints: np.ndarray, depths: np.ndarray

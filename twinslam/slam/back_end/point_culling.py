@@ -1,0 +1,91 @@
+"""Map points that later keyframes should see and never find, removed (ORB-SLAM's
+``LocalMapping::MapPointCulling``, its found-ratio rule, counted over keyframes).
+
+A point made from one feature's depth may be a reflection, a depth edge's mixed reading or a
+second copy of a corner the map already had (the feature was matched to neither): the
+keyframes that come after look at where it is and never match it again, while the device,
+which tracks on the map update's points, matches its own features against it and finds its
+pose disagree with them (an outlier of its pose solve). Each point counts the keyframes whose
+view held it (``MapPoint.visible``) and those of them that observed it (``MapPoint.found``).
+Once ``min_visible`` views held it, a point found in fewer than ``min_found_ratio`` of them
+leaves the map, its observations with it.
+
+A view "holds" a point (ORB-SLAM's ``isInFrustum``) when it projects into the image within the
+depth range and the keyframe looks at it within ``max_view_angle_deg`` of the mean direction
+its observers saw it from: a wall's point seen from behind the wall is not expected to be
+found. ORB-SLAM counts views over every tracked frame; here only keyframes count (the edge sees
+no other frames), so ``min_visible`` stands for the frames ORB-SLAM waits for.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Collection
+from dataclasses import dataclass
+
+import numpy as np
+
+from twinslam.slam.back_end.keyframe_map import KeyFrameMap
+
+
+@dataclass(frozen=True)
+class PointCullingConfig:
+    #: a point found by fewer than this share of the keyframes that should see it is removed
+    #: (ORB-SLAM: 0.25)
+    min_found_ratio: float = 0.25
+    #: keyframes whose view held a point (its creator counted) before the ratio is judged: a
+    #: guard for ratios above ORB-SLAM's (with 0.25 a point found once is first removed at
+    #: its fifth view anyway)
+    min_visible: int = 4
+    #: a keyframe looking at a point farther than this from its observers' mean direction
+    #: does not count as holding it in view (ORB-SLAM: 60°)
+    max_view_angle_deg: float = 60.0
+
+
+def facing(keyframe_map: KeyFrameMap, point_ids: np.ndarray, camera_to_world: np.ndarray,
+           max_angle_deg: float) -> np.ndarray:
+    """The mask of ``point_ids`` a camera at ``camera_to_world`` looks at within
+    ``max_angle_deg`` of the mean direction their observers saw them from (a point no
+    keyframe observes has no such direction and counts as faced)."""
+    ids = np.asarray(point_ids, dtype=np.int64)
+    if ids.size == 0:
+        return np.zeros(0, dtype=bool)
+    points = keyframe_map.points
+    centres = {k: kf.pose[:3, 3] for k, kf in keyframe_map.keyframes.items()}
+    positions = np.array([points[p].position for p in ids.tolist()])
+    mean_dir = np.zeros_like(positions)
+    for i, p in enumerate(ids.tolist()):
+        seen_from = [centres[k] for k in points[p].observers if k in centres]
+        if seen_from:
+            rays = positions[i] - np.array(seen_from)
+            rays /= np.maximum(np.linalg.norm(rays, axis=1, keepdims=True), 1e-12)
+            mean_dir[i] = rays.mean(axis=0)
+    ray = positions - camera_to_world[:3, 3]
+    ray_norm = np.linalg.norm(ray, axis=1)
+    dir_norm = np.linalg.norm(mean_dir, axis=1)
+    unknown = dir_norm < 1e-9
+    cos = np.einsum("ij,ij->i", ray, mean_dir) / np.maximum(ray_norm * dir_norm, 1e-12)
+    return np.asarray(unknown | (cos >= np.cos(np.radians(max_angle_deg))))
+
+
+def count_and_cull(keyframe_map: KeyFrameMap, found: Collection[int],
+                   in_view: Collection[int], config: PointCullingConfig) -> list[int]:
+    """One keyframe's views counted — ``found``: the map's points it observed (those it made
+    itself excluded: they start at one view, one find), ``in_view``: the others its view
+    held — and the points of ``in_view`` whose found ratio fell below the bound removed;
+    their ids."""
+    points = keyframe_map.points
+    for p in found:
+        point = points[p]
+        point.visible += 1
+        point.found += 1
+    culled = []
+    for p in sorted(set(in_view) - set(found)):
+        point = points.get(p)
+        if point is None:
+            continue
+        point.visible += 1
+        if point.visible >= config.min_visible and \
+                point.found < config.min_found_ratio * point.visible:
+            keyframe_map.remove_point(p)
+            culled.append(p)
+    return culled
