@@ -60,11 +60,9 @@ from twinslam.slam.front_end.map_source import (
     check_map_source,
 )
 from twinslam.slam.front_end.tracking import Tracking, TrackingConfig, depth_at
-from twinslam.slam.keyframe import TRACK_ID_BIT, KeyFramePayload
+from twinslam.slam.keyframe import KeyFramePayload, as_track_ids, is_track, is_track_id
 from twinslam.slam.map_update import MapSnapshot
 from twinslam.slot_protocol import table1
-
-TRACK_BIT = int(TRACK_ID_BIT)
 
 
 @dataclass(frozen=True)
@@ -121,12 +119,12 @@ class DeviceTrackerCore:
                                           own_points=map_source == EDGE_LOCAL,
                                           frame_rate_hz=frame_rate_hz)
         self.tracking = Tracking(self.k, self.config)
-        #: per map-point row: its global id or TRACK_BIT | track id
+        #: per map-point row: its global id or a track id (``is_track``)
         self.labels = np.zeros(0, dtype=np.uint64)
         self.created = np.zeros(0, dtype=np.int64)     #: per row: slot that created it
         #: the paper's device follows the features its map lacks apart from the map
         self.tracks = FeatureTracks(self.k, self.config) if map_source == EDGE else None
-        self.track_labels = np.zeros(0, dtype=np.uint64)   #: per track row: TRACK_BIT | id
+        self.track_labels = np.zeros(0, dtype=np.uint64)   #: per track row: its track id
         self.track_created = np.zeros(0, dtype=np.int64)   #: per track row: its slot
         self.map_version = 0
         #: the edge's frame correction of the map held (MapUpdate.frame_correction)
@@ -190,13 +188,13 @@ class DeviceTrackerCore:
             self._images[out.index] = image
         self._label_new_points()
         ids = self.labels[out.observed]
-        is_track = (ids & np.uint64(TRACK_BIT)) != 0
+        on_track = is_track(ids)
         assert out.features is not None and out.feature_points is not None
         assoc = out.feature_points
         point_ids = np.zeros(len(assoc), dtype=np.uint64)      # 0: the feature observes none
         matched = assoc >= 0
         point_ids[matched] = self.labels[assoc[matched]]      # (the map may hold no point)
-        track_ids = ids[is_track]
+        track_ids = ids[on_track]
         if self.tracks is not None and out.tracked:
             f_idx, rows, n_new = self.tracks.observe(out.features, assoc < 0, out.pose, depth,
                                                      out.index, color.shape[:2])
@@ -204,7 +202,7 @@ class DeviceTrackerCore:
             followed = self.track_labels[rows]
             point_ids[f_idx] = followed
             track_ids = np.concatenate([track_ids, followed])
-        record = FrameRecord(out.index, stamp, out.pose, out.tracked, np.sort(ids[~is_track]),
+        record = FrameRecord(out.index, stamp, out.pose, out.tracked, np.sort(ids[~on_track]),
                              np.sort(track_ids), self.slot, out.relocalised, out.inliers,
                              self.map_version, (time.thread_time() - started) * 1000.0,
                              bool(out.refused or out.implausible), out.pnp_ransac,
@@ -217,7 +215,7 @@ class DeviceTrackerCore:
             out.index, slot, stamp, out.pose, self.k, out.features.points,
             depths.astype(np.float32), out.features.descriptors, point_ids.astype(np.uint64))
         was_lost, self.lost = self.lost, not out.tracked
-        if self.own_map and out.tracked and (~is_track).sum() >= self.config.min_inliers:
+        if self.own_map and out.tracked and (~on_track).sum() >= self.config.min_inliers:
             self._end_own_map()          # the edge's map explains the view again
             own_map = "ended"
         return FrameResult(record, out.relocalised, self.clock.is_last(stamp),
@@ -277,7 +275,7 @@ class DeviceTrackerCore:
         """The paper's device again: only the edge's points stay in the map it tracks with;
         its own points go back to being feature tracks."""
         self.tracking.config = self.config
-        own = (self.labels & np.uint64(TRACK_BIT)) != 0
+        own = is_track(self.labels)
         self.tracks = FeatureTracks(self.k, self.config)
         self.tracks.points = self.tracking.map.take(np.flatnonzero(own))
         self.track_labels, self.track_created = self.labels[own], self.created[own]
@@ -314,13 +312,13 @@ class DeviceTrackerCore:
             return
         self.tracks = FeatureTracks(self.k, self.config)
         if self.map_version > 0:
-            self._keep_points(np.flatnonzero((self.labels & np.uint64(TRACK_BIT)) == 0))
+            self._keep_points(np.flatnonzero(~is_track(self.labels)))
 
     def _forget_own_points_before(self, oldest_slot: int) -> None:
         """Bound the local map while the edge is silent: the device's own points created
         before ``oldest_slot`` go (their frames can no longer be uploaded, so the edge's map
         will not hold them). With the edge answering, each map update prunes them sooner."""
-        stale = (((self.labels & np.uint64(TRACK_BIT)) != 0) & (self.created < oldest_slot))
+        stale = is_track(self.labels) & (self.created < oldest_slot)
         if stale.any():
             self._keep_points(np.flatnonzero(~stale))
 
@@ -345,7 +343,7 @@ class DeviceTrackerCore:
         """``count`` fresh device-local ids, marked as tracks."""
         ids = np.arange(self._next_track, self._next_track + count, dtype=np.uint64)
         self._next_track += count
-        return ids | np.uint64(TRACK_BIT)
+        return as_track_ids(ids)
 
     def _label_new_points(self) -> None:
         n_old, n = len(self.labels), len(self.tracking.map)
@@ -373,7 +371,7 @@ class DeviceTrackerCore:
                                strict=True))
             self.labels = np.array([relabel.get(int(x), int(x)) for x in self.labels],
                                    dtype=np.uint64)
-        own = (self.labels & np.uint64(TRACK_BIT)) != 0
+        own = is_track(self.labels)
         moved_frame = update.frame_correction @ np.linalg.inv(self.frame_correction)
         if not np.allclose(moved_frame, np.eye(4), atol=1e-12):
             # a loop closed at the edge corrected the map's frame: what the device holds of
@@ -396,7 +394,7 @@ class DeviceTrackerCore:
         new_track = points.add(old.positions[keep], old.descriptors[keep], now)
         old_to_new = np.full(len(old), -1, dtype=np.int64)
         old_to_new[keep] = new_track
-        row_of = {int(g): r for r, g in enumerate(self.labels) if not int(g) & TRACK_BIT}
+        row_of = {int(g): r for r, g in enumerate(self.labels) if not is_track_id(g)}
         for new_row, gid in zip(new_global, update.point_ids, strict=True):
             r = row_of.get(int(gid))
             if r is not None:

@@ -6,10 +6,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from device_tracker.device_core import TRACK_BIT, DeviceTrackerCore
+from device_tracker.device_core import DeviceTrackerCore
 from device_tracker.frame_log import frame_log_lines
 from twinslam.sequences.synthetic import SyntheticSequence
 from twinslam.slam.front_end.tracking import TrackingConfig
+from twinslam.slam.keyframe import is_track, is_track_id
 from twinslam.slam.map_update import MapSnapshot
 
 SLOT = 10
@@ -29,7 +30,7 @@ def test_map_update_relabels_resolved_tracks_and_keeps_tracking() -> None:
     assert [r.frame_id for r in records] == list(range(SLOT))
     # before any map update the device knows only its own points
     assert all(len(r.map_point_ids) == 0 and len(r.track_ids) > 50 for r in records)
-    assert all(int(t) & TRACK_BIT for r in records for t in r.track_ids)
+    assert all(is_track_id(t) for r in records for t in r.track_ids)
 
     up = core.upload(5)
     assert up is not None and len(up.point_ids) == len(up.keypoints) == len(up.depths)
@@ -209,7 +210,7 @@ def test_edge_mode_tracks_only_against_the_map_update_and_makes_no_point() -> No
         assert all(r.map_version == 1 and r.inliers >= 15 for r in later)
         assert all(len(r.map_point_ids) == r.inliers for r in later)
         # feature tracks for the edge's covisibility: shared between the slot's frames
-        assert all(len(r.track_ids) > 0 and all(int(t) & TRACK_BIT for t in r.track_ids)
+        assert all(len(r.track_ids) > 0 and all(is_track_id(t) for t in r.track_ids)
                    for r in later)
         assert len(set(later[0].track_ids.tolist()) & set(later[-1].track_ids.tolist())) > 20
     payload = core.upload(3 * SLOT + 2)
@@ -288,7 +289,7 @@ def test_a_paper_device_lost_too_long_tracks_with_its_own_points_until_the_edge_
     back = _track(core, frames[2 * SLOT:2 * SLOT + 3])
     assert all(r.record.tracked and r.record.map_version == 2 for r in back)
     assert back[0].own_map == "ended" and not core.own_map
-    assert not any(int(x) & TRACK_BIT for x in core.labels), "own points stayed in the map"
+    assert not is_track(core.labels).any(), "own points stayed in the map"
     assert all(len(r.record.track_ids) for r in back), "no feature tracks for the edge"
 
     core = DeviceTrackerCore(seq.intrinsics, SLOT, map_source="edge")
@@ -333,7 +334,7 @@ def test_an_unknown_map_source_is_refused_and_a_known_one_applies_at_the_next_fr
     update = _update_from_own_points(core, 1, records[0].track_ids)
     assert core.apply_map_update(update, 0)
     _track(core, frames[SLOT:SLOT + 3])
-    assert (core.labels & np.uint64(TRACK_BIT)).any(), "edge+local makes points of its own"
+    assert is_track(core.labels).any(), "edge+local makes points of its own"
     core.set_map_source("edge")
     assert sorted(core.labels.tolist()) == sorted(update.point_ids.tolist())
     after = _track(core, frames[SLOT + 3:])
@@ -386,7 +387,7 @@ def test_a_loop_corrected_map_moves_the_devices_own_points_and_pose_with_it() ->
     update = _update_from_own_points(core, 1, records[0].track_ids)
     update.positions = update.positions @ correction[:3, :3].T + correction[:3, 3]
     update.frame_correction = correction
-    own = (core.labels & np.uint64(TRACK_BIT)) != 0
+    own = is_track(core.labels)
     resolved = set(records[0].track_ids.tolist())
     active = core.tracking.map.active
     before = {int(label): core.tracking.map.positions[row].copy()

@@ -13,7 +13,7 @@ from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, applied_evictions,
 from edge_mapper.planning_world import visible_points
 from edge_mapper.slot_planner import FrameObservations, SlotConfig
 from twinslam.policies.registry import make_policy
-from twinslam.slam.keyframe import TRACK_ID_BIT, KeyFramePayload
+from twinslam.slam.keyframe import TRACK_ID_BIT, KeyFramePayload, is_track_id
 
 K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
 F = 8                                      # frames per slot (60 in the paper; small for speed)
@@ -48,8 +48,8 @@ class Device:
 
     def summary(self, frame: int, core: EdgeMapperCore) -> FrameObservations:
         _, _, _, ids = self.observe(frame, core)
-        return FrameObservations(frame, frozenset(i for i in ids if not i & int(TRACK_ID_BIT)),
-                                 frozenset(i for i in ids if i & int(TRACK_ID_BIT)))
+        return FrameObservations(frame, frozenset(i for i in ids if not is_track_id(i)),
+                                 frozenset(i for i in ids if is_track_id(i)))
 
     def keyframe(self, frame: int, slot: int, core: EdgeMapperCore) -> KeyFramePayload:
         seen, uv, depth, ids = self.observe(frame, core)

@@ -18,6 +18,21 @@ import numpy as np
 TRACK_ID_BIT = np.uint64(1 << 63)          #: marks a device-local track id
 
 
+def is_track(ids: np.ndarray) -> np.ndarray:
+    """The mask of ``ids`` (uint64) that are device-local track ids, not map points."""
+    return np.asarray((np.asarray(ids, dtype=np.uint64) & TRACK_ID_BIT) != 0)
+
+
+def is_track_id(point_id: int) -> bool:
+    """Whether one id is a device-local track id."""
+    return bool(int(point_id) & int(TRACK_ID_BIT))
+
+
+def as_track_ids(ids: np.ndarray) -> np.ndarray:
+    """Device-local counters as track ids (the bit set)."""
+    return np.asarray(np.asarray(ids, dtype=np.uint64) | TRACK_ID_BIT)
+
+
 @dataclass(frozen=True)
 class KeyFramePayload:
     """What a ``Keyframe`` message carries for one frame, as arrays."""

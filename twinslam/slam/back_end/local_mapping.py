@@ -26,7 +26,7 @@ import numpy as np
 
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.back_end.point_culling import PointCullingConfig, count_and_cull, facing
-from twinslam.slam.keyframe import TRACK_ID_BIT
+from twinslam.slam.keyframe import is_track_id
 from twinslam.slam.projection_matching import back_project, match_by_projection, visible_points
 
 
@@ -106,7 +106,7 @@ class LocalMapping:
             dev = int(ids[i])
             if dev == 0:
                 continue
-            if dev & int(TRACK_ID_BIT):
+            if is_track_id(dev):
                 pid = self.track_points.get(dev)
                 if pid is not None and pid in m.points:
                     self._observe(kf_id, pid, free, i)
