@@ -23,7 +23,7 @@ def is_track(ids: np.ndarray) -> np.ndarray:
     return np.asarray((np.asarray(ids, dtype=np.uint64) & TRACK_ID_BIT) != 0)
 
 
-def is_track_id(point_id: int) -> bool:
+def is_track_id(point_id: int | np.integer) -> bool:
     """Whether one id is a device-local track id."""
     return bool(int(point_id) & int(TRACK_ID_BIT))
 

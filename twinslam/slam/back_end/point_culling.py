@@ -80,12 +80,12 @@ def count_and_cull(keyframe_map: KeyFrameMap, found: Collection[int],
         point.found += 1
     culled = []
     for p in sorted(set(in_view) - set(found)):
-        point = points.get(p)
-        if point is None:
+        held = points.get(p)
+        if held is None:
             continue
-        point.visible += 1
-        if point.visible >= config.min_visible and \
-                point.found < config.min_found_ratio * point.visible:
+        held.visible += 1
+        if held.visible >= config.min_visible and \
+                held.found < config.min_found_ratio * held.visible:
             keyframe_map.remove_point(p)
             culled.append(p)
     return culled
