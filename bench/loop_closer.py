@@ -27,7 +27,6 @@ from pathlib import Path
 
 import numpy as np
 
-from edge_mapper.loop_closer import LoopJob, LoopQuery, run_job, shared_points
 from twinslam.cli.console import HelpFormatter
 from twinslam.sequences.opening import open_sequence
 from twinslam.slam.back_end.keyframe_archive import (
@@ -36,6 +35,7 @@ from twinslam.slam.back_end.keyframe_archive import (
     restore_into,
 )
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
+from twinslam.slam.back_end.loop_closing import LoopJob, LoopQuery, run_job, shared_points
 from twinslam.slam.back_end.loop_correction import correct_map
 from twinslam.slam.back_end.loop_detection import detect_loop
 from twinslam.slam.back_end.pose_graph import close_loop

@@ -56,7 +56,6 @@ from device_tracker.device_core import DeviceTrackerCore
 from device_tracker.parameters import PARAMETERS as DEVICE_PARAMETERS
 from device_tracker.parameters import DeviceSettings
 from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore
-from edge_mapper.loop_closer import LoopResult
 from edge_mapper.parameters import PARAMETERS as EDGE_PARAMETERS
 from edge_mapper.parameters import edge_config
 from twinslam.cli.console import HelpFormatter
@@ -71,6 +70,7 @@ from twinslam.live.tracking_quality import (
 from twinslam.policies.registry import make_policy
 from twinslam.rotations import rotation_angle_deg
 from twinslam.sequences.opening import open_sequence
+from twinslam.slam.back_end.loop_closing import LoopResult
 from twinslam.slam.duplicate_points import DUPLICATE_RADIUS_M, duplicate_share
 from twinslam.slam.projection_matching import back_project
 from twinslam.slot_protocol import default_device

@@ -41,7 +41,7 @@ from twinslam_msgs.msg import (
 )
 from visualization_msgs.msg import MarkerArray
 
-from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, SlotOutcome, archive_folder
+from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, SlotOutcome
 from edge_mapper.messages import (
     map_stats_message,
     map_update_message,
@@ -56,6 +56,7 @@ from edge_mapper.visual_messages import decisions_message, keyframes_message, ma
 from msg_schemas import qos, topics
 from msg_schemas.poses import pose_matrix
 from twinslam.node_runtime.checked_subscription import CheckedSubscription
+from twinslam.slam.back_end.map_back_end import archive_folder
 
 
 @dataclass(frozen=True)

@@ -4,10 +4,13 @@
 ``plan`` answers a slot's frame summaries with U_k and C_k (and υ of those frames against the
 map, the previous decision's reward); ``add_keyframe`` integrates each uploaded keyframe the
 plan asked for; ``finish_slot`` evicts C_k (less what uploads that never came would have
-needed: the map never shrinks for lack of uploads), runs a local bundle adjustment over the
-newest keyframes, bumps the map version and writes the checkpoint. An evicted keyframe leaves
-the managed map (V_max: what is optimised and sent to the device) for the edge's archive
-(:mod:`twinslam.slam.back_end.keyframe_archive`), which keeps it up to ``archive_keyframes``. The
+needed: the map never shrinks for lack of uploads), restores archived keyframes where the
+camera heads, applies a finished loop, bumps the map version and writes the checkpoint. What
+each of those does to the map — integration, culling, fusion, the archive, the local bundle
+adjustment, loops — is the back end's
+(:class:`~twinslam.slam.back_end.map_back_end.MapBackEnd`); this class orchestrates the slots
+around it: which keyframes, when. An evicted keyframe leaves the managed map (V_max: what is
+sent to the device) for the edge's archive, which keeps it up to ``archive_keyframes``. The
 node (``edge_mapper/node.py``) only moves messages in and out of this class; a restarted node
 resumes from the checkpoint.
 
@@ -32,41 +35,22 @@ from pathlib import Path
 
 import numpy as np
 
-from edge_mapper.loop_closer import (
-    CONFIRMATIONS,
-    LoopCloser,
-    LoopJob,
-    LoopQuery,
-    LoopResult,
-)
-from edge_mapper.planning_world import at_the_edge, extrapolate, has_camera
+from edge_mapper.planning_world import at_the_edge, extrapolate
 from edge_mapper.restores import plan_relocation_restores, plan_restores
 from edge_mapper.slot_planner import FrameObservations, SlotConfig, SlotPlan, SlotPlanner
 from twinslam.policies.actions import MapAction
 from twinslam.policies.protocol import MapPolicy
-from twinslam.slam.back_end.archive_relocalisation import (
-    ArchiveLocation,
-    ArchiveRelocalisationConfig,
-    locate_in_archive,
-)
-from twinslam.slam.back_end.bundle_adjustment import (
-    BundleAdjustmentResult,
-    Observation,
-    bundle_adjust,
-)
-from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive, restore_into
-from twinslam.slam.back_end.keyframe_gate import KeyFrameGateConfig, implausible_keyframe
+from twinslam.slam.back_end.archive_relocalisation import ArchiveLocation
+from twinslam.slam.back_end.bundle_adjustment import BundleAdjustmentResult
+from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
+from twinslam.slam.back_end.keyframe_gate import KeyFrameGateConfig
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
-from twinslam.slam.back_end.local_mapping import (
-    IntegrationReport,
-    LocalMapping,
-    LocalMappingConfig,
-)
-from twinslam.slam.back_end.loop_correction import correct_map, correction_for, farthest_move
+from twinslam.slam.back_end.local_mapping import IntegrationReport, LocalMapping
+from twinslam.slam.back_end.loop_closing import CONFIRMATIONS, LoopCloser
 from twinslam.slam.back_end.loop_detection import MIN_GAP
-from twinslam.slam.back_end.point_culling import PointCullingConfig
-from twinslam.slam.back_end.point_fusion import fuse_restored
+from twinslam.slam.back_end.map_back_end import BackEndConfig, ClosedLoop, MapBackEnd
 from twinslam.slam.back_end.pose_graph import LoopEdge
+from twinslam.slam.camera import has_camera
 from twinslam.slam.keyframe import KeyFramePayload
 from twinslam.uncertainty.map_uncertainty import map_uncertainty
 
@@ -105,7 +89,8 @@ class EdgeConfig:
     #: one out of the map's reach, one its own matched points contradict are refused)
     keyframe_gate: KeyFrameGateConfig = field(default_factory=KeyFrameGateConfig)
     #: look for loops from every integrated keyframe against the archive and the map's far
-    #: older keyframes, and close them with a pose graph (:mod:`edge_mapper.loop_closer`)
+    #: older keyframes, and close them with a pose graph
+    #: (:mod:`twinslam.slam.back_end.loop_closing`)
     loop_closing: bool = False
     #: the loop closer's work on a worker thread (the node); False: in ``finish_slot`` itself
     #: (offline pipelines, whose results must not depend on thread timing)
@@ -113,22 +98,20 @@ class EdgeConfig:
     #: a loop joins keyframes at least this many ids (frames) apart: the recent walk is none
     loop_min_gap: int = MIN_GAP
     #: later keyframes that must find a loop's place again before it closes
-    #: (:class:`edge_mapper.loop_closer.LoopConfirmation`); 0: the first keyframe that finds it
-    #: closes it
+    #: (:class:`twinslam.slam.back_end.loop_closing.LoopConfirmation`); 0: the first keyframe
+    #: that finds it closes it
     loop_confirmations: int = CONFIRMATIONS
 
-
-@dataclass(frozen=True)
-class ClosedLoop:
-    """A loop the edge closed at the end of a slot."""
-
-    old: int                         #: the keyframe of the place seen long before
-    new: int                         #: the keyframe that saw it again
-    inliers: int                     #: of the geometric check
-    moved_m: float                   #: the farthest a managed keyframe moved (or would have)
-    worker_ms: float                 #: the loop closer's time (detection and pose graph)
-    #: why its corrections were not applied ("": applied)
-    refused: str = ""
+    def back_end(self) -> BackEndConfig:
+        """What of these settings the map's life takes (:class:`MapBackEnd`)."""
+        return BackEndConfig(
+            ba_window=self.ba_window, ba_iterations=self.ba_iterations,
+            ba_points=self.ba_points, baseline_m=self.baseline_m, image_shape=self.image_shape,
+            archive_keyframes=self.archive_keyframes, point_fusion=self.point_fusion,
+            point_culling=self.point_culling, reloc_min_inliers=self.reloc_min_inliers,
+            keyframe_gate=self.keyframe_gate, loop_closing=self.loop_closing,
+            loop_background=self.loop_background, loop_min_gap=self.loop_min_gap,
+            loop_confirmations=self.loop_confirmations)
 
 
 @dataclass
@@ -166,39 +149,26 @@ class SlotOutcome:
 
 
 class EdgeMapperCore:
-    """One device's map at the edge: plans, keyframes, evictions, optimisation, checkpoint."""
+    """One device's slots at the edge: plans, the keyframes they ask for, evictions, restores,
+    the map update's version and the checkpoint, around the map's life in its
+    :class:`~twinslam.slam.back_end.map_back_end.MapBackEnd`."""
 
     def __init__(self, policy: MapPolicy, intrinsics: np.ndarray | None = None,
                  config: EdgeConfig | None = None, checkpoint: Path | None = None,
                  n_states: int = 2) -> None:
         self.config = config or EdgeConfig()
-        #: camera intrinsics; without them at start, taken from the first keyframe
-        self.k = np.eye(3) if intrinsics is None else np.asarray(intrinsics, dtype=np.float64)
         self.checkpoint = Path(checkpoint) if checkpoint else None
-        self.version = 0
-        self.last_slot = -1
-        self.rate_history: list[int] = []
-        self.map = KeyFrameMap()
-        extra: dict[str, np.ndarray] = {}
-        self.restored_from_file = self.checkpoint is not None and self.checkpoint.is_file()
-        if self.restored_from_file and self.checkpoint is not None:
-            self.map, extra = KeyFrameMap.load(self.checkpoint)
-            self.version = int(extra.get("version", 0))
-            self.last_slot = int(extra.get("last_slot", -1))
-            self.rate_history = [int(x) for x in extra.get("rate_history", [])]
-        self.local_mapping = LocalMapping(
-            self.map, self.k, self.config.image_shape,
-            LocalMappingConfig(culling=PointCullingConfig() if self.config.point_culling
-                               else None))
+        self.back_end = MapBackEnd(self.config.back_end(), intrinsics, self.checkpoint)
+        extra = self.back_end.extra
+        self.version = int(extra.get("version", 0))
+        self.last_slot = int(extra.get("last_slot", -1))
+        self.rate_history = [int(x) for x in extra.get("rate_history", [])]
         #: the device's tracks resolved in the last finished slot: the next map update lists
         #: them again, in case the device missed the update that first did
         self._previous_tracks: dict[int, int] = {}
-        if self.restored_from_file:      # a restarted edge resolves the device's tracks as before
+        if self.back_end.restored_from_file:    # a restarted edge resolves the tracks as before
             self.local_mapping.track_points = _table(extra, "track")
             self._previous_tracks = _table(extra, "previous_track")
-        #: what the archive could not read back after a restart (the node logs it)
-        self.archive_problems: list[str] = []
-        self.archive = self._open_archive()
         self.planner = SlotPlanner(self.map, at_the_edge(policy), self.config.slot, n_states)
         self.pending: dict[int, tuple[MapAction, set[int]]] = {}   #: slot → (action, received)
         self._planned_vmax: dict[int, int] = {}   #: open slot → the V_max it was planned with
@@ -216,37 +186,51 @@ class EdgeMapperCore:
         #: poses found in the archive for the lost device's frames since the last finished slot:
         #: where the next restores look instead of the heading
         self._relocalised_views: list[np.ndarray] = []
-        self.loop_closer = LoopCloser(self.config.loop_background, self.config.loop_min_gap,
-                                      confirmations=self.config.loop_confirmations)
-        #: keyframes integrated since the last loop job, newest last
-        self._loop_queries: list[LoopQuery] = []
-        self.loops_closed = int(extra.get("loops_closed", 0))
-        #: every loop applied: the next loop's graph holds them too (a new loop must not undo
-        #: an older one)
-        self.loop_edges: list[LoopEdge] = _loop_edges(extra)
-        self.loops_refused = 0                 #: loops whose corrections went too far
-        #: the applied loops' corrections at the walk's head, composed: the frame the map is in
-        #: relative to the one the walk started in (MapUpdate.frame_correction)
-        self.frame_correction = np.asarray(extra.get("frame_correction", np.eye(4)),
-                                           dtype=np.float64).reshape(4, 4)
-        #: (first map version carrying it, frame_correction): the frame each version is in
-        self._frames_since: list[tuple[int, np.ndarray]] = [(0, self.frame_correction.copy())]
 
-    def _open_archive(self) -> KeyFrameArchive:
-        """The archive beside the checkpoint (``edge.npz`` → ``edge.npz.archive/``), restored
-        with the map; a fresh start (no map checkpoint) clears what an earlier run left
-        there, whose keyframe ids a new device run would reuse."""
-        capacity = self.config.archive_keyframes
-        if self.checkpoint is None:
-            return KeyFrameArchive(capacity)
-        folder = archive_folder(self.checkpoint)
-        if self.restored_from_file:
-            archive, self.archive_problems = KeyFrameArchive.restore(
-                capacity, folder, set(self.map.keyframes))
-            return archive
-        for stale in folder.glob("keyframe-*.npz") if folder.is_dir() else ():
-            stale.unlink()
-        return KeyFrameArchive(capacity, folder)
+    # -- the map's life, in the back end -----------------------------------------------------
+
+    @property
+    def map(self) -> KeyFrameMap:
+        return self.back_end.map
+
+    @property
+    def archive(self) -> KeyFrameArchive:
+        return self.back_end.archive
+
+    @property
+    def k(self) -> np.ndarray:
+        """The camera's intrinsics (the identity until the first keyframe brings them)."""
+        return self.back_end.k
+
+    @property
+    def local_mapping(self) -> LocalMapping:
+        return self.back_end.local_mapping
+
+    @property
+    def loop_closer(self) -> LoopCloser:
+        return self.back_end.loop_closer
+
+    @property
+    def loops_closed(self) -> int:
+        return self.back_end.loops_closed
+
+    @property
+    def loops_refused(self) -> int:
+        return self.back_end.loops_refused
+
+    @property
+    def loop_edges(self) -> list[LoopEdge]:
+        return self.back_end.loop_edges
+
+    @property
+    def frame_correction(self) -> np.ndarray:
+        """The frame the map is in (MapUpdate.frame_correction)."""
+        return self.back_end.frame_correction
+
+    @property
+    def archive_problems(self) -> list[str]:
+        """What the archive could not read back after a restart (the node logs it)."""
+        return self.back_end.archive_problems
 
     @staticmethod
     def warm_up(policy: MapPolicy) -> None:
@@ -292,6 +276,7 @@ class EdgeMapperCore:
         :mod:`edge_mapper.compute_governor`)."""
         self.config = dataclasses.replace(self.config, ba_window=max(0, int(window)),
                                           ba_points=points)
+        self.back_end.set_bundle_adjustment(window, points)
 
     def set_vmax(self, vmax: int) -> None:
         """V_max from the next plan on (a smaller one evicts the excess over the next slots'
@@ -352,39 +337,14 @@ class EdgeMapperCore:
 
     def _integrate(self, data: KeyFramePayload) -> IntegrationReport:
         observed = self._arriving.pop(data.frame_id, None)
-        data = self.in_current_frame(data, observed.map_version if observed else -1)
-        refused = implausible_keyframe(data, self.map, ((kf.id, kf.pose) for kf in self.archive),
-                                       self.config.keyframe_gate)
-        if refused:
-            self._refused.setdefault(data.slot, {})[data.frame_id] = refused
-            return IntegrationReport.refusal(refused)
-        self.k = self.local_mapping.k = np.asarray(data.intrinsics, dtype=np.float64)
-        report = self.local_mapping.integrate(data.frame_id, data.pose, data.keypoints,
-                                              data.descriptors, data.depths, data.point_ids)
-        if self.config.loop_closing and data.frame_id in self.map.keyframes:
-            self._loop_queries = [*self._loop_queries[-(LOOP_QUERIES - 1):],
-                                  LoopQuery(data.frame_id, data.keypoints, data.descriptors,
-                                            data.depths)]
+        report = self.back_end.integrate(data, observed.map_version if observed else -1)
+        if report.refused:
+            self._refused.setdefault(data.slot, {})[data.frame_id] = report.refused
         return report
 
     def frame_correction_at(self, version: int) -> np.ndarray:
         """The frame map version ``version`` was in (its ``frame_correction``)."""
-        return next((c for first, c in reversed(self._frames_since) if first <= version),
-                    self._frames_since[0][1])
-
-    def in_current_frame(self, data: KeyFramePayload, tracked_on: int) -> KeyFramePayload:
-        """A keyframe the device tracked against map version ``tracked_on`` (-1: unknown), in
-        the frame the map is in now: a loop corrected since then did not reach the device
-        before it posed this frame (the map update comes a slot or two after the slot that
-        closed it), so its pose moves by the corrections applied since — else it would enter
-        the corrected map where the uncorrected one had it, its points a second copy of the
-        place."""
-        if tracked_on < 0:
-            return data
-        since = self.frame_correction @ np.linalg.inv(self.frame_correction_at(tracked_on))
-        if np.allclose(since, np.eye(4), atol=1e-12):
-            return data
-        return dataclasses.replace(data, pose=since @ data.pose)
+        return self.back_end.frame_correction_at(version)
 
     def integrate_held(self) -> list[int]:
         """The held keyframes of the slot that is now the oldest open one, integrated (call
@@ -413,14 +373,12 @@ class EdgeMapperCore:
         refused = self._refused.pop(slot, {})
         received -= refused.keys()            # a refused upload is as good as lost
         tl = time.perf_counter()
-        loop = self._apply_loop(self.loop_closer.take())
+        loop = self.back_end.take_loop(self.version + 1)
         missing = set(action.upload) - received
         evicted = applied_evictions(action.evict, self.map.keyframe_ids(), missing, vmax)
         ta = time.perf_counter()
         loop_ms = (ta - tl) * 1e3
-        forgotten = [dropped for kf in evicted
-                     for dropped in self.archive.add(ArchivedKeyFrame.of(self.map, kf, slot))]
-        orphans = sum(len(self.map.evict(kf)) for kf in evicted)
+        forgotten, orphans = self.back_end.evict_to_archive(evicted, slot)
         spared = sorted(set(action.evict) - set(evicted) - missing)
         views, self._relocalised_views = self._relocalised_views, []
         # restores fill the map up to the smaller of this slot's V_max and the next one's: an
@@ -432,8 +390,7 @@ class EdgeMapperCore:
         evicted += replaced
         forgotten += dropped
         t0 = time.perf_counter()
-        ba = (self.optimise() if len(self.map.keyframes) >= 2 and self.config.ba_window > 0
-              else None)
+        ba = self.back_end.optimise()
         t1 = time.perf_counter()
         self.version += 1
         self.last_slot = slot
@@ -447,9 +404,7 @@ class EdgeMapperCore:
             self.map.save(self.checkpoint, version=np.array(self.version),
                           last_slot=np.array(slot),
                           rate_history=np.array(self.rate_history, dtype=np.int64),
-                          loops_closed=np.array(self.loops_closed),
-                          **_loop_arrays(self.loop_edges),
-                          frame_correction=self.frame_correction,
+                          **self.back_end.checkpoint_arrays(),
                           **_table_arrays(known, "track"),
                           **_table_arrays(fresh, "previous_track"))
         self.archive.release_taken()          # restored keyframes are in the checkpoint now
@@ -457,7 +412,7 @@ class EdgeMapperCore:
         w = self.map.covisibility()
         u = map_uncertainty(w, self.planner.config.log_det_pi) if len(w) else math.inf
         t3 = time.perf_counter()
-        self._start_loop_job(slot)
+        self.back_end.start_loop_job(slot)
         t4 = time.perf_counter()
         timings = {"archive": (t0 - ta) * 1e3, "optimise": (t1 - t0) * 1e3,
                    "checkpoint": (t2 - t1) * 1e3, "uncertainty": (t3 - t2) * 1e3,
@@ -467,72 +422,9 @@ class EdgeMapperCore:
                            ba.refused if ba is not None else "", fused, loop,
                            self.loop_closer.failures())
 
-    # -- loop closing ------------------------------------------------------------------------
-
-    def _start_loop_job(self, slot: int) -> None:
-        """Hand the keyframes integrated since the last job to the loop closer, with a
-        snapshot of the archive, the map's keyframes far older than them and every pose;
-        kept for the next slot while a job runs."""
-        in_map = [q for q in self._loop_queries if q.keyframe in self.map.keyframes]
-        wanted = set(self.loop_closer.wanted([q.keyframe for q in in_map]))
-        queries = [q for q in in_map if q.keyframe in wanted]
-        if not queries or self.loop_closer.busy or not has_camera(self.k):
-            self._loop_queries = queries
-            return
-        newest = max(q.keyframe for q in queries)
-        old = [ArchivedKeyFrame.of(self.map, k, slot) for k in self.map.keyframes
-               if k <= newest - self.loop_closer.min_gap]
-        poses = {kf.id: kf.pose for kf in self.archive}
-        poses.update({k: kf.pose.copy() for k, kf in self.map.keyframes.items()})
-        job = LoopJob(tuple(reversed(queries)), self.archive.snapshot(old), poses, self.k.copy(),
-                      {k: frozenset(kf.points) for k, kf in self.map.keyframes.items()},
-                      tuple(self.loop_edges))
-        if self.loop_closer.submit(job):
-            self._loop_queries = []
-
-    def _apply_loop(self, result: LoopResult | None) -> ClosedLoop | None:
-        """A finished loop job's corrections, applied to the managed map and the archive
-        (between slots: the map the device gets next is corrected); the old place, where it is
-        in the map, has its points fused with the ones the walk made again. A loop that would
-        move a keyframe of the map farther than a device accepts on a map swap
-        (``MotionBounds.correction_m``: its tracking would refuse every pose on that map) is
-        refused, as the bundle adjustment's answer would be: a place that only looked alike."""
-        if result is not None and result.error:
-            return ClosedLoop(-1, result.query, 0, 0.0, result.seconds * 1e3,
-                              f"the loop closer failed: {result.error}")
-        if result is None or result.closure is None:
-            return None
-        corrections = result.closure.corrections
-        reach = self.config.keyframe_gate.motion.correction_m
-        farthest = farthest_move(self.map, corrections)
-        if farthest > reach:
-            self.loops_refused += 1
-            return ClosedLoop(result.candidate.old, result.query, result.candidate.inliers,
-                              farthest, result.seconds * 1e3,
-                              f"it would move the map {farthest:.3g} m, more than {reach:g} m")
-        correct_map(self.map, corrections)
-        # the walk's head (the newest keyframe of the graph, and every later one) moves by the
-        # newest correction: the frame the next map version is in
-        self.frame_correction = corrections[max(corrections)] @ self.frame_correction
-        self._frames_since.append((self.version + 1, self.frame_correction.copy()))
-        archived = self.archive.correct({kf.id: c for kf in self.archive
-                                         if (c := correction_for(corrections, kf.id))
-                                         is not None}, write=False)
-        self.loop_closer.after(lambda: self.archive.save(archived),   # files beside the slots
-                               "writing the loop-corrected archive's files")
-        old = result.candidate.old
-        if self.config.point_fusion and old in self.map.keyframes and has_camera(self.k):
-            fuse_restored(self.map, old, sorted(self.map.keyframes[old].points), self.k,
-                          self.config.image_shape)
-        self.loops_closed += 1
-        if result.candidate.measured is not None:
-            self.loop_edges.append(LoopEdge(old, result.query, result.candidate.measured))
-        return ClosedLoop(old, result.query, result.candidate.inliers, farthest,
-                          result.seconds * 1e3)
-
     def close(self) -> None:
         """Stop the loop closer's worker (the node calls it at shutdown)."""
-        self.loop_closer.close()
+        self.back_end.close()
 
     def _restore(self, slot: int, received: set[int], poses: list[np.ndarray],
                  relocalised: list[np.ndarray], vmax: int
@@ -542,8 +434,7 @@ class EdgeMapperCore:
         ``relocalised`` poses — back into the map, each in place of the keyframe that sees
         least of that view (into the archive in its turn); (restored, evicted for them,
         forgotten by the archive to make room for those, points fused); the map stays within
-        ``vmax``. The points a restored keyframe brings back that the map made again since are
-        fused into the map's (:func:`~twinslam.slam.back_end.point_fusion.fuse_restored`)."""
+        ``vmax``."""
         if not has_camera(self.k):
             return [], [], [], 0
         if relocalised and self.config.reloc_restore_keyframes > 0:
@@ -556,14 +447,7 @@ class EdgeMapperCore:
                                    self.config.restore_keyframes, slot, received)
         else:
             return [], [], [], 0
-        back = [self.archive.take(kf) for kf in chosen.restore]
-        dropped = []
-        for victim in chosen.evict:
-            dropped += self.archive.add(ArchivedKeyFrame.of(self.map, victim, slot))
-            self.map.evict(victim)
-        returned = {archived.id: restore_into(self.map, archived) for archived in back}
-        fused = sum(len(fuse_restored(self.map, kf, points, self.k, self.config.image_shape))
-                    for kf, points in returned.items()) if self.config.point_fusion else 0
+        dropped, fused = self.back_end.restore(chosen.restore, chosen.evict, slot)
         return chosen.restore, chosen.evict, dropped, fused
 
     def relocalise(self, points_xy: np.ndarray, descriptors: np.ndarray) -> ArchiveLocation:
@@ -577,91 +461,14 @@ class EdgeMapperCore:
                                    "(reloc_restore_keyframes is 0)")
         if not has_camera(self.k):
             return ArchiveLocation(None, 0, -1, (), "no keyframe has told the edge the camera yet")
-        found = locate_in_archive(self.archive, points_xy, descriptors, self.k,
-                                  ArchiveRelocalisationConfig(
-                                      min_inliers=self.config.reloc_min_inliers))
+        found = self.back_end.relocalise(points_xy, descriptors, self.last_slot + 1)
         if found.pose is not None:
             self._relocalised_views.append(found.pose)
-            self.archive.touch(list(found.keyframes), self.last_slot + 1)
         return found
 
-    # -- optimisation ------------------------------------------------------------------------
-
     def optimise(self) -> BundleAdjustmentResult | None:
-        """Local BA: the newest ``ba_window`` keyframes and the points they share with another
-        keyframe move; the other keyframes that see those points hold still (and the oldest
-        always does). A point only one keyframe sees constrains no pose: it moves rigidly with
-        its keyframe instead of entering the graph. Observations the optimiser finds to be
-        outliers are removed from the map (ORB-SLAM's local BA does the same). An answer
-        :meth:`_implausible_adjustment` refuses changes nothing (its ``refused`` says why)."""
-        ids = self.map.keyframe_ids()
-        window = set(ids[-self.config.ba_window:]) - {ids[0]}
-        if not window:
-            return None
-        seen = set().union(*(self.map.keyframes[k].points for k in window))
-        points = seen_twice = {p for p in seen if len(self.map.points[p].observers) >= 2}
-        cap = self.config.ba_points
-        if cap is not None and len(points) > cap:
-            # the best-observed points constrain the poses most; the rest hold still
-            ranked = sorted(points, key=lambda p: (-len(self.map.points[p].observers), p))
-            points = set(ranked[:cap])
-        observers = set().union(*(self.map.points[p].observers for p in points)) | window
-        observations = []
-        for kf in observers:
-            meas = self.map.keyframes[kf].measurements
-            for p in points & self.map.keyframes[kf].points:
-                u, v, d = meas.get(p, (math.nan, math.nan, math.nan))
-                if math.isfinite(u) and math.isfinite(v):
-                    observations.append(Observation(kf, p, (u, v), d))
-        fixed = observers - window
-        if not observations or not fixed:
-            return None
-        result = bundle_adjust({k: self.map.keyframes[k].pose for k in observers},
-                               {p: self.map.points[p].position for p in points}, observations,
-                               self.k, fixed, baseline_m=self.config.baseline_m,
-                               max_iterations=self.config.ba_iterations)
-        refused = self._implausible_adjustment(result, window)
-        if refused:
-            return dataclasses.replace(result, refused=refused)
-        for k in window:
-            keyframe = self.map.keyframes[k]
-            motion = result.poses[k] @ np.linalg.inv(keyframe.pose)
-            for p in keyframe.points - seen_twice:      # single-observer points ride along
-                pt = self.map.points[p]
-                pt.position = motion[:3, :3] @ pt.position + motion[:3, 3]
-            keyframe.pose = result.poses[k]
-        for p in points:
-            self.map.points[p].position = result.points[p]
-        for ob in result.outliers:
-            if ob.point in self.map.points:
-                self.map.unobserve(ob.keyframe, ob.point)
-        return result
-
-    def _implausible_adjustment(self, result: BundleAdjustmentResult, window: set[int]) -> str:
-        """Why the adjustment's answer must not be applied, or "": a non-finite pose or point
-        (a diverged solve), an error larger than it started from (Gauss–Newton takes its
-        steps whatever they do to the error: on the synthetic corridor one raised it from
-        1.2e3 to 1.0e6 and turned a keyframe 115°, bench.map_consistency), or a keyframe
-        moved farther than the correction a device accepts on a map swap
-        (``MotionBounds.correction_m``): a local adjustment with its neighbours held still has
-        no reason to move one so far."""
-        if not all(np.isfinite(result.poses[k]).all() for k in window) or \
-                not all(np.isfinite(p).all() for p in result.points.values()):
-            return "a non-finite pose or point"
-        if not result.final_error <= result.initial_error:
-            return (f"the adjustment raised its error from {result.initial_error:.3g} to "
-                    f"{result.final_error:.3g}")
-        reach = self.config.keyframe_gate.motion.correction_m
-        for k in sorted(window):
-            before = self.map.keyframes[k].pose
-            moved = float(np.linalg.norm(result.poses[k][:3, 3] - before[:3, 3]))
-            if moved > reach:
-                return f"keyframe {k} moved {moved:.3g} m, more than {reach:g} m"
-        return ""
-
-
-#: integrated keyframes a loop job looks from at most (the newest)
-LOOP_QUERIES = 3
+        """The back end's local bundle adjustment (:meth:`MapBackEnd.optimise`)."""
+        return self.back_end.optimise()
 
 
 def applied_evictions(evict: Sequence[int], map_ids: Sequence[int], missing: Collection[int],
@@ -702,26 +509,6 @@ def heading(frames: Sequence[FrameObservations]) -> list[np.ndarray]:
     after_last = n - 1 - positions[-1]
     return extrapolate([p for _, p in posed], positions,
                        [after_last + max(n // 2, 1), after_last + n])
-
-
-def archive_folder(checkpoint: Path) -> Path:
-    """Where the archive of the map checkpointed at ``checkpoint`` lives."""
-    return checkpoint.with_name(checkpoint.name + ".archive")
-
-
-def _loop_arrays(edges: Sequence[LoopEdge]) -> dict[str, np.ndarray]:
-    """The loops applied as the checkpoint's arrays."""
-    return {"loop_old": np.array([e.old for e in edges], dtype=np.int64),
-            "loop_new": np.array([e.new for e in edges], dtype=np.int64),
-            "loop_measured": np.array([e.measured for e in edges],
-                                      dtype=np.float64).reshape(-1, 4, 4)}
-
-
-def _loop_edges(extra: dict[str, np.ndarray]) -> list[LoopEdge]:
-    """The loops :func:`_loop_arrays` wrote (none in a checkpoint written before them)."""
-    measured = np.asarray(extra.get("loop_measured", np.zeros((0, 4, 4)))).reshape(-1, 4, 4)
-    return [LoopEdge(int(o), int(n), m) for o, n, m in
-            zip(extra.get("loop_old", []), extra.get("loop_new", []), measured, strict=True)]
 
 
 def _table_arrays(table: dict[int, int], name: str) -> dict[str, np.ndarray]:

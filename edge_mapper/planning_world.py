@@ -41,6 +41,7 @@ from twinslam.policies.delayed import DelayedPolicy
 from twinslam.policies.mpc import MpcConfig, MpcPlanner
 from twinslam.policies.protocol import MapPolicy
 from twinslam.policies.world_model import MapManagementEnv, SimConfig
+from twinslam.slam.camera import has_camera
 from twinslam.slam.projection_matching import visible_points as projected_points
 from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
 
@@ -77,12 +78,6 @@ def extrapolate(poses: Sequence[np.ndarray], positions: Sequence[int], ahead: Se
             out.append(pose)
         return out
     return [last @ np.real(expm(twist * n)) for n in ahead]
-
-
-def has_camera(intrinsics: np.ndarray) -> bool:
-    """Whether ``intrinsics`` are a camera's (a focal length), not the identity the edge
-    starts with until its first keyframe brings them."""
-    return bool(math.isfinite(intrinsics[0, 0]) and intrinsics[0, 0] > 1.0)
 
 
 def visible_points(positions: np.ndarray, pose: np.ndarray, intrinsics: np.ndarray,

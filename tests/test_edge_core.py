@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, applied_evictions, archive_folder
+from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, applied_evictions
 from edge_mapper.planning_world import visible_points
 from edge_mapper.slot_planner import FrameObservations, SlotConfig
 from twinslam.policies.registry import make_policy
+from twinslam.slam.back_end.map_back_end import archive_folder
 from twinslam.slam.keyframe import TRACK_ID_BIT, KeyFramePayload, is_track_id
 
 K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])

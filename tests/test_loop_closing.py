@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 
 from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, SlotOutcome
-from edge_mapper.loop_closer import LoopCloser, LoopJob, LoopQuery
 from edge_mapper.slot_planner import FrameObservations, SlotConfig
 from tests.test_edge_core import F, K, ReturningDevice, _run
 from twinslam.policies.registry import make_policy
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive
 from twinslam.slam.back_end.keyframe_gate import KeyFrameGateConfig
+from twinslam.slam.back_end.loop_closing import LoopCloser, LoopJob, LoopQuery
 from twinslam.slam.keyframe import KeyFramePayload
 from twinslam.slam.pose_plausibility import MotionBounds
 
@@ -314,7 +314,7 @@ def test_a_loop_job_that_fails_is_reported_and_the_slots_go_on(
     outcome, which the edge logs, and the edge's slots go on without a loop."""
     def broken(*args: object, **kwargs: object) -> None:
         raise RuntimeError("the index is corrupt")
-    monkeypatch.setattr("edge_mapper.loop_closer.detect_loop", broken)
+    monkeypatch.setattr("twinslam.slam.back_end.loop_closing.detect_loop", broken)
     device = DriftingDevice(np.random.default_rng(3), 8 * F)
     core = _edge(loops=True)
     outs = [_run(core, device, range(slot, slot + 1), rates=[20.0])[0] for slot in range(16)]

@@ -204,10 +204,10 @@ def test_a_bundle_adjustment_that_diverged_is_not_applied(monkeypatch: pytest.Mo
                                                           ) -> None:
     """The optimiser answers with the newest keyframe moved 5 m: the edge keeps the map as it
     was and says why in the slot's outcome."""
-    import edge_mapper.edge_core as edge_core
+    import twinslam.slam.back_end.map_back_end as back_end
 
     core, device = _edge()
-    solve = edge_core.bundle_adjust
+    solve = back_end.bundle_adjust
 
     def diverged(*args: object, **kwargs: object):
         result = solve(*args, **kwargs)            # type: ignore[arg-type]
@@ -216,7 +216,7 @@ def test_a_bundle_adjustment_that_diverged_is_not_applied(monkeypatch: pytest.Mo
         result.poses[newest][0, 3] += 5.0
         return result
 
-    monkeypatch.setattr(edge_core, "bundle_adjust", diverged)
+    monkeypatch.setattr(back_end, "bundle_adjust", diverged)
     out, newest, before = _finish_a_slot(core, device)
     assert out.optimisation_refused.startswith(f"keyframe {newest} moved 4.9")
     assert out.bundle_adjustment is not None and out.bundle_adjustment.refused
@@ -230,10 +230,10 @@ def test_a_bundle_adjustment_that_raised_its_error_is_not_applied(
     """Gauss–Newton takes its steps whatever they do to the error: an answer whose error is
     larger than where it started (here the newest keyframe turned 115° in place, within the
     distance bound) is refused, and the keyframes stay where the device posed them."""
-    import edge_mapper.edge_core as edge_core
+    import twinslam.slam.back_end.map_back_end as back_end
 
     core, device = _edge()
-    solve = edge_core.bundle_adjust
+    solve = back_end.bundle_adjust
 
     def overshot(*args: object, **kwargs: object):
         result = solve(*args, **kwargs)            # type: ignore[arg-type]
@@ -245,7 +245,7 @@ def test_a_bundle_adjustment_that_raised_its_error_is_not_applied(
         result.final_error = 1000.0 * result.initial_error + 1.0
         return result
 
-    monkeypatch.setattr(edge_core, "bundle_adjust", overshot)
+    monkeypatch.setattr(back_end, "bundle_adjust", overshot)
     out, _, before = _finish_a_slot(core, device)
     assert out.optimisation_refused.startswith("the adjustment raised its error")
     for k, kf in core.map.keyframes.items():

@@ -1,0 +1,430 @@
+"""One device's map at the edge through its life: keyframes in, points culled and fused,
+keyframes archived and restored, the local bundle adjustment, loops closed (ORB-SLAM's
+LocalMapping and LoopClosing in one object; docs/architecture.md §1 step 5).
+
+The edge's slot protocol (``edge_mapper.edge_core``) decides *which* keyframes come and go —
+the policy's uploads and evictions, the restores where the camera heads; this object does what
+a keyframe's coming and going does to the map, and keeps the map, its archive and the loops
+closed so far agreeing with each other:
+
+* :meth:`MapBackEnd.integrate` — a keyframe through the gate
+  (:mod:`~twinslam.slam.back_end.keyframe_gate`) into the map
+  (:mod:`~twinslam.slam.back_end.local_mapping`, culling the points its view held and never
+  found), first moved into the frame the map is in now if a loop corrected it since the
+  device posed it (:meth:`MapBackEnd.in_current_frame`);
+* :meth:`MapBackEnd.evict_to_archive` and :meth:`MapBackEnd.restore` — keyframes leave for
+  the archive and come back from it, the points they bring back fused with their copies
+  (:mod:`~twinslam.slam.back_end.point_fusion`);
+* :meth:`MapBackEnd.optimise` — the local bundle adjustment, an implausible answer refused;
+* :meth:`MapBackEnd.take_loop` and :meth:`MapBackEnd.start_loop_job` — the loop closer's
+  answer applied between slots, the next job handed to it
+  (:mod:`~twinslam.slam.back_end.loop_closing`);
+* :meth:`MapBackEnd.checkpoint_arrays` — what a restart needs besides the map's own arrays.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from twinslam.slam.back_end.archive_relocalisation import (
+    ArchiveLocation,
+    ArchiveRelocalisationConfig,
+    locate_in_archive,
+)
+from twinslam.slam.back_end.bundle_adjustment import (
+    BundleAdjustmentResult,
+    Observation,
+    bundle_adjust,
+)
+from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive, restore_into
+from twinslam.slam.back_end.keyframe_gate import KeyFrameGateConfig, implausible_keyframe
+from twinslam.slam.back_end.keyframe_map import KeyFrameMap
+from twinslam.slam.back_end.local_mapping import (
+    IntegrationReport,
+    LocalMapping,
+    LocalMappingConfig,
+)
+from twinslam.slam.back_end.loop_closing import (
+    CONFIRMATIONS,
+    LoopCloser,
+    LoopJob,
+    LoopQuery,
+    LoopResult,
+)
+from twinslam.slam.back_end.loop_correction import correct_map, correction_for, farthest_move
+from twinslam.slam.back_end.loop_detection import MIN_GAP
+from twinslam.slam.back_end.point_culling import PointCullingConfig
+from twinslam.slam.back_end.point_fusion import fuse_restored
+from twinslam.slam.back_end.pose_graph import LoopEdge
+from twinslam.slam.camera import has_camera
+from twinslam.slam.keyframe import KeyFramePayload
+
+#: integrated keyframes a loop job looks from at most (the newest)
+LOOP_QUERIES = 3
+
+
+@dataclass(frozen=True)
+class BackEndConfig:
+    """How the map lives (the edge's parameters of the same names)."""
+
+    #: newest keyframes the local bundle adjustment moves, the rest fixed (0: none)
+    ba_window: int = 0
+    ba_iterations: int = 3           #: Gauss–Newton steps (see bundle_adjustment)
+    #: points in the local BA at most, most observed first: 120-300 gave the same device ATE
+    #: (0.034 m on 600 7-Scenes frames) as all 2-4 k, at 33-70 ms instead of ~200 ms
+    ba_points: int | None = 120
+    baseline_m: float = 0.08         #: RGB-D virtual stereo baseline of the BA
+    image_shape: tuple[int, int] = (480, 640)
+    #: evicted keyframes kept for relocalisation and restores (0: none; ~90 kB a keyframe)
+    archive_keyframes: int = 500
+    #: the points a restored keyframe (or a loop's old place) brings back that the map made
+    #: again since are fused into the map's; False: they stay as copies
+    point_fusion: bool = True
+    #: a map point later keyframes should see and never find leaves the map
+    point_culling: bool = False
+    #: the gate on a pose found in the archive for a lost device: inliers after refinement
+    reloc_min_inliers: int = 20
+    #: the gate every uploaded keyframe passes before it enters the map
+    keyframe_gate: KeyFrameGateConfig = field(default_factory=KeyFrameGateConfig)
+    #: look for loops from every integrated keyframe and close them with a pose graph
+    loop_closing: bool = False
+    #: the loop closer's work on a worker thread; False: in the caller (offline pipelines)
+    loop_background: bool = True
+    #: a loop joins keyframes at least this many ids (frames) apart
+    loop_min_gap: int = MIN_GAP
+    #: later keyframes that must find a loop's place again before it closes
+    loop_confirmations: int = CONFIRMATIONS
+
+
+@dataclass(frozen=True)
+class ClosedLoop:
+    """A loop the edge closed at the end of a slot."""
+
+    old: int                         #: the keyframe of the place seen long before
+    new: int                         #: the keyframe that saw it again
+    inliers: int                     #: of the geometric check
+    moved_m: float                   #: the farthest a managed keyframe moved (or would have)
+    worker_ms: float                 #: the loop closer's time (detection and pose graph)
+    #: why its corrections were not applied ("": applied)
+    refused: str = ""
+
+
+class MapBackEnd:
+    """The map, its archive and its loops for one device (see the module's text)."""
+
+    def __init__(self, config: BackEndConfig, intrinsics: np.ndarray | None = None,
+                 checkpoint: Path | None = None) -> None:
+        self.config = config
+        #: camera intrinsics; without them at start, taken from the first keyframe
+        self.k = np.eye(3) if intrinsics is None else np.asarray(intrinsics, dtype=np.float64)
+        self.checkpoint = Path(checkpoint) if checkpoint else None
+        self.map = KeyFrameMap()
+        #: the arrays saved beside the map (the edge core reads its own from them)
+        self.extra: dict[str, np.ndarray] = {}
+        self.restored_from_file = self.checkpoint is not None and self.checkpoint.is_file()
+        if self.restored_from_file and self.checkpoint is not None:
+            self.map, self.extra = KeyFrameMap.load(self.checkpoint)
+        extra = self.extra
+        self.local_mapping = LocalMapping(
+            self.map, self.k, config.image_shape,
+            LocalMappingConfig(culling=PointCullingConfig() if config.point_culling else None))
+        #: what the archive could not read back after a restart (the node logs it)
+        self.archive_problems: list[str] = []
+        self.archive = self._open_archive()
+        self.loop_closer = LoopCloser(config.loop_background, config.loop_min_gap,
+                                      confirmations=config.loop_confirmations)
+        #: keyframes integrated since the last loop job, newest last
+        self._loop_queries: list[LoopQuery] = []
+        self.loops_closed = int(extra.get("loops_closed", 0))
+        #: every loop applied: the next loop's graph holds them too (a new loop must not undo
+        #: an older one)
+        self.loop_edges: list[LoopEdge] = _loop_edges(extra)
+        self.loops_refused = 0                 #: loops whose corrections went too far
+        #: the applied loops' corrections at the walk's head, composed: the frame the map is in
+        #: relative to the one the walk started in (MapUpdate.frame_correction)
+        self.frame_correction = np.asarray(extra.get("frame_correction", np.eye(4)),
+                                           dtype=np.float64).reshape(4, 4)
+        #: (first map version carrying it, frame_correction): the frame each version is in
+        self._frames_since: list[tuple[int, np.ndarray]] = [(0, self.frame_correction.copy())]
+
+    def _open_archive(self) -> KeyFrameArchive:
+        """The archive beside the checkpoint (``edge.npz`` → ``edge.npz.archive/``), restored
+        with the map; a fresh start (no map checkpoint) clears what an earlier run left
+        there, whose keyframe ids a new device run would reuse."""
+        capacity = self.config.archive_keyframes
+        if self.checkpoint is None:
+            return KeyFrameArchive(capacity)
+        folder = archive_folder(self.checkpoint)
+        if self.restored_from_file:
+            archive, self.archive_problems = KeyFrameArchive.restore(
+                capacity, folder, set(self.map.keyframes))
+            return archive
+        for stale in folder.glob("keyframe-*.npz") if folder.is_dir() else ():
+            stale.unlink()
+        return KeyFrameArchive(capacity, folder)
+
+    def set_bundle_adjustment(self, window: int, points: int | None) -> None:
+        """The local bundle adjustment from the next slot on: ``window`` newest keyframes (0:
+        none), at most ``points`` points."""
+        self.config = dataclasses.replace(self.config, ba_window=max(0, int(window)),
+                                          ba_points=points)
+
+    # -- keyframes in ------------------------------------------------------------------------
+
+    def integrate(self, data: KeyFramePayload, tracked_on: int) -> IntegrationReport:
+        """A keyframe the device posed on map version ``tracked_on`` (-1: unknown) into the
+        map, moved into the map's frame now, if the gate lets it; a refusal changes
+        nothing (its report says why)."""
+        data = self.in_current_frame(data, tracked_on)
+        refused = implausible_keyframe(data, self.map,
+                                       ((kf.id, kf.pose) for kf in self.archive),
+                                       self.config.keyframe_gate)
+        if refused:
+            return IntegrationReport.refusal(refused)
+        self.k = self.local_mapping.k = np.asarray(data.intrinsics, dtype=np.float64)
+        report = self.local_mapping.integrate(data.frame_id, data.pose, data.keypoints,
+                                              data.descriptors, data.depths, data.point_ids)
+        if self.config.loop_closing and data.frame_id in self.map.keyframes:
+            self._loop_queries = [*self._loop_queries[-(LOOP_QUERIES - 1):],
+                                  LoopQuery(data.frame_id, data.keypoints, data.descriptors,
+                                            data.depths)]
+        return report
+
+    def frame_correction_at(self, version: int) -> np.ndarray:
+        """The frame map version ``version`` was in (its ``frame_correction``)."""
+        return next((c for first, c in reversed(self._frames_since) if first <= version),
+                    self._frames_since[0][1])
+
+    def in_current_frame(self, data: KeyFramePayload, tracked_on: int) -> KeyFramePayload:
+        """A keyframe the device tracked against map version ``tracked_on`` (-1: unknown), in
+        the frame the map is in now: a loop corrected since then did not reach the device
+        before it posed this frame (the map update comes a slot or two after the slot that
+        closed it), so its pose moves by the corrections applied since — else it would enter
+        the corrected map where the uncorrected one had it, its points a second copy of the
+        place."""
+        if tracked_on < 0:
+            return data
+        since = self.frame_correction @ np.linalg.inv(self.frame_correction_at(tracked_on))
+        if np.allclose(since, np.eye(4), atol=1e-12):
+            return data
+        return dataclasses.replace(data, pose=since @ data.pose)
+
+    # -- keyframes out and back --------------------------------------------------------------
+
+    def evict_to_archive(self, keyframes: Iterable[int], slot: int) -> tuple[list[int], int]:
+        """``keyframes`` evicted into the archive at ``slot``; (the archived keyframes that left
+        the archive to keep its capacity, the points that lost their last observer)."""
+        forgotten, orphans = [], 0
+        for kf in keyframes:
+            forgotten += self.archive.add(ArchivedKeyFrame.of(self.map, kf, slot))
+            orphans += len(self.map.evict(kf))
+        return forgotten, orphans
+
+    def restore(self, restore: Iterable[int], evict: Iterable[int], slot: int
+                ) -> tuple[list[int], int]:
+        """Archived keyframes ``restore`` brought back into the map in place of ``evict`` (into
+        the archive in their turn); (forgotten by the archive to make room, points fused: the
+        points a restored keyframe brings back that the map made again since)."""
+        back = [self.archive.take(kf) for kf in restore]
+        forgotten, _ = self.evict_to_archive(evict, slot)
+        returned = {archived.id: restore_into(self.map, archived) for archived in back}
+        fused = sum(len(fuse_restored(self.map, kf, points, self.k, self.config.image_shape))
+                    for kf, points in returned.items()) if self.config.point_fusion else 0
+        return forgotten, fused
+
+    def relocalise(self, points_xy: np.ndarray, descriptors: np.ndarray, slot: int
+                   ) -> ArchiveLocation:
+        """A lost device's frame (its ORB keypoints and descriptors) found in the archive; the
+        recognised keyframes count as useful at ``slot``."""
+        found = locate_in_archive(self.archive, points_xy, descriptors, self.k,
+                                  ArchiveRelocalisationConfig(
+                                      min_inliers=self.config.reloc_min_inliers))
+        if found.pose is not None:
+            self.archive.touch(list(found.keyframes), slot)
+        return found
+
+    # -- optimisation ------------------------------------------------------------------------
+
+    def optimise(self) -> BundleAdjustmentResult | None:
+        """Local BA: the newest ``ba_window`` keyframes and the points they share with another
+        keyframe move; the other keyframes that see those points hold still (and the oldest
+        always does). A point only one keyframe sees constrains no pose: it moves rigidly with
+        its keyframe instead of entering the graph. Observations the optimiser finds to be
+        outliers are removed from the map (ORB-SLAM's local BA does the same). An answer
+        :meth:`_implausible_adjustment` refuses changes nothing (its ``refused`` says why)."""
+        if len(self.map.keyframes) < 2 or self.config.ba_window <= 0:
+            return None
+        ids = self.map.keyframe_ids()
+        window = set(ids[-self.config.ba_window:]) - {ids[0]}
+        if not window:
+            return None
+        seen = set().union(*(self.map.keyframes[k].points for k in window))
+        points = seen_twice = {p for p in seen if len(self.map.points[p].observers) >= 2}
+        cap = self.config.ba_points
+        if cap is not None and len(points) > cap:
+            # the best-observed points constrain the poses most; the rest hold still
+            ranked = sorted(points, key=lambda p: (-len(self.map.points[p].observers), p))
+            points = set(ranked[:cap])
+        observers = set().union(*(self.map.points[p].observers for p in points)) | window
+        observations = []
+        for kf in observers:
+            meas = self.map.keyframes[kf].measurements
+            for p in points & self.map.keyframes[kf].points:
+                u, v, d = meas.get(p, (math.nan, math.nan, math.nan))
+                if math.isfinite(u) and math.isfinite(v):
+                    observations.append(Observation(kf, p, (u, v), d))
+        fixed = observers - window
+        if not observations or not fixed:
+            return None
+        result = bundle_adjust({k: self.map.keyframes[k].pose for k in observers},
+                               {p: self.map.points[p].position for p in points}, observations,
+                               self.k, fixed, baseline_m=self.config.baseline_m,
+                               max_iterations=self.config.ba_iterations)
+        refused = self._implausible_adjustment(result, window)
+        if refused:
+            return dataclasses.replace(result, refused=refused)
+        for k in window:
+            keyframe = self.map.keyframes[k]
+            motion = result.poses[k] @ np.linalg.inv(keyframe.pose)
+            for p in keyframe.points - seen_twice:      # single-observer points ride along
+                pt = self.map.points[p]
+                pt.position = motion[:3, :3] @ pt.position + motion[:3, 3]
+            keyframe.pose = result.poses[k]
+        for p in points:
+            self.map.points[p].position = result.points[p]
+        for ob in result.outliers:
+            if ob.point in self.map.points:
+                self.map.unobserve(ob.keyframe, ob.point)
+        return result
+
+    def _implausible_adjustment(self, result: BundleAdjustmentResult, window: set[int]) -> str:
+        """Why the adjustment's answer must not be applied, or "": a non-finite pose or point
+        (a diverged solve), an error larger than it started from (Gauss–Newton takes its
+        steps whatever they do to the error: on the synthetic corridor one raised it from
+        1.2e3 to 1.0e6 and turned a keyframe 115°, bench.map_consistency), or a keyframe
+        moved farther than a device accepts on a map swap (:meth:`_beyond_reach`): a local
+        adjustment with its neighbours held still has no reason to move one so far."""
+        if not all(np.isfinite(result.poses[k]).all() for k in window) or \
+                not all(np.isfinite(p).all() for p in result.points.values()):
+            return "a non-finite pose or point"
+        if not result.final_error <= result.initial_error:
+            return (f"the adjustment raised its error from {result.initial_error:.3g} to "
+                    f"{result.final_error:.3g}")
+        for k in sorted(window):
+            before = self.map.keyframes[k].pose
+            moved = float(np.linalg.norm(result.poses[k][:3, 3] - before[:3, 3]))
+            if refused := self._beyond_reach(f"keyframe {k} moved", moved):
+                return refused
+        return ""
+
+    def _beyond_reach(self, what: str, moved_m: float) -> str:
+        """Why a map that moves ``moved_m`` under the device is refused (``what`` moved that
+        far), or "": farther than the correction a device accepts on a map swap
+        (``MotionBounds.correction_m``; its tracking would refuse every pose on that map)."""
+        reach = self.config.keyframe_gate.motion.correction_m
+        return f"{what} {moved_m:.3g} m, more than {reach:g} m" if moved_m > reach else ""
+
+    # -- loop closing ------------------------------------------------------------------------
+
+    def start_loop_job(self, slot: int) -> None:
+        """Hand the keyframes integrated since the last job to the loop closer, with a
+        snapshot of the archive, the map's keyframes far older than them and every pose;
+        kept for the next slot while a job runs."""
+        in_map = [q for q in self._loop_queries if q.keyframe in self.map.keyframes]
+        wanted = set(self.loop_closer.wanted([q.keyframe for q in in_map]))
+        queries = [q for q in in_map if q.keyframe in wanted]
+        if not queries or self.loop_closer.busy or not has_camera(self.k):
+            self._loop_queries = queries
+            return
+        newest = max(q.keyframe for q in queries)
+        old = [ArchivedKeyFrame.of(self.map, k, slot) for k in self.map.keyframes
+               if k <= newest - self.loop_closer.min_gap]
+        poses = {kf.id: kf.pose for kf in self.archive}
+        poses.update({k: kf.pose.copy() for k, kf in self.map.keyframes.items()})
+        job = LoopJob(tuple(reversed(queries)), self.archive.snapshot(old), poses,
+                      self.k.copy(),
+                      {k: frozenset(kf.points) for k, kf in self.map.keyframes.items()},
+                      tuple(self.loop_edges))
+        if self.loop_closer.submit(job):
+            self._loop_queries = []
+
+    def take_loop(self, next_version: int) -> ClosedLoop | None:
+        """The loop closer's finished job applied (None: none finished, or it found no loop),
+        its corrections in map version ``next_version``."""
+        return self._apply_loop(self.loop_closer.take(), next_version)
+
+    def _apply_loop(self, result: LoopResult | None, next_version: int) -> ClosedLoop | None:
+        """A finished loop job's corrections, applied to the managed map and the archive
+        (between slots: the map the device gets next is corrected); the old place, where it is
+        in the map, has its points fused with the ones the walk made again. A loop that would
+        move a keyframe of the map farther than a device accepts on a map swap
+        (:meth:`_beyond_reach`) is refused, as the bundle adjustment's answer would be: a
+        place that only looked alike."""
+        if result is not None and result.error:
+            return ClosedLoop(-1, result.query, 0, 0.0, result.seconds * 1e3,
+                              f"the loop closer failed: {result.error}")
+        if result is None or result.closure is None:
+            return None
+        corrections = result.closure.corrections
+        farthest = farthest_move(self.map, corrections)
+        if refused := self._beyond_reach("it would move the map", farthest):
+            self.loops_refused += 1
+            return ClosedLoop(result.candidate.old, result.query, result.candidate.inliers,
+                              farthest, result.seconds * 1e3, refused)
+        correct_map(self.map, corrections)
+        # the walk's head (the newest keyframe of the graph, and every later one) moves by the
+        # newest correction: the frame the next map version is in
+        self.frame_correction = corrections[max(corrections)] @ self.frame_correction
+        self._frames_since.append((next_version, self.frame_correction.copy()))
+        archived = self.archive.correct(
+            {kf.id: c for kf in self.archive
+             if (c := correction_for(corrections, kf.id)) is not None}, write=False)
+        self.loop_closer.after(lambda: self.archive.save(archived),   # beside the slots
+                               "writing the loop-corrected archive's files")
+        old = result.candidate.old
+        if self.config.point_fusion and old in self.map.keyframes and has_camera(self.k):
+            fuse_restored(self.map, old, sorted(self.map.keyframes[old].points), self.k,
+                          self.config.image_shape)
+        self.loops_closed += 1
+        if result.candidate.measured is not None:
+            self.loop_edges.append(LoopEdge(old, result.query, result.candidate.measured))
+        return ClosedLoop(old, result.query, result.candidate.inliers, farthest,
+                          result.seconds * 1e3)
+
+    def close(self) -> None:
+        """Stop the loop closer's worker (the node calls it at shutdown)."""
+        self.loop_closer.close()
+
+    # -- checkpoint --------------------------------------------------------------------------
+
+    def checkpoint_arrays(self) -> dict[str, np.ndarray]:
+        """What a restarted back end reads back besides the map: the loops applied and the
+        frame they left the map in."""
+        return {"loops_closed": np.array(self.loops_closed), **_loop_arrays(self.loop_edges),
+                "frame_correction": self.frame_correction}
+
+
+def archive_folder(checkpoint: Path) -> Path:
+    """Where the archive of the map checkpointed at ``checkpoint`` lives."""
+    return checkpoint.with_name(checkpoint.name + ".archive")
+
+
+def _loop_arrays(edges: list[LoopEdge]) -> dict[str, np.ndarray]:
+    """The loops applied as the checkpoint's arrays."""
+    return {"loop_old": np.array([e.old for e in edges], dtype=np.int64),
+            "loop_new": np.array([e.new for e in edges], dtype=np.int64),
+            "loop_measured": np.array([e.measured for e in edges],
+                                      dtype=np.float64).reshape(-1, 4, 4)}
+
+
+def _loop_edges(extra: dict[str, np.ndarray]) -> list[LoopEdge]:
+    """The loops :func:`_loop_arrays` wrote (none in a checkpoint written before them)."""
+    measured = np.asarray(extra.get("loop_measured", np.zeros((0, 4, 4)))).reshape(-1, 4, 4)
+    return [LoopEdge(int(o), int(n), m) for o, n, m in
+            zip(extra.get("loop_old", []), extra.get("loop_new", []), measured, strict=True)]
