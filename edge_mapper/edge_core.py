@@ -417,10 +417,14 @@ class EdgeMapperCore:
         timings = {"archive": (t0 - ta) * 1e3, "optimise": (t1 - t0) * 1e3,
                    "checkpoint": (t2 - t1) * 1e3, "uncertainty": (t3 - t2) * 1e3,
                    "loop": loop_ms + (t4 - t3) * 1e3}
-        return SlotOutcome(slot, sorted(received), sorted(missing), evicted, spared, orphans, ba,
-                           u, self.version, tracks, timings, forgotten, restored, refused,
-                           ba.refused if ba is not None else "", fused, loop,
-                           self.loop_closer.failures())
+        return SlotOutcome(slot=slot, integrated=sorted(received), missing=sorted(missing),
+                           evicted=evicted, spared=spared, orphaned_points=orphans,
+                           bundle_adjustment=ba, map_uncertainty=u, version=self.version,
+                           tracks=tracks, timings_ms=timings, forgotten=forgotten,
+                           restored=restored, refused=refused,
+                           optimisation_refused=ba.refused if ba is not None else "",
+                           fused_points=fused, loop=loop,
+                           loop_failures=self.loop_closer.failures())
 
     def close(self) -> None:
         """Stop the loop closer's worker (the node calls it at shutdown)."""

@@ -197,35 +197,49 @@ def report(policy: str, record: RunLog, seconds: float, slot_frames: int) -> Run
     tracked = tracked_stamps(record)
     errors = {s: e for s, e in translation_errors(record.poses, record.ground_truth).items()
               if s in tracked}
-    return RunReport(policy, len(stats), _finite_mean(s.mean_uncertainty for s in scored),
-                     float(np.mean([s.lost_share for s in scored])) if scored else 0.0,
-                     _finite_mean(s.tracked_uncertainty for s in scored),
-                     absolute_trajectory_error(record.poses, record.ground_truth),
-                     relative_pose_error(record.poses, record.ground_truth),
-                     sum(int(t.frames_sent) for t in record.throughput.values()),
-                     # keyframes and the relocalisation requests the link carried
-                     sum(int(t.bytes_sent) + int(t.request_bytes)
-                         for t in record.throughput.values()),
-                     float(np.mean([t.achieved_mbps for t in tps])) if tps else 0.0,
-                     events.untracked, events.failures, events.relocalisations,
-                     events.mean_recover_s,
-                     float(np.median([s.slot_processing_ms for s in stats])) if stats
-                     else math.nan, seconds, deciders(record),
-                     dropped_frames(record, slot_frames, record.frames_skipped or 0),
-                     float(jump_count(errors)) if errors else math.nan, events.failed_share,
-                     events.loss_p95_s, events.longest_loss_s, device_cpu_ms(record),
-                     record.downlink_bytes / 1e6,
-                     float(sum(int(s.restored_keyframes) for s in stats)),
-                     max(errors.values()) if errors else math.nan, *_jitter_cells(record, tracked),
-                     float(sum(bool(f.pose_refused) for s in record.summaries.values()
-                               for f in s.frames)),
-                     float(sum(int(s.refused_keyframes) for s in stats)),
-                     longest_without_upload(record),
-                     math.nan if record.frames_skipped is None else float(record.frames_skipped),
-                     *_revisit_cells(record, tracked), *_odom_cells(record, tracked),
-                     pnp_ransac_share(record), *_loop_cells(stats), outlier_share(record),
-                     float(max(int(s.loops_refused) for s in stats)) if stats else math.nan,
-                     map_duplicate_share(record))
+    jitter_rms, jitter_median, jitter_p95, jitter_over, truth_jitter = \
+        _jitter_cells(record, tracked)
+    revisit_m, revisit_pairs = _revisit_cells(record, tracked)
+    odom_jitter, odom_step = _odom_cells(record, tracked)
+    loops_closed, loop_ms = _loop_cells(stats)
+    throughput = record.throughput.values()
+    return RunReport(
+        policy=policy, slots=len(stats),
+        mean_uncertainty=_finite_mean(s.mean_uncertainty for s in scored),
+        lost_share=float(np.mean([s.lost_share for s in scored])) if scored else 0.0,
+        tracked_uncertainty=_finite_mean(s.tracked_uncertainty for s in scored),
+        ate_m=absolute_trajectory_error(record.poses, record.ground_truth),
+        rpe_m=relative_pose_error(record.poses, record.ground_truth),
+        frames_uploaded=sum(int(t.frames_sent) for t in throughput),
+        # keyframes and the relocalisation requests the link carried
+        bytes_uploaded=sum(int(t.bytes_sent) + int(t.request_bytes) for t in throughput),
+        achieved_mbps=float(np.mean([t.achieved_mbps for t in tps])) if tps else 0.0,
+        untracked_frames=events.untracked, tracking_failures=events.failures,
+        relocalisations=events.relocalisations, recover_s=events.mean_recover_s,
+        edge_ms_median=float(np.median([s.slot_processing_ms for s in stats])) if stats
+        else math.nan,
+        seconds=seconds, decided_by=deciders(record),
+        frames_dropped=dropped_frames(record, slot_frames, record.frames_skipped or 0),
+        jumps=float(jump_count(errors)) if errors else math.nan,
+        failed_share=events.failed_share, loss_p95_s=events.loss_p95_s,
+        longest_loss_s=events.longest_loss_s, device_cpu_ms=device_cpu_ms(record),
+        downlink_mb=record.downlink_bytes / 1e6,
+        restores=float(sum(int(s.restored_keyframes) for s in stats)),
+        max_error_m=max(errors.values()) if errors else math.nan,
+        jitter_rms_mm=jitter_rms, jitter_median_mm=jitter_median, jitter_p95_mm=jitter_p95,
+        jitter_over_20mm=jitter_over, truth_jitter_rms_mm=truth_jitter,
+        poses_refused=float(sum(bool(f.pose_refused) for s in record.summaries.values()
+                                for f in s.frames)),
+        keyframes_refused=float(sum(int(s.refused_keyframes) for s in stats)),
+        longest_no_upload_slots=longest_without_upload(record),
+        frames_skipped=math.nan if record.frames_skipped is None
+        else float(record.frames_skipped),
+        revisit_error_m=revisit_m, revisit_pairs=revisit_pairs,
+        odom_jitter_rms_mm=odom_jitter, odom_step_excess_mm=odom_step,
+        pnp_ransac_share=pnp_ransac_share(record), loops_closed=loops_closed,
+        loop_closing_ms=loop_ms, outlier_share=outlier_share(record),
+        loops_refused=float(max(int(s.loops_refused) for s in stats)) if stats else math.nan,
+        duplicate_share=map_duplicate_share(record))
 
 
 def map_duplicate_share(record: RunLog) -> float:
