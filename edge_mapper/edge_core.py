@@ -52,13 +52,16 @@ from twinslam.slam.back_end.map_back_end import BackEndConfig, ClosedLoop, MapBa
 from twinslam.slam.back_end.pose_graph import LoopEdge
 from twinslam.slam.camera import has_camera
 from twinslam.slam.keyframe import KeyFramePayload
+from twinslam.slot_protocol import default_device
 from twinslam.uncertainty.map_uncertainty import map_uncertainty
 
 
 @dataclass(frozen=True)
 class EdgeConfig:
     slot: SlotConfig = field(default_factory=SlotConfig)
-    ba_window: int = 5               #: newest keyframes optimised each slot; the rest fixed
+    #: newest keyframes optimised each slot, the rest fixed (0: no local bundle adjustment,
+    #: the default device's)
+    ba_window: int = default_device.BA_WINDOW
     ba_iterations: int = 3           #: Gauss–Newton steps (see bundle_adjustment)
     #: points in the local BA at most, most observed first: 120-300 gave the same device ATE
     #: (0.034 m on 600 7-Scenes frames) as all 2-4 k, at 33-70 ms instead of ~200 ms
@@ -239,7 +242,8 @@ class EdgeMapperCore:
         before the first real slot arrives instead of while the device waits for its map.
         A copy of ``policy`` decides, so one that learns from its slots (``mpc``'s rate twin)
         starts the real run from nothing."""
-        core = EdgeMapperCore(copy.deepcopy(policy), None, EdgeConfig(slot=SlotConfig(vmax=3)))
+        core = EdgeMapperCore(copy.deepcopy(policy), None,
+                              EdgeConfig(slot=SlotConfig(vmax=3), ba_window=WARM_UP_BA_WINDOW))
         for kf in range(3):
             core.map.add_keyframe(kf, np.eye(4))
         for p in range(40):
@@ -473,6 +477,11 @@ class EdgeMapperCore:
     def optimise(self) -> BundleAdjustmentResult | None:
         """The back end's local bundle adjustment (:meth:`MapBackEnd.optimise`)."""
         return self.back_end.optimise()
+
+
+#: the warm-up's bundle adjustment, whatever the edge's: a window set live (or by the
+#: compute governor) finds its kernels loaded
+WARM_UP_BA_WINDOW = 5
 
 
 def applied_evictions(evict: Sequence[int], map_ids: Sequence[int], missing: Collection[int],

@@ -246,10 +246,14 @@ def test_a_restored_keyframes_points_are_fused_with_their_copies_made_since() ->
 
 
 def _returning_walk_edge(turn: int) -> tuple[ReturningDevice, EdgeMapperCore]:
-    """The walk out and back with the small map (V_max 4) and two restores a slot."""
+    """The walk out and back with the small map (V_max 4) and two restores a slot, the local
+    bundle adjustment on (5 keyframes): without it the keyframes' 1 cm pose noise puts a
+    restored point up to ~12 px from its copy, beyond the fusion's 8 px, and 57 of 766 points
+    (7 %) stay twice at the worst slot (measured)."""
     return (ReturningDevice(np.random.default_rng(3), turn),
             EdgeMapperCore(make_policy("lff"), K, EdgeConfig(slot=SlotConfig(vmax=4),
-                                                             restore_keyframes=2)))
+                                                             restore_keyframes=2,
+                                                             ba_window=5)))
 
 
 def _plan_and_upload(core: EdgeMapperCore, device: ReturningDevice, slot: int) -> None:

@@ -124,7 +124,8 @@ def test_a_relocalisation_answer_metres_off_is_refused() -> None:
 
 def _edge(vmax: int = 10) -> tuple[EdgeMapperCore, Device]:
     device = Device(np.random.default_rng(3))
-    core = EdgeMapperCore(make_policy("lff"), K, EdgeConfig(slot=SlotConfig(vmax=vmax)))
+    core = EdgeMapperCore(make_policy("lff"), K, EdgeConfig(slot=SlotConfig(vmax=vmax),
+                                                            ba_window=5))
     for slot in range(3):
         frames = [device.summary(f, core) for f in range(slot * F, (slot + 1) * F)]
         plan = core.plan(slot, frames, 80.0, 1)

@@ -16,7 +16,10 @@ from pathlib import Path
 
 SWEEP = Path(__file__).resolve().parent / "default-device"
 #: (folder, what the README calls it)
-VARIANTS = (("edge-local-1000", "**default**: edge+local, 1 s slots, restores"),
+VARIANTS = (("no-adjustment-1000", "**default**: edge+local, 1 s slots, restores, no local "
+             "bundle adjustment at the edge"),
+            ("edge-local-1000", "the default before: the same with the edge's local bundle "
+             "adjustment (5 keyframes)"),
             ("short-loop-own-map-1000", "tuned paper device: edge, 1 s slots, restores, own "
              "points when lost"),
             ("table-i-1000", "Table I's device: edge, 2 s slots"))
