@@ -31,8 +31,8 @@ Per slot it prints (every ``--every`` slots, and at each loop) and writes to ``-
 
 At the end: the frames tracked, the device's ATE and revisit error, the ATE of the edge's
 final keyframes (archive and map), the share of the device's matches its poses disagreed with
-(outliers) and the share of the final map's points with a look-alike within 5 cm
-(duplicates). ``--keyframes-csv`` writes every keyframe's
+(outliers) and the share of the final map's points with a look-alike within 5 cm that no
+keyframe sees together with them (duplicates, :mod:`twinslam.slam.duplicate_points`). ``--keyframes-csv`` writes every keyframe's
 history — integrated, evicted, restored, moved by a loop — with its position then and the
 truth's: where a disagreement was born.
 """
@@ -265,7 +265,8 @@ def main() -> None:
         edge.close()
         points = list(edge.map.points.values())
         duplicates = duplicate_share(np.array([p.position for p in points]).reshape(-1, 3),
-                                     np.array([p.descriptor for p in points]).reshape(-1, 32))
+                                     np.array([p.descriptor for p in points]).reshape(-1, 32),
+                                     [p.observers for p in points])
         final = {kf.id: kf.pose for kf in edge.archive}
         final.update({k: kf.pose for k, kf in edge.map.keyframes.items()})
     ate = absolute_trajectory_error(poses, truth)
@@ -279,7 +280,7 @@ def main() -> None:
           f"{absolute_trajectory_error(final, truth):.3f} m")
     print(f"the device's matches: {1 - inliers / max(matches, 1):.1%} outliers; the edge's map "
           f"at the end: {len(edge.map.points)} points, {duplicates:.1%} with a look-alike "
-          f"within {DUPLICATE_RADIUS_M * 100:.0f} cm")
+          f"within {DUPLICATE_RADIUS_M * 100:.0f} cm no keyframe sees with it")
     largest = max((d.max_m for d in disagreements if not math.isnan(d.max_m)), default=math.nan)
     print(f"archive vs map: at the end RMS {disagreements[-1].rms_m:.3f} m, the largest "
           f"pair over the walk {largest:.3f} m")

@@ -20,6 +20,11 @@ def test_duplicate_share_counts_look_alikes_close_by() -> None:
                           [0.0, 0.03, 3.0],                 # close, but another corner
                           [1.0, 0.0, 3.0]])                 # alike, but far
     assert duplicate_share(positions, np.array([SAME, SAME, OTHER, SAME])) == 0.5
+    # one keyframe sees the first two: two features of one image, not the corner twice
+    seen_by = [{1}, {1, 2}, {2}, {3}]
+    assert duplicate_share(positions, np.array([SAME, SAME, OTHER, SAME]), seen_by) == 0.0
+    assert duplicate_share(positions, np.array([SAME, SAME, OTHER, SAME]),
+                           [{1}, {2}, {2}, {3}]) == 0.5
     assert np.isnan(duplicate_share(np.zeros((0, 3)), np.zeros((0, 32), np.uint8)))
 
 
@@ -39,4 +44,7 @@ def test_a_run_reports_the_duplicate_share_of_its_map_updates_by_their_points() 
     record.maps[1] = _snapshot([[0, 0, 3], [1, 0, 3], [2, 0, 3], [3, 0, 3]],
                                [SAME, SAME, SAME, SAME])
     assert map_duplicate_share(record) == 2 / 8
+    # the update says which keyframe saw which points: one keyframe saw both copies
+    record.maps[0].keyframe_points = [np.array([1, 2], np.uint64), np.array([3, 4], np.uint64)]
+    assert map_duplicate_share(record) == 0.0
     assert np.isnan(map_duplicate_share(RunLog()))

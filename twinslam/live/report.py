@@ -29,6 +29,7 @@ from twinslam.live.tracking_quality import (
 )
 from twinslam.policies.registry import LEARNED_PREFIX
 from twinslam.slam.duplicate_points import duplicate_share
+from twinslam.slam.map_update import MapSnapshot
 
 
 @dataclass
@@ -248,8 +249,21 @@ def map_duplicate_share(record: RunLog) -> float:
     maps = [m for m in record.maps.values() if len(m.positions)]
     if not maps:
         return math.nan
-    shares = [duplicate_share(m.positions, m.descriptors) for m in maps]
+    shares = [duplicate_share(m.positions, m.descriptors, _seen_by(m)) for m in maps]
     return float(np.average(shares, weights=[len(m.positions) for m in maps]))
+
+
+def _seen_by(snapshot: MapSnapshot) -> list[set[int]] | None:
+    """Each point's keyframes (by index) in a map update (None: it lists none)."""
+    if not snapshot.keyframe_points:
+        return None
+    row = {int(p): i for i, p in enumerate(snapshot.point_ids)}
+    seen: list[set[int]] = [set() for _ in snapshot.point_ids]
+    for k, points in enumerate(snapshot.keyframe_points):
+        for p in np.asarray(points).tolist():
+            if (i := row.get(int(p))) is not None:
+                seen[i].add(k)
+    return seen
 
 
 def outlier_share(record: RunLog) -> float:

@@ -26,8 +26,10 @@ FINAL = re.compile(r"(\d+) of (\d+) frames tracked, ATE ([\d.]+) m, revisit erro
                    r"([\d.na]+) m .*loops (\d+) closed (\d+) refused")
 LOOP = re.compile(r"measured off by ([\d.]+) m, ([\d.]+) deg")
 KEYFRAMES = re.compile(r"final keyframes \(archive and map, (\d+)\): ATE ([\d.]+) m")
-#: printed since the bench counted them (older logs: NaN)
-SHARES = re.compile(r"matches: ([\d.]+)% outliers; .*, ([\d.]+)% with a look-alike")
+#: printed since the bench counted them (older logs: NaN; logs that counted every close
+#: look-alike, before a pair one keyframe sees together was left out: no duplicate share)
+OUTLIERS = re.compile(r"matches: ([\d.]+)% outliers")
+DUPLICATES = re.compile(r"([\d.]+)% with a look-alike within \d+ cm no keyframe sees with it")
 FIGURES = ("ate_m", "revisit_m", "keyframe_ate_m", "untracked", "loops_closed",
            "loops_refused", "outlier_share", "duplicate_share")
 
@@ -39,9 +41,8 @@ def read_run(path: Path) -> dict[str, float] | None:
     if final is None or keyframes is None:
         return None
     tracked, frames, ate, revisit, closed, refused = final.groups()
-    shares = SHARES.search(text)
-    outliers, duplicates = (float(x) / 100 for x in shares.groups()) if shares else \
-        (float("nan"), float("nan"))
+    outliers, duplicates = (float(found.group(1)) / 100 if (found := pattern.search(text))
+                            else float("nan") for pattern in (OUTLIERS, DUPLICATES))
     return {"ate_m": float(ate), "revisit_m": float(revisit),
             "keyframe_ate_m": float(keyframes.group(2)),
             "untracked": float(int(frames) - int(tracked)), "loops_closed": float(closed),
