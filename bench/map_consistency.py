@@ -32,9 +32,9 @@ Per slot it prints (every ``--every`` slots, and at each loop) and writes to ``-
 At the end: the frames tracked, the device's ATE and revisit error, the ATE of the edge's
 final keyframes (archive and map), the share of the device's matches its poses disagreed with
 (outliers) and the share of the final map's points with a look-alike within 5 cm that no
-keyframe sees together with them (duplicates, :mod:`twinslam.slam.duplicate_points`). ``--keyframes-csv`` writes every keyframe's
-history — integrated, evicted, restored, moved by a loop — with its position then and the
-truth's: where a disagreement was born.
+keyframe sees together with them (duplicates, :mod:`twinslam.slam.duplicate_points`).
+``--keyframes-csv`` writes every keyframe's history — integrated, evicted, restored, moved by
+a loop — with its position then and the truth's: where a disagreement was born.
 """
 
 from __future__ import annotations
@@ -151,6 +151,10 @@ def main() -> None:
     parser.add_argument("--point-culling", action=argparse.BooleanOptionalAction,
                         default=EdgeConfig().point_culling,
                         help="the edge removes map points later keyframes never find again")
+    parser.add_argument("--integration-fusion", action=argparse.BooleanOptionalAction,
+                        default=EdgeConfig().integration_fusion,
+                        help="a new keyframe's feature beside a map point that looks alike "
+                             "observes it instead of making a copy")
     parser.add_argument("--every", type=int, default=10, help="print every N slots")
     parser.add_argument("--csv", type=Path, help="write the per-slot figures here")
     parser.add_argument("--keyframes-csv", type=Path,
@@ -169,7 +173,8 @@ def main() -> None:
                                settings.own_map_after)
     edge_params = {p.name: p.default for p in EDGE_PARAMETERS}
     edge_params.update(loop_closing=args.loops, restore_keyframes=args.restores,
-                       ba_window=args.ba_window, point_culling=args.point_culling)
+                       ba_window=args.ba_window, point_culling=args.point_culling,
+                       integration_fusion=args.integration_fusion)
     config = dataclasses.replace(edge_config(edge_params), loop_background=False)
     family = uplink_family(args.uplink)
     channel = parse_channel(family.channel, family.rate_mbps or (5.0, 45.0), seed=args.seed,

@@ -80,6 +80,9 @@ class EdgeConfig:
     #: a map point later keyframes should see and never find leaves the map
     #: (:mod:`twinslam.slam.back_end.point_culling`); False: it stays until its last observer
     point_culling: bool = False
+    #: a new keyframe's feature that would make a point beside a map point that looks alike
+    #: observes that point instead (:class:`~twinslam.slam.back_end.map_back_end.MapBackEnd`)
+    integration_fusion: bool = False
     #: archived keyframes brought back at the end of a slot around the pose the edge found in
     #: its archive for a lost device's frame (:meth:`EdgeMapperCore.relocalise`); 0: the edge
     #: does not relocalise devices. Off by default: on the 7-Scenes revisit-v15 walk (LFF, 300
@@ -111,7 +114,8 @@ class EdgeConfig:
             ba_window=self.ba_window, ba_iterations=self.ba_iterations,
             ba_points=self.ba_points, baseline_m=self.baseline_m, image_shape=self.image_shape,
             archive_keyframes=self.archive_keyframes, point_fusion=self.point_fusion,
-            point_culling=self.point_culling, reloc_min_inliers=self.reloc_min_inliers,
+            point_culling=self.point_culling, integration_fusion=self.integration_fusion,
+            reloc_min_inliers=self.reloc_min_inliers,
             keyframe_gate=self.keyframe_gate, loop_closing=self.loop_closing,
             loop_background=self.loop_background, loop_min_gap=self.loop_min_gap,
             loop_confirmations=self.loop_confirmations)

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
-from twinslam.slam.back_end.local_mapping import LocalMapping
+from twinslam.slam.back_end.local_mapping import LocalMapping, LocalMappingConfig
+from twinslam.slam.duplicate_points import duplicate_share
 from twinslam.slam.keyframe import TRACK_ID_BIT
 
 K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
@@ -80,3 +81,33 @@ def test_mismatched_lengths_are_refused() -> None:
     with pytest.raises(ValueError, match="keyframe 5"):
         integ.integrate(5, np.eye(4), np.zeros((3, 2)), np.zeros((2, 32), np.uint8),
                         np.zeros(3), np.zeros(3, np.uint64))
+
+
+def test_a_feature_beside_a_map_point_that_looks_alike_joins_it() -> None:
+    """A keyframe sees a wall the map holds, its features without ids, and ORB found each
+    corner twice (two features a pixel apart, one descriptor, as it does across pyramid
+    levels): the matching by pixel refuses both — two features equally alike fail its ratio
+    test — so each corner would be made again, twice, beside the map's own. With fusion on
+    integration the first feature whose depth puts it within 5 cm (+2 % of the depth) of the
+    map's point that looks alike observes that point; the map holds no corner twice that no
+    keyframe sees together."""
+    rng = np.random.default_rng(1)
+    world = rng.uniform([-1, -0.8, 2.0], [1, 0.8, 2.2], (120, 3))
+    descs = rng.integers(0, 256, (120, 32), dtype=np.uint8)
+    for join, joined in ((None, 0), (0.05, 120)):
+        m = KeyFrameMap()
+        m.add_keyframe(0, _pose(0.0))
+        for j in range(120):
+            m.observe(0, m.add_point(world[j], descs[j]))
+        mapping = LocalMapping(m, K, (480, 640), LocalMappingConfig(join_radius_m=join))
+        _, uv, depth, _ = _features(_pose(0.0), world, descs, rng)
+        twice = np.vstack([uv, uv + np.array([1.0, 0.0])])
+        report = mapping.integrate(1, _pose(0.0), twice, np.vstack([descs, descs]),
+                                   np.concatenate([depth, depth]), np.zeros(240, np.uint64))
+        assert report.matched == 0
+        assert report.joined == joined and report.created == 240 - joined, report
+        points = list(m.points.values())
+        share = duplicate_share(np.array([p.position for p in points]),
+                                np.array([p.descriptor for p in points]),
+                                [p.observers for p in points])
+        assert share == (0.0 if join else 1.0), share

@@ -20,9 +20,11 @@ from __future__ import annotations
 
 import math
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.back_end.point_culling import PointCullingConfig, count_and_cull, facing
@@ -42,6 +44,13 @@ class LocalMappingConfig:
     #: (:mod:`twinslam.slam.back_end.point_culling`); None: every point stays until its last
     #: observer leaves (the edge's ``point_culling`` decides)
     culling: PointCullingConfig | None = None
+    #: a feature about to make a new point whose depth puts it within this many metres (plus
+    #: 2 % of its depth) of a local-map point in view that looks alike (``max_hamming``)
+    #: observes that point instead: the corner the matching by pixel missed — its ratio test
+    #: refuses a corner the map already holds twice, and each refusal would make one more
+    #: copy. None: every unmatched feature with depth makes a point (the edge's
+    #: ``point_fusion`` decides)
+    join_radius_m: float | None = None
 
 
 @dataclass(frozen=True)
@@ -57,6 +66,9 @@ class IntegrationReport:
     #: map points removed after this keyframe's view held them and they were not found once
     #: too often (:mod:`twinslam.slam.back_end.point_culling`)
     culled: int = 0
+    #: features that would have made a new point beside a map point that looks alike, and
+    #: observe that point instead (``LocalMappingConfig.join_radius_m``)
+    joined: int = 0
     deferred: bool = False  #: held until an earlier slot finishes (counts above not known yet)
     #: why the edge's gate refused the keyframe ("" when integrated): nothing of it entered
     #: the map (:mod:`twinslam.slam.back_end.keyframe_gate`)
@@ -100,7 +112,8 @@ class LocalMapping:
         self._feature_point = np.zeros(n, dtype=np.int64)
         ids = np.asarray(device_ids, dtype=np.uint64)
         free = np.ones(n, dtype=bool)
-        counts = dict(associated=0, tracked=0, created_from_tracks=0, matched=0, created=0)
+        counts = dict(associated=0, tracked=0, created_from_tracks=0, matched=0, created=0,
+                      joined=0)
         pending_tracks: list[int] = []
         for i in range(n):
             dev = int(ids[i])
@@ -119,28 +132,72 @@ class LocalMapping:
         self._flush(kf_id)                        # the local map needs the keyframe's points
         in_view, uv = self._in_view(kf_id, pose)
         counts["matched"] = self._match(kf_id, keypoints, descriptors, free, in_view, uv)
-        # the map's points this keyframe found (those it makes below start counted)
-        found = m.keyframes[kf_id].points | self._taken.keys()
         world = self._back_project(pose, keypoints, depths)
+        alike = self._alike_finder(kf_id, in_view)
+        made: set[int] = set()                # the points this keyframe makes
         for i in pending_tracks:
+            if free[i] and (position := world[i]) is not None and \
+                    (same := alike(position, descriptors[i], depths[i])) is not None:
+                self._observe(kf_id, same, free, i)
+                counts["joined"] += 1
             if not free[i]:                   # matched to an existing point by projection
                 self._remember_track(int(ids[i]), int(self._feature_point[i]))
             elif (position := world[i]) is not None:
                 created = m.add_point(position, descriptors[i])
+                made.add(created)
                 self._remember_track(int(ids[i]), created)
                 self._observe(kf_id, created, free, i)
                 counts["tracked"] += 1
                 counts["created_from_tracks"] += 1
         for i in map(int, np.flatnonzero(free)):
-            if (position := world[i]) is not None:
-                self._observe(kf_id, m.add_point(position, descriptors[i]), free, i)
+            if (position := world[i]) is None:
+                continue
+            if (same := alike(position, descriptors[i], depths[i])) is not None:
+                self._observe(kf_id, same, free, i)
+                counts["joined"] += 1
+            else:
+                made.add(created := m.add_point(position, descriptors[i]))
+                self._observe(kf_id, created, free, i)
                 counts["created"] += 1
         self._flush(kf_id)
         unused = int(free.sum())
-        culled = self._cull(pose, found, in_view)
+        # the map's points this keyframe found (those it made start counted)
+        culled = self._cull(pose, m.keyframes[kf_id].points - made, in_view)
         return IntegrationReport(counts["associated"], counts["tracked"],
                                  counts["created_from_tracks"], counts["matched"],
-                                 counts["created"], unused, len(culled))
+                                 counts["created"], unused, len(culled), counts["joined"])
+
+    def _alike_finder(self, kf_id: int, in_view: np.ndarray
+                      ) -> Callable[[np.ndarray, np.ndarray, float], int | None]:
+        """A lookup: the map point in view, not observed by the keyframe yet, nearest in
+        descriptor among those within ``join_radius_m`` + 2 % of the depth of a feature's
+        back-projected position and within ``max_hamming`` of its descriptor (None: none,
+        or joining is off)."""
+        radius = self.config.join_radius_m
+        if radius is None or in_view.size == 0:
+            return lambda position, descriptor, depth: None
+        points = self.map.points
+        ids = in_view.tolist()
+        tree = cKDTree(np.array([points[p].position for p in ids]))
+        bits = np.unpackbits(np.array([points[p].descriptor for p in ids], dtype=np.uint8),
+                             axis=1)
+        own = self.map.keyframes[kf_id].points
+
+        def alike(position: np.ndarray, descriptor: np.ndarray, depth: float) -> int | None:
+            near = tree.query_ball_point(position, radius + 0.02 * float(depth))
+            if not near:
+                return None
+            mine = np.unpackbits(np.asarray(descriptor, dtype=np.uint8))
+            apart = np.count_nonzero(bits[near] != mine, axis=1)
+            for j in np.argsort(apart, kind="stable").tolist():
+                if apart[j] > self.config.max_hamming:
+                    return None
+                pid = ids[near[j]]
+                if pid not in own and pid not in self._taken:
+                    return int(pid)
+            return None
+
+        return alike
 
     def _cull(self, pose: np.ndarray, found: set[int], in_view: np.ndarray) -> list[int]:
         """The keyframe's views counted and the points never found again removed (none

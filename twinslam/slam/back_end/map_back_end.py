@@ -63,10 +63,14 @@ from twinslam.slam.back_end.point_culling import PointCullingConfig
 from twinslam.slam.back_end.point_fusion import fuse_restored
 from twinslam.slam.back_end.pose_graph import LoopEdge
 from twinslam.slam.camera import has_camera
+from twinslam.slam.duplicate_points import DUPLICATE_RADIUS_M
 from twinslam.slam.keyframe import KeyFramePayload
 
 #: integrated keyframes a loop job looks from at most (the newest)
 LOOP_QUERIES = 3
+#: fusion on integration: a feature lands this close (plus 2 % of its depth) to a point that
+#: looks alike, it is that point (the duplicate share's 5 cm)
+JOIN_RADIUS_M = DUPLICATE_RADIUS_M
 
 
 @dataclass(frozen=True)
@@ -88,6 +92,9 @@ class BackEndConfig:
     point_fusion: bool = True
     #: a map point later keyframes should see and never find leaves the map
     point_culling: bool = False
+    #: a new keyframe's feature that would make a point beside a map point that looks alike
+    #: observes that point instead (fusion on integration; ``LocalMappingConfig.join_radius_m``)
+    integration_fusion: bool = False
     #: the gate on a pose found in the archive for a lost device: inliers after refinement
     reloc_min_inliers: int = 20
     #: the gate every uploaded keyframe passes before it enters the map
@@ -133,7 +140,9 @@ class MapBackEnd:
         extra = self.extra
         self.local_mapping = LocalMapping(
             self.map, self.k, config.image_shape,
-            LocalMappingConfig(culling=PointCullingConfig() if config.point_culling else None))
+            LocalMappingConfig(culling=PointCullingConfig() if config.point_culling else None,
+                               join_radius_m=JOIN_RADIUS_M if config.integration_fusion
+                               else None))
         #: what the archive could not read back after a restart (the node logs it)
         self.archive_problems: list[str] = []
         self.archive = self._open_archive()
