@@ -133,11 +133,10 @@ class LocalMapping:
         in_view, uv = self._in_view(kf_id, pose)
         counts["matched"] = self._match(kf_id, keypoints, descriptors, free, in_view, uv)
         world = self._back_project(pose, keypoints, depths)
-        alike = self._alike_finder(kf_id, in_view)
+        alike = self._alike_finder(kf_id, in_view, world, descriptors, depths)
         made: set[int] = set()                # the points this keyframe makes
         for i in pending_tracks:
-            if free[i] and (position := world[i]) is not None and \
-                    (same := alike(position, descriptors[i], depths[i])) is not None:
+            if free[i] and (same := alike(i)) is not None:
                 self._observe(kf_id, same, free, i)
                 counts["joined"] += 1
             if not free[i]:                   # matched to an existing point by projection
@@ -152,7 +151,7 @@ class LocalMapping:
         for i in map(int, np.flatnonzero(free)):
             if (position := world[i]) is None:
                 continue
-            if (same := alike(position, descriptors[i], depths[i])) is not None:
+            if (same := alike(i)) is not None:
                 self._observe(kf_id, same, free, i)
                 counts["joined"] += 1
             else:
@@ -167,35 +166,45 @@ class LocalMapping:
                                  counts["created_from_tracks"], counts["matched"],
                                  counts["created"], unused, len(culled), counts["joined"])
 
-    def _alike_finder(self, kf_id: int, in_view: np.ndarray
-                      ) -> Callable[[np.ndarray, np.ndarray, float], int | None]:
-        """A lookup: the map point in view, not observed by the keyframe yet, nearest in
-        descriptor among those within ``join_radius_m`` + 2 % of the depth of a feature's
-        back-projected position and within ``max_hamming`` of its descriptor (None: none,
-        or joining is off)."""
+    def _alike_finder(self, kf_id: int, in_view: np.ndarray,
+                      world: list[np.ndarray | None], descriptors: np.ndarray,
+                      depths: np.ndarray) -> Callable[[int], int | None]:
+        """A lookup by feature: the map point in view, not observed by the keyframe yet,
+        nearest in descriptor among those within ``join_radius_m`` + 2 % of the depth of the
+        feature's back-projected position (``world``) and within ``max_hamming`` of its
+        descriptor (None: none, or joining is off). The neighbourhoods of all the features
+        are found in one query of the points' tree."""
         radius = self.config.join_radius_m
-        if radius is None or in_view.size == 0:
-            return lambda position, descriptor, depth: None
+        placed = [i for i, w in enumerate(world) if w is not None]
+        if radius is None or in_view.size == 0 or not placed:
+            return lambda i: None
         points = self.map.points
         ids = in_view.tolist()
         tree = cKDTree(np.array([points[p].position for p in ids]))
         bits = np.unpackbits(np.array([points[p].descriptor for p in ids], dtype=np.uint8),
                              axis=1)
+        z = np.asarray(depths, dtype=np.float64)[placed]
+        # unsorted: each neighbourhood in the tree's own order, as a query of one point
+        near = tree.query_ball_point(np.array([world[i] for i in placed]), radius + 0.02 * z,
+                                     return_sorted=False)
+        sizes = [len(n) for n in near]
+        if not sum(sizes):
+            return lambda i: None
+        feature = np.repeat(np.asarray(placed), sizes)
+        candidate = np.concatenate([np.asarray(n, dtype=np.int64) for n in near if n])
+        mine = np.unpackbits(np.asarray(descriptors, dtype=np.uint8)[placed], axis=1)
+        apart = np.count_nonzero(bits[candidate] != np.repeat(mine, sizes, axis=0), axis=1)
+        alike_enough = apart <= self.config.max_hamming
+        feature, candidate, apart = (a[alike_enough] for a in (feature, candidate, apart))
+        order = np.lexsort((apart, feature))      # by feature, nearest in descriptor first
+        ranked: dict[int, list[int]] = {}
+        for f, c in zip(feature[order].tolist(), candidate[order].tolist(), strict=True):
+            ranked.setdefault(f, []).append(ids[c])
         own = self.map.keyframes[kf_id].points
 
-        def alike(position: np.ndarray, descriptor: np.ndarray, depth: float) -> int | None:
-            near = tree.query_ball_point(position, radius + 0.02 * float(depth))
-            if not near:
-                return None
-            mine = np.unpackbits(np.asarray(descriptor, dtype=np.uint8))
-            apart = np.count_nonzero(bits[near] != mine, axis=1)
-            for j in np.argsort(apart, kind="stable").tolist():
-                if apart[j] > self.config.max_hamming:
-                    return None
-                pid = ids[near[j]]
-                if pid not in own and pid not in self._taken:
-                    return int(pid)
-            return None
+        def alike(i: int) -> int | None:
+            return next((p for p in ranked.get(i, ())
+                         if p not in own and p not in self._taken), None)
 
         return alike
 
