@@ -58,67 +58,42 @@ from twinslam.uncertainty.map_uncertainty import map_uncertainty
 
 @dataclass(frozen=True)
 class EdgeConfig:
+    """The edge's settings for one device: the slot's, which keyframes come back when, and the
+    map's life — the fields :class:`~twinslam.slam.back_end.map_back_end.BackEndConfig` has,
+    of the same names and meanings (documented there), handed to the back end as they are."""
+
     slot: SlotConfig = field(default_factory=SlotConfig)
-    #: newest keyframes optimised each slot, the rest fixed (0: no local bundle adjustment,
-    #: the default device's)
-    ba_window: int = default_device.BA_WINDOW
-    ba_iterations: int = 3           #: Gauss–Newton steps (see bundle_adjustment)
-    #: points in the local BA at most, most observed first: 120-300 gave the same device ATE
-    #: (0.034 m on 600 7-Scenes frames) as all 2-4 k, at 33-70 ms instead of ~200 ms
-    ba_points: int | None = 120
-    baseline_m: float = 0.08         #: RGB-D virtual stereo baseline of the BA
-    image_shape: tuple[int, int] = (480, 640)
-    #: evicted keyframes the edge keeps for relocalisation and restores (0: none; ~90 kB a
-    #: keyframe of 1000 points, see ArchivedKeyFrame.nbytes)
-    archive_keyframes: int = 500
     #: archived keyframes brought back a slot at most, where the camera is heading
     #: (:mod:`edge_mapper.restores`); 0: none
     restore_keyframes: int = 0
-    #: the points a restored keyframe brings back that the map made again since are fused into
-    #: the map's (:mod:`twinslam.slam.back_end.point_fusion`); False: they stay as copies
-    point_fusion: bool = True
-    #: a map point later keyframes should see and never find leaves the map
-    #: (:mod:`twinslam.slam.back_end.point_culling`); False: it stays until its last observer
-    point_culling: bool = False
-    #: a new keyframe's feature that would make a point beside a map point that looks alike
-    #: observes that point instead (:class:`~twinslam.slam.back_end.map_back_end.MapBackEnd`)
-    integration_fusion: bool = False
     #: archived keyframes brought back at the end of a slot around the pose the edge found in
     #: its archive for a lost device's frame (:meth:`EdgeMapperCore.relocalise`); 0: the edge
     #: does not relocalise devices. Off by default: on the 7-Scenes revisit-v15 walk (LFF, 300
     #: frames, 3 seeds) it lost more frames than without (15.0 % / 16.4 % of next-slot frames
     #: with 3 / 15 against 10.8 %, every seed; BENCHMARKS.md)
     reloc_restore_keyframes: int = 0
-    #: the edge's gate on such a pose: RANSAC inliers after refinement (the device's default)
+    # -- the map's life (BackEndConfig) --
+    ba_window: int = default_device.BA_WINDOW
+    ba_iterations: int = 3
+    ba_points: int | None = 120
+    baseline_m: float = 0.08
+    image_shape: tuple[int, int] = (480, 640)
+    archive_keyframes: int = 500
+    point_fusion: bool = True
+    point_culling: bool = False
+    integration_fusion: bool = False
     reloc_min_inliers: int = 20
-    #: the gate every uploaded keyframe passes before it enters the map (a non-finite pose,
-    #: one out of the map's reach, one its own matched points contradict are refused)
     keyframe_gate: KeyFrameGateConfig = field(default_factory=KeyFrameGateConfig)
-    #: look for loops from every integrated keyframe against the archive and the map's far
-    #: older keyframes, and close them with a pose graph
-    #: (:mod:`twinslam.slam.back_end.loop_closing`)
     loop_closing: bool = False
-    #: the loop closer's work on a worker thread (the node); False: in ``finish_slot`` itself
-    #: (offline pipelines, whose results must not depend on thread timing)
     loop_background: bool = True
-    #: a loop joins keyframes at least this many ids (frames) apart: the recent walk is none
     loop_min_gap: int = MIN_GAP
-    #: later keyframes that must find a loop's place again before it closes
-    #: (:class:`twinslam.slam.back_end.loop_closing.LoopConfirmation`); 0: the first keyframe
-    #: that finds it closes it
     loop_confirmations: int = CONFIRMATIONS
 
     def back_end(self) -> BackEndConfig:
-        """What of these settings the map's life takes (:class:`MapBackEnd`)."""
-        return BackEndConfig(
-            ba_window=self.ba_window, ba_iterations=self.ba_iterations,
-            ba_points=self.ba_points, baseline_m=self.baseline_m, image_shape=self.image_shape,
-            archive_keyframes=self.archive_keyframes, point_fusion=self.point_fusion,
-            point_culling=self.point_culling, integration_fusion=self.integration_fusion,
-            reloc_min_inliers=self.reloc_min_inliers,
-            keyframe_gate=self.keyframe_gate, loop_closing=self.loop_closing,
-            loop_background=self.loop_background, loop_min_gap=self.loop_min_gap,
-            loop_confirmations=self.loop_confirmations)
+        """The map's life's settings (:class:`MapBackEnd`): this config's fields of
+        BackEndConfig's names."""
+        return BackEndConfig(**{f.name: getattr(self, f.name)
+                                for f in dataclasses.fields(BackEndConfig)})
 
 
 @dataclass
