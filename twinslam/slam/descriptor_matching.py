@@ -25,3 +25,11 @@ def match_descriptors(query: np.ndarray, train: np.ndarray, max_hamming: int, ra
     _, first = np.unique(t, return_index=True)
     first.sort()
     return q[first], t[first]
+
+
+def hamming_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The Hamming distance of each row of ``a`` to the same row of ``b`` (ORB descriptors,
+    n×32 uint8 each): the bits they differ in."""
+    return np.asarray(np.count_nonzero(
+        np.unpackbits(np.asarray(a, dtype=np.uint8), axis=1)
+        != np.unpackbits(np.asarray(b, dtype=np.uint8), axis=1), axis=1))

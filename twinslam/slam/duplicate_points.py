@@ -19,6 +19,8 @@ from collections.abc import Collection, Sequence
 import numpy as np
 from scipy.spatial import cKDTree
 
+from twinslam.slam.descriptor_matching import hamming_rows
+
 #: a point with a look-alike this close is a duplicate (a wall twice in the map)
 DUPLICATE_RADIUS_M = 0.05
 #: descriptors this many bits apart at most look alike: the matchers' own cap
@@ -36,11 +38,11 @@ def duplicate_share(positions: np.ndarray, descriptors: np.ndarray,
     xyz = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
     if not len(xyz):
         return math.nan
-    bits = np.unpackbits(np.asarray(descriptors, dtype=np.uint8).reshape(len(xyz), -1), axis=1)
+    desc = np.asarray(descriptors, dtype=np.uint8).reshape(len(xyz), -1)
     pairs = cKDTree(xyz).query_pairs(radius_m, output_type="ndarray")
     if not len(pairs):
         return 0.0
-    apart = np.count_nonzero(bits[pairs[:, 0]] != bits[pairs[:, 1]], axis=1)
+    apart = hamming_rows(desc[pairs[:, 0]], desc[pairs[:, 1]])
     alike = pairs[apart <= max_hamming]
     if seen_by is not None:
         alike = alike[[not set(seen_by[a]) & set(seen_by[b]) for a, b in alike.tolist()]]

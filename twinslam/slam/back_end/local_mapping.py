@@ -28,6 +28,7 @@ from scipy.spatial import cKDTree
 
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.back_end.point_culling import PointCullingConfig, count_and_cull, facing
+from twinslam.slam.descriptor_matching import hamming_rows
 from twinslam.slam.keyframe import is_track_id
 from twinslam.slam.projection_matching import back_project, match_by_projection, visible_points
 
@@ -181,8 +182,7 @@ class LocalMapping:
         points = self.map.points
         ids = in_view.tolist()
         tree = cKDTree(np.array([points[p].position for p in ids]))
-        bits = np.unpackbits(np.array([points[p].descriptor for p in ids], dtype=np.uint8),
-                             axis=1)
+        theirs = np.array([points[p].descriptor for p in ids], dtype=np.uint8)
         z = np.asarray(depths, dtype=np.float64)[placed]
         # unsorted: each neighbourhood in the tree's own order, as a query of one point
         near = tree.query_ball_point(np.array([world[i] for i in placed]), radius + 0.02 * z,
@@ -192,8 +192,8 @@ class LocalMapping:
             return lambda i: None
         feature = np.repeat(np.asarray(placed), sizes)
         candidate = np.concatenate([np.asarray(n, dtype=np.int64) for n in near if n])
-        mine = np.unpackbits(np.asarray(descriptors, dtype=np.uint8)[placed], axis=1)
-        apart = np.count_nonzero(bits[candidate] != np.repeat(mine, sizes, axis=0), axis=1)
+        mine = np.asarray(descriptors, dtype=np.uint8)[placed]
+        apart = hamming_rows(theirs[candidate], np.repeat(mine, sizes, axis=0))
         alike_enough = apart <= self.config.max_hamming
         feature, candidate, apart = (a[alike_enough] for a in (feature, candidate, apart))
         order = np.lexsort((apart, feature))      # by feature, nearest in descriptor first

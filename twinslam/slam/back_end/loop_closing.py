@@ -121,9 +121,7 @@ class LoopConfirmation:
         """Keyframe ``query`` (at ``pose`` by the walk, ``walked_m`` from the pending
         candidate's keyframe) found ``candidate`` (or none): True when that confirms a loop,
         which closes now from this keyframe."""
-        found = candidate.found and candidate.pose is not None
-        correction = candidate.pose @ np.linalg.inv(pose) if found and \
-            candidate.pose is not None else None
+        correction = None if candidate.pose is None else candidate.pose @ np.linalg.inv(pose)
         pending = self.pending
         if pending is None:
             if correction is None:
