@@ -3,8 +3,11 @@ process over a walk that comes back, with the archive's and the map's keyframes 
 against the truth after every slot.
 
     python -m bench.map_consistency [SEQUENCE] [--frames 5400] [--seed 4] [--uplink lte]
-        [--loops] [--update-delay 8] [--ba-window 5] [--no-point-culling] [--csv FILE]
-        [--keyframes-csv FILE]
+        [--order forward_backward] [--vmax 15] [--loops] [--update-delay 8] [--ba-window 5]
+        [--no-point-culling] [--csv FILE] [--keyframes-csv FILE]
+
+``--order forward_backward --vmax 15`` on a dataset folder is the live ``revisit-v15`` walk
+(the frames forward then back, V_max 15).
 
 A walk that returns to a place finds it twice at the edge: in the archive (the keyframes
 evicted on the way out) and in the managed map (the keyframes made on the way back, or the
@@ -29,12 +32,17 @@ Per slot it prints (every ``--every`` slots, and at each loop) and writes to ``-
   apart its two keyframes truly were, how far its measured relative pose is from the truth's,
   and how far the graph's answer is from the truth against the poses before it.
 
-At the end: the frames tracked, the device's ATE and revisit error, the ATE of the edge's
-final keyframes (archive and map), the share of the device's matches its poses disagreed with
-(outliers) and the share of the final map's points with a look-alike within 5 cm that no
-keyframe sees together with them (duplicates, :mod:`twinslam.slam.duplicate_points`).
-``--keyframes-csv`` writes every keyframe's history — integrated, evicted, restored, moved by
-a loop — with its position then and the truth's: where a disagreement was born.
+At the end: the frames tracked, the device's ATE and revisit error, both again with each
+pose anchored to its keyframe (moved with that keyframe's corrections since it was published,
+as AR anchors follow a map: :func:`~twinslam.live.tracking_quality.anchored_to_keyframes`),
+the largest step of REP 105's odom frame beyond the truth's (the device node's
+:class:`~device_tracker.odometry_frame.OdometryFrame`), the ATE of the edge's final
+keyframes (archive and map), the share of the device's matches
+its poses disagreed with (outliers) and the share of the final map's points with a
+look-alike within 5 cm that no keyframe sees together with them (duplicates,
+:mod:`twinslam.slam.duplicate_points`). ``--keyframes-csv`` writes every keyframe's history
+— integrated, evicted, restored, moved by a loop — with its position then and the truth's:
+where a disagreement was born.
 """
 
 from __future__ import annotations
@@ -53,6 +61,7 @@ import numpy as np
 
 from bench.in_process import serve_slot
 from device_tracker.device_core import DeviceTrackerCore
+from device_tracker.odometry_frame import OdometryFrame
 from device_tracker.parameters import PARAMETERS as DEVICE_PARAMETERS
 from device_tracker.parameters import DeviceSettings
 from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore
@@ -63,13 +72,16 @@ from twinslam.live.tracking_quality import (
     REVISIT_ANGLE_DEG,
     REVISIT_RADIUS_M,
     absolute_trajectory_error,
+    anchored_to_keyframes,
     revisit_error,
     seen_alike,
+    step_excess_mm,
     truth_in_map,
 )
 from twinslam.policies.registry import make_policy
 from twinslam.rotations import rotation_angle_deg
-from twinslam.sequences.opening import open_sequence
+from twinslam.sequence_player.playback import ORDERS, Playback, PlayedSequence
+from twinslam.sequences.opening import AUTO, open_sequence
 from twinslam.slam.back_end.loop_closing import LoopResult
 from twinslam.slam.duplicate_points import DUPLICATE_RADIUS_M, duplicate_share
 from twinslam.slam.projection_matching import back_project
@@ -139,6 +151,11 @@ def main() -> None:
                         help="the uplink's seed, and a synthetic walk's (its sway and gaze)")
     parser.add_argument("--uplink", default="lte", help="uplink family (table1, lte, mmwave, "
                         "constrained)")
+    parser.add_argument("--order", choices=ORDERS, default="forward",
+                        help="the frames as recorded, or forward then back (a scenario's "
+                             "order: the revisit walk)")
+    parser.add_argument("--vmax", type=int,
+                        help="V_max, keyframes the edge's map holds (default: the edge's)")
     parser.add_argument("--loops", action="store_true", help="the edge closes loops")
     parser.add_argument("--restores", type=int, default=default_device.RESTORE_KEYFRAMES,
                         help="archived keyframes restored a slot where the camera heads")
@@ -164,17 +181,20 @@ def main() -> None:
     spec = args.sequence
     if spec.startswith("synthetic") and spec.count(":") == 1:
         spec = f"{spec}:{args.seed}"
-    reader = open_sequence(spec, end=args.frames)
+    source = open_sequence(spec, end=args.frames, colour_intrinsics=AUTO)
+    reader = PlayedSequence(source, Playback(args.order))
     device_params = {p.name: p.default for p in DEVICE_PARAMETERS}
     settings = DeviceSettings.from_parameters(device_params)
-    DeviceTrackerCore.warm_up(reader.intrinsics)
-    device = DeviceTrackerCore(reader.intrinsics, settings.slot_frames, settings.tracking,
+    DeviceTrackerCore.warm_up(source.intrinsics)
+    device = DeviceTrackerCore(source.intrinsics, settings.slot_frames, settings.tracking,
                                settings.keep_slots, settings.frame_rate_hz, settings.map_source,
                                settings.own_map_after)
     edge_params = {p.name: p.default for p in EDGE_PARAMETERS}
     edge_params.update(loop_closing=args.loops, restore_keyframes=args.restores,
                        ba_window=args.ba_window, point_culling=args.point_culling,
                        integration_fusion=args.integration_fusion)
+    if args.vmax is not None:
+        edge_params["vmax"] = args.vmax
     config = dataclasses.replace(edge_config(edge_params), loop_background=False)
     family = uplink_family(args.uplink)
     channel = parse_channel(family.channel, family.rate_mbps or (5.0, 45.0), seed=args.seed,
@@ -187,9 +207,17 @@ def main() -> None:
     history: dict[int, History] = {}
     rows: list[dict[str, object]] = []
     disagreements: list[Disagreement] = []      #: archive vs map, each slot
+    #: every keyframe's pose (archive and map) at each slot's end, and the slot a frame was
+    #: tracked in: what a frame's anchor keyframe looked like when the frame was published
+    keyframes_then: list[dict[int, np.ndarray]] = []
+    slot_of: dict[int, int] = {}
+    #: REP 105's odom frame as the device node would publish it (the map pose's corrections
+    #: taken out): its position per tracked frame
+    odometry = OdometryFrame()
+    odom: dict[int, np.ndarray] = {}
     started = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
-        edge = EdgeMapperCore(make_policy(default_device.POLICY), reader.intrinsics, config,
+        edge = EdgeMapperCore(make_policy(default_device.POLICY), source.intrinsics, config,
                               Path(tmp) / "edge.npz")
         restored_total = 0
         held = None
@@ -205,6 +233,9 @@ def main() -> None:
         edge.loop_closer.take = keep  # type: ignore[method-assign]
         for frame in reader:
             result = device.track(frame.color, frame.depth, frame.stamp)
+            record = result.record
+            in_odom, _ = odometry.update(record.pose, record.tracked, record.map_version,
+                                         record.relocalised)
             if held is not None and (result.slot_done or
                                      frame.index - held[2] >= args.update_delay):
                 device.apply_map_update(held[0], held[1])
@@ -212,9 +243,11 @@ def main() -> None:
             if frame.pose is not None:
                 truth[frame.index] = frame.pose
                 stamp_ns[frame.index] = round(frame.stamp * 1e9)
-                if result.record.tracked:
-                    poses[frame.index] = result.record.pose
+                if record.tracked:
+                    poses[frame.index] = record.pose
+                    odom[frame.index] = in_odom[:3, 3]
                     tracked.append(frame.index)
+                    slot_of[frame.index] = len(keyframes_then)
             if result.record.tracked and not result.record.relocalised:
                 matches += result.record.matches
                 inliers += result.record.inliers
@@ -243,6 +276,7 @@ def main() -> None:
                         (out.slot, "loop", kf.pose.copy()))
             archived = {kf.id: kf.pose for kf in edge.archive}
             managed = {k: kf.pose for k, kf in edge.map.keyframes.items()}
+            keyframes_then.append({**archived, **managed})
             across = disagreement(archived, managed, truth)
             disagreements.append(across)
             within = disagreement(managed, managed, truth, RESTORED_GAP)
@@ -259,7 +293,7 @@ def main() -> None:
                    "edge_ms": served.plan_ms + served.integrate_ms + served.finish_ms}
             rows.append(row)
             if out.loop is not None and taken:
-                print(loop_report(edge, taken[-1], truth, reader.intrinsics))
+                print(loop_report(edge, taken[-1], truth, source.intrinsics))
             if out.slot % args.every == 0 or out.loop is not None:
                 print(f"slot {out.slot:4d} frame {frame.index:5d} map {len(managed):2d} "
                       f"archive {len(archived):3d} restored {restored_total:3d} "
@@ -278,9 +312,21 @@ def main() -> None:
     stamps = {stamp_ns[k]: k for k in tracked}
     rev = revisit_error({s: poses[k] for s, k in stamps.items()},
                         {s: truth[k] for s, k in stamps.items()}, stamps)
+    last = len(keyframes_then) - 1
+    anchored = anchored_to_keyframes({k: poses[k] for k in tracked},
+                                     {k: keyframes_then[min(slot_of[k], last)] for k in tracked},
+                                     final)
+    rev_anchored = revisit_error({s: anchored[k] for s, k in stamps.items()},
+                                 {s: truth[k] for s, k in stamps.items()}, stamps)
     print(f"{len(tracked)} of {len(truth)} frames tracked, ATE {ate:.3f} m, revisit error "
           f"RMS {rev.rms_m:.3f} m ({rev.pairs} pairs), loops {edge.loops_closed} closed "
           f"{edge.loops_refused} refused, {time.perf_counter() - started:.0f} s")
+    print(f"anchored to the keyframes (each pose moved with its keyframe's corrections since): "
+          f"ATE {absolute_trajectory_error(anchored, truth):.3f} m, revisit error RMS "
+          f"{rev_anchored.rms_m:.3f} m")
+    print(f"the odom frame: its largest step beyond the truth's "
+          f"{step_excess_mm(odom, {k: truth[k][:3, 3] for k in tracked}, tracked):.1f} mm "
+          f"({odometry.corrections} frames corrected)")
     print(f"the edge's final keyframes (archive and map, {len(final)}): ATE "
           f"{absolute_trajectory_error(final, truth):.3f} m")
     print(f"the device's matches: {1 - inliers / max(matches, 1):.1%} outliers; the edge's map "

@@ -12,6 +12,7 @@ import pytest
 from twinslam.live.tracking_quality import (
     FrameFlags,
     absolute_trajectory_error,
+    anchored_to_keyframes,
     jitter,
     jump_count,
     relative_pose_error,
@@ -120,6 +121,33 @@ def test_a_revisit_error_is_the_drift_between_two_visits_of_one_place() -> None:
     moved = {s: _pose(5.0, -2.0, 30.0) @ p for s, p in truth.items()}
     assert revisit_error(moved, truth, stamps).rms_m == pytest.approx(0.0, abs=1e-12)
     assert revisit_error(drift, truth, stamps, gap_s=31.0).pairs == 0
+
+
+def test_content_anchored_to_keyframes_follows_a_loops_correction() -> None:
+    """A walk out along x and back, the way out published 5 cm off in y (drift) until a loop
+    corrects its keyframes; the way back is tracked on the corrected map. In map coordinates
+    the first visit stays 5 cm off and the revisit error counts the correction; anchored to
+    the keyframes the first visit moves with them and the revisit agrees with the truth. A
+    keyframe that never moved anchors nothing away; a frame before every keyframe anchors to
+    the oldest."""
+    stamps = [int(i * 1e9) for i in range(40)]
+    truth = {i: _pose(0.1 * (i if i < 20 else 39 - i)) for i in range(40)}
+    drift = _pose(0.0, 0.05)
+    published = {i: drift @ truth[i] if i < 20 else truth[i] for i in range(40)}
+    out_keyframes = {k: drift @ truth[k] for k in (2, 10)}          # as published going out
+    then = {i: (out_keyframes if i < 20 else {2: truth[2], 10: truth[10]}) for i in range(40)}
+    now = {2: truth[2], 10: truth[10]}                               # after the loop
+    anchored = anchored_to_keyframes(published, then, now)
+    as_stamps = {stamps[i]: p for i, p in published.items()}
+    truth_stamps = {stamps[i]: p for i, p in truth.items()}
+    assert revisit_error(as_stamps, truth_stamps, stamps).rms_m == pytest.approx(0.05)
+    anchored_stamps = {stamps[i]: p for i, p in anchored.items()}
+    assert revisit_error(anchored_stamps, truth_stamps, stamps).rms_m == \
+        pytest.approx(0.0, abs=1e-12)
+    assert np.allclose(anchored[0], truth[0]) and np.allclose(anchored[15], truth[15])
+    unmoved = anchored_to_keyframes(published, then, {k: then[0][k] for k in (2, 10)})
+    assert all(np.allclose(unmoved[i], published[i]) for i in range(20))
+    assert np.allclose(anchored_to_keyframes({0: published[0]}, {}, now)[0], published[0])
 
 
 def test_a_place_seen_from_elsewhere_or_turned_away_from_is_no_revisit() -> None:

@@ -276,6 +276,34 @@ def revisit_error(poses: Mapping[int, np.ndarray], truth: Mapping[int, np.ndarra
                         float(np.percentile(e, 95)), int(e.size))
 
 
+def anchored_to_keyframes(poses: Mapping[int, np.ndarray],
+                          keyframes_then: Mapping[int, Mapping[int, np.ndarray]],
+                          keyframes_now: Mapping[int, np.ndarray]) -> dict[int, np.ndarray]:
+    """Each frame's camera-to-map pose (frame id → 4×4) as content anchored to a keyframe sees
+    it now: moved by that keyframe's correction since the frame was published —
+    ``keyframes_now[k] · keyframes_then[f][k]⁻¹ · pose``, where ``keyframes_then[f]`` are the
+    keyframe poses (id → camera-to-map) when frame ``f`` was published and ``k`` the newest of
+    them no later than ``f`` (ids are frame indices: the keyframe the walk made last; the
+    oldest one when all are later). A frame with no keyframe then or no anchor known now keeps
+    its pose.
+
+    ARCore's and ARKit's anchors follow the map's corrections this way. A pose kept in map
+    coordinates does not: after a loop corrected a place, a revisit of it is measured against
+    where the first visit was before the correction, and the :func:`revisit_error` of
+    published poses counts the loop's correction of the drift as if it were the drift."""
+    out: dict[int, np.ndarray] = {}
+    for f, pose in poses.items():
+        then = keyframes_then.get(f, {})
+        known = [k for k in then if k in keyframes_now]
+        if not known:
+            out[f] = np.asarray(pose)
+            continue
+        earlier = [k for k in known if k <= f]
+        k = max(earlier) if earlier else min(known)
+        out[f] = np.asarray(keyframes_now[k]) @ np.linalg.inv(then[k]) @ np.asarray(pose)
+    return out
+
+
 def step_excess_mm(positions: Mapping[int, np.ndarray], truth: Mapping[int, np.ndarray],
                    frames: Sequence[int]) -> float:
     """The largest frame-to-frame step of ``positions`` beyond the truth's step over the same

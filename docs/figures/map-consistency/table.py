@@ -30,8 +30,12 @@ KEYFRAMES = re.compile(r"final keyframes \(archive and map, (\d+)\): ATE ([\d.]+
 #: look-alike, before a pair one keyframe sees together was left out: no duplicate share)
 OUTLIERS = re.compile(r"matches: ([\d.]+)% outliers")
 DUPLICATES = re.compile(r"([\d.]+)% with a look-alike within \d+ cm no keyframe sees with it")
-FIGURES = ("ate_m", "revisit_m", "keyframe_ate_m", "untracked", "loops_closed",
-           "loops_refused", "outlier_share", "duplicate_share")
+#: the device's poses moved with their keyframes' corrections since (printed since the bench
+#: anchored them; older logs: NaN)
+ANCHORED = re.compile(r"anchored to the keyframes .*: ATE ([\d.]+) m, revisit error RMS "
+                      r"([\d.na]+) m")
+FIGURES = ("ate_m", "revisit_m", "anchored_ate_m", "anchored_revisit_m", "keyframe_ate_m",
+           "untracked", "loops_closed", "loops_refused", "outlier_share", "duplicate_share")
 
 
 def read_run(path: Path) -> dict[str, float] | None:
@@ -43,7 +47,11 @@ def read_run(path: Path) -> dict[str, float] | None:
     tracked, frames, ate, revisit, closed, refused = final.groups()
     outliers, duplicates = (float(found.group(1)) / 100 if (found := pattern.search(text))
                             else float("nan") for pattern in (OUTLIERS, DUPLICATES))
+    anchored = ANCHORED.search(text)
+    anchored_ate, anchored_revisit = ((float(anchored.group(1)), float(anchored.group(2)))
+                                      if anchored else (float("nan"), float("nan")))
     return {"ate_m": float(ate), "revisit_m": float(revisit),
+            "anchored_ate_m": anchored_ate, "anchored_revisit_m": anchored_revisit,
             "keyframe_ate_m": float(keyframes.group(2)),
             "untracked": float(int(frames) - int(tracked)), "loops_closed": float(closed),
             "loops_refused": float(refused), "outlier_share": outliers,
@@ -72,16 +80,20 @@ def main() -> None:
             for variant, by_seed in runs.items():
                 for seed, fig in sorted(by_seed.items()):
                     writer.writerow([variant, seed, *(fig[k] for k in FIGURES)])
-    print("| variant | runs | ATE (m) | revisit error (m) | the edge's final keyframes, ATE (m) "
+    print("| variant | runs | ATE (m) | revisit error (m) | anchored: ATE (m) | anchored: "
+          "revisit error (m) | the edge's final keyframes, ATE (m) "
           "| untracked frames | loops closed | loops refused | the device's outliers | "
           "map points with a look-alike |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for variant, by_seed in runs.items():
         cells = []
         for key in FIGURES:
             mean, half = mean_ci95([fig[key] for fig in by_seed.values()])
+            if not np.isfinite(mean):
+                cells.append("not counted")
+                continue
             if key.endswith("_share"):
-                cells.append(f"{mean:.1%} ± {half:.1%}" if np.isfinite(mean) else "not counted")
+                cells.append(f"{mean:.1%} ± {half:.1%}")
                 continue
             digits = 3 if key.endswith("_m") else 1
             cells.append(f"{mean:.{digits}f} ± {half:.{digits}f}")
@@ -92,15 +104,17 @@ def main() -> None:
         return
     print()
     print(f"| variant − {args.reference}, paired by seed | seeds | ATE (m) | revisit error (m) | "
-          "final keyframes, ATE (m) | the device's outliers |")
-    print("|---|---|---|---|---|---|")
+          "anchored: ATE (m) | anchored: revisit error (m) | final keyframes, ATE (m) | "
+          "the device's outliers |")
+    print("|---|---|---|---|---|---|---|---|")
     base = runs[args.reference]
     for variant, by_seed in runs.items():
         if variant == args.reference:
             continue
         seeds = sorted(set(by_seed) & set(base))
         cells = []
-        for key in ("ate_m", "revisit_m", "keyframe_ate_m", "outlier_share"):
+        for key in ("ate_m", "revisit_m", "anchored_ate_m", "anchored_revisit_m",
+                    "keyframe_ate_m", "outlier_share"):
             d = paired_difference([[by_seed[s][key] for s in seeds]],
                                   [base[s][key] for s in seeds])
             if not np.isfinite(d.mean):
