@@ -16,6 +16,7 @@ from msg_schemas.headers import time_key
 from twinslam.live.report import report
 from twinslam.live.run_log import RunLog
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
+from twinslam.slam.map_update import MapSnapshot
 from twinslam.uplink.shaper import SlotThroughput
 
 SLOT = 10
@@ -90,6 +91,44 @@ def test_the_report_counts_a_leap_jitter_refusals_and_slots_without_upload() -> 
 def _short_of(log: RunLog, slot: int, frames: int) -> None:
     """``log``'s ``slot`` with its last ``frames`` frames gone (never reached the device)."""
     del log.summaries[slot].frames[-frames:]
+
+
+def _keyframes(version: int, poses: dict[int, np.ndarray]) -> MapSnapshot:
+    """A map update of keyframes ``poses`` (id → camera-to-map) and no points."""
+    return MapSnapshot(version, np.array(list(poses), dtype=np.uint64),
+                       np.array(list(poses.values())), np.zeros(0, np.uint64),
+                       np.zeros((0, 3)), np.zeros((0, 32), np.uint8), np.zeros(0, np.uint32))
+
+
+def test_a_loop_s_correction_is_no_revisit_error_of_content_anchored_to_keyframes() -> None:
+    """A 40 s walk out along a curve and back, a frame a second. Going out the device tracks on map
+    version 1, whose keyframes (0 and 10) drifted 5 cm sideways with it; a loop then moves
+    them back (version 2), and the way back is tracked on that. In map coordinates every
+    revisit is 5 cm off; anchored to the keyframes the first visit moves with them."""
+    drift = np.eye(4)
+    drift[1, 3] = 0.05
+    truth = {i: np.eye(4) for i in range(40)}
+    for i, pose in truth.items():
+        along = i if i < 20 else 39 - i
+        pose[:2, 3] = 0.1 * along, 0.001 * along * along     # a curve: ATE can align it
+    log = RunLog()
+    for slot in range(2):
+        frames = [FrameRecord(i, float(i), drift @ truth[i] if slot == 0 else truth[i], True,
+                              np.zeros(0, np.uint64), np.zeros(0, np.uint64), slot,
+                              map_version=slot + 1)
+                  for i in range(slot * 20, (slot + 1) * 20)]
+        msg = frame_summaries_message(slot, 40.0, 0, slot + 1, frames, frames[-1].stamp)
+        log.summaries[slot] = msg
+        for f, record in zip(msg.frames, frames, strict=True):
+            log.poses[time_key(f.stamp)] = record.pose
+            log.ground_truth[time_key(f.stamp)] = truth[record.frame_id]
+        log.maps[slot] = _keyframes(slot + 1, {k: (drift if slot == 0 else np.eye(4)) @ truth[k]
+                                               for k in (0, 10)})
+    rep = report("lff", log, 40.0, 20)
+    assert rep.revisit_error_m == pytest.approx(0.05)
+    assert rep.anchored_revisit_error_m == pytest.approx(0.0, abs=1e-9)
+    log.maps[1] = _keyframes(2, {k: drift @ truth[k] for k in (0, 10)})    # no loop
+    assert report("lff", log, 40.0, 20).anchored_revisit_error_m == pytest.approx(0.05)
 
 
 def test_frames_the_player_skipped_are_not_counted_as_dropped() -> None:

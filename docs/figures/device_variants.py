@@ -75,6 +75,7 @@ USER_PAIRED = ("failed_share", "max_error_m", "ate_m", "jitter_rms_mm", "frames_
 STEADY_FIGURES = (("failed_share", "failed (played frames)", "{:.1%}"),
                   ("max_error_m", "largest error (m)", "{:.3f}"), ("ate_m", "ATE (m)", "{:.3f}"),
                   ("revisit_error_m", "revisit error (m)", "{:.3f}"),
+                  ("anchored_revisit_error_m", "revisit error, anchored (m)", "{:.3f}"),
                   ("jitter_rms_mm", "jitter RMS (mm)", "{:.1f}"),
                   ("odom_jitter_rms_mm", "odom jitter RMS (mm)", "{:.1f}"),
                   ("odom_step_excess_mm", "odom step beyond the truth's (mm)", "{:.1f}"),
@@ -87,8 +88,8 @@ STEADY_FIGURES = (("failed_share", "failed (played frames)", "{:.1%}"),
                   ("frames_uploaded", "uploads (frames)", "{:.1f}"),
                   ("device_cpu_ms", "device CPU (ms/frame)", "{:.1f}"),
                   ("frames_dropped", "dropped (frames)", "{:.0f}"))
-STEADY_PAIRED = ("max_error_m", "ate_m", "revisit_error_m", "jitter_rms_mm",
-                 "pnp_ransac_share")
+STEADY_PAIRED = ("max_error_m", "ate_m", "revisit_error_m", "anchored_revisit_error_m",
+                 "jitter_rms_mm", "pnp_ransac_share")
 
 
 def _runs(folder: Path, label: str, figures: tuple[tuple[str, str, str], ...] = FIGURES,

@@ -4,6 +4,7 @@ heard, and printed as a table."""
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -19,6 +20,7 @@ from twinslam.live.tracking_quality import (
     Jitter,
     TrackingEvents,
     absolute_trajectory_error,
+    anchored_to_keyframes,
     jitter,
     jump_count,
     relative_pose_error,
@@ -121,6 +123,11 @@ class RunReport:
     #: device's matches split between copies), over the map updates the device received
     #: (:mod:`twinslam.slam.duplicate_points`; NaN: none received)
     duplicate_share: float = math.nan
+    #: the revisit error with each published pose anchored to its keyframe, moved with the
+    #: corrections the map updates later gave that keyframe (AR anchors follow a map this
+    #: way; a loop's correction then no longer counts as the device coming back elsewhere:
+    #: :func:`~twinslam.live.tracking_quality.anchored_to_keyframes`); m, NaN: no ground truth
+    anchored_revisit_error_m: float = math.nan
 
     ROW = ("{label:<14} {mean_uncertainty:>10.1f} {lost_share:>6.1%} "
            "{tracked_uncertainty:>10.1f} {ate_m:>7.3f} "
@@ -128,7 +135,8 @@ class RunReport:
            "{untracked_frames:>6d} {failed_share:>6.1%} {tracking_failures:>5d} "
            "{relocalisations:>6d} {jumps:>5.0f} {max_error_m:>7.3f} {jitter_rms_mm:>7.1f} "
            "{truth_jitter_rms_mm:>7.1f} {odom_jitter_rms_mm:>7.1f} {odom_step_excess_mm:>7.1f} "
-           "{revisit_error_m:>7.3f} {pnp_ransac_share:>6.1%} {outlier_share:>6.1%} "
+           "{revisit_error_m:>7.3f} {anchored_revisit_error_m:>7.3f} "
+           "{pnp_ransac_share:>6.1%} {outlier_share:>6.1%} "
            "{duplicate_share:>6.1%} "
            "{restores:>6.0f} "
            "{loops_closed:>5.0f} "
@@ -140,7 +148,8 @@ class RunReport:
               f"{'RPE m':>7} "
               f"{'uploads':>7} {'MB':>7} {'Mbit/s':>7} {'untrk':>6} {'failed':>6} "
               f"{'fails':>5} {'reloc':>6} {'jumps':>5} {'max e m':>7} {'jit mm':>7} "
-              f"{'gt jit':>7} {'odo jit':>7} {'odo st':>7} {'revis m':>7} {'ransac':>6} "
+              f"{'gt jit':>7} {'odo jit':>7} {'odo st':>7} {'revis m':>7} {'anchor':>7} "
+              f"{'ransac':>6} "
               f"{'outl':>6} {'dupl':>6} "
               f"{'restor':>6} {'loops':>5} "
               f"{'recov s':>7} {'p95 s':>7} "
@@ -240,7 +249,8 @@ def report(policy: str, record: RunLog, seconds: float, slot_frames: int) -> Run
         pnp_ransac_share=pnp_ransac_share(record), loops_closed=loops_closed,
         loop_closing_ms=loop_ms, outlier_share=outlier_share(record),
         loops_refused=float(max(int(s.loops_refused) for s in stats)) if stats else math.nan,
-        duplicate_share=map_duplicate_share(record))
+        duplicate_share=map_duplicate_share(record),
+        anchored_revisit_error_m=anchored_revisit_error(record, tracked))
 
 
 def map_duplicate_share(record: RunLog) -> float:
@@ -310,6 +320,33 @@ def _revisit_cells(record: RunLog, tracked: set[int]) -> tuple[float, float]:
         return math.nan, math.nan
     revisits = revisit_error(record.poses, record.ground_truth, tracked)
     return revisits.rms_m, float(revisits.pairs)
+
+
+def anchored_revisit_error(record: RunLog, tracked: set[int]) -> float:
+    """The RMS revisit error (m) of the tracked poses anchored to the keyframes of the map
+    each frame was tracked against (the newest update of its version or before), moved as the
+    device's later map updates moved those keyframes; NaN without ground truth."""
+    if not record.ground_truth:
+        return math.nan
+    snapshots = sorted(record.maps.values(), key=lambda m: m.version)
+    versions = [m.version for m in snapshots]
+    keyframes = [dict(zip(m.keyframe_ids.tolist(), m.keyframe_poses, strict=True))
+                 for m in snapshots]
+    now: dict[int, np.ndarray] = {}
+    for poses in keyframes:
+        now.update(poses)
+    frames = {int(f.frame_id): (time_key(f.stamp), int(f.map_version))
+              for s in record.summaries.values() for f in s.frames}
+    published = {fid: record.poses[stamp] for fid, (stamp, _) in frames.items()
+                 if stamp in tracked and stamp in record.poses}
+    then: dict[int, dict[int, np.ndarray]] = {}
+    for fid in published:
+        at = bisect.bisect_right(versions, frames[fid][1]) - 1
+        if at >= 0:
+            then[fid] = keyframes[at]
+    anchored = anchored_to_keyframes(published, then, now)
+    return revisit_error({frames[fid][0]: pose for fid, pose in anchored.items()},
+                         record.ground_truth, tracked).rms_m
 
 
 def longest_without_upload(record: RunLog) -> float:
