@@ -71,6 +71,23 @@ def test_a_walk_without_drift_is_left_where_it_is() -> None:
     assert _largest_error(closed.poses, truth) < 1e-6
 
 
+def test_a_loop_measured_on_more_matches_weighs_more() -> None:
+    """Two measurements of one loop 3 cm apart (a fit's noise): the graph ends nearer the one
+    measured on 400 matches than the one measured on 50, whichever was closed first."""
+    _, estimate = _walk(20, 0.0)
+    a = np.linalg.inv(estimate[0]) @ estimate[19] @ _yaw(0.0, 0.03)
+    b = np.linalg.inv(estimate[0]) @ estimate[19] @ _yaw(0.0, -0.03)
+
+    def lands(poses: dict[int, np.ndarray]) -> float:
+        """Where the closed loop puts keyframe 19 along its x: +3 cm is a, −3 cm is b."""
+        walked = np.linalg.inv(estimate[0]) @ estimate[19]
+        return float((np.linalg.inv(walked) @ np.linalg.inv(poses[0]) @ poses[19])[0, 3])
+
+    b_stronger = close_loop(estimate, 0, 19, b, earlier=[LoopEdge(0, 19, a, 50)], inliers=400)
+    a_stronger = close_loop(estimate, 0, 19, b, earlier=[LoopEdge(0, 19, a, 400)], inliers=50)
+    assert lands(b_stronger.poses) < -0.01 and lands(a_stronger.poses) > 0.01
+
+
 def test_a_loop_must_join_two_keyframes_of_the_graph() -> None:
     _, estimate = _walk(5, 0.0)
     with pytest.raises(ValueError, match="two keyframes"):

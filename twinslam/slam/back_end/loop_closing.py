@@ -214,7 +214,7 @@ def run_job(job: LoopJob, min_gap: int = MIN_GAP,
     closure = None
     if confirmed and candidate.measured is not None and query in job.poses:
         closure = close_loop(job.poses, candidate.old, query, candidate.measured,
-                             shared_points(job), job.earlier)
+                             shared_points(job), job.earlier, candidate.inliers)
     return LoopResult(candidate, query, closure, time.perf_counter() - start)
 
 

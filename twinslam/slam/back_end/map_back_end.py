@@ -61,7 +61,7 @@ from twinslam.slam.back_end.loop_correction import correct_map, correction_for, 
 from twinslam.slam.back_end.loop_detection import MIN_GAP
 from twinslam.slam.back_end.point_culling import PointCullingConfig
 from twinslam.slam.back_end.point_fusion import fuse_restored
-from twinslam.slam.back_end.pose_graph import LoopEdge
+from twinslam.slam.back_end.pose_graph import LOOP_INLIERS_REF, LoopEdge
 from twinslam.slam.camera import has_camera
 from twinslam.slam.duplicate_points import DUPLICATE_RADIUS_M
 from twinslam.slam.keyframe import KeyFramePayload
@@ -402,7 +402,8 @@ class MapBackEnd:
                           self.config.image_shape)
         self.loops_closed += 1
         if result.candidate.measured is not None:
-            self.loop_edges.append(LoopEdge(old, result.query, result.candidate.measured))
+            self.loop_edges.append(LoopEdge(old, result.query, result.candidate.measured,
+                                            result.candidate.inliers))
         return ClosedLoop(old, result.query, result.candidate.inliers, farthest,
                           result.seconds * 1e3)
 
@@ -429,11 +430,15 @@ def _loop_arrays(edges: list[LoopEdge]) -> dict[str, np.ndarray]:
     return {"loop_old": np.array([e.old for e in edges], dtype=np.int64),
             "loop_new": np.array([e.new for e in edges], dtype=np.int64),
             "loop_measured": np.array([e.measured for e in edges],
-                                      dtype=np.float64).reshape(-1, 4, 4)}
+                                      dtype=np.float64).reshape(-1, 4, 4),
+            "loop_inliers": np.array([e.inliers for e in edges], dtype=np.int64)}
 
 
 def _loop_edges(extra: dict[str, np.ndarray]) -> list[LoopEdge]:
-    """The loops :func:`_loop_arrays` wrote (none in a checkpoint written before them)."""
+    """The loops :func:`_loop_arrays` wrote (none in a checkpoint written before them; one
+    written before loops kept their inliers: each as stiff as LOOP_INLIERS_REF's)."""
     measured = np.asarray(extra.get("loop_measured", np.zeros((0, 4, 4)))).reshape(-1, 4, 4)
-    return [LoopEdge(int(o), int(n), m) for o, n, m in
-            zip(extra.get("loop_old", []), extra.get("loop_new", []), measured, strict=True)]
+    inliers = extra.get("loop_inliers", np.full(len(measured), LOOP_INLIERS_REF))
+    return [LoopEdge(int(o), int(n), m, int(i)) for o, n, m, i in
+            zip(extra.get("loop_old", []), extra.get("loop_new", []), measured, inliers,
+                strict=True)]

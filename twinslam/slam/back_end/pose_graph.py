@@ -42,8 +42,15 @@ from gtsam.symbol_shorthand import X
 #: σ of a walk's step (rad for the three rotations, m for the three translations): what the
 #: tracker's relative motion between two keyframes is trusted to
 STEP_SIGMAS = (0.01, 0.01, 0.01, 0.02, 0.02, 0.02)
-#: σ of the loop's measured relative pose: a PnP solve against the old place's points
+#: σ of a loop's measured relative pose (a 3D–3D fit of the two keyframes' matched points) on
+#: LOOP_INLIERS_REF inliers; fewer loosen it by √(LOOP_INLIERS_REF / inliers), more stiffen it
+#: (a fit's information grows with its points): on the real revisit walk loops of 50-100
+#: inliers came out 1.0° off the truth's relative pose on average, those of 200 and more 0.4°
+#: (docs/results/map-consistency.md)
 LOOP_SIGMAS = (0.005, 0.005, 0.005, 0.01, 0.01, 0.01)
+LOOP_INLIERS_REF = 200
+#: the stiffest and the loosest a loop gets: LOOP_SIGMAS times these
+LOOP_SCALE_RANGE = (0.5, 3.0)
 #: the Cauchy kernel's width on loop factors, in σ: a loop the others and the walk contradict
 #: by many σ pulls with a bounded force instead of one growing with its error (COVINS closes
 #: its loops under a Cauchy loss)
@@ -65,6 +72,12 @@ class LoopEdge:
     old: int
     new: int
     measured: np.ndarray
+    inliers: int = LOOP_INLIERS_REF       #: the matches the measurement was fitted to
+
+
+def loop_scale(inliers: int) -> float:
+    """How much looser than LOOP_SIGMAS a loop measured on ``inliers`` matches is."""
+    return float(np.clip(np.sqrt(LOOP_INLIERS_REF / max(inliers, 1)), *LOOP_SCALE_RANGE))
 
 
 def step_scale(shared: int) -> float:
@@ -84,13 +97,15 @@ class LoopClosure:
 
 def close_loop(poses: Mapping[int, np.ndarray], old: int, new: int,
                measured: np.ndarray, shared: Mapping[tuple[int, int], int] | None = None,
-               earlier: Sequence[LoopEdge] = ()) -> LoopClosure:
+               earlier: Sequence[LoopEdge] = (), inliers: int = LOOP_INLIERS_REF
+               ) -> LoopClosure:
     """The keyframe ``poses`` (id → camera-to-map, every keyframe of the walk) after closing
     the loop between keyframe ``old`` and keyframe ``new``, whose relative pose old⁻¹ · new
     was ``measured``; the oldest keyframe holds still. ``shared``: the map points pairs of
     keyframes (a, b), a < b, share — each pair of consecutive keyframes, and the covisible
     others (without: every step as stiff as STEP_SIGMAS, no covisibility factor).
-    ``earlier``: the loops closed before (those whose two keyframes are in ``poses`` hold)."""
+    ``earlier``: the loops closed before (those whose two keyframes are in ``poses`` hold).
+    ``inliers``: the matches the new loop was measured on (how stiff its factor is)."""
     ids = sorted(poses)
     if old not in poses or new not in poses or old == new:
         raise ValueError(f"a loop joins two keyframes of the graph, got {old} and {new}")
@@ -108,11 +123,12 @@ def close_loop(poses: Mapping[int, np.ndarray], old: int, new: int,
         scale = 1.0 if shared is None else step_scale(shared.get((a, b), 0))
         step = gtsam.noiseModel.Diagonal.Sigmas(scale * np.array(STEP_SIGMAS))
         graph.add(gtsam.BetweenFactorPose3(X(a), X(b), gtsam.Pose3(relative), step))
-    loop_noise = gtsam.noiseModel.Robust.Create(
-        gtsam.noiseModel.mEstimator.Cauchy.Create(LOOP_CAUCHY),
-        gtsam.noiseModel.Diagonal.Sigmas(np.array(LOOP_SIGMAS)))
-    for edge in [*earlier, LoopEdge(old, new, measured)]:
+    for edge in [*earlier, LoopEdge(old, new, measured, inliers)]:
         if edge.old in poses and edge.new in poses:
+            loop_noise = gtsam.noiseModel.Robust.Create(
+                gtsam.noiseModel.mEstimator.Cauchy.Create(LOOP_CAUCHY),
+                gtsam.noiseModel.Diagonal.Sigmas(loop_scale(edge.inliers)
+                                                 * np.array(LOOP_SIGMAS)))
             graph.add(gtsam.BetweenFactorPose3(X(edge.old), X(edge.new),
                                                gtsam.Pose3(np.asarray(edge.measured)),
                                                loop_noise))
