@@ -248,9 +248,9 @@ def main() -> None:
                     odom[frame.index] = in_odom[:3, 3]
                     tracked.append(frame.index)
                     slot_of[frame.index] = len(keyframes_then)
-            if result.record.tracked and not result.record.relocalised:
-                matches += result.record.matches
-                inliers += result.record.inliers
+            if record.tracked and not record.relocalised:
+                matches += record.matches
+                inliers += record.inliers
             if not result.slot_done:
                 continue
             state, rate = channel.step()

@@ -123,7 +123,8 @@ def test_the_loop_corrected_map_and_archive_survive_a_restart(tmp_path: Path) ->
     assert out is not None and out.loop is not None
     again = _edge(loops=True, checkpoint=checkpoint)
     assert again.loops_closed == 1
-    assert [(e.old, e.new) for e in again.loop_edges] == [(out.loop.old, out.loop.new)]
+    assert [(e.old, e.new, e.inliers) for e in again.loop_edges] == \
+        [(out.loop.old, out.loop.new, out.loop.inliers)]    # as stiff as it was measured
     np.testing.assert_allclose(again.loop_edges[0].measured, core.loop_edges[0].measured)
     for k, kf in core.map.keyframes.items():
         np.testing.assert_allclose(again.map.keyframes[k].pose, kf.pose, atol=1e-9)
