@@ -310,14 +310,14 @@ def main() -> None:
         final.update({k: kf.pose for k, kf in edge.map.keyframes.items()})
     ate = absolute_trajectory_error(poses, truth)
     stamps = {stamp_ns[k]: k for k in tracked}
-    rev = revisit_error({s: poses[k] for s, k in stamps.items()},
-                        {s: truth[k] for s, k in stamps.items()}, stamps)
+    truth_by_stamp = {s: truth[k] for s, k in stamps.items()}
+    rev = revisit_error({s: poses[k] for s, k in stamps.items()}, truth_by_stamp, stamps)
     last = len(keyframes_then) - 1
     anchored = anchored_to_keyframes({k: poses[k] for k in tracked},
                                      {k: keyframes_then[min(slot_of[k], last)] for k in tracked},
                                      final)
-    rev_anchored = revisit_error({s: anchored[k] for s, k in stamps.items()},
-                                 {s: truth[k] for s, k in stamps.items()}, stamps)
+    rev_anchored = revisit_error({s: anchored[k] for s, k in stamps.items()}, truth_by_stamp,
+                                 stamps)
     print(f"{len(tracked)} of {len(truth)} frames tracked, ATE {ate:.3f} m, revisit error "
           f"RMS {rev.rms_m:.3f} m ({rev.pairs} pairs), loops {edge.loops_closed} closed "
           f"{edge.loops_refused} refused, {time.perf_counter() - started:.0f} s")
