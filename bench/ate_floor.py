@@ -54,6 +54,7 @@ from twinslam.sequences.frame import SequenceError
 from twinslam.sequences.opening import open_sequence
 from twinslam.slam.back_end.bundle_adjustment import Observation, bundle_adjust, reprojection_sq
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
+from twinslam.slam.back_end.map_back_end import BackEndConfig
 from twinslam.slam.front_end.tracking import TrackingConfig
 from twinslam.slam.projection_matching import match_by_projection, visible_points
 
@@ -237,7 +238,7 @@ def main() -> None:
                         help="frames apart two keyframes must be for loop fusion to merge "
                         "their points (nearer ones the edge's local mapping associates "
                         "already)")
-    parser.add_argument("--baseline-m", type=float, default=EdgeConfig().baseline_m,
+    parser.add_argument("--baseline-m", type=float, default=BackEndConfig().baseline_m,
                         metavar="B", help="the virtual stereo baseline the offline adjustments "
                         "weigh a depth reading with (the edge's; larger: depth counts more, "
                         "one pixel of disparity being a smaller depth error)")

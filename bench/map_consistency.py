@@ -64,7 +64,7 @@ from device_tracker.device_core import DeviceTrackerCore
 from device_tracker.odometry_frame import OdometryFrame
 from device_tracker.parameters import PARAMETERS as DEVICE_PARAMETERS
 from device_tracker.parameters import DeviceSettings
-from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore
+from edge_mapper.edge_core import EdgeMapperCore
 from edge_mapper.parameters import PARAMETERS as EDGE_PARAMETERS
 from edge_mapper.parameters import edge_config
 from twinslam.cli.console import HelpFormatter
@@ -83,6 +83,7 @@ from twinslam.rotations import rotation_angle_deg
 from twinslam.sequence_player.playback import ORDERS, Playback, PlayedSequence
 from twinslam.sequences.opening import AUTO, open_sequence
 from twinslam.slam.back_end.loop_closing import LoopResult
+from twinslam.slam.back_end.map_back_end import BackEndConfig
 from twinslam.slam.duplicate_points import DUPLICATE_RADIUS_M, duplicate_share
 from twinslam.slam.projection_matching import back_project
 from twinslam.slot_protocol import default_device
@@ -163,13 +164,13 @@ def main() -> None:
                         help="frames of the next slot the device tracks before the map update "
                              "reaches it (default 8: the default device's D_req of 0.25 s, as "
                              "a live update arrives; 0: at once)")
-    parser.add_argument("--ba-window", type=int, default=EdgeConfig().ba_window,
+    parser.add_argument("--ba-window", type=int, default=BackEndConfig().ba_window,
                         help="keyframes the edge's local bundle adjustment moves (0: none)")
     parser.add_argument("--point-culling", action=argparse.BooleanOptionalAction,
-                        default=EdgeConfig().point_culling,
+                        default=BackEndConfig().point_culling,
                         help="the edge removes map points later keyframes never find again")
     parser.add_argument("--integration-fusion", action=argparse.BooleanOptionalAction,
-                        default=EdgeConfig().integration_fusion,
+                        default=BackEndConfig().integration_fusion,
                         help="a new keyframe's feature beside a map point that looks alike "
                              "observes it instead of making a copy")
     parser.add_argument("--every", type=int, default=10, help="print every N slots")
@@ -195,7 +196,9 @@ def main() -> None:
                        integration_fusion=args.integration_fusion)
     if args.vmax is not None:
         edge_params["vmax"] = args.vmax
-    config = dataclasses.replace(edge_config(edge_params), loop_background=False)
+    config = edge_config(edge_params)
+    config = dataclasses.replace(config, back_end=dataclasses.replace(config.back_end,
+                                                                      loop_background=False))
     family = uplink_family(args.uplink)
     channel = parse_channel(family.channel, family.rate_mbps or (5.0, 45.0), seed=args.seed,
                             slot_seconds=settings.slot_frames / settings.frame_rate_hz)

@@ -29,6 +29,7 @@ from twinslam.live.run_log import RunLog
 from twinslam.live.tracking_quality import absolute_trajectory_error
 from twinslam.policies.registry import make_policy
 from twinslam.sequences.opening import open_sequence
+from twinslam.slam.back_end.map_back_end import BackEndConfig
 from twinslam.uplink.channels import parse_channel
 
 DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes-1000"
@@ -40,11 +41,11 @@ def main() -> None:
                         help="RGB-D sequence folder (default: the bundled 7-Scenes sample)")
     parser.add_argument("--frames", type=int, default=600, help="frames to play")
     parser.add_argument("--policy", default="adapt", help="the edge's policy")
-    parser.add_argument("--ba-window", type=int, default=EdgeConfig().ba_window,
+    parser.add_argument("--ba-window", type=int, default=BackEndConfig().ba_window,
                         help="newest keyframes the local bundle adjustment optimises")
-    parser.add_argument("--ba-iterations", type=int, default=EdgeConfig().ba_iterations,
+    parser.add_argument("--ba-iterations", type=int, default=BackEndConfig().ba_iterations,
                         help="Gauss-Newton steps per adjustment")
-    parser.add_argument("--ba-points", type=int, default=EdgeConfig().ba_points,
+    parser.add_argument("--ba-points", type=int, default=BackEndConfig().ba_points,
                         help="map points the adjustment takes at most, most observed first")
     args = parser.parse_args()
     cv2.setNumThreads(1)
@@ -58,8 +59,9 @@ def main() -> None:
     parts: dict[str, list[float]] = {"plan": [], "integrate": [], "finish": [], "optimise": [],
                                      "checkpoint": [], "uncertainty": []}
     with tempfile.TemporaryDirectory() as tmp:
-        config = EdgeConfig(ba_window=args.ba_window, ba_iterations=args.ba_iterations,
-                            ba_points=args.ba_points)
+        config = EdgeConfig(back_end=BackEndConfig(ba_window=args.ba_window,
+                                                  ba_iterations=args.ba_iterations,
+                                                  ba_points=args.ba_points))
         edge = EdgeMapperCore(make_policy(args.policy), reader.intrinsics, config,
                               Path(tmp) / "edge.npz")
         for frame in reader:

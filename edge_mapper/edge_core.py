@@ -43,24 +43,21 @@ from twinslam.policies.protocol import MapPolicy
 from twinslam.slam.back_end.archive_relocalisation import ArchiveLocation
 from twinslam.slam.back_end.bundle_adjustment import BundleAdjustmentResult
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
-from twinslam.slam.back_end.keyframe_gate import KeyFrameGateConfig
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.back_end.local_mapping import IntegrationReport, LocalMapping
-from twinslam.slam.back_end.loop_closing import CONFIRMATIONS, LoopCloser
-from twinslam.slam.back_end.loop_detection import MIN_GAP
+from twinslam.slam.back_end.loop_closing import LoopCloser
 from twinslam.slam.back_end.map_back_end import BackEndConfig, ClosedLoop, MapBackEnd
 from twinslam.slam.back_end.pose_graph import LoopEdge
 from twinslam.slam.camera import has_camera
 from twinslam.slam.keyframe import KeyFramePayload
-from twinslam.slot_protocol import default_device
 from twinslam.uncertainty.map_uncertainty import map_uncertainty
 
 
 @dataclass(frozen=True)
 class EdgeConfig:
     """The edge's settings for one device: the slot's, which keyframes come back when, and the
-    map's life — the fields :class:`~twinslam.slam.back_end.map_back_end.BackEndConfig` has,
-    of the same names and meanings (documented there), handed to the back end as they are."""
+    map's life (:class:`~twinslam.slam.back_end.map_back_end.BackEndConfig`, handed to the
+    back end as it is)."""
 
     slot: SlotConfig = field(default_factory=SlotConfig)
     #: archived keyframes brought back a slot at most, where the camera is heading
@@ -72,28 +69,8 @@ class EdgeConfig:
     #: frames, 3 seeds) it lost more frames than without (15.0 % / 16.4 % of next-slot frames
     #: with 3 / 15 against 10.8 %, every seed; BENCHMARKS.md)
     reloc_restore_keyframes: int = 0
-    # -- the map's life (BackEndConfig) --
-    ba_window: int = default_device.BA_WINDOW
-    ba_iterations: int = 3
-    ba_points: int | None = 120
-    baseline_m: float = 0.08
-    image_shape: tuple[int, int] = (480, 640)
-    archive_keyframes: int = 500
-    point_fusion: bool = True
-    point_culling: bool = False
-    integration_fusion: bool = False
-    reloc_min_inliers: int = 20
-    keyframe_gate: KeyFrameGateConfig = field(default_factory=KeyFrameGateConfig)
-    loop_closing: bool = False
-    loop_background: bool = True
-    loop_min_gap: int = MIN_GAP
-    loop_confirmations: int = CONFIRMATIONS
-
-    def back_end(self) -> BackEndConfig:
-        """The map's life's settings (:class:`MapBackEnd`): this config's fields of
-        BackEndConfig's names."""
-        return BackEndConfig(**{f.name: getattr(self, f.name)
-                                for f in dataclasses.fields(BackEndConfig)})
+    #: the map's life: bundle adjustment, archive, fusion, culling, the keyframe gate, loops
+    back_end: BackEndConfig = field(default_factory=BackEndConfig)
 
 
 @dataclass
@@ -140,7 +117,7 @@ class EdgeMapperCore:
                  n_states: int = 2) -> None:
         self.config = config or EdgeConfig()
         self.checkpoint = Path(checkpoint) if checkpoint else None
-        self.back_end = MapBackEnd(self.config.back_end(), intrinsics, self.checkpoint)
+        self.back_end = MapBackEnd(self.config.back_end, intrinsics, self.checkpoint)
         extra = self.back_end.extra
         self.version = int(extra.get("version", 0))
         self.last_slot = int(extra.get("last_slot", -1))
@@ -222,7 +199,8 @@ class EdgeMapperCore:
         A copy of ``policy`` decides, so one that learns from its slots (``mpc``'s rate twin)
         starts the real run from nothing."""
         core = EdgeMapperCore(copy.deepcopy(policy), None,
-                              EdgeConfig(slot=SlotConfig(vmax=3), ba_window=WARM_UP_BA_WINDOW))
+                              EdgeConfig(slot=SlotConfig(vmax=3),
+                                         back_end=BackEndConfig(ba_window=WARM_UP_BA_WINDOW)))
         for kf in range(3):
             core.map.add_keyframe(kf, np.eye(4))
         for p in range(40):
@@ -256,9 +234,8 @@ class EdgeMapperCore:
     def set_bundle_adjustment(self, window: int, points: int | None) -> None:
         """The local bundle adjustment from the next slot on: ``window`` newest keyframes (0:
         none), at most ``points`` points (an edge over its compute budget trims it,
-        :mod:`edge_mapper.compute_governor`)."""
-        self.config = dataclasses.replace(self.config, ba_window=max(0, int(window)),
-                                          ba_points=points)
+        :mod:`edge_mapper.compute_governor`; ``config.back_end`` is only what the core
+        started with, the back end's own config holds the adjustment now)."""
         self.back_end.set_bundle_adjustment(window, points)
 
     def set_vmax(self, vmax: int) -> None:
@@ -275,8 +252,9 @@ class EdgeMapperCore:
             raise ValueError(f"slot {slot} is planned already and still open")
         frames = [self._resolve_tracks(f) for f in frames]
         leaving = {kf for action, _ in self.pending.values() for kf in action.evict}
+        camera = (self.k, self.config.back_end.image_shape)
         plan = self.planner.plan(slot, frames, rate_mbps, rate_state, self.rate_history,
-                                 self._arriving, leaving, (self.k, self.config.image_shape))
+                                 self._arriving, leaving, camera)
         self.pending[slot] = (plan.action, set())
         self._planned_vmax[slot] = self.planner.config.vmax
         self._last_heading = self._headings[slot] = heading(frames) or self._last_heading
@@ -426,11 +404,11 @@ class EdgeMapperCore:
             return [], [], [], 0
         if relocalised and self.config.reloc_restore_keyframes > 0:
             chosen = plan_relocation_restores(self.map, self.archive, relocalised, self.k,
-                                              self.config.image_shape, vmax,
+                                              self.config.back_end.image_shape, vmax,
                                               self.config.reloc_restore_keyframes, slot, received)
         elif self.config.restore_keyframes > 0 and poses:
             chosen = plan_restores(self.map, self.archive, poses, self.k,
-                                   self.config.image_shape, vmax,
+                                   self.config.back_end.image_shape, vmax,
                                    self.config.restore_keyframes, slot, received)
         else:
             return [], [], [], 0

@@ -70,7 +70,8 @@ class EdgeMapperNode(Node):
         self.refused: set[str] = set()         #: devices the budget had no room for (said once)
         config = self.settings.config
         self.governor = ComputeGovernor(float(p["compute_budget"]),
-                                        levels=levels_within(config.ba_window, config.ba_points))
+                                        levels=levels_within(config.back_end.ba_window,
+                                                             config.back_end.ba_points))
         try:
             if self.several and int(p["vmax_total"]) > 0:
                 self.budget = KeyframeBudget(

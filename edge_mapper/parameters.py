@@ -24,6 +24,7 @@ from edge_mapper.slot_planner import SlotConfig
 from msg_schemas import topics
 from twinslam.allocation.allocators import ALLOCATORS
 from twinslam.node_runtime.parameters import ParamSpec
+from twinslam.slam.back_end.map_back_end import BackEndConfig
 from twinslam.slot_protocol import default_device, table1
 
 
@@ -146,15 +147,16 @@ def edge_config(p: Mapping[str, Any]) -> EdgeConfig:
     return EdgeConfig(slot=SlotConfig(vmax=int(p["vmax"]), alpha_mbit=float(p["alpha_mbit"]),
                                       d_req_s=float(p["d_req_s"]),
                                       progress=bool(p["progress_uploads"])),
-                      ba_window=int(p["ba_window"]),
-                      archive_keyframes=int(p["archive_keyframes"]),
                       restore_keyframes=int(p["restore_keyframes"]),
-                      point_fusion=bool(p["point_fusion"]),
-                      point_culling=bool(p["point_culling"]),
-                      integration_fusion=bool(p["integration_fusion"]),
-                      loop_closing=bool(p["loop_closing"]),
                       reloc_restore_keyframes=int(p["reloc_restore_keyframes"]),
-                      image_shape=(int(p["image_height"]), int(p["image_width"])))
+                      back_end=BackEndConfig(
+                          ba_window=int(p["ba_window"]),
+                          archive_keyframes=int(p["archive_keyframes"]),
+                          point_fusion=bool(p["point_fusion"]),
+                          point_culling=bool(p["point_culling"]),
+                          integration_fusion=bool(p["integration_fusion"]),
+                          loop_closing=bool(p["loop_closing"]),
+                          image_shape=(int(p["image_height"]), int(p["image_width"]))))
 
 
 def link_settings(p: Mapping[str, Any]) -> LinkSettings:

@@ -51,7 +51,7 @@ def test_a_core_without_bundle_adjustment_still_finishes_its_slots() -> None:
     out = core.finish_slot(0)
     assert out.bundle_adjustment is None and out.version == 1
     core.set_bundle_adjustment(*(LEVELS[0].window, LEVELS[0].points))
-    assert core.config.ba_window == 5 and core.config.ba_points == 120
+    assert core.back_end.config.ba_window == 5 and core.back_end.config.ba_points == 120
 
 
 def test_a_budget_never_turns_on_an_adjustment_the_edge_was_told_not_to_run() -> None:

@@ -13,7 +13,7 @@ from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, applied_evictions
 from edge_mapper.planning_world import visible_points
 from edge_mapper.slot_planner import FrameObservations, SlotConfig
 from twinslam.policies.registry import make_policy
-from twinslam.slam.back_end.map_back_end import archive_folder
+from twinslam.slam.back_end.map_back_end import BackEndConfig, archive_folder
 from twinslam.slam.keyframe import TRACK_ID_BIT, KeyFramePayload, is_track_id
 
 K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
@@ -79,7 +79,7 @@ def _run(core: EdgeMapperCore, device: Device, slots: range, rates: list[float])
 def test_edge_slot_loop_keeps_vmax_optimises_and_resumes(tmp_path: Path) -> None:
     rng = np.random.default_rng(0)
     device = Device(rng)
-    config = EdgeConfig(slot=SlotConfig(vmax=10), ba_window=6)
+    config = EdgeConfig(slot=SlotConfig(vmax=10), back_end=BackEndConfig(ba_window=6))
     ckpt = tmp_path / "edge.npz"
     core = EdgeMapperCore(make_policy("lff"), K, config, ckpt)
     outcomes = _run(core, device, range(6), rates=[40.0, 80.0])
@@ -123,7 +123,8 @@ def test_evicted_keyframes_are_archived_with_their_points_and_survive_a_restart(
     the least recently useful leaving past ``archive_keyframes``; a restarted edge has the
     same archive; with ``archive_keyframes`` 0 an evicted keyframe is forgotten."""
     device = Device(np.random.default_rng(1))
-    config = EdgeConfig(slot=SlotConfig(vmax=8), archive_keyframes=6)
+    config = EdgeConfig(slot=SlotConfig(vmax=8),
+                        back_end=BackEndConfig(archive_keyframes=6))
     ckpt = tmp_path / "edge.npz"
     core = EdgeMapperCore(make_policy("lff"), K, config, ckpt)
     seen: dict[int, tuple[np.ndarray, dict[int, np.ndarray], dict[int, tuple]]] = {}
@@ -157,8 +158,8 @@ def test_evicted_keyframes_are_archived_with_their_points_and_survive_a_restart(
     ckpt.unlink()
     assert len(EdgeMapperCore(make_policy("lff"), K, config, ckpt).archive) == 0
     assert not list(archive_folder(ckpt).glob("keyframe-*.npz"))
-    forgetful = EdgeMapperCore(make_policy("lff"), K, EdgeConfig(slot=SlotConfig(vmax=8),
-                                                                 archive_keyframes=0))
+    forgetful = EdgeMapperCore(make_policy("lff"), K, EdgeConfig(
+        slot=SlotConfig(vmax=8), back_end=BackEndConfig(archive_keyframes=0)))
     outs = _run(forgetful, Device(np.random.default_rng(1)), range(8), rates=[80.0])
     assert len(forgetful.archive) == 0
     assert [k for o in outs for k in o.forgotten] == [k for o in outs for k in o.evicted]
@@ -253,7 +254,7 @@ def _returning_walk_edge(turn: int) -> tuple[ReturningDevice, EdgeMapperCore]:
     return (ReturningDevice(np.random.default_rng(3), turn),
             EdgeMapperCore(make_policy("lff"), K, EdgeConfig(slot=SlotConfig(vmax=4),
                                                              restore_keyframes=2,
-                                                             ba_window=5)))
+                                                             back_end=BackEndConfig(ba_window=5))))
 
 
 def _plan_and_upload(core: EdgeMapperCore, device: ReturningDevice, slot: int) -> None:

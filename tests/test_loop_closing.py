@@ -19,6 +19,7 @@ from twinslam.policies.registry import make_policy
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive
 from twinslam.slam.back_end.keyframe_gate import KeyFrameGateConfig
 from twinslam.slam.back_end.loop_closing import LoopCloser, LoopJob, LoopQuery
+from twinslam.slam.back_end.map_back_end import BackEndConfig
 from twinslam.slam.keyframe import KeyFramePayload
 from twinslam.slam.pose_plausibility import MotionBounds
 
@@ -46,10 +47,10 @@ def _edge(loops: bool, checkpoint: Path | None = None, reach_m: float | None = N
     gate = KeyFrameGateConfig() if reach_m is None else \
         KeyFrameGateConfig(dataclasses.replace(MotionBounds(), correction_m=reach_m))
     return EdgeMapperCore(make_policy("lff"), K,
-                          EdgeConfig(slot=SlotConfig(vmax=4), loop_closing=loops,
-                                     loop_background=False, loop_min_gap=40,
-                                     loop_confirmations=confirmations,
-                                     keyframe_gate=gate), checkpoint)
+                          EdgeConfig(slot=SlotConfig(vmax=4), back_end=BackEndConfig(
+                              loop_closing=loops, loop_background=False, loop_min_gap=40,
+                              loop_confirmations=confirmations, keyframe_gate=gate)),
+                          checkpoint)
 
 
 def _errors(core: EdgeMapperCore, device: ReturningDevice) -> dict[int, float]:
@@ -168,8 +169,8 @@ def test_archive_and_map_agree_after_evictions_restores_and_a_loop() -> None:
     for loops in (True, False):
         device = DriftingDevice(np.random.default_rng(3), 8 * F)
         core = EdgeMapperCore(make_policy("lff"), K, EdgeConfig(
-            slot=SlotConfig(vmax=4), loop_closing=loops, loop_background=False,
-            loop_min_gap=40, restore_keyframes=2))
+            slot=SlotConfig(vmax=4), restore_keyframes=2, back_end=BackEndConfig(
+                loop_closing=loops, loop_background=False, loop_min_gap=40)))
         outs = [_run(core, device, range(slot, slot + 1), rates=[20.0])[0]
                 for slot in range(16)]
         assert any(o.restored for o in outs) and any(o.evicted for o in outs)

@@ -17,6 +17,7 @@ from edge_mapper.slot_planner import SlotConfig
 from tests.test_edge_core import Device, F, K
 from twinslam.policies.registry import make_policy
 from twinslam.sequences.synthetic import SyntheticSequence
+from twinslam.slam.back_end.map_back_end import BackEndConfig
 from twinslam.slam.map_update import MapSnapshot
 from twinslam.slam.pose_plausibility import MotionBounds, implausible_speed, implausible_step
 
@@ -125,7 +126,7 @@ def test_a_relocalisation_answer_metres_off_is_refused() -> None:
 def _edge(vmax: int = 10) -> tuple[EdgeMapperCore, Device]:
     device = Device(np.random.default_rng(3))
     core = EdgeMapperCore(make_policy("lff"), K, EdgeConfig(slot=SlotConfig(vmax=vmax),
-                                                            ba_window=5))
+                                                            back_end=BackEndConfig(ba_window=5)))
     for slot in range(3):
         frames = [device.summary(f, core) for f in range(slot * F, (slot + 1) * F)]
         plan = core.plan(slot, frames, 80.0, 1)

@@ -65,6 +65,7 @@ from twinslam.slam.back_end.pose_graph import LOOP_INLIERS_REF, LoopEdge
 from twinslam.slam.camera import has_camera
 from twinslam.slam.duplicate_points import DUPLICATE_RADIUS_M
 from twinslam.slam.keyframe import KeyFramePayload
+from twinslam.slot_protocol import default_device
 
 #: integrated keyframes a loop job looks from at most (the newest)
 LOOP_QUERIES = 3
@@ -78,7 +79,7 @@ class BackEndConfig:
     """How the map lives (the edge's parameters of the same names)."""
 
     #: newest keyframes the local bundle adjustment moves, the rest fixed (0: none)
-    ba_window: int = 0
+    ba_window: int = default_device.BA_WINDOW
     ba_iterations: int = 3           #: Gauss–Newton steps (see bundle_adjustment)
     #: points in the local BA at most, most observed first: 120-300 gave the same device ATE
     #: (0.034 m on 600 7-Scenes frames) as all 2-4 k, at 33-70 ms instead of ~200 ms
