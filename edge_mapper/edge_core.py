@@ -48,7 +48,7 @@ from twinslam.slam.back_end.local_mapping import IntegrationReport, LocalMapping
 from twinslam.slam.back_end.loop_closing import LoopCloser
 from twinslam.slam.back_end.map_back_end import BackEndConfig, ClosedLoop, MapBackEnd
 from twinslam.slam.back_end.pose_graph import LoopEdge
-from twinslam.slam.camera import has_camera
+from twinslam.slam.camera import Camera
 from twinslam.slam.keyframe import KeyFramePayload
 from twinslam.uncertainty.map_uncertainty import map_uncertainty
 
@@ -162,6 +162,11 @@ class EdgeMapperCore:
         return self.back_end.k
 
     @property
+    def camera(self) -> Camera:
+        """The device's camera as the edge knows it (:attr:`MapBackEnd.camera`)."""
+        return self.back_end.camera
+
+    @property
     def local_mapping(self) -> LocalMapping:
         return self.back_end.local_mapping
 
@@ -252,9 +257,8 @@ class EdgeMapperCore:
             raise ValueError(f"slot {slot} is planned already and still open")
         frames = [self._resolve_tracks(f) for f in frames]
         leaving = {kf for action, _ in self.pending.values() for kf in action.evict}
-        camera = (self.k, self.config.back_end.image_shape)
         plan = self.planner.plan(slot, frames, rate_mbps, rate_state, self.rate_history,
-                                 self._arriving, leaving, camera)
+                                 self._arriving, leaving, self.camera)
         self.pending[slot] = (plan.action, set())
         self._planned_vmax[slot] = self.planner.config.vmax
         self._last_heading = self._headings[slot] = heading(frames) or self._last_heading
@@ -400,15 +404,14 @@ class EdgeMapperCore:
         least of that view (into the archive in its turn); (restored, evicted for them,
         forgotten by the archive to make room for those, points fused); the map stays within
         ``vmax``."""
-        if not has_camera(self.k):
+        camera = self.camera
+        if not camera.known:
             return [], [], [], 0
         if relocalised and self.config.reloc_restore_keyframes > 0:
-            chosen = plan_relocation_restores(self.map, self.archive, relocalised, self.k,
-                                              self.config.back_end.image_shape, vmax,
+            chosen = plan_relocation_restores(self.map, self.archive, relocalised, camera, vmax,
                                               self.config.reloc_restore_keyframes, slot, received)
         elif self.config.restore_keyframes > 0 and poses:
-            chosen = plan_restores(self.map, self.archive, poses, self.k,
-                                   self.config.back_end.image_shape, vmax,
+            chosen = plan_restores(self.map, self.archive, poses, camera, vmax,
                                    self.config.restore_keyframes, slot, received)
         else:
             return [], [], [], 0
@@ -424,7 +427,7 @@ class EdgeMapperCore:
         if self.config.reloc_restore_keyframes <= 0:
             return ArchiveLocation(None, 0, -1, (), "the edge does not relocalise devices "
                                    "(reloc_restore_keyframes is 0)")
-        if not has_camera(self.k):
+        if not self.camera.known:
             return ArchiveLocation(None, 0, -1, (), "no keyframe has told the edge the camera yet")
         found = self.back_end.relocalise(points_xy, descriptors, self.last_slot + 1)
         if found.pose is not None:

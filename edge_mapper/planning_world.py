@@ -41,8 +41,8 @@ from twinslam.policies.delayed import DelayedPolicy
 from twinslam.policies.mpc import MpcConfig, MpcPlanner
 from twinslam.policies.protocol import MapPolicy
 from twinslam.policies.world_model import MapManagementEnv, SimConfig
-from twinslam.slam.camera import has_camera
-from twinslam.slam.projection_matching import visible_points as projected_points
+from twinslam.slam.camera import Camera
+from twinslam.slam.projection_matching import visible_points
 from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
 
 #: farther than this a map point is taken to be out of an RGB-D camera's view (7-Scenes' and
@@ -80,19 +80,20 @@ def extrapolate(poses: Sequence[np.ndarray], positions: Sequence[int], ahead: Se
     return [last @ np.real(expm(twist * n)) for n in ahead]
 
 
-def visible_points(positions: np.ndarray, pose: np.ndarray, intrinsics: np.ndarray,
-                   image_shape: tuple[int, int], max_depth_m: float = MAX_DEPTH_M
-                   ) -> np.ndarray:
-    """Which of the map points at ``positions`` (N×3, map frame) project into the image of a
-    camera at ``pose`` (camera-to-map), in front of it and nearer than ``max_depth_m``: the
-    front end's visibility test (:func:`twinslam.slam.projection_matching.visible_points`, one
-    kernel for the device, the edge's mapping, its restores and its planner), as a mask."""
+def visible_mask(positions: np.ndarray, pose: np.ndarray, camera: Camera,
+                 max_depth_m: float = MAX_DEPTH_M) -> np.ndarray:
+    """Which of the map points at ``positions`` (N×3, map frame) project into the image of
+    ``camera`` at ``pose`` (camera-to-map), in front of it and nearer than ``max_depth_m``, as
+    a mask: the front end's visibility test
+    (:func:`twinslam.slam.projection_matching.visible_points`, which answers the ids and
+    pixels of the active points; one kernel for the device, the edge's mapping, its restores
+    and its planner)."""
     mask = np.zeros(len(positions), dtype=bool)
     if positions.size == 0:
         return mask
-    ids, _ = projected_points(np.asarray(positions, dtype=np.float64),
-                              np.ones(len(positions), dtype=bool), pose, intrinsics,
-                              image_shape, (1e-3, max_depth_m))
+    ids, _ = visible_points(np.asarray(positions, dtype=np.float64),
+                            np.ones(len(positions), dtype=bool), pose, camera.intrinsics,
+                            camera.shape, (1e-3, max_depth_m))
     mask[ids] = True
     return mask
 
@@ -105,7 +106,7 @@ def predict_frames(view: SlotView, slots: int, max_depth_m: float = MAX_DEPTH_M
     slot's last frame saw."""
     frames, n = view.frames, len(view.frames)
     posed = [(i, f) for i, f in enumerate(frames) if f.tracked and f.pose is not None]
-    if not posed or not has_camera(view.intrinsics):
+    if not posed or not view.camera.known:
         last = view.points_of(frames[-1].frame_id)
         return [last.copy() for _ in range(slots * n)]
     points = view.keyframe_map.points
@@ -131,7 +132,7 @@ def predict_frames(view: SlotView, slots: int, max_depth_m: float = MAX_DEPTH_M
             located[nearest] = (mapped, np.array([points[p].position for p in mapped.tolist()])
                                 if mapped.size else np.zeros((0, 3)))
         mapped, positions = located[nearest]
-        kept = visible_points(positions, pose, view.intrinsics, view.image_shape, max_depth_m)
+        kept = visible_mask(positions, pose, view.camera, max_depth_m)
         share = float(kept.sum()) / max(1, int(np.count_nonzero(seen >= 0)))
         tracks = seen[seen < 0]                    # no 3-D position yet: kept in the share
         keys = np.concatenate([mapped[kept], _thinned(tracks, share)])

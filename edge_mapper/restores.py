@@ -23,10 +23,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from edge_mapper.planning_world import MAX_DEPTH_M, visible_points
+from edge_mapper.planning_world import MAX_DEPTH_M, visible_mask
 from twinslam.policies.restoring import MIN_VIEW_POINTS, choose_restores
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap, shared_counts
+from twinslam.slam.camera import Camera
 from twinslam.uncertainty.map_uncertainty import map_uncertainty
 
 #: an archived keyframe is brought back only if this many of its points are in the coming
@@ -41,23 +42,22 @@ class RestorePlan:
     evict: list[int]            #: map keyframes evicted to make room for them
 
 
-def view_score(positions: np.ndarray, poses: Sequence[np.ndarray], intrinsics: np.ndarray,
-               image_shape: tuple[int, int], max_depth_m: float = MAX_DEPTH_M) -> int:
-    """How many of a keyframe's points (``positions``, N×3) the camera sees from the best of
+def view_score(positions: np.ndarray, poses: Sequence[np.ndarray], camera: Camera,
+               max_depth_m: float = MAX_DEPTH_M) -> int:
+    """How many of a keyframe's points (``positions``, N×3) ``camera`` sees from the best of
     ``poses``."""
     if not len(positions):
         return 0
-    return max(int(visible_points(positions, pose, intrinsics, image_shape, max_depth_m).sum())
+    return max(int(visible_mask(positions, pose, camera, max_depth_m).sum())
                for pose in poses)
 
 
-def archived_in_view(archive: KeyFrameArchive, poses: Sequence[np.ndarray],
-                     intrinsics: np.ndarray, image_shape: tuple[int, int], slot: int
-                     ) -> list[tuple[int, int]]:
+def archived_in_view(archive: KeyFrameArchive, poses: Sequence[np.ndarray], camera: Camera,
+                     slot: int) -> list[tuple[int, int]]:
     """(view score, id) of the archived keyframes with at least ``MIN_VISIBLE`` points in the
     view from ``poses``, most first; they count as useful in ``slot`` (the archive forgets
     them last)."""
-    scored = sorted(((view_score(kf.positions, poses, intrinsics, image_shape), kf.id)
+    scored = sorted(((view_score(kf.positions, poses, camera), kf.id)
                      for kf in archive), key=lambda sk: (-sk[0], sk[1]))
     scored = [(s, k) for s, k in scored if s >= MIN_VISIBLE]
     archive.touch([k for _, k in scored], slot)
@@ -65,15 +65,15 @@ def archived_in_view(archive: KeyFrameArchive, poses: Sequence[np.ndarray],
 
 
 def plan_restores(m: KeyFrameMap, archive: KeyFrameArchive, poses: Sequence[np.ndarray],
-                  intrinsics: np.ndarray, image_shape: tuple[int, int], vmax: int, limit: int,
-                  slot: int, protected: Iterable[int] = ()) -> RestorePlan:
+                  camera: Camera, vmax: int, limit: int, slot: int,
+                  protected: Iterable[int] = ()) -> RestorePlan:
     """At most ``limit`` archived keyframes to restore, each with the map keyframe it
     replaces (none while the map has room below ``vmax``); ``protected`` keyframes (this
     slot's uploads) are never replaced. Archived keyframes in the coming view count as useful
     in ``slot`` (the archive forgets them last)."""
     if limit <= 0 or not poses:
         return RestorePlan([], [])
-    candidates = archived_in_view(archive, poses, intrinsics, image_shape, slot)
+    candidates = archived_in_view(archive, poses, camera, slot)
     if not candidates:
         return RestorePlan([], [])
     sets = {k: m.point_array(k) for k in m.keyframes}
@@ -83,17 +83,15 @@ def plan_restores(m: KeyFrameMap, archive: KeyFrameArchive, poses: Sequence[np.n
         # connected exactly when u(G) is finite: the check the map's uncertainty makes
         return math.isfinite(map_uncertainty(shared_counts([sets[k] for k in keyframes])))
 
-    scores = _map_view_scores(m, {k: sets[k] for k in m.keyframes}, poses, intrinsics,
-                              image_shape)
+    scores = _map_view_scores(m, {k: sets[k] for k in m.keyframes}, poses, camera)
     restore, evict = choose_restores(candidates, scores, vmax - len(m.keyframes), limit,
                                      set(protected), connected)
     return RestorePlan(restore, evict)
 
 
 def plan_relocation_restores(m: KeyFrameMap, archive: KeyFrameArchive,
-                             poses: Sequence[np.ndarray], intrinsics: np.ndarray,
-                             image_shape: tuple[int, int], vmax: int, limit: int, slot: int,
-                             protected: Iterable[int] = ()) -> RestorePlan:
+                             poses: Sequence[np.ndarray], camera: Camera, vmax: int, limit: int,
+                             slot: int, protected: Iterable[int] = ()) -> RestorePlan:
     """The managed map moved to where the edge relocalised a lost device (``poses``, found in
     the archive): up to ``limit`` archived keyframes that see most from there, those among
     them covisible with the best one. The map keyframes not connected to them by shared
@@ -103,7 +101,7 @@ def plan_relocation_restores(m: KeyFrameMap, archive: KeyFrameArchive,
     archive is in view."""
     if limit <= 0 or not poses:
         return RestorePlan([], [])
-    scored = archived_in_view(archive, poses, intrinsics, image_shape, slot)
+    scored = archived_in_view(archive, poses, camera, slot)
     if not scored:
         return RestorePlan([], [])
     sets = {k: archive.get(k).point_ids for _, k in scored[:limit]}
@@ -116,7 +114,7 @@ def plan_relocation_restores(m: KeyFrameMap, archive: KeyFrameArchive,
         return RestorePlan([], [])
     evict = sorted(k for k in m.keyframes if k not in connected)
     stay = [k for k in m.keyframes if k in connected]
-    scores = _map_view_scores(m, {k: sets[k] for k in stay}, poses, intrinsics, image_shape)
+    scores = _map_view_scores(m, {k: sets[k] for k in stay}, poses, camera)
     while len(stay) + len(restore) > vmax:
         replaceable = [k for k in stay if k not in keep]
         if not replaceable:
@@ -132,10 +130,10 @@ def plan_relocation_restores(m: KeyFrameMap, archive: KeyFrameArchive,
 
 
 def _map_view_scores(m: KeyFrameMap, sets: dict[int, np.ndarray], poses: Sequence[np.ndarray],
-                     intrinsics: np.ndarray, image_shape: tuple[int, int]) -> dict[int, int]:
+                     camera: Camera) -> dict[int, int]:
     """:func:`view_score` of the map keyframes ``sets`` (id → its point ids)."""
     return {k: view_score(np.array([m.points[int(p)].position for p in ids]).reshape(-1, 3),
-                          poses, intrinsics, image_shape) for k, ids in sets.items()}
+                          poses, camera) for k, ids in sets.items()}
 
 
 def _component(sets: dict[int, np.ndarray], start: int) -> set[int]:

@@ -21,6 +21,7 @@ import numpy as np
 from twinslam.policies.actions import MapAction, SlotObservation, check_map_action
 from twinslam.policies.protocol import MapPolicy, SlotViewer
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap, shared_counts
+from twinslam.slam.camera import Camera
 from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
 from twinslam.slot_protocol.slot_settings import SlotSettings
 from twinslam.uncertainty.map_uncertainty import (
@@ -71,8 +72,7 @@ class SlotView:
     map_ids: list[int]                        #: the observation's map (arriving uploads too)
     frames: list[FrameObservations]           #: the slot's frames, capture order
     points_of: Callable[[int], np.ndarray]    #: the int64 keys a keyframe or frame observes
-    intrinsics: np.ndarray
-    image_shape: tuple[int, int]              #: (height, width)
+    camera: Camera
     config: SlotConfig
 
 
@@ -124,7 +124,7 @@ class SlotPlanner:
     def plan(self, slot: int, frames: list[FrameObservations], rate_mbps: float, rate_state: int,
              rate_history: list[int], arriving: dict[int, FrameObservations] | None = None,
              leaving: frozenset[int] | set[int] = frozenset(),
-             camera: tuple[np.ndarray, tuple[int, int]] | None = None) -> SlotPlan:
+             camera: Camera | None = None) -> SlotPlan:
         """U_k and C_k for slot k's frames (capture order) at rate d_k. The policy chooses U_k
         among the frames the device tracked; υ is scored over all of them.
 
@@ -132,7 +132,7 @@ class SlotPlanner:
         applied — slots shorter than their upload time), the map the decision is sized and
         scored against is the one those slots will leave: ``arriving`` uploads (not yet in the
         map, as their frames were observed) join it, ``leaving`` keyframes are left out.
-        ``camera`` (intrinsics, image shape) goes with the map and frames to a policy that
+        ``camera`` goes with the map and frames to a policy that
         predicts what the camera will see (``see_slot``, the edge's ``mpc``).
         """
         if not frames:
@@ -172,10 +172,9 @@ class SlotPlanner:
                               lambda a, b: full[np.ix_([pos[x] for x in a],
                                                        [pos[x] for x in b])])
         if isinstance(self.policy, SlotViewer):
-            k, shape = camera if camera is not None else (np.eye(3), (480, 640))
             self.policy.see_slot(SlotView(self.map, map_ids, list(frames),
                               lambda x: keys[x] if x in keys else self.points_of(seen, x),
-                              k, shape, cfg))
+                              camera or Camera(), cfg))
         action = self.policy.decide(obs)
         check_map_action(slot, n_up, n_ev, set(cand), map_ids, action)
         # υ of F_k against the map as it is (eq. 8), None for an empty map

@@ -10,10 +10,11 @@ import pytest
 from scipy.spatial import cKDTree
 
 from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, applied_evictions
-from edge_mapper.planning_world import visible_points
+from edge_mapper.planning_world import visible_mask
 from edge_mapper.slot_planner import FrameObservations, SlotConfig
 from twinslam.policies.registry import make_policy
 from twinslam.slam.back_end.map_back_end import BackEndConfig, archive_folder
+from twinslam.slam.camera import Camera
 from twinslam.slam.keyframe import TRACK_ID_BIT, KeyFramePayload, is_track_id
 
 K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
@@ -207,8 +208,8 @@ def test_walking_back_brings_evicted_keyframes_back_before_the_camera_gets_there
             if slot > turn // F:         # the way back: corners in view that the map holds
                 tree = cKDTree(np.array([p.position for p in core.map.points.values()]))
                 for f in range(slot * F, (slot + 1) * F):
-                    corners = device.world[visible_points(device.world, device.pose(f), K,
-                                                          (480, 640))]
+                    corners = device.world[visible_mask(device.world, device.pose(f),
+                                                        Camera(K))]
                     seen.append(int((tree.query(corners)[0] < 0.05).sum()))
             outs += _run(core, device, range(slot, slot + 1), rates=[rate])
         in_view[limit, rate] = float(np.mean(seen))

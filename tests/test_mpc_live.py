@@ -19,7 +19,7 @@ from edge_mapper.planning_world import (
     extrapolate,
     overlap_decay,
     predict_frames,
-    visible_points,
+    visible_mask,
 )
 from edge_mapper.policy_control import make_policies, policy_refused
 from edge_mapper.slot_planner import FrameObservations, SlotConfig, SlotView
@@ -28,9 +28,10 @@ from twinslam.policies.actions import check_map_action
 from twinslam.policies.delayed import DelayedPolicy
 from twinslam.policies.mpc import MpcPlanner, parse_mpc
 from twinslam.policies.registry import make_policy
+from twinslam.slam.camera import Camera
 
 K = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
-SHAPE = (480, 640)
+CAMERA = Camera(K, (480, 640))
 
 
 def _pose(x: float, yaw_deg: float = 0.0) -> np.ndarray:
@@ -56,14 +57,14 @@ def test_extrapolation_continues_a_constant_velocity_walk() -> None:
     assert np.allclose(extrapolate([truth[3]], [3], [10])[0], truth[3])
 
 
-def test_visible_points_are_those_in_the_frustum_and_depth_range() -> None:
+def test_the_visible_mask_holds_the_points_in_the_frustum_and_depth_range() -> None:
     points = np.array([[0.0, 0.0, 2.0],      # ahead
                        [0.0, 0.0, -2.0],     # behind
                        [5.0, 0.0, 1.0],      # off the image's side
                        [0.0, 0.0, 9.0]])     # too far
-    assert visible_points(points, np.eye(4), K, SHAPE).tolist() == [True, False, False, False]
+    assert visible_mask(points, np.eye(4), CAMERA).tolist() == [True, False, False, False]
     # turned half round, the camera sees the one that was behind it
-    assert visible_points(points, _pose(0.0, 180.0), K, SHAPE).tolist() == [
+    assert visible_mask(points, _pose(0.0, 180.0), CAMERA).tolist() == [
         False, True, False, False]
 
 
@@ -91,7 +92,7 @@ def _walk_core(vmax: int = 6) -> tuple[EdgeMapperCore, list[FrameObservations]]:
 def _view(core: EdgeMapperCore, frames: list[FrameObservations]) -> SlotView:
     by_id = {f.frame_id: f for f in frames}
     return SlotView(core.map, core.map.keyframe_ids(), frames,
-                    lambda x: core.planner.points_of(by_id, x), K, SHAPE, core.slot_config)
+                    lambda x: core.planner.points_of(by_id, x), CAMERA, core.slot_config)
 
 
 def test_the_predicted_frames_see_the_map_ahead_of_the_walk() -> None:

@@ -10,9 +10,10 @@ import pytest
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, restore_into
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap, MapError
 from twinslam.slam.back_end.point_fusion import fuse_restored
+from twinslam.slam.camera import Camera
 
 K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
-SHAPE = (480, 640)
+CAMERA = Camera(K, (480, 640))
 
 
 def _seen_from(pose: np.ndarray, world: np.ndarray) -> np.ndarray:
@@ -56,7 +57,7 @@ def test_a_restored_keyframes_points_made_again_since_are_fused_into_the_maps() 
     _observed(m, 2, later, new)
     returned = restore_into(m, archived)
     assert sorted(returned) == sorted(old) and len(m.points) == 100
-    fused = fuse_restored(m, 1, returned, K, SHAPE)
+    fused = fuse_restored(m, 1, returned, CAMERA)
     assert fused == dict(zip(old[:40], new, strict=True))
     assert len(m.points) == 60
     assert m.keyframes[1].points == set(new) | set(old[40:])
@@ -80,7 +81,7 @@ def test_a_look_alike_along_the_ray_is_no_duplicate() -> None:
     m.add_keyframe(2, np.eye(4))
     deeper = [m.add_point(x * 1.25, d) for x, d in zip(world, desc, strict=True)]   # same pixel
     _observed(m, 2, np.eye(4), deeper)
-    assert fuse_restored(m, 1, restore_into(m, archived), K, SHAPE) == {}
+    assert fuse_restored(m, 1, restore_into(m, archived), CAMERA) == {}
     assert len(m.points) == 60
 
 

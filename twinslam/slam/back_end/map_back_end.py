@@ -62,7 +62,7 @@ from twinslam.slam.back_end.loop_detection import MIN_GAP
 from twinslam.slam.back_end.point_culling import PointCullingConfig
 from twinslam.slam.back_end.point_fusion import fuse_restored
 from twinslam.slam.back_end.pose_graph import LOOP_INLIERS_REF, LoopEdge
-from twinslam.slam.camera import has_camera
+from twinslam.slam.camera import DEFAULT_IMAGE_SHAPE, Camera
 from twinslam.slam.duplicate_points import DUPLICATE_RADIUS_M
 from twinslam.slam.keyframe import KeyFramePayload
 from twinslam.slot_protocol import default_device
@@ -85,7 +85,7 @@ class BackEndConfig:
     #: (0.034 m on 600 7-Scenes frames) as all 2-4 k, at 33-70 ms instead of ~200 ms
     ba_points: int | None = 120
     baseline_m: float = 0.08         #: RGB-D virtual stereo baseline of the BA
-    image_shape: tuple[int, int] = (480, 640)
+    image_shape: tuple[int, int] = DEFAULT_IMAGE_SHAPE
     #: evicted keyframes kept for relocalisation and restores (0: none; ~90 kB a keyframe)
     archive_keyframes: int = 500
     #: the points a restored keyframe (or a loop's old place) brings back that the map made
@@ -244,7 +244,7 @@ class MapBackEnd:
         back = [self.archive.take(kf) for kf in restore]
         forgotten, _ = self.evict_to_archive(evict, slot)
         returned = {archived.id: restore_into(self.map, archived) for archived in back}
-        fused = sum(len(fuse_restored(self.map, kf, points, self.k, self.config.image_shape))
+        fused = sum(len(fuse_restored(self.map, kf, points, self.camera))
                     for kf, points in returned.items()) if self.config.point_fusion else 0
         return forgotten, fused
 
@@ -260,6 +260,12 @@ class MapBackEnd:
         return found
 
     # -- optimisation ------------------------------------------------------------------------
+
+    @property
+    def camera(self) -> Camera:
+        """The device's camera: its intrinsics (the identity until the first keyframe brings
+        them) and the configured image size."""
+        return Camera(self.k, self.config.image_shape)
 
     def optimise(self) -> BundleAdjustmentResult | None:
         """Local BA: the newest ``ba_window`` keyframes and the points they share with another
@@ -349,7 +355,7 @@ class MapBackEnd:
         in_map = [q for q in self._loop_queries if q.keyframe in self.map.keyframes]
         wanted = set(self.loop_closer.wanted([q.keyframe for q in in_map]))
         queries = [q for q in in_map if q.keyframe in wanted]
-        if not queries or self.loop_closer.busy or not has_camera(self.k):
+        if not queries or self.loop_closer.busy or not self.camera.known:
             self._loop_queries = queries
             return
         newest = max(q.keyframe for q in queries)
@@ -398,9 +404,8 @@ class MapBackEnd:
         self.loop_closer.after(lambda: self.archive.save(archived),   # beside the slots
                                "writing the loop-corrected archive's files")
         old = result.candidate.old
-        if self.config.point_fusion and old in self.map.keyframes and has_camera(self.k):
-            fuse_restored(self.map, old, sorted(self.map.keyframes[old].points), self.k,
-                          self.config.image_shape)
+        if self.config.point_fusion and old in self.map.keyframes and self.camera.known:
+            fuse_restored(self.map, old, sorted(self.map.keyframes[old].points), self.camera)
         self.loops_closed += 1
         if result.candidate.measured is not None:
             self.loop_edges.append(LoopEdge(old, result.query, result.candidate.measured,

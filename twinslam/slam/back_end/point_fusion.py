@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
+from twinslam.slam.camera import Camera
 from twinslam.slam.projection_matching import match_by_projection, visible_points
 
 
@@ -34,11 +35,11 @@ class FusionConfig:
     depth_range_m: tuple[float, float] = (0.2, 8.0)
 
 
-def fuse_restored(m: KeyFrameMap, kf_id: int, returned: list[int], intrinsics: np.ndarray,
-                  shape: tuple[int, int], config: FusionConfig | None = None
-                  ) -> dict[int, int]:
-    """Fuse the points ``returned`` with keyframe ``kf_id`` (restored from the archive) into
-    the map points that duplicate them; {returned point: the map point it became}."""
+def fuse_restored(m: KeyFrameMap, kf_id: int, returned: list[int], camera: Camera,
+                  config: FusionConfig | None = None) -> dict[int, int]:
+    """Fuse the points ``returned`` with keyframe ``kf_id`` (restored from the archive, seen
+    with ``camera``) into the map points that duplicate them; {returned point: the map point
+    it became}."""
     cfg = config or FusionConfig()
     kf = m.keyframes[kf_id]
     mine = [p for p in returned if p in m.points and p in kf.measurements
@@ -48,7 +49,7 @@ def fuse_restored(m: KeyFrameMap, kf_id: int, returned: list[int], intrinsics: n
         return {}
     positions = np.array([m.points[p].position for p in others.tolist()])
     vis, uv = visible_points(positions, np.ones(len(others), dtype=bool), kf.pose,
-                             np.asarray(intrinsics, dtype=np.float64), shape,
+                             np.asarray(camera.intrinsics, dtype=np.float64), camera.shape,
                              cfg.depth_range_m)
     if not vis.size:
         return {}
@@ -56,7 +57,7 @@ def fuse_restored(m: KeyFrameMap, kf_id: int, returned: list[int], intrinsics: n
     f_idx, c_idx = match_by_projection(
         seen_at, np.array([m.points[p].descriptor for p in mine], dtype=np.uint8), uv,
         np.array([m.points[p].descriptor for p in others[vis].tolist()], dtype=np.uint8),
-        cfg.search_radius_px, cfg.max_hamming, cfg.ratio, shape)
+        cfg.search_radius_px, cfg.max_hamming, cfg.ratio, camera.shape)
     fused: dict[int, int] = {}
     for fi, ci in zip(f_idx.tolist(), c_idx.tolist(), strict=True):
         drop, keep = mine[fi], int(others[vis[ci]])
