@@ -22,6 +22,7 @@ from twinslam.policies.actions import MapAction, SlotObservation, check_map_acti
 from twinslam.policies.protocol import MapPolicy, SlotViewer
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap, shared_counts
 from twinslam.slam.camera import Camera
+from twinslam.slam.keyframe import track_counters
 from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
 from twinslam.slot_protocol.slot_settings import SlotSettings
 from twinslam.uncertainty.map_uncertainty import (
@@ -31,8 +32,6 @@ from twinslam.uncertainty.map_uncertainty import (
     theorem1_cardinalities,
     waited_after,
 )
-
-TRACK_MASK = (1 << 63) - 1          #: a track id without its marker bit
 
 
 @dataclass(frozen=True)
@@ -116,8 +115,7 @@ class SlotPlanner:
         if frame_id in self.map.keyframes:
             return self.map.point_array(frame_id)
         f = frames[frame_id]
-        tracks = (np.fromiter(f.tracks, dtype=np.uint64, count=len(f.tracks))
-                  & np.uint64(TRACK_MASK)).astype(np.int64)
+        tracks = track_counters(np.fromiter(f.tracks, dtype=np.uint64, count=len(f.tracks)))
         return np.concatenate([np.fromiter(f.map_points, dtype=np.int64,
                                            count=len(f.map_points)), -1 - tracks])
 

@@ -33,6 +33,12 @@ def as_track_ids(ids: np.ndarray) -> np.ndarray:
     return np.asarray(np.asarray(ids, dtype=np.uint64) | TRACK_ID_BIT)
 
 
+def track_counters(ids: np.ndarray) -> np.ndarray:
+    """Track ids as the device-local counters they mark (the bit cleared, int64):
+    :func:`as_track_ids` undone."""
+    return np.asarray((np.asarray(ids, dtype=np.uint64) & ~TRACK_ID_BIT).astype(np.int64))
+
+
 @dataclass(frozen=True)
 class KeyFramePayload:
     """What a ``Keyframe`` message carries for one frame, as arrays."""
