@@ -202,11 +202,14 @@ class DeviceTrackerCore:
             followed = self.track_labels[rows]
             point_ids[f_idx] = followed
             track_ids = np.concatenate([track_ids, followed])
-        record = FrameRecord(out.index, stamp, out.pose, out.tracked, np.sort(ids[~on_track]),
-                             np.sort(track_ids), self.slot, out.relocalised, out.inliers,
-                             self.map_version, (time.thread_time() - started) * 1000.0,
-                             bool(out.refused or out.implausible), out.pnp_ransac,
-                             out.n_matches)
+        record = FrameRecord(out.index, stamp, out.pose, out.tracked,
+                             map_point_ids=np.sort(ids[~on_track]),
+                             track_ids=np.sort(track_ids), slot=self.slot,
+                             relocalised=out.relocalised, inliers=out.inliers,
+                             map_version=self.map_version,
+                             cpu_ms=(time.thread_time() - started) * 1000.0,
+                             pose_refused=bool(out.refused or out.implausible),
+                             pnp_ransac=out.pnp_ransac, matches=out.n_matches)
         self.frames.append(record)
         slot = self.slot
         depths = (depth_at(out.features.points, depth, self.config.depth_range_m)

@@ -127,22 +127,24 @@ class DeviceSettings:
         if p["odom_frame"] and p["odom_frame"] in (p["map_frame"], p["camera_frame"]):
             raise ValueError(f"odom_frame {p['odom_frame']!r} is also the map or camera "
                              "frame: map -> odom -> camera needs three frames")
-        return cls(int(p["slot_frames"]), float(p["frame_rate_hz"]),
-                   int(float(p["alpha_mbit"]) * 1e6 / 8), str(p["channel"]), str(p["map_frame"]),
-                   str(p["camera_frame"]), bool(p["publish_tf"]), str(p["map_source"]),
-                   TrackingConfig(n_features=int(p["n_features"]), relocalise=True,
+        rate = float(p["frame_rate_hz"])
+        motion = MotionBounds(max_step_m=float(p["max_step_m"]),
+                              max_turn_deg=float(p["max_turn_deg"]),
+                              max_speed_m_s=float(p["max_speed_m_s"]),
+                              speed_window=max(2, round(rate / 2)))
+        tracking = TrackingConfig(n_features=int(p["n_features"]), relocalise=True,
                                   reloc_min_inliers=int(p["reloc_min_inliers"]),
                                   reloc_probation_frames=int(p["reloc_probation_frames"]),
-                                  motion=MotionBounds(
-                                      max_step_m=float(p["max_step_m"]),
-                                      max_turn_deg=float(p["max_turn_deg"]),
-                                      max_speed_m_s=float(p["max_speed_m_s"]),
-                                      speed_window=max(2, round(float(p["frame_rate_hz"]) / 2))),
-                                  frame_rate_hz=float(p["frame_rate_hz"])),
-                   bool(p["upload_image"]), int(p["keep_slots"]), int(p["path_window"]),
-                   float(p["reloc_period_s"]),
-                   round(float(p["own_map_after_s"]) * float(p["frame_rate_hz"])),
-                   str(p["odom_frame"]))
+                                  motion=motion, frame_rate_hz=rate)
+        return cls(slot_frames=int(p["slot_frames"]), frame_rate_hz=rate,
+                   alpha_bytes=int(float(p["alpha_mbit"]) * 1e6 / 8), channel=str(p["channel"]),
+                   map_frame=str(p["map_frame"]), camera_frame=str(p["camera_frame"]),
+                   publish_tf=bool(p["publish_tf"]), map_source=str(p["map_source"]),
+                   tracking=tracking, upload_image=bool(p["upload_image"]),
+                   keep_slots=int(p["keep_slots"]), path_window=int(p["path_window"]),
+                   reloc_period_s=float(p["reloc_period_s"]),
+                   own_map_after=round(float(p["own_map_after_s"]) * rate),
+                   odom_frame=str(p["odom_frame"]))
 
     def describe(self, shaper: str) -> str:
         """The start-up line."""

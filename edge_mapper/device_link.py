@@ -292,10 +292,13 @@ class DeviceLink:
         compute_s = entry.compute_s + time.perf_counter() - started
         self.pub_stats.publish(map_stats_message(
             slot, entry.decided_by, self.core.map, out.map_uncertainty, entry.uncertainty,
-            len(out.integrated), ba_ms, compute_s * 1000, now, entry.vmax,
-            entry.latency_s(self.slots.clock()) * 1000, len(self.core.archive),
-            len(out.restored), len(out.refused), frame, self.core.loops_closed,
-            out.loop.worker_ms if out.loop else 0.0, self.core.loops_refused))
+            uploads=len(out.integrated), optimisation_ms=ba_ms, processing_ms=compute_s * 1000,
+            stamp=now, keyframe_budget=entry.vmax,
+            latency_ms=entry.latency_s(self.slots.clock()) * 1000,
+            archived=len(self.core.archive), restored=len(out.restored),
+            refused=len(out.refused), frame_id=frame, loops_closed=self.core.loops_closed,
+            loop_ms=out.loop.worker_ms if out.loop else 0.0,
+            loops_refused=self.core.loops_refused))
         if out.loop is not None and out.loop.old < 0:
             self.warning(f"slot {slot}: {out.loop.refused} (looking from keyframe "
                          f"{out.loop.new}); the edge goes on without it")

@@ -117,11 +117,13 @@ def run(args: argparse.Namespace) -> int:
                          "--devices the allocators run in this process (leave them out)")
         return run_fleet(args)
     policies = tuple(p.strip() for p in args.policy.split(",") if p.strip())
-    return compare(Comparison(args.covis, policies, args.channel, args.rate_range, args.vmax,
-                              args.slot_frames, args.d_req, args.slots, args.seeds, args.seed0,
-                              args.walk_start, args.paper_rule, args.archive_keyframes,
-                              args.restore_keyframes, args.csv, args.verbose,
-                              args.executor, args.jobs, args.ray_address))
+    return compare(Comparison(
+        covis=args.covis, policies=policies, channel=args.channel, rate_range=args.rate_range,
+        vmax=args.vmax, slot_frames=args.slot_frames, d_req_s=args.d_req, slots=args.slots,
+        seeds=args.seeds, seed0=args.seed0, walk_start=args.walk_start,
+        paper_rule=args.paper_rule, archive_keyframes=args.archive_keyframes,
+        restore_keyframes=args.restore_keyframes, csv=args.csv, verbose=args.verbose,
+        executor=args.executor, jobs=args.jobs, ray_address=args.ray_address))
 
 
 def register(sub: Subparsers) -> None:

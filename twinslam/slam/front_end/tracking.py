@@ -202,9 +202,11 @@ class Tracking:
             self._remember_posed(index, pose)
         self._cull(index)
         return TrackedFrame(index, pose.copy(), np.sort(observed), tracked, keyframe,
-                            len(feats.points), len(matched_ids), feats, assoc, recovered,
-                            n_inliers, on_probation, refused, implausible,
-                            pnp_ransac and tracked and not relocalised)
+                            n_features=len(feats.points), n_matches=len(matched_ids),
+                            features=feats, feature_points=assoc, relocalised=recovered,
+                            inliers=n_inliers, on_probation=on_probation, refused=refused,
+                            implausible=implausible,
+                            pnp_ransac=pnp_ransac and tracked and not relocalised)
 
     @property
     def frames_tracked(self) -> int:
