@@ -353,7 +353,6 @@ def test_the_calibration_sees_the_played_frames_through_the_players_camera(
     shows the device (its colour_intrinsics): a 7-Scenes scene through its colour camera with
     the default device's ``auto``, through the file's own with the paper's preset — each
     cached under a name of its own, never one for the other."""
-    from pathlib import Path
 
     import cv2
 
@@ -374,7 +373,7 @@ def test_the_calibration_sees_the_played_frames_through_the_players_camera(
 
     monkeypatch.setattr(calibration, "extract_covisibility", extract)
     monkeypatch.setattr(calibration, "save_covisibility",
-                        lambda path, _: Path(path).write_text("covis", encoding="utf-8"))
+                        lambda path, _: np.savez(path, covis=np.zeros(1)))
     auto = calibration.covisibility_file(str(scene), 2, tmp_path / "covis", lambda _: None,
                                          colour_intrinsics="auto")
     own = calibration.covisibility_file(str(scene), 2, tmp_path / "covis", lambda _: None)
@@ -382,3 +381,9 @@ def test_the_calibration_sees_the_played_frames_through_the_players_camera(
     assert calibration.covisibility_file(str(scene), 2, tmp_path / "covis", lambda _: None,
                                          colour_intrinsics="auto") == auto     # cached
     assert seen == [525.0, 585.0]
+    # a cache cut off while it was written (the run killed) is extracted again, not read
+    auto.write_bytes(auto.read_bytes()[:40])
+    said: list[str] = []
+    assert calibration.covisibility_file(str(scene), 2, tmp_path / "covis", said.append,
+                                         colour_intrinsics="auto") == auto
+    assert seen == [525.0, 585.0, 525.0] and "cut off" in said[0]

@@ -331,6 +331,13 @@ def test_covisibility_file_round_trip_and_errors(tmp_path, room: CovisibilityDat
     bad.write_bytes(b"not a zip")
     with pytest.raises(ValueError, match=r"bad\.npz"):
         load_covisibility(bad)
+    # a file cut off part-way (a process killed while writing one): a clear error, not zlib's
+    cut = tmp_path / "cut.npz"
+    cut.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    with pytest.raises(ValueError, match=r"cut\.npz: not a readable covisibility file"):
+        load_covisibility(cut)
+    # writing leaves the finished file alone, nothing beside it
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.npz", "covis.npz", "cut.npz"]
 
 
 def test_a_stretch_of_frames_is_a_dataset_of_its_own(room: CovisibilityDataset) -> None:

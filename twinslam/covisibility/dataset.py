@@ -19,6 +19,9 @@ matrix so a whole block of weights costs one sparse product.
 
 from __future__ import annotations
 
+import os
+import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -149,13 +152,23 @@ class CovisibilityDataset:
 
 
 def save_covisibility(path: Path, data: CovisibilityDataset) -> None:
+    """Write ``data`` to ``path`` whole or not at all: into a file beside it, renamed over
+    ``path`` once written (a process killed while writing leaves no cut-off file that a cache
+    would take for a whole one)."""
+    path = Path(path)
     extra: dict[str, Any] = {}       # Any: numpy's stubs would match a key to allow_pickle
     if data.stamps is not None:
         extra["stamps"] = np.asarray(data.stamps, dtype=np.float64)
     if data.poses is not None:
         extra["poses"] = np.asarray(data.poses, dtype=np.float64)
-    np.savez_compressed(path, format=np.array(FORMAT), point_offsets=data.point_offsets,
-                        point_ids=data.point_ids, source=np.array(data.source), **extra)
+    partial = path.with_name(f".{path.name}.{os.getpid()}.partial")
+    try:
+        with partial.open("wb") as f:
+            np.savez_compressed(f, format=np.array(FORMAT), point_offsets=data.point_offsets,
+                                point_ids=data.point_ids, source=np.array(data.source), **extra)
+        os.replace(partial, path)
+    finally:
+        partial.unlink(missing_ok=True)
 
 
 def load_covisibility(path: Path) -> CovisibilityDataset:
@@ -172,7 +185,7 @@ def load_covisibility(path: Path) -> CovisibilityDataset:
                 stamps=npz["stamps"] if "stamps" in npz else None,
                 poses=npz["poses"] if "poses" in npz else None,
                 source=str(npz["source"]) if "source" in npz else "")
-    except (OSError, KeyError, ValueError) as exc:
+    except (OSError, KeyError, ValueError, EOFError, zlib.error, zipfile.BadZipFile) as exc:
         if isinstance(exc, CovisibilityError):
             raise
         raise CovisibilityError(f"{path}: not a readable covisibility file ({exc})") from None

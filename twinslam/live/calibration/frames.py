@@ -19,6 +19,8 @@ recorded frame or keyframes cannot be placed — a covered-lens frame shows no r
 from __future__ import annotations
 
 import math
+import zipfile
+import zlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -104,7 +106,10 @@ def covisibility_file(sequence: str, frames: int, cache: Path,
     slug = file_name(f"{Path(sequence).name or sequence}-{start}-{frames}{camera}", "-_.", "_")
     path = cache / f"{slug}.covis.npz"
     if path.is_file():
-        return path
+        if whole_archive(path):
+            return path
+        echo(f"{path} is cut off or damaged (a run stopped while writing it?): extracting it "
+             "again")
     reader = open_sequence(sequence, start, start + frames, colour_intrinsics)
     echo(f"extracting the covisibility of {len(reader)} frames of {sequence} for the "
          f"calibration (once; cached in {path})")
@@ -112,6 +117,15 @@ def covisibility_file(sequence: str, frames: int, cache: Path,
     cache.mkdir(parents=True, exist_ok=True)
     save_covisibility(path, dataset)
     return path
+
+
+def whole_archive(path: Path) -> bool:
+    """Whether ``path`` is a whole zip archive (an ``.npz``), every member's checksum right."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            return archive.testzip() is None
+    except (OSError, EOFError, zlib.error, zipfile.BadZipFile):
+        return False
 
 
 @dataclass(frozen=True)
