@@ -16,9 +16,10 @@ loop with an essential-graph optimisation; here the graph reads like the math:
   correction bends the walk there most;
 * between two keyframes that are not consecutive but see many of the same points (≥
   COVISIBLE_MIN, ORB-SLAM's essential graph takes 100) a **covisibility factor** with their
-  relative pose now: keyframes that see one wall move together, or a correction that reaches
-  one and not the other splits the wall in two (the walk comes back past the same place, and
-  a keyframe of the way out beside one of the way back is far from it in capture order);
+  relative pose now, trusted as a step of that length and turn would be: keyframes that see
+  one wall move together, or a correction that reaches one and not the other splits the wall
+  in two (the walk comes back past the same place, and a keyframe of the way out beside one
+  of the way back is far from it in capture order);
 * a **loop factor** between the old keyframe and the new one, holding the relative pose the
   geometric check measured — stiffer than a step of the walk, as it is measured directly,
   under a Cauchy loss, so that a loop the rest of the graph contradicts cannot drag it far —
