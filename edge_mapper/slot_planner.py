@@ -130,8 +130,8 @@ class SlotPlanner:
         applied — slots shorter than their upload time), the map the decision is sized and
         scored against is the one those slots will leave: ``arriving`` uploads (not yet in the
         map, as their frames were observed) join it, ``leaving`` keyframes are left out.
-        ``camera`` goes with the map and frames to a policy that
-        predicts what the camera will see (``see_slot``, the edge's ``mpc``).
+        ``camera`` goes with the map and frames to a policy that predicts what the camera will
+        see (``see_slot``, the edge's ``mpc``).
         """
         if not frames:
             raise ValueError(f"slot {slot}: no frames to plan with")

@@ -16,12 +16,6 @@ import numpy as np
 DEFAULT_IMAGE_SHAPE = (480, 640)
 
 
-def has_camera(intrinsics: np.ndarray) -> bool:
-    """Whether ``intrinsics`` are a camera's (a focal length), not the identity the edge
-    starts with until its first keyframe brings them."""
-    return bool(math.isfinite(intrinsics[0, 0]) and intrinsics[0, 0] > 1.0)
-
-
 @dataclass(frozen=True)
 class Camera:
     """A pinhole camera: its intrinsics (3×3, pixels) and its image's (height, width)."""
@@ -31,5 +25,6 @@ class Camera:
 
     @property
     def known(self) -> bool:
-        """Whether the intrinsics are a camera's (:func:`has_camera`)."""
-        return has_camera(self.intrinsics)
+        """Whether the intrinsics are a camera's (a focal length), not the identity the edge
+        starts with until its first keyframe brings them."""
+        return bool(math.isfinite(self.intrinsics[0, 0]) and self.intrinsics[0, 0] > 1.0)

@@ -185,6 +185,12 @@ class MapBackEnd:
         self.config = dataclasses.replace(self.config, ba_window=max(0, int(window)),
                                           ba_points=points)
 
+    @property
+    def camera(self) -> Camera:
+        """The device's camera: its intrinsics (the identity until the first keyframe brings
+        them) and the configured image size."""
+        return Camera(self.k, self.config.image_shape)
+
     # -- keyframes in ------------------------------------------------------------------------
 
     def integrate(self, data: KeyFramePayload, tracked_on: int) -> IntegrationReport:
@@ -260,12 +266,6 @@ class MapBackEnd:
         return found
 
     # -- optimisation ------------------------------------------------------------------------
-
-    @property
-    def camera(self) -> Camera:
-        """The device's camera: its intrinsics (the identity until the first keyframe brings
-        them) and the configured image size."""
-        return Camera(self.k, self.config.image_shape)
 
     def optimise(self) -> BundleAdjustmentResult | None:
         """Local BA: the newest ``ba_window`` keyframes and the points they share with another

@@ -35,12 +35,15 @@ keyframe's correction. No ROS, no threads: the edge runs it off the slot's criti
 from __future__ import annotations
 
 import itertools
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import X
+
+from twinslam.rotations import rotation_angle_deg
 
 #: σ of a walk's step that goes nowhere (rad for the three rotations, m for the three
 #: translations), and how it grows with the step: per metre of the step's length and per radian
@@ -101,7 +104,7 @@ def step_sigmas(relative: np.ndarray) -> np.ndarray:
     """The σ (three rotations in rad, three translations in m) of a step of the walk whose
     relative pose is ``relative`` (4×4): STEP_FLOOR, growing with the step's length and turn."""
     length = float(np.linalg.norm(relative[:3, 3]))
-    turn = float(np.arccos(np.clip((np.trace(relative[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)))
+    turn = math.radians(rotation_angle_deg(relative[:3, :3]))
     rotation, translation = (floor + per_metre * length + per_radian * turn for floor, per_metre,
                              per_radian in zip(STEP_FLOOR, STEP_PER_METRE, STEP_PER_RADIAN,
                                                strict=True))
