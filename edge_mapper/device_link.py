@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 from geometry_msgs.msg import PoseArray
+from nav_msgs.msg import Path as PathMsg
 from rclpy.node import Node
 from sensor_msgs.msg import PointCloud2
 from twinslam_msgs.msg import (
@@ -52,7 +53,12 @@ from edge_mapper.messages import (
 from edge_mapper.policy_control import POLICY_KEYS, Note, PolicyControl
 from edge_mapper.slot_lifecycle import Closing, SlotLifecycle
 from edge_mapper.slot_planner import FrameObservations
-from edge_mapper.visual_messages import decisions_message, keyframes_message, map_points_message
+from edge_mapper.visual_messages import (
+    decisions_message,
+    keyframe_trajectory_message,
+    keyframes_message,
+    map_points_message,
+)
 from msg_schemas import qos, topics
 from msg_schemas.poses import pose_matrix
 from twinslam.node_runtime.checked_subscription import CheckedSubscription
@@ -69,6 +75,8 @@ class LinkSettings:
     slot_timeout_s: float
     visualisation: bool
     map_frame: str
+    #: slots between two keyframe trajectories (and after each loop closed); 0: after loops
+    trajectory_every: int = 30
 
 
 #: the budget's hooks, for an edge serving several devices: (device, slot, frames, d_k, latent,
@@ -118,7 +126,8 @@ class DeviceLink:
                                       qos.PROTOCOL)
         self.pub_views = ((pub(PointCloud2, self.topic(topics.MAP_POINTS), qos.MAP),
                            pub(PoseArray, self.topic(topics.KEYFRAME_POSES), qos.MAP),
-                           pub(MarkerArray, self.topic(topics.DECISIONS), qos.MAP))
+                           pub(MarkerArray, self.topic(topics.DECISIONS), qos.MAP),
+                           pub(PathMsg, self.topic(topics.KEYFRAME_TRAJECTORY), qos.MAP))
                           if settings.visualisation else None)
         self.subscriptions = [
             CheckedSubscription(node, FrameSummaries, self.topic(topics.FRAME_SUMMARIES),
@@ -322,11 +331,17 @@ class DeviceLink:
         if self.spent is not None:
             self.spent(compute_s)
         if self.pub_views is not None:         # after MapStats: not in its compute time
-            m, (cloud, poses, marks) = self.core.map, self.pub_views
+            m, (cloud, poses, marks, trajectory) = self.core.map, self.pub_views
             cloud.publish(map_points_message(m, now, frame))
             poses.publish(keyframes_message(m, now, frame))
             marks.publish(decisions_message(m, out.integrated, out.evicted, before, now, frame,
                                             out.restored))
+            every = self.settings.trajectory_every
+            if (out.loop is not None and not out.loop.refused and out.loop.old >= 0) or \
+                    (every > 0 and slot % every == 0):
+                # ~30 ms a 500-keyframe path: not every slot
+                trajectory.publish(keyframe_trajectory_message(
+                    self.core.back_end.keyframe_trajectory(), now, frame))
         u = out.map_uncertainty
         kept = f" (kept {len(out.spared)} of C_k: uploads missing)" if out.spared else ""
         if out.restored:

@@ -111,6 +111,10 @@ PARAMETERS = (
     ParamSpec("visualisation", True, f"publish {topics.MAP_POINTS} (PointCloud2), "
               f"{topics.KEYFRAME_POSES} (PoseArray) and {topics.DECISIONS} (MarkerArray) once a "
               "slot, latched, for RViz / Foxglove"),
+    ParamSpec("trajectory_every", 30, f"with visualisation, publish {topics.KEYFRAME_TRAJECTORY} "
+              "(nav_msgs/Path of every keyframe kept, the map's and the archive's, latched) every "
+              "this many slots and after every slot that closed a loop; 0: only after loops",
+              low=0, high=1_000_000),
     ParamSpec("map_frame", "map", "frame id of the map the edge publishes (the device's "
               "map_frame: its first frame's camera frame); with several devices, each device's "
               "is DEVICE/map_frame"),
@@ -163,7 +167,7 @@ def link_settings(p: Mapping[str, Any]) -> LinkSettings:
     """What every device link of the node shares."""
     return LinkSettings(edge_config(p), str(p["checkpoint"]), int(p["states"]),
                         float(p["slot_timeout_s"]), bool(p["visualisation"]),
-                        str(p["map_frame"]))
+                        str(p["map_frame"]), int(p["trajectory_every"]))
 
 
 def device_names(p: Mapping[str, Any]) -> list[str]:

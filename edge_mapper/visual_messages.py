@@ -9,10 +9,14 @@ slot when the slot closes. Pure conversion, no DDS.
   each for the keyframes it integrated (green), evicted (red, where they were), brought back
   from the archive (blue) and kept (grey), in namespaces ``integrated``, ``evicted``,
   ``restored``, ``kept``; a namespace with nothing this slot is sent with ``DELETE`` so the
-  viewer clears last slot's.
+  viewer clears last slot's;
+* ``edge/keyframe_trajectory`` — ``nav_msgs/Path`` of every keyframe the edge keeps, the map's
+  and the archive's, oldest first, each ``PoseStamped`` stamped with the keyframe's capture
+  time and posed where the edge holds it now: ORB-SLAM's keyframe trajectory, the one place a
+  loop's correction of archived keyframes shows (a map update carries only the map's).
 
 Frame id ``map`` (the edge's map frame, the frame of ``edge/map_update`` and ``device/pose``),
-stamps the slot's close.
+stamps the slot's close (the stamp of the slot's ``edge/map_update``).
 """
 
 from __future__ import annotations
@@ -20,7 +24,8 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 import numpy as np
-from geometry_msgs.msg import Point, PoseArray
+from geometry_msgs.msg import Point, PoseArray, PoseStamped
+from nav_msgs.msg import Path
 from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
@@ -60,6 +65,14 @@ def keyframes_message(keyframe_map: KeyFrameMap, stamp: float, frame_id: str = "
     poses = PoseArray(poses=[pose_msg(keyframe_map.keyframes[k].pose)
                              for k in sorted(keyframe_map.keyframes)])
     return set_header(poses, stamp, frame_id)
+
+
+def keyframe_trajectory_message(trajectory: Sequence[tuple[float, np.ndarray]], stamp: float,
+                                frame_id: str = "map") -> Path:
+    """(capture time s, camera-to-map pose) pairs as one path stamped ``stamp``."""
+    poses = [set_header(PoseStamped(pose=pose_msg(pose)), taken, frame_id)
+             for taken, pose in trajectory]
+    return set_header(Path(poses=poses), stamp, frame_id)
 
 
 def decisions_message(keyframe_map: KeyFrameMap, integrated: list[int], evicted: list[int],

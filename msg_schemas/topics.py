@@ -29,6 +29,8 @@ MAP_STATS = "edge/map_stats"
 MAP_POINTS = "edge/map_points"
 KEYFRAME_POSES = "edge/keyframes"
 DECISIONS = "edge/decisions"
+#: every keyframe the edge keeps, the map's and the archive's, as nav_msgs/Path
+KEYFRAME_TRAJECTORY = "edge/keyframe_trajectory"
 #: an edge serving several devices: how it splits its keyframe budget
 KEYFRAME_BUDGET = "edge/keyframe_budget"
 

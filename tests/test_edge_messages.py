@@ -185,3 +185,21 @@ def test_decision_markers_tell_integrated_evicted_restored_and_kept_keyframes_ap
     assert len(colours) == 4 and all(mk.action == Marker.ADD for mk in marks.values())
     quiet = {mk.ns: mk.action for mk in decisions_message(m, [8], [], {}, 2.0).markers}
     assert quiet["restored"] == quiet["evicted"] == Marker.DELETE
+
+
+def test_the_keyframe_trajectory_is_a_path_of_keyframes_at_their_capture_times() -> None:
+    """edge/keyframe_trajectory as a viewer and the run's report read it: one PoseStamped a
+    keyframe, stamped when its frame was captured (what pairs it with the frame's summary),
+    the path stamped when the slot closed, everything in the map frame."""
+    from edge_mapper.visual_messages import keyframe_trajectory_message
+    from msg_schemas.headers import stamp_key, time_key
+    from msg_schemas.poses import pose_matrix
+
+    poses = [_pose(0.3, [1.0, 2.0, 3.0]), _pose(-0.2, [0.5, 0.0, 1.0])]
+    path = _roundtrip(keyframe_trajectory_message([(12.5, poses[0]), (13.25, poses[1])],
+                                                  20.0, "ar1/map"))
+    assert stamp_key(path.header) == 20 * 10**9 and path.header.frame_id == "ar1/map"
+    assert [time_key(p.header.stamp) for p in path.poses] == [12_500_000_000, 13_250_000_000]
+    assert {p.header.frame_id for p in path.poses} == {"ar1/map"}
+    for sent, got in zip(poses, path.poses, strict=True):
+        np.testing.assert_allclose(pose_matrix(got.pose), sent, atol=1e-12)

@@ -116,7 +116,8 @@ def test_a_loop_that_would_move_the_map_beyond_a_devices_reach_is_refused() -> N
 def test_the_loop_corrected_map_and_archive_survive_a_restart(tmp_path: Path) -> None:
     """A loop's corrections reach the checkpoint: an edge restarted from it holds the
     corrected keyframes, counts the loop, keeps it for the next loop's graph, and reads back
-    an archived keyframe the loop moved as moved."""
+    an archived keyframe the loop moved as moved. The keyframe trajectory (map and archive,
+    by capture time) is the corrected one, before the restart and after."""
     device = DriftingDevice(np.random.default_rng(3), 8 * F)
     checkpoint = tmp_path / "edge.npz"
     core = _edge(loops=True, checkpoint=checkpoint)
@@ -129,6 +130,18 @@ def test_the_loop_corrected_map_and_archive_survive_a_restart(tmp_path: Path) ->
     np.testing.assert_allclose(again.loop_edges[0].measured, core.loop_edges[0].measured)
     for k, kf in core.map.keyframes.items():
         np.testing.assert_allclose(again.map.keyframes[k].pose, kf.pose, atol=1e-9)
+    trajectory = core.back_end.keyframe_trajectory()
+    kept = {**{kf.id: kf.pose for kf in core.archive},
+            **{k: kf.pose for k, kf in core.map.keyframes.items()}}
+    assert len(core.archive) > 0 and len(trajectory) == len(kept)
+    # capture times 0.1 s a frame, oldest first; each keyframe where the edge holds it now
+    assert [round(t / 0.1) for t, _ in trajectory] == sorted(kept)
+    for t, pose in trajectory:
+        np.testing.assert_array_equal(pose, kept[round(t / 0.1)])
+    for (t, pose), (t_again, pose_again) in zip(
+            trajectory, again.back_end.keyframe_trajectory(), strict=True):
+        assert t_again == t
+        np.testing.assert_allclose(pose_again, pose, atol=1e-9)
     # a correction of an archived keyframe is written to its file
     some = next(iter(core.archive))
     shift = np.eye(4)

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from msg_schemas.headers import stamp_seconds
+from msg_schemas.headers import stamp_seconds, time_key
 from tests.data_paths import seven_or_synthetic
 from twinslam.hosts.loopback import LoopbackDomain
 from twinslam.live.launcher import LaunchConfig, Launcher
@@ -427,7 +427,8 @@ def test_an_evicted_keyframe_comes_back_from_the_archive_on_the_way_back(tmp_pat
     edge's map only) and a map of 8 keyframes: the keyframes evicted on the way out stay in
     the edge's archive (MapStats counts them), and on the way back the edge restores some of
     them where the camera is heading — a keyframe the device's map lost comes back into it —
-    and the device tracks the way back."""
+    and the device tracks the way back. The edge's keyframe trajectory holds the archived
+    keyframes too, each at the capture stamp of the frame it was."""
     # 91 frames: 181 played in 6 slots of 30 frames at a quarter speed: one slot restores (the
     # 5th: the camera heads back past the evicted keyframes), on a margin of ~2.4x against the
     # 2x it needs, and once in a full-suite run at half speed it restored nothing (cause not
@@ -435,7 +436,7 @@ def test_an_evicted_keyframe_comes_back_from_the_archive_on_the_way_back(tmp_pat
     report, record, launcher = _run(
         "lff", frames=91, scenario=SCENARIOS["revisit"], sequence="synthetic:91",
         rate=RATE / 2,
-        extra={"edge_mapper": ["vmax:=8", "restore_keyframes:=3"],
+        extra={"edge_mapper": ["vmax:=8", "restore_keyframes:=3", "trajectory_every:=1"],
                "device_tracker": [f"slot_frames:={SLOT_FRAMES}", "map_source:=edge"]})
     maps = [set(record.maps[k].keyframe_ids.tolist()) for k in sorted(record.maps)]
     back = sorted(came_back(maps))
@@ -445,6 +446,12 @@ def test_an_evicted_keyframe_comes_back_from_the_archive_on_the_way_back(tmp_pat
     assert "restored from the archive" in log, f"frames a slot {seen}; {log[-3000:]}"
     assert max(s.archived_keyframes for s in record.stats.values()) > 0
     assert all(s.map_size <= 8 for s in record.stats.values())
+    stamps = {time_key(f.stamp): int(f.frame_id) for s in record.summaries.values()
+              for f in s.frames}
+    trajectory = {stamps[s] for s in record.keyframe_trajectory}     # a KeyError: no frame's
+    (sent_with,) = [k for k, t in record.map_stamps.items() if t == record.trajectory_stamp]
+    in_map = set(record.maps[sent_with].keyframe_ids.tolist())
+    assert in_map < trajectory, (sorted(trajectory), sorted(in_map))
     # MapStats counts what came back, and the run's row and picture show it
     assert report.restores == sum(s.restored_keyframes for s in record.stats.values()) \
         >= len(back)
@@ -496,7 +503,6 @@ def test_a_viewer_follows_the_device_on_the_tf_tree(viewed_lff: tuple) -> None:
     device tracked (their product is its pose on device/pose, stamped alike) and none at a
     frame it did not; world → map on /tf_static (latched: the viewer joined after it went
     out) at the first played frame's ground truth, where the device's map frame starts."""
-    from msg_schemas.headers import time_key
     from msg_schemas.poses import pose_matrix, pose_msg
     from msg_schemas.transforms import transform_matrix
 

@@ -100,20 +100,25 @@ def _keyframes(version: int, poses: dict[int, np.ndarray]) -> MapSnapshot:
                        np.zeros((0, 3)), np.zeros((0, 32), np.uint8), np.zeros(0, np.uint32))
 
 
-def test_a_loop_s_correction_is_no_revisit_error_of_content_anchored_to_keyframes() -> None:
-    """A 40 s walk out along a curve and back, a frame a second. Going out the device tracks on map
-    version 1, whose keyframes (0 and 10) drifted 5 cm sideways with it; a loop then moves
-    them back (version 2), and the way back is tracked on that. In map coordinates every
-    revisit is 5 cm off; anchored to the keyframes the first visit moves with them."""
-    drift = np.eye(4)
-    drift[1, 3] = 0.05
+#: the walk's sideways drift on the way out, which the loop takes out
+DRIFT = np.eye(4)
+DRIFT[1, 3] = 0.05
+
+
+def _walk_out_and_back(corrected_in_map: bool) -> tuple[RunLog, dict[int, np.ndarray]]:
+    """A 40 s walk out along a curve and back, a frame a second. Going out the device tracks
+    on map version 1, whose keyframes (0 and 10) drifted 5 cm sideways with it; a loop then
+    moves them back, and the way back is tracked on version 2. ``corrected_in_map``: version
+    2 carries keyframes 0 and 10 corrected; else they left the map before the loop (version
+    2 holds keyframe 30 only) and no map update carries their correction. Returns the log
+    and the truth by frame id."""
     truth = {i: np.eye(4) for i in range(40)}
     for i, pose in truth.items():
         along = i if i < 20 else 39 - i
         pose[:2, 3] = 0.1 * along, 0.001 * along * along     # a curve: ATE can align it
     log = RunLog()
     for slot in range(2):
-        frames = [FrameRecord(i, float(i), drift @ truth[i] if slot == 0 else truth[i], True,
+        frames = [FrameRecord(i, float(i), DRIFT @ truth[i] if slot == 0 else truth[i], True,
                               np.zeros(0, np.uint64), np.zeros(0, np.uint64), slot,
                               map_version=slot + 1)
                   for i in range(slot * 20, (slot + 1) * 20)]
@@ -122,12 +127,42 @@ def test_a_loop_s_correction_is_no_revisit_error_of_content_anchored_to_keyframe
         for f, record in zip(msg.frames, frames, strict=True):
             log.poses[time_key(f.stamp)] = record.pose
             log.ground_truth[time_key(f.stamp)] = truth[record.frame_id]
-        log.maps[slot] = _keyframes(slot + 1, {k: (drift if slot == 0 else np.eye(4)) @ truth[k]
-                                               for k in (0, 10)})
+        log.map_stamps[slot] = int(20e9) * (slot + 1)
+    log.maps[0] = _keyframes(1, {k: DRIFT @ truth[k] for k in (0, 10)})
+    log.maps[1] = _keyframes(2, {k: truth[k] for k in (0, 10)} if corrected_in_map
+                             else {30: truth[30]})
+    return log, truth
+
+
+def test_a_loop_s_correction_is_no_revisit_error_of_content_anchored_to_keyframes() -> None:
+    """In map coordinates every revisit of the walk is 5 cm off; anchored to the keyframes
+    the first visit moves with them, as the map updates moved them; without the loop it
+    keeps the drift."""
+    log, truth = _walk_out_and_back(corrected_in_map=True)
     rep = report("lff", log, 40.0, 20)
     assert rep.revisit_error_m == pytest.approx(0.05)
     assert rep.anchored_revisit_error_m == pytest.approx(0.0, abs=1e-9)
-    log.maps[1] = _keyframes(2, {k: drift @ truth[k] for k in (0, 10)})    # no loop
+    log.maps[1] = _keyframes(2, {k: DRIFT @ truth[k] for k in (0, 10)})    # no loop
+    assert report("lff", log, 40.0, 20).anchored_revisit_error_m == pytest.approx(0.05)
+
+
+def test_content_anchored_to_an_archived_keyframe_moves_where_the_edge_s_trajectory_puts_it(
+        ) -> None:
+    """The first visit's keyframes left the map before the loop corrected them: no map update
+    carries the correction, and anchored to what the device heard the revisit stays 5 cm off.
+    The edge's keyframe trajectory (every keyframe kept, by capture stamp) does carry it, and
+    anchored to it the revisit error is gone; a map update stamped after the trajectory
+    supersedes it for the keyframes it carries."""
+    log, truth = _walk_out_and_back(corrected_in_map=False)
+    assert report("lff", log, 40.0, 20).anchored_revisit_error_m == pytest.approx(0.05)
+    stamps = {int(f.frame_id): time_key(f.stamp) for s in log.summaries.values()
+              for f in s.frames}
+    log.keyframe_trajectory = {stamps[k]: truth[k] for k in (0, 10, 30)}
+    log.trajectory_stamp = log.map_stamps[1]       # sent with the slot's map update
+    assert report("lff", log, 40.0, 20).anchored_revisit_error_m == pytest.approx(0.0, abs=1e-9)
+    # a later map update puts keyframes 0 and 10 back where they drifted to
+    log.maps[2] = _keyframes(3, {k: DRIFT @ truth[k] for k in (0, 10)})
+    log.map_stamps[2] = log.trajectory_stamp + 1
     assert report("lff", log, 40.0, 20).anchored_revisit_error_m == pytest.approx(0.05)
 
 

@@ -10,7 +10,7 @@ from typing import TypeVar, cast
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
-from nav_msgs.msg import Odometry
+from nav_msgs.msg import Odometry, Path
 from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import Image
@@ -74,6 +74,7 @@ class PipelineMonitor:
         # taken undecoded, to count their size on the downlink, then decoded once
         sub(MapUpdate, topics.MAP_UPDATE, with_info(self._map), map_qos, raw=True)
         sub(Relocalisation, topics.RELOCALISATION, self._downlink, qos.PROTOCOL, raw=True)
+        sub(Path, topics.KEYFRAME_TRAJECTORY, self._trajectory, qos.MAP)
         sub(PoseStamped, topics.DEVICE_POSE, self._pose, qos.PROTOCOL)
         sub(Odometry, topics.DEVICE_ODOM, self._odom, qos.PROTOCOL)
         sub(PoseStamped, topics.GROUND_TRUTH_POSE, self._ground_truth, qos.CAMERA)
@@ -110,6 +111,14 @@ class PipelineMonitor:
         snapshot = read_map_update(msg)
         self.record.first_map_versions.setdefault(int(msg.slot), snapshot.version)
         self.record.maps[int(msg.slot)] = snapshot
+        self.record.map_stamps[int(msg.slot)] = stamp_key(msg.header)
+
+    def _trajectory(self, msg: Path) -> None:
+        stamp = stamp_key(msg.header)
+        if stamp >= self.record.trajectory_stamp:
+            self.record.trajectory_stamp = stamp
+            self.record.keyframe_trajectory = {stamp_key(p.header): pose_matrix(p.pose)
+                                               for p in msg.poses}
 
     def _pose(self, msg: PoseStamped) -> None:
         self.record.poses[stamp_key(msg.header)] = pose_matrix(msg.pose)

@@ -324,19 +324,18 @@ def _revisit_cells(record: RunLog, tracked: set[int]) -> tuple[float, float]:
 
 def anchored_revisit_error(record: RunLog, tracked: set[int]) -> float:
     """The RMS revisit error (m) of the tracked poses anchored to the keyframes of the map
-    each frame was tracked against (the newest update of its version or before), moved as the
-    device's later map updates moved those keyframes; NaN without ground truth."""
+    each frame was tracked against (the newest update of its version or before), moved to
+    where the edge held those keyframes last (:func:`final_keyframe_poses`); NaN without
+    ground truth."""
     if not record.ground_truth:
         return math.nan
     snapshots = sorted(record.maps.values(), key=lambda m: m.version)
     versions = [m.version for m in snapshots]
     keyframes = [dict(zip(m.keyframe_ids.tolist(), m.keyframe_poses, strict=True))
                  for m in snapshots]
-    now: dict[int, np.ndarray] = {}
-    for poses in keyframes:
-        now.update(poses)
     frames = {int(f.frame_id): (time_key(f.stamp), int(f.map_version))
               for s in record.summaries.values() for f in s.frames}
+    now = final_keyframe_poses(record, {stamp: fid for fid, (stamp, _) in frames.items()})
     published = {fid: record.poses[stamp] for fid, (stamp, _) in frames.items()
                  if stamp in tracked and stamp in record.poses}
     then: dict[int, dict[int, np.ndarray]] = {}
@@ -347,6 +346,28 @@ def anchored_revisit_error(record: RunLog, tracked: set[int]) -> float:
     anchored = anchored_to_keyframes(published, then, now)
     return revisit_error({frames[fid][0]: pose for fid, pose in anchored.items()},
                          record.ground_truth, tracked).rms_m
+
+
+def final_keyframe_poses(record: RunLog, frame_of: dict[int, int]) -> dict[int, np.ndarray]:
+    """Each keyframe's last pose at the edge (id → camera-to-map): the map updates and the
+    newest keyframe trajectory applied in the order the edge stamped them (a map update and
+    the trajectory of one slot share its stamp; the trajectory, sent after, wins). Map updates
+    alone miss a keyframe a loop corrected after it left the map; ``frame_of`` (capture stamp
+    ns → frame id) names the trajectory's keyframes."""
+    now: dict[int, np.ndarray] = {}
+
+    def apply_maps(keep: Callable[[int], bool]) -> None:
+        for slot, snapshot in sorted(record.maps.items(), key=lambda kv: kv[1].version):
+            if keep(record.map_stamps.get(slot, -1)):
+                now.update(zip(snapshot.keyframe_ids.tolist(), snapshot.keyframe_poses,
+                               strict=True))
+
+    sent = record.trajectory_stamp
+    apply_maps(lambda stamp: stamp <= sent)
+    now.update((frame_of[s], pose) for s, pose in record.keyframe_trajectory.items()
+               if s in frame_of)
+    apply_maps(lambda stamp: stamp > sent)
+    return now
 
 
 def longest_without_upload(record: RunLog) -> float:

@@ -71,6 +71,7 @@ RUN_TOPICS: tuple[tuple[str, type[Any], Any], ...] = (
     (topics.MAP_POINTS, PointCloud2, qos.MAP),
     (topics.KEYFRAME_POSES, PoseArray, qos.MAP),
     (topics.DECISIONS, MarkerArray, qos.MAP),
+    (topics.KEYFRAME_TRAJECTORY, PathMsg, qos.MAP),
     (topics.DEVICE_POSE, PoseStamped, qos.PROTOCOL),
     (topics.DEVICE_PATH, PathMsg, qos.MAP),
     (topics.DEVICE_ODOM, Odometry, qos.PROTOCOL),

@@ -19,6 +19,12 @@ class RunLog:
     stats: dict[int, MapStats] = field(default_factory=dict)
     throughput: dict[int, UplinkThroughput] = field(default_factory=dict)
     maps: dict[int, MapSnapshot] = field(default_factory=dict)   #: last map update per slot
+    #: each of those map updates' header stamp (ns)
+    map_stamps: dict[int, int] = field(default_factory=dict)
+    #: the newest edge/keyframe_trajectory: every keyframe the edge kept, archived ones
+    #: included, by capture stamp (ns) → camera-to-map pose; and that message's stamp (ns)
+    keyframe_trajectory: dict[int, np.ndarray] = field(default_factory=dict)
+    trajectory_stamp: int = -1
     poses: dict[int, np.ndarray] = field(default_factory=dict)        #: stamp ns → pose
     #: stamp ns → the camera's pose in REP 105's odom frame (device/odom)
     odom_poses: dict[int, np.ndarray] = field(default_factory=dict)

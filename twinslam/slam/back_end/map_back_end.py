@@ -19,6 +19,8 @@ closed so far agreeing with each other:
 * :meth:`MapBackEnd.take_loop` and :meth:`MapBackEnd.start_loop_job` — the loop closer's
   answer applied between slots, the next job handed to it
   (:mod:`~twinslam.slam.back_end.loop_closing`);
+* :meth:`MapBackEnd.keyframe_trajectory` — every keyframe kept, in the map or the archive, at
+  its capture time and where the edge holds it now (ORB-SLAM's keyframe trajectory);
 * :meth:`MapBackEnd.checkpoint_arrays` — what a restart needs besides the map's own arrays.
 """
 
@@ -162,6 +164,10 @@ class MapBackEnd:
                                            dtype=np.float64).reshape(4, 4)
         #: (first map version carrying it, frame_correction): the frame each version is in
         self._frames_since: list[tuple[int, np.ndarray]] = [(0, self.frame_correction.copy())]
+        #: each integrated keyframe's capture time (s): its place in the keyframe trajectory
+        self.keyframe_stamps: dict[int, float] = dict(zip(
+            (int(k) for k in extra.get("keyframe_stamp_ids", ())),
+            (float(t) for t in extra.get("keyframe_stamps", ())), strict=True))
 
     def _open_archive(self) -> KeyFrameArchive:
         """The archive beside the checkpoint (``edge.npz`` → ``edge.npz.archive/``), restored
@@ -206,6 +212,8 @@ class MapBackEnd:
         self.k = self.local_mapping.k = np.asarray(data.intrinsics, dtype=np.float64)
         report = self.local_mapping.integrate(data.frame_id, data.pose, data.keypoints,
                                               data.descriptors, data.depths, data.point_ids)
+        if data.frame_id in self.map.keyframes:
+            self.keyframe_stamps[data.frame_id] = float(data.stamp)
         if self.config.loop_closing and data.frame_id in self.map.keyframes:
             self._loop_queries = [*self._loop_queries[-(LOOP_QUERIES - 1):],
                                   LoopQuery(data.frame_id, data.keypoints, data.descriptors,
@@ -417,13 +425,29 @@ class MapBackEnd:
         """Stop the loop closer's worker (the node calls it at shutdown)."""
         self.loop_closer.close()
 
+    def keyframe_trajectory(self) -> list[tuple[float, np.ndarray]]:
+        """(capture time in s, camera-to-map pose) of every keyframe kept — the map's and
+        the archive's — oldest first, each where the edge holds it now: the whole map as one
+        trajectory, which a device's map updates never carry (an archived keyframe a loop
+        corrects is not sent again). Keyframes of unknown capture time (a checkpoint written
+        before they were kept) are left out."""
+        poses = {kf.id: kf.pose for kf in self.archive}
+        poses.update((k, kf.pose) for k, kf in self.map.keyframes.items())
+        return sorted(((self.keyframe_stamps[k], pose.copy()) for k, pose in poses.items()
+                       if k in self.keyframe_stamps), key=lambda entry: entry[0])
+
     # -- checkpoint --------------------------------------------------------------------------
 
     def checkpoint_arrays(self) -> dict[str, np.ndarray]:
-        """What a restarted back end reads back besides the map: the loops applied and the
-        frame they left the map in."""
+        """What a restarted back end reads back besides the map: the loops applied, the
+        frame they left the map in and the capture times of the keyframes kept."""
+        kept = sorted(k for k in self.keyframe_stamps
+                      if k in self.map.keyframes or k in self.archive)
         return {"loops_closed": np.array(self.loops_closed), **_loop_arrays(self.loop_edges),
-                "frame_correction": self.frame_correction}
+                "frame_correction": self.frame_correction,
+                "keyframe_stamp_ids": np.array(kept, dtype=np.int64),
+                "keyframe_stamps": np.array([self.keyframe_stamps[k] for k in kept],
+                                            dtype=np.float64)}
 
 
 def archive_folder(checkpoint: Path) -> Path:
