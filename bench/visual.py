@@ -1,8 +1,11 @@
 """What the edge's viewer topics cost a slot: building ``edge/map_points`` (PointCloud2),
 ``edge/keyframes`` (PoseArray) and ``edge/decisions`` (MarkerArray) and serialising them as
-rclpy would put them on the wire, for a full map (V_max keyframes) of growing point counts.
+rclpy would put them on the wire, for a full map (V_max keyframes) of growing point counts;
+and what one ``edge/keyframe_trajectory`` (nav_msgs/Path of the map's and a full archive's
+keyframes) costs, sent every ``trajectory_every`` slots and after loops, not every slot.
 
-    python -m bench.visual [--keyframes 45] [--points 5000,20000,60000] [--repeats 20]
+    python -m bench.visual [--keyframes 45] [--points 5000,20000,60000] [--archive 500]
+                           [--repeats 20]
 """
 
 from __future__ import annotations
@@ -19,7 +22,12 @@ import numpy as np
 from rclpy.serialization import serialize_message
 
 from bench.gauge import cpu_gauge
-from edge_mapper.visual_messages import decisions_message, keyframes_message, map_points_message
+from edge_mapper.visual_messages import (
+    decisions_message,
+    keyframe_trajectory_message,
+    keyframes_message,
+    map_points_message,
+)
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 
 
@@ -44,6 +52,9 @@ def main() -> None:
     parser.add_argument("--keyframes", type=int, default=45, help="keyframes in the map")
     parser.add_argument("--points", default="5000,20000,60000",
                         help="comma-separated map point counts")
+    parser.add_argument("--archive", type=int, default=500,
+                        help="archived keyframes in the keyframe trajectory (the edge's "
+                             "archive_keyframes)")
     parser.add_argument("--repeats", type=int, default=20, help="timed builds per size")
     args = parser.parse_args()
     print(f"machine: {platform.node()} {platform.machine()}, python "
@@ -68,6 +79,15 @@ def main() -> None:
         med = {k: statistics.median(v) for k, v in times.items()}
         print(f"{n:>8} {med['cloud']:>9.2f} {med['poses']:>9.2f} {med['marks']:>11.2f} "
               f"{sum(med.values()):>9.2f} {size / 1e6:>9.2f}", flush=True)
+    count = args.keyframes + args.archive
+    trajectory = [(0.1 * k, np.eye(4)) for k in range(count)]
+    spent = []
+    for _ in range(args.repeats):
+        t0 = time.perf_counter()
+        serialize_message(keyframe_trajectory_message(trajectory, 1.0))
+        spent.append((time.perf_counter() - t0) * 1000)
+    print(f"keyframe trajectory of {count} keyframes: {statistics.median(spent):.1f} ms a "
+          "message", flush=True)
 
 
 if __name__ == "__main__":

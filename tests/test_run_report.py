@@ -151,7 +151,8 @@ def test_content_anchored_to_an_archived_keyframe_moves_where_the_edge_s_traject
     """The first visit's keyframes left the map before the loop corrected them: no map update
     carries the correction, and anchored to what the device heard the revisit stays 5 cm off.
     The edge's keyframe trajectory (every keyframe kept, by capture stamp) does carry it, and
-    anchored to it the revisit error is gone; a map update stamped after the trajectory
+    anchored to it the revisit error is gone, and so is the ATE of the walk as the final map
+    has it (ORB-SLAM's saved trajectory); a map update stamped after the trajectory
     supersedes it for the keyframes it carries."""
     log, truth = _walk_out_and_back(corrected_in_map=False)
     assert report("lff", log, 40.0, 20).anchored_revisit_error_m == pytest.approx(0.05)
@@ -159,7 +160,10 @@ def test_content_anchored_to_an_archived_keyframe_moves_where_the_edge_s_traject
               for f in s.frames}
     log.keyframe_trajectory = {stamps[k]: truth[k] for k in (0, 10, 30)}
     log.trajectory_stamp = log.map_stamps[1]       # sent with the slot's map update
-    assert report("lff", log, 40.0, 20).anchored_revisit_error_m == pytest.approx(0.0, abs=1e-9)
+    rep = report("lff", log, 40.0, 20)
+    assert rep.anchored_revisit_error_m == pytest.approx(0.0, abs=1e-9)
+    # the whole walk as the final map has it is the truth; as published, half of it drifted
+    assert rep.anchored_ate_m == pytest.approx(0.0, abs=1e-6) and rep.ate_m > 0.01
     # a later map update puts keyframes 0 and 10 back where they drifted to
     log.maps[2] = _keyframes(3, {k: DRIFT @ truth[k] for k in (0, 10)})
     log.map_stamps[2] = log.trajectory_stamp + 1

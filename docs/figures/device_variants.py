@@ -14,7 +14,11 @@ plausibility gates instead (:data:`USER_FIGURES`: jumps of any tracked pose, the
 jitter beside the truth's, the longest run of slots without an upload, the poses the gates
 refused); ``--steady`` those of runs made since REP 105 (:data:`STEADY_FIGURES`: the revisit
 error, the jitter in ``map`` and in ``odom``, the odom frame's largest step beyond the truth's,
-the share of frames posed by PnP RANSAC). The first table gives each folder's figures a user
+the share of frames posed by PnP RANSAC, and each published pose anchored to its keyframe's final
+pose: ATE and revisit error). ``--fixed-keyframes=LABEL[,LABEL]`` names variants whose
+keyframes never moved once in the map (no loop closing, no bundle adjustment): their anchored
+figures are their published ones, taken so where their runs.csv predates the column (a run of
+theirs that closed a loop is refused). The first table gives each folder's figures a user
 judges a device by, mean ± 95 % CI half-width over its runs (Student t, as evaluate's tables):
 the share of played frames without a pose (a covered lens counted in), the share of the scored
 next-slot frames the device failed (the covered lens counted apart, as calibrate does), the 95th
@@ -74,6 +78,7 @@ USER_PAIRED = ("failed_share", "max_error_m", "ate_m", "jitter_rms_mm", "frames_
 #: the revisit error and the PnP-RANSAC share
 STEADY_FIGURES = (("failed_share", "failed (played frames)", "{:.1%}"),
                   ("max_error_m", "largest error (m)", "{:.3f}"), ("ate_m", "ATE (m)", "{:.3f}"),
+                  ("anchored_ate_m", "ATE, anchored (m)", "{:.3f}"),
                   ("revisit_error_m", "revisit error (m)", "{:.3f}"),
                   ("anchored_revisit_error_m", "revisit error, anchored (m)", "{:.3f}"),
                   ("jitter_rms_mm", "jitter RMS (mm)", "{:.1f}"),
@@ -88,15 +93,18 @@ STEADY_FIGURES = (("failed_share", "failed (played frames)", "{:.1%}"),
                   ("frames_uploaded", "uploads (frames)", "{:.1f}"),
                   ("device_cpu_ms", "device CPU (ms/frame)", "{:.1f}"),
                   ("frames_dropped", "dropped (frames)", "{:.0f}"))
-STEADY_PAIRED = ("max_error_m", "ate_m", "revisit_error_m", "anchored_revisit_error_m",
-                 "jitter_rms_mm", "pnp_ransac_share")
+STEADY_PAIRED = ("max_error_m", "ate_m", "anchored_ate_m", "revisit_error_m",
+                 "anchored_revisit_error_m", "jitter_rms_mm", "pnp_ransac_share")
+#: anchored figure → the published one it equals where keyframes never move
+ANCHORED_AS_PUBLISHED = {"anchored_ate_m": "ate_m", "anchored_revisit_error_m": "revisit_error_m"}
 
 
 def _runs(folder: Path, label: str, figures: tuple[tuple[str, str, str], ...] = FIGURES,
-          scenario: str | None = None
+          scenario: str | None = None, fixed_keyframes: bool = False
           ) -> tuple[str, dict[int, dict[str, float]], list[dict[str, str]]]:
     """("scenario, map source, policy", seed → the run's figures, the scored frames labelled
-    with ``label``) of one folder (of its runs of ``scenario`` only, when given)."""
+    with ``label``) of one folder (of its runs of ``scenario`` only, when given);
+    ``fixed_keyframes``: its anchored figures are its published ones where it lacks them."""
     with (folder / "runs.csv").open(encoding="utf-8") as fh:
         rows = [r for r in csv.DictReader(fh) if scenario in (None, r["scenario"])]
     if not rows:
@@ -115,25 +123,34 @@ def _runs(folder: Path, label: str, figures: tuple[tuple[str, str, str], ...] = 
                   if scenario in (None, f["scenario"])]
     except FileNotFoundError as exc:
         raise SystemExit(str(exc)) from None
+    if fixed_keyframes and any(float(r.get("loops_closed") or 0) > 0 for r in rows):
+        raise SystemExit(f"{folder}: its runs closed loops; their keyframes moved")
     runs = {}
     for r in rows:
         seed = int(r["seed"])
         runs[seed] = {k: float(r[k]) for k, _, _ in figures if k in r}
+        if fixed_keyframes:
+            for anchored, published in ANCHORED_AS_PUBLISHED.items():
+                if anchored not in r and published in r:
+                    runs[seed][anchored] = float(r[published])
         tracked = [f["device_tracked"] == "1" for f in frames if int(f["seed"]) == seed]
         runs[seed]["scored_failed"] = (1.0 - float(np.mean(tracked))) if tracked else math.nan
     return ", ".join(sorted(kinds)[0]), runs, frames
 
 
-def main(folders: list[tuple[str, Path]], user: bool = False, steady: bool = False) -> None:
+def main(folders: list[tuple[str, Path]], user: bool = False, steady: bool = False,
+         fixed_keyframes: frozenset[str] = frozenset()) -> None:
     """Print the tables of ``folders`` (label, folder, or folder#scenario); ``user``: the
     figures of :data:`USER_FIGURES` and :data:`USER_PAIRED`; ``steady``: those of
-    :data:`STEADY_FIGURES` and :data:`STEADY_PAIRED`."""
+    :data:`STEADY_FIGURES` and :data:`STEADY_PAIRED`; ``fixed_keyframes``: the labels whose
+    keyframes never moved (see the module's text)."""
     figures, paired = ((STEADY_FIGURES, STEADY_PAIRED) if steady else
                        (USER_FIGURES, USER_PAIRED) if user else (FIGURES, PAIRED))
     loaded = []
     for label, path in folders:
         folder, _, scenario = str(path).partition("#")
-        loaded.append((label, *_runs(Path(folder), label, figures, scenario or None)))
+        loaded.append((label, *_runs(Path(folder), label, figures, scenario or None,
+                                     label in fixed_keyframes)))
     # a figure no run measured (runs.csv written before its column) is left out of the table
     figures = tuple(f for f in figures
                     if any(f[0] in r for _, _, runs, _ in loaded for r in runs.values()))
@@ -186,6 +203,9 @@ if __name__ == "__main__":
     mode = args[0] if args and args[0] in ("--user", "--steady") else ""
     if mode:
         args = args[1:]
+    fixed = frozenset(label for a in args if a.startswith("--fixed-keyframes=")
+                      for label in a.partition("=")[2].split(",") if label)
+    args = [a for a in args if not a.startswith("--fixed-keyframes=")]
     if not args:
         raise SystemExit(__doc__)
-    main(_parse(args), user=mode == "--user", steady=mode == "--steady")
+    main(_parse(args), user=mode == "--user", steady=mode == "--steady", fixed_keyframes=fixed)

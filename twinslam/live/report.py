@@ -128,6 +128,9 @@ class RunReport:
     #: way; a loop's correction then no longer counts as the device coming back elsewhere:
     #: :func:`~twinslam.live.tracking_quality.anchored_to_keyframes`); m, NaN: no ground truth
     anchored_revisit_error_m: float = math.nan
+    #: the ATE of the published poses anchored so: the trajectory as the edge's final map
+    #: has it (ORB-SLAM's saved trajectory), where ``ate_m`` is the poses as published then
+    anchored_ate_m: float = math.nan
 
     ROW = ("{label:<14} {mean_uncertainty:>10.1f} {lost_share:>6.1%} "
            "{tracked_uncertainty:>10.1f} {ate_m:>7.3f} "
@@ -212,6 +215,7 @@ def report(policy: str, record: RunLog, seconds: float, slot_frames: int) -> Run
     revisit_m, revisit_pairs = _revisit_cells(record, tracked)
     odom_jitter, odom_step = _odom_cells(record, tracked)
     loops_closed, loop_ms = _loop_cells(stats)
+    anchored_ate, anchored_revisit = anchored_cells(record, tracked)
     throughput = record.throughput.values()
     return RunReport(
         policy=policy, slots=len(stats),
@@ -250,7 +254,7 @@ def report(policy: str, record: RunLog, seconds: float, slot_frames: int) -> Run
         loop_closing_ms=loop_ms, outlier_share=outlier_share(record),
         loops_refused=float(max(int(s.loops_refused) for s in stats)) if stats else math.nan,
         duplicate_share=map_duplicate_share(record),
-        anchored_revisit_error_m=anchored_revisit_error(record, tracked))
+        anchored_revisit_error_m=anchored_revisit, anchored_ate_m=anchored_ate)
 
 
 def map_duplicate_share(record: RunLog) -> float:
@@ -322,13 +326,12 @@ def _revisit_cells(record: RunLog, tracked: set[int]) -> tuple[float, float]:
     return revisits.rms_m, float(revisits.pairs)
 
 
-def anchored_revisit_error(record: RunLog, tracked: set[int]) -> float:
-    """The RMS revisit error (m) of the tracked poses anchored to the keyframes of the map
-    each frame was tracked against (the newest update of its version or before), moved to
-    where the edge held those keyframes last (:func:`final_keyframe_poses`); NaN without
-    ground truth."""
-    if not record.ground_truth:
-        return math.nan
+def anchored_poses(record: RunLog) -> dict[int, np.ndarray]:
+    """Every published pose (stamp ns → camera-to-map) anchored to the keyframes of the map
+    its frame was tracked against (the newest update of its version or before), moved to
+    where the edge held those keyframes last (:func:`final_keyframe_poses`): the trajectory
+    ORB-SLAM saves (each frame relative to its reference keyframe, composed with that
+    keyframe's final pose), which a loop's later correction reaches."""
     snapshots = sorted(record.maps.values(), key=lambda m: m.version)
     versions = [m.version for m in snapshots]
     keyframes = [dict(zip(m.keyframe_ids.tolist(), m.keyframe_poses, strict=True))
@@ -337,15 +340,24 @@ def anchored_revisit_error(record: RunLog, tracked: set[int]) -> float:
               for s in record.summaries.values() for f in s.frames}
     now = final_keyframe_poses(record, {stamp: fid for fid, (stamp, _) in frames.items()})
     published = {fid: record.poses[stamp] for fid, (stamp, _) in frames.items()
-                 if stamp in tracked and stamp in record.poses}
+                 if stamp in record.poses}
     then: dict[int, dict[int, np.ndarray]] = {}
     for fid in published:
         at = bisect.bisect_right(versions, frames[fid][1]) - 1
         if at >= 0:
             then[fid] = keyframes[at]
     anchored = anchored_to_keyframes(published, then, now)
-    return revisit_error({frames[fid][0]: pose for fid, pose in anchored.items()},
-                         record.ground_truth, tracked).rms_m
+    return {frames[fid][0]: pose for fid, pose in anchored.items()}
+
+
+def anchored_cells(record: RunLog, tracked: set[int]) -> tuple[float, float]:
+    """(ATE, RMS revisit error of the tracked frames) of :func:`anchored_poses`, m; NaN
+    without ground truth."""
+    if not record.ground_truth:
+        return math.nan, math.nan
+    anchored = anchored_poses(record)
+    return (absolute_trajectory_error(anchored, record.ground_truth),
+            revisit_error(anchored, record.ground_truth, tracked).rms_m)
 
 
 def final_keyframe_poses(record: RunLog, frame_of: dict[int, int]) -> dict[int, np.ndarray]:
