@@ -181,6 +181,10 @@ def main(folders: list[tuple[str, Path]], user: bool = False, steady: bool = Fal
             raise SystemExit(f"{label} and {base_label} hold different seeds: no pairing")
         cells = []
         for key in paired:
+            if not all(key in runs[s] and key in base[s] for s in seeds):
+                cells.append("–")              # a variant's runs.csv predates the figure
+                continue
+            # a seed a variant could not measure (NaN) is left out of the pairing
             d = paired_difference(np.array([[runs[s][key] for s in seeds]]),
                                   [base[s][key] for s in seeds])
             fmt = formats[key]
