@@ -80,11 +80,11 @@ PARAMETERS = (
     ParamSpec("point_culling", False, "a map point that later keyframes look at and find in "
               "fewer than a quarter of their views (after four) leaves the map (ORB-SLAM's "
               "map-point culling); false: a point stays until its last observer leaves"),
-    ParamSpec("integration_fusion", False, "a new keyframe's feature that would make a map "
-              "point within 5 cm (+2 % of its depth) of a map point in view that looks alike "
-              "observes that point instead: one corner, one point, where the matching by pixel "
-              "refused a corner the map holds twice; false: every unmatched feature with depth "
-              "makes a point"),
+    ParamSpec("integration_fusion", default_device.INTEGRATION_FUSION, "a new keyframe's "
+              "feature that would make a map point within 5 cm (+2 % of its depth) of a map "
+              "point in view that looks alike observes that point instead: one corner, one "
+              "point, where the matching by pixel refused a corner the map holds twice; false: "
+              "every unmatched feature with depth makes a point"),
     ParamSpec("loop_closing", default_device.LOOP_CLOSING, "look for a loop from every "
               "keyframe the edge integrates (a place its archive or map saw far earlier, "
               "found by PnP, measured from the two keyframes' depths) and close it with a pose "

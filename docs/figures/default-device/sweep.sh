@@ -7,7 +7,7 @@
 # device_variants.py --user prints the tables (FOLDER#SCENARIO), paired by seed against the
 # first variant.
 #
-#   bash docs/figures/default-device/sweep.sh         # ~4.5 h on 2 cores; resumes where it
+#   bash docs/figures/default-device/sweep.sh         # ~7.5 h on 2 cores; resumes where it
 #                                                     # stopped (evaluate --resume)
 #   SEEDS=3 LONG_FRAMES=300 OUT=docs/figures/default-device/pilot-300 SHORT= \
 #       LONG=revisit-v15@table1,revisit-v15@lte,revisit-v15@mmwave,revisit-v15@constrained,outages@lte \
@@ -28,6 +28,10 @@ VARIANTS=(
   "short-loop-own-map docs/figures/colour-camera/short-loop-own-map.yaml edge"
   # the Edge-SLAM style device with the same slots: the edge's map and its own recent points
   "edge-local docs/figures/colour-camera/short-loop-own-map.yaml edge+local"
+  # the same without the edge's local bundle adjustment (docs/results/map-consistency.md)
+  "no-adjustment docs/figures/map-consistency/no-adjustment.yaml edge+local"
+  # and with fusion on integration and loop closing: the default device
+  "loops-fusion docs/figures/map-consistency/loops.yaml edge+local"
 )
 run() {   # FRAMES SCENARIOS FOLDER-SUFFIX
   [ -n "$2" ] || return 0
