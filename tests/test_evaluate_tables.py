@@ -250,3 +250,18 @@ def test_the_side_by_side_table_names_each_runs_device_and_its_restores() -> Non
     restores = header.split().index("restor") - 1
     assert [r.split()[column] for r in rows] == ["-", "default"]
     assert [r.split()[restores] for r in rows] == ["nan", "16"]
+
+
+def test_a_device_whose_keyframes_never_moved_reads_its_anchored_figures_as_published() -> None:
+    """Anchored to keyframes that never moved, a pose is where it was published: a runs.csv
+    written before the anchored columns reads them as the published ones (a column it has
+    is kept), and a run that closed a loop — whose keyframes moved — is refused."""
+    from twinslam.live.runs import anchored_as_published
+
+    old = [{"seed": "0", "ate_m": "0.05", "revisit_error_m": "0.04", "loops_closed": "0"}]
+    (row,) = anchored_as_published(old, "before")
+    assert (row["anchored_ate_m"], row["anchored_revisit_error_m"]) == ("0.05", "0.04")
+    newer = [{**old[0], "anchored_ate_m": "0.03"}]
+    assert anchored_as_published(newer, "x")[0]["anchored_ate_m"] == "0.03"
+    with pytest.raises(ValueError, match="looped: its runs closed loops"):
+        anchored_as_published([{**old[0], "loops_closed": "7.0"}], "looped")

@@ -45,6 +45,7 @@ from twinslam.live.calibration.report import (
     failure_causes_markdown,
     read_rows,
 )
+from twinslam.live.runs import anchored_as_published
 from twinslam.reporting import mean_ci95, paired_difference
 
 #: (column, heading, format); "scored_failed" is the share of the run's scored frames
@@ -95,8 +96,6 @@ STEADY_FIGURES = (("failed_share", "failed (played frames)", "{:.1%}"),
                   ("frames_dropped", "dropped (frames)", "{:.0f}"))
 STEADY_PAIRED = ("max_error_m", "ate_m", "anchored_ate_m", "revisit_error_m",
                  "anchored_revisit_error_m", "jitter_rms_mm", "pnp_ransac_share")
-#: anchored figure → the published one it equals where keyframes never move
-ANCHORED_AS_PUBLISHED = {"anchored_ate_m": "ate_m", "anchored_revisit_error_m": "revisit_error_m"}
 
 
 def _runs(folder: Path, label: str, figures: tuple[tuple[str, str, str], ...] = FIGURES,
@@ -123,16 +122,15 @@ def _runs(folder: Path, label: str, figures: tuple[tuple[str, str, str], ...] = 
                   if scenario in (None, f["scenario"])]
     except FileNotFoundError as exc:
         raise SystemExit(str(exc)) from None
-    if fixed_keyframes and any(float(r.get("loops_closed") or 0) > 0 for r in rows):
-        raise SystemExit(f"{folder}: its runs closed loops; their keyframes moved")
+    if fixed_keyframes:
+        try:
+            rows = anchored_as_published(rows, folder)
+        except ValueError as exc:
+            raise SystemExit(str(exc)) from None
     runs = {}
     for r in rows:
         seed = int(r["seed"])
         runs[seed] = {k: float(r[k]) for k, _, _ in figures if k in r}
-        if fixed_keyframes:
-            for anchored, published in ANCHORED_AS_PUBLISHED.items():
-                if anchored not in r and published in r:
-                    runs[seed][anchored] = float(r[published])
         tracked = [f["device_tracked"] == "1" for f in frames if int(f["seed"]) == seed]
         runs[seed]["scored_failed"] = (1.0 - float(np.mean(tracked))) if tracked else math.nan
     return ", ".join(sorted(kinds)[0]), runs, frames

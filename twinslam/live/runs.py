@@ -255,6 +255,20 @@ ADDED_COLUMNS = {"jumps": "nan", "failed_share": "nan", "loss_p95_s": "nan",
                  "anchored_revisit_error_m": "nan", "anchored_ate_m": "nan"}
 #: the same for calibration_frames.csv
 ADDED_FRAME_COLUMNS = {"shared_points_archive": "nan", "failure_cause": ""}
+#: each anchored figure of a run → the published one it equals when the run's keyframes never
+#: moved once in the map (no loop closed, no bundle adjustment)
+ANCHORED_AS_PUBLISHED = {"anchored_ate_m": "ate_m", "anchored_revisit_error_m": "revisit_error_m"}
+
+
+def anchored_as_published(rows: list[dict[str, str]], where: object) -> list[dict[str, str]]:
+    """runs.csv rows of a device whose keyframes never moved, each anchored figure the file
+    predates read as its published one; ValueError (naming ``where``) if a run closed a loop,
+    whose keyframes did move."""
+    if any(float(r.get("loops_closed") or 0) > 0 for r in rows):
+        raise ValueError(f"{where}: its runs closed loops; their keyframes moved")
+    return [{**r, **{anchored: r[published] for anchored, published
+                     in ANCHORED_AS_PUBLISHED.items() if anchored not in r and published in r}}
+            for r in rows]
 
 
 def _read_rows(path: Path, header: list[str], added: dict[str, str] = ADDED_COLUMNS

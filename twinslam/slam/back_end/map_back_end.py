@@ -214,10 +214,10 @@ class MapBackEnd:
                                               data.descriptors, data.depths, data.point_ids)
         if data.frame_id in self.map.keyframes:
             self.keyframe_stamps[data.frame_id] = float(data.stamp)
-        if self.config.loop_closing and data.frame_id in self.map.keyframes:
-            self._loop_queries = [*self._loop_queries[-(LOOP_QUERIES - 1):],
-                                  LoopQuery(data.frame_id, data.keypoints, data.descriptors,
-                                            data.depths)]
+            if self.config.loop_closing:
+                self._loop_queries = [*self._loop_queries[-(LOOP_QUERIES - 1):],
+                                      LoopQuery(data.frame_id, data.keypoints, data.descriptors,
+                                                data.depths)]
         return report
 
     def frame_correction_at(self, version: int) -> np.ndarray:
