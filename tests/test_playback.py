@@ -30,6 +30,17 @@ def test_forward_backward_revisits_every_frame_with_increasing_stamps() -> None:
     np.testing.assert_array_equal(frames[8].pose, seq.pose(2))
 
 
+def test_backward_plays_from_the_last_frame_with_increasing_stamps() -> None:
+    """A second device walking the place from the other end: frames last to first, each
+    with its own ground truth, stamps running forward at the recorded period."""
+    seq = SyntheticSequence(5)
+    frames = list(PlayedSequence(seq, Playback("backward")))
+    assert [f.name for f in frames] == [f"synthetic-{i:06d}" for i in [4, 3, 2, 1, 0]]
+    assert [f.index for f in frames] == list(range(5))
+    np.testing.assert_allclose(np.diff([f.stamp for f in frames]), 1 / 30)
+    np.testing.assert_array_equal(frames[0].pose, seq.pose(4))
+
+
 def test_forward_playback_keeps_recorded_stamps() -> None:
     seq = SyntheticSequence(4).select(1, 4)
     frames = list(PlayedSequence(seq, Playback()))
@@ -43,7 +54,7 @@ def test_bad_scenarios_are_refused_with_the_reason() -> None:
     assert parse_bursts(" 40:5, 10:2 ") == ((10, 2), (40, 5))
     assert parse_bursts("") == ()
     with pytest.raises(ValueError, match="order must be one of"):
-        Playback("backward")
+        Playback("sideways")
 
     class Forward:                        # a recording without random access, as a bag
         path, kind, entries, skipped = "run.mcap", "rosbag2", [], []

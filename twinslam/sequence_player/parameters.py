@@ -44,8 +44,9 @@ PARAMETERS = (
               high=10_000_000),
     ParamSpec("wait_for_subscribers", 0, "hold the first frame until this many colour "
               "subscribers match", low=0),
-    ParamSpec("order", "forward", "forward, or forward_backward: every place visited twice "
-              "(dataset folders and synthetic only)",
+    ParamSpec("order", "forward", "forward; forward_backward: every place visited twice; "
+              "backward: from the last frame to the first, a second device walking towards "
+              "the first (the last two: dataset folders and synthetic only)",
               check=lambda v: None if v in ORDERS else f"must be one of {', '.join(ORDERS)}"),
     ParamSpec("blank", "", "bursts of played frames shown black with no depth (a covered "
               "lens): START:COUNT[,START:COUNT...]; empty: none", check=_bursts_error),

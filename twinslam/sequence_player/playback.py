@@ -8,6 +8,8 @@ does either, so the player can
 * play it **forward then backward** (``order: forward_backward``): every place is visited
   twice, the second time after the edge's map moved on, and the backward half's frames get
   fresh, evenly spaced stamps (the recorded period) so time keeps running forward;
+* play it **backward** (``order: backward``), from its last frame to its first, with fresh
+  stamps: a second device walking the same place from the other end, towards the first;
 * **blank** bursts of played frames (``blank: "START:COUNT,..."``, positions in the played
   order): black colour and no depth readings — a covered lens — while the ground truth goes on,
   so the device loses tracking and must relocalise wherever the camera went meanwhile.
@@ -27,7 +29,7 @@ import numpy as np
 
 from twinslam.sequences.frame import RandomAccessSequence, RgbdFrame, Sequence, SequenceError
 
-ORDERS = ("forward", "forward_backward")
+ORDERS = ("forward", "forward_backward", "backward")
 #: the period assumed when a sequence has a single frame (no interval to measure)
 DEFAULT_PERIOD_S = 1.0 / 30.0
 
@@ -63,6 +65,8 @@ class Playback:
     def source_indices(self, n: int) -> list[int]:
         """The sequence's frame played at each position (the turning frame plays once)."""
         forward = list(range(n))
+        if self.order == "backward":
+            return forward[::-1]
         return forward if self.order == "forward" else forward + forward[-2::-1]
 
     def blanked(self, position: int) -> bool:
