@@ -434,6 +434,18 @@ class EdgeMapperCore:
             self._relocalised_views.append(found.pose)
         return found
 
+    def align(self, alignment: np.ndarray) -> None:
+        """Move the device's whole map into another frame by the rigid motion ``alignment``
+        (a merge with another device's map of the place,
+        :mod:`twinslam.slam.back_end.map_merging`): the map, its archive and where the
+        camera is heading, from the next map update on (:meth:`MapBackEnd.align`; call it
+        between slots)."""
+        self.back_end.align(alignment, self.version + 1)
+        move = np.asarray(alignment, dtype=np.float64)
+        self._headings = {s: [move @ p for p in poses] for s, poses in self._headings.items()}
+        self._last_heading = [move @ p for p in self._last_heading]
+        self._relocalised_views = [move @ p for p in self._relocalised_views]
+
     def optimise(self) -> BundleAdjustmentResult | None:
         """The back end's local bundle adjustment (:meth:`MapBackEnd.optimise`)."""
         return self.back_end.optimise()

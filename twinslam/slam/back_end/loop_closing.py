@@ -292,6 +292,15 @@ class LoopCloser:
             self._quiet_until = done.query + self.cooldown
         return done
 
+    def discard(self) -> None:
+        """Drop the job running or waiting to be taken (waiting for a running one to end) and
+        the loop waiting for confirmation: their poses are of a frame the map has left (a
+        map merge moved it, :meth:`MapBackEnd.align`)."""
+        if self._running is not None:
+            self._running.result()
+        self._running = self._done = None
+        self.confirmation.pending = None
+
     def after(self, work: Callable[[], object], what: str) -> None:
         """Run ``work`` (``what`` it does, for its failure's message) on the worker after what
         it has queued (in the caller without one): the archive's files of a correction,

@@ -22,6 +22,7 @@ keyframe at; its relative pose to the old keyframe is the loop factor of the pos
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -67,12 +68,25 @@ def detect_loop(archive: KeyFrameArchive, keyframe: int, points_xy: np.ndarray,
     """The loop keyframe ``keyframe`` (its ORB features ``points_xy``, ``descriptors`` and,
     from a depth camera, their ``depths``) closes with an archived keyframe at least
     ``min_gap`` ids older, if the geometry confirms one."""
+    return recognise_place(archive, points_xy, descriptors, intrinsics, config, depths,
+                           eligible=lambda k: k <= keyframe - min_gap)
+
+
+def recognise_place(archive: KeyFrameArchive, points_xy: np.ndarray, descriptors: np.ndarray,
+                    intrinsics: np.ndarray, config: ArchiveRelocalisationConfig | None = None,
+                    depths: np.ndarray | None = None,
+                    eligible: Callable[[int], bool] | None = None) -> LoopCandidate:
+    """The place of ``archive`` a keyframe (its ORB features ``points_xy``, ``descriptors``
+    and, from a depth camera, their ``depths``) sees, among the keyframes ``eligible`` says
+    may be (None: all), confirmed by geometry: PnP with ``MIN_INLIERS`` inliers, then — with
+    depths — the relative pose to the recognised keyframe measured from the two keyframes'
+    depths (:func:`measure_between`). A loop looks among the walk's own old keyframes; a map
+    merge among another device's (:mod:`twinslam.slam.back_end.map_merging`)."""
     config = config or ArchiveRelocalisationConfig(min_inliers=MIN_INLIERS)
     found = locate_in_archive(archive, points_xy, descriptors, intrinsics, config,
-                              eligible=lambda k: k <= keyframe - min_gap)
+                              eligible=eligible)
     if not found.found or found.pose is None:
-        return LoopCandidate(-1, None, None, found.inliers,
-                             found.reason or "no place older than the recent walk")
+        return LoopCandidate(-1, None, None, found.inliers, found.reason or "no eligible place")
     old = archive.get(found.keyframe)
     measured = np.linalg.inv(old.pose) @ found.pose
     if depths is None or not np.any(np.asarray(depths) > 0):    # no depth camera: PnP's

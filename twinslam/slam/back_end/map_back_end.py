@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -401,16 +401,10 @@ class MapBackEnd:
             self.loops_refused += 1
             return ClosedLoop(result.candidate.old, result.query, result.candidate.inliers,
                               farthest, result.seconds * 1e3, refused)
-        correct_map(self.map, corrections)
         # the walk's head (the newest keyframe of the graph, and every later one) moves by the
         # newest correction: the frame the next map version is in
-        self.frame_correction = corrections[max(corrections)] @ self.frame_correction
-        self._frames_since.append((next_version, self.frame_correction.copy()))
-        archived = self.archive.correct(
-            {kf.id: c for kf in self.archive
-             if (c := correction_for(corrections, kf.id)) is not None}, write=False)
-        self.loop_closer.after(lambda: self.archive.save(archived),   # beside the slots
-                               "writing the loop-corrected archive's files")
+        self._correct(corrections, corrections[max(corrections)], next_version,
+                      "writing the loop-corrected archive's files")
         old = result.candidate.old
         if self.config.point_fusion and old in self.map.keyframes and self.camera.known:
             fuse_restored(self.map, old, sorted(self.map.keyframes[old].points), self.camera)
@@ -420,6 +414,38 @@ class MapBackEnd:
                                             result.candidate.inliers))
         return ClosedLoop(old, result.query, result.candidate.inliers, farthest,
                           result.seconds * 1e3)
+
+    def _correct(self, corrections: Mapping[int, np.ndarray], head: np.ndarray,
+                 next_version: int, what: str) -> None:
+        """Move the map's and the archive's keyframes by their ``corrections`` (points with
+        their reference keyframes), and the frame the map is in — from map version
+        ``next_version`` on — by ``head``: the correction at the walk's head, which every
+        pose the device holds and every keyframe it is about to upload still needs. The
+        archive's files are rewritten beside the slots (``what`` it is, for a failure)."""
+        correct_map(self.map, corrections)
+        self.frame_correction = head @ self.frame_correction
+        self._frames_since.append((next_version, self.frame_correction.copy()))
+        archived = self.archive.correct(
+            {kf.id: c for kf in self.archive
+             if (c := correction_for(corrections, kf.id)) is not None}, write=False)
+        self.loop_closer.after(lambda: self.archive.save(archived), what)
+
+    def align(self, alignment: np.ndarray, next_version: int) -> None:
+        """Move the whole map — every keyframe, the map's and the archive's, and every point —
+        by the rigid motion ``alignment`` into another frame (the frame of a place another
+        device mapped first, :mod:`twinslam.slam.back_end.map_merging`), from map version
+        ``next_version`` on. To the device it is a loop's correction that moved every
+        keyframe alike: its next map update carries the new ``frame_correction`` and the
+        device moves what it holds with it. A loop job running on the poses before is
+        dropped: its corrections belong to the frame the map left."""
+        alignment = np.asarray(alignment, dtype=np.float64)
+        if alignment.shape != (4, 4) or not np.isfinite(alignment).all():
+            raise ValueError("an alignment is a finite 4×4 rigid motion")
+        self.loop_closer.discard()
+        everyone = dict.fromkeys([*self.map.keyframes, *(kf.id for kf in self.archive)],
+                                 alignment)
+        self._correct(everyone, alignment, next_version,
+                      "writing the aligned archive's files")
 
     def close(self) -> None:
         """Stop the loop closer's worker (the node calls it at shutdown)."""

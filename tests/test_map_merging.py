@@ -1,0 +1,141 @@
+"""Two devices' maps of one place merged into one frame: the second device's keyframes found
+in the first device's map give the rigid motion between their frames, confirmed by later
+keyframes before the second map moves; a look-alike place is not merged; the moved map —
+keyframes, archive, points and the frame its device is told — is the first map's frame."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore
+from edge_mapper.slot_planner import SlotConfig
+from tests.test_archive_relocalisation import room  # noqa: F401 (the archived room fixture)
+from twinslam.policies.registry import make_policy
+from twinslam.rotations import rotation_angle_deg
+from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
+from twinslam.slam.back_end.loop_closing import LoopQuery
+from twinslam.slam.back_end.map_back_end import BackEndConfig
+from twinslam.slam.back_end.map_merging import MergeFinder, whole_map
+from twinslam.slam.front_end.orb_extractor import OrbExtractor
+from twinslam.slam.front_end.tracking import depth_at
+from twinslam.slam.keyframe import KeyFramePayload
+
+Room = tuple[object, KeyFrameArchive, OrbExtractor]
+
+#: the second device's map frame in the first's: its first camera 2 m away, turned 100°
+SECOND_IN_FIRST = np.eye(4)
+_a = np.radians(100.0)
+SECOND_IN_FIRST[:3, :3] = [[np.cos(_a), 0, np.sin(_a)], [0, 1, 0], [-np.sin(_a), 0, np.cos(_a)]]
+SECOND_IN_FIRST[:3, 3] = [2.0, 0.1, -1.0]
+
+
+def _query(room: Room, frame_index: int, keyframe: int) -> LoopQuery:  # noqa: F811
+    """The room's frame ``frame_index`` as the second device's keyframe ``keyframe``."""
+    seq, _, orb = room
+    frame = seq.read(frame_index)                              # type: ignore[attr-defined]
+    feats = orb.extract(frame.color)
+    return LoopQuery(keyframe, feats.points, feats.descriptors,
+                     depth_at(feats.points, frame.depth, (0.2, 8.0)))
+
+
+def _second_pose(room: Room, frame_index: int, shift_m: float = 0.0) -> np.ndarray:  # noqa: F811
+    """Where the second device's own map has the room's frame ``frame_index`` (its true pose
+    in the second frame), moved ``shift_m`` along that frame's x."""
+    pose = np.linalg.inv(SECOND_IN_FIRST) @ room[0].read(frame_index).pose  # type: ignore[attr-defined]
+    pose[0, 3] += shift_m
+    return pose
+
+
+def test_a_second_map_is_merged_where_three_keyframes_find_the_first(room: Room) -> None:  # noqa: F811
+    """The second device sees the first device's room from frames 4, 64 and 124: the first
+    finding proposes the merge, the next two confirm it; the alignment is the true motion
+    between the two maps' frames to within centimetres and a fraction of a degree."""
+    _, archive, _ = room
+    finder = MergeFinder()
+    frames = {10: 4, 11: 64, 12: 124}                  # the second device's keyframe ids
+    poses = {k: _second_pose(room, f) for k, f in frames.items()}
+    merges = [finder.offer(archive, _query(room, f, k), poses, room[0].intrinsics)  # type: ignore[attr-defined]
+              for k, f in frames.items()]
+    assert merges[0] is None and merges[1] is None     # found, not yet confirmed
+    merge = merges[2]
+    assert merge is not None and merge.joining == 12 and merge.inliers >= 50
+    assert finder.candidates == 3
+    off = np.linalg.inv(SECOND_IN_FIRST) @ merge.alignment
+    assert np.linalg.norm(off[:3, 3]) < 0.03 and rotation_angle_deg(off[:3, :3]) < 0.5
+
+
+def test_a_look_alike_place_is_not_merged(room: Room) -> None:  # noqa: F811
+    """The second device sees what the first mapped — a hotel's identical rooms — but its own
+    walk puts the second and third views 1 m and 2 m from where the first view's alignment
+    puts them: no two findings agree on one frame, and the maps stay apart. The same views
+    at their true poses merge (the control)."""
+    _, archive, _ = room
+    k = room[0].intrinsics                                      # type: ignore[attr-defined]
+    frames = {10: 4, 11: 64, 12: 124, 13: 184}
+    finder = MergeFinder()
+    shifted = {key: _second_pose(room, f, 1.0 * i) for i, (key, f) in enumerate(frames.items())}
+    assert all(finder.offer(archive, _query(room, f, key), shifted, k) is None
+               for key, f in frames.items())
+    assert finder.candidates == 4 and finder.confirmation.dropped >= 1
+    control = MergeFinder()
+    true = {key: _second_pose(room, f) for key, f in frames.items()}
+    assert [control.offer(archive, _query(room, f, key), true, k) is not None
+            for key, f in list(frames.items())[:3]] == [False, False, True]
+
+
+def _core(vmax: int = 4) -> EdgeMapperCore:
+    k = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
+    return EdgeMapperCore(make_policy("lff"), k, EdgeConfig(
+        slot=SlotConfig(vmax=vmax), back_end=BackEndConfig(loop_background=False)))
+
+
+def test_a_merged_map_moves_whole_into_the_place_frame_and_tells_its_device() -> None:
+    """Aligning an edge map moves its managed keyframes, its archived keyframes and its points
+    by the merge's motion; the next map version is in the new frame (its frame correction),
+    and a keyframe the device posed on the map before arrives in the new frame too."""
+    core = _core()
+    rng = np.random.default_rng(4)
+    for kf in range(3):
+        pose = np.eye(4)
+        pose[:3, 3] = [0.2 * kf, 0.0, 0.0]
+        core.map.add_keyframe(kf, pose)
+    for _ in range(30):
+        xyz = rng.uniform(-1, 1, 3) + np.array([0.0, 0.0, 3.0])
+        pid = core.map.add_point(xyz, np.zeros(32, np.uint8))
+        for kf in range(3):
+            core.map.observe(kf, pid, (320.0, 240.0), 3.0)
+    core.back_end.evict_to_archive([0], slot=0)
+    before_map = {k: kf.pose.copy() for k, kf in core.map.keyframes.items()}
+    before_archive = {kf.id: kf.pose.copy() for kf in core.archive}
+    before_points = {p: pt.position.copy() for p, pt in core.map.points.items()}
+    version = core.version
+    core.align(SECOND_IN_FIRST)
+    for k, pose in before_map.items():
+        np.testing.assert_allclose(core.map.keyframes[k].pose, SECOND_IN_FIRST @ pose)
+    for kf in core.archive:
+        np.testing.assert_allclose(kf.pose, SECOND_IN_FIRST @ before_archive[kf.id])
+    for p, xyz in before_points.items():
+        np.testing.assert_allclose(core.map.points[p].position,
+                                   SECOND_IN_FIRST[:3, :3] @ xyz + SECOND_IN_FIRST[:3, 3])
+    np.testing.assert_allclose(core.frame_correction, SECOND_IN_FIRST)
+    np.testing.assert_allclose(core.frame_correction_at(version + 1), SECOND_IN_FIRST)
+    np.testing.assert_allclose(core.frame_correction_at(version), np.eye(4))
+    posed = np.eye(4)
+    posed[:3, 3] = [0.6, 0.0, 0.0]
+    upload = KeyFramePayload(frame_id=40, slot=1, pose=posed, intrinsics=core.k,
+                             keypoints=np.zeros((0, 2)), descriptors=np.zeros((0, 32), np.uint8),
+                             depths=np.zeros(0), point_ids=np.zeros(0, np.uint64), stamp=1.0)
+    moved = core.back_end.in_current_frame(upload, version)
+    np.testing.assert_allclose(moved.pose, SECOND_IN_FIRST @ posed)
+
+
+def test_whole_map_holds_the_archive_and_the_managed_keyframes() -> None:
+    """Another device is looked for in everything an edge map knows, the keyframes it sends
+    and the ones it archived, without changing either."""
+    core = _core()
+    for kf in range(3):
+        core.map.add_keyframe(kf, np.eye(4))
+    core.back_end.evict_to_archive([0], slot=0)
+    every = whole_map(core.archive, core.map, slot=1)
+    assert sorted(kf.id for kf in every) == [0, 1, 2]
+    assert len(core.archive) == 1 and sorted(core.map.keyframes) == [1, 2]

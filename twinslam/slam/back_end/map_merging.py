@@ -1,0 +1,90 @@
+"""Two devices' maps of one place made one: the joining map's frame found in the other's.
+
+Every device the edge serves starts a map of its own, in a frame of its own (its first
+camera's). When one device walks where another has mapped, the maps describe one place in two
+frames, and content one user anchors appears elsewhere to the other. ORB-SLAM3's Atlas
+merges two maps where place recognition relates them; here, as for a loop
+(:mod:`twinslam.slam.back_end.loop_detection`), a keyframe the joining device's edge map
+just integrated is looked for among the other map's keyframes — its archive and its managed
+map, :func:`whole_map` — and accepted on geometry: PnP with a loop's inliers, then the
+relative pose to the recognised keyframe measured from the two keyframes' depths. The
+keyframe's pose as the other map puts it, times its pose in its own map⁻¹, is the
+**alignment**: the rigid motion that carries the joining map's frame into the other's.
+
+A merge is confirmed as a loop is (:class:`~twinslam.slam.back_end.loop_closing.
+LoopConfirmation`, ORB-SLAM3's temporal consistency): later keyframes of the joining map must
+find the other map again where the first detection's alignment puts them. A poster that hangs
+in two rooms fools one keyframe; the next ones look past it. There is no drift bound as a
+loop's (:func:`~twinslam.slam.back_end.loop_closing.beyond_drift`): two maps' frames are
+arbitrarily apart.
+
+The merge itself is the joining map moved as a whole by the alignment
+(:meth:`~twinslam.slam.back_end.map_back_end.MapBackEnd.align`): its device gets it as a
+frame correction in its next map update, as it gets a loop's, and from then on both
+devices' poses are in one frame — the place's, the first map's.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive
+from twinslam.slam.back_end.keyframe_map import KeyFrameMap
+from twinslam.slam.back_end.loop_closing import (
+    CONFIRMATIONS,
+    LoopConfirmation,
+    LoopQuery,
+    walk_length,
+)
+from twinslam.slam.back_end.loop_detection import LoopCandidate, recognise_place
+
+
+def whole_map(archive: KeyFrameArchive, managed: KeyFrameMap, slot: int) -> KeyFrameArchive:
+    """Every keyframe a device's edge map knows — its archive's and its managed map's (as
+    they are at ``slot``) — as one archive to recognise places in. A snapshot: it shares
+    nothing mutable with the map, and may be searched beside the slots."""
+    return archive.snapshot([ArchivedKeyFrame.of(managed, k, slot) for k in managed.keyframes])
+
+
+@dataclass(frozen=True)
+class MapMerge:
+    """A confirmed merge: where the joining map's keyframe found the other map."""
+
+    joining: int                      #: the joining map's keyframe that confirmed it
+    place: int                        #: the other map's keyframe it found
+    #: 4×4 rigid motion carrying the joining map's frame into the other map's
+    alignment: np.ndarray
+    inliers: int
+
+
+class MergeFinder:
+    """Looks for another map's place in one joining map's new keyframes, and confirms it
+    (one per pair of maps; the confirmation's state is kept across calls)."""
+
+    def __init__(self, confirmations: int = CONFIRMATIONS) -> None:
+        self.confirmation = LoopConfirmation(confirmations)
+        self.candidates = 0               #: keyframes whose geometry found the other map
+        self.last: LoopCandidate | None = None   #: what the last keyframe found, or why not
+
+    def offer(self, other: KeyFrameArchive, query: LoopQuery,
+              joining_poses: Mapping[int, np.ndarray], intrinsics: np.ndarray
+              ) -> MapMerge | None:
+        """Keyframe ``query`` of the joining map (its poses ``joining_poses``, id →
+        camera-to-map, the query's among them) looked for in ``other``
+        (:func:`whole_map`): the merge, once confirmed; None until then."""
+        pose = joining_poses[query.keyframe]
+        candidate = recognise_place(other, query.points_xy, query.descriptors, intrinsics,
+                                    depths=query.depths)
+        self.last = candidate
+        self.candidates += candidate.found
+        pending = self.confirmation.pending
+        walked = 0.0 if pending is None else \
+            walk_length(joining_poses, pending.query, query.keyframe)
+        if not self.confirmation.judge(query.keyframe, candidate, pose, walked):
+            return None
+        assert candidate.pose is not None            # judge confirms found candidates only
+        return MapMerge(query.keyframe, candidate.old, candidate.pose @ np.linalg.inv(pose),
+                        candidate.inliers)
