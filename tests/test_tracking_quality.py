@@ -13,6 +13,7 @@ from twinslam.live.tracking_quality import (
     FrameFlags,
     absolute_trajectory_error,
     anchored_to_keyframes,
+    cross_device_revisit_error,
     jitter,
     jump_count,
     relative_pose_error,
@@ -148,6 +149,30 @@ def test_content_anchored_to_keyframes_follows_a_loops_correction() -> None:
     unmoved = anchored_to_keyframes(published, then, {k: then[0][k] for k in (2, 10)})
     assert all(np.allclose(unmoved[i], published[i]) for i in range(20))
     assert np.allclose(anchored_to_keyframes({0: published[0]}, {}, now)[0], published[0])
+
+
+def test_a_cross_device_revisit_error_is_where_one_device_sees_the_others_content() -> None:
+    """Two devices in one place, each frame paired with the other device's frames within
+    0.3 m and 20° (never with its own): where the second device's map has the place 2 cm
+    off the first's, every pair is 2 cm off; both maps moved together (one shared frame,
+    anywhere) changes nothing; the second device in a frame of its own — 1 m away — is off
+    by as much; frames 1 m apart or turned 90° are no pair."""
+    first_truth = [_pose(0.05 * i) for i in range(5)]                  # x 0 .. 0.2
+    second_truth = [_pose(0.05 * i, 0.0, 10.0) for i in range(5)] + \
+        [_pose(1.0), _pose(0.0, 0.0, 90.0)]                         # no pair for the last two
+    first = [(t, t) for t in first_truth]
+    off = _pose(0.0, 0.02)
+    second = [(off @ t, t) for t in second_truth]
+    error = cross_device_revisit_error(first, second)
+    assert error.pairs == 25 and error.rms_m == pytest.approx(0.02)
+    anywhere = _pose(3.0, -1.0, 40.0)
+    moved = cross_device_revisit_error([(anywhere @ e, t) for e, t in first],
+                                       [(anywhere @ e, t) for e, t in second])
+    assert moved.pairs == 25 and moved.rms_m == pytest.approx(0.02)
+    apart = cross_device_revisit_error(first, [(_pose(1.0) @ t, t) for t in second_truth])
+    assert apart.rms_m == pytest.approx(1.0)
+    alone = cross_device_revisit_error(first, [])
+    assert alone.pairs == 0 and math.isnan(alone.rms_m)
 
 
 def test_a_place_seen_from_elsewhere_or_turned_away_from_is_no_revisit() -> None:

@@ -243,6 +243,25 @@ def seen_alike(pose: np.ndarray, others: np.ndarray, radius_m: float, cos_max: f
     return np.asarray(near & (cos >= cos_max))
 
 
+def relative_errors(pose: np.ndarray, truth: np.ndarray, others: np.ndarray,
+                    others_truth: np.ndarray) -> np.ndarray:
+    """The translation error (m) of ``pose``'s relative pose to each of ``others`` (n, 4, 4)
+    against the truth's: the same in any frame the estimates share."""
+    true_rel = np.linalg.inv(truth) @ others_truth
+    est_rel = np.linalg.inv(pose) @ others
+    off = np.linalg.inv(true_rel) @ est_rel
+    return np.asarray(np.linalg.norm(off[:, :3, 3], axis=1))
+
+
+def _revisit_summary(errors: list[np.ndarray]) -> RevisitError:
+    """RMS, median, 95th percentile and count of the pairs' errors (none: no pair)."""
+    if not errors:
+        return RevisitError()
+    e = np.concatenate(errors)
+    return RevisitError(float(np.sqrt(np.mean(e ** 2))), float(np.median(e)),
+                        float(np.percentile(e, 95)), int(e.size))
+
+
 def revisit_error(poses: Mapping[int, np.ndarray], truth: Mapping[int, np.ndarray],
                   stamps: Iterable[int], gap_s: float = REVISIT_GAP_S,
                   radius_m: float = REVISIT_RADIUS_M,
@@ -265,15 +284,34 @@ def revisit_error(poses: Mapping[int, np.ndarray], truth: Mapping[int, np.ndarra
         js = later[seen_alike(ref[i], ref[later], radius_m, cos_max)]
         if not js.size:
             continue
-        true_rel = np.linalg.inv(ref[i]) @ ref[js]
-        est_rel = np.linalg.inv(est[i]) @ est[js]
-        off = np.linalg.inv(true_rel) @ est_rel
-        errors.append(np.linalg.norm(off[:, :3, 3], axis=1))
-    if not errors:
+        errors.append(relative_errors(est[i], ref[i], est[js], ref[js]))
+    return _revisit_summary(errors)
+
+
+def cross_device_revisit_error(first: Sequence[tuple[np.ndarray, np.ndarray]],
+                               second: Sequence[tuple[np.ndarray, np.ndarray]],
+                               radius_m: float = REVISIT_RADIUS_M,
+                               angle_deg: float = REVISIT_ANGLE_DEG) -> RevisitError:
+    """How far content one device placed appears moved to another: for every pair of a frame
+    of ``first`` and a frame of ``second`` (each a (pose, true pose) pair, the poses as the
+    devices published them, the truths in one world frame) whose true poses lie within
+    ``radius_m`` and ``angle_deg``, the translation error of their relative pose against the
+    truth's — the :class:`RevisitError` across two devices. No time gap: the devices are
+    apart already. A relative pose is the same in any frame both poses share, so this
+    measures whether the two devices' maps agree on the place; two devices each in a frame
+    of its own (no merge yet) disagree by as much as their frames do."""
+    if not first or not second:
         return RevisitError()
-    e = np.concatenate(errors)
-    return RevisitError(float(np.sqrt(np.mean(e ** 2))), float(np.median(e)),
-                        float(np.percentile(e, 95)), int(e.size))
+    est_b = np.array([e for e, _ in second], dtype=np.float64)
+    ref_b = np.array([t for _, t in second], dtype=np.float64)
+    cos_max = math.cos(math.radians(angle_deg))
+    errors: list[np.ndarray] = []
+    for est_a, ref_a in first:
+        js = np.flatnonzero(seen_alike(ref_a, ref_b, radius_m, cos_max))
+        if not js.size:
+            continue
+        errors.append(relative_errors(est_a, ref_a, est_b[js], ref_b[js]))
+    return _revisit_summary(errors)
 
 
 def anchored_to_keyframes(poses: Mapping[int, np.ndarray],
