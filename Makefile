@@ -154,6 +154,7 @@ bench: venv
 	$(PY) -m bench.mbrl
 	$(PY) -m bench.fleet
 	$(PY) -m bench.edge_scaling
+	$(PY) -m bench.edge_work
 	$(PY) -m bench.visual
 	$(PY) -m bench.live --rounds 4 --frames 1000
 	$(PY) -m bench.update_loop

@@ -1,20 +1,35 @@
 """One slot of the live protocol with the device and edge cores in one process: the frames'
 summaries to the edge, its plan, the uploads it asked for, the slot's end and the map update
 back to the device — the nodes' work without DDS and without the uplink's delay, for the
-benchmarks that drive whole walks through the cores.
+benchmarks that drive whole walks through the cores (:class:`DeviceWalk`: a default device
+and edge core over a sequence, frame by frame).
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
 
 from device_tracker.device_core import DeviceTrackerCore
 from device_tracker.messages import read_map_update
-from edge_mapper.edge_core import EdgeMapperCore, SlotOutcome
+from device_tracker.parameters import PARAMETERS as DEVICE_PARAMETERS
+from device_tracker.parameters import DeviceSettings
+from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, SlotOutcome
 from edge_mapper.messages import map_update_message
 from edge_mapper.slot_planner import FrameObservations
+from twinslam.policies.registry import make_policy
+from twinslam.sequence_player.playback import Playback, PlayedSequence
+from twinslam.sequences.frame import RgbdFrame
+from twinslam.sequences.opening import AUTO, open_sequence
+from twinslam.slam.back_end.loop_closing import LoopQuery
 from twinslam.slam.map_update import MapSnapshot
+from twinslam.slot_protocol import default_device
+from twinslam.uplink.channels import MarkovChannel, TraceChannel, parse_channel
+from twinslam.uplink.families import uplink_family
 
 
 @dataclass(frozen=True)
@@ -61,3 +76,88 @@ def serve_slot(device: DeviceTrackerCore, edge: EdgeMapperCore, rate_mbps: float
         return ServedSlot(outcome, (t1 - t0) * 1e3, (t2 - t1) * 1e3, (t3 - t2) * 1e3, snapshot)
     device.apply_map_update(snapshot, slot)
     return ServedSlot(outcome, (t1 - t0) * 1e3, (t2 - t1) * 1e3, (t3 - t2) * 1e3)
+
+
+#: (device, edge, d_k, rate state, hold the update) → what the edge made of the slot
+Serving = Callable[[DeviceTrackerCore, EdgeMapperCore, float, int, bool], ServedSlot]
+
+
+@dataclass
+class DeviceWalk:
+    """One device walking the sequence, with its edge core and uplink."""
+
+    name: str
+    frames: Iterator[RgbdFrame]
+    device: DeviceTrackerCore
+    edge: EdgeMapperCore
+    channel: MarkovChannel | TraceChannel
+    update_delay: int
+    #: the map update waiting to reach the device: (update, its slot, the frame it left at)
+    held: tuple[MapSnapshot, int, int] | None = None
+    poses: dict[int, np.ndarray] = field(default_factory=dict)   #: frame → published pose
+    truth: dict[int, np.ndarray] = field(default_factory=dict)
+    map_version: dict[int, int] = field(default_factory=dict)  #: frame → map it tracked on
+    first_truth: np.ndarray | None = None    #: the true pose of its map frame (first frame)
+    edge_ms: list[float] = field(default_factory=list)
+    #: how a finished slot is served (another bench times the edge's steps in finer detail)
+    serve: Serving = serve_slot
+
+    def step(self) -> list[int] | None:
+        """Track the next frame (serving the slot it ends): the keyframes the edge integrated
+        when a slot finished, [] otherwise; None when the walk is over."""
+        frame = next(self.frames, None)
+        if frame is None:
+            return None
+        result = self.device.track(frame.color, frame.depth, frame.stamp)
+        record = result.record
+        if self.held is not None and (result.slot_done or
+                                      frame.index - self.held[2] >= self.update_delay):
+            self.device.apply_map_update(self.held[0], self.held[1])
+            self.held = None
+        if frame.pose is not None:
+            if self.first_truth is None:
+                self.first_truth = frame.pose
+            self.truth[frame.index] = frame.pose
+            if record.tracked:
+                self.poses[frame.index] = record.pose
+                self.map_version[frame.index] = record.map_version
+        if not result.slot_done:
+            return []
+        state, rate = self.channel.step()
+        served = self.serve(self.device, self.edge, rate, state, self.update_delay > 0)
+        self.edge_ms.append(served.plan_ms + served.integrate_ms + served.finish_ms)
+        if served.update is not None:
+            self.held = (served.update, served.outcome.slot, frame.index)
+        return [k for k in served.outcome.integrated if k in self.edge.map.keyframes]
+
+    def query(self, keyframe: int) -> LoopQuery | None:
+        """The integrated keyframe's features as the device uploaded them (None: no longer
+        held)."""
+        payload = self.device.upload(keyframe)
+        if payload is None:
+            return None
+        return LoopQuery(keyframe, payload.keypoints, payload.descriptors, payload.depths)
+
+    def keyframe_poses(self) -> dict[int, np.ndarray]:
+        """Every keyframe of its edge map, archive and map, where the edge holds it now."""
+        poses = {kf.id: kf.pose for kf in self.edge.archive}
+        poses.update({k: kf.pose for k, kf in self.edge.map.keyframes.items()})
+        return poses
+
+
+def open_walk(name: str, spec: str, frames: int, order: str, seed: int, uplink: str,
+              config: EdgeConfig, update_delay: int, folder: Path) -> DeviceWalk:
+    """A default device and edge core over ``spec`` played in ``order``."""
+    source = open_sequence(spec, end=frames, colour_intrinsics=AUTO)
+    settings = DeviceSettings.from_parameters({p.name: p.default for p in DEVICE_PARAMETERS})
+    DeviceTrackerCore.warm_up(source.intrinsics)
+    device = DeviceTrackerCore(source.intrinsics, settings.slot_frames, settings.tracking,
+                               settings.keep_slots, settings.frame_rate_hz, settings.map_source,
+                               settings.own_map_after)
+    edge = EdgeMapperCore(make_policy(default_device.POLICY), source.intrinsics, config,
+                          folder / f"{name}.npz")
+    family = uplink_family(uplink)
+    channel = parse_channel(family.channel, family.rate_mbps or (5.0, 45.0), seed=seed,
+                            slot_seconds=settings.slot_frames / settings.frame_rate_hz)
+    return DeviceWalk(name, iter(PlayedSequence(source, Playback(order))), device, edge,
+                      channel, update_delay)

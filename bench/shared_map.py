@@ -1,0 +1,245 @@
+"""Two devices in one place, one process: each with its own edge map, until the edge finds
+the second device's keyframes in the first device's map, confirms it and moves the second
+map into the first one's frame (:mod:`twinslam.slam.back_end.map_merging`).
+
+    python -m bench.shared_map [SEQUENCE] [--frames 1000] [--first forward]
+        [--second backward] [--seed 0] [--uplink lte] [--vmax N] [--csv FILE]
+
+Both devices play the same sequence, frame for frame in lockstep — by default the first
+forward and the second backward: two users walking the place from its two ends, towards
+each other. Each device and its edge core run as in ``bench.map_consistency`` (the default
+device and edge, the loop closer in the caller, the map update ``--update-delay`` frames
+into the next slot), each on an uplink of its own (seeds ``--seed`` and ``--seed`` + 1).
+After each of the second device's slots its newly integrated keyframes are looked for in
+everything the first device's edge map holds (archive and map) until a merge is confirmed.
+
+It prints the merge (the slot, the keyframes, the inliers, and how far its alignment is
+from the true one), and at the end, per device, the frames tracked and the ATE, then the
+**cross-device revisit error**: for pairs of a frame of each device whose true poses lie
+within 0.3 m and 20°, the translation error of their relative pose against the truth's
+(:func:`~twinslam.live.tracking_quality.cross_device_revisit_error`) — content one user
+anchored, as the other sees it — over the second device's frames published in the shared
+frame; beside it the same frames carried by the *true* alignment of the two maps' frames
+instead of the merge's (the two walks' drift apart: a merge found where the devices meet
+aligns them there, which the true frames do not) and the two edge maps' final keyframes.
+``--csv`` appends one row a run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import math
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from bench.in_process import DeviceWalk, open_walk
+from edge_mapper.parameters import PARAMETERS as EDGE_PARAMETERS
+from edge_mapper.parameters import edge_config
+from twinslam.cli.console import HelpFormatter
+from twinslam.live.tracking_quality import (
+    RevisitError,
+    absolute_trajectory_error,
+    cross_device_revisit_error,
+)
+from twinslam.rotations import rotation_angle_deg
+from twinslam.sequence_player.playback import ORDERS
+from twinslam.slam.back_end.map_merging import MapMerge, MergeFinder, whole_map
+
+SEVEN = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes-1000"
+
+
+def look_for_merge(finder: MergeFinder, place: DeviceWalk, joining: DeviceWalk,
+                   keyframes: list[int], slot: int) -> MapMerge | None:
+    """The joining device's newly integrated ``keyframes`` looked for in everything the place
+    device's edge map holds: the merge, once confirmed."""
+    other = whole_map(place.edge.archive, place.edge.map, slot)
+    poses = joining.keyframe_poses()
+    for kf in keyframes:
+        query = joining.query(kf)
+        merge = None if query is None else finder.offer(other, query, poses, joining.edge.k)
+        if merge is not None:
+            return merge
+    return None
+
+
+def alignment_error(merge: MapMerge, place: DeviceWalk, joining: DeviceWalk
+                    ) -> tuple[float, float]:
+    """(m, degrees) between the merge's alignment and the true one (the joining map's frame in
+    the place map's, from the two devices' first true poses), at the joining device's newest
+    pose: how far the merge put the joining device from where the place's map has it."""
+    assert place.first_truth is not None and joining.first_truth is not None
+    true = np.linalg.inv(place.first_truth) @ joining.first_truth
+    head = joining.poses[max(joining.poses)]
+    a, b = merge.alignment @ head, true @ head
+    return (float(np.linalg.norm(a[:3, 3] - b[:3, 3])),
+            rotation_angle_deg(a[:3, :3].T @ b[:3, :3]))
+
+
+def pairs(poses: dict[int, np.ndarray], truth: dict[int, np.ndarray],
+          frames: list[int] | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(pose, true pose) of ``frames`` (default: every posed frame) with a true pose."""
+    keys = sorted(poses) if frames is None else frames
+    return [(poses[k], truth[k]) for k in keys if k in poses and k in truth]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0],
+                                     epilog=__doc__.split("\n", 2)[2],
+                                     formatter_class=HelpFormatter)
+    parser.add_argument("sequence", nargs="?", default=str(SEVEN),
+                        help="the place both devices walk (default: the 7-Scenes frames)")
+    parser.add_argument("--frames", type=int, default=1000, help="frames of it to play")
+    parser.add_argument("--first", choices=ORDERS, default="forward",
+                        help="the first device's order (its map is the place's frame)")
+    parser.add_argument("--second", choices=ORDERS, default="backward",
+                        help="the second device's order (its map joins the first's)")
+    parser.add_argument("--seed", type=int, default=0,
+                        help="the first uplink's seed (the second's: seed + 1) and a synthetic "
+                             "walk's")
+    parser.add_argument("--uplink", default="lte", help="uplink family (table1, lte, mmwave, "
+                        "constrained)")
+    parser.add_argument("--vmax", type=int,
+                        help="V_max, keyframes each edge map holds (default: the edge's)")
+    parser.add_argument("--update-delay", type=int, default=8,
+                        help="frames of the next slot a device tracks before its map update "
+                             "reaches it (the default device's D_req of 0.25 s)")
+    parser.add_argument("--no-merge", action="store_true",
+                        help="never merge (the control: each device in its own frame)")
+    parser.add_argument("--every", type=int, default=10, help="print every N slots")
+    parser.add_argument("--csv", type=Path, help="append the run's figures here")
+    args = parser.parse_args()
+    cv2.setNumThreads(1)
+    spec = args.sequence
+    if spec.startswith("synthetic") and spec.count(":") == 1:
+        spec = f"{spec}:{args.seed}"
+    params = {p.name: p.default for p in EDGE_PARAMETERS}
+    if args.vmax is not None:
+        params["vmax"] = args.vmax
+    config = edge_config(params)
+    config = dataclasses.replace(config, back_end=dataclasses.replace(config.back_end,
+                                                                      loop_background=False))
+    started = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        first = open_walk("first", spec, args.frames, args.first, args.seed, args.uplink,
+                          config, args.update_delay, Path(tmp))
+        second = open_walk("second", spec, args.frames, args.second, args.seed + 1,
+                           args.uplink, config, args.update_delay, Path(tmp))
+        finder = MergeFinder()
+        merge: MapMerge | None = None
+        merged_version = -1            #: the second edge's first map version in the place's
+        merge_row: dict[str, object] = {}
+        look_ms: list[float] = []      #: each slot's search for the first map's place
+        slot = 0
+        while True:
+            got_a, got_b = first.step(), second.step()
+            if got_a is None or got_b is None:
+                break
+            if not got_b and not got_a:
+                continue
+            slot += 1
+            if merge is None and not args.no_merge and got_b:
+                looked = time.perf_counter()
+                merge = look_for_merge(finder, first, second, got_b, slot)
+                look_ms.append((time.perf_counter() - looked) * 1e3)
+                if merge is not None:
+                    t_err, r_err = alignment_error(merge, first, second)
+                    merged_version = second.edge.version + 1
+                    second.edge.align(merge.alignment)
+                    merge_row = {"merge_slot": slot, "merge_frame": max(second.poses),
+                                 "merge_inliers": merge.inliers,
+                                 "alignment_error_m": t_err, "alignment_error_deg": r_err}
+                    print(f"slot {slot:4d}: merged - the second device's keyframe "
+                          f"{merge.joining} found the first's keyframe {merge.place} on "
+                          f"{merge.inliers} inliers, confirmed ({finder.candidates} "
+                          f"keyframes found it); alignment {t_err * 100:.1f} cm, "
+                          f"{r_err:.2f}° from the true one", flush=True)
+            if slot % args.every == 0:
+                print(f"slot {slot:4d}: first map {len(first.edge.map.keyframes)} + archive "
+                      f"{len(first.edge.archive)}, second map {len(second.edge.map.keyframes)} "
+                      f"+ archive {len(second.edge.archive)}; {_merge_state(merge, finder)}",
+                      flush=True)
+        first.edge.close()
+        second.edge.close()
+        shared = [k for k, v in second.map_version.items() if v >= merged_version >= 0]
+        # the second device's poses each in its own map's frame (the merge's alignment taken
+        # out of those published after it) and each in the place's (put into those before)
+        align = np.eye(4) if merge is None else merge.alignment
+        after = set(shared)
+        own = {k: np.linalg.inv(align) @ p if k in after else p
+               for k, p in second.poses.items()}
+        placed = {k: align @ p for k, p in own.items()}
+        report = {"frames": args.frames, "seed": args.seed, "uplink": args.uplink,
+                  "merged": int(merge is not None), **merge_row,
+                  "look_ms_median": float(np.median(look_ms)) if look_ms else math.nan,
+                  "look_ms_max": max(look_ms, default=math.nan)}
+        if look_ms:
+            print(f"looking for the first map's place: {len(look_ms)} slots, median "
+                  f"{np.median(look_ms):.0f} ms, longest {max(look_ms):.0f} ms a slot")
+        for walk, poses in ((first, first.poses), (second, placed)):
+            ate = absolute_trajectory_error(poses, walk.truth)
+            report[f"{walk.name}_tracked"] = len(poses)
+            report[f"{walk.name}_ate_m"] = ate
+            report[f"{walk.name}_edge_ms"] = float(np.median(walk.edge_ms))
+            print(f"{walk.name} device: {len(poses)} of {len(walk.truth)} frames tracked, "
+                  f"ATE {ate * 100:.1f} cm (in the place's frame), edge median "
+                  f"{np.median(walk.edge_ms):.0f} ms a slot")
+        cross = cross_device_revisit_error(pairs(first.poses, first.truth),
+                                           pairs(second.poses, second.truth,
+                                                 shared if merge else None))
+        assert first.first_truth is not None and second.first_truth is not None
+        true = np.linalg.inv(first.first_truth) @ second.first_truth
+        floor = cross_device_revisit_error(
+            pairs(first.poses, first.truth),
+            pairs({k: true @ p for k, p in own.items()}, second.truth, shared or None))
+        kf_cross = cross_device_revisit_error(
+            pairs(first.keyframe_poses(), first.truth),
+            pairs(second.keyframe_poses(), second.truth)) if merge else RevisitError()
+    report.update(shared_frames=len(shared), cross_rms_m=cross.rms_m,
+                  cross_median_m=cross.median_m, cross_p95_m=cross.p95_m,
+                  cross_pairs=cross.pairs, true_alignment_rms_m=floor.rms_m,
+                  keyframes_cross_rms_m=kf_cross.rms_m)
+    print(f"cross-device revisit error, the second device's {len(shared)} frames in the "
+          f"shared frame: RMS {_cm(cross.rms_m)}, median {_cm(cross.median_m)}, p95 "
+          f"{_cm(cross.p95_m)} ({cross.pairs} pairs); the same frames with the true "
+          f"alignment instead of the merge's "
+          f"{_cm(floor.rms_m)}; the two edge maps' final keyframes {_cm(kf_cross.rms_m)} "
+          f"({time.perf_counter() - started:.0f} s)")
+    if args.csv:
+        new = not args.csv.exists()
+        with args.csv.open("a", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=list(CSV_FIELDS))
+            if new:
+                writer.writeheader()
+            writer.writerow({k: report.get(k, "") for k in CSV_FIELDS})
+
+
+CSV_FIELDS = ("frames", "seed", "uplink", "merged", "merge_slot", "merge_frame",
+              "merge_inliers", "alignment_error_m", "alignment_error_deg", "look_ms_median",
+              "look_ms_max", "first_tracked",
+              "first_ate_m", "first_edge_ms", "second_tracked", "second_ate_m",
+              "second_edge_ms", "shared_frames", "cross_rms_m", "cross_median_m",
+              "cross_p95_m", "cross_pairs", "true_alignment_rms_m", "keyframes_cross_rms_m")
+
+
+def _merge_state(merge: MapMerge | None, finder: MergeFinder) -> str:
+    """Merged, or what the last keyframe looked for found."""
+    if merge is not None:
+        return "merged"
+    found = finder.last
+    if found is None:
+        return "not merged"
+    return f"not merged (last look: {f'found {found.old}' if found.found else found.reason})"
+
+
+def _cm(metres: float) -> str:
+    return "–" if math.isnan(metres) else f"{metres * 100:.1f} cm"
+
+
+if __name__ == "__main__":
+    main()
