@@ -50,6 +50,7 @@ from edge_mapper.messages import (
     relocalisation_message,
     upload_request_message,
 )
+from edge_mapper.place_merging import PlaceMerging
 from edge_mapper.policy_control import POLICY_KEYS, Note, PolicyControl
 from edge_mapper.slot_lifecycle import Closing, SlotLifecycle
 from edge_mapper.slot_planner import FrameObservations
@@ -104,9 +105,11 @@ class DeviceLink:
     def __init__(self, node: Node, device: str, settings: LinkSettings,
                  live: Callable[[], dict[str, Any]],
                  grant: Granting | None = None, finished: Finishing | None = None,
-                 spent: Spending | None = None) -> None:
+                 spent: Spending | None = None, merging: PlaceMerging | None = None) -> None:
         self.node, self.device, self.settings = node, device, settings
         self.live, self.grant, self.finished, self.spent = live, grant, finished, spent
+        #: the edge's map merging across its devices (None: each device's map stays apart)
+        self.merging = merging
         self.control = PolicyControl({k: v for k, v in live().items() if k in POLICY_KEYS},
                                      EdgeMapperCore.warm_up)
         self.core = EdgeMapperCore(self.control.policy, None, settings.config,
@@ -255,6 +258,8 @@ class DeviceLink:
             self.warning(f"keyframe {data.frame_id} of slot {data.slot} was not asked for, came "
                          "twice or after its slot closed: ignored")
             return
+        if self.merging is not None and not report.refused:
+            self.merging.keyframe(self.device, data)
         self.finish_due()
 
     def _on_throughput(self, msg: UplinkThroughput) -> None:
@@ -290,7 +295,10 @@ class DeviceLink:
         entry = self.slots.close(slot, self.control.policy_name)
         before = ({k: kf.pose for k, kf in self.core.map.keyframes.items()}  # evicted: where
                   if self.pub_views is not None else {})
+        self._take_merge(slot)
         out: SlotOutcome = self.core.finish_slot(slot)
+        if self.merging is not None:
+            self.merging.look(self.device, slot)
         if self.finished is not None:
             self.finished(self.device, slot, len(self.core.map.keyframes))
         now, frame = self._now(), self.map_frame
@@ -352,6 +360,23 @@ class DeviceLink:
                   f"{len(self.core.map.keyframes)} keyframes / {len(self.core.map.points)} "
                   f"points, u(G) {u:.1f}{'' if math.isfinite(u) else ' (disconnected)'}, BA "
                   f"{ba_ms:.0f} ms, version {out.version}")
+
+    def _take_merge(self, slot: int) -> None:
+        """A merge found beside the slots, applied before ``slot``'s end: the map update this
+        slot sends is in the place's frame."""
+        if self.merging is None:
+            return
+        merged = self.merging.take(self.device)
+        for failure in self.merging.failures():
+            self.error(f"slot {slot}: {failure}; the map stays in its own frame")
+        if merged is not None:
+            t = merged.merge.alignment[:3, 3]
+            self.info(f"slot {slot}: map merged into {merged.place}'s: keyframe "
+                      f"{merged.merge.joining} found {merged.place}'s keyframe "
+                      f"{merged.merge.place} ({merged.merge.inliers} inliers, confirmed by "
+                      f"the next keyframes); the map moved by ({t[0]:.3f}, {t[1]:.3f}, "
+                      f"{t[2]:.3f}) m into {merged.place}'s frame, the look took "
+                      f"{merged.look_ms:.0f} ms beside the slots")
 
     def close(self) -> None:
         """Stop listening and publishing (a reclaimed device): its slots are dropped and its

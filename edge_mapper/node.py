@@ -20,6 +20,9 @@ own namespace. With ``devices:=[ar1, ar2]`` (or ``discover_devices:=true``, whic
 split by ``allocator`` slot by slot (:mod:`edge_mapper.keyframe_budget`, published on
 ``edge/keyframe_budget``); a device silent for ``device_silent_s`` leaves the split, and
 ``device_reclaim_s`` later its map and share are released.
+With ``merge_maps:=true`` a device's map joins the frame of a device served before it once its
+keyframes are found in that device's map (:mod:`edge_mapper.place_merging`): their poses are
+then in one frame.
 
 ``policy``, ``policy_checkpoint``, ``fallback_policy``, ``latent_max_age`` and ``vmax`` change
 live from the next slot (:mod:`edge_mapper.policy_control`); the others are read-only
@@ -44,6 +47,7 @@ from edge_mapper.edge_core import EdgeMapperCore
 from edge_mapper.keyframe_budget import KeyframeBudget, device_demand, slot_uploads
 from edge_mapper.messages import keyframe_budget_message
 from edge_mapper.parameters import DEVICE_NAME, PARAMETERS, device_names, link_settings
+from edge_mapper.place_merging import PlaceMerging
 from edge_mapper.policy_control import POLICY_KEYS
 from edge_mapper.slot_planner import FrameObservations
 from msg_schemas import qos, topics
@@ -68,6 +72,9 @@ class EdgeMapperNode(Node):
         self.links: dict[str, DeviceLink] = {}
         self.listed = devices                  #: served from the start, again after a reclaim
         self.refused: set[str] = set()         #: devices the budget had no room for (said once)
+        #: the devices' maps merged where one walks into another's place (``merge_maps``)
+        self.merging = (PlaceMerging(lambda: {d: link.core for d, link in self.links.items()})
+                        if self.several and bool(p["merge_maps"]) else None)
         config = self.settings.config
         self.governor = ComputeGovernor(float(p["compute_budget"]),
                                         levels=levels_within(config.back_end.ba_window,
@@ -99,7 +106,7 @@ class EdgeMapperNode(Node):
         grant = self._grant if self.budget is not None else None
         finished = self.budget.finished if self.budget is not None else None
         link = DeviceLink(self, device, self.settings, self._live_values, grant, finished,
-                          self._spent)
+                          self._spent, self.merging)
         level = self.governor.levels[self.governor.level]
         if self.governor.level:                # a device that joins gets today's level
             link.core.set_bundle_adjustment(level.window, level.points)
@@ -181,6 +188,8 @@ class EdgeMapperNode(Node):
                 link = self.links.pop(event.device, None)
                 if link is not None:
                     link.close()
+                if self.merging is not None:
+                    self.merging.forget(event.device)
                 if event.device in self.listed:   # listening again, with a fresh map
                     self._serve(event.device)
             if self.pub_budget is not None:

@@ -133,6 +133,10 @@ PARAMETERS = (
               else f"must be one of {', '.join(ALLOCATORS)}"),
     ParamSpec("min_keyframes", 5, "the least share of vmax_total a device gets", low=1,
               high=1_000_000),
+    ParamSpec("merge_maps", False, "with several devices: a device's map joins the frame of a "
+              "device served before it once its keyframes are found in that device's map "
+              "(confirmed by two more, as a loop): their poses in one frame; looks beside the "
+              "slots cost ~0.1 s of CPU a slot per unmerged device"),
     ParamSpec("fairness", 0.0, "alpha of the twin allocator's alpha-fair sum (0: total "
               "tracked share; 1: proportional fairness)", low=0.0, high=10.0),
     ParamSpec("device_silent_s", 10.0, "a device without summaries this long is silent: its "

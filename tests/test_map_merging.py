@@ -1,13 +1,15 @@
 """Two devices' maps of one place merged into one frame: the second device's keyframes found
 in the first device's map give the rigid motion between their frames, confirmed by later
 keyframes before the second map moves; a look-alike place is not merged; the moved map —
-keyframes, archive, points and the frame its device is told — is the first map's frame."""
+keyframes, archive, points and the frame its device is told — is the first map's frame; the
+edge merges a later device into an earlier one's frame, beside the slots."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore
+from edge_mapper.place_merging import PlaceMerging
 from edge_mapper.slot_planner import SlotConfig
 from tests.test_archive_relocalisation import room  # noqa: F401 (the archived room fixture)
 from twinslam.policies.registry import make_policy
@@ -112,8 +114,8 @@ def test_a_merged_map_moves_whole_into_the_place_frame_and_tells_its_device() ->
     core.align(SECOND_IN_FIRST)
     for k, pose in before_map.items():
         np.testing.assert_allclose(core.map.keyframes[k].pose, SECOND_IN_FIRST @ pose)
-    for kf in core.archive:
-        np.testing.assert_allclose(kf.pose, SECOND_IN_FIRST @ before_archive[kf.id])
+    for archived in core.archive:
+        np.testing.assert_allclose(archived.pose, SECOND_IN_FIRST @ before_archive[archived.id])
     for p, xyz in before_points.items():
         np.testing.assert_allclose(core.map.points[p].position,
                                    SECOND_IN_FIRST[:3, :3] @ xyz + SECOND_IN_FIRST[:3, 3])
@@ -139,3 +141,70 @@ def test_whole_map_holds_the_archive_and_the_managed_keyframes() -> None:
     every = whole_map(core.archive, core.map, slot=1)
     assert sorted(kf.id for kf in every) == [0, 1, 2]
     assert len(core.archive) == 1 and sorted(core.map.keyframes) == [1, 2]
+
+
+def _payload(room: Room, frame_index: int, keyframe: int) -> KeyFramePayload:  # noqa: F811
+    """The room's frame as the second device uploads it (its features; no point ids)."""
+    query = _query(room, frame_index, keyframe)
+    assert query.depths is not None
+    n = len(query.points_xy)
+    return KeyFramePayload(frame_id=keyframe, slot=0, stamp=float(keyframe),
+                           pose=_second_pose(room, frame_index),
+                           intrinsics=room[0].intrinsics,      # type: ignore[attr-defined]
+                           keypoints=query.points_xy, depths=query.depths,
+                           descriptors=query.descriptors, point_ids=np.zeros(n, np.uint64))
+
+
+def test_the_edge_merges_a_later_device_into_an_earlier_ones_frame(room: Room) -> None:  # noqa: F811
+    """The edge's merging over its devices' cores: the second device's keyframes, looked for
+    after its slots, join the first device's frame at the slot end after the third; the
+    first device never looks in the second's map, and a device that joined looks no more."""
+    _, archive, _ = room
+    k = room[0].intrinsics                                      # type: ignore[attr-defined]
+    cores = {"ar1": _core(), "ar2": _core()}
+    for kf in archive:                                 # the first device's map of the room
+        cores["ar1"].archive.add(kf)
+    cores["ar1"].map.add_keyframe(999, archive.get(270).pose)
+    for core in cores.values():
+        core.back_end.k = k
+    merging = PlaceMerging(lambda: cores, background=False)
+    assert merging.places("ar1") == [] and merging.places("ar2") == ["ar1"]
+    events = []
+    for slot, (key, frame) in enumerate(((10, 4), (11, 64), (12, 124))):
+        cores["ar2"].map.add_keyframe(key, _second_pose(room, frame))
+        merging.keyframe("ar2", _payload(room, frame, key))
+        events.append(merging.take("ar2"))             # the slot end takes the last look
+        merging.look("ar2", slot)
+        merging.look("ar1", slot)                      # nothing: no device before it
+    events.append(merging.take("ar2"))
+    assert events[:3] == [None, None, None] and events[3] is not None
+    assert events[3].place == "ar1" and merging.joined == {"ar2": "ar1"}
+    off = np.linalg.inv(SECOND_IN_FIRST) @ cores["ar2"].frame_correction
+    assert np.linalg.norm(off[:3, 3]) < 0.03 and rotation_angle_deg(off[:3, :3]) < 0.5
+    np.testing.assert_allclose(cores["ar2"].map.keyframes[12].pose,
+                               events[3].merge.alignment @ _second_pose(room, 124))
+    assert merging.places("ar2") == [] and merging.places("ar1") == []
+    assert len(merging.look_ms) == 3 and not merging.failures()
+
+
+def test_a_look_made_before_the_map_moved_is_dropped(room: Room) -> None:  # noqa: F811
+    """A merge confirmed against the joining map's poses before a loop moved that map would
+    put it off by the loop's correction: it is not applied (the device goes on looking)."""
+    _, archive, _ = room
+    cores = {"ar1": _core(), "ar2": _core()}
+    for kf in archive:
+        cores["ar1"].archive.add(kf)
+    cores["ar1"].map.add_keyframe(999, archive.get(270).pose)
+    for core in cores.values():
+        core.back_end.k = room[0].intrinsics                    # type: ignore[attr-defined]
+    merging = PlaceMerging(lambda: cores, background=False)
+    for slot, (key, frame) in enumerate(((10, 4), (11, 64), (12, 124))):
+        cores["ar2"].map.add_keyframe(key, _second_pose(room, frame))
+        merging.keyframe("ar2", _payload(room, frame, key))
+        merging.take("ar2")
+        merging.look("ar2", slot)
+    loop = np.eye(4)
+    loop[0, 3] = 0.05                                  # a loop corrected the map meanwhile
+    cores["ar2"].back_end.align(loop, cores["ar2"].version + 1)
+    assert merging.take("ar2") is None and merging.joined == {}
+    np.testing.assert_allclose(cores["ar2"].frame_correction, loop)

@@ -1,0 +1,189 @@
+"""The maps of an edge's devices merged where one device walks into another's place (the
+edge node's ``merge_maps``), beside the slots.
+
+An edge serving several devices keeps a map per device, each in the frame of its device's
+first camera. After each slot of a device whose map joined no other yet, the keyframes it
+integrated that slot are looked for in the whole map (archive and managed map) of one device
+served before it — a different one each slot, in turn — on a worker thread, as the loop
+closer's work is: place recognition over a few hundred keyframes takes ~0.1 s
+(``bench.shared_map``), as much as the rest of the device's slot. A merge the joining map's
+next keyframes confirmed (:class:`~twinslam.slam.back_end.map_merging.MergeFinder`) is applied
+at the device's next slot end, before its map update goes out
+(:meth:`~edge_mapper.edge_core.EdgeMapperCore.align`): that update carries the new frame
+correction, and the device's poses are in the place's frame from then on.
+
+Devices later in the edge's order join earlier ones, never the other way round, and a device
+another one joined stays where it is: the place's frame is that of the first device of the
+place. A look that finished after the joining map's frame changed (a loop closed meanwhile)
+is dropped, its alignment measured against poses the map no longer has.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+from edge_mapper.edge_core import EdgeMapperCore
+from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
+from twinslam.slam.back_end.loop_closing import LoopQuery
+from twinslam.slam.back_end.map_merging import MapMerge, MergeFinder, whole_map
+from twinslam.slam.keyframe import KeyFramePayload
+
+#: newest integrated keyframes of a slot looked for (a slot integrates a few; a look costs
+#: place recognition for each)
+LOOK_QUERIES = 3
+
+
+@dataclass(frozen=True)
+class MergeEvent:
+    """A device's map moved into another device's frame."""
+
+    device: str                      #: the joining device
+    place: str                       #: the device whose frame it joined
+    merge: MapMerge
+    look_ms: float                   #: the worker's time on the look that confirmed it
+
+
+@dataclass(frozen=True)
+class _Look:
+    """One look's answer, with what it was made against."""
+
+    place: str
+    merge: MapMerge | None
+    frame: np.ndarray                #: the joining map's frame correction when it started
+    ms: float
+    error: str = ""                  #: why the look failed ("": it did not)
+
+
+class PlaceMerging:
+    """Looks for each unmerged device's place in the maps of the devices before it, and
+    moves its map into the first one's frame it finds (``cores``: the edge's devices and
+    their cores, in the order they are served)."""
+
+    def __init__(self, cores: Callable[[], Mapping[str, EdgeMapperCore]],
+                 background: bool = True) -> None:
+        self.cores = cores
+        self.background = background
+        #: joined device → the device whose frame it is in
+        self.joined: dict[str, str] = {}
+        self._finders: dict[tuple[str, str], MergeFinder] = {}
+        self._queries: dict[str, list[LoopQuery]] = {}
+        self._turn: dict[str, int] = {}
+        self._running: dict[str, Future[_Look]] = {}
+        self._executor: ThreadPoolExecutor | None = None
+        self.look_ms: list[float] = []          #: every finished look's worker time
+        #: why looks failed since the last :meth:`failures` (the link logs them)
+        self._failed: list[str] = []
+
+    def keyframe(self, device: str, data: KeyFramePayload) -> None:
+        """A keyframe of ``device`` the edge accepted: its features, for the next look."""
+        if device in self.joined:
+            return
+        queries = self._queries.setdefault(device, [])
+        queries.append(LoopQuery(data.frame_id, data.keypoints, data.descriptors, data.depths))
+        del queries[:-LOOK_QUERIES]
+
+    def places(self, device: str) -> list[str]:
+        """The devices ``device`` may join: served before it, not joined to another."""
+        cores = list(self.cores())
+        if device not in cores or device in self.joined or device in self.joined.values():
+            return []
+        return [d for d in cores[:cores.index(device)] if d not in self.joined]
+
+    def take(self, device: str) -> MergeEvent | None:
+        """Before ``device``'s slot end: a finished look's merge applied to its core (None:
+        none finished, it found none, or the map's frame changed since it started)."""
+        running = self._running.get(device)
+        if running is None or not running.done():
+            return None
+        del self._running[device]
+        look = running.result()
+        self.look_ms.append(look.ms)
+        if look.error:
+            self._failed.append(f"looking for {look.place}'s place failed: {look.error}")
+        core = self.cores().get(device)
+        if look.merge is None or core is None or look.place not in self.cores() or \
+                not np.allclose(core.frame_correction, look.frame, atol=1e-12):
+            return None
+        core.align(look.merge.alignment)
+        self.joined[device] = look.place
+        self._queries.pop(device, None)
+        return MergeEvent(device, look.place, look.merge, look.ms)
+
+    def look(self, device: str, slot: int) -> None:
+        """After ``device``'s slot end: its newest keyframes looked for in the next place's
+        whole map, on the worker (nothing while its last look runs, or with nothing new)."""
+        queries = self._queries.get(device)
+        places = self.places(device)
+        if not queries or not places or device in self._running:
+            return
+        turn = self._turn.get(device, 0)
+        self._turn[device] = turn + 1
+        place = places[turn % len(places)]
+        cores = self.cores()
+        other, joining = cores[place], cores[device]
+        if not other.map.keyframes or not joining.camera.known:
+            return
+        snapshot = whole_map(other.archive, other.map, slot)
+        poses = {kf.id: kf.pose for kf in joining.archive}
+        poses.update({k: kf.pose.copy() for k, kf in joining.map.keyframes.items()})
+        finder = self._finders.setdefault((device, place), MergeFinder())
+        job = (place, finder, snapshot, tuple(queries), poses, joining.k.copy(),
+               joining.frame_correction.copy())
+        self._queries[device] = []
+        if self.background:
+            self._running[device] = self._worker().submit(_look, *job)
+        else:
+            done: Future[_Look] = Future()
+            done.set_result(_look(*job))
+            self._running[device] = done
+
+    def forget(self, device: str) -> None:
+        """A reclaimed device: served again, it starts a map of its own that joins anew (the
+        devices that joined its frame stay in it)."""
+        self.joined.pop(device, None)
+        self._queries.pop(device, None)
+        self._running.pop(device, None)
+        self._turn.pop(device, None)
+        for pair in [pair for pair in self._finders if device in pair]:
+            del self._finders[pair]
+
+    def failures(self) -> list[str]:
+        """Why looks failed since the last call (once each): the edge goes on unmerged."""
+        failed, self._failed = self._failed, []
+        return failed
+
+    def _worker(self) -> ThreadPoolExecutor:
+        if self._executor is None:
+            self._executor = ThreadPoolExecutor(1, thread_name_prefix="place-merging")
+        return self._executor
+
+    def close(self) -> None:
+        """Stop the worker (a running look finishes first)."""
+        if self._executor is not None:
+            self._executor.shutdown(wait=True)
+            self._executor = None
+
+
+def _look(place: str, finder: MergeFinder, other: KeyFrameArchive,
+          queries: tuple[LoopQuery, ...], poses: dict[int, np.ndarray], intrinsics: np.ndarray,
+          frame: np.ndarray) -> _Look:
+    """The joining map's ``queries`` (oldest first) offered to ``finder`` against the place's
+    whole map ``other``, until one confirms a merge; a failure reported in the answer, never
+    raised (a look that fails must not take the edge's slots down with it)."""
+    started = time.perf_counter()
+    merge = None
+    try:
+        for query in sorted(queries, key=lambda q: q.keyframe):
+            if query.keyframe in poses:
+                merge = finder.offer(other, query, poses, intrinsics)
+                if merge is not None:
+                    break
+    except Exception as exc:            # reported by the device's next slot end
+        return _Look(place, None, frame, (time.perf_counter() - started) * 1e3,
+                     f"{type(exc).__name__}: {exc}")
+    return _Look(place, merge, frame, (time.perf_counter() - started) * 1e3)

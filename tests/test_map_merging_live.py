@@ -1,0 +1,89 @@
+"""One edge serving two devices in one room (``merge_maps:=true``), every node its own process
+on a loopback domain: the first device walks the synthetic room forward, the second the same
+walk backward from its last frame, each starting a map in its own first camera's frame; the
+edge finds the second device's keyframes in the first device's map and moves the second map
+into the first's frame — the second device's map updates then carry the motion between the
+two frames, as the truth has it, and the second device's poses are in the first one's frame."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from twinslam_msgs.msg import FrameSummaries, MapUpdate
+
+from msg_schemas import qos
+from msg_schemas.poses import pose_matrix
+from twinslam.hosts.loopback import LoopbackDomain
+from twinslam.live.launcher import preloaded_nodes
+from twinslam.node_runtime.session import RosSession
+from twinslam.rotations import rotation_angle_deg
+from twinslam.sequences.opening import open_sequence
+
+#: frames of the room walked: the second device starts where the first ends
+FRAMES = 300
+#: the cameras play at half speed: each device's tracking, rendering and the edge's looks
+#: share two cores with the other device's
+RATE, FRAME_RATE_HZ = 0.5, 30.0
+#: each device's order of the frames
+ORDER = {"ar1": "forward", "ar2": "backward"}
+
+#: the nodes are forked from the launchers' fork server (twinslam.live.node_fork_server)
+FORKS = preloaded_nodes()
+
+
+@pytest.mark.slow(seconds=40)
+def test_the_edge_merges_the_second_devices_map_into_the_first_ones_frame(
+        domain: LoopbackDomain, ros: RosSession) -> None:
+    maps: dict[str, list[MapUpdate]] = {d: [] for d in ORDER}
+    summaries: list[FrameSummaries] = []
+    for d, got in maps.items():
+        ros.node.create_subscription(MapUpdate, f"/{d}/edge/map_update", got.append, qos.MAP)
+    ros.node.create_subscription(FrameSummaries, "/ar2/device/frame_summaries",
+                                 summaries.append, qos.PROTOCOL)
+    edge = domain.spawn(["-m", "edge_mapper.node", "--ros-args", "-p", "policy:=lff",
+                         "-p", "devices:=[ar1, ar2]", "-p", "merge_maps:=true",
+                         "-p", "visualisation:=false"], forks=FORKS)
+    assert domain.wait_for_log(edge, "listening on /ar2/device/frame_summaries", 90), \
+        domain.log(edge)[-2000:]
+    for d, order in ORDER.items():
+        domain.spawn(["-m", "device_tracker.node", "--ros-args", "-r", f"__ns:=/{d}",
+                      "-p", f"frame_rate_hz:={FRAME_RATE_HZ * RATE}",
+                      "-p", f"map_frame:={d}/map"], forks=FORKS)
+        domain.spawn(["-m", "twinslam.sequence_player.node", "--ros-args", "-r", f"__ns:=/{d}",
+                      "-p", f"sequence:=synthetic:{FRAMES}", "-p", f"order:={order}",
+                      "-p", "wait_for_subscribers:=1", "-p", f"rate:={RATE}",
+                      "-p", f"frame_id:={d}/camera", "-p", f"map_frame:={d}/map"],
+                     forks=FORKS)
+
+    def moved(update: MapUpdate) -> bool:
+        return not np.allclose(pose_matrix(update.frame_correction), np.eye(4), atol=1e-9)
+
+    assert ros.spin_until(lambda: any(moved(u) for u in maps["ar2"]), 150.0), \
+        domain.log(edge)[-3000:]
+    merged_version = next(int(u.map_version) for u in maps["ar2"] if moved(u))
+    # the second device tracks on in the first one's frame: a slot of its frames on it
+    assert ros.spin_until(lambda: any(f.map_version >= merged_version and f.tracked
+                                      for s in summaries for f in s.frames), 60.0)
+    assert domain.wait_for_log(edge, "[ar2] slot", 10.0)
+    log = domain.log(edge)
+    assert "map merged into ar1's" in log, log[-3000:]
+    merged = next(u for u in maps["ar2"] if moved(u))
+    # the second device's map frame is its first camera (the walk's last frame), the first
+    # device's the walk's first frame: the merge moved the one into the other
+    room = open_sequence(f"synthetic:{FRAMES}")
+    truth = np.linalg.inv(room.read(0).pose) @ room.read(FRAMES - 1).pose  # type: ignore[attr-defined]
+    off = np.linalg.inv(truth) @ pose_matrix(merged.frame_correction)
+    assert np.linalg.norm(off[:3, 3]) < 0.05 and rotation_angle_deg(off[:3, :3]) < 2.0, off
+    # every later update of the second device stays in the first one's frame; the first
+    # device's map never moved
+    later = maps["ar2"][maps["ar2"].index(merged):]
+    assert all(np.allclose(pose_matrix(u.frame_correction),
+                           pose_matrix(merged.frame_correction)) for u in later)
+    assert maps["ar1"] and not any(moved(u) for u in maps["ar1"])
+    # the second device's poses on the merged map are where the first device's frame has
+    # those places (its frame i is the walk's frame FRAMES - 1 - i)
+    first_camera = np.linalg.inv(room.read(0).pose)          # type: ignore[attr-defined]
+    errors = [np.linalg.norm(pose_matrix(f.pose)[:3, 3] - (
+        first_camera @ room.read(FRAMES - 1 - int(f.frame_id)).pose)[:3, 3])  # type: ignore[attr-defined]
+        for s in summaries for f in s.frames if f.tracked and f.map_version >= merged_version]
+    assert errors and float(np.median(errors)) < 0.05, errors
