@@ -126,4 +126,5 @@ def read_map_update(msg: MapUpdate) -> MapSnapshot:
         np.asarray(msg.point_descriptors, dtype=np.uint8).reshape(n, ORB_DESCRIPTOR_BYTES),
         np.asarray(msg.point_observations, dtype=np.uint32), keyframe_points,
         np.asarray(msg.track_ids, dtype=np.uint64),
-        np.asarray(msg.track_point_ids, dtype=np.uint64), pose_matrix(msg.frame_correction))
+        np.asarray(msg.track_point_ids, dtype=np.uint64), pose_matrix(msg.frame_correction),
+        str(msg.header.frame_id))

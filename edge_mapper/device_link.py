@@ -370,12 +370,15 @@ class DeviceLink:
         for failure in self.merging.failures():
             self.error(f"slot {slot}: {failure}; the map stays in its own frame")
         if merged is not None:
+            # what the edge publishes of this device is in the place's frame from now on
+            self.map_frame = f"{merged.place}/{self.settings.map_frame}"
             t = merged.merge.alignment[:3, 3]
             self.info(f"slot {slot}: map merged into {merged.place}'s: keyframe "
                       f"{merged.merge.joining} found {merged.place}'s keyframe "
                       f"{merged.merge.place} ({merged.merge.inliers} inliers, confirmed by "
                       f"the next keyframes); the map moved by ({t[0]:.3f}, {t[1]:.3f}, "
-                      f"{t[2]:.3f}) m into {merged.place}'s frame, the look took "
+                      f"{t[2]:.3f}) m into {merged.place}'s frame ({self.map_frame}), the "
+                      f"look took "
                       f"{merged.look_ms:.0f} ms beside the slots")
 
     def close(self) -> None:

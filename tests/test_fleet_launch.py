@@ -6,12 +6,17 @@ from __future__ import annotations
 
 import csv
 from pathlib import Path
+from types import SimpleNamespace
 
+import numpy as np
 import pytest
+from builtin_interfaces.msg import Time
+from twinslam_msgs.msg import FrameSummaries, FrameSummary
 
 from twinslam.cli.main import main
 from twinslam.hosts.forked import process_name
-from twinslam.live.fleet import FleetConfig, device_sequence
+from twinslam.live.fleet import FleetConfig, cross_device_errors, device_sequence
+from twinslam.live.run_log import RunLog
 
 
 def test_every_device_plays_its_own_walk() -> None:
@@ -23,10 +28,52 @@ def test_every_device_plays_its_own_walk() -> None:
             for i in range(3)] == [900, 0, 100]
 
 
+def _walk(frames: list[tuple[float, int]], map_frames: dict[int, str], off: np.ndarray
+          ) -> RunLog:
+    """A device's record: (x along the walk, the map version it was tracked on) a frame, a
+    frame a second, each published ``off`` (its map's frame) from its true pose, and the map
+    frame each version's update was in."""
+    record = RunLog()
+    record.summaries[0] = FrameSummaries(frames=[
+        FrameSummary(frame_id=i, stamp=Time(sec=i), tracked=True, map_version=v)
+        for i, (_, v) in enumerate(frames)])
+    for i, (x, _) in enumerate(frames):
+        truth = np.eye(4)
+        truth[0, 3] = x
+        record.ground_truth[i * 10**9], record.poses[i * 10**9] = truth, off @ truth
+    for slot, (version, frame) in enumerate(sorted(map_frames.items())):
+        record.maps[slot] = SimpleNamespace(version=version, frame_id=frame)  # type: ignore[assignment]
+    return record
+
+
+def test_cross_device_pairs_count_only_frames_tracked_in_one_map_frame() -> None:
+    """The second device walks the first one's line in its own frame (1 m away), then, on
+    map version 2, in the first one's frame, 2 cm off: only those frames pair with the first
+    device's, and they are 2 cm off. A device never merged pairs with nothing."""
+    here, apart = np.eye(4), np.eye(4)
+    apart[0, 3] = 1.0
+    near = np.eye(4)
+    near[1, 3] = 0.02
+    first = _walk([(0.05 * i, 1) for i in range(5)], {1: "ar1/map"}, here)
+    merged = _walk([(0.05 * i, 1) for i in range(5)] + [(0.05 * i, 2) for i in range(5)],
+                   {1: "ar2/map", 2: "ar1/map"}, near)
+    for i in range(5):                   # before the merge: its own frame, a metre off
+        merged.poses[i * 10**9] = apart @ merged.ground_truth[i * 10**9]
+    errors = cross_device_errors({"ar1": first, "ar2": merged})
+    error = errors[("ar1", "ar2")]
+    assert error.pairs == 5 * 5 and abs(error.rms_m - 0.02) < 1e-9
+    alone = _walk([(0.05 * i, 1) for i in range(5)], {1: "ar3/map"}, apart)
+    assert cross_device_errors({"ar1": first, "ar3": alone})[("ar1", "ar3")].pairs == 0
+
+
 def test_settings_that_cannot_run_are_refused_before_any_node_starts(
         capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(ValueError, match="V_total 8 is below 2 devices x 5 keyframes"):
         FleetConfig(2, 8, "equal", 5).check()
+    with pytest.raises(ValueError, match="1 orders for 2 devices"):
+        FleetConfig(2, orders=("backward",)).check()
+    with pytest.raises(ValueError, match="order 'sideways'"):
+        FleetConfig(2, orders=("forward", "sideways")).check()
     assert main(["launch", "--devices", "2", "--allocator", "fifo", "--loopback"]) == 2
     assert "unknown allocator 'fifo'" in capsys.readouterr().err
     assert main(["launch", "--devices", "2", "--record", "bag", "--loopback"]) == 2

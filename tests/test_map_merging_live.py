@@ -80,6 +80,9 @@ def test_the_edge_merges_the_second_devices_map_into_the_first_ones_frame(
     assert all(np.allclose(pose_matrix(u.frame_correction),
                            pose_matrix(merged.frame_correction)) for u in later)
     assert maps["ar1"] and not any(moved(u) for u in maps["ar1"])
+    # what the edge publishes of the second device is in the first one's frame from then on
+    assert all(u.header.frame_id == "ar1/map" for u in later + maps["ar1"])
+    assert all(u.header.frame_id == "ar2/map" for u in maps["ar2"][:maps["ar2"].index(merged)])
     # the second device's poses on the merged map are where the first device's frame has
     # those places (its frame i is the walk's frame FRAMES - 1 - i)
     first_camera = np.linalg.inv(room.read(0).pose)          # type: ignore[attr-defined]

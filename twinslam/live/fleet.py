@@ -18,18 +18,21 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from twinslam_msgs.msg import MapStats
 
+from msg_schemas.headers import time_key
 from twinslam.allocation.allocators import check_fleet, jain_index
 from twinslam.hosts.loopback import ProcessDomain
 from twinslam.live.launcher import LaunchConfig, Launcher, preloaded_nodes
 from twinslam.live.monitor import PipelineMonitor
 from twinslam.live.report import RunReport, report
 from twinslam.live.run_log import RunLog
+from twinslam.live.tracking_quality import RevisitError, cross_device_revisit_error
 from twinslam.node_runtime.session import RosSession
+from twinslam.sequence_player.playback import ORDERS
 from twinslam.sequences.opening import is_synthetic, synthetic_walk
 from twinslam.slot_protocol import default_device, table1
 
@@ -42,6 +45,10 @@ class FleetConfig:
     min_keyframes: int = 5
     stride: int = 0                  #: frames between devices' starts on a dataset (0: even)
     seed: int = 0                    #: device i's channel (and synthetic walk): 100 seed + i
+    #: each device's order of its frames (``forward``, ``backward``, …); empty: the scenario's
+    orders: tuple[str, ...] = ()
+    #: the edge merges a device's map into the frame of a device before it (``merge_maps``)
+    merge_maps: bool = False
 
     def device_seed(self, index: int) -> int:
         return 100 * self.seed + index
@@ -52,6 +59,11 @@ class FleetConfig:
     def check(self) -> None:
         """ValueError naming a setting that cannot run."""
         check_fleet(self.devices, self.allocator, self.vmax_total, self.min_keyframes)
+        if self.orders and len(self.orders) != self.devices:
+            raise ValueError(f"{len(self.orders)} orders for {self.devices} devices: give one "
+                             "a device")
+        if bad := [o for o in self.orders if o not in ORDERS]:
+            raise ValueError(f"order {bad[0]!r}: must be one of {', '.join(ORDERS)}")
 
 
 @dataclass
@@ -63,6 +75,9 @@ class FleetReport:
     reports: list[RunReport]
     budgets: list[float]              #: each device's mean keyframe budget over its slots
     frames: list[int]                 #: frames each device's slots held
+    #: per pair of devices (a, b): where b sees a's content, over their frames tracked on maps
+    #: in one frame (:func:`cross_device_errors`)
+    cross_device: dict[tuple[str, str], RevisitError] = field(default_factory=dict)
 
     def tracked_shares(self) -> list[float]:
         """Each device's share of its frames it tracked."""
@@ -108,6 +123,8 @@ class FleetLauncher(Launcher):
                 "-p", f"allocator:={f.allocator}", "-p", f"min_keyframes:={f.min_keyframes}"]
         if f.vmax_total:
             args += ["-p", f"vmax_total:={f.vmax_total}"]
+        if f.merge_maps:
+            args += ["-p", "merge_maps:=true"]
         return args
 
     def device_args(self, name: str, index: int) -> list[str]:
@@ -126,6 +143,8 @@ class FleetLauncher(Launcher):
                      "-p", f"odom_frame:={device}/odom"]
         else:
             args += ["-p", f"frame_id:={device}/camera"]
+            if self.fleet.orders:                # after the scenario's: the last one holds
+                args += ["-p", f"order:={self.fleet.orders[index]}"]
         return args
 
     def end_playback(self) -> None:
@@ -186,7 +205,8 @@ class FleetLauncher(Launcher):
             frames = [sum(len(s.frames) for s in monitors[d].record.summaries.values())
                       for d in names]
             budgets = [_mean_budget(monitors[d]) for d in names]
-            return FleetReport(self.fleet.allocator, names, reports, budgets, frames)
+            return FleetReport(self.fleet.allocator, names, reports, budgets, frames,
+                               cross_device_errors({d: monitors[d].record for d in names}))
         finally:
             self.stop()
             for s in sessions.values():
@@ -198,7 +218,15 @@ class FleetLauncher(Launcher):
                 / self._device_param("frame_rate_hz", table1.FRAME_RATE_HZ))
 
     def _status(self, device: str) -> Callable[[MapStats, RunLog], None]:
+        own = f"{device}/map"
+        merged: list[str] = []
+
         def line(msg: MapStats, _record: RunLog) -> None:
+            frame = str(msg.header.frame_id)
+            if self.echo and frame not in ("", own) and not merged:
+                merged.append(frame)          # the edge merged its map into another's frame
+                self.echo(f"[{self.config.policy} {device}] slot {msg.slot:>3} | its map "
+                          f"merged into {frame}")
             if self.echo:
                 self.echo(f"[{self.config.policy} {device}] slot {msg.slot:>3} | map "
                           f"{msg.map_size:>3} of {msg.keyframe_budget:>3} kf | lost "
@@ -209,6 +237,40 @@ class FleetLauncher(Launcher):
         return next((name for name, proc in self.procs.items()
                      if not name.startswith("sequence_player") and proc.pid not in self._killed
                      and proc.poll() not in (None, 0)), None)
+
+
+def posed_by_map_frame(record: RunLog) -> dict[str, list[tuple[np.ndarray, np.ndarray]]]:
+    """A device's tracked frames with a true pose, as (published pose, true pose), grouped
+    by the frame of the map each was tracked on (its map update's header: the device's own
+    map frame, or the frame of a device its map was merged into); frames tracked on a map
+    the record lacks are left out."""
+    frame_of = {m.version: m.frame_id for m in record.maps.values()}
+    grouped: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
+    for summary in record.summaries.values():
+        for f in summary.frames:
+            key = time_key(f.stamp)
+            frame = frame_of.get(int(f.map_version))
+            if f.tracked and frame and key in record.poses and key in record.ground_truth:
+                grouped.setdefault(frame, []).append((record.poses[key],
+                                                      record.ground_truth[key]))
+    return grouped
+
+
+def cross_device_errors(records: dict[str, RunLog]) -> dict[tuple[str, str], RevisitError]:
+    """For each pair of devices (in the fleet's order), the cross-device revisit error over
+    their frames tracked on maps in one frame (:func:`posed_by_map_frame`; the true poses in
+    the sequence's world frame, which every device of one sequence shares): content one
+    device anchored as the other sees it. Devices never in one frame have no pair."""
+    grouped = {d: posed_by_map_frame(r) for d, r in records.items()}
+    names = list(records)
+    errors = {}
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            shared = grouped[a].keys() & grouped[b].keys()
+            first = [p for frame in sorted(shared) for p in grouped[a][frame]]
+            second = [p for frame in sorted(shared) for p in grouped[b][frame]]
+            errors[(a, b)] = cross_device_revisit_error(first, second)
+    return errors
 
 
 def _mean_budget(monitor: PipelineMonitor) -> float:
@@ -233,13 +295,18 @@ def print_fleet_table(fleet: FleetReport, echo: Callable[[str], None] = print) -
     echo(f"{head:<{len(RunReport.HEADER)}} {float(np.nanmean(fleet.budgets)):>7.1f} "
          f"{float(np.nanmean(shares)):>8.1%}")
     echo(f"Jain's index of the tracked shares: {fleet.jain_tracked:.3f}")
+    for (a, b), e in fleet.cross_device.items():
+        where = (f"RMS {e.rms_m * 100:.1f} cm, median {e.median_m * 100:.1f} cm over "
+                 f"{e.pairs} pairs of frames in one map frame" if e.pairs
+                 else "never in one map frame")
+        echo(f"cross-device revisit error {a}-{b}: {where}")
 
 
 #: the columns of a fleet run's rows (``twinslam launch --devices N --out DIR``: fleet_runs.csv)
 FLEET_COLUMNS = ("policy", "allocator", "seed", "device", "slots", "frames", "mean_uncertainty",
                  "lost_share", "tracked_uncertainty", "untracked_frames", "tracking_failures",
                  "relocalisations", "ate_m", "mean_budget", "frames_dropped", "edge_ms_median",
-                 "latency_ms_median", "late_slots")
+                 "latency_ms_median", "late_slots", "cross_device_rms_m", "cross_device_pairs")
 
 
 def fleet_rows(fleet: FleetReport, seed: int, records: dict[str, RunLog],
@@ -261,5 +328,15 @@ def fleet_rows(fleet: FleetReport, seed: int, records: dict[str, RunLog],
                      "mean_budget": budget, "frames_dropped": r.frames_dropped,
                      "edge_ms_median": r.edge_ms_median,
                      "latency_ms_median": float(np.median(latency)) if latency else math.nan,
-                     "late_slots": sum(1 for v in latency if v > slot_period_s * 1000)})
+                     "late_slots": sum(1 for v in latency if v > slot_period_s * 1000),
+                     **_cross_cells(fleet, device)})
     return rows
+
+
+def _cross_cells(fleet: FleetReport, device: str) -> dict[str, float]:
+    """A device's cross-device revisit error against every other device, over all its pairs
+    (RMS of the pairs' RMS weighted by their counts), and the pairs."""
+    mine = [e for pair, e in fleet.cross_device.items() if device in pair and e.pairs]
+    pairs = sum(e.pairs for e in mine)
+    rms = math.sqrt(sum(e.rms_m ** 2 * e.pairs for e in mine) / pairs) if pairs else math.nan
+    return {"cross_device_rms_m": rms, "cross_device_pairs": float(pairs)}

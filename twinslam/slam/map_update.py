@@ -30,3 +30,6 @@ class MapSnapshot:
     #: the loops' corrections at the walk's head so far, composed (4×4; identity: none): what
     #: a device holds from an update with another one moves by this · that⁻¹
     frame_correction: np.ndarray = field(default_factory=lambda: np.eye(4))
+    #: the frame its poses are in (the header's): the device's map frame, or — once the edge
+    #: merged the device's map into another device's — that device's
+    frame_id: str = ""

@@ -44,8 +44,9 @@ def fleet_settings(args: argparse.Namespace) -> list[FleetConfig]:
     if args.record is not None:
         raise ValueError("--devices does not record yet: run without --record")
     allocators = [a.strip() for a in args.allocator.split(",") if a.strip()]
+    orders = tuple(o.strip() for o in args.orders.split(",") if o.strip())
     fleets = [FleetConfig(args.devices, args.vmax_total, a, args.min_keyframes, args.stride,
-                          args.seed) for a in allocators]
+                          args.seed, orders, args.merge_maps) for a in allocators]
     for fleet in fleets:
         fleet.check()
     return fleets
@@ -128,3 +129,13 @@ def add_fleet_arguments(launch: argparse.ArgumentParser) -> None:
     fleet.add_argument("--stride", type=int, default=0,
                        help="on a dataset, frames between two devices' first frames (0: "
                        "spread evenly over the sequence)")
+    fleet.add_argument("--orders", default="", metavar="ORDER,…",
+                       help="each device's order of its frames, one a device: forward, "
+                       "backward (from its last frame), forward_backward; e.g. "
+                       "forward,backward with --stride set to the sequence's length (both "
+                       "play it from its first frame): two devices walking a place from its "
+                       "two ends (default: the scenario's for every device)")
+    fleet.add_argument("--merge-maps", action="store_true",
+                       help="the edge merges a device's map into the frame of a device before "
+                       "it once it finds that device's place (merge_maps); the table then "
+                       "gives the cross-device revisit error of each pair in one frame")
