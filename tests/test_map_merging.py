@@ -6,6 +6,8 @@ edge merges a later device into an earlier one's frame, beside the slots."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore
@@ -14,10 +16,14 @@ from edge_mapper.slot_planner import SlotConfig
 from tests.test_archive_relocalisation import room  # noqa: F401 (the archived room fixture)
 from twinslam.policies.registry import make_policy
 from twinslam.rotations import rotation_angle_deg
-from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
+from twinslam.slam.back_end.foreign_keyframes import foreign_tag, is_foreign
+from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive, restore_into
+from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.back_end.loop_closing import LoopQuery
+from twinslam.slam.back_end.loop_correction import correct_map, correction_for
 from twinslam.slam.back_end.map_back_end import BackEndConfig
-from twinslam.slam.back_end.map_merging import MergeFinder, whole_map
+from twinslam.slam.back_end.map_merging import MergeFinder, welded, whole_map
+from twinslam.slam.camera import Camera
 from twinslam.slam.front_end.orb_extractor import OrbExtractor
 from twinslam.slam.front_end.tracking import depth_at
 from twinslam.slam.keyframe import KeyFramePayload
@@ -185,6 +191,15 @@ def test_the_edge_merges_a_later_device_into_an_earlier_ones_frame(room: Room) -
                                events[3].merge.alignment @ _second_pose(room, 124))
     assert merging.places("ar2") == [] and merging.places("ar1") == []
     assert len(merging.look_ms) == 3 and not merging.failures()
+    # from then on each map adopts the other's own keyframes, each once, tagged by lender
+    assert merging.before_slot_end("ar2", 4) == (None, len(archive) + 1)
+    assert merging.before_slot_end("ar2", 5) == (None, 0)
+    adopted = sorted(kf.id for kf in cores["ar2"].archive)
+    assert adopted == sorted(foreign_tag(0) | k for k in [*(kf.id for kf in archive), 999])
+    assert merging.before_slot_end("ar1", 4) == (None, 3)      # ar2's keyframes 10, 11, 12
+    assert sorted(cores["ar1"].archive.get(foreign_tag(1) | k).id & 0xFFFF
+                  for k in (10, 11, 12)) == [10, 11, 12]
+    assert merging.lend("ar1", "ar2", 6) == 0          # never the keyframes it lent back
 
 
 def test_a_look_made_before_the_map_moved_is_dropped(room: Room) -> None:  # noqa: F811
@@ -208,3 +223,65 @@ def test_a_look_made_before_the_map_moved_is_dropped(room: Room) -> None:  # noq
     cores["ar2"].back_end.align(loop, cores["ar2"].version + 1)
     assert merging.take("ar2") is None and merging.joined == {}
     np.testing.assert_allclose(cores["ar2"].frame_correction, loop)
+
+
+def _map_of(archived: ArchivedKeyFrame) -> KeyFrameMap:
+    """A map holding one keyframe of the room, its points under their own ids."""
+    m = KeyFrameMap()
+    m.next_point_id = int(archived.point_ids.max()) + 1
+    restore_into(m, archived)
+    return m
+
+
+def _renumbered(archived: ArchivedKeyFrame, offset: int) -> ArchivedKeyFrame:
+    """The keyframe as another device's map numbers it (its points' ids moved by
+    ``offset``): nothing but the geometry and the descriptors tells its points are the
+    same corners."""
+    return dataclasses.replace(archived, point_ids=archived.point_ids + offset)
+
+
+def test_an_adopted_keyframe_takes_the_ids_of_the_points_the_map_has_already(
+        room: Room) -> None:  # noqa: F811
+    """The first device's keyframe of the room (frame 60), adopted by a map that holds the
+    keyframe of frame 30: the corners both see keep the adopting map's ids (each within 10 cm
+    of the adopting map's point), the rest and the keyframe itself carry the source's tag."""
+    seq, archive, _ = room
+    mine = _map_of(archive.get(30))
+    theirs = _renumbered(archive.get(60), 100_000)
+    camera = Camera(seq.intrinsics)                              # type: ignore[attr-defined]
+    adopted = welded(theirs, 0, mine, camera, slot=3)
+    assert adopted.id == foreign_tag(0) | 60 and is_foreign(adopted.id)
+    assert adopted.archived_slot == 3
+    own = [(row, int(p)) for row, p in enumerate(adopted.point_ids) if not is_foreign(int(p))]
+    assert len(own) >= 30, len(own)
+    assert len({p for _, p in own}) == len(own)                # one corner, one point
+    for row, p in own:
+        assert np.linalg.norm(theirs.positions[row] - mine.points[p].position) <= 0.10
+    tagged = [int(p) for p in adopted.point_ids if is_foreign(int(p))]
+    assert tagged and all(p & ~foreign_tag(0) >= 100_000 for p in tagged)
+
+
+def test_a_restored_adopted_keyframe_joins_the_map_through_its_welded_points(
+        room: Room) -> None:  # noqa: F811
+    """Adopted into the archive and restored, the other device's keyframe shares the welded
+    corners with the map's own keyframe (the map stays one connected graph), and a loop the
+    map closes later moves its own keyframes and never the adopted one."""
+    seq, archive, _ = room
+    core = _core(vmax=4)
+    core.back_end.k = seq.intrinsics                             # type: ignore[attr-defined]
+    core.map.next_point_id = int(archive.get(30).point_ids.max()) + 1
+    restore_into(core.map, archive.get(30))
+    adopted = welded(_renumbered(archive.get(60), 100_000), 0, core.map, core.camera, slot=1)
+    core.back_end.adopt([adopted, adopted])                      # twice: kept once
+    assert adopted.id in core.archive and len(core.archive) == 1
+    core.back_end.restore([adopted.id], [], slot=2)
+    shared = core.map.keyframes[30].points & core.map.keyframes[adopted.id].points
+    assert len(shared) >= 30
+    moved = np.eye(4)
+    moved[0, 3] = 0.1
+    before = core.map.keyframes[adopted.id].pose.copy()
+    correct_map(core.map, {30: moved})
+    np.testing.assert_allclose(core.map.keyframes[adopted.id].pose, before)
+    np.testing.assert_allclose(core.map.keyframes[30].pose[0, 3],
+                               archive.get(30).pose[0, 3] + 0.1)
+    assert correction_for({30: moved}, adopted.id) is None

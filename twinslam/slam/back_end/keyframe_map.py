@@ -21,6 +21,8 @@ from typing import Any
 import numpy as np
 from scipy import sparse
 
+from twinslam.slam.back_end.foreign_keyframes import is_foreign
+
 CHECKPOINT_FORMAT = "twinslam-keyframe-map-1"
 
 
@@ -93,8 +95,11 @@ class KeyFrameMap:
     def readd_point(self, point_id: int, position: np.ndarray, descriptor: np.ndarray) -> None:
         """Put back a point the map had (``point_id`` below ``next_point_id``: ids are never
         reused, so it cannot clash with a newer point) and has no more — a keyframe restored
-        from the edge's archive brings its points back under their own ids."""
-        if point_id in self.points or not 0 < point_id < self.next_point_id:
+        from the edge's archive brings its points back under their own ids — or another
+        device's point, under its tagged id (:mod:`~twinslam.slam.back_end.foreign_keyframes`),
+        which no point of this map's own can take."""
+        if point_id in self.points or not (0 < point_id < self.next_point_id
+                                           or is_foreign(point_id)):
             raise MapError(f"point {point_id} cannot come back: it is in the map or was never "
                            "one of it")
         self.points[point_id] = MapPoint(point_id, np.asarray(position, dtype=np.float64).copy(),

@@ -18,13 +18,18 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from twinslam.slam.back_end.foreign_keyframes import is_foreign
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.back_end.pose_graph import move_with_keyframes
 
 
 def correction_for(corrections: Mapping[int, np.ndarray], kf_id: int) -> np.ndarray | None:
     """Keyframe ``kf_id``'s correction: its own, or — for a keyframe newer than every keyframe
-    of the graph — the newest one's; None for an older keyframe the graph did not hold."""
+    of the graph — the newest one's; None for an older keyframe the graph did not hold, and
+    for another device's keyframe this map adopted (its pose is that device's map's, which
+    this map's loop does not move)."""
+    if is_foreign(kf_id):
+        return None
     own = corrections.get(kf_id)
     if own is not None:
         return own

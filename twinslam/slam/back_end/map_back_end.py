@@ -44,6 +44,7 @@ from twinslam.slam.back_end.bundle_adjustment import (
     Observation,
     bundle_adjust,
 )
+from twinslam.slam.back_end.foreign_keyframes import is_foreign
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive, restore_into
 from twinslam.slam.back_end.keyframe_gate import KeyFrameGateConfig, implausible_keyframe
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
@@ -369,11 +370,14 @@ class MapBackEnd:
         newest = max(q.keyframe for q in queries)
         old = [ArchivedKeyFrame.of(self.map, k, slot) for k in self.map.keyframes
                if k <= newest - self.loop_closer.min_gap]
-        poses = {kf.id: kf.pose for kf in self.archive}
-        poses.update({k: kf.pose.copy() for k, kf in self.map.keyframes.items()})
+        # the walk's own keyframes: another device's that this map adopted are no step of it
+        poses = {kf.id: kf.pose for kf in self.archive if not is_foreign(kf.id)}
+        poses.update({k: kf.pose.copy() for k, kf in self.map.keyframes.items()
+                      if not is_foreign(k)})
         job = LoopJob(tuple(reversed(queries)), self.archive.snapshot(old), poses,
                       self.k.copy(),
-                      {k: frozenset(kf.points) for k, kf in self.map.keyframes.items()},
+                      {k: frozenset(kf.points) for k, kf in self.map.keyframes.items()
+                       if not is_foreign(k)},
                       tuple(self.loop_edges))
         if self.loop_closer.submit(job):
             self._loop_queries = []
@@ -446,6 +450,18 @@ class MapBackEnd:
                                  alignment)
         self._correct(everyone, alignment, next_version,
                       "writing the aligned archive's files")
+
+    def adopt(self, keyframes: Iterable[ArchivedKeyFrame]) -> list[int]:
+        """Another device's keyframes, in this map's frame and under their tagged ids
+        (:func:`~twinslam.slam.back_end.map_merging.welded`), into the archive: restores
+        bring them into the map where this device heads, as its own archived keyframes, and
+        the device tracks on them. Those the archive holds already are skipped; returns the
+        archived keyframes that left to make room."""
+        forgotten: list[int] = []
+        for kf in keyframes:
+            if kf.id not in self.archive and kf.id not in self.map.keyframes:
+                forgotten += self.archive.add(kf)
+        return forgotten
 
     def close(self) -> None:
         """Stop the loop closer's worker (the node calls it at shutdown)."""
