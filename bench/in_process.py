@@ -99,6 +99,7 @@ class DeviceWalk:
     map_version: dict[int, int] = field(default_factory=dict)  #: frame → map it tracked on
     first_truth: np.ndarray | None = None    #: the true pose of its map frame (first frame)
     edge_ms: list[float] = field(default_factory=list)
+    uploads: int = 0                #: keyframes the edge integrated from this device
     #: how a finished slot is served (another bench times the edge's steps in finer detail)
     serve: Serving = serve_slot
 
@@ -126,6 +127,7 @@ class DeviceWalk:
         state, rate = self.channel.step()
         served = self.serve(self.device, self.edge, rate, state, self.update_delay > 0)
         self.edge_ms.append(served.plan_ms + served.integrate_ms + served.finish_ms)
+        self.uploads += len(served.outcome.integrated)
         if served.update is not None:
             self.held = (served.update, served.outcome.slot, frame.index)
         return [k for k in served.outcome.integrated if k in self.edge.map.keyframes]

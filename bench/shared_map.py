@@ -49,7 +49,8 @@ from twinslam.live.tracking_quality import (
 )
 from twinslam.rotations import rotation_angle_deg
 from twinslam.sequence_player.playback import ORDERS
-from twinslam.slam.back_end.map_merging import MapMerge, MergeFinder, whole_map
+from twinslam.slam.back_end.foreign_keyframes import is_foreign
+from twinslam.slam.back_end.map_merging import MapMerge, MergeFinder, welded, whole_map
 
 SEVEN = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes-1000"
 
@@ -66,6 +67,18 @@ def look_for_merge(finder: MergeFinder, place: DeviceWalk, joining: DeviceWalk,
         if merge is not None:
             return merge
     return None
+
+
+def lend_keyframes(lender: DeviceWalk, borrower: DeviceWalk, lent: set[int], slot: int,
+                   source: int) -> int:
+    """The lender's own keyframes (archive and map; not those it adopted) the borrower's map
+    has not adopted yet, welded to its points and adopted into its archive; how many."""
+    fresh = [kf for kf in whole_map(lender.edge.archive, lender.edge.map, slot)
+             if kf.id not in lent and not is_foreign(kf.id)]
+    borrower.edge.back_end.adopt(welded(kf, source, borrower.edge.map, borrower.edge.camera,
+                                        slot) for kf in fresh)
+    lent.update(kf.id for kf in fresh)
+    return len(fresh)
 
 
 def alignment_error(merge: MapMerge, place: DeviceWalk, joining: DeviceWalk
@@ -109,6 +122,13 @@ def main() -> None:
     parser.add_argument("--update-delay", type=int, default=8,
                         help="frames of the next slot a device tracks before its map update "
                              "reaches it (the default device's D_req of 0.25 s)")
+    parser.add_argument("--share", action="store_true",
+                        help="after the merge, the second edge map adopts the first's "
+                             "keyframes (welded to its points) into its archive after each "
+                             "slot: restores bring them in where the second device heads")
+    parser.add_argument("--share-both", action="store_true",
+                        help="with --share: the first edge map adopts the second's keyframes "
+                             "too")
     parser.add_argument("--no-merge", action="store_true",
                         help="never merge (the control: each device in its own frame)")
     parser.add_argument("--every", type=int, default=10, help="print every N slots")
@@ -135,6 +155,9 @@ def main() -> None:
         merged_version = -1            #: the second edge's first map version in the place's
         merge_row: dict[str, object] = {}
         look_ms: list[float] = []      #: each slot's search for the first map's place
+        lent_ids: set[int] = set()     #: the first map's keyframes the second adopted
+        lent_back_ids: set[int] = set()    #: and the second's the first adopted
+        lent_total = lent_back = 0
         slot = 0
         while True:
             got_a, got_b = first.step(), second.step()
@@ -159,6 +182,10 @@ def main() -> None:
                           f"{merge.inliers} inliers, confirmed ({finder.candidates} "
                           f"keyframes found it); alignment {t_err * 100:.1f} cm, "
                           f"{r_err:.2f}° from the true one", flush=True)
+            if merge is not None and args.share and (got_a or got_b):
+                lent_total += lend_keyframes(first, second, lent_ids, slot, 0)
+                if args.share_both:
+                    lent_back += lend_keyframes(second, first, lent_back_ids, slot, 1)
             if slot % args.every == 0:
                 print(f"slot {slot:4d}: first map {len(first.edge.map.keyframes)} + archive "
                       f"{len(first.edge.archive)}, second map {len(second.edge.map.keyframes)} "
@@ -174,10 +201,23 @@ def main() -> None:
         own = {k: np.linalg.inv(align) @ p if k in after else p
                for k, p in second.poses.items()}
         placed = {k: align @ p for k, p in own.items()}
-        report = {"frames": args.frames, "seed": args.seed, "uplink": args.uplink,
-                  "merged": int(merge is not None), **merge_row,
-                  "look_ms_median": float(np.median(look_ms)) if look_ms else math.nan,
-                  "look_ms_max": max(look_ms, default=math.nan)}
+        report: dict[str, object] = {"share": 0}
+        if args.share:
+            restored = sum(1 for k in second.edge.map.keyframes if is_foreign(k))
+            back = sum(1 for k in first.edge.map.keyframes if is_foreign(k))
+            report.update(adopted=lent_total, foreign_at_end=restored, adopted_back=lent_back,
+                          foreign_at_end_first=back, share=2 if args.share_both else 1)
+            if args.share_both:
+                print(f"the first map adopted {lent_back} of the second map's keyframes; "
+                      f"{back} of its {len(first.edge.map.keyframes)} at the end")
+            print(f"the second map adopted {lent_total} of the first map's keyframes; "
+                  f"{restored} of its {len(second.edge.map.keyframes)} keyframes at the end "
+                  "are the first device's")
+        report.update({"frames": args.frames, "seed": args.seed, "uplink": args.uplink,
+                       "merged": int(merge is not None),
+                       **merge_row,
+                       "look_ms_median": float(np.median(look_ms)) if look_ms else math.nan,
+                       "look_ms_max": max(look_ms, default=math.nan)})
         if look_ms:
             print(f"looking for the first map's place: {len(look_ms)} slots, median "
                   f"{np.median(look_ms):.0f} ms, longest {max(look_ms):.0f} ms a slot")
@@ -186,9 +226,10 @@ def main() -> None:
             report[f"{walk.name}_tracked"] = len(poses)
             report[f"{walk.name}_ate_m"] = ate
             report[f"{walk.name}_edge_ms"] = float(np.median(walk.edge_ms))
+            report[f"{walk.name}_uploads"] = walk.uploads
             print(f"{walk.name} device: {len(poses)} of {len(walk.truth)} frames tracked, "
-                  f"ATE {ate * 100:.1f} cm (in the place's frame), edge median "
-                  f"{np.median(walk.edge_ms):.0f} ms a slot")
+                  f"ATE {ate * 100:.1f} cm (in the place's frame), {walk.uploads} keyframes "
+                  f"uploaded, edge median {np.median(walk.edge_ms):.0f} ms a slot")
         cross = cross_device_revisit_error(pairs(first.poses, first.truth),
                                            pairs(second.poses, second.truth,
                                                  shared if merge else None))
@@ -224,7 +265,9 @@ CSV_FIELDS = ("frames", "seed", "uplink", "merged", "merge_slot", "merge_frame",
               "look_ms_max", "first_tracked",
               "first_ate_m", "first_edge_ms", "second_tracked", "second_ate_m",
               "second_edge_ms", "shared_frames", "cross_rms_m", "cross_median_m",
-              "cross_p95_m", "cross_pairs", "true_alignment_rms_m", "keyframes_cross_rms_m")
+              "cross_p95_m", "cross_pairs", "true_alignment_rms_m", "keyframes_cross_rms_m",
+              "share", "first_uploads", "second_uploads", "adopted", "foreign_at_end",
+              "adopted_back", "foreign_at_end_first")
 
 
 def _merge_state(merge: MapMerge | None, finder: MergeFinder) -> str:

@@ -366,7 +366,10 @@ class DeviceLink:
         slot sends is in the place's frame."""
         if self.merging is None:
             return
-        merged = self.merging.take(self.device)
+        merged, adopted = self.merging.before_slot_end(self.device, slot)
+        if adopted:
+            self.info(f"slot {slot}: {adopted} keyframes of the other maps in its frame "
+                      "adopted into the archive")
         for failure in self.merging.failures():
             self.error(f"slot {slot}: {failure}; the map stays in its own frame")
         if merged is not None:

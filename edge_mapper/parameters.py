@@ -135,8 +135,10 @@ PARAMETERS = (
               high=1_000_000),
     ParamSpec("merge_maps", False, "with several devices: a device's map joins the frame of a "
               "device served before it once its keyframes are found in that device's map "
-              "(confirmed by two more, as a loop): their poses in one frame; looks beside the "
-              "slots cost ~0.1 s of CPU a slot per unmerged device"),
+              "(confirmed by two more, as a loop), and adopts that map's keyframes into its "
+              "archive, which restores bring in where it heads: their poses in one frame, on "
+              "shared keyframes; looks beside the slots cost ~0.1 s of CPU a slot per "
+              "unmerged device"),
     ParamSpec("fairness", 0.0, "alpha of the twin allocator's alpha-fair sum (0: total "
               "tracked share; 1: proportional fairness)", low=0.0, high=10.0),
     ParamSpec("device_silent_s", 10.0, "a device without summaries this long is silent: its "

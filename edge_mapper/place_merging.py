@@ -10,7 +10,10 @@ closer's work is: place recognition over a few hundred keyframes takes ~0.1 s
 next keyframes confirmed (:class:`~twinslam.slam.back_end.map_merging.MergeFinder`) is applied
 at the device's next slot end, before its map update goes out
 (:meth:`~edge_mapper.edge_core.EdgeMapperCore.align`): that update carries the new frame
-correction, and the device's poses are in the place's frame from then on.
+correction, and the device's poses are in the place's frame from then on. From then on, at
+each slot end of either, each map adopts the other's own keyframes it has not adopted yet,
+welded to its points, into its archive (:meth:`PlaceMerging.lend`): restores bring them in
+where the device heads, and each device tracks on keyframes only the other uploaded.
 
 Devices later in the edge's order join earlier ones, never the other way round, and a device
 another one joined stays where it is: the place's frame is that of the first device of the
@@ -28,9 +31,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from edge_mapper.edge_core import EdgeMapperCore
+from twinslam.slam.back_end.foreign_keyframes import is_foreign
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
 from twinslam.slam.back_end.loop_closing import LoopQuery
-from twinslam.slam.back_end.map_merging import MapMerge, MergeFinder, whole_map
+from twinslam.slam.back_end.map_merging import MapMerge, MergeFinder, welded, whole_map
 from twinslam.slam.keyframe import KeyFramePayload
 
 #: newest integrated keyframes of a slot looked for (a slot integrates a few; a look costs
@@ -76,6 +80,11 @@ class PlaceMerging:
         self._running: dict[str, Future[_Look]] = {}
         self._executor: ThreadPoolExecutor | None = None
         self.look_ms: list[float] = []          #: every finished look's worker time
+        #: (borrower, lender) → the lender's keyframes the borrower's map adopted (by the
+        #: lender's ids)
+        self._lent: dict[tuple[str, str], set[int]] = {}
+        #: each place device's tag for the keyframes it lends (stable while the edge runs)
+        self._sources: dict[str, int] = {}
         #: why looks failed since the last :meth:`failures` (the link logs them)
         self._failed: list[str] = []
 
@@ -93,6 +102,37 @@ class PlaceMerging:
         if device not in cores or device in self.joined or device in self.joined.values():
             return []
         return [d for d in cores[:cores.index(device)] if d not in self.joined]
+
+    def before_slot_end(self, device: str, slot: int) -> tuple[MergeEvent | None, int]:
+        """Before ``device``'s slot end: a finished look's merge applied (:meth:`take`), and
+        the keyframes of the devices in its frame — the place it joined, the devices that
+        joined it — that its map has not adopted yet adopted (:meth:`lend`); (the merge or
+        None, keyframes adopted)."""
+        merged = self.take(device)
+        lenders = [d for d, place in self.joined.items() if place == device]
+        if device in self.joined:
+            lenders.append(self.joined[device])
+        return merged, sum(self.lend(device, lender, slot) for lender in lenders)
+
+    def lend(self, borrower: str, lender: str, slot: int) -> int:
+        """The lender's own keyframes (its archive and map; not those it adopted itself) that
+        the borrower's map has not adopted yet — the two maps in one frame — welded to the
+        borrower's points and adopted into its archive (:meth:`MapBackEnd.adopt`): its
+        restores bring them in where its device heads, and it tracks on keyframes only the
+        other device uploaded. How many."""
+        cores = self.cores()
+        if lender not in cores or borrower not in cores:
+            return 0
+        lent = self._lent.setdefault((borrower, lender), set())
+        fresh = [kf for kf in whole_map(cores[lender].archive, cores[lender].map, slot)
+                 if kf.id not in lent and not is_foreign(kf.id)]
+        if not fresh:
+            return 0
+        source = self._sources.setdefault(lender, len(self._sources))
+        into = cores[borrower]
+        into.back_end.adopt(welded(kf, source, into.map, into.camera, slot) for kf in fresh)
+        lent.update(kf.id for kf in fresh)
+        return len(fresh)
 
     def take(self, device: str) -> MergeEvent | None:
         """Before ``device``'s slot end: a finished look's merge applied to its core (None:
@@ -146,6 +186,8 @@ class PlaceMerging:
         """A reclaimed device: served again, it starts a map of its own that joins anew (the
         devices that joined its frame stay in it)."""
         self.joined.pop(device, None)
+        for pair in [pair for pair in self._lent if device in pair]:
+            del self._lent[pair]
         self._queries.pop(device, None)
         self._running.pop(device, None)
         self._turn.pop(device, None)

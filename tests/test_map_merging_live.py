@@ -3,7 +3,8 @@ on a loopback domain: the first device walks the synthetic room forward, the sec
 walk backward from its last frame, each starting a map in its own first camera's frame; the
 edge finds the second device's keyframes in the first device's map and moves the second map
 into the first's frame — the second device's map updates then carry the motion between the
-two frames, as the truth has it, and the second device's poses are in the first one's frame."""
+two frames, as the truth has it, the second device's poses are in the first one's frame, and
+it tracks on keyframes only the first device uploaded."""
 
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ from twinslam.live.launcher import preloaded_nodes
 from twinslam.node_runtime.session import RosSession
 from twinslam.rotations import rotation_angle_deg
 from twinslam.sequences.opening import open_sequence
+from twinslam.slam.back_end.foreign_keyframes import is_foreign
 
 #: frames of the room walked: the second device starts where the first ends
 FRAMES = 300
@@ -90,3 +92,9 @@ def test_the_edge_merges_the_second_devices_map_into_the_first_ones_frame(
         first_camera @ room.read(FRAMES - 1 - int(f.frame_id)).pose)[:3, 3])  # type: ignore[attr-defined]
         for s in summaries for f in s.frames if f.tracked and f.map_version >= merged_version]
     assert errors and float(np.median(errors)) < 0.05, errors
+    # the second device tracks on keyframes only the first uploaded, adopted into its map
+    assert ros.spin_until(lambda: any(is_foreign(int(k)) for u in maps["ar2"]
+                                      for k in u.keyframe_ids), 60.0), \
+        domain.log(edge)[-3000:]
+    assert ros.spin_until(lambda: any(is_foreign(int(p)) for s in summaries for f in s.frames
+                                      if f.tracked for p in f.map_point_ids), 30.0)
