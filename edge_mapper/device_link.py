@@ -384,12 +384,14 @@ class DeviceLink:
                       f"look took "
                       f"{merged.look_ms:.0f} ms beside the slots")
 
-    def close(self) -> None:
+    def close(self, keep_checkpoint: bool = False) -> None:
         """Stop listening and publishing (a reclaimed device): its slots are dropped and its
         checkpoint, if any, moved aside to ``FILE.reclaimed`` so that the device, should it
-        come back, starts afresh (the file is still there to inspect or restore)."""
+        come back, starts afresh (the file is still there to inspect or restore) — or left
+        where it is (``keep_checkpoint``: a standby edge giving the device back to its own
+        edge, which writes that file)."""
         checkpoint = self.core.checkpoint
-        if checkpoint is not None:
+        if checkpoint is not None and not keep_checkpoint:
             for kept in (checkpoint, archive_folder(checkpoint)):
                 aside = kept.with_name(kept.name + ".reclaimed")
                 if kept.exists():

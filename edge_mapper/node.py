@@ -20,9 +20,10 @@ own namespace. With ``devices:=[ar1, ar2]`` (or ``discover_devices:=true``, whic
 split by ``allocator`` slot by slot (:mod:`edge_mapper.keyframe_budget`, published on
 ``edge/keyframe_budget``); a device silent for ``device_silent_s`` leaves the split, and
 ``device_reclaim_s`` later its map and share are released.
-With ``merge_maps:=true`` a device's map joins the frame of a device served before it once its
-keyframes are found in that device's map (:mod:`edge_mapper.place_merging`): their poses are
-then in one frame.
+With ``standby:=true`` the node serves a device namespace only once its slots go unanswered
+(its edge died; :mod:`edge_mapper.edge_failover`). With ``merge_maps:=true`` a device's map
+joins the frame of a device served before it once its keyframes are found in that device's
+map (:mod:`edge_mapper.place_merging`): their poses are then in one frame.
 
 ``policy``, ``policy_checkpoint``, ``fallback_policy``, ``latent_max_age`` and ``vmax`` change
 live from the next slot (:mod:`edge_mapper.policy_control`); the others are read-only
@@ -38,12 +39,13 @@ import time
 from typing import Any
 
 from rclpy.node import Node
+from twinslam_msgs.msg import FrameSummaries, RateLatent, UploadRequest
 from twinslam_msgs.msg import KeyframeBudget as KeyframeBudgetMsg
-from twinslam_msgs.msg import RateLatent
 
 from edge_mapper.compute_governor import ComputeGovernor, levels_within
 from edge_mapper.device_link import DeviceLink
 from edge_mapper.edge_core import EdgeMapperCore
+from edge_mapper.edge_failover import UnansweredSlots
 from edge_mapper.keyframe_budget import KeyframeBudget, device_demand, slot_uploads
 from edge_mapper.messages import keyframe_budget_message
 from edge_mapper.parameters import DEVICE_NAME, PARAMETERS, device_names, link_settings
@@ -67,7 +69,13 @@ class EdgeMapperNode(Node):
         self.settings = link_settings(p)
         devices = device_names(p)
         self.discover = bool(p["discover_devices"])
-        self.several = bool(devices) or self.discover
+        self.standby = bool(p["standby"])
+        self.several = bool(devices) or self.discover or self.standby
+        self.takeover_slots = int(p["takeover_slots"])
+        #: devices a standby edge watches, unserved: their slots and whether some edge answers
+        self.watches: dict[str, tuple[UnansweredSlots, list[Any]]] = {}
+        #: devices this standby edge took over from an edge that stopped answering
+        self.taken_over: set[str] = set()
         self.budget: KeyframeBudget | None = None
         self.links: dict[str, DeviceLink] = {}
         self.listed = devices                  #: served from the start, again after a reclaim
@@ -166,8 +174,11 @@ class EdgeMapperNode(Node):
             link.finish_due()
 
     def _look_around(self) -> None:
-        """New devices on the graph (``discover_devices``) and the silence of known ones."""
-        if self.discover:
+        """New devices on the graph (``discover_devices``), devices a standby edge takes over
+        or gives back, and the silence of known ones."""
+        if self.standby:
+            self._stand_by()
+        elif self.discover:
             for device in self._announced():
                 if device not in self.links:
                     self._serve(device)
@@ -194,6 +205,51 @@ class EdgeMapperNode(Node):
                     self._serve(event.device)
             if self.pub_budget is not None:
                 self.pub_budget.publish(keyframe_budget_message(self.budget, self._now()))
+
+    def _stand_by(self) -> None:
+        """Watch the devices no edge of ours serves; take over those whose slots went
+        unanswered ``takeover_slots`` times; give back the ones another edge answers again."""
+        for device in self._announced():
+            if device not in self.links and device not in self.watches:
+                watch = UnansweredSlots(self.takeover_slots)
+
+                def heard(msg: FrameSummaries, w: UnansweredSlots = watch) -> None:
+                    w.summaries(int(msg.slot))
+
+                def answered(msg: UploadRequest, w: UnansweredSlots = watch) -> None:
+                    w.answered(int(msg.slot))
+
+                subs = [self.create_subscription(FrameSummaries,
+                                                 f"{device}/{topics.FRAME_SUMMARIES}", heard,
+                                                 qos.PROTOCOL),
+                        self.create_subscription(UploadRequest,
+                                                 f"{device}/{topics.UPLOAD_REQUEST}", answered,
+                                                 qos.PROTOCOL)]
+                self.watches[device] = (watch, subs)
+                self.get_logger().info(f"standing by for device {device}")
+        for device, (watch, subs) in list(self.watches.items()):
+            if not watch.due:
+                continue
+            for sub in subs:
+                self.destroy_subscription(sub)
+            del self.watches[device]
+            self.get_logger().warning(
+                f"device {device}: {len(watch.unanswered)} of its slots unanswered (up to "
+                f"slot {watch.newest_summaries}): its edge stopped; taking it over")
+            self._serve(device)
+            self.taken_over.add(device)
+        for device in sorted(self.taken_over):
+            topic = self.resolve_topic_name(f"{device}/{topics.UPLOAD_REQUEST}")
+            if self.count_publishers(topic) <= 1:
+                continue
+            self.get_logger().warning(f"device {device}: another edge answers it again; "
+                                      "giving it back")
+            self.taken_over.discard(device)
+            link = self.links.pop(device, None)
+            if link is not None:
+                link.close(keep_checkpoint=True)
+            if self.merging is not None:
+                self.merging.forget(device)
 
     def _announced(self) -> list[str]:
         """Device namespaces under this node's that publish frame summaries now."""

@@ -133,6 +133,12 @@ PARAMETERS = (
               else f"must be one of {', '.join(ALLOCATORS)}"),
     ParamSpec("min_keyframes", 5, "the least share of vmax_total a device gets", low=1,
               high=1_000_000),
+    ParamSpec("standby", False, "a standby edge: serve a device namespace that publishes frame "
+              "summaries once takeover_slots of its slots went unanswered (its edge died), "
+              "from its checkpoint where the edges share the checkpoint path; give it back "
+              "when another edge answers it again"),
+    ParamSpec("takeover_slots", 3, "a device's slots without an upload request before a "
+              "standby edge takes it over", low=1, high=1000),
     ParamSpec("merge_maps", False, "with several devices: a device's map joins the frame of a "
               "device served before it once its keyframes are found in that device's map "
               "(confirmed by two more, as a loop), and adopts that map's keyframes into its "
