@@ -29,7 +29,7 @@ import numpy as np
 from rclpy.serialization import deserialize_message, serialize_message
 from twinslam_msgs.msg import FrameSummaries, Keyframe
 
-from bench.in_process import ServedSlot, open_walk
+from bench.in_process import ServedSlot, open_walk, repeatable_edge
 from device_tracker.device_core import DeviceTrackerCore
 from device_tracker.messages import frame_summaries_message, keyframe_message, read_map_update
 from edge_mapper.edge_core import EdgeMapperCore
@@ -39,8 +39,6 @@ from edge_mapper.messages import (
     read_keyframe,
     upload_request_message,
 )
-from edge_mapper.parameters import PARAMETERS as EDGE_PARAMETERS
-from edge_mapper.parameters import edge_config
 from edge_mapper.slot_planner import FrameObservations
 from edge_mapper.visual_messages import decisions_message, keyframes_message, map_points_message
 from msg_schemas.poses import pose_matrix
@@ -144,9 +142,7 @@ def main() -> None:
     parser.add_argument("--csv", type=Path, help="write every slot's steps (ms) here")
     args = parser.parse_args()
     cv2.setNumThreads(1)
-    config = edge_config({p.name: p.default for p in EDGE_PARAMETERS})
-    config = dataclasses.replace(config, back_end=dataclasses.replace(config.back_end,
-                                                                      loop_background=False))
+    config = repeatable_edge()
     clock = StepClock()
     with tempfile.TemporaryDirectory() as tmp:
         walk = open_walk("edge", args.sequence, args.frames, "forward", args.seed, args.uplink,

@@ -7,6 +7,7 @@ and edge core over a sequence, frame by frame).
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -20,6 +21,8 @@ from device_tracker.parameters import PARAMETERS as DEVICE_PARAMETERS
 from device_tracker.parameters import DeviceSettings
 from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, SlotOutcome
 from edge_mapper.messages import map_update_message
+from edge_mapper.parameters import PARAMETERS as EDGE_PARAMETERS
+from edge_mapper.parameters import edge_config
 from edge_mapper.slot_planner import FrameObservations
 from twinslam.policies.registry import make_policy
 from twinslam.sequence_player.playback import Playback, PlayedSequence
@@ -76,6 +79,17 @@ def serve_slot(device: DeviceTrackerCore, edge: EdgeMapperCore, rate_mbps: float
         return ServedSlot(outcome, (t1 - t0) * 1e3, (t2 - t1) * 1e3, (t3 - t2) * 1e3, snapshot)
     device.apply_map_update(snapshot, slot)
     return ServedSlot(outcome, (t1 - t0) * 1e3, (t2 - t1) * 1e3, (t3 - t2) * 1e3)
+
+
+def repeatable_edge(**overrides: object) -> EdgeConfig:
+    """The edge node's default configuration with ``overrides`` (its parameters by name),
+    the loop closer working in the caller: a walk through the cores gives the same answer
+    run after run, whatever the threads' timing."""
+    params: dict[str, object] = {p.name: p.default for p in EDGE_PARAMETERS}
+    params.update(overrides)
+    config = edge_config(params)
+    return dataclasses.replace(config, back_end=dataclasses.replace(config.back_end,
+                                                                    loop_background=False))
 
 
 #: (device, edge, d_k, rate state, hold the update) → what the edge made of the slot

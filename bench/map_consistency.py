@@ -49,7 +49,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import dataclasses
 import math
 import tempfile
 import time
@@ -59,14 +58,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from bench.in_process import serve_slot
+from bench.in_process import repeatable_edge, serve_slot
 from device_tracker.device_core import DeviceTrackerCore
 from device_tracker.odometry_frame import OdometryFrame
 from device_tracker.parameters import PARAMETERS as DEVICE_PARAMETERS
 from device_tracker.parameters import DeviceSettings
 from edge_mapper.edge_core import EdgeMapperCore
-from edge_mapper.parameters import PARAMETERS as EDGE_PARAMETERS
-from edge_mapper.parameters import edge_config
 from twinslam.cli.console import HelpFormatter
 from twinslam.live.tracking_quality import (
     REVISIT_ANGLE_DEG,
@@ -190,15 +187,10 @@ def main() -> None:
     device = DeviceTrackerCore(source.intrinsics, settings.slot_frames, settings.tracking,
                                settings.keep_slots, settings.frame_rate_hz, settings.map_source,
                                settings.own_map_after)
-    edge_params = {p.name: p.default for p in EDGE_PARAMETERS}
-    edge_params.update(loop_closing=args.loops, restore_keyframes=args.restores,
-                       ba_window=args.ba_window, point_culling=args.point_culling,
-                       integration_fusion=args.integration_fusion)
-    if args.vmax is not None:
-        edge_params["vmax"] = args.vmax
-    config = edge_config(edge_params)
-    config = dataclasses.replace(config, back_end=dataclasses.replace(config.back_end,
-                                                                      loop_background=False))
+    config = repeatable_edge(loop_closing=args.loops, restore_keyframes=args.restores,
+                             ba_window=args.ba_window, point_culling=args.point_culling,
+                             integration_fusion=args.integration_fusion,
+                             **({} if args.vmax is None else {"vmax": args.vmax}))
     family = uplink_family(args.uplink)
     channel = parse_channel(family.channel, family.rate_mbps or (5.0, 45.0), seed=args.seed,
                             slot_seconds=settings.slot_frames / settings.frame_rate_hz)

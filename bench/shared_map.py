@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import dataclasses
 import math
 import tempfile
 import time
@@ -38,9 +37,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from bench.in_process import DeviceWalk, open_walk
-from edge_mapper.parameters import PARAMETERS as EDGE_PARAMETERS
-from edge_mapper.parameters import edge_config
+from bench.in_process import DeviceWalk, open_walk, repeatable_edge
 from twinslam.cli.console import HelpFormatter
 from twinslam.live.tracking_quality import (
     RevisitError,
@@ -138,12 +135,7 @@ def main() -> None:
     spec = args.sequence
     if spec.startswith("synthetic") and spec.count(":") == 1:
         spec = f"{spec}:{args.seed}"
-    params = {p.name: p.default for p in EDGE_PARAMETERS}
-    if args.vmax is not None:
-        params["vmax"] = args.vmax
-    config = edge_config(params)
-    config = dataclasses.replace(config, back_end=dataclasses.replace(config.back_end,
-                                                                      loop_background=False))
+    config = repeatable_edge(**({} if args.vmax is None else {"vmax": args.vmax}))
     started = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         first = open_walk("first", spec, args.frames, args.first, args.seed, args.uplink,
