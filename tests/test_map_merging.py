@@ -285,3 +285,20 @@ def test_a_restored_adopted_keyframe_joins_the_map_through_its_welded_points(
     np.testing.assert_allclose(core.map.keyframes[30].pose[0, 3],
                                archive.get(30).pose[0, 3] + 0.1)
     assert correction_for({30: moved}, adopted.id) is None
+
+
+def test_a_merged_map_takes_its_devices_first_keyframes_where_the_merge_put_them() -> None:
+    """The keyframe gate measures a new keyframe's reach from the device's first camera when
+    no keyframe is nearer in time: after a merge that camera is where the alignment put it,
+    2 m from the place's origin — a keyframe of the device's first second posed there is
+    plausible, the same pose in a map that never merged is not."""
+    posed = SECOND_IN_FIRST.copy()
+    posed[0, 3] += 0.02
+    upload = KeyFramePayload(frame_id=5, slot=0, pose=posed, intrinsics=np.diag([500.0, 500, 1]),
+                             keypoints=np.zeros((0, 2)), descriptors=np.zeros((0, 32), np.uint8),
+                             depths=np.zeros(0), point_ids=np.zeros(0, np.uint64), stamp=0.2)
+    merged, alone = _core(), _core()
+    merged.align(SECOND_IN_FIRST)
+    assert merged.back_end.integrate(upload, -1).refused == ""
+    assert "out of reach" in alone.back_end.integrate(upload, -1).refused
+    np.testing.assert_allclose(merged.back_end.checkpoint_arrays()["origin"], SECOND_IN_FIRST)

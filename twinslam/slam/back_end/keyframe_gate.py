@@ -47,14 +47,18 @@ class KeyFrameGateConfig:
 
 def implausible_keyframe(keyframe: KeyFramePayload, keyframe_map: KeyFrameMap,
                          anchors: Iterable[tuple[int, np.ndarray]],
-                         config: KeyFrameGateConfig = KeyFrameGateConfig()) -> str:
+                         config: KeyFrameGateConfig = KeyFrameGateConfig(),
+                         origin: np.ndarray | None = None) -> str:
     """Why ``keyframe`` must not enter ``keyframe_map``, or "" to integrate it. ``anchors``:
     (frame id, camera-to-map pose) of the keyframes the edge knows beyond the map's own (its
-    archive); the device's first frame, the map's origin, is always one."""
+    archive); the device's first frame is always one, at ``origin`` (None: the identity, the
+    map's origin — elsewhere once the map was merged into another device's frame)."""
     pose = np.asarray(keyframe.pose, dtype=np.float64)
     if non_finite(pose):
         return "a non-finite pose"
-    reason = _out_of_reach(keyframe.frame_id, pose, keyframe_map, anchors, config)
+    first = np.eye(4) if origin is None else np.asarray(origin, dtype=np.float64)
+    reason = _out_of_reach(keyframe.frame_id, pose, keyframe_map, [(0, first), *anchors],
+                           config)
     return reason or _inconsistent(keyframe, pose, keyframe_map, config)
 
 
@@ -62,8 +66,7 @@ def _out_of_reach(frame_id: int, pose: np.ndarray, keyframe_map: KeyFrameMap,
                   anchors: Iterable[tuple[int, np.ndarray]], config: KeyFrameGateConfig) -> str:
     """Farther from the keyframe nearest in frame ids than a camera gets in the time between
     (the later one of two equally near: the newer pose, after the newer optimisation)."""
-    known = [(0, np.eye(4)), *anchors,
-             *((kf.id, kf.pose) for kf in keyframe_map.keyframes.values())]
+    known = [*anchors, *((kf.id, kf.pose) for kf in keyframe_map.keyframes.values())]
     nearest_id, nearest = min(known, key=lambda a: (abs(a[0] - frame_id), -a[0]))
     seconds = abs(frame_id - nearest_id) / config.frame_rate_hz
     reach = config.motion.correction_m + config.motion.max_speed_m_s * seconds

@@ -163,6 +163,10 @@ class MapBackEnd:
         #: relative to the one the walk started in (MapUpdate.frame_correction)
         self.frame_correction = np.asarray(extra.get("frame_correction", np.eye(4)),
                                            dtype=np.float64).reshape(4, 4)
+        #: where the device's first camera — the map's origin until a merge moved the map
+        #: into another device's frame (:meth:`align`) — is now; loops hold it still
+        self.origin = np.asarray(extra.get("origin", np.eye(4)),
+                                 dtype=np.float64).reshape(4, 4)
         #: (first map version carrying it, frame_correction): the frame each version is in
         self._frames_since: list[tuple[int, np.ndarray]] = [(0, self.frame_correction.copy())]
         #: each integrated keyframe's capture time (s): its place in the keyframe trajectory
@@ -207,7 +211,7 @@ class MapBackEnd:
         data = self.in_current_frame(data, tracked_on)
         refused = implausible_keyframe(data, self.map,
                                        ((kf.id, kf.pose) for kf in self.archive),
-                                       self.config.keyframe_gate)
+                                       self.config.keyframe_gate, self.origin)
         if refused:
             return IntegrationReport.refusal(refused)
         self.k = self.local_mapping.k = np.asarray(data.intrinsics, dtype=np.float64)
@@ -446,6 +450,7 @@ class MapBackEnd:
         if alignment.shape != (4, 4) or not np.isfinite(alignment).all():
             raise ValueError("an alignment is a finite 4×4 rigid motion")
         self.loop_closer.discard()
+        self.origin = alignment @ self.origin
         everyone = dict.fromkeys([*self.map.keyframes, *(kf.id for kf in self.archive)],
                                  alignment)
         self._correct(everyone, alignment, next_version,
@@ -482,11 +487,12 @@ class MapBackEnd:
 
     def checkpoint_arrays(self) -> dict[str, np.ndarray]:
         """What a restarted back end reads back besides the map: the loops applied, the
-        frame they left the map in and the capture times of the keyframes kept."""
+        frame they left the map in, where a merge put the device's first camera and the
+        capture times of the keyframes kept."""
         kept = sorted(k for k in self.keyframe_stamps
                       if k in self.map.keyframes or k in self.archive)
         return {"loops_closed": np.array(self.loops_closed), **_loop_arrays(self.loop_edges),
-                "frame_correction": self.frame_correction,
+                "frame_correction": self.frame_correction, "origin": self.origin,
                 "keyframe_stamp_ids": np.array(kept, dtype=np.int64),
                 "keyframe_stamps": np.array([self.keyframe_stamps[k] for k in kept],
                                             dtype=np.float64)}
