@@ -114,6 +114,10 @@ def main() -> None:
                              "walk's")
     parser.add_argument("--uplink", default="lte", help="uplink family (table1, lte, mmwave, "
                         "constrained)")
+    parser.add_argument("--second-sequence", default="",
+                        help="the second device's place, when it is another (two places on "
+                             "one edge: a merge there is a false one, and the cross-device "
+                             "figures compare two worlds' truths: not printed)")
     parser.add_argument("--vmax", type=int,
                         help="V_max, keyframes each edge map holds (default: the edge's)")
     parser.add_argument("--update-delay", type=int, default=8,
@@ -132,15 +136,14 @@ def main() -> None:
     parser.add_argument("--csv", type=Path, help="append the run's figures here")
     args = parser.parse_args()
     cv2.setNumThreads(1)
-    spec = args.sequence
-    if spec.startswith("synthetic") and spec.count(":") == 1:
-        spec = f"{spec}:{args.seed}"
+    spec, second_spec = (_seeded(s, args.seed) for s in
+                         (args.sequence, args.second_sequence or args.sequence))
     config = repeatable_edge(**({} if args.vmax is None else {"vmax": args.vmax}))
     started = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         first = open_walk("first", spec, args.frames, args.first, args.seed, args.uplink,
                           config, args.update_delay, Path(tmp))
-        second = open_walk("second", spec, args.frames, args.second, args.seed + 1,
+        second = open_walk("second", second_spec, args.frames, args.second, args.seed + 1,
                            args.uplink, config, args.update_delay, Path(tmp))
         finder = MergeFinder()
         merge: MapMerge | None = None
@@ -237,12 +240,19 @@ def main() -> None:
                   cross_median_m=cross.median_m, cross_p95_m=cross.p95_m,
                   cross_pairs=cross.pairs, true_alignment_rms_m=floor.rms_m,
                   keyframes_cross_rms_m=kf_cross.rms_m)
-    print(f"cross-device revisit error, the second device's {len(shared)} frames in the "
-          f"shared frame: RMS {_cm(cross.rms_m)}, median {_cm(cross.median_m)}, p95 "
-          f"{_cm(cross.p95_m)} ({cross.pairs} pairs); the same frames with the true "
-          f"alignment instead of the merge's "
-          f"{_cm(floor.rms_m)}; the two edge maps' final keyframes {_cm(kf_cross.rms_m)} "
-          f"({time.perf_counter() - started:.0f} s)")
+    if second_spec != spec:
+        print(f"two places: {'MERGED (a false merge)' if merge else 'not merged'} "
+              f"({time.perf_counter() - started:.0f} s)")
+        report.update(cross_rms_m=math.nan, cross_median_m=math.nan, cross_p95_m=math.nan,
+                      cross_pairs=0, true_alignment_rms_m=math.nan,
+                      keyframes_cross_rms_m=math.nan)
+    else:
+        print(f"cross-device revisit error, the second device's {len(shared)} frames in the "
+              f"shared frame: RMS {_cm(cross.rms_m)}, median {_cm(cross.median_m)}, p95 "
+              f"{_cm(cross.p95_m)} ({cross.pairs} pairs); the same frames with the true "
+              f"alignment instead of the merge's {_cm(floor.rms_m)}; the two edge maps' "
+              f"final keyframes {_cm(kf_cross.rms_m)} "
+              f"({time.perf_counter() - started:.0f} s)")
     if args.csv:
         new = not args.csv.exists()
         with args.csv.open("a", newline="") as f:
@@ -260,6 +270,11 @@ CSV_FIELDS = ("frames", "seed", "uplink", "merged", "merge_slot", "merge_frame",
               "cross_p95_m", "cross_pairs", "true_alignment_rms_m", "keyframes_cross_rms_m",
               "share", "first_uploads", "second_uploads", "adopted", "foreign_at_end",
               "adopted_back", "foreign_at_end_first")
+
+
+def _seeded(spec: str, seed: int) -> str:
+    """A synthetic walk's spec with the seed, a dataset's as it is."""
+    return f"{spec}:{seed}" if spec.startswith("synthetic") and spec.count(":") == 1 else spec
 
 
 def _merge_state(merge: MapMerge | None, finder: MergeFinder) -> str:
