@@ -5,6 +5,7 @@ error of a place revisited."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -13,7 +14,7 @@ import pytest
 from device_tracker.messages import FrameRecord, frame_summaries_message, uplink_throughput_message
 from edge_mapper.messages import map_stats_message
 from msg_schemas.headers import time_key
-from twinslam.live.report import report
+from twinslam.live.report import in_final_frame, report
 from twinslam.live.run_log import RunLog
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.map_update import MapSnapshot
@@ -203,3 +204,37 @@ def test_the_odom_frame_is_judged_by_its_jitter_and_its_largest_leap() -> None:
     walked = _truth(12)[:3, 3] - _truth(11)[:3, 3]
     expected = (np.linalg.norm(leapt) - np.linalg.norm(walked)) * 1000.0     # ~46 mm
     assert report("lff", log, 2.0, SLOT).odom_step_excess_mm == pytest.approx(expected)
+
+
+def test_a_merged_devices_poses_are_judged_in_the_frame_it_ended_in() -> None:
+    """A device whose map the edge merged into another device's frame at map version 2: its
+    poses before (tracked on version 1, its own frame 2 m and 30° away) and after (in the
+    other device's frame) are one walk once the merge's motion carries the first ones over —
+    no 2 m leap, no error; the published poses themselves stay as they were."""
+    moved = np.eye(4)
+    a = math.radians(30.0)
+    moved[:2, :2] = [[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]]
+    moved[:3, 3] = [2.0, -1.0, 0.5]
+    log = _run()
+    own = {}
+    for slot, msg in log.summaries.items():
+        version = 1 if slot < 2 else 2
+        for f in msg.frames:
+            f.map_version = version
+            f.tracked = True
+            key = time_key(f.stamp)
+            truth = log.ground_truth[key]
+            log.poses[key] = np.linalg.inv(moved) @ truth if version == 1 else truth
+            own[key] = log.poses[key]
+    empty = _keyframes(0, {})
+    log.maps = {0: dataclasses.replace(empty, version=1, frame_id="ar2/map"),
+                2: dataclasses.replace(empty, version=2, frame_id="ar1/map",
+                                       frame_correction=moved)}
+    carried = in_final_frame(log)
+    assert all(np.allclose(carried[k], log.ground_truth[k]) for k in carried)
+    rep = report("lff", log, 2.0, SLOT)
+    assert rep.ate_m < 1e-9 and rep.jumps == 0 and rep.max_error_m < 1e-9
+    assert all(log.poses[k] is own[k] for k in own)          # the record is untouched
+    # a map that never changed frame: its poses as published
+    log.maps = {0: dataclasses.replace(empty, version=1, frame_id="ar2/map")}
+    assert in_final_frame(log) is log.poses

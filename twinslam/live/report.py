@@ -5,6 +5,8 @@ heard, and printed as a table."""
 from __future__ import annotations
 
 import bisect
+import dataclasses
+import itertools
 import math
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -199,8 +201,38 @@ def _finite_mean(values: Iterable[float]) -> float:
     return float(np.mean(finite)) if finite else math.nan
 
 
+def in_final_frame(record: RunLog) -> dict[int, np.ndarray]:
+    """The published poses (stamp ns → camera-to-map), each tracked on a map in a frame the
+    device's map later left — merged into another device's, the map update's header naming
+    that device's frame — carried by the merge's motion (the frame correction's change at the
+    first map version in the new frame) into the frame the device ended in. A merge moves the
+    map's coordinates, not the device: left in, every figure that aligns the walk once, or
+    follows its poses frame to frame, would count the distance between the two frames as the
+    device's error."""
+    snapshots = sorted(record.maps.values(), key=lambda m: m.version)
+    merges = [(now.version, now.frame_correction @ np.linalg.inv(before.frame_correction))
+              for before, now in itertools.pairwise(snapshots)
+              if before.frame_id and now.frame_id and before.frame_id != now.frame_id]
+    if not merges:
+        return record.poses
+    version = {time_key(f.stamp): int(f.map_version)
+               for s in record.summaries.values() for f in s.frames}
+    carried = {}
+    for stamp, pose in record.poses.items():
+        tracked_on = version.get(stamp, -1)
+        for first, motion in merges:
+            if tracked_on < first:
+                pose = motion @ pose
+        carried[stamp] = pose
+    return carried
+
+
 def report(policy: str, record: RunLog, seconds: float, slot_frames: int) -> RunReport:
-    """What the run measured; ``slot_frames``: the device's F, to count dropped frames."""
+    """What the run measured; ``slot_frames``: the device's F, to count dropped frames. The
+    poses are judged in the frame the device ended in (:func:`in_final_frame`); the anchored
+    figures follow the keyframes, which carry a merge by themselves."""
+    published = record
+    record = dataclasses.replace(record, poses=in_final_frame(record))
     stats = [record.stats[s] for s in sorted(record.stats)]
     scored = stats[1:]         # slot 0 plans against an empty map: every policy loses it all
     tps = [t for t in record.throughput.values() if t.frames_sent]
@@ -215,7 +247,7 @@ def report(policy: str, record: RunLog, seconds: float, slot_frames: int) -> Run
     revisit_m, revisit_pairs = _revisit_cells(record, tracked)
     odom_jitter, odom_step = _odom_cells(record, tracked)
     loops_closed, loop_ms = _loop_cells(stats)
-    anchored_ate, anchored_revisit = anchored_cells(record, tracked)
+    anchored_ate, anchored_revisit = anchored_cells(published, tracked)
     throughput = record.throughput.values()
     return RunReport(
         policy=policy, slots=len(stats),
