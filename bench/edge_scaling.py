@@ -8,7 +8,8 @@ and their cameras already load both cores and the edge would be measured starved
 own clients. The devices are emulated instead: one live run of the pipeline is recorded
 (``twinslam launch --record``: the device's frame summaries and every keyframe it uploaded),
 and each emulated device replays that protocol into its own namespace at the recorded pace —
-summaries every slot period, the keyframes the edge asks for paced at d_k — from this process
+summaries every slot period (the recorded device's: its frames a slot at its frame rate), the
+keyframes the edge asks for paced at d_k — from this process
 (no tracking, no images). The edge does its whole work per device: plan, integrate, GTSAM,
 the keyframe budget (V_total = 45 × N, equal shares), map updates and viewer topics.
 
@@ -48,6 +49,7 @@ from twinslam.slot_protocol import table1
 
 REPO = Path(__file__).resolve().parents[1]
 SEVEN = REPO.parent / "shared" / "data" / "7scenes-1000"
+#: the slot period when a recording tells none (Table I's)
 SLOT_S = table1.SLOT_FRAMES / table1.FRAME_RATE_HZ
 
 
@@ -58,22 +60,32 @@ class Recording:
     summaries: dict[int, bytes]
     rates: dict[int, float]
     keyframes: dict[int, bytes]
+    #: the recorded device's slot period, seconds (its frames a slot at its frame rate): the
+    #: pace the emulated devices replay it at
+    slot_s: float = SLOT_S
 
     @classmethod
     def read(cls, folder: Path) -> Recording:
         summaries, rates, keyframes = {}, {}, {}
+        sizes: list[int] = []
+        stamps: list[float] = []
         with Reader(folder) as reader:
             for conn, _, raw in reader.messages():
                 if conn.topic == "/" + topics.FRAME_SUMMARIES:
                     msg = deserialize_message(raw, FrameSummaries)
                     summaries[int(msg.slot)] = bytes(raw)
                     rates[int(msg.slot)] = float(msg.rate_mbps)
+                    sizes.append(len(msg.frames))
+                    stamps += [f.stamp.sec + f.stamp.nanosec * 1e-9 for f in msg.frames]
                 elif conn.topic == "/" + topics.KEYFRAMES:
                     kf = deserialize_message(raw, Keyframe)
                     keyframes[int(kf.frame_id)] = bytes(raw)
         if not summaries:
             raise SystemExit(f"{folder}: no frame summaries recorded")
-        return cls(summaries, rates, keyframes)
+        steps = np.diff(sorted(stamps))
+        steps = steps[steps > 0]
+        slot_s = float(np.median(sizes) * np.median(steps)) if steps.size else SLOT_S
+        return cls(summaries, rates, keyframes, slot_s)
 
 
 @dataclass
@@ -93,7 +105,8 @@ class EmulatedDevice:
 
     def tick(self, now: float) -> None:
         slots = sorted(self.recording.summaries)
-        if self.next_slot < len(slots) and now >= self.start + self.next_slot * SLOT_S:
+        if self.next_slot < len(slots) and \
+                now >= self.start + self.next_slot * self.recording.slot_s:
             slot = slots[self.next_slot]
             self.pubs["summaries"].publish(self.recording.summaries[slot])
             self.sent_at[slot] = now
@@ -164,7 +177,7 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             raise SystemExit(f"the edge did not come up: {dom.log(edge)[-2000:]}")
         with RosSession("bench_devices") as ros:
             now = time.monotonic() + 2.0
-            devices = [EmulatedDevice(d, recording, now + i * SLOT_S / n)
+            devices = [EmulatedDevice(d, recording, now + i * recording.slot_s / n)
                        for i, d in enumerate(names)]
             for dev in devices:
                 pub, sub = ros.node.create_publisher, ros.node.create_subscription
@@ -186,7 +199,8 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
                 raise SystemExit("the edge did not subscribe to every device")
             cpu0, wall0 = cpu_seconds(edge.pid), time.monotonic()
             # every slot played and answered, or 15 s past the last slot's period
-            deadline = max(d.start for d in devices) + (len(recording.summaries) + 7.5) * SLOT_S
+            deadline = max(d.start for d in devices) + \
+                (len(recording.summaries) + 7.5) * recording.slot_s
             while time.monotonic() < deadline and not all(
                     d.done and not d.uploads and len(d.stats) >= len(recording.summaries)
                     for d in devices):
@@ -198,7 +212,7 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
         _, _, log = dom.stop(edge)
     stats = [s for d in devices for s in d.stats.values()]
     expected = n * len(recording.summaries)
-    late = sum(1 for s in stats if s.slot_latency_ms > SLOT_S * 1000)
+    late = sum(1 for s in stats if s.slot_latency_ms > recording.slot_s * 1000)
     if os.environ.get("TWINSLAM_BENCH_VERBOSE"):
         for d in devices:
             print(d.name, {k: round(s.slot_latency_ms) for k, s in sorted(d.stats.items())})
@@ -233,7 +247,8 @@ def main() -> None:
     print(f"machine: {platform.machine()}, {os.cpu_count()} cores, python "
           f"{platform.python_version()}; {len(recording.summaries)} slots a device, "
           f"{len(recording.keyframes)} keyframes recorded; policy {args.policy}; slot period "
-          f"{SLOT_S:g} s; compute budget {args.compute_budget:g} of a core", flush=True)
+          f"{recording.slot_s:.3g} s (the recording's); compute budget "
+          f"{args.compute_budget:g} of a core", flush=True)
     rows = []
     header = (f"{'devices':>7} {'answered':>9} {'edge ms/slot':>12} {'p95':>6} "
               f"{'latency ms':>10} {'p95':>6} {'missed':>7} {'edge CPU':>8}")
