@@ -89,6 +89,10 @@ Finishing = Callable[[str, int, int], None]
 Spending = Callable[[float], None]
 
 
+#: a device's looks for another map's place that found none: one log line in this many
+LOOKS_LOGGED_EVERY = 5
+
+
 def checkpoint_of(path: str, device: str) -> Path | None:
     """A device's own checkpoint beside the node's: ``edge.npz`` → ``edge.ar1.npz``."""
     if not path:
@@ -366,7 +370,12 @@ class DeviceLink:
         slot sends is in the place's frame."""
         if self.merging is None:
             return
+        looks = self.merging.unmerged_looks.get(self.device, (0, ""))[0]
         merged, adopted = self.merging.before_slot_end(self.device, slot)
+        count, found = self.merging.unmerged_looks.get(self.device, (0, ""))
+        if count > looks and count % LOOKS_LOGGED_EVERY == 1:
+            self.info(f"slot {slot}: no other map's place found yet ({count} looks; the last "
+                      f"{found})")
         if adopted:
             self.info(f"slot {slot}: {adopted} keyframes of the other maps in its frame "
                       "adopted into the archive")

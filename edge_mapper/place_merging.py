@@ -61,6 +61,8 @@ class _Look:
     frame: np.ndarray                #: the joining map's frame correction when it started
     ms: float
     error: str = ""                  #: why the look failed ("": it did not)
+    #: what its last keyframe found, or why it found nothing (a merge: "")
+    found: str = ""
 
 
 class PlaceMerging:
@@ -87,6 +89,8 @@ class PlaceMerging:
         self._sources: dict[str, int] = {}
         #: why looks failed since the last :meth:`failures` (the link logs them)
         self._failed: list[str] = []
+        #: device → looks finished without a merge, and what the last one found
+        self.unmerged_looks: dict[str, tuple[int, str]] = {}
 
     def keyframe(self, device: str, data: KeyFramePayload) -> None:
         """A keyframe of ``device`` the edge accepted: its features, for the next look."""
@@ -145,6 +149,9 @@ class PlaceMerging:
         self.look_ms.append(look.ms)
         if look.error:
             self._failed.append(f"looking for {look.place}'s place failed: {look.error}")
+        if look.merge is None:
+            count, _ = self.unmerged_looks.get(device, (0, ""))
+            self.unmerged_looks[device] = (count + 1, f"in {look.place}'s map: {look.found}")
         core = self.cores().get(device)
         if look.merge is None or core is None or look.place not in self.cores() or \
                 not np.allclose(core.frame_correction, look.frame, atol=1e-12):
@@ -228,4 +235,8 @@ def _look(place: str, finder: MergeFinder, other: KeyFrameArchive,
     except Exception as exc:            # reported by the device's next slot end
         return _Look(place, None, frame, (time.perf_counter() - started) * 1e3,
                      f"{type(exc).__name__}: {exc}")
-    return _Look(place, merge, frame, (time.perf_counter() - started) * 1e3)
+    last = finder.last
+    found = "" if merge is not None or last is None else (
+        f"keyframe {last.old} on {last.inliers} inliers, not confirmed yet" if last.found
+        else last.reason)
+    return _Look(place, merge, frame, (time.perf_counter() - started) * 1e3, found=found)

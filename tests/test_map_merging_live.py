@@ -98,3 +98,37 @@ def test_the_edge_merges_the_second_devices_map_into_the_first_ones_frame(
         domain.log(edge)[-3000:]
     assert ros.spin_until(lambda: any(is_foreign(int(p)) for s in summaries for f in s.frames
                                       if f.tracked for p in f.map_point_ids), 30.0)
+
+
+@pytest.mark.slow(seconds=40)
+def test_two_places_that_share_posters_are_not_merged(domain: LoopbackDomain,
+                                                      ros: RosSession) -> None:
+    """One edge, two devices in two places — the synthetic room and the corridor, whose walls
+    show some of the same photographs (the astronaut, the cat, the coffee): the second
+    device's keyframes are looked for in the first's map after each of its slots, and no
+    merge comes of it in eight slots; each map stays in its own frame."""
+    maps: dict[str, list[MapUpdate]] = {d: [] for d in ORDER}
+    for d, got in maps.items():
+        ros.node.create_subscription(MapUpdate, f"/{d}/edge/map_update", got.append, qos.MAP)
+    edge = domain.spawn(["-m", "edge_mapper.node", "--ros-args", "-p", "policy:=lff",
+                         "-p", "devices:=[ar1, ar2]", "-p", "merge_maps:=true",
+                         "-p", "visualisation:=false"], forks=FORKS)
+    assert domain.wait_for_log(edge, "listening on /ar2/device/frame_summaries", 90), \
+        domain.log(edge)[-2000:]
+    for d, sequence in (("ar1", f"synthetic:{FRAMES}"), ("ar2", f"synthetic-corridor:{FRAMES}")):
+        domain.spawn(["-m", "device_tracker.node", "--ros-args", "-r", f"__ns:=/{d}",
+                      "-p", f"frame_rate_hz:={FRAME_RATE_HZ * RATE}",
+                      "-p", f"map_frame:={d}/map"], forks=FORKS)
+        domain.spawn(["-m", "twinslam.sequence_player.node", "--ros-args", "-r", f"__ns:=/{d}",
+                      "-p", f"sequence:={sequence}", "-p", "wait_for_subscribers:=1",
+                      "-p", f"rate:={RATE}", "-p", f"frame_id:={d}/camera",
+                      "-p", f"map_frame:={d}/map"], forks=FORKS)
+    assert ros.spin_until(lambda: all(len(m) >= 8 for m in maps.values()), 150.0), \
+        ({d: len(m) for d, m in maps.items()}, domain.log(edge)[-3000:])
+    log = domain.log(edge)
+    assert "map merged into" not in log, log[-3000:]
+    # the second device's place was looked for in the first's map (not merely never looked)
+    assert "[ar2] slot" in log and "no other map's place found yet" in log, log[-3000:]
+    for d, got in maps.items():
+        assert all(u.header.frame_id == f"{d}/map" for u in got)
+        assert all(np.allclose(pose_matrix(u.frame_correction), np.eye(4)) for u in got)
