@@ -7,6 +7,7 @@ edge merges a later device into an earlier one's frame, beside the slots."""
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 
@@ -21,7 +22,7 @@ from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameAr
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.back_end.loop_closing import LoopQuery
 from twinslam.slam.back_end.loop_correction import correct_map, correction_for
-from twinslam.slam.back_end.map_back_end import BackEndConfig
+from twinslam.slam.back_end.map_back_end import BackEndConfig, archive_folder
 from twinslam.slam.back_end.map_merging import MergeFinder, welded, whole_map
 from twinslam.slam.camera import Camera
 from twinslam.slam.front_end.orb_extractor import OrbExtractor
@@ -302,3 +303,20 @@ def test_a_merged_map_takes_its_devices_first_keyframes_where_the_merge_put_them
     assert merged.back_end.integrate(upload, -1).refused == ""
     assert "out of reach" in alone.back_end.integrate(upload, -1).refused
     np.testing.assert_allclose(merged.back_end.checkpoint_arrays()["origin"], SECOND_IN_FIRST)
+
+
+def test_adopted_keyframes_are_written_beside_the_slots_for_a_restart(
+        room: Room, tmp_path: Path) -> None:  # noqa: F811
+    """A merge adopts the other map's keyframes by the hundred: their archive files are
+    written on the loop closer's worker, not in the slot — and are there once it is done."""
+    _, archive, _ = room
+    k = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
+    core = EdgeMapperCore(make_policy("lff"), k, EdgeConfig(slot=SlotConfig(vmax=4)),
+                          tmp_path / "edge.npz")
+    core.back_end.k = room[0].intrinsics                        # type: ignore[attr-defined]
+    lent = [welded(kf, 0, core.map, core.camera, slot=1) for kf in archive]
+    assert core.back_end.adopt(lent) == []
+    core.close()                                               # the worker's queue done
+    written = sorted(int(f.stem.split("-")[1]) for f in
+                     archive_folder(tmp_path / "edge.npz").glob("keyframe-*.npz"))
+    assert written == sorted(kf.id for kf in lent)

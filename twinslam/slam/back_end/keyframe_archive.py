@@ -167,16 +167,17 @@ class KeyFrameArchive:
 
     # -- edits ------------------------------------------------------------------------------
 
-    def add(self, kf: ArchivedKeyFrame) -> list[int]:
+    def add(self, kf: ArchivedKeyFrame, write: bool = True) -> list[int]:
         """Archive ``kf`` (useful as of its archival slot); returns the ids that left to keep
-        the capacity — ``kf`` itself when the capacity is 0."""
+        the capacity — ``kf`` itself when the capacity is 0. Its file is written now
+        (``write``; else :meth:`save` it later, off the slot's path)."""
         if kf.id in self._entries:
             raise ArchiveError(f"keyframe {kf.id} is archived already")
         if self.capacity == 0:
             return [kf.id]
         self._entries[kf.id] = kf
         self._useful[kf.id] = kf.archived_slot
-        if self.folder is not None:
+        if self.folder is not None and write:
             self.folder.mkdir(parents=True, exist_ok=True)
             with self._files:
                 kf.save(self._path(kf.id))
@@ -227,9 +228,10 @@ class KeyFrameArchive:
     def save(self, kf_ids: Iterable[int]) -> None:
         """Write the files of the archived keyframes ``kf_ids`` as they are now (one that left
         the archive meanwhile is skipped): the loop closer's worker calls it after a
-        correction, beside the slots."""
+        correction or an adoption, beside the slots."""
         if self.folder is None:
             return
+        self.folder.mkdir(parents=True, exist_ok=True)
         for kf_id in kf_ids:
             with self._files:
                 kf = self._entries.get(kf_id)

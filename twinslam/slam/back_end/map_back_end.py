@@ -463,9 +463,14 @@ class MapBackEnd:
         the device tracks on them. Those the archive holds already are skipped; returns the
         archived keyframes that left to make room."""
         forgotten: list[int] = []
+        added: list[int] = []
         for kf in keyframes:
             if kf.id not in self.archive and kf.id not in self.map.keyframes:
-                forgotten += self.archive.add(kf)
+                forgotten += self.archive.add(kf, write=False)
+                added.append(kf.id)
+        if added:          # a merge adopts hundreds at once: their files beside the slots
+            self.loop_closer.after(lambda: self.archive.save(added),
+                                   "writing the adopted keyframes' files")
         return forgotten
 
     def close(self) -> None:
