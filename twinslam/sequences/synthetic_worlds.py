@@ -50,6 +50,12 @@ class SyntheticWorld:
     walk: Walk
     max_depth_m: float = np.inf        #: farther surfaces are seen but read depth 0
 
+    def __post_init__(self) -> None:
+        # cached by the world's factory: shared, so never written to (:func:`_read_only`)
+        object.__setattr__(self, "half", _read_only(np.array(self.half, dtype=np.float64)))
+        for texture in self.textures:
+            _read_only(texture)
+
     def packed_textures(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The six textures as one flat RGB array, with each face's offset, width, height
         (what the ray caster indexes)."""
@@ -69,7 +75,14 @@ def photograph(name: str) -> np.ndarray:
     img = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if img is None:
         raise FileNotFoundError(f"scikit-image sample image {path} is missing")
-    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    return _read_only(cv2.cvtColor(img, cv2.COLOR_BGR2RGB))
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    """``a``, made unwritable: a cached world is shared by everything a process renders, and
+    one write into it would change every later frame of every sequence of that world."""
+    a.setflags(write=False)
+    return a
 
 
 def _pose(position: np.ndarray, yaw: float, pitch: float, roll: float) -> np.ndarray:
