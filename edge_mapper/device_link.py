@@ -297,9 +297,9 @@ class DeviceLink:
     def _finish(self, slot: int) -> None:
         started = time.perf_counter()
         entry = self.slots.close(slot, self.control.policy_name)
+        self._take_merge(slot)                # first: the poses below are in the new frame
         before = ({k: kf.pose for k, kf in self.core.map.keyframes.items()}  # evicted: where
                   if self.pub_views is not None else {})
-        self._take_merge(slot)
         out: SlotOutcome = self.core.finish_slot(slot)
         if self.merging is not None:
             self.merging.look(self.device, slot)
@@ -390,8 +390,7 @@ class DeviceLink:
                       f"{merged.merge.place} ({merged.merge.inliers} inliers, confirmed by "
                       f"the next keyframes); the map moved by ({t[0]:.3f}, {t[1]:.3f}, "
                       f"{t[2]:.3f}) m into {merged.place}'s frame ({self.map_frame}), the "
-                      f"look took "
-                      f"{merged.look_ms:.0f} ms beside the slots")
+                      f"look took {merged.look_ms:.0f} ms beside the slots")
 
     def close(self, keep_checkpoint: bool = False) -> None:
         """Stop listening and publishing (a reclaimed device): its slots are dropped and its
