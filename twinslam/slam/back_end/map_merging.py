@@ -27,7 +27,6 @@ devices' poses are in one frame — the place's, the first map's.
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -43,9 +42,8 @@ from twinslam.slam.back_end.loop_closing import (
     walk_length,
 )
 from twinslam.slam.back_end.loop_detection import LoopCandidate, recognise_place
-from twinslam.slam.back_end.point_fusion import FusionConfig
+from twinslam.slam.back_end.point_fusion import FusionConfig, duplicates_in_view
 from twinslam.slam.camera import Camera
-from twinslam.slam.projection_matching import match_by_projection, visible_points
 
 
 def whole_map(archive: KeyFrameArchive, managed: KeyFrameMap, slot: int) -> KeyFrameArchive:
@@ -107,28 +105,12 @@ def welded(keyframe: ArchivedKeyFrame, source: int, into: KeyFrameMap, camera: C
     ORB-SLAM3 welds two merged maps the same way). The welded points are what connect the
     adopted keyframe to the map's own: without them it shares no point with them, and a
     restore of it would leave the map in two pieces."""
-    cfg = config or FusionConfig()
     tag = foreign_tag(source)
     ids = keyframe.point_ids.astype(np.int64) | tag
-    points = list(into.points.values())
-    seen = np.isfinite(keyframe.measurements[:, 0])
-    if points and seen.any():
-        positions = np.array([p.position for p in points], dtype=np.float64)
-        vis, uv = visible_points(positions, np.ones(len(points), dtype=bool), keyframe.pose,
-                                 np.asarray(camera.intrinsics, dtype=np.float64), camera.shape,
-                                 cfg.depth_range_m)
-        mine = np.flatnonzero(seen)
-        if vis.size:
-            f_idx, c_idx = match_by_projection(
-                keyframe.measurements[mine, :2], keyframe.descriptors[mine], uv,
-                np.array([points[i].descriptor for i in vis.tolist()], dtype=np.uint8),
-                cfg.search_radius_px, cfg.max_hamming, cfg.ratio, camera.shape)
-            taken: set[int] = set()
-            for fi, ci in zip(f_idx.tolist(), c_idx.tolist(), strict=True):
-                row, point = int(mine[fi]), points[int(vis[ci])]
-                gap = float(np.linalg.norm(keyframe.positions[row] - point.position))
-                if gap <= cfg.max_gap_m and math.isfinite(gap) and point.id not in taken:
-                    ids[row] = point.id
-                    taken.add(point.id)
+    rows = np.flatnonzero(np.isfinite(keyframe.measurements[:, 0]))
+    for row, point in duplicates_in_view(keyframe.pose, keyframe.measurements[rows, :2],
+                                         keyframe.descriptors[rows], keyframe.positions[rows],
+                                         list(into.points.values()), camera, config):
+        ids[rows[row]] = point
     return dataclasses.replace(keyframe, id=keyframe.id | tag, point_ids=ids,
                                archived_slot=slot)
