@@ -47,7 +47,13 @@ from twinslam.live.tracking_quality import (
 from twinslam.rotations import rotation_angle_deg
 from twinslam.sequence_player.playback import ORDERS
 from twinslam.slam.back_end.foreign_keyframes import is_foreign
-from twinslam.slam.back_end.map_merging import MapMerge, MergeFinder, welded, whole_map
+from twinslam.slam.back_end.map_merging import (
+    MapMerge,
+    MergeFinder,
+    adopt_lent,
+    unlent_keyframes,
+    whole_map,
+)
 
 SEVEN = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes-1000"
 
@@ -70,12 +76,8 @@ def lend_keyframes(lender: DeviceWalk, borrower: DeviceWalk, lent: set[int], slo
                    source: int) -> int:
     """The lender's own keyframes (archive and map; not those it adopted) the borrower's map
     has not adopted yet, welded to its points and adopted into its archive; how many."""
-    fresh = [kf for kf in whole_map(lender.edge.archive, lender.edge.map, slot)
-             if kf.id not in lent and not is_foreign(kf.id)]
-    borrower.edge.back_end.adopt(welded(kf, source, borrower.edge.map, borrower.edge.camera,
-                                        slot) for kf in fresh)
-    lent.update(kf.id for kf in fresh)
-    return len(fresh)
+    return adopt_lent(borrower.edge.back_end,
+                      unlent_keyframes(lender.edge.back_end, lent, slot), source, lent, slot)
 
 
 def alignment_error(merge: MapMerge, place: DeviceWalk, joining: DeviceWalk

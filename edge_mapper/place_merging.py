@@ -31,10 +31,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from edge_mapper.edge_core import EdgeMapperCore
-from twinslam.slam.back_end.foreign_keyframes import is_foreign
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
 from twinslam.slam.back_end.loop_closing import LoopQuery
-from twinslam.slam.back_end.map_merging import MapMerge, MergeFinder, welded, whole_map
+from twinslam.slam.back_end.map_merging import (
+    MapMerge,
+    MergeFinder,
+    adopt_lent,
+    unlent_keyframes,
+    whole_map,
+)
 from twinslam.slam.keyframe import KeyFramePayload
 
 #: newest integrated keyframes of a slot looked for (a slot integrates a few; a look costs
@@ -128,15 +133,11 @@ class PlaceMerging:
         if lender not in cores or borrower not in cores:
             return 0
         lent = self._lent.setdefault((borrower, lender), set())
-        fresh = [kf for kf in whole_map(cores[lender].archive, cores[lender].map, slot)
-                 if kf.id not in lent and not is_foreign(kf.id)]
+        fresh = unlent_keyframes(cores[lender].back_end, lent, slot)
         if not fresh:
             return 0
         source = self._sources.setdefault(lender, len(self._sources))
-        into = cores[borrower]
-        into.back_end.adopt(welded(kf, source, into.map, into.camera, slot) for kf in fresh)
-        lent.update(kf.id for kf in fresh)
-        return len(fresh)
+        return adopt_lent(cores[borrower].back_end, fresh, source, lent, slot)
 
     def take(self, device: str) -> MergeEvent | None:
         """Before ``device``'s slot end: a finished look's merge applied to its core (None:

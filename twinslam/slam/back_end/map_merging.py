@@ -27,12 +27,12 @@ devices' poses are in one frame — the place's, the first map's.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
-from twinslam.slam.back_end.foreign_keyframes import foreign_tag
+from twinslam.slam.back_end.foreign_keyframes import foreign_tag, is_foreign
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.back_end.loop_closing import (
@@ -42,6 +42,7 @@ from twinslam.slam.back_end.loop_closing import (
     walk_length,
 )
 from twinslam.slam.back_end.loop_detection import LoopCandidate, recognise_place
+from twinslam.slam.back_end.map_back_end import MapBackEnd
 from twinslam.slam.back_end.point_fusion import FusionConfig, duplicates_in_view
 from twinslam.slam.camera import Camera
 
@@ -114,3 +115,24 @@ def welded(keyframe: ArchivedKeyFrame, source: int, into: KeyFrameMap, camera: C
         ids[rows[row]] = point
     return dataclasses.replace(keyframe, id=keyframe.id | tag, point_ids=ids,
                                archived_slot=slot)
+
+
+def unlent_keyframes(lender: MapBackEnd, lent: Collection[int], slot: int
+                     ) -> list[ArchivedKeyFrame]:
+    """The lender map's own keyframes (its archive's and, as they are at ``slot``, its managed
+    map's; not those it adopted itself) not in ``lent``: what another map in its frame has
+    yet to adopt. Only these are copied, not the whole map, which a lender offers every slot."""
+    own = [kf for kf in lender.archive if kf.id not in lent and not is_foreign(kf.id)]
+    return own + [ArchivedKeyFrame.of(lender.map, k, slot) for k in lender.map.keyframes
+                  if k not in lent and not is_foreign(k)]
+
+
+def adopt_lent(borrower: MapBackEnd, keyframes: list[ArchivedKeyFrame], source: int,
+               lent: set[int], slot: int) -> int:
+    """Another map's ``keyframes`` (of source map ``source``, in the borrower's frame) welded
+    to the borrower's points and adopted into its archive (:meth:`MapBackEnd.adopt`), their
+    ids added to ``lent``: its restores bring them in where its device heads, and it tracks
+    on keyframes only the other device uploaded. How many."""
+    borrower.adopt(welded(kf, source, borrower.map, borrower.camera, slot) for kf in keyframes)
+    lent.update(kf.id for kf in keyframes)
+    return len(keyframes)
