@@ -156,9 +156,7 @@ class DeviceWalk:
 
     def keyframe_poses(self) -> dict[int, np.ndarray]:
         """Every keyframe of its edge map, archive and map, where the edge holds it now."""
-        poses = {kf.id: kf.pose for kf in self.edge.archive}
-        poses.update({k: kf.pose for k, kf in self.edge.map.keyframes.items()})
-        return poses
+        return self.edge.back_end.keyframe_poses()
 
 
 def open_walk(name: str, spec: str, frames: int, order: str, seed: int, uplink: str,

@@ -177,8 +177,7 @@ class PlaceMerging:
         if not other.map.keyframes or not joining.camera.known:
             return
         snapshot = whole_map(other.archive, other.map, slot)
-        poses = {kf.id: kf.pose for kf in joining.archive}
-        poses.update({k: kf.pose.copy() for k, kf in joining.map.keyframes.items()})
+        poses = joining.back_end.keyframe_poses()
         finder = self._finders.setdefault((device, place), MergeFinder())
         job = (place, finder, snapshot, tuple(queries), poses, joining.k.copy(),
                joining.frame_correction.copy())

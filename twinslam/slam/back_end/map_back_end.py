@@ -375,9 +375,7 @@ class MapBackEnd:
         old = [ArchivedKeyFrame.of(self.map, k, slot) for k in self.map.keyframes
                if k <= newest - self.loop_closer.min_gap]
         # the walk's own keyframes: another device's that this map adopted are no step of it
-        poses = {kf.id: kf.pose for kf in self.archive if not is_foreign(kf.id)}
-        poses.update({k: kf.pose.copy() for k, kf in self.map.keyframes.items()
-                      if not is_foreign(k)})
+        poses = {k: pose for k, pose in self.keyframe_poses().items() if not is_foreign(k)}
         job = LoopJob(tuple(reversed(queries)), self.archive.snapshot(old), poses,
                       self.k.copy(),
                       {k: frozenset(kf.points) for k, kf in self.map.keyframes.items()
@@ -483,10 +481,16 @@ class MapBackEnd:
         trajectory, which a device's map updates never carry (an archived keyframe a loop
         corrects is not sent again). Keyframes of unknown capture time (a checkpoint written
         before they were kept) are left out."""
-        poses = {kf.id: kf.pose for kf in self.archive}
-        poses.update((k, kf.pose) for k, kf in self.map.keyframes.items())
-        return sorted(((self.keyframe_stamps[k], pose.copy()) for k, pose in poses.items()
+        return sorted(((self.keyframe_stamps[k], pose.copy())
+                       for k, pose in self.keyframe_poses().items()
                        if k in self.keyframe_stamps), key=lambda entry: entry[0])
+
+    def keyframe_poses(self) -> dict[int, np.ndarray]:
+        """Every keyframe kept — the archive's and the map's — by id, where the edge holds it
+        now (the map's as copies: another thread may read them while the map moves on)."""
+        poses = {kf.id: kf.pose for kf in self.archive}
+        poses.update({k: kf.pose.copy() for k, kf in self.map.keyframes.items()})
+        return poses
 
     # -- checkpoint --------------------------------------------------------------------------
 
