@@ -150,9 +150,7 @@ class DeviceWalk:
         """The integrated keyframe's features as the device uploaded them (None: no longer
         held)."""
         payload = self.device.upload(keyframe)
-        if payload is None:
-            return None
-        return LoopQuery(keyframe, payload.keypoints, payload.descriptors, payload.depths)
+        return None if payload is None else LoopQuery.of(payload)
 
     def keyframe_poses(self) -> dict[int, np.ndarray]:
         """Every keyframe of its edge map, archive and map, where the edge holds it now."""

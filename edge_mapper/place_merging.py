@@ -102,7 +102,7 @@ class PlaceMerging:
         if device in self.joined:
             return
         queries = self._queries.setdefault(device, [])
-        queries.append(LoopQuery(data.frame_id, data.keypoints, data.descriptors, data.depths))
+        queries.append(LoopQuery.of(data))
         del queries[:-LOOK_QUERIES]
 
     def places(self, device: str) -> list[str]:

@@ -32,6 +32,7 @@ from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
 from twinslam.slam.back_end.keyframe_map import shared_counts
 from twinslam.slam.back_end.loop_detection import MIN_GAP, LoopCandidate, detect_loop
 from twinslam.slam.back_end.pose_graph import LoopClosure, LoopEdge, close_loop
+from twinslam.slam.keyframe import KeyFramePayload
 
 #: after a loop closes at keyframe q, keyframes up to q + COOLDOWN ids look for none (the walk
 #: goes on through the same place: each of them would find the loop just closed again)
@@ -65,6 +66,11 @@ class LoopQuery:
     descriptors: np.ndarray      #: (n, 32) uint8
     #: (n,) the keypoints' depths, metres (0: none); None: a camera without depth
     depths: np.ndarray | None = None
+
+    @classmethod
+    def of(cls, data: KeyFramePayload) -> LoopQuery:
+        """An uploaded keyframe's features, to look for a place from."""
+        return cls(data.frame_id, data.keypoints, data.descriptors, data.depths)
 
 
 @dataclass(frozen=True)

@@ -221,8 +221,7 @@ class MapBackEnd:
             self.keyframe_stamps[data.frame_id] = float(data.stamp)
             if self.config.loop_closing:
                 self._loop_queries = [*self._loop_queries[-(LOOP_QUERIES - 1):],
-                                      LoopQuery(data.frame_id, data.keypoints, data.descriptors,
-                                                data.depths)]
+                                      LoopQuery.of(data)]
         return report
 
     def frame_correction_at(self, version: int) -> np.ndarray:
