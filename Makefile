@@ -149,6 +149,7 @@ bench: venv
 	$(PY) -m bench.sim
 	$(PY) -m bench.sim --covis room
 	$(PY) -m bench.frontend
+	$(PY) -m bench.descriptor_matching
 	$(PY) -m bench.udt
 	$(PY) -m bench.pipeline
 	$(PY) -m bench.mbrl
