@@ -12,7 +12,8 @@ On ``bench.dds``'s camera path it cut the median latency from 5.1 to 3.8 ms (BEN
 measured on a loaded machine). ``TWINSLAM_EXECUTOR=single`` runs a node on rclpy's
 ``SingleThreadedExecutor`` instead, should the experimental executor misbehave somewhere.
 Freed memory stays in the process (:mod:`twinslam.node_runtime.allocator`): a frame's buffers
-are reused instead of page-faulted in anew.
+are reused instead of page-faulted in anew; the math libraries' thread pools are one thread
+each unless the user sized them (:mod:`twinslam.node_runtime.math_threads`).
 
 Signals only ever *ask* for the stop; the main loop acts on it between two executor turns.
 rclpy's own handlers are not installed (``SignalHandlerOptions.NO``): they shut the context
@@ -42,6 +43,7 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
 from twinslam.node_runtime.allocator import keep_freed_memory
+from twinslam.node_runtime.math_threads import one_math_thread
 
 N = TypeVar("N", bound=Node)
 
@@ -113,6 +115,7 @@ def run_node(name: str, factory: Callable[[], N], args: list[str] | None = None,
         rclpy.logging.get_logger(name).fatal(str(exc))
         return 2
     keep_freed_memory()
+    one_math_thread()
     stop = StopRequest()
     stop.install()
     try:
