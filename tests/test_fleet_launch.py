@@ -5,6 +5,7 @@ their mean and Jain's index, and the settings that cannot run refused before any
 from __future__ import annotations
 
 import csv
+import os
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -15,7 +16,8 @@ from twinslam_msgs.msg import FrameSummaries, FrameSummary
 
 from twinslam.cli.main import main
 from twinslam.hosts.forked import process_name
-from twinslam.live.fleet import FleetConfig, cross_device_errors, device_sequence
+from twinslam.live.fleet import FleetConfig, cross_device_errors, device_sequence, edge_blocks
+from twinslam.live.launcher import renamed_params
 from twinslam.live.run_log import RunLog
 
 
@@ -80,6 +82,83 @@ def test_settings_that_cannot_run_are_refused_before_any_node_starts(
     assert "without --record" in capsys.readouterr().err
 
 
+def test_devices_are_split_among_edges_as_runs_of_neighbours_each_with_its_budget() -> None:
+    names = [f"ar{i}" for i in range(1, 6)]
+    assert edge_blocks(names, 2) == [["ar1", "ar2"], ["ar3", "ar4", "ar5"]]
+    assert edge_blocks(names, 5) == [[n] for n in names]
+    fleet = FleetConfig(5, 52, "equal", 5, edges=2)
+    fleet.check()
+    assert fleet.edge_names() == ["edge_mapper", "edge_mapper_2"]
+    assert fleet.edge_hosts() == ["edge", "edge2"]
+    assert fleet.edge_shares() == [21, 31] and sum(fleet.edge_shares()) == 52
+    with pytest.raises(ValueError, match="3 edges for 2 devices"):
+        FleetConfig(2, edges=3).check()
+    assert FleetConfig(5, 25, "equal", 5, edges=2).edge_shares() == [10, 15]
+
+
+def test_a_renamed_edge_reads_the_parameter_files_edge_section(tmp_path: Path) -> None:
+    """ROS 2 gives a node only its own name's section of a parameter file (no wildcard within
+    a name): the second edge, ``edge_mapper_2``, reads a copy under its name."""
+    import rclpy
+    from rclpy.node import Node
+
+    source = tmp_path / "params.yaml"
+    source.write_text("edge_mapper:\n  ros__parameters:\n    vmax: 17\n"
+                      "device_tracker:\n  ros__parameters:\n    vmax: 3\n", encoding="utf-8")
+    (tmp_path / "fleet").mkdir()
+    copy = renamed_params(source, "edge_mapper", "edge_mapper_2", tmp_path / "fleet")
+    values = {}
+    for params in (source, copy):
+        context = rclpy.Context()
+        rclpy.init(args=["edge", "--ros-args", "-r", "__node:=edge_mapper_2", "--params-file",
+                         str(params)], context=context, domain_id=0)
+        try:
+            node = Node("edge_mapper", context=context,
+                        automatically_declare_parameters_from_overrides=True)
+            values[params.name] = node.get_parameter_or("vmax", None).value
+            node.destroy_node()
+        finally:
+            rclpy.shutdown(context=context)
+    assert values == {"params.yaml": None, "edge_mapper_2.yaml": 17}
+
+
+@pytest.mark.slow
+def test_launch_splits_the_devices_among_two_edge_processes(tmp_path: Path) -> None:
+    """``--edges 2``: two edge processes while the devices play, each device answered, each
+    edge with its devices' share of V_total."""
+    import subprocess
+    import sys
+    import time
+
+    cli = subprocess.Popen([sys.executable, "-m", "twinslam.cli.main", "launch", "--loopback",
+                            "--devices", "2", "--edges", "2", "--vmax-total", "12",
+                            "--sequence", "synthetic:120", "--frames", "120", "--policy", "lff",
+                            "--out", str(tmp_path)], text=True, stdout=subprocess.PIPE,
+                           stderr=subprocess.PIPE, cwd=Path(__file__).resolve().parents[1])
+    assert cli.stdout is not None
+    seen, deadline = "", time.monotonic() + 180
+    while not ("[lff ar1] slot   0" in seen and "[lff ar2] slot   0" in seen) and \
+            time.monotonic() < deadline and cli.poll() is None:
+        seen += cli.stdout.readline()
+    pids = [int(pid) for pid in os.listdir("/proc") if pid.isdigit()]
+    servers = [pid for pid in pids if _parent(pid) == cli.pid]
+    edges = [pid for pid in pids if _parent(pid) in (cli.pid, *servers)
+             and _name(pid) == "edge_mapper"]
+    rest, err = cli.communicate(timeout=300)
+    out = seen + rest
+    assert cli.returncode == 0, (out[-3000:], err[-3000:])
+    assert len(edges) == 2, (edges, out[-2000:])
+    assert "2 devices, 2 edges (V_total 12 split equal)" in out
+    with (tmp_path / "fleet_runs.csv").open(encoding="utf-8") as fh:
+        table = {r["device"]: r for r in csv.DictReader(fh)}
+    assert set(table) == {"ar1", "ar2"}
+    assert all(int(r["frames"]) > 0 and float(r["latency_ms_median"]) > 0
+               for r in table.values())
+    budgets = {line.split()[0]: float(line.split()[-2]) for line in out.splitlines()
+               if line.split() and line.split()[0] in ("ar1", "ar2")}
+    assert set(budgets) == {"ar1", "ar2"} and all(0 < b <= 6 for b in budgets.values())
+
+
 @pytest.mark.slow
 def test_launch_serves_two_devices_from_one_edge_and_reports_each(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -107,7 +186,6 @@ def test_launch_serves_two_devices_from_one_edge_and_reports_each(
 def test_a_terminated_launch_stops_the_nodes_it_started(tmp_path: Path) -> None:
     """SIGTERM (``kill``, a scheduler) ends ``twinslam launch`` as Ctrl-C does: exit 130 and
     none of its node processes left running."""
-    import os
     import signal
     import subprocess
     import sys

@@ -4,6 +4,13 @@ device per namespace (``/ar1`` … ``/arN``), each on its own walk and uplink se
 by an allocator; a monitor per namespace and one report per device, their mean and Jain's
 index of the devices' tracked shares.
 
+With ``--edges K`` the devices are split into K runs of neighbours (``ar1 … arM`` on the first
+edge, and so on: neighbours play the same place where the devices' walks are laid out as
+places), each served by an ``edge_mapper`` process of its own — ``edge_mapper``,
+``edge_mapper_2`` … (each reads the parameter file's ``edge_mapper`` section) — with its
+devices' share of ``vmax_total``; the edges meet over DDS like any other nodes, so the same
+command runs them on network-namespace hosts ``edge``, ``edge2`` … with ``--hosts``.
+
 On network-namespace hosts (``--hosts``) each device and its camera run on a host of their
 own, named as the device, the edge on ``edge`` (the monitor beside it), each device's uplink
 its own cable (``--tc`` shapes each at its d_k).
@@ -15,18 +22,22 @@ devices see different places at a time.
 
 from __future__ import annotations
 
+import itertools
 import math
+import tempfile
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 import numpy as np
 from twinslam_msgs.msg import MapStats
 
 from msg_schemas.headers import time_key
 from twinslam.allocation.allocators import check_fleet, jain_index
+from twinslam.hosts.forked import NodeProcess
 from twinslam.hosts.loopback import ProcessDomain
-from twinslam.live.launcher import LaunchConfig, Launcher, preloaded_nodes
+from twinslam.live.launcher import LaunchConfig, Launcher, preloaded_nodes, renamed_params
 from twinslam.live.monitor import PipelineMonitor
 from twinslam.live.report import RunReport, report
 from twinslam.live.run_log import RunLog
@@ -49,6 +60,8 @@ class FleetConfig:
     orders: tuple[str, ...] = ()
     #: the edge merges a device's map into the frame of a device before it (``merge_maps``)
     merge_maps: bool = False
+    #: edge processes the devices are split among, neighbours together (:func:`edge_blocks`)
+    edges: int = 1
 
     def device_seed(self, index: int) -> int:
         return 100 * self.seed + index
@@ -56,14 +69,45 @@ class FleetConfig:
     def names(self) -> list[str]:
         return [f"ar{i + 1}" for i in range(self.devices)]
 
+    def edge_names(self) -> list[str]:
+        """The edges' node names: ``edge_mapper`` (the single edge's name), ``edge_mapper_2`` …"""
+        return ["edge_mapper" if e == 0 else f"edge_mapper_{e + 1}" for e in range(self.edges)]
+
+    def edge_hosts(self) -> list[str]:
+        """The edges' hosts (``--hosts``): ``edge`` (a single edge's), ``edge2`` …"""
+        return ["edge" if e == 0 else f"edge{e + 1}" for e in range(self.edges)]
+
+    def edge_shares(self) -> list[int]:
+        """Each edge's part of ``vmax_total`` (its devices' share, the remainder one each to
+        the first; 0: no shared budget). A total that covers every device's minimum covers
+        each edge's devices' too."""
+        if not self.vmax_total:
+            return [0] * self.edges
+        blocks = edge_blocks(self.names(), self.edges)
+        shares = [self.vmax_total * len(b) // self.devices for b in blocks]
+        for e in range(self.vmax_total - sum(shares)):          # the remainder, one each
+            shares[e] += 1
+        return shares
+
     def check(self) -> None:
         """ValueError naming a setting that cannot run."""
         check_fleet(self.devices, self.allocator, self.vmax_total, self.min_keyframes)
+        if not 1 <= self.edges <= self.devices:
+            raise ValueError(f"{self.edges} edges for {self.devices} devices: from one edge "
+                             "to one a device")
         if self.orders and len(self.orders) != self.devices:
             raise ValueError(f"{len(self.orders)} orders for {self.devices} devices: give one "
                              "a device")
         if bad := [o for o in self.orders if o not in ORDERS]:
             raise ValueError(f"order {bad[0]!r}: must be one of {', '.join(ORDERS)}")
+
+
+def edge_blocks(names: Sequence[str], edges: int) -> list[list[str]]:
+    """``names`` split into ``edges`` runs of neighbours, as even as they go (none empty;
+    the earlier runs the shorter)."""
+    edges = max(1, min(edges, len(names)))
+    cuts = [round(i * len(names) / edges) for i in range(edges + 1)]
+    return [list(names[a:b]) for a, b in itertools.pairwise(cuts)]
 
 
 @dataclass
@@ -107,7 +151,7 @@ def device_sequence(sequence: str, index: int, devices: int, frames: int, start:
 
 
 class FleetLauncher(Launcher):
-    """One edge, ``fleet.devices`` devices, on ``domain``."""
+    """``fleet.edges`` edges (one by default), ``fleet.devices`` devices, on ``domain``."""
 
     def __init__(self, domain: ProcessDomain, config: LaunchConfig, fleet: FleetConfig,
                  starts: Sequence[tuple[str, int]],
@@ -117,12 +161,24 @@ class FleetLauncher(Launcher):
         self.fleet, self.starts = fleet, list(starts)
         self.records: dict[str, PipelineMonitor] = {}
 
-    def edge_args(self) -> list[str]:
+    def edge_args(self, index: int = 0, params_folder: Path | None = None) -> list[str]:
+        """Edge ``index``'s command line: its devices, its share of the budget; a second edge
+        on is renamed (``edge_mapper_2`` …) and reads the parameter file's ``edge_mapper``
+        section from a copy under its own name in ``params_folder``."""
         f = self.fleet
-        args = [*self.node_args("edge_mapper"), "-p", f"devices:=[{', '.join(f.names())}]",
-                "-p", f"allocator:={f.allocator}", "-p", f"min_keyframes:={f.min_keyframes}"]
+        block = edge_blocks(f.names(), f.edges)[index]
+        args = self.node_args("edge_mapper")
+        if index:
+            if params_folder is None:
+                raise ValueError("a second edge needs a folder for its parameter file")
+            name = f.edge_names()[index]
+            at = args.index("--params-file") + 1
+            args[at] = str(renamed_params(Path(args[at]), "edge_mapper", name, params_folder))
+            args[at + 1:at + 1] = ["-r", f"__node:={name}"]
+        args += ["-p", f"devices:=[{', '.join(block)}]",
+                 "-p", f"allocator:={f.allocator}", "-p", f"min_keyframes:={f.min_keyframes}"]
         if f.vmax_total:
-            args += ["-p", f"vmax_total:={f.vmax_total}"]
+            args += ["-p", f"vmax_total:={f.edge_shares()[index]}"]
         if f.merge_maps:
             args += ["-p", "merge_maps:=true"]
         return args
@@ -160,20 +216,12 @@ class FleetLauncher(Launcher):
     def _run_fleet(self) -> FleetReport:
         c, names = self.config, self.fleet.names()
         sessions = {d: RosSession("twinslam_monitor", namespace=f"/{d}") for d in names}
+        params_folder = tempfile.TemporaryDirectory(prefix="twinslam-fleet-")
         try:
             monitors = {d: PipelineMonitor(s.node, self._status(d)) for d, s in sessions.items()}
             self.records = monitors
             started = time.monotonic()
-            edge = self.domain.spawn(self.edge_args(), host="edge", forks=preloaded_nodes())
-            self.procs["edge_mapper"] = edge
-            first = sessions[names[-1]]
-            if not first.spin_until(lambda: monitors[names[-1]].requests.get_publisher_count()
-                                    > 0 or edge.poll() is not None, min(120.0, c.timeout_s)):
-                raise RuntimeError("edge_mapper did not come up within 120 s")
-            if edge.poll() is not None:
-                _, _, err = self.domain.stop(self.procs.pop("edge_mapper"))
-                raise RuntimeError(f"edge_mapper exited with {edge.returncode} at start: "
-                                   f"{err.strip()[-500:]}")
+            self._start_edges(sessions, monitors, params_folder.name)
             for i, d in enumerate(names):
                 for node in ("device_tracker", "sequence_player"):
                     self.procs[f"{node}:{d}"] = self.domain.spawn(
@@ -211,6 +259,28 @@ class FleetLauncher(Launcher):
             self.stop()
             for s in sessions.values():
                 s.close()
+            params_folder.cleanup()
+
+    def _start_edges(self, sessions: dict[str, RosSession],
+                     monitors: dict[str, PipelineMonitor], params_folder: str) -> None:
+        """Every edge started, each up once the last of its devices hears its requests'
+        publisher; RuntimeError naming one that did not come up or exited."""
+        f, timeout = self.fleet, min(120.0, self.config.timeout_s)
+        for e, (name, host) in enumerate(zip(f.edge_names(), f.edge_hosts(), strict=True)):
+            self.procs[name] = self.domain.spawn(self.edge_args(e, Path(params_folder)),
+                                                 host=host, forks=preloaded_nodes())
+        for name, block in zip(f.edge_names(), edge_blocks(f.names(), f.edges), strict=True):
+            edge, last = self.procs[name], block[-1]
+
+            def up(e: NodeProcess = edge, d: str = last) -> bool:
+                return monitors[d].requests.get_publisher_count() > 0 or e.poll() is not None
+
+            if not sessions[last].spin_until(up, timeout):
+                raise RuntimeError(f"{name} did not come up within {timeout:.0f} s")
+            if edge.poll() is not None:
+                _, _, err = self.domain.stop(self.procs.pop(name))
+                raise RuntimeError(f"{name} exited with {edge.returncode} at start: "
+                                   f"{err.strip()[-500:]}")
 
     def slot_period_s(self) -> float:
         """Seconds of camera stamps a device's slot spans (F / frame rate)."""

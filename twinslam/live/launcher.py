@@ -10,6 +10,7 @@ throughput achieved, frames the device could not track, and the edge's milliseco
 
 from __future__ import annotations
 
+import copy
 import os
 import time
 from collections.abc import Callable
@@ -277,6 +278,20 @@ def node_parameters(params_file: Path, node: str) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for key in ("/**", node, f"/{node}"):
         out.update((doc.get(key) or {}).get("ros__parameters", {}))
+    return out
+
+
+def renamed_params(params_file: Path, node: str, name: str, folder: Path) -> Path:
+    """A copy of ``params_file`` in ``folder`` in which node ``name`` finds what the file
+    gives ``node`` (``/**`` as it is): a node renamed at launch (``-r __node:=NAME``) reads
+    only its own name's section, and a parameter file's names take no wildcard within a
+    word."""
+    doc = yaml.safe_load(Path(params_file).read_text(encoding="utf-8")) or {}
+    section = doc.get(node) or doc.get(f"/{node}")
+    if section is not None:
+        doc[name] = copy.deepcopy(section)          # a shared one would be written as an alias
+    out = Path(folder) / f"{name}.yaml"
+    out.write_text(yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
     return out
 
 

@@ -46,7 +46,7 @@ def fleet_settings(args: argparse.Namespace) -> list[FleetConfig]:
     allocators = [a.strip() for a in args.allocator.split(",") if a.strip()]
     orders = tuple(o.strip() for o in args.orders.split(",") if o.strip())
     fleets = [FleetConfig(args.devices, args.vmax_total, a, args.min_keyframes, args.stride,
-                          args.seed, orders, args.merge_maps) for a in allocators]
+                          args.seed, orders, args.merge_maps, args.edges) for a in allocators]
     for fleet in fleets:
         fleet.check()
     return fleets
@@ -62,12 +62,13 @@ def run_fleet(args: argparse.Namespace, policy: str, fleet: FleetConfig, chosen:
               for i in range(fleet.devices)]
     config = LaunchConfig(args.sequence, policy, args.frames, args.rate, args.params,
                           timeout_s=args.timeout, extra=extra, scenario=chosen, start=args.start)
-    with domain_for(args, (*fleet.names(), "edge")) as dom:
+    with domain_for(args, (*fleet.names(), *fleet.edge_hosts())) as dom:
         if isinstance(dom, LoopbackDomain) and args.loopback:
             dom.activate()
         budget = (f"V_total {fleet.vmax_total} split {fleet.allocator}" if fleet.vmax_total
                   else "each its own V_max")
-        print(f"{policy}: {fleet.devices} devices, one edge ({budget}), {args.frames} frames "
+        edges = "one edge" if fleet.edges == 1 else f"{fleet.edges} edges"
+        print(f"{policy}: {fleet.devices} devices, {edges} ({budget}), {args.frames} frames "
               f"each on domain {dom.domain_id}", flush=True)
         launcher = FleetLauncher(dom, config, fleet, starts, lambda line: print(line, flush=True))
         result = launcher.run_fleet()
@@ -111,8 +112,8 @@ def add_fleet_arguments(launch: argparse.ArgumentParser) -> None:
     """``twinslam launch``'s options of a fleet."""
     fleet = launch.add_argument_group(
         "one edge, many devices", "--devices N plays N devices (namespaces ar1 … arN, each its "
-        "own walk and uplink seed) against one edge; a table per device, their mean and "
-        "Jain's index of the tracked shares")
+        "own walk and uplink seed) against one edge (or --edges K); a table per device, their "
+        "mean and Jain's index of the tracked shares")
     fleet.add_argument("--devices", type=int, default=0, metavar="N",
                        help="devices served by one edge (0: one device/edge pair, as before)")
     fleet.add_argument("--vmax-total", type=int, default=0, metavar="V",
@@ -135,6 +136,11 @@ def add_fleet_arguments(launch: argparse.ArgumentParser) -> None:
                        "forward,backward with --stride set to the sequence's length (both "
                        "play it from its first frame): two devices walking a place from its "
                        "two ends (default: the scenario's for every device)")
+    fleet.add_argument("--edges", type=int, default=1, metavar="K",
+                       help="edge processes the devices are split among, neighbours together "
+                       "(ar1 … arM on edge_mapper, the next on edge_mapper_2, …; with --hosts "
+                       "each on a host of its own, edge, edge2, …), each with its devices' "
+                       "share of --vmax-total; default %(default)s")
     fleet.add_argument("--merge-maps", action="store_true",
                        help="the edge merges a device's map into the frame of a device before "
                        "it once it finds that device's place (merge_maps); the table then "
