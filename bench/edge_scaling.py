@@ -13,12 +13,20 @@ keyframes the edge asks for paced at d_k — from this process
 (no tracking, no images). The edge does its whole work per device: plan, integrate, GTSAM,
 the keyframe budget (V_total = 45 × N, equal shares), map updates and viewer topics.
 
-    python -m bench.edge_scaling [--devices 1,2,4,8,12,16] [--recording DIR] [--csv FILE]
+With ``--edges K`` the devices are split into K blocks of neighbours, each served by an
+``edge_mapper`` process of its own (what ``twinslam launch --devices N --edges K`` starts); the
+CPU is theirs together. ``--pools cores`` runs the edges with the math libraries' thread pools
+at a thread a core, as every node had them before they were kept to one
+(:mod:`twinslam.node_runtime.math_threads`): ``--pools cores,one`` measures both in one run.
+
+    python -m bench.edge_scaling [--devices 1,2,4,8,12,16] [--edges 1,2] [--pools one]
+                                 [--recording DIR] [--csv FILE]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import math
 import os
@@ -27,6 +35,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -44,6 +53,7 @@ from twinslam_msgs.msg import (
 
 from msg_schemas import qos, topics
 from twinslam.hosts.loopback import LoopbackDomain
+from twinslam.live.fleet import edge_blocks
 from twinslam.node_runtime.session import RosSession
 from twinslam.slot_protocol import table1
 
@@ -164,17 +174,46 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0.0
-            ) -> dict[str, float]:
+#: the math libraries' pools: one thread (the nodes' default) or a thread a core (as before)
+POOL_ENV = {"one": {}, "cores": {"OMP_NUM_THREADS": str(os.cpu_count() or 1),
+                                 "OPENBLAS_NUM_THREADS": str(os.cpu_count() or 1)}}
+
+
+@contextlib.contextmanager
+def pools_env(pools: str) -> Iterator[None]:
+    """This process's environment (which the edges inherit) with ``pools``' variables."""
+    if pools not in POOL_ENV:
+        raise SystemExit(f"--pools: one of {', '.join(POOL_ENV)}, not {pools!r}")
+    saved = {k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")}
+    for key in saved:
+        os.environ.pop(key, None)
+    os.environ.update(POOL_ENV[pools])
+    try:
+        yield
+    finally:
+        for key, value in saved.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
+
+
+def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0.0,
+            edges: int = 1, pools: str = "one") -> dict[str, float]:
     names = [f"ar{i + 1}" for i in range(n)]
-    with LoopbackDomain() as dom:
+    with pools_env(pools), LoopbackDomain() as dom:
         dom.activate()
-        edge = dom.spawn(["-m", "edge_mapper.node", "--ros-args", "-p", f"policy:={policy}",
-                          "-p", f"devices:=[{', '.join(names)}]", "-p", f"vmax_total:={45 * n}",
-                          "-p", "allocator:=equal", "-p", "slot_timeout_s:=5.0",
-                          "-p", f"compute_budget:={compute_budget}"])
-        if not dom.wait_for_log(edge, f"listening on /{names[-1]}", 120):
-            raise SystemExit(f"the edge did not come up: {dom.log(edge)[-2000:]}")
+        served = edge_blocks(names, edges)
+        procs = [dom.spawn(["-m", "edge_mapper.node", "--ros-args",
+                            "-r", f"__node:=edge_mapper_{e + 1}", "-p", f"policy:={policy}",
+                            "-p", f"devices:=[{', '.join(block)}]",
+                            "-p", f"vmax_total:={45 * len(block)}",
+                            "-p", "allocator:=equal", "-p", "slot_timeout_s:=5.0",
+                            "-p", f"compute_budget:={compute_budget}"])
+                 for e, block in enumerate(served)]
+        for edge, block in zip(procs, served, strict=True):
+            if not dom.wait_for_log(edge, f"listening on /{block[-1]}", 120):
+                raise SystemExit(f"an edge did not come up: {dom.log(edge)[-2000:]}")
         with RosSession("bench_devices") as ros:
             now = time.monotonic() + 2.0
             devices = [EmulatedDevice(d, recording, now + i * recording.slot_s / n)
@@ -197,7 +236,7 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
                 d.pubs["summaries"].get_subscription_count() > 0 for d in devices), 30.0)
             if not ready:
                 raise SystemExit("the edge did not subscribe to every device")
-            cpu0, wall0 = cpu_seconds(edge.pid), time.monotonic()
+            cpu0, wall0 = sum(cpu_seconds(p.pid) for p in procs), time.monotonic()
             # every slot played and answered, or 15 s past the last slot's period
             deadline = max(d.start for d in devices) + \
                 (len(recording.summaries) + 7.5) * recording.slot_s
@@ -208,8 +247,9 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
                 for d in devices:
                     d.tick(t)
                 ros.spin_once(0.005)
-            cpu, wall = cpu_seconds(edge.pid) - cpu0, time.monotonic() - wall0
-        _, _, log = dom.stop(edge)
+            cpu = sum(cpu_seconds(p.pid) for p in procs) - cpu0
+            wall = time.monotonic() - wall0
+        log = "".join(dom.stop(p)[2] for p in procs)
     stats = [s for d in devices for s in d.stats.values()]
     expected = n * len(recording.summaries)
     late = sum(1 for s in stats if s.slot_latency_ms > recording.slot_s * 1000)
@@ -218,7 +258,8 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             print(d.name, {k: round(s.slot_latency_ms) for k, s in sorted(d.stats.items())})
     compute = [s.slot_processing_ms for s in stats]
     latency = [s.slot_latency_ms for s in stats]
-    return {"devices": n, "device_slots": expected, "answered": len(stats),
+    return {"devices": n, "edges": len(served), "pools": pools, "device_slots": expected,
+            "answered": len(stats),
             "compute_ms_median": float(np.median(compute)) if compute else math.nan,
             "compute_ms_p95": float(np.percentile(compute, 95)) if compute else math.nan,
             "latency_ms_median": float(np.median(latency)) if latency else math.nan,
@@ -235,6 +276,12 @@ def main() -> None:
                         help="a `twinslam launch --record` folder (default: one is made)")
     parser.add_argument("--policy", default="lff", help="the edge's policy (lff: the recording's)")
     parser.add_argument("--csv", type=Path, default=None, help="also write the table here")
+    parser.add_argument("--edges", default="1",
+                        help="edge processes the devices are split among, comma-separated "
+                             "counts to compare (default 1)")
+    parser.add_argument("--pools", default="one",
+                        help="the edges' math thread pools: one (the nodes' default) or cores "
+                             "(a thread a core, as before); comma-separated to compare")
     parser.add_argument("--compute-budget", type=float, default=0.0,
                         help="the edge's compute_budget (a share of one core; 0: none)")
     args = parser.parse_args()
@@ -250,13 +297,17 @@ def main() -> None:
           f"{recording.slot_s:.3g} s (the recording's); compute budget "
           f"{args.compute_budget:g} of a core", flush=True)
     rows = []
-    header = (f"{'devices':>7} {'answered':>9} {'edge ms/slot':>12} {'p95':>6} "
+    header = (f"{'pools':>5} {'edges':>5} {'devices':>7} {'answered':>9} "
+              f"{'edge ms/slot':>12} {'p95':>6} "
               f"{'latency ms':>10} {'p95':>6} {'missed':>7} {'edge CPU':>8}")
     print(header, flush=True)
-    for n in [int(x) for x in args.devices.split(",")]:
-        row = measure(n, recording, args.policy, args.compute_budget)
+    settings = [(pools, int(edges), int(n)) for pools in args.pools.split(",")
+                for edges in args.edges.split(",") for n in args.devices.split(",")]
+    for pools, edges, n in settings:
+        row = measure(n, recording, args.policy, args.compute_budget, edges, pools)
         rows.append(row)
-        print(f"{n:>7} {row['answered']:>4.0f}/{row['device_slots']:<4.0f} "
+        print(f"{pools:>5} {row['edges']:>5} {n:>7} "
+              f"{row['answered']:>4.0f}/{row['device_slots']:<4.0f} "
               f"{row['compute_ms_median']:>12.0f} {row['compute_ms_p95']:>6.0f} "
               f"{row['latency_ms_median']:>10.0f} {row['latency_ms_p95']:>6.0f} "
               f"{row['missed_share']:>7.1%} {row['edge_cpu_share']:>8.0%}", flush=True)

@@ -43,6 +43,7 @@ from edge_mapper.slot_planner import FrameObservations
 from edge_mapper.visual_messages import decisions_message, keyframes_message, map_points_message
 from msg_schemas.poses import pose_matrix
 from twinslam.cli.console import HelpFormatter
+from twinslam.node_runtime.math_threads import one_math_thread
 
 SEVEN = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes-1000"
 
@@ -142,6 +143,7 @@ def main() -> None:
     parser.add_argument("--csv", type=Path, help="write every slot's steps (ms) here")
     args = parser.parse_args()
     cv2.setNumThreads(1)
+    one_math_thread()                     # as every node (node_runtime.math_threads)
     config = repeatable_edge()
     clock = StepClock()
     with tempfile.TemporaryDirectory() as tmp:

@@ -44,6 +44,7 @@ from twinslam.live.tracking_quality import (
     absolute_trajectory_error,
     cross_device_revisit_error,
 )
+from twinslam.node_runtime.math_threads import one_math_thread
 from twinslam.rotations import rotation_angle_deg
 from twinslam.sequence_player.playback import ORDERS
 from twinslam.slam.back_end.foreign_keyframes import is_foreign
@@ -138,6 +139,7 @@ def main() -> None:
     parser.add_argument("--csv", type=Path, help="append the run's figures here")
     args = parser.parse_args()
     cv2.setNumThreads(1)
+    one_math_thread()                     # as every node (node_runtime.math_threads)
     spec, second_spec = (_seeded(s, args.seed) for s in
                          (args.sequence, args.second_sequence or args.sequence))
     config = repeatable_edge(**({} if args.vmax is None else {"vmax": args.vmax}))

@@ -5,6 +5,10 @@ files the commands wrote (every command is on that page beside its table):
   fleet/sim-scaling.csv (``python -m bench.fleet``) → fleet/scaling.png: live, the edge's
   compute per device-slot, the latency to the map update and the missed deadlines vs N; in the
   simulator, milliseconds a fleet slot vs N;
+* ``edges`` — fleet/edge-scaling-pools-edges.csv (``python -m bench.edge_scaling --edges 1,2
+  --pools cores,one``) beside fleet/edge-scaling-default-1s.csv (the default edge before) →
+  fleet/edge-scaling-edges.png: the late share and the edges' CPU per device vs N, a line per
+  setting (the math pools, the edge processes);
 * ``sim FILE…`` — ``twinslam sim --devices N --csv`` files: per allocator the fleet mean (over
   devices, then seeds) of mean υ, lost share and υ tracked, Jain's index of the devices'
   tracked shares, and the paired differences with ``equal`` on the same seeds;
@@ -16,6 +20,7 @@ files the commands wrote (every command is on that page beside its table):
   paired by seed with ``equal``.
 
     .venv/bin/python docs/figures/fleet_tables.py scaling
+    .venv/bin/python docs/figures/fleet_tables.py edges
     .venv/bin/python docs/figures/fleet_tables.py sim docs/figures/fleet/sim-n10-lff.csv
     .venv/bin/python docs/figures/fleet_tables.py split \
         docs/figures/fleet/sim-n10-lff-cell400.csv \
@@ -184,11 +189,46 @@ def scaling() -> None:
     print(f"wrote {out}")
 
 
+def edges() -> None:
+    """The default edge at 1 s slots: before, and per math-pool and edge-process setting."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    series: dict[str, list[dict[str, str]]] = {
+        "before (2026-11-29 21:22, pools a thread a core)":
+            _rows(HERE / "fleet/edge-scaling-default-1s.csv")}
+    for r in _rows(HERE / "fleet/edge-scaling-pools-edges.csv"):
+        edges_word = "edge" if r["edges"] == "1" else "edges"
+        pools = "a thread a core" if r["pools"] == "cores" else "one thread"
+        label = f"faiss matcher, pools {pools}, {r['edges']} {edges_word}"
+        series.setdefault(label, []).append(r)
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.4))
+    for i, (label, rows) in enumerate(series.items()):
+        n = [int(r["devices"]) for r in rows]
+        style = "k--" if i == 0 else f"C{i}o-"
+        axes[0].plot(n, [100 * float(r["missed_share"]) for r in rows], style, label=label)
+        axes[1].plot(n, [100 * float(r["edge_cpu_share"]) / int(r["devices"]) for r in rows],
+                     style, label=label)
+    axes[0].axhline(5, color="grey", lw=1)
+    axes[0].text(1, 7, "goal: 5 % late", color="grey", fontsize=8)
+    axes[0].set(xlabel="devices", ylabel="% of device-slots whose map came after 1 s",
+                ylim=(0, 100), title="late maps (2 cores, one run a point)")
+    axes[1].set(xlabel="devices", ylabel="% of one core per device",
+                title="the edges' CPU per device (falls where slots go unserved)")
+    axes[0].legend(fontsize=7, loc="upper left")
+    fig.tight_layout()
+    out = HERE / "fleet/edge-scaling-edges.png"
+    fig.savefig(out, dpi=110)
+    print(f"wrote {out}")
+
+
 def main(argv: list[str]) -> int:
-    if not argv or argv[0] not in ("scaling", "sim", "split", "live"):
+    if not argv or argv[0] not in ("scaling", "edges", "sim", "split", "live"):
         print(__doc__)
         return 2
-    {"scaling": lambda a: scaling(), "sim": sim, "split": split,
+    {"scaling": lambda a: scaling(), "edges": lambda a: edges(), "sim": sim, "split": split,
      "live": live}[argv[0]](argv[1:])
     return 0
 
