@@ -93,20 +93,16 @@ def _solve(archive: KeyFrameArchive, group: list[int], xy: np.ndarray, desc: np.
            ) -> tuple[np.ndarray | None, int]:
     """PnP RANSAC of the frame against the points of the archived keyframes ``group`` (each
     map point once): (camera-to-map or None, inliers)."""
-    seen: dict[int, int] = {}
-    positions: list[np.ndarray] = []
-    point_desc: list[np.ndarray] = []
-    for kf_id in group:
-        kf = archive.get(kf_id)
-        for pid, position, d in zip(kf.point_ids.tolist(), kf.positions, kf.descriptors,
-                                    strict=True):
-            if pid not in seen:
-                seen[pid] = len(positions)
-                positions.append(position)
-                point_desc.append(d)
-    if len(positions) < config.min_inliers:
+    kfs = [archive.get(kf_id) for kf_id in group]
+    if not kfs:
         return None, 0
-    world = np.asarray(positions, dtype=np.float64)
+    # each map point once, as the group first lists it
+    _, first = np.unique(np.concatenate([kf.point_ids for kf in kfs]), return_index=True)
+    first.sort()
+    if len(first) < config.min_inliers:
+        return None, 0
+    world = np.concatenate([kf.positions for kf in kfs]).astype(np.float64)[first]
+    point_desc = np.concatenate([kf.descriptors for kf in kfs])[first]
     f_idx, p_idx = match_descriptors(desc, np.ascontiguousarray(point_desc, dtype=np.uint8),
                                      config.max_hamming, config.ratio)
     if len(f_idx) < max(config.min_inliers, 6):

@@ -341,19 +341,19 @@ class KeyFrameArchive:
             return []
         k = min(8, len(self._row_keyframe))
         distances, rows = index.search(query, k)           # type: ignore[attr-defined]
-        votes: dict[int, int] = {}
-        point_of = self._row_point
-        for d, r in zip(distances, rows, strict=True):
-            if r[0] < 0 or d[0] > max_distance:
-                continue
-            # the runner-up: the nearest descriptor of a different map point
-            other = next((int(d[j]) for j in range(1, k)
-                          if r[j] >= 0 and point_of[r[j]] != point_of[r[0]]), None)
-            if other is not None and d[0] >= ratio * other:
-                continue
-            kf = int(self._row_keyframe[r[0]])
-            votes[kf] = votes.get(kf, 0) + 1
-        ranked = sorted(votes.items(), key=lambda kv: (-kv[1], kv[0]))
+        # one vote a descriptor, decided for all rows at once (a loop over ~1000 rows of 8
+        # was a sixth of the recognition)
+        nearest, best = rows[:, 0], distances[:, 0]
+        points = np.where(rows >= 0, self._row_point[np.maximum(rows, 0)], -1)
+        # the runner-up: the nearest descriptor of a different map point
+        other = (rows[:, 1:] >= 0) & (points[:, 1:] != points[:, :1])
+        has_other = other.any(axis=1)
+        runner_up = distances[np.arange(len(rows)), 1 + other.argmax(axis=1)]
+        votes_for = (nearest >= 0) & (best <= max_distance) & \
+            ~(has_other & (best >= ratio * runner_up))
+        kfs, votes = np.unique(self._row_keyframe[nearest[votes_for]], return_counts=True)
+        ranked = sorted(zip(kfs.tolist(), votes.tolist(), strict=True),
+                        key=lambda kv: (-kv[1], kv[0]))
         return ranked[:top]
 
     def _built_index(self) -> object:

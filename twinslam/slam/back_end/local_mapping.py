@@ -18,6 +18,7 @@ the device associated it with (``Keyframe.map_point_ids``, 0 = none):
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections import Counter
 from collections.abc import Callable
@@ -191,7 +192,8 @@ class LocalMapping:
         if not sum(sizes):
             return lambda i: None
         feature = np.repeat(np.asarray(placed), sizes)
-        candidate = np.concatenate([np.asarray(n, dtype=np.int64) for n in near if n])
+        candidate = np.fromiter(itertools.chain.from_iterable(near), dtype=np.int64,
+                                count=sum(sizes))
         mine = np.asarray(descriptors, dtype=np.uint8)[placed]
         apart = hamming_rows(theirs[candidate], np.repeat(mine, sizes, axis=0))
         alike_enough = apart <= self.config.max_hamming
