@@ -6,7 +6,8 @@ files the commands wrote (every command is on that page beside its table):
   compute per device-slot, the latency to the map update and the missed deadlines vs N; in the
   simulator, milliseconds a fleet slot vs N;
 * ``edges`` — fleet/edge-scaling-pools-edges.csv (``python -m bench.edge_scaling --edges 1,2
-  --pools cores,one``) beside fleet/edge-scaling-default-1s.csv (the default edge before) →
+  --pools cores,one``) and fleet/edge-scaling-arrays.csv (``--edges 1,2 --pools one``, a later
+  commit) beside fleet/edge-scaling-default-1s.csv (the default edge before) →
   fleet/edge-scaling-edges.png: the late share and the edges' CPU per device vs N, a line per
   setting (the math pools, the edge processes);
 * ``sim FILE…`` — ``twinslam sim --devices N --csv`` files: per allocator the fleet mean (over
@@ -204,6 +205,10 @@ def edges() -> None:
         pools = "a thread a core" if r["pools"] == "cores" else "one thread"
         label = f"faiss matcher, pools {pools}, {r['edges']} {edges_word}"
         series.setdefault(label, []).append(r)
+    for r in _rows(HERE / "fleet/edge-scaling-arrays.csv"):
+        edges_word = "edge" if r["edges"] == "1" else "edges"
+        series.setdefault(f"+ votes and candidates on arrays, {r['edges']} {edges_word}",
+                          []).append(r)
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.4))
     for i, (label, rows) in enumerate(series.items()):
         n = [int(r["devices"]) for r in rows]
