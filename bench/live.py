@@ -40,7 +40,11 @@ def _device_cpu_s(root: Path) -> float | None:
             continue
         try:
             cmd = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
-            if b"device_tracker.node" not in cmd or Path(f"/proc/{pid}/cwd").resolve() != root:
+            # started anew (``-m device_tracker.node``) or forked from the launcher's fork
+            # server, which names its child after the node (``twinslam.hosts.forked``)
+            forked = Path(f"/proc/{pid}/comm").read_text().strip() == "device_tracker"
+            if (b"device_tracker.node" not in cmd and not forked) or \
+                    Path(f"/proc/{pid}/cwd").resolve() != root:
                 continue
             fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
             found.append((int(fields[19]), (int(fields[11]) + int(fields[12])) / TICK))
@@ -121,8 +125,11 @@ def run(root: Path, frames: int, policy: str, extra_env: dict[str, str] | None =
     header = next((line for line in out.splitlines() if line.startswith("policy ")), "")
     ate = 4 if "υ tracked" in header else 3
     untracked = values[ate + 5] if "untrk" in header else values[-2]
-    # the newest end with the camera frames the device dropped, after the edge's ms
-    edge_ms = values[-2] if header.rstrip().endswith("dropped") else values[-1]
+    # newer tables end with the camera frames the device dropped after the edge's ms, the
+    # newest with the slots that uploaded nothing before and the frames skipped after
+    ending = header.rstrip()
+    edge_ms = values[-4] if ending.endswith("dropped skipped") else \
+        values[-2] if ending.endswith("dropped") else values[-1]
     return {"edge_ms": float(edge_ms),
             "device_ms_per_frame": (cpu1 - cpu0) / ((last - first) * slot_frames) * 1000,
             "untracked": float(untracked), "ate_m": float(values[ate])}
