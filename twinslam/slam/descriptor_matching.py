@@ -41,6 +41,9 @@ def match_descriptors(query: np.ndarray, train: np.ndarray, max_hamming: int, ra
 def hamming_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The Hamming distance of each row of ``a`` to the same row of ``b`` (ORB descriptors,
     n×32 uint8 each): the bits they differ in."""
-    differ = np.bitwise_xor(np.asarray(a, dtype=np.uint8), np.asarray(b, dtype=np.uint8))
-    distance: np.ndarray = np.bitwise_count(differ).sum(axis=1, dtype=np.int64)
+    a = np.ascontiguousarray(a, dtype=np.uint8)
+    b = np.ascontiguousarray(b, dtype=np.uint8)
+    if a.ndim == 2 and a.shape == b.shape and a.shape[1] % 8 == 0:
+        a, b = a.view(np.uint64), b.view(np.uint64)      # 4 words a row, not 32 bytes
+    distance: np.ndarray = np.bitwise_count(np.bitwise_xor(a, b)).sum(axis=1, dtype=np.int64)
     return distance
