@@ -5,9 +5,11 @@ faiss an OpenMP runtime; each starts a pool of one thread a core and hands it ev
 product or search above a small size. Between calls the pool's threads spin, waiting for the
 next. A node is one of several processes sharing the host's cores, and its work is many small
 products (poses, a keyframe's points), so the spinning is CPU taken from the other nodes and
-the node's other threads rather than speed: measured with ``bench.edge_scaling`` on the 2-core
-machine, the edge serving 4 devices used 87 % of a core with the pools and 48 % with one
-thread each, and the share of late maps at 8 devices fell from 22 % to 13 % (BENCHMARKS.md).
+the node's other threads rather than speed: measured side by side with ``bench.edge_scaling
+--pools cores,one`` on the 2-core machine, the edge serving 4 devices used 94 % of a core
+with the pools and 50 % with one thread each, and the share of late maps at 8 devices fell
+from 22 % to 14 % (BENCHMARKS.md); live (``bench.live``) the edge's slot took 80 ms instead
+of 108 and the device's CPU a frame did not change.
 
 The standard environment variables still decide where a user sets them (``OMP_NUM_THREADS``,
 ``OPENBLAS_NUM_THREADS``, ``MKL_NUM_THREADS``): a host that runs one node alone may want the
