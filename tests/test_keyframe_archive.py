@@ -52,6 +52,25 @@ def test_a_revisited_place_is_recognised_among_the_archived_keyframes() -> None:
         archive.recognise(np.zeros((10, 16), np.uint8))
 
 
+def test_a_descriptor_votes_against_the_nearest_other_point_not_another_view_of_its_own(
+        ) -> None:
+    """The ratio test's runner-up is the nearest descriptor of a *different* map point: two
+    keyframes that saw the same point (one descriptor each, alike) do not cancel its vote; two
+    different points alike do. An archive of one descriptor has no runner-up."""
+    rng = np.random.default_rng(5)
+    seen = rng.integers(0, 256, (1, 32), dtype=np.uint8)
+    archive = KeyFrameArchive(10)
+    one = _keyframe(1, seen.copy(), 7)
+    archive.add(one)
+    assert archive.recognise(seen) == [(1, 1)]                # one row: no runner-up
+    again = _keyframe(2, seen.copy(), 7)                      # the same point, seen again
+    archive.add(again)
+    assert archive.recognise(seen) in ([(1, 1)], [(2, 1)])
+    lookalike = _keyframe(3, seen.copy(), 99)                 # another point, alike
+    archive.add(lookalike)
+    assert archive.recognise(seen) == []
+
+
 def test_past_its_capacity_the_least_recently_useful_keyframe_leaves() -> None:
     archive = KeyFrameArchive(3)
     assert [archive.add(_random_keyframe(k, slot=k)) for k in (1, 2, 3)] == [[], [], []]

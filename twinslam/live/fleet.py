@@ -103,8 +103,8 @@ class FleetConfig:
 
 
 def edge_blocks(names: Sequence[str], edges: int) -> list[list[str]]:
-    """``names`` split into ``edges`` runs of neighbours, as even as they go (none empty;
-    the earlier runs the shorter)."""
+    """``names`` split into ``edges`` runs of neighbours, as even as they go (their lengths
+    differ by one at most; none empty)."""
     edges = max(1, min(edges, len(names)))
     cuts = [round(i * len(names) / edges) for i in range(edges + 1)]
     return [list(names[a:b]) for a, b in itertools.pairwise(cuts)]

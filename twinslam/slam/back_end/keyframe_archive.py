@@ -347,10 +347,10 @@ class KeyFrameArchive:
         points = np.where(rows >= 0, self._row_point[np.maximum(rows, 0)], -1)
         # the runner-up: the nearest descriptor of a different map point
         other = (rows[:, 1:] >= 0) & (points[:, 1:] != points[:, :1])
-        has_other = other.any(axis=1)
-        runner_up = distances[np.arange(len(rows)), 1 + other.argmax(axis=1)]
-        votes_for = (nearest >= 0) & (best <= max_distance) & \
-            ~(has_other & (best >= ratio * runner_up))
+        votes_for = (nearest >= 0) & (best <= max_distance)
+        if k > 1:                                   # an archive of one row has no runner-up
+            runner_up = distances[np.arange(len(rows)), 1 + other.argmax(axis=1)]
+            votes_for &= ~(other.any(axis=1) & (best >= ratio * runner_up))
         kfs, votes = np.unique(self._row_keyframe[nearest[votes_for]], return_counts=True)
         ranked = sorted(zip(kfs.tolist(), votes.tolist(), strict=True),
                         key=lambda kv: (-kv[1], kv[0]))
