@@ -187,6 +187,23 @@ def test_frames_the_player_skipped_are_not_counted_as_dropped() -> None:
     assert report("lff", log, 2.0, SLOT).frames_dropped == 0
 
 
+def test_a_frame_dropped_in_the_last_slot_is_counted_up_to_its_newest_summarised_frame(
+        ) -> None:
+    """The run may end inside its last slot, so a slot's length cannot say what it lost; the
+    player's ground truth (a pose a frame it published) can, up to the newest frame the device
+    summarised: frames 33 and 34 of slot 3 published and never summarised are dropped, the
+    slot's last three (the run ended) are not."""
+    log = _run()
+    assert report("lff", log, 2.0, SLOT).frames_dropped == 0
+    last = log.summaries[3].frames
+    del last[3:5]                                        # frames 33 and 34
+    assert report("lff", log, 2.0, SLOT).frames_dropped == 2
+    del last[-3:]                                        # 37-39: after the newest summarised
+    assert report("lff", log, 2.0, SLOT).frames_dropped == 2
+    log.ground_truth = {}                                # no ground truth: no way to tell
+    assert report("lff", log, 2.0, SLOT).frames_dropped == 0
+
+
 def test_the_odom_frame_is_judged_by_its_jitter_and_its_largest_leap() -> None:
     """The same run with device/odom heard: an odom pose that follows the walk without the
     map pose's leap at frame 25 shakes like the truth and never steps further than the

@@ -467,13 +467,33 @@ def device_cpu_ms(record: RunLog) -> float:
 
 
 def dropped_frames(record: RunLog, slot_frames: int, skipped: int = 0) -> int:
-    """Frames missing from every slot but the last (which the run may end inside), less the
+    """Frames missing from every slot but the last, and from the last up to its newest frame
+    the device summarised (:func:`missing_in_last_slot`; the run may end inside it), less the
     ``skipped`` frames the player never published (unreadable files: the data's fault, not
     the machine's). A skip in the last slot takes one off a drop elsewhere: the player counts
     its skips, it does not say in which slot they fell."""
-    slots = sorted(record.summaries)[:-1]
-    missing = sum(max(0, slot_frames - len(record.summaries[s].frames)) for s in slots)
-    return max(0, missing - skipped)
+    slots = sorted(record.summaries)
+    missing = sum(max(0, slot_frames - len(record.summaries[s].frames)) for s in slots[:-1])
+    return max(0, missing + missing_in_last_slot(record) - skipped)
+
+
+def missing_in_last_slot(record: RunLog) -> int:
+    """Frames the player published within the last slot before the device's newest summarised
+    frame that the device has no summary of — counted by the player's ground truth, one pose a
+    published frame (0 without it). A slot's length cannot count them: the run may end inside
+    its last slot; but a frame published between two the device summarised reached the
+    device's camera topic and was dropped there (a loaded machine)."""
+    slots = sorted(record.summaries)
+    if not slots or not record.ground_truth:
+        return 0
+    last = record.summaries[slots[-1]].frames
+    if not last:
+        return 0
+    before = record.summaries[slots[-2]].frames if len(slots) > 1 else []
+    start = max((time_key(f.stamp) for f in before), default=-1)
+    end = max(time_key(f.stamp) for f in last)
+    published = sum(1 for stamp in record.ground_truth if start < stamp <= end)
+    return max(0, published - len(last))
 
 
 def relocalised_stamps(record: RunLog) -> list[int]:
