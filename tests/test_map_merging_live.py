@@ -4,7 +4,8 @@ walk backward from its last frame, each starting a map in its own first camera's
 edge finds the second device's keyframes in the first device's map and moves the second map
 into the first's frame — the second device's map updates then carry the motion between the
 two frames, as the truth has it, the second device's poses are in the first one's frame, and
-it tracks on keyframes only the first device uploaded."""
+it tracks on keyframes only the first device uploaded, where content the first device anchored
+appears to the second within the shared map's 3 cm."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from msg_schemas import qos
 from msg_schemas.poses import pose_matrix
 from twinslam.hosts.loopback import LoopbackDomain
 from twinslam.live.launcher import preloaded_nodes
+from twinslam.live.tracking_quality import RevisitError, cross_device_revisit_error
 from twinslam.node_runtime.session import RosSession
 from twinslam.rotations import rotation_angle_deg
 from twinslam.sequences.opening import open_sequence
@@ -38,10 +40,13 @@ def test_the_edge_merges_the_second_devices_map_into_the_first_ones_frame(
         domain: LoopbackDomain, ros: RosSession) -> None:
     maps: dict[str, list[MapUpdate]] = {d: [] for d in ORDER}
     summaries: list[FrameSummaries] = []
+    first_summaries: list[FrameSummaries] = []
     for d, got in maps.items():
         ros.node.create_subscription(MapUpdate, f"/{d}/edge/map_update", got.append, qos.MAP)
     ros.node.create_subscription(FrameSummaries, "/ar2/device/frame_summaries",
                                  summaries.append, qos.PROTOCOL)
+    ros.node.create_subscription(FrameSummaries, "/ar1/device/frame_summaries",
+                                 first_summaries.append, qos.PROTOCOL)
     edge = domain.spawn(["-m", "edge_mapper.node", "--ros-args", "-p", "policy:=lff",
                          "-p", "devices:=[ar1, ar2]", "-p", "merge_maps:=true",
                          "-p", "visualisation:=false"], forks=FORKS)
@@ -98,6 +103,24 @@ def test_the_edge_merges_the_second_devices_map_into_the_first_ones_frame(
         domain.log(edge)[-3000:]
     assert ros.spin_until(lambda: any(is_foreign(int(p)) for s in summaries for f in s.frames
                                       if f.tracked for p in f.map_point_ids), 30.0)
+    # an anchor the first device placed, as the second sees it: for every pair of a frame of
+    # each within 0.3 m and 20° of each other in truth, their relative pose against the
+    # truth's (the cross-device revisit error) within the shared-map bound of 3 cm. The walk's
+    # two ends are 23° apart: the pairs come once the second device reaches where the first was
+
+    def anchors() -> RevisitError:
+        return cross_device_revisit_error(
+            [(pose_matrix(f.pose), room.pose(int(f.frame_id)))  # type: ignore[attr-defined]
+             for s in first_summaries for f in s.frames if f.tracked],
+            [(pose_matrix(f.pose), room.pose(FRAMES - 1 - int(f.frame_id)))  # type: ignore[attr-defined]
+             for s in summaries for f in s.frames
+             if f.tracked and f.map_version >= merged_version])
+
+    assert ros.spin_until(lambda: anchors().pairs >= 50, 90.0), anchors()
+    seen = anchors()
+    print(f"\ncross-device revisit error after the merge: {seen.rms_m * 100:.1f} cm RMS, "
+          f"{seen.p95_m * 100:.1f} cm p95, over {seen.pairs} pairs")
+    assert seen.rms_m <= 0.03, seen
 
 
 @pytest.mark.slow(seconds=40)
