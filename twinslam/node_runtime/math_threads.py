@@ -19,21 +19,19 @@ pools back.
 from __future__ import annotations
 
 import os
-from collections.abc import MutableMapping
 
 #: the variables through which a user chooses the pools' sizes themselves
 USER_CHOICE = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 
-def one_math_thread(environ: MutableMapping[str, str] | None = None) -> bool:
+def one_math_thread() -> bool:
     """Limit every BLAS and OpenMP pool loaded in this process to one thread, and set the
     variables so that the libraries loaded later (and child processes) start with one; False
     (nothing changed) where the user set one of :data:`USER_CHOICE`."""
-    env: MutableMapping[str, str] = os.environ if environ is None else environ
-    if any(name in env for name in USER_CHOICE):
+    if any(name in os.environ for name in USER_CHOICE):
         return False
     for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
-        env[name] = "1"
+        os.environ[name] = "1"
     from threadpoolctl import threadpool_limits
 
     threadpool_limits(limits=1)
