@@ -16,6 +16,7 @@ from twinslam_msgs.msg import FrameSummaries, FrameSummary
 
 from twinslam.cli.main import main
 from twinslam.hosts.forked import process_name
+from twinslam.hosts.loopback import LoopbackDomain
 from twinslam.live.fleet import FleetConfig, cross_device_errors, device_sequence, edge_blocks
 from twinslam.live.launcher import renamed_params
 from twinslam.live.run_log import RunLog
@@ -96,7 +97,8 @@ def test_devices_are_split_among_edges_as_runs_of_neighbours_each_with_its_budge
     assert FleetConfig(5, 25, "equal", 5, edges=2).edge_shares() == [10, 15]
 
 
-def test_a_renamed_edge_reads_the_parameter_files_edge_section(tmp_path: Path) -> None:
+def test_a_renamed_edge_reads_the_parameter_files_edge_section(
+        tmp_path: Path, domain: LoopbackDomain) -> None:
     """ROS 2 gives a node only its own name's section of a parameter file (no wildcard within
     a name): the second edge, ``edge_mapper_2``, reads a copy under its name."""
     import rclpy
@@ -111,7 +113,7 @@ def test_a_renamed_edge_reads_the_parameter_files_edge_section(tmp_path: Path) -
     for params in (source, copy):
         context = rclpy.Context()
         rclpy.init(args=["edge", "--ros-args", "-r", "__node:=edge_mapper_2", "--params-file",
-                         str(params)], context=context, domain_id=0)
+                         str(params)], context=context, domain_id=domain.domain_id)
         try:
             node = Node("edge_mapper", context=context,
                         automatically_declare_parameters_from_overrides=True)
