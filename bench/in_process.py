@@ -81,6 +81,12 @@ def serve_slot(device: DeviceTrackerCore, edge: EdgeMapperCore, rate_mbps: float
     return ServedSlot(outcome, (t1 - t0) * 1e3, (t2 - t1) * 1e3, (t3 - t2) * 1e3)
 
 
+def seeded_spec(spec: str, seed: int) -> str:
+    """A synthetic walk named by its frame count alone (``synthetic:600``) walked on ``seed``;
+    a spec that names its seed, or a dataset's, as it is."""
+    return f"{spec}:{seed}" if spec.startswith("synthetic") and spec.count(":") == 1 else spec
+
+
 def repeatable_edge(**overrides: object) -> EdgeConfig:
     """The edge node's default configuration with ``overrides`` (its parameters by name),
     the loop closer working in the caller: a walk through the cores gives the same answer

@@ -58,7 +58,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from bench.in_process import repeatable_edge, serve_slot
+from bench.in_process import repeatable_edge, seeded_spec, serve_slot
 from device_tracker.device_core import DeviceTrackerCore
 from device_tracker.odometry_frame import OdometryFrame
 from device_tracker.parameters import PARAMETERS as DEVICE_PARAMETERS
@@ -176,9 +176,7 @@ def main() -> None:
                         help="write every keyframe's history (events and errors) here")
     args = parser.parse_args()
     cv2.setNumThreads(1)
-    spec = args.sequence
-    if spec.startswith("synthetic") and spec.count(":") == 1:
-        spec = f"{spec}:{args.seed}"
+    spec = seeded_spec(args.sequence, args.seed)
     source = open_sequence(spec, end=args.frames, colour_intrinsics=AUTO)
     reader = PlayedSequence(source, Playback(args.order))
     device_params = {p.name: p.default for p in DEVICE_PARAMETERS}

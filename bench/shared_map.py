@@ -37,7 +37,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from bench.in_process import DeviceWalk, open_walk, repeatable_edge
+from bench.in_process import DeviceWalk, open_walk, repeatable_edge, seeded_spec
 from twinslam.cli.console import HelpFormatter
 from twinslam.live.tracking_quality import (
     RevisitError,
@@ -140,7 +140,7 @@ def main() -> None:
     args = parser.parse_args()
     cv2.setNumThreads(1)
     one_math_thread()                     # as every node (node_runtime.math_threads)
-    spec, second_spec = (_seeded(s, args.seed) for s in
+    spec, second_spec = (seeded_spec(s, args.seed) for s in
                          (args.sequence, args.second_sequence or args.sequence))
     config = repeatable_edge(**({} if args.vmax is None else {"vmax": args.vmax}))
     started = time.perf_counter()
@@ -274,11 +274,6 @@ CSV_FIELDS = ("frames", "seed", "uplink", "merged", "merge_slot", "merge_frame",
               "cross_p95_m", "cross_pairs", "true_alignment_rms_m", "keyframes_cross_rms_m",
               "share", "first_uploads", "second_uploads", "adopted", "foreign_at_end",
               "adopted_back", "foreign_at_end_first")
-
-
-def _seeded(spec: str, seed: int) -> str:
-    """A synthetic walk's spec with the seed, a dataset's as it is."""
-    return f"{spec}:{seed}" if spec.startswith("synthetic") and spec.count(":") == 1 else spec
 
 
 def _merge_state(merge: MapMerge | None, finder: MergeFinder) -> str:
