@@ -181,7 +181,8 @@ def test_launch_serves_two_devices_from_one_edge_and_reports_each(
         table = list(csv.DictReader(fh))
     assert [(r["device"], r["allocator"], r["seed"]) for r in table] == [
         ("ar1", "motion", "0"), ("ar2", "motion", "0")]
-    assert all(int(r["frames"]) > 0 and float(r["latency_ms_median"]) > 0 for r in table)
+    assert all(int(r["frames"]) > 0 and float(r["latency_ms_median"]) > 0
+               and int(r["frames_uploaded"]) > 0 for r in table)
 
 
 @pytest.mark.slow

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import csv
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
@@ -30,6 +30,33 @@ def write_csv(path: Path, header: Sequence[str], rows: Sequence[Sequence[object]
         writer = csv.writer(fh)
         writer.writerow(header)
         writer.writerows(rows)
+
+
+def append_csv_rows(path: Path, columns: Sequence[str],
+                    rows: Sequence[Mapping[str, object]]) -> None:
+    """Append ``rows`` (column → value; a column they lack is left empty) to the table at
+    ``path`` under ``columns``, its header written first when the file is new. A table an
+    older version wrote under other columns is rewritten under both (its own first, then
+    the new ones), every row it held kept: a run appended to last month's file loses
+    nothing and lands under the right heads."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    header, kept = list(columns), []
+    if path.exists() and path.stat().st_size:
+        with path.open(newline="", encoding="utf-8") as fh:
+            reader = csv.DictReader(fh)
+            have = list(reader.fieldnames or [])
+            if have != header:
+                kept = list(reader)
+                header = have + [c for c in columns if c not in have]
+            else:
+                header = []                   # the same heads: append below them
+    with path.open("a" if not header else "w", newline="", encoding="utf-8") as fh:
+        writer = csv.DictWriter(fh, fieldnames=header or list(columns), restval="")
+        if header:
+            writer.writeheader()
+            writer.writerows(kept)
+        writer.writerows({c: row.get(c, "") for c in columns} for row in rows)
 
 
 def pyplot() -> ModuleType:

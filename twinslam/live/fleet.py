@@ -376,7 +376,8 @@ def print_fleet_table(fleet: FleetReport, echo: Callable[[str], None] = print) -
 FLEET_COLUMNS = ("policy", "allocator", "seed", "device", "slots", "frames", "mean_uncertainty",
                  "lost_share", "tracked_uncertainty", "untracked_frames", "tracking_failures",
                  "relocalisations", "ate_m", "mean_budget", "frames_dropped", "edge_ms_median",
-                 "latency_ms_median", "late_slots", "cross_device_rms_m", "cross_device_pairs")
+                 "latency_ms_median", "late_slots", "cross_device_rms_m", "cross_device_pairs",
+                 "frames_uploaded")
 
 
 def fleet_rows(fleet: FleetReport, seed: int, records: dict[str, RunLog],
@@ -399,7 +400,7 @@ def fleet_rows(fleet: FleetReport, seed: int, records: dict[str, RunLog],
                      "edge_ms_median": r.edge_ms_median,
                      "latency_ms_median": float(np.median(latency)) if latency else math.nan,
                      "late_slots": sum(1 for v in latency if v > slot_period_s * 1000),
-                     **_cross_cells(fleet, device)})
+                     **_cross_cells(fleet, device), "frames_uploaded": r.frames_uploaded})
     return rows
 
 

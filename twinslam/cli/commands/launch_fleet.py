@@ -5,7 +5,6 @@ runs its nodes (:func:`domain_for`)."""
 from __future__ import annotations
 
 import argparse
-import csv
 import functools
 import os
 
@@ -25,7 +24,7 @@ from twinslam.live.launcher import LaunchConfig
 from twinslam.live.report import policy_label
 from twinslam.live.run_picture import plot_run
 from twinslam.live.scenarios import Scenario
-from twinslam.reporting import file_name
+from twinslam.reporting import append_csv_rows, file_name
 from twinslam.sequences.opening import is_synthetic, open_sequence
 
 
@@ -79,14 +78,10 @@ def run_fleet(args: argparse.Namespace, policy: str, fleet: FleetConfig, chosen:
                  picture)
     print(f"wrote {len(launcher.records)} pictures into {args.out}", flush=True)
     table = args.out / "fleet_runs.csv"
-    fresh = not table.exists()
-    with table.open("a", newline="", encoding="utf-8") as fh:
-        writer = csv.DictWriter(fh, fieldnames=FLEET_COLUMNS)
-        if fresh:
-            writer.writeheader()
-        period = float(launcher.slot_period_s())
-        writer.writerows(fleet_rows(result, fleet.seed, {d: m.record for d, m in
-                                                         launcher.records.items()}, period))
+    period = float(launcher.slot_period_s())
+    append_csv_rows(table, FLEET_COLUMNS,
+                    fleet_rows(result, fleet.seed,
+                               {d: m.record for d, m in launcher.records.items()}, period))
     print(f"appended {fleet.devices} rows to {table}", flush=True)
     return result
 
