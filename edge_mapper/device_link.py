@@ -240,7 +240,7 @@ class DeviceLink:
                                                         float(msg.rate_mbps), plan.action,
                                                         self._now()))
         self.slots.open(slot, time.perf_counter() - started, plan.uncertainty, decided_by, vmax,
-                        received)
+                        received, covered=len(plan.covered))
         self.finish_due()                        # a slot that uploads nothing is due at once
 
     def _on_latent(self, msg: RateLatent) -> None:
@@ -356,6 +356,8 @@ class DeviceLink:
                     self.core.back_end.keyframe_trajectory(), now, frame))
         u = out.map_uncertainty
         kept = f" (kept {len(out.spared)} of C_k: uploads missing)" if out.spared else ""
+        if entry.covered:
+            kept += f", {entry.covered} frames not asked for: the shared map covers their views"
         if out.restored:
             kept += f", {len(out.restored)} restored from the archive {out.restored}"
             if out.fused_points:

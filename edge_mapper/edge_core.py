@@ -42,12 +42,14 @@ from twinslam.policies.actions import MapAction
 from twinslam.policies.protocol import MapPolicy
 from twinslam.slam.back_end.archive_relocalisation import ArchiveLocation
 from twinslam.slam.back_end.bundle_adjustment import BundleAdjustmentResult
+from twinslam.slam.back_end.foreign_keyframes import is_foreign
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.back_end.local_mapping import IntegrationReport, LocalMapping
 from twinslam.slam.back_end.loop_closing import LoopCloser
 from twinslam.slam.back_end.map_back_end import BackEndConfig, ClosedLoop, MapBackEnd
 from twinslam.slam.back_end.pose_graph import LoopEdge
+from twinslam.slam.back_end.view_coverage import CoverageBounds, covered_views
 from twinslam.slam.camera import Camera
 from twinslam.slam.keyframe import KeyFramePayload
 from twinslam.uncertainty.map_uncertainty import map_uncertainty
@@ -71,6 +73,11 @@ class EdgeConfig:
     reloc_restore_keyframes: int = 0
     #: the map's life: bundle adjustment, archive, fusion, culling, the keyframe gate, loops
     back_end: BackEndConfig = field(default_factory=BackEndConfig)
+    #: a tracked frame whose view a keyframe another device uploaded covers (one of the
+    #: map's, lent after a map merge) is not uploaded (:mod:`twinslam.slam.back_end.
+    #: view_coverage`); the device's own keyframes cover nothing: alone, a device uploads as
+    #: Theorem 1 sizes it
+    coverage: CoverageBounds = field(default_factory=CoverageBounds)
 
 
 @dataclass
@@ -258,13 +265,32 @@ class EdgeMapperCore:
         frames = [self._resolve_tracks(f) for f in frames]
         leaving = {kf for action, _ in self.pending.values() for kf in action.evict}
         plan = self.planner.plan(slot, frames, rate_mbps, rate_state, self.rate_history,
-                                 self._arriving, leaving, self.camera)
+                                 self._arriving, leaving, self.camera,
+                                 self.covered_by_others(frames, leaving))
         self.pending[slot] = (plan.action, set())
         self._planned_vmax[slot] = self.planner.config.vmax
         self._last_heading = self._headings[slot] = heading(frames) or self._last_heading
         by_id = {f.frame_id: f for f in frames}
         self._arriving.update({f: by_id[f] for f in plan.action.upload})
         return plan
+
+    def covered_by_others(self, frames: Sequence[FrameObservations],
+                          leaving: Collection[int] = frozenset()) -> set[int]:
+        """The tracked ``frames`` whose views a keyframe of the map that another device
+        uploaded covers (``config.coverage``; the keyframes ``leaving`` with open slots' evictions
+        left out). A frame's pose is in the frame of the map version it was tracked on (-1:
+        unknown, taken as now's); a loop or a merge applied since moves it into the map's
+        frame now first."""
+        bounds = self.config.coverage
+        lent = [kf.pose for k, kf in self.map.keyframes.items()
+                if is_foreign(k) and k not in leaving]
+        if not lent or not bounds.enabled:
+            return set()
+        now = self.frame_correction
+        poses = {f.frame_id: f.pose if f.map_version < 0 else
+                 now @ np.linalg.inv(self.frame_correction_at(f.map_version)) @ f.pose
+                 for f in frames if f.tracked and f.pose is not None}
+        return covered_views(poses, lent, bounds)
 
     @property
     def oldest_open(self) -> int | None:

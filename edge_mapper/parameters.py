@@ -25,6 +25,7 @@ from msg_schemas import topics
 from twinslam.allocation.allocators import ALLOCATORS
 from twinslam.node_runtime.parameters import ParamSpec
 from twinslam.slam.back_end.map_back_end import BackEndConfig
+from twinslam.slam.back_end.view_coverage import CoverageBounds
 from twinslam.slot_protocol import default_device, table1
 
 
@@ -145,6 +146,12 @@ PARAMETERS = (
               "archive, which restores bring in where it heads: their poses in one frame, on "
               "shared keyframes; looks beside the slots cost ~0.1 s of CPU a slot per "
               "unmerged device"),
+    ParamSpec("covered_m", 0.10, "with merge_maps: a frame whose camera stands within this "
+              "many metres of a keyframe another device uploaded (lent to this device's map) "
+              "and looks the same way (covered_deg) is not uploaded: the shared map holds that "
+              "view; 0: every device uploads as Theorem 1 sizes it", low=0.0, high=100.0),
+    ParamSpec("covered_deg", 10.0, "the turn, degrees, within which a lent keyframe covers a "
+              "frame's view (with covered_m)", low=0.0, high=180.0),
     ParamSpec("fairness", 0.0, "alpha of the twin allocator's alpha-fair sum (0: total "
               "tracked share; 1: proportional fairness)", low=0.0, high=10.0),
     ParamSpec("device_silent_s", 10.0, "a device without summaries this long is silent: its "
@@ -165,6 +172,7 @@ def edge_config(p: Mapping[str, Any]) -> EdgeConfig:
                                       progress=bool(p["progress_uploads"])),
                       restore_keyframes=int(p["restore_keyframes"]),
                       reloc_restore_keyframes=int(p["reloc_restore_keyframes"]),
+                      coverage=CoverageBounds(float(p["covered_m"]), float(p["covered_deg"])),
                       back_end=BackEndConfig(
                           ba_window=int(p["ba_window"]),
                           archive_keyframes=int(p["archive_keyframes"]),

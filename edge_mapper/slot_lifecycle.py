@@ -42,6 +42,8 @@ class OpenSlot:
     vmax: int = 0                #: the V_max it was planned with (the device's share)
     received_at: float | None = None   #: clock time its frame summaries came (None: opened_at)
     sent: int | None = None      #: frames the device says it sent (its UplinkThroughput)
+    #: its tracked frames not asked for: views the shared map covers (SlotPlan.covered)
+    covered: int = 0
 
     def latency_s(self, now: float) -> float:
         """Seconds from the slot's summaries to ``now``."""
@@ -59,9 +61,10 @@ class SlotLifecycle:
         self.open_slots: dict[int, OpenSlot] = {}
 
     def open(self, slot: int, compute_s: float, uncertainty: SlotUncertainty | None,
-             decided_by: str, vmax: int = 0, received_at: float | None = None) -> None:
+             decided_by: str, vmax: int = 0, received_at: float | None = None,
+             covered: int = 0) -> None:
         self.open_slots[slot] = OpenSlot(self.clock(), compute_s, uncertainty, decided_by, vmax,
-                                         received_at)
+                                         received_at, covered=covered)
 
     def charge(self, slot: int, seconds: float) -> None:
         """Compute spent on an open slot (integrating one of its keyframes)."""

@@ -13,7 +13,7 @@ of the previous decision.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -80,6 +80,8 @@ class SlotPlan:
     action: MapAction
     observation: SlotObservation
     uncertainty: SlotUncertainty | None     #: υ of F_k against the map; None if the map is empty
+    #: tracked frames left out of the candidates: the map covers their views already
+    covered: frozenset[int] = frozenset()
 
 
 class SlotPlanner:
@@ -122,7 +124,8 @@ class SlotPlanner:
     def plan(self, slot: int, frames: list[FrameObservations], rate_mbps: float, rate_state: int,
              rate_history: list[int], arriving: dict[int, FrameObservations] | None = None,
              leaving: frozenset[int] | set[int] = frozenset(),
-             camera: Camera | None = None) -> SlotPlan:
+             camera: Camera | None = None, covered: Collection[int] = frozenset()
+             ) -> SlotPlan:
         """U_k and C_k for slot k's frames (capture order) at rate d_k. The policy chooses U_k
         among the frames the device tracked; υ is scored over all of them.
 
@@ -131,7 +134,9 @@ class SlotPlanner:
         scored against is the one those slots will leave: ``arriving`` uploads (not yet in the
         map, as their frames were observed) join it, ``leaving`` keyframes are left out.
         ``camera`` goes with the map and frames to a policy that predicts what the camera will
-        see (``see_slot``, the edge's ``mpc``).
+        see (``see_slot``, the edge's ``mpc``). ``covered`` frames (views the map holds already,
+        :mod:`twinslam.slam.back_end.view_coverage`) are no candidates: a slot whose tracked
+        frames are all covered asks for no upload, whatever the uplink could carry.
         """
         if not frames:
             raise ValueError(f"slot {slot}: no frames to plan with")
@@ -145,7 +150,8 @@ class SlotPlanner:
         clash = set(every) & set(map_ids)
         if clash:
             raise ValueError(f"slot {slot}: frames {sorted(clash)} are already keyframes")
-        cand = [f.frame_id for f in frames if f.tracked]
+        cand = [f.frame_id for f in frames if f.tracked and f.frame_id not in covered]
+        skipped = frozenset(f.frame_id for f in frames if f.tracked and f.frame_id in covered)
         cfg = self.config
         seen = {**arriving, **by_id}
         # each keyframe's and frame's point keys, made once: the weights, the policy's view
@@ -178,7 +184,7 @@ class SlotPlanner:
         # υ of F_k against the map as it is (eq. 8), None for an empty map
         m = len(map_ids)
         if not m:
-            return SlotPlan(action, obs, None)
+            return SlotPlan(action, obs, None, skipped)
         upsilon = next_slot_uncertainty(full[:m, :m], full[m:, :m], self.config.log_det_pi,
                                         shared >= MIN_INLIERS)
-        return SlotPlan(action, obs, upsilon)
+        return SlotPlan(action, obs, upsilon, skipped)

@@ -5,7 +5,8 @@ edge finds the second device's keyframes in the first device's map and moves the
 into the first's frame — the second device's map updates then carry the motion between the
 two frames, as the truth has it, the second device's poses are in the first one's frame, and
 it tracks on keyframes only the first device uploaded, where content the first device anchored
-appears to the second within the shared map's 3 cm."""
+appears to the second within the shared map's 3 cm, and frames whose views the other device's
+keyframes cover are not asked for."""
 
 from __future__ import annotations
 
@@ -121,6 +122,9 @@ def test_the_edge_merges_the_second_devices_map_into_the_first_ones_frame(
     print(f"\ncross-device revisit error after the merge: {seen.rms_m * 100:.1f} cm RMS, "
           f"{seen.p95_m * 100:.1f} cm p95, over {seen.pairs} pairs")
     assert seen.rms_m <= 0.03, seen
+    # where the other device's lent keyframes stand, a device's frames are not asked for
+    assert domain.wait_for_log(edge, "the shared map covers their views", 60.0), \
+        domain.log(edge)[-3000:]
 
 
 @pytest.mark.slow(seconds=40)

@@ -1,0 +1,114 @@
+"""Views the shared map covers: a device in a place another device mapped does not upload a
+frame a keyframe lent by that device stands beside; alone, it uploads as Theorem 1 says."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore
+from edge_mapper.slot_planner import FrameObservations, SlotConfig
+from tests.test_edge_core import Device, F, K, _run
+from twinslam.policies.registry import make_policy
+from twinslam.slam.back_end.foreign_keyframes import foreign_tag
+from twinslam.slam.back_end.view_coverage import CoverageBounds, covered_views
+
+
+def _pose(x: float, yaw_deg: float = 0.0) -> np.ndarray:
+    pose = np.eye(4)
+    a = np.radians(yaw_deg)
+    pose[:3, :3] = [[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]]
+    pose[0, 3] = x
+    return pose
+
+
+def test_a_keyframe_covers_a_frame_beside_it_looking_the_same_way() -> None:
+    bounds = CoverageBounds(0.10, 10.0)
+    frames = {1: _pose(0.0), 2: _pose(0.09), 3: _pose(0.12), 4: _pose(0.0, 9.0),
+              5: _pose(0.0, 11.0), 6: _pose(0.0, 180.0)}
+    assert covered_views(frames, [_pose(0.0)], bounds) == {1, 2, 4}
+    # any keyframe may cover a frame: the second covers the third frame
+    assert covered_views(frames, [_pose(0.0), _pose(0.2)], bounds) == {1, 2, 3, 4}
+    assert covered_views(frames, [], bounds) == set()
+    assert covered_views(frames, [_pose(0.0)], CoverageBounds(0.0, 10.0)) == set()
+    with pytest.raises(ValueError, match=">= 0"):
+        CoverageBounds(-0.1, 10.0)
+
+
+def _walked_edge() -> tuple[Device, EdgeMapperCore]:
+    """Three slots of the wall walk (0.04 m a frame along x) integrated by an edge."""
+    device = Device(np.random.default_rng(0))
+    core = EdgeMapperCore(make_policy("lff"), K, EdgeConfig(slot=SlotConfig(vmax=10)))
+    _run(core, device, range(3), rates=[20.0])
+    return device, core
+
+
+def _posed_slot(device: Device, core: EdgeMapperCore, slot: int, version: int = -1
+                ) -> list[FrameObservations]:
+    """Slot ``slot``'s summaries with the device's poses, tracked on map ``version``."""
+    return [dataclasses.replace(device.summary(f, core), pose=device.pose(f),
+                                map_version=version)
+            for f in range(slot * F, (slot + 1) * F)]
+
+
+def _lend(core: EdgeMapperCore, keyframe_id: int, pose: np.ndarray) -> None:
+    """A keyframe another device uploaded, in this map (as a restore of an adopted one puts
+    it), observing the points of the map's newest keyframe."""
+    core.map.add_keyframe(keyframe_id, pose)
+    newest = core.map.keyframes[max(k for k in core.map.keyframes if k < 2**40)]
+    for point, (u, v, d) in list(newest.measurements.items())[:30]:
+        core.map.observe(keyframe_id, point, (u, v), d)
+
+
+def test_a_slot_whose_views_lent_keyframes_cover_asks_for_no_upload() -> None:
+    """Slot 3 (frames 24-31, 0.96-1.24 m) with another device's keyframes at 1.04 and 1.20 m:
+    every frame is covered, nothing is asked for though the uplink carries two frames; the
+    same keyframes as the device's own cover nothing (its own walk is no shared map), and
+    with one lent keyframe the uncovered frames are still asked for."""
+    device, core = _walked_edge()
+    for k, x in ((26, 1.04), (30, 1.20)):
+        _lend(core, foreign_tag(0) | k, _pose(x))
+    plan = core.plan(3, _posed_slot(device, core, 3), 20.0, 1)
+    assert plan.action.upload == [] and plan.covered == frozenset(range(24, 32))
+
+    device, core = _walked_edge()
+    for k, x in ((26, 1.04), (30, 1.20)):
+        _lend(core, 1000 + k, _pose(x))                  # the device's own ids
+    plan = core.plan(3, _posed_slot(device, core, 3), 20.0, 1)
+    assert len(plan.action.upload) == 2 and not plan.covered
+
+    device, core = _walked_edge()
+    _lend(core, foreign_tag(0) | 26, _pose(1.04))
+    plan = core.plan(3, _posed_slot(device, core, 3), 20.0, 1)
+    assert plan.covered == frozenset(range(24, 29))
+    assert len(plan.action.upload) == 2 and not set(plan.action.upload) & plan.covered
+
+    device, core = _walked_edge()
+    core.config = dataclasses.replace(core.config, coverage=CoverageBounds(0.0, 0.0))  # off
+    for k, x in ((26, 1.04), (30, 1.20)):
+        _lend(core, foreign_tag(0) | k, _pose(x))
+    plan = core.plan(3, _posed_slot(device, core, 3), 20.0, 1)
+    assert len(plan.action.upload) == 2 and not plan.covered
+
+
+def test_a_frame_tracked_before_a_merge_is_judged_where_the_merge_put_it() -> None:
+    """After the map moved 2 m along x (a merge's alignment), a frame the device tracked on
+    the map before it is 2 m further along in the map's frame now: a lent keyframe there
+    covers it, one where its pose says (in the frame it left) does not."""
+    device, core = _walked_edge()
+    before = core.version
+    core.back_end.align(_pose(2.0), core.version + 1)
+    core.version += 1
+    _lend(core, foreign_tag(0) | 26, _pose(2.0 + 1.04))
+    _lend(core, foreign_tag(0) | 30, _pose(2.0 + 1.20))
+    plan = core.plan(3, _posed_slot(device, core, 3, version=before), 20.0, 1)
+    assert plan.covered == frozenset(range(24, 32))
+    # the same poses said to be in the map's frame now are 2 m from the lent keyframes
+    device, core = _walked_edge()
+    core.back_end.align(_pose(2.0), core.version + 1)
+    core.version += 1
+    _lend(core, foreign_tag(0) | 26, _pose(2.0 + 1.04))
+    plan = core.plan(3, _posed_slot(device, core, 3, version=core.version), 20.0, 1)
+    assert not plan.covered and len(plan.action.upload) == 2

@@ -1,0 +1,53 @@
+"""Which of a device's frames a map already covers: a keyframe of the map stands where the
+frame's camera stands and looks where it looks.
+
+A device in a place another device mapped need not upload the views the shared map holds
+already: the edge restores those keyframes where the device heads (the map update carries
+them), and a frame next to one of them adds the same points seen from the same place. The
+test is by pose, not by points: a device reports the few hundred map points it matched in a
+frame, a small share of the corners it sees (docs/results/shared-map.md measured 10–42 % on
+7-Scenes), so "the map holds most of the frame's points" would never hold where the map in
+fact covers the view. Two cameras within ``max_m`` of each other turned by at most
+``max_deg`` see nearly one image of a room whose walls are a metre or more away.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class CoverageBounds:
+    """How near a keyframe must be to a frame to cover its view (either 0: nothing covers)."""
+
+    max_m: float = 0.10          #: camera centres at most this far apart, metres
+    max_deg: float = 10.0        #: the cameras turned by at most this, degrees
+
+    def __post_init__(self) -> None:
+        if not (self.max_m >= 0 and self.max_deg >= 0):
+            raise ValueError(f"coverage bounds are >= 0, got {self.max_m} m, {self.max_deg}°")
+
+    @property
+    def enabled(self) -> bool:
+        return self.max_m > 0 and self.max_deg > 0
+
+
+def covered_views(frames: Mapping[int, np.ndarray], keyframes: Sequence[np.ndarray],
+                  bounds: CoverageBounds) -> set[int]:
+    """The ids of ``frames`` (id → 4×4 camera-to-map pose) that some pose of ``keyframes``
+    (4×4 camera-to-map, the same frame) covers within ``bounds``."""
+    if not frames or not len(keyframes) or not bounds.enabled:
+        return set()
+    ids = list(frames)
+    f = np.asarray([frames[i] for i in ids], dtype=np.float64).reshape(-1, 4, 4)
+    k = np.asarray(keyframes, dtype=np.float64).reshape(-1, 4, 4)
+    apart = np.linalg.norm(f[:, None, :3, 3] - k[None, :, :3, 3], axis=2)
+    # trace(Rfᵀ Rk) for every pair: the angle between two rotations from its cosine
+    trace = np.einsum("fij,kij->fk", f[:, :3, :3], k[:, :3, :3])
+    cos_max = np.cos(np.radians(bounds.max_deg))
+    turned_ok = (trace - 1.0) / 2.0 >= cos_max
+    near = (apart <= bounds.max_m) & turned_ok
+    return {i for i, hit in zip(ids, near.any(axis=1), strict=True) if hit}
