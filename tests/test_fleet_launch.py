@@ -77,6 +77,12 @@ def test_settings_that_cannot_run_are_refused_before_any_node_starts(
         FleetConfig(2, orders=("backward",)).check()
     with pytest.raises(ValueError, match="order 'sideways'"):
         FleetConfig(2, orders=("forward", "sideways")).check()
+    with pytest.raises(ValueError, match="1 delays for 2 devices"):
+        FleetConfig(2, delays=(20.0,)).check()
+    with pytest.raises(ValueError, match="delay -1 s"):
+        FleetConfig(2, delays=(0.0, -1.0)).check()
+    assert main(["launch", "--devices", "2", "--delays", "0,soon", "--loopback"]) == 2
+    assert "--delays '0,soon': seconds, one a device" in capsys.readouterr().err
     assert main(["launch", "--devices", "2", "--allocator", "fifo", "--loopback"]) == 2
     assert "unknown allocator 'fifo'" in capsys.readouterr().err
     assert main(["launch", "--devices", "2", "--record", "bag", "--loopback"]) == 2
@@ -240,3 +246,27 @@ def _alive(pid: int) -> bool:
     except (OSError, IndexError):
         return False
     return state != "Z"
+
+
+@pytest.mark.slow
+def test_a_fleet_whose_player_cannot_play_fails_and_names_it(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A device's camera that refuses its parameters plays nothing: the launch exits 1
+    naming that player and its reason, and writes no table of devices that never played."""
+    from twinslam.live.fleet import FleetLauncher
+
+    plain = FleetLauncher.device_args
+
+    def refused_by_ar2(self: FleetLauncher, name: str, index: int) -> list[str]:
+        args = plain(self, name, index)
+        return [*args, "-p", "path_window:=0"] if (name, index) == ("sequence_player", 1) \
+            else args
+
+    monkeypatch.setattr(FleetLauncher, "device_args", refused_by_ar2)
+    code = main(["launch", "--loopback", "--devices", "2", "--sequence", "synthetic:60",
+                 "--frames", "60", "--policy", "lff", "--out", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert code == 1, err[-3000:]
+    assert "sequence_player:ar2 exited with 2" in err and "path_window" in err, err[-3000:]
+    assert not (tmp_path / "fleet_runs.csv").exists()

@@ -62,6 +62,9 @@ class FleetConfig:
     merge_maps: bool = False
     #: edge processes the devices are split among, neighbours together (:func:`edge_blocks`)
     edges: int = 1
+    #: seconds each device's camera starts after the fleet's (its player's ``start_delay_s``);
+    #: empty: every device at once
+    delays: tuple[float, ...] = ()
 
     def device_seed(self, index: int) -> int:
         return 100 * self.seed + index
@@ -100,6 +103,11 @@ class FleetConfig:
                              "a device")
         if bad := [o for o in self.orders if o not in ORDERS]:
             raise ValueError(f"order {bad[0]!r}: must be one of {', '.join(ORDERS)}")
+        if self.delays and len(self.delays) != self.devices:
+            raise ValueError(f"{len(self.delays)} delays for {self.devices} devices: give one "
+                             "a device")
+        if bad_delays := [d for d in self.delays if not 0 <= d <= 86_400]:
+            raise ValueError(f"delay {bad_delays[0]:g} s: from 0 to a day")
 
 
 def edge_blocks(names: Sequence[str], edges: int) -> list[list[str]]:
@@ -201,6 +209,8 @@ class FleetLauncher(Launcher):
             args += ["-p", f"frame_id:={device}/camera"]
             if self.fleet.orders:                # after the scenario's: the last one holds
                 args += ["-p", f"order:={self.fleet.orders[index]}"]
+            if self.fleet.delays:
+                args += ["-p", f"start_delay_s:={float(self.fleet.delays[index])!r}"]
         return args
 
     def end_playback(self) -> None:
@@ -242,6 +252,13 @@ class FleetLauncher(Launcher):
             if failed:
                 _, _, err = self.domain.stop(self.procs.pop(failed))
                 raise RuntimeError(f"{failed} exited during the run: {err.strip()[-800:]}")
+            # a player that could not play (a parameter refused, a sequence it cannot read)
+            # leaves its device nothing to report: the run failed, it has no table
+            for d, player in zip(names, players, strict=True):
+                if player.returncode not in (0, None):
+                    _, _, err = self.domain.stop(self.procs.pop(f"sequence_player:{d}"))
+                    raise RuntimeError(f"sequence_player:{d} exited with {player.returncode}: "
+                                       f"{err.strip()[-500:]}")
             expected = self.expected_slots()
             spin_all(lambda: all(
                 (expected is None or expected - 1 in m.record.stats) for m in monitors.values()),

@@ -24,10 +24,11 @@ are relative: ``-r __ns:=/ar1`` plays into ``/ar1/camera/...``. ``wait_for_subsc
 holds the first frame until N subscribers match the colour topic (DDS does not deliver what was
 published before a reader matched), then ``DISCOVERY_SETTLE_S`` more: the writer learning of a
 reader does not mean the reader has learnt of the writer (nor that the depth and camera-info
-readers have matched), and a reader drops samples of a writer it does not know yet. A corrupt
-image is skipped, counted and named in a warning; the run goes on. Every few seconds and at the
-end it says on ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``) what it published and
-skipped — a run's monitor reads the skipped frames there — logs it, and exits 0.
+readers have matched), and a reader drops samples of a writer it does not know yet.
+``start_delay_s`` holds it that much longer: a user who comes to the place after the others.
+A corrupt image is skipped, counted and named in a warning; the run goes on. Every few seconds
+and at the end it says on ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``) what it
+published and skipped — a run's monitor reads the skipped frames there — logs it, and exits 0.
 ``sequence:=synthetic[:frames]`` (the default) renders the textured room of
 :mod:`twinslam.sequences.synthetic_worlds` with exact depth and ground truth,
 ``synthetic-corridor[:frames]`` its corridor walked out and back.
@@ -111,7 +112,9 @@ class SequencePlayer(Node):
         self._first_stamp = self.reader.first_stamp
         self._lap_offset = 0.0        # recorded seconds added per completed loop
         self._next = self._read_next()        # the first frame read before the clock starts
-        self._start_ns = self._now_ns()
+        #: the recording's clock starts this long after the player is ready to play
+        self._delay_ns = round(float(p["start_delay_s"]) * 1e9)
+        self._start_ns = self._now_ns() + self._delay_ns
         self._last_progress = self._start_ns
         self._wait_for = int(p["wait_for_subscribers"])
         self._settling = False
@@ -188,9 +191,9 @@ class SequencePlayer(Node):
                 self._settling = True
                 self._fire_in(round(DISCOVERY_SETTLE_S * 1e9))
             return
-        if self._settling:                    # the recording starts now
+        if self._settling:                    # the recording starts now (or after the delay)
             self._settling = False
-            self._start_ns = self._now_ns()
+            self._start_ns = self._now_ns() + self._delay_ns
             self._schedule()
             return
         frame = self._next

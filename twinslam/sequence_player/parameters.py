@@ -44,6 +44,9 @@ PARAMETERS = (
               high=10_000_000),
     ParamSpec("wait_for_subscribers", 0, "hold the first frame until this many colour "
               "subscribers match", low=0),
+    ParamSpec("start_delay_s", 0.0, "seconds the first frame waits (after the subscribers "
+              "matched): a device that comes to the place later than the others", low=0.0,
+              high=86_400.0),
     ParamSpec("order", "forward", "forward; forward_backward: every place visited twice; "
               "backward: from the last frame to the first, a second device walking towards "
               "the first (the last two: dataset folders and synthetic only)",

@@ -44,8 +44,14 @@ def fleet_settings(args: argparse.Namespace) -> list[FleetConfig]:
         raise ValueError("--devices does not record yet: run without --record")
     allocators = [a.strip() for a in args.allocator.split(",") if a.strip()]
     orders = tuple(o.strip() for o in args.orders.split(",") if o.strip())
+    try:
+        delays = tuple(float(d) for d in args.delays.split(",") if d.strip())
+    except ValueError:
+        raise ValueError(f"--delays {args.delays!r}: seconds, one a device (e.g. 0,20)") \
+            from None
     fleets = [FleetConfig(args.devices, args.vmax_total, a, args.min_keyframes, args.stride,
-                          args.seed, orders, args.merge_maps, args.edges) for a in allocators]
+                          args.seed, orders, args.merge_maps, args.edges, delays)
+              for a in allocators]
     for fleet in fleets:
         fleet.check()
     return fleets
@@ -131,6 +137,11 @@ def add_fleet_arguments(launch: argparse.ArgumentParser) -> None:
                        "forward,backward with --stride set to the sequence's length (both "
                        "play it from its first frame): two devices walking a place from its "
                        "two ends (default: the scenario's for every device)")
+    fleet.add_argument("--delays", default="", metavar="SECONDS,…",
+                       help="seconds each device's camera starts after the fleet's, one a "
+                       "device; e.g. 0,20 with --orders forward,forward and --stride set to "
+                       "the sequence's length: the second user comes to the place the first "
+                       "is mapping 20 s later (default: every device at once)")
     fleet.add_argument("--edges", type=int, default=1, metavar="K",
                        help="edge processes the devices are split among, neighbours together "
                        "(ar1 … arM on edge_mapper, the next on edge_mapper_2, …; with --hosts "
