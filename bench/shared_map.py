@@ -3,13 +3,16 @@ the second device's keyframes in the first device's map, confirms it and moves t
 map into the first one's frame (:mod:`twinslam.slam.back_end.map_merging`).
 
     python -m bench.shared_map [SEQUENCE] [--frames 1000] [--first forward]
-        [--second backward] [--seed 0] [--uplink lte] [--vmax N] [--csv FILE]
+        [--second backward] [--second-after FRAMES] [--seed 0] [--uplink lte] [--vmax N]
+        [--share [--share-both]] [--covered-m M] [--no-merge] [--csv FILE]
 
 Both devices play the same sequence, frame for frame in lockstep — by default the first
 forward and the second backward: two users walking the place from its two ends, towards
-each other. Each device and its edge core run as in ``bench.map_consistency`` (the default
-device and edge, the loop closer in the caller, the map update ``--update-delay`` frames
-into the next slot), each on an uplink of its own (seeds ``--seed`` and ``--seed`` + 1).
+each other; with ``--second forward --second-after 500`` the second comes to the place the
+first is mapping 500 frames later (it walks on alone once the first is done). Each device
+and its edge core run as in ``bench.map_consistency`` (the default device and edge, the loop
+closer in the caller, the map update ``--update-delay`` frames into the next slot), each on
+an uplink of its own (seeds ``--seed`` and ``--seed`` + 1).
 After each of the second device's slots its newly integrated keyframes are looked for in
 everything the first device's edge map holds (archive and map) until a merge is confirmed.
 
@@ -22,13 +25,14 @@ anchored, as the other sees it — over the second device's frames published in 
 frame; beside it the same frames carried by the *true* alignment of the two maps' frames
 instead of the merge's (the two walks' drift apart: a merge found where the devices meet
 aligns them there, which the true frames do not) and the two edge maps' final keyframes.
-``--csv`` appends one row a run.
+Each device's uploads are counted: with ``--share`` a frame whose view a lent keyframe
+covers is not asked for (the edge's ``covered_m``/``covered_deg``; ``--covered-m 0``: every
+frame a candidate). ``--csv`` appends one row a run.
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
 import math
 import tempfile
 import time
@@ -45,6 +49,7 @@ from twinslam.live.tracking_quality import (
     cross_device_revisit_error,
 )
 from twinslam.node_runtime.math_threads import one_math_thread
+from twinslam.reporting import append_csv_rows
 from twinslam.rotations import rotation_angle_deg
 from twinslam.sequence_player.playback import ORDERS
 from twinslam.slam.back_end.foreign_keyframes import is_foreign
@@ -121,8 +126,18 @@ def main() -> None:
                         help="the second device's place, when it is another (two places on "
                              "one edge: a merge there is a false one, and the cross-device "
                              "figures compare two worlds' truths: not printed)")
+    parser.add_argument("--second-after", type=int, default=0, metavar="FRAMES",
+                        help="the second device starts once the first has played this many "
+                             "frames and walks on alone after the first's walk ended (0: "
+                             "both start together and stop with the first to end): with "
+                             "--second forward, a user coming to a place another mapped")
     parser.add_argument("--vmax", type=int,
                         help="V_max, keyframes each edge map holds (default: the edge's)")
+    parser.add_argument("--covered-m", type=float,
+                        help="a lent keyframe this near a frame covers its view: the frame is "
+                             "not uploaded (default: the edge's covered_m; 0: never)")
+    parser.add_argument("--covered-deg", type=float,
+                        help="and turned by at most this (default: the edge's covered_deg)")
     parser.add_argument("--update-delay", type=int, default=8,
                         help="frames of the next slot a device tracks before its map update "
                              "reaches it (the default device's D_req of 0.25 s)")
@@ -142,7 +157,11 @@ def main() -> None:
     one_math_thread()                     # as every node (node_runtime.math_threads)
     spec, second_spec = (seeded_spec(s, args.seed) for s in
                          (args.sequence, args.second_sequence or args.sequence))
-    config = repeatable_edge(**({} if args.vmax is None else {"vmax": args.vmax}))
+    overrides = {name: value for name, value in (("vmax", args.vmax),
+                                                 ("covered_m", args.covered_m),
+                                                 ("covered_deg", args.covered_deg))
+                 if value is not None}
+    config = repeatable_edge(**overrides)
     started = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         first = open_walk("first", spec, args.frames, args.first, args.seed, args.uplink,
@@ -158,10 +177,16 @@ def main() -> None:
         lent_back_ids: set[int] = set()    #: and the second's the first adopted
         lent_total = lent_back = 0
         slot = 0
+        first_on = True
+        played = 0                     #: the first device's frames so far
         while True:
-            got_a, got_b = first.step(), second.step()
-            if got_a is None or got_b is None:
+            got_a = first.step() if first_on else None
+            played += got_a is not None
+            first_on = got_a is not None
+            got_b = second.step() if played >= args.second_after or not first_on else []
+            if got_b is None or (got_a is None and args.second_after == 0):
                 break
+            got_a = got_a or []
             if not got_b and not got_a:
                 continue
             slot += 1
@@ -213,6 +238,11 @@ def main() -> None:
                   f"{restored} of its {len(second.edge.map.keyframes)} keyframes at the end "
                   "are the first device's")
         report.update({"frames": args.frames, "seed": args.seed, "uplink": args.uplink,
+                       "first_order": args.first, "second_order": args.second,
+                       "second_after": args.second_after,
+                       "covered_m": config.coverage.max_m,
+                       "covered_deg": config.coverage.max_deg,
+                       "no_merge": int(args.no_merge),
                        "merged": int(merge is not None),
                        **merge_row,
                        "look_ms_median": float(np.median(look_ms)) if look_ms else math.nan,
@@ -258,15 +288,11 @@ def main() -> None:
               f"final keyframes {_cm(kf_cross.rms_m)} "
               f"({time.perf_counter() - started:.0f} s)")
     if args.csv:
-        new = not args.csv.exists()
-        with args.csv.open("a", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=list(CSV_FIELDS))
-            if new:
-                writer.writeheader()
-            writer.writerow({k: report.get(k, "") for k in CSV_FIELDS})
+        append_csv_rows(args.csv, CSV_FIELDS, [report])
 
 
-CSV_FIELDS = ("frames", "seed", "uplink", "merged", "merge_slot", "merge_frame",
+CSV_FIELDS = ("frames", "seed", "uplink", "first_order", "second_order", "second_after",
+              "no_merge", "covered_m", "covered_deg", "merged", "merge_slot", "merge_frame",
               "merge_inliers", "alignment_error_m", "alignment_error_deg", "look_ms_median",
               "look_ms_max", "first_tracked",
               "first_ate_m", "first_edge_ms", "second_tracked", "second_ate_m",
