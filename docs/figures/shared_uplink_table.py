@@ -7,8 +7,8 @@ untracked frames and ATE; and a figure of the uploads, seed by seed.
 Reads ``docs/figures/shared-map/uplink-{SCENARIO}-{alone,lent,covered}.csv`` written by
 ``bench.shared_map`` (the page has the commands) and writes
 ``docs/figures/shared-map/uplink-saved.png``; then the live runs' tables
-(``uplink-live-{SCENARIO}-{covered,uncovered}-run{1,2}.csv``, each a ``twinslam launch``'s
-``fleet_runs.csv``), run by run.
+(``uplink-live-{SCENARIO}-{covered,uncovered}-run{N}.csv``, each a ``twinslam launch``'s
+``fleet_runs.csv``), run by run, and with three runs or more a device's paired difference.
 
     .venv/bin/python docs/figures/shared_uplink_table.py [SCENARIO ...]
 """
@@ -16,6 +16,7 @@ Reads ``docs/figures/shared-map/uplink-{SCENARIO}-{alone,lent,covered}.csv`` wri
 from __future__ import annotations
 
 import csv
+import itertools
 import math
 import sys
 from pathlib import Path
@@ -127,22 +128,34 @@ def figure(scenarios: list[str]) -> Path:
     return out
 
 
-def live_rows(scenario: str) -> list[str]:
+def live_runs(scenario: str) -> list[dict[str, dict[str, dict[str, str]]]]:
     """The live runs of a scenario (``twinslam launch --devices 2 … --merge-maps``, each
-    run's ``fleet_runs.csv`` as ``uplink-live-{SCENARIO}-{covered,uncovered}-run{N}.csv``):
-    a row a device and run, frames uploaded with coverage against without."""
-    rows = []
-    for run in (1, 2):
+    run's ``fleet_runs.csv`` as ``uplink-live-{SCENARIO}-{covered,uncovered}-run{N}.csv``,
+    N = 1, 2, … while both exist): a run's setting → device → its row."""
+    runs = []
+    for run in itertools.count(1):
+        paths = {setting: HERE / f"uplink-live-{scenario}-{setting}-run{run}.csv"
+                 for setting in ("covered", "uncovered")}
+        if not all(p.exists() for p in paths.values()):
+            return runs
         tables = {}
-        for setting in ("covered", "uncovered"):
-            path = HERE / f"uplink-live-{scenario}-{setting}-run{run}.csv"
-            if not path.exists():
-                return rows
+        for setting, path in paths.items():
             with path.open(encoding="utf-8") as fh:
                 tables[setting] = {r["device"]: r for r in csv.DictReader(fh)}
+        runs.append(tables)
+    return runs
+
+
+def live_rows(scenario: str) -> list[str]:
+    """A row a device and live run: frames uploaded with coverage against without, and
+    then a device's paired summary over the runs."""
+    rows, saved = [], {}
+    for run, tables in enumerate(live_runs(scenario), start=1):
         for device in sorted(tables["covered"]):
             on, off = tables["covered"][device], tables["uncovered"][device]
             up_on, up_off = int(on["frames_uploaded"]), int(off["frames_uploaded"])
+            saved.setdefault(device, []).append((up_on, up_off, float(on["ate_m"]),
+                                                 float(off["ate_m"])))
             rows.append(
                 f"| {scenario} | {run} (seed {on['seed']}) | {device} | {up_off} → {up_on} "
                 f"({100 * (up_on - up_off) / up_off:+.0f} %) | {off['untracked_frames']} → "
@@ -150,6 +163,15 @@ def live_rows(scenario: str) -> list[str]:
                 f"{100 * float(off['ate_m']):.1f} → {100 * float(on['ate_m']):.1f} | "
                 f"{100 * float(off['cross_device_rms_m']):.1f} → "
                 f"{100 * float(on['cross_device_rms_m']):.1f} |")
+    for device, pairs in sorted(saved.items()):
+        if len(pairs) > 2:
+            ups = [float(p[0]) for p in pairs]
+            base = [float(p[1]) for p in pairs]
+            share = [100 * (1 - a / b) for a, b in zip(ups, base, strict=True)]
+            ate = _diff([p[2] for p in pairs], [p[3] for p in pairs], 2, 100)
+            rows.append(f"| {scenario} | {len(pairs)} runs, paired | {device} | "
+                        f"{_diff(ups, base, 1)} frames, {_mean(share, 1)} % saved | | | "
+                        f"Δ {ate} | |")
     return rows
 
 
