@@ -69,6 +69,23 @@ def test_cross_device_pairs_count_only_frames_tracked_in_one_map_frame() -> None
     assert cross_device_errors({"ar1": first, "ar3": alone})[("ar1", "ar3")].pairs == 0
 
 
+def test_two_devices_in_one_frame_then_in_another_pair_only_within_each() -> None:
+    """Two devices that shared a place's frame (ar2/map), then both moved into a third
+    device's (ar1/map, a metre away): each frame of one pairs only with the other's in the
+    same map frame — 1 cm off in both — never across the two frames (a metre off)."""
+    here, moved, near = np.eye(4), np.eye(4), np.eye(4)
+    moved[0, 3] = 1.0
+    near[1, 3] = 0.01
+    line = [(0.05 * i, 1) for i in range(5)] + [(0.05 * i, 2) for i in range(5)]
+    frames = {1: "ar2/map", 2: "ar1/map"}
+    second, third = _walk(line, frames, here), _walk(line, frames, near)
+    for record in (second, third):        # after the move: a metre along, in ar1's frame
+        for i in range(5, 10):
+            record.poses[i * 10**9] = moved @ record.poses[i * 10**9]
+    error = cross_device_errors({"ar2": second, "ar3": third})[("ar2", "ar3")]
+    assert error.pairs == 2 * 5 * 5 and abs(error.rms_m - 0.01) < 1e-9
+
+
 def test_settings_that_cannot_run_are_refused_before_any_node_starts(
         capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(ValueError, match="V_total 8 is below 2 devices x 5 keyframes"):

@@ -41,7 +41,7 @@ from twinslam.live.launcher import LaunchConfig, Launcher, preloaded_nodes, rena
 from twinslam.live.monitor import PipelineMonitor
 from twinslam.live.report import RunReport, report
 from twinslam.live.run_log import RunLog
-from twinslam.live.tracking_quality import RevisitError, cross_device_revisit_error
+from twinslam.live.tracking_quality import RevisitError, cross_device_revisit_error_by_frame
 from twinslam.node_runtime.session import RosSession
 from twinslam.sequence_player.playback import ORDERS
 from twinslam.sequences.opening import is_synthetic, synthetic_walk
@@ -345,19 +345,14 @@ def posed_by_map_frame(record: RunLog) -> dict[str, list[tuple[np.ndarray, np.nd
 
 def cross_device_errors(records: dict[str, RunLog]) -> dict[tuple[str, str], RevisitError]:
     """For each pair of devices (in the fleet's order), the cross-device revisit error over
-    their frames tracked on maps in one frame (:func:`posed_by_map_frame`; the true poses in
-    the sequence's world frame, which every device of one sequence shares): content one
-    device anchored as the other sees it. Devices never in one frame have no pair."""
+    their frames tracked on maps in one frame, each frame of one paired only with the other's
+    in the same map frame (:func:`posed_by_map_frame`; the true poses in the sequence's world
+    frame, which every device of one sequence shares): content one device anchored as the
+    other sees it. Devices never in one frame have no pair."""
     grouped = {d: posed_by_map_frame(r) for d, r in records.items()}
     names = list(records)
-    errors = {}
-    for i, a in enumerate(names):
-        for b in names[i + 1:]:
-            shared = grouped[a].keys() & grouped[b].keys()
-            first = [p for frame in sorted(shared) for p in grouped[a][frame]]
-            second = [p for frame in sorted(shared) for p in grouped[b][frame]]
-            errors[(a, b)] = cross_device_revisit_error(first, second)
-    return errors
+    return {(a, b): cross_device_revisit_error_by_frame(grouped[a], grouped[b])
+            for i, a in enumerate(names) for b in names[i + 1:]}
 
 
 def _mean_budget(monitor: PipelineMonitor) -> float:

@@ -300,18 +300,38 @@ def cross_device_revisit_error(first: Sequence[tuple[np.ndarray, np.ndarray]],
     apart already. A relative pose is the same in any frame both poses share, so this
     measures whether the two devices' maps agree on the place; two devices each in a frame
     of its own (no merge yet) disagree by as much as their frames do."""
+    return _revisit_summary(_cross_errors(first, second, radius_m, angle_deg))
+
+
+def cross_device_revisit_error_by_frame(
+        first: Mapping[str, Sequence[tuple[np.ndarray, np.ndarray]]],
+        second: Mapping[str, Sequence[tuple[np.ndarray, np.ndarray]]],
+        radius_m: float = REVISIT_RADIUS_M, angle_deg: float = REVISIT_ANGLE_DEG
+        ) -> RevisitError:
+    """:func:`cross_device_revisit_error` over two devices' frames grouped by the map frame
+    their poses are in (frame name → (pose, true pose) pairs): a frame of one device pairs
+    only with the other's frames in the same map frame — two devices that were in one frame,
+    then both moved into a third place's, have pairs in each, never across them."""
+    errors = [e for frame in sorted(first.keys() & second.keys())
+              for e in _cross_errors(first[frame], second[frame], radius_m, angle_deg)]
+    return _revisit_summary(errors)
+
+
+def _cross_errors(first: Sequence[tuple[np.ndarray, np.ndarray]],
+                  second: Sequence[tuple[np.ndarray, np.ndarray]], radius_m: float,
+                  angle_deg: float) -> list[np.ndarray]:
+    """The relative-pose errors of every pair of :func:`cross_device_revisit_error`."""
     if not first or not second:
-        return RevisitError()
+        return []
     est_b = np.array([e for e, _ in second], dtype=np.float64)
     ref_b = np.array([t for _, t in second], dtype=np.float64)
     cos_max = math.cos(math.radians(angle_deg))
     errors: list[np.ndarray] = []
     for est_a, ref_a in first:
         js = np.flatnonzero(seen_alike(ref_a, ref_b, radius_m, cos_max))
-        if not js.size:
-            continue
-        errors.append(relative_errors(est_a, ref_a, est_b[js], ref_b[js]))
-    return _revisit_summary(errors)
+        if js.size:
+            errors.append(relative_errors(est_a, ref_a, est_b[js], ref_b[js]))
+    return errors
 
 
 def anchored_to_keyframes(poses: Mapping[int, np.ndarray],
