@@ -23,7 +23,8 @@ split by ``allocator`` slot by slot (:mod:`edge_mapper.keyframe_budget`, publish
 With ``standby:=true`` the node serves a device namespace only once its slots go unanswered
 (its edge died; :mod:`edge_mapper.edge_failover`). With ``merge_maps:=true`` a device's map
 joins the frame of a device served before it once its keyframes are found in that device's
-map (:mod:`edge_mapper.place_merging`): their poses are then in one frame.
+map, or that device's in its own (:mod:`edge_mapper.place_merging`): their poses are then in
+one frame.
 
 ``policy``, ``policy_checkpoint``, ``fallback_policy``, ``latent_max_age`` and ``vmax`` change
 live from the next slot (:mod:`edge_mapper.policy_control`); the others are read-only

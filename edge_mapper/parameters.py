@@ -141,11 +141,11 @@ PARAMETERS = (
     ParamSpec("takeover_slots", 3, "a device's slots without an upload request before a "
               "standby edge takes it over", low=1, high=1000),
     ParamSpec("merge_maps", False, "with several devices: a device's map joins the frame of a "
-              "device served before it once its keyframes are found in that device's map "
-              "(confirmed by two more, as a loop), and adopts that map's keyframes into its "
-              "archive, which restores bring in where it heads: their poses in one frame, on "
-              "shared keyframes; looks beside the slots cost ~0.1 s of CPU a slot per "
-              "unmerged device"),
+              "device served before it once its keyframes are found in that device's map, or "
+              "that device's in its own (confirmed by two more, as a loop), and adopts that "
+              "map's keyframes into its archive, which restores bring in where it heads: their "
+              "poses in one frame, on shared keyframes; looks beside the slots cost ~0.1 s of "
+              "CPU a slot per unmerged device"),
     ParamSpec("covered_m", 0.10, "with merge_maps: a frame whose camera stands within this "
               "many metres of a keyframe another device uploaded (lent to this device's map) "
               "and looks the same way (covered_deg) is not uploaded: the shared map holds that "

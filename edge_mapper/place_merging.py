@@ -3,8 +3,8 @@ edge node's ``merge_maps``), beside the slots.
 
 An edge serving several devices keeps a map per device, each in the frame of its device's
 first camera. After each slot of a device whose map joined no other yet, the keyframes it
-integrated that slot are looked for in the whole map (archive and managed map) of one device
-served before it — a different one each slot, in turn — on a worker thread, as the loop
+integrated that slot are looked for in the whole map (archive and managed map) of one other
+device — a different one each slot, in turn (below) — on a worker thread, as the loop
 closer's work is: place recognition over a few hundred keyframes takes ~0.1 s
 (``bench.shared_map``), as much as the rest of the device's slot. A merge the joining map's
 next keyframes confirmed (:class:`~twinslam.slam.back_end.map_merging.MergeFinder`) is applied
@@ -15,10 +15,16 @@ each slot end of either, each map adopts the other's own keyframes it has not ad
 welded to its points, into its archive (:meth:`PlaceMerging.lend`): restores bring them in
 where the device heads, and each device tracks on keyframes only the other uploaded.
 
-Devices later in the edge's order join earlier ones, never the other way round, and a device
-another one joined stays where it is: the place's frame is that of the first device of the
-place. A look that finished after the joining map's frame changed (a loop closed meanwhile)
-is dropped, its alignment measured against poses the map no longer has.
+The devices in one frame are a place: its first device in the edge's order (the root) and
+the devices that joined it; the place's frame is its root's first camera's. Each root looks,
+in turn, in the maps of the devices of every other place; where it finds its keyframes, the
+two places become one in the earlier root's frame — the later place's devices, all of them,
+moved by the merge's motion (or its inverse, when the later place's map was the one looked
+in) at once, between slots: a device walking ahead of an earlier one never comes to a place
+that device mapped before it, yet the earlier one comes to its places, and two places each
+other devices joined already still merge. Each device's next map update carries its motion.
+A look that finished after either map's frame changed (a loop closed, a merge) is dropped,
+its alignment measured against poses a map no longer has.
 """
 
 from __future__ import annotations
@@ -59,15 +65,18 @@ class MergeEvent:
 
 @dataclass(frozen=True)
 class _Look:
-    """One look's answer, with what it was made against."""
+    """One look's answer, with what it was made against: the looking device's keyframes in
+    the ``other`` device's whole map."""
 
-    place: str
+    other: str
     merge: MapMerge | None
-    frame: np.ndarray                #: the joining map's frame correction when it started
+    frame: np.ndarray                #: the looking map's frame correction when it started
     ms: float
     error: str = ""                  #: why the look failed ("": it did not)
     #: what its last keyframe found, or why it found nothing (a merge: "")
     found: str = ""
+    #: the other map's frame correction when it started (a reverse look's: its map moves)
+    other_frame: np.ndarray | None = None
 
 
 class PlaceMerging:
@@ -96,6 +105,9 @@ class PlaceMerging:
         self._failed: list[str] = []
         #: device → looks finished without a merge, and what the last one found
         self.unmerged_looks: dict[str, tuple[int, str]] = {}
+        #: device → the merge that moved its map while another device's look was taken, for
+        #: its own slot end to tell (its link logs it and names the new frame)
+        self._moved: dict[str, MergeEvent] = {}
 
     def keyframe(self, device: str, data: KeyFramePayload) -> None:
         """A keyframe of ``device`` the edge accepted: its features, for the next look."""
@@ -105,22 +117,29 @@ class PlaceMerging:
         queries.append(LoopQuery.of(data))
         del queries[:-LOOK_QUERIES]
 
-    def places(self, device: str) -> list[str]:
-        """The devices ``device`` may join: served before it, not joined to another."""
-        cores = list(self.cores())
-        if device not in cores or device in self.joined or device in self.joined.values():
+    def root(self, device: str) -> str:
+        """The first device of ``device``'s place (itself, when it joined none)."""
+        return self.joined.get(device, device)
+
+    def place_of(self, device: str) -> list[str]:
+        """Every device in ``device``'s frame: its place's root first, then the devices that
+        joined it, in the edge's order."""
+        root = self.root(device)
+        return [d for d in self.cores() if d == root or self.joined.get(d) == root]
+
+    def others(self, device: str) -> list[str]:
+        """The devices whose maps ``device`` looks in: those of the other places, while
+        ``device`` is the root of its own (a device that joined another looks no more)."""
+        if device not in self.cores() or device in self.joined:
             return []
-        return [d for d in cores[:cores.index(device)] if d not in self.joined]
+        return [d for d in self.cores() if self.root(d) != device]
 
     def before_slot_end(self, device: str, slot: int) -> tuple[MergeEvent | None, int]:
         """Before ``device``'s slot end: a finished look's merge applied (:meth:`take`), and
-        the keyframes of the devices in its frame — the place it joined, the devices that
-        joined it — that its map has not adopted yet adopted (:meth:`lend`); (the merge or
-        None, keyframes adopted)."""
+        the keyframes of the other devices of its place that its map has not adopted yet
+        adopted (:meth:`lend`); (the merge that moved its map, or None; keyframes adopted)."""
         merged = self.take(device)
-        lenders = [d for d, place in self.joined.items() if place == device]
-        if device in self.joined:
-            lenders.append(self.joined[device])
+        lenders = [d for d in self.place_of(device) if d != device]
         return merged, sum(self.lend(device, lender, slot) for lender in lenders)
 
     def lend(self, borrower: str, lender: str, slot: int) -> int:
@@ -140,38 +159,64 @@ class PlaceMerging:
         return adopt_lent(cores[borrower].back_end, fresh, source, lent, slot)
 
     def take(self, device: str) -> MergeEvent | None:
-        """Before ``device``'s slot end: a finished look's merge applied to its core (None:
-        none finished, it found none, or the map's frame changed since it started)."""
+        """Before ``device``'s slot end: the merge that moved its map since its last slot end
+        (None: none). Its own finished look's merge is made here — its place and the other
+        one become one place in the earlier root's frame, the later place's devices moved at
+        once — unless it found none or a map's frame changed since the look started."""
+        moved = self._moved.pop(device, None)
         running = self._running.get(device)
         if running is None or not running.done():
-            return None
+            return moved
         del self._running[device]
         look = running.result()
         self.look_ms.append(look.ms)
         if look.error:
-            self._failed.append(f"looking for {look.place}'s place failed: {look.error}")
+            self._failed.append(f"looking for {look.other}'s place failed: {look.error}")
         if look.merge is None:
             count, _ = self.unmerged_looks.get(device, (0, ""))
-            self.unmerged_looks[device] = (count + 1, f"in {look.place}'s map: {look.found}")
-        core = self.cores().get(device)
-        if look.merge is None or core is None or look.place not in self.cores() or \
-                not np.allclose(core.frame_correction, look.frame, atol=1e-12):
-            return None
-        core.align(look.merge.alignment)
-        self.joined[device] = look.place
-        self._queries.pop(device, None)
-        return MergeEvent(device, look.place, look.merge, look.ms)
+            self.unmerged_looks[device] = (count + 1, f"in {look.other}'s map: {look.found}")
+            return moved
+        cores = self.cores()
+        if device not in cores or look.other not in cores or device in self.joined or \
+                self.root(look.other) == device or look.other_frame is None or not (
+                    np.allclose(cores[device].frame_correction, look.frame, atol=1e-12) and
+                    np.allclose(cores[look.other].frame_correction, look.other_frame,
+                                atol=1e-12)):
+            return moved
+        self._merge_places(device, look.other, look.merge, look.ms)
+        return self._moved.pop(device, None) or moved
+
+    def _merge_places(self, device: str, other: str, merge: MapMerge, ms: float) -> None:
+        """``device``'s place (it is the root) and ``other``'s made one: ``merge`` carries
+        ``device``'s frame into ``other``'s; the place whose root comes later in the edge's
+        order moves — by ``merge`` or its inverse — every device of it into the other root's
+        frame, each told at its next slot end."""
+        order = list(self.cores())
+        root = self.root(other)
+        if order.index(root) < order.index(device):
+            stay, movers, motion = root, self.place_of(device), merge
+        else:
+            inverse = MapMerge(merge.place, merge.joining, np.linalg.inv(merge.alignment),
+                               merge.inliers)
+            stay, movers, motion = device, self.place_of(root), inverse
+        cores = self.cores()
+        for m in movers:
+            cores[m].align(motion.alignment)
+            self.joined[m] = stay
+            self._queries.pop(m, None)
+            self._moved[m] = MergeEvent(m, stay, motion, ms)
 
     def look(self, device: str, slot: int) -> None:
-        """After ``device``'s slot end: its newest keyframes looked for in the next place's
-        whole map, on the worker (nothing while its last look runs, or with nothing new)."""
+        """After ``device``'s slot end: its newest keyframes looked for in the whole map of the
+        next device of another place (:meth:`others`, in turn), on the worker (nothing while
+        its last look runs, or with nothing new)."""
         queries = self._queries.get(device)
-        places = self.places(device)
-        if not queries or not places or device in self._running:
+        others = self.others(device)
+        if not queries or not others or device in self._running:
             return
         turn = self._turn.get(device, 0)
         self._turn[device] = turn + 1
-        place = places[turn % len(places)]
+        place = others[turn % len(others)]
         cores = self.cores()
         other, joining = cores[place], cores[device]
         if not other.map.keyframes or not joining.camera.known:
@@ -180,7 +225,7 @@ class PlaceMerging:
         poses = joining.back_end.keyframe_poses()
         finder = self._finders.setdefault((device, place), MergeFinder())
         job = (place, finder, snapshot, tuple(queries), poses, joining.k.copy(),
-               joining.frame_correction.copy())
+               joining.frame_correction.copy(), other.frame_correction.copy())
         self._queries[device] = []
         if self.background:
             self._running[device] = self._worker().submit(_look, *job)
@@ -191,8 +236,16 @@ class PlaceMerging:
 
     def forget(self, device: str) -> None:
         """A reclaimed device: served again, it starts a map of its own that joins anew (the
-        devices that joined its frame stay in it)."""
+        devices that joined its frame stay in it: the first of them is their place's root
+        now)."""
+        if device not in self.joined:                  # a root: its place goes on without it
+            rest = [d for d in self.place_of(device) if d != device]
+            for d in rest:
+                self.joined[d] = rest[0]
+            if rest:
+                del self.joined[rest[0]]
         self.joined.pop(device, None)
+        self._moved.pop(device, None)
         for pair in [pair for pair in self._lent if device in pair]:
             del self._lent[pair]
         self._queries.pop(device, None)
@@ -220,10 +273,10 @@ class PlaceMerging:
 
 def _look(place: str, finder: MergeFinder, other: KeyFrameArchive,
           queries: tuple[LoopQuery, ...], poses: dict[int, np.ndarray], intrinsics: np.ndarray,
-          frame: np.ndarray) -> _Look:
-    """The joining map's ``queries`` (oldest first) offered to ``finder`` against the place's
-    whole map ``other``, until one confirms a merge; a failure reported in the answer, never
-    raised (a look that fails must not take the edge's slots down with it)."""
+          frame: np.ndarray, other_frame: np.ndarray) -> _Look:
+    """The looking map's ``queries`` (oldest first) offered to ``finder`` against the other
+    device's whole map ``other``, until one confirms a merge; a failure reported in the
+    answer, never raised (a look that fails must not take the edge's slots down with it)."""
     started = time.perf_counter()
     merge = None
     try:
@@ -234,9 +287,10 @@ def _look(place: str, finder: MergeFinder, other: KeyFrameArchive,
                     break
     except Exception as exc:            # reported by the device's next slot end
         return _Look(place, None, frame, (time.perf_counter() - started) * 1e3,
-                     f"{type(exc).__name__}: {exc}")
+                     f"{type(exc).__name__}: {exc}", other_frame=other_frame)
     last = finder.last
     found = "" if merge is not None or last is None else (
         f"keyframe {last.old} on {last.inliers} inliers, not confirmed yet" if last.found
         else last.reason)
-    return _Look(place, merge, frame, (time.perf_counter() - started) * 1e3, found=found)
+    return _Look(place, merge, frame, (time.perf_counter() - started) * 1e3, found=found,
+                 other_frame=other_frame)

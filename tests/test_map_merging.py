@@ -2,7 +2,8 @@
 in the first device's map give the rigid motion between their frames, confirmed by later
 keyframes before the second map moves; a look-alike place is not merged; the moved map —
 keyframes, archive, points and the frame its device is told — is the first map's frame; the
-edge merges a later device into an earlier one's frame, beside the slots."""
+edge merges a later device into an earlier one's frame, beside the slots, whichever of the two
+finds the other."""
 
 from __future__ import annotations
 
@@ -165,7 +166,8 @@ def _payload(room: Room, frame_index: int, keyframe: int) -> KeyFramePayload:  #
 def test_the_edge_merges_a_later_device_into_an_earlier_ones_frame(room: Room) -> None:  # noqa: F811
     """The edge's merging over its devices' cores: the second device's keyframes, looked for
     after its slots, join the first device's frame at the slot end after the third; the
-    first device never looks in the second's map, and a device that joined looks no more."""
+    first device has no keyframes of its own to look for, and a device that joined looks no
+    more."""
     _, archive, _ = room
     k = room[0].intrinsics                                      # type: ignore[attr-defined]
     cores = {"ar1": _core(), "ar2": _core()}
@@ -175,14 +177,14 @@ def test_the_edge_merges_a_later_device_into_an_earlier_ones_frame(room: Room) -
     for core in cores.values():
         core.back_end.k = k
     merging = PlaceMerging(lambda: cores, background=False)
-    assert merging.places("ar1") == [] and merging.places("ar2") == ["ar1"]
+    assert merging.others("ar1") == ["ar2"] and merging.others("ar2") == ["ar1"]
     events = []
     for slot, (key, frame) in enumerate(((10, 4), (11, 64), (12, 124))):
         cores["ar2"].map.add_keyframe(key, _second_pose(room, frame))
         merging.keyframe("ar2", _payload(room, frame, key))
         events.append(merging.take("ar2"))             # the slot end takes the last look
         merging.look("ar2", slot)
-        merging.look("ar1", slot)                      # nothing: no device before it
+        merging.look("ar1", slot)                      # nothing: no keyframes of its own
     events.append(merging.take("ar2"))
     assert events[:3] == [None, None, None] and events[3] is not None
     assert events[3].place == "ar1" and merging.joined == {"ar2": "ar1"}
@@ -190,7 +192,7 @@ def test_the_edge_merges_a_later_device_into_an_earlier_ones_frame(room: Room) -
     assert np.linalg.norm(off[:3, 3]) < 0.03 and rotation_angle_deg(off[:3, :3]) < 0.5
     np.testing.assert_allclose(cores["ar2"].map.keyframes[12].pose,
                                events[3].merge.alignment @ _second_pose(room, 124))
-    assert merging.places("ar2") == [] and merging.places("ar1") == []
+    assert merging.others("ar2") == [] and merging.others("ar1") == []
     assert len(merging.look_ms) == 3 and not merging.failures()
     # from then on each map adopts the other's own keyframes, each once, tagged by lender
     assert merging.before_slot_end("ar2", 4) == (None, len(archive) + 1)
@@ -201,6 +203,84 @@ def test_the_edge_merges_a_later_device_into_an_earlier_ones_frame(room: Room) -
     assert sorted(cores["ar1"].archive.get(foreign_tag(1) | k).id & 0xFFFF
                   for k in (10, 11, 12)) == [10, 11, 12]
     assert merging.lend("ar1", "ar2", 6) == 0          # never the keyframes it lent back
+
+
+def test_a_later_device_that_the_earlier_one_finds_in_its_map_joins_the_earlier_ones_frame(
+        room: Room) -> None:  # noqa: F811
+    """A device walking ahead of an earlier one: the later device holds the room, the earlier
+    device's keyframes come to it. The earlier device's looks find them in the later
+    device's map; the later map then joins the earlier one's frame by the inverse motion —
+    at the later device's slot end, where its map update carries it — and the earlier map
+    stays where it is."""
+    _, archive, _ = room
+    cores = {"ar1": _core(), "ar2": _core()}
+    for kf in archive:                                 # the later device's map of the room
+        cores["ar2"].archive.add(kf)
+    cores["ar2"].map.add_keyframe(999, archive.get(270).pose)
+    for core in cores.values():
+        core.back_end.k = room[0].intrinsics                    # type: ignore[attr-defined]
+    merging = PlaceMerging(lambda: cores, background=False)
+    assert merging.others("ar1") == ["ar2"]
+    for slot, (key, frame) in enumerate(((10, 4), (11, 64), (12, 124))):
+        cores["ar1"].map.add_keyframe(key, _second_pose(room, frame))
+        merging.keyframe("ar1", _payload(room, frame, key))
+        assert merging.take("ar1") is None             # the earlier map never moves
+        merging.look("ar1", slot)
+    assert merging.take("ar1") is None                 # the earlier map never moves
+    assert merging.joined == {"ar2": "ar1"}            # the later map moved at once
+    event = merging.take("ar2")                        # and its slot end tells it
+    assert event is not None and event.device == "ar2" and event.place == "ar1"
+    assert merging.joined == {"ar2": "ar1"}
+    np.testing.assert_allclose(cores["ar1"].frame_correction, np.eye(4))
+    # the room (ar2's frame is the room's) now lies where ar1's frame has it
+    off = SECOND_IN_FIRST @ cores["ar2"].frame_correction
+    assert np.linalg.norm(off[:3, 3]) < 0.03 and rotation_angle_deg(off[:3, :3]) < 0.5
+    np.testing.assert_allclose(cores["ar2"].archive.get(270).pose,
+                               event.merge.alignment @ archive.get(270).pose)
+    assert event.merge.place in (10, 11, 12) and event.merge.joining in archive
+    assert merging.others("ar1") == [] and merging.others("ar2") == []
+    assert merging.take("ar2") is None                 # told once
+
+
+def test_two_places_each_joined_by_another_device_become_one_in_the_earlier_frame(
+        room: Room) -> None:  # noqa: F811
+    """ar3 joined ar2's place; ar1, on its own, finds itself in ar2's map: the later place —
+    ar2 and ar3 together — moves into ar1's frame at once by the inverse motion, each of its
+    devices told at its own next slot end, and from then on every device of the place lends
+    to every other."""
+    _, archive, _ = room
+    cores = {"ar1": _core(), "ar2": _core(), "ar3": _core()}
+    for kf in archive:
+        cores["ar2"].archive.add(kf)
+    cores["ar2"].map.add_keyframe(999, archive.get(270).pose)
+    cores["ar3"].map.add_keyframe(5, archive.get(270).pose)   # ar3's map, in ar2's frame
+    for core in cores.values():
+        core.back_end.k = room[0].intrinsics                    # type: ignore[attr-defined]
+    merging = PlaceMerging(lambda: cores, background=False)
+    merging.joined["ar3"] = "ar2"                      # as a merge before left it
+    assert merging.place_of("ar3") == ["ar2", "ar3"] and merging.others("ar3") == []
+    assert merging.others("ar1") == ["ar2", "ar3"] and merging.others("ar2") == ["ar1"]
+    # its looks go to ar2's map and ar3's in turn: those in ar2's (slots 0, 2, 4) find it
+    for slot, (key, frame) in enumerate(((10, 4), (11, 34), (12, 64), (13, 94), (14, 124))):
+        cores["ar1"].map.add_keyframe(key, _second_pose(room, frame))
+        merging.keyframe("ar1", _payload(room, frame, key))
+        assert merging.take("ar1") is None
+        merging.look("ar1", slot)
+    assert merging.take("ar1") is None
+    assert merging.joined == {"ar2": "ar1", "ar3": "ar1"}
+    assert merging.place_of("ar2") == ["ar1", "ar2", "ar3"]
+    for device in ("ar2", "ar3"):
+        off = SECOND_IN_FIRST @ cores[device].frame_correction
+        assert np.linalg.norm(off[:3, 3]) < 0.03 and rotation_angle_deg(off[:3, :3]) < 0.5
+    event = merging.take("ar3")
+    assert event is not None and (event.device, event.place) == ("ar3", "ar1")
+    np.testing.assert_allclose(cores["ar3"].map.keyframes[5].pose,
+                               event.merge.alignment @ archive.get(270).pose)
+    # ar3 now borrows from ar1 as well as from ar2
+    _, adopted = merging.before_slot_end("ar3", 4)
+    assert {kf.id & ~0xFFFF_FFFF for kf in cores["ar3"].archive} >= {foreign_tag(0),
+                                                                     foreign_tag(1)}
+    assert adopted == len(cores["ar3"].archive)
 
 
 def test_a_look_made_before_the_map_moved_is_dropped(room: Room) -> None:  # noqa: F811
