@@ -149,7 +149,9 @@ PARAMETERS = (
     ParamSpec("covered_m", 0.10, "with merge_maps: a frame whose camera stands within this "
               "many metres of a keyframe another device uploaded (lent to this device's map) "
               "and looks the same way (covered_deg) is not uploaded: the shared map holds that "
-              "view; 0: every device uploads as Theorem 1 sizes it", low=0.0, high=100.0),
+              "view (unless the map cannot serve it: fewer than 15 of the frame's reported "
+              "points are the map's); 0: every device uploads as Theorem 1 sizes it", low=0.0,
+              high=100.0),
     ParamSpec("covered_deg", 10.0, "the turn, degrees, within which a lent keyframe covers a "
               "frame's view (with covered_m)", low=0.0, high=180.0),
     ParamSpec("fairness", 0.0, "alpha of the twin allocator's alpha-fair sum (0: total "

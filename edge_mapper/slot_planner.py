@@ -150,8 +150,6 @@ class SlotPlanner:
         clash = set(every) & set(map_ids)
         if clash:
             raise ValueError(f"slot {slot}: frames {sorted(clash)} are already keyframes")
-        cand = [f.frame_id for f in frames if f.tracked and f.frame_id not in covered]
-        skipped = frozenset(f.frame_id for f in frames if f.tracked and f.frame_id in covered)
         cfg = self.config
         seen = {**arriving, **by_id}
         # each keyframe's and frame's point keys, made once: the weights, the policy's view
@@ -164,6 +162,12 @@ class SlotPlanner:
                   else np.zeros(0, dtype=np.int64))
         shared = np.array([np.isin(keys[f], in_map, assume_unique=True).sum() for f in every])
         lost = [not f.tracked or n < MIN_INLIERS for f, n in zip(frames, shared, strict=True)]
+        # a covered frame the map cannot serve (lost by the rule: the device matched too few
+        # of its points) stays a candidate: the view's keyframe is there, its points are not
+        # what the device sees
+        skipped = frozenset(f.frame_id for f, gone in zip(frames, lost, strict=True)
+                            if f.frame_id in covered and not gone)
+        cand = [f.frame_id for f in frames if f.tracked and f.frame_id not in skipped]
         slot_s = cfg.deadline_s(len(frames))
         n_up, n_ev = theorem1_cardinalities(rate_mbps, cfg.alpha_mbit, cfg.d_req_s, cfg.vmax,
                                             len(map_ids), len(cand), slot_s, self.waited_mbit)

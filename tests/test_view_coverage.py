@@ -65,8 +65,9 @@ def _lend(core: EdgeMapperCore, keyframe_id: int, pose: np.ndarray) -> None:
 def test_a_slot_whose_views_lent_keyframes_cover_asks_for_no_upload() -> None:
     """Slot 3 (frames 24-31, 0.96-1.24 m) with another device's keyframes at 1.04 and 1.20 m:
     every frame is covered, nothing is asked for though the uplink carries two frames; the
-    same keyframes as the device's own cover nothing (its own walk is no shared map), and
-    with one lent keyframe the uncovered frames are still asked for."""
+    same keyframes as the device's own cover nothing (its own walk is no shared map), with
+    one lent keyframe the uncovered frames are still asked for, and covered frames the map
+    cannot serve (lost by the planner's rule) are too."""
     device, core = _walked_edge()
     for k, x in ((26, 1.04), (30, 1.20)):
         _lend(core, foreign_tag(0) | k, _pose(x))
@@ -84,6 +85,16 @@ def test_a_slot_whose_views_lent_keyframes_cover_asks_for_no_upload() -> None:
     plan = core.plan(3, _posed_slot(device, core, 3), 20.0, 1)
     assert plan.covered == frozenset(range(24, 29))
     assert len(plan.action.upload) == 2 and not set(plan.action.upload) & plan.covered
+
+    # covered, but the device matched none of the map's points there: the map cannot serve
+    # those frames (lost by the rule), so they are still asked for
+    device, core = _walked_edge()
+    for k, x in ((26, 1.04), (30, 1.20)):
+        _lend(core, foreign_tag(0) | k, _pose(x))
+    unmatched = [dataclasses.replace(f, map_points=frozenset(), tracks=frozenset())
+                 for f in _posed_slot(device, core, 3)]
+    plan = core.plan(3, unmatched, 20.0, 1)
+    assert len(plan.action.upload) == 2 and not plan.covered
 
     device, core = _walked_edge()
     core.config = dataclasses.replace(core.config, coverage=CoverageBounds(0.0, 0.0))  # off
