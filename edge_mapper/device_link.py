@@ -387,12 +387,14 @@ class DeviceLink:
             # what the edge publishes of this device is in the place's frame from now on
             self.map_frame = f"{merged.place}/{self.settings.map_frame}"
             t = merged.merge.alignment[:3, 3]
-            self.info(f"slot {slot}: map merged into {merged.place}'s: keyframe "
-                      f"{merged.merge.joining} found {merged.place}'s keyframe "
-                      f"{merged.merge.place} ({merged.merge.inliers} inliers, confirmed by "
-                      f"the next keyframes); the map moved by ({t[0]:.3f}, {t[1]:.3f}, "
-                      f"{t[2]:.3f}) m into {merged.place}'s frame ({self.map_frame}), the "
-                      f"look took {merged.look_ms:.0f} ms beside the slots")
+            how = (f"keyframe {merged.merge.joining} and {merged.place}'s place's keyframe "
+                   f"{merged.merge.place} seeing one place" if not merged.via else
+                   f"with its place, where {merged.via}'s map met {merged.place}'s place")
+            self.info(f"slot {slot}: map merged into {merged.place}'s: {how} "
+                      f"({merged.merge.inliers} inliers, confirmed by the next keyframes); "
+                      f"the map moved by ({t[0]:.3f}, {t[1]:.3f}, {t[2]:.3f}) m into "
+                      f"{merged.place}'s frame ({self.map_frame}), the look took "
+                      f"{merged.look_ms:.0f} ms beside the slots")
 
     def close(self, keep_checkpoint: bool = False) -> None:
         """Stop listening and publishing (a reclaimed device): its slots are dropped and its

@@ -61,6 +61,9 @@ class MergeEvent:
     place: str                       #: the device whose frame it joined
     merge: MapMerge
     look_ms: float                   #: the worker's time on the look that confirmed it
+    #: the device of its place whose map met the other place's ("": its own), when the
+    #: device moved along with its place
+    via: str = ""
 
 
 @dataclass(frozen=True)
@@ -194,17 +197,17 @@ class PlaceMerging:
         order = list(self.cores())
         root = self.root(other)
         if order.index(root) < order.index(device):
-            stay, movers, motion = root, self.place_of(device), merge
+            stay, met, movers, motion = root, device, self.place_of(device), merge
         else:
             inverse = MapMerge(merge.place, merge.joining, np.linalg.inv(merge.alignment),
                                merge.inliers)
-            stay, movers, motion = device, self.place_of(root), inverse
+            stay, met, movers, motion = device, other, self.place_of(root), inverse
         cores = self.cores()
         for m in movers:
             cores[m].align(motion.alignment)
             self.joined[m] = stay
             self._queries.pop(m, None)
-            self._moved[m] = MergeEvent(m, stay, motion, ms)
+            self._moved[m] = MergeEvent(m, stay, motion, ms, "" if m == met else met)
 
     def look(self, device: str, slot: int) -> None:
         """After ``device``'s slot end: its newest keyframes looked for in the whole map of the

@@ -273,7 +273,9 @@ def test_two_places_each_joined_by_another_device_become_one_in_the_earlier_fram
         off = SECOND_IN_FIRST @ cores[device].frame_correction
         assert np.linalg.norm(off[:3, 3]) < 0.03 and rotation_angle_deg(off[:3, :3]) < 0.5
     event = merging.take("ar3")
-    assert event is not None and (event.device, event.place) == ("ar3", "ar1")
+    assert event is not None and (event.device, event.place, event.via) == ("ar3", "ar1", "ar2")
+    moved = merging.take("ar2")                        # the map that met ar1's place
+    assert moved is not None and (moved.place, moved.via) == ("ar1", "")
     np.testing.assert_allclose(cores["ar3"].map.keyframes[5].pose,
                                event.merge.alignment @ archive.get(270).pose)
     # ar3 now borrows from ar1 as well as from ar2
