@@ -8,6 +8,7 @@ and edge core over a sequence, frame by frame).
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -45,6 +46,9 @@ class ServedSlot:
     finish_ms: float        #: eviction, bundle adjustment, checkpoint, uncertainty
     #: the map update, when the caller applies it itself (``hold``); None: applied already
     update: MapSnapshot | None = None
+    #: the share of the slot's frames the edge's lost-frame rule counts lost (MapStats'
+    #: lost_share; NaN: the map was empty)
+    lost_share: float = math.nan
 
 
 def serve_slot(device: DeviceTrackerCore, edge: EdgeMapperCore, rate_mbps: float,
@@ -75,10 +79,13 @@ def serve_slot(device: DeviceTrackerCore, edge: EdgeMapperCore, rate_mbps: float
     update = map_update_message(edge.map, slot, outcome.version, time.time(),
                                 tracks=outcome.tracks, frame_correction=edge.frame_correction)
     snapshot = read_map_update(update)
+    lost = plan.uncertainty.lost_share if plan.uncertainty is not None else math.nan
     if hold:
-        return ServedSlot(outcome, (t1 - t0) * 1e3, (t2 - t1) * 1e3, (t3 - t2) * 1e3, snapshot)
+        return ServedSlot(outcome, (t1 - t0) * 1e3, (t2 - t1) * 1e3, (t3 - t2) * 1e3, snapshot,
+                          lost)
     device.apply_map_update(snapshot, slot)
-    return ServedSlot(outcome, (t1 - t0) * 1e3, (t2 - t1) * 1e3, (t3 - t2) * 1e3)
+    return ServedSlot(outcome, (t1 - t0) * 1e3, (t2 - t1) * 1e3, (t3 - t2) * 1e3,
+                      lost_share=lost)
 
 
 def seeded_spec(spec: str, seed: int) -> str:
@@ -119,6 +126,8 @@ class DeviceWalk:
     map_version: dict[int, int] = field(default_factory=dict)  #: frame → map it tracked on
     first_truth: np.ndarray | None = None    #: the true pose of its map frame (first frame)
     edge_ms: list[float] = field(default_factory=list)
+    #: each served slot's share of frames the edge's lost-frame rule counted lost
+    lost: list[float] = field(default_factory=list)
     uploads: int = 0                #: keyframes the edge integrated from this device
     #: how a finished slot is served (another bench times the edge's steps in finer detail)
     serve: Serving = serve_slot
@@ -147,6 +156,7 @@ class DeviceWalk:
         state, rate = self.channel.step()
         served = self.serve(self.device, self.edge, rate, state, self.update_delay > 0)
         self.edge_ms.append(served.plan_ms + served.integrate_ms + served.finish_ms)
+        self.lost.append(served.lost_share)
         self.uploads += len(served.outcome.integrated)
         if served.update is not None:
             self.held = (served.update, served.outcome.slot, frame.index)

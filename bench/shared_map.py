@@ -256,9 +256,14 @@ def main() -> None:
             report[f"{walk.name}_ate_m"] = ate
             report[f"{walk.name}_edge_ms"] = float(np.median(walk.edge_ms))
             report[f"{walk.name}_uploads"] = walk.uploads
+            # as a live run's table: the slots after the first (it plans on an empty map)
+            scored = [v for v in walk.lost[1:] if not math.isnan(v)]
+            report[f"{walk.name}_lost_share"] = float(np.mean(scored)) if scored else math.nan
             print(f"{walk.name} device: {len(poses)} of {len(walk.truth)} frames tracked, "
                   f"ATE {ate * 100:.1f} cm (in the place's frame), {walk.uploads} keyframes "
-                  f"uploaded, edge median {np.median(walk.edge_ms):.0f} ms a slot")
+                  f"uploaded, the edge's lost share "
+                  f"{report[f'{walk.name}_lost_share']:.1%}, edge median "
+                  f"{np.median(walk.edge_ms):.0f} ms a slot")
         cross = cross_device_revisit_error(pairs(first.poses, first.truth),
                                            pairs(second.poses, second.truth,
                                                  shared if merge else None))
@@ -299,7 +304,7 @@ CSV_FIELDS = ("frames", "seed", "uplink", "first_order", "second_order", "second
               "second_edge_ms", "shared_frames", "cross_rms_m", "cross_median_m",
               "cross_p95_m", "cross_pairs", "true_alignment_rms_m", "keyframes_cross_rms_m",
               "share", "first_uploads", "second_uploads", "adopted", "foreign_at_end",
-              "adopted_back", "foreign_at_end_first")
+              "adopted_back", "foreign_at_end_first", "first_lost_share", "second_lost_share")
 
 
 def _merge_state(merge: MapMerge | None, finder: MergeFinder) -> str:

@@ -101,8 +101,20 @@ def table(scenario: str) -> list[str]:
                 f"{_diff(failed[rule], failed['alone'], 1)} | "
                 f"{_diff(col(rule, 'ate_m'), col('alone', 'ate_m'), 2, 100)} | "
                 f"{_diff(cross[rule], cross['lent'], 2, 100)} | "
+                f"{_lost(by, rule, device, seeds)} | "
                 f"{', '.join(str(s) for s in seeds)} |")
     return lines
+
+
+def _lost(by: dict[str, dict[int, dict[str, str]]], rule: str, device: str,
+          seeds: list[int]) -> str:
+    """The edge's lost-frame share with the rule against alone, in points, paired; "–" where
+    the runs predate the column."""
+    column = f"{device}_lost_share"
+    if any(not by[c][s].get(column) for c in (rule, "alone") for s in seeds):
+        return "–"
+    return _diff([float(by[rule][s][column]) for s in seeds],
+                 [float(by["alone"][s][column]) for s in seeds], 1, 100)
 
 
 def figure(scenarios: list[str]) -> Path:
@@ -197,8 +209,8 @@ def main() -> None:
         raise SystemExit(f"unknown scenario {', '.join(unknown)}: one of {', '.join(SCENARIOS)}")
     print("| scenario | device | rule | runs | uploads alone | lent | lent + rule | "
           "Δ uploads (rule − alone) | share saved | Δ untracked frames | Δ ATE cm | "
-          "Δ cross-device RMS cm (rule − lent) | seeds |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "Δ cross-device RMS cm (rule − lent) | Δ the edge's lost share, points | seeds |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for scenario in scenarios:
         print("\n".join(table(scenario)))
     print(f"wrote {figure(scenarios)}")
