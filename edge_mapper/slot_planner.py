@@ -135,8 +135,9 @@ class SlotPlanner:
         map, as their frames were observed) join it, ``leaving`` keyframes are left out.
         ``camera`` goes with the map and frames to a policy that predicts what the camera will
         see (``see_slot``, the edge's ``mpc``). ``covered`` frames (views the map holds already,
-        :mod:`twinslam.slam.back_end.view_coverage`) are no candidates: a slot whose tracked
-        frames are all covered asks for no upload, whatever the uplink could carry.
+        :mod:`twinslam.slam.back_end.view_coverage`) are no candidates, unless the map cannot
+        serve them (lost by the rule below): a slot whose tracked frames are all covered and
+        served asks for no upload, whatever the uplink could carry.
         """
         if not frames:
             raise ValueError(f"slot {slot}: no frames to plan with")
