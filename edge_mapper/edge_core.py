@@ -286,9 +286,7 @@ class EdgeMapperCore:
                 if is_foreign(k) and k not in leaving]
         if not lent or not bounds.enabled:
             return set()
-        now = self.frame_correction
-        poses = {f.frame_id: f.pose if f.map_version < 0 else
-                 now @ np.linalg.inv(self.frame_correction_at(f.map_version)) @ f.pose
+        poses = {f.frame_id: self.back_end.moved_since(f.map_version) @ f.pose
                  for f in frames if f.tracked and f.pose is not None}
         return covered_views(poses, lent, bounds)
 

@@ -236,12 +236,18 @@ class MapBackEnd:
         closed it), so its pose moves by the corrections applied since — else it would enter
         the corrected map where the uncorrected one had it, its points a second copy of the
         place."""
-        if tracked_on < 0:
-            return data
-        since = self.frame_correction @ np.linalg.inv(self.frame_correction_at(tracked_on))
+        since = self.moved_since(tracked_on)
         if np.allclose(since, np.eye(4), atol=1e-12):
             return data
         return dataclasses.replace(data, pose=since @ data.pose)
+
+    def moved_since(self, version: int) -> np.ndarray:
+        """The motion the map's frame went through (loops, a merge) since map version
+        ``version`` (-1: unknown, taken as now: the identity): a pose the device posed on that
+        version, times it, is in the map's frame now."""
+        if version < 0:
+            return np.eye(4)
+        return self.frame_correction @ np.linalg.inv(self.frame_correction_at(version))
 
     # -- keyframes out and back --------------------------------------------------------------
 
