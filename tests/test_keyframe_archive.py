@@ -54,21 +54,54 @@ def test_a_revisited_place_is_recognised_among_the_archived_keyframes() -> None:
 
 def test_a_descriptor_votes_against_the_nearest_other_point_not_another_view_of_its_own(
         ) -> None:
-    """The ratio test's runner-up is the nearest descriptor of a *different* map point: two
-    keyframes that saw the same point (one descriptor each, alike) do not cancel its vote; two
-    different points alike do. An archive of one descriptor has no runner-up."""
+    """The ratio test's runner-up is the nearest *other* map point: two keyframes that saw the
+    same point do not cancel its vote — each of them gets it — two different points alike do.
+    An archive of one point has no runner-up."""
     rng = np.random.default_rng(5)
     seen = rng.integers(0, 256, (1, 32), dtype=np.uint8)
     archive = KeyFrameArchive(10)
-    one = _keyframe(1, seen.copy(), 7)
-    archive.add(one)
-    assert archive.recognise(seen) == [(1, 1)]                # one row: no runner-up
-    again = _keyframe(2, seen.copy(), 7)                      # the same point, seen again
-    archive.add(again)
-    assert archive.recognise(seen) in ([(1, 1)], [(2, 1)])
-    lookalike = _keyframe(3, seen.copy(), 99)                 # another point, alike
-    archive.add(lookalike)
+    archive.add(_keyframe(1, seen.copy(), 7))
+    assert archive.recognise(seen) == [(1, 1)]                # one point: no runner-up
+    archive.add(_keyframe(2, seen.copy(), 7))                 # the same point, seen again
+    assert archive.recognise(seen) == [(1, 1), (2, 1)]
+    archive.add(_keyframe(3, seen.copy(), 99))                # another point, alike
     assert archive.recognise(seen) == []
+
+
+def test_a_point_many_keyframes_saw_still_faces_the_ratio_test() -> None:
+    """However many keyframes observed a point, an alike other point still makes its match
+    ambiguous: indexed by observation, ten copies of the point filled the nearest rows and the
+    ratio test went unasked."""
+    rng = np.random.default_rng(6)
+    seen = rng.integers(0, 256, (1, 32), dtype=np.uint8)
+    point, lookalike = seen.copy(), seen.copy()
+    point[0, 0] ^= 0b11                       # the query two bits from the point …
+    lookalike[0, 1] ^= 0b11                   # … and two from another one
+    archive = KeyFrameArchive(20)
+    for kf_id in range(1, 11):
+        archive.add(_keyframe(kf_id, point.copy(), 7))
+    assert archive.recognise(seen, top=20) == [(k, 1) for k in range(1, 11)]
+    archive.add(_keyframe(11, lookalike, 99))
+    assert archive.recognise(seen) == []
+
+
+def test_recognition_ranks_only_the_keyframes_it_may_propose() -> None:
+    """A loop looks among the old walk only: the recent keyframes, which share the most with a
+    new one, are not ranked, so they cannot crowd the old place out of the candidates."""
+    seq = open_sequence("synthetic:300", 0, 300)
+    orb = OrbExtractor()
+    archive = KeyFrameArchive(100)
+    first = 1
+    for slot, frame in enumerate(range(0, 300, 10)):
+        desc = orb.extract(seq.read(frame).color).descriptors
+        archive.add(_keyframe(frame, desc, first, slot))
+        first += len(desc)
+    desc = orb.extract(seq.read(245).color).descriptors
+    everyone = archive.recognise(desc, top=3)
+    assert everyone[0][0] in (240, 250), everyone
+    old = archive.recognise(desc, top=3, eligible=lambda k: k < 100)
+    assert old and all(k < 100 for k, _ in old), old
+    assert archive.recognise(desc, eligible=lambda k: False) == []
 
 
 def test_past_its_capacity_the_least_recently_useful_keyframe_leaves() -> None:

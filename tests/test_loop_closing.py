@@ -76,9 +76,11 @@ def _walk_until_a_loop(core: EdgeMapperCore, device: ReturningDevice, slots: int
 
 def test_the_edge_closes_a_loop_and_takes_the_drift_out_of_the_map() -> None:
     """The loop closes from the first keyframe of the way back that sees the way out's
-    places; that keyframe drifted 15 cm and is put back within 2 cm, the keyframes around it,
-    tracked on common ground, stay where they were (within 3 cm, as without a loop), and the
-    map's points come back to the wall. Without loop closing the same slot keeps the drift."""
+    places, with the way-out keyframe that stood nearest (within 0.3 m in truth); the new
+    keyframe drifted 15 cm and is put back where that keyframe's view puts it (within its
+    own error of the way out, under 3 cm), the keyframes around it, tracked on common
+    ground, stay where they were (within 3 cm, as without a loop), and the map's points come
+    back to the wall. Without loop closing the same slot keeps the drift."""
     device = DriftingDevice(np.random.default_rng(3), 8 * F)
     core = _edge(loops=True)
     out = _walk_until_a_loop(core, device)
@@ -95,7 +97,11 @@ def test_the_edge_closes_a_loop_and_takes_the_drift_out_of_the_map() -> None:
     assert sorted(plain.map.keyframes) == sorted(core.map.keyframes)
     drifted, closed = _errors(plain, same), _errors(core, device)
     assert drifted[loop.new] > 0.1
-    assert closed[loop.new] < 0.02, closed
+    truth = device.pose
+    assert np.linalg.norm(truth(loop.old)[:3, 3] - truth(loop.new)[:3, 3]) < 0.3, loop.old
+    place = core.back_end.archive.get(loop.old).pose
+    inherited = float(np.linalg.norm(place[:3, 3] - truth(loop.old)[:3, 3]))
+    assert closed[loop.new] < min(inherited + 0.005, 0.03), (closed, inherited)
     assert max(closed.values()) < 0.03, closed
     assert _point_error(core, device) < 0.5 * _point_error(plain, same)
 
@@ -352,7 +358,7 @@ def test_the_archive_files_a_loop_could_not_write_are_reported_once(
     core = _edge(loops=True, checkpoint=tmp_path / "edge.npz")
     out = _walk_until_a_loop(core, device)
     assert out is not None and out.loop is not None and not out.loop.refused
-    assert core.loops_closed == 1 and _errors(core, device)[out.loop.new] < 0.02
+    assert core.loops_closed == 1 and _errors(core, device)[out.loop.new] < 0.03
     assert len(out.loop_failures) == 1
     assert "loop-corrected archive" in out.loop_failures[0]
     assert "No space left on device" in out.loop_failures[0]
@@ -417,5 +423,7 @@ def test_keyframes_tracked_on_the_map_before_a_loop_enter_the_corrected_map_corr
         errors[knows] = max((float(np.linalg.norm(core.map.keyframes[k].pose[:3, 3]
                                                   - device.pose(k)[:3, 3])) for k in new),
                             default=np.inf)
-    assert not refused[True] and errors[True] < 0.03, (refused, errors)
+    # the corrected walk stands where the way out's keyframes put it (each up to 2–3 cm off
+    # in this walk); uncorrected, the keyframes would be the loop's 15 cm away
+    assert not refused[True] and errors[True] < 0.04, (refused, errors)
     assert refused[False] or errors[False] > 0.1, (refused, errors)

@@ -62,10 +62,8 @@ def locate_in_archive(archive: KeyFrameArchive, points_xy: np.ndarray, descripto
     desc = np.ascontiguousarray(descriptors, dtype=np.uint8).reshape(-1, 32)
     if len(xy) != len(desc):
         raise ValueError(f"{len(xy)} keypoints but {len(desc)} descriptors")
-    wanted = config.candidates * (4 if eligible else 1)      # some may not be eligible
-    proposed = archive.recognise(desc, top=wanted) if len(desc) else []
-    if eligible is not None:
-        proposed = [(k, v) for k, v in proposed if eligible(k)][:config.candidates]
+    proposed = archive.recognise(desc, top=config.candidates, eligible=eligible) \
+        if len(desc) else []
     if not proposed:
         return ArchiveLocation(None, 0, -1, (), "the archive recognises no place in the frame")
     best = ArchiveLocation(None, 0, proposed[0][0], (), "")

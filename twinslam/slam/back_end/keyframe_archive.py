@@ -9,11 +9,16 @@ map it built; a revisit of an evicted place can then be recognised and its keyfr
 back, where before every revisit of an evicted place was a failure no policy could avoid.
 
 Place recognition over the archive votes with binary descriptors in faiss' exact Hamming
-index (``IndexBinaryFlat``): each ORB descriptor of the query frame votes for the archived
-keyframe holding its nearest neighbour, when that neighbour is near (``max_distance`` bits) and
-clearly nearer than the runner-up (``ratio``, Lowe's test). Exact search over the few hundred
-thousand descriptors of a few hundred keyframes takes a fraction of a second; the index is
-rebuilt only after the archive changed.
+index (``IndexBinaryFlat``) holding one descriptor a map point — a point seen by ten archived
+keyframes is one place in the room, not ten (ORB-SLAM's keyframe database likewise lists a
+keyframe under each word it holds, not a word under each observation). Each ORB descriptor of
+the query frame finds its nearest point; when that point is near (``max_distance`` bits) and
+clearly nearer than the next point (``ratio``, Lowe's test), it votes for every archived
+keyframe that observed the point: a keyframe's votes are how many of the frame's features it
+saw too. Indexed by observation instead, a well-observed point filled the nearest rows with
+copies of itself (no runner-up: the ratio test was skipped) and voted for whichever keyframe
+came first. Exact search over the tens of thousands of points of a few hundred keyframes takes
+milliseconds; the index is rebuilt only after the archive changed.
 
 With a folder, each archived keyframe is also one ``.npz`` file there, written when it is
 archived (to a temporary name, then renamed) and deleted when it leaves — one taken back into
@@ -27,7 +32,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import threading
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -139,8 +144,7 @@ class KeyFrameArchive:
         self._entries: dict[int, ArchivedKeyFrame] = {}
         self._useful: dict[int, int] = {}
         self._index: object | None = None
-        self._row_keyframe = np.zeros(0, dtype=np.int64)   #: index row -> keyframe id
-        self._row_point = np.zeros(0, dtype=np.int64)      #: index row -> map point id
+        self._places = _PointObservers.empty()      #: the index's points and their keyframes
         self._taken: list[Path] = []       #: files of taken keyframes, until the checkpoint
         #: one writer of a keyframe's file at a time: the loop closer's worker rewrites files
         #: of corrected keyframes while the edge archives and removes others
@@ -250,8 +254,7 @@ class KeyFrameArchive:
             view._entries[kf.id] = kf
             view._useful[kf.id] = kf.archived_slot
         if not added and self._index is not None:
-            view._index, view._row_keyframe, view._row_point = \
-                self._index, self._row_keyframe, self._row_point
+            view._index, view._places = self._index, self._places
         return view
 
     def take(self, kf_id: int) -> ArchivedKeyFrame:
@@ -316,43 +319,42 @@ class KeyFrameArchive:
 
     def shared_with(self, kf_id: int) -> dict[int, int]:
         """How many map points each other archived keyframe shares with ``kf_id`` (those that
-        share none left out): one pass over the index's rows, not a set per keyframe."""
+        share none left out): one pass over the observations, not a set per keyframe."""
         self._built_index()
+        obs = self._places
         own = self._entries[kf_id].point_ids
-        rows = np.isin(self._row_point, own) & (self._row_keyframe != kf_id)
-        ids, counts = np.unique(self._row_keyframe[rows], return_counts=True)
+        rows = np.isin(obs.point_of, own) & (obs.keyframe_of != kf_id)
+        ids, counts = np.unique(obs.keyframe_of[rows], return_counts=True)
         return dict(zip(ids.tolist(), counts.tolist(), strict=True))
 
     def recognise(self, descriptors: np.ndarray, top: int = 3, max_distance: int = 50,
-                  ratio: float = 0.8) -> list[tuple[int, int]]:
+                  ratio: float = 0.8, eligible: Callable[[int], bool] | None = None
+                  ) -> list[tuple[int, int]]:
         """The archived keyframes that best explain a frame's ORB ``descriptors`` ((n, 32)
-        uint8): (keyframe id, votes), most votes first, at most ``top``, none without a vote.
-        A descriptor votes for the keyframe of its nearest archived descriptor when that one
-        is within ``max_distance`` bits and nearer than ``ratio`` × the runner-up's distance
-        (the runner-up of another point: one point seen by several keyframes is one
-        descriptor per keyframe, and those must not cancel each other's vote)."""
+        uint8): (keyframe id, votes), most votes first, at most ``top``, none without a vote,
+        only keyframes ``eligible`` accepts (None: all) — a loop ranks the old walk alone, so
+        the recent keyframes, which share the most with a new one, take no candidate's place.
+        A descriptor votes when its nearest map point is within ``max_distance`` bits and
+        nearer than ``ratio`` × the next point's distance, for every keyframe that observed
+        that point."""
         query = np.ascontiguousarray(descriptors, dtype=np.uint8)
         if query.ndim != 2 or query.shape[1] != DESCRIPTOR_BITS // 8:
             raise ValueError(f"ORB descriptors are (n, 32) uint8, got {query.shape}")
         if not self._entries or not len(query):
             return []
         index = self._built_index()
-        if not len(self._row_keyframe):
+        places = self._places
+        if not places.points:
             return []
-        k = min(8, len(self._row_keyframe))
+        k = min(2, places.points)
         distances, rows = index.search(query, k)           # type: ignore[attr-defined]
-        # one vote a descriptor, decided for all rows at once (a loop over ~1000 rows of 8
-        # was a sixth of the recognition)
-        nearest, best = rows[:, 0], distances[:, 0]
-        points = np.where(rows >= 0, self._row_point[np.maximum(rows, 0)], -1)
-        # the runner-up: the nearest descriptor of a different map point
-        other = (rows[:, 1:] >= 0) & (points[:, 1:] != points[:, :1])
-        votes_for = (nearest >= 0) & (best <= max_distance)
-        if k > 1:                                   # an archive of one row has no runner-up
-            runner_up = distances[np.arange(len(rows)), 1 + other.argmax(axis=1)]
-            votes_for &= ~(other.any(axis=1) & (best >= ratio * runner_up))
-        kfs, votes = np.unique(self._row_keyframe[nearest[votes_for]], return_counts=True)
-        ranked = sorted(zip(kfs.tolist(), votes.tolist(), strict=True),
+        best = distances[:, 0]
+        votes_for = (rows[:, 0] >= 0) & (best <= max_distance)
+        if k > 1:                              # an archive of one point has no runner-up
+            votes_for &= ~((rows[:, 1] >= 0) & (best >= ratio * distances[:, 1]))
+        kfs, votes = np.unique(places.observers(rows[votes_for, 0]), return_counts=True)
+        ranked = sorted(((kf, v) for kf, v in zip(kfs.tolist(), votes.tolist(), strict=True)
+                         if eligible is None or eligible(kf)),
                         key=lambda kv: (-kv[1], kv[0]))
         return ranked[:top]
 
@@ -361,14 +363,56 @@ class KeyFrameArchive:
             # faiss loads with the first recognition, not with every importer of the map
             import faiss
 
-            kfs = list(self._entries.values())
+            self._places = _PointObservers.of(list(self._entries.values()))
             index = faiss.IndexBinaryFlat(DESCRIPTOR_BITS)
-            if kfs:
-                index.add(np.ascontiguousarray(np.concatenate([k.descriptors for k in kfs])))
-            self._row_keyframe = np.concatenate(
-                [np.full(len(k.point_ids), k.id, dtype=np.int64) for k in kfs]) if kfs \
-                else np.zeros(0, dtype=np.int64)
-            self._row_point = np.concatenate([k.point_ids for k in kfs]) if kfs \
-                else np.zeros(0, dtype=np.int64)
+            if self._places.points:
+                index.add(self._places.descriptors)
             self._index = index
         return self._index
+
+
+@dataclass(frozen=True)
+class _PointObservers:
+    """The archive's map points, one row each (the index's rows), and the keyframes that
+    observed each: its observations sorted by point, ``start[r]:start[r + 1]`` those of row r."""
+
+    descriptors: np.ndarray     #: (points, 32) uint8: each point's newest archived descriptor
+    start: np.ndarray           #: (points + 1,) int64: where each row's observations begin
+    keyframe_of: np.ndarray     #: (observations,) int64, sorted by point
+    point_of: np.ndarray        #: (observations,) int64, sorted
+
+    @classmethod
+    def empty(cls) -> _PointObservers:
+        none = np.zeros(0, dtype=np.int64)
+        return cls(np.zeros((0, 32), dtype=np.uint8), np.zeros(1, dtype=np.int64), none, none)
+
+    @classmethod
+    def of(cls, keyframes: list[ArchivedKeyFrame]) -> _PointObservers:
+        """The points of ``keyframes`` (archived first to last: a later copy of a point's
+        descriptor is the map's newer one)."""
+        if not keyframes:
+            return cls.empty()
+        point = np.concatenate([k.point_ids for k in keyframes])
+        keyframe = np.concatenate([np.full(len(k.point_ids), k.id, dtype=np.int64)
+                                   for k in keyframes])
+        descriptors = np.concatenate([k.descriptors for k in keyframes])
+        # sorted by point, a point's observations in archive order: its last is the newest
+        order = np.lexsort((np.arange(len(point)), point))
+        point, keyframe, descriptors = point[order], keyframe[order], descriptors[order]
+        first = np.flatnonzero(np.r_[True, point[1:] != point[:-1]])
+        last = np.r_[first[1:], len(point)] - 1
+        return cls(np.ascontiguousarray(descriptors[last]),
+                   np.r_[first, len(point)].astype(np.int64), keyframe, point)
+
+    @property
+    def points(self) -> int:
+        return len(self.start) - 1
+
+    def observers(self, rows: np.ndarray) -> np.ndarray:
+        """The keyframe of every observation of the points at ``rows`` (a keyframe once per
+        row it observed; rows may repeat)."""
+        begin, count = self.start[rows], np.diff(self.start)[rows]
+        # each row's run of observations laid end to end: begin + 0, 1, …, count − 1
+        offsets = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
+        kfs: np.ndarray = self.keyframe_of[np.repeat(begin, count) + offsets]
+        return kfs
