@@ -32,6 +32,7 @@ from twinslam.sequences.opening import AUTO, open_sequence
 from twinslam.slam.back_end.loop_closing import LoopQuery
 from twinslam.slam.map_update import MapSnapshot
 from twinslam.slot_protocol import default_device
+from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
 from twinslam.uplink.channels import MarkovChannel, TraceChannel, parse_channel
 from twinslam.uplink.families import uplink_family
 
@@ -128,6 +129,9 @@ class DeviceWalk:
     edge_ms: list[float] = field(default_factory=list)
     #: each served slot's share of frames the edge's lost-frame rule counted lost
     lost: list[float] = field(default_factory=list)
+    #: frame → points of the map it held that the device matched in it (0: not tracked),
+    #: for the frames tracked on a map (the device's own side of the lost-frame rule)
+    map_matches: dict[int, int] = field(default_factory=dict)
     uploads: int = 0                #: keyframes the edge integrated from this device
     #: how a finished slot is served (another bench times the edge's steps in finer detail)
     serve: Serving = serve_slot
@@ -151,6 +155,8 @@ class DeviceWalk:
             if record.tracked:
                 self.poses[frame.index] = record.pose
                 self.map_version[frame.index] = record.map_version
+        if record.map_version > 0 or not record.tracked:
+            self.map_matches[frame.index] = len(record.map_point_ids) if record.tracked else 0
         if not result.slot_done:
             return []
         state, rate = self.channel.step()
@@ -161,6 +167,16 @@ class DeviceWalk:
         if served.update is not None:
             self.held = (served.update, served.outcome.slot, frame.index)
         return [k for k in served.outcome.integrated if k in self.edge.map.keyframes]
+
+    def map_lost_share(self) -> float:
+        """The share of its frames since it first held a map that the device tracked on fewer
+        of the map's points than it needs (``MIN_INLIERS``), or not at all: frames the map it
+        held did not serve, by the device's own count — the edge's lost-frame rule judges
+        the reported points against the edge's newer map instead."""
+        if not self.map_matches:
+            return math.nan
+        counts = np.fromiter(self.map_matches.values(), dtype=np.int64)
+        return float(np.mean(counts < MIN_INLIERS))
 
     def query(self, keyframe: int) -> LoopQuery | None:
         """The integrated keyframe's features as the device uploaded them (None: no longer

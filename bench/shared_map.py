@@ -27,7 +27,11 @@ instead of the merge's (the two walks' drift apart: a merge found where the devi
 aligns them there, which the true frames do not) and the two edge maps' final keyframes.
 Each device's uploads are counted: with ``--share`` a frame whose view a lent keyframe
 covers is not asked for (the edge's ``covered_m``/``covered_deg``; ``--covered-m 0``: every
-frame a candidate). ``--csv`` appends one row a run.
+frame a candidate). Beside each device's uploads, two lost shares: the edge's lost-frame
+rule (the share of a slot's frames whose reported points the edge's map — the one it is about
+to send — holds fewer than 15 of) and the device's own count (the share of its frames, since
+it first held a map, that it tracked on fewer than 15 points of the map it held, or not at
+all). ``--csv`` appends one row a run.
 """
 
 from __future__ import annotations
@@ -259,10 +263,12 @@ def main() -> None:
             # as a live run's table: the slots after the first (it plans on an empty map)
             scored = [v for v in walk.lost[1:] if not math.isnan(v)]
             report[f"{walk.name}_lost_share"] = float(np.mean(scored)) if scored else math.nan
+            report[f"{walk.name}_map_lost_share"] = walk.map_lost_share()
             print(f"{walk.name} device: {len(poses)} of {len(walk.truth)} frames tracked, "
                   f"ATE {ate * 100:.1f} cm (in the place's frame), {walk.uploads} keyframes "
                   f"uploaded, the edge's lost share "
-                  f"{report[f'{walk.name}_lost_share']:.1%}, edge median "
+                  f"{report[f'{walk.name}_lost_share']:.1%}, frames its map did not serve "
+                  f"{report[f'{walk.name}_map_lost_share']:.1%}, edge median "
                   f"{np.median(walk.edge_ms):.0f} ms a slot")
         cross = cross_device_revisit_error(pairs(first.poses, first.truth),
                                            pairs(second.poses, second.truth,
@@ -304,7 +310,8 @@ CSV_FIELDS = ("frames", "seed", "uplink", "first_order", "second_order", "second
               "second_edge_ms", "shared_frames", "cross_rms_m", "cross_median_m",
               "cross_p95_m", "cross_pairs", "true_alignment_rms_m", "keyframes_cross_rms_m",
               "share", "first_uploads", "second_uploads", "adopted", "foreign_at_end",
-              "adopted_back", "foreign_at_end_first", "first_lost_share", "second_lost_share")
+              "adopted_back", "foreign_at_end_first", "first_lost_share", "second_lost_share",
+              "first_map_lost_share", "second_map_lost_share")
 
 
 def _merge_state(merge: MapMerge | None, finder: MergeFinder) -> str:

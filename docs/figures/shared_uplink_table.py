@@ -5,22 +5,23 @@ edge does it); the paired differences with alone (Student's t over seeds,
 :func:`twinslam.reporting.paired_difference`) of uploads, untracked frames and ATE; and a
 figure of the uploads, seed by seed.
 
-Reads ``docs/figures/shared-map/uplink-{SCENARIO}-{alone,lent,pose-only,covered}.csv``
-written by ``bench.shared_map`` (the page has the commands) and writes
-``docs/figures/shared-map/uplink-saved.png``; then the live runs' tables
-(``uplink-live-{SCENARIO}-{uncovered,pose-only,covered}-run{N}.csv``, each a ``twinslam
-launch``'s ``fleet_runs.csv``), run by run, and with three runs or more a device's paired
-difference.
+Reads ``uplink-{SCENARIO}-{alone,lent,pose-only,covered}.csv`` written by
+``bench.shared_map`` (the page has the commands) from a folder — ``docs/figures/shared-map``
+or one of its sets of runs, ``--folder`` (a condition without its file is left out) — and
+writes ``uplink-saved.png`` there; then the live runs' tables
+(``docs/figures/shared-map/uplink-live-{SCENARIO}-{uncovered,pose-only,covered}-run{N}.csv``,
+each a ``twinslam launch``'s ``fleet_runs.csv``), run by run, and with three runs or more a
+device's paired difference.
 
-    .venv/bin/python docs/figures/shared_uplink_table.py [SCENARIO ...]
+    .venv/bin/python docs/figures/shared_uplink_table.py [SCENARIO ...] [--folder DIR]
 """
 
 from __future__ import annotations
 
+import argparse
 import csv
 import itertools
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -39,11 +40,21 @@ SCENARIOS = {"mapped": "the second device walks the place the first walked (star
              "two-ends": "the two devices walk from the two ends, at once"}
 
 
-def runs(scenario: str, condition: str) -> dict[int, dict[str, str]]:
+def runs(folder: Path, scenario: str, condition: str) -> dict[int, dict[str, str]]:
     """seed → the run's CSV row."""
-    path = HERE / f"uplink-{scenario}-{condition}.csv"
+    path = folder / f"uplink-{scenario}-{condition}.csv"
     with path.open(encoding="utf-8") as fh:
         return {int(r["seed"]): r for r in csv.DictReader(fh)}
+
+
+def conditions(folder: Path, scenario: str) -> list[str]:
+    """The conditions ``folder`` has runs of for ``scenario``, in CONDITIONS' order; alone
+    and lent are what every comparison stands on."""
+    found = [c for c in CONDITIONS if (folder / f"uplink-{scenario}-{c}.csv").exists()]
+    if "alone" not in found or "lent" not in found:
+        raise SystemExit(f"{folder}: no uplink-{scenario}-alone.csv and -lent.csv to compare "
+                         "with (bench.shared_map writes them)")
+    return found
 
 
 #: columns that differ between two runs of one walk on one uplink only by the machine's load
@@ -77,9 +88,10 @@ def _diff(values: list[float], base: list[float], digits: int, scale: float = 1.
     return f"{d.mean:+.{digits}f} [{d.low:+.{digits}f}, {d.high:+.{digits}f}]"
 
 
-def table(scenario: str) -> list[str]:
-    """The markdown rows of one scenario, a row per device."""
-    by = {c: runs(scenario, c) for c in CONDITIONS}
+def table(folder: Path, scenario: str) -> list[str]:
+    """The markdown rows of one scenario, a row per device and rule."""
+    present = conditions(folder, scenario)
+    by = {c: runs(folder, scenario, c) for c in present}
     seeds = distinct_seeds(by)
     lines = []
     for device in ("first", "second"):
@@ -87,10 +99,10 @@ def table(scenario: str) -> list[str]:
                 ) -> list[float]:
             return [float(by[condition][s][f"{device}_{column}"]) * scale for s in seeds]
 
-        up = {c: col(c, "uploads") for c in CONDITIONS}
+        up = {c: col(c, "uploads") for c in present}
         frames = [float(by["alone"][s]["frames"]) for s in seeds]
-        cross = {c: [float(by[c][s]["cross_rms_m"]) for s in seeds] for c in CONDITIONS}
-        for rule in ("pose-only", "covered"):
+        cross = {c: [float(by[c][s]["cross_rms_m"]) for s in seeds] for c in present}
+        for rule in (r for r in ("lent", "pose-only", "covered") if r in present):
             saved = [100 * (1 - c / a) for c, a in zip(up[rule], up["alone"], strict=True)]
             failed = {c: [f - t for f, t in zip(frames, col(c, "tracked"), strict=True)]
                       for c in ("alone", rule)}
@@ -101,40 +113,43 @@ def table(scenario: str) -> list[str]:
                 f"{_diff(failed[rule], failed['alone'], 1)} | "
                 f"{_diff(col(rule, 'ate_m'), col('alone', 'ate_m'), 2, 100)} | "
                 f"{_diff(cross[rule], cross['lent'], 2, 100)} | "
-                f"{_lost(by, rule, device, seeds)} | "
+                f"{_lost(by, rule, f'{device}_lost_share', seeds)} | "
+                f"{_lost(by, rule, f'{device}_map_lost_share', seeds)} | "
                 f"{', '.join(str(s) for s in seeds)} |")
     return lines
 
 
-def _lost(by: dict[str, dict[int, dict[str, str]]], rule: str, device: str,
+def _lost(by: dict[str, dict[int, dict[str, str]]], rule: str, column: str,
           seeds: list[int]) -> str:
-    """The edge's lost-frame share with the rule against alone, in points, paired; "–" where
-    the runs predate the column."""
-    column = f"{device}_lost_share"
+    """A lost-frame share (``column``: the edge's rule, or the device's own count) with the
+    rule against alone, in points, paired; "–" where the runs predate the column."""
     if any(not by[c][s].get(column) for c in (rule, "alone") for s in seeds):
         return "–"
     return _diff([float(by[rule][s][column]) for s in seeds],
                  [float(by["alone"][s][column]) for s in seeds], 1, 100)
 
 
-def figure(scenarios: list[str]) -> Path:
-    """Uploads per device and seed, alone / lent / pose-only / covered, a panel a
-    scenario."""
+def figure(folder: Path, scenarios: list[str]) -> Path:
+    """Uploads per device and seed, alone / lent / pose-only / covered (those ``folder``
+    has), a panel a scenario."""
     plt = pyplot()
     fig, axes = plt.subplots(1, len(scenarios), figsize=(5.5 * len(scenarios), 3.6),
                              squeeze=False)
     colours = {"alone": "#888888", "lent": "#7fa7d9", "pose-only": "#e0a040",
                "covered": "#1f5fae"}
     for ax, scenario in zip(axes[0], scenarios, strict=True):
-        by = {c: runs(scenario, c) for c in CONDITIONS}
+        present = conditions(folder, scenario)
+        by = {c: runs(folder, scenario, c) for c in present}
         seeds = distinct_seeds(by)
         labels = [f"{d[0].upper()}{s}" for d in ("first", "second") for s in seeds]
         x = np.arange(len(labels))
         top = 0.0
-        for i, c in enumerate(CONDITIONS):
+        width = 0.8 / len(present)
+        for i, c in enumerate(present):
             values = [float(by[c][s][f"{d}_uploads"]) for d in ("first", "second")
                       for s in seeds]
-            ax.bar(x + (i - 1.5) * 0.2, values, 0.2, label=c, color=colours[c])
+            ax.bar(x + (i - (len(present) - 1) / 2) * width, values, width, label=c,
+                   color=colours[c])
             top = max(top, *values)
         ax.set_ylim(0, top * 1.25)                 # room for the legend above the bars
         ax.set_xticks(x, labels)
@@ -143,7 +158,7 @@ def figure(scenarios: list[str]) -> Path:
         ax.set_title(scenario)
         ax.legend(fontsize=8, ncol=4, loc="upper center")
     fig.tight_layout()
-    out = HERE / "uplink-saved.png"
+    out = folder / "uplink-saved.png"
     fig.savefig(out, dpi=110)
     return out
 
@@ -203,17 +218,25 @@ def live_rows(scenario: str) -> list[str]:
 
 
 def main() -> None:
-    scenarios = sys.argv[1:] or list(SCENARIOS)
+    parser = argparse.ArgumentParser(description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("scenarios", nargs="*", metavar="SCENARIO",
+                        help=f"of {', '.join(SCENARIOS)} (default: both)")
+    parser.add_argument("--folder", type=Path, default=HERE,
+                        help="the folder of in-process runs to read (default: %(default)s)")
+    args = parser.parse_args()
+    scenarios = args.scenarios or list(SCENARIOS)
     unknown = [s for s in scenarios if s not in SCENARIOS]
     if unknown:
-        raise SystemExit(f"unknown scenario {', '.join(unknown)}: one of {', '.join(SCENARIOS)}")
+        parser.error(f"unknown scenario {', '.join(unknown)}: one of {', '.join(SCENARIOS)}")
     print("| scenario | device | rule | runs | uploads alone | lent | lent + rule | "
           "Δ uploads (rule − alone) | share saved | Δ untracked frames | Δ ATE cm | "
-          "Δ cross-device RMS cm (rule − lent) | Δ the edge's lost share, points | seeds |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "Δ cross-device RMS cm (rule − lent) | Δ the edge's lost share, points | "
+          "Δ the device's own lost share, points | seeds |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for scenario in scenarios:
-        print("\n".join(table(scenario)))
-    print(f"wrote {figure(scenarios)}")
+        print("\n".join(table(args.folder, scenario)))
+    print(f"wrote {figure(args.folder, scenarios)}")
     print("\n| live scenario | rule | run | device | frames uploaded, without → with the rule | "
           "untracked frames | camera frames dropped | ATE cm | cross-device RMS cm | "
           "edge's lost share % |")
