@@ -132,6 +132,11 @@ class DeviceWalk:
     #: frame → points of the map it held that the device matched in it (0: not tracked),
     #: for the frames tracked on a map (the device's own side of the lost-frame rule)
     map_matches: dict[int, int] = field(default_factory=dict)
+    #: every frame as the device tracked it: (frame, tracked, features matched, pose
+    #: inliers, map points among them, map version)
+    frame_rows: list[tuple[int, int, int, int, int, int]] = field(default_factory=list)
+    #: the loops its edge closed: (slot, old keyframe, new keyframe, metres moved)
+    loops: list[tuple[int, int, int, float]] = field(default_factory=list)
     uploads: int = 0                #: keyframes the edge integrated from this device
     #: how a finished slot is served (another bench times the edge's steps in finer detail)
     serve: Serving = serve_slot
@@ -157,6 +162,9 @@ class DeviceWalk:
                 self.map_version[frame.index] = record.map_version
         if record.map_version > 0 or not record.tracked:
             self.map_matches[frame.index] = len(record.map_point_ids) if record.tracked else 0
+        self.frame_rows.append((frame.index, int(record.tracked), record.matches,
+                                record.inliers, len(record.map_point_ids),
+                                record.map_version))
         if not result.slot_done:
             return []
         state, rate = self.channel.step()
@@ -164,6 +172,9 @@ class DeviceWalk:
         self.edge_ms.append(served.plan_ms + served.integrate_ms + served.finish_ms)
         self.lost.append(served.lost_share)
         self.uploads += len(served.outcome.integrated)
+        loop = served.outcome.loop
+        if loop is not None and loop.old >= 0 and not loop.refused:
+            self.loops.append((served.outcome.slot, loop.old, loop.new, loop.moved_m))
         if served.update is not None:
             self.held = (served.update, served.outcome.slot, frame.index)
         return [k for k in served.outcome.integrated if k in self.edge.map.keyframes]

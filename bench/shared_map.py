@@ -5,6 +5,7 @@ map into the first one's frame (:mod:`twinslam.slam.back_end.map_merging`).
     python -m bench.shared_map [SEQUENCE] [--frames 1000] [--first forward]
         [--second backward] [--second-after FRAMES] [--seed 0] [--uplink lte] [--vmax N]
         [--share [--share-both]] [--covered-m M] [--no-merge] [--csv FILE]
+        [--frames-csv FILE] [--keyframes-csv FILE]
 
 Both devices play the same sequence, frame for frame in lockstep — by default the first
 forward and the second backward: two users walking the place from its two ends, towards
@@ -27,7 +28,9 @@ instead of the merge's (the two walks' drift apart: a merge found where the devi
 aligns them there, which the true frames do not) and the two edge maps' final keyframes.
 Each device's uploads are counted: with ``--share`` a frame whose view a lent keyframe
 covers is not asked for (the edge's ``covered_m``/``covered_deg``; ``--covered-m 0``: every
-frame a candidate). Beside each device's uploads, two lost shares: the edge's lost-frame
+frame a candidate). ``--frames-csv`` and ``--keyframes-csv`` write every frame as
+tracked and every keyframe each edge map ends with, and the loops each edge closed are
+printed. Beside each device's uploads, two lost shares: the edge's lost-frame
 rule (the share of a slot's frames whose reported points the edge's map — the one it is about
 to send — holds fewer than 15 of) and the device's own count (the share of its frames, since
 it first held a map, that it tracked on fewer than 15 points of the map it held, or not at
@@ -37,6 +40,7 @@ all). ``--csv`` appends one row a run.
 from __future__ import annotations
 
 import argparse
+import csv
 import math
 import tempfile
 import time
@@ -56,7 +60,7 @@ from twinslam.node_runtime.math_threads import one_math_thread
 from twinslam.reporting import append_csv_rows
 from twinslam.rotations import rotation_angle_deg
 from twinslam.sequence_player.playback import ORDERS
-from twinslam.slam.back_end.foreign_keyframes import is_foreign
+from twinslam.slam.back_end.foreign_keyframes import TAG_SHIFT, is_foreign
 from twinslam.slam.back_end.map_merging import (
     MapMerge,
     MergeFinder,
@@ -156,6 +160,13 @@ def main() -> None:
                         help="never merge (the control: each device in its own frame)")
     parser.add_argument("--every", type=int, default=10, help="print every N slots")
     parser.add_argument("--csv", type=Path, help="append the run's figures here")
+    parser.add_argument("--frames-csv", type=Path,
+                        help="write every frame of both devices as tracked: features matched, "
+                             "pose inliers, map points among them, map version")
+    parser.add_argument("--keyframes-csv", type=Path,
+                        help="write every keyframe each edge map holds at the end (archive "
+                             "and map; its own or lent) with its position and the truth's in "
+                             "the first device's frame")
     args = parser.parse_args()
     cv2.setNumThreads(1)
     one_math_thread()                     # as every node (node_runtime.math_threads)
@@ -221,6 +232,14 @@ def main() -> None:
                       flush=True)
         first.edge.close()
         second.edge.close()
+        for walk in (first, second):
+            for loop_slot, old_kf, new_kf, moved in walk.loops:
+                print(f"the {walk.name} edge closed a loop in its slot {loop_slot}: keyframe "
+                      f"{new_kf} on {old_kf}, moving its map up to {moved * 100:.1f} cm")
+        if args.frames_csv:
+            write_frames(args.frames_csv, (first, second))
+        if args.keyframes_csv:
+            write_keyframes(args.keyframes_csv, (first, second))
         shared = [k for k, v in second.map_version.items() if v >= merged_version >= 0]
         # the second device's poses each in its own map's frame (the merge's alignment taken
         # out of those published after it) and each in the place's (put into those before)
@@ -312,6 +331,35 @@ CSV_FIELDS = ("frames", "seed", "uplink", "first_order", "second_order", "second
               "share", "first_uploads", "second_uploads", "adopted", "foreign_at_end",
               "adopted_back", "foreign_at_end_first", "first_lost_share", "second_lost_share",
               "first_map_lost_share", "second_map_lost_share")
+
+
+def write_frames(path: Path, walks: tuple[DeviceWalk, ...]) -> None:
+    """Every frame of ``walks`` as its device tracked it, a row each."""
+    with path.open("w", newline="", encoding="utf-8") as fh:
+        out = csv.writer(fh)
+        out.writerow(("device", "frame", "tracked", "matches", "inliers", "map_points",
+                      "map_version"))
+        out.writerows((walk.name, *row) for walk in walks for row in walk.frame_rows)
+
+
+def write_keyframes(path: Path, walks: tuple[DeviceWalk, ...]) -> None:
+    """Every keyframe each walk's edge holds now, with the truth of its frame (the walks
+    play one sequence: a lent keyframe's frame index is the sequence's) in the first walk's
+    frame — which a map is in only once it merged."""
+    first = walks[0].first_truth
+    assert first is not None
+    place = np.linalg.inv(first)
+    with path.open("w", newline="", encoding="utf-8") as fh:
+        out = csv.writer(fh)
+        out.writerow(("device", "keyframe", "lent", "frame", "x", "y", "z", "true_x",
+                      "true_y", "true_z"))
+        for walk in walks:
+            for kf, pose in sorted(walk.keyframe_poses().items()):
+                frame = kf & ((1 << TAG_SHIFT) - 1)
+                truth = walk.truth.get(frame)
+                true_xyz = (place @ truth)[:3, 3] if truth is not None else (math.nan,) * 3
+                out.writerow((walk.name, kf, int(is_foreign(kf)), frame, *pose[:3, 3],
+                              *true_xyz))
 
 
 def _merge_state(merge: MapMerge | None, finder: MergeFinder) -> str:
