@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from twinslam.sequences.frame import Sequence
 from twinslam.sequences.opening import open_sequence
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive
 from twinslam.slam.front_end.orb_extractor import OrbExtractor
@@ -29,17 +30,24 @@ def _random_keyframe(kf_id: int, slot: int, n: int = 50) -> ArchivedKeyFrame:
                      slot)
 
 
-def test_a_revisited_place_is_recognised_among_the_archived_keyframes() -> None:
-    """Keyframes every 30 frames of the room's walk: a frame a few frames past one of them
-    votes for it first; descriptors of no place vote for nothing."""
+def _room_archive(every: int) -> tuple[KeyFrameArchive, Sequence, OrbExtractor]:
+    """Keyframes every ``every`` frames of the synthetic room's 300-frame walk, each with its
+    own points; (the archive, the walk, the extractor)."""
     seq = open_sequence("synthetic:300", 0, 300)
     orb = OrbExtractor()
     archive = KeyFrameArchive(100)
     first = 1
-    for slot, frame in enumerate(range(0, 300, 30)):
+    for slot, frame in enumerate(range(0, 300, every)):
         desc = orb.extract(seq.read(frame).color).descriptors
         archive.add(_keyframe(frame, desc, first, slot))
         first += len(desc)
+    return archive, seq, orb
+
+
+def test_a_revisited_place_is_recognised_among_the_archived_keyframes() -> None:
+    """Keyframes every 30 frames of the room's walk: a frame a few frames past one of them
+    votes for it first; descriptors of no place vote for nothing."""
+    archive, seq, orb = _room_archive(30)
     for query, place in ((3, 0), (123, 120), (243, 240)):
         found = archive.recognise(orb.extract(seq.read(query).color).descriptors)
         assert found and found[0][0] == place, (query, found)
@@ -88,14 +96,7 @@ def test_a_point_many_keyframes_saw_still_faces_the_ratio_test() -> None:
 def test_recognition_ranks_only_the_keyframes_it_may_propose() -> None:
     """A loop looks among the old walk only: the recent keyframes, which share the most with a
     new one, are not ranked, so they cannot crowd the old place out of the candidates."""
-    seq = open_sequence("synthetic:300", 0, 300)
-    orb = OrbExtractor()
-    archive = KeyFrameArchive(100)
-    first = 1
-    for slot, frame in enumerate(range(0, 300, 10)):
-        desc = orb.extract(seq.read(frame).color).descriptors
-        archive.add(_keyframe(frame, desc, first, slot))
-        first += len(desc)
+    archive, seq, orb = _room_archive(10)
     desc = orb.extract(seq.read(245).color).descriptors
     everyone = archive.recognise(desc, top=3)
     assert everyone[0][0] in (240, 250), everyone
