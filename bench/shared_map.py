@@ -65,6 +65,7 @@ from twinslam.slam.back_end.map_merging import (
     MapMerge,
     MergeFinder,
     adopt_lent,
+    follow_lender_loops,
     unlent_keyframes,
     whole_map,
 )
@@ -86,10 +87,14 @@ def look_for_merge(finder: MergeFinder, place: DeviceWalk, joining: DeviceWalk,
     return None
 
 
-def lend_keyframes(lender: DeviceWalk, borrower: DeviceWalk, lent: set[int], slot: int,
-                   source: int) -> int:
+def lend_keyframes(lender: DeviceWalk, borrower: DeviceWalk, lent: set[int],
+                   followed: dict[int, int], slot: int, source: int) -> int:
     """The lender's own keyframes (archive and map; not those it adopted) the borrower's map
-    has not adopted yet, welded to its points and adopted into its archive; how many."""
+    has not adopted yet, welded to its points and adopted into its archive, after the
+    lender's loops since the last lending (``followed``: source → loops followed) moved the
+    copies lent before them; how many."""
+    followed[source] = follow_lender_loops(borrower.edge.back_end, lender.edge.back_end,
+                                           source, followed.get(source, 0))
     return adopt_lent(borrower.edge.back_end,
                       unlent_keyframes(lender.edge.back_end, lent, slot), source, lent, slot)
 
@@ -190,6 +195,8 @@ def main() -> None:
         look_ms: list[float] = []      #: each slot's search for the first map's place
         lent_ids: set[int] = set()     #: the first map's keyframes the second adopted
         lent_back_ids: set[int] = set()    #: and the second's the first adopted
+        followed: dict[int, int] = {}       #: the first's loops the second's copies followed
+        followed_back: dict[int, int] = {}  #: and the second's the first's copies followed
         lent_total = lent_back = 0
         slot = 0
         first_on = True
@@ -222,9 +229,10 @@ def main() -> None:
                           f"keyframes found it); alignment {t_err * 100:.1f} cm, "
                           f"{r_err:.2f}° from the true one", flush=True)
             if merge is not None and args.share and (got_a or got_b):
-                lent_total += lend_keyframes(first, second, lent_ids, slot, 0)
+                lent_total += lend_keyframes(first, second, lent_ids, followed, slot, 0)
                 if args.share_both:
-                    lent_back += lend_keyframes(second, first, lent_back_ids, slot, 1)
+                    lent_back += lend_keyframes(second, first, lent_back_ids, followed_back,
+                                                slot, 1)
             if slot % args.every == 0:
                 print(f"slot {slot:4d}: first map {len(first.edge.map.keyframes)} + archive "
                       f"{len(first.edge.archive)}, second map {len(second.edge.map.keyframes)} "

@@ -43,6 +43,7 @@ from twinslam.slam.back_end.map_merging import (
     MapMerge,
     MergeFinder,
     adopt_lent,
+    follow_lender_loops,
     unlent_keyframes,
     whole_map,
 )
@@ -102,6 +103,8 @@ class PlaceMerging:
         #: (borrower, lender) → the lender's keyframes the borrower's map adopted (by the
         #: lender's ids)
         self._lent: dict[tuple[str, str], set[int]] = {}
+        #: (borrower, lender) → how many of the lender's loops the borrower's copies followed
+        self._followed: dict[tuple[str, str], int] = {}
         #: each place device's tag for the keyframes it lends (stable while the edge runs)
         self._sources: dict[str, int] = {}
         #: why looks failed since the last :meth:`failures` (the link logs them)
@@ -155,10 +158,14 @@ class PlaceMerging:
         if lender not in cores or borrower not in cores:
             return 0
         lent = self._lent.setdefault((borrower, lender), set())
+        source = self._sources.setdefault(lender, len(self._sources))
+        # the lender's loops since the last lending move the copies lent before them
+        self._followed[(borrower, lender)] = follow_lender_loops(
+            cores[borrower].back_end, cores[lender].back_end, source,
+            self._followed.get((borrower, lender), 0))
         fresh = unlent_keyframes(cores[lender].back_end, lent, slot)
         if not fresh:
             return 0
-        source = self._sources.setdefault(lender, len(self._sources))
         return adopt_lent(cores[borrower].back_end, fresh, source, lent, slot)
 
     def take(self, device: str) -> MergeEvent | None:
@@ -251,6 +258,7 @@ class PlaceMerging:
         self._moved.pop(device, None)
         for pair in [pair for pair in self._lent if device in pair]:
             del self._lent[pair]
+            self._followed.pop(pair, None)
         self._queries.pop(device, None)
         self._running.pop(device, None)
         self._turn.pop(device, None)

@@ -24,7 +24,12 @@ from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.back_end.loop_closing import LoopQuery
 from twinslam.slam.back_end.loop_correction import correct_map, correction_for
 from twinslam.slam.back_end.map_back_end import BackEndConfig, archive_folder
-from twinslam.slam.back_end.map_merging import MergeFinder, welded, whole_map
+from twinslam.slam.back_end.map_merging import (
+    MergeFinder,
+    follow_lender_loops,
+    welded,
+    whole_map,
+)
 from twinslam.slam.camera import Camera
 from twinslam.slam.front_end.orb_extractor import OrbExtractor
 from twinslam.slam.front_end.tracking import depth_at
@@ -402,3 +407,47 @@ def test_adopted_keyframes_are_written_beside_the_slots_for_a_restart(
     written = sorted(int(f.stem.split("-")[1]) for f in
                      archive_folder(tmp_path / "edge.npz").glob("keyframe-*.npz"))
     assert written == sorted(kf.id for kf in lent)
+
+
+def test_a_lenders_loop_moves_the_copies_lent_before_it_never_the_borrowers_own(
+        room: Room) -> None:  # noqa: F811
+    """The lender closes a loop after lending keyframes 60, 90 and 120 (120 newer than its
+    loop's graph: it moves as the lender's head did). The borrower's copies follow: the one
+    restored into its map with the points only copies observe, the archived ones with their
+    points; the borrower's own keyframe and the corners it welded stay. Followed once, a
+    loop is not applied again."""
+    seq, archive, _ = room
+    core = _core(vmax=4)
+    core.back_end.k = seq.intrinsics                             # type: ignore[attr-defined]
+    core.map.next_point_id = int(archive.get(30).point_ids.max()) + 1
+    restore_into(core.map, archive.get(30))
+    copies = {k: welded(_renumbered(archive.get(k), 100_000 * (i + 1)), 0, core.map,
+                        core.camera, slot=1) for i, k in enumerate((60, 90, 120))}
+    core.back_end.adopt(copies.values())
+    core.back_end.restore([copies[60].id], [], slot=2)
+    own_before = core.map.keyframes[30].pose.copy()
+    in_map = core.map.keyframes[copies[60].id]
+    welded_points = in_map.points & core.map.keyframes[30].points
+    only_copy = [p for p in in_map.points if core.map.points[p].observers == {copies[60].id}]
+    assert welded_points and only_copy
+    before = {p: core.map.points[p].position.copy() for p in [*welded_points, *only_copy]}
+    pose_60 = in_map.pose.copy()
+    archived_before = {k: core.archive.get(copies[k].id).pose.copy() for k in (90, 120)}
+
+    lender = _core()
+    c60, c90 = np.eye(4), np.eye(4)
+    c60[0, 3], c90[0, 3] = 0.02, 0.04
+    lender.back_end.applied_loops.append({60: c60, 90: c90})
+    assert follow_lender_loops(core.back_end, lender.back_end, 0, 0) == 1
+
+    np.testing.assert_allclose(core.map.keyframes[30].pose, own_before)
+    np.testing.assert_allclose(in_map.pose, c60 @ pose_60)
+    for p in welded_points:
+        np.testing.assert_allclose(core.map.points[p].position, before[p])
+    for p in only_copy:
+        np.testing.assert_allclose(core.map.points[p].position, before[p] + [0.02, 0, 0])
+    for k in (90, 120):                              # 120 is newer than the graph: as 90
+        np.testing.assert_allclose(core.archive.get(copies[k].id).pose,
+                                   c90 @ archived_before[k])
+    assert follow_lender_loops(core.back_end, lender.back_end, 0, 1) == 1
+    np.testing.assert_allclose(in_map.pose, c60 @ pose_60)

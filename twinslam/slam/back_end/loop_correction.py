@@ -45,12 +45,16 @@ def farthest_move(m: KeyFrameMap, corrections: Mapping[int, np.ndarray]) -> floa
     return max(moves, default=0.0)
 
 
-def correct_map(m: KeyFrameMap, corrections: Mapping[int, np.ndarray]) -> None:
+def correct_map(m: KeyFrameMap, corrections: Mapping[int, np.ndarray],
+                follow_foreign: bool = False) -> None:
     """Move every keyframe of ``m`` by its correction and every point with its reference
-    keyframe (how far a keyframe moves: :func:`farthest_move`, asked before)."""
+    keyframe (how far a keyframe moves: :func:`farthest_move`, asked before).
+    ``follow_foreign``: ``corrections`` name adopted keyframes by their tagged ids (another
+    device's loop followed, :meth:`~twinslam.slam.back_end.map_back_end.MapBackEnd.follow`),
+    taken as they are."""
     applied: dict[int, np.ndarray] = {}
     for kf_id, kf in m.keyframes.items():
-        c = correction_for(corrections, kf_id)
+        c = corrections.get(kf_id) if follow_foreign else correction_for(corrections, kf_id)
         if c is not None:
             applied[kf_id] = c
             kf.pose = c @ kf.pose

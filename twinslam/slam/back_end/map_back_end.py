@@ -44,7 +44,7 @@ from twinslam.slam.back_end.bundle_adjustment import (
     Observation,
     bundle_adjust,
 )
-from twinslam.slam.back_end.foreign_keyframes import is_foreign
+from twinslam.slam.back_end.foreign_keyframes import TAG_SHIFT, is_foreign
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive, restore_into
 from twinslam.slam.back_end.keyframe_gate import KeyFrameGateConfig, implausible_keyframe
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
@@ -159,6 +159,10 @@ class MapBackEnd:
         #: an older one)
         self.loop_edges: list[LoopEdge] = _loop_edges(extra)
         self.loops_refused = 0                 #: loops whose corrections went too far
+        #: each loop applied since the edge started, its corrections (own keyframe id →
+        #: 4×4), in the map's present frame: what the maps this one lent keyframes to must
+        #: apply to their copies (:meth:`follow`)
+        self.applied_loops: list[dict[int, np.ndarray]] = []
         #: the applied loops' corrections at the walk's head, composed: the frame the map is in
         #: relative to the one the walk started in (MapUpdate.frame_correction)
         self.frame_correction = np.asarray(extra.get("frame_correction", np.eye(4)),
@@ -420,6 +424,7 @@ class MapBackEnd:
         if self.config.point_fusion and old in self.map.keyframes and self.camera.known:
             fuse_restored(self.map, old, sorted(self.map.keyframes[old].points), self.camera)
         self.loops_closed += 1
+        self.applied_loops.append(dict(corrections))
         if result.candidate.measured is not None:
             self.loop_edges.append(LoopEdge(old, result.query, result.candidate.measured,
                                             result.candidate.inliers))
@@ -454,10 +459,39 @@ class MapBackEnd:
             raise ValueError("an alignment is a finite 4×4 rigid motion")
         self.loop_closer.discard()
         self.origin = alignment @ self.origin
+        # a loop's correction c moves points of the old frame; in the new one it is A c A⁻¹
+        undo = np.linalg.inv(alignment)
+        self.applied_loops = [{k: alignment @ c @ undo for k, c in loop.items()}
+                              for loop in self.applied_loops]
         everyone = dict.fromkeys([*self.map.keyframes, *(kf.id for kf in self.archive)],
                                  alignment)
         self._correct(everyone, alignment, next_version,
                       "writing the aligned archive's files")
+
+    def follow(self, corrections: Mapping[int, np.ndarray], tag: int) -> int:
+        """Another device's loop, applied to the copies of its keyframes this map adopted
+        (ids tagged ``tag``; ``corrections`` by the lender's own ids, in this map's frame —
+        the place's): each copy moves as its original did (one newer than the lender's graph
+        as the lender's head, :func:`~twinslam.slam.back_end.loop_correction.correction_for`),
+        and with it every point only copies observe. Without it, copies lent before the
+        lender's loop keep its drift while those lent after carry the correction, a loop's
+        correction apart, and a device tracking on the first cannot match the second
+        (docs/results/shared-map.md). A point this map's own keyframes observe stays: their
+        poses are this map's. Returns how many copies moved."""
+        mask = (1 << TAG_SHIFT) - 1
+
+        def of(copy: int) -> np.ndarray | None:
+            return correction_for(corrections, copy & mask) if copy & ~mask == tag else None
+
+        archived = self.archive.correct(
+            {kf.id: c for kf in self.archive if (c := of(kf.id)) is not None}, write=False)
+        if archived:
+            self.loop_closer.after(lambda: self.archive.save(archived),
+                                   "writing the archive's files after a lender's loop")
+        moved = {k: c for k in self.map.keyframes if (c := of(k)) is not None}
+        if moved:
+            correct_map(self.map, moved, follow_foreign=True)
+        return len(archived) + len(moved)
 
     def adopt(self, keyframes: Iterable[ArchivedKeyFrame]) -> list[int]:
         """Another device's keyframes, in this map's frame and under their tagged ids

@@ -127,6 +127,18 @@ def unlent_keyframes(lender: MapBackEnd, lent: Collection[int], slot: int
                   if k not in lent and not is_foreign(k)]
 
 
+def follow_lender_loops(borrower: MapBackEnd, lender: MapBackEnd, source: int,
+                        followed: int) -> int:
+    """The loops the lender (source map ``source``) applied since the first ``followed`` of
+    them, applied to the borrower's copies of its keyframes (:meth:`MapBackEnd.follow`);
+    returns how many of the lender's loops the borrower has followed now. Call it before
+    lending more: a keyframe lent after a loop carries its correction already."""
+    tag = foreign_tag(source)
+    for corrections in lender.applied_loops[followed:]:
+        borrower.follow(corrections, tag)
+    return len(lender.applied_loops)
+
+
 def adopt_lent(borrower: MapBackEnd, keyframes: list[ArchivedKeyFrame], source: int,
                lent: set[int], slot: int) -> int:
     """Another map's ``keyframes`` (of source map ``source``, in the borrower's frame) welded
