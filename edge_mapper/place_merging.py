@@ -13,7 +13,10 @@ at the device's next slot end, before its map update goes out
 correction, and the device's poses are in the place's frame from then on. From then on, at
 each slot end of either, each map adopts the other's own keyframes it has not adopted yet,
 welded to its points, into its archive (:meth:`PlaceMerging.lend`): restores bring them in
-where the device heads, and each device tracks on keyframes only the other uploaded.
+where the device heads, and each device tracks on keyframes only the other uploaded. The
+copies adopted before move with each loop the lender closed since
+(:func:`~twinslam.slam.back_end.map_merging.follow_lender_loops`): lent before and after a
+loop, they would stand a loop's correction apart.
 
 The devices in one frame are a place: its first device in the edge's order (the root) and
 the devices that joined it; the place's frame is its root's first camera's. Each root looks,
