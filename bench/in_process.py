@@ -180,10 +180,10 @@ class DeviceWalk:
         return [k for k in served.outcome.integrated if k in self.edge.map.keyframes]
 
     def map_lost_share(self) -> float:
-        """The share of its frames since it first held a map that the device tracked on fewer
-        of the map's points than it needs (``MIN_INLIERS``), or not at all: frames the map it
-        held did not serve, by the device's own count — the edge's lost-frame rule judges
-        the reported points against the edge's newer map instead."""
+        """Of the frames the device tracked on a map and those it did not track at all, the
+        share it tracked on fewer of the map's points than it needs (``MIN_INLIERS``) or not
+        at all: frames the map it held did not serve, by the device's own count — the edge's
+        lost-frame rule judges the reported points against the edge's newer map instead."""
         if not self.map_matches:
             return math.nan
         counts = np.fromiter(self.map_matches.values(), dtype=np.int64)
