@@ -60,7 +60,7 @@ from twinslam.node_runtime.math_threads import one_math_thread
 from twinslam.reporting import append_csv_rows
 from twinslam.rotations import rotation_angle_deg
 from twinslam.sequence_player.playback import ORDERS
-from twinslam.slam.back_end.foreign_keyframes import TAG_SHIFT, is_foreign
+from twinslam.slam.back_end.foreign_keyframes import is_foreign, source_id
 from twinslam.slam.back_end.map_merging import (
     MapMerge,
     MergeFinder,
@@ -363,7 +363,7 @@ def write_keyframes(path: Path, walks: tuple[DeviceWalk, ...]) -> None:
                       "true_y", "true_z"))
         for walk in walks:
             for kf, pose in sorted(walk.keyframe_poses().items()):
-                frame = kf & ((1 << TAG_SHIFT) - 1)
+                frame = source_id(kf)
                 truth = walk.truth.get(frame)
                 true_xyz = (place @ truth)[:3, 3] if truth is not None else (math.nan,) * 3
                 out.writerow((walk.name, kf, int(is_foreign(kf)), frame, *pose[:3, 3],

@@ -29,3 +29,13 @@ def foreign_tag(source: int) -> int:
 def is_foreign(item_id: int) -> bool:
     """Whether a keyframe or point id came from another device's map."""
     return int(item_id) >> TAG_SHIFT != 0
+
+
+def tag_of(item_id: int) -> int:
+    """The source tag an id carries (0: a map's own)."""
+    return int(item_id) >> TAG_SHIFT << TAG_SHIFT
+
+
+def source_id(item_id: int) -> int:
+    """The id a keyframe or point has in the map it came from (an own id as it is)."""
+    return int(item_id) & ((1 << TAG_SHIFT) - 1)

@@ -44,7 +44,7 @@ from twinslam.slam.back_end.bundle_adjustment import (
     Observation,
     bundle_adjust,
 )
-from twinslam.slam.back_end.foreign_keyframes import TAG_SHIFT, is_foreign
+from twinslam.slam.back_end.foreign_keyframes import is_foreign, source_id, tag_of
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive, restore_into
 from twinslam.slam.back_end.keyframe_gate import KeyFrameGateConfig, implausible_keyframe
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
@@ -478,10 +478,9 @@ class MapBackEnd:
         correction apart, and a device tracking on the first cannot match the second
         (docs/results/shared-map.md). A point this map's own keyframes observe stays: their
         poses are this map's. Returns how many copies moved."""
-        mask = (1 << TAG_SHIFT) - 1
-
         def of(copy: int) -> np.ndarray | None:
-            return correction_for(corrections, copy & mask) if copy & ~mask == tag else None
+            return correction_for(corrections, source_id(copy)) if tag_of(copy) == tag \
+                else None
 
         archived = self.archive.correct(
             {kf.id: c for kf in self.archive if (c := of(kf.id)) is not None}, write=False)
