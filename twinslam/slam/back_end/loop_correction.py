@@ -45,21 +45,22 @@ def farthest_move(m: KeyFrameMap, corrections: Mapping[int, np.ndarray]) -> floa
     return max(moves, default=0.0)
 
 
-def correct_map(m: KeyFrameMap, corrections: Mapping[int, np.ndarray],
-                follow_foreign: bool = False) -> None:
-    """Move every keyframe of ``m`` by its correction and every point with its reference
-    keyframe (how far a keyframe moves: :func:`farthest_move`, asked before).
-    ``follow_foreign``: ``corrections`` name adopted keyframes by their tagged ids (another
-    device's loop followed, :meth:`~twinslam.slam.back_end.map_back_end.MapBackEnd.follow`),
-    taken as they are."""
-    applied: dict[int, np.ndarray] = {}
-    for kf_id, kf in m.keyframes.items():
-        c = corrections.get(kf_id) if follow_foreign else correction_for(corrections, kf_id)
-        if c is not None:
-            applied[kf_id] = c
-            kf.pose = c @ kf.pose
+def correct_map(m: KeyFrameMap, corrections: Mapping[int, np.ndarray]) -> None:
+    """Move every keyframe of ``m`` by its correction (:func:`correction_for`) and every
+    point with its reference keyframe (how far a keyframe moves: :func:`farthest_move`,
+    asked before)."""
+    move_keyframes(m, {k: c for k in m.keyframes
+                       if (c := correction_for(corrections, k)) is not None})
+
+
+def move_keyframes(m: KeyFrameMap, moves: Mapping[int, np.ndarray]) -> None:
+    """Move the keyframes of ``m`` that ``moves`` names (id → 4×4 map-frame correction, as
+    they are: adopted keyframes too) and every point with its reference keyframe, its oldest
+    observer."""
+    for kf_id, c in moves.items():
+        m.keyframes[kf_id].pose = c @ m.keyframes[kf_id].pose
     positions = move_with_keyframes(
         {pid: pt.position for pid, pt in m.points.items()},
-        {pid: min(pt.observers, default=-1) for pid, pt in m.points.items()}, applied)
+        {pid: min(pt.observers, default=-1) for pid, pt in m.points.items()}, moves)
     for pid, xyz in positions.items():
         m.points[pid].position = xyz

@@ -60,7 +60,12 @@ from twinslam.slam.back_end.loop_closing import (
     LoopQuery,
     LoopResult,
 )
-from twinslam.slam.back_end.loop_correction import correct_map, correction_for, farthest_move
+from twinslam.slam.back_end.loop_correction import (
+    correct_map,
+    correction_for,
+    farthest_move,
+    move_keyframes,
+)
 from twinslam.slam.back_end.loop_detection import MIN_GAP
 from twinslam.slam.back_end.point_culling import PointCullingConfig
 from twinslam.slam.back_end.point_fusion import fuse_restored
@@ -489,7 +494,7 @@ class MapBackEnd:
                                    "writing the archive's files after a lender's loop")
         moved = {k: c for k in self.map.keyframes if (c := of(k)) is not None}
         if moved:
-            correct_map(self.map, moved, follow_foreign=True)
+            move_keyframes(self.map, moved)
         return len(archived) + len(moved)
 
     def adopt(self, keyframes: Iterable[ArchivedKeyFrame]) -> list[int]:
