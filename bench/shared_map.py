@@ -64,9 +64,7 @@ from twinslam.slam.back_end.foreign_keyframes import is_foreign, source_id
 from twinslam.slam.back_end.map_merging import (
     MapMerge,
     MergeFinder,
-    adopt_lent,
-    follow_lender_loops,
-    unlent_keyframes,
+    lend_to,
     whole_map,
 )
 
@@ -93,10 +91,9 @@ def lend_keyframes(lender: DeviceWalk, borrower: DeviceWalk, lent: set[int],
     has not adopted yet, welded to its points and adopted into its archive, after the
     lender's loops since the last lending (``followed``: source → loops followed) moved the
     copies lent before them; how many."""
-    followed[source] = follow_lender_loops(borrower.edge.back_end, lender.edge.back_end,
-                                           source, followed.get(source, 0))
-    return adopt_lent(borrower.edge.back_end,
-                      unlent_keyframes(lender.edge.back_end, lent, slot), source, lent, slot)
+    followed[source], adopted = lend_to(borrower.edge.back_end, lender.edge.back_end,
+                                        source, lent, followed.get(source, 0), slot)
+    return adopted
 
 
 def alignment_error(merge: MapMerge, place: DeviceWalk, joining: DeviceWalk

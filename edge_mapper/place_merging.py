@@ -45,9 +45,7 @@ from twinslam.slam.back_end.loop_closing import LoopQuery
 from twinslam.slam.back_end.map_merging import (
     MapMerge,
     MergeFinder,
-    adopt_lent,
-    follow_lender_loops,
-    unlent_keyframes,
+    lend_to,
     whole_map,
 )
 from twinslam.slam.keyframe import KeyFramePayload
@@ -160,16 +158,12 @@ class PlaceMerging:
         cores = self.cores()
         if lender not in cores or borrower not in cores:
             return 0
-        lent = self._lent.setdefault((borrower, lender), set())
+        pair = (borrower, lender)
         source = self._sources.setdefault(lender, len(self._sources))
-        # the lender's loops since the last lending move the copies lent before them
-        self._followed[(borrower, lender)] = follow_lender_loops(
+        self._followed[pair], adopted = lend_to(
             cores[borrower].back_end, cores[lender].back_end, source,
-            self._followed.get((borrower, lender), 0))
-        fresh = unlent_keyframes(cores[lender].back_end, lent, slot)
-        if not fresh:
-            return 0
-        return adopt_lent(cores[borrower].back_end, fresh, source, lent, slot)
+            self._lent.setdefault(pair, set()), self._followed.get(pair, 0), slot)
+        return adopted
 
     def take(self, device: str) -> MergeEvent | None:
         """Before ``device``'s slot end: the merge that moved its map since its last slot end

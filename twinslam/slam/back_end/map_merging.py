@@ -127,12 +127,24 @@ def unlent_keyframes(lender: MapBackEnd, lent: Collection[int], slot: int
                   if k not in lent and not is_foreign(k)]
 
 
+def lend_to(borrower: MapBackEnd, lender: MapBackEnd, source: int, lent: set[int],
+            followed: int, slot: int) -> tuple[int, int]:
+    """One lending from the lender (source map ``source``) to the borrower, both in one
+    frame: first the lender's loops since the first ``followed`` of them move the copies
+    lent before (:func:`follow_lender_loops`), then the lender's own keyframes not in
+    ``lent`` are welded and adopted (:func:`unlent_keyframes`, :func:`adopt_lent`) — in that
+    order, since a keyframe lent after a loop carries its correction already. (Loops
+    followed now, keyframes adopted.)"""
+    followed = follow_lender_loops(borrower, lender, source, followed)
+    return followed, adopt_lent(borrower, unlent_keyframes(lender, lent, slot), source, lent,
+                                slot)
+
+
 def follow_lender_loops(borrower: MapBackEnd, lender: MapBackEnd, source: int,
                         followed: int) -> int:
     """The loops the lender (source map ``source``) applied since the first ``followed`` of
     them, applied to the borrower's copies of its keyframes (:meth:`MapBackEnd.follow`);
-    returns how many of the lender's loops the borrower has followed now. Call it before
-    lending more: a keyframe lent after a loop carries its correction already."""
+    returns how many of the lender's loops the borrower has followed now."""
     tag = foreign_tag(source)
     for corrections in lender.applied_loops[followed:]:
         borrower.follow(corrections, tag)
