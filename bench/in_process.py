@@ -129,9 +129,6 @@ class DeviceWalk:
     edge_ms: list[float] = field(default_factory=list)
     #: each served slot's share of frames the edge's lost-frame rule counted lost
     lost: list[float] = field(default_factory=list)
-    #: frame → points of the map it held that the device matched in it (0: not tracked),
-    #: for the frames tracked on a map (the device's own side of the lost-frame rule)
-    map_matches: dict[int, int] = field(default_factory=dict)
     #: every frame as the device tracked it: (frame, tracked, features matched, pose
     #: inliers, map points among them, map version)
     frame_rows: list[tuple[int, int, int, int, int, int]] = field(default_factory=list)
@@ -160,8 +157,6 @@ class DeviceWalk:
             if record.tracked:
                 self.poses[frame.index] = record.pose
                 self.map_version[frame.index] = record.map_version
-        if record.map_version > 0 or not record.tracked:
-            self.map_matches[frame.index] = len(record.map_point_ids) if record.tracked else 0
         self.frame_rows.append((frame.index, int(record.tracked), record.matches,
                                 record.inliers, len(record.map_point_ids),
                                 record.map_version))
@@ -184,10 +179,9 @@ class DeviceWalk:
         share it tracked on fewer of the map's points than it needs (``MIN_INLIERS``) or not
         at all: frames the map it held did not serve, by the device's own count — the edge's
         lost-frame rule judges the reported points against the edge's newer map instead."""
-        if not self.map_matches:
-            return math.nan
-        counts = np.fromiter(self.map_matches.values(), dtype=np.int64)
-        return float(np.mean(counts < MIN_INLIERS))
+        held = [0 if not tracked else points for _, tracked, _, _, points, version
+                in self.frame_rows if version > 0 or not tracked]
+        return float(np.mean(np.array(held) < MIN_INLIERS)) if held else math.nan
 
     def query(self, keyframe: int) -> LoopQuery | None:
         """The integrated keyframe's features as the device uploaded them (None: no longer
