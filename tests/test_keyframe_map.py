@@ -50,6 +50,8 @@ def test_evicting_a_keyframe_drops_its_links_and_orphaned_points() -> None:
 def test_checkpoint_round_trip_and_refusals(tmp_path: Path) -> None:
     m = _map()
     m.evict(12)
+    for n, point in enumerate(m.points.values()):      # the culling's counts come back too
+        point.visible, point.found = 3 + n, 1 + n
     path = tmp_path / "map.npz"
     m.save(path, slot=np.array(7))
     again, extra = KeyFrameMap.load(path)
@@ -57,13 +59,17 @@ def test_checkpoint_round_trip_and_refusals(tmp_path: Path) -> None:
     assert again.keyframe_ids() == [10, 11]
     np.testing.assert_array_equal(again.covisibility(), m.covisibility())
     np.testing.assert_array_equal(again.keyframes[11].pose, m.keyframes[11].pose)
-    assert {p: (tuple(v.position), bytes(v.descriptor), v.observers)
+    assert {p: (tuple(v.position), bytes(v.descriptor), v.observers, v.visible, v.found)
             for p, v in again.points.items()} == \
-        {p: (tuple(v.position), bytes(v.descriptor), v.observers) for p, v in m.points.items()}
+        {p: (tuple(v.position), bytes(v.descriptor), v.observers, v.visible, v.found)
+         for p, v in m.points.items()}
     for k in (10, 11):
         np.testing.assert_equal(again.keyframes[k].measurements, m.keyframes[k].measurements)
     assert again.add_point(np.zeros(3), np.zeros(32, np.uint8)) == m.next_point_id
     assert not (tmp_path / "map.npz.tmp").exists()
+    KeyFrameMap().save(tmp_path / "empty.npz")        # an edge before its first keyframe
+    empty, _ = KeyFrameMap.load(tmp_path / "empty.npz")
+    assert not empty.keyframes and not empty.points
     (tmp_path / "bad.npz").write_bytes(b"garbage")
     with pytest.raises(MapError, match=r"bad\.npz"):
         KeyFrameMap.load(tmp_path / "bad.npz")
