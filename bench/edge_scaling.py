@@ -15,12 +15,17 @@ the keyframe budget (V_total = 45 × N, equal shares), map updates and viewer to
 
 With ``--edges K`` the devices are split into K blocks of neighbours, each served by an
 ``edge_mapper`` process of its own (what ``twinslam launch --devices N --edges K`` starts); the
-CPU is theirs together. ``--pools cores`` runs the edges with the math libraries' thread pools
+CPU is theirs together. With ``--hosts`` each edge process runs on an edge host of its own
+(``edge``, ``edge2``, …: network namespaces on a switch, :mod:`twinslam.hosts.netns`, as
+``twinslam launch --hosts --edges K`` places them) and the emulated devices on a host
+``device``: every message crosses a veth and the bridge over UDP with static discovery peers,
+as between machines on a LAN — the hosts still share this machine's cores (needs root).
+``--pools cores`` runs the edges with the math libraries' thread pools
 at a thread a core, as every node had them before they were kept to one
 (:mod:`twinslam.node_runtime.math_threads`): ``--pools cores,one`` measures both in one run.
 
     python -m bench.edge_scaling [--devices 1,2,4,8,12,16] [--edges 1,2] [--pools one]
-                                 [--recording DIR] [--csv FILE]
+                                 [--hosts] [--recording DIR] [--csv FILE]
 """
 
 from __future__ import annotations
@@ -52,7 +57,8 @@ from twinslam_msgs.msg import (
 )
 
 from msg_schemas import qos, topics
-from twinslam.hosts.loopback import LoopbackDomain
+from twinslam.hosts.loopback import LoopbackDomain, ProcessDomain
+from twinslam.hosts.netns import NetnsHosts, unavailable_reason
 from twinslam.live.fleet import edge_blocks
 from twinslam.node_runtime.session import RosSession
 from twinslam.slot_protocol import table1
@@ -198,18 +204,42 @@ def pools_env(pools: str) -> Iterator[None]:
                 os.environ[key] = value
 
 
+def edge_host(e: int) -> str:
+    """The host of the ``e``-th edge process (from 0): ``edge``, ``edge2``, … (the launcher's
+    names, :func:`twinslam.live.fleet.edge_blocks`' order)."""
+    return "edge" if e == 0 else f"edge{e + 1}"
+
+
+@contextlib.contextmanager
+def fleet_network(edges: int, hosts: bool) -> Iterator[tuple[ProcessDomain, str | None]]:
+    """Where a row runs: a loopback domain, or with ``hosts`` the hosts ``device``, ``edge``,
+    ``edge2``, … (every row of a process the same set of names but for the edges: Fast DDS
+    takes a process's interfaces from its first participant, and the device host keeps its
+    address in every set, :meth:`NetnsHosts.address`); yields the domain and the devices'
+    host (None on loopback), inside which this process's participant must be made."""
+    if not hosts:
+        with LoopbackDomain() as dom:
+            dom.activate()
+            yield dom, None
+        return
+    names = ("device", *(edge_host(e) for e in range(edges)))
+    with NetnsHosts(prefix=f"tsb{os.getpid()}-", domain_id=0, hosts=names) as net, \
+            net.inside("device"):
+        yield net, "device"
+
+
 def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0.0,
-            edges: int = 1, pools: str = "one") -> dict[str, float]:
+            edges: int = 1, pools: str = "one", hosts: bool = False) -> dict[str, float]:
     names = [f"ar{i + 1}" for i in range(n)]
-    with pools_env(pools), LoopbackDomain() as dom:
-        dom.activate()
+    with pools_env(pools), fleet_network(edges, hosts) as (dom, _):
         served = edge_blocks(names, edges)
         procs = [dom.spawn(["-m", "edge_mapper.node", "--ros-args",
                             "-r", f"__node:=edge_mapper_{e + 1}", "-p", f"policy:={policy}",
                             "-p", f"devices:=[{', '.join(block)}]",
                             "-p", f"vmax_total:={45 * len(block)}",
                             "-p", "allocator:=equal", "-p", "slot_timeout_s:=5.0",
-                            "-p", f"compute_budget:={compute_budget}"])
+                            "-p", f"compute_budget:={compute_budget}"],
+                           host=edge_host(e) if hosts else None)
                  for e, block in enumerate(served)]
         for edge, block in zip(procs, served, strict=True):
             if not dom.wait_for_log(edge, f"listening on /{block[-1]}", 120):
@@ -258,7 +288,8 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             print(d.name, {k: round(s.slot_latency_ms) for k, s in sorted(d.stats.items())})
     compute = [s.slot_processing_ms for s in stats]
     latency = [s.slot_latency_ms for s in stats]
-    return {"devices": n, "edges": len(served), "pools": pools, "device_slots": expected,
+    return {"devices": n, "edges": len(served), "pools": pools,
+            "network": "hosts" if hosts else "loopback", "device_slots": expected,
             "answered": len(stats),
             "compute_ms_median": float(np.median(compute)) if compute else math.nan,
             "compute_ms_p95": float(np.percentile(compute, 95)) if compute else math.nan,
@@ -284,7 +315,14 @@ def main() -> None:
                              "(a thread a core, as before); comma-separated to compare")
     parser.add_argument("--compute-budget", type=float, default=0.0,
                         help="the edge's compute_budget (a share of one core; 0: none)")
+    parser.add_argument("--hosts", action="store_true",
+                        help="each edge process on an edge host of its own and the devices on "
+                             "a device host (network namespaces on one switch; needs root) "
+                             "instead of one loopback domain")
     args = parser.parse_args()
+    why_not = unavailable_reason() if args.hosts else None
+    if why_not is not None:
+        raise SystemExit(f"--hosts: network namespaces cannot be made here: {why_not}")
     with tempfile.TemporaryDirectory(prefix="twinslam-scaling-") as tmp:
         folder = args.recording
         if folder is None:
@@ -295,7 +333,9 @@ def main() -> None:
           f"{platform.python_version()}; {len(recording.summaries)} slots a device, "
           f"{len(recording.keyframes)} keyframes recorded; policy {args.policy}; slot period "
           f"{recording.slot_s:.3g} s (the recording's); compute budget "
-          f"{args.compute_budget:g} of a core", flush=True)
+          f"{args.compute_budget:g} of a core; "
+          f"{'edge and device hosts (network namespaces)' if args.hosts else 'loopback'}",
+          flush=True)
     rows = []
     header = (f"{'pools':>5} {'edges':>5} {'devices':>7} {'answered':>9} "
               f"{'edge ms/slot':>12} {'p95':>6} "
@@ -304,7 +344,7 @@ def main() -> None:
     settings = [(pools, int(edges), int(n)) for pools in args.pools.split(",")
                 for edges in args.edges.split(",") for n in args.devices.split(",")]
     for pools, edges, n in settings:
-        row = measure(n, recording, args.policy, args.compute_budget, edges, pools)
+        row = measure(n, recording, args.policy, args.compute_budget, edges, pools, args.hosts)
         rows.append(row)
         print(f"{pools:>5} {row['edges']:>5} {n:>7} "
               f"{row['answered']:>4.0f}/{row['device_slots']:<4.0f} "
