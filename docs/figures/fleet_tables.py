@@ -10,6 +10,10 @@ files the commands wrote (every command is on that page beside its table):
   commit) beside fleet/edge-scaling-default-1s.csv (the default edge before) →
   fleet/edge-scaling-edges.png: the late share and the edges' CPU per device vs N, a line per
   setting (the math pools, the edge processes);
+* ``hosts`` — fleet/edge-hosts/{loopback,hosts}-R.csv (``python -m bench.edge_scaling
+  --edges 2 [--hosts]``, run R of each, alternated) → fleet/edge-hosts.png: the late share
+  and the summaries → map p95 vs N, the two edge processes on one loopback domain and on two
+  edge hosts (network namespaces), every run a line;
 * ``sim FILE…`` — ``twinslam sim --devices N --csv`` files: per allocator the fleet mean (over
   devices, then seeds) of mean υ, lost share and υ tracked, Jain's index of the devices'
   tracked shares, and the paired differences with ``equal`` on the same seeds;
@@ -22,6 +26,7 @@ files the commands wrote (every command is on that page beside its table):
 
     .venv/bin/python docs/figures/fleet_tables.py scaling
     .venv/bin/python docs/figures/fleet_tables.py edges
+    .venv/bin/python docs/figures/fleet_tables.py hosts
     .venv/bin/python docs/figures/fleet_tables.py sim docs/figures/fleet/sim-n10-lff.csv
     .venv/bin/python docs/figures/fleet_tables.py split \
         docs/figures/fleet/sim-n10-lff-cell400.csv \
@@ -229,12 +234,45 @@ def edges() -> None:
     print(f"wrote {out}")
 
 
+def hosts() -> None:
+    """Two edge processes on one loopback domain against two edge hosts, run by run."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.4))
+    for colour, network, label in (("C0", "loopback", "two edge processes, one loopback domain"),
+                                   ("C3", "hosts", "two edge hosts (network namespaces, UDP)")):
+        runs = sorted((HERE / "fleet/edge-hosts").glob(f"{network}-*.csv"))
+        for i, path in enumerate(runs):
+            rows = _rows(path)
+            n = [int(r["devices"]) for r in rows]
+            name = f"{label}, {len(runs)} runs" if i == 0 else None
+            axes[0].plot(n, [100 * float(r["missed_share"]) for r in rows], "o-",
+                         color=colour, alpha=0.8, label=name)
+            axes[1].plot(n, [float(r["latency_ms_p95"]) / 1000 for r in rows], "o-",
+                         color=colour, alpha=0.8, label=name)
+    axes[0].axhline(5, color="grey", lw=1)
+    axes[0].text(8, 7, "goal: 5 % late", color="grey", fontsize=8)
+    axes[0].set(xlabel="devices", ylabel="% of device-slots whose map came after 1 s",
+                ylim=(0, 100), title="late maps (2 cores shared by every host)")
+    axes[1].axhline(1, color="grey", lw=1)
+    axes[1].set(xlabel="devices", ylabel="seconds", ylim=(0, None),
+                title="summaries → map update, p95")
+    axes[0].legend(fontsize=8, loc="upper left")
+    fig.tight_layout()
+    out = HERE / "fleet/edge-hosts.png"
+    fig.savefig(out, dpi=110)
+    print(f"wrote {out}")
+
+
 def main(argv: list[str]) -> int:
-    if not argv or argv[0] not in ("scaling", "edges", "sim", "split", "live"):
+    if not argv or argv[0] not in ("scaling", "edges", "hosts", "sim", "split", "live"):
         print(__doc__)
         return 2
-    {"scaling": lambda a: scaling(), "edges": lambda a: edges(), "sim": sim, "split": split,
-     "live": live}[argv[0]](argv[1:])
+    {"scaling": lambda a: scaling(), "edges": lambda a: edges(), "hosts": lambda a: hosts(),
+     "sim": sim, "split": split, "live": live}[argv[0]](argv[1:])
     return 0
 
 
