@@ -34,11 +34,12 @@ import os
 import threading
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass
+from itertools import chain
 from pathlib import Path
 
 import numpy as np
 
-from twinslam.slam.back_end.keyframe_map import KeyFrameMap
+from twinslam.slam.back_end.keyframe_map import KeyFrameMap, stacked_rows
 
 ARCHIVE_FORMAT = "twinslam-archived-keyframe-1"
 #: an ORB descriptor: 256 bits
@@ -65,14 +66,17 @@ class ArchivedKeyFrame:
     def of(cls, m: KeyFrameMap, kf_id: int, slot: int) -> ArchivedKeyFrame:
         """Keyframe ``kf_id`` of ``m`` with its points, before it is evicted."""
         kf = m.keyframes[kf_id]
-        ids = np.array(sorted(kf.points), dtype=np.int64)
-        points = [m.points[int(p)] for p in ids]
+        order = sorted(kf.points)
+        points = [m.points[p] for p in order]
         nan3 = (np.nan, np.nan, np.nan)
-        return cls(kf_id, kf.pose.copy(), ids,
-                   np.array([p.position for p in points], dtype=np.float64).reshape(-1, 3),
-                   np.array([p.descriptor for p in points], dtype=np.uint8).reshape(-1, 32),
-                   np.array([kf.measurements.get(int(p), nan3) for p in ids],
-                            dtype=np.float64).reshape(-1, 3), slot)
+        # the loop closer snapshots every keyframe of the map each slot: each column is read
+        # straight into its array (see KeyFrameMap.save)
+        measured = np.fromiter(chain.from_iterable(kf.measurements.get(p, nan3) for p in order),
+                               dtype=np.float64, count=3 * len(order))
+        return cls(kf_id, kf.pose.copy(), np.array(order, dtype=np.int64),
+                   stacked_rows([p.position for p in points], (3,), np.float64),
+                   stacked_rows([p.descriptor for p in points], (32,), np.uint8),
+                   measured.reshape(-1, 3), slot)
 
     @property
     def nbytes(self) -> int:

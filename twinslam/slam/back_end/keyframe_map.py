@@ -52,7 +52,7 @@ class MapPoint:
     found: int = 1
 
 
-def _stacked(rows: list[np.ndarray], shape: tuple[int, ...], dtype: type) -> np.ndarray:
+def stacked_rows(rows: list[np.ndarray], shape: tuple[int, ...], dtype: type) -> np.ndarray:
     """Equal-shaped arrays as one array of ``(len(rows), *shape)``, also when there are none
     (``np.concatenate`` copies each row's buffer at once; ``np.array`` reads it element by
     element)."""
@@ -242,11 +242,11 @@ class KeyFrameMap:
         with tmp.open("wb") as fh:
             np.savez(fh, format=np.array(CHECKPOINT_FORMAT),
                      keyframe_ids=np.array(kf_ids, dtype=np.int64),
-                     keyframe_poses=_stacked([self.keyframes[k].pose for k in kf_ids],
+                     keyframe_poses=stacked_rows([self.keyframes[k].pose for k in kf_ids],
                                              (4, 4), np.float64),
                      point_ids=np.array(pt_ids, dtype=np.int64),
-                     point_positions=_stacked([p.position for p in points], (3,), np.float64),
-                     point_descriptors=_stacked([p.descriptor for p in points], (32,),
+                     point_positions=stacked_rows([p.position for p in points], (3,), np.float64),
+                     point_descriptors=stacked_rows([p.descriptor for p in points], (32,),
                                                 np.uint8),
                      observations=np.column_stack([observers, seen]).reshape(-1, 2),
                      measurements=uvd.reshape(-1, 3),
