@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from twinslam.slam.back_end.keyframe_map import KeyFrameMap
+from twinslam.slam.back_end.keyframe_map import KeyFrameMap, stacked_rows
 from twinslam.slam.back_end.point_culling import PointCullingConfig, count_and_cull, facing
 from twinslam.slam.descriptor_matching import hamming_rows
 from twinslam.slam.keyframe import is_track_id
@@ -182,8 +182,9 @@ class LocalMapping:
             return lambda i: None
         points = self.map.points
         ids = in_view.tolist()
-        tree = cKDTree(np.array([points[p].position for p in ids]))
-        theirs = np.array([points[p].descriptor for p in ids], dtype=np.uint8)
+        in_sight = [points[p] for p in ids]
+        tree = cKDTree(stacked_rows([p.position for p in in_sight], (3,), np.float64))
+        theirs = stacked_rows([p.descriptor for p in in_sight], (32,), np.uint8)
         z = np.asarray(depths, dtype=np.float64)[placed]
         # unsorted: each neighbourhood in the tree's own order, as a query of one point
         near = tree.query_ball_point(np.array([world[i] for i in placed]), radius + 0.02 * z,
