@@ -17,7 +17,6 @@ farther off (a wrong pose accepted), and not found, with the median time a searc
 from __future__ import annotations
 
 import argparse
-import csv
 import platform
 import time
 from pathlib import Path
@@ -25,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from twinslam.cli.console import HelpFormatter
+from twinslam.reporting import write_dict_rows
 from twinslam.sequences.opening import open_sequence
 from twinslam.slam.back_end.archive_relocalisation import (
     SOLVERS,
@@ -113,10 +113,7 @@ def main() -> None:
                   f"{len(mine) - right - wrong:>5} "
                   f"{float(np.median([r['ms'] for r in mine])):>9.1f}", flush=True)
     if args.csv:
-        with args.csv.open("w", newline="", encoding="utf-8") as fh:
-            writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-            writer.writeheader()
-            writer.writerows(rows)
+        write_dict_rows(args.csv, rows)
         print(f"wrote {args.csv}")
 
 

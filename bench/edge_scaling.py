@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import csv
 import math
 import os
 import platform
@@ -61,6 +60,7 @@ from twinslam.hosts.loopback import LoopbackDomain, ProcessDomain
 from twinslam.hosts.netns import NetnsHosts, unavailable_reason
 from twinslam.live.fleet import edge_blocks
 from twinslam.node_runtime.session import RosSession
+from twinslam.reporting import write_dict_rows
 from twinslam.slot_protocol import table1
 
 REPO = Path(__file__).resolve().parents[1]
@@ -352,10 +352,7 @@ def main() -> None:
               f"{row['latency_ms_median']:>10.0f} {row['latency_ms_p95']:>6.0f} "
               f"{row['missed_share']:>7.1%} {row['edge_cpu_share']:>8.0%}", flush=True)
     if args.csv:
-        with args.csv.open("w", newline="", encoding="utf-8") as fh:
-            writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-            writer.writeheader()
-            writer.writerows(rows)
+        write_dict_rows(args.csv, rows)
         print(f"wrote {args.csv}")
 
 

@@ -76,6 +76,7 @@ from twinslam.live.tracking_quality import (
     truth_in_map,
 )
 from twinslam.policies.registry import make_policy
+from twinslam.reporting import write_dict_rows
 from twinslam.rotations import rotation_angle_deg
 from twinslam.sequence_player.playback import ORDERS, Playback, PlayedSequence
 from twinslam.sequences.opening import AUTO, open_sequence
@@ -329,10 +330,7 @@ def main() -> None:
     print(f"archive vs map: at the end RMS {disagreements[-1].rms_m:.3f} m, the largest "
           f"pair over the walk {largest:.3f} m")
     if args.csv:
-        with args.csv.open("w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-            writer.writeheader()
-            writer.writerows(rows)
+        write_dict_rows(args.csv, rows)
     if args.keyframes_csv:
         write_histories(args.keyframes_csv, history, truth)
 

@@ -32,6 +32,15 @@ def write_csv(path: Path, header: Sequence[str], rows: Sequence[Sequence[object]
         writer.writerows(rows)
 
 
+def write_dict_rows(path: Path, rows: Sequence[Mapping[str, object]]) -> None:
+    """Rows of one shape (the same keys, in order) as a table at ``path``, their keys the
+    header: what a bench writes with ``--csv``."""
+    if not rows:
+        raise ValueError(f"{path}: no rows to write")
+    header = list(rows[0])
+    write_csv(Path(path), header, [[r[k] for k in header] for r in rows])
+
+
 def append_csv_rows(path: Path, columns: Sequence[str],
                     rows: Sequence[Mapping[str, object]]) -> None:
     """Append ``rows`` (column → value; a column they lack is left empty) to the table at
