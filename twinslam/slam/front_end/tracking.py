@@ -422,20 +422,14 @@ class Tracking:
             if kept >= cfg.min_inliers and kept >= cfg.min_inlier_ratio * len(ids):
                 return np.linalg.inv(refined), mask
             rvec0, _ = cv2.Rodrigues(cw[:3, :3])
-            ok, rvec, tvec, inl = cv2.solvePnPRansac(
-                world, pixels.astype(np.float64), self.k, None, rvec0.copy(),
-                cw[:3, 3].copy(), useExtrinsicGuess=True, iterationsCount=100,
-                reprojectionError=cfg.reprojection_px, confidence=0.999,
-                flags=cv2.SOLVEPNP_ITERATIVE)
+            tvec0 = cw[:3, 3].copy()
         else:
-            # relocalisation: matched by descriptor against every point, no prior, most
-            # matches wrong: USAC, as the edge's archive search (archive_relocalisation)
-            params = cv2.UsacParams()
-            params.threshold = cfg.reprojection_px
-            params.confidence = 0.999
-            params.maxIterations = 100
-            ok, _, rvec, tvec, inl = cv2.solvePnPRansac(
-                world, pixels.astype(np.float64), self.k, None, params=params)
+            rvec0, tvec0 = np.zeros((3, 1)), np.zeros(3)
+        ok, rvec, tvec, inl = cv2.solvePnPRansac(
+            world, pixels.astype(np.float64), self.k, None, rvec0.copy(), tvec0,
+            useExtrinsicGuess=predicted is not None, iterationsCount=100,
+            reprojectionError=self.config.reprojection_px, confidence=0.999,
+            flags=cv2.SOLVEPNP_ITERATIVE)
         if not ok or inl is None or len(inl) < self.config.min_inliers:
             return None, np.zeros(len(ids), dtype=bool)
         mask = np.zeros(len(ids), dtype=bool)
