@@ -190,10 +190,7 @@ def scaling() -> None:
     ax.set(xlabel="devices", ylabel="ms per slot of the whole fleet", xscale="log",
            yscale="log", title="simulator (one core): a slot of N devices")
     ax.legend(fontsize=8, title="allocator")
-    fig.tight_layout()
-    out = HERE / "fleet/scaling.png"
-    fig.savefig(out, dpi=110)
-    print(f"wrote {out}")
+    _save(fig, "fleet/scaling.png")
 
 
 def edges() -> None:
@@ -226,8 +223,13 @@ def edges() -> None:
     axes[1].set(xlabel="devices", ylabel="% of one core per device",
                 title="the edges' CPU per device (falls where slots go unserved)")
     axes[0].legend(fontsize=7, loc="upper left")
+    _save(fig, "fleet/edge-scaling-edges.png")
+
+
+def _save(fig: Any, name: str) -> None:
+    """Write the figure beside this script as ``name`` and say where."""
     fig.tight_layout()
-    out = HERE / "fleet/edge-scaling-edges.png"
+    out = HERE / name
     fig.savefig(out, dpi=110)
     print(f"wrote {out}")
 
@@ -265,10 +267,7 @@ def hosts() -> None:
     axes[1].set(xlabel="devices", ylabel="seconds", ylim=(0, None),
                 title="summaries → map update, p95")
     axes[0].legend(fontsize=8, loc="upper left")
-    fig.tight_layout()
-    out = HERE / "fleet/edge-hosts.png"
-    fig.savefig(out, dpi=110)
-    print(f"wrote {out}")
+    _save(fig, "fleet/edge-hosts.png")
 
 
 def main(argv: list[str]) -> int:
