@@ -58,7 +58,7 @@ from twinslam_msgs.msg import (
 from msg_schemas import qos, topics
 from twinslam.hosts.loopback import LoopbackDomain, ProcessDomain
 from twinslam.hosts.netns import NetnsHosts, unavailable_reason
-from twinslam.live.fleet import edge_blocks
+from twinslam.live.fleet import edge_blocks, edge_hosts
 from twinslam.node_runtime.session import RosSession
 from twinslam.reporting import write_dict_rows
 from twinslam.slot_protocol import table1
@@ -204,12 +204,6 @@ def pools_env(pools: str) -> Iterator[None]:
                 os.environ[key] = value
 
 
-def edge_host(e: int) -> str:
-    """The host of the ``e``-th edge process (from 0): ``edge``, ``edge2``, … (the launcher's
-    names, :func:`twinslam.live.fleet.edge_blocks`' order)."""
-    return "edge" if e == 0 else f"edge{e + 1}"
-
-
 @contextlib.contextmanager
 def fleet_network(edges: int, hosts: bool) -> Iterator[tuple[ProcessDomain, str | None]]:
     """Where a row runs: a loopback domain, or with ``hosts`` the hosts ``device``, ``edge``,
@@ -222,7 +216,7 @@ def fleet_network(edges: int, hosts: bool) -> Iterator[tuple[ProcessDomain, str 
             dom.activate()
             yield dom, None
         return
-    names = ("device", *(edge_host(e) for e in range(edges)))
+    names = ("device", *edge_hosts(edges))
     with NetnsHosts(prefix=f"tsb{os.getpid()}-", domain_id=0, hosts=names) as net, \
             net.inside("device"):
         yield net, "device"
@@ -233,13 +227,14 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
     names = [f"ar{i + 1}" for i in range(n)]
     with pools_env(pools), fleet_network(edges, hosts) as (dom, _):
         served = edge_blocks(names, edges)
+        hosted = edge_hosts(len(served)) if hosts else [None] * len(served)
         procs = [dom.spawn(["-m", "edge_mapper.node", "--ros-args",
                             "-r", f"__node:=edge_mapper_{e + 1}", "-p", f"policy:={policy}",
                             "-p", f"devices:=[{', '.join(block)}]",
                             "-p", f"vmax_total:={45 * len(block)}",
                             "-p", "allocator:=equal", "-p", "slot_timeout_s:=5.0",
                             "-p", f"compute_budget:={compute_budget}"],
-                           host=edge_host(e) if hosts else None)
+                           host=hosted[e])
                  for e, block in enumerate(served)]
         for edge, block in zip(procs, served, strict=True):
             if not dom.wait_for_log(edge, f"listening on /{block[-1]}", 120):

@@ -40,7 +40,6 @@ all). ``--csv`` appends one row a run.
 from __future__ import annotations
 
 import argparse
-import csv
 import math
 import tempfile
 import time
@@ -57,7 +56,7 @@ from twinslam.live.tracking_quality import (
     cross_device_revisit_error,
 )
 from twinslam.node_runtime.math_threads import one_math_thread
-from twinslam.reporting import append_csv_rows
+from twinslam.reporting import append_csv_rows, write_csv
 from twinslam.rotations import rotation_angle_deg
 from twinslam.sequence_player.playback import ORDERS
 from twinslam.slam.back_end.foreign_keyframes import is_foreign, source_id
@@ -340,11 +339,9 @@ CSV_FIELDS = ("frames", "seed", "uplink", "first_order", "second_order", "second
 
 def write_frames(path: Path, walks: tuple[DeviceWalk, ...]) -> None:
     """Every frame of ``walks`` as its device tracked it, a row each."""
-    with path.open("w", newline="", encoding="utf-8") as fh:
-        out = csv.writer(fh)
-        out.writerow(("device", "frame", "tracked", "matches", "inliers", "map_points",
-                      "map_version"))
-        out.writerows((walk.name, *row) for walk in walks for row in walk.frame_rows)
+    write_csv(path, ("device", "frame", "tracked", "matches", "inliers", "map_points",
+                     "map_version"),
+              [(walk.name, *row) for walk in walks for row in walk.frame_rows])
 
 
 def write_keyframes(path: Path, walks: tuple[DeviceWalk, ...]) -> None:
@@ -354,17 +351,15 @@ def write_keyframes(path: Path, walks: tuple[DeviceWalk, ...]) -> None:
     first = walks[0].first_truth
     assert first is not None
     place = np.linalg.inv(first)
-    with path.open("w", newline="", encoding="utf-8") as fh:
-        out = csv.writer(fh)
-        out.writerow(("device", "keyframe", "lent", "frame", "x", "y", "z", "true_x",
-                      "true_y", "true_z"))
-        for walk in walks:
-            for kf, pose in sorted(walk.keyframe_poses().items()):
-                frame = source_id(kf)
-                truth = walk.truth.get(frame)
-                true_xyz = (place @ truth)[:3, 3] if truth is not None else (math.nan,) * 3
-                out.writerow((walk.name, kf, int(is_foreign(kf)), frame, *pose[:3, 3],
-                              *true_xyz))
+    rows = []
+    for walk in walks:
+        for kf, pose in sorted(walk.keyframe_poses().items()):
+            frame = source_id(kf)
+            truth = walk.truth.get(frame)
+            true_xyz = (place @ truth)[:3, 3] if truth is not None else (math.nan,) * 3
+            rows.append((walk.name, kf, int(is_foreign(kf)), frame, *pose[:3, 3], *true_xyz))
+    write_csv(path, ("device", "keyframe", "lent", "frame", "x", "y", "z", "true_x", "true_y",
+                     "true_z"), rows)
 
 
 def _merge_state(merge: MapMerge | None, finder: MergeFinder) -> str:

@@ -64,7 +64,6 @@ def test_a_wrong_match_and_an_unknown_place_are_refused(
                           seq.intrinsics)                    # type: ignore[attr-defined]
 
 
-
 @pytest.mark.parametrize("query", [4, 127, 251])
 def test_a_frame_whose_matches_are_mostly_wrong_is_still_found(
         room: tuple[object, KeyFrameArchive, OrbExtractor], query: int) -> None:

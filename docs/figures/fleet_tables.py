@@ -44,7 +44,7 @@ from pathlib import Path
 from typing import Any
 
 from twinslam.allocation.allocators import jain_index
-from twinslam.reporting import mean_ci95
+from twinslam.reporting import mean_ci95, pyplot
 
 HERE = Path(__file__).resolve().parent
 
@@ -147,11 +147,7 @@ def live(paths: list[str]) -> None:
 
 
 def scaling() -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     live_rows = _rows(HERE / "fleet/edge-scaling.csv")
     n = [int(r["devices"]) for r in live_rows]
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
@@ -195,11 +191,7 @@ def scaling() -> None:
 
 def edges() -> None:
     """The default edge at 1 s slots: before, and per math-pool and edge-process setting."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     series: dict[str, list[dict[str, str]]] = {
         "before (2026-11-29 21:22, pools a thread a core)":
             _rows(HERE / "fleet/edge-scaling-default-1s.csv")}
@@ -245,11 +237,7 @@ def _late_share_axis(ax: Any, title: str, goal_x: float) -> None:
 
 def hosts() -> None:
     """Two edge processes on one loopback domain against two edge hosts, run by run."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.4))
     for colour, network, label in (("C0", "loopback", "two edge processes, one loopback domain"),
                                    ("C3", "hosts", "two edge hosts (network namespaces, UDP)")):

@@ -77,8 +77,8 @@ class FleetConfig:
         return ["edge_mapper" if e == 0 else f"edge_mapper_{e + 1}" for e in range(self.edges)]
 
     def edge_hosts(self) -> list[str]:
-        """The edges' hosts (``--hosts``): ``edge`` (a single edge's), ``edge2`` …"""
-        return ["edge" if e == 0 else f"edge{e + 1}" for e in range(self.edges)]
+        """The edges' hosts (``--hosts``): :func:`edge_hosts`."""
+        return edge_hosts(self.edges)
 
     def edge_shares(self) -> list[int]:
         """Each edge's part of ``vmax_total`` (its devices' share, the remainder one each to
@@ -108,6 +108,12 @@ class FleetConfig:
                              "a device")
         if bad_delays := [d for d in self.delays if not 0 <= d <= 86_400]:
             raise ValueError(f"delay {bad_delays[0]:g} s: from 0 to a day")
+
+
+def edge_hosts(edges: int) -> list[str]:
+    """The hosts of ``edges`` edge processes (``--hosts``): ``edge`` (a single edge's),
+    ``edge2`` …, in :func:`edge_blocks`' order."""
+    return ["edge" if e == 0 else f"edge{e + 1}" for e in range(edges)]
 
 
 def edge_blocks(names: Sequence[str], edges: int) -> list[list[str]]:
