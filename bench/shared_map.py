@@ -89,10 +89,17 @@ def lend_keyframes(lender: DeviceWalk, borrower: DeviceWalk, lent: set[int],
     """The lender's own keyframes (archive and map; not those it adopted) the borrower's map
     has not adopted yet, welded to its points and adopted into its archive, after the
     lender's loops since the last lending (``followed``: source → loops followed) moved the
-    copies lent before them; how many."""
-    followed[source], adopted = lend_to(borrower.edge.back_end, lender.edge.back_end,
-                                        source, lent, followed.get(source, 0), slot)
-    return adopted
+    copies lent before them and the borrower's keyframes tied to them; how many."""
+    lending = lend_to(borrower.edge.back_end, lender.edge.back_end, source, lent,
+                      followed.get(source, 0), slot, borrower.edge.version + 1)
+    followed[source] = lending.followed
+    for move in lending.moves:
+        if move.own or move.refused:
+            print(f"slot {slot:4d}: the {borrower.name} map followed the {lender.name}'s loop: "
+                  f"{move.copies} copies and {move.own} own keyframes moved, up to "
+                  f"{move.own_moved_m * 100:.1f} cm, its graph {move.graph_ms:.0f} ms"
+                  f"{'; ' + move.refused if move.refused else ''}", flush=True)
+    return lending.adopted
 
 
 def alignment_error(merge: MapMerge, place: DeviceWalk, joining: DeviceWalk

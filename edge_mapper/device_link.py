@@ -373,7 +373,7 @@ class DeviceLink:
         if self.merging is None:
             return
         looks = self.merging.unmerged_looks.get(self.device, (0, ""))[0]
-        merged, adopted = self.merging.before_slot_end(self.device, slot)
+        merged, adopted, carried = self.merging.before_slot_end(self.device, slot)
         count, found = self.merging.unmerged_looks.get(self.device, (0, ""))
         if count > looks and count % LOOKS_LOGGED_EVERY == 1:
             self.info(f"slot {slot}: no other map's place found yet ({count} looks; the last "
@@ -381,6 +381,17 @@ class DeviceLink:
         if adopted:
             self.info(f"slot {slot}: {adopted} keyframes of the other maps in its frame "
                       "adopted into the archive")
+        for move in carried:
+            if move.refused:
+                self.warning(f"slot {slot}: another device's loop moved {move.copies} of its "
+                          f"keyframes this map holds; its own keyframes tied to them stay: "
+                          f"{move.refused}")
+            else:
+                self.info(f"slot {slot}: another device's loop moved {move.copies} of its "
+                          f"keyframes this map holds, and {move.own} of the map's own with "
+                          f"them (up to {move.own_moved_m * 100:.1f} cm; its graph "
+                          f"{move.graph_ms:.0f} ms): the device's frame moves with the next "
+                          "map update")
         for failure in self.merging.failures():
             self.error(f"slot {slot}: {failure}; the map stays in its own frame")
         if merged is not None:

@@ -42,7 +42,9 @@ import numpy as np
 from edge_mapper.edge_core import EdgeMapperCore
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
 from twinslam.slam.back_end.loop_closing import LoopQuery
+from twinslam.slam.back_end.map_back_end import FollowedLoop
 from twinslam.slam.back_end.map_merging import (
+    Lending,
     MapMerge,
     MergeFinder,
     lend_to,
@@ -141,29 +143,37 @@ class PlaceMerging:
             return []
         return [d for d in self.cores() if self.root(d) != device]
 
-    def before_slot_end(self, device: str, slot: int) -> tuple[MergeEvent | None, int]:
+    def before_slot_end(self, device: str, slot: int
+                        ) -> tuple[MergeEvent | None, int, list[FollowedLoop]]:
         """Before ``device``'s slot end: a finished look's merge applied (:meth:`take`), and
         the keyframes of the other devices of its place that its map has not adopted yet
-        adopted (:meth:`lend`); (the merge that moved its map, or None; keyframes adopted)."""
+        adopted (:meth:`lend`); (the merge that moved its map, or None; keyframes adopted;
+        the other devices' loops that moved its own keyframes, or would have)."""
         merged = self.take(device)
         lenders = [d for d in self.place_of(device) if d != device]
-        return merged, sum(self.lend(device, lender, slot) for lender in lenders)
+        lendings = [self.lend(device, lender, slot) for lender in lenders]
+        return merged, sum(lending.adopted for lending in lendings), \
+            [move for lending in lendings for move in lending.moves if move.own or move.refused]
 
-    def lend(self, borrower: str, lender: str, slot: int) -> int:
+    def lend(self, borrower: str, lender: str, slot: int) -> Lending:
         """The lender's own keyframes (its archive and map; not those it adopted itself) that
         the borrower's map has not adopted yet — the two maps in one frame — welded to the
         borrower's points and adopted into its archive (:meth:`MapBackEnd.adopt`): its
         restores bring them in where its device heads, and it tracks on keyframes only the
-        other device uploaded. How many."""
+        other device uploaded; first, the lender's loops since the last lending move the
+        copies and the borrower's keyframes tied to them (:func:`lend_to`)."""
         cores = self.cores()
         if lender not in cores or borrower not in cores:
-            return 0
+            return Lending(self._followed.get((borrower, lender), 0), 0)
         pair = (borrower, lender)
         source = self._sources.setdefault(lender, len(self._sources))
-        self._followed[pair], adopted = lend_to(
-            cores[borrower].back_end, cores[lender].back_end, source,
-            self._lent.setdefault(pair, set()), self._followed.get(pair, 0), slot)
-        return adopted
+        # a first lending's copies carry every loop the lender applied so far
+        followed = self._followed.setdefault(pair, cores[lender].back_end.loops_applied)
+        lending = lend_to(cores[borrower].back_end, cores[lender].back_end, source,
+                          self._lent.setdefault(pair, set()), followed, slot,
+                          cores[borrower].version + 1)
+        self._followed[pair] = lending.followed
+        return lending
 
     def take(self, device: str) -> MergeEvent | None:
         """Before ``device``'s slot end: the merge that moved its map since its last slot end

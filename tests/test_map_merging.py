@@ -18,12 +18,17 @@ from edge_mapper.slot_planner import SlotConfig
 from tests.test_archive_relocalisation import room  # noqa: F401 (the archived room fixture)
 from twinslam.policies.registry import make_policy
 from twinslam.rotations import rotation_angle_deg
-from twinslam.slam.back_end.foreign_keyframes import foreign_tag, is_foreign
+from twinslam.slam.back_end.foreign_keyframes import foreign_tag, is_foreign, ties_to_copies
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive, restore_into
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.back_end.loop_closing import LoopQuery
 from twinslam.slam.back_end.loop_correction import correct_map, correction_for
-from twinslam.slam.back_end.map_back_end import BackEndConfig, archive_folder
+from twinslam.slam.back_end.map_back_end import (
+    APPLIED_LOOPS_KEPT,
+    AppliedLoop,
+    BackEndConfig,
+    archive_folder,
+)
 from twinslam.slam.back_end.map_merging import (
     MergeFinder,
     follow_lender_loops,
@@ -200,14 +205,14 @@ def test_the_edge_merges_a_later_device_into_an_earlier_ones_frame(room: Room) -
     assert merging.others("ar2") == [] and merging.others("ar1") == []
     assert len(merging.look_ms) == 3 and not merging.failures()
     # from then on each map adopts the other's own keyframes, each once, tagged by lender
-    assert merging.before_slot_end("ar2", 4) == (None, len(archive) + 1)
-    assert merging.before_slot_end("ar2", 5) == (None, 0)
+    assert merging.before_slot_end("ar2", 4) == (None, len(archive) + 1, [])
+    assert merging.before_slot_end("ar2", 5) == (None, 0, [])
     adopted = sorted(kf.id for kf in cores["ar2"].archive)
     assert adopted == sorted(foreign_tag(0) | k for k in [*(kf.id for kf in archive), 999])
-    assert merging.before_slot_end("ar1", 4) == (None, 3)      # ar2's keyframes 10, 11, 12
+    assert merging.before_slot_end("ar1", 4) == (None, 3, [])  # ar2's keyframes 10, 11, 12
     assert sorted(cores["ar1"].archive.get(foreign_tag(1) | k).id & 0xFFFF
                   for k in (10, 11, 12)) == [10, 11, 12]
-    assert merging.lend("ar1", "ar2", 6) == 0          # never the keyframes it lent back
+    assert merging.lend("ar1", "ar2", 6).adopted == 0  # never the keyframes it lent back
 
 
 def test_a_later_device_that_the_earlier_one_finds_in_its_map_joins_the_earlier_ones_frame(
@@ -284,7 +289,7 @@ def test_two_places_each_joined_by_another_device_become_one_in_the_earlier_fram
     np.testing.assert_allclose(cores["ar3"].map.keyframes[5].pose,
                                event.merge.alignment @ archive.get(270).pose)
     # ar3 now borrows from ar1 as well as from ar2
-    _, adopted = merging.before_slot_end("ar3", 4)
+    _, adopted, _ = merging.before_slot_end("ar3", 4)
     assert {kf.id & ~0xFFFF_FFFF for kf in cores["ar3"].archive} >= {foreign_tag(0),
                                                                      foreign_tag(1)}
     assert adopted == len(cores["ar3"].archive)
@@ -409,13 +414,107 @@ def test_adopted_keyframes_are_written_beside_the_slots_for_a_restart(
     assert written == sorted(kf.id for kf in lent)
 
 
-def test_a_lenders_loop_moves_the_copies_lent_before_it_never_the_borrowers_own(
+def test_a_lenders_loop_moves_the_copies_lent_before_it_never_a_keyframe_made_before_them(
         room: Room) -> None:  # noqa: F811
     """The lender closes a loop after lending keyframes 60, 90 and 120 (120 newer than its
     loop's graph: it moves as the lender's head did). The borrower's copies follow: the one
     restored into its map with the points only copies observe, the archived ones with their
-    points; the borrower's own keyframe and the corners it welded stay. Followed once, a
-    loop is not applied again."""
+    points. The borrower's own keyframe 30 and the corners the copies were welded to stay:
+    the borrower made them before the copies came, and did not inherit the lender's drift.
+    Followed once, a loop is not applied again."""
+    core, copies = _borrower(room)
+    own_before = core.map.keyframes[30].pose.copy()
+    in_map = core.map.keyframes[copies[60].id]
+    welded_points = in_map.points & core.map.keyframes[30].points
+    only_copy = [p for p in in_map.points if core.map.points[p].observers == {copies[60].id}]
+    assert len(welded_points) >= 30 and only_copy
+    before = {p: core.map.points[p].position.copy() for p in [*welded_points, *only_copy]}
+    pose_60 = in_map.pose.copy()
+    archived_before = {k: core.archive.get(copies[k].id).pose.copy() for k in (90, 120)}
+
+    lender = _lender_loop()
+    followed, moves = follow_lender_loops(core.back_end, lender.back_end, 0, 0, next_version=3)
+    assert followed == 1 and [(m.copies, m.own) for m in moves] == [(3, 0)]
+
+    np.testing.assert_allclose(in_map.pose, C60 @ pose_60)
+    for p in only_copy:
+        np.testing.assert_allclose(core.map.points[p].position, before[p] + [0.02, 0, 0])
+    for k in (90, 120):                              # 120 is newer than the graph: as 90
+        np.testing.assert_allclose(core.archive.get(copies[k].id).pose,
+                                   C90 @ archived_before[k])
+    np.testing.assert_allclose(core.map.keyframes[30].pose, own_before)
+    for p in welded_points:
+        np.testing.assert_allclose(core.map.points[p].position, before[p])
+    np.testing.assert_allclose(core.back_end.frame_correction, np.eye(4))
+    assert follow_lender_loops(core.back_end, lender.back_end, 0, 1, next_version=4) == (1, ())
+    np.testing.assert_allclose(in_map.pose, C60 @ pose_60)
+
+
+def test_a_borrowers_keyframe_posed_on_a_copy_moves_with_it_and_so_does_its_devices_frame(
+        room: Room) -> None:  # noqa: F811
+    """The borrower's device tracked on the restored copy of the lender's keyframe 60: its
+    keyframe 150 observes forty of the points the copy brought. The lender's loop moves the
+    copy 2 cm; keyframe 150 inherited the copy's error and moves the 2 cm with it, its own
+    points with it, while keyframe 30, the map's oldest, stays (the map's frame; their step
+    shares no point, and bends); the frame the device is told moves by the head's correction
+    from the next map version on, and the move is kept for the borrower's own borrowers
+    (carried: they move their copies by it, never their own keyframes)."""
+    core, copies = _borrower(room)
+    copy = core.map.keyframes[copies[60].id]
+    brought = sorted(p for p in copy.points if is_foreign(p))[:40]
+    core.map.add_keyframe(150, copy.pose.copy())
+    core.map.observe_many(150, brought, [[320.0, 240.0]] * len(brought), [1.0] * len(brought))
+    made = core.map.add_point(copy.pose[:3, 3] + [0.0, 0.0, 1.0], np.zeros(32, np.uint8))
+    core.map.observe(150, made, (320.0, 240.0), 1.0)
+    own_before = {k: core.map.keyframes[k].pose.copy() for k in (30, 150)}
+    made_before = core.map.points[made].position.copy()
+
+    moved = core.back_end.follow(_lender_loop().back_end.applied_loops[0], foreign_tag(0), 3)
+    assert (moved.copies, moved.own, moved.refused) == (3, 2, "")
+    assert 0.018 < moved.own_moved_m <= 0.02
+    np.testing.assert_allclose(core.map.keyframes[30].pose, own_before[30], atol=1e-9)
+    head = core.map.keyframes[150].pose @ np.linalg.inv(own_before[150])
+    np.testing.assert_allclose(head, C60, atol=2e-3)
+    np.testing.assert_allclose(core.map.points[made].position,
+                               head[:3, :3] @ made_before + head[:3, 3], atol=1e-9)
+    np.testing.assert_allclose(core.back_end.frame_correction, head, atol=1e-9)
+    np.testing.assert_allclose(core.back_end.frame_correction_at(2), np.eye(4))
+    np.testing.assert_allclose(core.back_end.frame_correction_at(3), head, atol=1e-9)
+    assert [loop.carried for loop in core.back_end.applied_loops] == [True]
+
+
+#: the lender's loop: its keyframe 60 moved 2 cm along x, 90 (the graph's newest) 4 cm
+C60, C90 = np.eye(4), np.eye(4)
+C60[0, 3], C90[0, 3] = 0.02, 0.04
+
+
+def _lender_loop() -> EdgeMapperCore:
+    """A lender whose map applied one loop (:data:`C60`, :data:`C90`)."""
+    lender = _core()
+    lender.back_end.applied_loops.append(AppliedLoop({60: C60, 90: C90}))
+    return lender
+
+
+def test_a_move_another_map_carried_moves_the_copies_never_the_maps_own_again(
+        room: Room) -> None:  # noqa: F811
+    """The lender's keyframes moved because it followed a loop of this very map: the copies
+    follow, the map's own keyframes stay — carried back, the move would echo between the
+    two maps slot after slot."""
+    core, copies = _borrower(room)
+    own_before = core.map.keyframes[30].pose.copy()
+    pose_60 = core.map.keyframes[copies[60].id].pose.copy()
+    moved = core.back_end.follow(AppliedLoop({60: C60}, carried=True), foreign_tag(0), 3)
+    assert (moved.copies, moved.own) == (3, 0)         # 90 and 120 as the head, 60
+    np.testing.assert_allclose(core.map.keyframes[copies[60].id].pose, C60 @ pose_60)
+    np.testing.assert_allclose(core.map.keyframes[30].pose, own_before)
+    np.testing.assert_allclose(core.back_end.frame_correction, np.eye(4))
+    assert core.back_end.applied_loops == []
+
+
+def _borrower(room: Room) -> tuple[EdgeMapperCore, dict[int, ArchivedKeyFrame]]:  # noqa: F811
+    """A map holding the room's keyframe 30 as its own and copies of another device's 60,
+    90 and 120 (60 restored into the map, welded to 30's corners): (its core, the copies by
+    the lender's ids)."""
     seq, archive, _ = room
     core = _core(vmax=4)
     core.back_end.k = seq.intrinsics                             # type: ignore[attr-defined]
@@ -425,29 +524,34 @@ def test_a_lenders_loop_moves_the_copies_lent_before_it_never_the_borrowers_own(
                         core.camera, slot=1) for i, k in enumerate((60, 90, 120))}
     core.back_end.adopt(copies.values())
     core.back_end.restore([copies[60].id], [], slot=2)
-    own_before = core.map.keyframes[30].pose.copy()
-    in_map = core.map.keyframes[copies[60].id]
-    welded_points = in_map.points & core.map.keyframes[30].points
-    only_copy = [p for p in in_map.points if core.map.points[p].observers == {copies[60].id}]
-    assert welded_points and only_copy
-    before = {p: core.map.points[p].position.copy() for p in [*welded_points, *only_copy]}
-    pose_60 = in_map.pose.copy()
-    archived_before = {k: core.archive.get(copies[k].id).pose.copy() for k in (90, 120)}
+    return core, copies
 
-    lender = _core()
-    c60, c90 = np.eye(4), np.eye(4)
-    c60[0, 3], c90[0, 3] = 0.02, 0.04
-    lender.back_end.applied_loops.append({60: c60, 90: c90})
-    assert follow_lender_loops(core.back_end, lender.back_end, 0, 0) == 1
 
-    np.testing.assert_allclose(core.map.keyframes[30].pose, own_before)
-    np.testing.assert_allclose(in_map.pose, c60 @ pose_60)
-    for p in welded_points:
-        np.testing.assert_allclose(core.map.points[p].position, before[p])
-    for p in only_copy:
-        np.testing.assert_allclose(core.map.points[p].position, before[p] + [0.02, 0, 0])
-    for k in (90, 120):                              # 120 is newer than the graph: as 90
-        np.testing.assert_allclose(core.archive.get(copies[k].id).pose,
-                                   c90 @ archived_before[k])
-    assert follow_lender_loops(core.back_end, lender.back_end, 0, 1) == 1
-    np.testing.assert_allclose(in_map.pose, c60 @ pose_60)
+def test_a_map_keeps_its_newest_applied_loops_for_its_borrowers() -> None:
+    """An edge that runs for days closes loops for days: a map keeps the newest
+    APPLIED_LOOPS_KEPT for the maps it lends to, counts the rest, and a borrower that
+    followed some gets those after them that are still kept."""
+    core = _core()
+    for i in range(APPLIED_LOOPS_KEPT + 6):
+        core.back_end._keep_applied(AppliedLoop({i: np.eye(4)}))
+    assert len(core.back_end.applied_loops) == APPLIED_LOOPS_KEPT
+    assert core.back_end.loops_applied == APPLIED_LOOPS_KEPT + 6
+    assert [next(iter(loop.corrections))
+            for loop in core.back_end.loops_since(APPLIED_LOOPS_KEPT + 4)] == \
+        [APPLIED_LOOPS_KEPT + 4, APPLIED_LOOPS_KEPT + 5]
+    assert next(iter(core.back_end.loops_since(0)[0].corrections)) == 6     # the oldest kept
+    assert core.back_end.loops_since(APPLIED_LOOPS_KEPT + 6) == []
+
+
+def test_a_keyframe_is_tied_to_the_copy_that_brought_the_points_it_observes() -> None:
+    """Copies 10 and 20 of one lender both observe its points 2 and 3 (tagged); 10, the
+    older, brought them. The map's keyframe 5 observes 1, 2, 3 (tagged) and a corner the
+    copies were welded to (its own id): three ties to copy 10, none to 20. Keyframe 7
+    observes 4, which only 20 brought, and an own point: one tie to 20."""
+    tag = foreign_tag(0)
+    points = {tag | 10: np.array([tag | 1, tag | 2, tag | 3, 50], dtype=np.int64),
+              tag | 20: np.array([tag | 2, tag | 3, tag | 4, 50], dtype=np.int64),
+              5: np.array([tag | 1, tag | 2, tag | 3, 50], dtype=np.int64),
+              7: np.array([tag | 4, 60], dtype=np.int64)}
+    assert ties_to_copies(points) == {(5, tag | 10): 3, (7, tag | 20): 1}
+    assert ties_to_copies({5: np.array([50], dtype=np.int64)}) == {}

@@ -1,17 +1,22 @@
 """Closing a loop with a pose graph: a walk round a room that drifts comes back to where it
 started; the loop measured between its first and last keyframe takes the drift out of every
-keyframe, and each point moves with its keyframe."""
+keyframe, and each point moves with its keyframe. A walk tied to another device's keyframes
+follows them where that device's loop moved them."""
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
 import pytest
 
 from twinslam.slam.back_end.pose_graph import (
+    ANCHOR_SHARED_MIN,
+    Anchors,
     LoopEdge,
     close_loop,
+    follow_anchors,
     move_with_keyframes,
     step_sigmas,
 )
@@ -195,3 +200,61 @@ def test_a_long_step_takes_more_of_the_correction_than_a_short_one() -> None:
 
     assert grown(5) > 3 * max(grown(i) for i in range(len(lengths)) if i != 5)
     assert step_sigmas(np.linalg.inv(truth[5]) @ truth[6])[3] > step_sigmas(truth[1])[3]
+
+
+def test_a_walk_follows_the_other_devices_keyframes_it_saw_where_they_moved() -> None:
+    """A walk of ten keyframes (ids 0–9, 0.3 m steps) was tracked on another device's
+    keyframes: A (tagged id) beside its first keyframe, B beside its last. That device's loop
+    moves B 3 cm and leaves A: the walk bends — its first keyframe stays (the map's frame),
+    its last moves most of the 3 cm with B, those between in proportion; had its last
+    keyframe been posed mostly on its own map's points, it would move much less. Tied to
+    nothing, the walk stays (None); tied to A alone, which did not move, it stays too."""
+    tag = 1 << 40
+    walk = {i: _yaw(0.0, 0.3 * i) for i in range(10)}
+    a, b = tag | 0, tag | 9
+    before = {a: _yaw(0.0, 0.0, 0.5), b: _yaw(0.0, 2.7, 0.5)}
+    moved_b = _yaw(0.0, 2.7 + 0.03, 0.5)
+    steps = {(i, i + 1): 150 for i in range(9)}
+    posed_on = {0: 200, 9: 200}                 # every point of 0 and 9 an anchor's
+    both = follow_anchors(walk, Anchors(before, {a: before[a], b: moved_b},
+                                        {(0, a): 200, (9, b): 200}, posed_on), steps)
+    assert both is not None
+    shift = [both.poses[i][0, 3] - walk[i][0, 3] for i in range(10)]
+    assert abs(shift[0]) < 1e-6 and 0.02 < shift[9] <= 0.03, shift
+    assert all(x < y for x, y in itertools.pairwise(shift)), shift
+    assert follow_anchors(walk, Anchors(before, {a: before[a], b: moved_b}, {}, posed_on),
+                          steps) is None
+    held = follow_anchors(walk, Anchors(before, {a: before[a]}, {(0, a): 200}, posed_on), steps)
+    assert held is not None
+    for i in range(10):
+        np.testing.assert_allclose(held.corrections[i], np.eye(4), atol=1e-9)
+    # a keyframe that observed B's 200 points among 2000 of its own map inherited a tenth of
+    # B's error: it moves much less
+    mostly_own = follow_anchors(walk, Anchors(before, {b: moved_b}, {(9, b): 200}, {9: 2000}),
+                                steps)
+    assert mostly_own is not None
+    assert 0.0 < mostly_own.poses[9][0, 3] - walk[9][0, 3] < 0.5 * shift[9]
+    # a copy whose points it observed fewer of than a tie needs holds nothing
+    assert follow_anchors(walk, Anchors(before, {b: moved_b}, {(9, b): ANCHOR_SHARED_MIN - 1},
+                                        posed_on), steps) is None
+
+
+def test_a_loop_bends_the_walk_where_no_other_devices_keyframe_holds_it() -> None:
+    """The walk of ten keyframes closes a loop from 9 on 0 measured 3 cm longer than the
+    walk has it. Alone, keyframe 9 moves most of the 3 cm. Its last keyframes 7–9 were
+    posed on another device's keyframe (an anchor, which the loop does not move): held to
+    it, 9 moves less than half as far."""
+    tag = 1 << 40
+    walk = {i: _yaw(0.0, 0.3 * i) for i in range(10)}
+    copy = tag | 8
+    anchor = {copy: _yaw(0.0, 2.4, 0.5)}
+    steps = {(i, i + 1): 150 for i in range(9)}
+    measured = np.linalg.inv(walk[0]) @ _yaw(0.0, 2.73)
+    alone = close_loop(walk, 0, 9, measured, steps)
+    held = close_loop(walk, 0, 9, measured, steps,
+                      anchors=Anchors(anchor, anchor, {(k, copy): 200 for k in (7, 8, 9)},
+                                      {k: 200 for k in (7, 8, 9)}))
+    moved_alone = alone.poses[9][0, 3] - walk[9][0, 3]
+    moved_held = held.poses[9][0, 3] - walk[9][0, 3]
+    assert moved_alone > 0.02 and 0.0 <= moved_held < 0.5 * moved_alone
+    assert set(held.corrections) == set(walk)           # the anchor is no keyframe of the walk

@@ -11,6 +11,12 @@ map's own keyframes.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
+import numpy as np
+
+from twinslam.slam.back_end.pose_graph import Anchors
+
 #: ids below 2**40 are a device's own: frame indices and point counts never reach it (a
 #: device at 30 Hz for a thousand years), and the tag leaves the top bit free for the
 #: device's track ids (``TRACK_ID_BIT``)
@@ -39,3 +45,45 @@ def tag_of(item_id: int) -> int:
 def source_id(item_id: int) -> int:
     """The id a keyframe or point has in the map it came from (an own id as it is)."""
     return int(item_id) & ((1 << TAG_SHIFT) - 1)
+
+
+def ties_to_copies(points: Mapping[int, np.ndarray]) -> dict[tuple[int, int], int]:
+    """How many of the points another device's keyframes brought each of this map's own
+    keyframes observes, by the copy that brought them: (own keyframe, copy) → count
+    (``points``: each keyframe's point ids, own and copies alike, int64 without repeats).
+
+    A point a copy brought carries its source's tag (one a copy was welded to has this map's
+    id: the map had placed it before the copy came). Several copies of one lender may observe
+    it; the oldest of them brought it, and its pose placed it — a later copy observing it
+    too stood, by the lender's own drift, wherever its walk had taken it, and an own keyframe
+    posed on that point was posed on where the oldest copy put it."""
+    copies = [(k, ids[(ids >> TAG_SHIFT) != 0]) for k, ids in points.items() if is_foreign(k)]
+    if not copies:
+        return {}
+    point = np.concatenate([ids for _, ids in copies])
+    holder = np.concatenate([np.full(len(ids), k, dtype=np.int64) for k, ids in copies])
+    order = np.lexsort((holder, point))                   # by point, then oldest copy first
+    point, holder = point[order], holder[order]
+    first = np.r_[True, point[1:] != point[:-1]]
+    brought, by = point[first], holder[first]
+    ties: dict[tuple[int, int], int] = {}
+    for k, ids in points.items():
+        if is_foreign(k):
+            continue
+        tagged = ids[(ids >> TAG_SHIFT) != 0]
+        at = np.searchsorted(brought, tagged)
+        found = at < len(brought)
+        found[found] = brought[at[found]] == tagged[found]
+        copy, count = np.unique(by[at[found]], return_counts=True)
+        ties.update({(int(k), int(c)): int(n) for c, n in zip(copy, count, strict=True)})
+    return ties
+
+
+def copy_anchors(points: Mapping[int, np.ndarray], before: Mapping[int, np.ndarray],
+                 now: Mapping[int, np.ndarray]) -> Anchors:
+    """The copies of another device's keyframes (``before``: where this map's keyframes were
+    posed on them; ``now``: where they are) as the anchors of this map's own keyframes'
+    graph (:class:`~twinslam.slam.back_end.pose_graph.Anchors`), tied by the points each
+    copy brought (:func:`ties_to_copies`; ``points``: every keyframe's point ids)."""
+    return Anchors(before, now, ties_to_copies(points),
+                   {k: len(ids) for k, ids in points.items() if not is_foreign(k)})

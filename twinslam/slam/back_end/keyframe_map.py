@@ -12,8 +12,10 @@ restores from it after a restart.
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from itertools import chain
 from pathlib import Path
@@ -75,6 +77,22 @@ def shared_counts(sets: list[np.ndarray]) -> np.ndarray:
     w = (inc @ inc.T).toarray()
     np.fill_diagonal(w, 0.0)
     return np.asarray(w)
+
+
+def shared_pairs(ids: Sequence[int], points: Mapping[int, np.ndarray]
+                 ) -> dict[tuple[int, int], int]:
+    """The map points pairs of keyframes (a < b, of ``ids``; ``points``: each keyframe's point
+    ids, int64 without repeats, none for a keyframe it lacks) share: each consecutive pair of
+    ``ids`` (by id: how stiff a step of the walk is, 0 included) and every other pair that
+    shares any (the covisibility that holds keyframes seeing one place together)."""
+    ids = sorted(ids)
+    empty = np.zeros(0, dtype=np.int64)
+    counts = shared_counts([points.get(k, empty) for k in ids])
+    shared = {(a, b): 0 for a, b in itertools.pairwise(ids)}
+    rows, cols = np.nonzero(np.triu(counts, 1))
+    shared.update({(ids[i], ids[j]): int(counts[i, j])
+                   for i, j in zip(rows.tolist(), cols.tolist(), strict=True)})
+    return shared
 
 
 class KeyFrameMap:

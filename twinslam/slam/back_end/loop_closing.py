@@ -23,15 +23,16 @@ import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from twinslam.rotations import rotation_angle_deg
+from twinslam.slam.back_end.foreign_keyframes import copy_anchors
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
-from twinslam.slam.back_end.keyframe_map import shared_counts
+from twinslam.slam.back_end.keyframe_map import shared_pairs
 from twinslam.slam.back_end.loop_detection import MIN_GAP, LoopCandidate, detect_loop
-from twinslam.slam.back_end.pose_graph import LoopClosure, LoopEdge, close_loop
+from twinslam.slam.back_end.pose_graph import Anchors, LoopClosure, LoopEdge, close_loop
 from twinslam.slam.keyframe import KeyFramePayload
 
 #: after a loop closes at keyframe q, keyframes up to q + COOLDOWN ids look for none (the walk
@@ -83,6 +84,11 @@ class LoopJob:
     map_points: Mapping[int, frozenset[int]]
     #: the loops closed before, held by the new loop's graph too
     earlier: tuple[LoopEdge, ...] = ()
+    #: the copies of other devices' keyframes the map adopted (a merged map), id → pose:
+    #: held where they are by the loop's graph, with the walk's keyframes posed on them
+    copies: Mapping[int, np.ndarray] = field(default_factory=dict)
+    #: the managed map's copies' map points (the archived copies' are in its snapshot)
+    copy_points: Mapping[int, frozenset[int]] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -220,26 +226,32 @@ def run_job(job: LoopJob, min_gap: int = MIN_GAP,
     closure = None
     if confirmed and candidate.measured is not None and query in job.poses:
         closure = close_loop(job.poses, candidate.old, query, candidate.measured,
-                             shared_points(job), job.earlier, candidate.inliers)
+                             shared_points(job), job.earlier, candidate.inliers,
+                             _anchors(job))
     return LoopResult(candidate, query, closure, time.perf_counter() - start)
 
 
 def shared_points(job: LoopJob) -> dict[tuple[int, int], int]:
-    """The map points pairs of keyframes (a < b) of the job's graph share: each consecutive
-    pair (by id: how stiff a step of the walk is, 0 included) and every other pair that
-    shares any (the covisibility that holds keyframes seeing one place together)."""
-    ids = sorted(job.poses)
-    points = {k: np.fromiter(v, dtype=np.int64) for k, v in job.map_points.items()}
+    """The map points pairs of keyframes (a < b) of the job's graph share
+    (:func:`~twinslam.slam.back_end.keyframe_map.shared_pairs`)."""
+    return shared_pairs(sorted(job.poses), _point_ids(job, job.map_points))
+
+
+def _anchors(job: LoopJob) -> Anchors | None:
+    """The job's copies as the anchors of its graph (none: a map that adopted none)."""
+    if not job.copies:
+        return None
+    return copy_anchors(_point_ids(job, {**job.map_points, **job.copy_points}), job.copies,
+                        job.copies)
+
+
+def _point_ids(job: LoopJob, in_map: Mapping[int, frozenset[int]]) -> dict[int, np.ndarray]:
+    """The map points of the keyframes of ``in_map`` and of the job's archive snapshot."""
+    points = {k: np.fromiter(v, dtype=np.int64) for k, v in in_map.items()}
     for kf in job.archive:
         if kf.id not in points:
             points[kf.id] = np.unique(kf.point_ids.astype(np.int64))
-    empty = np.zeros(0, dtype=np.int64)
-    counts = shared_counts([points.get(k, empty) for k in ids])
-    shared = {(a, b): 0 for a, b in itertools.pairwise(ids)}
-    rows, cols = np.nonzero(np.triu(counts, 1))
-    shared.update({(ids[i], ids[j]): int(counts[i, j])
-                   for i, j in zip(rows.tolist(), cols.tolist(), strict=True)})
-    return shared
+    return points
 
 
 class LoopCloser:

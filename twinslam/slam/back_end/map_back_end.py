@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import time
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -44,10 +45,15 @@ from twinslam.slam.back_end.bundle_adjustment import (
     Observation,
     bundle_adjust,
 )
-from twinslam.slam.back_end.foreign_keyframes import is_foreign, source_id, tag_of
+from twinslam.slam.back_end.foreign_keyframes import (
+    copy_anchors,
+    is_foreign,
+    source_id,
+    tag_of,
+)
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive, restore_into
 from twinslam.slam.back_end.keyframe_gate import KeyFrameGateConfig, implausible_keyframe
-from twinslam.slam.back_end.keyframe_map import KeyFrameMap
+from twinslam.slam.back_end.keyframe_map import KeyFrameMap, shared_pairs
 from twinslam.slam.back_end.local_mapping import (
     IntegrationReport,
     LocalMapping,
@@ -69,7 +75,7 @@ from twinslam.slam.back_end.loop_correction import (
 from twinslam.slam.back_end.loop_detection import MIN_GAP
 from twinslam.slam.back_end.point_culling import PointCullingConfig
 from twinslam.slam.back_end.point_fusion import fuse_restored
-from twinslam.slam.back_end.pose_graph import LOOP_INLIERS_REF, LoopEdge
+from twinslam.slam.back_end.pose_graph import LOOP_INLIERS_REF, LoopEdge, follow_anchors
 from twinslam.slam.camera import DEFAULT_IMAGE_SHAPE, Camera
 from twinslam.slam.duplicate_points import DUPLICATE_RADIUS_M
 from twinslam.slam.keyframe import KeyFramePayload
@@ -77,6 +83,14 @@ from twinslam.slot_protocol import default_device
 
 #: integrated keyframes a loop job looks from at most (the newest)
 LOOP_QUERIES = 3
+#: a lender's loop that moved no copy this far, or would move no own keyframe this far, is
+#: not carried into this map's own keyframes (m): a borrower's own move is a loop its own
+#: borrowers follow in turn, and the moves dwindle at each hand-on until they stop here
+FOLLOW_MIN_M = 0.002
+#: applied loops a map keeps for the maps it lends to (:meth:`MapBackEnd.loops_since`): a
+#: borrower follows them at each of its slot ends, a few slots behind at most while it is
+#: served
+APPLIED_LOOPS_KEPT = 64
 #: fusion on integration: a feature lands this close (plus 2 % of its depth) to a point that
 #: looks alike, it is that point (the duplicate share's 5 cm)
 JOIN_RADIUS_M = DUPLICATE_RADIUS_M
@@ -131,6 +145,28 @@ class ClosedLoop:
     refused: str = ""
 
 
+@dataclass(frozen=True)
+class AppliedLoop:
+    """A loop a map applied, kept for the maps it lent keyframes to (:meth:`MapBackEnd.follow`)."""
+
+    corrections: dict[int, np.ndarray]   #: own keyframe id → 4×4, in the map's present frame
+    #: the move of its own keyframes another map's loop made (:meth:`MapBackEnd.follow`),
+    #: not a loop this map closed
+    carried: bool = False
+
+
+@dataclass(frozen=True)
+class FollowedLoop:
+    """What another device's loop did to this map (:meth:`MapBackEnd.follow`)."""
+
+    copies: int                      #: copies of that device's keyframes moved
+    own: int                         #: this map's own keyframes moved with them
+    own_moved_m: float               #: the farthest an own keyframe moved (or would have)
+    #: why the own keyframes stayed although tied to the copies ("": they did not)
+    refused: str = ""
+    graph_ms: float = 0.0            #: the time the own keyframes' graph took (0: none)
+
+
 class MapBackEnd:
     """The map, its archive and its loops for one device (see the module's text)."""
 
@@ -164,10 +200,13 @@ class MapBackEnd:
         #: an older one)
         self.loop_edges: list[LoopEdge] = _loop_edges(extra)
         self.loops_refused = 0                 #: loops whose corrections went too far
-        #: each loop applied since the edge started, its corrections (own keyframe id →
-        #: 4×4), in the map's present frame: what the maps this one lent keyframes to must
-        #: apply to their copies (:meth:`follow`)
-        self.applied_loops: list[dict[int, np.ndarray]] = []
+        #: the newest APPLIED_LOOPS_KEPT loops applied (its own, and the moves of its own
+        #: keyframes another device's loop made, :meth:`follow`), each its corrections (own
+        #: keyframe id → 4×4) in the map's present frame: what the maps this one lent
+        #: keyframes to must apply to their copies (:meth:`loops_since`)
+        self.applied_loops: list[AppliedLoop] = []
+        #: loops applied before the oldest of :attr:`applied_loops`, no longer kept
+        self.loops_forgotten = 0
         #: the applied loops' corrections at the walk's head, composed: the frame the map is in
         #: relative to the one the walk started in (MapUpdate.frame_correction)
         self.frame_correction = np.asarray(extra.get("frame_correction", np.eye(4)),
@@ -388,13 +427,18 @@ class MapBackEnd:
         newest = max(q.keyframe for q in queries)
         old = [ArchivedKeyFrame.of(self.map, k, slot) for k in self.map.keyframes
                if k <= newest - self.loop_closer.min_gap]
-        # the walk's own keyframes: another device's that this map adopted are no step of it
-        poses = {k: pose for k, pose in self.keyframe_poses().items() if not is_foreign(k)}
+        # the walk's own keyframes: another device's that this map adopted are no step of
+        # it, but anchors the walk's keyframes posed on them hold to (LoopJob.copies)
+        every = self.keyframe_poses()
+        poses = {k: pose for k, pose in every.items() if not is_foreign(k)}
         job = LoopJob(tuple(reversed(queries)), self.archive.snapshot(old), poses,
                       self.k.copy(),
                       {k: frozenset(kf.points) for k, kf in self.map.keyframes.items()
                        if not is_foreign(k)},
-                      tuple(self.loop_edges))
+                      tuple(self.loop_edges),
+                      {k: pose for k, pose in every.items() if is_foreign(k)},
+                      {k: frozenset(kf.points) for k, kf in self.map.keyframes.items()
+                       if is_foreign(k)})
         if self.loop_closer.submit(job):
             self._loop_queries = []
 
@@ -429,7 +473,7 @@ class MapBackEnd:
         if self.config.point_fusion and old in self.map.keyframes and self.camera.known:
             fuse_restored(self.map, old, sorted(self.map.keyframes[old].points), self.camera)
         self.loops_closed += 1
-        self.applied_loops.append(dict(corrections))
+        self._keep_applied(AppliedLoop(dict(corrections)))
         if result.candidate.measured is not None:
             self.loop_edges.append(LoopEdge(old, result.query, result.candidate.measured,
                                             result.candidate.inliers))
@@ -466,27 +510,50 @@ class MapBackEnd:
         self.origin = alignment @ self.origin
         # a loop's correction c moves points of the old frame; in the new one it is A c A⁻¹
         undo = np.linalg.inv(alignment)
-        self.applied_loops = [{k: alignment @ c @ undo for k, c in loop.items()}
-                              for loop in self.applied_loops]
+        self.applied_loops = [dataclasses.replace(loop, corrections={
+            k: alignment @ c @ undo for k, c in loop.corrections.items()})
+            for loop in self.applied_loops]
         everyone = dict.fromkeys([*self.map.keyframes, *(kf.id for kf in self.archive)],
                                  alignment)
         self._correct(everyone, alignment, next_version,
                       "writing the aligned archive's files")
 
-    def follow(self, corrections: Mapping[int, np.ndarray], tag: int) -> int:
+    def follow(self, loop: AppliedLoop, tag: int, next_version: int) -> FollowedLoop:
         """Another device's loop, applied to the copies of its keyframes this map adopted
-        (ids tagged ``tag``; ``corrections`` by the lender's own ids, in this map's frame —
-        the place's): each copy moves as its original did (one newer than the lender's graph
-        as the lender's head, :func:`~twinslam.slam.back_end.loop_correction.correction_for`),
-        and with it every point only copies observe. Without it, copies lent before the
-        lender's loop keep its drift while those lent after carry the correction, a loop's
-        correction apart, and a device tracking on the first cannot match the second
-        (docs/results/shared-map.md). A point this map's own keyframes observe stays: their
-        poses are this map's. Returns how many copies moved."""
-        def of(copy: int) -> np.ndarray | None:
-            return correction_for(corrections, source_id(copy)) if tag_of(copy) == tag \
-                else None
+        (ids tagged ``tag``; ``loop.corrections`` by the lender's own ids, in this map's
+        frame — the place's), and — a loop the lender closed, not one it carried from
+        another map — to this map's own keyframes tied to the copies, from map version
+        ``next_version`` on.
 
+        Each copy moves as its original did (one newer than the lender's graph as the
+        lender's head, :func:`~twinslam.slam.back_end.loop_correction.correction_for`), and
+        with it every point only copies observe. Without it, copies lent before the lender's
+        loop keep its drift while those lent after carry the correction, a loop's
+        correction apart, and a device tracking on the first cannot match the second
+        (docs/results/shared-map.md). Then this map's own keyframes — posed where the device
+        tracked on the copies' points, and the walk chained to them — are re-posed where the
+        moved copies hold them (:func:`~twinslam.slam.back_end.pose_graph.follow_anchors`:
+        one loop's correction for the place, not only for the lender's keyframes), their
+        points with them and the map's frame by its head's correction, as after a loop of
+        its own: its device moves what it holds with the next map update. A move beyond a
+        device's reach is refused (the copies still follow). Only the keyframes the device
+        posed on the copies are tied to them — by the points a copy brought, to the copy that
+        brought them (:func:`~twinslam.slam.back_end.foreign_keyframes.ties_to_copies`), not
+        by those a copy was welded to: this map's keyframes made before the copies came (the
+        place's first map, say) did not inherit the lender's drift, and a lender's loop that
+        takes it out must not move them.
+
+        A move carried so is kept as a loop too (``carried``): the maps this one lent to move
+        their copies of its keyframes by it, but never carry it into their own keyframes
+        again — a lender that carried a borrower's move back would echo it: each move,
+        measured against the relation the two maps had before the other moved, would call
+        for the same move again (measured: both maps 10 cm away within five slots)."""
+        def of(copy: int) -> np.ndarray | None:
+            return correction_for(loop.corrections, source_id(copy)) \
+                if tag_of(copy) == tag else None
+
+        copies_before = {k: pose for k, pose in self.keyframe_poses().items()
+                         if is_foreign(k)}
         archived = self.archive.correct(
             {kf.id: c for kf in self.archive if (c := of(kf.id)) is not None}, write=False)
         if archived:
@@ -495,7 +562,65 @@ class MapBackEnd:
         moved = {k: c for k in self.map.keyframes if (c := of(k)) is not None}
         if moved:
             move_keyframes(self.map, moved)
-        return len(archived) + len(moved)
+        copies_moved = len(archived) + len(moved)
+        farthest_copy = max((_moved_m(before, pose) for k, pose in self.keyframe_poses().items()
+                             if (before := copies_before.get(k)) is not None), default=0.0)
+        if loop.carried or farthest_copy < FOLLOW_MIN_M:
+            return FollowedLoop(copies_moved, 0, 0.0)
+        return self._carry_own(copies_before, next_version, copies_moved)
+
+    def _carry_own(self, copies_before: Mapping[int, np.ndarray], next_version: int,
+                   copies_moved: int) -> FollowedLoop:
+        """This map's own keyframes re-posed where the copies that moved from
+        ``copies_before`` hold them (:meth:`follow`)."""
+        started = time.perf_counter()
+        poses = self.keyframe_poses()
+        own = {k: pose for k, pose in poses.items() if not is_foreign(k)}
+        copies_now = {k: pose for k, pose in poses.items() if is_foreign(k)}
+        points = self._point_ids()
+        closure = follow_anchors(own, copy_anchors(points, copies_before, copies_now),
+                                 shared_pairs(list(own), points), self.loop_edges)
+        graph_ms = (time.perf_counter() - started) * 1e3
+        if closure is None:
+            return FollowedLoop(copies_moved, 0, 0.0, graph_ms=graph_ms)
+        farthest = max(_moved_m(own[k], closure.poses[k]) for k in own)
+        if farthest < FOLLOW_MIN_M:
+            return FollowedLoop(copies_moved, 0, farthest, graph_ms=graph_ms)
+        if refused := self._beyond_reach("following it would move the map", farthest):
+            self.loops_refused += 1
+            return FollowedLoop(copies_moved, 0, farthest, refused, graph_ms)
+        corrections = closure.corrections
+        self._correct(corrections, corrections[max(corrections)], next_version,
+                      "writing the archive's files after following a lender's loop")
+        # the maps this one lent its keyframes to move their copies of them in turn
+        self._keep_applied(AppliedLoop(dict(corrections), carried=True))
+        return FollowedLoop(copies_moved, len(corrections), farthest, graph_ms=graph_ms)
+
+    def _point_ids(self) -> dict[int, np.ndarray]:
+        """Every keyframe's map points (the map's and the archive's; int64, no repeats)."""
+        points = {k: np.fromiter(kf.points, dtype=np.int64, count=len(kf.points))
+                  for k, kf in self.map.keyframes.items()}
+        points.update({kf.id: np.unique(kf.point_ids.astype(np.int64)) for kf in self.archive})
+        return points
+
+    def _keep_applied(self, loop: AppliedLoop) -> None:
+        """A loop kept for the maps this one lends to; the oldest forgotten beyond
+        APPLIED_LOOPS_KEPT (each holds a 4×4 a keyframe: an edge that runs for days must not
+        keep every loop it ever closed)."""
+        self.applied_loops.append(loop)
+        if len(self.applied_loops) > APPLIED_LOOPS_KEPT:
+            del self.applied_loops[0]
+            self.loops_forgotten += 1
+
+    @property
+    def loops_applied(self) -> int:
+        """Every loop applied since the edge started, the forgotten ones too."""
+        return self.loops_forgotten + len(self.applied_loops)
+
+    def loops_since(self, count: int) -> list[AppliedLoop]:
+        """The loops applied after the first ``count`` (:attr:`loops_applied` counts them),
+        as far as they are still kept."""
+        return self.applied_loops[max(0, count - self.loops_forgotten):]
 
     def adopt(self, keyframes: Iterable[ArchivedKeyFrame]) -> list[int]:
         """Another device's keyframes, in this map's frame and under their tagged ids
@@ -548,6 +673,11 @@ class MapBackEnd:
                 "keyframe_stamp_ids": np.array(kept, dtype=np.int64),
                 "keyframe_stamps": np.array([self.keyframe_stamps[k] for k in kept],
                                             dtype=np.float64)}
+
+
+def _moved_m(before: np.ndarray, after: np.ndarray) -> float:
+    """How far a pose's camera moved (m)."""
+    return float(np.linalg.norm(after[:3, 3] - before[:3, 3]))
 
 
 def archive_folder(checkpoint: Path) -> Path:

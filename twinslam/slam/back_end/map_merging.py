@@ -42,7 +42,7 @@ from twinslam.slam.back_end.loop_closing import (
     walk_length,
 )
 from twinslam.slam.back_end.loop_detection import LoopCandidate, recognise_place
-from twinslam.slam.back_end.map_back_end import MapBackEnd
+from twinslam.slam.back_end.map_back_end import FollowedLoop, MapBackEnd
 from twinslam.slam.back_end.point_fusion import FusionConfig, duplicates_in_view
 from twinslam.slam.camera import Camera
 
@@ -127,28 +127,40 @@ def unlent_keyframes(lender: MapBackEnd, lent: Collection[int], slot: int
                   if k not in lent and not is_foreign(k)]
 
 
+@dataclass(frozen=True)
+class Lending:
+    """What one lending did to the borrower (:func:`lend_to`)."""
+
+    followed: int                      #: the lender's loops the borrower has followed now
+    adopted: int                       #: the lender's keyframes adopted this time
+    #: each lender's loop followed this time, what it moved
+    moves: tuple[FollowedLoop, ...] = ()
+
+
 def lend_to(borrower: MapBackEnd, lender: MapBackEnd, source: int, lent: set[int],
-            followed: int, slot: int) -> tuple[int, int]:
+            followed: int, slot: int, next_version: int) -> Lending:
     """One lending from the lender (source map ``source``) to the borrower, both in one
-    frame: first the lender's loops since the first ``followed`` of them move the copies
-    lent before (:func:`follow_lender_loops`), then the lender's own keyframes not in
+    frame, before the borrower's map version ``next_version``: first the lender's loops since
+    the first ``followed`` of them move the copies lent before and the borrower's keyframes
+    tied to them (:func:`follow_lender_loops`), then the lender's own keyframes not in
     ``lent`` are welded and adopted (:func:`unlent_keyframes`, :func:`adopt_lent`) — in that
-    order, since a keyframe lent after a loop carries its correction already. (Loops
-    followed now, keyframes adopted.)"""
-    followed = follow_lender_loops(borrower, lender, source, followed)
-    return followed, adopt_lent(borrower, unlent_keyframes(lender, lent, slot), source, lent,
-                                slot)
+    order, since a keyframe lent after a loop carries its correction already."""
+    followed, moves = follow_lender_loops(borrower, lender, source, followed, next_version)
+    adopted = adopt_lent(borrower, unlent_keyframes(lender, lent, slot), source, lent, slot)
+    return Lending(followed, adopted, moves)
 
 
 def follow_lender_loops(borrower: MapBackEnd, lender: MapBackEnd, source: int,
-                        followed: int) -> int:
+                        followed: int, next_version: int
+                        ) -> tuple[int, tuple[FollowedLoop, ...]]:
     """The loops the lender (source map ``source``) applied since the first ``followed`` of
-    them, applied to the borrower's copies of its keyframes (:meth:`MapBackEnd.follow`);
-    returns how many of the lender's loops the borrower has followed now."""
+    them, applied to the borrower's copies of its keyframes and to its own keyframes tied to
+    them (:meth:`MapBackEnd.follow`, from the borrower's map version ``next_version`` on);
+    (how many of the lender's loops the borrower has followed now, what each moved)."""
     tag = foreign_tag(source)
-    for corrections in lender.applied_loops[followed:]:
-        borrower.follow(corrections, tag)
-    return len(lender.applied_loops)
+    moves = tuple(borrower.follow(loop, tag, next_version)
+                  for loop in lender.loops_since(followed))
+    return lender.loops_applied, moves
 
 
 def adopt_lent(borrower: MapBackEnd, keyframes: list[ArchivedKeyFrame], source: int,

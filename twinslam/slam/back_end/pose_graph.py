@@ -41,7 +41,7 @@ from dataclasses import dataclass
 
 import gtsam
 import numpy as np
-from gtsam.symbol_shorthand import X
+from gtsam.symbol_shorthand import A, X
 
 from twinslam.rotations import rotation_angle_deg
 
@@ -76,6 +76,10 @@ SHARED_REF = 100
 MAX_STEP_SCALE = 30.0
 #: shared map points from which two keyframes that are not consecutive are held together
 COVISIBLE_MIN = 100
+#: another device's map points a keyframe of the walk observed from which it is held to that
+#: device's keyframe that brought them (:func:`follow_anchors`): the planner's lost-frame rule
+#: counts a frame with fewer of the map's points lost — fewer did not serve its tracking
+ANCHOR_SHARED_MIN = 15
 
 
 @dataclass(frozen=True)
@@ -122,25 +126,119 @@ class LoopClosure:
 
 def close_loop(poses: Mapping[int, np.ndarray], old: int, new: int,
                measured: np.ndarray, shared: Mapping[tuple[int, int], int] | None = None,
-               earlier: Sequence[LoopEdge] = (), inliers: int = LOOP_INLIERS_REF
-               ) -> LoopClosure:
+               earlier: Sequence[LoopEdge] = (), inliers: int = LOOP_INLIERS_REF,
+               anchors: Anchors | None = None) -> LoopClosure:
     """The keyframe ``poses`` (id → camera-to-map, every keyframe of the walk) after closing
     the loop between keyframe ``old`` and keyframe ``new``, whose relative pose old⁻¹ · new
     was ``measured``; the oldest keyframe holds still. ``shared``: the map points pairs of
     keyframes (a, b), a < b, share — each pair of consecutive keyframes, and the covisible
     others (without: every step as stiff as its length makes it, no covisibility factor).
     ``earlier``: the loops closed before (those whose two keyframes are in ``poses`` hold).
-    ``inliers``: the matches the new loop was measured on (how stiff its factor is)."""
-    ids = sorted(poses)
+    ``inliers``: the matches the new loop was measured on (how stiff its factor is).
+    ``anchors``: another device's keyframes the walk was tracked on (a merged map's
+    copies, :class:`Anchors`): held where they are, the walk's keyframes tied to them kept
+    where they stand to them — the loop's correction bends the walk where nothing another
+    device mapped holds it, as one loop closing over the place's map would."""
     if old not in poses or new not in poses or old == new:
         raise ValueError(f"a loop joins two keyframes of the graph, got {old} and {new}")
+    return _solved(*_walk_graph(poses, shared, [*earlier, LoopEdge(old, new, measured, inliers)],
+                                anchors), poses)
+
+
+@dataclass(frozen=True)
+class Anchors:
+    """Another device's keyframes a walk was tracked on, held where they are now."""
+
+    before: Mapping[int, np.ndarray]      #: id → camera-to-map where the walk was posed on them
+    now: Mapping[int, np.ndarray]         #: id → where they are held (moved or not)
+    #: (walk keyframe, anchor) in id order → the anchor's points the walk keyframe observed
+    ties: Mapping[tuple[int, int], int]
+    #: walk keyframe → every point it observed
+    observed: Mapping[int, int]
+
+    def links(self, poses: Mapping[int, np.ndarray]) -> dict[tuple[int, int], int]:
+        """The ties of ANCHOR_SHARED_MIN points or more between a keyframe of ``poses`` and
+        an anchor."""
+        return {(a, b): n for (a, b), n in self.ties.items() if n >= ANCHOR_SHARED_MIN and (
+            (a in poses and b in self.now) or (b in poses and a in self.now))}
+
+
+def follow_anchors(poses: Mapping[int, np.ndarray], anchors: Anchors,
+                   shared: Mapping[tuple[int, int], int], earlier: Sequence[LoopEdge] = ()
+                   ) -> LoopClosure | None:
+    """A walk's keyframe ``poses`` (id → camera-to-map) after keyframes of another device's
+    map that it was tracked on — the ``anchors`` — moved (that device closed a loop): None
+    when no keyframe of the walk is tied to an anchor by ANCHOR_SHARED_MIN points.
+
+    The graph is :func:`close_loop`'s without a new loop: the prior on the walk's oldest
+    keyframe (the map's frame stays where it is), the walk's steps and covisibility
+    (``shared``, pairs of the walk's keyframes), its ``earlier`` loops, and for each tie a
+    factor holding the relative pose the two had before the anchor moved — as stiff as a
+    step of that length and turn between keyframes sharing that many points, loosened by
+    √(points the keyframe observed / the anchor's among them): a keyframe the device posed
+    on another device's keyframes of a wall inherited their error in the share their points
+    had in its pose, and moves so far towards where that wall now is, the walk bending
+    between it and its start (one posed on twenty of the anchor's points among three hundred
+    of its own map's barely moves). The anchors are held by priors too (another device's
+    map, which this walk does not question). ORB-SLAM3 corrects the keyframes connected to
+    a merge's or a loop's with the same kind of essential graph; here it is solved once a
+    lender's loop reached the copies this map holds of its keyframes."""
+    if not poses or not anchors.links(poses):
+        return None
+    return _solved(*_walk_graph(poses, shared, earlier, anchors), poses)
+
+
+def _walk_graph(poses: Mapping[int, np.ndarray], shared: Mapping[tuple[int, int], int] | None,
+                loops: Sequence[LoopEdge], anchors: Anchors | None
+                ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+    """The graph over the walk's keyframes: the prior on the oldest, the steps and the
+    covisible pairs, the ``loops`` and the ``anchors`` (none: none); with its initial values,
+    the poses as they are."""
+    ids = sorted(poses)
     graph = gtsam.NonlinearFactorGraph()
     initial = gtsam.Values()
     for i in ids:
         initial.insert(X(i), gtsam.Pose3(np.asarray(poses[i], dtype=np.float64)))
     graph.add(gtsam.PriorFactorPose3(X(ids[0]), gtsam.Pose3(np.asarray(poses[ids[0]])),
                                      gtsam.noiseModel.Isotropic.Sigma(6, PRIOR_SIGMA)))
-    steps = set(itertools.pairwise(ids))
+    _add_walk(graph, poses, shared)
+    _add_loops(graph, poses, loops)
+    if anchors is not None:
+        _add_anchors(graph, initial, poses, anchors)
+    return graph, initial
+
+
+def _add_anchors(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values,
+                 poses: Mapping[int, np.ndarray], anchors: Anchors) -> None:
+    """Each anchor tied to a keyframe of ``poses`` held by a prior where it is now (keys A(j):
+    tagged ids exceed a Symbol's index), and each tie a factor holding the relative pose the
+    two had before the anchor moved, as :func:`follow_anchors` says."""
+    links = anchors.links(poses)
+    tied = sorted({k for pair in links for k in pair if k in anchors.now})
+    index = {k: j for j, k in enumerate(tied)}
+
+    def key(k: int) -> int:
+        return int(A(index[k])) if k in index else int(X(k))
+
+    held = gtsam.noiseModel.Isotropic.Sigma(6, PRIOR_SIGMA)
+    for k in tied:
+        now = gtsam.Pose3(np.asarray(anchors.now[k], dtype=np.float64))
+        initial.insert(key(k), now)
+        graph.add(gtsam.PriorFactorPose3(key(k), now, held))
+    for (a, b), n in sorted(links.items()):
+        pose_a = anchors.before[a] if a in index else poses[a]
+        pose_b = anchors.before[b] if b in index else poses[b]
+        relative = np.linalg.inv(pose_a) @ pose_b
+        share = math.sqrt(max(anchors.observed.get(a if a in poses else b, n), n) / n)
+        noise = gtsam.noiseModel.Diagonal.Sigmas(share * step_scale(n) * step_sigmas(relative))
+        graph.add(gtsam.BetweenFactorPose3(key(a), key(b), gtsam.Pose3(relative), noise))
+
+
+def _add_walk(graph: gtsam.NonlinearFactorGraph, poses: Mapping[int, np.ndarray],
+              shared: Mapping[tuple[int, int], int] | None) -> None:
+    """The walk's steps (consecutive ids) and its covisible pairs (≥ COVISIBLE_MIN shared
+    points), each holding the relative pose the keyframes have now."""
+    steps = set(itertools.pairwise(sorted(poses)))
     covisible = {pair for pair, n in (shared or {}).items()
                  if n >= COVISIBLE_MIN and pair[0] in poses and pair[1] in poses}
     for a, b in sorted(steps | covisible):
@@ -148,7 +246,12 @@ def close_loop(poses: Mapping[int, np.ndarray], old: int, new: int,
         scale = 1.0 if shared is None else step_scale(shared.get((a, b), 0))
         step = gtsam.noiseModel.Diagonal.Sigmas(scale * step_sigmas(relative))
         graph.add(gtsam.BetweenFactorPose3(X(a), X(b), gtsam.Pose3(relative), step))
-    for edge in [*earlier, LoopEdge(old, new, measured, inliers)]:
+
+
+def _add_loops(graph: gtsam.NonlinearFactorGraph, poses: Mapping[int, np.ndarray],
+               loops: Sequence[LoopEdge]) -> None:
+    """A loop factor for each of ``loops`` whose two keyframes are in ``poses``."""
+    for edge in loops:
         if edge.old in poses and edge.new in poses:
             loop_noise = gtsam.noiseModel.Robust.Create(
                 gtsam.noiseModel.mEstimator.Cauchy.Create(LOOP_CAUCHY),
@@ -157,10 +260,16 @@ def close_loop(poses: Mapping[int, np.ndarray], old: int, new: int,
             graph.add(gtsam.BetweenFactorPose3(X(edge.old), X(edge.new),
                                                gtsam.Pose3(np.asarray(edge.measured)),
                                                loop_noise))
+
+
+def _solved(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values,
+            poses: Mapping[int, np.ndarray]) -> LoopClosure:
+    """Levenberg–Marquardt from ``initial``: the keyframes of ``poses`` where it leaves
+    them, and their corrections."""
     before = graph.error(initial)
     result = gtsam.LevenbergMarquardtOptimizer(graph, initial).optimize()
-    corrected = {i: result.atPose3(X(i)).matrix() for i in ids}
-    corrections = {i: corrected[i] @ np.linalg.inv(poses[i]) for i in ids}
+    corrected = {i: result.atPose3(X(i)).matrix() for i in sorted(poses)}
+    corrections = {i: corrected[i] @ np.linalg.inv(poses[i]) for i in corrected}
     return LoopClosure(corrected, corrections, float(before), float(graph.error(result)))
 
 
