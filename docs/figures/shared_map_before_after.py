@@ -1,0 +1,112 @@
+"""One change to the shared map, before against after (docs/results/shared-map.md, "One loop
+closing for the place"): for each scenario and condition of ``bench.shared_map`` runs in two
+folders, the paired difference (after − before, Student's t over the seeds both ran,
+:func:`twinslam.reporting.paired_difference`) of what a user of the shared map sees — the
+cross-device revisit error, the two edge maps' final keyframes against each other, the
+second device's uploads, its ATE and the share of its frames it held on its own features
+instead of the map — and a figure of the cross-device error and that share, seed by seed.
+
+Reads ``uplink-{SCENARIO}-{lent,covered}.csv`` from each folder (the page has the commands;
+a scenario and condition one folder lacks is left out) and writes ``before-after.png`` into
+the after folder.
+
+    .venv/bin/python docs/figures/shared_map_before_after.py BEFORE AFTER
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from shared_uplink_table import SCENARIOS, runs
+
+from twinslam.reporting import paired_difference, pyplot
+
+#: the conditions compared: lending with every frame a candidate, and with covered frames out
+CONDITIONS = ("lent", "covered")
+#: (column, what it is, its unit's scale from the CSV's)
+METRICS = (("cross_rms_m", "cross-device revisit error RMS, cm", 100.0),
+           ("keyframes_cross_rms_m", "the two maps' final keyframes apart, RMS cm", 100.0),
+           ("second_uploads", "second device's keyframes uploaded", 1.0),
+           ("second_ate_m", "second device's ATE, cm", 100.0),
+           ("second_map_lost_share", "second device's frames off the map, %", 100.0),
+           ("first_map_lost_share", "first device's frames off the map, %", 100.0))
+
+
+def paired(before: Path, after: Path, scenario: str, condition: str
+           ) -> tuple[list[int], dict[str, tuple[list[float], list[float]]]]:
+    """The seeds both folders ran, and each metric's (before, after) values over them."""
+    old, new = runs(before, scenario, condition), runs(after, scenario, condition)
+    seeds = sorted(old.keys() & new.keys())
+    return seeds, {column: ([float(old[s][column]) * scale for s in seeds],
+                            [float(new[s][column]) * scale for s in seeds])
+                   for column, _, scale in METRICS}
+
+
+def compared(before: Path, after: Path) -> list[tuple[str, str]]:
+    """The (scenario, condition) pairs both folders have runs of."""
+    return [(s, c) for s in SCENARIOS for c in CONDITIONS
+            if all((folder / f"uplink-{s}-{c}.csv").exists() for folder in (before, after))]
+
+
+def table(before: Path, after: Path) -> list[str]:
+    """The paired differences, a row a scenario, condition and metric."""
+    lines = ["| scenario | condition | metric | before (seed by seed) | after | after − before |",
+             "|---|---|---|---|---|---|"]
+    for scenario, condition in compared(before, after):
+        seeds, values = paired(before, after, scenario, condition)
+        for column, name, _ in METRICS:
+            old, new = values[column]
+            d = paired_difference([new], old)
+            lines.append(f"| {scenario} | {condition} | {name} | "
+                         f"{', '.join(f'{v:.1f}' for v in old)} | "
+                         f"{', '.join(f'{v:.1f}' for v in new)} | "
+                         f"{d.mean:+.2f} [{d.low:+.2f}, {d.high:+.2f}] |")
+        lines.append(f"| {scenario} | {condition} | seeds | {', '.join(map(str, seeds))} | | |")
+    return lines
+
+
+def figure(before: Path, after: Path) -> Path:
+    """Cross-device error and the second device's frames off the map, before → after, one
+    line a seed, a panel a scenario and condition."""
+    plt = pyplot()
+    panels = compared(before, after)
+    fig, axes = plt.subplots(2, len(panels), figsize=(3.2 * len(panels), 6.4), sharey="row",
+                             squeeze=False)
+    for col, (scenario, condition) in enumerate(panels):
+        seeds, values = paired(before, after, scenario, condition)
+        for row, column in enumerate(("cross_rms_m", "second_map_lost_share")):
+            ax = axes[row][col]
+            old, new = values[column]
+            for seed, o, n in zip(seeds, old, new, strict=True):
+                ax.plot([0, 1], [o, n], marker="o", color="tab:blue" if n <= o else "tab:red",
+                        alpha=0.8)
+                ax.annotate(str(seed), (1.03, n), fontsize=7, va="center")
+            ax.set_xticks([0, 1], ["before", "after"])
+            ax.set_xlim(-0.2, 1.3)
+            if row == 0:
+                ax.set_title(f"{scenario}, {condition}", fontsize=9)
+            if col == 0:
+                ax.set_ylabel(dict((c, n) for c, n, _ in METRICS)[column], fontsize=8)
+    fig.suptitle("Shared map, before and after: one line a seed (blue: lower after)",
+                 fontsize=10)
+    fig.tight_layout()
+    out = after / "before-after.png"
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("before", type=Path, help="the folder of the runs before the change")
+    parser.add_argument("after", type=Path, help="the folder of the runs after it (the figure "
+                        "is written there)")
+    args = parser.parse_args()
+    print("\n".join(table(args.before, args.after)))
+    print(f"wrote {figure(args.before, args.after)}")
+
+
+if __name__ == "__main__":
+    main()
