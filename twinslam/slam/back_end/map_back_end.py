@@ -160,7 +160,7 @@ class FollowedLoop:
     """What another device's loop did to this map (:meth:`MapBackEnd.follow`)."""
 
     copies: int                      #: copies of that device's keyframes moved
-    own: int                         #: this map's own keyframes moved with them
+    own: int                         #: this map's own keyframes re-posed with them (0: none)
     own_moved_m: float               #: the farthest an own keyframe moved (or would have)
     #: why the own keyframes stayed although tied to the copies ("": they did not)
     refused: str = ""
@@ -547,7 +547,8 @@ class MapBackEnd:
         their copies of its keyframes by it, but never carry it into their own keyframes
         again — a lender that carried a borrower's move back would echo it: each move,
         measured against the relation the two maps had before the other moved, would call
-        for the same move again (measured: both maps 10 cm away within five slots)."""
+        for the same move again (measured: both maps moving 10 cm back and forth, slot after
+        slot, docs/results/shared-map.md)."""
         def of(copy: int) -> np.ndarray | None:
             return correction_for(loop.corrections, source_id(copy)) \
                 if tag_of(copy) == tag else None
