@@ -25,7 +25,12 @@ loop with an essential-graph optimisation; here the graph reads like the math:
   under a Cauchy loss, so that a loop the rest of the graph contradicts cannot drag it far —
   and one for every loop closed before whose keyframes are still known: a new loop must not
   undo an older one (the graph is made anew for each loop, from the poses as they are);
-* a **prior** on the oldest keyframe (the gauge: the map frame stays where it is).
+* a **prior** on the oldest keyframe (the gauge: the map frame stays where it is);
+* in a map merged with another device's (:mod:`~twinslam.slam.back_end.map_merging`), the
+  copies of that device's keyframes the walk was posed on as **anchors** (:class:`Anchors`):
+  held by priors where that device's map has them, each tied to the walk's keyframes posed
+  on its points — a loop of this walk bends it where no anchor holds it, and a loop of the
+  other device, moving the anchors, moves the walk with them (:func:`follow_anchors`).
 
 Levenberg–Marquardt moves every pose so that the loop closes and the walk's steps bend as
 little as they can; :func:`move_with_keyframes` then carries each point with its reference
