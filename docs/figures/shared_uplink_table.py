@@ -9,11 +9,12 @@ Reads ``uplink-{SCENARIO}-{alone,lent,pose-only,covered}.csv`` written by
 ``bench.shared_map`` (the page has the commands) from a folder — ``docs/figures/shared-map``
 or one of its sets of runs, ``--folder`` (a condition without its file is left out) — and
 writes ``uplink-saved.png`` there; then the live runs' tables
-(``docs/figures/shared-map/uplink-live-{SCENARIO}-{uncovered,pose-only,covered}-run{N}.csv``,
-each a ``twinslam launch``'s ``fleet_runs.csv``), run by run, and with three runs or more a
-device's paired difference.
+(``docs/figures/shared-map/uplink-live-{SCENARIO}-{uncovered,pose-only,covered}-run{N}.csv``
+or those of ``--live-folder``, each a ``twinslam launch``'s ``fleet_runs.csv``), run by run,
+and with three runs or more a device's paired difference.
 
     .venv/bin/python docs/figures/shared_uplink_table.py [SCENARIO ...] [--folder DIR]
+        [--live-folder DIR]
 """
 
 from __future__ import annotations
@@ -163,14 +164,14 @@ def figure(folder: Path, scenarios: list[str]) -> Path:
     return out
 
 
-def live_runs(scenario: str) -> list[dict[str, dict[str, dict[str, str]]]]:
-    """The live runs of a scenario (``twinslam launch --devices 2 … --merge-maps``, each
-    run's ``fleet_runs.csv`` as ``uplink-live-{SCENARIO}-{SETTING}-run{N}.csv``,
-    N = 1, 2, … while the run without coverage exists): a run's setting → device → its
-    row."""
+def live_runs(scenario: str, folder: Path = HERE) -> list[dict[str, dict[str, dict[str, str]]]]:
+    """The live runs of a scenario in ``folder`` (``twinslam launch --devices 2 …
+    --merge-maps``, each run's ``fleet_runs.csv`` as
+    ``uplink-live-{SCENARIO}-{SETTING}-run{N}.csv``, N = 1, 2, … while the run without
+    coverage exists): a run's setting → device → its row."""
     runs = []
     for run in itertools.count(1):
-        paths = {setting: HERE / f"uplink-live-{scenario}-{setting}-run{run}.csv"
+        paths = {setting: folder / f"uplink-live-{scenario}-{setting}-run{run}.csv"
                  for setting in LIVE_SETTINGS}
         if not paths["uncovered"].exists():
             return runs
@@ -183,11 +184,11 @@ def live_runs(scenario: str) -> list[dict[str, dict[str, dict[str, str]]]]:
     return runs
 
 
-def live_rows(scenario: str) -> list[str]:
-    """A row a device and live run: frames uploaded with coverage against without, and
-    then a device's paired summary over the runs."""
+def live_rows(scenario: str, folder: Path = HERE) -> list[str]:
+    """A row a device and live run (in ``folder``): frames uploaded with coverage against
+    without, and then a device's paired summary over the runs."""
     rows, saved = [], {}
-    for run, tables in enumerate(live_runs(scenario), start=1):
+    for run, tables in enumerate(live_runs(scenario, folder), start=1):
         for rule, device in ((r, d) for r in LIVE_SETTINGS[1:] if r in tables
                              for d in sorted(tables[r])):
             on, off = tables[rule][device], tables["uncovered"][device]
@@ -224,6 +225,8 @@ def main() -> None:
                         help=f"of {', '.join(SCENARIOS)} (default: both)")
     parser.add_argument("--folder", type=Path, default=HERE,
                         help="the folder of in-process runs to read (default: %(default)s)")
+    parser.add_argument("--live-folder", type=Path, default=HERE,
+                        help="the folder of live runs to read (default: %(default)s)")
     args = parser.parse_args()
     scenarios = args.scenarios or list(SCENARIOS)
     unknown = [s for s in scenarios if s not in SCENARIOS]
@@ -241,7 +244,8 @@ def main() -> None:
           "untracked frames | camera frames dropped | ATE cm | cross-device RMS cm | "
           "edge's lost share % |")
     print("|---|---|---|---|---|---|---|---|---|---|")
-    print("\n".join(row for scenario in scenarios for row in live_rows(scenario)))
+    print("\n".join(row for scenario in scenarios
+                    for row in live_rows(scenario, args.live_folder)))
 
 
 if __name__ == "__main__":
