@@ -32,7 +32,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import threading
-from collections.abc import Callable, Iterable, Iterator, Mapping
+from collections.abc import Callable, Collection, Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from itertools import chain
 from pathlib import Path
@@ -131,6 +131,18 @@ def restore_into(m: KeyFrameMap, kf: ArchivedKeyFrame) -> list[int]:
     m.observe_many(kf.id, kf.point_ids.tolist(), kf.measurements[:, :2].tolist(),
                    kf.measurements[:, 2].tolist())
     return back
+
+
+def point_id_sets(in_map: Mapping[int, Collection[int]],
+                  archive: Iterable[ArchivedKeyFrame]) -> dict[int, np.ndarray]:
+    """Each keyframe's map points as int64 arrays without repeats — those of ``in_map``
+    (keyframe id → its point ids: a managed map's) and of the ``archive``'s keyframes not
+    among them — the sets the pose graphs count shared points over."""
+    points = {k: np.fromiter(ids, dtype=np.int64, count=len(ids)) for k, ids in in_map.items()}
+    for kf in archive:
+        if kf.id not in points:
+            points[kf.id] = np.unique(kf.point_ids.astype(np.int64))
+    return points
 
 
 class KeyFrameArchive:

@@ -29,7 +29,7 @@ import numpy as np
 
 from twinslam.rotations import rotation_angle_deg
 from twinslam.slam.back_end.foreign_keyframes import copy_anchors
-from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
+from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive, point_id_sets
 from twinslam.slam.back_end.keyframe_map import shared_pairs
 from twinslam.slam.back_end.loop_detection import MIN_GAP, LoopCandidate, detect_loop
 from twinslam.slam.back_end.pose_graph import Anchors, LoopClosure, LoopEdge, close_loop
@@ -225,33 +225,21 @@ def run_job(job: LoopJob, min_gap: int = MIN_GAP,
             break
     closure = None
     if confirmed and candidate.measured is not None and query in job.poses:
+        # the map points of every keyframe the job knows, the copies' too: the walk's
+        # covisibility counts its own keyframes' only
+        points = point_id_sets({**job.map_points, **job.copy_points}, job.archive)
         closure = close_loop(job.poses, candidate.old, query, candidate.measured,
-                             shared_points(job), job.earlier, candidate.inliers,
-                             _anchors(job))
+                             shared_pairs(sorted(job.poses), points), job.earlier,
+                             candidate.inliers, _anchors(job, points))
     return LoopResult(candidate, query, closure, time.perf_counter() - start)
 
 
-def shared_points(job: LoopJob) -> dict[tuple[int, int], int]:
-    """The map points pairs of keyframes (a < b) of the job's graph share
-    (:func:`~twinslam.slam.back_end.keyframe_map.shared_pairs`)."""
-    return shared_pairs(sorted(job.poses), _point_ids(job, job.map_points))
-
-
-def _anchors(job: LoopJob) -> Anchors | None:
-    """The job's copies as the anchors of its graph (none: a map that adopted none)."""
+def _anchors(job: LoopJob, points: Mapping[int, np.ndarray]) -> Anchors | None:
+    """The job's copies as the anchors of its graph (none: a map that adopted none;
+    ``points``: every keyframe's map points)."""
     if not job.copies:
         return None
-    return copy_anchors(_point_ids(job, {**job.map_points, **job.copy_points}), job.copies,
-                        job.copies)
-
-
-def _point_ids(job: LoopJob, in_map: Mapping[int, frozenset[int]]) -> dict[int, np.ndarray]:
-    """The map points of the keyframes of ``in_map`` and of the job's archive snapshot."""
-    points = {k: np.fromiter(v, dtype=np.int64) for k, v in in_map.items()}
-    for kf in job.archive:
-        if kf.id not in points:
-            points[kf.id] = np.unique(kf.point_ids.astype(np.int64))
-    return points
+    return copy_anchors(points, job.copies, job.copies)
 
 
 class LoopCloser:

@@ -51,7 +51,12 @@ from twinslam.slam.back_end.foreign_keyframes import (
     source_id,
     tag_of,
 )
-from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive, restore_into
+from twinslam.slam.back_end.keyframe_archive import (
+    ArchivedKeyFrame,
+    KeyFrameArchive,
+    point_id_sets,
+    restore_into,
+)
 from twinslam.slam.back_end.keyframe_gate import KeyFrameGateConfig, implausible_keyframe
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap, shared_pairs
 from twinslam.slam.back_end.local_mapping import (
@@ -564,21 +569,23 @@ class MapBackEnd:
         if moved:
             move_keyframes(self.map, moved)
         copies_moved = len(archived) + len(moved)
-        farthest_copy = max((_moved_m(before, pose) for k, pose in self.keyframe_poses().items()
+        poses = self.keyframe_poses()
+        farthest_copy = max((_moved_m(before, pose) for k, pose in poses.items()
                              if (before := copies_before.get(k)) is not None), default=0.0)
         if loop.carried or farthest_copy < FOLLOW_MIN_M:
             return FollowedLoop(copies_moved, 0, 0.0)
-        return self._carry_own(copies_before, next_version, copies_moved)
+        return self._carry_own(poses, copies_before, next_version, copies_moved)
 
-    def _carry_own(self, copies_before: Mapping[int, np.ndarray], next_version: int,
+    def _carry_own(self, poses: Mapping[int, np.ndarray],
+                   copies_before: Mapping[int, np.ndarray], next_version: int,
                    copies_moved: int) -> FollowedLoop:
-        """This map's own keyframes re-posed where the copies that moved from
-        ``copies_before`` hold them (:meth:`follow`)."""
+        """This map's own keyframes (``poses``: every keyframe's, the copies moved) re-posed
+        where the copies that moved from ``copies_before`` hold them (:meth:`follow`)."""
         started = time.perf_counter()
-        poses = self.keyframe_poses()
         own = {k: pose for k, pose in poses.items() if not is_foreign(k)}
         copies_now = {k: pose for k, pose in poses.items() if is_foreign(k)}
-        points = self._point_ids()
+        points = point_id_sets({k: kf.points for k, kf in self.map.keyframes.items()},
+                               self.archive)
         closure = follow_anchors(own, copy_anchors(points, copies_before, copies_now),
                                  shared_pairs(list(own), points), self.loop_edges)
         graph_ms = (time.perf_counter() - started) * 1e3
@@ -596,13 +603,6 @@ class MapBackEnd:
         # the maps this one lent its keyframes to move their copies of them in turn
         self._keep_applied(AppliedLoop(dict(corrections), carried=True))
         return FollowedLoop(copies_moved, len(corrections), farthest, graph_ms=graph_ms)
-
-    def _point_ids(self) -> dict[int, np.ndarray]:
-        """Every keyframe's map points (the map's and the archive's; int64, no repeats)."""
-        points = {k: np.fromiter(kf.points, dtype=np.int64, count=len(kf.points))
-                  for k, kf in self.map.keyframes.items()}
-        points.update({kf.id: np.unique(kf.point_ids.astype(np.int64)) for kf in self.archive})
-        return points
 
     def _keep_applied(self, loop: AppliedLoop) -> None:
         """A loop kept for the maps this one lends to; the oldest forgotten beyond
