@@ -150,7 +150,8 @@ PARAMETERS = (
               "many metres of a keyframe another device uploaded (lent to this device's map) "
               "and looks the same way (covered_deg) is not uploaded: the shared map holds that "
               "view (unless the map cannot serve it: fewer than 15 of the frame's reported "
-              "points are the map's); 0: every device uploads as Theorem 1 sizes it", low=0.0,
+              "points are the map's), and a slot's upload count shrinks with its share of views "
+              "the map lacks; 0: every device uploads as Theorem 1 sizes it", low=0.0,
               high=100.0),
     ParamSpec("covered_deg", 10.0, "the turn, degrees, within which a lent keyframe covers a "
               "frame's view (with covered_m)", low=0.0, high=180.0),

@@ -21,6 +21,7 @@ import numpy as np
 from twinslam.policies.actions import MapAction, SlotObservation, check_map_action
 from twinslam.policies.protocol import MapPolicy, SlotViewer
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap, shared_counts
+from twinslam.slam.back_end.view_coverage import uploads_for_new_views
 from twinslam.slam.camera import Camera
 from twinslam.slam.keyframe import track_counters
 from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
@@ -137,7 +138,9 @@ class SlotPlanner:
         see (``see_slot``, the edge's ``mpc``). ``covered`` frames (views the map holds already,
         :mod:`twinslam.slam.back_end.view_coverage`) are no candidates, unless the map cannot
         serve them (lost by the rule below): a slot whose tracked frames are all covered and
-        served asks for no upload, whatever the uplink could carry.
+        served asks for no upload, whatever the uplink could carry, and one with some covered
+        spends the count the uplink allows for all its tracked frames at the same density on
+        the rest (:func:`~twinslam.slam.back_end.view_coverage.uploads_for_new_views`).
         """
         if not frames:
             raise ValueError(f"slot {slot}: no frames to plan with")
@@ -170,8 +173,14 @@ class SlotPlanner:
                             if f.frame_id in covered and not gone)
         cand = [f.frame_id for f in frames if f.tracked and f.frame_id not in skipped]
         slot_s = cfg.deadline_s(len(frames))
+        # with covered views, the uplink's count for the slot's tracked frames goes to the
+        # views the map lacks at the density a device alone spends it (view_coverage)
+        views = len(cand) + len(skipped)
         n_up, n_ev = theorem1_cardinalities(rate_mbps, cfg.alpha_mbit, cfg.d_req_s, cfg.vmax,
-                                            len(map_ids), len(cand), slot_s, self.waited_mbit)
+                                            len(map_ids), views, slot_s, self.waited_mbit)
+        if skipped:
+            n_up = uploads_for_new_views(n_up, len(cand), views)
+            n_ev = max(0, len(map_ids) + n_up - cfg.vmax)
         self.waited_mbit = waited_after(n_up, rate_mbps, slot_s, self.waited_mbit,
                                         needs_map(lost))
         full = shared_counts([keys[x] for x in map_ids + every])

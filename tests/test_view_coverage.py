@@ -13,7 +13,11 @@ from edge_mapper.slot_planner import FrameObservations, SlotConfig
 from tests.test_edge_core import Device, F, K, _run
 from twinslam.policies.registry import make_policy
 from twinslam.slam.back_end.foreign_keyframes import foreign_tag
-from twinslam.slam.back_end.view_coverage import CoverageBounds, covered_views
+from twinslam.slam.back_end.view_coverage import (
+    CoverageBounds,
+    covered_views,
+    uploads_for_new_views,
+)
 
 
 def _pose(x: float, yaw_deg: float = 0.0) -> np.ndarray:
@@ -35,6 +39,22 @@ def test_a_keyframe_covers_a_frame_beside_it_looking_the_same_way() -> None:
     assert covered_views(frames, [_pose(0.0)], CoverageBounds(0.0, 10.0)) == set()
     with pytest.raises(ValueError, match=">= 0"):
         CoverageBounds(-0.1, 10.0)
+
+
+def test_the_uplinks_count_goes_to_new_views_at_the_density_a_device_alone_spends_it() -> None:
+    """Four uploads for thirty views: three new views ask for one, fifteen for two, sixteen
+    for three (rounded up: any new view asks for one), none for none; never more than the new
+    views, and the whole count where every view is new."""
+    assert uploads_for_new_views(4, 3, 30) == 1
+    assert uploads_for_new_views(4, 15, 30) == 2
+    assert uploads_for_new_views(4, 16, 30) == 3
+    assert uploads_for_new_views(8, 2, 30) == 1
+    assert uploads_for_new_views(4, 0, 30) == 0
+    assert uploads_for_new_views(0, 10, 30) == 0
+    assert uploads_for_new_views(4, 30, 30) == 4
+    assert uploads_for_new_views(4, 2, 2) == 2
+    with pytest.raises(ValueError, match="at most the views"):
+        uploads_for_new_views(4, 31, 30)
 
 
 def _walked_edge() -> tuple[Device, EdgeMapperCore]:
@@ -66,8 +86,9 @@ def test_a_slot_whose_views_lent_keyframes_cover_asks_for_no_upload() -> None:
     """Slot 3 (frames 24-31, 0.96-1.24 m) with another device's keyframes at 1.04 and 1.20 m:
     every frame is covered, nothing is asked for though the uplink carries two frames; the
     same keyframes as the device's own cover nothing (its own walk is no shared map), with
-    one lent keyframe the uncovered frames are still asked for, and covered frames the map
-    cannot serve (lost by the planner's rule) are too."""
+    one lent keyframe the uncovered frames are still asked for, as many as the uplink's count
+    at the slot's density of views, and covered frames the map cannot serve (lost by the
+    planner's rule) are too."""
     device, core = _walked_edge()
     for k, x in ((26, 1.04), (30, 1.20)):
         _lend(core, foreign_tag(0) | k, _pose(x))
@@ -80,10 +101,18 @@ def test_a_slot_whose_views_lent_keyframes_cover_asks_for_no_upload() -> None:
     plan = core.plan(3, _posed_slot(device, core, 3), 20.0, 1)
     assert len(plan.action.upload) == 2 and not plan.covered
 
+    # one lent keyframe covers five of the eight views: the uplink's two uploads for eight
+    # views become one for the three new ones, never a covered frame
     device, core = _walked_edge()
     _lend(core, foreign_tag(0) | 26, _pose(1.04))
     plan = core.plan(3, _posed_slot(device, core, 3), 20.0, 1)
     assert plan.covered == frozenset(range(24, 29))
+    assert len(plan.action.upload) == 1 and not set(plan.action.upload) & plan.covered
+    # one covering two of them: six new views ask for both
+    device, core = _walked_edge()
+    _lend(core, foreign_tag(0) | 23, _pose(0.92))
+    plan = core.plan(3, _posed_slot(device, core, 3), 20.0, 1)
+    assert plan.covered == frozenset({24, 25})
     assert len(plan.action.upload) == 2 and not set(plan.action.upload) & plan.covered
 
     # covered, but the device matched none of the map's points there: the map cannot serve

@@ -13,6 +13,7 @@ fact covers the view. Two cameras within ``max_m`` of each other turned by at mo
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -51,3 +52,21 @@ def covered_views(frames: Mapping[int, np.ndarray], keyframes: Sequence[np.ndarr
     turned_ok = (trace - 1.0) / 2.0 >= cos_max
     near = (apart <= bounds.max_m) & turned_ok
     return {i for i, hit in zip(ids, near.any(axis=1), strict=True) if hit}
+
+
+def uploads_for_new_views(uploads: int, new_views: int, views: int) -> int:
+    """A slot's upload count where the shared map covers some of its views: the count the
+    uplink allows for all ``views`` (the slot's tracked frames, Theorem 1) spent at the same
+    density on the ``new_views`` the map lacks — rounded up, so a slot with any new view asks
+    for one — and never more than them.
+
+    Why a share and not the uplink's whole count: a device alone spreads Theorem 1's count
+    over a slot of views that are all new to its map; a device in a mapped place whose slot
+    holds three new views among thirty would otherwise spend the whole count on those three,
+    uploading neighbouring frames of one view where alone it would upload one of them."""
+    if uploads < 0 or new_views < 0 or views < new_views:
+        raise ValueError(f"uploads {uploads}, new views {new_views} of {views}: "
+                         "counts are >= 0 and new views at most the views")
+    if new_views == 0:
+        return 0
+    return min(new_views, math.ceil(uploads * new_views / views - 1e-9))
