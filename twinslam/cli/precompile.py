@@ -1,5 +1,5 @@
-"""Compile the numba kernels of the device, the edge (its policies and its twin allocator) and
-the synthetic worlds once, at set-up.
+"""Compile the numba kernels of the device, the edge (its policies and its twin allocator), the
+synthetic worlds and the depth registration of a sequence whose cameras differ once, at set-up.
 
 The kernels are compiled on first use and cached beside their sources (``cache=True``). On a
 fresh checkout that first use is the first node start: the edge took 58 s to reach "listening

@@ -23,7 +23,8 @@ SWITCH = "TWINSLAM_FORK_SERVER"
 
 def load_kernels() -> None:
     """Load (in a fresh checkout: compile) the numba kernels of the device, the edge with each
-    rule policy, the synthetic worlds and the twin allocator's value curve."""
+    rule policy, the synthetic worlds, the depth registration of a sequence whose cameras
+    differ and the twin allocator's value curve."""
     import numpy as np
 
     from device_tracker.device_core import DeviceTrackerCore
@@ -31,12 +32,14 @@ def load_kernels() -> None:
     from twinslam.allocation.budget_value import budget_value
     from twinslam.policies.registry import make_policy
     from twinslam.policies.rules import POLICIES
+    from twinslam.sequences.registration import register_depth
     from twinslam.sequences.synthetic import SyntheticSequence
 
     DeviceTrackerCore.warm_up()
     for name in POLICIES:
         EdgeMapperCore.warm_up(make_policy(name))
     next(iter(SyntheticSequence(n_frames=1)))
+    register_depth(np.ones((2, 2), dtype=np.float32), np.eye(3), np.eye(3), np.eye(4))
     points = np.arange(40)
     budget_value([points], [points], 0.0, 1, 2)
 

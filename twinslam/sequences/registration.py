@@ -19,6 +19,7 @@ behind); colour pixels no reading lands on have no depth (0).
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 
 def register_depth(depth: np.ndarray, depth_intrinsics: np.ndarray,
@@ -33,23 +34,48 @@ def register_depth(depth: np.ndarray, depth_intrinsics: np.ndarray,
         raise ValueError(f"a depth image is H×W, got shape {depth.shape}")
     kd = camera_matrix(depth_intrinsics, "depth")
     kc = camera_matrix(colour_intrinsics, "colour")
+    moved = depth_to_colour is not None
+    t = np.eye(4) if depth_to_colour is None else camera_placement(depth_to_colour)
+    if depth.dtype not in (np.float32, np.float64):
+        depth = depth.astype(np.float64)
+    nearest = _forward_warp(np.ascontiguousarray(depth), kd, kc,
+                            np.ascontiguousarray(t[:3, :3]), np.ascontiguousarray(t[:3, 3]),
+                            moved)
+    return nearest.astype(depth.dtype, copy=False)
+
+
+@njit(cache=True)
+def _forward_warp(depth: np.ndarray, kd: np.ndarray, kc: np.ndarray, rotation: np.ndarray,
+                  translation: np.ndarray, moved: bool) -> np.ndarray:
+    """The warp of :func:`register_depth`, one pass over the pixels in float64 whatever the
+    depth's float type (the array form — back-project all, project all, ``np.minimum.at`` —
+    took 22 ms a 640×480 frame, most of the player's time on 7-Scenes)."""
     h, w = depth.shape
-    v, u = np.nonzero(depth > 0)
-    z = depth[v, u].astype(np.float64)
-    points = np.column_stack([(u - kd[0, 2]) / kd[0, 0] * z, (v - kd[1, 2]) / kd[1, 1] * z, z])
-    if depth_to_colour is not None:
-        t = camera_placement(depth_to_colour)
-        points = points @ t[:3, :3].T + t[:3, 3]
-    zc = points[:, 2]
-    ahead = zc > 0
-    points, zc = points[ahead], zc[ahead]
-    uc = np.rint(kc[0, 0] * points[:, 0] / zc + kc[0, 2]).astype(np.int64)
-    vc = np.rint(kc[1, 1] * points[:, 1] / zc + kc[1, 2]).astype(np.int64)
-    inside = (uc >= 0) & (uc < w) & (vc >= 0) & (vc < h)
-    nearest = np.full(h * w, np.inf)
-    np.minimum.at(nearest, vc[inside] * w + uc[inside], zc[inside])
-    nearest[np.isinf(nearest)] = 0.0
-    return nearest.reshape(h, w).astype(depth.dtype)
+    nearest = np.zeros((h, w), dtype=depth.dtype)
+    for v in range(h):
+        for u in range(w):
+            z = np.float64(depth[v, u])
+            if not z > 0:
+                continue
+            x = (u - kd[0, 2]) / kd[0, 0] * z
+            y = (v - kd[1, 2]) / kd[1, 1] * z
+            if moved:
+                x, y, z = (rotation[0, 0] * x + rotation[0, 1] * y + rotation[0, 2] * z
+                           + translation[0],
+                           rotation[1, 0] * x + rotation[1, 1] * y + rotation[1, 2] * z
+                           + translation[1],
+                           rotation[2, 0] * x + rotation[2, 1] * y + rotation[2, 2] * z
+                           + translation[2])
+            if not z > 0:
+                continue
+            uc = np.rint(kc[0, 0] * x / z + kc[0, 2])
+            vc = np.rint(kc[1, 1] * y / z + kc[1, 2])
+            if not (0 <= uc < w and 0 <= vc < h):
+                continue
+            iu, iv = int(uc), int(vc)
+            if nearest[iv, iu] == 0.0 or z < nearest[iv, iu]:
+                nearest[iv, iu] = z          # rounded to the depth's type: the same order
+    return nearest
 
 
 def camera_matrix(k: np.ndarray, camera: str) -> np.ndarray:
