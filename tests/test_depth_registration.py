@@ -36,6 +36,16 @@ def test_a_reading_lands_where_the_colour_camera_sees_its_point() -> None:
     assert np.count_nonzero(out) == 1
 
 
+def test_depth_in_millimetres_comes_back_in_its_own_type() -> None:
+    """A 16-bit depth image (millimetres, as TUM and 7-Scenes store it) is registered as
+    metres are and returned as 16-bit."""
+    depth = np.zeros((H, W), dtype=np.uint16)
+    depth[24, 52] = 2000
+    out = register_depth(depth, DEPTH_K, COLOUR_K)
+    assert out.dtype == np.uint16 and out[24, round(32 + 20 * 52.5 / 58.5)] == 2000
+    assert np.count_nonzero(out) == 1
+
+
 def test_the_nearer_of_two_readings_on_one_colour_pixel_is_kept() -> None:
     """Two depth pixels that land on one colour pixel: the surface in front hides the other."""
     depth = np.zeros((H, W), dtype=np.float32)

@@ -36,9 +36,8 @@ def register_depth(depth: np.ndarray, depth_intrinsics: np.ndarray,
     kc = camera_matrix(colour_intrinsics, "colour")
     moved = depth_to_colour is not None
     t = np.eye(4) if depth_to_colour is None else camera_placement(depth_to_colour)
-    if depth.dtype not in (np.float32, np.float64):
-        depth = depth.astype(np.float64)
-    nearest = _forward_warp(np.ascontiguousarray(depth), kd, kc,
+    floats = depth if depth.dtype in (np.float32, np.float64) else depth.astype(np.float64)
+    nearest = _forward_warp(np.ascontiguousarray(floats), kd, kc,
                             np.ascontiguousarray(t[:3, :3]), np.ascontiguousarray(t[:3, 3]),
                             moved)
     return nearest.astype(depth.dtype, copy=False)
