@@ -94,7 +94,7 @@ def lend_keyframes(lender: DeviceWalk, borrower: DeviceWalk, lent: set[int],
                       followed.get(source, 0), slot, borrower.edge.version + 1)
     followed[source] = lending.followed
     for move in lending.moves:
-        if move.own or move.refused:
+        if move.reached_own:
             print(f"slot {slot:4d}: the {borrower.name} map followed the {lender.name}'s loop: "
                   f"{move.copies} copies and {move.own} own keyframes moved, up to "
                   f"{move.own_moved_m * 100:.1f} cm, its graph {move.graph_ms:.0f} ms"

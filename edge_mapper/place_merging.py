@@ -153,7 +153,7 @@ class PlaceMerging:
         lenders = [d for d in self.place_of(device) if d != device]
         lendings = [self.lend(device, lender, slot) for lender in lenders]
         return merged, sum(lending.adopted for lending in lendings), \
-            [move for lending in lendings for move in lending.moves if move.own or move.refused]
+            [move for lending in lendings for move in lending.moves if move.reached_own]
 
     def lend(self, borrower: str, lender: str, slot: int) -> Lending:
         """The lender's own keyframes (its archive and map; not those it adopted itself) that

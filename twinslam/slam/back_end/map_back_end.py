@@ -171,6 +171,11 @@ class FollowedLoop:
     refused: str = ""
     graph_ms: float = 0.0            #: the time the own keyframes' graph took (0: none)
 
+    @property
+    def reached_own(self) -> bool:
+        """Whether the loop moved this map's own keyframes, or would have (refused)."""
+        return bool(self.own or self.refused)
+
 
 class MapBackEnd:
     """The map, its archive and its loops for one device (see the module's text)."""
@@ -404,8 +409,7 @@ class MapBackEnd:
             return (f"the adjustment raised its error from {result.initial_error:.3g} to "
                     f"{result.final_error:.3g}")
         for k in sorted(window):
-            before = self.map.keyframes[k].pose
-            moved = float(np.linalg.norm(result.poses[k][:3, 3] - before[:3, 3]))
+            moved = _moved_m(self.map.keyframes[k].pose, result.poses[k])
             if refused := self._beyond_reach(f"keyframe {k} moved", moved):
                 return refused
         return ""
