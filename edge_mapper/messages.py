@@ -21,7 +21,7 @@ from msg_schemas.poses import pose_matrix, pose_msg
 from msg_schemas.validation import ORB_DESCRIPTOR_BYTES
 from twinslam.policies.actions import MapAction
 from twinslam.slam.back_end.archive_relocalisation import ArchiveLocation
-from twinslam.slam.back_end.keyframe_map import KeyFrameMap, stacked_rows
+from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.keyframe import KeyFramePayload
 from twinslam.uncertainty.map_uncertainty import SlotUncertainty
 
@@ -53,19 +53,16 @@ def map_update_message(keyframe_map: KeyFrameMap, slot: int, version: int, stamp
     tracks = {t: p for t, p in (tracks or {}).items() if p in keyframe_map.points}
     kf_ids = keyframe_map.keyframe_ids()
     pt_ids = sorted(keyframe_map.points)
-    pts = [keyframe_map.points[p] for p in pt_ids]
+    rows = keyframe_map.columns.rows_of(pt_ids)
     # written for every device every slot: each column read straight into its array
     observed = [sorted(keyframe_map.keyframes[k].points) for k in kf_ids]
     msg = new(MapUpdate, slot=slot, map_version=version,
               keyframe_ids=np.asarray(kf_ids, dtype=np.uint64),
               keyframe_poses=[pose_msg(keyframe_map.keyframes[k].pose) for k in kf_ids],
               point_ids=np.asarray(pt_ids, dtype=np.uint64),
-              point_positions=stacked_rows([p.position for p in pts], (3,),
-                                           np.float64).reshape(-1),
-              point_descriptors=stacked_rows([p.descriptor for p in pts], (32,),
-                                             np.uint8).reshape(-1),
-              point_observations=np.fromiter((len(p.observers) for p in pts),
-                                             dtype=np.uint32, count=len(pts)),
+              point_positions=keyframe_map.columns.positions[rows].reshape(-1),
+              point_descriptors=keyframe_map.columns.descriptors[rows].reshape(-1),
+              point_observations=keyframe_map.columns.observed[rows].astype(np.uint32),
               keyframe_point_counts=np.array([len(o) for o in observed], dtype=np.uint32),
               keyframe_point_ids=np.fromiter(chain.from_iterable(observed), dtype=np.uint64,
                                              count=sum(len(o) for o in observed)),

@@ -132,8 +132,8 @@ def plan_relocation_restores(m: KeyFrameMap, archive: KeyFrameArchive,
 def _map_view_scores(m: KeyFrameMap, sets: dict[int, np.ndarray], poses: Sequence[np.ndarray],
                      camera: Camera) -> dict[int, int]:
     """:func:`view_score` of the map keyframes ``sets`` (id → its point ids)."""
-    return {k: view_score(np.array([m.points[int(p)].position for p in ids]).reshape(-1, 3),
-                          poses, camera) for k, ids in sets.items()}
+    return {k: view_score(m.positions_of(ids.tolist()), poses, camera)
+            for k, ids in sets.items()}
 
 
 def _component(sets: dict[int, np.ndarray], start: int) -> set[int]:

@@ -47,13 +47,12 @@ DECISION_COLOURS = {"integrated": (0.1, 0.8, 0.2, 1.0), "evicted": (0.9, 0.1, 0.
 def map_points_message(keyframe_map: KeyFrameMap, stamp: float, frame_id: str = "map"
                        ) -> PointCloud2:
     """Every map point as one unorganised cloud (height 1, width = the map's point count)."""
-    points = list(keyframe_map.points.values())
-    data = np.zeros((len(points), 4), dtype=np.float32)
-    if points:
-        data[:, :3] = np.array([p.position for p in points], dtype=np.float32)
-        data[:, 3] = [len(p.observers) for p in points]
-    cloud = PointCloud2(height=1, width=len(points), fields=list(POINT_FIELDS),
-                        is_bigendian=False, point_step=16, row_step=16 * len(points),
+    rows = keyframe_map.columns.rows_of(keyframe_map.points)
+    data = np.zeros((len(rows), 4), dtype=np.float32)
+    data[:, :3] = keyframe_map.columns.positions[rows]
+    data[:, 3] = keyframe_map.columns.observed[rows]
+    cloud = PointCloud2(height=1, width=len(rows), fields=list(POINT_FIELDS),
+                        is_bigendian=False, point_step=16, row_step=16 * len(rows),
                         is_dense=True)
     cloud.data = data.tobytes()
     return set_header(cloud, stamp, frame_id)

@@ -73,3 +73,64 @@ def test_checkpoint_round_trip_and_refusals(tmp_path: Path) -> None:
     (tmp_path / "bad.npz").write_bytes(b"garbage")
     with pytest.raises(MapError, match=r"bad\.npz"):
         KeyFrameMap.load(tmp_path / "bad.npz")
+
+
+def test_points_read_together_as_each_reads_alone_through_rows_freed_and_grown() -> None:
+    """The map's columns give any set of points at once: after points left (their rows taken
+    by new points) and the columns outgrew their first capacity, every point still reads its
+    own position and descriptor, alone or many at once."""
+    m = KeyFrameMap()
+    m.add_keyframe(1, np.eye(4))
+    rng = np.random.default_rng(3)
+    made: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    for _ in range(3000):                               # past the first 1024 rows
+        xyz, desc = rng.normal(size=3), rng.integers(0, 256, 32, dtype=np.uint8)
+        pid = m.add_point(xyz, desc)
+        m.observe(1, pid)
+        made[pid] = (xyz, desc)
+        if pid % 3 == 0:                                # leaves: its row goes to a newer one
+            m.remove_point(pid)
+            del made[pid]
+    m.add_keyframe(2, np.eye(4))
+    ids = sorted(made)
+    m.observe_many(2, ids[::2], [[0.0, 0.0]] * len(ids[::2]), [1.0] * len(ids[::2]))
+    m.unobserve(2, ids[0])
+    m.fuse(ids[2], ids[1])                              # 2 observes both: 1 leaves
+    del made[ids[1]]
+    both = sorted(m.points)
+    np.testing.assert_array_equal(m.observer_counts(both),
+                                  [len(m.points[p].observers) for p in both])
+    assert set(m.observer_counts(both).tolist()) == {1, 2}
+    m.evict(1)                                          # the points 2 did not see leave
+    made = {p: made[p] for p in m.points}
+    ids = sorted(made, reverse=True)
+    assert len(ids) == len(m.columns) > 1024 // 2
+    np.testing.assert_array_equal(m.observer_counts(ids),
+                                  [len(m.points[p].observers) for p in ids])
+    np.testing.assert_array_equal(m.positions_of(ids), [made[p][0] for p in ids])
+    np.testing.assert_array_equal(m.descriptors_of(ids), [made[p][1] for p in ids])
+    assert all(np.array_equal(m.points[p].position, made[p][0]) for p in ids)
+    assert m.positions_of([]).shape == (0, 3)
+
+
+def test_a_point_reads_as_a_value_and_keeps_it_when_it_leaves() -> None:
+    """A position read is the point's as it was then (a loop moving the point later does not
+    change what a caller kept), and a point that left the map still reads what it last had,
+    though a new point took its row."""
+    m = KeyFrameMap()
+    m.add_keyframe(1, np.eye(4))
+    pid = m.add_point(np.array([1.0, 2.0, 3.0]), np.full(32, 7, np.uint8))
+    m.observe(1, pid)
+    kept = m.points[pid].position
+    kept[0] = 99.0                                      # a caller's copy, not the map
+    np.testing.assert_array_equal(m.points[pid].position, [1.0, 2.0, 3.0])
+    m.set_positions([pid], np.array([[4.0, 5.0, 6.0]]))
+    np.testing.assert_array_equal(kept, [99.0, 2.0, 3.0])
+    point = m.points[pid]
+    m.remove_point(pid)
+    newer = m.add_point(np.zeros(3), np.zeros(32, np.uint8))
+    m.observe(1, newer)
+    np.testing.assert_array_equal(point.position, [4.0, 5.0, 6.0])
+    np.testing.assert_array_equal(point.descriptor, np.full(32, 7, np.uint8))
+    with pytest.raises(ValueError, match="2 positions"):
+        m.set_positions([newer], np.zeros((2, 3)))

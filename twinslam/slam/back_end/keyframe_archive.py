@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from twinslam.slam.back_end.keyframe_map import KeyFrameMap, stacked_rows
+from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 
 ARCHIVE_FORMAT = "twinslam-archived-keyframe-1"
 #: an ORB descriptor: 256 bits
@@ -67,15 +67,14 @@ class ArchivedKeyFrame:
         """Keyframe ``kf_id`` of ``m`` with its points, before it is evicted."""
         kf = m.keyframes[kf_id]
         order = sorted(kf.points)
-        points = [m.points[p] for p in order]
         nan3 = (np.nan, np.nan, np.nan)
         # the loop closer snapshots every keyframe of the map each slot: each column is read
         # straight into its array (see KeyFrameMap.save)
         measured = np.fromiter(chain.from_iterable(kf.measurements.get(p, nan3) for p in order),
                                dtype=np.float64, count=3 * len(order))
+        rows = m.columns.rows_of(order)
         return cls(kf_id, kf.pose.copy(), np.array(order, dtype=np.int64),
-                   stacked_rows([p.position for p in points], (3,), np.float64),
-                   stacked_rows([p.descriptor for p in points], (32,), np.uint8),
+                   m.columns.positions[rows], m.columns.descriptors[rows],
                    measured.reshape(-1, 3), slot)
 
     @property

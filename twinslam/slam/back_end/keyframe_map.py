@@ -15,7 +15,7 @@ from __future__ import annotations
 import itertools
 import math
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from itertools import chain
 from pathlib import Path
@@ -25,6 +25,7 @@ import numpy as np
 from scipy import sparse
 
 from twinslam.slam.back_end.foreign_keyframes import is_foreign
+from twinslam.slam.back_end.point_columns import PointColumns
 
 CHECKPOINT_FORMAT = "twinslam-keyframe-map-1"
 
@@ -42,16 +43,48 @@ class KeyFrame:
     measurements: dict[int, tuple[float, float, float]] = field(default_factory=dict)
 
 
-@dataclass
 class MapPoint:
-    id: int
-    position: np.ndarray                   #: xyz in the map frame
-    descriptor: np.ndarray                 #: 32-byte ORB descriptor (representative)
-    observers: set[int] = field(default_factory=set)  #: keyframe ids
-    #: keyframes whose view held it, and those of them that observed it (its creator counts
-    #: in both): the found ratio :mod:`twinslam.slam.back_end.point_culling` judges it by
-    visible: int = 1
-    found: int = 1
+    """A map point: its observers and view counts here, its position (xyz in the map frame)
+    and representative 32-byte ORB descriptor in the map's :class:`PointColumns` row. Both
+    read as copies and are written by assignment (``point.position = xyz``), as when each
+    point held arrays of its own; a point that left the map keeps what it last had."""
+
+    __slots__ = ("_columns", "_kept", "_row", "found", "id", "observers", "visible")
+
+    def __init__(self, point_id: int, columns: PointColumns, row: int) -> None:
+        self.id = point_id
+        self.observers: set[int] = set()     #: keyframe ids
+        #: keyframes whose view held it, and those of them that observed it (its creator
+        #: counts in both): the found ratio :mod:`twinslam.slam.back_end.point_culling`
+        #: judges it by
+        self.visible = 1
+        self.found = 1
+        self._columns = columns
+        self._row = row
+        self._kept: tuple[np.ndarray, np.ndarray] | None = None   #: once it left the map
+
+    @property
+    def position(self) -> np.ndarray:
+        xyz: np.ndarray = (self._kept[0] if self._kept is not None
+                           else self._columns.positions[self._row])
+        return xyz.copy()
+
+    @position.setter
+    def position(self, xyz: np.ndarray) -> None:
+        if self._kept is not None:
+            self._kept = (np.asarray(xyz, dtype=np.float64).reshape(3).copy(), self._kept[1])
+        else:
+            self._columns.positions[self._row] = xyz
+
+    @property
+    def descriptor(self) -> np.ndarray:
+        desc: np.ndarray = (self._kept[1] if self._kept is not None
+                            else self._columns.descriptors[self._row])
+        return desc.copy()
+
+    def leave(self) -> None:
+        """The point left the map: keep its position and descriptor, give up its row."""
+        self._kept = (self.position, self.descriptor)
 
 
 def stacked_rows(rows: list[np.ndarray], shape: tuple[int, ...], dtype: type) -> np.ndarray:
@@ -101,6 +134,9 @@ class KeyFrameMap:
     def __init__(self) -> None:
         self.keyframes: dict[int, KeyFrame] = {}
         self.points: dict[int, MapPoint] = {}
+        #: the points' positions and descriptors, a row a point (read many at once with
+        #: :meth:`positions_of` and :meth:`descriptors_of`)
+        self.columns = PointColumns()
         self.next_point_id = 1                   #: 0 means "no point" on the wire
 
     # -- edits -----------------------------------------------------------------------------
@@ -116,8 +152,7 @@ class KeyFrameMap:
         """A new map point; returns its id."""
         pid = self.next_point_id
         self.next_point_id += 1
-        self.points[pid] = MapPoint(pid, np.asarray(position, dtype=np.float64).copy(),
-                                    np.asarray(descriptor, dtype=np.uint8).copy())
+        self._put_point(pid, position, descriptor)
         return pid
 
     def readd_point(self, point_id: int, position: np.ndarray, descriptor: np.ndarray) -> None:
@@ -130,8 +165,20 @@ class KeyFrameMap:
                                            or is_foreign(point_id)):
             raise MapError(f"point {point_id} cannot come back: it is in the map or was never "
                            "one of it")
-        self.points[point_id] = MapPoint(point_id, np.asarray(position, dtype=np.float64).copy(),
-                                         np.asarray(descriptor, dtype=np.uint8).copy())
+        self._put_point(point_id, position, descriptor)
+
+    def _put_point(self, point_id: int, position: np.ndarray, descriptor: np.ndarray) -> None:
+        xyz = np.asarray(position, dtype=np.float64).reshape(3)
+        desc = np.asarray(descriptor, dtype=np.uint8).reshape(32)
+        self.points[point_id] = MapPoint(point_id, self.columns,
+                                         self.columns.add(point_id, xyz, desc))
+
+    def _drop_point(self, point_id: int) -> MapPoint:
+        """Take a point out of the map (its row freed); returns it, holding what it had."""
+        point = self.points.pop(point_id)
+        point.leave()
+        self.columns.remove(point_id)
+        return point
 
     def observe(self, kf_id: int, point_id: int,
                 uv: tuple[float, float] = (math.nan, math.nan), depth: float = math.nan
@@ -153,6 +200,7 @@ class KeyFrameMap:
         for pid, (u, v), d in zip(point_ids, uvs, depths, strict=True):
             meas[pid] = (u, v, d)
             points[pid].observers.add(kf_id)
+        self._count_observers(point_ids)
 
     def unobserve(self, kf_id: int, point_id: int) -> bool:
         """Drop one observation (an outlier the optimiser found); removes the point when it
@@ -162,16 +210,17 @@ class KeyFrameMap:
         kf.measurements.pop(point_id, None)
         pt.observers.discard(kf_id)
         if not pt.observers:
-            del self.points[point_id]
+            self._drop_point(point_id)
             return True
+        self._count_observers([point_id])
         return False
 
     def remove_point(self, point_id: int) -> None:
         """Remove a point and every keyframe's observation of it (a point culled for never
         being found again)."""
-        point = self.points.pop(point_id, None)
-        if point is None:
+        if point_id not in self.points:
             raise MapError(f"cannot remove point {point_id}: not in the map")
+        point = self._drop_point(point_id)
         for kf_id in point.observers:
             kf = self.keyframes[kf_id]
             kf.points.discard(point_id)
@@ -195,7 +244,8 @@ class KeyFrameMap:
                 kf.measurements[keep] = seen
                 kept.observers.add(kf_id)
                 moved += 1
-        del self.points[drop]
+        self._drop_point(drop)
+        self._count_observers([keep])
         return moved
 
     def evict(self, kf_id: int) -> list[int]:
@@ -204,14 +254,25 @@ class KeyFrameMap:
         kf = self.keyframes.pop(kf_id, None)
         if kf is None:
             raise MapError(f"cannot evict keyframe {kf_id}: not in the map")
-        orphans = []
+        orphans, still_seen = [], []
         for pid in kf.points:
             pt = self.points[pid]
             pt.observers.discard(kf_id)
             if not pt.observers:
-                del self.points[pid]
+                self._drop_point(pid)
                 orphans.append(pid)
+            else:
+                still_seen.append(pid)
+        self._count_observers(still_seen)
         return sorted(orphans)
+
+    def _count_observers(self, point_ids: Collection[int]) -> None:
+        """Write how many keyframes observe each of ``point_ids`` into the columns, after an
+        edit of their observers (what the map update and the viewer's cloud send a point)."""
+        points = self.points
+        self.columns.observed[self.columns.rows_of(point_ids)] = np.fromiter(
+            (len(points[p].observers) for p in point_ids), dtype=np.int64,
+            count=len(point_ids))
 
     # -- queries ---------------------------------------------------------------------------
 
@@ -223,6 +284,28 @@ class KeyFrameMap:
         """M_f of keyframe ``kf_id`` as an int64 array (unordered), for :func:`shared_counts`."""
         points = self.keyframes[kf_id].points
         return np.fromiter(points, dtype=np.int64, count=len(points))
+
+    def positions_of(self, point_ids: Collection[int]) -> np.ndarray:
+        """``(n, 3)``: the positions of the map's points ``point_ids``, in their order."""
+        return self.columns.positions_of(point_ids)
+
+    def descriptors_of(self, point_ids: Collection[int]) -> np.ndarray:
+        """``(n, 32)`` uint8: the descriptors of the map's points ``point_ids``, in their
+        order."""
+        return self.columns.descriptors_of(point_ids)
+
+    def observer_counts(self, point_ids: Collection[int]) -> np.ndarray:
+        """``(n,)`` int64: how many keyframes observe each of the map's points ``point_ids``."""
+        counts: np.ndarray = self.columns.observed[self.columns.rows_of(point_ids)]
+        return counts
+
+    def set_positions(self, point_ids: Collection[int], positions: np.ndarray) -> None:
+        """Move the map's points ``point_ids`` to ``positions`` ((n, 3), in their order): a
+        loop's correction or a merge's alignment of thousands of points at once."""
+        xyz = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+        if len(xyz) != len(point_ids):
+            raise ValueError(f"{len(point_ids)} points but {len(xyz)} positions")
+        self.columns.positions[self.columns.rows_of(point_ids)] = xyz
 
     def covisibility(self, ids: list[int] | None = None) -> np.ndarray:
         """w(f, f') = |M_f ∩ M_f'| for the keyframes ``ids`` (default: all, oldest first),
@@ -244,6 +327,7 @@ class KeyFrameMap:
         kf_ids = self.keyframe_ids()
         pt_ids = sorted(self.points)
         points = [self.points[p] for p in pt_ids]
+        rows = self.columns.rows_of(pt_ids)
         # every observation has its measurement (observe writes both, unobserve and evict
         # drop both), so the measurement dicts list the observations; the edge writes this
         # every slot, so each column is read straight into its array (np.fromiter over a
@@ -263,9 +347,8 @@ class KeyFrameMap:
                      keyframe_poses=stacked_rows([self.keyframes[k].pose for k in kf_ids],
                                              (4, 4), np.float64),
                      point_ids=np.array(pt_ids, dtype=np.int64),
-                     point_positions=stacked_rows([p.position for p in points], (3,), np.float64),
-                     point_descriptors=stacked_rows([p.descriptor for p in points], (32,),
-                                                np.uint8),
+                     point_positions=self.columns.positions[rows],
+                     point_descriptors=self.columns.descriptors[rows],
                      observations=np.column_stack([observers, seen]).reshape(-1, 2),
                      measurements=uvd.reshape(-1, 3),
                      point_views=views.reshape(-1, 2),
@@ -292,10 +375,20 @@ class KeyFrameMap:
                 m.add_keyframe(int(k), pose)
             for p, xyz, desc in zip(data.pop("point_ids"), data.pop("point_positions"),
                                     data.pop("point_descriptors"), strict=True):
-                m.points[int(p)] = MapPoint(int(p), xyz.copy(), desc.copy())
-            for (k, p), (u, v, d) in zip(data.pop("observations"), data.pop("measurements"),
-                                         strict=True):
-                m.observe(int(k), int(p), (u, v), d)
+                m._put_point(int(p), xyz, desc)
+            observations, seen = data.pop("observations"), data.pop("measurements")
+            if len(observations) != len(seen):
+                raise ValueError(f"{len(observations)} observations, {len(seen)} measurements")
+            # a keyframe's observations at once (the checkpoint lists them keyframe by
+            # keyframe)
+            order = np.argsort(observations[:, 0], kind="stable")
+            observations, seen = observations[order], seen[order]
+            cuts = np.flatnonzero(np.diff(observations[:, 0])) + 1
+            for obs, uvd in zip(np.split(observations, cuts), np.split(seen, cuts),
+                                strict=True):
+                if len(obs):
+                    m.observe_many(int(obs[0, 0]), obs[:, 1].tolist(), uvd[:, :2].tolist(),
+                                   uvd[:, 2].tolist())
             m.next_point_id = int(data.pop("next_point_id"))
             # a checkpoint written before points counted their views: each starts afresh
             views = data.pop("point_views", None)

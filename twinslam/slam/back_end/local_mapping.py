@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from twinslam.slam.back_end.keyframe_map import KeyFrameMap, stacked_rows
+from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.back_end.point_culling import PointCullingConfig, count_and_cull, facing
 from twinslam.slam.descriptor_matching import hamming_rows
 from twinslam.slam.keyframe import is_track_id
@@ -135,7 +135,7 @@ class LocalMapping:
         in_view, uv = self._in_view(kf_id, pose)
         counts["matched"] = self._match(kf_id, keypoints, descriptors, free, in_view, uv)
         world = self._back_project(pose, keypoints, depths)
-        alike = self._alike_finder(kf_id, in_view, world, descriptors, depths)
+        alike = self._alike_finder(kf_id, in_view, world, descriptors, depths, free)
         made: set[int] = set()                # the points this keyframe makes
         for i in pending_tracks:
             if free[i] and (same := alike(i)) is not None:
@@ -170,21 +170,20 @@ class LocalMapping:
 
     def _alike_finder(self, kf_id: int, in_view: np.ndarray,
                       world: list[np.ndarray | None], descriptors: np.ndarray,
-                      depths: np.ndarray) -> Callable[[int], int | None]:
+                      depths: np.ndarray, free: np.ndarray) -> Callable[[int], int | None]:
         """A lookup by feature: the map point in view, not observed by the keyframe yet,
         nearest in descriptor among those within ``join_radius_m`` + 2 % of the depth of the
         feature's back-projected position (``world``) and within ``max_hamming`` of its
-        descriptor (None: none, or joining is off). The neighbourhoods of all the features
-        are found in one query of the points' tree."""
+        descriptor (None: none, or joining is off). Only features still ``free`` are looked
+        up — one matched already is never asked for — and their neighbourhoods are found in
+        one query of the points' tree."""
         radius = self.config.join_radius_m
-        placed = [i for i, w in enumerate(world) if w is not None]
+        placed = [i for i, w in enumerate(world) if w is not None and free[i]]
         if radius is None or in_view.size == 0 or not placed:
             return lambda i: None
-        points = self.map.points
         ids = in_view.tolist()
-        in_sight = [points[p] for p in ids]
-        tree = cKDTree(stacked_rows([p.position for p in in_sight], (3,), np.float64))
-        theirs = stacked_rows([p.descriptor for p in in_sight], (32,), np.uint8)
+        tree = cKDTree(self.map.positions_of(ids))
+        theirs = self.map.descriptors_of(ids)
         z = np.asarray(depths, dtype=np.float64)[placed]
         # unsorted: each neighbourhood in the tree's own order, as a query of one point
         near = tree.query_ball_point(np.array([world[i] for i in placed]), radius + 0.02 * z,
@@ -265,7 +264,7 @@ class LocalMapping:
         pids = np.array(sorted(local - own), dtype=np.int64)
         if pids.size == 0:
             return none
-        positions = np.array([m.points[p].position for p in pids.tolist()])
+        positions = m.positions_of(pids.tolist())
         vis, uv = visible_points(positions, np.ones(len(pids), dtype=bool), pose, self.k,
                                  self.shape, cfg.depth_range_m)
         return pids[vis], uv
@@ -277,8 +276,7 @@ class LocalMapping:
         f_free = np.flatnonzero(free)
         if f_free.size == 0 or in_view.size == 0:
             return 0
-        desc = np.array([self.map.points[p].descriptor for p in in_view.tolist()],
-                        dtype=np.uint8)
+        desc = self.map.descriptors_of(in_view.tolist())
         f_idx, c_idx = match_by_projection(np.asarray(keypoints)[f_free],
                                            np.asarray(descriptors)[f_free], uv, desc,
                                            cfg.search_radius_px, cfg.max_hamming, cfg.ratio,

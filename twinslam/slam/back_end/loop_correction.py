@@ -59,8 +59,8 @@ def move_keyframes(m: KeyFrameMap, moves: Mapping[int, np.ndarray]) -> None:
     observer."""
     for kf_id, c in moves.items():
         m.keyframes[kf_id].pose = c @ m.keyframes[kf_id].pose
+    ids = list(m.points)
     positions = move_with_keyframes(
-        {pid: pt.position for pid, pt in m.points.items()},
+        dict(zip(ids, m.positions_of(ids), strict=True)),
         {pid: min(pt.observers, default=-1) for pid, pt in m.points.items()}, moves)
-    for pid, xyz in positions.items():
-        m.points[pid].position = xyz
+    m.set_positions(list(positions), np.array(list(positions.values())).reshape(-1, 3))

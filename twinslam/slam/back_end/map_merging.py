@@ -111,7 +111,7 @@ def welded(keyframe: ArchivedKeyFrame, source: int, into: KeyFrameMap, camera: C
     rows = np.flatnonzero(np.isfinite(keyframe.measurements[:, 0]))
     for row, point in duplicates_in_view(keyframe.pose, keyframe.measurements[rows, :2],
                                          keyframe.descriptors[rows], keyframe.positions[rows],
-                                         list(into.points.values()), camera, config):
+                                         into, list(into.points), camera, config):
         ids[rows[row]] = point
     return dataclasses.replace(keyframe, id=keyframe.id | tag, point_ids=ids,
                                archived_slot=slot)

@@ -51,7 +51,7 @@ def facing(keyframe_map: KeyFrameMap, point_ids: np.ndarray, camera_to_world: np
         return np.zeros(0, dtype=bool)
     points = keyframe_map.points
     centres = {k: kf.pose[:3, 3] for k, kf in keyframe_map.keyframes.items()}
-    positions = np.array([points[p].position for p in ids.tolist()])
+    positions = keyframe_map.positions_of(ids.tolist())
     mean_dir = np.zeros_like(positions)
     for i, p in enumerate(ids.tolist()):
         seen_from = [centres[k] for k in points[p].observers if k in centres]

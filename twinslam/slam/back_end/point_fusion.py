@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from twinslam.slam.back_end.keyframe_map import KeyFrameMap, MapPoint
+from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.camera import Camera
 from twinslam.slam.projection_matching import match_by_projection, visible_points
 
@@ -43,12 +43,10 @@ def fuse_restored(m: KeyFrameMap, kf_id: int, returned: list[int], camera: Camer
     kf = m.keyframes[kf_id]
     mine = [p for p in returned if p in m.points and p in kf.measurements
             and math.isfinite(kf.measurements[p][0])]
-    others = [m.points[p] for p in m.points if p not in kf.points]
+    others = [p for p in m.points if p not in kf.points]
     pairs = duplicates_in_view(
         kf.pose, np.array([kf.measurements[p][:2] for p in mine], dtype=np.float64),
-        np.array([m.points[p].descriptor for p in mine], dtype=np.uint8).reshape(-1, 32),
-        np.array([m.points[p].position for p in mine], dtype=np.float64).reshape(-1, 3),
-        others, camera, config)
+        m.descriptors_of(mine), m.positions_of(mine), m, others, camera, config)
     fused: dict[int, int] = {}
     for row, keep in pairs:
         m.fuse(keep, mine[row])
@@ -57,18 +55,19 @@ def fuse_restored(m: KeyFrameMap, kf_id: int, returned: list[int], camera: Camer
 
 
 def duplicates_in_view(pose: np.ndarray, seen_at: np.ndarray, descriptors: np.ndarray,
-                       positions: np.ndarray, candidates: list[MapPoint], camera: Camera,
-                       config: FusionConfig | None = None) -> list[tuple[int, int]]:
+                       positions: np.ndarray, m: KeyFrameMap, candidates: list[int],
+                       camera: Camera, config: FusionConfig | None = None
+                       ) -> list[tuple[int, int]]:
     """Which of a keyframe's points (camera-to-map ``pose``; each seen at pixel ``seen_at``,
-    with its ``descriptors`` and map ``positions``) are copies of ``candidates``: the
-    candidate projects beside where the keyframe saw the point, looks alike (Lowe's ratio)
-    and lies within ``max_gap_m`` of it; (row, the candidate's id) pairs, each candidate at
-    most once. What a restored keyframe's points are fused by, and another device's
+    with its ``descriptors`` and map ``positions``) are copies of ``candidates`` (point ids of
+    map ``m``): the candidate projects beside where the keyframe saw the point, looks alike
+    (Lowe's ratio) and lies within ``max_gap_m`` of it; (row, the candidate's id) pairs, each
+    candidate at most once. What a restored keyframe's points are fused by, and another device's
     keyframe welded to a map it joins (:func:`~twinslam.slam.back_end.map_merging.welded`)."""
     cfg = config or FusionConfig()
     if not len(seen_at) or not candidates:
         return []
-    where = np.array([c.position for c in candidates], dtype=np.float64)
+    where = m.positions_of(candidates)
     vis, uv = visible_points(where, np.ones(len(candidates), dtype=bool), pose,
                              np.asarray(camera.intrinsics, dtype=np.float64), camera.shape,
                              cfg.depth_range_m)
@@ -76,11 +75,11 @@ def duplicates_in_view(pose: np.ndarray, seen_at: np.ndarray, descriptors: np.nd
         return []
     f_idx, c_idx = match_by_projection(
         seen_at, descriptors, uv,
-        np.array([candidates[i].descriptor for i in vis.tolist()], dtype=np.uint8),
+        m.descriptors_of([candidates[i] for i in vis.tolist()]),
         cfg.search_radius_px, cfg.max_hamming, cfg.ratio, camera.shape)
     pairs = []
     for fi, ci in zip(f_idx.tolist(), c_idx.tolist(), strict=True):
-        candidate = candidates[int(vis[ci])]
-        if np.linalg.norm(positions[fi] - candidate.position) <= cfg.max_gap_m:
-            pairs.append((fi, candidate.id))
+        c = int(vis[ci])
+        if np.linalg.norm(positions[fi] - where[c]) <= cfg.max_gap_m:
+            pairs.append((fi, candidates[c]))
     return pairs

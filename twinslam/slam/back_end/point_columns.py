@@ -1,0 +1,83 @@
+"""The map points' positions and descriptors as two arrays, one row a point.
+
+Every slot, for every device, the edge reads the positions and descriptors of thousands of
+map points at once: the checkpoint, the map update, the loop closer's snapshot of the map,
+integration's local map and its search for a feature's duplicate, the viewer's cloud. Held
+as one small array a point, each such read was a Python step a point (``np.concatenate``
+over a list of arrays: ~10 ms a slot on a 20 000-point map, in several places). Held as rows
+of two arrays, any set of points is one fancy index.
+
+A point keeps its row for as long as it is in the map; a row freed by a point that left is
+taken by the next new point, and the arrays double when every row is taken, so neither a
+point's row nor the cost of adding one depends on the map's history.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Collection
+
+import numpy as np
+
+#: bytes of an ORB descriptor
+DESCRIPTOR_BYTES = 32
+
+
+class PointColumns:
+    """Positions ((rows, 3) float64, map frame), descriptors ((rows, 32) uint8) and how many
+    keyframes observe each ((rows,) int64: kept by the map as it links observations) of the
+    points a map holds, with each point's row by id."""
+
+    def __init__(self, capacity: int = 1024) -> None:
+        self.positions = np.zeros((max(1, capacity), 3), dtype=np.float64)
+        self.descriptors = np.zeros((max(1, capacity), DESCRIPTOR_BYTES), dtype=np.uint8)
+        self.observed = np.zeros(max(1, capacity), dtype=np.int64)
+        self.row: dict[int, int] = {}          #: point id → its row
+        self._free: list[int] = []             #: rows points left, taken first
+        self._used = 0                         #: rows ever handed out
+
+    def __len__(self) -> int:
+        return len(self.row)
+
+    def add(self, point_id: int, position: np.ndarray, descriptor: np.ndarray) -> int:
+        """A row for a new point, written with its position and descriptor; returns it."""
+        if point_id in self.row:
+            raise KeyError(f"point {point_id} has a row already")
+        if self._free:
+            r = self._free.pop()
+        else:
+            if self._used == len(self.positions):
+                self._grow()
+            r, self._used = self._used, self._used + 1
+        self.positions[r] = position
+        self.descriptors[r] = descriptor
+        self.observed[r] = 0
+        self.row[point_id] = r
+        return r
+
+    def remove(self, point_id: int) -> int:
+        """Free the row of a point that left the map; returns the row it had."""
+        r = self.row.pop(point_id)
+        self._free.append(r)
+        return r
+
+    def rows_of(self, point_ids: Collection[int]) -> np.ndarray:
+        """The rows of ``point_ids`` (in their order) as an int64 array."""
+        return np.fromiter(map(self.row.__getitem__, point_ids), dtype=np.int64,
+                           count=len(point_ids))
+
+    def positions_of(self, point_ids: Collection[int]) -> np.ndarray:
+        """``(len(point_ids), 3)``: the points' positions, a copy."""
+        out: np.ndarray = self.positions[self.rows_of(point_ids)]
+        return out
+
+    def descriptors_of(self, point_ids: Collection[int]) -> np.ndarray:
+        """``(len(point_ids), 32)``: the points' descriptors, a copy."""
+        out: np.ndarray = self.descriptors[self.rows_of(point_ids)]
+        return out
+
+    def _grow(self) -> None:
+        n = len(self.positions)
+        self.positions = np.concatenate([self.positions, np.zeros_like(self.positions)])
+        self.descriptors = np.concatenate([self.descriptors, np.zeros_like(self.descriptors)])
+        self.observed = np.concatenate([self.observed, np.zeros_like(self.observed)])
+        assert len(self.positions) == 2 * n
