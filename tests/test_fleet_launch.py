@@ -17,8 +17,14 @@ from twinslam_msgs.msg import FrameSummaries, FrameSummary
 from twinslam.cli.main import main
 from twinslam.hosts.forked import process_name
 from twinslam.hosts.loopback import LoopbackDomain
-from twinslam.live.fleet import FleetConfig, cross_device_errors, device_sequence, edge_blocks
-from twinslam.live.launcher import renamed_params
+from twinslam.live.fleet import (
+    FleetConfig,
+    FleetLauncher,
+    cross_device_errors,
+    device_sequence,
+    edge_blocks,
+)
+from twinslam.live.launcher import LaunchConfig, renamed_params
 from twinslam.live.run_log import RunLog
 
 
@@ -118,6 +124,20 @@ def test_devices_are_split_among_edges_as_runs_of_neighbours_each_with_its_budge
     with pytest.raises(ValueError, match="3 edges for 2 devices"):
         FleetConfig(2, edges=3).check()
     assert FleetConfig(5, 25, "equal", 5, edges=2).edge_shares() == [10, 15]
+
+
+def test_a_map_is_late_only_after_its_slot_has_played_at_the_runs_speed(
+        domain: LoopbackDomain) -> None:
+    """A fleet's late maps count against the slot's wall time: the default device's 30
+    frames take 1 s at the recorded speed and 4 s at a quarter of it (``--rate 0.25``), and a
+    map 2 s after its summaries is late only in the first."""
+    def period(rate: float) -> float:
+        config = LaunchConfig("synthetic:150", "lff", 150, rate)
+        return FleetLauncher(domain, config, FleetConfig(2), [], echo=None).slot_period_s()
+
+    assert period(1.0) == pytest.approx(1.0)
+    assert period(0.25) == pytest.approx(4.0)
+    assert period(0.25) * 1000 > 2000 > period(1.0) * 1000
 
 
 def test_a_renamed_edge_reads_the_parameter_files_edge_section(

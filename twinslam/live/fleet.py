@@ -306,9 +306,12 @@ class FleetLauncher(Launcher):
                                    f"{err.strip()[-500:]}")
 
     def slot_period_s(self) -> float:
-        """Seconds of camera stamps a device's slot spans (F / frame rate)."""
+        """Wall seconds a device's slot spans: its F frames at the recorded frame rate, played
+        at ``rate`` × it — the time the edge has for the slot's map before the device tracks
+        its next slot (a half-speed run's slot lasts 2 s, not 1; its maps' latencies are wall
+        time)."""
         return (self._device_param("slot_frames", default_device.SLOT_FRAMES)
-                / self._device_param("frame_rate_hz", table1.FRAME_RATE_HZ))
+                / self._device_param("frame_rate_hz", table1.FRAME_RATE_HZ) / self.config.rate)
 
     def _status(self, device: str) -> Callable[[MapStats, RunLog], None]:
         own = f"{device}/map"
