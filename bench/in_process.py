@@ -195,9 +195,11 @@ class DeviceWalk:
 
 
 def open_walk(name: str, spec: str, frames: int, order: str, seed: int, uplink: str,
-              config: EdgeConfig, update_delay: int, folder: Path) -> DeviceWalk:
-    """A default device and edge core over ``spec`` played in ``order``."""
-    source = open_sequence(spec, end=frames, colour_intrinsics=AUTO)
+              config: EdgeConfig, update_delay: int, folder: Path, start: int = 0
+              ) -> DeviceWalk:
+    """A default device and edge core over frames [``start``, ``frames``) of ``spec`` played
+    in ``order``."""
+    source = open_sequence(spec, start=start, end=frames, colour_intrinsics=AUTO)
     settings = DeviceSettings.from_parameters({p.name: p.default for p in DEVICE_PARAMETERS})
     DeviceTrackerCore.warm_up(source.intrinsics)
     device = DeviceTrackerCore(source.intrinsics, settings.slot_frames, settings.tracking,

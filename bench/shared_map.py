@@ -3,14 +3,18 @@ the second device's keyframes in the first device's map, confirms it and moves t
 map into the first one's frame (:mod:`twinslam.slam.back_end.map_merging`).
 
     python -m bench.shared_map [SEQUENCE] [--frames 1000] [--first forward]
-        [--second backward] [--second-after FRAMES] [--seed 0] [--uplink lte] [--vmax N]
+        [--second backward] [--second-after FRAMES] [--second-start FRAME] [--seed 0]
+        [--uplink lte] [--vmax N]
         [--share [--share-both]] [--covered-m M] [--no-merge] [--csv FILE]
         [--frames-csv FILE] [--keyframes-csv FILE]
 
 Both devices play the same sequence, frame for frame in lockstep — by default the first
 forward and the second backward: two users walking the place from its two ends, towards
 each other; with ``--second forward --second-after 500`` the second comes to the place the
-first is mapping 500 frames later (it walks on alone once the first is done). Each device
+first is mapping 500 frames later (it walks on alone once the first is done); with
+``--second forward --second-start 500`` both start together, the second from the walk's
+frame 500 — two users in one place from different starts, as ``twinslam launch --devices N
+--stride S`` plays them. Each device
 and its edge core run as in ``bench.map_consistency`` (the default device and edge, the loop
 closer in the caller, the map update ``--update-delay`` frames into the next slot), each on
 an uplink of its own (seeds ``--seed`` and ``--seed`` + 1).
@@ -147,6 +151,9 @@ def main() -> None:
                              "frames and walks on alone after the first's walk ended (0: "
                              "both start together and stop with the first to end): with "
                              "--second forward, a user coming to a place another mapped")
+    parser.add_argument("--second-start", type=int, default=0, metavar="FRAME",
+                        help="the second device plays the sequence from this frame on "
+                             "(forward or backward over frames [FRAME, --frames))")
     parser.add_argument("--vmax", type=int,
                         help="V_max, keyframes each edge map holds (default: the edge's)")
     parser.add_argument("--covered-m", type=float,
@@ -190,7 +197,8 @@ def main() -> None:
         first = open_walk("first", spec, args.frames, args.first, args.seed, args.uplink,
                           config, args.update_delay, Path(tmp))
         second = open_walk("second", second_spec, args.frames, args.second, args.seed + 1,
-                           args.uplink, config, args.update_delay, Path(tmp))
+                           args.uplink, config, args.update_delay, Path(tmp),
+                           start=args.second_start)
         finder = MergeFinder()
         merge: MapMerge | None = None
         merged_version = -1            #: the second edge's first map version in the place's
@@ -273,7 +281,7 @@ def main() -> None:
                   "are the first device's")
         report.update({"frames": args.frames, "seed": args.seed, "uplink": args.uplink,
                        "first_order": args.first, "second_order": args.second,
-                       "second_after": args.second_after,
+                       "second_after": args.second_after, "second_start": args.second_start,
                        "covered_m": config.coverage.max_m,
                        "covered_deg": config.coverage.max_deg,
                        "no_merge": int(args.no_merge),
@@ -341,7 +349,7 @@ CSV_FIELDS = ("frames", "seed", "uplink", "first_order", "second_order", "second
               "cross_p95_m", "cross_pairs", "true_alignment_rms_m", "keyframes_cross_rms_m",
               "share", "first_uploads", "second_uploads", "adopted", "foreign_at_end",
               "adopted_back", "foreign_at_end_first", "first_lost_share", "second_lost_share",
-              "first_map_lost_share", "second_map_lost_share")
+              "first_map_lost_share", "second_map_lost_share", "second_start")
 
 
 def write_frames(path: Path, walks: tuple[DeviceWalk, ...]) -> None:

@@ -220,6 +220,11 @@ def test_launch_serves_two_devices_from_one_edge_and_reports_each(
     assert all(0 < b <= 12 for b in budgets) and sum(budgets) <= 12 + 1e-9
     assert sorted(p.name for p in tmp_path.glob("*.png")) == ["lff_motion_ar1.png",
                                                             "lff_motion_ar2.png"]
+    # every node's log kept with the run: what the edge said of each device's slots
+    logs = (tmp_path / "lff_motion.log").read_text(encoding="utf-8")
+    assert all(f"===== {node} =====" in logs for node in (
+        "edge_mapper", "device_tracker:ar1", "device_tracker:ar2"))
+    assert "[edge_mapper]" in logs and "slot" in logs
     with (tmp_path / "fleet_runs.csv").open(encoding="utf-8") as fh:
         table = list(csv.DictReader(fh))
     assert [(r["device"], r["allocator"], r["seed"]) for r in table] == [

@@ -72,6 +72,8 @@ def test_launch_records_every_topic_and_the_camera_decimated_and_draws_the_run(
     with (pictures / "lff.slots.csv").open() as fh:       # the run slot by slot
         slots = list(csv.DictReader(fh))
     assert len(slots) >= 2 and {s["policy"] for s in slots} == {"lff"}
+    logs = (pictures / "lff.log").read_text(encoding="utf-8")   # every node's, kept
+    assert "===== edge_mapper =====" in logs and "===== device_tracker =====" in logs
     same = next(s for s in slots if int(s["slot"]) == last.slot)   # as the bag has it
     assert int(same["map_size"]) == last.map_size and int(same["uploads"]) == last.uploads
 

@@ -37,6 +37,7 @@ from twinslam.hosts.loopback import LoopbackDomain
 from twinslam.live.calibration.frames import LiveFrames, live_frames, played_frames
 from twinslam.live.calibration.prediction import Calibration, calibrate, failure_cause
 from twinslam.live.launcher import LaunchConfig, Launcher
+from twinslam.live.node_logs import write_logs
 from twinslam.live.report import RunReport, policy_label
 from twinslam.live.run_picture import plot_run
 from twinslam.live.scenarios import Scenario
@@ -119,14 +120,6 @@ class RunResult:
 def sequence_for(sequence: str, seed: int) -> str:
     """A synthetic world is walked on a seed's own path; a recorded sequence is what it is."""
     return synthetic_walk(sequence, seed) if is_synthetic(sequence) else sequence
-
-
-def write_logs(logs: dict[str, str], path: Path) -> None:
-    """Every node's log of a run in one file, node by node: what the edge said of each loop,
-    restore or refused upload, kept with the run's figures (a sweep's console shows none)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text("".join(f"===== {name} =====\n{text.rstrip()}\n\n"
-                            for name, text in sorted(logs.items())), encoding="utf-8")
 
 
 def run_one(task: RunTask) -> RunResult:

@@ -12,6 +12,7 @@ from twinslam.cli.console import Subparsers, each_run, error
 from twinslam.hosts.loopback import LoopbackDomain
 from twinslam.hosts.netns import unavailable_reason
 from twinslam.live.launcher import DEFAULT_PARAMS, LaunchConfig, Launcher, tc_uplink_params
+from twinslam.live.node_logs import write_logs
 from twinslam.live.report import RunReport, policy_label, print_table
 from twinslam.live.run_bag import (
     CHUNK_MODES,
@@ -132,7 +133,8 @@ def _run_policy(args: argparse.Namespace, policy: str, chosen: Scenario,
                  f"scenario {args.scenario}", picture)
         slots = picture.with_suffix(".slots.csv")
         write_slot_table(launcher.record, slots)
-        print(f"wrote {picture} and {slots}", flush=True)
+        write_logs(launcher.logs, picture.with_suffix(".log"))
+        print(f"wrote {picture}, {slots} and the nodes' logs", flush=True)
     return report
 
 
@@ -192,8 +194,10 @@ def register(sub: Subparsers) -> None:
                         help="folder for a picture of each policy's run (POLICY.png: the "
                         "final map from above with the trajectories, per-slot map size, υ, "
                         "lost share and uplink rate) and its slots (POLICY.slots.csv: which "
-                        "policy decided each slot, what it asked for and the map after it); "
-                        "default %(default)s")
+                        "policy decided each slot, what it asked for and the map after it), "
+                        "and every node's log (POLICY.log; with --devices, "
+                        "POLICY_ALLOCATOR.log beside POLICY_ALLOCATOR_DEVICE.png and "
+                        "fleet_runs.csv); default %(default)s")
     launch.add_argument("--record", type=Path, default=None, metavar="DIR",
                         help="record each run as a rosbag2 (MCAP) that RViz, Foxglove and "
                         "rosbags open: every topic, the camera decimated (DIR itself for one "

@@ -21,6 +21,7 @@ from twinslam.live.fleet import (
     print_fleet_table,
 )
 from twinslam.live.launcher import LaunchConfig
+from twinslam.live.node_logs import write_logs
 from twinslam.live.report import policy_label
 from twinslam.live.run_picture import plot_run
 from twinslam.live.scenarios import Scenario
@@ -82,7 +83,10 @@ def run_fleet(args: argparse.Namespace, policy: str, fleet: FleetConfig, chosen:
         picture = args.out / file_name(f"{policy_label(policy)}_{fleet.allocator}_{device}.png")
         plot_run(monitor.record, f"{policy_label(policy)}, {fleet.allocator}: device {device}",
                  picture)
-    print(f"wrote {len(launcher.records)} pictures into {args.out}", flush=True)
+    logs = args.out / file_name(f"{policy_label(policy)}_{fleet.allocator}.log")
+    write_logs(launcher.logs, logs)
+    print(f"wrote {len(launcher.records)} pictures and the nodes' logs into {args.out}",
+          flush=True)
     table = args.out / "fleet_runs.csv"
     period = float(launcher.slot_period_s())
     append_csv_rows(table, FLEET_COLUMNS,
