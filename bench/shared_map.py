@@ -3,7 +3,8 @@ the second device's keyframes in the first device's map, confirms it and moves t
 map into the first one's frame (:mod:`twinslam.slam.back_end.map_merging`).
 
     python -m bench.shared_map [SEQUENCE] [--frames 1000] [--first forward]
-        [--second backward] [--second-after FRAMES] [--second-start FRAME] [--seed 0]
+        [--second backward] [--second-after FRAMES] [--first-start FRAME]
+        [--second-start FRAME] [--seed 0]
         [--uplink lte] [--vmax N]
         [--share [--share-both]] [--covered-m M] [--no-merge] [--csv FILE]
         [--frames-csv FILE] [--keyframes-csv FILE]
@@ -151,6 +152,8 @@ def main() -> None:
                              "frames and walks on alone after the first's walk ended (0: "
                              "both start together and stop with the first to end): with "
                              "--second forward, a user coming to a place another mapped")
+    parser.add_argument("--first-start", type=int, default=0, metavar="FRAME",
+                        help="the first device plays the sequence from this frame on")
     parser.add_argument("--second-start", type=int, default=0, metavar="FRAME",
                         help="the second device plays the sequence from this frame on "
                              "(forward or backward over frames [FRAME, --frames))")
@@ -195,7 +198,7 @@ def main() -> None:
     started = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         first = open_walk("first", spec, args.frames, args.first, args.seed, args.uplink,
-                          config, args.update_delay, Path(tmp))
+                          config, args.update_delay, Path(tmp), start=args.first_start)
         second = open_walk("second", second_spec, args.frames, args.second, args.seed + 1,
                            args.uplink, config, args.update_delay, Path(tmp),
                            start=args.second_start)
@@ -282,6 +285,7 @@ def main() -> None:
         report.update({"frames": args.frames, "seed": args.seed, "uplink": args.uplink,
                        "first_order": args.first, "second_order": args.second,
                        "second_after": args.second_after, "second_start": args.second_start,
+                       "first_start": args.first_start,
                        "covered_m": config.coverage.max_m,
                        "covered_deg": config.coverage.max_deg,
                        "no_merge": int(args.no_merge),
@@ -349,7 +353,8 @@ CSV_FIELDS = ("frames", "seed", "uplink", "first_order", "second_order", "second
               "cross_p95_m", "cross_pairs", "true_alignment_rms_m", "keyframes_cross_rms_m",
               "share", "first_uploads", "second_uploads", "adopted", "foreign_at_end",
               "adopted_back", "foreign_at_end_first", "first_lost_share", "second_lost_share",
-              "first_map_lost_share", "second_map_lost_share", "second_start")
+              "first_map_lost_share", "second_map_lost_share", "second_start",
+              "first_start")
 
 
 def write_frames(path: Path, walks: tuple[DeviceWalk, ...]) -> None:
