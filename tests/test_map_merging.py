@@ -354,6 +354,20 @@ def test_an_adopted_keyframe_takes_the_ids_of_the_points_the_map_has_already(
     assert tagged and all(p & ~foreign_tag(0) >= 100_000 for p in tagged)
 
 
+def test_a_point_the_lender_had_adopted_keeps_its_devices_tag_when_lent_on() -> None:
+    """A lender's own keyframe observes points of a third device's copies it matched (tagged
+    with that device's tag): lent on, they keep that id, and only the lender's own points
+    take the lender's tag — tagged twice, source 1's point 5 lent by source 0 read as source
+    2's point 5, another device's corner."""
+    none = np.zeros((2, 3))
+    third = foreign_tag(1) | 5
+    kf = ArchivedKeyFrame(9, np.eye(4), np.array([third, 6], dtype=np.int64), none,
+                          np.zeros((2, 32), dtype=np.uint8), none, 0)
+    adopted = welded(kf, 0, KeyFrameMap(), Camera(), slot=1)
+    assert adopted.point_ids.tolist() == [third, foreign_tag(0) | 6]
+    assert foreign_tag(2) | 5 not in adopted.point_ids.tolist()
+
+
 def test_a_restored_adopted_keyframe_joins_the_map_through_its_welded_points(
         room: Room) -> None:  # noqa: F811
     """Adopted into the archive and restored, the other device's keyframe shares the welded

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from twinslam.slam.back_end.foreign_keyframes import foreign_tag, is_foreign
+from twinslam.slam.back_end.foreign_keyframes import TAG_SHIFT, foreign_tag, is_foreign
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.back_end.loop_closing import (
@@ -105,9 +105,13 @@ def welded(keyframe: ArchivedKeyFrame, source: int, into: KeyFrameMap, camera: C
     restored keyframe's points are fused (:mod:`~twinslam.slam.back_end.point_fusion`;
     ORB-SLAM3 welds two merged maps the same way). The welded points are what connect the
     adopted keyframe to the map's own: without them it shares no point with them, and a
-    restore of it would leave the map in two pieces."""
+    restore of it would leave the map in two pieces. A point the source map had adopted
+    itself (a third device's, tagged already: the source's own keyframes observe the copies'
+    points they matched) keeps its id — tagged again, its tag would read as yet another
+    device's and alias that device's point of the same number."""
     tag = foreign_tag(source)
-    ids = keyframe.point_ids.astype(np.int64) | tag
+    ids = keyframe.point_ids.astype(np.int64)
+    ids = np.where(ids >> TAG_SHIFT != 0, ids, ids | tag)
     rows = np.flatnonzero(np.isfinite(keyframe.measurements[:, 0]))
     for row, point in duplicates_in_view(keyframe.pose, keyframe.measurements[rows, :2],
                                          keyframe.descriptors[rows], keyframe.positions[rows],
