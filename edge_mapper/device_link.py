@@ -394,6 +394,14 @@ class DeviceLink:
                           "map update")
         for failure in self.merging.failures():
             self.error(f"slot {slot}: {failure}; the map stays in its own frame")
+        for event in self.merging.brought(self.device):
+            t = event.merge.alignment[:3, 3]
+            self.info(f"slot {slot}: {event.device}'s map merged into this device's place "
+                      f"({event.place}/{self.settings.map_frame}): this map's keyframe "
+                      f"{event.merge.place} found in {event.via or event.device}'s map at its "
+                      f"keyframe {event.merge.joining} ({event.merge.inliers} inliers, "
+                      f"confirmed by the next keyframes); {event.device}'s map moved by "
+                      f"({t[0]:.3f}, {t[1]:.3f}, {t[2]:.3f}) m")
         if merged is not None:
             # what the edge publishes of this device is in the place's frame from now on
             self.map_frame = f"{merged.place}/{self.settings.map_frame}"

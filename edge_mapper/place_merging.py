@@ -117,6 +117,10 @@ class PlaceMerging:
         #: device → the merge that moved its map while another device's look was taken, for
         #: its own slot end to tell (its link logs it and names the new frame)
         self._moved: dict[str, MergeEvent] = {}
+        #: device → the merges its own look made that moved other devices' maps into its
+        #: place (it stayed), for its slot end to tell: a moved device whose walk has ended
+        #: has no slot end of its own to tell it
+        self._brought: dict[str, list[MergeEvent]] = {}
 
     def keyframe(self, device: str, data: KeyFramePayload) -> None:
         """A keyframe of ``device`` the edge accepted: its features, for the next look."""
@@ -222,6 +226,13 @@ class PlaceMerging:
             self.joined[m] = stay
             self._queries.pop(m, None)
             self._moved[m] = MergeEvent(m, stay, motion, ms, "" if m == met else met)
+            if device not in movers:
+                self._brought.setdefault(device, []).append(self._moved[m])
+
+    def brought(self, device: str) -> list[MergeEvent]:
+        """The merges ``device``'s own looks made since the last call that moved other
+        devices' maps into its place's frame, ``device`` staying where it is (once each)."""
+        return self._brought.pop(device, [])
 
     def look(self, device: str, slot: int) -> None:
         """After ``device``'s slot end: its newest keyframes looked for in the whole map of the
@@ -263,6 +274,7 @@ class PlaceMerging:
                 del self.joined[rest[0]]
         self.joined.pop(device, None)
         self._moved.pop(device, None)
+        self._brought.pop(device, None)
         for pair in [pair for pair in self._lent if device in pair]:
             del self._lent[pair]
             self._followed.pop(pair, None)

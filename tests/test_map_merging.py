@@ -238,6 +238,10 @@ def test_a_later_device_that_the_earlier_one_finds_in_its_map_joins_the_earlier_
         merging.look("ar1", slot)
     assert merging.take("ar1") is None                 # the earlier map never moves
     assert merging.joined == {"ar2": "ar1"}            # the later map moved at once
+    # the earlier device's slot end tells it too: a moved device whose walk has ended has
+    # no slot end of its own
+    told = merging.brought("ar1")
+    assert [(e.device, e.place) for e in told] == [("ar2", "ar1")] and not merging.brought("ar1")
     event = merging.take("ar2")                        # and its slot end tells it
     assert event is not None and event.device == "ar2" and event.place == "ar1"
     assert merging.joined == {"ar2": "ar1"}
