@@ -63,6 +63,7 @@ from edge_mapper.visual_messages import (
 from msg_schemas import qos, topics
 from msg_schemas.poses import pose_matrix
 from twinslam.node_runtime.checked_subscription import CheckedSubscription
+from twinslam.rotations import rotation_angle_deg
 from twinslam.slam.back_end.map_back_end import archive_folder
 
 
@@ -401,7 +402,8 @@ class DeviceLink:
                       f"{event.merge.place} found in {event.via or event.device}'s map at its "
                       f"keyframe {event.merge.joining} ({event.merge.inliers} inliers, "
                       f"confirmed by the next keyframes); {event.device}'s map moved by "
-                      f"({t[0]:.3f}, {t[1]:.3f}, {t[2]:.3f}) m")
+                      f"({t[0]:.3f}, {t[1]:.3f}, {t[2]:.3f}) m and turned "
+                      f"{rotation_angle_deg(event.merge.alignment[:3, :3]):.2f}°")
         if merged is not None:
             # what the edge publishes of this device is in the place's frame from now on
             self.map_frame = f"{merged.place}/{self.settings.map_frame}"
@@ -411,7 +413,8 @@ class DeviceLink:
                    f"with its place, where {merged.via}'s map met {merged.place}'s place")
             self.info(f"slot {slot}: map merged into {merged.place}'s: {how} "
                       f"({merged.merge.inliers} inliers, confirmed by the next keyframes); "
-                      f"the map moved by ({t[0]:.3f}, {t[1]:.3f}, {t[2]:.3f}) m into "
+                      f"the map moved by ({t[0]:.3f}, {t[1]:.3f}, {t[2]:.3f}) m and turned "
+                      f"{rotation_angle_deg(merged.merge.alignment[:3, :3]):.2f}° into "
                       f"{merged.place}'s frame ({self.map_frame}), the look took "
                       f"{merged.look_ms:.0f} ms beside the slots")
 
