@@ -31,6 +31,7 @@ from twinslam.uncertainty.map_uncertainty import (
     needs_map,
     next_slot_uncertainty,
     theorem1_cardinalities,
+    theorem1_evictions,
     waited_after,
 )
 
@@ -180,7 +181,7 @@ class SlotPlanner:
                                             len(map_ids), views, slot_s, self.waited_mbit)
         if skipped:
             n_up = uploads_for_new_views(n_up, len(cand), views)
-            n_ev = max(0, len(map_ids) + n_up - cfg.vmax)
+            n_ev = theorem1_evictions(len(map_ids), n_up, cfg.vmax)
         self.waited_mbit = waited_after(n_up, rate_mbps, slot_s, self.waited_mbit,
                                         needs_map(lost))
         full = shared_counts([keys[x] for x in map_ids + every])

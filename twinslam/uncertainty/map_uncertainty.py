@@ -289,5 +289,10 @@ def theorem1_cardinalities(rate_mbps: float, alpha_mbit: float, d_req_s: float, 
         raise ValueError("alpha, D_req must be > 0 and V_max >= 0")
     n_up = min(theorem1_uploads(rate_mbps, alpha_mbit, d_req_s, slot_size, slot_s,
                                 waited_mbit), vmax)
-    n_evict = max(0, map_size + n_up - vmax)
-    return n_up, n_evict
+    return n_up, theorem1_evictions(map_size, n_up, vmax)
+
+
+def theorem1_evictions(map_size: int, uploads: int, vmax: int) -> int:
+    """|C_k| = |V_k| + |U_k| - V_max, never negative (eq. 12): the evictions that keep a map
+    of ``map_size`` keyframes within ``vmax`` once ``uploads`` come in."""
+    return max(0, map_size + uploads - vmax)
