@@ -37,6 +37,12 @@ def is_foreign(item_id: int) -> bool:
     return int(item_id) >> TAG_SHIFT != 0
 
 
+def foreign_mask(ids: np.ndarray) -> np.ndarray:
+    """:func:`is_foreign` of every id of an int64 array at once."""
+    mask: np.ndarray = (ids >> TAG_SHIFT) != 0
+    return mask
+
+
 def tag_of(item_id: int) -> int:
     """The source tag an id carries (0: a map's own)."""
     return int(item_id) >> TAG_SHIFT << TAG_SHIFT
@@ -57,7 +63,7 @@ def ties_to_copies(points: Mapping[int, np.ndarray]) -> dict[tuple[int, int], in
     it; the oldest of them brought it, and its pose placed it — a later copy observing it
     too stood, by the lender's own drift, wherever its walk had taken it, and an own keyframe
     posed on that point was posed on where the oldest copy put it."""
-    copies = [(k, ids[(ids >> TAG_SHIFT) != 0]) for k, ids in points.items() if is_foreign(k)]
+    copies = [(k, ids[foreign_mask(ids)]) for k, ids in points.items() if is_foreign(k)]
     if not copies:
         return {}
     point = np.concatenate([ids for _, ids in copies])
@@ -70,7 +76,7 @@ def ties_to_copies(points: Mapping[int, np.ndarray]) -> dict[tuple[int, int], in
     for k, ids in points.items():
         if is_foreign(k):
             continue
-        tagged = ids[(ids >> TAG_SHIFT) != 0]
+        tagged = ids[foreign_mask(ids)]
         at = np.searchsorted(brought, tagged)
         found = at < len(brought)
         found[found] = brought[at[found]] == tagged[found]

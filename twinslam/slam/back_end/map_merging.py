@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from twinslam.slam.back_end.foreign_keyframes import TAG_SHIFT, foreign_tag, is_foreign
+from twinslam.slam.back_end.foreign_keyframes import foreign_mask, foreign_tag, is_foreign
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.back_end.loop_closing import (
@@ -111,7 +111,7 @@ def welded(keyframe: ArchivedKeyFrame, source: int, into: KeyFrameMap, camera: C
     device's and alias that device's point of the same number."""
     tag = foreign_tag(source)
     ids = keyframe.point_ids.astype(np.int64)
-    ids = np.where(ids >> TAG_SHIFT != 0, ids, ids | tag)
+    ids = np.where(foreign_mask(ids), ids, ids | tag)
     rows = np.flatnonzero(np.isfinite(keyframe.measurements[:, 0]))
     for row, point in duplicates_in_view(keyframe.pose, keyframe.measurements[rows, :2],
                                          keyframe.descriptors[rows], keyframe.positions[rows],
