@@ -545,6 +545,31 @@ def _borrower(room: Room) -> tuple[EdgeMapperCore, dict[int, ArchivedKeyFrame]]:
     return core, copies
 
 
+def test_a_map_moved_into_another_place_takes_the_copies_it_adopted_along(
+        room: Room) -> None:  # noqa: F811
+    """A map that adopted another device's keyframes (60 restored, 90 and 120 archived) and
+    then moves — its place merged into an earlier one — moves them with its own: lent in the
+    frame it had, they would stay there, a merge's motion off (36° and 1.5 m live), and a
+    third device finding one of them would join the place that far from where it is."""
+    core, copies = _borrower(room)
+    in_map = core.map.keyframes[copies[60].id]
+    only_copy = [p for p in in_map.points if core.map.points[p].observers == {copies[60].id}]
+    assert only_copy
+    before = {p: core.map.points[p].position.copy() for p in only_copy}
+    pose_60 = in_map.pose.copy()
+    archived = {k: core.archive.get(copies[k].id) for k in (90, 120)}
+    core.align(SECOND_IN_FIRST)
+    np.testing.assert_allclose(core.map.keyframes[copies[60].id].pose, SECOND_IN_FIRST @ pose_60)
+    for p, xyz in before.items():
+        np.testing.assert_allclose(core.map.points[p].position,
+                                   SECOND_IN_FIRST[:3, :3] @ xyz + SECOND_IN_FIRST[:3, 3])
+    for k, kf in archived.items():
+        moved = core.archive.get(copies[k].id)
+        np.testing.assert_allclose(moved.pose, SECOND_IN_FIRST @ kf.pose)
+        np.testing.assert_allclose(moved.positions, kf.positions @ SECOND_IN_FIRST[:3, :3].T
+                                   + SECOND_IN_FIRST[:3, 3])
+
+
 def test_a_map_keeps_its_newest_applied_loops_for_its_borrowers() -> None:
     """An edge that runs for days closes loops for days: a map keeps the newest
     APPLIED_LOOPS_KEPT for the maps it lends to, counts the rest, and a borrower that

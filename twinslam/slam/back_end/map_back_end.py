@@ -72,7 +72,6 @@ from twinslam.slam.back_end.loop_closing import (
     LoopResult,
 )
 from twinslam.slam.back_end.loop_correction import (
-    correct_map,
     correction_for,
     farthest_move,
     move_keyframes,
@@ -490,18 +489,23 @@ class MapBackEnd:
                           result.seconds * 1e3)
 
     def _correct(self, corrections: Mapping[int, np.ndarray], head: np.ndarray,
-                 next_version: int, what: str) -> None:
+                 next_version: int, what: str, copies_too: bool = False) -> None:
         """Move the map's and the archive's keyframes by their ``corrections`` (points with
         their reference keyframes), and the frame the map is in — from map version
         ``next_version`` on — by ``head``: the correction at the walk's head, which every
-        pose the device holds and every keyframe it is about to upload still needs. The
-        archive's files are rewritten beside the slots (``what`` it is, for a failure)."""
-        correct_map(self.map, corrections)
+        pose the device holds and every keyframe it is about to upload still needs. A loop's
+        corrections reach the map's own keyframes alone (:func:`correction_for`: the copies
+        it adopted hold their lenders' poses); ``copies_too`` moves each keyframe ``corrections``
+        names, copies included — the whole map changing frame. The archive's files are
+        rewritten beside the slots (``what`` it is, for a failure)."""
+        def of(kf_id: int) -> np.ndarray | None:
+            return corrections.get(kf_id) if copies_too else correction_for(corrections, kf_id)
+
+        move_keyframes(self.map, {k: c for k in self.map.keyframes if (c := of(k)) is not None})
         self.frame_correction = head @ self.frame_correction
         self._frames_since.append((next_version, self.frame_correction.copy()))
         archived = self.archive.correct(
-            {kf.id: c for kf in self.archive
-             if (c := correction_for(corrections, kf.id)) is not None}, write=False)
+            {kf.id: c for kf in self.archive if (c := of(kf.id)) is not None}, write=False)
         self.loop_closer.after(lambda: self.archive.save(archived), what)
 
     def align(self, alignment: np.ndarray, next_version: int) -> None:
@@ -522,10 +526,12 @@ class MapBackEnd:
         self.applied_loops = [dataclasses.replace(loop, corrections={
             k: alignment @ c @ undo for k, c in loop.corrections.items()})
             for loop in self.applied_loops]
+        # the copies of other devices' keyframes too: they are in this map's frame, and a
+        # copy left behind is a whole merge's motion away from the place it shows
         everyone = dict.fromkeys([*self.map.keyframes, *(kf.id for kf in self.archive)],
                                  alignment)
         self._correct(everyone, alignment, next_version,
-                      "writing the aligned archive's files")
+                      "writing the aligned archive's files", copies_too=True)
 
     def follow(self, loop: AppliedLoop, tag: int, next_version: int) -> FollowedLoop:
         """Another device's loop, applied to the copies of its keyframes this map adopted
