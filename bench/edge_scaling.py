@@ -24,8 +24,15 @@ as between machines on a LAN — the hosts still share this machine's cores (nee
 at a thread a core, as every node had them before they were kept to one
 (:mod:`twinslam.node_runtime.math_threads`): ``--pools cores,one`` measures both in one run.
 
+``--merge-maps on`` runs the edges with ``merge_maps:=true``: every emulated device replays the
+one recorded walk, so the devices of an edge process all walk one place — each looks for it
+in the others' maps until it merges, then adopts every keyframe the others upload and welds
+it to its own points (:mod:`edge_mapper.place_merging`). That is the most a place can cost
+the edge (every device shares it); ``--merge-maps off,on`` measures it beside the unshared
+fleet in one run, and the table counts the merges made.
+
     python -m bench.edge_scaling [--devices 1,2,4,8,12,16] [--edges 1,2] [--pools one]
-                                 [--hosts] [--recording DIR] [--csv FILE]
+                                 [--merge-maps off] [--hosts] [--recording DIR] [--csv FILE]
 """
 
 from __future__ import annotations
@@ -35,6 +42,7 @@ import contextlib
 import math
 import os
 import platform
+import re
 import subprocess
 import sys
 import tempfile
@@ -65,6 +73,8 @@ from twinslam.slot_protocol import table1
 
 REPO = Path(__file__).resolve().parents[1]
 SEVEN = REPO.parent / "shared" / "data" / "7scenes-1000"
+#: the line a device's edge logs when its map moved into another device's place
+MOVED_LINE = re.compile(r"slot \d+: map merged into ")
 #: the slot period when a recording tells none (Table I's)
 SLOT_S = table1.SLOT_FRAMES / table1.FRAME_RATE_HZ
 
@@ -223,7 +233,8 @@ def fleet_network(edges: int, hosts: bool) -> Iterator[tuple[ProcessDomain, str 
 
 
 def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0.0,
-            edges: int = 1, pools: str = "one", hosts: bool = False) -> dict[str, float]:
+            edges: int = 1, pools: str = "one", hosts: bool = False,
+            merge_maps: bool = False) -> dict[str, float]:
     names = [f"ar{i + 1}" for i in range(n)]
     with pools_env(pools), fleet_network(edges, hosts) as (dom, _):
         served = edge_blocks(names, edges)
@@ -233,7 +244,8 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
                             "-p", f"devices:=[{', '.join(block)}]",
                             "-p", f"vmax_total:={45 * len(block)}",
                             "-p", "allocator:=equal", "-p", "slot_timeout_s:=5.0",
-                            "-p", f"compute_budget:={compute_budget}"],
+                            "-p", f"compute_budget:={compute_budget}",
+                            "-p", f"merge_maps:={str(merge_maps).lower()}"],
                            host=hosted[e])
                  for e, block in enumerate(served)]
         for edge, block in zip(procs, served, strict=True):
@@ -292,7 +304,10 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             "latency_ms_p95": float(np.percentile(latency, 95)) if latency else math.nan,
             "missed_share": (late + expected - len(stats)) / expected,
             "edge_cpu_share": cpu / wall, "missing_keyframes": sum(d.missing for d in devices),
-            "compute_budget": compute_budget, "trimmed": log.count("compute: slot work takes")}
+            "compute_budget": compute_budget, "trimmed": log.count("compute: slot work takes"),
+            "merge_maps": merge_maps,
+            # each device moved into another's place logs it once, at its next slot end
+            "merged": len(MOVED_LINE.findall(log))}
 
 
 def main() -> None:
@@ -310,6 +325,9 @@ def main() -> None:
                              "(a thread a core, as before); comma-separated to compare")
     parser.add_argument("--compute-budget", type=float, default=0.0,
                         help="the edge's compute_budget (a share of one core; 0: none)")
+    parser.add_argument("--merge-maps", default="off",
+                        help="off, on, or off,on to compare: the edges merge the maps of their "
+                             "devices (all of which replay one walk, so share one place)")
     parser.add_argument("--hosts", action="store_true",
                         help="each edge process on an edge host of its own and the devices on "
                              "a device host (network namespaces on one switch; needs root) "
@@ -332,20 +350,27 @@ def main() -> None:
           f"{'edge and device hosts (network namespaces)' if args.hosts else 'loopback'}",
           flush=True)
     rows = []
-    header = (f"{'pools':>5} {'edges':>5} {'devices':>7} {'answered':>9} "
+    merging = {"off": False, "on": True}
+    unknown = [m for m in args.merge_maps.split(",") if m not in merging]
+    if unknown:
+        raise SystemExit(f"--merge-maps: off, on or off,on, not {args.merge_maps!r}")
+    header = (f"{'pools':>5} {'merge':>5} {'edges':>5} {'devices':>7} {'answered':>9} "
               f"{'edge ms/slot':>12} {'p95':>6} "
-              f"{'latency ms':>10} {'p95':>6} {'missed':>7} {'edge CPU':>8}")
+              f"{'latency ms':>10} {'p95':>6} {'missed':>7} {'edge CPU':>8} {'merged':>6}")
     print(header, flush=True)
-    settings = [(pools, int(edges), int(n)) for pools in args.pools.split(",")
+    settings = [(pools, merge, int(edges), int(n)) for pools in args.pools.split(",")
+                for merge in args.merge_maps.split(",")
                 for edges in args.edges.split(",") for n in args.devices.split(",")]
-    for pools, edges, n in settings:
-        row = measure(n, recording, args.policy, args.compute_budget, edges, pools, args.hosts)
+    for pools, merge, edges, n in settings:
+        row = measure(n, recording, args.policy, args.compute_budget, edges, pools, args.hosts,
+                      merging[merge])
         rows.append(row)
-        print(f"{pools:>5} {row['edges']:>5} {n:>7} "
+        print(f"{pools:>5} {merge:>5} {row['edges']:>5} {n:>7} "
               f"{row['answered']:>4.0f}/{row['device_slots']:<4.0f} "
               f"{row['compute_ms_median']:>12.0f} {row['compute_ms_p95']:>6.0f} "
               f"{row['latency_ms_median']:>10.0f} {row['latency_ms_p95']:>6.0f} "
-              f"{row['missed_share']:>7.1%} {row['edge_cpu_share']:>8.0%}", flush=True)
+              f"{row['missed_share']:>7.1%} {row['edge_cpu_share']:>8.0%} "
+              f"{row['merged']:>6}", flush=True)
     if args.csv:
         write_dict_rows(args.csv, rows)
         print(f"wrote {args.csv}")
