@@ -21,7 +21,7 @@ from twinslam.rotations import rotation_angle_deg
 from twinslam.slam.back_end.foreign_keyframes import foreign_tag, is_foreign, ties_to_copies
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive, restore_into
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
-from twinslam.slam.back_end.loop_closing import LoopQuery
+from twinslam.slam.back_end.loop_closing import LoopJob, LoopQuery, run_job
 from twinslam.slam.back_end.loop_correction import correct_map, correction_for
 from twinslam.slam.back_end.map_back_end import (
     APPLIED_LOOPS_KEPT,
@@ -568,6 +568,24 @@ def test_a_map_moved_into_another_place_takes_the_copies_it_adopted_along(
         np.testing.assert_allclose(moved.pose, SECOND_IN_FIRST @ kf.pose)
         np.testing.assert_allclose(moved.positions, kf.positions @ SECOND_IN_FIRST[:3, :3].T
                                    + SECOND_IN_FIRST[:3, 3])
+
+
+def test_a_loop_is_found_among_the_walks_own_keyframes_though_copies_show_the_place_too(
+        room: Room) -> None:  # noqa: F811
+    """A merged map's archive holds another device's copies of the place its own walk mapped
+    (here: the same views, the same descriptors). A loop closes with the walk's own keyframes
+    only, and place recognition ranks those alone: the copies' points, each as near to a
+    descriptor as the walk's own, must not make every vote ambiguous and hide the loop."""
+    seq, archive, _ = room
+    merged = KeyFrameArchive(2 * len(archive))
+    for kf in archive:
+        merged.add(kf, write=False)
+        merged.add(dataclasses.replace(kf, id=foreign_tag(0) | kf.id,
+                                       point_ids=kf.point_ids | foreign_tag(0)), write=False)
+    query = dataclasses.replace(_query(room, 64, 0), keyframe=1000)
+    result = run_job(LoopJob((query,), merged, {}, seq.intrinsics, {}))  # type: ignore[attr-defined]
+    assert result.candidate.found, result.candidate.reason
+    assert result.candidate.old in (30, 60, 90) and result.candidate.inliers >= 50
 
 
 def test_a_map_keeps_its_newest_applied_loops_for_its_borrowers() -> None:

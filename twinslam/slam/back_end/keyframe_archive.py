@@ -272,6 +272,19 @@ class KeyFrameArchive:
             view._index, view._places = self._index, self._places
         return view
 
+    def only(self, keep: Callable[[int], bool]) -> KeyFrameArchive:
+        """A read-only view of the archived keyframes whose ids ``keep`` accepts, with a place
+        index of their points alone (built when first searched): a search that can choose
+        among some keyframes only — a loop among the walk's own — need not compare every
+        descriptor with the points of the rest. Keeping all, it is :meth:`snapshot`."""
+        kept = {k: kf for k, kf in self._entries.items() if keep(k)}
+        if len(kept) == len(self._entries):
+            return self.snapshot()
+        view = KeyFrameArchive(len(kept))
+        view._entries = kept
+        view._useful = {k: self._useful[k] for k in kept}
+        return view
+
     def take(self, kf_id: int) -> ArchivedKeyFrame:
         """Remove and return an archived keyframe (it goes back into the managed map). Its
         file stays until :meth:`release_taken`, which the edge calls once the map holding it

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from twinslam.rotations import rotation_angle_deg
-from twinslam.slam.back_end.foreign_keyframes import copy_anchors
+from twinslam.slam.back_end.foreign_keyframes import copy_anchors, is_foreign
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive, point_id_sets
 from twinslam.slam.back_end.keyframe_map import shared_pairs
 from twinslam.slam.back_end.loop_detection import MIN_GAP, LoopCandidate, detect_loop
@@ -208,8 +208,12 @@ def run_job(job: LoopJob, min_gap: int = MIN_GAP,
     start = time.perf_counter()
     candidate, query = LoopCandidate(-1, None, None, 0, "no query"), -1
     confirmed = False
+    # a loop closes with the walk's own keyframes alone (another device's copies carry ids
+    # above every own one, never old enough): in a merged map most of the archive is copies,
+    # and place recognition over their points too was most of the loop closer's time
+    own = job.archive.only(lambda k: not is_foreign(k))
     for q in sorted(job.queries, key=lambda q: q.keyframe):
-        candidate, query = detect_loop(job.archive, q.keyframe, q.points_xy, q.descriptors,
+        candidate, query = detect_loop(own, q.keyframe, q.points_xy, q.descriptors,
                                        job.intrinsics, min_gap, depths=q.depths), q.keyframe
         if refused := beyond_drift(candidate, q.keyframe, job.poses):
             candidate = LoopCandidate(-1, None, None, candidate.inliers, refused)
