@@ -44,10 +44,11 @@ from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
 from twinslam.slam.back_end.loop_closing import LoopQuery
 from twinslam.slam.back_end.map_back_end import FollowedLoop
 from twinslam.slam.back_end.map_merging import (
+    Lender,
     Lending,
     MapMerge,
     MergeFinder,
-    lend_to,
+    lend_from,
     whole_map,
 )
 from twinslam.slam.keyframe import KeyFramePayload
@@ -154,8 +155,8 @@ class PlaceMerging:
         adopted (:meth:`lend`); (the merge that moved its map, or None; keyframes adopted;
         the other devices' loops that moved its own keyframes, or would have)."""
         merged = self.take(device)
-        lenders = [d for d in self.place_of(device) if d != device]
-        lendings = [self.lend(device, lender, slot) for lender in lenders]
+        lendings = self.lend_all(device, [d for d in self.place_of(device) if d != device],
+                                 slot)
         return merged, sum(lending.adopted for lending in lendings), \
             [move for lending in lendings for move in lending.moves if move.reached_own]
 
@@ -165,19 +166,30 @@ class PlaceMerging:
         borrower's points and adopted into its archive (:meth:`MapBackEnd.adopt`): its
         restores bring them in where its device heads, and it tracks on keyframes only the
         other device uploaded; first, the lender's loops since the last lending move the
-        copies and the borrower's keyframes tied to them (:func:`lend_to`)."""
+        copies and the borrower's keyframes tied to them (:func:`lend_from`)."""
+        return self.lend_all(borrower, [lender], slot)[0]
+
+    def lend_all(self, borrower: str, lenders: list[str], slot: int) -> list[Lending]:
+        """:meth:`lend` from each of ``lenders`` in one round (:func:`lend_from`: the
+        borrower's points read once for all their keyframes); each lender's lending, in their
+        order (one the edge no longer serves lends nothing)."""
         cores = self.cores()
-        if lender not in cores or borrower not in cores:
-            return Lending(self._followed.get((borrower, lender), 0), 0)
-        pair = (borrower, lender)
-        source = self._sources.setdefault(lender, len(self._sources))
-        # a first lending's copies carry every loop the lender applied so far
-        followed = self._followed.setdefault(pair, cores[lender].back_end.loops_applied)
-        lending = lend_to(cores[borrower].back_end, cores[lender].back_end, source,
-                          self._lent.setdefault(pair, set()), followed, slot,
-                          cores[borrower].version + 1)
-        self._followed[pair] = lending.followed
-        return lending
+        serving = [lender for lender in lenders if lender in cores and borrower in cores]
+        rounds: list[Lender] = []
+        for lender in serving:
+            pair = (borrower, lender)
+            source = self._sources.setdefault(lender, len(self._sources))
+            # a first lending's copies carry every loop the lender applied so far
+            followed = self._followed.setdefault(pair, cores[lender].back_end.loops_applied)
+            rounds.append(Lender(cores[lender].back_end, source,
+                                 self._lent.setdefault(pair, set()), followed))
+        done = dict(zip(serving, lend_from(cores[borrower].back_end, rounds, slot,
+                                           cores[borrower].version + 1), strict=True)) \
+            if serving else {}
+        for lender, lending in done.items():
+            self._followed[(borrower, lender)] = lending.followed
+        return [done.get(lender) or Lending(self._followed.get((borrower, lender), 0), 0)
+                for lender in lenders]
 
     def take(self, device: str) -> MergeEvent | None:
         """Before ``device``'s slot end: the merge that moved its map since its last slot end

@@ -43,7 +43,7 @@ from twinslam.slam.back_end.loop_closing import (
 )
 from twinslam.slam.back_end.loop_detection import LoopCandidate, recognise_place
 from twinslam.slam.back_end.map_back_end import FollowedLoop, MapBackEnd
-from twinslam.slam.back_end.point_fusion import FusionConfig, duplicates_in_view
+from twinslam.slam.back_end.point_fusion import FusionConfig, MapPoints, duplicates_in_view
 from twinslam.slam.camera import Camera
 
 
@@ -96,7 +96,8 @@ class MergeFinder:
 
 
 def welded(keyframe: ArchivedKeyFrame, source: int, into: KeyFrameMap, camera: Camera,
-           slot: int, config: FusionConfig | None = None) -> ArchivedKeyFrame:
+           slot: int, config: FusionConfig | None = None,
+           points: MapPoints | None = None) -> ArchivedKeyFrame:
     """Another device's keyframe (of source map ``source``, already in this map's frame) as
     map ``into`` adopts it: its id and its points' ids tagged with the source's
     (:mod:`~twinslam.slam.back_end.foreign_keyframes`) — except each point that duplicates a
@@ -108,14 +109,16 @@ def welded(keyframe: ArchivedKeyFrame, source: int, into: KeyFrameMap, camera: C
     restore of it would leave the map in two pieces. A point the source map had adopted
     itself (a third device's, tagged already: the source's own keyframes observe the copies'
     points they matched) keeps its id — tagged again, its tag would read as yet another
-    device's and alias that device's point of the same number."""
+    device's and alias that device's point of the same number. ``points``: ``into``'s
+    points as they are, read once for a batch of keyframes (None: read here)."""
     tag = foreign_tag(source)
     ids = keyframe.point_ids.astype(np.int64)
     ids = np.where(foreign_mask(ids), ids, ids | tag)
     rows = np.flatnonzero(np.isfinite(keyframe.measurements[:, 0]))
     for row, point in duplicates_in_view(keyframe.pose, keyframe.measurements[rows, :2],
                                          keyframe.descriptors[rows], keyframe.positions[rows],
-                                         into, list(into.points), camera, config):
+                                         points or MapPoints.of(into, list(into.points)),
+                                         camera, config):
         ids[rows[row]] = point
     return dataclasses.replace(keyframe, id=keyframe.id | tag, point_ids=ids,
                                archived_slot=slot)
@@ -133,7 +136,7 @@ def unlent_keyframes(lender: MapBackEnd, lent: Collection[int], slot: int
 
 @dataclass(frozen=True)
 class Lending:
-    """What one lending did to the borrower (:func:`lend_to`)."""
+    """What one lending did to the borrower (:func:`lend_from`)."""
 
     followed: int                      #: the lender's loops the borrower has followed now
     adopted: int                       #: the lender's keyframes adopted this time
@@ -141,17 +144,43 @@ class Lending:
     moves: tuple[FollowedLoop, ...] = ()
 
 
+@dataclass(frozen=True)
+class Lender:
+    """A map lending to another in its frame: what the borrower has had of it so far."""
+
+    back_end: MapBackEnd
+    source: int                        #: its source index (its copies' tag)
+    lent: set[int]                     #: its keyframes the borrower adopted (grows)
+    followed: int                      #: its loops the borrower's copies followed
+
+
+def lend_from(borrower: MapBackEnd, lenders: list[Lender], slot: int, next_version: int
+              ) -> list[Lending]:
+    """One lending round from every map of the borrower's place (``lenders``, all in its
+    frame), before the borrower's map version ``next_version``: first each lender's loops
+    since those the borrower followed move the copies lent before and the borrower's keyframes
+    tied to them (:func:`follow_lender_loops`), then each lender's own keyframes not lent yet
+    are welded and adopted (:func:`unlent_keyframes`, :func:`adopt_lent`) — in that order,
+    since a keyframe lent after a loop carries its correction already. The borrower's
+    points, which the loops may move and welding does not, are read once for every lender's
+    keyframes: a place of eight devices welds seven lenders' keyframes a slot. What each
+    lender's lending did, in their order."""
+    follows = [follow_lender_loops(borrower, lender.back_end, lender.source, lender.followed,
+                                   next_version) for lender in lenders]
+    unlent = [unlent_keyframes(lender.back_end, lender.lent, slot) for lender in lenders]
+    points = MapPoints.of(borrower.map, list(borrower.map.points)) if any(unlent) else None
+    adopted = [adopt_lent(borrower, keyframes, lender.source, lender.lent, slot, points)
+               for lender, keyframes in zip(lenders, unlent, strict=True)]
+    return [Lending(followed, count, moves)
+            for (followed, moves), count in zip(follows, adopted, strict=True)]
+
+
 def lend_to(borrower: MapBackEnd, lender: MapBackEnd, source: int, lent: set[int],
             followed: int, slot: int, next_version: int) -> Lending:
-    """One lending from the lender (source map ``source``) to the borrower, both in one
-    frame, before the borrower's map version ``next_version``: first the lender's loops since
-    the first ``followed`` of them move the copies lent before and the borrower's keyframes
-    tied to them (:func:`follow_lender_loops`), then the lender's own keyframes not in
-    ``lent`` are welded and adopted (:func:`unlent_keyframes`, :func:`adopt_lent`) — in that
-    order, since a keyframe lent after a loop carries its correction already."""
-    followed, moves = follow_lender_loops(borrower, lender, source, followed, next_version)
-    adopted = adopt_lent(borrower, unlent_keyframes(lender, lent, slot), source, lent, slot)
-    return Lending(followed, adopted, moves)
+    """One lending from one lender (source map ``source``, its keyframes ``lent`` and loops
+    ``followed`` so far) to the borrower, both in one frame (:func:`lend_from`)."""
+    return lend_from(borrower, [Lender(lender, source, lent, followed)], slot,
+                     next_version)[0]
 
 
 def follow_lender_loops(borrower: MapBackEnd, lender: MapBackEnd, source: int,
@@ -168,11 +197,17 @@ def follow_lender_loops(borrower: MapBackEnd, lender: MapBackEnd, source: int,
 
 
 def adopt_lent(borrower: MapBackEnd, keyframes: list[ArchivedKeyFrame], source: int,
-               lent: set[int], slot: int) -> int:
+               lent: set[int], slot: int, points: MapPoints | None = None) -> int:
     """Another map's ``keyframes`` (of source map ``source``, in the borrower's frame) welded
-    to the borrower's points and adopted into its archive (:meth:`MapBackEnd.adopt`), their
-    ids added to ``lent``: its restores bring them in where its device heads, and it tracks
-    on keyframes only the other device uploaded. How many."""
-    borrower.adopt(welded(kf, source, borrower.map, borrower.camera, slot) for kf in keyframes)
+    to the borrower's points (``points``, as they are now; None: read here) and adopted into
+    its archive (:meth:`MapBackEnd.adopt`), their ids added to ``lent``: its restores bring
+    them in where its device heads, and it tracks on keyframes only the other device
+    uploaded. How many."""
+    if not keyframes:
+        return 0
+    # the borrower's points are read once for the batch: welding changes none of them
+    points = points or MapPoints.of(borrower.map, list(borrower.map.points))
+    borrower.adopt(welded(kf, source, borrower.map, borrower.camera, slot, points=points)
+                   for kf in keyframes)
     lent.update(kf.id for kf in keyframes)
     return len(keyframes)

@@ -25,6 +25,23 @@ from twinslam.slam.projection_matching import match_by_projection, visible_point
 
 
 @dataclass(frozen=True)
+class MapPoints:
+    """Some of a map's points read out at once — ids, positions, descriptors, in one order —
+    for the searches that look among them: welding a batch of another device's keyframes
+    to a map compares each with all the map's points, which do not change in between."""
+
+    ids: list[int]
+    positions: np.ndarray          #: (n, 3)
+    descriptors: np.ndarray        #: (n, 32) uint8
+
+    @classmethod
+    def of(cls, m: KeyFrameMap, point_ids: list[int]) -> MapPoints:
+        """Map ``m``'s points ``point_ids`` as they are now (copies)."""
+        rows = m.columns.rows_of(point_ids)
+        return cls(point_ids, m.columns.positions[rows], m.columns.descriptors[rows])
+
+
+@dataclass(frozen=True)
 class FusionConfig:
     search_radius_px: float = 8.0
     max_hamming: int = 50
@@ -46,7 +63,7 @@ def fuse_restored(m: KeyFrameMap, kf_id: int, returned: list[int], camera: Camer
     others = [p for p in m.points if p not in kf.points]
     pairs = duplicates_in_view(
         kf.pose, np.array([kf.measurements[p][:2] for p in mine], dtype=np.float64),
-        m.descriptors_of(mine), m.positions_of(mine), m, others, camera, config)
+        m.descriptors_of(mine), m.positions_of(mine), MapPoints.of(m, others), camera, config)
     fused: dict[int, int] = {}
     for row, keep in pairs:
         m.fuse(keep, mine[row])
@@ -55,31 +72,29 @@ def fuse_restored(m: KeyFrameMap, kf_id: int, returned: list[int], camera: Camer
 
 
 def duplicates_in_view(pose: np.ndarray, seen_at: np.ndarray, descriptors: np.ndarray,
-                       positions: np.ndarray, m: KeyFrameMap, candidates: list[int],
-                       camera: Camera, config: FusionConfig | None = None
-                       ) -> list[tuple[int, int]]:
+                       positions: np.ndarray, candidates: MapPoints, camera: Camera,
+                       config: FusionConfig | None = None) -> list[tuple[int, int]]:
     """Which of a keyframe's points (camera-to-map ``pose``; each seen at pixel ``seen_at``,
-    with its ``descriptors`` and map ``positions``) are copies of ``candidates`` (point ids of
-    map ``m``): the candidate projects beside where the keyframe saw the point, looks alike
-    (Lowe's ratio) and lies within ``max_gap_m`` of it; (row, the candidate's id) pairs, each
-    candidate at most once. What a restored keyframe's points are fused by, and another device's
-    keyframe welded to a map it joins (:func:`~twinslam.slam.back_end.map_merging.welded`)."""
+    with its ``descriptors`` and map ``positions``) are copies of a map's points
+    ``candidates``: the candidate projects beside where the keyframe saw the point, looks
+    alike (Lowe's ratio) and lies within ``max_gap_m`` of it; (row, the candidate's id)
+    pairs, each candidate at most once. What a restored keyframe's points are fused by, and
+    another device's keyframe welded to a map it joins
+    (:func:`~twinslam.slam.back_end.map_merging.welded`)."""
     cfg = config or FusionConfig()
-    if not len(seen_at) or not candidates:
+    if not len(seen_at) or not candidates.ids:
         return []
-    where = m.positions_of(candidates)
-    vis, uv = visible_points(where, np.ones(len(candidates), dtype=bool), pose,
+    where = candidates.positions
+    vis, uv = visible_points(where, np.ones(len(where), dtype=bool), pose,
                              np.asarray(camera.intrinsics, dtype=np.float64), camera.shape,
                              cfg.depth_range_m)
     if not vis.size:
         return []
-    f_idx, c_idx = match_by_projection(
-        seen_at, descriptors, uv,
-        m.descriptors_of([candidates[i] for i in vis.tolist()]),
-        cfg.search_radius_px, cfg.max_hamming, cfg.ratio, camera.shape)
-    pairs = []
-    for fi, ci in zip(f_idx.tolist(), c_idx.tolist(), strict=True):
-        c = int(vis[ci])
-        if np.linalg.norm(positions[fi] - where[c]) <= cfg.max_gap_m:
-            pairs.append((fi, candidates[c]))
-    return pairs
+    f_idx, c_idx = match_by_projection(seen_at, descriptors, uv, candidates.descriptors[vis],
+                                       cfg.search_radius_px, cfg.max_hamming, cfg.ratio,
+                                       camera.shape)
+    rows = vis[c_idx]
+    near = np.linalg.norm(np.asarray(positions, dtype=np.float64)[f_idx] - where[rows],
+                          axis=1) <= cfg.max_gap_m
+    return [(int(fi), candidates.ids[int(c)])
+            for fi, c in zip(f_idx[near], rows[near], strict=True)]
