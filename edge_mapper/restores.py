@@ -42,14 +42,24 @@ class RestorePlan:
     evict: list[int]            #: map keyframes evicted to make room for them
 
 
-def view_score(positions: np.ndarray, poses: Sequence[np.ndarray], camera: Camera,
-               max_depth_m: float = MAX_DEPTH_M) -> int:
-    """How many of a keyframe's points (``positions``, N×3) ``camera`` sees from the best of
-    ``poses``."""
-    if not len(positions):
-        return 0
-    return max(int(visible_mask(positions, pose, camera, max_depth_m).sum())
-               for pose in poses)
+def view_scores(position_sets: Sequence[np.ndarray], poses: Sequence[np.ndarray],
+                camera: Camera, max_depth_m: float = MAX_DEPTH_M) -> np.ndarray:
+    """For each keyframe's points (``position_sets``, each N×3), how many of them ``camera``
+    sees from the best of ``poses``. Every keyframe's points are tested in one pass a pose —
+    a point's visibility is its own — not a pass a keyframe and pose: a merged map's archive
+    holds hundreds of other devices' keyframes, and this runs every slot."""
+    sizes = np.array([len(p) for p in position_sets], dtype=np.int64)
+    best = np.zeros(len(sizes), dtype=np.int64)
+    if not sizes.sum():
+        return best
+    points = np.concatenate([np.asarray(p, dtype=np.float64).reshape(-1, 3)
+                             for p in position_sets])
+    owner = np.repeat(np.arange(len(sizes)), sizes)
+    for pose in poses:
+        seen = np.bincount(owner[visible_mask(points, pose, camera, max_depth_m)],
+                           minlength=len(sizes))
+        best = np.maximum(best, seen)
+    return best
 
 
 def archived_in_view(archive: KeyFrameArchive, poses: Sequence[np.ndarray], camera: Camera,
@@ -57,9 +67,10 @@ def archived_in_view(archive: KeyFrameArchive, poses: Sequence[np.ndarray], came
     """(view score, id) of the archived keyframes with at least ``MIN_VISIBLE`` points in the
     view from ``poses``, most first; they count as useful in ``slot`` (the archive forgets
     them last)."""
-    scored = sorted(((view_score(kf.positions, poses, camera), kf.id)
-                     for kf in archive), key=lambda sk: (-sk[0], sk[1]))
-    scored = [(s, k) for s, k in scored if s >= MIN_VISIBLE]
+    kfs = list(archive)
+    scores = view_scores([kf.positions for kf in kfs], poses, camera).tolist()
+    scored = sorted(((s, kf.id) for s, kf in zip(scores, kfs, strict=True)
+                     if s >= MIN_VISIBLE), key=lambda sk: (-sk[0], sk[1]))
     archive.touch([k for _, k in scored], slot)
     return scored
 
@@ -131,9 +142,10 @@ def plan_relocation_restores(m: KeyFrameMap, archive: KeyFrameArchive,
 
 def _map_view_scores(m: KeyFrameMap, sets: dict[int, np.ndarray], poses: Sequence[np.ndarray],
                      camera: Camera) -> dict[int, int]:
-    """:func:`view_score` of the map keyframes ``sets`` (id → its point ids)."""
-    return {k: view_score(m.positions_of(ids.tolist()), poses, camera)
-            for k, ids in sets.items()}
+    """:func:`view_scores` of the map keyframes ``sets`` (id → its point ids)."""
+    scores = view_scores([m.positions_of(ids.tolist()) for ids in sets.values()], poses,
+                         camera).tolist()
+    return dict(zip(sets, scores, strict=True))
 
 
 def _component(sets: dict[int, np.ndarray], start: int) -> set[int]:

@@ -1,0 +1,54 @@
+"""What the edge's restores rank archived keyframes by: how much of each keyframe's points the
+coming view sees, from the best of the predicted poses — every keyframe scored in one pass a
+pose, a keyframe's score its own whatever the others hold."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from edge_mapper.planning_world import visible_mask
+from edge_mapper.restores import archived_in_view, view_scores
+from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive
+from twinslam.slam.camera import Camera
+
+CAMERA = Camera(np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]]))
+
+
+def _ahead(n: int, x: float, z: float = 2.0) -> np.ndarray:
+    """``n`` points in a small patch ``z`` m along the optical axis, ``x`` m to the side."""
+    rng = np.random.default_rng(n)
+    return np.column_stack([x + rng.uniform(-0.2, 0.2, n), rng.uniform(-0.2, 0.2, n),
+                            np.full(n, z)])
+
+
+def _moved(x: float) -> np.ndarray:
+    pose = np.eye(4)
+    pose[0, 3] = x
+    return pose
+
+
+def test_each_keyframe_counts_what_the_best_predicted_pose_sees_of_it() -> None:
+    """Keyframe A's points lie before the first pose (and 4 of them behind it), B's before the
+    second pose 5 m aside, C has none, D's lie beyond the depth the view reaches: A and B score
+    what their pose sees, as each scored alone would."""
+    behind = _ahead(4, 0.0, z=-1.0)
+    sets = [np.vstack([_ahead(12, 0.0), behind]), _ahead(7, 5.0), np.zeros((0, 3)),
+            _ahead(9, 0.0, z=20.0)]
+    poses = [np.eye(4), _moved(5.0)]
+    scores = view_scores(sets, poses, CAMERA)
+    assert scores.tolist() == [12, 7, 0, 0]
+    alone = [max((int(visible_mask(s, p, CAMERA).sum()) if len(s) else 0) for p in poses)
+             for s in sets]
+    assert scores.tolist() == alone
+
+
+def test_archived_keyframes_in_view_are_ranked_and_kept_as_useful() -> None:
+    """The archived keyframes the coming view sees enough of, most first; one it sees too
+    little of is left out; those in view count as useful in this slot."""
+    archive = KeyFrameArchive(10)
+    for kf_id, points in ((1, _ahead(40, 0.0)), (2, _ahead(60, 0.1)), (3, _ahead(3, 0.0))):
+        archive.add(ArchivedKeyFrame(kf_id, np.eye(4), np.arange(len(points)) + 100 * kf_id,
+                                     points, np.zeros((len(points), 32), np.uint8),
+                                     np.zeros((len(points), 3)), 0), write=False)
+    assert archived_in_view(archive, [np.eye(4)], CAMERA, slot=7) == [(60, 2), (40, 1)]
+    assert archive._useful == {1: 7, 2: 7, 3: 0}
