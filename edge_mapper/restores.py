@@ -18,10 +18,11 @@ do); the restores and the evictions they cost are reported beside them.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import sparse
 
 from edge_mapper.planning_world import MAX_DEPTH_M, visible_mask
 from twinslam.policies.restoring import MIN_VIEW_POINTS, choose_restores
@@ -75,6 +76,56 @@ def archived_in_view(archive: KeyFrameArchive, poses: Sequence[np.ndarray], came
     return scored
 
 
+class TrialWeights:
+    """The covisibility weights (shared point counts, zero diagonal) of any map the restores
+    may try — the map's keyframes with some left out and some archived ones added — as
+    :func:`~twinslam.slam.back_end.keyframe_map.shared_counts` of their point sets would
+    give them, without recounting the map's pairs for every trial: those are counted once
+    (``map_sets``: each map keyframe's points), an archived keyframe's (``archived_sets``)
+    against the map once, when a trial first holds it. Each trial swap asked for the
+    counts of the whole map again (~1 ms a trial, several a slot)."""
+
+    def __init__(self, map_sets: Mapping[int, np.ndarray],
+                 archived_sets: Mapping[int, np.ndarray]) -> None:
+        self.map_index = {k: i for i, k in enumerate(map_sets)}
+        self.archived_sets = archived_sets
+        sets = list(map_sets.values())
+        self.map_weights = shared_counts(sets)
+        keys = np.concatenate(sets) if sets else np.zeros(0, dtype=np.int64)
+        self._points, cols = np.unique(keys, return_inverse=True)
+        indptr = np.concatenate([[0], np.cumsum([len(p) for p in sets])]).astype(np.int64)
+        #: map keyframe × map point incidence
+        self._incidence = sparse.csr_matrix((np.ones(len(keys)), cols.ravel(), indptr),
+                                            shape=(len(sets), len(self._points)))
+        self._rows: dict[int, np.ndarray] = {}
+
+    def of(self, keyframes: Sequence[int]) -> np.ndarray:
+        """The weights of the map of ``keyframes`` (map keyframes and archived ones), in their
+        order."""
+        at = np.array([self.map_index.get(k, -1) for k in keyframes], dtype=np.int64)
+        mapped, added = np.flatnonzero(at >= 0), np.flatnonzero(at < 0)
+        w = np.zeros((len(keyframes), len(keyframes)))
+        w[np.ix_(mapped, mapped)] = self.map_weights[np.ix_(at[mapped], at[mapped])]
+        for n, i in enumerate(added.tolist()):
+            row = self._row(keyframes[i])[at[mapped]]
+            w[i, mapped] = w[mapped, i] = row
+            for j in added[:n].tolist():
+                both = np.intersect1d(self.archived_sets[keyframes[i]],
+                                      self.archived_sets[keyframes[j]]).size
+                w[i, j] = w[j, i] = both
+        return w
+
+    def _row(self, kf: int) -> np.ndarray:
+        """How many points archived keyframe ``kf`` shares with each map keyframe."""
+        if kf not in self._rows:
+            ids = np.unique(self.archived_sets[kf])
+            at = np.searchsorted(self._points, ids)
+            cols = at[(at < len(self._points)) & (self._points[np.minimum(
+                at, len(self._points) - 1)] == ids)] if len(self._points) else at[:0]
+            self._rows[kf] = np.asarray(self._incidence[:, cols].sum(axis=1)).ravel()
+        return self._rows[kf]
+
+
 def plan_restores(m: KeyFrameMap, archive: KeyFrameArchive, poses: Sequence[np.ndarray],
                   camera: Camera, vmax: int, limit: int, slot: int,
                   protected: Iterable[int] = ()) -> RestorePlan:
@@ -88,13 +139,13 @@ def plan_restores(m: KeyFrameMap, archive: KeyFrameArchive, poses: Sequence[np.n
     if not candidates:
         return RestorePlan([], [])
     sets = {k: m.point_array(k) for k in m.keyframes}
-    sets.update({k: archive.get(k).point_ids for _, k in candidates})
+    weights = TrialWeights(sets, {k: archive.get(k).point_ids for _, k in candidates})
 
     def connected(keyframes: list[int]) -> bool:
         # connected exactly when u(G) is finite: the check the map's uncertainty makes
-        return math.isfinite(map_uncertainty(shared_counts([sets[k] for k in keyframes])))
+        return math.isfinite(map_uncertainty(weights.of(keyframes)))
 
-    scores = _map_view_scores(m, {k: sets[k] for k in m.keyframes}, poses, camera)
+    scores = _map_view_scores(m, sets, poses, camera)
     restore, evict = choose_restores(candidates, scores, vmax - len(m.keyframes), limit,
                                      set(protected), connected)
     return RestorePlan(restore, evict)

@@ -1,14 +1,16 @@
-"""What the edge's restores rank archived keyframes by: how much of each keyframe's points the
-coming view sees, from the best of the predicted poses — every keyframe scored in one pass a
-pose, a keyframe's score its own whatever the others hold."""
+"""What the edge's restores go by: how much of each archived keyframe's points the coming view
+sees, from the best of the predicted poses — every keyframe scored in one pass a pose, a
+keyframe's score its own whatever the others hold — and the covisibility weights of each map a
+swap tries, counted once for the map's pairs and exactly as from scratch."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from edge_mapper.planning_world import visible_mask
-from edge_mapper.restores import archived_in_view, view_scores
+from edge_mapper.restores import TrialWeights, archived_in_view, view_scores
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive
+from twinslam.slam.back_end.keyframe_map import shared_counts
 from twinslam.slam.camera import Camera
 
 CAMERA = Camera(np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]]))
@@ -52,3 +54,20 @@ def test_archived_keyframes_in_view_are_ranked_and_kept_as_useful() -> None:
                                      np.zeros((len(points), 3)), 0), write=False)
     assert archived_in_view(archive, [np.eye(4)], CAMERA, slot=7) == [(60, 2), (40, 1)]
     assert archive._useful == {1: 7, 2: 7, 3: 0}
+
+
+def test_a_trial_maps_weights_are_the_shared_counts_of_its_keyframes() -> None:
+    """Whatever map a restore tries — map keyframes left out, archived ones added, in any
+    order — its covisibility weights are the shared point counts of its keyframes' sets, as
+    counted from scratch."""
+    rng = np.random.default_rng(3)
+    map_sets = {k: rng.choice(400, 60, replace=False).astype(np.int64) for k in range(8)}
+    archived = {100 + k: rng.choice(np.arange(200, 700), 70, replace=False).astype(np.int64)
+                for k in range(4)}
+    weights = TrialWeights(map_sets, archived)
+    every = {**map_sets, **archived}
+    for trial in ([0, 1, 2, 3, 4, 5, 6, 7], [1, 2, 3, 4, 5, 6, 7, 100], [101, 0, 3, 102, 5],
+                  [103, 100], [4]):
+        np.testing.assert_array_equal(weights.of(trial),
+                                      shared_counts([every[k] for k in trial]))
+    assert weights.of([0, 100])[0, 1] > 0          # the sets overlap where the ids do
