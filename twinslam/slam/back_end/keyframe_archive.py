@@ -121,15 +121,12 @@ def restore_into(m: KeyFrameMap, kf: ArchivedKeyFrame) -> list[int]:
     the points that came back (which may duplicate points made since:
     :mod:`twinslam.slam.back_end.point_fusion`)."""
     m.add_keyframe(kf.id, kf.pose)
-    back = []
-    for pid, xyz, desc in zip(kf.point_ids.tolist(), kf.positions, kf.descriptors,
-                              strict=True):
-        if pid not in m.points:
-            m.readd_point(pid, xyz, desc)
-            back.append(pid)
-    m.observe_many(kf.id, kf.point_ids.tolist(), kf.measurements[:, :2].tolist(),
-                   kf.measurements[:, 2].tolist())
-    return back
+    ids = kf.point_ids.tolist()
+    gone = [row for row, pid in enumerate(ids) if pid not in m.points]
+    for row in gone:
+        m.readd_point(ids[row], kf.positions[row], kf.descriptors[row])
+    m.observe_many(kf.id, ids, kf.measurements[:, :2].tolist(), kf.measurements[:, 2].tolist())
+    return [ids[row] for row in gone]
 
 
 def point_id_sets(in_map: Mapping[int, Collection[int]],

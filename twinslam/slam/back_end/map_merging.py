@@ -117,7 +117,7 @@ def welded(keyframe: ArchivedKeyFrame, source: int, into: KeyFrameMap, camera: C
     rows = np.flatnonzero(np.isfinite(keyframe.measurements[:, 0]))
     for row, point in duplicates_in_view(keyframe.pose, keyframe.measurements[rows, :2],
                                          keyframe.descriptors[rows], keyframe.positions[rows],
-                                         points or MapPoints.of(into, list(into.points)),
+                                         points or MapPoints.every(into),
                                          camera, config):
         ids[rows[row]] = point
     return dataclasses.replace(keyframe, id=keyframe.id | tag, point_ids=ids,
@@ -168,7 +168,7 @@ def lend_from(borrower: MapBackEnd, lenders: list[Lender], slot: int, next_versi
     follows = [follow_lender_loops(borrower, lender.back_end, lender.source, lender.followed,
                                    next_version) for lender in lenders]
     unlent = [unlent_keyframes(lender.back_end, lender.lent, slot) for lender in lenders]
-    points = MapPoints.of(borrower.map, list(borrower.map.points)) if any(unlent) else None
+    points = MapPoints.every(borrower.map) if any(unlent) else None
     adopted = [adopt_lent(borrower, keyframes, lender.source, lender.lent, slot, points)
                for lender, keyframes in zip(lenders, unlent, strict=True)]
     return [Lending(followed, count, moves)
@@ -206,7 +206,7 @@ def adopt_lent(borrower: MapBackEnd, keyframes: list[ArchivedKeyFrame], source: 
     if not keyframes:
         return 0
     # the borrower's points are read once for the batch: welding changes none of them
-    points = points or MapPoints.of(borrower.map, list(borrower.map.points))
+    points = points or MapPoints.every(borrower.map)
     borrower.adopt(welded(kf, source, borrower.map, borrower.camera, slot, points=points)
                    for kf in keyframes)
     lent.update(kf.id for kf in keyframes)

@@ -15,6 +15,7 @@ map has optimised it with today's keyframes), the restored keyframe observes it 
 from __future__ import annotations
 
 import math
+from collections.abc import Collection
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,15 +31,19 @@ class MapPoints:
     for the searches that look among them: welding a batch of another device's keyframes
     to a map compares each with all the map's points, which do not change in between."""
 
-    ids: list[int]
+    ids: np.ndarray                #: (n,) int64
     positions: np.ndarray          #: (n, 3)
     descriptors: np.ndarray        #: (n, 32) uint8
 
     @classmethod
-    def of(cls, m: KeyFrameMap, point_ids: list[int]) -> MapPoints:
-        """Map ``m``'s points ``point_ids`` as they are now (copies)."""
-        rows = m.columns.rows_of(point_ids)
-        return cls(point_ids, m.columns.positions[rows], m.columns.descriptors[rows])
+    def every(cls, m: KeyFrameMap, but: Collection[int] = ()) -> MapPoints:
+        """Every point of map ``m`` as it is now (copies, in the map's order), but those
+        ``but`` names."""
+        ids, rows = m.columns.ids_and_rows()
+        if but:
+            keep = ~np.isin(ids, np.fromiter(but, dtype=np.int64, count=len(but)))
+            ids, rows = ids[keep], rows[keep]
+        return cls(ids, m.columns.positions[rows], m.columns.descriptors[rows])
 
 
 @dataclass(frozen=True)
@@ -60,10 +65,10 @@ def fuse_restored(m: KeyFrameMap, kf_id: int, returned: list[int], camera: Camer
     kf = m.keyframes[kf_id]
     mine = [p for p in returned if p in m.points and p in kf.measurements
             and math.isfinite(kf.measurements[p][0])]
-    others = [p for p in m.points if p not in kf.points]
     pairs = duplicates_in_view(
         kf.pose, np.array([kf.measurements[p][:2] for p in mine], dtype=np.float64),
-        m.descriptors_of(mine), m.positions_of(mine), MapPoints.of(m, others), camera, config)
+        m.descriptors_of(mine), m.positions_of(mine), MapPoints.every(m, but=kf.points),
+        camera, config)
     fused: dict[int, int] = {}
     for row, keep in pairs:
         m.fuse(keep, mine[row])
@@ -82,7 +87,7 @@ def duplicates_in_view(pose: np.ndarray, seen_at: np.ndarray, descriptors: np.nd
     another device's keyframe welded to a map it joins
     (:func:`~twinslam.slam.back_end.map_merging.welded`)."""
     cfg = config or FusionConfig()
-    if not len(seen_at) or not candidates.ids:
+    if not len(seen_at) or not len(candidates.ids):
         return []
     where = candidates.positions
     vis, uv = visible_points(where, np.ones(len(where), dtype=bool), pose,
@@ -96,5 +101,4 @@ def duplicates_in_view(pose: np.ndarray, seen_at: np.ndarray, descriptors: np.nd
     rows = vis[c_idx]
     near = np.linalg.norm(np.asarray(positions, dtype=np.float64)[f_idx] - where[rows],
                           axis=1) <= cfg.max_gap_m
-    return [(int(fi), candidates.ids[int(c)])
-            for fi, c in zip(f_idx[near], rows[near], strict=True)]
+    return list(zip(f_idx[near].tolist(), candidates.ids[rows[near]].tolist(), strict=True))
