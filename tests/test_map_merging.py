@@ -372,6 +372,39 @@ def test_a_point_the_lender_had_adopted_keeps_its_devices_tag_when_lent_on() -> 
     assert foreign_tag(2) | 5 not in adopted.point_ids.tolist()
 
 
+def test_a_welded_keyframe_names_each_point_once() -> None:
+    """The lender's keyframe holds a third device's point (adopted by both maps, tagged in
+    both) and sees, elsewhere in its image, a corner of its own that looks like it and lies
+    where it does in the borrower's map: welded, that corner keeps its own tagged id — given
+    the third device's, the keyframe would name one point twice, and restoring it failed."""
+    camera = Camera(np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]]))
+    third = foreign_tag(1) | 5
+    corner = np.random.default_rng(2).integers(0, 256, 32, dtype=np.uint8)
+    borrower = KeyFrameMap()
+    borrower.readd_point(third, np.array([0.0, 0.0, 2.0]), corner)
+    kf = ArchivedKeyFrame(9, np.eye(4), np.array([third, 6], dtype=np.int64),
+                          np.array([[1.0, 1.0, 2.0], [0.0, 0.0, 2.0]]),
+                          np.stack([255 - corner, corner]),
+                          np.array([[50.0, 50.0, 2.0], [320.0, 240.0, 2.0]]), 0)
+    adopted = welded(kf, 0, borrower, camera, slot=1)
+    assert adopted.point_ids.tolist() == [third, foreign_tag(0) | 6]
+    restore_into(borrower, adopted)
+    assert borrower.keyframes[adopted.id].points == {third, foreign_tag(0) | 6}
+
+
+def test_a_keyframe_that_names_a_point_twice_is_restored_with_it_once() -> None:
+    """An archived keyframe written before welding kept its ids apart may name one point
+    twice: restored, the point comes back once and the keyframe observes it."""
+    none = np.zeros((2, 3))
+    kf = ArchivedKeyFrame(3, np.eye(4), np.array([7, 7], dtype=np.int64), none,
+                          np.zeros((2, 32), dtype=np.uint8),
+                          np.array([[10.0, 10.0, 1.0], [12.0, 10.0, 1.0]]), 0)
+    m = KeyFrameMap()
+    m.next_point_id = 8
+    assert restore_into(m, kf) == [7]
+    assert set(m.points) == {7} and m.keyframes[3].points == {7}
+
+
 def test_a_restored_adopted_keyframe_joins_the_map_through_its_welded_points(
         room: Room) -> None:  # noqa: F811
     """Adopted into the archive and restored, the other device's keyframe shares the welded

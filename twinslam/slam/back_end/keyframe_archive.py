@@ -122,7 +122,14 @@ def restore_into(m: KeyFrameMap, kf: ArchivedKeyFrame) -> list[int]:
     :mod:`twinslam.slam.back_end.point_fusion`)."""
     m.add_keyframe(kf.id, kf.pose)
     ids = kf.point_ids.tolist()
-    gone = [row for row, pid in enumerate(ids) if pid not in m.points]
+    # each point the map lost, once (a keyframe archived before welding kept its ids apart
+    # may name a point twice)
+    gone: list[int] = []
+    fresh: set[int] = set()
+    for row, pid in enumerate(ids):
+        if pid not in m.points and pid not in fresh:
+            gone.append(row)
+            fresh.add(pid)
     for row in gone:
         m.readd_point(ids[row], kf.positions[row], kf.descriptors[row])
     m.observe_many(kf.id, ids, kf.measurements[:, :2].tolist(), kf.measurements[:, 2].tolist())

@@ -115,11 +115,16 @@ def welded(keyframe: ArchivedKeyFrame, source: int, into: KeyFrameMap, camera: C
     ids = keyframe.point_ids.astype(np.int64)
     ids = np.where(foreign_mask(ids), ids, ids | tag)
     rows = np.flatnonzero(np.isfinite(keyframe.measurements[:, 0]))
+    # a point the keyframe holds already under that id (a third device's copy both maps
+    # adopted) is no duplicate to weld another of its corners to: a keyframe sees a point once
+    held = set(ids.tolist())
     for row, point in duplicates_in_view(keyframe.pose, keyframe.measurements[rows, :2],
                                          keyframe.descriptors[rows], keyframe.positions[rows],
                                          points or MapPoints.every(into),
                                          camera, config):
-        ids[rows[row]] = point
+        if point not in held:
+            ids[rows[row]] = point
+            held.add(point)
     return dataclasses.replace(keyframe, id=keyframe.id | tag, point_ids=ids,
                                archived_slot=slot)
 
