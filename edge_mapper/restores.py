@@ -193,9 +193,13 @@ def plan_relocation_restores(m: KeyFrameMap, archive: KeyFrameArchive,
 
 def _map_view_scores(m: KeyFrameMap, sets: dict[int, np.ndarray], poses: Sequence[np.ndarray],
                      camera: Camera) -> dict[int, int]:
-    """:func:`view_scores` of the map keyframes ``sets`` (id → its point ids)."""
-    scores = view_scores([m.positions_of(ids.tolist()) for ids in sets.values()], poses,
-                         camera).tolist()
+    """:func:`view_scores` of the map keyframes ``sets`` (id → its point ids); every
+    keyframe's points read from the map at once."""
+    if not sets:
+        return {}
+    cuts = np.cumsum([len(ids) for ids in sets.values()], dtype=np.int64)[:-1]
+    positions = np.split(m.positions_of(np.concatenate(list(sets.values())).tolist()), cuts)
+    scores = view_scores(positions, poses, camera).tolist()
     return dict(zip(sets, scores, strict=True))
 
 
