@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 import shutil
 import time
+import traceback
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -110,8 +111,14 @@ class DeviceLink:
     def __init__(self, node: Node, device: str, settings: LinkSettings,
                  live: Callable[[], dict[str, Any]],
                  grant: Granting | None = None, finished: Finishing | None = None,
-                 spent: Spending | None = None, merging: PlaceMerging | None = None) -> None:
+                 spent: Spending | None = None, merging: PlaceMerging | None = None,
+                 on_fault: Callable[[str, str], None] | None = None) -> None:
         self.node, self.device, self.settings = node, device, settings
+        #: told (device, traceback) when this device's work raised — an edge serving several
+        #: devices then stops serving this one and goes on with the others (None: the error
+        #: propagates, and the node stops as a one-device edge should)
+        self.on_fault = on_fault
+        self.fault = ""                 #: the traceback of the work that failed ("": none)
         self.live, self.grant, self.finished, self.spent = live, grant, finished, spent
         #: the edge's map merging across its devices (None: each device's map stays apart)
         self.merging = merging
@@ -137,19 +144,22 @@ class DeviceLink:
                            pub(MarkerArray, self.topic(topics.DECISIONS), qos.MAP),
                            pub(PathMsg, self.topic(topics.KEYFRAME_TRAJECTORY), qos.MAP))
                           if settings.visualisation else None)
+        guarded = self._guarded
         self.subscriptions = [
             CheckedSubscription(node, FrameSummaries, self.topic(topics.FRAME_SUMMARIES),
-                                self._on_summaries, qos.PROTOCOL),
-            CheckedSubscription(node, Keyframe, self.topic(topics.KEYFRAMES), self._on_keyframe,
-                                qos.PROTOCOL),
+                                guarded(self._on_summaries), qos.PROTOCOL),
+            CheckedSubscription(node, Keyframe, self.topic(topics.KEYFRAMES),
+                                guarded(self._on_keyframe), qos.PROTOCOL),
             CheckedSubscription(node, UplinkThroughput, self.topic(topics.UPLINK_THROUGHPUT),
-                                self._on_throughput, qos.PROTOCOL),
+                                guarded(self._on_throughput), qos.PROTOCOL),
             CheckedSubscription(node, RateLatent, self.topic(topics.RATE_LATENT),
-                                self._on_latent, qos.PROTOCOL),
+                                guarded(self._on_latent), qos.PROTOCOL),
             CheckedSubscription(node, RelocalisationRequest,
                                 self.topic(topics.RELOCALISATION_REQUEST),
-                                self._on_relocalisation_request, qos.PROTOCOL),
+                                guarded(self._on_relocalisation_request), qos.PROTOCOL),
         ]
+        #: :meth:`finish_due` for the node's timer, guarded as the callbacks are
+        self.tick = guarded(self.finish_due)
         for problem in self.core.archive_problems:
             self.warning(f"archived keyframe skipped: {problem}")
         if self.core.restored:
@@ -160,6 +170,24 @@ class DeviceLink:
                                                     self.map_frame,
                                                     tracks=self.core.local_mapping.track_points,
                                                     frame_correction=self.core.frame_correction))
+
+    def _guarded(self, work: Callable[..., None]) -> Callable[..., None]:
+        """``work`` (a callback of this device) run only while the device's work has not
+        failed; with ``on_fault``, an exception it raises is kept and told, not raised: on an
+        edge serving several devices, one device's failure must not stop the others' slots."""
+        def run(*args: Any) -> None:
+            if self.fault:
+                return
+            if self.on_fault is None:
+                work(*args)
+                return
+            try:
+                work(*args)
+            except Exception:           # told to the node, which stops serving this device
+                self.fault = traceback.format_exc()
+                self.on_fault(self.device, self.fault)
+
+        return run
 
     def topic(self, name: str) -> str:
         """A topic of this device, relative to the node's namespace."""

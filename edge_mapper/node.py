@@ -21,7 +21,9 @@ split by ``allocator`` slot by slot (:mod:`edge_mapper.keyframe_budget`, publish
 ``edge/keyframe_budget``); a device silent for ``device_silent_s`` leaves the split, and
 ``device_reclaim_s`` later its map and share are released.
 With ``standby:=true`` the node serves a device namespace only once its slots go unanswered
-(its edge died; :mod:`edge_mapper.edge_failover`). With ``merge_maps:=true`` a device's map
+(its edge died; :mod:`edge_mapper.edge_failover`). Serving several devices, the node stops
+serving one whose work raised — logged with its traceback, its last checkpoint left for a
+standby edge — and goes on with the others. With ``merge_maps:=true`` a device's map
 joins the frame of a device served before it once its keyframes are found in that device's
 map, or that device's in its own (:mod:`edge_mapper.place_merging`): their poses are then in
 one frame.
@@ -64,8 +66,10 @@ SUMMARIES_SUFFIX = "/" + topics.FRAME_SUMMARIES
 
 
 class EdgeMapperNode(Node):
-    def __init__(self) -> None:
-        super().__init__("edge_mapper")
+    def __init__(self, **options: Any) -> None:
+        """``options``: rclpy's node options (a ``context``, ``parameter_overrides``) for a
+        node made beside others in one process; the command line's apply otherwise."""
+        super().__init__("edge_mapper", **options)
         p = declare(self, PARAMETERS)
         self.settings = link_settings(p)
         devices = device_names(p)
@@ -81,6 +85,8 @@ class EdgeMapperNode(Node):
         self.links: dict[str, DeviceLink] = {}
         self.listed = devices                  #: served from the start, again after a reclaim
         self.refused: set[str] = set()         #: devices the budget had no room for (said once)
+        #: devices whose work raised: no longer served here, not even after a reclaim
+        self.failed: set[str] = set()
         #: the devices' maps merged where one walks into another's place (``merge_maps``)
         self.merging = (PlaceMerging(lambda: {d: link.core for d, link in self.links.items()})
                         if self.several and bool(p["merge_maps"]) else None)
@@ -115,7 +121,8 @@ class EdgeMapperNode(Node):
         grant = self._grant if self.budget is not None else None
         finished = self.budget.finished if self.budget is not None else None
         link = DeviceLink(self, device, self.settings, self._live_values, grant, finished,
-                          self._spent, self.merging)
+                          self._spent, self.merging,
+                          self._device_failed if self.several else None)
         level = self.governor.levels[self.governor.level]
         if self.governor.level:                # a device that joins gets today's level
             link.core.set_bundle_adjustment(level.window, level.points)
@@ -171,8 +178,31 @@ class EdgeMapperNode(Node):
         return self.get_clock().now().nanoseconds * 1e-9
 
     def _finish_due(self) -> None:
-        for link in list(self.links.values()):
-            link.finish_due()
+        for device, link in list(self.links.items()):
+            if link.fault:
+                self._drop_failed(device, link)
+            else:
+                link.tick()
+
+    def _device_failed(self, device: str, trace: str) -> None:
+        """One device's work raised: the edge stops serving it — its last checkpoint stays,
+        for a standby edge to take it over from — and goes on with the others."""
+        self.failed.add(device)
+        self.get_logger().error(
+            f"device {device}: its slot work failed; this edge stops serving it (its last "
+            f"checkpoint stays for a standby edge, which takes it over once its slots go "
+            f"unanswered) and goes on with the other devices:\n{trace.rstrip()}")
+
+    def _drop_failed(self, device: str, link: DeviceLink) -> None:
+        """A failed device's link closed (from the timer, not from inside its callback) and
+        its map left out of the place's merging."""
+        del self.links[device]
+        try:
+            link.close(keep_checkpoint=True)
+        except Exception as exc:        # a half-done slot's state: closing must not fail
+            self.get_logger().error(f"device {device}: closing its link failed too: {exc}")
+        if self.merging is not None:
+            self.merging.forget(device)
 
     def _look_around(self) -> None:
         """New devices on the graph (``discover_devices``), devices a standby edge takes over
@@ -181,7 +211,7 @@ class EdgeMapperNode(Node):
             self._stand_by()
         elif self.discover:
             for device in self._announced():
-                if device not in self.links:
+                if device not in self.links and device not in self.failed:
                     self._serve(device)
         if self.budget is None:
             return
@@ -202,8 +232,8 @@ class EdgeMapperNode(Node):
                     link.close()
                 if self.merging is not None:
                     self.merging.forget(event.device)
-                if event.device in self.listed:   # listening again, with a fresh map
-                    self._serve(event.device)
+                if event.device in self.listed and event.device not in self.failed:
+                    self._serve(event.device)     # listening again, with a fresh map
             if self.pub_budget is not None:
                 self.pub_budget.publish(keyframe_budget_message(self.budget, self._now()))
 
@@ -211,7 +241,8 @@ class EdgeMapperNode(Node):
         """Watch the devices no edge of ours serves; take over those whose slots went
         unanswered ``takeover_slots`` times; give back the ones another edge answers again."""
         for device in self._announced():
-            if device not in self.links and device not in self.watches:
+            if device not in self.links and device not in self.watches and \
+                    device not in self.failed:
                 watch = UnansweredSlots(self.takeover_slots)
 
                 def heard(msg: FrameSummaries, w: UnansweredSlots = watch) -> None:
