@@ -22,12 +22,16 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import sparse
 
 from edge_mapper.planning_world import MAX_DEPTH_M, visible_mask
 from twinslam.policies.restoring import MIN_VIEW_POINTS, choose_restores
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
-from twinslam.slam.back_end.keyframe_map import KeyFrameMap, shared_counts
+from twinslam.slam.back_end.keyframe_map import (
+    KeyFrameMap,
+    counts_of,
+    point_incidence,
+    shared_counts,
+)
 from twinslam.slam.camera import Camera
 from twinslam.uncertainty.map_uncertainty import map_uncertainty
 
@@ -89,14 +93,9 @@ class TrialWeights:
                  archived_sets: Mapping[int, np.ndarray]) -> None:
         self.map_index = {k: i for i, k in enumerate(map_sets)}
         self.archived_sets = archived_sets
-        sets = list(map_sets.values())
-        self.map_weights = shared_counts(sets)
-        keys = np.concatenate(sets) if sets else np.zeros(0, dtype=np.int64)
-        self._points, cols = np.unique(keys, return_inverse=True)
-        indptr = np.concatenate([[0], np.cumsum([len(p) for p in sets])]).astype(np.int64)
-        #: map keyframe × map point incidence
-        self._incidence = sparse.csr_matrix((np.ones(len(keys)), cols.ravel(), indptr),
-                                            shape=(len(sets), len(self._points)))
+        #: the map's points, and the map keyframe × map point incidence
+        self._points, self._incidence = point_incidence(list(map_sets.values()))
+        self.map_weights = counts_of(self._incidence)
         self._rows: dict[int, np.ndarray] = {}
 
     def of(self, keyframes: Sequence[int]) -> np.ndarray:
@@ -118,10 +117,7 @@ class TrialWeights:
     def _row(self, kf: int) -> np.ndarray:
         """How many points archived keyframe ``kf`` shares with each map keyframe."""
         if kf not in self._rows:
-            ids = np.unique(self.archived_sets[kf])
-            at = np.searchsorted(self._points, ids)
-            cols = at[(at < len(self._points)) & (self._points[np.minimum(
-                at, len(self._points) - 1)] == ids)] if len(self._points) else at[:0]
+            cols = np.flatnonzero(np.isin(self._points, self.archived_sets[kf]))
             self._rows[kf] = np.asarray(self._incidence[:, cols].sum(axis=1)).ravel()
         return self._rows[kf]
 
