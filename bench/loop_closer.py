@@ -32,10 +32,11 @@ from twinslam.sequences.opening import open_sequence
 from twinslam.slam.back_end.keyframe_archive import (
     ArchivedKeyFrame,
     KeyFrameArchive,
+    point_id_sets,
     restore_into,
 )
-from twinslam.slam.back_end.keyframe_map import KeyFrameMap
-from twinslam.slam.back_end.loop_closing import LoopJob, LoopQuery, run_job, shared_points
+from twinslam.slam.back_end.keyframe_map import KeyFrameMap, shared_pairs
+from twinslam.slam.back_end.loop_closing import LoopJob, LoopQuery, run_job
 from twinslam.slam.back_end.loop_correction import correct_map
 from twinslam.slam.back_end.loop_detection import detect_loop
 from twinslam.slam.back_end.pose_graph import close_loop
@@ -128,7 +129,7 @@ def main() -> None:
         if not loop.found or loop.measured is None:
             continue
         found += 1
-        shared = shared_points(job)
+        shared = shared_pairs(sorted(job.poses), point_id_sets(job.map_points, job.archive))
         with _timed(times["graph"]):
             closure = close_loop(job.poses, loop.old, query, loop.measured, shared)
         with _timed(times["job"]):
