@@ -11,7 +11,8 @@ import numpy as np
 from tests.test_archive_relocalisation import room  # noqa: F401 (the archived room fixture)
 from twinslam.rotations import rotation_angle_deg
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
-from twinslam.slam.back_end.loop_detection import detect_loop
+from twinslam.slam.back_end.loop_closing import LoopJob, LoopQuery, run_job
+from twinslam.slam.back_end.loop_detection import MIN_GAP, detect_loop
 from twinslam.slam.front_end.orb_extractor import OrbExtractor
 from twinslam.slam.front_end.tracking import depth_at
 
@@ -46,6 +47,30 @@ def test_the_recent_walk_and_a_look_alike_are_no_loop(room: Room) -> None:  # no
     alike = detect_loop(archive, 1000, shuffled, feats.descriptors,
                         seq.intrinsics)                        # type: ignore[attr-defined]
     assert not alike.found and "inliers" in alike.reason
+
+
+def test_a_loop_is_found_though_the_recent_walk_shows_the_place_too(
+        room: Room) -> None:  # noqa: F811
+    """The walk came back to the room's first corner a while ago: the archive holds keyframes
+    of that visit too (ids less than MIN_GAP before the query: too recent to close a loop
+    with), their points made again, their descriptors as near to the query's as the old
+    visit's. The loop closer looks among the keyframes a loop may close with only: the
+    recent visit must neither take the votes nor, as every vote's runner-up, make Lowe's
+    ratio refuse them."""
+    seq, archive, orb = room
+    query_id = 1000
+    both = KeyFrameArchive(2 * len(archive))
+    for kf in archive:
+        both.add(kf, write=False)
+        both.add(dataclasses.replace(kf, id=query_id - MIN_GAP + 10 + kf.id,
+                                     point_ids=kf.point_ids + 1_000_000), write=False)
+    frame = seq.read(4)                                        # type: ignore[attr-defined]
+    feats = orb.extract(frame.color)
+    query = LoopQuery(query_id, feats.points, feats.descriptors,
+                      depth_at(feats.points, frame.depth, (0.2, 8.0)))
+    result = run_job(LoopJob((query,), both, {}, seq.intrinsics, {}))  # type: ignore[attr-defined]
+    assert result.candidate.found, result.candidate.reason
+    assert result.candidate.old == 0 and result.candidate.inliers >= 50
 
 
 def _turned(archive: KeyFrameArchive, degrees: float) -> KeyFrameArchive:

@@ -208,10 +208,15 @@ def run_job(job: LoopJob, min_gap: int = MIN_GAP,
     start = time.perf_counter()
     candidate, query = LoopCandidate(-1, None, None, 0, "no query"), -1
     confirmed = False
-    # a loop closes with the walk's own keyframes alone (another device's copies carry ids
-    # above every own one, never old enough): in a merged map most of the archive is copies,
-    # and place recognition over their points too was most of the loop closer's time
-    own = job.archive.only(lambda k: not is_foreign(k))
+    # place recognition searches only the keyframes a query may close a loop with: the
+    # walk's own (another device's copies carry ids above every own one, never old enough)
+    # and at least min_gap older than the newest query. A point of the recent walk or of a
+    # copy that shows the same corner as an old keyframe's is as near to the query's
+    # descriptor as the old one: it takes the vote (for a keyframe no loop may close with)
+    # or, as the runner-up, makes Lowe's ratio refuse it — either way it hides the loop, and
+    # searching those points was most of the loop closer's time
+    newest = max((q.keyframe for q in job.queries), default=0)
+    own = job.archive.only(lambda k: not is_foreign(k) and k <= newest - min_gap)
     for q in sorted(job.queries, key=lambda q: q.keyframe):
         candidate, query = detect_loop(own, q.keyframe, q.points_xy, q.descriptors,
                                        job.intrinsics, min_gap, depths=q.depths), q.keyframe
