@@ -32,7 +32,9 @@ Per slot it prints (every ``--every`` slots, and at each loop) and writes to ``-
   apart its two keyframes truly were, how far its measured relative pose is from the truth's,
   and how far the graph's answer is from the truth against the poses before it.
 
-At the end: the frames tracked, the device's ATE and revisit error, both again with each
+At the end: the frames tracked, the device's ATE and revisit error, the loop closer's jobs
+(their worker's time in all, its median and that of the last 20: an archive that grows makes
+each job longer), both errors again with each
 pose anchored to its keyframe (moved with that keyframe's corrections since it was published,
 as AR anchors follow a map: :func:`~twinslam.live.tracking_quality.anchored_to_keyframes`),
 the largest step of REP 105's odom frame beyond the truth's (the device node's
@@ -315,6 +317,11 @@ def main() -> None:
     print(f"{len(tracked)} of {len(truth)} frames tracked, ATE {ate:.3f} m, revisit error "
           f"RMS {rev.rms_m:.3f} m ({rev.pairs} pairs), loops {edge.loops_closed} closed "
           f"{edge.loops_refused} refused, {time.perf_counter() - started:.0f} s")
+    jobs = list(edge.back_end.loop_closer.job_seconds)
+    if jobs:
+        print(f"the loop closer: {len(jobs)} jobs, {sum(jobs):.1f} s on its worker, median "
+              f"{np.median(jobs) * 1e3:.0f} ms, the last 20 jobs' median "
+              f"{np.median(jobs[-20:]) * 1e3:.0f} ms")
     print(f"anchored to the keyframes (each pose moved with its keyframe's corrections since): "
           f"ATE {absolute_trajectory_error(anchored, truth):.3f} m, revisit error RMS "
           f"{rev_anchored.rms_m:.3f} m")

@@ -232,7 +232,11 @@ def test_the_worker_thread_answers_as_the_caller_would_and_takes_one_job_at_a_ti
         for k, pose in here.closure.poses.items():
             np.testing.assert_allclose(there.closure.poses[k], pose, atol=1e-9)
         assert worker.take() is None and worker.submit(job)    # taken: the next one may start
-        assert worker.take(wait_s=30.0) is not None
+        last = worker.take(wait_s=30.0)
+        assert last is not None
+        # each job taken leaves the worker's time on it (what bench.map_consistency reports)
+        assert list(worker.job_seconds) == [there.seconds, last.seconds]
+        assert list(inline.job_seconds) == [here.seconds] and here.seconds > 0
         # after a loop closes, the keyframes just after it look for none
         assert worker.wanted([job.queries[0].keyframe + 1, job.queries[0].keyframe + 500]) \
             == [job.queries[0].keyframe + 500]

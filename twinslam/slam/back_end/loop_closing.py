@@ -21,6 +21,7 @@ from __future__ import annotations
 import itertools
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -56,6 +57,8 @@ AGREE_DEG = 2.0
 #: corridor)
 DRIFT_RATE = 0.05
 DRIFT_SLACK_M = 0.10
+#: the worker's seconds of this many latest jobs are kept (what a bench reports)
+JOB_TIMES_KEPT = 1000
 
 
 @dataclass(frozen=True)
@@ -269,6 +272,8 @@ class LoopCloser:
         #: worker appends, the slot takes: under the lock, none is lost between the two)
         self._failed: list[str] = []
         self._failed_lock = threading.Lock()
+        #: the worker's seconds on each of the latest JOB_TIMES_KEPT jobs taken, oldest first
+        self.job_seconds: deque[float] = deque(maxlen=JOB_TIMES_KEPT)
 
     @property
     def busy(self) -> bool:
@@ -303,6 +308,8 @@ class LoopCloser:
                 return None
             self._running = None
         done, self._done = self._done, None
+        if done is not None:
+            self.job_seconds.append(done.seconds)
         if done is not None and done.closure is not None:
             self._quiet_until = done.query + self.cooldown
         return done
