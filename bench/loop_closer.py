@@ -4,13 +4,17 @@ the same walk looking for a loop in it, the pose graph over archive and map, and
 corrections applied to a managed map and the archive.
 
     python -m bench.loop_closer [SEQUENCE] [--archive 500] [--queries 20] [--map 45]
+                                [--exact-below 20000]
 
 Prints the medians and 95th percentiles of: the archive's snapshot (on the slot's path), place
-recognition with the geometric check, the pose graph, the whole job (the worker thread's
-time), the corrections applied to the map and the archive (on the slot's path) and the
-archive's files written again (the worker); then a slot's work on the main thread (the map's
-keyframes archived, as at an eviction) alone and while the worker closes loops back to back:
-the worker's share of the interpreter (the GIL) shows as the slot's work taking longer.
+recognition with the geometric check — searching the points under the archive's visual words
+(:mod:`twinslam.slam.back_end.place_words`) and, side by side on the same queries, every point
+exactly, with how often the two find the same place and pose —, the pose graph, the whole job
+(the worker thread's time), the corrections applied to the map and the archive (on the slot's
+path) and the archive's files written again (the worker); then a slot's work on the main thread
+(the map's keyframes archived, as at an eviction) alone and while the worker closes loops back
+to back: the worker's share of the interpreter (the GIL) shows as the slot's work taking
+longer.
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ from __future__ import annotations
 import argparse
 import platform
 import statistics
+import sys
 import tempfile
 import threading
 import time
@@ -28,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from twinslam.cli.console import HelpFormatter
+from twinslam.rotations import rotation_angle_deg
 from twinslam.sequences.opening import open_sequence
 from twinslam.slam.back_end.keyframe_archive import (
     ArchivedKeyFrame,
@@ -38,7 +44,8 @@ from twinslam.slam.back_end.keyframe_archive import (
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap, shared_pairs
 from twinslam.slam.back_end.loop_closing import LoopJob, LoopQuery, run_job
 from twinslam.slam.back_end.loop_correction import correct_map
-from twinslam.slam.back_end.loop_detection import detect_loop
+from twinslam.slam.back_end.loop_detection import LoopCandidate, detect_loop
+from twinslam.slam.back_end.place_words import EXACT_BELOW, PlaceWords
 from twinslam.slam.back_end.pose_graph import close_loop
 from twinslam.slam.front_end.orb_extractor import OrbExtractor
 from twinslam.slam.front_end.tracking import depth_at
@@ -64,12 +71,13 @@ def _line(name: str, runs: list[float]) -> str:
     return f"  {name:<44} {median:8.1f} ms median, {p95:8.1f} ms p95 ({len(runs)} runs)"
 
 
-def build(sequence: str, keyframes: int, orb: OrbExtractor
+def build(sequence: str, keyframes: int, orb: OrbExtractor, exact_below: int = EXACT_BELOW
           ) -> tuple[KeyFrameArchive, object]:
-    """An archive of ``keyframes`` keyframes spread over the walk, placed at the true poses."""
+    """An archive of ``keyframes`` keyframes spread over the walk, placed at the true poses,
+    searched exactly below ``exact_below`` points."""
     reader = open_sequence(sequence)
     frames = np.linspace(0, len(reader) - 1, keyframes).round().astype(int)
-    archive = KeyFrameArchive(keyframes)
+    archive = KeyFrameArchive(keyframes, words=PlaceWords(exact_below))
     first = 1
     for kf in frames.tolist():
         frame = reader.read(kf)
@@ -96,14 +104,28 @@ def main() -> None:
                         help="frames of the walk that look for a loop")
     parser.add_argument("--map", type=int, default=45,
                         help="keyframes of the managed map the corrections move (V_max)")
+    parser.add_argument("--exact-below", type=int, default=EXACT_BELOW,
+                        help="points under which the archive is searched exactly, not under "
+                        "its visual words (the edge's setting)")
     args = parser.parse_args()
     print(f"loop closer: {platform.processor() or platform.machine()}, "
           f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; {args.archive} archived "
           f"keyframes of {args.sequence}, {args.queries} queries, a map of {args.map}")
     orb = OrbExtractor()
-    archive, reader = build(args.sequence, args.archive, orb)
+    archive, reader = build(args.sequence, args.archive, orb, args.exact_below)
     k = reader.intrinsics                                       # type: ignore[attr-defined]
     kept = list(archive)
+    exact = KeyFrameArchive(args.archive, words=PlaceWords(exact_below=sys.maxsize))
+    for kf in kept:
+        exact.add(kf, write=False)
+    points = len(np.unique(np.concatenate([kf.point_ids for kf in kept])))
+    start = time.perf_counter()
+    archive.snapshot().recognise(kept[0].descriptors)      # learns the words (once an archive)
+    print(f"  {points} points; the archive's vocabulary: "
+          f"{'none (searched exactly)' if archive.words.vocabulary is None else ''}"
+          f"{'' if archive.words.vocabulary is None else archive.words.vocabulary.words}"
+          f"{'' if archive.words.vocabulary is None else ' words'}, learned and the points "
+          f"filed in {(time.perf_counter() - start) * 1e3:.0f} ms")
     managed = KeyFrameMap()
     managed.next_point_id = 1 + sum(len(kf.point_ids) for kf in kept)
     for kf in kept[-args.map:]:
@@ -111,8 +133,8 @@ def main() -> None:
     poses = {kf.id: kf.pose for kf in kept}
     points = {kf.id: frozenset(kf.point_ids.tolist()) for kf in kept}
     times: dict[str, list[float]] = {name: [] for name in (
-        "snapshot", "detect", "graph", "job", "map", "archive", "files")}
-    found = 0
+        "snapshot", "detect", "exact", "graph", "job", "map", "archive", "files")}
+    found = found_exact = same = 0
     n_frames = len(reader)                                      # type: ignore[arg-type]
     for q, index in enumerate(np.linspace(1, n_frames - 2, args.queries).round().astype(int)):
         frame = reader.read(int(index))                         # type: ignore[attr-defined]
@@ -124,6 +146,10 @@ def main() -> None:
             snapshot = archive.snapshot()
         with _timed(times["detect"]):
             loop = detect_loop(snapshot, query, feats.points, feats.descriptors, k)
+        with _timed(times["exact"]):
+            beside = detect_loop(exact.snapshot(), query, feats.points, feats.descriptors, k)
+        found_exact += beside.found
+        same += _same_place(loop, beside)
         job = LoopJob((LoopQuery(query, feats.points, feats.descriptors),), snapshot,
                       {**poses, query: drifted}, k, {**points, query: frozenset()})
         if not loop.found or loop.measured is None:
@@ -145,9 +171,11 @@ def main() -> None:
                     moved = on_disk.correct(closure.corrections, write=False)
                 with _timed(times["files"]):
                     on_disk.save(moved)
-    print(f"  loops found: {found} of {args.queries} queries")
+    print(f"  loops found: {found} of {args.queries} queries; searching every point exactly "
+          f"{found_exact}; the same place and pose (within 1 cm, 0.5°) {same}")
     labels = {"snapshot": "archive snapshot (slot's path)",
               "detect": "place recognition + PnP (worker)",
+              "exact": "the same, every point searched exactly",
               "graph": f"pose graph over {args.archive + 1} keyframes (worker)",
               "job": "the whole job (worker)",
               "map": f"corrections on a map of {args.map} (slot's path)",
@@ -156,6 +184,14 @@ def main() -> None:
     for name, label in labels.items():
         print(_line(label, times[name]))
     print(contention(archive, managed, k, reader, orb))
+
+
+def _same_place(a: LoopCandidate, b: LoopCandidate) -> bool:
+    """Two searches found the same old keyframe and put the query within 1 cm and 0.5°."""
+    if a.pose is None or b.pose is None or a.old != b.old:
+        return False
+    return bool(np.linalg.norm(a.pose[:3, 3] - b.pose[:3, 3]) <= 0.01
+                and rotation_angle_deg(a.pose[:3, :3].T @ b.pose[:3, :3]) <= 0.5)
 
 
 def contention(archive: KeyFrameArchive, managed: KeyFrameMap, k: np.ndarray, reader: object,

@@ -17,8 +17,10 @@ clearly nearer than the next point (``ratio``, Lowe's test), it votes for every 
 keyframe that observed the point: a keyframe's votes are how many of the frame's features it
 saw too. Indexed by observation instead, a well-observed point filled the nearest rows with
 copies of itself (no runner-up: the ratio test was skipped) and voted for whichever keyframe
-came first. Exact search over the tens of thousands of points of a few hundred keyframes takes
-milliseconds; the index is rebuilt only after the archive changed.
+came first. A short walk's points are searched exactly; past EXACT_BELOW points the search
+looks under each descriptor's nearest visual words only, a vocabulary the archive learns from
+its own points (:mod:`~twinslam.slam.back_end.place_words`). The index is rebuilt only after
+the archive changed.
 
 With a folder, each archived keyframe is also one ``.npz`` file there, written when it is
 archived (to a temporary name, then renamed) and deleted when it leaves — one taken back into
@@ -40,10 +42,9 @@ from pathlib import Path
 import numpy as np
 
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
+from twinslam.slam.back_end.place_words import DESCRIPTOR_BITS, PlaceWords
 
 ARCHIVE_FORMAT = "twinslam-archived-keyframe-1"
-#: an ORB descriptor: 256 bits
-DESCRIPTOR_BITS = 256
 
 
 class ArchiveError(ValueError):
@@ -155,7 +156,8 @@ class KeyFrameArchive:
     (:meth:`touch`); past the capacity the least recently useful one leaves (the oldest id
     among equals)."""
 
-    def __init__(self, capacity: int, folder: Path | None = None) -> None:
+    def __init__(self, capacity: int, folder: Path | None = None,
+                 words: PlaceWords | None = None) -> None:
         if capacity < 0:
             raise ValueError(f"an archive holds 0 or more keyframes, not {capacity}")
         self.capacity = int(capacity)
@@ -164,6 +166,9 @@ class KeyFrameArchive:
         self._useful: dict[int, int] = {}
         self._index: object | None = None
         self._places = _PointObservers.empty()      #: the index's points and their keyframes
+        #: the vocabulary place recognition files a large archive's points under, shared with
+        #: every view of this archive (learned once, not for each loop job's view)
+        self.words = words if words is not None else PlaceWords()
         self._taken: list[Path] = []       #: files of taken keyframes, until the checkpoint
         #: one writer of a keyframe's file at a time: the loop closer's worker rewrites files
         #: of corrected keyframes while the edge archives and removes others
@@ -266,7 +271,7 @@ class KeyFrameArchive:
         plus ``extra`` ones, no folder; later edits of this archive do not reach it. Without
         ``extra`` it shares the place index when one is built (faiss searches it read-only)."""
         added = list(extra)
-        view = KeyFrameArchive(len(self._entries) + len(added))
+        view = KeyFrameArchive(len(self._entries) + len(added), words=self.words)
         view._entries = dict(self._entries)
         view._useful = dict(self._useful)
         for kf in added:
@@ -284,7 +289,7 @@ class KeyFrameArchive:
         kept = {k: kf for k, kf in self._entries.items() if keep(k)}
         if len(kept) == len(self._entries):
             return self.snapshot()
-        view = KeyFrameArchive(len(kept))
+        view = KeyFrameArchive(len(kept), words=self.words)
         view._entries = kept
         view._useful = {k: self._useful[k] for k in kept}
         return view
@@ -392,14 +397,10 @@ class KeyFrameArchive:
 
     def _built_index(self) -> object:
         if self._index is None:
-            # faiss loads with the first recognition, not with every importer of the map
-            import faiss
-
-            self._places = _PointObservers.of(list(self._entries.values()))
-            index = faiss.IndexBinaryFlat(DESCRIPTOR_BITS)
-            if self._places.points:
-                index.add(self._places.descriptors)
-            self._index = index
+            kfs = list(self._entries.values())
+            self._places = _PointObservers.of(kfs)
+            self._index = self.words.index(self._places.descriptors, [k.id for k in kfs],
+                                           [k.descriptors for k in kfs], self._places.source)
         return self._index
 
 
@@ -409,6 +410,9 @@ class _PointObservers:
     observed each: its observations sorted by point, ``start[r]:start[r + 1]`` those of row r."""
 
     descriptors: np.ndarray     #: (points, 32) uint8: each point's newest archived descriptor
+    #: (points,) int64: where each row's descriptor is among the keyframes' descriptors laid
+    #: end to end (the keyframe's words are filed in the same order)
+    source: np.ndarray
     start: np.ndarray           #: (points + 1,) int64: where each row's observations begin
     keyframe_of: np.ndarray     #: (observations,) int64, sorted by point
     point_of: np.ndarray        #: (observations,) int64, sorted
@@ -416,7 +420,8 @@ class _PointObservers:
     @classmethod
     def empty(cls) -> _PointObservers:
         none = np.zeros(0, dtype=np.int64)
-        return cls(np.zeros((0, 32), dtype=np.uint8), np.zeros(1, dtype=np.int64), none, none)
+        return cls(np.zeros((0, 32), dtype=np.uint8), none, np.zeros(1, dtype=np.int64), none,
+                   none)
 
     @classmethod
     def of(cls, keyframes: list[ArchivedKeyFrame]) -> _PointObservers:
@@ -433,7 +438,7 @@ class _PointObservers:
         point, keyframe, descriptors = point[order], keyframe[order], descriptors[order]
         first = np.flatnonzero(np.r_[True, point[1:] != point[:-1]])
         last = np.r_[first[1:], len(point)] - 1
-        return cls(np.ascontiguousarray(descriptors[last]),
+        return cls(np.ascontiguousarray(descriptors[last]), order[last],
                    np.r_[first, len(point)].astype(np.int64), keyframe, point)
 
     @property
