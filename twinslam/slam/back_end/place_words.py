@@ -11,8 +11,8 @@ sample of its points' descriptors (faiss' binary k-means), the words it finds ar
 quantizer of faiss' binary inverted file (``IndexBinaryIVF``), and each query descriptor is
 compared with the points of its PROBES nearest words. On an archive of 500 keyframes of the
 7-Scenes walk (434 000 points: 1024 words, 16 probed) place recognition with its PnP took 72 ms
-a frame against 322 searching every point, and found the same place and pose for all 20 frames
-(``bench.loop_closer``, 2026-11-30); learning the words took ~2 s, once.
+a frame against 306-322 searching every point, and found the same place and pose for all 20
+frames (``bench.loop_closer``, 2026-11-30); learning the words took ~2 s, once.
 
 Below EXACT_BELOW points the archive is searched exactly, as before: a short walk's answers do
 not depend on a vocabulary. The vocabulary is learned once the archive first needs it (on the
