@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap, MapError
 
 
@@ -134,3 +135,43 @@ def test_a_point_reads_as_a_value_and_keeps_it_when_it_leaves() -> None:
     np.testing.assert_array_equal(point.descriptor, np.full(32, 7, np.uint8))
     with pytest.raises(ValueError, match="2 positions"):
         m.set_positions([newer], np.zeros((2, 3)))
+
+
+def _as_dicts(m: KeyFrameMap) -> dict[int, dict[int, tuple[float, ...]]]:
+    """Every keyframe's observations as :meth:`KeyFrame.observed` gives them."""
+    out = {}
+    for k, kf in m.keyframes.items():
+        ids, uvd = kf.observed()
+        out[k] = {int(p): tuple(float(x) for x in row) for p, row in zip(ids, uvd, strict=True)}
+    return out
+
+
+def test_the_observations_kept_as_arrays_follow_every_edit(tmp_path: Path) -> None:
+    """The checkpoint and the loop closer's snapshot read each keyframe's observations from
+    arrays it keeps between slots: after each kind of edit (observe, unobserve, fuse, a point
+    removed) they must be the keyframe's observations as they are now, never as they were
+    when first read — the checkpoint written then loads back the same observations."""
+    m = _map()
+    _as_dicts(m)                                      # every keyframe's arrays kept
+    new = m.add_point(np.zeros(3), np.zeros(32, np.uint8))
+    m.observe(11, new, (1.0, 2.0), 0.5)
+    shared = sorted(m.keyframes[10].points & m.keyframes[11].points)
+    m.unobserve(10, shared[0])
+    # keyframe 10 sees the dropped point and not the kept one: as many observations as
+    # before, one of them another point's now
+    only_10 = sorted(m.keyframes[10].points - m.keyframes[11].points - m.keyframes[12].points)
+    not_10 = sorted(m.keyframes[12].points - m.keyframes[10].points)
+    m.fuse(not_10[0], only_10[0])
+    m.remove_point(sorted(m.keyframes[12].points)[0])
+    np.testing.assert_equal(_as_dicts(m), {k: dict(kf.measurements)
+                                           for k, kf in m.keyframes.items()})
+    archived = ArchivedKeyFrame.of(m, 11, slot=3)
+    assert archived.point_ids.tolist() == sorted(m.keyframes[11].points)
+    np.testing.assert_array_equal(
+        archived.measurements, [m.keyframes[11].measurements[p] for p in sorted(
+            m.keyframes[11].points)])
+    m.save(tmp_path / "map.npz")
+    again, _ = KeyFrameMap.load(tmp_path / "map.npz")
+    for k in m.keyframes:
+        np.testing.assert_equal(again.keyframes[k].measurements, m.keyframes[k].measurements)
+        assert list(again.keyframes[k].measurements) == list(m.keyframes[k].measurements)

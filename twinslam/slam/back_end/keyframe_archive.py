@@ -67,16 +67,21 @@ class ArchivedKeyFrame:
     def of(cls, m: KeyFrameMap, kf_id: int, slot: int) -> ArchivedKeyFrame:
         """Keyframe ``kf_id`` of ``m`` with its points, before it is evicted."""
         kf = m.keyframes[kf_id]
-        order = sorted(kf.points)
-        nan3 = (np.nan, np.nan, np.nan)
-        # the loop closer snapshots every keyframe of the map each slot: each column is read
-        # straight into its array (see KeyFrameMap.save)
-        measured = np.fromiter(chain.from_iterable(kf.measurements.get(p, nan3) for p in order),
-                               dtype=np.float64, count=3 * len(order))
-        rows = m.columns.rows_of(order)
-        return cls(kf_id, kf.pose.copy(), np.array(order, dtype=np.int64),
-                   m.columns.positions[rows], m.columns.descriptors[rows],
-                   measured.reshape(-1, 3), slot)
+        ids, uvd = kf.observed()
+        if len(ids) == len(kf.points):
+            # the loop closer snapshots every keyframe of the map each slot: the keyframe's
+            # observations as it keeps them, sorted by point
+            order = np.argsort(ids, kind="stable")
+            point_ids, measured = ids[order], uvd[order]
+        else:                  # a point observed with no measurement: where it saw it is NaN
+            point_ids = np.array(sorted(kf.points), dtype=np.int64)
+            nan3 = (np.nan, np.nan, np.nan)
+            measured = np.fromiter(
+                chain.from_iterable(kf.measurements.get(p, nan3) for p in point_ids.tolist()),
+                dtype=np.float64, count=3 * len(point_ids)).reshape(-1, 3)
+        rows = m.columns.rows_of(point_ids.tolist())
+        return cls(kf_id, kf.pose.copy(), point_ids, m.columns.positions[rows],
+                   m.columns.descriptors[rows], measured, slot)
 
     @property
     def nbytes(self) -> int:

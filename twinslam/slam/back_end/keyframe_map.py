@@ -41,6 +41,31 @@ class KeyFrame:
     points: set[int] = field(default_factory=set)   #: M_f: ids of the map points it observes
     #: where it saw each point: (u, v, depth in metres or NaN) — the bundle adjustment's data
     measurements: dict[int, tuple[float, float, float]] = field(default_factory=dict)
+    #: :meth:`observed`'s arrays, until the map edits its observations
+    _observed: tuple[np.ndarray, np.ndarray] | None = field(default=None, init=False,
+                                                             repr=False, compare=False)
+
+    def observed(self) -> tuple[np.ndarray, np.ndarray]:
+        """Its observations as arrays, in the order it came to observe the points: their ids
+        ((n,) int64) and where it saw them ((n, 3): u, v, depth), read-only. The checkpoint
+        and the loop closer's snapshot read every keyframe's each slot, and most keyframes'
+        did not change since the last: the arrays are kept until :class:`KeyFrameMap` edits
+        the observations (observe, unobserve, fuse, a point removed: :meth:`edited`)."""
+        kept = self._observed
+        if kept is not None and len(kept[0]) == len(self.measurements):
+            return kept
+        meas = self.measurements
+        n = len(meas)
+        ids = np.fromiter(meas, dtype=np.int64, count=n)
+        uvd = np.fromiter(chain.from_iterable(meas.values()), dtype=np.float64,
+                          count=3 * n).reshape(n, 3)
+        ids.flags.writeable = uvd.flags.writeable = False
+        self._observed = (ids, uvd)
+        return self._observed
+
+    def edited(self) -> None:
+        """Its observations changed: :meth:`observed` reads them again."""
+        self._observed = None
 
 
 class MapPoint:
@@ -207,6 +232,7 @@ class KeyFrameMap:
             raise MapError(f"keyframe {kf_id} cannot observe point {named}: unknown "
                            "keyframe or point")
         kf.points.update(point_ids)
+        kf.edited()
         meas, points = kf.measurements, self.points
         for pid, (u, v), d in zip(point_ids, uvs, depths, strict=True):
             meas[pid] = (u, v, d)
@@ -219,6 +245,7 @@ class KeyFrameMap:
         kf, pt = self.keyframes[kf_id], self.points[point_id]
         kf.points.discard(point_id)
         kf.measurements.pop(point_id, None)
+        kf.edited()
         pt.observers.discard(kf_id)
         if not pt.observers:
             self._drop_point(point_id)
@@ -236,6 +263,7 @@ class KeyFrameMap:
             kf = self.keyframes[kf_id]
             kf.points.discard(point_id)
             kf.measurements.pop(point_id, None)
+            kf.edited()
 
     def fuse(self, keep: int, drop: int) -> int:
         """Point ``drop`` is point ``keep`` seen again (a duplicate): every keyframe that
@@ -248,6 +276,7 @@ class KeyFrameMap:
         kept, moved = self.points[keep], 0
         for kf_id in sorted(self.points[drop].observers):
             kf = self.keyframes[kf_id]
+            kf.edited()
             seen = kf.measurements.pop(drop)
             kf.points.discard(drop)
             if keep not in kf.points:
@@ -341,14 +370,11 @@ class KeyFrameMap:
         rows = self.columns.rows_of(pt_ids)
         # every observation has its measurement (observe writes both, unobserve and evict
         # drop both), so the measurement dicts list the observations; the edge writes this
-        # every slot, so each column is read straight into its array (np.fromiter over a
-        # flat iterator) instead of through a list of tuples (np.array: ~2× the time)
-        meas = [self.keyframes[k].measurements for k in kf_ids]
-        n_obs = sum(len(d) for d in meas)
-        observers = np.repeat(np.array(kf_ids, dtype=np.int64), [len(d) for d in meas])
-        seen = np.fromiter(chain.from_iterable(meas), dtype=np.int64, count=n_obs)
-        uvd = np.fromiter(chain.from_iterable(chain.from_iterable(d.values() for d in meas)),
-                          dtype=np.float64, count=3 * n_obs)
+        # every slot, and each keyframe keeps its observations as arrays until they change
+        observed = [self.keyframes[k].observed() for k in kf_ids]
+        observers = np.repeat(np.array(kf_ids, dtype=np.int64), [len(o[0]) for o in observed])
+        seen = np.concatenate([o[0] for o in observed] or [np.zeros(0, dtype=np.int64)])
+        uvd = np.concatenate([o[1] for o in observed] or [np.zeros((0, 3))])
         views = np.fromiter(chain.from_iterable((p.visible, p.found) for p in points),
                             dtype=np.int64, count=2 * len(points))
         tmp = path.with_name(path.name + ".tmp")
@@ -361,7 +387,7 @@ class KeyFrameMap:
                      point_positions=self.columns.positions[rows],
                      point_descriptors=self.columns.descriptors[rows],
                      observations=np.column_stack([observers, seen]).reshape(-1, 2),
-                     measurements=uvd.reshape(-1, 3),
+                     measurements=uvd,
                      point_views=views.reshape(-1, 2),
                      next_point_id=np.array(self.next_point_id), **extra)
             fh.flush()
