@@ -175,3 +175,27 @@ def test_the_observations_kept_as_arrays_follow_every_edit(tmp_path: Path) -> No
     for k in m.keyframes:
         np.testing.assert_equal(again.keyframes[k].measurements, m.keyframes[k].measurements)
         assert list(again.keyframes[k].measurements) == list(m.keyframes[k].measurements)
+
+
+def test_a_checkpoint_keeps_each_points_values_whatever_order_the_points_came_in(
+        tmp_path: Path) -> None:
+    """Points come back under their old ids (a restored keyframe's) or under another device's
+    tagged ids after newer ones: the checkpoint, read in the order the points came and
+    written in id order, must give each point its own position, descriptor and view
+    counts."""
+    m = _map()
+    gone = sorted(m.keyframes[10].points - m.keyframes[11].points - m.keyframes[12].points)[0]
+    position, descriptor = m.points[gone].position, m.points[gone].descriptor
+    m.remove_point(gone)
+    m.add_point(np.full(3, 9.0), np.full(32, 9, np.uint8))          # a newer point first
+    m.readd_point(gone, position, descriptor)                         # then an old id again
+    m.observe(10, gone, (1.0, 1.0), 1.0)
+    for n, point in enumerate(m.points.values()):
+        point.visible, point.found = 10 + n, n
+    m.save(tmp_path / "map.npz")
+    again, _ = KeyFrameMap.load(tmp_path / "map.npz")
+    assert list(m.points)[-1] == gone                  # not the order of ids
+    assert {p: (tuple(v.position), bytes(v.descriptor), v.visible, v.found)
+            for p, v in again.points.items()} == \
+        {p: (tuple(v.position), bytes(v.descriptor), v.visible, v.found)
+         for p, v in m.points.items()}

@@ -18,6 +18,7 @@ import os
 from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from itertools import chain
+from operator import attrgetter
 from pathlib import Path
 from typing import Any
 
@@ -66,6 +67,10 @@ class KeyFrame:
     def edited(self) -> None:
         """Its observations changed: :meth:`observed` reads them again."""
         self._observed = None
+
+
+#: a point's (visible, found) counts, for the checkpoint's column of them
+_view_counts = attrgetter("visible", "found")
 
 
 class MapPoint:
@@ -365,9 +370,16 @@ class KeyFrameMap:
         (``Any``: numpy's stubs would match an array key to ``allow_pickle``)."""
         path = Path(path)
         kf_ids = self.keyframe_ids()
-        pt_ids = sorted(self.points)
-        points = [self.points[p] for p in pt_ids]
-        rows = self.columns.rows_of(pt_ids)
+        # every point's id, row and view counts read at C speed (the edge writes this every
+        # slot: a long walk's map holds tens of thousands of points), then sorted by id
+        n = len(self.points)
+        ids = np.fromiter(self.points.keys(), dtype=np.int64, count=n)
+        by_id = np.argsort(ids, kind="stable")
+        pt_ids = ids[by_id]
+        column_ids, column_rows = self.columns.ids_and_rows()
+        rows = column_rows[np.argsort(column_ids, kind="stable")]
+        views = np.fromiter(chain.from_iterable(map(_view_counts, self.points.values())),
+                            dtype=np.int64, count=2 * n).reshape(-1, 2)[by_id]
         # every observation has its measurement (observe writes both, unobserve and evict
         # drop both), so the measurement dicts list the observations; the edge writes this
         # every slot, and each keyframe keeps its observations as arrays until they change
@@ -375,20 +387,18 @@ class KeyFrameMap:
         observers = np.repeat(np.array(kf_ids, dtype=np.int64), [len(o[0]) for o in observed])
         seen = np.concatenate([o[0] for o in observed] or [np.zeros(0, dtype=np.int64)])
         uvd = np.concatenate([o[1] for o in observed] or [np.zeros((0, 3))])
-        views = np.fromiter(chain.from_iterable((p.visible, p.found) for p in points),
-                            dtype=np.int64, count=2 * len(points))
         tmp = path.with_name(path.name + ".tmp")
         with tmp.open("wb") as fh:
             np.savez(fh, format=np.array(CHECKPOINT_FORMAT),
                      keyframe_ids=np.array(kf_ids, dtype=np.int64),
                      keyframe_poses=stacked_rows([self.keyframes[k].pose for k in kf_ids],
                                              (4, 4), np.float64),
-                     point_ids=np.array(pt_ids, dtype=np.int64),
+                     point_ids=pt_ids,
                      point_positions=self.columns.positions[rows],
                      point_descriptors=self.columns.descriptors[rows],
                      observations=np.column_stack([observers, seen]).reshape(-1, 2),
                      measurements=uvd,
-                     point_views=views.reshape(-1, 2),
+                     point_views=views,
                      next_point_id=np.array(self.next_point_id), **extra)
             fh.flush()
             os.fsync(fh.fileno())
