@@ -89,3 +89,19 @@ def test_the_vocabulary_grows_with_the_archive_within_its_bounds() -> None:
     assert words_for(1_000) == FEWEST_WORDS
     assert words_for(100_000) == MOST_WORDS
     assert FEWEST_WORDS < words_for(20_000) < MOST_WORDS
+
+
+def test_a_search_while_another_thread_learns_the_words_goes_on_exactly() -> None:
+    """The loop closer and the merge looks build indexes on threads of their own: while one
+    learns the vocabulary (seconds), another must not wait for it nor learn it twice."""
+    import faiss
+
+    rng = np.random.default_rng(1)
+    descriptors = rng.integers(0, 256, (500, 32), dtype=np.uint8)
+    words = PlaceWords(exact_below=100)
+    with words._learning:                            # another thread is learning
+        index = words.index(descriptors, [1], [descriptors], np.arange(len(descriptors)))
+    assert isinstance(index, faiss.IndexBinaryFlat) and words.vocabulary is None
+    assert not isinstance(words.index(descriptors, [1], [descriptors],
+                                      np.arange(len(descriptors))), faiss.IndexBinaryFlat)
+    assert words.learned == 1

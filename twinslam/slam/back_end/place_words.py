@@ -109,7 +109,8 @@ class PlaceWords:
     """The vocabulary of one archive and its keyframes' words, shared by the archive and every
     view of it (each loop job searches a view): learned by the first search that needs it,
     kept across the views. Searches on several threads (the loop closer, the merge looks) may
-    build indexes at once: one learns, the others search exactly meanwhile."""
+    build indexes at once: one learns, the others go on meanwhile with the vocabulary there
+    is (none yet: they search exactly)."""
 
     def __init__(self, exact_below: int = EXACT_BELOW) -> None:
         self.exact_below = exact_below
@@ -143,13 +144,17 @@ class PlaceWords:
 
     def _vocabulary_for(self, descriptors: np.ndarray) -> PlaceVocabulary | None:
         """The vocabulary for an archive of these points, learned now where there is none yet
-        or the archive outgrew it; None while another thread learns it."""
+        or the archive outgrew it; while another thread learns it, the one there is (or
+        None)."""
         current = self.vocabulary
         if current is not None and len(descriptors) < EIGHTFOLD * current.learned_from:
             return current
         if not self._learning.acquire(blocking=False):
             return current
         try:
+            current = self.vocabulary         # another thread may have learned it meanwhile
+            if current is not None and len(descriptors) < EIGHTFOLD * current.learned_from:
+                return current
             serial = 0 if current is None else current.serial + 1
             self.vocabulary = PlaceVocabulary.learn(descriptors, serial)
             self.learned += 1
