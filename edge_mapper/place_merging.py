@@ -12,7 +12,7 @@ at the device's next slot end, before its map update goes out
 (:meth:`~edge_mapper.edge_core.EdgeMapperCore.align`): that update carries the new frame
 correction, and the device's poses are in the place's frame from then on. From then on, at
 each slot end of either, each map adopts the other's own keyframes it has not adopted yet,
-welded to its points, into its archive (:meth:`PlaceMerging.lend`): restores bring them in
+welded to its points, into its archive (:meth:`PlaceMerging.lend_all`): restores bring them in
 where the device heads, and each device tracks on keyframes only the other uploaded. The
 copies adopted before move with each loop the lender closed since
 (:func:`~twinslam.slam.back_end.map_merging.follow_lender_loops`): lent before and after a
@@ -152,7 +152,7 @@ class PlaceMerging:
                         ) -> tuple[MergeEvent | None, int, list[FollowedLoop]]:
         """Before ``device``'s slot end: a finished look's merge applied (:meth:`take`), and
         the keyframes of the other devices of its place that its map has not adopted yet
-        adopted (:meth:`lend`); (the merge that moved its map, or None; keyframes adopted;
+        adopted (:meth:`lend_all`); (the merge that moved its map, or None; keyframes adopted;
         the other devices' loops that moved its own keyframes, or would have)."""
         merged = self.take(device)
         lendings = self.lend_all(device, [d for d in self.place_of(device) if d != device],
@@ -160,19 +160,15 @@ class PlaceMerging:
         return merged, sum(lending.adopted for lending in lendings), \
             [move for lending in lendings for move in lending.moves if move.reached_own]
 
-    def lend(self, borrower: str, lender: str, slot: int) -> Lending:
-        """The lender's own keyframes (its archive and map; not those it adopted itself) that
-        the borrower's map has not adopted yet — the two maps in one frame — welded to the
+    def lend_all(self, borrower: str, lenders: list[str], slot: int) -> list[Lending]:
+        """Each lender's own keyframes (its archive and map; not those it adopted itself)
+        that the borrower's map has not adopted yet — the maps in one frame — welded to the
         borrower's points and adopted into its archive (:meth:`MapBackEnd.adopt`): its
         restores bring them in where its device heads, and it tracks on keyframes only the
-        other device uploaded; first, the lender's loops since the last lending move the
-        copies and the borrower's keyframes tied to them (:func:`lend_from`)."""
-        return self.lend_all(borrower, [lender], slot)[0]
-
-    def lend_all(self, borrower: str, lenders: list[str], slot: int) -> list[Lending]:
-        """:meth:`lend` from each of ``lenders`` in one round (:func:`lend_from`: the
-        borrower's points read once for all their keyframes); each lender's lending, in their
-        order (one the edge no longer serves lends nothing)."""
+        other devices uploaded; first, each lender's loops since the last lending move the
+        copies and the borrower's keyframes tied to them. One round for all ``lenders``
+        (:func:`lend_from`: the borrower's points read once for all their keyframes); each
+        lender's lending, in their order (one the edge no longer serves lends nothing)."""
         cores = self.cores()
         serving = [lender for lender in lenders if lender in cores and borrower in cores]
         rounds: list[Lender] = []

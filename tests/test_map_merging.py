@@ -212,7 +212,7 @@ def test_the_edge_merges_a_later_device_into_an_earlier_ones_frame(room: Room) -
     assert merging.before_slot_end("ar1", 4) == (None, 3, [])  # ar2's keyframes 10, 11, 12
     assert sorted(cores["ar1"].archive.get(foreign_tag(1) | k).id & 0xFFFF
                   for k in (10, 11, 12)) == [10, 11, 12]
-    assert merging.lend("ar1", "ar2", 6).adopted == 0  # never the keyframes it lent back
+    assert merging.lend_all("ar1", ["ar2"], 6)[0].adopted == 0  # never those it lent back
 
 
 def test_a_later_device_that_the_earlier_one_finds_in_its_map_joins_the_earlier_ones_frame(
