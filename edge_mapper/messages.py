@@ -8,7 +8,6 @@ the conversions are tested alone.
 from __future__ import annotations
 
 import math
-from itertools import chain
 
 import numpy as np
 from twinslam_msgs.msg import Keyframe, MapStats, MapUpdate, Relocalisation, UploadRequest
@@ -17,7 +16,7 @@ from twinslam_msgs.msg import KeyframeBudget as KeyframeBudgetMsg
 from edge_mapper.keyframe_budget import KeyframeBudget, Presence
 from msg_schemas import new
 from msg_schemas.headers import set_header, stamp_seconds
-from msg_schemas.poses import pose_matrix, pose_msg
+from msg_schemas.poses import pose_matrix, pose_msg, pose_msgs
 from msg_schemas.validation import ORB_DESCRIPTOR_BYTES
 from twinslam.policies.actions import MapAction
 from twinslam.slam.back_end.archive_relocalisation import ArchiveLocation
@@ -54,18 +53,19 @@ def map_update_message(keyframe_map: KeyFrameMap, slot: int, version: int, stamp
     kf_ids = keyframe_map.keyframe_ids()
     pt_ids = sorted(keyframe_map.points)
     rows = keyframe_map.columns.rows_of(pt_ids)
-    # written for every device every slot: each column read straight into its array
-    observed = [sorted(keyframe_map.keyframes[k].points) for k in kf_ids]
+    # written for every device every slot: each column read straight into its array, each
+    # keyframe's observations from the arrays it keeps until they change
+    observed = [np.sort(keyframe_map.keyframes[k].observed()[0]) for k in kf_ids]
     msg = new(MapUpdate, slot=slot, map_version=version,
               keyframe_ids=np.asarray(kf_ids, dtype=np.uint64),
-              keyframe_poses=[pose_msg(keyframe_map.keyframes[k].pose) for k in kf_ids],
+              keyframe_poses=pose_msgs([keyframe_map.keyframes[k].pose for k in kf_ids]),
               point_ids=np.asarray(pt_ids, dtype=np.uint64),
               point_positions=keyframe_map.columns.positions[rows].reshape(-1),
               point_descriptors=keyframe_map.columns.descriptors[rows].reshape(-1),
               point_observations=keyframe_map.columns.observed[rows].astype(np.uint32),
               keyframe_point_counts=np.array([len(o) for o in observed], dtype=np.uint32),
-              keyframe_point_ids=np.fromiter(chain.from_iterable(observed), dtype=np.uint64,
-                                             count=sum(len(o) for o in observed)),
+              keyframe_point_ids=np.concatenate([np.zeros(0, dtype=np.int64), *observed]
+                                                ).astype(np.uint64),
               track_ids=np.array(list(tracks), dtype=np.uint64),
               track_point_ids=np.array(list(tracks.values()), dtype=np.uint64),
               frame_correction=pose_msg(np.eye(4) if frame_correction is None

@@ -31,7 +31,7 @@ from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
 from msg_schemas.headers import ros_time, set_header
-from msg_schemas.poses import pose_msg
+from msg_schemas.poses import pose_msgs
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 
 #: x, y, z, intensity as float32: 16 bytes a point
@@ -61,16 +61,17 @@ def map_points_message(keyframe_map: KeyFrameMap, stamp: float, frame_id: str = 
 def keyframes_message(keyframe_map: KeyFrameMap, stamp: float, frame_id: str = "map"
                       ) -> PoseArray:
     """The kept keyframes' poses, oldest id first."""
-    poses = PoseArray(poses=[pose_msg(keyframe_map.keyframes[k].pose)
-                             for k in sorted(keyframe_map.keyframes)])
+    poses = PoseArray(poses=pose_msgs([keyframe_map.keyframes[k].pose
+                                       for k in sorted(keyframe_map.keyframes)]))
     return set_header(poses, stamp, frame_id)
 
 
 def keyframe_trajectory_message(trajectory: Sequence[tuple[float, np.ndarray]], stamp: float,
                                 frame_id: str = "map") -> Path:
     """(capture time s, camera-to-map pose) pairs as one path stamped ``stamp``."""
-    poses = [set_header(PoseStamped(pose=pose_msg(pose)), taken, frame_id)
-             for taken, pose in trajectory]
+    poses = [set_header(PoseStamped(pose=pose), taken, frame_id)
+             for (taken, _), pose in zip(trajectory, pose_msgs([p for _, p in trajectory]),
+                                         strict=True)]
     return set_header(Path(poses=poses), stamp, frame_id)
 
 

@@ -8,17 +8,29 @@ import numpy as np
 from geometry_msgs.msg import Pose
 
 from msg_schemas.interfaces import new
-from twinslam.rotations import matrix_from_quaternion, quaternion_from_matrix
+from twinslam.rotations import matrix_from_quaternion, quaternions_from_matrices
 
 
 def pose_msg(matrix: np.ndarray) -> Pose:
     """A ``geometry_msgs/Pose`` of a 4×4 rigid transform."""
-    m = np.asarray(matrix, dtype=np.float64)
-    qx, qy, qz, qw = (float(v) for v in quaternion_from_matrix(m[:3, :3]))
-    msg = new(Pose)
-    msg.position.x, msg.position.y, msg.position.z = (float(v) for v in m[:3, 3])
-    msg.orientation.x, msg.orientation.y, msg.orientation.z, msg.orientation.w = qx, qy, qz, qw
-    return msg
+    return pose_msgs(np.asarray(matrix).reshape(1, 4, 4))[0]
+
+
+def pose_msgs(matrices: np.ndarray | Sequence[np.ndarray]) -> list[Pose]:
+    """:func:`pose_msg` of each 4×4 transform, the rotations converted at once (a map
+    update carries every kept keyframe's pose)."""
+    m = np.asarray(matrices, dtype=np.float64).reshape(-1, 4, 4)
+    if not len(m):
+        return []
+    quaternions = quaternions_from_matrices(m[:, :3, :3]).tolist()
+    out = []
+    for (x, y, z), (qx, qy, qz, qw) in zip(m[:, :3, 3].tolist(), quaternions, strict=True):
+        msg = new(Pose)
+        msg.position.x, msg.position.y, msg.position.z = x, y, z
+        msg.orientation.x, msg.orientation.y, msg.orientation.z, msg.orientation.w = \
+            qx, qy, qz, qw
+        out.append(msg)
+    return out
 
 
 def pose_matrix(msg: Pose) -> np.ndarray:

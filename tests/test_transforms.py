@@ -92,3 +92,28 @@ def test_rotations_convert_as_scipy_converts_them_even_slightly_off_orthonormal(
                                atol=1e-12)
     with pytest.raises(ValueError, match="not a rotation quaternion"):
         matrix_from_quaternion([0.0, 0.0, 0.0, 0.0])
+
+
+def test_a_stack_of_rotations_converts_as_each_one_alone() -> None:
+    """The map update converts every keyframe's pose at once: each row of the batch is the
+    quaternion SciPy gives that matrix, whichever of Markley's four formulas it takes (the
+    trace, or the largest diagonal entry, 180° turns included), and the messages carry them."""
+    from msg_schemas.poses import pose_matrix, pose_msgs
+    from twinslam.rotations import quaternion_from_matrix, quaternions_from_matrices
+
+    turns = [np.eye(3), np.diag([1.0, -1.0, -1.0]), np.diag([-1.0, 1.0, -1.0]),
+             np.diag([-1.0, -1.0, 1.0])]
+    rotations = np.concatenate([np.stack(turns),
+                                Rotation.random(60, random_state=3).as_matrix()])
+    batch = quaternions_from_matrices(rotations)
+    picks = {int(np.argmax([*np.diagonal(r), np.trace(r)])) for r in rotations}
+    assert picks == {0, 1, 2, 3}
+    for r, q in zip(rotations, batch, strict=True):
+        np.testing.assert_allclose(q, quaternion_from_matrix(r), atol=1e-15)
+        np.testing.assert_allclose(q, Rotation.from_matrix(r).as_quat(), atol=1e-12)
+    poses = np.tile(np.eye(4), (len(rotations), 1, 1))
+    poses[:, :3, :3] = rotations
+    poses[:, :3, 3] = np.arange(3 * len(rotations)).reshape(-1, 3)
+    for pose, msg in zip(poses, pose_msgs(poses), strict=True):
+        np.testing.assert_allclose(pose_matrix(msg), pose, atol=1e-12)
+    assert pose_msgs(np.zeros((0, 4, 4))) == []

@@ -17,24 +17,35 @@ def quaternion_from_matrix(rotation: np.ndarray) -> np.ndarray:
     of the trace and the diagonal picks the well-conditioned formula, and that component comes
     out positive. A slightly non-orthonormal matrix (a float32 dataset pose) is first replaced
     by the nearest orthonormal one (U Vᵀ of its SVD), as SciPy's ``Rotation.from_matrix`` does."""
-    u, _, vt = np.linalg.svd(np.asarray(rotation, dtype=np.float64))
+    one: np.ndarray = quaternions_from_matrices(np.asarray(rotation).reshape(1, 3, 3))[0]
+    return one
+
+
+def quaternions_from_matrices(rotations: np.ndarray) -> np.ndarray:
+    """:func:`quaternion_from_matrix` of each of ``(n, 3, 3)`` rotations at once, ``(n, 4)``:
+    the edge converts every kept keyframe's pose for each device's map update and viewer
+    messages every slot, and one SVD and one formula a pose in Python cost ~25 µs each."""
+    stack = np.asarray(rotations, dtype=np.float64).reshape(-1, 3, 3)
+    u, _, vt = np.linalg.svd(stack)
     r = u @ vt
-    trace = r[0, 0] + r[1, 1] + r[2, 2]
-    decision = (r[0, 0], r[1, 1], r[2, 2], trace)
-    choice = int(np.argmax(decision))
-    q = np.empty(4)
-    if choice != 3:
-        i, j, k = choice, (choice + 1) % 3, (choice + 2) % 3
-        q[i] = 1.0 - trace + 2.0 * r[i, i]
-        q[j] = r[j, i] + r[i, j]
-        q[k] = r[k, i] + r[i, k]
-        q[3] = r[k, j] - r[j, k]
-    else:
-        q[0] = r[2, 1] - r[1, 2]
-        q[1] = r[0, 2] - r[2, 0]
-        q[2] = r[1, 0] - r[0, 1]
-        q[3] = 1.0 + trace
-    return q / np.linalg.norm(q)
+    diagonal = np.diagonal(r, axis1=1, axis2=2)
+    trace = diagonal.sum(axis=1)
+    choice = np.argmax(np.column_stack([diagonal, trace]), axis=1)
+    q = np.empty((len(r), 4))
+    by_trace = choice == 3
+    t = r[by_trace]
+    q[by_trace] = np.column_stack([t[:, 2, 1] - t[:, 1, 2], t[:, 0, 2] - t[:, 2, 0],
+                                   t[:, 1, 0] - t[:, 0, 1], 1.0 + trace[by_trace]])
+    for i in range(3):                   # the largest diagonal entry is component i
+        j, k = (i + 1) % 3, (i + 2) % 3
+        pick = choice == i
+        t = r[pick]
+        q[pick, i] = 1.0 - trace[pick] + 2.0 * t[:, i, i]
+        q[pick, j] = t[:, j, i] + t[:, i, j]
+        q[pick, k] = t[:, k, i] + t[:, i, k]
+        q[pick, 3] = t[:, k, j] - t[:, j, k]
+    unit: np.ndarray = q / np.linalg.norm(q, axis=1, keepdims=True)
+    return unit
 
 
 def matrix_from_quaternion(quaternion_xyzw: Sequence[float] | np.ndarray) -> np.ndarray:
