@@ -36,12 +36,11 @@ from edge_mapper.edge_core import EdgeMapperCore
 from edge_mapper.messages import (
     map_stats_message,
     map_update_message,
+    read_frame_summaries,
     read_keyframe,
     upload_request_message,
 )
-from edge_mapper.slot_planner import FrameObservations
 from edge_mapper.visual_messages import decisions_message, keyframes_message, map_points_message
-from msg_schemas.poses import pose_matrix
 from twinslam.cli.console import HelpFormatter
 from twinslam.node_runtime.math_threads import one_math_thread
 
@@ -70,11 +69,7 @@ class StepClock:
                                                          time.time()))
         t = time.perf_counter()
         msg = deserialize_message(wire, FrameSummaries)
-        summaries = [FrameObservations(int(f.frame_id),
-                                       frozenset(int(i) for i in f.map_point_ids),
-                                       frozenset(int(i) for i in f.local_track_ids),
-                                       bool(f.tracked), pose_matrix(f.pose), int(f.map_version))
-                     for f in msg.frames]
+        summaries = read_frame_summaries(msg)
         t = _lap(ms, "summaries in", t)
         plan = edge.plan(slot, summaries, rate_mbps, rate_state)
         t = _lap(ms, "plan", t)

@@ -47,6 +47,7 @@ from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, SlotOutcome
 from edge_mapper.messages import (
     map_stats_message,
     map_update_message,
+    read_frame_summaries,
     read_keyframe,
     relocalisation_message,
     upload_request_message,
@@ -62,7 +63,6 @@ from edge_mapper.visual_messages import (
     map_points_message,
 )
 from msg_schemas import qos, topics
-from msg_schemas.poses import pose_matrix
 from twinslam.node_runtime.checked_subscription import CheckedSubscription
 from twinslam.rotations import rotation_angle_deg
 from twinslam.slam.back_end.map_back_end import archive_folder
@@ -243,10 +243,7 @@ class DeviceLink:
         live = self.live()
         self._log(self.control.apply({k: live[k] for k in POLICY_KEYS}, slot))
         self.core.set_policy(self.control.policy)
-        frames = [FrameObservations(int(f.frame_id), frozenset(int(i) for i in f.map_point_ids),
-                                    frozenset(int(i) for i in f.local_track_ids),
-                                    bool(f.tracked), pose_matrix(f.pose), int(f.map_version))
-                  for f in msg.frames]
+        frames = read_frame_summaries(msg)
         started, received = time.perf_counter(), self.slots.clock()
         vmax = (self.grant(self.device, slot, frames, float(msg.rate_mbps), self.latent,
                            self.core)

@@ -10,10 +10,18 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from twinslam_msgs.msg import Keyframe, MapStats, MapUpdate, Relocalisation, UploadRequest
+from twinslam_msgs.msg import (
+    FrameSummaries,
+    Keyframe,
+    MapStats,
+    MapUpdate,
+    Relocalisation,
+    UploadRequest,
+)
 from twinslam_msgs.msg import KeyframeBudget as KeyframeBudgetMsg
 
 from edge_mapper.keyframe_budget import KeyframeBudget, Presence
+from edge_mapper.slot_planner import FrameObservations
 from msg_schemas import new
 from msg_schemas.headers import set_header, stamp_seconds
 from msg_schemas.poses import pose_matrix, pose_msg, pose_msgs
@@ -111,6 +119,16 @@ def keyframe_budget_message(budget: KeyframeBudget, stamp: float) -> KeyframeBud
               committed=np.array([a.committed for a in accounts], dtype=np.uint32),
               active=[a.presence is Presence.ACTIVE for a in accounts])
     return set_header(msg, stamp, "")
+
+
+def read_frame_summaries(msg: FrameSummaries) -> list[FrameObservations]:
+    """A slot's frames as the planner reads them. The id sequences arrive as ``array.array``
+    of Python ints: a set is made of one at once (the edge reads every device's hundreds of
+    ids a frame, every slot, on the thread that serves them all)."""
+    return [FrameObservations(int(f.frame_id), frozenset(f.map_point_ids),
+                              frozenset(f.local_track_ids), bool(f.tracked),
+                              pose_matrix(f.pose), int(f.map_version))
+            for f in msg.frames]
 
 
 def read_keyframe(msg: Keyframe) -> KeyFramePayload:

@@ -17,6 +17,7 @@ from device_tracker.messages import (
 from edge_mapper.messages import (
     map_stats_message,
     map_update_message,
+    read_frame_summaries,
     read_keyframe,
     upload_request_message,
 )
@@ -132,6 +133,11 @@ def test_device_messages_round_trip_into_the_edge_readers() -> None:
     assert f.map_point_ids.tolist() == [5, 9] and f.local_track_ids.tolist() == [(1 << 63) | 2]
     assert f.tracked and f.relocalised
     np.testing.assert_allclose(pose_matrix(f.pose), rec.pose, atol=1e-12)
+    (seen,) = read_frame_summaries(msg)
+    assert (seen.frame_id, seen.map_points, seen.tracks, seen.tracked, seen.map_version) == \
+        (41, frozenset({5, 9}), frozenset({(1 << 63) | 2}), True, 0)
+    assert all(type(i) is int for i in seen.map_points | seen.tracks)
+    np.testing.assert_allclose(seen.pose, rec.pose, atol=1e-12)
     sent = KeyFramePayload(41, 7, 12.25, rec.pose, np.diag([500.0, 500.0, 1.0]),
                            np.array([[1.0, 2.0]]), np.array([2.5]), np.full((1, 32), 7, np.uint8),
                            np.array([9], np.uint64))
