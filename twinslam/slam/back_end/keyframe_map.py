@@ -326,9 +326,11 @@ class KeyFrameMap:
         return sorted(self.keyframes)
 
     def point_array(self, kf_id: int) -> np.ndarray:
-        """M_f of keyframe ``kf_id`` as an int64 array (unordered), for :func:`shared_counts`."""
-        points = self.keyframes[kf_id].points
-        return np.fromiter(points, dtype=np.int64, count=len(points))
+        """M_f of keyframe ``kf_id`` as an int64 array (unordered, read-only), for
+        :func:`shared_counts`: the ids the keyframe keeps as an array until its observations
+        change (the planner, the uncertainty and the restores read every keyframe's each
+        slot)."""
+        return self.keyframes[kf_id].observed()[0]
 
     def positions_of(self, point_ids: Collection[int]) -> np.ndarray:
         """``(n, 3)``: the positions of the map's points ``point_ids``, in their order."""
