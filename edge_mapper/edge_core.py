@@ -387,8 +387,8 @@ class EdgeMapperCore:
         tracks = {**self._previous_tracks, **fresh}
         self._previous_tracks = fresh
         # tracks whose point left the map are forgotten: the table stays the map's size
-        known = {t: p for t, p in self.local_mapping.track_points.items() if p in self.map.points}
-        self.local_mapping.track_points = known
+        self.local_mapping.forget_tracks_gone()
+        known = self.local_mapping.track_points
         if self.checkpoint is not None:
             self.map.save(self.checkpoint, version=np.array(self.version),
                           last_slot=np.array(slot),

@@ -111,3 +111,25 @@ def test_a_feature_beside_a_map_point_that_looks_alike_joins_it() -> None:
                                 np.array([p.descriptor for p in points]),
                                 [p.observers for p in points])
         assert share == (0.0 if join else 1.0), share
+
+
+def test_tracks_whose_point_left_the_map_are_forgotten_the_rest_kept_in_order() -> None:
+    """The edge prunes the device-track table every slot: a track whose point was removed
+    (or went with the keyframe that last saw it) is forgotten; the others keep their points
+    and their order, which the checkpoint writes."""
+    m = KeyFrameMap()
+    m.add_keyframe(0, _pose(0.0))
+    m.add_keyframe(1, _pose(0.1))
+    points = [m.add_point(np.array([0.1 * j, 0.0, 4.0]), np.full(32, j, np.uint8))
+              for j in range(6)]
+    for j, p in enumerate(points):
+        m.observe(1 if j == 5 else 0, p)
+    integ = LocalMapping(m, K, (480, 640))
+    tracks = [int(TRACK_ID_BIT) | (100 - j) for j in range(6)]   # not in id order
+    integ.track_points.update(zip(tracks, points, strict=True))
+    assert integ.forget_tracks_gone() == 0
+    m.remove_point(points[2])
+    m.evict(1)                                   # point 5's only keyframe
+    assert integ.forget_tracks_gone() == 2
+    assert list(integ.track_points.items()) == \
+        [(tracks[j], points[j]) for j in (0, 1, 3, 4)]

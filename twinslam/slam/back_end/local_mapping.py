@@ -224,6 +224,22 @@ class LocalMapping:
         self.track_points[track] = pid
         self.new_tracks[track] = pid
 
+    def forget_tracks_gone(self) -> int:
+        """Forget the device tracks whose map point left the map (culled, fused away, evicted
+        with its last keyframe), so that the table stays the map's size; returns how many.
+        The edge does this every slot for a table of tens of thousands of tracks on a long
+        walk, of which a few hundred go: their points are looked up at C speed and only those
+        gone are deleted, the rest keep their order."""
+        table = self.track_points
+        held = np.fromiter(map(self.map.points.__contains__, table.values()), dtype=bool,
+                           count=len(table))
+        if held.all():
+            return 0
+        gone = np.fromiter(table, dtype=np.uint64, count=len(table))[~held].tolist()
+        for track in gone:
+            del table[track]
+        return len(gone)
+
     def take_new_tracks(self) -> dict[int, int]:
         """Track ids resolved since the last call (the device relabels them), and forget."""
         out, self.new_tracks = self.new_tracks, {}
