@@ -24,7 +24,7 @@ SWITCH = "TWINSLAM_FORK_SERVER"
 def load_kernels() -> None:
     """Load (in a fresh checkout: compile) the numba kernels of the device, the edge with each
     rule policy, the synthetic worlds, the depth registration of a sequence whose cameras
-    differ and the twin allocator's value curve."""
+    differ, the twin allocator's value curve and integration's look for alike points."""
     import numpy as np
 
     from device_tracker.device_core import DeviceTrackerCore
@@ -34,6 +34,7 @@ def load_kernels() -> None:
     from twinslam.policies.rules import POLICIES
     from twinslam.sequences.registration import register_depth
     from twinslam.sequences.synthetic import SyntheticSequence
+    from twinslam.slam.bit_counting import hamming_of_pairs
 
     DeviceTrackerCore.warm_up()
     for name in POLICIES:
@@ -42,6 +43,7 @@ def load_kernels() -> None:
     register_depth(np.ones((2, 2), dtype=np.float32), np.eye(3), np.eye(3), np.eye(4))
     points = np.arange(40)
     budget_value([points], [points], 0.0, 1, 2)
+    hamming_of_pairs(np.zeros((1, 32), np.uint8), [0], np.zeros((1, 32), np.uint8), [0])
 
 
 def fork_servers(cwd: Path) -> ForkServers:

@@ -9,29 +9,10 @@ cells one radius wide, so a point looks at the 3×3 cells around it.
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import Any, cast
-
 import numpy as np
-from numba import njit, types
-from numba.extending import intrinsic
+from numba import njit
 
-
-@intrinsic
-def _popcount_intrinsic(typingctx: Any, x: Any) -> Any:
-    """Set bits of a uint64 via LLVM's ctpop: one POPCNT instruction on x86-64 instead of a
-    dozen bit operations, in a loop over ~70 000 descriptor pairs per frame."""
-    sig = types.int64(types.uint64)
-
-    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
-        return builder.zext(builder.ctpop(args[0]), context.get_value_type(types.int64))
-
-    return sig, codegen
-
-
-#: what the kernels call: a uint64's set bits (typed for mypy, which cannot see numba's
-#: intrinsic protocol)
-_popcount = cast(Callable[[int], int], _popcount_intrinsic)
+from twinslam.slam.bit_counting import popcount
 
 
 @njit(cache=True)
@@ -81,8 +62,8 @@ def _match(feat_xy: np.ndarray, feat_desc: np.ndarray, cand_uv: np.ndarray,
                     du, dv = sxy[s, 0] - u, sxy[s, 1] - v
                     if du * du + dv * dv > r2:
                         continue
-                    d = (_popcount(sdesc[s, 0] ^ w0) + _popcount(sdesc[s, 1] ^ w1)
-                         + _popcount(sdesc[s, 2] ^ w2) + _popcount(sdesc[s, 3] ^ w3))
+                    d = (popcount(sdesc[s, 0] ^ w0) + popcount(sdesc[s, 1] ^ w1)
+                         + popcount(sdesc[s, 2] ^ w2) + popcount(sdesc[s, 3] ^ w3))
                     if d < d1:
                         d2, d1, f1 = d1, d, order[s]
                     elif d < d2:

@@ -29,7 +29,7 @@ from scipy.spatial import cKDTree
 
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.back_end.point_culling import PointCullingConfig, count_and_cull, facing
-from twinslam.slam.descriptor_matching import hamming_rows
+from twinslam.slam.bit_counting import hamming_of_pairs
 from twinslam.slam.keyframe import is_track_id
 from twinslam.slam.projection_matching import back_project, match_by_projection, visible_points
 
@@ -194,18 +194,21 @@ class LocalMapping:
         feature = np.repeat(np.asarray(placed), sizes)
         candidate = np.fromiter(itertools.chain.from_iterable(near), dtype=np.int64,
                                 count=sum(sizes))
-        mine = np.asarray(descriptors, dtype=np.uint8)[placed]
-        apart = hamming_rows(theirs[candidate], np.repeat(mine, sizes, axis=0))
+        apart = hamming_of_pairs(theirs, candidate, np.asarray(descriptors, dtype=np.uint8),
+                                 feature)
         alike_enough = apart <= self.config.max_hamming
         feature, candidate, apart = (a[alike_enough] for a in (feature, candidate, apart))
         order = np.lexsort((apart, feature))      # by feature, nearest in descriptor first
-        ranked: dict[int, list[int]] = {}
-        for f, c in zip(feature[order].tolist(), candidate[order].tolist(), strict=True):
-            ranked.setdefault(f, []).append(ids[c])
+        # each feature's candidates a slice of one list, read only for the features asked
+        ranked = in_view[candidate[order]].tolist()
+        features, first = np.unique(feature[order], return_index=True)
+        spans = dict(zip(features.tolist(),
+                         itertools.pairwise([*first.tolist(), len(ranked)]), strict=True))
         own = self.map.keyframes[kf_id].points
 
         def alike(i: int) -> int | None:
-            return next((p for p in ranked.get(i, ())
+            start, end = spans.get(i, (0, 0))
+            return next((p for p in ranked[start:end]
                          if p not in own and p not in self._taken), None)
 
         return alike
