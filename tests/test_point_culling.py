@@ -119,3 +119,61 @@ def test_views_survive_the_checkpoint(tmp_path: Path) -> None:
     back, _ = KeyFrameMap.load(tmp_path / "map.npz")
     assert [(back.points[p].visible, back.points[p].found) for p in found] == \
         [(m.points[p].visible, m.points[p].found) for p in found]
+
+
+def test_a_points_direction_is_the_mean_of_its_observers_rays() -> None:
+    """Two keyframes saw a point from either side, 40° off its normal each way: their mean
+    ray is along the normal, so a camera 50° off it past the first keyframe still faces the
+    point (the second keyframe's own ray is 90° away) and one 70° off does not; another
+    point in the same call, seen by the second keyframe alone, is judged by its ray."""
+    m = KeyFrameMap()
+    target = np.array([0.0, 0.0, 3.0])
+    for k, angle in enumerate((-40.0, 40.0)):
+        pose = np.eye(4)
+        a = np.radians(angle)
+        pose[:3, 3] = target - 3.0 * np.array([np.sin(a), 0.0, np.cos(a)])
+        m.add_keyframe(k, pose)
+    both = m.add_point(target, np.zeros(32, np.uint8))
+    m.observe(0, both)
+    m.observe(1, both)
+    one = m.add_point(target + [0.0, 0.1, 0.0], np.zeros(32, np.uint8))
+    m.observe(1, one)
+    ids = np.array([both, one])
+
+    def camera_off_normal(deg: float) -> np.ndarray:
+        pose = np.eye(4)
+        b = np.radians(deg)
+        pose[:3, 3] = target - 3.0 * np.array([-np.sin(b), 0.0, np.cos(b)])
+        return pose
+
+    assert facing(m, ids, camera_off_normal(50.0), 60.0).tolist() == [True, False]
+    assert facing(m, ids, camera_off_normal(70.0), 60.0).tolist() == [False, False]
+    assert facing(m, ids[:1], camera_off_normal(0.0), 60.0).tolist() == [True]
+
+
+def test_a_keyframes_views_are_counted_for_every_point_at_once() -> None:
+    """The points it found gain a view and a find, the others its view held a view; of
+    those, the ones whose found ratio fell below the bound leave the map, in id order, and
+    a point that left already is passed over."""
+    m = KeyFrameMap()
+    m.add_keyframe(0, np.eye(4))
+    ids = []
+    for j in range(12):
+        p = m.add_point(np.array([0.0, 0.0, 2.0 + j]), np.zeros(32, np.uint8))
+        m.observe(0, p)
+        m.points[p].visible, m.points[p].found = 3 + j % 3, 1 + j % 2
+        ids.append(p)
+    before = {p: (m.points[p].visible, m.points[p].found) for p in ids}
+    found, held = ids[:4], ids[4:]
+    m.remove_point(held[-1])
+    culled = count_and_cull(m, set(found), [*held, *found], PointCullingConfig())
+    expected = []
+    for p in ids[:-1]:
+        visible, found_n = before[p]
+        visible, found_n = (visible + 1, found_n + 1) if p in found else (visible + 1, found_n)
+        if p not in found and visible >= 4 and found_n < 0.25 * visible:
+            expected.append(p)
+        else:
+            assert (m.points[p].visible, m.points[p].found) == (visible, found_n)
+    assert culled == sorted(expected) and expected
+    assert not any(p in m.points for p in culled)

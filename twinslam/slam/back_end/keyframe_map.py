@@ -18,7 +18,6 @@ import os
 from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from itertools import chain
-from operator import attrgetter
 from pathlib import Path
 from typing import Any
 
@@ -69,29 +68,22 @@ class KeyFrame:
         self._observed = None
 
 
-#: a point's (visible, found) counts, for the checkpoint's column of them
-_view_counts = attrgetter("visible", "found")
-
-
 class MapPoint:
-    """A map point: its observers and view counts here, its position (xyz in the map frame)
-    and representative 32-byte ORB descriptor in the map's :class:`PointColumns` row. Both
-    read as copies and are written by assignment (``point.position = xyz``), as when each
-    point held arrays of its own; a point that left the map keeps what it last had."""
+    """A map point: its observers here; its position (xyz in the map frame), representative
+    32-byte ORB descriptor and view counts in the map's :class:`PointColumns` row. They read
+    as copies and are written by assignment (``point.position = xyz``, ``point.visible += 1``),
+    as when each point held values of its own; a point that left the map keeps what it last
+    had."""
 
-    __slots__ = ("_columns", "_kept", "_row", "found", "id", "observers", "visible")
+    __slots__ = ("_columns", "_kept", "_row", "id", "observers")
 
     def __init__(self, point_id: int, columns: PointColumns, row: int) -> None:
         self.id = point_id
         self.observers: set[int] = set()     #: keyframe ids
-        #: keyframes whose view held it, and those of them that observed it (its creator
-        #: counts in both): the found ratio :mod:`twinslam.slam.back_end.point_culling`
-        #: judges it by
-        self.visible = 1
-        self.found = 1
         self._columns = columns
         self._row = row
-        self._kept: tuple[np.ndarray, np.ndarray] | None = None   #: once it left the map
+        #: once it left the map: its position, descriptor, visible and found counts
+        self._kept: tuple[np.ndarray, np.ndarray, int, int] | None = None
 
     @property
     def position(self) -> np.ndarray:
@@ -102,7 +94,8 @@ class MapPoint:
     @position.setter
     def position(self, xyz: np.ndarray) -> None:
         if self._kept is not None:
-            self._kept = (np.asarray(xyz, dtype=np.float64).reshape(3).copy(), self._kept[1])
+            self._kept = (np.asarray(xyz, dtype=np.float64).reshape(3).copy(),
+                          *self._kept[1:])
         else:
             self._columns.positions[self._row] = xyz
 
@@ -112,9 +105,36 @@ class MapPoint:
                             else self._columns.descriptors[self._row])
         return desc.copy()
 
+    @property
+    def visible(self) -> int:
+        """Keyframes whose view held it (its creator counted): the found ratio's denominator
+        (:mod:`twinslam.slam.back_end.point_culling`)."""
+        return self._kept[2] if self._kept is not None \
+            else int(self._columns.visible[self._row])
+
+    @visible.setter
+    def visible(self, count: int) -> None:
+        if self._kept is not None:
+            self._kept = (self._kept[0], self._kept[1], int(count), self._kept[3])
+        else:
+            self._columns.visible[self._row] = count
+
+    @property
+    def found(self) -> int:
+        """Keyframes of those that observed it (its creator counted)."""
+        return self._kept[3] if self._kept is not None \
+            else int(self._columns.found[self._row])
+
+    @found.setter
+    def found(self, count: int) -> None:
+        if self._kept is not None:
+            self._kept = (self._kept[0], self._kept[1], self._kept[2], int(count))
+        else:
+            self._columns.found[self._row] = count
+
     def leave(self) -> None:
-        """The point left the map: keep its position and descriptor, give up its row."""
-        self._kept = (self.position, self.descriptor)
+        """The point left the map: keep what its row held, give up the row."""
+        self._kept = (self.position, self.descriptor, self.visible, self.found)
 
 
 def stacked_rows(rows: list[np.ndarray], shape: tuple[int, ...], dtype: type) -> np.ndarray:
@@ -372,16 +392,12 @@ class KeyFrameMap:
         (``Any``: numpy's stubs would match an array key to ``allow_pickle``)."""
         path = Path(path)
         kf_ids = self.keyframe_ids()
-        # every point's id, row and view counts read at C speed (the edge writes this every
-        # slot: a long walk's map holds tens of thousands of points), then sorted by id
-        n = len(self.points)
-        ids = np.fromiter(self.points.keys(), dtype=np.int64, count=n)
-        by_id = np.argsort(ids, kind="stable")
-        pt_ids = ids[by_id]
+        # every point's id and row read at C speed (the edge writes this every slot: a long
+        # walk's map holds tens of thousands of points), sorted by id; the columns hold a row
+        # for each of the map's points and its values, view counts included
         column_ids, column_rows = self.columns.ids_and_rows()
-        rows = column_rows[np.argsort(column_ids, kind="stable")]
-        views = np.fromiter(chain.from_iterable(map(_view_counts, self.points.values())),
-                            dtype=np.int64, count=2 * n).reshape(-1, 2)[by_id]
+        by_id = np.argsort(column_ids, kind="stable")
+        pt_ids, rows = column_ids[by_id], column_rows[by_id]
         # every observation has its measurement (observe writes both, unobserve and evict
         # drop both), so the measurement dicts list the observations; the edge writes this
         # every slot, and each keyframe keeps its observations as arrays until they change
@@ -400,7 +416,8 @@ class KeyFrameMap:
                      point_descriptors=self.columns.descriptors[rows],
                      observations=np.column_stack([observers, seen]).reshape(-1, 2),
                      measurements=uvd,
-                     point_views=views,
+                     point_views=np.column_stack([self.columns.visible[rows],
+                                                  self.columns.found[rows]]),
                      next_point_id=np.array(self.next_point_id), **extra)
             fh.flush()
             os.fsync(fh.fileno())
@@ -442,8 +459,11 @@ class KeyFrameMap:
             # a checkpoint written before points counted their views: each starts afresh
             views = data.pop("point_views", None)
             if views is not None:
-                for p, (visible, found) in zip(sorted(m.points), views, strict=True):
-                    m.points[p].visible, m.points[p].found = int(visible), int(found)
+                rows = m.columns.rows_of(sorted(m.points))
+                views = np.asarray(views, dtype=np.int64).reshape(-1, 2)
+                if len(views) != len(rows):
+                    raise ValueError(f"{len(views)} view counts for {len(rows)} points")
+                m.columns.visible[rows], m.columns.found[rows] = views[:, 0], views[:, 1]
         except (KeyError, ValueError) as exc:
             raise MapError(f"{path}: inconsistent map checkpoint ({exc})") from None
         return m, data

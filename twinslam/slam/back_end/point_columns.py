@@ -23,14 +23,18 @@ DESCRIPTOR_BYTES = 32
 
 
 class PointColumns:
-    """Positions ((rows, 3) float64, map frame), descriptors ((rows, 32) uint8) and how many
-    keyframes observe each ((rows,) int64: kept by the map as it links observations) of the
-    points a map holds, with each point's row by id."""
+    """Positions ((rows, 3) float64, map frame), descriptors ((rows, 32) uint8), how many
+    keyframes observe each ((rows,) int64: kept by the map as it links observations) and each
+    point's view counts (``visible``, ``found``: (rows,) int64, what point culling judges a
+    point by; a new point starts at one of each) of the points a map holds, with each point's
+    row by id."""
 
     def __init__(self, capacity: int = 1024) -> None:
         self.positions = np.zeros((max(1, capacity), 3), dtype=np.float64)
         self.descriptors = np.zeros((max(1, capacity), DESCRIPTOR_BYTES), dtype=np.uint8)
         self.observed = np.zeros(max(1, capacity), dtype=np.int64)
+        self.visible = np.zeros(max(1, capacity), dtype=np.int64)
+        self.found = np.zeros(max(1, capacity), dtype=np.int64)
         self.row: dict[int, int] = {}          #: point id → its row
         self._free: list[int] = []             #: rows points left, taken first
         self._used = 0                         #: rows ever handed out
@@ -51,6 +55,7 @@ class PointColumns:
         self.positions[r] = position
         self.descriptors[r] = descriptor
         self.observed[r] = 0
+        self.visible[r] = self.found[r] = 1       # its creator held it in view and found it
         self.row[point_id] = r
         return r
 
@@ -87,4 +92,6 @@ class PointColumns:
         self.positions = np.concatenate([self.positions, np.zeros_like(self.positions)])
         self.descriptors = np.concatenate([self.descriptors, np.zeros_like(self.descriptors)])
         self.observed = np.concatenate([self.observed, np.zeros_like(self.observed)])
+        self.visible = np.concatenate([self.visible, np.zeros_like(self.visible)])
+        self.found = np.concatenate([self.found, np.zeros_like(self.found)])
         assert len(self.positions) == 2 * n

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Collection
 from dataclasses import dataclass
+from itertools import chain, repeat
 
 import numpy as np
 
@@ -45,20 +46,29 @@ def facing(keyframe_map: KeyFrameMap, point_ids: np.ndarray, camera_to_world: np
            max_angle_deg: float) -> np.ndarray:
     """The mask of ``point_ids`` a camera at ``camera_to_world`` looks at within
     ``max_angle_deg`` of the mean direction their observers saw them from (a point no
-    keyframe observes has no such direction and counts as faced)."""
+    keyframe observes has no such direction and counts as faced). Every (point, observer)
+    ray at once: integration asks this of the thousands of points a keyframe's view holds."""
     ids = np.asarray(point_ids, dtype=np.int64)
     if ids.size == 0:
         return np.zeros(0, dtype=bool)
     points = keyframe_map.points
-    centres = {k: kf.pose[:3, 3] for k, kf in keyframe_map.keyframes.items()}
     positions = keyframe_map.positions_of(ids.tolist())
-    mean_dir = np.zeros_like(positions)
-    for i, p in enumerate(ids.tolist()):
-        seen_from = [centres[k] for k in points[p].observers if k in centres]
-        if seen_from:
-            rays = positions[i] - np.array(seen_from)
-            rays /= np.maximum(np.linalg.norm(rays, axis=1, keepdims=True), 1e-12)
-            mean_dir[i] = rays.mean(axis=0)
+    kept = list(keyframe_map.keyframes.values())
+    centres = np.array([kf.pose[:3, 3] for kf in kept]).reshape(-1, 3)
+    index = {kf.id: i for i, kf in enumerate(kept)}
+    observers = [points[p].observers for p in ids.tolist()]
+    counts = np.fromiter(map(len, observers), dtype=np.int64, count=len(observers))
+    by = np.fromiter(map(index.get, chain.from_iterable(observers), repeat(-1)),
+                     dtype=np.int64, count=int(counts.sum()))
+    owner = np.repeat(np.arange(len(ids)), counts)
+    held = by >= 0                   # an observer the map no longer keeps gives no ray
+    owner, by = owner[held], by[held]
+    rays = positions[owner] - centres[by]
+    rays /= np.maximum(np.linalg.norm(rays, axis=1, keepdims=True), 1e-12)
+    n_rays = np.bincount(owner, minlength=len(ids))
+    mean_dir = np.column_stack([np.bincount(owner, weights=rays[:, c], minlength=len(ids))
+                                for c in range(3)])
+    mean_dir[n_rays > 0] /= n_rays[n_rays > 0, None]
     ray = positions - camera_to_world[:3, 3]
     ray_norm = np.linalg.norm(ray, axis=1)
     dir_norm = np.linalg.norm(mean_dir, axis=1)
@@ -72,20 +82,23 @@ def count_and_cull(keyframe_map: KeyFrameMap, found: Collection[int],
     """One keyframe's views counted — ``found``: the map's points it observed (those it made
     itself excluded: they start at one view, one find), ``in_view``: the others its view
     held — and the points of ``in_view`` whose found ratio fell below the bound removed;
-    their ids."""
-    points = keyframe_map.points
-    for p in found:
-        point = points[p]
-        point.visible += 1
-        point.found += 1
-    culled = []
-    for p in sorted(set(in_view) - set(found)):
-        held = points.get(p)
-        if held is None:
-            continue
-        held.visible += 1
-        if held.visible >= config.min_visible and \
-                held.found < config.min_found_ratio * held.visible:
-            keyframe_map.remove_point(p)
-            culled.append(p)
+    their ids. The counts live in the map's point columns: a keyframe's thousands of points
+    are counted at once."""
+    columns = keyframe_map.columns
+    seen = set(found)
+    rows = columns.rows_of(seen)
+    columns.visible[rows] += 1
+    columns.found[rows] += 1
+    others = sorted(set(in_view) - seen)
+    where = np.fromiter(map(columns.row.get, others, repeat(-1)), dtype=np.int64,
+                        count=len(others))
+    kept = where >= 0                         # a point that already left is not counted
+    held = np.asarray(others, dtype=np.int64)[kept]
+    rows = where[kept]
+    columns.visible[rows] += 1
+    visible, found_in = columns.visible[rows], columns.found[rows]
+    gone = (visible >= config.min_visible) & (found_in < config.min_found_ratio * visible)
+    culled = held[gone].tolist()
+    for p in culled:
+        keyframe_map.remove_point(p)
     return culled
