@@ -136,7 +136,7 @@ def test_a_points_direction_is_the_mean_of_its_observers_rays() -> None:
     both = m.add_point(target, np.zeros(32, np.uint8))
     m.observe(0, both)
     m.observe(1, both)
-    one = m.add_point(target + [0.0, 0.1, 0.0], np.zeros(32, np.uint8))
+    one = m.add_point(target + np.array([0.0, 0.1, 0.0]), np.zeros(32, np.uint8))
     m.observe(1, one)
     ids = np.array([both, one])
 

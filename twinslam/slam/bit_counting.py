@@ -9,7 +9,7 @@ before XOR and popcount moved ~2 MB a keyframe; the kernel reads the rows where 
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any, cast
 
 import numpy as np
@@ -47,8 +47,8 @@ def _pair_distances(a: np.ndarray, rows_a: np.ndarray, b: np.ndarray, rows_b: np
     return out
 
 
-def hamming_of_pairs(a: np.ndarray, rows_a: np.ndarray, b: np.ndarray, rows_b: np.ndarray
-                     ) -> np.ndarray:
+def hamming_of_pairs(a: np.ndarray, rows_a: np.ndarray | Sequence[int], b: np.ndarray,
+                     rows_b: np.ndarray | Sequence[int]) -> np.ndarray:
     """The Hamming distance of descriptor ``a[rows_a[k]]`` to ``b[rows_b[k]]`` for every k
     (``a``, ``b``: n×32 uint8 ORB descriptors): what :func:`~twinslam.slam.
     descriptor_matching.hamming_rows` gives the gathered rows, without gathering them."""

@@ -68,7 +68,8 @@ def facing(keyframe_map: KeyFrameMap, point_ids: np.ndarray, camera_to_world: np
     n_rays = np.bincount(owner, minlength=len(ids))
     mean_dir = np.column_stack([np.bincount(owner, weights=rays[:, c], minlength=len(ids))
                                 for c in range(3)])
-    mean_dir[n_rays > 0] /= n_rays[n_rays > 0, None]
+    has = n_rays > 0
+    mean_dir[has] = mean_dir[has] / n_rays[has, None]
     ray = positions - camera_to_world[:3, 3]
     ray_norm = np.linalg.norm(ray, axis=1)
     dir_norm = np.linalg.norm(mean_dir, axis=1)
@@ -98,7 +99,7 @@ def count_and_cull(keyframe_map: KeyFrameMap, found: Collection[int],
     columns.visible[rows] += 1
     visible, found_in = columns.visible[rows], columns.found[rows]
     gone = (visible >= config.min_visible) & (found_in < config.min_found_ratio * visible)
-    culled = held[gone].tolist()
+    culled: list[int] = held[gone].tolist()
     for p in culled:
         keyframe_map.remove_point(p)
     return culled
