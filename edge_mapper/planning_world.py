@@ -32,7 +32,6 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.linalg import expm, logm
 
 from edge_mapper.slot_planner import FrameObservations, SlotView
 from twinslam.covisibility.dataset import CovisibilityDataset
@@ -41,6 +40,7 @@ from twinslam.policies.delayed import DelayedPolicy
 from twinslam.policies.mpc import MpcConfig, MpcPlanner
 from twinslam.policies.protocol import MapPolicy
 from twinslam.policies.world_model import MapManagementEnv, SimConfig
+from twinslam.rigid_motion import pose_of, twist_of
 from twinslam.slam.camera import Camera
 from twinslam.slam.projection_matching import visible_points
 from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
@@ -63,21 +63,15 @@ def extrapolate(poses: Sequence[np.ndarray], positions: Sequence[int], ahead: Se
                 ) -> list[np.ndarray]:
     """Camera-to-map poses ``ahead`` frames after the last of ``poses`` (taken at frame
     ``positions`` of the slot): the rigid motion from the first pose to the last, spread
-    evenly over the frames between them (a screw motion: the matrix logarithm), continued
+    evenly over the frames between them (a screw motion: the twist of
+    :mod:`twinslam.rigid_motion`, SE(3)'s logarithm), continued
     at constant velocity in the camera's frame. One pose: the camera stands still."""
     last = np.asarray(poses[-1], dtype=np.float64)
     if len(poses) < 2 or positions[-1] == positions[0]:
         return [last.copy() for _ in ahead]
     relative = np.linalg.inv(np.asarray(poses[0], dtype=np.float64)) @ last
-    twist = np.real(logm(relative)) / (positions[-1] - positions[0])    # per frame
-    if list(ahead) == list(range(ahead[0], ahead[0] + len(ahead))):   # one step a frame
-        step, pose = np.real(expm(twist)), last @ np.real(expm(twist * ahead[0]))
-        out = [pose]
-        for _ in ahead[1:]:
-            pose = pose @ step
-            out.append(pose)
-        return out
-    return [last @ np.real(expm(twist * n)) for n in ahead]
+    twist = twist_of(relative) / (positions[-1] - positions[0])       # per frame
+    return [last @ pose_of(twist * n) for n in ahead]
 
 
 def visible_mask(positions: np.ndarray, pose: np.ndarray, camera: Camera,
