@@ -3,7 +3,8 @@
 keyframes, the slot's end (archive, bundle adjustment, checkpoint, υ, the loop closer's
 work), and writing the map update, the statistics and the viewer's messages.
 
-    python -m bench.edge_work [SEQUENCE] [--frames 1000] [--seed 0] [--uplink lte] [--csv FILE]
+    python -m bench.edge_work [SEQUENCE] [--frames 1000] [--order forward] [--seed 0] [--uplink lte]
+                              [--csv FILE]
 
 One default device and edge over the sequence in one process (the device's tracking is not
 counted), every message the edge node reads or writes made and (de)serialised as rclpy does
@@ -132,6 +133,9 @@ def main() -> None:
     parser.add_argument("sequence", nargs="?", default=str(SEVEN),
                         help="the walk (default: the 7-Scenes frames)")
     parser.add_argument("--frames", type=int, default=1000, help="frames to play")
+    parser.add_argument("--order", default="forward", choices=("forward", "forward_backward"),
+                        help="play order: forward_backward visits every place twice, and the "
+                        "edge restores archived keyframes on the way back")
     parser.add_argument("--seed", type=int, default=0, help="the uplink's seed")
     parser.add_argument("--uplink", default="lte", help="uplink family (table1, lte, mmwave, "
                         "constrained)")
@@ -142,7 +146,7 @@ def main() -> None:
     config = repeatable_edge()
     clock = StepClock()
     with tempfile.TemporaryDirectory() as tmp:
-        walk = open_walk("edge", args.sequence, args.frames, "forward", args.seed, args.uplink,
+        walk = open_walk("edge", args.sequence, args.frames, args.order, args.seed, args.uplink,
                          config, 8, Path(tmp))
         walk.serve = clock.serve
         while walk.step() is not None:
@@ -151,7 +155,8 @@ def main() -> None:
     slots = clock.slots[1:]                        # the first slot's map is one keyframe
     totals = np.array([sum(s.values()) for s in slots])
     print(f"machine: {platform.machine()}, python {platform.python_version()}; "
-          f"{args.sequence} ({args.frames} frames), the default edge, {len(slots)} slots")
+          f"{args.sequence} ({args.frames} frames, {args.order}), the default edge, "
+          f"{len(slots)} slots")
     print(f"{'step':>18} {'median ms':>10} {'p95 ms':>8} {'share':>6}")
     for step in STEPS:
         values = np.array([s.get(step, 0.0) for s in slots])
