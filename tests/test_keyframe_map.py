@@ -199,3 +199,37 @@ def test_a_checkpoint_keeps_each_points_values_whatever_order_the_points_came_in
             for p, v in again.points.items()} == \
         {p: (tuple(v.position), bytes(v.descriptor), v.visible, v.found)
          for p, v in m.points.items()}
+
+
+def test_points_added_at_once_are_as_points_added_one_by_one() -> None:
+    """Integration makes a keyframe's hundreds of points at once and a restore brings them
+    back at once: the next ids in order, the rows, values and view counts one-by-one adding
+    gives (freed rows taken first), and a point named twice or still in the map refused."""
+    rng = np.random.default_rng(8)
+    xyz, desc = rng.normal(size=(30, 3)), rng.integers(0, 256, (30, 32), dtype=np.uint8)
+    one, many = KeyFrameMap(), KeyFrameMap()
+    for m in (one, many):
+        for j in range(5):
+            m.add_point(xyz[j], desc[j])
+        m.remove_point(2)
+        m.remove_point(4)
+    singly = [one.add_point(xyz[j], desc[j]) for j in range(5, 30)]
+    assert many.add_points(xyz[5:], desc[5:]) == singly == list(range(6, 31))
+    assert many.columns.row == one.columns.row
+    for p in singly:
+        assert np.array_equal(many.points[p].position, one.points[p].position)
+        assert bytes(many.points[p].descriptor) == bytes(one.points[p].descriptor)
+        assert (many.points[p].visible, many.points[p].found) == (1, 1)
+    many.readd_points([2, 4], xyz[[2, 4]], desc[[2, 4]])
+    assert np.array_equal(many.points[4].position, xyz[4]) and 2 in many.points
+    with pytest.raises(MapError, match="cannot come back"):
+        many.readd_points([3], xyz[:1], desc[:1])
+    with pytest.raises(MapError, match="cannot come back"):
+        many.readd_points([99], xyz[:1], desc[:1])
+    with pytest.raises(MapError, match="positions"):
+        many.add_points(xyz[:2], desc[:1])
+    many.remove_point(1)
+    with pytest.raises(MapError, match="twice"):
+        many.readd_points([1, 1], xyz[:2], desc[:2])
+    assert 1 not in many.points and 1 not in many.columns.row
+    assert many.add_points(np.zeros((0, 3)), np.zeros((0, 32), np.uint8)) == []

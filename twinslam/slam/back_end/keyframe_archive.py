@@ -136,8 +136,7 @@ def restore_into(m: KeyFrameMap, kf: ArchivedKeyFrame) -> list[int]:
         if pid not in m.points and pid not in fresh:
             gone.append(row)
             fresh.add(pid)
-    for row in gone:
-        m.readd_point(ids[row], kf.positions[row], kf.descriptors[row])
+    m.readd_points([ids[row] for row in gone], kf.positions[gone], kf.descriptors[gone])
     m.observe_many(kf.id, ids, kf.measurements[:, :2].tolist(), kf.measurements[:, 2].tolist())
     return [ids[row] for row in gone]
 

@@ -216,6 +216,38 @@ class KeyFrameMap:
         self._put_point(pid, position, descriptor)
         return pid
 
+    def add_points(self, positions: np.ndarray, descriptors: np.ndarray) -> list[int]:
+        """New map points at once ((n, 3) positions, (n, 32) descriptors); their ids, the
+        next ``n`` (:attr:`next_point_id` onwards, in order)."""
+        n = len(positions)
+        ids = list(range(self.next_point_id, self.next_point_id + n))
+        self._put_points(ids, positions, descriptors)
+        self.next_point_id += n
+        return ids
+
+    def readd_points(self, point_ids: list[int], positions: np.ndarray, descriptors: np.ndarray
+                     ) -> None:
+        """:meth:`readd_point` of many points at once (a keyframe restored from the archive
+        brings back hundreds)."""
+        for point_id in point_ids:
+            if point_id in self.points or not (0 < point_id < self.next_point_id
+                                               or is_foreign(point_id)):
+                raise MapError(f"point {point_id} cannot come back: it is in the map or was "
+                               "never one of it")
+        self._put_points(point_ids, positions, descriptors)
+
+    def _put_points(self, point_ids: list[int], positions: np.ndarray, descriptors: np.ndarray
+                    ) -> None:
+        if len(positions) != len(point_ids) or len(descriptors) != len(point_ids):
+            raise MapError(f"{len(point_ids)} points but {len(positions)} positions and "
+                           f"{len(descriptors)} descriptors")
+        if len(set(point_ids)) != len(point_ids):
+            raise MapError("a point is named twice among the points added")
+        rows = self.columns.add_many(point_ids, positions, descriptors).tolist()
+        columns = self.columns
+        self.points.update((p, MapPoint(p, columns, r))
+                           for p, r in zip(point_ids, rows, strict=True))
+
     def readd_point(self, point_id: int, position: np.ndarray, descriptor: np.ndarray) -> None:
         """Put back a point the map had (``point_id`` below ``next_point_id``: ids are never
         reused, so it cannot clash with a newer point) and has no more — a keyframe restored

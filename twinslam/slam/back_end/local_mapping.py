@@ -136,30 +136,36 @@ class LocalMapping:
         counts["matched"] = self._match(kf_id, keypoints, descriptors, free, in_view, uv)
         world = self._back_project(pose, keypoints, depths)
         alike = self._alike_finder(kf_id, in_view, world, descriptors, depths, free)
-        made: set[int] = set()                # the points this keyframe makes
+        # the points this keyframe makes, by feature: named now (the map's next ids, in
+        # order), put into the map at once before their observations are written
+        making: list[int] = []
+        first = m.next_point_id
         for i in pending_tracks:
             if free[i] and (same := alike(i)) is not None:
                 self._observe(kf_id, same, free, i)
                 counts["joined"] += 1
             if not free[i]:                   # matched to an existing point by projection
                 self._remember_track(int(ids[i]), int(self._feature_point[i]))
-            elif (position := world[i]) is not None:
-                created = m.add_point(position, descriptors[i])
-                made.add(created)
+            elif world[i] is not None:
+                created = first + len(making)
+                making.append(i)
                 self._remember_track(int(ids[i]), created)
                 self._observe(kf_id, created, free, i)
                 counts["tracked"] += 1
                 counts["created_from_tracks"] += 1
         for i in map(int, np.flatnonzero(free)):
-            if (position := world[i]) is None:
+            if world[i] is None:
                 continue
             if (same := alike(i)) is not None:
                 self._observe(kf_id, same, free, i)
                 counts["joined"] += 1
             else:
-                made.add(created := m.add_point(position, descriptors[i]))
+                created = first + len(making)
+                making.append(i)
                 self._observe(kf_id, created, free, i)
                 counts["created"] += 1
+        made = set(m.add_points(np.array([world[i] for i in making]).reshape(-1, 3),
+                                np.asarray(descriptors)[making]))
         self._flush(kf_id)
         unused = int(free.sum())
         # the map's points this keyframe found (those it made start counted)

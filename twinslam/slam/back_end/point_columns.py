@@ -59,6 +59,28 @@ class PointColumns:
         self.row[point_id] = r
         return r
 
+    def add_many(self, point_ids: list[int], positions: np.ndarray, descriptors: np.ndarray
+                 ) -> np.ndarray:
+        """Rows for new points at once (a keyframe's integration makes hundreds, a restore
+        brings hundreds back), written with their positions and descriptors; returns them.
+        The rows are those :meth:`add` would give one point after another."""
+        if len(set(point_ids)) != len(point_ids) or any(p in self.row for p in point_ids):
+            raise KeyError("a point has a row already, or is named twice")
+        n = len(point_ids)
+        reused = min(n, len(self._free))
+        rows = [self._free.pop() for _ in range(reused)]
+        while self._used + n - reused > len(self.positions):
+            self._grow()
+        rows.extend(range(self._used, self._used + n - reused))
+        self._used += n - reused
+        at = np.asarray(rows, dtype=np.int64)
+        self.positions[at] = np.asarray(positions, dtype=np.float64).reshape(n, 3)
+        self.descriptors[at] = np.asarray(descriptors, dtype=np.uint8).reshape(n, DESCRIPTOR_BYTES)
+        self.observed[at] = 0
+        self.visible[at] = self.found[at] = 1
+        self.row.update(zip(point_ids, rows, strict=True))
+        return at
+
     def remove(self, point_id: int) -> int:
         """Free the row of a point that left the map; returns the row it had."""
         r = self.row.pop(point_id)
