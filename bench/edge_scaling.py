@@ -33,6 +33,7 @@ fleet in one run, and the table counts the merges made.
 
     python -m bench.edge_scaling [--devices 1,2,4,8,12,16] [--edges 1,2] [--pools one]
                                  [--merge-maps off] [--hosts] [--recording DIR] [--csv FILE]
+                                 [--slots-csv FILE] [--slots-plot PNG]
 """
 
 from __future__ import annotations
@@ -68,7 +69,7 @@ from twinslam.hosts.loopback import LoopbackDomain, ProcessDomain
 from twinslam.hosts.netns import NetnsHosts, unavailable_reason
 from twinslam.live.fleet import edge_blocks, edge_hosts
 from twinslam.node_runtime.session import RosSession
-from twinslam.reporting import write_dict_rows
+from twinslam.reporting import pyplot, write_dict_rows
 from twinslam.slot_protocol import table1
 
 REPO = Path(__file__).resolve().parents[1]
@@ -234,7 +235,9 @@ def fleet_network(edges: int, hosts: bool) -> Iterator[tuple[ProcessDomain, str 
 
 def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0.0,
             edges: int = 1, pools: str = "one", hosts: bool = False,
-            merge_maps: bool = False) -> dict[str, float]:
+            merge_maps: bool = False) -> tuple[dict[str, float], list[dict[str, float]]]:
+    """One fleet of ``n`` emulated devices served; the table's row and every device-slot's
+    figures (its latency, the edge's compute, what the slot restored, uploaded, closed)."""
     names = [f"ar{i + 1}" for i in range(n)]
     with pools_env(pools), fleet_network(edges, hosts) as (dom, _):
         served = edge_blocks(names, edges)
@@ -290,9 +293,10 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
     stats = [s for d in devices for s in d.stats.values()]
     expected = n * len(recording.summaries)
     late = sum(1 for s in stats if s.slot_latency_ms > recording.slot_s * 1000)
-    if os.environ.get("TWINSLAM_BENCH_VERBOSE"):
-        for d in devices:
-            print(d.name, {k: round(s.slot_latency_ms) for k, s in sorted(d.stats.items())})
+    slots = [{"device": d.name, "slot": k, "latency_ms": s.slot_latency_ms,
+              "compute_ms": s.slot_processing_ms, "restored": s.restored_keyframes,
+              "uploads": s.uploads, "loops_closed": s.loops_closed}
+             for d in devices for k, s in sorted(d.stats.items())]
     compute = [s.slot_processing_ms for s in stats]
     latency = [s.slot_latency_ms for s in stats]
     return {"devices": n, "edges": len(served), "pools": pools,
@@ -307,7 +311,7 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             "compute_budget": compute_budget, "trimmed": log.count("compute: slot work takes"),
             "merge_maps": merge_maps,
             # each device moved into another's place logs it once, at its next slot end
-            "merged": len(MOVED_LINE.findall(log))}
+            "merged": len(MOVED_LINE.findall(log))}, slots
 
 
 def main() -> None:
@@ -317,6 +321,10 @@ def main() -> None:
                         help="a `twinslam launch --record` folder (default: one is made)")
     parser.add_argument("--policy", default="lff", help="the edge's policy (lff: the recording's)")
     parser.add_argument("--csv", type=Path, default=None, help="also write the table here")
+    parser.add_argument("--slots-csv", type=Path, default=None,
+                        help="write every device-slot here (its latency, the edge's compute, "
+                             "the keyframes it restored and uploaded, loops closed): where in "
+                             "the walk an edge falls behind")
     parser.add_argument("--edges", default="1",
                         help="edge processes the devices are split among, comma-separated "
                              "counts to compare (default 1)")
@@ -328,6 +336,10 @@ def main() -> None:
     parser.add_argument("--merge-maps", default="off",
                         help="off, on, or off,on to compare: the edges merge the maps of their "
                              "devices (all of which replay one walk, so share one place)")
+    parser.add_argument("--slots-plot", type=Path, default=None,
+                        help="draw every setting's device-slots along the walk here (PNG): "
+                             "the latency across devices against the slot period, the edge's "
+                             "compute and the keyframes restored")
     parser.add_argument("--hosts", action="store_true",
                         help="each edge process on an edge host of its own and the devices on "
                              "a device host (network namespaces on one switch; needs root) "
@@ -361,10 +373,13 @@ def main() -> None:
     settings = [(pools, merge, int(edges), int(n)) for pools in args.pools.split(",")
                 for merge in args.merge_maps.split(",")
                 for edges in args.edges.split(",") for n in args.devices.split(",")]
+    every_slot = []
     for pools, merge, edges, n in settings:
-        row = measure(n, recording, args.policy, args.compute_budget, edges, pools, args.hosts,
-                      merging[merge])
+        row, slots = measure(n, recording, args.policy, args.compute_budget, edges, pools,
+                             args.hosts, merging[merge])
         rows.append(row)
+        every_slot += [{"pools": pools, "merge_maps": merge, "edges": row["edges"],
+                        "devices": n, **slot} for slot in slots]
         print(f"{pools:>5} {merge:>5} {row['edges']:>5} {n:>7} "
               f"{row['answered']:>4.0f}/{row['device_slots']:<4.0f} "
               f"{row['compute_ms_median']:>12.0f} {row['compute_ms_p95']:>6.0f} "
@@ -374,6 +389,47 @@ def main() -> None:
     if args.csv:
         write_dict_rows(args.csv, rows)
         print(f"wrote {args.csv}")
+    if args.slots_csv:
+        write_dict_rows(args.slots_csv, every_slot)
+        print(f"wrote {args.slots_csv}")
+    if args.slots_plot:
+        plot_slots(every_slot, recording.slot_s, args.slots_plot)
+        print(f"wrote {args.slots_plot}")
+
+
+def plot_slots(slots: list[dict[str, Any]], slot_s: float, path: Path) -> None:
+    """Each setting's device-slots along the walk: the latency from summaries to map (median
+    and worst across devices) against the slot period, the edge's compute a device-slot
+    (median) and the keyframes the edge restored (all devices) — where an edge falls behind
+    and what it was doing then."""
+    plt = pyplot()
+    settings = sorted({(s["pools"], s["merge_maps"], s["edges"], s["devices"]) for s in slots})
+    fig, axes = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    for setting in settings:
+        mine = [s for s in slots
+                if (s["pools"], s["merge_maps"], s["edges"], s["devices"]) == setting]
+        walk = sorted({s["slot"] for s in mine})
+        by_slot = {k: [s for s in mine if s["slot"] == k] for k in walk}
+        label = f"{setting[3]} devices, {setting[2]} edge{'s' * (setting[2] > 1)}" + \
+            (", shared place" if setting[1] == "on" else "")
+        latency = [np.median([s["latency_ms"] for s in by_slot[k]]) / 1e3 for k in walk]
+        worst = [max(s["latency_ms"] for s in by_slot[k]) / 1e3 for k in walk]
+        line, = axes[0].plot(walk, latency, marker="o", ms=3, label=f"{label}: median")
+        axes[0].plot(walk, worst, ls="--", color=line.get_color(), label=f"{label}: worst")
+        axes[1].plot(walk, [np.median([s["compute_ms"] for s in by_slot[k]]) for k in walk],
+                     color=line.get_color(), marker="o", ms=3, label=f"{label}: compute")
+        axes[1].bar(walk, [sum(s["restored"] for s in by_slot[k]) for k in walk], alpha=0.3,
+                    color=line.get_color(), label=f"{label}: keyframes restored (all)")
+    axes[0].axhline(slot_s, color="k", lw=0.8, label="the slot period (later is late)")
+    axes[0].set_ylabel("summaries → map (s)")
+    axes[0].legend(fontsize=7)
+    axes[1].set_ylabel("edge ms a device-slot / restored")
+    axes[1].set_xlabel("slot of the recorded walk")
+    axes[1].xaxis.get_major_locator().set_params(integer=True)
+    axes[1].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
 
 
 if __name__ == "__main__":
