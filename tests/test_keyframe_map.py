@@ -135,6 +135,22 @@ def test_a_point_reads_as_a_value_and_keeps_it_when_it_leaves() -> None:
     np.testing.assert_array_equal(point.descriptor, np.full(32, 7, np.uint8))
     with pytest.raises(ValueError, match="2 positions"):
         m.set_positions([newer], np.zeros((2, 3)))
+    # the points only an evicted keyframe observed leave with it, all at once: each keeps
+    # its own values and view counts, though newer points take their rows
+    m.add_keyframe(2, np.eye(4))
+    alone = m.add_points(np.arange(12.0).reshape(4, 3), np.arange(128, dtype=np.uint8
+                                                                    ).reshape(4, 32))
+    m.observe_many(2, alone, [[0.0, 0.0]] * 4, [1.0] * 4)
+    m.observe(2, newer)
+    m.points[alone[1]].visible, m.points[alone[1]].found = 9, 4
+    leaving = [m.points[q] for q in alone]
+    assert m.evict(2) == alone and newer in m.points
+    m.add_points(np.zeros((4, 3)), np.zeros((4, 32), np.uint8))
+    for j, left in enumerate(leaving):
+        np.testing.assert_array_equal(left.position, np.arange(12.0).reshape(4, 3)[j])
+        assert bytes(left.descriptor) == bytes(range(32 * j, 32 * j + 32))
+    assert (leaving[1].visible, leaving[1].found) == (9, 4)
+    assert (leaving[0].visible, leaving[0].found) == (1, 1)
 
 
 def _as_dicts(m: KeyFrameMap) -> dict[int, dict[int, tuple[float, ...]]]:

@@ -134,7 +134,13 @@ class MapPoint:
 
     def leave(self) -> None:
         """The point left the map: keep what its row held, give up the row."""
-        self._kept = (self.position, self.descriptor, self.visible, self.found)
+        self.keep(self.position, self.descriptor, self.visible, self.found)
+
+    def keep(self, position: np.ndarray, descriptor: np.ndarray, visible: int, found: int
+             ) -> None:
+        """The point left the map with these values (its row's, read by the map — for many
+        points at once), which it reads from now on."""
+        self._kept = (position, descriptor, int(visible), int(found))
 
 
 def stacked_rows(rows: list[np.ndarray], shape: tuple[int, ...], dtype: type) -> np.ndarray:
@@ -266,6 +272,19 @@ class KeyFrameMap:
         self.points[point_id] = MapPoint(point_id, self.columns,
                                          self.columns.add(point_id, xyz, desc))
 
+    def _drop_points(self, point_ids: list[int]) -> None:
+        """:meth:`_drop_point` of many points at once (a keyframe evicted takes the hundreds
+        only it observed with it): what each had read from the columns in one go."""
+        if not point_ids:
+            return
+        columns = self.columns
+        rows = columns.rows_of(point_ids)
+        kept = zip(columns.positions[rows], columns.descriptors[rows],
+                   columns.visible[rows].tolist(), columns.found[rows].tolist(), strict=True)
+        for point_id, values in zip(point_ids, kept, strict=True):
+            self.points.pop(point_id).keep(*values)
+            columns.remove(point_id)
+
     def _drop_point(self, point_id: int) -> MapPoint:
         """Take a point out of the map (its row freed); returns it, holding what it had."""
         point = self.points.pop(point_id)
@@ -351,15 +370,14 @@ class KeyFrameMap:
         kf = self.keyframes.pop(kf_id, None)
         if kf is None:
             raise MapError(f"cannot evict keyframe {kf_id}: not in the map")
-        orphans, still_seen = [], []
+        orphans: list[int] = []
+        still_seen: list[int] = []
+        points = self.points
         for pid in kf.points:
-            pt = self.points[pid]
-            pt.observers.discard(kf_id)
-            if not pt.observers:
-                self._drop_point(pid)
-                orphans.append(pid)
-            else:
-                still_seen.append(pid)
+            observers = points[pid].observers
+            observers.discard(kf_id)
+            (still_seen if observers else orphans).append(pid)
+        self._drop_points(orphans)
         self._count_observers(still_seen)
         return sorted(orphans)
 
