@@ -87,3 +87,7 @@ def test_distances_of_row_pairs_are_those_of_the_gathered_rows() -> None:
     assert hamming_of_pairs(a, [], b, []).tolist() == []
     with pytest.raises(ValueError, match="rows"):
         hamming_of_pairs(a, [1, 2], b, [1])
+    with pytest.raises(IndexError, match="outside"):
+        hamming_of_pairs(a, [0], b, [9])
+    with pytest.raises(IndexError, match="outside"):
+        hamming_of_pairs(a, [-1], b, [0])

@@ -58,6 +58,11 @@ def hamming_of_pairs(a: np.ndarray, rows_a: np.ndarray | Sequence[int], b: np.nd
     words_b = np.ascontiguousarray(b, dtype=np.uint8).view(np.uint64)
     if words_a.shape[1:] != words_b.shape[1:] or words_a.ndim != 2:
         raise ValueError(f"descriptors of {a.shape} and {b.shape}: not rows of one length")
-    distances: np.ndarray = _pair_distances(words_a, np.asarray(rows_a, dtype=np.int64),
-                                            words_b, np.asarray(rows_b, dtype=np.int64))
+    ia, ib = np.asarray(rows_a, dtype=np.int64), np.asarray(rows_b, dtype=np.int64)
+    # the compiled loop reads what a row names unchecked: a row outside the table is refused
+    # here, as numpy's gather would refuse it
+    for rows, table, name in ((ia, words_a, "a"), (ib, words_b, "b")):
+        if rows.size and (rows.min() < 0 or rows.max() >= len(table)):
+            raise IndexError(f"a row of {name} outside its {len(table)} descriptors")
+    distances: np.ndarray = _pair_distances(words_a, ia, words_b, ib)
     return distances
