@@ -132,10 +132,6 @@ class MapPoint:
         else:
             self._columns.found[self._row] = count
 
-    def leave(self) -> None:
-        """The point left the map: keep what its row held, give up the row."""
-        self.keep(self.position, self.descriptor, self.visible, self.found)
-
     def keep(self, position: np.ndarray, descriptor: np.ndarray, visible: int, found: int
              ) -> None:
         """The point left the map with these values (its row's, read by the map — for many
@@ -217,10 +213,8 @@ class KeyFrameMap:
 
     def add_point(self, position: np.ndarray, descriptor: np.ndarray) -> int:
         """A new map point; returns its id."""
-        pid = self.next_point_id
-        self.next_point_id += 1
-        self._put_point(pid, position, descriptor)
-        return pid
+        return self.add_points(np.asarray(position, dtype=np.float64).reshape(1, 3),
+                               np.asarray(descriptor, dtype=np.uint8).reshape(1, 32))[0]
 
     def add_points(self, positions: np.ndarray, descriptors: np.ndarray) -> list[int]:
         """New map points at once ((n, 3) positions, (n, 32) descriptors); their ids, the
@@ -260,17 +254,8 @@ class KeyFrameMap:
         from the edge's archive brings its points back under their own ids — or another
         device's point, under its tagged id (:mod:`~twinslam.slam.back_end.foreign_keyframes`),
         which no point of this map's own can take."""
-        if point_id in self.points or not (0 < point_id < self.next_point_id
-                                           or is_foreign(point_id)):
-            raise MapError(f"point {point_id} cannot come back: it is in the map or was never "
-                           "one of it")
-        self._put_point(point_id, position, descriptor)
-
-    def _put_point(self, point_id: int, position: np.ndarray, descriptor: np.ndarray) -> None:
-        xyz = np.asarray(position, dtype=np.float64).reshape(3)
-        desc = np.asarray(descriptor, dtype=np.uint8).reshape(32)
-        self.points[point_id] = MapPoint(point_id, self.columns,
-                                         self.columns.add(point_id, xyz, desc))
+        self.readd_points([point_id], np.asarray(position, dtype=np.float64).reshape(1, 3),
+                          np.asarray(descriptor, dtype=np.uint8).reshape(1, 32))
 
     def _drop_points(self, point_ids: list[int]) -> None:
         """:meth:`_drop_point` of many points at once (a keyframe evicted takes the hundreds
@@ -287,9 +272,8 @@ class KeyFrameMap:
 
     def _drop_point(self, point_id: int) -> MapPoint:
         """Take a point out of the map (its row freed); returns it, holding what it had."""
-        point = self.points.pop(point_id)
-        point.leave()
-        self.columns.remove(point_id)
+        point = self.points[point_id]
+        self._drop_points([point_id])
         return point
 
     def observe(self, kf_id: int, point_id: int,
@@ -489,9 +473,8 @@ class KeyFrameMap:
             for k, pose in zip(data.pop("keyframe_ids"), data.pop("keyframe_poses"),
                                strict=True):
                 m.add_keyframe(int(k), pose)
-            for p, xyz, desc in zip(data.pop("point_ids"), data.pop("point_positions"),
-                                    data.pop("point_descriptors"), strict=True):
-                m._put_point(int(p), xyz, desc)
+            m._put_points(data.pop("point_ids").astype(np.int64).tolist(),
+                          data.pop("point_positions"), data.pop("point_descriptors"))
             observations, seen = data.pop("observations"), data.pop("measurements")
             if len(observations) != len(seen):
                 raise ValueError(f"{len(observations)} observations, {len(seen)} measurements")

@@ -42,28 +42,11 @@ class PointColumns:
     def __len__(self) -> int:
         return len(self.row)
 
-    def add(self, point_id: int, position: np.ndarray, descriptor: np.ndarray) -> int:
-        """A row for a new point, written with its position and descriptor; returns it."""
-        if point_id in self.row:
-            raise KeyError(f"point {point_id} has a row already")
-        if self._free:
-            r = self._free.pop()
-        else:
-            if self._used == len(self.positions):
-                self._grow()
-            r, self._used = self._used, self._used + 1
-        self.positions[r] = position
-        self.descriptors[r] = descriptor
-        self.observed[r] = 0
-        self.visible[r] = self.found[r] = 1       # its creator held it in view and found it
-        self.row[point_id] = r
-        return r
-
     def add_many(self, point_ids: list[int], positions: np.ndarray, descriptors: np.ndarray
                  ) -> np.ndarray:
-        """Rows for new points at once (a keyframe's integration makes hundreds, a restore
+        """Rows for new points (a keyframe's integration makes hundreds at once, a restore
         brings hundreds back), written with their positions and descriptors; returns them.
-        The rows are those :meth:`add` would give one point after another."""
+        Rows points left are taken first (the last freed first), then rows never used."""
         if len(set(point_ids)) != len(point_ids) or any(p in self.row for p in point_ids):
             raise KeyError("a point has a row already, or is named twice")
         n = len(point_ids)
