@@ -59,8 +59,7 @@ def map_update_message(keyframe_map: KeyFrameMap, slot: int, version: int, stamp
     loops' corrections so far at the walk's head (``frame_correction``; None: none)."""
     tracks = {t: p for t, p in (tracks or {}).items() if p in keyframe_map.points}
     kf_ids = keyframe_map.keyframe_ids()
-    pt_ids = sorted(keyframe_map.points)
-    rows = keyframe_map.columns.rows_of(pt_ids)
+    pt_ids, rows = keyframe_map.columns.by_id()
     # written for every device every slot: each column read straight into its array, each
     # keyframe's observations from the arrays it keeps until they change
     observed = [np.sort(keyframe_map.keyframes[k].observed()[0]) for k in kf_ids]

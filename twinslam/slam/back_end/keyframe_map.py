@@ -429,9 +429,7 @@ class KeyFrameMap:
         # every point's id and row read at C speed (the edge writes this every slot: a long
         # walk's map holds tens of thousands of points), sorted by id; the columns hold a row
         # for each of the map's points and its values, view counts included
-        column_ids, column_rows = self.columns.ids_and_rows()
-        by_id = np.argsort(column_ids, kind="stable")
-        pt_ids, rows = column_ids[by_id], column_rows[by_id]
+        pt_ids, rows = self.columns.by_id()
         # every observation has its measurement (observe writes both, unobserve and evict
         # drop both), so the measurement dicts list the observations; the edge writes this
         # every slot, and each keyframe keeps its observations as arrays until they change

@@ -82,6 +82,13 @@ class PointColumns:
         return (np.fromiter(self.row.keys(), dtype=np.int64, count=n),
                 np.fromiter(self.row.values(), dtype=np.int64, count=n))
 
+    def by_id(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every point's id, ascending, and its row (int64 arrays): the order the checkpoint
+        and the map update write the points in."""
+        ids, rows = self.ids_and_rows()
+        order = np.argsort(ids, kind="stable")
+        return ids[order], rows[order]
+
     def positions_of(self, point_ids: Collection[int]) -> np.ndarray:
         """``(len(point_ids), 3)``: the points' positions, a copy."""
         out: np.ndarray = self.positions[self.rows_of(point_ids)]
