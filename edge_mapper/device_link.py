@@ -26,10 +26,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from geometry_msgs.msg import PoseArray
-from nav_msgs.msg import Path as PathMsg
 from rclpy.node import Node
-from sensor_msgs.msg import PointCloud2
 from twinslam_msgs.msg import (
     FrameSummaries,
     Keyframe,
@@ -41,7 +38,6 @@ from twinslam_msgs.msg import (
     UplinkThroughput,
     UploadRequest,
 )
-from visualization_msgs.msg import MarkerArray
 
 from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, SlotOutcome
 from edge_mapper.messages import (
@@ -56,12 +52,7 @@ from edge_mapper.place_merging import PlaceMerging
 from edge_mapper.policy_control import POLICY_KEYS, Note, PolicyControl
 from edge_mapper.slot_lifecycle import Closing, SlotLifecycle
 from edge_mapper.slot_planner import FrameObservations
-from edge_mapper.visual_messages import (
-    decisions_message,
-    keyframe_trajectory_message,
-    keyframes_message,
-    map_points_message,
-)
+from edge_mapper.viewer_topics import ViewerTopics
 from msg_schemas import qos, topics
 from twinslam.node_runtime.checked_subscription import CheckedSubscription
 from twinslam.rotations import rotation_angle_deg
@@ -139,11 +130,8 @@ class DeviceLink:
         self.pub_stats = pub(MapStats, self.topic(topics.MAP_STATS), qos.PROTOCOL)
         self.pub_relocalisation = pub(Relocalisation, self.topic(topics.RELOCALISATION),
                                       qos.PROTOCOL)
-        self.pub_views = ((pub(PointCloud2, self.topic(topics.MAP_POINTS), qos.MAP),
-                           pub(PoseArray, self.topic(topics.KEYFRAME_POSES), qos.MAP),
-                           pub(MarkerArray, self.topic(topics.DECISIONS), qos.MAP),
-                           pub(PathMsg, self.topic(topics.KEYFRAME_TRAJECTORY), qos.MAP))
-                          if settings.visualisation else None)
+        self.views = (ViewerTopics(node, self.topic, settings.trajectory_every)
+                      if settings.visualisation else None)
         guarded = self._guarded
         self.subscriptions = [
             CheckedSubscription(node, FrameSummaries, self.topic(topics.FRAME_SUMMARIES),
@@ -325,7 +313,7 @@ class DeviceLink:
         entry = self.slots.close(slot, self.control.policy_name)
         self._take_merge(slot)                # first: the poses below are in the new frame
         before = ({k: kf.pose for k, kf in self.core.map.keyframes.items()}  # evicted: where
-                  if self.pub_views is not None else {})
+                  if self.views is not None and self.views.wants_decisions() else {})
         out: SlotOutcome = self.core.finish_slot(slot)
         if self.merging is not None:
             self.merging.look(self.device, slot)
@@ -368,18 +356,11 @@ class DeviceLink:
                          "the map nor the archive")
         if self.spent is not None:
             self.spent(compute_s)
-        if self.pub_views is not None:         # after MapStats: not in its compute time
-            m, (cloud, poses, marks, trajectory) = self.core.map, self.pub_views
-            cloud.publish(map_points_message(m, now, frame))
-            poses.publish(keyframes_message(m, now, frame))
-            marks.publish(decisions_message(m, out.integrated, out.evicted, before, now, frame,
-                                            out.restored))
-            every = self.settings.trajectory_every
-            if (out.loop is not None and not out.loop.refused and out.loop.old >= 0) or \
-                    (every > 0 and slot % every == 0):
-                # ~13 ms a 545-keyframe path (bench.visual): not every slot
-                trajectory.publish(keyframe_trajectory_message(
-                    self.core.back_end.keyframe_trajectory(), now, frame))
+        if self.views is not None:             # after MapStats: not in its compute time
+            self.views.publish(self.core.map, slot, now, frame, out.integrated, out.evicted,
+                               out.restored, before, out.loop is not None and
+                               not out.loop.refused and out.loop.old >= 0,
+                               self.core.back_end.keyframe_trajectory)
         u = out.map_uncertainty
         kept = f" (kept {len(out.spared)} of C_k: uploads missing)" if out.spared else ""
         if entry.covered:
@@ -460,5 +441,7 @@ class DeviceLink:
         self.core.close()
         for sub in self.subscriptions:
             self.node.destroy_subscription(sub.subscription)
-        for pub in (self.pub_request, self.pub_map, self.pub_stats, *(self.pub_views or ())):
+        for pub in (self.pub_request, self.pub_map, self.pub_stats):
             self.node.destroy_publisher(pub)
+        if self.views is not None:
+            self.views.destroy(self.node)

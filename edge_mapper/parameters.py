@@ -111,7 +111,8 @@ PARAMETERS = (
               live=True),
     ParamSpec("visualisation", True, f"publish {topics.MAP_POINTS} (PointCloud2), "
               f"{topics.KEYFRAME_POSES} (PoseArray) and {topics.DECISIONS} (MarkerArray) once a "
-              "slot, latched, for RViz / Foxglove"),
+              "slot, latched, for RViz / Foxglove; each made only while something subscribes to it "
+              "(a viewer that joins gets the map at the next slot's end)"),
     ParamSpec("trajectory_every", 30, f"with visualisation, publish {topics.KEYFRAME_TRAJECTORY} "
               "(nav_msgs/Path of every keyframe kept, the map's and the archive's, latched) every "
               "this many slots and after every slot that closed a loop; 0: only after loops",
