@@ -15,9 +15,11 @@ from __future__ import annotations
 import itertools
 import math
 import os
-from collections.abc import Collection, Mapping, Sequence
+from collections import deque
+from collections.abc import Collection, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
-from itertools import chain
+from itertools import chain, repeat
+from operator import attrgetter
 from pathlib import Path
 from typing import Any
 
@@ -137,6 +139,17 @@ class MapPoint:
         """The point left the map with these values (its row's, read by the map — for many
         points at once), which it reads from now on."""
         self._kept = (position, descriptor, int(visible), int(found))
+
+
+#: a point's observer set and its row in the columns, read at C speed over many points
+_OBSERVERS = attrgetter("observers")
+_ROW = attrgetter("_row")
+
+
+def _run(calls: Iterator[object]) -> None:
+    """Make every call of a lazy ``map`` (its results unused), at C speed: itertools' consume
+    recipe."""
+    deque(calls, maxlen=0)
 
 
 def stacked_rows(rows: list[np.ndarray], shape: tuple[int, ...], dtype: type) -> np.ndarray:
@@ -284,20 +297,28 @@ class KeyFrameMap:
 
     def observe_many(self, kf_id: int, point_ids: list[int], uvs: list[list[float]],
                      depths: list[float]) -> None:
-        """``observe`` for many points of one keyframe (its integration's bulk path)."""
+        """``observe`` for many points of one keyframe (its integration's bulk path: hundreds
+        of observations a keyframe, each point's observers and count written by C-level
+        iteration, not a Python step a point)."""
+        if not len(uvs) == len(depths) == len(point_ids):
+            raise ValueError(f"{len(point_ids)} points but {len(uvs)} pixels and "
+                             f"{len(depths)} depths")
         kf = self.keyframes.get(kf_id)
-        missing = [p for p in point_ids if p not in self.points]
-        if kf is None or missing:
+        try:
+            seen = list(map(self.points.__getitem__, point_ids))
+        except KeyError:
+            seen = []
+        if kf is None or len(seen) != len(point_ids):
+            missing = [p for p in point_ids if p not in self.points]
             named = ", ".join(str(p) for p in (missing or point_ids)[:5])
             raise MapError(f"keyframe {kf_id} cannot observe point {named}: unknown "
                            "keyframe or point")
         kf.points.update(point_ids)
         kf.edited()
-        meas, points = kf.measurements, self.points
-        for pid, (u, v), d in zip(point_ids, uvs, depths, strict=True):
-            meas[pid] = (u, v, d)
-            points[pid].observers.add(kf_id)
-        self._count_observers(point_ids)
+        kf.measurements.update(zip(point_ids, [(u, v, d) for (u, v), d
+                                               in zip(uvs, depths, strict=True)], strict=True))
+        _run(map(set.add, map(_OBSERVERS, seen), repeat(kf_id)))
+        self._count_observers_of(seen)
 
     def unobserve(self, kf_id: int, point_id: int) -> bool:
         """Drop one observation (an outlier the optimiser found); removes the point when it
@@ -354,24 +375,27 @@ class KeyFrameMap:
         kf = self.keyframes.pop(kf_id, None)
         if kf is None:
             raise MapError(f"cannot evict keyframe {kf_id}: not in the map")
-        orphans: list[int] = []
-        still_seen: list[int] = []
-        points = self.points
-        for pid in kf.points:
-            observers = points[pid].observers
-            observers.discard(kf_id)
-            (still_seen if observers else orphans).append(pid)
+        seen = list(map(self.points.__getitem__, kf.points))
+        observers = list(map(_OBSERVERS, seen))
+        _run(map(set.discard, observers, repeat(kf_id)))
+        left = np.fromiter(map(len, observers), dtype=np.int64, count=len(seen))
+        orphans = [p.id for p, n in zip(seen, left.tolist(), strict=True) if not n]
         self._drop_points(orphans)
-        self._count_observers(still_seen)
+        self._count_observers_of([p for p, n in zip(seen, left.tolist(), strict=True) if n])
         return sorted(orphans)
 
     def _count_observers(self, point_ids: Collection[int]) -> None:
         """Write how many keyframes observe each of ``point_ids`` into the columns, after an
         edit of their observers (what the map update and the viewer's cloud send a point)."""
-        points = self.points
-        self.columns.observed[self.columns.rows_of(point_ids)] = np.fromiter(
-            (len(points[p].observers) for p in point_ids), dtype=np.int64,
-            count=len(point_ids))
+        self._count_observers_of(list(map(self.points.__getitem__, point_ids)))
+
+    def _count_observers_of(self, points: list[MapPoint]) -> None:
+        """:meth:`_count_observers` of the map's points ``points`` (each point's row and
+        observer count read by C-level iteration)."""
+        n = len(points)
+        rows = np.fromiter(map(_ROW, points), dtype=np.int64, count=n)
+        self.columns.observed[rows] = np.fromiter(map(len, map(_OBSERVERS, points)),
+                                                  dtype=np.int64, count=n)
 
     # -- queries ---------------------------------------------------------------------------
 
