@@ -22,6 +22,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import sparse
 
 from edge_mapper.planning_world import MAX_DEPTH_M, visible_mask
 from twinslam.policies.restoring import MIN_VIEW_POINTS, choose_restores
@@ -93,9 +94,10 @@ class TrialWeights:
                  archived_sets: Mapping[int, np.ndarray]) -> None:
         self.map_index = {k: i for i, k in enumerate(map_sets)}
         self.archived_sets = archived_sets
-        #: the map's points, and the map keyframe × map point incidence
-        self._points, self._incidence = point_incidence(list(map_sets.values()))
-        self.map_weights = counts_of(self._incidence)
+        #: the map's points (sorted), and the map keyframe × map point incidence (a row a
+        #: keyframe of ``map_sets``, in its order)
+        self.points, self.incidence = point_incidence(list(map_sets.values()))
+        self.map_weights = counts_of(self.incidence)
         self._rows: dict[int, np.ndarray] = {}
 
     def of(self, keyframes: Sequence[int]) -> np.ndarray:
@@ -117,8 +119,8 @@ class TrialWeights:
     def _row(self, kf: int) -> np.ndarray:
         """How many points archived keyframe ``kf`` shares with each map keyframe."""
         if kf not in self._rows:
-            cols = np.flatnonzero(np.isin(self._points, self.archived_sets[kf]))
-            self._rows[kf] = np.asarray(self._incidence[:, cols].sum(axis=1)).ravel()
+            cols = np.flatnonzero(np.isin(self.points, self.archived_sets[kf]))
+            self._rows[kf] = np.asarray(self.incidence[:, cols].sum(axis=1)).ravel()
         return self._rows[kf]
 
 
@@ -141,7 +143,7 @@ def plan_restores(m: KeyFrameMap, archive: KeyFrameArchive, poses: Sequence[np.n
         # connected exactly when u(G) is finite: the check the map's uncertainty makes
         return math.isfinite(map_uncertainty(weights.of(keyframes)))
 
-    scores = _map_view_scores(m, sets, poses, camera)
+    scores = map_view_scores(m, sets, poses, camera, (weights.points, weights.incidence))
     restore, evict = choose_restores(candidates, scores, vmax - len(m.keyframes), limit,
                                      set(protected), connected)
     return RestorePlan(restore, evict)
@@ -172,7 +174,7 @@ def plan_relocation_restores(m: KeyFrameMap, archive: KeyFrameArchive,
         return RestorePlan([], [])
     evict = sorted(k for k in m.keyframes if k not in connected)
     stay = [k for k in m.keyframes if k in connected]
-    scores = _map_view_scores(m, {k: sets[k] for k in stay}, poses, camera)
+    scores = map_view_scores(m, {k: sets[k] for k in stay}, poses, camera)
     while len(stay) + len(restore) > vmax:
         replaceable = [k for k in stay if k not in keep]
         if not replaceable:
@@ -187,16 +189,23 @@ def plan_relocation_restores(m: KeyFrameMap, archive: KeyFrameArchive,
     return RestorePlan(restore, evict)
 
 
-def _map_view_scores(m: KeyFrameMap, sets: dict[int, np.ndarray], poses: Sequence[np.ndarray],
-                     camera: Camera) -> dict[int, int]:
-    """:func:`view_scores` of the map keyframes ``sets`` (id → its point ids); every
-    keyframe's points read from the map at once."""
+def map_view_scores(m: KeyFrameMap, sets: dict[int, np.ndarray], poses: Sequence[np.ndarray],
+                     camera: Camera,
+                     incidence: tuple[np.ndarray, sparse.csr_matrix] | None = None
+                     ) -> dict[int, int]:
+    """:func:`view_scores` of the map keyframes ``sets`` (id → its point ids): each map
+    point read and tested once a pose however many keyframes observe it (a point of a
+    covisible map is in several), and counted for its keyframes by the keyframe × point
+    ``incidence`` of ``sets`` (:func:`point_incidence`; made here when not given)."""
     if not sets:
         return {}
-    cuts = np.cumsum([len(ids) for ids in sets.values()], dtype=np.int64)[:-1]
-    positions = np.split(m.positions_of(np.concatenate(list(sets.values())).tolist()), cuts)
-    scores = view_scores(positions, poses, camera).tolist()
-    return dict(zip(sets, scores, strict=True))
+    points, inc = incidence if incidence is not None else point_incidence(list(sets.values()))
+    positions = m.positions_of(points.tolist())
+    best = np.zeros(len(sets), dtype=np.int64)
+    for pose in poses:
+        seen = inc @ visible_mask(positions, pose, camera, MAX_DEPTH_M).astype(np.float64)
+        best = np.maximum(best, np.rint(seen).astype(np.int64))
+    return dict(zip(sets, best.tolist(), strict=True))
 
 
 def _component(sets: dict[int, np.ndarray], start: int) -> set[int]:

@@ -8,9 +8,9 @@ from __future__ import annotations
 import numpy as np
 
 from edge_mapper.planning_world import visible_mask
-from edge_mapper.restores import TrialWeights, archived_in_view, view_scores
+from edge_mapper.restores import TrialWeights, archived_in_view, map_view_scores, view_scores
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive
-from twinslam.slam.back_end.keyframe_map import shared_counts
+from twinslam.slam.back_end.keyframe_map import KeyFrameMap, shared_counts
 from twinslam.slam.camera import Camera
 
 CAMERA = Camera(np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]]))
@@ -71,3 +71,23 @@ def test_a_trial_maps_weights_are_the_shared_counts_of_its_keyframes() -> None:
         np.testing.assert_array_equal(weights.of(trial),
                                       shared_counts([every[k] for k in trial]))
     assert weights.of([0, 100])[0, 1] > 0          # the sets overlap where the ids do
+
+
+def test_a_map_keyframes_score_counts_its_own_points_though_others_share_them() -> None:
+    """Map keyframes that share points (each point tested once a pose) score what each alone
+    would: its own points the best predicted pose sees, shared ones counted for each."""
+    m = KeyFrameMap()
+    front, aside = _ahead(30, 0.0), _ahead(20, 5.0)
+    ids = m.add_points(np.vstack([front, aside]), np.zeros((50, 32), np.uint8))
+    members = {1: ids[:20], 2: ids[10:30] + ids[30:35], 3: ids[30:], 4: ids[5:15]}
+    for kf, pids in members.items():
+        m.add_keyframe(kf, np.eye(4))
+        m.observe_many(kf, pids, [[0.0, 0.0]] * len(pids), [1.0] * len(pids))
+    sets = {kf: m.point_array(kf) for kf in members}
+    poses = [np.eye(4), _moved(0.3)]
+    alone = {kf: max(int(visible_mask(m.positions_of(pids), p, CAMERA).sum()) for p in poses)
+             for kf, pids in members.items()}
+    assert map_view_scores(m, sets, poses, CAMERA) == alone
+    weights = TrialWeights(sets, {})
+    assert map_view_scores(m, sets, poses, CAMERA, (weights.points, weights.incidence)) == alone
+    assert alone[1] == 20 and alone[3] == 0
