@@ -22,17 +22,11 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import sparse
 
 from edge_mapper.planning_world import MAX_DEPTH_M, visible_mask
 from twinslam.policies.restoring import MIN_VIEW_POINTS, choose_restores
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
-from twinslam.slam.back_end.keyframe_map import (
-    KeyFrameMap,
-    counts_of,
-    point_incidence,
-    shared_counts,
-)
+from twinslam.slam.back_end.keyframe_map import Incidence, KeyFrameMap, shared_counts
 from twinslam.slam.camera import Camera
 from twinslam.uncertainty.map_uncertainty import map_uncertainty
 
@@ -85,19 +79,17 @@ class TrialWeights:
     """The covisibility weights (shared point counts, zero diagonal) of any map the restores
     may try — the map's keyframes with some left out and some archived ones added — as
     :func:`~twinslam.slam.back_end.keyframe_map.shared_counts` of their point sets would
-    give them, without recounting the map's pairs for every trial: those are counted once
-    (``map_sets``: each map keyframe's points), an archived keyframe's (``archived_sets``)
-    against the map once, when a trial first holds it. Each trial swap asked for the
-    counts of the whole map again (~1 ms a trial, several a slot)."""
+    give them, without recounting the map's pairs for every trial: those are the map's
+    ``counted`` incidence (:meth:`KeyFrameMap.incidence`, counted once a map), an archived
+    keyframe's (``archived_sets``) are counted against the map once, when a trial first holds
+    it. Each trial swap asked for the counts of the whole map again (~1 ms a trial, several a
+    slot)."""
 
-    def __init__(self, map_sets: Mapping[int, np.ndarray],
-                 archived_sets: Mapping[int, np.ndarray]) -> None:
-        self.map_index = {k: i for i, k in enumerate(map_sets)}
+    def __init__(self, counted: Incidence, archived_sets: Mapping[int, np.ndarray]) -> None:
+        self.map_index = {k: i for i, k in enumerate(counted.ids)}
         self.archived_sets = archived_sets
-        #: the map's points (sorted), and the map keyframe × map point incidence (a row a
-        #: keyframe of ``map_sets``, in its order)
-        self.points, self.incidence = point_incidence(list(map_sets.values()))
-        self.map_weights = counts_of(self.incidence)
+        self.counted = counted
+        self.map_weights = counted.weights
         self._rows: dict[int, np.ndarray] = {}
 
     def of(self, keyframes: Sequence[int]) -> np.ndarray:
@@ -119,8 +111,8 @@ class TrialWeights:
     def _row(self, kf: int) -> np.ndarray:
         """How many points archived keyframe ``kf`` shares with each map keyframe."""
         if kf not in self._rows:
-            cols = np.flatnonzero(np.isin(self.points, self.archived_sets[kf]))
-            self._rows[kf] = np.asarray(self.incidence[:, cols].sum(axis=1)).ravel()
+            cols = np.flatnonzero(np.isin(self.counted.points, self.archived_sets[kf]))
+            self._rows[kf] = np.asarray(self.counted.matrix[:, cols].sum(axis=1)).ravel()
         return self._rows[kf]
 
 
@@ -136,14 +128,14 @@ def plan_restores(m: KeyFrameMap, archive: KeyFrameArchive, poses: Sequence[np.n
     candidates = archived_in_view(archive, poses, camera, slot)
     if not candidates:
         return RestorePlan([], [])
-    sets = {k: m.point_array(k) for k in m.keyframes}
-    weights = TrialWeights(sets, {k: archive.get(k).point_ids for _, k in candidates})
+    counted = m.incidence(m.keyframe_ids())
+    weights = TrialWeights(counted, {k: archive.get(k).point_ids for _, k in candidates})
 
     def connected(keyframes: list[int]) -> bool:
         # connected exactly when u(G) is finite: the check the map's uncertainty makes
         return math.isfinite(map_uncertainty(weights.of(keyframes)))
 
-    scores = map_view_scores(m, sets, poses, camera, (weights.points, weights.incidence))
+    scores = map_view_scores(m, counted, poses, camera)
     restore, evict = choose_restores(candidates, scores, vmax - len(m.keyframes), limit,
                                      set(protected), connected)
     return RestorePlan(restore, evict)
@@ -174,7 +166,7 @@ def plan_relocation_restores(m: KeyFrameMap, archive: KeyFrameArchive,
         return RestorePlan([], [])
     evict = sorted(k for k in m.keyframes if k not in connected)
     stay = [k for k in m.keyframes if k in connected]
-    scores = map_view_scores(m, {k: sets[k] for k in stay}, poses, camera)
+    scores = map_view_scores(m, Incidence.of(stay, [sets[k] for k in stay]), poses, camera)
     while len(stay) + len(restore) > vmax:
         replaceable = [k for k in stay if k not in keep]
         if not replaceable:
@@ -189,23 +181,21 @@ def plan_relocation_restores(m: KeyFrameMap, archive: KeyFrameArchive,
     return RestorePlan(restore, evict)
 
 
-def map_view_scores(m: KeyFrameMap, sets: dict[int, np.ndarray], poses: Sequence[np.ndarray],
-                     camera: Camera,
-                     incidence: tuple[np.ndarray, sparse.csr_matrix] | None = None
-                     ) -> dict[int, int]:
-    """:func:`view_scores` of the map keyframes ``sets`` (id → its point ids): each map
-    point read and tested once a pose however many keyframes observe it (a point of a
-    covisible map is in several), and counted for its keyframes by the keyframe × point
-    ``incidence`` of ``sets`` (:func:`point_incidence`; made here when not given)."""
-    if not sets:
+def map_view_scores(m: KeyFrameMap, counted: Incidence, poses: Sequence[np.ndarray],
+                    camera: Camera) -> dict[int, int]:
+    """:func:`view_scores` of the map keyframes ``counted`` holds (their point incidence,
+    :meth:`KeyFrameMap.incidence`): each map point read and tested once a pose however many
+    keyframes observe it (a point of a covisible map is in several), and counted for its
+    keyframes by the incidence."""
+    if not counted.ids:
         return {}
-    points, inc = incidence if incidence is not None else point_incidence(list(sets.values()))
-    positions = m.positions_of(points.tolist())
-    best = np.zeros(len(sets), dtype=np.int64)
+    positions = m.positions_of(counted.points.tolist())
+    best = np.zeros(len(counted.ids), dtype=np.int64)
     for pose in poses:
-        seen = inc @ visible_mask(positions, pose, camera, MAX_DEPTH_M).astype(np.float64)
+        seen = counted.matrix @ visible_mask(positions, pose, camera, MAX_DEPTH_M).astype(
+            np.float64)
         best = np.maximum(best, np.rint(seen).astype(np.int64))
-    return dict(zip(sets, best.tolist(), strict=True))
+    return dict(zip(counted.ids, best.tolist(), strict=True))
 
 
 def _component(sets: dict[int, np.ndarray], start: int) -> set[int]:

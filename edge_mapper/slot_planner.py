@@ -163,8 +163,11 @@ class SlotPlanner:
         # a frame is lost when its reported points (the device's matches) share fewer than
         # the device's MIN_INLIERS with the map (twinslam.slot_protocol.lost_frame_rule); a
         # keyframe holds map-point ids only, so this counts shared map points alone
-        in_map = (np.unique(np.concatenate([keys[x] for x in map_ids])) if map_ids
-                  else np.zeros(0, dtype=np.int64))
+        # the map's keyframes (a prefix of map_ids) counted as the slot's end counted them
+        kept = [k for k in map_ids if k in self.map.keyframes]
+        counted = self.map.incidence(kept)
+        in_map = (np.union1d(counted.points, np.concatenate([keys[x] for x in arriving]))
+                  if arriving else counted.points)
         shared = np.array([np.isin(keys[f], in_map, assume_unique=True).sum() for f in every])
         lost = [not f.tracked or n < MIN_INLIERS for f, n in zip(frames, shared, strict=True)]
         # a covered frame the map cannot serve (lost by the rule: the device matched too few
@@ -184,7 +187,7 @@ class SlotPlanner:
             n_ev = theorem1_evictions(len(map_ids), n_up, cfg.vmax)
         self.waited_mbit = waited_after(n_up, rate_mbps, slot_s, self.waited_mbit,
                                         needs_map(lost))
-        full = shared_counts([keys[x] for x in map_ids + every])
+        full = counted.extended([keys[x] for x in map_ids[len(kept):] + every])
         pos = {x: i for i, x in enumerate(map_ids + every)}
         obs = SlotObservation(slot, map_ids, cand, n_up, n_ev, rate_mbps, rate_state,
                               list(rate_history), self.n_states,

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame
-from twinslam.slam.back_end.keyframe_map import KeyFrameMap, MapError
+from twinslam.slam.back_end.keyframe_map import Incidence, KeyFrameMap, MapError, shared_counts
 
 
 def _map() -> KeyFrameMap:
@@ -249,3 +249,49 @@ def test_points_added_at_once_are_as_points_added_one_by_one() -> None:
         many.readd_points([1, 1], xyz[:2], desc[:2])
     assert 1 not in many.points and 1 not in many.columns.row
     assert many.add_points(np.zeros((0, 3)), np.zeros((0, 32), np.uint8)) == []
+
+
+def _counted_from_scratch(m: KeyFrameMap) -> np.ndarray:
+    return shared_counts([np.array(sorted(m.keyframes[k].points), dtype=np.int64)
+                          for k in m.keyframe_ids()])
+
+
+def test_the_covisibility_kept_between_reads_follows_every_edit() -> None:
+    """The map keeps the last covisibility it counted (the slot's end and the next slot's
+    plan read the same map): read again unedited it is the one kept; after each kind of edit
+    (observe, unobserve, fuse, a point removed, a keyframe evicted or added) it is counted
+    again, and always what counting the keyframes' points from scratch gives."""
+    m = _map()
+    first = m.incidence(m.keyframe_ids())
+    assert m.incidence(m.keyframe_ids()) is first
+    np.testing.assert_array_equal(m.covisibility(), _counted_from_scratch(m))
+    shared = sorted(m.keyframes[10].points & m.keyframes[11].points)
+    only_10 = sorted(m.keyframes[10].points - m.keyframes[11].points - m.keyframes[12].points)
+    edits = [lambda: m.observe(12, shared[0], (1.0, 2.0), 0.5),
+             lambda: m.unobserve(10, shared[1]),
+             lambda: m.fuse(sorted(m.keyframes[12].points)[0], only_10[0]),
+             lambda: m.remove_point(shared[2]),
+             lambda: m.add_keyframe(13, np.eye(4)),
+             lambda: m.evict(11)]
+    for edit in edits:
+        before = m.covisibility()
+        edit()
+        np.testing.assert_array_equal(m.covisibility(), _counted_from_scratch(m))
+        assert m.covisibility() is not before
+    with pytest.raises(ValueError, match="read-only"):
+        m.covisibility()[0, 1] = 5.0
+
+
+def test_frames_counted_against_a_maps_kept_incidence_are_counted_as_from_scratch() -> None:
+    """A slot's frames (map points, track keys as negative ids, points the map lacks) counted
+    against the keyframes' kept incidence: the same weights as all the sets counted at once."""
+    rng = np.random.default_rng(5)
+    keyframes = [rng.choice(300, 50, replace=False).astype(np.int64) for _ in range(6)]
+    frames = [np.concatenate([rng.choice(400, 40, replace=False), -1 - rng.choice(30, 10,
+                                                                                 replace=False)])
+              .astype(np.int64) for _ in range(5)] + [np.zeros(0, dtype=np.int64)]
+    counted = Incidence.of(range(6), keyframes)
+    np.testing.assert_array_equal(counted.extended(frames), shared_counts(keyframes + frames))
+    np.testing.assert_array_equal(counted.extended([]), shared_counts(keyframes))
+    none = Incidence.of([], [])
+    np.testing.assert_array_equal(none.extended(frames), shared_counts(frames))

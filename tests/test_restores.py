@@ -10,7 +10,7 @@ import numpy as np
 from edge_mapper.planning_world import visible_mask
 from edge_mapper.restores import TrialWeights, archived_in_view, map_view_scores, view_scores
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive
-from twinslam.slam.back_end.keyframe_map import KeyFrameMap, shared_counts
+from twinslam.slam.back_end.keyframe_map import Incidence, KeyFrameMap, shared_counts
 from twinslam.slam.camera import Camera
 
 CAMERA = Camera(np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]]))
@@ -64,7 +64,7 @@ def test_a_trial_maps_weights_are_the_shared_counts_of_its_keyframes() -> None:
     map_sets = {k: rng.choice(400, 60, replace=False).astype(np.int64) for k in range(8)}
     archived = {100 + k: rng.choice(np.arange(200, 700), 70, replace=False).astype(np.int64)
                 for k in range(4)}
-    weights = TrialWeights(map_sets, archived)
+    weights = TrialWeights(Incidence.of(list(map_sets), list(map_sets.values())), archived)
     every = {**map_sets, **archived}
     for trial in ([0, 1, 2, 3, 4, 5, 6, 7], [1, 2, 3, 4, 5, 6, 7, 100], [101, 0, 3, 102, 5],
                   [103, 100], [4]):
@@ -83,11 +83,8 @@ def test_a_map_keyframes_score_counts_its_own_points_though_others_share_them() 
     for kf, pids in members.items():
         m.add_keyframe(kf, np.eye(4))
         m.observe_many(kf, pids, [[0.0, 0.0]] * len(pids), [1.0] * len(pids))
-    sets = {kf: m.point_array(kf) for kf in members}
     poses = [np.eye(4), _moved(0.3)]
     alone = {kf: max(int(visible_mask(m.positions_of(pids), p, CAMERA).sum()) for p in poses)
              for kf, pids in members.items()}
-    assert map_view_scores(m, sets, poses, CAMERA) == alone
-    weights = TrialWeights(sets, {})
-    assert map_view_scores(m, sets, poses, CAMERA, (weights.points, weights.incidence)) == alone
+    assert map_view_scores(m, m.incidence(list(members)), poses, CAMERA) == alone
     assert alone[1] == 20 and alone[3] == 0
