@@ -123,7 +123,7 @@ def predict_frames(view: SlotView, slots: int, max_depth_m: float = MAX_DEPTH_M
         if nearest not in located:
             mapped = np.array([p for p in seen[seen >= 0].tolist() if p in points],
                               dtype=np.int64)
-            located[nearest] = (mapped, view.keyframe_map.positions_of(mapped.tolist()))
+            located[nearest] = (mapped, view.keyframe_map.positions_of(mapped))
         mapped, positions = located[nearest]
         kept = visible_mask(positions, pose, view.camera, max_depth_m)
         share = float(kept.sum()) / max(1, int(np.count_nonzero(seen >= 0)))

@@ -189,7 +189,7 @@ def map_view_scores(m: KeyFrameMap, counted: Incidence, poses: Sequence[np.ndarr
     keyframes by the incidence."""
     if not counted.ids:
         return {}
-    positions = m.positions_of(counted.points.tolist())
+    positions = m.positions_of(counted.points)
     best = np.zeros(len(counted.ids), dtype=np.int64)
     for pose in poses:
         seen = counted.matrix @ visible_mask(positions, pose, camera, MAX_DEPTH_M).astype(

@@ -47,7 +47,7 @@ DECISION_COLOURS = {"integrated": (0.1, 0.8, 0.2, 1.0), "evicted": (0.9, 0.1, 0.
 def map_points_message(keyframe_map: KeyFrameMap, stamp: float, frame_id: str = "map"
                        ) -> PointCloud2:
     """Every map point as one unorganised cloud (height 1, width = the map's point count)."""
-    rows = keyframe_map.columns.rows_of(keyframe_map.points)
+    rows = keyframe_map.columns.ids_and_rows()[1]      # the points' own order
     data = np.zeros((len(rows), 4), dtype=np.float32)
     data[:, :3] = keyframe_map.columns.positions[rows]
     data[:, 3] = keyframe_map.columns.observed[rows]

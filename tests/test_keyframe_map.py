@@ -7,8 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from twinslam.slam.back_end.foreign_keyframes import foreign_tag
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame
 from twinslam.slam.back_end.keyframe_map import Incidence, KeyFrameMap, MapError, shared_counts
+from twinslam.slam.back_end.point_columns import PointColumns
 
 
 def _map() -> KeyFrameMap:
@@ -295,3 +297,30 @@ def test_frames_counted_against_a_maps_kept_incidence_are_counted_as_from_scratc
     np.testing.assert_array_equal(counted.extended([]), shared_counts(keyframes))
     none = Incidence.of([], [])
     np.testing.assert_array_equal(none.extended(frames), shared_counts(frames))
+
+
+def test_rows_read_by_an_array_of_ids_are_the_rows_each_id_has() -> None:
+    """Ids given as an array find their rows at once (the map's own, through removals, reused
+    rows and growth past the first capacity; another device's tagged ids; uint64 as the wire
+    carries them): the rows id by id gives, and an id the map lacks is refused as it is id by
+    id."""
+    columns = PointColumns(capacity=8)
+    rng = np.random.default_rng(1)
+    own = list(range(1, 40))
+    columns.add_many(own, rng.normal(size=(39, 3)), np.zeros((39, 32), np.uint8))
+    foreign = [foreign_tag(3) | p for p in (5, 6, 7)]
+    columns.add_many(foreign, rng.normal(size=(3, 3)), np.zeros((3, 32), np.uint8))
+    for gone in (4, 17, 30):
+        columns.remove(gone)
+    columns.add_many([40, 41, 300], rng.normal(size=(3, 3)), np.zeros((3, 32), np.uint8))
+    held = [p for p in [*own, 40, 41, 300] if p not in (4, 17, 30)][::-1]
+    for ids in (held, foreign + held[:5], [300]):
+        by_id = [columns.row[p] for p in ids]
+        for kind in (np.int64, np.uint64):
+            rows = columns.rows_of(np.array(ids, dtype=kind))
+            assert rows.dtype == np.int64 and rows.tolist() == by_id
+        assert columns.rows_of(ids).tolist() == by_id
+    assert columns.rows_of(np.zeros(0, dtype=np.int64)).tolist() == []
+    for missing in ([17], [41, 4], [10_000], [foreign_tag(3) | 8]):
+        with pytest.raises(KeyError):
+            columns.rows_of(np.array(missing, dtype=np.int64))

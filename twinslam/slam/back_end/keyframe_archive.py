@@ -79,7 +79,7 @@ class ArchivedKeyFrame:
             measured = np.fromiter(
                 chain.from_iterable(kf.measurements.get(p, nan3) for p in point_ids.tolist()),
                 dtype=np.float64, count=3 * len(point_ids)).reshape(-1, 3)
-        rows = m.columns.rows_of(point_ids.tolist())
+        rows = m.columns.rows_of(point_ids)
         return cls(kf_id, kf.pose.copy(), point_ids, m.columns.positions[rows],
                    m.columns.descriptors[rows], measured, slot)
 

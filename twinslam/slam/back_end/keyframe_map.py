@@ -461,21 +461,21 @@ class KeyFrameMap:
         slot)."""
         return self.keyframes[kf_id].observed()[0]
 
-    def positions_of(self, point_ids: Collection[int]) -> np.ndarray:
+    def positions_of(self, point_ids: Collection[int] | np.ndarray) -> np.ndarray:
         """``(n, 3)``: the positions of the map's points ``point_ids``, in their order."""
         return self.columns.positions_of(point_ids)
 
-    def descriptors_of(self, point_ids: Collection[int]) -> np.ndarray:
+    def descriptors_of(self, point_ids: Collection[int] | np.ndarray) -> np.ndarray:
         """``(n, 32)`` uint8: the descriptors of the map's points ``point_ids``, in their
         order."""
         return self.columns.descriptors_of(point_ids)
 
-    def observer_counts(self, point_ids: Collection[int]) -> np.ndarray:
+    def observer_counts(self, point_ids: Collection[int] | np.ndarray) -> np.ndarray:
         """``(n,)`` int64: how many keyframes observe each of the map's points ``point_ids``."""
         counts: np.ndarray = self.columns.observed[self.columns.rows_of(point_ids)]
         return counts
 
-    def set_positions(self, point_ids: Collection[int], positions: np.ndarray) -> None:
+    def set_positions(self, point_ids: Collection[int] | np.ndarray, positions: np.ndarray) -> None:
         """Move the map's points ``point_ids`` to ``positions`` ((n, 3), in their order): a
         loop's correction or a merge's alignment of thousands of points at once."""
         xyz = np.asarray(positions, dtype=np.float64).reshape(-1, 3)

@@ -187,9 +187,8 @@ class LocalMapping:
         placed = [i for i, w in enumerate(world) if w is not None and free[i]]
         if radius is None or in_view.size == 0 or not placed:
             return lambda i: None
-        ids = in_view.tolist()
-        tree = cKDTree(self.map.positions_of(ids))
-        theirs = self.map.descriptors_of(ids)
+        tree = cKDTree(self.map.positions_of(in_view))
+        theirs = self.map.descriptors_of(in_view)
         z = np.asarray(depths, dtype=np.float64)[placed]
         # unsorted: each neighbourhood in the tree's own order, as a query of one point
         near = tree.query_ball_point(np.array([world[i] for i in placed]), radius + 0.02 * z,
@@ -289,7 +288,7 @@ class LocalMapping:
         pids = np.array(sorted(local - own), dtype=np.int64)
         if pids.size == 0:
             return none
-        positions = m.positions_of(pids.tolist())
+        positions = m.positions_of(pids)
         vis, uv = visible_points(positions, np.ones(len(pids), dtype=bool), pose, self.k,
                                  self.shape, cfg.depth_range_m)
         return pids[vis], uv
@@ -301,7 +300,7 @@ class LocalMapping:
         f_free = np.flatnonzero(free)
         if f_free.size == 0 or in_view.size == 0:
             return 0
-        desc = self.map.descriptors_of(in_view.tolist())
+        desc = self.map.descriptors_of(in_view)
         f_idx, c_idx = match_by_projection(np.asarray(keypoints)[f_free],
                                            np.asarray(descriptors)[f_free], uv, desc,
                                            cfg.search_radius_px, cfg.max_hamming, cfg.ratio,

@@ -52,7 +52,7 @@ def facing(keyframe_map: KeyFrameMap, point_ids: np.ndarray, camera_to_world: np
     if ids.size == 0:
         return np.zeros(0, dtype=bool)
     points = keyframe_map.points
-    positions = keyframe_map.positions_of(ids.tolist())
+    positions = keyframe_map.positions_of(ids)
     kept = list(keyframe_map.keyframes.values())
     centres = np.array([kf.pose[:3, 3] for kf in kept]).reshape(-1, 3)
     index = {kf.id: i for i, kf in enumerate(kept)}
