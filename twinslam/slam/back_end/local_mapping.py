@@ -180,30 +180,31 @@ class LocalMapping:
         """A lookup by feature: the map point in view, not observed by the keyframe yet,
         nearest in descriptor among those within ``join_radius_m`` + 2 % of the depth of the
         feature's back-projected position (``world``) and within ``max_hamming`` of its
-        descriptor (None: none, or joining is off). Only features still ``free`` are looked
-        up — one matched already is never asked for — and their neighbourhoods are found in
-        one query of the points' tree."""
+        descriptor (None: none, or joining is off); of points as alike, the oldest. Only
+        features still ``free`` are looked up — one matched already is never asked for — and
+        their neighbourhoods are found at once, between a tree of the features and one of
+        the points."""
         radius = self.config.join_radius_m
         placed = [i for i, w in enumerate(world) if w is not None and free[i]]
         if radius is None or in_view.size == 0 or not placed:
             return lambda i: None
-        tree = cKDTree(self.map.positions_of(in_view))
-        theirs = self.map.descriptors_of(in_view)
-        z = np.asarray(depths, dtype=np.float64)[placed]
-        # unsorted: each neighbourhood in the tree's own order, as a query of one point
-        near = tree.query_ball_point(np.array([world[i] for i in placed]), radius + 0.02 * z,
-                                     return_sorted=False)
-        sizes = [len(n) for n in near]
-        if not sum(sizes):
+        reach = radius + 0.02 * np.asarray(depths, dtype=np.float64)[placed]
+        # every (feature, point) pair within the feature's reach as arrays, from two trees:
+        # a neighbourhood list a feature made ~14 000 Python ints a keyframe
+        pairs = cKDTree(np.array([world[i] for i in placed])).sparse_distance_matrix(
+            cKDTree(self.map.positions_of(in_view)), float(reach.max()), output_type="ndarray")
+        within = pairs["v"] <= reach[pairs["i"]]
+        if not within.any():
             return lambda i: None
-        feature = np.repeat(np.asarray(placed), sizes)
-        candidate = np.fromiter(itertools.chain.from_iterable(near), dtype=np.int64,
-                                count=sum(sizes))
-        apart = hamming_of_pairs(theirs, candidate, np.asarray(descriptors, dtype=np.uint8),
-                                 feature)
+        feature = np.asarray(placed, dtype=np.int64)[pairs["i"][within]]
+        candidate = pairs["j"][within].astype(np.int64)
+        apart = hamming_of_pairs(self.map.descriptors_of(in_view), candidate,
+                                 np.asarray(descriptors, dtype=np.uint8), feature)
         alike_enough = apart <= self.config.max_hamming
         feature, candidate, apart = (a[alike_enough] for a in (feature, candidate, apart))
-        order = np.lexsort((apart, feature))      # by feature, nearest in descriptor first
+        # by feature, nearest in descriptor first, a tie to the oldest point (in_view is
+        # sorted by id)
+        order = np.lexsort((candidate, apart, feature))
         # each feature's candidates a slice of one list, read only for the features asked
         ranked = in_view[candidate[order]].tolist()
         features, first = np.unique(feature[order], return_index=True)
