@@ -30,7 +30,7 @@ from scipy.spatial import cKDTree
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.back_end.point_culling import PointCullingConfig, count_and_cull, facing
 from twinslam.slam.bit_counting import hamming_of_pairs
-from twinslam.slam.keyframe import is_track_id
+from twinslam.slam.keyframe import is_track
 from twinslam.slam.projection_matching import back_project, match_by_projection, visible_points
 
 
@@ -117,11 +117,11 @@ class LocalMapping:
         counts = dict(associated=0, tracked=0, created_from_tracks=0, matched=0, created=0,
                       joined=0)
         pending_tracks: list[int] = []
-        for i in range(n):
-            dev = int(ids[i])
-            if dev == 0:
-                continue
-            if is_track_id(dev):
+        # each reported id once: a track id (the device's own feature) or a map point's
+        named = np.flatnonzero(ids)
+        for i, dev, track in zip(named.tolist(), ids[named].tolist(),
+                                 is_track(ids[named]).tolist(), strict=True):
+            if track:
                 pid = self.track_points.get(dev)
                 if pid is not None and pid in m.points:
                     self._observe(kf_id, pid, free, i)
