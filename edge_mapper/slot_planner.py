@@ -168,7 +168,7 @@ class SlotPlanner:
         counted = self.map.incidence(kept)
         in_map = (np.union1d(counted.points, np.concatenate([keys[x] for x in arriving]))
                   if arriving else counted.points)
-        shared = np.array([np.isin(keys[f], in_map, assume_unique=True).sum() for f in every])
+        shared = _held_counts([keys[f] for f in every], in_map)
         lost = [not f.tracked or n < MIN_INLIERS for f, n in zip(frames, shared, strict=True)]
         # a covered frame the map cannot serve (lost by the rule: the device matched too few
         # of its points) stays a candidate: the view's keyframe is there, its points are not
@@ -206,3 +206,16 @@ class SlotPlanner:
         upsilon = next_slot_uncertainty(full[:m, :m], full[m:, :m], self.config.log_det_pi,
                                         shared >= MIN_INLIERS)
         return SlotPlan(action, obs, upsilon, skipped)
+
+
+def _held_counts(sets: list[np.ndarray], held: np.ndarray) -> np.ndarray:
+    """How many of each set's keys are among ``held`` (sorted, without repeats): every key
+    found by one sorted search, not a set membership test a frame."""
+    if not sets:
+        return np.zeros(0, dtype=np.int64)
+    keys = np.concatenate(sets)
+    owner = np.repeat(np.arange(len(sets)), [len(s) for s in sets])
+    if not len(held) or not len(keys):
+        return np.zeros(len(sets), dtype=np.int64)
+    at = np.minimum(np.searchsorted(held, keys), len(held) - 1)
+    return np.bincount(owner[held[at] == keys], minlength=len(sets))

@@ -9,6 +9,7 @@ from edge_mapper.slot_planner import FrameObservations, SlotConfig, SlotPlanner
 from twinslam.policies.actions import ActionError, MapAction
 from twinslam.policies.registry import make_policy
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
+from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
 
 
 def _windows(n: int, rng: np.random.Generator) -> list[set[int]]:
@@ -78,3 +79,26 @@ def test_adapt_and_lff_differ_and_bad_actions_are_refused() -> None:
     with pytest.raises(ValueError, match="already keyframes"):
         SlotPlanner(m, make_policy("lff")).plan(5, [FrameObservations(3, frozenset())], 60.0, 1,
                                                [1])
+
+
+def test_a_frame_sharing_fewer_map_points_than_the_device_needs_counts_as_lost() -> None:
+    """The lost share is the share of the slot's frames that share fewer than the device's
+    MIN_INLIERS map points with the map — counted against the map's points (tracks and
+    points the map lacks never count), and with the keyframes still on their way."""
+    m, frames, _, _ = _setup(n_map=12, n_slot=30)
+    in_map = set(m.points)
+    expected = [len(f.map_points & in_map) < MIN_INLIERS for f in frames]
+    assert 0 < sum(expected) < len(frames)              # the walk leaves the map
+    plan = SlotPlanner(m, make_policy("lff"), SlotConfig(vmax=14)).plan(
+        3, frames, rate_mbps=60.0, rate_state=1, rate_history=[0, 1])
+    assert plan.uncertainty is not None
+    assert plan.uncertainty.n_lost == sum(expected)
+    # a keyframe on its way (an open slot's upload) holds its frame's points for the map
+    arriving = {frames[-1].frame_id + 100: FrameObservations(
+        frames[-1].frame_id + 100, frames[0].map_points | {10**6 + i for i in range(40)},
+        frozenset())}
+    later = [FrameObservations(f.frame_id, f.map_points | {10**6 + i for i in range(40)},
+                               f.tracks) for f in frames[-3:]]
+    plan = SlotPlanner(m, make_policy("lff"), SlotConfig(vmax=14)).plan(
+        4, later, rate_mbps=60.0, rate_state=1, rate_history=[0, 1], arriving=arriving)
+    assert plan.uncertainty is not None and plan.uncertainty.n_lost == 0
