@@ -55,6 +55,7 @@ from edge_mapper.slot_planner import FrameObservations
 from edge_mapper.viewer_topics import ViewerTopics
 from msg_schemas import qos, topics
 from twinslam.node_runtime.checked_subscription import CheckedSubscription
+from twinslam.node_runtime.long_lived_objects import release_frozen
 from twinslam.rotations import rotation_angle_deg
 from twinslam.slam.back_end.map_back_end import archive_folder
 
@@ -445,3 +446,5 @@ class DeviceLink:
             self.node.destroy_publisher(pub)
         if self.views is not None:
             self.views.destroy(self.node)
+        # the map and the link's callbacks go: the collector sees the frozen objects again
+        release_frozen()

@@ -321,7 +321,7 @@ def main(args: list[str] | None = None) -> int:
             log.info("serving every device namespace that publishes "
                      f"{edge.resolve_topic_name('DEVICE' + SUMMARIES_SUFFIX)}")
 
-    return run_node("edge_mapper", EdgeMapperNode, args, started=started)
+    return run_node("edge_mapper", EdgeMapperNode, args, started=started, long_lived=True)
 
 
 if __name__ == "__main__":

@@ -43,6 +43,7 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
 from twinslam.node_runtime.allocator import keep_freed_memory
+from twinslam.node_runtime.long_lived_objects import keep_survivors_out
 from twinslam.node_runtime.math_threads import one_math_thread
 
 N = TypeVar("N", bound=Node)
@@ -106,9 +107,11 @@ class NodeStartError(Exception):
 
 def run_node(name: str, factory: Callable[[], N], args: list[str] | None = None,
              until: Callable[[N], bool] | None = None,
-             started: Callable[[N], None] | None = None) -> int:
+             started: Callable[[N], None] | None = None, long_lived: bool = False) -> int:
     """Init, ``factory()``, spin until shutdown (or ``until(node)``), tear down; returns the
-    process exit code (0, or 2 when node ``name`` could not start)."""
+    process exit code (0, or 2 when node ``name`` could not start). A node whose state is
+    many ``long_lived`` Python objects (the edge's maps) keeps them out of the collector's
+    full collections once they survived one (:mod:`.long_lived_objects`)."""
     try:
         make_executor = EXECUTORS[executor_name()]
     except ValueError as exc:
@@ -116,6 +119,8 @@ def run_node(name: str, factory: Callable[[], N], args: list[str] | None = None,
         return 2
     keep_freed_memory()
     one_math_thread()
+    if long_lived:
+        keep_survivors_out()
     stop = StopRequest()
     stop.install()
     try:
