@@ -303,7 +303,7 @@ def test_rows_read_by_an_array_of_ids_are_the_rows_each_id_has() -> None:
     """Ids given as an array find their rows at once (the map's own, through removals, reused
     rows and growth past the first capacity; another device's tagged ids; uint64 as the wire
     carries them): the rows id by id gives, and an id the map lacks is refused as it is id by
-    id."""
+    id. Every point in id order is what sorting them gives."""
     columns = PointColumns(capacity=8)
     rng = np.random.default_rng(1)
     own = list(range(1, 40))
@@ -321,6 +321,13 @@ def test_rows_read_by_an_array_of_ids_are_the_rows_each_id_has() -> None:
             assert rows.dtype == np.int64 and rows.tolist() == by_id
         assert columns.rows_of(ids).tolist() == by_id
     assert columns.rows_of(np.zeros(0, dtype=np.int64)).tolist() == []
+    # every point in id order, as sorting them all gives
+    ids, rows = columns.ids_and_rows()
+    order = np.argsort(ids)
+    for got, want in zip(columns.by_id(), (ids[order], rows[order]), strict=True):
+        assert got.dtype == np.int64 and got.tolist() == want.tolist()
+    columns.remove(foreign[1])
+    assert columns.by_id()[0].tolist() == sorted(columns.row)
     for missing in ([17], [41, 4], [10_000], [foreign_tag(3) | 8]):
         with pytest.raises(KeyError):
             columns.rows_of(np.array(missing, dtype=np.int64))

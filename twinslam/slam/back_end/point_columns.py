@@ -46,6 +46,7 @@ class PointColumns:
         self.row: dict[int, int] = {}          #: point id → its row
         #: row by id for ids below DENSE_IDS (-1: no such point): the dict's rows, gathered
         self._row_by_id = np.full(max(1, capacity), -1, dtype=np.int32)
+        self._beyond: dict[int, int] = {}      #: the other ids' rows (another device's)
         self._free: list[int] = []             #: rows points left, taken first
         self._used = 0                         #: rows ever handed out
 
@@ -74,6 +75,8 @@ class PointColumns:
         self.row.update(zip(point_ids, rows, strict=True))
         ids = np.asarray(point_ids, dtype=np.int64)
         dense = (ids >= 0) & (ids < DENSE_IDS)
+        if not dense.all():
+            self._beyond.update(zip(ids[~dense].tolist(), at[~dense].tolist(), strict=True))
         if dense.any():
             while ids[dense].max() >= len(self._row_by_id):
                 self._row_by_id = np.concatenate(
@@ -87,6 +90,7 @@ class PointColumns:
         self._free.append(r)
         if 0 <= point_id < len(self._row_by_id):
             self._row_by_id[point_id] = -1
+        self._beyond.pop(point_id, None)
         return r
 
     def rows_of(self, point_ids: Collection[int] | np.ndarray) -> np.ndarray:
@@ -113,10 +117,18 @@ class PointColumns:
 
     def by_id(self) -> tuple[np.ndarray, np.ndarray]:
         """Every point's id, ascending, and its row (int64 arrays): the order the checkpoint
-        and the map update write the points in."""
-        ids, rows = self.ids_and_rows()
-        order = np.argsort(ids, kind="stable")
-        return ids[order], rows[order]
+        and the map update write the points in — the map's own read off the rows by id
+        (ascending already), another device's sorted apart."""
+        own = np.flatnonzero(self._row_by_id >= 0)
+        rows = self._row_by_id[own].astype(np.int64)
+        if not self._beyond:
+            return own.astype(np.int64), rows
+        others = np.array(sorted(self._beyond), dtype=np.int64)
+        their_rows = np.fromiter(map(self._beyond.__getitem__, others.tolist()),
+                                 dtype=np.int64, count=len(others))
+        below = others < 0
+        return (np.concatenate([others[below], own, others[~below]]),
+                np.concatenate([their_rows[below], rows, their_rows[~below]]))
 
     def positions_of(self, point_ids: Collection[int] | np.ndarray) -> np.ndarray:
         """``(len(point_ids), 3)``: the points' positions, a copy."""
