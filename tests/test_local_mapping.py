@@ -133,3 +133,39 @@ def test_tracks_whose_point_left_the_map_are_forgotten_the_rest_kept_in_order() 
     assert integ.forget_tracks_gone() == 2
     assert list(integ.track_points.items()) == \
         [(tracks[j], points[j]) for j in (0, 1, 3, 4)]
+
+
+def test_of_equally_alike_map_points_a_feature_joins_the_one_its_neighbourhood_lists_first(
+        ) -> None:
+    """Corners the map holds five times over (five points within a centimetre, one
+    descriptor), each seen by two features a pixel apart (the matching by pixel refuses
+    both): the first joins the point a query of the points' tree for its neighbourhood lists
+    first, the second the next — whatever finds the neighbourhoods, the same inputs choose
+    the same points, so a replayed run (bench.edge_scaling's devices report the point ids a
+    recorded edge made) meets the ids it recorded."""
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(4)
+    centres = rng.uniform([-0.8, -0.6, 2.0], [0.8, 0.6, 2.4], (40, 3))
+    world = np.repeat(centres, 5, axis=0) + rng.uniform(-0.005, 0.005, (200, 3))
+    descs = np.repeat(rng.integers(0, 256, (40, 32), dtype=np.uint8), 5, axis=0)
+    m = KeyFrameMap()
+    m.add_keyframe(0, _pose(0.0))
+    ids = [m.add_point(world[j], descs[j]) for j in range(200)]
+    for pid in ids:
+        m.observe(0, pid)
+    mapping = LocalMapping(m, K, (480, 640), LocalMappingConfig(join_radius_m=0.05))
+    uv = centres[:, :2] / centres[:, 2:] * 500 + [320, 240]   # the keyframe at the origin
+    report = mapping.integrate(1, _pose(0.0), np.vstack([uv, uv + np.array([1.0, 0.0])]),
+                               np.vstack([descs[::5], descs[::5]]),
+                               np.concatenate([centres[:, 2], centres[:, 2]]),
+                               np.zeros(80, np.uint64))
+    assert report.matched == 0 and report.joined == 80, report
+    in_view = np.array(sorted(ids))
+    tree = cKDTree(m.positions_of(in_view))
+    for corner in range(40):
+        near = tree.query_ball_point(centres[corner], 0.05 + 0.02 * centres[corner, 2],
+                                     return_sorted=False)
+        alike = [int(in_view[k]) for k in near if (descs[k] == descs[5 * corner]).all()]
+        assert len(alike) == 5
+        assert set(alike[:2]) == set(alike) & m.keyframes[1].points

@@ -180,10 +180,9 @@ class LocalMapping:
         """A lookup by feature: the map point in view, not observed by the keyframe yet,
         nearest in descriptor among those within ``join_radius_m`` + 2 % of the depth of the
         feature's back-projected position (``world``) and within ``max_hamming`` of its
-        descriptor (None: none, or joining is off); of points as alike, the oldest. Only
-        features still ``free`` are looked up — one matched already is never asked for — and
-        their neighbourhoods are found at once, between a tree of the features and one of
-        the points."""
+        descriptor (None: none, or joining is off). Only features still ``free`` are looked
+        up — one matched already is never asked for — and their neighbourhoods are found at
+        once, between a tree of the features and one of the points."""
         radius = self.config.join_radius_m
         placed = [i for i, w in enumerate(world) if w is not None and free[i]]
         if radius is None or in_view.size == 0 or not placed:
@@ -191,8 +190,9 @@ class LocalMapping:
         reach = radius + 0.02 * np.asarray(depths, dtype=np.float64)[placed]
         # every (feature, point) pair within the feature's reach as arrays, from two trees:
         # a neighbourhood list a feature made ~14 000 Python ints a keyframe
+        points = cKDTree(self.map.positions_of(in_view))
         pairs = cKDTree(np.array([world[i] for i in placed])).sparse_distance_matrix(
-            cKDTree(self.map.positions_of(in_view)), float(reach.max()), output_type="ndarray")
+            points, float(reach.max()), output_type="ndarray")
         within = pairs["v"] <= reach[pairs["i"]]
         if not within.any():
             return lambda i: None
@@ -202,9 +202,12 @@ class LocalMapping:
                                  np.asarray(descriptors, dtype=np.uint8), feature)
         alike_enough = apart <= self.config.max_hamming
         feature, candidate, apart = (a[alike_enough] for a in (feature, candidate, apart))
-        # by feature, nearest in descriptor first, a tie to the oldest point (in_view is
-        # sorted by id)
-        order = np.lexsort((candidate, apart, feature))
+        # by feature, nearest in descriptor first; a tie goes to the point first in the
+        # tree's leaves, the order a neighbourhood query lists them in (as each feature's
+        # own query did: the same points chosen, so the same point ids made)
+        leaf = np.empty(len(in_view), dtype=np.int64)
+        leaf[points.indices] = np.arange(len(in_view))
+        order = np.lexsort((leaf[candidate], apart, feature))
         # each feature's candidates a slice of one list, read only for the features asked
         ranked = in_view[candidate[order]].tolist()
         features, first = np.unique(feature[order], return_index=True)
