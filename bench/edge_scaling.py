@@ -11,7 +11,16 @@ and each emulated device replays that protocol into its own namespace at the rec
 summaries every slot period (the recorded device's: its frames a slot at its frame rate), the
 keyframes the edge asks for paced at d_k — from this process
 (no tracking, no images). The edge does its whole work per device: plan, integrate, GTSAM,
-the keyframe budget (V_total = 45 × N, equal shares), map updates and viewer topics.
+the keyframe budget (V_total = 45 × N, equal shares), map updates and viewer topics (these
+are made only while something subscribes: nothing does here).
+
+A replayed device reports the map point ids the recorded edge made, so a recording measures
+only an edge that names its points as the recording's did: one that integrates otherwise (a
+look-alike point chosen otherwise among equals) lacks the ids its devices report, finds their
+frames lost, and asks for and restores other keyframes than the recording's. The ``lost``
+column (the planned slots' lost share, as the edge counts it) shows it: a few percent on a
+recording of the same code, most of the frames where the ids no longer meet — then record
+again.
 
 With ``--edges K`` the devices are split into K blocks of neighbours, each served by an
 ``edge_mapper`` process of its own (what ``twinslam launch --devices N --edges K`` starts); the
@@ -295,7 +304,8 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
     late = sum(1 for s in stats if s.slot_latency_ms > recording.slot_s * 1000)
     slots = [{"device": d.name, "slot": k, "latency_ms": s.slot_latency_ms,
               "compute_ms": s.slot_processing_ms, "restored": s.restored_keyframes,
-              "uploads": s.uploads, "loops_closed": s.loops_closed}
+              "uploads": s.uploads, "loops_closed": s.loops_closed,
+              "lost_share": s.lost_share}
              for d in devices for k, s in sorted(d.stats.items())]
     compute = [s.slot_processing_ms for s in stats]
     latency = [s.slot_latency_ms for s in stats]
@@ -308,6 +318,10 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             "latency_ms_p95": float(np.percentile(latency, 95)) if latency else math.nan,
             "missed_share": (late + expected - len(stats)) / expected,
             "edge_cpu_share": cpu / wall, "missing_keyframes": sum(d.missing for d in devices),
+            # the share of the replayed frames the edge finds lost on its map (the planned
+            # slots' mean): a recording made by an edge that named its points otherwise
+            # reports point ids this edge lacks, and its frames count as lost
+            "lost_share": float(np.mean([s.lost_share for s in stats])) if stats else math.nan,
             "compute_budget": compute_budget, "trimmed": log.count("compute: slot work takes"),
             "merge_maps": merge_maps,
             # each device moved into another's place logs it once, at its next slot end
@@ -368,7 +382,8 @@ def main() -> None:
         raise SystemExit(f"--merge-maps: off, on or off,on, not {args.merge_maps!r}")
     header = (f"{'pools':>5} {'merge':>5} {'edges':>5} {'devices':>7} {'answered':>9} "
               f"{'edge ms/slot':>12} {'p95':>6} "
-              f"{'latency ms':>10} {'p95':>6} {'missed':>7} {'edge CPU':>8} {'merged':>6}")
+              f"{'latency ms':>10} {'p95':>6} {'missed':>7} {'edge CPU':>8} {'merged':>6} "
+              f"{'lost':>5}")
     print(header, flush=True)
     settings = [(pools, merge, int(edges), int(n)) for pools in args.pools.split(",")
                 for merge in args.merge_maps.split(",")
@@ -385,7 +400,7 @@ def main() -> None:
               f"{row['compute_ms_median']:>12.0f} {row['compute_ms_p95']:>6.0f} "
               f"{row['latency_ms_median']:>10.0f} {row['latency_ms_p95']:>6.0f} "
               f"{row['missed_share']:>7.1%} {row['edge_cpu_share']:>8.0%} "
-              f"{row['merged']:>6}", flush=True)
+              f"{row['merged']:>6} {row['lost_share']:>5.1%}", flush=True)
     if args.csv:
         write_dict_rows(args.csv, rows)
         print(f"wrote {args.csv}")
