@@ -7,6 +7,7 @@ the corrected map and archive survive a restart; the worker thread answers as th
 from __future__ import annotations
 
 import dataclasses
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -431,3 +432,33 @@ def test_keyframes_tracked_on_the_map_before_a_loop_enter_the_corrected_map_corr
     # in this walk); uncorrected, the keyframes would be the loop's 15 cm away
     assert not refused[True] and errors[True] < 0.04, (refused, errors)
     assert refused[False] or errors[False] > 0.1, (refused, errors)
+
+
+def test_the_loop_closers_of_a_process_queue_on_one_worker_first_come_first_served() -> None:
+    """An edge's devices close their loops on one worker thread, in the order their work came
+    (their slot thread keeps the rest of the interpreter): two closers' jobs and work run on
+    the same thread, one after the other, and each closer's answer is its own job's; closing
+    one waits for its own work only."""
+    device = ReturningDevice(np.random.default_rng(5), 64)
+    job = _job(device)
+    first, second = LoopCloser(min_gap=40, confirmations=0), LoopCloser(min_gap=40,
+                                                                      confirmations=0)
+    ran: list[tuple[str, int]] = []
+    release = threading.Event()
+    try:
+        first.after(lambda: (release.wait(30.0), ran.append(("held", threading.get_ident()))),
+                    "holding the worker")
+        assert first.submit(job) and second.submit(job)
+        second.after(lambda: ran.append(("second's files", threading.get_ident())), "files")
+        assert first.take() is None and second.take() is None    # queued behind the hold
+        release.set()
+        one, two = first.take(wait_s=30.0), second.take(wait_s=30.0)
+        assert one is not None and two is not None
+        assert one.candidate.old == two.candidate.old and one.closure is not None
+        second.close()
+        assert [what for what, _ in ran] == ["held", "second's files"]
+        assert len({thread for _, thread in ran}) == 1            # one worker thread
+    finally:
+        release.set()
+        first.close()
+        second.close()
