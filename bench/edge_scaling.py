@@ -40,9 +40,13 @@ it to its own points (:mod:`edge_mapper.place_merging`). That is the most a plac
 the edge (every device shares it); ``--merge-maps off,on`` measures it beside the unshared
 fleet in one run, and the table counts the merges made.
 
+``--collector-log`` times every garbage collection in the edge processes (a
+``sitecustomize`` hook, ``bench/collector_watch``, on their ``PYTHONPATH``) and reports each
+setting's full collections: a full collection stalls every device the process serves.
+
     python -m bench.edge_scaling [--devices 1,2,4,8,12,16] [--edges 1,2] [--pools one]
                                  [--merge-maps off] [--hosts] [--recording DIR] [--csv FILE]
-                                 [--slots-csv FILE] [--slots-plot PNG]
+                                 [--slots-csv FILE] [--slots-plot PNG] [--collector-log]
 """
 
 from __future__ import annotations
@@ -57,7 +61,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -354,6 +358,10 @@ def main() -> None:
                         help="draw every setting's device-slots along the walk here (PNG): "
                              "the latency across devices against the slot period, the edge's "
                              "compute and the keyframes restored")
+    parser.add_argument("--collector-log", action="store_true",
+                        help="time every garbage collection in the edge processes "
+                             "(bench/collector_watch) and report each setting's full "
+                             "collections: how many, the longest, their total")
     parser.add_argument("--hosts", action="store_true",
                         help="each edge process on an edge host of its own and the devices on "
                              "a device host (network namespaces on one switch; needs root) "
@@ -390,8 +398,17 @@ def main() -> None:
                 for edges in args.edges.split(",") for n in args.devices.split(",")]
     every_slot = []
     for pools, merge, edges, n in settings:
-        row, slots = measure(n, recording, args.policy, args.compute_budget, edges, pools,
-                             args.hosts, merging[merge])
+        with collector_log(args.collector_log) as collections:
+            row, slots = measure(n, recording, args.policy, args.compute_budget, edges, pools,
+                                 args.hosts, merging[merge])
+            full = [c for c in collections() if c[0] == 2]
+        if args.collector_log:
+            row.update(full_collections=len(full),
+                       full_collection_ms_max=max((c[1] for c in full), default=0.0),
+                       full_collection_ms_total=sum(c[1] for c in full))
+            print(f"      the edges' full collections: {len(full)}, the longest "
+                  f"{row['full_collection_ms_max']:.0f} ms, "
+                  f"{row['full_collection_ms_total']:.0f} ms in all", flush=True)
         rows.append(row)
         every_slot += [{"pools": pools, "merge_maps": merge, "edges": row["edges"],
                         "devices": n, **slot} for slot in slots]
@@ -410,6 +427,34 @@ def main() -> None:
     if args.slots_plot:
         plot_slots(every_slot, recording.slot_s, args.slots_plot)
         print(f"wrote {args.slots_plot}")
+
+
+@contextlib.contextmanager
+def collector_log(wanted: bool) -> Iterator[Callable[[], list[tuple[int, float]]]]:
+    """While it is open, the edge processes started time their garbage collections
+    (``bench/collector_watch`` on their ``PYTHONPATH``); yields a reader of every collection
+    logged: (generation, milliseconds)."""
+    if not wanted:
+        yield lambda: []
+        return
+    saved = {k: os.environ.get(k) for k in ("PYTHONPATH", "TWINSLAM_COLLECTOR_LOG")}
+    with tempfile.TemporaryDirectory(prefix="twinslam-collector-") as folder:
+        os.environ["TWINSLAM_COLLECTOR_LOG"] = folder
+        os.environ["PYTHONPATH"] = os.pathsep.join(
+            filter(None, [str(REPO / "bench" / "collector_watch"), saved["PYTHONPATH"]]))
+
+        def read() -> list[tuple[int, float]]:
+            return [(int(g), float(ms)) for log in Path(folder).glob("*.txt")
+                    for _, g, ms, _ in (line.split() for line in log.read_text().splitlines())]
+
+        try:
+            yield read
+        finally:
+            for key, value in saved.items():
+                if value is None:
+                    os.environ.pop(key, None)
+                else:
+                    os.environ[key] = value
 
 
 def plot_slots(slots: list[dict[str, Any]], slot_s: float, path: Path) -> None:
