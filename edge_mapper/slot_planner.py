@@ -160,12 +160,12 @@ class SlotPlanner:
         # each keyframe's and frame's point keys, made once: the weights, the policy's view
         # and the slot's υ all read them
         keys = {x: self.points_of(seen, x) for x in map_ids + every}
-        # a frame is lost when its reported points (the device's matches) share fewer than
-        # the device's MIN_INLIERS with the map (twinslam.slot_protocol.lost_frame_rule); a
-        # keyframe holds map-point ids only, so this counts shared map points alone
         # the map's keyframes (a prefix of map_ids) counted as the slot's end counted them
         kept = [k for k in map_ids if k in self.map.keyframes]
         counted = self.map.incidence(kept)
+        # a frame is lost when its reported points (the device's matches) share fewer than
+        # the device's MIN_INLIERS with the map (twinslam.slot_protocol.lost_frame_rule); a
+        # keyframe holds map-point ids only, so this counts shared map points alone
         in_map = (np.union1d(counted.points, np.concatenate([keys[x] for x in arriving]))
                   if arriving else counted.points)
         shared = _held_counts([keys[f] for f in every], in_map)

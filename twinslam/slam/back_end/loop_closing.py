@@ -19,11 +19,11 @@ Every background loop closer of a process works on one worker thread, first come
 served: an edge serving many devices closes their loops one at a time beside its slot
 thread. Each device's own thread let sixteen devices revisiting their places together run
 sixteen loop jobs at once (place recognition, PnP, the pose graph: 30-110 ms a job on the
-7-Scenes walk), on two cores and against the slot thread for the interpreter: their slots'
-work took 114-200 ms a device-slot there against 50-83 ms with loop closing off
-(``bench.edge_scaling --devices 16``). A device's loop waits behind the others' instead (its
-next job starts once its last was taken, so a device has one job in the queue at most), and
-the slots keep their deadline.
+7-Scenes walk), on two cores and against the slot thread for the interpreter: on one edge
+process their slots' work took 67-138 ms a device-slot there against 50-83 ms with loop
+closing off (``bench.edge_scaling --devices 16``, docs/results/shared-map.md). A device's
+loop waits behind the others' instead (its next job starts once its last was taken, so a
+device has one job in the queue at most), and the slots keep their deadline.
 """
 
 from __future__ import annotations
