@@ -210,22 +210,33 @@ POOL_ENV = {"one": {}, "cores": {"OMP_NUM_THREADS": str(os.cpu_count() or 1),
 
 
 @contextlib.contextmanager
-def pools_env(pools: str) -> Iterator[None]:
-    """This process's environment (which the edges inherit) with ``pools``' variables."""
-    if pools not in POOL_ENV:
-        raise SystemExit(f"--pools: one of {', '.join(POOL_ENV)}, not {pools!r}")
-    saved = {k: os.environ.get(k) for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")}
-    for key in saved:
-        os.environ.pop(key, None)
-    os.environ.update(POOL_ENV[pools])
-    try:
-        yield
-    finally:
-        for key, value in saved.items():
+def environment(values: dict[str, str | None]) -> Iterator[None]:
+    """This process's environment (which the edges it starts inherit) with ``values`` set
+    (None: unset) while it is open, as it was after."""
+    saved = {k: os.environ.get(k) for k in values}
+
+    def put(settings: dict[str, str | None]) -> None:
+        for key, value in settings.items():
             if value is None:
                 os.environ.pop(key, None)
             else:
                 os.environ[key] = value
+
+    put(values)
+    try:
+        yield
+    finally:
+        put(saved)
+
+
+@contextlib.contextmanager
+def pools_env(pools: str) -> Iterator[None]:
+    """This process's environment (which the edges inherit) with ``pools``' variables."""
+    if pools not in POOL_ENV:
+        raise SystemExit(f"--pools: one of {', '.join(POOL_ENV)}, not {pools!r}")
+    with environment({"OMP_NUM_THREADS": None, "OPENBLAS_NUM_THREADS": None,
+                      **POOL_ENV[pools]}):
+        yield
 
 
 @contextlib.contextmanager
@@ -361,7 +372,8 @@ def main() -> None:
     parser.add_argument("--collector-log", action="store_true",
                         help="time every garbage collection in the edge processes "
                              "(bench/collector_watch) and report each setting's full "
-                             "collections: how many, the longest, their total")
+                             "collections, start-up's included: how many, the longest, "
+                             "their total")
     parser.add_argument("--hosts", action="store_true",
                         help="each edge process on an edge host of its own and the devices on "
                              "a device host (network namespaces on one switch; needs root) "
@@ -437,24 +449,16 @@ def collector_log(wanted: bool) -> Iterator[Callable[[], list[tuple[int, float]]
     if not wanted:
         yield lambda: []
         return
-    saved = {k: os.environ.get(k) for k in ("PYTHONPATH", "TWINSLAM_COLLECTOR_LOG")}
-    with tempfile.TemporaryDirectory(prefix="twinslam-collector-") as folder:
-        os.environ["TWINSLAM_COLLECTOR_LOG"] = folder
-        os.environ["PYTHONPATH"] = os.pathsep.join(
-            filter(None, [str(REPO / "bench" / "collector_watch"), saved["PYTHONPATH"]]))
+    hook = str(REPO / "bench" / "collector_watch")
+    with tempfile.TemporaryDirectory(prefix="twinslam-collector-") as folder, environment(
+            {"TWINSLAM_COLLECTOR_LOG": folder,
+             "PYTHONPATH": os.pathsep.join(filter(None, [hook, os.environ.get("PYTHONPATH")]))}):
 
         def read() -> list[tuple[int, float]]:
             return [(int(g), float(ms)) for log in Path(folder).glob("*.txt")
                     for _, g, ms, _ in (line.split() for line in log.read_text().splitlines())]
 
-        try:
-            yield read
-        finally:
-            for key, value in saved.items():
-                if value is None:
-                    os.environ.pop(key, None)
-                else:
-                    os.environ[key] = value
+        yield read
 
 
 def plot_slots(slots: list[dict[str, Any]], slot_s: float, path: Path) -> None:

@@ -30,6 +30,7 @@ behind, so the stop handler is installed again for the rest of the teardown.
 
 from __future__ import annotations
 
+import gc
 import os
 import signal
 import sys
@@ -141,6 +142,8 @@ def run_node(name: str, factory: Callable[[], N], args: list[str] | None = None,
             return 0
         if started is not None:
             started(node)
+        if long_lived:
+            gc.collect()              # what start-up made, frozen before the first callback
         executor = make_executor()
         executor.add_node(node)
         while not stop.requested and rclpy.ok() and (until is None or not until(node)):
