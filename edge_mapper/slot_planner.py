@@ -24,6 +24,7 @@ from twinslam.slam.back_end.keyframe_map import KeyFrameMap, shared_counts
 from twinslam.slam.back_end.view_coverage import uploads_for_new_views
 from twinslam.slam.camera import Camera
 from twinslam.slam.keyframe import track_counters
+from twinslam.slam.sorted_ids import find_sorted
 from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
 from twinslam.slot_protocol.slot_settings import SlotSettings
 from twinslam.uncertainty.map_uncertainty import (
@@ -213,9 +214,5 @@ def _held_counts(sets: list[np.ndarray], held: np.ndarray) -> np.ndarray:
     found by one sorted search, not a set membership test a frame."""
     if not sets:
         return np.zeros(0, dtype=np.int64)
-    keys = np.concatenate(sets)
     owner = np.repeat(np.arange(len(sets)), [len(s) for s in sets])
-    if not len(held) or not len(keys):
-        return np.zeros(len(sets), dtype=np.int64)
-    at = np.minimum(np.searchsorted(held, keys), len(held) - 1)
-    return np.bincount(owner[held[at] == keys], minlength=len(sets))
+    return np.bincount(owner[find_sorted(held, np.concatenate(sets))[1]], minlength=len(sets))

@@ -16,6 +16,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from twinslam.slam.back_end.pose_graph import Anchors
+from twinslam.slam.sorted_ids import find_sorted
 
 #: ids below 2**40 are a device's own: frame indices and point counts never reach it (a
 #: device at 30 Hz for a thousand years), and the tag leaves the top bit free for the
@@ -77,9 +78,7 @@ def ties_to_copies(points: Mapping[int, np.ndarray]) -> dict[tuple[int, int], in
         if is_foreign(k):
             continue
         tagged = ids[foreign_mask(ids)]
-        at = np.searchsorted(brought, tagged)
-        found = at < len(brought)
-        found[found] = brought[at[found]] == tagged[found]
+        at, found = find_sorted(brought, tagged)
         copy, count = np.unique(by[at[found]], return_counts=True)
         ties.update({(int(k), int(c)): int(n) for c, n in zip(copy, count, strict=True)})
     return ties

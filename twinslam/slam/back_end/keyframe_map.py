@@ -28,6 +28,7 @@ from scipy import sparse
 
 from twinslam.slam.back_end.foreign_keyframes import is_foreign
 from twinslam.slam.back_end.point_columns import PointColumns
+from twinslam.slam.sorted_ids import find_sorted
 
 CHECKPOINT_FORMAT = "twinslam-keyframe-map-1"
 
@@ -227,8 +228,7 @@ class Incidence:
             return w
         keys = np.concatenate(others)
         owner = np.repeat(np.arange(k), [len(o) for o in others])
-        col = np.minimum(np.searchsorted(self.points, keys), max(len(self.points) - 1, 0))
-        held = (self.points[col] == keys) if len(self.points) else np.zeros(len(keys), bool)
+        col, held = find_sorted(self.points, keys)
         theirs = sparse.csr_matrix((np.ones(int(held.sum())), (owner[held], col[held])),
                                    shape=(k, len(self.points)))
         across = (theirs @ self.matrix.T).toarray()
