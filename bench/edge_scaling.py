@@ -22,6 +22,12 @@ column (the planned slots' lost share, as the edge counts it) shows it: a few pe
 recording of the same code, most of the frames where the ids no longer meet — then record
 again.
 
+The emulated devices share the host with the edges: ``devices CPU`` is this process's own
+(the replay and its DDS traffic, in cores) and ``idle`` the share of the host's cores that
+nothing used while the fleet ran. Where slots are late with cores idle, the edges' own serial
+work is what limits (one Python interpreter works on one core at a time); where none is idle,
+the host's CPU is, and the devices' part of it would be on their own machines in a real fleet.
+
 With ``--edges K`` the devices are split into K blocks of neighbours, each served by an
 ``edge_mapper`` process of its own (what ``twinslam launch --devices N --edges K`` starts); the
 CPU is theirs together. With ``--hosts`` each edge process runs on an edge host of its own
@@ -40,13 +46,22 @@ it to its own points (:mod:`edge_mapper.place_merging`). That is the most a plac
 the edge (every device shares it); ``--merge-maps off,on`` measures it beside the unshared
 fleet in one run, and the table counts the merges made.
 
+The devices' starts are spread over one slot period (``--stagger 1``): each sends its
+summaries at a phase of its own, but all of them walk the recording in step, so the slots
+where they come back and restore keyframes fall together — the worst a fleet can do to an
+edge. ``--stagger S`` spreads the starts over S periods instead, each device at a place of
+the walk of its own, as devices that joined at different times are; the fleet is whole only
+from the last start to the first end, and ``all on`` is the share of late device-slots in
+that window (the ramp at either end, played by part of the fleet, left out).
+
 ``--collector-log`` times every garbage collection in the edge processes (a
 ``sitecustomize`` hook, ``bench/collector_watch``, on their ``PYTHONPATH``) and reports each
 setting's full collections: a full collection stalls every device the process serves.
 
     python -m bench.edge_scaling [--devices 1,2,4,8,12,16] [--edges 1,2] [--pools one]
-                                 [--merge-maps off] [--hosts] [--recording DIR] [--csv FILE]
-                                 [--slots-csv FILE] [--slots-plot PNG] [--collector-log]
+                                 [--merge-maps off] [--stagger 1] [--hosts] [--recording DIR]
+                                 [--csv FILE] [--slots-csv FILE] [--slots-plot PNG]
+                                 [--collector-log]
 """
 
 from __future__ import annotations
@@ -188,6 +203,22 @@ class EmulatedDevice:
         return self.next_slot >= len(self.recording.summaries)
 
 
+def full_fleet_slots(devices: list[EmulatedDevice]) -> tuple[int, int]:
+    """The device-slots due while every device of the fleet was walking (from the last one's
+    start to the first one's end) and how many of them were late or never answered: with
+    staggered starts the fleet's first and last slots are played by part of it only."""
+    slot_s = devices[0].recording.slot_s
+    walk = len(devices[0].recording.summaries)
+    first_end = min(d.start for d in devices) + walk * slot_s
+    last_start = max(d.start for d in devices)
+    due = [(d, k, slot) for d in devices
+           for k, slot in enumerate(sorted(d.recording.summaries))
+           if last_start <= d.start + k * slot_s < first_end]
+    late = sum(1 for d, _, slot in due
+               if slot not in d.stats or d.stats[slot].slot_latency_ms > slot_s * 1000)
+    return len(due), late
+
+
 def record(folder: Path) -> None:
     """One live run of 600 frames (7-Scenes sample, or the synthetic room) recorded."""
     sequence = str(SEVEN) if SEVEN.is_dir() else "synthetic:600"
@@ -202,6 +233,13 @@ def record(folder: Path) -> None:
 def cpu_seconds(pid: int) -> float:
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def host_idle() -> tuple[int, int]:
+    """The host's idle and total CPU time so far (clock ticks, every core, /proc/stat): what
+    the edges, the emulated devices and everything else together left unused."""
+    ticks = [int(v) for v in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
+    return ticks[3] + ticks[4], sum(ticks[:8])       # idle + iowait; without guest time
 
 
 #: the math libraries' pools: one thread (the nodes' default) or a thread a core (as before)
@@ -259,9 +297,11 @@ def fleet_network(edges: int, hosts: bool) -> Iterator[tuple[ProcessDomain, str 
 
 def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0.0,
             edges: int = 1, pools: str = "one", hosts: bool = False,
-            merge_maps: bool = False) -> tuple[dict[str, float], list[dict[str, float]]]:
-    """One fleet of ``n`` emulated devices served; the table's row and every device-slot's
-    figures (its latency, the edge's compute, what the slot restored, uploaded, closed)."""
+            merge_maps: bool = False, stagger: float = 1.0
+            ) -> tuple[dict[str, float], list[dict[str, float]]]:
+    """One fleet of ``n`` emulated devices served, their starts spread evenly over ``stagger``
+    slot periods; the table's row and every device-slot's figures (its latency, the edge's
+    compute, what the slot restored, uploaded, closed)."""
     names = [f"ar{i + 1}" for i in range(n)]
     with pools_env(pools), fleet_network(edges, hosts) as (dom, _):
         served = edge_blocks(names, edges)
@@ -280,7 +320,7 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
                 raise SystemExit(f"an edge did not come up: {dom.log(edge)[-2000:]}")
         with RosSession("bench_devices") as ros:
             now = time.monotonic() + 2.0
-            devices = [EmulatedDevice(d, recording, now + i * recording.slot_s / n)
+            devices = [EmulatedDevice(d, recording, now + i * stagger * recording.slot_s / n)
                        for i, d in enumerate(names)]
             for dev in devices:
                 pub, sub = ros.node.create_publisher, ros.node.create_subscription
@@ -301,6 +341,7 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             if not ready:
                 raise SystemExit("the edge did not subscribe to every device")
             cpu0, wall0 = sum(cpu_seconds(p.pid) for p in procs), time.monotonic()
+            own0, (idle0, ticks0) = time.process_time(), host_idle()
             # every slot played and answered, or 15 s past the last slot's period
             deadline = max(d.start for d in devices) + \
                 (len(recording.summaries) + 7.5) * recording.slot_s
@@ -313,10 +354,12 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
                 ros.spin_once(0.005)
             cpu = sum(cpu_seconds(p.pid) for p in procs) - cpu0
             wall = time.monotonic() - wall0
+            own, (idle, ticks) = time.process_time() - own0, host_idle()
         log = "".join(dom.stop(p)[2] for p in procs)
     stats = [s for d in devices for s in d.stats.values()]
     expected = n * len(recording.summaries)
     late = sum(1 for s in stats if s.slot_latency_ms > recording.slot_s * 1000)
+    full_fleet, full_fleet_late = full_fleet_slots(devices)
     slots = [{"device": d.name, "slot": k, "latency_ms": s.slot_latency_ms,
               "compute_ms": s.slot_processing_ms, "restored": s.restored_keyframes,
               "uploads": s.uploads, "loops_closed": s.loops_closed,
@@ -332,7 +375,15 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             "latency_ms_median": float(np.median(latency)) if latency else math.nan,
             "latency_ms_p95": float(np.percentile(latency, 95)) if latency else math.nan,
             "missed_share": (late + expected - len(stats)) / expected,
-            "edge_cpu_share": cpu / wall, "missing_keyframes": sum(d.missing for d in devices),
+            "stagger_slots": stagger, "full_fleet_device_slots": full_fleet,
+            "missed_share_full_fleet": full_fleet_late / full_fleet if full_fleet else math.nan,
+            "edge_cpu_share": cpu / wall,
+            # the emulated devices' own (this process: replay and DDS), in cores; and the
+            # share of the host's cores nothing used: where none is left the host's CPU is
+            # the limit, where some is the edges' own serial work is
+            "devices_cpu_share": own / wall,
+            "host_idle_share": (idle - idle0) / max(ticks - ticks0, 1),
+            "missing_keyframes": sum(d.missing for d in devices),
             # the share of the replayed frames the edge finds lost on its map (the planned
             # slots' mean): a recording made by an edge that named its points otherwise
             # reports point ids this edge lacks, and its frames count as lost
@@ -374,11 +425,18 @@ def main() -> None:
                              "(bench/collector_watch) and report each setting's full "
                              "collections, start-up's included: how many, the longest, "
                              "their total")
+    parser.add_argument("--stagger", type=float, default=1.0,
+                        help="slot periods the devices' starts are spread over (default 1: a "
+                             "period, every device at the same place of the walk, their "
+                             "revisits together); more puts each at a place of the walk of "
+                             "its own, as devices that joined at different times")
     parser.add_argument("--hosts", action="store_true",
                         help="each edge process on an edge host of its own and the devices on "
                              "a device host (network namespaces on one switch; needs root) "
                              "instead of one loopback domain")
     args = parser.parse_args()
+    if args.stagger < 0:
+        parser.error(f"--stagger: slot periods, 0 or more, not {args.stagger:g}")
     why_not = unavailable_reason() if args.hosts else None
     if why_not is not None:
         raise SystemExit(f"--hosts: network namespaces cannot be made here: {why_not}")
@@ -392,7 +450,8 @@ def main() -> None:
           f"{platform.python_version()}; {len(recording.summaries)} slots a device, "
           f"{len(recording.keyframes)} keyframes recorded; policy {args.policy}; slot period "
           f"{recording.slot_s:.3g} s (the recording's); compute budget "
-          f"{args.compute_budget:g} of a core; "
+          f"{args.compute_budget:g} of a core; the devices' starts spread over "
+          f"{args.stagger:g} slot periods; "
           f"{'edge and device hosts (network namespaces)' if args.hosts else 'loopback'}",
           flush=True)
     rows = []
@@ -402,8 +461,8 @@ def main() -> None:
         raise SystemExit(f"--merge-maps: off, on or off,on, not {args.merge_maps!r}")
     header = (f"{'pools':>5} {'merge':>5} {'edges':>5} {'devices':>7} {'answered':>9} "
               f"{'edge ms/slot':>12} {'p95':>6} "
-              f"{'latency ms':>10} {'p95':>6} {'missed':>7} {'edge CPU':>8} {'merged':>6} "
-              f"{'lost':>5}")
+              f"{'latency ms':>10} {'p95':>6} {'missed':>7} {'all on':>6} {'edge CPU':>8} "
+              f"{'devices CPU':>11} {'idle':>5} {'merged':>6} {'lost':>5}")
     print(header, flush=True)
     settings = [(pools, merge, int(edges), int(n)) for pools in args.pools.split(",")
                 for merge in args.merge_maps.split(",")
@@ -412,7 +471,7 @@ def main() -> None:
     for pools, merge, edges, n in settings:
         with collector_log(args.collector_log) as collections:
             row, slots = measure(n, recording, args.policy, args.compute_budget, edges, pools,
-                                 args.hosts, merging[merge])
+                                 args.hosts, merging[merge], args.stagger)
             full = [c for c in collections() if c[0] == 2]
         if args.collector_log:
             row.update(full_collections=len(full),
@@ -428,7 +487,9 @@ def main() -> None:
               f"{row['answered']:>4.0f}/{row['device_slots']:<4.0f} "
               f"{row['compute_ms_median']:>12.0f} {row['compute_ms_p95']:>6.0f} "
               f"{row['latency_ms_median']:>10.0f} {row['latency_ms_p95']:>6.0f} "
-              f"{row['missed_share']:>7.1%} {row['edge_cpu_share']:>8.0%} "
+              f"{row['missed_share']:>7.1%} {row['missed_share_full_fleet']:>6.1%} "
+              f"{row['edge_cpu_share']:>8.0%} "
+              f"{row['devices_cpu_share']:>11.0%} {row['host_idle_share']:>5.0%} "
               f"{row['merged']:>6} {row['lost_share']:>5.1%}", flush=True)
     if args.csv:
         write_dict_rows(args.csv, rows)
