@@ -50,9 +50,9 @@ The devices' starts are spread over one slot period (``--stagger 1``): each send
 summaries at a phase of its own, but all of them walk the recording in step, so the slots
 where they come back and restore keyframes fall together — the worst a fleet can do to an
 edge. ``--stagger S`` spreads the starts over S periods instead, each device at a place of
-the walk of its own, as devices that joined at different times are; the fleet is whole only
-from the last start to the first end, and ``all on`` is the share of late device-slots in
-that window (the ramp at either end, played by part of the fleet, left out).
+the walk of its own, as devices that joined at different times are (the fleet is then whole
+only from the last start to the first end: the first devices walk alone at first, the last
+alone at the end, where they come back).
 
 ``--collector-log`` times every garbage collection in the edge processes (a
 ``sitecustomize`` hook, ``bench/collector_watch``, on their ``PYTHONPATH``) and reports each
@@ -203,22 +203,6 @@ class EmulatedDevice:
         return self.next_slot >= len(self.recording.summaries)
 
 
-def full_fleet_slots(devices: list[EmulatedDevice]) -> tuple[int, int]:
-    """The device-slots due while every device of the fleet was walking (from the last one's
-    start to the first one's end) and how many of them were late or never answered: with
-    staggered starts the fleet's first and last slots are played by part of it only."""
-    slot_s = devices[0].recording.slot_s
-    walk = len(devices[0].recording.summaries)
-    first_end = min(d.start for d in devices) + walk * slot_s
-    last_start = max(d.start for d in devices)
-    due = [(d, k, slot) for d in devices
-           for k, slot in enumerate(sorted(d.recording.summaries))
-           if last_start <= d.start + k * slot_s < first_end]
-    late = sum(1 for d, _, slot in due
-               if slot not in d.stats or d.stats[slot].slot_latency_ms > slot_s * 1000)
-    return len(due), late
-
-
 def record(folder: Path) -> None:
     """One live run of 600 frames (7-Scenes sample, or the synthetic room) recorded."""
     sequence = str(SEVEN) if SEVEN.is_dir() else "synthetic:600"
@@ -359,7 +343,6 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
     stats = [s for d in devices for s in d.stats.values()]
     expected = n * len(recording.summaries)
     late = sum(1 for s in stats if s.slot_latency_ms > recording.slot_s * 1000)
-    full_fleet, full_fleet_late = full_fleet_slots(devices)
     slots = [{"device": d.name, "slot": k, "latency_ms": s.slot_latency_ms,
               "compute_ms": s.slot_processing_ms, "restored": s.restored_keyframes,
               "uploads": s.uploads, "loops_closed": s.loops_closed,
@@ -375,8 +358,7 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             "latency_ms_median": float(np.median(latency)) if latency else math.nan,
             "latency_ms_p95": float(np.percentile(latency, 95)) if latency else math.nan,
             "missed_share": (late + expected - len(stats)) / expected,
-            "stagger_slots": stagger, "full_fleet_device_slots": full_fleet,
-            "missed_share_full_fleet": full_fleet_late / full_fleet if full_fleet else math.nan,
+            "stagger_slots": stagger,
             "edge_cpu_share": cpu / wall,
             # the emulated devices' own (this process: replay and DDS), in cores; and the
             # share of the host's cores nothing used: where none is left the host's CPU is
@@ -461,7 +443,7 @@ def main() -> None:
         raise SystemExit(f"--merge-maps: off, on or off,on, not {args.merge_maps!r}")
     header = (f"{'pools':>5} {'merge':>5} {'edges':>5} {'devices':>7} {'answered':>9} "
               f"{'edge ms/slot':>12} {'p95':>6} "
-              f"{'latency ms':>10} {'p95':>6} {'missed':>7} {'all on':>6} {'edge CPU':>8} "
+              f"{'latency ms':>10} {'p95':>6} {'missed':>7} {'edge CPU':>8} "
               f"{'devices CPU':>11} {'idle':>5} {'merged':>6} {'lost':>5}")
     print(header, flush=True)
     settings = [(pools, merge, int(edges), int(n)) for pools in args.pools.split(",")
@@ -487,8 +469,7 @@ def main() -> None:
               f"{row['answered']:>4.0f}/{row['device_slots']:<4.0f} "
               f"{row['compute_ms_median']:>12.0f} {row['compute_ms_p95']:>6.0f} "
               f"{row['latency_ms_median']:>10.0f} {row['latency_ms_p95']:>6.0f} "
-              f"{row['missed_share']:>7.1%} {row['missed_share_full_fleet']:>6.1%} "
-              f"{row['edge_cpu_share']:>8.0%} "
+              f"{row['missed_share']:>7.1%} {row['edge_cpu_share']:>8.0%} "
               f"{row['devices_cpu_share']:>11.0%} {row['host_idle_share']:>5.0%} "
               f"{row['merged']:>6} {row['lost_share']:>5.1%}", flush=True)
     if args.csv:
