@@ -14,6 +14,11 @@ files the commands wrote (every command is on that page beside its table):
   --edges 2 [--hosts]``, run R of each, alternated) → fleet/edge-hosts.png: the late share
   and the summaries → map p95 vs N, the two edge processes on one loopback domain and on two
   edge hosts (network namespaces), every run a line;
+* ``stagger`` — fleet/host-and-stagger/{in-step,staggered}-R.csv (``python -m
+  bench.edge_scaling --edges 1,2 --devices 16,24,32 [--stagger 10]``, run R of each) →
+  fleet/host-and-stagger.png: the late share vs N with the devices walking in step and at
+  places of their own, one and two edge processes, every run a line; and where the host's
+  two cores went: the edges', the emulated devices' and what stayed idle;
 * ``sim FILE…`` — ``twinslam sim --devices N --csv`` files: per allocator the fleet mean (over
   devices, then seeds) of mean υ, lost share and υ tracked, Jain's index of the devices'
   tracked shares, and the paired differences with ``equal`` on the same seeds;
@@ -27,6 +32,7 @@ files the commands wrote (every command is on that page beside its table):
     .venv/bin/python docs/figures/fleet_tables.py scaling
     .venv/bin/python docs/figures/fleet_tables.py edges
     .venv/bin/python docs/figures/fleet_tables.py hosts
+    .venv/bin/python docs/figures/fleet_tables.py stagger
     .venv/bin/python docs/figures/fleet_tables.py sim docs/figures/fleet/sim-n10-lff.csv
     .venv/bin/python docs/figures/fleet_tables.py split \
         docs/figures/fleet/sim-n10-lff-cell400.csv \
@@ -258,12 +264,51 @@ def hosts() -> None:
     _save(fig, "fleet/edge-hosts.png")
 
 
+def stagger() -> None:
+    """Devices walking in step against at places of their own, one and two edge processes;
+    and what of the host's cores the edges, the emulated devices and nothing used."""
+    plt = pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.4))
+    for kind, style, walk in (("in-step", "-", "in step"), ("staggered", ":",
+                                                            "starts over 10 slots")):
+        runs = sorted((HERE / "fleet/host-and-stagger").glob(f"{kind}-[0-9].csv"))
+        for i, path in enumerate(runs):
+            rows = [r for r in _rows(path) if int(r["devices"]) >= 16]
+            for edges, colour in (("1", "C0"), ("2", "C3")):
+                mine = [r for r in rows if r["edges"] == edges]
+                n = [int(r["devices"]) for r in mine]
+                name = (f"{walk}, {edges} edge process{'es' if edges == '2' else ''}, "
+                        f"{len(runs)} runs") if i == 0 else None
+                axes[0].plot(n, [100 * float(r["missed_share"]) for r in mine], "o" + style,
+                             color=colour, alpha=0.8, label=name)
+                if kind == "in-step":
+                    axes[1].plot(n, [100 * float(r["host_idle_share"]) for r in mine], "o-",
+                                 color=colour, alpha=0.8,
+                                 label=f"idle, {edges} edge process"
+                                       f"{'es' if edges == '2' else ''}" if i == 0 else None)
+                    axes[1].plot(n, [50 * float(r["edge_cpu_share"]) for r in mine], "s--",
+                                 color=colour, alpha=0.5,
+                                 label=f"the edge{'s' if edges == '2' else ''}"
+                                       if i == 0 else None)
+                    axes[1].plot(n, [50 * float(r["devices_cpu_share"]) for r in mine], "^:",
+                                 color=colour, alpha=0.5,
+                                 label="the emulated devices" if i == 0 else None)
+    _late_share_axis(axes[0], "late maps (2 cores, the devices on them too)", goal_x=26)
+    axes[0].legend(fontsize=7, loc="upper left")
+    axes[1].set(xlabel="devices", ylabel="% of the host's two cores", ylim=(0, 100),
+                title="where the host's CPU went (devices in step)")
+    axes[1].legend(fontsize=7, loc="upper right")
+    _save(fig, "fleet/host-and-stagger.png")
+
+
 def main(argv: list[str]) -> int:
-    if not argv or argv[0] not in ("scaling", "edges", "hosts", "sim", "split", "live"):
+    if not argv or argv[0] not in ("scaling", "edges", "hosts", "stagger", "sim", "split",
+                                   "live"):
         print(__doc__)
         return 2
     {"scaling": lambda a: scaling(), "edges": lambda a: edges(), "hosts": lambda a: hosts(),
-     "sim": sim, "split": split, "live": live}[argv[0]](argv[1:])
+     "stagger": lambda a: stagger(), "sim": sim, "split": split, "live": live}[argv[0]](
+        argv[1:])
     return 0
 
 
