@@ -294,13 +294,15 @@ def fleet_network(edges: int, hosts: bool) -> Iterator[tuple[ProcessDomain, str 
 
 def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0.0,
             edges: int = 1, pools: str = "one", hosts: bool = False,
-            merge_maps: bool = False, stagger: float = 1.0
+            merge_maps: bool = False, stagger: float = 1.0, checkpoints: bool = False
             ) -> tuple[dict[str, float], list[dict[str, float]]]:
     """One fleet of ``n`` emulated devices served, their starts spread evenly over ``stagger``
-    slot periods; the table's row and every device-slot's figures (its latency, the edge's
-    compute, what the slot restored, uploaded, closed)."""
+    slot periods, each device's map checkpointed every slot with ``checkpoints``; the table's
+    row and every device-slot's figures (its latency, the edge's compute, what the slot
+    restored, uploaded, closed)."""
     names = [f"ar{i + 1}" for i in range(n)]
-    with pools_env(pools), fleet_network(edges, hosts) as (dom, _):
+    with pools_env(pools), fleet_network(edges, hosts) as (dom, _), \
+            tempfile.TemporaryDirectory(prefix="twinslam-checkpoints-") as kept:
         served = edge_blocks(names, edges)
         hosted = edge_hosts(len(served)) if hosts else [None] * len(served)
         procs = [dom.spawn(["-m", "edge_mapper.node", "--ros-args",
@@ -309,7 +311,9 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
                             "-p", f"vmax_total:={45 * len(block)}",
                             "-p", "allocator:=equal", "-p", "slot_timeout_s:=5.0",
                             "-p", f"compute_budget:={compute_budget}",
-                            "-p", f"merge_maps:={str(merge_maps).lower()}"],
+                            "-p", f"merge_maps:={str(merge_maps).lower()}",
+                            *(["-p", f"checkpoint:={kept}/edge{e + 1}.npz"]
+                              if checkpoints else [])],
                            host=hosted[e])
                  for e, block in enumerate(served)]
         for edge, block in zip(procs, served, strict=True):
@@ -376,7 +380,7 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             "latency_ms_median": float(np.median(latency)) if latency else math.nan,
             "latency_ms_p95": float(np.percentile(latency, 95)) if latency else math.nan,
             "missed_share": (late + expected - len(stats)) / expected,
-            "stagger_slots": stagger,
+            "stagger_slots": stagger, "checkpoints": checkpoints,
             "edge_cpu_share": cpu / wall,
             # the emulated devices' own (this process: replay and DDS), in cores; and the
             # share of the host's cores nothing used: where none is left the host's CPU is
@@ -430,6 +434,10 @@ def main() -> None:
                              "period, every device at the same place of the walk, their "
                              "revisits together); more puts each at a place of the walk of "
                              "its own, as devices that joined at different times")
+    parser.add_argument("--checkpoints", action="store_true",
+                        help="the edges checkpoint every device's map every slot (the "
+                             "checkpoint parameter: what a standby edge takes a device over "
+                             "from, and a restarted edge resumes from); default: none")
     parser.add_argument("--hosts", action="store_true",
                         help="each edge process on an edge host of its own and the devices on "
                              "a device host (network namespaces on one switch; needs root) "
@@ -452,6 +460,7 @@ def main() -> None:
           f"{recording.slot_s:.3g} s (the recording's); compute budget "
           f"{args.compute_budget:g} of a core; the devices' starts spread over "
           f"{args.stagger:g} slot periods; "
+          f"{'maps checkpointed every slot; ' if args.checkpoints else ''}"
           f"{'edge and device hosts (network namespaces)' if args.hosts else 'loopback'}",
           flush=True)
     rows = []
@@ -471,7 +480,7 @@ def main() -> None:
     for pools, merge, edges, n in settings:
         with collector_log(args.collector_log) as collections:
             row, slots = measure(n, recording, args.policy, args.compute_budget, edges, pools,
-                                 args.hosts, merging[merge], args.stagger)
+                                 args.hosts, merging[merge], args.stagger, args.checkpoints)
             full = [c for c in collections() if c[0] == 2]
         if args.collector_log:
             row.update(full_collections=len(full),
