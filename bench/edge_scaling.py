@@ -294,12 +294,12 @@ def fleet_network(edges: int, hosts: bool) -> Iterator[tuple[ProcessDomain, str 
 
 def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0.0,
             edges: int = 1, pools: str = "one", hosts: bool = False,
-            merge_maps: bool = False, stagger: float = 1.0, checkpoints: bool = False
+            merge_maps: bool = False, stagger: float = 1.0, checkpoint_every: int = 0
             ) -> tuple[dict[str, float], list[dict[str, float]]]:
     """One fleet of ``n`` emulated devices served, their starts spread evenly over ``stagger``
-    slot periods, each device's map checkpointed every slot with ``checkpoints``; the table's
-    row and every device-slot's figures (its latency, the edge's compute, what the slot
-    restored, uploaded, closed)."""
+    slot periods, each device's map checkpointed every ``checkpoint_every`` slots (0: never);
+    the table's row and every device-slot's figures (its latency, the edge's compute, what
+    the slot restored, uploaded, closed)."""
     names = [f"ar{i + 1}" for i in range(n)]
     with pools_env(pools), fleet_network(edges, hosts) as (dom, _), \
             tempfile.TemporaryDirectory(prefix="twinslam-checkpoints-") as kept:
@@ -312,8 +312,9 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
                             "-p", "allocator:=equal", "-p", "slot_timeout_s:=5.0",
                             "-p", f"compute_budget:={compute_budget}",
                             "-p", f"merge_maps:={str(merge_maps).lower()}",
-                            *(["-p", f"checkpoint:={kept}/edge{e + 1}.npz"]
-                              if checkpoints else [])],
+                            *(["-p", f"checkpoint:={kept}/edge{e + 1}.npz",
+                               "-p", f"checkpoint_every:={checkpoint_every}"]
+                              if checkpoint_every else [])],
                            host=hosted[e])
                  for e, block in enumerate(served)]
         for edge, block in zip(procs, served, strict=True):
@@ -380,7 +381,7 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             "latency_ms_median": float(np.median(latency)) if latency else math.nan,
             "latency_ms_p95": float(np.percentile(latency, 95)) if latency else math.nan,
             "missed_share": (late + expected - len(stats)) / expected,
-            "stagger_slots": stagger, "checkpoints": checkpoints,
+            "stagger_slots": stagger, "checkpoint_every": checkpoint_every,
             "edge_cpu_share": cpu / wall,
             # the emulated devices' own (this process: replay and DDS), in cores; and the
             # share of the host's cores nothing used: where none is left the host's CPU is
@@ -434,10 +435,11 @@ def main() -> None:
                              "period, every device at the same place of the walk, their "
                              "revisits together); more puts each at a place of the walk of "
                              "its own, as devices that joined at different times")
-    parser.add_argument("--checkpoints", action="store_true",
-                        help="the edges checkpoint every device's map every slot (the "
-                             "checkpoint parameter: what a standby edge takes a device over "
-                             "from, and a restarted edge resumes from); default: none")
+    parser.add_argument("--checkpoint-every", type=int, default=0, metavar="SLOTS",
+                        help="the edges checkpoint every device's map every SLOTS slots (the "
+                             "checkpoint and checkpoint_every parameters: what a standby edge "
+                             "takes a device over from, and a restarted edge resumes from); "
+                             "default 0: none")
     parser.add_argument("--hosts", action="store_true",
                         help="each edge process on an edge host of its own and the devices on "
                              "a device host (network namespaces on one switch; needs root) "
@@ -445,6 +447,8 @@ def main() -> None:
     args = parser.parse_args()
     if args.stagger < 0:
         parser.error(f"--stagger: slot periods, 0 or more, not {args.stagger:g}")
+    if args.checkpoint_every < 0:
+        parser.error(f"--checkpoint-every: slots, 0 or more, not {args.checkpoint_every}")
     why_not = unavailable_reason() if args.hosts else None
     if why_not is not None:
         raise SystemExit(f"--hosts: network namespaces cannot be made here: {why_not}")
@@ -454,13 +458,15 @@ def main() -> None:
             folder = Path(tmp) / "run"
             record(folder)
         recording = Recording.read(folder)
+    checkpoints = (f"maps checkpointed every {args.checkpoint_every} slots; "
+                   if args.checkpoint_every else "")
     print(f"machine: {platform.machine()}, {os.cpu_count()} cores, python "
           f"{platform.python_version()}; {len(recording.summaries)} slots a device, "
           f"{len(recording.keyframes)} keyframes recorded; policy {args.policy}; slot period "
           f"{recording.slot_s:.3g} s (the recording's); compute budget "
           f"{args.compute_budget:g} of a core; the devices' starts spread over "
           f"{args.stagger:g} slot periods; "
-          f"{'maps checkpointed every slot; ' if args.checkpoints else ''}"
+          f"{checkpoints}"
           f"{'edge and device hosts (network namespaces)' if args.hosts else 'loopback'}",
           flush=True)
     rows = []
@@ -480,7 +486,8 @@ def main() -> None:
     for pools, merge, edges, n in settings:
         with collector_log(args.collector_log) as collections:
             row, slots = measure(n, recording, args.policy, args.compute_budget, edges, pools,
-                                 args.hosts, merging[merge], args.stagger, args.checkpoints)
+                                 args.hosts, merging[merge], args.stagger,
+                                 args.checkpoint_every)
             full = [c for c in collections() if c[0] == 2]
         if args.collector_log:
             row.update(full_collections=len(full),

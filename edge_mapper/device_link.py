@@ -229,6 +229,11 @@ class DeviceLink:
     def _on_summaries(self, msg: FrameSummaries) -> None:
         slot = int(msg.slot)
         self.last_heard = time.monotonic()
+        before = self.core.version
+        if self.core.catch_up_version(int(msg.map_version)):
+            self.info(f"slot {slot}: the device holds map version {msg.map_version}, newer "
+                      f"than this edge's {before} (its checkpoint was written before the "
+                      "last maps went out): versions go on from the device's")
         live = self.live()
         self._log(self.control.apply({k: live[k] for k in POLICY_KEYS}, slot))
         self.core.set_policy(self.control.policy)
@@ -425,13 +430,17 @@ class DeviceLink:
                       f"{merged.place}'s frame ({self.map_frame}), the look took "
                       f"{merged.look_ms:.0f} ms beside the slots")
 
-    def close(self, keep_checkpoint: bool = False) -> None:
+    def close(self, keep_checkpoint: bool = False, write_last: bool = True) -> None:
         """Stop listening and publishing (a reclaimed device): its slots are dropped and its
         checkpoint, if any, moved aside to ``FILE.reclaimed`` so that the device, should it
         come back, starts afresh (the file is still there to inspect or restore) — or left
         where it is (``keep_checkpoint``: a standby edge giving the device back to its own
-        edge, which writes that file)."""
+        edge, which writes that file). The slots finished since the last checkpoint
+        (``checkpoint_every``) are checkpointed first (``write_last``; not for a device whose
+        work failed: its map may be half-way through a slot)."""
         checkpoint = self.core.checkpoint
+        if write_last:
+            self.core.flush_checkpoint()
         if checkpoint is not None and not keep_checkpoint:
             for kept in (checkpoint, archive_folder(checkpoint)):
                 aside = kept.with_name(kept.name + ".reclaimed")

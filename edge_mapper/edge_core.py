@@ -73,6 +73,11 @@ class EdgeConfig:
     reloc_restore_keyframes: int = 0
     #: the map's life: bundle adjustment, archive, fusion, culling, the keyframe gate, loops
     back_end: BackEndConfig = field(default_factory=BackEndConfig)
+    #: slots between two checkpoints (with a checkpoint file): each is ~9 ms of the slot on
+    #: the 7-Scenes walk's map (writing 6.7, syncing 2.4; ``bench.edge_scaling
+    #: --checkpoint-every``); an edge resumed from one up to this many slots old goes on from
+    #: the version its device holds
+    checkpoint_every: int = 1
     #: a tracked frame whose view a keyframe another device uploaded covers (one of the
     #: map's, lent after a map merge) is not uploaded (:mod:`twinslam.slam.back_end.
     #: view_coverage`); the device's own keyframes cover nothing: alone, a device uploads as
@@ -124,6 +129,7 @@ class EdgeMapperCore:
                  n_states: int = 2) -> None:
         self.config = config or EdgeConfig()
         self.checkpoint = Path(checkpoint) if checkpoint else None
+        self._unsaved = 0                 #: slots finished since the last checkpoint
         self.back_end = MapBackEnd(self.config.back_end, intrinsics, self.checkpoint)
         extra = self.back_end.extra
         self.version = int(extra.get("version", 0))
@@ -388,15 +394,12 @@ class EdgeMapperCore:
         self._previous_tracks = fresh
         # tracks whose point left the map are forgotten: the table stays the map's size
         self.local_mapping.forget_tracks_gone()
-        known = self.local_mapping.track_points
-        if self.checkpoint is not None:
-            self.map.save(self.checkpoint, version=np.array(self.version),
-                          last_slot=np.array(slot),
-                          rate_history=np.array(self.rate_history, dtype=np.int64),
-                          **self.back_end.checkpoint_arrays(),
-                          **_table_arrays(known, "track"),
-                          **_table_arrays(fresh, "previous_track"))
-        self.archive.release_taken()          # restored keyframes are in the checkpoint now
+        if self.checkpoint is None:
+            self.archive.release_taken()
+        else:
+            self._unsaved += 1
+            if self._unsaved >= self.config.checkpoint_every:
+                self.save_checkpoint()
         t2 = time.perf_counter()
         w = self.map.covisibility()
         u = map_uncertainty(w, self.planner.config.log_det_pi) if len(w) else math.inf
@@ -414,6 +417,40 @@ class EdgeMapperCore:
                            optimisation_refused=ba.refused if ba is not None else "",
                            fused_points=fused, loop=loop,
                            loop_failures=self.loop_closer.failures())
+
+    def save_checkpoint(self) -> None:
+        """Write the map as the last finished slot left it to the checkpoint file, then delete
+        the archive's files of the keyframes restored into it since the last one. Written
+        before the slot's map update goes out: a map the device was sent survives the edge
+        (with ``checkpoint_every`` 1; with more, a restarted edge resumes from a map up to
+        that many slots old and goes on from the version its device holds,
+        :meth:`catch_up_version`)."""
+        if self.checkpoint is None:
+            raise ValueError("this edge has no checkpoint file to write")
+        self.map.save(self.checkpoint, version=np.array(self.version),
+                      last_slot=np.array(self.last_slot),
+                      rate_history=np.array(self.rate_history, dtype=np.int64),
+                      **self.back_end.checkpoint_arrays(),
+                      **_table_arrays(self.local_mapping.track_points, "track"),
+                      **_table_arrays(self._previous_tracks, "previous_track"))
+        self.archive.release_taken()          # restored keyframes are in the checkpoint now
+        self._unsaved = 0
+
+    def flush_checkpoint(self) -> None:
+        """Checkpoint the slots finished since the last checkpoint, if any (an edge that stops
+        cleanly, or gives its device back, leaves its last map on disk)."""
+        if self.checkpoint is not None and self._unsaved:
+            self.save_checkpoint()
+
+    def catch_up_version(self, held: int) -> bool:
+        """The device holds map version ``held``: an edge whose own version is older (it
+        resumed from a checkpoint written before its last map updates went out) goes on from
+        it, since the device ignores a map not newer than the one it holds. True when it
+        did."""
+        if held <= self.version:
+            return False
+        self.version = held
+        return True
 
     def close(self) -> None:
         """Stop the loop closer's worker (the node calls it at shutdown)."""

@@ -198,7 +198,7 @@ class EdgeMapperNode(Node):
         its map left out of the place's merging."""
         del self.links[device]
         try:
-            link.close(keep_checkpoint=True)
+            link.close(keep_checkpoint=True, write_last=False)
         except Exception as exc:        # a half-done slot's state: closing must not fail
             self.get_logger().error(f"device {device}: closing its link failed too: {exc}")
         if self.merging is not None:
@@ -282,6 +282,17 @@ class EdgeMapperNode(Node):
                 link.close(keep_checkpoint=True)
             if self.merging is not None:
                 self.merging.forget(device)
+
+    def close(self) -> None:
+        """Before the node goes (``run_node`` calls it once the executor stopped): every
+        device's slots finished since its last checkpoint (``checkpoint_every``)
+        checkpointed."""
+        for device, link in self.links.items():
+            try:
+                link.core.flush_checkpoint()
+            except Exception as exc:      # one device's disk must not keep the others' back
+                self.get_logger().error(f"device {device}: its last checkpoint not written: "
+                                        f"{exc}")
 
     def _announced(self) -> list[str]:
         """Device namespaces under this node's that publish frame summaries now."""

@@ -62,8 +62,12 @@ PARAMETERS = (
               "the uplink carries alpha within the slot (d_k under alpha / D_req), ask for one "
               "frame, its deadline stretched to the slot's end, so a slow uplink still grows "
               "the map; false: Theorem 1 exactly (the paper's preset)"),
-    ParamSpec("checkpoint", "", "map file written every slot and resumed from after a "
-              "restart; empty: none"),
+    ParamSpec("checkpoint", "", "map file written every checkpoint_every slots and resumed "
+              "from after a restart (a standby edge takes a device over from it); empty: none"),
+    ParamSpec("checkpoint_every", 1, "slots between two checkpoints of a device's map (with "
+              "checkpoint): each is ~9 ms of a device's slot on a 45-keyframe map; an edge "
+              "resumed from one up to this many slots old goes on from the map version its "
+              "device holds, and a clean stop writes the last", low=1, high=3600),
     ParamSpec("states", 2, "N uplink channel states (the rate history's alphabet)", low=1,
               high=64),
     ParamSpec("archive_keyframes", 500, "evicted keyframes the edge keeps (pose, map points, "
@@ -177,6 +181,7 @@ def edge_config(p: Mapping[str, Any]) -> EdgeConfig:
                       restore_keyframes=int(p["restore_keyframes"]),
                       reloc_restore_keyframes=int(p["reloc_restore_keyframes"]),
                       coverage=CoverageBounds(float(p["covered_m"]), float(p["covered_deg"])),
+                      checkpoint_every=int(p["checkpoint_every"]),
                       back_end=BackEndConfig(
                           ba_window=int(p["ba_window"]),
                           archive_keyframes=int(p["archive_keyframes"]),

@@ -448,3 +448,37 @@ def test_applied_evictions_make_room_for_what_came_and_keep_vmax() -> None:
     # counted out), the oldest others follow C_k
     assert applied_evictions([3], [1, 2, 3, 4, 5, 6], [], 4) == [3, 1]
     assert applied_evictions([], [1, 2, 3], [9], 4) == []
+
+
+def test_an_edge_behind_the_device_on_map_versions_goes_on_from_the_devices() -> None:
+    """An edge that resumed from a checkpoint written before its last map updates went out
+    would send versions the device ignores (it takes only newer ones): it goes on from the
+    version the device reports instead — and never goes back."""
+    core = EdgeMapperCore(make_policy("lff"), K, EdgeConfig())
+    assert core.catch_up_version(7) and core.version == 7
+    assert not core.catch_up_version(5) and core.version == 7
+    assert not core.catch_up_version(7)
+
+
+def test_a_checkpoint_every_few_slots_and_the_last_at_a_clean_stop(tmp_path: Path) -> None:
+    """``checkpoint_every``: the map is written every that many slots, the slots between are
+    written by a clean stop (flush), and an edge resumed from an older checkpoint than its
+    device's map goes on from the device's version."""
+    from twinslam.slam.back_end.keyframe_map import KeyFrameMap
+
+    config = EdgeConfig(slot=SlotConfig(vmax=10), back_end=BackEndConfig(ba_window=6),
+                        checkpoint_every=3)
+    ckpt = tmp_path / "edge.npz"
+    core = EdgeMapperCore(make_policy("lff"), K, config, ckpt)
+    device = Device(np.random.default_rng(2))
+    _run(core, device, range(2), rates=[40.0])
+    assert not ckpt.exists()
+    _run(core, device, range(2, 5), rates=[40.0])
+    assert int(KeyFrameMap.load(ckpt)[1]["version"]) == 3      # slot 2's, not 3's or 4's
+    resumed = EdgeMapperCore(make_policy("lff"), K, config, ckpt)
+    assert resumed.version == 3 and resumed.catch_up_version(core.version)
+    assert resumed.version == 5
+    core.flush_checkpoint()
+    assert int(KeyFrameMap.load(ckpt)[1]["version"]) == 5
+    core.flush_checkpoint()                                      # nothing new: no write
+    assert int(KeyFrameMap.load(ckpt)[1]["version"]) == 5
