@@ -20,6 +20,7 @@ import math
 import shutil
 import time
 import traceback
+import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -119,6 +120,7 @@ class DeviceLink:
         self.core = EdgeMapperCore(self.control.policy, None, settings.config,
                                    checkpoint_of(settings.checkpoint, device),
                                    settings.n_states)
+        self.core.spread_checkpoints(zlib.crc32(device.encode()))
         self.slots = SlotLifecycle(settings.slot_timeout_s)
         #: the frame of this device's map: with several devices each has its own on /tf
         self.map_frame = f"{device}/{settings.map_frame}" if device else settings.map_frame

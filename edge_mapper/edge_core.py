@@ -436,6 +436,12 @@ class EdgeMapperCore:
         self.archive.release_taken()          # restored keyframes are in the checkpoint now
         self._unsaved = 0
 
+    def spread_checkpoints(self, phase: int) -> None:
+        """Shift this device's checkpoints by ``phase`` slots (mod ``checkpoint_every``): the
+        devices of one edge, whose slots number alike when they start together, then do not
+        all write theirs in the same slot."""
+        self._unsaved = phase % self.config.checkpoint_every
+
     def flush_checkpoint(self) -> None:
         """Checkpoint the slots finished since the last checkpoint, if any (an edge that stops
         cleanly, or gives its device back, leaves its last map on disk)."""

@@ -482,3 +482,21 @@ def test_a_checkpoint_every_few_slots_and_the_last_at_a_clean_stop(tmp_path: Pat
     assert int(KeyFrameMap.load(ckpt)[1]["version"]) == 5
     core.flush_checkpoint()                                      # nothing new: no write
     assert int(KeyFrameMap.load(ckpt)[1]["version"]) == 5
+
+
+def test_devices_checkpoints_spread_over_the_slots_between(tmp_path: Path) -> None:
+    """Devices that start together number their slots alike: shifted by a phase each, their
+    checkpoints every three slots fall in different slots."""
+    config = EdgeConfig(slot=SlotConfig(vmax=10), checkpoint_every=3)
+    first_written = []
+    for phase in range(3):
+        ckpt = tmp_path / f"edge{phase}.npz"
+        core = EdgeMapperCore(make_policy("lff"), K, config, ckpt)
+        core.spread_checkpoints(phase)
+        device = Device(np.random.default_rng(phase))
+        for slot in range(3):
+            _run(core, device, range(slot, slot + 1), rates=[40.0])
+            if ckpt.exists():
+                first_written.append(slot)
+                break
+    assert sorted(first_written) == [0, 1, 2]
