@@ -73,10 +73,10 @@ class EdgeConfig:
     reloc_restore_keyframes: int = 0
     #: the map's life: bundle adjustment, archive, fusion, culling, the keyframe gate, loops
     back_end: BackEndConfig = field(default_factory=BackEndConfig)
-    #: slots between two checkpoints (with a checkpoint file): each is ~9 ms of the slot on
-    #: the 7-Scenes walk's map (writing 6.7, syncing 2.4; ``bench.edge_scaling
-    #: --checkpoint-every``); an edge resumed from one up to this many slots old goes on from
-    #: the version its device holds
+    #: slots between two checkpoints (with a checkpoint file): each is ~8 ms of the slot on
+    #: the 7-Scenes walk's map (its arrays 1.4 ms, written and synced 6.6;
+    #: ``bench.edge_scaling --checkpoint-every``); an edge resumed from one up to this many
+    #: slots old goes on from the version its device holds
     checkpoint_every: int = 1
     #: a tracked frame whose view a keyframe another device uploaded covers (one of the
     #: map's, lent after a map merge) is not uploaded (:mod:`twinslam.slam.back_end.

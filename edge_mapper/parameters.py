@@ -65,7 +65,7 @@ PARAMETERS = (
     ParamSpec("checkpoint", "", "map file written every checkpoint_every slots and resumed "
               "from after a restart (a standby edge takes a device over from it); empty: none"),
     ParamSpec("checkpoint_every", 1, "slots between two checkpoints of a device's map (with "
-              "checkpoint): each is ~9 ms of a device's slot on a 45-keyframe map; an edge "
+              "checkpoint): each is ~8 ms of a device's slot on a 45-keyframe map; an edge "
               "resumed from one up to this many slots old goes on from the map version its "
               "device holds, and a clean stop writes the last", low=1, high=3600),
     ParamSpec("states", 2, "N uplink channel states (the rate history's alphabet)", low=1,
