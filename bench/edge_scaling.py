@@ -62,9 +62,9 @@ alone at the end, where they come back).
 setting's full collections: a full collection stalls every device the process serves.
 
     python -m bench.edge_scaling [--devices 1,2,4,8,12,16] [--edges 1,2] [--pools one]
-                                 [--merge-maps off] [--stagger 1] [--hosts] [--recording DIR]
-                                 [--csv FILE] [--slots-csv FILE] [--slots-plot PNG]
-                                 [--collector-log]
+                                 [--merge-maps off] [--stagger 1] [--checkpoint-every 0]
+                                 [--hosts] [--recording DIR] [--csv FILE] [--slots-csv FILE]
+                                 [--slots-plot PNG] [--collector-log]
 """
 
 from __future__ import annotations

@@ -432,17 +432,15 @@ class DeviceLink:
                       f"{merged.place}'s frame ({self.map_frame}), the look took "
                       f"{merged.look_ms:.0f} ms beside the slots")
 
-    def close(self, keep_checkpoint: bool = False, write_last: bool = True) -> None:
+    def close(self, keep_checkpoint: bool = False) -> None:
         """Stop listening and publishing (a reclaimed device): its slots are dropped and its
         checkpoint, if any, moved aside to ``FILE.reclaimed`` so that the device, should it
         come back, starts afresh (the file is still there to inspect or restore) — or left
         where it is (``keep_checkpoint``: a standby edge giving the device back to its own
-        edge, which writes that file). The slots finished since the last checkpoint
-        (``checkpoint_every``) are checkpointed first (``write_last``; not for a device whose
-        work failed: its map may be half-way through a slot)."""
+        edge, which writes that file). Slots finished since the last checkpoint
+        (``checkpoint_every``) are not written: the device's own edge owns the file again, or
+        the device starts afresh (a clean stop writes them: :meth:`EdgeMapperNode.close`)."""
         checkpoint = self.core.checkpoint
-        if write_last:
-            self.core.flush_checkpoint()
         if checkpoint is not None and not keep_checkpoint:
             for kept in (checkpoint, archive_folder(checkpoint)):
                 aside = kept.with_name(kept.name + ".reclaimed")

@@ -130,6 +130,8 @@ class EdgeMapperCore:
         self.config = config or EdgeConfig()
         self.checkpoint = Path(checkpoint) if checkpoint else None
         self._unsaved = 0                 #: slots finished since the last checkpoint
+        #: slots until the next checkpoint (:meth:`spread_checkpoints` shifts it)
+        self._checkpoint_in = self.config.checkpoint_every
         self.back_end = MapBackEnd(self.config.back_end, intrinsics, self.checkpoint)
         extra = self.back_end.extra
         self.version = int(extra.get("version", 0))
@@ -398,7 +400,8 @@ class EdgeMapperCore:
             self.archive.release_taken()
         else:
             self._unsaved += 1
-            if self._unsaved >= self.config.checkpoint_every:
+            self._checkpoint_in -= 1
+            if self._checkpoint_in <= 0:
                 self.save_checkpoint()
         t2 = time.perf_counter()
         w = self.map.covisibility()
@@ -434,17 +437,17 @@ class EdgeMapperCore:
                       **_table_arrays(self.local_mapping.track_points, "track"),
                       **_table_arrays(self._previous_tracks, "previous_track"))
         self.archive.release_taken()          # restored keyframes are in the checkpoint now
-        self._unsaved = 0
+        self._unsaved, self._checkpoint_in = 0, self.config.checkpoint_every
 
     def spread_checkpoints(self, phase: int) -> None:
         """Shift this device's checkpoints by ``phase`` slots (mod ``checkpoint_every``): the
         devices of one edge, whose slots number alike when they start together, then do not
         all write theirs in the same slot."""
-        self._unsaved = phase % self.config.checkpoint_every
+        self._checkpoint_in = phase % self.config.checkpoint_every + 1
 
     def flush_checkpoint(self) -> None:
         """Checkpoint the slots finished since the last checkpoint, if any (an edge that stops
-        cleanly, or gives its device back, leaves its last map on disk)."""
+        cleanly leaves its last map on disk)."""
         if self.checkpoint is not None and self._unsaved:
             self.save_checkpoint()
 

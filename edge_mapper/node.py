@@ -198,7 +198,7 @@ class EdgeMapperNode(Node):
         its map left out of the place's merging."""
         del self.links[device]
         try:
-            link.close(keep_checkpoint=True, write_last=False)
+            link.close(keep_checkpoint=True)
         except Exception as exc:        # a half-done slot's state: closing must not fail
             self.get_logger().error(f"device {device}: closing its link failed too: {exc}")
         if self.merging is not None:
