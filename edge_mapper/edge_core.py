@@ -128,6 +128,9 @@ class EdgeMapperCore:
                  config: EdgeConfig | None = None, checkpoint: Path | None = None,
                  n_states: int = 2) -> None:
         self.config = config or EdgeConfig()
+        if self.config.checkpoint_every < 1:
+            raise ValueError(f"checkpoint_every is 1 or more slots, not "
+                             f"{self.config.checkpoint_every}")
         self.checkpoint = Path(checkpoint) if checkpoint else None
         self._unsaved = 0                 #: slots finished since the last checkpoint
         #: slots until the next checkpoint (:meth:`spread_checkpoints` shifts it)

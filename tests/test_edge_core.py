@@ -480,8 +480,11 @@ def test_a_checkpoint_every_few_slots_and_the_last_at_a_clean_stop(tmp_path: Pat
     assert resumed.version == 5
     core.flush_checkpoint()
     assert int(KeyFrameMap.load(ckpt)[1]["version"]) == 5
+    written = ckpt.stat().st_mtime_ns, ckpt.stat().st_ino
     core.flush_checkpoint()                                      # nothing new: no write
-    assert int(KeyFrameMap.load(ckpt)[1]["version"]) == 5
+    assert (ckpt.stat().st_mtime_ns, ckpt.stat().st_ino) == written
+    with pytest.raises(ValueError, match="checkpoint_every"):
+        EdgeMapperCore(make_policy("lff"), K, EdgeConfig(checkpoint_every=0), ckpt)
 
 
 def test_devices_checkpoints_spread_over_the_slots_between(tmp_path: Path) -> None:
