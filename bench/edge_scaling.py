@@ -169,10 +169,8 @@ class EmulatedDevice:
     sent: dict[int, int] = field(default_factory=dict)    #: keyframes sent, by slot
 
     def tick(self, now: float) -> None:
-        slots = self.recording.slots
-        if self.next_slot < len(slots) and \
-                now >= self.start + self.next_slot * self.recording.slot_s:
-            slot = slots[self.next_slot]
+        if now >= self.summaries_due:
+            slot = self.recording.slots[self.next_slot]
             self.pubs["summaries"].publish(self.recording.summaries[slot])
             self.sent_at[slot] = now
             self.next_slot += 1
@@ -212,10 +210,15 @@ class EmulatedDevice:
     def done(self) -> bool:
         return self.next_slot >= len(self.recording.summaries)
 
+    @property
+    def summaries_due(self) -> float:
+        """When its next slot's summaries are due (inf: every slot sent)."""
+        return math.inf if self.done else self.start + self.next_slot * self.recording.slot_s
+
     def next_due(self) -> float:
         """When this device next has something to send (its next slot's summaries, its next
         upload or account; inf: nothing more)."""
-        due = math.inf if self.done else self.start + self.next_slot * self.recording.slot_s
+        due = self.summaries_due
         return min(due, self.uploads[0][0]) if self.uploads else due
 
 
