@@ -28,7 +28,7 @@ from scipy import sparse
 
 from twinslam.slam.back_end.foreign_keyframes import is_foreign
 from twinslam.slam.back_end.point_columns import PointColumns
-from twinslam.slam.sorted_ids import find_sorted
+from twinslam.slam.sorted_ids import find_sorted, unique_ids_and_inverse
 
 CHECKPOINT_FORMAT = "twinslam-keyframe-map-1"
 
@@ -166,9 +166,9 @@ def point_incidence(sets: list[np.ndarray]) -> tuple[np.ndarray, sparse.csr_matr
     """The ids the sets (int64 arrays without repeats) hold, sorted, and the sets × ids
     incidence matrix (a 1 where set a holds id j)."""
     keys = np.concatenate(sets) if sets else np.zeros(0, dtype=np.int64)
-    ids, cols = np.unique(keys, return_inverse=True)
+    ids, cols = unique_ids_and_inverse(keys)
     indptr = np.concatenate([[0], np.cumsum([len(s) for s in sets], dtype=np.int64)])
-    inc = sparse.csr_matrix((np.ones(len(keys)), cols.ravel(), indptr),   # rows contiguous
+    inc = sparse.csr_matrix((np.ones(len(keys)), cols, indptr),   # rows contiguous
                             shape=(len(sets), len(ids)))
     return ids, inc
 
