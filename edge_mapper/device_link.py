@@ -241,6 +241,7 @@ class DeviceLink:
         self.core.set_policy(self.control.policy)
         frames = read_frame_summaries(msg)
         started, received = time.perf_counter(), self.slots.clock()
+        frames = self.core.resolve_tracks(frames)   # the budget and the plan read them alike
         vmax = (self.grant(self.device, slot, frames, float(msg.rate_mbps), self.latent,
                            self.core)
                 if self.grant is not None else int(live["vmax"]))

@@ -273,7 +273,7 @@ class EdgeMapperCore:
         self.rate_history = [*self.rate_history[-63:], int(rate_state)]
         if slot in self.pending:
             raise ValueError(f"slot {slot} is planned already and still open")
-        frames = [self._resolve_tracks(f) for f in frames]
+        frames = self.resolve_tracks(frames)
         leaving = {kf for action, _ in self.pending.values() for kf in action.evict}
         plan = self.planner.plan(slot, frames, rate_mbps, rate_state, self.rate_history,
                                  self._arriving, leaving, self.camera,
@@ -311,15 +311,20 @@ class EdgeMapperCore:
         action, received = self.pending[slot]
         return set(action.upload) <= received
 
-    def _resolve_tracks(self, frame: FrameObservations) -> FrameObservations:
-        """A frame's track ids that already became map points count as those points (the
-        device reports them as tracks until its next map update relabels them)."""
+    def resolve_tracks(self, frames: Sequence[FrameObservations]) -> list[FrameObservations]:
+        """The frames with their track ids that already became map points counted as those
+        points (the device reports them as tracks until its next map update relabels them);
+        a frame with none is returned as it is, so resolving twice changes nothing and the
+        keys a frame made once (:attr:`FrameObservations.keys`) are read again: the edge node
+        resolves a slot's frames before the keyframe budget reads them, and the plan after."""
         known = self.local_mapping.track_points       # pruned to the map's points each slot
-        hits = known.keys() & frame.tracks
-        if not hits:
-            return frame
-        return dataclasses.replace(frame, map_points=frame.map_points | {known[t] for t in hits},
-                                   tracks=frame.tracks - hits)
+        resolved = []
+        for frame in frames:
+            hits = known.keys() & frame.tracks
+            resolved.append(frame if not hits else dataclasses.replace(
+                frame, map_points=frame.map_points | {known[t] for t in hits},
+                tracks=frame.tracks - hits))
+        return resolved
 
     def add_keyframe(self, data: KeyFramePayload) -> IntegrationReport | None:
         """Integrate a keyframe the plan of its slot asked for — or hold it while an earlier

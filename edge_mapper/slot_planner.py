@@ -13,6 +13,7 @@ of the previous decision.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 
@@ -24,7 +25,7 @@ from twinslam.slam.back_end.keyframe_map import KeyFrameMap, shared_counts
 from twinslam.slam.back_end.view_coverage import uploads_for_new_views
 from twinslam.slam.camera import Camera
 from twinslam.slam.keyframe import track_counters
-from twinslam.slam.sorted_ids import find_sorted
+from twinslam.slam.sorted_ids import find_sorted, unique_ids
 from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
 from twinslam.slot_protocol.slot_settings import SlotSettings
 from twinslam.uncertainty.map_uncertainty import (
@@ -53,6 +54,19 @@ class FrameObservations:
     #: the map version the device tracked it against (FrameSummary.map_version; -1: unknown):
     #: a loop's correction applied after that version has not reached its pose yet
     map_version: int = -1
+
+    @functools.cached_property
+    def keys(self) -> np.ndarray:
+        """The ids it observes as one int64 key set without repeats (read-only): map points
+        as they are, track ids (their own namespace) as negative keys, so they never equal a
+        map-point id. Made once a frame: the keyframe budget's demand, the plan's weights and
+        the slot's υ each read every frame's."""
+        tracks = track_counters(np.fromiter(self.tracks, dtype=np.uint64,
+                                            count=len(self.tracks)))
+        keys = np.concatenate([np.fromiter(self.map_points, dtype=np.int64,
+                                           count=len(self.map_points)), -1 - tracks])
+        keys.flags.writeable = False
+        return keys
 
 
 @dataclass(frozen=True)
@@ -119,10 +133,7 @@ class SlotPlanner:
         map-point id."""
         if frame_id in self.map.keyframes:
             return self.map.point_array(frame_id)
-        f = frames[frame_id]
-        tracks = track_counters(np.fromiter(f.tracks, dtype=np.uint64, count=len(f.tracks)))
-        return np.concatenate([np.fromiter(f.map_points, dtype=np.int64,
-                                           count=len(f.map_points)), -1 - tracks])
+        return frames[frame_id].keys
 
     def plan(self, slot: int, frames: list[FrameObservations], rate_mbps: float, rate_state: int,
              rate_history: list[int], arriving: dict[int, FrameObservations] | None = None,
@@ -167,7 +178,7 @@ class SlotPlanner:
         # a frame is lost when its reported points (the device's matches) share fewer than
         # the device's MIN_INLIERS with the map (twinslam.slot_protocol.lost_frame_rule); a
         # keyframe holds map-point ids only, so this counts shared map points alone
-        in_map = (np.union1d(counted.points, np.concatenate([keys[x] for x in arriving]))
+        in_map = (unique_ids(np.concatenate([counted.points, *(keys[x] for x in arriving)]))
                   if arriving else counted.points)
         shared = _held_counts([keys[f] for f in every], in_map)
         lost = [not f.tracked or n < MIN_INLIERS for f, n in zip(frames, shared, strict=True)]

@@ -108,8 +108,12 @@ def test_edge_slot_loop_keeps_vmax_optimises_and_resumes(tmp_path: Path) -> None
     assert table and resumed.local_mapping.track_points == table
     track, point = next(iter(table.items()))
     frame = FrameObservations(10_000, frozenset(), frozenset({track}))
-    assert resumed._resolve_tracks(frame) == core._resolve_tracks(frame)
-    assert resumed._resolve_tracks(frame).map_points == {point}
+    assert resumed.resolve_tracks([frame]) == core.resolve_tracks([frame])
+    (resolved,) = resumed.resolve_tracks([frame])
+    assert resolved.map_points == {point} and not resolved.tracks
+    # resolved once, a frame is what it was: the node resolves before the budget reads it,
+    # the plan again
+    assert resumed.resolve_tracks([resolved])[0] is resolved
     # and the first map update after it lists again the tracks of the slot before the stop
     after = _run(resumed, device, range(6, 8), rates=[60.0])
     before = core._previous_tracks                  # resolved in slot 5, the last before

@@ -303,7 +303,8 @@ def test_rows_read_by_an_array_of_ids_are_the_rows_each_id_has() -> None:
     """Ids given as an array find their rows at once (the map's own, through removals, reused
     rows and growth past the first capacity; another device's tagged ids; uint64 as the wire
     carries them): the rows id by id gives, and an id the map lacks is refused as it is id by
-    id. Every point in id order is what sorting them gives."""
+    id. Every point in id order is what sorting them gives; which ids have a row, asked at
+    once, is what the rows by id say."""
     columns = PointColumns(capacity=8)
     rng = np.random.default_rng(1)
     own = list(range(1, 40))
@@ -328,6 +329,11 @@ def test_rows_read_by_an_array_of_ids_are_the_rows_each_id_has() -> None:
         assert got.dtype == np.int64 and got.tolist() == want.tolist()
     columns.remove(foreign[1])
     assert columns.by_id()[0].tolist() == sorted(columns.row)
+    # which ids have a row, asked at once, as the dict of rows answers id by id
+    asked = [*held[:3], 4, 17, 10_000, -3, *foreign, foreign_tag(3) | 8, 300]
+    assert columns.holds(np.array(asked, dtype=np.int64)).tolist() == \
+        [p in columns.row for p in asked]
+    assert columns.holds(np.zeros(0, dtype=np.int64)).tolist() == []
     for missing in ([17], [41, 4], [10_000], [foreign_tag(3) | 8]):
         with pytest.raises(KeyError):
             columns.rows_of(np.array(missing, dtype=np.int64))

@@ -9,6 +9,7 @@ from edge_mapper.slot_planner import FrameObservations, SlotConfig, SlotPlanner
 from twinslam.policies.actions import ActionError, MapAction
 from twinslam.policies.registry import make_policy
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
+from twinslam.slam.keyframe import as_track_ids
 from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
 
 
@@ -102,3 +103,16 @@ def test_a_frame_sharing_fewer_map_points_than_the_device_needs_counts_as_lost()
     plan = SlotPlanner(m, make_policy("lff"), SlotConfig(vmax=14)).plan(
         4, later, rate_mbps=60.0, rate_state=1, rate_history=[0, 1], arriving=arriving)
     assert plan.uncertainty is not None and plan.uncertainty.n_lost == 0
+
+
+def test_a_frames_keys_are_its_map_points_and_its_tracks_apart_read_only() -> None:
+    """A frame's keys — read by the keyframe budget, the plan's weights and the slot's υ — are
+    its map-point ids as they are and its track ids as negative keys (a track never counts as
+    the map point of the same number), made once and shared read-only."""
+    frame = FrameObservations(3, frozenset({5, 9}), frozenset(as_track_ids(np.array([5, 12]))))
+    keys = frame.keys
+    assert sorted(keys.tolist()) == [-13, -6, 5, 9]
+    assert frame.keys is keys and not keys.flags.writeable
+    with pytest.raises(ValueError):
+        keys[0] = 1
+    assert FrameObservations(4, frozenset(), frozenset()).keys.tolist() == []

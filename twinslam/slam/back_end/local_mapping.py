@@ -134,8 +134,9 @@ class LocalMapping:
         self._flush(kf_id)                        # the local map needs the keyframe's points
         in_view, uv = self._in_view(kf_id, pose)
         counts["matched"] = self._match(kf_id, keypoints, descriptors, free, in_view, uv)
-        world = self._back_project(pose, keypoints, depths)
-        alike = self._alike_finder(kf_id, in_view, world, descriptors, depths, free)
+        world, placeable = self._back_project(pose, depths)
+        alike = self._alike_finder(kf_id, in_view, world, placeable, descriptors, depths, free)
+        can_place = placeable.tolist()
         # the points this keyframe makes, by feature: named now (the map's next ids, in
         # order), put into the map at once before their observations are written
         making: list[int] = []
@@ -146,16 +147,14 @@ class LocalMapping:
                 counts["joined"] += 1
             if not free[i]:                   # matched to an existing point by projection
                 self._remember_track(int(ids[i]), int(self._feature_point[i]))
-            elif world[i] is not None:
+            elif can_place[i]:
                 created = first + len(making)
                 making.append(i)
                 self._remember_track(int(ids[i]), created)
                 self._observe(kf_id, created, free, i)
                 counts["tracked"] += 1
                 counts["created_from_tracks"] += 1
-        for i in map(int, np.flatnonzero(free)):
-            if world[i] is None:
-                continue
+        for i in np.flatnonzero(free & placeable).tolist():
             if (same := alike(i)) is not None:
                 self._observe(kf_id, same, free, i)
                 counts["joined"] += 1
@@ -164,7 +163,7 @@ class LocalMapping:
                 making.append(i)
                 self._observe(kf_id, created, free, i)
                 counts["created"] += 1
-        made = set(m.add_points(np.array([world[i] for i in making]).reshape(-1, 3),
+        made = set(m.add_points(world[making].reshape(-1, 3),
                                 np.asarray(descriptors)[making]))
         self._flush(kf_id)
         unused = int(free.sum())
@@ -175,28 +174,29 @@ class LocalMapping:
                                  counts["created"], unused, len(culled), counts["joined"])
 
     def _alike_finder(self, kf_id: int, in_view: np.ndarray,
-                      world: list[np.ndarray | None], descriptors: np.ndarray,
+                      world: np.ndarray, placeable: np.ndarray, descriptors: np.ndarray,
                       depths: np.ndarray, free: np.ndarray) -> Callable[[int], int | None]:
         """A lookup by feature: the map point in view, not observed by the keyframe yet,
         nearest in descriptor among those within ``join_radius_m`` + 2 % of the depth of the
-        feature's back-projected position (``world``) and within ``max_hamming`` of its
-        descriptor (None: none, or joining is off). Only features still ``free`` are looked
-        up — one matched already is never asked for — and their neighbourhoods are found at
-        once, between a tree of the features and one of the points."""
+        feature's back-projected position (``world``, read where ``placeable``) and within
+        ``max_hamming`` of its descriptor (None: none, or joining is off). Only features still
+        ``free`` are looked up — one matched already is never asked for — and their
+        neighbourhoods are found at once, between a tree of the features and one of the
+        points."""
         radius = self.config.join_radius_m
-        placed = [i for i, w in enumerate(world) if w is not None and free[i]]
-        if radius is None or in_view.size == 0 or not placed:
+        placed = np.flatnonzero(placeable & free)
+        if radius is None or in_view.size == 0 or not placed.size:
             return lambda i: None
         reach = radius + 0.02 * np.asarray(depths, dtype=np.float64)[placed]
         # every (feature, point) pair within the feature's reach as arrays, from two trees:
         # a neighbourhood list a feature made ~14 000 Python ints a keyframe
         points = cKDTree(self.map.positions_of(in_view))
-        pairs = cKDTree(np.array([world[i] for i in placed])).sparse_distance_matrix(
+        pairs = cKDTree(world[placed]).sparse_distance_matrix(
             points, float(reach.max()), output_type="ndarray")
         within = pairs["v"] <= reach[pairs["i"]]
         if not within.any():
             return lambda i: None
-        feature = np.asarray(placed, dtype=np.int64)[pairs["i"][within]]
+        feature = placed[pairs["i"][within]]
         candidate = pairs["j"][within].astype(np.int64)
         apart = hamming_of_pairs(self.map.descriptors_of(in_view), candidate,
                                  np.asarray(descriptors, dtype=np.uint8), feature)
@@ -240,11 +240,11 @@ class LocalMapping:
         """Forget the device tracks whose map point left the map (culled, fused away, evicted
         with its last keyframe), so that the table stays the map's size; returns how many.
         The edge does this every slot for a table of tens of thousands of tracks on a long
-        walk, of which a few hundred go: their points are looked up at C speed and only those
-        gone are deleted, the rest keep their order."""
+        walk, of which a few hundred go: their points are looked up in the map's columns at
+        once and only those gone are deleted, the rest keep their order."""
         table = self.track_points
-        held = np.fromiter(map(self.map.points.__contains__, table.values()), dtype=bool,
-                           count=len(table))
+        held = self.map.columns.holds(np.fromiter(table.values(), dtype=np.int64,
+                                                  count=len(table)))
         if held.all():
             return 0
         gone = np.fromiter(table, dtype=np.uint64, count=len(table))[~held].tolist()
@@ -313,10 +313,13 @@ class LocalMapping:
             self._observe(kf_id, int(in_view[ci]), free, int(f_free[fi]))
         return len(f_idx)
 
-    def _back_project(self, pose: np.ndarray, keypoints: np.ndarray, depths: np.ndarray
-                      ) -> list[np.ndarray | None]:
-        """Each feature's world position from its depth; None outside the depth range."""
+    def _back_project(self, pose: np.ndarray, depths: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray]:
+        """Each feature's world position from its depth ((n, 3)) and whether its depth is in
+        range ((n,) bool: a position is meaningful only there)."""
         lo, hi = self.config.depth_range_m
         z = np.asarray(depths, dtype=np.float64)
-        world = back_project(keypoints, z, self.k, pose)
-        return [w if lo < d < hi else None for w, d in zip(world, z, strict=True)]
+        world = back_project(self._keypoints, z, self.k, pose)
+        with np.errstate(invalid="ignore"):
+            placeable = (lo < z) & (z < hi)
+        return world, placeable

@@ -108,6 +108,18 @@ class PointColumns:
         return np.fromiter(map(self.row.__getitem__, point_ids), dtype=np.int64,
                            count=len(point_ids))
 
+    def holds(self, point_ids: np.ndarray) -> np.ndarray:
+        """Whether each of ``point_ids`` (an integer array) has a row: the map's own ids read
+        from the rows by id at once, another device's by the dict."""
+        ids = np.asarray(point_ids, dtype=np.int64).ravel()
+        dense = (ids >= 0) & (ids < len(self._row_by_id))
+        held = np.zeros(len(ids), dtype=bool)
+        held[dense] = self._row_by_id[ids[dense]] >= 0
+        if not dense.all():
+            held[~dense] = np.fromiter(map(self._beyond.__contains__, ids[~dense].tolist()),
+                                       dtype=bool, count=int((~dense).sum()))
+        return held
+
     def ids_and_rows(self) -> tuple[np.ndarray, np.ndarray]:
         """Every point's id and row (int64 arrays, in the order the points came): all the
         map's points read at C speed, not a lookup a point."""
