@@ -300,10 +300,12 @@ def fleet_network(edges: int, hosts: bool) -> Iterator[tuple[ProcessDomain, str 
 
 def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0.0,
             edges: int = 1, pools: str = "one", hosts: bool = False,
-            merge_maps: bool = False, stagger: float = 1.0, checkpoint_every: int = 0
+            merge_maps: bool = False, stagger: float = 1.0, checkpoint_every: int = 0,
+            niceness: int | None = None
             ) -> tuple[dict[str, float], list[dict[str, float]]]:
     """One fleet of ``n`` emulated devices served, their starts spread evenly over ``stagger``
-    slot periods, each device's map checkpointed every ``checkpoint_every`` slots (0: never);
+    slot periods, each device's map checkpointed every ``checkpoint_every`` slots (0: never),
+    the edges' loop workers ``niceness`` steps below their slots (None: the edge's default);
     the table's row and every device-slot's figures (its latency, the edge's compute, what
     the slot restored, uploaded, closed)."""
     names = [f"ar{i + 1}" for i in range(n)]
@@ -320,7 +322,9 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
                             "-p", f"merge_maps:={str(merge_maps).lower()}",
                             *(["-p", f"checkpoint:={kept}/edge{e + 1}.npz",
                                "-p", f"checkpoint_every:={checkpoint_every}"]
-                              if checkpoint_every else [])],
+                              if checkpoint_every else []),
+                            *(["-p", f"loop_worker_niceness:={niceness}"]
+                              if niceness is not None else [])],
                            host=hosted[e])
                  for e, block in enumerate(served)]
         for edge, block in zip(procs, served, strict=True):
@@ -388,6 +392,10 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             "latency_ms_p95": float(np.percentile(latency, 95)) if latency else math.nan,
             "missed_share": (late + expected - len(stats)) / expected,
             "stagger_slots": stagger, "checkpoint_every": checkpoint_every,
+            "loop_worker_niceness": -1 if niceness is None else niceness,
+            # loops the edges closed over the run (each device's MapStats counts its own)
+            "loops_closed": sum(max((s.loops_closed for s in d.stats.values()), default=0)
+                                for d in devices),
             "edge_cpu_share": cpu / wall,
             # the emulated devices' own (this process: replay and DDS), in cores; and the
             # share of the host's cores nothing used: where none is left the host's CPU is
@@ -446,6 +454,10 @@ def main() -> None:
                              "checkpoint and checkpoint_every parameters: what a standby edge "
                              "takes a device over from, and a restarted edge resumes from); "
                              "default 0: none")
+    parser.add_argument("--loop-worker-niceness", default="", metavar="STEPS",
+                        help="the edges' loop_worker_niceness (Linux nice steps their loop "
+                             "closer's worker runs below the slots; 0: the same priority), "
+                             "comma-separated to compare; default: the edge's")
     parser.add_argument("--hosts", action="store_true",
                         help="each edge process on an edge host of its own and the devices on "
                              "a device host (network namespaces on one switch; needs root) "
@@ -455,6 +467,15 @@ def main() -> None:
         parser.error(f"--stagger: slot periods, 0 or more, not {args.stagger:g}")
     if args.checkpoint_every < 0:
         parser.error(f"--checkpoint-every: slots, 0 or more, not {args.checkpoint_every}")
+    try:
+        nicenesses: list[int | None] = [int(v) for v in args.loop_worker_niceness.split(",")] \
+            if args.loop_worker_niceness else [None]
+    except ValueError:
+        parser.error(f"--loop-worker-niceness: steps, comma-separated, not "
+                     f"{args.loop_worker_niceness!r}")
+    if any(v is not None and not 0 <= v <= 19 for v in nicenesses):
+        parser.error(f"--loop-worker-niceness: steps from 0 to 19, not "
+                     f"{args.loop_worker_niceness!r}")
     why_not = unavailable_reason() if args.hosts else None
     if why_not is not None:
         raise SystemExit(f"--hosts: network namespaces cannot be made here: {why_not}")
@@ -483,17 +504,19 @@ def main() -> None:
     header = (f"{'pools':>5} {'merge':>5} {'edges':>5} {'devices':>7} {'answered':>9} "
               f"{'edge ms/slot':>12} {'p95':>6} "
               f"{'latency ms':>10} {'p95':>6} {'missed':>7} {'edge CPU':>8} "
-              f"{'devices CPU':>11} {'idle':>5} {'merged':>6} {'lost':>5}")
+              f"{'devices CPU':>11} {'idle':>5} {'merged':>6} {'lost':>5} {'loops':>5} "
+              f"{'nice':>4}")
     print(header, flush=True)
-    settings = [(pools, merge, int(edges), int(n)) for pools in args.pools.split(",")
+    settings = [(pools, merge, int(edges), int(n), nice) for pools in args.pools.split(",")
                 for merge in args.merge_maps.split(",")
-                for edges in args.edges.split(",") for n in args.devices.split(",")]
+                for edges in args.edges.split(",") for n in args.devices.split(",")
+                for nice in nicenesses]
     every_slot = []
-    for pools, merge, edges, n in settings:
+    for pools, merge, edges, n, nice in settings:
         with collector_log(args.collector_log) as collections:
             row, slots = measure(n, recording, args.policy, args.compute_budget, edges, pools,
                                  args.hosts, merging[merge], args.stagger,
-                                 args.checkpoint_every)
+                                 args.checkpoint_every, nice)
             full = [c for c in collections() if c[0] == 2]
         if args.collector_log:
             row.update(full_collections=len(full),
@@ -504,14 +527,16 @@ def main() -> None:
                   f"{row['full_collection_ms_total']:.0f} ms in all", flush=True)
         rows.append(row)
         every_slot += [{"pools": pools, "merge_maps": merge, "edges": row["edges"],
-                        "devices": n, **slot} for slot in slots]
+                        "devices": n, "loop_worker_niceness": row["loop_worker_niceness"],
+                        **slot} for slot in slots]
         print(f"{pools:>5} {merge:>5} {row['edges']:>5} {n:>7} "
               f"{row['answered']:>4.0f}/{row['device_slots']:<4.0f} "
               f"{row['compute_ms_median']:>12.0f} {row['compute_ms_p95']:>6.0f} "
               f"{row['latency_ms_median']:>10.0f} {row['latency_ms_p95']:>6.0f} "
               f"{row['missed_share']:>7.1%} {row['edge_cpu_share']:>8.0%} "
               f"{row['devices_cpu_share']:>11.0%} {row['host_idle_share']:>5.0%} "
-              f"{row['merged']:>6} {row['lost_share']:>5.1%}", flush=True)
+              f"{row['merged']:>6} {row['lost_share']:>5.1%} {row['loops_closed']:>5} "
+              f"{'edge' if nice is None else nice:>4}", flush=True)
     if args.csv:
         write_dict_rows(args.csv, rows)
         print(f"wrote {args.csv}")

@@ -59,6 +59,7 @@ from msg_schemas import qos, topics
 from twinslam.allocation.allocators import BudgetError, check_budget
 from twinslam.node_runtime.node_main import NodeStartError, run_node
 from twinslam.node_runtime.parameters import declare
+from twinslam.slam.back_end.loop_closing import SHARED_WORKER
 
 #: seconds between looks at the graph for new devices, and at the devices' silence
 DISCOVERY_PERIOD_S = 1.0
@@ -91,6 +92,12 @@ class EdgeMapperNode(Node):
         self.merging = (PlaceMerging(lambda: {d: link.core for d, link in self.links.items()})
                         if self.several and bool(p["merge_maps"]) else None)
         config = self.settings.config
+        # the process's loop worker (every device's loop jobs), at or below the slots' priority
+        SHARED_WORKER.lower_priority(int(p["loop_worker_niceness"]))
+        if SHARED_WORKER.niceness:
+            self.get_logger().info(f"the loop closer's worker runs {SHARED_WORKER.niceness} "
+                                   "nice steps below the slots: where the cores run short, "
+                                   "loops wait and the slots keep their deadline")
         self.governor = ComputeGovernor(float(p["compute_budget"]),
                                         levels=levels_within(config.back_end.ba_window,
                                                              config.back_end.ba_points))

@@ -24,6 +24,7 @@ from edge_mapper.slot_planner import SlotConfig
 from msg_schemas import topics
 from twinslam.allocation.allocators import ALLOCATORS
 from twinslam.node_runtime.parameters import ParamSpec
+from twinslam.slam.back_end import loop_closing
 from twinslam.slam.back_end.map_back_end import BackEndConfig
 from twinslam.slam.back_end.view_coverage import CoverageBounds
 from twinslam.slot_protocol import default_device, table1
@@ -95,6 +96,12 @@ PARAMETERS = (
               "found by PnP, measured from the two keyframes' depths) and close it with a pose "
               "graph over every keyframe and the loops before, on a worker thread; the "
               "corrected map goes to the device in the next map update"),
+    ParamSpec("loop_worker_niceness", loop_closing.WORKER_NICENESS, "steps (Linux nice) the "
+              "loop closer's worker thread runs below the slots' priority, for every device of "
+              "the process: where the edges fill the host's cores, the slots keep their "
+              "deadline and the loops wait (16 devices on two processes of a 2-core host: "
+              "9-20 % late instead of 36-38 %, and no loop closed within their 20-slot walk "
+              "where 2-8 did); 0: the same priority", low=0, high=19),
     ParamSpec("reloc_restore_keyframes", 0, "archived keyframes brought back at the end of a "
               "slot around the pose the edge found in its archive for a lost device's frame "
               "(device/relocalisation_request, the device's reloc_period_s), the map keyframes "

@@ -7,6 +7,8 @@ the corrected map and archive survive a restart; the worker thread answers as th
 from __future__ import annotations
 
 import dataclasses
+import os
+import sys
 import threading
 from pathlib import Path
 
@@ -19,7 +21,7 @@ from tests.test_edge_core import F, K, ReturningDevice, _run
 from twinslam.policies.registry import make_policy
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive
 from twinslam.slam.back_end.keyframe_gate import KeyFrameGateConfig
-from twinslam.slam.back_end.loop_closing import LoopCloser, LoopJob, LoopQuery
+from twinslam.slam.back_end.loop_closing import LoopCloser, LoopJob, LoopQuery, _SharedWorker
 from twinslam.slam.back_end.map_back_end import BackEndConfig
 from twinslam.slam.keyframe import KeyFramePayload
 from twinslam.slam.pose_plausibility import MotionBounds
@@ -462,3 +464,27 @@ def test_the_loop_closers_of_a_process_queue_on_one_worker_first_come_first_serv
         release.set()
         first.close()
         second.close()
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"),
+                    reason="a thread's own nice value is Linux's")
+def test_the_loop_worker_runs_below_the_slots_priority_and_the_caller_keeps_its_own() -> None:
+    """Every device's loop jobs run on one worker ``niceness`` steps below the thread that
+    started it (a loop may wait a slot, a map may not): the worker's own nice value is the
+    starter's plus the steps, the starter's unchanged; 0 keeps the same priority, and a
+    niceness outside 0-19 is refused."""
+    own = os.getpriority(os.PRIO_PROCESS, 0)          # this thread's (Linux: per thread)
+    for steps in (7, 0):
+        worker = _SharedWorker(niceness=steps)
+        try:
+            seen = worker.submit(os.getpriority, os.PRIO_PROCESS, 0).result(timeout=30)
+        finally:
+            worker.stop()
+        assert seen == worker.nice == min(19, own + steps)
+        assert os.getpriority(os.PRIO_PROCESS, 0) == own
+    worker = _SharedWorker()
+    for bad in (-1, 20):
+        with pytest.raises(ValueError, match="0 to 19"):
+            worker.lower_priority(bad)
+    worker.lower_priority(3)
+    assert worker.niceness == 3

@@ -24,11 +24,23 @@ process their slots' work took 67-138 ms a device-slot there against 50-83 ms wi
 closing off (``bench.edge_scaling --devices 16``, docs/results/shared-map.md). A device's
 loop waits behind the others' instead (its next job starts once its last was taken, so a
 device has one job in the queue at most), and the slots keep their deadline.
+
+The worker may run below the slot threads' priority (the edge node's
+``loop_worker_niceness``, Linux nice steps: :meth:`_SharedWorker.lower_priority`). Each job
+takes every query its device gathered meanwhile, so the worker uses whatever the cores leave,
+and on a host whose cores the edges fill it takes them from the slots: two edge processes on
+a 2-core VM carried sixteen devices 36-38 % late at the same priority and 9-20 % late five or
+ten steps below it — where no loop closed within the devices' 20-slot walk, against two to
+eight at the same priority (``bench.edge_scaling --devices 16 --edges 2
+--loop-worker-niceness 0,10``, docs/results/shared-map.md). Deadlines or loops: by default
+the worker keeps the slots' priority.
 """
 
 from __future__ import annotations
 
 import itertools
+import os
+import sys
 import threading
 import time
 from collections import deque
@@ -268,18 +280,38 @@ def _anchors(job: LoopJob, points: Mapping[int, np.ndarray]) -> Anchors | None:
 _T = TypeVar("_T")
 
 
+#: how much lower than the slots' the loop worker's priority is by default (Linux nice steps;
+#: 0: the same)
+WORKER_NICENESS = 0
+
+
 class _SharedWorker:
     """The one thread the process's background loop closers queue their work on, started
-    with the first work it gets (and again after :meth:`stop`)."""
+    with the first work it gets (and again after :meth:`stop`), ``niceness`` steps below the
+    priority of the thread that starts it."""
 
-    def __init__(self) -> None:
+    def __init__(self, niceness: int = WORKER_NICENESS) -> None:
         self._lock = threading.Lock()
         self._executor: ThreadPoolExecutor | None = None
+        self.niceness = niceness
+        #: the worker thread's nice value once it started (None: not started, or not Linux)
+        self.nice: int | None = None
+
+    def lower_priority(self, niceness: int) -> None:
+        """Run the worker ``niceness`` steps (0-19) below the slots' priority from its next
+        start (the edge node's ``loop_worker_niceness``); 0: at the same priority."""
+        if not 0 <= niceness <= 19:
+            raise ValueError(f"a niceness is 0 to 19 steps, not {niceness}")
+        self.niceness = niceness
 
     def submit(self, fn: Callable[..., _T], *args: object) -> Future[_T]:
         with self._lock:
             if self._executor is None:
-                self._executor = ThreadPoolExecutor(1, thread_name_prefix="loop-closer")
+                self.nice = None
+                self._executor = ThreadPoolExecutor(
+                    1, thread_name_prefix="loop-closer",
+                    initializer=_lowered, initargs=(self, os.getpriority(os.PRIO_PROCESS, 0)
+                                                    if _PER_THREAD_NICE else 0))
             return self._executor.submit(fn, *args)
 
     def stop(self) -> None:
@@ -288,6 +320,25 @@ class _SharedWorker:
             executor, self._executor = self._executor, None
         if executor is not None:
             executor.shutdown(wait=True)
+
+
+#: Linux gives each thread a nice value of its own (setpriority on its thread id); elsewhere
+#: the call would move the whole process, so the worker keeps the slots' priority there
+_PER_THREAD_NICE = sys.platform.startswith("linux")
+
+
+def _lowered(worker: _SharedWorker, starter_nice: int) -> None:
+    """The worker thread's first step: its own nice value ``worker.niceness`` above the
+    thread that started it (a lower priority only: no privilege needed)."""
+    if not _PER_THREAD_NICE:
+        return
+    own = threading.get_native_id()
+    if worker.niceness:
+        try:
+            os.setpriority(os.PRIO_PROCESS, own, min(19, starter_nice + worker.niceness))
+        except OSError:
+            pass                          # a sandbox that refuses it: the same priority
+    worker.nice = os.getpriority(os.PRIO_PROCESS, own)
 
 
 #: the worker every background loop closer of this process shares
