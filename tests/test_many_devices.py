@@ -59,8 +59,16 @@ def test_one_edge_serves_three_devices_within_one_budget_and_reclaims_a_lost_one
         sub(MapStats, f"/{d}/edge/map_stats", lambda m, d=d: on_stats(d, m), qos.PROTOCOL)
     stats_at_reclaim: dict[str, int] = {}     # each device's MapStats count when it came
 
+    #: devices the edge published silent (out of the split) while they still ran: a loaded
+    #: machine can delay a device's summaries past device_silent_s, and the budget's rule then
+    #: takes its share away until the others shrink again
+    silenced: set[str] = set()
+    running = set(DEVICES)
+
     def on_budget(msg: KeyframeBudget) -> None:
         budgets.append(msg)
+        silenced.update(d for d, a in zip(msg.devices, msg.active, strict=True)
+                        if not a and d in running)
         for device in set(sizes) - set(msg.devices):     # reclaimed: its map released
             sizes.pop(device)
         served = any(GONE in b.devices for b in budgets)   # before it joined: not a reclaim
@@ -98,6 +106,7 @@ def test_one_edge_serves_three_devices_within_one_budget_and_reclaims_a_lost_one
     assert ros.spin_until(lambda: len(got[GONE]["stats"]) >= 3 and any(
         s.keyframe_budget >= MINIMUM for s in got[GONE]["stats"]), 120.0), \
         {d: {k: len(v) for k, v in r.items()} for d, r in got.items()}
+    running.discard(GONE)
     for proc in procs[GONE]:
         proc.send_signal(signal.SIGKILL)
     assert ros.spin_until(lambda: bool(stats_at_reclaim), 60.0), \
@@ -106,6 +115,7 @@ def test_one_edge_serves_three_devices_within_one_budget_and_reclaims_a_lost_one
     assert ros.spin_until(lambda: all(len(got[d]["stats"]) - stats_at_reclaim[d]
                                       >= AFTER_RECLAIM for d in stayed), 120.0), \
         {d: len(got[d]["stats"]) - stats_at_reclaim[d] for d in stayed}
+    running.clear()
     for d in stayed:
         procs[d][1].send_signal(signal.SIGINT)
     assert ros.spin_until(lambda: all(procs[d][1].poll() is not None for d in stayed), 30.0), \
@@ -138,11 +148,13 @@ def test_one_edge_serves_three_devices_within_one_budget_and_reclaims_a_lost_one
             assert stats.slot_latency_ms >= stats.slot_processing_ms > 0, (d, stats.slot)
         # a device joining a full budget waits for the others' maps to shrink at their next
         # slots (a loaded edge: several of its own slots) and grows by what its uploads add;
-        # once granted its minimum it keeps it
+        # once granted its minimum it keeps it while it is heard (one the edge found silent,
+        # its summaries late on a loaded machine, left the split by the budget's rule)
         budgets_of = [int(s.keyframe_budget) for s in rec["stats"]]
         reached = next((k for k, b in enumerate(budgets_of) if b >= MINIMUM), None)
         assert reached is not None, (d, budgets_of)
-        assert all(b >= MINIMUM for b in budgets_of[reached:]), (d, budgets_of)
+        assert d in silenced or all(b >= MINIMUM for b in budgets_of[reached:]), \
+            (d, budgets_of)
     for b in budgets:
         assert sum(b.map_sizes) <= b.total == V_TOTAL and sum(b.committed) <= V_TOTAL
         assert all(t >= MINIMUM for t, a in zip(b.targets, b.active, strict=True) if a)
