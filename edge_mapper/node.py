@@ -94,6 +94,11 @@ class EdgeMapperNode(Node):
         config = self.settings.config
         # the process's loop worker (every device's loop jobs), at or below the slots' priority
         SHARED_WORKER.lower_priority(int(p["loop_worker_niceness"]))
+        SHARED_WORKER.limit_share(float(p["loop_worker_share"]))
+        if SHARED_WORKER.share < 1:
+            self.get_logger().info(f"the loop closer's worker takes at most "
+                                   f"{SHARED_WORKER.share:.0%} of a core: loops close later, "
+                                   "the slots keep the rest")
         if SHARED_WORKER.niceness:
             self.get_logger().info(f"the loop closer's worker runs {SHARED_WORKER.niceness} "
                                    "nice steps below the slots: where the cores run short, "

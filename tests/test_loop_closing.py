@@ -10,6 +10,7 @@ import dataclasses
 import os
 import sys
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -488,3 +489,34 @@ def test_the_loop_worker_runs_below_the_slots_priority_and_the_caller_keeps_its_
             worker.lower_priority(bad)
     worker.lower_priority(3)
     assert worker.niceness == 3
+
+
+def test_the_loop_worker_takes_at_most_its_share_of_a_core() -> None:
+    """With ``share`` s, each piece of work on the loop worker is followed by a rest of its
+    CPU time × (1 − s) / s before the next starts (the slots keep the rest of the core);
+    with the whole core it never rests. A share outside (0, 1] is refused."""
+
+    def burn(seconds: float) -> tuple[float, float, float]:
+        """Busy for ``seconds`` of this thread's CPU; (start, end, CPU used)."""
+        start, cpu = time.monotonic(), time.thread_time()
+        while time.thread_time() - cpu < seconds:
+            pass
+        return start, time.monotonic(), time.thread_time() - cpu
+
+    for share in (0.25, 1.0):
+        worker = _SharedWorker(share=share)
+        try:
+            first = worker.submit(burn, 0.05)
+            second = worker.submit(burn, 0.01)
+            (_, first_end, used), (second_start, _, _) = (first.result(timeout=60),
+                                                         second.result(timeout=60))
+        finally:
+            worker.stop()
+        if share < 1:
+            assert second_start - first_end >= used * (1 - share) / share * 0.99
+            assert worker.rested_s > 0
+        else:
+            assert worker.rested_s == 0
+    for bad in (0.0, -0.5, 1.5):
+        with pytest.raises(ValueError, match="share of a core"):
+            _SharedWorker().limit_share(bad)

@@ -32,8 +32,11 @@ and on a host whose cores the edges fill it takes them from the slots: two edge 
 a 2-core VM carried sixteen devices 36-38 % late at the same priority and 9-20 % late five or
 ten steps below it — where no loop closed within the devices' 20-slot walk, against two to
 eight at the same priority (``bench.edge_scaling --devices 16 --edges 2
---loop-worker-niceness 0,10``, docs/results/shared-map.md). Deadlines or loops: by default
-the worker keeps the slots' priority.
+--loop-worker-niceness 0,10``, docs/results/shared-map.md). ``loop_worker_share`` caps the
+worker at a share of a core instead (:meth:`_SharedWorker.limit_share`: it rests after each
+job), on an idle host too, and keeps it that share on a busy one; a quarter of a core left
+those sixteen devices 2-8 % late, again with no loop closed within the walk. Deadlines or
+loops: by default the worker keeps the slots' priority and the whole core.
 """
 
 from __future__ import annotations
@@ -283,19 +286,25 @@ _T = TypeVar("_T")
 #: how much lower than the slots' the loop worker's priority is by default (Linux nice steps;
 #: 0: the same)
 WORKER_NICENESS = 0
+#: the most of a core the loop worker takes by default (1: all it can get)
+WORKER_SHARE = 1.0
 
 
 class _SharedWorker:
     """The one thread the process's background loop closers queue their work on, started
     with the first work it gets (and again after :meth:`stop`), ``niceness`` steps below the
-    priority of the thread that starts it."""
+    priority of the thread that starts it, and taking at most ``share`` of a core: after each
+    piece of work it rests until its CPU time is that share of the time since it began."""
 
-    def __init__(self, niceness: int = WORKER_NICENESS) -> None:
+    def __init__(self, niceness: int = WORKER_NICENESS, share: float = WORKER_SHARE) -> None:
         self._lock = threading.Lock()
         self._executor: ThreadPoolExecutor | None = None
         self.niceness = niceness
+        self.share = share
         #: the worker thread's nice value once it started (None: not started, or not Linux)
         self.nice: int | None = None
+        self._rest_until = 0.0                 #: monotonic time the next work may start
+        self.rested_s = 0.0                    #: seconds it rested so far (its share's cost)
 
     def lower_priority(self, niceness: int) -> None:
         """Run the worker ``niceness`` steps (0-19) below the slots' priority from its next
@@ -303,6 +312,13 @@ class _SharedWorker:
         if not 0 <= niceness <= 19:
             raise ValueError(f"a niceness is 0 to 19 steps, not {niceness}")
         self.niceness = niceness
+
+    def limit_share(self, share: float) -> None:
+        """Let the worker take at most ``share`` (0-1] of a core from its next piece of work
+        on (the edge node's ``loop_worker_share``); 1: no limit."""
+        if not 0 < share <= 1:
+            raise ValueError(f"a share of a core is above 0 and at most 1, not {share:g}")
+        self.share = share
 
     def submit(self, fn: Callable[..., _T], *args: object) -> Future[_T]:
         with self._lock:
@@ -312,7 +328,22 @@ class _SharedWorker:
                     1, thread_name_prefix="loop-closer",
                     initializer=_lowered, initargs=(self, os.getpriority(os.PRIO_PROCESS, 0)
                                                     if _PER_THREAD_NICE else 0))
-            return self._executor.submit(fn, *args)
+            return self._executor.submit(self._paced, fn, *args)
+
+    def _paced(self, fn: Callable[..., _T], *args: object) -> _T:
+        """``fn(*args)`` on the worker, after the rest the work before it earned: a piece
+        that used c seconds of CPU is followed by c (1 − share) / share seconds idle."""
+        rest = self._rest_until - time.monotonic()
+        if rest > 0:
+            time.sleep(rest)
+            self.rested_s += rest
+        used = time.thread_time()
+        try:
+            return fn(*args)
+        finally:
+            if self.share < 1:
+                used = time.thread_time() - used
+                self._rest_until = time.monotonic() + used * (1 - self.share) / self.share
 
     def stop(self) -> None:
         """End the thread once its queue is done (a process that stops)."""
