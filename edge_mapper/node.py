@@ -97,7 +97,7 @@ class EdgeMapperNode(Node):
         SHARED_WORKER.limit_share(float(p["loop_worker_share"]))
         if SHARED_WORKER.share < 1:
             self.get_logger().info(f"the loop closer's worker takes at most "
-                                   f"{SHARED_WORKER.share:.0%} of a core: loops close later, "
+                                   f"{SHARED_WORKER.share:.0%} of a core: the loops wait, "
                                    "the slots keep the rest")
         if SHARED_WORKER.niceness:
             self.get_logger().info(f"the loop closer's worker runs {SHARED_WORKER.niceness} "
