@@ -34,7 +34,7 @@ ten steps below it — where no loop closed within the devices' 20-slot walk, ag
 eight at the same priority (``bench.edge_scaling --devices 16 --edges 2
 --loop-worker-niceness 0,10``, docs/results/shared-map.md). ``loop_worker_share`` caps the
 worker at a share of a core instead (:meth:`_SharedWorker.limit_share`: it rests after each
-job), on an idle host too, and keeps it that share on a busy one; a quarter of a core left
+job), on an idle host too, at the slots' priority; a quarter of a core left
 those sixteen devices 2-8 % late, again with no loop closed within the walk. Deadlines or
 loops: by default the worker keeps the slots' priority and the whole core.
 """
