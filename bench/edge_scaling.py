@@ -82,7 +82,7 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 from rclpy.serialization import deserialize_message
@@ -417,6 +417,26 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             "merged": len(MOVED_LINE.findall(log))}, slots
 
 
+_Value = TypeVar("_Value", int, float)
+
+
+def values_to_compare(parser: argparse.ArgumentParser, option: str, text: str,
+                      kind: Callable[[str], _Value], low: _Value, high: _Value, unit: str
+                      ) -> list[_Value | None]:
+    """An edge parameter's values a comma-separated option compares, each from ``low`` to
+    ``high`` (a clear error otherwise); [None] when the option is not given: the edge's
+    default."""
+    if not text:
+        return [None]
+    try:
+        values: list[_Value | None] = [kind(v) for v in text.split(",")]
+    except ValueError:
+        parser.error(f"{option}: {unit}, comma-separated, not {text!r}")
+    if any(v is None or not low <= v <= high for v in values):
+        parser.error(f"{option}: {unit} from {low:g} to {high:g}, not {text!r}")
+    return values
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--devices", default="1,2,4,8,12,16", help="fleet sizes, comma-separated")
@@ -475,24 +495,10 @@ def main() -> None:
         parser.error(f"--stagger: slot periods, 0 or more, not {args.stagger:g}")
     if args.checkpoint_every < 0:
         parser.error(f"--checkpoint-every: slots, 0 or more, not {args.checkpoint_every}")
-    try:
-        nicenesses: list[int | None] = [int(v) for v in args.loop_worker_niceness.split(",")] \
-            if args.loop_worker_niceness else [None]
-    except ValueError:
-        parser.error(f"--loop-worker-niceness: steps, comma-separated, not "
-                     f"{args.loop_worker_niceness!r}")
-    if any(v is not None and not 0 <= v <= 19 for v in nicenesses):
-        parser.error(f"--loop-worker-niceness: steps from 0 to 19, not "
-                     f"{args.loop_worker_niceness!r}")
-    try:
-        shares: list[float | None] = [float(v) for v in args.loop_worker_share.split(",")] \
-            if args.loop_worker_share else [None]
-    except ValueError:
-        parser.error(f"--loop-worker-share: shares of a core, comma-separated, not "
-                     f"{args.loop_worker_share!r}")
-    if any(v is not None and not 0.05 <= v <= 1 for v in shares):
-        parser.error(f"--loop-worker-share: shares from 0.05 to 1, not "
-                     f"{args.loop_worker_share!r}")
+    nicenesses = values_to_compare(parser, "--loop-worker-niceness",
+                                   args.loop_worker_niceness, int, 0, 19, "steps")
+    shares = values_to_compare(parser, "--loop-worker-share", args.loop_worker_share, float,
+                               0.05, 1.0, "shares of a core")
     why_not = unavailable_reason() if args.hosts else None
     if why_not is not None:
         raise SystemExit(f"--hosts: network namespaces cannot be made here: {why_not}")
