@@ -20,7 +20,6 @@ def find_sorted(sorted_ids: np.ndarray, keys: np.ndarray) -> tuple[np.ndarray, n
     return at, found
 
 
-
 #: a span of ids up to this many times the keys (plus a floor) is marked in an array of flags
 #: rather than sorted: a map names its points 1, 2, 3, …, so a slot's keys span a few of its
 #: ids each, while another device's points (tagged in their high bits) span far more
@@ -29,7 +28,12 @@ DENSE_SPAN_PER_KEY, DENSE_SPAN_FLOOR = 16, 1 << 16
 
 def unique_ids(keys: np.ndarray) -> np.ndarray:
     """``np.unique`` of integer ``keys``: the ids they hold, ascending (int64)."""
-    return unique_ids_and_inverse(keys)[0]
+    keys = _as_ids(keys)
+    marked = _marked(keys)
+    if marked is None:
+        return np.unique(keys)
+    low, present, _ = marked
+    return np.flatnonzero(present) + low
 
 
 def unique_ids_and_inverse(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -38,19 +42,34 @@ def unique_ids_and_inverse(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     keys span few ids (the map's own points, a slot's frames' track counters): every slot the
     edge counts each device's keyframes' shared points over tens of thousands of keys, and
     sorting them took ~4 ms where marking them in an array of flags takes ~1 ms."""
+    keys = _as_ids(keys)
+    marked = _marked(keys)
+    if marked is None:
+        ids, inverse = np.unique(keys, return_inverse=True)
+        return ids, inverse.astype(np.int64).ravel()
+    low, present, offsets = marked
+    column = np.cumsum(present, dtype=np.int64) - 1
+    return np.flatnonzero(present) + low, column[offsets]
+
+
+def _as_ids(keys: np.ndarray) -> np.ndarray:
+    """Integer ``keys`` as one flat int64 array (TypeError for any other kind)."""
     keys = np.asarray(keys)
     if keys.dtype.kind not in "iu":
         raise TypeError(f"ids are integers, not {keys.dtype}")
-    keys = keys.astype(np.int64, copy=False).ravel()
+    return keys.astype(np.int64, copy=False).ravel()
+
+
+def _marked(keys: np.ndarray) -> tuple[int, np.ndarray, np.ndarray] | None:
+    """The keys marked in an array of flags over the span they cover: (the lowest key, the
+    flags, each key's offset in them); None where the span is too wide to mark (sort them)."""
     if not keys.size:
-        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+        return 0, np.zeros(0, dtype=bool), np.zeros(0, dtype=np.int64)
     low = int(keys.min())
     span = int(keys.max()) - low + 1
     if span > DENSE_SPAN_PER_KEY * keys.size + DENSE_SPAN_FLOOR:
-        ids, inverse = np.unique(keys, return_inverse=True)
-        return ids, inverse.astype(np.int64).ravel()
+        return None
     offsets = keys - low
     present = np.zeros(span, dtype=bool)
     present[offsets] = True
-    column = np.cumsum(present, dtype=np.int64) - 1
-    return np.flatnonzero(present) + low, column[offsets]
+    return low, present, offsets
