@@ -5,7 +5,7 @@ map into the first one's frame (:mod:`twinslam.slam.back_end.map_merging`).
     python -m bench.shared_map [SEQUENCE] [--frames 1000] [--first forward]
         [--second backward] [--second-after FRAMES] [--first-start FRAME]
         [--second-start FRAME] [--seed 0]
-        [--uplink lte] [--vmax N]
+        [--uplink lte] [--vmax N] [--archive N]
         [--share [--share-both]] [--covered-m M] [--no-merge] [--csv FILE]
         [--frames-csv FILE] [--keyframes-csv FILE]
 
@@ -159,6 +159,9 @@ def main() -> None:
                              "(forward or backward over frames [FRAME, --frames))")
     parser.add_argument("--vmax", type=int,
                         help="V_max, keyframes each edge map holds (default: the edge's)")
+    parser.add_argument("--archive", type=int, metavar="N",
+                        help="evicted keyframes each edge map keeps, its own and those lent "
+                             "(the edge's archive_keyframes; default: the node's)")
     parser.add_argument("--covered-m", type=float,
                         help="a lent keyframe this near a frame covers its view: the frame is "
                              "not uploaded (default: the edge's covered_m; 0: never)")
@@ -191,6 +194,7 @@ def main() -> None:
     spec, second_spec = (seeded_spec(s, args.seed) for s in
                          (args.sequence, args.second_sequence or args.sequence))
     overrides = {name: value for name, value in (("vmax", args.vmax),
+                                                 ("archive_keyframes", args.archive),
                                                  ("covered_m", args.covered_m),
                                                  ("covered_deg", args.covered_deg))
                  if value is not None}
@@ -286,6 +290,7 @@ def main() -> None:
                        "first_order": args.first, "second_order": args.second,
                        "second_after": args.second_after, "second_start": args.second_start,
                        "first_start": args.first_start,
+                       "archive": config.back_end.archive_keyframes,
                        "covered_m": config.coverage.max_m,
                        "covered_deg": config.coverage.max_deg,
                        "no_merge": int(args.no_merge),
@@ -306,6 +311,9 @@ def main() -> None:
             scored = [v for v in walk.lost[1:] if not math.isnan(v)]
             report[f"{walk.name}_lost_share"] = float(np.mean(scored)) if scored else math.nan
             report[f"{walk.name}_map_lost_share"] = walk.map_lost_share()
+            report[f"{walk.name}_loops"] = len(walk.loops)
+            report[f"{walk.name}_archive_own"] = sum(1 for kf in walk.edge.archive
+                                                     if not is_foreign(kf.id))
             print(f"{walk.name} device: {len(poses)} of {len(walk.truth)} frames tracked, "
                   f"ATE {ate * 100:.1f} cm (in the place's frame), {walk.uploads} keyframes "
                   f"uploaded, the edge's lost share "
@@ -354,7 +362,8 @@ CSV_FIELDS = ("frames", "seed", "uplink", "first_order", "second_order", "second
               "share", "first_uploads", "second_uploads", "adopted", "foreign_at_end",
               "adopted_back", "foreign_at_end_first", "first_lost_share", "second_lost_share",
               "first_map_lost_share", "second_map_lost_share", "second_start",
-              "first_start")
+              "first_start", "archive", "first_loops", "second_loops", "first_archive_own",
+              "second_archive_own")
 
 
 def write_frames(path: Path, walks: tuple[DeviceWalk, ...]) -> None:
