@@ -99,15 +99,16 @@ PARAMETERS = (
     ParamSpec("loop_worker_niceness", loop_closing.WORKER_NICENESS, "steps (Linux nice) the "
               "loop closer's worker thread runs below the slots' priority, for every device of "
               "the process: where the edges fill the host's cores, the slots keep their "
-              "deadline and the loops wait (16 devices on two processes of a 2-core host: "
-              "9-20 % late instead of 36-38 %, and no loop closed within their 20-slot walk "
-              "where 2-8 did); 0: the same priority", low=0, high=19),
+              "deadline and the loops wait (12 devices on two processes of a 2-core host, a "
+              "walk and back, 10 steps: 0-7 % late instead of 14-55 %, 24-36 of 36 loops "
+              "closed a median two slots later; on a walk that ends five slots after its "
+              "revisit none closed); 0: the same priority", low=0, high=19),
     ParamSpec("loop_worker_share", loop_closing.WORKER_SHARE, "the most of one core the "
               "loop closer's worker takes, for every device of the process: after each job it "
               "rests until its CPU time is this share of the time since it began, so the "
-              "slots keep the rest and the loops wait (16 devices on two processes of a 2-core "
-              "host at a quarter: 2-8 % late instead of 13-23 %, and no loop closed within "
-              "their 20-slot walk); 1: all it can get",
+              "slots keep the rest and the loops wait (12 devices on two processes of a 2-core "
+              "host, a walk and back, a quarter: 0.9-12.8 % late instead of 14-55 %, 23-31 of "
+              "36 loops closed, later than 10 nice steps below); 1: all it can get",
               low=0.05, high=1.0),
     ParamSpec("reloc_restore_keyframes", 0, "archived keyframes brought back at the end of a "
               "slot around the pose the edge found in its archive for a lost device's frame "

@@ -19,6 +19,12 @@ files the commands wrote (every command is on that page beside its table):
   fleet/host-and-stagger.png: the late share vs N with the devices walking in step and at
   places of their own, one and two edge processes, every run a line; and where the host's
   two cores went: the edges', the emulated devices' and what stayed idle;
+* ``revisit`` — fleet/loop-worker-revisit/{nice,share}-N-roundR.csv and their ``-slots``
+  files (``python -m bench.edge_scaling --recording R2 --devices N --edges 2
+  --loop-worker-niceness 0,10`` or ``--loop-worker-share 1,0.5,0.25``, R2 a 39-slot walk that
+  comes back) → fleet/loop-worker-revisit.png and a table: each run's late share and loops
+  closed, a point a run, and when the loops closed (the slot of each, all runs of a setting
+  together), for the loop workers at the slots' priority, below it and capped;
 * ``sim FILE…`` — ``twinslam sim --devices N --csv`` files: per allocator the fleet mean (over
   devices, then seeds) of mean υ, lost share and υ tracked, Jain's index of the devices'
   tracked shares, and the paired differences with ``equal`` on the same seeds;
@@ -33,6 +39,7 @@ files the commands wrote (every command is on that page beside its table):
     .venv/bin/python docs/figures/fleet_tables.py edges
     .venv/bin/python docs/figures/fleet_tables.py hosts
     .venv/bin/python docs/figures/fleet_tables.py stagger
+    .venv/bin/python docs/figures/fleet_tables.py revisit
     .venv/bin/python docs/figures/fleet_tables.py sim docs/figures/fleet/sim-n10-lff.csv
     .venv/bin/python docs/figures/fleet_tables.py split \
         docs/figures/fleet/sim-n10-lff-cell400.csv \
@@ -301,14 +308,98 @@ def stagger() -> None:
     _save(fig, "fleet/host-and-stagger.png")
 
 
+def _worker_setting(row: dict[str, str]) -> str:
+    """A fleet row's loop-worker setting as the figure names it."""
+    nice = int(row["loop_worker_niceness"])
+    share = float(row["loop_worker_share"]) if row["loop_worker_share"] else math.nan
+    if nice > 0:
+        return f"{nice} nice steps below"
+    if not math.isnan(share) and share < 1:
+        return f"a {share:g} share of a core"
+    return "the slots' priority, uncapped"
+
+
+def _closing_slots(path: Path) -> dict[str, list[int]]:
+    """The slot of every loop a ``--slots-csv`` file's devices closed, by setting (the
+    column counts the loops a device closed so far)."""
+    slots: dict[str, list[int]] = defaultdict(list)
+    rows = sorted(_rows(path), key=lambda r: (r["loop_worker_niceness"],
+                                              r["loop_worker_share"], r["device"],
+                                              int(r["slot"])))
+    closed: dict[tuple[str, str, str], int] = {}
+    for r in rows:
+        key = (r["loop_worker_niceness"], r["loop_worker_share"], r["device"])
+        now = int(float(r["loops_closed"] or 0))
+        slots[_worker_setting(r)] += [int(r["slot"])] * (now - closed.get(key, 0))
+        closed[key] = now
+    return slots
+
+
+def revisit() -> None:
+    """The loop workers at the slots' priority, below it and capped, on a walk that comes
+    back: the late share and the loops each run closed, and when they closed."""
+    plt = pyplot()
+    folder = HERE / "fleet/loop-worker-revisit"
+    colours = {"the slots' priority, uncapped": "C0", "10 nice steps below": "C3",
+               "a 0.5 share of a core": "C1", "a 0.25 share of a core": "C2"}
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.4))
+    print("| devices | loop worker | late, each run | loops closed, each run | "
+          "median slot a loop closed |")
+    print("|---|---|---|---|---|")
+    for devices, marker in (("12", "o"), ("16", "s")):
+        late: dict[str, list[float]] = defaultdict(list)
+        loops: dict[str, list[int]] = defaultdict(list)
+        when: dict[str, list[int]] = defaultdict(list)
+        for path in sorted(folder.glob(f"*-{devices}-round[0-9].csv")):
+            for r in _rows(path):
+                late[_worker_setting(r)].append(100 * float(r["missed_share"]))
+                loops[_worker_setting(r)].append(int(r["loops_closed"]))
+            slots = path.with_name(path.stem + "-slots.csv")
+            if slots.exists():
+                for setting, closed in _closing_slots(slots).items():
+                    when[setting] += closed
+        for setting, colour in colours.items():
+            if setting not in late:
+                continue
+            first = setting == next(iter(colours))
+            x = [list(colours).index(setting) + (0.15 if devices == "16" else -0.15)] * \
+                len(late[setting])
+            axes[0].plot(x, late[setting], marker, color=colour, alpha=0.8,
+                         label=f"{devices} devices" if first else None)
+            axes[1].plot(x, loops[setting], marker, color=colour, alpha=0.8)
+            middle = sorted(when[setting])[len(when[setting]) // 2] if when[setting] else "–"
+            print(f"| {devices} | {setting} | "
+                  f"{', '.join(f'{v:.1f} %' for v in late[setting])} | "
+                  f"{', '.join(map(str, loops[setting]))} | {middle} |")
+            if devices == "12" and when[setting]:
+                runs = len(loops[setting])
+                closing = sorted(when[setting])
+                axes[2].step(closing, [(i + 1) / runs for i in range(len(closing))],
+                             where="post", color=colour, label=f"{setting} ({runs} runs)")
+    names = [name.replace(", ", ",\n").replace(" of a", "\nof a").replace(" below", "\nbelow")
+             for name in colours]
+    for ax, label in ((axes[0], "% of device-slots whose map came after 1 s"),
+                      (axes[1], "loops the edges closed in the run")):
+        ax.set_xticks(range(len(colours)), names, fontsize=7)
+        ax.set(ylabel=label)
+    axes[0].axhline(5, color="grey", lw=1)
+    axes[0].set(ylim=(0, 100), title="late maps, two edge processes, 2 cores")
+    axes[0].legend(fontsize=7, loc="upper right")
+    axes[1].set(ylim=(0, None), title="loops closed (12 devices: 36 uncapped)")
+    axes[2].set(xlabel="slot of the walk (it turns back after slot 19)",
+                ylabel="loops closed so far, a run's mean", title="when they closed, 12 devices")
+    axes[2].legend(fontsize=7, loc="lower right")
+    _save(fig, "fleet/loop-worker-revisit.png")
+
+
 def main(argv: list[str]) -> int:
-    if not argv or argv[0] not in ("scaling", "edges", "hosts", "stagger", "sim", "split",
-                                   "live"):
+    if not argv or argv[0] not in ("scaling", "edges", "hosts", "stagger", "revisit", "sim",
+                                   "split", "live"):
         print(__doc__)
         return 2
     {"scaling": lambda a: scaling(), "edges": lambda a: edges(), "hosts": lambda a: hosts(),
-     "stagger": lambda a: stagger(), "sim": sim, "split": split, "live": live}[argv[0]](
-        argv[1:])
+     "stagger": lambda a: stagger(), "revisit": lambda a: revisit(), "sim": sim,
+     "split": split, "live": live}[argv[0]](argv[1:])
     return 0
 
 
