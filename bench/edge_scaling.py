@@ -301,12 +301,13 @@ def fleet_network(edges: int, hosts: bool) -> Iterator[tuple[ProcessDomain, str 
 def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0.0,
             edges: int = 1, pools: str = "one", hosts: bool = False,
             merge_maps: bool = False, stagger: float = 1.0, checkpoint_every: int = 0,
-            niceness: int | None = None, share: float | None = None
+            niceness: int | None = None, share: float | None = None,
+            yields: bool | None = None
             ) -> tuple[dict[str, float], list[dict[str, float]]]:
     """One fleet of ``n`` emulated devices served, their starts spread evenly over ``stagger``
     slot periods, each device's map checkpointed every ``checkpoint_every`` slots (0: never),
-    the edges' loop workers ``niceness`` steps below their slots and at most ``share`` of a
-    core (None: the edge's defaults);
+    the edges' loop workers ``niceness`` steps below their slots, at most ``share`` of a
+    core and waiting for the slots' work or not (``yields``; None: the edge's defaults);
     the table's row and every device-slot's figures (its latency, the edge's compute, what
     the slot restored, uploaded, closed)."""
     names = [f"ar{i + 1}" for i in range(n)]
@@ -327,7 +328,9 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
                             *(["-p", f"loop_worker_niceness:={niceness}"]
                               if niceness is not None else []),
                             *(["-p", f"loop_worker_share:={share}"]
-                              if share is not None else [])],
+                              if share is not None else []),
+                            *(["-p", f"loop_worker_yields:={str(yields).lower()}"]
+                              if yields is not None else [])],
                            host=hosted[e])
                  for e, block in enumerate(served)]
         for edge, block in zip(procs, served, strict=True):
@@ -397,6 +400,7 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             "stagger_slots": stagger, "checkpoint_every": checkpoint_every,
             "loop_worker_niceness": -1 if niceness is None else niceness,
             "loop_worker_share": math.nan if share is None else share,
+            "loop_worker_yields": "" if yields is None else ("on" if yields else "off"),
             # loops the edges closed over the run (each device's MapStats counts its own)
             "loops_closed": sum(max((s.loops_closed for s in d.stats.values()), default=0)
                                 for d in devices),
@@ -486,6 +490,10 @@ def main() -> None:
                         help="the edges' loop_worker_share (the most of a core their loop "
                              "closer's worker takes; 1: all it can get), comma-separated to "
                              "compare; default: the edge's")
+    parser.add_argument("--loop-worker-yields", default="", metavar="on|off",
+                        help="the edges' loop_worker_yields (their loop closer's worker waits "
+                             "while the slots' work runs), on, off or both comma-separated "
+                             "to compare; default: the edge's")
     parser.add_argument("--hosts", action="store_true",
                         help="each edge process on an edge host of its own and the devices on "
                              "a device host (network namespaces on one switch; needs root) "
@@ -499,6 +507,12 @@ def main() -> None:
                                    args.loop_worker_niceness, int, 0, 19, "steps")
     shares = values_to_compare(parser, "--loop-worker-share", args.loop_worker_share, float,
                                0.05, 1.0, "shares of a core")
+    switch = {"on": True, "off": False}
+    if any(v not in switch for v in args.loop_worker_yields.split(",")
+           if args.loop_worker_yields):
+        parser.error(f"--loop-worker-yields: on, off or both, not {args.loop_worker_yields!r}")
+    yielding: list[bool | None] = ([switch[v] for v in args.loop_worker_yields.split(",")]
+                                   if args.loop_worker_yields else [None])
     why_not = unavailable_reason() if args.hosts else None
     if why_not is not None:
         raise SystemExit(f"--hosts: network namespaces cannot be made here: {why_not}")
@@ -528,19 +542,19 @@ def main() -> None:
               f"{'edge ms/slot':>12} {'p95':>6} "
               f"{'latency ms':>10} {'p95':>6} {'missed':>7} {'edge CPU':>8} "
               f"{'devices CPU':>11} {'idle':>5} {'merged':>6} {'lost':>5} {'loops':>5} "
-              f"{'nice':>4} {'share':>5}")
+              f"{'nice':>4} {'share':>5} {'yield':>5}")
     print(header, flush=True)
-    settings = [(pools, merge, int(edges), int(n), nice, share)
+    settings = [(pools, merge, int(edges), int(n), nice, share, yields)
                 for pools in args.pools.split(",")
                 for merge in args.merge_maps.split(",")
                 for edges in args.edges.split(",") for n in args.devices.split(",")
-                for nice in nicenesses for share in shares]
+                for nice in nicenesses for share in shares for yields in yielding]
     every_slot = []
-    for pools, merge, edges, n, nice, share in settings:
+    for pools, merge, edges, n, nice, share, yields in settings:
         with collector_log(args.collector_log) as collections:
             row, slots = measure(n, recording, args.policy, args.compute_budget, edges, pools,
                                  args.hosts, merging[merge], args.stagger,
-                                 args.checkpoint_every, nice, share)
+                                 args.checkpoint_every, nice, share, yields)
             full = [c for c in collections() if c[0] == 2]
         if args.collector_log:
             row.update(full_collections=len(full),
@@ -553,6 +567,7 @@ def main() -> None:
         every_slot += [{"pools": pools, "merge_maps": merge, "edges": row["edges"],
                         "devices": n, "loop_worker_niceness": row["loop_worker_niceness"],
                         "loop_worker_share": row["loop_worker_share"],
+                        "loop_worker_yields": row["loop_worker_yields"],
                         **slot} for slot in slots]
         print(f"{pools:>5} {merge:>5} {row['edges']:>5} {n:>7} "
               f"{row['answered']:>4.0f}/{row['device_slots']:<4.0f} "
@@ -562,7 +577,8 @@ def main() -> None:
               f"{row['devices_cpu_share']:>11.0%} {row['host_idle_share']:>5.0%} "
               f"{row['merged']:>6} {row['lost_share']:>5.1%} {row['loops_closed']:>5} "
               f"{'edge' if nice is None else nice:>4} "
-              f"{'edge' if share is None else f'{share:g}':>5}", flush=True)
+              f"{'edge' if share is None else f'{share:g}':>5} "
+              f"{row['loop_worker_yields'] or 'edge':>5}", flush=True)
     if args.csv:
         write_dict_rows(args.csv, rows)
         print(f"wrote {args.csv}")

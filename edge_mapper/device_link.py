@@ -58,6 +58,7 @@ from msg_schemas import qos, topics
 from twinslam.node_runtime.checked_subscription import CheckedSubscription
 from twinslam.node_runtime.long_lived_objects import release_frozen
 from twinslam.rotations import rotation_angle_deg
+from twinslam.slam.back_end.loop_closing import SHARED_WORKER
 from twinslam.slam.back_end.map_back_end import archive_folder
 
 
@@ -169,14 +170,16 @@ class DeviceLink:
         def run(*args: Any) -> None:
             if self.fault:
                 return
-            if self.on_fault is None:
-                work(*args)
-                return
-            try:
-                work(*args)
-            except Exception:           # told to the node, which stops serving this device
-                self.fault = traceback.format_exc()
-                self.on_fault(self.device, self.fault)
+            # the slots' work: a loop worker that yields to it waits meanwhile
+            with SHARED_WORKER.slot_work():
+                if self.on_fault is None:
+                    work(*args)
+                    return
+                try:
+                    work(*args)
+                except Exception:       # told to the node, which stops serving this device
+                    self.fault = traceback.format_exc()
+                    self.on_fault(self.device, self.fault)
 
         return run
 

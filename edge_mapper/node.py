@@ -95,6 +95,7 @@ class EdgeMapperNode(Node):
         # the process's loop worker (every device's loop jobs), at or below the slots' priority
         SHARED_WORKER.lower_priority(int(p["loop_worker_niceness"]))
         SHARED_WORKER.limit_share(float(p["loop_worker_share"]))
+        SHARED_WORKER.yield_to_slots(bool(p["loop_worker_yields"]))
         if SHARED_WORKER.share < 1:
             self.get_logger().info(f"the loop closer's worker takes at most "
                                    f"{SHARED_WORKER.share:.0%} of a core: the loops wait, "

@@ -110,6 +110,12 @@ PARAMETERS = (
               "host, a walk and back, a quarter: 0.9-12.8 % late instead of 14-55 %, 23-31 of "
               "36 loops closed, later than 10 nice steps below); 1: all it can get",
               low=0.05, high=1.0),
+    ParamSpec("loop_worker_yields", loop_closing.WORKER_YIELDS, "the loop closer's worker "
+              "waits, before each loop query, while the slots' work (any device's callback) "
+              "runs, at most 0.5 s a query: within one process it shares the slot thread's "
+              "interpreter, which a nice value does not reach (8 devices on one process of a "
+              "2-core host, a walk and back: 0.0 and 1.3 % late instead of 41.0 and 33.3 %, "
+              "every loop closed, a median slot later); false: it runs whenever it has work"),
     ParamSpec("reloc_restore_keyframes", 0, "archived keyframes brought back at the end of a "
               "slot around the pose the edge found in its archive for a lost device's frame "
               "(device/relocalisation_request, the device's reloc_period_s), the map keyframes "

@@ -22,7 +22,14 @@ from tests.test_edge_core import F, K, ReturningDevice, _run
 from twinslam.policies.registry import make_policy
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive
 from twinslam.slam.back_end.keyframe_gate import KeyFrameGateConfig
-from twinslam.slam.back_end.loop_closing import LoopCloser, LoopJob, LoopQuery, _SharedWorker
+from twinslam.slam.back_end.loop_closing import (
+    YIELD_AT_MOST_S,
+    LoopCloser,
+    LoopJob,
+    LoopQuery,
+    _SharedWorker,
+    run_job,
+)
 from twinslam.slam.back_end.map_back_end import BackEndConfig
 from twinslam.slam.keyframe import KeyFramePayload
 from twinslam.slam.pose_plausibility import MotionBounds
@@ -520,3 +527,58 @@ def test_the_loop_worker_takes_at_most_its_share_of_a_core() -> None:
     for bad in (0.0, -0.5, 1.5):
         with pytest.raises(ValueError, match="share of a core"):
             _SharedWorker().limit_share(bad)
+
+
+def test_the_loop_worker_waits_while_the_slots_work_runs_and_never_longer_than_its_bound(
+        ) -> None:
+    """Yielding, the worker does not start a query while a slot callback runs: it goes on
+    once the slots' work ends, after YIELD_AT_MOST_S at the latest (the loops are delayed,
+    never starved), and not at all when nothing runs or yielding is off."""
+    worker = _SharedWorker()
+    worker.yield_to_slots(True)
+    started = threading.Event()
+    ended = 0.0
+
+    def slot(seconds: float) -> None:
+        nonlocal ended
+        with worker.slot_work():
+            started.set()
+            time.sleep(seconds)
+            ended = time.monotonic()
+
+    t = threading.Thread(target=slot, args=(0.2,))
+    t.start()
+    assert started.wait(10)
+    worker.wait_for_slots()                   # waits for the callback to end
+    assert time.monotonic() >= ended > 0 and worker.yielded_s > 0.05
+    t.join()
+    before = worker.yielded_s
+    worker.wait_for_slots()                   # nothing runs: no wait
+    assert worker.yielded_s == before
+    started.clear()
+    t = threading.Thread(target=slot, args=(YIELD_AT_MOST_S + 1.0,))
+    t.start()
+    assert started.wait(10)
+    began = time.monotonic()
+    worker.wait_for_slots()                   # a long callback: the bound, not its end
+    waited = time.monotonic() - began
+    assert YIELD_AT_MOST_S * 0.9 <= waited < YIELD_AT_MOST_S + 0.9
+    worker.yield_to_slots(False)
+    began = time.monotonic()
+    worker.wait_for_slots()                   # not yielding: runs at once
+    assert time.monotonic() - began < 0.1
+    t.join()
+
+
+def test_a_loop_job_pauses_for_the_slots_before_each_query() -> None:
+    """The job asks its pause before every query and before the pose graph, and finds the
+    same loop as without pauses."""
+    device = ReturningDevice(np.random.default_rng(5), 64)
+    job = _job(device)
+    pauses: list[float] = []
+    paused = run_job(job, 40, None, lambda: pauses.append(time.monotonic()))
+    plain = run_job(job, 40, None)
+    assert paused.closure is not None and plain.closure is not None
+    assert paused.candidate.old == plain.candidate.old and paused.query == plain.query
+    queries_looked = sorted(q.keyframe for q in job.queries).index(paused.query) + 1
+    assert len(pauses) == queries_looked + 1        # each query looked at, then the graph
