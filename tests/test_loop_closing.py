@@ -23,6 +23,7 @@ from twinslam.policies.registry import make_policy
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive
 from twinslam.slam.back_end.keyframe_gate import KeyFrameGateConfig
 from twinslam.slam.back_end.loop_closing import (
+    SHARED_WORKER,
     YIELD_AT_MOST_S,
     LoopCloser,
     LoopJob,
@@ -582,3 +583,24 @@ def test_a_loop_job_pauses_for_the_slots_before_each_query() -> None:
     assert paused.candidate.old == plain.candidate.old and paused.query == plain.query
     queries_looked = sorted(q.keyframe for q in job.queries).index(paused.query) + 1
     assert len(pauses) == queries_looked + 1        # each query looked at, then the graph
+
+
+def test_a_slot_callback_that_drops_the_running_job_is_not_waited_for_by_it() -> None:
+    """A merge drops the running loop job from inside a device's callback (the slots' work):
+    while the callback waits for the job, its mark is lifted — else the job, waiting for the
+    slots before each query, would wait for the callback that waits for it."""
+    device = ReturningDevice(np.random.default_rng(5), 64)
+    closer = LoopCloser(min_gap=40, confirmations=0)
+    was = SHARED_WORKER.yields
+    SHARED_WORKER.yield_to_slots(True)
+    try:
+        with SHARED_WORKER.slot_work():
+            assert closer.submit(_job(device))
+            before = SHARED_WORKER.yielded_s
+            closer.discard()
+            assert SHARED_WORKER.yielded_s - before < 0.1
+            assert not SHARED_WORKER._slots_idle.is_set()       # the mark is back
+        assert SHARED_WORKER._slots_idle.is_set()
+    finally:
+        SHARED_WORKER.yield_to_slots(was)
+        closer.close()

@@ -333,6 +333,7 @@ class _SharedWorker:
         self._slots_idle = threading.Event()
         self._slots_idle.set()
         self._slot_lock = threading.Lock()
+        self._marks = threading.local()        #: each thread's slot-work marks (``depth``)
         self.yielded_s = 0.0                   #: seconds it waited for the slots so far
 
     def lower_priority(self, niceness: int) -> None:
@@ -360,16 +361,35 @@ class _SharedWorker:
     @contextmanager
     def slot_work(self) -> Iterator[None]:
         """Mark the slots' work running (the edge's callbacks), for :meth:`wait_for_slots`."""
-        with self._slot_lock:
-            self._slot_work += 1
-            self._slots_idle.clear()
+        self._mark(1)
+        self._marks.depth = getattr(self._marks, "depth", 0) + 1
         try:
             yield
         finally:
-            with self._slot_lock:
-                self._slot_work -= 1
-                if not self._slot_work:
-                    self._slots_idle.set()
+            self._marks.depth -= 1
+            self._mark(-1)
+
+    @contextmanager
+    def outside_slot_work(self) -> Iterator[None]:
+        """The calling thread's slot-work marks lifted while it waits for the worker (a merge
+        dropping the running loop job): else the worker, waiting for the slots, would wait
+        for the very callback that waits for it."""
+        depth = getattr(self._marks, "depth", 0)
+        self._mark(-depth)
+        self._marks.depth = 0
+        try:
+            yield
+        finally:
+            self._marks.depth = depth
+            self._mark(depth)
+
+    def _mark(self, change: int) -> None:
+        with self._slot_lock:
+            self._slot_work += change
+            if self._slot_work:
+                self._slots_idle.clear()
+            else:
+                self._slots_idle.set()
 
     def wait_for_slots(self) -> None:
         """With :attr:`yields`, wait until no slot work runs (YIELD_AT_MOST_S at most)."""
@@ -482,8 +502,9 @@ class LoopCloser:
         while it runs or when none was started."""
         if self._running is not None:
             try:
-                self._done = self._running.result(timeout=wait_s) if wait_s > 0 or \
-                    self._running.done() else None
+                with SHARED_WORKER.outside_slot_work():
+                    self._done = self._running.result(timeout=wait_s) if wait_s > 0 or \
+                        self._running.done() else None
             except TimeoutError:
                 return None
             if self._done is None:
@@ -501,7 +522,8 @@ class LoopCloser:
         the loop waiting for confirmation: their poses are of a frame the map has left (a
         map merge moved it, :meth:`MapBackEnd.align`)."""
         if self._running is not None:
-            self._running.result()
+            with SHARED_WORKER.outside_slot_work():
+                self._running.result()
         self._running = self._done = None
         self.confirmation.pending = None
 
@@ -539,5 +561,6 @@ class LoopCloser:
 
     def close(self) -> None:
         """Wait for its work queued on the shared worker (a running job finishes first)."""
-        wait(list(self._queued))
+        with SHARED_WORKER.outside_slot_work():
+            wait(list(self._queued))
         self._queued.clear()
