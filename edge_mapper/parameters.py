@@ -114,8 +114,9 @@ PARAMETERS = (
               "waits, before each loop query, while the slots' work (any device's callback) "
               "runs, at most 0.5 s a query: within one process it shares the slot thread's "
               "interpreter, which a nice value does not reach (8 devices on one process of a "
-              "2-core host, a walk and back: 0.0 and 1.3 % late instead of 41.0 and 33.3 %, "
-              "every loop closed, a median slot later); false: it runs whenever it has work"),
+              "2-core host, a walk and back: 0-15 % late instead of 33-49 % in four paired rounds "
+              "of five, the loops closed in the same slots); false: it runs whenever it has "
+              "work"),
     ParamSpec("reloc_restore_keyframes", 0, "archived keyframes brought back at the end of a "
               "slot around the pose the edge found in its archive for a lost device's frame "
               "(device/relocalisation_request, the device's reloc_period_s), the map keyframes "

@@ -46,8 +46,9 @@ edge host serving a dozen devices over several processes is better served ten st
 Within one process a nice value does not reach the interpreter the worker and the slot thread
 share. By default (the edge's ``loop_worker_yields``) the worker waits before each query while
 a slot callback runs (:meth:`_SharedWorker.wait_for_slots`, at most YIELD_AT_MOST_S): eight
-devices on one edge process walking a place and back were 0-15 % late instead of 33-49 %,
-every loop closed in the same slots, and one or two devices were unchanged.
+devices on one edge process walking a place and back were 0-15 % late instead of 33-49 % in
+four paired rounds of five (in the fifth both were nearly on time), their loops closed in the
+same slots, and one or two devices were unchanged.
 """
 
 from __future__ import annotations
