@@ -599,8 +599,8 @@ def test_a_slot_callback_that_drops_the_running_job_is_not_waited_for_by_it() ->
             before = SHARED_WORKER.yielded_s
             closer.discard()
             assert SHARED_WORKER.yielded_s - before < 0.1
-            assert not SHARED_WORKER._slots_idle.is_set()       # the mark is back
-        assert SHARED_WORKER._slots_idle.is_set()
+            assert not SHARED_WORKER.slots_idle                  # the mark is back
+        assert SHARED_WORKER.slots_idle
     finally:
         SHARED_WORKER.yield_to_slots(was)
         closer.close()

@@ -331,9 +331,8 @@ class _SharedWorker:
         #: wait while the slots' work runs (:meth:`yield_to_slots`)
         self.yields = WORKER_YIELDS
         self._slot_work = 0                    #: slot callbacks running now
-        self._slots_idle = threading.Event()
-        self._slots_idle.set()
-        self._slot_lock = threading.Lock()
+        #: guards the count; notified when it falls to none
+        self._slots_done = threading.Condition()
         self._marks = threading.local()        #: each thread's slot-work marks (``depth``)
         self.yielded_s = 0.0                   #: seconds it waited for the slots so far
 
@@ -384,20 +383,24 @@ class _SharedWorker:
             self._marks.depth = depth
             self._mark(depth)
 
+    @property
+    def slots_idle(self) -> bool:
+        """No slot work runs now."""
+        return not self._slot_work
+
     def _mark(self, change: int) -> None:
-        with self._slot_lock:
+        with self._slots_done:
             self._slot_work += change
-            if self._slot_work:
-                self._slots_idle.clear()
-            else:
-                self._slots_idle.set()
+            if not self._slot_work:
+                self._slots_done.notify_all()
 
     def wait_for_slots(self) -> None:
         """With :attr:`yields`, wait until no slot work runs (YIELD_AT_MOST_S at most)."""
-        if not self.yields or self._slots_idle.is_set():
+        if not self.yields or self.slots_idle:
             return
         began = time.monotonic()
-        self._slots_idle.wait(YIELD_AT_MOST_S)
+        with self._slots_done:
+            self._slots_done.wait_for(lambda: self.slots_idle, YIELD_AT_MOST_S)
         self.yielded_s += time.monotonic() - began
 
     def submit(self, fn: Callable[..., _T], *args: object) -> Future[_T]:
