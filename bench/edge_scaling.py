@@ -441,6 +441,14 @@ def values_to_compare(parser: argparse.ArgumentParser, option: str, text: str,
     return values
 
 
+def on_or_off(text: str) -> bool:
+    """A switch option's value: on (True) or off (False); ValueError otherwise."""
+    switch = {"on": True, "off": False}
+    if text not in switch:
+        raise ValueError(text)
+    return switch[text]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--devices", default="1,2,4,8,12,16", help="fleet sizes, comma-separated")
@@ -507,12 +515,8 @@ def main() -> None:
                                    args.loop_worker_niceness, int, 0, 19, "steps")
     shares = values_to_compare(parser, "--loop-worker-share", args.loop_worker_share, float,
                                0.05, 1.0, "shares of a core")
-    switch = {"on": True, "off": False}
-    if any(v not in switch for v in args.loop_worker_yields.split(",")
-           if args.loop_worker_yields):
-        parser.error(f"--loop-worker-yields: on, off or both, not {args.loop_worker_yields!r}")
-    yielding: list[bool | None] = ([switch[v] for v in args.loop_worker_yields.split(",")]
-                                   if args.loop_worker_yields else [None])
+    yielding = values_to_compare(parser, "--loop-worker-yields", args.loop_worker_yields,
+                                 on_or_off, False, True, "on or off")
     why_not = unavailable_reason() if args.hosts else None
     if why_not is not None:
         raise SystemExit(f"--hosts: network namespaces cannot be made here: {why_not}")
