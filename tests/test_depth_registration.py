@@ -66,6 +66,20 @@ def test_the_baseline_between_the_cameras_moves_the_reading_and_its_depth() -> N
     assert out[v, u] == pytest.approx(2.05)
 
 
+def test_cameras_at_one_place_register_as_a_zero_baseline_does() -> None:
+    """Without a baseline each column and row of the depth image lands on one column and row of
+    the colour image (the shortcut the player takes on 7-Scenes): a noisy scene with holes
+    comes out as the full per-pixel warp with the identity transform makes it."""
+    rng = np.random.default_rng(7)
+    depth = rng.uniform(0.5, 4.0, (H, W)).astype(np.float32)
+    depth[rng.random((H, W)) < 0.2] = 0.0
+    for colour_k in (COLOUR_K, np.array([[64.0, 0, 30.0], [0, 64.0, 26.0], [0, 0, 1]])):
+        shortcut = register_depth(depth, DEPTH_K, colour_k)
+        full = register_depth(depth, DEPTH_K, colour_k, np.eye(4))
+        assert np.count_nonzero(shortcut) > 0.5 * depth.size
+        np.testing.assert_array_equal(shortcut, full)
+
+
 def test_nonsense_cameras_are_refused() -> None:
     with pytest.raises(ValueError, match="colour camera's intrinsics"):
         register_depth(np.ones((H, W)), DEPTH_K, np.zeros((3, 3)))

@@ -40,7 +40,9 @@ def load_kernels() -> None:
     for name in POLICIES:
         EdgeMapperCore.warm_up(make_policy(name))
     next(iter(SyntheticSequence(n_frames=1)))
-    register_depth(np.ones((2, 2), dtype=np.float32), np.eye(3), np.eye(3), np.eye(4))
+    for depth_to_colour in (None, np.eye(4)):            # both cameras at one place or not
+        register_depth(np.ones((2, 2), dtype=np.float32), np.eye(3), np.eye(3),
+                       depth_to_colour)
     points = np.arange(40)
     budget_value([points], [points], 0.0, 1, 2)
     hamming_of_pairs(np.zeros((1, 32), np.uint8), [0], np.zeros((1, 32), np.uint8), [0])

@@ -37,10 +37,48 @@ def register_depth(depth: np.ndarray, depth_intrinsics: np.ndarray,
     moved = depth_to_colour is not None
     t = np.eye(4) if depth_to_colour is None else camera_placement(depth_to_colour)
     floats = depth if depth.dtype in (np.float32, np.float64) else depth.astype(np.float64)
-    nearest = _forward_warp(np.ascontiguousarray(floats), kd, kc,
-                            np.ascontiguousarray(t[:3, :3]), np.ascontiguousarray(t[:3, 3]),
-                            moved)
+    if not moved:
+        h, w = depth.shape
+        nearest = _warp_by_row_and_column(np.ascontiguousarray(floats),
+                                          _target_lines(w, kd[0, 0], kd[0, 2], kc[0, 0], kc[0, 2]),
+                                          _target_lines(h, kd[1, 1], kd[1, 2], kc[1, 1], kc[1, 2]))
+    else:
+        nearest = _forward_warp(np.ascontiguousarray(floats), kd, kc,
+                                np.ascontiguousarray(t[:3, :3]), np.ascontiguousarray(t[:3, 3]),
+                                moved)
     return nearest.astype(depth.dtype, copy=False)
+
+
+def _target_lines(n: int, f_depth: float, c_depth: float, f_colour: float,
+                  c_colour: float) -> np.ndarray:
+    """Where each of ``n`` columns (or rows) of the depth image lands in the colour image when
+    both cameras sit at one place: back-projected at depth z and projected again, z cancels,
+    so a column goes to one column whatever its readings (-1: outside the image)."""
+    lines = np.arange(n, dtype=np.float64)
+    target = np.rint(f_colour * ((lines - c_depth) / f_depth) + c_colour)
+    return np.where((target >= 0) & (target < n), target, -1).astype(np.int64)
+
+
+@njit(cache=True)
+def _warp_by_row_and_column(depth: np.ndarray, columns: np.ndarray,
+                            rows: np.ndarray) -> np.ndarray:
+    """The warp of :func:`register_depth` without a baseline: every reading goes to the pixel
+    its row and column map to, the nearest kept (the per-pixel projection of
+    :func:`_forward_warp` took a fifth of the player's time on 7-Scenes)."""
+    h, w = depth.shape
+    nearest = np.zeros((h, w), dtype=depth.dtype)
+    for v in range(h):
+        iv = rows[v]
+        if iv < 0:
+            continue
+        for u in range(w):
+            iu = columns[u]
+            z = depth[v, u]
+            if iu < 0 or not z > 0:
+                continue
+            if nearest[iv, iu] == 0.0 or z < nearest[iv, iu]:
+                nearest[iv, iu] = z
+    return nearest
 
 
 @njit(cache=True)
