@@ -4,16 +4,21 @@ from __future__ import annotations
 
 import argparse
 import re
+import subprocess
+import sys
 
 import pytest
 
-from twinslam.cli.main import build_parser
+from twinslam.cli.main import COMMANDS, build_parser
+
+
+def _choices(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
+    (sub,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    return dict(sub.choices)
 
 
 def _subcommands() -> dict[str, argparse.ArgumentParser]:
-    parser = build_parser()
-    (sub,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
-    return dict(sub.choices)
+    return _choices(build_parser())
 
 
 def _entries(help_text: str) -> dict[str, str]:
@@ -117,3 +122,20 @@ def test_help_texts_read_as_plain_text() -> None:
     assert not [name for name, text in texts.items() if "``" in text]
     # a description is not %-formatted as an option's help is: "%%" there shows as written
     assert not [name for name, text in texts.items() if "%%" in text]
+
+
+def test_a_command_builds_its_parser_from_its_own_module_alone() -> None:
+    """``twinslam trace …`` imports the trace command and not the thirteen others (all of
+    them cost 3 s of CPU before the first line; rclpy and torch among them); ``twinslam
+    --help`` and a misspelt command still see every command."""
+    assert set(_subcommands()) == set(COMMANDS)
+    assert set(_choices(build_parser("sim"))) == {"sim"}
+    assert set(_choices(build_parser("simulate"))) == set(COMMANDS)
+    code = ("import sys\nfrom twinslam.cli.main import main\n"
+            "code = main(['trace', 'info', 'missing.csv'])\n"
+            "print(code, *sorted(m for m in sys.modules if m.startswith('twinslam.cli.commands.')"
+            " or m in ('rclpy', 'torch')))")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=120)
+    assert "trace file missing.csv does not exist" in run.stderr
+    assert run.stdout.split() == ["2", "twinslam.cli.commands.trace"], run.stdout + run.stderr
