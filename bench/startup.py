@@ -1,8 +1,9 @@
 """What starting the command line costs: the wall time of a fresh interpreter importing
-``twinslam.cli.main`` (every ``twinslam`` command pays it, and so does every worker a sweep
-spawns — a spawned worker re-imports the main module), and whether that import loads torch.
+``twinslam.cli.main`` (every worker a sweep spawns re-imports the main module) and building
+the parser of one command (every ``twinslam COMMAND`` pays both before it runs), and whether
+that loads torch or rclpy.
 
-    .venv/bin/python -m bench.startup [--rounds 10] [--baseline COMMIT]
+    .venv/bin/python -m bench.startup [--command sim] [--rounds 10] [--baseline COMMIT]
 
 With ``--baseline`` the other commit's tree is timed in the same run, the two alternating
 round by round (bench/baseline.py), so both see the same machine load.
@@ -16,17 +17,28 @@ from pathlib import Path
 
 from bench.baseline import alternately, run_in_tree
 
-#: one fresh interpreter's import of the command line, timed from inside it after start-up
+#: one fresh interpreter's import of the command line and its parser for the command in
+#: argv[1], timed from inside it after start-up (a tree older than the parser of one command
+#: builds every command's, as its ``twinslam COMMAND`` did)
 _DRIVER = """
 import json, time
-t0 = time.perf_counter()
+t0, c0 = time.perf_counter(), time.process_time()
 import twinslam.cli.main
-print(json.dumps({"seconds": time.perf_counter() - t0, "torch": "torch" in sys.modules}))
+imported = time.perf_counter() - t0
+try:
+    twinslam.cli.main.build_parser(sys.argv[1])
+except TypeError:
+    twinslam.cli.main.build_parser()
+print(json.dumps({"import_s": imported, "seconds": time.perf_counter() - t0,
+                  "cpu_s": time.process_time() - c0, "torch": "torch" in sys.modules,
+                  "rclpy": "rclpy" in sys.modules}))
 """
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--command", default="sim",
+                        help="the command whose parser is built (default %(default)s)")
     parser.add_argument("--rounds", type=int, default=10,
                         help="fresh interpreters per tree (default %(default)s)")
     parser.add_argument("--baseline", metavar="COMMIT",
@@ -34,17 +46,23 @@ def main() -> None:
     args = parser.parse_args()
 
     def measure(r: int, label: str, root: Path) -> dict[str, float | bool]:
-        result: dict[str, float | bool] = run_in_tree(root, _DRIVER)
-        print(f"round {r + 1} {label}: {float(result['seconds']):.2f} s", flush=True)
+        result: dict[str, float | bool] = run_in_tree(root, _DRIVER, args.command)
+        print(f"round {r + 1} {label}: {float(result['seconds']):.2f} s "
+              f"({float(result['cpu_s']):.2f} s of CPU)", flush=True)
         return result
 
     trees = alternately(args.baseline, args.rounds, measure)
     for label, runs in trees.items():
         name = args.baseline if label == "baseline" else "this tree"
         seconds = [float(r["seconds"]) for r in runs]
-        print(f"{name:<12} import twinslam.cli.main: median {statistics.median(seconds):.2f} s "
-              f"(min {min(seconds):.2f}, max {max(seconds):.2f}, {len(seconds)} runs); "
-              f"loads torch: {'yes' if runs[0]['torch'] else 'no'}")
+        cpu = [float(r["cpu_s"]) for r in runs]
+        imported = [float(r["import_s"]) for r in runs]
+        print(f"{name:<12} twinslam {args.command}'s start (import and parser): median "
+              f"{statistics.median(seconds):.2f} s (min {min(seconds):.2f}, max "
+              f"{max(seconds):.2f}, {len(seconds)} runs), {statistics.median(cpu):.2f} s of "
+              f"CPU; the import alone {statistics.median(imported):.2f} s; loads torch: "
+              f"{'yes' if runs[0]['torch'] else 'no'}, rclpy: "
+              f"{'yes' if runs[0]['rclpy'] else 'no'}")
 
 
 if __name__ == "__main__":

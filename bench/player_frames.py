@@ -1,0 +1,89 @@
+"""What the sequence player spends on a frame before it publishes it: decoding the colour and
+depth images, registering the depth to the colour camera (7-Scenes), and the four messages —
+CPU milliseconds a frame, in a fresh interpreter per round.
+
+    .venv/bin/python -m bench.player_frames [SEQUENCE] [--frames 200] [--rounds 4]
+                                            [--baseline COMMIT]
+
+SEQUENCE defaults to the bundled 7-Scenes sample, read as the player reads it
+(``colour_intrinsics: auto``). On a 2-core machine the player shares the cores with the device
+it feeds, so its CPU is taken from the device's. With ``--baseline`` the other commit's tree
+is measured in the same run, the two alternating round by round (bench/baseline.py); each
+round's first frame (the numba kernels loading, compiled in a fresh baseline tree) is left out.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+from pathlib import Path
+
+from bench.baseline import alternately, run_in_tree
+from bench.gauge import cpu_gauge
+
+DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes-1000"
+
+#: one round in a tree: argv = [sequence, frames, tree]; prints the CPU ms a frame
+_DRIVER = """
+import json, time
+from twinslam.sequence_player.messages import (camera_info_message, color_message,
+                                               depth_message, pose_message)
+from twinslam.sequences.opening import open_sequence
+
+sequence, frames = sys.argv[1], int(sys.argv[2])
+reader = iter(open_sequence(sequence, end=frames + 1, colour_intrinsics="auto"))
+next(reader)                                   # the kernels load: left out
+read_s, messages_s, n = 0.0, 0.0, 0
+t0 = time.process_time()
+for frame in reader:
+    t1 = time.process_time()
+    color_message(frame, frame.stamp, "camera")
+    depth_message(frame, frame.stamp, "camera")
+    camera_info_message(frame, frame.stamp, "camera")
+    if frame.pose is not None:
+        pose_message(frame.pose, frame.stamp, "world")
+    t2 = time.process_time()
+    read_s += t1 - t0
+    messages_s += t2 - t1
+    n += 1
+    t0 = time.process_time()
+print(json.dumps({"read_ms": read_s / n * 1000, "messages_ms": messages_s / n * 1000,
+                  "frames": n}))
+"""
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("sequence", nargs="?", default=str(DEFAULT),
+                        help="RGB-D sequence (default: the bundled 7-Scenes sample)")
+    parser.add_argument("--frames", type=int, default=200,
+                        help="frames a round times, after its first (default %(default)s)")
+    parser.add_argument("--rounds", type=int, default=4,
+                        help="fresh interpreters per tree (default %(default)s)")
+    parser.add_argument("--baseline", metavar="COMMIT",
+                        help="also measure this commit's tree, alternating with this one")
+    args = parser.parse_args()
+    if args.frames < 1 or args.rounds < 1:
+        parser.error("--frames and --rounds must be at least 1")
+    print(cpu_gauge(), "(before)", flush=True)
+
+    def measure(r: int, label: str, root: Path) -> dict[str, float]:
+        result: dict[str, float] = run_in_tree(root, _DRIVER, args.sequence, str(args.frames))
+        print(f"round {r + 1} {label}: read {result['read_ms']:.1f} ms, messages "
+              f"{result['messages_ms']:.1f} ms a frame ({int(result['frames'])} frames)",
+              flush=True)
+        return result
+
+    trees = alternately(args.baseline, args.rounds, measure)
+    for label, runs in trees.items():
+        name = args.baseline if label == "baseline" else "this tree"
+        read = [r["read_ms"] for r in runs]
+        messages = [r["messages_ms"] for r in runs]
+        print(f"{name:<12} CPU a frame: read (decode + registration) median "
+              f"{statistics.median(read):.1f} ms (min {min(read):.1f}, max {max(read):.1f}), "
+              f"messages {statistics.median(messages):.1f} ms; {len(runs)} rounds")
+    print(cpu_gauge(), "(after)")
+
+
+if __name__ == "__main__":
+    main()
