@@ -39,7 +39,8 @@ COMMANDS = ("sim", "train", "extract", "record", "nodes", "hosts", "launch", "ev
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """The command line with every command, or with ``command`` alone: a command's module
     imports what it runs (rclpy, numba, torch, the simulator), and importing all fourteen took
-    3 s of CPU on 2 cores where ``twinslam sim`` needs half of it and a refused option none."""
+    2.7 s of CPU on a slow 2-core VM before ``twinslam sim`` could start, its own 1.1 s
+    (``bench.startup``)."""
     parser = argparse.ArgumentParser(prog="twinslam", description=__doc__,
                                      formatter_class=HelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
