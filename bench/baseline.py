@@ -4,6 +4,7 @@ script run in a tree with only that tree's packages on the path (this venv's int
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import subprocess
@@ -68,3 +69,13 @@ def alternately(baseline: str | None, rounds: int,
             for label, results in runs.items():
                 results.append(measure(r, label, base if label == "baseline" else REPO))
     return runs
+
+
+def add_baseline_options(parser: argparse.ArgumentParser, rounds: int, rounds_help: str) -> None:
+    """``--baseline COMMIT`` and ``--rounds N`` as every side-by-side benchmark takes them
+    (``rounds_help``: what one round is, the default appended)."""
+    parser.add_argument("--baseline", metavar="COMMIT",
+                        help="also measure this commit's tree (a temporary worktree), the two "
+                             "alternating round by round")
+    parser.add_argument("--rounds", type=int, default=rounds,
+                        help=f"{rounds_help} (default %(default)s)")

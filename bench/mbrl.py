@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from bench.baseline import alternately, run_in_tree
+from bench.baseline import add_baseline_options, alternately, run_in_tree
 from bench.gauge import cpu_gauge, python_steps_per_s
 from twinslam.policies.learned.policy import MbrlPolicy
 from twinslam.policies.world_model import MapManagementEnv, SimConfig
@@ -90,11 +90,7 @@ def main() -> None:
     parser.add_argument("--profile", action="store_true",
                         help="also print the training's 15 largest items by own time (cProfile)")
     parser.add_argument("--policy", type=Path, help="time this checkpoint's inference; no training")
-    parser.add_argument("--baseline", metavar="COMMIT",
-                        help="train in this commit's tree and in this one, alternately, and "
-                             "print both, before and after")
-    parser.add_argument("--rounds", type=int, default=2,
-                        help="with --baseline: baseline/current pairs (default %(default)s)")
+    add_baseline_options(parser, 2, "with --baseline: baseline/current pairs")
     args = parser.parse_args()
     if args.baseline:
         if args.policy or args.profile:

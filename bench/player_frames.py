@@ -18,7 +18,7 @@ import argparse
 import statistics
 from pathlib import Path
 
-from bench.baseline import alternately, run_in_tree
+from bench.baseline import add_baseline_options, alternately, run_in_tree
 from bench.gauge import cpu_gauge
 
 DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes-1000"
@@ -58,10 +58,7 @@ def main() -> None:
                         help="RGB-D sequence (default: the bundled 7-Scenes sample)")
     parser.add_argument("--frames", type=int, default=200,
                         help="frames a round times, after its first (default %(default)s)")
-    parser.add_argument("--rounds", type=int, default=4,
-                        help="fresh interpreters per tree (default %(default)s)")
-    parser.add_argument("--baseline", metavar="COMMIT",
-                        help="also measure this commit's tree, alternating with this one")
+    add_baseline_options(parser, 4, "fresh interpreters per tree")
     args = parser.parse_args()
     if args.frames < 1 or args.rounds < 1:
         parser.error("--frames and --rounds must be at least 1")

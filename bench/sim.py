@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.baseline import alternately, run_in_tree
+from bench.baseline import add_baseline_options, alternately, run_in_tree
 from bench.fleet import device_slots_per_s as fleet_device_slots_per_s
 from bench.gauge import cpu_gauge, python_steps_per_s
 from twinslam.covisibility.dataset import load_covisibility
@@ -179,10 +179,7 @@ def main() -> None:
     parser.add_argument("--devices", type=int, default=100,
                         help="also a fleet of this many devices inside one keyframe budget, "
                         "per allocator; 0: none")
-    parser.add_argument("--baseline", metavar="COMMIT",
-                        help="compare with this commit's simulator, side by side")
-    parser.add_argument("--rounds", type=int, default=3,
-                        help="with --baseline: baseline/current pairs (default 3)")
+    add_baseline_options(parser, 3, "with --baseline: baseline/current pairs")
     args = parser.parse_args()
     rules = ("device", "paper") if args.rule == "both" else (args.rule,)
     if args.baseline:

@@ -15,7 +15,7 @@ import argparse
 import statistics
 from pathlib import Path
 
-from bench.baseline import alternately, run_in_tree
+from bench.baseline import add_baseline_options, alternately, run_in_tree
 
 #: one fresh interpreter's import of the command line and its parser for the command in
 #: argv[1], timed from inside it after start-up (a tree older than the parser of one command
@@ -39,10 +39,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--command", default="sim",
                         help="the command whose parser is built (default %(default)s)")
-    parser.add_argument("--rounds", type=int, default=10,
-                        help="fresh interpreters per tree (default %(default)s)")
-    parser.add_argument("--baseline", metavar="COMMIT",
-                        help="also time this commit's tree, alternating with this one")
+    add_baseline_options(parser, 10, "fresh interpreters per tree")
     args = parser.parse_args()
 
     def measure(r: int, label: str, root: Path) -> dict[str, float | bool]:
