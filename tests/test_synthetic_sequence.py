@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import cv2
 import numpy as np
 import pytest
@@ -47,10 +49,20 @@ def test_open_sequence_understands_synthetic_with_frames_and_ranges() -> None:
         open_sequence("synthetic:many")
 
 
+@pytest.fixture
+def one_opencv_thread() -> Iterator[None]:
+    """OpenCV on one thread for the test (its pool's threads would compete with the other
+    workers'), and as many as before for the tests its worker runs next."""
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    yield
+    cv2.setNumThreads(before)
+
+
 @pytest.mark.slow
+@pytest.mark.usefixtures("one_opencv_thread")
 def test_front_end_on_the_synthetic_room_tracks_and_sees_real_covisibility() -> None:
     """Exact ground truth, and what the 7-Scenes sample lacks: views 2 m and > 90° apart."""
-    cv2.setNumThreads(1)
     seq = open_sequence("synthetic:450")
     data, poses, report = extract_covisibility(seq)
     ref, est = PosePath3D(poses_se3=seq.poses), PosePath3D(poses_se3=list(poses))
