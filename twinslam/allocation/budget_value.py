@@ -19,8 +19,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-from numba import njit
 
+from twinslam.kernel_cache import njit
 from twinslam.uncertainty.map_uncertainty import theorem1_uploads
 
 

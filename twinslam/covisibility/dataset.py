@@ -28,7 +28,8 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
-from numba import njit
+
+from twinslam.kernel_cache import njit
 
 FORMAT = "twinslam-covis-1"
 DENSE_LIMIT = 4000  #: up to this many frames all pairwise weights are precomputed (64 MB)

@@ -11,9 +11,9 @@ keyframes see it and moves it by the difference only.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
 from twinslam.covisibility.dataset import CovisibilityDataset
+from twinslam.kernel_cache import njit
 
 
 class MapPointCounts:

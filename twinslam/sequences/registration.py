@@ -19,7 +19,8 @@ behind); colour pixels no reading lands on have no depth (0).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+from twinslam.kernel_cache import njit
 
 
 def register_depth(depth: np.ndarray, depth_intrinsics: np.ndarray,

@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from numba import njit
 
+from twinslam.kernel_cache import njit
 from twinslam.sequences.frame import RgbdFrame
 from twinslam.sequences.synthetic_worlds import FPS, WORLDS, SyntheticWorld, spec_name
 

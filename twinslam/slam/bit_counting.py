@@ -13,8 +13,10 @@ from collections.abc import Callable, Sequence
 from typing import Any, cast
 
 import numpy as np
-from numba import njit, types
+from numba import types
 from numba.extending import intrinsic
+
+from twinslam.kernel_cache import njit
 
 
 @intrinsic

@@ -10,8 +10,8 @@ cells one radius wide, so a point looks at the 3×3 cells around it.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from twinslam.kernel_cache import njit
 from twinslam.slam.bit_counting import popcount
 
 

@@ -14,8 +14,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
+from twinslam.kernel_cache import njit
 from twinslam.uncertainty.laplacian_kernels import (
     augmented_log_taus,
     bordered,

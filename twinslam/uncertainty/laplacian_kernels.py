@@ -16,7 +16,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+
+from twinslam.kernel_cache import njit
 
 #: Let LLVM reorder the dot products in the factorisations (SIMD); no flag that assumes away
 #: inf or NaN, since -inf is how a singular matrix is reported.

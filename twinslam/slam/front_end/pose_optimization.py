@@ -14,7 +14,8 @@ X_c ← exp(ω)·X_c + v, so ∂X_c/∂δ = [−[X_c]×  I] and each step is a 6
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+from twinslam.kernel_cache import njit
 
 ROUNDS = 4              #: inlier/outlier re-classifications (ORB-SLAM: 4)
 ITERATIONS = 10         #: Gauss–Newton steps per round (ORB-SLAM: 10)
