@@ -30,8 +30,14 @@ _unlocked_save = getattr(IndexDataCacheFile, "_unlocked_save", IndexDataCacheFil
 
 
 def _save_under_lock(self: IndexDataCacheFile, key: Any, data: Any) -> None:
-    """``IndexDataCacheFile.save`` with the kernel's index locked against other processes."""
-    with open(f"{self._index_path}.lock", "a") as lock:
+    """``IndexDataCacheFile.save`` with the kernel's index locked against other processes (a
+    lock that cannot be had leaves numba's save as it is: a kernel still compiles)."""
+    try:
+        lock = open(f"{self._index_path}.lock", "a")
+    except OSError:
+        _unlocked_save(self, key, data)
+        return
+    with lock:
         fcntl.flock(lock, fcntl.LOCK_EX)         # released when the file closes
         _unlocked_save(self, key, data)
 
