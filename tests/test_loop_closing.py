@@ -11,6 +11,7 @@ import os
 import sys
 import threading
 import time
+from concurrent.futures import Future
 from pathlib import Path
 
 import numpy as np
@@ -604,3 +605,24 @@ def test_a_slot_callback_that_drops_the_running_job_is_not_waited_for_by_it() ->
     finally:
         SHARED_WORKER.yield_to_slots(was)
         closer.close()
+
+
+
+def test_a_slot_callback_taking_a_result_without_waiting_keeps_its_mark(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """``take()`` without a wait never blocks on the worker, so the callback's slot-work mark
+    stays where it is: lifting it, even for a moment, could wake a worker waiting for the
+    slots in the middle of the callback. Waiting for the job lifts it (as discard does)."""
+    closer = LoopCloser(min_gap=40, confirmations=0)
+    closer._running = Future()                           # a job still running
+    changes: list[int] = []
+    mark = SHARED_WORKER._mark
+    monkeypatch.setattr(SHARED_WORKER, "_mark", lambda c: (changes.append(c), mark(c)))
+    with SHARED_WORKER.slot_work():
+        changes.clear()
+        assert closer.take() is None
+        assert changes == [] and not SHARED_WORKER.slots_idle
+        assert closer.take(wait_s=0.01) is None
+        assert changes == [-1, 1] and not SHARED_WORKER.slots_idle
+    assert SHARED_WORKER.slots_idle
+    closer._running = None

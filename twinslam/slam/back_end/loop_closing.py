@@ -505,12 +505,14 @@ class LoopCloser:
         """The finished job's result (once), waiting up to ``wait_s`` for a running one; None
         while it runs or when none was started."""
         if self._running is not None:
-            try:
-                with SHARED_WORKER.outside_slot_work():
-                    self._done = self._running.result(timeout=wait_s) if wait_s > 0 or \
-                        self._running.done() else None
-            except TimeoutError:
-                return None
+            if wait_s <= 0:
+                self._done = self._running.result() if self._running.done() else None
+            else:
+                try:        # the caller blocks on the worker: its slot-work marks lifted
+                    with SHARED_WORKER.outside_slot_work():
+                        self._done = self._running.result(timeout=wait_s)
+                except TimeoutError:
+                    return None
             if self._done is None:
                 return None
             self._running = None
