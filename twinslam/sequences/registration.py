@@ -35,18 +35,17 @@ def register_depth(depth: np.ndarray, depth_intrinsics: np.ndarray,
         raise ValueError(f"a depth image is H×W, got shape {depth.shape}")
     kd = camera_matrix(depth_intrinsics, "depth")
     kc = camera_matrix(colour_intrinsics, "colour")
-    moved = depth_to_colour is not None
-    t = np.eye(4) if depth_to_colour is None else camera_placement(depth_to_colour)
-    floats = depth if depth.dtype in (np.float32, np.float64) else depth.astype(np.float64)
-    if not moved:
+    floats = np.ascontiguousarray(depth if depth.dtype in (np.float32, np.float64)
+                                  else depth.astype(np.float64))
+    if depth_to_colour is None:
         h, w = depth.shape
-        nearest = _warp_by_row_and_column(np.ascontiguousarray(floats),
+        nearest = _warp_by_row_and_column(floats,
                                           _target_lines(w, kd[0, 0], kd[0, 2], kc[0, 0], kc[0, 2]),
                                           _target_lines(h, kd[1, 1], kd[1, 2], kc[1, 1], kc[1, 2]))
     else:
-        nearest = _forward_warp(np.ascontiguousarray(floats), kd, kc,
-                                np.ascontiguousarray(t[:3, :3]), np.ascontiguousarray(t[:3, 3]),
-                                moved)
+        t = camera_placement(depth_to_colour)
+        nearest = _forward_warp(floats, kd, kc, np.ascontiguousarray(t[:3, :3]),
+                                np.ascontiguousarray(t[:3, 3]))
     return nearest.astype(depth.dtype, copy=False)
 
 
@@ -84,10 +83,10 @@ def _warp_by_row_and_column(depth: np.ndarray, columns: np.ndarray,
 
 @njit(cache=True)
 def _forward_warp(depth: np.ndarray, kd: np.ndarray, kc: np.ndarray, rotation: np.ndarray,
-                  translation: np.ndarray, moved: bool) -> np.ndarray:
-    """The warp of :func:`register_depth`, one pass over the pixels in float64 whatever the
-    depth's float type (the array form — back-project all, project all, ``np.minimum.at`` —
-    took 22 ms a 640×480 frame, most of the player's time on 7-Scenes)."""
+                  translation: np.ndarray) -> np.ndarray:
+    """The warp of :func:`register_depth` across a baseline, one pass over the pixels in
+    float64 whatever the depth's float type (the array form — back-project all, project all,
+    ``np.minimum.at`` — took 22 ms a 640×480 frame, most of the player's time on 7-Scenes)."""
     h, w = depth.shape
     nearest = np.zeros((h, w), dtype=depth.dtype)
     for v in range(h):
@@ -97,13 +96,12 @@ def _forward_warp(depth: np.ndarray, kd: np.ndarray, kc: np.ndarray, rotation: n
                 continue
             x = (u - kd[0, 2]) / kd[0, 0] * z
             y = (v - kd[1, 2]) / kd[1, 1] * z
-            if moved:
-                x, y, z = (rotation[0, 0] * x + rotation[0, 1] * y + rotation[0, 2] * z
-                           + translation[0],
-                           rotation[1, 0] * x + rotation[1, 1] * y + rotation[1, 2] * z
-                           + translation[1],
-                           rotation[2, 0] * x + rotation[2, 1] * y + rotation[2, 2] * z
-                           + translation[2])
+            x, y, z = (rotation[0, 0] * x + rotation[0, 1] * y + rotation[0, 2] * z
+                       + translation[0],
+                       rotation[1, 0] * x + rotation[1, 1] * y + rotation[1, 2] * z
+                       + translation[1],
+                       rotation[2, 0] * x + rotation[2, 1] * y + rotation[2, 2] * z
+                       + translation[2])
             if not z > 0:
                 continue
             uc = np.rint(kc[0, 0] * x / z + kc[0, 2])
