@@ -6,6 +6,10 @@ PY := $(VENV)/bin/python
 # the editable install maps each top-level package: a package added or renamed reinstalls it
 STAMP := $(VENV)/.installed-$(shell (cat requirements.txt setup.py; ls -d */__init__.py) \
 	| md5sum | cut -c1-12)
+# uv installs the requirements, from the sources pip is configured with (pip where uv cannot be
+# installed; `make INSTALLER=pip` asks for pip): pip's resolution alone took 74 s on one core
+# (tools/install_requirements.py says why)
+INSTALLER ?= uv
 BYTECODE_STAMP := $(subst .installed-,.bytecode-,$(STAMP))
 # an interface package is rebuilt whenever one of its .msg files or its CMake/package files
 # change: twinslam_msgs (the protocol) and tf2_msgs (msg_schemas/standard: no wheel carries it)
@@ -36,7 +40,7 @@ KERNELS_STAMP := $(VENV)/.kernels-$(shell cat $(KERNEL_SOURCES) | md5sum | cut -
 
 # After pip, the set-up steps run side by side in a sub-make with two jobs (whatever -j make was
 # given): the three interface packages, the bytecode of what the project imports (pip would
-# compile all it installs on one core, 44 of its 91 s measured; pip runs with --no-compile),
+# compile all it installs on one core, 44 of its 91 s measured; neither uv nor pip compiles),
 # and the kernels (they need twinslam_msgs, not tf2_msgs).
 venv:
 	@$(MAKE) --no-print-directory -j2 --output-sync=target venv-parts
@@ -44,9 +48,9 @@ venv:
 venv-parts: $(STAMP) $(MSGS_STAMP) $(TF2_STAMP) $(COMPOSITION_STAMP) $(AMENT_STAMP) \
 	$(BYTECODE_STAMP) $(KERNELS_STAMP)
 
-$(STAMP): requirements.txt setup.py
+$(STAMP): requirements.txt setup.py tools/install_requirements.py
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --quiet --disable-pip-version-check --no-compile -r requirements.txt
+	$(PY) tools/install_requirements.py $(PY) requirements.txt --installer $(INSTALLER)
 	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e .
 	@rm -f $(VENV)/.installed-* $(VENV)/.bytecode-* && touch $@
 
