@@ -10,6 +10,8 @@ import time
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from device_tracker.messages import FrameRecord, frame_summaries_message
 from twinslam.covisibility.dataset import CovisibilityDataset
@@ -98,6 +100,37 @@ def test_the_fitted_threshold_separates_failures_from_tracked_frames() -> None:
     assert level_min_shared(frames, range(1, 60)) == 9
     with pytest.raises(ValueError, match="no threshold"):
         level_min_shared(frames, range(1, 3))
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(st.tuples(st.integers(0, 60), st.booleans(), st.booleans()), min_size=1,
+                max_size=40))
+def test_the_thresholds_counted_at_once_are_the_ones_tried_frame_by_frame(
+        rows: list[tuple[int, bool, bool]]) -> None:
+    """The fit and the levelling count every threshold's lost frames by a search in the
+    sorted counts; each must pick what trying every k on every frame picks (ties to the
+    smallest k; a frame without a finite u lost at any k)."""
+    frames = [CalibrationFrame(FramePrediction(n, float(n), -1.0 * n if finite else math.inf),
+                               tracked, 0, math.nan) for n, tracked, finite in rows]
+    ks = range(1, 70)
+    scores = [balanced_accuracy(frames, k) for k in ks]
+    if any(math.isnan(x) for x in scores):
+        with pytest.raises(ValueError, match="failures and tracked frames"):
+            fit_min_shared(frames, ks)
+    else:
+        best_k, best = 0, -1.0
+        for k, score in zip(ks, scores, strict=True):
+            if score > best + 1e-12:
+                best_k, best = k, score
+        assert fit_min_shared(frames, ks) == (best_k, best)
+    failed = sum(not f.device_tracked for f in frames) / len(frames)
+    levelled = [k for k in ks
+                if sum(f.prediction.lost(k) for f in frames) / len(frames) >= failed]
+    if levelled:
+        assert level_min_shared(frames, ks) == levelled[0]
+    else:
+        with pytest.raises(ValueError, match="no threshold"):
+            level_min_shared(frames, ks)
 
 
 def test_played_stamps_find_their_recorded_frames() -> None:

@@ -167,17 +167,44 @@ def balanced_accuracy(frames: Sequence[CalibrationFrame], min_shared: int) -> fl
     return 0.5 * (hit + kept)
 
 
+class _SharedCounts:
+    """How many of a set of frames each rule "lost: fewer than k shared map points" calls
+    lost, for any k at once: the frames no k can keep (no finite u) plus those of the rest
+    with fewer than k points — a binary search in their sorted counts, where trying two
+    hundred thresholds frame by frame took seconds on a ten-run evaluation."""
+
+    def __init__(self, frames: Sequence[CalibrationFrame]) -> None:
+        shared = np.array([f.prediction.shared_points for f in frames], dtype=np.int64)
+        finite = np.isfinite(np.array([f.prediction.uncertainty for f in frames],
+                                      dtype=np.float64))
+        self.size = len(frames)
+        self.always_lost = int(np.count_nonzero(~finite))
+        self._sorted = np.sort(shared[finite])
+
+    def lost(self, candidates: Sequence[int]) -> list[int]:
+        """The number of frames each of ``candidates`` calls lost."""
+        below = np.searchsorted(self._sorted, np.asarray(candidates, dtype=np.int64),
+                                side="left")
+        return [self.always_lost + int(n) for n in below]
+
+
 def fit_min_shared(frames: Sequence[CalibrationFrame], candidates: Iterable[int] = range(1, 201)
                    ) -> tuple[int, float]:
     """(k, balanced accuracy) of the threshold that best separates the device's failures
-    from its tracked frames; the smallest such k on ties. ValueError when the frames hold no
-    failure or no tracked frame (nothing to separate)."""
+    from its tracked frames (:func:`balanced_accuracy`, each k's); the smallest such k on
+    ties. ValueError when the frames hold no failure or no tracked frame (nothing to
+    separate)."""
+    ks = list(candidates)
+    fails = _SharedCounts([f for f in frames if not f.device_tracked])
+    tracked = _SharedCounts([f for f in frames if f.device_tracked])
+    if not fails.size or not tracked.size:
+        if not ks:
+            raise ValueError("no threshold to try")
+        raise ValueError("the frames need device failures and tracked frames to fit a "
+                         "threshold")
     best: tuple[int, float] | None = None
-    for k in candidates:
-        score = balanced_accuracy(frames, k)
-        if math.isnan(score):
-            raise ValueError("the frames need device failures and tracked frames to fit a "
-                             "threshold")
+    for k, hit, dropped in zip(ks, fails.lost(ks), tracked.lost(ks), strict=True):
+        score = 0.5 * (hit / fails.size + (tracked.size - dropped) / tracked.size)
         if best is None or score > best[1] + 1e-12:
             best = (k, score)
     if best is None:
@@ -193,7 +220,8 @@ def level_min_shared(frames: Sequence[CalibrationFrame], candidates: Iterable[in
     if not rows:
         raise ValueError("no frames to level a threshold on")
     failed = sum(not f.device_tracked for f in rows) / len(rows)
-    for k in candidates:
-        if sum(f.prediction.lost(k) for f in rows) / len(rows) >= failed:
+    ks = list(candidates)
+    for k, lost in zip(ks, _SharedCounts(rows).lost(ks), strict=True):
+        if lost / len(rows) >= failed:
             return k
     raise ValueError(f"no threshold predicts the device's failure share {failed:.1%}")
