@@ -343,7 +343,8 @@ class DeviceLink:
             stamp=now, keyframe_budget=entry.vmax,
             latency_ms=entry.latency_s(self.slots.clock()) * 1000,
             archived=len(self.core.archive), restored=len(out.restored),
-            refused=len(out.refused), frame_id=frame, loops_closed=self.core.loops_closed,
+            refused=len(out.refused), missing=len(out.not_in),
+            frame_id=frame, loops_closed=self.core.loops_closed,
             loop_ms=out.loop.worker_ms if out.loop else 0.0,
             loops_refused=self.core.loops_refused))
         if out.loop is not None and out.loop.old < 0:

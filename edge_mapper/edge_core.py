@@ -118,6 +118,12 @@ class SlotOutcome:
     #: archive's files not written: a restart would read the poses before the loop)
     loop_failures: list[str] = field(default_factory=list)
 
+    @property
+    def not_in(self) -> list[int]:
+        """Uploads asked for that neither arrived in time nor were refused: the device no
+        longer held them, or they were lost or late (MapStats' ``missing_keyframes``)."""
+        return sorted(set(self.missing) - self.refused.keys())
+
 
 class EdgeMapperCore:
     """One device's slots at the edge: plans, the keyframes they ask for, evictions, restores,

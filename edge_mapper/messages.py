@@ -85,7 +85,8 @@ def map_stats_message(slot: int, policy: str, keyframe_map: KeyFrameMap, uncerta
                       processing_ms: float, stamp: float, keyframe_budget: int = 0,
                       latency_ms: float = math.nan, archived: int = 0, restored: int = 0,
                       refused: int = 0, frame_id: str = "", loops_closed: int = 0,
-                      loop_ms: float = 0.0, loops_refused: int = 0) -> MapStats:
+                      loop_ms: float = 0.0, loops_refused: int = 0, missing: int = 0
+                      ) -> MapStats:
     """``MapStats``, its header in ``frame_id`` (the map frame its keyframe counts describe, so
     a viewer or a bag reader can tell one device's map from another's); u = +inf for a
     disconnected map and υ = NaN (unknown, or no tracked frame) are sent as they are (IEEE
@@ -95,7 +96,8 @@ def map_stats_message(slot: int, policy: str, keyframe_map: KeyFrameMap, uncerta
     msg = new(MapStats, slot=slot, policy=policy,
               map_size=len(keyframe_map.keyframes), map_points=len(keyframe_map.points),
               archived_keyframes=archived, restored_keyframes=restored,
-              refused_keyframes=refused, keyframe_budget=keyframe_budget,
+              refused_keyframes=refused, missing_keyframes=missing,
+              keyframe_budget=keyframe_budget,
               uncertainty=float(uncertainty),
               mean_uncertainty=upsilon.objective if upsilon else math.nan,
               tracked_uncertainty=upsilon.tracked_uncertainty if upsilon else math.nan,

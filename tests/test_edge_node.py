@@ -1,6 +1,6 @@
 """edge_mapper as its own process: frame summaries in, upload requests out, keyframes in, map
 updates and stats out; a corrupt keyframe is dropped; SIGKILL and restart resume from the
-checkpoint."""
+checkpoint; a slot whose device sent fewer than asked closes at once and counts the rest."""
 
 from __future__ import annotations
 
@@ -9,15 +9,28 @@ import time
 from pathlib import Path
 
 import numpy as np
-from twinslam_msgs.msg import FrameSummaries, Keyframe, MapStats, MapUpdate, UploadRequest
+from twinslam_msgs.msg import (
+    FrameSummaries,
+    Keyframe,
+    MapStats,
+    MapUpdate,
+    UplinkThroughput,
+    UploadRequest,
+)
 
-from device_tracker.messages import FrameRecord, frame_summaries_message, keyframe_message
+from device_tracker.messages import (
+    FrameRecord,
+    frame_summaries_message,
+    keyframe_message,
+    uplink_throughput_message,
+)
 from msg_schemas import qos, topics
 from tests.test_edge_core import Device, K
 from twinslam.hosts.loopback import LoopbackDomain
 from twinslam.live.launcher import preloaded_nodes
 from twinslam.node_runtime.session import RosSession
 from twinslam.slam.keyframe import TRACK_ID_BIT, KeyFramePayload
+from twinslam.uplink.shaper import SlotThroughput
 
 F = 8
 
@@ -62,6 +75,7 @@ def test_edge_node_protocol_corrupt_keyframe_and_restart(
     node = ros.node
     pub_sum = node.create_publisher(FrameSummaries, topics.FRAME_SUMMARIES, qos.PROTOCOL)
     pub_kf = node.create_publisher(Keyframe, topics.KEYFRAMES, qos.PROTOCOL)
+    pub_sent = node.create_publisher(UplinkThroughput, topics.UPLINK_THROUGHPUT, qos.PROTOCOL)
     got: dict[str, list] = {"request": [], "map": [], "stats": []}
     node.create_subscription(UploadRequest, topics.UPLOAD_REQUEST, got["request"].append,
                              qos.PROTOCOL)
@@ -72,7 +86,9 @@ def test_edge_node_protocol_corrupt_keyframe_and_restart(
             "-p", f"checkpoint:={ckpt}", "-p", "ba_window:=6", "-p", "d_req_s:=0.5",
             "-p", "restore_keyframes:=0"]
 
-    def run_slot(slot: int, rate: float) -> None:
+    def run_slot(slot: int, rate: float, withheld: int = 0) -> None:
+        """One slot's summaries and the keyframes asked for, ``withheld`` of them not sent
+        (the device's throughput report says so)."""
         n_req, n_map = len(got["request"]), len(got["map"])
         pub_sum.publish(_summaries(device, slot, rate))
         assert ros.spin_until(lambda: len(got["request"]) > n_req, 30.0), f"slot {slot}"
@@ -83,8 +99,12 @@ def test_edge_node_protocol_corrupt_keyframe_and_restart(
             bad.keypoints_xy = np.zeros(6, np.float32)
             bad.descriptors = np.zeros(64, np.uint8)
             pub_kf.publish(bad)
-        for f in req.upload_frame_ids:
+        sent = list(req.upload_frame_ids)[:len(req.upload_frame_ids) - withheld]
+        for f in sent:
             pub_kf.publish(_keyframe(device, int(f), slot))
+        if withheld:
+            pub_sent.publish(uplink_throughput_message(
+                SlotThroughput(slot, rate, int(rate > 50), 0, 0.5, len(sent)), time.time()))
         assert ros.spin_until(lambda: len(got["map"]) > n_map and got["map"][-1].slot == slot,
                               60.0), f"no map update for slot {slot}"
 
@@ -122,6 +142,12 @@ def test_edge_node_protocol_corrupt_keyframe_and_restart(
     assert ros.spin_until(lambda: bool(summary_readers() - killed_readers), 30.0)
     run_slot(3, 40.0)
     assert got["map"][-1].map_version == 4
+    # the device no longer held one of slot 4's frames: the slot closes on its report (not
+    # after slot_timeout_s) and MapStats accounts for every upload asked for
+    run_slot(4, 60.0, withheld=1)
+    assert ros.spin_until(lambda: got["stats"][-1].slot == 4, 10.0)
+    stats = got["stats"][-1]
+    assert (stats.uploads, stats.refused_keyframes, stats.missing_keyframes) == (5, 0, 1)
     code, _, err = domain.stop(edge)
     assert code == 0, err
     assert "restored map version 3" in err

@@ -122,8 +122,10 @@ def _assert_slots_consistent(record: RunLog, slots: int) -> None:
         sent = record.throughput[slot]
         assert sent.frames_sent == asked, f"slot {slot}: {sent.frames_sent} sent of {asked}"
         stats = record.stats[slot]
+        assert stats.uploads + stats.refused_keyframes + stats.missing_keyframes == asked
         assert stats.uploads + stats.refused_keyframes == asked, f"slot {slot}: integrated " \
-            f"{stats.uploads} and refused {stats.refused_keyframes} of {asked}"
+            f"{stats.uploads}, refused {stats.refused_keyframes}, not in when the slot closed " \
+            f"{stats.missing_keyframes} of {asked}"
         assert record.stats[slot].map_size <= VMAX
 
 

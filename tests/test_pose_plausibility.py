@@ -141,7 +141,8 @@ def test_the_edge_refuses_a_keyframe_no_camera_could_have_taken(fault: str) -> N
     """A keyframe at 10¹² m, one with a NaN in its pose, one shifted 0.25 m (within reach)
     so its own matched points reproject tens of pixels off: each is refused, counted with
     its reason, never enters the map or the archive, and counts as an upload that never came
-    (the slot evicts only for what it integrated). The slot's other uploads integrate."""
+    (the slot evicts only for what it integrated). The slot's other uploads integrate but one
+    that never comes: refused and never-come are told apart (MapStats counts each)."""
     core, device = _edge()
     slot = 3
     frames = [device.summary(f, core) for f in range(slot * F, (slot + 1) * F)]
@@ -160,10 +161,12 @@ def test_the_edge_refuses_a_keyframe_no_camera_could_have_taken(fault: str) -> N
     expected = {"far": "out of reach", "nan": "non-finite",
                 "inconsistent": "matched map points reproject"}[fault]
     assert expected in report.refused
+    *good, never = good
     for f in good:
         assert not core.add_keyframe(device.keyframe(f, slot, core)).refused
     out = core.finish_slot(slot)
     assert out.refused == {bad: report.refused}
+    assert sorted(out.missing) == sorted([bad, never]) and out.not_in == [never]
     assert bad in out.missing and bad not in out.integrated and bad not in core.map.keyframes
     assert bad not in core.archive
     assert len(out.evicted) == len(out.integrated)           # room made only for what came
