@@ -62,7 +62,8 @@ def _run() -> RunLog:
         log.throughput[slot] = uplink_throughput_message(
             SlotThroughput(slot, 40.0, 0, sent * 625_000, 0.5, sent), slot + 0.5)
         log.stats[slot] = map_stats_message(slot, "lff", KeyFrameMap(), 0.0, None, sent, 0.0,
-                                            1.0, slot + 0.6, refused=int(slot == 3))
+                                            1.0, slot + 0.6, refused=int(slot == 3),
+                                            missing=int(slot == 1))
     return log
 
 
@@ -74,7 +75,7 @@ def test_the_report_counts_a_leap_jitter_refusals_and_slots_without_upload() -> 
     assert rep.jitter_median_mm == pytest.approx(8.0, abs=0.5)
     assert rep.jitter_over_20mm == 3 and rep.jitter_p95_mm > 100
     assert rep.truth_jitter_rms_mm == pytest.approx(1.0)   # the walk's own curve
-    assert rep.poses_refused == 1 and rep.keyframes_refused == 1
+    assert rep.poses_refused == 1 and rep.keyframes_refused == 1 and rep.keyframes_missing == 1
     # frames 5 and 6 of the 38 tracked were posed by PnP RANSAC (31, untracked, counts not)
     assert rep.pnp_ransac_share == pytest.approx(2 / 38)
     assert rep.longest_no_upload_slots == 2                   # slots 1 and 2

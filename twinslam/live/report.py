@@ -133,6 +133,9 @@ class RunReport:
     #: the ATE of the published poses anchored so: the trajectory as the edge's final map
     #: has it (ORB-SLAM's saved trajectory), where ``ate_m`` is the poses as published then
     anchored_ate_m: float = math.nan
+    #: uploads asked for that were not in when their slot closed (MapStats'
+    #: ``missing_keyframes``: frames the device no longer held, or keyframes lost or late)
+    keyframes_missing: float = math.nan
 
     ROW = ("{label:<14} {mean_uncertainty:>10.1f} {lost_share:>6.1%} "
            "{tracked_uncertainty:>10.1f} {ate_m:>7.3f} "
@@ -286,7 +289,8 @@ def report(policy: str, record: RunLog, seconds: float, slot_frames: int) -> Run
         loop_closing_ms=loop_ms, outlier_share=outlier_share(record),
         loops_refused=float(max(int(s.loops_refused) for s in stats)) if stats else math.nan,
         duplicate_share=map_duplicate_share(record),
-        anchored_revisit_error_m=anchored_revisit, anchored_ate_m=anchored_ate)
+        anchored_revisit_error_m=anchored_revisit, anchored_ate_m=anchored_ate,
+        keyframes_missing=float(sum(int(s.missing_keyframes) for s in stats)))
 
 
 def map_duplicate_share(record: RunLog) -> float:
