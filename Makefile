@@ -51,6 +51,10 @@ venv-parts: $(STAMP) $(MSGS_STAMP) $(TF2_STAMP) $(COMPOSITION_STAMP) $(AMENT_STA
 $(STAMP): requirements.txt setup.py tools/install_requirements.py
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) tools/install_requirements.py $(PY) requirements.txt --installer $(INSTALLER)
+	@# colcon marks an install base's layout on first use by truncating, then writing a file:
+	@# two of the interface builds starting at once into a fresh venv, one read it empty and
+	@# refused ("created with the layout ''"). Marked here, before they run side by side.
+	@echo merged > $(VENV)/.colcon_install_layout
 	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e .
 	@rm -f $(VENV)/.installed-* $(VENV)/.bytecode-* && touch $@
 
