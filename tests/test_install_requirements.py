@@ -9,6 +9,8 @@ import sys
 from pathlib import Path
 from types import ModuleType
 
+import pytest
+
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -65,3 +67,18 @@ def test_uv_gets_every_source_pip_has_and_picks_the_best_version_over_all() -> N
     assert ("--index-url", "https://mirror.example/simple") in pairs
     assert "--prerelease=allow" in args and "--no-index" not in args
     assert env == {"SSL_CERT_FILE": "/etc/ssl/certs/ca-certificates.crt"}
+
+
+def test_credentials_in_an_index_url_are_not_printed(capsys: pytest.CaptureFixture[str],
+                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """The command line it prints (a CI log) hides the user and token of a private index; uv
+    itself gets them."""
+    module = _installer()
+    run: list[list[str]] = []
+    monkeypatch.setattr(module, "pip_configuration", lambda python: {
+        "index-url": "https://ci:s3cret@mirror.example/simple"})
+    monkeypatch.setattr(module.subprocess, "call", lambda command, env: run.append(command) or 0)
+    assert module.install_with_uv("/venv/bin/python", "requirements.txt", Path("/venv/bin/uv")) == 0
+    printed = capsys.readouterr().out
+    assert "s3cret" not in printed and "https://***@mirror.example/simple" in printed
+    assert "https://ci:s3cret@mirror.example/simple" in run[0]

@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import ast
 import os
+import re
 import shlex
 import subprocess
 import sys
@@ -118,7 +119,8 @@ def install_with_uv(python: str, requirements: str, uv: Path) -> int:
     args, env = uv_arguments(pip_configuration(python))
     command = [str(uv), "pip", "install", "--quiet", "--python", python, *args,
                "-r", requirements]
-    print("installing", requirements, "with", shlex.join(command[1:3] + args), flush=True)
+    shown = [re.sub(r"(?<=//)[^/@\s]+@", "***@", arg) for arg in command[1:3] + args]
+    print("installing", requirements, "with uv", shlex.join(shown[1:]), flush=True)
     return subprocess.call(command, env={**os.environ, **env})
 
 
