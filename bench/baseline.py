@@ -71,6 +71,21 @@ def alternately(baseline: str | None, rounds: int,
     return runs
 
 
+def drive_alternately(baseline: str | None, rounds: int, driver: str, args: list[str],
+                      describe: Callable[[dict[str, Any]], str]) -> dict[str, list[Any]]:
+    """``driver`` (:func:`run_in_tree`) in the baseline's tree and this one, alternating
+    round by round, each round's JSON printed as ``describe`` says; the results by tree as
+    a reader names them (the baseline's commit, "this tree"), baseline first."""
+    def measure(r: int, label: str, root: Path) -> Any:
+        result = run_in_tree(root, driver, *args)
+        print(f"round {r + 1} {label}: {describe(result)}", flush=True)
+        return result
+
+    trees = alternately(baseline, rounds, measure)
+    return {(baseline if label == "baseline" and baseline else "this tree"): runs
+            for label, runs in trees.items()}
+
+
 def add_baseline_options(parser: argparse.ArgumentParser, rounds: int, rounds_help: str) -> None:
     """``--baseline COMMIT`` and ``--rounds N`` as every side-by-side benchmark takes them
     (``rounds_help``: what one round is, the default appended)."""

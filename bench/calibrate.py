@@ -15,7 +15,7 @@ import argparse
 import statistics
 from pathlib import Path
 
-from bench.baseline import REPO, add_baseline_options, alternately, run_in_tree
+from bench.baseline import REPO, add_baseline_options, drive_alternately
 
 DEFAULT_FOLDERS = [REPO / "docs" / "figures" / "default-device" / name
                    for name in ("table-i-300", "table-i-1000")]
@@ -42,22 +42,14 @@ def main() -> None:
     add_baseline_options(parser, 3, "fresh interpreters per tree")
     args = parser.parse_args()
     folders = [str(folder.resolve()) for folder in args.folders]
-
-    def measure(r: int, label: str, root: Path) -> dict[str, float]:
-        result: dict[str, float] = run_in_tree(root, _DRIVER, *folders)
-        if result["code"] != 0:
-            raise SystemExit(f"twinslam calibrate failed in {root} (exit {result['code']})")
-        print(f"round {r + 1} {label}: {result['cpu_s']:.2f} s of CPU, "
-              f"{result['seconds']:.2f} s", flush=True)
-        return result
-
-    trees = alternately(args.baseline, args.rounds, measure)
-    for label, runs in trees.items():
-        name = args.baseline if label == "baseline" else "this tree"
+    trees = drive_alternately(args.baseline, args.rounds, _DRIVER, folders, lambda result: (
+        f"{result['cpu_s']:.2f} s of CPU, {result['seconds']:.2f} s (exit {result['code']})"))
+    for name, runs in trees.items():
+        if any(run["code"] != 0 for run in runs):
+            raise SystemExit(f"twinslam calibrate failed in {name}")
         cpu = [run["cpu_s"] for run in runs]
         print(f"{name:<12} calibrate: median {statistics.median(cpu):.2f} s of CPU "
               f"(min {min(cpu):.2f}, max {max(cpu):.2f}, {len(cpu)} runs)")
-
 
 if __name__ == "__main__":
     main()

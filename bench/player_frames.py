@@ -18,7 +18,7 @@ import argparse
 import statistics
 from pathlib import Path
 
-from bench.baseline import add_baseline_options, alternately, run_in_tree
+from bench.baseline import add_baseline_options, drive_alternately
 from bench.gauge import cpu_gauge
 
 DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes-1000"
@@ -64,16 +64,11 @@ def main() -> None:
         parser.error("--frames and --rounds must be at least 1")
     print(cpu_gauge(), "(before)", flush=True)
 
-    def measure(r: int, label: str, root: Path) -> dict[str, float]:
-        result: dict[str, float] = run_in_tree(root, _DRIVER, args.sequence, str(args.frames))
-        print(f"round {r + 1} {label}: read {result['read_ms']:.1f} ms, messages "
-              f"{result['messages_ms']:.1f} ms a frame ({int(result['frames'])} frames)",
-              flush=True)
-        return result
-
-    trees = alternately(args.baseline, args.rounds, measure)
-    for label, runs in trees.items():
-        name = args.baseline if label == "baseline" else "this tree"
+    trees = drive_alternately(
+        args.baseline, args.rounds, _DRIVER, [args.sequence, str(args.frames)],
+        lambda result: f"read {result['read_ms']:.1f} ms, messages {result['messages_ms']:.1f} "
+                       f"ms a frame ({int(result['frames'])} frames)")
+    for name, runs in trees.items():
         read = [r["read_ms"] for r in runs]
         messages = [r["messages_ms"] for r in runs]
         print(f"{name:<12} CPU a frame: read (decode + registration) median "

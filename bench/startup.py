@@ -13,9 +13,8 @@ from __future__ import annotations
 
 import argparse
 import statistics
-from pathlib import Path
 
-from bench.baseline import add_baseline_options, alternately, run_in_tree
+from bench.baseline import add_baseline_options, drive_alternately
 
 #: one fresh interpreter's import of the command line and its parser for the command in
 #: argv[1], timed from inside it after start-up (a tree older than the parser of one command
@@ -42,15 +41,10 @@ def main() -> None:
     add_baseline_options(parser, 10, "fresh interpreters per tree")
     args = parser.parse_args()
 
-    def measure(r: int, label: str, root: Path) -> dict[str, float | bool]:
-        result: dict[str, float | bool] = run_in_tree(root, _DRIVER, args.command)
-        print(f"round {r + 1} {label}: {float(result['seconds']):.2f} s "
-              f"({float(result['cpu_s']):.2f} s of CPU)", flush=True)
-        return result
-
-    trees = alternately(args.baseline, args.rounds, measure)
-    for label, runs in trees.items():
-        name = args.baseline if label == "baseline" else "this tree"
+    trees = drive_alternately(args.baseline, args.rounds, _DRIVER, [args.command],
+                              lambda result: f"{float(result['seconds']):.2f} s "
+                                             f"({float(result['cpu_s']):.2f} s of CPU)")
+    for name, runs in trees.items():
         seconds = [float(r["seconds"]) for r in runs]
         cpu = [float(r["cpu_s"]) for r in runs]
         imported = [float(r["import_s"]) for r in runs]
