@@ -7,6 +7,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+import pytest
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import DescribeParameters, ListParameters, SetParameters
 from twinslam_msgs.msg import FrameSummaries, UploadRequest
@@ -89,3 +90,24 @@ def test_edge_parameters_are_listed_refused_with_reasons_and_changed_live(
     assert code == 0, err[-2000:]
     assert "slot 1: parameters now" in err and "V_max 12" in err
     assert err.count("cannot switch to {'policy': 'mbrl'}") == 1
+
+
+def test_a_whole_number_given_to_a_float_parameter_is_refused_with_what_to_write(
+        domain: LoopbackDomain) -> None:
+    """``-p slot_timeout_s:=60`` is an integer to ROS and a float parameter refuses it at
+    start (rclpy's rule); the error says to write 60.0."""
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter as RclpyParameter
+
+    from edge_mapper.parameters import PARAMETERS
+    from twinslam.node_runtime.parameters import ParameterStartError, declare
+
+    spec = next(s for s in PARAMETERS if s.name == "slot_timeout_s")
+    with RosSession("float_parameter_given_60") as session:
+        node = Node("edge_mapper", context=session.context, parameter_overrides=[
+            RclpyParameter("slot_timeout_s", RclpyParameter.Type.INTEGER, 60)])
+        try:
+            with pytest.raises(ParameterStartError, match=r"write slot_timeout_s:=60\.0"):
+                declare(node, [spec])
+        finally:
+            node.destroy_node()

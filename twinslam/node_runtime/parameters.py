@@ -11,6 +11,7 @@ channel spec that must parse) that runs on every set with the reason returned to
 
 from __future__ import annotations
 
+import re
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -103,7 +104,16 @@ def declare(node: Node, specs: Sequence[ParamSpec]) -> dict[str, Any]:
         except InvalidParameterTypeException as exc:
             raise ParameterStartError(
                 f"parameter {spec.name} takes a {type(spec.default).__name__} "
-                f"({spec.description}): {exc}") from None
+                f"({spec.description}): {exc}{_decimal_hint(spec, exc)}") from None
         except (InvalidParameterValueException, ParameterException) as exc:
             raise ParameterStartError(f"parameter {spec.name}: {exc}") from None
     return values
+
+
+def _decimal_hint(spec: ParamSpec, exc: Exception) -> str:
+    """For a float parameter given a whole number (``-p slot_timeout_s:=60``): ROS reads it
+    as an integer and refuses it, the most common way to meet this error; say what to write."""
+    given = re.search(r"to '(-?\d+)' of type 'INTEGER'", str(exc))
+    if isinstance(spec.default, float) and given:
+        return f" (ROS reads {given[1]} as an integer: write {spec.name}:={given[1]}.0)"
+    return ""
