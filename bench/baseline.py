@@ -15,9 +15,10 @@ from contextlib import contextmanager, nullcontext
 from pathlib import Path
 from typing import Any, TypeVar
 
+from bench.paths import REPO
+
 T = TypeVar("T")
 
-REPO = Path(__file__).resolve().parents[1]
 
 #: prepended to every driver: the tree's own twinslam must be the one imported
 _CHECK_TREE = """

@@ -32,7 +32,8 @@ import time
 from datetime import UTC, datetime
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+from bench.paths import REPO
+
 SHARED = REPO.parent / "shared"
 FIELDS = ["date_utc", "commit", "load", "rc", "wall_s", "cpu_s", "probe_s", "pytest_s",
           "passed", "failed", "skipped", "failures"]

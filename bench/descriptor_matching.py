@@ -22,11 +22,12 @@ import cv2
 import faiss
 import numpy as np
 
+from bench.paths import SEVEN_SCENES
 from twinslam.sequences.opening import open_sequence
 from twinslam.slam.descriptor_matching import hamming_rows, match_descriptors
 from twinslam.slam.front_end.orb_extractor import OrbExtractor
 
-DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes-1000"
+DEFAULT = SEVEN_SCENES
 
 
 def knn_match_objects(query: np.ndarray, train: np.ndarray, max_hamming: int, ratio: float

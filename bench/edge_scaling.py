@@ -95,6 +95,7 @@ from twinslam_msgs.msg import (
     UploadRequest,
 )
 
+from bench.paths import REPO, SEVEN_SCENES
 from msg_schemas import qos, topics
 from twinslam.hosts.loopback import LoopbackDomain, ProcessDomain
 from twinslam.hosts.netns import NetnsHosts, unavailable_reason
@@ -103,8 +104,7 @@ from twinslam.node_runtime.session import RosSession
 from twinslam.reporting import pyplot, write_dict_rows
 from twinslam.slot_protocol import table1
 
-REPO = Path(__file__).resolve().parents[1]
-SEVEN = REPO.parent / "shared" / "data" / "7scenes-1000"
+SEVEN = SEVEN_SCENES
 #: the line a device's edge logs when its map moved into another device's place
 MOVED_LINE = re.compile(r"slot \d+: map merged into ")
 #: the longest the emulator sleeps without looking at its clock (a device that is due sends

@@ -31,6 +31,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 from twinslam_msgs.msg import FrameSummaries, Keyframe
 
 from bench.in_process import ServedSlot, open_walk, repeatable_edge
+from bench.paths import SEVEN_SCENES
 from device_tracker.device_core import DeviceTrackerCore
 from device_tracker.messages import frame_summaries_message, keyframe_message, read_map_update
 from edge_mapper.edge_core import EdgeMapperCore
@@ -45,7 +46,7 @@ from edge_mapper.visual_messages import decisions_message, keyframes_message, ma
 from twinslam.cli.console import HelpFormatter
 from twinslam.node_runtime.math_threads import one_math_thread
 
-SEVEN = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes-1000"
+SEVEN = SEVEN_SCENES
 
 #: the steps, in the order the edge takes them
 STEPS = ("summaries in", "plan", "request out", "keyframes in", "integrate", "archive",

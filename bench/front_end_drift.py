@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 from evo.core import geometry
 
+from bench.paths import SEVEN_SCENES
 from twinslam.cli.console import HelpFormatter
 from twinslam.live.tracking_quality import absolute_trajectory_error, translation_errors
 from twinslam.sequences.folders import read_matrix
@@ -40,8 +41,7 @@ from twinslam.sequences.frame import RandomAccessSequence, SequenceError
 from twinslam.sequences.opening import open_sequence
 from twinslam.slam.front_end.tracking import Tracking, TrackingConfig
 
-REPO = Path(__file__).resolve().parents[1]
-SEQUENCE = REPO.parent / "shared" / "data" / "7scenes-1000"
+SEQUENCE = SEVEN_SCENES
 
 
 def forward_and_back(n: int) -> list[int]:

@@ -14,16 +14,16 @@ from __future__ import annotations
 import argparse
 import platform
 import time
-from pathlib import Path
 
 import cv2
 import numpy as np
 
 from bench.gauge import cpu_gauge
+from bench.paths import SEVEN_SCENES
 from twinslam.sequences.opening import open_sequence
 from twinslam.slam.front_end.tracking import Tracking
 
-DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes-1000"
+DEFAULT = SEVEN_SCENES
 
 
 def main() -> None:

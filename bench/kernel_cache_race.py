@@ -23,7 +23,8 @@ import textwrap
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+from bench.paths import REPO
+
 #: one value of each argument type, and what 2x + 1 gives for it
 VALUES = ("np.int64(3)", "np.float64(3.5)", "np.float32(1.5)", "np.int32(2)", "np.int16(4)",
           "np.uint8(5)", "np.uint16(6)", "np.int8(-3)")

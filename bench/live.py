@@ -26,8 +26,9 @@ import threading
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-SEQUENCE = REPO.parent / "shared" / "data" / "7scenes-1000"
+from bench.paths import REPO, SEVEN_SCENES
+
+SEQUENCE = SEVEN_SCENES
 TICK = os.sysconf("SC_CLK_TCK")
 
 

@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.paths import SEVEN_SCENES
 from twinslam.cli.console import HelpFormatter
 from twinslam.rotations import rotation_angle_deg
 from twinslam.sequences.opening import open_sequence
@@ -51,8 +52,7 @@ from twinslam.slam.front_end.orb_extractor import OrbExtractor
 from twinslam.slam.front_end.tracking import depth_at
 from twinslam.slam.projection_matching import back_project
 
-REPO = Path(__file__).resolve().parents[1]
-SEQUENCE = REPO.parent / "shared" / "data" / "7scenes-1000"
+SEQUENCE = SEVEN_SCENES
 #: query keyframe ids: the walk's frames seen again this much later
 LATER = 10_000
 

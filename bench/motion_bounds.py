@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.paths import REPO, SEVEN_SCENES
 from twinslam.cli.console import HelpFormatter
 from twinslam.rotations import rotation_angle_deg
 from twinslam.sequences.frame import RandomAccessSequence
@@ -31,8 +32,6 @@ from twinslam.sequences.opening import open_sequence
 from twinslam.slam.front_end.tracking import Tracking, TrackingConfig
 from twinslam.slam.pose_plausibility import MotionBounds
 
-REPO = Path(__file__).resolve().parents[1]
-SEVEN_SCENES = REPO.parent / "shared" / "data" / "7scenes-1000"
 COLOUR_INTRINSICS = REPO / "config" / "7scenes-colour-intrinsics.txt"
 
 

@@ -23,6 +23,7 @@ import numpy as np
 
 from bench.gauge import cpu_gauge
 from bench.in_process import serve_slot
+from bench.paths import SEVEN_SCENES
 from device_tracker.device_core import DeviceTrackerCore
 from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore
 from twinslam.live.run_log import RunLog
@@ -32,7 +33,7 @@ from twinslam.sequences.opening import open_sequence
 from twinslam.slam.back_end.map_back_end import BackEndConfig
 from twinslam.uplink.channels import parse_channel
 
-DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes-1000"
+DEFAULT = SEVEN_SCENES
 
 
 def main() -> None:

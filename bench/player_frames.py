@@ -16,12 +16,12 @@ from __future__ import annotations
 
 import argparse
 import statistics
-from pathlib import Path
 
 from bench.baseline import add_baseline_options, drive_alternately
 from bench.gauge import cpu_gauge
+from bench.paths import SEVEN_SCENES
 
-DEFAULT = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes-1000"
+DEFAULT = SEVEN_SCENES
 
 #: one round in a tree: argv = [sequence, frames, tree]; prints the CPU ms a frame
 _DRIVER = """

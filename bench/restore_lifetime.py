@@ -17,6 +17,7 @@ import csv
 import statistics
 from pathlib import Path
 
+from bench.paths import REPO
 from twinslam.cli.arguments import DEFAULT_CHANNEL
 from twinslam.covisibility.dataset import load_covisibility
 from twinslam.policies.actions import MapAction
@@ -25,7 +26,6 @@ from twinslam.policies.registry import make_policy
 from twinslam.policies.world_model import MapManagementEnv, SimConfig
 from twinslam.uplink.channels import parse_channel
 
-REPO = Path(__file__).resolve().parents[1]
 COVIS = REPO / "data" / "7scenes-redkitchen-1000.covis.npz"
 
 

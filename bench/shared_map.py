@@ -54,6 +54,7 @@ import cv2
 import numpy as np
 
 from bench.in_process import DeviceWalk, open_walk, repeatable_edge, seeded_spec
+from bench.paths import SEVEN_SCENES
 from twinslam.cli.console import HelpFormatter
 from twinslam.live.tracking_quality import (
     RevisitError,
@@ -72,7 +73,7 @@ from twinslam.slam.back_end.map_merging import (
     whole_map,
 )
 
-SEVEN = Path(__file__).resolve().parents[2] / "shared" / "data" / "7scenes-1000"
+SEVEN = SEVEN_SCENES
 
 
 def look_for_merge(finder: MergeFinder, place: DeviceWalk, joining: DeviceWalk,

@@ -20,6 +20,7 @@ import time
 from dataclasses import asdict, fields
 from pathlib import Path
 
+from bench.paths import SEVEN_SCENES
 from twinslam.cli.console import HelpFormatter
 from twinslam.hosts.loopback import LoopbackDomain
 from twinslam.live.launcher import DEFAULT_PARAMS, LaunchConfig, Launcher
@@ -27,8 +28,7 @@ from twinslam.live.scenarios import scenario as scenario_named
 from twinslam.live.update_loop import SlotLatency, stage_table, update_loop_latencies
 from twinslam.reporting import write_csv
 
-REPO = Path(__file__).resolve().parents[1]
-SEQUENCE = REPO.parent / "shared" / "data" / "7scenes-1000"
+SEQUENCE = SEVEN_SCENES
 
 
 def run(sequence: str, policy: str, frames: int, map_source: str, scenario: str,

@@ -16,8 +16,8 @@ import argparse
 import platform
 import statistics
 import sys
-from pathlib import Path
 
+from bench.paths import SEVEN_SCENES
 from twinslam.hosts.netns import NetnsHosts, unavailable_reason
 from twinslam.live.launcher import LaunchConfig, Launcher, tc_uplink_params
 
@@ -27,8 +27,7 @@ FRAME_MBIT = 640 * 480 * 3 * 8 / 1e6
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("sequence", nargs="?",
-                        default=str(Path(__file__).resolve().parents[2] / "shared" / "data"
-                                    / "7scenes-1000"),
+                        default=str(SEVEN_SCENES),
                         help="RGB-D sequence folder (default: the bundled 7-Scenes sample)")
     parser.add_argument("--frames", type=int, default=600, help="frames to play")
     args = parser.parse_args()
