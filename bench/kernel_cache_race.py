@@ -45,6 +45,21 @@ print([float(kernel.twice_plus_one(v)) for v in ({", ".join(VALUES)})])
 """
 
 
+def kernel_env(folder: Path) -> dict[str, str]:
+    """The environment of a process that imports ``kernel`` from ``folder`` (and twinslam)."""
+    return dict(os.environ, PYTHONPATH=f"{folder}{os.pathsep}{REPO}")
+
+
+def read_index(folder: Path) -> tuple[Path, dict[object, str]]:
+    """The index file of ``kernel.twice_plus_one``'s cache in ``folder`` and what it holds:
+    each overload's key → the data file its machine code is in."""
+    (path,) = (folder / "__pycache__").glob("kernel.twice_plus_one-*.nbi")
+    with path.open("rb") as fh:
+        pickle.load(fh)                                  # numba's version
+        _, overloads = pickle.loads(fh.read())
+    return path, overloads
+
+
 def _round(lock: bool) -> tuple[int, list[float]]:
     """One round: the overloads the index names and what a fresh process computes."""
     kernel = textwrap.dedent(f"""
@@ -58,16 +73,13 @@ def _round(lock: bool) -> tuple[int, list[float]]:
     with tempfile.TemporaryDirectory(prefix="twinslam-kernel-cache-") as tmp:
         folder = Path(tmp)
         (folder / "kernel.py").write_text(kernel, encoding="utf-8")
-        env = dict(os.environ, PYTHONPATH=f"{folder}{os.pathsep}{REPO}")
+        env = kernel_env(folder)
         start = time.time() + 4.0                  # every process imported numba by then
         procs = [subprocess.Popen([sys.executable, "-c", _COMPILE, value, str(start)],
                                   cwd=folder, env=env) for value in VALUES]
         for proc in procs:
             proc.wait(timeout=300)
-        (index,) = (folder / "__pycache__").glob("kernel.twice_plus_one-*.nbi")
-        with index.open("rb") as fh:
-            pickle.load(fh)
-            _, overloads = pickle.loads(fh.read())
+        _, overloads = read_index(folder)
         done = subprocess.run([sys.executable, "-c", _CHECK], cwd=folder, env=env,
                               capture_output=True, text=True, timeout=300, check=True)
         return len(set(overloads.values())), ast.literal_eval(done.stdout.strip())

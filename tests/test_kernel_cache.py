@@ -7,7 +7,6 @@ and its float64 overload then ran the int64 code (3.5 → 7.0 where 2·3.5 + 1 =
 from __future__ import annotations
 
 import os
-import pickle
 import subprocess
 import sys
 import textwrap
@@ -16,7 +15,8 @@ from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
+from bench.kernel_cache_race import kernel_env, read_index
+
 KERNEL = textwrap.dedent("""
     from twinslam.kernel_cache import njit
 
@@ -30,21 +30,9 @@ VALUES = ("np.int64(3)", "np.float64(3.5)", "np.float32(1.5)", "np.int32(2)")
 RUN = "import numpy as np, kernel; print(float(kernel.twice_plus_one({value})))"
 
 
-def _env(folder: Path) -> dict[str, str]:
-    return dict(os.environ, PYTHONPATH=f"{folder}{os.pathsep}{REPO}")
-
-
 def _run(folder: Path, value: str) -> subprocess.Popen[str]:
     return subprocess.Popen([sys.executable, "-c", RUN.format(value=value)], cwd=folder,
-                            env=_env(folder), stdout=subprocess.PIPE, text=True)
-
-
-def _index(folder: Path) -> tuple[Path, dict[object, str]]:
-    (path,) = (folder / "__pycache__").glob("kernel.twice_plus_one-*.nbi")
-    with path.open("rb") as fh:
-        pickle.load(fh)                                  # numba's version
-        _, overloads = pickle.loads(fh.read())
-    return path, overloads
+                            env=kernel_env(folder), stdout=subprocess.PIPE, text=True)
 
 
 def _waiting_on(path: Path) -> bool:
@@ -62,7 +50,7 @@ def test_a_second_overload_is_saved_only_after_the_first_process_let_go(tmp_path
     (tmp_path / "kernel.py").write_text(KERNEL, encoding="utf-8")
     first = _run(tmp_path, VALUES[0])
     assert first.communicate(timeout=120)[0].strip() == "7.0"
-    index, overloads = _index(tmp_path)
+    index, overloads = read_index(tmp_path)
     assert len(overloads) == 1
     lock_path = Path(f"{index}.lock")
     with lock_path.open("a") as lock:
@@ -73,9 +61,9 @@ def test_a_second_overload_is_saved_only_after_the_first_process_let_go(tmp_path
                 time.monotonic() < deadline:
             time.sleep(0.05)
         assert _waiting_on(lock_path), "the second process did not wait for the lock"
-        assert len(_index(tmp_path)[1]) == 1             # nothing saved meanwhile
+        assert len(read_index(tmp_path)[1]) == 1             # nothing saved meanwhile
     assert second.communicate(timeout=120)[0].strip() == "8.0"
-    _, overloads = _index(tmp_path)
+    _, overloads = read_index(tmp_path)
     assert len(overloads) == len(set(overloads.values())) == 2
 
 
@@ -85,12 +73,12 @@ def test_processes_compiling_overloads_at_once_keep_each_ones_code(tmp_path: Pat
     (tmp_path / "kernel.py").write_text(KERNEL, encoding="utf-8")
     procs = [_run(tmp_path, value) for value in VALUES]
     assert [p.communicate(timeout=120)[0].strip() for p in procs] == ["7.0", "8.0", "4.0", "5.0"]
-    _, overloads = _index(tmp_path)
+    _, overloads = read_index(tmp_path)
     assert len(overloads) == len(set(overloads.values())) == len(VALUES)
     check = ("import numpy as np, kernel\n"
              f"print([float(kernel.twice_plus_one(v)) for v in ({', '.join(VALUES)})],"
              " len(kernel.twice_plus_one.stats.cache_hits))")
-    done = subprocess.run([sys.executable, "-c", check], cwd=tmp_path, env=_env(tmp_path),
+    done = subprocess.run([sys.executable, "-c", check], cwd=tmp_path, env=kernel_env(tmp_path),
                           capture_output=True, text=True, timeout=120)
     assert done.stdout.split("]")[0] + "]" == "[7.0, 8.0, 4.0, 5.0]", done.stderr
     assert done.stdout.split("]")[1].strip() == str(len(VALUES))   # all loaded, none compiled
