@@ -414,6 +414,8 @@ class DeviceLink:
                           "map update")
         for failure in self.merging.failures():
             self.error(f"slot {slot}: {failure}; the map stays in its own frame")
+        for clash in self.merging.tag_clashes():
+            self.error(f"slot {slot}: {clash}")
         for event in self.merging.brought(self.device):
             t = event.merge.alignment[:3, 3]
             self.info(f"slot {slot}: {event.device}'s map merged into this device's place "

@@ -29,7 +29,7 @@ import copy
 import dataclasses
 import math
 import time
-from collections.abc import Collection, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -142,6 +142,10 @@ class EdgeMapperCore:
         #: slots until the next checkpoint (:meth:`spread_checkpoints` shifts it)
         self._checkpoint_in = self.config.checkpoint_every
         self.back_end = MapBackEnd(self.config.back_end, intrinsics, self.checkpoint)
+        #: arrays another part of the edge keeps in this device's checkpoint, read when it is
+        #: written (the place this map was merged into, :mod:`edge_mapper.place_membership`);
+        #: read back from :attr:`MapBackEnd.extra`
+        self.saved_with: Callable[[], Mapping[str, np.ndarray]] | None = None
         extra = self.back_end.extra
         self.version = int(extra.get("version", 0))
         self.last_slot = int(extra.get("last_slot", -1))
@@ -449,7 +453,8 @@ class EdgeMapperCore:
                       rate_history=np.array(self.rate_history, dtype=np.int64),
                       **self.back_end.checkpoint_arrays(),
                       **_table_arrays(self.local_mapping.track_points, "track"),
-                      **_table_arrays(self._previous_tracks, "previous_track"))
+                      **_table_arrays(self._previous_tracks, "previous_track"),
+                      **(self.saved_with() if self.saved_with is not None else {}))
         self.archive.release_taken()          # restored keyframes are in the checkpoint now
         self._unsaved, self._checkpoint_in = 0, self.config.checkpoint_every
 

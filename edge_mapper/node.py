@@ -143,6 +143,10 @@ class EdgeMapperNode(Node):
         if device:
             self.get_logger().info(f"serving device {device} (its "
                                    f"{self.resolve_topic_name(device + SUMMARIES_SUFFIX)})")
+        if self.merging is not None:
+            restored = self.merging.serve(device)
+            if restored:
+                self.get_logger().info(f"device {device}'s map restored: {restored}")
 
     def _grant(self, device: str, slot: int, frames: list[FrameObservations], rate_mbps: float,
                latent: RateLatent | None, core: EdgeMapperCore) -> int:

@@ -28,6 +28,13 @@ that device mapped before it, yet the earlier one comes to its places, and two p
 other devices joined already still merge. Each device's next map update carries its motion.
 A look that finished after either map's frame changed (a loop closed, a merge) is dropped,
 its alignment measured against poses a map no longer has.
+
+Each device's checkpoint records its place — the root whose frame its map is in, and how many
+of each lender's loops its copies followed (:mod:`edge_mapper.place_membership`) — and the
+copies' tags are functions of the lenders' names: an edge restarted from its checkpoints, or a
+standby taking them over, serves each device in the place it left (:meth:`PlaceMerging.serve`)
+— no look, no keyframe adopted twice, no loop followed twice — whatever order its devices come
+back in. A device whose root is not served (yet) is a place of its own again and looks.
 """
 
 from __future__ import annotations
@@ -40,6 +47,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from edge_mapper.edge_core import EdgeMapperCore
+from edge_mapper.place_membership import PlaceMembership, source_of
+from twinslam.slam.back_end.foreign_keyframes import TAG_SHIFT, foreign_tag
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
 from twinslam.slam.back_end.loop_closing import LoopQuery
 from twinslam.slam.back_end.map_back_end import FollowedLoop
@@ -109,8 +118,12 @@ class PlaceMerging:
         self._lent: dict[tuple[str, str], set[int]] = {}
         #: (borrower, lender) → how many of the lender's loops the borrower's copies followed
         self._followed: dict[tuple[str, str], int] = {}
-        #: each place device's tag for the keyframes it lends (stable while the edge runs)
-        self._sources: dict[str, int] = {}
+        #: device → the root its restored checkpoint named (:meth:`serve`), until it is placed
+        self._recorded: dict[str, str] = {}
+        #: (borrower, lender) pairs refused because another device's copies carry the
+        #: lender's tag (:func:`~edge_mapper.place_membership.source_of`), each said once
+        self._clashes: set[tuple[str, str]] = set()
+        self._clashes_new: list[str] = []
         #: why looks failed since the last :meth:`failures` (the link logs them)
         self._failed: list[str] = []
         #: device → looks finished without a merge, and what the last one found
@@ -122,6 +135,54 @@ class PlaceMerging:
         #: place (it stayed), for its slot end to tell: a moved device whose walk has ended
         #: has no slot end of its own to tell it
         self._brought: dict[str, list[MergeEvent]] = {}
+
+    def serve(self, device: str) -> str:
+        """``device`` is served (its core made, restored from its checkpoint if it had one):
+        its checkpoint's place taken back — it rejoins its root if that device is served and
+        a root, and the served devices that named ``device`` as theirs and joined no place
+        since rejoin it — and the core's checkpoints record its place from now on. What was
+        restored, in words ("": nothing)."""
+        core = self.cores()[device]
+        core.saved_with = lambda: self.membership(device).arrays()
+        if not core.back_end.restored_from_file:
+            return ""
+        record = PlaceMembership.read(core.back_end.extra)
+        for lender, count in record.followed.items():
+            self._followed[(device, lender)] = count
+        if record.root and record.root != device:
+            self._recorded[device] = record.root
+        placed = self._rejoin()
+        if device in self.joined:
+            return f"back in {self.joined[device]}'s place"
+        if record.root and record.root != device:
+            return (f"its place's root {record.root} is not served: a place of its own until "
+                    f"{record.root} is, or a look finds the place again")
+        back = [d for d in placed if d != device]
+        return f"{', '.join(back)} back in its place" if back else ""
+
+    def _rejoin(self) -> list[str]:
+        """The devices restored with a root that is served and a root now, joined to it;
+        which ones."""
+        cores = self.cores()
+        placed = []
+        for device, root in list(self._recorded.items()):
+            if device not in cores:
+                del self._recorded[device]
+            elif device in self.joined or any(r == device for r in self.joined.values()):
+                del self._recorded[device]            # it is in a place of its own making
+            elif root in cores and root not in self.joined:
+                del self._recorded[device]
+                self.joined[device] = root
+                self._queries.pop(device, None)
+                placed.append(device)
+        return placed
+
+    def membership(self, device: str) -> PlaceMembership:
+        """``device``'s place as its checkpoint records it."""
+        root = self.joined.get(device) or self._recorded.get(device, "")
+        return PlaceMembership(root,
+                               {lender: n for (borrower, lender), n in self._followed.items()
+                                if borrower == device})
 
     def keyframe(self, device: str, data: KeyFramePayload) -> None:
         """A keyframe of ``device`` the edge accepted: its features, for the next look."""
@@ -170,15 +231,17 @@ class PlaceMerging:
         (:func:`lend_from`: the borrower's points read once for all their keyframes); each
         lender's lending, in their order (one the edge no longer serves lends nothing)."""
         cores = self.cores()
-        serving = [lender for lender in lenders if lender in cores and borrower in cores]
+        serving = [lender for lender in lenders if lender in cores and borrower in cores
+                   and not self._tag_clash(borrower, lender)]
         rounds: list[Lender] = []
         for lender in serving:
             pair = (borrower, lender)
-            source = self._sources.setdefault(lender, len(self._sources))
+            source = source_of(lender)
             # a first lending's copies carry every loop the lender applied so far
             followed = self._followed.setdefault(pair, cores[lender].back_end.loops_applied)
-            rounds.append(Lender(cores[lender].back_end, source,
-                                 self._lent.setdefault(pair, set()), followed))
+            if pair not in self._lent:      # a restarted edge: the copies the map holds
+                self._lent[pair] = _copies_of(cores[borrower], source)
+            rounds.append(Lender(cores[lender].back_end, source, self._lent[pair], followed))
         done = dict(zip(serving, lend_from(cores[borrower].back_end, rounds, slot,
                                            cores[borrower].version + 1), strict=True)) \
             if serving else {}
@@ -186,6 +249,24 @@ class PlaceMerging:
             self._followed[(borrower, lender)] = lending.followed
         return [done.get(lender) or Lending(self._followed.get((borrower, lender), 0), 0)
                 for lender in lenders]
+
+    def _tag_clash(self, borrower: str, lender: str) -> bool:
+        """Whether another device — served, or one that lent to ``borrower`` before — tags
+        its copies as ``lender`` does: the borrower could not tell their keyframes and points
+        apart, so ``lender`` lends it nothing (said once, :meth:`tag_clashes`)."""
+        tag = source_of(lender)
+        others = set(self.cores()) | {d for (b, d) in self._followed if b == borrower}
+        clash = sorted(d for d in others if d != lender and source_of(d) == tag)
+        if clash and (borrower, lender) not in self._clashes:
+            self._clashes.add((borrower, lender))
+            self._clashes_new.append(f"{lender}'s keyframes are not lent to this map: their "
+                                     f"tag is {clash[0]}'s too (rename one of the devices)")
+        return bool(clash)
+
+    def tag_clashes(self) -> list[str]:
+        """Lendings refused for a shared tag since the last call (once each pair)."""
+        said, self._clashes_new = self._clashes_new, []
+        return said
 
     def take(self, device: str) -> MergeEvent | None:
         """Before ``device``'s slot end: the merge that moved its map since its last slot end
@@ -289,6 +370,8 @@ class PlaceMerging:
         self._queries.pop(device, None)
         self._running.pop(device, None)
         self._turn.pop(device, None)
+        self._recorded.pop(device, None)
+        self._clashes = {pair for pair in self._clashes if device not in pair}
         for pair in [pair for pair in self._finders if device in pair]:
             del self._finders[pair]
 
@@ -307,6 +390,14 @@ class PlaceMerging:
         if self._executor is not None:
             self._executor.shutdown(wait=True)
             self._executor = None
+
+
+def _copies_of(core: EdgeMapperCore, source: int) -> set[int]:
+    """The lender ids of the copies of source ``source``'s keyframes ``core``'s map and
+    archive hold: what a restarted edge's lendings need not adopt again."""
+    tag, own = foreign_tag(source), (1 << TAG_SHIFT) - 1
+    ids = [*(kf.id for kf in core.archive), *core.map.keyframes]
+    return {int(k) & own for k in ids if int(k) & ~own == tag}
 
 
 def _look(place: str, finder: MergeFinder, other: KeyFrameArchive,

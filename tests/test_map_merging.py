@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore
-from edge_mapper.place_merging import PlaceMerging
+from edge_mapper.place_membership import source_of
+from edge_mapper.place_merging import MergeEvent, PlaceMerging
 from edge_mapper.slot_planner import SlotConfig
 from tests.test_archive_relocalisation import room  # noqa: F401 (the archived room fixture)
 from twinslam.policies.registry import make_policy
@@ -103,10 +104,11 @@ def test_a_look_alike_place_is_not_merged(room: Room) -> None:  # noqa: F811
             for key, f in list(frames.items())[:3]] == [False, False, True]
 
 
-def _core(vmax: int = 4) -> EdgeMapperCore:
+def _core(vmax: int = 4, checkpoint: Path | None = None) -> EdgeMapperCore:
     k = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
     return EdgeMapperCore(make_policy("lff"), k, EdgeConfig(
-        slot=SlotConfig(vmax=vmax), back_end=BackEndConfig(loop_background=False)))
+        slot=SlotConfig(vmax=vmax), back_end=BackEndConfig(loop_background=False)),
+        checkpoint)
 
 
 def test_a_merged_map_moves_whole_into_the_place_frame_and_tells_its_device() -> None:
@@ -173,21 +175,25 @@ def _payload(room: Room, frame_index: int, keyframe: int) -> KeyFramePayload:  #
                            descriptors=query.descriptors, point_ids=np.zeros(n, np.uint64))
 
 
-def test_the_edge_merges_a_later_device_into_an_earlier_ones_frame(room: Room) -> None:  # noqa: F811
-    """The edge's merging over its devices' cores: the second device's keyframes, looked for
-    after its slots, join the first device's frame at the slot end after the third; the
-    first device has no keyframes of its own to look for, and a device that joined looks no
-    more."""
+def _room_and_newcomer(room: Room, folder: Path | None = None  # noqa: F811
+                       ) -> dict[str, EdgeMapperCore]:
+    """ar1's map of the room (its archive and keyframe 999), and ar2's, empty yet; with
+    ``folder``, each core checkpoints there."""
     _, archive, _ = room
-    k = room[0].intrinsics                                      # type: ignore[attr-defined]
-    cores = {"ar1": _core(), "ar2": _core()}
+    cores = {name: _core(checkpoint=folder / f"edge.{name}.npz" if folder else None)
+             for name in ("ar1", "ar2")}
     for kf in archive:                                 # the first device's map of the room
         cores["ar1"].archive.add(kf)
     cores["ar1"].map.add_keyframe(999, archive.get(270).pose)
     for core in cores.values():
-        core.back_end.k = k
-    merging = PlaceMerging(lambda: cores, background=False)
-    assert merging.others("ar1") == ["ar2"] and merging.others("ar2") == ["ar1"]
+        core.back_end.k = room[0].intrinsics                    # type: ignore[attr-defined]
+    return cores
+
+
+def _walk_ar2_into_the_room(room: Room, cores: dict[str, EdgeMapperCore],  # noqa: F811
+                            merging: PlaceMerging) -> list[MergeEvent | None]:
+    """ar2's keyframes 10, 11 and 12 (the room's frames 4, 64, 124), one a slot, each
+    looked for after its slot; what each slot end took, and the one after."""
     events = []
     for slot, (key, frame) in enumerate(((10, 4), (11, 64), (12, 124))):
         cores["ar2"].map.add_keyframe(key, _second_pose(room, frame))
@@ -196,6 +202,19 @@ def test_the_edge_merges_a_later_device_into_an_earlier_ones_frame(room: Room) -
         merging.look("ar2", slot)
         merging.look("ar1", slot)                      # nothing: no keyframes of its own
     events.append(merging.take("ar2"))
+    return events
+
+
+def test_the_edge_merges_a_later_device_into_an_earlier_ones_frame(room: Room) -> None:  # noqa: F811
+    """The edge's merging over its devices' cores: the second device's keyframes, looked for
+    after its slots, join the first device's frame at the slot end after the third; the
+    first device has no keyframes of its own to look for, and a device that joined looks no
+    more."""
+    _, archive, _ = room
+    cores = _room_and_newcomer(room)
+    merging = PlaceMerging(lambda: cores, background=False)
+    assert merging.others("ar1") == ["ar2"] and merging.others("ar2") == ["ar1"]
+    events = _walk_ar2_into_the_room(room, cores, merging)
     assert events[:3] == [None, None, None] and events[3] is not None
     assert events[3].place == "ar1" and merging.joined == {"ar2": "ar1"}
     off = np.linalg.inv(SECOND_IN_FIRST) @ cores["ar2"].frame_correction
@@ -208,11 +227,73 @@ def test_the_edge_merges_a_later_device_into_an_earlier_ones_frame(room: Room) -
     assert merging.before_slot_end("ar2", 4) == (None, len(archive) + 1, [])
     assert merging.before_slot_end("ar2", 5) == (None, 0, [])
     adopted = sorted(kf.id for kf in cores["ar2"].archive)
-    assert adopted == sorted(foreign_tag(0) | k for k in [*(kf.id for kf in archive), 999])
+    ar1, ar2 = foreign_tag(source_of("ar1")), foreign_tag(source_of("ar2"))
+    assert adopted == sorted(ar1 | k for k in [*(kf.id for kf in archive), 999])
     assert merging.before_slot_end("ar1", 4) == (None, 3, [])  # ar2's keyframes 10, 11, 12
-    assert sorted(cores["ar1"].archive.get(foreign_tag(1) | k).id & 0xFFFF
+    assert sorted(cores["ar1"].archive.get(ar2 | k).id & 0xFFFF
                   for k in (10, 11, 12)) == [10, 11, 12]
     assert merging.lend_all("ar1", ["ar2"], 6)[0].adopted == 0  # never those it lent back
+
+
+def test_an_edge_restarted_from_its_checkpoints_serves_each_device_in_the_place_it_left(
+        room: Room, tmp_path: Path) -> None:  # noqa: F811
+    """ar2 joined ar1's place and the two maps lent each other their keyframes; the edge
+    restarts from its checkpoints and its devices come back the other way round. ar2 waits
+    in a place of its own while ar1 is not served, and rejoins ar1's place when it is: no
+    look, no keyframe adopted a second time though ar2 now lends first, each map in the frame
+    it was in, the lenders' loops followed so far kept."""
+    cores = _room_and_newcomer(room, tmp_path)
+    merging = PlaceMerging(lambda: cores, background=False)
+    assert [merging.serve(d) for d in cores] == ["", ""]          # fresh maps
+    assert _walk_ar2_into_the_room(room, cores, merging)[3] is not None
+    merging.before_slot_end("ar2", 4)
+    merging.before_slot_end("ar1", 4)
+    held = {d: sorted(kf.id for kf in core.archive) for d, core in cores.items()}
+    frames = {d: core.frame_correction.copy() for d, core in cores.items()}
+    followed = {d: merging.membership(d) for d in cores}
+    for core in cores.values():
+        core.save_checkpoint()
+        core.close()
+
+    restarted: dict[str, EdgeMapperCore] = {}
+    again = PlaceMerging(lambda: restarted, background=False)
+    restarted["ar2"] = _core(checkpoint=tmp_path / "edge.ar2.npz")
+    assert again.serve("ar2") == ("its place's root ar1 is not served: a place of its own "
+                                  "until ar1 is, or a look finds the place again")
+    assert again.joined == {} and again.membership("ar2").root == "ar1"
+    restarted["ar1"] = _core(checkpoint=tmp_path / "edge.ar1.npz")
+    assert again.serve("ar1") == "ar2 back in its place"
+    assert again.joined == {"ar2": "ar1"}
+    assert again.others("ar1") == [] and again.others("ar2") == []
+    assert again.before_slot_end("ar1", 5) == (None, 0, [])       # ar2 lends first now
+    assert again.before_slot_end("ar2", 5) == (None, 0, [])
+    assert {d: sorted(kf.id for kf in core.archive) for d, core in restarted.items()} == held
+    for d, core in restarted.items():
+        np.testing.assert_allclose(core.frame_correction, frames[d])
+        assert again.membership(d) == followed[d]
+
+
+def test_a_device_whose_copies_would_share_another_devices_tag_lends_nothing(
+        room: Room) -> None:  # noqa: F811
+    """Two device names whose tags collide (1 in ~3 000 edges of fifty devices): a map could
+    not tell their keyframes and points apart, so neither lends to a map while the other is
+    served, and the edge says so once; with the other one gone, the lending goes ahead."""
+    seen: dict[int, str] = {}
+    names = (f"ar{i}" for i in range(100_000))
+    first, second = next((seen[source_of(n)], n) for n in names
+                         if seen.setdefault(source_of(n), n) != n)
+    cores = _room_and_newcomer(room)
+    cores = {first: cores["ar1"], "borrower": cores["ar2"], second: _core()}
+    merging = PlaceMerging(lambda: cores, background=False)
+    merging.joined["borrower"] = first                  # as a merge left it
+    assert merging.lend_all("borrower", [first], 1)[0].adopted == 0
+    assert merging.tag_clashes() == [f"{first}'s keyframes are not lent to this map: their "
+                                     f"tag is {second}'s too (rename one of the devices)"]
+    assert merging.lend_all("borrower", [first], 2)[0].adopted == 0
+    assert merging.tag_clashes() == []                  # said once
+    del cores[second]
+    merging.forget(second)
+    assert merging.lend_all("borrower", [first], 3)[0].adopted == len(room[1]) + 1
 
 
 def test_a_later_device_that_the_earlier_one_finds_in_its_map_joins_the_earlier_ones_frame(
@@ -294,8 +375,8 @@ def test_two_places_each_joined_by_another_device_become_one_in_the_earlier_fram
                                event.merge.alignment @ archive.get(270).pose)
     # ar3 now borrows from ar1 as well as from ar2
     _, adopted, _ = merging.before_slot_end("ar3", 4)
-    assert {kf.id & ~0xFFFF_FFFF for kf in cores["ar3"].archive} >= {foreign_tag(0),
-                                                                     foreign_tag(1)}
+    assert {kf.id & ~0xFFFF_FFFF for kf in cores["ar3"].archive} >= {
+        foreign_tag(source_of("ar1")), foreign_tag(source_of("ar2"))}
     assert adopted == len(cores["ar3"].archive)
 
 

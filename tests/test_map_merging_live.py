@@ -10,6 +10,9 @@ keyframes cover are not asked for."""
 
 from __future__ import annotations
 
+import signal
+from pathlib import Path
+
 import numpy as np
 import pytest
 from twinslam_msgs.msg import FrameSummaries, MapUpdate
@@ -38,7 +41,10 @@ FORKS = preloaded_nodes()
 
 @pytest.mark.slow(seconds=40)
 def test_the_edge_merges_the_second_devices_map_into_the_first_ones_frame(
-        domain: LoopbackDomain, ros: RosSession) -> None:
+        domain: LoopbackDomain, ros: RosSession, tmp_path: Path) -> None:
+    """The merge and what follows from it (the module's text); then the edge is killed and
+    started again from its checkpoints: it serves the second device in the first one's place
+    at once, with no look and no merge found anew."""
     maps: dict[str, list[MapUpdate]] = {d: [] for d in ORDER}
     summaries: list[FrameSummaries] = []
     first_summaries: list[FrameSummaries] = []
@@ -48,9 +54,10 @@ def test_the_edge_merges_the_second_devices_map_into_the_first_ones_frame(
                                  summaries.append, qos.PROTOCOL)
     ros.node.create_subscription(FrameSummaries, "/ar1/device/frame_summaries",
                                  first_summaries.append, qos.PROTOCOL)
-    edge = domain.spawn(["-m", "edge_mapper.node", "--ros-args", "-p", "policy:=lff",
-                         "-p", "devices:=[ar1, ar2]", "-p", "merge_maps:=true",
-                         "-p", "visualisation:=false"], forks=FORKS)
+    edge_args = ["-m", "edge_mapper.node", "--ros-args", "-p", "policy:=lff",
+                 "-p", "devices:=[ar1, ar2]", "-p", "merge_maps:=true",
+                 "-p", "visualisation:=false", "-p", f"checkpoint:={tmp_path / 'edge.npz'}"]
+    edge = domain.spawn(edge_args, forks=FORKS)
     assert domain.wait_for_log(edge, "listening on /ar2/device/frame_summaries", 90), \
         domain.log(edge)[-2000:]
     for d, order in ORDER.items():
@@ -125,6 +132,12 @@ def test_the_edge_merges_the_second_devices_map_into_the_first_ones_frame(
     # where the other device's lent keyframes stand, a device's frames are not asked for
     assert domain.wait_for_log(edge, "the shared map covers their views", 60.0), \
         domain.log(edge)[-3000:]
+    # the edge dies (no goodbye) and starts again from the checkpoints it wrote every slot
+    edge.send_signal(signal.SIGKILL)
+    edge.wait(timeout=10)
+    again = domain.spawn(edge_args, forks=FORKS)
+    assert domain.wait_for_log(again, "device ar2's map restored: back in ar1's place", 90), \
+        domain.log(again)[-3000:]
 
 
 @pytest.mark.slow(seconds=40)

@@ -1,0 +1,43 @@
+"""A device's place as its checkpoint records it: read back as written, nothing recorded in a
+checkpoint written before places were, a record that contradicts itself refused; the copies'
+tag of a device the same in every edge process."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from edge_mapper.place_membership import FOLLOWED, PlaceMembership, source_of
+from twinslam.slam.back_end.foreign_keyframes import MAX_SOURCES
+
+
+def test_a_place_is_read_back_as_it_was_written() -> None:
+    record = PlaceMembership("ar1", {"ar3": 2, "ar1": 5})
+    assert PlaceMembership.read(record.arrays()) == record
+    assert PlaceMembership.read(PlaceMembership().arrays()) == PlaceMembership()
+
+
+def test_a_checkpoint_without_a_place_is_a_map_of_its_own() -> None:
+    assert PlaceMembership.read({"version": np.array(4)}) == PlaceMembership()
+
+
+def test_a_record_with_a_loop_count_too_few_is_refused() -> None:
+    arrays = PlaceMembership("ar1", {"ar1": 5, "ar3": 2}).arrays()
+    arrays[FOLLOWED] = arrays[FOLLOWED][:1]
+    with pytest.raises(ValueError, match="2 lenders and 1 loop counts"):
+        PlaceMembership.read(arrays)
+
+
+def test_a_devices_tag_is_the_same_in_another_process() -> None:
+    """Python salts its own string hashes per process: the tag must not use them."""
+    names = ["ar1", "ar2", "/fleet/phone_17"]
+    other = subprocess.run(
+        [sys.executable, "-c", "from edge_mapper.place_membership import source_of; "
+         f"print([source_of(n) for n in {names!r}])"],
+        capture_output=True, text=True, timeout=120, check=True)
+    tags = [source_of(n) for n in names]
+    assert other.stdout.strip() == str(tags)
+    assert all(0 <= t < MAX_SOURCES for t in tags) and len(set(tags)) == 3
