@@ -156,7 +156,8 @@ class EdgeMapperCore:
         if self.back_end.restored_from_file:    # a restarted edge resolves the tracks as before
             self.local_mapping.track_points = _table(extra, "track")
             self._previous_tracks = _table(extra, "previous_track")
-        self.planner = SlotPlanner(self.map, at_the_edge(policy), self.config.slot, n_states)
+        self.planner = SlotPlanner(self.map, at_the_edge(policy), self.config.slot, n_states,
+                                   self.back_end.entered)
         self.pending: dict[int, tuple[MapAction, set[int]]] = {}   #: slot → (action, received)
         self._planned_vmax: dict[int, int] = {}   #: open slot → the V_max it was planned with
         #: requested uploads not integrated yet, as the slot's summaries observed them

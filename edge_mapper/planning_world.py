@@ -225,7 +225,10 @@ def planning_world(view: SlotView, obs: SlotObservation, horizon: int,
         CovisibilityDataset.from_sets(sets, source="edge planning world"), config,
         obs.n_states, slot, [instance_of[x] for x in obs.map_frames],
         [instance_of[x] for x in obs.candidates], [now] * (slot + horizon + 1),
-        InstanceStream(k, slot, n, len(sets)))
+        InstanceStream(k, slot, n, len(sets)),
+        # the map's entry order as slots before this one: the world's uploads come after
+        {instance_of[x]: (slot - len(obs.map_frames) + i, 0)
+         for i, x in enumerate(obs.entry_order())})
     seen = env.observation()
     if (seen.n_upload, seen.n_evict) != (obs.n_upload, obs.n_evict):
         raise ValueError(f"slot {obs.slot}: the planning world sizes the slot "

@@ -14,7 +14,7 @@ of the previous decision.
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -105,8 +105,12 @@ class SlotPlanner:
     """Builds observations over a :class:`KeyFrameMap` and runs a policy on them."""
 
     def __init__(self, keyframe_map: KeyFrameMap, policy: MapPolicy,
-                 config: SlotConfig | None = None, n_states: int = 2) -> None:
+                 config: SlotConfig | None = None, n_states: int = 2,
+                 entered: Mapping[int, tuple[int, int]] | None = None) -> None:
         self.map = keyframe_map
+        #: when each map keyframe entered the map, (slot, phase) (read, never changed here):
+        #: the observation's entry order, a rule's "oldest" (none: the ids' order)
+        self.entered: Mapping[int, tuple[int, int]] = entered if entered is not None else {}
         self.policy = policy
         self.config = config or SlotConfig()
         self.n_states = n_states
@@ -201,10 +205,14 @@ class SlotPlanner:
                                         needs_map(lost))
         full = counted.extended([keys[x] for x in map_ids[len(kept):] + every])
         pos = {x: i for i, x in enumerate(map_ids + every)}
+        # the map's keyframes in the order they entered it, then the uploads on their way
+        entered = sorted(kept, key=lambda k: (*self.entered.get(k, (-1, 0)), k)) + \
+            map_ids[len(kept):]
         obs = SlotObservation(slot, map_ids, cand, n_up, n_ev, rate_mbps, rate_state,
                               list(rate_history), self.n_states,
                               lambda a, b: full[np.ix_([pos[x] for x in a],
-                                                       [pos[x] for x in b])])
+                                                       [pos[x] for x in b])],
+                              entered=entered)
         if isinstance(self.policy, SlotViewer):
             self.policy.see_slot(SlotView(self.map, map_ids, list(frames),
                               lambda x: keys[x] if x in keys else self.points_of(seen, x),

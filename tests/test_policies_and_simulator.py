@@ -276,7 +276,7 @@ def test_the_first_frames_of_a_slot_are_tracked_against_the_map_before_the_updat
                                          min_shared=min_shared, update_lag_frames=lag))
         env.reset(0)
         env.stream = FrameStream(data, start=0, horizon=8)        # frames 0..7 in order
-        env.restore(([], np.zeros((0, 0)), 0, [0, 1], [], 0.0))
+        env.restore(([], np.zeros((0, 0)), 0, [0, 1], [], 0.0, {}))
         _, _, _, _, first = env.step(MapAction([1], []))           # map {1}; next: 2, 3
         _, _, _, _, second = env.step(MapAction([2], [1]))         # map {2}; next: 4, 5
         return int(first["uncertainty"].n_lost), int(second["uncertainty"].n_lost)

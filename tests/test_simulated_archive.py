@@ -4,6 +4,7 @@ made with the future known (twinslam.policies.restoring)."""
 from __future__ import annotations
 
 import csv
+import dataclasses
 import subprocess
 import sys
 from pathlib import Path
@@ -11,18 +12,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from twinslam.covisibility.dataset import CovisibilityDataset
-from twinslam.policies.actions import ActionError, MapAction
+from twinslam.cli.arguments import DEFAULT_CHANNEL
+from twinslam.covisibility.dataset import CovisibilityDataset, load_covisibility
+from twinslam.policies.actions import ActionError, MapAction, SlotObservation
 from twinslam.policies.exact_optimum import exact_optimum
 from twinslam.policies.mpc import MpcConfig, MpcPlanner
 from twinslam.policies.plan import rollout
 from twinslam.policies.reference import ReferencePlanner
 from twinslam.policies.registry import make_policy
 from twinslam.policies.restoring import RestoringPolicy
-from twinslam.policies.rules import LatestFrameFirst
+from twinslam.policies.rules import LatestFrameFirst, PeriodicalUploading
 from twinslam.policies.world_model import MapManagementEnv, SimConfig
-from twinslam.uplink.channels import TraceChannel
+from twinslam.uplink.channels import TraceChannel, parse_channel
 
+REPO = Path(__file__).resolve().parents[1]
 #: a corridor of 40 frames: frame i sees points 3i … 3i+59, so frames k apart share 60 - 3k
 #: points: with 35 needed, a frame tracks on a keyframe at most 8 frames away
 CORRIDOR = CovisibilityDataset.from_sets([np.arange(3 * i, 3 * i + 60) for i in range(40)])
@@ -86,6 +89,54 @@ def test_a_restore_comes_back_and_evicts_in_exchange_or_is_refused() -> None:
     assert kept[0] in env.observation().archive and back not in env.observation().archive
     env.restore(snap)                           # a snapshot holds the archive as it was
     assert env.observation().archive == obs.archive
+
+
+def test_the_rules_evict_the_keyframes_longest_in_the_map_not_the_oldest_ids() -> None:
+    """A keyframe restored last slot (id 2) is old by capture but new to the map; LFF and PU
+    evict the keyframes that entered the map first. Without the entry order — the paper's
+    map, which only adds uploads — the oldest ids go, as the paper's rules do."""
+    def obs(entered: list[int] | None) -> SlotObservation:
+        return SlotObservation(5, [2, 10, 11, 12], [20, 21, 22], 1, 2, 5.0, 0, [0], 2,
+                               entered=entered)
+
+    for rule in (LatestFrameFirst(), PeriodicalUploading()):
+        assert rule.decide(obs([10, 11, 2, 12])).evict == [10, 11]
+        assert rule.decide(obs(None)).evict == [2, 10]
+
+
+class _ById(LatestFrameFirst):
+    """LFF reading ids as the map's order (the rule before it read the entry order)."""
+
+    def decide(self, obs: SlotObservation) -> MapAction:
+        return super().decide(dataclasses.replace(obs, entered=None))
+
+
+def _evicted_next_slot(policy: LatestFrameFirst) -> tuple[int, int]:
+    """(restores of three episodes of the bundled 7-Scenes walk forward and back as the
+    restores' yardstick runs them — V_max 15, 3 restores a slot — those evicted again at the
+    very next slot)."""
+    covis = load_covisibility(REPO / "data" / "7scenes-redkitchen-1000.covis.npz")
+    config = SimConfig(vmax=15, slots=34, start=0, archive_keyframes=500, restore_keyframes=3)
+    restores = next_slot = 0
+    for seed in range(3):
+        env = MapManagementEnv(covis, parse_channel(DEFAULT_CHANNEL, seed=seed), config)
+        actions = rollout(env, RestoringPolicy(policy), seed).actions
+        made = [(k, kf) for k, action in enumerate(actions) for kf in action.restore]
+        restores += len(made)
+        next_slot += sum(k + 1 < len(actions) and kf in actions[k + 1].evict for k, kf in made)
+    return restores, next_slot
+
+
+def test_a_restored_keyframe_is_not_the_first_the_map_evicts_again() -> None:
+    """A restore enters the map as an upload does, at its slot: LFF's next decision evicts
+    keyframes that were in the map before it (the restore rule's own exchanges may still
+    take it). Read by id, the restore was the oldest and went first."""
+    restores, next_slot = _evicted_next_slot(LatestFrameFirst())
+    by_id, by_id_next = _evicted_next_slot(_ById())
+    print(f"\nrestores evicted the next slot: {next_slot} of {restores} by entry, "
+          f"{by_id_next} of {by_id} by id")
+    assert restores and next_slot <= 0.5 * restores
+    assert by_id_next >= 0.8 * by_id
 
 
 def test_restoring_loses_fewer_frames_on_the_way_back_and_is_the_policy_without_archive(

@@ -48,6 +48,17 @@ class SlotObservation:
     archive: list[int] = field(default_factory=list)
     n_restore: int = 0                 #: at most this many of them may come back this slot
     vmax: int | None = None            #: V_max (restores beyond it cost an eviction each)
+    #: the map's keyframes in the order they entered it — uploaded, restored from the archive
+    #: or adopted from another device's map — earliest first (None: as ``map_frames``). Ids
+    #: are capture order only for a map that never takes a keyframe back: a restored one is
+    #: old by capture, a copy of another device's tagged as the newest
+    entered: list[int] | None = None
+
+    def entry_order(self) -> list[int]:
+        """The map's keyframes, earliest entered first: what "the oldest map frame" means to
+        a rule (:attr:`entered`; the paper's map, which only ever adds uploads, in id
+        order)."""
+        return list(self.map_frames) if self.entered is None else list(self.entered)
 
     def weight_block(self, a: list[int], b: list[int]) -> np.ndarray:
         return np.asarray(self.weights(a, b))

@@ -4,7 +4,8 @@ A policy (:class:`~twinslam.policies.protocol.MapPolicy`) sees a
 :class:`~twinslam.policies.actions.SlotObservation` and returns U_k and C_k of the sizes
 Theorem 1 fixes. The rule-based ones are the paper's benchmarks (§VII):
 
-* **LFF** — latest frames first: upload the last |U_k| frames, evict the oldest map frames.
+* **LFF** — latest frames first: upload the last |U_k| frames, evict the oldest map frames
+  (those longest in the map, :meth:`SlotObservation.entry_order`).
 * **PU** — periodical uploading: upload frames spread evenly over the slot, evict the oldest.
 * **ADAPT** — AdaptSLAM's rule (Chen et al., INFOCOM'23): greedily keep the frames that
   maximise logdet of the grounded covisibility Laplacian; here first the uploads (greedy
@@ -29,7 +30,12 @@ from twinslam.uncertainty.laplacian_factorization import BOUND_RTOL, PIVOT_RTOL,
 
 
 def _evict_oldest(obs: SlotObservation, upload: list[int]) -> list[int]:
-    return sorted(obs.map_frames + upload)[:obs.n_evict]
+    """The |C_k| keyframes longest in the map, this slot's uploads last. By time in the map,
+    not by id: a keyframe restored from the archive is old by capture and would be the first
+    evicted at the very next slot (95.9 % of LFF's restores were, docs/results/restores.md),
+    a copy adopted from another device's map tagged as the newest the last, ever. The same
+    keyframes as by id where the map only adds uploads (the paper's setting)."""
+    return sorted((obs.entry_order() + sorted(upload))[:obs.n_evict])
 
 
 class LatestFrameFirst:

@@ -29,7 +29,7 @@ id, and two instances of the same recorded frame share all their points.
 from __future__ import annotations
 
 import copy
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -112,14 +112,17 @@ class SimConfig(SlotSettings):
 
 
 #: what :meth:`MapManagementEnv.snapshot` returns: (map frames, map weights, slot, upload
-#: candidates, archive, Mbit the uplink carried while the device waited for a map); the
-#: future depends on all of them but the weights
-Snapshot = tuple[list[int], np.ndarray, int, list[int], list[int], float]
+#: candidates, archive, Mbit the uplink carried while the device waited for a map, the slot
+#: each map frame entered the map); the future depends on all of them but the weights
+Snapshot = tuple[list[int], np.ndarray, int, list[int], list[int], float,
+                 dict[int, tuple[int, int]]]
 
 
 def state_key(snap: Snapshot) -> tuple[Any, ...]:
     """What two snapshots must share to have the same future: the map, the candidates, the
-    archive and the uplink waited for (a search merges the states with one key)."""
+    archive and the uplink waited for (a search merges the states with one key). The slots
+    the map's frames entered it are left out: only a rule's choice of the oldest reads them,
+    never the searches that merge states."""
     return tuple(snap[0]), tuple(snap[3]), tuple(snap[4]), snap[5]
 
 
@@ -193,6 +196,10 @@ class MapManagementEnv:
         self._map: list[int] = []
         self._map_w = np.zeros((0, 0))
         self._slot = 0
+        #: when each map frame entered the map, (slot, 0) uploaded or (slot, 1) restored —
+        #: a slot's restores come in at its end, after its uploads —: a rule's "oldest"
+        #: (:meth:`SlotObservation.entry_order`); a frame not in it is older than all
+        self._entered: dict[int, tuple[int, int]] = {}
         #: the observation last handed out, valid until the map or the slot changes
         self._last_obs: SlotObservation | None = None
         self._plan: list[tuple[int, float]] = []   #: (state, rate) of every slot of the episode
@@ -213,12 +220,15 @@ class MapManagementEnv:
     @classmethod
     def standing_at(cls, dataset: CovisibilityDataset, config: SimConfig, n_states: int,
                     slot: int, map_frames: Sequence[int], uploadable: Sequence[int],
-                    plan: Sequence[tuple[int, float]], stream: Any) -> MapManagementEnv:
+                    plan: Sequence[tuple[int, float]], stream: Any,
+                    entered: Mapping[int, tuple[int, int]] | None = None
+                    ) -> MapManagementEnv:
         """An environment standing at slot ``slot`` that nobody walked to: a world a planner
         builds from what it knows (the edge's live map, its slot's frames and the frames it
         predicts) instead of one that ``reset`` drew. ``map_frames`` and ``uploadable`` are
         frame instances, ``stream`` maps instances to ``dataset`` rows (anything with
-        ``dataset_index``), ``plan`` is (state, rate) of slots 0 … ``config.slots``."""
+        ``dataset_index``), ``plan`` is (state, rate) of slots 0 … ``config.slots``,
+        ``entered`` when each map frame entered the map (None: all before the others)."""
         if len(plan) <= config.slots or not 0 <= slot < config.slots:
             raise ValueError(f"slot {slot} with a plan of {len(plan)} slots: the plan must "
                              f"cover slots 0 … {config.slots} and the slot lie before the last")
@@ -226,6 +236,7 @@ class MapManagementEnv:
         env.stream, env._slot, env._plan = stream, int(slot), list(plan)
         env._map, env._uploadable = list(map_frames), list(uploadable)
         env._map_w = env.weights(env._map, env._map)
+        env._entered = dict(entered or {})
         return env
 
     # -- weights -----------------------------------------------------------------------------
@@ -259,7 +270,7 @@ class MapManagementEnv:
                                   speed=self.config.speed)
         self.channel.reset(seed)
         self._map, self._map_w, self._slot = [], np.zeros((0, 0)), 0
-        self._archive, self._waited = [], 0.0
+        self._archive, self._waited, self._entered = [], 0.0, {}
         self._uploadable = self.slot_frames(0)       # tracked on the device's start-up map
         # The whole episode's rates are drawn up front: the agent still sees them one slot at a
         # time, but a clairvoyant planner can read ahead and snapshots stay exact.
@@ -281,9 +292,10 @@ class MapManagementEnv:
         hist = [s for s, _ in self._plan[max(0, self._slot - self.config.history + 1):
                                          self._slot + 1]]
         n_restore = self.config.restore_keyframes if self.config.archive_keyframes > 0 else 0
+        entered = sorted(self._map, key=lambda f: (*self._entered.get(f, (-1, 0)), f))
         return SlotObservation(self._slot, list(self._map), cand, n_up, n_ev, rate, state, hist,
                                self.channel.n_states, self.weights, list(self._archive),
-                               n_restore, self.config.vmax)
+                               n_restore, self.config.vmax, entered)
 
     def observation(self) -> SlotObservation:
         """What the agent sees now (after ``reset``, ``step`` or ``restore``)."""
@@ -325,6 +337,12 @@ class MapManagementEnv:
         leave the archive, evicted ones join it."""
         self._last_obs = None
         self._archive_update(action)
+        for f in action.evict:
+            self._entered.pop(f, None)
+        for phase, frames in enumerate((action.upload, action.restore)):
+            for f in frames:
+                if f not in action.evict:
+                    self._entered[f] = (self._slot, phase)
         if not weights:
             self._map = sorted(set(self._map).union(action.upload, action.restore)
                                .difference(action.evict))
@@ -469,6 +487,7 @@ class MapManagementEnv:
         world._map, world._map_w = list(self._map), self._map_w.copy()
         world._uploadable = list(self._uploadable)
         world._archive = list(self._archive)
+        world._entered = dict(self._entered)
         world._points, world._last_obs = None, None
         world._plan = list(self._plan)
         if rates is not None:
@@ -497,12 +516,14 @@ class MapManagementEnv:
 
     def snapshot(self) -> Snapshot:
         """(map frames, map weights, slot, the slot's upload candidates, the archive, the
-        uplink waited for): all a later ``restore`` needs to continue exactly from here."""
+        uplink waited for, the slots the map's frames entered it): all a later ``restore``
+        needs to continue exactly from here."""
         return (list(self._map), self._map_w.copy(), self._slot, list(self._uploadable),
-                list(self._archive), self._waited)
+                list(self._archive), self._waited, dict(self._entered))
 
     def restore(self, snap: Snapshot) -> None:
-        frames, w, self._slot, uploadable, archive, self._waited = snap
+        frames, w, self._slot, uploadable, archive, self._waited, entered = snap
+        self._entered = dict(entered)
         self._last_obs = None
         self._map, self._map_w = list(frames), w.copy()
         self._uploadable, self._archive = list(uploadable), list(archive)

@@ -95,6 +95,9 @@ FOLLOW_MIN_M = 0.002
 #: borrower follows them at each of its slot ends, a few slots behind at most while it is
 #: served
 APPLIED_LOOPS_KEPT = 64
+#: how a keyframe entered the map, the second half of its :attr:`MapBackEnd.entered`: a
+#: slot's uploads are integrated while it runs, its restores come in at its end, after them
+UPLOADED, RESTORED = 0, 1
 #: fusion on integration: a feature lands this close (plus 2 % of its depth) to a point that
 #: looks alike, it is that point (the duplicate share's 5 cm)
 JOIN_RADIUS_M = DUPLICATE_RADIUS_M
@@ -230,6 +233,15 @@ class MapBackEnd:
         self.keyframe_stamps: dict[int, float] = dict(zip(
             (int(k) for k in extra.get("keyframe_stamp_ids", ())),
             (float(t) for t in extra.get("keyframe_stamps", ())), strict=True))
+        #: when each of the map's keyframes entered it: (the slot that asked for it,
+        #: :data:`UPLOADED`) or (the slot that brought it back at its end, :data:`RESTORED`) —
+        #: the map's order for a rule's "oldest" (:meth:`entry_order`); changed in place, never
+        #: replaced (the slot planner reads it)
+        self.entered: dict[int, tuple[int, int]] = dict(zip(
+            (int(k) for k in extra.get("entered_ids", ())),
+            ((int(s), int(p)) for s, p in zip(extra.get("entered_slots", ()),
+                                               extra.get("entered_phases", ()), strict=True)),
+            strict=True))
 
     def _open_archive(self) -> KeyFrameArchive:
         """The archive beside the checkpoint (``edge.npz`` → ``edge.npz.archive/``), restored
@@ -275,6 +287,7 @@ class MapBackEnd:
         report = self.local_mapping.integrate(data.frame_id, data.pose, data.keypoints,
                                               data.descriptors, data.depths, data.point_ids)
         if data.frame_id in self.map.keyframes:
+            self.entered[data.frame_id] = (int(data.slot), UPLOADED)
             self.keyframe_stamps[data.frame_id] = float(data.stamp)
             if self.config.loop_closing:
                 self._loop_queries = [*self._loop_queries[-(LOOP_QUERIES - 1):],
@@ -315,6 +328,7 @@ class MapBackEnd:
         for kf in keyframes:
             forgotten += self.archive.add(ArchivedKeyFrame.of(self.map, kf, slot))
             orphans += len(self.map.evict(kf))
+            self.entered.pop(kf, None)
         return forgotten, orphans
 
     def restore(self, restore: Iterable[int], evict: Iterable[int], slot: int
@@ -325,6 +339,7 @@ class MapBackEnd:
         back = [self.archive.take(kf) for kf in restore]
         forgotten, _ = self.evict_to_archive(evict, slot)
         returned = {archived.id: restore_into(self.map, archived) for archived in back}
+        self.entered.update((kf, (slot, RESTORED)) for kf in returned)
         fused = sum(len(fuse_restored(self.map, kf, points, self.camera))
                     for kf, points in returned.items()) if self.config.point_fusion else 0
         return forgotten, fused
@@ -683,7 +698,14 @@ class MapBackEnd:
                 "frame_correction": self.frame_correction, "origin": self.origin,
                 "keyframe_stamp_ids": np.array(kept, dtype=np.int64),
                 "keyframe_stamps": np.array([self.keyframe_stamps[k] for k in kept],
-                                            dtype=np.float64)}
+                                            dtype=np.float64),
+                **_entered_arrays({k: s for k, s in self.entered.items()
+                                   if k in self.map.keyframes})}
+
+    def entry_order(self, keyframes: Iterable[int]) -> list[int]:
+        """``keyframes`` in the order they entered the map, earliest first, ties by id (a
+        keyframe of a checkpoint written before entries were kept: before every other)."""
+        return sorted(keyframes, key=lambda k: (*self.entered.get(k, (-1, UPLOADED)), k))
 
 
 def _moved_m(before: np.ndarray, after: np.ndarray) -> float:
@@ -694,6 +716,14 @@ def _moved_m(before: np.ndarray, after: np.ndarray) -> float:
 def archive_folder(checkpoint: Path) -> Path:
     """Where the archive of the map checkpointed at ``checkpoint`` lives."""
     return checkpoint.with_name(checkpoint.name + ".archive")
+
+
+def _entered_arrays(entered: Mapping[int, tuple[int, int]]) -> dict[str, np.ndarray]:
+    """When the map's keyframes entered it, as the checkpoint's three arrays."""
+    ids = sorted(entered)
+    return {"entered_ids": np.array(ids, dtype=np.int64),
+            "entered_slots": np.array([entered[k][0] for k in ids], dtype=np.int64),
+            "entered_phases": np.array([entered[k][1] for k in ids], dtype=np.int64)}
 
 
 def _loop_arrays(edges: list[LoopEdge]) -> dict[str, np.ndarray]:
