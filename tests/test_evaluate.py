@@ -106,6 +106,8 @@ def test_evaluate_runs_every_seed_and_summarises(tmp_path: Path,
     (["--jobs", "0"], "--jobs must be >= 1"),
     (["--map-source", "edge,local"], "unknown map source 'local'"),
     (["--sequence", "/nonexistent/folder"], "does not exist"),
+    (["--frames", "31"], "--frames 31 from frame 0: synthetic:30 has 30 frames there"),
+    (["--frames", "20", "--start", "15"], "has 15 frames there"),
 ])
 def test_evaluate_refuses_a_bad_request_before_running(
         args: list[str], why: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

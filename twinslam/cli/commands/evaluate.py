@@ -48,9 +48,13 @@ def _checked(args: argparse.Namespace) -> tuple[list[tuple[str, str]], list[Scen
                                ("--frames", args.frames, 2), ("--start", args.start, 0)):
         if value < least:
             raise ValueError(f"{name} must be >= {least}, got {value}")
+    opened = open_sequence(runs.sequence_for(args.sequence, 0), args.start,
+                           args.start + args.frames)
+    if len(opened) < args.frames:          # a run would play fewer than the table says
+        raise ValueError(f"--frames {args.frames} from frame {args.start}: {args.sequence} "
+                         f"has {len(opened)} frames there")
     for s in {s.order: s for s in scenarios}.values():
-        PlayedSequence(open_sequence(runs.sequence_for(args.sequence, 0), args.start,
-                                     args.start + args.frames), Playback(s.order))
+        PlayedSequence(opened, Playback(s.order))
     if not policies or not scenarios or not sources:
         raise ValueError("at least one policy, scenario and map source")
     return policies, scenarios, sources
