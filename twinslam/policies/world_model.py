@@ -112,17 +112,18 @@ class SimConfig(SlotSettings):
 
 
 #: what :meth:`MapManagementEnv.snapshot` returns: (map frames, map weights, slot, upload
-#: candidates, archive, Mbit the uplink carried while the device waited for a map, the slot
-#: each map frame entered the map); the future depends on all of them but the weights
+#: candidates, archive, Mbit the uplink carried while the device waited for a map, when each
+#: map frame entered the map as (slot, 0 uploaded | 1 restored)); the future depends on all of
+#: them but the weights
 Snapshot = tuple[list[int], np.ndarray, int, list[int], list[int], float,
                  dict[int, tuple[int, int]]]
 
 
 def state_key(snap: Snapshot) -> tuple[Any, ...]:
     """What two snapshots must share to have the same future: the map, the candidates, the
-    archive and the uplink waited for (a search merges the states with one key). The slots
-    the map's frames entered it are left out: only a rule's choice of the oldest reads them,
-    never the searches that merge states."""
+    archive and the uplink waited for (a search merges the states with one key). When the
+    map's frames entered it is left out: only a rule's choice of the oldest reads it, never
+    the searches that merge states."""
     return tuple(snap[0]), tuple(snap[3]), tuple(snap[4]), snap[5]
 
 
@@ -516,8 +517,8 @@ class MapManagementEnv:
 
     def snapshot(self) -> Snapshot:
         """(map frames, map weights, slot, the slot's upload candidates, the archive, the
-        uplink waited for, the slots the map's frames entered it): all a later ``restore``
-        needs to continue exactly from here."""
+        uplink waited for, when the map's frames entered it): all a later ``restore`` needs
+        to continue exactly from here."""
         return (list(self._map), self._map_w.copy(), self._slot, list(self._uploadable),
                 list(self._archive), self._waited, dict(self._entered))
 
