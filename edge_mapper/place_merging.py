@@ -48,7 +48,7 @@ import numpy as np
 
 from edge_mapper.edge_core import EdgeMapperCore
 from edge_mapper.place_membership import PlaceMembership, source_of
-from twinslam.slam.back_end.foreign_keyframes import TAG_SHIFT, foreign_tag
+from twinslam.slam.back_end.foreign_keyframes import foreign_tag, source_id, tag_of
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
 from twinslam.slam.back_end.loop_closing import LoopQuery
 from twinslam.slam.back_end.map_back_end import FollowedLoop
@@ -395,9 +395,9 @@ class PlaceMerging:
 def _copies_of(core: EdgeMapperCore, source: int) -> set[int]:
     """The lender ids of the copies of source ``source``'s keyframes ``core``'s map and
     archive hold: what a restarted edge's lendings need not adopt again."""
-    tag, own = foreign_tag(source), (1 << TAG_SHIFT) - 1
+    tag = foreign_tag(source)
     ids = [*(kf.id for kf in core.archive), *core.map.keyframes]
-    return {int(k) & own for k in ids if int(k) & ~own == tag}
+    return {source_id(k) for k in ids if tag_of(k) == tag}
 
 
 def _look(place: str, finder: MergeFinder, other: KeyFrameArchive,

@@ -44,6 +44,7 @@ from twinslam.rigid_motion import pose_of, twist_of
 from twinslam.slam.camera import Camera
 from twinslam.slam.projection_matching import visible_points
 from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
+from twinslam.slot_protocol.map_entry import UPLOADED
 
 #: farther than this a map point is taken to be out of an RGB-D camera's view (7-Scenes' and
 #: TUM's Kinect-class sensors give depth to ~4-5 m)
@@ -227,7 +228,7 @@ def planning_world(view: SlotView, obs: SlotObservation, horizon: int,
         [instance_of[x] for x in obs.candidates], [now] * (slot + horizon + 1),
         InstanceStream(k, slot, n, len(sets)),
         # the map's entry order as slots before this one: the world's uploads come after
-        {instance_of[x]: (slot - len(obs.map_frames) + i, 0)
+        {instance_of[x]: (slot - len(obs.map_frames) + i, UPLOADED)
          for i, x in enumerate(obs.entry_order())})
     seen = env.observation()
     if (seen.n_upload, seen.n_evict) != (obs.n_upload, obs.n_evict):

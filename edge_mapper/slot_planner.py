@@ -27,6 +27,7 @@ from twinslam.slam.camera import Camera
 from twinslam.slam.keyframe import track_counters
 from twinslam.slam.sorted_ids import find_sorted, unique_ids
 from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
+from twinslam.slot_protocol.map_entry import entry_order
 from twinslam.slot_protocol.slot_settings import SlotSettings
 from twinslam.uncertainty.map_uncertainty import (
     SlotUncertainty,
@@ -206,8 +207,7 @@ class SlotPlanner:
         full = counted.extended([keys[x] for x in map_ids[len(kept):] + every])
         pos = {x: i for i, x in enumerate(map_ids + every)}
         # the map's keyframes in the order they entered it, then the uploads on their way
-        entered = sorted(kept, key=lambda k: (*self.entered.get(k, (-1, 0)), k)) + \
-            map_ids[len(kept):]
+        entered = entry_order(kept, self.entered) + map_ids[len(kept):]
         obs = SlotObservation(slot, map_ids, cand, n_up, n_ev, rate_mbps, rate_state,
                               list(rate_history), self.n_states,
                               lambda a, b: full[np.ix_([pos[x] for x in a],

@@ -16,6 +16,7 @@ from twinslam.policies.registry import make_policy
 from twinslam.slam.back_end.map_back_end import BackEndConfig, archive_folder
 from twinslam.slam.camera import Camera
 from twinslam.slam.keyframe import TRACK_ID_BIT, KeyFramePayload, is_track_id
+from twinslam.slot_protocol.map_entry import entry_order
 
 K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
 F = 8                                      # frames per slot (60 in the paper; small for speed)
@@ -328,7 +329,8 @@ def test_a_restored_keyframe_enters_the_maps_order_at_its_slot_and_keeps_it_over
     assert checked, "no restore with older keyframes beside it: the test tests nothing"
     again = EdgeMapperCore(make_policy("lff"), K, config, checkpoint)
     assert again.back_end.entered == core.back_end.entered
-    assert again.back_end.entry_order(again.map.keyframes) != sorted(again.map.keyframes)
+    assert entry_order(again.map.keyframes, again.back_end.entered) != \
+        sorted(again.map.keyframes)
 
 
 def test_a_lost_device_found_in_the_archive_gets_that_place_back_with_the_slot(

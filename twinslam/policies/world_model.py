@@ -40,6 +40,7 @@ from twinslam.covisibility.map_points import MapPointCounts
 from twinslam.policies.actions import MapAction, SlotObservation, check_map_action
 from twinslam.slot_protocol import table1
 from twinslam.slot_protocol.lost_frame_rule import MIN_SHARED_POINTS, update_lag_frames
+from twinslam.slot_protocol.map_entry import RESTORED, UPLOADED, entry_order
 from twinslam.slot_protocol.slot_settings import SlotSettings
 from twinslam.uncertainty import laplacian_kernels as kernels
 from twinslam.uncertainty.laplacian_factorization import PIVOT_RTOL
@@ -113,7 +114,7 @@ class SimConfig(SlotSettings):
 
 #: what :meth:`MapManagementEnv.snapshot` returns: (map frames, map weights, slot, upload
 #: candidates, archive, Mbit the uplink carried while the device waited for a map, when each
-#: map frame entered the map as (slot, 0 uploaded | 1 restored)); the future depends on all of
+#: map frame entered the map as (slot, UPLOADED | RESTORED)); the future depends on all of
 #: them but the weights
 Snapshot = tuple[list[int], np.ndarray, int, list[int], list[int], float,
                  dict[int, tuple[int, int]]]
@@ -197,9 +198,8 @@ class MapManagementEnv:
         self._map: list[int] = []
         self._map_w = np.zeros((0, 0))
         self._slot = 0
-        #: when each map frame entered the map, (slot, 0) uploaded or (slot, 1) restored —
-        #: a slot's restores come in at its end, after its uploads —: a rule's "oldest"
-        #: (:meth:`SlotObservation.entry_order`); a frame not in it is older than all
+        #: when each map frame entered the map, (slot, UPLOADED | RESTORED): a rule's "oldest"
+        #: (:mod:`twinslam.slot_protocol.map_entry`); a frame not in it is older than all
         self._entered: dict[int, tuple[int, int]] = {}
         #: the observation last handed out, valid until the map or the slot changes
         self._last_obs: SlotObservation | None = None
@@ -293,7 +293,7 @@ class MapManagementEnv:
         hist = [s for s, _ in self._plan[max(0, self._slot - self.config.history + 1):
                                          self._slot + 1]]
         n_restore = self.config.restore_keyframes if self.config.archive_keyframes > 0 else 0
-        entered = sorted(self._map, key=lambda f: (*self._entered.get(f, (-1, 0)), f))
+        entered = entry_order(self._map, self._entered)
         return SlotObservation(self._slot, list(self._map), cand, n_up, n_ev, rate, state, hist,
                                self.channel.n_states, self.weights, list(self._archive),
                                n_restore, self.config.vmax, entered)
@@ -340,10 +340,10 @@ class MapManagementEnv:
         self._archive_update(action)
         for f in action.evict:
             self._entered.pop(f, None)
-        for phase, frames in enumerate((action.upload, action.restore)):
+        for how, frames in ((UPLOADED, action.upload), (RESTORED, action.restore)):
             for f in frames:
                 if f not in action.evict:
-                    self._entered[f] = (self._slot, phase)
+                    self._entered[f] = (self._slot, how)
         if not weights:
             self._map = sorted(set(self._map).union(action.upload, action.restore)
                                .difference(action.evict))

@@ -84,6 +84,7 @@ from twinslam.slam.camera import DEFAULT_IMAGE_SHAPE, Camera
 from twinslam.slam.duplicate_points import DUPLICATE_RADIUS_M
 from twinslam.slam.keyframe import KeyFramePayload
 from twinslam.slot_protocol import default_device
+from twinslam.slot_protocol.map_entry import RESTORED, UPLOADED
 
 #: integrated keyframes a loop job looks from at most (the newest)
 LOOP_QUERIES = 3
@@ -95,9 +96,6 @@ FOLLOW_MIN_M = 0.002
 #: borrower follows them at each of its slot ends, a few slots behind at most while it is
 #: served
 APPLIED_LOOPS_KEPT = 64
-#: how a keyframe entered the map, the second half of its :attr:`MapBackEnd.entered`: a
-#: slot's uploads are integrated while it runs, its restores come in at its end, after them
-UPLOADED, RESTORED = 0, 1
 #: fusion on integration: a feature lands this close (plus 2 % of its depth) to a point that
 #: looks alike, it is that point (the duplicate share's 5 cm)
 JOIN_RADIUS_M = DUPLICATE_RADIUS_M
@@ -234,9 +232,9 @@ class MapBackEnd:
             (int(k) for k in extra.get("keyframe_stamp_ids", ())),
             (float(t) for t in extra.get("keyframe_stamps", ())), strict=True))
         #: when each of the map's keyframes entered it: (the slot that asked for it,
-        #: :data:`UPLOADED`) or (the slot that brought it back at its end, :data:`RESTORED`) —
-        #: the map's order for a rule's "oldest" (:meth:`entry_order`); changed in place, never
-        #: replaced (the slot planner reads it)
+        #: UPLOADED) or (the slot that brought it back at its end, RESTORED) — the map's order
+        #: for a rule's "oldest" (:mod:`twinslam.slot_protocol.map_entry`); changed in place,
+        #: never replaced (the slot planner reads it)
         self.entered: dict[int, tuple[int, int]] = dict(zip(
             (int(k) for k in extra.get("entered_ids", ())),
             ((int(s), int(p)) for s, p in zip(extra.get("entered_slots", ()),
@@ -701,11 +699,6 @@ class MapBackEnd:
                                             dtype=np.float64),
                 **_entered_arrays({k: s for k, s in self.entered.items()
                                    if k in self.map.keyframes})}
-
-    def entry_order(self, keyframes: Iterable[int]) -> list[int]:
-        """``keyframes`` in the order they entered the map, earliest first, ties by id (a
-        keyframe of a checkpoint written before entries were kept: before every other)."""
-        return sorted(keyframes, key=lambda k: (*self.entered.get(k, (-1, UPLOADED)), k))
 
 
 def _moved_m(before: np.ndarray, after: np.ndarray) -> float:
