@@ -10,7 +10,7 @@ paired on the lost share and mean υ of each episode.
 
     .venv/bin/python -m bench.restore_lifetime [--policy restore:lff,restore:adapt]
         [--seeds 10] [--slots 34] [--slot-frames 60] [--d-req 0.5] [--vmax 15]
-        [--restores 3] [--csv FILE]
+        [--restores 3] [--csv FILE] [--episodes-csv FILE]
 """
 
 from __future__ import annotations
@@ -92,12 +92,16 @@ def main() -> None:
     parser.add_argument("--channel", default=DEFAULT_CHANNEL,
                         help="the uplink (default %(default)s)")
     parser.add_argument("--csv", type=Path, help="also write one row per restore here")
+    parser.add_argument("--episodes-csv", type=Path,
+                        help="also write one row per episode here (its lost share, mean υ and "
+                        "restores: what the paired differences are made of)")
     args = parser.parse_args()
     dataset = load_covisibility(args.covis)
     config = SimConfig(vmax=args.vmax, slots=args.slots, start=0, slot_frames=args.slot_frames,
                        d_req_s=args.d_req, archive_keyframes=args.archive,
                        restore_keyframes=args.restores)
     rows: list[dict[str, object]] = []
+    episode_rows: list[dict[str, object]] = []
     print(f"{'policy':<20} {'restores':>8} {'distinct':>8} {'next slot':>10} {'median':>7} "
           f"{'kept to end':>12} {'lost %':>13} {'mean υ':>15}")
     for name in [p.strip() for p in args.policy.split(",") if p.strip()]:
@@ -111,6 +115,10 @@ def main() -> None:
                 env = MapManagementEnv(dataset, parse_channel(args.channel, seed=seed), config)
                 plan = rollout(env, policy, seed)
                 plans.append(plan)
+                episode_rows.append({"policy": label, "seed": seed,
+                                     "lost_share": plan.tally.lost_share,
+                                     "mean_upsilon": plan.tally.mean,
+                                     "restores": plan.restored})
                 restores = lifetimes(plan.actions)
                 found += [n for _, _, n in restores]
                 distinct += len({kf for _, kf, _ in restores})
@@ -131,13 +139,13 @@ def main() -> None:
             diff = paired_difference([[read(p) for p in by_entry]], [read(p) for p in by_id])
             print(f"{'':<20} entry − id, {metric}: {diff.mean:+.2f} [{diff.low:+.2f}, "
                   f"{diff.high:+.2f}]")
-    if args.csv:
-        with args.csv.open("w", newline="", encoding="utf-8") as fh:
-            writer = csv.DictWriter(fh, fieldnames=["policy", "seed", "slot", "keyframe",
-                                                    "slots_kept"])
-            writer.writeheader()
-            writer.writerows(rows)
-        print(f"wrote {args.csv}")
+    for path, table in ((args.csv, rows), (args.episodes_csv, episode_rows)):
+        if path:
+            with path.open("w", newline="", encoding="utf-8") as fh:
+                writer = csv.DictWriter(fh, fieldnames=list(table[0]))
+                writer.writeheader()
+                writer.writerows(table)
+            print(f"wrote {path}")
 
 
 if __name__ == "__main__":
