@@ -24,8 +24,8 @@ tracks on; a lost frame is relocalised against the local map, and the node logs 
 
 from __future__ import annotations
 
-import sys
 import threading
+from typing import NoReturn
 
 import numpy as np
 from rclpy.node import Node
@@ -51,7 +51,7 @@ from device_tracker.uplink_setup import uplink_from_parameters
 from msg_schemas import qos, topics
 from twinslam.node_runtime.acks import wait_for_acks
 from twinslam.node_runtime.checked_subscription import CheckedSubscription
-from twinslam.node_runtime.node_main import NodeStartError, run_node
+from twinslam.node_runtime.node_main import NodeStartError, exit_process, run_node
 from twinslam.node_runtime.parameters import declare
 from twinslam.uplink.channels import initial_rate
 from twinslam.uplink.shaper import SlotThroughput
@@ -219,15 +219,15 @@ class DeviceTrackerNode(Node):
             self.shaper.close()
 
 
-def main(args: list[str] | None = None) -> int:
+def main(args: list[str] | None = None) -> NoReturn:
     def started(device: DeviceTrackerNode) -> None:
         shaper = (f"tc on {device.shaper.interface}" if isinstance(device.shaper, TcShaper)
                   else "token bucket")
         device.get_logger().info(f"{device.settings.describe(shaper)}; waiting for "
                                  f"{device.resolve_topic_name(topics.CAMERA_INFO)}")
 
-    return run_node("device_tracker", DeviceTrackerNode, args, started=started)
+    exit_process(run_node("device_tracker", DeviceTrackerNode, args, started=started))
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    main()

@@ -37,9 +37,8 @@ unrequested or repeated one logged and ignored.
 
 from __future__ import annotations
 
-import sys
 import time
-from typing import Any
+from typing import Any, NoReturn
 
 from rclpy.node import Node
 from twinslam_msgs.msg import FrameSummaries, RateLatent, UploadRequest
@@ -57,7 +56,7 @@ from edge_mapper.policy_control import POLICY_KEYS
 from edge_mapper.slot_planner import FrameObservations
 from msg_schemas import qos, topics
 from twinslam.allocation.allocators import BudgetError, check_budget
-from twinslam.node_runtime.node_main import NodeStartError, run_node
+from twinslam.node_runtime.node_main import NodeStartError, exit_process, run_node
 from twinslam.node_runtime.parameters import declare
 from twinslam.slam.back_end.loop_closing import SHARED_WORKER
 
@@ -303,13 +302,20 @@ class EdgeMapperNode(Node):
     def close(self) -> None:
         """Before the node goes (``run_node`` calls it once the executor stopped): every
         device's slots finished since its last checkpoint (``checkpoint_every``)
-        checkpointed."""
+        checkpointed, the work queued beside the slots done — the archive's files of a loop's
+        correction written, a running merge look finished — and the worker threads ended: the
+        process then ends without waiting for them (:func:`~twinslam.node_runtime.node_main.
+        exit_process`), and a file a worker had still to write would be lost."""
         for device, link in self.links.items():
             try:
                 link.core.flush_checkpoint()
             except Exception as exc:      # one device's disk must not keep the others' back
                 self.get_logger().error(f"device {device}: its last checkpoint not written: "
                                         f"{exc}")
+        for link in self.links.values():
+            link.core.close()
+        if self.merging is not None:
+            self.merging.close()
 
     def _announced(self) -> list[str]:
         """Device namespaces under this node's that publish frame summaries now."""
@@ -326,7 +332,7 @@ class EdgeMapperNode(Node):
         return sorted(found)
 
 
-def main(args: list[str] | None = None) -> int:
+def main(args: list[str] | None = None) -> NoReturn:
     def started(edge: EdgeMapperNode) -> None:
         log = edge.get_logger()
         first = next(iter(edge.links.values()), None)
@@ -349,8 +355,8 @@ def main(args: list[str] | None = None) -> int:
             log.info("serving every device namespace that publishes "
                      f"{edge.resolve_topic_name('DEVICE' + SUMMARIES_SUFFIX)}")
 
-    return run_node("edge_mapper", EdgeMapperNode, args, started=started, long_lived=True)
+    exit_process(run_node("edge_mapper", EdgeMapperNode, args, started=started, long_lived=True))
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    main()

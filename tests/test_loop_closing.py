@@ -396,6 +396,26 @@ def test_work_the_worker_fails_beside_the_slots_is_kept_until_taken() -> None:
     assert closer.failures() == []
 
 
+def test_closing_drops_a_loop_search_not_started_and_writes_the_files_queued() -> None:
+    """At the edge's stop each closer is closed before the process ends without waiting for
+    the worker: the archive's files of a correction queued beside the slots are written, a
+    loop search still waiting for the worker is dropped (its answer would reach no map)."""
+    device = ReturningDevice(np.random.default_rng(5), 64)
+    closer = LoopCloser(min_gap=40, confirmations=0)
+    ran: list[str] = []
+    release = threading.Event()
+    closer.after(lambda: (release.wait(30.0), ran.append("held")), "holding the worker")
+    assert closer.submit(_job(device))               # queued behind the hold
+    closer.after(lambda: ran.append("files"), "files")
+    threading.Timer(0.2, release.set).start()
+    try:
+        closer.close()
+    finally:
+        release.set()
+    assert ran == ["held", "files"]
+    assert closer.take() is None and not closer.busy     # the search never ran
+
+
 class LaggingDevice(DriftingDevice):
     """The drifting walk, its summaries saying which map version each frame was tracked on
     (``tracked_on``; -1: unknown): the map a loop corrected reaches a device a slot or two

@@ -28,10 +28,9 @@ counted, and left out of the buffer.
 from __future__ import annotations
 
 import math
-import sys
 import threading
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import torch
 from rclpy.node import Node
@@ -40,7 +39,7 @@ from twinslam_msgs.msg import RateLatent, UplinkThroughput
 from msg_schemas import qos, topics
 from twinslam.node_runtime.checked_subscription import CheckedSubscription
 from twinslam.node_runtime.matched_readers import logging_matches
-from twinslam.node_runtime.node_main import NodeStartError, run_node
+from twinslam.node_runtime.node_main import NodeStartError, exit_process, run_node
 from twinslam.node_runtime.parameters import declare
 from twinslam.twin.regime_twin import RegimeConfig, RegimeTwin
 from twinslam.twin.registry import canonical
@@ -171,7 +170,7 @@ class TwinNode(Node):
                                f"{self.refused} refused")
 
 
-def main(args: list[str] | None = None) -> int:
+def main(args: list[str] | None = None) -> NoReturn:
     # One intra-op thread: the retrain shares the machine with the spin thread (and on the
     # edge host with the other nodes), and the per-slot inference is tiny.
     torch.set_num_threads(1)
@@ -181,8 +180,8 @@ def main(args: list[str] | None = None) -> int:
             f"{twin_node.twin.describe()} of {twin_node.rates.size} uplink states "
             f"{twin_node.rates.tolist()} Mbit/s; listening on {twin_node.sub.topic_name}")
 
-    return run_node("udt_node", TwinNode, args, started=started)
+    exit_process(run_node("udt_node", TwinNode, args, started=started))
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    main()

@@ -189,12 +189,15 @@ class ProcessDomain:
         return False
 
     def stop(self, proc: NodeProcess, timeout: float = 5.0) -> tuple[int, str, str]:
-        """SIGTERM, wait up to ``timeout`` s, SIGKILL if needed; returns (code, out, err)."""
+        """SIGTERM, wait up to ``timeout`` s, SIGKILL if needed; returns (code, out, err). A
+        process still running after ``timeout`` is asked for its stacks first
+        (:meth:`ask_for_stacks`): the log then says where it was stuck."""
         if proc.poll() is None:
             proc.send_signal(signal.SIGTERM)
         try:
             proc.wait(timeout=timeout)
         except subprocess.TimeoutExpired:
+            self.ask_for_stacks(proc)
             proc.kill()
             proc.wait(timeout=5)
         assert proc.returncode is not None
@@ -203,6 +206,14 @@ class ProcessDomain:
             thread.join(timeout=5)
         out = proc.stdout.read() if proc.stdout is not None and not proc.stdout.closed else ""
         return proc.returncode, out or "", self.log(proc)
+
+    def ask_for_stacks(self, proc: NodeProcess, wait_s: float = 1.0) -> None:
+        """Ask a running node for every thread's Python stack (SIGUSR1: the nodes' stacks
+        signal, ``twinslam.node_runtime.node_main.STACKS_SIGNAL``) and give it ``wait_s`` to
+        reach its log. A process that is no node ends on it (SIGUSR1's default action)."""
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGUSR1)
+            time.sleep(wait_s)
 
     def close(self) -> None:
         for proc in self.processes:

@@ -36,7 +36,7 @@ published and skipped — a run's monitor reads the skipped frames there — log
 
 from __future__ import annotations
 
-import sys
+from typing import NoReturn
 
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
@@ -52,7 +52,7 @@ from msg_schemas.headers import stamp_seconds
 from msg_schemas.paths import PathWindow
 from msg_schemas.transforms import tf_message, transform_stamped
 from twinslam.node_runtime.acks import wait_for_acks
-from twinslam.node_runtime.node_main import NodeStartError, run_node
+from twinslam.node_runtime.node_main import NodeStartError, exit_process, run_node
 from twinslam.node_runtime.parameters import declare
 from twinslam.sequence_player.messages import (
     camera_info_message,
@@ -256,7 +256,7 @@ class SequencePlayer(Node):
                                f"{self.skipped} skipped{skipped}")
 
 
-def main(args: list[str] | None = None) -> int:
+def main(args: list[str] | None = None) -> NoReturn:
     def started(player: SequencePlayer) -> None:
         reader = player.reader
         player.get_logger().info(
@@ -266,9 +266,9 @@ def main(args: list[str] | None = None) -> int:
             f"{reader.playback.order}"
             + (f", blanked {reader.playback.blank}" if reader.playback.blank else ""))
 
-    return run_node("sequence_player", SequencePlayer, args,
-                    until=lambda player: player.finished, started=started)
+    exit_process(run_node("sequence_player", SequencePlayer, args,
+                          until=lambda player: player.finished, started=started))
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    main()

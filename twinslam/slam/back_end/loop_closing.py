@@ -566,7 +566,11 @@ class LoopCloser:
         return future
 
     def close(self) -> None:
-        """Wait for its work queued on the shared worker (a running job finishes first)."""
+        """Wait for its work queued on the shared worker: a running job finishes, one not
+        started yet is dropped (its answer would go to a map that is closing), the archive's
+        files of a correction (:meth:`after`) are written."""
+        if self._running is not None and self._running.cancel():    # False once it runs
+            self._running = None
         with SHARED_WORKER.outside_slot_work():
             wait(list(self._queued))
         self._queued.clear()
