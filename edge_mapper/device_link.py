@@ -113,6 +113,10 @@ class DeviceLink:
         #: propagates, and the node stops as a one-device edge should)
         self.on_fault = on_fault
         self.fault = ""                 #: the traceback of the work that failed ("": none)
+        #: (the slot it came back at, the newest the edge had planned) once the device's
+        #: summaries said it started again (:meth:`EdgeMapperCore.is_restart`): the node
+        #: then serves it afresh (None: it did not)
+        self.restarted: tuple[int, int] | None = None
         self.live, self.grant, self.finished, self.spent = live, grant, finished, spent
         #: the edge's map merging across its devices (None: each device's map stays apart)
         self.merging = merging
@@ -234,6 +238,13 @@ class DeviceLink:
     def _on_summaries(self, msg: FrameSummaries) -> None:
         slot = int(msg.slot)
         self.last_heard = time.monotonic()
+        if self.restarted is not None or self.core.is_restart(slot):
+            # the node serves the device afresh from its timer, outside this callback; the
+            # new run's slots until then go unanswered
+            if self.restarted is None:
+                self.restarted = (slot, max(self.core.last_slot,
+                                            max(self.core.pending, default=-1)))
+            return
         before = self.core.version
         if self.core.catch_up_version(int(msg.map_version)):
             self.info(f"slot {slot}: the device holds map version {msg.map_version}, newer "

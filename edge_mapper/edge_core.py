@@ -312,6 +312,15 @@ class EdgeMapperCore:
                  for f in frames if f.tracked and f.pose is not None}
         return covered_views(poses, lent, bounds)
 
+    def is_restart(self, slot: int) -> bool:
+        """Whether summaries of ``slot`` come from a device that started again: while a
+        device runs its slots only go forward (they count from its first frame's stamp), so
+        a slot this edge planned already and closed is a new run's, whose frame ids count
+        from the start again too — planned against the old map, its frames would clash with
+        the old run's keyframes, or enter a map in a frame the new run never saw."""
+        newest = max(self.last_slot, max(self.pending, default=-1))
+        return slot not in self.pending and slot <= newest
+
     @property
     def oldest_open(self) -> int | None:
         """The open slot that must finish next (slots finish in order)."""

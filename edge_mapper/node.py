@@ -197,6 +197,8 @@ class EdgeMapperNode(Node):
         for device, link in list(self.links.items()):
             if link.fault:
                 self._drop_failed(device, link)
+            elif link.restarted is not None:
+                self._serve_afresh(device, link, *link.restarted)
             else:
                 link.tick()
 
@@ -219,6 +221,24 @@ class EdgeMapperNode(Node):
             self.get_logger().error(f"device {device}: closing its link failed too: {exc}")
         if self.merging is not None:
             self.merging.forget(device)
+
+    def _serve_afresh(self, device: str, link: DeviceLink, slot: int, newest: int) -> None:
+        """The device started again (its slot ``slot`` came after the edge had planned
+        ``newest``): its old map set aside as a reclaimed device's (``FILE.reclaimed``, its
+        merges undone) and a map of its own started for the new run, from its next slot."""
+        name = f"device {device}" if device else "the device"
+        checkpoint = link.core.checkpoint
+        self.get_logger().warning(
+            f"{name} started again: its slot {slot} came after this edge had planned slot "
+            f"{newest}; its map of "
+            f"{len(link.core.map.keyframes)} keyframes is set aside"
+            + (f" ({checkpoint}.reclaimed)" if checkpoint is not None else "")
+            + " and it is served with a new map from its next slot")
+        del self.links[device]
+        link.close()
+        if self.merging is not None:
+            self.merging.forget(device)
+        self._serve(device)
 
     def _look_around(self) -> None:
         """New devices on the graph (``discover_devices``), devices a standby edge takes over

@@ -154,3 +154,62 @@ def test_edge_node_protocol_corrupt_keyframe_and_restart(
     # the archive came back with the map, and MapStats counts it on
     assert f"{archived} archived keyframes" in err
     assert got["stats"][-1].archived_keyframes >= archived
+
+
+def test_a_device_that_starts_again_is_served_with_a_new_map(
+        tmp_path: Path, domain: LoopbackDomain, ros: RosSession) -> None:
+    """A device that restarts (its app, its computer) counts its slots and frame ids from 0
+    again while the edge runs on. Planned against the old map, the new run's frames clashed
+    with the old run's keyframes ("frames […] are already keyframes", every slot refused) or
+    entered a map in a frame the new run never saw. The edge takes a slot it planned and
+    closed already for a restart: the old map is set aside as a reclaimed device's and the
+    new run gets a map of its own from its next slot."""
+    node = ros.node
+    pub_sum = node.create_publisher(FrameSummaries, topics.FRAME_SUMMARIES, qos.PROTOCOL)
+    pub_kf = node.create_publisher(Keyframe, topics.KEYFRAMES, qos.PROTOCOL)
+    got: dict[str, list] = {"request": [], "map": []}
+    node.create_subscription(UploadRequest, topics.UPLOAD_REQUEST, got["request"].append,
+                             qos.PROTOCOL)
+    node.create_subscription(MapUpdate, topics.MAP_UPDATE, got["map"].append, qos.MAP)
+    ckpt = tmp_path / "edge.npz"
+    edge = domain.spawn(["-m", "edge_mapper.node", "--ros-args", "-p", "policy:=lff",
+                         "-p", "vmax:=10", "-p", f"checkpoint:={ckpt}"], forks=FORKS)
+
+    def readers() -> set[bytes]:
+        return {bytes(i.endpoint_gid) for i in
+                node.get_subscriptions_info_by_topic(f"/{topics.FRAME_SUMMARIES}")}
+
+    def run_slot(device: TrackIdDevice, slot: int) -> MapUpdate:
+        n_req, n_map = len(got["request"]), len(got["map"])
+        pub_sum.publish(_summaries(device, slot, 40.0))
+        assert ros.spin_until(lambda: len(got["request"]) > n_req, 30.0), \
+            f"slot {slot}: {domain.log(edge)[-2000:]}"
+        req = got["request"][-1]
+        assert req.slot == slot
+        for frame in req.upload_frame_ids:
+            pub_kf.publish(_keyframe(device, int(frame), slot))
+        assert ros.spin_until(lambda: len(got["map"]) > n_map and got["map"][-1].slot == slot,
+                              60.0), f"no map update for slot {slot}: {domain.log(edge)[-2000:]}"
+        return got["map"][-1]
+
+    assert ros.spin_until(lambda: pub_sum.get_subscription_count() > 0
+                          and pub_kf.get_subscription_count() > 0, 30.0)
+    first = TrackIdDevice(np.random.default_rng(0))
+    for slot in range(3):
+        before = run_slot(first, slot)
+    assert before.map_version == 3 and len(before.keyframe_ids) > 0
+    old_readers = readers()
+    # the device starts again: slot 0 and frame ids from 0, another walk
+    again = TrackIdDevice(np.random.default_rng(1))
+    pub_sum.publish(_summaries(again, 0, 40.0))
+    assert domain.wait_for_log(edge, "started again", 30.0), domain.log(edge)[-2000:]
+    assert ros.spin_until(lambda: bool(readers() - old_readers), 30.0)
+    after = run_slot(again, 1)
+    log = domain.log(edge)
+    assert "cannot plan" not in log, log[-2000:]
+    assert "its slot 0 came after this edge had planned slot 2" in log, log[-2000:]
+    # a map of its own: the new run's keyframes only, its versions on from the device's
+    assert set(after.keyframe_ids) <= set(range(F, 2 * F)) and len(after.keyframe_ids) > 0
+    assert Path(f"{ckpt}.reclaimed").is_file()       # the old run's map, set aside
+    code, _, err = domain.stop(edge)
+    assert code == 0, err
