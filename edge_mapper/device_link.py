@@ -117,6 +117,9 @@ class DeviceLink:
         #: summaries said it started again (:meth:`EdgeMapperCore.is_restart`): the node
         #: then serves it afresh (None: it did not)
         self.restarted: tuple[int, int] | None = None
+        #: the old slot that may be a restarted run's first (:meth:`_restart_seen`)
+        self._restart_evidence: int | None = None
+        self.closed = False             #: :meth:`close` ran: callbacks still due do nothing
         self.live, self.grant, self.finished, self.spent = live, grant, finished, spent
         #: the edge's map merging across its devices (None: each device's map stays apart)
         self.merging = merging
@@ -172,7 +175,7 @@ class DeviceLink:
         failed; with ``on_fault``, an exception it raises is kept and told, not raised: on an
         edge serving several devices, one device's failure must not stop the others' slots."""
         def run(*args: Any) -> None:
-            if self.fault:
+            if self.fault or self.closed:     # a sample handed over after the link closed
                 return
             # the slots' work: a loop worker that yields to it waits meanwhile
             with SHARED_WORKER.slot_work():
@@ -235,15 +238,31 @@ class DeviceLink:
         self.pub_relocalisation.publish(relocalisation_message(
             slot, frame_id, found, self._now(), self.map_frame))
 
+    def _restart_seen(self, slot: int) -> bool:
+        """Whether summaries of ``slot`` are left unanswered as a restarted run's
+        (:meth:`EdgeMapperCore.is_restart`). One such slot is evidence, not proof — a stray
+        or corrupted message can carry an old slot number, and setting the map aside on it
+        would lose the map to bad input — so the restart is taken once the next slot of the
+        new run follows it; a slot of the running walk in between drops the evidence. The
+        node then serves the device afresh from its timer, outside this callback."""
+        if self.restarted is not None:
+            return True
+        if not self.core.is_restart(slot):
+            self._restart_evidence = None
+            return False
+        if self._restart_evidence is not None and slot == self._restart_evidence + 1:
+            self.restarted = (self._restart_evidence,
+                              max(self.core.last_slot, max(self.core.pending, default=-1)))
+        else:
+            self._restart_evidence = slot
+            self.warning(f"slot {slot}: summaries of a slot this edge closed already (the "
+                         "device started again, or a stray message): not answered")
+        return True
+
     def _on_summaries(self, msg: FrameSummaries) -> None:
         slot = int(msg.slot)
         self.last_heard = time.monotonic()
-        if self.restarted is not None or self.core.is_restart(slot):
-            # the node serves the device afresh from its timer, outside this callback; the
-            # new run's slots until then go unanswered
-            if self.restarted is None:
-                self.restarted = (slot, max(self.core.last_slot,
-                                            max(self.core.pending, default=-1)))
+        if self._restart_seen(slot):
             return
         before = self.core.version
         if self.core.catch_up_version(int(msg.map_version)):
@@ -458,6 +477,7 @@ class DeviceLink:
         edge, which writes that file). Slots finished since the last checkpoint
         (``checkpoint_every``) are not written: the device's own edge owns the file again, or
         the device starts afresh (a clean stop writes them: :meth:`EdgeMapperNode.close`)."""
+        self.closed = True
         checkpoint = self.core.checkpoint
         if checkpoint is not None and not keep_checkpoint:
             for kept in (checkpoint, archive_folder(checkpoint)):

@@ -317,7 +317,8 @@ class EdgeMapperCore:
         device runs its slots only go forward (they count from its first frame's stamp), so
         a slot this edge planned already and closed is a new run's, whose frame ids count
         from the start again too — planned against the old map, its frames would clash with
-        the old run's keyframes, or enter a map in a frame the new run never saw."""
+        the old run's keyframes, or enter a map in a frame the new run never saw (the link
+        takes the restart once the new run's next slot follows: a stray message is none)."""
         newest = max(self.last_slot, max(self.pending, default=-1))
         return slot not in self.pending and slot <= newest
 

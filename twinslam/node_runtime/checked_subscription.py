@@ -36,13 +36,16 @@ class CheckedSubscription:
         self._logger = node.get_logger()
         self.subscription = node.create_subscription(msg_type, topic, self._on_data, qos,
                                                      raw=True, **kwargs)
+        #: read once: a sample the executor hands over after the subscription was destroyed
+        #: (a link the edge closed) must still be named, and the destroyed handle cannot
+        self._topic = str(self.subscription.topic_name)
 
     def _on_data(self, data: bytes) -> None:
         self.handle(data)
 
     @property
     def topic_name(self) -> str:
-        return str(self.subscription.topic_name)
+        return self._topic
 
     def get_publisher_count(self) -> int:
         return self.subscription.get_publisher_count()
