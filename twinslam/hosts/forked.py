@@ -20,7 +20,12 @@ negative for a signal). The server ends when its socket closes; its children are
 it (``PR_SET_PDEATHSIG``), so no node outlives the process that asked for it unseen.
 
 Only what fork keeps is preloaded: modules and compiled kernels — no rclpy context, no DDS
-participant, no thread. Whatever a library reads from the environment at import (threads of
+participant, no thread of its own. The libraries it imports start some: gdb on a running server
+shows liblttng-ust's two listener threads (rcl's tracing, loaded with rclpy) and one more
+waiting on a condition variable beside the main thread (2026-12-01). A child forked while one
+of them holds a lock would find it locked; whether that is what stalled forked edges a few
+times under load is not known (docs/benchmarks/test-suite.md, 2026-12-01, night).
+Whatever a library reads from the environment at import (threads of
 the BLAS, numba's settings, ``PYTHONPATH``) must be what the child would have read, so a
 server serves only requests whose environment equals its own but for the ROS/DDS settings
 (:data:`PER_CHILD_PREFIXES`) and what changes with every call (:data:`PER_CHILD_NAMES`);
