@@ -251,8 +251,7 @@ class DeviceLink:
             self._restart_evidence = None
             return False
         if self._restart_evidence is not None and slot == self._restart_evidence + 1:
-            self.restarted = (self._restart_evidence,
-                              max(self.core.last_slot, max(self.core.pending, default=-1)))
+            self.restarted = (self._restart_evidence, self.core.newest_planned)
         else:
             self._restart_evidence = slot
             self.warning(f"slot {slot}: summaries of a slot this edge closed already (the "

@@ -319,8 +319,12 @@ class EdgeMapperCore:
         from the start again too — planned against the old map, its frames would clash with
         the old run's keyframes, or enter a map in a frame the new run never saw (the link
         takes the restart once the new run's next slot follows: a stray message is none)."""
-        newest = max(self.last_slot, max(self.pending, default=-1))
-        return slot not in self.pending and slot <= newest
+        return slot not in self.pending and slot <= self.newest_planned
+
+    @property
+    def newest_planned(self) -> int:
+        """The newest slot this edge planned, open or closed (-1: none)."""
+        return max(self.last_slot, max(self.pending, default=-1))
 
     @property
     def oldest_open(self) -> int | None:

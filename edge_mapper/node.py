@@ -332,7 +332,6 @@ class EdgeMapperNode(Node):
             except Exception as exc:      # one device's disk must not keep the others' back
                 self.get_logger().error(f"device {device}: its last checkpoint not written: "
                                         f"{exc}")
-        for link in self.links.values():
             link.core.close()
         if self.merging is not None:
             self.merging.close()

@@ -116,7 +116,7 @@ def test_one_edge_serves_three_devices_within_one_budget_and_reclaims_a_lost_one
     assert ros.spin_until(lambda: len(got[GONE]["stats"]) >= 3 and any(
         s.keyframe_budget >= MINIMUM for s in got[GONE]["stats"]) and gone_holds_keyframes(),
         120.0), (f"{ {d: {k: len(v) for k, v in r.items()} for d, r in got.items()} }; edge: "
-                 f"{_stuck_log(domain, edge)}")
+                 f"{domain.log_with_stacks(edge)}")
     running.discard(GONE)
     for proc in procs[GONE]:
         proc.send_signal(signal.SIGKILL)
@@ -136,7 +136,7 @@ def test_one_edge_serves_three_devices_within_one_budget_and_reclaims_a_lost_one
         {int(m.slot) for m in got[d]["stats"]} >= {int(m.slot) for m in got[d]["summaries"]}
         for d in DEVICES if d != GONE), 30.0), \
         (f"{ {d: (len(r['summaries']), len(r['stats'])) for d, r in got.items()} }; edge: "
-         f"{_stuck_log(domain, edge)}")
+         f"{domain.log_with_stacks(edge)}")
     # the edge publishes the budget without the lost device as it reclaims it, and says so in
     # its log a moment later
     assert domain.wait_for_log(edge, f"device {GONE}: silent for", 10.0), domain.log(edge)[-3000:]
@@ -190,10 +190,3 @@ def test_one_edge_serves_three_devices_within_one_budget_and_reclaims_a_lost_one
     held_by_gone = before.committed[list(before.devices).index(GONE)]
     assert max(sum(b.granted) for b in after) > V_TOTAL - held_by_gone, \
         ([list(b.granted) for b in after], held_by_gone)
-
-
-def _stuck_log(domain: LoopbackDomain, edge: Any) -> str:
-    """The edge's log with its threads' stacks at the end: where it was, for a test that
-    waited in vain for it."""
-    domain.ask_for_stacks(edge)
-    return domain.log(edge)[-6000:]

@@ -52,9 +52,8 @@ def test_every_node_ends_cleanly_when_signalled_mid_run(
         try:
             proc.wait(timeout=30)
         except subprocess.TimeoutExpired:
-            domain.ask_for_stacks(proc)          # where it is stuck, in its log
             pytest.fail(f"{name} did not end within 30 s of {signum.name}: "
-                        f"{domain.log(proc)[-6000:]}")
+                        f"{domain.log_with_stacks(proc)}")
     for name, proc in procs.items():
         log = domain.log(proc)
         assert proc.returncode == 0, f"{name} exited {proc.returncode}: {log[-2000:]}"

@@ -215,6 +215,12 @@ class ProcessDomain:
             proc.send_signal(signal.SIGUSR1)
             time.sleep(wait_s)
 
+    def log_with_stacks(self, proc: NodeProcess, chars: int = 6000) -> str:
+        """The last ``chars`` of a node's log once it printed its threads' stacks
+        (:meth:`ask_for_stacks`): what a test that waited in vain for it shows."""
+        self.ask_for_stacks(proc)
+        return self.log(proc)[-chars:]
+
     def close(self) -> None:
         for proc in self.processes:
             if proc.poll() is None:
