@@ -47,7 +47,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from edge_mapper.edge_core import EdgeMapperCore
-from edge_mapper.place_membership import PlaceMembership, source_of
+from edge_mapper.place_membership import PlaceMembership, run_after, source_of
 from twinslam.slam.back_end.foreign_keyframes import foreign_tag, source_id, tag_of
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
 from twinslam.slam.back_end.loop_closing import LoopQuery
@@ -120,6 +120,9 @@ class PlaceMerging:
         self._followed: dict[tuple[str, str], int] = {}
         #: device → the root its restored checkpoint named (:meth:`serve`), until it is placed
         self._recorded: dict[str, str] = {}
+        #: device → the run of its map (:func:`~edge_mapper.place_membership.source_of`):
+        #: one more each time it is forgotten, a reclaimed device's or a restarted one's
+        self._runs: dict[str, int] = {}
         #: (borrower, lender) pairs refused because another device's copies carry the
         #: lender's tag (:func:`~edge_mapper.place_membership.source_of`), each said once
         self._clashes: set[tuple[str, str]] = set()
@@ -145,8 +148,15 @@ class PlaceMerging:
         core = self.cores()[device]
         core.saved_with = lambda: self.membership(device).arrays()
         if not core.back_end.restored_from_file:
+            # a new map: past the runs of the maps set aside before it, in this process or
+            # (its file moved aside) in an edge that ran before
+            reclaimed = core.checkpoint.with_name(core.checkpoint.name + ".reclaimed") \
+                if core.checkpoint is not None else None
+            self._runs[device] = max(self._runs.get(device, 0),
+                                     run_after(reclaimed) if reclaimed is not None else 0)
             return ""
         record = PlaceMembership.read(core.back_end.extra)
+        self._runs[device] = record.run
         for lender, count in record.followed.items():
             self._followed[(device, lender)] = count
         if record.root and record.root != device:
@@ -182,7 +192,11 @@ class PlaceMerging:
         root = self.joined.get(device) or self._recorded.get(device, "")
         return PlaceMembership(root,
                                {lender: n for (borrower, lender), n in self._followed.items()
-                                if borrower == device})
+                                if borrower == device}, self._runs.get(device, 0))
+
+    def source(self, device: str) -> int:
+        """The source index the copies of ``device``'s current map carry."""
+        return source_of(device, self._runs.get(device, 0))
 
     def keyframe(self, device: str, data: KeyFramePayload) -> None:
         """A keyframe of ``device`` the edge accepted: its features, for the next look."""
@@ -236,7 +250,7 @@ class PlaceMerging:
         rounds: list[Lender] = []
         for lender in serving:
             pair = (borrower, lender)
-            source = source_of(lender)
+            source = self.source(lender)
             # a first lending's copies carry every loop the lender applied so far
             followed = self._followed.setdefault(pair, cores[lender].back_end.loops_applied)
             if pair not in self._lent:      # a restarted edge: the copies the map holds
@@ -254,9 +268,9 @@ class PlaceMerging:
         """Whether another device — served, or one that lent to ``borrower`` before — tags
         its copies as ``lender`` does: the borrower could not tell their keyframes and points
         apart, so ``lender`` lends it nothing (said once, :meth:`tag_clashes`)."""
-        tag = source_of(lender)
+        tag = self.source(lender)
         others = set(self.cores()) | {d for (b, d) in self._followed if b == borrower}
-        clash = sorted(d for d in others if d != lender and source_of(d) == tag)
+        clash = sorted(d for d in others if d != lender and self.source(d) == tag)
         if clash and (borrower, lender) not in self._clashes:
             self._clashes.add((borrower, lender))
             self._clashes_new.append(f"{lender}'s keyframes are not lent to this map: their "
@@ -352,9 +366,12 @@ class PlaceMerging:
             self._running[device] = done
 
     def forget(self, device: str) -> None:
-        """A reclaimed device: served again, it starts a map of its own that joins anew (the
-        devices that joined its frame stay in it: the first of them is their place's root
-        now)."""
+        """A reclaimed device, or one that started again: served again, it starts a map of its
+        own that joins anew (the devices that joined its frame stay in it: the first of them
+        is their place's root now), and its next map's copies carry a tag of their own — the
+        copies of this map that other maps keep are of other keyframes and points than the
+        next map's of the same ids."""
+        self._runs[device] = self._runs.get(device, 0) + 1
         if device not in self.joined:                  # a root: its place goes on without it
             rest = [d for d in self.place_of(device) if d != device]
             for d in rest:

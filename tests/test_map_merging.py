@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore
-from edge_mapper.place_membership import source_of
+from edge_mapper.place_membership import PlaceMembership, source_of
 from edge_mapper.place_merging import MergeEvent, PlaceMerging
 from edge_mapper.slot_planner import SlotConfig
 from tests.test_archive_relocalisation import room  # noqa: F401 (the archived room fixture)
@@ -294,6 +294,54 @@ def test_a_device_whose_copies_would_share_another_devices_tag_lends_nothing(
     del cores[second]
     merging.forget(second)
     assert merging.lend_all("borrower", [first], 3)[0].adopted == len(room[1]) + 1
+
+
+def test_a_device_served_with_a_new_map_lends_its_new_keyframes_under_a_new_tag(
+        room: Room, tmp_path: Path) -> None:  # noqa: F811
+    """ar1 lent its map of the room to ar2; then ar1 started again (or was reclaimed) and the
+    edge serves it with a new map, whose keyframe and point ids are the old map's ids again.
+    Once the new map is in the place, ar2 adopts its keyframes as copies of their own — not
+    taken for the old copies it holds under the same ids — and a restarted edge, or one
+    that starts the device's next map before its first checkpoint, keeps counting the
+    device's maps."""
+    cores = _room_and_newcomer(room, tmp_path)
+    merging = PlaceMerging(lambda: cores, background=False)
+    for d in cores:
+        merging.serve(d)
+    merging.joined["ar2"] = "ar1"                      # as a merge left it
+    lent = len(room[1]) + 1
+    assert merging.lend_all("ar2", ["ar1"], 1)[0].adopted == lent
+    first = foreign_tag(source_of("ar1"))
+    cores["ar1"].save_checkpoint()
+
+    # ar1 starts again: its map set aside (as its link does), a new one holding the same
+    # keyframe ids; once merged into ar2's place it lends again
+    cores["ar1"].close()
+    checkpoint = tmp_path / "edge.ar1.npz"
+    checkpoint.replace(checkpoint.with_name(checkpoint.name + ".reclaimed"))
+    merging.forget("ar1")
+    cores["ar1"] = _room_and_newcomer(room)["ar1"]
+    cores["ar1"].checkpoint = checkpoint
+    merging.serve("ar1")
+    assert merging.membership("ar1").run == 1 and merging.joined == {}
+    merging.joined["ar1"] = "ar2"                      # ar2 is its place's root now
+    second = foreign_tag(source_of("ar1", 1))
+    assert second != first
+    assert merging.lend_all("ar2", ["ar1"], 2)[0].adopted == lent
+    tags = [kf.id & ~((1 << 40) - 1) for kf in cores["ar2"].archive]
+    assert tags.count(first) == lent and tags.count(second) == lent
+    # a new copy's points are its own, not the old copies' of the same ids
+    copy = cores["ar2"].archive.get(second | 270)
+    assert all(p & ~((1 << 40) - 1) in (second, 0) for p in copy.point_ids.tolist())
+
+    # the run is in the new map's checkpoint; an edge that starts yet another map before
+    # that map's first checkpoint learns it from the map set aside
+    cores["ar1"].save_checkpoint()
+    assert PlaceMembership.read(np.load(checkpoint)).run == 1
+    checkpoint.replace(checkpoint.with_name(checkpoint.name + ".reclaimed"))
+    fresh = PlaceMerging(lambda: {"ar1": _core(checkpoint=checkpoint)}, background=False)
+    fresh.serve("ar1")
+    assert fresh.membership("ar1").run == 2 and fresh.source("ar1") == source_of("ar1", 2)
 
 
 def test_a_later_device_that_the_earlier_one_finds_in_its_map_joins_the_earlier_ones_frame(

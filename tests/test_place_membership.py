@@ -1,27 +1,55 @@
 """A device's place as its checkpoint records it: read back as written, nothing recorded in a
 checkpoint written before places were, a record that contradicts itself refused; the copies'
-tag of a device the same in every edge process."""
+tag of a device the same in every edge process, and another for each map the edge starts it."""
 
 from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from edge_mapper.place_membership import FOLLOWED, PlaceMembership, source_of
+from edge_mapper.place_membership import FOLLOWED, RUN, PlaceMembership, run_after, source_of
 from twinslam.slam.back_end.foreign_keyframes import MAX_SOURCES
 
 
 def test_a_place_is_read_back_as_it_was_written() -> None:
-    record = PlaceMembership("ar1", {"ar3": 2, "ar1": 5})
+    record = PlaceMembership("ar1", {"ar3": 2, "ar1": 5}, run=3)
     assert PlaceMembership.read(record.arrays()) == record
     assert PlaceMembership.read(PlaceMembership().arrays()) == PlaceMembership()
 
 
 def test_a_checkpoint_without_a_place_is_a_map_of_its_own() -> None:
     assert PlaceMembership.read({"version": np.array(4)}) == PlaceMembership()
+
+
+def test_a_record_written_before_runs_were_counted_is_a_first_map() -> None:
+    arrays = PlaceMembership("ar1", {"ar3": 2}).arrays()
+    del arrays[RUN]
+    assert PlaceMembership.read(arrays) == PlaceMembership("ar1", {"ar3": 2}, run=0)
+
+
+def test_each_map_of_a_device_has_a_tag_of_its_own() -> None:
+    """A device's first map keeps the tag its name alone gives (copies checkpointed before
+    maps were counted keep theirs); its later maps each get another one."""
+    tags = [source_of("ar1", run) for run in range(4)]
+    assert len(set(tags)) == 4 and tags[0] == source_of("ar1")
+    with pytest.raises(ValueError, match="counts from 0"):
+        source_of("ar1", -1)
+
+
+def test_the_next_maps_run_is_one_past_the_map_set_aside(tmp_path: Path) -> None:
+    """A reclaimed map's checkpoint (``FILE.reclaimed``) names its run; none, or one that
+    cannot be read, counts as the first map."""
+    aside = tmp_path / "edge.ar1.npz.reclaimed"
+    assert run_after(aside) == 0
+    with aside.open("wb") as f:
+        np.savez(f, **PlaceMembership("ar2", {}, run=2).arrays())
+    assert run_after(aside) == 3
+    aside.write_bytes(b"not a checkpoint")
+    assert run_after(aside) == 1
 
 
 def test_a_record_with_a_loop_count_too_few_is_refused() -> None:
