@@ -84,3 +84,34 @@ def test_a_frame_whose_matches_are_mostly_wrong_is_still_found(
     assert abs(found.keyframe - query) <= 30
     off = np.linalg.norm(found.pose[:3, 3] - frame.pose[:3, 3])  # type: ignore[index]
     assert off < 0.025, off
+
+
+def test_the_search_stops_at_the_first_candidate_whose_pose_passes(
+        room: tuple[object, KeyFrameArchive, OrbExtractor],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Candidates are solved in the order of their votes and the first one through the gate
+    is the answer (ORB-SLAM's relocalisation and loop closing stop there too): a frame the
+    best-voted candidate places is solved once, not once per candidate; a frame no pose
+    holds for is solved against every candidate before it is refused."""
+    import twinslam.slam.back_end.archive_relocalisation as relocalisation
+
+    seq, archive, orb = room
+    solved: list[list[int]] = []
+    solve = relocalisation._solve
+
+    def counted(*args: object, **kwargs: object) -> tuple[np.ndarray | None, int]:
+        solved.append(list(args[1]))                          # type: ignore[call-overload]
+        return solve(*args, **kwargs)                         # type: ignore[arg-type]
+
+    monkeypatch.setattr(relocalisation, "_solve", counted)
+    feats = orb.extract(seq.read(127).color)                  # type: ignore[attr-defined]
+    proposed = archive.recognise(feats.descriptors, top=3)
+    assert len(proposed) == 3
+    found = locate_in_archive(archive, feats.points, feats.descriptors,
+                              seq.intrinsics)                 # type: ignore[attr-defined]
+    assert found.found and found.keyframe == proposed[0][0] and len(solved) == 1
+    solved.clear()
+    shuffled = np.random.default_rng(0).permutation(feats.points)
+    refused = locate_in_archive(archive, shuffled, feats.descriptors,
+                                seq.intrinsics)               # type: ignore[attr-defined]
+    assert not refused.found and len(solved) == len({frozenset(g) for g in solved}) >= 2

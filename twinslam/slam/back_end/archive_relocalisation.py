@@ -9,9 +9,14 @@ a few tens of kilobytes) the archive's place recognition proposes the keyframes 
 most descriptors with it; each candidate's map points, with those of the archived keyframes
 that observe the same points (its covisible neighbours: a frame seldom sees exactly one
 keyframe's view), are matched by descriptor (Lowe's ratio test) and the pose solved by PnP
-RANSAC and refined on the inliers. The best candidate's pose is accepted only with
-``min_inliers`` inliers — the device's own gate (:class:`~twinslam.slam.front_end.tracking.
-TrackingConfig`) — and the device checks it once more against where it last tracked.
+RANSAC and refined on the inliers. Candidates are solved in the order of their votes, and the
+first whose pose has ``min_inliers`` inliers — the device's own gate
+(:class:`~twinslam.slam.front_end.tracking.TrackingConfig`) — is accepted, as ORB-SLAM's
+relocalisation and loop closing stop at the first candidate that passes: the candidates after
+it were solved before 2026-12-01 only to keep the one with the most inliers, a third of the
+loop search's PnPs on the 7-Scenes walk (``bench.loop_closer``). The device checks a
+relocalised pose once more against where it last tracked; a loop is confirmed by later
+keyframes (:mod:`twinslam.slam.back_end.loop_closing`).
 """
 
 from __future__ import annotations
@@ -52,7 +57,7 @@ class ArchiveLocation:
     """Where a lost frame was found in the archive, or why it was not."""
 
     pose: np.ndarray | None          #: camera-to-map (None: not found)
-    inliers: int                     #: of the best candidate
+    inliers: int                     #: of the accepted candidate (none: the most any had)
     #: the candidate keyframe whose pose was accepted; where none was, the one place
     #: recognition ranked first (-1: none proposed)
     keyframe: int
@@ -95,6 +100,8 @@ def locate_in_archive(archive: KeyFrameArchive, points_xy: np.ndarray, descripto
         pose, inliers = _solve(archive, group, xy, desc, intrinsics, config)
         if inliers > best.inliers:
             best = ArchiveLocation(pose, inliers, kf_id, tuple(group), "")
+        if best.pose is not None and best.inliers >= config.min_inliers:
+            return best                  # the first candidate through the gate
     if best.pose is None or best.inliers < config.min_inliers:
         # no pose holds: the place named is the one recognition ranked first, not the one
         # whose few (chance) inliers came out highest
