@@ -51,10 +51,12 @@ from edge_mapper.messages import (
 )
 from edge_mapper.place_merging import PlaceMerging
 from edge_mapper.policy_control import POLICY_KEYS, Note, PolicyControl
+from edge_mapper.restart_watch import RestartWatch, Verdict
 from edge_mapper.slot_lifecycle import Closing, SlotLifecycle
 from edge_mapper.slot_planner import FrameObservations
 from edge_mapper.viewer_topics import ViewerTopics
 from msg_schemas import qos, topics
+from msg_schemas.headers import time_seconds
 from twinslam.node_runtime.checked_subscription import CheckedSubscription
 from twinslam.node_runtime.long_lived_objects import release_frozen
 from twinslam.rotations import rotation_angle_deg
@@ -113,12 +115,9 @@ class DeviceLink:
         #: propagates, and the node stops as a one-device edge should)
         self.on_fault = on_fault
         self.fault = ""                 #: the traceback of the work that failed ("": none)
-        #: (the slot it came back at, the newest the edge had planned) once the device's
-        #: summaries said it started again (:meth:`EdgeMapperCore.is_restart`): the node
-        #: then serves it afresh (None: it did not)
-        self.restarted: tuple[int, int] | None = None
-        #: the old slot that may be a restarted run's first (:meth:`_restart_seen`)
-        self._restart_evidence: int | None = None
+        #: whether the device's summaries say it started again: the node then serves it
+        #: afresh (:attr:`RestartWatch.restart`)
+        self.restarts = RestartWatch()
         self.closed = False             #: :meth:`close` ran: callbacks still due do nothing
         self.live, self.grant, self.finished, self.spent = live, grant, finished, spent
         #: the edge's map merging across its devices (None: each device's map stays apart)
@@ -238,30 +237,23 @@ class DeviceLink:
         self.pub_relocalisation.publish(relocalisation_message(
             slot, frame_id, found, self._now(), self.map_frame))
 
-    def _restart_seen(self, slot: int) -> bool:
-        """Whether summaries of ``slot`` are left unanswered as a restarted run's
-        (:meth:`EdgeMapperCore.is_restart`). One such slot is evidence, not proof — a stray
-        or corrupted message can carry an old slot number, and setting the map aside on it
-        would lose the map to bad input — so the restart is taken once the next slot of the
-        new run follows it; a slot of the running walk in between drops the evidence. The
-        node then serves the device afresh from its timer, outside this callback."""
-        if self.restarted is not None:
-            return True
-        if not self.core.is_restart(slot):
-            self._restart_evidence = None
-            return False
-        if self._restart_evidence is not None and slot == self._restart_evidence + 1:
-            self.restarted = (self._restart_evidence, self.core.newest_planned)
-        else:
-            self._restart_evidence = slot
+    def _restart_seen(self, slot: int, stamps: list[float]) -> bool:
+        """Whether summaries of ``slot`` (frames captured at ``stamps``) are left unanswered
+        as a restarted run's (:class:`~edge_mapper.restart_watch.RestartWatch`: one old slot
+        is evidence, the new run's next slot proof). The node then serves the device afresh
+        from its timer, outside this callback."""
+        verdict = self.restarts.summaries(slot, stamps, self.core.is_restart(slot),
+                                          self.core.newest_planned)
+        if verdict is Verdict.EVIDENCE:
             self.warning(f"slot {slot}: summaries of a slot this edge closed already (the "
                          "device started again, or a stray message): not answered")
-        return True
+        return verdict is not Verdict.PLAN
 
     def _on_summaries(self, msg: FrameSummaries) -> None:
         slot = int(msg.slot)
         self.last_heard = time.monotonic()
-        if self._restart_seen(slot):
+        stamps = [time_seconds(f.stamp) for f in msg.frames]
+        if self._restart_seen(slot, stamps):
             return
         before = self.core.version
         if self.core.catch_up_version(int(msg.map_version)):
@@ -289,6 +281,7 @@ class DeviceLink:
             if self.finished is not None:      # the grant was never used
                 self.finished(self.device, slot, len(self.core.map.keyframes))
             return
+        self.restarts.planned(stamps)
         decided_by, notes = self.control.decided(slot)
         self._log(notes)
         self.pub_request.publish(upload_request_message(slot, decided_by,

@@ -197,8 +197,9 @@ class EdgeMapperNode(Node):
         for device, link in list(self.links.items()):
             if link.fault:
                 self._drop_failed(device, link)
-            elif link.restarted is not None:
-                self._serve_afresh(device, link, *link.restarted)
+            elif link.restarts.restart is not None:
+                restart = link.restarts.restart
+                self._serve_afresh(device, link, restart.slot, restart.newest_planned)
             else:
                 link.tick()
 

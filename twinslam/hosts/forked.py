@@ -23,8 +23,12 @@ Only what fork keeps is preloaded: modules and compiled kernels — no rclpy con
 participant, no thread of its own. The libraries it imports start some: gdb on a running server
 shows liblttng-ust's two listener threads (rcl's tracing, loaded with rclpy) and one more
 waiting on a condition variable beside the main thread (2026-12-01). A child forked while one
-of them holds a lock would find it locked; whether that is what stalled forked edges a few
-times under load is not known (docs/benchmarks/test-suite.md, 2026-12-01, night).
+of them holds a lock would find it locked. While no LTTng session daemon runs, the two
+listeners wait on a futex in shared memory (``/dev/shm/lttng-ust-wait-*``, a bare futex call
+from ``ust_listener_thread``, no mutex wait), holding no lock from their first try at start
+until a daemon appears: no lock a child would inherit held. What stalled forked edges a few
+times under load — and once an edge started by ``python -m`` — is not known
+(docs/benchmarks/test-suite.md, 2026-12-01, night).
 Whatever a library reads from the environment at import (threads of
 the BLAS, numba's settings, ``PYTHONPATH``) must be what the child would have read, so a
 server serves only requests whose environment equals its own but for the ROS/DDS settings
