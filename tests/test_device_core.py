@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from device_tracker.device_core import DeviceTrackerCore
+from device_tracker.device_core import DeviceTrackerCore, relabelled, rows_of_points
 from device_tracker.frame_log import frame_log_lines
 from twinslam.sequences.synthetic import SyntheticSequence
 from twinslam.slam.front_end.tracking import TrackingConfig
-from twinslam.slam.keyframe import is_track, is_track_id
+from twinslam.slam.keyframe import as_track_ids, is_track, is_track_id
 from twinslam.slam.map_update import MapSnapshot
 
 SLOT = 10
@@ -407,3 +407,20 @@ def test_a_loop_corrected_map_moves_the_devices_own_points_and_pose_with_it() ->
         assert np.linalg.norm(r.record.pose[:3, 3] - expected[:3, 3]) < 0.02
     # the same update again changes nothing: the frame is corrected once
     assert not core.apply_map_update(update, 0)
+
+
+def test_a_map_update_renames_the_labels_it_resolves_and_finds_the_points_it_holds() -> None:
+    """The device's labels (map points and its own tracks, uint64) renamed by the tracks the
+    edge resolved — a track named twice takes its last name, as the update lists them — and
+    the map update's points found among the labels that name map points (a track whose
+    counter equals a point id is not that point)."""
+    track = as_track_ids(np.array([7, 8, 9]))
+    labels = np.array([5, track[0], 6, track[1], 5, track[2]], dtype=np.uint64)
+    renamed = relabelled(labels, np.array([track[1], track[0], track[1]]),
+                         np.array([40, 41, 42], dtype=np.uint64))
+    assert renamed.tolist() == [5, 41, 6, 42, 5, int(track[2])]
+    held, rows = rows_of_points(renamed, np.array([5, 9, 42, 6, 100], dtype=np.uint64))
+    assert held.tolist() == [True, False, True, True, False]
+    assert rows[held].tolist() == [4, 3, 2]              # 5 at its last row
+    nothing, _ = rows_of_points(as_track_ids(np.array([1, 2])), np.array([1], np.uint64))
+    assert not nothing.any()
