@@ -58,6 +58,7 @@ from msg_schemas import qos, topics
 from twinslam.allocation.allocators import BudgetError, check_budget
 from twinslam.node_runtime.node_main import NodeStartError, exit_process, run_node
 from twinslam.node_runtime.parameters import declare
+from twinslam.slam.back_end.keyframe_map import MapError
 from twinslam.slam.back_end.loop_closing import SHARED_WORKER
 
 #: seconds between looks at the graph for new devices, and at the devices' silence
@@ -132,9 +133,21 @@ class EdgeMapperNode(Node):
         first summaries come (a device that never speaks holds no share)."""
         grant = self._grant if self.budget is not None else None
         finished = self.budget.finished if self.budget is not None else None
-        link = DeviceLink(self, device, self.settings, self._live_values, grant, finished,
-                          self._spent, self.merging,
-                          self._device_failed if self.several else None)
+        try:
+            link = DeviceLink(self, device, self.settings, self._live_values, grant, finished,
+                              self._spent, self.merging,
+                              self._device_failed if self.several else None)
+        except MapError as exc:
+            if not self.several:                 # the node's one device: it cannot start
+                raise
+            # one device's unreadable checkpoint must not keep the others unserved, nor be
+            # overwritten by a new map: the device waits until someone looks at the file
+            self.failed.add(device)
+            self.get_logger().error(
+                f"device {device}: not served, its checkpoint cannot be read ({exc}); the "
+                "file is left as it is — move it aside and restart this edge to serve the "
+                "device with a new map")
+            return
         level = self.governor.levels[self.governor.level]
         if self.governor.level:                # a device that joins gets today's level
             link.core.set_bundle_adjustment(level.window, level.points)
@@ -306,7 +319,8 @@ class EdgeMapperNode(Node):
                 f"device {device}: {len(watch.unanswered)} of its slots unanswered (up to "
                 f"slot {watch.newest_summaries}): its edge stopped; taking it over")
             self._serve(device)
-            self.taken_over.add(device)
+            if device in self.links:
+                self.taken_over.add(device)
         for device in sorted(self.taken_over):
             topic = self.resolve_topic_name(f"{device}/{topics.UPLOAD_REQUEST}")
             if self.count_publishers(topic) <= 1:

@@ -156,6 +156,30 @@ def test_edge_node_protocol_corrupt_keyframe_and_restart(
     assert got["stats"][-1].archived_keyframes >= archived
 
 
+def test_an_unreadable_checkpoint_keeps_its_device_unserved_and_the_others_served(
+        tmp_path: Path, domain: LoopbackDomain) -> None:
+    """One device's checkpoint cannot be read (a disk fault, a file from elsewhere): an edge
+    serving several devices serves the others, names the file and why, and leaves it as it
+    is; an edge whose one device it is does not start, and says why."""
+    checkpoint = tmp_path / "edge.npz"
+    unreadable = tmp_path / "edge.ar2.npz"
+    unreadable.write_bytes(b"not a checkpoint")
+    edge = domain.spawn(["-m", "edge_mapper.node", "--ros-args", "-p", "devices:=[ar1, ar2]",
+                         "-p", f"checkpoint:={checkpoint}"], forks=FORKS)
+    assert domain.wait_for_log(edge, "device ar2: not served, its checkpoint cannot be read",
+                               60.0), domain.log(edge)[-2000:]
+    assert "serving device ar1" in domain.log(edge) and str(unreadable) in domain.log(edge)
+    assert edge.poll() is None, domain.log(edge)[-2000:]
+    code, _, err = domain.stop(edge)
+    assert code == 0, err
+    assert unreadable.read_bytes() == b"not a checkpoint"
+    alone = domain.spawn(["-m", "edge_mapper.node", "--ros-args",
+                          "-p", f"checkpoint:={unreadable}"], forks=FORKS)
+    assert alone.wait(timeout=60) != 0
+    assert "not a readable map checkpoint" in domain.log(alone), domain.log(alone)[-2000:]
+    assert unreadable.read_bytes() == b"not a checkpoint"
+
+
 def test_a_device_that_starts_again_is_served_with_a_new_map(
         tmp_path: Path, domain: LoopbackDomain, ros: RosSession) -> None:
     """A device that restarts (its app, its computer) counts its slots and frame ids from 0
