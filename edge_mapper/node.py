@@ -140,13 +140,7 @@ class EdgeMapperNode(Node):
         except MapError as exc:
             if not self.several:                 # the node's one device: it cannot start
                 raise
-            # one device's unreadable checkpoint must not keep the others unserved, nor be
-            # overwritten by a new map: the device waits until someone looks at the file
-            self.failed.add(device)
-            self.get_logger().error(
-                f"device {device}: not served, its checkpoint cannot be read ({exc}); the "
-                "file is left as it is — move it aside and restart this edge to serve the "
-                "device with a new map")
+            self._unreadable(device, exc)
             return
         level = self.governor.levels[self.governor.level]
         if self.governor.level:                # a device that joins gets today's level
@@ -156,9 +150,26 @@ class EdgeMapperNode(Node):
             self.get_logger().info(f"serving device {device} (its "
                                    f"{self.resolve_topic_name(device + SUMMARIES_SUFFIX)})")
         if self.merging is not None:
-            restored = self.merging.serve(device)
+            try:
+                restored = self.merging.serve(device)
+            except MapError as exc:             # the place its checkpoint records
+                del self.links[device]
+                link.close(keep_checkpoint=True)
+                self.merging.forget(device)
+                self._unreadable(device, exc)
+                return
             if restored:
                 self.get_logger().info(f"device {device}'s map restored: {restored}")
+
+    def _unreadable(self, device: str, exc: MapError) -> None:
+        """``device`` not served: its checkpoint cannot be read. One device's file must not
+        keep the others unserved, nor be overwritten by a new map: the device waits until
+        someone looks at it."""
+        self.failed.add(device)
+        self.get_logger().error(
+            f"device {device}: not served, its checkpoint cannot be read ({exc}); the file is "
+            "left as it is — move it aside and restart this edge to serve the device with a "
+            "new map")
 
     def _grant(self, device: str, slot: int, frames: list[FrameObservations], rate_mbps: float,
                latent: RateLatent | None, core: EdgeMapperCore) -> int:

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from twinslam.slam.back_end.foreign_keyframes import MAX_SOURCES
+from twinslam.slam.back_end.keyframe_map import MapError
 
 #: the checkpoint's arrays of a device's place
 ROOT, LENDERS, FOLLOWED, RUN = "place_root", "place_lenders", "place_followed", "place_run"
@@ -76,16 +77,17 @@ class PlaceMembership:
     def read(cls, extra: Mapping[str, np.ndarray]) -> PlaceMembership:
         """The record in a checkpoint's ``extra`` arrays (none: a map of its own — a
         checkpoint written before the edge recorded places, or by an unmerged edge; no run:
-        one written before runs were counted, a first map)."""
+        one written before runs were counted, a first map); MapError where it contradicts
+        itself, as for a map that cannot be read."""
         if ROOT not in extra:
             return cls()
         run = int(extra.get(RUN, 0))
         if run < 0:
-            raise ValueError(f"a checkpoint's place record names map run {run}")
+            raise MapError(f"a checkpoint's place record names map run {run}")
         lenders = [str(d) for d in np.atleast_1d(extra.get(LENDERS, ()))]
         counts = [int(n) for n in np.atleast_1d(extra.get(FOLLOWED, ()))]
         if len(lenders) != len(counts):
-            raise ValueError(f"a checkpoint's place record names {len(lenders)} lenders and "
+            raise MapError(f"a checkpoint's place record names {len(lenders)} lenders and "
                              f"{len(counts)} loop counts")
         return cls(str(extra[ROOT]), dict(zip(lenders, counts, strict=True)), run)
 

@@ -24,11 +24,14 @@ from device_tracker.messages import (
     keyframe_message,
     uplink_throughput_message,
 )
+from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore
+from edge_mapper.place_membership import FOLLOWED, PlaceMembership
 from msg_schemas import qos, topics
 from tests.test_edge_core import Device, K
 from twinslam.hosts.loopback import LoopbackDomain
 from twinslam.live.launcher import preloaded_nodes
 from twinslam.node_runtime.session import RosSession
+from twinslam.policies.registry import make_policy
 from twinslam.slam.keyframe import TRACK_ID_BIT, KeyFramePayload
 from twinslam.uplink.shaper import SlotThroughput
 
@@ -158,21 +161,34 @@ def test_edge_node_protocol_corrupt_keyframe_and_restart(
 
 def test_an_unreadable_checkpoint_keeps_its_device_unserved_and_the_others_served(
         tmp_path: Path, domain: LoopbackDomain) -> None:
-    """One device's checkpoint cannot be read (a disk fault, a file from elsewhere): an edge
-    serving several devices serves the others, names the file and why, and leaves it as it
-    is; an edge whose one device it is does not start, and says why."""
+    """One device's checkpoint cannot be read (a disk fault, a file from elsewhere), another's
+    map can but the place it records contradicts itself: an edge serving several devices
+    serves the others, names each device and why, and leaves the files as they are; an edge
+    whose one device it is does not start, and says why."""
     checkpoint = tmp_path / "edge.npz"
     unreadable = tmp_path / "edge.ar2.npz"
     unreadable.write_bytes(b"not a checkpoint")
-    edge = domain.spawn(["-m", "edge_mapper.node", "--ros-args", "-p", "devices:=[ar1, ar2]",
+    placed = tmp_path / "edge.ar3.npz"
+    core = EdgeMapperCore(make_policy("lff"), K, EdgeConfig(), placed)
+    core.map.add_keyframe(0, np.eye(4))
+    record = PlaceMembership("ar1", {"ar1": 5, "ar4": 2}).arrays()
+    record[FOLLOWED] = record[FOLLOWED][:1]            # two lenders, one loop count
+    core.saved_with = lambda: record
+    core.save_checkpoint()
+    core.close()
+    written = placed.read_bytes()
+    edge = domain.spawn(["-m", "edge_mapper.node", "--ros-args",
+                         "-p", "devices:=[ar1, ar2, ar3]", "-p", "merge_maps:=true",
                          "-p", f"checkpoint:={checkpoint}"], forks=FORKS)
-    assert domain.wait_for_log(edge, "device ar2: not served, its checkpoint cannot be read",
-                               60.0), domain.log(edge)[-2000:]
-    assert "serving device ar1" in domain.log(edge) and str(unreadable) in domain.log(edge)
-    assert edge.poll() is None, domain.log(edge)[-2000:]
+    for device in ("ar2", "ar3"):
+        assert domain.wait_for_log(edge, f"device {device}: not served, its checkpoint cannot "
+                                   "be read", 60.0), domain.log(edge)[-2000:]
+    log = domain.log(edge)
+    assert "serving device ar1" in log and str(unreadable) in log and "2 lenders" in log
+    assert edge.poll() is None, log[-2000:]
     code, _, err = domain.stop(edge)
     assert code == 0, err
-    assert unreadable.read_bytes() == b"not a checkpoint"
+    assert unreadable.read_bytes() == b"not a checkpoint" and placed.read_bytes() == written
     alone = domain.spawn(["-m", "edge_mapper.node", "--ros-args",
                           "-p", f"checkpoint:={unreadable}"], forks=FORKS)
     assert alone.wait(timeout=60) != 0
