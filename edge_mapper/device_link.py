@@ -257,9 +257,12 @@ class DeviceLink:
             return
         before = self.core.version
         if self.core.catch_up_version(int(msg.map_version)):
+            why = ("its checkpoint was written before the last maps went out"
+                   if self.core.back_end.restored_from_file else
+                   "this edge's map of it is new: an edge served it before, and that map "
+                   "was set aside or not checkpointed")
             self.info(f"slot {slot}: the device holds map version {msg.map_version}, newer "
-                      f"than this edge's {before} (its checkpoint was written before the "
-                      "last maps went out): versions go on from the device's")
+                      f"than this edge's {before} ({why}): versions go on from the device's")
         live = self.live()
         self._log(self.control.apply({k: live[k] for k in POLICY_KEYS}, slot))
         self.core.set_policy(self.control.policy)
