@@ -62,6 +62,7 @@ from twinslam.slam.front_end.map_source import (
 from twinslam.slam.front_end.tracking import Tracking, TrackingConfig, depth_at
 from twinslam.slam.keyframe import KeyFramePayload, as_track_ids, is_track
 from twinslam.slam.map_update import MapSnapshot
+from twinslam.slam.sorted_ids import find_last
 from twinslam.slot_protocol import table1
 
 
@@ -417,7 +418,7 @@ def relabelled(labels: np.ndarray, old: np.ndarray, new: np.ndarray) -> np.ndarr
     labels = np.asarray(labels, dtype=np.uint64)
     old, new = np.asarray(old, dtype=np.uint64), np.asarray(new, dtype=np.uint64)
     order = np.argsort(old, kind="stable")
-    at, found = _last_equal(old[order], labels)
+    at, found = find_last(old[order], labels)
     out = labels.copy()
     out[found] = new[order][at[found]]
     return out
@@ -429,16 +430,7 @@ def rows_of_points(labels: np.ndarray, point_ids: np.ndarray) -> tuple[np.ndarra
     labels, keys = np.asarray(labels, dtype=np.uint64), np.asarray(point_ids, dtype=np.uint64)
     rows = np.flatnonzero(~is_track(labels))
     order = np.argsort(labels[rows], kind="stable")
-    at, found = _last_equal(labels[rows][order], keys)
+    at, found = find_last(labels[rows][order], keys)
     if not len(rows):
         return found, np.zeros(len(keys), dtype=np.int64)
     return found, rows[order][np.where(found, at, 0)]
-
-
-def _last_equal(sorted_keys: np.ndarray, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """For each of ``queries``, the index of the last equal key in ``sorted_keys`` (ascending,
-    repeats allowed) and whether there is one."""
-    at = np.searchsorted(sorted_keys, queries, side="right").astype(np.int64) - 1
-    found = at >= 0
-    found[found] = sorted_keys[at[found]] == queries[found]
-    return at, found

@@ -40,7 +40,7 @@ from twinslam_msgs.msg import (
     UploadRequest,
 )
 
-from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, SlotOutcome
+from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, SlotOutcome, set_aside
 from edge_mapper.messages import (
     map_stats_message,
     map_update_message,
@@ -476,7 +476,7 @@ class DeviceLink:
         checkpoint = self.core.checkpoint
         if checkpoint is not None and not keep_checkpoint:
             for kept in (checkpoint, archive_folder(checkpoint)):
-                aside = kept.with_name(kept.name + ".reclaimed")
+                aside = set_aside(kept)
                 if kept.exists():
                     if aside.is_dir():          # an earlier reclaim's archive
                         shutil.rmtree(aside)

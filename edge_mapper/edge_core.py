@@ -560,6 +560,13 @@ class EdgeMapperCore:
 WARM_UP_BA_WINDOW = 5
 
 
+def set_aside(kept: Path) -> Path:
+    """Where a reclaimed device's checkpoint file, or its archive's folder, is moved aside
+    (``FILE.reclaimed``): kept to inspect or restore, and read for the run of the device's
+    next map (:func:`~edge_mapper.place_membership.run_after`)."""
+    return kept.with_name(kept.name + ".reclaimed")
+
+
 def applied_evictions(evict: Sequence[int], map_ids: Sequence[int], missing: Collection[int],
                       vmax: int) -> list[int]:
     """The keyframes a slot evicts once its uploads are in: C_k, less one for each requested

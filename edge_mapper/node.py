@@ -153,9 +153,7 @@ class EdgeMapperNode(Node):
             try:
                 restored = self.merging.serve(device)
             except MapError as exc:             # the place its checkpoint records
-                del self.links[device]
-                link.close(keep_checkpoint=True)
-                self.merging.forget(device)
+                self._drop_failed(device, link)
                 self._unreadable(device, exc)
                 return
             if restored:
@@ -247,6 +245,17 @@ class EdgeMapperNode(Node):
         if self.merging is not None:
             self.merging.forget(device)
 
+    def _set_aside(self, device: str, keep_checkpoint: bool = False) -> None:
+        """``device``'s link closed, if it has one, and its map left out of the place's
+        merging: its checkpoint moved aside (``FILE.reclaimed``: a reclaimed device, one that
+        started again) or kept where it is (``keep_checkpoint``: a device given back to its
+        own edge)."""
+        link = self.links.pop(device, None)
+        if link is not None:
+            link.close(keep_checkpoint=keep_checkpoint)
+        if self.merging is not None:
+            self.merging.forget(device)
+
     def _serve_afresh(self, device: str, link: DeviceLink, slot: int, newest: int) -> None:
         """The device started again (its slot ``slot`` came after the edge had planned
         ``newest``): its old map set aside as a reclaimed device's (``FILE.reclaimed``, its
@@ -259,10 +268,7 @@ class EdgeMapperNode(Node):
             f"{len(link.core.map.keyframes)} keyframes is set aside"
             + (f" ({checkpoint}.reclaimed)" if checkpoint is not None else "")
             + " and it is served with a new map from its next slot")
-        del self.links[device]
-        link.close()
-        if self.merging is not None:
-            self.merging.forget(device)
+        self._set_aside(device)
         self._serve(device)
 
     def _look_around(self) -> None:
@@ -288,11 +294,7 @@ class EdgeMapperNode(Node):
                 self.get_logger().warning(
                     f"device {event.device}: silent for {event.seconds:.1f} s; its map and "
                     "its share of the keyframe budget are reclaimed")
-                link = self.links.pop(event.device, None)
-                if link is not None:
-                    link.close()
-                if self.merging is not None:
-                    self.merging.forget(event.device)
+                self._set_aside(event.device)
                 if event.device in self.listed and event.device not in self.failed:
                     self._serve(event.device)     # listening again, with a fresh map
             if self.pub_budget is not None:
@@ -339,11 +341,7 @@ class EdgeMapperNode(Node):
             self.get_logger().warning(f"device {device}: another edge answers it again; "
                                       "giving it back")
             self.taken_over.discard(device)
-            link = self.links.pop(device, None)
-            if link is not None:
-                link.close(keep_checkpoint=True)
-            if self.merging is not None:
-                self.merging.forget(device)
+            self._set_aside(device, keep_checkpoint=True)
 
     def close(self) -> None:
         """Before the node goes (``run_node`` calls it once the executor stopped): every

@@ -46,7 +46,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from edge_mapper.edge_core import EdgeMapperCore
+from edge_mapper.edge_core import EdgeMapperCore, set_aside
 from edge_mapper.place_membership import PlaceMembership, run_after, source_of
 from twinslam.slam.back_end.foreign_keyframes import foreign_tag, source_id, tag_of
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
@@ -150,10 +150,9 @@ class PlaceMerging:
         if not core.back_end.restored_from_file:
             # a new map: past the runs of the maps set aside before it, in this process or
             # (its file moved aside) in an edge that ran before
-            reclaimed = core.checkpoint.with_name(core.checkpoint.name + ".reclaimed") \
-                if core.checkpoint is not None else None
             self._runs[device] = max(self._runs.get(device, 0),
-                                     run_after(reclaimed) if reclaimed is not None else 0)
+                                     run_after(set_aside(core.checkpoint))
+                                     if core.checkpoint is not None else 0)
             return ""
         record = PlaceMembership.read(core.back_end.extra)
         self._runs[device] = record.run

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore
+from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, set_aside
 from edge_mapper.place_membership import PlaceMembership, source_of
 from edge_mapper.place_merging import MergeEvent, PlaceMerging
 from edge_mapper.slot_planner import SlotConfig
@@ -318,7 +318,7 @@ def test_a_device_served_with_a_new_map_lends_its_new_keyframes_under_a_new_tag(
     # keyframe ids; once merged into ar2's place it lends again
     cores["ar1"].close()
     checkpoint = tmp_path / "edge.ar1.npz"
-    checkpoint.replace(checkpoint.with_name(checkpoint.name + ".reclaimed"))
+    checkpoint.replace(set_aside(checkpoint))
     merging.forget("ar1")
     cores["ar1"] = _room_and_newcomer(room)["ar1"]
     cores["ar1"].checkpoint = checkpoint
@@ -338,7 +338,7 @@ def test_a_device_served_with_a_new_map_lends_its_new_keyframes_under_a_new_tag(
     # that map's first checkpoint learns it from the map set aside
     cores["ar1"].save_checkpoint()
     assert PlaceMembership.read(np.load(checkpoint)).run == 1
-    checkpoint.replace(checkpoint.with_name(checkpoint.name + ".reclaimed"))
+    checkpoint.replace(set_aside(checkpoint))
     fresh = PlaceMerging(lambda: {"ar1": _core(checkpoint=checkpoint)}, background=False)
     fresh.serve("ar1")
     assert fresh.membership("ar1").run == 2 and fresh.source("ar1") == source_of("ar1", 2)

@@ -73,10 +73,11 @@ def test_a_loop_with_a_known_drift_is_closed_and_the_drift_removed() -> None:
                                atol=0.02)
     # a point seen from the last keyframe moves with it, one of the first stays
     point = estimate[39][:3, 3] + [0.0, 0.0, 1.0]
-    moved = move_with_keyframes({1: point, 2: np.zeros(3)}, {1: 39, 2: 0}, closed.corrections)
+    moved = move_with_keyframes(np.array([point, np.zeros(3)]), np.array([39, 0]),
+                                closed.corrections)
     c = closed.corrections[39]
-    np.testing.assert_allclose(moved[1], c[:3, :3] @ point + c[:3, 3])
-    np.testing.assert_allclose(moved[2], np.zeros(3), atol=1e-5)
+    np.testing.assert_allclose(moved[0], c[:3, :3] @ point + c[:3, 3])
+    np.testing.assert_allclose(moved[1], np.zeros(3), atol=1e-5)
 
 
 def test_a_walk_without_drift_is_left_where_it_is() -> None:

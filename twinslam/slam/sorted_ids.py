@@ -20,6 +20,17 @@ def find_sorted(sorted_ids: np.ndarray, keys: np.ndarray) -> tuple[np.ndarray, n
     return at, found
 
 
+def find_last(sorted_keys: np.ndarray, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`find_sorted` where ``sorted_keys`` (ascending) may repeat: for each of
+    ``queries``, the index of its last equal key and whether there is one — a dict built from
+    the keys in that order keeps the last of them too (the device's labels renamed by the
+    tracks the edge resolved, a map point's row among its labels)."""
+    at = np.searchsorted(sorted_keys, queries, side="right").astype(np.int64) - 1
+    found = at >= 0
+    found[found] = sorted_keys[at[found]] == queries[found]
+    return at, found
+
+
 #: a span of ids up to this many times the keys (plus a floor) is marked in an array of flags
 #: rather than sorted: a map names its points 1, 2, 3, …, so a slot's keys span a few of its
 #: ids each, while another device's points (tagged in their high bits) span far more

@@ -20,6 +20,7 @@ import numpy as np
 
 from twinslam.slam.back_end.foreign_keyframes import is_foreign
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
+from twinslam.slam.back_end.pose_graph import move_with_keyframes
 
 
 def correction_for(corrections: Mapping[int, np.ndarray], kf_id: int) -> np.ndarray | None:
@@ -55,9 +56,7 @@ def correct_map(m: KeyFrameMap, corrections: Mapping[int, np.ndarray]) -> None:
 def move_keyframes(m: KeyFrameMap, moves: Mapping[int, np.ndarray]) -> None:
     """Move the keyframes of ``m`` that ``moves`` names (id → 4×4 map-frame correction, as
     they are: adopted keyframes too) and every point with its reference keyframe, its oldest
-    observer: the points of all moved keyframes in one product (a loop on the slot's path
-    moves tens of thousands; grouped point by point it took ~100 ms a loop on the 7-Scenes
-    walk under the profiler)."""
+    observer (:func:`~twinslam.slam.back_end.pose_graph.move_with_keyframes`)."""
     for kf_id, c in moves.items():
         m.keyframes[kf_id].pose = c @ m.keyframes[kf_id].pose
     if not moves or not m.points:
@@ -65,12 +64,4 @@ def move_keyframes(m: KeyFrameMap, moves: Mapping[int, np.ndarray]) -> None:
     ids = np.fromiter(m.points, dtype=np.int64, count=len(m.points))
     reference = np.fromiter((min(pt.observers, default=-1) for pt in m.points.values()),
                             dtype=np.int64, count=len(ids))
-    moved = np.fromiter(moves, dtype=np.int64, count=len(moves))
-    order = np.argsort(moved)
-    at = np.minimum(np.searchsorted(moved[order], reference), len(moved) - 1)
-    hit = moved[order][at] == reference
-    if not hit.any():
-        return
-    c = np.stack([np.asarray(moves[int(k)], dtype=np.float64) for k in moved[order]])[at[hit]]
-    xyz = m.positions_of(ids[hit])
-    m.set_positions(ids[hit], np.einsum("nij,nj->ni", c[:, :3, :3], xyz) + c[:, :3, 3])
+    m.set_positions(ids, move_with_keyframes(m.positions_of(ids), reference, moves))

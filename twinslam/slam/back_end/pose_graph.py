@@ -49,6 +49,7 @@ import numpy as np
 from gtsam.symbol_shorthand import A, X
 
 from twinslam.rotations import rotation_angle_deg
+from twinslam.slam.sorted_ids import find_sorted
 
 #: σ of a walk's step that goes nowhere (rad for the three rotations, m for the three
 #: translations), and how it grows with the step: per metre of the step's length and per radian
@@ -278,19 +279,20 @@ def _solved(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values,
     return LoopClosure(corrected, corrections, float(before), float(graph.error(result)))
 
 
-def move_with_keyframes(points: Mapping[int, np.ndarray], reference: Mapping[int, int],
-                        corrections: Mapping[int, np.ndarray]) -> dict[int, np.ndarray]:
-    """Each point (id → xyz in the map) moved by its reference keyframe's correction
-    (``reference``: point id → keyframe id); a point without one stays. The points of one
-    keyframe move in one product (a map holds tens of thousands)."""
-    groups: dict[int, list[int]] = {}
-    for pid in points:
-        groups.setdefault(reference.get(pid, -1), []).append(pid)
-    moved: dict[int, np.ndarray] = {}
-    for kf, pids in groups.items():
-        xyz = np.array([points[p] for p in pids], dtype=np.float64).reshape(-1, 3)
-        c = corrections.get(kf)
-        if c is not None:
-            xyz = xyz @ np.asarray(c)[:3, :3].T + np.asarray(c)[:3, 3]
-        moved.update(zip(pids, xyz, strict=True))
+def move_with_keyframes(positions: np.ndarray, reference: np.ndarray,
+                        corrections: Mapping[int, np.ndarray]) -> np.ndarray:
+    """The points at ``positions`` ((n, 3) in the map) each moved by its reference keyframe's
+    correction (``reference``: (n,) keyframe ids); a point whose keyframe has none stays. One
+    product for all of them: a loop moves a map's tens of thousands of points on the slot's
+    path, where grouping them point by point in Python took ~100 ms a loop on the 7-Scenes
+    walk under the profiler."""
+    xyz = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+    if not corrections or not len(xyz):
+        return xyz.copy()
+    keyframes = np.sort(np.fromiter(corrections, dtype=np.int64, count=len(corrections)))
+    at, found = find_sorted(keyframes, np.asarray(reference, dtype=np.int64).reshape(-1))
+    c = np.stack([np.asarray(corrections[int(k)], dtype=np.float64)
+                  for k in keyframes])[at[found]]
+    moved = xyz.copy()
+    moved[found] = np.einsum("nij,nj->ni", c[:, :3, :3], xyz[found]) + c[:, :3, 3]
     return moved
