@@ -3,6 +3,7 @@ the synthetic room, the capacity (least recently useful first), and its files on
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -151,3 +152,19 @@ def test_the_archive_on_disk_comes_back_and_an_unreadable_file_is_named(
     assert [kf.id for kf in smaller] == [4]       # the capacity holds after a restart too
     empty, problems = KeyFrameArchive.restore(3, tmp_path / "none")
     assert len(empty) == 0 and problems == []
+
+
+def test_a_keyframe_taken_back_and_archived_again_keeps_its_file(tmp_path: Path) -> None:
+    """A keyframe restored into the map and evicted again before the map's next checkpoint is
+    archived again under the same file: the checkpoint's release must not delete it (it did:
+    with ``checkpoint_every`` above 1 a restart found the keyframe in neither the map nor the
+    archive)."""
+    folder = tmp_path / "edge.npz.archive"
+    archive = KeyFrameArchive(3, folder)
+    archive.add(_random_keyframe(7, slot=1))
+    back = archive.take(7)
+    archive.add(dataclasses.replace(back, archived_slot=2))     # evicted again
+    archive.release_taken()                                     # the map's checkpoint
+    assert (folder / "keyframe-000000007.npz").exists()
+    again, problems = KeyFrameArchive.restore(3, folder)
+    assert [kf.id for kf in again] == [7] and again.get(7).archived_slot == 2 and not problems

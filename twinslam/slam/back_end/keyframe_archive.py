@@ -173,7 +173,8 @@ class KeyFrameArchive:
         #: the vocabulary place recognition files a large archive's points under, shared with
         #: every view of this archive (learned once, not for each loop job's view)
         self.words = words if words is not None else PlaceWords()
-        self._taken: list[Path] = []       #: files of taken keyframes, until the checkpoint
+        #: keyframes taken back into the map whose files stay until its checkpoint
+        self._taken: set[int] = set()
         #: one writer of a keyframe's file at a time: the loop closer's worker rewrites files
         #: of corrected keyframes while the edge archives and removes others
         self._files = threading.Lock()
@@ -209,6 +210,9 @@ class KeyFrameArchive:
             return [kf.id]
         self._entries[kf.id] = kf
         self._useful[kf.id] = kf.archived_slot
+        # taken back and archived again before the map's checkpoint: the file is this
+        # keyframe's again, not one for the checkpoint to release
+        self._taken.discard(kf.id)
         if self.folder is not None and write:
             self.folder.mkdir(parents=True, exist_ok=True)
             with self._files:
@@ -306,15 +310,15 @@ class KeyFrameArchive:
         kf = self._entries[kf_id]
         self._remove(kf_id, keep_file=True)
         if self.folder is not None:
-            self._taken.append(self._path(kf_id))
+            self._taken.add(kf_id)
         return kf
 
     def release_taken(self) -> None:
         """Delete the files of the keyframes taken back since the last call."""
         with self._files:
-            for path in self._taken:
-                path.unlink(missing_ok=True)
-        self._taken = []
+            for kf_id in self._taken:
+                self._path(kf_id).unlink(missing_ok=True)
+        self._taken = set()
 
     def _remove(self, kf_id: int, keep_file: bool = False) -> None:
         del self._entries[kf_id]
