@@ -302,12 +302,13 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             edges: int = 1, pools: str = "one", hosts: bool = False,
             merge_maps: bool = False, stagger: float = 1.0, checkpoint_every: int = 0,
             niceness: int | None = None, share: float | None = None,
-            yields: bool | None = None
+            yields: bool | None = None, background: bool | None = None
             ) -> tuple[dict[str, float], list[dict[str, float]]]:
     """One fleet of ``n`` emulated devices served, their starts spread evenly over ``stagger``
     slot periods, each device's map checkpointed every ``checkpoint_every`` slots (0: never),
     the edges' loop workers ``niceness`` steps below their slots, at most ``share`` of a
-    core and waiting for the slots' work or not (``yields``; None: the edge's defaults);
+    core and waiting for the slots' work or not (``yields``), the checkpoints written on a
+    thread of their own or on the slot thread (``background``; None: the edge's defaults);
     the table's row and every device-slot's figures (its latency, the edge's compute, what
     the slot restored, uploaded, closed)."""
     names = [f"ar{i + 1}" for i in range(n)]
@@ -325,6 +326,9 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
                             *(["-p", f"checkpoint:={kept}/edge{e + 1}.npz",
                                "-p", f"checkpoint_every:={checkpoint_every}"]
                               if checkpoint_every else []),
+                            *(["-p", "checkpoint_in_background:="
+                               f"{str(background).lower()}"]
+                              if checkpoint_every and background is not None else []),
                             *(["-p", f"loop_worker_niceness:={niceness}"]
                               if niceness is not None else []),
                             *(["-p", f"loop_worker_share:={share}"]
@@ -401,6 +405,8 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             "loop_worker_niceness": -1 if niceness is None else niceness,
             "loop_worker_share": math.nan if share is None else share,
             "loop_worker_yields": "" if yields is None else ("on" if yields else "off"),
+            "checkpoint_in_background": "" if background is None or not checkpoint_every
+            else ("on" if background else "off"),
             # loops the edges closed over the run (each device's MapStats counts its own)
             "loops_closed": sum(max((s.loops_closed for s in d.stats.values()), default=0)
                                 for d in devices),
@@ -502,6 +508,11 @@ def main() -> None:
                         help="the edges' loop_worker_yields (their loop closer's worker waits "
                              "while the slots' work runs), on, off or both comma-separated "
                              "to compare; default: the edge's")
+    parser.add_argument("--checkpoints-in-background", default="", metavar="on|off",
+                        help="with --checkpoint-every, the edges' checkpoint_in_background "
+                             "(the files written on a thread of their own, or on the slot "
+                             "thread before the map update goes out), on, off or both "
+                             "comma-separated to compare; default: the edge's")
     parser.add_argument("--hosts", action="store_true",
                         help="each edge process on an edge host of its own and the devices on "
                              "a device host (network namespaces on one switch; needs root) "
@@ -517,6 +528,9 @@ def main() -> None:
                                0.05, 1.0, "shares of a core")
     yielding = values_to_compare(parser, "--loop-worker-yields", args.loop_worker_yields,
                                  on_or_off, False, True, "on or off")
+    backgrounds = values_to_compare(parser, "--checkpoints-in-background",
+                                    args.checkpoints_in_background, on_or_off, False, True,
+                                    "on or off")
     why_not = unavailable_reason() if args.hosts else None
     if why_not is not None:
         raise SystemExit(f"--hosts: network namespaces cannot be made here: {why_not}")
@@ -546,19 +560,20 @@ def main() -> None:
               f"{'edge ms/slot':>12} {'p95':>6} "
               f"{'latency ms':>10} {'p95':>6} {'missed':>7} {'edge CPU':>8} "
               f"{'devices CPU':>11} {'idle':>5} {'merged':>6} {'lost':>5} {'loops':>5} "
-              f"{'nice':>4} {'share':>5} {'yield':>5}")
+              f"{'nice':>4} {'share':>5} {'yield':>5} {'ckpt bg':>7}")
     print(header, flush=True)
-    settings = [(pools, merge, int(edges), int(n), nice, share, yields)
+    settings = [(pools, merge, int(edges), int(n), nice, share, yields, background)
                 for pools in args.pools.split(",")
                 for merge in args.merge_maps.split(",")
                 for edges in args.edges.split(",") for n in args.devices.split(",")
-                for nice in nicenesses for share in shares for yields in yielding]
+                for nice in nicenesses for share in shares for yields in yielding
+                for background in backgrounds]
     every_slot = []
-    for pools, merge, edges, n, nice, share, yields in settings:
+    for pools, merge, edges, n, nice, share, yields, background in settings:
         with collector_log(args.collector_log) as collections:
             row, slots = measure(n, recording, args.policy, args.compute_budget, edges, pools,
                                  args.hosts, merging[merge], args.stagger,
-                                 args.checkpoint_every, nice, share, yields)
+                                 args.checkpoint_every, nice, share, yields, background)
             full = [c for c in collections() if c[0] == 2]
         if args.collector_log:
             row.update(full_collections=len(full),
@@ -572,6 +587,7 @@ def main() -> None:
                         "devices": n, "loop_worker_niceness": row["loop_worker_niceness"],
                         "loop_worker_share": row["loop_worker_share"],
                         "loop_worker_yields": row["loop_worker_yields"],
+                        "checkpoint_in_background": row["checkpoint_in_background"],
                         **slot} for slot in slots]
         print(f"{pools:>5} {merge:>5} {row['edges']:>5} {n:>7} "
               f"{row['answered']:>4.0f}/{row['device_slots']:<4.0f} "
@@ -582,7 +598,8 @@ def main() -> None:
               f"{row['merged']:>6} {row['lost_share']:>5.1%} {row['loops_closed']:>5} "
               f"{'edge' if nice is None else nice:>4} "
               f"{'edge' if share is None else f'{share:g}':>5} "
-              f"{row['loop_worker_yields'] or 'edge':>5}", flush=True)
+              f"{row['loop_worker_yields'] or 'edge':>5} "
+              f"{row['checkpoint_in_background'] or 'edge':>7}", flush=True)
     if args.csv:
         write_dict_rows(args.csv, rows)
         print(f"wrote {args.csv}")

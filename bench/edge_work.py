@@ -4,13 +4,15 @@ keyframes, the slot's end (archive, bundle adjustment, checkpoint, υ, the loop 
 work), and writing the map update, the statistics and the viewer's messages.
 
     python -m bench.edge_work [SEQUENCE] [--frames 1000] [--order forward] [--seed 0] [--uplink lte]
-                              [--csv FILE]
+                              [--checkpoints background] [--csv FILE]
 
 One default device and edge over the sequence in one process (the device's tracking is not
 counted), every message the edge node reads or writes made and (de)serialised as rclpy does
 on the wire — DDS's own transport and the executor are left out (``bench.dds``). The loop
 closer runs in the caller: its work, which the node does on a thread of the same process,
-counts in the slot it was started by. Prints each step's median, p95 and share of the edge's
+counts in the slot it was started by. The map is checkpointed every slot, written on a thread
+of its own as the node does (``--checkpoints slot``: on the slot's path, as before 2026-12-02;
+the step then holds the write). Prints each step's median, p95 and share of the edge's
 time over the walk's slots; ``--csv`` writes every slot's steps.
 """
 
@@ -34,6 +36,7 @@ from bench.in_process import ServedSlot, open_walk, repeatable_edge
 from bench.paths import SEVEN_SCENES
 from device_tracker.device_core import DeviceTrackerCore
 from device_tracker.messages import frame_summaries_message, keyframe_message, read_map_update
+from edge_mapper.checkpoint_writer import CheckpointWriter
 from edge_mapper.edge_core import EdgeMapperCore
 from edge_mapper.messages import (
     map_stats_message,
@@ -140,6 +143,9 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0, help="the uplink's seed")
     parser.add_argument("--uplink", default="lte", help="uplink family (table1, lte, mmwave, "
                         "constrained)")
+    parser.add_argument("--checkpoints", default="background", choices=("background", "slot"),
+                        help="where the checkpoint files are written: on the node's writer "
+                        "thread (checkpoint_in_background, the default) or on the slot's path")
     parser.add_argument("--csv", type=Path, help="write every slot's steps (ms) here")
     args = parser.parse_args()
     cv2.setNumThreads(1)
@@ -150,14 +156,23 @@ def main() -> None:
         walk = open_walk("edge", args.sequence, args.frames, args.order, args.seed, args.uplink,
                          config, 8, Path(tmp))
         walk.serve = clock.serve
+        writer = CheckpointWriter() if args.checkpoints == "background" else None
+        walk.edge.writer = writer
+        started = time.perf_counter()
         while walk.step() is not None:
             pass
+        walk.edge.flush_checkpoint()
         walk.edge.close()
+        if writer is not None:
+            writer.close()
+        walk_s = time.perf_counter() - started
     slots = clock.slots[1:]                        # the first slot's map is one keyframe
     totals = np.array([sum(s.values()) for s in slots])
     print(f"machine: {platform.machine()}, python {platform.python_version()}; "
           f"{args.sequence} ({args.frames} frames, {args.order}), the default edge, "
-          f"{len(slots)} slots")
+          f"{len(slots)} slots, checkpoints written "
+          f"{'on a thread of their own' if writer else 'on the slot path'}; "
+          f"the walk (tracking and reading frames included) {walk_s:.1f} s")
     print(f"{'step':>18} {'median ms':>10} {'p95 ms':>8} {'share':>6}")
     for step in STEPS:
         values = np.array([s.get(step, 0.0) for s in slots])

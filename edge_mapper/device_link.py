@@ -40,6 +40,7 @@ from twinslam_msgs.msg import (
     UploadRequest,
 )
 
+from edge_mapper.checkpoint_writer import CheckpointWriter
 from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, SlotOutcome, set_aside
 from edge_mapper.messages import (
     map_stats_message,
@@ -76,6 +77,9 @@ class LinkSettings:
     map_frame: str
     #: slots between two keyframe trajectories (and after each loop closed); 0: after loops
     trajectory_every: int = 30
+    #: the process's checkpoint writer, shared by its devices (None: each checkpoint written
+    #: on the slot thread, before the slot's map update goes out)
+    writer: CheckpointWriter | None = None
 
 
 #: the budget's hooks, for an edge serving several devices: (device, slot, frames, d_k, latent,
@@ -128,6 +132,7 @@ class DeviceLink:
                                    checkpoint_of(settings.checkpoint, device),
                                    settings.n_states)
         self.core.spread_checkpoints(zlib.crc32(device.encode()))
+        self.core.writer = settings.writer
         self.slots = SlotLifecycle(settings.slot_timeout_s)
         #: the frame of this device's map: with several devices each has its own on /tf
         self.map_frame = f"{device}/{settings.map_frame}" if device else settings.map_frame
@@ -474,6 +479,13 @@ class DeviceLink:
         the device starts afresh (a clean stop writes them: :meth:`EdgeMapperNode.close`)."""
         self.closed = True
         checkpoint = self.core.checkpoint
+        try:
+            # a write still under way would land after the file moved aside (a new file where
+            # the device's checkpoint was), or over the file its own edge writes again
+            self.core.wait_for_checkpoint()
+        except OSError as exc:
+            self.node.get_logger().error(f"device {self.device}: its last checkpoint was not "
+                                         f"written: {exc}")
         if checkpoint is not None and not keep_checkpoint:
             for kept in (checkpoint, archive_folder(checkpoint)):
                 aside = set_aside(kept)

@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from edge_mapper.checkpoint_writer import CheckpointWriter
 from edge_mapper.planning_world import at_the_edge, extrapolate
 from edge_mapper.restores import plan_relocation_restores, plan_restores
 from edge_mapper.slot_planner import FrameObservations, SlotConfig, SlotPlan, SlotPlanner
@@ -44,7 +45,7 @@ from twinslam.slam.back_end.archive_relocalisation import ArchiveLocation
 from twinslam.slam.back_end.bundle_adjustment import BundleAdjustmentResult
 from twinslam.slam.back_end.foreign_keyframes import is_foreign
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
-from twinslam.slam.back_end.keyframe_map import KeyFrameMap
+from twinslam.slam.back_end.keyframe_map import KeyFrameMap, write_checkpoint
 from twinslam.slam.back_end.local_mapping import IntegrationReport, LocalMapping
 from twinslam.slam.back_end.loop_closing import LoopCloser
 from twinslam.slam.back_end.map_back_end import BackEndConfig, ClosedLoop, MapBackEnd
@@ -146,6 +147,9 @@ class EdgeMapperCore:
         #: written (the place this map was merged into, :mod:`edge_mapper.place_membership`);
         #: read back from :attr:`MapBackEnd.extra`
         self.saved_with: Callable[[], Mapping[str, np.ndarray]] | None = None
+        #: the edge process's checkpoint writer (None: checkpoints are written on the slot
+        #: thread, before the slot's map update goes out)
+        self.writer: CheckpointWriter | None = None
         extra = self.back_end.extra
         self.version = int(extra.get("version", 0))
         self.last_slot = int(extra.get("last_slot", -1))
@@ -456,21 +460,32 @@ class EdgeMapperCore:
 
     def save_checkpoint(self) -> None:
         """Write the map as the last finished slot left it to the checkpoint file, then delete
-        the archive's files of the keyframes restored into it since the last one. Written
-        before the slot's map update goes out: a map the device was sent survives the edge
-        (with ``checkpoint_every`` 1; with more, a restarted edge resumes from a map up to
-        that many slots old and goes on from the version its device holds,
-        :meth:`catch_up_version`)."""
+        the archive's files of the keyframes restored into it since the last one. With no
+        :attr:`writer`, written before the slot's map update goes out: a map the device was
+        sent survives the edge (with ``checkpoint_every`` 1; with more, a restarted edge
+        resumes from a map up to that many slots old and goes on from the version its device
+        holds, :meth:`catch_up_version`); with one, the arrays are gathered here and written
+        on its thread, shortly after the update went out."""
         if self.checkpoint is None:
             raise ValueError("this edge has no checkpoint file to write")
-        self.map.save(self.checkpoint, version=np.array(self.version),
-                      last_slot=np.array(self.last_slot),
-                      rate_history=np.array(self.rate_history, dtype=np.int64),
-                      **self.back_end.checkpoint_arrays(),
-                      **_table_arrays(self.local_mapping.track_points, "track"),
-                      **_table_arrays(self._previous_tracks, "previous_track"),
-                      **(self.saved_with() if self.saved_with is not None else {}))
-        self.archive.release_taken()          # restored keyframes are in the checkpoint now
+        contents = self.map.checkpoint_contents(
+            version=np.array(self.version), last_slot=np.array(self.last_slot),
+            rate_history=np.array(self.rate_history, dtype=np.int64),
+            **self.back_end.checkpoint_arrays(),
+            **_table_arrays(self.local_mapping.track_points, "track"),
+            **_table_arrays(self._previous_tracks, "previous_track"),
+            **(self.saved_with() if self.saved_with is not None else {}))
+        taken, archive = self.archive.hand_over_taken(), self.archive
+
+        def release(written: Mapping[str, np.ndarray]) -> None:
+            # restored keyframes are in the checkpoint now
+            archive.release(taken, in_map=written["keyframe_ids"])
+
+        if self.writer is None:
+            write_checkpoint(self.checkpoint, contents)
+            release(contents)
+        else:
+            self.writer.submit(self.checkpoint, contents, release)
         self._unsaved, self._checkpoint_in = 0, self.config.checkpoint_every
 
     def spread_checkpoints(self, phase: int) -> None:
@@ -481,9 +496,17 @@ class EdgeMapperCore:
 
     def flush_checkpoint(self) -> None:
         """Checkpoint the slots finished since the last checkpoint, if any (an edge that stops
-        cleanly leaves its last map on disk)."""
+        cleanly leaves its last map on disk), and wait until it is on disk."""
         if self.checkpoint is not None and self._unsaved:
             self.save_checkpoint()
+        self.wait_for_checkpoint()
+
+    def wait_for_checkpoint(self) -> None:
+        """Until the checkpoint submitted to the :attr:`writer` is on disk (before the file
+        is moved aside or given back to another edge); raises where it could not be
+        written."""
+        if self.checkpoint is not None and self.writer is not None:
+            self.writer.wait(self.checkpoint)
 
     def catch_up_version(self, held: int) -> bool:
         """The device holds map version ``held``: an edge whose own version is older (it
@@ -609,8 +632,9 @@ def heading(frames: Sequence[FrameObservations]) -> list[np.ndarray]:
 
 def _table_arrays(table: dict[int, int], name: str) -> dict[str, np.ndarray]:
     """A device track id → map point id table as the checkpoint's two arrays."""
-    return {f"{name}_ids": np.array(list(table), dtype=np.uint64),
-            f"{name}_point_ids": np.array(list(table.values()), dtype=np.uint64)}
+    return {f"{name}_ids": np.fromiter(table, dtype=np.uint64, count=len(table)),
+            f"{name}_point_ids": np.fromiter(table.values(), dtype=np.uint64,
+                                             count=len(table))}
 
 
 def _table(extra: dict[str, np.ndarray], name: str) -> dict[int, int]:

@@ -37,6 +37,7 @@ unrequested or repeated one logged and ignored.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from typing import Any, NoReturn
 
@@ -44,6 +45,7 @@ from rclpy.node import Node
 from twinslam_msgs.msg import FrameSummaries, RateLatent, UploadRequest
 from twinslam_msgs.msg import KeyframeBudget as KeyframeBudgetMsg
 
+from edge_mapper.checkpoint_writer import CheckpointWriter
 from edge_mapper.compute_governor import ComputeGovernor, levels_within
 from edge_mapper.device_link import DeviceLink
 from edge_mapper.edge_core import EdgeMapperCore
@@ -72,7 +74,11 @@ class EdgeMapperNode(Node):
         node made beside others in one process; the command line's apply otherwise."""
         super().__init__("edge_mapper", **options)
         p = declare(self, PARAMETERS)
-        self.settings = link_settings(p)
+        #: the checkpoints of this edge's devices written on a thread of their own
+        #: (``checkpoint_in_background``), not on the slot thread every device waits for
+        self.checkpoints = (CheckpointWriter() if p["checkpoint"] and
+                            bool(p["checkpoint_in_background"]) else None)
+        self.settings = dataclasses.replace(link_settings(p), writer=self.checkpoints)
         devices = device_names(p)
         self.discover = bool(p["discover_devices"])
         self.standby = bool(p["standby"])
@@ -357,6 +363,8 @@ class EdgeMapperNode(Node):
                 self.get_logger().error(f"device {device}: its last checkpoint not written: "
                                         f"{exc}")
             link.core.close()
+        if self.checkpoints is not None:
+            self.checkpoints.close()
         if self.merging is not None:
             self.merging.close()
 

@@ -3,7 +3,9 @@ that never exceeds V_max, keyframes integrated and optimised, and a checkpoint t
 
 from __future__ import annotations
 
+import threading
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -555,3 +557,56 @@ def test_devices_checkpoints_spread_over_the_slots_between(tmp_path: Path) -> No
                 first_written.append(slot)
                 break
     assert sorted(first_written) == [0, 1, 2]
+
+
+@pytest.mark.parametrize("lands", ["each slot", "at the stop"])
+def test_checkpoints_written_off_the_slot_thread_hold_what_the_slot_thread_writes(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, lands: str) -> None:
+    """Two edges serve one walk out and back (restores, a checkpoint every other slot): one
+    writes its checkpoints on the slot thread, one hands them to a writer thread. Landing each
+    slot, every checkpoint and the archive's files are the same; held back until the stop
+    (every checkpoint replaced by the next unwritten), the last ones are too — no archived
+    keyframe's file released that its checkpoint still needs."""
+    import edge_mapper.checkpoint_writer as checkpoint_writer
+    from edge_mapper.checkpoint_writer import CheckpointWriter
+    from twinslam.slam.back_end.keyframe_map import KeyFrameMap, write_checkpoint
+
+    held = threading.Event()
+    if lands == "at the stop":
+        def held_back(path: Path, arrays: Any) -> None:
+            assert held.wait(60.0)
+            write_checkpoint(path, arrays)
+        monkeypatch.setattr(checkpoint_writer, "write_checkpoint", held_back)
+    config = EdgeConfig(slot=SlotConfig(vmax=4), restore_keyframes=2, checkpoint_every=2)
+    turn, cores, devices = 8 * F, {}, {}
+    writer = CheckpointWriter()
+    for name in ("slot thread", "writer"):
+        cores[name] = EdgeMapperCore(make_policy("lff"), K, config, tmp_path / name / "e.npz")
+        (tmp_path / name).mkdir()
+        devices[name] = ReturningDevice(np.random.default_rng(3), turn)
+    cores["writer"].writer = writer
+
+    def same_on_disk() -> None:
+        files = {n: sorted(p.name for p in archive_folder(c.checkpoint).glob("*"))
+                 for n, c in cores.items() if c.checkpoint is not None}
+        assert files["writer"] == files["slot thread"]
+        maps = {n: KeyFrameMap.load(c.checkpoint) for n, c in cores.items()
+                if c.checkpoint is not None}
+        assert maps["writer"][0].keyframe_ids() == maps["slot thread"][0].keyframe_ids()
+        assert maps["writer"][1]["version"] == maps["slot thread"][1]["version"]
+
+    restored = 0
+    for slot in range(16):
+        for name, core in cores.items():
+            restored += sum(len(o.restored) for o in
+                            _run(core, devices[name], range(slot, slot + 1), rates=[20.0]))
+        if lands == "each slot" and slot % 2 == 1:
+            cores["writer"].wait_for_checkpoint()
+            same_on_disk()
+    assert restored, "nothing was brought back: the test walks past what it is about"
+    held.set()
+    for core in cores.values():
+        core.flush_checkpoint()
+    writer.close()
+    same_on_disk()
+    assert writer.written >= 1 and (lands == "each slot" or writer.replaced >= 6)

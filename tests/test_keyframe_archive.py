@@ -168,3 +168,24 @@ def test_a_keyframe_taken_back_and_archived_again_keeps_its_file(tmp_path: Path)
     assert (folder / "keyframe-000000007.npz").exists()
     again, problems = KeyFrameArchive.restore(3, folder)
     assert [kf.id for kf in again] == [7] and again.get(7).archived_slot == 2 and not problems
+
+
+def test_a_checkpoint_releases_only_the_files_of_keyframes_its_map_holds(
+        tmp_path: Path) -> None:
+    """Written off the slot thread, a checkpoint lands slots after its arrays were gathered:
+    the files it releases are those of keyframes its own map holds and the archive does not
+    hold again by then."""
+    folder = tmp_path / "edge.npz.archive"
+    archive = KeyFrameArchive(5, folder)
+    for k in (1, 2, 3):
+        archive.add(_random_keyframe(k, slot=k))
+    for k in (1, 2, 3):
+        archive.take(k)
+    taken = archive.hand_over_taken()
+    assert taken == {1, 2, 3} and archive.hand_over_taken() == frozenset()
+    archive.add(_random_keyframe(3, slot=5))         # archived again before the write landed
+    # the checkpoint that landed holds 1 and 3 in its map; 2 it holds archived (it replaced
+    # the checkpoint that took 2: a restart from it finds 2 in the archive only)
+    archive.release(taken, in_map=np.array([1, 3]))
+    assert sorted(p.name for p in folder.iterdir()) == [
+        "keyframe-000000002.npz", "keyframe-000000003.npz"]

@@ -60,10 +60,12 @@ def test_the_edge_merges_the_second_devices_map_into_the_first_ones_frame(
     edge = domain.spawn(edge_args, forks=FORKS)
     assert domain.wait_for_log(edge, "listening on /ar2/device/frame_summaries", 90), \
         domain.log(edge)[-2000:]
+    trackers = {}
     for d, order in ORDER.items():
-        domain.spawn(["-m", "device_tracker.node", "--ros-args", "-r", f"__ns:=/{d}",
-                      "-p", f"frame_rate_hz:={FRAME_RATE_HZ * RATE}",
-                      "-p", f"map_frame:={d}/map"], forks=FORKS)
+        trackers[d] = domain.spawn(["-m", "device_tracker.node", "--ros-args",
+                                    "-r", f"__ns:=/{d}",
+                                    "-p", f"frame_rate_hz:={FRAME_RATE_HZ * RATE}",
+                                    "-p", f"map_frame:={d}/map"], forks=FORKS)
         domain.spawn(["-m", "twinslam.sequence_player.node", "--ros-args", "-r", f"__ns:=/{d}",
                       "-p", f"sequence:=synthetic:{FRAMES}", "-p", f"order:={order}",
                       "-p", "wait_for_subscribers:=1", "-p", f"rate:={RATE}",
@@ -77,8 +79,16 @@ def test_the_edge_merges_the_second_devices_map_into_the_first_ones_frame(
         domain.log(edge)[-3000:]
     merged_version = next(int(u.map_version) for u in maps["ar2"] if moved(u))
     # the second device tracks on in the first one's frame: a slot of its frames on it
+    def last() -> list[tuple[int, list[tuple[int, bool]]]]:
+        return [(int(s.slot), [(int(f.map_version), bool(f.tracked)) for f in s.frames][-3:])
+                for s in summaries[-4:]]
+
     assert ros.spin_until(lambda: any(f.map_version >= merged_version and f.tracked
-                                      for s in summaries for f in s.frames), 60.0)
+                                      for s in summaries for f in s.frames), 60.0), (
+        f"ar2 tracked no frame on map version {merged_version} or later; its last "
+        f"summaries (slot, [(map version, tracked)]): {last()}\n"
+        f"its device's log:\n{domain.log(trackers['ar2'])[-3000:]}\n"
+        f"the edge's log:\n{domain.log_with_stacks(edge)}")
     assert domain.wait_for_log(edge, "[ar2] slot", 10.0)
     log = domain.log(edge)
     assert "map merged into ar1's" in log, log[-3000:]

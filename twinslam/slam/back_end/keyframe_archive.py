@@ -314,11 +314,28 @@ class KeyFrameArchive:
         return kf
 
     def release_taken(self) -> None:
-        """Delete the files of the keyframes taken back since the last call."""
+        """Delete the files of the keyframes taken back since the last call (the map holding
+        them was just checkpointed)."""
+        self.release(self.hand_over_taken())
+
+    def hand_over_taken(self) -> frozenset[int]:
+        """The keyframes taken back since the last call, whose files a checkpoint of the map
+        gathered now releases once it is on disk (:meth:`release`)."""
+        taken, self._taken = frozenset(self._taken), set()
+        return taken
+
+    def release(self, kf_ids: Collection[int], in_map: Collection[int] | None = None) -> None:
+        """Delete the files of keyframes ``kf_ids`` taken back into a map now checkpointed,
+        those the checkpoint's map holds (``in_map``; None: all of them) and this archive
+        does not hold again. A checkpoint written off the slot thread lands slots later:
+        a keyframe archived again meanwhile has its file back, and one the checkpoint
+        holds archived (a newer checkpoint written in place of the one that took it)
+        needs it — a restart from that checkpoint would find it nowhere else."""
+        held = None if in_map is None else set(np.asarray(in_map, dtype=np.int64).tolist())
         with self._files:
-            for kf_id in self._taken:
-                self._path(kf_id).unlink(missing_ok=True)
-        self._taken = set()
+            for kf_id in kf_ids:
+                if kf_id not in self._entries and (held is None or kf_id in held):
+                    self._path(kf_id).unlink(missing_ok=True)
 
     def _remove(self, kf_id: int, keep_file: bool = False) -> None:
         del self._entries[kf_id]

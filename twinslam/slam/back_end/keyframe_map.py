@@ -510,7 +510,11 @@ class KeyFrameMap:
     def save(self, path: Path, **extra: Any) -> None:
         """Write the map (and ``extra`` arrays, e.g. the slot) atomically to ``path``
         (``Any``: numpy's stubs would match an array key to ``allow_pickle``)."""
-        path = Path(path)
+        write_checkpoint(path, self.checkpoint_contents(**extra))
+
+    def checkpoint_contents(self, **extra: Any) -> dict[str, np.ndarray]:
+        """The arrays a checkpoint of the map holds (with ``extra``): every one a copy, so
+        that they may be written while the map changes (:func:`write_checkpoint`)."""
         kf_ids = self.keyframe_ids()
         # every point's id and row read at C speed (the edge writes this every slot: a long
         # walk's map holds tens of thousands of points), sorted by id; the columns hold a row
@@ -523,23 +527,18 @@ class KeyFrameMap:
         observers = np.repeat(np.array(kf_ids, dtype=np.int64), [len(o[0]) for o in observed])
         seen = np.concatenate([o[0] for o in observed] or [np.zeros(0, dtype=np.int64)])
         uvd = np.concatenate([o[1] for o in observed] or [np.zeros((0, 3))])
-        tmp = path.with_name(path.name + ".tmp")
-        with tmp.open("wb") as fh:
-            np.savez(fh, format=np.array(CHECKPOINT_FORMAT),
-                     keyframe_ids=np.array(kf_ids, dtype=np.int64),
-                     keyframe_poses=stacked_rows([self.keyframes[k].pose for k in kf_ids],
-                                             (4, 4), np.float64),
-                     point_ids=pt_ids,
-                     point_positions=self.columns.positions[rows],
-                     point_descriptors=self.columns.descriptors[rows],
-                     observations=np.column_stack([observers, seen]).reshape(-1, 2),
-                     measurements=uvd,
-                     point_views=np.column_stack([self.columns.visible[rows],
-                                                  self.columns.found[rows]]),
-                     next_point_id=np.array(self.next_point_id), **extra)
-            fh.flush()
-            os.fsync(fh.fileno())
-        tmp.replace(path)
+        return dict(format=np.array(CHECKPOINT_FORMAT),
+                    keyframe_ids=np.array(kf_ids, dtype=np.int64),
+                    keyframe_poses=stacked_rows([self.keyframes[k].pose for k in kf_ids],
+                                                (4, 4), np.float64),
+                    point_ids=pt_ids,
+                    point_positions=self.columns.positions[rows],
+                    point_descriptors=self.columns.descriptors[rows],
+                    observations=np.column_stack([observers, seen]).reshape(-1, 2),
+                    measurements=uvd,
+                    point_views=np.column_stack([self.columns.visible[rows],
+                                                 self.columns.found[rows]]),
+                    next_point_id=np.array(self.next_point_id), **extra)
 
     @classmethod
     def load(cls, path: Path) -> tuple[KeyFrameMap, dict[str, np.ndarray]]:
@@ -584,3 +583,16 @@ class KeyFrameMap:
         except (KeyError, ValueError) as exc:
             raise MapError(f"{path}: inconsistent map checkpoint ({exc})") from None
         return m, data
+
+
+def write_checkpoint(path: Path, arrays: Mapping[str, Any]) -> None:
+    """``arrays`` (:meth:`KeyFrameMap.checkpoint_contents`) written to ``path`` whole or not
+    at all: to a temporary name, flushed to the disk, then renamed over the old file
+    (``Any``: numpy's stubs would match an array's name to ``allow_pickle``)."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    with tmp.open("wb") as fh:
+        np.savez(fh, **arrays)
+        fh.flush()
+        os.fsync(fh.fileno())
+    tmp.replace(path)
