@@ -14,6 +14,7 @@ import pytest
 from builtin_interfaces.msg import Time
 from twinslam_msgs.msg import FrameSummaries, FrameSummary
 
+from twinslam.cli.commands.launch_fleet import fleet_starts, places_of
 from twinslam.cli.main import main
 from twinslam.hosts.forked import process_name
 from twinslam.hosts.loopback import LoopbackDomain
@@ -23,6 +24,7 @@ from twinslam.live.fleet import (
     cross_device_errors,
     device_sequence,
     edge_blocks,
+    merged_across_places,
 )
 from twinslam.live.launcher import LaunchConfig, renamed_params
 from twinslam.live.run_log import RunLog
@@ -90,6 +92,56 @@ def test_two_devices_in_one_frame_then_in_another_pair_only_within_each() -> Non
             record.poses[i * 10**9] = moved @ record.poses[i * 10**9]
     error = cross_device_errors({"ar2": second, "ar3": third})[("ar2", "ar3")]
     assert error.pairs == 2 * 5 * 5 and abs(error.rms_m - 0.01) < 1e-9
+
+
+def test_devices_of_two_places_are_no_pair_and_a_false_merge_is_named() -> None:
+    """Devices walking two places have their true poses in two worlds: never a pair of the
+    cross-device error; tracked on maps in one frame they are named as a false merge."""
+    line = [(0.05 * i, 1) for i in range(5)]
+    here = np.eye(4)
+    room, room2 = _walk(line, {1: "ar1/map"}, here), _walk(line, {1: "ar1/map"}, here)
+    corridor = _walk(line, {1: "ar3/map"}, here)
+    records = {"ar1": room, "ar2": room2, "ar3": corridor}
+    places = {"ar1": 0, "ar2": 0, "ar3": 1}
+    assert set(cross_device_errors(records, places)) == {("ar1", "ar2")}
+    assert merged_across_places(records, places) == []
+    misplaced = _walk(line, {1: "ar1/map"}, here)       # merged into the room's map
+    assert merged_across_places({**records, "ar3": misplaced}, places) == [
+        ("ar1", "ar3"), ("ar2", "ar3")]
+
+
+def test_a_fleet_over_two_places_splits_its_devices_and_edges_by_place(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """``--sequence A,B``: the devices split among the places in runs of neighbours, each
+    place's devices spread over it as a fleet is, each edge serving whole places (a place's
+    maps merge within one edge process) — and the settings that cannot run refused."""
+    fleet = FleetConfig(5, 50, "equal", 5, edges=2, places=("synthetic:90", "/data/7scenes"))
+    fleet.check()
+    assert [fleet.place_of(i) for i in range(5)] == [0, 0, 1, 1, 1]
+    assert fleet.blocks() == [["ar1", "ar2"], ["ar3", "ar4", "ar5"]]
+    assert fleet.edge_shares() == [20, 30]
+    three = FleetConfig(5, edges=2, places=("a", "b", "c"))
+    assert [three.place_of(i) for i in range(5)] == [0, 0, 1, 2, 2]
+    assert three.blocks() == [["ar1", "ar2", "ar3"], ["ar4", "ar5"]]     # places 1-2, 3
+    assert FleetConfig(4, edges=3).blocks() == [["ar1"], ["ar2", "ar3"], ["ar4"]]
+    assert places_of("synthetic:90, synthetic-corridor:90") == (
+        "synthetic:90", "synthetic-corridor:90")
+    assert places_of("synthetic:90") == ()
+    args = SimpleNamespace(sequence="synthetic:90,synthetic-corridor:90", frames=90, start=0)
+    two = FleetConfig(3, places=places_of(args.sequence))
+    assert fleet_starts(args, two) == [                        # type: ignore[arg-type]
+        ("synthetic:90:0", 0), ("synthetic:90:1", 0), ("synthetic-corridor:90:2", 0)]
+    with pytest.raises(ValueError, match="3 edges for 2 places: each edge serves whole"):
+        FleetConfig(4, edges=3, places=("a", "b")).check()
+    with pytest.raises(ValueError, match="3 places for 2 devices"):
+        FleetConfig(2, places=("a", "b", "c")).check()
+    assert main(["launch", "--sequence", "synthetic:90,synthetic-corridor:90",
+                 "--loopback"]) == 2
+    assert "2 places (synthetic:90,synthetic-corridor:90) need --devices" in \
+        capsys.readouterr().err
+    assert main(["launch", "--devices", "2", "--sequence", "synthetic:90,/no/such/place",
+                 "--loopback"]) == 2
+    assert "--sequence:" in capsys.readouterr().err
 
 
 def test_settings_that_cannot_run_are_refused_before_any_node_starts(
@@ -169,15 +221,17 @@ def test_a_renamed_edge_reads_the_parameter_files_edge_section(
 
 @pytest.mark.slow
 def test_launch_splits_the_devices_among_two_edge_processes(tmp_path: Path) -> None:
-    """``--edges 2``: two edge processes while the devices play, each device answered, each
-    edge with its devices' share of V_total."""
+    """``--edges 2`` over two places (``--sequence`` the room and the corridor): two edge
+    processes while the devices play, each serving the device of its place, each device
+    answered, each edge with its devices' share of V_total."""
     import subprocess
     import sys
     import time
 
     cli = subprocess.Popen([sys.executable, "-m", "twinslam.cli.main", "launch", "--loopback",
                             "--devices", "2", "--edges", "2", "--vmax-total", "12",
-                            "--sequence", "synthetic:120", "--frames", "120", "--policy", "lff",
+                            "--sequence", "synthetic:120,synthetic-corridor:120",
+                            "--frames", "120", "--policy", "lff",
                             "--out", str(tmp_path)], text=True, stdout=subprocess.PIPE,
                            stderr=subprocess.PIPE, cwd=Path(__file__).resolve().parents[1])
     assert cli.stdout is not None
@@ -194,6 +248,13 @@ def test_launch_splits_the_devices_among_two_edge_processes(tmp_path: Path) -> N
     assert cli.returncode == 0, (out[-3000:], err[-3000:])
     assert len(edges) == 2, (edges, out[-2000:])
     assert "2 devices, 2 edges (V_total 12 split equal)" in out
+    assert "place 1: synthetic:120, walked by ar1, served by edge_mapper\n" in out
+    assert "place 2: synthetic-corridor:120, walked by ar2, served by edge_mapper_2" in out
+    assert "a false merge" not in out
+    logs = (tmp_path / "lff_equal.log").read_text(encoding="utf-8")
+    assert "[ar1.sequence_player]: playing 120 frames of synthetic sequence synthetic " in logs
+    assert "[ar2.sequence_player]: playing 120 frames of synthetic sequence synthetic-corridor" \
+        in logs
     with (tmp_path / "fleet_runs.csv").open(encoding="utf-8") as fh:
         table = {r["device"]: r for r in csv.DictReader(fh)}
     assert set(table) == {"ar1", "ar2"}

@@ -26,9 +26,10 @@ import itertools
 import math
 import tempfile
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 from twinslam_msgs.msg import MapStats
@@ -47,6 +48,9 @@ from twinslam.sequence_player.playback import ORDERS
 from twinslam.sequences.opening import is_synthetic, synthetic_walk
 from twinslam.slot_protocol import default_device, table1
 
+#: what :func:`edge_blocks` splits: device names, place numbers
+_Item = TypeVar("_Item")
+
 
 @dataclass(frozen=True)
 class FleetConfig:
@@ -60,11 +64,14 @@ class FleetConfig:
     orders: tuple[str, ...] = ()
     #: the edge merges a device's map into the frame of a device before it (``merge_maps``)
     merge_maps: bool = False
-    #: edge processes the devices are split among, neighbours together (:func:`edge_blocks`)
+    #: edge processes the devices are split among, neighbours together (:meth:`blocks`)
     edges: int = 1
     #: seconds each device's camera starts after the fleet's (its player's ``start_delay_s``);
     #: empty: every device at once
     delays: tuple[float, ...] = ()
+    #: the sequences (places) the devices walk, the devices split among them in runs of
+    #: neighbours (:meth:`place_of`); empty: every device walks the launch's one sequence
+    places: tuple[str, ...] = ()
 
     def device_seed(self, index: int) -> int:
         return 100 * self.seed + index
@@ -80,14 +87,31 @@ class FleetConfig:
         """The edges' hosts (``--hosts``): :func:`edge_hosts`."""
         return edge_hosts(self.edges)
 
+    def place_of(self, index: int) -> int:
+        """Which of :attr:`places` device ``index`` walks (0 with one place or none)."""
+        if len(self.places) < 2:
+            return 0
+        runs = edge_blocks(list(range(self.devices)), len(self.places))
+        return next(p for p, run in enumerate(runs) if index in run)
+
+    def blocks(self) -> list[list[str]]:
+        """Each edge's devices: runs of neighbours (:func:`edge_blocks`); with several places,
+        each edge serves whole places — maps merge within one edge process, so a place's
+        devices share one — the places split among the edges as evenly as they go."""
+        names = self.names()
+        if len(self.places) < 2:
+            return edge_blocks(names, self.edges)
+        places = edge_blocks(list(range(len(self.places))), self.edges)
+        return [[d for i, d in enumerate(names) if self.place_of(i) in served]
+                for served in places]
+
     def edge_shares(self) -> list[int]:
         """Each edge's part of ``vmax_total`` (its devices' share, the remainder one each to
         the first; 0: no shared budget). A total that covers every device's minimum covers
         each edge's devices' too."""
         if not self.vmax_total:
             return [0] * self.edges
-        blocks = edge_blocks(self.names(), self.edges)
-        shares = [self.vmax_total * len(b) // self.devices for b in blocks]
+        shares = [self.vmax_total * len(b) // self.devices for b in self.blocks()]
         for e in range(self.vmax_total - sum(shares)):          # the remainder, one each
             shares[e] += 1
         return shares
@@ -108,6 +132,13 @@ class FleetConfig:
                              "a device")
         if bad_delays := [d for d in self.delays if not 0 <= d <= 86_400]:
             raise ValueError(f"delay {bad_delays[0]:g} s: from 0 to a day")
+        if len(self.places) > self.devices:
+            raise ValueError(f"{len(self.places)} places for {self.devices} devices: at least "
+                             "a device a place")
+        if len(self.places) > 1 and self.edges > len(self.places):
+            raise ValueError(f"{self.edges} edges for {len(self.places)} places: each edge "
+                             "serves whole places (a place's maps merge within one edge "
+                             f"process), at most {len(self.places)}")
 
 
 def edge_hosts(edges: int) -> list[str]:
@@ -116,9 +147,10 @@ def edge_hosts(edges: int) -> list[str]:
     return ["edge" if e == 0 else f"edge{e + 1}" for e in range(edges)]
 
 
-def edge_blocks(names: Sequence[str], edges: int) -> list[list[str]]:
+def edge_blocks(names: Sequence[_Item], edges: int) -> list[list[_Item]]:
     """``names`` split into ``edges`` runs of neighbours, as even as they go (their lengths
-    differ by one at most; none empty)."""
+    differ by one at most; none empty): devices among edges, places among edges, devices
+    among places."""
     edges = max(1, min(edges, len(names)))
     cuts = [round(i * len(names) / edges) for i in range(edges + 1)]
     return [list(names[a:b]) for a, b in itertools.pairwise(cuts)]
@@ -136,6 +168,8 @@ class FleetReport:
     #: per pair of devices (a, b): where b sees a's content, over their frames tracked on maps
     #: in one frame (:func:`cross_device_errors`)
     cross_device: dict[tuple[str, str], RevisitError] = field(default_factory=dict)
+    #: pairs of devices of two places tracked on maps in one frame (a false merge)
+    merged_across_places: list[tuple[str, str]] = field(default_factory=list)
 
     def tracked_shares(self) -> list[float]:
         """Each device's share of its frames it tracked."""
@@ -180,7 +214,7 @@ class FleetLauncher(Launcher):
         on is renamed (``edge_mapper_2`` …) and reads the parameter file's ``edge_mapper``
         section from a copy under its own name in ``params_folder``."""
         f = self.fleet
-        block = edge_blocks(f.names(), f.edges)[index]
+        block = f.blocks()[index]
         args = self.node_args("edge_mapper")
         if index:
             if params_folder is None:
@@ -276,8 +310,11 @@ class FleetLauncher(Launcher):
             frames = [sum(len(s.frames) for s in monitors[d].record.summaries.values())
                       for d in names]
             budgets = [_mean_budget(monitors[d]) for d in names]
+            records = {d: monitors[d].record for d in names}
+            places = {d: self.fleet.place_of(i) for i, d in enumerate(names)}
             return FleetReport(self.fleet.allocator, names, reports, budgets, frames,
-                               cross_device_errors({d: monitors[d].record for d in names}))
+                               cross_device_errors(records, places),
+                               merged_across_places(records, places))
         finally:
             self.stop()
             for s in sessions.values():
@@ -292,7 +329,7 @@ class FleetLauncher(Launcher):
         for e, (name, host) in enumerate(zip(f.edge_names(), f.edge_hosts(), strict=True)):
             self.procs[name] = self.domain.spawn(self.edge_args(e, Path(params_folder)),
                                                  host=host, forks=preloaded_nodes())
-        for name, block in zip(f.edge_names(), edge_blocks(f.names(), f.edges), strict=True):
+        for name, block in zip(f.edge_names(), f.blocks(), strict=True):
             edge, last = self.procs[name], block[-1]
 
             def up(e: NodeProcess = edge, d: str = last) -> bool:
@@ -352,16 +389,31 @@ def posed_by_map_frame(record: RunLog) -> dict[str, list[tuple[np.ndarray, np.nd
     return grouped
 
 
-def cross_device_errors(records: dict[str, RunLog]) -> dict[tuple[str, str], RevisitError]:
-    """For each pair of devices (in the fleet's order), the cross-device revisit error over
-    their frames tracked on maps in one frame, each frame of one paired only with the other's
-    in the same map frame (:func:`posed_by_map_frame`; the true poses in the sequence's world
-    frame, which every device of one sequence shares): content one device anchored as the
-    other sees it. Devices never in one frame have no pair."""
+def cross_device_errors(records: dict[str, RunLog], places: Mapping[str, int] | None = None
+                        ) -> dict[tuple[str, str], RevisitError]:
+    """For each pair of devices (in the fleet's order) that walk one place (``places``: each
+    device's; None: all one), the cross-device revisit error over their frames tracked on
+    maps in one frame, each frame of one paired only with the other's in the same map frame
+    (:func:`posed_by_map_frame`; the true poses in the sequence's world frame, which every
+    device of one sequence shares): content one device anchored as the other sees it.
+    Devices never in one frame have no pair; devices of two places are no pair at all
+    (their true poses are in two worlds: :func:`merged_across_places`)."""
     grouped = {d: posed_by_map_frame(r) for d, r in records.items()}
     names = list(records)
+    place = places or {}
     return {(a, b): cross_device_revisit_error_by_frame(grouped[a], grouped[b])
-            for i, a in enumerate(names) for b in names[i + 1:]}
+            for i, a in enumerate(names) for b in names[i + 1:]
+            if place.get(a, 0) == place.get(b, 0)}
+
+
+def merged_across_places(records: dict[str, RunLog], places: Mapping[str, int]
+                         ) -> list[tuple[str, str]]:
+    """The pairs of devices walking two places that were ever tracked on maps in one frame:
+    the edge merged maps of two places, a false merge."""
+    frames = {d: set(posed_by_map_frame(r)) for d, r in records.items()}
+    names = list(records)
+    return [(a, b) for i, a in enumerate(names) for b in names[i + 1:]
+            if places.get(a, 0) != places.get(b, 0) and frames[a] & frames[b]]
 
 
 def _mean_budget(monitor: PipelineMonitor) -> float:
@@ -391,6 +443,9 @@ def print_fleet_table(fleet: FleetReport, echo: Callable[[str], None] = print) -
                  f"{e.pairs} pairs of frames in one map frame" if e.pairs
                  else "never in one map frame")
         echo(f"cross-device revisit error {a}-{b}: {where}")
+    for a, b in fleet.merged_across_places:
+        echo(f"devices {a} and {b} walk two places but were tracked on maps in one frame: "
+             "the edge merged two places (a false merge)")
 
 
 #: the columns of a fleet run's rows (``twinslam launch --devices N --out DIR``: fleet_runs.csv)

@@ -7,7 +7,12 @@ import functools
 from pathlib import Path
 from typing import TypeVar
 
-from twinslam.cli.commands.launch_fleet import add_fleet_arguments, domain_for, run_fleets
+from twinslam.cli.commands.launch_fleet import (
+    add_fleet_arguments,
+    domain_for,
+    places_of,
+    run_fleets,
+)
 from twinslam.cli.console import Subparsers, each_run, error
 from twinslam.hosts.loopback import LoopbackDomain
 from twinslam.hosts.netns import unavailable_reason
@@ -64,7 +69,11 @@ def _checked_setup(args: argparse.Namespace, policies: list[str]
         chosen = scenario(args.scenario)
     except ValueError as exc:
         raise ValueError(f"--scenario: {exc}") from None
-    extra = _real_frame_uplink(args.sequence) if args.tc else {}
+    places = places_of(args.sequence)
+    if places and not args.devices:
+        raise ValueError(f"--sequence: {len(places)} places ({args.sequence}) need --devices: "
+                         "a fleet's devices walk them")
+    extra = _real_frame_uplink(places[0] if places else args.sequence) if args.tc else {}
     if args.map_source is not None:
         reason = check_map_source(args.map_source)
         if reason:
@@ -161,7 +170,10 @@ def register(sub: Subparsers) -> None:
     launch = sub.add_parser("launch", help="run player, device, edge (and twin) as processes")
     launch.add_argument("--sequence", default="synthetic",
                         help="SUN3D / 7-Scenes / TUM folder, MCAP bag, synthetic[:frames] "
-                        "(the room) or synthetic-corridor[:frames] (where the map matters)")
+                        "(the room) or synthetic-corridor[:frames] (where the map matters); "
+                        "with --devices, several comma-separated: places, the devices split "
+                        "among them in runs of neighbours (ar1 … on the first), each edge "
+                        "(--edges) serving whole places")
     launch.add_argument("--policy", default=default_device.POLICY,
                         help="the edge's policy, one run each, comma-separated: lff, pu, adapt, "
                         "random, mbrl:CHECKPOINT; default %(default)s (the default device's)")

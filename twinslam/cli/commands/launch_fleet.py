@@ -26,6 +26,7 @@ from twinslam.live.report import policy_label
 from twinslam.live.run_picture import plot_run
 from twinslam.live.scenarios import Scenario
 from twinslam.reporting import append_csv_rows, file_name
+from twinslam.sequences.frame import SequenceError
 from twinslam.sequences.opening import is_synthetic, open_sequence
 
 
@@ -51,21 +52,44 @@ def fleet_settings(args: argparse.Namespace) -> list[FleetConfig]:
         raise ValueError(f"--delays {args.delays!r}: seconds, one a device (e.g. 0,20)") \
             from None
     fleets = [FleetConfig(args.devices, args.vmax_total, a, args.min_keyframes, args.stride,
-                          args.seed, orders, args.merge_maps, args.edges, delays)
+                          args.seed, orders, args.merge_maps, args.edges, delays,
+                          places_of(args.sequence))
               for a in allocators]
     for fleet in fleets:
         fleet.check()
+    try:
+        fleet_starts(args, fleets[0])               # every place can be opened
+    except SequenceError as exc:
+        raise ValueError(f"--sequence: {exc}") from None
     return fleets
+
+
+def places_of(sequence: str) -> tuple[str, ...]:
+    """The places a fleet walks: ``--sequence A,B`` names two (empty for one)."""
+    places = tuple(p.strip() for p in sequence.split(",") if p.strip())
+    return places if len(places) > 1 else ()
+
+
+def fleet_starts(args: argparse.Namespace, fleet: FleetConfig) -> list[tuple[str, int]]:
+    """(sequence, first frame) of each device: its place's (:meth:`FleetConfig.place_of`),
+    the devices of one place spread over it as :func:`device_sequence` spreads a fleet."""
+    places = fleet.places or (args.sequence,)
+    lengths = [None if is_synthetic(p) else len(open_sequence(p, 0, -1)) for p in places]
+    members = [[i for i in range(fleet.devices) if fleet.place_of(i) == p]
+               for p in range(len(places))]
+    starts = []
+    for i in range(fleet.devices):
+        p = fleet.place_of(i)
+        starts.append(device_sequence(places[p], members[p].index(i), len(members[p]),
+                                      args.frames, args.start, fleet.stride, lengths[p],
+                                      fleet.device_seed(i)))
+    return starts
 
 
 def run_fleet(args: argparse.Namespace, policy: str, fleet: FleetConfig, chosen: Scenario,
               extra: dict[str, list[str]]) -> FleetReport:
     """One fleet run: its nodes, a picture per device, its rows in OUT/fleet_runs.csv."""
-    length = None if is_synthetic(args.sequence) else len(open_sequence(
-        args.sequence, 0, -1))
-    starts = [device_sequence(args.sequence, i, fleet.devices, args.frames, args.start,
-                              fleet.stride, length, fleet.device_seed(i))
-              for i in range(fleet.devices)]
+    starts = fleet_starts(args, fleet)
     config = LaunchConfig(args.sequence, policy, args.frames, args.rate, args.params,
                           timeout_s=args.timeout, extra=extra, scenario=chosen, start=args.start)
     with domain_for(args, (*fleet.names(), *fleet.edge_hosts())) as dom:
@@ -76,6 +100,12 @@ def run_fleet(args: argparse.Namespace, policy: str, fleet: FleetConfig, chosen:
         edges = "one edge" if fleet.edges == 1 else f"{fleet.edges} edges"
         print(f"{policy}: {fleet.devices} devices, {edges} ({budget}), {args.frames} frames "
               f"each on domain {dom.domain_id}", flush=True)
+        for p, place in enumerate(fleet.places):
+            walking = [d for i, d in enumerate(fleet.names()) if fleet.place_of(i) == p]
+            served = next(e for e, block in zip(fleet.edge_names(), fleet.blocks(),
+                                                strict=True) if walking[0] in block)
+            print(f"place {p + 1}: {place}, walked by {', '.join(walking)}, served by {served}",
+                  flush=True)
         launcher = FleetLauncher(dom, config, fleet, starts, lambda line: print(line, flush=True))
         result = launcher.run_fleet()
     args.out.mkdir(parents=True, exist_ok=True)
