@@ -128,6 +128,10 @@ class DeviceTrackerCore:
         self.track_labels = np.zeros(0, dtype=np.uint64)   #: per track row: its track id
         self.track_created = np.zeros(0, dtype=np.int64)   #: per track row: its slot
         self.map_version = 0
+        #: CPU milliseconds of the map updates applied since the last frame: the next frame
+        #: reports them with its own (its ``cpu_ms``), so that the frames' CPU adds up to the
+        #: device's — an update runs on another thread, between two frames
+        self._update_cpu_ms = 0.0
         #: the edge's frame correction of the map held (MapUpdate.frame_correction)
         self.frame_correction = np.eye(4)
         self.frames: list[FrameRecord] = []            #: the current slot's
@@ -208,9 +212,11 @@ class DeviceTrackerCore:
                              track_ids=np.sort(track_ids), slot=self.slot,
                              relocalised=out.relocalised, inliers=out.inliers,
                              map_version=self.map_version,
-                             cpu_ms=(time.thread_time() - started) * 1000.0,
+                             cpu_ms=(time.thread_time() - started) * 1000.0
+                             + self._update_cpu_ms,
                              pose_refused=bool(out.refused or out.implausible),
                              pnp_ransac=out.pnp_ransac, matches=out.n_matches)
+        self._update_cpu_ms = 0.0
         self.frames.append(record)
         slot = self.slot
         depths = (depth_at(out.features.points, depth, self.config.depth_range_m)
@@ -366,9 +372,16 @@ class DeviceTrackerCore:
 
     def apply_map_update(self, update: MapSnapshot, slot: int) -> bool:
         """Swap in the edge's map of slot ``slot``; False (and nothing changes) for a version
-        not newer than the one held."""
+        not newer than the one held. The CPU it took (this thread's) counts in the next
+        frame's ``cpu_ms``."""
         if update.version <= self.map_version:
             return False
+        started = time.thread_time()
+        self._swap_in(update, slot)
+        self._update_cpu_ms += (time.thread_time() - started) * 1000.0
+        return True
+
+    def _swap_in(self, update: MapSnapshot, slot: int) -> None:
         old, now = self.tracking.map, max(self.frame_count - 1, 0)
         if len(update.track_ids):
             self.labels = relabelled(self.labels, update.track_ids, update.track_point_ids)
@@ -406,7 +419,6 @@ class DeviceTrackerCore:
         self.created = np.concatenate([np.full(len(update.point_ids), self.slot, np.int64),
                                        self.created[keep]])
         self.map_version = update.version
-        return True
 
 
 def relabelled(labels: np.ndarray, old: np.ndarray, new: np.ndarray) -> np.ndarray:

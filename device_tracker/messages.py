@@ -37,7 +37,9 @@ class FrameRecord:
     relocalised: bool = False      #: tracked again only by relocalisation (after a loss)
     inliers: int = 0               #: matches its pose was solved with (0: not tracked)
     map_version: int = 0           #: the map update it was tracked against (0: none yet)
-    cpu_ms: float = 0.0            #: the tracking thread's CPU time on it, milliseconds
+    #: CPU milliseconds the device spent on it: its tracking, and the map updates applied since
+    #: the frame before (they run on another thread, between frames)
+    cpu_ms: float = 0.0
     #: a pose solved for it was refused by a gate (an impossible motion, or a relocalisation
     #: the pose gate refused): not tracked
     pose_refused: bool = False

@@ -424,3 +424,33 @@ def test_a_map_update_renames_the_labels_it_resolves_and_finds_the_points_it_hol
     assert rows[held].tolist() == [4, 3, 2]              # 5 at its last row
     nothing, _ = rows_of_points(as_track_ids(np.array([1, 2])), np.array([1], np.uint64))
     assert not nothing.any()
+
+
+def test_a_map_updates_cpu_counts_in_the_next_frames_and_only_there() -> None:
+    """The map update runs on the subscription's thread between two frames; its CPU is the
+    device's too: the next frame reports it with its own tracking, the one after does not —
+    so the frames' ``cpu_ms`` add up to the device's CPU."""
+    import threading
+    import time
+
+    seq = SyntheticSequence(3 * SLOT, seed=0)
+    frames = list(seq)
+    core = DeviceTrackerCore(seq.intrinsics, SLOT)
+    _track(core, frames[:SLOT])
+    core.take_slot()
+
+    def busy_swap(update: MapSnapshot, slot: int) -> None:      # 80 ms of this thread's CPU
+        end = time.thread_time() + 0.08
+        while time.thread_time() < end:
+            pass
+
+    core._swap_in = busy_swap                                   # type: ignore[method-assign]
+    update = MapSnapshot(1, np.zeros(0, np.uint64), np.zeros((0, 4, 4)),
+                         np.zeros(0, np.uint64), np.zeros((0, 3)), np.zeros((0, 32), np.uint8),
+                         np.zeros(0, np.uint32), [], np.zeros(0, np.uint64),
+                         np.zeros(0, np.uint64))
+    applying = threading.Thread(target=core.apply_map_update, args=(update, 0))
+    applying.start()
+    applying.join()
+    after = [r.record.cpu_ms for r in _track(core, frames[SLOT:SLOT + 3])]
+    assert after[0] >= 80.0 and all(ms < 80.0 for ms in after[1:]), after
