@@ -4,7 +4,7 @@ thread of the edge process writes them to disk.
 One thread of an edge serves the slots of every device it carries (:mod:`edge_mapper.node`);
 writing a checkpoint file on it — ``numpy.savez``, ``fsync``, the rename — held it ~20 ms a
 device-slot on this VM's disk (``bench.edge_work`` over the 7-Scenes walk and back: the
-checkpoint step 28–29 ms median on the slot thread, 9–11 ms with the writer, 2026-12-02), and
+checkpoint step 26–29 ms median on the slot thread, 7–11 ms with the writer, 2026-12-02), and
 a slower disk (a network volume, an SD card) holds it longer: every device's slot waits
 behind one device's ``fsync``. The writer takes those file operations, which release the
 interpreter, onto a thread of its own.

@@ -66,7 +66,7 @@ PARAMETERS = (
     ParamSpec("checkpoint", "", "map file written every checkpoint_every slots and resumed "
               "from after a restart (a standby edge takes a device over from it); empty: none"),
     ParamSpec("checkpoint_every", 1, "slots between two checkpoints of a device's map (with "
-              "checkpoint): gathering one is ~7-10 ms of a device's slot on the 7-Scenes "
+              "checkpoint): gathering one is ~7-11 ms of a device's slot on the 7-Scenes "
               "walk; an edge resumed from one up to this many slots old goes on from the map "
               "version its device holds, and a clean stop writes the last", low=1, high=3600),
     ParamSpec("checkpoint_in_background", True, "write the checkpoints on a thread of their "
