@@ -475,17 +475,15 @@ class EdgeMapperCore:
             **_table_arrays(self.local_mapping.track_points, "track"),
             **_table_arrays(self._previous_tracks, "previous_track"),
             **(self.saved_with() if self.saved_with is not None else {}))
-        taken, archive = self.archive.hand_over_taken(), self.archive
-
-        def release(written: Mapping[str, np.ndarray]) -> None:
-            # restored keyframes are in the checkpoint now
-            archive.release(taken, in_map=written["keyframe_ids"])
-
+        archive = self.archive
         if self.writer is None:
-            write_checkpoint(self.checkpoint, contents)
-            release(contents)
+            write_checkpoint(self.checkpoint, contents)   # a failed write keeps them taken
+            archive.release_taken()           # restored keyframes are in the checkpoint now
         else:
-            self.writer.submit(self.checkpoint, contents, release)
+            taken = archive.hand_over_taken()
+            self.writer.submit(self.checkpoint, contents,
+                               lambda written: archive.release(
+                                   taken, in_map=written["keyframe_ids"]))
         self._unsaved, self._checkpoint_in = 0, self.config.checkpoint_every
 
     def spread_checkpoints(self, phase: int) -> None:

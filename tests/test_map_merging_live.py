@@ -1,12 +1,12 @@
 """One edge serving two devices in one room (``merge_maps:=true``), every node its own process
 on a loopback domain: the first device walks the synthetic room forward, the second the same
-walk backward from its last frame, each starting a map in its own first camera's frame; the
-edge finds the second device's keyframes in the first device's map and moves the second map
-into the first's frame — the second device's map updates then carry the motion between the
-two frames, as the truth has it, the second device's poses are in the first one's frame, and
-it tracks on keyframes only the first device uploaded, where content the first device anchored
-appears to the second within the shared map's 3 cm, and frames whose views the other device's
-keyframes cover are not asked for."""
+walk backward from its last frame (and on again), each starting a map in its own first
+camera's frame; the edge finds the second device's keyframes in the first device's map and
+moves the second map into the first's frame — the second device's map updates then carry the
+motion between the two frames, as the truth has it, the second device's poses are in the
+first one's frame, and it tracks on keyframes only the first device uploaded, where content
+the first device anchored appears to the second within the shared map's 3 cm, and frames
+whose views the other device's keyframes cover are not asked for."""
 
 from __future__ import annotations
 
@@ -24,6 +24,7 @@ from twinslam.live.launcher import preloaded_nodes
 from twinslam.live.tracking_quality import RevisitError, cross_device_revisit_error
 from twinslam.node_runtime.session import RosSession
 from twinslam.rotations import rotation_angle_deg
+from twinslam.sequence_player.playback import Playback
 from twinslam.sequences.opening import open_sequence
 from twinslam.slam.back_end.foreign_keyframes import is_foreign
 
@@ -32,8 +33,12 @@ FRAMES = 300
 #: the cameras play at half speed: each device's tracking, rendering and the edge's looks
 #: share two cores with the other device's
 RATE, FRAME_RATE_HZ = 0.5, 30.0
-#: each device's order of the frames
-ORDER = {"ar1": "forward", "ar2": "backward"}
+#: each device's order of the frames: the second walks on past the first one's start, over
+#: the ground the first mapped — a merge that comes late (a loaded machine's edge falls slots
+#: behind) still has frames of the second device to track on it
+ORDER = {"ar1": "forward", "ar2": "backward_forward"}
+#: the walk's frame each of the second device's frames is
+SECOND_WALK = Playback(ORDER["ar2"]).source_indices(FRAMES)
 
 #: the nodes are forked from the launchers' fork server (twinslam.live.node_fork_server)
 FORKS = preloaded_nodes()
@@ -109,10 +114,10 @@ def test_the_edge_merges_the_second_devices_map_into_the_first_ones_frame(
     assert all(u.header.frame_id == "ar1/map" for u in later + maps["ar1"])
     assert all(u.header.frame_id == "ar2/map" for u in maps["ar2"][:maps["ar2"].index(merged)])
     # the second device's poses on the merged map are where the first device's frame has
-    # those places (its frame i is the walk's frame FRAMES - 1 - i)
+    # those places (its frame i is the walk's frame SECOND_WALK[i])
     first_camera = np.linalg.inv(room.read(0).pose)          # type: ignore[attr-defined]
     errors = [np.linalg.norm(pose_matrix(f.pose)[:3, 3] - (
-        first_camera @ room.read(FRAMES - 1 - int(f.frame_id)).pose)[:3, 3])  # type: ignore[attr-defined]
+        first_camera @ room.read(SECOND_WALK[int(f.frame_id)]).pose)[:3, 3])  # type: ignore[attr-defined]
         for s in summaries for f in s.frames if f.tracked and f.map_version >= merged_version]
     assert errors and float(np.median(errors)) < 0.05, errors
     # the second device tracks on keyframes only the first uploaded, adopted into its map
@@ -130,7 +135,7 @@ def test_the_edge_merges_the_second_devices_map_into_the_first_ones_frame(
         return cross_device_revisit_error(
             [(pose_matrix(f.pose), room.pose(int(f.frame_id)))  # type: ignore[attr-defined]
              for s in first_summaries for f in s.frames if f.tracked],
-            [(pose_matrix(f.pose), room.pose(FRAMES - 1 - int(f.frame_id)))  # type: ignore[attr-defined]
+            [(pose_matrix(f.pose), room.pose(SECOND_WALK[int(f.frame_id)]))  # type: ignore[attr-defined]
              for s in summaries for f in s.frames
              if f.tracked and f.map_version >= merged_version])
 

@@ -60,3 +60,15 @@ def test_bad_scenarios_are_refused_with_the_reason() -> None:
         path, kind, entries, skipped = "run.mcap", "rosbag2", [], []
     with pytest.raises(SequenceError, match="plays forward only"):
         PlayedSequence(Forward(), Playback("forward_backward"))
+
+
+def test_backward_forward_walks_back_to_the_first_frame_and_on_again() -> None:
+    """A device that meets one walking from the other end and walks on: frames last to first
+    and on to the last again, the turning frame once, stamps running forward."""
+    seq = SyntheticSequence(4)
+    played = PlayedSequence(seq, Playback("backward_forward"))
+    frames = list(played)
+    assert [f.name for f in frames] == [f"synthetic-{i:06d}" for i in [3, 2, 1, 0, 1, 2, 3]]
+    assert [f.index for f in frames] == list(range(7)) and len(played) == 7
+    np.testing.assert_allclose(np.diff([f.stamp for f in frames]), 1 / 30)
+    np.testing.assert_array_equal(frames[4].pose, seq.pose(1))

@@ -49,7 +49,8 @@ PARAMETERS = (
               high=86_400.0),
     ParamSpec("order", "forward", "forward; forward_backward: every place visited twice; "
               "backward: from the last frame to the first, a second device walking towards "
-              "the first (the last two: dataset folders and synthetic only)",
+              "the first; backward_forward: back to the first frame and on to the last again "
+              "(all but forward: dataset folders and synthetic only)",
               check=lambda v: None if v in ORDERS else f"must be one of {', '.join(ORDERS)}"),
     ParamSpec("blank", "", "bursts of played frames shown black with no depth (a covered "
               "lens): START:COUNT[,START:COUNT...]; empty: none", check=_bursts_error),

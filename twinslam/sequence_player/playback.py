@@ -10,6 +10,8 @@ does either, so the player can
   fresh, evenly spaced stamps (the recorded period) so time keeps running forward;
 * play it **backward** (``order: backward``), from its last frame to its first, with fresh
   stamps: a second device walking the same place from the other end, towards the first;
+  ``order: backward_forward`` walks back to the first frame and on to the last again: a
+  device that meets the first one and walks on, over the ground the other mapped;
 * **blank** bursts of played frames (``blank: "START:COUNT,..."``, positions in the played
   order): black colour and no depth readings — a covered lens — while the ground truth goes on,
   so the device loses tracking and must relocalise wherever the camera went meanwhile.
@@ -29,7 +31,7 @@ import numpy as np
 
 from twinslam.sequences.frame import RandomAccessSequence, RgbdFrame, Sequence, SequenceError
 
-ORDERS = ("forward", "forward_backward", "backward")
+ORDERS = ("forward", "forward_backward", "backward", "backward_forward")
 #: the period assumed when a sequence has a single frame (no interval to measure)
 DEFAULT_PERIOD_S = 1.0 / 30.0
 
@@ -67,6 +69,8 @@ class Playback:
         forward = list(range(n))
         if self.order == "backward":
             return forward[::-1]
+        if self.order == "backward_forward":
+            return forward[::-1] + forward[1:]
         return forward if self.order == "forward" else forward + forward[-2::-1]
 
     def blanked(self, position: int) -> bool:

@@ -167,7 +167,7 @@ def add_fleet_arguments(launch: argparse.ArgumentParser) -> None:
                        "spread evenly over the sequence)")
     fleet.add_argument("--orders", default="", metavar="ORDER,…",
                        help="each device's order of its frames, one a device: forward, "
-                       "backward (from its last frame), forward_backward; e.g. "
+                       "backward (from its last frame), forward_backward, backward_forward; e.g. "
                        "forward,backward with --stride set to the sequence's length (both "
                        "play it from its first frame): two devices walking a place from its "
                        "two ends (default: the scenario's for every device)")
