@@ -4,16 +4,17 @@ keyframes, the slot's end (archive, bundle adjustment, checkpoint, υ, the loop 
 work), and writing the map update, the statistics and the viewer's messages.
 
     python -m bench.edge_work [SEQUENCE] [--frames 1000] [--order forward] [--seed 0] [--uplink lte]
-                              [--checkpoints background] [--csv FILE]
+                              [--checkpoints slot] [--csv FILE]
 
 One default device and edge over the sequence in one process (the device's tracking is not
-counted), every message the edge node reads or writes made and (de)serialised as rclpy does
-on the wire — DDS's own transport and the executor are left out (``bench.dds``). The loop
-closer runs in the caller: its work, which the node does on a thread of the same process,
-counts in the slot it was started by. The map is checkpointed every slot, written on a thread
-of its own as the node does (``--checkpoints slot``: on the slot's path, as before 2026-12-02;
-the step then holds the write). Prints each step's median, p95 and share of the edge's
-time over the walk's slots; ``--csv`` writes every slot's steps.
+counted), every message the edge node reads or writes made and (de)serialised as rclpy does on
+the wire — DDS's own transport and the executor are left out (``bench.dds``). The loop closer
+runs in the caller: its work, which the node does on a thread of the same process, counts in the
+slot it was started by. The map is checkpointed every slot, on the slot's path as the node does
+by default (``--checkpoints background``: written on a thread of its own, as
+``checkpoint_in_background:=true``; the step then holds only the gathering). Prints each step's
+median, p95 and share of the edge's time over the walk's slots; ``--csv`` writes every slot's
+steps.
 """
 
 from __future__ import annotations
@@ -143,9 +144,10 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0, help="the uplink's seed")
     parser.add_argument("--uplink", default="lte", help="uplink family (table1, lte, mmwave, "
                         "constrained)")
-    parser.add_argument("--checkpoints", default="background", choices=("background", "slot"),
+    parser.add_argument("--checkpoints", default="slot", choices=("slot", "background"),
                         help="where the checkpoint files are written: on the node's writer "
-                        "thread (checkpoint_in_background, the default) or on the slot's path")
+                        "thread (checkpoint_in_background:=true) or on the slot's path (the "
+                        "node's default)")
     parser.add_argument("--csv", type=Path, help="write every slot's steps (ms) here")
     args = parser.parse_args()
     cv2.setNumThreads(1)

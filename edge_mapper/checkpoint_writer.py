@@ -7,17 +7,21 @@ device-slot on this VM's disk (``bench.edge_work`` over the 7-Scenes walk and ba
 checkpoint step 26–29 ms median on the slot thread, 7–11 ms with the writer, 2026-12-02), and
 a slower disk (a network volume, an SD card) holds it longer: every device's slot waits
 behind one device's ``fsync``. The writer takes those file operations, which release the
-interpreter, onto a thread of its own.
+interpreter, onto a thread of its own (``checkpoint_in_background:=true``; off by default,
+for the promise below).
 
-What a checkpoint promises stays: a file is the map as one finished slot left it (the arrays
-are gathered, copied, on the slot thread), written whole or not at all (a temporary name,
-then renamed); what it follows afterwards (the archive's files of the keyframes the map took
-back, :meth:`~twinslam.slam.back_end.keyframe_archive.KeyFrameArchive.release`) runs only once
-it is on disk. What changes is when it lands: shortly after the slot's map update went out,
-instead of before. An edge killed in between resumes from the checkpoint before it and goes
-on from the map version its device holds, as with ``checkpoint_every`` above 1
-(:meth:`~edge_mapper.edge_core.EdgeMapperCore.catch_up_version`). A device's newer checkpoint
-submitted before its older one was written replaces it: the older is not written at all.
+What a checkpoint promises stays: a file is the map as one finished slot left it (the arrays are
+gathered, copied, on the slot thread), written whole or not at all (a temporary name, then
+renamed); what it follows afterwards (the archive's files of the keyframes the map took back,
+:meth:`~twinslam.slam.back_end.keyframe_archive.KeyFrameArchive.release`) runs only once it is
+on disk. What changes is when it lands: shortly after the slot's map update went out, instead of
+before — so the default edge, which promises that a map its device got survives it, writes on
+the slot thread (``tests/test_edge_node.py`` kills an edge right after an update and restarts
+it: on a loaded machine the background write had not landed). An edge killed in between resumes
+from the checkpoint before it and goes on from the map version its device holds, as with
+``checkpoint_every`` above 1 (:meth:`~edge_mapper.edge_core.EdgeMapperCore.catch_up_version`). A
+device's newer checkpoint submitted before its older one was written replaces it: the older is
+not written at all.
 
 A write that fails is not retried by the writer: the device's next checkpoint (its next
 submission) raises it on the slot thread, where a failed write raised before, and the edge

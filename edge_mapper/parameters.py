@@ -69,11 +69,13 @@ PARAMETERS = (
               "checkpoint): gathering one is ~7-11 ms of a device's slot on the 7-Scenes "
               "walk; an edge resumed from one up to this many slots old goes on from the map "
               "version its device holds, and a clean stop writes the last", low=1, high=3600),
-    ParamSpec("checkpoint_in_background", True, "write the checkpoints on a thread of their "
+    ParamSpec("checkpoint_in_background", False, "write the checkpoints on a thread of their "
               "own: the slot thread, which every device of the edge waits for, only gathers "
               "the map's arrays (the write and its fsync took ~20 ms a device-slot on a VM's "
-              "disk); each lands shortly after its slot's map update went out. false: written "
-              "before the update goes out"),
+              "disk); each lands shortly after its slot's map update went out, and an edge "
+              "killed in between resumes one checkpoint back (an edge of many devices, or on a "
+              "slow disk). false: written before the update goes out, a map the device got "
+              "survives the edge"),
     ParamSpec("states", 2, "N uplink channel states (the rate history's alphabet)", low=1,
               high=64),
     ParamSpec("archive_keyframes", 500, "evicted keyframes the edge keeps (pose, map points, "

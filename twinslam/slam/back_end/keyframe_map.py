@@ -513,8 +513,9 @@ class KeyFrameMap:
         write_checkpoint(path, self.checkpoint_contents(**extra))
 
     def checkpoint_contents(self, **extra: Any) -> dict[str, np.ndarray]:
-        """The arrays a checkpoint of the map holds (with ``extra``): every one a copy, so
-        that they may be written while the map changes (:func:`write_checkpoint`)."""
+        """The arrays a checkpoint of the map holds, with ``extra``: the map's are copies,
+        so that they may be written while the map changes (:func:`write_checkpoint`; the
+        edge's writer copies the extras too)."""
         kf_ids = self.keyframe_ids()
         # every point's id and row read at C speed (the edge writes this every slot: a long
         # walk's map holds tens of thousands of points), sorted by id; the columns hold a row
