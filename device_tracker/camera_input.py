@@ -51,18 +51,40 @@ class CameraFrame:
 class CameraIntake:
     """Colour and depth messages in, decoded frames out in stamp order
     (:mod:`device_tracker.frame_pairing`); a frame that cannot be had — a depth image whose
-    colour never came, an image that does not decode — is skipped, counted and said why."""
+    colour never came, an image that does not decode — is skipped, counted and said why.
 
-    def __init__(self) -> None:
+    The node takes the camera's messages as they come and tracks on a thread of its own, so
+    the frames waiting for the tracker wait here: at most ``backlog`` of them (the camera
+    topics' reader depth, which bounded the wait while the executor tracked); a device further
+    behind its camera drops its oldest waiting frames, counted with the skipped ones."""
+
+    def __init__(self, backlog: int = 150) -> None:
+        if backlog < 1:
+            raise ValueError(f"a camera backlog holds at least 1 frame, got {backlog}")
         self.pairing = FramePairing()
+        self.backlog = backlog
         self.skipped = 0
+        self._behind = 0                 #: frames dropped for the backlog, not yet said
 
     def add(self, kind: str, msg: Image) -> None:
         """``kind``: "color" or "depth"."""
         self.pairing.add(kind, stamp_key(msg.header), msg)
+        while len(self.pairing.pending) > self.backlog:
+            del self.pairing.pending[min(self.pairing.pending)]
+            self.skipped += 1
+            self._behind += 1
+
+    @property
+    def waiting(self) -> int:
+        """Frames in, not yet handed out (complete or waiting for their other half)."""
+        return len(self.pairing.pending)
 
     def frames(self, skip: Callable[[str], None]) -> Iterator[CameraFrame]:
         """The frames complete now; ``skip(reason)`` for each one dropped."""
+        if self._behind:
+            skip(f"the tracker fell {self.backlog} frames behind the camera: its "
+                 f"{self._behind} oldest waiting frame(s) dropped")
+            self._behind = 0
         for frame in self.pairing.ready():
             if frame.color is None:
                 self.skipped += 1

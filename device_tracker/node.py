@@ -3,7 +3,12 @@
 * ``camera/image_raw`` + ``camera/depth/image_raw`` (paired by stamp,
   :mod:`device_tracker.frame_pairing`) + ``camera/camera_info`` → every frame tracked against
   the edge's last map alone (``map_source:=edge``, the paper's device) or with the device's own
-  recent points too (``edge+local``) (:class:`~device_tracker.device_core.DeviceTrackerCore`);
+  recent points too (``edge+local``) (:class:`~device_tracker.device_core.DeviceTrackerCore`),
+  on a tracking thread of its own: the executor only takes the images in, so a device whose
+  tracking falls behind its camera still takes the edge's requests and map updates as they
+  come (tracked on the executor, they waited behind every queued image: on a loaded 2-core
+  host a request reached the device 10 s late and the edge closed the slot without its
+  keyframes, slot after slot);
   ``device/pose``, ``device/path``, ``device/odom`` and REP 105's ``map`` → ``odom`` →
   camera on ``/tf`` for viewers
   (:mod:`device_tracker.pose_outputs`);
@@ -24,7 +29,9 @@ tracks on; a lost frame is relocalised against the local map, and the node logs 
 
 from __future__ import annotations
 
+import sys
 import threading
+import traceback
 from typing import NoReturn
 
 import numpy as np
@@ -60,6 +67,10 @@ from twinslam.uplink.tc_shaper import TcShaper
 #: how long one keyframe write may keep failing (the writer's history full of unacknowledged
 #: keyframes while the link is down) before that keyframe is given up
 WRITE_RETRY_S = 30.0
+#: how long the tracking thread may hold the interpreter while the executor waits for it
+#: (Python's default: 5 ms): the executor takes three samples a frame (colour, depth, camera
+#: info), and at 5 ms a turn it took them no faster than the tracker tracked
+SWITCH_INTERVAL_S = 0.0005
 
 
 class DeviceTrackerNode(Node):
@@ -75,7 +86,13 @@ class DeviceTrackerNode(Node):
                 p, flush=lambda: wait_for_acks(self.pub_keyframes, WRITE_RETRY_S))
         except ValueError as exc:
             raise NodeStartError(str(exc)) from None
-        self.watchdog, self.camera = EdgeWatchdog(float(p["edge_timeout_s"])), CameraIntake()
+        self.watchdog = EdgeWatchdog(float(p["edge_timeout_s"]))
+        self.camera = CameraIntake(backlog=qos.CAMERA.depth)
+        #: the camera intake's lock, and the tracking thread's wake-up when frames come
+        self._intake = threading.Condition()
+        self._stopping = False
+        #: what ended the tracking thread, if it failed (the node then stops: :func:`main`)
+        self.failure: BaseException | None = None
         self.last_slot = -1                      #: the last slot whose summaries went out
         DeviceTrackerCore.warm_up()
         self._lock = threading.Lock()            # the core, between the node's callbacks
@@ -101,28 +118,53 @@ class DeviceTrackerNode(Node):
         self.sender.start()
         self.edge_relocalisation = EdgeRelocalisation(self, s.reloc_period_s, self.sender,
                                                       lambda: self.last_slot)
+        sys.setswitchinterval(SWITCH_INTERVAL_S)
+        self._tracking = threading.Thread(target=self._track_frames, name="tracking",
+                                          daemon=True)
+        self._tracking.start()
 
     # -- camera ------------------------------------------------------------------------------
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
-        if self.core is None:
-            k = np.asarray(msg.k, dtype=np.float64).reshape(3, 3)
-            s = self.settings
-            self.core = DeviceTrackerCore(k, s.slot_frames, s.tracking, s.keep_slots,
-                                          s.frame_rate_hz, s.map_source, s.own_map_after)
-            self.get_logger().info(f"camera {msg.width}x{msg.height}, fx {k[0, 0]:.1f}; "
-                                   "tracking starts")
-        self._process_ready()
+        if self.core is not None:
+            return
+        k = np.asarray(msg.k, dtype=np.float64).reshape(3, 3)
+        s = self.settings
+        core = DeviceTrackerCore(k, s.slot_frames, s.tracking, s.keep_slots, s.frame_rate_hz,
+                                 s.map_source, s.own_map_after)
+        with self._intake:
+            self.core = core
+            self._intake.notify()
+        self.get_logger().info(f"camera {msg.width}x{msg.height}, fx {k[0, 0]:.1f}; "
+                               "tracking starts")
 
     def _on_image(self, kind: str, msg: Image) -> None:
-        self.camera.add(kind, msg)
-        self._process_ready()
+        with self._intake:
+            self.camera.add(kind, msg)
+            self._intake.notify()
 
-    def _process_ready(self) -> None:
-        if self.core is None:
-            return
-        for frame in self.camera.frames(self.get_logger().warning):
-            self._track(self.core, frame)
+    def _track_frames(self) -> None:
+        """The tracking thread: the frames complete so far, oldest first, until the node
+        closes. A failure is logged with its traceback and stops the node."""
+        try:
+            while True:
+                with self._intake:
+                    while True:              # a new image (or the stop) is what can change it
+                        if self._stopping:
+                            return
+                        core = self.core
+                        frames = [] if core is None else list(
+                            self.camera.frames(self.get_logger().warning))
+                        if frames:
+                            break
+                        self._intake.wait()
+                assert core is not None
+                for frame in frames:
+                    self._track(core, frame)
+        except BaseException as exc:
+            self.failure = exc
+            self.get_logger().fatal("the tracking thread failed:\n" + "".join(
+                traceback.format_exception(exc)))
 
     def _track(self, core: DeviceTrackerCore, frame: CameraFrame) -> None:
         source, stamp = str(self.get_parameter("map_source").value), frame.stamp
@@ -214,19 +256,28 @@ class DeviceTrackerNode(Node):
         self.pub_throughput.publish(uplink_throughput_message(throughput, now))
 
     def close(self) -> None:
+        with self._intake:
+            self._stopping = True
+            self._intake.notify()
+        self._tracking.join(timeout=10.0)        # the frame being tracked, not those waiting
         self.sender.close()
         if isinstance(self.shaper, TcShaper):
             self.shaper.close()
 
 
 def main(args: list[str] | None = None) -> NoReturn:
+    devices: list[DeviceTrackerNode] = []
+
     def started(device: DeviceTrackerNode) -> None:
+        devices.append(device)
         shaper = (f"tc on {device.shaper.interface}" if isinstance(device.shaper, TcShaper)
                   else "token bucket")
         device.get_logger().info(f"{device.settings.describe(shaper)}; waiting for "
                                  f"{device.resolve_topic_name(topics.CAMERA_INFO)}")
 
-    exit_process(run_node("device_tracker", DeviceTrackerNode, args, started=started))
+    code = run_node("device_tracker", DeviceTrackerNode, args,
+                    until=lambda device: device.failure is not None, started=started)
+    exit_process(1 if code == 0 and any(d.failure is not None for d in devices) else code)
 
 
 if __name__ == "__main__":

@@ -1,10 +1,14 @@
-"""The device's frame pairing, edge watchdog and upload worker, driven without DDS and
-without waiting: injected clocks, a real token-bucket shaper, writes that fail on purpose."""
+"""The device's frame pairing and camera intake, edge watchdog and upload worker, driven
+without DDS and without waiting: injected clocks, a real token-bucket shaper, writes that fail
+on purpose."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
+from sensor_msgs.msg import Image
 
+from device_tracker.camera_input import CameraIntake
 from device_tracker.edge_watchdog import EdgeWatchdog
 from device_tracker.frame_pairing import FramePairing
 from device_tracker.uplink_sender import Carried, UplinkSender, write_with_retry
@@ -44,6 +48,34 @@ def test_without_a_depth_topic_colour_waits_a_bounded_number_of_frames() -> None
     assert _drain(pairing) == []
     pairing.add("color", 3, "c3")
     assert _drain(pairing) == [(1, "c1", None)]      # 3 pending > 2: the oldest goes
+
+
+def _image(kind: str, stamp_s: int) -> Image:
+    """A 2×2 colour (rgb8) or depth (16UC1, 1 m) image of ``stamp_s``."""
+    msg = Image(height=2, width=2, encoding="rgb8" if kind == "color" else "16UC1",
+                step=6 if kind == "color" else 4)
+    msg.data = (np.full(12, stamp_s, np.uint8) if kind == "color"
+                else np.full(4, 1000, np.uint16).view(np.uint8)).tobytes()
+    msg.header.stamp.sec = stamp_s
+    return msg
+
+
+def test_a_tracker_far_behind_its_camera_drops_its_oldest_waiting_frames_and_says_so() -> None:
+    """The node takes images in as they come and tracks on a thread of its own: what waits
+    for the tracker is bounded, the oldest frames going first, counted as skipped."""
+    intake = CameraIntake(backlog=3)
+    for stamp in range(1, 6):
+        for kind in ("color", "depth"):
+            intake.add(kind, _image(kind, stamp))
+    assert intake.waiting == 3 and intake.skipped == 2
+    said: list[str] = []
+    frames = list(intake.frames(said.append))
+    assert [f.stamp for f in frames] == [3.0, 4.0, 5.0]
+    assert frames[0].color[0, 0, 0] == 3 and np.allclose(frames[0].depth, 1.0)
+    assert len(said) == 1 and "2 oldest waiting frame(s) dropped" in said[0]
+    assert list(intake.frames(said.append)) == [] and len(said) == 1      # said once
+    with pytest.raises(ValueError, match="at least 1 frame"):
+        CameraIntake(backlog=0)
 
 
 def test_the_watchdog_says_once_that_the_edge_is_silent_and_how_long_it_was() -> None:
