@@ -17,7 +17,6 @@ temporary git worktree and run with this venv, as :mod:`bench.live` does).
 from __future__ import annotations
 
 import argparse
-import csv
 import os
 import platform
 import re
@@ -29,6 +28,7 @@ from pathlib import Path
 
 from bench.live import build_interfaces
 from bench.paths import REPO
+from twinslam.reporting import write_dict_rows
 
 #: what each count is, and the log text (a regular expression) that counts it
 COUNTS = {
@@ -141,10 +141,7 @@ def main() -> None:
                 subprocess.run(["git", "worktree", "remove", "--force", str(base)], cwd=REPO,
                                capture_output=True)
     if args.csv is not None and rows:
-        with args.csv.open("w", newline="") as fh:
-            writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-            writer.writeheader()
-            writer.writerows(rows)
+        write_dict_rows(args.csv, rows)
         print(f"wrote {args.csv}")
 
 
