@@ -65,12 +65,19 @@ class CameraIntake:
         self.backlog = backlog
         self.skipped = 0
         self._behind = 0                 #: frames dropped for the backlog, not yet said
+        self._dropped_upto = -1          #: the newest stamp (ns) dropped for the backlog
 
     def add(self, kind: str, msg: Image) -> None:
-        """``kind``: "color" or "depth"."""
-        self.pairing.add(kind, stamp_key(msg.header), msg)
+        """``kind``: "color" or "depth". The other half of a frame dropped for the backlog,
+        come late, is dropped too: tracked, it would come after newer frames."""
+        key = stamp_key(msg.header)
+        if key <= self._dropped_upto:
+            return
+        self.pairing.add(kind, key, msg)
         while len(self.pairing.pending) > self.backlog:
-            del self.pairing.pending[min(self.pairing.pending)]
+            oldest = min(self.pairing.pending)
+            del self.pairing.pending[oldest]
+            self._dropped_upto = max(self._dropped_upto, oldest)
             self.skipped += 1
             self._behind += 1
 

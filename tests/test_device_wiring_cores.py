@@ -74,6 +74,9 @@ def test_a_tracker_far_behind_its_camera_drops_its_oldest_waiting_frames_and_say
     assert frames[0].color[0, 0, 0] == 3 and np.allclose(frames[0].depth, 1.0)
     assert len(said) == 1 and "2 oldest waiting frame(s) dropped" in said[0]
     assert list(intake.frames(said.append)) == [] and len(said) == 1      # said once
+    intake.add("color", _image("color", 6))
+    intake.add("depth", _image("depth", 2))      # the late half of a dropped frame
+    assert intake.waiting == 1 and intake.skipped == 2
     with pytest.raises(ValueError, match="at least 1 frame"):
         CameraIntake(backlog=0)
 
