@@ -75,15 +75,23 @@ def build_interfaces(root: Path, prefix: Path) -> dict[str, str]:
             "AMENT_PREFIX_PATH": str(prefix)}
 
 
-def run(root: Path, frames: int, policy: str, extra_env: dict[str, str] | None = None
-        ) -> dict[str, float]:
-    """One ``twinslam launch`` from checkout ``root``; its edge ms and device CPU ms/frame.
-    ``extra_env``: paths put before the inherited ones (a baseline's own interface build)."""
+def tree_env(root: Path, extra_env: dict[str, str] | None = None) -> dict[str, str]:
+    """The environment of a process run from checkout ``root``: ``root`` first on the path,
+    then ``extra_env``'s paths put before the inherited ones (a baseline's own interface
+    build, :func:`build_interfaces`)."""
     env = dict(os.environ, PYTHONPATH=str(root), PYTHONUNBUFFERED="1")
     for key, value in (extra_env or {}).items():     # the checkout itself stays first
         first, then = (env.get(key, ""), value) if key == "PYTHONPATH" else (value,
                                                                              env.get(key, ""))
         env[key] = ":".join(v for v in (first, then) if v)
+    return env
+
+
+def run(root: Path, frames: int, policy: str, extra_env: dict[str, str] | None = None
+        ) -> dict[str, float]:
+    """One ``twinslam launch`` from checkout ``root``; its edge ms and device CPU ms/frame.
+    ``extra_env``: paths put before the inherited ones (a baseline's own interface build)."""
+    env = tree_env(root, extra_env)
     # the command line moved under the project package: older baselines have it
     # as a top-level package
     cli = "twinslam_cli.main" if (root / "twinslam_cli").is_dir() else "twinslam.cli.main"

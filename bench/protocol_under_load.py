@@ -26,7 +26,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from bench.live import build_interfaces
+from bench.baseline import add_baseline_options, alternately
+from bench.live import build_interfaces, tree_env
 from bench.paths import REPO
 from twinslam.reporting import write_dict_rows
 
@@ -48,15 +49,12 @@ def busy_loop() -> subprocess.Popen[bytes]:
 def launch(root: Path, out: Path, frames: int, rate: float,
            extra_env: dict[str, str]) -> subprocess.Popen[str]:
     """One two-device fleet from checkout ``root``, its nodes' logs under ``out``."""
-    env = dict(os.environ, PYTHONPATH=":".join(filter(None, [
-        str(root), extra_env.get("PYTHONPATH", "")])), PYTHONUNBUFFERED="1")
-    env.update({k: v for k, v in extra_env.items() if k != "PYTHONPATH"})
     cmd = [sys.executable, "-m", "twinslam.cli.main", "launch", "--loopback", "--devices",
            "2", "--merge-maps", "--sequence", f"synthetic:{frames}", "--frames", str(frames),
            "--orders", "forward,backward", "--rate", str(rate), "--out", str(out)]
-    log = (out.parent / f"{out.name}.stdout").open("w")
-    return subprocess.Popen(cmd, cwd=root, env=env, text=True, stdout=log,
-                            stderr=subprocess.STDOUT)
+    with (out.parent / f"{out.name}.stdout").open("w") as log:     # the child keeps its copy
+        return subprocess.Popen(cmd, cwd=root, env=tree_env(root, extra_env), text=True,
+                                stdout=log, stderr=subprocess.STDOUT)
 
 
 def counted(out: Path) -> dict[str, int]:
@@ -93,13 +91,11 @@ def run_fleets(root: Path, folder: Path, fleets: int, busy: int, frames: int, ra
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--baseline", default="",
-                        help="commit to compare with, run first in each round (default: none)")
+    add_baseline_options(parser, 1, "rounds, each the baseline's fleets then this tree's")
     parser.add_argument("--fleets", type=int, default=4,
                         help="two-device fleets run at once (default: 4)")
     parser.add_argument("--busy", type=int, default=1,
                         help="busy loops beside them, a core each (default: 1)")
-    parser.add_argument("--rounds", type=int, default=1, help="rounds (default: 1)")
     parser.add_argument("--frames", type=int, default=300,
                         help="frames of the synthetic room each device plays (default: 300)")
     parser.add_argument("--rate", type=float, default=0.5,
@@ -110,36 +106,32 @@ def main() -> None:
     print(f"machine: {platform.node()} {os.cpu_count()} cores, python "
           f"{platform.python_version()}; {args.fleets} fleets of 2 devices beside "
           f"{args.busy} busy loop(s), {args.frames} frames at {args.rate}x", flush=True)
-    rows: list[dict[str, object]] = []
+    names = {"current": "current"}
+    if args.baseline:
+        names["baseline"] = "baseline " + subprocess.run(
+            ["git", "rev-parse", "--short", args.baseline], cwd=REPO, check=True,
+            capture_output=True, text=True).stdout.strip()
     with tempfile.TemporaryDirectory(prefix="twinslam-protocol-load-") as tmp:
-        base = Path(tmp) / "baseline"
-        labels: list[tuple[str, Path, dict[str, str]]] = [("current", REPO, {})]
-        if args.baseline:
-            commit = subprocess.run(["git", "rev-parse", "--short", args.baseline], cwd=REPO,
-                                    check=True, capture_output=True, text=True).stdout.strip()
-            subprocess.run(["git", "worktree", "add", "--detach", str(base), commit],
-                           cwd=REPO, check=True, capture_output=True)
-            same = subprocess.run(["git", "diff", "--quiet", args.baseline, "--",
-                                   "msg_schemas/msg"], cwd=REPO).returncode == 0
-            base_env = {} if same else build_interfaces(base, Path(tmp) / "msgs")
-            labels.insert(0, (f"baseline {commit}", base.resolve(), base_env))
-        try:
-            for round_ in range(1, args.rounds + 1):
-                for label, root, env in labels:
-                    folder = Path(tmp) / f"r{round_}-{label.split()[0]}"
-                    folder.mkdir()
-                    started = time.monotonic()
-                    fleets = run_fleets(root, folder, args.fleets, args.busy, args.frames,
-                                        args.rate, env)
-                    totals = {k: sum(f[k] for f in fleets) for k in fleets[0]}
-                    print(f"round {round_} {label}: {time.monotonic() - started:.0f} s, "
-                          + ", ".join(f"{k} {v}" for k, v in totals.items()), flush=True)
-                    rows += [{"round": round_, "code": label, "fleet": i + 1, **f}
-                             for i, f in enumerate(fleets)]
-        finally:
-            if args.baseline:
-                subprocess.run(["git", "worktree", "remove", "--force", str(base)], cwd=REPO,
-                               capture_output=True)
+        envs: dict[str, dict[str, str]] = {"current": {}}
+        rows: list[dict[str, object]] = []          # one a fleet, in the order they ran
+
+        def measure(r: int, label: str, root: Path) -> None:
+            if label not in envs:           # the baseline's own interfaces, if they differ
+                same = subprocess.run(["git", "diff", "--quiet", args.baseline, "--",
+                                       "msg_schemas/msg"], cwd=REPO).returncode == 0
+                envs[label] = {} if same else build_interfaces(root, Path(tmp) / "msgs")
+            folder = Path(tmp) / f"r{r + 1}-{label}"
+            folder.mkdir()
+            started = time.monotonic()
+            fleets = run_fleets(root.resolve(), folder, args.fleets, args.busy, args.frames,
+                                args.rate, envs[label])
+            totals = {k: sum(f[k] for f in fleets) for k in fleets[0]}
+            print(f"round {r + 1} {names[label]}: {time.monotonic() - started:.0f} s, "
+                  + ", ".join(f"{k} {v}" for k, v in totals.items()), flush=True)
+            rows.extend({"round": r + 1, "code": names[label], "fleet": i + 1, **f}
+                        for i, f in enumerate(fleets))
+
+        alternately(args.baseline, args.rounds, measure)
     if args.csv is not None and rows:
         write_dict_rows(args.csv, rows)
         print(f"wrote {args.csv}")
