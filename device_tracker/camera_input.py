@@ -11,6 +11,7 @@ import numpy as np
 from sensor_msgs.msg import Image
 
 from device_tracker.frame_pairing import FramePairing
+from msg_schemas import qos
 from msg_schemas.headers import stamp_key, stamp_seconds
 
 
@@ -58,7 +59,7 @@ class CameraIntake:
     topics' reader depth, which bounded the wait while the executor tracked); a device further
     behind its camera drops its oldest waiting frames, counted with the skipped ones."""
 
-    def __init__(self, backlog: int = 150) -> None:
+    def __init__(self, backlog: int = qos.CAMERA.depth) -> None:
         if backlog < 1:
             raise ValueError(f"a camera backlog holds at least 1 frame, got {backlog}")
         self.pairing = FramePairing()

@@ -87,7 +87,7 @@ class DeviceTrackerNode(Node):
         except ValueError as exc:
             raise NodeStartError(str(exc)) from None
         self.watchdog = EdgeWatchdog(float(p["edge_timeout_s"]))
-        self.camera = CameraIntake(backlog=qos.CAMERA.depth)
+        self.camera = CameraIntake()
         #: the camera intake's lock, and the tracking thread's wake-up when frames come
         self._intake = threading.Condition()
         self._stopping = False
