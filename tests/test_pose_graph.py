@@ -11,6 +11,7 @@ import math
 import numpy as np
 import pytest
 
+from twinslam.slam.back_end.foreign_keyframes import MAX_SOURCES, foreign_tag
 from twinslam.slam.back_end.pose_graph import (
     ANCHOR_SHARED_MIN,
     Anchors,
@@ -259,3 +260,45 @@ def test_a_loop_bends_the_walk_where_no_other_devices_keyframe_holds_it() -> Non
     moved_held = held.poses[9][0, 3] - walk[9][0, 3]
     assert moved_alone > 0.02 and 0.0 <= moved_held < 0.5 * moved_alone
     assert set(held.corrections) == set(walk)           # the anchor is no keyframe of the walk
+
+
+def test_a_loop_with_another_devices_keyframe_bends_the_walk_towards_it() -> None:
+    """The walk of ten keyframes drifted 6 cm along its way from a place another device
+    mapped: that device's keyframe beside the walk's last (an anchor, tied to nothing) sees
+    keyframe 9 6 cm further on than the walk has it. The loop across devices moves 9 most of
+    the 6 cm (four fifths: the walk's nine steps resist, σ 2 cm, the loop's σ 1 cm) towards
+    where the other map puts it, the walk's start stays (the map's frame),
+    the anchor stays where its own map has it; the loop, kept, holds 9 there in the next
+    graph too — a later loop of the walk's own does not undo it — and moves the walk with
+    the other device's keyframe when that device's own loop moves it."""
+    tag = foreign_tag(MAX_SOURCES - 1)         # a device's tag: beyond a graph key's index
+    walk = {i: _yaw(0.0, 0.3 * i) for i in range(10)}
+    copy = tag | 9
+    anchor = {copy: _yaw(0.0, 2.76, 0.5)}
+    steps = {(i, i + 1): 150 for i in range(9)}
+    # seen from the other device's keyframe (at (2.76, 0.5)), 9 stands at (2.76, 0); the walk
+    # has it at (2.70, 0)
+    measured = np.linalg.inv(anchor[copy]) @ _yaw(0.0, 2.76)
+    none_tied = Anchors(anchor, anchor, {}, {})
+    closed = close_loop(walk, copy, 9, measured, steps, anchors=none_tied)
+    assert set(closed.corrections) == set(walk)
+    moved = [closed.poses[i][0, 3] - walk[i][0, 3] for i in range(10)]
+    assert abs(moved[0]) < 1e-6 and 0.04 < moved[9] <= 0.06, moved
+    assert all(x <= y + 1e-9 for x, y in itertools.pairwise(moved)), moved
+    # without the anchor the loop has nothing to join
+    with pytest.raises(ValueError, match="two keyframes"):
+        close_loop(walk, copy, 9, measured, steps)
+    # kept as an earlier loop, it holds 9 near the other device's keyframe while a loop of
+    # the walk's own (0 on 5, measured as the walk had it before: it pulls the bend back)
+    # closes; without it, 9 goes most of the way back
+    corrected = closed.poses
+    own_loop = np.linalg.inv(walk[0]) @ walk[5]
+    kept = close_loop(corrected, 0, 5, own_loop, steps, earlier=[LoopEdge(copy, 9, measured)],
+                      anchors=none_tied)
+    forgotten = close_loop(corrected, 0, 5, own_loop, steps, anchors=none_tied)
+    assert kept.poses[9][0, 3] > corrected[9][0, 3] - 0.005
+    assert forgotten.poses[9][0, 3] < corrected[9][0, 3] - 0.01
+    # and a loop of that device moving its keyframe moves the walk with it
+    followed = follow_anchors(corrected, Anchors(anchor, {copy: _yaw(0.0, 2.79, 0.5)}, {}, {}),
+                              steps, [LoopEdge(copy, 9, measured)])
+    assert followed is not None and followed.poses[9][0, 3] - corrected[9][0, 3] > 0.02

@@ -30,7 +30,10 @@ loop with an essential-graph optimisation; here the graph reads like the math:
   copies of that device's keyframes the walk was posed on as **anchors** (:class:`Anchors`):
   held by priors where that device's map has them, each tied to the walk's keyframes posed
   on its points — a loop of this walk bends it where no anchor holds it, and a loop of the
-  other device, moving the anchors, moves the walk with them (:func:`follow_anchors`).
+  other device, moving the anchors, moves the walk with them (:func:`follow_anchors`);
+* a **loop across devices**: a loop factor between an anchor and a keyframe of the walk, as
+  between two of its own — the walk came to a place the other device mapped, a drift away
+  from where that device's keyframes have it, and bends towards them there.
 
 Levenberg–Marquardt moves every pose so that the loop closes and the walk's steps bend as
 little as they can; :func:`move_with_keyframes` then carries each point with its reference
@@ -144,8 +147,12 @@ def close_loop(poses: Mapping[int, np.ndarray], old: int, new: int,
     ``anchors``: another device's keyframes the walk was tracked on (a merged map's
     copies, :class:`Anchors`): held where they are, the walk's keyframes tied to them kept
     where they stand to them — the loop's correction bends the walk where nothing another
-    device mapped holds it, as one loop closing over the place's map would."""
-    if old not in poses or new not in poses or old == new:
+    device mapped holds it, as one loop closing over the place's map would. ``old`` may be
+    one of the anchors (a loop across devices: the walk came to a place another device
+    mapped, :func:`~twinslam.slam.back_end.loop_closing.loop_across`): held where it is,
+    the loop bends this walk alone towards it."""
+    held_old = anchors is not None and old in anchors.now
+    if (old not in poses and not held_old) or new not in poses or old == new:
         raise ValueError(f"a loop joins two keyframes of the graph, got {old} and {new}")
     return _solved(*_walk_graph(poses, shared, [*earlier, LoopEdge(old, new, measured, inliers)],
                                 anchors), poses)
@@ -188,8 +195,9 @@ def follow_anchors(poses: Mapping[int, np.ndarray], anchors: Anchors,
     of its own map's barely moves). The anchors are held by priors too (another device's
     map, which this walk does not question). ORB-SLAM3 corrects the keyframes connected to
     a merge's or a loop's with the same kind of essential graph; here it is solved once a
-    lender's loop reached the copies this map holds of its keyframes."""
-    if not poses or not anchors.links(poses):
+    lender's loop reached the copies this map holds of its keyframes. A loop this walk closed
+    with an anchor (``earlier``, a loop across devices) ties it as well."""
+    if not poses or not _held_keys(poses, earlier, anchors):
         return None
     return _solved(*_walk_graph(poses, shared, earlier, anchors), poses)
 
@@ -208,32 +216,43 @@ def _walk_graph(poses: Mapping[int, np.ndarray], shared: Mapping[tuple[int, int]
     graph.add(gtsam.PriorFactorPose3(X(ids[0]), gtsam.Pose3(np.asarray(poses[ids[0]])),
                                      gtsam.noiseModel.Isotropic.Sigma(6, PRIOR_SIGMA)))
     _add_walk(graph, poses, shared)
-    _add_loops(graph, poses, loops)
+    held = _held_keys(poses, loops, anchors)
     if anchors is not None:
-        _add_anchors(graph, initial, poses, anchors)
+        _add_anchors(graph, initial, poses, anchors, held)
+    _add_loops(graph, poses, loops, held)
     return graph, initial
 
 
+def _held_keys(poses: Mapping[int, np.ndarray], loops: Sequence[LoopEdge],
+               anchors: Anchors | None) -> dict[int, int]:
+    """The anchors the graph holds — those tied to a keyframe of ``poses`` and those a loop
+    joins to one (a loop across devices) — each with its key A(j): tagged ids exceed a
+    Symbol's index."""
+    if anchors is None:
+        return {}
+    held = {k for pair in anchors.links(poses) for k in pair if k in anchors.now}
+    held |= {edge.old for edge in loops
+             if edge.old not in poses and edge.old in anchors.now and edge.new in poses}
+    return {k: int(A(j)) for j, k in enumerate(sorted(held))}
+
+
 def _add_anchors(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values,
-                 poses: Mapping[int, np.ndarray], anchors: Anchors) -> None:
-    """Each anchor tied to a keyframe of ``poses`` held by a prior where it is now (keys A(j):
-    tagged ids exceed a Symbol's index), and each tie a factor holding the relative pose the
-    two had before the anchor moved, as :func:`follow_anchors` says."""
-    links = anchors.links(poses)
-    tied = sorted({k for pair in links for k in pair if k in anchors.now})
-    index = {k: j for j, k in enumerate(tied)}
-
+                 poses: Mapping[int, np.ndarray], anchors: Anchors,
+                 held: Mapping[int, int]) -> None:
+    """Each anchor of ``held`` (id → key) held by a prior where it is now, and each tie a
+    factor holding the relative pose the two had before the anchor moved, as
+    :func:`follow_anchors` says."""
     def key(k: int) -> int:
-        return int(A(index[k])) if k in index else int(X(k))
+        return held[k] if k in held else int(X(k))     # a tagged id has no X key
 
-    held = gtsam.noiseModel.Isotropic.Sigma(6, PRIOR_SIGMA)
-    for k in tied:
+    prior = gtsam.noiseModel.Isotropic.Sigma(6, PRIOR_SIGMA)
+    for k in sorted(held):
         now = gtsam.Pose3(np.asarray(anchors.now[k], dtype=np.float64))
         initial.insert(key(k), now)
-        graph.add(gtsam.PriorFactorPose3(key(k), now, held))
-    for (a, b), n in sorted(links.items()):
-        pose_a = anchors.before[a] if a in index else poses[a]
-        pose_b = anchors.before[b] if b in index else poses[b]
+        graph.add(gtsam.PriorFactorPose3(key(k), now, prior))
+    for (a, b), n in sorted(anchors.links(poses).items()):
+        pose_a = anchors.before[a] if a in held else poses[a]
+        pose_b = anchors.before[b] if b in held else poses[b]
         relative = np.linalg.inv(pose_a) @ pose_b
         share = math.sqrt(max(anchors.observed.get(a if a in poses else b, n), n) / n)
         noise = gtsam.noiseModel.Diagonal.Sigmas(share * step_scale(n) * step_sigmas(relative))
@@ -255,15 +274,17 @@ def _add_walk(graph: gtsam.NonlinearFactorGraph, poses: Mapping[int, np.ndarray]
 
 
 def _add_loops(graph: gtsam.NonlinearFactorGraph, poses: Mapping[int, np.ndarray],
-               loops: Sequence[LoopEdge]) -> None:
-    """A loop factor for each of ``loops`` whose two keyframes are in ``poses``."""
+               loops: Sequence[LoopEdge], held: Mapping[int, int]) -> None:
+    """A loop factor for each of ``loops`` whose two keyframes are in ``poses`` — or whose
+    old one is an anchor the graph holds (``held``: id → key; a loop across devices)."""
     for edge in loops:
-        if edge.old in poses and edge.new in poses:
+        if (edge.old in poses or edge.old in held) and edge.new in poses:
             loop_noise = gtsam.noiseModel.Robust.Create(
                 gtsam.noiseModel.mEstimator.Cauchy.Create(LOOP_CAUCHY),
                 gtsam.noiseModel.Diagonal.Sigmas(loop_scale(edge.inliers)
                                                  * np.array(LOOP_SIGMAS)))
-            graph.add(gtsam.BetweenFactorPose3(X(edge.old), X(edge.new),
+            old = held[edge.old] if edge.old in held else X(edge.old)
+            graph.add(gtsam.BetweenFactorPose3(old, X(edge.new),
                                                gtsam.Pose3(np.asarray(edge.measured)),
                                                loop_noise))
 
