@@ -61,8 +61,9 @@ from msg_schemas.headers import time_seconds
 from twinslam.node_runtime.checked_subscription import CheckedSubscription
 from twinslam.node_runtime.long_lived_objects import release_frozen
 from twinslam.rotations import rotation_angle_deg
+from twinslam.slam.back_end.foreign_keyframes import is_foreign, keyframe_label
 from twinslam.slam.back_end.loop_closing import SHARED_WORKER
-from twinslam.slam.back_end.map_back_end import archive_folder
+from twinslam.slam.back_end.map_back_end import ClosedLoop, archive_folder
 
 
 @dataclass(frozen=True)
@@ -381,11 +382,11 @@ class DeviceLink:
             self.warning(f"slot {slot}: {out.loop.refused} (looking from keyframe "
                          f"{out.loop.new}); the edge goes on without it")
         elif out.loop is not None and out.loop.refused:
-            self.warning(f"slot {slot}: loop between keyframes {out.loop.old} and "
-                         f"{out.loop.new} refused, {out.loop.refused}")
+            self.warning(f"slot {slot}: loop between {_loop_ends(out.loop)} refused, "
+                         f"{out.loop.refused}")
         elif out.loop is not None:
-            self.info(f"slot {slot}: loop closed between keyframes {out.loop.old} and "
-                      f"{out.loop.new} ({out.loop.inliers} inliers), the map moved up to "
+            self.info(f"slot {slot}: loop closed between {_loop_ends(out.loop)} "
+                      f"({out.loop.inliers} inliers), the map moved up to "
                       f"{out.loop.moved_m:.3f} m; the loop closer took "
                       f"{out.loop.worker_ms:.0f} ms beside the slots")
         for failure in out.loop_failures:
@@ -502,3 +503,12 @@ class DeviceLink:
             self.views.destroy(self.node)
         # the map and the link's callbacks go: the collector sees the frozen objects again
         release_frozen()
+
+
+def _loop_ends(loop: ClosedLoop) -> str:
+    """The two keyframes of a loop as the log names them: "keyframes 30 and 900", or, closed
+    with another device's keyframe (a loop across devices), "another device's keyframe 30
+    (copy …) and keyframe 900"."""
+    if not is_foreign(loop.old):
+        return f"keyframes {loop.old} and {loop.new}"
+    return f"{keyframe_label(loop.old)} and keyframe {loop.new}"

@@ -180,6 +180,12 @@ PARAMETERS = (
               "map's keyframes into its archive, which restores bring in where it heads: their "
               "poses in one frame, on shared keyframes; looks beside the slots cost ~0.1 s of "
               "CPU a slot per unmerged device"),
+    ParamSpec("loops_across_devices", True, "with merge_maps: a device's loop closer also "
+              "closes loops with the keyframes its place's other devices lent its map at "
+              "least five slots before (where it comes to a place another device mapped "
+              "first, its walk bends towards that device's keyframes: the two walks' drift "
+              "apart since the merge taken out there); false: loops among a device's own "
+              "keyframes only"),
     ParamSpec("covered_m", 0.10, "with merge_maps: a frame whose camera stands within this "
               "many metres of a keyframe another device uploaded (lent to this device's map) "
               "and looks the same way (covered_deg) is not uploaded: the shared map holds that "
@@ -218,6 +224,7 @@ def edge_config(p: Mapping[str, Any]) -> EdgeConfig:
                           point_culling=bool(p["point_culling"]),
                           integration_fusion=bool(p["integration_fusion"]),
                           loop_closing=bool(p["loop_closing"]),
+                          loops_across_devices=bool(p["loops_across_devices"]),
                           image_shape=(int(p["image_height"]), int(p["image_width"]))))
 
 

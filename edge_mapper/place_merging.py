@@ -16,7 +16,11 @@ welded to its points, into its archive (:meth:`PlaceMerging.lend_all`): restores
 where the device heads, and each device tracks on keyframes only the other uploaded. The
 copies adopted before move with each loop the lender closed since
 (:func:`~twinslam.slam.back_end.map_merging.follow_lender_loops`): lent before and after a
-loop, they would stand a loop's correction apart.
+loop, they would stand a loop's correction apart. And each map's loop closer may close loops
+with the copies of its place's other devices (``loops_across_devices``,
+:func:`~twinslam.slam.back_end.loop_closing.loop_across`): where a device comes to a place
+another mapped first, its walk, drifted since the merge, bends towards that device's
+keyframes.
 
 The devices in one frame are a place: its first device in the edge's order (the root) and
 the devices that joined it; the place's frame is its root's first camera's. Each root looks,
@@ -258,6 +262,11 @@ class PlaceMerging:
         done = dict(zip(serving, lend_from(cores[borrower].back_end, rounds, slot,
                                            cores[borrower].version + 1), strict=True)) \
             if serving else {}
+        # the borrower's loops may close with the copies of its place's other devices (those
+        # it adopted a while before: MapBackEnd._across)
+        if borrower in cores:
+            cores[borrower].back_end.loop_across = frozenset(
+                foreign_tag(self.source(lender)) for lender in serving)
         for lender, lending in done.items():
             self._followed[(borrower, lender)] = lending.followed
         return [done.get(lender) or Lending(self._followed.get((borrower, lender), 0), 0)

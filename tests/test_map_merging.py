@@ -22,12 +22,19 @@ from twinslam.rotations import rotation_angle_deg
 from twinslam.slam.back_end.foreign_keyframes import foreign_tag, is_foreign, ties_to_copies
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive, restore_into
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
-from twinslam.slam.back_end.loop_closing import LoopJob, LoopQuery, run_job
+from twinslam.slam.back_end.loop_closing import (
+    ACROSS_GAP_SLOTS,
+    ACROSS_NEAR_M,
+    LoopJob,
+    LoopQuery,
+    run_job,
+)
 from twinslam.slam.back_end.loop_correction import correct_map, correction_for
 from twinslam.slam.back_end.map_back_end import (
     APPLIED_LOOPS_KEPT,
     AppliedLoop,
     BackEndConfig,
+    MapBackEnd,
     archive_folder,
 )
 from twinslam.slam.back_end.map_merging import (
@@ -233,6 +240,31 @@ def test_the_edge_merges_a_later_device_into_an_earlier_ones_frame(room: Room) -
     assert sorted(cores["ar1"].archive.get(ar2 | k).id & 0xFFFF
                   for k in (10, 11, 12)) == [10, 11, 12]
     assert merging.lend_all("ar1", ["ar2"], 6)[0].adopted == 0  # never those it lent back
+    # each map's loops may close with the keyframes it borrowed from the other
+    assert cores["ar2"].back_end.loop_across == {ar1}
+    assert cores["ar1"].back_end.loop_across == {ar2}
+
+
+def test_a_loop_across_devices_closes_only_with_copies_adopted_a_while_before(
+        room: Room, tmp_path: Path) -> None:  # noqa: F811
+    """A map may close a loop with the copies of its place's other devices only once it
+    adopted them ACROSS_GAP_SLOTS before: where two devices walk one place at once, each
+    would bend towards keyframes the other's walk moves meanwhile. The slots copies were
+    adopted at survive a restart; ``loops_across_devices: false`` closes none."""
+    core, copies = _borrower(room)              # the copies adopted at slot 1
+    ids = frozenset(kf.id for kf in copies.values())
+    poses = core.back_end.keyframe_poses()
+    assert core.back_end._across(poses, 1 + ACROSS_GAP_SLOTS) == frozenset()   # no tags yet
+    core.back_end.loop_across = frozenset({foreign_tag(0)})
+    assert core.back_end._across(poses, ACROSS_GAP_SLOTS) == frozenset()
+    assert core.back_end._across(poses, 1 + ACROSS_GAP_SLOTS) == ids
+    path = tmp_path / "edge.npz"
+    core.map.save(path, **core.back_end.checkpoint_arrays())
+    again = MapBackEnd(core.back_end.config, room[0].intrinsics, path)  # type: ignore[attr-defined]
+    assert again.adopted_at == {k: 1 for k in ids}
+    off = MapBackEnd(dataclasses.replace(core.back_end.config, loops_across_devices=False))
+    off.adopted_at, off.loop_across = dict(again.adopted_at), frozenset({foreign_tag(0)})
+    assert off._across(poses, 100) == frozenset()
 
 
 def test_an_edge_restarted_from_its_checkpoints_serves_each_device_in_the_place_it_left(
@@ -748,6 +780,70 @@ def test_a_loop_is_found_among_the_walks_own_keyframes_though_copies_show_the_pl
     result = run_job(LoopJob((query,), merged, {}, seq.intrinsics, {}))  # type: ignore[attr-defined]
     assert result.candidate.found, result.candidate.reason
     assert result.candidate.old in (30, 60, 90) and result.candidate.inliers >= 50
+
+
+def _across_job(room: Room, drift_m: float, across: bool = True,  # noqa: F811
+                 start: np.ndarray | None = None) -> LoopJob:
+    """A merged map whose archive holds another device's copies (ar1's tag) of the room's
+    keyframes, where that device's map has them; its own walk began at ``start`` (default:
+    1 m before frame 64's camera) and its keyframe 1000 sees the room's frame 64 from where
+    the walk has it: the truth ``drift_m`` further along x (the two walks drifted apart since
+    their maps merged). ``across``: a loop may close with every copy; else with none."""
+    seq, archive, _ = room
+    copies = KeyFrameArchive(len(archive))
+    tag = foreign_tag(source_of("ar1"))
+    for kf in archive:
+        copies.add(dataclasses.replace(kf, id=tag | kf.id, point_ids=kf.point_ids | tag),
+                   write=False)
+    truth = seq.read(64).pose                                   # type: ignore[attr-defined]
+    walked = truth.copy()
+    walked[0, 3] += drift_m
+    first = truth.copy() if start is None else start
+    if start is None:
+        first[2, 3] -= 1.0
+    query = dataclasses.replace(_query(room, 64, 0), keyframe=1000)
+    return LoopJob((query,), copies, {0: first, 1000: walked}, seq.intrinsics,  # type: ignore[attr-defined]
+                   {0: frozenset(), 1000: frozenset()}, (),
+                   {kf.id: kf.pose for kf in copies}, {},
+                   frozenset(kf.id for kf in copies) if across else frozenset())
+
+
+def test_a_walk_that_drifted_from_another_devices_keyframes_closes_a_loop_with_them(
+        room: Room) -> None:  # noqa: F811
+    """A merged map's walk comes to a place the device before it mapped, 6 cm from where
+    that device's keyframes have it: the loop across devices finds one of those keyframes,
+    and its graph puts the walk's keyframe back within 2 cm of the place, the walk's first
+    keyframe (the map's frame) and the other device's keyframes where they were. Without the
+    other device's tag among the map's ``across``, no loop: the walk's own keyframes show
+    no place seen before."""
+    job = _across_job(room, 0.06)
+    result = run_job(job)
+    assert result.candidate.found, result.candidate.reason
+    assert is_foreign(result.candidate.old) and result.candidate.inliers >= 50
+    assert result.closure is not None
+    truth = room[0].read(64).pose                                # type: ignore[attr-defined]
+    assert np.linalg.norm(result.closure.poses[1000][:3, 3] - truth[:3, 3]) < 0.02
+    np.testing.assert_allclose(result.closure.poses[0], job.poses[0], atol=1e-5)
+    assert set(result.closure.corrections) == {0, 1000}     # the copies hold: no correction
+    alone = run_job(_across_job(room, 0.06, across=False))
+    assert not alone.candidate.found and alone.closure is None
+
+
+def test_a_walk_that_agrees_with_another_devices_keyframes_or_is_far_from_them_closes_none(
+        room: Room) -> None:  # noqa: F811
+    """The loop across devices closes only where the walk drifted from the other device's
+    keyframes (ACROSS_MIN_M) and only with keyframes near the walk's camera: a walk already
+    where they have the place closes none, nor does one whose map puts its camera metres
+    from every copy (a look-alike place elsewhere would be searched otherwise); and one
+    whose keyframe the copies would move farther than the walk can have drifted since its
+    start is refused as a look-alike."""
+    agrees = run_job(_across_job(room, 0.0))
+    assert not agrees.candidate.found and "agrees" in agrees.candidate.reason
+    far = run_job(_across_job(room, 20 * ACROSS_NEAR_M))     # out of the room
+    assert not far.candidate.found and "nearby" in far.candidate.reason
+    # 0.3 m off after a walk of 1 m: more than 0.10 m + 5 % of it
+    drifted = run_job(_across_job(room, 0.3))
+    assert not drifted.candidate.found and "drifted" in drifted.candidate.reason
 
 
 def test_a_map_keeps_its_newest_applied_loops_for_its_borrowers() -> None:

@@ -54,6 +54,14 @@ def source_id(item_id: int) -> int:
     return int(item_id) & ((1 << TAG_SHIFT) - 1)
 
 
+def keyframe_label(kf_id: int) -> str:
+    """A keyframe as a log names it: "keyframe 30", or — another device's, a copy — "another
+    device's keyframe 30 (copy 1099511628076)", its id in its own map first."""
+    if not is_foreign(kf_id):
+        return f"keyframe {kf_id}"
+    return f"another device's keyframe {source_id(kf_id)} (copy {kf_id})"
+
+
 def ties_to_copies(points: Mapping[int, np.ndarray]) -> dict[tuple[int, int], int]:
     """How many of the points another device's keyframes brought each of this map's own
     keyframes observes, by the copy that brought them: (own keyframe, copy) → count

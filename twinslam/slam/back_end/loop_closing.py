@@ -12,6 +12,12 @@ with the edge: archived keyframes never change in place, poses are copies. The n
 end takes the answer (:meth:`LoopCloser.take`) and applies it
 (:mod:`twinslam.slam.back_end.loop_correction`): the map the device gets next is corrected.
 
+In a merged map (:mod:`~twinslam.slam.back_end.map_merging`) a query that finds no place
+among the walk's own keyframes is looked for among the nearby keyframes of the devices that
+joined the place before this one (:func:`loop_across`): a loop with one of them bends the
+walk towards that device's keyframes, which the graph holds — one loop closing over the
+place's keyframes, not one per device that only the merge's rigid motion relates.
+
 ``background=False`` runs the same work in the caller, for the offline pipelines whose
 results must not depend on thread timing.
 
@@ -71,7 +77,12 @@ from twinslam.rotations import rotation_angle_deg
 from twinslam.slam.back_end.foreign_keyframes import copy_anchors, is_foreign
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive, point_id_sets
 from twinslam.slam.back_end.keyframe_map import shared_pairs
-from twinslam.slam.back_end.loop_detection import MIN_GAP, LoopCandidate, detect_loop
+from twinslam.slam.back_end.loop_detection import (
+    MIN_GAP,
+    LoopCandidate,
+    detect_loop,
+    recognise_place,
+)
 from twinslam.slam.back_end.pose_graph import Anchors, LoopClosure, LoopEdge, close_loop
 from twinslam.slam.keyframe import KeyFramePayload
 
@@ -98,6 +109,26 @@ DRIFT_RATE = 0.05
 DRIFT_SLACK_M = 0.10
 #: the worker's seconds of this many latest jobs are kept (what a bench reports)
 JOB_TIMES_KEPT = 1000
+#: a loop across devices (:func:`loop_across`) looks among the other devices' keyframes whose
+#: cameras stand within this many metres of the query's and look within ACROSS_NEAR_DEG of its
+#: way, as the two maps have them: the maps are in one frame already, a merge's alignment or
+#: two walks' drift apart, so a place the query sees is one seen from nearby — and a
+#: look-alike place elsewhere in the other map is never searched
+ACROSS_NEAR_M = 1.0
+ACROSS_NEAR_DEG = 45.0
+#: ... and closes only when the other device's keyframe would move the query at least this
+#: far (m) or turn it this much (degrees): a walk tracked on that device's keyframes agrees
+#: with them already, and a loop measured from depth is itself within ~2 cm and 0.3° of the
+#: truth (docs/results/map-consistency.md) — a smaller correction would move the map by its
+#: measurement's noise, and its cooldown would hold back the loops that follow
+ACROSS_MIN_M = 0.02
+ACROSS_MIN_DEG = 0.5
+#: ... and only with a copy the map adopted this many slots before the job: the other device
+#: was there earlier (a map adopts another's keyframes at the slot end after that device
+#: integrated them), as a loop of one walk joins its newer end to its older; where two
+#: devices walk one place at once, neither bends towards the other's keyframes, which that
+#: device's own walk moves meanwhile
+ACROSS_GAP_SLOTS = 5
 
 
 @dataclass(frozen=True)
@@ -131,6 +162,9 @@ class LoopJob:
     copies: Mapping[int, np.ndarray] = field(default_factory=dict)
     #: the managed map's copies' map points (the archived copies' are in its snapshot)
     copy_points: Mapping[int, frozenset[int]] = field(default_factory=dict)
+    #: the copies a loop may close with (:func:`loop_across`; the snapshot holds those in the
+    #: managed map too); empty: the walk's own keyframes alone
+    across: frozenset[int] = frozenset()
 
 
 @dataclass(frozen=True)
@@ -269,6 +303,8 @@ def run_job(job: LoopJob, min_gap: int = MIN_GAP,
                                        job.intrinsics, min_gap, depths=q.depths), q.keyframe
         if refused := beyond_drift(candidate, q.keyframe, job.poses):
             candidate = LoopCandidate(-1, None, None, candidate.inliers, refused)
+        if not candidate.found and job.across:
+            candidate = loop_across(job, q)
         if confirmation is None or q.keyframe not in job.poses:
             confirmed = candidate.found
         else:
@@ -289,6 +325,59 @@ def run_job(job: LoopJob, min_gap: int = MIN_GAP,
                              shared_pairs(sorted(job.poses), points), job.earlier,
                              candidate.inliers, _anchors(job, points))
     return LoopResult(candidate, query, closure, time.perf_counter() - start)
+
+
+def loop_across(job: LoopJob, query: LoopQuery) -> LoopCandidate:
+    """The loop ``query`` closes with a keyframe another device uploaded — one of the copies
+    of ``job.across`` the merged map adopted — or why none.
+
+    Two maps merged where their devices met are aligned there; as the devices walk on, each
+    on its own keyframes, they drift apart again (on the 7-Scenes walk from its two ends,
+    ~10 cm by the time they pass each other: docs/results/shared-map.md), and a rigid motion
+    of one map cannot take that out. ORB-SLAM3 closes loops in a merged map between any two
+    of its keyframes; here a walk that comes to a place another device mapped closes a loop
+    with that device's keyframe of it, which the graph holds where its map has it
+    (:func:`~twinslam.slam.back_end.pose_graph.close_loop` with the copy as an anchor): this
+    walk bends towards the other device's frame where the two see one place, as its own
+    loop would bend it towards its own old keyframes. Only nearby copies are searched
+    (ACROSS_NEAR_M, ACROSS_NEAR_DEG), a loop that moves the query less than ACROSS_MIN_M and
+    ACROSS_MIN_DEG is none, and one that moves it farther than the walk can have drifted
+    from its start (DRIFT_SLACK_M + DRIFT_RATE × its length: two walks' drift apart, each
+    bounded so) is a look-alike place."""
+    pose = job.poses.get(query.keyframe)
+    if pose is None:
+        return LoopCandidate(-1, None, None, 0, "the query has no pose")
+    near = {k for k in job.across
+            if k in job.archive and k in job.copies and _views_near(job.copies[k], pose)}
+    if not near:
+        return LoopCandidate(-1, None, None, 0, "no other device's keyframe nearby")
+    candidate = recognise_place(job.archive.only(near.__contains__), query.points_xy,
+                                query.descriptors, job.intrinsics, depths=query.depths)
+    if not candidate.found or candidate.pose is None:
+        return candidate
+    correction = candidate.pose @ np.linalg.inv(pose)
+    moved = float(np.linalg.norm(candidate.pose[:3, 3] - pose[:3, 3]))
+    if moved < ACROSS_MIN_M and rotation_angle_deg(correction[:3, :3]) < ACROSS_MIN_DEG:
+        return LoopCandidate(-1, None, None, candidate.inliers,
+                             f"another device's keyframe {candidate.old} agrees with the walk "
+                             f"({moved * 100:.1f} cm)")
+    walked = walk_length(job.poses, min(job.poses), query.keyframe)
+    bound = DRIFT_SLACK_M + DRIFT_RATE * walked
+    if moved > bound:
+        return LoopCandidate(-1, None, None, candidate.inliers,
+                             f"another device's keyframe {candidate.old} would move keyframe "
+                             f"{query.keyframe} {moved:.3g} m, more than the {bound:.3g} m "
+                             f"a {walked:.3g} m walk can have drifted")
+    return candidate
+
+
+def _views_near(a: np.ndarray, b: np.ndarray) -> bool:
+    """Two cameras (camera-to-map) within ACROSS_NEAR_M of each other, their optical axes
+    within ACROSS_NEAR_DEG."""
+    if float(np.linalg.norm(a[:3, 3] - b[:3, 3])) > ACROSS_NEAR_M:
+        return False
+    cos = float(np.clip(a[:3, 2] @ b[:3, 2], -1.0, 1.0))
+    return float(np.degrees(np.arccos(cos))) <= ACROSS_NEAR_DEG
 
 
 def _anchors(job: LoopJob, points: Mapping[int, np.ndarray]) -> Anchors | None:

@@ -65,6 +65,7 @@ from twinslam.slam.back_end.local_mapping import (
     LocalMappingConfig,
 )
 from twinslam.slam.back_end.loop_closing import (
+    ACROSS_GAP_SLOTS,
     CONFIRMATIONS,
     LoopCloser,
     LoopJob,
@@ -135,6 +136,11 @@ class BackEndConfig:
     loop_min_gap: int = MIN_GAP
     #: later keyframes that must find a loop's place again before it closes
     loop_confirmations: int = CONFIRMATIONS
+    #: in a merged map, a loop may also close with a keyframe of another device of the place
+    #: (:attr:`MapBackEnd.loop_across`) that this map adopted ACROSS_GAP_SLOTS before: the
+    #: walk bends towards that device's keyframes where it comes to a place the other mapped
+    #: first
+    loops_across_devices: bool = True
 
 
 @dataclass(frozen=True)
@@ -205,6 +211,15 @@ class MapBackEnd:
                                       confirmations=config.loop_confirmations)
         #: keyframes integrated since the last loop job, newest last
         self._loop_queries: list[LoopQuery] = []
+        #: the tags of the devices whose copies this map's loops may close with (with
+        #: ``loops_across_devices``): the other devices of its place, set by whoever merges
+        #: the maps (:mod:`edge_mapper.place_merging`)
+        self.loop_across: frozenset[int] = frozenset()
+        #: copy id → the slot this map adopted it at (:meth:`adopt`): a loop across devices
+        #: closes only with a copy adopted ACROSS_GAP_SLOTS before (:meth:`start_loop_job`)
+        self.adopted_at: dict[int, int] = dict(zip(
+            (int(k) for k in extra.get("adopted_ids", ())),
+            (int(s) for s in extra.get("adopted_slots", ())), strict=True))
         self.loops_closed = int(extra.get("loops_closed", 0))
         #: every loop applied: the next loop's graph holds them too (a new loop must not undo
         #: an older one)
@@ -327,6 +342,8 @@ class MapBackEnd:
             forgotten += self.archive.add(ArchivedKeyFrame.of(self.map, kf, slot))
             orphans += len(self.map.evict(kf))
             self.entered.pop(kf, None)
+        for kf in forgotten:
+            self.adopted_at.pop(kf, None)
         return forgotten, orphans
 
     def restore(self, restore: Iterable[int], evict: Iterable[int], slot: int
@@ -446,11 +463,14 @@ class MapBackEnd:
             self._loop_queries = queries
             return
         newest = max(q.keyframe for q in queries)
-        old = [ArchivedKeyFrame.of(self.map, k, slot) for k in self.map.keyframes
-               if k <= newest - self.loop_closer.min_gap]
         # the walk's own keyframes: another device's that this map adopted are no step of
         # it, but anchors the walk's keyframes posed on them hold to (LoopJob.copies)
         every = self.keyframe_poses()
+        across = self._across(every, slot)
+        # the walk's old keyframes in the map, and the copies a loop may close with across
+        # devices that are in the map (the archive's are in its snapshot already)
+        old = [ArchivedKeyFrame.of(self.map, k, slot) for k in self.map.keyframes
+               if k <= newest - self.loop_closer.min_gap or k in across]
         poses = {k: pose for k, pose in every.items() if not is_foreign(k)}
         job = LoopJob(tuple(reversed(queries)), self.archive.snapshot(old), poses,
                       self.k.copy(),
@@ -459,9 +479,23 @@ class MapBackEnd:
                       tuple(self.loop_edges),
                       {k: pose for k, pose in every.items() if is_foreign(k)},
                       {k: frozenset(kf.points) for k, kf in self.map.keyframes.items()
-                       if is_foreign(k)})
+                       if is_foreign(k)}, across)
         if self.loop_closer.submit(job):
             self._loop_queries = []
+
+    def _across(self, poses: Mapping[int, np.ndarray], slot: int) -> frozenset[int]:
+        """The copies (of ``poses``: every keyframe's) a loop across devices may close with at
+        ``slot``: with ``loops_across_devices``, those of the devices of :attr:`loop_across`
+        adopted ACROSS_GAP_SLOTS before it or earlier (one adopted before the edge kept
+        adoption slots counts as old). A place where the other device was at the same time
+        as this one — the two walks crossing — bends neither towards the other: each would
+        bend towards a keyframe the other is moving at once; the later comer bends, as a
+        loop of one walk bends its newer end towards its older."""
+        if not self.config.loops_across_devices or not self.loop_across:
+            return frozenset()
+        latest = slot - ACROSS_GAP_SLOTS
+        return frozenset(k for k in poses if is_foreign(k) and tag_of(k) in self.loop_across
+                         and self.adopted_at.get(k, latest) <= latest)
 
     def take_loop(self, next_version: int) -> ClosedLoop | None:
         """The loop closer's finished job applied (None: none finished, or it found no loop),
@@ -658,6 +692,9 @@ class MapBackEnd:
             if kf.id not in self.archive and kf.id not in self.map.keyframes:
                 forgotten += self.archive.add(kf, write=False)
                 added.append(kf.id)
+                self.adopted_at[kf.id] = kf.archived_slot
+        for kf_id in forgotten:
+            self.adopted_at.pop(kf_id, None)
         if added:          # a merge adopts hundreds at once: their files beside the slots
             self.loop_closer.after(lambda: self.archive.save(added),
                                    "writing the adopted keyframes' files")
@@ -698,7 +735,9 @@ class MapBackEnd:
                 "keyframe_stamps": np.array([self.keyframe_stamps[k] for k in kept],
                                             dtype=np.float64),
                 **_entered_arrays({k: s for k, s in self.entered.items()
-                                   if k in self.map.keyframes})}
+                                   if k in self.map.keyframes}),
+                **_adopted_arrays({k: s for k, s in self.adopted_at.items()
+                                   if k in self.map.keyframes or k in self.archive})}
 
 
 def _moved_m(before: np.ndarray, after: np.ndarray) -> float:
@@ -717,6 +756,13 @@ def _entered_arrays(entered: Mapping[int, tuple[int, int]]) -> dict[str, np.ndar
     return {"entered_ids": np.array(ids, dtype=np.int64),
             "entered_slots": np.array([entered[k][0] for k in ids], dtype=np.int64),
             "entered_phases": np.array([entered[k][1] for k in ids], dtype=np.int64)}
+
+
+def _adopted_arrays(adopted: Mapping[int, int]) -> dict[str, np.ndarray]:
+    """The slots the map's copies were adopted at, as the checkpoint's two arrays."""
+    ids = sorted(adopted)
+    return {"adopted_ids": np.array(ids, dtype=np.int64),
+            "adopted_slots": np.array([adopted[k] for k in ids], dtype=np.int64)}
 
 
 def _loop_arrays(edges: list[LoopEdge]) -> dict[str, np.ndarray]:
