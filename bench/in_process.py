@@ -125,6 +125,7 @@ class DeviceWalk:
     poses: dict[int, np.ndarray] = field(default_factory=dict)   #: frame → published pose
     truth: dict[int, np.ndarray] = field(default_factory=dict)
     map_version: dict[int, int] = field(default_factory=dict)  #: frame → map it tracked on
+    slot: int = -1                     #: the device's last slot the edge served
     first_truth: np.ndarray | None = None    #: the true pose of its map frame (first frame)
     edge_ms: list[float] = field(default_factory=list)
     #: each served slot's share of frames the edge's lost-frame rule counted lost
@@ -164,6 +165,7 @@ class DeviceWalk:
             return []
         state, rate = self.channel.step()
         served = self.serve(self.device, self.edge, rate, state, self.update_delay > 0)
+        self.slot = served.outcome.slot
         self.edge_ms.append(served.plan_ms + served.integrate_ms + served.finish_ms)
         self.lost.append(served.lost_share)
         self.uploads += len(served.outcome.integrated)

@@ -65,7 +65,7 @@ from twinslam.node_runtime.math_threads import one_math_thread
 from twinslam.reporting import append_csv_rows, write_csv
 from twinslam.rotations import rotation_angle_deg
 from twinslam.sequence_player.playback import ORDERS
-from twinslam.slam.back_end.foreign_keyframes import is_foreign, source_id
+from twinslam.slam.back_end.foreign_keyframes import foreign_tag, is_foreign, source_id
 from twinslam.slam.back_end.map_merging import (
     MapMerge,
     MergeFinder,
@@ -93,11 +93,14 @@ def look_for_merge(finder: MergeFinder, place: DeviceWalk, joining: DeviceWalk,
 def lend_keyframes(lender: DeviceWalk, borrower: DeviceWalk, lent: set[int],
                    followed: dict[int, int], slot: int, source: int) -> int:
     """The lender's own keyframes (archive and map; not those it adopted) the borrower's map
-    has not adopted yet, welded to its points and adopted into its archive, after the
+    has not adopted yet, welded to its points and adopted into its archive at the borrower's
+    slot (as the edge node does: its loops across devices count slots by it), after the
     lender's loops since the last lending (``followed``: source → loops followed) moved the
-    copies lent before them and the borrower's keyframes tied to them; how many."""
+    copies lent before them and the borrower's keyframes tied to them; how many (``slot``:
+    the bench's, for the log)."""
     lending = lend_to(borrower.edge.back_end, lender.edge.back_end, source, lent,
-                      followed.get(source, 0), slot, borrower.edge.version + 1)
+                      followed.get(source, 0), max(borrower.slot, 0),
+                      borrower.edge.version + 1)
     followed[source] = lending.followed
     for move in lending.moves:
         if move.reached_own:
@@ -178,6 +181,10 @@ def main() -> None:
     parser.add_argument("--share-both", action="store_true",
                         help="with --share: the first edge map adopts the second's keyframes "
                              "too")
+    parser.add_argument("--no-loops-across", action="store_true",
+                        help="with --share: the second map's loops close among its own "
+                             "keyframes only, never with the first device's lent keyframes "
+                             "(the edge's loops_across_devices:=false)")
     parser.add_argument("--no-merge", action="store_true",
                         help="never merge (the control: each device in its own frame)")
     parser.add_argument("--every", type=int, default=10, help="print every N slots")
@@ -197,7 +204,9 @@ def main() -> None:
     overrides = {name: value for name, value in (("vmax", args.vmax),
                                                  ("archive_keyframes", args.archive),
                                                  ("covered_m", args.covered_m),
-                                                 ("covered_deg", args.covered_deg))
+                                                 ("covered_deg", args.covered_deg),
+                                                 ("loops_across_devices",
+                                                  False if args.no_loops_across else None))
                  if value is not None}
     config = repeatable_edge(**overrides)
     started = time.perf_counter()
@@ -249,9 +258,13 @@ def main() -> None:
                           f"{r_err:.2f}° from the true one", flush=True)
             if merge is not None and args.share and (got_a or got_b):
                 lent_total += lend_keyframes(first, second, lent_ids, followed, slot, 0)
+                # as the edge node: a map's loops may close with the keyframes it borrowed
+                # (edge_mapper.place_merging)
+                second.edge.back_end.loop_across = frozenset({foreign_tag(0)})
                 if args.share_both:
                     lent_back += lend_keyframes(second, first, lent_back_ids, followed_back,
                                                 slot, 1)
+                    first.edge.back_end.loop_across = frozenset({foreign_tag(1)})
             if slot % args.every == 0:
                 print(f"slot {slot:4d}: first map {len(first.edge.map.keyframes)} + archive "
                       f"{len(first.edge.archive)}, second map {len(second.edge.map.keyframes)} "
@@ -261,8 +274,10 @@ def main() -> None:
         second.edge.close()
         for walk in (first, second):
             for loop_slot, old_kf, new_kf, moved in walk.loops:
+                on = f"the other device's keyframe {source_id(old_kf)}" \
+                    if is_foreign(old_kf) else f"{old_kf}"
                 print(f"the {walk.name} edge closed a loop in its slot {loop_slot}: keyframe "
-                      f"{new_kf} on {old_kf}, moving its map up to {moved * 100:.1f} cm")
+                      f"{new_kf} on {on}, moving its map up to {moved * 100:.1f} cm")
         if args.frames_csv:
             write_frames(args.frames_csv, (first, second))
         if args.keyframes_csv:
@@ -295,6 +310,7 @@ def main() -> None:
                        "covered_m": config.coverage.max_m,
                        "covered_deg": config.coverage.max_deg,
                        "no_merge": int(args.no_merge),
+                       "loops_across_devices": int(config.back_end.loops_across_devices),
                        "merged": int(merge is not None),
                        **merge_row,
                        "look_ms_median": float(np.median(look_ms)) if look_ms else math.nan,
@@ -313,6 +329,9 @@ def main() -> None:
             report[f"{walk.name}_lost_share"] = float(np.mean(scored)) if scored else math.nan
             report[f"{walk.name}_map_lost_share"] = walk.map_lost_share()
             report[f"{walk.name}_loops"] = len(walk.loops)
+            # the loops it closed with another device's keyframe (a copy: a tagged id)
+            report[f"{walk.name}_loops_across"] = sum(
+                1 for edge in walk.edge.back_end.loop_edges if is_foreign(edge.old))
             report[f"{walk.name}_archive_own"] = sum(1 for kf in walk.edge.archive
                                                      if not is_foreign(kf.id))
             print(f"{walk.name} device: {len(poses)} of {len(walk.truth)} frames tracked, "
@@ -364,7 +383,8 @@ CSV_FIELDS = ("frames", "seed", "uplink", "first_order", "second_order", "second
               "adopted_back", "foreign_at_end_first", "first_lost_share", "second_lost_share",
               "first_map_lost_share", "second_map_lost_share", "second_start",
               "first_start", "archive", "first_loops", "second_loops", "first_archive_own",
-              "second_archive_own")
+              "second_archive_own", "loops_across_devices", "first_loops_across",
+              "second_loops_across")
 
 
 def write_frames(path: Path, walks: tuple[DeviceWalk, ...]) -> None:
