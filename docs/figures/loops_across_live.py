@@ -1,0 +1,108 @@
+"""Loops across devices, live (docs/results/shared-map.md, "Loops across devices"): two
+fleets' runs side by side, seed by seed — the edge's default and ``loops_across_devices:
+false`` — the paired difference of what a user of the shared map sees (the cross-device
+revisit error, each device's ATE, uploads), what the edge spent, and what says whether the
+run can be trusted (camera frames dropped, frames untracked, late maps), and a figure of the
+cross-device error seed by seed.
+
+Reads ``across-seed{S}.csv`` and ``own-seed{S}.csv`` from the folder: each run's
+``fleet_runs.csv`` (``twinslam launch --devices 2 … --out OUT``, the page has the command);
+writes ``cross-device.png`` there.
+
+    .venv/bin/python docs/figures/loops_across_live.py docs/figures/shared-map/loops-across/live
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import re
+from pathlib import Path
+
+from twinslam.reporting import paired_difference, pyplot
+
+#: (column, what it is, scale from the CSV's unit, summed over the devices or per device)
+METRICS = (("cross_device_rms_m", "cross-device revisit error RMS, cm", 100.0, "pair"),
+           ("ate_m", "ATE, cm", 100.0, "device"),
+           ("frames_uploaded", "frames uploaded", 1.0, "device"),
+           ("edge_ms_median", "the edge's median ms a slot", 1.0, "device"),
+           ("frames_dropped", "camera frames dropped (both devices)", 1.0, "sum"),
+           ("untracked_frames", "frames untracked (both devices)", 1.0, "sum"),
+           ("late_slots", "maps late (both devices)", 1.0, "sum"))
+MODES = ("own", "across")
+
+
+def runs(folder: Path, mode: str) -> dict[int, list[dict[str, str]]]:
+    """seed → the run's rows (one a device) for ``mode``."""
+    found = {}
+    for path in sorted(folder.glob(f"{mode}-seed*.csv")):
+        match = re.fullmatch(rf"{mode}-seed(\d+)\.csv", path.name)
+        if match:
+            with path.open(encoding="utf-8") as fh:
+                found[int(match.group(1))] = list(csv.DictReader(fh))
+    return found
+
+
+def values(rows: list[dict[str, str]], column: str, scale: float, kind: str
+           ) -> dict[str, float]:
+    """A run's figure: ``pair`` the first device's row (the pair's error, the same on both),
+    ``sum`` over the devices, ``device`` each device's."""
+    if kind == "pair":
+        return {"pair": float(rows[0][column]) * scale}
+    if kind == "sum":
+        return {"both": sum(float(r[column]) for r in rows) * scale}
+    return {r["device"]: float(r[column]) * scale for r in rows}
+
+
+def table(folder: Path) -> tuple[list[str], list[int], dict[str, list[float]]]:
+    """The markdown table, the seeds both modes ran, and the cross-device error per mode."""
+    own, across = runs(folder, "own"), runs(folder, "across")
+    seeds = sorted(own.keys() & across.keys())
+    if not seeds:
+        raise SystemExit(f"{folder}: no seed has both own-seedS.csv and across-seedS.csv")
+    lines = ["| figure | own loops only (seed by seed) | with loops across devices | "
+             "across − own |", "|---|---|---|---|"]
+    cross: dict[str, list[float]] = {}
+    for column, name, scale, kind in METRICS:
+        per = {m: [values(r[s], column, scale, kind) for s in seeds]
+               for m, r in (("own", own), ("across", across))}
+        for who in per["own"][0]:
+            before = [v[who] for v in per["own"]]
+            after = [v[who] for v in per["across"]]
+            d = paired_difference([after], before)
+            label = name if who in ("pair", "both") else f"{who} {name}"
+            fmt = "{:.1f}" if scale != 1.0 else "{:.0f}"
+            lines.append(f"| {label} | {', '.join(fmt.format(x) for x in before)} | "
+                         f"{', '.join(fmt.format(x) for x in after)} | "
+                         f"{d.mean:+.2f} [{d.low:+.2f}, {d.high:+.2f}] |")
+            if column == "cross_device_rms_m":
+                cross = {"own": before, "across": after}
+    lines.append(f"| seeds | {', '.join(str(s) for s in seeds)} | | |")
+    return lines, seeds, cross
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("folder", type=Path, help="the folder of own-seedS.csv and "
+                                                   "across-seedS.csv runs")
+    args = parser.parse_args()
+    lines, seeds, cross = table(args.folder)
+    print("\n".join(lines))
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    for mode, marker in zip(MODES, ("o", "s"), strict=True):
+        ax.plot(seeds, cross[mode], marker=marker, linestyle="-",
+                label="own loops only" if mode == "own" else "with loops across devices")
+    ax.set_xlabel("seed (the uplinks' draws)")
+    ax.set_ylabel("cross-device revisit error RMS, cm")
+    ax.set_xticks(seeds)
+    ax.set_title("two devices from the walk's two ends, live", fontsize=10)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    out = args.folder / "cross-device.png"
+    fig.savefig(out, dpi=120)
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()
