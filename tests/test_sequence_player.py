@@ -196,6 +196,29 @@ def test_a_playback_ends_where_a_run_asks_while_it_plays(
     assert values["published"] == str(end.frames) and values["finished"] == "true"
 
 
+def test_a_playback_end_the_player_accepted_as_it_exited_is_taken_after_the_exit(
+        ros: RosSession) -> None:
+    """The player accepts an end and stops a few frames later: on a loaded machine it may
+    exit before the run's monitor took its answer. The run then waits for the answer
+    (``answer_awaited``) and knows the frames played — not the most the player might have
+    played, which made it wait for and count slots that never came."""
+    from rcl_interfaces.msg import SetParametersResult
+    from rcl_interfaces.srv import SetParameters
+    from rclpy.task import Future
+
+    from twinslam.live.playback_end import PlaybackEnd
+
+    end = PlaybackEnd(ros.node, slot_frames=30, most_frames=900)
+    assert not end.answer_awaited()                    # nothing asked
+    end.request()
+    answer: Future = Future()
+    end._asked, end._pending = 240, answer             # asked, the answer on its way
+    assert end.answer_awaited() and end.frames is None
+    answer.set_result(SetParameters.Response(results=[SetParametersResult(successful=True)]))
+    assert not end.answer_awaited()
+    assert end.frames == 240 and end.settled
+
+
 def test_a_playback_end_before_what_was_played_is_refused(
         domain: LoopbackDomain, ros: RosSession) -> None:
     """What ``ros2 param set /sequence_player stop_after N`` answers for a count already

@@ -37,6 +37,9 @@ from twinslam.slot_protocol import default_device, table1
 REPO = REPO_ROOT
 #: seconds a run's end waits at most for the device's pose of the last frame played
 LAST_POSE_WAIT_S = 5.0
+#: seconds a run waits at most, once the player exited, for its answer to an end it asked for
+#: (the answer was sent before the exit: only the monitor's spin has to take it)
+END_ANSWER_WAIT_S = 10.0
 #: the module each node's process runs (``python -m``), as setup.py's console scripts do
 NODE_MODULES = {"sequence_player": "twinslam.sequence_player.node",
                 "device_tracker": "device_tracker.node", "edge_mapper": "edge_mapper.node",
@@ -179,6 +182,9 @@ class Launcher:
                 return player.poll() is not None or self._failed() is not None
 
             session.spin_until(played, c.timeout_s)
+            # an end the player accepted just before it exited: its answer taken now
+            end = self._end
+            session.spin_until(lambda: not end.answer_awaited(), END_ANSWER_WAIT_S)
             failed = self._failed()
             if failed:
                 _, _, err = self.domain.stop(self.procs.pop(failed))

@@ -55,6 +55,16 @@ class PlaybackEnd:
         """Nothing to ask: no request, or the player accepted one, or it plays no further."""
         return not self.requested or self.frames is not None
 
+    def answer_awaited(self) -> bool:
+        """Whether a request is out whose answer has not come yet; one that came is taken
+        (``frames`` set where the player accepted it). A player accepts an end and stops a
+        few frames later, so it may exit before its answer is taken: the run waits for the
+        answer past the player's exit, or it would count the slots of every frame the player
+        might have played (a slower machine's monitor took the answer after the exit)."""
+        if self._pending is not None and self._pending.done():
+            self.poll(0)
+        return self._pending is not None and not self._pending.done()
+
     def poll(self, played_at_least: int) -> None:
         """Send the request, or the next boundary after a refusal; ``played_at_least``: frames
         the monitor knows the player published (ground truth heard, slots summarised)."""
