@@ -106,6 +106,7 @@ class RunTask:
     #: this run's device and edge ("": none, one device in the table)
     edge_params: tuple[str, ...] = ()
     variant: str = ""
+    rate: float = 1.0        #: the cameras' speed, x the recorded frame rate
 
 
 @dataclass
@@ -135,7 +136,7 @@ def run_one(task: RunTask) -> RunResult:
     learned = kind == LEARNED_PREFIX and bool(checkpoint)
     if learned:
         extra["udt_node"] = [f"policy_checkpoint:={checkpoint}"]
-    config = LaunchConfig(task.sequence, key.edge_policy, task.frames, 1.0, task.params,
+    config = LaunchConfig(task.sequence, key.edge_policy, task.frames, task.rate, task.params,
                           timeout_s=task.timeout_s, scenario=task.scenario, extra=extra,
                           start=task.start, with_twin=learned)
     with LoopbackDomain() as dom:
@@ -152,7 +153,7 @@ def run_one(task: RunTask) -> RunResult:
         return RunResult(key, report, None, None, task.variant)
     dataset = load_covisibility(task.covis)
     played = played_frames(task.sequence, task.frames, task.scenario, dataset,
-                           start=task.start)
+                           rate=task.rate, start=task.start)
     frames = live_frames(launcher.record, dataset, played)
     return RunResult(key, report, frames,
                      calibrate((f.calibration for f in frames.frames), MIN_SHARED_POINTS),

@@ -24,6 +24,9 @@ from twinslam.sequences.opening import open_sequence
 from twinslam.slam.front_end.map_source import DEFAULT_MAP_SOURCE, MAP_SOURCES, check_map_source
 from twinslam.uplink.families import FAMILIES
 
+#: the fastest camera a run asks for, x the recorded rate (the player's own bound)
+MAX_RATE = 1000.0
+
 
 def _checked(args: argparse.Namespace) -> tuple[list[tuple[str, str]], list[Scenario], list[str]]:
     """The policies, scenarios and map sources asked for; ValueError (or SequenceError) names
@@ -42,6 +45,8 @@ def _checked(args: argparse.Namespace) -> tuple[list[tuple[str, str]], list[Scen
     problem = params_file_problem(args.params)
     if problem:
         raise ValueError(f"--params: {problem}")
+    if not 0 < args.rate <= MAX_RATE:
+        raise ValueError(f"--rate must be above 0 and at most {MAX_RATE:g}, got {args.rate:g}")
     jobs = 1 if args.jobs is None else args.jobs
     for name, value, least in (("--seeds", args.seeds, 1), ("--jobs", jobs, 1),
                                ("--first-seed", args.first_seed, 0),
@@ -92,7 +97,8 @@ def _tasks(args: argparse.Namespace, policies: list[tuple[str, str]],
     return [runs.RunTask(k, runs.sequence_for(args.sequence, k.seed), args.frames,
                          by_name[k.scenario], args.params, args.timeout,
                          covis.get(runs.sequence_for(args.sequence, k.seed)), args.verbose,
-                         args.start, args.out / "runs" / f"{k.file_stem}.png")
+                         args.start, args.out / "runs" / f"{k.file_stem}.png",
+                         rate=args.rate)
             for k in keys]
 
 
@@ -211,6 +217,14 @@ def add_arguments(parser: argparse.ArgumentParser, default_sequence: str,
     parser.add_argument("--resume", action="store_true",
                         help="keep the runs --out already holds (an interrupted evaluation) "
                         "and run only the missing ones; the tables cover both")
+    parser.add_argument("--rate", type=float, default=1.0,
+                        help="the cameras' speed, x the recorded frame rate, as twinslam "
+                        "launch's: the run slows with them (its stamps follow the clock, a "
+                        "slot of the device's frames lasts 1/RATE as long, recovery times "
+                        "stretch alike); below 1 where the device cannot track in real time "
+                        "beside what else the machine runs — a device that drops camera "
+                        "frames measures the load (the tables warn of it); default "
+                        "%(default)s")
     parser.add_argument("--timeout", type=float, default=900.0,
                         help="seconds one run may take before its nodes are stopped; default "
                         "%(default)s")
