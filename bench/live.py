@@ -75,6 +75,15 @@ def build_interfaces(root: Path, prefix: Path) -> dict[str, str]:
             "AMENT_PREFIX_PATH": str(prefix)}
 
 
+def baseline_interfaces(baseline: str, root: Path, prefix: Path) -> dict[str, str]:
+    """The environment a process of the ``baseline`` commit checked out at ``root`` needs: its
+    own twinslam_msgs built into ``prefix`` where its messages differ from the working tree's,
+    nothing where they are the same (:func:`build_interfaces`)."""
+    same = subprocess.run(["git", "diff", "--quiet", baseline, "--", "msg_schemas/msg"],
+                          cwd=REPO).returncode == 0
+    return {} if same else build_interfaces(root, prefix)
+
+
 def tree_env(root: Path, extra_env: dict[str, str] | None = None) -> dict[str, str]:
     """The environment of a process run from checkout ``root``: ``root`` first on the path,
     then ``extra_env``'s paths put before the inherited ones (a baseline's own interface
@@ -160,9 +169,7 @@ def main() -> None:
         subprocess.run(["git", "worktree", "add", "--detach", str(base), args.baseline],
                        cwd=REPO, check=True, capture_output=True)
         try:
-            same = subprocess.run(["git", "diff", "--quiet", args.baseline, "--",
-                                   "msg_schemas/msg"], cwd=REPO).returncode == 0
-            base_env = {} if same else build_interfaces(base, Path(tmp) / "msgs")
+            base_env = baseline_interfaces(args.baseline, base, Path(tmp) / "msgs")
             results: dict[str, list[dict[str, float]]] = {"baseline": [], "current": []}
             for i in range(args.rounds):
                 for label, root in (("baseline", base.resolve()), ("current", REPO)):

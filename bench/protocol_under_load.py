@@ -27,7 +27,7 @@ import time
 from pathlib import Path
 
 from bench.baseline import add_baseline_options, alternately
-from bench.live import build_interfaces, tree_env
+from bench.live import baseline_interfaces, tree_env
 from bench.paths import REPO
 from twinslam.reporting import write_dict_rows
 
@@ -117,9 +117,7 @@ def main() -> None:
 
         def measure(r: int, label: str, root: Path) -> None:
             if label not in envs:           # the baseline's own interfaces, if they differ
-                same = subprocess.run(["git", "diff", "--quiet", args.baseline, "--",
-                                       "msg_schemas/msg"], cwd=REPO).returncode == 0
-                envs[label] = {} if same else build_interfaces(root, Path(tmp) / "msgs")
+                envs[label] = baseline_interfaces(args.baseline, root, Path(tmp) / "msgs")
             folder = Path(tmp) / f"r{r + 1}-{label}"
             folder.mkdir()
             started = time.monotonic()

@@ -74,7 +74,11 @@ from typing import Any, TypeVar
 import numpy as np
 
 from twinslam.rotations import rotation_angle_deg
-from twinslam.slam.back_end.foreign_keyframes import copy_anchors, is_foreign
+from twinslam.slam.back_end.foreign_keyframes import (
+    copy_anchors,
+    is_foreign,
+    keyframe_label,
+)
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive, point_id_sets
 from twinslam.slam.back_end.keyframe_map import shared_pairs
 from twinslam.slam.back_end.loop_detection import (
@@ -250,19 +254,21 @@ def walk_length(poses: Mapping[int, np.ndarray], first: int, last: int) -> float
                      for a, b in itertools.pairwise(ids)))
 
 
-def beyond_drift(candidate: LoopCandidate, query: int, poses: Mapping[int, np.ndarray]) -> str:
+def beyond_drift(candidate: LoopCandidate, query: int, poses: Mapping[int, np.ndarray],
+                 since: int | None = None) -> str:
     """Why ``candidate``, found from keyframe ``query``, moves it farther than the walk from
-    the old place can have drifted (DRIFT_SLACK_M + DRIFT_RATE × its length): a look-alike
-    place; "" when it does not."""
+    keyframe ``since`` (default: the old place) can have drifted (DRIFT_SLACK_M + DRIFT_RATE
+    × its length): a look-alike place; "" when it does not."""
     if not candidate.found or candidate.pose is None or query not in poses:
         return ""
     moved = float(np.linalg.norm(candidate.pose[:3, 3] - poses[query][:3, 3]))
-    walked = walk_length(poses, candidate.old, query)
+    walked = walk_length(poses, candidate.old if since is None else since, query)
     bound = DRIFT_SLACK_M + DRIFT_RATE * walked
     if moved <= bound:
         return ""
-    return (f"keyframe {candidate.old}'s place would move keyframe {query} {moved:.3g} m, "
-            f"more than the {bound:.3g} m a {walked:.3g} m walk can have drifted")
+    return (f"{keyframe_label(candidate.old)}'s place would move keyframe {query} "
+            f"{moved:.3g} m, more than the {bound:.3g} m a {walked:.3g} m walk can have "
+            "drifted")
 
 
 def guarded_job(job: LoopJob, min_gap: int = MIN_GAP,
@@ -361,13 +367,9 @@ def loop_across(job: LoopJob, query: LoopQuery) -> LoopCandidate:
         return LoopCandidate(-1, None, None, candidate.inliers,
                              f"another device's keyframe {candidate.old} agrees with the walk "
                              f"({moved * 100:.1f} cm)")
-    walked = walk_length(job.poses, min(job.poses), query.keyframe)
-    bound = DRIFT_SLACK_M + DRIFT_RATE * walked
-    if moved > bound:
-        return LoopCandidate(-1, None, None, candidate.inliers,
-                             f"another device's keyframe {candidate.old} would move keyframe "
-                             f"{query.keyframe} {moved:.3g} m, more than the {bound:.3g} m "
-                             f"a {walked:.3g} m walk can have drifted")
+    # another device's keyframe has no place in this walk: the drift since the walk began
+    if refused := beyond_drift(candidate, query.keyframe, job.poses, since=min(job.poses)):
+        return LoopCandidate(-1, None, None, candidate.inliers, refused)
     return candidate
 
 
