@@ -1,15 +1,17 @@
 """Loops across devices, live (docs/results/shared-map.md, "Loops across devices"): two
-fleets' runs side by side, seed by seed — the edge's default and ``loops_across_devices:
-false`` — the paired difference of what a user of the shared map sees (the cross-device
-revisit error, each device's ATE, uploads), what the edge spent, and what says whether the
-run can be trusted (camera frames dropped, frames untracked, late maps), and a figure of the
-cross-device error seed by seed.
+fleets' runs side by side, seed by seed — by default the edge's default and
+``loops_across_devices: false`` — the paired difference of what a user of the shared map sees
+(the cross-device revisit error, each device's ATE, uploads), what the edge spent, and what
+says whether the run can be trusted (camera frames dropped, frames untracked, late maps), and
+a figure of the cross-device error seed by seed.
 
-Reads ``across-seed{S}.csv`` and ``own-seed{S}.csv`` from the folder: each run's
-``fleet_runs.csv`` (``twinslam launch --devices 2 … --out OUT``, the page has the command);
-writes ``cross-device.png`` there.
+Reads ``{AFTER}-seed{S}.csv`` and ``{BEFORE}-seed{S}.csv`` from the folder (by default
+``across`` and ``own``): each run's ``fleet_runs.csv`` (``twinslam launch --devices 2 …
+--out OUT``, the page has the command); writes ``cross-device.png`` there.
 
     .venv/bin/python docs/figures/loops_across_live.py docs/figures/shared-map/loops-across/live
+    .venv/bin/python docs/figures/loops_across_live.py FOLDER \
+        --before "one:one cooldown for both kinds" --after "per-kind:a cooldown per kind"
 """
 
 from __future__ import annotations
@@ -29,7 +31,9 @@ METRICS = (("cross_device_rms_m", "cross-device revisit error RMS, cm", 100.0, "
            ("frames_dropped", "camera frames dropped (both devices)", 1.0, "sum"),
            ("untracked_frames", "frames untracked (both devices)", 1.0, "sum"),
            ("late_slots", "maps late (both devices)", 1.0, "sum"))
-MODES = ("own", "across")
+#: the two modes compared by default: file prefix and its column's label
+BEFORE = ("own", "own loops only")
+AFTER = ("across", "with loops across devices")
 
 
 def runs(folder: Path, mode: str) -> dict[int, list[dict[str, str]]]:
@@ -54,21 +58,24 @@ def values(rows: list[dict[str, str]], column: str, scale: float, kind: str
     return {r["device"]: float(r[column]) * scale for r in rows}
 
 
-def table(folder: Path) -> tuple[list[str], list[int], dict[str, list[float]]]:
-    """The markdown table, the seeds both modes ran, and the cross-device error per mode."""
-    own, across = runs(folder, "own"), runs(folder, "across")
-    seeds = sorted(own.keys() & across.keys())
+def table(folder: Path, modes: tuple[tuple[str, str], tuple[str, str]] = (BEFORE, AFTER)
+          ) -> tuple[list[str], list[int], dict[str, list[float]]]:
+    """The markdown table of ``modes`` ((prefix, label) before, after), the seeds both ran,
+    and the cross-device error per mode's prefix."""
+    (old, old_label), (new, new_label) = modes
+    first, then = runs(folder, old), runs(folder, new)
+    seeds = sorted(first.keys() & then.keys())
     if not seeds:
-        raise SystemExit(f"{folder}: no seed has both own-seedS.csv and across-seedS.csv")
-    lines = ["| figure | own loops only (seed by seed) | with loops across devices | "
-             "across − own |", "|---|---|---|---|"]
+        raise SystemExit(f"{folder}: no seed has both {old}-seedS.csv and {new}-seedS.csv")
+    lines = [f"| figure | {old_label} (seed by seed) | {new_label} | {new} − {old} |",
+             "|---|---|---|---|"]
     cross: dict[str, list[float]] = {}
     for column, name, scale, kind in METRICS:
         per = {m: [values(r[s], column, scale, kind) for s in seeds]
-               for m, r in (("own", own), ("across", across))}
-        for who in per["own"][0]:
-            before = [v[who] for v in per["own"]]
-            after = [v[who] for v in per["across"]]
+               for m, r in ((old, first), (new, then))}
+        for who in per[old][0]:
+            before = [v[who] for v in per[old]]
+            after = [v[who] for v in per[new]]
             d = paired_difference([after], before)
             label = name if who in ("pair", "both") else f"{who} {name}"
             fmt = "{:.1f}" if scale != 1.0 else "{:.0f}"
@@ -76,23 +83,36 @@ def table(folder: Path) -> tuple[list[str], list[int], dict[str, list[float]]]:
                          f"{', '.join(fmt.format(x) for x in after)} | "
                          f"{d.mean:+.2f} [{d.low:+.2f}, {d.high:+.2f}] |")
             if column == "cross_device_rms_m":
-                cross = {"own": before, "across": after}
+                cross = {old: before, new: after}
     lines.append(f"| seeds | {', '.join(str(s) for s in seeds)} | | |")
     return lines, seeds, cross
 
 
-def main() -> None:
+def mode(arg: str) -> tuple[str, str]:
+    """``PREFIX:LABEL`` as (prefix, label)."""
+    prefix, sep, label = arg.partition(":")
+    if not sep or not prefix or not label:
+        raise argparse.ArgumentTypeError(f"{arg!r}: expected PREFIX:LABEL")
+    return prefix, label
+
+
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("folder", type=Path, help="the folder of own-seedS.csv and "
-                                                   "across-seedS.csv runs")
-    args = parser.parse_args()
-    lines, seeds, cross = table(args.folder)
+    parser.add_argument("folder", type=Path, help="the folder of BEFORE-seedS.csv and "
+                                                   "AFTER-seedS.csv runs")
+    parser.add_argument("--before", type=mode, default=BEFORE, metavar="PREFIX:LABEL",
+                        help="the runs compared against: their files' prefix and the column's "
+                             f"label (default {':'.join(BEFORE)})")
+    parser.add_argument("--after", type=mode, default=AFTER, metavar="PREFIX:LABEL",
+                        help=f"the runs compared (default {':'.join(AFTER)})")
+    args = parser.parse_args(argv)
+    modes = (args.before, args.after)
+    lines, seeds, cross = table(args.folder, modes)
     print("\n".join(lines))
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(6, 3.5))
-    for mode, marker in zip(MODES, ("o", "s"), strict=True):
-        ax.plot(seeds, cross[mode], marker=marker, linestyle="-",
-                label="own loops only" if mode == "own" else "with loops across devices")
+    for (prefix, label), marker in zip(modes, ("o", "s"), strict=True):
+        ax.plot(seeds, cross[prefix], marker=marker, linestyle="-", label=label)
     ax.set_xlabel("seed (the uplinks' draws)")
     ax.set_ylabel("cross-device revisit error RMS, cm")
     ax.set_xticks(seeds)
