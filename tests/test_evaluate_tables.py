@@ -114,6 +114,42 @@ def test_an_interrupted_evaluation_resumes_with_what_it_measured(
     assert summary.figures["tracking_failures"][0] == pytest.approx(3.5)
 
 
+def test_resuming_runs_made_under_other_settings_is_refused_and_loses_nothing(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Two runs finished at half the camera rate; the evaluation resumed at full rate (or with
+    its parameter file edited) would put runs of two settings under one key in one table:
+    refused before anything runs or is written, the setting named. Resumed as it was made,
+    it runs the missing seeds only."""
+    import dataclasses
+
+    from twinslam.live import runs as evaluate
+
+    ran: list[int] = []
+
+    def fake(task: evaluate.RunTask) -> RunResult:
+        ran.append(task.key.seed)
+        return RunResult(task.key, _run(task.key.policy, task.key.seed, 3, 0.1).report, None,
+                         None)
+
+    monkeypatch.setattr(evaluate, "run_one", fake)
+    params = tmp_path / "params.yaml"
+    params.write_text("edge_mapper:\n  ros__parameters:\n    vmax: 45\n")
+    out = tmp_path / "out"
+    slow = [dataclasses.replace(t, rate=0.5, params=params) for t in _tasks("lff", 4)]
+    evaluate.run_all(slow[:2], out, echo=lambda _: None)
+    before = (out / "runs.csv").read_text()
+    full = [dataclasses.replace(t, rate=1.0) for t in slow]
+    with pytest.raises(ValueError, match=r"rate 0\.5 there, 1\.0 now.*new --out folder"):
+        evaluate.run_all(full, out, echo=lambda _: None, resume=True)
+    params.write_text("edge_mapper:\n  ros__parameters:\n    vmax: 20\n")
+    with pytest.raises(ValueError, match="params_sha256"):
+        evaluate.run_all(slow, out, echo=lambda _: None, resume=True)
+    assert ran == [0, 1] and (out / "runs.csv").read_text() == before
+    params.write_text("edge_mapper:\n  ros__parameters:\n    vmax: 45\n")
+    results, failures = evaluate.run_all(slow, out, echo=lambda _: None, resume=True)
+    assert ran == [0, 1, 2, 3] and not failures and len(results) == 4
+
+
 def test_a_folder_of_an_older_version_resumes_with_the_later_columns_not_measured(
         tmp_path: Path) -> None:
     """runs.csv written before the columns added since (``jumps``, the losses' shares and

@@ -22,9 +22,12 @@ of its own.
 from __future__ import annotations
 
 import csv
+import hashlib
+import json
+import os
 import time
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import TYPE_CHECKING, TypeVar
@@ -195,6 +198,71 @@ def _write_result(out: Path, result: RunResult) -> None:
         for f in result.frames.frames])
 
 
+#: each finished run's settings that its key does not hold (``run_settings``), by run
+SETTINGS_FILE = "run_settings.json"
+
+
+def _key_text(key: RunKey) -> str:
+    return "|".join(str(v) for v in asdict(key).values())
+
+
+def run_settings(task: RunTask) -> dict[str, object]:
+    """What shapes ``task``'s run beside its key: the frames played, the cameras' rate, the
+    parameter file (its path and a digest of what it says) and the edge's overrides. Two
+    runs of one key made under other settings are two measurements, not one."""
+    try:
+        digest = hashlib.sha256(task.params.read_bytes()).hexdigest()[:16]
+    except OSError:
+        digest = ""                       # checked before the runs start (params_file_problem)
+    return {"sequence": task.sequence, "frames": task.frames, "start": task.start,
+            "rate": task.rate, "params": str(task.params), "params_sha256": digest,
+            "edge_params": list(task.edge_params)}
+
+
+def settings_mismatch(out: Path, tasks: list[RunTask], finished: Collection[RunKey]
+                      ) -> str:
+    """Why the runs of ``finished`` (read back from ``out``) cannot stand beside ``tasks``:
+    one was made under other settings (:func:`run_settings`; the first differences named);
+    "" when none was, or when the folder predates the record (nothing to compare)."""
+    recorded = _read_settings(out)
+    problems = []
+    for task in tasks:
+        then = recorded.get(_key_text(task.key))
+        if task.key not in finished or then is None:
+            continue
+        now = run_settings(task)
+        changed = [f"{name} {then.get(name)!r} there, {value!r} now"
+                   for name, value in now.items() if then.get(name) != value]
+        if changed:
+            problems.append(f"{task.key.file_stem}: {'; '.join(changed)}")
+    if not problems:
+        return ""
+    more = f" (and {len(problems) - 1} more runs)" if len(problems) > 1 else ""
+    return (f"{out} holds runs made under other settings — {problems[0]}{more}; resume "
+            "with the settings they were made under, or into a new --out folder")
+
+
+def _read_settings(out: Path) -> dict[str, dict[str, object]]:
+    path = out / SETTINGS_FILE
+    if not path.is_file():
+        return {}
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{path} is unreadable ({exc}); resume into a new --out folder"
+                         ) from exc
+    return data if isinstance(data, dict) else {}
+
+
+def _record_settings(out: Path, settings: dict[str, dict[str, object]]) -> None:
+    """Write the runs' settings whole, then move them over the file (a run interrupted
+    mid-write leaves the last complete record)."""
+    path = out / SETTINGS_FILE
+    part = path.with_suffix(".json.part")
+    part.write_text(json.dumps(settings, indent=1, sort_keys=True), encoding="utf-8")
+    os.replace(part, path)
+
+
 def _line(i: int, total: int, r: RunResult, started: float, resumed: int = 0) -> str:
     elapsed = time.monotonic() - started
     eta = elapsed / max(i - resumed, 1) * (total - i)
@@ -316,10 +384,15 @@ def run_all(tasks: list[RunTask], out: Path, executor: Executor | None = None,
     """Every task on ``executor`` (local worker processes or Ray; None: in this process, one
     after the other); each result's rows appended as it lands, a failed run reported (its
     traceback in ``failures.txt``) while the rest go on. With ``resume``, the runs ``out``
-    already holds are read back instead of run again (a failed one is tried again). The
-    results in task order, and the failures."""
+    already holds are read back instead of run again (a failed one is tried again); a
+    folder whose runs were made under other settings than the tasks' (:func:`run_settings`:
+    another rate, frames, parameter file) is refused before anything is written, ValueError.
+    The results in task order, and the failures."""
     out.mkdir(parents=True, exist_ok=True)
     earlier = finished_runs(out) if resume else {}
+    if mismatch := settings_mismatch(out, tasks, earlier.keys()):
+        raise ValueError(mismatch)
+    settings = _read_settings(out) if resume else {}
     if resume and (out / "calibration_frames.csv").is_file():     # today's columns, or refused
         _read_rows(out / "calibration_frames.csv", FRAMES_HEADER, ADDED_FRAME_COLUMNS)
     for name, header in (("runs.csv", RUNS_HEADER), ("calibration.csv", CALIBRATION_HEADER),
@@ -349,6 +422,8 @@ def run_all(tasks: list[RunTask], out: Path, executor: Executor | None = None,
             return
         done[index] = result
         _write_result(out, result)
+        settings[_key_text(result.key)] = run_settings(tasks[index])
+        _record_settings(out, settings)
         echo(_line(count, len(tasks), result, started, len(earlier_done)))
 
     executor = executor or LocalExecutor(1)

@@ -216,7 +216,9 @@ def add_arguments(parser: argparse.ArgumentParser, default_sequence: str,
                         "covisibility); default %(default)s")
     parser.add_argument("--resume", action="store_true",
                         help="keep the runs --out already holds (an interrupted evaluation) "
-                        "and run only the missing ones; the tables cover both")
+                        "and run only the missing ones; the tables cover both. Refused where "
+                        "those runs were made under other settings (--frames, --start, "
+                        "--rate, --params or its contents: --out/run_settings.json has them)")
     parser.add_argument("--rate", type=float, default=1.0,
                         help="the cameras' speed, x the recorded frame rate, as twinslam "
                         "launch's: the run slows with them (its stamps follow the clock, a "
