@@ -185,11 +185,6 @@ def main() -> None:
                         help="with --share: the second map's loops close among its own "
                              "keyframes only, never with the first device's lent keyframes "
                              "(the edge's loops_across_devices:=false)")
-    parser.add_argument("--one-loop-cooldown", action="store_true",
-                        help="with --share: any loop holds back both loop searches, the "
-                             "walk's own and across devices, for the next 90 frames (the "
-                             "edge's loop_cooldown_per_kind:=false; by default each kind "
-                             "holds back its own)")
     parser.add_argument("--no-merge", action="store_true",
                         help="never merge (the control: each device in its own frame)")
     parser.add_argument("--every", type=int, default=10, help="print every N slots")
@@ -211,9 +206,7 @@ def main() -> None:
                                                  ("covered_m", args.covered_m),
                                                  ("covered_deg", args.covered_deg),
                                                  ("loops_across_devices",
-                                                  False if args.no_loops_across else None),
-                                                 ("loop_cooldown_per_kind",
-                                                  False if args.one_loop_cooldown else None))
+                                                  False if args.no_loops_across else None))
                  if value is not None}
     config = repeatable_edge(**overrides)
     started = time.perf_counter()
@@ -318,7 +311,6 @@ def main() -> None:
                        "covered_deg": config.coverage.max_deg,
                        "no_merge": int(args.no_merge),
                        "loops_across_devices": int(config.back_end.loops_across_devices),
-                       "loop_cooldown_per_kind": int(config.back_end.loop_cooldown_per_kind),
                        "merged": int(merge is not None),
                        **merge_row,
                        "look_ms_median": float(np.median(look_ms)) if look_ms else math.nan,
@@ -392,7 +384,7 @@ CSV_FIELDS = ("frames", "seed", "uplink", "first_order", "second_order", "second
               "first_map_lost_share", "second_map_lost_share", "second_start",
               "first_start", "archive", "first_loops", "second_loops", "first_archive_own",
               "second_archive_own", "loops_across_devices", "first_loops_across",
-              "second_loops_across", "loop_cooldown_per_kind")
+              "second_loops_across")
 
 
 def write_frames(path: Path, walks: tuple[DeviceWalk, ...]) -> None:

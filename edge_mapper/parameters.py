@@ -186,10 +186,6 @@ PARAMETERS = (
               "first, its walk bends towards that device's keyframes: the two walks' drift "
               "apart since the merge taken out there); false: loops among a device's own "
               "keyframes only"),
-    ParamSpec("loop_cooldown_per_kind", True, "with loops_across_devices: a loop closed "
-              "with another device's keyframe holds back the search among the other devices' "
-              "keyframes for the next 90 frames, an own loop the search among the device's "
-              "own, each kind going on with its loops; false: any loop holds back both"),
     ParamSpec("covered_m", 0.10, "with merge_maps: a frame whose camera stands within this "
               "many metres of a keyframe another device uploaded (lent to this device's map) "
               "and looks the same way (covered_deg) is not uploaded: the shared map holds that "
@@ -229,7 +225,6 @@ def edge_config(p: Mapping[str, Any]) -> EdgeConfig:
                           integration_fusion=bool(p["integration_fusion"]),
                           loop_closing=bool(p["loop_closing"]),
                           loops_across_devices=bool(p["loops_across_devices"]),
-                          loop_cooldown_per_kind=bool(p["loop_cooldown_per_kind"]),
                           image_shape=(int(p["image_height"]), int(p["image_width"]))))
 
 

@@ -11,7 +11,6 @@ import dataclasses
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, set_aside
 from edge_mapper.place_membership import PlaceMembership, source_of
@@ -26,8 +25,6 @@ from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.back_end.loop_closing import (
     ACROSS_GAP_SLOTS,
     ACROSS_NEAR_M,
-    COOLDOWN,
-    LoopCloser,
     LoopJob,
     LoopQuery,
     run_job,
@@ -830,43 +827,6 @@ def test_a_walk_that_drifted_from_another_devices_keyframes_closes_a_loop_with_t
     assert set(result.closure.corrections) == {0, 1000}     # the copies hold: no correction
     alone = run_job(_across_job(room, 0.06, across=False))
     assert not alone.candidate.found and alone.closure is None
-
-
-@pytest.mark.parametrize("per_kind", [True, False])
-def test_a_loop_across_devices_holds_back_the_search_across_devices_not_the_walks_own(
-        room: Room, per_kind: bool) -> None:  # noqa: F811
-    """A loop with another device's keyframe closes at keyframe 1000; the next keyframe,
-    1001, comes back to the room the walk mapped itself (its own keyframes, 6 cm off): it
-    closes that loop, as a walk that never met another device would. Past both loops every
-    search waits for its kind's cooldown. With one cooldown for both kinds
-    (``cooldown_per_kind=False``, the edge's ``loop_cooldown_per_kind: false``) keyframe
-    1001 looks for no loop at all, and a job handed to the closer anyway closes none."""
-    seq, archive, _ = room
-    closer = LoopCloser(background=False, min_gap=40, confirmations=0,
-                        cooldown_per_kind=per_kind)
-    assert closer.submit(_across_job(room, 0.06))
-    across = closer.take()
-    assert across is not None and across.closure is not None
-    assert is_foreign(across.candidate.old)
-    walked = seq.read(64).pose.copy()                          # type: ignore[attr-defined]
-    walked[0, 3] += 0.06
-    own = LoopJob((dataclasses.replace(_query(room, 64, 0), keyframe=1001),), archive,
-                  {**{kf.id: kf.pose for kf in archive}, 1001: walked},
-                  seq.intrinsics, {})                          # type: ignore[attr-defined]
-    assert closer.wanted([1001], across=True) == ([1001] if per_kind else [])
-    assert closer.submit(own)
-    result = closer.take()
-    assert result is not None
-    if not per_kind:
-        assert result.closure is None and "cooldown" in result.candidate.reason
-        return
-    assert result.closure is not None, result.candidate.reason
-    assert not is_foreign(result.candidate.old) and result.candidate.old in archive
-    # each kind waits for its own loop's cooldown: the search across devices from 1091 on,
-    # the walk's own from 1092 on
-    assert closer.wanted([1002, 1000 + COOLDOWN, 1001 + COOLDOWN], across=True) == \
-        [1001 + COOLDOWN]
-    assert closer.wanted([1001 + COOLDOWN, 1002 + COOLDOWN]) == [1002 + COOLDOWN]
 
 
 def test_a_walk_that_agrees_with_another_devices_keyframes_or_is_far_from_them_closes_none(

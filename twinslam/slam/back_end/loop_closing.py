@@ -68,7 +68,7 @@ from collections import deque
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor, wait
 from contextlib import contextmanager
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
 import numpy as np
@@ -90,12 +90,8 @@ from twinslam.slam.back_end.loop_detection import (
 from twinslam.slam.back_end.pose_graph import Anchors, LoopClosure, LoopEdge, close_loop
 from twinslam.slam.keyframe import KeyFramePayload
 
-#: after a loop closes at keyframe q, keyframes up to q + COOLDOWN ids look for no loop of its
-#: kind (the walk goes on through the same place: each of them would find the loop just closed
-#: again). The walk's own loops and loops across devices each have their own: a loop with
-#: another device's keyframe says nothing about where the walk's own old keyframes are, and
-#: one cooldown for both cost the two-ended 7-Scenes walk 11 of its 39 own loops live
-#: (docs/results/shared-map.md)
+#: after a loop closes at keyframe q, keyframes up to q + COOLDOWN ids look for none (the walk
+#: goes on through the same place: each of them would find the loop just closed again)
 COOLDOWN = 90
 #: later keyframes that must find a loop's place again, each put where the first detection's
 #: correction puts it, before the loop closes (ORB-SLAM3 closes on three keyframes in all): a
@@ -173,10 +169,6 @@ class LoopJob:
     #: the copies a loop may close with (:func:`loop_across`; the snapshot holds those in the
     #: managed map too); empty: the walk's own keyframes alone
     across: frozenset[int] = frozenset()
-    #: queries up to these keyframe ids look for no loop among the walk's own keyframes / the
-    #: other devices' (the cooldowns of the loops closed last: :class:`LoopCloser` sets them)
-    own_quiet_until: int = -1
-    across_quiet_until: int = -1
 
 
 @dataclass(frozen=True)
@@ -313,15 +305,11 @@ def run_job(job: LoopJob, min_gap: int = MIN_GAP,
     own = job.archive.only(lambda k: not is_foreign(k) and k <= newest - min_gap)
     for q in sorted(job.queries, key=lambda q: q.keyframe):
         pause()
-        query = q.keyframe
-        if q.keyframe > job.own_quiet_until:
-            candidate = detect_loop(own, q.keyframe, q.points_xy, q.descriptors,
-                                    job.intrinsics, min_gap, depths=q.depths)
-            if refused := beyond_drift(candidate, q.keyframe, job.poses):
-                candidate = LoopCandidate(-1, None, None, candidate.inliers, refused)
-        else:
-            candidate = LoopCandidate(-1, None, None, 0, "an own loop's cooldown")
-        if not candidate.found and job.across and q.keyframe > job.across_quiet_until:
+        candidate, query = detect_loop(own, q.keyframe, q.points_xy, q.descriptors,
+                                       job.intrinsics, min_gap, depths=q.depths), q.keyframe
+        if refused := beyond_drift(candidate, q.keyframe, job.poses):
+            candidate = LoopCandidate(-1, None, None, candidate.inliers, refused)
+        if not candidate.found and job.across:
             candidate = loop_across(job, q)
         if confirmation is None or q.keyframe not in job.poses:
             confirmed = candidate.found
@@ -566,24 +554,17 @@ class LoopCloser:
     """One loop job at a time, on the process's loop-closing worker (or in the caller)."""
 
     def __init__(self, background: bool = True, min_gap: int = MIN_GAP,
-                 cooldown: int = COOLDOWN, confirmations: int = CONFIRMATIONS,
-                 cooldown_per_kind: bool = True) -> None:
+                 cooldown: int = COOLDOWN, confirmations: int = CONFIRMATIONS) -> None:
         self.background = background
         self.min_gap = min_gap
         self.cooldown = cooldown
-        #: a loop silences only the search of its kind (own or across devices) for
-        #: ``cooldown`` ids; False: every loop silences both
-        self.cooldown_per_kind = cooldown_per_kind
         #: the loops found and waiting for later keyframes (the worker's: one job at a time)
         self.confirmation = LoopConfirmation(confirmations)
         #: its work queued or running on the shared worker, oldest first (close waits for it)
         self._queued: deque[Future[Any]] = deque()
         self._running: Future[LoopResult] | None = None
         self._done: LoopResult | None = None
-        #: keyframe ids up to these look for no loop among the walk's own keyframes / the
-        #: other devices' (the cooldowns of the loops of each kind closed last)
-        self._own_quiet_until = -1
-        self._across_quiet_until = -1
+        self._quiet_until = -1           #: keyframe ids up to this look for no loop
         #: why work handed to :meth:`after` failed, until :meth:`failures` takes them (the
         #: worker appends, the slot takes: under the lock, none is lost between the two)
         self._failed: list[str] = []
@@ -595,21 +576,15 @@ class LoopCloser:
     def busy(self) -> bool:
         return self._running is not None and not self._running.done()
 
-    def wanted(self, keyframes: Sequence[int], across: bool = False) -> list[int]:
-        """Of ``keyframes``, those that may look for a loop now: past the cooldown of the
-        walk's own loops, or (``across``: the map may close loops across devices) past that
-        of the loops across devices."""
-        quiet = min(self._own_quiet_until, self._across_quiet_until) if across \
-            else self._own_quiet_until
-        return [k for k in keyframes if k > quiet]
+    def wanted(self, keyframes: Sequence[int]) -> list[int]:
+        """Of ``keyframes``, those that may look for a loop now (not in a closed loop's
+        cooldown)."""
+        return [k for k in keyframes if k > self._quiet_until]
 
     def submit(self, job: LoopJob) -> bool:
-        """Start ``job`` (each kind of search from the queries past its cooldown); False
-        (nothing started) while one runs or waits to be taken."""
+        """Start ``job``; False (nothing started) while one runs or waits to be taken."""
         if self._running is not None or self._done is not None or not job.queries:
             return False
-        job = replace(job, own_quiet_until=self._own_quiet_until,
-                      across_quiet_until=self._across_quiet_until)
         if not self.background:
             self._done = guarded_job(job, self.min_gap, self.confirmation)
             return True
@@ -636,12 +611,7 @@ class LoopCloser:
         if done is not None:
             self.job_seconds.append(done.seconds)
         if done is not None and done.closure is not None:
-            quiet = done.query + self.cooldown
-            across = is_foreign(done.candidate.old)
-            if across or not self.cooldown_per_kind:
-                self._across_quiet_until = quiet
-            if not across or not self.cooldown_per_kind:
-                self._own_quiet_until = quiet
+            self._quiet_until = done.query + self.cooldown
         return done
 
     def discard(self) -> None:

@@ -141,9 +141,6 @@ class BackEndConfig:
     #: walk bends towards that device's keyframes where it comes to a place the other mapped
     #: first
     loops_across_devices: bool = True
-    #: a loop silences for COOLDOWN ids only the search of its kind, the walk's own keyframes
-    #: or the other devices'; False: any loop silences both
-    loop_cooldown_per_kind: bool = True
 
 
 @dataclass(frozen=True)
@@ -211,8 +208,7 @@ class MapBackEnd:
         self.archive_problems: list[str] = []
         self.archive = self._open_archive()
         self.loop_closer = LoopCloser(config.loop_background, config.loop_min_gap,
-                                      confirmations=config.loop_confirmations,
-                                      cooldown_per_kind=config.loop_cooldown_per_kind)
+                                      confirmations=config.loop_confirmations)
         #: keyframes integrated since the last loop job, newest last
         self._loop_queries: list[LoopQuery] = []
         #: the tags of the devices whose copies this map's loops may close with (with
@@ -461,8 +457,7 @@ class MapBackEnd:
         snapshot of the archive, the map's keyframes far older than them and every pose;
         kept for the next slot while a job runs."""
         in_map = [q for q in self._loop_queries if q.keyframe in self.map.keyframes]
-        may_cross = self.config.loops_across_devices and bool(self.loop_across)
-        wanted = set(self.loop_closer.wanted([q.keyframe for q in in_map], may_cross))
+        wanted = set(self.loop_closer.wanted([q.keyframe for q in in_map]))
         queries = [q for q in in_map if q.keyframe in wanted]
         if not queries or self.loop_closer.busy or not self.camera.known:
             self._loop_queries = queries
