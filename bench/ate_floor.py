@@ -25,6 +25,18 @@ observation and the share within 3 px:
    the map's frame by the ATE's alignment), only the points adjusted: how well the truth
    itself explains the images, beside the optimum's fit.
 
+Beside the ATE, each stage's keyframes are scored as anchored content is: the **revisit
+error** (pairs of keyframes at least 10 s apart whose true poses lie within 0.3 m and 20°,
+the error of their relative pose against the truth's: what one device's own anchor moves on
+its return) and the **nearby error** (every pair of distinct keyframes within 0.3 m and 20°,
+however far apart in time: what two devices that both held these poses would score on the
+cross-device revisit error, the pairs of one frame with itself left out), and the latter's
+pairs taken under 1 s apart alone (**close**: what the truth says of a step the camera took
+just now); last, the nearby pairs' three bands (under 1 s, 1-10 s, 10 s and more apart)
+weighed by their shares among the pairs of every frame played (**at the frames' mix**: the
+live figures pair every tracked frame, more of them close in time). Stage 3's figures are
+what a map consistent with every loop of the walk reaches against this ground truth.
+
 Where stage 3's ATE is above a goal, no loop closing or map policy reaches the goal on this
 walk; where stage 4 fits the images worse than stage 3, the rest of the distance is the ground
 truth's (or the camera model's), not the tracker's.
@@ -36,6 +48,7 @@ import argparse
 import csv
 import math
 import tempfile
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -48,7 +61,14 @@ from device_tracker.device_core import DeviceTrackerCore
 from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore
 from edge_mapper.slot_planner import SlotConfig
 from twinslam.cli.console import HelpFormatter
-from twinslam.live.tracking_quality import absolute_trajectory_error, truth_in_map
+from twinslam.live.tracking_quality import (
+    REVISIT_ANGLE_DEG,
+    REVISIT_GAP_S,
+    REVISIT_RADIUS_M,
+    absolute_trajectory_error,
+    revisit_error,
+    truth_in_map,
+)
 from twinslam.policies.registry import make_policy
 from twinslam.sequences.frame import SequenceError
 from twinslam.sequences.opening import open_sequence
@@ -66,6 +86,8 @@ FUSE_RADIUS_PX = 8.0
 FUSE_MAX_HAMMING = 40
 FUSE_RATIO = 0.7
 FUSE_DEPTH_SHARE = 0.05
+#: seconds: nearby keyframes this close in time are one step of the walk (the close column)
+CLOSE_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -79,6 +101,10 @@ class Stage:
     ate_m: float                 #: keyframes against the truth (NaN: the truth itself)
     median_px: float             #: reprojection error of the observations
     within_px: float             #: share of the observations within INLIER_PX
+    revisit_m: float = math.nan  #: RMS revisit error of the keyframes (NaN: the truth itself)
+    nearby_m: float = math.nan   #: RMS error of every nearby pair, no time gap
+    close_m: float = math.nan    #: ... of the nearby pairs under CLOSE_S apart
+    frames_m: float = math.nan   #: ... of the nearby pairs weighed as every frame's pairs are
 
 
 @dataclass
@@ -89,6 +115,7 @@ class WalkMap:
     intrinsics: np.ndarray
     truth: dict[int, np.ndarray]           #: keyframe id → camera-to-world ground truth
     image_shape: tuple[int, int]
+    stamps_ns: dict[int, int]              #: frame id → its capture time on the walk's clock
 
 
 def build_map(sequence: str, frames: int, colour_intrinsics: str | None) -> WalkMap:
@@ -101,12 +128,14 @@ def build_map(sequence: str, frames: int, colour_intrinsics: str | None) -> Walk
     device = DeviceTrackerCore(k, 30, tracking, keep_slots=4, frame_rate_hz=30.0,
                                map_source="edge", own_map_after=3)
     truth: dict[int, np.ndarray] = {}
+    stamps: dict[int, int] = {}
     shape = (480, 640)
     with tempfile.TemporaryDirectory() as tmp:
         config = EdgeConfig(slot=SlotConfig(vmax=100_000, d_req_s=0.25))
         edge = EdgeMapperCore(make_policy("lff"), k, config, Path(tmp) / "edge.npz")
         for n, frame in enumerate(reader):
             result = device.track(frame.color, frame.depth, n / 30.0)
+            stamps[result.record.frame_id] = round(n * 1e9 / 30.0)
             if frame.pose is not None:
                 truth[result.record.frame_id] = frame.pose
             shape = (int(frame.color.shape[0]), int(frame.color.shape[1]))
@@ -115,7 +144,7 @@ def build_map(sequence: str, frames: int, colour_intrinsics: str | None) -> Walk
             if n % 200 == 0:
                 print(f"  frame {n}/{len(reader)}: {len(edge.map.keyframes)} keyframes",
                       flush=True)
-        return WalkMap(edge.map, edge.k, truth, shape)
+        return WalkMap(edge.map, edge.k, truth, shape, stamps)
 
 
 def observations(m: KeyFrameMap) -> list[Observation]:
@@ -182,15 +211,73 @@ def fuse_loops(m: KeyFrameMap, poses: dict[int, np.ndarray], points: dict[int, n
     return list(out.values()), merged
 
 
+#: the nearby pairs' bands by time apart (s): one step of the walk, the walk between, a
+#: revisit (REVISIT_GAP_S on: the revisit error's pairs)
+BANDS = ((0.0, CLOSE_S), (CLOSE_S, REVISIT_GAP_S), (REVISIT_GAP_S, math.inf))
+
+
+def band_sums(poses: Mapping[int, np.ndarray], truth: Mapping[int, np.ndarray]
+              ) -> list[tuple[int, float]]:
+    """Per band of BANDS, the nearby pairs of ``poses`` (capture ns → camera-to-map, with
+    ``truth`` in the same keys) and the sum of their squared errors: the pairs at least a
+    band's lower bound apart less those at least its upper bound apart."""
+    def at_least(gap_s: float) -> tuple[int, float]:
+        if math.isinf(gap_s):
+            return 0, 0.0
+        # a gap of 1 ns: every pair of two distinct frames
+        e = revisit_error(poses, truth, poses, gap_s=max(gap_s, 1e-9))
+        return e.pairs, (e.rms_m ** 2 * e.pairs if e.pairs else 0.0)
+
+    out = []
+    for low, high in BANDS:
+        (n_low, sq_low), (n_high, sq_high) = at_least(low), at_least(high)
+        out.append((n_low - n_high, max(sq_low - sq_high, 0.0)))
+    return out
+
+
+def frames_mix(truth_ns: Mapping[int, np.ndarray]) -> list[float]:
+    """The share of each band among the nearby pairs of every frame played (by the truth
+    alone): the live figures pair every tracked frame, more of them close in time than a
+    keyframe's."""
+    counts = [n for n, _ in band_sums(truth_ns, truth_ns)]
+    total = sum(counts)
+    return [n / total if total else math.nan for n in counts]
+
+
+def anchored_errors(poses: dict[int, np.ndarray], truth: dict[int, np.ndarray],
+                    stamps_ns: dict[int, int], mix: Sequence[float]
+                    ) -> tuple[float, float, float, float]:
+    """Keyframe ``poses`` scored as anchored content is, RMS: the revisit error (pairs ≥
+    REVISIT_GAP_S apart), every nearby pair of distinct keyframes however close in time
+    (what two devices holding these poses would score on the cross-device revisit error),
+    the nearby pairs under CLOSE_S apart, and the nearby pairs' bands weighed by the frames'
+    ``mix`` (frames_mix: the cross-device figure at the density of every tracked frame)."""
+    keyed = {stamps_ns[i]: p for i, p in poses.items() if i in truth and i in stamps_ns}
+    true = {stamps_ns[i]: truth[i] for i in poses if i in truth and i in stamps_ns}
+    bands = band_sums(keyed, true)
+
+    def rms(chosen: Sequence[tuple[int, float]]) -> float:
+        n = sum(c for c, _ in chosen)
+        return math.sqrt(sum(q for _, q in chosen) / n) if n else math.nan
+
+    present = [(w, q / n) for w, (n, q) in zip(mix, bands, strict=True) if n and w > 0]
+    weight = sum(w for w, _ in present)
+    at_frames = math.sqrt(sum(w * mse for w, mse in present) / weight) if weight else math.nan
+    return rms(bands[2:]), rms(bands), rms(bands[:1]), at_frames
+
+
 def stage(name: str, poses: dict[int, np.ndarray], points: dict[int, np.ndarray],
-          obs: list[Observation], k: np.ndarray, truth: dict[int, np.ndarray] | None
-          ) -> Stage:
-    """The row of a set of poses and points: ATE against ``truth`` (None: they are it)."""
+          obs: list[Observation], k: np.ndarray, truth: dict[int, np.ndarray] | None,
+          stamps_ns: dict[int, int] | None = None, mix: Sequence[float] = ()) -> Stage:
+    """The row of a set of poses and points: ATE and the anchored errors against ``truth``
+    (None: they are it; ``mix``: the frames' pair bands, :func:`frames_mix`)."""
     used = [ob for ob in obs if ob.point in points]
     errors = np.sqrt(reprojection_sq(poses, points, k, used))
     ate = absolute_trajectory_error(poses, truth) if truth is not None else math.nan
+    anchored = (anchored_errors(poses, truth, stamps_ns, mix)
+                if truth is not None and stamps_ns is not None else (math.nan,) * 4)
     return Stage(name, len(poses), len({ob.point for ob in used}), len(used), ate,
-                 float(np.median(errors)), float(np.mean(errors <= INLIER_PX)))
+                 float(np.median(errors)), float(np.mean(errors <= INLIER_PX)), *anchored)
 
 
 def floors(walk: WalkMap, gap: int, baseline_m: float) -> list[Stage]:
@@ -202,19 +289,22 @@ def floors(walk: WalkMap, gap: int, baseline_m: float) -> list[Stage]:
     obs = observations(m)
     online_poses = {i: m.keyframes[i].pose for i in ids}
     online_points = {p: pt.position for p, pt in m.points.items()}
+    stamps = walk.stamps_ns
+    # every played frame's nearby pairs by band, from the truth alone (the live figures' mix)
+    mix = frames_mix({stamps[i]: pose for i, pose in walk.truth.items() if i in stamps})
     rows = [stage("online (local BA of the newest 5)", online_poses, online_points, obs, k,
-                  truth)]
+                  truth, stamps, mix)]
     print("  full bundle adjustment ...", flush=True)
     full = bundle_adjust(online_poses, online_points, obs, k, {ids[0]}, baseline_m=baseline_m,
                          max_iterations=10)
-    rows.append(stage("full BA", full.poses, full.points, obs, k, truth))
+    rows.append(stage("full BA", full.poses, full.points, obs, k, truth, stamps, mix))
     print("  loop fusion ...", flush=True)
     fused_obs, merged = fuse_loops(m, full.poses, full.points, obs, k, walk.image_shape, gap)
     fused_points = {p: full.points[p] for p in {ob.point for ob in fused_obs}}
     fused = bundle_adjust(full.poses, fused_points, fused_obs, k, {ids[0]},
                           baseline_m=baseline_m, max_iterations=10)
     rows.append(stage(f"full BA, loops fused ({merged} points merged)", fused.poses,
-                      fused.points, fused_obs, k, truth))
+                      fused.points, fused_obs, k, truth, stamps, mix))
     print("  the ground truth's fit ...", flush=True)
     held = {i: p for i, p in truth_in_map(fused.poses, truth).items() if i in fused.poses}
     seen_by_held = [ob for ob in fused_obs if ob.keyframe in held]
@@ -262,22 +352,39 @@ def main() -> None:
     camera = (f"the depth registered to {args.colour_intrinsics}" if args.colour_intrinsics
               else "the folder's own intrinsics")
     print(f"\n{args.frames} frames forward, {len(walk.map.keyframes)} keyframes, {camera}")
+    stamps = walk.stamps_ns
+    shares = [frames_mix({stamps[i]: walk.truth[i] for i in ids if i in stamps and
+                          i in walk.truth}) for ids in (walk.truth, walk.map.keyframe_ids())]
+    print("nearby pairs under 1 s / 1-10 s / 10 s and more apart: every frame's "
+          + " / ".join(f"{100 * x:.1f} %" for x in shares[0]) + ", the keyframes' "
+          + " / ".join(f"{100 * x:.1f} %" for x in shares[1]))
+    print(f"revisit: keyframes ≥ {REVISIT_GAP_S:g} s apart, nearby: any two distinct "
+          f"keyframes, close: nearby under {CLOSE_S:g} s apart, at the frames' mix: the "
+          f"nearby pairs weighed as every frame's are; all within {REVISIT_RADIUS_M:g} m and "
+          f"{REVISIT_ANGLE_DEG:g}°")
     print("| stage | keyframes | points | observations | keyframe ATE (m) | median "
-          f"reprojection (px) | within {INLIER_PX:g} px |")
-    print("|---|---|---|---|---|---|---|")
+          f"reprojection (px) | within {INLIER_PX:g} px | revisit RMS (m) | nearby RMS (m) | "
+          "close RMS (m) | nearby at the frames' mix (m) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
+        cells = " | ".join("—" if math.isnan(v) else f"{v:.4f}"
+                           for v in (r.revisit_m, r.nearby_m, r.close_m, r.frames_m))
         ate = "—" if math.isnan(r.ate_m) else f"{r.ate_m:.4f}"
         print(f"| {r.name} | {r.keyframes} | {r.points} | {r.observations} | {ate} | "
-              f"{r.median_px:.2f} | {100 * r.within_px:.1f} % |")
+              f"{r.median_px:.2f} | {100 * r.within_px:.1f} % | {cells} |")
     if args.csv is not None:
         with args.csv.open("w", newline="", encoding="utf-8") as fh:
             out = csv.writer(fh)
             out.writerow(["stage", "keyframes", "points", "observations", "keyframe_ate_m",
-                          "median_reprojection_px", "within_3px"])
+                          "median_reprojection_px", "within_3px", "revisit_rms_m",
+                          "nearby_rms_m", "close_rms_m", "frames_mix_rms_m"])
             for r in rows:
                 out.writerow([r.name, r.keyframes, r.points, r.observations,
                               "" if math.isnan(r.ate_m) else f"{r.ate_m:.5f}",
-                              f"{r.median_px:.4f}", f"{r.within_px:.4f}"])
+                              f"{r.median_px:.4f}", f"{r.within_px:.4f}",
+                              "" if math.isnan(r.revisit_m) else f"{r.revisit_m:.5f}",
+                              *("" if math.isnan(v) else f"{v:.5f}"
+                                for v in (r.nearby_m, r.close_m, r.frames_m))])
         print(f"wrote {args.csv}")
 
 

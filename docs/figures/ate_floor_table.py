@@ -5,7 +5,11 @@ length, each stage's keyframe ATE and how well its poses explain the images.
         "colour, 525 px (registered)|1000=docs/figures/ate-floor/colour-camera-1000.csv" ...
 
 Each argument is ``CAMERA|FRAMES=CSV``: the label of the camera, the frames the walk played,
-and the bench's CSV. Prints one markdown table, the label on each CSV's first row.
+and the bench's CSV. Prints one markdown table, the label on each CSV's first row. With
+``--anchored``, the stages scored as anchored content is instead (the revisit, nearby and
+close pairs' RMS error, and the nearby pairs weighed as every frame's are; the files of a
+bench run since 2026-12-02 have them): how far two devices holding each stage's poses would
+disagree against this ground truth.
 """
 
 from __future__ import annotations
@@ -16,18 +20,21 @@ from pathlib import Path
 
 COLUMNS = ["stage", "keyframes", "observations", "keyframe_ate_m", "median_reprojection_px",
            "within_3px"]
+#: the anchored errors' columns (``--anchored``)
+ANCHORED = ["revisit_rms_m", "nearby_rms_m", "close_rms_m", "frames_mix_rms_m"]
 
 
-def read_stages(path: Path) -> list[dict[str, str]]:
-    """The stages of one bench CSV; SystemExit naming the file where it is not one."""
+def read_stages(path: Path, columns: list[str] = COLUMNS) -> list[dict[str, str]]:
+    """The stages of one bench CSV with ``columns``; SystemExit naming the file where it is
+    not one (or one written before the bench had them)."""
     try:
         with path.open(newline="", encoding="utf-8") as fh:
             rows = list(csv.DictReader(fh))
     except OSError as exc:
         raise SystemExit(f"{path}: {exc.strerror}") from exc
-    if not rows or not set(COLUMNS) <= set(rows[0]):
+    if not rows or not set(columns) <= set(rows[0]):
         raise SystemExit(f"{path}: not a bench.ate_floor --csv file (columns "
-                         f"{', '.join(COLUMNS)})")
+                         f"{', '.join(columns)})")
     return rows
 
 
@@ -45,6 +52,22 @@ def table(inputs: list[tuple[str, str, Path]]) -> str:
     return "\n".join(lines)
 
 
+def anchored_table(inputs: list[tuple[str, str, Path]]) -> str:
+    """The markdown table of the stages' anchored errors, in cm (the stages scored against
+    the truth: the truth's own stage has none)."""
+    lines = ["| camera | frames | stage | keyframe ATE (cm) | revisit RMS (cm) | nearby RMS "
+             "(cm) | close RMS (cm) | nearby at the frames' mix (cm) |",
+             "|---|---|---|---|---|---|---|---|"]
+    for camera, frames, path in inputs:
+        rows = [r for r in read_stages(path, COLUMNS + ANCHORED) if r["keyframe_ate_m"]]
+        for i, row in enumerate(rows):
+            label = (camera, frames) if i == 0 else ("", "")
+            cells = " | ".join(f"{100 * float(row[c]):.1f}" if row[c] else "—"
+                               for c in ["keyframe_ate_m", *ANCHORED])
+            lines.append(f"| {label[0]} | {label[1]} | {row['stage']} | {cells} |")
+    return "\n".join(lines)
+
+
 def parse(arg: str) -> tuple[str, str, Path]:
     """``CAMERA|FRAMES=CSV`` as (camera, frames, path)."""
     label, sep, path = arg.partition("=")
@@ -59,8 +82,12 @@ def main(argv: list[str] | None = None) -> None:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("inputs", nargs="+", type=parse, metavar="CAMERA|FRAMES=CSV",
                         help="a camera's label, the walk's frames and a bench.ate_floor CSV")
+    parser.add_argument("--anchored", action="store_true",
+                        help="the stages' revisit, nearby and close errors instead (pairs of "
+                        "keyframes within 0.3 m and 20°: ≥ 10 s apart, any, under 1 s apart; "
+                        "and the nearby pairs weighed as every frame's)")
     args = parser.parse_args(argv)
-    print(table(args.inputs))
+    print(anchored_table(args.inputs) if args.anchored else table(args.inputs))
 
 
 if __name__ == "__main__":
