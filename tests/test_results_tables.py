@@ -382,6 +382,29 @@ def test_the_ate_floor_table_is_what_its_command_prints(
         assert printed.count("| ground truth, points free |") == stages
 
 
+def test_the_anchored_floor_table_is_what_its_command_prints(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """How close two devices holding the walk's optimum would agree against the truth: the
+    stages' revisit, nearby and close errors, both cameras, on the page as printed."""
+    module = _script("ate_floor_table")
+    module.main(["--anchored",
+                 *(f"{camera}|1000=" + str(FIGURES / "ate-floor" / f"anchored-{name}-1000.csv")
+                   for camera, name in (("colour, 525 px (registered)", "colour-camera"),
+                                        ("the file's 585 px", "depth-camera")))])
+    printed = capsys.readouterr().out
+    assert _missing(printed) == []
+    assert printed.count("| full BA, loops fused") == 2
+
+
+def test_the_anchored_floor_table_refuses_a_run_from_before_the_anchored_errors() -> None:
+    """A CSV the bench wrote before it scored anchored errors has no such columns: refused,
+    the file and the columns named, not a table of blanks."""
+    module = _script("ate_floor_table")
+    with pytest.raises(SystemExit, match=r"colour-camera-1000\.csv: .*revisit_rms_m"):
+        module.main(["--anchored", "colour|1000=" + str(FIGURES / "ate-floor" /
+                                                        "colour-camera-1000.csv")])
+
+
 def test_the_ate_floor_table_refuses_a_file_that_is_not_the_bench_s(tmp_path: Path) -> None:
     other = tmp_path / "runs.csv"
     other.write_text("seed,ate_m\n0,0.05\n", encoding="utf-8")
@@ -442,3 +465,36 @@ def test_the_readmes_default_device_table_is_what_its_script_prints() -> None:
     lines = _script("default_device_summary").table()
     readme = (REPO / "README.md").read_text(encoding="utf-8")
     assert all(line in readme.splitlines() for line in lines), "\n".join(lines)
+
+
+def test_the_live_loops_across_table_is_what_its_command_prints() -> None:
+    """Loops across devices, live: the ten seeds with and without them, as the page has
+    them (the table alone: the command also draws its figure)."""
+    module = _script("loops_across_live")
+    lines, seeds, _ = module.table(FIGURES / "shared-map" / "loops-across" / "live")
+    assert seeds == list(range(10))
+    assert _missing("\n".join(lines)) == []
+
+
+def test_the_live_loops_table_refuses_a_folder_without_both_modes(tmp_path: Path) -> None:
+    module = _script("loops_across_live")
+    (tmp_path / "own-seed0.csv").write_text("device,cross_device_rms_m\nar1,0.05\n")
+    with pytest.raises(SystemExit, match=r"no seed has both own-seedS\.csv and across"):
+        module.table(tmp_path)
+
+
+def test_the_cooldown_per_kind_tables_are_what_their_commands_print(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A cooldown per loop kind, tried and not kept: the in-process and the live table as
+    the page has them."""
+    folder = FIGURES / "shared-map" / "loops-across" / "cooldown-per-kind"
+    live = _script("loops_across_live")
+    lines, seeds, _ = live.table(folder / "live", (("one", "one cooldown for both kinds"),
+                                                  ("per-kind", "a cooldown per kind")))
+    assert seeds == list(range(10))
+    assert _missing("\n".join(lines)) == []
+    monkeypatch.syspath_prepend(str(FIGURES))           # its sibling, shared_uplink_table
+    in_process = _script("shared_map_before_after")
+    printed = in_process.table(folder / "in-process" / "one", folder / "in-process" / "per-kind")
+    assert _missing("\n".join(printed)) == []
+    assert "| two-ends | covered | seeds | 0, 1, 2, 4, 5, 6 | | |" in printed
