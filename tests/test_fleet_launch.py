@@ -21,10 +21,13 @@ from twinslam.hosts.loopback import LoopbackDomain
 from twinslam.live.fleet import (
     FleetConfig,
     FleetLauncher,
+    FleetReport,
     cross_device_errors,
     device_sequence,
     edge_blocks,
+    merge_lines,
     merged_across_places,
+    merged_in_place,
 )
 from twinslam.live.launcher import LaunchConfig, renamed_params
 from twinslam.live.run_log import RunLog
@@ -75,6 +78,30 @@ def test_cross_device_pairs_count_only_frames_tracked_in_one_map_frame() -> None
     assert error.pairs == 5 * 5 and abs(error.rms_m - 0.02) < 1e-9
     alone = _walk([(0.05 * i, 1) for i in range(5)], {1: "ar3/map"}, apart)
     assert cross_device_errors({"ar1": first, "ar3": alone})[("ar1", "ar3")].pairs == 0
+    assert merged_in_place({"ar1": first, "ar2": merged, "ar3": alone}) == [("ar1", "ar2")]
+
+
+def test_merged_devices_that_never_saw_one_view_are_told_from_devices_never_merged() -> None:
+    """Two devices walking a corridor towards each other: merged into one frame, but each
+    looks the other way, so no frame of one is within 20° of one of the other's and the
+    cross-device error has no pair. The fleet's table says so, not that they never shared
+    a frame; a device in a frame of its own is still 'never in one map frame'."""
+    here = np.eye(4)
+    first = _walk([(0.05 * i, 1) for i in range(5)], {1: "ar1/map"}, here)
+    towards = _walk([(0.05 * i, 1) for i in range(5)], {1: "ar1/map"}, here)
+    turned = np.diag([-1.0, 1.0, -1.0, 1.0])           # 180° about the vertical
+    for key in towards.ground_truth:
+        towards.ground_truth[key] = towards.ground_truth[key] @ turned
+        towards.poses[key] = towards.ground_truth[key]
+    alone = _walk([(0.05 * i, 1) for i in range(5)], {1: "ar3/map"}, here)
+    records = {"ar1": first, "ar2": towards, "ar3": alone}
+    errors = cross_device_errors(records)
+    assert errors[("ar1", "ar2")].pairs == 0 and errors[("ar1", "ar3")].pairs == 0
+    fleet = FleetReport("equal", list(records), [], [], [], errors, [],
+                        merged_in_place(records))
+    out = "\n".join(merge_lines(fleet))
+    assert "ar1-ar2: no pair: in one map frame, but no frame of one within 0.3 m and 20°" in out
+    assert "ar1-ar3: never in one map frame" in out
 
 
 def test_two_devices_in_one_frame_then_in_another_pair_only_within_each() -> None:

@@ -42,7 +42,12 @@ from twinslam.live.launcher import LaunchConfig, Launcher, preloaded_nodes, rena
 from twinslam.live.monitor import PipelineMonitor
 from twinslam.live.report import RunReport, report
 from twinslam.live.run_log import RunLog
-from twinslam.live.tracking_quality import RevisitError, cross_device_revisit_error_by_frame
+from twinslam.live.tracking_quality import (
+    REVISIT_ANGLE_DEG,
+    REVISIT_RADIUS_M,
+    RevisitError,
+    cross_device_revisit_error_by_frame,
+)
 from twinslam.node_runtime.session import RosSession
 from twinslam.sequence_player.playback import ORDERS
 from twinslam.sequences.opening import is_synthetic, synthetic_walk
@@ -170,6 +175,8 @@ class FleetReport:
     cross_device: dict[tuple[str, str], RevisitError] = field(default_factory=dict)
     #: pairs of devices of two places tracked on maps in one frame (a false merge)
     merged_across_places: list[tuple[str, str]] = field(default_factory=list)
+    #: pairs of devices of one place ever tracked on maps in one frame (:func:`merged_in_place`)
+    merged: list[tuple[str, str]] = field(default_factory=list)
 
     def tracked_shares(self) -> list[float]:
         """Each device's share of its frames it tracked."""
@@ -314,7 +321,8 @@ class FleetLauncher(Launcher):
             places = {d: self.fleet.place_of(i) for i, d in enumerate(names)}
             return FleetReport(self.fleet.allocator, names, reports, budgets, frames,
                                cross_device_errors(records, places),
-                               merged_across_places(records, places))
+                               merged_across_places(records, places),
+                               merged_in_place(records, places))
         finally:
             self.stop()
             for s in sessions.values():
@@ -410,10 +418,26 @@ def merged_across_places(records: dict[str, RunLog], places: Mapping[str, int]
                          ) -> list[tuple[str, str]]:
     """The pairs of devices walking two places that were ever tracked on maps in one frame:
     the edge merged maps of two places, a false merge."""
+    return _in_one_frame(records, places, same_place=False)
+
+
+def merged_in_place(records: dict[str, RunLog], places: Mapping[str, int] | None = None
+                    ) -> list[tuple[str, str]]:
+    """The pairs of devices of one place (``places``: each device's; None: all one) ever
+    tracked on maps in one frame: merged, whether or not any of their frames saw one view
+    (two devices walking a corridor towards each other see its places from opposite ways,
+    and the cross-device error has no pair)."""
+    return _in_one_frame(records, places or {}, same_place=True)
+
+
+def _in_one_frame(records: dict[str, RunLog], places: Mapping[str, int], same_place: bool
+                  ) -> list[tuple[str, str]]:
+    """The pairs of devices (in the fleet's order) of one place or of two, as asked, ever
+    tracked on maps in one frame."""
     frames = {d: set(posed_by_map_frame(r)) for d, r in records.items()}
     names = list(records)
     return [(a, b) for i, a in enumerate(names) for b in names[i + 1:]
-            if places.get(a, 0) != places.get(b, 0) and frames[a] & frames[b]]
+            if (places.get(a, 0) == places.get(b, 0)) == same_place and frames[a] & frames[b]]
 
 
 def _mean_budget(monitor: PipelineMonitor) -> float:
@@ -438,14 +462,30 @@ def print_fleet_table(fleet: FleetReport, echo: Callable[[str], None] = print) -
     echo(f"{head:<{len(RunReport.HEADER)}} {float(np.nanmean(fleet.budgets)):>7.1f} "
          f"{float(np.nanmean(shares)):>8.1%}")
     echo(f"Jain's index of the tracked shares: {fleet.jain_tracked:.3f}")
+    for line in merge_lines(fleet):
+        echo(line)
+
+
+def merge_lines(fleet: FleetReport) -> list[str]:
+    """What the fleet's maps made of its places: each pair of one place's devices' cross-device
+    revisit error, or that they never shared a map frame, or that they did with no pair of
+    frames seeing one view; and each false merge across two places."""
+    lines = []
     for (a, b), e in fleet.cross_device.items():
-        where = (f"RMS {e.rms_m * 100:.1f} cm, median {e.median_m * 100:.1f} cm over "
-                 f"{e.pairs} pairs of frames in one map frame" if e.pairs
-                 else "never in one map frame")
-        echo(f"cross-device revisit error {a}-{b}: {where}")
-    for a, b in fleet.merged_across_places:
-        echo(f"devices {a} and {b} walk two places but were tracked on maps in one frame: "
-             "the edge merged two places (a false merge)")
+        if e.pairs:
+            where = (f"RMS {e.rms_m * 100:.1f} cm, median {e.median_m * 100:.1f} cm over "
+                     f"{e.pairs} pairs of frames in one map frame")
+        elif (a, b) in fleet.merged:
+            where = (f"no pair: in one map frame, but no frame of one within "
+                     f"{REVISIT_RADIUS_M:g} m and {REVISIT_ANGLE_DEG:g}° of one of the other's "
+                     "(they saw the place from other ways)")
+        else:
+            where = "never in one map frame"
+        lines.append(f"cross-device revisit error {a}-{b}: {where}")
+    lines += [f"devices {a} and {b} walk two places but were tracked on maps in one frame: "
+              "the edge merged two places (a false merge)"
+              for a, b in fleet.merged_across_places]
+    return lines
 
 
 #: the columns of a fleet run's rows (``twinslam launch --devices N --out DIR``: fleet_runs.csv)
