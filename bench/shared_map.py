@@ -364,6 +364,13 @@ def main() -> None:
         kf_cross = cross_device_revisit_error(
             pairs(first.keyframe_poses(), first.truth),
             pairs(second.keyframe_poses(), second.truth)) if merge else RevisitError()
+        # where along the second device's walk the two disagree: its frames in the shared
+        # frame STRETCH at a time in its play order (a crossing both walked at once shows)
+        ordered = sorted(shared) if merge else sorted(second.poses)
+        by_stretch = [cross_device_revisit_error(pairs(first.poses, first.truth),
+                                                 pairs(second.poses, second.truth,
+                                                       ordered[i:i + STRETCH]))
+                      for i in range(0, len(ordered), STRETCH)]
         # each device against itself: the first over its walk, the second over its frames
         # in the shared frame (a pair across its merge would count the merge's motion)
         selves = (self_error(first.poses, first.truth),
@@ -372,13 +379,14 @@ def main() -> None:
                   cross_median_m=cross.median_m, cross_p95_m=cross.p95_m,
                   cross_pairs=cross.pairs, true_alignment_rms_m=floor.rms_m,
                   keyframes_cross_rms_m=kf_cross.rms_m, first_self_rms_m=selves[0].rms_m,
-                  second_self_rms_m=selves[1].rms_m)
+                  second_self_rms_m=selves[1].rms_m,
+                  cross_by_stretch_cm=";".join(f"{e.rms_m * 100:.1f}" for e in by_stretch))
     if second_spec != spec:
         print(f"two places: {'MERGED (a false merge)' if merge else 'not merged'} "
               f"({time.perf_counter() - started:.0f} s)")
         report.update(cross_rms_m=math.nan, cross_median_m=math.nan, cross_p95_m=math.nan,
                       cross_pairs=0, true_alignment_rms_m=math.nan,
-                      keyframes_cross_rms_m=math.nan)
+                      keyframes_cross_rms_m=math.nan, cross_by_stretch_cm="")
     else:
         print(f"cross-device revisit error, the second device's {len(shared)} frames in the "
               f"shared frame: RMS {_cm(cross.rms_m)}, median {_cm(cross.median_m)}, p95 "
@@ -387,6 +395,10 @@ def main() -> None:
               f"final keyframes {_cm(kf_cross.rms_m)}; each device against itself on "
               f"such pairs {_cm(selves[0].rms_m)} and {_cm(selves[1].rms_m)} "
               f"({time.perf_counter() - started:.0f} s)")
+        if ordered:
+            print(f"cross-device revisit error by the second device's {STRETCH} frames at a "
+                  f"time in the shared frame, in its order from its frame {ordered[0]}: "
+                  + ", ".join(_cm(e.rms_m) for e in by_stretch))
     if args.csv:
         append_csv_rows(args.csv, CSV_FIELDS, [report])
 
@@ -403,7 +415,10 @@ CSV_FIELDS = ("frames", "seed", "uplink", "first_order", "second_order", "second
               "first_map_lost_share", "second_map_lost_share", "second_start",
               "first_start", "archive", "first_loops", "second_loops", "first_archive_own",
               "second_archive_own", "loops_across_devices", "first_loops_across",
-              "second_loops_across", "first_self_rms_m", "second_self_rms_m")
+              "second_loops_across", "first_self_rms_m", "second_self_rms_m",
+              "cross_by_stretch_cm")
+#: the second device's frames a stretch of the cross-device error by stretch counts
+STRETCH = 100
 
 
 def write_frames(path: Path, walks: tuple[DeviceWalk, ...]) -> None:
