@@ -146,7 +146,10 @@ def test_resuming_runs_made_under_other_settings_is_refused_and_loses_nothing(
         evaluate.run_all(slow, out, echo=lambda _: None, resume=True)
     assert ran == [0, 1] and (out / "runs.csv").read_text() == before
     params.write_text("edge_mapper:\n  ros__parameters:\n    vmax: 45\n")
-    results, failures = evaluate.run_all(slow, out, echo=lambda _: None, resume=True)
+    # the same file named by another path is the same setting
+    renamed = [dataclasses.replace(t, params=tmp_path / ".." / tmp_path.name / "params.yaml")
+               for t in slow]
+    results, failures = evaluate.run_all(renamed, out, echo=lambda _: None, resume=True)
     assert ran == [0, 1, 2, 3] and not failures and len(results) == 4
 
 

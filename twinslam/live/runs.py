@@ -231,8 +231,10 @@ def settings_mismatch(out: Path, tasks: list[RunTask], finished: Collection[RunK
         if task.key not in finished or then is None:
             continue
         now = run_settings(task)
+        # the parameter file is compared by what it says: the same file named another way
+        # (relative, absolute) is the same run
         changed = [f"{name} {then.get(name)!r} there, {value!r} now"
-                   for name, value in now.items() if then.get(name) != value]
+                   for name, value in now.items() if name != "params" and then.get(name) != value]
         if changed:
             problems.append(f"{task.key.file_stem}: {'; '.join(changed)}")
     if not problems:
