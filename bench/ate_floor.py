@@ -355,7 +355,8 @@ def main() -> None:
     stamps = walk.stamps_ns
     shares = [frames_mix({stamps[i]: walk.truth[i] for i in ids if i in stamps and
                           i in walk.truth}) for ids in (walk.truth, walk.map.keyframe_ids())]
-    print("nearby pairs under 1 s / 1-10 s / 10 s and more apart: every frame's "
+    print(f"nearby pairs under {CLOSE_S:g} s / {CLOSE_S:g}-{REVISIT_GAP_S:g} s / "
+          f"{REVISIT_GAP_S:g} s and more apart: every frame's "
           + " / ".join(f"{100 * x:.1f} %" for x in shares[0]) + ", the keyframes' "
           + " / ".join(f"{100 * x:.1f} %" for x in shares[1]))
     print(f"revisit: keyframes ≥ {REVISIT_GAP_S:g} s apart, nearby: any two distinct "

@@ -214,7 +214,11 @@ def run_settings(task: RunTask) -> dict[str, object]:
         digest = hashlib.sha256(task.params.read_bytes()).hexdigest()[:16]
     except OSError:
         digest = ""                       # checked before the runs start (params_file_problem)
-    return {"sequence": task.sequence, "frames": task.frames, "start": task.start,
+    # a folder by its absolute path (the same data named relatively or not is the same run);
+    # a synthetic walk's spec as it is
+    sequence = str(Path(task.sequence).resolve()) if Path(task.sequence).exists() \
+        else task.sequence
+    return {"sequence": sequence, "frames": task.frames, "start": task.start,
             "rate": task.rate, "params": str(task.params), "params_sha256": digest,
             "edge_params": list(task.edge_params)}
 
