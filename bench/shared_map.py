@@ -67,6 +67,7 @@ from twinslam.reporting import append_csv_rows, write_csv
 from twinslam.rotations import rotation_angle_deg
 from twinslam.sequence_player.playback import ORDERS
 from twinslam.slam.back_end.foreign_keyframes import foreign_tag, is_foreign, source_id
+from twinslam.slam.back_end.loop_detection import MIN_INLIERS
 from twinslam.slam.back_end.map_merging import (
     MapMerge,
     MergeFinder,
@@ -198,6 +199,9 @@ def main() -> None:
                         help="with --share: the second map's loops close among its own "
                              "keyframes only, never with the first device's lent keyframes "
                              "(the edge's loops_across_devices:=false)")
+    parser.add_argument("--merge-inliers", type=int, default=MIN_INLIERS, metavar="N",
+                        help="the PnP inliers each of a merge's three detections needs (the "
+                             "edge's merge_min_inliers; default %(default)s, a loop's)")
     parser.add_argument("--no-merge", action="store_true",
                         help="never merge (the control: each device in its own frame)")
     parser.add_argument("--every", type=int, default=10, help="print every N slots")
@@ -210,6 +214,9 @@ def main() -> None:
                              "and map; its own or lent) with its position and the truth's in "
                              "the first device's frame")
     args = parser.parse_args()
+    if args.merge_inliers < MIN_INLIERS:
+        parser.error(f"--merge-inliers must be at least a loop's {MIN_INLIERS}, got "
+                     f"{args.merge_inliers}")
     cv2.setNumThreads(1)
     one_math_thread()                     # as every node (node_runtime.math_threads)
     spec, second_spec = (seeded_spec(s, args.seed) for s in
@@ -229,7 +236,7 @@ def main() -> None:
         second = open_walk("second", second_spec, args.frames, args.second, args.seed + 1,
                            args.uplink, config, args.update_delay, Path(tmp),
                            start=args.second_start)
-        finder = MergeFinder()
+        finder = MergeFinder(min_inliers=args.merge_inliers)
         merge: MapMerge | None = None
         merged_version = -1            #: the second edge's first map version in the place's
         merge_row: dict[str, object] = {}
@@ -325,6 +332,7 @@ def main() -> None:
                        "no_merge": int(args.no_merge),
                        "loops_across_devices": int(config.back_end.loops_across_devices),
                        "merged": int(merge is not None),
+                       "merge_min_inliers": args.merge_inliers,
                        **merge_row,
                        "look_ms_median": float(np.median(look_ms)) if look_ms else math.nan,
                        "look_ms_max": max(look_ms, default=math.nan)})
@@ -416,7 +424,7 @@ CSV_FIELDS = ("frames", "seed", "uplink", "first_order", "second_order", "second
               "first_start", "archive", "first_loops", "second_loops", "first_archive_own",
               "second_archive_own", "loops_across_devices", "first_loops_across",
               "second_loops_across", "first_self_rms_m", "second_self_rms_m",
-              "cross_by_stretch_cm")
+              "cross_by_stretch_cm", "merge_min_inliers")
 #: the second device's frames a stretch of the cross-device error by stretch counts
 STRETCH = 100
 

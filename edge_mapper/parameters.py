@@ -180,6 +180,10 @@ PARAMETERS = (
               "map's keyframes into its archive, which restores bring in where it heads: their "
               "poses in one frame, on shared keyframes; looks beside the slots cost ~0.1 s of "
               "CPU a slot per unmerged device"),
+    ParamSpec("merge_min_inliers", 50, "with merge_maps: the PnP inliers each of a merge's "
+              "three detections needs (a loop's 50 at least): a merge places a whole map by one "
+              "keyframe's geometry; more waits for a place both maps see better, later",
+              low=50, high=10_000),
     ParamSpec("loops_across_devices", True, "with merge_maps: a device's loop closer also "
               "closes loops with the keyframes its place's other devices lent its map at "
               "least five slots before (where it comes to a place another device mapped "

@@ -55,6 +55,7 @@ from edge_mapper.place_membership import PlaceMembership, run_after, source_of
 from twinslam.slam.back_end.foreign_keyframes import foreign_tag, source_id, tag_of
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
 from twinslam.slam.back_end.loop_closing import LoopQuery
+from twinslam.slam.back_end.loop_detection import MIN_INLIERS
 from twinslam.slam.back_end.map_back_end import FollowedLoop
 from twinslam.slam.back_end.map_merging import (
     Lender,
@@ -106,9 +107,11 @@ class PlaceMerging:
     their cores, in the order they are served)."""
 
     def __init__(self, cores: Callable[[], Mapping[str, EdgeMapperCore]],
-                 background: bool = True) -> None:
+                 background: bool = True, min_inliers: int = MIN_INLIERS) -> None:
         self.cores = cores
         self.background = background
+        #: the PnP inliers each detection of a merge needs (the edge's merge_min_inliers)
+        self.min_inliers = min_inliers
         #: joined device → the device whose frame it is in
         self.joined: dict[str, str] = {}
         self._finders: dict[tuple[str, str], MergeFinder] = {}
@@ -362,7 +365,8 @@ class PlaceMerging:
             return
         snapshot = whole_map(other.archive, other.map, slot)
         poses = joining.back_end.keyframe_poses()
-        finder = self._finders.setdefault((device, place), MergeFinder())
+        finder = self._finders.setdefault((device, place),
+                                          MergeFinder(min_inliers=self.min_inliers))
         job = (place, finder, snapshot, tuple(queries), poses, joining.k.copy(),
                joining.frame_correction.copy(), other.frame_correction.copy())
         self._queries[device] = []

@@ -92,6 +92,30 @@ def test_a_second_map_is_merged_where_three_keyframes_find_the_first(room: Room)
     assert np.linalg.norm(off[:3, 3]) < 0.03 and rotation_angle_deg(off[:3, :3]) < 0.5
 
 
+def test_a_merge_waits_for_detections_with_the_inliers_its_gate_asks(room: Room) -> None:  # noqa: F811
+    """The same three views with a merge gate above what their geometry finds (the edge's
+    ``merge_min_inliers``): none counts as a detection, no merge, and why is said; at a gate
+    the views clear, the merge comes as before."""
+    _, archive, _ = room
+    frames = {10: 4, 11: 64, 12: 124}
+    poses = {k: _second_pose(room, f) for k, f in frames.items()}
+    k = room[0].intrinsics                                      # type: ignore[attr-defined]
+    found = MergeFinder()
+    inliers = []
+    for key, f in frames.items():
+        found.offer(archive, _query(room, f, key), poses, k)
+        assert found.last is not None and found.last.found
+        inliers.append(found.last.inliers)
+    strict = MergeFinder(min_inliers=max(inliers) + 1)
+    assert all(strict.offer(archive, _query(room, f, key), poses, k) is None
+               for key, f in frames.items())
+    assert strict.candidates == 0 and strict.last is not None
+    assert f"fewer than the merge's {max(inliers) + 1}" in strict.last.reason
+    enough = MergeFinder(min_inliers=min(inliers))
+    assert [enough.offer(archive, _query(room, f, key), poses, k) is not None
+            for key, f in frames.items()] == [False, False, True]
+
+
 def test_a_look_alike_place_is_not_merged(room: Room) -> None:  # noqa: F811
     """The second device sees what the first mapped — a hotel's identical rooms — but its own
     walk puts the second and third views 1 m and 2 m from where the first view's alignment
