@@ -69,6 +69,7 @@ from twinslam.sequence_player.playback import ORDERS
 from twinslam.slam.back_end.foreign_keyframes import foreign_tag, is_foreign, source_id
 from twinslam.slam.back_end.loop_detection import MIN_INLIERS
 from twinslam.slam.back_end.map_merging import (
+    MERGE_MIN_INLIERS,
     MapMerge,
     MergeFinder,
     lend_to,
@@ -199,9 +200,10 @@ def main() -> None:
                         help="with --share: the second map's loops close among its own "
                              "keyframes only, never with the first device's lent keyframes "
                              "(the edge's loops_across_devices:=false)")
-    parser.add_argument("--merge-inliers", type=int, default=MIN_INLIERS, metavar="N",
+    parser.add_argument("--merge-inliers", type=int, default=MERGE_MIN_INLIERS, metavar="N",
                         help="the PnP inliers each of a merge's three detections needs (the "
-                             "edge's merge_min_inliers; default %(default)s, a loop's)")
+                             "edge's merge_min_inliers; default %(default)s; a loop's "
+                             f"{MIN_INLIERS} at least)")
     parser.add_argument("--no-merge", action="store_true",
                         help="never merge (the control: each device in its own frame)")
     parser.add_argument("--every", type=int, default=10, help="print every N slots")

@@ -25,7 +25,9 @@ from msg_schemas import topics
 from twinslam.allocation.allocators import ALLOCATORS
 from twinslam.node_runtime.parameters import ParamSpec
 from twinslam.slam.back_end import loop_closing
+from twinslam.slam.back_end.loop_detection import MIN_INLIERS
 from twinslam.slam.back_end.map_back_end import BackEndConfig
+from twinslam.slam.back_end.map_merging import MERGE_MIN_INLIERS
 from twinslam.slam.back_end.view_coverage import CoverageBounds
 from twinslam.slot_protocol import default_device, table1
 
@@ -180,10 +182,11 @@ PARAMETERS = (
               "map's keyframes into its archive, which restores bring in where it heads: their "
               "poses in one frame, on shared keyframes; looks beside the slots cost ~0.1 s of "
               "CPU a slot per unmerged device"),
-    ParamSpec("merge_min_inliers", 50, "with merge_maps: the PnP inliers each of a merge's "
-              "three detections needs (a loop's 50 at least): a merge places a whole map by one "
-              "keyframe's geometry; more waits for a place both maps see better, later",
-              low=50, high=10_000),
+    ParamSpec("merge_min_inliers", MERGE_MIN_INLIERS, "with merge_maps: the PnP inliers "
+              "each of a merge's three detections needs (a loop's 50 at least): a merge places "
+              "a whole map by one keyframe's geometry, and waiting for a place both maps see "
+              "well merged later but left two devices nearer each other (live, 100 against 50: "
+              "-1.2 cm cross-device)", low=MIN_INLIERS, high=10_000),
     ParamSpec("loops_across_devices", True, "with merge_maps: a device's loop closer also "
               "closes loops with the keyframes its place's other devices lent its map at "
               "least five slots before (where it comes to a place another device mapped "

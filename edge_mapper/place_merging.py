@@ -55,9 +55,9 @@ from edge_mapper.place_membership import PlaceMembership, run_after, source_of
 from twinslam.slam.back_end.foreign_keyframes import foreign_tag, source_id, tag_of
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
 from twinslam.slam.back_end.loop_closing import LoopQuery
-from twinslam.slam.back_end.loop_detection import MIN_INLIERS
 from twinslam.slam.back_end.map_back_end import FollowedLoop
 from twinslam.slam.back_end.map_merging import (
+    MERGE_MIN_INLIERS,
     Lender,
     Lending,
     MapMerge,
@@ -107,7 +107,7 @@ class PlaceMerging:
     their cores, in the order they are served)."""
 
     def __init__(self, cores: Callable[[], Mapping[str, EdgeMapperCore]],
-                 background: bool = True, min_inliers: int = MIN_INLIERS) -> None:
+                 background: bool = True, min_inliers: int = MERGE_MIN_INLIERS) -> None:
         self.cores = cores
         self.background = background
         #: the PnP inliers each detection of a merge needs (the edge's merge_min_inliers)

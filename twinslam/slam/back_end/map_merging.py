@@ -46,6 +46,12 @@ from twinslam.slam.back_end.map_back_end import FollowedLoop, MapBackEnd
 from twinslam.slam.back_end.point_fusion import FusionConfig, MapPoints, duplicates_in_view
 from twinslam.slam.camera import Camera
 
+#: the PnP inliers each detection of a merge needs by default: twice a loop's MIN_INLIERS.
+#: A merge places a whole map by one keyframe's geometry; live on the 7-Scenes walk from its
+#: two ends, merging on 100 instead of 50 came 6-8 slots later and left the two devices
+#: 1.2 cm [0.4, 2.0] nearer each other, lower in ten seeds of ten (docs/results/shared-map.md)
+MERGE_MIN_INLIERS = 2 * MIN_INLIERS
+
 
 def whole_map(archive: KeyFrameArchive, managed: KeyFrameMap, slot: int) -> KeyFrameArchive:
     """Every keyframe a device's edge map knows — its archive's and its managed map's (as
@@ -68,13 +74,12 @@ class MapMerge:
 class MergeFinder:
     """Looks for another map's place in one joining map's new keyframes, and confirms it
     (one per pair of maps; the confirmation's state is kept across calls). Each detection
-    needs ``min_inliers`` PnP inliers (a loop's MIN_INLIERS by default): a merge places a
-    whole map by one keyframe's geometry, and in process on the 7-Scenes walk from its two
-    ends merges on 61-69 inliers left the pair 7-10 cm apart just after them, where merges
-    on 108-144 left 4-5 cm (docs/results/shared-map.md)."""
+    needs ``min_inliers`` PnP inliers (MERGE_MIN_INLIERS by default): in process on the
+    7-Scenes walk from its two ends, merges on 61-69 inliers left the pair 7-10 cm apart
+    just after them, where merges on 108-144 left 4-5 cm (docs/results/shared-map.md)."""
 
     def __init__(self, confirmations: int = CONFIRMATIONS,
-                 min_inliers: int = MIN_INLIERS) -> None:
+                 min_inliers: int = MERGE_MIN_INLIERS) -> None:
         self.confirmation = LoopConfirmation(confirmations)
         self.min_inliers = min_inliers
         self.candidates = 0               #: keyframes whose geometry found the other map
