@@ -498,3 +498,21 @@ def test_the_cooldown_per_kind_tables_are_what_their_commands_print(
     printed = in_process.table(folder / "in-process" / "one", folder / "in-process" / "per-kind")
     assert _missing("\n".join(printed)) == []
     assert "| two-ends | covered | seeds | 0, 1, 2, 4, 5, 6 | | |" in printed
+
+
+def test_the_merge_inlier_tables_are_what_their_commands_print(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Merges on 100 inliers against 50: the in-process and the live table as the page has
+    them, the live one over ten seeds."""
+    folder = FIGURES / "shared-map" / "merge-inliers"
+    live = _script("loops_across_live")
+    lines, seeds, cross = live.table(folder / "live",
+                                     (("gate50", "merge on 50 inliers (default)"),
+                                      ("gate100", "merge on 100 inliers")))
+    assert seeds == list(range(10)) and _missing("\n".join(lines)) == []
+    assert all(after < before for before, after in zip(cross["gate50"], cross["gate100"],
+                                                        strict=True))
+    monkeypatch.syspath_prepend(str(FIGURES))
+    in_process = _script("shared_map_before_after")
+    printed = in_process.table(folder / "in-process" / "50", folder / "in-process" / "100")
+    assert _missing("\n".join(printed)) == []
