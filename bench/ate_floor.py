@@ -224,8 +224,8 @@ def band_sums(poses: Mapping[int, np.ndarray], truth: Mapping[int, np.ndarray]
     def at_least(gap_s: float) -> tuple[int, float]:
         if math.isinf(gap_s):
             return 0, 0.0
-        # a gap of 1 ns: every pair of two distinct frames
-        e = revisit_error(poses, truth, poses, gap_s=max(gap_s, 1e-9))
+        # a gap of 0: every pair of two distinct frames (revisit_error's keys are unique)
+        e = revisit_error(poses, truth, poses, gap_s=gap_s)
         return e.pairs, (e.rms_m ** 2 * e.pairs if e.pairs else 0.0)
 
     out = []
@@ -280,9 +280,10 @@ def stage(name: str, poses: dict[int, np.ndarray], points: dict[int, np.ndarray]
                  float(np.median(errors)), float(np.mean(errors <= INLIER_PX)), *anchored)
 
 
-def floors(walk: WalkMap, gap: int, baseline_m: float) -> list[Stage]:
+def floors(walk: WalkMap, gap: int, baseline_m: float, mix: Sequence[float]) -> list[Stage]:
     """The four stages of the module's docstring, the offline adjustments weighing depth with
-    a virtual stereo ``baseline_m``."""
+    a virtual stereo ``baseline_m``, the anchored errors weighed by every played frame's
+    pair ``mix`` (:func:`frames_mix`)."""
     m, k = walk.map, walk.intrinsics
     ids = m.keyframe_ids()
     truth = {i: walk.truth[i] for i in ids if i in walk.truth}
@@ -290,8 +291,6 @@ def floors(walk: WalkMap, gap: int, baseline_m: float) -> list[Stage]:
     online_poses = {i: m.keyframes[i].pose for i in ids}
     online_points = {p: pt.position for p, pt in m.points.items()}
     stamps = walk.stamps_ns
-    # every played frame's nearby pairs by band, from the truth alone (the live figures' mix)
-    mix = frames_mix({stamps[i]: pose for i, pose in walk.truth.items() if i in stamps})
     rows = [stage("online (local BA of the newest 5)", online_poses, online_points, obs, k,
                   truth, stamps, mix)]
     print("  full bundle adjustment ...", flush=True)
@@ -348,13 +347,15 @@ def main() -> None:
         parser.error(str(exc))
     if len(walk.truth) < 3:
         parser.error(f"{args.sequence}: fewer than 3 keyframes have ground truth")
-    rows = floors(walk, args.loop_gap, args.baseline_m)
+    stamps = walk.stamps_ns
+    # the nearby pairs' bands among every played frame's (the live figures' mix, by the truth
+    # alone) and among the keyframes'
+    shares = [frames_mix({stamps[i]: walk.truth[i] for i in ids if i in stamps and
+                          i in walk.truth}) for ids in (walk.truth, walk.map.keyframe_ids())]
+    rows = floors(walk, args.loop_gap, args.baseline_m, shares[0])
     camera = (f"the depth registered to {args.colour_intrinsics}" if args.colour_intrinsics
               else "the folder's own intrinsics")
     print(f"\n{args.frames} frames forward, {len(walk.map.keyframes)} keyframes, {camera}")
-    stamps = walk.stamps_ns
-    shares = [frames_mix({stamps[i]: walk.truth[i] for i in ids if i in stamps and
-                          i in walk.truth}) for ids in (walk.truth, walk.map.keyframe_ids())]
     print(f"nearby pairs under {CLOSE_S:g} s / {CLOSE_S:g}-{REVISIT_GAP_S:g} s / "
           f"{REVISIT_GAP_S:g} s and more apart: every frame's "
           + " / ".join(f"{100 * x:.1f} %" for x in shares[0]) + ", the keyframes' "

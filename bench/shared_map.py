@@ -142,8 +142,8 @@ def self_error(poses: dict[int, np.ndarray], truth: dict[int, np.ndarray],
     itself."""
     keys = sorted(poses) if frames is None else frames
     chosen = {k: poses[k] for k in keys if k in poses and k in truth}
-    # frame indices stand for the stamps; a gap of one: every two distinct frames
-    return revisit_error(chosen, truth, chosen, gap_s=1e-9)
+    # frame indices stand for the stamps; a gap of 0: every two distinct frames
+    return revisit_error(chosen, truth, chosen, gap_s=0.0)
 
 
 def main() -> None:
