@@ -27,7 +27,7 @@ import json
 import os
 import time
 import traceback
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Collection, Mapping
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import TYPE_CHECKING, TypeVar
@@ -223,12 +223,12 @@ def run_settings(task: RunTask) -> dict[str, object]:
             "edge_params": list(task.edge_params)}
 
 
-def settings_mismatch(out: Path, tasks: list[RunTask], finished: Collection[RunKey]
-                      ) -> str:
-    """Why the runs of ``finished`` (read back from ``out``) cannot stand beside ``tasks``:
-    one was made under other settings (:func:`run_settings`; the first differences named);
-    "" when none was, or when the folder predates the record (nothing to compare)."""
-    recorded = _read_settings(out)
+def settings_mismatch(out: Path, recorded: Mapping[str, Mapping[str, object]],
+                      tasks: list[RunTask], finished: Collection[RunKey]) -> str:
+    """Why the runs of ``finished`` (read back from ``out``, their settings ``recorded`` there)
+    cannot stand beside ``tasks``: one was made under other settings (:func:`run_settings`;
+    the first differences named); "" when none was, or when the folder predates the record
+    (nothing to compare)."""
     problems = []
     for task in tasks:
         then = recorded.get(_key_text(task.key))
@@ -396,9 +396,10 @@ def run_all(tasks: list[RunTask], out: Path, executor: Executor | None = None,
     The results in task order, and the failures."""
     out.mkdir(parents=True, exist_ok=True)
     earlier = finished_runs(out) if resume else {}
-    if mismatch := settings_mismatch(out, tasks, earlier.keys()):
-        raise ValueError(mismatch)
+    # the runs' settings as recorded (a new evaluation writes the record anew)
     settings = _read_settings(out) if resume else {}
+    if mismatch := settings_mismatch(out, settings, tasks, earlier.keys()):
+        raise ValueError(mismatch)
     if resume and (out / "calibration_frames.csv").is_file():     # today's columns, or refused
         _read_rows(out / "calibration_frames.csv", FRAMES_HEADER, ADDED_FRAME_COLUMNS)
     for name, header in (("runs.csv", RUNS_HEADER), ("calibration.csv", CALIBRATION_HEADER),
