@@ -24,7 +24,12 @@ from twinslam.node_runtime.session import RosSession
 #: frames played at ten times their rate: faster than a device tracks them
 FRAMES, RATE, SLOT_FRAMES = 300, 10.0, 30
 #: frames the device must be behind its camera when asked, for the answer to tell
-BEHIND_FRAMES = 10
+BEHIND_FRAMES = 20
+#: the device's uplink (Mbit/s): fast, so that the answer takes the request's way in and the
+#: report's way out, not the upload's time at the channel's lowest rate (0.25 s on the default
+#: link, in which a tracker of ~100 frames/s caught up 25 frames: the test failed on the link,
+#: not on the wait it is about)
+LINK_MBPS = 1000.0
 FORKS = preloaded_nodes()
 
 
@@ -47,7 +52,9 @@ def test_a_device_behind_its_camera_answers_an_upload_request_before_it_catches_
     edge = node.create_publisher(UploadRequest, f"/{topics.UPLOAD_REQUEST}", qos.PROTOCOL)
     device = domain.spawn(["-m", "device_tracker.node", "--ros-args",
                            "-p", f"slot_frames:={SLOT_FRAMES}",
-                           "-p", f"frame_rate_hz:={30.0 * RATE}"], forks=FORKS)
+                           "-p", f"frame_rate_hz:={30.0 * RATE}",
+                           "-p", f"rate_min:={LINK_MBPS}", "-p", f"rate_max:={2 * LINK_MBPS}"],
+                          forks=FORKS)
     domain.spawn(["-m", "twinslam.sequence_player.node", "--ros-args",
                   "-p", f"sequence:=synthetic:{FRAMES}", "-p", f"rate:={RATE}",
                   "-p", "wait_for_subscribers:=1"], forks=FORKS)
