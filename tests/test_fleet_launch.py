@@ -14,8 +14,8 @@ import pytest
 from builtin_interfaces.msg import Time
 from twinslam_msgs.msg import FrameSummaries, FrameSummary
 
-from twinslam.cli.commands.launch_fleet import fleet_starts, places_of
-from twinslam.cli.main import main
+from twinslam.cli.commands.launch_fleet import fleet_settings, fleet_starts, places_of
+from twinslam.cli.main import build_parser, main
 from twinslam.hosts.forked import process_name
 from twinslam.hosts.loopback import LoopbackDomain
 from twinslam.live.fleet import (
@@ -135,6 +135,23 @@ def test_devices_of_two_places_are_no_pair_and_a_false_merge_is_named() -> None:
     misplaced = _walk(line, {1: "ar1/map"}, here)       # merged into the room's map
     assert merged_across_places({**records, "ar3": misplaced}, places) == [
         ("ar1", "ar3"), ("ar2", "ar3")]
+
+
+def test_one_walk_gives_every_device_of_a_synthetic_place_the_same_walk() -> None:
+    """``--one-walk``: two devices from a corridor's two ends walk one route (its seed from
+    ``--seed``), each from where its order starts it, while their uplinks keep seeds of their
+    own; without it each device walks its own."""
+    base = ["launch", "--devices", "2", "--sequence", "synthetic-corridor:120", "--frames", "120",
+            "--seed", "3", "--orders", "forward,backward"]
+    alone, together = (fleet_settings(build_parser().parse_args(base + extra))[0]
+                       for extra in ([], ["--one-walk"]))
+    args = SimpleNamespace(sequence="synthetic-corridor:120", frames=120, start=0)
+    assert fleet_starts(args, alone) == [                      # type: ignore[arg-type]
+        ("synthetic-corridor:120:300", 0), ("synthetic-corridor:120:301", 0)]
+    assert fleet_starts(args, together) == [                   # type: ignore[arg-type]
+        ("synthetic-corridor:120:300", 0), ("synthetic-corridor:120:300", 0)]
+    assert [together.device_seed(i) for i in range(2)] == [300, 301]     # the uplinks
+    assert together.orders == ("forward", "backward")
 
 
 def test_a_fleet_over_two_places_splits_its_devices_and_edges_by_place(

@@ -77,9 +77,18 @@ class FleetConfig:
     #: the sequences (places) the devices walk, the devices split among them in runs of
     #: neighbours (:meth:`place_of`); empty: every device walks the launch's one sequence
     places: tuple[str, ...] = ()
+    #: every device of a synthetic place walks one walk (seed 100 seed), each from where its
+    #: order starts it: two devices from a corridor's two ends look the same way where they
+    #: meet, as two users walking one route would
+    one_walk: bool = False
 
     def device_seed(self, index: int) -> int:
         return 100 * self.seed + index
+
+    def walk_seed(self, index: int) -> int:
+        """The synthetic walk device ``index`` plays: its own (its channel's seed) or, with
+        :attr:`one_walk`, the fleet's one."""
+        return 100 * self.seed if self.one_walk else self.device_seed(index)
 
     def names(self) -> list[str]:
         return [f"ar{i + 1}" for i in range(self.devices)]

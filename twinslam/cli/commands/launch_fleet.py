@@ -53,7 +53,7 @@ def fleet_settings(args: argparse.Namespace) -> list[FleetConfig]:
             from None
     fleets = [FleetConfig(args.devices, args.vmax_total, a, args.min_keyframes, args.stride,
                           args.seed, orders, args.merge_maps, args.edges, delays,
-                          places_of(args.sequence))
+                          places_of(args.sequence), args.one_walk)
               for a in allocators]
     for fleet in fleets:
         fleet.check()
@@ -82,7 +82,7 @@ def fleet_starts(args: argparse.Namespace, fleet: FleetConfig) -> list[tuple[str
         p = fleet.place_of(i)
         starts.append(device_sequence(places[p], members[p].index(i), len(members[p]),
                                       args.frames, args.start, fleet.stride, lengths[p],
-                                      fleet.device_seed(i)))
+                                      fleet.walk_seed(i)))
     return starts
 
 
@@ -162,6 +162,11 @@ def add_fleet_arguments(launch: argparse.ArgumentParser) -> None:
     fleet.add_argument("--seed", type=int, default=0,
                        help="device i's uplink channel (and synthetic-room walk) is seed "
                        "100 x SEED + i; default %(default)s")
+    fleet.add_argument("--one-walk", action="store_true",
+                       help="on a synthetic place, every device walks one walk (seed 100 x "
+                       "SEED), each in its --orders order; without it each walks its own "
+                       "(its channel's seed), so two devices from a corridor's two ends may "
+                       "never look the same way where they meet")
     fleet.add_argument("--stride", type=int, default=0,
                        help="on a dataset, frames between two devices' first frames (0: "
                        "spread evenly over the sequence)")
