@@ -381,6 +381,14 @@ def main() -> None:
                                                  pairs(second.poses, second.truth,
                                                        ordered[i:i + STRETCH]))
                       for i in range(0, len(ordered), STRETCH)]
+        # the second device's last LAST played frames, in the shared frame: past the merge
+        # in every condition measured, so two conditions whose merges come at different
+        # slots are compared on the same frames (the whole figure counts only frames after
+        # the merge: a later merge leaves out the crossing just after it)
+        last = cross_device_revisit_error(
+            pairs(first.poses, first.truth),
+            pairs(second.poses, second.truth,
+                  [k for k in list(second.truth)[-LAST:] if k in after or not merge]))
         # each device against itself: the first over its walk, the second over its frames
         # in the shared frame (a pair across its merge would count the merge's motion)
         selves = (self_error(first.poses, first.truth),
@@ -390,13 +398,17 @@ def main() -> None:
                   cross_pairs=cross.pairs, true_alignment_rms_m=floor.rms_m,
                   keyframes_cross_rms_m=kf_cross.rms_m, first_self_rms_m=selves[0].rms_m,
                   second_self_rms_m=selves[1].rms_m,
-                  cross_by_stretch_cm=";".join(f"{e.rms_m * 100:.1f}" for e in by_stretch))
+                  cross_by_stretch_cm=";".join(f"{e.rms_m * 100:.1f}" for e in by_stretch),
+                  cross_last_rms_m=last.rms_m, cross_last_pairs=last.pairs,
+                  cross_last_frames=sum(1 for k in list(second.truth)[-LAST:]
+                                        if k in second.poses and (k in after or not merge)))
     if second_spec != spec:
         print(f"two places: {'MERGED (a false merge)' if merge else 'not merged'} "
               f"({time.perf_counter() - started:.0f} s)")
         report.update(cross_rms_m=math.nan, cross_median_m=math.nan, cross_p95_m=math.nan,
                       cross_pairs=0, true_alignment_rms_m=math.nan,
-                      keyframes_cross_rms_m=math.nan, cross_by_stretch_cm="")
+                      keyframes_cross_rms_m=math.nan, cross_by_stretch_cm="",
+                      cross_last_rms_m=math.nan, cross_last_pairs=0, cross_last_frames=0)
     else:
         print(f"cross-device revisit error, the second device's {len(shared)} frames in the "
               f"shared frame: RMS {_cm(cross.rms_m)}, median {_cm(cross.median_m)}, p95 "
@@ -409,6 +421,9 @@ def main() -> None:
             print(f"cross-device revisit error by the second device's {STRETCH} frames at a "
                   f"time in the shared frame, in its order from its frame {ordered[0]}: "
                   + ", ".join(_cm(e.rms_m) for e in by_stretch))
+        print(f"cross-device revisit error over the second device's last {LAST} frames: RMS "
+              f"{_cm(last.rms_m)} ({last.pairs} pairs, {report['cross_last_frames']} of its "
+              "frames in the shared frame)")
     if args.csv:
         append_csv_rows(args.csv, CSV_FIELDS, [report])
 
@@ -426,9 +441,12 @@ CSV_FIELDS = ("frames", "seed", "uplink", "first_order", "second_order", "second
               "first_start", "archive", "first_loops", "second_loops", "first_archive_own",
               "second_archive_own", "loops_across_devices", "first_loops_across",
               "second_loops_across", "first_self_rms_m", "second_self_rms_m",
-              "cross_by_stretch_cm", "merge_min_inliers")
+              "cross_by_stretch_cm", "merge_min_inliers", "cross_last_rms_m",
+              "cross_last_pairs", "cross_last_frames")
 #: the second device's frames a stretch of the cross-device error by stretch counts
 STRETCH = 100
+#: the second device's last frames played, the set ``cross_last_rms_m`` scores
+LAST = 300
 
 
 def write_frames(path: Path, walks: tuple[DeviceWalk, ...]) -> None:
