@@ -19,6 +19,7 @@ from twinslam.cli.main import build_parser, main
 from twinslam.hosts.forked import process_name
 from twinslam.hosts.loopback import LoopbackDomain
 from twinslam.live.fleet import (
+    LATE_SHARE,
     FleetConfig,
     FleetLauncher,
     FleetReport,
@@ -79,6 +80,31 @@ def test_cross_device_pairs_count_only_frames_tracked_in_one_map_frame() -> None
     alone = _walk([(0.05 * i, 1) for i in range(5)], {1: "ar3/map"}, apart)
     assert cross_device_errors({"ar1": first, "ar3": alone})[("ar1", "ar3")].pairs == 0
     assert merged_in_place({"ar1": first, "ar2": merged, "ar3": alone}) == [("ar1", "ar2")]
+
+
+def test_the_late_cross_device_figure_scores_only_the_last_third_of_each_devices_frames(
+        ) -> None:
+    """Two settings whose merges come at different times have different frames in one map
+    frame; the late figure compares them on the same ones. The second device is 5 cm off the
+    first's frame over its first six frames and 1 cm over its last three: the whole figure
+    mixes both, the late one is 1 cm over the 3 × 3 pairs of the two devices' last thirds —
+    and the fleet's table gives both."""
+    line = [(0.05 * i, 1) for i in range(9)]
+    first = _walk(line, {1: "ar1/map"}, np.eye(4))
+    near, far = np.eye(4), np.eye(4)
+    near[1, 3], far[1, 3] = 0.01, 0.05
+    second = _walk(line, {1: "ar1/map"}, near)
+    for i in range(6):
+        second.poses[i * 10**9] = far @ second.ground_truth[i * 10**9]
+    records = {"ar1": first, "ar2": second}
+    whole = cross_device_errors(records)[("ar1", "ar2")]
+    late = cross_device_errors(records, last_share=LATE_SHARE)[("ar1", "ar2")]
+    assert whole.pairs > 3 * 3 and whole.rms_m > 0.03
+    assert late.pairs == 3 * 3 and abs(late.rms_m - 0.01) < 1e-9
+    fleet = FleetReport("equal", list(records), [], [], [], {("ar1", "ar2"): whole}, [],
+                        [("ar1", "ar2")], {("ar1", "ar2"): late})
+    assert "over the last third of each one's frames RMS 1.0 cm (9 pairs)" in \
+        "\n".join(merge_lines(fleet))
 
 
 def test_merged_devices_that_never_saw_one_view_are_told_from_devices_never_merged() -> None:

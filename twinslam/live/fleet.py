@@ -186,6 +186,8 @@ class FleetReport:
     merged_across_places: list[tuple[str, str]] = field(default_factory=list)
     #: pairs of devices of one place ever tracked on maps in one frame (:func:`merged_in_place`)
     merged: list[tuple[str, str]] = field(default_factory=list)
+    #: :attr:`cross_device` over the last :data:`LATE_SHARE` of each device's frames
+    cross_device_late: dict[tuple[str, str], RevisitError] = field(default_factory=dict)
 
     def tracked_shares(self) -> list[float]:
         """Each device's share of its frames it tracked."""
@@ -331,7 +333,8 @@ class FleetLauncher(Launcher):
             return FleetReport(self.fleet.allocator, names, reports, budgets, frames,
                                cross_device_errors(records, places),
                                merged_across_places(records, places),
-                               merged_in_place(records, places))
+                               merged_in_place(records, places),
+                               cross_device_errors(records, places, LATE_SHARE))
         finally:
             self.stop()
             for s in sessions.values():
@@ -389,33 +392,47 @@ class FleetLauncher(Launcher):
                      and proc.poll() not in (None, 0)), None)
 
 
-def posed_by_map_frame(record: RunLog) -> dict[str, list[tuple[np.ndarray, np.ndarray]]]:
+def posed_by_map_frame(record: RunLog, last_share: float = 1.0
+                       ) -> dict[str, list[tuple[np.ndarray, np.ndarray]]]:
     """A device's tracked frames with a true pose, as (published pose, true pose), grouped
     by the frame of the map each was tracked on (its map update's header: the device's own
     map frame, or the frame of a device its map was merged into); frames tracked on a map
-    the record lacks are left out."""
+    the record lacks are left out. ``last_share`` < 1 keeps only that share of the device's
+    frames, its last by stamp (:data:`LATE_SHARE`)."""
     frame_of = {m.version: m.frame_id for m in record.maps.values()}
     grouped: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
+    keys = sorted(time_key(f.stamp) for s in record.summaries.values() for f in s.frames)
+    first_kept = keys[len(keys) - math.ceil(len(keys) * last_share)] if keys else 0
     for summary in record.summaries.values():
         for f in summary.frames:
             key = time_key(f.stamp)
             frame = frame_of.get(int(f.map_version))
+            if key < first_kept:
+                continue
             if f.tracked and frame and key in record.poses and key in record.ground_truth:
                 grouped.setdefault(frame, []).append((record.poses[key],
                                                       record.ground_truth[key]))
     return grouped
 
 
-def cross_device_errors(records: dict[str, RunLog], places: Mapping[str, int] | None = None
-                        ) -> dict[tuple[str, str], RevisitError]:
+#: the share of each device's frames, its last, the late cross-device figure scores: after
+#: the merges in the runs measured, so two settings whose merges come at different times are
+#: compared on the same frames (the whole figure counts only frames after a merge, and a later
+#: merge leaves out the ground just after it)
+LATE_SHARE = 1 / 3
+
+
+def cross_device_errors(records: dict[str, RunLog], places: Mapping[str, int] | None = None,
+                        last_share: float = 1.0) -> dict[tuple[str, str], RevisitError]:
     """For each pair of devices (in the fleet's order) that walk one place (``places``: each
     device's; None: all one), the cross-device revisit error over their frames tracked on
     maps in one frame, each frame of one paired only with the other's in the same map frame
     (:func:`posed_by_map_frame`; the true poses in the sequence's world frame, which every
     device of one sequence shares): content one device anchored as the other sees it.
     Devices never in one frame have no pair; devices of two places are no pair at all
-    (their true poses are in two worlds: :func:`merged_across_places`)."""
-    grouped = {d: posed_by_map_frame(r) for d, r in records.items()}
+    (their true poses are in two worlds: :func:`merged_across_places`). ``last_share``: over
+    that share of each device's frames, its last (:func:`posed_by_map_frame`)."""
+    grouped = {d: posed_by_map_frame(r, last_share) for d, r in records.items()}
     names = list(records)
     place = places or {}
     return {(a, b): cross_device_revisit_error_by_frame(grouped[a], grouped[b])
@@ -484,6 +501,10 @@ def merge_lines(fleet: FleetReport) -> list[str]:
         if e.pairs:
             where = (f"RMS {e.rms_m * 100:.1f} cm, median {e.median_m * 100:.1f} cm over "
                      f"{e.pairs} pairs of frames in one map frame")
+            late = fleet.cross_device_late.get((a, b))
+            if late is not None and late.pairs:
+                where += (f"; over the last third of each one's frames RMS "
+                          f"{late.rms_m * 100:.1f} cm ({late.pairs} pairs)")
         elif (a, b) in fleet.merged:
             where = (f"no pair: in one map frame, but no frame of one within "
                      f"{REVISIT_RADIUS_M:g} m and {REVISIT_ANGLE_DEG:g}° of one of the other's "
@@ -502,7 +523,7 @@ FLEET_COLUMNS = ("policy", "allocator", "seed", "device", "slots", "frames", "me
                  "lost_share", "tracked_uncertainty", "untracked_frames", "tracking_failures",
                  "relocalisations", "ate_m", "mean_budget", "frames_dropped", "edge_ms_median",
                  "latency_ms_median", "late_slots", "cross_device_rms_m", "cross_device_pairs",
-                 "frames_uploaded")
+                 "frames_uploaded", "cross_device_late_rms_m", "cross_device_late_pairs")
 
 
 def fleet_rows(fleet: FleetReport, seed: int, records: dict[str, RunLog],
@@ -525,14 +546,18 @@ def fleet_rows(fleet: FleetReport, seed: int, records: dict[str, RunLog],
                      "edge_ms_median": r.edge_ms_median,
                      "latency_ms_median": float(np.median(latency)) if latency else math.nan,
                      "late_slots": sum(1 for v in latency if v > slot_period_s * 1000),
-                     **_cross_cells(fleet, device), "frames_uploaded": r.frames_uploaded})
+                     **_cross_cells(fleet.cross_device, device, "cross_device"),
+                     **_cross_cells(fleet.cross_device_late, device, "cross_device_late"),
+                     "frames_uploaded": r.frames_uploaded})
     return rows
 
 
-def _cross_cells(fleet: FleetReport, device: str) -> dict[str, float]:
+def _cross_cells(errors: Mapping[tuple[str, str], RevisitError], device: str, column: str
+                 ) -> dict[str, float]:
     """A device's cross-device revisit error against every other device, over all its pairs
-    (RMS of the pairs' RMS weighted by their counts), and the pairs."""
-    mine = [e for pair, e in fleet.cross_device.items() if device in pair and e.pairs]
+    (RMS of the pairs' RMS weighted by their counts), and the pairs: ``COLUMN_rms_m``,
+    ``COLUMN_pairs``."""
+    mine = [e for pair, e in errors.items() if device in pair and e.pairs]
     pairs = sum(e.pairs for e in mine)
     rms = math.sqrt(sum(e.rms_m ** 2 * e.pairs for e in mine) / pairs) if pairs else math.nan
-    return {"cross_device_rms_m": rms, "cross_device_pairs": float(pairs)}
+    return {f"{column}_rms_m": rms, f"{column}_pairs": float(pairs)}
