@@ -7,7 +7,9 @@ a figure of the cross-device error seed by seed.
 
 Reads ``{AFTER}-seed{S}.csv`` and ``{BEFORE}-seed{S}.csv`` from the folder (by default
 ``across`` and ``own``): each run's ``fleet_runs.csv`` (``twinslam launch --devices 2 …
---out OUT``, the page has the command); writes ``cross-device.png`` there.
+--out OUT``, the page has the command); writes ``cross-device.png`` there (``--figure``
+names another), with a second panel over the last third of each device's frames where the
+runs have it.
 
     .venv/bin/python docs/figures/loops_across_live.py docs/figures/shared-map/loops-across/live
     .venv/bin/python docs/figures/loops_across_live.py FOLDER \
@@ -25,6 +27,9 @@ from twinslam.reporting import paired_difference, pyplot
 
 #: (column, what it is, scale from the CSV's unit, summed over the devices or per device)
 METRICS = (("cross_device_rms_m", "cross-device revisit error RMS, cm", 100.0, "pair"),
+           # on the same frames whenever the merges came (runs since 2026-12-02, midday)
+           ("cross_device_late_rms_m", "cross-device error over the last third of each "
+            "device's frames, cm", 100.0, "pair"),
            ("ate_m", "ATE, cm", 100.0, "device"),
            ("frames_uploaded", "frames uploaded", 1.0, "device"),
            ("edge_ms_median", "the edge's median ms a slot", 1.0, "device"),
@@ -71,6 +76,8 @@ def table(folder: Path, modes: tuple[tuple[str, str], tuple[str, str]] = (BEFORE
              "|---|---|---|---|"]
     cross: dict[str, list[float]] = {}
     for column, name, scale, kind in METRICS:
+        if not all(r[s][0].get(column) for r in (first, then) for s in seeds):
+            continue                  # a column older runs lack
         per = {m: [values(r[s], column, scale, kind) for s in seeds]
                for m, r in ((old, first), (new, then))}
         for who in per[old][0]:
@@ -105,23 +112,45 @@ def main(argv: list[str] | None = None) -> None:
                              f"label (default {':'.join(BEFORE)})")
     parser.add_argument("--after", type=mode, default=AFTER, metavar="PREFIX:LABEL",
                         help=f"the runs compared (default {':'.join(AFTER)})")
+    parser.add_argument("--figure", default="cross-device.png", metavar="NAME",
+                        help="the figure's file name in the folder (two comparisons in one "
+                             "folder: one name each); default %(default)s")
     args = parser.parse_args(argv)
     modes = (args.before, args.after)
     lines, seeds, cross = table(args.folder, modes)
     print("\n".join(lines))
+    late = late_errors(args.folder, modes, seeds)
+    panels = [("cross-device revisit error RMS, cm", cross)]
+    if late:
+        panels.append(("the same over the last third of\neach device's frames, cm", late))
     plt = pyplot()
-    fig, ax = plt.subplots(figsize=(6, 3.5))
-    for (prefix, label), marker in zip(modes, ("o", "s"), strict=True):
-        ax.plot(seeds, cross[prefix], marker=marker, linestyle="-", label=label)
-    ax.set_xlabel("seed (the uplinks' draws)")
-    ax.set_ylabel("cross-device revisit error RMS, cm")
-    ax.set_xticks(seeds)
-    ax.set_title("two devices from the walk's two ends, live", fontsize=10)
-    ax.legend(fontsize=8)
+    fig, axes = plt.subplots(1, len(panels), figsize=(6 * len(panels), 3.5), squeeze=False)
+    for ax, (ylabel, values_by_mode) in zip(axes[0], panels, strict=True):
+        for (prefix, label), marker in zip(modes, ("o", "s"), strict=True):
+            ax.plot(seeds, values_by_mode[prefix], marker=marker, linestyle="-", label=label)
+        ax.set_xlabel("seed (the uplinks' draws)")
+        ax.set_ylabel(ylabel)
+        ax.set_xticks(seeds)
+        ax.legend(fontsize=8)
+    fig.suptitle("two devices from the walk's two ends, live", fontsize=10)
     fig.tight_layout()
-    out = args.folder / "cross-device.png"
+    out = args.folder / args.figure
     fig.savefig(out, dpi=120)
     print(f"wrote {out}")
+
+
+def late_errors(folder: Path, modes: tuple[tuple[str, str], tuple[str, str]],
+                seeds: list[int]) -> dict[str, list[float]]:
+    """Each mode's cross-device error over the last third of each device's frames, seed by
+    seed, in cm; empty where a run lacks the column (runs before 2026-12-02, midday)."""
+    found = {}
+    for prefix, _ in modes:
+        by_seed = runs(folder, prefix)
+        cells = [by_seed[s][0].get("cross_device_late_rms_m") for s in seeds]
+        if not all(cells):
+            return {}
+        found[prefix] = [float(c) * 100.0 for c in cells if c]
+    return found
 
 
 if __name__ == "__main__":

@@ -26,6 +26,9 @@ from twinslam.reporting import paired_difference, pyplot
 CONDITIONS = ("lent", "covered")
 #: (column, what it is, its unit's scale from the CSV's)
 METRICS = (("cross_rms_m", "cross-device revisit error RMS, cm", 100.0),
+           # on the same frames whenever the merge came (runs since 2026-12-02, midday)
+           ("cross_last_rms_m", "cross-device error over the second device's last 300 "
+            "frames, cm", 100.0),
            ("keyframes_cross_rms_m", "the two maps' final keyframes apart, RMS cm", 100.0),
            ("second_uploads", "second device's keyframes uploaded", 1.0),
            ("second_ate_m", "second device's ATE, cm", 100.0),
@@ -40,7 +43,8 @@ def paired(before: Path, after: Path, scenario: str, condition: str
     seeds = sorted(old.keys() & new.keys())
     return seeds, {column: ([float(old[s][column]) * scale for s in seeds],
                             [float(new[s][column]) * scale for s in seeds])
-                   for column, _, scale in METRICS}
+                   for column, _, scale in METRICS
+                   if all(r[s].get(column) for r in (old, new) for s in seeds)}
 
 
 def compared(before: Path, after: Path) -> list[tuple[str, str]]:
@@ -56,6 +60,8 @@ def table(before: Path, after: Path) -> list[str]:
     for scenario, condition in compared(before, after):
         seeds, values = paired(before, after, scenario, condition)
         for column, name, _ in METRICS:
+            if column not in values:
+                continue                  # a column older runs lack
             old, new = values[column]
             d = paired_difference([new], old)
             lines.append(f"| {scenario} | {condition} | {name} | "
