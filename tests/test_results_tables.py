@@ -516,3 +516,24 @@ def test_the_merge_inlier_tables_are_what_their_commands_print(
     in_process = _script("shared_map_before_after")
     printed = in_process.table(folder / "in-process" / "50", folder / "in-process" / "100")
     assert _missing("\n".join(printed)) == []
+
+
+def test_the_same_frames_tables_are_what_their_commands_print(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The merge gate scored again on the same frames, and the gate inside the place search:
+    the two live tables and the in-process one as the page has them, each with its row over
+    the last frames (which older runs' tables lack), over the seeds the page names."""
+    folder = FIGURES / "shared-map" / "merge-search"
+    live = _script("loops_across_live")
+    for modes in ((("gate50", "merge on 50 inliers"), ("post", "merge on 100 inliers (default)")),
+                  (("post", "the gate after the search (default)"),
+                   ("pass", "the gate in the search"))):
+        lines, seeds, _ = live.table(folder / "live", modes)
+        assert seeds == list(range(10)) and _missing("\n".join(lines)) == []
+        assert any(line.startswith("| cross-device error over the last third") for line in lines)
+    monkeypatch.syspath_prepend(str(FIGURES))
+    in_process = _script("shared_map_before_after")
+    printed = in_process.table(folder / "in-process" / "post100",
+                               folder / "in-process" / "pass100")
+    assert _missing("\n".join(printed)) == []
+    assert any("last 300 frames" in line for line in printed)
