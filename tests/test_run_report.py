@@ -41,7 +41,8 @@ def _run() -> RunLog:
     """Four slots of 10 frames of :func:`_truth`'s walk. The device's estimate shakes by
     ±2 mm, leaps 0.5 m off at frame 25 (tracked: a wrong solve no relocalisation made) and
     is back at 26; frames 30-31 are lost, 31 with a refused pose. Keyframes go up in slots
-    0 and 3 only; the edge refused one keyframe of slot 3."""
+    0 and 3 only; the edge refused one keyframe of slot 3; its map was in pieces at slots 0
+    and 2."""
     log = RunLog()
     for slot in range(4):
         frames = []
@@ -61,7 +62,9 @@ def _run() -> RunLog:
         sent = 2 if slot in (0, 3) else 0
         log.throughput[slot] = uplink_throughput_message(
             SlotThroughput(slot, 40.0, 0, sent * 625_000, 0.5, sent), slot + 0.5)
-        log.stats[slot] = map_stats_message(slot, "lff", KeyFrameMap(), 0.0, None, sent, 0.0,
+        # the edge's map in pieces at slots 0 and 2 (u(G) = +inf)
+        pieces = math.inf if slot in (0, 2) else 0.0
+        log.stats[slot] = map_stats_message(slot, "lff", KeyFrameMap(), pieces, None, sent, 0.0,
                                             1.0, slot + 0.6, refused=int(slot == 3),
                                             missing=int(slot == 1))
     return log
@@ -79,6 +82,10 @@ def test_the_report_counts_a_leap_jitter_refusals_and_slots_without_upload() -> 
     # frames 5 and 6 of the 38 tracked were posed by PnP RANSAC (31, untracked, counts not)
     assert rep.pnp_ransac_share == pytest.approx(2 / 38)
     assert rep.longest_no_upload_slots == 2                   # slots 1 and 2
+    # a map in pieces at slot 2 is counted; slot 0's is not (it plans on an empty map, as
+    # the lost share leaves it out), and the table shows the count beside the loops
+    assert rep.map_in_pieces_slots == 1
+    assert "loops pieces" in rep.HEADER
     # no device/odom heard: nothing to say of the odom frame
     assert math.isnan(rep.odom_jitter_rms_mm) and math.isnan(rep.odom_step_excess_mm)
     # 1.3 s of a walk that never comes back: no place is revisited, nothing to measure

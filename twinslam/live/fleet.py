@@ -523,7 +523,8 @@ FLEET_COLUMNS = ("policy", "allocator", "seed", "device", "slots", "frames", "me
                  "lost_share", "tracked_uncertainty", "untracked_frames", "tracking_failures",
                  "relocalisations", "ate_m", "mean_budget", "frames_dropped", "edge_ms_median",
                  "latency_ms_median", "late_slots", "cross_device_rms_m", "cross_device_pairs",
-                 "frames_uploaded", "cross_device_late_rms_m", "cross_device_late_pairs")
+                 "frames_uploaded", "cross_device_late_rms_m", "cross_device_late_pairs",
+                 "map_in_pieces_slots")
 
 
 def fleet_rows(fleet: FleetReport, seed: int, records: dict[str, RunLog],
@@ -548,7 +549,8 @@ def fleet_rows(fleet: FleetReport, seed: int, records: dict[str, RunLog],
                      "late_slots": sum(1 for v in latency if v > slot_period_s * 1000),
                      **_cross_cells(fleet.cross_device, device, "cross_device"),
                      **_cross_cells(fleet.cross_device_late, device, "cross_device_late"),
-                     "frames_uploaded": r.frames_uploaded})
+                     "frames_uploaded": r.frames_uploaded,
+                     "map_in_pieces_slots": r.map_in_pieces_slots})
     return rows
 
 

@@ -136,6 +136,11 @@ class RunReport:
     #: uploads asked for that were not in when their slot closed (MapStats'
     #: ``missing_keyframes``: frames the device no longer held, or keyframes lost or late)
     keyframes_missing: float = math.nan
+    #: slots after the first whose edge map was in pieces (MapStats' ``uncertainty`` +inf:
+    #: keyframes that share no point with the rest, e.g. made in a fast turn). Every frame of
+    #: such a slot scores as lost, whatever the device tracked (docs/architecture.md §2), so
+    #: a lost share beside none untracked reads here (NaN: no slot after the first)
+    map_in_pieces_slots: float = math.nan
 
     ROW = ("{label:<14} {mean_uncertainty:>10.1f} {lost_share:>6.1%} "
            "{tracked_uncertainty:>10.1f} {ate_m:>7.3f} "
@@ -147,7 +152,7 @@ class RunReport:
            "{pnp_ransac_share:>6.1%} {outlier_share:>6.1%} "
            "{duplicate_share:>6.1%} "
            "{restores:>6.0f} "
-           "{loops_closed:>5.0f} "
+           "{loops_closed:>5.0f} {map_in_pieces_slots:>6.0f} "
            "{recover_s:>7.2f} "
            "{loss_p95_s:>7.2f} {longest_loss_s:>7.2f} {downlink_mb:>7.1f} {device_cpu_ms:>7.1f} "
            "{edge_ms_median:>7.0f} {longest_no_upload_slots:>5.0f} {dropped:>7} "
@@ -159,7 +164,7 @@ class RunReport:
               f"{'gt jit':>7} {'odo jit':>7} {'odo st':>7} {'revis m':>7} {'anchor':>7} "
               f"{'ransac':>6} "
               f"{'outl':>6} {'dupl':>6} "
-              f"{'restor':>6} {'loops':>5} "
+              f"{'restor':>6} {'loops':>5} {'pieces':>6} "
               f"{'recov s':>7} {'p95 s':>7} "
               f"{'max s':>7} {'down MB':>7} {'dev ms':>7} {'edge ms':>7} {'no up':>5} "
               f"{'dropped':>7} {'skipped':>7}")
@@ -290,7 +295,9 @@ def report(policy: str, record: RunLog, seconds: float, slot_frames: int) -> Run
         loops_refused=float(max(int(s.loops_refused) for s in stats)) if stats else math.nan,
         duplicate_share=map_duplicate_share(record),
         anchored_revisit_error_m=anchored_revisit, anchored_ate_m=anchored_ate,
-        keyframes_missing=float(sum(int(s.missing_keyframes) for s in stats)))
+        keyframes_missing=float(sum(int(s.missing_keyframes) for s in stats)),
+        map_in_pieces_slots=float(sum(1 for s in scored if s.uncertainty == math.inf))
+        if scored else math.nan)
 
 
 def map_duplicate_share(record: RunLog) -> float:

@@ -321,7 +321,7 @@ ADDED_COLUMNS = {"jumps": "nan", "failed_share": "nan", "loss_p95_s": "nan",
                  "pnp_ransac_share": "nan", "loops_closed": "nan", "loop_closing_ms": "nan",
                  "outlier_share": "nan", "loops_refused": "nan", "duplicate_share": "nan",
                  "anchored_revisit_error_m": "nan", "anchored_ate_m": "nan",
-                 "keyframes_missing": "nan"}
+                 "keyframes_missing": "nan", "map_in_pieces_slots": "nan"}
 #: the same for calibration_frames.csv
 ADDED_FRAME_COLUMNS = {"shared_points_archive": "nan", "failure_cause": ""}
 #: each anchored figure of a run → the published one it equals when the run's keyframes never
