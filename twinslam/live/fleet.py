@@ -418,7 +418,8 @@ def posed_by_map_frame(record: RunLog, last_share: float = 1.0
 #: the share of each device's frames, its last, the late cross-device figure scores: after
 #: the merges in the runs measured, so two settings whose merges come at different times are
 #: compared on the same frames (the whole figure counts only frames after a merge, and a later
-#: merge leaves out the ground just after it)
+#: merge leaves out the ground just after it). Empty where the last thirds see no one place
+#: (two devices from a corridor's two ends end at its two ends)
 LATE_SHARE = 1 / 3
 
 
