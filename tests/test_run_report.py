@@ -14,7 +14,7 @@ import pytest
 from device_tracker.messages import FrameRecord, frame_summaries_message, uplink_throughput_message
 from edge_mapper.messages import map_stats_message
 from msg_schemas.headers import time_key
-from twinslam.live.report import in_final_frame, report
+from twinslam.live.report import in_final_frame, print_table, report
 from twinslam.live.run_log import RunLog
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.map_update import MapSnapshot
@@ -86,6 +86,13 @@ def test_the_report_counts_a_leap_jitter_refusals_and_slots_without_upload() -> 
     # the lost share leaves it out), and the table shows the count beside the loops
     assert rep.map_in_pieces_slots == 1
     assert "loops pieces" in rep.HEADER
+    # and says under the table what that did to the lost share
+    lines: list[str] = []
+    print_table([rep], lines.append)
+    assert lines[-1] == ("lff: the edge's map was in pieces (u(G) = +inf) in 1 of its 3 slots "
+                         "after the first; every frame of those slots counts as lost whatever "
+                         "the device tracked (lost 0.0%, 2 frames untracked)")
+    assert dataclasses.replace(rep, map_in_pieces_slots=0.0).pieces_line("lff") is None
     # no device/odom heard: nothing to say of the odom frame
     assert math.isnan(rep.odom_jitter_rms_mm) and math.isnan(rep.odom_step_excess_mm)
     # 1.3 s of a walk that never comes back: no place is revisited, nothing to measure

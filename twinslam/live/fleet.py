@@ -489,6 +489,9 @@ def print_fleet_table(fleet: FleetReport, echo: Callable[[str], None] = print) -
     echo(f"{head:<{len(RunReport.HEADER)}} {float(np.nanmean(fleet.budgets)):>7.1f} "
          f"{float(np.nanmean(shares)):>8.1%}")
     echo(f"Jain's index of the tracked shares: {fleet.jain_tracked:.3f}")
+    for device, r in zip(fleet.devices, fleet.reports, strict=True):
+        if (line := r.pieces_line(device)) is not None:
+            echo(line)
     for line in merge_lines(fleet):
         echo(line)
 

@@ -184,6 +184,17 @@ class RunReport:
         too."""
         return f"{self.frames_dropped}{'!' if self.frames_dropped else ''}"
 
+    def pieces_line(self, name: str) -> str | None:
+        """What a lost share owes to a map in pieces, said under the table for run or device
+        ``name`` (None: its map never was): the column alone reads as a count, and a lost
+        share with no frame untracked reads as a device that lost frames."""
+        if not self.map_in_pieces_slots > 0:          # NaN too
+            return None
+        return (f"{name}: the edge's map was in pieces (u(G) = +inf) in "
+                f"{self.map_in_pieces_slots:.0f} of its {self.slots - 1} slots after the "
+                f"first; every frame of those slots counts as lost whatever the device tracked "
+                f"(lost {self.lost_share:.1%}, {self.untracked_frames} frames untracked)")
+
     def row(self) -> str:
         """The run's line of the table."""
         return self.ROW.format(mbytes=self.bytes_uploaded / 1e6, label=self.label,
@@ -542,4 +553,7 @@ def print_table(reports: list[RunReport], echo: Callable[[str], None] = print) -
     echo(RunReport.HEADER)
     for r in reports:
         echo(r.row())
+    for r in reports:
+        if (line := r.pieces_line(r.label)) is not None:
+            echo(line)
 
