@@ -537,3 +537,16 @@ def test_the_same_frames_tables_are_what_their_commands_print(
                                folder / "in-process" / "pass100")
     assert _missing("\n".join(printed)) == []
     assert any("last 300 frames" in line for line in printed)
+
+
+def test_the_merge_gate_trials_table_is_what_its_command_prints(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The merge gate over six trials that start the first device at six places of the walk:
+    the table as the page has it, its row over the same frames among it."""
+    folder = FIGURES / "shared-map" / "merge-inliers" / "first-starts"
+    monkeypatch.syspath_prepend(str(FIGURES))            # its sibling, shared_map_before_after
+    trials = _script("shared_map_trials")
+    printed = trials.table(folder / "50", folder / "100")
+    assert _missing("\n".join(printed)) == []
+    assert any("last 300 frames" in line for line in printed)
+    assert printed[-1].startswith("| trials (seed/first start/second start) | 0/0/0, 0/10/0")
