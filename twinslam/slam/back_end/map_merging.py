@@ -48,8 +48,11 @@ from twinslam.slam.camera import Camera
 
 #: the PnP inliers each detection of a merge needs by default: twice a loop's MIN_INLIERS.
 #: A merge places a whole map by one keyframe's geometry; live on the 7-Scenes walk from its
-#: two ends, merging on 100 instead of 50 came 6-8 slots later and left the two devices
-#: 1.2 cm [0.4, 2.0] nearer each other, lower in ten seeds of ten (docs/results/shared-map.md)
+#: two ends, merging on 100 instead of 50 came 6-8 slots later and left both devices nearer
+#: the truth (ATE -0.58 and -0.26 cm, ten seeds). The two devices' agreement on the same
+#: frames was not told apart (-0.37 cm [-1.37, +0.62]); the figure over every frame after
+#: the merge fell 1.1-1.2 cm, most of it the frames a later merge leaves out
+#: (docs/results/shared-map.md)
 MERGE_MIN_INLIERS = 2 * MIN_INLIERS
 
 
@@ -74,9 +77,8 @@ class MapMerge:
 class MergeFinder:
     """Looks for another map's place in one joining map's new keyframes, and confirms it
     (one per pair of maps; the confirmation's state is kept across calls). Each detection
-    needs ``min_inliers`` PnP inliers (MERGE_MIN_INLIERS by default): in process on the
-    7-Scenes walk from its two ends, merges on 61-69 inliers left the pair 7-10 cm apart
-    just after them, where merges on 108-144 left 4-5 cm (docs/results/shared-map.md)."""
+    needs ``min_inliers`` PnP inliers (MERGE_MIN_INLIERS by default: a whole map placed by
+    one keyframe's geometry waits for a place both maps see well)."""
 
     def __init__(self, confirmations: int = CONFIRMATIONS,
                  min_inliers: int = MERGE_MIN_INLIERS) -> None:
