@@ -385,10 +385,9 @@ def main() -> None:
         # in every condition measured, so two conditions whose merges come at different
         # slots are compared on the same frames (the whole figure counts only frames after
         # the merge: a later merge leaves out the crossing just after it)
-        last = cross_device_revisit_error(
-            pairs(first.poses, first.truth),
-            pairs(second.poses, second.truth,
-                  [k for k in list(second.truth)[-LAST:] if k in after or not merge]))
+        last_frames = [k for k in list(second.truth)[-LAST:] if k in after or not merge]
+        last = cross_device_revisit_error(pairs(first.poses, first.truth),
+                                          pairs(second.poses, second.truth, last_frames))
         # each device against itself: the first over its walk, the second over its frames
         # in the shared frame (a pair across its merge would count the merge's motion)
         selves = (self_error(first.poses, first.truth),
@@ -400,8 +399,7 @@ def main() -> None:
                   second_self_rms_m=selves[1].rms_m,
                   cross_by_stretch_cm=";".join(f"{e.rms_m * 100:.1f}" for e in by_stretch),
                   cross_last_rms_m=last.rms_m, cross_last_pairs=last.pairs,
-                  cross_last_frames=sum(1 for k in list(second.truth)[-LAST:]
-                                        if k in second.poses and (k in after or not merge)))
+                  cross_last_frames=sum(1 for k in last_frames if k in second.poses))
     if second_spec != spec:
         print(f"two places: {'MERGED (a false merge)' if merge else 'not merged'} "
               f"({time.perf_counter() - started:.0f} s)")
