@@ -60,6 +60,7 @@ from msg_schemas import qos, topics
 from msg_schemas.headers import time_seconds
 from twinslam.node_runtime.checked_subscription import CheckedSubscription
 from twinslam.node_runtime.long_lived_objects import release_frozen
+from twinslam.policies.connected_map import mended_decision
 from twinslam.rotations import rotation_angle_deg
 from twinslam.slam.back_end.foreign_keyframes import is_foreign, keyframe_label
 from twinslam.slam.back_end.loop_closing import SHARED_WORKER
@@ -291,6 +292,8 @@ class DeviceLink:
                 self.finished(self.device, slot, len(self.core.map.keyframes))
             return
         self.restarts.planned(stamps)
+        if plan.policy_action is not None:
+            self.info(f"slot {slot}: {mended_decision(plan.policy_action, plan.action)}")
         decided_by, notes = self.control.decided(slot)
         self._log(notes)
         self.pub_request.publish(upload_request_message(slot, decided_by,

@@ -65,6 +65,12 @@ PARAMETERS = (
               "the uplink carries alpha within the slot (d_k under alpha / D_req), ask for one "
               "frame, its deadline stretched to the slot's end, so a slow uplink still grows "
               "the map; false: Theorem 1 exactly (the paper's preset)"),
+    ParamSpec("connected_map", True, "where the policy's decision would leave the map in "
+              "more pieces (uploads that share no point with it, as in a fast turn, or an "
+              "eviction of the keyframe that ties a piece to the rest), upload as many of the "
+              "slot's newest frames that tie to the map and evict keyframes whose eviction "
+              "splits nothing instead; false: the policy's decision as it is (the paper's "
+              "preset)"),
     ParamSpec("checkpoint", "", "map file written every checkpoint_every slots and resumed "
               "from after a restart (a standby edge takes a device over from it); empty: none"),
     ParamSpec("checkpoint_every", 1, "slots between two checkpoints of a device's map (with "
@@ -220,7 +226,8 @@ def edge_config(p: Mapping[str, Any]) -> EdgeConfig:
     """The core's configuration from the node's parameters (V_max, α, D_req as they start)."""
     return EdgeConfig(slot=SlotConfig(vmax=int(p["vmax"]), alpha_mbit=float(p["alpha_mbit"]),
                                       d_req_s=float(p["d_req_s"]),
-                                      progress=bool(p["progress_uploads"])),
+                                      progress=bool(p["progress_uploads"]),
+                                      connected_map=bool(p["connected_map"])),
                       restore_keyframes=int(p["restore_keyframes"]),
                       reloc_restore_keyframes=int(p["reloc_restore_keyframes"]),
                       coverage=CoverageBounds(float(p["covered_m"]), float(p["covered_deg"])),

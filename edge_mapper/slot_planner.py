@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from twinslam.policies.actions import MapAction, SlotObservation, check_map_action
+from twinslam.policies.connected_map import connected_action
 from twinslam.policies.protocol import MapPolicy, SlotViewer
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap, shared_counts
 from twinslam.slam.back_end.view_coverage import uploads_for_new_views
@@ -77,6 +78,11 @@ class SlotConfig(SlotSettings):
     edge's Π; the slot's length F comes with each slot's summaries."""
 
     log_det_pi: float = 0.0
+    #: where the policy's uploads or evictions would leave the map in more pieces, the newest
+    #: frames that tie to it and keyframes whose eviction splits nothing instead
+    #: (:mod:`twinslam.policies.connected_map`, the edge's ``connected_map``); False: the
+    #: policy's decision as it is (the paper's edge)
+    connected_map: bool = True
 
 
 @dataclass(frozen=True)
@@ -100,6 +106,9 @@ class SlotPlan:
     uncertainty: SlotUncertainty | None     #: υ of F_k against the map; None if the map is empty
     #: tracked frames left out of the candidates: the map covers their views already
     covered: frozenset[int] = frozenset()
+    #: the policy's own decision where it would have left the map in more pieces and
+    #: ``action`` is mended (``connected_map``); None: ``action`` is the policy's
+    policy_action: MapAction | None = None
 
 
 class SlotPlanner:
@@ -219,13 +228,17 @@ class SlotPlanner:
                               camera or Camera(), cfg))
         action = self.policy.decide(obs)
         check_map_action(slot, n_up, n_ev, set(cand), map_ids, action)
+        chosen = action
+        if cfg.connected_map:
+            action = connected_action(obs, action)
+        mended = chosen if action is not chosen else None
         # υ of F_k against the map as it is (eq. 8), None for an empty map
         m = len(map_ids)
         if not m:
-            return SlotPlan(action, obs, None, skipped)
+            return SlotPlan(action, obs, None, skipped, mended)
         upsilon = next_slot_uncertainty(full[:m, :m], full[m:, :m], self.config.log_det_pi,
                                         shared >= MIN_INLIERS)
-        return SlotPlan(action, obs, upsilon, skipped)
+        return SlotPlan(action, obs, upsilon, skipped, mended)
 
 
 def _held_counts(sets: list[np.ndarray], held: np.ndarray) -> np.ndarray:

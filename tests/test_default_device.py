@@ -69,6 +69,7 @@ def test_the_papers_preset_keeps_table_i_exactly() -> None:
     assert (device["map_source"], edge["policy"], device["own_map_after_s"]) == (
         EDGE, "adapt", 0.0)
     assert (edge["progress_uploads"], edge["restore_keyframes"]) == (False, 0)
+    assert edge["connected_map"] is False          # the policy's uploads as it chose them
     # the intrinsics every committed figure of the paper's device was made with
     assert paper["sequence_player"]["colour_intrinsics"] == ""
 

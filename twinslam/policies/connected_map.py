@@ -1,0 +1,153 @@
+"""A map that stays one graph: a step after any policy's decision.
+
+A map in pieces — keyframes that share no point with the rest — has no finite uncertainty
+(u(G) = +∞, DESIGN §2): every frame of the next slot scores as lost, whatever the device
+tracked, and its pieces have no common frame. Two kinds of decision leave one:
+
+* **Uploads that see nothing of the map.** A rule that uploads the slot's newest frames (LFF,
+  the default) assumes they overlap the map. Where the camera turns fast they need not: on
+  the synthetic corridor, a device turning at the corridor's far end turned 88° between the
+  last frames of two slots, and the two keyframes each slot uploaded shared no point with the
+  two before.
+* **Evictions that take a bridge.** A rule that evicts the keyframes that entered the map
+  first may take the one keyframe that ties a later piece to the rest — on the corridor, a
+  pair the edge had restored from its archive, whose neighbours LFF evicted while they stayed.
+
+:func:`connected_action` leaves a decision alone whenever the map it leaves has no more pieces
+than the map it starts from. Otherwise it mends what splits it, keeping Theorem 1's counts
+(the uplink's time and V_max stay as planned):
+
+* evictions, in the policy's order and then the map's keyframes in the order they entered it,
+  each taken only where it splits nothing (an island may go; a bridge stays);
+* uploads, among the slot's tracked frames: the newest that tie to the map by :data:`MIN_TIE`
+  shared points (map points, or the device's tracks between two frames of the slot), then the
+  newest that tie to the map or a frame chosen so far — in a fast turn a frame from mid-turn
+  that sees the map, then the newest frame, which sees that one.
+
+Where no choice does better, the policy's stands.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from scipy.sparse.csgraph import connected_components
+
+from twinslam.policies.actions import MapAction, SlotObservation
+from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
+
+#: shared points that tie a frame to the map (or to a chosen frame) when mending uploads: as
+#: many as the device needs to track a frame on a map (the lost-frame rule's MIN_INLIERS);
+#: one shared point makes a graph connected, not a keyframe a device can be tracked by
+MIN_TIE = MIN_INLIERS
+
+
+def pieces(weights: np.ndarray) -> int:
+    """How many connected pieces the graph ``weights > 0`` falls into (none for no node)."""
+    if not len(weights):
+        return 0
+    count, _ = connected_components(np.asarray(weights) > 0, directed=False)
+    return int(count)
+
+
+class _Graph:
+    """The slot's map keyframes and candidate frames, by id, with their shared counts."""
+
+    def __init__(self, obs: SlotObservation) -> None:
+        self.nodes = list(dict.fromkeys([*obs.map_frames, *obs.candidates]))
+        self.at = {x: i for i, x in enumerate(self.nodes)}
+        self.w = obs.weight_block(self.nodes, self.nodes).astype(np.float64)
+        np.fill_diagonal(self.w, 0.0)
+
+    def pieces(self, ids: Sequence[int]) -> int:
+        rows = [self.at[x] for x in ids]
+        return pieces(self.w[np.ix_(rows, rows)])
+
+    def tie(self, frame: int, to: Sequence[int]) -> float:
+        """The most points ``frame`` shares with one of ``to``."""
+        if not to:
+            return 0.0
+        return float(self.w[self.at[frame], [self.at[x] for x in to]].max())
+
+
+def connected_action(obs: SlotObservation, action: MapAction) -> MapAction:
+    """``action``, or — where the map it leaves has more pieces than the map it starts from —
+    its evictions and uploads mended as the module docstring says (as many of each; restores
+    kept as they are)."""
+    if set(action.upload) & set(action.evict) or not obs.map_frames:
+        return action
+    graph = _Graph(obs)
+    evict = _evictions(graph, obs, action)
+    upload = _uploads(graph, obs, action, evict)
+    if (evict, upload) == (list(action.evict), list(action.upload)):
+        return action
+    return MapAction(upload, evict, list(action.restore))
+
+
+def _kept(obs: SlotObservation, evict: Sequence[int]) -> list[int]:
+    gone = set(evict)
+    return [k for k in obs.map_frames if k not in gone]
+
+
+def _evictions(graph: _Graph, obs: SlotObservation, action: MapAction) -> list[int]:
+    """The policy's evictions, or — where they split the map — as many taken one by one,
+    the policy's first, each only where the map (with the uploads) keeps its pieces."""
+    evict = list(action.evict)
+    if not evict:
+        return evict
+    floor = graph.pieces([*obs.map_frames, *action.upload])
+    if graph.pieces([*_kept(obs, evict), *action.upload]) <= floor:
+        return evict
+    order = list(dict.fromkeys([*evict, *obs.entry_order()]))
+    chosen: list[int] = []
+    for k in order:
+        if len(chosen) == len(evict):
+            break
+        trial = [*chosen, k]
+        if graph.pieces([*_kept(obs, trial), *action.upload]) <= floor:
+            chosen = trial
+    if len(chosen) < len(evict):          # no split-free choice: the policy's own
+        return evict
+    return chosen
+
+
+def _uploads(graph: _Graph, obs: SlotObservation, action: MapAction, evict: Sequence[int]
+             ) -> list[int]:
+    """The policy's uploads, or — where they add a piece of their own to the map the
+    evictions leave — as many of the newest frames that tie to it."""
+    uploads = list(action.upload)
+    kept = _kept(obs, evict)
+    if not uploads or not kept:
+        return uploads
+    split = graph.pieces([*kept, *uploads])
+    if split <= max(graph.pieces(kept), 1):
+        return uploads
+    tied = list(kept)
+    mended: list[int] = []
+    newest_first = list(reversed(obs.candidates))
+    while len(mended) < len(uploads):
+        found = next((f for f in newest_first
+                      if f not in mended and graph.tie(f, tied) >= MIN_TIE), None)
+        if found is None:
+            break
+        mended.append(found)
+        tied.append(found)
+    if not mended:
+        return uploads
+    mended += [f for f in reversed(uploads) if f not in mended][:len(uploads) - len(mended)]
+    if graph.pieces([*kept, *mended]) >= split:
+        return uploads
+    return sorted(mended)
+
+
+def mended_decision(policy: MapAction, mended: MapAction) -> str:
+    """What :func:`connected_action` changed, in words (the edge's log line)."""
+    parts = []
+    if list(policy.upload) != list(mended.upload):
+        parts.append(f"uploads {list(mended.upload)} instead of the policy's "
+                     f"{list(policy.upload)}, which share no point with the map")
+    if list(policy.evict) != list(mended.evict):
+        parts.append(f"evicts {sorted(mended.evict)} instead of the policy's "
+                     f"{sorted(policy.evict)}, which would cut the map")
+    return "; ".join(parts) + ": the map stays one graph" if parts else "as the policy chose"
