@@ -550,3 +550,26 @@ def test_the_merge_gate_trials_table_is_what_its_command_prints(
     assert _missing("\n".join(printed)) == []
     assert any("last 300 frames" in line for line in printed)
     assert printed[-1].startswith("| trials (seed/first start/second start) | 0/0/0, 0/10/0")
+
+
+def test_the_connected_map_tables_are_what_their_command_prints() -> None:
+    """The edge's map in pieces with connected_map off and on: each CSV's table as the page
+    has it, the corridor's with its mended slots."""
+    pieces = _script("map_pieces_table")
+    for name in ("corridor-backward-table1.csv", "7scenes-forward-lte.csv"):
+        printed = pieces.table(FIGURES / "map-pieces" / name)
+        assert _missing("\n".join(printed)) == []
+        assert printed[2].startswith("| figure | off (seed by seed) | on | on − off |")
+
+
+def test_the_live_connected_map_table_is_what_its_command_prints() -> None:
+    """connected_map live on the corridor's two ends: the table as the page has it, with the
+    map's rows, and no row for a figure no run has (the last thirds share no place)."""
+    live = _script("loops_across_live")
+    lines, seeds, _ = live.table(FIGURES / "map-pieces" / "live-corridor-one-walk",
+                                 (("off", "connected_map false"),
+                                  ("on", "connected_map true (the default)")), with_map=True)
+    assert seeds == list(range(5))
+    assert _missing("\n".join(lines)) == []
+    assert any(line.startswith("| ar2 slots with the edge's map in pieces") for line in lines)
+    assert not any("nan" in line for line in lines)

@@ -151,3 +151,13 @@ def paired_difference(scores: np.ndarray | Sequence[Sequence[float]],
     means = np.array([diff[np.ix_(r[b], e[b])].mean() for b in range(draws)])
     low, high = np.percentile(means, [2.5, 97.5])
     return PairedDifference(float(diff.mean()), float(low), float(high))
+
+
+def paired_row(label: str, before: Sequence[float], after: Sequence[float],
+               fmt: str = "{:.1f}") -> str:
+    """A markdown row of the results pages' paired tables: the label, each arm run by run
+    (``fmt``) and after − before with its 95 % interval (:func:`paired_difference`)."""
+    d = paired_difference([list(after)], list(before))
+    return (f"| {label} | {', '.join(fmt.format(x) for x in before)} | "
+            f"{', '.join(fmt.format(x) for x in after)} | "
+            f"{d.mean:+.2f} [{d.low:+.2f}, {d.high:+.2f}] |")

@@ -23,7 +23,7 @@ import csv
 import re
 from pathlib import Path
 
-from twinslam.reporting import paired_difference, pyplot
+from twinslam.reporting import paired_row, pyplot
 
 #: (column, what it is, scale from the CSV's unit, summed over the devices or per device)
 METRICS = (("cross_device_rms_m", "cross-device revisit error RMS, cm", 100.0, "pair"),
@@ -36,6 +36,9 @@ METRICS = (("cross_device_rms_m", "cross-device revisit error RMS, cm", 100.0, "
            ("frames_dropped", "camera frames dropped (both devices)", 1.0, "sum"),
            ("untracked_frames", "frames untracked (both devices)", 1.0, "sum"),
            ("late_slots", "maps late (both devices)", 1.0, "sum"))
+#: what the edge's map did, with ``--map`` (a comparison of the map's management)
+MAP_METRICS = (("map_in_pieces_slots", "slots with the edge's map in pieces", 1.0, "device"),
+               ("lost_share", "the edge's lost share, %", 100.0, "device"))
 #: the two modes compared by default: file prefix and its column's label
 BEFORE = ("own", "own loops only")
 AFTER = ("across", "with loops across devices")
@@ -63,10 +66,10 @@ def values(rows: list[dict[str, str]], column: str, scale: float, kind: str
     return {r["device"]: float(r[column]) * scale for r in rows}
 
 
-def table(folder: Path, modes: tuple[tuple[str, str], tuple[str, str]] = (BEFORE, AFTER)
-          ) -> tuple[list[str], list[int], dict[str, list[float]]]:
+def table(folder: Path, modes: tuple[tuple[str, str], tuple[str, str]] = (BEFORE, AFTER),
+          with_map: bool = False) -> tuple[list[str], list[int], dict[str, list[float]]]:
     """The markdown table of ``modes`` ((prefix, label) before, after), the seeds both ran,
-    and the cross-device error per mode's prefix."""
+    and the cross-device error per mode's prefix (``with_map``: :data:`MAP_METRICS` too)."""
     (old, old_label), (new, new_label) = modes
     first, then = runs(folder, old), runs(folder, new)
     seeds = sorted(first.keys() & then.keys())
@@ -75,20 +78,19 @@ def table(folder: Path, modes: tuple[tuple[str, str], tuple[str, str]] = (BEFORE
     lines = [f"| figure | {old_label} (seed by seed) | {new_label} | {new} − {old} |",
              "|---|---|---|---|"]
     cross: dict[str, list[float]] = {}
-    for column, name, scale, kind in METRICS:
+    for column, name, scale, kind in METRICS + (MAP_METRICS if with_map else ()):
         if not all(r[s][0].get(column) for r in (first, then) for s in seeds):
             continue                  # a column older runs lack
+        if all(r[s][0][column] == "nan" for r in (first, then) for s in seeds):
+            continue                  # no run has the figure (no pair over the last thirds)
         per = {m: [values(r[s], column, scale, kind) for s in seeds]
                for m, r in ((old, first), (new, then))}
         for who in per[old][0]:
             before = [v[who] for v in per[old]]
             after = [v[who] for v in per[new]]
-            d = paired_difference([after], before)
             label = name if who in ("pair", "both") else f"{who} {name}"
-            fmt = "{:.1f}" if scale != 1.0 else "{:.0f}"
-            lines.append(f"| {label} | {', '.join(fmt.format(x) for x in before)} | "
-                         f"{', '.join(fmt.format(x) for x in after)} | "
-                         f"{d.mean:+.2f} [{d.low:+.2f}, {d.high:+.2f}] |")
+            lines.append(paired_row(label, before, after,
+                                    "{:.1f}" if scale != 1.0 else "{:.0f}"))
             if column == "cross_device_rms_m":
                 cross = {old: before, new: after}
     lines.append(f"| seeds | {', '.join(str(s) for s in seeds)} | | |")
@@ -112,12 +114,15 @@ def main(argv: list[str] | None = None) -> None:
                              f"label (default {':'.join(BEFORE)})")
     parser.add_argument("--after", type=mode, default=AFTER, metavar="PREFIX:LABEL",
                         help=f"the runs compared (default {':'.join(AFTER)})")
+    parser.add_argument("--map", action="store_true",
+                        help="also the slots each device's edge map was in pieces and the "
+                             "edge's lost share")
     parser.add_argument("--figure", default="cross-device.png", metavar="NAME",
                         help="the figure's file name in the folder (two comparisons in one "
                              "folder: one name each); default %(default)s")
     args = parser.parse_args(argv)
     modes = (args.before, args.after)
-    lines, seeds, cross = table(args.folder, modes)
+    lines, seeds, cross = table(args.folder, modes, args.map)
     print("\n".join(lines))
     late = late_errors(args.folder, modes, seeds)
     panels = [("cross-device revisit error RMS, cm", cross)]
@@ -147,7 +152,7 @@ def late_errors(folder: Path, modes: tuple[tuple[str, str], tuple[str, str]],
     for prefix, _ in modes:
         by_seed = runs(folder, prefix)
         cells = [by_seed[s][0].get("cross_device_late_rms_m") for s in seeds]
-        if not all(cells):
+        if not all(cells) or all(c == "nan" for c in cells):
             return {}
         found[prefix] = [float(c) * 100.0 for c in cells if c]
     return found

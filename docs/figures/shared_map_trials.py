@@ -3,7 +3,7 @@ devices start (docs/results/shared-map.md, "On the same frames"): ``bench.shared
 paired by (seed, first device's start, second device's start), so that runs of one seed
 whose first device starts elsewhere count as trials of their own — on the 7-Scenes walk a
 seed varies only the uplinks, and several seeds can make one merge. Prints the paired
-difference (after − before, Student's t, :func:`twinslam.reporting.paired_difference`) of
+difference (after − before, Student's t, :func:`twinslam.reporting.paired_row`) of
 the figures :mod:`shared_map_before_after` compares.
 
 Reads ``uplink-two-ends-covered.csv`` from each folder.
@@ -19,7 +19,7 @@ from pathlib import Path
 
 from shared_map_before_after import METRICS
 
-from twinslam.reporting import paired_difference
+from twinslam.reporting import paired_row
 
 #: the columns that tell one trial from another
 TRIAL = ("seed", "first_start", "second_start")
@@ -42,12 +42,8 @@ def table(before: Path, after: Path) -> list[str]:
     for column, name, scale in METRICS:
         if not all(r[k].get(column) for r in (old, new) for k in keys):
             continue
-        a = [float(old[k][column]) * scale for k in keys]
-        b = [float(new[k][column]) * scale for k in keys]
-        d = paired_difference([b], a)
-        lines.append(f"| {name} | {', '.join(f'{v:.1f}' for v in a)} | "
-                     f"{', '.join(f'{v:.1f}' for v in b)} | "
-                     f"{d.mean:+.2f} [{d.low:+.2f}, {d.high:+.2f}] |")
+        lines.append(paired_row(name, [float(old[k][column]) * scale for k in keys],
+                                [float(new[k][column]) * scale for k in keys]))
     lines.append("| merge slot | " + ", ".join(old[k]["merge_slot"] for k in keys) + " | "
                  + ", ".join(new[k]["merge_slot"] for k in keys) + " | |")
     lines.append("| trials (seed/first start/second start) | "
