@@ -10,7 +10,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -197,12 +197,14 @@ class DeviceWalk:
 
 
 def open_walk(name: str, spec: str, frames: int, order: str, seed: int, uplink: str,
-              config: EdgeConfig, update_delay: int, folder: Path, start: int = 0
-              ) -> DeviceWalk:
+              config: EdgeConfig, update_delay: int, folder: Path, start: int = 0,
+              device_params: Mapping[str, object] | None = None) -> DeviceWalk:
     """A default device and edge core over frames [``start``, ``frames``) of ``spec`` played
-    in ``order``."""
+    in ``order``; ``device_params``: the device node's parameters that differ from its defaults
+    (e.g. ``map_source``)."""
     source = open_sequence(spec, start=start, end=frames, colour_intrinsics=AUTO)
-    settings = DeviceSettings.from_parameters({p.name: p.default for p in DEVICE_PARAMETERS})
+    settings = DeviceSettings.from_parameters({p.name: p.default for p in DEVICE_PARAMETERS}
+                                              | dict(device_params or {}))
     DeviceTrackerCore.warm_up(source.intrinsics)
     device = DeviceTrackerCore(source.intrinsics, settings.slot_frames, settings.tracking,
                                settings.keep_slots, settings.frame_rate_hz, settings.map_source,

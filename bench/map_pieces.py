@@ -2,7 +2,7 @@
 by side: one default device and edge in one process over a walk, each seed twice.
 
     python -m bench.map_pieces [SEQUENCE] [--frames 1350] [--order backward]
-        [--uplink table1] [--seeds 400 401 402] [--csv FILE]
+        [--uplink table1] [--seeds 400 401 402] [--device NAME=VALUE ...] [--csv FILE]
 
 A map in pieces (u(G) = +∞, DESIGN §2) is two covisibility graphs with no common point: every
 frame of the next slot scores as lost, whatever the device tracked, and the keyframes of the
@@ -30,12 +30,14 @@ import argparse
 import math
 import tempfile
 import time
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
 
 import edge_mapper.slot_planner as slot_planner
 from bench.in_process import open_walk, repeatable_edge, seeded_spec
+from device_tracker.parameters import PARAMETERS as DEVICE_PARAMETERS
 from twinslam.cli.console import HelpFormatter
 from twinslam.live.tracking_quality import absolute_trajectory_error
 from twinslam.node_runtime.math_threads import one_math_thread
@@ -43,14 +45,15 @@ from twinslam.policies.actions import MapAction, SlotObservation
 from twinslam.reporting import append_csv_rows
 from twinslam.sequence_player.playback import ORDERS
 
-FIELDS = ["sequence", "order", "uplink", "seed", "connected_map", "slots", "pieces_slots",
-          "edge_lost_share", "device_lost_share", "frames_tracked", "frames", "uploads",
-          "ate_m", "mended_slots", "check_ms_median", "check_ms_max", "seconds"]
+FIELDS = ["sequence", "order", "uplink", "seed", "device_params", "connected_map", "slots",
+          "pieces_slots", "edge_lost_share", "device_lost_share", "frames_tracked", "frames",
+          "uploads", "ate_m", "mended_slots", "check_ms_median", "check_ms_max", "seconds"]
 
 
-def run(spec: str, frames: int, order: str, uplink: str, seed: int, connected: bool
-        ) -> dict[str, object]:
-    """One walk with ``connected_map`` set as ``connected``: the CSV row."""
+def run(spec: str, frames: int, order: str, uplink: str, seed: int, connected: bool,
+        device: Mapping[str, object] | None = None) -> dict[str, object]:
+    """One walk with ``connected_map`` set as ``connected`` (``device``: the device node's
+    parameters that differ from its defaults): the CSV row."""
     mended: list[int] = []
     check_ms: list[float] = []
     mend = slot_planner.connected_action
@@ -68,7 +71,8 @@ def run(spec: str, frames: int, order: str, uplink: str, seed: int, connected: b
     try:
         with tempfile.TemporaryDirectory() as folder:
             walk = open_walk("device", seeded_spec(spec, seed), frames, order, seed, uplink,
-                             repeatable_edge(connected_map=connected), 8, Path(folder))
+                             repeatable_edge(connected_map=connected), 8, Path(folder),
+                             device_params=device)
             pieces: list[int] = []
             serve = walk.serve
 
@@ -86,6 +90,7 @@ def run(spec: str, frames: int, order: str, uplink: str, seed: int, connected: b
     finally:
         slot_planner.connected_action = mend
     return {"sequence": spec, "order": order, "uplink": uplink, "seed": seed,
+            "device_params": " ".join(f"{k}={v}" for k, v in sorted((device or {}).items())),
             "connected_map": int(connected), "slots": walk.slot + 1,
             "pieces_slots": len(pieces), "edge_lost_share": float(np.nanmean(walk.lost)),
             "device_lost_share": walk.map_lost_share(), "frames_tracked": len(walk.poses),
@@ -95,6 +100,23 @@ def run(spec: str, frames: int, order: str, uplink: str, seed: int, connected: b
             "check_ms_median": float(np.median(check_ms)) if check_ms else math.nan,
             "check_ms_max": max(check_ms, default=math.nan),
             "seconds": round(time.perf_counter() - started, 1)}
+
+
+def device_parameter(text: str) -> tuple[str, object]:
+    """``NAME=VALUE`` as a device node parameter, VALUE typed as its default is."""
+    name, sep, value = text.partition("=")
+    spec = next((p for p in DEVICE_PARAMETERS if p.name == name), None)
+    if not sep or spec is None:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: expected NAME=VALUE with NAME a device parameter "
+            f"({', '.join(sorted(p.name for p in DEVICE_PARAMETERS))})")
+    kind = type(spec.default)
+    if kind is bool:
+        return name, value.lower() in ("1", "true", "yes", "on")
+    try:
+        return name, kind(value)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"{text!r}: {exc}") from exc
 
 
 def main() -> None:
@@ -111,13 +133,20 @@ def main() -> None:
                         help="uplink family (table1, lte, mmwave, constrained)")
     parser.add_argument("--seeds", type=int, nargs="+", default=[400, 401, 402],
                         help="the uplinks' seeds, and a synthetic walk's")
+    parser.add_argument("--device", action="append", default=[], metavar="NAME=VALUE",
+                        type=device_parameter,
+                        help="a device node parameter other than its default, as the node "
+                             "reads it (repeat for more); e.g. map_source=edge "
+                             "own_map_after_s=0: the paper's device, which tracks on the "
+                             "edge's map alone")
     parser.add_argument("--csv", type=Path, help="append one row a seed and arm here")
     args = parser.parse_args()
     one_math_thread()
     rows = []
     for seed in args.seeds:
         for connected in (False, True):
-            row = run(args.sequence, args.frames, args.order, args.uplink, seed, connected)
+            row = run(args.sequence, args.frames, args.order, args.uplink, seed, connected,
+                      dict(args.device))
             rows.append(row)
             print(f"seed {seed}, connected_map {'on ' if connected else 'off'}: map in "
                   f"pieces {row['pieces_slots']} of {row['slots']} slots, the edge's lost "

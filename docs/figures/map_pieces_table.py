@@ -43,7 +43,8 @@ def table(path: Path) -> list[str]:
     if not seeds:
         raise SystemExit(f"{path} has no seed run in both arms")
     first = off[seeds[0]]
-    lines = [f"{first['sequence']}, {first['order']}, uplink {first['uplink']}, seeds "
+    device = f", the device's {first['device_params']}" if first.get("device_params") else ""
+    lines = [f"{first['sequence']}, {first['order']}, uplink {first['uplink']}{device}, seeds "
              f"{', '.join(map(str, seeds))}:", "",
              "| figure | off (seed by seed) | on | on − off |", "|---|---|---|---|"]
     for column, name, scale, fmt in FIGURES:
