@@ -556,7 +556,8 @@ def test_the_connected_map_tables_are_what_their_command_prints() -> None:
     """The edge's map in pieces with connected_map off and on: each CSV's table as the page
     has it, the corridor's with its mended slots."""
     pieces = _script("map_pieces_table")
-    for name in ("corridor-backward-table1.csv", "7scenes-forward-lte.csv"):
+    for name in ("corridor-backward-table1.csv", "7scenes-forward-lte.csv",
+                 "corridor-backward-table1-edge-map-only.csv"):
         printed = pieces.table(FIGURES / "map-pieces" / name)
         assert _missing("\n".join(printed)) == []
         assert printed[2].startswith("| figure | off (seed by seed) | on | on − off |")
