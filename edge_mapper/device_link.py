@@ -293,7 +293,8 @@ class DeviceLink:
             return
         self.restarts.planned(stamps)
         if plan.policy_action is not None:
-            self.info(f"slot {slot}: {mended_decision(plan.policy_action, plan.action)}")
+            mended = mended_decision(plan.policy_action, plan.action, _keyframe_name)
+            self.info(f"slot {slot}: {mended}")
         decided_by, notes = self.control.decided(slot)
         self._log(notes)
         self.pub_request.publish(upload_request_message(slot, decided_by,
@@ -515,3 +516,9 @@ def _loop_ends(loop: ClosedLoop) -> str:
     if not is_foreign(loop.old):
         return f"keyframes {loop.old} and {loop.new}"
     return f"{keyframe_label(loop.old)} and keyframe {loop.new}"
+
+
+def _keyframe_name(kf_id: int) -> str:
+    """A keyframe as the mended-decision line lists it: its id, or another device's copy as
+    :func:`keyframe_label` names it."""
+    return keyframe_label(kf_id) if is_foreign(kf_id) else str(kf_id)

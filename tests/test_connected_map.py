@@ -84,6 +84,8 @@ def test_an_eviction_that_would_cut_the_map_gives_way_to_one_that_splits_nothing
     assert mended == MapAction([21], [10])
     assert "evicts [10] instead of the policy's [11]" in mended_decision(
         MapAction([21], [11]), mended)
+    assert "evicts [keyframe 10] instead of the policy's [keyframe 11]" in mended_decision(
+        MapAction([21], [11]), mended, lambda k: f"keyframe {k}")
 
 
 def test_an_island_may_go_and_a_map_in_pieces_is_not_made_worse() -> None:

@@ -29,7 +29,7 @@ Where no choice does better, the policy's stands.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 from scipy.sparse.csgraph import connected_components
@@ -141,13 +141,18 @@ def _uploads(graph: _Graph, obs: SlotObservation, action: MapAction, evict: Sequ
     return sorted(mended)
 
 
-def mended_decision(policy: MapAction, mended: MapAction) -> str:
-    """What :func:`connected_action` changed, in words (the edge's log line)."""
+def mended_decision(policy: MapAction, mended: MapAction,
+                    name: Callable[[int], str] = str) -> str:
+    """What :func:`connected_action` changed, in words (the edge's log line); ``name`` names
+    a keyframe the evictions list (the edge: another device's copy by its own id)."""
+    def listed(ids: Sequence[int]) -> str:
+        return "[" + ", ".join(name(k) for k in ids) + "]"
+
     parts = []
     if list(policy.upload) != list(mended.upload):
         parts.append(f"uploads {list(mended.upload)} instead of the policy's "
                      f"{list(policy.upload)}, which share no point with the map")
     if list(policy.evict) != list(mended.evict):
-        parts.append(f"evicts {sorted(mended.evict)} instead of the policy's "
-                     f"{sorted(policy.evict)}, which would cut the map")
+        parts.append(f"evicts {listed(sorted(mended.evict))} instead of the policy's "
+                     f"{listed(sorted(policy.evict))}, which would cut the map")
     return "; ".join(parts) + ": the map stays one graph" if parts else "as the policy chose"
