@@ -10,8 +10,8 @@ tracked, and its pieces have no common frame. Two kinds of decision leave one:
   last frames of two slots, and the two keyframes each slot uploaded shared no point with the
   two before.
 * **Evictions that take a bridge.** A rule that evicts the keyframes that entered the map
-  first may take the one keyframe that ties a later piece to the rest — on the corridor, a
-  pair the edge had restored from its archive, whose neighbours LFF evicted while they stayed.
+  first may take the one keyframe that ties a later piece to the rest — on the corridor, the
+  keyframe that tied two keyframes which had entered the map later to the rest.
 
 :func:`connected_action` leaves a decision alone whenever the map it leaves has no more pieces
 than the map it starts from. Otherwise it mends what splits it, keeping Theorem 1's counts
@@ -24,7 +24,7 @@ than the map it starts from. Otherwise it mends what splits it, keeping Theorem 
   newest that tie to the map or a frame chosen so far — in a fast turn a frame from mid-turn
   that sees the map, then the newest frame, which sees that one.
 
-Where no choice does better, the policy's stands.
+Where the mended decision would leave as many pieces or more, the policy's stands.
 """
 
 from __future__ import annotations
@@ -82,6 +82,9 @@ def connected_action(obs: SlotObservation, action: MapAction) -> MapAction:
     upload = _uploads(graph, obs, action, evict)
     if (evict, upload) == (list(action.evict), list(action.upload)):
         return action
+    if graph.pieces([*_kept(obs, evict), *upload]) >= graph.pieces(
+            [*_kept(obs, action.evict), *action.upload]):
+        return action                 # never a mend that leaves as many pieces or more
     return MapAction(upload, evict, list(action.restore))
 
 
