@@ -14,7 +14,7 @@ from __future__ import annotations
 import csv
 from pathlib import Path
 
-from twinslam.reporting import paired_difference
+from twinslam.reporting import paired_row
 
 HERE = Path(__file__).resolve().parent / "shared-map" / "archive-room"
 TOGETHER = HERE / "own-and-lent-ranked-together.csv"
@@ -49,10 +49,7 @@ def main() -> None:
     for column, name, scale in METRICS:
         old = [float(together[s][column]) * scale for s in SEEDS]
         new = [float(copies_first[s][column]) * scale for s in SEEDS]
-        d = paired_difference([new], old)
-        print(f"| {name} | {', '.join(f'{v:.1f}' for v in old)} | "
-              f"{', '.join(f'{v:.1f}' for v in new)} | "
-              f"{d.mean:+.2f} [{d.low:+.2f}, {d.high:+.2f}] |")
+        print(paired_row(name, old, new))
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """One change to the shared map, before against after (docs/results/shared-map.md, "One loop
 closing for the place"): for each scenario and condition of ``bench.shared_map`` runs in two
 folders, the paired difference (after − before, Student's t over the seeds both ran,
-:func:`twinslam.reporting.paired_difference`) of what a user of the shared map sees — the
+:func:`twinslam.reporting.paired_row`) of what a user of the shared map sees — the
 cross-device revisit error, the two edge maps' final keyframes against each other, the
 second device's uploads, its ATE and the share of its frames it held on its own features
 instead of the map — and a figure of the cross-device error and that share, seed by seed.
@@ -20,7 +20,7 @@ from pathlib import Path
 
 from shared_uplink_table import SCENARIOS, runs
 
-from twinslam.reporting import paired_difference, pyplot
+from twinslam.reporting import paired_row, pyplot
 
 #: the conditions compared: lending with every frame a candidate, and with covered frames out
 CONDITIONS = ("lent", "covered")
@@ -63,11 +63,7 @@ def table(before: Path, after: Path) -> list[str]:
             if column not in values:
                 continue                  # a column older runs lack
             old, new = values[column]
-            d = paired_difference([new], old)
-            lines.append(f"| {scenario} | {condition} | {name} | "
-                         f"{', '.join(f'{v:.1f}' for v in old)} | "
-                         f"{', '.join(f'{v:.1f}' for v in new)} | "
-                         f"{d.mean:+.2f} [{d.low:+.2f}, {d.high:+.2f}] |")
+            lines.append(paired_row(f"{scenario} | {condition} | {name}", old, new))
         lines.append(f"| {scenario} | {condition} | seeds | {', '.join(map(str, seeds))} | | |")
     return lines
 
