@@ -7,6 +7,7 @@ and edge core over a sequence, frame by frame).
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import math
 import time
@@ -194,6 +195,23 @@ class DeviceWalk:
     def keyframe_poses(self) -> dict[int, np.ndarray]:
         """Every keyframe of its edge map, archive and map, where the edge holds it now."""
         return self.edge.back_end.keyframe_poses()
+
+
+def device_parameter(text: str) -> tuple[str, object]:
+    """``NAME=VALUE`` as a device node parameter, VALUE typed as its default is."""
+    name, sep, value = text.partition("=")
+    spec = next((p for p in DEVICE_PARAMETERS if p.name == name), None)
+    if not sep or spec is None:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: expected NAME=VALUE with NAME a device parameter "
+            f"({', '.join(sorted(p.name for p in DEVICE_PARAMETERS))})")
+    kind = type(spec.default)
+    if kind is bool:
+        return name, value.lower() in ("1", "true", "yes", "on")
+    try:
+        return name, kind(value)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"{text!r}: {exc}") from exc
 
 
 def open_walk(name: str, spec: str, frames: int, order: str, seed: int, uplink: str,

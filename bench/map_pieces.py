@@ -36,8 +36,7 @@ from pathlib import Path
 import numpy as np
 
 import edge_mapper.slot_planner as slot_planner
-from bench.in_process import open_walk, repeatable_edge, seeded_spec
-from device_tracker.parameters import PARAMETERS as DEVICE_PARAMETERS
+from bench.in_process import device_parameter, open_walk, repeatable_edge, seeded_spec
 from twinslam.cli.console import HelpFormatter
 from twinslam.live.tracking_quality import absolute_trajectory_error
 from twinslam.node_runtime.math_threads import one_math_thread
@@ -100,23 +99,6 @@ def run(spec: str, frames: int, order: str, uplink: str, seed: int, connected: b
             "check_ms_median": float(np.median(check_ms)) if check_ms else math.nan,
             "check_ms_max": max(check_ms, default=math.nan),
             "seconds": round(time.perf_counter() - started, 1)}
-
-
-def device_parameter(text: str) -> tuple[str, object]:
-    """``NAME=VALUE`` as a device node parameter, VALUE typed as its default is."""
-    name, sep, value = text.partition("=")
-    spec = next((p for p in DEVICE_PARAMETERS if p.name == name), None)
-    if not sep or spec is None:
-        raise argparse.ArgumentTypeError(
-            f"{text!r}: expected NAME=VALUE with NAME a device parameter "
-            f"({', '.join(sorted(p.name for p in DEVICE_PARAMETERS))})")
-    kind = type(spec.default)
-    if kind is bool:
-        return name, value.lower() in ("1", "true", "yes", "on")
-    try:
-        return name, kind(value)
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(f"{text!r}: {exc}") from exc
 
 
 def main() -> None:

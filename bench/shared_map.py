@@ -5,7 +5,7 @@ map into the first one's frame (:mod:`twinslam.slam.back_end.map_merging`).
     python -m bench.shared_map [SEQUENCE] [--frames 1000] [--first forward]
         [--second backward] [--second-after FRAMES] [--first-start FRAME]
         [--second-start FRAME] [--seed 0]
-        [--uplink lte] [--vmax N] [--archive N]
+        [--uplink lte] [--vmax N] [--archive N] [--ba-window N] [--device NAME=VALUE]
         [--share [--share-both]] [--covered-m M] [--no-merge] [--csv FILE]
         [--frames-csv FILE] [--keyframes-csv FILE]
 
@@ -53,7 +53,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from bench.in_process import DeviceWalk, open_walk, repeatable_edge, seeded_spec
+from bench.in_process import (
+    DeviceWalk,
+    device_parameter,
+    open_walk,
+    repeatable_edge,
+    seeded_spec,
+)
 from bench.paths import SEVEN_SCENES
 from twinslam.cli.console import HelpFormatter
 from twinslam.live.tracking_quality import (
@@ -181,6 +187,16 @@ def main() -> None:
     parser.add_argument("--archive", type=int, metavar="N",
                         help="evicted keyframes each edge map keeps, its own and those lent "
                              "(the edge's archive_keyframes; default: the node's)")
+    parser.add_argument("--ba-window", type=int, metavar="N",
+                        help="the newest own keyframes each edge map bundle-adjusts a slot "
+                             "(the edge's ba_window; default: the node's, 0; the paper's "
+                             "edge: 5)")
+    parser.add_argument("--device", action="append", default=[], metavar="NAME=VALUE",
+                        type=device_parameter,
+                        help="a device node parameter other than its default, for both "
+                             "devices (repeat for more); e.g. map_source=edge "
+                             "own_map_after_s=0: the paper's device, which tracks on the "
+                             "edge's map alone")
     parser.add_argument("--covered-m", type=float,
                         help="a lent keyframe this near a frame covers its view: the frame is "
                              "not uploaded (default: the edge's covered_m; 0: never)")
@@ -225,6 +241,7 @@ def main() -> None:
                          (args.sequence, args.second_sequence or args.sequence))
     overrides = {name: value for name, value in (("vmax", args.vmax),
                                                  ("archive_keyframes", args.archive),
+                                                 ("ba_window", args.ba_window),
                                                  ("covered_m", args.covered_m),
                                                  ("covered_deg", args.covered_deg),
                                                  ("loops_across_devices",
@@ -234,10 +251,11 @@ def main() -> None:
     started = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         first = open_walk("first", spec, args.frames, args.first, args.seed, args.uplink,
-                          config, args.update_delay, Path(tmp), start=args.first_start)
+                          config, args.update_delay, Path(tmp), start=args.first_start,
+                          device_params=dict(args.device))
         second = open_walk("second", second_spec, args.frames, args.second, args.seed + 1,
                            args.uplink, config, args.update_delay, Path(tmp),
-                           start=args.second_start)
+                           start=args.second_start, device_params=dict(args.device))
         finder = MergeFinder(min_inliers=args.merge_inliers)
         merge: MapMerge | None = None
         merged_version = -1            #: the second edge's first map version in the place's
@@ -329,6 +347,9 @@ def main() -> None:
                        "second_after": args.second_after, "second_start": args.second_start,
                        "first_start": args.first_start,
                        "archive": config.back_end.archive_keyframes,
+                       "ba_window": config.back_end.ba_window,
+                       "device_params": " ".join(f"{k}={v}" for k, v in
+                                                 sorted(dict(args.device).items())),
                        "covered_m": config.coverage.max_m,
                        "covered_deg": config.coverage.max_deg,
                        "no_merge": int(args.no_merge),
@@ -440,7 +461,8 @@ CSV_FIELDS = ("frames", "seed", "uplink", "first_order", "second_order", "second
               "second_archive_own", "loops_across_devices", "first_loops_across",
               "second_loops_across", "first_self_rms_m", "second_self_rms_m",
               "cross_by_stretch_cm", "merge_min_inliers", "cross_last_rms_m",
-              "cross_last_pairs", "cross_last_frames")
+              "cross_last_pairs", "cross_last_frames", "ba_window",
+              "device_params")
 #: the second device's frames a stretch of the cross-device error by stretch counts
 STRETCH = 100
 #: the second device's last frames played, the set ``cross_last_rms_m`` scores

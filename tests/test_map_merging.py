@@ -616,6 +616,34 @@ def test_a_restored_adopted_keyframe_joins_the_map_through_its_welded_points(
     assert correction_for({30: moved}, adopted.id) is None
 
 
+def test_a_borrowers_bundle_adjustment_moves_its_own_newest_keyframe_never_a_copy(
+        room: Room) -> None:  # noqa: F811
+    """Local bundle adjustment in a map that adopted another device's keyframe: the window is
+    the map's own newest keyframes. The copy's tagged id sorts after every own one; taken as
+    the newest, the copy moved (1.7 cm) and the map's own newest keyframe, 2 cm off, stayed
+    where it was."""
+    seq, archive, _ = room
+    core = _core(vmax=6)
+    core.back_end.k = seq.intrinsics                             # type: ignore[attr-defined]
+    core.map.next_point_id = int(max(archive.get(k).point_ids.max() for k in (30, 60))) + 1
+    restore_into(core.map, archive.get(30))
+    restore_into(core.map, archive.get(60))
+    copy = welded(_renumbered(archive.get(90), 100_000), 0, core.map, core.camera, slot=1)
+    core.back_end.adopt([copy])
+    core.back_end.restore([copy.id], [], slot=2)
+    off = np.eye(4)
+    off[0, 3] = 0.02
+    core.map.keyframes[60].pose = core.map.keyframes[60].pose @ off
+    copy_pose = core.map.keyframes[copy.id].pose.copy()
+    core.back_end.config = dataclasses.replace(core.back_end.config, ba_window=1)
+    result = core.back_end.optimise()
+    assert result is not None and not result.refused
+    assert set(result.poses) >= {60, copy.id}         # the copy sees the window's points
+    np.testing.assert_array_equal(core.map.keyframes[copy.id].pose, copy_pose)
+    error = np.linalg.norm(core.map.keyframes[60].pose[:3, 3] - archive.get(60).pose[:3, 3])
+    assert error < 0.01, error
+
+
 def test_a_merged_map_takes_its_devices_first_keyframes_where_the_merge_put_them() -> None:
     """The keyframe gate measures a new keyframe's reach from the device's first camera when
     no keyframe is nearer in time: after a merge that camera is where the alignment put it,

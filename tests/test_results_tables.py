@@ -574,3 +574,18 @@ def test_the_live_connected_map_table_is_what_its_command_prints() -> None:
     assert _missing("\n".join(lines)) == []
     assert any(line.startswith("| ar2 slots with the edge's map in pieces") for line in lines)
     assert not any("nan" in line for line in lines)
+
+
+def test_the_own_window_tables_are_what_their_commands_print(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A borrower's bundle adjustment over its own keyframes: the paper's device and the
+    default device with a window of five, before and after, as the page has them, over the
+    seeds the page names."""
+    folder = FIGURES / "shared-map" / "own-window"
+    monkeypatch.syspath_prepend(str(FIGURES))           # its sibling, shared_uplink_table
+    script = _script("shared_map_before_after")
+    for device, seeds in (("paper-device", "0, 1, 2, 4, 5, 6, 7, 8"),
+                          ("default-device-ba5", "0, 1, 2")):
+        printed = script.table(folder / device / "before", folder / device / "after")
+        assert _missing("\n".join(printed)) == []
+        assert f"| two-ends | covered | seeds | {seeds} | | |" in printed

@@ -73,8 +73,8 @@ def figure(before: Path, after: Path) -> Path:
     line a seed, a panel a scenario and condition."""
     plt = pyplot()
     panels = compared(before, after)
-    fig, axes = plt.subplots(2, len(panels), figsize=(3.2 * len(panels), 6.4), sharey="row",
-                             squeeze=False)
+    width = max(3.2 * len(panels), 5.6)     # one panel: room for the title
+    fig, axes = plt.subplots(2, len(panels), figsize=(width, 6.4), sharey="row", squeeze=False)
     for col, (scenario, condition) in enumerate(panels):
         seeds, values = paired(before, after, scenario, condition)
         for row, column in enumerate(("cross_rms_m", "second_map_lost_share")):
