@@ -31,8 +31,9 @@ def _command(name: str) -> argparse.ArgumentParser:
 
 
 def _file(path: Any) -> dict[str, dict[str, Any]]:
-    return {node: body["ros__parameters"] for node, body in yaml.safe_load(
-        path.read_text(encoding="utf-8")).items()}
+    """Node name → its values (a section keyed ``/**/NODE`` is node NODE's)."""
+    return {node.removeprefix("/**/"): body["ros__parameters"] for node, body in
+            yaml.safe_load(path.read_text(encoding="utf-8")).items()}
 
 
 def _default(node: str, name: str) -> Any:

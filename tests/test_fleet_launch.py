@@ -11,6 +11,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+import yaml
 from builtin_interfaces.msg import Time
 from twinslam_msgs.msg import FrameSummaries, FrameSummary
 
@@ -30,7 +31,13 @@ from twinslam.live.fleet import (
     merged_across_places,
     merged_in_place,
 )
-from twinslam.live.launcher import LaunchConfig, renamed_params
+from twinslam.live.launcher import (
+    DEFAULT_PARAMS,
+    PAPER_PARAMS,
+    LaunchConfig,
+    namespaced_params,
+    renamed_params,
+)
 from twinslam.live.run_log import RunLog
 
 
@@ -262,31 +269,81 @@ def test_a_map_is_late_only_after_its_slot_has_played_at_the_runs_speed(
     assert period(0.25) * 1000 > 2000 > period(1.0) * 1000
 
 
+#: parameters every rclpy node declares itself
+RCLPY_OWN = {"use_sim_time", "start_type_description_service"}
+
+
+def _read(params: Path, node: str, domain: LoopbackDomain, *remaps: str) -> dict[str, object]:
+    """What node ``node`` started with ``params`` and ``remaps`` (``__node:=…``,
+    ``__ns:=…``) reads from the file: rclpy's own parameter overrides, as the node sees them."""
+    import rclpy
+    from rclpy.node import Node
+
+    args = ["node", "--ros-args", *(a for r in remaps for a in ("-r", r)),
+            "--params-file", str(params)]
+    context = rclpy.Context()
+    rclpy.init(args=args, context=context, domain_id=domain.domain_id)
+    try:
+        n = Node(node, context=context, automatically_declare_parameters_from_overrides=True)
+        values = {name: p.value for name, p in n.get_parameters_by_prefix("").items()
+                  if name not in RCLPY_OWN}
+        n.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)
+    return values
+
+
 def test_a_renamed_edge_reads_the_parameter_files_edge_section(
         tmp_path: Path, domain: LoopbackDomain) -> None:
     """ROS 2 gives a node only its own name's section of a parameter file (no wildcard within
     a name): the second edge, ``edge_mapper_2``, reads a copy under its name."""
-    import rclpy
-    from rclpy.node import Node
-
     source = tmp_path / "params.yaml"
     source.write_text("edge_mapper:\n  ros__parameters:\n    vmax: 17\n"
                       "device_tracker:\n  ros__parameters:\n    vmax: 3\n", encoding="utf-8")
     (tmp_path / "fleet").mkdir()
     copy = renamed_params(source, "edge_mapper", "edge_mapper_2", tmp_path / "fleet")
-    values = {}
-    for params in (source, copy):
-        context = rclpy.Context()
-        rclpy.init(args=["edge", "--ros-args", "-r", "__node:=edge_mapper_2", "--params-file",
-                         str(params)], context=context, domain_id=domain.domain_id)
-        try:
-            node = Node("edge_mapper", context=context,
-                        automatically_declare_parameters_from_overrides=True)
-            values[params.name] = node.get_parameter_or("vmax", None).value
-            node.destroy_node()
-        finally:
-            rclpy.shutdown(context=context)
+    values = {params.name: _read(params, "edge_mapper", domain, "__node:=edge_mapper_2").get("vmax")
+              for params in (source, copy)}
     assert values == {"params.yaml": None, "edge_mapper_2.yaml": 17}
+
+
+def test_a_device_in_its_namespace_reads_the_parameter_files_device_section(
+        tmp_path: Path, domain: LoopbackDomain) -> None:
+    """A fleet runs each device and player under its device's namespace (``/ar1``), and rcl
+    gives a namespaced node no section keyed by its plain name: with a user's file keyed
+    ``device_tracker:`` the fleet's devices started on their defaults. The copy the fleet
+    passes them keys it ``/**/device_tracker``; what a wildcard section held stays unless
+    the plain one says otherwise."""
+    source = tmp_path / "params.yaml"
+    source.write_text("/**/device_tracker:\n  ros__parameters:\n    keep_slots: 4\n"
+                      "    slot_frames: 45\n"
+                      "device_tracker:\n  ros__parameters:\n    slot_frames: 60\n"
+                      "edge_mapper:\n  ros__parameters:\n    vmax: 17\n", encoding="utf-8")
+    (tmp_path / "fleet").mkdir()
+    copy = namespaced_params(source, tmp_path / "fleet")
+    assert _read(source, "device_tracker", domain) == {"keep_slots": 4, "slot_frames": 60}
+    assert _read(source, "device_tracker", domain, "__ns:=/ar1") == {"keep_slots": 4,
+                                                                     "slot_frames": 45}
+    for remaps in ((), ("__ns:=/ar1",), ("__ns:=/site/ar2",)):
+        assert _read(copy, "device_tracker", domain, *remaps) == {"keep_slots": 4,
+                                                                  "slot_frames": 60}
+        assert _read(copy, "edge_mapper", domain, *remaps) == {"vmax": 17}
+
+
+@pytest.mark.parametrize("params", [DEFAULT_PARAMS, PAPER_PARAMS], ids=["default", "paper"])
+def test_the_bundled_parameter_files_reach_their_nodes_in_any_namespace(
+        params: Path, domain: LoopbackDomain) -> None:
+    """Every node of a bundled parameter file reads every value of its section in the root
+    namespace and in a device's (the fleet's ``/ar1``, ``ros2 launch … namespace:=/ar1``):
+    the paper's preset reached a fleet's edge and not its devices before its sections were
+    keyed ``/**/NODE``."""
+    doc = yaml.safe_load(params.read_text(encoding="utf-8"))
+    for key, body in doc.items():
+        node = key.removeprefix("/**/")
+        wanted = body["ros__parameters"]
+        for remaps in ((), ("__ns:=/ar1",)):
+            read = _read(params, node, domain, *remaps)
+            assert read == pytest.approx(wanted), (node, remaps)
 
 
 @pytest.mark.slow
@@ -431,8 +488,9 @@ def test_a_fleet_whose_player_cannot_play_fails_and_names_it(
 
     plain = FleetLauncher.device_args
 
-    def refused_by_ar2(self: FleetLauncher, name: str, index: int) -> list[str]:
-        args = plain(self, name, index)
+    def refused_by_ar2(self: FleetLauncher, name: str, index: int,
+                       params_file: Path | None = None) -> list[str]:
+        args = plain(self, name, index, params_file)
         return [*args, "-p", "path_window:=0"] if (name, index) == ("sequence_player", 1) \
             else args
 

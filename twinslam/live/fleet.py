@@ -38,7 +38,13 @@ from msg_schemas.headers import time_key
 from twinslam.allocation.allocators import check_fleet, jain_index
 from twinslam.hosts.forked import NodeProcess
 from twinslam.hosts.loopback import ProcessDomain
-from twinslam.live.launcher import LaunchConfig, Launcher, preloaded_nodes, renamed_params
+from twinslam.live.launcher import (
+    LaunchConfig,
+    Launcher,
+    namespaced_params,
+    preloaded_nodes,
+    renamed_params,
+)
 from twinslam.live.monitor import PipelineMonitor
 from twinslam.live.report import RunReport, report
 from twinslam.live.run_log import RunLog
@@ -249,11 +255,15 @@ class FleetLauncher(Launcher):
             args += ["-p", "merge_maps:=true"]
         return args
 
-    def device_args(self, name: str, index: int) -> list[str]:
-        """``name`` (device or player) of device ``index``: its namespace, walk and seed."""
+    def device_args(self, name: str, index: int, params_file: Path | None = None
+                    ) -> list[str]:
+        """``name`` (device or player) of device ``index``: its namespace, walk and seed;
+        ``params_file`` (default: the run's) the file it reads, keyed for its namespace
+        (:func:`~twinslam.live.launcher.namespaced_params`)."""
         device = self.fleet.names()[index]
         sequence, start = self.starts[index]
-        c = replace(self.config, sequence=sequence, start=start)
+        c = replace(self.config, sequence=sequence, start=start,
+                    params_file=params_file or self.config.params_file)
         saved, self.config = self.config, c
         try:
             args = self.node_args(name)
@@ -290,10 +300,13 @@ class FleetLauncher(Launcher):
             self.records = monitors
             started = time.monotonic()
             self._start_edges(sessions, monitors, params_folder.name)
+            # each device and player runs under its device's namespace
+            namespaced = namespaced_params(c.params_file, Path(params_folder.name))
             for i, d in enumerate(names):
                 for node in ("device_tracker", "sequence_player"):
                     self.procs[f"{node}:{d}"] = self.domain.spawn(
-                        self.device_args(node, i), host=d, forks=preloaded_nodes())
+                        self.device_args(node, i, namespaced), host=d,
+                        forks=preloaded_nodes())
             players = [self.procs[f"sequence_player:{d}"] for d in names]
             deadline = started + c.timeout_s
 

@@ -277,12 +277,24 @@ def preloaded_nodes() -> ForkServers | None:
     return None if os.environ.get(SWITCH, "1") == "0" else fork_servers(REPO)
 
 
+#: rcl's key for every node of every namespace; ``/**/NAME`` is node NAME in any namespace
+EVERY_NODE = "/**"
+
+
+def any_namespace(node: str) -> str:
+    """The parameter file key that gives a section to node ``node`` in any namespace: rcl
+    gives a node only the sections keyed by its full name (``/ar1/device_tracker``), a
+    wildcard that matches it, or — for a node in the root namespace alone — its plain name."""
+    return f"{EVERY_NODE}/{node}"
+
+
 def node_parameters(params_file: Path, node: str) -> dict[str, Any]:
-    """The ``ros__parameters`` a ROS 2 parameter file gives ``node`` (by its plain name or
-    ``/**``), for the launcher's own bookkeeping; the nodes read the file themselves."""
+    """The ``ros__parameters`` a ROS 2 parameter file gives ``node`` (by ``/**``, ``/**/NODE``,
+    its plain name or ``/NODE``, the later overriding), for the launcher's own bookkeeping;
+    the nodes read the file themselves."""
     doc = yaml.safe_load(Path(params_file).read_text(encoding="utf-8")) or {}
     out: dict[str, Any] = {}
-    for key in ("/**", node, f"/{node}"):
+    for key in (EVERY_NODE, any_namespace(node), node, f"/{node}"):
         out.update((doc.get(key) or {}).get("ros__parameters", {}))
     return out
 
@@ -293,12 +305,38 @@ def renamed_params(params_file: Path, node: str, name: str, folder: Path) -> Pat
     only its own name's section, and a parameter file's names take no wildcard within a
     word."""
     doc = yaml.safe_load(Path(params_file).read_text(encoding="utf-8")) or {}
-    section = doc.get(node) or doc.get(f"/{node}")
+    section = doc.get(node) or doc.get(f"/{node}") or doc.get(any_namespace(node))
     if section is not None:
         doc[name] = copy.deepcopy(section)          # a shared one would be written as an alias
     out = Path(folder) / f"{name}.yaml"
     out.write_text(yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
     return out
+
+
+def namespaced_params(params_file: Path, folder: Path) -> Path:
+    """A copy of ``params_file`` in ``folder`` in which every node section under a plain name
+    (``device_tracker:`` or ``/device_tracker:``) is keyed ``/**/device_tracker`` instead, so
+    that a node of that name reads it in whatever namespace it runs. A fleet runs each device
+    and player under its device's namespace (``/ar1``); rcl gives such a node no section
+    keyed by its plain name, and it started on its defaults whatever the file said. Keys
+    that name a namespace or a wildcard already, and ``/**``, stay as they are; a plain
+    section merges over a wildcard one of the same node (its values win)."""
+    doc = yaml.safe_load(Path(params_file).read_text(encoding="utf-8")) or {}
+
+    def plain(key: object) -> bool:
+        name = str(key).removeprefix("/")
+        return key != EVERY_NODE and "/" not in name and isinstance(doc[key], dict)
+
+    out = {key: copy.deepcopy(body) for key, body in doc.items() if not plain(key)}
+    for key in filter(plain, doc):
+        section = out.setdefault(any_namespace(str(key).removeprefix("/")), {})
+        values = {**(section.get("ros__parameters") or {}),
+                  **(doc[key].get("ros__parameters") or {})}
+        section.update(copy.deepcopy(doc[key]))
+        section["ros__parameters"] = copy.deepcopy(values)
+    path = Path(folder) / "namespaced.yaml"
+    path.write_text(yaml.safe_dump(out, sort_keys=False), encoding="utf-8")
+    return path
 
 
 def player_camera(params_file: Path) -> str:
