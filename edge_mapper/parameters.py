@@ -137,11 +137,11 @@ PARAMETERS = (
               "(device/relocalisation_request, the device's reloc_period_s), the map keyframes "
               "not connected to them leaving; 0: the edge does not relocalise devices "
               "(default: measured to lose more frames, BENCHMARKS.md)", low=0, high=1000),
-    ParamSpec("ba_window", default_device.BA_WINDOW, "the map's own newest keyframes "
-              "bundle-adjusted each slot, other devices' copies held still (0: none, the "
-              "default device: the device's own poses and depths make a map that agrees with "
-              "itself better, docs/results/map-consistency.md; 5: the paper's edge)",
-              low=0, high=1000),
+    ParamSpec("ba_window", default_device.BA_WINDOW, "newest keyframes bundle-adjusted each "
+              "slot, by id: in a merged map the newest copies of other devices' keyframes "
+              "(0: none, the default device: the device's own poses and depths make a map "
+              "that agrees with itself better, docs/results/map-consistency.md; 5: the "
+              "paper's edge)", low=0, high=1000),
     ParamSpec("slot_timeout_s", 10.0, "finish a slot without keyframes that never came after "
               "this many seconds", low=0.1, high=3600.0),
     ParamSpec("image_width", 640, "camera image width in pixels", low=1, high=100_000),

@@ -616,12 +616,13 @@ def test_a_restored_adopted_keyframe_joins_the_map_through_its_welded_points(
     assert correction_for({30: moved}, adopted.id) is None
 
 
-def test_a_borrowers_bundle_adjustment_moves_its_own_newest_keyframe_never_a_copy(
+def test_a_borrowers_bundle_adjustment_moves_the_newest_copies_and_holds_its_own(
         room: Room) -> None:  # noqa: F811
     """Local bundle adjustment in a map that adopted another device's keyframe: the window is
-    the map's own newest keyframes. The copy's tagged id sorts after every own one; taken as
-    the newest, the copy moved (1.7 cm) and the map's own newest keyframe, 2 cm off, stayed
-    where it was."""
+    the newest ids, the copy's tagged id sorts after every own one, so the copy moves to fit
+    the map's own keyframes and they hold still — the behaviour measured better than moving
+    the map's own newest keyframe against the copy held still (docs/results/shared-map.md,
+    "Which keyframes a merged map adjusts"). A change of it must be measured again."""
     seq, archive, _ = room
     core = _core(vmax=6)
     core.back_end.k = seq.intrinsics                             # type: ignore[attr-defined]
@@ -634,14 +635,15 @@ def test_a_borrowers_bundle_adjustment_moves_its_own_newest_keyframe_never_a_cop
     off = np.eye(4)
     off[0, 3] = 0.02
     core.map.keyframes[60].pose = core.map.keyframes[60].pose @ off
+    own_pose = core.map.keyframes[60].pose.copy()
     copy_pose = core.map.keyframes[copy.id].pose.copy()
     core.back_end.config = dataclasses.replace(core.back_end.config, ba_window=1)
     result = core.back_end.optimise()
     assert result is not None and not result.refused
-    assert set(result.poses) >= {60, copy.id}         # the copy sees the window's points
-    np.testing.assert_array_equal(core.map.keyframes[copy.id].pose, copy_pose)
-    error = np.linalg.norm(core.map.keyframes[60].pose[:3, 3] - archive.get(60).pose[:3, 3])
-    assert error < 0.01, error
+    assert set(result.poses) >= {60, copy.id}         # 60 sees the window's points
+    np.testing.assert_array_equal(core.map.keyframes[60].pose, own_pose)
+    moved = np.linalg.norm(core.map.keyframes[copy.id].pose[:3, 3] - copy_pose[:3, 3])
+    assert moved > 0.005, moved
 
 
 def test_a_merged_map_takes_its_devices_first_keyframes_where_the_merge_put_them() -> None:

@@ -578,9 +578,9 @@ def test_the_live_connected_map_table_is_what_its_command_prints() -> None:
 
 def test_the_own_window_tables_are_what_their_commands_print(
         monkeypatch: pytest.MonkeyPatch) -> None:
-    """A borrower's bundle adjustment over its own keyframes: the paper's device and the
-    default device with a window of five, before and after, as the page has them, over the
-    seeds the page names."""
+    """Which keyframes a merged map adjusts: the paper's device and the default device with a
+    window of five in process, and the paper's preset live, before and after, as the page
+    has them, over the seeds the page names."""
     folder = FIGURES / "shared-map" / "own-window"
     monkeypatch.syspath_prepend(str(FIGURES))           # its sibling, shared_uplink_table
     script = _script("shared_map_before_after")
@@ -589,3 +589,8 @@ def test_the_own_window_tables_are_what_their_commands_print(
         printed = script.table(folder / device / "before", folder / device / "after")
         assert _missing("\n".join(printed)) == []
         assert f"| two-ends | covered | seeds | {seeds} | | |" in printed
+    live = _script("loops_across_live")
+    lines, live_seeds, _ = live.table(folder / "live-paper-preset",
+                                      (("before", "the newest ids (kept)"),
+                                       ("after", "the map's own newest keyframes")))
+    assert live_seeds == [0, 1, 2] and _missing("\n".join(lines)) == []

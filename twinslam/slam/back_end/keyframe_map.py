@@ -454,12 +454,6 @@ class KeyFrameMap:
         """Keyframe ids oldest first (ids grow with capture time)."""
         return sorted(self.keyframes)
 
-    def own_keyframe_ids(self) -> list[int]:
-        """The device's own keyframe ids, oldest first: the walk's capture order. Another
-        device's keyframes (copies) are left out — their tagged ids sort after every own one
-        but say nothing of when this device passed."""
-        return [k for k in self.keyframe_ids() if not is_foreign(k)]
-
     def point_array(self, kf_id: int) -> np.ndarray:
         """M_f of keyframe ``kf_id`` as an int64 array (unordered, read-only), for
         :func:`shared_counts`: the ids the keyframe keeps as an array until its observations

@@ -274,8 +274,8 @@ class LocalMapping:
     def _in_view(self, kf_id: int, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(ids, pixels) of the local map's points the keyframe does not observe yet that its
         view holds. The local map, as in ORB-SLAM, is the points of the keyframes that share
-        the most points with it (by the device's associations), or of the walk's newest
-        keyframes when it shares none: searching the whole map cost ~20 ms a keyframe."""
+        the most points with it (by the device's associations), or of the newest keyframes
+        when it shares none: searching the whole map cost ~20 ms a keyframe."""
         m, cfg = self.map, self.config
         none = np.zeros(0, dtype=np.int64), np.zeros((0, 2))
         if not m.points:
@@ -286,7 +286,7 @@ class LocalMapping:
         # the keyframes sharing the most points (ORB-SLAM's best covisible neighbours)
         neighbours = {k for k, _ in shared.most_common(cfg.local_keyframes)}
         if not neighbours:
-            neighbours = set(m.own_keyframe_ids()[-cfg.local_keyframes - 1:]) - {kf_id}
+            neighbours = set(m.keyframe_ids()[-cfg.local_keyframes - 1:]) - {kf_id}
         local = set().union(*(m.keyframes[k].points for k in neighbours)) if neighbours \
             else set(m.points)
         pids = np.array(sorted(local - own), dtype=np.int64)
