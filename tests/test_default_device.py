@@ -12,6 +12,7 @@ from typing import Any
 import pytest
 import yaml
 
+from twinslam.cli.commands.launch import policies_of
 from twinslam.cli.commands.parameters import NODES as REFERENCE_NODES
 from twinslam.cli.main import build_parser
 from twinslam.live.launcher import DEFAULT_PARAMS, PAPER_PARAMS
@@ -59,8 +60,18 @@ def test_the_default_device_is_the_measured_one_everywhere() -> None:
     assert _default("edge_mapper", "d_req_s") == default_device.D_REQ_S
     assert _default("sequence_player", "colour_intrinsics") == "auto"
     evaluate = next(a for a in _command("evaluate")._actions if "--map-source" in a.option_strings)
-    launch = next(a for a in _command("launch")._actions if "--policy" in a.option_strings)
-    assert (evaluate.default, launch.default) == (EDGE_LOCAL, "lff")
+    assert evaluate.default == EDGE_LOCAL
+    assert policies_of(_command("launch").parse_args([])) == ["lff"]
+
+
+def test_launch_runs_the_parameter_files_policy_unless_told_another() -> None:
+    """``twinslam launch --params config/paper-table1.yaml`` is the paper's Table I device,
+    ADAPT included, as ``ros2 launch … params_file:=…`` is; ``--policy`` still chooses."""
+    launch = _command("launch")
+    assert policies_of(launch.parse_args(["--params", str(PAPER_PARAMS)])) == ["adapt"]
+    assert policies_of(launch.parse_args(["--params", str(PAPER_PARAMS),
+                                          "--policy", "lff,pu"])) == ["lff", "pu"]
+    assert policies_of(launch.parse_args(["--params", str(DEFAULT_PARAMS)])) == ["lff"]
 
 
 def test_the_papers_preset_keeps_table_i_exactly() -> None:

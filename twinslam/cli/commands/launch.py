@@ -16,7 +16,13 @@ from twinslam.cli.commands.launch_fleet import (
 from twinslam.cli.console import Subparsers, each_run, error
 from twinslam.hosts.loopback import LoopbackDomain
 from twinslam.hosts.netns import unavailable_reason
-from twinslam.live.launcher import DEFAULT_PARAMS, LaunchConfig, Launcher, tc_uplink_params
+from twinslam.live.launcher import (
+    DEFAULT_PARAMS,
+    LaunchConfig,
+    Launcher,
+    node_parameters,
+    tc_uplink_params,
+)
 from twinslam.live.node_logs import write_logs
 from twinslam.live.report import RunReport, policy_label, print_table
 from twinslam.live.run_bag import (
@@ -147,9 +153,24 @@ def _run_policy(args: argparse.Namespace, policy: str, chosen: Scenario,
     return report
 
 
+def policies_of(args: argparse.Namespace) -> list[str]:
+    """The runs' policies: ``--policy``'s, or — without it — the one the parameter file gives
+    the edge (``adapt`` in the paper's preset), as ``ros2 launch twinslam twinslam_launch.py``
+    takes it; the default device's where the file names none. ValueError: a parameter file
+    that cannot be read."""
+    spec = args.policy
+    if spec is None:
+        problem = params_file_problem(args.params)
+        if problem:
+            raise ValueError(f"--params: {problem}")
+        spec = str(node_parameters(args.params, "edge_mapper").get("policy",
+                                                                   default_device.POLICY))
+    return [p.strip() for p in spec.split(",") if p.strip()]
+
+
 def run(args: argparse.Namespace) -> int:
-    policies = [p.strip() for p in args.policy.split(",") if p.strip()]
     try:
+        policies = policies_of(args)
         chosen, extra = _checked_setup(args, policies)
         if args.devices:
             return run_fleets(args, policies, chosen, extra)
@@ -174,9 +195,11 @@ def register(sub: Subparsers) -> None:
                         "with --devices, several comma-separated: places, the devices split "
                         "among them in runs of neighbours (ar1 … on the first), each edge "
                         "(--edges) serving whole places")
-    launch.add_argument("--policy", default=default_device.POLICY,
+    launch.add_argument("--policy",
                         help="the edge's policy, one run each, comma-separated: lff, pu, adapt, "
-                        "random, mbrl:CHECKPOINT; default %(default)s (the default device's)")
+                        "random, mbrl:CHECKPOINT; default: the parameter file's (lff in "
+                        "config/twinslam.yaml, the default device's; adapt in "
+                        "config/paper-table1.yaml)")
     launch.add_argument("--frames", type=int, default=600, help="frames to play; -1: all")
     launch.add_argument("--start", type=int, default=0,
                         help="the sequence's first frame played; default %(default)s")
