@@ -214,6 +214,18 @@ def device_parameter(text: str) -> tuple[str, object]:
         raise argparse.ArgumentTypeError(f"{text!r}: {exc}") from exc
 
 
+def add_device_option(parser: argparse.ArgumentParser) -> None:
+    """``--device NAME=VALUE`` (repeatable) on a bench's command line: the device node's
+    parameters that differ from its defaults, for every device of the run; the bench reads
+    them as ``dict(args.device)``."""
+    parser.add_argument("--device", action="append", default=[], metavar="NAME=VALUE",
+                        type=device_parameter,
+                        help="a device node parameter other than its default, as the node "
+                             "reads it, for every device of the run (repeat for more); e.g. "
+                             "map_source=edge own_map_after_s=0: the paper's device, which "
+                             "tracks on the edge's map alone")
+
+
 def open_walk(name: str, spec: str, frames: int, order: str, seed: int, uplink: str,
               config: EdgeConfig, update_delay: int, folder: Path, start: int = 0,
               device_params: Mapping[str, object] | None = None) -> DeviceWalk:

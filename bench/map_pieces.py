@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 import edge_mapper.slot_planner as slot_planner
-from bench.in_process import device_parameter, open_walk, repeatable_edge, seeded_spec
+from bench.in_process import add_device_option, open_walk, repeatable_edge, seeded_spec
 from twinslam.cli.console import HelpFormatter
 from twinslam.live.tracking_quality import absolute_trajectory_error
 from twinslam.node_runtime.math_threads import one_math_thread
@@ -115,12 +115,7 @@ def main() -> None:
                         help="uplink family (table1, lte, mmwave, constrained)")
     parser.add_argument("--seeds", type=int, nargs="+", default=[400, 401, 402],
                         help="the uplinks' seeds, and a synthetic walk's")
-    parser.add_argument("--device", action="append", default=[], metavar="NAME=VALUE",
-                        type=device_parameter,
-                        help="a device node parameter other than its default, as the node "
-                             "reads it (repeat for more); e.g. map_source=edge "
-                             "own_map_after_s=0: the paper's device, which tracks on the "
-                             "edge's map alone")
+    add_device_option(parser)
     parser.add_argument("--csv", type=Path, help="append one row a seed and arm here")
     args = parser.parse_args()
     one_math_thread()

@@ -55,7 +55,7 @@ import numpy as np
 
 from bench.in_process import (
     DeviceWalk,
-    device_parameter,
+    add_device_option,
     open_walk,
     repeatable_edge,
     seeded_spec,
@@ -188,15 +188,10 @@ def main() -> None:
                         help="evicted keyframes each edge map keeps, its own and those lent "
                              "(the edge's archive_keyframes; default: the node's)")
     parser.add_argument("--ba-window", type=int, metavar="N",
-                        help="the newest own keyframes each edge map bundle-adjusts a slot "
+                        help="the newest keyframes each edge map bundle-adjusts a slot "
                              "(the edge's ba_window; default: the node's, 0; the paper's "
                              "edge: 5)")
-    parser.add_argument("--device", action="append", default=[], metavar="NAME=VALUE",
-                        type=device_parameter,
-                        help="a device node parameter other than its default, for both "
-                             "devices (repeat for more); e.g. map_source=edge "
-                             "own_map_after_s=0: the paper's device, which tracks on the "
-                             "edge's map alone")
+    add_device_option(parser)
     parser.add_argument("--covered-m", type=float,
                         help="a lent keyframe this near a frame covers its view: the frame is "
                              "not uploaded (default: the edge's covered_m; 0: never)")
