@@ -111,3 +111,33 @@ def test_a_whole_number_given_to_a_float_parameter_is_refused_with_what_to_write
                 declare(node, [spec])
         finally:
             node.destroy_node()
+
+
+def test_a_value_given_for_a_parameter_the_node_does_not_have_is_named_in_a_warning(
+        domain: LoopbackDomain, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A misspelt name in ``-p`` or a parameter file leaves the node on the default: the node
+    says so at start, with the name it likely meant (rclpy's own parameters are no concern)."""
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter as RclpyParameter
+
+    from edge_mapper.parameters import PARAMETERS
+    from twinslam.node_runtime.parameters import declare
+
+    warned: list[str] = []
+
+    class Logger:
+        def warning(self, text: str) -> None:
+            warned.append(text)
+
+    with RosSession("unread_parameter") as session:
+        node = Node("edge_mapper", context=session.context, parameter_overrides=[
+            RclpyParameter("vmaxx", RclpyParameter.Type.INTEGER, 20),
+            RclpyParameter("use_sim_time", RclpyParameter.Type.BOOL, False)])
+        monkeypatch.setattr(node, "get_logger", Logger)
+        try:
+            values = declare(node, PARAMETERS)
+        finally:
+            node.destroy_node()
+    assert values["vmax"] == next(s.default for s in PARAMETERS if s.name == "vmax")
+    assert warned == ["parameter vmaxx is given but edge_mapper has no such parameter "
+                      "(did you mean vmax?): ignored"]

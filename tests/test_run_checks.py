@@ -28,6 +28,31 @@ def test_a_parameter_file_that_is_not_a_parameter_mapping_is_refused_with_the_re
     assert problem is not None and says in problem, problem
 
 
+@pytest.mark.parametrize("key", ["edge_mapper", "/edge_mapper", "/**/edge_mapper",
+                                 "/ar1/edge_mapper"])
+def test_a_parameter_a_twinslam_node_does_not_have_is_refused_with_the_likely_one(
+        tmp_path: Path, key: str) -> None:
+    """A misspelt name would leave the node on its default without a word: refused before
+    any node starts, in whichever section of the node it stands."""
+    bad = tmp_path / "params.yaml"
+    bad.write_text(f"{key}:\n  ros__parameters:\n    vmax: 20\n    vmaxx: 30\n",
+                   encoding="utf-8")
+    problem = params_file_problem(bad)
+    assert problem is not None and "edge_mapper has no parameter 'vmaxx' (did you mean vmax?)" \
+        in problem, problem
+
+
+def test_sections_for_every_node_or_for_other_nodes_and_rclpys_own_are_not_checked(
+        tmp_path: Path) -> None:
+    ok = tmp_path / "params.yaml"
+    ok.write_text("/**:\n  ros__parameters:\n    log_every: 3\n"
+                  "camera_driver:\n  ros__parameters:\n    exposure: 8\n"
+                  "device_tracker:\n  ros__parameters:\n    use_sim_time: true\n"
+                  "    qos_overrides./tf.publisher.depth: 10\n    slot_frames: 60\n",
+                  encoding="utf-8")
+    assert params_file_problem(ok) is None
+
+
 def test_the_bundled_files_an_empty_one_and_a_missing_one() -> None:
     assert params_file_problem(DEFAULT_PARAMS) is None
     assert params_file_problem(PAPER_PARAMS) is None

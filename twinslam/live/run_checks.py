@@ -4,11 +4,22 @@ of starting the player and the device and learning it from a traceback or the ed
 
 from __future__ import annotations
 
+import difflib
+from collections.abc import Sequence
 from pathlib import Path
 
 import yaml
 
+from device_tracker.parameters import PARAMETERS as DEVICE
+from edge_mapper.parameters import PARAMETERS as EDGE
 from edge_mapper.policy_control import policy_refused
+from twinslam.node_runtime.parameters import ParamSpec, rclpy_own
+from twinslam.sequence_player.parameters import PARAMETERS as PLAYER
+from udt_node.parameters import PARAMETERS as TWIN
+
+#: every twinslam node's parameters by node name
+NODE_PARAMETERS: dict[str, Sequence[ParamSpec]] = {
+    "sequence_player": PLAYER, "device_tracker": DEVICE, "edge_mapper": EDGE, "udt_node": TWIN}
 
 
 def params_file_problem(path: Path) -> str | None:
@@ -30,6 +41,28 @@ def params_file_problem(path: Path) -> str | None:
         if not isinstance(params, dict):
             return (f"parameter file {path}: {node!r} must hold a ros__parameters mapping "
                     "(NODE: {ros__parameters: {NAME: VALUE}})")
+        unknown = unknown_parameter(str(node), params)
+        if unknown:
+            return f"parameter file {path}: {unknown}"
+    return None
+
+
+def unknown_parameter(key: str, params: dict[str, object]) -> str | None:
+    """Why a section keyed ``key`` names a parameter its twinslam node does not have (a
+    typo a node would ignore, starting on the default instead), or None. A section of
+    another node, or of every node (``/**``), is not checked: it may be meant for others."""
+    node = key.rsplit("/", 1)[-1]
+    specs = NODE_PARAMETERS.get(node)
+    if specs is None or key == "/**":
+        return None
+    known = {s.name for s in specs}
+    for name in params:
+        if name in known or rclpy_own(str(name)):
+            continue
+        close = difflib.get_close_matches(str(name), sorted(known), n=1)
+        hint = f" (did you mean {close[0]}?)" if close else ""
+        return (f"{node} has no parameter {name!r}{hint}: a node leaves what it does not "
+                "declare unread; docs/parameters.md lists what each node reads")
     return None
 
 

@@ -11,6 +11,7 @@ channel spec that must parse) that runs on every set with the reason returned to
 
 from __future__ import annotations
 
+import difflib
 import re
 import sys
 from collections.abc import Callable, Sequence
@@ -107,7 +108,35 @@ def declare(node: Node, specs: Sequence[ParamSpec]) -> dict[str, Any]:
                 f"({spec.description}): {exc}{_decimal_hint(spec, exc)}") from None
         except (InvalidParameterValueException, ParameterException) as exc:
             raise ParameterStartError(f"parameter {spec.name}: {exc}") from None
+    _warn_unread(node, [s.name for s in specs])
     return values
+
+
+#: parameters rclpy declares on every node itself, and the prefix of those its publishers and
+#: subscriptions declare when created with QoS overrides
+RCLPY_PARAMETERS = frozenset({"use_sim_time", "start_type_description_service"})
+QOS_OVERRIDES = "qos_overrides."
+
+
+def rclpy_own(name: str) -> bool:
+    """Whether rclpy, not the node's code, declares parameter ``name``."""
+    return name in RCLPY_PARAMETERS or name.startswith(QOS_OVERRIDES)
+
+
+def _warn_unread(node: Node, declared: Sequence[str]) -> None:
+    """Warn of each value given the node (``-p``, ``--params-file``) that it never reads: a
+    misspelt name would otherwise leave the node on the default without a word. A warning,
+    not a refusal: a file shared with other nodes may hold what only they read."""
+    given = getattr(node, "_parameter_overrides", {})       # rclpy's, from the arguments
+    known = sorted(declared)
+    for name in sorted(set(given) - set(declared)):
+        if rclpy_own(name):
+            continue
+        close = difflib.get_close_matches(name, known, n=1)
+        hint = f" (did you mean {close[0]}?)" if close else ""
+        node.get_logger().warning(
+            f"parameter {name} is given but {node.get_name()} has no such parameter{hint}: "
+            "ignored")
 
 
 def _decimal_hint(spec: ParamSpec, exc: Exception) -> str:
