@@ -34,6 +34,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from twinslam.node_runtime.node_main import NodeStartError
+from twinslam.node_runtime.parameter_files import params_files, unreached_sections
 
 #: a check of one value: None when fine, else the reason it is refused
 Check = Callable[[Any], "str | None"]
@@ -77,10 +78,13 @@ class ParameterStartError(NodeStartError):
     """A parameter value given at start-up that the node refuses; the message says why."""
 
 
-def declare(node: Node, specs: Sequence[ParamSpec]) -> dict[str, Any]:
+def declare(node: Node, specs: Sequence[ParamSpec], argv: Sequence[str] | None = None
+            ) -> dict[str, Any]:
     """Declare ``specs`` on ``node`` (overrides from the command line and parameter files
     apply) and return their values by name. Raises :class:`ParameterStartError` with the
-    parameter and the reason when a given value is refused."""
+    parameter and the reason when a given value is refused. Warns of values given that the
+    node has no parameter for, and of parameter files among ``argv``'s ROS arguments (the
+    process's, by default) whose sections for the node cannot reach it."""
     checks = {s.name: s.check for s in specs if s.check is not None}
 
     def on_set(params: list[Parameter]) -> SetParametersResult:
@@ -109,6 +113,7 @@ def declare(node: Node, specs: Sequence[ParamSpec]) -> dict[str, Any]:
         except (InvalidParameterValueException, ParameterException) as exc:
             raise ParameterStartError(f"parameter {spec.name}: {exc}") from None
     _warn_unread(node, [s.name for s in specs])
+    _warn_unreached(node, sys.argv if argv is None else argv)
     return values
 
 
@@ -137,6 +142,19 @@ def _warn_unread(node: Node, declared: Sequence[str]) -> None:
         node.get_logger().warning(
             f"parameter {name} is given but {node.get_name()} has no such parameter{hint}: "
             "ignored")
+
+
+def _warn_unreached(node: Node, argv: Sequence[str]) -> None:
+    """Warn of each parameter file section that names the node but, keyed without its
+    namespace, is read only by a node of that name in the root namespace: the node runs on
+    its defaults whatever the section says."""
+    name, namespace = node.get_name(), node.get_namespace()
+    fqn = f"{namespace.rstrip('/')}/{name}"
+    for section in unreached_sections(params_files(argv), name, namespace):
+        node.get_logger().warning(
+            f"parameter file section {section} does not reach {fqn}: rcl gives a section "
+            f"keyed without a namespace to the root namespace's node only; key it "
+            f"/**/{name} (any namespace) or {fqn}. Running on the defaults")
 
 
 def _decimal_hint(spec: ParamSpec, exc: Exception) -> str:
