@@ -24,7 +24,9 @@ NODE_PARAMETERS: dict[str, Sequence[ParamSpec]] = {
 
 def params_file_problem(path: Path) -> str | None:
     """Why ``path`` is not a ROS 2 parameter file the nodes can read (None: it is one): it must
-    exist, parse as YAML and map node names to ``{ros__parameters: {name: value}}``."""
+    exist, parse as YAML and map node names to ``{ros__parameters: {name: value}}``, and a
+    section for a twinslam node may name only parameters that node has
+    (:func:`unknown_parameter`)."""
     if not path.is_file():
         return f"parameter file {path} does not exist"
     try:

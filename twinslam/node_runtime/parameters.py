@@ -145,16 +145,16 @@ def _warn_unread(node: Node, declared: Sequence[str]) -> None:
 
 
 def _warn_unreached(node: Node, argv: Sequence[str]) -> None:
-    """Warn of each parameter file section that names the node but, keyed without its
-    namespace, is read only by a node of that name in the root namespace: the node runs on
-    its defaults whatever the section says."""
+    """Warn of each parameter file section that names the node but not its namespace (most
+    often a plain name, which only the root namespace's node reads) when no section reaches
+    it: the node runs on its defaults whatever the section says."""
     name, namespace = node.get_name(), node.get_namespace()
     fqn = f"{namespace.rstrip('/')}/{name}"
     for section in unreached_sections(params_files(argv), name, namespace):
         node.get_logger().warning(
-            f"parameter file section {section} does not reach {fqn}: rcl gives a section "
-            f"keyed without a namespace to the root namespace's node only; key it "
-            f"/**/{name} (any namespace) or {fqn}. Running on the defaults")
+            f"parameter file section {section} does not reach {fqn} (rcl gives a section to "
+            f"the nodes its key names, a plain name to the root namespace's node only); key "
+            f"it /**/{name} (any namespace) or {fqn}. Running on the defaults")
 
 
 def _decimal_hint(spec: ParamSpec, exc: Exception) -> str:
