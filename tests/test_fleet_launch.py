@@ -395,9 +395,15 @@ def test_launch_splits_the_devices_among_two_edge_processes(tmp_path: Path) -> N
 @pytest.mark.slow
 def test_launch_serves_two_devices_from_one_edge_and_reports_each(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """One edge, two devices, each reported; the devices run in their namespaces with the
+    parameter file's device section though it is keyed by the plain node name (40-frame
+    slots: 3 over the 120 frames, where the node's default of 30 makes 4)."""
+    params = tmp_path / "params.yaml"
+    params.write_text("device_tracker:\n  ros__parameters:\n    slot_frames: 40\n",
+                      encoding="utf-8")
     code = main(["launch", "--loopback", "--devices", "2", "--vmax-total", "12",
                  "--allocator", "motion", "--sequence", "synthetic:120", "--frames", "120",
-                 "--policy", "lff", "--out", str(tmp_path)])
+                 "--policy", "lff", "--params", str(params), "--out", str(tmp_path)])
     out = capsys.readouterr().out
     assert code == 0, out[-3000:]
     assert "lff, allocator motion: 2 devices" in out and "Jain's index" in out
@@ -419,6 +425,7 @@ def test_launch_serves_two_devices_from_one_edge_and_reports_each(
         ("ar1", "motion", "0"), ("ar2", "motion", "0")]
     assert all(int(r["frames"]) > 0 and float(r["latency_ms_median"]) > 0
                and int(r["frames_uploaded"]) > 0 for r in table)
+    assert [int(r["slots"]) for r in table] == [3, 3]
 
 
 @pytest.mark.slow
