@@ -12,7 +12,10 @@ On separate machines, ``host:=device`` (camera player + device tracker), ``host:
 
 ``namespace:=/ar1`` puts a device/edge pair under ``/ar1`` (a second pair under ``/ar2`` shares
 the domain); ``/tf`` is shared by every pair, so give each its own frames as well:
-``map_frame:=ar1/map camera_frame:=ar1/camera odom_frame:=ar1/odom``. The nodes run with the
+``map_frame:=ar1/map camera_frame:=ar1/camera odom_frame:=ar1/odom``. The bundled parameter
+files key each section ``/**/NODE`` so that it reaches its node in any namespace; a file of your
+own keyed by plain node names reaches only nodes in the root namespace (each node warns of a
+section it cannot read). The nodes run with the
 package's Fast DDS profile (``config/fastdds.xml``) unless ``FASTRTPS_DEFAULT_PROFILES_FILE``
 names another.
 
