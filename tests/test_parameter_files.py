@@ -70,7 +70,16 @@ def test_a_file_keyed_by_plain_names_is_named_to_a_node_in_a_namespace(tmp_path:
     assert unreached_sections([plain], "device_tracker", "/ar1") == [
         f"'device_tracker' in {plain}"]
     assert unreached_sections([plain], "device_tracker", "/") == []
-    assert unreached_sections([plain, wild], "device_tracker", "/ar1") == []
+    assert unreached_sections([wild], "device_tracker", "/ar1") == []
+    # each file on its own: ros2 launch adds one that reaches the node (the launch file's
+    # own parameters), and the user's file still gives it nothing
+    launch_own = tmp_path / "launch_params.yaml"
+    launch_own.write_text("/ar1/device_tracker:\n  ros__parameters:\n    map_frame: ar1/map\n",
+                          encoding="utf-8")
+    assert unreached_sections([plain, launch_own], "device_tracker", "/ar1") == [
+        f"'device_tracker' in {plain}"]
+    assert unreached_sections([plain, wild], "device_tracker", "/ar1") == [
+        f"'device_tracker' in {plain}"]
     assert unreached_sections([plain], "edge_mapper", "/ar1") == []
     assert unreached_sections([tmp_path / "missing.yaml"], "device_tracker", "/ar1") == []
 

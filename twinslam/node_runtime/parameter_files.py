@@ -52,11 +52,13 @@ def key_reaches(key: str, node_fqn: str) -> bool:
 
 def unreached_sections(files: Sequence[Path], name: str, namespace: str) -> list[str]:
     """For node ``name`` in ``namespace``: each section of ``files`` that names it and does
-    not reach it (``KEY in FILE``), when no section of those files but ``/**`` reaches it —
-    a file keyed by plain names, read by a node in a namespace. Files that cannot be read are
-    passed over: rcl has refused them before a node starts."""
+    not reach it (``KEY in FILE``), from the files none of whose sections but ``/**``
+    reaches it — a file keyed by plain names, read by a node in a namespace. Each file is
+    judged on its own: ``ros2 launch`` adds a file of its own that does reach the node (the
+    launch file's parameters), and the user's file still gives it nothing. Files that cannot
+    be read are passed over: rcl has refused them before a node starts."""
     fqn = f"{namespace.rstrip('/')}/{name}"
-    named, reached = [], False
+    unreached = []
     for path in files:
         try:
             doc = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
@@ -64,11 +66,8 @@ def unreached_sections(files: Sequence[Path], name: str, namespace: str) -> list
             continue
         if not isinstance(doc, dict):
             continue
-        for key in map(str, doc):
-            if key == "/**":
-                continue
-            if key_reaches(key, fqn):
-                reached = True
-            elif key.rsplit("/", 1)[-1] == name:
-                named.append(f"{key!r} in {path}")
-    return [] if reached else named
+        keys = [str(k) for k in doc if str(k) != "/**"]
+        if any(key_reaches(k, fqn) for k in keys):
+            continue
+        unreached += [f"{k!r} in {path}" for k in keys if k.rsplit("/", 1)[-1] == name]
+    return unreached
