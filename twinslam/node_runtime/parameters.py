@@ -146,8 +146,8 @@ def _warn_unread(node: Node, declared: Sequence[str]) -> None:
 
 def _warn_unreached(node: Node, argv: Sequence[str]) -> None:
     """Warn of each parameter file section that names the node but not its namespace (most
-    often a plain name, which only the root namespace's node reads) when no section reaches
-    it: the node runs on its defaults whatever the section says."""
+    often a plain name, which only the root namespace's node reads) when no section of that
+    file reaches it: the node runs on its defaults whatever the section says."""
     name, namespace = node.get_name(), node.get_namespace()
     fqn = f"{namespace.rstrip('/')}/{name}"
     for section in unreached_sections(params_files(argv), name, namespace):
