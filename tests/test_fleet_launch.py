@@ -39,6 +39,7 @@ from twinslam.live.launcher import (
     renamed_params,
 )
 from twinslam.live.run_log import RunLog
+from twinslam.node_runtime.parameters import rclpy_own
 
 
 def test_every_device_plays_its_own_walk() -> None:
@@ -269,10 +270,6 @@ def test_a_map_is_late_only_after_its_slot_has_played_at_the_runs_speed(
     assert period(0.25) * 1000 > 2000 > period(1.0) * 1000
 
 
-#: parameters every rclpy node declares itself
-RCLPY_OWN = {"use_sim_time", "start_type_description_service"}
-
-
 def _read(params: Path, node: str, domain: LoopbackDomain, *remaps: str) -> dict[str, object]:
     """What node ``node`` started with ``params`` and ``remaps`` (``__node:=…``,
     ``__ns:=…``) reads from the file: rclpy's own parameter overrides, as the node sees them."""
@@ -286,7 +283,7 @@ def _read(params: Path, node: str, domain: LoopbackDomain, *remaps: str) -> dict
     try:
         n = Node(node, context=context, automatically_declare_parameters_from_overrides=True)
         values = {name: p.value for name, p in n.get_parameters_by_prefix("").items()
-                  if name not in RCLPY_OWN}
+                  if not rclpy_own(name)}
         n.destroy_node()
     finally:
         rclpy.shutdown(context=context)
