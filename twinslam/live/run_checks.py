@@ -4,7 +4,6 @@ of starting the player and the device and learning it from a traceback or the ed
 
 from __future__ import annotations
 
-import difflib
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -13,7 +12,7 @@ import yaml
 from device_tracker.parameters import PARAMETERS as DEVICE
 from edge_mapper.parameters import PARAMETERS as EDGE
 from edge_mapper.policy_control import policy_refused
-from twinslam.node_runtime.parameters import ParamSpec, rclpy_own
+from twinslam.node_runtime.parameters import ParamSpec, likely_name, rclpy_own
 from twinslam.sequence_player.parameters import PARAMETERS as PLAYER
 from udt_node.parameters import PARAMETERS as TWIN
 
@@ -57,14 +56,12 @@ def unknown_parameter(key: str, params: dict[str, object]) -> str | None:
     specs = NODE_PARAMETERS.get(node)
     if specs is None or key == "/**":
         return None
-    known = {s.name for s in specs}
-    for name in params:
-        if name in known or rclpy_own(str(name)):
-            continue
-        close = difflib.get_close_matches(str(name), sorted(known), n=1)
-        hint = f" (did you mean {close[0]}?)" if close else ""
-        return (f"{node} has no parameter {name!r}{hint}: a node leaves what it does not "
-                "declare unread; docs/parameters.md lists what each node reads")
+    known = [s.name for s in specs]
+    for name in map(str, params):
+        if name not in known and not rclpy_own(name):
+            return (f"{node} has no parameter {name!r}{likely_name(name, known)}: a node "
+                    "leaves what it does not declare unread; docs/parameters.md lists what "
+                    "each node reads")
     return None
 
 

@@ -128,20 +128,23 @@ def rclpy_own(name: str) -> bool:
     return name in RCLPY_PARAMETERS or name.startswith(QOS_OVERRIDES)
 
 
+def likely_name(name: str, known: Sequence[str]) -> str:
+    """`` (did you mean NAME?)`` naming the parameter of ``known`` closest to a misspelt
+    ``name`` (difflib's), or "" where none is close."""
+    close = difflib.get_close_matches(name, sorted(known), n=1)
+    return f" (did you mean {close[0]}?)" if close else ""
+
+
 def _warn_unread(node: Node, declared: Sequence[str]) -> None:
     """Warn of each value given the node (``-p``, ``--params-file``) that it never reads: a
     misspelt name would otherwise leave the node on the default without a word. A warning,
     not a refusal: a file shared with other nodes may hold what only they read."""
     given = getattr(node, "_parameter_overrides", {})       # rclpy's, from the arguments
-    known = sorted(declared)
     for name in sorted(set(given) - set(declared)):
-        if rclpy_own(name):
-            continue
-        close = difflib.get_close_matches(name, known, n=1)
-        hint = f" (did you mean {close[0]}?)" if close else ""
-        node.get_logger().warning(
-            f"parameter {name} is given but {node.get_name()} has no such parameter{hint}: "
-            "ignored")
+        if not rclpy_own(name):
+            node.get_logger().warning(
+                f"parameter {name} is given but {node.get_name()} has no such parameter"
+                f"{likely_name(name, declared)}: ignored")
 
 
 def _warn_unreached(node: Node, argv: Sequence[str]) -> None:

@@ -52,13 +52,14 @@ def _real_frame_uplink(sequence: str) -> dict[str, list[str]]:
     return tc_uplink_params(first.color.nbytes * 8 / 1e6)
 
 
-def _checked_setup(args: argparse.Namespace, policies: list[str]
-                   ) -> tuple[Scenario, dict[str, list[str]]]:
-    """The scenario and the node parameters every run adds; ValueError names a bad option
-    before any node starts."""
+def _checked_setup(args: argparse.Namespace
+                   ) -> tuple[list[str], Scenario, dict[str, list[str]]]:
+    """The runs' policies (:func:`policies_of`), the scenario and the node parameters every
+    run adds; ValueError names a bad option before any node starts."""
     problem = params_file_problem(args.params)
     if problem:
         raise ValueError(f"--params: {problem}")
+    policies = policies_of(args)
     if not policies:
         raise ValueError("--policy: name at least one policy")
     for policy in policies:
@@ -85,7 +86,7 @@ def _checked_setup(args: argparse.Namespace, policies: list[str]
         if reason:
             raise ValueError(f"--map-source: {reason}")
         extra.setdefault("device_tracker", []).append(f"map_source:={args.map_source}")
-    return chosen, extra
+    return policies, chosen, extra
 
 
 def played_frames(args: argparse.Namespace, chosen: Scenario) -> str:
@@ -156,13 +157,10 @@ def _run_policy(args: argparse.Namespace, policy: str, chosen: Scenario,
 def policies_of(args: argparse.Namespace) -> list[str]:
     """The runs' policies: ``--policy``'s, or — without it — the one the parameter file gives
     the edge (``adapt`` in the paper's preset), as ``ros2 launch twinslam twinslam_launch.py``
-    takes it; the default device's where the file names none. ValueError: a parameter file
-    that cannot be read."""
+    takes it; the default device's where the file names none. The file is one
+    :func:`~twinslam.live.run_checks.params_file_problem` passed."""
     spec = args.policy
     if spec is None:
-        problem = params_file_problem(args.params)
-        if problem:
-            raise ValueError(f"--params: {problem}")
         spec = str(node_parameters(args.params, "edge_mapper").get("policy",
                                                                    default_device.POLICY))
     return [p.strip() for p in spec.split(",") if p.strip()]
@@ -170,8 +168,7 @@ def policies_of(args: argparse.Namespace) -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     try:
-        policies = policies_of(args)
-        chosen, extra = _checked_setup(args, policies)
+        policies, chosen, extra = _checked_setup(args)
         if args.devices:
             return run_fleets(args, policies, chosen, extra)
         records = _recordings(args, policies)

@@ -14,22 +14,20 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from device_tracker.parameters import PARAMETERS as DEVICE
-from edge_mapper.parameters import PARAMETERS as EDGE
 from twinslam.cli.console import Subparsers
+from twinslam.live.run_checks import NODE_PARAMETERS
 from twinslam.node_runtime.parameters import ParamSpec
-from twinslam.sequence_player.parameters import PARAMETERS as PLAYER
-from udt_node.parameters import PARAMETERS as TWIN
 
 #: the nodes in the order a run starts them, each with what it is for
 NODES: tuple[tuple[str, str, Sequence[ParamSpec]], ...] = (
     ("sequence_player", "replays an RGB-D dataset folder, a recorded bag or a synthetic world "
-     "as camera topics", PLAYER),
+     "as camera topics", NODE_PARAMETERS["sequence_player"]),
     ("device_tracker", "tracks the camera against the edge's map and uploads the frames the "
-     "edge asks for", DEVICE),
+     "edge asks for", NODE_PARAMETERS["device_tracker"]),
     ("edge_mapper", "keeps the keyframe map, decides uploads and evictions, optimises and "
-     "sends the map back", EDGE),
-    ("udt_node", "the user digital twin: learns the uplink from throughput reports", TWIN),
+     "sends the map back", NODE_PARAMETERS["edge_mapper"]),
+    ("udt_node", "the user digital twin: learns the uplink from throughput reports",
+     NODE_PARAMETERS["udt_node"]),
 )
 REFERENCE = Path(__file__).resolve().parents[3] / "docs" / "parameters.md"
 
