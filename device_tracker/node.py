@@ -91,6 +91,8 @@ class DeviceTrackerNode(Node):
         #: the camera intake's lock, and the tracking thread's wake-up when frames come
         self._intake = threading.Condition()
         self._stopping = False
+        #: frames taken from the intake that the tracking thread left when the node stopped
+        self.left_untracked = 0
         #: what ended the tracking thread, if it failed (the node then stops: :func:`main`)
         self.failure: BaseException | None = None
         self.last_slot = -1                      #: the last slot whose summaries went out
@@ -159,12 +161,19 @@ class DeviceTrackerNode(Node):
                             break
                         self._intake.wait()
                 assert core is not None
-                for frame in frames:
+                for done, frame in enumerate(frames):
+                    if self._stop_asked():   # a backlog is not tracked once the node stops:
+                        self.left_untracked = len(frames) - done    # its publishers go next
+                        return
                     self._track(core, frame)
         except BaseException as exc:
             self.failure = exc
             self.get_logger().fatal("the tracking thread failed:\n" + "".join(
                 traceback.format_exception(exc)))
+
+    def _stop_asked(self) -> bool:
+        """Whether :meth:`close` asked the tracking thread to stop (read between frames)."""
+        return self._stopping
 
     def _track(self, core: DeviceTrackerCore, frame: CameraFrame) -> None:
         source, stamp = str(self.get_parameter("map_source").value), frame.stamp
@@ -260,6 +269,10 @@ class DeviceTrackerNode(Node):
             self._stopping = True
             self._intake.notify()
         self._tracking.join(timeout=10.0)        # the frame being tracked, not those waiting
+        with self._intake:
+            left = self.left_untracked + len(self.camera.pairing.pending)
+        if left:
+            self.get_logger().info(f"stopping {left} camera frame(s) behind: not tracked")
         self.sender.close()
         if isinstance(self.shaper, TcShaper):
             self.shaper.close()
