@@ -7,6 +7,8 @@ from __future__ import annotations
 import fcntl
 import os
 import random
+import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -14,6 +16,7 @@ from pathlib import Path
 import pytest
 
 from twinslam.hosts.loopback import DomainClaim, LoopbackDomain, _claims_dir
+from twinslam.hosts.native_stacks import native_stacks
 
 #: the ids these tests claim among themselves, in claims of their own (tmp_path): 230..232,
 #: beyond the machine's 100..229 that the suite's other tests claim on parallel workers — the
@@ -85,3 +88,23 @@ def test_a_loopback_domain_holds_its_id_while_open_and_gives_it_back_when_it_clo
         assert domain.env["ROS_DOMAIN_ID"] == str(held)
         assert not lockable(held)
     assert lockable(held)
+
+
+@pytest.mark.skipif(shutil.which("gdb") is None, reason="no gdb on this host")
+def test_a_stuck_process_shows_where_it_waits_in_native_code() -> None:
+    """A process blocked inside C (here ``time.sleep``: the interpreter's own C call) is shown
+    down to the system call it waits in — what a node stuck in a C extension's teardown
+    gives a test that waited in vain for it to end."""
+    stuck = subprocess.Popen([sys.executable, "-c", "import time; print('in', flush=True); "
+                              "time.sleep(120)"], stdout=subprocess.PIPE, text=True)
+    try:
+        assert stuck.stdout is not None and stuck.stdout.readline() == "in\n"
+        stacks = native_stacks(stuck.pid)
+    finally:
+        stuck.kill()
+        stuck.wait()
+    if stacks is None:
+        pytest.skip("gdb may not attach to a process here (ptrace)")
+    assert stacks.startswith("Thread ") and "#0 " in stacks
+    assert re.search(r"nanosleep|clock_nanosleep|select", stacks), stacks
+    assert native_stacks(stuck.pid) is None              # gone: nothing to attach to

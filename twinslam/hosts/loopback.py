@@ -34,6 +34,7 @@ from twinslam.hosts.fastdds import (
     ros_env,
 )
 from twinslam.hosts.forked import ForkServers, NodeProcess
+from twinslam.hosts.native_stacks import native_stacks
 
 
 def _discovery_port_free(domain_id: int) -> bool:
@@ -217,9 +218,13 @@ class ProcessDomain:
 
     def log_with_stacks(self, proc: NodeProcess, chars: int = 6000) -> str:
         """The last ``chars`` of a node's log once it printed its threads' stacks
-        (:meth:`ask_for_stacks`): what a test that waited in vain for it shows."""
+        (:meth:`ask_for_stacks`), and their native stacks where gdb can read them
+        (:func:`~twinslam.hosts.native_stacks.native_stacks`): what a test that waited in vain
+        for it shows."""
         self.ask_for_stacks(proc)
-        return self.log(proc)[-chars:]
+        native = native_stacks(proc.pid) if proc.poll() is None else None
+        log = self.log(proc)[-chars:]
+        return log if native is None else f"{log}\n--- native stacks (gdb) ---\n{native}"
 
     def close(self) -> None:
         for proc in self.processes:
