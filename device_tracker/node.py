@@ -90,7 +90,8 @@ class DeviceTrackerNode(Node):
         self.camera = CameraIntake()
         #: the camera intake's lock, and the tracking thread's wake-up when frames come
         self._intake = threading.Condition()
-        self._stopping = False
+        #: set by close(): read by the tracking thread before each frame
+        self._stopping = threading.Event()
         #: frames taken from the intake that the tracking thread left when the node stopped
         self.left_untracked = 0
         #: what ended the tracking thread, if it failed (the node then stops: :func:`main`)
@@ -152,7 +153,7 @@ class DeviceTrackerNode(Node):
             while True:
                 with self._intake:
                     while True:              # a new image (or the stop) is what can change it
-                        if self._stopping:
+                        if self._stopping.is_set():
                             return
                         core = self.core
                         frames = [] if core is None else list(
@@ -162,7 +163,7 @@ class DeviceTrackerNode(Node):
                         self._intake.wait()
                 assert core is not None
                 for done, frame in enumerate(frames):
-                    if self._stop_asked():   # a backlog is not tracked once the node stops:
+                    if self._stopping.is_set():  # no backlog tracked once the node stops:
                         self.left_untracked = len(frames) - done    # its publishers go next
                         return
                     self._track(core, frame)
@@ -170,10 +171,6 @@ class DeviceTrackerNode(Node):
             self.failure = exc
             self.get_logger().fatal("the tracking thread failed:\n" + "".join(
                 traceback.format_exception(exc)))
-
-    def _stop_asked(self) -> bool:
-        """Whether :meth:`close` asked the tracking thread to stop (read between frames)."""
-        return self._stopping
 
     def _track(self, core: DeviceTrackerCore, frame: CameraFrame) -> None:
         source, stamp = str(self.get_parameter("map_source").value), frame.stamp
@@ -266,7 +263,7 @@ class DeviceTrackerNode(Node):
 
     def close(self) -> None:
         with self._intake:
-            self._stopping = True
+            self._stopping.set()
             self._intake.notify()
         self._tracking.join(timeout=10.0)        # the frame being tracked, not those waiting
         with self._intake:
