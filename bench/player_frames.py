@@ -3,18 +3,22 @@ depth images, registering the depth to the colour camera (7-Scenes), and the fou
 CPU milliseconds a frame, in a fresh interpreter per round.
 
     .venv/bin/python -m bench.player_frames [SEQUENCE] [--frames 200] [--rounds 4]
-                                            [--baseline COMMIT]
+                                            [--baseline COMMIT] [--frame-cache DIR]
 
 SEQUENCE defaults to the bundled 7-Scenes sample, read as the player reads it
 (``colour_intrinsics: auto``). On a 2-core machine the player shares the cores with the device
 it feeds, so its CPU is taken from the device's. With ``--baseline`` the other commit's tree
 is measured in the same run, the two alternating round by round (bench/baseline.py); each
 round's first frame (the numba kernels loading, compiled in a fresh baseline tree) is left out.
+With ``--frame-cache`` this tree reads through the decoded-frame cache in DIR
+(:mod:`twinslam.sequences.decoded_frames`): its first round decodes and writes the frames, the
+later ones read them back (a commit without the cache decodes every round).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 
 from bench.baseline import add_baseline_options, drive_alternately
@@ -58,10 +62,16 @@ def main() -> None:
                         help="RGB-D sequence (default: the bundled 7-Scenes sample)")
     parser.add_argument("--frames", type=int, default=200,
                         help="frames a round times, after its first (default %(default)s)")
+    parser.add_argument("--frame-cache", metavar="DIR",
+                        help="read through the decoded-frame cache in DIR (its first round "
+                             "fills it; default: no cache)")
     add_baseline_options(parser, 4, "fresh interpreters per tree")
     args = parser.parse_args()
     if args.frames < 1 or args.rounds < 1:
         parser.error("--frames and --rounds must be at least 1")
+    os.environ.pop("TWINSLAM_FRAME_CACHE", None)
+    if args.frame_cache:
+        os.environ["TWINSLAM_FRAME_CACHE"] = args.frame_cache
     print(cpu_gauge(), "(before)", flush=True)
 
     trees = drive_alternately(

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path as PathMsg
@@ -18,6 +19,7 @@ from twinslam.hosts.loopback import LoopbackDomain
 from twinslam.live.launcher import preloaded_nodes
 from twinslam.node_runtime.session import RosSession
 from twinslam.sequence_player.messages import depth_message, skipped_frames
+from twinslam.sequences.decoded_frames import CACHE_ENV, SUFFIX
 from twinslam.sequences.frame import RgbdFrame
 
 K = np.array([[200.0, 0, 80], [0, 200.0, 60], [0, 0, 1]])
@@ -64,8 +66,10 @@ def _stamp(msg: object) -> float:
 
 
 def test_player_delivers_every_frame_at_30_hz_and_skips_a_corrupt_jpeg(
-        tmp_path: Path, domain: LoopbackDomain, ros: RosSession) -> None:
+        tmp_path: Path, domain: LoopbackDomain, ros: RosSession,
+        monkeypatch: pytest.MonkeyPatch) -> None:
     seq = _seven_scenes_fixture(tmp_path / "seq", frames=100, corrupt=40)
+    monkeypatch.setenv(CACHE_ENV, str(tmp_path / "decoded"))   # the player keeps its frames
     got: dict[str, list] = {"color": [], "depth": [], "info": [], "pose": []}
     for key, topic, kind in [("color", topics.CAMERA_IMAGE, Image),
                              ("depth", topics.CAMERA_DEPTH, Image),
@@ -113,6 +117,8 @@ def test_player_delivers_every_frame_at_30_hz_and_skips_a_corrupt_jpeg(
     assert len(paths) >= 3 and paths[-1].header.frame_id == "world"
     assert [_stamp(p) for p in paths[-1].poses] == [_stamp(m) for m in got["pose"][-50:]]
     assert 3.0 < time.monotonic() - start
+    # every frame it decoded is in the cache the environment named, the corrupt one not
+    assert len(list((tmp_path / "decoded").glob(f"*{SUFFIX}"))) == 99
 
 
 def test_depth_message_encodings_round_trip() -> None:

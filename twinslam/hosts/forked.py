@@ -60,8 +60,11 @@ from typing import IO, Any, Protocol
 PER_CHILD_PREFIXES = ("ROS_", "RMW_", "FASTRTPS_", "FASTDDS_", "CYCLONEDDS_", "RCUTILS_")
 #: variables that change with every call of the asker and that no module reads at import:
 #: pytest names the running test in PYTEST_CURRENT_TEST, and keying on it started a server
-#: (~4 s of CPU) for every test that launched nodes — 25 in one run of the suite
-PER_CHILD_NAMES = frozenset({"PYTEST_CURRENT_TEST"})
+#: (~4 s of CPU) for every test that launched nodes — 25 in one run of the suite; the player
+#: reads its cache of decoded frames (twinslam.sequences.decoded_frames) when it opens its
+#: sequence
+PER_CHILD_NAMES = frozenset({"PYTEST_CURRENT_TEST", "TWINSLAM_FRAME_CACHE",
+                             "TWINSLAM_FRAME_CACHE_GB"})
 #: the largest request (the environment dominates it)
 MAX_MESSAGE = 1 << 20
 #: how long a server may take to preload before it is given up (a fresh checkout compiles the

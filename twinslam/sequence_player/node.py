@@ -63,6 +63,7 @@ from twinslam.sequence_player.messages import (
 )
 from twinslam.sequence_player.parameters import PARAMETERS
 from twinslam.sequence_player.playback import Playback, PlayedSequence, parse_bursts
+from twinslam.sequences.decoded_frames import DecodedFrameCache
 from twinslam.sequences.frame import RgbdFrame, SequenceError
 from twinslam.sequences.opening import open_sequence
 
@@ -80,9 +81,13 @@ class SequencePlayer(Node):
         super().__init__("sequence_player")
         p = declare(self, PARAMETERS)
         try:
-            self.reader = PlayedSequence(open_sequence(p["sequence"], p["start"], p["end"],
-                                                       str(p["colour_intrinsics"])),
-                                         Playback(str(p["order"]), parse_bursts(p["blank"])))
+            # frames played in an earlier run (or pass) read back decoded, where the
+            # environment names a cache (TWINSLAM_FRAME_CACHE)
+            sequence = open_sequence(p["sequence"], p["start"], p["end"],
+                                     str(p["colour_intrinsics"]),
+                                     frame_cache=DecodedFrameCache.from_environment())
+            self.reader = PlayedSequence(sequence, Playback(str(p["order"]),
+                                                            parse_bursts(p["blank"])))
         except SequenceError as exc:
             raise NodeStartError(str(exc)) from None
         self.rate, self.loop = float(p["rate"]), bool(p["loop"])

@@ -34,6 +34,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from twinslam.sequences.decoded_frames import DecodedFrameCache
 from twinslam.sequences.frame import RgbdFrame, SequenceError, pose_from_xyzq
 from twinslam.sequences.registration import camera_matrix, camera_placement, register_depth
 
@@ -78,6 +79,9 @@ class FolderSequence:
     #: with ``depth_intrinsics``: the 4×4 transform from the depth camera's frame to the colour
     #: camera's (None: the same place, the baseline unknown)
     depth_to_colour: np.ndarray | None = None
+    #: decoded frames kept on disk (:mod:`twinslam.sequences.decoded_frames`); None: every
+    #: frame decoded as it is read
+    cache: DecodedFrameCache | None = None
 
     def __len__(self) -> int:
         return len(self.entries)
@@ -88,7 +92,7 @@ class FolderSequence:
         stop = len(self.entries) if end < 0 else min(end, len(self.entries))
         return FolderSequence(self.path, self.kind, self.intrinsics, self.entries[start:stop],
                               self.depth_decoder, depth_intrinsics=self.depth_intrinsics,
-                              depth_to_colour=self.depth_to_colour)
+                              depth_to_colour=self.depth_to_colour, cache=self.cache)
 
     def with_colour_camera(self, colour_intrinsics: np.ndarray,
                            depth_to_colour: np.ndarray | None = None) -> FolderSequence:
@@ -103,7 +107,7 @@ class FolderSequence:
             raise SequenceError(f"{self.path}: {exc}") from None
         depth_k = self.intrinsics if self.depth_intrinsics is None else self.depth_intrinsics
         return FolderSequence(self.path, self.kind, k, self.entries, self.depth_decoder,
-                              depth_intrinsics=depth_k, depth_to_colour=t)
+                              depth_intrinsics=depth_k, depth_to_colour=t, cache=self.cache)
 
     @property
     def stamps(self) -> np.ndarray:
@@ -124,6 +128,24 @@ class FolderSequence:
         """Frame ``i`` of the listing; None (skipped, counted, warned) when it cannot be
         decoded. Any order: a scenario may play the sequence backwards."""
         entry = self.entries[i]
+        key = self._cache_key(entry)
+        cached = None if key is None or self.cache is None else self.cache.load(key)
+        if cached is not None:
+            color, depth = cached
+        else:
+            decoded = self._decode(entry)
+            if decoded is None:
+                return None
+            color, depth = decoded
+            if key is not None and self.cache is not None:
+                self.cache.store(key, color, depth)
+        return RgbdFrame(i, entry.stamp, color, depth, self.intrinsics, entry.pose,
+                         entry.color.name)
+
+    def _decode(self, entry: _Entry) -> tuple[np.ndarray, np.ndarray | None] | None:
+        """The entry's colour as RGB and its depth in metres (registered to the colour camera
+        where the cameras differ); None (skipped, counted, warned) when a file cannot be
+        decoded."""
         color = cv2.imread(str(entry.color), cv2.IMREAD_COLOR)
         if color is None:
             self._skip(entry.color, "cannot decode the colour image")
@@ -139,8 +161,21 @@ class FolderSequence:
             if self.depth_intrinsics is not None:
                 depth = register_depth(depth, self.depth_intrinsics, self.intrinsics,
                                        self.depth_to_colour)
-        return RgbdFrame(i, entry.stamp, cv2.cvtColor(color, cv2.COLOR_BGR2RGB), depth,
-                         self.intrinsics, entry.pose, entry.color.name)
+        return cv2.cvtColor(color, cv2.COLOR_BGR2RGB), depth
+
+    def _cache_key(self, entry: _Entry) -> str | None:
+        """The entry's name in the cache (None: no cache, or a file that cannot be read, which
+        decoding then skips and names)."""
+        if self.cache is None:
+            return None
+        cameras = [self.intrinsics, self.depth_intrinsics, self.depth_to_colour]
+        try:
+            files = [entry.color.read_bytes(),
+                     b"" if entry.depth is None else entry.depth.read_bytes()]
+        except OSError:
+            return None
+        return self.cache.key([b"folder", *files, self.depth_decoder.encode()] + [
+            b"-" if m is None else np.asarray(m, dtype=np.float64).tobytes() for m in cameras])
 
     def _skip(self, path: Path, why: str) -> None:
         self.skipped.append(str(path))

@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from twinslam.sequences.decoded_frames import DecodedFrameCache
 from twinslam.sequences.folders import (
     SEVEN_SCENES_COLOUR_INTRINSICS,
     SEVEN_SCENES_DEPTH_INTRINSICS,
@@ -32,7 +33,8 @@ AUTO = "auto"
 
 def open_sequence(path: str | Path, start: int = 0, end: int = -1,
                   colour_intrinsics: np.ndarray | str | Path | None = None,
-                  depth_to_colour: np.ndarray | None = None) -> Sequence:
+                  depth_to_colour: np.ndarray | None = None,
+                  frame_cache: DecodedFrameCache | None = None) -> Sequence:
     """Detect the layout of ``path`` and open frames [start, end) of it (end < 0: to the end):
     a dataset folder, a rosbag2 folder or ``.mcap`` file recorded by ``twinslam record``, or
     ``synthetic[:frames[:seed]]`` (the rendered room) or ``synthetic-corridor[:frames[:seed]]``
@@ -41,9 +43,12 @@ def open_sequence(path: str | Path, start: int = 0, end: int = -1,
     camera's (7-Scenes) is seen by a colour camera with these (a 3×3 matrix or the file of
     one), its depth registered to it, the colour camera at ``depth_to_colour`` (4×4) from the
     depth camera (None: the same place); None or "": the folder's own intrinsics; ``"auto"``
-    (:data:`AUTO`): a 7-Scenes scene's colour camera, any other source as it is."""
+    (:data:`AUTO`): a 7-Scenes scene's colour camera, any other source as it is.
+    ``frame_cache``: a dataset folder's frames decoded, or a synthetic world's rendered, once
+    and read back from there (what a reader that plays the frames again and again wants; a bag
+    ignores it)."""
     if isinstance(colour_intrinsics, str) and colour_intrinsics == AUTO:
-        sequence = _open(path, start, end)
+        sequence = _open(path, start, end, frame_cache)
         if (isinstance(sequence, FolderSequence) and sequence.kind == "7scenes"
                 and np.allclose(sequence.intrinsics, SEVEN_SCENES_DEPTH_INTRINSICS)):
             return sequence.with_colour_camera(SEVEN_SCENES_COLOUR_INTRINSICS, depth_to_colour)
@@ -53,7 +58,7 @@ def open_sequence(path: str | Path, start: int = 0, end: int = -1,
                              if str(colour_intrinsics) else None)
     if colour_intrinsics is None and depth_to_colour is not None:
         raise SequenceError("a depth-to-colour transform needs the colour camera's intrinsics")
-    sequence = _open(path, start, end)
+    sequence = _open(path, start, end, frame_cache)
     if colour_intrinsics is None:
         return sequence
     if not isinstance(sequence, FolderSequence):
@@ -62,18 +67,19 @@ def open_sequence(path: str | Path, start: int = 0, end: int = -1,
     return sequence.with_colour_camera(colour_intrinsics, depth_to_colour)
 
 
-def _open(path: str | Path, start: int, end: int) -> Sequence:
+def _open(path: str | Path, start: int, end: int, frame_cache: DecodedFrameCache | None
+          ) -> Sequence:
     """The sequence ``path`` names, by its layout (:func:`open_sequence`)."""
     if str(path).startswith("synthetic"):
         # a misspelt world is refused with the worlds' names, never read as a folder
-        return _open_synthetic(str(path), start, end)
+        return _open_synthetic(str(path), start, end, frame_cache)
     root = Path(path)
     if root.suffix == ".mcap" or (root / "metadata.yaml").is_file():
         # imported here: reading a bag loads rclpy and rosbags, which a folder never needs
         from twinslam.sequences.bag import open_bag
 
         return open_bag(root, start, end)
-    return open_folder(root, start, end)
+    return open_folder(root, start, end, frame_cache)
 
 
 def is_synthetic(spec: str | Path) -> bool:
@@ -92,7 +98,8 @@ def synthetic_walk(spec: str, seed: int, frames: int | None = None) -> str:
     return f"{name}:{count}:{seed}"
 
 
-def _open_synthetic(spec: str, start: int, end: int) -> SyntheticSequence:
+def _open_synthetic(spec: str, start: int, end: int, frame_cache: DecodedFrameCache | None
+                    ) -> SyntheticSequence:
     from twinslam.sequences.synthetic_worlds import SPECS
 
     name, _, rest = spec.partition(":")
@@ -111,12 +118,14 @@ def _open_synthetic(spec: str, start: int, end: int) -> SyntheticSequence:
     # dataset folder never needs
     from twinslam.sequences.synthetic import SyntheticSequence
 
-    return SyntheticSequence(n_frames=n, seed=walk, path=Path(name),
-                             world_name=SPECS[name]).select(start, stop)
+    return SyntheticSequence(n_frames=n, seed=walk, path=Path(name), world_name=SPECS[name],
+                             cache=frame_cache).select(start, stop)
 
 
-def open_folder(root: Path, start: int = 0, end: int = -1) -> FolderSequence:
-    """A SUN3D, TUM RGB-D or 7-Scenes folder, told apart by what it holds."""
+def open_folder(root: Path, start: int = 0, end: int = -1,
+                frame_cache: DecodedFrameCache | None = None) -> FolderSequence:
+    """A SUN3D, TUM RGB-D or 7-Scenes folder, told apart by what it holds; its frames read
+    through ``frame_cache`` where one is given."""
     if not root.is_dir():
         raise SequenceError(f"sequence folder {root} does not exist")
     if (root / "image").is_dir():
@@ -130,6 +139,7 @@ def open_folder(root: Path, start: int = 0, end: int = -1) -> FolderSequence:
                             "(frame-*.color.*) folder")
     if not reader.entries:
         raise SequenceError(f"{root}: the sequence holds no frames")
+    reader.cache = frame_cache
     chosen = reader.select(start, end)
     if not chosen.entries:
         raise SequenceError(f"{root}: no frame in [{start}, {end}) of its {len(reader)}")

@@ -35,6 +35,7 @@ from twinslam.live.scenarios import Scenario
 from twinslam.live.tracking_quality import translation_errors
 from twinslam.reporting import file_name
 from twinslam.sequence_player.playback import Playback, PlayedSequence
+from twinslam.sequences.decoded_frames import DecodedFrameCache
 from twinslam.sequences.opening import AUTO, open_sequence
 from twinslam.simulator.extraction import extract_covisibility
 from twinslam.slam.map_update import MapSnapshot
@@ -110,7 +111,9 @@ def covisibility_file(sequence: str, frames: int, cache: Path,
             return path
         echo(f"{path} is cut off or damaged (a run stopped while writing it?): extracting it "
              "again")
-    reader = open_sequence(sequence, start, start + frames, colour_intrinsics)
+    # the frames the runs played: read back decoded where the player's cache holds them
+    reader = open_sequence(sequence, start, start + frames, colour_intrinsics,
+                           frame_cache=DecodedFrameCache.from_environment())
     echo(f"extracting the covisibility of {len(reader)} frames of {sequence} for the "
          f"calibration (once; cached in {path})")
     dataset, _, _ = extract_covisibility(reader)
