@@ -1,0 +1,109 @@
+"""Where a command's CPU goes, by process kind: every process it starts, the nodes forked from
+the fork servers included, which ``getrusage`` and ``bench.suite_cpu`` cannot count (a forked
+node is the fork server's child, and the server is killed, not waited for).
+
+    .venv/bin/python -m bench.process_cpu [--every 0.3] [--top 20] -- COMMAND [ARGS...]
+    .venv/bin/python -m bench.process_cpu -- .venv/bin/python -m pytest -n 4 -p no:cacheprovider
+
+The command runs in a session of its own; ``/proc`` is read every ``--every`` seconds, and each
+process of that session is counted at the CPU time (user + system) it last showed. A process
+that lives less than one interval may be missed, and one is counted up to an interval short of
+its end: the total is a lower bound, compared with the command's own children's total (what
+the kernel counts for the processes that were waited for). Processes are grouped by name (a
+forked node names itself: ``device_tracker``, ``sequence_player``, ``edge_mapper``), a Python
+process by the module it runs; a process already reaped to a zombie when first seen has no
+command line left and counts under ``(exited)``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import subprocess
+import time
+from collections import Counter
+from pathlib import Path
+
+from twinslam.cli.console import HelpFormatter
+
+TICK = os.sysconf("SC_CLK_TCK")
+
+
+def _group(comm: str, argv: list[str]) -> str:
+    """A process's group: its name, or for a Python process the module or script it runs."""
+    if not argv:
+        return f"{comm} (exited)"
+    if not comm.startswith("python"):
+        return comm
+    if "-m" in argv[:-1]:
+        return f"python -m {argv[argv.index('-m') + 1]}"
+    if "-c" in argv[:-1]:
+        return "python -c (pytest-xdist workers, benchmark drivers)"
+    scripts = [a for a in argv[1:] if a.endswith(".py") or "/bin/" in a]
+    return f"python {Path(scripts[0]).name}" if scripts else "python"
+
+
+def _sample(session: int, seen: dict[int, tuple[float, str]]) -> None:
+    """The CPU seconds and group of every process of ``session`` now."""
+    for entry in os.scandir("/proc"):
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = Path(entry.path, "stat").read_text()
+            argv = Path(entry.path, "cmdline").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        comm = stat[stat.index("(") + 1:stat.rindex(")")]
+        fields = stat[stat.rindex(")") + 2:].split()
+        if int(fields[3]) != session:        # field 6 of stat: the session id
+            continue
+        cpu = (int(fields[11]) + int(fields[12])) / TICK
+        args = [a.decode(errors="replace") for a in argv if a]
+        pid = int(entry.name)
+        if pid not in seen or cpu >= seen[pid][0]:
+            old = seen.get(pid)
+            group = _group(comm, args) if args or old is None else old[1]
+            seen[pid] = (cpu, group)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     formatter_class=HelpFormatter)
+    parser.add_argument("--every", type=float, default=0.3,
+                        help="seconds between two readings of /proc (default %(default)s)")
+    parser.add_argument("--top", type=int, default=20,
+                        help="groups shown, the costliest first (default %(default)s)")
+    parser.add_argument("command", nargs=argparse.REMAINDER,
+                        help="the command, after --")
+    args = parser.parse_args()
+    command = args.command[1:] if args.command[:1] == ["--"] else args.command
+    if not command:
+        parser.error("no command given (put it after --)")
+    if args.every <= 0 or args.top < 1:
+        parser.error("--every must be above 0 and --top at least 1")
+    start = time.monotonic()
+    proc = subprocess.Popen(command, start_new_session=True)
+    seen: dict[int, tuple[float, str]] = {}
+    while proc.poll() is None:
+        _sample(proc.pid, seen)
+        time.sleep(args.every)
+    wall = time.monotonic() - start
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    groups: Counter[str] = Counter()
+    counts: Counter[str] = Counter()
+    for cpu, group in seen.values():
+        groups[group] += cpu
+        counts[group] += 1
+    total = sum(groups.values())
+    print(f"\nexit {proc.returncode}; {wall:.0f} s wall; CPU seen in {len(seen)} processes "
+          f"{total:.0f} s (a lower bound); the waited-for children's own count "
+          f"{usage.ru_utime + usage.ru_stime:.1f} s")
+    print(f"{'CPU s':>8} {'share':>6} {'procs':>5}  group")
+    for group, cpu in groups.most_common(args.top):
+        print(f"{cpu:8.1f} {100 * cpu / max(total, 1e-9):5.1f}% {counts[group]:5d}  {group}")
+    raise SystemExit(proc.returncode)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,54 @@
+"""``bench.process_cpu``: a command's CPU by process kind, counting the processes it never
+waited for (what a node forked from a fork server is) — the part of ``make test``'s CPU that
+``bench.suite_cpu`` cannot see."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+
+SPIN = ("import sys, time\nend = time.process_time() + 1.0\n"
+        "while time.process_time() < end:\n    pass\nopen(sys.argv[1], 'w').close()\n")
+#: starts spin.py as a grandchild nobody waits for (its parent exits at once), then waits
+#: for the file spin.py writes when done, at most 60 s
+DRIVER = """import os, sys, time
+done = sys.argv[2]
+child = os.fork()
+if child == 0:
+    if os.fork() == 0:
+        os.execv(sys.executable, [sys.executable, sys.argv[1], done])
+    os._exit(0)
+os.waitpid(child, 0)
+end = time.monotonic() + 60
+while not os.path.exists(done) and time.monotonic() < end:
+    time.sleep(0.05)
+time.sleep(0.3)
+sys.exit(0 if os.path.exists(done) else 3)
+"""
+
+
+def test_a_process_nobody_waited_for_is_counted_under_its_name(tmp_path: Path) -> None:
+    (tmp_path / "spin.py").write_text(SPIN, encoding="utf-8")
+    (tmp_path / "driver.py").write_text(DRIVER, encoding="utf-8")
+    run = subprocess.run([sys.executable, "-m", "bench.process_cpu", "--every", "0.1", "--",
+                          sys.executable, str(tmp_path / "driver.py"), str(tmp_path / "spin.py"),
+                          str(tmp_path / "done")], cwd=REPO, capture_output=True, text=True,
+                         timeout=120, env=dict(os.environ, PYTHONPATH=str(REPO)))
+    assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-2000:]
+    row = next(line for line in run.stdout.splitlines() if line.endswith("python spin.py"))
+    assert float(row.split()[0]) >= 0.7, run.stdout
+    # the kernel's count of waited-for children misses it: the grandchild was never waited for
+    waited = re.search(r"children's own count (\d+\.\d) s", run.stdout)
+    assert waited is not None and float(waited.group(1)) < 0.7, run.stdout
+
+
+def test_a_command_is_required() -> None:
+    run = subprocess.run([sys.executable, "-m", "bench.process_cpu", "--"], cwd=REPO,
+                         capture_output=True, text=True, timeout=60,
+                         env=dict(os.environ, PYTHONPATH=str(REPO)))
+    assert run.returncode == 2 and "no command given" in run.stderr
