@@ -158,7 +158,7 @@ def test_a_cache_that_cannot_be_written_costs_a_decode(
     monkeypatch.setenv(CACHE_ENV, str(blocker / "cache"))
     with caplog.at_level(logging.WARNING):
         frames = _frames(folder)
-    assert len(frames) == 2 and "not written" in caplog.text
+    assert len(frames) == 2 and caplog.text.count("not written") == 1      # said once
 
 
 def test_a_corrupt_image_is_skipped_every_pass_and_never_cached(

@@ -55,6 +55,7 @@ class DecodedFrameCache:
         self.max_bytes = max_bytes
         self._used: int | None = None          #: bytes held, counted at the first store
         self._full_said = False
+        self._unwritable = False               #: a store failed: said once, not tried again
 
     @classmethod
     def from_environment(cls) -> DecodedFrameCache | None:
@@ -112,6 +113,8 @@ class DecodedFrameCache:
     def store(self, key: str, color: np.ndarray, depth: np.ndarray | None) -> None:
         """Keep the frame under ``key`` unless the cache is at its bound (or cannot be
         written: the frame was decoded and the run goes on without the entry)."""
+        if self._unwritable:
+            return
         size = color.nbytes + (0 if depth is None else depth.nbytes) + 384
         try:
             self.root.mkdir(parents=True, exist_ok=True)
@@ -135,9 +138,10 @@ class DecodedFrameCache:
             except BaseException:
                 Path(tmp).unlink(missing_ok=True)
                 raise
-        except OSError as exc:
-            log.warning("frame cache %s not written (%s): the frame is decoded every time",
+        except OSError as exc:              # said once: a run's every frame would say it again
+            log.warning("frame cache %s not written (%s): frames are made every time",
                         self.root, exc)
+            self._unwritable = True
             return
         self._used += size
 
