@@ -28,7 +28,7 @@ import hashlib
 import logging
 import os
 import tempfile
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import numpy as np
@@ -45,6 +45,8 @@ DEFAULT_BOUND_GB = 8.0
 #: what an entry holds and how; a change of it names every entry anew
 FORMAT = b"twinslam decoded frame v1"
 SUFFIX = ".frame.npy"
+#: a frame's pixels: RGB colour and, where it has one, depth in metres
+Frame = tuple[np.ndarray, np.ndarray | None]
 
 
 class DecodedFrameCache:
@@ -86,7 +88,18 @@ class DecodedFrameCache:
     def _path(self, key: str) -> Path:
         return self.root / f"{key}{SUFFIX}"
 
-    def load(self, key: str) -> tuple[np.ndarray, np.ndarray | None] | None:
+    def fetch(self, key: str, make: Callable[[], Frame | None]) -> Frame | None:
+        """The frame under ``key``: read back where the cache holds it, else made by ``make``
+        and kept (None where ``make`` could not make it: nothing is kept)."""
+        cached = self.load(key)
+        if cached is not None:
+            return cached
+        made = make()
+        if made is not None:
+            self.store(key, *made)
+        return made
+
+    def load(self, key: str) -> Frame | None:
         """(colour, depth) of the entry, or None where there is none or it is not whole."""
         path = self._path(key)
         try:
@@ -117,8 +130,8 @@ class DecodedFrameCache:
             return
         size = color.nbytes + (0 if depth is None else depth.nbytes) + 384
         try:
-            self.root.mkdir(parents=True, exist_ok=True)
-            if self._used is None:
+            if self._used is None:                 # once a process, not once a frame
+                self.root.mkdir(parents=True, exist_ok=True)
                 self._used = sum(e.stat().st_size for e in os.scandir(self.root)
                                  if e.name.endswith(SUFFIX))
             if self._used + size > self.max_bytes:

@@ -34,7 +34,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from twinslam.sequences.decoded_frames import DecodedFrameCache
+from twinslam.sequences.decoded_frames import DecodedFrameCache, Frame
 from twinslam.sequences.frame import RgbdFrame, SequenceError, pose_from_xyzq
 from twinslam.sequences.registration import camera_matrix, camera_placement, register_depth
 
@@ -128,21 +128,20 @@ class FolderSequence:
         """Frame ``i`` of the listing; None (skipped, counted, warned) when it cannot be
         decoded. Any order: a scenario may play the sequence backwards."""
         entry = self.entries[i]
-        key = self._cache_key(entry)
-        cached = None if key is None or self.cache is None else self.cache.load(key)
-        if cached is not None:
-            color, depth = cached
-        else:
-            decoded = self._decode(entry)
-            if decoded is None:
-                return None
-            color, depth = decoded
-            if key is not None and self.cache is not None:
-                self.cache.store(key, color, depth)
-        return RgbdFrame(i, entry.stamp, color, depth, self.intrinsics, entry.pose,
+        made = self._made(entry)
+        if made is None:
+            return None
+        return RgbdFrame(i, entry.stamp, made[0], made[1], self.intrinsics, entry.pose,
                          entry.color.name)
 
-    def _decode(self, entry: _Entry) -> tuple[np.ndarray, np.ndarray | None] | None:
+    def _made(self, entry: _Entry) -> Frame | None:
+        """The entry decoded, or read back where the cache holds it."""
+        key = None if self.cache is None else self._cache_key(entry)
+        if self.cache is None or key is None:
+            return self._decode(entry)
+        return self.cache.fetch(key, lambda: self._decode(entry))
+
+    def _decode(self, entry: _Entry) -> Frame | None:
         """The entry's colour as RGB and its depth in metres (registered to the colour camera
         where the cameras differ); None (skipped, counted, warned) when a file cannot be
         decoded."""
@@ -164,17 +163,15 @@ class FolderSequence:
         return cv2.cvtColor(color, cv2.COLOR_BGR2RGB), depth
 
     def _cache_key(self, entry: _Entry) -> str | None:
-        """The entry's name in the cache (None: no cache, or a file that cannot be read, which
-        decoding then skips and names)."""
-        if self.cache is None:
-            return None
+        """The entry's name in the cache (None: a file that cannot be read, which decoding
+        then skips and names)."""
         cameras = [self.intrinsics, self.depth_intrinsics, self.depth_to_colour]
         try:
             files = [entry.color.read_bytes(),
                      b"" if entry.depth is None else entry.depth.read_bytes()]
         except OSError:
             return None
-        return self.cache.key([b"folder", *files, self.depth_decoder.encode()] + [
+        return DecodedFrameCache.key([b"folder", *files, self.depth_decoder.encode()] + [
             b"-" if m is None else np.asarray(m, dtype=np.float64).tobytes() for m in cameras])
 
     def _skip(self, path: Path, why: str) -> None:

@@ -18,7 +18,7 @@ import numba
 import numpy as np
 
 from twinslam.kernel_cache import njit
-from twinslam.sequences.decoded_frames import DecodedFrameCache
+from twinslam.sequences.decoded_frames import DecodedFrameCache, Frame
 from twinslam.sequences.frame import RgbdFrame
 from twinslam.sequences.synthetic_worlds import FPS, WORLDS, SyntheticWorld, spec_name
 
@@ -101,17 +101,17 @@ class SyntheticSequence:
         cache holds it)."""
         j = self.first + i
         pose = self.pose(j)
-        key = None if self.cache is None else self.cache.key([
-            b"synthetic", _renderer(self.world_name),
-            np.array([self.width, self.height, self.fx], dtype=np.float64).tobytes(),
-            np.ascontiguousarray(pose, dtype=np.float64).tobytes()])
-        cached = None if key is None or self.cache is None else self.cache.load(key)
-        if cached is not None and cached[1] is not None:
-            color, depth = cached[0], cached[1]
+        made: Frame | None
+        if self.cache is None:
+            made = self.render(j)
         else:
-            color, depth = self.render(j)
-            if key is not None and self.cache is not None:
-                self.cache.store(key, color, depth)
+            key = DecodedFrameCache.key([
+                b"synthetic", _renderer(self.world_name),
+                np.array([self.width, self.height, self.fx], dtype=np.float64).tobytes(),
+                np.ascontiguousarray(pose, dtype=np.float64).tobytes()])
+            made = self.cache.fetch(key, lambda: self.render(j))
+        assert made is not None, "a ray cast always makes its frame"
+        color, depth = made
         return RgbdFrame(i, j / FPS, color, depth, self.intrinsics, pose,
                          f"{spec_name(self.world_name)}-{j:06d}")
 
