@@ -14,10 +14,11 @@ import pytest
 # of them oversubscribes the machine (measured on 2 cores, 3 workers: the twin's ELBO test took
 # 65 s of CPU instead of 15). A test of thread settings clears it for what it starts.
 os.environ.setdefault("OMP_NUM_THREADS", "1")
-# The live tests play the 7-Scenes sample dozens of times: every player and calibration the
-# suite starts reads a frame decoded once through one cache of decoded frames
-# (twinslam.sequences.decoded_frames), kept between runs under .cache/, bounded at 4 GB. A
-# 2-core machine's suite is CPU-bound (docs/testing.md).
+# The live tests play the same frames dozens of times (the 7-Scenes sample, the synthetic
+# worlds' walks): every player and calibration the suite starts reads a frame made once through
+# one cache of decoded and rendered frames (twinslam.sequences.decoded_frames), kept between
+# runs under .cache/ — about 1 500 frames, 3.2 GB, in one run of the suite; bounded at 4 GB. A
+# 2-core machine's suite is CPU-bound, and the players' CPU fell by ~40 % (docs/testing.md).
 os.environ.setdefault("TWINSLAM_FRAME_CACHE",
                       str(Path(__file__).resolve().parents[1] / ".cache" / "decoded-frames"))
 os.environ.setdefault("TWINSLAM_FRAME_CACHE_GB", "4")

@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import pytest
 
-from twinslam.sequences import folders
+from twinslam.sequences import folders, synthetic
 from twinslam.sequences.decoded_frames import BOUND_ENV, CACHE_ENV, SUFFIX, DecodedFrameCache
 from twinslam.sequences.frame import RandomAccessSequence, Sequence, SequenceError
 from twinslam.sequences.opening import open_sequence
@@ -181,3 +181,25 @@ def test_a_bound_that_is_not_a_size_is_refused(tmp_path: Path, cache_dir: Path,
     with pytest.raises(SequenceError, match=f"{BOUND_ENV}=.*a size in GB expected"):
         _opened(folder)
 
+
+def test_a_synthetic_world_played_again_is_read_back_not_rendered(
+        cache_dir: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Frames of one walk are one entry each, whatever the sequence's length or first frame
+    (the renderer's input is the world, the camera and its pose); another walk or world is
+    rendered, never answered with the first one's pixels."""
+    rendered = list(open_sequence("synthetic:4", 2, 4))              # no cache: the truth
+    first = list(open_sequence("synthetic:4", 2, 4, frame_cache=DecodedFrameCache(
+        cache_dir, 10**9)))
+    _assert_same(first, rendered)
+    assert len(list(cache_dir.glob(f"*{SUFFIX}"))) == 2
+
+    def refuse(*args: object) -> None:
+        raise AssertionError("rendered although the frame was in the cache")
+    monkeypatch.setattr(synthetic, "_cast", refuse)
+    longer = open_sequence("synthetic:30", 2, 4, frame_cache=DecodedFrameCache(cache_dir, 10**9))
+    _assert_same(list(longer), rendered)
+    monkeypatch.undo()
+    for other in ("synthetic:4:1", "synthetic-corridor:4"):
+        frames = list(open_sequence(other, 2, 4, frame_cache=DecodedFrameCache(cache_dir, 10**9)))
+        assert not np.array_equal(frames[0].color, rendered[0].color), other
+    assert len(list(cache_dir.glob(f"*{SUFFIX}"))) == 6

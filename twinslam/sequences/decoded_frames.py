@@ -12,9 +12,8 @@ from then on (about a fifth of the CPU).
 An entry is named by a SHA-256 of what decides its pixels: for a dataset frame the bytes of
 its colour and depth files (~0.2 ms a 7-Scenes frame, so a file rewritten in place is never
 answered from a stale entry, whatever its timestamps say), the depth decoding and the
-registration's cameras. (Synthetic worlds were cached too, keyed by their renderer, world and
-pose, and a live relocalisation test then lost tracking at the walk's turn in 3 of 5 runs
-against 0 of 4 rendering every frame: not understood, so they are rendered every time.) A frame is
+registration's cameras; for a frame of a synthetic world (:mod:`twinslam.sequences.synthetic`)
+the renderer's source, the world's textures and box, the camera and its pose. A frame is
 written to a temporary file and renamed into place, so processes that play one sequence at
 once (a fleet, the test suite's workers) share the cache without locks; an entry that cannot
 be read back whole is removed and the frame made again. The cache stops growing at its size

@@ -44,10 +44,9 @@ def open_sequence(path: str | Path, start: int = 0, end: int = -1,
     one), its depth registered to it, the colour camera at ``depth_to_colour`` (4×4) from the
     depth camera (None: the same place); None or "": the folder's own intrinsics; ``"auto"``
     (:data:`AUTO`): a 7-Scenes scene's colour camera, any other source as it is.
-    ``frame_cache``: a dataset folder's frames decoded once and read back from there (what a
-    reader that plays the frames again and again wants; a synthetic world or a bag ignores
-    it: its cached frames made a live test lose tracking where rendered ones did not, not yet
-    understood)."""
+    ``frame_cache``: a dataset folder's frames decoded, or a synthetic world's rendered, once
+    and read back from there (what a reader that plays the frames again and again wants; a bag
+    ignores it)."""
     if isinstance(colour_intrinsics, str) and colour_intrinsics == AUTO:
         sequence = _open(path, start, end, frame_cache)
         if (isinstance(sequence, FolderSequence) and sequence.kind == "7scenes"
@@ -73,7 +72,7 @@ def _open(path: str | Path, start: int, end: int, frame_cache: DecodedFrameCache
     """The sequence ``path`` names, by its layout (:func:`open_sequence`)."""
     if str(path).startswith("synthetic"):
         # a misspelt world is refused with the worlds' names, never read as a folder
-        return _open_synthetic(str(path), start, end)
+        return _open_synthetic(str(path), start, end, frame_cache)
     root = Path(path)
     if root.suffix == ".mcap" or (root / "metadata.yaml").is_file():
         # imported here: reading a bag loads rclpy and rosbags, which a folder never needs
@@ -99,7 +98,8 @@ def synthetic_walk(spec: str, seed: int, frames: int | None = None) -> str:
     return f"{name}:{count}:{seed}"
 
 
-def _open_synthetic(spec: str, start: int, end: int) -> SyntheticSequence:
+def _open_synthetic(spec: str, start: int, end: int, frame_cache: DecodedFrameCache | None
+                    ) -> SyntheticSequence:
     from twinslam.sequences.synthetic_worlds import SPECS
 
     name, _, rest = spec.partition(":")
@@ -118,8 +118,8 @@ def _open_synthetic(spec: str, start: int, end: int) -> SyntheticSequence:
     # dataset folder never needs
     from twinslam.sequences.synthetic import SyntheticSequence
 
-    return SyntheticSequence(n_frames=n, seed=walk, path=Path(name),
-                             world_name=SPECS[name]).select(start, stop)
+    return SyntheticSequence(n_frames=n, seed=walk, path=Path(name), world_name=SPECS[name],
+                             cache=frame_cache).select(start, stop)
 
 
 def open_folder(root: Path, start: int = 0, end: int = -1,

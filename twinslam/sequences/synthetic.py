@@ -8,13 +8,17 @@ World frame: x right, y down, z forward (the camera convention), origin at the w
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from functools import cache
 from pathlib import Path
 
+import numba
 import numpy as np
 
 from twinslam.kernel_cache import njit
+from twinslam.sequences.decoded_frames import DecodedFrameCache, Frame
 from twinslam.sequences.frame import RgbdFrame
 from twinslam.sequences.synthetic_worlds import FPS, WORLDS, SyntheticWorld, spec_name
 
@@ -35,6 +39,9 @@ class SyntheticSequence:
     skipped: list[str] = field(default_factory=list)
     first: int = 0                 #: frames [first, n_frames) are played (see select)
     world_name: str = "room"
+    #: rendered frames kept on disk (:mod:`twinslam.sequences.decoded_frames`); None: every
+    #: frame ray-cast as it is read
+    cache: DecodedFrameCache | None = None
 
     def __post_init__(self) -> None:
         if self.n_frames < 1:
@@ -59,7 +66,7 @@ class SyntheticSequence:
     def select(self, start: int, stop: int) -> SyntheticSequence:
         """Frames [start, stop) of the same world and walk."""
         return SyntheticSequence(stop, self.seed, self.width, self.height, self.fx, self.path,
-                                 first=start, world_name=self.world_name)
+                                 first=start, world_name=self.world_name, cache=self.cache)
 
     @property
     def stamps(self) -> np.ndarray:
@@ -90,11 +97,37 @@ class SyntheticSequence:
             yield self.read(i)
 
     def read(self, i: int) -> RgbdFrame:
-        """Frame ``i`` of the selection (rendered on demand, in any order)."""
+        """Frame ``i`` of the selection (rendered on demand, in any order; read back where the
+        cache holds it)."""
         j = self.first + i
-        color, depth = self.render(j)
-        return RgbdFrame(i, j / FPS, color, depth, self.intrinsics, self.pose(j),
+        pose = self.pose(j)
+        made: Frame | None
+        if self.cache is None:
+            made = self.render(j)
+        else:
+            key = DecodedFrameCache.key([
+                b"synthetic", _renderer(self.world_name),
+                np.array([self.width, self.height, self.fx], dtype=np.float64).tobytes(),
+                np.ascontiguousarray(pose, dtype=np.float64).tobytes()])
+            made = self.cache.fetch(key, lambda: self.render(j))
+        assert made is not None, "a ray cast always makes its frame"
+        color, depth = made
+        return RgbdFrame(i, j / FPS, color, depth, self.intrinsics, pose,
                          f"{spec_name(self.world_name)}-{j:06d}")
+
+
+@cache
+def _renderer(world_name: str) -> bytes:
+    """A digest of what a frame of ``world_name`` is rendered from besides its camera and pose:
+    this module's source (the ray cast), the world's box, textures and depth range, and the
+    numerical libraries that compile and run the cast."""
+    world = WORLDS[world_name]()
+    digest = hashlib.sha256(Path(__file__).read_bytes())
+    digest.update(f"numba {numba.__version__} numpy {np.__version__}".encode())
+    digest.update(np.array([*world.half, world.texel_m, world.max_depth_m]).tobytes())
+    for part in world.packed_textures():
+        digest.update(np.ascontiguousarray(part).tobytes())
+    return digest.digest()
 
 
 @njit(cache=True)
