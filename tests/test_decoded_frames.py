@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import logging
 import os
+import time
 from pathlib import Path
 
 import cv2
@@ -14,7 +15,14 @@ import numpy as np
 import pytest
 
 from twinslam.sequences import folders, synthetic
-from twinslam.sequences.decoded_frames import BOUND_ENV, CACHE_ENV, SUFFIX, DecodedFrameCache
+from twinslam.sequences.decoded_frames import (
+    BOUND_ENV,
+    CACHE_ENV,
+    PARTIAL,
+    STALE_PARTIAL_S,
+    SUFFIX,
+    DecodedFrameCache,
+)
 from twinslam.sequences.frame import RandomAccessSequence, Sequence, SequenceError
 from twinslam.sequences.opening import open_sequence
 
@@ -170,6 +178,22 @@ def test_a_corrupt_image_is_skipped_every_pass_and_never_cached(
         assert [f.index for f in sequence] == [0, 2]
         assert sequence.skipped == [str(folder / "frame-000001.depth.png")]
     assert len(list(cache_dir.glob(f"*{SUFFIX}"))) == 2
+
+
+def test_a_killed_writers_leftover_is_removed_and_a_live_ones_kept(
+        tmp_path: Path, cache_dir: Path) -> None:
+    """A process killed between writing an entry and renaming it leaves a frame's worth of
+    temporary file that nothing reads: the next process to store removes it once it is old,
+    never one a writer may still be renaming."""
+    cache_dir.mkdir(parents=True)
+    stale, fresh = cache_dir / f"tmpold{PARTIAL}", cache_dir / f"tmpnew{PARTIAL}"
+    for leftover in (stale, fresh):
+        leftover.write_bytes(b"\0" * 1024)
+    old = time.time() - STALE_PARTIAL_S - 60
+    os.utime(stale, (old, old))
+    _frames(_seven_scenes_folder(tmp_path / "seven", frames=1))
+    assert not stale.exists() and fresh.exists()
+    assert len(list(cache_dir.glob(f"*{SUFFIX}"))) == 1
 
 
 @pytest.mark.parametrize("bound", ["lots", "-1", "nan"])

@@ -16,9 +16,10 @@ registration's cameras; for a frame of a synthetic world (:mod:`twinslam.sequenc
 the renderer's source, the world's textures and box, the camera and its pose. A frame is
 written to a temporary file and renamed into place, so processes that play one sequence at
 once (a fleet, the test suite's workers) share the cache without locks; an entry that cannot
-be read back whole is removed and the frame made again. The cache stops growing at its size
-bound (``TWINSLAM_FRAME_CACHE_GB``, default 8): it never evicts, and frames beyond it are made
-every time, as without a cache.
+be read back whole is removed and the frame made again; a temporary file a killed writer left
+behind is removed by the next process that stores, once it is ten minutes old. The cache stops
+growing at its size bound (``TWINSLAM_FRAME_CACHE_GB``, default 8): it never evicts, and
+frames beyond it are made every time, as without a cache.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ import hashlib
 import logging
 import os
 import tempfile
+import time
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
@@ -45,6 +47,10 @@ DEFAULT_BOUND_GB = 8.0
 #: what an entry holds and how; a change of it names every entry anew
 FORMAT = b"twinslam decoded frame v1"
 SUFFIX = ".frame.npy"
+#: an entry being written, renamed to its ``SUFFIX`` name once whole
+PARTIAL = ".partial"
+#: a temporary file this old was left by a writer that was killed: removed
+STALE_PARTIAL_S = 600.0
 #: a frame's pixels: RGB colour and, where it has one, depth in metres
 Frame = tuple[np.ndarray, np.ndarray | None]
 
@@ -132,15 +138,14 @@ class DecodedFrameCache:
         try:
             if self._used is None:                 # once a process, not once a frame
                 self.root.mkdir(parents=True, exist_ok=True)
-                self._used = sum(e.stat().st_size for e in os.scandir(self.root)
-                                 if e.name.endswith(SUFFIX))
+                self._used = self._scan()
             if self._used + size > self.max_bytes:
                 if not self._full_said:
                     log.info("frame cache %s is at its %.1f GB bound: frames not in it are "
                              "decoded every time", self.root, self.max_bytes / 1e9)
                     self._full_said = True
                 return
-            fd, tmp = tempfile.mkstemp(dir=self.root, suffix=".partial")
+            fd, tmp = tempfile.mkstemp(dir=self.root, suffix=PARTIAL)
             try:
                 with os.fdopen(fd, "wb") as fh:
                     np.save(fh, color, allow_pickle=False)
@@ -157,6 +162,22 @@ class DecodedFrameCache:
             self._unwritable = True
             return
         self._used += size
+
+
+    def _scan(self) -> int:
+        """Bytes the entries hold; on the way, the temporary files of writers killed before
+        their rename (a frame's worth each, never read) are removed once they are
+        ``STALE_PARTIAL_S`` old — a live writer renames its file within milliseconds."""
+        used = 0
+        now = time.time()
+        for entry in os.scandir(self.root):
+            if entry.name.endswith(SUFFIX):
+                used += entry.stat().st_size
+            elif entry.name.endswith(PARTIAL):
+                with contextlib.suppress(OSError):     # another process may take it first
+                    if now - entry.stat().st_mtime > STALE_PARTIAL_S:
+                        os.unlink(entry.path)
+        return used
 
 
 def _remove(path: Path) -> None:
