@@ -153,6 +153,37 @@ def test_resuming_runs_made_under_other_settings_is_refused_and_loses_nothing(
     assert ran == [0, 1, 2, 3] and not failures and len(results) == 4
 
 
+def test_paced_runs_are_another_setting_and_a_folder_made_before_pacing_was_real_time(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``--pace`` changes what a run measures (a device that sees every frame): a resume with
+    another pace is refused; a folder whose settings predate the option was played in real
+    time, and resumes as such."""
+    import dataclasses
+    import json
+
+    from twinslam.live import runs as evaluate
+
+    def fake(task: evaluate.RunTask) -> RunResult:
+        return RunResult(task.key, _run(task.key.policy, task.key.seed, 3, 0.1).report, None,
+                         None)
+
+    monkeypatch.setattr(evaluate, "run_one", fake)
+    out = tmp_path / "out"
+    tasks = _tasks("lff", 3)
+    evaluate.run_all(tasks[:2], out, echo=lambda _: None)
+    paced = [dataclasses.replace(t, pace_frames=30) for t in tasks]
+    with pytest.raises(ValueError, match=r"pace_frames 0 there, 30 now"):
+        evaluate.run_all(paced, out, echo=lambda _: None, resume=True)
+    settings = out / evaluate.SETTINGS_FILE
+    older = {run: {k: v for k, v in kept.items() if k != "pace_frames"}
+             for run, kept in json.loads(settings.read_text()).items()}
+    settings.write_text(json.dumps(older))
+    with pytest.raises(ValueError, match=r"pace_frames 0 there, 30 now"):
+        evaluate.run_all(paced, out, echo=lambda _: None, resume=True)
+    results, failures = evaluate.run_all(tasks, out, echo=lambda _: None, resume=True)
+    assert not failures and len(results) == 3
+
+
 def test_a_folder_of_an_older_version_resumes_with_the_later_columns_not_measured(
         tmp_path: Path) -> None:
     """runs.csv written before the columns added since (``jumps``, the losses' shares and

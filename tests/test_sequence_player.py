@@ -267,3 +267,43 @@ def test_a_player_given_a_start_delay_holds_its_first_frame_that_much_longer(
     assert ros.spin_until(lambda: player.poll() is not None, 30.0)
     code, _, err = domain.stop(player)
     assert code == 0, err
+
+
+def test_a_paced_player_holds_its_camera_until_the_device_poses_and_keeps_the_stamps(
+        tmp_path: Path, domain: LoopbackDomain, ros: RosSession) -> None:
+    """``pace_frames:=5``: with no pose from the device the player stops at five frames it
+    has not posed; posed as they come, it plays the rest; the recording's clock stopped while
+    it held, so the stamps keep their recorded 30 Hz spacing, and it says how long it held."""
+    seq = _seven_scenes_fixture(tmp_path / "seq", frames=40, corrupt=39)
+    colour: list[Image] = []
+    posing = {"on": False}
+    poses = ros.node.create_publisher(PoseStamped, topics.DEVICE_POSE, qos.PROTOCOL)
+
+    def pose(msg: Image) -> None:
+        reply = PoseStamped()
+        reply.header = msg.header
+        reply.pose.orientation.w = 1.0
+        poses.publish(reply)
+
+    def camera(msg: Image) -> None:
+        colour.append(msg)
+        if posing["on"]:
+            pose(msg)
+
+    ros.node.create_subscription(Image, topics.CAMERA_IMAGE, camera, qos.CAMERA)
+    player = _play(domain, f"sequence:={seq}", "pace_frames:=5")
+    assert ros.spin_until(lambda: len(colour) >= 5, 60.0), domain.log(player)[-2000:]
+    # 30 frames' time at 30 Hz: unpaced, it would have published them all
+    ros.spin_until(lambda: len(colour) > 5, 1.0)
+    assert len(colour) == 5, "the player went on without the device's poses"
+    posing["on"] = True
+    for msg in colour:                       # the device catches up
+        pose(msg)
+    assert ros.spin_until(lambda: player.poll() is not None, 60.0), domain.log(player)[-2000:]
+    code, _, err = domain.stop(player)
+    assert code == 0, err
+    assert len(colour) == 39
+    gaps = np.diff([_stamp(m) for m in colour])
+    np.testing.assert_allclose(gaps, 1 / 30, atol=1e-6)     # no hold in the stamps
+    held = float(err.split(" s of it held for the device")[0].rsplit(" ", 1)[-1])
+    assert held >= 1.0, err

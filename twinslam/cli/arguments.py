@@ -30,6 +30,35 @@ def rate_range(text: str) -> tuple[float, float]:
     return lo, hi
 
 
+#: the device's camera backlog (msg_schemas.qos.CAMERA's depth): a window at it paces nothing
+_CAMERA_BACKLOG = 150
+
+
+def pace_frames(text: str) -> int:
+    """``--pace``: 0 (real time) or a window below the device's camera backlog."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a whole number of frames, got {text!r}"
+                                         ) from None
+    if not 0 <= value < _CAMERA_BACKLOG:
+        raise argparse.ArgumentTypeError(f"must be 0 (real time) to {_CAMERA_BACKLOG - 1} "
+                                         f"frames (the device drops frames past "
+                                         f"{_CAMERA_BACKLOG}), got {value}")
+    return value
+
+
+def add_pace_argument(parser: argparse.ArgumentParser) -> None:
+    """``--pace`` of the commands that play live runs (launch, evaluate)."""
+    parser.add_argument("--pace", type=pace_frames, default=0, metavar="FRAMES",
+                        help="the camera waits for its device: a player holds its next frame "
+                        "while the device has more than FRAMES frames still to pose, the "
+                        "recording's clock stopped meanwhile, so a device slower than real "
+                        "time on this machine tracks every frame instead of dropping them "
+                        "(what depends on the wall clock — the uplink, the edge's answers — "
+                        "then sees slots that last longer); 0: real time; default %(default)s")
+
+
 def add_setting_arguments(parser: argparse.ArgumentParser) -> None:
     """What the simulator and the trainer both take: the data, the uplink and V_max."""
     parser.add_argument("--covis", required=True, metavar="FILE[@START:END]|geometric[:N[:SEED]]",

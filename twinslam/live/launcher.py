@@ -68,6 +68,8 @@ class LaunchConfig:
     timeout_s: float = 600.0
     scenario: Scenario = SCENARIOS["forward"]   #: order, covered-lens bursts, uplink range
     start: int = 0                   #: the sequence's first frame played
+    #: the camera waits for the device beyond this many unposed frames (0: real time)
+    pace_frames: int = 0
     record: Path | None = None       #: a rosbag2 (MCAP) folder to record the run into
     #: what the recording keeps, and how
     recording: RecordingOptions = field(default_factory=RecordingOptions)
@@ -105,6 +107,7 @@ class Launcher:
                                       # records images
                                       f"wait_for_subscribers:="
                                       f"{1 + c.watch_images + (c.record is not None)}"]
+                  + ([f"pace_frames:={c.pace_frames}"] if c.pace_frames else []),
                   }.get(name, [])
         params += c.scenario.node_params(c.frames, self._device_param(
             "frame_rate_hz", table1.FRAME_RATE_HZ)).get(name, []) + c.extra.get(name, [])

@@ -110,6 +110,9 @@ class RunTask:
     edge_params: tuple[str, ...] = ()
     variant: str = ""
     rate: float = 1.0        #: the cameras' speed, x the recorded frame rate
+    #: the camera waits for its device beyond this many unposed frames (0: real time;
+    #: :mod:`twinslam.sequence_player.pacing`)
+    pace_frames: int = 0
 
 
 @dataclass
@@ -141,7 +144,7 @@ def run_one(task: RunTask) -> RunResult:
         extra["udt_node"] = [f"policy_checkpoint:={checkpoint}"]
     config = LaunchConfig(task.sequence, key.edge_policy, task.frames, task.rate, task.params,
                           timeout_s=task.timeout_s, scenario=task.scenario, extra=extra,
-                          start=task.start, with_twin=learned)
+                          start=task.start, with_twin=learned, pace_frames=task.pace_frames)
     with LoopbackDomain() as dom:
         dom.activate()
         launcher = Launcher(dom, config, print if task.verbose else None)
@@ -219,8 +222,12 @@ def run_settings(task: RunTask) -> dict[str, object]:
     sequence = str(Path(task.sequence).resolve()) if Path(task.sequence).exists() \
         else task.sequence
     return {"sequence": sequence, "frames": task.frames, "start": task.start,
-            "rate": task.rate, "params": str(task.params), "params_sha256": digest,
-            "edge_params": list(task.edge_params)}
+            "rate": task.rate, "pace_frames": task.pace_frames, "params": str(task.params),
+            "params_sha256": digest, "edge_params": list(task.edge_params)}
+
+
+#: a setting a folder's record may lack (made before it existed): the value it was made with
+_SETTING_BEFORE_IT_EXISTED: dict[str, object] = {"pace_frames": 0}
 
 
 def settings_mismatch(out: Path, recorded: Mapping[str, Mapping[str, object]],
@@ -237,8 +244,9 @@ def settings_mismatch(out: Path, recorded: Mapping[str, Mapping[str, object]],
         now = run_settings(task)
         # the parameter file is compared by what it says: the same file named another way
         # (relative, absolute) is the same run
-        changed = [f"{name} {then.get(name)!r} there, {value!r} now"
-                   for name, value in now.items() if name != "params" and then.get(name) != value]
+        changed = [f"{name} {was!r} there, {value!r} now" for name, value in now.items()
+                   if name != "params" and (was := then.get(
+                       name, _SETTING_BEFORE_IT_EXISTED.get(name))) != value]
         if changed:
             problems.append(f"{task.key.file_stem}: {'; '.join(changed)}")
     if not problems:

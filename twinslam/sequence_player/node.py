@@ -26,6 +26,9 @@ published before a reader matched), then ``DISCOVERY_SETTLE_S`` more: the writer
 reader does not mean the reader has learnt of the writer (nor that the depth and camera-info
 readers have matched), and a reader drops samples of a writer it does not know yet.
 ``start_delay_s`` holds it that much longer: a user who comes to the place after the others.
+``pace_frames:=N`` makes the camera wait for its device (:mod:`twinslam.sequence_player.pacing`):
+a frame goes out only while the device has at most N published frames still to pose, the
+recording's clock stopped meanwhile — every frame tracked on a machine too slow for real time.
 A corrupt image is skipped, counted and named in a warning; the run goes on. Every few seconds
 and at the end it says on ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``) what it
 published and skipped — a run's monitor reads the skipped frames there — logs it, and exits 0.
@@ -61,6 +64,7 @@ from twinslam.sequence_player.messages import (
     playback_status,
     pose_message,
 )
+from twinslam.sequence_player.pacing import DevicePacing
 from twinslam.sequence_player.parameters import PARAMETERS
 from twinslam.sequence_player.playback import Playback, PlayedSequence, parse_bursts
 from twinslam.sequences.decoded_frames import DecodedFrameCache
@@ -72,6 +76,8 @@ PROGRESS_EVERY_S = 5.0
 PATH_EVERY_FRAMES = 30
 DISCOVERY_SETTLE_S = 1.0
 POLL_S = 0.05
+#: a paced player plays on in real time after this long without a pose from its device
+PACE_GIVE_UP_S = 60.0
 
 
 class SequencePlayer(Node):
@@ -122,6 +128,10 @@ class SequencePlayer(Node):
         self._start_ns = self._now_ns() + self._delay_ns
         self._last_progress = self._start_ns
         self._wait_for = int(p["wait_for_subscribers"])
+        self.pacing = DevicePacing(int(p["pace_frames"]), PACE_GIVE_UP_S)
+        if self.pacing.active:
+            self.sub_pose = self.create_subscription(PoseStamped, topics.DEVICE_POSE,
+                                                     self._on_device_pose, qos.PROTOCOL)
         self._settling = False
         self.timer = self.create_timer(POLL_S, self._tick)
         self.add_on_set_parameters_callback(self._stop_after_refused)
@@ -173,8 +183,19 @@ class SequencePlayer(Node):
     def _recorded(self, frame: RgbdFrame) -> float:
         return frame.stamp - self._first_stamp + self._lap_offset
 
-    def _due_ns(self, frame: RgbdFrame) -> int:
+    def _stamp_ns(self, frame: RgbdFrame) -> int:
+        """The frame's stamp: its time in the recording, from the playback's start."""
         return self._start_ns + round(self._recorded(frame) / self.rate * 1e9)
+
+    def _due_ns(self, frame: RgbdFrame) -> int:
+        """When the frame goes out: at its stamp, later by the time a paced playback held."""
+        return self._stamp_ns(frame) + round(self.pacing.held_s * 1e9)
+
+    def _on_device_pose(self, msg: PoseStamped) -> None:
+        held = self.pacing.holding
+        self.pacing.posed(stamp_seconds(msg.header), self._now_ns() * 1e-9)
+        if held:
+            self._fire_in(0)                  # the held frame may go now
 
     def _fire_in(self, delay_ns: int) -> None:
         """Make the one timer fire once ``delay_ns`` from now (then periodically, until the
@@ -207,7 +228,10 @@ class SequencePlayer(Node):
         if self._due_ns(frame) > self._now_ns() + 1_000_000:
             self._schedule()                  # woke early (a periodic tick): wait on
             return
-        stamp = self._due_ns(frame) * 1e-9
+        if not self._paced_may_publish():
+            return
+        stamp = self._stamp_ns(frame) * 1e-9
+        self.pacing.published(stamp)
         self.pub_color.publish(color_message(frame, stamp, self.frame_id, self.mono))
         if frame.depth is not None:
             self.pub_depth.publish(depth_message(frame, stamp, self.frame_id,
@@ -234,6 +258,19 @@ class SequencePlayer(Node):
         self._next = None if self._limit_reached() else self._read_next()
         self._schedule()
 
+    def _paced_may_publish(self) -> bool:
+        """Whether the device is near enough to its camera for the next frame; a holding
+        player looks again at every pose and every ``POLL_S``."""
+        gave_up = self.pacing.gave_up
+        if not self.pacing.may_publish(self._now_ns() * 1e-9):
+            self._fire_in(round(POLL_S * 1e9))
+            return False
+        if self.pacing.gave_up and not gave_up:
+            self.get_logger().warning(
+                f"no pose from the device on {self.sub_pose.topic_name} for "
+                f"{PACE_GIVE_UP_S:.0f} s: playing on in real time")
+        return True
+
     def _publish_path(self) -> None:
         if self.path.poses:                   # stamped as its newest pose
             newest = stamp_seconds(self.path.poses[-1].header)
@@ -257,8 +294,10 @@ class SequencePlayer(Node):
             if pub is not None:
                 wait_for_acks(pub, 2.0)
         skipped = f" ({', '.join(self.reader.skipped)})" if self.reader.skipped else ""
-        self.get_logger().info(f"done: {self.published} frames published in {elapsed:.1f} s, "
-                               f"{self.skipped} skipped{skipped}")
+        paced = (f", {self.pacing.held_s:.1f} s of it held for the device"
+                 if self.pacing.window else "")
+        self.get_logger().info(f"done: {self.published} frames published in {elapsed:.1f} s"
+                               f"{paced}, {self.skipped} skipped{skipped}")
 
 
 def main(args: list[str] | None = None) -> NoReturn:

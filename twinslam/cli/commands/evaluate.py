@@ -10,6 +10,7 @@ from twinslam.cli.arguments import (
     BUNDLED_SEQUENCE,
     FALLBACK_SEQUENCE,
     add_executor_arguments,
+    add_pace_argument,
     open_executor,
 )
 from twinslam.cli.console import Subparsers, error
@@ -98,7 +99,7 @@ def _tasks(args: argparse.Namespace, policies: list[tuple[str, str]],
                          by_name[k.scenario], args.params, args.timeout,
                          covis.get(runs.sequence_for(args.sequence, k.seed)), args.verbose,
                          args.start, args.out / "runs" / f"{k.file_stem}.png",
-                         rate=args.rate)
+                         rate=args.rate, pace_frames=args.pace)
             for k in keys]
 
 
@@ -227,6 +228,7 @@ def add_arguments(parser: argparse.ArgumentParser, default_sequence: str,
                         "beside what else the machine runs — a device that drops camera "
                         "frames measures the load (the tables warn of it); default "
                         "%(default)s")
+    add_pace_argument(parser)
     parser.add_argument("--timeout", type=float, default=900.0,
                         help="seconds one run may take before its nodes are stopped; default "
                         "%(default)s")

@@ -7,6 +7,7 @@ import functools
 from pathlib import Path
 from typing import TypeVar
 
+from twinslam.cli.arguments import add_pace_argument
 from twinslam.cli.commands.launch_fleet import (
     add_fleet_arguments,
     domain_for,
@@ -128,7 +129,7 @@ def _run_policy(args: argparse.Namespace, policy: str, chosen: Scenario,
     config = LaunchConfig(args.sequence, policy, args.frames, args.rate, args.params,
                           with_twin=args.twin or learned, timeout_s=args.timeout,
                           extra=run_extra, scenario=chosen, start=args.start,
-                          record=record, recording=RecordingOptions(
+                          pace_frames=args.pace, record=record, recording=RecordingOptions(
                               args.record_camera_every, args.record_images, args.record_chunks))
     with domain_for(args) as dom:
         if isinstance(dom, LoopbackDomain) and args.loopback:
@@ -202,6 +203,7 @@ def register(sub: Subparsers) -> None:
                         help="the sequence's first frame played; default %(default)s")
     launch.add_argument("--rate", type=float, default=1.0,
                         help="playback speed, × the recorded frame rate")
+    add_pace_argument(launch)
     launch.add_argument("--params", type=Path, default=DEFAULT_PARAMS,
                         help="ROS 2 parameter file for the nodes; default the bundled "
                         "config/twinslam.yaml (the default device); config/paper-table1.yaml: "

@@ -91,7 +91,8 @@ def run_fleet(args: argparse.Namespace, policy: str, fleet: FleetConfig, chosen:
     """One fleet run: its nodes, a picture per device, its rows in OUT/fleet_runs.csv."""
     starts = fleet_starts(args, fleet)
     config = LaunchConfig(args.sequence, policy, args.frames, args.rate, args.params,
-                          timeout_s=args.timeout, extra=extra, scenario=chosen, start=args.start)
+                          timeout_s=args.timeout, extra=extra, scenario=chosen, start=args.start,
+                          pace_frames=args.pace)
     with domain_for(args, (*fleet.names(), *fleet.edge_hosts())) as dom:
         if isinstance(dom, LoopbackDomain) and args.loopback:
             dom.activate()
