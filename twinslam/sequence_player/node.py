@@ -51,7 +51,7 @@ from sensor_msgs.msg import CameraInfo, Image
 from tf2_msgs.msg import TFMessage
 
 from msg_schemas import qos, topics
-from msg_schemas.headers import stamp_seconds
+from msg_schemas.headers import stamp_key, stamp_seconds
 from msg_schemas.paths import PathWindow
 from msg_schemas.transforms import tf_message, transform_stamped
 from twinslam.node_runtime.acks import wait_for_acks
@@ -193,7 +193,7 @@ class SequencePlayer(Node):
 
     def _on_device_pose(self, msg: PoseStamped) -> None:
         held = self.pacing.holding
-        self.pacing.posed(stamp_seconds(msg.header), self._now_ns() * 1e-9)
+        self.pacing.posed(stamp_key(msg.header), self._now_ns() * 1e-9)
         if held:
             self._fire_in(0)                  # the held frame may go now
 
@@ -231,8 +231,10 @@ class SequencePlayer(Node):
         if not self._paced_may_publish():
             return
         stamp = self._stamp_ns(frame) * 1e-9
-        self.pacing.published(stamp)
-        self.pub_color.publish(color_message(frame, stamp, self.frame_id, self.mono))
+        color = color_message(frame, stamp, self.frame_id, self.mono)
+        # by the header's own nanoseconds, which the device's pose repeats
+        self.pacing.published(stamp_key(color.header))
+        self.pub_color.publish(color)
         if frame.depth is not None:
             self.pub_depth.publish(depth_message(frame, stamp, self.frame_id,
                                                  self.depth_encoding))

@@ -33,7 +33,7 @@ class DevicePacing:
         self.give_up_s = give_up_s
         self.gave_up = False                     #: no pose came in time: real time from then on
         self.held_s = 0.0                        #: the recording's clock stopped this long
-        self._waiting: deque[float] = deque()    #: stamps published, not yet posed
+        self._waiting: deque[int] = deque()      #: stamps (ns) published, not yet posed
         self._hold_since: float | None = None
         self._last_progress: float | None = None
 
@@ -49,15 +49,17 @@ class DevicePacing:
     def unposed(self) -> int:
         return len(self._waiting)
 
-    def published(self, stamp_s: float) -> None:
+    def published(self, stamp_ns: int) -> None:
+        """A frame went out stamped ``stamp_ns`` (its header's nanoseconds, as the device's
+        pose of it will carry them: compared exactly)."""
         if self.active:
-            self._waiting.append(stamp_s)
+            self._waiting.append(stamp_ns)
 
-    def posed(self, stamp_s: float, now_s: float) -> None:
-        """The device posed its frame of ``stamp_s``: it and every frame before it are done
+    def posed(self, stamp_ns: int, now_s: float) -> None:
+        """The device posed its frame of ``stamp_ns``: it and every frame before it are done
         (a frame the device skipped is never posed; the next pose counts it)."""
         before = len(self._waiting)
-        while self._waiting and self._waiting[0] <= stamp_s:
+        while self._waiting and self._waiting[0] <= stamp_ns:
             self._waiting.popleft()
         if len(self._waiting) < before:
             self._last_progress = now_s
