@@ -20,13 +20,13 @@ def test_evaluate_runs_every_seed_and_summarises(tmp_path: Path,
     out = tmp_path / "live"
     # 181 frames forward then back: 361 played, 12 full slots of the default device's 30
     # frames; the lens covered for 3 s from played frame 252, uncovered at 342 (inside the
-    # last full slot). The cameras at half speed (the run's clock with them): two live runs
-    # at once beside the suite's other workers on a 2-core machine left a device 150 frames
-    # behind its camera at full speed, and the frames it dropped to catch up were a whole
-    # slot's (11 slots, not 12)
+    # last full slot). The cameras at half speed (the run's clock with them) and waiting for
+    # their devices (--pace): two live runs at once beside the suite's other workers on a
+    # 2-core machine left a device 150 frames behind its camera at full speed, and even at
+    # half speed from an empty frame cache (7 and 72 frames dropped, 10 slots, not 12)
     code = main(["evaluate", "--sequence", "synthetic:181", "--frames", "181", "--policy", "lff",
                  "--scenario", "revisit-lost", "--map-source", "edge+local,edge", "--seeds",
-                 "1", "--jobs", "2", "--rate", "0.5", "--out", str(out)])
+                 "1", "--jobs", "2", "--rate", "0.5", "--pace", "30", "--out", str(out)])
     text = capsys.readouterr().out
     assert code == 0, text
     with (out / "runs.csv").open(encoding="utf-8") as fh:
@@ -34,6 +34,7 @@ def test_evaluate_runs_every_seed_and_summarises(tmp_path: Path,
     assert sorted((r["scenario"], r["map_source"], r["policy"], r["seed"]) for r in rows) == [
         ("revisit-lost", "edge", "lff", "0"), ("revisit-lost", "edge+local", "lff", "0")]
     for r in rows:
+        assert int(r["frames_dropped"]) == 0, f"the device fell behind its camera: {r}"
         assert int(r["slots"]) == 12 and int(r["untracked_frames"]) >= 90, r
     local = next(r for r in rows if r["map_source"] == "edge+local")
     assert int(local["tracking_failures"]) == 1, "the covered lens lost no frame"
