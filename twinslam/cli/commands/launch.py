@@ -136,7 +136,9 @@ def _run_policy(args: argparse.Namespace, policy: str, chosen: Scenario,
             dom.activate()
         where = ("hosts device/edge/twin, domain" if args.hosts else
                  "loopback domain" if args.loopback else "domain")
-        print(f"{policy}: {played} of {args.sequence} at {args.rate}x on {where} "
+        paced = (f", the camera waiting for the device beyond {args.pace} unposed frames"
+                 if args.pace else "")
+        print(f"{policy}: {played} of {args.sequence} at {args.rate}x{paced} on {where} "
               f"{dom.domain_id}", flush=True)
         launcher = Launcher(dom, config, lambda line: print(line, flush=True))
         report = launcher.run()
