@@ -51,8 +51,9 @@ def pace_frames(text: str) -> int:
 def add_pace_argument(parser: argparse.ArgumentParser) -> None:
     """``--pace`` of the commands that play live runs (launch, evaluate)."""
     parser.add_argument("--pace", type=pace_frames, default=0, metavar="FRAMES",
-                        help="the camera waits for its device: a player holds its next frame "
-                        "while the device has more than FRAMES frames still to pose, the "
+                        help="the camera waits for its device: at most FRAMES published frames "
+                        "are left for the device to pose, a player holding its next frame while "
+                        "that many are, the "
                         "recording's clock stopped meanwhile, so a device slower than real "
                         "time on this machine tracks every frame instead of dropping them "
                         "(what depends on the wall clock — the uplink, the edge's answers — "

@@ -27,7 +27,7 @@ reader does not mean the reader has learnt of the writer (nor that the depth and
 readers have matched), and a reader drops samples of a writer it does not know yet.
 ``start_delay_s`` holds it that much longer: a user who comes to the place after the others.
 ``pace_frames:=N`` makes the camera wait for its device (:mod:`twinslam.sequence_player.pacing`):
-a frame goes out only while the device has at most N published frames still to pose, the
+at most N published frames are left for the device to pose (the next waits while N are), the
 recording's clock stopped meanwhile — every frame tracked on a machine too slow for real time.
 A corrupt image is skipped, counted and named in a warning; the run goes on. Every few seconds
 and at the end it says on ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``) what it

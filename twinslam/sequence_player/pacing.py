@@ -1,5 +1,5 @@
-"""A camera that waits for its device: the player holds its next frame while the device has
-more than ``window`` of the published frames still to pose.
+"""A camera that waits for its device: at most ``window`` published frames are left for the
+device to pose — the player holds its next frame while that many are.
 
 A device slower than its camera falls behind, and past its camera backlog it drops frames: on
 a loaded machine a live run then measures the load, not the device or the edge (a device in

@@ -44,10 +44,11 @@ PARAMETERS = (
               high=10_000_000),
     ParamSpec("wait_for_subscribers", 0, "hold the first frame until this many colour "
               "subscribers match", low=0),
-    ParamSpec("pace_frames", 0, "hold the next frame while the device (device/pose in this "
-              "namespace) has more than this many published frames still to pose: the "
-              "recording's clock stops meanwhile, so a device slower than its camera sees every "
-              "frame instead of dropping them past its camera backlog (150); 0: real time",
+    ParamSpec("pace_frames", 0, "at most this many published frames left for the device "
+              "(device/pose in this namespace) to pose: the next frame waits while that many "
+              "are, the recording's clock stopped meanwhile, so a device slower than its camera "
+              "sees every frame instead of dropping them past its camera backlog (150); 0: real "
+              "time",
               low=0, high=149),
     ParamSpec("start_delay_s", 0.0, "seconds the first frame waits (after the subscribers "
               "matched): a device that comes to the place later than the others", low=0.0,
