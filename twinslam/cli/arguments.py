@@ -30,7 +30,9 @@ def rate_range(text: str) -> tuple[float, float]:
     return lo, hi
 
 
-#: the device's camera backlog (msg_schemas.qos.CAMERA's depth): a window at it paces nothing
+#: the device's camera backlog, msg_schemas.qos.CAMERA's depth (importing it loads rclpy, which
+#: a command line that only parses should not; a test holds the two equal): a window at it
+#: paces nothing
 _CAMERA_BACKLOG = 150
 
 
@@ -53,9 +55,9 @@ def add_pace_argument(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--pace", type=pace_frames, default=0, metavar="FRAMES",
                         help="the camera waits for its device: at most FRAMES published frames "
                         "are left for the device to pose, a player holding its next frame while "
-                        "that many are, the "
-                        "recording's clock stopped meanwhile, so a device slower than real "
-                        "time on this machine tracks every frame instead of dropping them "
+                        "that many are, the recording's clock stopped meanwhile, so a device "
+                        "slower than real time on this machine tracks every frame instead of "
+                        "dropping them "
                         "(what depends on the wall clock — the uplink, the edge's answers — "
                         "then sees slots that last longer); 0: real time; default %(default)s")
 

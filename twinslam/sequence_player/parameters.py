@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from msg_schemas import qos
 from twinslam.node_runtime.parameters import ParamSpec
 from twinslam.sequence_player.messages import DEPTH_ENCODINGS
 from twinslam.sequence_player.playback import ORDERS, parse_bursts
@@ -47,9 +48,9 @@ PARAMETERS = (
     ParamSpec("pace_frames", 0, "at most this many published frames left for the device "
               "(device/pose in this namespace) to pose: the next frame waits while that many "
               "are, the recording's clock stopped meanwhile, so a device slower than its camera "
-              "sees every frame instead of dropping them past its camera backlog (150); 0: real "
-              "time",
-              low=0, high=149),
+              f"sees every frame instead of dropping them past its camera backlog "
+              f"({qos.CAMERA.depth}); 0: real time",
+              low=0, high=qos.CAMERA.depth - 1),
     ParamSpec("start_delay_s", 0.0, "seconds the first frame waits (after the subscribers "
               "matched): a device that comes to the place later than the others", low=0.0,
               high=86_400.0),

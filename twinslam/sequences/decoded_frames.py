@@ -163,7 +163,6 @@ class DecodedFrameCache:
             return
         self._used += size
 
-
     def _scan(self) -> int:
         """Bytes the entries hold; on the way, the temporary files of writers killed before
         their rename (a frame's worth each, never read) are removed once they are
