@@ -26,6 +26,11 @@ PROTOCOL = QoSProfile(depth=100, history=HistoryPolicy.KEEP_LAST,
                       durability=DurabilityPolicy.VOLATILE)
 MAP = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST, reliability=ReliabilityPolicy.RELIABLE,
                  durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: the held time the paced cameras of a group tell each other (topics.PLAYBACK_PACE): the last
+#: of each camera for one that joins later, and room for several cameras' at once
+PACE = QoSProfile(depth=10, history=HistoryPolicy.KEEP_LAST,
+                  reliability=ReliabilityPolicy.RELIABLE,
+                  durability=DurabilityPolicy.TRANSIENT_LOCAL)
 CAMERA = QoSProfile(depth=150, history=HistoryPolicy.KEEP_LAST,
                     reliability=ReliabilityPolicy.RELIABLE,
                     durability=DurabilityPolicy.VOLATILE)

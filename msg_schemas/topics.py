@@ -44,3 +44,7 @@ TF_STATIC = "/tf_static"
 #: aggregator, rqt_runtime_monitor and Foxglove look; the player says there what it played
 #: and what it skipped
 DIAGNOSTICS = "/diagnostics"
+#: paced cameras that keep one recording clock (the player's ``pace_group``): each says on
+#: ``/playback_pace/GROUP`` how long it held (twinslam_msgs/PlaybackPace); absolute, so that
+#: the cameras of a fleet's namespaces (``/ar1``, ``/ar2``) meet on it
+PLAYBACK_PACE = "/playback_pace"

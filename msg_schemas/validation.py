@@ -176,6 +176,15 @@ def validate_rate_latent(msg: Any) -> None:
         raise MessageError("sigma holds a negative variance")
 
 
+def validate_playback_pace(msg: Any) -> None:
+    """A negative held time, or nanoseconds past a second, is no clock a camera stopped."""
+    if not msg.camera:
+        raise MessageError("a pace report names no camera")
+    if msg.held.sec < 0 or not 0 <= msg.held.nanosec < 1_000_000_000:
+        raise MessageError(f"held {msg.held.sec} s {msg.held.nanosec} ns is not a duration "
+                           "a camera held")
+
+
 VALIDATORS: dict[str, Callable[[Any], None]] = {
     "sensor_msgs/msg/Image": validate_image,
     "sensor_msgs/msg/CameraInfo": validate_camera_info,
@@ -188,6 +197,7 @@ VALIDATORS: dict[str, Callable[[Any], None]] = {
     "twinslam_msgs/msg/MapUpdate": validate_map_update,
     "twinslam_msgs/msg/UplinkThroughput": validate_uplink_throughput,
     "twinslam_msgs/msg/RateLatent": validate_rate_latent,
+    "twinslam_msgs/msg/PlaybackPace": validate_playback_pace,
 }
 
 

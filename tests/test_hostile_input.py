@@ -38,13 +38,13 @@ from twinslam.node_runtime.session import RosSession
 REPO = Path(__file__).resolve().parents[1]
 NODE_FILES = ["device_tracker/node.py", "device_tracker/relocalisation_requests.py",
               "edge_mapper/node.py", "edge_mapper/device_link.py",
-              "udt_node/node.py"]
+              "udt_node/node.py", "twinslam/sequence_player/node.py"]
 SUBSCRIBED = sorted({"sensor_msgs/msg/Image", "sensor_msgs/msg/CameraInfo",
                      "twinslam_msgs/msg/UploadRequest", "twinslam_msgs/msg/MapUpdate",
                      "twinslam_msgs/msg/FrameSummaries", "twinslam_msgs/msg/Keyframe",
                      "twinslam_msgs/msg/UplinkThroughput", "twinslam_msgs/msg/RateLatent",
                      "twinslam_msgs/msg/RelocalisationRequest",
-                     "twinslam_msgs/msg/Relocalisation"})
+                     "twinslam_msgs/msg/Relocalisation", "twinslam_msgs/msg/PlaybackPace"})
 BUDGET_S = 16.0                       #: hypothesis time over all types
 tried: dict[str, int] = {}
 
@@ -70,6 +70,9 @@ def _sample(type_name: str) -> bytes:
         fields = {"upload_frame_ids": np.array([3, 4], np.uint64), "policy": "adapt"}
     elif type_name == "twinslam_msgs/msg/RelocalisationRequest":
         fields = {"keypoints_xy": np.ones(4, np.float32), "descriptors": np.zeros(64, np.uint8)}
+    elif type_name == "twinslam_msgs/msg/PlaybackPace":
+        fields = {"camera": "/ar2/sequence_player", "waiting_for_device": True,
+                  "held": new("builtin_interfaces/msg/Duration", sec=2, nanosec=500)}
     return serialize_message(new(type_name, **fields))
 
 

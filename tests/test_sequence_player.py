@@ -307,3 +307,74 @@ def test_a_paced_player_holds_its_camera_until_the_device_poses_and_keeps_the_st
     np.testing.assert_allclose(gaps, 1 / 30, atol=1e-6)     # no hold in the stamps
     held = float(err.split(" s of it held for the device")[0].rsplit(" ", 1)[-1])
     assert held >= 1.0, err
+
+
+def test_the_paced_cameras_of_a_group_wait_together_for_the_slowest_device(
+        tmp_path: Path, domain: LoopbackDomain, ros: RosSession) -> None:
+    """Two cameras of one ``pace_group`` (a fleet's, in namespaces of their own): /ar2's
+    device poses nothing for a while, and /ar1's camera — its device posing every frame at
+    once — stops with /ar2's instead of walking on alone; once /ar2's device catches up both
+    go on, having held the same time, their stamps at the recorded 30 Hz."""
+    frames = 150                          # 5 s at 30 Hz: far longer than the players' starts
+    seq = _seven_scenes_fixture(tmp_path / "seq", frames=frames, corrupt=frames - 1)
+    colour: dict[str, list[Image]] = {"ar1": [], "ar2": []}
+    poses = {d: ros.node.create_publisher(PoseStamped, f"/{d}/{topics.DEVICE_POSE}",
+                                          qos.PROTOCOL) for d in colour}
+    posing = {"ar1": True, "ar2": False}
+
+    def pose(device: str, msg: Image) -> None:
+        reply = PoseStamped()
+        reply.header = msg.header
+        reply.pose.orientation.w = 1.0
+        poses[device].publish(reply)
+
+    def camera(device: str, msg: Image) -> None:
+        colour[device].append(msg)
+        if posing[device]:
+            pose(device, msg)
+
+    players = {}
+    for d in colour:
+        ros.node.create_subscription(Image, f"/{d}/{topics.CAMERA_IMAGE}",
+                                     lambda msg, d=d: camera(d, msg), qos.CAMERA)
+        players[d] = domain.spawn(
+            ["-m", "twinslam.sequence_player.node", "--ros-args", "-r", f"__ns:=/{d}",
+             "-p", "wait_for_subscribers:=1", "-p", f"sequence:={seq}",
+             "-p", "pace_frames:=5", "-p", "pace_group:=room"], forks=FORKS)
+    assert ros.spin_until(lambda: len(colour["ar2"]) >= 5, 60.0), domain.log(players["ar2"])
+    # /ar1's camera stops too: a second without a frame of it, long before its walk's end
+    # (alone it plays on at 30 Hz to its last frame)
+    deadline = time.monotonic() + 30.0
+    while True:
+        stopped = len(colour["ar1"])
+        if not ros.spin_until(lambda n=stopped: len(colour["ar1"]) > n, 1.0):
+            break
+        assert time.monotonic() < deadline, "/ar1's camera never stopped for a second"
+    assert len(colour["ar2"]) == 5, "the camera went on without its device's poses"
+    assert stopped < frames - 1 - 30, f"/ar1's camera walked on alone ({stopped} frames)"
+    posing["ar2"] = True
+    for msg in list(colour["ar2"]):                 # the device catches up
+        pose("ar2", msg)
+    held = {}
+    for d, player in players.items():
+        assert ros.spin_until(lambda p=player: p.poll() is not None, 60.0), domain.log(player)
+        code, _, err = domain.stop(player)
+        assert code == 0, err
+        assert len(colour[d]) == frames - 1
+        np.testing.assert_allclose(np.diff([_stamp(m) for m in colour[d]]), 1 / 30, atol=1e-6)
+        held[d] = float(err.split(" s of it held for the device and its group room")[0]
+                        .rsplit(" ", 1)[-1])
+    # held alike to the frame; /ar2 held a second at least (the test's own wait)
+    assert held["ar2"] >= 1.0 and held["ar1"] == pytest.approx(held["ar2"], abs=0.05), held
+
+
+def test_a_group_without_pacing_or_with_a_name_no_topic_takes_is_refused_at_start(
+        domain: LoopbackDomain) -> None:
+    """``pace_group`` needs ``pace_frames`` (a camera that does not wait has no held time to
+    share), and names a topic token: each refused with its reason, exit 2."""
+    for params, reason in ((["pace_group:=room"], "needs pace_frames"),
+                           (["pace_frames:=5", "pace_group:=two rooms"], "a topic name's token")):
+        player = _play(domain, *params)
+        player.wait(timeout=60)
+        code, _, err = domain.stop(player)
+        assert code == 2 and reason in err, err[-2000:]

@@ -28,7 +28,9 @@ readers have matched), and a reader drops samples of a writer it does not know y
 ``start_delay_s`` holds it that much longer: a user who comes to the place after the others.
 ``pace_frames:=N`` makes the camera wait for its device (:mod:`twinslam.sequence_player.pacing`):
 at most N published frames are left for the device to pose (the next waits while N are), the
-recording's clock stopped meanwhile — every frame tracked on a machine too slow for real time.
+recording's clock stopped meanwhile — every frame tracked on a machine too slow for real time;
+with ``pace_group:=NAME`` the paced cameras of a fleet keep one recording clock, each waiting
+while any device of the group is behind (``/playback_pace/NAME``).
 A corrupt image is skipped, counted and named in a warning; the run goes on. Every few seconds
 and at the end it says on ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``) what it
 published and skipped — a run's monitor reads the skipped frames there — logs it, and exits 0.
@@ -41,6 +43,7 @@ from __future__ import annotations
 
 from typing import NoReturn
 
+from builtin_interfaces.msg import Duration
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
@@ -49,12 +52,14 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo, Image
 from tf2_msgs.msg import TFMessage
+from twinslam_msgs.msg import PlaybackPace
 
 from msg_schemas import qos, topics
 from msg_schemas.headers import stamp_key, stamp_seconds
 from msg_schemas.paths import PathWindow
 from msg_schemas.transforms import tf_message, transform_stamped
 from twinslam.node_runtime.acks import wait_for_acks
+from twinslam.node_runtime.checked_subscription import CheckedSubscription
 from twinslam.node_runtime.node_main import NodeStartError, exit_process, run_node
 from twinslam.node_runtime.parameters import declare
 from twinslam.sequence_player.messages import (
@@ -132,6 +137,18 @@ class SequencePlayer(Node):
         if self.pacing.active:
             self.sub_pose = self.create_subscription(PoseStamped, topics.DEVICE_POSE,
                                                      self._on_device_pose, qos.PROTOCOL)
+        self.pace_group = str(p["pace_group"])
+        self.pub_pace = None
+        self._told = (0.0, False)             #: what the group was last told
+        if self.pace_group:
+            if not self.pacing.window:
+                raise NodeStartError(f"pace_group:={self.pace_group} needs pace_frames: a "
+                                     "camera that does not wait for its device has no held "
+                                     "time to share")
+            topic = f"{topics.PLAYBACK_PACE}/{self.pace_group}"
+            self.pub_pace = self.create_publisher(PlaybackPace, topic, qos.PACE)
+            self.sub_pace = CheckedSubscription(self, PlaybackPace, topic, self._on_group_said,
+                                                qos.PACE)
         self._settling = False
         self.timer = self.create_timer(POLL_S, self._tick)
         self.add_on_set_parameters_callback(self._stop_after_refused)
@@ -197,6 +214,24 @@ class SequencePlayer(Node):
         if held:
             self._fire_in(0)                  # the held frame may go now
 
+    def _on_group_said(self, msg: PlaybackPace) -> None:
+        if msg.camera != self.get_fully_qualified_name():
+            self.pacing.group_said(msg.camera, msg.held.sec + msg.held.nanosec * 1e-9,
+                                   msg.waiting_for_device, self._now_ns() * 1e-9)
+
+    def _tell_group(self, now_s: float) -> None:
+        """Tell the group how long this camera has held and whether it waits for its device,
+        where that changed."""
+        told = self.pacing.told(now_s)
+        if self.pub_pace is None or told == self._told:
+            return
+        self._told = told
+        held, waiting = told
+        sec = int(held)
+        self.pub_pace.publish(PlaybackPace(
+            camera=self.get_fully_qualified_name(), waiting_for_device=waiting,
+            held=Duration(sec=sec, nanosec=min(round((held - sec) * 1e9), 999_999_999))))
+
     def _fire_in(self, delay_ns: int) -> None:
         """Make the one timer fire once ``delay_ns`` from now (then periodically, until the
         next call moves it again)."""
@@ -261,11 +296,17 @@ class SequencePlayer(Node):
         self._schedule()
 
     def _paced_may_publish(self) -> bool:
-        """Whether the device is near enough to its camera for the next frame; a holding
-        player looks again at every pose and every ``POLL_S``."""
+        """Whether the device is near enough to its camera for the next frame, and the
+        group's clock as far as this one's; a holding player looks again at every pose, every
+        ``POLL_S`` and where the group's hold ends."""
         gave_up = self.pacing.gave_up
-        if not self.pacing.may_publish(self._now_ns() * 1e-9):
-            self._fire_in(round(POLL_S * 1e9))
+        now = self._now_ns() * 1e-9
+        may = self.pacing.may_publish(now)
+        self._tell_group(now)                 # also while holding: the group holds with it
+        if not may:
+            group_wait = self.pacing.group_wait_s(now)
+            self._fire_in(round(min(POLL_S, group_wait) * 1e9 if group_wait > 0
+                                else POLL_S * 1e9))
             return False
         if self.pacing.gave_up and not gave_up:
             self.get_logger().warning(
@@ -296,7 +337,8 @@ class SequencePlayer(Node):
             if pub is not None:
                 wait_for_acks(pub, 2.0)
         skipped = f" ({', '.join(self.reader.skipped)})" if self.reader.skipped else ""
-        paced = (f", {self.pacing.held_s:.1f} s of it held for the device"
+        group = f" and its group {self.pace_group}" if self.pace_group else ""
+        paced = (f", {self.pacing.held_s:.1f} s of it held for the device{group}"
                  if self.pacing.window else "")
         self.get_logger().info(f"done: {self.published} frames published in {elapsed:.1f} s"
                                f"{paced}, {self.skipped} skipped{skipped}")

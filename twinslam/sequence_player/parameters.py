@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from msg_schemas import qos
+import re
+
+from msg_schemas import qos, topics
 from twinslam.node_runtime.parameters import ParamSpec
 from twinslam.sequence_player.messages import DEPTH_ENCODINGS
 from twinslam.sequence_player.playback import ORDERS, parse_bursts
@@ -15,6 +17,12 @@ def _bursts_error(value: object) -> str | None:
     except ValueError as exc:
         return str(exc)
     return None
+
+
+def _group_error(value: object) -> str | None:
+    if value == "" or re.fullmatch(r"[A-Za-z][A-Za-z0-9_]*", str(value)):
+        return None
+    return "a group is a topic name's token: a letter, then letters, digits, underscores"
 
 
 PARAMETERS = (
@@ -51,6 +59,11 @@ PARAMETERS = (
               f"sees every frame instead of dropping them past its camera backlog "
               f"({qos.CAMERA.depth}); 0: real time",
               low=0, high=qos.CAMERA.depth - 1),
+    ParamSpec("pace_group", "", "paced cameras that keep one recording clock (a fleet's): "
+              "each holds as long as the one of the group that held longest, so every camera "
+              "of it waits while any device is behind and the walks meet when the recording "
+              f"has them meet ({topics.PLAYBACK_PACE}/GROUP); empty: this camera alone; "
+              "letters, digits and underscores, needs pace_frames", check=_group_error),
     ParamSpec("start_delay_s", 0.0, "seconds the first frame waits (after the subscribers "
               "matched): a device that comes to the place later than the others", low=0.0,
               high=86_400.0),
