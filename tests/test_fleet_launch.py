@@ -394,16 +394,20 @@ def test_launch_serves_two_devices_from_one_edge_and_reports_each(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """One edge, two devices, each reported; the devices run in their namespaces with the
     parameter file's device section though it is keyed by the plain node name (40-frame
-    slots: 3 over the 120 frames, where the node's default of 30 makes 4)."""
+    slots: 3 over the 120 frames, where the node's default of 30 makes 4); ``--pace``: the
+    two cameras wait together for their devices (one recording clock), and no device drops
+    a frame however loaded the machine."""
     params = tmp_path / "params.yaml"
     params.write_text("device_tracker:\n  ros__parameters:\n    slot_frames: 40\n",
                       encoding="utf-8")
     code = main(["launch", "--loopback", "--devices", "2", "--vmax-total", "12",
                  "--allocator", "motion", "--sequence", "synthetic:120", "--frames", "120",
-                 "--policy", "lff", "--params", str(params), "--out", str(tmp_path)])
+                 "--policy", "lff", "--params", str(params), "--pace", "30",
+                 "--out", str(tmp_path)])
     out = capsys.readouterr().out
     assert code == 0, out[-3000:]
     assert "lff, allocator motion: 2 devices" in out and "Jain's index" in out
+    assert "the cameras waiting together for any device beyond 30 unposed frames" in out
     rows = {line.split()[0]: line.split() for line in out.splitlines()
             if line.split() and line.split()[0] in ("ar1", "ar2", "mean")}
     assert set(rows) == {"ar1", "ar2", "mean"}
@@ -416,10 +420,12 @@ def test_launch_serves_two_devices_from_one_edge_and_reports_each(
     assert all(f"===== {node} =====" in logs for node in (
         "edge_mapper", "device_tracker:ar1", "device_tracker:ar2"))
     assert "[edge_mapper]" in logs and "slot" in logs
+    assert logs.count("held for the device and its group fleet") == 2
     with (tmp_path / "fleet_runs.csv").open(encoding="utf-8") as fh:
         table = list(csv.DictReader(fh))
     assert [(r["device"], r["allocator"], r["seed"]) for r in table] == [
         ("ar1", "motion", "0"), ("ar2", "motion", "0")]
+    assert [int(r["frames_dropped"]) for r in table] == [0, 0]
     assert all(int(r["frames"]) > 0 and float(r["latency_ms_median"]) > 0
                and int(r["frames_uploaded"]) > 0 for r in table)
     assert [int(r["slots"]) for r in table] == [3, 3]

@@ -59,7 +59,10 @@ def add_pace_argument(parser: argparse.ArgumentParser) -> None:
                         "slower than real time on this machine tracks every frame instead of "
                         "dropping them "
                         "(what depends on the wall clock — the uplink, the edge's answers — "
-                        "then sees slots that last longer); 0: real time; default %(default)s")
+                        "then sees slots that last longer); with --devices, every device's "
+                        "camera waits while any device is behind (one recording clock: the "
+                        "walks meet when the recording has them meet); 0: real time; default "
+                        "%(default)s")
 
 
 def add_setting_arguments(parser: argparse.ArgumentParser) -> None:

@@ -59,6 +59,11 @@ from twinslam.sequence_player.playback import ORDERS
 from twinslam.sequences.opening import is_synthetic, synthetic_walk
 from twinslam.slot_protocol import default_device, table1
 
+#: a paced fleet's cameras keep one recording clock (the player's ``pace_group``): each device's
+#: camera waits while any device is behind, so the walks meet when their recordings have them
+#: meet; one fleet a domain, as its namespaces are
+PACE_GROUP = "fleet"
+
 #: what :func:`edge_blocks` splits: device names, place numbers
 _Item = TypeVar("_Item")
 
@@ -279,6 +284,8 @@ class FleetLauncher(Launcher):
                 args += ["-p", f"order:={self.fleet.orders[index]}"]
             if self.fleet.delays:
                 args += ["-p", f"start_delay_s:={float(self.fleet.delays[index])!r}"]
+            if self.config.pace_frames:       # one recording clock: the walks meet in time
+                args += ["-p", f"pace_group:={PACE_GROUP}"]
         return args
 
     def end_playback(self) -> None:

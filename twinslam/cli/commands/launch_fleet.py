@@ -99,8 +99,10 @@ def run_fleet(args: argparse.Namespace, policy: str, fleet: FleetConfig, chosen:
         budget = (f"V_total {fleet.vmax_total} split {fleet.allocator}" if fleet.vmax_total
                   else "each its own V_max")
         edges = "one edge" if fleet.edges == 1 else f"{fleet.edges} edges"
+        paced = (f", the cameras waiting together for any device beyond {args.pace} unposed "
+                 "frames" if args.pace else "")
         print(f"{policy}: {fleet.devices} devices, {edges} ({budget}), {args.frames} frames "
-              f"each on domain {dom.domain_id}", flush=True)
+              f"each{paced} on domain {dom.domain_id}", flush=True)
         for p, place in enumerate(fleet.places):
             walking = [d for i, d in enumerate(fleet.names()) if fleet.place_of(i) == p]
             served = next(e for e, block in zip(fleet.edge_names(), fleet.blocks(),
