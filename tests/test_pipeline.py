@@ -319,14 +319,23 @@ def test_edge_killed_mid_run_resumes_from_its_checkpoint(tmp_path: Path) -> None
 
 
 def test_slots_shorter_than_their_uploads_never_leave_more_than_vmax() -> None:
-    """Slots of 10 frames (0.33 s at 30 Hz) are shorter than the 0.5 s their
-    uploads may take, so the edge plans slot k+1 while slot k's keyframes are still on the
-    way. Every map the edge publishes holds at most V_max keyframes (it grew to 36 of 15
-    before plans counted the open slots' uploads in)."""
+    """Slots shorter than their uploads may take, so the edge plans slot k+1 while slot k's
+    keyframes are still on the way. Every map the edge publishes holds at most V_max
+    keyframes (it grew to 36 of 15 before plans counted the open slots' uploads in).
+
+    A slot lasts as long as its frames take to come in and be tracked: at 30 Hz, 10 frames
+    are 0.33 s, but a device beside the suite's other workers tracked 8 frames a second (its
+    slots 1.0–1.5 s) and no slot overlapped 0.5 s uploads. So the camera plays at a quarter
+    speed, waiting for its device: 10 frames are 1.33 s of wall time however fast the device
+    is beyond 7.5 frames a second, and uploads take up to 2.5 s (D_req; a 20 Mbit/s slot's
+    ten frames of 5 Mbit fill them, a 40 Mbit/s one's take 1.25 s) — about 1.4 slots of
+    uploads a slot, as 0.5 s uploads over 0.33 s slots were."""
     vmax = 15
-    report, record, _ = _run("adapt", frames=200, extra={"device_tracker": ["slot_frames:=10"],
-                                                         "edge_mapper": [f"vmax:={vmax}",
-                                                                         "d_req_s:=0.5"]})
+    report, record, _ = _run("adapt", frames=200, rate=0.25, pace_frames=SLOT_FRAMES,
+                             extra={"device_tracker": ["slot_frames:=10", "rate_min:=20.0",
+                                                       "rate_max:=40.0"],
+                                    "edge_mapper": [f"vmax:={vmax}", "d_req_s:=2.5"]})
+    assert report.frames_dropped == 0, "the device fell behind its camera"
     assert report.slots >= 15 and len(record.stats) >= 15
     sizes = {slot: s.map_size for slot, s in record.stats.items()}
     assert max(sizes.values()) <= vmax, sizes
