@@ -1,4 +1,5 @@
-"""Stamps and headers: seconds ↔ ``builtin_interfaces/Time``, and filling ``std_msgs/Header``.
+"""Stamps and headers: seconds ↔ ``builtin_interfaces/Time`` (and ``Duration``), and filling
+``std_msgs/Header``.
 
 Every node stamps with its own clock (``node.get_clock()``, so ``use_sim_time`` works); these
 helpers only convert. One place for it, so the device, the edge and the player agree on the
@@ -10,18 +11,30 @@ from __future__ import annotations
 import math
 from typing import Protocol, TypeVar
 
-from builtin_interfaces.msg import Time
+from builtin_interfaces.msg import Duration, Time
 from std_msgs.msg import Header
+
+
+def _sec_nanosec(seconds: float) -> tuple[int, int]:
+    """Whole seconds and nanoseconds of ``seconds`` (nanoseconds rounded, never 10⁹)."""
+    sec = math.floor(seconds)
+    return sec, min(round((seconds - sec) * 1e9), 999_999_999)
 
 
 def ros_time(stamp: float) -> Time:
     """``builtin_interfaces/Time`` of a time in seconds (nanoseconds rounded, never 10⁹)."""
-    sec = math.floor(stamp)
-    return Time(sec=sec, nanosec=min(round((stamp - sec) * 1e9), 999_999_999))
+    sec, nanosec = _sec_nanosec(stamp)
+    return Time(sec=sec, nanosec=nanosec)
 
 
-def time_seconds(time: Time) -> float:
-    """A ``builtin_interfaces/Time`` in seconds."""
+def ros_duration(seconds: float) -> Duration:
+    """``builtin_interfaces/Duration`` of a span in seconds, rounded as :func:`ros_time`."""
+    sec, nanosec = _sec_nanosec(seconds)
+    return Duration(sec=sec, nanosec=nanosec)
+
+
+def time_seconds(time: Time | Duration) -> float:
+    """A ``builtin_interfaces/Time`` (or ``Duration``) in seconds."""
     return int(time.sec) + int(time.nanosec) * 1e-9
 
 

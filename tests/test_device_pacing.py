@@ -138,3 +138,15 @@ def test_a_pace_report_that_names_no_camera_or_no_duration_is_refused() -> None:
                                  ("/ar1/sequence_player", 0, 1_000_000_000)):
         with pytest.raises(MessageError):
             validate("twinslam_msgs/msg/PlaybackPace", report(camera, sec, nanosec))
+
+
+def test_a_held_time_crosses_the_report_to_the_nanosecond_and_never_as_a_second_of_them(
+        ) -> None:
+    """What a camera tells its group (``ros_duration``) is what the group reads back
+    (``time_seconds``); a time a hair under a whole second keeps 999 999 999 ns, never 10⁹."""
+    from msg_schemas.headers import ros_duration, time_seconds
+
+    for held in (0.0, 0.5, 12.345678901, 86_399.999999):
+        assert time_seconds(ros_duration(held)) == pytest.approx(held, abs=1e-9)
+    almost = ros_duration(2.9999999999)
+    assert (almost.sec, almost.nanosec) == (2, 999_999_999)

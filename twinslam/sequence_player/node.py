@@ -43,7 +43,6 @@ from __future__ import annotations
 
 from typing import NoReturn
 
-from builtin_interfaces.msg import Duration
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Path
@@ -55,7 +54,7 @@ from tf2_msgs.msg import TFMessage
 from twinslam_msgs.msg import PlaybackPace
 
 from msg_schemas import qos, topics
-from msg_schemas.headers import stamp_key, stamp_seconds
+from msg_schemas.headers import ros_duration, stamp_key, stamp_seconds, time_seconds
 from msg_schemas.paths import PathWindow
 from msg_schemas.transforms import tf_message, transform_stamped
 from twinslam.node_runtime.acks import wait_for_acks
@@ -216,7 +215,7 @@ class SequencePlayer(Node):
 
     def _on_group_said(self, msg: PlaybackPace) -> None:
         if msg.camera != self.get_fully_qualified_name():
-            self.pacing.group_said(msg.camera, msg.held.sec + msg.held.nanosec * 1e-9,
+            self.pacing.group_said(msg.camera, time_seconds(msg.held),
                                    msg.waiting_for_device, self._now_ns() * 1e-9)
 
     def _tell_group(self, now_s: float) -> None:
@@ -227,10 +226,8 @@ class SequencePlayer(Node):
             return
         self._told = told
         held, waiting = told
-        sec = int(held)
-        self.pub_pace.publish(PlaybackPace(
-            camera=self.get_fully_qualified_name(), waiting_for_device=waiting,
-            held=Duration(sec=sec, nanosec=min(round((held - sec) * 1e9), 999_999_999))))
+        self.pub_pace.publish(PlaybackPace(camera=self.get_fully_qualified_name(),
+                                           held=ros_duration(held), waiting_for_device=waiting))
 
     def _fire_in(self, delay_ns: int) -> None:
         """Make the one timer fire once ``delay_ns`` from now (then periodically, until the
