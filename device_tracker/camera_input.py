@@ -14,6 +14,10 @@ from device_tracker.frame_pairing import FramePairing
 from msg_schemas import qos
 from msg_schemas.headers import stamp_key, stamp_seconds
 
+#: what the device's warning says when it dropped frames it could not keep up with: a run's
+#: logs are searched for it (a live figure of a device that dropped frames measures the load)
+FELL_BEHIND = "behind the camera"
+
 
 def image_array(msg: Image) -> np.ndarray:
     """H×W×3 RGB (``rgb8``/``bgr8``) or H×W grey (``mono8``) view of a validated image."""
@@ -90,7 +94,7 @@ class CameraIntake:
     def frames(self, skip: Callable[[str], None]) -> Iterator[CameraFrame]:
         """The frames complete now; ``skip(reason)`` for each one dropped."""
         if self._behind:
-            skip(f"the tracker fell {self.backlog} frames behind the camera: its "
+            skip(f"the tracker fell {self.backlog} frames {FELL_BEHIND}: its "
                  f"{self._behind} oldest waiting frame(s) dropped")
             self._behind = 0
         for frame in self.pairing.ready():

@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 from twinslam_msgs.msg import MapUpdate
 
+from device_tracker.camera_input import FELL_BEHIND
 from edge_mapper.edge_failover import UnansweredSlots
 from msg_schemas import qos
 from twinslam.hosts.loopback import LoopbackDomain
@@ -88,4 +89,4 @@ def test_a_standby_edge_serves_a_device_whose_edge_was_killed(
     assert "restored map version" in log, log[-3000:]
     after = [int(m.map_version) for m in maps[heard:]]
     assert min(after) >= before - 1, (before, after)     # resumed, not started afresh
-    assert "behind the camera" not in domain.log(device), domain.log(device)[-2000:]
+    assert FELL_BEHIND not in domain.log(device), domain.log(device)[-2000:]

@@ -18,6 +18,7 @@ import pytest
 from geometry_msgs.msg import PoseStamped
 from twinslam_msgs.msg import FrameSummaries, FrameSummary, MapUpdate
 
+from device_tracker.camera_input import FELL_BEHIND
 from msg_schemas import qos, topics
 from msg_schemas.headers import stamp_key, time_key
 from msg_schemas.poses import pose_matrix
@@ -43,8 +44,6 @@ ORDER = {"ar1": "forward", "ar2": "backward_forward"}
 #: a device that fell behind its camera dropped frames (3–68 of a walk, unpaced), and a camera
 #: paced alone would change when the two walks meet
 PACED = ["-p", "pace_frames:=30", "-p", "pace_group:=fleet"]
-#: what a device says when it dropped frames it could not keep up with
-DROPPED = "behind the camera"
 
 #: the nodes are forked from the launchers' fork server (twinslam.live.node_fork_server)
 FORKS = preloaded_nodes()
@@ -169,7 +168,7 @@ def test_the_edge_merges_the_second_devices_map_into_the_first_ones_frame(
           f"{seen.p95_m * 100:.1f} cm p95, over {seen.pairs} pairs")
     assert seen.rms_m <= 0.03, seen
     for d, tracker in trackers.items():
-        assert DROPPED not in domain.log(tracker), f"{d}: {domain.log(tracker)[-2000:]}"
+        assert FELL_BEHIND not in domain.log(tracker), f"{d}: {domain.log(tracker)[-2000:]}"
     # where the other device's lent keyframes stand, a device's frames are not asked for
     assert domain.wait_for_log(edge, "the shared map covers their views", 60.0), \
         domain.log(edge)[-3000:]
@@ -215,4 +214,4 @@ def test_two_places_that_share_posters_are_not_merged(domain: LoopbackDomain,
     for d, got in maps.items():
         assert all(u.header.frame_id == f"{d}/map" for u in got)
         assert all(np.allclose(pose_matrix(u.frame_correction), np.eye(4)) for u in got)
-        assert DROPPED not in domain.log(trackers[d]), domain.log(trackers[d])[-2000:]
+        assert FELL_BEHIND not in domain.log(trackers[d]), domain.log(trackers[d])[-2000:]

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from device_tracker.camera_input import FELL_BEHIND
 from msg_schemas.headers import stamp_seconds, time_key
 from tests.data_paths import seven_or_synthetic
 from twinslam.hosts.loopback import LoopbackDomain
@@ -43,6 +44,10 @@ FRAMES, VMAX, ALPHA, D_REQ = 180, 45, 5.0, default_device.D_REQ_S
 #: frames to extract and track
 SLOT_FRAMES, RATE = 30, 0.5
 SLOTS = FRAMES // SLOT_FRAMES
+#: the camera waits for its device beyond this many unposed frames (the player's
+#: ``pace_frames``): a run checks the protocol slot by slot, and a device that fell behind its
+#: camera on a loaded machine drops frames, and with them whole slots of its frame-count clock
+PACE_FRAMES = 30
 pytestmark = pytest.mark.slow
 
 
@@ -56,13 +61,14 @@ def reads_the_policy_runs(test: Callable[..., None]) -> Callable[..., None]:
 def _run(policy: str, frames: int = FRAMES, checkpoint: Path | None = None,
          on_stats: Any = None, extra: dict[str, list[str]] | None = None,
          scenario: Scenario = SCENARIOS["forward"], sequence: str = SEQUENCE, rate: float = 1.0,
-         pace_frames: int = 0) -> tuple[RunReport, RunLog, Launcher]:
-    """One run of ``frames`` played at ``rate`` × their recorded speed; ``extra``: node
-    parameters beside the launch file's. The device is the Edge-SLAM style one (the default
-    device's map source, written out) unless ``extra`` names its map source: what these tests
-    check — the protocol, the edge's restore, its planners — needs a device that tracks every
-    frame of the walk, which the paper's device does not promise; the tests of the paper's
-    device ask for it by name."""
+         pace_frames: int = PACE_FRAMES) -> tuple[RunReport, RunLog, Launcher]:
+    """One run of ``frames`` played at ``rate`` × their recorded speed, the camera waiting for
+    the device beyond ``pace_frames`` unposed frames (the run fails where the device dropped
+    frames all the same); ``extra``: node parameters beside the launch file's. The device is
+    the Edge-SLAM style one (the default device's map source, written out) unless ``extra``
+    names its map source: what these tests check — the protocol, the edge's restore, its
+    planners — needs a device that tracks every frame of the walk, which the paper's device
+    does not promise; the tests of the paper's device ask for it by name."""
     device = (extra or {}).get("device_tracker", [])
     if not any(a.startswith("map_source:=") for a in device):
         extra = {**(extra or {}), "device_tracker": [*device, "map_source:=edge+local"]}
@@ -77,6 +83,8 @@ def _run(policy: str, frames: int = FRAMES, checkpoint: Path | None = None,
                               if on_stats else None)
     assert launcher.record is not None and launcher.record.stats, \
         f"{policy}: the edge published no MapStats"
+    device_log = launcher.logs["device_tracker"]
+    assert FELL_BEHIND not in device_log, device_log[-2000:]
     return report, launcher.record, launcher
 
 
@@ -331,7 +339,7 @@ def test_slots_shorter_than_their_uploads_never_leave_more_than_vmax() -> None:
     ten frames of 5 Mbit fill them, a 40 Mbit/s one's take 1.25 s) — about 1.4 slots of
     uploads a slot, as 0.5 s uploads over 0.33 s slots were."""
     vmax = 15
-    report, record, _ = _run("adapt", frames=200, rate=0.25, pace_frames=SLOT_FRAMES,
+    report, record, _ = _run("adapt", frames=200, rate=0.25,
                              extra={"device_tracker": ["slot_frames:=10", "rate_min:=20.0",
                                                        "rate_max:=40.0"],
                                     "edge_mapper": [f"vmax:={vmax}", "d_req_s:=2.5"]})
@@ -391,8 +399,7 @@ def test_a_device_that_lost_tracking_relocalises_against_the_edges_map() -> None
     # cores with the suite's other live runs fell 150 frames behind its camera at the walk's
     # turn and dropped 120 of them — a second loss that measured the machine
     report, record, _ = _run("adapt", frames=241, scenario=lost, sequence="synthetic:241",
-                             extra={"device_tracker": ["map_source:=edge+local"]},
-                             pace_frames=SLOT_FRAMES)
+                             extra={"device_tracker": ["map_source:=edge+local"]})
     assert report.frames_dropped == 0, (
         f"the device fell behind its camera and dropped {report.frames_dropped} frames (the "
         f"machine was short of CPU): its losses measure the load; {report}")
