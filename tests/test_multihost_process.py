@@ -57,11 +57,14 @@ def test_every_multihost_test_runs_in_exactly_one_process() -> None:
 def test_the_multihost_tests_pass_in_a_fresh_process(process: str) -> None:
     env = dict(os.environ, TWINSLAM_MULTIHOST_PROCESS="1")
     tests = [f"tests/test_multihost.py::{name}" for name in PROCESSES[process]]
-    done = subprocess.run([sys.executable, "-m", "pytest", "-v", "-rs", "-n0",
+    # -rfEs: the short summary names each failure with its assertion's first line
+    done = subprocess.run([sys.executable, "-m", "pytest", "-v", "-rfEs", "-n0",
                            "-p", "no:cacheprovider", *tests], cwd=REPO, env=env, text=True,
                           capture_output=True, timeout=900)
     print(done.stdout[-20000:])
-    assert done.returncode == 0, done.stdout[-8000:] + done.stderr[-2000:]
+    # what failed first: a CI log that keeps only a message's first lines still says it
+    failed = [line for line in done.stdout.splitlines() if line.startswith(("FAILED", "ERROR"))]
+    assert done.returncode == 0, "\n".join([*failed, done.stdout[-8000:], done.stderr[-2000:]])
     summary = done.stdout.splitlines()[-1]
     counts = {word: int(n) for n, word in re.findall(r"(\d+) (passed|skipped)", summary)}
     assert sum(counts.values()) == len(tests), summary
