@@ -18,10 +18,10 @@ import pytest
 from geometry_msgs.msg import PoseStamped
 from twinslam_msgs.msg import FrameSummaries, FrameSummary, MapUpdate
 
-from device_tracker.camera_input import FELL_BEHIND
 from msg_schemas import qos, topics
 from msg_schemas.headers import stamp_key, time_key
 from msg_schemas.poses import pose_matrix
+from tests.paced_runs import PACE_FRAMES, assert_kept_up
 from twinslam.hosts.loopback import LoopbackDomain
 from twinslam.live.launcher import preloaded_nodes
 from twinslam.live.tracking_quality import RevisitError, cross_device_revisit_error
@@ -43,7 +43,7 @@ ORDER = {"ar1": "forward", "ar2": "backward_forward"}
 #: the cameras wait for their devices, together (the player's pace_group): on a loaded machine
 #: a device that fell behind its camera dropped frames (3–68 of a walk, unpaced), and a camera
 #: paced alone would change when the two walks meet
-PACED = ["-p", "pace_frames:=30", "-p", "pace_group:=fleet"]
+PACED = ["-p", f"pace_frames:={PACE_FRAMES}", "-p", "pace_group:=fleet"]
 
 #: the nodes are forked from the launchers' fork server (twinslam.live.node_fork_server)
 FORKS = preloaded_nodes()
@@ -168,7 +168,7 @@ def test_the_edge_merges_the_second_devices_map_into_the_first_ones_frame(
           f"{seen.p95_m * 100:.1f} cm p95, over {seen.pairs} pairs")
     assert seen.rms_m <= 0.03, seen
     for d, tracker in trackers.items():
-        assert FELL_BEHIND not in domain.log(tracker), f"{d}: {domain.log(tracker)[-2000:]}"
+        assert_kept_up(domain.log(tracker), d)
     # where the other device's lent keyframes stand, a device's frames are not asked for
     assert domain.wait_for_log(edge, "the shared map covers their views", 60.0), \
         domain.log(edge)[-3000:]
@@ -214,4 +214,4 @@ def test_two_places_that_share_posters_are_not_merged(domain: LoopbackDomain,
     for d, got in maps.items():
         assert all(u.header.frame_id == f"{d}/map" for u in got)
         assert all(np.allclose(pose_matrix(u.frame_correction), np.eye(4)) for u in got)
-        assert FELL_BEHIND not in domain.log(trackers[d]), domain.log(trackers[d])[-2000:]
+        assert_kept_up(domain.log(trackers[d]), d)

@@ -22,9 +22,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from device_tracker.camera_input import FELL_BEHIND
 from msg_schemas.headers import stamp_seconds, time_key
 from tests.data_paths import seven_or_synthetic
+from tests.paced_runs import PACE_FRAMES, assert_kept_up
 from twinslam.hosts.loopback import LoopbackDomain
 from twinslam.live.launcher import LaunchConfig, Launcher
 from twinslam.live.report import RunReport
@@ -44,10 +44,6 @@ FRAMES, VMAX, ALPHA, D_REQ = 180, 45, 5.0, default_device.D_REQ_S
 #: frames to extract and track
 SLOT_FRAMES, RATE = 30, 0.5
 SLOTS = FRAMES // SLOT_FRAMES
-#: the camera waits for its device beyond this many unposed frames (the player's
-#: ``pace_frames``): a run checks the protocol slot by slot, and a device that fell behind its
-#: camera on a loaded machine drops frames, and with them whole slots of its frame-count clock
-PACE_FRAMES = 30
 pytestmark = pytest.mark.slow
 
 
@@ -83,8 +79,7 @@ def _run(policy: str, frames: int = FRAMES, checkpoint: Path | None = None,
                               if on_stats else None)
     assert launcher.record is not None and launcher.record.stats, \
         f"{policy}: the edge published no MapStats"
-    device_log = launcher.logs["device_tracker"]
-    assert FELL_BEHIND not in device_log, device_log[-2000:]
+    assert_kept_up(launcher.logs["device_tracker"])
     return report, launcher.record, launcher
 
 
