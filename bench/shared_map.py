@@ -79,7 +79,6 @@ from twinslam.slam.back_end.map_merging import (
     MapMerge,
     MergeFinder,
     lend_to,
-    whole_map,
 )
 
 SEVEN = SEVEN_SCENES
@@ -89,7 +88,7 @@ def look_for_merge(finder: MergeFinder, place: DeviceWalk, joining: DeviceWalk,
                    keyframes: list[int], slot: int) -> MapMerge | None:
     """The joining device's newly integrated ``keyframes`` looked for in everything the place
     device's edge map holds: the merge, once confirmed."""
-    other = whole_map(place.edge.archive, place.edge.map, slot)
+    other = place.edge.back_end.store.snapshot(slot)
     poses = joining.keyframe_poses()
     for kf in keyframes:
         query = joining.query(kf)

@@ -63,7 +63,6 @@ from twinslam.slam.back_end.map_merging import (
     MapMerge,
     MergeFinder,
     lend_from,
-    whole_map,
 )
 from twinslam.slam.keyframe import KeyFramePayload
 
@@ -363,7 +362,7 @@ class PlaceMerging:
         other, joining = cores[place], cores[device]
         if not other.map.keyframes or not joining.camera.known:
             return
-        snapshot = whole_map(other.archive, other.map, slot)
+        snapshot = other.back_end.store.snapshot(slot)
         poses = joining.back_end.keyframe_poses()
         finder = self._finders.setdefault((device, place),
                                           MergeFinder(min_inliers=self.min_inliers))
@@ -425,8 +424,7 @@ def _copies_of(core: EdgeMapperCore, source: int) -> set[int]:
     """The lender ids of the copies of source ``source``'s keyframes ``core``'s map and
     archive hold: what a restarted edge's lendings need not adopt again."""
     tag = foreign_tag(source)
-    ids = [*(kf.id for kf in core.archive), *core.map.keyframes]
-    return {source_id(k) for k in ids if tag_of(k) == tag}
+    return {source_id(k) for k in core.back_end.store.ids() if tag_of(k) == tag}
 
 
 def _look(place: str, finder: MergeFinder, other: KeyFrameArchive,

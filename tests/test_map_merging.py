@@ -41,7 +41,6 @@ from twinslam.slam.back_end.map_merging import (
     MergeFinder,
     follow_lender_loops,
     welded,
-    whole_map,
 )
 from twinslam.slam.camera import Camera
 from twinslam.slam.front_end.orb_extractor import OrbExtractor
@@ -180,18 +179,6 @@ def test_a_merged_map_moves_whole_into_the_place_frame_and_tells_its_device() ->
                              depths=np.zeros(0), point_ids=np.zeros(0, np.uint64), stamp=1.0)
     moved = core.back_end.in_current_frame(upload, version)
     np.testing.assert_allclose(moved.pose, SECOND_IN_FIRST @ posed)
-
-
-def test_whole_map_holds_the_archive_and_the_managed_keyframes() -> None:
-    """Another device is looked for in everything an edge map knows, the keyframes it sends
-    and the ones it archived, without changing either."""
-    core = _core()
-    for kf in range(3):
-        core.map.add_keyframe(kf, np.eye(4))
-    core.back_end.evict_to_archive([0], slot=0)
-    every = whole_map(core.archive, core.map, slot=1)
-    assert sorted(kf.id for kf in every) == [0, 1, 2]
-    assert len(core.archive) == 1 and sorted(core.map.keyframes) == [1, 2]
 
 
 def _payload(room: Room, frame_index: int, keyframe: int) -> KeyFramePayload:  # noqa: F811

@@ -54,11 +54,10 @@ from twinslam.slam.back_end.foreign_keyframes import (
 from twinslam.slam.back_end.keyframe_archive import (
     ArchivedKeyFrame,
     KeyFrameArchive,
-    point_id_sets,
-    restore_into,
 )
 from twinslam.slam.back_end.keyframe_gate import KeyFrameGateConfig, implausible_keyframe
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap, shared_pairs
+from twinslam.slam.back_end.keyframe_store import KeyFrameStore
 from twinslam.slam.back_end.local_mapping import (
     IntegrationReport,
     LocalMapping,
@@ -192,21 +191,22 @@ class MapBackEnd:
         #: camera intrinsics; without them at start, taken from the first keyframe
         self.k = np.eye(3) if intrinsics is None else np.asarray(intrinsics, dtype=np.float64)
         self.checkpoint = Path(checkpoint) if checkpoint else None
-        self.map = KeyFrameMap()
+        managed = KeyFrameMap()
         #: the arrays saved beside the map (the edge core reads its own from them)
         self.extra: dict[str, np.ndarray] = {}
         self.restored_from_file = self.checkpoint is not None and self.checkpoint.is_file()
         if self.restored_from_file and self.checkpoint is not None:
-            self.map, self.extra = KeyFrameMap.load(self.checkpoint)
+            managed, self.extra = KeyFrameMap.load(self.checkpoint)
         extra = self.extra
+        #: what the archive could not read back after a restart (the node logs it)
+        self.archive_problems: list[str] = []
+        #: every keyframe kept: the slice the device holds (:attr:`map`) and the archive
+        self.store = KeyFrameStore(managed, self._open_archive(set(managed.keyframes)))
         self.local_mapping = LocalMapping(
             self.map, self.k, config.image_shape,
             LocalMappingConfig(culling=PointCullingConfig() if config.point_culling else None,
                                join_radius_m=JOIN_RADIUS_M if config.integration_fusion
                                else None))
-        #: what the archive could not read back after a restart (the node logs it)
-        self.archive_problems: list[str] = []
-        self.archive = self._open_archive()
         self.loop_closer = LoopCloser(config.loop_background, config.loop_min_gap,
                                       confirmations=config.loop_confirmations)
         #: keyframes integrated since the last loop job, newest last
@@ -256,17 +256,27 @@ class MapBackEnd:
                                                extra.get("entered_phases", ()), strict=True)),
             strict=True))
 
-    def _open_archive(self) -> KeyFrameArchive:
+    @property
+    def map(self) -> KeyFrameMap:
+        """The managed map: the store's slice, the keyframes the device holds."""
+        return self.store.managed
+
+    @property
+    def archive(self) -> KeyFrameArchive:
+        """The store's keyframes out of the slice."""
+        return self.store.archive
+
+    def _open_archive(self, in_map: set[int]) -> KeyFrameArchive:
         """The archive beside the checkpoint (``edge.npz`` → ``edge.npz.archive/``), restored
-        with the map; a fresh start (no map checkpoint) clears what an earlier run left
-        there, whose keyframe ids a new device run would reuse."""
+        with the map (whose keyframes are ``in_map``); a fresh start (no map checkpoint)
+        clears what an earlier run left there, whose keyframe ids a new device run would
+        reuse."""
         capacity = self.config.archive_keyframes
         if self.checkpoint is None:
             return KeyFrameArchive(capacity)
         folder = archive_folder(self.checkpoint)
         if self.restored_from_file:
-            archive, self.archive_problems = KeyFrameArchive.restore(
-                capacity, folder, set(self.map.keyframes))
+            archive, self.archive_problems = KeyFrameArchive.restore(capacity, folder, in_map)
             return archive
         for stale in folder.glob("keyframe-*.npz") if folder.is_dir() else ():
             stale.unlink()
@@ -337,10 +347,9 @@ class MapBackEnd:
     def evict_to_archive(self, keyframes: Iterable[int], slot: int) -> tuple[list[int], int]:
         """``keyframes`` evicted into the archive at ``slot``; (the archived keyframes that left
         the archive to keep its capacity, the points that lost their last observer)."""
-        forgotten, orphans = [], 0
+        keyframes = list(keyframes)
+        forgotten, orphans = self.store.leave_slice(keyframes, slot)
         for kf in keyframes:
-            forgotten += self.archive.add(ArchivedKeyFrame.of(self.map, kf, slot))
-            orphans += len(self.map.evict(kf))
             self.entered.pop(kf, None)
         for kf in forgotten:
             self.adopted_at.pop(kf, None)
@@ -353,7 +362,7 @@ class MapBackEnd:
         points a restored keyframe brings back that the map made again since)."""
         back = [self.archive.take(kf) for kf in restore]
         forgotten, _ = self.evict_to_archive(evict, slot)
-        returned = {archived.id: restore_into(self.map, archived) for archived in back}
+        returned = self.store.enter_slice(back)
         self.entered.update((kf, (slot, RESTORED)) for kf in returned)
         fused = sum(len(fuse_restored(self.map, kf, points, self.camera))
                     for kf, points in returned.items()) if self.config.point_fusion else 0
@@ -581,8 +590,7 @@ class MapBackEnd:
             for loop in self.applied_loops]
         # the copies of other devices' keyframes too: they are in this map's frame, and a
         # copy left behind is a whole merge's motion away from the place it shows
-        everyone = dict.fromkeys([*self.map.keyframes, *(kf.id for kf in self.archive)],
-                                 alignment)
+        everyone = dict.fromkeys(self.store.ids(), alignment)
         self._correct(everyone, alignment, next_version,
                       "writing the aligned archive's files", copies_too=True)
 
@@ -647,8 +655,7 @@ class MapBackEnd:
         started = time.perf_counter()
         own = {k: pose for k, pose in poses.items() if not is_foreign(k)}
         copies_now = {k: pose for k, pose in poses.items() if is_foreign(k)}
-        points = point_id_sets({k: kf.points for k, kf in self.map.keyframes.items()},
-                               self.archive)
+        points = self.store.point_sets()
         closure = follow_anchors(own, copy_anchors(points, copies_before, copies_now),
                                  shared_pairs(list(own), points), self.loop_edges)
         graph_ms = (time.perf_counter() - started) * 1e3
@@ -695,7 +702,7 @@ class MapBackEnd:
         forgotten: list[int] = []
         added: list[int] = []
         for kf in keyframes:
-            if kf.id not in self.archive and kf.id not in self.map.keyframes:
+            if kf.id not in self.store:
                 forgotten += self.archive.add(kf, write=False)
                 added.append(kf.id)
                 self.adopted_at[kf.id] = kf.archived_slot
@@ -723,9 +730,7 @@ class MapBackEnd:
     def keyframe_poses(self) -> dict[int, np.ndarray]:
         """Every keyframe kept — the archive's and the map's — by id, where the edge holds it
         now (the map's as copies: another thread may read them while the map moves on)."""
-        poses = {kf.id: kf.pose for kf in self.archive}
-        poses.update({k: kf.pose.copy() for k, kf in self.map.keyframes.items()})
-        return poses
+        return self.store.poses()
 
     # -- checkpoint --------------------------------------------------------------------------
 
@@ -734,7 +739,7 @@ class MapBackEnd:
         frame they left the map in, where a merge put the device's first camera and the
         capture times of the keyframes kept."""
         kept = sorted(k for k in self.keyframe_stamps
-                      if k in self.map.keyframes or k in self.archive)
+                      if k in self.store)
         return {"loops_closed": np.array(self.loops_closed), **_loop_arrays(self.loop_edges),
                 "frame_correction": self.frame_correction, "origin": self.origin,
                 "keyframe_stamp_ids": np.array(kept, dtype=np.int64),
@@ -743,7 +748,7 @@ class MapBackEnd:
                 **_entered_arrays({k: s for k, s in self.entered.items()
                                    if k in self.map.keyframes}),
                 **_adopted_arrays({k: s for k, s in self.adopted_at.items()
-                                   if k in self.map.keyframes or k in self.archive})}
+                                   if k in self.store})}
 
 
 def _moved_m(before: np.ndarray, after: np.ndarray) -> float:

@@ -6,7 +6,8 @@ frames, and content one user anchors appears elsewhere to the other. ORB-SLAM3's
 merges two maps where place recognition relates them; here, as for a loop
 (:mod:`twinslam.slam.back_end.loop_detection`), a keyframe the joining device's edge map
 just integrated is looked for among the other map's keyframes — its archive and its managed
-map, :func:`whole_map` — and accepted on geometry: PnP with a loop's inliers, then the
+map, its store's :meth:`~twinslam.slam.back_end.keyframe_store.KeyFrameStore.snapshot` —
+and accepted on geometry: PnP with a loop's inliers, then the
 relative pose to the recognised keyframe measured from the two keyframes' depths. The
 keyframe's pose as the other map puts it, times its pose in its own map⁻¹, is the
 **alignment**: the rigid motion that carries the joining map's frame into the other's.
@@ -56,13 +57,6 @@ from twinslam.slam.camera import Camera
 MERGE_MIN_INLIERS = 2 * MIN_INLIERS
 
 
-def whole_map(archive: KeyFrameArchive, managed: KeyFrameMap, slot: int) -> KeyFrameArchive:
-    """Every keyframe a device's edge map knows — its archive's and its managed map's (as
-    they are at ``slot``) — as one archive to recognise places in. A snapshot: it shares
-    nothing mutable with the map, and may be searched beside the slots."""
-    return archive.snapshot([ArchivedKeyFrame.of(managed, k, slot) for k in managed.keyframes])
-
-
 @dataclass(frozen=True)
 class MapMerge:
     """A confirmed merge: where the joining map's keyframe found the other map."""
@@ -92,7 +86,7 @@ class MergeFinder:
               ) -> MapMerge | None:
         """Keyframe ``query`` of the joining map (its poses ``joining_poses``, id →
         camera-to-map, the query's among them) looked for in ``other``
-        (:func:`whole_map`): the merge, once confirmed; None until then."""
+        (a store's snapshot): the merge, once confirmed; None until then."""
         pose = joining_poses[query.keyframe]
         candidate = recognise_place(other, query.points_xy, query.descriptors, intrinsics,
                                     depths=query.depths)
