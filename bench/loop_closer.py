@@ -43,9 +43,16 @@ from twinslam.slam.back_end.keyframe_archive import (
     restore_into,
 )
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap, shared_pairs
-from twinslam.slam.back_end.loop_closing import LoopJob, LoopQuery, run_job
+from twinslam.slam.back_end.loop_closing import (
+    CONFIRMATIONS,
+    LoopConfirmation,
+    LoopJob,
+    LoopQuery,
+    run_job,
+)
 from twinslam.slam.back_end.loop_correction import correct_map
 from twinslam.slam.back_end.loop_detection import LoopCandidate, detect_loop
+from twinslam.slam.back_end.place_index import KeptPlaceIndex
 from twinslam.slam.back_end.place_words import EXACT_BELOW, PlaceWords
 from twinslam.slam.back_end.pose_graph import close_loop
 from twinslam.slam.front_end.orb_extractor import OrbExtractor
@@ -104,6 +111,9 @@ def main() -> None:
                         help="frames of the walk that look for a loop")
     parser.add_argument("--map", type=int, default=45,
                         help="keyframes of the managed map the corrections move (V_max)")
+    parser.add_argument("--jobs", type=int, default=12,
+                        help="loop jobs on an archive that changes between them, each run "
+                        "with the place index built for it and with the loop closer's kept")
     parser.add_argument("--exact-below", type=int, default=EXACT_BELOW,
                         help="points under which the archive is searched exactly, not under "
                         "its visual words (the edge's setting)")
@@ -183,7 +193,59 @@ def main() -> None:
               "files": "the corrected archive's files (worker)"}
     for name, label in labels.items():
         print(_line(label, times[name]))
+    queries = [LoopQuery(LATER + int(i), *_features(orb, reader, int(i)))
+               for i in np.linspace(1, n_frames - 2, args.queries).round().astype(int)]
+    built, kept_index, agreed = changing_archive_jobs(kept, archive.words, queries, k,
+                                                      args.jobs)
+    print(f"  jobs on an archive that changes between them (one keyframe archived, one "
+          f"restored), alternated; {agreed} of {len(built)} found the same place on as many "
+          "inliers:")
+    print(_line("a job, its place index built for it", built))
+    print(_line("a job, the loop closer's index kept", kept_index))
     print(contention(archive, managed, k, reader, orb))
+
+
+def _features(orb: OrbExtractor, reader: object, index: int) -> tuple[np.ndarray, np.ndarray]:
+    """Frame ``index``'s ORB keypoints and descriptors."""
+    feats = orb.extract(reader.read(index).color)                # type: ignore[attr-defined]
+    return feats.points, feats.descriptors
+
+
+def changing_archive_jobs(kept: list[ArchivedKeyFrame], words: PlaceWords,
+                          queries: list[LoopQuery], k: np.ndarray, jobs: int
+                          ) -> tuple[list[float], list[float], int]:
+    """``jobs`` loop jobs, each on an archive that changed since the last as an edge's does
+    between two slots — the next of ``kept`` archived, an old one restored — run twice,
+    alternately: with the place index built for the job, and with the loop closer's index
+    kept from its last job (:mod:`~twinslam.slam.back_end.place_index`). Each job detects
+    only (a loop waits for its confirmations), as most slots' jobs do. Returns the two runs'
+    milliseconds and how many jobs found the same place on as many inliers both ways."""
+    live = KeyFrameArchive(len(kept), words=words)
+    head = len(kept) - jobs
+    for kf in kept[:head]:
+        live.add(kf, write=False)
+    index = KeptPlaceIndex()
+    poses = {kf.id: kf.pose for kf in kept} | {q.keyframe: np.eye(4) for q in queries}
+    points = {q.keyframe: frozenset[int]() for q in queries}
+
+    def job(query: LoopQuery) -> LoopJob:
+        return LoopJob((query,), live.snapshot(), poses, k, points)
+
+    run_job(job(queries[0]), index=index)        # the index's first fill: once an edge's life
+    built: list[float] = []
+    with_index: list[float] = []
+    agreed = 0
+    for n in range(jobs):
+        live.add(kept[head + n], write=False)
+        live.take(kept[3 * n].id)
+        this = job(queries[n % len(queries)])
+        with _timed(built):
+            fresh = run_job(this, confirmation=LoopConfirmation(CONFIRMATIONS))
+        with _timed(with_index):
+            kept_ = run_job(this, confirmation=LoopConfirmation(CONFIRMATIONS), index=index)
+        agreed += (fresh.candidate.old, fresh.candidate.inliers) == \
+            (kept_.candidate.old, kept_.candidate.inliers)
+    return built, with_index, agreed
 
 
 def _same_place(a: LoopCandidate, b: LoopCandidate) -> bool:

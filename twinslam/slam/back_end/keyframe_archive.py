@@ -38,10 +38,12 @@ from collections.abc import Callable, Collection, Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from itertools import chain
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
+from twinslam.slam.back_end.place_index import KeptPlaceIndex
 from twinslam.slam.back_end.place_words import DESCRIPTOR_BITS, PlaceWords
 
 ARCHIVE_FORMAT = "twinslam-archived-keyframe-1"
@@ -168,8 +170,9 @@ class KeyFrameArchive:
         self.folder = Path(folder) if folder is not None else None
         self._entries: dict[int, ArchivedKeyFrame] = {}
         self._useful: dict[int, int] = {}
-        self._index: object | None = None
-        self._places = _PointObservers.empty()      #: the index's points and their keyframes
+        self._index: Any = None
+        #: the index's points and their keyframes
+        self._places: _PointObservers | KeptPlaceIndex = _PointObservers.empty()
         #: the vocabulary place recognition files a large archive's points under, shared with
         #: every view of this archive (learned once, not for each loop job's view)
         self.words = words if words is not None else PlaceWords()
@@ -178,6 +181,8 @@ class KeyFrameArchive:
         #: one writer of a keyframe's file at a time: the loop closer's worker rewrites files
         #: of corrected keyframes while the edge archives and removes others
         self._files = threading.Lock()
+        #: a loop closer's index this view searches, kept from view to view (:meth:`only`)
+        self._kept_index: KeptPlaceIndex | None = None
 
     # -- contents ---------------------------------------------------------------------------
 
@@ -285,21 +290,26 @@ class KeyFrameArchive:
         for kf in added:
             view._entries[kf.id] = kf
             view._useful[kf.id] = kf.archived_slot
-        if not added and self._index is not None:
+        if not added and self._index is not None and self._kept_index is None:
             view._index, view._places = self._index, self._places
         return view
 
-    def only(self, keep: Callable[[int], bool]) -> KeyFrameArchive:
+    def only(self, keep: Callable[[int], bool], index: KeptPlaceIndex | None = None
+             ) -> KeyFrameArchive:
         """A read-only view of the archived keyframes whose ids ``keep`` accepts, with a place
         index of their points alone (built when first searched): a search that can choose
         among some keyframes only — a loop among the walk's own — need not compare every
-        descriptor with the points of the rest. Keeping all, it is :meth:`snapshot`."""
+        descriptor with the points of the rest. Keeping all, it is :meth:`snapshot`. With
+        ``index`` (a loop closer's, kept from its last job) the view's index is that one,
+        brought up to the view's keyframes instead of built anew
+        (:mod:`~twinslam.slam.back_end.place_index`)."""
         kept = {k: kf for k, kf in self._entries.items() if keep(k)}
-        if len(kept) == len(self._entries):
+        if len(kept) == len(self._entries) and index is None:
             return self.snapshot()
         view = KeyFrameArchive(len(kept), words=self.words)
         view._entries = kept
         view._useful = {k: self._useful[k] for k in kept}
+        view._kept_index = index
         return view
 
     def take(self, kf_id: int) -> ArchivedKeyFrame:
@@ -383,11 +393,7 @@ class KeyFrameArchive:
         """How many map points each other archived keyframe shares with ``kf_id`` (those that
         share none left out): one pass over the observations, not a set per keyframe."""
         self._built_index()
-        obs = self._places
-        own = self._entries[kf_id].point_ids
-        rows = np.isin(obs.point_of, own) & (obs.keyframe_of != kf_id)
-        ids, counts = np.unique(obs.keyframe_of[rows], return_counts=True)
-        return dict(zip(ids.tolist(), counts.tolist(), strict=True))
+        return self._places.shared_with(kf_id, self._entries[kf_id].point_ids)
 
     def recognise(self, descriptors: np.ndarray, top: int = 3, max_distance: int = 50,
                   ratio: float = 0.8, eligible: Callable[[int], bool] | None = None
@@ -409,18 +415,23 @@ class KeyFrameArchive:
         if not places.points:
             return []
         k = min(2, places.points)
-        distances, rows = index.search(query, k)           # type: ignore[attr-defined]
+        distances, rows = index.search(query, k)
         best = distances[:, 0]
         votes_for = (rows[:, 0] >= 0) & (best <= max_distance)
         if k > 1:                              # an archive of one point has no runner-up
             votes_for &= ~((rows[:, 1] >= 0) & (best >= ratio * distances[:, 1]))
-        kfs, votes = np.unique(places.observers(rows[votes_for, 0]), return_counts=True)
+        kfs, votes = places.votes(rows[votes_for, 0])
         ranked = sorted(((kf, v) for kf, v in zip(kfs.tolist(), votes.tolist(), strict=True)
                          if eligible is None or eligible(kf)),
                         key=lambda kv: (-kv[1], kv[0]))
         return ranked[:top]
 
-    def _built_index(self) -> object:
+    def _built_index(self) -> Any:
+        if self._index is None and self._kept_index is not None:
+            if self._kept_index.sync(self._entries, self.words):
+                self._index = self._places = self._kept_index
+            else:
+                self._kept_index = None            # its keyframes disagree: built below
         if self._index is None:
             kfs = list(self._entries.values())
             self._places = _PointObservers.of(kfs)
@@ -469,6 +480,19 @@ class _PointObservers:
     @property
     def points(self) -> int:
         return len(self.start) - 1
+
+    def votes(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(keyframe ids ascending, votes): every keyframe that observed the point at each of
+        ``rows`` gets a vote (a row given twice, two)."""
+        kfs, votes = np.unique(self.observers(rows), return_counts=True)
+        return kfs, votes
+
+    def shared_with(self, kf_id: int, own: np.ndarray) -> dict[int, int]:
+        """How many observations of keyframe ``kf_id``'s points ``own`` each other keyframe
+        has (those with none left out)."""
+        rows = np.isin(self.point_of, own) & (self.keyframe_of != kf_id)
+        ids, counts = np.unique(self.keyframe_of[rows], return_counts=True)
+        return dict(zip(ids.tolist(), counts.tolist(), strict=True))
 
     def observers(self, rows: np.ndarray) -> np.ndarray:
         """The keyframe of every observation of the points at ``rows`` (a keyframe once per

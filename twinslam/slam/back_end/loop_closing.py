@@ -87,6 +87,7 @@ from twinslam.slam.back_end.loop_detection import (
     detect_loop,
     recognise_place,
 )
+from twinslam.slam.back_end.place_index import KeptPlaceIndex
 from twinslam.slam.back_end.pose_graph import Anchors, LoopClosure, LoopEdge, close_loop
 from twinslam.slam.keyframe import KeyFramePayload
 
@@ -273,12 +274,16 @@ def beyond_drift(candidate: LoopCandidate, query: int, poses: Mapping[int, np.nd
 
 def guarded_job(job: LoopJob, min_gap: int = MIN_GAP,
                 confirmation: LoopConfirmation | None = None,
-                pause: Callable[[], None] = lambda: None) -> LoopResult:
+                pause: Callable[[], None] = lambda: None,
+                index: KeptPlaceIndex | None = None) -> LoopResult:
     """:func:`run_job`, a failure reported in the result instead of raised: a loop closer
-    that fails must not take the edge's slots down with it."""
+    that fails must not take the edge's slots down with it (nor leave its kept ``index``
+    half edited: it starts afresh)."""
     try:
-        return run_job(job, min_gap, confirmation, pause)
+        return run_job(job, min_gap, confirmation, pause, index)
     except Exception as exc:             # reported in the result, logged by the edge
+        if index is not None:
+            index.clear()
         return LoopResult(LoopCandidate(-1, None, None, 0, "the loop job failed"),
                           job.queries[0].keyframe if job.queries else -1, None, 0.0,
                           f"{type(exc).__name__}: {exc}")
@@ -286,11 +291,14 @@ def guarded_job(job: LoopJob, min_gap: int = MIN_GAP,
 
 def run_job(job: LoopJob, min_gap: int = MIN_GAP,
             confirmation: LoopConfirmation | None = None,
-            pause: Callable[[], None] = lambda: None) -> LoopResult:
+            pause: Callable[[], None] = lambda: None,
+            index: KeptPlaceIndex | None = None) -> LoopResult:
     """Look for a loop from each query, oldest first; close the first one ``confirmation``
     confirms (without one: the first found). ``pause`` is called before each query and before
     the pose graph: the worker waits there for the slots' work (:meth:`_SharedWorker.
-    wait_for_slots`)."""
+    wait_for_slots`). The walk's own keyframes are searched under ``index`` where given (the
+    loop closer's, kept from its last job: :mod:`~twinslam.slam.back_end.place_index`), else
+    under an index built for this job; either answers the same."""
     start = time.perf_counter()
     candidate, query = LoopCandidate(-1, None, None, 0, "no query"), -1
     confirmed = False
@@ -302,7 +310,7 @@ def run_job(job: LoopJob, min_gap: int = MIN_GAP,
     # or, as the runner-up, makes Lowe's ratio refuse it — either way it hides the loop, and
     # searching those points was most of the loop closer's time
     newest = max((q.keyframe for q in job.queries), default=0)
-    own = job.archive.only(lambda k: not is_foreign(k) and k <= newest - min_gap)
+    own = job.archive.only(lambda k: not is_foreign(k) and k <= newest - min_gap, index)
     for q in sorted(job.queries, key=lambda q: q.keyframe):
         pause()
         candidate, query = detect_loop(own, q.keyframe, q.points_xy, q.descriptors,
@@ -571,6 +579,10 @@ class LoopCloser:
         self._failed_lock = threading.Lock()
         #: the worker's seconds on each of the latest JOB_TIMES_KEPT jobs taken, oldest first
         self.job_seconds: deque[float] = deque(maxlen=JOB_TIMES_KEPT)
+        #: the place index of the walk's own keyframes, kept from one job to the next: an
+        #: edge that has run for minutes built one over hundreds of archived keyframes for
+        #: every job (:mod:`~twinslam.slam.back_end.place_index`)
+        self.place_index = KeptPlaceIndex()
 
     @property
     def busy(self) -> bool:
@@ -586,10 +598,11 @@ class LoopCloser:
         if self._running is not None or self._done is not None or not job.queries:
             return False
         if not self.background:
-            self._done = guarded_job(job, self.min_gap, self.confirmation)
+            self._done = guarded_job(job, self.min_gap, self.confirmation,
+                                     index=self.place_index)
             return True
         self._running = self._queue(guarded_job, job, self.min_gap, self.confirmation,
-                                    SHARED_WORKER.wait_for_slots)
+                                    SHARED_WORKER.wait_for_slots, self.place_index)
         return True
 
     def take(self, wait_s: float = 0.0) -> LoopResult | None:

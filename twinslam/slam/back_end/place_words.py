@@ -25,7 +25,7 @@ searching the vocabulary again).
 from __future__ import annotations
 
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -94,15 +94,23 @@ class PlaceVocabulary:
         index = faiss.IndexBinaryIVF(self.quantizer, DESCRIPTOR_BITS, self.words)
         index.is_trained = True
         index.nprobe = min(PROBES, self.words)
+        self.file(index, descriptors, words, np.arange(len(descriptors), dtype=np.int64))
+        return index
+
+    def file(self, index: Any, descriptors: np.ndarray, words: np.ndarray, ids: np.ndarray
+             ) -> None:
+        """``descriptors`` added to this vocabulary's inverted file ``index``, row i under
+        ``words[i]`` with id ``ids[i]``."""
+        import faiss
+
         codes = np.ascontiguousarray(descriptors, dtype=np.uint8)
-        ids = np.arange(len(codes), dtype=np.int64)
+        labels = np.ascontiguousarray(ids, dtype=np.int64)
         filed = np.ascontiguousarray(words, dtype=np.int64)
         if len(codes):
             # faiss reads the three arrays through raw pointers: they stay bound until it
             # returns
-            index.add_core(len(codes), faiss.swig_ptr(codes),  # type: ignore[attr-defined]
-                           faiss.swig_ptr(ids), faiss.swig_ptr(filed))
-        return index
+            index.add_core(len(codes), faiss.swig_ptr(codes),
+                           faiss.swig_ptr(labels), faiss.swig_ptr(filed))
 
 
 class PlaceWords:
@@ -130,7 +138,7 @@ class PlaceWords:
         below ``exact_below`` points, else the vocabulary's inverted file."""
         import faiss
 
-        vocabulary = self._vocabulary_for(descriptors) \
+        vocabulary = self.vocabulary_for(len(descriptors), lambda: descriptors) \
             if len(descriptors) >= self.exact_below else None
         if vocabulary is None:
             index = faiss.IndexBinaryFlat(DESCRIPTOR_BITS)
@@ -142,21 +150,23 @@ class PlaceWords:
         self._forget_all_but(set(keyframe_ids))
         return vocabulary.inverted_file(descriptors, words[rows])
 
-    def _vocabulary_for(self, descriptors: np.ndarray) -> PlaceVocabulary | None:
-        """The vocabulary for an archive of these points, learned now where there is none yet
-        or the archive outgrew it; while another thread learns it, the one there is (or
+    def vocabulary_for(self, points: int, descriptors: Callable[[], np.ndarray]
+                       ) -> PlaceVocabulary | None:
+        """The vocabulary for an archive of ``points`` points, learned now — from
+        ``descriptors()``, the points' descriptors by ascending point id — where there is none
+        yet or the archive outgrew it; while another thread learns it, the one there is (or
         None)."""
         current = self.vocabulary
-        if current is not None and len(descriptors) < EIGHTFOLD * current.learned_from:
+        if current is not None and points < EIGHTFOLD * current.learned_from:
             return current
         if not self._learning.acquire(blocking=False):
             return current
         try:
             current = self.vocabulary         # another thread may have learned it meanwhile
-            if current is not None and len(descriptors) < EIGHTFOLD * current.learned_from:
+            if current is not None and points < EIGHTFOLD * current.learned_from:
                 return current
             serial = 0 if current is None else current.serial + 1
-            self.vocabulary = PlaceVocabulary.learn(descriptors, serial)
+            self.vocabulary = PlaceVocabulary.learn(descriptors(), serial)
             self.learned += 1
             return self.vocabulary
         finally:
