@@ -15,8 +15,8 @@ adds those that came (their new points filed), then lays the observations end to
 votes. It answers what the view's own index answers, vote for vote: the same points, each under
 the one descriptor every keyframe holds for it (a point's descriptor is fixed when its map
 makes it), searched exactly below the vocabulary's threshold and under the same words above
-it. Where two keyframes hold a point under different descriptors it declines, and the view
-builds its own index as before.
+it. Where two keyframes hold a point under different descriptors it declines, from then on,
+and each view builds its own index as before.
 """
 
 from __future__ import annotations
@@ -98,7 +98,11 @@ class KeptPlaceIndex:
     def sync(self, keyframes: Mapping[int, IndexedKeyFrame], words: PlaceWords) -> bool:
         """Hold exactly the points of ``keyframes`` (id → archived keyframe), searched as a
         view of an archive sharing ``words`` searches them; False where two of them hold a
-        point under different descriptors (the index is emptied: the caller builds its own)."""
+        point under different descriptors (the index is emptied: the caller builds its own)
+        — and from then on at once: keyframes that disagreed once may again, and each try
+        would fill the index anew before it finds out."""
+        if self.declined:
+            return False
         for kf_id in [k for k, kf in self._members.items()
                       if not _same_points(kf, keyframes.get(k))]:
             self._remove(kf_id)
