@@ -195,11 +195,12 @@ def main() -> None:
         print(_line(label, times[name]))
     queries = [LoopQuery(LATER + int(i), *_features(orb, reader, int(i)))
                for i in np.linspace(1, n_frames - 2, args.queries).round().astype(int)]
-    built, kept_index, agreed = changing_archive_jobs(kept, archive.words, queries, k,
-                                                      args.jobs)
+    built, kept_index, agreed, index = changing_archive_jobs(kept, archive.words, queries, k,
+                                                             args.jobs)
     print(f"  jobs on an archive that changes between them (one keyframe archived, one "
           f"restored), alternated; {agreed} of {len(built)} found the same place on as many "
-          "inliers:")
+          f"inliers; the kept index {index.nbytes / 1e6:.0f} MB, the archive's keyframes "
+          f"{archive.nbytes / 1e6:.0f} MB:")
     print(_line("a job, its place index built for it", built))
     print(_line("a job, the loop closer's index kept", kept_index))
     print(contention(archive, managed, k, reader, orb))
@@ -213,13 +214,14 @@ def _features(orb: OrbExtractor, reader: object, index: int) -> tuple[np.ndarray
 
 def changing_archive_jobs(kept: list[ArchivedKeyFrame], words: PlaceWords,
                           queries: list[LoopQuery], k: np.ndarray, jobs: int
-                          ) -> tuple[list[float], list[float], int]:
+                          ) -> tuple[list[float], list[float], int, KeptPlaceIndex]:
     """``jobs`` loop jobs, each on an archive that changed since the last as an edge's does
     between two slots — the next of ``kept`` archived, an old one restored — run twice,
     alternately: with the place index built for the job, and with the loop closer's index
     kept from its last job (:mod:`~twinslam.slam.back_end.place_index`). Each job detects
     only (a loop waits for its confirmations), as most slots' jobs do. Returns the two runs'
-    milliseconds and how many jobs found the same place on as many inliers both ways."""
+    milliseconds, how many jobs found the same place on as many inliers both ways, and the
+    kept index."""
     live = KeyFrameArchive(len(kept), words=words)
     head = len(kept) - jobs
     for kf in kept[:head]:
@@ -245,7 +247,7 @@ def changing_archive_jobs(kept: list[ArchivedKeyFrame], words: PlaceWords,
             kept_ = run_job(this, confirmation=LoopConfirmation(CONFIRMATIONS), index=index)
         agreed += (fresh.candidate.old, fresh.candidate.inliers) == \
             (kept_.candidate.old, kept_.candidate.inliers)
-    return built, with_index, agreed
+    return built, with_index, agreed, index
 
 
 def _same_place(a: LoopCandidate, b: LoopCandidate) -> bool:

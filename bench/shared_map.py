@@ -80,15 +80,18 @@ from twinslam.slam.back_end.map_merging import (
     MergeFinder,
     lend_to,
 )
+from twinslam.slam.back_end.place_index import KeptPlaceIndex
 
 SEVEN = SEVEN_SCENES
 
 
 def look_for_merge(finder: MergeFinder, place: DeviceWalk, joining: DeviceWalk,
-                   keyframes: list[int], slot: int) -> MapMerge | None:
+                   keyframes: list[int], slot: int, index: KeptPlaceIndex | None = None
+                   ) -> MapMerge | None:
     """The joining device's newly integrated ``keyframes`` looked for in everything the place
-    device's edge map holds: the merge, once confirmed."""
-    other = place.edge.back_end.store.snapshot(slot)
+    device's edge map holds, under ``index`` where the looks keep one (as the edge's do):
+    the merge, once confirmed."""
+    other = place.edge.back_end.store.snapshot(slot, index)
     poses = joining.keyframe_poses()
     for kf in keyframes:
         query = joining.query(kf)
@@ -261,6 +264,8 @@ def main() -> None:
         followed_back: dict[int, int] = {}  #: and the second's the first's copies followed
         lent_total = lent_back = 0
         slot = 0
+        #: the looks' place index of the first map, kept from look to look as the edge's
+        look_index = KeptPlaceIndex()
         first_on = True
         played = 0                     #: the first device's frames so far
         while True:
@@ -276,7 +281,7 @@ def main() -> None:
             slot += 1
             if merge is None and not args.no_merge and got_b:
                 looked = time.perf_counter()
-                merge = look_for_merge(finder, first, second, got_b, slot)
+                merge = look_for_merge(finder, first, second, got_b, slot, look_index)
                 look_ms.append((time.perf_counter() - looked) * 1e3)
                 if merge is not None:
                     t_err, r_err = alignment_error(merge, first, second)

@@ -64,6 +64,7 @@ from twinslam.slam.back_end.map_merging import (
     MergeFinder,
     lend_from,
 )
+from twinslam.slam.back_end.place_index import KeptPlaceIndex
 from twinslam.slam.keyframe import KeyFramePayload
 
 #: newest integrated keyframes of a slot looked for (a slot integrates a few; a look costs
@@ -133,6 +134,10 @@ class PlaceMerging:
         #: lender's tag (:func:`~edge_mapper.place_membership.source_of`), each said once
         self._clashes: set[tuple[str, str]] = set()
         self._clashes_new: list[str] = []
+        #: device → the place index of its whole map the looks into it keep from one look to
+        #: the next (one look at a time: the looks' one worker), edited as its map changes
+        #: instead of built for every look (:mod:`~twinslam.slam.back_end.place_index`)
+        self._look_indexes: dict[str, KeptPlaceIndex] = {}
         #: why looks failed since the last :meth:`failures` (the link logs them)
         self._failed: list[str] = []
         #: device → looks finished without a merge, and what the last one found
@@ -362,7 +367,8 @@ class PlaceMerging:
         other, joining = cores[place], cores[device]
         if not other.map.keyframes or not joining.camera.known:
             return
-        snapshot = other.back_end.store.snapshot(slot)
+        snapshot = other.back_end.store.snapshot(
+            slot, self._look_indexes.setdefault(place, KeptPlaceIndex()))
         poses = joining.back_end.keyframe_poses()
         finder = self._finders.setdefault((device, place),
                                           MergeFinder(min_inliers=self.min_inliers))
@@ -397,6 +403,7 @@ class PlaceMerging:
             self._followed.pop(pair, None)
         self._queries.pop(device, None)
         self._running.pop(device, None)
+        self._look_indexes.pop(device, None)
         self._turn.pop(device, None)
         self._recorded.pop(device, None)
         self._clashes = {pair for pair in self._clashes if device not in pair}

@@ -279,10 +279,13 @@ class KeyFrameArchive:
                 if kf is not None:
                     kf.save(self._path(kf_id))
 
-    def snapshot(self, extra: Iterable[ArchivedKeyFrame] = ()) -> KeyFrameArchive:
+    def snapshot(self, extra: Iterable[ArchivedKeyFrame] = (),
+                 index: KeptPlaceIndex | None = None) -> KeyFrameArchive:
         """A read-only view for another thread: the same archived keyframes (immutable, shared)
         plus ``extra`` ones, no folder; later edits of this archive do not reach it. Without
-        ``extra`` it shares the place index when one is built (faiss searches it read-only)."""
+        ``extra`` it shares the place index when one is built (faiss searches it read-only);
+        with ``index`` (kept by its one searcher from view to view) it searches that one,
+        brought up to the view's keyframes (:mod:`~twinslam.slam.back_end.place_index`)."""
         added = list(extra)
         view = KeyFrameArchive(len(self._entries) + len(added), words=self.words)
         view._entries = dict(self._entries)
@@ -290,7 +293,9 @@ class KeyFrameArchive:
         for kf in added:
             view._entries[kf.id] = kf
             view._useful[kf.id] = kf.archived_slot
-        if not added and self._index is not None and self._kept_index is None:
+        view._kept_index = index
+        if not added and index is None and self._index is not None and \
+                self._kept_index is None:
             view._index, view._places = self._index, self._places
         return view
 

@@ -33,6 +33,7 @@ from twinslam.slam.back_end.keyframe_archive import (
     restore_into,
 )
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
+from twinslam.slam.back_end.place_index import KeptPlaceIndex
 
 
 class KeyFrameStore:
@@ -71,12 +72,13 @@ class KeyFrameStore:
         return point_id_sets({k: kf.points for k, kf in self.managed.keyframes.items()},
                              self.archive)
 
-    def snapshot(self, slot: int) -> KeyFrameArchive:
+    def snapshot(self, slot: int, index: KeptPlaceIndex | None = None) -> KeyFrameArchive:
         """Every keyframe kept, the slice's as they are at ``slot``, as one archive to
-        recognise places in. It shares nothing mutable with the store, and may be searched
+        recognise places in, searched under ``index`` where its one searcher keeps one from
+        snapshot to snapshot. It shares nothing mutable with the store, and may be searched
         beside the slots."""
         return self.archive.snapshot([ArchivedKeyFrame.of(self.managed, k, slot)
-                                      for k in self.managed.keyframes])
+                                      for k in self.managed.keyframes], index)
 
     def leave_slice(self, keyframes: Iterable[int], slot: int) -> tuple[list[int], int]:
         """``keyframes`` out of the slice into the archive at ``slot``; (the archived keyframes

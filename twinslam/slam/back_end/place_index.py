@@ -93,6 +93,14 @@ class KeptPlaceIndex:
         """Points held: the rows a search may answer."""
         return len(self._row_of)
 
+    @property
+    def nbytes(self) -> int:
+        """Memory its arrays and faiss' copy of the descriptors take (its dict of rows, ~100
+        bytes a point more, left out)."""
+        arrays = (self._point, self._count, self._desc, self._obs_rows, self._obs_kf)
+        filed = 0 if self._faiss is None else self._faiss.ntotal * (DESCRIPTOR_BITS // 8 + 8)
+        return sum(a.nbytes for a in arrays) + int(filed)
+
     # -- the set of keyframes ----------------------------------------------------------------
 
     def sync(self, keyframes: Mapping[int, IndexedKeyFrame], words: PlaceWords) -> bool:
