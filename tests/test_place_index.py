@@ -110,3 +110,17 @@ def test_keyframes_that_disagree_on_a_points_descriptor_are_searched_as_before()
     assert kept.declined == 1 and kept.points == 0
     # agreeing keyframes later: the index stays aside (each try would fill it anew first)
     assert not kept.sync({1: a}, PlaceWords()) and kept.points == 0
+
+
+def test_a_view_searched_after_another_took_the_index_is_answered_for_its_own_keyframes() -> None:
+    """Two views share one kept index (a look into a map, then the next look): searching the
+    first again after the second synchronised the index answers for the first's keyframes,
+    never the second's."""
+    world = _world()
+    a, b = _keyframe(1, world, 0), _keyframe(2, world, 2 * SEEN)
+    kept, words = KeptPlaceIndex(), PlaceWords()
+    first, second = _view([a], words, kept), _view([b], words, kept)
+    assert first.recognise(world[:SEEN])[0][0] == 1
+    assert second.recognise(world[2 * SEEN: 3 * SEEN])[0][0] == 2
+    assert first.recognise(world[2 * SEEN: 3 * SEEN]) == []
+    assert first.recognise(world[:SEEN])[0][0] == 1

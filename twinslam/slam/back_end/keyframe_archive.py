@@ -181,8 +181,10 @@ class KeyFrameArchive:
         #: one writer of a keyframe's file at a time: the loop closer's worker rewrites files
         #: of corrected keyframes while the edge archives and removes others
         self._files = threading.Lock()
-        #: a loop closer's index this view searches, kept from view to view (:meth:`only`)
+        #: a loop closer's index this view searches, kept from view to view (:meth:`only`),
+        #: and its synchronisation that holds this view's keyframes
         self._kept_index: KeptPlaceIndex | None = None
+        self._synced_at = -1
 
     # -- contents ---------------------------------------------------------------------------
 
@@ -432,11 +434,15 @@ class KeyFrameArchive:
         return ranked[:top]
 
     def _built_index(self) -> Any:
-        if self._index is None and self._kept_index is not None:
-            if self._kept_index.sync(self._entries, self.words):
-                self._index = self._places = self._kept_index
+        kept = self._kept_index
+        if kept is not None and (self._index is None or kept.syncs != self._synced_at):
+            # (again, where another view synchronised the kept index since: its keyframes)
+            if kept.sync(self._entries, self.words):
+                self._index = self._places = kept
+                self._synced_at = kept.syncs
             else:
                 self._kept_index = None            # its keyframes disagree: built below
+                self._index = None
         if self._index is None:
             kfs = list(self._entries.values())
             self._places = _PointObservers.of(kfs)
