@@ -124,3 +124,26 @@ def test_a_view_searched_after_another_took_the_index_is_answered_for_its_own_ke
     assert second.recognise(world[2 * SEEN: 3 * SEEN])[0][0] == 2
     assert first.recognise(world[2 * SEEN: 3 * SEEN]) == []
     assert first.recognise(world[:SEEN])[0][0] == 1
+
+
+def test_an_index_whose_edit_failed_half_way_starts_afresh(monkeypatch: pytest.MonkeyPatch
+                                                           ) -> None:
+    """faiss failing while the index is edited (a look or a loop job that fails, reported by
+    its caller) leaves no half-edited index behind: the next synchronisation fills it anew
+    and answers as an index built for it."""
+    world = _world()
+    a, b = _keyframe(1, world, 0), _keyframe(2, world, SEEN // 2)
+    kept, words = KeptPlaceIndex(), PlaceWords()
+    assert kept.sync({1: a}, words)
+
+    def broken(self: KeptPlaceIndex, words: PlaceWords) -> None:
+        raise RuntimeError("faiss failed")
+
+    with monkeypatch.context() as patch:
+        patch.setattr(KeptPlaceIndex, "_file", broken)
+        with pytest.raises(RuntimeError):
+            kept.sync({1: a, 2: b}, words)
+    assert kept.points == 0
+    query = world[: SEEN + SEEN // 2]
+    assert _view([a, b], words, kept).recognise(query) == \
+        _view([a, b], PlaceWords(), None).recognise(query)

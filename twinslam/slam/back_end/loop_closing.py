@@ -277,13 +277,11 @@ def guarded_job(job: LoopJob, min_gap: int = MIN_GAP,
                 pause: Callable[[], None] = lambda: None,
                 index: KeptPlaceIndex | None = None) -> LoopResult:
     """:func:`run_job`, a failure reported in the result instead of raised: a loop closer
-    that fails must not take the edge's slots down with it (nor leave its kept ``index``
-    half edited: it starts afresh)."""
+    that fails must not take the edge's slots down with it (a kept ``index`` it was editing
+    empties itself: :meth:`KeptPlaceIndex.sync`)."""
     try:
         return run_job(job, min_gap, confirmation, pause, index)
     except Exception as exc:             # reported in the result, logged by the edge
-        if index is not None:
-            index.clear()
         return LoopResult(LoopCandidate(-1, None, None, 0, "the loop job failed"),
                           job.queries[0].keyframe if job.queries else -1, None, 0.0,
                           f"{type(exc).__name__}: {exc}")

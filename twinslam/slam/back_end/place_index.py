@@ -68,10 +68,6 @@ class KeptPlaceIndex:
         self.declined = 0               #: synchronisations that declined
         self._reset()
 
-    def clear(self) -> None:
-        """Forget every keyframe (a job that failed half way: the next one starts afresh)."""
-        self._reset()
-
     def _reset(self) -> None:
         self._members: dict[int, IndexedKeyFrame] = {}
         self._kf_rows: dict[int, np.ndarray] = {}      #: keyframe id → its observations' rows
@@ -111,22 +107,33 @@ class KeptPlaceIndex:
         would fill the index anew before it finds out."""
         if self.declined:
             return False
-        for kf_id in [k for k, kf in self._members.items()
-                      if not _same_points(kf, keyframes.get(k))]:
-            self._remove(kf_id)
-        for kf_id, kf in keyframes.items():
-            if kf_id not in self._members and not self._add(kf):
+        try:
+            if not self._edit(keyframes, words):
                 self._reset()
                 self.declined += 1
                 return False
-            self._members[kf_id] = kf
-        self._file(words)
+        except BaseException:
+            self._reset()          # half edited (a failure in faiss, an interrupt): start afresh
+            raise
         order = list(self._kf_rows)
         self._obs_rows = np.concatenate([self._kf_rows[k] for k in order]) if order \
             else np.zeros(0, dtype=np.int64)
         self._obs_kf = np.repeat(np.array(order, dtype=np.int64),
                                  [len(self._kf_rows[k]) for k in order])
         self.syncs += 1
+        return True
+
+    def _edit(self, keyframes: Mapping[int, IndexedKeyFrame], words: PlaceWords) -> bool:
+        """The keyframes that left removed, those that came added and faiss told; False
+        where one disagrees on a point's descriptor."""
+        for kf_id in [k for k, kf in self._members.items()
+                      if not _same_points(kf, keyframes.get(k))]:
+            self._remove(kf_id)
+        for kf_id, kf in keyframes.items():
+            if kf_id not in self._members and not self._add(kf):
+                return False
+            self._members[kf_id] = kf
+        self._file(words)
         return True
 
     def _add(self, kf: IndexedKeyFrame) -> bool:
@@ -146,19 +153,12 @@ class KeptPlaceIndex:
         self._desc[rows[fresh]] = kf.descriptors[fresh]
         known = ~fresh
         if np.any(self._desc[rows[known]] != kf.descriptors[known]):
-            self._undo_fresh(rows[fresh])
-            return False
+            return False                   # the caller empties the index
         # a keyframe may name a point twice: each observation counts, as in a view's index
         np.add.at(self._count, rows, 1)
         self._kf_rows[kf.id] = rows
         self._added.extend(np.unique(rows[fresh]).tolist())
         return True
-
-    def _undo_fresh(self, rows: np.ndarray) -> None:
-        """Rows just handed to a keyframe that was refused, handed back (the index is reset
-        right after; kept tidy for a reader in between)."""
-        for row in np.unique(rows).tolist():
-            self._row_of.pop(int(self._point[row]), None)
 
     def _remove(self, kf_id: int) -> None:
         """Keyframe ``kf_id``'s observations uncounted; the points none observes any more
