@@ -145,6 +145,7 @@ def main() -> None:
     times: dict[str, list[float]] = {name: [] for name in (
         "snapshot", "detect", "exact", "graph", "job", "map", "archive", "files")}
     found = found_exact = same = 0
+    queries: list[LoopQuery] = []            #: each frame's, for the jobs below
     n_frames = len(reader)                                      # type: ignore[arg-type]
     for q, index in enumerate(np.linspace(1, n_frames - 2, args.queries).round().astype(int)):
         frame = reader.read(int(index))                         # type: ignore[attr-defined]
@@ -160,7 +161,8 @@ def main() -> None:
             beside = detect_loop(exact.snapshot(), query, feats.points, feats.descriptors, k)
         found_exact += beside.found
         same += _same_place(loop, beside)
-        job = LoopJob((LoopQuery(query, feats.points, feats.descriptors),), snapshot,
+        queries.append(LoopQuery(query, feats.points, feats.descriptors))
+        job = LoopJob((queries[-1],), snapshot,
                       {**poses, query: drifted}, k, {**points, query: frozenset()})
         if not loop.found or loop.measured is None:
             continue
@@ -193,8 +195,6 @@ def main() -> None:
               "files": "the corrected archive's files (worker)"}
     for name, label in labels.items():
         print(_line(label, times[name]))
-    queries = [LoopQuery(LATER + int(i), *_features(orb, reader, int(i)))
-               for i in np.linspace(1, n_frames - 2, args.queries).round().astype(int)]
     built, kept_index, agreed, index = changing_archive_jobs(kept, archive.words, queries, k,
                                                              args.jobs)
     print(f"  jobs on an archive that changes between them (one keyframe archived, one "
@@ -204,12 +204,6 @@ def main() -> None:
     print(_line("a job, its place index built for it", built))
     print(_line("a job, the loop closer's index kept", kept_index))
     print(contention(archive, managed, k, reader, orb))
-
-
-def _features(orb: OrbExtractor, reader: object, index: int) -> tuple[np.ndarray, np.ndarray]:
-    """Frame ``index``'s ORB keypoints and descriptors."""
-    feats = orb.extract(reader.read(index).color)                # type: ignore[attr-defined]
-    return feats.points, feats.descriptors
 
 
 def changing_archive_jobs(kept: list[ArchivedKeyFrame], words: PlaceWords,

@@ -40,6 +40,14 @@ def _noisy(descriptors: np.ndarray, rng: np.random.Generator, bits: int = 12) ->
     return out
 
 
+def _shared(members: list[ArchivedKeyFrame], kf_id: int) -> dict[int, int]:
+    """Each other keyframe's observations of ``kf_id``'s points, counted one by one."""
+    own = set(next(kf for kf in members if kf.id == kf_id).point_ids.tolist())
+    counts = {kf.id: sum(p in own for p in kf.point_ids.tolist())
+              for kf in members if kf.id != kf_id}
+    return {k: n for k, n in counts.items() if n}
+
+
 def _view(members: list[ArchivedKeyFrame], words: PlaceWords,
           index: KeptPlaceIndex | None) -> KeyFrameArchive:
     archive = KeyFrameArchive(len(members), words=words)
@@ -72,7 +80,8 @@ def test_a_kept_index_answers_as_one_built_for_each_job(exact_below: int) -> Non
             assert with_kept.recognise(query, top=5) == built.recognise(query, top=5)
             assert with_kept.recognise(query, top=5)[0][0] in {kf.id, kf.id - 1, kf.id + 1}
         probe = members[len(members) // 2].id
-        assert with_kept.shared_with(probe) == built.shared_with(probe)
+        assert with_kept.shared_with(probe) == built.shared_with(probe) == _shared(members,
+                                                                                 probe)
         assert kept.points == len(np.unique(np.concatenate([kf.point_ids for kf in members])))
     assert kept.syncs == 12 and kept.declined == 0
     if exact_below < 10**9:

@@ -311,8 +311,8 @@ class KeyFrameArchive:
         brought up to the view's keyframes instead of built anew
         (:mod:`~twinslam.slam.back_end.place_index`)."""
         kept = {k: kf for k, kf in self._entries.items() if keep(k)}
-        if len(kept) == len(self._entries) and index is None:
-            return self.snapshot()
+        if len(kept) == len(self._entries):
+            return self.snapshot(index=index)
         view = KeyFrameArchive(len(kept), words=self.words)
         view._entries = kept
         view._useful = {k: self._useful[k] for k in kept}
@@ -400,7 +400,7 @@ class KeyFrameArchive:
         """How many map points each other archived keyframe shares with ``kf_id`` (those that
         share none left out): one pass over the observations, not a set per keyframe."""
         self._built_index()
-        return self._places.shared_with(kf_id, self._entries[kf_id].point_ids)
+        return self._places.shared_with(kf_id)
 
     def recognise(self, descriptors: np.ndarray, top: int = 3, max_distance: int = 50,
                   ratio: float = 0.8, eligible: Callable[[int], bool] | None = None
@@ -498,10 +498,11 @@ class _PointObservers:
         kfs, votes = np.unique(self.observers(rows), return_counts=True)
         return kfs, votes
 
-    def shared_with(self, kf_id: int, own: np.ndarray) -> dict[int, int]:
-        """How many observations of keyframe ``kf_id``'s points ``own`` each other keyframe
-        has (those with none left out)."""
-        rows = np.isin(self.point_of, own) & (self.keyframe_of != kf_id)
+    def shared_with(self, kf_id: int) -> dict[int, int]:
+        """How many observations of keyframe ``kf_id``'s points each other keyframe has
+        (those with none left out)."""
+        others = self.keyframe_of != kf_id
+        rows = np.isin(self.point_of, self.point_of[~others]) & others
         ids, counts = np.unique(self.keyframe_of[rows], return_counts=True)
         return dict(zip(ids.tolist(), counts.tolist(), strict=True))
 

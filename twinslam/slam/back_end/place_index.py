@@ -227,11 +227,11 @@ class KeptPlaceIndex:
         """(keyframe ids ascending, votes) the points at ``rows`` give (see :func:`votes_of`)."""
         return votes_of(rows, self._obs_rows, self._obs_kf, len(self._count))
 
-    def shared_with(self, kf_id: int, own: np.ndarray) -> dict[int, int]:
-        """How many observations of keyframe ``kf_id``'s points ``own`` (point ids) each other
-        keyframe has (those with none left out)."""
+    def shared_with(self, kf_id: int) -> dict[int, int]:
+        """How many observations of keyframe ``kf_id``'s points each other keyframe has
+        (those with none left out)."""
         mask = np.zeros(len(self._count), dtype=bool)
-        mask[[self._row_of[p] for p in np.asarray(own, dtype=np.int64).tolist()]] = True
+        mask[self._kf_rows[kf_id]] = True
         rows = mask[self._obs_rows] & (self._obs_kf != kf_id)
         ids, counts = np.unique(self._obs_kf[rows], return_counts=True)
         return dict(zip(ids.tolist(), counts.tolist(), strict=True))
