@@ -37,7 +37,12 @@ import numpy as np
 
 from edge_mapper.checkpoint_writer import CheckpointWriter
 from edge_mapper.planning_world import at_the_edge, extrapolate
-from edge_mapper.restores import plan_relocation_restores, plan_restores
+from edge_mapper.restores import (
+    MIN_VISIBLE,
+    plan_relocation_restores,
+    plan_restores,
+    view_scores,
+)
 from edge_mapper.slot_planner import FrameObservations, SlotConfig, SlotPlan, SlotPlanner
 from twinslam.policies.actions import MapAction
 from twinslam.policies.protocol import MapPolicy
@@ -175,6 +180,10 @@ class EdgeMapperCore:
         #: there, whenever the slot finishes: a late slot does not borrow a newer slot's view)
         self._headings: dict[int, list[np.ndarray]] = {}
         self._last_heading: list[np.ndarray] = []   #: kept while the device is lost
+        #: where the newest planned slot's last tracked frame was and where the camera heads
+        #: after it: what another device's keyframes must be in view of to be lent to this
+        #: map (:meth:`in_coming_view`); empty until a slot is planned, and while lost
+        self._seen_from: list[np.ndarray] = []
         #: poses found in the archive for the lost device's frames since the last finished slot:
         #: where the next restores look instead of the heading
         self._relocalised_views: list[np.ndarray] = []
@@ -296,6 +305,7 @@ class EdgeMapperCore:
         self.pending[slot] = (plan.action, set())
         self._planned_vmax[slot] = self.planner.config.vmax
         self._last_heading = self._headings[slot] = heading(frames) or self._last_heading
+        self._seen_from = seen_from(frames)
         by_id = {f.frame_id: f for f in frames}
         self._arriving.update({f: by_id[f] for f in plan.action.upload})
         return plan
@@ -543,6 +553,20 @@ class EdgeMapperCore:
         dropped, fused = self.back_end.restore(chosen.restore, chosen.evict, slot)
         return chosen.restore, chosen.evict, dropped, fused
 
+    def in_coming_view(self, positions: Sequence[np.ndarray]) -> list[bool]:
+        """Which of another device's keyframes (each given by its points' ``positions``, in
+        this map's frame) the camera sees from where its newest planned slot left it or
+        where it heads after it, as a restore scores an archived keyframe
+        (:data:`~edge_mapper.restores.MIN_VISIBLE` of its points in view): another device's
+        keyframe is lent to this map once it is (:func:`~twinslam.slam.back_end.map_merging.
+        lend_from`). Every one of them before the first tracked slot and while the device is
+        lost: wherever it turns up, the edge relocalises it in its archive, the other
+        devices' keyframes included."""
+        if not self._seen_from or not self.camera.known:
+            return [True] * len(positions)
+        scores = view_scores(positions, self._seen_from, self.camera)
+        return [s >= MIN_VISIBLE for s in scores.tolist()]
+
     def relocalise(self, points_xy: np.ndarray, descriptors: np.ndarray) -> ArchiveLocation:
         """Find a lost device's frame (its ORB keypoints and descriptors) in the archive. A pose
         that passes the gate is where the keyframes restored at the end of the open slot are
@@ -569,6 +593,7 @@ class EdgeMapperCore:
         move = np.asarray(alignment, dtype=np.float64)
         self._headings = {s: [move @ p for p in poses] for s, poses in self._headings.items()}
         self._last_heading = [move @ p for p in self._last_heading]
+        self._seen_from = [move @ p for p in self._seen_from]
         self._relocalised_views = [move @ p for p in self._relocalised_views]
 
     def optimise(self) -> BundleAdjustmentResult | None:
@@ -612,6 +637,13 @@ def applied_evictions(evict: Sequence[int], map_ids: Sequence[int], missing: Col
         taken = set(chosen)
         chosen += [kf for kf in map_ids if kf not in taken][:n - len(chosen)]
     return chosen
+
+
+def seen_from(frames: Sequence[FrameObservations]) -> list[np.ndarray]:
+    """The slot's last tracked frame's pose and where the camera heads after it
+    (:func:`heading`); empty when no frame of the slot was tracked."""
+    posed = [f.pose for f in frames if f.tracked and f.pose is not None]
+    return [posed[-1], *heading(frames)] if posed else []
 
 
 def heading(frames: Sequence[FrameObservations]) -> list[np.ndarray]:

@@ -195,6 +195,11 @@ PARAMETERS = (
               "well merged later and left both devices nearer the truth (live, 100 against 50: "
               "ATE -0.58 and -0.26 cm; their agreement on the same frames not told apart)",
               low=MIN_INLIERS, high=10_000),
+    ParamSpec("lend_in_view", True, "with merge_maps: a device's map adopts another device's "
+              "keyframe of its place once its camera, where it heads, sees it (as a restore "
+              "would score it; everything while it is lost): each map welds what its device "
+              "comes to, not every keyframe every device of its place makes; false: each as "
+              "soon as its device made it"),
     ParamSpec("loops_across_devices", True, "with merge_maps: a device's loop closer also "
               "closes loops with the keyframes its place's other devices lent its map at "
               "least five slots before (where it comes to a place another device mapped "

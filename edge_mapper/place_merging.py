@@ -11,9 +11,11 @@ next keyframes confirmed (:class:`~twinslam.slam.back_end.map_merging.MergeFinde
 at the device's next slot end, before its map update goes out
 (:meth:`~edge_mapper.edge_core.EdgeMapperCore.align`): that update carries the new frame
 correction, and the device's poses are in the place's frame from then on. From then on, at
-each slot end of either, each map adopts the other's own keyframes it has not adopted yet,
-welded to its points, into its archive (:meth:`PlaceMerging.lend_all`): restores bring them in
-where the device heads, and each device tracks on keyframes only the other uploaded. The
+each slot end of either, each map adopts the other's own keyframes it has not adopted yet
+that its device's camera sees from where it heads (``lend_in_view``; the rest wait until it
+heads where they are), welded to its points, into its archive (:meth:`PlaceMerging.lend_all`):
+restores bring them in where the device heads, and each device tracks on keyframes only the
+other uploaded. The
 copies adopted before move with each loop the lender closed since
 (:func:`~twinslam.slam.back_end.map_merging.follow_lender_loops`): lent before and after a
 loop, they would stand a loop's correction apart. And each map's loop closer may close loops
@@ -107,11 +109,15 @@ class PlaceMerging:
     their cores, in the order they are served)."""
 
     def __init__(self, cores: Callable[[], Mapping[str, EdgeMapperCore]],
-                 background: bool = True, min_inliers: int = MERGE_MIN_INLIERS) -> None:
+                 background: bool = True, min_inliers: int = MERGE_MIN_INLIERS,
+                 lend_in_view: bool = True) -> None:
         self.cores = cores
         self.background = background
         #: the PnP inliers each detection of a merge needs (the edge's merge_min_inliers)
         self.min_inliers = min_inliers
+        #: lend a keyframe only once the borrowing device heads where it sees it (the edge's
+        #: lend_in_view; else every keyframe as soon as its device made it)
+        self.lend_in_view = lend_in_view
         #: joined device → the device whose frame it is in
         self.joined: dict[str, str] = {}
         self._finders: dict[tuple[str, str], MergeFinder] = {}
@@ -125,6 +131,9 @@ class PlaceMerging:
         self._lent: dict[tuple[str, str], set[int]] = {}
         #: (borrower, lender) → how many of the lender's loops the borrower's copies followed
         self._followed: dict[tuple[str, str], int] = {}
+        #: (borrower, lender) → the lender's keyframes not lent yet, held back out of the
+        #: borrower's view, by the borrower's slot each was first offered at
+        self._offered: dict[tuple[str, str], dict[int, int]] = {}
         #: device → the root its restored checkpoint named (:meth:`serve`), until it is placed
         self._recorded: dict[str, str] = {}
         #: device → the run of its map (:func:`~edge_mapper.place_membership.source_of`):
@@ -251,7 +260,10 @@ class PlaceMerging:
         borrower's points and adopted into its archive (:meth:`MapBackEnd.adopt`): its
         restores bring them in where its device heads, and it tracks on keyframes only the
         other devices uploaded; first, each lender's loops since the last lending move the
-        copies and the borrower's keyframes tied to them. One round for all ``lenders``
+        copies and the borrower's keyframes tied to them. With :attr:`lend_in_view`, only
+        the keyframes the borrower's camera sees from where it heads
+        (:meth:`EdgeMapperCore.in_coming_view`): the others wait until it heads where they
+        are. One round for all ``lenders``
         (:func:`lend_from`: the borrower's points read once for all their keyframes); each
         lender's lending, in their order (one the edge no longer serves lends nothing)."""
         cores = self.cores()
@@ -265,10 +277,12 @@ class PlaceMerging:
             followed = self._followed.setdefault(pair, cores[lender].back_end.loops_applied)
             if pair not in self._lent:      # a restarted edge: the copies the map holds
                 self._lent[pair] = _copies_of(cores[borrower], source)
-            rounds.append(Lender(cores[lender].back_end, source, self._lent[pair], followed))
+            rounds.append(Lender(cores[lender].back_end, source, self._lent[pair], followed,
+                                 self._offered.setdefault(pair, {})))
+        in_view = cores[borrower].in_coming_view if self.lend_in_view and serving else None
         done = dict(zip(serving, lend_from(cores[borrower].back_end, rounds, slot,
-                                           cores[borrower].version + 1), strict=True)) \
-            if serving else {}
+                                           cores[borrower].version + 1, in_view),
+                        strict=True)) if serving else {}
         # the borrower's loops may close with the copies of its place's other devices (those
         # it adopted a while before: MapBackEnd._across)
         if borrower in cores:
@@ -401,6 +415,8 @@ class PlaceMerging:
         for pair in [pair for pair in self._lent if device in pair]:
             del self._lent[pair]
             self._followed.pop(pair, None)
+        for pair in [pair for pair in self._offered if device in pair]:
+            del self._offered[pair]
         self._queries.pop(device, None)
         self._running.pop(device, None)
         self._look_indexes.pop(device, None)

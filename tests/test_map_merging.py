@@ -15,7 +15,7 @@ import numpy as np
 from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, set_aside
 from edge_mapper.place_membership import PlaceMembership, source_of
 from edge_mapper.place_merging import MergeEvent, PlaceMerging
-from edge_mapper.slot_planner import SlotConfig
+from edge_mapper.slot_planner import FrameObservations, SlotConfig
 from tests.test_archive_relocalisation import room  # noqa: F401 (the archived room fixture)
 from twinslam.policies.registry import make_policy
 from twinslam.rotations import rotation_angle_deg
@@ -254,6 +254,46 @@ def test_the_edge_merges_a_later_device_into_an_earlier_ones_frame(room: Room) -
     # each map's loops may close with the keyframes it borrowed from the other
     assert cores["ar2"].back_end.loop_across == {ar1}
     assert cores["ar1"].back_end.loop_across == {ar2}
+
+
+def _tracked_at(core: EdgeMapperCore, slot: int, pose: np.ndarray | None) -> None:
+    """``core``'s device summarises a slot whose one frame it tracked at ``pose`` (None: it
+    tracked nothing, it is lost), and the edge plans the slot."""
+    frame = FrameObservations(1000 + slot, frozenset(), tracked=pose is not None, pose=pose)
+    core.plan(slot, [frame], 20.0, 0)
+
+
+def test_a_keyframe_is_lent_once_the_borrowing_device_heads_where_it_sees_it(
+        room: Room) -> None:  # noqa: F811
+    """With lend_in_view (the edge's default) the place's keyframes the borrowing device does
+    not see from where it heads are held back — here ar1's keyframes 180 and 210 and its
+    pointless keyframe 999, seen from the room's first frame — and lent once it heads where
+    they are; each counts as adopted at the slot it was first offered (a loop across
+    devices closes with a device's keyframes that were there first). A lost device is lent
+    everything: wherever it turns up, the edge relocalises it in its archive."""
+    _, archive, _ = room
+    cores = _room_and_newcomer(room)
+    merging = PlaceMerging(lambda: cores, background=False)
+    _walk_ar2_into_the_room(room, cores, merging)
+    assert merging.joined == {"ar2": "ar1"}
+    ar1 = foreign_tag(source_of("ar1"))
+    _tracked_at(cores["ar2"], 4, room[0].read(4).pose)   # type: ignore[attr-defined]
+    merging.before_slot_end("ar2", 4)
+    held = {ar1 | k for k in (180, 210, 999)}
+    assert {kf.id for kf in cores["ar2"].archive} == {ar1 | kf.id for kf in archive} - held
+    _tracked_at(cores["ar2"], 7, room[0].read(184).pose)  # type: ignore[attr-defined]
+    assert merging.before_slot_end("ar2", 7) == (None, 2, [])       # 180 and 210 now
+    assert cores["ar2"].back_end.adopted_at[ar1 | 180] == 4
+    assert cores["ar2"].back_end.adopted_at[ar1 | 0] == 4
+    _tracked_at(cores["ar2"], 8, None)                   # lost: 999 too
+    assert merging.before_slot_end("ar2", 8) == (None, 1, [])
+    assert cores["ar2"].back_end.adopted_at[ar1 | 999] == 4
+    # lending everything at once (lend_in_view false) adopts the three at the first round
+    eager = _room_and_newcomer(room)
+    at_once = PlaceMerging(lambda: eager, background=False, lend_in_view=False)
+    _walk_ar2_into_the_room(room, eager, at_once)
+    _tracked_at(eager["ar2"], 4, room[0].read(4).pose)   # type: ignore[attr-defined]
+    assert at_once.before_slot_end("ar2", 4) == (None, len(archive) + 1, [])
 
 
 def test_a_loop_across_devices_closes_only_with_copies_adopted_a_while_before(

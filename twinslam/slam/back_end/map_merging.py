@@ -28,8 +28,8 @@ devices' poses are in one frame — the place's, the first map's.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Collection, Mapping
-from dataclasses import dataclass
+from collections.abc import Callable, Collection, Mapping, Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -140,14 +140,12 @@ def welded(keyframe: ArchivedKeyFrame, source: int, into: KeyFrameMap, camera: C
                                archived_slot=slot)
 
 
-def unlent_keyframes(lender: MapBackEnd, lent: Collection[int], slot: int
-                     ) -> list[ArchivedKeyFrame]:
-    """The lender map's own keyframes (its archive's and, as they are at ``slot``, its managed
-    map's; not those it adopted itself) not in ``lent``: what another map in its frame has
-    yet to adopt. Only these are copied, not the whole map, which a lender offers every slot."""
-    own = [kf for kf in lender.archive if kf.id not in lent and not is_foreign(kf.id)]
-    return own + [ArchivedKeyFrame.of(lender.map, k, slot) for k in lender.map.keyframes
-                  if k not in lent and not is_foreign(k)]
+def _unlent(lender: MapBackEnd, lent: Collection[int]) -> tuple[list[ArchivedKeyFrame], list[int]]:
+    """The lender map's own keyframes (not those it adopted itself) not in ``lent``: what
+    another map in its frame has yet to adopt — (its archive's, its managed map's ids: these
+    are copied once lent, not every round a lender offers them)."""
+    return ([kf for kf in lender.archive if kf.id not in lent and not is_foreign(kf.id)],
+            [k for k in lender.map.keyframes if k not in lent and not is_foreign(k)])
 
 
 @dataclass(frozen=True)
@@ -160,6 +158,14 @@ class Lending:
     moves: tuple[FollowedLoop, ...] = ()
 
 
+#: which of another map's keyframes (each given by its points' positions, in the borrower's
+#: frame) the borrower's camera sees from where it is heading, one answer a keyframe
+InView = Callable[[Sequence[np.ndarray]], Sequence[bool]]
+#: a lender's keyframes on offer: its archive's, and the ids of its managed map's (copied only
+#: once lent)
+Offer = tuple[list[ArchivedKeyFrame], list[int]]
+
+
 @dataclass(frozen=True)
 class Lender:
     """A map lending to another in its frame: what the borrower has had of it so far."""
@@ -168,35 +174,87 @@ class Lender:
     source: int                        #: its source index (its copies' tag)
     lent: set[int]                     #: its keyframes the borrower adopted (grows)
     followed: int                      #: its loops the borrower's copies followed
+    #: its keyframes offered and not lent yet (out of the borrower's view), by the borrower's
+    #: slot each was first offered at: a copy counts as adopted then (its lender was there
+    #: then, whenever the borrower comes to see it)
+    offered: dict[int, int] = field(default_factory=dict)
 
 
-def lend_from(borrower: MapBackEnd, lenders: list[Lender], slot: int, next_version: int
-              ) -> list[Lending]:
+def lend_from(borrower: MapBackEnd, lenders: list[Lender], slot: int, next_version: int,
+              in_view: InView | None = None) -> list[Lending]:
     """One lending round from every map of the borrower's place (``lenders``, all in its
     frame), before the borrower's map version ``next_version``: first each lender's loops
     since those the borrower followed move the copies lent before and the borrower's keyframes
     tied to them (:func:`follow_lender_loops`), then each lender's own keyframes not lent yet
-    are welded and adopted (:func:`unlent_keyframes`, :func:`adopt_lent`) — in that order,
+    are welded and adopted (:func:`_unlent`, :func:`adopt_lent`) — in that order,
     since a keyframe lent after a loop carries its correction already. The borrower's
     points, which the loops may move and welding does not, are read once for every lender's
     keyframes: a place of eight devices welds seven lenders' keyframes a slot. What each
-    lender's lending did, in their order."""
+    lender's lending did, in their order.
+
+    With ``in_view``, only the keyframes the borrower's camera sees from where it heads are
+    lent; the others wait, offered again each round, until it heads where they are. A
+    borrower then welds what its device comes to, not every keyframe its place's devices
+    make (each of which every other device's map welded: a place's welding grew with the
+    square of its devices), and a copy carries the lender's loops up to the round it was
+    lent in. Each keyframe counts as adopted at the round it was first offered in
+    (:attr:`Lender.offered`), as lent at once: a loop across devices closes only with the
+    keyframes of a device that was there first (:meth:`MapBackEnd._across`)."""
     follows = [follow_lender_loops(borrower, lender.back_end, lender.source, lender.followed,
                                    next_version) for lender in lenders]
-    unlent = [unlent_keyframes(lender.back_end, lender.lent, slot) for lender in lenders]
+    offers = [_unlent(lender.back_end, lender.lent) for lender in lenders]
+    for lender, (archived, held) in zip(lenders, offers, strict=True):
+        _note_offered(lender.offered, [*(kf.id for kf in archived), *held], slot)
+    if in_view is not None:
+        offers = _seen_only(lenders, offers, in_view)
+    # a keyframe of a lender's managed map is copied only once it is lent
+    unlent = [archived + [ArchivedKeyFrame.of(lender.back_end.map, k, slot) for k in held]
+              for lender, (archived, held) in zip(lenders, offers, strict=True)]
     points = MapPoints.every(borrower.map) if any(unlent) else None
-    adopted = [adopt_lent(borrower, keyframes, lender.source, lender.lent, slot, points)
+    adopted = [adopt_lent(borrower, keyframes, lender.source, lender.lent, slot, points,
+                          lender.offered)
                for lender, keyframes in zip(lenders, unlent, strict=True)]
     return [Lending(followed, count, moves)
             for (followed, moves), count in zip(follows, adopted, strict=True)]
 
 
+def _note_offered(offered: dict[int, int], keyframes: list[int], slot: int) -> None:
+    """``keyframes`` (a lender's, not lent yet) offered at ``slot`` unless offered before;
+    those offered before that the lender no longer has forgotten."""
+    now = set(keyframes)
+    for gone in [k for k in offered if k not in now]:
+        del offered[gone]
+    for k in now:
+        offered.setdefault(k, slot)
+
+
+def _seen_only(lenders: list[Lender], offers: list[Offer], in_view: InView) -> list[Offer]:
+    """Each lender's ``offers`` (its archived keyframes, its managed map's ids) that
+    ``in_view`` says the borrower sees, asked once for every lender's by their points'
+    positions (a managed map's keyframe is not copied to be asked about)."""
+    positions = [p for lender, (archived, held) in zip(lenders, offers, strict=True)
+                 for p in [*(kf.positions for kf in archived),
+                           *(lender.back_end.map.positions_of(lender.back_end.map.point_array(k))
+                             for k in held)]]
+    if not positions:
+        return offers
+    seen = iter(list(in_view(positions)))
+    kept: list[Offer] = []
+    for archived, held in offers:
+        kept_archived = [kf for kf in archived if next(seen)]
+        kept.append((kept_archived, [k for k in held if next(seen)]))
+    return kept
+
+
 def lend_to(borrower: MapBackEnd, lender: MapBackEnd, source: int, lent: set[int],
-            followed: int, slot: int, next_version: int) -> Lending:
+            followed: int, slot: int, next_version: int, in_view: InView | None = None,
+            offered: dict[int, int] | None = None) -> Lending:
     """One lending from one lender (source map ``source``, its keyframes ``lent`` and loops
-    ``followed`` so far) to the borrower, both in one frame (:func:`lend_from`)."""
-    return lend_from(borrower, [Lender(lender, source, lent, followed)], slot,
-                     next_version)[0]
+    ``followed`` so far; with ``in_view``, those ``offered`` and not lent yet) to the
+    borrower, both in one frame (:func:`lend_from`)."""
+    lender_state = Lender(lender, source, lent, followed,
+                          offered if offered is not None else {})
+    return lend_from(borrower, [lender_state], slot, next_version, in_view)[0]
 
 
 def follow_lender_loops(borrower: MapBackEnd, lender: MapBackEnd, source: int,
@@ -213,17 +271,21 @@ def follow_lender_loops(borrower: MapBackEnd, lender: MapBackEnd, source: int,
 
 
 def adopt_lent(borrower: MapBackEnd, keyframes: list[ArchivedKeyFrame], source: int,
-               lent: set[int], slot: int, points: MapPoints | None = None) -> int:
+               lent: set[int], slot: int, points: MapPoints | None = None,
+               offered: dict[int, int] | None = None) -> int:
     """Another map's ``keyframes`` (of source map ``source``, in the borrower's frame) welded
     to the borrower's points (``points``, as they are now; None: read here) and adopted into
-    its archive (:meth:`MapBackEnd.adopt`), their ids added to ``lent``: its restores bring
-    them in where its device heads, and it tracks on keyframes only the other device
-    uploaded. How many."""
+    its archive (:meth:`MapBackEnd.adopt`) at ``slot`` — or at the slot each was first
+    ``offered`` at (taken out of it) — their ids added to ``lent``: its restores bring them
+    in where its device heads, and it tracks on keyframes only the other device uploaded.
+    How many."""
     if not keyframes:
         return 0
     # the borrower's points are read once for the batch: welding changes none of them
     points = points or MapPoints.every(borrower.map)
-    borrower.adopt(welded(kf, source, borrower.map, borrower.camera, slot, points=points)
+    since = offered if offered is not None else {}
+    borrower.adopt(welded(kf, source, borrower.map, borrower.camera,
+                          min(since.pop(kf.id, slot), slot), points=points)
                    for kf in keyframes)
     lent.update(kf.id for kf in keyframes)
     return len(keyframes)
