@@ -303,16 +303,17 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             merge_maps: bool = False, stagger: float = 1.0, checkpoint_every: int = 0,
             niceness: int | None = None, share: float | None = None,
             yields: bool | None = None, background: bool | None = None,
-            across: bool | None = None
+            across: bool | None = None, in_view: bool | None = None
             ) -> tuple[dict[str, float], list[dict[str, float]]]:
     """One fleet of ``n`` emulated devices served, their starts spread evenly over ``stagger``
     slot periods, each device's map checkpointed every ``checkpoint_every`` slots (0: never),
     the edges' loop workers ``niceness`` steps below their slots, at most ``share`` of a
     core and waiting for the slots' work or not (``yields``), the checkpoints written on a
     thread of their own or on the slot thread (``background``), their merged maps' loops
-    closing with the other devices' keyframes or not (``across``; None: the edge's
-    defaults); the table's row and every device-slot's figures (its latency, the edge's
-    compute, what the slot restored, uploaded, closed)."""
+    closing with the other devices' keyframes or not (``across``), each map lent the other
+    devices' keyframes once its device heads where it sees them or at once (``in_view``;
+    None: the edge's defaults); the table's row and every device-slot's figures (its latency,
+    the edge's compute, what the slot restored, uploaded, closed)."""
     names = [f"ar{i + 1}" for i in range(n)]
     with pools_env(pools), fleet_network(edges, hosts) as (dom, _), \
             tempfile.TemporaryDirectory(prefix="twinslam-checkpoints-") as kept:
@@ -338,7 +339,9 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
                             *(["-p", f"loop_worker_yields:={str(yields).lower()}"]
                               if yields is not None else []),
                             *(["-p", f"loops_across_devices:={str(across).lower()}"]
-                              if across is not None else [])],
+                              if across is not None else []),
+                            *(["-p", f"lend_in_view:={str(in_view).lower()}"]
+                              if in_view is not None else [])],
                            host=hosted[e])
                  for e, block in enumerate(served)]
         for edge, block in zip(procs, served, strict=True):
@@ -410,6 +413,7 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             "loop_worker_share": math.nan if share is None else share,
             "loop_worker_yields": "" if yields is None else ("on" if yields else "off"),
             "loops_across_devices": "" if across is None else ("on" if across else "off"),
+            "lend_in_view": "" if in_view is None else ("on" if in_view else "off"),
             "checkpoint_in_background": "" if background is None or not checkpoint_every
             else ("on" if background else "off"),
             # loops the edges closed over the run (each device's MapStats counts its own)
@@ -522,6 +526,11 @@ def main() -> None:
                         help="with --merge-maps on, the edges' loops_across_devices (a merged "
                              "map's loops also close with the other devices' keyframes), on, "
                              "off or both comma-separated to compare; default: the edge's")
+    parser.add_argument("--lend-in-view", default="", metavar="on|off",
+                        help="with --merge-maps on, the edges' lend_in_view (a merged map "
+                             "adopts another device's keyframe once its device heads where it "
+                             "sees it, or as soon as it was made), on, off or both "
+                             "comma-separated to compare; default: the edge's")
     parser.add_argument("--hosts", action="store_true",
                         help="each edge process on an edge host of its own and the devices on "
                              "a device host (network namespaces on one switch; needs root) "
@@ -541,6 +550,8 @@ def main() -> None:
                                     args.checkpoints_in_background, on_or_off, False, True,
                                     "on or off")
     acrosses = values_to_compare(parser, "--loops-across", args.loops_across, on_or_off,
+                                 False, True, "on or off")
+    in_views = values_to_compare(parser, "--lend-in-view", args.lend_in_view, on_or_off,
                                  False, True, "on or off")
     why_not = unavailable_reason() if args.hosts else None
     if why_not is not None:
@@ -571,21 +582,24 @@ def main() -> None:
               f"{'edge ms/slot':>12} {'p95':>6} "
               f"{'latency ms':>10} {'p95':>6} {'missed':>7} {'edge CPU':>8} "
               f"{'devices CPU':>11} {'idle':>5} {'merged':>6} {'lost':>5} {'loops':>5} "
-              f"{'nice':>4} {'share':>5} {'yield':>5} {'ckpt bg':>7} {'across':>6}")
+              f"{'nice':>4} {'share':>5} {'yield':>5} {'ckpt bg':>7} {'across':>6} "
+              f"{'view':>4}")
     print(header, flush=True)
-    settings = [(pools, merge, int(edges), int(n), nice, share, yields, background, across)
+    settings = [(pools, merge, int(edges), int(n), nice, share, yields, background, across,
+                 in_view)
                 for pools in args.pools.split(",")
                 for merge in args.merge_maps.split(",")
                 for edges in args.edges.split(",") for n in args.devices.split(",")
                 for nice in nicenesses for share in shares for yields in yielding
-                for background in backgrounds for across in acrosses]
+                for background in backgrounds for across in acrosses
+                for in_view in in_views]
     every_slot = []
-    for pools, merge, edges, n, nice, share, yields, background, across in settings:
+    for pools, merge, edges, n, nice, share, yields, background, across, in_view in settings:
         with collector_log(args.collector_log) as collections:
             row, slots = measure(n, recording, args.policy, args.compute_budget, edges, pools,
                                  args.hosts, merging[merge], args.stagger,
                                  args.checkpoint_every, nice, share, yields, background,
-                                 across)
+                                 across, in_view)
             full = [c for c in collections() if c[0] == 2]
         if args.collector_log:
             row.update(full_collections=len(full),
@@ -601,7 +615,7 @@ def main() -> None:
                         "loop_worker_yields": row["loop_worker_yields"],
                         "checkpoint_in_background": row["checkpoint_in_background"],
                         "loops_across_devices": row["loops_across_devices"],
-                        **slot} for slot in slots]
+                        "lend_in_view": row["lend_in_view"], **slot} for slot in slots]
         print(f"{pools:>5} {merge:>5} {row['edges']:>5} {n:>7} "
               f"{row['answered']:>4.0f}/{row['device_slots']:<4.0f} "
               f"{row['compute_ms_median']:>12.0f} {row['compute_ms_p95']:>6.0f} "
@@ -613,7 +627,8 @@ def main() -> None:
               f"{'edge' if share is None else f'{share:g}':>5} "
               f"{row['loop_worker_yields'] or 'edge':>5} "
               f"{row['checkpoint_in_background'] or 'edge':>7} "
-              f"{row['loops_across_devices'] or 'edge':>6}", flush=True)
+              f"{row['loops_across_devices'] or 'edge':>6} "
+              f"{row['lend_in_view'] or 'edge':>4}", flush=True)
     if args.csv:
         write_dict_rows(args.csv, rows)
         print(f"wrote {args.csv}")

@@ -102,16 +102,19 @@ def look_for_merge(finder: MergeFinder, place: DeviceWalk, joining: DeviceWalk,
 
 
 def lend_keyframes(lender: DeviceWalk, borrower: DeviceWalk, lent: set[int],
-                   followed: dict[int, int], slot: int, source: int) -> int:
+                   followed: dict[int, int], slot: int, source: int,
+                   offered: dict[int, int] | None) -> int:
     """The lender's own keyframes (archive and map; not those it adopted) the borrower's map
-    has not adopted yet, welded to its points and adopted into its archive at the borrower's
-    slot (as the edge node does: its loops across devices count slots by it), after the
-    lender's loops since the last lending (``followed``: source → loops followed) moved the
-    copies lent before them and the borrower's keyframes tied to them; how many (``slot``:
-    the bench's, for the log)."""
+    has not adopted yet — with ``offered`` (those held back so far), only those the borrower's
+    camera sees from where it heads — welded to its points and adopted into its archive at the
+    borrower's slot (as the edge node does: its loops across devices count slots by it),
+    after the lender's loops since the last lending (``followed``: source → loops followed)
+    moved the copies lent before them and the borrower's keyframes tied to them; how many
+    (``slot``: the bench's, for the log)."""
     lending = lend_to(borrower.edge.back_end, lender.edge.back_end, source, lent,
                       followed.get(source, 0), max(borrower.slot, 0),
-                      borrower.edge.version + 1)
+                      borrower.edge.version + 1,
+                      None if offered is None else borrower.edge.in_coming_view, offered)
     followed[source] = lending.followed
     for move in lending.moves:
         if move.reached_own:
@@ -217,6 +220,10 @@ def main() -> None:
                         help="the PnP inliers each of a merge's three detections needs (the "
                              "edge's merge_min_inliers; default %(default)s; a loop's "
                              f"{MIN_INLIERS} at least)")
+    parser.add_argument("--lend-eagerly", action="store_true",
+                        help="with --share: lend each keyframe as soon as its device made it "
+                        "(lend_in_view:=false), not once the borrowing device heads where it "
+                        "sees it")
     parser.add_argument("--no-merge", action="store_true",
                         help="never merge (the control: each device in its own frame)")
     parser.add_argument("--every", type=int, default=10, help="print every N slots")
@@ -260,6 +267,9 @@ def main() -> None:
         look_ms: list[float] = []      #: each slot's search for the first map's place
         lent_ids: set[int] = set()     #: the first map's keyframes the second adopted
         lent_back_ids: set[int] = set()    #: and the second's the first adopted
+        #: each map's keyframes held back out of the other's view (the edge's lend_in_view)
+        offered: dict[int, int] | None = None if args.lend_eagerly else {}
+        offered_back: dict[int, int] | None = None if args.lend_eagerly else {}
         followed: dict[int, int] = {}       #: the first's loops the second's copies followed
         followed_back: dict[int, int] = {}  #: and the second's the first's copies followed
         lent_total = lent_back = 0
@@ -296,13 +306,14 @@ def main() -> None:
                           f"keyframes found it); alignment {t_err * 100:.1f} cm, "
                           f"{r_err:.2f}° from the true one", flush=True)
             if merge is not None and args.share and (got_a or got_b):
-                lent_total += lend_keyframes(first, second, lent_ids, followed, slot, 0)
+                lent_total += lend_keyframes(first, second, lent_ids, followed, slot, 0,
+                                             offered)
                 # as the edge node: a map's loops may close with the keyframes it borrowed
                 # (edge_mapper.place_merging)
                 second.edge.back_end.loop_across = frozenset({foreign_tag(0)})
                 if args.share_both:
                     lent_back += lend_keyframes(second, first, lent_back_ids, followed_back,
-                                                slot, 1)
+                                                slot, 1, offered_back)
                     first.edge.back_end.loop_across = frozenset({foreign_tag(1)})
             if slot % args.every == 0:
                 print(f"slot {slot:4d}: first map {len(first.edge.map.keyframes)} + archive "
