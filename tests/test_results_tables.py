@@ -500,6 +500,21 @@ def test_the_cooldown_per_kind_tables_are_what_their_commands_print(
     assert "| two-ends | covered | seeds | 0, 1, 2, 4, 5, 6 | | |" in printed
 
 
+def test_the_lending_in_view_table_is_what_its_command_prints(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Lending a keyframe once the borrowing device sees it, against lending it at once: the
+    in-process table with the adoptions as the page has it, the kitchen's two ends and the
+    corridor's, over the seeds the page names."""
+    folder = FIGURES / "shared-map" / "lend-in-view"
+    monkeypatch.syspath_prepend(str(FIGURES))           # its sibling, shared_uplink_table
+    in_process = _script("shared_map_before_after")
+    printed = in_process.table(folder / "eager", folder / "view", adoptions=True)
+    assert _missing("\n".join(printed)) == []
+    assert "| two-ends | covered | seeds | 0, 1, 2, 3, 4, 5 | | |" in printed
+    assert "| corridor-two-ends | covered | seeds | 0, 1, 2, 3, 4 | | |" in printed
+    assert any("keyframes the second map adopted" in line for line in printed)
+
+
 def test_the_merge_inlier_tables_are_what_their_commands_print(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """Merges on 100 inliers against 50: the in-process and the live table as the page has

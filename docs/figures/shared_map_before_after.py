@@ -7,10 +7,11 @@ second device's uploads, its ATE and the share of its frames it held on its own 
 instead of the map — and a figure of the cross-device error and that share, seed by seed.
 
 Reads ``uplink-{SCENARIO}-{lent,covered}.csv`` from each folder (the page has the commands;
-a scenario and condition one folder lacks is left out) and writes ``before-after.png`` into
-the after folder.
+a scenario and condition one folder lacks is left out; the corridor's two ends as the
+scenario ``corridor-two-ends``) and writes ``before-after.png`` into the after folder;
+``--adoptions`` adds how many keyframes each map adopted from the other.
 
-    .venv/bin/python docs/figures/shared_map_before_after.py BEFORE AFTER
+    .venv/bin/python docs/figures/shared_map_before_after.py BEFORE AFTER [--adoptions]
 """
 
 from __future__ import annotations
@@ -24,6 +25,8 @@ from twinslam.reporting import paired_row, pyplot
 
 #: the conditions compared: lending with every frame a candidate, and with covered frames out
 CONDITIONS = ("lent", "covered")
+#: the scenarios compared: the uplink table's and the corridor walked from its two ends
+COMPARED_SCENARIOS = (*SCENARIOS, "corridor-two-ends")
 #: (column, what it is, its unit's scale from the CSV's)
 METRICS = (("cross_rms_m", "cross-device revisit error RMS, cm", 100.0),
            # on the same frames whenever the merge came (runs since 2026-12-02, midday)
@@ -34,32 +37,38 @@ METRICS = (("cross_rms_m", "cross-device revisit error RMS, cm", 100.0),
            ("second_ate_m", "second device's ATE, cm", 100.0),
            ("second_map_lost_share", "second device's frames off the map, %", 100.0),
            ("first_map_lost_share", "first device's frames off the map, %", 100.0))
+#: with --adoptions: what lending cost each map (columns every run with --share has)
+ADOPTIONS = (("adopted", "first device's keyframes the second map adopted", 1.0),
+             ("adopted_back", "second device's keyframes the first map adopted", 1.0))
 
 
-def paired(before: Path, after: Path, scenario: str, condition: str
+def paired(before: Path, after: Path, scenario: str, condition: str,
+           metrics: tuple[tuple[str, str, float], ...] = METRICS
            ) -> tuple[list[int], dict[str, tuple[list[float], list[float]]]]:
     """The seeds both folders ran, and each metric's (before, after) values over them."""
     old, new = runs(before, scenario, condition), runs(after, scenario, condition)
     seeds = sorted(old.keys() & new.keys())
     return seeds, {column: ([float(old[s][column]) * scale for s in seeds],
                             [float(new[s][column]) * scale for s in seeds])
-                   for column, _, scale in METRICS
+                   for column, _, scale in metrics
                    if all(r[s].get(column) for r in (old, new) for s in seeds)}
 
 
 def compared(before: Path, after: Path) -> list[tuple[str, str]]:
     """The (scenario, condition) pairs both folders have runs of."""
-    return [(s, c) for s in SCENARIOS for c in CONDITIONS
+    return [(s, c) for s in COMPARED_SCENARIOS for c in CONDITIONS
             if all((folder / f"uplink-{s}-{c}.csv").exists() for folder in (before, after))]
 
 
-def table(before: Path, after: Path) -> list[str]:
-    """The paired differences, a row a scenario, condition and metric."""
+def table(before: Path, after: Path, adoptions: bool = False) -> list[str]:
+    """The paired differences, a row a scenario, condition and metric (with ``adoptions``,
+    the keyframes each map adopted too)."""
+    metrics = (*METRICS, *ADOPTIONS) if adoptions else METRICS
     lines = ["| scenario | condition | metric | before (seed by seed) | after | after − before |",
              "|---|---|---|---|---|---|"]
     for scenario, condition in compared(before, after):
-        seeds, values = paired(before, after, scenario, condition)
-        for column, name, _ in METRICS:
+        seeds, values = paired(before, after, scenario, condition, metrics)
+        for column, name, _ in metrics:
             if column not in values:
                 continue                  # a column older runs lack
             old, new = values[column]
@@ -105,8 +114,10 @@ def main() -> None:
     parser.add_argument("before", type=Path, help="the folder of the runs before the change")
     parser.add_argument("after", type=Path, help="the folder of the runs after it (the figure "
                         "is written there)")
+    parser.add_argument("--adoptions", action="store_true",
+                        help="also compare how many keyframes each map adopted from the other")
     args = parser.parse_args()
-    print("\n".join(table(args.before, args.after)))
+    print("\n".join(table(args.before, args.after, args.adoptions)))
     print(f"wrote {figure(args.before, args.after)}")
 
 
