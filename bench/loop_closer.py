@@ -87,7 +87,7 @@ def build(sequence: str, keyframes: int, orb: OrbExtractor, exact_below: int = E
     archive = KeyFrameArchive(keyframes, words=PlaceWords(exact_below))
     first = 1
     for kf in frames.tolist():
-        frame = reader.read(kf)
+        frame = reader.read(kf)                                 # type: ignore[attr-defined]
         feats = orb.extract(frame.color)
         z = depth_at(feats.points, frame.depth, (0.2, 8.0))
         keep = z > 0
@@ -128,10 +128,10 @@ def main() -> None:
     exact = KeyFrameArchive(args.archive, words=PlaceWords(exact_below=sys.maxsize))
     for kf in kept:
         exact.add(kf, write=False)
-    points = len(np.unique(np.concatenate([kf.point_ids for kf in kept])))
+    n_points = len(np.unique(np.concatenate([kf.point_ids for kf in kept])))
     start = time.perf_counter()
     archive.snapshot().recognise(kept[0].descriptors)      # learns the words (once an archive)
-    print(f"  {points} points; the archive's vocabulary: "
+    print(f"  {n_points} points; the archive's vocabulary: "
           f"{'none (searched exactly)' if archive.words.vocabulary is None else ''}"
           f"{'' if archive.words.vocabulary is None else archive.words.vocabulary.words}"
           f"{'' if archive.words.vocabulary is None else ' words'}, learned and the points "
