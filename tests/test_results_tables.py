@@ -504,7 +504,7 @@ def test_the_lending_in_view_table_is_what_its_command_prints(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """Lending a keyframe once the borrowing device sees it, against lending it at once: the
     in-process table with the adoptions as the page has it, the kitchen's two ends and the
-    corridor's, over the seeds the page names."""
+    corridor's, and the live corridor's, over the seeds the page names."""
     folder = FIGURES / "shared-map" / "lend-in-view"
     monkeypatch.syspath_prepend(str(FIGURES))           # its sibling, shared_uplink_table
     in_process = _script("shared_map_before_after")
@@ -513,6 +513,11 @@ def test_the_lending_in_view_table_is_what_its_command_prints(
     assert "| two-ends | covered | seeds | 0, 1, 2, 3, 4, 5 | | |" in printed
     assert "| corridor-two-ends | covered | seeds | 0, 1, 2, 3, 4 | | |" in printed
     assert any("keyframes the second map adopted" in line for line in printed)
+    live = _script("loops_across_live")
+    lines, seeds, _ = live.table(folder / "live",
+                                 (("eager", "lend_in_view false (lent at once)"),
+                                  ("view", "lend_in_view true (the default)")))
+    assert seeds == [0, 1, 2] and _missing("\n".join(lines)) == []
 
 
 def test_the_merge_inlier_tables_are_what_their_commands_print(
