@@ -15,8 +15,7 @@ each slot end of either, each map adopts the other's own keyframes it has not ad
 that its device's camera sees from where it heads (``lend_in_view``; the rest wait until it
 heads where they are), welded to its points, into its archive (:meth:`PlaceMerging.lend_all`):
 restores bring them in where the device heads, and each device tracks on keyframes only the
-other uploaded. The
-copies adopted before move with each loop the lender closed since
+other uploaded. The copies adopted before move with each loop the lender closed since
 (:func:`~twinslam.slam.back_end.map_merging.follow_lender_loops`): lent before and after a
 loop, they would stand a loop's correction apart. And each map's loop closer may close loops
 with the copies of its place's other devices (``loops_across_devices``,

@@ -267,10 +267,10 @@ def test_a_keyframe_is_lent_once_the_borrowing_device_heads_where_it_sees_it(
         room: Room) -> None:  # noqa: F811
     """With lend_in_view (the edge's default) the place's keyframes the borrowing device does
     not see from where it heads are held back — here ar1's keyframes 180 and 210 and its
-    pointless keyframe 999, seen from the room's first frame — and lent once it heads where
-    they are; each counts as adopted at the slot it was first offered (a loop across
-    devices closes with a device's keyframes that were there first). A lost device is lent
-    everything: wherever it turns up, the edge relocalises it in its archive."""
+    keyframe 999, which has no points, seen from the room's first frame — and lent once it
+    heads where they are; each counts as adopted at the slot it was first offered (a loop
+    across devices closes with a device's keyframes that were there first). A lost device is
+    lent everything: wherever it turns up, the edge relocalises it in its archive."""
     _, archive, _ = room
     cores = _room_and_newcomer(room)
     merging = PlaceMerging(lambda: cores, background=False)
