@@ -304,8 +304,9 @@ class EdgeMapperCore:
                                  self.covered_by_others(frames, leaving))
         self.pending[slot] = (plan.action, set())
         self._planned_vmax[slot] = self.planner.config.vmax
-        self._last_heading = self._headings[slot] = heading(frames) or self._last_heading
-        self._seen_from = seen_from(frames)
+        ahead = heading(frames)
+        self._last_heading = self._headings[slot] = ahead or self._last_heading
+        self._seen_from = seen_from(frames, ahead)
         by_id = {f.frame_id: f for f in frames}
         self._arriving.update({f: by_id[f] for f in plan.action.upload})
         return plan
@@ -639,11 +640,12 @@ def applied_evictions(evict: Sequence[int], map_ids: Sequence[int], missing: Col
     return chosen
 
 
-def seen_from(frames: Sequence[FrameObservations]) -> list[np.ndarray]:
-    """The slot's last tracked frame's pose and where the camera heads after it
-    (:func:`heading`); empty when no frame of the slot was tracked."""
+def seen_from(frames: Sequence[FrameObservations], ahead: list[np.ndarray]
+              ) -> list[np.ndarray]:
+    """The slot's last tracked frame's pose and ``ahead``, where the camera heads after it
+    (:func:`heading` of the slot's frames); empty when no frame of the slot was tracked."""
     posed = [f.pose for f in frames if f.tracked and f.pose is not None]
-    return [posed[-1], *heading(frames)] if posed else []
+    return [posed[-1], *ahead] if posed else []
 
 
 def heading(frames: Sequence[FrameObservations]) -> list[np.ndarray]:

@@ -278,7 +278,7 @@ class PlaceMerging:
                 self._lent[pair] = _copies_of(cores[borrower], source)
             rounds.append(Lender(cores[lender].back_end, source, self._lent[pair], followed,
                                  self._offered.setdefault(pair, {})))
-        in_view = cores[borrower].in_coming_view if self.lend_in_view and serving else None
+        in_view = cores[borrower].in_coming_view if self.lend_in_view else None
         done = dict(zip(serving, lend_from(cores[borrower].back_end, rounds, slot,
                                            cores[borrower].version + 1, in_view),
                         strict=True)) if serving else {}
