@@ -97,7 +97,8 @@ class EdgeMapperNode(Node):
         #: the devices' maps merged where one walks into another's place (``merge_maps``)
         self.merging = (PlaceMerging(lambda: {d: link.core for d, link in self.links.items()},
                                      min_inliers=int(p["merge_min_inliers"]),
-                                     lend_in_view=bool(p["lend_in_view"]))
+                                     lend_in_view=bool(p["lend_in_view"]),
+                                     unseen_slots=int(p["lent_unseen_slots"]))
                         if self.several and bool(p["merge_maps"]) else None)
         config = self.settings.config
         # the process's loop worker (every device's loop jobs), at or below the slots' priority

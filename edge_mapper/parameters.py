@@ -200,6 +200,12 @@ PARAMETERS = (
               "would score it; everything while it is lost): each map welds what its device "
               "comes to, not every keyframe every device of its place makes; false: each as "
               "soon as its device made it"),
+    ParamSpec("lent_unseen_slots", 0, "with merge_maps and lend_in_view: the slots a copy "
+              "of another device's keyframe stays in this device's archive while the device "
+              "neither holds it nor sees it, before it goes back to its lender, to be lent "
+              "again once the device comes where it is (a map then holds copies of where its "
+              "device is and was lately, not of every place it passed); 0: kept until the "
+              "archive's capacity drops them", low=0, high=1_000_000),
     ParamSpec("loops_across_devices", True, "with merge_maps: a device's loop closer also "
               "closes loops with the keyframes its place's other devices lent its map at "
               "least five slots before (where it comes to a place another device mapped "

@@ -109,7 +109,7 @@ class PlaceMerging:
 
     def __init__(self, cores: Callable[[], Mapping[str, EdgeMapperCore]],
                  background: bool = True, min_inliers: int = MERGE_MIN_INLIERS,
-                 lend_in_view: bool = True) -> None:
+                 lend_in_view: bool = True, unseen_slots: int = 0) -> None:
         self.cores = cores
         self.background = background
         #: the PnP inliers each detection of a merge needs (the edge's merge_min_inliers)
@@ -117,6 +117,10 @@ class PlaceMerging:
         #: lend a keyframe only once the borrowing device heads where it sees it (the edge's
         #: lend_in_view; else every keyframe as soon as its device made it)
         self.lend_in_view = lend_in_view
+        #: with lend_in_view, the slots a copy stays in a borrower's archive while its device
+        #: neither holds nor sees it, before it goes back to its lender (the edge's
+        #: lent_unseen_slots; 0: kept)
+        self.unseen_slots = unseen_slots
         #: joined device → the device whose frame it is in
         self.joined: dict[str, str] = {}
         self._finders: dict[tuple[str, str], MergeFinder] = {}
@@ -133,6 +137,9 @@ class PlaceMerging:
         #: (borrower, lender) → the lender's keyframes not lent yet, held back out of the
         #: borrower's view, by the borrower's slot each was first offered at
         self._offered: dict[tuple[str, str], dict[int, int]] = {}
+        #: (borrower, lender) → the lender's keyframes lent, by the borrower's last slot that
+        #: held or saw the copy
+        self._seen: dict[tuple[str, str], dict[int, int]] = {}
         #: device → the root its restored checkpoint named (:meth:`serve`), until it is placed
         self._recorded: dict[str, str] = {}
         #: device → the run of its map (:func:`~edge_mapper.place_membership.source_of`):
@@ -277,10 +284,12 @@ class PlaceMerging:
             if pair not in self._lent:      # a restarted edge: the copies the map holds
                 self._lent[pair] = _copies_of(cores[borrower], source)
             rounds.append(Lender(cores[lender].back_end, source, self._lent[pair], followed,
-                                 self._offered.setdefault(pair, {})))
+                                 self._offered.setdefault(pair, {}),
+                                 self._seen.setdefault(pair, {})))
         in_view = cores[borrower].in_coming_view if self.lend_in_view else None
         done = dict(zip(serving, lend_from(cores[borrower].back_end, rounds, slot,
-                                           cores[borrower].version + 1, in_view),
+                                           cores[borrower].version + 1, in_view,
+                                           self.unseen_slots),
                         strict=True)) if serving else {}
         # the borrower's loops may close with the copies of its place's other devices (those
         # it adopted a while before: MapBackEnd._across)
@@ -416,6 +425,8 @@ class PlaceMerging:
             self._followed.pop(pair, None)
         for pair in [pair for pair in self._offered if device in pair]:
             del self._offered[pair]
+        for pair in [pair for pair in self._seen if device in pair]:
+            del self._seen[pair]
         self._queries.pop(device, None)
         self._running.pop(device, None)
         self._look_indexes.pop(device, None)

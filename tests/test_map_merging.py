@@ -296,6 +296,61 @@ def test_a_keyframe_is_lent_once_the_borrowing_device_heads_where_it_sees_it(
     assert at_once.before_slot_end("ar2", 4) == (None, len(archive) + 1, [])
 
 
+def test_a_copy_its_device_no_longer_sees_goes_back_and_is_lent_again_where_it_comes(
+        room: Room) -> None:  # noqa: F811
+    """With lent_unseen_slots, a copy in the borrower's archive that its device has neither
+    held nor seen for that many slots leaves the borrower's map and goes back to its lender:
+    ar1's keyframes 180 and 210, lent when ar2 headed where they are (slot 7), leave two slots
+    after ar2 turned away (slot 9) while the copies it still sees stay. Where ar2 comes back
+    they are lent again, still counted as adopted at the slot they were first offered at (a
+    loop across devices closes with a device that was there first). The slots are counted
+    from the last that saw or held a copy, not from the one that lent it; one held in the
+    device's map stays there.
+    Without it (0, the default) a copy stays."""
+    for unseen_slots in (2, 0):
+        cores = _room_and_newcomer(room)
+        merging = PlaceMerging(lambda: cores, background=False,  # noqa: B023
+                               unseen_slots=unseen_slots)
+        _walk_ar2_into_the_room(room, cores, merging)
+        ar1 = foreign_tag(source_of("ar1"))
+        there = room[0].read(184).pose    # type: ignore[attr-defined]
+        away = room[0].read(4).pose       # type: ignore[attr-defined]
+        _tracked_at(cores["ar2"], 4, away)
+        merging.before_slot_end("ar2", 4)
+        seen_from_away = {kf.id for kf in cores["ar2"].archive}
+        _tracked_at(cores["ar2"], 7, there)
+        assert merging.before_slot_end("ar2", 7) == (None, 2, [])
+        for slot in (8, 9):
+            _tracked_at(cores["ar2"], slot, away)
+            merging.before_slot_end("ar2", slot)
+            copies = {kf.id for kf in cores["ar2"].archive}
+            gone = {ar1 | 180, ar1 | 210} if unseen_slots and slot == 9 else set()
+            assert copies == (seen_from_away | {ar1 | 180, ar1 | 210}) - gone
+        if not unseen_slots:
+            continue
+        assert ar1 | 180 not in cores["ar2"].back_end.adopted_at
+        _tracked_at(cores["ar2"], 10, there)
+        assert merging.before_slot_end("ar2", 10) == (None, 2, [])     # lent again
+        assert cores["ar2"].back_end.adopted_at[ar1 | 180] == 4
+        assert cores["ar2"].back_end.adopted_at[ar1 | 210] == 4
+        # every copy counts its unseen slots from the last slot that held or saw it (10),
+        # not from the slot that lent it: turned to face away from the room, ar2 sees none
+        assert {kf.id for kf in cores["ar2"].archive} == seen_from_away | {ar1 | 180, ar1 | 210}
+        # ar1's keyframe 0 restored into ar2's map: held, it stays while the device holds it
+        cores["ar2"].back_end.restore([ar1 | 0], [], 10)
+        facing_out = there @ np.diag([-1.0, 1.0, -1.0, 1.0])
+        for slot, archived in ((11, len(seen_from_away) + 1), (12, 0)):
+            _tracked_at(cores["ar2"], slot, facing_out)
+            merging.before_slot_end("ar2", slot)
+            assert len(cores["ar2"].archive) == archived
+        # evicted at slot 13, it goes back two slots after the last that held it
+        cores["ar2"].back_end.evict_to_archive([ar1 | 0], 13)
+        for slot, archived in ((13, {ar1 | 0}), (14, set())):
+            _tracked_at(cores["ar2"], slot, facing_out)
+            merging.before_slot_end("ar2", slot)
+            assert {kf.id for kf in cores["ar2"].archive} == archived
+
+
 def test_a_loop_across_devices_closes_only_with_copies_adopted_a_while_before(
         room: Room, tmp_path: Path) -> None:  # noqa: F811
     """A map may close a loop with the copies of its place's other devices only once it

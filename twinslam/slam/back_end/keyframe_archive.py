@@ -319,6 +319,13 @@ class KeyFrameArchive:
         view._kept_index = index
         return view
 
+    def drop(self, kf_id: int) -> ArchivedKeyFrame:
+        """Remove an archived keyframe for good, its file with it (one kept elsewhere: another
+        device's keyframe, copied again when this map needs it); returns it."""
+        kf = self._entries[kf_id]
+        self._remove(kf_id)
+        return kf
+
     def take(self, kf_id: int) -> ArchivedKeyFrame:
         """Remove and return an archived keyframe (it goes back into the managed map). Its
         file stays until :meth:`release_taken`, which the edge calls once the map holding it

@@ -713,6 +713,20 @@ class MapBackEnd:
                                    "writing the adopted keyframes' files")
         return forgotten
 
+    def release_copies(self, copies: Iterable[int]) -> dict[int, int]:
+        """Other devices' keyframes this map adopted (tagged ids) taken out of its archive
+        for good: its device no longer comes where they are, and their lenders keep the
+        originals, to lend again where it does (:func:`~twinslam.slam.back_end.map_merging.
+        lend_from`). Copies in the managed map, or not held, stay. Each released copy's
+        adoption slot (0 where the map did not record it: counted as old, as
+        :meth:`_across` counts it), by its tagged id."""
+        released: dict[int, int] = {}
+        for copy in copies:
+            if is_foreign(copy) and copy in self.archive:
+                self.archive.drop(copy)
+                released[copy] = self.adopted_at.pop(copy, 0)
+        return released
+
     def close(self) -> None:
         """Stop the loop closer's worker (the node calls it at shutdown)."""
         self.loop_closer.close()

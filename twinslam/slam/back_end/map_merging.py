@@ -33,7 +33,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from twinslam.slam.back_end.foreign_keyframes import foreign_mask, foreign_tag, is_foreign
+from twinslam.slam.back_end.foreign_keyframes import (
+    foreign_mask,
+    foreign_tag,
+    is_foreign,
+    source_id,
+    tag_of,
+)
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.back_end.loop_closing import (
@@ -156,6 +162,8 @@ class Lending:
     adopted: int                       #: the lender's keyframes adopted this time
     #: each lender's loop followed this time, what it moved
     moves: tuple[FollowedLoop, ...] = ()
+    #: copies of the lender's keyframes that went back to it this time, unseen for long
+    returned: int = 0
 
 
 #: which of another map's keyframes (each given by its points' positions, in the borrower's
@@ -178,10 +186,13 @@ class Lender:
     #: slot each was first offered at: a copy counts as adopted then (its lender was there
     #: then, whenever the borrower comes to see it)
     offered: dict[int, int] = field(default_factory=dict)
+    #: its keyframes lent, by the borrower's last slot that held or saw its copy (in the
+    #: borrower's slice, or in view): a copy unseen for long goes back (:func:`lend_from`)
+    seen: dict[int, int] = field(default_factory=dict)
 
 
 def lend_from(borrower: MapBackEnd, lenders: list[Lender], slot: int, next_version: int,
-              in_view: InView | None = None) -> list[Lending]:
+              in_view: InView | None = None, unseen_slots: int = 0) -> list[Lending]:
     """One lending round from every map of the borrower's place (``lenders``, all in its
     frame), before the borrower's map version ``next_version``: first each lender's loops
     since those the borrower followed move the copies lent before and the borrower's keyframes
@@ -199,7 +210,16 @@ def lend_from(borrower: MapBackEnd, lenders: list[Lender], slot: int, next_versi
     square of its devices), and a copy carries the lender's loops up to the round it was
     lent in. Each keyframe counts as adopted at the round it was first offered in
     (:attr:`Lender.offered`), as lent at once: a loop across devices closes only with the
-    keyframes of a device that was there first (:meth:`MapBackEnd._across`)."""
+    keyframes of a device that was there first (:meth:`MapBackEnd._across`).
+
+    With ``in_view`` and ``unseen_slots``, a copy goes back the other way too: one in the
+    borrower's archive that its device has neither held nor seen for ``unseen_slots`` slots
+    leaves it (:meth:`MapBackEnd.release_copies`) and is offered again, with the slot it was
+    first offered at, while its lender still keeps the original. A borrower then holds
+    the copies of where its device is and was lately, not of every place it ever passed: each
+    copy it holds is welded, archived, searched by its loop closer and the looks, and moved by
+    every lender loop. Where its device comes back, the copy is lent anew: as the lender has
+    it now, welded to the borrower's points as they are now."""
     follows = [follow_lender_loops(borrower, lender.back_end, lender.source, lender.followed,
                                    next_version) for lender in lenders]
     offers = [_unlent(lender.back_end, lender.lent) for lender in lenders]
@@ -214,8 +234,44 @@ def lend_from(borrower: MapBackEnd, lenders: list[Lender], slot: int, next_versi
     adopted = [adopt_lent(borrower, keyframes, lender.source, lender.lent, slot, points,
                           lender.offered)
                for lender, keyframes in zip(lenders, unlent, strict=True)]
-    return [Lending(followed, count, moves)
-            for (followed, moves), count in zip(follows, adopted, strict=True)]
+    returned = _return_unseen(borrower, lenders, slot, in_view, unseen_slots) \
+        if in_view is not None and unseen_slots > 0 else [0] * len(lenders)
+    return [Lending(followed, count, moves, back)
+            for (followed, moves), count, back in zip(follows, adopted, returned,
+                                                      strict=True)]
+
+
+def _return_unseen(borrower: MapBackEnd, lenders: list[Lender], slot: int, in_view: InView,
+                   unseen_slots: int) -> list[int]:
+    """The borrower's archived copies of each lender's keyframes that it has neither held in
+    its slice nor seen (``in_view``) for ``unseen_slots`` slots, released
+    (:meth:`MapBackEnd.release_copies`) where the lender still keeps the original: each
+    offered again from the slot it was adopted at (its first offer's), lent anew once the
+    borrower sees it. How many went back to each lender."""
+    by_tag = {foreign_tag(lender.source): lender for lender in lenders}
+    for k in borrower.map.keyframes:
+        if is_foreign(k) and (lender := by_tag.get(tag_of(k))) is not None:
+            lender.seen[source_id(k)] = slot
+    archived = [kf for kf in borrower.archive
+                if is_foreign(kf.id) and tag_of(kf.id) in by_tag]
+    if not archived:
+        return [0] * len(lenders)
+    unseen = []
+    for kf, seen in zip(archived, in_view([kf.positions for kf in archived]), strict=True):
+        lender, own = by_tag[tag_of(kf.id)], source_id(kf.id)
+        if seen:
+            lender.seen[own] = slot
+        elif lender.seen.setdefault(own, slot) <= slot - unseen_slots and \
+                own in lender.back_end.store:
+            unseen.append(kf.id)
+    returned = dict.fromkeys(by_tag, 0)
+    for copy, adopted in borrower.release_copies(unseen).items():
+        lender, own = by_tag[tag_of(copy)], source_id(copy)
+        lender.lent.discard(own)
+        lender.seen.pop(own, None)
+        lender.offered[own] = adopted
+        returned[tag_of(copy)] += 1
+    return [returned[foreign_tag(lender.source)] for lender in lenders]
 
 
 def _note_offered(offered: dict[int, int], keyframes: list[int], slot: int) -> None:
@@ -244,17 +300,6 @@ def _seen_only(lenders: list[Lender], offers: list[Offer], in_view: InView) -> l
         kept_archived = [kf for kf in archived if next(seen)]
         kept.append((kept_archived, [k for k in held if next(seen)]))
     return kept
-
-
-def lend_to(borrower: MapBackEnd, lender: MapBackEnd, source: int, lent: set[int],
-            followed: int, slot: int, next_version: int, in_view: InView | None = None,
-            offered: dict[int, int] | None = None) -> Lending:
-    """One lending from one lender (source map ``source``, its keyframes ``lent`` and loops
-    ``followed`` so far; with ``in_view``, those ``offered`` and not lent yet) to the
-    borrower, both in one frame (:func:`lend_from`)."""
-    lender_state = Lender(lender, source, lent, followed,
-                          offered if offered is not None else {})
-    return lend_from(borrower, [lender_state], slot, next_version, in_view)[0]
 
 
 def follow_lender_loops(borrower: MapBackEnd, lender: MapBackEnd, source: int,
