@@ -48,6 +48,7 @@ import argparse
 import math
 import tempfile
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -76,9 +77,11 @@ from twinslam.slam.back_end.foreign_keyframes import foreign_tag, is_foreign, so
 from twinslam.slam.back_end.loop_detection import MIN_INLIERS
 from twinslam.slam.back_end.map_merging import (
     MERGE_MIN_INLIERS,
+    Lender,
+    Lending,
     MapMerge,
     MergeFinder,
-    lend_to,
+    lend_from,
 )
 from twinslam.slam.back_end.place_index import KeptPlaceIndex
 
@@ -101,28 +104,47 @@ def look_for_merge(finder: MergeFinder, place: DeviceWalk, joining: DeviceWalk,
     return None
 
 
-def lend_keyframes(lender: DeviceWalk, borrower: DeviceWalk, lent: set[int],
-                   followed: dict[int, int], slot: int, source: int,
-                   offered: dict[int, int] | None) -> int:
+@dataclass
+class LendingState:
+    """What one direction of lending kept from round to round (the edge's PlaceMerging
+    keeps it per pair of devices)."""
+
+    source: int                                          #: the lender's copies' tag
+    eager: bool                                          #: every keyframe at once
+    unseen_slots: int                                    #: copies unseen this long go back
+    lent: set[int] = field(default_factory=set)          #: its keyframes adopted
+    followed: int = 0                                    #: its loops followed
+    offered: dict[int, int] = field(default_factory=dict)
+    seen: dict[int, int] = field(default_factory=dict)
+    adopted: int = 0                                     #: adoptions, re-lent copies too
+    returned: int = 0                                    #: copies gone back to the lender
+
+
+def lend_keyframes(lender: DeviceWalk, borrower: DeviceWalk, state: LendingState,
+                   slot: int) -> Lending:
     """The lender's own keyframes (archive and map; not those it adopted) the borrower's map
-    has not adopted yet — with ``offered`` (those held back so far), only those the borrower's
-    camera sees from where it heads — welded to its points and adopted into its archive at the
-    borrower's slot (as the edge node does: its loops across devices count slots by it),
-    after the lender's loops since the last lending (``followed``: source → loops followed)
-    moved the copies lent before them and the borrower's keyframes tied to them; how many
-    (``slot``: the bench's, for the log)."""
-    lending = lend_to(borrower.edge.back_end, lender.edge.back_end, source, lent,
-                      followed.get(source, 0), max(borrower.slot, 0),
-                      borrower.edge.version + 1,
-                      None if offered is None else borrower.edge.in_coming_view, offered)
-    followed[source] = lending.followed
+    has not adopted yet — unless ``state.eager``, only those the borrower's camera sees from
+    where it heads — welded to its points and adopted into its archive at the borrower's slot
+    (as the edge node does: its loops across devices count slots by it), after the lender's
+    loops since the last lending moved the copies lent before them and the borrower's
+    keyframes tied to them; with ``state.unseen_slots``, the copies its device has not held
+    nor seen for that long go back (``slot``: the bench's, for the log)."""
+    lending = lend_from(borrower.edge.back_end,
+                        [Lender(lender.edge.back_end, state.source, state.lent,
+                                state.followed, state.offered, state.seen)],
+                        max(borrower.slot, 0), borrower.edge.version + 1,
+                        None if state.eager else borrower.edge.in_coming_view,
+                        state.unseen_slots)[0]
+    state.followed = lending.followed
+    state.adopted += lending.adopted
+    state.returned += lending.returned
     for move in lending.moves:
         if move.reached_own:
             print(f"slot {slot:4d}: the {borrower.name} map followed the {lender.name}'s loop: "
                   f"{move.copies} copies and {move.own} own keyframes moved, up to "
                   f"{move.own_moved_m * 100:.1f} cm, its graph {move.graph_ms:.0f} ms"
                   f"{'; ' + move.refused if move.refused else ''}", flush=True)
-    return lending.adopted
+    return lending
 
 
 def alignment_error(merge: MapMerge, place: DeviceWalk, joining: DeviceWalk
@@ -224,6 +246,10 @@ def main() -> None:
                         help="with --share: lend each keyframe as soon as its device made it "
                         "(lend_in_view:=false), not once the borrowing device heads where it "
                         "sees it")
+    parser.add_argument("--unseen-slots", type=int, default=0, metavar="N",
+                        help="with --share and not --lend-eagerly: a copy neither held nor "
+                             "seen by its borrowing device for N slots goes back to its lender "
+                             "(the edge's lent_unseen_slots; default %(default)s: kept)")
     parser.add_argument("--no-merge", action="store_true",
                         help="never merge (the control: each device in its own frame)")
     parser.add_argument("--every", type=int, default=10, help="print every N slots")
@@ -265,14 +291,10 @@ def main() -> None:
         merged_version = -1            #: the second edge's first map version in the place's
         merge_row: dict[str, object] = {}
         look_ms: list[float] = []      #: each slot's search for the first map's place
-        lent_ids: set[int] = set()     #: the first map's keyframes the second adopted
-        lent_back_ids: set[int] = set()    #: and the second's the first adopted
-        #: each map's keyframes held back out of the other's view (the edge's lend_in_view)
-        offered: dict[int, int] | None = None if args.lend_eagerly else {}
-        offered_back: dict[int, int] | None = None if args.lend_eagerly else {}
-        followed: dict[int, int] = {}       #: the first's loops the second's copies followed
-        followed_back: dict[int, int] = {}  #: and the second's the first's copies followed
-        lent_total = lent_back = 0
+        #: the first map's keyframes lent to the second, and the second's to the first
+        lending, lending_back = (LendingState(source, args.lend_eagerly, args.unseen_slots)
+                                 for source in (0, 1))
+        copies_held: dict[str, list[int]] = {"first": [], "second": []}
         slot = 0
         #: the looks' place index of the first map, kept from look to look as the edge's
         look_index = KeptPlaceIndex()
@@ -306,15 +328,16 @@ def main() -> None:
                           f"keyframes found it); alignment {t_err * 100:.1f} cm, "
                           f"{r_err:.2f}° from the true one", flush=True)
             if merge is not None and args.share and (got_a or got_b):
-                lent_total += lend_keyframes(first, second, lent_ids, followed, slot, 0,
-                                             offered)
+                lend_keyframes(first, second, lending, slot)
                 # as the edge node: a map's loops may close with the keyframes it borrowed
                 # (edge_mapper.place_merging)
                 second.edge.back_end.loop_across = frozenset({foreign_tag(0)})
                 if args.share_both:
-                    lent_back += lend_keyframes(second, first, lent_back_ids, followed_back,
-                                                slot, 1, offered_back)
+                    lend_keyframes(second, first, lending_back, slot)
                     first.edge.back_end.loop_across = frozenset({foreign_tag(1)})
+                for walk in (first, second):
+                    copies_held[walk.name].append(sum(
+                        1 for k in walk.edge.back_end.store.ids() if is_foreign(k)))
             if slot % args.every == 0:
                 print(f"slot {slot:4d}: first map {len(first.edge.map.keyframes)} + archive "
                       f"{len(first.edge.archive)}, second map {len(second.edge.map.keyframes)} "
@@ -344,14 +367,21 @@ def main() -> None:
         if args.share:
             restored = sum(1 for k in second.edge.map.keyframes if is_foreign(k))
             back = sum(1 for k in first.edge.map.keyframes if is_foreign(k))
-            report.update(adopted=lent_total, foreign_at_end=restored, adopted_back=lent_back,
-                          foreign_at_end_first=back, share=2 if args.share_both else 1)
+            report.update(adopted=lending.adopted, foreign_at_end=restored,
+                          adopted_back=lending_back.adopted, foreign_at_end_first=back,
+                          share=2 if args.share_both else 1,
+                          lent_unseen_slots=args.unseen_slots, returned=lending.returned,
+                          returned_back=lending_back.returned,
+                          **{f"{name}_copies_mean": float(np.mean(held)) if held else 0.0
+                             for name, held in copies_held.items()})
             if args.share_both:
-                print(f"the first map adopted {lent_back} of the second map's keyframes; "
-                      f"{back} of its {len(first.edge.map.keyframes)} at the end")
-            print(f"the second map adopted {lent_total} of the first map's keyframes; "
-                  f"{restored} of its {len(second.edge.map.keyframes)} keyframes at the end "
-                  "are the first device's")
+                print(f"the first map adopted {lending_back.adopted} of the second map's "
+                      f"keyframes, {lending_back.returned} went back; {back} of its "
+                      f"{len(first.edge.map.keyframes)} at the end")
+            print(f"the second map adopted {lending.adopted} of the first map's keyframes, "
+                  f"{lending.returned} went back; {restored} of its "
+                  f"{len(second.edge.map.keyframes)} keyframes at the end are the first "
+                  "device's")
         report.update({"frames": args.frames, "seed": args.seed, "uplink": args.uplink,
                        "first_order": args.first, "second_order": args.second,
                        "second_after": args.second_after, "second_start": args.second_start,
@@ -388,6 +418,8 @@ def main() -> None:
                 1 for edge in walk.edge.back_end.loop_edges if is_foreign(edge.old))
             report[f"{walk.name}_archive_own"] = sum(1 for kf in walk.edge.archive
                                                      if not is_foreign(kf.id))
+            report[f"{walk.name}_archive_copies"] = len(walk.edge.archive) - \
+                int(report[f"{walk.name}_archive_own"])
             print(f"{walk.name} device: {len(poses)} of {len(walk.truth)} frames tracked, "
                   f"ATE {ate * 100:.1f} cm (in the place's frame), {walk.uploads} keyframes "
                   f"uploaded, the edge's lost share "
@@ -472,7 +504,9 @@ CSV_FIELDS = ("frames", "seed", "uplink", "first_order", "second_order", "second
               "second_loops_across", "first_self_rms_m", "second_self_rms_m",
               "cross_by_stretch_cm", "merge_min_inliers", "cross_last_rms_m",
               "cross_last_pairs", "cross_last_frames", "ba_window",
-              "device_params")
+              "device_params", "lent_unseen_slots", "returned", "returned_back",
+              "first_archive_copies", "second_archive_copies", "first_copies_mean",
+              "second_copies_mean")
 #: the second device's frames a stretch of the cross-device error by stretch counts
 STRETCH = 100
 #: the second device's last frames played, the set ``cross_last_rms_m`` scores
