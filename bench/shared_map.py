@@ -45,10 +45,11 @@ all). ``--csv`` appends one row a run.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import tempfile
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -78,7 +79,6 @@ from twinslam.slam.back_end.loop_detection import MIN_INLIERS
 from twinslam.slam.back_end.map_merging import (
     MERGE_MIN_INLIERS,
     Lender,
-    Lending,
     MapMerge,
     MergeFinder,
     lend_from,
@@ -106,22 +106,19 @@ def look_for_merge(finder: MergeFinder, place: DeviceWalk, joining: DeviceWalk,
 
 @dataclass
 class LendingState:
-    """What one direction of lending kept from round to round (the edge's PlaceMerging
-    keeps it per pair of devices)."""
+    """One direction of lending from round to round: the lender as
+    :func:`~twinslam.slam.back_end.map_merging.lend_from` keeps it (the edge's PlaceMerging
+    keeps one per pair of devices), and what the rounds did."""
 
-    source: int                                          #: the lender's copies' tag
+    lender: Lender
     eager: bool                                          #: every keyframe at once
     unseen_slots: int                                    #: copies unseen this long go back
-    lent: set[int] = field(default_factory=set)          #: its keyframes adopted
-    followed: int = 0                                    #: its loops followed
-    offered: dict[int, int] = field(default_factory=dict)
-    seen: dict[int, int] = field(default_factory=dict)
     adopted: int = 0                                     #: adoptions, re-lent copies too
     returned: int = 0                                    #: copies gone back to the lender
 
 
 def lend_keyframes(lender: DeviceWalk, borrower: DeviceWalk, state: LendingState,
-                   slot: int) -> Lending:
+                   slot: int) -> None:
     """The lender's own keyframes (archive and map; not those it adopted) the borrower's map
     has not adopted yet — unless ``state.eager``, only those the borrower's camera sees from
     where it heads — welded to its points and adopted into its archive at the borrower's slot
@@ -129,13 +126,11 @@ def lend_keyframes(lender: DeviceWalk, borrower: DeviceWalk, state: LendingState
     loops since the last lending moved the copies lent before them and the borrower's
     keyframes tied to them; with ``state.unseen_slots``, the copies its device has not held
     nor seen for that long go back (``slot``: the bench's, for the log)."""
-    lending = lend_from(borrower.edge.back_end,
-                        [Lender(lender.edge.back_end, state.source, state.lent,
-                                state.followed, state.offered, state.seen)],
-                        max(borrower.slot, 0), borrower.edge.version + 1,
+    lending = lend_from(borrower.edge.back_end, [state.lender], max(borrower.slot, 0),
+                        borrower.edge.version + 1,
                         None if state.eager else borrower.edge.in_coming_view,
                         state.unseen_slots)[0]
-    state.followed = lending.followed
+    state.lender = dataclasses.replace(state.lender, followed=lending.followed)
     state.adopted += lending.adopted
     state.returned += lending.returned
     for move in lending.moves:
@@ -144,7 +139,6 @@ def lend_keyframes(lender: DeviceWalk, borrower: DeviceWalk, state: LendingState
                   f"{move.copies} copies and {move.own} own keyframes moved, up to "
                   f"{move.own_moved_m * 100:.1f} cm, its graph {move.graph_ms:.0f} ms"
                   f"{'; ' + move.refused if move.refused else ''}", flush=True)
-    return lending
 
 
 def alignment_error(merge: MapMerge, place: DeviceWalk, joining: DeviceWalk
@@ -292,8 +286,10 @@ def main() -> None:
         merge_row: dict[str, object] = {}
         look_ms: list[float] = []      #: each slot's search for the first map's place
         #: the first map's keyframes lent to the second, and the second's to the first
-        lending, lending_back = (LendingState(source, args.lend_eagerly, args.unseen_slots)
-                                 for source in (0, 1))
+        lending, lending_back = (
+            LendingState(Lender(walk.edge.back_end, source, set(), 0), args.lend_eagerly,
+                         args.unseen_slots)
+            for walk, source in ((first, 0), (second, 1)))
         copies_held: dict[str, list[int]] = {"first": [], "second": []}
         slot = 0
         #: the looks' place index of the first map, kept from look to look as the edge's
@@ -416,10 +412,9 @@ def main() -> None:
             # the loops it closed with another device's keyframe (a copy: a tagged id)
             report[f"{walk.name}_loops_across"] = sum(
                 1 for edge in walk.edge.back_end.loop_edges if is_foreign(edge.old))
-            report[f"{walk.name}_archive_own"] = sum(1 for kf in walk.edge.archive
-                                                     if not is_foreign(kf.id))
-            report[f"{walk.name}_archive_copies"] = len(walk.edge.archive) - \
-                int(report[f"{walk.name}_archive_own"])
+            own_archived = sum(1 for kf in walk.edge.archive if not is_foreign(kf.id))
+            report[f"{walk.name}_archive_own"] = own_archived
+            report[f"{walk.name}_archive_copies"] = len(walk.edge.archive) - own_archived
             print(f"{walk.name} device: {len(poses)} of {len(walk.truth)} frames tracked, "
                   f"ATE {ate * 100:.1f} cm (in the place's frame), {walk.uploads} keyframes "
                   f"uploaded, the edge's lost share "
