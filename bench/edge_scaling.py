@@ -47,7 +47,10 @@ the edge (every device shares it); ``--merge-maps off,on`` measures it beside th
 fleet in one run, and the table counts the merges made. The replay is not the shared fleet's
 own, though: a shared place asks each device for fewer of its frames (the shared map covers
 their views), so later summaries report points of keyframes the run never integrated, and
-``lost`` shows it (31 % at eight devices against 2 % unshared).
+``lost`` shows it (31 % at eight devices against 2 % unshared; 76–78 % with eight devices
+spread along the corridor walked twice, ``--stagger 40``: a device that comes to ground others
+mapped uploads little of it). ``bench.place_walks`` measures a shared place with each device
+tracking on the map the edge sends it instead, in one process.
 
 The devices' starts are spread over one slot period (``--stagger 1``): each sends its
 summaries at a phase of its own, but all of them walk the recording in step, so the slots
@@ -65,6 +68,7 @@ setting's full collections: a full collection stalls every device the process se
                                  [--merge-maps off] [--stagger 1] [--checkpoint-every 0]
                                  [--hosts] [--recording DIR] [--csv FILE] [--slots-csv FILE]
                                  [--slots-plot PNG] [--collector-log]
+                                 [--merge-maps on --lend-in-view on|off --unseen-slots N]
 """
 
 from __future__ import annotations
@@ -303,15 +307,16 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             merge_maps: bool = False, stagger: float = 1.0, checkpoint_every: int = 0,
             niceness: int | None = None, share: float | None = None,
             yields: bool | None = None, background: bool | None = None,
-            across: bool | None = None, in_view: bool | None = None
-            ) -> tuple[dict[str, float], list[dict[str, float]]]:
+            across: bool | None = None, in_view: bool | None = None,
+            unseen: int | None = None) -> tuple[dict[str, float], list[dict[str, float]]]:
     """One fleet of ``n`` emulated devices served, their starts spread evenly over ``stagger``
     slot periods, each device's map checkpointed every ``checkpoint_every`` slots (0: never),
     the edges' loop workers ``niceness`` steps below their slots, at most ``share`` of a
     core and waiting for the slots' work or not (``yields``), the checkpoints written on a
     thread of their own or on the slot thread (``background``), their merged maps' loops
     closing with the other devices' keyframes or not (``across``), each map lent the other
-    devices' keyframes once its device heads where it sees them or at once (``in_view``;
+    devices' keyframes once its device heads where it sees them or at once (``in_view``),
+    a lent copy its device has not held nor seen for ``unseen`` slots given back (0: kept;
     None: the edge's defaults); the table's row and every device-slot's figures (its latency,
     the edge's compute, what the slot restored, uploaded, closed)."""
     names = [f"ar{i + 1}" for i in range(n)]
@@ -341,7 +346,9 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
                             *(["-p", f"loops_across_devices:={str(across).lower()}"]
                               if across is not None else []),
                             *(["-p", f"lend_in_view:={str(in_view).lower()}"]
-                              if in_view is not None else [])],
+                              if in_view is not None else []),
+                            *(["-p", f"lent_unseen_slots:={unseen}"]
+                              if unseen is not None else [])],
                            host=hosted[e])
                  for e, block in enumerate(served)]
         for edge, block in zip(procs, served, strict=True):
@@ -414,6 +421,7 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             "loop_worker_yields": "" if yields is None else ("on" if yields else "off"),
             "loops_across_devices": "" if across is None else ("on" if across else "off"),
             "lend_in_view": "" if in_view is None else ("on" if in_view else "off"),
+            "lent_unseen_slots": -1 if unseen is None else unseen,
             "checkpoint_in_background": "" if background is None or not checkpoint_every
             else ("on" if background else "off"),
             # loops the edges closed over the run (each device's MapStats counts its own)
@@ -531,6 +539,11 @@ def main() -> None:
                              "adopts another device's keyframe once its device heads where it "
                              "sees it, or as soon as it was made), on, off or both "
                              "comma-separated to compare; default: the edge's")
+    parser.add_argument("--unseen-slots", default="", metavar="SLOTS",
+                        help="with --merge-maps on, the edges' lent_unseen_slots (a lent "
+                             "keyframe's copy its device has neither held nor seen for that "
+                             "many slots goes back to its lender; 0: copies stay), comma-"
+                             "separated to compare; default: the edge's")
     parser.add_argument("--hosts", action="store_true",
                         help="each edge process on an edge host of its own and the devices on "
                              "a device host (network namespaces on one switch; needs root) "
@@ -553,6 +566,8 @@ def main() -> None:
                                  False, True, "on or off")
     in_views = values_to_compare(parser, "--lend-in-view", args.lend_in_view, on_or_off,
                                  False, True, "on or off")
+    unseens = values_to_compare(parser, "--unseen-slots", args.unseen_slots, int, 0, 100_000,
+                                "slots")
     why_not = unavailable_reason() if args.hosts else None
     if why_not is not None:
         raise SystemExit(f"--hosts: network namespaces cannot be made here: {why_not}")
@@ -583,23 +598,24 @@ def main() -> None:
               f"{'latency ms':>10} {'p95':>6} {'missed':>7} {'edge CPU':>8} "
               f"{'devices CPU':>11} {'idle':>5} {'merged':>6} {'lost':>5} {'loops':>5} "
               f"{'nice':>4} {'share':>5} {'yield':>5} {'ckpt bg':>7} {'across':>6} "
-              f"{'view':>4}")
+              f"{'view':>4} {'unseen':>6}")
     print(header, flush=True)
     settings = [(pools, merge, int(edges), int(n), nice, share, yields, background, across,
-                 in_view)
+                 in_view, unseen)
                 for pools in args.pools.split(",")
                 for merge in args.merge_maps.split(",")
                 for edges in args.edges.split(",") for n in args.devices.split(",")
                 for nice in nicenesses for share in shares for yields in yielding
                 for background in backgrounds for across in acrosses
-                for in_view in in_views]
+                for in_view in in_views for unseen in unseens]
     every_slot = []
-    for pools, merge, edges, n, nice, share, yields, background, across, in_view in settings:
+    for (pools, merge, edges, n, nice, share, yields, background, across, in_view,
+         unseen) in settings:
         with collector_log(args.collector_log) as collections:
             row, slots = measure(n, recording, args.policy, args.compute_budget, edges, pools,
                                  args.hosts, merging[merge], args.stagger,
                                  args.checkpoint_every, nice, share, yields, background,
-                                 across, in_view)
+                                 across, in_view, unseen)
             full = [c for c in collections() if c[0] == 2]
         if args.collector_log:
             row.update(full_collections=len(full),
@@ -615,7 +631,9 @@ def main() -> None:
                         "loop_worker_yields": row["loop_worker_yields"],
                         "checkpoint_in_background": row["checkpoint_in_background"],
                         "loops_across_devices": row["loops_across_devices"],
-                        "lend_in_view": row["lend_in_view"], **slot} for slot in slots]
+                        "lend_in_view": row["lend_in_view"],
+                        "lent_unseen_slots": row["lent_unseen_slots"], **slot}
+                       for slot in slots]
         print(f"{pools:>5} {merge:>5} {row['edges']:>5} {n:>7} "
               f"{row['answered']:>4.0f}/{row['device_slots']:<4.0f} "
               f"{row['compute_ms_median']:>12.0f} {row['compute_ms_p95']:>6.0f} "
@@ -628,7 +646,8 @@ def main() -> None:
               f"{row['loop_worker_yields'] or 'edge':>5} "
               f"{row['checkpoint_in_background'] or 'edge':>7} "
               f"{row['loops_across_devices'] or 'edge':>6} "
-              f"{row['lend_in_view'] or 'edge':>4}", flush=True)
+              f"{row['lend_in_view'] or 'edge':>4} "
+              f"{'edge' if unseen is None else unseen:>6}", flush=True)
     if args.csv:
         write_dict_rows(args.csv, rows)
         print(f"wrote {args.csv}")

@@ -31,6 +31,7 @@ from twinslam.sequence_player.playback import Playback, PlayedSequence
 from twinslam.sequences.frame import RgbdFrame
 from twinslam.sequences.opening import AUTO, open_sequence
 from twinslam.slam.back_end.loop_closing import LoopQuery
+from twinslam.slam.keyframe import KeyFramePayload
 from twinslam.slam.map_update import MapSnapshot
 from twinslam.slot_protocol import default_device
 from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
@@ -53,13 +54,29 @@ class ServedSlot:
     lost_share: float = math.nan
 
 
+@dataclass(frozen=True)
+class SlotHooks:
+    """What an edge node does around one device's slot beside that device's core, for a bench
+    that serves several devices as one node does (the maps' merging over their cores)."""
+
+    #: each keyframe the edge accepted from the device, as the node hands it on
+    keyframe: Callable[[KeyFramePayload], None]
+    #: before the core's slot end: part of the slot's compute, timed with the slot end (the
+    #: node's MapStats count it so)
+    before_end: Callable[[int], None]
+    #: after the slot end: work the node hands to a worker beside the slots, not timed
+    after_end: Callable[[int], None]
+
+
 def serve_slot(device: DeviceTrackerCore, edge: EdgeMapperCore, rate_mbps: float,
-               rate_state: int, hold: bool = False) -> ServedSlot:
+               rate_state: int, hold: bool = False, hooks: SlotHooks | None = None
+               ) -> ServedSlot:
     """The device's finished slot through the edge, and the new map applied at the device
     at once. The summaries carry what the edge node reads from the wire: the observed points
     and tracks, the tracked flag and the pose (``mpc`` predicts from the poses; an untracked
     frame is never uploaded). ``hold``: the update is returned for the caller to apply later
-    (as a live device gets it some frames into the next slot)."""
+    (as a live device gets it some frames into the next slot). ``hooks``: what the node does
+    around the core's work besides (None: nothing)."""
     frames = device.take_slot()
     slot = frames[-1].slot
     summaries = [FrameObservations(f.frame_id, frozenset(f.map_point_ids.tolist()),
@@ -74,10 +91,16 @@ def serve_slot(device: DeviceTrackerCore, edge: EdgeMapperCore, rate_mbps: float
         if payload is None:
             raise RuntimeError(f"slot {slot}: the device no longer holds frame {frame_id}, "
                                "which the edge asked for in the same slot")
-        edge.add_keyframe(payload)
+        report = edge.add_keyframe(payload)
+        if hooks is not None and report is not None and not report.refused:
+            hooks.keyframe(payload)
     t2 = time.perf_counter()
+    if hooks is not None:
+        hooks.before_end(slot)
     outcome = edge.finish_slot(slot)
     t3 = time.perf_counter()
+    if hooks is not None:
+        hooks.after_end(slot)
     update = map_update_message(edge.map, slot, outcome.version, time.time(),
                                 tracks=outcome.tracks, frame_correction=edge.frame_correction)
     snapshot = read_map_update(update)

@@ -1,0 +1,292 @@
+"""Many devices walking one place one after another, in one process, their maps merged and
+lent as the edge node merges them: the node's own
+:class:`~edge_mapper.place_merging.PlaceMerging` over every device's edge core.
+
+    python -m bench.place_walks [SEQUENCE] [--devices 4] [--frames 2700] [--after 300]
+        [--order forward] [--seed 0] [--uplink lte] [--unseen-slots N] [--lend-eagerly]
+        [--merge-inliers N] [--every 30] [--csv FILE]
+
+Device k (k = 0, 1, …) starts the walk ``k × --after`` frames after the first, on an uplink
+of its own (seed ``--seed`` + k): users joining a place others walk at different times — on
+the corridor (the default), each comes to ground the devices ahead of it mapped and leaves
+it behind, the case a borrower's copies that go back (``--unseen-slots``) are for. Each
+device and its edge core run as in ``bench.shared_map`` (the default device and edge, the
+loop closer in the caller, the map update ``--update-delay`` frames into the next slot). The
+merging runs in the caller too (its looks are the node's worker's there), around each
+device's slot end as the node's device link calls it: each accepted keyframe handed on, the
+merges and the lending before the core's slot end (timed with it, as the node's MapStats
+count them), the look after it. A device is served from its first slot, in the order the
+devices start.
+
+It prints, per device, the frames tracked, its ATE over the frames it published in its
+place's frame, the keyframes it uploaded, the edge's lost share, the edge's median ms a
+slot, the other devices' keyframes its map held (mean over its slots, at the end) and how
+many copies it adopted (a copy that went back and was lent again counts twice); then the
+**cross-device revisit error** over every two devices of one place (their frames in the
+place's frame, pooled as RMS over the pairs of frames), and each run's figures appended to
+``--csv``. Devices replaying one sequence see the same frames: a pair is two devices'
+estimates of one view, and their relative pose's truth is the identity.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import math
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from bench.in_process import (
+    DeviceWalk,
+    SlotHooks,
+    add_device_option,
+    open_walk,
+    repeatable_edge,
+    seeded_spec,
+    serve_slot,
+)
+from edge_mapper.edge_core import EdgeMapperCore
+from edge_mapper.place_merging import PlaceMerging
+from twinslam.cli.console import HelpFormatter
+from twinslam.live.tracking_quality import (
+    RevisitError,
+    absolute_trajectory_error,
+    cross_device_revisit_error,
+)
+from twinslam.node_runtime.math_threads import one_math_thread
+from twinslam.reporting import append_csv_rows
+from twinslam.sequence_player.playback import ORDERS
+from twinslam.slam.back_end.foreign_keyframes import is_foreign
+from twinslam.slam.back_end.loop_detection import MIN_INLIERS
+from twinslam.slam.back_end.map_merging import MERGE_MIN_INLIERS
+
+#: the CSV's columns: the run's settings, then its figures (per-device lists joined by ";")
+COLUMNS = ("sequence", "frames", "devices", "after", "order", "seed", "uplink",
+           "lend_in_view", "lent_unseen_slots", "merge_min_inliers", "merged",
+           "edge_ms_median", "edge_ms_mean", "edge_ms_merged_median", "copies_mean",
+           "copies_end", "adopted", "uploads", "lost_share", "tracked_share", "ate_m_mean",
+           "cross_rms_m", "cross_pairs", "cross_worst_pair_rms_m", "loops", "look_ms_median",
+           "seconds", "device_edge_ms", "device_copies_mean", "device_uploads",
+           "device_merge_slot", "device_ate_m")
+
+
+class PlaceWalk:
+    """One device of the run: its walk, when it starts, and what the merging did to it."""
+
+    def __init__(self, walk: DeviceWalk, start: int) -> None:
+        self.walk = walk
+        self.start = start                    #: the run's frame it starts at
+        self.done = False
+        #: its first map version in its place's frame (-1: never merged; 0: a root)
+        self.in_place = -1
+        self.merge_slot = -1
+        self.merge_index = -1                 #: its served slots before the merge
+        self.adopted = 0
+        self.copies: list[int] = []           #: other devices' keyframes held, a slot each
+
+    @property
+    def name(self) -> str:
+        return self.walk.name
+
+    def placed_frames(self) -> list[int]:
+        """Its frames published in its place's frame: those tracked on a map version since
+        its last move (a root's: all of them)."""
+        if self.in_place < 0:
+            return []
+        return [k for k, v in self.walk.map_version.items() if v >= self.in_place]
+
+
+def _hooks(device: PlaceWalk, merging: PlaceMerging) -> SlotHooks:
+    """The node's device link's calls around ``device``'s slot end, recording its merges."""
+    name, core = device.name, device.walk.edge
+
+    def before_end(slot: int) -> None:
+        merged, adopted, _ = merging.before_slot_end(name, slot)
+        device.adopted += adopted
+        if merged is not None:
+            device.in_place = core.version + 1       # the slot end's update: the new frame
+            device.merge_slot = slot
+            device.merge_index = len(device.walk.edge_ms)
+            print(f"{name} slot {slot:4d}: its map moved into {merged.place}'s frame "
+                  f"({merged.merge.inliers} inliers"
+                  f"{', with ' + merged.via + chr(39) + 's place' if merged.via else ''})",
+                  flush=True)
+
+    def after_end(slot: int) -> None:
+        merging.look(name, slot)
+
+    return SlotHooks(lambda payload: merging.keyframe(name, payload), before_end, after_end)
+
+
+def pooled(errors: list[RevisitError]) -> RevisitError:
+    """Several pairs of devices' errors as one RMS over all their pairs of frames."""
+    n = sum(e.pairs for e in errors)
+    if n == 0:
+        return RevisitError()
+    return RevisitError(rms_m=math.sqrt(sum(e.rms_m ** 2 * e.pairs for e in errors if e.pairs)
+                                        / n), pairs=n)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0],
+                                     epilog=__doc__.split("\n", 2)[2],
+                                     formatter_class=HelpFormatter)
+    parser.add_argument("sequence", nargs="?", default="synthetic-corridor:2700",
+                        help="the place every device walks (default: the corridor walked out "
+                             "and back twice)")
+    parser.add_argument("--devices", type=int, default=4, help="devices walking it")
+    parser.add_argument("--frames", type=int, default=2700, help="frames of it each plays")
+    parser.add_argument("--after", type=int, default=300, metavar="FRAMES",
+                        help="each device starts this many frames after the one before")
+    parser.add_argument("--order", choices=ORDERS, default="forward",
+                        help="the order every device plays the frames in")
+    parser.add_argument("--seed", type=int, default=0,
+                        help="the first uplink's seed (device k's: seed + k) and a synthetic "
+                             "walk's")
+    parser.add_argument("--uplink", default="lte", help="uplink family (table1, lte, mmwave, "
+                        "constrained)")
+    add_device_option(parser)
+    parser.add_argument("--update-delay", type=int, default=8,
+                        help="frames of the next slot a device tracks before its map update "
+                             "reaches it (the default device's D_req of 0.25 s)")
+    parser.add_argument("--merge-inliers", type=int, default=MERGE_MIN_INLIERS, metavar="N",
+                        help="the PnP inliers each of a merge's detections needs (the edge's "
+                             "merge_min_inliers; default %(default)s)")
+    parser.add_argument("--lend-eagerly", action="store_true",
+                        help="lend each keyframe as soon as its device made it "
+                             "(lend_in_view:=false), not once the borrowing device heads "
+                             "where it sees it")
+    parser.add_argument("--unseen-slots", type=int, default=0, metavar="N",
+                        help="a copy neither held nor seen by its borrowing device for N "
+                             "slots goes back to its lender (the edge's lent_unseen_slots; "
+                             "default %(default)s: kept)")
+    parser.add_argument("--every", type=int, default=300,
+                        help="print the devices' maps every N frames of the run")
+    parser.add_argument("--csv", type=Path, help="append the run's figures here")
+    args = parser.parse_args()
+    if args.devices < 2:
+        parser.error(f"--devices: two or more walk one place, not {args.devices}")
+    if args.after < 0 or args.unseen_slots < 0:
+        parser.error("--after and --unseen-slots: 0 or more")
+    if args.merge_inliers < MIN_INLIERS:
+        parser.error(f"--merge-inliers must be at least a loop's {MIN_INLIERS}, got "
+                     f"{args.merge_inliers}")
+    cv2.setNumThreads(1)
+    one_math_thread()                     # as every node (node_runtime.math_threads)
+    spec = seeded_spec(args.sequence, args.seed)
+    config = repeatable_edge()
+    started = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        devices = [PlaceWalk(open_walk(f"ar{k + 1}", spec, args.frames, args.order,
+                                       args.seed + k, args.uplink, config, args.update_delay,
+                                       Path(tmp), device_params=dict(args.device)),
+                             k * args.after)
+                   for k in range(args.devices)]
+        served: dict[str, EdgeMapperCore] = {}
+        merging = PlaceMerging(lambda: served, background=False,
+                               min_inliers=args.merge_inliers,
+                               lend_in_view=not args.lend_eagerly,
+                               unseen_slots=args.unseen_slots)
+        for device in devices:
+            device.walk.serve = functools.partial(serve_slot, hooks=_hooks(device, merging))
+        devices[0].in_place = 0                # the first device's frame is the place's
+        tick = 0
+        while not all(d.done for d in devices):
+            for device in devices:
+                if device.done or tick < device.start:
+                    continue
+                if device.name not in served:
+                    served[device.name] = device.walk.edge
+                    merging.serve(device.name)
+                slots = len(device.walk.edge_ms)
+                if device.walk.step() is None:
+                    device.done = True
+                elif len(device.walk.edge_ms) > slots:
+                    device.copies.append(sum(1 for k in device.walk.edge.back_end.store.ids()
+                                             if is_foreign(k)))
+            tick += 1
+            if tick % args.every == 0:
+                print(f"frame {tick:5d}: " + ", ".join(
+                    f"{d.name} {len(d.walk.edge.map.keyframes)}+{len(d.walk.edge.archive)} kf"
+                    f" ({d.copies[-1] if d.copies else 0} others')"
+                    for d in devices if tick > d.start), flush=True)
+        merging.close()
+        for device in devices:
+            device.walk.edge.close()
+        report = _report(devices, merging, args)
+    report["seconds"] = time.perf_counter() - started
+    print(f"{report['seconds']:.0f} s", flush=True)
+    if args.csv:
+        append_csv_rows(args.csv, COLUMNS, [report])
+        print(f"appended to {args.csv}")
+
+
+def _report(devices: list[PlaceWalk], merging: PlaceMerging, args: argparse.Namespace
+            ) -> dict[str, object]:
+    """Each device's figures printed, and the run's row."""
+    for d in devices:
+        walk, placed = d.walk, set(d.placed_frames())
+        ate = absolute_trajectory_error({k: p for k, p in walk.poses.items() if k in placed},
+                                        walk.truth)
+        scored = [v for v in walk.lost[1:] if not math.isnan(v)]
+        print(f"{d.name}: {len(walk.poses)} of {len(walk.truth)} frames tracked, "
+              f"{len(placed)} in its place's frame (ATE {ate * 100:.1f} cm), "
+              f"{walk.uploads} uploaded, the edge's lost share "
+              f"{np.mean(scored) if scored else math.nan:.1%}, edge median "
+              f"{np.median(walk.edge_ms):.0f} ms a slot, others' keyframes held "
+              f"{np.mean(d.copies) if d.copies else 0:.1f} on the mean, "
+              f"{d.copies[-1] if d.copies else 0} at the end, {d.adopted} adopted")
+    roots = {d.name: merging.root(d.name) for d in devices}
+    errors = [cross_device_revisit_error(
+        [(a.walk.poses[k], a.walk.truth[k]) for k in a.placed_frames() if k in a.walk.truth],
+        [(b.walk.poses[k], b.walk.truth[k]) for k in b.placed_frames() if k in b.walk.truth])
+        for i, a in enumerate(devices) for b in devices[i + 1:]
+        if roots[a.name] == roots[b.name] and a.in_place >= 0 and b.in_place >= 0]
+    cross = pooled(errors)
+    worst = max((e.rms_m for e in errors if e.pairs), default=math.nan)
+    print(f"cross-device revisit error, {len(errors)} pairs of devices in one place: RMS "
+          f"{cross.rms_m * 100:.2f} cm over {cross.pairs} pairs of frames (the worst pair of "
+          f"devices {worst * 100:.2f} cm)")
+    every_ms = [ms for d in devices for ms in d.walk.edge_ms]
+    merged_ms = [ms for d in devices if d.merge_index >= 0
+                 for ms in d.walk.edge_ms[d.merge_index:]]
+    copies = [c for d in devices for c in d.copies]
+    lost = [v for d in devices for v in d.walk.lost[1:] if not math.isnan(v)]
+    ates = [absolute_trajectory_error({k: d.walk.poses[k] for k in d.placed_frames()
+                                       if k in d.walk.poses}, d.walk.truth)
+            for d in devices if d.in_place >= 0]
+    return {"sequence": args.sequence, "frames": args.frames, "devices": args.devices,
+            "after": args.after, "order": args.order, "seed": args.seed,
+            "uplink": args.uplink, "lend_in_view": int(not args.lend_eagerly),
+            "lent_unseen_slots": args.unseen_slots, "merge_min_inliers": args.merge_inliers,
+            "merged": sum(1 for d in devices if d.merge_slot >= 0),
+            "edge_ms_median": float(np.median(every_ms)),
+            "edge_ms_mean": float(np.mean(every_ms)),
+            "edge_ms_merged_median": float(np.median(merged_ms)) if merged_ms else math.nan,
+            "copies_mean": float(np.mean(copies)) if copies else 0.0,
+            "copies_end": sum(d.copies[-1] for d in devices if d.copies),
+            "adopted": sum(d.adopted for d in devices),
+            "uploads": sum(d.walk.uploads for d in devices),
+            "lost_share": float(np.mean(lost)) if lost else math.nan,
+            "tracked_share": sum(len(d.walk.poses) for d in devices)
+            / max(sum(len(d.walk.truth) for d in devices), 1),
+            "ate_m_mean": float(np.nanmean(ates)) if ates else math.nan,
+            "cross_rms_m": cross.rms_m, "cross_pairs": cross.pairs,
+            "cross_worst_pair_rms_m": worst,
+            "loops": sum(len(d.walk.loops) for d in devices),
+            "look_ms_median": float(np.median(merging.look_ms)) if merging.look_ms
+            else math.nan,
+            "device_edge_ms": ";".join(f"{np.median(d.walk.edge_ms):.1f}" for d in devices),
+            "device_copies_mean": ";".join(f"{np.mean(d.copies) if d.copies else 0:.1f}"
+                                           for d in devices),
+            "device_uploads": ";".join(str(d.walk.uploads) for d in devices),
+            "device_merge_slot": ";".join(str(d.merge_slot) for d in devices),
+            "device_ate_m": ";".join(f"{a:.4f}" for a in ates)}
+
+
+if __name__ == "__main__":
+    main()
