@@ -19,7 +19,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from shared_uplink_table import SCENARIOS, runs
+from shared_uplink_table import SCENARIOS, distinct_seeds, runs
 
 from twinslam.reporting import paired_row, pyplot
 
@@ -45,9 +45,11 @@ ADOPTIONS = (("adopted", "first device's keyframes the second map adopted", 1.0)
 def paired(before: Path, after: Path, scenario: str, condition: str,
            metrics: tuple[tuple[str, str, float], ...] = METRICS
            ) -> tuple[list[int], dict[str, tuple[list[float], list[float]]]]:
-    """The seeds both folders ran, and each metric's (before, after) values over them."""
+    """The seeds both folders ran — less a seed whose runs repeat an earlier seed's in both
+    (two seeds can draw one uplink: a repeated run is no second sample) — and each metric's
+    (before, after) values over them."""
     old, new = runs(before, scenario, condition), runs(after, scenario, condition)
-    seeds = sorted(old.keys() & new.keys())
+    seeds = distinct_seeds({"before": old, "after": new})
     return seeds, {column: ([float(old[s][column]) * scale for s in seeds],
                             [float(new[s][column]) * scale for s in seeds])
                    for column, _, scale in metrics
