@@ -4,7 +4,8 @@ lent as the edge node merges them: the node's own
 
     python -m bench.place_walks [SEQUENCE] [--devices 4] [--frames 2700] [--after 300]
         [--order forward] [--seed 0] [--uplink lte] [--unseen-slots N] [--lend-eagerly]
-        [--merge-inliers N] [--every 30] [--csv FILE]
+        [--merge-inliers N] [--no-merge] [--covered-m M] [--covered-deg D] [--every 300]
+        [--csv FILE]
 
 Device k (k = 0, 1, …) starts the walk ``k × --after`` frames after the first, on an uplink
 of its own (seed ``--seed`` + k): users joining a place others walk at different times — on
@@ -65,9 +66,9 @@ from twinslam.slam.back_end.loop_detection import MIN_INLIERS
 from twinslam.slam.back_end.map_merging import MERGE_MIN_INLIERS
 
 #: the CSV's columns: the run's settings, then its figures (per-device lists joined by ";")
-COLUMNS = ("sequence", "frames", "devices", "after", "order", "seed", "uplink",
-           "lend_in_view", "lent_unseen_slots", "merge_min_inliers", "merged",
-           "edge_ms_median", "edge_ms_mean", "edge_ms_merged_median", "copies_mean",
+COLUMNS = ("sequence", "frames", "devices", "after", "order", "seed", "uplink", "no_merge",
+           "covered_m", "covered_deg", "lend_in_view", "lent_unseen_slots", "merge_min_inliers",
+           "merged", "edge_ms_median", "edge_ms_mean", "edge_ms_merged_median", "copies_mean",
            "copies_end", "adopted", "uploads", "lost_share", "tracked_share", "ate_m_mean",
            "cross_rms_m", "cross_pairs", "cross_worst_pair_rms_m", "loops", "look_ms_median",
            "seconds", "device_edge_ms", "device_copies_mean", "device_uploads",
@@ -164,6 +165,17 @@ def main() -> None:
                         help="a copy neither held nor seen by its borrowing device for N "
                              "slots goes back to its lender (the edge's lent_unseen_slots; "
                              "default %(default)s: kept)")
+    parser.add_argument("--no-merge", action="store_true",
+                        help="never merge (the control: each device alone with its own map; "
+                             "the devices play one walk from its first frame, so their maps' "
+                             "frames are one by construction and the cross-device figure "
+                             "still compares them)")
+    parser.add_argument("--covered-m", type=float,
+                        help="a frame within this many metres of a keyframe another device "
+                             "uploaded is not uploaded (default: the edge's covered_m; 0: "
+                             "never)")
+    parser.add_argument("--covered-deg", type=float,
+                        help="and turned by at most this (default: the edge's covered_deg)")
     parser.add_argument("--every", type=int, default=300,
                         help="print the devices' maps every N frames of the run")
     parser.add_argument("--csv", type=Path, help="append the run's figures here")
@@ -178,7 +190,9 @@ def main() -> None:
     cv2.setNumThreads(1)
     one_math_thread()                     # as every node (node_runtime.math_threads)
     spec = seeded_spec(args.sequence, args.seed)
-    config = repeatable_edge()
+    config = repeatable_edge(**{name: value for name, value in
+                                (("covered_m", args.covered_m),
+                                 ("covered_deg", args.covered_deg)) if value is not None})
     started = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         devices = [PlaceWalk(open_walk(f"ar{k + 1}", spec, args.frames, args.order,
@@ -192,14 +206,18 @@ def main() -> None:
                                lend_in_view=not args.lend_eagerly,
                                unseen_slots=args.unseen_slots)
         for device in devices:
-            device.walk.serve = functools.partial(serve_slot, hooks=_hooks(device, merging))
-        devices[0].in_place = 0                # the first device's frame is the place's
+            if not args.no_merge:
+                device.walk.serve = functools.partial(serve_slot,
+                                                      hooks=_hooks(device, merging))
+        # the first device's frame is the place's; alone, each device's own is (one walk)
+        for device in devices if args.no_merge else devices[:1]:
+            device.in_place = 0
         tick = 0
         while not all(d.done for d in devices):
             for device in devices:
                 if device.done or tick < device.start:
                     continue
-                if device.name not in served:
+                if device.name not in served and not args.no_merge:
                     served[device.name] = device.walk.edge
                     merging.serve(device.name)
                 slots = len(device.walk.edge_ms)
@@ -218,6 +236,7 @@ def main() -> None:
         for device in devices:
             device.walk.edge.close()
         report = _report(devices, merging, args)
+    report["covered_m"], report["covered_deg"] = config.coverage.max_m, config.coverage.max_deg
     report["seconds"] = time.perf_counter() - started
     print(f"{report['seconds']:.0f} s", flush=True)
     if args.csv:
@@ -240,7 +259,8 @@ def _report(devices: list[PlaceWalk], merging: PlaceMerging, args: argparse.Name
               f"{np.median(walk.edge_ms):.0f} ms a slot, others' keyframes held "
               f"{np.mean(d.copies) if d.copies else 0:.1f} on the mean, "
               f"{d.copies[-1] if d.copies else 0} at the end, {d.adopted} adopted")
-    roots = {d.name: merging.root(d.name) for d in devices}
+    # alone, every device's map is in the walk's first camera's frame (one walk, one start)
+    roots = {d.name: "" if args.no_merge else merging.root(d.name) for d in devices}
     errors = [cross_device_revisit_error(
         [(a.walk.poses[k], a.walk.truth[k]) for k in a.placed_frames() if k in a.walk.truth],
         [(b.walk.poses[k], b.walk.truth[k]) for k in b.placed_frames() if k in b.walk.truth])
@@ -261,7 +281,8 @@ def _report(devices: list[PlaceWalk], merging: PlaceMerging, args: argparse.Name
             for d in devices if d.in_place >= 0]
     return {"sequence": args.sequence, "frames": args.frames, "devices": args.devices,
             "after": args.after, "order": args.order, "seed": args.seed,
-            "uplink": args.uplink, "lend_in_view": int(not args.lend_eagerly),
+            "uplink": args.uplink, "no_merge": int(args.no_merge),
+            "lend_in_view": int(not args.lend_eagerly),
             "lent_unseen_slots": args.unseen_slots, "merge_min_inliers": args.merge_inliers,
             "merged": sum(1 for d in devices if d.merge_slot >= 0),
             "edge_ms_median": float(np.median(every_ms)),

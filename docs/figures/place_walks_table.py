@@ -1,0 +1,94 @@
+"""Many devices walking one place, two settings compared (docs/results/shared-map.md, "Four
+devices along the corridor"): ``bench.place_walks`` runs, one CSV an
+arm, the two arms' runs paired by seed. Prints a markdown table: each figure seed by seed in
+both arms and the paired difference (second − first, Student's t,
+:func:`twinslam.reporting.paired_row`); a figure one arm has not (the slots after a merge,
+alone) is left out.
+
+    .venv/bin/python docs/figures/place_walks_table.py FIRST.csv SECOND.csv
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+from pathlib import Path
+
+from twinslam.reporting import paired_row
+
+#: (column, name in the table, scale, format)
+FIGURES = [
+    ("copies_mean", "other devices' keyframes a map held, mean over its slots", 1.0,
+     "{:.1f}"),
+    ("copies_end", "held at the end, every map", 1.0, "{:.0f}"),
+    ("adopted", "copies adopted (re-lent ones again)", 1.0, "{:.0f}"),
+    ("edge_ms_median", "the edge's median ms a device-slot", 1.0, "{:.1f}"),
+    ("edge_ms_merged_median", "the same, the slots after each device's merge", 1.0,
+     "{:.1f}"),
+    ("edge_ms_mean", "the edge's mean ms a device-slot", 1.0, "{:.1f}"),
+    ("uploads", "keyframes uploaded, every device", 1.0, "{:.0f}"),
+    ("later_uploads", "keyframes uploaded by the devices after the first", 1.0, "{:.0f}"),
+    ("lost_share", "the edge's lost share (%)", 100.0, "{:.2f}"),
+    ("tracked_share", "frames tracked (%)", 100.0, "{:.2f}"),
+    ("cross_rms_m", "cross-device revisit error RMS (cm)", 100.0, "{:.2f}"),
+    ("ate_m_mean", "ATE in the place's frame, mean over the devices (cm)", 100.0, "{:.2f}"),
+    ("loops", "loops closed", 1.0, "{:.0f}"),
+]
+
+
+def runs(path: Path) -> dict[int, dict[str, str]]:
+    """seed → the run's row (a later run of a seed replaces an earlier one), with the
+    uploads of the devices after the first (those that come to ground others mapped)."""
+    with path.open(encoding="utf-8") as fh:
+        rows = {int(row["seed"]): row for row in csv.DictReader(fh)}
+    for row in rows.values():
+        row["later_uploads"] = str(sum(int(n) for n in row["device_uploads"].split(";")[1:]))
+    return rows
+
+
+#: the settings an arm may differ in, named as the edge's parameters
+SETTINGS = ("covered_m", "covered_deg", "lent_unseen_slots", "lend_in_view", "merge_min_inliers")
+
+
+def arm(row: dict[str, str], settings: list[str]) -> str:
+    """An arm's name in the table: alone, or the ``settings`` it differs in ("merged" where
+    it differs only in merging)."""
+    if row.get("no_merge") == "1":
+        return "alone (no merge)"
+    return ", ".join(f"{name} {float(row[name]):g}" for name in settings) or "merged"
+
+
+def table(first_path: Path, second_path: Path) -> list[str]:
+    """The table of two arms: a row a figure."""
+    first, second = runs(first_path), runs(second_path)
+    seeds = sorted(first.keys() & second.keys())
+    if not seeds:
+        raise SystemExit(f"{first_path} and {second_path} share no seed")
+    one, two = first[seeds[0]], second[seeds[0]]
+    differ = [name for name in SETTINGS if one.get(name) != two.get(name)]
+    names = [arm(one, differ), arm(two, differ)]
+    lines = [f"{one['sequence']}, {one['devices']} devices each {one['after']} frames after "
+             f"the one before, {one['order']}, uplink {one['uplink']}, seeds "
+             f"{', '.join(map(str, seeds))}:", "",
+             f"| figure | {names[0]} (seed by seed) | {names[1]} | difference |",
+             "|---|---|---|---|"]
+    for column, name, scale, fmt in FIGURES:
+        before = [float(first[s][column]) * scale for s in seeds]
+        after = [float(second[s][column]) * scale for s in seeds]
+        if any(math.isnan(x) for x in before + after):
+            continue              # a figure one arm has not (alone, no slot after a merge)
+        lines.append(paired_row(name, before, after, fmt))
+    return lines
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("first", type=Path, help="the first arm's CSV (bench.place_walks --csv)")
+    parser.add_argument("second", type=Path, help="the second arm's CSV")
+    args = parser.parse_args()
+    print("\n".join(table(args.first, args.second)))
+
+
+if __name__ == "__main__":
+    main()
