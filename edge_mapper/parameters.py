@@ -212,15 +212,17 @@ PARAMETERS = (
               "first, its walk bends towards that device's keyframes: the two walks' drift "
               "apart since the merge taken out there); false: loops among a device's own "
               "keyframes only"),
-    ParamSpec("covered_m", 0.10, "with merge_maps: a frame whose camera stands within this "
+    ParamSpec("covered_m", 0.30, "with merge_maps: a frame whose camera stands within this "
               "many metres of a keyframe another device uploaded (lent to this device's map) "
               "and looks the same way (covered_deg) is not uploaded: the shared map holds that "
               "view (unless the map cannot serve it: fewer than 15 of the frame's reported "
               "points are the map's), and a slot's upload count shrinks with its share of views "
               "the map lacks; 0: every device uploads as Theorem 1 sizes it", low=0.0,
               high=100.0),
-    ParamSpec("covered_deg", 10.0, "the turn, degrees, within which a lent keyframe covers a "
-              "frame's view (with covered_m)", low=0.0, high=180.0),
+    ParamSpec("covered_deg", 20.0, "the turn, degrees, within which a lent keyframe covers a "
+              "frame's view (with covered_m); the bounds' defaults tried on four devices along "
+              "the synthetic corridor, judged on the 7-Scenes walk (docs/results/shared-map.md)",
+              low=0.0, high=180.0),
     ParamSpec("fairness", 0.0, "alpha of the twin allocator's alpha-fair sum (0: total "
               "tracked share; 1: proportional fairness)", low=0.0, high=10.0),
     ParamSpec("device_silent_s", 10.0, "a device without summaries this long is silent: its "

@@ -614,3 +614,40 @@ def test_the_own_window_tables_are_what_their_commands_print(
                                       (("before", "the newest ids (kept)"),
                                        ("after", "the map's own newest keyframes")))
     assert live_seeds == [0, 1, 2] and _missing("\n".join(lines)) == []
+
+
+def test_the_place_walks_tables_are_what_their_command_prints() -> None:
+    """Four devices along the corridor: each pair of arms the page compares — copies that go
+    back, alone against merged, and the covered view's bounds — as ``place_walks_table.py``
+    prints it from the committed CSVs, paired over the seeds the page names; the figure an
+    arm has not (the slots after a merge, alone) left out rather than printed as nan."""
+    folder = FIGURES / "shared-map" / "place-walks"
+    script = _script("place_walks_table")
+    for first, second in (("keep", "leave"), ("alone", "keep"), ("covered-off", "keep"),
+                          ("keep", "covered-wide"), ("alone", "covered-wide")):
+        printed = script.table(folder / f"{first}.csv", folder / f"{second}.csv")
+        assert _missing("\n".join(printed)) == [], (first, second)
+        assert "seeds 0, 1, 2, 3:" in printed[0]
+        assert not any("nan" in line for line in printed)
+
+
+def test_the_covered_view_bounds_tables_are_what_their_commands_print(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The covered view's bounds judged on the 7-Scenes walk: the in-process uplink table at
+    the old and the new bounds (seed 3, which drew seed 2's uplink, left out) and the live
+    table of the two, as the page has them."""
+    folder = FIGURES / "shared-map" / "covered-bounds"
+    monkeypatch.syspath_prepend(str(FIGURES))
+    uplink = _script("shared_uplink_table")
+    for bounds in ("narrow", "wide"):
+        rows = [row.strip() for row in uplink.table(folder / bounds, "mapped")]
+        n = len(rows)
+        assert any(RESULT_LINES[i:i + n] == rows for i in range(len(RESULT_LINES) - n + 1)), \
+            bounds
+        assert n == 4 and all(row.endswith("| 0, 1, 2, 4, 5 |") for row in rows)
+    live = _script("loops_across_live")
+    lines, seeds, _ = live.table(folder / "live",
+                                 (("narrow", "covered_m 0.1, covered_deg 10 (the default "
+                                   "before)"),
+                                  ("wide", "covered_m 0.3, covered_deg 20")), with_map=True)
+    assert seeds == [0, 1, 2] and _missing("\n".join(lines)) == []

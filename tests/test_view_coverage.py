@@ -57,10 +57,16 @@ def test_the_uplinks_count_goes_to_new_views_at_the_density_a_device_alone_spend
         uploads_for_new_views(4, 31, 30)
 
 
+#: the walk's frames are 0.04 m apart: bounds of 0.10 m cover a few frames either side of a
+#: keyframe, so the cases below tell a covered frame from its uncovered neighbour
+WALL_BOUNDS = CoverageBounds(0.10, 10.0)
+
+
 def _walked_edge() -> tuple[Device, EdgeMapperCore]:
     """Three slots of the wall walk (0.04 m a frame along x) integrated by an edge."""
     device = Device(np.random.default_rng(0))
-    core = EdgeMapperCore(make_policy("lff"), K, EdgeConfig(slot=SlotConfig(vmax=10)))
+    core = EdgeMapperCore(make_policy("lff"), K,
+                          EdgeConfig(slot=SlotConfig(vmax=10), coverage=WALL_BOUNDS))
     _run(core, device, range(3), rates=[20.0])
     return device, core
 
