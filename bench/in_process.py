@@ -31,6 +31,8 @@ from twinslam.sequence_player.playback import Playback, PlayedSequence
 from twinslam.sequences.frame import RgbdFrame
 from twinslam.sequences.opening import AUTO, open_sequence
 from twinslam.slam.back_end.loop_closing import LoopQuery
+from twinslam.slam.back_end.loop_detection import MIN_INLIERS as LOOP_MIN_INLIERS
+from twinslam.slam.back_end.map_merging import MERGE_MIN_INLIERS
 from twinslam.slam.keyframe import KeyFramePayload
 from twinslam.slam.map_update import MapSnapshot
 from twinslam.slot_protocol import default_device
@@ -247,6 +249,43 @@ def add_device_option(parser: argparse.ArgumentParser) -> None:
                              "reads it, for every device of the run (repeat for more); e.g. "
                              "map_source=edge own_map_after_s=0: the paper's device, which "
                              "tracks on the edge's map alone")
+
+
+def add_place_options(parser: argparse.ArgumentParser) -> None:
+    """The edge's merging, lending and covered-view settings on a bench of devices in one
+    place (``bench.shared_map``, ``bench.place_walks``), named as the edge's parameters;
+    :func:`check_place_options` refuses what the edge would."""
+    parser.add_argument("--merge-inliers", type=int, default=MERGE_MIN_INLIERS, metavar="N",
+                        help="the PnP inliers each of a merge's detections needs (the edge's "
+                             f"merge_min_inliers; default %(default)s; a loop's "
+                             f"{LOOP_MIN_INLIERS} at least)")
+    parser.add_argument("--lend-eagerly", action="store_true",
+                        help="lend each keyframe as soon as its device made it "
+                             "(lend_in_view:=false), not once the borrowing device heads "
+                             "where it sees it")
+    parser.add_argument("--unseen-slots", type=int, default=0, metavar="N",
+                        help="a copy neither held nor seen by its borrowing device for N "
+                             "slots goes back to its lender (the edge's lent_unseen_slots; "
+                             "default %(default)s: kept; not with --lend-eagerly)")
+    parser.add_argument("--covered-m", type=float, metavar="M",
+                        help="a lent keyframe this near a frame covers its view: the frame is "
+                             "not uploaded (default: the edge's covered_m; 0: never)")
+    parser.add_argument("--covered-deg", type=float, metavar="D",
+                        help="and turned by at most this (default: the edge's covered_deg)")
+
+
+def check_place_options(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Exit with the parser's error where :func:`add_place_options`' values are out of the
+    edge's range."""
+    if args.merge_inliers < LOOP_MIN_INLIERS:
+        parser.error(f"--merge-inliers must be at least a loop's {LOOP_MIN_INLIERS}, got "
+                     f"{args.merge_inliers}")
+    if args.unseen_slots < 0:
+        parser.error(f"--unseen-slots: 0 or more, got {args.unseen_slots}")
+    for name in ("covered_m", "covered_deg"):
+        value = getattr(args, name)
+        if value is not None and value < 0:
+            parser.error(f"--{name.replace('_', '-')}: 0 or more, got {value}")
 
 
 def open_walk(name: str, spec: str, frames: int, order: str, seed: int, uplink: str,

@@ -45,6 +45,8 @@ from bench.in_process import (
     DeviceWalk,
     SlotHooks,
     add_device_option,
+    add_place_options,
+    check_place_options,
     open_walk,
     repeatable_edge,
     seeded_spec,
@@ -62,8 +64,6 @@ from twinslam.node_runtime.math_threads import one_math_thread
 from twinslam.reporting import append_csv_rows
 from twinslam.sequence_player.playback import ORDERS
 from twinslam.slam.back_end.foreign_keyframes import is_foreign
-from twinslam.slam.back_end.loop_detection import MIN_INLIERS
-from twinslam.slam.back_end.map_merging import MERGE_MIN_INLIERS
 
 #: the CSV's columns: the run's settings, then its figures (per-device lists joined by ";")
 COLUMNS = ("sequence", "frames", "devices", "after", "order", "seed", "uplink", "no_merge",
@@ -154,39 +154,21 @@ def main() -> None:
     parser.add_argument("--update-delay", type=int, default=8,
                         help="frames of the next slot a device tracks before its map update "
                              "reaches it (the default device's D_req of 0.25 s)")
-    parser.add_argument("--merge-inliers", type=int, default=MERGE_MIN_INLIERS, metavar="N",
-                        help="the PnP inliers each of a merge's detections needs (the edge's "
-                             "merge_min_inliers; default %(default)s)")
-    parser.add_argument("--lend-eagerly", action="store_true",
-                        help="lend each keyframe as soon as its device made it "
-                             "(lend_in_view:=false), not once the borrowing device heads "
-                             "where it sees it")
-    parser.add_argument("--unseen-slots", type=int, default=0, metavar="N",
-                        help="a copy neither held nor seen by its borrowing device for N "
-                             "slots goes back to its lender (the edge's lent_unseen_slots; "
-                             "default %(default)s: kept)")
+    add_place_options(parser)
     parser.add_argument("--no-merge", action="store_true",
                         help="never merge (the control: each device alone with its own map; "
                              "the devices play one walk from its first frame, so their maps' "
                              "frames are one by construction and the cross-device figure "
                              "still compares them)")
-    parser.add_argument("--covered-m", type=float,
-                        help="a frame within this many metres of a keyframe another device "
-                             "uploaded is not uploaded (default: the edge's covered_m; 0: "
-                             "never)")
-    parser.add_argument("--covered-deg", type=float,
-                        help="and turned by at most this (default: the edge's covered_deg)")
     parser.add_argument("--every", type=int, default=300,
                         help="print the devices' maps every N frames of the run")
     parser.add_argument("--csv", type=Path, help="append the run's figures here")
     args = parser.parse_args()
     if args.devices < 2:
         parser.error(f"--devices: two or more walk one place, not {args.devices}")
-    if args.after < 0 or args.unseen_slots < 0:
-        parser.error("--after and --unseen-slots: 0 or more")
-    if args.merge_inliers < MIN_INLIERS:
-        parser.error(f"--merge-inliers must be at least a loop's {MIN_INLIERS}, got "
-                     f"{args.merge_inliers}")
+    if args.after < 0:
+        parser.error(f"--after: 0 or more, got {args.after}")
+    check_place_options(parser, args)
     cv2.setNumThreads(1)
     one_math_thread()                     # as every node (node_runtime.math_threads)
     spec = seeded_spec(args.sequence, args.seed)

@@ -58,6 +58,8 @@ import numpy as np
 from bench.in_process import (
     DeviceWalk,
     add_device_option,
+    add_place_options,
+    check_place_options,
     open_walk,
     repeatable_edge,
     seeded_spec,
@@ -75,9 +77,7 @@ from twinslam.reporting import append_csv_rows, write_csv
 from twinslam.rotations import rotation_angle_deg
 from twinslam.sequence_player.playback import ORDERS
 from twinslam.slam.back_end.foreign_keyframes import foreign_tag, is_foreign, source_id
-from twinslam.slam.back_end.loop_detection import MIN_INLIERS
 from twinslam.slam.back_end.map_merging import (
-    MERGE_MIN_INLIERS,
     Lender,
     MapMerge,
     MergeFinder,
@@ -213,11 +213,6 @@ def main() -> None:
                              "(the edge's ba_window; default: the node's, 0; the paper's "
                              "edge: 5)")
     add_device_option(parser)
-    parser.add_argument("--covered-m", type=float,
-                        help="a lent keyframe this near a frame covers its view: the frame is "
-                             "not uploaded (default: the edge's covered_m; 0: never)")
-    parser.add_argument("--covered-deg", type=float,
-                        help="and turned by at most this (default: the edge's covered_deg)")
     parser.add_argument("--update-delay", type=int, default=8,
                         help="frames of the next slot a device tracks before its map update "
                              "reaches it (the default device's D_req of 0.25 s)")
@@ -232,18 +227,7 @@ def main() -> None:
                         help="with --share: the second map's loops close among its own "
                              "keyframes only, never with the first device's lent keyframes "
                              "(the edge's loops_across_devices:=false)")
-    parser.add_argument("--merge-inliers", type=int, default=MERGE_MIN_INLIERS, metavar="N",
-                        help="the PnP inliers each of a merge's three detections needs (the "
-                             "edge's merge_min_inliers; default %(default)s; a loop's "
-                             f"{MIN_INLIERS} at least)")
-    parser.add_argument("--lend-eagerly", action="store_true",
-                        help="with --share: lend each keyframe as soon as its device made it "
-                        "(lend_in_view:=false), not once the borrowing device heads where it "
-                        "sees it")
-    parser.add_argument("--unseen-slots", type=int, default=0, metavar="N",
-                        help="with --share and not --lend-eagerly: a copy neither held nor "
-                             "seen by its borrowing device for N slots goes back to its lender "
-                             "(the edge's lent_unseen_slots; default %(default)s: kept)")
+    add_place_options(parser)
     parser.add_argument("--no-merge", action="store_true",
                         help="never merge (the control: each device in its own frame)")
     parser.add_argument("--every", type=int, default=10, help="print every N slots")
@@ -256,9 +240,7 @@ def main() -> None:
                              "and map; its own or lent) with its position and the truth's in "
                              "the first device's frame")
     args = parser.parse_args()
-    if args.merge_inliers < MIN_INLIERS:
-        parser.error(f"--merge-inliers must be at least a loop's {MIN_INLIERS}, got "
-                     f"{args.merge_inliers}")
+    check_place_options(parser, args)
     cv2.setNumThreads(1)
     one_math_thread()                     # as every node (node_runtime.math_threads)
     spec, second_spec = (seeded_spec(s, args.seed) for s in
