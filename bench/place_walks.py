@@ -69,9 +69,9 @@ from twinslam.slam.back_end.foreign_keyframes import is_foreign
 COLUMNS = ("sequence", "frames", "devices", "after", "order", "seed", "uplink", "no_merge",
            "covered_m", "covered_deg", "lend_in_view", "lent_unseen_slots", "merge_min_inliers",
            "merged", "edge_ms_median", "edge_ms_mean", "edge_ms_merged_median", "copies_mean",
-           "copies_end", "adopted", "uploads", "lost_share", "tracked_share", "ate_m_mean",
-           "cross_rms_m", "cross_pairs", "cross_worst_pair_rms_m", "loops", "look_ms_median",
-           "seconds", "device_edge_ms", "device_copies_mean", "device_uploads",
+           "copies_end", "adopted", "uploads", "lost_share", "map_lost_share", "tracked_share",
+           "ate_m_mean", "cross_rms_m", "cross_pairs", "cross_worst_pair_rms_m", "loops",
+           "look_ms_median", "seconds", "device_edge_ms", "device_copies_mean", "device_uploads",
            "device_merge_slot", "device_ate_m")
 
 
@@ -258,6 +258,7 @@ def _report(devices: list[PlaceWalk], merging: PlaceMerging, args: argparse.Name
                  for ms in d.walk.edge_ms[d.merge_index:]]
     copies = [c for d in devices for c in d.copies]
     lost = [v for d in devices for v in d.walk.lost[1:] if not math.isnan(v)]
+    off = [d.walk.map_lost_share() for d in devices]      # by each device's own count
     ates = [absolute_trajectory_error({k: d.walk.poses[k] for k in d.placed_frames()
                                        if k in d.walk.poses}, d.walk.truth)
             for d in devices if d.in_place >= 0]
@@ -275,6 +276,8 @@ def _report(devices: list[PlaceWalk], merging: PlaceMerging, args: argparse.Name
             "adopted": sum(d.adopted for d in devices),
             "uploads": sum(d.walk.uploads for d in devices),
             "lost_share": float(np.mean(lost)) if lost else math.nan,
+            "map_lost_share": float(np.nanmean(off)) if not all(map(math.isnan, off))
+            else math.nan,
             "tracked_share": sum(len(d.walk.poses) for d in devices)
             / max(sum(len(d.walk.truth) for d in devices), 1),
             "ate_m_mean": float(np.nanmean(ates)) if ates else math.nan,

@@ -3,7 +3,7 @@ devices along the corridor"): ``bench.place_walks`` runs, one CSV an
 arm, the two arms' runs paired by seed. Prints a markdown table: each figure seed by seed in
 both arms and the paired difference (second − first, Student's t,
 :func:`twinslam.reporting.paired_row`); a figure one arm has not (the slots after a merge,
-alone) is left out.
+alone) or one arm's runs predate is left out.
 
     .venv/bin/python docs/figures/place_walks_table.py FIRST.csv SECOND.csv
 """
@@ -30,6 +30,8 @@ FIGURES = [
     ("uploads", "keyframes uploaded, every device", 1.0, "{:.0f}"),
     ("later_uploads", "keyframes uploaded by the devices after the first", 1.0, "{:.0f}"),
     ("lost_share", "the edge's lost share (%)", 100.0, "{:.2f}"),
+    ("map_lost_share", "frames the device's map did not serve, mean over the devices (%)",
+     100.0, "{:.2f}"),
     ("tracked_share", "frames tracked (%)", 100.0, "{:.2f}"),
     ("cross_rms_m", "cross-device revisit error RMS (cm)", 100.0, "{:.2f}"),
     ("ate_m_mean", "ATE in the place's frame, mean over the devices (cm)", 100.0, "{:.2f}"),
@@ -74,6 +76,8 @@ def table(first_path: Path, second_path: Path) -> list[str]:
              f"| figure | {names[0]} (seed by seed) | {names[1]} | difference |",
              "|---|---|---|---|"]
     for column, name, scale, fmt in FIGURES:
+        if column not in one or column not in two:
+            continue              # a column the runs of one arm predate
         before = [float(first[s][column]) * scale for s in seeds]
         after = [float(second[s][column]) * scale for s in seeds]
         if any(math.isnan(x) for x in before + after):
