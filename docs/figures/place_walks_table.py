@@ -76,8 +76,8 @@ def table(first_path: Path, second_path: Path) -> list[str]:
              f"| figure | {names[0]} (seed by seed) | {names[1]} | difference |",
              "|---|---|---|---|"]
     for column, name, scale, fmt in FIGURES:
-        if column not in one or column not in two:
-            continue              # a column the runs of one arm predate
+        if any(not runs_[s].get(column) for runs_ in (first, second) for s in seeds):
+            continue              # a column some runs predate
         before = [float(first[s][column]) * scale for s in seeds]
         after = [float(second[s][column]) * scale for s in seeds]
         if any(math.isnan(x) for x in before + after):
