@@ -635,12 +635,12 @@ def test_the_place_walks_tables_are_what_their_command_prints() -> None:
 def test_the_covered_view_bounds_tables_are_what_their_commands_print(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """The covered view's bounds judged on the 7-Scenes walk: the in-process uplink table at
-    the old and the new bounds (seed 3, which drew seed 2's uplink, left out) and the live
-    table of the two, as the page has them."""
+    the old bounds, the new and the wider ones looked at afterwards (seed 3, which drew seed
+    2's uplink, left out), and the live table of the old and the new, as the page has them."""
     folder = FIGURES / "shared-map" / "covered-bounds"
     monkeypatch.syspath_prepend(str(FIGURES))
     uplink = _script("shared_uplink_table")
-    for bounds in ("narrow", "wide"):
+    for bounds in ("narrow", "wide", "wider"):
         rows = [row.strip() for row in uplink.table(folder / bounds, "mapped")]
         n = len(rows)
         assert any(RESULT_LINES[i:i + n] == rows for i in range(len(RESULT_LINES) - n + 1)), \
@@ -652,3 +652,18 @@ def test_the_covered_view_bounds_tables_are_what_their_commands_print(
                                    "before)"),
                                   ("wide", "covered_m 0.3, covered_deg 20")), with_map=True)
     assert seeds == [0, 1, 2] and _missing("\n".join(lines)) == []
+
+
+def test_the_covered_bounds_curve_table_is_what_its_command_prints() -> None:
+    """The covered view's bounds from 0.10 m to 0.50 m on the corridor, beside the devices
+    alone: the table as the page has it, every bound over the four seeds, and the figure a
+    bound's runs lack printed as a dash, not a number."""
+    folder = FIGURES / "shared-map" / "place-walks" / "curve"
+    script = _script("covered_bounds_curve")
+    points = script.curve(folder / "alone.csv",
+                          [folder / f"bounds-{m}.csv" for m in ("0.1", "0.2", "0.3", "0.5")])
+    printed = script.table(points)
+    assert _missing("\n".join(printed)) == []
+    assert [label for label, _, _ in points] == ["alone", "0.1 m, 10°", "0.2 m, 15°",
+                                                 "0.3 m, 20°", "0.5 m, 30°"]
+    assert all(seeds == [0, 1, 2, 3] for _, seeds, _ in points)
