@@ -92,10 +92,15 @@ def _missing(printed: str) -> list[list[str]]:
         if len(table) < 3 or not set(table[1]) <= set("|-: "):
             missing.append(["(not a table: no header, separator and row)", *table])
             continue
-        n = len(table)
-        if not any(RESULT_LINES[i:i + n] == table for i in range(len(RESULT_LINES) - n + 1)):
+        if not _on_a_page(table):
             missing.append(table)
     return missing
+
+
+def _on_a_page(lines: list[str]) -> bool:
+    """Whether the results pages hold ``lines`` one after another, as they are."""
+    n = len(lines)
+    return any(RESULT_LINES[i:i + n] == lines for i in range(len(RESULT_LINES) - n + 1))
 
 
 @pytest.mark.parametrize("args", PLANNER_TABLES, ids=lambda a: " ".join(a)[:60])
@@ -642,10 +647,8 @@ def test_the_covered_view_bounds_tables_are_what_their_commands_print(
     uplink = _script("shared_uplink_table")
     for bounds in ("narrow", "wide", "wider"):
         rows = [row.strip() for row in uplink.table(folder / bounds, "mapped")]
-        n = len(rows)
-        assert any(RESULT_LINES[i:i + n] == rows for i in range(len(RESULT_LINES) - n + 1)), \
-            bounds
-        assert n == 4 and all(row.endswith("| 0, 1, 2, 4, 5 |") for row in rows)
+        assert _on_a_page(rows), bounds
+        assert len(rows) == 4 and all(row.endswith("| 0, 1, 2, 4, 5 |") for row in rows)
     live = _script("loops_across_live")
     lines, seeds, _ = live.table(folder / "live",
                                  (("narrow", "covered_m 0.1, covered_deg 10 (the default "
@@ -654,11 +657,13 @@ def test_the_covered_view_bounds_tables_are_what_their_commands_print(
     assert seeds == [0, 1, 2] and _missing("\n".join(lines)) == []
 
 
-def test_the_covered_bounds_curve_table_is_what_its_command_prints() -> None:
+def test_the_covered_bounds_curve_table_is_what_its_command_prints(
+        monkeypatch: pytest.MonkeyPatch) -> None:
     """The covered view's bounds from 0.10 m to 0.50 m on the corridor, beside the devices
     alone: the table as the page has it, every bound over the four seeds, and the figure a
     bound's runs lack printed as a dash, not a number."""
     folder = FIGURES / "shared-map" / "place-walks" / "curve"
+    monkeypatch.syspath_prepend(str(FIGURES))           # its sibling, place_walks_table
     script = _script("covered_bounds_curve")
     points = script.curve(folder / "alone.csv",
                           [folder / f"bounds-{m}.csv" for m in ("0.1", "0.2", "0.3", "0.5")])

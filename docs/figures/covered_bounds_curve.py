@@ -12,10 +12,10 @@ first; prints the same as a table (mean over the seeds, and the seeds' range).
 from __future__ import annotations
 
 import argparse
-import csv
 from pathlib import Path
 
 import numpy as np
+from place_walks_table import runs
 
 from twinslam.reporting import pyplot
 
@@ -25,35 +25,24 @@ PANELS = (("later devices' uploads, % of alone", "%"),
           ("the edge's median ms a device-slot", "ms"))
 
 
-def later_uploads(row: dict[str, str]) -> int:
-    """The keyframes uploaded by the devices after the first (those that come to ground
-    others mapped)."""
-    return sum(int(n) for n in row["device_uploads"].split(";")[1:])
-
-
-def by_seed(path: Path) -> dict[int, dict[str, str]]:
-    """seed → the run's row (a later run of a seed replaces an earlier one)."""
-    with path.open(encoding="utf-8") as fh:
-        return {int(row["seed"]): row for row in csv.DictReader(fh)}
-
-
 def curve(alone_path: Path, bound_paths: list[Path]
           ) -> list[tuple[str, list[int], list[list[float]]]]:
     """The devices alone first, then per bounds file: its label, the seeds it shares with
     alone and each panel's values over them (a figure its runs lack is NaN)."""
-    alone = by_seed(alone_path)
+    alone = runs(alone_path)
     out = []
     for path in [alone_path, *bound_paths]:
-        runs = by_seed(path)
-        seeds = sorted(runs.keys() & alone.keys())
+        arm = runs(path)
+        seeds = sorted(arm.keys() & alone.keys())
         if not seeds:
             raise SystemExit(f"{path} shares no seed with {alone_path}")
-        first = runs[seeds[0]]
+        first = arm[seeds[0]]
         label = ("alone" if path == alone_path else
                  f"{float(first['covered_m']):g} m, {float(first['covered_deg']):g}°")
-        values = [[100.0 * later_uploads(runs[s]) / later_uploads(alone[s]) for s in seeds],
-                  [100.0 * float(runs[s].get("map_lost_share") or "nan") for s in seeds],
-                  [float(runs[s]["edge_ms_median"]) for s in seeds]]
+        values = [[100.0 * float(arm[s]["later_uploads"]) / float(alone[s]["later_uploads"])
+                   for s in seeds],
+                  [100.0 * float(arm[s].get("map_lost_share") or "nan") for s in seeds],
+                  [float(arm[s]["edge_ms_median"]) for s in seeds]]
         out.append((label, seeds, values))
     return out
 
