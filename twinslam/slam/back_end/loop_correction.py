@@ -14,7 +14,7 @@ or, once fused, the old place that saw it first.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 
 import numpy as np
 
@@ -56,12 +56,26 @@ def correct_map(m: KeyFrameMap, corrections: Mapping[int, np.ndarray]) -> None:
 def move_keyframes(m: KeyFrameMap, moves: Mapping[int, np.ndarray]) -> None:
     """Move the keyframes of ``m`` that ``moves`` names (id → 4×4 map-frame correction, as
     they are: adopted keyframes too) and every point with its reference keyframe, its oldest
-    observer (:func:`~twinslam.slam.back_end.pose_graph.move_with_keyframes`)."""
+    observer (:func:`~twinslam.slam.back_end.pose_graph.move_with_keyframes`).
+
+    Only the points the moved keyframes observe are read: a point's reference is one of its
+    observers, so no other point moves. A lender's loop moves a borrower's few copies of its
+    keyframes, and each of a place's maps follows it: reading every point of the map for
+    them took most of the following (``bench.place_walks`` under the profiler)."""
     for kf_id, c in moves.items():
         m.keyframes[kf_id].pose = c @ m.keyframes[kf_id].pose
     if not moves or not m.points:
         return
-    ids = np.fromiter(m.points, dtype=np.int64, count=len(m.points))
-    reference = np.fromiter((min(pt.observers, default=-1) for pt in m.points.values()),
+    points = m.points
+    ids = np.array([p for p in _observed_by(m, moves).tolist() if p in points], dtype=np.int64)
+    if not len(ids):
+        return
+    reference = np.fromiter((min(points[p].observers) for p in ids.tolist()),
                             dtype=np.int64, count=len(ids))
     m.set_positions(ids, move_with_keyframes(m.positions_of(ids), reference, moves))
+
+
+def _observed_by(m: KeyFrameMap, keyframes: Collection[int]) -> np.ndarray:
+    """The points of ``m`` any of ``keyframes`` observes, each once, ascending."""
+    sets = [m.point_array(k) for k in keyframes]
+    return np.unique(np.concatenate(sets)) if sets else np.zeros(0, dtype=np.int64)
