@@ -28,6 +28,7 @@ from twinslam.policies.restoring import MIN_VIEW_POINTS, choose_restores
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
 from twinslam.slam.back_end.keyframe_map import Incidence, KeyFrameMap, shared_counts
 from twinslam.slam.camera import Camera
+from twinslam.slam.sorted_ids import find_sorted
 from twinslam.uncertainty.map_uncertainty import map_uncertainty
 
 #: an archived keyframe is brought back only if this many of its points are in the coming
@@ -111,8 +112,14 @@ class TrialWeights:
     def _row(self, kf: int) -> np.ndarray:
         """How many points archived keyframe ``kf`` shares with each map keyframe."""
         if kf not in self._rows:
-            cols = np.flatnonzero(np.isin(self.counted.points, self.archived_sets[kf]))
-            self._rows[kf] = np.asarray(self.counted.matrix[:, cols].sum(axis=1)).ravel()
+            # the map's points it holds, each once, by a sorted search of the incidence's
+            # sorted points; their columns summed as one sparse product (slicing the columns
+            # out was most of a restore plan's time where copies of a place stand in view)
+            points = self.counted.points
+            col, held = find_sorted(points, np.unique(self.archived_sets[kf]))
+            holds = np.zeros(len(points))
+            holds[col[held]] = 1.0
+            self._rows[kf] = np.asarray(self.counted.matrix @ holds).ravel()
         return self._rows[kf]
 
 
