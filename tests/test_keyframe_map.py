@@ -334,6 +334,7 @@ def test_rows_read_by_an_array_of_ids_are_the_rows_each_id_has() -> None:
     assert columns.holds(np.array(asked, dtype=np.int64)).tolist() == \
         [p in columns.row for p in asked]
     assert columns.holds(np.zeros(0, dtype=np.int64)).tolist() == []
-    for missing in ([17], [41, 4], [10_000], [foreign_tag(3) | 8]):
+    for missing in ([17], [41, 4], [10_000], [foreign_tag(3) | 8], [foreign[0], 17],
+                    [41, foreign_tag(3) | 8]):
         with pytest.raises(KeyError):
             columns.rows_of(np.array(missing, dtype=np.int64))

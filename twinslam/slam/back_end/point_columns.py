@@ -95,16 +95,21 @@ class PointColumns:
 
     def rows_of(self, point_ids: Collection[int] | np.ndarray) -> np.ndarray:
         """The rows of ``point_ids`` (in their order) as an int64 array; KeyError for an id
-        the columns do not hold. An integer array of the map's own ids is read from the rows
-        by id at once; anything else (a list, a set, another device's ids) id by id."""
+        the columns do not hold. In an integer array the map's own ids are read from the rows
+        by id at once, another device's (its copies' points, in a map of a shared place) id
+        by id; anything else (a list, a set) id by id."""
         if isinstance(point_ids, np.ndarray) and point_ids.dtype.kind in "iu":
-            if not point_ids.size:
-                return np.zeros(0, dtype=np.int64)
-            if 0 <= point_ids.min() and point_ids.max() < len(self._row_by_id):
-                rows = self._row_by_id[point_ids]
-                if rows.min() >= 0:
-                    return rows.astype(np.int64)
-            point_ids = point_ids.tolist()
+            ids = point_ids.astype(np.int64, copy=False).ravel()
+            dense = (ids >= 0) & (ids < len(self._row_by_id))
+            rows = np.empty(len(ids), dtype=np.int64)
+            rows[dense] = self._row_by_id[ids[dense]]
+            missing = np.flatnonzero(dense & (rows < 0))
+            if len(missing):
+                raise KeyError(int(ids[missing[0]]))
+            if not dense.all():
+                rows[~dense] = np.fromiter(map(self._beyond.__getitem__, ids[~dense].tolist()),
+                                           dtype=np.int64, count=int((~dense).sum()))
+            return rows.reshape(point_ids.shape)
         return np.fromiter(map(self.row.__getitem__, point_ids), dtype=np.int64,
                            count=len(point_ids))
 
