@@ -92,3 +92,49 @@ def test_fusing_a_point_into_itself_or_an_unknown_one_is_refused() -> None:
         m.fuse(p, p)
     with pytest.raises(MapError, match="cannot fuse"):
         m.fuse(p, 99)
+
+
+def _fusable() -> tuple[KeyFrameMap, list[tuple[int, int]]]:
+    """Keyframes 1 and 2 observe points of their own; each of 2's first four is a duplicate of
+    one of 1's (keep, drop) — and keyframe 3 sees a kept point and its duplicate both."""
+    m = KeyFrameMap()
+    for k in (1, 2, 3):
+        m.add_keyframe(k, np.eye(4))
+    rng = np.random.default_rng(4)
+    own = {k: [m.add_point(rng.normal(size=3), rng.integers(0, 256, 32, dtype=np.uint8))
+               for _ in range(6)] for k in (1, 2)}
+    for k, pids in own.items():
+        for p in pids:
+            m.observe(k, p, (float(p), float(k)), 2.0)
+    m.observe(3, own[1][0], (5.0, 5.0), 1.0)
+    m.observe(3, own[2][0], (6.0, 6.0), 1.0)
+    return m, list(zip(own[1][:4], own[2][:4], strict=True))
+
+
+def test_points_fused_at_once_are_as_points_fused_one_by_one() -> None:
+    """A restored keyframe's duplicates are fused together: the same observations, points and
+    observer counts as fusing them one by one (a keyframe that saw both keeps its own view of
+    the kept point)."""
+    one, pairs = _fusable()
+    moved_one = sum(one.fuse(keep, drop) for keep, drop in pairs)
+    many, _ = _fusable()
+    assert many.fuse_many(pairs) == moved_one == 4
+    assert sorted(many.points) == sorted(one.points)
+    for k in (1, 2, 3):
+        assert many.keyframes[k].measurements == one.keyframes[k].measurements
+    ids = np.array(sorted(many.points), dtype=np.int64)
+    np.testing.assert_array_equal(many.observer_counts(ids), one.observer_counts(ids))
+    np.testing.assert_array_equal(many.positions_of(ids), one.positions_of(ids))
+
+
+def test_a_fusion_naming_a_point_twice_is_refused_before_any_point_moves() -> None:
+    """A point fused away twice, or kept by one pair and fused away by another, is refused,
+    and the pairs before it are not fused either: the map is as it was."""
+    for bad in (lambda p: [p[0], (p[1][0], p[0][1])], lambda p: [p[0], (p[0][1], p[1][1])],
+                lambda p: [p[0], (p[1][0], 10_000)]):
+        m, pairs = _fusable()
+        before = {k: dict(kf.measurements) for k, kf in m.keyframes.items()}
+        with pytest.raises(MapError, match=r"cannot fuse|twice"):
+            m.fuse_many(bad(pairs))
+        assert {k: dict(kf.measurements) for k, kf in m.keyframes.items()} == before
+        assert len(m.points) == 12

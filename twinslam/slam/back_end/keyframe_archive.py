@@ -129,18 +129,17 @@ def restore_into(m: KeyFrameMap, kf: ArchivedKeyFrame) -> list[int]:
     the points that came back (which may duplicate points made since:
     :mod:`twinslam.slam.back_end.point_fusion`)."""
     m.add_keyframe(kf.id, kf.pose)
-    ids = kf.point_ids.tolist()
-    # each point the map lost, once (a keyframe archived before welding kept its ids apart
-    # may name a point twice)
-    gone: list[int] = []
-    fresh: set[int] = set()
-    for row, pid in enumerate(ids):
-        if pid not in m.points and pid not in fresh:
-            gone.append(row)
-            fresh.add(pid)
-    m.readd_points([ids[row] for row in gone], kf.positions[gone], kf.descriptors[gone])
-    m.observe_many(kf.id, ids, kf.measurements[:, :2].tolist(), kf.measurements[:, 2].tolist())
-    return [ids[row] for row in gone]
+    point_ids = np.asarray(kf.point_ids, dtype=np.int64)
+    # each point the map lost, once, where it first comes (a keyframe archived before
+    # welding kept its ids apart may name a point twice): asked of the map's columns at once
+    lost = np.flatnonzero(~m.columns.holds(point_ids))
+    _, first = np.unique(point_ids[lost], return_index=True)
+    gone = lost[np.sort(first)]
+    back = point_ids[gone].tolist()
+    m.readd_points(back, kf.positions[gone], kf.descriptors[gone])
+    m.observe_many(kf.id, point_ids.tolist(), kf.measurements[:, :2].tolist(),
+                   kf.measurements[:, 2].tolist())
+    return back
 
 
 def point_id_sets(in_map: Mapping[int, Collection[int]],

@@ -69,10 +69,8 @@ def fuse_restored(m: KeyFrameMap, kf_id: int, returned: list[int], camera: Camer
         kf.pose, np.array([kf.measurements[p][:2] for p in mine], dtype=np.float64),
         m.descriptors_of(mine), m.positions_of(mine), MapPoints.every(m, but=kf.points),
         camera, config)
-    fused: dict[int, int] = {}
-    for row, keep in pairs:
-        m.fuse(keep, mine[row])
-        fused[mine[row]] = keep
+    fused = {mine[row]: keep for row, keep in pairs}
+    m.fuse_many([(keep, drop) for drop, keep in fused.items()])
     return fused
 
 
