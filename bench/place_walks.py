@@ -5,7 +5,7 @@ lent as the edge node merges them: the node's own
     python -m bench.place_walks [SEQUENCE] [--devices 4] [--frames 2700] [--after 300]
         [--order forward] [--seed 0] [--uplink lte] [--unseen-slots N] [--lend-eagerly]
         [--merge-inliers N] [--no-merge] [--covered-m M] [--covered-deg D] [--every 300]
-        [--csv FILE]
+        [--csv FILE] [--baseline COMMIT [--rounds 1]]
 
 Device k (k = 0, 1, …) starts the walk ``k × --after`` frames after the first, on an uplink
 of its own (seed ``--seed`` + k): users joining a place others walk at different times — on
@@ -27,13 +27,24 @@ many copies it adopted (a copy that went back and was lent again counts twice); 
 place's frame, pooled as RMS over the pairs of frames), and each run's figures appended to
 ``--csv``. Devices replaying one sequence see the same frames: a pair is two devices'
 estimates of one view, and their relative pose's truth is the identity.
+
+With ``--baseline COMMIT`` the same run is made in a worktree of that commit and in this
+tree, alternating for ``--rounds`` rounds (bench/baseline.py): the edge's ms a device-slot
+side by side, paired by round, and whether the two trees walked the same walk (uploads,
+copies, loops, ATE and the cross-device error equal: a change that only speeds the edge up
+leaves them so, the runs being deterministic). ``--csv`` then gets every run's row, with its
+tree and round.
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
 import functools
 import math
+import os
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -41,6 +52,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from bench.baseline import add_baseline_options, alternately
 from bench.in_process import (
     DeviceWalk,
     SlotHooks,
@@ -73,6 +85,10 @@ COLUMNS = ("sequence", "frames", "devices", "after", "order", "seed", "uplink", 
            "ate_m_mean", "cross_rms_m", "cross_pairs", "cross_worst_pair_rms_m", "loops",
            "look_ms_median", "seconds", "device_edge_ms", "device_copies_mean", "device_uploads",
            "device_merge_slot", "device_ate_m")
+#: the figures two trees' runs share when they walked one walk (the timings aside)
+SAME_WALK = ("merged", "copies_mean", "copies_end", "adopted", "uploads", "lost_share",
+             "tracked_share", "ate_m_mean", "cross_rms_m", "loops", "device_uploads",
+             "device_merge_slot", "device_ate_m")
 
 
 class PlaceWalk:
@@ -163,12 +179,18 @@ def main() -> None:
     parser.add_argument("--every", type=int, default=300,
                         help="print the devices' maps every N frames of the run")
     parser.add_argument("--csv", type=Path, help="append the run's figures here")
+    add_baseline_options(parser, 1, "rounds per tree, the whole run once a round")
     args = parser.parse_args()
     if args.devices < 2:
         parser.error(f"--devices: two or more walk one place, not {args.devices}")
     if args.after < 0:
         parser.error(f"--after: 0 or more, got {args.after}")
     check_place_options(parser, args)
+    if args.rounds < 1:
+        parser.error(f"--rounds: 1 or more, got {args.rounds}")
+    if args.baseline:
+        _beside(args, sys.argv[1:])
+        return
     cv2.setNumThreads(1)
     one_math_thread()                     # as every node (node_runtime.math_threads)
     spec = seeded_spec(args.sequence, args.seed)
@@ -224,6 +246,62 @@ def main() -> None:
     if args.csv:
         append_csv_rows(args.csv, COLUMNS, [report])
         print(f"appended to {args.csv}")
+
+
+def _beside(args: argparse.Namespace, argv: list[str]) -> None:
+    """The run (``argv`` without the side-by-side options) in the baseline commit's tree and
+    this one, alternating; the edge's ms a device-slot of each, paired by round."""
+    forwarded = _run_options(argv)
+
+    def measure(r: int, label: str, root: Path) -> dict[str, str]:
+        with tempfile.TemporaryDirectory() as tmp:
+            table = Path(tmp) / "run.csv"
+            done = subprocess.run([sys.executable, "-m", "bench.place_walks", *forwarded,
+                                   "--csv", str(table)], cwd=root, capture_output=True,
+                                  text=True, env={**os.environ, "PYTHONPATH": str(root)})
+            if done.returncode:
+                raise SystemExit(f"the run failed in {root}:\n{done.stderr[-3000:]}")
+            with table.open(newline="", encoding="utf-8") as fh:
+                row = dict(next(csv.DictReader(fh)), tree=label, round=str(r + 1))
+        print(f"round {r + 1} {label}: the edge {float(row['edge_ms_mean']):.1f} ms a "
+              f"device-slot on the mean, {float(row['edge_ms_median']):.1f} median, "
+              f"{float(row['edge_ms_merged_median']):.1f} after the merges (median); "
+              f"{float(row['seconds']):.0f} s", flush=True)
+        return row
+
+    runs = alternately(args.baseline, args.rounds, measure)
+    before, after = runs["baseline"], runs["current"]
+    for figure in ("edge_ms_mean", "edge_ms_median", "edge_ms_merged_median"):
+        change = [float(a[figure]) - float(b[figure]) for a, b in zip(after, before,
+                                                                       strict=True)]
+        print(f"{figure}: {args.baseline} {_listed(before, figure)}, this tree "
+              f"{_listed(after, figure)}; this tree − {args.baseline} "
+              + ", ".join(f"{c:+.1f}" for c in change) + " ms")
+    differ = sorted({f for a, b in zip(after, before, strict=True) for f in SAME_WALK
+                     if a[f] != b[f]})
+    print("the same walk in both trees" if not differ else
+          "NOT the same walk: " + ", ".join(differ) + " differ")
+    if args.csv:
+        append_csv_rows(args.csv, (*COLUMNS, "tree", "round"), [*before, *after])
+        print(f"appended to {args.csv}")
+
+
+def _run_options(argv: list[str]) -> list[str]:
+    """``argv`` without ``--baseline``, ``--rounds`` and ``--csv`` (each with its value)."""
+    kept: list[str] = []
+    skip = False
+    for arg in argv:
+        if skip:
+            skip = False
+        elif arg in ("--baseline", "--rounds", "--csv"):
+            skip = True
+        elif not arg.startswith(("--baseline=", "--rounds=", "--csv=")):
+            kept.append(arg)
+    return kept
+
+
+def _listed(rows: list[dict[str, str]], figure: str) -> str:
+    return " / ".join(f"{float(r[figure]):.1f}" for r in rows)
 
 
 def _report(devices: list[PlaceWalk], merging: PlaceMerging, args: argparse.Namespace
