@@ -28,12 +28,11 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
-import cv2
 import numpy as np
 from rclpy.serialization import deserialize_message, serialize_message
 from twinslam_msgs.msg import FrameSummaries, Keyframe
 
-from bench.in_process import ServedSlot, open_walk, repeatable_edge
+from bench.in_process import ServedSlot, open_walk, repeatable_edge, run_as_the_edge_node
 from bench.paths import SEVEN_SCENES
 from device_tracker.device_core import DeviceTrackerCore
 from device_tracker.messages import frame_summaries_message, keyframe_message, read_map_update
@@ -48,7 +47,6 @@ from edge_mapper.messages import (
 )
 from edge_mapper.visual_messages import decisions_message, keyframes_message, map_points_message
 from twinslam.cli.console import HelpFormatter
-from twinslam.node_runtime.math_threads import one_math_thread
 
 SEVEN = SEVEN_SCENES
 
@@ -150,8 +148,7 @@ def main() -> None:
                         "node's default)")
     parser.add_argument("--csv", type=Path, help="write every slot's steps (ms) here")
     args = parser.parse_args()
-    cv2.setNumThreads(1)
-    one_math_thread()                     # as every node (node_runtime.math_threads)
+    run_as_the_edge_node()
     config = repeatable_edge()
     clock = StepClock()
     with tempfile.TemporaryDirectory() as tmp:

@@ -49,7 +49,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from bench.baseline import add_baseline_options, alternately
@@ -61,6 +60,7 @@ from bench.in_process import (
     check_place_options,
     open_walk,
     repeatable_edge,
+    run_as_the_edge_node,
     seeded_spec,
     serve_slot,
 )
@@ -72,7 +72,6 @@ from twinslam.live.tracking_quality import (
     absolute_trajectory_error,
     cross_device_revisit_error,
 )
-from twinslam.node_runtime.math_threads import one_math_thread
 from twinslam.reporting import append_csv_rows
 from twinslam.sequence_player.playback import ORDERS
 from twinslam.slam.back_end.foreign_keyframes import is_foreign
@@ -191,8 +190,7 @@ def main() -> None:
     if args.baseline:
         _beside(args, sys.argv[1:])
         return
-    cv2.setNumThreads(1)
-    one_math_thread()                     # as every node (node_runtime.math_threads)
+    run_as_the_edge_node()
     spec = seeded_spec(args.sequence, args.seed)
     config = repeatable_edge(**{name: value for name, value in
                                 (("covered_m", args.covered_m),

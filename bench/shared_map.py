@@ -52,7 +52,6 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from bench.in_process import (
@@ -62,6 +61,7 @@ from bench.in_process import (
     check_place_options,
     open_walk,
     repeatable_edge,
+    run_as_the_edge_node,
     seeded_spec,
 )
 from bench.paths import SEVEN_SCENES
@@ -72,7 +72,6 @@ from twinslam.live.tracking_quality import (
     cross_device_revisit_error,
     revisit_error,
 )
-from twinslam.node_runtime.math_threads import one_math_thread
 from twinslam.reporting import append_csv_rows, write_csv
 from twinslam.rotations import rotation_angle_deg
 from twinslam.sequence_player.playback import ORDERS
@@ -241,8 +240,7 @@ def main() -> None:
                              "the first device's frame")
     args = parser.parse_args()
     check_place_options(parser, args)
-    cv2.setNumThreads(1)
-    one_math_thread()                     # as every node (node_runtime.math_threads)
+    run_as_the_edge_node()
     spec, second_spec = (seeded_spec(s, args.seed) for s in
                          (args.sequence, args.second_sequence or args.sequence))
     overrides = {name: value for name, value in (("vmax", args.vmax),
