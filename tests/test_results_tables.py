@@ -672,3 +672,16 @@ def test_the_covered_bounds_curve_table_is_what_its_command_prints(
     assert [label for label, _, _ in points] == ["alone", "0.1 m, 10°", "0.2 m, 15°",
                                                  "0.3 m, 20°", "0.5 m, 30°"]
     assert all(seeds == [0, 1, 2, 3] for _, seeds, _ in points)
+
+
+def test_the_shared_place_work_table_is_what_its_command_prints() -> None:
+    """A shared place's edge work in two trees: the benchmark page holds the table
+    ``place_walks_beside_table.py`` prints from the committed side-by-side runs, line for
+    line, and both trees walked the same walk (every figure but the timings equal)."""
+    folder = FIGURES / "shared-map" / "place-walks" / "edge-cuts"
+    printed = _script("place_walks_beside_table").table(sorted(folder.glob("seed-*.csv")))
+    page = (REPO / "docs" / "benchmarks" / "shared-place.md").read_text(encoding="utf-8")
+    lines = page.splitlines()
+    assert any(lines[i:i + len(printed)] == printed for i in range(len(lines)))
+    assert printed[-1] == "The same walk in both trees: every other figure equal."
+    assert "seeds 0, 1:" in printed[0]

@@ -1,0 +1,74 @@
+"""One place walk in two trees (docs/benchmarks/shared-place.md): ``bench.place_walks
+--baseline COMMIT --csv FILE`` runs, one CSV a seed, each holding the baseline's row and this
+tree's. Prints a markdown table of the edge's ms a device-slot in both trees, paired by seed,
+and the devices' own medians paired device by device over every seed (this tree − the
+baseline, Student's t, :func:`twinslam.reporting.paired_row`); and says which figures other
+than the timings differ between the trees (none, where the change only sped the edge up).
+
+    .venv/bin/python docs/figures/place_walks_beside_table.py SEED_0.csv SEED_1.csv …
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+from pathlib import Path
+
+from twinslam.reporting import paired_row
+
+#: (column, name in the table): the run's figures of the edge's ms a device-slot
+TIMINGS = [
+    ("edge_ms_mean", "the edge's mean ms a device-slot, every device"),
+    ("edge_ms_median", "its median"),
+    ("edge_ms_merged_median", "its median over the slots after each device's merge"),
+]
+#: the figures two trees share when they walked one walk (``bench.place_walks.SAME_WALK``;
+#: the scripts here run without the bench package on their path)
+SAME_WALK = ("merged", "copies_mean", "copies_end", "adopted", "uploads", "lost_share",
+             "tracked_share", "ate_m_mean", "cross_rms_m", "loops", "device_uploads",
+             "device_merge_slot", "device_ate_m")
+
+
+def pair(path: Path) -> tuple[dict[str, str], dict[str, str]]:
+    """The baseline's row and this tree's of one side-by-side run (the first round's)."""
+    with path.open(encoding="utf-8") as fh:
+        rows = [row for row in csv.DictReader(fh) if row["round"] == "1"]
+    trees = {row["tree"]: row for row in rows}
+    if set(trees) != {"baseline", "current"}:
+        raise SystemExit(f"{path}: not a bench.place_walks --baseline table")
+    return trees["baseline"], trees["current"]
+
+
+def table(paths: list[Path]) -> list[str]:
+    """The table, a row a timing and one for the devices' medians, then what differed."""
+    pairs = [pair(p) for p in paths]
+    seeds = [int(base["seed"]) for base, _ in pairs]
+    first = pairs[0][0]
+    lines = [f"{first['sequence']}, {first['devices']} devices each {first['after']} frames "
+             f"after the one before, uplink {first['uplink']}, seeds "
+             f"{', '.join(map(str, seeds))}:", "",
+             "| figure | the baseline (seed by seed) | this tree | difference |",
+             "|---|---|---|---|"]
+    for column, name in TIMINGS:
+        lines.append(paired_row(name, [float(b[column]) for b, _ in pairs],
+                                [float(c[column]) for _, c in pairs]))
+    before = [float(ms) for b, _ in pairs for ms in b["device_edge_ms"].split(";")]
+    after = [float(ms) for _, c in pairs for ms in c["device_edge_ms"].split(";")]
+    lines.append(paired_row("each device's median ms a device-slot, device by device",
+                            before, after))
+    differ = sorted({f for b, c in pairs for f in SAME_WALK if b[f] != c[f]})
+    lines += ["", "The same walk in both trees: every other figure equal." if not differ
+              else "Figures that differ between the trees: " + ", ".join(differ) + "."]
+    return lines
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("runs", type=Path, nargs="+",
+                        help="bench.place_walks --baseline --csv tables, one a seed")
+    args = parser.parse_args()
+    print("\n".join(table(args.runs)))
+
+
+if __name__ == "__main__":
+    main()
