@@ -135,7 +135,7 @@ def restore_into(m: KeyFrameMap, kf: ArchivedKeyFrame) -> list[int]:
     lost = np.flatnonzero(~m.columns.holds(point_ids))
     _, first = np.unique(point_ids[lost], return_index=True)
     gone = lost[np.sort(first)]
-    back = point_ids[gone].tolist()
+    back: list[int] = point_ids[gone].tolist()
     m.readd_points(back, kf.positions[gone], kf.descriptors[gone])
     m.observe_many(kf.id, point_ids.tolist(), kf.measurements[:, :2].tolist(),
                    kf.measurements[:, 2].tolist())
