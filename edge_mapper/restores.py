@@ -112,11 +112,12 @@ class TrialWeights:
     def _row(self, kf: int) -> np.ndarray:
         """How many points archived keyframe ``kf`` shares with each map keyframe."""
         if kf not in self._rows:
-            # the map's points it holds, each once, by a sorted search of the incidence's
-            # sorted points; their columns summed as one sparse product (slicing the columns
-            # out was most of a restore plan's time where copies of a place stand in view)
+            # the map's points it holds, by a sorted search of the incidence's sorted points
+            # (a point named twice marks its column once); their columns summed as one
+            # sparse product (slicing the columns out was most of a restore plan's time
+            # where copies of a place stand in view)
             points = self.counted.points
-            col, held = find_sorted(points, np.unique(self.archived_sets[kf]))
+            col, held = find_sorted(points, np.asarray(self.archived_sets[kf], dtype=np.int64))
             holds = np.zeros(len(points))
             holds[col[held]] = 1.0
             self._rows[kf] = np.asarray(self.counted.matrix @ holds).ravel()

@@ -71,6 +71,12 @@ def test_a_trial_maps_weights_are_the_shared_counts_of_its_keyframes() -> None:
         np.testing.assert_array_equal(weights.of(trial),
                                       shared_counts([every[k] for k in trial]))
     assert weights.of([0, 100])[0, 1] > 0          # the sets overlap where the ids do
+    # a keyframe archived before welding kept its ids apart may name a point twice: the
+    # point is shared once
+    twice = {200: np.concatenate([archived[100], archived[100][:10]])}
+    again = TrialWeights(Incidence.of(list(map_sets), list(map_sets.values())), twice)
+    np.testing.assert_array_equal(again.of([0, 1, 200]),
+                                  shared_counts([map_sets[0], map_sets[1], archived[100]]))
 
 
 def test_a_map_keyframes_score_counts_its_own_points_though_others_share_them() -> None:
