@@ -338,3 +338,22 @@ def test_rows_read_by_an_array_of_ids_are_the_rows_each_id_has() -> None:
                     [41, foreign_tag(3) | 8]):
         with pytest.raises(KeyError):
             columns.rows_of(np.array(missing, dtype=np.int64))
+
+
+def test_ids_past_the_dense_range_are_found_though_the_rows_by_id_reach_past_it(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """An id at or past the dense range has its row in the dict even where the rows by id,
+    grown by doubling, reach past that range: read at once, asked whether held, and refused
+    when not, as id by id."""
+    monkeypatch.setattr("twinslam.slam.back_end.point_columns.DENSE_IDS", 48)
+    columns = PointColumns(capacity=4)
+    rng = np.random.default_rng(2)
+    ids = [3, 40, 47, 48, 60, 70]
+    columns.add_many(ids, rng.normal(size=(6, 3)), np.zeros((6, 32), np.uint8))
+    assert len(columns._row_by_id) > 48          # the case: rows by id reach past the range
+    asked = np.array([60, 3, 48, 70, 40], dtype=np.int64)
+    assert columns.rows_of(asked).tolist() == [columns.row[p] for p in asked.tolist()]
+    assert columns.holds(np.array([48, 49, 60, 2], dtype=np.int64)).tolist() == \
+        [True, False, True, False]
+    with pytest.raises(KeyError):
+        columns.rows_of(np.array([3, 50], dtype=np.int64))

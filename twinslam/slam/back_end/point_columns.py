@@ -100,7 +100,7 @@ class PointColumns:
         by id; anything else (a list, a set) id by id."""
         if isinstance(point_ids, np.ndarray) and point_ids.dtype.kind in "iu":
             ids = point_ids.astype(np.int64, copy=False).ravel()
-            dense = (ids >= 0) & (ids < len(self._row_by_id))
+            dense = (ids >= 0) & (ids < self._dense_bound())
             rows = np.empty(len(ids), dtype=np.int64)
             rows[dense] = self._row_by_id[ids[dense]]
             missing = np.flatnonzero(dense & (rows < 0))
@@ -117,13 +117,18 @@ class PointColumns:
         """Whether each of ``point_ids`` (an integer array) has a row: the map's own ids read
         from the rows by id at once, another device's by the dict."""
         ids = np.asarray(point_ids, dtype=np.int64).ravel()
-        dense = (ids >= 0) & (ids < len(self._row_by_id))
+        dense = (ids >= 0) & (ids < self._dense_bound())
         held = np.zeros(len(ids), dtype=bool)
         held[dense] = self._row_by_id[ids[dense]] >= 0
         if not dense.all():
             held[~dense] = np.fromiter(map(self._beyond.__contains__, ids[~dense].tolist()),
                                        dtype=bool, count=int((~dense).sum()))
         return held
+
+    def _dense_bound(self) -> int:
+        """Ids below it have their row (or -1) in the rows by id; the others are in the dict
+        of another device's ids (the rows by id may have grown past ``DENSE_IDS``)."""
+        return min(len(self._row_by_id), DENSE_IDS)
 
     def ids_and_rows(self) -> tuple[np.ndarray, np.ndarray]:
         """Every point's id and row (int64 arrays, in the order the points came): all the
