@@ -252,6 +252,7 @@ def _beside(args: argparse.Namespace, argv: list[str]) -> None:
     forwarded = _run_options(argv)
 
     def measure(r: int, label: str, root: Path) -> dict[str, str]:
+        print(f"round {r + 1} {label}: the run in {root} …", flush=True)
         with tempfile.TemporaryDirectory() as tmp:
             table = Path(tmp) / "run.csv"
             done = subprocess.run([sys.executable, "-m", "bench.place_walks", *forwarded,
