@@ -66,10 +66,11 @@ def move_keyframes(m: KeyFrameMap, moves: Mapping[int, np.ndarray]) -> None:
         m.keyframes[kf_id].pose = c @ m.keyframes[kf_id].pose
     if not moves or not m.points:
         return
-    points = m.points
-    ids = np.array([p for p in _observed_by(m, moves).tolist() if p in points], dtype=np.int64)
+    observed = _observed_by(m, moves)
+    ids = observed[m.columns.holds(observed)]
     if not len(ids):
         return
+    points = m.points
     reference = np.fromiter((min(points[p].observers) for p in ids.tolist()),
                             dtype=np.int64, count=len(ids))
     m.set_positions(ids, move_with_keyframes(m.positions_of(ids), reference, moves))
