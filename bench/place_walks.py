@@ -39,11 +39,8 @@ tree and round.
 from __future__ import annotations
 
 import argparse
-import csv
 import functools
 import math
-import os
-import subprocess
 import sys
 import tempfile
 import time
@@ -51,7 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.baseline import add_baseline_options, alternately
+from bench.baseline import add_baseline_options, alternately, run_in_tree
 from bench.in_process import (
     DeviceWalk,
     SlotHooks,
@@ -253,15 +250,7 @@ def _beside(args: argparse.Namespace, argv: list[str]) -> None:
 
     def measure(r: int, label: str, root: Path) -> dict[str, str]:
         print(f"round {r + 1} {label}: the run in {root} …", flush=True)
-        with tempfile.TemporaryDirectory() as tmp:
-            table = Path(tmp) / "run.csv"
-            done = subprocess.run([sys.executable, "-m", "bench.place_walks", *forwarded,
-                                   "--csv", str(table)], cwd=root, capture_output=True,
-                                  text=True, env={**os.environ, "PYTHONPATH": str(root)})
-            if done.returncode:
-                raise SystemExit(f"the run failed in {root}:\n{done.stderr[-3000:]}")
-            with table.open(newline="", encoding="utf-8") as fh:
-                row = dict(next(csv.DictReader(fh)), tree=label, round=str(r + 1))
+        row = dict(run_in_tree(root, _DRIVER, *forwarded), tree=label, round=str(r + 1))
         print(f"round {r + 1} {label}: the edge {float(row['edge_ms_mean']):.1f} ms a "
               f"device-slot on the mean, {float(row['edge_ms_median']):.1f} median, "
               f"{float(row['edge_ms_merged_median']):.1f} after the merges (median); "
@@ -283,6 +272,20 @@ def _beside(args: argparse.Namespace, argv: list[str]) -> None:
     if args.csv:
         append_csv_rows(args.csv, (*COLUMNS, "tree", "round"), [*before, *after])
         print(f"appended to {args.csv}")
+
+
+#: one run in a tree (:func:`~bench.baseline.run_in_tree`: the forwarded options, then the
+#: tree): its CSV row as JSON on the last line
+_DRIVER = """
+import csv, json, runpy, sys, tempfile
+from pathlib import Path
+with tempfile.TemporaryDirectory() as tmp:
+    table = Path(tmp) / "run.csv"
+    sys.argv = ["bench.place_walks", *sys.argv[1:-1], "--csv", str(table)]
+    runpy.run_module("bench.place_walks", run_name="__main__")
+    with table.open(newline="", encoding="utf-8") as fh:
+        print(json.dumps(next(csv.DictReader(fh))))
+"""
 
 
 def _run_options(argv: list[str]) -> list[str]:
