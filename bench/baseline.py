@@ -58,6 +58,20 @@ def run_in_tree(root: Path, driver: str, *args: str) -> Any:
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
+def warm_kernels(root: Path) -> None:
+    """The numba kernels of the tree at ``root`` compiled, or loaded from its cache, before
+    anything is timed (``twinslam.cli.precompile``): they are cached beside their sources, so
+    a fresh worktree compiles them on first use — up to a minute on 2 cores, inside the
+    first round's first steps (a place walk's first slots took over a second each). A commit
+    that predates the command is measured as it is, with a note."""
+    done = subprocess.run([sys.executable, "-m", "twinslam.cli.precompile"], cwd=root,
+                          capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": str(root)})
+    if done.returncode:
+        print(f"the kernels of {root} could not be compiled ahead (its first round compiles "
+              f"them): {done.stderr.strip().splitlines()[-1:] or done.returncode}", flush=True)
+
+
 def alternately(baseline: str | None, rounds: int,
                 measure: Callable[[int, str, Path], T]) -> dict[str, list[T]]:
     """``measure(round, label, root)`` on the baseline commit's tree ("baseline") and this one
@@ -66,6 +80,8 @@ def alternately(baseline: str | None, rounds: int,
     runs: dict[str, list[T]] = {"current": []} if baseline is None else {"baseline": [],
                                                                          "current": []}
     with baseline_tree(baseline) if baseline else nullcontext(REPO) as base:
+        for label in runs:
+            warm_kernels(base if label == "baseline" else REPO)
         for r in range(rounds):
             for label, results in runs.items():
                 results.append(measure(r, label, base if label == "baseline" else REPO))
