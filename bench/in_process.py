@@ -119,12 +119,15 @@ def serve_slot(device: DeviceTrackerCore, edge: EdgeMapperCore, rate_mbps: float
 
 
 def run_as_the_edge_node() -> None:
-    """Set this process up as the edge node sets up its own
-    (:func:`~twinslam.node_runtime.node_main.run_node`): OpenCV and the math libraries on
-    one thread, and what survived a full garbage collection kept out of the next ones
-    (:mod:`~twinslam.node_runtime.long_lived_objects`). Without the last, an in-process run
-    of eight devices on the corridor paid 18 full collections of ~0.22 s each (4.0 s of
-    373, ``gc.callbacks``): stalls of the slots they fell in that the node does not have."""
+    """Set this process up as the edge node sets up its own where that bears on the map's
+    work (:func:`~twinslam.node_runtime.node_main.run_node`): the math libraries on one
+    thread, and what survived a full garbage collection kept out of the next ones
+    (:mod:`~twinslam.node_runtime.long_lived_objects`); OpenCV on one thread too, the
+    devices' front ends sharing the process. The node's allocator setting, for camera frames
+    arriving over DDS, is left out: no frame crosses DDS here. Without the collection
+    setting, an in-process run of eight devices on the corridor paid 18 full collections of
+    ~0.22 s each (4.0 s of 373, ``gc.callbacks``): stalls of the slots they fell in that the
+    node does not have."""
     cv2.setNumThreads(1)
     one_math_thread()
     keep_survivors_out()

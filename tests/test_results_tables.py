@@ -685,3 +685,6 @@ def test_the_shared_place_work_table_is_what_its_command_prints() -> None:
     assert any(lines[i:i + len(printed)] == printed for i in range(len(lines)))
     assert printed[-1] == "The same walk in both trees: every other figure equal."
     assert "seeds 0, 1:" in printed[0]
+    # the script's figures of one walk are the bench's (it runs without bench on its path)
+    from bench.place_walks import SAME_WALK
+    assert _script("place_walks_beside_table").SAME_WALK == SAME_WALK
