@@ -184,8 +184,11 @@ def next_slot_uncertainty(map_weights: np.ndarray, cand_weights: np.ndarray,
     """υ_k of eq. (8) for the map G^e_{k+1} and the frames F_{k+1}, never letting inf leak;
     a frame ``trackable`` marks False counts as lost (:func:`slot_uncertainty_from_scores`).
 
-    One kernel call (factorise + score every frame)."""
-    w = np.asarray(map_weights, dtype=np.float64)
+    One kernel call (factorise + score every frame). The map's weights go to it contiguous:
+    the planner passes the map's corner of a larger matrix (strided) and a map of its own
+    may be whole (contiguous); numba compiles an overload a memory layout, the second one
+    in the middle of a slot."""
+    w = np.ascontiguousarray(map_weights, dtype=np.float64)
     b = np.ascontiguousarray(np.atleast_2d(cand_weights), dtype=np.float64)
     n = w.shape[0]
     if b.shape[0] == 0:
