@@ -357,3 +357,36 @@ def test_ids_past_the_dense_range_are_found_though_the_rows_by_id_reach_past_it(
         [True, False, True, False]
     with pytest.raises(KeyError):
         columns.rows_of(np.array([3, 50], dtype=np.int64))
+
+
+def test_another_devices_ids_keep_their_rows_through_leaving_and_coming_back() -> None:
+    """Another device's points (tagged ids, kept sorted apart from the rows by id) come, leave
+    one by one — past the point where the struck-out entries are dropped — and some come
+    back under the same ids: every question about them is answered as the dict of rows
+    answers it, at every step."""
+    columns = PointColumns(capacity=4)
+    rng = np.random.default_rng(7)
+    tags = [foreign_tag(2), foreign_tag(5)]
+    pool = [tag | p for tag in tags for p in range(1, 120)]
+    held: list[int] = []
+    for step in range(40):
+        out = [p for p in pool if p not in columns.row]
+        come = [int(p) for p in rng.choice(out, size=min(len(out), int(rng.integers(1, 25))),
+                                           replace=False)]
+        columns.add_many(come, rng.normal(size=(len(come), 3)),
+                         np.zeros((len(come), 32), np.uint8))
+        held += come
+        for gone in rng.permutation(held)[:int(rng.integers(0, len(held)))].tolist():
+            columns.remove(gone)
+            held.remove(gone)
+        assert len(held) == len(columns.row)
+        asked = np.array(pool, dtype=np.int64)
+        assert columns.holds(asked).tolist() == [p in columns.row for p in pool]
+        if held:
+            assert columns.rows_of(np.array(held, dtype=np.int64)).tolist() == \
+                [columns.row[p] for p in held]
+        assert columns.by_id()[0].tolist() == sorted(columns.row), step
+        missing = [p for p in pool if p not in columns.row][:1]
+        if missing:
+            with pytest.raises(KeyError):
+                columns.rows_of(np.array([*held[:2], *missing], dtype=np.int64))

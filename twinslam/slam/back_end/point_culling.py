@@ -90,12 +90,9 @@ def count_and_cull(keyframe_map: KeyFrameMap, found: Collection[int],
     rows = columns.rows_of(seen)
     columns.visible[rows] += 1
     columns.found[rows] += 1
-    others = sorted(set(in_view) - seen)
-    where = np.fromiter(map(columns.row.get, others, repeat(-1)), dtype=np.int64,
-                        count=len(others))
-    kept = where >= 0                         # a point that already left is not counted
-    held = np.asarray(others, dtype=np.int64)[kept]
-    rows = where[kept]
+    others = np.array(sorted(set(in_view) - seen), dtype=np.int64)
+    held = others[columns.holds(others)]      # a point that already left is not counted
+    rows = columns.rows_of(held)
     columns.visible[rows] += 1
     visible, found_in = columns.visible[rows], columns.found[rows]
     gone = (visible >= config.min_visible) & (found_in < config.min_found_ratio * visible)
