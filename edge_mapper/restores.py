@@ -109,6 +109,18 @@ class TrialWeights:
                 w[i, j] = w[j, i] = both
         return w
 
+    def touches(self, kf: int, keyframes: Sequence[int]) -> bool:
+        """Whether archived keyframe ``kf`` shares a point with any other of ``keyframes``
+        (map keyframes and archived ones). One that shares none leaves a map of them in two
+        parts whatever else it holds: most keyframes a shared place's restores try are
+        another device's, in view but not yet tied to any the map holds, and each was scored
+        as a whole map's weights and uncertainty."""
+        mapped = [self.map_index[k] for k in keyframes if k in self.map_index]
+        if mapped and self._row(kf)[mapped].any():
+            return True
+        return any(np.intersect1d(self.archived_sets[kf], self.archived_sets[k]).size
+                   for k in keyframes if k != kf and k not in self.map_index)
+
     def _row(self, kf: int) -> np.ndarray:
         """How many points archived keyframe ``kf`` shares with each map keyframe."""
         if kf not in self._rows:
@@ -140,7 +152,10 @@ def plan_restores(m: KeyFrameMap, archive: KeyFrameArchive, poses: Sequence[np.n
     weights = TrialWeights(counted, {k: archive.get(k).point_ids for _, k in candidates})
 
     def connected(keyframes: list[int]) -> bool:
-        # connected exactly when u(G) is finite: the check the map's uncertainty makes
+        # connected exactly when u(G) is finite: the check the map's uncertainty makes; a
+        # candidate (the trial's last) that shares no point with the rest cannot be
+        if len(keyframes) > 1 and not weights.touches(keyframes[-1], keyframes[:-1]):
+            return False
         return math.isfinite(map_uncertainty(weights.of(keyframes)))
 
     scores = map_view_scores(m, counted, poses, camera)

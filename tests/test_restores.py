@@ -79,6 +79,27 @@ def test_a_trial_maps_weights_are_the_shared_counts_of_its_keyframes() -> None:
                                   shared_counts([map_sets[0], map_sets[1], archived[100]]))
 
 
+def test_a_keyframe_touches_a_trial_map_where_its_weights_row_is_not_all_zero() -> None:
+    """An archived keyframe is told to touch the rest of a trial map exactly where its row of
+    that map's weights is not all zero: through a map keyframe or through another archived
+    one, and not at all where it shares no point (the restores skip those without scoring
+    the map)."""
+    rng = np.random.default_rng(4)
+    map_sets = {k: rng.choice(300, 40, replace=False).astype(np.int64) for k in range(6)}
+    archived = {100: np.arange(280, 330, dtype=np.int64),        # shares with the map
+                101: np.arange(1000, 1040, dtype=np.int64),      # with 102 alone
+                102: np.arange(1030, 1090, dtype=np.int64),
+                103: np.arange(5000, 5020, dtype=np.int64)}      # with nothing
+    weights = TrialWeights(Incidence.of(list(map_sets), list(map_sets.values())), archived)
+    told = []
+    for trial in ([0, 1, 2, 100], [0, 1, 101], [0, 102, 101], [3, 4, 100, 103],
+                  [100, 103], [102, 101], [5, 103]):
+        touches = weights.touches(trial[-1], trial[:-1])
+        assert touches == bool(weights.of(trial)[-1].any()), trial
+        told.append(touches)
+    assert told == [True, False, True, False, False, True, False]
+
+
 def test_a_map_keyframes_score_counts_its_own_points_though_others_share_them() -> None:
     """Map keyframes that share points (each point tested once a pose) score what each alone
     would: its own points the best predicted pose sees, shared ones counted for each."""

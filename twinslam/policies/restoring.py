@@ -64,9 +64,10 @@ def choose_restores(candidates: Sequence[tuple[float, int]], map_scores: Mapping
     :data:`MIN_VIEW_POINTS`, best first; ``map_scores`` each map keyframe's view score (its
     keys are the map); ``room`` the keyframes the map may still add under V_max; ``limit``
     the most to restore; ``protected`` keyframes are never replaced (this slot's uploads);
-    ``connected(keyframes)`` whether a map of those keyframes is one covisibility graph. The
-    edge calls it with points seen from predicted poses (:mod:`edge_mapper.restores`), the
-    simulator with covisibility weights (:func:`with_restores`): one rule decides for both."""
+    ``connected(keyframes)`` whether a map of those keyframes is one covisibility graph (the
+    keyframe it would restore comes last among them). The edge calls it with points seen
+    from predicted poses (:mod:`edge_mapper.restores`), the simulator with covisibility
+    weights (:func:`with_restores`): one rule decides for both."""
     scores = dict(map_scores)
     current = list(scores)
     keep = set(protected)
