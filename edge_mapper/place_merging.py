@@ -24,7 +24,9 @@ another mapped first, its walk, drifted since the merge, bends towards that devi
 keyframes.
 
 The devices in one frame are a place: its first device in the edge's order (the root) and
-the devices that joined it; the place's frame is its root's first camera's. Each root looks,
+the devices that joined it; the place's frame is its root's first camera's, and its
+archives recognise places under its root's vocabulary, learned once a place, not once a
+device (:meth:`~twinslam.slam.back_end.place_words.PlaceWords.share`). Each root looks,
 in turn, in the maps of the devices of every other place; where it finds its keyframes, the
 two places become one in the earlier root's frame — the later place's devices, all of them,
 moved by the merge's motion (or its inverse, when the later place's map was the one looked
@@ -208,6 +210,7 @@ class PlaceMerging:
             elif root in cores and root not in self.joined:
                 del self._recorded[device]
                 self.joined[device] = root
+                cores[device].archive.words.share(cores[root].archive.words)
                 self._queries.pop(device, None)
                 placed.append(device)
         return placed
@@ -364,6 +367,8 @@ class PlaceMerging:
         for m in movers:
             cores[m].align(motion.alignment)
             self.joined[m] = stay
+            # the place's devices recognise places under one vocabulary (its root's)
+            cores[m].archive.words.share(cores[stay].archive.words)
             self._queries.pop(m, None)
             self._moved[m] = MergeEvent(m, stay, motion, ms, "" if m == met else met)
             if device not in movers:

@@ -241,6 +241,9 @@ def test_the_edge_merges_a_later_device_into_an_earlier_ones_frame(room: Room) -
                                events[3].merge.alignment @ _second_pose(room, 124))
     assert merging.others("ar2") == [] and merging.others("ar1") == []
     assert len(merging.look_ms) == 3 and not merging.failures()
+    # the place's devices recognise places under one vocabulary: the root's
+    assert cores["ar2"].archive.words.source() is cores["ar1"].archive.words
+    assert cores["ar1"].archive.words.source() is cores["ar1"].archive.words
     # from then on each map adopts the other's own keyframes, each once, tagged by lender
     assert merging.before_slot_end("ar2", 4) == (None, len(archive) + 1, [])
     assert merging.before_slot_end("ar2", 5) == (None, 0, [])
@@ -402,6 +405,7 @@ def test_an_edge_restarted_from_its_checkpoints_serves_each_device_in_the_place_
     restarted["ar1"] = _core(checkpoint=tmp_path / "edge.ar1.npz")
     assert again.serve("ar1") == "ar2 back in its place"
     assert again.joined == {"ar2": "ar1"}
+    assert restarted["ar2"].archive.words.source() is restarted["ar1"].archive.words
     assert again.others("ar1") == [] and again.others("ar2") == []
     assert again.before_slot_end("ar1", 5) == (None, 0, [])       # ar2 lends first now
     assert again.before_slot_end("ar2", 5) == (None, 0, [])

@@ -85,6 +85,30 @@ def test_the_vocabulary_is_learned_again_once_the_archive_outgrew_it() -> None:
     assert words.vocabulary is not None and words.vocabulary.serial == 1
 
 
+def test_archives_of_one_place_learn_one_vocabulary_and_search_under_it() -> None:
+    """A device's archive that shares its place's words learns none of its own: the first
+    of the place's archives that needs a vocabulary learns it for all of them, each files its
+    keyframes' words under it, and sharing back with a sharer changes nothing."""
+    rng = np.random.default_rng(1)
+    descriptors = rng.integers(0, 256, (600, 32), dtype=np.uint8)
+    root, joined, third = (PlaceWords(exact_below=100) for _ in range(3))
+    joined.share(root)
+    third.share(joined)                          # through a device that joined the place
+    assert third.source() is root and joined.source() is root
+    joined.index(descriptors[:400], [7], [descriptors[:400]], np.arange(400))
+    assert root.learned == 1 and joined.learned == 0 and joined.vocabulary is None
+    learned = root.vocabulary
+    third.index(descriptors, [3], [descriptors], np.arange(600))
+    assert root.learned == 1 and root.vocabulary is learned and third.learned == 0
+    root.share(third)                            # root shares with itself: nothing
+    assert root.source() is root
+    # a keyframe's words are those of the vocabulary the index is filed under
+    alone = PlaceWords(exact_below=100)
+    alone.index(descriptors[:400], [7], [descriptors[:400]], np.arange(400))
+    assert alone.vocabulary is not learned
+    assert joined._words[7][2] is learned and alone._words[7][2] is alone.vocabulary
+
+
 def test_the_vocabulary_grows_with_the_archive_within_its_bounds() -> None:
     assert words_for(1_000) == FEWEST_WORDS
     assert words_for(100_000) == MOST_WORDS

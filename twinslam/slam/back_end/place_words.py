@@ -20,6 +20,11 @@ thread that searches: the loop closer's or the merge looks' worker) and learned 
 archive has grown EIGHTFOLD since; each archived keyframe's words are computed once and kept
 with the vocabulary (an archive view built for every loop job files its points without
 searching the vocabulary again).
+
+The devices of one place search under one vocabulary (:meth:`PlaceWords.share`): their maps
+hold the same corners, and ORB-SLAM's Atlas searches all its maps under one vocabulary. Each
+device's archive learned its own before, ~0.6 s of k-means on the thread that searches, once
+for every device of a place.
 """
 
 from __future__ import annotations
@@ -124,12 +129,32 @@ class PlaceWords:
         self.exact_below = exact_below
         self.vocabulary: PlaceVocabulary | None = None
         self.learned = 0                     #: vocabularies learned (the first and again)
+        #: the words whose vocabulary this archive searches under instead of its own
+        #: (:meth:`share`; None: its own)
+        self._shared: PlaceWords | None = None
         self._learning = threading.Lock()
         self._cache = threading.Lock()
-        #: keyframe id → (its descriptors, its points' words, the vocabulary's serial): a
-        #: keyframe moved by a loop keeps its descriptors, and so its words; the map's
+        #: keyframe id → (its descriptors, its points' words, the vocabulary they are words
+        #: of): a keyframe moved by a loop keeps its descriptors, and so its words; the map's
         #: keyframes a loop job snapshots anew each slot mostly keep theirs too
-        self._words: dict[int, tuple[np.ndarray, np.ndarray, int]] = {}
+        self._words: dict[int, tuple[np.ndarray, np.ndarray, PlaceVocabulary]] = {}
+
+    def share(self, other: PlaceWords) -> None:
+        """Search under ``other``'s vocabulary from now on, not one of this archive's own —
+        learned by whichever archive sharing it first needs one, learned again when one of
+        them has outgrown it: a device whose map joined another device's place. Words that
+        ``other`` shares already (this one among them) change nothing."""
+        source = other.source()
+        if source is not self:
+            self._shared = source
+
+    def source(self) -> PlaceWords:
+        """The words whose vocabulary this archive searches under: its own, or those it
+        shares (:meth:`share`)."""
+        words = self
+        while words._shared is not None:
+            words = words._shared
+        return words
 
     def index(self, descriptors: np.ndarray, keyframe_ids: Sequence[int],
               keyframe_descriptors: Sequence[np.ndarray], rows: np.ndarray) -> object:
@@ -156,6 +181,9 @@ class PlaceWords:
         ``descriptors()``, the points' descriptors by ascending point id — where there is none
         yet or the archive outgrew it; while another thread learns it, the one there is (or
         None)."""
+        source = self.source()
+        if source is not self:
+            return source.vocabulary_for(points, descriptors)
         current = self.vocabulary
         if current is not None and points < EIGHTFOLD * current.learned_from:
             return current
@@ -175,12 +203,12 @@ class PlaceWords:
     def _words_of(self, kf_id: int, descriptors: np.ndarray, vocabulary: PlaceVocabulary
                   ) -> np.ndarray:
         cached = self._words.get(kf_id)
-        if cached is not None and cached[2] == vocabulary.serial and (
+        if cached is not None and cached[2] is vocabulary and (
                 cached[0] is descriptors or np.array_equal(cached[0], descriptors)):
             return cached[1]
         words = vocabulary.assign(descriptors)
         with self._cache:
-            self._words[kf_id] = (descriptors, words, vocabulary.serial)
+            self._words[kf_id] = (descriptors, words, vocabulary)
         return words
 
     def _forget_all_but(self, kept: set[int]) -> None:
