@@ -359,15 +359,15 @@ def test_ids_past_the_dense_range_are_found_though_the_rows_by_id_reach_past_it(
         columns.rows_of(np.array([3, 50], dtype=np.int64))
 
 
-def test_another_devices_ids_keep_their_rows_through_leaving_and_coming_back() -> None:
-    """Another device's points (tagged ids, kept sorted apart from the rows by id) come, leave
-    one by one — past the point where the struck-out entries are dropped — and some come
-    back under the same ids: every question about them is answered as the dict of rows
-    answers it, at every step."""
+def test_points_keep_their_rows_and_order_through_leaving_and_coming_back() -> None:
+    """The map's own points and another device's (tagged ids, kept sorted apart from the rows
+    by id) come, leave one by one — past the points where the entries of those that left are
+    dropped — and some come back under the same ids: every question about them is answered
+    as the dict of rows answers it, at every step, every point listed in the order it came."""
     columns = PointColumns(capacity=4)
     rng = np.random.default_rng(7)
     tags = [foreign_tag(2), foreign_tag(5)]
-    pool = [tag | p for tag in tags for p in range(1, 120)]
+    pool = [*range(1, 60), *(tag | p for tag in tags for p in range(1, 120))]
     held: list[int] = []
     for step in range(40):
         out = [p for p in pool if p not in columns.row]
@@ -386,6 +386,8 @@ def test_another_devices_ids_keep_their_rows_through_leaving_and_coming_back() -
             assert columns.rows_of(np.array(held, dtype=np.int64)).tolist() == \
                 [columns.row[p] for p in held]
         assert columns.by_id()[0].tolist() == sorted(columns.row), step
+        ids, rows = columns.ids_and_rows()
+        assert ids.tolist() == list(columns.row) and rows.tolist() == list(columns.row.values())
         missing = [p for p in pool if p not in columns.row][:1]
         if missing:
             with pytest.raises(KeyError):

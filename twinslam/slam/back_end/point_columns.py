@@ -53,6 +53,12 @@ class PointColumns:
         self._beyond = SortedRows()            #: the other ids' rows (another device's)
         self._free: list[int] = []             #: rows points left, taken first
         self._used = 0                         #: rows ever handed out
+        #: every point added, in the order they came (id, row), those that left among them:
+        #: entry i is held while its row's entry is i (:meth:`ids_and_rows`)
+        self._came_ids = np.zeros(max(1, capacity), dtype=np.int64)
+        self._came_rows = np.zeros(max(1, capacity), dtype=np.int64)
+        self._came = 0                         #: entries written
+        self._entry_of_row = np.full(max(1, capacity), -1, dtype=np.int64)
 
     def __len__(self) -> int:
         return len(self.row)
@@ -78,6 +84,7 @@ class PointColumns:
         self.visible[at] = self.found[at] = 1
         self.row.update(zip(point_ids, rows, strict=True))
         ids = np.asarray(point_ids, dtype=np.int64)
+        self._note_came(ids, at)
         dense = (ids >= 0) & (ids < DENSE_IDS)
         if not dense.all():
             self._beyond.add(ids[~dense], at[~dense])
@@ -92,6 +99,7 @@ class PointColumns:
         """Free the row of a point that left the map; returns the row it had."""
         r = self.row.pop(point_id)
         self._free.append(r)
+        self._entry_of_row[r] = -1
         if 0 <= point_id < len(self._row_by_id):
             self._row_by_id[point_id] = -1
         if not 0 <= point_id < DENSE_IDS:
@@ -137,11 +145,32 @@ class PointColumns:
         return min(len(self._row_by_id), DENSE_IDS)
 
     def ids_and_rows(self) -> tuple[np.ndarray, np.ndarray]:
-        """Every point's id and row (int64 arrays, in the order the points came): all the
-        map's points read at C speed, not a lookup a point."""
-        n = len(self.row)
-        return (np.fromiter(self.row.keys(), dtype=np.int64, count=n),
-                np.fromiter(self.row.values(), dtype=np.int64, count=n))
+        """Every point's id and row (int64 arrays, in the order the points came, as the dict
+        of rows lists them): read off the entries of the points that came, those still held,
+        not out of the dict (a map of a shared place holds tens of thousands of points, and
+        a restored keyframe's fusion reads them all)."""
+        n = self._came
+        held = self._entry_of_row[self._came_rows[:n]] == np.arange(n)
+        return self._came_ids[:n][held], self._came_rows[:n][held]
+
+    def _note_came(self, ids: np.ndarray, rows: np.ndarray) -> None:
+        """New points' ids and rows entered after those that came before; the entries of
+        points that left dropped once they are half of them."""
+        if self._came + len(ids) > len(self._came_ids):
+            if 2 * len(self.row) <= self._came:           # half of them left: drop those
+                old_ids, old_rows = self.ids_and_rows()
+                self._came = len(old_ids)
+                self._came_ids[:self._came], self._came_rows[:self._came] = old_ids, old_rows
+                self._entry_of_row[old_rows] = np.arange(self._came)
+            size = len(self._came_ids)
+            while self._came + len(ids) > size:
+                size *= 2
+            self._came_ids = np.resize(self._came_ids, size)
+            self._came_rows = np.resize(self._came_rows, size)
+        entries = np.arange(self._came, self._came + len(ids))
+        self._came_ids[entries], self._came_rows[entries] = ids, rows
+        self._entry_of_row[rows] = entries
+        self._came += len(ids)
 
     def by_id(self) -> tuple[np.ndarray, np.ndarray]:
         """Every point's id, ascending, and its row (int64 arrays): the order the checkpoint
@@ -168,6 +197,8 @@ class PointColumns:
 
     def _grow(self) -> None:
         n = len(self.positions)
+        self._entry_of_row = np.concatenate([self._entry_of_row,
+                                             np.full(n, -1, dtype=np.int64)])
         self.positions = np.concatenate([self.positions, np.zeros_like(self.positions)])
         self.descriptors = np.concatenate([self.descriptors, np.zeros_like(self.descriptors)])
         self.observed = np.concatenate([self.observed, np.zeros_like(self.observed)])
