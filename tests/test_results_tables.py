@@ -674,11 +674,38 @@ def test_the_covered_bounds_curve_table_is_what_its_command_prints(
     assert all(seeds == [0, 1, 2, 3] for _, seeds, _ in points)
 
 
-def test_the_shared_place_work_table_is_what_its_command_prints() -> None:
+def test_a_side_by_side_run_that_walked_another_walk_shows_the_walks_figures(
+        tmp_path: Path) -> None:
+    """Where the two trees walked different walks (a change that alters what the edge
+    decides), the beside-table names the figures that differ and shows the walk's own figures
+    side by side, in the units the pages use: the timings alone would hide a worse map."""
+    source = FIGURES / "shared-map" / "place-walks" / "sorted-copy-rows" / "seed-0.csv"
+    with source.open(encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    for row in rows:
+        if row["tree"] == "current":
+            row["loops"] = str(int(row["loops"]) + 2)
+            row["cross_rms_m"] = str(float(row["cross_rms_m"]) + 0.01)
+    changed = tmp_path / "seed-0.csv"
+    with changed.open("w", encoding="utf-8", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    printed = _script("place_walks_beside_table").table([changed])
+    assert "Figures that differ between the trees: cross_rms_m, loops." in printed
+    loops = next(line for line in printed if line.startswith("| loops closed |"))
+    base = next(r for r in rows if r["tree"] == "baseline")
+    assert f"| {int(base['loops'])} | {int(base['loops']) + 2} | +2.00" in loops
+    cross = next(line for line in printed if line.startswith("| cross-device revisit"))
+    assert f"{100 * float(base['cross_rms_m']):.2f}" in cross and "+1.00" in cross
+
+
+@pytest.mark.parametrize("runs", ["edge-cuts", "sorted-copy-rows", "point-order-and-place-words"])
+def test_the_shared_place_work_table_is_what_its_command_prints(runs: str) -> None:
     """A shared place's edge work in two trees: the benchmark page holds the table
     ``place_walks_beside_table.py`` prints from the committed side-by-side runs, line for
     line, and both trees walked the same walk (every figure but the timings equal)."""
-    folder = FIGURES / "shared-map" / "place-walks" / "edge-cuts"
+    folder = FIGURES / "shared-map" / "place-walks" / runs
     printed = _script("place_walks_beside_table").table(sorted(folder.glob("seed-*.csv")))
     page = (REPO / "docs" / "benchmarks" / "shared-place.md").read_text(encoding="utf-8")
     lines = page.splitlines()

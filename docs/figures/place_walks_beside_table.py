@@ -3,7 +3,9 @@
 tree's. Prints a markdown table of the edge's ms a device-slot in both trees, paired by seed,
 and the devices' own medians paired device by device over every seed (this tree − the
 baseline, Student's t, :func:`twinslam.reporting.paired_row`); and says which figures other
-than the timings differ between the trees (none, where the change only sped the edge up).
+than the timings differ between the trees (none, where the change only sped the edge up) —
+where some do, the walk's own figures side by side (cross-device error, ATE, loops, uploads,
+lost share, copies; each device's ATE device by device).
 
     .venv/bin/python docs/figures/place_walks_beside_table.py SEED_0.csv SEED_1.csv …
 """
@@ -21,6 +23,16 @@ TIMINGS = [
     ("edge_ms_mean", "the edge's mean ms a device-slot, every device"),
     ("edge_ms_median", "its median"),
     ("edge_ms_merged_median", "its median over the slots after each device's merge"),
+]
+#: (column, name in the table, scale, format): the walk's own figures, shown side by side where the
+#: two trees walked different walks (a change that alters what the edge decides)
+WALK = [
+    ("cross_rms_m", "cross-device revisit error, cm", 100.0, "{:.2f}"),
+    ("ate_m_mean", "ATE, cm (the devices' mean)", 100.0, "{:.2f}"),
+    ("loops", "loops closed", 1.0, "{:.0f}"),
+    ("uploads", "keyframes uploaded", 1.0, "{:.0f}"),
+    ("lost_share", "the edge's lost share, %", 100.0, "{:.1f}"),
+    ("copies_mean", "copies a map holds (mean over its slots)", 1.0, "{:.1f}"),
 ]
 #: the figures two trees share when they walked one walk (``bench.place_walks.SAME_WALK``;
 #: the scripts here run without the bench package on their path)
@@ -57,8 +69,18 @@ def table(paths: list[Path]) -> list[str]:
     lines.append(paired_row("each device's median ms a device-slot, device by device",
                             before, after))
     differ = sorted({f for b, c in pairs for f in SAME_WALK if b[f] != c[f]})
-    lines += ["", "The same walk in both trees: every other figure equal." if not differ
-              else "Figures that differ between the trees: " + ", ".join(differ) + "."]
+    if not differ:
+        return [*lines, "", "The same walk in both trees: every other figure equal."]
+    lines += ["", "Figures that differ between the trees: " + ", ".join(differ) + ".", "",
+              "| the walk | the baseline (seed by seed) | this tree | difference |",
+              "|---|---|---|---|"]
+    for column, name, scale, fmt in WALK:
+        lines.append(paired_row(name, [scale * float(b[column]) for b, _ in pairs],
+                                [scale * float(c[column]) for _, c in pairs], fmt))
+    lines.append(paired_row(
+        "each device's ATE, cm, device by device",
+        [100 * float(m) for b, _ in pairs for m in b["device_ate_m"].split(";")],
+        [100 * float(m) for _, c in pairs for m in c["device_ate_m"].split(";")], "{:.2f}"))
     return lines
 
 
