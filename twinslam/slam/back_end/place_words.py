@@ -24,7 +24,7 @@ searching the vocabulary again).
 The devices of one place search under one vocabulary (:meth:`PlaceWords.share`): their maps
 hold the same corners, and ORB-SLAM's Atlas searches all its maps under one vocabulary. Each
 device's archive learned its own before, ~0.6 s of k-means on the thread that searches, once
-for every device of a place.
+for every device of a place whose searches outgrew exact search.
 """
 
 from __future__ import annotations
