@@ -92,6 +92,7 @@ class TrialWeights:
         self.counted = counted
         self.map_weights = counted.weights
         self._rows: dict[int, np.ndarray] = {}
+        self._pairs: dict[tuple[int, int], int] = {}
 
     def of(self, keyframes: Sequence[int]) -> np.ndarray:
         """The weights of the map of ``keyframes`` (map keyframes and archived ones), in their
@@ -104,9 +105,7 @@ class TrialWeights:
             row = self._row(keyframes[i])[at[mapped]]
             w[i, mapped] = w[mapped, i] = row
             for j in added[:n].tolist():
-                both = np.intersect1d(self.archived_sets[keyframes[i]],
-                                      self.archived_sets[keyframes[j]]).size
-                w[i, j] = w[j, i] = both
+                w[i, j] = w[j, i] = self._both(keyframes[i], keyframes[j])
         return w
 
     def touches(self, kf: int, keyframes: Sequence[int]) -> bool:
@@ -118,8 +117,16 @@ class TrialWeights:
         mapped = [self.map_index[k] for k in keyframes if k in self.map_index]
         if mapped and self._row(kf)[mapped].any():
             return True
-        return any(np.intersect1d(self.archived_sets[kf], self.archived_sets[k]).size
-                   for k in keyframes if k != kf and k not in self.map_index)
+        return any(self._both(kf, k) for k in keyframes if k != kf and k not in self.map_index)
+
+    def _both(self, a: int, b: int) -> int:
+        """How many points archived keyframes ``a`` and ``b`` share, counted once a pair: a
+        trial's touch and its weights ask for the same pairs, and so do the trials after it."""
+        pair = (a, b) if a < b else (b, a)
+        if pair not in self._pairs:
+            self._pairs[pair] = int(np.intersect1d(self.archived_sets[a],
+                                                   self.archived_sets[b]).size)
+        return self._pairs[pair]
 
     def _row(self, kf: int) -> np.ndarray:
         """How many points archived keyframe ``kf`` shares with each map keyframe."""

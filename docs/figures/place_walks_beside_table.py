@@ -24,8 +24,8 @@ TIMINGS = [
     ("edge_ms_median", "its median"),
     ("edge_ms_merged_median", "its median over the slots after each device's merge"),
 ]
-#: (column, name in the table, scale, format): the walk's own figures, shown side by side where the
-#: two trees walked different walks (a change that alters what the edge decides)
+#: (column, name in the table, scale, format): the walk's own figures, shown side by side
+#: where the two trees walked different walks (a change that alters what the edge decides)
 WALK = [
     ("cross_rms_m", "cross-device revisit error, cm", 100.0, "{:.2f}"),
     ("ate_m_mean", "ATE, cm (the devices' mean)", 100.0, "{:.2f}"),
