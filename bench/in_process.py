@@ -11,7 +11,7 @@ import argparse
 import dataclasses
 import math
 import time
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -36,6 +36,7 @@ from twinslam.sequences.opening import AUTO, open_sequence
 from twinslam.slam.back_end.loop_closing import LoopQuery
 from twinslam.slam.back_end.loop_detection import MIN_INLIERS as LOOP_MIN_INLIERS
 from twinslam.slam.back_end.map_merging import MERGE_MIN_INLIERS
+from twinslam.slam.back_end.place_words import PlaceWords
 from twinslam.slam.keyframe import KeyFramePayload
 from twinslam.slam.map_update import MapSnapshot
 from twinslam.slot_protocol import default_device
@@ -290,6 +291,21 @@ def add_place_options(parser: argparse.ArgumentParser) -> None:
                              "not uploaded (default: the edge's covered_m; 0: never)")
     parser.add_argument("--covered-deg", type=float, metavar="D",
                         help="and turned by at most this (default: the edge's covered_deg)")
+    parser.add_argument("--vocabulary-per-device", action="store_true",
+                        help="each device's archive learns visual words of its own "
+                             "(shared_vocabulary:=false), not one vocabulary for the process's "
+                             "devices")
+
+
+def share_vocabulary(cores: Iterable[EdgeMapperCore], per_device: bool) -> None:
+    """The devices' archives searched under one vocabulary, as the edge node's are
+    (``shared_vocabulary``, :class:`~edge_mapper.device_link.LinkSettings`' ``words``);
+    ``per_device``: each under its own."""
+    if per_device:
+        return
+    words = PlaceWords()
+    for core in cores:
+        core.archive.words.share(words)
 
 
 def check_place_options(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:

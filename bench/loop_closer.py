@@ -4,7 +4,7 @@ the same walk looking for a loop in it, the pose graph over archive and map, and
 corrections applied to a managed map and the archive.
 
     python -m bench.loop_closer [SEQUENCE] [--archive 500] [--queries 20] [--map 45]
-                                [--exact-below 20000]
+                                [--exact-below 20000] [--words-from OTHER_SEQUENCE]
 
 Prints the medians and 95th percentiles of: the archive's snapshot (on the slot's path), place
 recognition with the geometric check — searching the points under the archive's visual words
@@ -15,6 +15,11 @@ path) and the archive's files written again (the worker); then a slot's work on 
 (the map's keyframes archived, as at an eviction) alone and while the worker closes loops back
 to back: the worker's share of the interpreter (the GIL) shows as the slot's work taking
 longer.
+
+``--words-from`` searches the archive under visual words learned from another place's
+archive (as many keyframes of another sequence), as an edge process whose devices share one
+vocabulary does (:meth:`~twinslam.slam.back_end.place_words.PlaceWords.share`): the same
+place and pose as the exact search tells whether the words of one place serve another.
 """
 
 from __future__ import annotations
@@ -78,23 +83,29 @@ def _line(name: str, runs: list[float]) -> str:
     return f"  {name:<44} {median:8.1f} ms median, {p95:8.1f} ms p95 ({len(runs)} runs)"
 
 
-def build(sequence: str, keyframes: int, orb: OrbExtractor, exact_below: int = EXACT_BELOW
-          ) -> tuple[KeyFrameArchive, object]:
+def build(sequence: str, keyframes: int, orb: OrbExtractor, exact_below: int = EXACT_BELOW,
+          words_only: bool = False) -> tuple[KeyFrameArchive, object]:
     """An archive of ``keyframes`` keyframes spread over the walk, placed at the true poses,
-    searched exactly below ``exact_below`` points."""
+    searched exactly below ``exact_below`` points; ``words_only``: an archive only its
+    descriptors are read from (to learn its words), a frame without a true pose placed at the
+    origin."""
     reader = open_sequence(sequence)
-    frames = np.linspace(0, len(reader) - 1, keyframes).round().astype(int)
+    # a sequence shorter than the archive gives each of its frames once
+    frames = np.unique(np.linspace(0, len(reader) - 1, keyframes).round().astype(int))
     archive = KeyFrameArchive(keyframes, words=PlaceWords(exact_below))
     first = 1
     for kf in frames.tolist():
         frame = reader.read(kf)                                 # type: ignore[attr-defined]
+        pose = frame.pose if frame.pose is not None or not words_only else np.eye(4)
+        if pose is None:
+            raise SystemExit(f"bench.loop_closer: frame {kf} of {sequence} has no true pose")
         feats = orb.extract(frame.color)
         z = depth_at(feats.points, frame.depth, (0.2, 8.0))
         keep = z > 0
         n = int(keep.sum())
         archive.add(ArchivedKeyFrame(
-            kf, frame.pose.copy(), np.arange(first, first + n),
-            back_project(feats.points[keep], z[keep], reader.intrinsics, frame.pose),
+            kf, pose.copy(), np.arange(first, first + n),
+            back_project(feats.points[keep], z[keep], reader.intrinsics, pose),
             feats.descriptors[keep], np.column_stack([feats.points[keep], z[keep]]), 0))
         first += n
     return archive, reader
@@ -117,6 +128,10 @@ def main() -> None:
     parser.add_argument("--exact-below", type=int, default=EXACT_BELOW,
                         help="points under which the archive is searched exactly, not under "
                         "its visual words (the edge's setting)")
+    parser.add_argument("--words-from", metavar="SEQUENCE", default="",
+                        help="search under the visual words learned from an archive of as "
+                        "many keyframes of this other sequence (another place), not the "
+                        "archive's own")
     args = parser.parse_args()
     print(f"loop closer: {platform.processor() or platform.machine()}, "
           f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; {args.archive} archived "
@@ -129,13 +144,21 @@ def main() -> None:
     for kf in kept:
         exact.add(kf, write=False)
     n_points = len(np.unique(np.concatenate([kf.point_ids for kf in kept])))
+    foreign = _foreign_words(args.words_from, args.archive, orb, args.exact_below) \
+        if args.words_from else None
+    if foreign is not None:
+        archive.words.share(foreign)
     start = time.perf_counter()
     archive.snapshot().recognise(kept[0].descriptors)      # learns the words (once an archive)
+    vocabulary = archive.words.source().vocabulary
     print(f"  {n_points} points; the archive's vocabulary: "
-          f"{'none (searched exactly)' if archive.words.vocabulary is None else ''}"
-          f"{'' if archive.words.vocabulary is None else archive.words.vocabulary.words}"
-          f"{'' if archive.words.vocabulary is None else ' words'}, learned and the points "
-          f"filed in {(time.perf_counter() - start) * 1e3:.0f} ms")
+          f"{'none (searched exactly)' if vocabulary is None else f'{vocabulary.words} words'}"
+          f", {'learned and ' if foreign is None else ''}the points filed in "
+          f"{(time.perf_counter() - start) * 1e3:.0f} ms")
+    if foreign is not None:
+        print(f"  the words learned from {args.words_from}"
+              + (" (this archive outgrew them eightfold: learned again from its own points)"
+                 if foreign.learned > 1 else ""))
     managed = KeyFrameMap()
     managed.next_point_id = 1 + sum(len(kf.point_ids) for kf in kept)
     for kf in kept[-args.map:]:
@@ -145,6 +168,7 @@ def main() -> None:
     times: dict[str, list[float]] = {name: [] for name in (
         "snapshot", "detect", "exact", "graph", "job", "map", "archive", "files")}
     found = found_exact = same = 0
+    inliers: list[tuple[int, int]] = []      #: (under the words, exact) where both found it
     queries: list[LoopQuery] = []            #: each frame's, for the jobs below
     n_frames = len(reader)                                      # type: ignore[arg-type]
     for q, index in enumerate(np.linspace(1, n_frames - 2, args.queries).round().astype(int)):
@@ -161,6 +185,8 @@ def main() -> None:
             beside = detect_loop(exact.snapshot(), query, feats.points, feats.descriptors, k)
         found_exact += beside.found
         same += _same_place(loop, beside)
+        if loop.found and beside.found:
+            inliers.append((loop.inliers, beside.inliers))
         queries.append(LoopQuery(query, feats.points, feats.descriptors))
         job = LoopJob((queries[-1],), snapshot,
                       {**poses, query: drifted}, k, {**points, query: frozenset()})
@@ -184,7 +210,8 @@ def main() -> None:
                 with _timed(times["files"]):
                     on_disk.save(moved)
     print(f"  loops found: {found} of {args.queries} queries; searching every point exactly "
-          f"{found_exact}; the same place and pose (within 1 cm, 0.5°) {same}")
+          f"{found_exact}; the same place and pose (within 1 cm, 0.5°) {same}; PnP inliers "
+          f"{_inliers(inliers)}")
     labels = {"snapshot": "archive snapshot (slot's path)",
               "detect": "place recognition + PnP (worker)",
               "exact": "the same, every point searched exactly",
@@ -204,6 +231,22 @@ def main() -> None:
     print(_line("a job, its place index built for it", built))
     print(_line("a job, the loop closer's index kept", kept_index))
     print(contention(archive, managed, k, reader, orb))
+
+
+def _foreign_words(sequence: str, keyframes: int, orb: OrbExtractor, exact_below: int
+                   ) -> PlaceWords:
+    """The visual words of an archive of ``keyframes`` keyframes of another ``sequence``
+    (another place), learned now; exits with a message where that archive holds too few
+    points to need words."""
+    other, _ = build(sequence, keyframes, orb, exact_below, words_only=True)
+    kept = list(other)
+    other.snapshot().recognise(kept[0].descriptors)        # learns the words (once an archive)
+    if other.words.vocabulary is None:
+        points = len(np.unique(np.concatenate([kf.point_ids for kf in kept])))
+        raise SystemExit(f"bench.loop_closer: {sequence} gave {len(kept)} keyframes of "
+                         f"{points} points, fewer than the {exact_below} that learn words "
+                         "(--exact-below)")
+    return other.words
 
 
 def changing_archive_jobs(kept: list[ArchivedKeyFrame], words: PlaceWords,
@@ -242,6 +285,16 @@ def changing_archive_jobs(kept: list[ArchivedKeyFrame], words: PlaceWords,
         agreed += (fresh.candidate.old, fresh.candidate.inliers) == \
             (kept_.candidate.old, kept_.candidate.inliers)
     return built, with_index, agreed, index
+
+
+def _inliers(pairs: list[tuple[int, int]]) -> str:
+    """The PnP inliers of the places both searches found: the medians under the words and
+    exactly, and the words' share of the exact search's (the points the words' probes miss)."""
+    if not pairs:
+        return "(no place both found)"
+    words, exact = (np.array(side, dtype=float) for side in zip(*pairs, strict=True))
+    return (f"{statistics.median(words):.0f} median under the words against "
+            f"{statistics.median(exact):.0f} exactly ({words.sum() / exact.sum():.1%})")
 
 
 def _same_place(a: LoopCandidate, b: LoopCandidate) -> bool:

@@ -60,6 +60,7 @@ from bench.in_process import (
     run_as_the_edge_node,
     seeded_spec,
     serve_slot,
+    share_vocabulary,
 )
 from edge_mapper.edge_core import EdgeMapperCore
 from edge_mapper.place_merging import PlaceMerging
@@ -199,6 +200,7 @@ def main() -> None:
                                        Path(tmp), device_params=dict(args.device)),
                              k * args.after)
                    for k in range(args.devices)]
+        share_vocabulary((d.walk.edge for d in devices), args.vocabulary_per_device)
         served: dict[str, EdgeMapperCore] = {}
         merging = PlaceMerging(lambda: served, background=False,
                                min_inliers=args.merge_inliers,

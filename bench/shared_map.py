@@ -63,6 +63,7 @@ from bench.in_process import (
     repeatable_edge,
     run_as_the_edge_node,
     seeded_spec,
+    share_vocabulary,
 )
 from bench.paths import SEVEN_SCENES
 from twinslam.cli.console import HelpFormatter
@@ -260,6 +261,7 @@ def main() -> None:
         second = open_walk("second", second_spec, args.frames, args.second, args.seed + 1,
                            args.uplink, config, args.update_delay, Path(tmp),
                            start=args.second_start, device_params=dict(args.device))
+        share_vocabulary((first.edge, second.edge), args.vocabulary_per_device)
         finder = MergeFinder(min_inliers=args.merge_inliers)
         merge: MapMerge | None = None
         merged_version = -1            #: the second edge's first map version in the place's

@@ -65,6 +65,7 @@ from twinslam.rotations import rotation_angle_deg
 from twinslam.slam.back_end.foreign_keyframes import is_foreign, keyframe_label
 from twinslam.slam.back_end.loop_closing import SHARED_WORKER
 from twinslam.slam.back_end.map_back_end import ClosedLoop, archive_folder
+from twinslam.slam.back_end.place_words import PlaceWords
 
 
 @dataclass(frozen=True)
@@ -82,6 +83,9 @@ class LinkSettings:
     #: the process's checkpoint writer, shared by its devices (None: each checkpoint written
     #: on the slot thread, before the slot's map update goes out)
     writer: CheckpointWriter | None = None
+    #: the visual words every device of the process searches its archive under
+    #: (``shared_vocabulary``; None: each archive learns its own)
+    words: PlaceWords | None = None
 
 
 #: the budget's hooks, for an edge serving several devices: (device, slot, frames, d_k, latent,
@@ -135,6 +139,8 @@ class DeviceLink:
                                    settings.n_states)
         self.core.spread_checkpoints(zlib.crc32(device.encode()))
         self.core.writer = settings.writer
+        if settings.words is not None:
+            self.core.archive.words.share(settings.words)
         self.slots = SlotLifecycle(settings.slot_timeout_s)
         #: the frame of this device's map: with several devices each has its own on /tf
         self.map_frame = f"{device}/{settings.map_frame}" if device else settings.map_frame

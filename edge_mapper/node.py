@@ -62,6 +62,7 @@ from twinslam.node_runtime.node_main import NodeStartError, exit_process, run_no
 from twinslam.node_runtime.parameters import declare
 from twinslam.slam.back_end.keyframe_map import MapError
 from twinslam.slam.back_end.loop_closing import SHARED_WORKER
+from twinslam.slam.back_end.place_words import PlaceWords
 
 #: seconds between looks at the graph for new devices, and at the devices' silence
 DISCOVERY_PERIOD_S = 1.0
@@ -78,7 +79,11 @@ class EdgeMapperNode(Node):
         #: (``checkpoint_in_background``), not on the slot thread every device waits for
         self.checkpoints = (CheckpointWriter() if p["checkpoint"] and
                             bool(p["checkpoint_in_background"]) else None)
-        self.settings = dataclasses.replace(link_settings(p), writer=self.checkpoints)
+        #: one vocabulary of visual words for every device's archive (``shared_vocabulary``):
+        #: learned once a process, not once a device
+        self.settings = dataclasses.replace(
+            link_settings(p), writer=self.checkpoints,
+            words=PlaceWords() if bool(p["shared_vocabulary"]) else None)
         devices = device_names(p)
         self.discover = bool(p["discover_devices"])
         self.standby = bool(p["standby"])

@@ -132,6 +132,12 @@ PARAMETERS = (
               "2-core host, a walk and back: 0-15 % late instead of 33-49 % in four paired rounds "
               "of five, the loops closed in the same slots); false: it runs whenever it has "
               "work"),
+    ParamSpec("shared_vocabulary", True, "every device of this edge process searches its "
+              "archive under one vocabulary of visual words, learned by the first archive that "
+              "outgrows exact search and again by one that outgrows it eightfold (ORB-SLAM's "
+              "maps share one DBoW2 vocabulary); false: each device's archive learns its own, "
+              "~0.7 s of k-means on the loop closer's worker once a device (a merged place's "
+              "devices still share their root's)"),
     ParamSpec("reloc_restore_keyframes", 0, "archived keyframes brought back at the end of a "
               "slot around the pose the edge found in its archive for a lost device's frame "
               "(device/relocalisation_request, the device's reloc_period_s), the map keyframes "
