@@ -225,7 +225,9 @@ def test_the_update_loop_of_every_answered_slot_is_measured_stage_by_stage(runs:
         if not record.heard.get("map", {}).get(slot, math.inf) < last_capture - GRACE_S:
             stages = stages[:-1]
         assert all(math.isfinite(v) for v in stages), (slot, stages)
-        assert min(x.summaries_s, x.decision_s, x.uploads_s) > 0, (slot, stages)
+        # the decision may read zero: a monitor that heard the request before the summaries
+        # that caused it counts the summaries as heard with it (update_loop's causal order)
+        assert min(x.summaries_s, x.uploads_s) > 0, (slot, stages)
         assert x.uploads_s >= record.throughput[slot].duration_s - 0.05, slot
 
 

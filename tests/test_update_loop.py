@@ -51,6 +51,18 @@ def test_each_stage_is_the_time_between_what_the_monitor_heard() -> None:
     assert math.isnan(second.to_device_s) and math.isnan(second.total_s)
 
 
+def test_a_message_heard_after_the_one_it_caused_counts_as_heard_with_it() -> None:
+    """On a loaded host the monitor heard an edge's request 0.15 ms before the summaries that
+    caused it: the decision reads zero, never less, and the summaries' stage ends with it."""
+    record = _run()
+    record.heard["summaries"][0] = 10.25015   # after the request (10.25) it caused
+    first, _ = update_loop_latencies(record)
+    assert first.decision_s == 0.0
+    assert first.summaries_s == pytest.approx(10.25 - 10.1)
+    assert first.uploads_s == pytest.approx(0.50)           # the later stages as they were
+    assert first.total_s == pytest.approx(11.05 - 10.1)
+
+
 def test_the_stage_table_takes_medians_over_the_slots_that_measured_a_stage() -> None:
     rows = {name: (median, count) for name, median, _, count
             in stage_table(update_loop_latencies(_run()))}

@@ -21,6 +21,12 @@ when the device could have it too):
 
 A stage whose end was not heard (no request, a lost throughput report, no later frame on the
 new map) is NaN, and so is the total.
+
+The monitor hears each topic on a reader of its own, and on a loaded host a message can reach
+it after the message it caused: the edge's request heard 0.15 ms before the summaries that
+caused it (a clean clone's suite). A stage's end is never put before its start: where the
+monitor heard a message after the next one of the loop, the earlier one counts as heard when
+the next was — its effect bounds when it was out — and the stage between them reads zero.
 """
 
 from __future__ import annotations
@@ -66,6 +72,16 @@ def _first_frame_on(record: RunLog, after_slot: int, version: int) -> float:
     return math.nan
 
 
+def _in_causal_order(heard: list[float]) -> list[float]:
+    """The times the protocol's messages of one slot were heard (loop order, NaN: not heard),
+    each no later than the next one heard: a message that caused another was out by then."""
+    times = list(heard)
+    for i in range(len(times) - 2, -1, -1):
+        if math.isfinite(times[i]) and math.isfinite(times[i + 1]):
+            times[i] = min(times[i], times[i + 1])
+    return times
+
+
 def update_loop_latencies(record: RunLog) -> list[SlotLatency]:
     """One :class:`SlotLatency` per slot whose frame summaries were heard."""
     heard = {topic: record.heard.get(topic, {}) for topic in HEARD}
@@ -75,7 +91,7 @@ def update_loop_latencies(record: RunLog) -> list[SlotLatency]:
         if summary is None or not summary.frames:
             continue
         times = [time_seconds(summary.frames[-1].stamp)]
-        times += [heard[t].get(slot, math.nan) for t in HEARD]
+        times += _in_causal_order([heard[t].get(slot, math.nan) for t in HEARD])
         version = record.first_map_versions.get(slot)
         times.append(math.nan if version is None else _first_frame_on(record, slot, version))
         out.append(SlotLatency(slot, *np.diff(times).tolist()))
