@@ -63,6 +63,16 @@ def test_a_message_heard_after_the_one_it_caused_counts_as_heard_with_it() -> No
     assert first.total_s == pytest.approx(11.05 - 10.1)
 
 
+def test_a_map_heard_before_the_uploads_report_leaves_the_uploads_as_heard() -> None:
+    """The map update comes of the keyframes, not of the device's report of sending them: a
+    report heard after the map keeps its stage, and the integration stage reads below zero."""
+    record = _run()
+    record.heard["throughput"][0] = 11.02        # after the map (11.0)
+    first, _ = update_loop_latencies(record)
+    assert first.uploads_s == pytest.approx(11.02 - 10.25)
+    assert first.integration_s == pytest.approx(-0.02)
+
+
 def test_the_stage_table_takes_medians_over_the_slots_that_measured_a_stage() -> None:
     rows = {name: (median, count) for name, median, _, count
             in stage_table(update_loop_latencies(_run()))}

@@ -24,9 +24,11 @@ new map) is NaN, and so is the total.
 
 The monitor hears each topic on a reader of its own, and on a loaded host a message can reach
 it after the message it caused: the edge's request heard 0.15 ms before the summaries that
-caused it (a clean clone's suite). A stage's end is never put before its start: where the
-monitor heard a message after the next one of the loop, the earlier one counts as heard when
-the next was — its effect bounds when it was out — and the stage between them reads zero.
+caused it (a clean clone's suite). The summaries cause the request, and the request the
+device's uploads and their throughput report (CAUSED): where the monitor heard one of these
+after the next, the earlier counts as heard when the next was — its effect bounds when it was
+out — and the stage between them reads zero. The map update comes of the keyframes, not of the
+report, and may be heard before it: the integration stage is not ordered so.
 """
 
 from __future__ import annotations
@@ -43,6 +45,8 @@ from twinslam.live.run_log import RunLog
 STAGES = ("summaries_s", "decision_s", "uploads_s", "integration_s", "to_device_s")
 #: the protocol topics whose receipt ends a stage, in loop order (RunLog.heard's keys)
 HEARD = ("summaries", "request", "throughput", "map")
+#: how many of HEARD, from the first, each cause the next
+CAUSED = 3
 
 
 @dataclass(frozen=True)
@@ -73,10 +77,11 @@ def _first_frame_on(record: RunLog, after_slot: int, version: int) -> float:
 
 
 def _in_causal_order(heard: list[float]) -> list[float]:
-    """The times the protocol's messages of one slot were heard (loop order, NaN: not heard),
-    each no later than the next one heard: a message that caused another was out by then."""
+    """The times HEARD's messages of one slot were heard (NaN: not heard), each of the first
+    CAUSED no later than the next one of them: a message that caused another was out by
+    then."""
     times = list(heard)
-    for i in range(len(times) - 2, -1, -1):
+    for i in range(CAUSED - 2, -1, -1):
         if math.isfinite(times[i]) and math.isfinite(times[i + 1]):
             times[i] = min(times[i], times[i + 1])
     return times

@@ -148,7 +148,8 @@ class PlaceWords:
     def share(self, other: PlaceWords) -> None:
         """Search under ``other``'s vocabulary from now on, not one of this archive's own —
         learned by whichever archive sharing it first needs one, learned again when one of
-        them has outgrown it: a device whose map joined another device's place. Words that
+        them has outgrown it: every device's archive of an edge process sharing the
+        process's words, or a device whose map joined another device's place. Words that
         ``other`` shares already (this one among them) change nothing."""
         source = other.source()
         if source is not self:
