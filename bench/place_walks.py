@@ -2,7 +2,7 @@
 lent as the edge node merges them: the node's own
 :class:`~edge_mapper.place_merging.PlaceMerging` over every device's edge core.
 
-    python -m bench.place_walks [SEQUENCE] [--devices 4] [--frames 2700] [--after 300]
+    python -m bench.place_walks [SEQUENCE[,SEQUENCE…]] [--devices 4] [--frames 2700] [--after 300]
         [--order forward] [--seed 0] [--uplink lte] [--unseen-slots N] [--lend-eagerly]
         [--merge-inliers N] [--no-merge] [--covered-m M] [--covered-deg D] [--every 300]
         [--csv FILE] [--baseline COMMIT [--rounds 1]]
@@ -18,6 +18,14 @@ device's slot end as the node's device link calls it: each accepted keyframe han
 merges and the lending before the core's slot end (timed with it, as the node's MapStats
 count them), the look after it. A device is served from its first slot, in the order the
 devices start.
+
+``SEQUENCE`` may name several places, separated by commas (``../shared/data/7scenes-1000,
+synthetic-corridor:2700``): device k walks place k mod P, and the devices of different places
+share one edge process as an edge serving users in several buildings does. Each device whose
+map joined no other looks for its place in the other places' maps after every slot, for as
+long as none is found — what such a device costs is in its median and in the looks' time; a
+device whose map joins a device of another place is a **false merge**, counted and named.
+Only devices of one place are paired for the cross-device figure.
 
 It prints, per device, the frames tracked, its ATE over the frames it published in its
 place's frame, the keyframes it uploaded, the edge's lost share, the edge's median ms a
@@ -81,7 +89,7 @@ COLUMNS = ("sequence", "frames", "devices", "after", "order", "seed", "uplink", 
            "copies_end", "adopted", "uploads", "lost_share", "map_lost_share", "tracked_share",
            "ate_m_mean", "cross_rms_m", "cross_pairs", "cross_worst_pair_rms_m", "loops",
            "look_ms_median", "seconds", "device_edge_ms", "device_copies_mean", "device_uploads",
-           "device_merge_slot", "device_ate_m")
+           "device_merge_slot", "device_ate_m", "places", "false_merges")
 #: the figures two trees' runs share when they walked one walk (the timings aside)
 SAME_WALK = ("merged", "copies_mean", "copies_end", "adopted", "uploads", "lost_share",
              "tracked_share", "ate_m_mean", "cross_rms_m", "loops", "device_uploads",
@@ -91,9 +99,10 @@ SAME_WALK = ("merged", "copies_mean", "copies_end", "adopted", "uploads", "lost_
 class PlaceWalk:
     """One device of the run: its walk, when it starts, and what the merging did to it."""
 
-    def __init__(self, walk: DeviceWalk, start: int) -> None:
+    def __init__(self, walk: DeviceWalk, start: int, place: int = 0) -> None:
         self.walk = walk
         self.start = start                    #: the run's frame it starts at
+        self.place = place                    #: which of the run's places it walks
         self.done = False
         #: its first map version in its place's frame (-1: never merged; 0: a root)
         self.in_place = -1
@@ -136,6 +145,14 @@ def _hooks(device: PlaceWalk, merging: PlaceMerging) -> SlotHooks:
     return SlotHooks(lambda payload: merging.keyframe(name, payload), before_end, after_end)
 
 
+def false_merges(devices: list[PlaceWalk], roots: dict[str, str]) -> list[str]:
+    """The devices whose map is in the frame of a device of another place (``roots``:
+    device → its place's root, "" where maps never merge)."""
+    place = {d.name: d.place for d in devices}
+    return [d.name for d in devices
+            if roots[d.name] and place.get(roots[d.name], d.place) != d.place]
+
+
 def pooled(errors: list[RevisitError]) -> RevisitError:
     """Several pairs of devices' errors as one RMS over all their pairs of frames."""
     n = sum(e.pairs for e in errors)
@@ -151,7 +168,8 @@ def main() -> None:
                                      formatter_class=HelpFormatter)
     parser.add_argument("sequence", nargs="?", default="synthetic-corridor:2700",
                         help="the place every device walks (default: the corridor walked out "
-                             "and back twice)")
+                             "and back twice), or places separated by commas: device k walks "
+                             "place k mod P")
     parser.add_argument("--devices", type=int, default=4, help="devices walking it")
     parser.add_argument("--frames", type=int, default=2700, help="frames of it each plays")
     parser.add_argument("--after", type=int, default=300, metavar="FRAMES",
@@ -189,16 +207,17 @@ def main() -> None:
         _beside(args, sys.argv[1:])
         return
     run_as_the_edge_node()
-    spec = seeded_spec(args.sequence, args.seed)
+    places = [seeded_spec(place, args.seed) for place in args.sequence.split(",")]
     config = repeatable_edge(**{name: value for name, value in
                                 (("covered_m", args.covered_m),
                                  ("covered_deg", args.covered_deg)) if value is not None})
     started = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
-        devices = [PlaceWalk(open_walk(f"ar{k + 1}", spec, args.frames, args.order,
-                                       args.seed + k, args.uplink, config, args.update_delay,
-                                       Path(tmp), device_params=dict(args.device)),
-                             k * args.after)
+        devices = [PlaceWalk(open_walk(f"ar{k + 1}", places[k % len(places)], args.frames,
+                                       args.order, args.seed + k, args.uplink, config,
+                                       args.update_delay, Path(tmp),
+                                       device_params=dict(args.device)),
+                             k * args.after, k % len(places))
                    for k in range(args.devices)]
         share_vocabulary((d.walk.edge for d in devices), args.vocabulary_per_device)
         served: dict[str, EdgeMapperCore] = {}
@@ -210,8 +229,8 @@ def main() -> None:
             if not args.no_merge:
                 device.walk.serve = functools.partial(serve_slot,
                                                       hooks=_hooks(device, merging))
-        # the first device's frame is the place's; alone, each device's own is (one walk)
-        for device in devices if args.no_merge else devices[:1]:
+        # the first device's frame is its place's; alone, each device's own is (one walk)
+        for device in devices if args.no_merge else devices[:len(places)]:
             device.in_place = 0
         tick = 0
         while not all(d.done for d in devices):
@@ -329,7 +348,11 @@ def _report(devices: list[PlaceWalk], merging: PlaceMerging, args: argparse.Name
         [(a.walk.poses[k], a.walk.truth[k]) for k in a.placed_frames() if k in a.walk.truth],
         [(b.walk.poses[k], b.walk.truth[k]) for k in b.placed_frames() if k in b.walk.truth])
         for i, a in enumerate(devices) for b in devices[i + 1:]
-        if roots[a.name] == roots[b.name] and a.in_place >= 0 and b.in_place >= 0]
+        if a.place == b.place and roots[a.name] == roots[b.name] and a.in_place >= 0
+        and b.in_place >= 0]
+    false = false_merges(devices, roots)
+    if false:
+        print(f"FALSE MERGES: {', '.join(false)} joined a map of another place")
     cross = pooled(errors)
     worst = max((e.rms_m for e in errors if e.pairs), default=math.nan)
     print(f"cross-device revisit error, {len(errors)} pairs of devices in one place: RMS "
@@ -373,7 +396,8 @@ def _report(devices: list[PlaceWalk], merging: PlaceMerging, args: argparse.Name
                                            for d in devices),
             "device_uploads": ";".join(str(d.walk.uploads) for d in devices),
             "device_merge_slot": ";".join(str(d.merge_slot) for d in devices),
-            "device_ate_m": ";".join(f"{a:.4f}" for a in ates)}
+            "device_ate_m": ";".join(f"{a:.4f}" for a in ates),
+            "places": args.sequence.count(",") + 1, "false_merges": len(false)}
 
 
 if __name__ == "__main__":

@@ -700,6 +700,23 @@ def test_a_side_by_side_run_that_walked_another_walk_shows_the_walks_figures(
     assert f"{100 * float(base['cross_rms_m']):.2f}" in cross and "+1.00" in cross
 
 
+def test_the_process_vocabulary_table_is_what_its_command_prints() -> None:
+    """Eight devices alone with one vocabulary a process against one a device: the loop
+    closing page holds the table ``place_walks_beside_table.py`` prints from the committed
+    runs, line for line, and the walk's figures the page reads as equal are so."""
+    folder = FIGURES / "shared-map" / "place-walks" / "process-vocabulary"
+    rows = []
+    for path in sorted(folder.glob("seed-*.csv")):
+        with path.open(encoding="utf-8") as fh:
+            rows += list(csv.DictReader(fh))
+    printed = _script("place_walks_beside_table").table(sorted(folder.glob("seed-*.csv")))
+    page = (REPO / "docs" / "results" / "loop-closing.md").read_text(encoding="utf-8")
+    lines = page.splitlines()
+    assert any(lines[i:i + len(printed)] == printed for i in range(len(lines)))
+    for figure in ("loops", "uploads", "device_ate_m"):
+        assert len({(r["seed"], r[figure]) for r in rows}) == 2, figure   # one value a seed
+
+
 @pytest.mark.parametrize("runs", ["edge-cuts", "sorted-copy-rows", "point-order-and-place-words"])
 def test_the_shared_place_work_table_is_what_its_command_prints(runs: str) -> None:
     """A shared place's edge work in two trees: the benchmark page holds the table
