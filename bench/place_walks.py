@@ -2,10 +2,10 @@
 lent as the edge node merges them: the node's own
 :class:`~edge_mapper.place_merging.PlaceMerging` over every device's edge core.
 
-    python -m bench.place_walks [SEQUENCE[,SEQUENCE…]] [--devices 4] [--frames 2700] [--after 300]
-        [--order forward] [--seed 0] [--uplink lte] [--unseen-slots N] [--lend-eagerly]
-        [--merge-inliers N] [--no-merge] [--covered-m M] [--covered-deg D] [--every 300]
-        [--csv FILE] [--baseline COMMIT [--rounds 1]]
+    python -m bench.place_walks [SEQUENCE[,SEQUENCE…]] [--devices 4] [--frames 2700]
+        [--after 300] [--order forward] [--seed 0] [--uplink lte] [--unseen-slots N]
+        [--lend-eagerly] [--merge-inliers N] [--no-merge] [--covered-m M] [--covered-deg D]
+        [--every 300] [--csv FILE] [--baseline COMMIT [--rounds 1]]
 
 Device k (k = 0, 1, …) starts the walk ``k × --after`` frames after the first, on an uplink
 of its own (seed ``--seed`` + k): users joining a place others walk at different times — on
@@ -23,8 +23,9 @@ devices start.
 synthetic-corridor:2700``): device k walks place k mod P, and the devices of different places
 share one edge process as an edge serving users in several buildings does. Each device whose
 map joined no other looks for its place in the other places' maps after every slot, for as
-long as none is found — what such a device costs is in its median and in the looks' time; a
-device whose map joins a device of another place is a **false merge**, counted and named.
+long as none is found: the looks' time (``look_ms_median``) is outside the devices' slot
+medians, as the node's looks worker's is; a device whose map joins a device of another place
+is a **false merge**, counted and named.
 Only devices of one place are paired for the cross-device figure.
 
 It prints, per device, the frames tracked, its ATE over the frames it published in its
