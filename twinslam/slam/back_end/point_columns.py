@@ -108,40 +108,36 @@ class PointColumns:
 
     def rows_of(self, point_ids: Collection[int] | np.ndarray) -> np.ndarray:
         """The rows of ``point_ids`` (in their order) as an int64 array; KeyError for an id
-        the columns do not hold. In an integer array the map's own ids are read from the rows
-        by id at once, another device's (its copies' points, in a map of a shared place) id
-        by id; anything else (a list, a set) id by id."""
+        the columns do not hold. An integer array is read at once (:meth:`rows_or_none`);
+        anything else (a list, a set) id by id."""
         if isinstance(point_ids, np.ndarray) and point_ids.dtype.kind in "iu":
-            ids = point_ids.astype(np.int64, copy=False).ravel()
-            dense = (ids >= 0) & (ids < self._dense_bound())
-            rows = np.empty(len(ids), dtype=np.int64)
-            rows[dense] = self._row_by_id[ids[dense]]
-            missing = np.flatnonzero(dense & (rows < 0))
+            rows = self.rows_or_none(point_ids)
+            missing = np.flatnonzero(rows < 0)
             if len(missing):
-                raise KeyError(int(ids[missing[0]]))
-            if not dense.all():
-                beyond = self._beyond.find(ids[~dense])
-                if (beyond < 0).any():
-                    raise KeyError(int(ids[~dense][np.argmax(beyond < 0)]))
-                rows[~dense] = beyond
+                raise KeyError(int(point_ids.ravel()[missing[0]]))
             return rows.reshape(point_ids.shape)
         return np.fromiter(map(self.row.__getitem__, point_ids), dtype=np.int64,
                            count=len(point_ids))
 
-    def holds(self, point_ids: np.ndarray) -> np.ndarray:
-        """Whether each of ``point_ids`` (an integer array) has a row: the map's own ids read
-        from the rows by id at once, another device's by the dict."""
+    def rows_or_none(self, point_ids: np.ndarray) -> np.ndarray:
+        """Each of ``point_ids``' row (an integer array, flattened), -1 where it has none: the
+        map's own ids read from the rows by id at once, another device's found in its sorted
+        rows (:class:`SortedRows`) at once."""
         ids = np.asarray(point_ids, dtype=np.int64).ravel()
         dense = (ids >= 0) & (ids < self._dense_bound())
-        held = np.zeros(len(ids), dtype=bool)
-        held[dense] = self._row_by_id[ids[dense]] >= 0
+        rows = np.empty(len(ids), dtype=np.int64)
+        rows[dense] = self._row_by_id[ids[dense]]
         if not dense.all():
-            held[~dense] = self._beyond.find(ids[~dense]) >= 0
-        return held
+            rows[~dense] = self._beyond.find(ids[~dense])
+        return rows
+
+    def holds(self, point_ids: np.ndarray) -> np.ndarray:
+        """Whether each of ``point_ids`` (an integer array) has a row."""
+        return self.rows_or_none(point_ids) >= 0
 
     def _dense_bound(self) -> int:
-        """Ids below it have their row (or -1) in the rows by id; the others are in the dict
-        of another device's ids (the rows by id may have grown past ``DENSE_IDS``)."""
+        """Ids below it have their row (or -1) in the rows by id; the others are in the sorted
+        rows of another device's ids (the rows by id may have grown past ``DENSE_IDS``)."""
         return min(len(self._row_by_id), DENSE_IDS)
 
     def ids_and_rows(self) -> tuple[np.ndarray, np.ndarray]:

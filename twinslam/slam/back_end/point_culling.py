@@ -91,8 +91,9 @@ def count_and_cull(keyframe_map: KeyFrameMap, found: Collection[int],
     columns.visible[rows] += 1
     columns.found[rows] += 1
     others = np.array(sorted(set(in_view) - seen), dtype=np.int64)
-    held = others[columns.holds(others)]      # a point that already left is not counted
-    rows = columns.rows_of(held)
+    found_rows = columns.rows_or_none(others)
+    kept = found_rows >= 0                    # a point that already left is not counted
+    held, rows = others[kept], found_rows[kept]
     columns.visible[rows] += 1
     visible, found_in = columns.visible[rows], columns.found[rows]
     gone = (visible >= config.min_visible) & (found_in < config.min_found_ratio * visible)
