@@ -112,26 +112,26 @@ PARAMETERS = (
               "graph over every keyframe and the loops before, on a worker thread; the "
               "corrected map goes to the device in the next map update"),
     ParamSpec("loop_worker_niceness", loop_closing.WORKER_NICENESS, "steps (Linux nice) the "
-              "loop closer's worker thread runs below the slots' priority, for every device of "
-              "the process: where the edges fill the host's cores, the slots keep their "
-              "deadline and the loops wait (12 devices on two processes of a 2-core host, a "
-              "walk and back, 10 steps: 0-7 % late instead of 14-55 %, 24-36 of 36 loops "
-              "closed a median two slots later; on a walk that ends five slots after its "
-              "revisit none closed); 0: the same priority", low=0, high=19),
-    ParamSpec("loop_worker_share", loop_closing.WORKER_SHARE, "the most of one core the "
-              "loop closer's worker takes, for every device of the process: after each job it "
-              "rests until its CPU time is this share of the time since it began, so the "
-              "slots keep the rest and the loops wait (12 devices on two processes of a 2-core "
-              "host, a walk and back, a quarter: 0.9-12.8 % late instead of 14-55 %, 23-31 of "
-              "36 loops closed, later than 10 nice steps below); 1: all it can get",
+              "worker thread of the loop closer and the merge looks runs below the slots' "
+              "priority, for every device of the process: where the edges fill the host's cores, "
+              "the slots keep their deadline and the loops wait (12 devices on two processes of "
+              "a 2-core host, a walk and back, 10 steps: 0-7 % late instead of 14-55 %, 24-36 of "
+              "36 loops closed a median two slots later; on a walk that ends five slots after "
+              "its revisit none closed); 0: the same priority", low=0, high=19),
+    ParamSpec("loop_worker_share", loop_closing.WORKER_SHARE, "the most of one core the worker of "
+              "the loop closer and the merge looks takes, for every device of the process: after "
+              "each job it rests until its CPU time is this share of the time since it began, so "
+              "the slots keep the rest and the loops wait (12 devices on two processes of a "
+              "2-core host, a walk and back, a quarter: 0.9-12.8 % late instead of 14-55 %, "
+              "23-31 of 36 loops closed, later than 10 nice steps below); 1: all it can get",
               low=0.05, high=1.0),
-    ParamSpec("loop_worker_yields", loop_closing.WORKER_YIELDS, "the loop closer's worker "
-              "waits, before each loop query, while the slots' work (any device's callback) "
-              "runs, at most 0.5 s a query: within one process it shares the slot thread's "
-              "interpreter, which a nice value does not reach (8 devices on one process of a "
-              "2-core host, a walk and back: 0-15 % late instead of 33-49 % in four paired rounds "
-              "of five, the loops closed in the same slots); false: it runs whenever it has "
-              "work"),
+    ParamSpec("loop_worker_yields", loop_closing.WORKER_YIELDS, "the worker of the loop closer "
+              "and the merge looks waits, before each loop query or keyframe looked for, while "
+              "the slots' work (any device's callback) runs, at most 0.5 s a query: within one "
+              "process it shares the slot thread's interpreter, which a nice value does not "
+              "reach (8 devices on one process of a 2-core host, a walk and back: 0-15 % late "
+              "instead of 33-49 % in four paired rounds of five, the loops closed in the same "
+              "slots); false: it runs whenever it has work"),
     ParamSpec("shared_vocabulary", True, "every device of this edge process searches its "
               "archive under one vocabulary of visual words, learned by the first archive that "
               "outgrows exact search and again by one that outgrows it eightfold (ORB-SLAM's "

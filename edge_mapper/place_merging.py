@@ -4,9 +4,16 @@ edge node's ``merge_maps``), beside the slots.
 An edge serving several devices keeps a map per device, each in the frame of its device's
 first camera. After each slot of a device whose map joined no other yet, the keyframes it
 integrated that slot are looked for in the whole map (archive and managed map) of one other
-device — a different one each slot, in turn (below) — on a worker thread, as the loop
-closer's work is: place recognition over a few hundred keyframes takes ~0.1 s
-(``bench.shared_map``), as much as the rest of the device's slot. A merge the joining map's
+device — a different one each slot, in turn (below) — on the process's loop-closing worker,
+queued with the loop jobs (:data:`~twinslam.slam.back_end.loop_closing.SHARED_WORKER`): place
+recognition in another device's map takes 17-30 ms a look (``bench.place_walks`` over three
+places), half to two thirds of the looking device's own slot work, after every slot of a
+device whose place no other shares. On a thread of their own the looks took the slots'
+interpreter and cores beside the loop closer's worker, outside what the edge's
+``loop_worker_niceness``, ``loop_worker_share`` and ``loop_worker_yields`` bound; on the one
+worker the edge's background work is one queue under those bounds, and a look waits, before
+each of its keyframes, while a slot callback runs (as a loop job does before each query).
+A merge the joining map's
 next keyframes confirmed (:class:`~twinslam.slam.back_end.map_merging.MergeFinder`) is applied
 at the device's next slot end, before its map update goes out
 (:meth:`~edge_mapper.edge_core.EdgeMapperCore.align`): that update carries the new frame
@@ -48,7 +55,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Mapping
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future, wait
 from dataclasses import dataclass
 
 import numpy as np
@@ -57,7 +64,7 @@ from edge_mapper.edge_core import EdgeMapperCore, set_aside
 from edge_mapper.place_membership import PlaceMembership, run_after, source_of
 from twinslam.slam.back_end.foreign_keyframes import foreign_tag, source_id, tag_of
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
-from twinslam.slam.back_end.loop_closing import LoopQuery
+from twinslam.slam.back_end.loop_closing import SHARED_WORKER, LoopQuery, SharedWorker
 from twinslam.slam.back_end.map_back_end import FollowedLoop
 from twinslam.slam.back_end.map_merging import (
     MERGE_MIN_INLIERS,
@@ -111,9 +118,13 @@ class PlaceMerging:
 
     def __init__(self, cores: Callable[[], Mapping[str, EdgeMapperCore]],
                  background: bool = True, min_inliers: int = MERGE_MIN_INLIERS,
-                 lend_in_view: bool = True, unseen_slots: int = 0) -> None:
+                 lend_in_view: bool = True, unseen_slots: int = 0,
+                 worker: SharedWorker = SHARED_WORKER) -> None:
         self.cores = cores
+        #: looks on ``worker`` (the process's loop-closing worker by default), else in the
+        #: caller (the benches: answers that do not depend on the threads' timing)
         self.background = background
+        self.worker = worker
         #: the PnP inliers each detection of a merge needs (the edge's merge_min_inliers)
         self.min_inliers = min_inliers
         #: lend a keyframe only once the borrowing device heads where it sees it (the edge's
@@ -129,7 +140,6 @@ class PlaceMerging:
         self._queries: dict[str, list[LoopQuery]] = {}
         self._turn: dict[str, int] = {}
         self._running: dict[str, Future[_Look]] = {}
-        self._executor: ThreadPoolExecutor | None = None
         self.look_ms: list[float] = []          #: every finished look's worker time
         #: (borrower, lender) → the lender's keyframes the borrower's map adopted (by the
         #: lender's ids)
@@ -403,7 +413,7 @@ class PlaceMerging:
                joining.frame_correction.copy(), other.frame_correction.copy())
         self._queries[device] = []
         if self.background:
-            self._running[device] = self._worker().submit(_look, *job)
+            self._running[device] = self.worker.submit(_look, *job, self.worker.wait_for_slots)
         else:
             done: Future[_Look] = Future()
             done.set_result(_look(*job))
@@ -446,16 +456,13 @@ class PlaceMerging:
         failed, self._failed = self._failed, []
         return failed
 
-    def _worker(self) -> ThreadPoolExecutor:
-        if self._executor is None:
-            self._executor = ThreadPoolExecutor(1, thread_name_prefix="place-merging")
-        return self._executor
-
     def close(self) -> None:
-        """Stop the worker (a running look finishes first)."""
-        if self._executor is not None:
-            self._executor.shutdown(wait=True)
-            self._executor = None
+        """Wait for the looks on the worker: a running one finishes, one not started yet is
+        dropped (its map is closing)."""
+        looks = [look for look in self._running.values() if not look.cancel()]
+        self._running.clear()
+        with self.worker.outside_slot_work():
+            wait(looks)
 
 
 def _copies_of(core: EdgeMapperCore, source: int) -> set[int]:
@@ -467,24 +474,32 @@ def _copies_of(core: EdgeMapperCore, source: int) -> set[int]:
 
 def _look(place: str, finder: MergeFinder, other: KeyFrameArchive,
           queries: tuple[LoopQuery, ...], poses: dict[int, np.ndarray], intrinsics: np.ndarray,
-          frame: np.ndarray, other_frame: np.ndarray) -> _Look:
+          frame: np.ndarray, other_frame: np.ndarray,
+          pause: Callable[[], None] = lambda: None) -> _Look:
     """The looking map's ``queries`` (oldest first) offered to ``finder`` against the other
     device's whole map ``other``, until one confirms a merge; a failure reported in the
-    answer, never raised (a look that fails must not take the edge's slots down with it)."""
-    started = time.perf_counter()
+    answer, never raised (a look that fails must not take the edge's slots down with it).
+    ``pause`` is called before each query: the worker waits there for the slots' work
+    (:meth:`~twinslam.slam.back_end.loop_closing.SharedWorker.wait_for_slots`); the time
+    it waits is not the look's."""
+    spent = 0.0
     merge = None
     try:
         for query in sorted(queries, key=lambda q: q.keyframe):
             if query.keyframe in poses:
-                merge = finder.offer(other, query, poses, intrinsics)
+                pause()
+                started = time.perf_counter()
+                try:
+                    merge = finder.offer(other, query, poses, intrinsics)
+                finally:
+                    spent += time.perf_counter() - started
                 if merge is not None:
                     break
     except Exception as exc:            # reported by the device's next slot end
-        return _Look(place, None, frame, (time.perf_counter() - started) * 1e3,
-                     f"{type(exc).__name__}: {exc}", other_frame=other_frame)
+        return _Look(place, None, frame, spent * 1e3, f"{type(exc).__name__}: {exc}",
+                     other_frame=other_frame)
     last = finder.last
     found = "" if merge is not None or last is None else (
         f"keyframe {last.old} on {last.inliers} inliers, not confirmed yet" if last.found
         else last.reason)
-    return _Look(place, merge, frame, (time.perf_counter() - started) * 1e3, found=found,
-                 other_frame=other_frame)
+    return _Look(place, merge, frame, spent * 1e3, found=found, other_frame=other_frame)

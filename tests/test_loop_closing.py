@@ -29,7 +29,7 @@ from twinslam.slam.back_end.loop_closing import (
     LoopCloser,
     LoopJob,
     LoopQuery,
-    _SharedWorker,
+    SharedWorker,
     run_job,
 )
 from twinslam.slam.back_end.map_back_end import BackEndConfig
@@ -505,14 +505,14 @@ def test_the_loop_worker_runs_below_the_slots_priority_and_the_caller_keeps_its_
     niceness outside 0-19 is refused."""
     own = os.getpriority(os.PRIO_PROCESS, 0)          # this thread's (Linux: per thread)
     for steps in (7, 0):
-        worker = _SharedWorker(niceness=steps)
+        worker = SharedWorker(niceness=steps)
         try:
             seen = worker.submit(os.getpriority, os.PRIO_PROCESS, 0).result(timeout=30)
         finally:
             worker.stop()
         assert seen == worker.nice == min(19, own + steps)
         assert os.getpriority(os.PRIO_PROCESS, 0) == own
-    worker = _SharedWorker()
+    worker = SharedWorker()
     for bad in (-1, 20):
         with pytest.raises(ValueError, match="0 to 19"):
             worker.lower_priority(bad)
@@ -533,7 +533,7 @@ def test_the_loop_worker_takes_at_most_its_share_of_a_core() -> None:
         return start, time.monotonic(), time.thread_time() - cpu
 
     for share in (0.25, 1.0):
-        worker = _SharedWorker(share=share)
+        worker = SharedWorker(share=share)
         try:
             first = worker.submit(burn, 0.05)
             second = worker.submit(burn, 0.01)
@@ -548,7 +548,7 @@ def test_the_loop_worker_takes_at_most_its_share_of_a_core() -> None:
             assert worker.rested_s == 0
     for bad in (0.0, -0.5, 1.5):
         with pytest.raises(ValueError, match="share of a core"):
-            _SharedWorker().limit_share(bad)
+            SharedWorker().limit_share(bad)
 
 
 def test_the_loop_worker_waits_while_the_slots_work_runs_and_never_longer_than_its_bound(
@@ -556,7 +556,7 @@ def test_the_loop_worker_waits_while_the_slots_work_runs_and_never_longer_than_i
     """Yielding, the worker does not start a query while a slot callback runs: it goes on
     once the slots' work ends, after YIELD_AT_MOST_S at the latest (the loops are delayed,
     never starved), and not at all when nothing runs or yielding is off."""
-    worker = _SharedWorker()
+    worker = SharedWorker()
     worker.yield_to_slots(True)
     started = threading.Event()
     ended = 0.0

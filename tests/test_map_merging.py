@@ -8,13 +8,15 @@ finds the other."""
 from __future__ import annotations
 
 import dataclasses
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
 
 from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore, set_aside
 from edge_mapper.place_membership import PlaceMembership, source_of
-from edge_mapper.place_merging import MergeEvent, PlaceMerging
+from edge_mapper.place_merging import MergeEvent, PlaceMerging, _look
 from edge_mapper.slot_planner import FrameObservations, SlotConfig
 from tests.test_archive_relocalisation import room  # noqa: F401 (the archived room fixture)
 from twinslam.policies.registry import make_policy
@@ -27,6 +29,7 @@ from twinslam.slam.back_end.loop_closing import (
     ACROSS_NEAR_M,
     LoopJob,
     LoopQuery,
+    SharedWorker,
     run_job,
 )
 from twinslam.slam.back_end.loop_correction import correct_map, correction_for
@@ -257,6 +260,69 @@ def test_the_edge_merges_a_later_device_into_an_earlier_ones_frame(room: Room) -
     # each map's loops may close with the keyframes it borrowed from the other
     assert cores["ar2"].back_end.loop_across == {ar1}
     assert cores["ar1"].back_end.loop_across == {ar2}
+
+
+def test_the_merge_looks_queue_on_the_loop_workers_thread_behind_its_work(
+        room: Room) -> None:  # noqa: F811
+    """A look goes on the worker the edge's loop jobs run on, behind what is queued there (the
+    process's background work is one queue under the loop worker's bounds), and its merge is
+    the one the look in the caller makes."""
+    worker = SharedWorker()
+    release = threading.Event()
+    cores = _room_and_newcomer(room)
+    merging = PlaceMerging(lambda: cores, worker=worker)
+    events: list[MergeEvent | None] = []
+
+    def taken(looks: int) -> None:
+        """The slot ends take answers until ``looks`` looks were taken (60 s at most)."""
+        deadline = time.monotonic() + 60
+        while len(merging.look_ms) < looks and time.monotonic() < deadline:
+            events.append(merging.take("ar2"))
+            time.sleep(0.01)
+        assert len(merging.look_ms) == looks
+
+    try:
+        held = worker.submit(release.wait, 60.0)         # a loop job that takes its time
+        for slot, (key, frame) in enumerate(((10, 4), (11, 64), (12, 124))):
+            cores["ar2"].map.add_keyframe(key, _second_pose(room, frame))
+            merging.keyframe("ar2", _payload(room, frame, key))
+            merging.look("ar2", slot)
+            if slot == 0:
+                assert merging.take("ar2") is None and merging.look_ms == []  # behind it
+                release.set()
+                assert held.result(timeout=60)
+            taken(slot + 1)
+    finally:
+        release.set()
+        merging.close()
+        worker.stop()
+    assert [e.place for e in events if e is not None] == ["ar1"]
+    assert merging.joined == {"ar2": "ar1"} and not merging.failures()
+    off = np.linalg.inv(SECOND_IN_FIRST) @ cores["ar2"].frame_correction
+    assert np.linalg.norm(off[:3, 3]) < 0.03 and rotation_angle_deg(off[:3, :3]) < 0.5
+
+
+def test_a_look_pauses_for_the_slots_before_each_of_its_keyframes(room: Room) -> None:  # noqa: F811
+    """The worker waits for the slots' work before each keyframe a look offers (as a loop job
+    does before each query), not once a look; the pauses are not the look's time."""
+    _, archive, _ = room
+    frames = {10: 4, 11: 64, 12: 124}
+    poses = {k: _second_pose(room, f) for k, f in frames.items()}
+    queries = tuple(_query(room, f, k) for k, f in frames.items())
+    pauses: list[float] = []
+
+    def pause() -> None:
+        pauses.append(time.monotonic())
+        time.sleep(0.2)
+
+    look = _look("ar1", MergeFinder(), archive, queries, poses,
+                 room[0].intrinsics, np.eye(4), np.eye(4), pause)  # type: ignore[attr-defined]
+    assert look.merge is not None and look.merge.joining == 12 and not look.error
+    assert len(pauses) == 3
+    plain = _look("ar1", MergeFinder(), archive, queries, poses,
+                  room[0].intrinsics, np.eye(4), np.eye(4))  # type: ignore[attr-defined]
+    assert plain.merge is not None and plain.merge.joining == 12
+    assert look.ms < (pauses[-1] - pauses[0]) * 1e3 + plain.ms   # 0.4 s of pauses left out
 
 
 def _tracked_at(core: EdgeMapperCore, slot: int, pose: np.ndarray | None) -> None:

@@ -23,16 +23,18 @@ results must not depend on thread timing.
 
 Every background loop closer of a process works on one worker thread, first come first
 served: an edge serving many devices closes their loops one at a time beside its slot
-thread. Each device's own thread let sixteen devices revisiting their places together run
-sixteen loop jobs at once (place recognition, PnP, the pose graph: 30-110 ms a job on the
-7-Scenes walk), on two cores and against the slot thread for the interpreter: on one edge
-process their slots' work took 67-138 ms a device-slot there against 50-83 ms with loop
-closing off (``bench.edge_scaling --devices 16``, docs/results/shared-map.md). A device's
-loop waits behind the others' instead (its next job starts once its last was taken, so a
-device has one job in the queue at most), and the slots keep their deadline.
+thread. The edge's merge looks queue on it too (:mod:`edge_mapper.place_merging`): the
+process's background work is one queue under the bounds below. Each device's own thread let
+sixteen devices revisiting their places together run sixteen loop jobs at once (place
+recognition, PnP, the pose graph: 30-110 ms a job on the 7-Scenes walk), on two cores and
+against the slot thread for the interpreter: on one edge process their slots' work took
+67-138 ms a device-slot there against 50-83 ms with loop closing off (``bench.edge_scaling
+--devices 16``, docs/results/shared-map.md). A device's loop waits behind the others'
+instead (its next job starts once its last was taken, so a device has one job in the queue
+at most), and the slots keep their deadline.
 
 The worker may run below the slot threads' priority (the edge node's
-``loop_worker_niceness``, Linux nice steps: :meth:`_SharedWorker.lower_priority`). Each job
+``loop_worker_niceness``, Linux nice steps: :meth:`SharedWorker.lower_priority`). Each job
 takes every query its device gathered meanwhile, so the worker uses whatever the cores leave,
 and on a host whose cores the edges fill it takes them from the slots: two edge processes on
 a 2-core VM carried sixteen devices 36-38 % late at the same priority and 9-20 % late five or
@@ -43,7 +45,7 @@ long as it went out (39 slots), twelve devices on two processes were 0-7 % late 
 below against 14-55 % at the same priority, and their loops closed a median two slots later
 (24-36 of the 36 the same priority closed): the short walk had ended before the waiting jobs
 ran. ``loop_worker_share`` caps the worker at a share of a core instead
-(:meth:`_SharedWorker.limit_share`: it rests after each job), on an idle host too, at the
+(:meth:`SharedWorker.limit_share`: it rests after each job), on an idle host too, at the
 slots' priority; on the longer walk a quarter of a core was late more often than ten nice
 steps below (0.9-12.8 % against 0-7 %) and closed fewer loops, later. By default the worker
 keeps the slots' priority and the whole core (the single device's host was measured so); an
@@ -51,7 +53,7 @@ edge host serving a dozen devices over several processes is better served ten st
 
 Within one process a nice value does not reach the interpreter the worker and the slot thread
 share. By default (the edge's ``loop_worker_yields``) the worker waits before each query while
-a slot callback runs (:meth:`_SharedWorker.wait_for_slots`, at most YIELD_AT_MOST_S): eight
+a slot callback runs (:meth:`SharedWorker.wait_for_slots`, at most YIELD_AT_MOST_S): eight
 devices on one edge process walking a place and back were 0-15 % late instead of 33-49 % in
 four paired rounds of five (in the fifth both were nearly on time), their loops closed in the
 same slots, and one or two devices were unchanged.
@@ -293,7 +295,7 @@ def run_job(job: LoopJob, min_gap: int = MIN_GAP,
             index: KeptPlaceIndex | None = None) -> LoopResult:
     """Look for a loop from each query, oldest first; close the first one ``confirmation``
     confirms (without one: the first found). ``pause`` is called before each query and before
-    the pose graph: the worker waits there for the slots' work (:meth:`_SharedWorker.
+    the pose graph: the worker waits there for the slots' work (:meth:`SharedWorker.
     wait_for_slots`). The walk's own keyframes are searched under ``index`` where given (the
     loop closer's, kept from its last job: :mod:`~twinslam.slam.back_end.place_index`), else
     under an index built for this job; either answers the same."""
@@ -410,7 +412,7 @@ WORKER_YIELDS = True
 YIELD_AT_MOST_S = 0.5
 
 
-class _SharedWorker:
+class SharedWorker:
     """The one thread the process's background loop closers queue their work on, started
     with the first work it gets (and again after :meth:`stop`), ``niceness`` steps below the
     priority of the thread that starts it, and taking at most ``share`` of a core: after each
@@ -538,7 +540,7 @@ class _SharedWorker:
 _PER_THREAD_NICE = sys.platform.startswith("linux")
 
 
-def _lowered(worker: _SharedWorker, starter_nice: int) -> None:
+def _lowered(worker: SharedWorker, starter_nice: int) -> None:
     """The worker thread's first step: its own nice value ``worker.niceness`` above the
     thread that started it (a lower priority only: no privilege needed)."""
     if not _PER_THREAD_NICE:
@@ -553,7 +555,7 @@ def _lowered(worker: _SharedWorker, starter_nice: int) -> None:
 
 
 #: the worker every background loop closer of this process shares
-SHARED_WORKER = _SharedWorker()
+SHARED_WORKER = SharedWorker()
 
 
 class LoopCloser:
