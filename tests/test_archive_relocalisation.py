@@ -115,3 +115,38 @@ def test_the_search_stops_at_the_first_candidate_whose_pose_passes(
     refused = locate_in_archive(archive, shuffled, feats.descriptors,
                                 seq.intrinsics)               # type: ignore[attr-defined]
     assert not refused.found and len(solved) == len({frozenset(g) for g in solved}) >= 2
+
+
+def test_a_place_with_too_few_votes_for_the_gate_is_not_solved(
+        room: tuple[object, KeyFrameArchive, OrbExtractor],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A frame that shares only a few features with the archive (another place's, seen by a
+    merge look: 1-17 votes) is refused without a PnP — no candidate has a quarter of the
+    gate's inliers in votes — and says so; under a gate its votes can reach, the best
+    candidate is solved as before."""
+    import twinslam.slam.back_end.archive_relocalisation as relocalisation
+
+    seq, archive, orb = room
+    solved: list[list[int]] = []
+    solve = relocalisation._solve
+
+    def counted(*args: object, **kwargs: object) -> tuple[np.ndarray | None, int]:
+        solved.append(list(args[1]))                          # type: ignore[call-overload]
+        return solve(*args, **kwargs)                         # type: ignore[arg-type]
+
+    monkeypatch.setattr(relocalisation, "_solve", counted)
+    feats = orb.extract(seq.read(127).color)                  # type: ignore[attr-defined]
+    rng = np.random.default_rng(2)
+    elsewhere = rng.integers(0, 256, feats.descriptors.shape, dtype=np.uint8)
+    elsewhere[:12] = feats.descriptors[:12]                   # a dozen features in common
+    votes = archive.recognise(elsewhere, top=1)[0][1]
+    gate = 4 * votes + 4                                      # a quarter of it: above the votes
+    config = ArchiveRelocalisationConfig(min_inliers=gate)
+    refused = locate_in_archive(archive, feats.points, elsewhere, seq.intrinsics,  # type: ignore[attr-defined]
+                                config)
+    assert not refused.found and solved == []
+    assert f"{votes} votes, too few for {gate} inliers" in refused.reason
+    lenient = ArchiveRelocalisationConfig(min_inliers=max(1, votes * 4 // 2))
+    locate_in_archive(archive, feats.points, elsewhere, seq.intrinsics,  # type: ignore[attr-defined]
+                      lenient)
+    assert solved                                             # the candidate was solved
