@@ -7,7 +7,10 @@ than the timings differ between the trees (none, where the change only sped the 
 where some do, the walk's own figures side by side (cross-device error, ATE, loops, uploads,
 lost share, copies; each device's ATE device by device).
 
-    .venv/bin/python docs/figures/place_walks_beside_table.py SEED_0.csv SEED_1.csv …
+With ``--looks`` a row more: the median of a merge look's worker time (``look_ms_median``),
+outside the device-slots (the looks run beside the slots, as on the node's worker).
+
+    .venv/bin/python docs/figures/place_walks_beside_table.py [--looks] SEED_0.csv SEED_1.csv …
 """
 
 from __future__ import annotations
@@ -51,8 +54,9 @@ def pair(path: Path) -> tuple[dict[str, str], dict[str, str]]:
     return trees["baseline"], trees["current"]
 
 
-def table(paths: list[Path]) -> list[str]:
-    """The table, a row a timing and one for the devices' medians, then what differed."""
+def table(paths: list[Path], looks: bool = False) -> list[str]:
+    """The table, a row a timing and one for the devices' medians (and with ``looks`` one
+    for the merge looks' median), then what differed."""
     pairs = [pair(p) for p in paths]
     seeds = [int(base["seed"]) for base, _ in pairs]
     first = pairs[0][0]
@@ -68,6 +72,10 @@ def table(paths: list[Path]) -> list[str]:
     after = [float(ms) for _, c in pairs for ms in c["device_edge_ms"].split(";")]
     lines.append(paired_row("each device's median ms a device-slot, device by device",
                             before, after))
+    if looks:
+        lines.append(paired_row("a merge look's median ms (beside the slots)",
+                                [float(b["look_ms_median"]) for b, _ in pairs],
+                                [float(c["look_ms_median"]) for _, c in pairs]))
     differ = sorted({f for b, c in pairs for f in SAME_WALK if b[f] != c[f]})
     if not differ:
         return [*lines, "", "The same walk in both trees: every other figure equal."]
@@ -88,8 +96,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("runs", type=Path, nargs="+",
                         help="bench.place_walks --baseline --csv tables, one a seed")
+    parser.add_argument("--looks", action="store_true",
+                        help="a row more: the merge looks' median worker ms, paired by seed")
     args = parser.parse_args()
-    print("\n".join(table(args.runs)))
+    print("\n".join(table(args.runs, args.looks)))
 
 
 if __name__ == "__main__":
