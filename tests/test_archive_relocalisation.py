@@ -150,3 +150,55 @@ def test_a_place_with_too_few_votes_for_the_gate_is_not_solved(
     locate_in_archive(archive, feats.points, elsewhere, seq.intrinsics,  # type: ignore[attr-defined]
                       lenient)
     assert solved                                             # the candidate was solved
+
+
+def test_the_screen_passes_a_place_with_the_votes_asked_but_once_in_a_thousand() -> None:
+    """Each of a place's votes falls among the screened quarter of the features with
+    probability 1/4: the screen for v votes is the most sample votes a place of v falls short
+    of with probability 1e-3 at most (binomial), so a place the caller needs passes all but
+    that often, and one vote more would miss it more often."""
+    from scipy.stats import binom
+
+    from twinslam.slam.back_end.archive_relocalisation import SCREEN_STRIDE, screen_for
+
+    for votes in (10, 25, 50, 100):
+        screen = screen_for(votes)
+        assert binom.cdf(screen - 1, votes, 1 / SCREEN_STRIDE) <= 1e-3 < \
+            binom.cdf(screen, votes, 1 / SCREEN_STRIDE)
+    assert screen_for(50) == 4 and screen_for(1) == 0
+
+
+def test_a_screened_search_ends_at_the_sample_where_the_place_has_too_few_votes(
+        room: tuple[object, KeyFrameArchive, OrbExtractor],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A frame of another place (a dozen features in common) screened: only every fourth of
+    its features is searched, nothing solved, and the reason names the screen; a frame of the
+    room passes it and is found where the unscreened search finds it, on as many inliers."""
+    import twinslam.slam.back_end.archive_relocalisation as relocalisation
+
+    seq, archive, orb = room
+    searched: list[int] = []
+    recognise = archive.recognise
+
+    def counted(descriptors: np.ndarray, *args: object, **kwargs: object
+                ) -> list[tuple[int, int]]:
+        searched.append(len(descriptors))
+        return recognise(descriptors, *args, **kwargs)       # type: ignore[arg-type]
+
+    monkeypatch.setattr(archive, "recognise", counted)
+    feats = orb.extract(seq.read(127).color)                  # type: ignore[attr-defined]
+    elsewhere = np.random.default_rng(2).integers(0, 256, feats.descriptors.shape,
+                                                  dtype=np.uint8)
+    elsewhere[:12] = feats.descriptors[:12]
+    screened = ArchiveRelocalisationConfig(min_inliers=50, screen_votes=4)
+    refused = locate_in_archive(archive, feats.points, elsewhere, seq.intrinsics,  # type: ignore[attr-defined]
+                                screened)
+    assert not refused.found and "among every 4th feature" in refused.reason
+    assert searched == [len(range(0, len(elsewhere), relocalisation.SCREEN_STRIDE))]
+    searched.clear()
+    found = locate_in_archive(archive, feats.points, feats.descriptors,
+                              seq.intrinsics, screened)  # type: ignore[attr-defined]
+    plain = locate_in_archive(archive, feats.points, feats.descriptors, seq.intrinsics,  # type: ignore[attr-defined]
+                              ArchiveRelocalisationConfig(min_inliers=50))
+    assert found.found and searched[1] == len(feats.descriptors)
+    assert (found.keyframe, found.inliers) == (plain.keyframe, plain.inliers)

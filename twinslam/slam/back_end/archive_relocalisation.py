@@ -23,6 +23,7 @@ keyframes (:mod:`twinslam.slam.back_end.loop_closing`).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -37,6 +38,9 @@ from twinslam.slam.descriptor_matching import match_descriptors
 SOLVERS = ("usac", "epnp")
 #: hypotheses either solver may draw
 PNP_HYPOTHESES = 200
+#: the most PnP inliers a candidate finds a vote it had, rounded up: 1.9 over every candidate
+#: that passed its gate in the runs VOTES_TO_SOLVE names
+INLIERS_PER_VOTE = 2
 #: a candidate with fewer votes than this share of the gate's inliers is not solved. Its
 #: votes are the frame's features whose nearest point of the whole archive it observed; its
 #: PnP matches each feature among its group's points alone, so its inliers may exceed its
@@ -46,6 +50,10 @@ PNP_HYPOTHESES = 200
 #: another place's map proposed candidates of 1-17 votes, each solved in vain before (a
 #: descriptor match over its group's points, 3 ms): the look's place search ends there now
 VOTES_TO_SOLVE = 0.25
+#: a screened search (:attr:`ArchiveRelocalisationConfig.screen_votes`) first searches every
+#: SCREEN_STRIDE-th feature of the frame: a quarter of the search, spread over the image (the
+#: extractor lists its features cell by cell)
+SCREEN_STRIDE = 4
 
 
 @dataclass(frozen=True)
@@ -57,6 +65,9 @@ class ArchiveRelocalisationConfig:
     max_hamming: int = 64            #: of 256 bits
     reprojection_px: float = 3.0     #: RANSAC's inlier threshold
     solver: str = "usac"             #: one of SOLVERS
+    #: votes the best place must have among every SCREEN_STRIDE-th feature before the whole
+    #: frame is searched (0: the whole frame at once); see :func:`screen_for`
+    screen_votes: int = 0
 
     def __post_init__(self) -> None:
         if self.solver not in SOLVERS:
@@ -91,6 +102,14 @@ def locate_in_archive(archive: KeyFrameArchive, points_xy: np.ndarray, descripto
     desc = np.ascontiguousarray(descriptors, dtype=np.uint8).reshape(-1, 32)
     if len(xy) != len(desc):
         raise ValueError(f"{len(xy)} keypoints but {len(desc)} descriptors")
+    if config.screen_votes and len(desc):
+        sample = archive.recognise(desc[::SCREEN_STRIDE], top=1, eligible=eligible)
+        if not sample or sample[0][1] < config.screen_votes:
+            place, votes = sample[0] if sample else (-1, 0)
+            return ArchiveLocation(None, 0, place, (),
+                                   f"the best place has {votes} votes among every "
+                                   f"{SCREEN_STRIDE}th feature, fewer than the screen's "
+                                   f"{config.screen_votes}")
     proposed = archive.recognise(desc, top=config.candidates, eligible=eligible) \
         if len(desc) else []
     if not proposed:
@@ -125,6 +144,23 @@ def locate_in_archive(archive: KeyFrameArchive, points_xy: np.ndarray, descripto
         return ArchiveLocation(None, best.inliers, proposed[0][0], recognised,
                                f"{best.inliers} inliers, fewer than {config.min_inliers}")
     return best
+
+
+def screen_for(votes: int, miss: float = 1e-3) -> int:
+    """The screen (:attr:`ArchiveRelocalisationConfig.screen_votes`) that a place with
+    ``votes`` votes in the whole frame passes but with probability ``miss``: each of its
+    votes falls among the screened features with probability 1 / SCREEN_STRIDE, and the
+    screen asks for the most votes the sample falls short of no more often than that
+    (binomial). A place with fewer votes may be screened out: the caller asks for ``votes``
+    where no fewer can pass its gate."""
+    p = 1.0 / SCREEN_STRIDE
+    below = 0.0                       # P(sample votes < k), k = 0, 1, …
+    for k in range(votes + 1):
+        below_next = below + math.comb(votes, k) * p ** k * (1 - p) ** (votes - k)
+        if below_next > miss:
+            return k
+        below = below_next
+    return votes
 
 
 def _usac(threshold_px: float) -> cv2.UsacParams:

@@ -28,11 +28,17 @@ devices' poses are in one frame — the place's, the first map's.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from twinslam.slam.back_end.archive_relocalisation import (
+    INLIERS_PER_VOTE,
+    ArchiveRelocalisationConfig,
+    screen_for,
+)
 from twinslam.slam.back_end.foreign_keyframes import (
     foreign_mask,
     foreign_tag,
@@ -78,12 +84,22 @@ class MergeFinder:
     """Looks for another map's place in one joining map's new keyframes, and confirms it
     (one per pair of maps; the confirmation's state is kept across calls). Each detection
     needs ``min_inliers`` PnP inliers (MERGE_MIN_INLIERS by default: a whole map placed by
-    one keyframe's geometry waits for a place both maps see well)."""
+    one keyframe's geometry waits for a place both maps see well).
+
+    The place search is screened (:func:`~twinslam.slam.back_end.archive_relocalisation.
+    screen_for`): a keyframe's every fourth feature is searched first, and only where the
+    other map's best place has the votes there that a place of ``min_inliers`` inliers shows
+    but once in a thousand fewer is the whole keyframe searched. Most looks of a device whose
+    place no other device shares search another place's map, whose best place has a few
+    votes; the screen ends each such look at a quarter of its search."""
 
     def __init__(self, confirmations: int = CONFIRMATIONS,
                  min_inliers: int = MERGE_MIN_INLIERS) -> None:
         self.confirmation = LoopConfirmation(confirmations)
         self.min_inliers = min_inliers
+        self.search = ArchiveRelocalisationConfig(
+            min_inliers=MIN_INLIERS,
+            screen_votes=screen_for(math.ceil(min_inliers / INLIERS_PER_VOTE)))
         self.candidates = 0               #: keyframes whose geometry found the other map
         self.last: LoopCandidate | None = None   #: what the last keyframe found, or why not
 
@@ -95,7 +111,7 @@ class MergeFinder:
         (a store's snapshot): the merge, once confirmed; None until then."""
         pose = joining_poses[query.keyframe]
         candidate = recognise_place(other, query.points_xy, query.descriptors, intrinsics,
-                                    depths=query.depths)
+                                    self.search, depths=query.depths)
         if candidate.found and candidate.inliers < self.min_inliers:
             candidate = LoopCandidate(-1, None, None, candidate.inliers,
                                       f"{candidate.inliers} inliers, fewer than the merge's "
