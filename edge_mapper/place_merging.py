@@ -6,16 +6,17 @@ first camera. After each slot of a device whose map joined no other yet, the key
 integrated that slot are looked for in the whole map (archive and managed map) of one other
 device — a different one each slot, in turn (below) — on the process's loop-closing worker,
 queued with the loop jobs (:data:`~twinslam.slam.back_end.loop_closing.SHARED_WORKER`): place
-recognition in another device's map takes 17-30 ms a look (``bench.place_walks`` over three
+recognition in another device's map took 17-30 ms a look (``bench.place_walks`` over three
 places), half to two thirds of the looking device's own slot work, after every slot of a
-device whose place no other shares. On a thread of their own the looks took the slots'
-interpreter and cores beside the loop closer's worker, outside what the edge's
-``loop_worker_niceness``, ``loop_worker_share`` and ``loop_worker_yields`` bound; on the one
-worker the edge's background work is one queue under those bounds, and a look waits, before
-each of its keyframes, while a slot callback runs (as a loop job does before each query).
-A merge the joining map's
-next keyframes confirmed (:class:`~twinslam.slam.back_end.map_merging.MergeFinder`) is applied
-at the device's next slot end, before its map update goes out
+device whose place no other shares — 3-4 ms since its search is screened and stops at too few
+votes (:class:`~twinslam.slam.back_end.map_merging.MergeFinder`). On a thread of their own the
+looks took the slots' interpreter and cores beside the loop closer's worker, outside what the
+edge's ``loop_worker_niceness``, ``loop_worker_share`` and ``loop_worker_yields`` bound; on
+the one worker the edge's background work is one queue under those bounds, and a look waits,
+before each of its keyframes, while a slot callback runs (as a loop job does before each
+query). A merge the joining map's next keyframes confirmed
+(:class:`~twinslam.slam.back_end.map_merging.MergeFinder`) is applied at the device's next
+slot end, before its map update goes out
 (:meth:`~edge_mapper.edge_core.EdgeMapperCore.align`): that update carries the new frame
 correction, and the device's poses are in the place's frame from then on. From then on, at
 each slot end of either, each map adopts the other's own keyframes it has not adopted yet

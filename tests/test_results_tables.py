@@ -734,15 +734,18 @@ def test_the_shared_place_work_table_is_what_its_command_prints(runs: str) -> No
     assert _script("place_walks_beside_table").SAME_WALK == SAME_WALK
 
 
-def test_the_looks_votes_table_is_what_its_command_prints() -> None:
-    """Six devices over three places, the place search's votes gate against the tree before
-    it: the shared-map page holds the table ``place_walks_beside_table.py --looks`` prints
-    from the committed runs, line for line, and every seed walked one walk in both trees (the
-    page reads the looks' time on the same looks)."""
-    runs = sorted((FIGURES / "shared-map" / "place-walks" / "votes-to-solve").glob("seed-*.csv"))
-    printed = _script("place_walks_beside_table").table(runs, looks=True)
+@pytest.mark.parametrize("runs", ["votes-to-solve", "look-screen"])
+def test_the_looks_tables_are_what_their_command_prints(runs: str) -> None:
+    """Six devices over three places, the place search's votes gate and then the looks'
+    screen, each against the tree before it: the shared-map page holds each table
+    ``place_walks_beside_table.py --looks`` prints from the committed runs, line for line,
+    and every seed walked one walk in both trees (the page reads the looks' time on the same
+    looks)."""
+    folder = FIGURES / "shared-map" / "place-walks" / runs
+    runs_csv = sorted(folder.glob("seed-*.csv"))
+    printed = _script("place_walks_beside_table").table(runs_csv, looks=True)
     page = (REPO / "docs" / "results" / "shared-map.md").read_text(encoding="utf-8")
     lines = page.splitlines()
-    assert len(runs) == 4 and any(lines[i:i + len(printed)] == printed
+    assert len(runs_csv) == 4 and any(lines[i:i + len(printed)] == printed
                                   for i in range(len(lines)))
     assert printed[-1] == "The same walk in both trees: every other figure equal."
