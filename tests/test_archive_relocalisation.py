@@ -86,16 +86,11 @@ def test_a_frame_whose_matches_are_mostly_wrong_is_still_found(
     assert off < 0.025, off
 
 
-def test_the_search_stops_at_the_first_candidate_whose_pose_passes(
-        room: tuple[object, KeyFrameArchive, OrbExtractor],
-        monkeypatch: pytest.MonkeyPatch) -> None:
-    """Candidates are solved in the order of their votes and the first one through the gate
-    is the answer (ORB-SLAM's relocalisation and loop closing stop there too): a frame the
-    best-voted candidate places is solved once, not once per candidate; a frame no pose
-    holds for is solved against every candidate before it is refused."""
+
+def _solves_counted(monkeypatch: pytest.MonkeyPatch) -> list[list[int]]:
+    """Each candidate group the place search solves from now on (its PnP), in order."""
     import twinslam.slam.back_end.archive_relocalisation as relocalisation
 
-    seq, archive, orb = room
     solved: list[list[int]] = []
     solve = relocalisation._solve
 
@@ -104,6 +99,17 @@ def test_the_search_stops_at_the_first_candidate_whose_pose_passes(
         return solve(*args, **kwargs)                         # type: ignore[arg-type]
 
     monkeypatch.setattr(relocalisation, "_solve", counted)
+    return solved
+
+def test_the_search_stops_at_the_first_candidate_whose_pose_passes(
+        room: tuple[object, KeyFrameArchive, OrbExtractor],
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Candidates are solved in the order of their votes and the first one through the gate
+    is the answer (ORB-SLAM's relocalisation and loop closing stop there too): a frame the
+    best-voted candidate places is solved once, not once per candidate; a frame no pose
+    holds for is solved against every candidate before it is refused."""
+    seq, archive, orb = room
+    solved = _solves_counted(monkeypatch)
     feats = orb.extract(seq.read(127).color)                  # type: ignore[attr-defined]
     proposed = archive.recognise(feats.descriptors, top=3)
     assert len(proposed) == 3
@@ -124,17 +130,8 @@ def test_a_place_with_too_few_votes_for_the_gate_is_not_solved(
     merge look: 1-17 votes) is refused without a PnP — no candidate has a quarter of the
     gate's inliers in votes — and says so; under a gate its votes can reach, the best
     candidate is solved as before."""
-    import twinslam.slam.back_end.archive_relocalisation as relocalisation
-
     seq, archive, orb = room
-    solved: list[list[int]] = []
-    solve = relocalisation._solve
-
-    def counted(*args: object, **kwargs: object) -> tuple[np.ndarray | None, int]:
-        solved.append(list(args[1]))                          # type: ignore[call-overload]
-        return solve(*args, **kwargs)                         # type: ignore[arg-type]
-
-    monkeypatch.setattr(relocalisation, "_solve", counted)
+    solved = _solves_counted(monkeypatch)
     feats = orb.extract(seq.read(127).color)                  # type: ignore[attr-defined]
     rng = np.random.default_rng(2)
     elsewhere = rng.integers(0, 256, feats.descriptors.shape, dtype=np.uint8)
