@@ -86,7 +86,6 @@ def test_a_frame_whose_matches_are_mostly_wrong_is_still_found(
     assert off < 0.025, off
 
 
-
 def _solves_counted(monkeypatch: pytest.MonkeyPatch) -> list[list[int]]:
     """Each candidate group the place search solves from now on (its PnP), in order."""
     import twinslam.slam.back_end.archive_relocalisation as relocalisation

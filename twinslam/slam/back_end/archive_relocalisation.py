@@ -148,7 +148,7 @@ def locate_in_archive(archive: KeyFrameArchive, points_xy: np.ndarray, descripto
 
 def screen_for(votes: int, miss: float = 1e-3) -> int:
     """The screen (:attr:`ArchiveRelocalisationConfig.screen_votes`) that a place with
-    ``votes`` votes in the whole frame passes but with probability ``miss``: each of its
+    ``votes`` votes in the whole frame fails with probability ``miss`` at most: each of its
     votes falls among the screened features with probability 1 / SCREEN_STRIDE, and the
     screen asks for the most votes the sample falls short of no more often than that
     (binomial). A place with fewer votes may be screened out: the caller asks for ``votes``
