@@ -143,7 +143,7 @@ def main() -> None:
     exact = KeyFrameArchive(args.archive, words=PlaceWords(exact_below=sys.maxsize))
     for kf in kept:
         exact.add(kf, write=False)
-    n_points = len(np.unique(np.concatenate([kf.point_ids for kf in kept])))
+    n_points = _points_in(kept)
     foreign = _foreign_words(args.words_from, args.archive, orb, args.exact_below) \
         if args.words_from else None
     if foreign is not None:
@@ -242,10 +242,9 @@ def _foreign_words(sequence: str, keyframes: int, orb: OrbExtractor, exact_below
     kept = list(other)
     other.snapshot().recognise(kept[0].descriptors)        # learns the words (once an archive)
     if other.words.vocabulary is None:
-        points = len(np.unique(np.concatenate([kf.point_ids for kf in kept])))
         raise SystemExit(f"bench.loop_closer: {sequence} gave {len(kept)} keyframes of "
-                         f"{points} points, fewer than the {exact_below} that learn words "
-                         "(--exact-below)")
+                         f"{_points_in(kept)} points, fewer than the {exact_below} that learn "
+                         "words (--exact-below)")
     return other.words
 
 
@@ -285,6 +284,11 @@ def changing_archive_jobs(kept: list[ArchivedKeyFrame], words: PlaceWords,
         agreed += (fresh.candidate.old, fresh.candidate.inliers) == \
             (kept_.candidate.old, kept_.candidate.inliers)
     return built, with_index, agreed, index
+
+
+def _points_in(keyframes: list[ArchivedKeyFrame]) -> int:
+    """The map points the archived ``keyframes`` observe, each once."""
+    return len(np.unique(np.concatenate([kf.point_ids for kf in keyframes])))
 
 
 def _inliers(pairs: list[tuple[int, int]]) -> str:

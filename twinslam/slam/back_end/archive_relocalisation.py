@@ -114,16 +114,16 @@ def locate_in_archive(archive: KeyFrameArchive, points_xy: np.ndarray, descripto
         if len(desc) else []
     if not proposed:
         return ArchiveLocation(None, 0, -1, (), "the archive recognises no place in the frame")
-    if proposed[0][1] < VOTES_TO_SOLVE * config.min_inliers:
+    solvable = [kf_id for kf_id, votes in proposed
+                if votes >= VOTES_TO_SOLVE * config.min_inliers]
+    if not solvable:
         return ArchiveLocation(None, 0, proposed[0][0], (),
                                f"the best place has {proposed[0][1]} votes, too few for "
                                f"{config.min_inliers} inliers")
     best = ArchiveLocation(None, 0, proposed[0][0], (), "")
     solved: set[frozenset[int]] = set()
     recognised: tuple[int, ...] = ()
-    for kf_id, votes in proposed:
-        if votes < VOTES_TO_SOLVE * config.min_inliers:
-            break                        # ranked by votes: the rest have fewer still
+    for kf_id in solvable:
         group = [k for k in _with_neighbours(archive, kf_id, config.neighbours)
                  if eligible is None or eligible(k)]
         recognised = recognised or tuple(group)
