@@ -22,7 +22,7 @@ brings back fused with their copies) is the back end's.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 
 import numpy as np
 
@@ -71,6 +71,15 @@ class KeyFrameStore:
         shared points over."""
         return point_id_sets({k: kf.points for k, kf in self.managed.keyframes.items()},
                              self.archive)
+
+    def descriptors(self) -> Iterator[tuple[int, np.ndarray]]:
+        """Each kept keyframe's id and its points' ORB descriptors, the archive's first: what
+        a restored map files in the process's keyframe database
+        (:mod:`~twinslam.slam.back_end.keyframe_database`)."""
+        for kf in self.archive:
+            yield kf.id, kf.descriptors
+        for kf_id in list(self.managed.keyframes):
+            yield kf_id, ArchivedKeyFrame.of(self.managed, kf_id, 0).descriptors
 
     def snapshot(self, slot: int, index: KeptPlaceIndex | None = None) -> KeyFrameArchive:
         """Every keyframe kept, the slice's as they are at ``slot``, as one archive to

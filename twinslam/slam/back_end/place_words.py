@@ -75,12 +75,14 @@ class PlaceVocabulary:
     serial: int                  #: which vocabulary of its archive (a keyframe's words name it)
 
     @classmethod
-    def learn(cls, descriptors: np.ndarray, serial: int = 0, seed: int = 0) -> PlaceVocabulary:
+    def learn(cls, descriptors: np.ndarray, serial: int = 0, seed: int = 0,
+              words: int | None = None) -> PlaceVocabulary:
         """k-means over a sample of ``descriptors`` ((n, 32) uint8), the same sample and
-        words for the same descriptors."""
+        words for the same descriptors; ``words`` words (None: :func:`words_for` the
+        descriptors)."""
         import faiss
 
-        words = words_for(len(descriptors))
+        words = words_for(len(descriptors)) if words is None else words
         rng = np.random.default_rng(seed)
         take = min(len(descriptors), SAMPLES_A_WORD * words)
         sample = np.ascontiguousarray(

@@ -1,0 +1,112 @@
+"""The process's keyframe database tells which map a keyframe's place is in: a frame of the
+room scores the room's map first and a frame of the corridor the corridor's; nothing is
+ranked before its words are learned, and those are learned on the thread that scores; a map
+forgotten is not ranked until its device uploads again; a word every learning keyframe holds
+weighs nothing."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from twinslam.sequences.opening import open_sequence
+from twinslam.slam.back_end.keyframe_database import KeyFrameDatabase, WeightedWords
+from twinslam.slam.front_end.orb_extractor import OrbExtractor
+
+#: the frames filed as keyframes; the queries lie half way between them
+EVERY = 20
+FRAMES = 300
+
+
+@pytest.fixture(scope="module")
+def places() -> dict[str, dict[int, np.ndarray]]:
+    """The ORB descriptors of every tenth frame of the rendered room and corridor."""
+    orb = OrbExtractor()
+    out = {}
+    for name, spec in (("room", f"synthetic:{FRAMES}"),
+                       ("corridor", f"synthetic-corridor:{FRAMES}")):
+        sequence = open_sequence(spec)
+        out[name] = {i: orb.extract(sequence.read(i).color).descriptors     # type: ignore[attr-defined]
+                     for i in range(0, FRAMES, EVERY // 2)}
+    return out
+
+
+@pytest.fixture(scope="module")
+def words(places: dict[str, dict[int, np.ndarray]]) -> WeightedWords:
+    """Words learned from both places' keyframes, once for the tests that do not learn."""
+    return WeightedWords.learn([d for frames in places.values()
+                                for i, d in frames.items() if i % EVERY == 0])
+
+
+def _filed(places: dict[str, dict[int, np.ndarray]], words: WeightedWords) -> KeyFrameDatabase:
+    """Both places' keyframes filed, each under its place's map, under ``words``."""
+    database = KeyFrameDatabase()
+    database.words = words
+    for name, frames in places.items():
+        for index, descriptors in frames.items():
+            if index % EVERY == 0:
+                database.add(name, index, descriptors)
+    return database
+
+
+def test_a_frame_scores_the_map_of_its_own_place_first(
+        places: dict[str, dict[int, np.ndarray]], words: WeightedWords) -> None:
+    """Each frame between two keyframes of a place names that place's map first among the
+    candidates: a look goes there before the other place's map."""
+    database = _filed(places, words)
+    for name, frames in places.items():
+        for index, descriptors in frames.items():
+            if index % EVERY:
+                ranked = database.candidates([descriptors], ["room", "corridor"])
+                assert ranked and ranked[0] == name, (name, index, ranked)
+    assert database.keyframes("room") == database.keyframes("corridor") == FRAMES // EVERY
+
+
+def test_nothing_is_ranked_before_the_words_are_learned_on_the_scoring_thread(
+        places: dict[str, dict[int, np.ndarray]]) -> None:
+    """Adding only queues: the words are learned by the first scoring after enough
+    descriptors arrived; before, no map is ranked (the looks take the maps in turn)."""
+    room = places["room"]
+    database = KeyFrameDatabase(learn_from=sum(len(d) for d in room.values()))
+    database.add("room", 0, room[0])
+    assert database.candidates([room[10]], ["room"]) == [] and database.words is None
+    for index, descriptors in room.items():
+        database.add("room", index, descriptors)
+    assert database.words is None                       # queued, not learned in add
+    assert database.candidates([room[10]], ["room"]) == ["room"]
+    assert database.words is not None and database.keyframes("room") == len(room)
+
+
+def test_a_forgotten_map_is_not_ranked_until_its_device_uploads_again(
+        places: dict[str, dict[int, np.ndarray]], words: WeightedWords) -> None:
+    """A device served with a new map: the old map's keyframes leave the database; the new
+    map's, added after, are ranked."""
+    database = _filed(places, words)
+    query = places["room"][10]
+    assert database.candidates([query], ["room", "corridor"])[0] == "room"
+    database.forget("room")
+    assert database.candidates([query], ["room", "corridor"]) == ["corridor"]
+    assert database.keyframes("room") == 0
+    database.add("room", 7, places["room"][0])
+    assert database.candidates([query], ["room", "corridor"])[0] == "room"
+
+
+def test_a_word_every_learning_keyframe_holds_weighs_nothing() -> None:
+    """A word in every keyframe the vocabulary was learned from tells no keyframe from
+    another (its inverse document frequency is zero); a word in one of them weighs most."""
+    rng = np.random.default_rng(0)
+
+    def cluster(n: int) -> np.ndarray:
+        """``n`` descriptors a few bits from one drawn at random: one word's worth."""
+        base = np.unpackbits(rng.integers(0, 256, 32, dtype=np.uint8))
+        flips = rng.random((n, 256)) < 0.02
+        return np.packbits(base ^ flips, axis=1)
+
+    common = cluster(50 * 8)
+    keyframes = [np.concatenate([common[50 * i:50 * (i + 1)], cluster(50)]) for i in range(8)]
+    words = WeightedWords.learn(keyframes, words=12)
+    everywhere = int(words.vocabulary.assign(common[:1])[0])
+    assert words.weights[everywhere] == 0.0
+    assert words.weights.max() == pytest.approx(np.log(8.0))
+    vector = words.vector(keyframes[0])
+    assert vector[everywhere] == 0.0 and np.linalg.norm(vector) == pytest.approx(1.0)

@@ -1,0 +1,197 @@
+"""Which of the process's maps holds a keyframe's place: a bag of visual words for every
+keyframe the edge's devices uploaded, scored against a device's newest keyframes before any
+point of another map is searched — as ORB-SLAM3's place recognition asks one keyframe
+database over every map of its Atlas for candidates, not each map in turn.
+
+Why the merge looks need it: a look searches the points of one other device's map for the
+looking device's newest keyframes (3-4 ms, screened:
+:class:`~twinslam.slam.back_end.map_merging.MergeFinder`), and the looks took the other maps
+in turn. With N other maps, a newcomer's keyframes met its place's map once in N looks, and a
+merge needs three detections there: with nine devices over three places instead of six, two
+merges came 1-6 slots later. Scored here first, a look goes to the map whose keyframes are
+most like the newest ones, and to another only where it scores near that one
+(:meth:`KeyFrameDatabase.candidates`).
+
+The words are a flat vocabulary (:class:`~twinslam.slam.back_end.place_words.
+PlaceVocabulary`, faiss' binary k-means) of WORDS words, learned once from the first
+descriptors the database receives (SAMPLES_A_WORD a word), of whatever places those are.
+Each word is weighed by its inverse document frequency over those keyframes, fixed then, as
+DBoW2 fixes its weights when it learns its vocabulary. A keyframe is its tf-idf histogram,
+L2-normalised; two keyframes score the cosine of theirs. A thousand words cannot tell a
+keyframe from its neighbours (a keyframe's ~1000 features fall in some 600 of them), but they
+tell places apart (``bench.keyframe_database``: every frame of three places scored a keyframe
+of its own place highest, under words learned from one place or from another dataset; with
+256 or 512 words some did not). Coarse words leave no inverted file to prune, so a query is
+scored against every keyframe by one product over one matrix of them all (4 KB a keyframe),
+whose time grows with the keyframes filed (``bench.keyframe_database`` times it over 5000
+keyframes of 50 maps).
+
+Threads: :meth:`KeyFrameDatabase.add` and :meth:`KeyFrameDatabase.forget` only queue what
+they are given (the slot thread calls them). The words are assigned, and the vocabulary
+learned, by :meth:`KeyFrameDatabase.candidates` on the one thread that scores (the merge
+looks' worker): none of that is the slots' time. A keyframe a map culls or a copy it adopts
+is not told: the database is of what each device uploaded, and only chooses where to look.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from twinslam.slam.back_end.place_words import SAMPLES_A_WORD, PlaceVocabulary
+
+#: the vocabulary's words (fewer told places apart less often: ``bench.keyframe_database``)
+WORDS = 1024
+#: descriptors the vocabulary is learned from: enough for faiss' k-means (it warns under 39
+#: a word), about forty keyframes'
+LEARN_FROM = SAMPLES_A_WORD * WORDS
+#: a map is a candidate where its best keyframe scores at least this share of the best map's
+#: (``bench.keyframe_database`` prints how often another place comes this near)
+CANDIDATE_SHARE = 0.9
+#: rows a map's matrix starts with (it doubles as it fills)
+FIRST_ROWS = 64
+
+
+@dataclass(frozen=True)
+class WeightedWords:
+    """A vocabulary and its words' weights (inverse document frequency over the keyframes it
+    was learned from)."""
+
+    vocabulary: PlaceVocabulary
+    weights: np.ndarray          #: (words,) float32
+
+    @classmethod
+    def learn(cls, keyframes: Sequence[np.ndarray], words: int = WORDS, seed: int = 0
+              ) -> WeightedWords:
+        """Words learned from the descriptors of ``keyframes`` ((n, 32) uint8 each), weighed
+        by how few of them each word occurs in."""
+        vocabulary = PlaceVocabulary.learn(np.concatenate(keyframes), seed=seed, words=words)
+        occurs = np.zeros(words, dtype=np.int64)
+        for descriptors in keyframes:
+            occurs[np.unique(vocabulary.assign(descriptors))] += 1
+        weights = np.log(len(keyframes) / np.maximum(occurs, 1)).astype(np.float32)
+        return cls(vocabulary, weights)
+
+    def vector(self, descriptors: np.ndarray) -> np.ndarray:
+        """A keyframe's tf-idf histogram over the words, L2-normalised (zeros: no words)."""
+        return self.vectors([descriptors])[0]
+
+    def vectors(self, keyframes: Sequence[np.ndarray]) -> np.ndarray:
+        """:meth:`vector` of each of ``keyframes``, a row each: their words assigned in one
+        search."""
+        words = self.vocabulary.words
+        sizes = [len(d) for d in keyframes]
+        if not keyframes:
+            return np.zeros((0, words), dtype=np.float32)
+        assigned = self.vocabulary.assign(np.concatenate(keyframes))
+        rows = np.repeat(np.arange(len(keyframes)), sizes)
+        counts = np.bincount(rows * words + assigned, minlength=len(keyframes) * words)
+        weighed: np.ndarray = counts.reshape(len(keyframes), words).astype(np.float32) \
+            * self.weights
+        norms = np.linalg.norm(weighed, axis=1, keepdims=True)
+        return weighed / np.where(norms > 0, norms, 1.0).astype(np.float32)
+
+
+class KeyFrameDatabase:
+    """Every device's uploaded keyframes as bags of words, by map, to tell which maps a new
+    keyframe's place is likely in (:meth:`candidates`)."""
+
+    def __init__(self, learn_from: int = LEARN_FROM, words: int = WORDS,
+                 share: float = CANDIDATE_SHARE) -> None:
+        self.learn_from = learn_from
+        self.word_count = words
+        self.share = share
+        self.words: WeightedWords | None = None
+        self._queue: list[tuple[str, int | None, np.ndarray | None]] = []
+        self._queue_lock = threading.Lock()
+        #: keyframes received before the vocabulary was learned: what it is learned from
+        self._unfiled: list[tuple[str, int, np.ndarray]] = []
+        #: every filed keyframe's vector, a row each, in one matrix (one product scores a
+        #: query against every map); rows of a forgotten map stay, owned by none (-1)
+        self._matrix = np.zeros((FIRST_ROWS, words), dtype=np.float32)
+        self._owner = np.full(FIRST_ROWS, -1, dtype=np.int64)
+        self._used = 0
+        self._map_index: dict[str, int] = {}
+        self._rows: dict[str, dict[int, int]] = {}
+
+    def add(self, map_name: str, kf_id: int, descriptors: np.ndarray) -> None:
+        """Keyframe ``kf_id`` of ``map_name`` (its (n, 32) uint8 ORB descriptors), filed at the
+        next scoring; a keyframe added again replaces its row."""
+        with self._queue_lock:
+            self._queue.append((map_name, kf_id, descriptors))
+
+    def forget(self, map_name: str) -> None:
+        """Every keyframe of ``map_name`` dropped at the next scoring (its device starts a new
+        map), those added after this call kept."""
+        with self._queue_lock:
+            self._queue.append((map_name, None, None))
+
+    def keyframes(self, map_name: str) -> int:
+        """The keyframes of ``map_name`` filed (under words) so far."""
+        return len(self._rows.get(map_name, {}))
+
+    def scores(self, queries: Sequence[np.ndarray], maps: Sequence[str]) -> dict[str, float]:
+        """Each of ``maps``' best cosine score with any of ``queries`` (descriptor arrays),
+        after filing what was queued; empty while there are no words yet."""
+        self._file()
+        present = [q for q in queries if len(q)]
+        if self.words is None or not present or not self._used:
+            return {}
+        best_row = (self._matrix[:self._used] @ self.words.vectors(present).T).max(axis=1)
+        owner = self._owner[:self._used]
+        kept = owner >= 0
+        best = np.zeros(len(self._map_index))
+        np.maximum.at(best, owner[kept], best_row[kept])
+        return {m: float(best[self._map_index[m]]) for m in maps if self._rows.get(m)}
+
+    def candidates(self, queries: Sequence[np.ndarray], maps: Sequence[str]) -> list[str]:
+        """The maps among ``maps`` worth looking in for ``queries``' place, best first: the
+        best-scoring one and those within :attr:`share` of its score. Empty where nothing
+        scores (no words yet, no keyframes filed for ``maps``): the caller has no ranking."""
+        scores = self.scores(queries, maps)
+        best = max(scores.values(), default=0.0)
+        if best <= 0.0:
+            return []
+        ranked = sorted((m for m, s in scores.items() if s >= self.share * best),
+                        key=lambda m: -scores[m])
+        return ranked
+
+    def _file(self) -> None:
+        """What was queued, filed under the words — learned first, once enough descriptors
+        arrived."""
+        with self._queue_lock:
+            queued, self._queue = self._queue, []
+        for map_name, kf_id, descriptors in queued:
+            if kf_id is None:
+                for row in self._rows.pop(map_name, {}).values():
+                    self._owner[row] = -1
+                self._unfiled = [u for u in self._unfiled if u[0] != map_name]
+            elif descriptors is not None and len(descriptors):
+                self._unfiled.append((map_name, kf_id, descriptors))
+        if self.words is None:
+            if sum(len(d) for _, _, d in self._unfiled) < max(self.learn_from,
+                                                              self.word_count):
+                return                              # k-means needs a point a word, at least
+            self.words = WeightedWords.learn([d for _, _, d in self._unfiled],
+                                             self.word_count)
+        unfiled, self._unfiled = self._unfiled, []
+        if unfiled:
+            vectors = self.words.vectors([d for _, _, d in unfiled])
+            for (map_name, kf_id, _), vector in zip(unfiled, vectors, strict=True):
+                self._put(map_name, kf_id, vector)
+
+    def _put(self, map_name: str, kf_id: int, vector: np.ndarray) -> None:
+        rows = self._rows.setdefault(map_name, {})
+        owner = self._map_index.setdefault(map_name, len(self._map_index))
+        row = rows.get(kf_id)
+        if row is None:
+            if self._used == len(self._matrix):
+                self._matrix = np.concatenate([self._matrix, np.zeros_like(self._matrix)])
+                self._owner = np.concatenate([self._owner, np.full_like(self._owner, -1)])
+            row = rows[kf_id] = self._used
+            self._used += 1
+        self._matrix[row] = vector
+        self._owner[row] = owner
