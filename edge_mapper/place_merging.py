@@ -4,7 +4,8 @@ edge node's ``merge_maps``), beside the slots.
 An edge serving several devices keeps a map per device, each in the frame of its device's
 first camera. After each slot of a device whose map joined no other yet, the keyframes it
 integrated that slot are looked for in the whole map (archive and managed map) of one other
-device — a different one each slot, in turn (below) — on the process's loop-closing worker,
+device — the one whose keyframes its last look's scored most like in the process's keyframe
+database (below) — on the process's loop-closing worker,
 queued with the loop jobs (:data:`~twinslam.slam.back_end.loop_closing.SHARED_WORKER`): place
 recognition in another device's map took 17-30 ms a look (``bench.place_walks`` over three
 places), half to two thirds of the looking device's own slot work, after every slot of a
@@ -34,8 +35,14 @@ keyframes.
 The devices in one frame are a place: its first device in the edge's order (the root) and
 the devices that joined it; the place's frame is its root's first camera's, and its
 archives recognise places under its root's vocabulary, learned once a place, not once a
-device (:meth:`~twinslam.slam.back_end.place_words.PlaceWords.share`). Each root looks,
-in turn, in the maps of the devices of every other place; where it finds its keyframes, the
+device (:meth:`~twinslam.slam.back_end.place_words.PlaceWords.share`). Each root looks in
+the maps of the devices of every other place: in the one its keyframes score highest in the
+process's keyframe database (:mod:`~twinslam.slam.back_end.keyframe_database`, every
+device's uploaded keyframes as bags of words; scored on the worker, by the look before), and
+in turn among those scoring near it; in turn among all of them while the database has no
+words yet (its first ~40 keyframes, of any devices). Taken in turn only, a newcomer's
+keyframes met its place's map once in as many looks as there were other maps, and merged
+later the more devices the edge served. Where it finds its keyframes, the
 two places become one in the earlier root's frame — the later place's devices, all of them,
 moved by the merge's motion (or its inverse, when the later place's map was the one looked
 in) at once, between slots: a device walking ahead of an earlier one never comes to a place
@@ -54,6 +61,7 @@ back in. A device whose root is not served (yet) is a place of its own again and
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Callable, Mapping
 from concurrent.futures import Future, wait
@@ -63,8 +71,9 @@ import numpy as np
 
 from edge_mapper.edge_core import EdgeMapperCore, set_aside
 from edge_mapper.place_membership import PlaceMembership, run_after, source_of
-from twinslam.slam.back_end.foreign_keyframes import foreign_tag, source_id, tag_of
+from twinslam.slam.back_end.foreign_keyframes import foreign_tag, is_foreign, source_id, tag_of
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
+from twinslam.slam.back_end.keyframe_database import KeyFrameDatabase
 from twinslam.slam.back_end.loop_closing import SHARED_WORKER, LoopQuery, SharedWorker
 from twinslam.slam.back_end.map_back_end import FollowedLoop
 from twinslam.slam.back_end.map_merging import (
@@ -110,6 +119,9 @@ class _Look:
     found: str = ""
     #: the other map's frame correction when it started (a reverse look's: its map moves)
     other_frame: np.ndarray | None = None
+    #: the maps the keyframe database ranked worth the next look, best first (empty: no
+    #: ranking, the next look takes the other maps in turn)
+    ranked: tuple[str, ...] = ()
 
 
 class PlaceMerging:
@@ -120,8 +132,13 @@ class PlaceMerging:
     def __init__(self, cores: Callable[[], Mapping[str, EdgeMapperCore]],
                  background: bool = True, min_inliers: int = MERGE_MIN_INLIERS,
                  lend_in_view: bool = True, unseen_slots: int = 0,
-                 worker: SharedWorker = SHARED_WORKER) -> None:
+                 worker: SharedWorker = SHARED_WORKER,
+                 database: KeyFrameDatabase | None = None) -> None:
         self.cores = cores
+        #: every device's uploaded keyframes as bags of words: which maps a look goes to
+        self.database = database if database is not None else KeyFrameDatabase()
+        #: device → the maps its last look's keyframes scored highest in, best first
+        self._ranked: dict[str, tuple[str, ...]] = {}
         #: looks on ``worker`` (the process's loop-closing worker by default), else in the
         #: caller (the benches: answers that do not depend on the threads' timing)
         self.background = background
@@ -186,6 +203,7 @@ class PlaceMerging:
         restored, in words ("": nothing)."""
         core = self.cores()[device]
         core.saved_with = lambda: self.membership(device).arrays()
+        self.database.forget(device)         # a new map, or the restored one's own keyframes
         if not core.back_end.restored_from_file:
             # a new map: past the runs of the maps set aside before it, in this process or
             # (its file moved aside) in an edge that ran before
@@ -193,6 +211,9 @@ class PlaceMerging:
                                      run_after(set_aside(core.checkpoint))
                                      if core.checkpoint is not None else 0)
             return ""
+        for kf_id, descriptors in core.back_end.store.descriptors():
+            if not is_foreign(kf_id):
+                self.database.add(device, kf_id, descriptors)
         record = PlaceMembership.read(core.back_end.extra)
         self._runs[device] = record.run
         for lender, count in record.followed.items():
@@ -238,7 +259,9 @@ class PlaceMerging:
         return source_of(device, self._runs.get(device, 0))
 
     def keyframe(self, device: str, data: KeyFramePayload) -> None:
-        """A keyframe of ``device`` the edge accepted: its features, for the next look."""
+        """A keyframe of ``device`` the edge accepted: filed in the keyframe database (a look
+        may come to its map), and its features kept for the device's next look."""
+        self.database.add(device, data.frame_id, data.descriptors)
         if device in self.joined:
             return
         queries = self._queries.setdefault(device, [])
@@ -345,6 +368,7 @@ class PlaceMerging:
         del self._running[device]
         look = running.result()
         self.look_ms.append(look.ms)
+        self._ranked[device] = look.ranked
         if look.error:
             self._failed.append(f"looking for {look.other}'s place failed: {look.error}")
         if look.merge is None:
@@ -391,16 +415,21 @@ class PlaceMerging:
         return self._brought.pop(device, [])
 
     def look(self, device: str, slot: int) -> None:
-        """After ``device``'s slot end: its newest keyframes looked for in the whole map of the
-        next device of another place (:meth:`others`, in turn), on the worker (nothing while
-        its last look runs, or with nothing new)."""
+        """After ``device``'s slot end: its newest keyframes looked for in the whole map of a
+        device of another place (:meth:`others`), on the worker (nothing while its last look
+        runs, or with nothing new). The map is the one its last look's keyframes scored
+        highest in the keyframe database, or in turn those within its candidate share; the
+        others in turn while nothing is ranked (the database's words not learned yet). The
+        look ranks its own keyframes for the next one (on the worker: the words' time is not
+        the slot's)."""
         queries = self._queries.get(device)
         others = self.others(device)
         if not queries or not others or device in self._running:
             return
         turn = self._turn.get(device, 0)
         self._turn[device] = turn + 1
-        place = others[turn % len(others)]
+        pool = [d for d in self._ranked.get(device, ()) if d in others] or others
+        place = pool[turn % len(pool)]
         cores = self.cores()
         other, joining = cores[place], cores[device]
         if not other.map.keyframes or not joining.camera.known:
@@ -413,11 +442,14 @@ class PlaceMerging:
         job = (place, finder, snapshot, tuple(queries), poses, joining.k.copy(),
                joining.frame_correction.copy(), other.frame_correction.copy())
         self._queries[device] = []
+        rank = functools.partial(self.database.candidates,
+                                 [query.descriptors for query in queries], others)
         if self.background:
-            self._running[device] = self.worker.submit(_look, *job, self.worker.wait_for_slots)
+            self._running[device] = self.worker.submit(_look, *job, self.worker.wait_for_slots,
+                                                       rank)
         else:
             done: Future[_Look] = Future()
-            done.set_result(_look(*job))
+            done.set_result(_look(*job, rank=rank))
             self._running[device] = done
 
     def forget(self, device: str) -> None:
@@ -447,6 +479,8 @@ class PlaceMerging:
         self._running.pop(device, None)
         self._look_indexes.pop(device, None)
         self._turn.pop(device, None)
+        self._ranked.pop(device, None)
+        self.database.forget(device)
         self._recorded.pop(device, None)
         self._clashes = {pair for pair in self._clashes if device not in pair}
         for pair in [pair for pair in self._finders if device in pair]:
@@ -476,16 +510,25 @@ def _copies_of(core: EdgeMapperCore, source: int) -> set[int]:
 def _look(place: str, finder: MergeFinder, other: KeyFrameArchive,
           queries: tuple[LoopQuery, ...], poses: dict[int, np.ndarray], intrinsics: np.ndarray,
           frame: np.ndarray, other_frame: np.ndarray,
-          pause: Callable[[], None] = lambda: None) -> _Look:
+          pause: Callable[[], None] = lambda: None,
+          rank: Callable[[], list[str]] = list) -> _Look:
     """The looking map's ``queries`` (oldest first) offered to ``finder`` against the other
     device's whole map ``other``, until one confirms a merge; a failure reported in the
     answer, never raised (a look that fails must not take the edge's slots down with it).
     ``pause`` is called before each query: the worker waits there for the slots' work
     (:meth:`~twinslam.slam.back_end.loop_closing.SharedWorker.wait_for_slots`); the time
-    it waits is not the look's."""
+    it waits is not the look's. First, ``rank`` scores the queries in the keyframe database:
+    the maps the next look goes to (its time is the look's)."""
     spent = 0.0
     merge = None
+    ranked: tuple[str, ...] = ()
     try:
+        pause()
+        started = time.perf_counter()
+        try:
+            ranked = tuple(rank())
+        finally:
+            spent += time.perf_counter() - started
         for query in sorted(queries, key=lambda q: q.keyframe):
             if query.keyframe in poses:
                 pause()
@@ -498,9 +541,10 @@ def _look(place: str, finder: MergeFinder, other: KeyFrameArchive,
                     break
     except Exception as exc:            # reported by the device's next slot end
         return _Look(place, None, frame, spent * 1e3, f"{type(exc).__name__}: {exc}",
-                     other_frame=other_frame)
+                     other_frame=other_frame, ranked=ranked)
     last = finder.last
     found = "" if merge is not None or last is None else (
         f"keyframe {last.old} on {last.inliers} inliers, not confirmed yet" if last.found
         else last.reason)
-    return _Look(place, merge, frame, spent * 1e3, found=found, other_frame=other_frame)
+    return _Look(place, merge, frame, spent * 1e3, found=found, other_frame=other_frame,
+                 ranked=ranked)

@@ -20,10 +20,12 @@ from edge_mapper.place_membership import PlaceMembership, source_of
 from edge_mapper.place_merging import MergeEvent, PlaceMerging, _look
 from edge_mapper.slot_planner import FrameObservations, SlotConfig
 from tests.test_archive_relocalisation import room  # noqa: F401 (the archived room fixture)
+from tests.test_keyframe_database import places  # noqa: F401 (the room's and corridor's features)
 from twinslam.policies.registry import make_policy
 from twinslam.rotations import rotation_angle_deg
 from twinslam.slam.back_end.foreign_keyframes import foreign_tag, is_foreign, ties_to_copies
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive, restore_into
+from twinslam.slam.back_end.keyframe_database import KeyFrameDatabase
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.back_end.loop_closing import (
     ACROSS_GAP_SLOTS,
@@ -263,6 +265,56 @@ def test_the_edge_merges_a_later_device_into_an_earlier_ones_frame(room: Room) -
     assert cores["ar1"].back_end.loop_across == {ar2}
 
 
+def _looks_of_ar2_in_the_room(room: Room, places: dict[str, dict[int, np.ndarray]],  # noqa: F811
+                              database: KeyFrameDatabase,
+                              monkeypatch: pytest.MonkeyPatch) -> tuple[list[str], PlaceMerging]:
+    """ar0 mapped the corridor and ar1 the room (their uploads filed in ``database``); ar2
+    walks the room, a keyframe a slot (the room's frames 4, 64, 124, 184, 244), each looked
+    for after its slot; the maps its looks went to, in order, until it merged."""
+    import edge_mapper.place_merging as place_merging
+
+    cores = {"ar0": _core(), **_room_and_newcomer(room)}
+    cores["ar0"].map.add_keyframe(1, np.eye(4))
+    cores["ar0"].back_end.k = room[0].intrinsics                  # type: ignore[attr-defined]
+    for index, descriptors in places["corridor"].items():
+        database.add("ar0", index, descriptors)
+    for kf in room[1]:
+        database.add("ar1", kf.id, kf.descriptors)
+    merging = PlaceMerging(lambda: cores, background=False, database=database)
+    looked: list[str] = []
+
+    def spied(place: str, *args: object, **kwargs: object) -> object:
+        looked.append(place)
+        return _look(place, *args, **kwargs)                      # type: ignore[arg-type]
+
+    monkeypatch.setattr(place_merging, "_look", spied)
+    for slot, frame in enumerate((4, 64, 124, 184, 244)):
+        key = 10 + slot
+        cores["ar2"].map.add_keyframe(key, _second_pose(room, frame))
+        merging.keyframe("ar2", _payload(room, frame, key))
+        merging.take("ar2")
+        merging.look("ar2", slot)
+    merging.take("ar2")
+    return looked, merging
+
+
+def test_a_look_goes_to_the_map_its_keyframes_scored_highest_in(
+        room: Room, places: dict[str, dict[int, np.ndarray]],  # noqa: F811
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The first look has nothing ranked and takes the other maps in turn (the corridor's);
+    it scores ar2's keyframes in the keyframe database, and the next looks go to the room's
+    map, where three of them merge ar2. Taken in turn, every other look went to the corridor
+    and five slots were not enough."""
+    looked, merging = _looks_of_ar2_in_the_room(room, places,
+                                                KeyFrameDatabase(learn_from=10_000),
+                                                monkeypatch)
+    assert looked == ["ar0", "ar1", "ar1", "ar1"] and merging.joined == {"ar2": "ar1"}
+    in_turn, unmerged = _looks_of_ar2_in_the_room(room, places,
+                                                  KeyFrameDatabase(learn_from=10**9),
+                                                  monkeypatch)
+    assert in_turn == ["ar0", "ar1", "ar0", "ar1", "ar0"] and unmerged.joined == {}
+
+
 def test_the_merge_looks_queue_on_the_loop_workers_thread_behind_its_work(
         room: Room) -> None:  # noqa: F811
     """A look goes on the worker the edge's loop jobs run on, behind what is queued there (the
@@ -306,8 +358,9 @@ def test_the_merge_looks_queue_on_the_loop_workers_thread_behind_its_work(
 def test_a_look_pauses_for_the_slots_before_each_of_its_keyframes(
         room: Room, monkeypatch: pytest.MonkeyPatch) -> None:  # noqa: F811
     """The worker waits for the slots' work before each keyframe a look offers (as a loop job
-    does before each query), not once a look; the pauses are not the look's time: on a clock
-    that moves only while the look pauses, the look took no time at all."""
+    does before each query) and before it ranks them, not once a look; the pauses are not the
+    look's time: on a clock that moves only while the look pauses, the look took no time at
+    all."""
     import edge_mapper.place_merging as place_merging
 
     _, archive, _ = room
@@ -323,7 +376,9 @@ def test_a_look_pauses_for_the_slots_before_each_of_its_keyframes(
     look = _look("ar1", MergeFinder(), archive, queries, poses,
                  room[0].intrinsics, np.eye(4), np.eye(4), pause)  # type: ignore[attr-defined]
     assert look.merge is not None and look.merge.joining == 12 and not look.error
-    assert clock[0] == 300.0 and look.ms == 0.0          # three pauses, none of them counted
+    # a pause before the keyframe database's ranking and one before each keyframe, none of
+    # them counted
+    assert clock[0] == 400.0 and look.ms == 0.0
 
 
 def _tracked_at(core: EdgeMapperCore, slot: int, pose: np.ndarray | None) -> None:
@@ -464,7 +519,8 @@ def test_an_edge_restarted_from_its_checkpoints_serves_each_device_in_the_place_
         core.close()
 
     restarted: dict[str, EdgeMapperCore] = {}
-    again = PlaceMerging(lambda: restarted, background=False)
+    again = PlaceMerging(lambda: restarted, background=False,
+                         database=KeyFrameDatabase(learn_from=2000))
     restarted["ar2"] = _core(checkpoint=tmp_path / "edge.ar2.npz")
     assert again.serve("ar2") == ("its place's root ar1 is not served: a place of its own "
                                   "until ar1 is, or a look finds the place again")
@@ -480,6 +536,12 @@ def test_an_edge_restarted_from_its_checkpoints_serves_each_device_in_the_place_
     for d, core in restarted.items():
         np.testing.assert_allclose(core.frame_correction, frames[d])
         assert again.membership(d) == followed[d]
+    # the keyframe database holds each restored map's own keyframes, not the copies it
+    # adopted (those are their lender's): ar2 holds the room's keyframes as copies, and its
+    # own three have no points here, so nothing of ar2's map is filed
+    again.database.scores([], [])
+    assert again.database.keyframes("ar1") == len(room[1])
+    assert len(restarted["ar2"].archive) > len(room[1]) and again.database.keyframes("ar2") == 0
 
 
 def test_a_device_whose_copies_would_share_another_devices_tag_lends_nothing(
