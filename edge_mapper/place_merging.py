@@ -442,8 +442,8 @@ class PlaceMerging:
         job = (place, finder, snapshot, tuple(queries), poses, joining.k.copy(),
                joining.frame_correction.copy(), other.frame_correction.copy())
         self._queries[device] = []
-        rank = functools.partial(self.database.candidates,
-                                 [query.descriptors for query in queries], others)
+        rank = functools.partial(self.database.candidates_of, device,
+                                 [query.keyframe for query in queries], others)
         if self.background:
             self._running[device] = self.worker.submit(_look, *job, self.worker.wait_for_slots,
                                                        rank)
