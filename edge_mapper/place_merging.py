@@ -90,6 +90,9 @@ from twinslam.slam.keyframe import KeyFramePayload
 #: newest integrated keyframes of a slot looked for (a slot integrates a few; a look costs
 #: place recognition for each)
 LOOK_QUERIES = 3
+#: uploads queued for the keyframe database past which a device that makes no look files
+#: them on the worker (the looks file them otherwise)
+FILE_QUEUED = 64
 
 
 @dataclass(frozen=True)
@@ -139,6 +142,8 @@ class PlaceMerging:
         self.database = database if database is not None else KeyFrameDatabase()
         #: device → the maps its last look's keyframes scored highest in, best first
         self._ranked: dict[str, tuple[str, ...]] = {}
+        #: the database's queue being filed on the worker (:meth:`_file_beside`)
+        self._filing: Future[None] | None = None
         #: looks on ``worker`` (the process's loop-closing worker by default), else in the
         #: caller (the benches: answers that do not depend on the threads' timing)
         self.background = background
@@ -425,6 +430,7 @@ class PlaceMerging:
         queries = self._queries.get(device)
         others = self.others(device)
         if not queries or not others or device in self._running:
+            self._file_beside()
             return
         turn = self._turn.get(device, 0)
         self._turn[device] = turn + 1
@@ -451,6 +457,17 @@ class PlaceMerging:
             done: Future[_Look] = Future()
             done.set_result(_look(*job, rank=rank))
             self._running[device] = done
+
+    def _file_beside(self) -> None:
+        """The keyframe database's queue filed on the worker once it is long (no look filed
+        it: every device in one place, or one device alone), one filing at a time."""
+        if self.database.queued() < FILE_QUEUED or (
+                self._filing is not None and not self._filing.done()):
+            return
+        if self.background:
+            self._filing = self.worker.submit(self.database.file)
+        else:
+            self.database.file()
 
     def forget(self, device: str) -> None:
         """A reclaimed device, or one that started again: served again, it starts a map of its
@@ -492,12 +509,15 @@ class PlaceMerging:
         return failed
 
     def close(self) -> None:
-        """Wait for the looks on the worker: a running one finishes, one not started yet is
-        dropped (its map is closing)."""
+        """Wait for the looks on the worker (and a filing of the keyframe database's queue):
+        a running one finishes, one not started yet is dropped (its map is closing)."""
         looks = [look for look in self._running.values() if not look.cancel()]
+        filing = [self._filing] if self._filing is not None and not self._filing.cancel() \
+            else []
         self._running.clear()
         with self.worker.outside_slot_work():
             wait(looks)
+            wait(filing)
 
 
 def _copies_of(core: EdgeMapperCore, source: int) -> set[int]:

@@ -91,6 +91,23 @@ def test_a_forgotten_map_is_not_ranked_until_its_device_uploads_again(
     assert database.candidates([query], ["room", "corridor"])[0] == "room"
 
 
+def test_a_map_keeps_its_newest_keyframes_only(
+        places: dict[str, dict[int, np.ndarray]], words: WeightedWords) -> None:
+    """Past its bound a map's next keyframe takes its oldest one's row: the database grows
+    with the maps, not with the session, and what it knows of a map is where it went last."""
+    database = KeyFrameDatabase(kept_a_map=3)
+    database.words = words
+    room = places["room"]
+    for index, descriptors in room.items():
+        database.add("room", index, descriptors)
+    database.file()
+    assert database.queued() == 0 and database.keyframes("room") == 3
+    assert database.rows == 3                      # the rows were given on, not added
+    newest = max(room)
+    assert database.scores([room[newest]], ["room"])["room"] == pytest.approx(1.0, abs=1e-5)
+    assert database.scores([room[0]], ["room"])["room"] < 0.99     # its first left
+
+
 def test_a_word_every_learning_keyframe_holds_weighs_nothing() -> None:
     """A word in every keyframe the vocabulary was learned from tells no keyframe from
     another (its inverse document frequency is zero); a word in one of them weighs most."""

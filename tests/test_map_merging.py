@@ -315,6 +315,25 @@ def test_a_look_goes_to_the_map_its_keyframes_scored_highest_in(
     assert in_turn == ["ar0", "ar1", "ar0", "ar1", "ar0"] and unmerged.joined == {}
 
 
+def test_a_device_alone_files_its_uploads_though_it_makes_no_look(room: Room) -> None:  # noqa: F811
+    """One device on an edge that merges maps has no other map to look in, so no look files
+    the keyframe database's queue: past FILE_QUEUED uploads the device's slot end has it
+    filed (on the worker; here in the caller), and the queue keeps no upload's features."""
+    from edge_mapper.place_merging import FILE_QUEUED
+
+    cores = {"ar1": _core()}
+    merging = PlaceMerging(lambda: cores, background=False,
+                           database=KeyFrameDatabase(learn_from=10**9))
+    payload = _payload(room, 4, 10)
+    for key in range(FILE_QUEUED - 1):
+        merging.keyframe("ar1", dataclasses.replace(payload, frame_id=key))
+        merging.look("ar1", key)
+    assert merging.database.queued() == FILE_QUEUED - 1       # short: left for a look
+    merging.keyframe("ar1", dataclasses.replace(payload, frame_id=FILE_QUEUED))
+    merging.look("ar1", FILE_QUEUED)
+    assert merging.database.queued() == 0 and merging.look_ms == []
+
+
 def test_the_merge_looks_queue_on_the_loop_workers_thread_behind_its_work(
         room: Room) -> None:  # noqa: F811
     """A look goes on the worker the edge's loop jobs run on, behind what is queued there (the

@@ -53,8 +53,12 @@ LEARN_FROM = SAMPLES_A_WORD * WORDS
 #: a map is a candidate where its best keyframe scores at least this share of the best map's
 #: (``bench.keyframe_database`` prints how often another place comes this near)
 CANDIDATE_SHARE = 0.9
-#: rows a map's matrix starts with (it doubles as it fills)
+#: rows the matrix starts with (it doubles as it fills)
 FIRST_ROWS = 64
+#: a map's newest filed keyframes kept, its oldest row given to its next keyframe past it:
+#: the edge's map keeps as many (its archive 500 by default, its slice a few dozen), and the
+#: database stays as large as the maps, not the session
+KEPT_A_MAP = 512
 
 
 @dataclass(frozen=True)
@@ -103,10 +107,11 @@ class KeyFrameDatabase:
     keyframe's place is likely in (:meth:`candidates`)."""
 
     def __init__(self, learn_from: int = LEARN_FROM, words: int = WORDS,
-                 share: float = CANDIDATE_SHARE) -> None:
+                 share: float = CANDIDATE_SHARE, kept_a_map: int = KEPT_A_MAP) -> None:
         self.learn_from = learn_from
         self.word_count = words
         self.share = share
+        self.kept_a_map = kept_a_map
         self.words: WeightedWords | None = None
         self._queue: list[tuple[str, int | None, np.ndarray | None]] = []
         self._queue_lock = threading.Lock()
@@ -131,6 +136,22 @@ class KeyFrameDatabase:
         map), those added after this call kept."""
         with self._queue_lock:
             self._queue.append((map_name, None, None))
+
+    def queued(self) -> int:
+        """Keyframes and forgettings waiting for the next scoring (or :meth:`file`)."""
+        with self._queue_lock:
+            return len(self._queue)
+
+    def file(self) -> None:
+        """File what was queued now (on the scoring thread): where no look scores for a
+        while — every device of the edge in one place, or one device alone — the queue
+        would keep every upload's descriptors."""
+        self._file()
+
+    @property
+    def rows(self) -> int:
+        """Rows the matrix uses: every map's filed keyframes, and those of forgotten maps."""
+        return self._used
 
     def keyframes(self, map_name: str) -> int:
         """The keyframes of ``map_name`` filed (under words) so far."""
@@ -213,6 +234,9 @@ class KeyFrameDatabase:
         rows = self._rows.setdefault(map_name, {})
         owner = self._map_index.setdefault(map_name, len(self._map_index))
         row = rows.get(kf_id)
+        if row is None and len(rows) >= self.kept_a_map:
+            row = rows.pop(next(iter(rows)))            # its oldest keyframe's row
+            rows[kf_id] = row
         if row is None:
             if self._used == len(self._matrix):
                 self._matrix = np.concatenate([self._matrix, np.zeros_like(self._matrix)])
