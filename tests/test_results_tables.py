@@ -749,3 +749,32 @@ def test_the_looks_tables_are_what_their_command_prints(runs: str) -> None:
     assert len(runs_csv) == 4 and any(lines[i:i + len(printed)] == printed
                                   for i in range(len(lines)))
     assert printed[-1] == "The same walk in both trees: every other figure equal."
+
+
+@pytest.mark.parametrize("devices", ["six", "nine"])
+def test_the_keyframe_database_tables_are_what_their_command_prints(devices: str) -> None:
+    """Six and nine devices over three places, the looks sent where the keyframe database
+    ranks first against the looks in turn: the shared-map page holds each table
+    ``place_walks_beside_table.py --looks --merges`` prints from the committed runs, line
+    for line, with no false merge in either tree."""
+    folder = FIGURES / "shared-map" / "place-walks" / "keyframe-database" / devices
+    runs_csv = sorted(folder.glob("seed-*.csv"))
+    printed = _script("place_walks_beside_table").table(runs_csv, looks=True, merges=True)
+    page = (REPO / "docs" / "results" / "shared-map.md").read_text(encoding="utf-8")
+    lines = page.splitlines()
+    assert len(runs_csv) == 2 and any(lines[i:i + len(printed)] == printed
+                                      for i in range(len(lines)))
+    assert "False merges: 0 in the baseline, 0 in this tree; devices merged in one tree " \
+        "only: 0." in printed
+
+
+def test_the_keyframe_databases_places_apart_are_what_the_page_says() -> None:
+    """The words tell places apart as the shared-map page says: at 1024 words, 449 of the
+    450 frames (three places, three vocabularies) scored their own place first."""
+    path = FIGURES / "shared-map" / "keyframe-database" / "places-apart.csv"
+    with path.open(encoding="utf-8") as fh:
+        rows = [row for row in csv.DictReader(fh) if row["words"] == "1024"]
+    won = sum(int(row["own_first"]) for row in rows)
+    asked = sum(int(row["queries"]) for row in rows)
+    page = (REPO / "docs" / "results" / "shared-map.md").read_text(encoding="utf-8")
+    assert (won, asked) == (449, 450) and f"{won} of {asked} frames" in page

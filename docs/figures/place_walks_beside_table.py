@@ -8,9 +8,13 @@ where some do, the walk's own figures side by side (cross-device error, ATE, loo
 lost share, copies; each device's ATE device by device).
 
 With ``--looks`` a row more: the median of a merge look's worker time (``look_ms_median``),
-outside the device-slots (the looks run beside the slots, as on the node's worker).
+outside the device-slots (the looks run beside the slots, as on the node's worker). With
+``--merges`` another: the slot of its own walk at which each later device's map merged,
+device by device over the devices merged in both trees, and the false merges (a device
+joining another place's) of each tree, counted under the table.
 
-    .venv/bin/python docs/figures/place_walks_beside_table.py [--looks] SEED_0.csv SEED_1.csv …
+    .venv/bin/python docs/figures/place_walks_beside_table.py [--looks] [--merges]
+        SEED_0.csv SEED_1.csv …
 """
 
 from __future__ import annotations
@@ -54,9 +58,10 @@ def pair(path: Path) -> tuple[dict[str, str], dict[str, str]]:
     return trees["baseline"], trees["current"]
 
 
-def table(paths: list[Path], looks: bool = False) -> list[str]:
+def table(paths: list[Path], looks: bool = False, merges: bool = False) -> list[str]:
     """The table, a row a timing and one for the devices' medians (and with ``looks`` one
-    for the merge looks' median), then what differed."""
+    for the merge looks' median, with ``merges`` one for the merges' slots and a line for
+    the false merges), then what differed."""
     pairs = [pair(p) for p in paths]
     seeds = [int(base["seed"]) for base, _ in pairs]
     first = pairs[0][0]
@@ -76,6 +81,8 @@ def table(paths: list[Path], looks: bool = False) -> list[str]:
         lines.append(paired_row("a merge look's median ms (beside the slots)",
                                 [float(b["look_ms_median"]) for b, _ in pairs],
                                 [float(c["look_ms_median"]) for _, c in pairs]))
+    if merges:
+        lines += _merge_rows(pairs)
     differ = sorted({f for b, c in pairs for f in SAME_WALK if b[f] != c[f]})
     if not differ:
         return [*lines, "", "The same walk in both trees: every other figure equal."]
@@ -92,14 +99,37 @@ def table(paths: list[Path], looks: bool = False) -> list[str]:
     return lines
 
 
+def _merge_rows(pairs: list[tuple[dict[str, str], dict[str, str]]]) -> list[str]:
+    """The merges' slots paired device by device (the devices that merged in both trees;
+    a place's first device merges into none), and a line of the trees' false merges and of
+    the devices that merged in one tree only."""
+    before, after, one_tree = [], [], 0
+    for base, current in pairs:
+        for b, c in zip(base["device_merge_slot"].split(";"),
+                        current["device_merge_slot"].split(";"), strict=True):
+            if int(b) >= 0 and int(c) >= 0:
+                before.append(float(b))
+                after.append(float(c))
+            elif int(b) >= 0 or int(c) >= 0:
+                one_tree += 1
+    false = [sum(int(run["false_merges"]) for run in arm) for arm in zip(*pairs, strict=True)]
+    return [paired_row("the slot of its walk each later device merged at, device by device",
+                       before, after, "{:.0f}"),
+            "", f"False merges: {false[0]} in the baseline, {false[1]} in this tree; devices "
+            f"merged in one tree only: {one_tree}."]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("runs", type=Path, nargs="+",
                         help="bench.place_walks --baseline --csv tables, one a seed")
     parser.add_argument("--looks", action="store_true",
                         help="a row more: the merge looks' median worker ms, paired by seed")
+    parser.add_argument("--merges", action="store_true",
+                        help="a row more: each later device's merge slot, paired device by "
+                        "device, and the false merges")
     args = parser.parse_args()
-    print("\n".join(table(args.runs, args.looks)))
+    print("\n".join(table(args.runs, args.looks, args.merges)))
 
 
 if __name__ == "__main__":
