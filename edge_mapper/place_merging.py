@@ -538,17 +538,20 @@ def _look(place: str, finder: MergeFinder, other: KeyFrameArchive,
     ``pause`` is called before each query: the worker waits there for the slots' work
     (:meth:`~twinslam.slam.back_end.loop_closing.SharedWorker.wait_for_slots`); the time
     it waits is not the look's. First, ``rank`` scores the queries in the keyframe database:
-    the maps the next look goes to (its time is the look's)."""
+    the maps the next look goes to (its time is the look's); a ranking that fails is reported
+    and the look searches on (the next one takes the maps in turn)."""
     spent = 0.0
     merge = None
     ranked: tuple[str, ...] = ()
+    unranked = ""
+    pause()
+    started = time.perf_counter()
     try:
-        pause()
-        started = time.perf_counter()
-        try:
-            ranked = tuple(rank())
-        finally:
-            spent += time.perf_counter() - started
+        ranked = tuple(rank())
+    except Exception as exc:            # reported with the look's answer
+        unranked = f"ranking the maps: {type(exc).__name__}: {exc}"
+    spent += time.perf_counter() - started
+    try:
         for query in sorted(queries, key=lambda q: q.keyframe):
             if query.keyframe in poses:
                 pause()
@@ -566,5 +569,5 @@ def _look(place: str, finder: MergeFinder, other: KeyFrameArchive,
     found = "" if merge is not None or last is None else (
         f"keyframe {last.old} on {last.inliers} inliers, not confirmed yet" if last.found
         else last.reason)
-    return _Look(place, merge, frame, spent * 1e3, found=found, other_frame=other_frame,
-                 ranked=ranked)
+    return _Look(place, merge, frame, spent * 1e3, unranked, found=found,
+                 other_frame=other_frame, ranked=ranked)

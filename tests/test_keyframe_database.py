@@ -89,6 +89,7 @@ def test_a_forgotten_map_is_not_ranked_until_its_device_uploads_again(
     assert database.keyframes("room") == 0
     database.add("room", 7, places["room"][0])
     assert database.candidates([query], ["room", "corridor"])[0] == "room"
+    assert database.rows == 2 * (FRAMES // EVERY)         # its new keyframe took a freed row
 
 
 def test_a_map_keeps_its_newest_keyframes_only(

@@ -400,6 +400,25 @@ def test_a_look_pauses_for_the_slots_before_each_of_its_keyframes(
     assert clock[0] == 400.0 and look.ms == 0.0
 
 
+def test_a_look_whose_ranking_fails_still_searches_and_says_why(room: Room) -> None:  # noqa: F811
+    """The keyframe database failing to rank (a faiss error, say) costs the next look its
+    choice of map, not this look its search: it merges as it would have, the failure in its
+    answer for the slot end to log, and nothing ranked for the next one."""
+    _, archive, _ = room
+    frames = {10: 4, 11: 64, 12: 124}
+    poses = {k: _second_pose(room, f) for k, f in frames.items()}
+    queries = tuple(_query(room, f, k) for k, f in frames.items())
+
+    def broken() -> list[str]:
+        raise RuntimeError("no words")
+
+    look = _look("ar1", MergeFinder(), archive, queries, poses,
+                 room[0].intrinsics, np.eye(4), np.eye(4),     # type: ignore[attr-defined]
+                 rank=broken)
+    assert look.merge is not None and look.merge.joining == 12
+    assert look.error == "ranking the maps: RuntimeError: no words" and look.ranked == ()
+
+
 def _tracked_at(core: EdgeMapperCore, slot: int, pose: np.ndarray | None) -> None:
     """``core``'s device summarises a slot whose one frame it tracked at ``pose`` (None: it
     tracked nothing, it is lost), and the edge plans the slot."""

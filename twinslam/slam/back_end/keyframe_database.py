@@ -118,10 +118,12 @@ class KeyFrameDatabase:
         #: keyframes received before the vocabulary was learned: what it is learned from
         self._unfiled: list[tuple[str, int, np.ndarray]] = []
         #: every filed keyframe's vector, a row each, in one matrix (one product scores a
-        #: query against every map); rows of a forgotten map stay, owned by none (-1)
+        #: query against every map); a forgotten map's rows are owned by none (-1) and free
+        #: for the next keyframes
         self._matrix = np.zeros((FIRST_ROWS, words), dtype=np.float32)
         self._owner = np.full(FIRST_ROWS, -1, dtype=np.int64)
         self._used = 0
+        self._free: list[int] = []
         self._map_index: dict[str, int] = {}
         self._rows: dict[str, dict[int, int]] = {}
 
@@ -150,7 +152,8 @@ class KeyFrameDatabase:
 
     @property
     def rows(self) -> int:
-        """Rows the matrix uses: every map's filed keyframes, and those of forgotten maps."""
+        """Rows the matrix uses: every map's filed keyframes, and those a forgotten map left
+        free."""
         return self._used
 
     def keyframes(self, map_name: str) -> int:
@@ -215,6 +218,7 @@ class KeyFrameDatabase:
             if kf_id is None:
                 for row in self._rows.pop(map_name, {}).values():
                     self._owner[row] = -1
+                    self._free.append(row)
                 self._unfiled = [u for u in self._unfiled if u[0] != map_name]
             elif descriptors is not None and len(descriptors):
                 self._unfiled.append((map_name, kf_id, descriptors))
@@ -237,6 +241,8 @@ class KeyFrameDatabase:
         if row is None and len(rows) >= self.kept_a_map:
             row = rows.pop(next(iter(rows)))            # its oldest keyframe's row
             rows[kf_id] = row
+        if row is None and self._free:
+            row = rows[kf_id] = self._free.pop()
         if row is None:
             if self._used == len(self._matrix):
                 self._matrix = np.concatenate([self._matrix, np.zeros_like(self._matrix)])
