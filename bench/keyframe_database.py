@@ -63,7 +63,8 @@ def main() -> None:
                         help="the places' sequences, separated by commas")
     parser.add_argument("--learn-from", default=f"{SEVEN_SCENES}:20",
                         help="SEQUENCE[:KEYFRAMES]: the words are learned from its first "
-                        "KEYFRAMES keyframes (every --every-th frame)")
+                        "KEYFRAMES keyframes (20 by default): every --every-th frame of one "
+                        "of the places, or each frame of another sequence")
     parser.add_argument("--words", default="256,512,1024",
                         help="vocabulary sizes to compare, separated by commas")
     parser.add_argument("--every", type=int, default=20,
