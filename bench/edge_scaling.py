@@ -52,6 +52,15 @@ spread along the corridor walked twice, ``--stagger 40``: a device that comes to
 mapped uploads little of it). ``bench.place_walks`` measures a shared place with each device
 tracking on the map the edge sends it instead, in one process.
 
+``--places P`` makes the fleet walk P places: device k replays the recording as place
+k mod P, every keyframe's ORB descriptors XORed with a 256-bit mask of that place's own
+(:meth:`Recording.of_place`; place 0 is the recording). A device's own map matches,
+integrates and closes loops as the recording's did (XOR keeps every Hamming distance within
+a place), while no descriptor of one place is near another's: place recognition relates no
+two places, as the maps of two buildings. With ``--merge-maps on`` the devices of a place
+merge and the others look for their place after every slot, as a fleet of which only some
+share a place does (``--devices 16 --places 8``: every place walked by two).
+
 The devices' starts are spread over one slot period (``--stagger 1``): each sends its
 summaries at a phase of its own, but all of them walk the recording in step, so the slots
 where they come back and restore keyframes fall together — the worst a fleet can do to an
@@ -69,6 +78,7 @@ setting's full collections: a full collection stalls every device the process se
                                  [--hosts] [--recording DIR] [--csv FILE] [--slots-csv FILE]
                                  [--slots-plot PNG] [--collector-log]
                                  [--merge-maps on --lend-in-view on|off --unseen-slots N]
+                                 [--places P]
 """
 
 from __future__ import annotations
@@ -89,7 +99,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import numpy as np
-from rclpy.serialization import deserialize_message
+from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.rosbag2 import Reader
 from twinslam_msgs.msg import (
     FrameSummaries,
@@ -132,6 +142,23 @@ class Recording:
 
     def __post_init__(self) -> None:
         self.slots = sorted(self.summaries)
+
+    def of_place(self, place: int) -> Recording:
+        """This walk as one of another place that looks like no other: every keyframe's ORB
+        descriptors XORed with a 256-bit mask drawn for ``place`` (0: the recording itself).
+        XOR keeps each Hamming distance between two of its descriptors, so the place's own
+        map is built as the recording's was; a descriptor of another place lies ~128 bits
+        from each of its own."""
+        if place == 0:
+            return self
+        mask = np.random.default_rng(place).integers(0, 256, 32, dtype=np.uint8)
+        keyframes = {}
+        for frame, raw in self.keyframes.items():
+            kf = deserialize_message(raw, Keyframe)
+            kf.descriptors = (np.asarray(kf.descriptors, dtype=np.uint8).reshape(-1, 32)
+                              ^ mask).reshape(-1)
+            keyframes[frame] = bytes(serialize_message(kf))
+        return Recording(self.summaries, self.rates, keyframes, self.slot_s)
 
     @classmethod
     def read(cls, folder: Path) -> Recording:
@@ -308,7 +335,8 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             niceness: int | None = None, share: float | None = None,
             yields: bool | None = None, background: bool | None = None,
             across: bool | None = None, in_view: bool | None = None,
-            unseen: int | None = None) -> tuple[dict[str, float], list[dict[str, float]]]:
+            unseen: int | None = None, places: int = 1
+            ) -> tuple[dict[str, float], list[dict[str, float]]]:
     """One fleet of ``n`` emulated devices served, their starts spread evenly over ``stagger``
     slot periods, each device's map checkpointed every ``checkpoint_every`` slots (0: never),
     the edges' loop workers ``niceness`` steps below their slots, at most ``share`` of a
@@ -317,7 +345,8 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
     closing with the other devices' keyframes or not (``across``), each map lent the other
     devices' keyframes once its device heads where it sees them or at once (``in_view``),
     a lent copy its device has not held nor seen for ``unseen`` slots given back (0: kept;
-    None: the edge's defaults); the table's row and every device-slot's figures (its latency,
+    None: the edge's defaults), device k walking place k mod ``places``
+    (:meth:`Recording.of_place`); the table's row and every device-slot's figures (its latency,
     the edge's compute, what the slot restored, uploaded, closed)."""
     names = [f"ar{i + 1}" for i in range(n)]
     with pools_env(pools), fleet_network(edges, hosts) as (dom, _), \
@@ -356,7 +385,9 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
                 raise SystemExit(f"an edge did not come up: {dom.log(edge)[-2000:]}")
         with RosSession("bench_devices") as ros:
             now = time.monotonic() + 2.0
-            devices = [EmulatedDevice(d, recording, now + i * stagger * recording.slot_s / n)
+            walks = [recording.of_place(p) for p in range(places)]
+            devices = [EmulatedDevice(d, walks[i % places],
+                                      now + i * stagger * recording.slot_s / n)
                        for i, d in enumerate(names)]
             for dev in devices:
                 pub, sub = ros.node.create_publisher, ros.node.create_subscription
@@ -439,7 +470,7 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             # reports point ids this edge lacks, and its frames count as lost
             "lost_share": float(np.mean([s.lost_share for s in stats])) if stats else math.nan,
             "compute_budget": compute_budget, "trimmed": log.count("compute: slot work takes"),
-            "merge_maps": merge_maps,
+            "merge_maps": merge_maps, "places": places,
             # each device moved into another's place logs it once, at its next slot end
             "merged": len(MOVED_LINE.findall(log))}, slots
 
@@ -493,7 +524,12 @@ def main() -> None:
                         help="the edge's compute_budget (a share of one core; 0: none)")
     parser.add_argument("--merge-maps", default="off",
                         help="off, on, or off,on to compare: the edges merge the maps of their "
-                             "devices (all of which replay one walk, so share one place)")
+                             "devices (all of which replay one walk, so share one place, "
+                             "unless --places)")
+    parser.add_argument("--places", type=int, default=1,
+                        help="places the fleet walks: device k replays the walk as place "
+                             "k mod PLACES, its descriptors XORed with a mask of the place's "
+                             "own, related to no other place's")
     parser.add_argument("--slots-plot", type=Path, default=None,
                         help="draw every setting's device-slots along the walk here (PNG): "
                              "the latency across devices against the slot period, the edge's "
@@ -553,6 +589,8 @@ def main() -> None:
         parser.error(f"--stagger: slot periods, 0 or more, not {args.stagger:g}")
     if args.checkpoint_every < 0:
         parser.error(f"--checkpoint-every: slots, 0 or more, not {args.checkpoint_every}")
+    if args.places < 1:
+        parser.error(f"--places: 1 or more, not {args.places}")
     nicenesses = values_to_compare(parser, "--loop-worker-niceness",
                                    args.loop_worker_niceness, int, 0, 19, "steps")
     shares = values_to_compare(parser, "--loop-worker-share", args.loop_worker_share, float,
@@ -584,7 +622,7 @@ def main() -> None:
           f"{len(recording.keyframes)} keyframes recorded; policy {args.policy}; slot period "
           f"{recording.slot_s:.3g} s (the recording's); compute budget "
           f"{args.compute_budget:g} of a core; the devices' starts spread over "
-          f"{args.stagger:g} slot periods; "
+          f"{args.stagger:g} slot periods; {args.places} place(s); "
           f"{checkpoints}"
           f"{'edge and device hosts (network namespaces)' if args.hosts else 'loopback'}",
           flush=True)
@@ -615,7 +653,7 @@ def main() -> None:
             row, slots = measure(n, recording, args.policy, args.compute_budget, edges, pools,
                                  args.hosts, merging[merge], args.stagger,
                                  args.checkpoint_every, nice, share, yields, background,
-                                 across, in_view, unseen)
+                                 across, in_view, unseen, args.places)
             full = [c for c in collections() if c[0] == 2]
         if args.collector_log:
             row.update(full_collections=len(full),

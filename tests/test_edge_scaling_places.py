@@ -1,0 +1,44 @@
+"""``bench.edge_scaling --places``: a recorded walk replayed as a place of its own keeps the
+walk's own descriptor distances (its map is built as the recording's was) and shares no
+near descriptor with another place's (place recognition relates no two places)."""
+
+from __future__ import annotations
+
+import numpy as np
+from rclpy.serialization import deserialize_message, serialize_message
+from twinslam_msgs.msg import Keyframe
+
+from bench.edge_scaling import Recording
+
+
+def hamming_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Bits apart, every descriptor of ``a`` against every one of ``b``."""
+    return np.unpackbits(a[:, None, :] ^ b[None, :, :], axis=2).sum(axis=2)
+
+
+def _descriptors(raw: bytes) -> np.ndarray:
+    return np.asarray(deserialize_message(raw, Keyframe).descriptors,
+                      dtype=np.uint8).reshape(-1, 32)
+
+
+def test_a_place_of_its_own_keeps_its_walks_distances_and_nears_no_other_place() -> None:
+    rng = np.random.default_rng(0)
+    walk = {frame: rng.integers(0, 256, (40, 32), dtype=np.uint8) for frame in (3, 4)}
+    walk[4][:10] = walk[3][:10]                        # ten features seen again,
+    walk[4][:10, 0] ^= np.uint8(1)                     # a bit off
+    recording = Recording({0: b""}, {0: 10.0},
+                          {frame: bytes(serialize_message(Keyframe(
+                              frame_id=frame, descriptors=d.reshape(-1))))
+                           for frame, d in walk.items()})
+    assert recording.of_place(0) is recording
+    first, second = recording.of_place(1), recording.of_place(2)
+    for frame, raw in first.keyframes.items():
+        assert deserialize_message(raw, Keyframe).frame_id == frame
+    own = [_descriptors(first.keyframes[f]) for f in (3, 4)]
+    np.testing.assert_array_equal(hamming_matrix(own[0], own[1]),
+                                  hamming_matrix(walk[3], walk[4]))
+    assert hamming_matrix(own[0][:10], own[1][:10]).diagonal().max() == 1
+    for other in (walk[3], _descriptors(second.keyframes[3])):
+        across = hamming_matrix(own[0], other)
+        assert across.min() > 64 and 96 < across.mean() < 160
+    assert first.summaries is recording.summaries and first.slot_s == recording.slot_s
