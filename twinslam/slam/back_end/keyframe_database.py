@@ -19,20 +19,23 @@ Each word is weighed by its inverse document frequency over those keyframes, fix
 DBoW2 fixes its weights when it learns its vocabulary. A keyframe is its tf-idf histogram,
 L2-normalised; two keyframes score the cosine of theirs. A thousand words cannot tell a
 keyframe from its neighbours (a keyframe's ~1000 features fall in some 600 of them), but they
-tell places apart (``bench.keyframe_database``: every frame of three places scored a keyframe
-of its own place highest, under words learned from one place or from another dataset; with
-256 or 512 words some did not). Coarse words leave no inverted file to prune, so a query is
-scored against every keyframe by one product over one matrix of them all (4 KB a keyframe),
-whose time grows with the keyframes filed: a look's ranking of three keyframes took 3.0 ms
-over 5000 keyframes of 50 maps and 14 ms over 20 000 (``bench.keyframe_database``, one
-thread; filing ~1 ms a keyframe, its words assigned once). Finer words in an inverted file
-(DBoW2's ~10⁶) are what would keep it flat as the maps grow.
+tell places apart (``bench.keyframe_database``: 449 of 450 frames of three places scored a
+keyframe of their own place highest, the other level with another's, under words learned from the
+places or another dataset; with 256 or 512 words 13 and 3 did not). Coarse words leave
+no inverted file to prune, so a query is scored against every keyframe by one product over
+one matrix of them all (4 KB a keyframe), whose time grows with the keyframes filed: a
+look's ranking of three keyframes took 3.0 ms over 5000 keyframes of 50 maps and 14 ms over
+20 000 (``bench.keyframe_database``, one thread; filing ~1 ms a keyframe, its words assigned
+once). Finer words in an inverted file (DBoW2's ~10⁶) are what would keep it flat as the
+maps grow.
 
 Threads: :meth:`KeyFrameDatabase.add` and :meth:`KeyFrameDatabase.forget` only queue what
 they are given (the slot thread calls them). The words are assigned, and the vocabulary
-learned, by :meth:`KeyFrameDatabase.candidates` on the one thread that scores (the merge
-looks' worker): none of that is the slots' time. A keyframe a map culls or a copy it adopts
-is not told: the database is of what each device uploaded, and only chooses where to look.
+learned, by the scoring (:meth:`KeyFrameDatabase.candidates_of`) and the filing
+(:meth:`KeyFrameDatabase.file`) on the one thread that calls them (the merge looks' worker):
+none of that is the slots' time. A map keeps its newest KEPT_A_MAP keyframes, the database
+as large as the maps. A keyframe a map culls or a copy it adopts is not told: the database
+is of what each device uploaded, and only chooses where to look.
 """
 
 from __future__ import annotations
