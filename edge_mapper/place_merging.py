@@ -378,7 +378,8 @@ class PlaceMerging:
             self._failed.append(f"looking for {look.other}'s place failed: {look.error}")
         if look.merge is None:
             count, _ = self.unmerged_looks.get(device, (0, ""))
-            self.unmerged_looks[device] = (count + 1, f"in {look.other}'s map: {look.found}")
+            self.unmerged_looks[device] = (count + 1, f"in {look.other}'s map: {look.found}; "
+                                           f"{_next_looks(look.ranked)}")
             return moved
         cores = self.cores()
         if device not in cores or look.other not in cores or device in self.joined or \
@@ -518,6 +519,17 @@ class PlaceMerging:
         with self.worker.outside_slot_work():
             wait(looks)
             wait(filing)
+
+
+def _next_looks(ranked: tuple[str, ...]) -> str:
+    """Where the next looks go, in words, for the edge's log of a device not merged yet."""
+    if not ranked:
+        return "the next in the other maps in turn (no ranking: the keyframe database has no " \
+            "words yet)"
+    maps = " or ".join(f"{d}'s" for d in ranked)
+    return (f"the next in {maps} map, whose keyframes its own are most like"
+            if len(ranked) == 1 else
+            f"the next in {maps} map in turn, whose keyframes its own are most like")
 
 
 def _copies_of(core: EdgeMapperCore, source: int) -> set[int]:

@@ -309,10 +309,16 @@ def test_a_look_goes_to_the_map_its_keyframes_scored_highest_in(
                                                 KeyFrameDatabase(learn_from=10_000),
                                                 monkeypatch)
     assert looked == ["ar0", "ar1", "ar1", "ar1"] and merging.joined == {"ar2": "ar1"}
+    # the edge's log of the first, unmerged look says where the next ones go, and why
+    assert merging.unmerged_looks["ar2"][1].endswith(
+        "; the next in ar1's map, whose keyframes its own are most like")
     in_turn, unmerged = _looks_of_ar2_in_the_room(room, places,
                                                   KeyFrameDatabase(learn_from=10**9),
                                                   monkeypatch)
     assert in_turn == ["ar0", "ar1", "ar0", "ar1", "ar0"] and unmerged.joined == {}
+    assert unmerged.unmerged_looks["ar2"][1].endswith(
+        "the next in the other maps in turn (no ranking: the keyframe database has no words "
+        "yet)")
 
 
 def test_a_device_alone_files_its_uploads_though_it_makes_no_look(room: Room) -> None:  # noqa: F811
