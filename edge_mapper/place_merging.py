@@ -93,6 +93,10 @@ LOOK_QUERIES = 3
 #: uploads queued for the keyframe database past which a device that makes no look files
 #: them on the worker (the looks file them otherwise)
 FILE_QUEUED = 64
+#: one look in this many goes to the other maps in turn, whatever the keyframe database
+#: ranks first: a place its words misjudge (one that scores below another that looks alike)
+#: is still looked for, at worst this many times the other maps' count of looks apart
+EXPLORE_EVERY = 8
 
 
 @dataclass(frozen=True)
@@ -142,6 +146,9 @@ class PlaceMerging:
         self.database = database if database is not None else KeyFrameDatabase()
         #: device → the maps its last look's keyframes scored highest in, best first
         self._ranked: dict[str, tuple[str, ...]] = {}
+        #: device → its looks that took the other maps in turn (unranked, or every
+        #: EXPLORE_EVERY-th)
+        self._explored: dict[str, int] = {}
         #: the database's queue being filed on the worker (:meth:`_file_beside`)
         self._filing: Future[None] | None = None
         #: looks on ``worker`` (the process's loop-closing worker by default), else in the
@@ -425,9 +432,9 @@ class PlaceMerging:
         device of another place (:meth:`others`), on the worker (nothing while its last look
         runs, or with nothing new). The map is the one its last look's keyframes scored
         highest in the keyframe database, or in turn those within its candidate share; the
-        others in turn while nothing is ranked (the database's words not learned yet). The
-        look ranks its own keyframes for the next one (on the worker: the words' time is not
-        the slot's)."""
+        others in turn while nothing is ranked (the database's words not learned yet), and
+        every EXPLORE_EVERY-th look whatever is ranked. The look ranks its own keyframes for
+        the next one (on the worker: the words' time is not the slot's)."""
         queries = self._queries.get(device)
         others = self.others(device)
         if not queries or not others or device in self._running:
@@ -435,8 +442,13 @@ class PlaceMerging:
             return
         turn = self._turn.get(device, 0)
         self._turn[device] = turn + 1
-        pool = [d for d in self._ranked.get(device, ()) if d in others] or others
-        place = pool[turn % len(pool)]
+        ranked = [d for d in self._ranked.get(device, ()) if d in others]
+        if ranked and (turn + 1) % EXPLORE_EVERY:
+            place = ranked[turn % len(ranked)]
+        else:                             # in turn: no ranking yet, or the odd look out
+            explored = self._explored.get(device, 0)
+            self._explored[device] = explored + 1
+            place = others[explored % len(others)]
         cores = self.cores()
         other, joining = cores[place], cores[device]
         if not other.map.keyframes or not joining.camera.known:
@@ -498,6 +510,7 @@ class PlaceMerging:
         self._look_indexes.pop(device, None)
         self._turn.pop(device, None)
         self._ranked.pop(device, None)
+        self._explored.pop(device, None)
         self.database.forget(device)
         self._recorded.pop(device, None)
         self._clashes = {pair for pair in self._clashes if device not in pair}

@@ -266,18 +266,25 @@ def test_the_edge_merges_a_later_device_into_an_earlier_ones_frame(room: Room) -
 
 
 def _looks_of_ar2_in_the_room(room: Room, places: dict[str, dict[int, np.ndarray]],  # noqa: F811
-                              database: KeyFrameDatabase,
-                              monkeypatch: pytest.MonkeyPatch) -> tuple[list[str], PlaceMerging]:
-    """ar0 mapped the corridor and ar1 the room (their uploads filed in ``database``); ar2
-    walks the room, a keyframe a slot (the room's frames 4, 64, 124, 184, 244), each looked
-    for after its slot; the maps its looks went to, in order, until it merged."""
+                              database: KeyFrameDatabase, monkeypatch: pytest.MonkeyPatch,
+                              frames: tuple[int, ...] = (4, 64, 124, 184, 244),
+                              ar0_files: str = "corridor") -> tuple[list[str], PlaceMerging]:
+    """ar0 mapped the corridor and ar1 the room (their uploads filed in ``database``; with
+    ``ar0_files="ar2's frames"`` the database is told ar0 uploaded the very frames ar2 will,
+    its ranking misjudging where the room is); ar2 walks the room, a keyframe a slot (the room's
+    ``frames``), each looked for after its slot; the maps its looks went to, in order,
+    until it merged."""
     import edge_mapper.place_merging as place_merging
 
     cores = {"ar0": _core(), **_room_and_newcomer(room)}
     cores["ar0"].map.add_keyframe(1, np.eye(4))
     cores["ar0"].back_end.k = room[0].intrinsics                  # type: ignore[attr-defined]
-    for index, descriptors in places["corridor"].items():
-        database.add("ar0", index, descriptors)
+    if ar0_files == "ar2's frames":                  # words misled: ar0 "holds" ar2's views
+        for index, frame in enumerate(frames):
+            database.add("ar0", index, _query(room, frame, 0).descriptors)
+    else:
+        for index, descriptors in places[ar0_files].items():
+            database.add("ar0", index, descriptors)
     for kf in room[1]:
         database.add("ar1", kf.id, kf.descriptors)
     merging = PlaceMerging(lambda: cores, background=False, database=database)
@@ -288,7 +295,7 @@ def _looks_of_ar2_in_the_room(room: Room, places: dict[str, dict[int, np.ndarray
         return _look(place, *args, **kwargs)                      # type: ignore[arg-type]
 
     monkeypatch.setattr(place_merging, "_look", spied)
-    for slot, frame in enumerate((4, 64, 124, 184, 244)):
+    for slot, frame in enumerate(frames):
         key = 10 + slot
         cores["ar2"].map.add_keyframe(key, _second_pose(room, frame))
         merging.keyframe("ar2", _payload(room, frame, key))
@@ -338,6 +345,22 @@ def test_a_device_alone_files_its_uploads_though_it_makes_no_look(room: Room) ->
     merging.keyframe("ar1", dataclasses.replace(payload, frame_id=FILE_QUEUED))
     merging.look("ar1", FILE_QUEUED)
     assert merging.database.queued() == 0 and merging.look_ms == []
+
+
+def test_a_place_the_words_misjudge_is_still_looked_for_every_eighth_look(
+        room: Room, places: dict[str, dict[int, np.ndarray]],  # noqa: F811
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The database ranks ar0's map first for the room though ar0 holds none of it (its
+    filed keyframes are ar2's own views, its map a bare keyframe): the ranked looks go
+    there in vain, and every EXPLORE_EVERY-th look takes the other maps in turn — the
+    room's map among them."""
+    from edge_mapper.place_merging import EXPLORE_EVERY
+
+    looked, _ = _looks_of_ar2_in_the_room(
+        room, places, KeyFrameDatabase(learn_from=10_000), monkeypatch,
+        frames=tuple(range(4, 4 + 30 * (EXPLORE_EVERY + 1), 30)), ar0_files="ar2's frames")
+    assert looked[0] == "ar0" and looked[1:EXPLORE_EVERY - 1] == ["ar0"] * (EXPLORE_EVERY - 2)
+    assert looked[EXPLORE_EVERY - 1] == "ar1"                   # the odd look out, in turn
 
 
 def test_the_merge_looks_queue_on_the_loop_workers_thread_behind_its_work(
