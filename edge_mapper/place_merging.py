@@ -40,7 +40,8 @@ the maps of the devices of every other place: in the one its keyframes score hig
 process's keyframe database (:mod:`~twinslam.slam.back_end.keyframe_database`, every
 device's uploaded keyframes as bags of words; scored on the worker, by the look before), and
 in turn among those scoring near it; in turn among all of them while the database has no
-words yet (its first ~40 keyframes, of any devices). Taken in turn only, a newcomer's
+words yet (its first ~40 keyframes, of any devices), and one look in eight whatever it ranks
+(EXPLORE_EVERY). Taken in turn only, a newcomer's
 keyframes met its place's map once in as many looks as there were other maps, and merged
 later the more devices the edge served. Where it finds its keyframes, the
 two places become one in the earlier root's frame — the later place's devices, all of them,

@@ -10,7 +10,8 @@ in turn. With N other maps, a newcomer's keyframes met its place's map once in N
 merge needs three detections there: with nine devices over three places instead of six, two
 merges came 1-6 slots later. Scored here first, a look goes to the map whose keyframes are
 most like the newest ones, and to another only where it scores near that one
-(:meth:`KeyFrameDatabase.candidates`).
+(:meth:`KeyFrameDatabase.candidates`) or one look in eight
+(:data:`edge_mapper.place_merging.EXPLORE_EVERY`).
 
 The words are a flat vocabulary (:class:`~twinslam.slam.back_end.place_words.
 PlaceVocabulary`, faiss' binary k-means) of WORDS words, learned once from the first
