@@ -777,4 +777,4 @@ def test_the_keyframe_databases_places_apart_are_what_the_page_says() -> None:
     won = sum(int(row["own_first"]) for row in rows)
     asked = sum(int(row["queries"]) for row in rows)
     page = (REPO / "docs" / "results" / "shared-map.md").read_text(encoding="utf-8")
-    assert (won, asked) == (449, 450) and f"{won} of {asked} frames" in page
+    assert (won, asked) == (449, 450) and f"| 1024 | {won} of {asked} |" in page
