@@ -541,9 +541,8 @@ def _next_looks(ranked: tuple[str, ...]) -> str:
         return "the next in the other maps in turn (no ranking: the keyframe database has no " \
             "words yet)"
     maps = " or ".join(f"{d}'s" for d in ranked)
-    return (f"the next in {maps} map, whose keyframes its own are most like"
-            if len(ranked) == 1 else
-            f"the next in {maps} map in turn, whose keyframes its own are most like")
+    in_turn = " in turn" if len(ranked) > 1 else ""
+    return f"the next in {maps} map{in_turn}, whose keyframes its own are most like"
 
 
 def _copies_of(core: EdgeMapperCore, source: int) -> set[int]:

@@ -126,5 +126,5 @@ def test_a_word_every_learning_keyframe_holds_weighs_nothing() -> None:
     everywhere = int(words.vocabulary.assign(common[:1])[0])
     assert words.weights[everywhere] == 0.0
     assert words.weights.max() == pytest.approx(np.log(8.0))
-    vector = words.vector(keyframes[0])
+    vector = words.vectors(keyframes[:1])[0]
     assert vector[everywhere] == 0.0 and np.linalg.norm(vector) == pytest.approx(1.0)

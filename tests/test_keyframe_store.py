@@ -83,3 +83,18 @@ def test_a_snapshot_holds_every_keyframe_and_changes_nothing() -> None:
     assert len(store.archive) == 1 and sorted(store.managed.keyframes) == [1, 2]
     store.managed.keyframes[2].pose = _pose(9.0)
     assert snapshot.get(2).pose[0, 3] == pytest.approx(0.2)
+
+
+def test_each_keyframes_descriptors_are_its_points_in_the_slice_and_in_the_archive() -> None:
+    """What a restored map files in the keyframe database: every kept keyframe once, the
+    archive's first, each with the descriptors of the points it sees — the same rows for a
+    keyframe the slice holds as the archive would keep for it."""
+    store = _store()
+    held = {k: {bytes(row) for row in store.managed.descriptors_of(
+        np.fromiter(kf.points, dtype=np.int64))} for k, kf in store.managed.keyframes.items()}
+    store.leave_slice([0], slot=1)
+    listed = list(store.descriptors())
+    assert [k for k, _ in listed] == [0, 1, 2]
+    for k, descriptors in listed:
+        assert descriptors.shape == (len(held[k]), 32)
+        assert {bytes(row) for row in descriptors} == held[k]

@@ -268,23 +268,21 @@ def test_the_edge_merges_a_later_device_into_an_earlier_ones_frame(room: Room) -
 def _looks_of_ar2_in_the_room(room: Room, places: dict[str, dict[int, np.ndarray]],  # noqa: F811
                               database: KeyFrameDatabase, monkeypatch: pytest.MonkeyPatch,
                               frames: tuple[int, ...] = (4, 64, 124, 184, 244),
-                              ar0_files: str = "corridor") -> tuple[list[str], PlaceMerging]:
+                              ar0_uploads: list[np.ndarray] | None = None
+                              ) -> tuple[list[str], PlaceMerging]:
     """ar0 mapped the corridor and ar1 the room (their uploads filed in ``database``; with
-    ``ar0_files="ar2's frames"`` the database is told ar0 uploaded the very frames ar2 will,
-    its ranking misjudging where the room is); ar2 walks the room, a keyframe a slot (the room's
-    ``frames``), each looked for after its slot; the maps its looks went to, in order,
-    until it merged."""
+    ``ar0_uploads`` the database is told ar0 uploaded those descriptors instead — the very
+    frames ar2 will, its ranking misjudging where the room is); ar2 walks the room, a
+    keyframe a slot (the room's ``frames``), each looked for after its slot; the maps its
+    looks went to, in order, until it merged."""
     import edge_mapper.place_merging as place_merging
 
     cores = {"ar0": _core(), **_room_and_newcomer(room)}
     cores["ar0"].map.add_keyframe(1, np.eye(4))
     cores["ar0"].back_end.k = room[0].intrinsics                  # type: ignore[attr-defined]
-    if ar0_files == "ar2's frames":                  # words misled: ar0 "holds" ar2's views
-        for index, frame in enumerate(frames):
-            database.add("ar0", index, _query(room, frame, 0).descriptors)
-    else:
-        for index, descriptors in places[ar0_files].items():
-            database.add("ar0", index, descriptors)
+    uploads = ar0_uploads if ar0_uploads is not None else list(places["corridor"].values())
+    for index, descriptors in enumerate(uploads):
+        database.add("ar0", index, descriptors)
     for kf in room[1]:
         database.add("ar1", kf.id, kf.descriptors)
     merging = PlaceMerging(lambda: cores, background=False, database=database)
@@ -356,9 +354,10 @@ def test_a_place_the_words_misjudge_is_still_looked_for_every_eighth_look(
     room's map among them."""
     from edge_mapper.place_merging import EXPLORE_EVERY
 
+    frames = tuple(range(4, 4 + 30 * (EXPLORE_EVERY + 1), 30))
     looked, _ = _looks_of_ar2_in_the_room(
-        room, places, KeyFrameDatabase(learn_from=10_000), monkeypatch,
-        frames=tuple(range(4, 4 + 30 * (EXPLORE_EVERY + 1), 30)), ar0_files="ar2's frames")
+        room, places, KeyFrameDatabase(learn_from=10_000), monkeypatch, frames=frames,
+        ar0_uploads=[_query(room, frame, 0).descriptors for frame in frames])
     assert looked[0] == "ar0" and looked[1:EXPLORE_EVERY - 1] == ["ar0"] * (EXPLORE_EVERY - 2)
     assert looked[EXPLORE_EVERY - 1] == "ar1"                   # the odd look out, in turn
 

@@ -85,14 +85,9 @@ class WeightedWords:
         weights = np.log(len(keyframes) / np.maximum(occurs, 1)).astype(np.float32)
         return cls(vocabulary, weights)
 
-    def vector(self, descriptors: np.ndarray) -> np.ndarray:
-        """A keyframe's tf-idf histogram over the words, L2-normalised (zeros: no words)."""
-        vector: np.ndarray = self.vectors([descriptors])[0]
-        return vector
-
     def vectors(self, keyframes: Sequence[np.ndarray]) -> np.ndarray:
-        """:meth:`vector` of each of ``keyframes``, a row each: their words assigned in one
-        search."""
+        """Each of ``keyframes``' tf-idf histogram over the words, L2-normalised (zeros: no
+        words), a row each: their words assigned in one search."""
         words = self.vocabulary.words
         sizes = [len(d) for d in keyframes]
         if not keyframes:
