@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from twinslam.hosts.loopback import DomainClaim, LoopbackDomain, _claims_dir
-from twinslam.hosts.native_stacks import native_stacks
+from twinslam.hosts.native_stacks import FRAME_CHARS, compact_stacks, native_stacks
 
 #: the ids these tests claim among themselves, in claims of their own (tmp_path): 230..232,
 #: beyond the machine's 100..229 that the suite's other tests claim on parallel workers — the
@@ -108,3 +108,40 @@ def test_a_stuck_process_shows_where_it_waits_in_native_code() -> None:
     assert stacks.startswith("Thread ") and "#0 " in stacks
     assert re.search(r"nanosleep|clock_nanosleep|select", stacks), stacks
     assert native_stacks(stuck.pid) is None              # gone: nothing to attach to
+
+
+#: gdb's ``thread apply all bt`` of a node stuck in its teardown, in gdb's order (the main
+#: thread last), shortened from the one a CI run printed
+GDB_OUTPUT = "\n".join([
+    "[Thread debugging using libthread_db enabled]",
+    'Thread 3 (Thread 0x7f9219ffb6c0 (LWP 25957) "dds.udp.7009"):',
+    "#0  0x00007f9248128a3a in __libc_recvfrom (fd=22, len=65500) at recvfrom.c:27",
+    "#1  0x00007f92282eb7f7 in eprosima::fastdds::rtps::UDPChannelResource::Receive("
+    "unsigned char*, unsigned int, unsigned int&, eprosima::fastrtps::rtps::Locator_t&) () "
+    "from libfastrtps.so.2.14",
+    "#2  0x00007f92480a71f5 in start_thread (arg=<optimized out>) at pthread_create.c:442",
+    "#3  0x00007f92481278ec in clone3 () at ../sysdeps/unix/sysv/linux/x86_64/clone3.S:81",
+    'Thread 1 (Thread 0x7f9248815600 (LWP 25900) "python"):',
+    "#0  0x00007f92480a3f16 in __futex_abstimed_wait_common () from libc.so.6",
+    "#1  0x00007f92282aa001 in eprosima::fastrtps::rtps::ResourceEvent::unregister_timer("
+    "eprosima::fastrtps::rtps::TimedEventImpl*) () from libfastrtps.so.2.14",
+    "#2  0x00007f9248358ba3 in _PyObject_VectorcallTstate (kwnames=0x0) at pycore_call.h:92",
+    "#3  0x00007f92482fd9c3 in _PyEval_EvalFrameDefault (tstate=<optimized out>) at ceval.c:4769",
+    "#4  0x00007f92484b91cc in pymain_run_module (modname=<optimized out>) at main.c:300",
+    "#5  0x00005561a58a9081 in _start ()"])
+
+
+def test_a_hangs_native_stacks_show_the_main_thread_first_and_short() -> None:
+    # a CI log keeps a failure's start and end: gdb lists the main thread last, and the
+    # frames that said where it waited fell in the part cut out
+    report = compact_stacks(GDB_OUTPUT)
+    assert report is not None
+    lines = report.splitlines()
+    assert lines[0].startswith("Thread 1 ")
+    assert lines[1] == "#0 __futex_abstimed_wait_common () from libc.so.6"
+    assert lines[2].startswith("#1 eprosima::fastrtps::rtps::ResourceEvent::unregister_timer")
+    assert lines[3] == "   (4 frames of the interpreter or a thread's start left out)"
+    assert lines[4].startswith("Thread 3 ")
+    assert all(len(line) <= FRAME_CHARS for line in lines)
+    assert "_PyEval" not in report and "clone3" not in report and "libthread_db" not in report
+    assert compact_stacks("warning: ptrace: Operation not permitted") is None
