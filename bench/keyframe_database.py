@@ -3,7 +3,7 @@ against keyframes of all of them, under words learned from one place or from ano
 (:mod:`twinslam.slam.back_end.keyframe_database`).
 
     python -m bench.keyframe_database [PLACE,PLACE,...] [--learn-from SEQUENCE[:KEYFRAMES]]
-        [--words 256,512,1024] [--every 20] [--csv FILE]
+        [--words 256,512,1024] [--keyframes-a-row 1,4] [--every 20] [--csv FILE]
 
 Every ``--every``-th frame of each place is filed as a keyframe of that place's map; the
 frames half way between them are the queries, each scored against every keyframe filed. For
@@ -14,7 +14,9 @@ database's candidate share of the best (where a look would also go to another ma
 then the time to score one query against every keyframe. ``--learn-from`` names the
 sequence whose first keyframes (``KEYFRAMES`` of them; default 20) the words are learned
 from: one of the places (its every ``--every``-th frame), or none of them (each frame: the
-SUN3D apartment's 30 frames lie far apart).
+SUN3D apartment's 30 frames lie far apart). ``--keyframes-a-row`` compares how many of a
+map's consecutive keyframes the database sums into one row (the rows are what a look's
+ranking scores), in the places apart and in the ranking's time at scale.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from twinslam.node_runtime.math_threads import one_math_thread
 from twinslam.sequences.opening import open_sequence
 from twinslam.slam.back_end.keyframe_database import (
     CANDIDATE_SHARE,
+    KEYFRAMES_A_ROW,
     KeyFrameDatabase,
     WeightedWords,
 )
@@ -67,6 +70,9 @@ def main() -> None:
                         "of the places, or each frame of another sequence")
     parser.add_argument("--words", default="256,512,1024",
                         help="vocabulary sizes to compare, separated by commas")
+    parser.add_argument("--keyframes-a-row", default=f"1,{KEYFRAMES_A_ROW}",
+                        help="a map's consecutive keyframes summed into one row, the counts "
+                        "to compare separated by commas")
     parser.add_argument("--every", type=int, default=20,
                         help="frames between two keyframes of a place (queries half way)")
     parser.add_argument("--keyframes", type=int, default=5000,
@@ -88,14 +94,16 @@ def main() -> None:
         frames[place] = features(place, args.every)
         print(f"# {place}: {len(frames[place])} frames' features in "
               f"{time.perf_counter() - started:.0f} s", flush=True)
-    if spec in frames:
-        learning = [d for i, d in sorted(frames[spec].items()) if i % args.every == 0]
+    learned = next((p for p in places if _same_sequence(p, spec)), None)
+    if learned is not None:             # one of the places: its keyframes
+        learning = [d for i, d in sorted(frames[learned].items()) if i % args.every == 0]
     else:                               # another dataset's frames, each one
         learning = list(features(spec, 2, int(count)).values())
     learning = learning[:int(count)]
     rows = []
-    for words in (int(w) for w in args.words.split(",")):
-        database = KeyFrameDatabase(words=words)
+    a_row = [int(n) for n in args.keyframes_a_row.split(",")]
+    for words, per_row in ((int(w), n) for w in args.words.split(",") for n in a_row):
+        database = KeyFrameDatabase(words=words, keyframes_a_row=per_row)
         database.words = WeightedWords.learn(learning, words)
         for place in places:
             for index, descriptors in frames[place].items():
@@ -117,19 +125,22 @@ def main() -> None:
             won = sum(r > 1.0 for r in ratios)
             row = {"place": Path(place).name, "learned_from": Path(spec).name,
                    "learned_keyframes": len(learning), "words": words,
-                   "queries": len(ratios), "own_first": won,
+                   "keyframes_a_row": per_row, "queries": len(ratios), "own_first": won,
                    "ratio_median": round(statistics.median(ratios), 3),
                    "ratio_least": round(min(ratios), 3), "another_candidate": near}
             rows.append(row)
-            print(f"{words:5d} words  {row['place']:<22} own place first {won}/{len(ratios)}"
+            print(f"{words:5d} words {per_row:2d} a row  {row['place']:<22} own place "
+                  f"first {won}/{len(ratios)}"
                   f"  own/other median {row['ratio_median']:.2f} least "
                   f"{row['ratio_least']:.2f}  another within {CANDIDATE_SHARE:.0%}: {near}",
                   flush=True)
         filed = sum(database.keyframes(p) for p in places)
-        print(f"{words:5d} words  scoring a query against {filed} keyframes: median "
+        print(f"{words:5d} words {per_row:2d} a row  scoring a query against {filed} "
+              f"keyframes ({database.rows} rows): median "
               f"{statistics.median(timing) * 1e3:.2f} ms (words assigned included)", flush=True)
     if args.keyframes:
-        _time_at_scale(places, frames, learning, args)
+        for per_row in a_row:
+            _time_at_scale(places, frames, learning, args, per_row)
     if args.csv:
         new = not args.csv.exists()
         with args.csv.open("a", newline="") as out:
@@ -141,12 +152,21 @@ def main() -> None:
         print(f"# rows appended to {shown}")
 
 
+def _same_sequence(a: str, b: str) -> bool:
+    """Whether two sequence arguments name one sequence: a folder given relative to here and
+    as an absolute path is one (``--learn-from ../shared/data/7scenes-1000`` learns from
+    the kitchen place's keyframes, not from its first frames as another dataset's)."""
+    return a == b or (Path(a).exists() and Path(b).exists()
+                      and Path(a).resolve() == Path(b).resolve())
+
+
 def _time_at_scale(places: list[str], frames: dict[str, dict[int, np.ndarray]],
-                   learning: list[np.ndarray], args: argparse.Namespace) -> None:
+                   learning: list[np.ndarray], args: argparse.Namespace, per_row: int) -> None:
     """A look's ranking (three keyframes scored against every map) where ``--keyframes``
-    keyframes of ``--maps`` maps are filed, under the database's default words; and what
-    filing costs a keyframe (its words assigned: the worker's time for every upload)."""
-    database = KeyFrameDatabase()
+    keyframes of ``--maps`` maps are filed ``per_row`` a row, under the database's default
+    words; and what filing costs a keyframe (its words assigned: the worker's time for every
+    upload)."""
+    database = KeyFrameDatabase(keyframes_a_row=per_row)
     database.words = WeightedWords.learn(learning)
     filed = [d for place in places for i, d in frames[place].items() if i % args.every == 0]
     maps = [f"ar{m + 1}" for m in range(args.maps)]
@@ -156,12 +176,15 @@ def _time_at_scale(places: list[str], frames: dict[str, dict[int, np.ndarray]],
     database.scores([], [])
     filing = (time.perf_counter() - started) / args.keyframes
     timing = []
-    for look in range(20):          # a look ranks three keyframes its device filed
+    newest = (args.keyframes // len(maps) - 3) * len(maps)     # a map's third newest round
+    for look in range(20):          # a look ranks the three keyframes its device filed last
         started = time.perf_counter()
-        database.candidates_of(maps[look % len(maps)], [look, look + len(maps),
-                                                         look + 2 * len(maps)], maps)
+        database.candidates_of(maps[look % len(maps)],
+                               [newest + look % len(maps) + k * len(maps) for k in range(3)],
+                               maps)
         timing.append(time.perf_counter() - started)
-    print(f" {database.word_count} words  {args.keyframes} keyframes over {args.maps} maps: "
+    print(f" {database.word_count} words {per_row:2d} a row  {args.keyframes} keyframes "
+          f"({database.rows} rows) over {args.maps} maps: "
           f"filing {filing * 1e3:.2f} ms a keyframe; a look's ranking (3 filed keyframes) "
           f"median {statistics.median(timing) * 1e3:.2f} ms", flush=True)
 

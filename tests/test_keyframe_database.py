@@ -10,7 +10,12 @@ import numpy as np
 import pytest
 
 from twinslam.sequences.opening import open_sequence
-from twinslam.slam.back_end.keyframe_database import KeyFrameDatabase, WeightedWords
+from twinslam.slam.back_end.keyframe_database import (
+    KEYFRAMES_A_ROW,
+    RECENT_KEPT,
+    KeyFrameDatabase,
+    WeightedWords,
+)
 from twinslam.slam.front_end.orb_extractor import OrbExtractor
 
 #: the frames filed as keyframes; the queries lie half way between them
@@ -89,14 +94,15 @@ def test_a_forgotten_map_is_not_ranked_until_its_device_uploads_again(
     assert database.keyframes("room") == 0
     database.add("room", 7, places["room"][0])
     assert database.candidates([query], ["room", "corridor"])[0] == "room"
-    assert database.rows == 2 * (FRAMES // EVERY)         # its new keyframe took a freed row
+    # its new keyframe took a row the room left free
+    assert database.rows == 2 * -(-(FRAMES // EVERY) // KEYFRAMES_A_ROW)
 
 
 def test_a_map_keeps_its_newest_keyframes_only(
         places: dict[str, dict[int, np.ndarray]], words: WeightedWords) -> None:
     """Past its bound a map's next keyframe takes its oldest one's row: the database grows
     with the maps, not with the session, and what it knows of a map is where it went last."""
-    database = KeyFrameDatabase(kept_a_map=3)
+    database = KeyFrameDatabase(kept_a_map=3, keyframes_a_row=1)
     database.words = words
     room = places["room"]
     for index, descriptors in room.items():
@@ -107,6 +113,37 @@ def test_a_map_keeps_its_newest_keyframes_only(
     newest = max(room)
     assert database.scores([room[newest]], ["room"])["room"] == pytest.approx(1.0, abs=1e-5)
     assert database.scores([room[0]], ["room"])["room"] < 0.99     # its first left
+
+
+def test_a_maps_consecutive_keyframes_share_a_row_and_its_newest_are_queries(
+        places: dict[str, dict[int, np.ndarray]], words: WeightedWords) -> None:
+    """Four consecutive uploads of a map are one row (the ranking's product is over the
+    rows); past its bound a map gives its oldest row, with its keyframes, to the next ones;
+    a look's queries are the map's newest keyframes, their own vectors kept."""
+    database = KeyFrameDatabase(kept_a_map=8, keyframes_a_row=4)
+    database.words = words
+    room = sorted(places["room"].items())                # 30 frames, every tenth
+    for index, descriptors in room[:8]:
+        database.add("room", index, descriptors)
+    database.file()
+    assert database.rows == 2 and database.keyframes("room") == 8     # 4 + 4
+    database.add("room", room[8][0], room[8][1])
+    database.file()
+    # the ninth opens a row past the bound: the oldest row and its four keyframes leave
+    assert database.rows == 2 and database.keyframes("room") == 5
+    for index, descriptors in room[9:]:
+        database.add("room", index, descriptors)
+    database.file()
+    # 30 keyframes in rows of four; the bound (8) keeps the newest two rows: 4 + 2
+    assert database.rows == 2 and database.keyframes("room") == 6
+    newest = [index for index, _ in room[-3:]]
+    mine = database.scores_of("room", newest, ["room"])["room"]
+    assert mine == pytest.approx(database.scores([d for _, d in room[-3:]], ["room"])["room"],
+                                 abs=1e-5)
+    assert 0.5 < mine < 1.0             # a row of several keyframes, not the query's own
+    assert database.scores_of("room", [room[-RECENT_KEPT - 1][0]], ["room"]) == {}
+    with pytest.raises(ValueError, match="at least one keyframe a row"):
+        KeyFrameDatabase(keyframes_a_row=0)
 
 
 def test_a_word_every_learning_keyframe_holds_weighs_nothing() -> None:

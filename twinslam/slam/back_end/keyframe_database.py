@@ -23,27 +23,29 @@ keyframe from its neighbours (a keyframe's ~1000 features fall in some 600 of th
 tell places apart (``bench.keyframe_database``: 449 of 450 frames of three places scored a
 keyframe of their own place highest, the other level with another's, under words learned from the
 places or another dataset; with 256 or 512 words 13 and 3 did not). Coarse words leave
-no inverted file to prune, so a query is scored against every keyframe by one product over
-one matrix of them all (4 KB a keyframe), whose time grows with the keyframes filed: a
-look's ranking of three keyframes took 3.0 ms over 5000 keyframes of 50 maps and 14 ms over
+no inverted file to prune, so a query is scored against every row of one matrix by one
+product, whose time grows with the rows. A row is not a keyframe but KEYFRAMES_A_ROW
+consecutive uploads of one map, their vectors summed: the question is which map, and a
+device's neighbouring uploads are views of one stretch of its place. Over 5000 keyframes of
+50 maps, a look's ranking of three keyframes took 3.0 ms with a row a keyframe and 14 ms over
 20 000 (``bench.keyframe_database``, one thread; filing ~1 ms a keyframe, its words assigned
-once). Finer words in an inverted file (DBoW2's ~10⁶) are what would keep it flat as the
-maps grow.
+once); four a row score a quarter of the rows, and told the places apart as well. Finer words
+in an inverted file (DBoW2's ~10⁶) are what would keep it flat as the maps grow.
 
 Threads: :meth:`KeyFrameDatabase.add` and :meth:`KeyFrameDatabase.forget` only queue what
 they are given (the slot thread calls them). The words are assigned, and the vocabulary
 learned, by the scoring (:meth:`KeyFrameDatabase.candidates_of`) and the filing
 (:meth:`KeyFrameDatabase.file`) on the one thread that calls them (the merge looks' worker):
-none of that is the slots' time. A map keeps its newest KEPT_A_MAP keyframes, the database
-as large as the maps. A keyframe a map culls or a copy it adopts is not told: the database
-is of what each device uploaded, and only chooses where to look.
+none of that is the slots' time. A map keeps its newest KEPT_A_MAP keyframes in whole rows,
+the database as large as the maps. A keyframe a map culls or a copy it adopts is not told:
+the database is of what each device uploaded, and only chooses where to look.
 """
 
 from __future__ import annotations
 
 import threading
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -59,10 +61,33 @@ LEARN_FROM = SAMPLES_A_WORD * WORDS
 CANDIDATE_SHARE = 0.9
 #: rows the matrix starts with (it doubles as it fills)
 FIRST_ROWS = 64
-#: a map's newest filed keyframes kept, its oldest row given to its next keyframe past it:
-#: the edge's map keeps as many (its archive 500 by default, its slice a few dozen), and the
-#: database stays as large as the maps, not the session
+#: a map's consecutive keyframes summed into one row of the matrix: a look asks which map a
+#: place is in, not which keyframe, and neighbouring uploads are views of one stretch of it.
+#: Four a row scores a quarter of the rows (the ranking's time is the product over them) and
+#: told the three places apart as well as one a row (``bench.keyframe_database
+#: --keyframes-a-row``)
+KEYFRAMES_A_ROW = 4
+#: each map's newest keyframes' own vectors kept, for the looks' queries
+#: (:meth:`KeyFrameDatabase.scores_of`: a look ranks its device's newest uploads)
+RECENT_KEPT = 16
+#: a map's newest filed keyframes kept (in whole rows: its oldest row given to its next
+#: keyframes past it): the edge's map keeps as many (its archive 500 by default, its slice a
+#: few dozen), and the database stays as large as the maps, not the session
 KEPT_A_MAP = 512
+
+
+@dataclass
+class _MapRows:
+    """One map's rows in the matrix, oldest first (the last one open: filling), and which
+    row each of its kept keyframes went into."""
+
+    owner: int                                   #: the map's number in the owner column
+    rows: list[int] = field(default_factory=list)
+    open_sum: np.ndarray | None = None           #: the open row's keyframes' vectors, summed
+    open_count: int = 0
+    members: dict[int, int] = field(default_factory=dict)
+    #: the newest keyframes' own vectors (the looks' queries), oldest first
+    recent: dict[int, np.ndarray] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -106,29 +131,36 @@ class KeyFrameDatabase:
     keyframe's place is likely in (:meth:`candidates`)."""
 
     def __init__(self, learn_from: int = LEARN_FROM, words: int = WORDS,
-                 share: float = CANDIDATE_SHARE, kept_a_map: int = KEPT_A_MAP) -> None:
+                 share: float = CANDIDATE_SHARE, kept_a_map: int = KEPT_A_MAP,
+                 keyframes_a_row: int = KEYFRAMES_A_ROW) -> None:
+        if keyframes_a_row < 1:
+            raise ValueError(f"keyframes_a_row={keyframes_a_row}: at least one keyframe a row")
         self.learn_from = learn_from
         self.word_count = words
         self.share = share
         self.kept_a_map = kept_a_map
+        self.keyframes_a_row = keyframes_a_row
+        #: rows a map keeps: its newest kept_a_map keyframes, in whole rows
+        self.rows_a_map = max(-(-kept_a_map // keyframes_a_row), 1)
         self.words: WeightedWords | None = None
         self._queue: list[tuple[str, int | None, np.ndarray | None]] = []
         self._queue_lock = threading.Lock()
         #: keyframes received before the vocabulary was learned: what it is learned from
         self._unfiled: list[tuple[str, int, np.ndarray]] = []
-        #: every filed keyframe's vector, a row each, in one matrix (one product scores a
-        #: query against every map); a forgotten map's rows are owned by none (-1) and free
-        #: for the next keyframes
+        #: every map's rows (keyframes_a_row consecutive keyframes' vectors summed and
+        #: L2-normalised, a row) in one matrix: one product scores a query against every
+        #: map; a forgotten map's rows are owned by none (-1) and free for the next keyframes
         self._matrix = np.zeros((FIRST_ROWS, words), dtype=np.float32)
         self._owner = np.full(FIRST_ROWS, -1, dtype=np.int64)
         self._used = 0
         self._free: list[int] = []
         self._map_index: dict[str, int] = {}
-        self._rows: dict[str, dict[int, int]] = {}
+        self._maps: dict[str, _MapRows] = {}
 
     def add(self, map_name: str, kf_id: int, descriptors: np.ndarray) -> None:
         """Keyframe ``kf_id`` of ``map_name`` (its (n, 32) uint8 ORB descriptors), filed at the
-        next scoring; a keyframe added again replaces its row."""
+        next scoring into the map's open row; a keyframe the map holds already is filed
+        once."""
         with self._queue_lock:
             self._queue.append((map_name, kf_id, descriptors))
 
@@ -151,13 +183,14 @@ class KeyFrameDatabase:
 
     @property
     def rows(self) -> int:
-        """Rows the matrix uses: every map's filed keyframes, and those a forgotten map left
-        free."""
+        """Rows the matrix uses: every map's (a row a keyframes_a_row keyframes), and those a
+        forgotten map left free."""
         return self._used
 
     def keyframes(self, map_name: str) -> int:
-        """The keyframes of ``map_name`` filed (under words) so far."""
-        return len(self._rows.get(map_name, {}))
+        """The keyframes of ``map_name`` filed (under words) and kept."""
+        kept = self._maps.get(map_name)
+        return len(kept.members) if kept is not None else 0
 
     def scores(self, queries: Sequence[np.ndarray], maps: Sequence[str]) -> dict[str, float]:
         """Each of ``maps``' best cosine score with any of ``queries`` (descriptor arrays),
@@ -172,11 +205,12 @@ class KeyFrameDatabase:
                   ) -> dict[str, float]:
         """:meth:`scores` of keyframes ``kf_ids`` of ``map_name`` as they were filed (a
         look's queries are its device's newest uploads: their words are assigned once, when
-        filed, not again to rank them); empty where none of them is filed."""
+        filed, not again to rank them); empty where none of them is among the map's
+        :data:`RECENT_KEPT` newest."""
         self._file()
-        rows = self._rows.get(map_name, {})
-        picked = [rows[k] for k in kf_ids if k in rows]
-        return self._best(self._matrix[picked], maps) if picked else {}
+        kept = self._maps.get(map_name)
+        picked = [kept.recent[k] for k in kf_ids if k in kept.recent] if kept else []
+        return self._best(np.stack(picked), maps) if picked else {}
 
     def candidates(self, queries: Sequence[np.ndarray], maps: Sequence[str]) -> list[str]:
         """The maps among ``maps`` worth looking in for ``queries``' place, best first: the
@@ -198,7 +232,7 @@ class KeyFrameDatabase:
 
     def _best(self, vectors: np.ndarray, maps: Sequence[str]) -> dict[str, float]:
         """Each of ``maps``' best score with any of ``vectors`` (rows): one product over
-        every filed keyframe, then the best row of each map."""
+        every map's rows, then the best row of each map."""
         if not self._used:
             return {}
         best_row = (self._matrix[:self._used] @ vectors.T).max(axis=1)
@@ -206,7 +240,8 @@ class KeyFrameDatabase:
         kept = owner >= 0
         best = np.zeros(len(self._map_index))
         np.maximum.at(best, owner[kept], best_row[kept])
-        return {m: float(best[self._map_index[m]]) for m in maps if self._rows.get(m)}
+        return {m: float(best[self._maps[m].owner]) for m in maps
+                if m in self._maps and self._maps[m].members}
 
     def _file(self) -> None:
         """What was queued, filed under the words — learned first, once enough descriptors
@@ -215,7 +250,8 @@ class KeyFrameDatabase:
             queued, self._queue = self._queue, []
         for map_name, kf_id, descriptors in queued:
             if kf_id is None:
-                for row in self._rows.pop(map_name, {}).values():
+                gone = self._maps.pop(map_name, None)
+                for row in gone.rows if gone is not None else []:
                     self._owner[row] = -1
                     self._free.append(row)
                 self._unfiled = [u for u in self._unfiled if u[0] != map_name]
@@ -234,19 +270,40 @@ class KeyFrameDatabase:
                 self._put(map_name, kf_id, vector)
 
     def _put(self, map_name: str, kf_id: int, vector: np.ndarray) -> None:
-        rows = self._rows.setdefault(map_name, {})
-        owner = self._map_index.setdefault(map_name, len(self._map_index))
-        row = rows.get(kf_id)
-        if row is None and len(rows) >= self.kept_a_map:
-            row = rows.pop(next(iter(rows)))            # its oldest keyframe's row
-            rows[kf_id] = row
-        if row is None and self._free:
-            row = rows[kf_id] = self._free.pop()
-        if row is None:
-            if self._used == len(self._matrix):
-                self._matrix = np.concatenate([self._matrix, np.zeros_like(self._matrix)])
-                self._owner = np.concatenate([self._owner, np.full_like(self._owner, -1)])
-            row = rows[kf_id] = self._used
-            self._used += 1
-        self._matrix[row] = vector
-        self._owner[row] = owner
+        """``vector`` into ``map_name``'s open row (a new one once it holds keyframes_a_row
+        keyframes), and among the map's newest keyframes' own vectors."""
+        kept = self._maps.get(map_name)
+        if kept is None:
+            owner = self._map_index.setdefault(map_name, len(self._map_index))
+            kept = self._maps[map_name] = _MapRows(owner)
+        if kf_id in kept.members:
+            return
+        if kept.open_sum is None or kept.open_count >= self.keyframes_a_row:
+            kept.rows.append(self._next_row(kept))
+            kept.open_sum = np.zeros(self.word_count, dtype=np.float32)
+            kept.open_count = 0
+        row = kept.rows[-1]
+        kept.open_sum += vector
+        kept.open_count += 1
+        kept.members[kf_id] = row
+        norm = float(np.linalg.norm(kept.open_sum))
+        self._matrix[row] = kept.open_sum / norm if norm > 0 else kept.open_sum
+        self._owner[row] = kept.owner
+        kept.recent[kf_id] = vector
+        if len(kept.recent) > RECENT_KEPT:
+            del kept.recent[next(iter(kept.recent))]
+
+    def _next_row(self, kept: _MapRows) -> int:
+        """A row for ``kept``'s next keyframes: its oldest one where it holds its bound (its
+        keyframes leave it), a forgotten map's, or a new one."""
+        if len(kept.rows) >= self.rows_a_map:
+            row = kept.rows.pop(0)
+            kept.members = {k: r for k, r in kept.members.items() if r != row}
+            return row
+        if self._free:
+            return self._free.pop()
+        if self._used == len(self._matrix):
+            self._matrix = np.concatenate([self._matrix, np.zeros_like(self._matrix)])
+            self._owner = np.concatenate([self._owner, np.full_like(self._owner, -1)])
+        self._used += 1
+        return self._used - 1
