@@ -46,10 +46,27 @@ def baseline_tree(commit: str) -> Iterator[Path]:
                            check=False, capture_output=True)
 
 
+def absolute_paths(arg: str) -> str:
+    """``arg`` with each comma-separated part that names a file or folder here (alone, or
+    before a ``:N`` suffix: ``../shared/data/7scenes-1000:600``) made absolute: a baseline's
+    tree runs in another working directory, where a relative path names nothing."""
+    parts = []
+    for part in arg.split(","):
+        path, colon, suffix = part.rpartition(":")
+        if part and Path(part).exists():
+            part = str(Path(part).resolve())
+        elif colon and path and Path(path).exists():
+            part = f"{Path(path).resolve()}:{suffix}"
+        parts.append(part)
+    return ",".join(parts)
+
+
 def run_in_tree(root: Path, driver: str, *args: str) -> Any:
     """Run ``driver`` (Python source whose last stdout line is JSON) with ``root`` as the
-    working directory and the only project path; returns that JSON. The driver may use only
-    what both trees have."""
+    working directory and the only project path, each argument's paths made absolute
+    (:func:`absolute_paths`); returns that JSON. The driver may use only what both trees
+    have."""
+    args = tuple(absolute_paths(arg) for arg in args)
     done = subprocess.run([sys.executable, "-c", _CHECK_TREE + driver, *args, str(root)],
                           cwd=root, capture_output=True, text=True,
                           env={**os.environ, "PYTHONPATH": str(root)})
