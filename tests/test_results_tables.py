@@ -751,13 +751,14 @@ def test_the_looks_tables_are_what_their_command_prints(runs: str) -> None:
     assert printed[-1] == "The same walk in both trees: every other figure equal."
 
 
-@pytest.mark.parametrize("devices", ["six", "nine"])
-def test_the_keyframe_database_tables_are_what_their_command_prints(devices: str) -> None:
+@pytest.mark.parametrize("runs", ["keyframe-database/six", "keyframe-database/nine",
+                                  "keyframe-rows/nine"])
+def test_the_keyframe_database_tables_are_what_their_command_prints(runs: str) -> None:
     """Six and nine devices over three places, the looks sent where the keyframe database
-    ranks first against the looks in turn: the shared-map page holds each table
-    ``place_walks_beside_table.py --looks --merges`` prints from the committed runs, line
-    for line, with no false merge in either tree."""
-    folder = FIGURES / "shared-map" / "place-walks" / "keyframe-database" / devices
+    ranks first against the looks in turn, and nine with four keyframes a row against one:
+    the shared-map page holds each table ``place_walks_beside_table.py --looks --merges``
+    prints from the committed runs, line for line, with no false merge in either tree."""
+    folder = FIGURES / "shared-map" / "place-walks" / runs
     runs_csv = sorted(folder.glob("seed-*.csv"))
     printed = _script("place_walks_beside_table").table(runs_csv, looks=True, merges=True)
     page = (REPO / "docs" / "results" / "shared-map.md").read_text(encoding="utf-8")
@@ -778,3 +779,25 @@ def test_the_keyframe_databases_places_apart_are_what_the_page_says() -> None:
     asked = sum(int(row["queries"]) for row in rows)
     page = (REPO / "docs" / "results" / "shared-map.md").read_text(encoding="utf-8")
     assert (won, asked) == (449, 450) and f"| 1024 | {won} of {asked} |" in page
+
+
+def test_the_keyframe_databases_rows_table_is_what_its_csv_says() -> None:
+    """The table of keyframes a row on the shared-map page sums its CSV: for each count, the
+    frames whose own place scored first and those with another place within the candidates'
+    share, over the three vocabularies (and four a row told the places apart as one did)."""
+    path = FIGURES / "shared-map" / "keyframe-database" / "places-apart-rows.csv"
+    with path.open(encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    page = (REPO / "docs" / "results" / "shared-map.md").read_text(encoding="utf-8")
+    won_by_count = {}
+    for count in sorted({int(row["keyframes_a_row"]) for row in rows}):
+        mine = [row for row in rows if int(row["keyframes_a_row"]) == count]
+        won = sum(int(row["own_first"]) for row in mine)
+        asked = sum(int(row["queries"]) for row in mine)
+        near = sum(int(row["another_candidate"]) for row in mine)
+        filed = 3 * -(-50 // count)     # three places' rows: a keyframe every 20 of 1000 frames
+        assert f"| {count} | {filed} | {won} of {asked} |" in page, count
+        assert any(line.startswith(f"| {count} | {filed} |") and line.endswith(f"| {near} |")
+                   for line in page.splitlines()), count
+        won_by_count[count] = won
+    assert won_by_count[4] == won_by_count[1] == 449

@@ -26,11 +26,12 @@ places or another dataset; with 256 or 512 words 13 and 3 did not). Coarse words
 no inverted file to prune, so a query is scored against every row of one matrix by one
 product, whose time grows with the rows. A row is not a keyframe but KEYFRAMES_A_ROW
 consecutive uploads of one map, their vectors summed: the question is which map, and a
-device's neighbouring uploads are views of one stretch of its place. Over 5000 keyframes of
-50 maps, a look's ranking of three keyframes took 3.0 ms with a row a keyframe and 14 ms over
-20 000 (``bench.keyframe_database``, one thread; filing ~1 ms a keyframe, its words assigned
-once); four a row score a quarter of the rows, and told the places apart as well. Finer words
-in an inverted file (DBoW2's ~10⁶) are what would keep it flat as the maps grow.
+device's neighbouring uploads are views of one stretch of its place. A look's ranking of
+three keyframes took 2.3 ms over 5000 keyframes of 50 maps with a row a keyframe and 14 ms
+over 20 000; four a row, 0.42 and 2.9 ms, the places told apart as well (449 of 450 frames;
+another place near a frame's own for 27 of them instead of 15) (``bench.keyframe_database
+--keyframes-a-row``, one thread; filing ~1 ms a keyframe, its words assigned once). Finer
+words in an inverted file (DBoW2's ~10⁶) are what would keep it flat as the maps grow.
 
 Threads: :meth:`KeyFrameDatabase.add` and :meth:`KeyFrameDatabase.forget` only queue what
 they are given (the slot thread calls them). The words are assigned, and the vocabulary
@@ -64,8 +65,8 @@ FIRST_ROWS = 64
 #: a map's consecutive keyframes summed into one row of the matrix: a look asks which map a
 #: place is in, not which keyframe, and neighbouring uploads are views of one stretch of it.
 #: Four a row scores a quarter of the rows (the ranking's time is the product over them) and
-#: told the three places apart as well as one a row (``bench.keyframe_database
-#: --keyframes-a-row``)
+#: told the three places apart as well as one a row; eight a row told them apart less well
+#: (``bench.keyframe_database --keyframes-a-row``)
 KEYFRAMES_A_ROW = 4
 #: each map's newest keyframes' own vectors kept, for the looks' queries
 #: (:meth:`KeyFrameDatabase.scores_of`: a look ranks its device's newest uploads)
