@@ -587,8 +587,10 @@ def _look(place: str, finder: MergeFinder, other: KeyFrameArchive,
                     spent += time.perf_counter() - started
                 if merge is not None:
                     break
-    except Exception as exc:            # reported by the device's next slot end
-        return _Look(place, None, frame, spent * 1e3, f"{type(exc).__name__}: {exc}",
+    except Exception as exc:            # reported by the device's next slot end, with the
+        failed = f"{type(exc).__name__}: {exc}"              # ranking's failure if it failed
+        return _Look(place, None, frame, spent * 1e3,
+                     f"{failed}; {unranked}" if unranked else failed,
                      other_frame=other_frame, ranked=ranked)
     last = finder.last
     found = "" if merge is not None or last is None else (

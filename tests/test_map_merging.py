@@ -447,6 +447,27 @@ def test_a_look_whose_ranking_fails_still_searches_and_says_why(room: Room) -> N
     assert look.error == "ranking the maps: RuntimeError: no words" and look.ranked == ()
 
 
+def test_a_look_whose_ranking_and_search_both_fail_says_both(room: Room) -> None:  # noqa: F811
+    """A look whose search raised after its ranking failed reports the two failures, the
+    search's first: the slot end logs one line, and neither cause is lost."""
+    _, archive, _ = room
+    queries = (_query(room, 4, 10),)
+
+    class Failing(MergeFinder):
+        def offer(self, *args: object, **kwargs: object) -> None:
+            raise ValueError("a broken archive")
+
+    def broken() -> list[str]:
+        raise RuntimeError("no words")
+
+    look = _look("ar1", Failing(), archive, queries, {10: _second_pose(room, 4)},
+                 room[0].intrinsics, np.eye(4), np.eye(4),     # type: ignore[attr-defined]
+                 rank=broken)
+    assert look.merge is None
+    assert look.error == ("ValueError: a broken archive; ranking the maps: RuntimeError: "
+                          "no words")
+
+
 def _tracked_at(core: EdgeMapperCore, slot: int, pose: np.ndarray | None) -> None:
     """``core``'s device summarises a slot whose one frame it tracked at ``pose`` (None: it
     tracked nothing, it is lost), and the edge plans the slot."""
