@@ -224,7 +224,10 @@ class PlaceMerging:
                                      run_after(set_aside(core.checkpoint))
                                      if core.checkpoint is not None else 0)
             return ""
-        for kf_id, descriptors in core.back_end.store.descriptors():
+        # in capture order (the archive holds them in the order they left the slice): the
+        # database sums a map's consecutive keyframes into one row, neighbours with neighbours
+        for kf_id, descriptors in sorted(core.back_end.store.descriptors(),
+                                         key=lambda kept: kept[0]):
             if not is_foreign(kf_id):
                 self.database.add(device, kf_id, descriptors)
         record = PlaceMembership.read(core.back_end.extra)

@@ -606,13 +606,25 @@ def test_an_edge_restarted_from_its_checkpoints_serves_each_device_in_the_place_
         core.close()
 
     restarted: dict[str, EdgeMapperCore] = {}
+    filed: list[tuple[str, int]] = []
+
+    class Filing(KeyFrameDatabase):
+        def add(self, map_name: str, kf_id: int, descriptors: np.ndarray) -> None:
+            filed.append((map_name, kf_id))
+            super().add(map_name, kf_id, descriptors)
+
     again = PlaceMerging(lambda: restarted, background=False,
-                         database=KeyFrameDatabase(learn_from=2000))
+                         database=Filing(learn_from=2000))
     restarted["ar2"] = _core(checkpoint=tmp_path / "edge.ar2.npz")
     assert again.serve("ar2") == ("its place's root ar1 is not served: a place of its own "
                                   "until ar1 is, or a look finds the place again")
     assert again.joined == {} and again.membership("ar2").root == "ar1"
     restarted["ar1"] = _core(checkpoint=tmp_path / "edge.ar1.npz")
+    store = restarted["ar1"].back_end.store
+    kept = list(store.descriptors())
+    # an archive holds keyframes in the order they left the slice, which a policy that
+    # evicts by utility makes other than their capture order
+    store.descriptors = lambda: iter(kept[::-1])                     # type: ignore[method-assign]
     assert again.serve("ar1") == "ar2 back in its place"
     assert again.joined == {"ar2": "ar1"}
     assert restarted["ar2"].archive.words.source() is restarted["ar1"].archive.words
@@ -628,6 +640,10 @@ def test_an_edge_restarted_from_its_checkpoints_serves_each_device_in_the_place_
     # own three have no points here, so nothing of ar2's map is filed
     again.database.scores([], [])
     assert again.database.keyframes("ar1") == len(room[1])
+    # in capture order, as they were uploaded, whatever order the store holds them in: a row
+    # of the database sums neighbours
+    mine = [kf for d, kf in filed if d == "ar1"]
+    assert mine == sorted(mine) and len(mine) > len(room[1]) // 2
     assert len(restarted["ar2"].archive) > len(room[1]) and again.database.keyframes("ar2") == 0
 
 
