@@ -2,7 +2,9 @@
 
 * :mod:`twinslam.node_runtime.node_main` — the life of a one-node process (init, spin, clean
   teardown, exit code 2 with the reason when a node cannot start), with
-  :mod:`twinslam.node_runtime.allocator` keeping freed memory in the process;
+  :mod:`twinslam.node_runtime.allocator` keeping freed memory in the process and
+  :mod:`twinslam.node_runtime.middleware_teardown` bounding the DDS participant's deletion
+  (it can deadlock in Fast DDS);
 * :mod:`twinslam.node_runtime.parameters` — parameters declared with descriptors, ranges and
   live checks;
 * :mod:`twinslam.node_runtime.checked_subscription` — subscriptions that validate content first;

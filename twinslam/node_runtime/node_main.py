@@ -35,6 +35,11 @@ launch`` (and the tests) grant before SIGKILL. A node forked from a fork server
 (:mod:`twinslam.hosts.forked`) always ended this way. What a node's worker threads still had to
 write is written by its ``close`` before.
 
+The node's destruction — the DDS participant's deletion with it — is bounded
+(:mod:`twinslam.node_runtime.middleware_teardown`): Fast DDS as the PyPI wheels build it can
+deadlock there against a discovery callback (a peer leaving at the same moment), and a node
+stuck so prints where and exits with code 1 after 10 s instead of waiting to be killed.
+
 ``kill -USR1 PID`` prints every thread's Python stack to the node's stderr and the node goes
 on (:data:`STACKS_SIGNAL`): where a node that stopped answering, or does not end when asked,
 is stuck.
@@ -60,6 +65,7 @@ from rclpy.signals import SignalHandlerOptions
 from twinslam.node_runtime.allocator import keep_freed_memory
 from twinslam.node_runtime.long_lived_objects import keep_survivors_out
 from twinslam.node_runtime.math_threads import one_math_thread
+from twinslam.node_runtime.middleware_teardown import teardown_bound
 
 N = TypeVar("N", bound=Node)
 
@@ -184,8 +190,10 @@ def run_node(name: str, factory: Callable[[], N], args: list[str] | None = None,
             finishing: object = node      # a node class may add close(): Node has none
             if isinstance(finishing, Closable):
                 finishing.close()
-            node.destroy_node()
-        rclpy.try_shutdown()
+        with teardown_bound():            # the DDS participant's deletion can deadlock
+            if node is not None:
+                node.destroy_node()
+            rclpy.try_shutdown()
         # the node is gone and the process is ending: a signal now has nothing left to stop.
         # Ignored, not left to Python's exit, which puts the default action back (the process
         # would die of a SIGTERM that lands while the interpreter and DDS wind down)
