@@ -12,7 +12,7 @@ the deadline to the system clock, where it overflows, and each wait returns at o
 waiting — the thread spins in ``steady_clock::now`` and never lets the lock go for long enough.
 A discovery callback that was running when it began (a peer leaving at that moment: a launch
 stops every node at once) needs the lock to finish, and never gets it. Seen twice in the test
-suite (a twin node, 2026-12-02 and 2026-12-04) and twice in 617 stops of a twin node beside a
+suite (a twin node, 2026-12-02 and 2026-12-04) and twice in 619 stops of a twin node beside a
 process of eight readers stopped with it (2026-12-04): each time the main thread in
 ``DomainParticipant::set_listener`` under ``rmw_fastrtps_shared_cpp::destroy_participant`` and a
 receive thread in ``PDP::remove_remote_participant`` → ``onParticipantDiscovery`` waiting for a
