@@ -38,7 +38,7 @@ write is written by its ``close`` before.
 The node's destruction — the DDS participant's deletion with it — is bounded
 (:mod:`twinslam.node_runtime.middleware_teardown`): Fast DDS as the PyPI wheels build it can
 deadlock there against a discovery callback (a peer leaving at the same moment), and a node
-stuck so prints where and exits with code 1 after 10 s instead of waiting to be killed.
+stuck so prints where and exits with code 1 after 5 s instead of waiting to be killed.
 
 ``kill -USR1 PID`` prints every thread's Python stack to the node's stderr and the node goes
 on (:data:`STACKS_SIGNAL`): where a node that stopped answering, or does not end when asked,
