@@ -11,13 +11,15 @@ finish, with a steady-clock deadline of ``time_point::max()``. The wheel's libst
 the deadline to the system clock, where it overflows, and each wait returns at once without
 waiting — the thread spins in ``steady_clock::now`` with the lock held.
 A discovery callback that was running when it began (a peer leaving at that moment: a launch
-stops every node at once) needs the lock to finish, and never gets it. Seen twice in the test
-suite (a twin node, 2026-12-02 and 2026-12-04) and twice in 619 stops of a twin node beside a
-process of eight readers stopped with it (2026-12-04): each time the main thread in
+stops every node at once) needs the lock to finish, and never gets it. A twin node stuck in
+``destroy_node`` failed the test suite twice (2026-12-02 and 2026-12-04, no native frames
+kept); a stress made for it (the twin beside a process of eight readers, stopped together)
+hung it twice in 619 stops, both times with the main thread in
 ``DomainParticipant::set_listener`` under ``rmw_fastrtps_shared_cpp::destroy_participant`` and a
 receive thread in ``PDP::remove_remote_participant`` → ``onParticipantDiscovery`` waiting for a
 mutex. Every thread of the stuck process put on one CPU from outside (``taskset -a``) did not
-free it in 10 s: the spinning thread does not release the lock between its turns.
+free it in 10 s: the spinning thread does not release the lock between its turns. Bounded,
+the twin ended twice in 508 stops of that stress at the bound, code 1, and 0 every other time.
 
 Nothing the node owns is left to do by then (its ``close`` ran), but the participant's
 departure was not announced: its peers drop it when its lease ends. The bound is
