@@ -11,7 +11,11 @@ import sys
 import time
 
 from twinslam.hosts.loopback import REPO_ROOT
-from twinslam.node_runtime.middleware_teardown import TIMEOUT_MARK, stuck_in_teardown
+from twinslam.node_runtime.middleware_teardown import (
+    TIMEOUT_MARK,
+    ended_as_asked,
+    stuck_in_teardown,
+)
 
 #: a teardown under a 0.5 s bound: stuck in C with the interpreter held (a regular expression
 #: that backtracks for hours stands in for the deadlocked deletion), or done at once
@@ -51,6 +55,10 @@ def test_a_log_tells_a_destruction_stuck_at_the_bound_from_other_ends() -> None:
              '  File "rclpy/node.py", line 1965 in destroy_node\n'
              '  File "twinslam/node_runtime/node_main.py", line 190 in run_node\n')
     assert stuck_in_teardown(stuck)
+    # a node (or a player done playing) that ended so ended as asked; with another code, or
+    # code 1 for another reason, it did not
+    assert ended_as_asked(1, stuck) and ended_as_asked(0, "")
+    assert not ended_as_asked(2, stuck) and not ended_as_asked(1, "Traceback (most recent")
     assert not stuck_in_teardown("[INFO] [udt_node]: stopping: 1 slots learned from\n")
     # the bound's report from somewhere else than the node's destruction is not this deadlock
     assert not stuck_in_teardown("Timeout (0:00:10)!\n  File \"x.py\", line 3 in close\n")

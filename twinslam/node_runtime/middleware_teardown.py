@@ -58,3 +58,10 @@ def stuck_in_teardown(log: str) -> bool:
     its mark, then a stack in ``destroy_node`` (the deadlock above, not the node's own code)."""
     at = log.rfind(TIMEOUT_MARK)
     return at >= 0 and "in destroy_node" in log[at:]
+
+
+def ended_as_asked(code: int, log: str) -> bool:
+    """Whether a node that was asked to end (or ended its own run: a player done playing)
+    ended as it should: code 0, or code 1 at the bound of a destruction stuck in the
+    middleware (:func:`stuck_in_teardown`), its own work done before."""
+    return code == 0 or (code == 1 and stuck_in_teardown(log))
