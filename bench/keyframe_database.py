@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.baseline import absolute_paths
 from bench.paths import REPO, SEVEN_SCENES
 from twinslam.cli.console import HelpFormatter
 from twinslam.node_runtime.math_threads import one_math_thread
@@ -94,7 +95,8 @@ def main() -> None:
         frames[place] = features(place, args.every)
         print(f"# {place}: {len(frames[place])} frames' features in "
               f"{time.perf_counter() - started:.0f} s", flush=True)
-    learned = next((p for p in places if _same_sequence(p, spec)), None)
+    # one of the places, however its path is written (relative or absolute)
+    learned = next((p for p in places if absolute_paths(p) == absolute_paths(spec)), None)
     if learned is not None:             # one of the places: its keyframes
         learning = [d for i, d in sorted(frames[learned].items()) if i % args.every == 0]
     else:                               # another dataset's frames, each one
@@ -150,14 +152,6 @@ def main() -> None:
             writer.writerows(rows)
         shown = args.csv.relative_to(REPO) if args.csv.is_relative_to(REPO) else args.csv
         print(f"# rows appended to {shown}")
-
-
-def _same_sequence(a: str, b: str) -> bool:
-    """Whether two sequence arguments name one sequence: a folder given relative to here and
-    as an absolute path is one (``--learn-from ../shared/data/7scenes-1000`` learns from
-    the kitchen place's keyframes, not from its first frames as another dataset's)."""
-    return a == b or (Path(a).exists() and Path(b).exists()
-                      and Path(a).resolve() == Path(b).resolve())
 
 
 def _time_at_scale(places: list[str], frames: dict[str, dict[int, np.ndarray]],

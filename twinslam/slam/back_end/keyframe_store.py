@@ -78,9 +78,8 @@ class KeyFrameStore:
         (:mod:`~twinslam.slam.back_end.keyframe_database`)."""
         for kf in self.archive:
             yield kf.id, kf.descriptors
-        for kf_id, held in list(self.managed.keyframes.items()):
-            yield kf_id, self.managed.descriptors_of(
-                np.fromiter(held.points, dtype=np.int64, count=len(held.points)))
+        for kf_id in list(self.managed.keyframes):
+            yield kf_id, self.managed.descriptors_of(self.managed.point_array(kf_id))
 
     def snapshot(self, slot: int, index: KeptPlaceIndex | None = None) -> KeyFrameArchive:
         """Every keyframe kept, the slice's as they are at ``slot``, as one archive to
