@@ -11,7 +11,8 @@ recognition with the geometric check — searching the points under the archive'
 (:mod:`twinslam.slam.back_end.place_words`) and, side by side on the same queries, every point
 exactly, with how often the two find the same place and pose —, the pose graph, the whole job
 (the worker thread's time), the corrections applied to the map and the archive (on the slot's
-path) and the archive's files written again (the worker); then a slot's work on the main thread
+path) and the corrected archive written to disk (the worker: its pose file, since 2026-12-04;
+every moved keyframe's file before); then a slot's work on the main thread
 (the map's keyframes archived, as at an eviction) alone and while the worker closes loops back
 to back: the worker's share of the interpreter (the GIL) shows as the slot's work taking
 longer.
@@ -200,15 +201,15 @@ def main() -> None:
             run_job(job)
         with _timed(times["map"]):
             correct_map(managed, closure.corrections)
-        if q < 5:                                 # files rewritten: a few rounds are enough
+        if q < 5:                                 # written to disk: a few rounds are enough
             with tempfile.TemporaryDirectory() as tmp:
                 on_disk = KeyFrameArchive(args.archive, Path(tmp))
                 for kf in kept:
                     on_disk.add(kf)
                 with _timed(times["archive"]):
-                    moved = on_disk.correct(closure.corrections, write=False)
+                    on_disk.correct(closure.corrections, write=False)
                 with _timed(times["files"]):
-                    on_disk.save(moved)
+                    on_disk.save_poses()
     print(f"  loops found: {found} of {args.queries} queries; searching every point exactly "
           f"{found_exact}; the same place and pose (within 1 cm, 0.5°) {same}; PnP inliers "
           f"{_inliers(inliers)}")
@@ -219,7 +220,7 @@ def main() -> None:
               "job": "the whole job (worker)",
               "map": f"corrections on a map of {args.map} (slot's path)",
               "archive": "corrections on the archive (slot's path)",
-              "files": "the corrected archive's files (worker)"}
+              "files": "the corrected archive on disk (worker)"}
     for name, label in labels.items():
         print(_line(label, times[name]))
     built, kept_index, agreed, index = changing_archive_jobs(kept, archive.words, queries, k,

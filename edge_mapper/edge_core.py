@@ -121,7 +121,7 @@ class SlotOutcome:
     #: the loop closed at this slot's end, its corrections in the map sent next (None: none)
     loop: ClosedLoop | None = None
     #: why the loop closer's work beside the slots failed since the last slot (the corrected
-    #: archive's files not written: a restart would read the poses before the loop)
+    #: archive's poses not written: a restart would read the poses before the loop)
     loop_failures: list[str] = field(default_factory=list)
 
     @property

@@ -360,7 +360,7 @@ class EdgeMapperNode(Node):
     def close(self) -> None:
         """Before the node goes (``run_node`` calls it once the executor stopped): every
         device's slots finished since its last checkpoint (``checkpoint_every``)
-        checkpointed, the work queued beside the slots done — the archive's files of a loop's
+        checkpointed, the work queued beside the slots done — the archive's poses of a loop's
         correction written, a running merge look finished — and the worker threads ended: the
         process then ends without waiting for them (:func:`~twinslam.node_runtime.node_main.
         exit_process`), and a file a worker had still to write would be lost."""

@@ -189,3 +189,74 @@ def test_a_checkpoint_releases_only_the_files_of_keyframes_its_map_holds(
     archive.release(taken, in_map=np.array([1, 3]))
     assert sorted(p.name for p in folder.iterdir()) == [
         "keyframe-000000002.npz", "keyframe-000000003.npz"]
+
+
+def _lift(dy: float) -> np.ndarray:
+    """A rigid correction: a turn of 5° about the vertical and ``dy`` up."""
+    c = np.eye(4)
+    a = np.radians(5.0)
+    c[:3, :3] = [[np.cos(a), 0.0, np.sin(a)], [0.0, 1.0, 0.0], [-np.sin(a), 0.0, np.cos(a)]]
+    c[1, 3] = dy
+    return c
+
+
+def test_a_corrected_archive_comes_back_where_its_loops_moved_it_its_files_unwritten(
+        tmp_path: Path) -> None:
+    """Loops move archived keyframes, pose and points; a restart reads them where the last
+    correction left them, from one pose file beside files that were written once."""
+    folder = tmp_path / "edge.npz.archive"
+    archive = KeyFrameArchive(5, folder)
+    for k in (1, 2, 3):
+        archive.add(_random_keyframe(k, slot=k))
+    written = {p.name: p.read_bytes() for p in folder.iterdir()}
+    assert archive.correct({1: _lift(0.05), 2: _lift(0.02)}) == [1, 2]
+    assert archive.correct({1: _lift(-0.01)}) == [1]          # a second loop moves 1 again
+    assert {p.name: p.read_bytes() for p in folder.glob("keyframe-*")} == written
+    again, problems = KeyFrameArchive.restore(5, folder)
+    assert problems == []
+    for k in (1, 2, 3):
+        now, back = archive.get(k), again.get(k)
+        np.testing.assert_allclose(back.pose, now.pose, atol=1e-12)
+        np.testing.assert_allclose(back.positions, now.positions, atol=1e-12)
+        np.testing.assert_array_equal(back.descriptors, now.descriptors)
+    assert not np.allclose(again.get(1).pose, _random_keyframe(1, slot=1).pose)
+    # the restored archive records them still: its next correction keeps both moves
+    assert again.correct({2: _lift(0.03)}) == [2]
+    third, _ = KeyFrameArchive.restore(5, folder)
+    np.testing.assert_allclose(third.get(1).pose, archive.get(1).pose, atol=1e-12)
+    np.testing.assert_allclose(third.get(2).positions, again.get(2).positions, atol=1e-12)
+
+
+def test_a_keyframe_written_again_after_a_loop_is_read_from_its_newer_file(
+        tmp_path: Path) -> None:
+    """A moved keyframe taken back into the map keeps its move until the map is checkpointed
+    (a restart from the older map finds it in the archive, moved); archived again, its new
+    file holds where it stands, and the pose file's older entry is not applied to it."""
+    folder = tmp_path / "edge.npz.archive"
+    archive = KeyFrameArchive(5, folder)
+    archive.add(_random_keyframe(4, slot=1))
+    archive.correct({4: _lift(0.05)})
+    moved = archive.take(4)
+    archive.save_poses()                   # another loop's poses written while 4 is taken
+    kept, _ = KeyFrameArchive.restore(5, folder)
+    np.testing.assert_allclose(kept.get(4).positions, moved.positions, atol=1e-12)
+    # evicted again, with the map's own edits of its points, then another keyframe moved
+    edited = dataclasses.replace(moved, positions=moved.positions + 0.5, archived_slot=6)
+    archive.add(edited)
+    archive.add(_random_keyframe(5, slot=6))
+    archive.correct({5: _lift(0.02)})
+    again, problems = KeyFrameArchive.restore(5, folder)
+    assert problems == []
+    np.testing.assert_array_equal(again.get(4).positions, edited.positions)
+    np.testing.assert_array_equal(again.get(4).pose, edited.pose)
+
+
+def test_an_unreadable_pose_file_is_named_and_the_files_poses_kept(tmp_path: Path) -> None:
+    folder = tmp_path / "edge.npz.archive"
+    archive = KeyFrameArchive(5, folder)
+    archive.add(_random_keyframe(1, slot=1))
+    archive.correct({1: _lift(0.05)})
+    (folder / "poses.npz").write_bytes(b"not a pose file")
+    again, problems = KeyFrameArchive.restore(5, folder)
+    assert len(problems) == 1 and "poses.npz" in problems[0]
+    np.testing.assert_array_equal(again.get(1).pose, _random_keyframe(1, slot=1).pose)

@@ -161,7 +161,7 @@ def test_the_loop_corrected_map_and_archive_survive_a_restart(tmp_path: Path) ->
             trajectory, again.back_end.keyframe_trajectory(), strict=True):
         assert t_again == t
         np.testing.assert_allclose(pose_again, pose, atol=1e-9)
-    # a correction of an archived keyframe is written to its file
+    # a correction of an archived keyframe is written to the archive's pose file
     some = next(iter(core.archive))
     shift = np.eye(4)
     shift[:3, 3] = (0.0, 0.02, 0.0)
@@ -170,7 +170,7 @@ def test_the_loop_corrected_map_and_archive_survive_a_restart(tmp_path: Path) ->
     up = np.array([0.0, 0.02, 0.0])
     np.testing.assert_allclose(reread.pose[:3, 3], some.pose[:3, 3] + up)
     np.testing.assert_allclose(reread.positions, some.positions + up)
-    # a sub-millimetre one is not worth a file
+    # a sub-millimetre one is not worth recording
     shift[:3, 3] = (0.0, 0.0002, 0.0)
     assert core.archive.correct({some.id: shift}) == []
 
@@ -363,23 +363,32 @@ def test_a_loop_job_that_fails_is_reported_and_the_slots_go_on(
     assert core.loops_closed == 0 and len(core.map.keyframes) <= 4
 
 
-def test_the_archive_files_a_loop_could_not_write_are_reported_once(
+def test_the_archive_poses_the_worker_could_not_write_are_reported_once(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """Writing the loop-corrected archive's files happens beside the slots; when it fails (a
-    full disk) the slot's outcome says so, which the edge logs as an error, once; the map
-    keeps its correction and the slots go on."""
+    """Writing a moved archive's poses happens beside the slots; when it fails (a full disk)
+    the slot's outcome says so, which the edge logs as an error, once; the map keeps its
+    move and the slots go on. (This walk's loop moves no archived keyframe: the way out it
+    holds is where the loop anchors. A merge's move of the whole map moves them all.)"""
     def full(self: KeyFrameArchive, *args: object, **kwargs: object) -> None:
         raise OSError(28, "No space left on device")
-    monkeypatch.setattr(KeyFrameArchive, "save", full)
+    monkeypatch.setattr(KeyFrameArchive, "save_poses", full)
     device = DriftingDevice(np.random.default_rng(3), 8 * F)
     core = _edge(loops=True, checkpoint=tmp_path / "edge.npz")
     out = _walk_until_a_loop(core, device)
     assert out is not None and out.loop is not None and not out.loop.refused
     assert core.loops_closed == 1 and _errors(core, device)[out.loop.new] < 0.03
-    assert len(out.loop_failures) == 1
-    assert "loop-corrected archive" in out.loop_failures[0]
-    assert "No space left on device" in out.loop_failures[0]
-    after = _run(core, device, range(out.slot + 1, out.slot + 2), rates=[20.0])[0]
+    assert out.loop_failures == []
+    before = {kf.id: kf.pose for kf in core.archive}
+    shift = np.eye(4)
+    shift[:3, 3] = (0.1, 0.0, 0.0)
+    core.align(shift)                                   # as a merge moves the map
+    moved = _run(core, device, range(out.slot + 1, out.slot + 2), rates=[20.0])[0]
+    assert before and all(np.allclose(kf.pose, shift @ before[kf.id])
+                          for kf in core.archive if kf.id in before)
+    assert len(moved.loop_failures) == 1
+    assert "aligned archive" in moved.loop_failures[0]
+    assert "No space left on device" in moved.loop_failures[0]
+    after = _run(core, device, range(out.slot + 2, out.slot + 3), rates=[20.0])[0]
     assert after.loop_failures == []
 
 
@@ -398,7 +407,7 @@ def test_work_the_worker_fails_beside_the_slots_is_kept_until_taken() -> None:
 
 def test_closing_drops_a_loop_search_not_started_and_writes_the_files_queued() -> None:
     """At the edge's stop each closer is closed before the process ends without waiting for
-    the worker: the archive's files of a correction queued beside the slots are written, a
+    the worker: the archive's poses of a correction queued beside the slots are written, a
     loop search still waiting for the worker is dropped (its answer would reach no map)."""
     device = ReturningDevice(np.random.default_rng(5), 64)
     closer = LoopCloser(min_gap=40, confirmations=0)

@@ -25,8 +25,10 @@ the archive changed.
 With a folder, each archived keyframe is also one ``.npz`` file there, written when it is
 archived (to a temporary name, then renamed) and deleted when it leaves — one taken back into
 the map only once that map is checkpointed: the archive survives an edge restart, at any point
-of a slot, without rewriting all of it every slot. What a restart forgets is how recently
-each keyframe was useful after it was archived (it restarts from the archival slots).
+of a slot, without rewriting all of it every slot. Loops and merges move archived keyframes
+without writing their files again: one pose file beside them says where each moved keyframe
+stands now (:mod:`~twinslam.slam.back_end.archive_poses`). What a restart forgets is how
+recently each keyframe was useful after it was archived (it restarts from the archival slots).
 """
 
 from __future__ import annotations
@@ -42,6 +44,13 @@ from typing import Any
 
 import numpy as np
 
+from twinslam.slam.back_end.archive_poses import (
+    POSES_NAME,
+    MovedPose,
+    PosesError,
+    read_poses,
+    write_poses,
+)
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.back_end.place_index import KeptPlaceIndex
 from twinslam.slam.back_end.place_words import DESCRIPTOR_BITS, PlaceWords
@@ -177,9 +186,15 @@ class KeyFrameArchive:
         self.words = words if words is not None else PlaceWords()
         #: keyframes taken back into the map whose files stay until its checkpoint
         self._taken: set[int] = set()
-        #: one writer of a keyframe's file at a time: the loop closer's worker rewrites files
-        #: of corrected keyframes while the edge archives and removes others
+        #: one writer of a keyframe's file at a time: the loop closer's worker writes adopted
+        #: keyframes' files while the edge archives and removes others
         self._files = threading.Lock()
+        #: (pose, archival slot) each keyframe's file on disk holds (taken ones' too)
+        self._on_file: dict[int, tuple[np.ndarray, int]] = {}
+        #: the keyframes a correction moved from where their files hold them
+        self._moved: dict[int, MovedPose] = {}
+        #: one writer of the pose file at a time (its contents gathered and written in order)
+        self._poses_file = threading.Lock()
         #: a loop closer's index this view searches, kept from view to view (:meth:`only`),
         #: and its synchronisation that holds this view's keyframes
         self._kept_index: KeptPlaceIndex | None = None
@@ -223,8 +238,14 @@ class KeyFrameArchive:
             self.folder.mkdir(parents=True, exist_ok=True)
             with self._files:
                 kf.save(self._path(kf.id))
+                self._written(kf)
         self._index = None
         return self._trim()
+
+    def _written(self, kf: ArchivedKeyFrame) -> None:
+        """``kf``'s file now holds it as it is (under ``_files``): no move to record."""
+        self._on_file[kf.id] = (kf.pose, kf.archived_slot)
+        self._moved.pop(kf.id, None)
 
     def _trim(self) -> list[int]:
         """Drop the least recently useful keyframes past the capacity; their ids."""
@@ -245,13 +266,14 @@ class KeyFrameArchive:
                 write: bool = True) -> list[int]:
         """Move archived keyframes by a loop's corrections (keyframe id → 4×4 map-frame
         correction, corrected · before⁻¹): each one's pose and the points it keeps, as the
-        managed map's keyframes move (:mod:`twinslam.slam.back_end.loop_correction`). Their
-        files are written again (``write``; else :meth:`save` them later, off the slot's path),
-        so a restarted edge reads the corrected archive; a correction
-        that moves none of the keyframe's points (nor its camera) by ``min_move_m`` is left
-        out — a loop bends the walk where it drifted, and rewriting hundreds of files for
-        sub-millimetre moves would stall the slot. The place index stays: descriptors do not
-        move. Returns the ids moved."""
+        managed map's keyframes move (:mod:`twinslam.slam.back_end.loop_correction`). Where
+        each moved keyframe stands is written to the archive's pose file (``write``; else
+        :meth:`save_poses` later, off the slot's path), so a restarted edge reads the
+        corrected archive; its own file is not written again
+        (:mod:`~twinslam.slam.back_end.archive_poses`). A correction that moves none of the
+        keyframe's points (nor its camera) by ``min_move_m`` is left out: a loop bends the
+        walk where it drifted, and sub-millimetre moves are not worth recording. The place
+        index stays: descriptors do not move. Returns the ids moved."""
         moved = []
         for kf_id in sorted(corrections.keys() & self._entries.keys()):
             c = np.asarray(corrections[kf_id], dtype=np.float64)
@@ -260,12 +282,29 @@ class KeyFrameArchive:
             shift = reach @ (c[:3, :3] - np.eye(3)).T + c[:3, 3]      # where each moves
             if np.linalg.norm(shift, axis=1).max(initial=0.0) < min_move_m:
                 continue
-            self._entries[kf_id] = dataclasses.replace(
-                kf, pose=c @ kf.pose, positions=kf.positions @ c[:3, :3].T + c[:3, 3])
+            now = dataclasses.replace(kf, pose=c @ kf.pose,
+                                      positions=kf.positions @ c[:3, :3].T + c[:3, 3])
+            self._entries[kf_id] = now
+            with self._files:
+                if (held := self._on_file.get(kf_id)) is not None:
+                    self._moved[kf_id] = MovedPose(held[0], held[1], now.pose)
             moved.append(kf_id)
-        if write:
-            self.save(moved)
+        if write and moved:
+            self.save_poses()
         return moved
+
+    def save_poses(self) -> None:
+        """Write the pose file: where every keyframe a correction moved stands now, beside
+        the pose its file holds (:mod:`~twinslam.slam.back_end.archive_poses`). The loop
+        closer's worker calls it after a loop or a merge moved the archive; one file, however
+        many keyframes moved."""
+        if self.folder is None:
+            return
+        with self._poses_file:
+            with self._files:
+                moved = dict(self._moved)
+            self.folder.mkdir(parents=True, exist_ok=True)
+            write_poses(self.folder / POSES_NAME, moved)
 
     def save(self, kf_ids: Iterable[int]) -> None:
         """Write the files of the archived keyframes ``kf_ids`` as they are now (one that left
@@ -279,6 +318,7 @@ class KeyFrameArchive:
                 kf = self._entries.get(kf_id)
                 if kf is not None:
                     kf.save(self._path(kf_id))
+                    self._written(kf)
 
     def snapshot(self, extra: Iterable[ArchivedKeyFrame] = (),
                  index: KeptPlaceIndex | None = None) -> KeyFrameArchive:
@@ -359,6 +399,12 @@ class KeyFrameArchive:
             for kf_id in kf_ids:
                 if kf_id not in self._entries and (held is None or kf_id in held):
                     self._path(kf_id).unlink(missing_ok=True)
+                    self._forget_file(kf_id)
+
+    def _forget_file(self, kf_id: int) -> None:
+        """Keyframe ``kf_id``'s file is gone (under ``_files``): nothing of it to record."""
+        self._on_file.pop(kf_id, None)
+        self._moved.pop(kf_id, None)
 
     def _remove(self, kf_id: int, keep_file: bool = False) -> None:
         del self._entries[kf_id]
@@ -367,6 +413,7 @@ class KeyFrameArchive:
         if self.folder is not None and not keep_file:
             with self._files:
                 self._path(kf_id).unlink(missing_ok=True)
+                self._forget_file(kf_id)
 
     def _path(self, kf_id: int) -> Path:
         assert self.folder is not None
@@ -380,7 +427,9 @@ class KeyFrameArchive:
         """The archive saved in ``folder`` (empty when there is none) and a note per file that
         could not be read (skipped, left in place). A keyframe that is also in the managed
         map (``in_map``: the edge stopped after archiving it, before its map checkpoint) is
-        the map's: its file is removed."""
+        the map's: its file is removed. Each keyframe a loop or a merge moved since its file
+        was written stands where the pose file has it; a pose file that cannot be read is
+        named too, and the keyframes stand where their files have them."""
         archive = cls(capacity, folder)
         problems: list[str] = []
         if not folder.is_dir():
@@ -391,10 +440,22 @@ class KeyFrameArchive:
                 kfs.append(ArchivedKeyFrame.load(path))
             except ArchiveError as exc:
                 problems.append(str(exc))
+        try:
+            moved = read_poses(folder / POSES_NAME)
+        except PosesError as exc:
+            problems.append(str(exc))
+            moved = {}
         for kf in sorted(kfs, key=lambda k: (k.archived_slot, k.id)):
             if kf.id in in_map:
                 archive._path(kf.id).unlink(missing_ok=True)
                 continue
+            archive._on_file[kf.id] = (kf.pose, kf.archived_slot)
+            if (entry := moved.get(kf.id)) is not None and \
+                    entry.matches(kf.pose, kf.archived_slot):
+                c = entry.motion()
+                kf = dataclasses.replace(kf, pose=entry.pose.copy(),
+                                         positions=kf.positions @ c[:3, :3].T + c[:3, 3])
+                archive._moved[kf.id] = entry
             archive._entries[kf.id] = kf
             archive._useful[kf.id] = kf.archived_slot
         archive._trim()

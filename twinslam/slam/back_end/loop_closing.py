@@ -639,7 +639,7 @@ class LoopCloser:
 
     def after(self, work: Callable[[], object], what: str) -> None:
         """Run ``work`` (``what`` it does, for its failure's message) on the worker after what
-        it has queued (in the caller without one): the archive's files of a correction,
+        it has queued (in the caller without one): the archive's pose file after a correction,
         written beside the slots. Its failure (a full disk) is kept for :meth:`failures`, never
         raised: the edge's map is corrected already, and only the files lag behind it."""
         def guarded() -> None:

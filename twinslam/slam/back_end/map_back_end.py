@@ -538,7 +538,7 @@ class MapBackEnd:
         # the walk's head (the newest keyframe of the graph, and every later one) moves by the
         # newest correction: the frame the next map version is in
         self._correct(corrections, corrections[max(corrections)], next_version,
-                      "writing the loop-corrected archive's files")
+                      "writing the loop-corrected archive's poses")
         old = result.candidate.old
         if self.config.point_fusion and old in self.map.keyframes and self.camera.known:
             fuse_restored(self.map, old, sorted(self.map.keyframes[old].points), self.camera)
@@ -558,8 +558,8 @@ class MapBackEnd:
         pose the device holds and every keyframe it is about to upload still needs. A loop's
         corrections reach the map's own keyframes alone (:func:`correction_for`: the copies
         it adopted hold their lenders' poses); ``copies_too`` moves each keyframe ``corrections``
-        names, copies included — the whole map changing frame. The archive's files are
-        rewritten beside the slots (``what`` it is, for a failure)."""
+        names, copies included — the whole map changing frame. The archive's pose file is
+        written beside the slots (``what`` it is, for a failure)."""
         def of(kf_id: int) -> np.ndarray | None:
             return corrections.get(kf_id) if copies_too else correction_for(corrections, kf_id)
 
@@ -568,7 +568,8 @@ class MapBackEnd:
         self._frames_since.append((next_version, self.frame_correction.copy()))
         archived = self.archive.correct(
             {kf.id: c for kf in self.archive if (c := of(kf.id)) is not None}, write=False)
-        self.loop_closer.after(lambda: self.archive.save(archived), what)
+        if archived:
+            self.loop_closer.after(self.archive.save_poses, what)
 
     def align(self, alignment: np.ndarray, next_version: int) -> None:
         """Move the whole map — every keyframe, the map's and the archive's, and every point —
@@ -592,7 +593,7 @@ class MapBackEnd:
         # copy left behind is a whole merge's motion away from the place it shows
         everyone = dict.fromkeys(self.store.ids(), alignment)
         self._correct(everyone, alignment, next_version,
-                      "writing the aligned archive's files", copies_too=True)
+                      "writing the aligned archive's poses", copies_too=True)
 
     def follow(self, loop: AppliedLoop, tag: int, next_version: int) -> FollowedLoop:
         """Another device's loop, applied to the copies of its keyframes this map adopted
@@ -634,8 +635,8 @@ class MapBackEnd:
         archived = self.archive.correct(
             {kf.id: c for kf in self.archive if (c := of(kf.id)) is not None}, write=False)
         if archived:
-            self.loop_closer.after(lambda: self.archive.save(archived),
-                                   "writing the archive's files after a lender's loop")
+            self.loop_closer.after(self.archive.save_poses,
+                                   "writing the archive's poses after a lender's loop")
         moved = {k: c for k in self.map.keyframes if (c := of(k)) is not None}
         if moved:
             move_keyframes(self.map, moved)
@@ -669,7 +670,7 @@ class MapBackEnd:
             return FollowedLoop(copies_moved, 0, farthest, refused, graph_ms)
         corrections = closure.corrections
         self._correct(corrections, corrections[max(corrections)], next_version,
-                      "writing the archive's files after following a lender's loop")
+                      "writing the archive's poses after following a lender's loop")
         # the maps this one lent its keyframes to move their copies of them in turn
         self._keep_applied(AppliedLoop(dict(corrections), carried=True))
         return FollowedLoop(copies_moved, len(corrections), farthest, graph_ms=graph_ms)
