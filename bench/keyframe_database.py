@@ -25,7 +25,6 @@ import argparse
 import csv
 import platform
 import statistics
-import sys
 import time
 from pathlib import Path
 
@@ -184,4 +183,4 @@ def _time_at_scale(places: list[str], frames: dict[str, dict[int, np.ndarray]],
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    main()

@@ -15,10 +15,18 @@ from rclpy.node import Node
 
 def logging_matches(node: Node, topic: str) -> PublisherEventCallbacks:
     """Event callbacks for ``create_publisher(..., event_callbacks=...)`` that log each change
-    in the number of readers matched to the writer of ``topic``."""
+    in the number of readers matched to the writer of ``topic``. Readers that match at once
+    raise one event each, and each event reports the count as it is when the executor takes
+    it (eight readers: "8 reader(s) matched" eight times): a count already logged is not
+    logged again."""
     name = node.resolve_topic_name(topic).lstrip("/")
+    logged: list[int] = []
 
     def matched(info: QoSPublisherMatchedInfo) -> None:
-        node.get_logger().info(f"{name}: {info.current_count} reader(s) matched")
+        count = int(info.current_count)
+        if logged and logged[-1] == count:
+            return
+        logged[:] = [count]
+        node.get_logger().info(f"{name}: {count} reader(s) matched")
 
     return PublisherEventCallbacks(matched=matched)
