@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from twinslam.npz_files import NPZ_READ_ERRORS
 from twinslam.slam.back_end.foreign_keyframes import MAX_SOURCES
 from twinslam.slam.back_end.keyframe_map import MapError
 
@@ -103,5 +104,5 @@ def run_after(reclaimed: Path) -> int:
         with np.load(reclaimed, allow_pickle=False) as saved:
             extra = {k: saved[k] for k in (ROOT, RUN) if k in saved.files}
         return PlaceMembership.read(extra).run + 1
-    except (OSError, ValueError, EOFError):
+    except NPZ_READ_ERRORS:
         return 1

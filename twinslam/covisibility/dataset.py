@@ -20,8 +20,6 @@ matrix so a whole block of weights costs one sparse product.
 from __future__ import annotations
 
 import os
-import zipfile
-import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -30,6 +28,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from twinslam.kernel_cache import njit
+from twinslam.npz_files import NPZ_READ_ERRORS
 
 FORMAT = "twinslam-covis-1"
 DENSE_LIMIT = 4000  #: up to this many frames all pairwise weights are precomputed (64 MB)
@@ -186,7 +185,7 @@ def load_covisibility(path: Path) -> CovisibilityDataset:
                 stamps=npz["stamps"] if "stamps" in npz else None,
                 poses=npz["poses"] if "poses" in npz else None,
                 source=str(npz["source"]) if "source" in npz else "")
-    except (OSError, KeyError, ValueError, EOFError, zlib.error, zipfile.BadZipFile) as exc:
+    except NPZ_READ_ERRORS as exc:
         if isinstance(exc, CovisibilityError):
             raise
         raise CovisibilityError(f"{path}: not a readable covisibility file ({exc})") from None

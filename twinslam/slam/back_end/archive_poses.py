@@ -23,12 +23,13 @@ at most the archive's capacity rows (4×4 twice a row: 256 bytes).
 
 from __future__ import annotations
 
-import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from twinslam.npz_files import NPZ_READ_ERRORS, write_npz
 
 POSES_FORMAT = "twinslam-archive-poses-1"
 #: the pose file's name in the archive's folder
@@ -61,15 +62,11 @@ def write_poses(path: Path, moved: Mapping[int, MovedPose]) -> None:
     """``moved`` written to ``path`` whole or not at all (temporary name, fsync, rename)."""
     ids = np.array(sorted(moved), dtype=np.int64)
     rows = [moved[k] for k in ids.tolist()]
-    tmp = path.with_name(path.name + ".tmp")
-    with tmp.open("wb") as fh:
-        np.savez(fh, format=np.array(POSES_FORMAT), ids=ids,
-                 file_poses=np.array([m.file_pose for m in rows]).reshape(-1, 4, 4),
-                 archived_slots=np.array([m.archived_slot for m in rows], dtype=np.int64),
-                 poses=np.array([m.pose for m in rows]).reshape(-1, 4, 4))
-        fh.flush()
-        os.fsync(fh.fileno())
-    tmp.replace(path)
+    write_npz(path, {"format": np.array(POSES_FORMAT), "ids": ids,
+                     "file_poses": np.array([m.file_pose for m in rows]).reshape(-1, 4, 4),
+                     "archived_slots": np.array([m.archived_slot for m in rows],
+                                                dtype=np.int64),
+                     "poses": np.array([m.pose for m in rows]).reshape(-1, 4, 4)})
 
 
 def read_poses(path: Path) -> dict[int, MovedPose]:
@@ -84,7 +81,9 @@ def read_poses(path: Path) -> dict[int, MovedPose]:
             ids, slots = z["ids"].astype(np.int64), z["archived_slots"].astype(np.int64)
             file_poses = z["file_poses"].astype(np.float64)
             poses = z["poses"].astype(np.float64)
-    except (OSError, ValueError, EOFError, KeyError) as exc:
+    except NPZ_READ_ERRORS as exc:
+        if isinstance(exc, PosesError):
+            raise
         raise PosesError(f"{path}: not a readable pose file ({exc})") from None
     n = len(ids)
     if len(slots) != n or file_poses.shape != (n, 4, 4) or poses.shape != (n, 4, 4) or \

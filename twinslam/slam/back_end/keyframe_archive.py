@@ -34,7 +34,6 @@ recently each keyframe was useful after it was archived (it restarts from the ar
 from __future__ import annotations
 
 import dataclasses
-import os
 import threading
 from collections.abc import Callable, Collection, Iterable, Iterator, Mapping
 from dataclasses import dataclass
@@ -44,6 +43,7 @@ from typing import Any
 
 import numpy as np
 
+from twinslam.npz_files import NPZ_READ_ERRORS, write_npz
 from twinslam.slam.back_end.archive_poses import (
     POSES_NAME,
     MovedPose,
@@ -102,16 +102,12 @@ class ArchivedKeyFrame:
                                       self.descriptors, self.measurements))
 
     def save(self, path: Path) -> None:
-        """Write it to ``path`` atomically (temporary file, fsync, rename)."""
-        tmp = path.with_name(path.name + ".tmp")
-        with tmp.open("wb") as fh:
-            np.savez(fh, format=np.array(ARCHIVE_FORMAT), id=np.array(self.id),
-                     pose=self.pose, point_ids=self.point_ids, positions=self.positions,
-                     descriptors=self.descriptors, measurements=self.measurements,
-                     archived_slot=np.array(self.archived_slot))
-            fh.flush()
-            os.fsync(fh.fileno())
-        tmp.replace(path)
+        """Write it to ``path`` atomically (:func:`~twinslam.npz_files.write_npz`)."""
+        write_npz(path, {"format": np.array(ARCHIVE_FORMAT), "id": np.array(self.id),
+                         "pose": self.pose, "point_ids": self.point_ids,
+                         "positions": self.positions, "descriptors": self.descriptors,
+                         "measurements": self.measurements,
+                         "archived_slot": np.array(self.archived_slot)})
 
     @classmethod
     def load(cls, path: Path) -> ArchivedKeyFrame:
@@ -122,7 +118,9 @@ class ArchivedKeyFrame:
                 kf = cls(int(z["id"]), z["pose"].reshape(4, 4), z["point_ids"].astype(np.int64),
                          z["positions"].reshape(-1, 3), z["descriptors"].astype(np.uint8),
                          z["measurements"].reshape(-1, 3), int(z["archived_slot"]))
-        except (OSError, ValueError, EOFError, KeyError) as exc:
+        except NPZ_READ_ERRORS as exc:
+            if isinstance(exc, ArchiveError):
+                raise
             raise ArchiveError(f"{path}: not a readable archived keyframe ({exc})") from None
         n = len(kf.point_ids)
         if kf.descriptors.shape != (n, 32) or len(kf.positions) != n or \

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import itertools
 import math
-import os
 from collections import deque
 from collections.abc import Collection, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -26,6 +25,7 @@ from typing import Any
 import numpy as np
 from scipy import sparse
 
+from twinslam.npz_files import NPZ_READ_ERRORS, write_npz
 from twinslam.slam.back_end.foreign_keyframes import is_foreign
 from twinslam.slam.back_end.point_columns import PointColumns
 from twinslam.slam.sorted_ids import find_sorted, unique_ids_and_inverse
@@ -563,7 +563,7 @@ class KeyFrameMap:
         try:
             with np.load(path, allow_pickle=False) as z:
                 data = {k: z[k] for k in z.files}
-        except (OSError, ValueError, EOFError) as exc:
+        except NPZ_READ_ERRORS as exc:
             raise MapError(f"{path}: not a readable map checkpoint ({exc})") from None
         if str(data.pop("format", "")) != CHECKPOINT_FORMAT:
             raise MapError(f"{path}: not a {CHECKPOINT_FORMAT} checkpoint")
@@ -603,12 +603,5 @@ class KeyFrameMap:
 
 def write_checkpoint(path: Path, arrays: Mapping[str, Any]) -> None:
     """``arrays`` (:meth:`KeyFrameMap.checkpoint_contents`) written to ``path`` whole or not
-    at all: to a temporary name, flushed to the disk, then renamed over the old file
-    (``Any``: numpy's stubs would match an array's name to ``allow_pickle``)."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    with tmp.open("wb") as fh:
-        np.savez(fh, **arrays)
-        fh.flush()
-        os.fsync(fh.fileno())
-    tmp.replace(path)
+    at all (:func:`~twinslam.npz_files.write_npz`)."""
+    write_npz(path, arrays)
