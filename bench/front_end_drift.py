@@ -4,6 +4,7 @@ sequence played forward and back as the live scenarios play it.
 
     python -m bench.front_end_drift [SEQUENCE] [--frames 1000] [--colour-focal F |
         --colour-intrinsics FILE [--depth-to-colour FILE]] [--window 200] [--errors-csv FILE]
+        [--depth-baseline M]
 
 Prints the frames it could not track, the ATE (SE(3)-aligned, as every live table), the
 scale of the best similarity alignment (1 when the trajectory's size is right) and the RMS
@@ -20,7 +21,8 @@ unregistered; its colour camera's focal is about 525 (the figure relocalisation 
 camera (:mod:`twinslam.sequences.registration`; the few-centimetre baseline between the two
 is unknown and left out), as the player does with its ``colour_intrinsics`` parameter.
 ``--errors-csv`` writes each tracked frame's distance from the truth (after the alignment):
-where along the walk the error is.
+where along the walk the error is. ``--depth-baseline M``: the tracker's ``depth_baseline_m``
+(each feature's depth reading weighed in its pose refinement; 0, the default, pixels alone).
 """
 
 from __future__ import annotations
@@ -73,16 +75,19 @@ class Drift:
 
 
 def drift(sequence: str, frames: int, colour_intrinsics: np.ndarray | None = None,
-          depth_to_colour: np.ndarray | None = None) -> Drift:
+          depth_to_colour: np.ndarray | None = None,
+          depth_baseline_m: float = TrackingConfig.depth_baseline_m) -> Drift:
     """The front end alone over ``frames`` of ``sequence`` played forward and back;
     ``colour_intrinsics``: seen by that colour camera (at ``depth_to_colour`` from the depth
-    camera), the depth registered to it."""
+    camera), the depth registered to it; ``depth_baseline_m``: the tracker's (the depth
+    readings in its pose refinement; 0: pixels alone)."""
     reader = open_sequence(sequence, 0, frames, colour_intrinsics, depth_to_colour)
     if not isinstance(reader, RandomAccessSequence):
         raise SystemExit(f"{sequence}: a dataset folder or a synthetic world is needed "
                          "(a bag plays forward only)")
     order = forward_and_back(len(reader))
-    tracking = Tracking(reader.intrinsics, TrackingConfig(relocalise=True))
+    tracking = Tracking(reader.intrinsics, TrackingConfig(relocalise=True,
+                                                          depth_baseline_m=depth_baseline_m))
     poses: dict[int, np.ndarray] = {}
     truth: dict[int, np.ndarray] = {}
     for position, index in enumerate(order):
@@ -156,6 +161,10 @@ def main() -> None:
                         "frame to the colour camera's (default: the same place)")
     parser.add_argument("--window", type=int, default=200,
                         help="played frames aligned on their own for the drift-free figure")
+    parser.add_argument("--depth-baseline", type=float, default=TrackingConfig.depth_baseline_m,
+                        metavar="M", help="the tracker's depth_baseline_m: the virtual stereo "
+                        "baseline its pose refinement weighs each feature's depth reading by "
+                        "(0: pixels alone)")
     parser.add_argument("--errors-csv", type=Path, default=None, metavar="FILE",
                         help="write every tracked frame's distance from the truth here")
     args = parser.parse_args()
@@ -168,13 +177,14 @@ def main() -> None:
         colour = colour_camera(args.sequence, args.colour_focal, args.colour_intrinsics)
         placed = (read_matrix(Path(args.depth_to_colour), 4, 4) if args.depth_to_colour
                   else None)
-        result = drift(args.sequence, args.frames, colour, placed)
+        result = drift(args.sequence, args.frames, colour, placed, args.depth_baseline)
     except SequenceError as exc:
         parser.error(str(exc))
     ate = absolute_trajectory_error(result.poses, result.truth)
     scale = similarity_scale(result.poses, result.truth)
     print(f"{args.frames} frames forward and back: {result.played} played, {result.lost} not "
-          f"tracked, ATE {ate:.3f} m, similarity scale {scale:.3f}")
+          f"tracked, ATE {ate:.3f} m, similarity scale {scale:.3f} (depth baseline "
+          f"{args.depth_baseline:g} m)")
     print(f"each {args.window} played frames aligned on their own: "
           f"{windowed_ate(result, args.window):.3f} m (the error without drift between them)")
     if args.errors_csv is not None:

@@ -42,6 +42,11 @@ PARAMETERS = (
     ParamSpec("reloc_probation_frames", TrackingConfig.reloc_probation_frames, "frames a "
               "relocalised device must track by its motion model before it counts itself "
               "tracked and uploads again (0: none)", low=0, high=100_000),
+    ParamSpec("depth_baseline_m", TrackingConfig.depth_baseline_m, "the virtual stereo "
+              "baseline (metres) each tracked feature's depth reading is weighed by when the "
+              "motion model's pose is refined (ORB-SLAM2's RGB-D bf over fx: the depth as a "
+              "right-image coordinate); readings beyond 40 baselines count as none; 0: the "
+              "refinement uses the pixels alone", low=0.0, high=10.0),
     ParamSpec("max_step_m", MotionBounds.max_step_m, "the motion gate: metres the camera may "
               "move between two frames; a tracked pose farther from the last posed frame is "
               "refused and the frame lost, for relocalisation to bring back "
@@ -135,6 +140,7 @@ class DeviceSettings:
         tracking = TrackingConfig(n_features=int(p["n_features"]), relocalise=True,
                                   reloc_min_inliers=int(p["reloc_min_inliers"]),
                                   reloc_probation_frames=int(p["reloc_probation_frames"]),
+                                  depth_baseline_m=float(p["depth_baseline_m"]),
                                   motion=motion, frame_rate_hz=rate)
         return cls(slot_frames=int(p["slot_frames"]), frame_rate_hz=rate,
                    alpha_bytes=int(float(p["alpha_mbit"]) * 1e6 / 8), channel=str(p["channel"]),

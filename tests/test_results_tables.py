@@ -505,6 +505,20 @@ def test_the_cooldown_per_kind_tables_are_what_their_commands_print(
     assert "| two-ends | covered | seeds | 0, 1, 2, 4, 5, 6 | | |" in printed
 
 
+def test_the_depth_in_pose_table_is_what_its_command_prints(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each feature's depth reading in the device's pose refinement, tried on the kitchen's
+    two ends: the table with both devices' ATE and lost frames, as the page has it."""
+    folder = FIGURES / "shared-map" / "depth-in-pose" / "two-ends"
+    monkeypatch.syspath_prepend(str(FIGURES))           # its sibling, shared_uplink_table
+    in_process = _script("shared_map_before_after")
+    printed = in_process.table(folder / "pixels", folder / "depth", both_devices=True)
+    assert _missing("\n".join(printed)) == []
+    assert "| two-ends | covered | seeds | 0, 1, 2, 4, 5, 6, 7 | | |" in printed
+    assert any(line.startswith("| two-ends | covered | first device's frames the edge counts "
+                               "lost, %") for line in printed)
+
+
 def test_the_lending_in_view_table_is_what_its_command_prints(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """Lending a keyframe once the borrowing device sees it, against lending it at once: the

@@ -9,9 +9,12 @@ instead of the map — and a figure of the cross-device error and that share, se
 Reads ``uplink-{SCENARIO}-{lent,covered}.csv`` from each folder (the page has the commands;
 a scenario and condition one folder lacks is left out; the corridor's two ends as the
 scenario ``corridor-two-ends``) and writes ``before-after.png`` into the after folder;
-``--adoptions`` adds how many keyframes each map adopted from the other.
+``--adoptions`` adds how many keyframes each map adopted from the other; ``--both-devices``
+the first device's ATE and the share of each device's frames the edge counts lost (the
+paper's objective: a change to the device's tracking shows there).
 
     .venv/bin/python docs/figures/shared_map_before_after.py BEFORE AFTER [--adoptions]
+                                                             [--both-devices]
 """
 
 from __future__ import annotations
@@ -40,6 +43,11 @@ METRICS = (("cross_rms_m", "cross-device revisit error RMS, cm", 100.0),
 #: with --adoptions: what lending cost each map (columns every run with --share has)
 ADOPTIONS = (("adopted", "first device's keyframes the second map adopted", 1.0),
              ("adopted_back", "second device's keyframes the first map adopted", 1.0))
+#: with --both-devices: the first device's figures beside the second's, and the frames the
+#: edge counts lost (a change to the devices' tracking moves both)
+BOTH_DEVICES = (("first_ate_m", "first device's ATE, cm", 100.0),
+                ("first_lost_share", "first device's frames the edge counts lost, %", 100.0),
+                ("second_lost_share", "second device's frames the edge counts lost, %", 100.0))
 
 
 def paired(before: Path, after: Path, scenario: str, condition: str,
@@ -62,10 +70,13 @@ def compared(before: Path, after: Path) -> list[tuple[str, str]]:
             if all((folder / f"uplink-{s}-{c}.csv").exists() for folder in (before, after))]
 
 
-def table(before: Path, after: Path, adoptions: bool = False) -> list[str]:
+def table(before: Path, after: Path, adoptions: bool = False, both_devices: bool = False
+          ) -> list[str]:
     """The paired differences, a row a scenario, condition and metric (with ``adoptions``,
-    the keyframes each map adopted too)."""
-    metrics = (*METRICS, *ADOPTIONS) if adoptions else METRICS
+    the keyframes each map adopted too; with ``both_devices``, the first device's ATE and
+    each device's frames the edge counts lost)."""
+    metrics = (*METRICS, *(ADOPTIONS if adoptions else ()),
+               *(BOTH_DEVICES if both_devices else ()))
     lines = ["| scenario | condition | metric | before (seed by seed) | after | after − before |",
              "|---|---|---|---|---|---|"]
     for scenario, condition in compared(before, after):
@@ -118,8 +129,11 @@ def main() -> None:
                         "is written there)")
     parser.add_argument("--adoptions", action="store_true",
                         help="also compare how many keyframes each map adopted from the other")
+    parser.add_argument("--both-devices", action="store_true",
+                        help="also compare the first device's ATE and the share of each "
+                        "device's frames the edge counts lost")
     args = parser.parse_args()
-    print("\n".join(table(args.before, args.after, args.adoptions)))
+    print("\n".join(table(args.before, args.after, args.adoptions, args.both_devices)))
     print(f"wrote {figure(args.before, args.after)}")
 
 

@@ -45,6 +45,12 @@ class TrackingConfig:
     keyframe_ratio: float = 0.6        #: new points when tracked < ratio × last keyframe's
     keyframe_every: int = 20           #: and at least this often (frames)
     depth_range_m: tuple[float, float] = (0.2, 8.0)
+    #: the virtual stereo baseline each match's depth reading is weighed by in the motion
+    #: model's pose refinement (ORB-SLAM2's RGB-D bf over fx; 0: the depth is not used there)
+    depth_baseline_m: float = 0.0
+    #: a match whose depth reads farther than this many baselines is refined on its pixel
+    #: alone (ORB-SLAM2's ThDepth: a far reading's error grows with the square of its depth)
+    close_baselines: float = 40.0
     fuse_radius_px: float = 60.0       #: keyframes look for old points this far off...
     fuse_max_hamming: int = 40         #: ...with a stricter descriptor match
     fuse_ratio: float = 0.7
@@ -157,7 +163,8 @@ class Tracking:
                                 len(feats.points), 0, feats, assoc)
         predicted = self._pose @ self._velocity
         matched_feat, matched_ids = self._match(feats, predicted, color.shape[:2])
-        pose, inliers = self._solve_pose(feats.points[matched_feat], matched_ids, predicted)
+        pose, inliers = self._solve_pose(feats.points[matched_feat], matched_ids, predicted,
+                                         depth)
         pnp_ransac = pose is not None and self._solved_by_ransac
         implausible = self.implausible(pose, index) if pose is not None else ""
         if implausible:
@@ -403,13 +410,14 @@ class Tracking:
                                          self.config.max_hamming, self.config.ratio)
         return f_idx, ids[p_idx]
 
-    def _solve_pose(self, pixels: np.ndarray, ids: np.ndarray, predicted: np.ndarray | None
-                    ) -> tuple[np.ndarray | None, np.ndarray]:
+    def _solve_pose(self, pixels: np.ndarray, ids: np.ndarray, predicted: np.ndarray | None,
+                    depth: np.ndarray | None = None) -> tuple[np.ndarray | None, np.ndarray]:
         """Camera-to-world from 2D–3D matches, and the inlier mask; None if it fails.
 
         As ORB-SLAM tracks with its motion model: a robust refinement of the prediction, and
         RANSAC only when that keeps too few of the matches (a motion the model missed). With
-        no prediction (relocalisation), RANSAC alone."""
+        no prediction (relocalisation), RANSAC alone. With ``depth`` and a
+        ``depth_baseline_m``, the refinement weighs each close match's depth reading too."""
         cfg = self.config
         self._solved_by_ransac = False
         if len(ids) < cfg.min_inliers:
@@ -417,7 +425,12 @@ class Tracking:
         world = self.map.positions[ids]
         if predicted is not None:
             cw = np.linalg.inv(predicted)                # world-to-camera prior
-            refined, mask = optimize_pose(world, pixels, self.k, cw, cfg.reprojection_px)
+            depths = None
+            if depth is not None and cfg.depth_baseline_m > 0.0:
+                depths = depth_at(pixels, depth, cfg.depth_range_m)
+                depths[depths > cfg.close_baselines * cfg.depth_baseline_m] = 0.0
+            refined, mask = optimize_pose(world, pixels, self.k, cw, cfg.reprojection_px,
+                                          depths, cfg.depth_baseline_m)
             kept = int(mask.sum())
             if kept >= cfg.min_inliers and kept >= cfg.min_inlier_ratio * len(ids):
                 return np.linalg.inv(refined), mask
