@@ -71,8 +71,9 @@ def test_a_diverging_pose_solver_is_caught_and_the_device_recovers_by_relocalisa
     core = DeviceTrackerCore(seq.intrinsics, 60)
     solve = core.tracking._solve_pose
 
-    def diverging(pixels: np.ndarray, ids: np.ndarray, predicted: np.ndarray | None):
-        pose, mask = solve(pixels, ids, predicted)
+    def diverging(pixels: np.ndarray, ids: np.ndarray, predicted: np.ndarray | None,
+                  depth: np.ndarray | None = None):
+        pose, mask = solve(pixels, ids, predicted, depth)
         k = core.tracking.frames_tracked - 1 - 10          # the frame being tracked, from 10
         if pose is not None and predicted is not None and 0 <= k < 10:
             pose = pose.copy()
