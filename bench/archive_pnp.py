@@ -25,6 +25,7 @@ import numpy as np
 
 from twinslam.cli.console import HelpFormatter
 from twinslam.reporting import write_dict_rows
+from twinslam.sequences.frame import RandomAccessSequence
 from twinslam.sequences.opening import open_sequence
 from twinslam.slam.back_end.archive_relocalisation import (
     SOLVERS,
@@ -40,11 +41,14 @@ from twinslam.slam.projection_matching import back_project
 def room_archive(frames: int = 300, every: int = 30) -> tuple[object, KeyFrameArchive]:
     """The synthetic room and an archive of a keyframe every ``every`` frames."""
     seq = open_sequence(f"synthetic:{frames}", 0, frames)
+    assert isinstance(seq, RandomAccessSequence)        # a synthetic world reads any frame
     orb = OrbExtractor()
     archive = KeyFrameArchive(100)
     first = 1
     for slot, index in enumerate(range(0, frames, every)):
         frame = seq.read(index)
+        # the synthetic world renders every frame with its depth and its true pose
+        assert frame is not None and frame.depth is not None and frame.pose is not None
         feats = orb.extract(frame.color)
         z = depth_at(feats.points, frame.depth, (0.2, 8.0))
         keep = z > 0

@@ -106,7 +106,7 @@ def alternately(baseline: str | None, rounds: int,
 
 
 def drive_alternately(baseline: str | None, rounds: int, driver: str, args: list[str],
-                      describe: Callable[[dict[str, Any]], str]) -> dict[str, list[Any]]:
+                      describe: Callable[[Any], str]) -> dict[str, list[Any]]:
     """``driver`` (:func:`run_in_tree`) in the baseline's tree and this one, alternating
     round by round, each round's JSON printed as ``describe`` says; the results by tree as
     a reader names them (the baseline's commit, "this tree"), baseline first."""

@@ -15,7 +15,8 @@ import argparse
 import statistics
 from pathlib import Path
 
-from bench.baseline import REPO, add_baseline_options, drive_alternately
+from bench.baseline import add_baseline_options, drive_alternately
+from bench.paths import REPO
 
 DEFAULT_FOLDERS = [REPO / "docs" / "figures" / "default-device" / name
                    for name in ("table-i-300", "table-i-1000")]

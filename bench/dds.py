@@ -17,6 +17,7 @@ import argparse
 import json
 import platform
 import signal
+from typing import Any
 
 import numpy as np
 
@@ -38,7 +39,8 @@ class _Domain(LoopbackDomain):
         return env
 
 
-def run(qos: str, with_profile: bool, as_nodes: bool, seconds: float, rate: float) -> dict:
+def run(qos: str, with_profile: bool, as_nodes: bool, seconds: float, rate: float
+        ) -> dict[str, Any]:
     setup = ["--as-nodes"] if as_nodes else []
     with _Domain(with_profile) as dom:
         receiver = dom.spawn(["-m", "bench.dds_peer", "receive", "--qos", qos, *setup])

@@ -13,6 +13,7 @@ the device's own extractor.
 from __future__ import annotations
 
 import argparse
+import functools
 import platform
 import time
 from collections.abc import Callable
@@ -87,8 +88,10 @@ def main() -> None:
         before = knn_match_objects(query, train, 50, 0.8)
         after = match_descriptors(query, train, 50, 0.8)
         same = all(np.array_equal(x, y) for x, y in zip(before, after, strict=True))
-        old = median_ms(lambda t=train: knn_match_objects(query, t, 50, 0.8), args.repeats)
-        new = median_ms(lambda t=train: match_descriptors(query, t, 50, 0.8), args.repeats)
+        old = median_ms(functools.partial(knn_match_objects, query, train, 50, 0.8),
+                        args.repeats)
+        new = median_ms(functools.partial(match_descriptors, query, train, 50, 0.8),
+                        args.repeats)
         label = f"{k} frame{'s' if k > 1 else ''} ({len(train)})"
         print(f"{label:>24} {old:>11.2f} {new:>9.2f} {old / new:>7.1f}× {len(after[0]):>7} "
               f"{same!s:>5}")

@@ -212,6 +212,10 @@ class EmulatedDevice:
             else:                                    # the slot's uploads are done: its account
                 self._throughput(slot)
 
+    def on_stats(self, msg: MapStats) -> None:
+        """The edge's statistics of one of this device's slots."""
+        self.stats[int(msg.slot)] = msg
+
     def on_request(self, msg: UploadRequest) -> None:
         slot, now = int(msg.slot), time.monotonic()
         rate = max(self.recording.rates.get(slot, 40.0), 1e-3)
@@ -336,7 +340,7 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             yields: bool | None = None, background: bool | None = None,
             across: bool | None = None, in_view: bool | None = None,
             unseen: int | None = None, places: int = 1
-            ) -> tuple[dict[str, float], list[dict[str, float]]]:
+            ) -> tuple[dict[str, float | str], list[dict[str, float | str]]]:
     """One fleet of ``n`` emulated devices served, their starts spread evenly over ``stagger``
     slot periods, each device's map checkpointed every ``checkpoint_every`` slots (0: never),
     the edges' loop workers ``niceness`` steps below their slots, at most ``share`` of a
@@ -401,8 +405,7 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
                                               qos.PROTOCOL)}
                 sub(UploadRequest, f"{dev.name}/{topics.UPLOAD_REQUEST}", dev.on_request,
                     qos.PROTOCOL)
-                sub(MapStats, f"{dev.name}/{topics.MAP_STATS}",
-                    lambda m, d=dev: d.stats.__setitem__(int(m.slot), m), qos.PROTOCOL)
+                sub(MapStats, f"{dev.name}/{topics.MAP_STATS}", dev.on_stats, qos.PROTOCOL)
             ready = ros.spin_until(lambda: all(
                 d.pubs["summaries"].get_subscription_count() > 0 for d in devices), 30.0)
             if not ready:
@@ -475,7 +478,7 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             "merged": len(MOVED_LINE.findall(log))}, slots
 
 
-_Value = TypeVar("_Value", int, float)
+_Value = TypeVar("_Value", bool, int, float)
 
 
 def values_to_compare(parser: argparse.ArgumentParser, option: str, text: str,

@@ -181,10 +181,10 @@ def main() -> None:
           f"{1:6.0%}")
     if args.csv:
         with args.csv.open("w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=["slot", *STEPS])
-            writer.writeheader()
+            rows = csv.DictWriter(f, fieldnames=["slot", *STEPS])
+            rows.writeheader()
             for i, s in enumerate(slots, start=1):
-                writer.writerow({"slot": i, **{k: f"{s.get(k, 0.0):.3f}" for k in STEPS}})
+                rows.writerow({"slot": i, **{k: f"{s.get(k, 0.0):.3f}" for k in STEPS}})
 
 
 if __name__ == "__main__":

@@ -32,6 +32,7 @@ import tempfile
 import time
 from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -50,12 +51,13 @@ FIELDS = ["sequence", "order", "uplink", "seed", "device_params", "connected_map
 
 
 def run(spec: str, frames: int, order: str, uplink: str, seed: int, connected: bool,
-        device: Mapping[str, object] | None = None) -> dict[str, object]:
+        device: Mapping[str, object] | None = None) -> dict[str, Any]:
     """One walk with ``connected_map`` set as ``connected`` (``device``: the device node's
     parameters that differ from its defaults): the CSV row."""
     mended: list[int] = []
     check_ms: list[float] = []
-    mend = slot_planner.connected_action
+    # the planner's own name for the step, replaced for the walk to count what it mends
+    mend = slot_planner.connected_action  # type: ignore[attr-defined]
 
     def counted(obs: SlotObservation, action: MapAction) -> MapAction:
         t0 = time.perf_counter()
@@ -65,7 +67,7 @@ def run(spec: str, frames: int, order: str, uplink: str, seed: int, connected: b
             mended.append(obs.slot)
         return answer
 
-    slot_planner.connected_action = counted   # the planner's own step, counted
+    slot_planner.connected_action = counted  # type: ignore[attr-defined]
     started = time.perf_counter()
     try:
         with tempfile.TemporaryDirectory() as folder:
@@ -87,7 +89,7 @@ def run(spec: str, frames: int, order: str, uplink: str, seed: int, connected: b
             while walk.step() is not None:
                 played += 1
     finally:
-        slot_planner.connected_action = mend
+        slot_planner.connected_action = mend  # type: ignore[attr-defined]
     return {"sequence": spec, "order": order, "uplink": uplink, "seed": seed,
             "device_params": " ".join(f"{k}={v}" for k, v in sorted((device or {}).items())),
             "connected_map": int(connected), "slots": walk.slot + 1,

@@ -22,7 +22,7 @@ import os
 import resource
 import subprocess
 import time
-from collections import Counter
+from collections import Counter, defaultdict
 from pathlib import Path
 
 from twinslam.cli.console import HelpFormatter
@@ -90,7 +90,7 @@ def main() -> None:
         time.sleep(args.every)
     wall = time.monotonic() - start
     usage = resource.getrusage(resource.RUSAGE_CHILDREN)
-    groups: Counter[str] = Counter()
+    groups: defaultdict[str, float] = defaultdict(float)     #: CPU seconds a group
     counts: Counter[str] = Counter()
     for cpu, group in seen.values():
         groups[group] += cpu
@@ -100,7 +100,7 @@ def main() -> None:
           f"{total:.0f} s (a lower bound); the waited-for children's own count "
           f"{usage.ru_utime + usage.ru_stime:.1f} s")
     print(f"{'CPU s':>8} {'share':>6} {'procs':>5}  group")
-    for group, cpu in groups.most_common(args.top):
+    for group, cpu in sorted(groups.items(), key=lambda gc: -gc[1])[:args.top]:
         print(f"{cpu:8.1f} {100 * cpu / max(total, 1e-9):5.1f}% {counts[group]:5d}  {group}")
     raise SystemExit(proc.returncode)
 

@@ -18,26 +18,46 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
 
 from twinslam.live.tracking_quality import JUMP_M
 from twinslam.reporting import write_csv
+from twinslam.sequences.frame import RandomAccessSequence, RgbdFrame
 from twinslam.sequences.opening import open_sequence
 from twinslam.slam.front_end.tracking import Tracking, TrackingConfig
 
 
+def frame_at(seq: RandomAccessSequence, index: int) -> RgbdFrame:
+    """Frame ``index`` of ``seq``; a frame that cannot be read stops the bench, named."""
+    frame = seq.read(index)
+    if frame is None:
+        raise SystemExit(f"frame {index} of the sequence cannot be read")
+    return frame
+
+
+def random_access(path: str) -> RandomAccessSequence:
+    """The sequence at ``path``, read frame by frame in any order (a bag plays forward only:
+    a clear error)."""
+    seq = open_sequence(path)
+    if not isinstance(seq, RandomAccessSequence):
+        raise SystemExit(f"{path}: a dataset folder or a synthetic world is needed (a bag "
+                         "plays forward only)")
+    return seq
+
+
 def attempts(tracking: Tracking, sequence_path: str, frames: range, origin: np.ndarray | None,
-             source: str) -> list[list[object]]:
+             source: str) -> list[list[Any]]:
     """One row per accepted relocalisation attempt of ``frames``: (source, frame, inliers,
     error m); the error is NaN for a frame without ground truth, inf for another scene."""
-    seq = open_sequence(sequence_path)
-    rows: list[list[object]] = []
+    seq = random_access(sequence_path)
+    rows: list[list[Any]] = []
     for i in frames:
         if i >= len(seq):
             break
-        frame = seq.read(i)
+        frame = frame_at(seq, i)
         feats = tracking.extractor.extract(frame.color)
         _, _, pose, inliers = tracking.relocalise(feats)
         if pose is None:
@@ -66,11 +86,11 @@ def main(argv: list[str] | None = None) -> None:
                         help="where the rows go; default %(default)s")
     args = parser.parse_args(argv)
     cv2.setNumThreads(1)
-    seq = open_sequence(args.sequence)
+    seq = random_access(args.sequence)
     tracking = Tracking(seq.intrinsics, TrackingConfig(relocalise=False))
-    origin = seq.read(0).pose
+    origin = frame_at(seq, 0).pose
     for i in range(min(args.map_frames, len(seq))):
-        frame = seq.read(i)
+        frame = frame_at(seq, i)
         tracking.track(frame.color, frame.depth)
     print(f"map: {int(tracking.map.active.sum())} active points after {args.map_frames} frames",
           flush=True)

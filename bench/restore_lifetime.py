@@ -134,8 +134,13 @@ def main() -> None:
                   f"{kept:>12.1%} {lost[0]:>7.2f} ± {lost[1]:.2f} {upsilon[0]:>8.1f} ± "
                   f"{upsilon[1]:.1f}")
         by_id, by_entry = episodes[f"{name} by id"], episodes[name]
-        for metric, read in (("lost %", lambda p: 100 * p.tally.lost_share),
-                             ("mean υ", lambda p: p.tally.mean)):
+        def lost_percent(p: Plan) -> float:
+            return 100 * p.tally.lost_share
+
+        def mean_upsilon(p: Plan) -> float:
+            return p.tally.mean
+
+        for metric, read in (("lost %", lost_percent), ("mean υ", mean_upsilon)):
             diff = paired_difference([[read(p) for p in by_entry]], [read(p) for p in by_id])
             print(f"{'':<20} entry − id, {metric}: {diff.mean:+.2f} [{diff.low:+.2f}, "
                   f"{diff.high:+.2f}]")

@@ -31,7 +31,7 @@ import numpy as np
 from bench.baseline import add_baseline_options, alternately, run_in_tree
 from bench.fleet import device_slots_per_s as fleet_device_slots_per_s
 from bench.gauge import cpu_gauge, python_steps_per_s
-from twinslam.covisibility.dataset import load_covisibility
+from twinslam.covisibility.dataset import CovisibilityDataset, load_covisibility
 from twinslam.covisibility.geometric import geometric_covisibility
 from twinslam.policies.registry import make_policy
 from twinslam.policies.rules import greedy_additions, greedy_removals
@@ -44,17 +44,18 @@ from twinslam.uplink.channels import parse_channel
 REAL_COVIS = Path(__file__).resolve().parents[1] / "data" / "7scenes-redkitchen-1000.covis.npz"
 
 
-def slots_per_second(dataset, name: str, slots: int, repeats: int, paper_rule: bool = False
-                     ) -> tuple[float, float]:
+def slots_per_second(dataset: CovisibilityDataset, name: str, slots: int, repeats: int,
+                     paper_rule: bool = False) -> tuple[float, float]:
     """Median over ``repeats`` runs of (slots/s, decisions/s): this VM's speed drifts by tens
     of percent between runs, and a median of short runs is steadier than one long run."""
     runs = [_one_run(dataset, name, slots, paper_rule) for _ in range(repeats)]
     return (float(np.median([r[0] for r in runs])), float(np.median([r[1] for r in runs])))
 
 
-def _one_run(dataset, name: str, slots: int, paper_rule: bool) -> tuple[float, float]:
-    shape = dict(vmax=45, slot_frames=60, slots=slots + 30)
-    config = SimConfig.paper_rule(**shape) if paper_rule else SimConfig(**shape)
+def _one_run(dataset: CovisibilityDataset, name: str, slots: int, paper_rule: bool
+             ) -> tuple[float, float]:
+    config = (SimConfig.paper_rule(vmax=45, slot_frames=60, slots=slots + 30) if paper_rule
+              else SimConfig(vmax=45, slot_frames=60, slots=slots + 30))
     env = MapManagementEnv(dataset, parse_channel("markov:N=2", seed=0), config)
     policy = make_policy(name)
     obs, _ = env.reset(seed=0)
@@ -71,7 +72,7 @@ def _one_run(dataset, name: str, slots: int, paper_rule: bool) -> tuple[float, f
     return slots / total, slots / decide_s
 
 
-def reward_kernel_seconds(dataset, slots: int = 100) -> float:
+def reward_kernel_seconds(dataset: CovisibilityDataset, slots: int = 100) -> float:
     """Median seconds a slot spends in the reward's arithmetic alone under the device's rule:
     one factorisation of the new map with the late frames scored against it, and the early
     frames scored against the map before (whose factorisation the slot before kept) — the
@@ -101,7 +102,7 @@ def reward_kernel_seconds(dataset, slots: int = 100) -> float:
     return float(np.median(times))
 
 
-def adapt_ratio(dataset, repeats: int = 9) -> tuple[float, float]:
+def adapt_ratio(dataset: CovisibilityDataset, repeats: int = 9) -> tuple[float, float]:
     """Seconds per ADAPT decision (8 uploads, 8 evictions): incremental, naive."""
     rng = np.random.default_rng(0)
     inc, naive = [], []
