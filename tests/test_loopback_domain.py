@@ -9,8 +9,10 @@ import os
 import random
 import re
 import shutil
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -145,3 +147,45 @@ def test_a_hangs_native_stacks_show_the_main_thread_first_and_short() -> None:
     assert all(len(line) <= FRAME_CHARS for line in lines)
     assert "_PyEval" not in report and "clone3" not in report and "libthread_db" not in report
     assert compact_stacks("warning: ptrace: Operation not permitted") is None
+
+
+def _running(pid: int) -> bool:
+    """Whether process ``pid`` still runs (a zombie waiting for its new parent counts as
+    ended)."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (FileNotFoundError, ProcessLookupError, IndexError):
+        return False
+    return state != "Z"
+
+
+def test_a_node_ends_with_the_process_that_started_it_even_killed_outright() -> None:
+    """A test runner killed with SIGKILL closes no domain: its nodes must not run on in a
+    domain id the next run may claim. The node a killed starter left stops by itself."""
+    script = ("import time\n"
+              "from twinslam.hosts.loopback import LoopbackDomain\n"
+              "with LoopbackDomain() as domain:\n"
+              "    proc = domain.spawn(['-m', 'udt_node.node'])\n"
+              "    print(proc.pid, flush=True)\n"
+              "    up = domain.wait_for_log(proc, 'listening on', 120.0)\n"
+              "    print('up' if up else domain.log(proc)[-2000:].replace(chr(10), ' '),\n"
+              "          flush=True)\n"
+              "    time.sleep(300)\n")
+    starter = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE,
+                               text=True)
+    assert starter.stdout is not None
+    try:
+        node = int(starter.stdout.readline())
+        up = starter.stdout.readline().strip()
+        assert up == "up", up
+        assert _running(node)
+    finally:
+        starter.kill()
+        starter.wait(timeout=10)
+    deadline = time.monotonic() + 30.0
+    while _running(node) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    still = _running(node)
+    if still:
+        os.kill(node, signal.SIGKILL)
+    assert not still, "the node ran on after the process that started it was killed"

@@ -35,6 +35,7 @@ from twinslam.hosts.fastdds import (
 )
 from twinslam.hosts.forked import ForkServers, NodeProcess
 from twinslam.hosts.native_stacks import native_stacks
+from twinslam.parent_watch import PARENT_ENV
 
 
 def _discovery_port_free(domain_id: int) -> bool:
@@ -160,6 +161,9 @@ class ProcessDomain:
         if forks is not None and not kwargs and (netns or self.command(host, argv) == argv):
             proc = forks.spawn(args, env, netns)
         if proc is None:
+            # a node ends with this process even where it is killed outright (a forked one
+            # dies with its fork server, which dies with this process)
+            env = {**env, PARENT_ENV: str(os.getpid())}
             proc = subprocess.Popen(  # type: ignore[call-overload]
                 self.command(host, argv), env=env, text=True, stdout=subprocess.PIPE,
                 stderr=subprocess.PIPE, cwd=str(REPO_ROOT), **kwargs)

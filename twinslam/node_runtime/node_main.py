@@ -40,6 +40,10 @@ The node's destruction — the DDS participant's deletion with it — is bounded
 deadlock there against a discovery callback (a peer leaving at the same moment), and a node
 stuck so prints where and exits with code 1 after 5 s instead of waiting to be killed.
 
+A node started by a test, a benchmark or ``twinslam launch`` through
+:class:`~twinslam.hosts.loopback.ProcessDomain` ends with the process that started it, even
+one killed outright (:mod:`twinslam.parent_watch`).
+
 ``kill -USR1 PID`` prints every thread's Python stack to the node's stderr and the node goes
 on (:data:`STACKS_SIGNAL`): where a node that stopped answering, or does not end when asked,
 is stuck.
@@ -66,6 +70,7 @@ from twinslam.node_runtime.allocator import keep_freed_memory
 from twinslam.node_runtime.long_lived_objects import keep_survivors_out
 from twinslam.node_runtime.math_threads import one_math_thread
 from twinslam.node_runtime.middleware_teardown import teardown_bound
+from twinslam.parent_watch import PARENT_ENV, stop_with_parent
 
 N = TypeVar("N", bound=Node)
 
@@ -149,6 +154,10 @@ def run_node(name: str, factory: Callable[[], N], args: list[str] | None = None,
         keep_survivors_out()
     stop = StopRequest()
     stop.install()
+    if stop_with_parent():
+        rclpy.logging.get_logger(name).warning(
+            f"the process that started this node ({PARENT_ENV}) is gone: not starting")
+        return 0
     try:
         rclpy.init(args=sys.argv if args is None else args,
                    signal_handler_options=SignalHandlerOptions.NO)
