@@ -6,7 +6,7 @@ one rigid motion each (:meth:`~twinslam.slam.back_end.keyframe_archive.KeyFrameA
 correct`), and a merge moves a joining map's whole archive. The archive's files must follow,
 or a restarted edge (or a standby taking the device over) reads the places before the loop.
 Each keyframe's file was written again for that: on an archive of 500 keyframes of the
-7-Scenes walk, 500 files of ~90 KB and 500 fsyncs, 0.47 s of the loop closer's worker a loop
+7-Scenes walk, 500 files of ~90 KB and 500 fsyncs, 0.5–0.7 s of the loop closer's worker a loop
 (``bench.loop_closer``) — on a disk slower to sync than this VM's, seconds a loop, for every
 device an edge serves.
 

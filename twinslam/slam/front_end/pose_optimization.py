@@ -109,7 +109,7 @@ def _optimize(world: np.ndarray, pixels: np.ndarray, inverse_depths: np.ndarray,
                 bound = thr2_depth if has_depth else thr2
                 wgt = 1.0
                 if robust and e2 > bound:          # Huber: linear beyond the threshold
-                    wgt = np.sqrt(bound / e2)
+                    wgt = np.sqrt(bound / e2) if has_depth else threshold / np.sqrt(e2)
                 # d(pixel)/d(X_c) times d(X_c)/d(ω, v) = [-[X_c]x  I]
                 a0, a2 = fx * iz, -fx * x * iz * iz
                 b1, b2 = fy * iz, -fy * y * iz * iz
