@@ -43,6 +43,7 @@ from device_tracker.camera_input import CameraFrame, CameraIntake
 from device_tracker.device_core import DeviceTrackerCore
 from device_tracker.edge_watchdog import EdgeWatchdog
 from device_tracker.frame_log import frame_log_lines
+from device_tracker.map_frame_name import MapFrameName
 from device_tracker.messages import (
     FrameRecord,
     encoded_keyframe,
@@ -100,6 +101,8 @@ class DeviceTrackerNode(Node):
         DeviceTrackerCore.warm_up()
         self._lock = threading.Lock()            # the core, between the node's callbacks
         self.poses = PoseOutputs(self, s)
+        #: the frame each map version's poses go out in (another place's after a merge)
+        self.frame_names = MapFrameName(s.map_frame)
         self.pub_summaries = self.create_publisher(FrameSummaries, topics.FRAME_SUMMARIES,
                                                    qos.PROTOCOL)
         self.pub_throughput = self.create_publisher(UplinkThroughput, topics.UPLINK_THROUGHPUT,
@@ -195,7 +198,8 @@ class DeviceTrackerNode(Node):
         if self.edge_relocalisation.due(record.tracked or result.on_probation, stamp):
             self.edge_relocalisation.ask(core.upload(record.frame_id), stamp,
                                          frame.color_msg.header.frame_id)
-        self.poses.frame(record, stamp, frame.color_msg.header.frame_id)
+        self.poses.frame(record, stamp, frame.color_msg.header.frame_id,
+                         self.frame_names.of(record.map_version))
         if step.finished:
             self._end_slot(step.finished, step.map_version, stamp)
 
@@ -222,6 +226,7 @@ class DeviceTrackerNode(Node):
         update = read_map_update(msg)
         with self._lock:
             if self.core is not None and self.core.apply_map_update(update, int(msg.slot)):
+                self.frame_names.applied(update.version, update.frame_id)
                 self.get_logger().debug(f"map version {update.version}: "
                                         f"{len(update.point_ids)} points")
 

@@ -6,7 +6,10 @@ camera``), with ``device/odom`` the camera in ``odom`` every frame. An untracked
 guess, so it is published as a pose but never as a transform. The camera's frame id is the
 images' unless ``camera_frame`` names one; when it is the map's own frame the transform would
 be a loop, so the broadcast stops and says why. ``odom_frame`` empty: ``map`` → camera
-directly, as before REP 105."""
+directly, as before REP 105. A device whose map joined another device's place publishes in
+that place's frame from the first pose tracked on the merged map on
+(:mod:`device_tracker.map_frame_name`): its path starts again there, its poses before being in
+the frame it left."""
 
 from __future__ import annotations
 
@@ -38,24 +41,36 @@ class PoseOutputs:
                          if self.odometry is not None else None)
         self.pub_tf = (node.create_publisher(TFMessage, topics.TF, qos.TF)
                        if settings.publish_tf else None)
+        #: the frame the newest pose went out in
+        self.map_frame = settings.map_frame
 
-    def frame(self, record: FrameRecord, stamp: float, image_frame: str) -> None:
-        """One frame's pose (camera-to-map), published, kept for the path, and split into
+    def frame(self, record: FrameRecord, stamp: float, image_frame: str,
+              map_frame: str | None = None) -> None:
+        """One frame's pose (camera-to-map ``map_frame``: the frame of the map it was tracked
+        on; None: the device's own), published, kept for the path, and split into
         ``map → odom → camera``."""
         s = self.settings
-        msg = set_header(PoseStamped(pose=pose_msg(record.pose)), stamp, s.map_frame)
+        frame = map_frame or s.map_frame
+        if frame != self.map_frame:
+            self.node.get_logger().info(f"poses in {frame} from map version "
+                                        f"{record.map_version} on (they were in "
+                                        f"{self.map_frame}): the edge's map update is in "
+                                        "that frame")
+            self.map_frame = frame
+            self.path = PathWindow(s.path_window)
+        msg = set_header(PoseStamped(pose=pose_msg(record.pose)), stamp, frame)
         self.pub_pose.publish(msg)
         self.path.add(msg)
         child = s.camera_frame or image_frame or "camera"
         # the transforms down to the camera: (parent from child, parent, child)
-        chain = [(record.pose, s.map_frame, child)]
+        chain = [(record.pose, frame, child)]
         if self.odometry is not None and self.pub_odom is not None:
             odom, map_from_odom = self.odometry.update(record.pose, record.tracked,
                                                        record.map_version, record.relocalised)
             odometry = set_header(Odometry(child_frame_id=child), stamp, s.odom_frame)
             odometry.pose.pose = pose_msg(odom)
             self.pub_odom.publish(odometry)
-            chain = [(map_from_odom, s.map_frame, s.odom_frame), (odom, s.odom_frame, child)]
+            chain = [(map_from_odom, frame, s.odom_frame), (odom, s.odom_frame, child)]
         if record.tracked and self._may_broadcast(child):
             assert self.pub_tf is not None
             self.pub_tf.publish(tf_message(*(transform_stamped(pose, stamp, parent, name)
@@ -63,14 +78,14 @@ class PoseOutputs:
 
     def slot_end(self, stamp: float) -> None:
         """The path as it stands at a slot's end."""
-        self.pub_path.publish(self.path.message(stamp, self.settings.map_frame))
+        self.pub_path.publish(self.path.message(stamp, self.map_frame))
 
     def _may_broadcast(self, child: str) -> bool:
         """Whether the camera's transforms can go on /tf: a camera frame that is the map's
         (or odom's) own would make a loop, so the broadcast stops for good, saying why."""
         if self.pub_tf is None:
             return False
-        if child in (self.settings.map_frame, self.settings.odom_frame):
+        if child in (self.map_frame, self.settings.odom_frame):
             self.node.get_logger().error(f"the camera images are in frame {child!r}, the "
                                          "device's map or odom frame: no transform on /tf "
                                          "(set camera_frame)")

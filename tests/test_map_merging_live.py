@@ -64,6 +64,11 @@ def test_the_edge_merges_the_second_devices_map_into_the_first_ones_frame(
                                  summaries.append, qos.PROTOCOL)
     ros.node.create_subscription(FrameSummaries, "/ar1/device/frame_summaries",
                                  first_summaries.append, qos.PROTOCOL)
+    # the frames the second device's poses go out in, as a viewer reads them
+    pose_frames: list[str] = []
+    ros.node.create_subscription(PoseStamped, f"/ar2/{topics.DEVICE_POSE}",
+                                 lambda msg: pose_frames.append(msg.header.frame_id),
+                                 qos.PROTOCOL)
     # each device's true poses by stamp, as its player publishes them: a device under load
     # skips a frame whose colour image never came, and its frame ids then run behind the
     # played frames — only the stamp tells which frame a summary is of
@@ -135,6 +140,13 @@ def test_the_edge_merges_the_second_devices_map_into_the_first_ones_frame(
     # what the edge publishes of the second device is in the first one's frame from then on
     assert all(u.header.frame_id == "ar1/map" for u in later + maps["ar1"])
     assert all(u.header.frame_id == "ar2/map" for u in maps["ar2"][:maps["ar2"].index(merged)])
+    # and so are the second device's own poses: a viewer shows them where the place has them
+    assert ros.spin_until(lambda: "ar1/map" in pose_frames, 30.0), \
+        (sorted(set(pose_frames)), domain.log(trackers["ar2"])[-2000:])
+    switched = pose_frames.index("ar1/map")      # in the order the device tracked them
+    assert set(pose_frames[:switched]) <= {"ar2/map"}
+    assert "ar2/map" not in pose_frames[switched:]
+    assert "poses in ar1/map from map version" in domain.log(trackers["ar2"])
     # the second device's poses on the merged map are where the first device's frame has
     # those places
     first_camera = np.linalg.inv(room.read(0).pose)          # type: ignore[attr-defined]
