@@ -30,7 +30,10 @@ the host's CPU is, and the devices' part of it would be on their own machines in
 
 With ``--edges K`` the devices are split into K blocks of neighbours, each served by an
 ``edge_mapper`` process of its own (what ``twinslam launch --devices N --edges K`` starts); the
-CPU is theirs together. With ``--hosts`` each edge process runs on an edge host of its own
+CPU is theirs together. With ``--places P`` of at least K, each edge serves whole places
+instead (a place's maps merge within one edge process; before 2026-12-04 the blocks were of
+neighbours there too, and a place's devices k and k + P could land on different edges).
+With ``--hosts`` each edge process runs on an edge host of its own
 (``edge``, ``edge2``, …: network namespaces on a switch, :mod:`twinslam.hosts.netns`, as
 ``twinslam launch --hosts --edges K`` places them) and the emulated devices on a host
 ``device``: every message crosses a veth and the bridge over UDP with static discovery peers,
@@ -85,6 +88,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import itertools
 import math
 import os
 import platform
@@ -268,6 +272,25 @@ def record(folder: Path) -> None:
                    stdout=subprocess.DEVNULL)
 
 
+def edge_devices(names: list[str], edges: int, places: int) -> list[list[str]]:
+    """Each edge process's devices: with at least as many places as edges (device k walks
+    place k mod ``places``), whole places an edge — maps merge within one edge process, as
+    ``twinslam launch --sequence A,B --edges K`` gives each edge whole places — the places
+    cut into runs holding as even a share of the devices as whole places allow; else runs of
+    neighbouring devices (:func:`edge_blocks`)."""
+    if places < max(edges, 2):
+        return edge_blocks(names, edges)
+    walkers = np.bincount(np.arange(len(names)) % places, minlength=places)
+    before = np.concatenate([[0], np.cumsum(walkers)])        # devices of the places before p
+    # edge e's first place: where the devices before it come nearest e/edges of them all
+    first = [0, *(int(np.argmin(np.abs(before[1:-1] - e * len(names) / edges))) + 1
+                  for e in range(1, edges)), places]
+    for e in range(1, edges):              # a place at least an edge, in order
+        first[e] = min(max(first[e], first[e - 1] + 1), places - (edges - e))
+    return [[d for k, d in enumerate(names) if a <= k % places < b]
+            for a, b in itertools.pairwise(first)]
+
+
 def cpu_seconds(pid: int) -> float:
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
@@ -355,7 +378,7 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
     names = [f"ar{i + 1}" for i in range(n)]
     with pools_env(pools), fleet_network(edges, hosts) as (dom, _), \
             tempfile.TemporaryDirectory(prefix="twinslam-checkpoints-") as kept:
-        served = edge_blocks(names, edges)
+        served = edge_devices(names, edges, places)
         hosted = edge_hosts(len(served)) if hosts else [None] * len(served)
         procs = [dom.spawn(["-m", "edge_mapper.node", "--ros-args",
                             "-r", f"__node:=edge_mapper_{e + 1}", "-p", f"policy:={policy}",

@@ -1,6 +1,7 @@
 """``bench.edge_scaling --places``: a recorded walk replayed as a place of its own keeps the
 walk's own descriptor distances (its map is built as the recording's was) and shares no
-near descriptor with another place's (place recognition relates no two places)."""
+near descriptor with another place's (place recognition relates no two places); with several
+edge processes each serves whole places."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import numpy as np
 from rclpy.serialization import deserialize_message, serialize_message
 from twinslam_msgs.msg import Keyframe
 
-from bench.edge_scaling import Recording
+from bench.edge_scaling import Recording, edge_devices
 
 
 def hamming_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -42,3 +43,16 @@ def test_a_place_of_its_own_keeps_its_walks_distances_and_nears_no_other_place()
         across = hamming_matrix(own[0], other)
         assert across.min() > 64 and 96 < across.mean() < 160
     assert first.summaries is recording.summaries and first.slot_s == recording.slot_s
+
+
+def test_each_edge_serves_whole_places_and_a_fair_share_of_the_devices() -> None:
+    """Fifty devices over 38 places (k and k + 38 share one) on two edges: no place split
+    between them (its maps could never merge), 25 devices each; with fewer places than
+    edges, runs of neighbours as before."""
+    names = [f"ar{k + 1}" for k in range(50)]
+    served = edge_devices(names, 2, 38)
+    assert [len(b) for b in served] == [25, 25]
+    assert sorted(sum(served, [])) == sorted(names)
+    places = [{(int(d[2:]) - 1) % 38 for d in block} for block in served]
+    assert not places[0] & places[1]
+    assert edge_devices(names[:6], 2, 1) == [names[:3], names[3:6]]
