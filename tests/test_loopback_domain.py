@@ -17,8 +17,9 @@ from pathlib import Path
 
 import pytest
 
-from twinslam.hosts.loopback import DomainClaim, LoopbackDomain, _claims_dir
+from twinslam.hosts.loopback import DomainClaim, LoopbackDomain, ProcessDomain, _claims_dir
 from twinslam.hosts.native_stacks import FRAME_CHARS, compact_stacks, native_stacks
+from twinslam.parent_watch import PARENT_ENV
 
 #: the ids these tests claim among themselves, in claims of their own (tmp_path): 230..232,
 #: beyond the machine's 100..229 that the suite's other tests claim on parallel workers — the
@@ -189,3 +190,32 @@ def test_a_node_ends_with_the_process_that_started_it_even_killed_outright() -> 
     if still:
         os.kill(node, signal.SIGKILL)
     assert not still, "the node ran on after the process that started it was killed"
+
+
+def test_a_domain_does_not_pass_on_the_process_its_own_starter_watches(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A process that a domain started (its nodes' starter named in the environment) starts
+    nodes of its own: they end with it, not with its starter — and a node forked from a fork
+    server, whose parent is that server, must not take the starter's pid for its parent."""
+    monkeypatch.setenv(PARENT_ENV, "12345")
+    domain = ProcessDomain(123)
+    assert PARENT_ENV not in domain.base_env()
+
+
+def test_a_node_not_started_by_the_process_it_names_stops_and_passes_the_name_on_to_none(
+        ) -> None:
+    """In a process of its own (the request stays with that process): named by its parent,
+    it goes on (False); named by another pid — a starter that died before the request, its
+    child handed to another process — it stops (True); either way the name leaves the
+    environment its own children inherit."""
+    probe = ("import os, sys\n"
+             "from twinslam.parent_watch import PARENT_ENV, stop_with_parent\n"
+             "env = {PARENT_ENV: sys.argv[1], 'OTHER': 'kept'}\n"
+             "print(stop_with_parent(env), sorted(env))\n")
+    answers = []
+    for named in (str(os.getpid()), "1"):
+        done = subprocess.run([sys.executable, "-c", probe, named], capture_output=True,
+                              text=True, timeout=60)
+        assert done.returncode == 0, done.stderr
+        answers.append(done.stdout.strip())
+    assert answers == ["False ['OTHER']", "True ['OTHER']"]

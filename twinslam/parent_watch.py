@@ -20,19 +20,20 @@ import ctypes
 import ctypes.util
 import os
 import signal
-from collections.abc import Mapping
+from collections.abc import MutableMapping
 
 #: the environment variable naming the process a node ends with (its pid)
 PARENT_ENV = "TWINSLAM_STOP_WITH_PARENT"
 PR_SET_PDEATHSIG = 1            #: prctl option (linux/prctl.h)
 
 
-def stop_with_parent(env: Mapping[str, str] = os.environ) -> bool:
+def stop_with_parent(env: MutableMapping[str, str] = os.environ) -> bool:
     """Have the kernel send this process SIGTERM when the process :data:`PARENT_ENV` names
     dies; True when it is no longer this process's parent (it died already, or this process
     was not started by it): the caller stops. False, and nothing asked, without the variable
-    or where the kernel offers no ``prctl`` (not Linux)."""
-    named = env.get(PARENT_ENV, "")
+    or where the kernel offers no ``prctl`` (not Linux). The variable leaves ``env``: what
+    this process starts is not its starter's."""
+    named = env.pop(PARENT_ENV, "")
     if not named.isdigit():
         return False
     libc_name = ctypes.util.find_library("c")

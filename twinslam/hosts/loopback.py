@@ -122,8 +122,11 @@ class ProcessDomain:
         self._log_threads: dict[int, threading.Thread] = {}
 
     def base_env(self) -> dict[str, str]:
-        """The current environment with this domain's id and the repository on the path."""
+        """The current environment with this domain's id and the repository on the path —
+        less the process a node of this process's own starter would end with: a node this
+        domain starts ends with this process (:meth:`spawn`), a forked one with its server."""
         env = dict(os.environ)
+        env.pop(PARENT_ENV, None)
         env.update({
             "ROS_DOMAIN_ID": str(self.domain_id),
             "PYTHONUNBUFFERED": "1",
