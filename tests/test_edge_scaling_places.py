@@ -52,7 +52,7 @@ def test_each_edge_serves_whole_places_and_a_fair_share_of_the_devices() -> None
     names = [f"ar{k + 1}" for k in range(50)]
     served = edge_devices(names, 2, 38)
     assert [len(b) for b in served] == [25, 25]
-    assert sorted(sum(served, [])) == sorted(names)
+    assert sorted(d for block in served for d in block) == sorted(names)
     places = [{(int(d[2:]) - 1) % 38 for d in block} for block in served]
     assert not places[0] & places[1]
     assert edge_devices(names[:6], 2, 1) == [names[:3], names[3:6]]
