@@ -35,11 +35,12 @@ from pathlib import Path
 import numpy as np
 from evo.core import geometry
 
+from bench.frames import frame_at, random_access
 from bench.paths import SEVEN_SCENES
 from twinslam.cli.console import HelpFormatter
 from twinslam.live.tracking_quality import absolute_trajectory_error, translation_errors
 from twinslam.sequences.folders import read_matrix
-from twinslam.sequences.frame import RandomAccessSequence, SequenceError
+from twinslam.sequences.frame import SequenceError
 from twinslam.sequences.opening import open_sequence
 from twinslam.slam.front_end.tracking import Tracking, TrackingConfig
 
@@ -81,19 +82,15 @@ def drift(sequence: str, frames: int, colour_intrinsics: np.ndarray | None = Non
     ``colour_intrinsics``: seen by that colour camera (at ``depth_to_colour`` from the depth
     camera), the depth registered to it; ``depth_baseline_m``: the tracker's (the depth
     readings in its pose refinement; 0: pixels alone)."""
-    reader = open_sequence(sequence, 0, frames, colour_intrinsics, depth_to_colour)
-    if not isinstance(reader, RandomAccessSequence):
-        raise SystemExit(f"{sequence}: a dataset folder or a synthetic world is needed "
-                         "(a bag plays forward only)")
+    reader = random_access(open_sequence(sequence, 0, frames, colour_intrinsics,
+                                         depth_to_colour), sequence)
     order = forward_and_back(len(reader))
     tracking = Tracking(reader.intrinsics, TrackingConfig(relocalise=True,
                                                           depth_baseline_m=depth_baseline_m))
     poses: dict[int, np.ndarray] = {}
     truth: dict[int, np.ndarray] = {}
     for position, index in enumerate(order):
-        frame = reader.read(index)
-        if frame is None:
-            raise SystemExit(f"{sequence}: frame {index} cannot be read")
+        frame = frame_at(reader, index, sequence)
         out = tracking.track(frame.color, frame.depth)
         if out.tracked:
             poses[position] = out.pose

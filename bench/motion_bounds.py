@@ -24,10 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.frames import frame_at, random_access
 from bench.paths import REPO, SEVEN_SCENES
 from twinslam.cli.console import HelpFormatter
 from twinslam.rotations import rotation_angle_deg
-from twinslam.sequences.frame import RandomAccessSequence
 from twinslam.sequences.opening import open_sequence
 from twinslam.slam.front_end.tracking import Tracking, TrackingConfig
 from twinslam.slam.pose_plausibility import MotionBounds
@@ -78,18 +78,14 @@ def motion_figures(sequence: str, source: str, poses: Mapping[int, np.ndarray],
 def measure(sequence: str, frames: int, colour_intrinsics: str | None, bounds: MotionBounds,
             frame_rate_hz: float) -> list[MotionFigures]:
     """The truth's and the front end's figures for ``frames`` of ``sequence``."""
-    reader = open_sequence(sequence, 0, frames, colour_intrinsics)
-    if not isinstance(reader, RandomAccessSequence):
-        raise SystemExit(f"{sequence}: a dataset folder or a synthetic world is needed")
+    reader = random_access(open_sequence(sequence, 0, frames, colour_intrinsics), sequence)
     tracking = Tracking(reader.intrinsics, TrackingConfig(relocalise=True, motion=bounds,
                                                           frame_rate_hz=frame_rate_hz))
     truth: dict[int, np.ndarray] = {}
     tracked: dict[int, np.ndarray] = {}
     refused = 0
     for index in range(len(reader)):
-        frame = reader.read(index)
-        if frame is None:
-            raise SystemExit(f"{sequence}: frame {index} cannot be read")
+        frame = frame_at(reader, index, sequence)
         if frame.pose is not None:
             truth[index] = frame.pose
         out = tracking.track(frame.color, frame.depth)

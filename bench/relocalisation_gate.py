@@ -23,41 +23,23 @@ from typing import Any
 import cv2
 import numpy as np
 
+from bench.frames import frame_at, random_access
 from twinslam.live.tracking_quality import JUMP_M
 from twinslam.reporting import write_csv
-from twinslam.sequences.frame import RandomAccessSequence, RgbdFrame
 from twinslam.sequences.opening import open_sequence
 from twinslam.slam.front_end.tracking import Tracking, TrackingConfig
-
-
-def frame_at(seq: RandomAccessSequence, index: int) -> RgbdFrame:
-    """Frame ``index`` of ``seq``; a frame that cannot be read stops the bench, named."""
-    frame = seq.read(index)
-    if frame is None:
-        raise SystemExit(f"frame {index} of the sequence cannot be read")
-    return frame
-
-
-def random_access(path: str) -> RandomAccessSequence:
-    """The sequence at ``path``, read frame by frame in any order (a bag plays forward only:
-    a clear error)."""
-    seq = open_sequence(path)
-    if not isinstance(seq, RandomAccessSequence):
-        raise SystemExit(f"{path}: a dataset folder or a synthetic world is needed (a bag "
-                         "plays forward only)")
-    return seq
 
 
 def attempts(tracking: Tracking, sequence_path: str, frames: range, origin: np.ndarray | None,
              source: str) -> list[list[Any]]:
     """One row per accepted relocalisation attempt of ``frames``: (source, frame, inliers,
     error m); the error is NaN for a frame without ground truth, inf for another scene."""
-    seq = random_access(sequence_path)
+    seq = random_access(open_sequence(sequence_path), sequence_path)
     rows: list[list[Any]] = []
     for i in frames:
         if i >= len(seq):
             break
-        frame = frame_at(seq, i)
+        frame = frame_at(seq, i, sequence_path)
         feats = tracking.extractor.extract(frame.color)
         _, _, pose, inliers = tracking.relocalise(feats)
         if pose is None:
@@ -86,11 +68,11 @@ def main(argv: list[str] | None = None) -> None:
                         help="where the rows go; default %(default)s")
     args = parser.parse_args(argv)
     cv2.setNumThreads(1)
-    seq = random_access(args.sequence)
+    seq = random_access(open_sequence(args.sequence), args.sequence)
     tracking = Tracking(seq.intrinsics, TrackingConfig(relocalise=False))
-    origin = frame_at(seq, 0).pose
+    origin = frame_at(seq, 0, args.sequence).pose
     for i in range(min(args.map_frames, len(seq))):
-        frame = frame_at(seq, i)
+        frame = frame_at(seq, i, args.sequence)
         tracking.track(frame.color, frame.depth)
     print(f"map: {int(tracking.map.active.sum())} active points after {args.map_frames} frames",
           flush=True)
