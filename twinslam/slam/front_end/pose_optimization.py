@@ -117,17 +117,16 @@ def _optimize(world: np.ndarray, pixels: np.ndarray, inverse_depths: np.ndarray,
                 jac[0, 3], jac[0, 4], jac[0, 5] = a0, 0.0, a2
                 jac[1, 0], jac[1, 1], jac[1, 2] = b2 * y - b1 * z, -b2 * x, b1 * x
                 jac[1, 3], jac[1, 4], jac[1, 5] = 0.0, b1, b2
-                # u_R's row: u's, its z column plus bf/z² (d(−bf/z)/dz)
-                c2 = a2 + bf * iz * iz
-                jac[2, 0], jac[2, 1], jac[2, 2] = c2 * y, a0 * z - c2 * x, -a0 * y
-                jac[2, 3], jac[2, 4], jac[2, 5] = a0, 0.0, c2
-                rows = 3 if has_depth else 2
+                if has_depth:                      # u_R's row: u's, its z column + bf/z²
+                    c2 = a2 + bf * iz * iz
+                    jac[2, 0], jac[2, 1], jac[2, 2] = c2 * y, a0 * z - c2 * x, -a0 * y
+                    jac[2, 3], jac[2, 4], jac[2, 5] = a0, 0.0, c2
                 for p in range(6):
                     g[p] -= wgt * (jac[0, p] * ex + jac[1, p] * ey
-                                   + (jac[2, p] * er if rows == 3 else 0.0))
+                                   + (jac[2, p] * er if has_depth else 0.0))
                     for q in range(p, 6):
                         h[p, q] += wgt * (jac[0, p] * jac[0, q] + jac[1, p] * jac[1, q]
-                                          + (jac[2, p] * jac[2, q] if rows == 3 else 0.0))
+                                          + (jac[2, p] * jac[2, q] if has_depth else 0.0))
             for p in range(6):
                 for q in range(p):
                     h[p, q] = h[q, p]
