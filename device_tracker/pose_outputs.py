@@ -44,13 +44,11 @@ class PoseOutputs:
         #: the frame the newest pose went out in
         self.map_frame = settings.map_frame
 
-    def frame(self, record: FrameRecord, stamp: float, image_frame: str,
-              map_frame: str | None = None) -> None:
-        """One frame's pose (camera-to-map ``map_frame``: the frame of the map it was tracked
-        on; None: the device's own), published, kept for the path, and split into
-        ``map → odom → camera``."""
+    def frame(self, record: FrameRecord, stamp: float, image_frame: str, frame: str) -> None:
+        """One frame's pose (camera-to-map ``frame``: the frame of the map it was tracked on,
+        :class:`~device_tracker.map_frame_name.MapFrameName`), published, kept for the path,
+        and split into ``map → odom → camera``."""
         s = self.settings
-        frame = map_frame or s.map_frame
         if frame != self.map_frame:
             self.node.get_logger().info(f"poses in {frame} from map version "
                                         f"{record.map_version} on (they were in "
