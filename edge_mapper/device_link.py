@@ -418,7 +418,7 @@ class DeviceLink:
         u = out.map_uncertainty
         kept = f" (kept {len(out.spared)} of C_k: uploads missing)" if out.spared else ""
         if entry.covered:
-            kept += f", {entry.covered} frames not asked for: the shared map covers their views"
+            kept += f", {entry.covered} frames not asked for: the map covers their views"
         if out.restored:
             kept += f", {len(out.restored)} restored from the archive {out.restored}"
             if out.fused_points:

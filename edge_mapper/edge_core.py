@@ -58,6 +58,7 @@ from twinslam.slam.back_end.pose_graph import LoopEdge
 from twinslam.slam.back_end.view_coverage import CoverageBounds, covered_views
 from twinslam.slam.camera import Camera
 from twinslam.slam.keyframe import KeyFramePayload
+from twinslam.slot_protocol.map_entry import RESTORED, UNRECORDED
 from twinslam.uncertainty.map_uncertainty import map_uncertainty
 
 
@@ -86,9 +87,13 @@ class EdgeConfig:
     checkpoint_every: int = 1
     #: a tracked frame whose view a keyframe another device uploaded covers (one of the
     #: map's, lent after a map merge) is not uploaded (:mod:`twinslam.slam.back_end.
-    #: view_coverage`); the device's own keyframes cover nothing: alone, a device uploads as
-    #: Theorem 1 sizes it
+    #: view_coverage`)
     coverage: CoverageBounds = field(default_factory=CoverageBounds)
+    #: the device's own keyframes cover a frame's view too (by :attr:`coverage`) once they
+    #: are views of an earlier visit: restored from the archive, or uploaded at least this
+    #: many slots before; 0: they cover nothing, and a device alone uploads as Theorem 1
+    #: sizes it (the paper's)
+    own_coverage_after_slots: int = 0
 
 
 @dataclass
@@ -301,7 +306,7 @@ class EdgeMapperCore:
         leaving = {kf for action, _ in self.pending.values() for kf in action.evict}
         plan = self.planner.plan(slot, frames, rate_mbps, rate_state, self.rate_history,
                                  self._arriving, leaving, self.camera,
-                                 self.covered_by_others(frames, leaving))
+                                 self.covered_frames(frames, slot, leaving))
         self.pending[slot] = (plan.action, set())
         self._planned_vmax[slot] = self.planner.config.vmax
         ahead = heading(frames)
@@ -311,21 +316,35 @@ class EdgeMapperCore:
         self._arriving.update({f: by_id[f] for f in plan.action.upload})
         return plan
 
-    def covered_by_others(self, frames: Sequence[FrameObservations],
-                          leaving: Collection[int] = frozenset()) -> set[int]:
-        """The tracked ``frames`` whose views a keyframe of the map that another device
-        uploaded covers (``config.coverage``; the keyframes ``leaving`` with open slots' evictions
-        left out). A frame's pose is in the frame of the map version it was tracked on (-1:
-        unknown, taken as now's); a loop or a merge applied since moves it into the map's
-        frame now first."""
+    def covered_frames(self, frames: Sequence[FrameObservations], slot: int,
+                       leaving: Collection[int] = frozenset()) -> set[int]:
+        """The tracked ``frames`` of ``slot`` whose views a keyframe of the map covers
+        (``config.coverage``; the keyframes ``leaving`` with open slots' evictions left out):
+        one another device uploaded, or with ``own_coverage_after_slots`` one of the
+        device's own from an earlier visit (:meth:`_earlier_visit`). A frame's pose is in the
+        frame of the map version it was tracked on (-1: unknown, taken as now's); a loop or a
+        merge applied since moves it into the map's frame now first."""
         bounds = self.config.coverage
-        lent = [kf.pose for k, kf in self.map.keyframes.items()
-                if is_foreign(k) and k not in leaving]
-        if not lent or not bounds.enabled:
+        covering = [kf.pose for k, kf in self.map.keyframes.items()
+                    if k not in leaving and (is_foreign(k) or self._earlier_visit(k, slot))]
+        if not covering or not bounds.enabled:
             return set()
         poses = {f.frame_id: self.back_end.moved_since(f.map_version) @ f.pose
                  for f in frames if f.tracked and f.pose is not None}
-        return covered_views(poses, lent, bounds)
+        return covered_views(poses, covering, bounds)
+
+    def _earlier_visit(self, keyframe: int, slot: int) -> bool:
+        """Whether the device's own ``keyframe`` is a view of an earlier visit at ``slot``:
+        restored from the archive (the device left that place and came back), or uploaded
+        ``own_coverage_after_slots`` slots before or more. Never with that setting 0. A
+        keyframe of the last few slots is the walk going on, not a visit: a device moving
+        slowly would otherwise cover its every view with the keyframe it just uploaded and
+        leave the map no denser than the bounds."""
+        after = self.config.own_coverage_after_slots
+        if after <= 0:
+            return False
+        entered, how = self.back_end.entered.get(keyframe, UNRECORDED)
+        return how == RESTORED or 0 <= entered <= slot - after
 
     def is_restart(self, slot: int) -> bool:
         """Whether summaries of ``slot`` come from a device that started again: while a

@@ -182,7 +182,7 @@ def test_the_edge_merges_the_second_devices_map_into_the_first_ones_frame(
     for d, tracker in trackers.items():
         assert_kept_up(domain.log(tracker), d)
     # where the other device's lent keyframes stand, a device's frames are not asked for
-    assert domain.wait_for_log(edge, "the shared map covers their views", 60.0), \
+    assert domain.wait_for_log(edge, "the map covers their views", 60.0), \
         domain.log(edge)[-3000:]
     # the edge dies (no goodbye) and starts again from the checkpoints it wrote every slot
     edge.send_signal(signal.SIGKILL)

@@ -1,5 +1,6 @@
-"""Views the shared map covers: a device in a place another device mapped does not upload a
-frame a keyframe lent by that device stands beside; alone, it uploads as Theorem 1 says."""
+"""Views the map covers: a device in a place another device mapped does not upload a frame
+a keyframe lent by that device stands beside; alone, it uploads as Theorem 1 says, unless its
+own keyframes of an earlier visit are to cover its views too."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import numpy as np
 import pytest
 
 from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore
-from edge_mapper.slot_planner import FrameObservations, SlotConfig
+from edge_mapper.slot_planner import FrameObservations, SlotConfig, SlotPlan
 from tests.test_edge_core import Device, F, K, _run
 from twinslam.policies.registry import make_policy
 from twinslam.slam.back_end.foreign_keyframes import foreign_tag
@@ -18,6 +19,7 @@ from twinslam.slam.back_end.view_coverage import (
     covered_views,
     uploads_for_new_views,
 )
+from twinslam.slot_protocol.map_entry import RESTORED, UPLOADED
 
 
 def _pose(x: float, yaw_deg: float = 0.0) -> np.ndarray:
@@ -137,6 +139,28 @@ def test_a_slot_whose_views_lent_keyframes_cover_asks_for_no_upload() -> None:
         _lend(core, foreign_tag(0) | k, _pose(x))
     plan = core.plan(3, _posed_slot(device, core, 3), 20.0, 1)
     assert len(plan.action.upload) == 2 and not plan.covered
+
+
+def test_a_devices_own_keyframes_of_an_earlier_visit_cover_its_views() -> None:
+    """With ``own_coverage_after_slots`` 3, the device's own keyframes at 1.04 and 1.20 m
+    cover slot 3's views once they are views of an earlier visit — uploaded in slot 0, or
+    restored from the archive whenever — and not while they are the walk's last few slots
+    (uploaded in slot 1), nor with the setting 0 (the paper's: a device alone uploads as
+    Theorem 1 sizes it)."""
+    def planned(after: int, entered: tuple[int, int]) -> SlotPlan:
+        device, core = _walked_edge()
+        core.config = dataclasses.replace(core.config, own_coverage_after_slots=after)
+        for k, x in ((26, 1.04), (30, 1.20)):
+            _lend(core, 1000 + k, _pose(x))              # the device's own ids
+            core.back_end.entered[1000 + k] = entered
+        return core.plan(3, _posed_slot(device, core, 3), 20.0, 1)
+
+    for entered in ((0, UPLOADED), (2, RESTORED)):
+        plan = planned(3, entered)
+        assert plan.covered == frozenset(range(24, 32)) and plan.action.upload == []
+    for after, entered in ((3, (1, UPLOADED)), (0, (0, UPLOADED)), (0, (2, RESTORED))):
+        plan = planned(after, entered)
+        assert not plan.covered and len(plan.action.upload) == 2
 
 
 def test_a_frame_tracked_before_a_merge_is_judged_where_the_merge_put_it() -> None:

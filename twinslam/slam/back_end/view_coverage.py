@@ -14,6 +14,11 @@ before uploaded nearly as much as alone (its keyframes stand about 0.4 m apart a
 few of a slot's views fall that near one); 0.30 m and 20° saved 61–75 % of its uploads on the
 corridor and 64 % on the 7-Scenes walk, with fewer frames off the map than the narrower
 bounds (docs/results/shared-map.md, "The bounds of a covered view").
+
+The same holds for a device coming back to where it was: its own keyframes of an earlier
+visit stand there. Which keyframes cover is the edge's choice (``EdgeMapperCore.
+covered_frames``: lent ones, and with ``own_coverage_after_slots`` the device's own once they
+are a visit old); this module only tells which frames a set of keyframe poses covers.
 """
 
 from __future__ import annotations
