@@ -61,6 +61,7 @@ class StepClock:
 
     def __init__(self) -> None:
         self.slots: list[dict[str, float]] = []
+        self.integrated = 0               #: keyframes the edge integrated over the walk
 
     def serve(self, device: DeviceTrackerCore, edge: EdgeMapperCore, rate_mbps: float,
               rate_state: int, hold: bool) -> ServedSlot:
@@ -115,6 +116,7 @@ class StepClock:
             serialize_message(view)
         _lap(ms, "viewer out", t)
         self.slots.append(dict(ms))
+        self.integrated += len(outcome.integrated)
         total = sum(ms.values())
         snapshot = read_map_update(update)
         if not hold:
@@ -146,10 +148,15 @@ def main() -> None:
                         help="where the checkpoint files are written: on the node's writer "
                         "thread (checkpoint_in_background:=true) or on the slot's path (the "
                         "node's default)")
+    parser.add_argument("--own-coverage-after", type=int, default=0, metavar="N",
+                        help="the device's own keyframes of an earlier visit (restored, or "
+                             "uploaded N slots before or more) cover its views: the frames "
+                             "beside them are not uploaded (the edge's "
+                             "own_coverage_after_slots; 0: the node's default, never)")
     parser.add_argument("--csv", type=Path, help="write every slot's steps (ms) here")
     args = parser.parse_args()
     run_as_the_edge_node()
-    config = repeatable_edge()
+    config = repeatable_edge(own_coverage_after_slots=args.own_coverage_after)
     clock = StepClock()
     with tempfile.TemporaryDirectory() as tmp:
         walk = open_walk("edge", args.sequence, args.frames, args.order, args.seed, args.uplink,
@@ -161,6 +168,7 @@ def main() -> None:
         while walk.step() is not None:
             pass
         walk.edge.flush_checkpoint()
+        archived = len(walk.edge.archive)
         walk.edge.close()
         if writer is not None:
             writer.close()
@@ -168,10 +176,13 @@ def main() -> None:
     slots = clock.slots[1:]                        # the first slot's map is one keyframe
     totals = np.array([sum(s.values()) for s in slots])
     print(f"machine: {platform.machine()}, python {platform.python_version()}; "
-          f"{args.sequence} ({args.frames} frames, {args.order}), the default edge, "
-          f"{len(slots)} slots, checkpoints written "
+          f"{args.sequence} ({args.frames} frames, {args.order}), the default edge"
+          + (f" with its own keyframes covering views after {args.own_coverage_after} slots"
+             if args.own_coverage_after else "")
+          + f", {len(slots)} slots, checkpoints written "
           f"{'on a thread of their own' if writer else 'on the slot path'}; "
-          f"the walk (tracking and reading frames included) {walk_s:.1f} s")
+          f"the walk (tracking and reading frames included) {walk_s:.1f} s; "
+          f"{clock.integrated} keyframes integrated, {archived} archived at the end")
     print(f"{'step':>18} {'median ms':>10} {'p95 ms':>8} {'share':>6}")
     for step in STEPS:
         values = np.array([s.get(step, 0.0) for s in slots])

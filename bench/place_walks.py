@@ -85,7 +85,8 @@ from twinslam.slam.back_end.foreign_keyframes import is_foreign
 
 #: the CSV's columns: the run's settings, then its figures (per-device lists joined by ";")
 COLUMNS = ("sequence", "frames", "devices", "after", "order", "seed", "uplink", "no_merge",
-           "covered_m", "covered_deg", "lend_in_view", "lent_unseen_slots", "merge_min_inliers",
+           "covered_m", "covered_deg", "own_coverage_after", "lend_in_view", "lent_unseen_slots",
+           "merge_min_inliers",
            "merged", "edge_ms_median", "edge_ms_mean", "edge_ms_merged_median", "copies_mean",
            "copies_end", "adopted", "uploads", "lost_share", "map_lost_share", "tracked_share",
            "ate_m_mean", "cross_rms_m", "cross_pairs", "cross_worst_pair_rms_m", "loops",
@@ -211,7 +212,9 @@ def main() -> None:
     places = [seeded_spec(place, args.seed) for place in args.sequence.split(",")]
     config = repeatable_edge(**{name: value for name, value in
                                 (("covered_m", args.covered_m),
-                                 ("covered_deg", args.covered_deg)) if value is not None})
+                                 ("covered_deg", args.covered_deg),
+                                 ("own_coverage_after_slots", args.own_coverage_after))
+                                if value is not None})
     started = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         devices = [PlaceWalk(open_walk(f"ar{k + 1}", places[k % len(places)], args.frames,
@@ -258,6 +261,7 @@ def main() -> None:
             device.walk.edge.close()
         report = _report(devices, merging, args)
     report["covered_m"], report["covered_deg"] = config.coverage.max_m, config.coverage.max_deg
+    report["own_coverage_after"] = config.own_coverage_after_slots
     report["seconds"] = time.perf_counter() - started
     print(f"{report['seconds']:.0f} s", flush=True)
     if args.csv:

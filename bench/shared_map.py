@@ -249,6 +249,8 @@ def main() -> None:
                                                  ("ba_window", args.ba_window),
                                                  ("covered_m", args.covered_m),
                                                  ("covered_deg", args.covered_deg),
+                                                 ("own_coverage_after_slots",
+                                                  args.own_coverage_after),
                                                  ("loops_across_devices",
                                                   False if args.no_loops_across else None))
                  if value is not None}
@@ -370,6 +372,7 @@ def main() -> None:
                                                  sorted(dict(args.device).items())),
                        "covered_m": config.coverage.max_m,
                        "covered_deg": config.coverage.max_deg,
+                       "own_coverage_after": config.own_coverage_after_slots,
                        "no_merge": int(args.no_merge),
                        "loops_across_devices": int(config.back_end.loops_across_devices),
                        "merged": int(merge is not None),
@@ -467,7 +470,8 @@ def main() -> None:
 
 
 CSV_FIELDS = ("frames", "seed", "uplink", "first_order", "second_order", "second_after",
-              "no_merge", "covered_m", "covered_deg", "merged", "merge_slot", "merge_frame",
+              "no_merge", "covered_m", "covered_deg", "own_coverage_after", "merged", "merge_slot",
+              "merge_frame",
               "merge_inliers", "alignment_error_m", "alignment_error_deg", "look_ms_median",
               "look_ms_max", "first_tracked",
               "first_ate_m", "first_edge_ms", "second_tracked", "second_ate_m",
