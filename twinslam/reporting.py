@@ -14,6 +14,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
+from typing import Any
 
 import numpy as np
 
@@ -76,6 +77,21 @@ def pyplot() -> ModuleType:
     import matplotlib.pyplot as plt
 
     return plt
+
+
+def seed_lines(ax: Any, seeds: Sequence[int], before: Sequence[float],
+               after: Sequence[float], arms: tuple[str, str] = ("before", "after")) -> None:
+    """A paired comparison on a matplotlib axes ``ax`` (typed loosely, as matplotlib is
+    imported only where a figure is drawn): one line a seed from its ``before`` value to its
+    ``after`` one (blue where after is no higher, red where it is), each line's end named by
+    its seed, the two arms named on the x axis. A paired table's CI says whether a change
+    moved a figure; these lines say whether every seed moved it, or one seed did."""
+    for seed, old, new in zip(seeds, before, after, strict=True):
+        ax.plot([0, 1], [old, new], marker="o", color="tab:blue" if new <= old else "tab:red",
+                alpha=0.8)
+        ax.annotate(str(seed), (1.03, new), fontsize=7, va="center")
+    ax.set_xticks([0, 1], list(arms))
+    ax.set_xlim(-0.3, 1.3)
 
 
 def pearson_r(x: np.ndarray, y: np.ndarray) -> float:

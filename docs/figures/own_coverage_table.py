@@ -21,7 +21,7 @@ import argparse
 import csv
 from pathlib import Path
 
-from twinslam.reporting import paired_row, pyplot
+from twinslam.reporting import paired_row, pyplot, seed_lines
 
 #: the two devices of a run, by the CSV's column prefix
 DEVICES = ("first", "second")
@@ -97,13 +97,8 @@ def figure(before: Path, after: Path, places: tuple[str, ...] = PLACES) -> Path:
     for col, (device, place) in enumerate(zip(DEVICES, places, strict=False)):
         for row, (column, label) in enumerate(shown):
             ax = axes[row][col]
-            old, new = values[f"{device}_{column}"]
-            for seed, o, n in zip(seeds, old, new, strict=True):
-                ax.plot([0, 1], [o, n], marker="o", color="tab:blue" if n <= o else "tab:red",
-                        alpha=0.8)
-                ax.annotate(str(seed), (1.03, n), fontsize=7, va="center")
-            ax.set_xticks([0, 1], ["own keyframes\ncover nothing", "of an earlier\nvisit cover"])
-            ax.set_xlim(-0.3, 1.3)
+            seed_lines(ax, seeds, *values[f"{device}_{column}"],
+                       ("own keyframes\ncover nothing", "of an earlier\nvisit cover"))
             if row == 0:
                 ax.set_title(place, fontsize=9)
             if col == 0:

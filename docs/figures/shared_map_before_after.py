@@ -24,7 +24,7 @@ from pathlib import Path
 
 from shared_uplink_table import SCENARIOS, distinct_seeds, runs
 
-from twinslam.reporting import paired_row, pyplot
+from twinslam.reporting import paired_row, pyplot, seed_lines
 
 #: the conditions compared: lending with every frame a candidate, and with covered frames out
 CONDITIONS = ("lent", "covered")
@@ -101,13 +101,7 @@ def figure(before: Path, after: Path) -> Path:
         seeds, values = paired(before, after, scenario, condition)
         for row, column in enumerate(("cross_rms_m", "second_map_lost_share")):
             ax = axes[row][col]
-            old, new = values[column]
-            for seed, o, n in zip(seeds, old, new, strict=True):
-                ax.plot([0, 1], [o, n], marker="o", color="tab:blue" if n <= o else "tab:red",
-                        alpha=0.8)
-                ax.annotate(str(seed), (1.03, n), fontsize=7, va="center")
-            ax.set_xticks([0, 1], ["before", "after"])
-            ax.set_xlim(-0.2, 1.3)
+            seed_lines(ax, seeds, *values[column])
             if row == 0:
                 ax.set_title(f"{scenario}, {condition}", fontsize=9)
             if col == 0:
