@@ -90,9 +90,10 @@ class EdgeConfig:
     #: view_coverage`)
     coverage: CoverageBounds = field(default_factory=CoverageBounds)
     #: the device's own keyframes cover a frame's view too (by :attr:`coverage`) once they
-    #: are views of an earlier visit: restored from the archive, or uploaded at least this
-    #: many slots before; 0: they cover nothing, and a device alone uploads as Theorem 1
-    #: sizes it (the paper's)
+    #: are views of an earlier visit — restored from the archive, or uploaded at least this
+    #: many slots before — while the camera heads where the device was
+    #: (:meth:`EdgeMapperCore.covered_frames`); 0: they cover nothing, and a device alone
+    #: uploads as Theorem 1 sizes it (the paper's)
     own_coverage_after_slots: int = 0
 
 
@@ -321,17 +322,43 @@ class EdgeMapperCore:
         """The tracked ``frames`` of ``slot`` whose views a keyframe of the map covers
         (``config.coverage``; the keyframes ``leaving`` with open slots' evictions left out):
         one another device uploaded, or with ``own_coverage_after_slots`` one of the
-        device's own from an earlier visit (:meth:`_earlier_visit`). A frame's pose is in the
-        frame of the map version it was tracked on (-1: unknown, taken as now's); a loop or a
-        merge applied since moves it into the map's frame now first."""
+        device's own from an earlier visit (:meth:`_earlier_visit`) while the camera heads
+        where it was before (:meth:`_heads_where_it_was`). A frame's pose is in the frame of
+        the map version it was tracked on (-1: unknown, taken as now's); a loop or a merge
+        applied since moves it into the map's frame now first."""
         bounds = self.config.coverage
-        covering = [kf.pose for k, kf in self.map.keyframes.items()
-                    if k not in leaving and (is_foreign(k) or self._earlier_visit(k, slot))]
-        if not covering or not bounds.enabled:
+        if not bounds.enabled:
+            return set()
+        lent = [kf.pose for k, kf in self.map.keyframes.items()
+                if k not in leaving and is_foreign(k)]
+        own = [kf.pose for k, kf in self.map.keyframes.items()
+               if k not in leaving and not is_foreign(k) and self._earlier_visit(k, slot)]
+        if own and not self._heads_where_it_was(frames, own):
+            own = []
+        if not lent and not own:
             return set()
         poses = {f.frame_id: self.back_end.moved_since(f.map_version) @ f.pose
                  for f in frames if f.tracked and f.pose is not None}
-        return covered_views(poses, covering, bounds)
+        return covered_views(poses, lent + own, bounds)
+
+    def _heads_where_it_was(self, frames: Sequence[FrameObservations],
+                            own: Sequence[np.ndarray]) -> bool:
+        """Whether every pose the camera heads to after ``frames`` (:func:`heading`) stands
+        where the device was before: beside one of its ``own`` keyframes of an earlier visit
+        in the map, or beside an archived keyframe, which the slot's restores bring in where
+        the camera heads. A device about to leave the ground it knows uploads as Theorem 1
+        sizes it, though its present views are covered: the next slot needs keyframes the
+        map does not hold yet, and its frames were lost where the slot before it uploaded
+        nothing (docs/results/shared-map.md). False where no frame was tracked."""
+        ahead = heading(frames)
+        if not ahead:
+            return False
+        newest = max((f for f in frames if f.tracked and f.pose is not None),
+                     key=lambda f: f.frame_id)
+        move = self.back_end.moved_since(newest.map_version)
+        poses = {i: move @ pose for i, pose in enumerate(ahead)}
+        known = [*own, *(kf.pose for kf in self.archive)]
+        return len(covered_views(poses, known, self.config.coverage)) == len(poses)
 
     def _earlier_visit(self, keyframe: int, slot: int) -> bool:
         """Whether the device's own ``keyframe`` is a view of an earlier visit at ``slot``:

@@ -233,11 +233,12 @@ PARAMETERS = (
     ParamSpec("own_coverage_after_slots", 0, "a frame whose view one of the device's own "
               "keyframes of an earlier visit covers (within covered_m and covered_deg; "
               "restored from the archive, or uploaded at least this many slots before) is "
-              "not uploaded either, as a lent keyframe's: a device coming back to where it "
-              "was uploads what its map lacks there; 10 cut the uploads of walks that come "
-              "back by 36-49 % and the edge's time a device by 39-66 %, at up to 0.75 points "
-              "more frames lost (docs/results/shared-map.md); 0: its own keyframes cover "
-              "nothing, and a device alone uploads as Theorem 1 sizes it (the paper's)",
+              "not uploaded either, as a lent keyframe's, while the camera heads where the "
+              "device was before: a device coming back to where it was uploads what its map "
+              "lacks there; 10 cut the uploads of walks that come back by 31-48 % and the "
+              "edge's time a device by 36-61 %, with 0.17-0.32 points more frames lost on "
+              "average (docs/results/shared-map.md); 0: its own keyframes cover nothing, and "
+              "a device alone uploads as Theorem 1 sizes it (the paper's)",
               low=0, high=1_000_000),
     ParamSpec("fairness", 0.0, "alpha of the twin allocator's alpha-fair sum (0: total "
               "tracked share; 1: proportional fairness)", low=0.0, high=10.0),

@@ -819,16 +819,19 @@ def test_the_keyframe_databases_rows_table_is_what_its_csv_says() -> None:
 
 def test_the_own_coverage_tables_are_what_their_command_prints() -> None:
     """A device's own keyframes of an earlier visit covering its views, against the paper's
-    uploads: the two places' table and the held-out room's (its first device alone: the
-    second repeats the next seed's first), six seeds each, as the page has them."""
+    uploads, by pose alone and with the heading gate: the two places' table and the held-out
+    room's (its first device alone: the second repeats the next seed's first), six seeds
+    each, as the page has them."""
     folder = FIGURES / "shared-map" / "own-coverage"
     script = _script("own_coverage_table")
-    two = script.table(folder / "two-places-paper.csv", folder / "two-places-own-10.csv")
-    room = script.table(folder / "room-paper.csv", folder / "room-own-10.csv",
-                        ("synthetic room, forward and back",))
-    for printed in (two, room):
-        assert _missing("\n".join(printed)) == []
-        assert printed[-1].endswith("| seeds | 0, 1, 2, 3, 4, 5 | | |")
-    assert sum(" | keyframes uploaded | " in row for row in two) == 2
-    assert sum(" | keyframes uploaded | " in row for row in room) == 1
+    for version in ("own-10", "own-10-heading"):         # by pose alone, the heading gate
+        two = script.table(folder / "two-places-paper.csv",
+                           folder / f"two-places-{version}.csv")
+        room = script.table(folder / "room-paper.csv", folder / f"room-{version}.csv",
+                            ("synthetic room, forward and back",))
+        for printed in (two, room):
+            assert _missing("\n".join(printed)) == [], version
+            assert printed[-1].endswith("| seeds | 0, 1, 2, 3, 4, 5 | | |")
+        assert sum(" | keyframes uploaded | " in row for row in two) == 2
+        assert sum(" | keyframes uploaded | " in row for row in room) == 1
 

@@ -143,24 +143,34 @@ def test_a_slot_whose_views_lent_keyframes_cover_asks_for_no_upload() -> None:
 
 def test_a_devices_own_keyframes_of_an_earlier_visit_cover_its_views() -> None:
     """With ``own_coverage_after_slots`` 3, the device's own keyframes at 1.04 and 1.20 m
-    cover slot 3's views once they are views of an earlier visit — uploaded in slot 0, or
-    restored from the archive whenever — and not while they are the walk's last few slots
-    (uploaded in slot 1), nor with the setting 0 (the paper's: a device alone uploads as
-    Theorem 1 sizes it)."""
-    def planned(after: int, entered: tuple[int, int]) -> SlotPlan:
+    cover slot 3's views (0.96-1.24 m) once they are views of an earlier visit — uploaded in
+    slot 0, or restored from the archive whenever — and the camera heads where the device was
+    before (1.40 and 1.56 m: keyframes there in the map, or in the archive, which restores
+    bring in); not where it heads to new ground, not while they are the walk's last few
+    slots (uploaded in slot 1), nor with the setting 0 (the paper's: a device alone uploads
+    as Theorem 1 sizes it)."""
+    def planned(after: int, entered: tuple[int, int], ahead: str = "map") -> SlotPlan:
         device, core = _walked_edge()
         core.config = dataclasses.replace(core.config, own_coverage_after_slots=after)
-        for k, x in ((26, 1.04), (30, 1.20)):
+        beside = ((26, 1.04), (30, 1.20))
+        there = ((35, 1.40), (39, 1.56)) if ahead != "nowhere" else ()
+        for k, x in (*beside, *there):
             _lend(core, 1000 + k, _pose(x))              # the device's own ids
             core.back_end.entered[1000 + k] = entered
+        if ahead == "archive":
+            core.back_end.evict_to_archive([1000 + k for k, _ in there], 0)
+            assert all(1000 + k in core.archive for k, _ in there)
         return core.plan(3, _posed_slot(device, core, 3), 20.0, 1)
 
     for entered in ((0, UPLOADED), (2, RESTORED)):
-        plan = planned(3, entered)
-        assert plan.covered == frozenset(range(24, 32)) and plan.action.upload == []
-    for after, entered in ((3, (1, UPLOADED)), (0, (0, UPLOADED)), (0, (2, RESTORED))):
-        plan = planned(after, entered)
-        assert not plan.covered and len(plan.action.upload) == 2
+        for ahead in ("map", "archive"):
+            plan = planned(3, entered, ahead)
+            assert plan.covered == frozenset(range(24, 32)) and plan.action.upload == [], \
+                (entered, ahead)
+    for after, entered, ahead in ((3, (0, UPLOADED), "nowhere"), (3, (1, UPLOADED), "map"),
+                                  (0, (0, UPLOADED), "map"), (0, (2, RESTORED), "map")):
+        plan = planned(after, entered, ahead)
+        assert not plan.covered and len(plan.action.upload) == 2, (after, entered, ahead)
 
 
 def test_a_frame_tracked_before_a_merge_is_judged_where_the_merge_put_it() -> None:
