@@ -305,12 +305,12 @@ class EdgeMapperCore:
             raise ValueError(f"slot {slot} is planned already and still open")
         frames = self.resolve_tracks(frames)
         leaving = {kf for action, _ in self.pending.values() for kf in action.evict}
+        ahead = heading(frames)
         plan = self.planner.plan(slot, frames, rate_mbps, rate_state, self.rate_history,
                                  self._arriving, leaving, self.camera,
-                                 self.covered_frames(frames, slot, leaving))
+                                 self.covered_frames(frames, slot, ahead, leaving))
         self.pending[slot] = (plan.action, set())
         self._planned_vmax[slot] = self.planner.config.vmax
-        ahead = heading(frames)
         self._last_heading = self._headings[slot] = ahead or self._last_heading
         self._seen_from = seen_from(frames, ahead)
         by_id = {f.frame_id: f for f in frames}
@@ -318,12 +318,14 @@ class EdgeMapperCore:
         return plan
 
     def covered_frames(self, frames: Sequence[FrameObservations], slot: int,
+                       ahead: Sequence[np.ndarray],
                        leaving: Collection[int] = frozenset()) -> set[int]:
         """The tracked ``frames`` of ``slot`` whose views a keyframe of the map covers
         (``config.coverage``; the keyframes ``leaving`` with open slots' evictions left out):
         one another device uploaded, or with ``own_coverage_after_slots`` one of the
         device's own from an earlier visit (:meth:`_earlier_visit`) while the camera heads
-        where it was before (:meth:`_heads_where_it_was`). A frame's pose is in the frame of
+        where it was before (``ahead``: the frames' :func:`heading`,
+        :meth:`_heads_where_it_was`). A frame's pose is in the frame of
         the map version it was tracked on (-1: unknown, taken as now's); a loop or a merge
         applied since moves it into the map's frame now first."""
         bounds = self.config.coverage
@@ -333,7 +335,7 @@ class EdgeMapperCore:
                 if k not in leaving and is_foreign(k)]
         own = [kf.pose for k, kf in self.map.keyframes.items()
                if k not in leaving and not is_foreign(k) and self._earlier_visit(k, slot)]
-        if own and not self._heads_where_it_was(frames, own):
+        if own and not self._heads_where_it_was(frames, ahead, own):
             own = []
         if not lent and not own:
             return set()
@@ -342,15 +344,15 @@ class EdgeMapperCore:
         return covered_views(poses, lent + own, bounds)
 
     def _heads_where_it_was(self, frames: Sequence[FrameObservations],
-                            own: Sequence[np.ndarray]) -> bool:
-        """Whether every pose the camera heads to after ``frames`` (:func:`heading`) stands
+                            ahead: Sequence[np.ndarray], own: Sequence[np.ndarray]) -> bool:
+        """Whether every pose the camera heads to after ``frames`` (``ahead``: their
+        :func:`heading`, in the frame of their newest tracked one's map version) stands
         where the device was before: beside one of its ``own`` keyframes of an earlier visit
         in the map, or beside an archived keyframe, which the slot's restores bring in where
         the camera heads. A device about to leave the ground it knows uploads as Theorem 1
         sizes it, though its present views are covered: the next slot needs keyframes the
         map does not hold yet, and its frames were lost where the slot before it uploaded
         nothing (docs/results/shared-map.md). False where no frame was tracked."""
-        ahead = heading(frames)
         if not ahead:
             return False
         newest = max((f for f in frames if f.tracked and f.pose is not None),
