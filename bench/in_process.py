@@ -291,6 +291,10 @@ def add_place_options(parser: argparse.ArgumentParser) -> None:
                              "not uploaded (default: the edge's covered_m; 0: never)")
     parser.add_argument("--covered-deg", type=float, metavar="D",
                         help="and turned by at most this (default: the edge's covered_deg)")
+    parser.add_argument("--covered-min-points", type=int, metavar="N",
+                        help="a covered frame is left out only where N of its reported points "
+                             "are the map's (default: the edge's covered_min_points, the "
+                             "tracking floor: any frame the map serves)")
     parser.add_argument("--own-coverage-after", type=int, metavar="N",
                         help="a device's own keyframe of an earlier visit (restored, or "
                              "uploaded N slots before or more) covers a frame's view as a "
@@ -321,7 +325,7 @@ def check_place_options(parser: argparse.ArgumentParser, args: argparse.Namespac
                      f"{args.merge_inliers}")
     if args.unseen_slots < 0:
         parser.error(f"--unseen-slots: 0 or more, got {args.unseen_slots}")
-    for name in ("covered_m", "covered_deg", "own_coverage_after"):
+    for name in ("covered_m", "covered_deg", "covered_min_points", "own_coverage_after"):
         value = getattr(args, name)
         if value is not None and value < 0:
             parser.error(f"--{name.replace('_', '-')}: 0 or more, got {value}")

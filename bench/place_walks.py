@@ -5,6 +5,7 @@ lent as the edge node merges them: the node's own
     python -m bench.place_walks [SEQUENCE[,SEQUENCE…]] [--devices 4] [--frames 2700]
         [--after 300] [--order forward] [--seed 0] [--uplink lte] [--unseen-slots N]
         [--lend-eagerly] [--merge-inliers N] [--no-merge] [--covered-m M] [--covered-deg D]
+        [--covered-min-points N]
         [--every 300] [--csv FILE] [--baseline COMMIT [--rounds 1]]
 
 Device k (k = 0, 1, …) starts the walk ``k × --after`` frames after the first, on an uplink
@@ -85,7 +86,8 @@ from twinslam.slam.back_end.foreign_keyframes import is_foreign
 
 #: the CSV's columns: the run's settings, then its figures (per-device lists joined by ";")
 COLUMNS = ("sequence", "frames", "devices", "after", "order", "seed", "uplink", "no_merge",
-           "covered_m", "covered_deg", "own_coverage_after", "lend_in_view", "lent_unseen_slots",
+           "covered_m", "covered_deg", "covered_min_points", "own_coverage_after", "lend_in_view",
+           "lent_unseen_slots",
            "merge_min_inliers",
            "merged", "edge_ms_median", "edge_ms_mean", "edge_ms_merged_median", "copies_mean",
            "copies_end", "adopted", "uploads", "lost_share", "map_lost_share", "tracked_share",
@@ -213,6 +215,7 @@ def main() -> None:
     config = repeatable_edge(**{name: value for name, value in
                                 (("covered_m", args.covered_m),
                                  ("covered_deg", args.covered_deg),
+                                 ("covered_min_points", args.covered_min_points),
                                  ("own_coverage_after_slots", args.own_coverage_after))
                                 if value is not None})
     started = time.perf_counter()
@@ -261,6 +264,7 @@ def main() -> None:
             device.walk.edge.close()
         report = _report(devices, merging, args)
     report["covered_m"], report["covered_deg"] = config.coverage.max_m, config.coverage.max_deg
+    report["covered_min_points"] = config.coverage.min_points
     report["own_coverage_after"] = config.own_coverage_after_slots
     report["seconds"] = time.perf_counter() - started
     print(f"{report['seconds']:.0f} s", flush=True)

@@ -6,7 +6,7 @@ map into the first one's frame (:mod:`twinslam.slam.back_end.map_merging`).
         [--second backward] [--second-after FRAMES] [--first-start FRAME]
         [--second-start FRAME] [--seed 0]
         [--uplink lte] [--vmax N] [--archive N] [--ba-window N] [--device NAME=VALUE]
-        [--share [--share-both]] [--covered-m M] [--no-merge] [--csv FILE]
+        [--share [--share-both]] [--covered-m M] [--covered-min-points N] [--no-merge] [--csv FILE]
         [--frames-csv FILE] [--keyframes-csv FILE]
 
 Both devices play the same sequence, frame for frame in lockstep — by default the first
@@ -249,6 +249,8 @@ def main() -> None:
                                                  ("ba_window", args.ba_window),
                                                  ("covered_m", args.covered_m),
                                                  ("covered_deg", args.covered_deg),
+                                                 ("covered_min_points",
+                                                  args.covered_min_points),
                                                  ("own_coverage_after_slots",
                                                   args.own_coverage_after),
                                                  ("loops_across_devices",
@@ -372,6 +374,7 @@ def main() -> None:
                                                  sorted(dict(args.device).items())),
                        "covered_m": config.coverage.max_m,
                        "covered_deg": config.coverage.max_deg,
+                       "covered_min_points": config.coverage.min_points,
                        "own_coverage_after": config.own_coverage_after_slots,
                        "no_merge": int(args.no_merge),
                        "loops_across_devices": int(config.back_end.loops_across_devices),
@@ -470,8 +473,8 @@ def main() -> None:
 
 
 CSV_FIELDS = ("frames", "seed", "uplink", "first_order", "second_order", "second_after",
-              "no_merge", "covered_m", "covered_deg", "own_coverage_after", "merged", "merge_slot",
-              "merge_frame",
+              "no_merge", "covered_m", "covered_deg", "covered_min_points", "own_coverage_after",
+              "merged", "merge_slot", "merge_frame",
               "merge_inliers", "alignment_error_m", "alignment_error_deg", "look_ms_median",
               "look_ms_max", "first_tracked",
               "first_ate_m", "first_edge_ms", "second_tracked", "second_ate_m",

@@ -319,18 +319,19 @@ class EdgeMapperCore:
 
     def covered_frames(self, frames: Sequence[FrameObservations], slot: int,
                        ahead: Sequence[np.ndarray],
-                       leaving: Collection[int] = frozenset()) -> set[int]:
+                       leaving: Collection[int] = frozenset()) -> dict[int, int]:
         """The tracked ``frames`` of ``slot`` whose views a keyframe of the map covers
-        (``config.coverage``; the keyframes ``leaving`` with open slots' evictions left out):
-        one another device uploaded, or with ``own_coverage_after_slots`` one of the
-        device's own from an earlier visit (:meth:`_earlier_visit`) while the camera heads
-        where it was before (``ahead``: the frames' :func:`heading`,
-        :meth:`_heads_where_it_was`). A frame's pose is in the frame of
-        the map version it was tracked on (-1: unknown, taken as now's); a loop or a merge
+        (``config.coverage``; the keyframes ``leaving`` with open slots' evictions left out),
+        each with the map points it must share with the map to be left out of the uploads
+        (``coverage.min_points``): one another device uploaded, or with
+        ``own_coverage_after_slots`` one of the device's own from an earlier visit
+        (:meth:`_earlier_visit`) while the camera heads where it was before (``ahead``: the
+        frames' :func:`heading`, :meth:`_heads_where_it_was`). A frame's pose is in the frame
+        of the map version it was tracked on (-1: unknown, taken as now's); a loop or a merge
         applied since moves it into the map's frame now first."""
         bounds = self.config.coverage
         if not bounds.enabled:
-            return set()
+            return {}
         lent = [kf.pose for k, kf in self.map.keyframes.items()
                 if k not in leaving and is_foreign(k)]
         own = [kf.pose for k, kf in self.map.keyframes.items()
@@ -338,10 +339,10 @@ class EdgeMapperCore:
         if own and not self._heads_where_it_was(frames, ahead, own):
             own = []
         if not lent and not own:
-            return set()
+            return {}
         poses = {f.frame_id: self.back_end.moved_since(f.map_version) @ f.pose
                  for f in frames if f.tracked and f.pose is not None}
-        return covered_views(poses, lent + own, bounds)
+        return dict.fromkeys(covered_views(poses, lent + own, bounds), bounds.min_points)
 
     def _heads_where_it_was(self, frames: Sequence[FrameObservations],
                             ahead: Sequence[np.ndarray], own: Sequence[np.ndarray]) -> bool:

@@ -222,14 +222,22 @@ PARAMETERS = (
               "a keyframe that covers it (with merge_maps one another device uploaded, lent to "
               "this device's map; with own_coverage_after_slots one of the device's own of an "
               "earlier visit) and looks the same way (covered_deg) is not uploaded: the map "
-              "holds that view (unless the map cannot serve it: fewer than 15 of the frame's "
-              "reported points are the map's), and a slot's upload count shrinks with its "
-              "share of views the map lacks; 0: every device uploads as Theorem 1 sizes it",
+              "holds that view (unless the map does not serve it: fewer than "
+              "covered_min_points of the frame's reported points are the map's), and a slot's "
+              "upload count shrinks with its share of views the map lacks; 0: every device "
+              "uploads as Theorem 1 sizes it",
               low=0.0, high=100.0),
     ParamSpec("covered_deg", 20.0, "the turn, degrees, within which a keyframe covers a "
               "frame's view (with covered_m); the bounds' defaults tried on four devices along "
               "the synthetic corridor, judged on the 7-Scenes walk (docs/results/shared-map.md)",
               low=0.0, high=180.0),
+    ParamSpec("covered_min_points", 15, "a covered frame (covered_m, covered_deg) is left "
+              "out of the uploads only where at least this many of its reported points are the "
+              "map's; below, it stays a candidate (15, the device's tracking floor: any frame "
+              "the map serves; 50 on the 7-Scenes walk: a device in a mapped place lost about "
+              "half as many frames more than alone, but uploaded 37 % fewer instead of 64 % "
+              "and cost the edge twice the time a slot; docs/results/shared-map.md)",
+              low=0, high=1_000_000),
     ParamSpec("own_coverage_after_slots", 0, "a frame whose view one of the device's own "
               "keyframes of an earlier visit covers (within covered_m and covered_deg; "
               "restored from the archive, or uploaded at least this many slots before) is "
@@ -261,7 +269,8 @@ def edge_config(p: Mapping[str, Any]) -> EdgeConfig:
                                       connected_map=bool(p["connected_map"])),
                       restore_keyframes=int(p["restore_keyframes"]),
                       reloc_restore_keyframes=int(p["reloc_restore_keyframes"]),
-                      coverage=CoverageBounds(float(p["covered_m"]), float(p["covered_deg"])),
+                      coverage=CoverageBounds(float(p["covered_m"]), float(p["covered_deg"]),
+                                               int(p["covered_min_points"])),
                       own_coverage_after_slots=int(p["own_coverage_after_slots"]),
                       checkpoint_every=int(p["checkpoint_every"]),
                       back_end=BackEndConfig(

@@ -14,7 +14,7 @@ of the previous decision.
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable, Collection, Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -152,7 +152,7 @@ class SlotPlanner:
     def plan(self, slot: int, frames: list[FrameObservations], rate_mbps: float, rate_state: int,
              rate_history: list[int], arriving: dict[int, FrameObservations] | None = None,
              leaving: frozenset[int] | set[int] = frozenset(),
-             camera: Camera | None = None, covered: Collection[int] = frozenset()
+             camera: Camera | None = None, covered: Mapping[int, int] | None = None
              ) -> SlotPlan:
         """U_k and C_k for slot k's frames (capture order) at rate d_k. The policy chooses U_k
         among the frames the device tracked; υ is scored over all of them.
@@ -163,11 +163,13 @@ class SlotPlanner:
         map, as their frames were observed) join it, ``leaving`` keyframes are left out.
         ``camera`` goes with the map and frames to a policy that predicts what the camera will
         see (``see_slot``, the edge's ``mpc``). ``covered`` frames (views the map holds already,
-        :mod:`twinslam.slam.back_end.view_coverage`) are no candidates, unless the map cannot
-        serve them (lost by the rule below): a slot whose tracked frames are all covered and
-        served asks for no upload, whatever the uplink could carry, and one with some covered
-        spends the count the uplink allows for all its tracked frames at the same density on
-        the rest (:func:`~twinslam.slam.back_end.view_coverage.uploads_for_new_views`).
+        :mod:`twinslam.slam.back_end.view_coverage`, each with the map points it must share
+        with the map) are no candidates, unless the map cannot serve them so (sharing fewer:
+        lost by the rule below, or near it where the cover asks for a margin): a slot whose
+        tracked frames are all covered and served asks for no upload, whatever the uplink
+        could carry, and one with some covered spends the count the uplink allows for all its
+        tracked frames at the same density on the rest
+        (:func:`~twinslam.slam.back_end.view_coverage.uploads_for_new_views`).
         """
         if not frames:
             raise ValueError(f"slot {slot}: no frames to plan with")
@@ -196,11 +198,13 @@ class SlotPlanner:
                   if arriving else counted.points)
         shared = _held_counts([keys[f] for f in every], in_map)
         lost = [not f.tracked or n < MIN_INLIERS for f, n in zip(frames, shared, strict=True)]
-        # a covered frame the map cannot serve (lost by the rule: the device matched too few
-        # of its points) stays a candidate: the view's keyframe is there, its points are not
-        # what the device sees
-        skipped = frozenset(f.frame_id for f, gone in zip(frames, lost, strict=True)
-                            if f.frame_id in covered and not gone)
+        # a covered frame the map does not serve as its cover asks (the device matched fewer
+        # of the map's points: lost by the rule, or near it where the cover asks for a
+        # margin) stays a candidate: the view's keyframe is there, its points are not what
+        # the device sees
+        covered = covered or {}
+        skipped = frozenset(f.frame_id for f, gone, n in zip(frames, lost, shared, strict=True)
+                            if f.frame_id in covered and not gone and n >= covered[f.frame_id])
         cand = [f.frame_id for f in frames if f.tracked and f.frame_id not in skipped]
         slot_s = cfg.deadline_s(len(frames))
         # with covered views, the uplink's count for the slot's tracked frames goes to the

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore
+from edge_mapper.parameters import PARAMETERS, edge_config
 from edge_mapper.slot_planner import FrameObservations, SlotConfig, SlotPlan
 from tests.test_edge_core import Device, F, K, _run
 from twinslam.policies.registry import make_policy
@@ -19,6 +20,7 @@ from twinslam.slam.back_end.view_coverage import (
     covered_views,
     uploads_for_new_views,
 )
+from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
 from twinslam.slot_protocol.map_entry import RESTORED, UPLOADED
 
 
@@ -141,6 +143,37 @@ def test_a_slot_whose_views_lent_keyframes_cover_asks_for_no_upload() -> None:
     assert len(plan.action.upload) == 2 and not plan.covered
 
 
+def _own_cover(after: int, entered: tuple[int, int], ahead: str = "map",
+               points: int | None = None, lent: bool = False,
+               min_points: int | None = None) -> SlotPlan:
+    """Slot 3 planned with keyframes at 1.04 and 1.20 m beside its frames, and at 1.40 and
+    1.56 m where the camera heads (in the map, in the ``archive``, or ``nowhere``), all the
+    device's own with ``own_coverage_after_slots`` ``after``, having entered the map at
+    ``entered`` (or all another device's, ``lent``); each frame reporting the first
+    ``points`` of its map points (None: all); ``min_points``: the cover's margin (None: the
+    default)."""
+    device, core = _walked_edge()
+    core.config = dataclasses.replace(core.config, own_coverage_after_slots=after)
+    if min_points is not None:
+        core.config = dataclasses.replace(core.config, coverage=dataclasses.replace(
+            core.config.coverage, min_points=min_points))
+    beside = ((26, 1.04), (30, 1.20))
+    there = ((35, 1.40), (39, 1.56)) if ahead != "nowhere" else ()
+    tag = foreign_tag(0) if lent else 1000          # 1000 + k: the device's own ids
+    for k, x in (*beside, *there):
+        _lend(core, tag | k if lent else tag + k, _pose(x))
+        core.back_end.entered[tag + k] = entered
+    if ahead == "archive":
+        core.back_end.evict_to_archive([tag + k for k, _ in there], 0)
+        assert all(tag + k in core.archive for k, _ in there)
+    frames = _posed_slot(device, core, 3)
+    if points is not None:
+        assert all(len(f.map_points) >= points for f in frames)
+        frames = [dataclasses.replace(f, map_points=frozenset(sorted(f.map_points)[:points]))
+                  for f in frames]
+    return core.plan(3, frames, 20.0, 1)
+
+
 def test_a_devices_own_keyframes_of_an_earlier_visit_cover_its_views() -> None:
     """With ``own_coverage_after_slots`` 3, the device's own keyframes at 1.04 and 1.20 m
     cover slot 3's views (0.96-1.24 m) once they are views of an earlier visit — uploaded in
@@ -149,28 +182,35 @@ def test_a_devices_own_keyframes_of_an_earlier_visit_cover_its_views() -> None:
     bring in); not where it heads to new ground, not while they are the walk's last few
     slots (uploaded in slot 1), nor with the setting 0 (the paper's: a device alone uploads
     as Theorem 1 sizes it)."""
-    def planned(after: int, entered: tuple[int, int], ahead: str = "map") -> SlotPlan:
-        device, core = _walked_edge()
-        core.config = dataclasses.replace(core.config, own_coverage_after_slots=after)
-        beside = ((26, 1.04), (30, 1.20))
-        there = ((35, 1.40), (39, 1.56)) if ahead != "nowhere" else ()
-        for k, x in (*beside, *there):
-            _lend(core, 1000 + k, _pose(x))              # the device's own ids
-            core.back_end.entered[1000 + k] = entered
-        if ahead == "archive":
-            core.back_end.evict_to_archive([1000 + k for k, _ in there], 0)
-            assert all(1000 + k in core.archive for k, _ in there)
-        return core.plan(3, _posed_slot(device, core, 3), 20.0, 1)
-
     for entered in ((0, UPLOADED), (2, RESTORED)):
         for ahead in ("map", "archive"):
-            plan = planned(3, entered, ahead)
+            plan = _own_cover(3, entered, ahead)
             assert plan.covered == frozenset(range(24, 32)) and plan.action.upload == [], \
                 (entered, ahead)
     for after, entered, ahead in ((3, (0, UPLOADED), "nowhere"), (3, (1, UPLOADED), "map"),
                                   (0, (0, UPLOADED), "map"), (0, (2, RESTORED), "map")):
-        plan = planned(after, entered, ahead)
+        plan = _own_cover(after, entered, ahead)
         assert not plan.covered and len(plan.action.upload) == 2, (after, entered, ahead)
+
+
+def test_a_cover_asks_the_map_to_serve_the_frame_with_the_margin_set() -> None:
+    """Frames that match 20 of the map's points are served (the floor, the default margin, is
+    15) but thinly: keyframes beside them — the device's own of an earlier visit, or another
+    device's — cover them by default; with a margin of 50 points they stay candidates and the
+    uplink's count is asked for, where frames matching 50 are covered still. The edge node's
+    parameters start the margin at the floor."""
+    assert edge_config({spec.name: spec.default for spec in PARAMETERS}).coverage == \
+        CoverageBounds()
+    assert CoverageBounds().min_points == MIN_INLIERS
+    for lent in (False, True):
+        floor = _own_cover(3, (0, UPLOADED), points=20, lent=lent)
+        assert floor.covered == frozenset(range(24, 32)) and floor.action.upload == [], lent
+        thin = _own_cover(3, (0, UPLOADED), points=20, lent=lent, min_points=50)
+        assert not thin.covered and len(thin.action.upload) == 2, lent
+        served = _own_cover(3, (0, UPLOADED), points=50, lent=lent, min_points=50)
+        assert served.covered == frozenset(range(24, 32)) and served.action.upload == [], lent
+    with pytest.raises(ValueError, match=">= 0"):
+        CoverageBounds(min_points=-1)
 
 
 def test_a_frame_tracked_before_a_merge_is_judged_where_the_merge_put_it() -> None:
