@@ -82,6 +82,45 @@ def test_nothing_is_ranked_before_the_words_are_learned_on_the_scoring_thread(
     assert database.words is not None and database.keyframes("room") == len(room)
 
 
+def test_the_database_says_when_its_queue_can_teach_it_the_words(
+        places: dict[str, dict[int, np.ndarray]]) -> None:
+    """Not before enough descriptors wait (queued, or filed before the words), and not once
+    the words are learned: a filing then learns them."""
+    room = places["room"]
+    database = KeyFrameDatabase(learn_from=sum(len(d) for d in room.values()))
+    frames = list(room.items())
+    for index, descriptors in frames[:-1]:
+        database.add("room", index, descriptors)
+    assert not database.can_learn()
+    database.file()                                     # filed, still too few to learn
+    assert database.words is None and not database.can_learn()
+    database.add("room", *frames[-1])
+    assert database.can_learn()
+    database.file()
+    assert database.words is not None and not database.can_learn()
+    assert database.keyframes("room") == len(room)
+
+
+def test_words_learned_on_another_thread_are_taken_by_the_next_scoring(
+        places: dict[str, dict[int, np.ndarray]]) -> None:
+    """A database whose scoring does not learn (the edge's) ranks nothing however many
+    descriptors wait, until words learned from its sample are offered: the next scoring
+    takes them and files every waiting keyframe under them."""
+    room = places["room"]
+    database = KeyFrameDatabase(learn_from=sum(len(d) for d in room.values()))
+    database.learn_in_scoring = False
+    for index, descriptors in room.items():
+        database.add("room", index, descriptors)
+    assert database.candidates([room[10]], ["room"]) == [] and database.words is None
+    assert database.can_learn()
+    sample = database.learning_sample()
+    assert sum(len(d) for d in sample) == sum(len(d) for d in room.values())
+    database.offer_words(WeightedWords.learn(sample, database.word_count))
+    assert not database.can_learn()
+    assert database.candidates([room[10]], ["room"]) == ["room"]
+    assert database.words is not None and database.keyframes("room") == len(room)
+
+
 def test_a_forgotten_map_is_not_ranked_until_its_device_uploads_again(
         places: dict[str, dict[int, np.ndarray]], words: WeightedWords) -> None:
     """A device served with a new map: the old map's keyframes leave the database; the new

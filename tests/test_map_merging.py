@@ -345,6 +345,57 @@ def test_a_device_alone_files_its_uploads_though_it_makes_no_look(room: Room) ->
     assert merging.database.queued() == 0 and merging.look_ms == []
 
 
+def test_a_device_alone_has_the_words_learned_before_another_device_looks(
+        room: Room) -> None:  # noqa: F811
+    """Once the uploads queued hold enough descriptors to learn the keyframe database's words
+    from, the slot end of a device with no other map to look in has them learned (on a
+    thread of their own; here in the caller) and the queue filed, though fewer than
+    FILE_QUEUED wait: the first look of a device that comes to its place then ranks with
+    words learned, not learning them."""
+    from edge_mapper.place_merging import FILE_QUEUED
+
+    payload = _payload(room, 4, 10)
+    per_upload = len(payload.descriptors)
+    cores = {"ar1": _core()}
+    merging = PlaceMerging(lambda: cores, background=False,
+                           database=KeyFrameDatabase(learn_from=5 * per_upload))
+    for key in range(4):
+        merging.keyframe("ar1", dataclasses.replace(payload, frame_id=key))
+        merging.look("ar1", key)
+    assert merging.database.words is None and merging.database.queued() == 4
+    merging.keyframe("ar1", dataclasses.replace(payload, frame_id=4))
+    merging.look("ar1", 4)
+    assert 5 < FILE_QUEUED
+    assert merging.database.words is not None and merging.database.queued() == 0
+    assert merging.database.keyframes("ar1") == 5
+
+
+def test_the_edge_learns_the_words_on_a_thread_of_their_own(room: Room) -> None:  # noqa: F811
+    """With the looks on the worker, a look's ranking never learns the words (it held the
+    look, and a merge, up by seconds): once enough descriptors wait, a device's slot end
+    starts their learning on a thread of its own, and the next ranking takes them."""
+    uploads = [_payload(room, 4 + 10 * k, k) for k in range(3)]
+    cores = {"ar1": _core()}
+    merging = PlaceMerging(lambda: cores, database=KeyFrameDatabase(
+        learn_from=sum(len(u.descriptors) for u in uploads)))
+    try:
+        for upload in uploads[:2]:
+            merging.keyframe("ar1", upload)
+            merging.look("ar1", upload.frame_id)
+        assert merging.database.candidates_of("ar1", [1], ["ar1"]) == []
+        assert merging.database.words is None and merging._learning is None
+        merging.keyframe("ar1", uploads[2])
+        merging.look("ar1", 2)
+        learning = merging._learning
+        assert learning is not None
+        learning.join(timeout=60)
+        assert not learning.is_alive() and merging.failures() == []
+        assert merging.database.candidates_of("ar1", [2], ["ar1"]) == ["ar1"]
+        assert merging.database.keyframes("ar1") == 3
+    finally:
+        merging.close()
+
+
 def test_a_place_the_words_misjudge_is_still_looked_for_every_eighth_look(
         room: Room, places: dict[str, dict[int, np.ndarray]],  # noqa: F811
         monkeypatch: pytest.MonkeyPatch) -> None:

@@ -34,12 +34,16 @@ another place near a frame's own for 27 of them instead of 15) (``bench.keyframe
 words in an inverted file (DBoW2's ~10⁶) are what would keep it flat as the maps grow.
 
 Threads: :meth:`KeyFrameDatabase.add` and :meth:`KeyFrameDatabase.forget` only queue what
-they are given (the slot thread calls them). The words are assigned, and the vocabulary
-learned, by the scoring (:meth:`KeyFrameDatabase.candidates_of`) and the filing
-(:meth:`KeyFrameDatabase.file`) on the one thread that calls them (the merge looks' worker):
-none of that is the slots' time. A map keeps its newest KEPT_A_MAP keyframes in whole rows,
-the database as large as the maps. A keyframe a map culls or a copy it adopts is not told:
-the database is of what each device uploaded, and only chooses where to look.
+they are given (the slot thread calls them). The words are assigned by the scoring
+(:meth:`KeyFrameDatabase.candidates_of`) and the filing (:meth:`KeyFrameDatabase.file`) on
+the one thread that calls them (the merge looks' worker): none of that is the slots' time.
+The vocabulary is learned there too, unless ``learn_in_scoring`` is off: the edge learns it
+on a thread of its own and offers it (:meth:`KeyFrameDatabase.offer_words`), because learned
+by a look's ranking it held that look up — 3.0 s on one core, 5.7 s on a busy host — and a
+device coming to a mapped place merged 8–10 slots late, uploading as if alone meanwhile. A
+map keeps its newest KEPT_A_MAP keyframes in whole rows, the database as large as the maps.
+A keyframe a map culls or a copy it adopts is not told: the database is of what each device
+uploaded, and only chooses where to look.
 """
 
 from __future__ import annotations
@@ -148,6 +152,13 @@ class KeyFrameDatabase:
         self._queue_lock = threading.Lock()
         #: keyframes received before the vocabulary was learned: what it is learned from
         self._unfiled: list[tuple[str, int, np.ndarray]] = []
+        #: their descriptors, counted under the queue's lock (:meth:`can_learn`)
+        self._unfiled_descriptors = 0
+        #: the scoring learns the words once enough descriptors arrived; False: it waits for
+        #: words learned on another thread (:meth:`offer_words`), which the edge does
+        self.learn_in_scoring = True
+        #: words learned on another thread, taken by the next scoring or filing
+        self._offered: WeightedWords | None = None
         #: every map's rows (keyframes_a_row consecutive keyframes' vectors summed and
         #: L2-normalised, a row) in one matrix: one product scores a query against every
         #: map; a forgotten map's rows are owned by none (-1) and free for the next keyframes
@@ -176,10 +187,42 @@ class KeyFrameDatabase:
         with self._queue_lock:
             return len(self._queue)
 
+    def can_learn(self) -> bool:
+        """Whether the words are not learned yet and enough descriptors wait to learn them
+        from: a :meth:`file` now learns them. The edge files then, beside the slots, while
+        its first devices walk; left to the first scoring, the learning (3.0 s on one core
+        for the default words, more on a busy host) delayed live merges by several slots,
+        the look that scored waiting for it (docs/results/shared-map.md, "The words learned
+        before the first look")."""
+        with self._queue_lock:
+            if self.words is not None or self._offered is not None:
+                return False
+            waiting = self._unfiled_descriptors + sum(
+                len(d) for _, _, d in self._queue if d is not None)
+        return waiting >= max(self.learn_from, self.word_count)
+
+    def learning_sample(self) -> list[np.ndarray]:
+        """The descriptors the words would be learned from now (each waiting keyframe's:
+        filed before the words, then queued, in the order they arrived), for a thread of its
+        own to learn them from (:meth:`WeightedWords.learn`, then :meth:`offer_words`)."""
+        with self._queue_lock:
+            return [d for _, _, d in self._unfiled] + [
+                d for _, kf_id, d in self._queue if kf_id is not None and d is not None
+                and len(d)]
+
+    def offer_words(self, words: WeightedWords) -> None:
+        """Words learned on another thread, for the next scoring or filing to take (on the
+        scoring thread: the matrix is that thread's) and file what waited under them;
+        ignored where the database has words."""
+        with self._queue_lock:
+            if self.words is None:
+                self._offered = words
+
     def file(self) -> None:
         """File what was queued now (on the scoring thread): where no look scores for a
         while — every device of the edge in one place, or one device alone — the queue
-        would keep every upload's descriptors."""
+        would keep every upload's descriptors. Learns the words where enough descriptors
+        arrived and none were offered."""
         self._file()
 
     @property
@@ -196,7 +239,7 @@ class KeyFrameDatabase:
     def scores(self, queries: Sequence[np.ndarray], maps: Sequence[str]) -> dict[str, float]:
         """Each of ``maps``' best cosine score with any of ``queries`` (descriptor arrays),
         after filing what was queued; empty while there are no words yet."""
-        self._file()
+        self._file(self.learn_in_scoring)
         present = [q for q in queries if len(q)]
         if self.words is None or not present:
             return {}
@@ -208,7 +251,7 @@ class KeyFrameDatabase:
         look's queries are its device's newest uploads: their words are assigned once, when
         filed, not again to rank them); empty where none of them is among the map's
         :data:`RECENT_KEPT` newest."""
-        self._file()
+        self._file(self.learn_in_scoring)
         kept = self._maps.get(map_name)
         picked = [kept.recent[k] for k in kf_ids if k in kept.recent] if kept else []
         return self._best(np.stack(picked), maps) if picked else {}
@@ -244,27 +287,32 @@ class KeyFrameDatabase:
         return {m: float(best[self._maps[m].owner]) for m in maps
                 if m in self._maps and self._maps[m].members}
 
-    def _file(self) -> None:
-        """What was queued, filed under the words — learned first, once enough descriptors
-        arrived."""
+    def _file(self, learn: bool = True) -> None:
+        """What was queued, filed under the words: words learned on another thread and
+        offered (:meth:`offer_words`) taken first, else — with ``learn`` — learned here
+        once enough descriptors arrived."""
         with self._queue_lock:
             queued, self._queue = self._queue, []
-        for map_name, kf_id, descriptors in queued:
-            if kf_id is None:
-                gone = self._maps.pop(map_name, None)
-                for row in gone.rows if gone is not None else []:
-                    self._owner[row] = -1
-                    self._free.append(row)
-                self._unfiled = [u for u in self._unfiled if u[0] != map_name]
-            elif descriptors is not None and len(descriptors):
-                self._unfiled.append((map_name, kf_id, descriptors))
+            for map_name, kf_id, descriptors in queued:
+                if kf_id is None:
+                    gone = self._maps.pop(map_name, None)
+                    for row in gone.rows if gone is not None else []:
+                        self._owner[row] = -1
+                        self._free.append(row)
+                    self._unfiled = [u for u in self._unfiled if u[0] != map_name]
+                elif descriptors is not None and len(descriptors):
+                    self._unfiled.append((map_name, kf_id, descriptors))
+            self._unfiled_descriptors = sum(len(d) for _, _, d in self._unfiled)
+            if self.words is None and self._offered is not None:
+                self.words, self._offered = self._offered, None
         if self.words is None:
-            if sum(len(d) for _, _, d in self._unfiled) < max(self.learn_from,
-                                                              self.word_count):
+            if not learn or self._unfiled_descriptors < max(self.learn_from, self.word_count):
                 return                              # k-means needs a point a word, at least
             self.words = WeightedWords.learn([d for _, _, d in self._unfiled],
                                              self.word_count)
-        unfiled, self._unfiled = self._unfiled, []
+        with self._queue_lock:
+            unfiled, self._unfiled = self._unfiled, []
+            self._unfiled_descriptors = 0
         if unfiled:
             vectors = self.words.vectors([d for _, _, d in unfiled])
             for (map_name, kf_id, _), vector in zip(unfiled, vectors, strict=True):
