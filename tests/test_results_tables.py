@@ -835,3 +835,44 @@ def test_the_own_coverage_tables_are_what_their_command_prints() -> None:
         assert sum(" | keyframes uploaded | " in row for row in two) == 2
         assert sum(" | keyframes uploaded | " in row for row in room) == 1
 
+
+
+def test_the_covered_margin_tables_are_what_their_command_prints(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A covered frame left out only where the map serves it with a margin: the 7-Scenes
+    walk's uplink table at 50 points (seed 3, which drew seed 2's uplink, left out), the
+    paired table of 50 points against the tracking floor with both devices' lost frames, and
+    the two places walked forward and back with the device's own keyframes covering at 50
+    points, against the paper's uploads run beside them, as the page has them."""
+    folder = FIGURES / "shared-map" / "covered-margin"
+    monkeypatch.syspath_prepend(str(FIGURES))           # its sibling, shared_uplink_table
+    uplink = _script("shared_uplink_table")
+    rows = [row.strip() for row in uplink.table(folder / "at-50", "mapped")]
+    assert _on_a_page(rows)
+    assert len(rows) == 4 and all(row.endswith("| 0, 1, 2, 4, 5 |") for row in rows)
+    in_process = _script("shared_map_before_after")
+    printed = in_process.table(folder / "at-15", folder / "at-50", both_devices=True)
+    assert _missing("\n".join(printed)) == []
+    assert "| mapped | covered | seeds | 0, 1, 2, 4, 5 | | |" in printed
+    own = FIGURES / "shared-map" / "own-coverage"
+    two = _script("own_coverage_table").table(own / "two-places-paper-beside-margin-50.csv",
+                                              own / "two-places-own-10-margin-50.csv")
+    assert _missing("\n".join(two)) == []
+    assert two[-1].endswith("| seeds | 0, 1, 2, 3, 4, 5 | | |")
+    live = _script("loops_across_live")
+    lines, seeds, _ = live.table(folder / "live",
+                                 (("beside-15", "covered_min_points 15 (the default)"),
+                                  ("beside-50", "covered_min_points 50")), with_map=True)
+    assert seeds == [0, 1, 2] and _missing("\n".join(lines)) == []
+
+
+def test_the_words_learned_beside_the_looks_table_is_what_its_command_prints() -> None:
+    """Live, the keyframe database's words learned by the first look against beside the
+    looks: the second device's merge and uploads over three seeds, as the page has them."""
+    live = _script("loops_across_live")
+    lines, seeds, _ = live.table(FIGURES / "shared-map" / "words-beside" / "live",
+                                 (("in-look", "words learned by the first look (before)"),
+                                  ("beside", "words learned beside the looks")), with_map=True)
+    assert seeds == [0, 1, 2] and _missing("\n".join(lines)) == []
+    assert any(line.startswith("| ar2 frames uploaded | 30, 33, 34 | 15, 19, 13 |")
+               for line in lines)
