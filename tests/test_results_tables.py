@@ -876,3 +876,7 @@ def test_the_words_learned_beside_the_looks_table_is_what_its_command_prints() -
     assert seeds == [0, 1, 2] and _missing("\n".join(lines)) == []
     assert any(line.startswith("| ar2 frames uploaded | 30, 33, 34 | 15, 19, 13 |")
                for line in lines)
+    against, seeds, _ = live.table(FIGURES / "shared-map" / "words-beside" / "live",
+                                   (("alone", "each device alone (merge_maps off)"),
+                                    ("beside", "merged, the default covers")), with_map=True)
+    assert seeds == [0, 1, 2] and _missing("\n".join(against)) == []
