@@ -236,7 +236,7 @@ PARAMETERS = (
               "map's; below, it stays a candidate (15, the device's tracking floor: any frame "
               "the map serves; 50 on the 7-Scenes walk: a device in a mapped place lost about "
               "half as many frames more than alone, but uploaded 37 % fewer instead of 64 % "
-              "and cost the edge twice the time a slot; docs/results/shared-map.md)",
+              "and cost the edge up to twice the time a slot; docs/results/shared-map.md)",
               low=0, high=1_000_000),
     ParamSpec("own_coverage_after_slots", 0, "a frame whose view one of the device's own "
               "keyframes of an earlier visit covers (within covered_m and covered_deg; "

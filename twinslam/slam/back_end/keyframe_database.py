@@ -188,12 +188,12 @@ class KeyFrameDatabase:
             return len(self._queue)
 
     def can_learn(self) -> bool:
-        """Whether the words are not learned yet and enough descriptors wait to learn them
-        from: a :meth:`file` now learns them. The edge files then, beside the slots, while
-        its first devices walk; left to the first scoring, the learning (3.0 s on one core
-        for the default words, more on a busy host) delayed live merges by several slots,
-        the look that scored waiting for it (docs/results/shared-map.md, "The words learned
-        before the first look")."""
+        """Whether the words are not learned (nor offered) yet and enough descriptors wait to
+        learn them from: a :meth:`file` now learns them, or a thread of its own from
+        :meth:`learning_sample`, as the edge does while its first devices walk. Left to the
+        first scoring, the learning (3.0 s on one core for the default words, more on a busy
+        host) delayed live merges by several slots, the look that scored waiting for it
+        (docs/results/shared-map.md, "The words learned beside the looks")."""
         with self._queue_lock:
             if self.words is not None or self._offered is not None:
                 return False

@@ -18,11 +18,11 @@ bounds (docs/results/shared-map.md, "The bounds of a covered view").
 The same holds for a device coming back to where it was: its own keyframes of an earlier
 visit stand there. Either way a keyframe beside a frame may hold little of what its camera
 sees (a place mapped thinly, or while the camera moved fast), so a cover counts only for a
-frame the map serves with a margin (:attr:`CoverageBounds.min_points` of the points the
-device matched: an absolute count, not a share). Which keyframes cover is the edge's choice
-(``EdgeMapperCore.covered_frames``: lent ones, and with ``own_coverage_after_slots`` the
-device's own once they are a visit old); this module only tells which frames a set of
-keyframe poses covers.
+frame the map serves well enough (:attr:`CoverageBounds.min_points` of the points the device
+matched, the tracking floor by default: an absolute count, not a share). Which keyframes
+cover is the edge's choice (``EdgeMapperCore.covered_frames``: lent ones, and with
+``own_coverage_after_slots`` the device's own once they are a visit old); this module only
+tells which frames a set of keyframe poses covers.
 """
 
 from __future__ import annotations
@@ -49,8 +49,8 @@ class CoverageBounds:
     #: floor; a margin keeps such frames candidates. At 50 (ORB-SLAM's bar for tracking it
     #: trusts just after a relocalisation) the device coming to a mapped 7-Scenes place lost
     #: about half as many frames more than alone, but uploaded 37 % fewer instead of 64 %
-    #: and cost the edge twice the time a slot (docs/results/shared-map.md, "A covered view
-    #: the map serves with a margin"): a trade a user makes, not the default.
+    #: and cost the edge up to twice the time a slot (docs/results/shared-map.md, "A covered
+    #: view the map serves with a margin"): a trade a user makes, not the default.
     min_points: int = 15
 
     def __post_init__(self) -> None:
