@@ -27,6 +27,7 @@ from twinslam.live.fleet import (
     cross_device_errors,
     device_sequence,
     edge_blocks,
+    joined_at,
     merge_lines,
     merged_across_places,
     merged_in_place,
@@ -113,6 +114,22 @@ def test_the_late_cross_device_figure_scores_only_the_last_third_of_each_devices
                         [("ar1", "ar2")], {("ar1", "ar2"): late})
     assert "over the last third of each one's frames RMS 1.0 cm (9 pairs)" in \
         "\n".join(merge_lines(fleet))
+
+
+def test_the_fleet_says_at_which_slot_each_devices_map_joined_another_frame() -> None:
+    """The second device's map updates came in its own frame for two slots, then in the first
+    device's: it joined at its slot 2, and the fleet's table says so; the first device
+    (the place's own frame throughout) and a device alone joined nothing."""
+    first = _walk([(0.05 * i, 1) for i in range(5)], {1: "ar1/map", 2: "ar1/map"}, np.eye(4))
+    second = _walk([(0.05 * i, 1) for i in range(5)],
+                   {1: "ar2/map", 2: "ar2/map", 3: "ar1/map", 4: "ar1/map"}, np.eye(4))
+    alone = _walk([(0.05 * i, 1) for i in range(5)], {1: "ar3/map"}, np.eye(4))
+    records = {"ar1": first, "ar2": second, "ar3": alone}
+    assert joined_at(records) == {"ar2": (2, "ar1/map")}
+    fleet = FleetReport("equal", list(records), [], [], [], cross_device_errors(records), [],
+                        merged_in_place(records), joined=joined_at(records))
+    assert "ar2's map joined ar1/map at its slot 2" in merge_lines(fleet)
+    assert sum("joined" in line for line in merge_lines(fleet)) == 1
 
 
 def test_merged_devices_that_never_saw_one_view_are_told_from_devices_never_merged() -> None:

@@ -200,6 +200,9 @@ class FleetReport:
     merged: list[tuple[str, str]] = field(default_factory=list)
     #: :attr:`cross_device` over the last :data:`LATE_SHARE` of each device's frames
     cross_device_late: dict[tuple[str, str], RevisitError] = field(default_factory=dict)
+    #: each device whose map joined another device's frame: the slot and that frame
+    #: (:func:`joined_at`)
+    joined: dict[str, tuple[int, str]] = field(default_factory=dict)
 
     def tracked_shares(self) -> list[float]:
         """Each device's share of its frames it tracked."""
@@ -358,7 +361,8 @@ class FleetLauncher(Launcher):
                                cross_device_errors(records, places),
                                merged_across_places(records, places),
                                merged_in_place(records, places),
-                               cross_device_errors(records, places, LATE_SHARE))
+                               cross_device_errors(records, places, LATE_SHARE),
+                               joined_at(records))
         finally:
             self.stop()
             for s in sessions.values():
@@ -472,6 +476,23 @@ def merged_across_places(records: dict[str, RunLog], places: Mapping[str, int]
     return _in_one_frame(records, places, same_place=False)
 
 
+def joined_at(records: dict[str, RunLog]) -> dict[str, tuple[int, str]]:
+    """Each device whose map joined another device's frame: the first of its slots whose map
+    update came in a frame not its own (``DEVICE/map``), and that frame — when the edge merged
+    its map into a place another device started. How soon a device coming to a mapped place
+    joins decides how long it uploads as if alone, and only a live run shows it: in process
+    the looks wait for nothing (docs/results/shared-map.md, "The words learned beside the
+    looks"). A device that kept its own frame (alone, or a place's first) is left out."""
+    joined = {}
+    for device, record in records.items():
+        own = f"{device}/map"
+        moved = [(slot, m.frame_id) for slot, m in sorted(record.maps.items())
+                 if m.frame_id and m.frame_id != own]
+        if moved:
+            joined[device] = moved[0]
+    return joined
+
+
 def merged_in_place(records: dict[str, RunLog], places: Mapping[str, int] | None = None
                     ) -> list[tuple[str, str]]:
     """The pairs of devices of one place (``places``: each device's; None: all one) ever
@@ -521,10 +542,12 @@ def print_fleet_table(fleet: FleetReport, echo: Callable[[str], None] = print) -
 
 
 def merge_lines(fleet: FleetReport) -> list[str]:
-    """What the fleet's maps made of its places: each pair of one place's devices' cross-device
-    revisit error, or that they never shared a map frame, or that they did with no pair of
-    frames seeing one view; and each false merge across two places."""
-    lines = []
+    """What the fleet's maps made of its places: when each device's map joined another's
+    frame; each pair of one place's devices' cross-device revisit error, or that they never
+    shared a map frame, or that they did with no pair of frames seeing one view; and each
+    false merge across two places."""
+    lines = [f"{device}'s map joined {frame} at its slot {slot}"
+             for device, (slot, frame) in fleet.joined.items()]
     for (a, b), e in fleet.cross_device.items():
         if e.pairs:
             where = (f"RMS {e.rms_m * 100:.1f} cm, median {e.median_m * 100:.1f} cm over "
@@ -552,13 +575,14 @@ FLEET_COLUMNS = ("policy", "allocator", "seed", "device", "slots", "frames", "me
                  "relocalisations", "ate_m", "mean_budget", "frames_dropped", "edge_ms_median",
                  "latency_ms_median", "late_slots", "cross_device_rms_m", "cross_device_pairs",
                  "frames_uploaded", "cross_device_late_rms_m", "cross_device_late_pairs",
-                 "map_in_pieces_slots")
+                 "map_in_pieces_slots", "joined_at_slot")
 
 
 def fleet_rows(fleet: FleetReport, seed: int, records: dict[str, RunLog],
                slot_period_s: float) -> list[dict[str, object]]:
-    """One row a device of ``fleet``: its figures, its mean share of V_total, and how many of
-    its slots' maps came later than ``slot_period_s`` after its summaries."""
+    """One row a device of ``fleet``: its figures, its mean share of V_total, how many of its
+    slots' maps came later than ``slot_period_s`` after its summaries, and the slot its map
+    joined another device's frame at (NaN: never)."""
     rows = []
     for device, r, budget, frames in zip(fleet.devices, fleet.reports, fleet.budgets,
                                          fleet.frames, strict=True):
@@ -578,7 +602,9 @@ def fleet_rows(fleet: FleetReport, seed: int, records: dict[str, RunLog],
                      **_cross_cells(fleet.cross_device, device, "cross_device"),
                      **_cross_cells(fleet.cross_device_late, device, "cross_device_late"),
                      "frames_uploaded": r.frames_uploaded,
-                     "map_in_pieces_slots": r.map_in_pieces_slots})
+                     "map_in_pieces_slots": r.map_in_pieces_slots,
+                     "joined_at_slot": (fleet.joined[device][0] if device in fleet.joined
+                                        else math.nan)})
     return rows
 
 
