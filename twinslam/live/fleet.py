@@ -583,7 +583,7 @@ def fleet_rows(fleet: FleetReport, seed: int, records: dict[str, RunLog],
     """One row a device of ``fleet``: its figures, its mean share of V_total, how many of its
     slots' maps came later than ``slot_period_s`` after its summaries, and the slot its map
     joined another device's frame at (NaN: never)."""
-    rows = []
+    rows: list[dict[str, object]] = []
     for device, r, budget, frames in zip(fleet.devices, fleet.reports, fleet.budgets,
                                          fleet.frames, strict=True):
         stats = list(records[device].stats.values())
