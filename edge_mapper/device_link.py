@@ -398,7 +398,7 @@ class DeviceLink:
             self.info(f"slot {slot}: loop closed between {_loop_ends(out.loop)} "
                       f"({out.loop.inliers} inliers), the map moved up to "
                       f"{out.loop.moved_m:.3f} m; the loop closer took "
-                      f"{out.loop.worker_ms:.0f} ms beside the slots")
+                      f"{out.loop.worker_ms:.0f} ms beside the slots{_waited(out.loop)}")
         for failure in out.loop_failures:
             self.error(f"slot {slot}: {failure}; the map is corrected, the archive on disk "
                        "is not (a restart reads the poses before the loop)")
@@ -513,6 +513,12 @@ class DeviceLink:
             self.views.destroy(self.node)
         # the map and the link's callbacks go: the collector sees the frozen objects again
         release_frozen()
+
+
+def _waited(loop: ClosedLoop) -> str:
+    """How long the loop job waited for the slots' work, for its log line ("" under a
+    millisecond): its time above is its own work, and a busy edge's job waits seconds."""
+    return f" (and waited {loop.waited_ms:.0f} ms for them)" if loop.waited_ms >= 1.0 else ""
 
 
 def _loop_ends(loop: ClosedLoop) -> str:

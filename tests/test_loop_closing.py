@@ -615,6 +615,27 @@ def test_a_loop_job_pauses_for_the_slots_before_each_query() -> None:
     assert len(pauses) == queries_looked + 1        # each query looked at, then the graph
 
 
+def test_a_loop_jobs_time_leaves_out_its_waits_for_the_slots() -> None:
+    """The job's seconds are its own work: a pause that waits 0.2 s before each query and
+    the graph is counted apart (``waited``), not in the time the edge reports as the loop
+    closer's."""
+    device = ReturningDevice(np.random.default_rng(5), 64)
+    job = _job(device)
+    pauses: list[float] = []
+
+    def slow_slots() -> None:
+        pauses.append(time.monotonic())
+        time.sleep(0.2)
+
+    began = time.monotonic()
+    result = run_job(job, 40, None, slow_slots)
+    wall = time.monotonic() - began
+    assert result.closure is not None and len(pauses) >= 2
+    assert result.waited >= 0.2 * len(pauses)
+    assert abs(result.seconds + result.waited - wall) < 0.05
+    assert result.seconds < wall - 0.2 * len(pauses) + 0.05
+
+
 def test_a_slot_callback_that_drops_the_running_job_is_not_waited_for_by_it() -> None:
     """A merge drops the running loop job from inside a device's callback (the slots' work):
     while the callback waits for the job, its mark is lifted — else the job, waiting for the

@@ -181,10 +181,14 @@ class LoopResult:
     candidate: LoopCandidate
     query: int                            #: the keyframe the loop was looked for from
     closure: LoopClosure | None
-    seconds: float                        #: the worker's time on the job
+    #: the worker's time on the job, its waits for the slots left out (a busy edge's job
+    #: waits seconds for them: its own work is what the edge's stats report)
+    seconds: float
     #: why the job failed (an exception in the search or the graph: the edge logs it and
     #: goes on without the loop); "": it did not
     error: str = ""
+    #: the job's waits for the slots' work (``pause``), seconds
+    waited: float = 0.0
 
 
 @dataclass
@@ -294,12 +298,21 @@ def run_job(job: LoopJob, min_gap: int = MIN_GAP,
             pause: Callable[[], None] = lambda: None,
             index: KeptPlaceIndex | None = None) -> LoopResult:
     """Look for a loop from each query, oldest first; close the first one ``confirmation``
-    confirms (without one: the first found). ``pause`` is called before each query and before
-    the pose graph: the worker waits there for the slots' work (:meth:`SharedWorker.
-    wait_for_slots`). The walk's own keyframes are searched under ``index`` where given (the
-    loop closer's, kept from its last job: :mod:`~twinslam.slam.back_end.place_index`), else
-    under an index built for this job; either answers the same."""
+    confirms (without one: the first found). ``pause`` is called before each query and
+    before the pose graph: the worker waits there for the slots' work
+    (:meth:`SharedWorker.wait_for_slots`), which the result's ``seconds`` leave out
+    (``waited``). The walk's own keyframes are searched under ``index`` where given (the
+    loop closer's, kept from its last job: :mod:`~twinslam.slam.back_end.place_index`),
+    else under an index built for this job; either answers the same."""
     start = time.perf_counter()
+    waited = 0.0
+
+    def wait() -> None:
+        nonlocal waited
+        began = time.perf_counter()
+        pause()
+        waited += time.perf_counter() - began
+
     candidate, query = LoopCandidate(-1, None, None, 0, "no query"), -1
     confirmed = False
     # place recognition searches only the keyframes a query may close a loop with: the
@@ -312,7 +325,7 @@ def run_job(job: LoopJob, min_gap: int = MIN_GAP,
     newest = max((q.keyframe for q in job.queries), default=0)
     own = job.archive.only(lambda k: not is_foreign(k) and k <= newest - min_gap, index)
     for q in sorted(job.queries, key=lambda q: q.keyframe):
-        pause()
+        wait()
         candidate, query = detect_loop(own, q.keyframe, q.points_xy, q.descriptors,
                                        job.intrinsics, min_gap, depths=q.depths), q.keyframe
         if refused := beyond_drift(candidate, q.keyframe, job.poses):
@@ -331,14 +344,15 @@ def run_job(job: LoopJob, min_gap: int = MIN_GAP,
             break
     closure = None
     if confirmed and candidate.measured is not None and query in job.poses:
-        pause()
+        wait()
         # the map points of every keyframe the job knows, the copies' too: the walk's
         # covisibility counts its own keyframes' only
         points = point_id_sets({**job.map_points, **job.copy_points}, job.archive)
         closure = close_loop(job.poses, candidate.old, query, candidate.measured,
                              shared_pairs(sorted(job.poses), points), job.earlier,
                              candidate.inliers, _anchors(job, points))
-    return LoopResult(candidate, query, closure, time.perf_counter() - start)
+    return LoopResult(candidate, query, closure, time.perf_counter() - start - waited,
+                      waited=waited)
 
 
 def loop_across(job: LoopJob, query: LoopQuery) -> LoopCandidate:

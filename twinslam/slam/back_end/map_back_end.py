@@ -150,9 +150,12 @@ class ClosedLoop:
     new: int                         #: the keyframe that saw it again
     inliers: int                     #: of the geometric check
     moved_m: float                   #: the farthest a managed keyframe moved (or would have)
-    worker_ms: float                 #: the loop closer's time (detection and pose graph)
+    #: the loop closer's own time (detection and pose graph), its waits for the slots left out
+    worker_ms: float
     #: why its corrections were not applied ("": applied)
     refused: str = ""
+    #: the loop closer's waits for the slots' work during the job, ms
+    waited_ms: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -526,7 +529,8 @@ class MapBackEnd:
         place that only looked alike."""
         if result is not None and result.error:
             return ClosedLoop(-1, result.query, 0, 0.0, result.seconds * 1e3,
-                              f"the loop closer failed: {result.error}")
+                              f"the loop closer failed: {result.error}",
+                              result.waited * 1e3)
         if result is None or result.closure is None:
             return None
         corrections = result.closure.corrections
@@ -534,7 +538,7 @@ class MapBackEnd:
         if refused := self._beyond_reach("it would move the map", farthest):
             self.loops_refused += 1
             return ClosedLoop(result.candidate.old, result.query, result.candidate.inliers,
-                              farthest, result.seconds * 1e3, refused)
+                              farthest, result.seconds * 1e3, refused, result.waited * 1e3)
         # the walk's head (the newest keyframe of the graph, and every later one) moves by the
         # newest correction: the frame the next map version is in
         self._correct(corrections, corrections[max(corrections)], next_version,
@@ -548,7 +552,7 @@ class MapBackEnd:
             self.loop_edges.append(LoopEdge(old, result.query, result.candidate.measured,
                                             result.candidate.inliers))
         return ClosedLoop(old, result.query, result.candidate.inliers, farthest,
-                          result.seconds * 1e3)
+                          result.seconds * 1e3, waited_ms=result.waited * 1e3)
 
     def _correct(self, corrections: Mapping[int, np.ndarray], head: np.ndarray,
                  next_version: int, what: str, copies_too: bool = False) -> None:
