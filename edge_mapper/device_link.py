@@ -60,6 +60,7 @@ from msg_schemas import qos, topics
 from msg_schemas.headers import time_seconds
 from twinslam.node_runtime.checked_subscription import CheckedSubscription
 from twinslam.node_runtime.long_lived_objects import release_frozen
+from twinslam.node_runtime.site_logging import SiteLogger
 from twinslam.policies.connected_map import mended_decision
 from twinslam.rotations import rotation_angle_deg
 from twinslam.slam.back_end.foreign_keyframes import is_foreign, keyframe_label
@@ -120,6 +121,9 @@ class DeviceLink:
                  spent: Spending | None = None, merging: PlaceMerging | None = None,
                  on_fault: Callable[[str, str], None] | None = None) -> None:
         self.node, self.device, self.settings = node, device, settings
+        #: this device's lines, each named by the link's code that wrote it (one or more a
+        #: slot per device: rclpy's own caller lookup cost 7 % of a fifty-device edge's slots)
+        self.lines = SiteLogger(node.get_logger(), depth=2)
         #: told (device, traceback) when this device's work raised — an edge serving several
         #: devices then stops serving this one and goes on with the others (None: the error
         #: propagates, and the node stops as a one-device edge should)
@@ -212,13 +216,13 @@ class DeviceLink:
         return f"[{self.device}] {text}" if self.device else text
 
     def info(self, text: str) -> None:
-        self.node.get_logger().info(self._text(text))
+        self.lines.info(self._text(text))
 
     def warning(self, text: str) -> None:
-        self.node.get_logger().warning(self._text(text))
+        self.lines.warning(self._text(text))
 
     def error(self, text: str) -> None:
-        self.node.get_logger().error(self._text(text))
+        self.lines.error(self._text(text))
 
     def _log(self, notes: list[Note]) -> None:
         # one call site per severity: rclpy refuses a logging line whose severity changes
