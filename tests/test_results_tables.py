@@ -880,3 +880,20 @@ def test_the_words_learned_beside_the_looks_table_is_what_its_command_prints() -
                                    (("alone", "each device alone (merge_maps off)"),
                                     ("beside", "merged, the default covers")), with_map=True)
     assert seeds == [0, 1, 2] and _missing("\n".join(against)) == []
+
+
+def test_the_slot_threads_shares_at_fifty_devices_are_what_their_command_prints() -> None:
+    """py-spy's stacks of the fifty-device edge and its emulated devices: the shares the page
+    prints are what the committed recordings give, and the log lines' share fell."""
+    shares = _script("stack_shares")
+    stacks = FIGURES / "fleet" / "fifty" / "stacks"
+    edge = shares.table([("rclpy's logger", stacks / "edge-rclpy-logger.txt.gz"),
+                         ("the site logger", stacks / "edge-site-logger.txt.gz")])
+    assert _missing("\n".join(edge)) == []
+    assert "| `RcutilsLogger.log` | 7.1 % | 0.1 % |" in edge
+    devices = shares.table(
+        [("the emulated devices", stacks / "emulated-devices.txt.gz")],
+        functions=("RosSession.spin_once", "Executor._wait_for_ready_callbacks",
+                   "EventHandler.add_to_wait_set", "EmulatedDevice.tick",
+                   "Recording.of_place", "Publisher.publish"))
+    assert _missing("\n".join(devices)) == []
