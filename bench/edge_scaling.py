@@ -27,6 +27,9 @@ The emulated devices share the host with the edges: ``devices CPU`` is this proc
 nothing used while the fleet ran. Where slots are late with cores idle, the edges' own serial
 work is what limits (one Python interpreter works on one core at a time); where none is idle,
 the host's CPU is, and the devices' part of it would be on their own machines in a real fleet.
+The emulator spins on rclpy's ``EventsExecutor``, as the nodes do (``--emulator-executor``);
+until 2026-12-05 it spun a ``SingleThreadedExecutor``, whose turns build a wait set of every
+device's topics in Python — 78 % of the emulator's thread at fifty devices (py-spy).
 
 With ``--edges K`` the devices are split into K blocks of neighbours, each served by an
 ``edge_mapper`` process of its own (what ``twinslam launch --devices N --edges K`` starts); the
@@ -118,7 +121,7 @@ from msg_schemas import qos, topics
 from twinslam.hosts.loopback import LoopbackDomain, ProcessDomain
 from twinslam.hosts.netns import NetnsHosts, unavailable_reason
 from twinslam.live.fleet import edge_blocks, edge_hosts
-from twinslam.node_runtime.session import RosSession
+from twinslam.node_runtime.session import EXECUTORS, RosSession
 from twinslam.reporting import pyplot, write_dict_rows
 from twinslam.slot_protocol import table1
 
@@ -362,7 +365,7 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             niceness: int | None = None, share: float | None = None,
             yields: bool | None = None, background: bool | None = None,
             across: bool | None = None, in_view: bool | None = None,
-            unseen: int | None = None, places: int = 1
+            unseen: int | None = None, places: int = 1, executor: str = "events"
             ) -> tuple[dict[str, float | str], list[dict[str, float | str]]]:
     """One fleet of ``n`` emulated devices served, their starts spread evenly over ``stagger``
     slot periods, each device's map checkpointed every ``checkpoint_every`` slots (0: never),
@@ -410,7 +413,7 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
         for edge, block in zip(procs, served, strict=True):
             if not dom.wait_for_log(edge, f"listening on /{block[-1]}", 120):
                 raise SystemExit(f"an edge did not come up: {dom.log(edge)[-2000:]}")
-        with RosSession("bench_devices") as ros:
+        with RosSession("bench_devices", executor=executor) as ros:
             now = time.monotonic() + 2.0
             walks = [recording.of_place(p) for p in range(places)]
             devices = [EmulatedDevice(d, walks[i % places],
@@ -496,7 +499,7 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             # reports point ids this edge lacks, and its frames count as lost
             "lost_share": float(np.mean([s.lost_share for s in stats])) if stats else math.nan,
             "compute_budget": compute_budget, "trimmed": log.count("compute: slot work takes"),
-            "merge_maps": merge_maps, "places": places,
+            "merge_maps": merge_maps, "places": places, "emulator_executor": executor,
             # each device moved into another's place logs it once, at its next slot end
             "merged": len(MOVED_LINE.findall(log))}, slots
 
@@ -606,6 +609,11 @@ def main() -> None:
                              "keyframe's copy its device has neither held nor seen for that "
                              "many slots goes back to its lender; 0: copies stay), comma-"
                              "separated to compare; default: the edge's")
+    parser.add_argument("--emulator-executor", default="events", metavar="events|single",
+                        help="the rclpy executor the emulated devices spin on: events (the "
+                             "nodes' EventsExecutor) or single (SingleThreadedExecutor, which "
+                             "builds a wait set of every device's topics each turn: the "
+                             "bench's default until 2026-12-05); comma-separated to compare")
     parser.add_argument("--hosts", action="store_true",
                         help="each edge process on an edge host of its own and the devices on "
                              "a device host (network namespaces on one switch; needs root) "
@@ -632,6 +640,10 @@ def main() -> None:
                                  False, True, "on or off")
     unseens = values_to_compare(parser, "--unseen-slots", args.unseen_slots, int, 0, 100_000,
                                 "slots")
+    executors = args.emulator_executor.split(",")
+    if not set(executors) <= set(EXECUTORS):
+        parser.error(f"--emulator-executor: events, single or both, not "
+                     f"{args.emulator_executor!r}")
     why_not = unavailable_reason() if args.hosts else None
     if why_not is not None:
         raise SystemExit(f"--hosts: network namespaces cannot be made here: {why_not}")
@@ -662,10 +674,11 @@ def main() -> None:
               f"{'latency ms':>10} {'p95':>6} {'missed':>7} {'edge CPU':>8} "
               f"{'devices CPU':>11} {'idle':>5} {'merged':>6} {'lost':>5} {'loops':>5} "
               f"{'nice':>4} {'share':>5} {'yield':>5} {'ckpt bg':>7} {'across':>6} "
-              f"{'view':>4} {'unseen':>6}")
+              f"{'view':>4} {'unseen':>6} {'emulator':>8}")
     print(header, flush=True)
     settings = [(pools, merge, int(edges), int(n), nice, share, yields, background, across,
-                 in_view, unseen)
+                 in_view, unseen, executor)
+                for executor in executors
                 for pools in args.pools.split(",")
                 for merge in args.merge_maps.split(",")
                 for edges in args.edges.split(",") for n in args.devices.split(",")
@@ -674,12 +687,12 @@ def main() -> None:
                 for in_view in in_views for unseen in unseens]
     every_slot = []
     for (pools, merge, edges, n, nice, share, yields, background, across, in_view,
-         unseen) in settings:
+         unseen, executor) in settings:
         with collector_log(args.collector_log) as collections:
             row, slots = measure(n, recording, args.policy, args.compute_budget, edges, pools,
                                  args.hosts, merging[merge], args.stagger,
                                  args.checkpoint_every, nice, share, yields, background,
-                                 across, in_view, unseen, args.places)
+                                 across, in_view, unseen, args.places, executor)
             full = [c for c in collections() if c[0] == 2]
         if args.collector_log:
             row.update(full_collections=len(full),
@@ -696,7 +709,8 @@ def main() -> None:
                         "checkpoint_in_background": row["checkpoint_in_background"],
                         "loops_across_devices": row["loops_across_devices"],
                         "lend_in_view": row["lend_in_view"],
-                        "lent_unseen_slots": row["lent_unseen_slots"], **slot}
+                        "lent_unseen_slots": row["lent_unseen_slots"],
+                        "emulator_executor": executor, **slot}
                        for slot in slots]
         print(f"{pools:>5} {merge:>5} {row['edges']:>5} {n:>7} "
               f"{row['answered']:>4.0f}/{row['device_slots']:<4.0f} "
@@ -711,7 +725,7 @@ def main() -> None:
               f"{row['checkpoint_in_background'] or 'edge':>7} "
               f"{row['loops_across_devices'] or 'edge':>6} "
               f"{row['lend_in_view'] or 'edge':>4} "
-              f"{'edge' if unseen is None else unseen:>6}", flush=True)
+              f"{'edge' if unseen is None else unseen:>6} {executor:>8}", flush=True)
     if args.csv:
         write_dict_rows(args.csv, rows)
         print(f"wrote {args.csv}")

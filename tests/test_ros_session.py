@@ -1,0 +1,37 @@
+"""A process's own rclpy session (monitors, tests, the benches' emulated devices) on either
+executor: it takes the samples its node subscribed to — also subscriptions made after the
+executor had the node, as ``bench.edge_scaling`` makes its devices' — and refuses an executor
+it does not know by name."""
+
+from __future__ import annotations
+
+import pytest
+from std_msgs.msg import String
+
+from msg_schemas import qos
+from twinslam.hosts.loopback import LoopbackDomain
+from twinslam.node_runtime.session import EXECUTORS, RosSession
+
+
+@pytest.mark.parametrize("executor", sorted(EXECUTORS))
+def test_a_session_takes_what_its_node_subscribed_to_on_either_executor(
+        domain: LoopbackDomain, executor: str) -> None:
+    with RosSession("session_writer") as writer, \
+            RosSession("session_reader", executor=executor) as reader:
+        got: list[str] = []
+
+        def take(message: String) -> None:
+            got.append(message.data)
+        reader.node.create_subscription(String, "chatter", take, qos.PROTOCOL)
+        publisher = writer.node.create_publisher(String, "chatter", qos.PROTOCOL)
+        assert reader.spin_until(lambda: publisher.get_subscription_count() > 0, 30.0), \
+            "the reader's subscription was never matched"
+        for k in range(3):
+            publisher.publish(String(data=f"sample {k}"))
+        assert reader.spin_until(lambda: len(got) == 3, 30.0), f"took {got}"
+        assert got == ["sample 0", "sample 1", "sample 2"]
+
+
+def test_a_session_refuses_an_executor_it_does_not_know(domain: LoopbackDomain) -> None:
+    with pytest.raises(ValueError, match="choose from single, events"):
+        RosSession("session_refused", executor="multi")
