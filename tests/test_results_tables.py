@@ -897,3 +897,12 @@ def test_the_slot_threads_shares_at_fifty_devices_are_what_their_command_prints(
                    "EventHandler.add_to_wait_set", "EmulatedDevice.tick",
                    "Recording.of_place", "Publisher.publish"))
     assert _missing("\n".join(devices)) == []
+
+
+def test_the_emulators_executor_table_is_what_its_command_prints() -> None:
+    """Fifty emulated devices on either executor, one and two edges, two rounds."""
+    fleet = _script("fleet_tables")
+    folder = FIGURES / "fleet" / "fifty" / "emulator-executor"
+    lines = fleet.emulator_table([folder / "round-1.csv", folder / "round-2.csv"])
+    assert _missing("\n".join(lines)) == []
+    assert lines[-1].startswith("| `EventsExecutor` | 2 | 54.1 / 48.4 % |")

@@ -25,6 +25,10 @@ files the commands wrote (every command is on that page beside its table):
   comes back) → fleet/loop-worker-revisit.png and a table: each run's late share and loops
   closed, a point a run, and when the loops closed (the slot of each, all runs of a setting
   together), for the loop workers at the slots' priority, below it and capped;
+* ``emulator FILE…`` — ``python -m bench.edge_scaling --devices 50 --edges 1,2
+  --emulator-executor single,events`` runs, one file a round: per emulator and edge count,
+  each round's late share, answered device-slots, summaries → map p95, the edges' and the
+  emulator's CPU and the host's idle share, the rounds side by side;
 * ``sim FILE…`` — ``twinslam sim --devices N --csv`` files: per allocator the fleet mean (over
   devices, then seeds) of mean υ, lost share and υ tracked, Jain's index of the devices'
   tracked shares, and the paired differences with ``equal`` on the same seeds;
@@ -53,6 +57,7 @@ import csv
 import math
 import sys
 from collections import defaultdict
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -392,14 +397,51 @@ def revisit() -> None:
     _save(fig, "fleet/loop-worker-revisit.png")
 
 
+#: the emulators as the table names them
+EMULATORS = {"single": "`SingleThreadedExecutor`", "events": "`EventsExecutor`"}
+
+
+def emulator_table(paths: Sequence[Path]) -> list[str]:
+    """The emulated devices' executor against the edges' late share: a row an emulator and
+    edge count (by edges, then the emulators in :data:`EMULATORS`' order), each figure of
+    every round (a file each) side by side."""
+    rounds = [{(r["emulator_executor"], r["edges"]): r for r in _rows(p)} for p in paths]
+
+    def each(key: tuple[str, str], figure: Callable[[dict[str, str]], str]) -> str:
+        return " / ".join(figure(found[key]) for found in rounds)
+
+    def share(key: tuple[str, str], column: str, digits: int) -> str:
+        return each(key, lambda r: f"{100 * float(r[column]):.{digits}f}")
+
+    lines = ["| emulator | edges | late, rounds " + " / ".join(
+                 str(k + 1) for k in range(len(paths))) +
+             " | answered of 1000 | summaries → map p95, s | the edges' CPU "
+             "| the emulator's CPU | host idle |",
+             "|---|---|---|---|---|---|---|---|"]
+    for edges_n in sorted({e for found in rounds for _, e in found}, key=int):
+        for name, label in EMULATORS.items():
+            key = (name, edges_n)
+            if not all(key in found for found in rounds):
+                continue
+            p95 = each(key, lambda r: f"{float(r['latency_ms_p95']) / 1000:.1f}")
+            lines.append(f"| {label} | {edges_n} | {share(key, 'missed_share', 1)} % "
+                         f"| {each(key, lambda r: r['answered'])} | {p95} "
+                         f"| {share(key, 'edge_cpu_share', 0)} % "
+                         f"| {share(key, 'devices_cpu_share', 0)} % "
+                         f"| {share(key, 'host_idle_share', 0)} % |")
+    return lines
+
+
 def main(argv: list[str]) -> int:
     if not argv or argv[0] not in ("scaling", "edges", "hosts", "stagger", "revisit", "sim",
-                                   "split", "live"):
+                                   "split", "live", "emulator"):
         print(__doc__)
         return 2
     {"scaling": lambda a: scaling(), "edges": lambda a: edges(), "hosts": lambda a: hosts(),
      "stagger": lambda a: stagger(), "revisit": lambda a: revisit(), "sim": sim,
-     "split": split, "live": live}[argv[0]](argv[1:])
+     "split": split, "live": live,
+     "emulator": lambda a: print("\n".join(emulator_table([Path(p) for p in a])))
+     }[argv[0]](argv[1:])
     return 0
 
 
