@@ -25,6 +25,11 @@ files the commands wrote (every command is on that page beside its table):
   comes back) → fleet/loop-worker-revisit.png and a table: each run's late share and loops
   closed, a point a run, and when the loops closed (the slot of each, all runs of a setting
   together), for the loop workers at the slots' priority, below it and capped;
+* ``curve`` — fleet/scaling-curve/curve.csv (``python -m bench.edge_scaling --devices
+  4,8,12,16,24,32,50 --edges 1,2``, the default edge and emulator of 2026-12-05) beside
+  fleet/edge-scaling-default-1s.csv (the default edge on 2026-11-29) →
+  fleet/edge-scaling-curve.png: the late share, the edges' CPU a device-slot and the host's
+  cores (the edges', the emulator's, idle) vs N, one and two edge processes;
 * ``emulator FILE…`` — ``python -m bench.edge_scaling --devices 50 --edges 1,2
   --emulator-executor single,events`` runs, one file a round: per emulator and edge count,
   each round's late share, answered device-slots, summaries → map p95, the edges' and the
@@ -236,6 +241,41 @@ def edges() -> None:
     _save(fig, "fleet/edge-scaling-edges.png")
 
 
+def curve() -> None:
+    """The edge's scaling curve before (2026-11-29) and now, at the default 1 s slots."""
+    plt = pyplot()
+    series: dict[str, list[dict[str, str]]] = {
+        "2026-11-29, 1 edge process (before)": _rows(HERE / "fleet/edge-scaling-default-1s.csv")}
+    for r in _rows(HERE / "fleet/scaling-curve/curve.csv"):
+        word = "process" if r["edges"] == "1" else "processes"
+        series.setdefault(f"2026-12-05, {r['edges']} edge {word}", []).append(r)
+    fig, axes = plt.subplots(1, 3, figsize=(16, 4.4))
+    for i, (label, rows) in enumerate(series.items()):
+        n = [int(r["devices"]) for r in rows]
+        style = "k--" if i == 0 else f"C{i}o-"
+        axes[0].plot(n, [100 * float(r["missed_share"]) for r in rows], style, label=label)
+        # a core's share over the run, per device and 1 s slot: ms of a core a device-slot
+        axes[1].plot(n, [1000 * float(r["edge_cpu_share"]) / int(r["devices"]) for r in rows],
+                     style, label=label)
+        if i:
+            axes[2].plot(n, [100 * float(r["edge_cpu_share"]) for r in rows], f"C{i}o-",
+                         label=f"the edges, {label[12:]}")
+            axes[2].plot(n, [100 * float(r["devices_cpu_share"]) for r in rows], f"C{i}s:",
+                         label=f"the emulated devices, {label[12:]}")
+            axes[2].plot(n, [200 * float(r["host_idle_share"]) for r in rows], f"C{i}^--",
+                         label=f"idle, {label[12:]}")
+    _late_share_axis(axes[0], "late maps (2 cores, one run a point)", goal_x=1)
+    axes[0].legend(fontsize=7, loc="upper left")
+    axes[1].axhline(40, color="grey", lw=1)
+    axes[1].text(1, 42, "fifty on two cores: 40 ms for everything", color="grey", fontsize=8)
+    axes[1].set(xlabel="devices", ylabel="ms of a core a device-slot",
+                title="the edges' CPU per device (falls where slots go unserved)")
+    axes[2].set(xlabel="devices", ylabel="% of one core", ylim=(0, 200),
+                title="where the host's two cores go")
+    axes[2].legend(fontsize=6, loc="upper left")
+    _save(fig, "fleet/edge-scaling-curve.png")
+
+
 def _save(fig: Any, name: str) -> None:
     """Write the figure beside this script as ``name`` and say where."""
     fig.tight_layout()
@@ -434,12 +474,12 @@ def emulator_table(paths: Sequence[Path]) -> list[str]:
 
 def main(argv: list[str]) -> int:
     if not argv or argv[0] not in ("scaling", "edges", "hosts", "stagger", "revisit", "sim",
-                                   "split", "live", "emulator"):
+                                   "split", "live", "emulator", "curve"):
         print(__doc__)
         return 2
     {"scaling": lambda a: scaling(), "edges": lambda a: edges(), "hosts": lambda a: hosts(),
      "stagger": lambda a: stagger(), "revisit": lambda a: revisit(), "sim": sim,
-     "split": split, "live": live,
+     "split": split, "live": live, "curve": lambda a: curve(),
      "emulator": lambda a: print("\n".join(emulator_table([Path(p) for p in a])))
      }[argv[0]](argv[1:])
     return 0
