@@ -203,7 +203,8 @@ class EdgeMapperNode(Node):
         demand = device_demand(device, core, frames, rate_mbps, budget.total,
                                budget.allocator == "twin",
                                list(latent.next_state_probs) if latent is not None else [],
-                               list(latent.state_rates_mbps) if latent is not None else [])
+                               list(latent.state_rates_mbps) if latent is not None else [],
+                               with_novelty=budget.allocator == "motion")
         granted = budget.grant(device, slot, demand, now,
                                slot_uploads(core, rate_mbps, len(frames)))
         if self.pub_budget is not None:

@@ -180,6 +180,9 @@ def test_a_devices_demand_reads_its_slot_and_map() -> None:
     assert demand.novelty == pytest.approx(0.25) and demand.map_size == 1
     assert demand.value is not None and demand.value.tolist() == [0.0, 1.0]
     assert device_demand("ar1", core, frames[2:], 0.0, 3, with_value=False).novelty == 1.0
+    # an allocator that reads neither (equal) gets the map's size alone
+    assert device_demand("ar1", core, frames, 0.0, 3, with_value=False,
+                         with_novelty=False) == DeviceDemand("ar1", map_size=1)
 
     budget = KeyframeBudget(20, "equal", minimum=5)
     budget.join("ar1", 0.0)
