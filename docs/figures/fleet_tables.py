@@ -228,17 +228,25 @@ def edges() -> None:
         series.setdefault(f"+ votes and candidates on arrays, {r['edges']} {edges_word}",
                           []).append(r)
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.4))
-    for i, (label, rows) in enumerate(series.items()):
-        n = [int(r["devices"]) for r in rows]
-        style = "k--" if i == 0 else f"C{i}o-"
-        axes[0].plot(n, [100 * float(r["missed_share"]) for r in rows], style, label=label)
-        axes[1].plot(n, [100 * float(r["edge_cpu_share"]) / int(r["devices"]) for r in rows],
-                     style, label=label)
-    _late_share_axis(axes[0], "late maps (2 cores, one run a point)", goal_x=1)
+    _late_and_cpu(axes, series, cpu_unit=100.0)
     axes[1].set(xlabel="devices", ylabel="% of one core per device",
                 title="the edges' CPU per device (falls where slots go unserved)")
     axes[0].legend(fontsize=7, loc="upper left")
     _save(fig, "fleet/edge-scaling-edges.png")
+
+
+def _late_and_cpu(axes: Any, series: dict[str, list[dict[str, str]]], cpu_unit: float
+                  ) -> None:
+    """A line a series on the late share (``axes[0]``) and the edges' CPU per device
+    (``axes[1]``, the core's share times ``cpu_unit``), the first series dashed: the one
+    before."""
+    for i, (label, rows) in enumerate(series.items()):
+        n = [int(r["devices"]) for r in rows]
+        style = "k--" if i == 0 else f"C{i}o-"
+        axes[0].plot(n, [100 * float(r["missed_share"]) for r in rows], style, label=label)
+        axes[1].plot(n, [cpu_unit * float(r["edge_cpu_share"]) / int(r["devices"])
+                         for r in rows], style, label=label)
+    _late_share_axis(axes[0], "late maps (2 cores, one run a point)", goal_x=1)
 
 
 def curve() -> None:
@@ -250,13 +258,10 @@ def curve() -> None:
         word = "process" if r["edges"] == "1" else "processes"
         series.setdefault(f"2026-12-05, {r['edges']} edge {word}", []).append(r)
     fig, axes = plt.subplots(1, 3, figsize=(16, 4.4))
+    # a core's share over the run, per device and 1 s slot: ms of a core a device-slot
+    _late_and_cpu(axes, series, cpu_unit=1000.0)
     for i, (label, rows) in enumerate(series.items()):
         n = [int(r["devices"]) for r in rows]
-        style = "k--" if i == 0 else f"C{i}o-"
-        axes[0].plot(n, [100 * float(r["missed_share"]) for r in rows], style, label=label)
-        # a core's share over the run, per device and 1 s slot: ms of a core a device-slot
-        axes[1].plot(n, [1000 * float(r["edge_cpu_share"]) / int(r["devices"]) for r in rows],
-                     style, label=label)
         if i:
             axes[2].plot(n, [100 * float(r["edge_cpu_share"]) for r in rows], f"C{i}o-",
                          label=f"the edges, {label[12:]}")
@@ -264,7 +269,6 @@ def curve() -> None:
                          label=f"the emulated devices, {label[12:]}")
             axes[2].plot(n, [200 * float(r["host_idle_share"]) for r in rows], f"C{i}^--",
                          label=f"idle, {label[12:]}")
-    _late_share_axis(axes[0], "late maps (2 cores, one run a point)", goal_x=1)
     axes[0].legend(fontsize=7, loc="upper left")
     axes[1].axhline(40, color="grey", lw=1)
     axes[1].text(1, 42, "fifty on two cores: 40 ms for everything", color="grey", fontsize=8)
