@@ -22,6 +22,9 @@ column (the planned slots' lost share, as the edge counts it) shows it: a few pe
 recording of the same code, most of the frames where the ids no longer meet — then record
 again.
 
+``ms/answer`` is the edges' CPU over the run (every thread of every edge process) for each
+device-slot they answered, in ms of a core: what a device-slot costs the edge. N devices at
+1 s slots on C cores leave C × 1000 / N ms for everything.
 The emulated devices share the host with the edges: ``devices CPU`` is this process's own
 (the replay and its DDS traffic, in cores) and ``idle`` the share of the host's cores that
 nothing used while the fleet ran. Where slots are late with cores idle, the edges' own serial
@@ -488,6 +491,9 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             "loops_closed": sum(max((s.loops_closed for s in d.stats.values()), default=0)
                                 for d in devices),
             "edge_cpu_share": cpu / wall,
+            # the edges' CPU for each device-slot they answered (ms of a core): what a
+            # device-slot costs, against the host's cores over devices × slots a second
+            "edge_cpu_ms_per_answered": 1000.0 * cpu / max(len(stats), 1),
             # the emulated devices' own (this process: replay and DDS), in cores; and the
             # share of the host's cores nothing used: where none is left the host's CPU is
             # the limit, where some is the edges' own serial work is
@@ -671,7 +677,7 @@ def main() -> None:
         raise SystemExit(f"--merge-maps: off, on or off,on, not {args.merge_maps!r}")
     header = (f"{'pools':>5} {'merge':>5} {'edges':>5} {'devices':>7} {'answered':>9} "
               f"{'edge ms/slot':>12} {'p95':>6} "
-              f"{'latency ms':>10} {'p95':>6} {'missed':>7} {'edge CPU':>8} "
+              f"{'latency ms':>10} {'p95':>6} {'missed':>7} {'edge CPU':>8} {'ms/answer':>9} "
               f"{'devices CPU':>11} {'idle':>5} {'merged':>6} {'lost':>5} {'loops':>5} "
               f"{'nice':>4} {'share':>5} {'yield':>5} {'ckpt bg':>7} {'across':>6} "
               f"{'view':>4} {'unseen':>6} {'emulator':>8}")
@@ -717,6 +723,7 @@ def main() -> None:
               f"{row['compute_ms_median']:>12.0f} {row['compute_ms_p95']:>6.0f} "
               f"{row['latency_ms_median']:>10.0f} {row['latency_ms_p95']:>6.0f} "
               f"{row['missed_share']:>7.1%} {row['edge_cpu_share']:>8.0%} "
+              f"{row['edge_cpu_ms_per_answered']:>9.0f} "
               f"{row['devices_cpu_share']:>11.0%} {row['host_idle_share']:>5.0%} "
               f"{row['merged']:>6} {row['lost_share']:>5.1%} {row['loops_closed']:>5} "
               f"{'edge' if nice is None else nice:>4} "
