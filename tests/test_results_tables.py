@@ -906,3 +906,16 @@ def test_the_emulators_executor_table_is_what_its_command_prints() -> None:
     lines = fleet.emulator_table([folder / "round-1.csv", folder / "round-2.csv"])
     assert _missing("\n".join(lines)) == []
     assert lines[-1].startswith("| `EventsExecutor` | 2 | 54.1 / 48.4 % |")
+
+
+def test_the_keeping_up_edges_shares_are_what_their_command_prints() -> None:
+    """py-spy's stacks of an edge serving 24 devices: its slot thread and its loop worker."""
+    shares = _script("stack_shares")
+    stacks = FIGURES / "fleet" / "fifty" / "stacks" / "edge-24-devices.txt.gz"
+    slot = shares.table([("24 devices, one edge", stacks)], functions=(
+        "CheckedSubscription._on_data", "DeviceLink._on_keyframe", "LocalMapping.integrate",
+        "LocalMapping._alike_finder", "LocalMapping._flush", "DeviceLink._on_summaries",
+        "EdgeMapperCore.plan", "DeviceLink.finish_due"))
+    worker = shares.table([("the loop worker", stacks)], thread="loop-closer_0", functions=(
+        "detect_loop", "KeyFrameArchive.recognise", "_solve", "SharedWorker.wait_for_slots"))
+    assert _missing("\n".join(slot)) == [] and _missing("\n".join(worker)) == []
