@@ -52,11 +52,12 @@ def main(argv: list[str] | None = None) -> int:
                         help="frames between the spin and the line (an edge's slot callback "
                              "writes from about 25)")
     args = parser.parse_args(argv)
-    os.environ.setdefault("ROS_LOG_DIR", tempfile.mkdtemp(prefix="site-logging-"))
     sink = os.open(os.devnull, os.O_WRONLY)
     saved = os.dup(2)
     times: dict[str, list[float]] = {"rclpy's logger.info": [], "SiteLogger.info": []}
-    with LoopbackDomain() as domain:
+    with tempfile.TemporaryDirectory(prefix="site-logging-") as logs, \
+            LoopbackDomain() as domain:
+        os.environ.setdefault("ROS_LOG_DIR", logs)      # the lines' files, gone after
         domain.activate()
         with RosSession("site_logging_bench") as session:
             logger = session.node.get_logger()
@@ -69,6 +70,8 @@ def main(argv: list[str] | None = None) -> int:
                         times[name].append(_per_line_us(write, args.lines, args.depth))
             finally:
                 os.dup2(saved, 2)
+                os.close(saved)
+                os.close(sink)
     print(f"machine: {platform.machine()}, {os.cpu_count()} cores, python "
           f"{platform.python_version()}; {args.lines} lines a round, {args.rounds} rounds, "
           f"{args.depth} frames deep; console to /dev/null, log file and /rosout on")
