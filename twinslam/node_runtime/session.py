@@ -10,6 +10,10 @@ over every publisher, subscription and event handler of the node. A host that ho
 (``bench.edge_scaling``'s fifty emulated devices: 250 of them) can ask for the
 ``EventsExecutor`` the nodes spin on (``executor="events"``), which takes each sample as an
 event instead: py-spy put 78 % of the fifty devices' thread in building wait sets.
+Not for a node with a subscription whose callback takes the message's info (its source
+timestamp): rclpy 7.1.6's ``EventsExecutor`` raises ``SystemError: null argument to internal
+routine`` when such a sample comes (tried 2026-12-05 on the launcher's monitor, which times
+the map updates so; the launcher's own CPU over a run would have fallen from ~21 % of a core).
 """
 
 from __future__ import annotations
