@@ -278,7 +278,7 @@ class FleetLauncher(Launcher):
             args = self.node_args(name)
         finally:
             self.config = saved
-        args += ["-r", f"__ns:=/{device}", "-p", f"map_frame:={device}/map"]
+        args += ["-r", f"__ns:=/{device}", "-p", f"map_frame:={own_map_frame(device)}"]
         if name == "device_tracker":
             args += ["-p", f"seed:={self.fleet.device_seed(index)}",
                      "-p", f"odom_frame:={device}/odom"]
@@ -399,7 +399,7 @@ class FleetLauncher(Launcher):
                 / self._device_param("frame_rate_hz", table1.FRAME_RATE_HZ) / self.config.rate)
 
     def _status(self, device: str) -> Callable[[MapStats, RunLog], None]:
-        own = f"{device}/map"
+        own = own_map_frame(device)
         merged: list[str] = []
 
         def line(msg: MapStats, _record: RunLog) -> None:
@@ -476,16 +476,23 @@ def merged_across_places(records: dict[str, RunLog], places: Mapping[str, int]
     return _in_one_frame(records, places, same_place=False)
 
 
+def own_map_frame(device: str) -> str:
+    """The frame a fleet's device names its map in (``ar2/map``), and its edge its updates
+    until the device's map joins another's place."""
+    return f"{device}/map"
+
+
 def joined_at(records: dict[str, RunLog]) -> dict[str, tuple[int, str]]:
     """Each device whose map joined another device's frame: the first of its slots whose map
-    update came in a frame not its own (``DEVICE/map``), and that frame — when the edge merged
-    its map into a place another device started. How soon a device coming to a mapped place
-    joins decides how long it uploads as if alone, and only a live run shows it: in process
-    the looks wait for nothing (docs/results/shared-map.md, "The words learned beside the
-    looks"). A device that kept its own frame (alone, or a place's first) is left out."""
+    update came in a frame not its own (:func:`own_map_frame`), and that frame — when the
+    edge merged its map into a place another device started. How soon a device coming to a
+    mapped place joins decides how long it uploads as if alone, and only a live run shows
+    it: in process the looks wait for nothing (docs/results/shared-map.md, "The words
+    learned beside the looks"). A device that kept its own frame (alone, or a place's first)
+    is left out."""
     joined = {}
     for device, record in records.items():
-        own = f"{device}/map"
+        own = own_map_frame(device)
         moved = [(slot, m.frame_id) for slot, m in sorted(record.maps.items())
                  if m.frame_id and m.frame_id != own]
         if moved:
