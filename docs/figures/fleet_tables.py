@@ -254,21 +254,22 @@ def curve() -> None:
     plt = pyplot()
     series: dict[str, list[dict[str, str]]] = {
         "2026-11-29, 1 edge process (before)": _rows(HERE / "fleet/edge-scaling-default-1s.csv")}
+    now: dict[str, list[dict[str, str]]] = {}       # today's runs, by their edge processes
     for r in _rows(HERE / "fleet/scaling-curve/curve.csv"):
         word = "process" if r["edges"] == "1" else "processes"
-        series.setdefault(f"2026-12-05, {r['edges']} edge {word}", []).append(r)
+        now.setdefault(f"{r['edges']} edge {word}", []).append(r)
+    series.update({f"2026-12-05, {edges}": rows for edges, rows in now.items()})
     fig, axes = plt.subplots(1, 3, figsize=(16, 4.4))
     # a core's share over the run, per device and 1 s slot: ms of a core a device-slot
     _late_and_cpu(axes, series, cpu_unit=1000.0)
-    for i, (label, rows) in enumerate(series.items()):
+    for i, (edges, rows) in enumerate(now.items(), start=1):    # colours as the series'
         n = [int(r["devices"]) for r in rows]
-        if i:
-            axes[2].plot(n, [100 * float(r["edge_cpu_share"]) for r in rows], f"C{i}o-",
-                         label=f"the edges, {label[12:]}")
-            axes[2].plot(n, [100 * float(r["devices_cpu_share"]) for r in rows], f"C{i}s:",
-                         label=f"the emulated devices, {label[12:]}")
-            axes[2].plot(n, [200 * float(r["host_idle_share"]) for r in rows], f"C{i}^--",
-                         label=f"idle, {label[12:]}")
+        axes[2].plot(n, [100 * float(r["edge_cpu_share"]) for r in rows], f"C{i}o-",
+                     label=f"the edges, {edges}")
+        axes[2].plot(n, [100 * float(r["devices_cpu_share"]) for r in rows], f"C{i}s:",
+                     label=f"the emulated devices, {edges}")
+        axes[2].plot(n, [200 * float(r["host_idle_share"]) for r in rows], f"C{i}^--",
+                     label=f"idle, {edges}")
     axes[0].legend(fontsize=7, loc="upper left")
     axes[1].axhline(40, color="grey", lw=1)
     axes[1].text(1, 42, "fifty on two cores: 40 ms for everything", color="grey", fontsize=8)
