@@ -295,7 +295,8 @@ class DeviceLink:
                           f"{self.core.slot_config.vmax})")
             self.core.set_vmax(vmax)
         try:
-            plan = self.core.plan(slot, frames, float(msg.rate_mbps), int(msg.rate_state))
+            plan = self.core.plan(slot, frames, float(msg.rate_mbps), int(msg.rate_state),
+                                  tracks_resolved=True)
         except ValueError as exc:
             self.error(f"slot {slot}: cannot plan: {exc}")
             if self.finished is not None:      # the grant was never used

@@ -114,14 +114,46 @@ def test_edge_slot_loop_keeps_vmax_optimises_and_resumes(tmp_path: Path) -> None
     assert resumed.resolve_tracks([frame]) == core.resolve_tracks([frame])
     (resolved,) = resumed.resolve_tracks([frame])
     assert resolved.map_points == {point} and not resolved.tracks
-    # resolved once, a frame is what it was: the node resolves before the budget reads it,
-    # the plan again
+    # resolved once, a frame is what it was: a plan that resolves frames the caller
+    # resolved already changes nothing
     assert resumed.resolve_tracks([resolved])[0] is resolved
     # and the first map update after it lists again the tracks of the slot before the stop
     after = _run(resumed, device, range(6, 8), rates=[60.0])
     before = core._previous_tracks                  # resolved in slot 5, the last before
     assert before and before.items() <= after[0].tracks.items()
     assert resumed.version == 8
+
+
+def test_frames_the_node_resolved_before_the_plan_plan_as_the_frames_it_was_sent() -> None:
+    """The node resolves a slot's tracks once, for the keyframe budget, and tells the plan so:
+    each slot's uploads, evictions and υ are those of a core that resolves them itself. The
+    device here reports every feature by its track id, as one whose map updates are late."""
+
+    def stale_summary(device: Device, frame: int) -> FrameObservations:
+        seen = device.observe(frame, cores[0])[0]
+        return FrameObservations(frame, frozenset(),
+                                 frozenset(int(TRACK_ID_BIT) | int(j) for j in seen))
+
+    config = EdgeConfig(slot=SlotConfig(vmax=10))
+    cores = [EdgeMapperCore(make_policy("lff"), K, config) for _ in range(2)]
+    devices = [Device(np.random.default_rng(3)) for _ in range(2)]
+    told = 0
+    for slot in range(6):
+        plans = []
+        for core, device, resolved_first in zip(cores, devices, (False, True), strict=True):
+            frames = [stale_summary(device, f) for f in range(slot * F, (slot + 1) * F)]
+            if resolved_first:
+                resolved = core.resolve_tracks(frames)
+                told += sum(a is not b for a, b in zip(frames, resolved, strict=True))
+                plans.append(core.plan(slot, resolved, 60.0, slot % 2, tracks_resolved=True))
+            else:
+                plans.append(core.plan(slot, frames, 60.0, slot % 2))
+            for f in plans[-1].action.upload:
+                core.add_keyframe(device.keyframe(f, slot, core))
+            core.finish_slot(slot)
+        assert plans[0].action == plans[1].action
+        assert plans[0].uncertainty == plans[1].uncertainty
+    assert told                                   # some frames reported tracks that were points
 
 
 def test_evicted_keyframes_are_archived_with_their_points_and_survive_a_restart(
