@@ -18,7 +18,6 @@ the device associated it with (``Keyframe.map_point_ids``, 0 = none):
 
 from __future__ import annotations
 
-import itertools
 import math
 from collections import Counter
 from collections.abc import Callable
@@ -27,9 +26,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from twinslam.slam.back_end.join_candidates import join_candidates
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.back_end.point_culling import PointCullingConfig, count_and_cull, facing
-from twinslam.slam.bit_counting import hamming_of_pairs
 from twinslam.slam.keyframe import is_track
 from twinslam.slam.projection_matching import back_project, match_by_projection, visible_points
 
@@ -181,38 +180,29 @@ class LocalMapping:
         feature's back-projected position (``world``, read where ``placeable``) and within
         ``max_hamming`` of its descriptor (None: none, or joining is off). Only features still
         ``free`` are looked up — one matched already is never asked for — and their
-        neighbourhoods are found at once, between a tree of the features and one of the
-        points."""
+        candidates are found at once (:func:`~twinslam.slam.back_end.join_candidates.
+        join_candidates`)."""
         radius = self.config.join_radius_m
         placed = np.flatnonzero(placeable & free)
         if radius is None or in_view.size == 0 or not placed.size:
             return lambda i: None
         reach = radius + 0.02 * np.asarray(depths, dtype=np.float64)[placed]
-        # every (feature, point) pair within the feature's reach as arrays, from two trees:
-        # a neighbourhood list a feature made ~14 000 Python ints a keyframe
-        points = cKDTree(self.map.positions_of(in_view))
-        pairs = cKDTree(world[placed]).sparse_distance_matrix(
-            points, float(reach.max()), output_type="ndarray")
-        within = pairs["v"] <= reach[pairs["i"]]
-        if not within.any():
-            return lambda i: None
-        feature = placed[pairs["i"][within]]
-        candidate = pairs["j"][within].astype(np.int64)
-        apart = hamming_of_pairs(self.map.descriptors_of(in_view), candidate,
-                                 np.asarray(descriptors, dtype=np.uint8), feature)
-        alike_enough = apart <= self.config.max_hamming
-        feature, candidate, apart = (a[alike_enough] for a in (feature, candidate, apart))
-        # by feature, nearest in descriptor first; a tie goes to the point first in the
-        # tree's leaves, the order a neighbourhood query lists them in (as each feature's
-        # own query did: the same points chosen, so the same point ids made)
+        positions = self.map.positions_of(in_view)
+        # a tie in descriptor distance goes to the point first in a k-d tree's leaves, the
+        # order a neighbourhood query lists them in (as each feature's own query did: the
+        # same points chosen, so the same point ids made)
         leaf = np.empty(len(in_view), dtype=np.int64)
-        leaf[points.indices] = np.arange(len(in_view))
-        order = np.lexsort((leaf[candidate], apart, feature))
+        leaf[cKDTree(positions).indices] = np.arange(len(in_view))
+        rows, counts = join_candidates(world[placed], reach, np.asarray(descriptors)[placed],
+                                       positions, self.map.descriptors_of(in_view), leaf,
+                                       self.config.max_hamming)
+        if not len(rows):
+            return lambda i: None
         # each feature's candidates a slice of one list, read only for the features asked
-        ranked = in_view[candidate[order]].tolist()
-        features, first = np.unique(feature[order], return_index=True)
-        spans = dict(zip(features.tolist(),
-                         itertools.pairwise([*first.tolist(), len(ranked)]), strict=True))
+        ranked = in_view[rows].tolist()
+        spans = {f: (end - n, end) for f, n, end in zip(placed.tolist(), counts.tolist(),
+                                                        np.cumsum(counts).tolist(), strict=True)
+                 if n}
         own = self.map.keyframes[kf_id].points
 
         def alike(i: int) -> int | None:
