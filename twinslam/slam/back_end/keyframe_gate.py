@@ -29,7 +29,7 @@ import numpy as np
 
 from twinslam.slam.back_end.bundle_adjustment import Observation, reprojection_sq
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
-from twinslam.slam.keyframe import KeyFramePayload, is_track_id
+from twinslam.slam.keyframe import KeyFramePayload, is_track
 from twinslam.slam.pose_plausibility import MotionBounds, non_finite
 from twinslam.slot_protocol import table1
 
@@ -82,8 +82,10 @@ def _inconsistent(keyframe: KeyFramePayload, pose: np.ndarray, keyframe_map: Key
     """Too few of the map points the device matched the keyframe's features with reproject
     near those features from its pose: the pose and its own evidence disagree."""
     ids = np.asarray(keyframe.point_ids, dtype=np.uint64)
-    rows = [i for i, pid in enumerate(ids.tolist())
-            if pid and not is_track_id(pid) and pid in keyframe_map.points]
+    named = np.flatnonzero((ids != 0) & ~is_track(ids))     # map-point ids, not tracks
+    held = keyframe_map.points
+    rows = [i for i, pid in zip(named.tolist(), ids[named].tolist(), strict=True)
+            if pid in held]
     if len(rows) < config.min_matched:
         return ""
     seen = np.asarray(keyframe.keypoints, dtype=np.float64)
