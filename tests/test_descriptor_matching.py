@@ -5,7 +5,6 @@ one query per train descriptor."""
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from twinslam.slam.descriptor_matching import hamming_rows, match_descriptors
 
@@ -69,25 +68,3 @@ def test_row_distances_count_the_bits_that_differ() -> None:
     assert hamming_rows(a, b).tolist() == [int(_bits(a[i:i + 1], b[i:i + 1])[0, 0])
                                            for i in range(500)]
     assert hamming_rows(a, a).tolist() == [0] * 500
-
-
-def test_distances_of_row_pairs_are_those_of_the_gathered_rows() -> None:
-    """Integration measures ~30 000 (feature, map point) pairs a keyframe in place: each
-    distance is the Hamming distance of the two rows gathered, a row used many times or
-    none; mismatched inputs are refused."""
-    from twinslam.slam.bit_counting import hamming_of_pairs
-
-    rng = np.random.default_rng(5)
-    a = rng.integers(0, 256, (40, 32), dtype=np.uint8)
-    b = rng.integers(0, 256, (9, 32), dtype=np.uint8)
-    rows_a, rows_b = rng.integers(0, 40, 300), rng.integers(0, 9, 300)
-    assert hamming_of_pairs(a, rows_a, b, rows_b).tolist() == \
-        hamming_rows(a[rows_a], b[rows_b]).tolist()
-    assert hamming_of_pairs(a, [3], a, [3]).tolist() == [0]
-    assert hamming_of_pairs(a, [], b, []).tolist() == []
-    with pytest.raises(ValueError, match="rows"):
-        hamming_of_pairs(a, [1, 2], b, [1])
-    with pytest.raises(IndexError, match="outside"):
-        hamming_of_pairs(a, [0], b, [9])
-    with pytest.raises(IndexError, match="outside"):
-        hamming_of_pairs(a, [-1], b, [0])

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from twinslam.slam.back_end.join_candidates import join_candidates
-from twinslam.slam.bit_counting import hamming_of_pairs
+from twinslam.slam.descriptor_matching import hamming_rows
 
 
 def _every_pair(features: np.ndarray, reach: np.ndarray, feature_desc: np.ndarray,
@@ -17,7 +17,7 @@ def _every_pair(features: np.ndarray, reach: np.ndarray, feature_desc: np.ndarra
     lists = []
     for f in range(len(features)):
         near = np.flatnonzero(np.linalg.norm(points - features[f], axis=1) <= reach[f])
-        apart = hamming_of_pairs(point_desc, near, feature_desc, np.full(len(near), f))
+        apart = hamming_rows(point_desc[near], feature_desc[np.full(len(near), f)])
         keep = apart <= max_hamming
         near, apart = near[keep], apart[keep]
         lists.append(near[np.lexsort((rank[near], apart))].tolist())

@@ -34,7 +34,7 @@ def load_kernels() -> None:
     from twinslam.policies.rules import POLICIES
     from twinslam.sequences.registration import register_depth
     from twinslam.sequences.synthetic import SyntheticSequence
-    from twinslam.slam.bit_counting import hamming_of_pairs
+    from twinslam.slam.back_end.join_candidates import join_candidates
 
     DeviceTrackerCore.warm_up()
     for name in POLICIES:
@@ -45,7 +45,9 @@ def load_kernels() -> None:
                        depth_to_colour)
     points = np.arange(40)
     budget_value([points], [points], 0.0, 1, 2)
-    hamming_of_pairs(np.zeros((1, 32), np.uint8), [0], np.zeros((1, 32), np.uint8), [0])
+    one = np.zeros((1, 3))
+    join_candidates(one, np.ones(1), np.zeros((1, 32), np.uint8), one,
+                    np.zeros((1, 32), np.uint8), np.zeros(1, np.int64), 50)
 
 
 def fork_servers(cwd: Path) -> ForkServers:
