@@ -2,11 +2,14 @@
 the fork servers included, which ``getrusage`` and ``bench.suite_cpu`` cannot count (a forked
 node is the fork server's child, and the server is killed, not waited for).
 
-    .venv/bin/python -m bench.process_cpu [--every 0.3] [--top 20] -- COMMAND [ARGS...]
+    .venv/bin/python -m bench.process_cpu [--every 0.3] [--top 20] [--threads] -- COMMAND [ARGS...]
     .venv/bin/python -m bench.process_cpu -- .venv/bin/python -m pytest -n 4 -p no:cacheprovider
 
 The command runs in a session of its own; ``/proc`` is read every ``--every`` seconds, and each
-process of that session is counted at the CPU time (user + system) it last showed. A process
+process of that session is counted at the CPU time (user + system) it last showed
+(``--threads``: each of its threads, the group split into the process's main thread and its
+other threads by name — a Python interpreter's own threads all carry the process's name, so an
+edge's loop closer is one of "other threads", DDS's named ones are not). A process
 that lives less than one interval may be missed, and one is counted up to an interval short of
 its end: the total is a lower bound, compared with the command's own children's total (what
 the kernel counts for the processes that were waited for). Processes are grouped by name (a
@@ -44,8 +47,41 @@ def _group(comm: str, argv: list[str]) -> str:
     return f"python {Path(scripts[0]).name}" if scripts else "python"
 
 
-def _sample(session: int, seen: dict[int, tuple[float, str]]) -> None:
-    """The CPU seconds and group of every process of ``session`` now."""
+def _thread_label(comm: str, main: bool) -> str:
+    """A thread's part of a group: the main thread, or the other threads by name (a name's
+    trailing number dropped: DDS names its threads by index)."""
+    if main:
+        return "main thread"
+    return f"threads {comm.rstrip('0123456789') or comm}#"
+
+
+def _cpu_of(stat: str) -> tuple[str, list[str], float]:
+    """(name, the fields after it, CPU seconds) of a ``/proc/.../stat`` line."""
+    comm = stat[stat.index("(") + 1:stat.rindex(")")]
+    fields = stat[stat.rindex(")") + 2:].split()
+    return comm, fields, (int(fields[11]) + int(fields[12])) / TICK
+
+
+def _sample_threads(pid: int, group: str, seen: dict[object, tuple[float, str]]) -> None:
+    """Each thread of process ``pid`` (of ``group``) at the CPU time it shows now."""
+    try:
+        tasks = list(os.scandir(f"/proc/{pid}/task"))
+    except OSError:
+        return
+    for task in tasks:
+        try:
+            comm, _, cpu = _cpu_of(Path(task.path, "stat").read_text())
+        except (OSError, ValueError):
+            continue
+        key = (pid, int(task.name))
+        if key not in seen or cpu >= seen[key][0]:
+            seen[key] = (cpu, f"{group} · {_thread_label(comm, int(task.name) == pid)}")
+
+
+def _sample(session: int, seen: dict[object, tuple[float, str]], threads: bool = False
+            ) -> None:
+    """The CPU seconds and group of every process of ``session`` now (``threads``: of
+    every thread of theirs, keyed by (pid, tid))."""
     for entry in os.scandir("/proc"):
         if not entry.name.isdigit():
             continue
@@ -54,17 +90,17 @@ def _sample(session: int, seen: dict[int, tuple[float, str]]) -> None:
             argv = Path(entry.path, "cmdline").read_bytes().split(b"\0")
         except OSError:
             continue
-        comm = stat[stat.index("(") + 1:stat.rindex(")")]
-        fields = stat[stat.rindex(")") + 2:].split()
+        comm, fields, cpu = _cpu_of(stat)
         if int(fields[3]) != session:        # field 6 of stat: the session id
             continue
-        cpu = (int(fields[11]) + int(fields[12])) / TICK
         args = [a.decode(errors="replace") for a in argv if a]
         pid = int(entry.name)
+        old = seen.get(pid)
+        group = _group(comm, args) if args or old is None else old[1]
         if pid not in seen or cpu >= seen[pid][0]:
-            old = seen.get(pid)
-            group = _group(comm, args) if args or old is None else old[1]
             seen[pid] = (cpu, group)
+        if threads:
+            _sample_threads(pid, group, seen)
 
 
 def main() -> None:
@@ -74,6 +110,9 @@ def main() -> None:
                         help="seconds between two readings of /proc (default %(default)s)")
     parser.add_argument("--top", type=int, default=20,
                         help="groups shown, the costliest first (default %(default)s)")
+    parser.add_argument("--threads", action="store_true",
+                        help="split each group by thread: the main thread, the others by "
+                             "name")
     parser.add_argument("command", nargs=argparse.REMAINDER,
                         help="the command, after --")
     args = parser.parse_args()
@@ -84,24 +123,27 @@ def main() -> None:
         parser.error("--every must be above 0 and --top at least 1")
     start = time.monotonic()
     proc = subprocess.Popen(command, start_new_session=True)
-    seen: dict[int, tuple[float, str]] = {}
+    seen: dict[object, tuple[float, str]] = {}     #: pid, or (pid, tid), → (CPU s, group)
     while proc.poll() is None:
-        _sample(proc.pid, seen)
+        _sample(proc.pid, seen, args.threads)
         time.sleep(args.every)
     wall = time.monotonic() - start
     usage = resource.getrusage(resource.RUSAGE_CHILDREN)
     groups: defaultdict[str, float] = defaultdict(float)     #: CPU seconds a group
     counts: Counter[str] = Counter()
-    for cpu, group in seen.values():
-        groups[group] += cpu
-        counts[group] += 1
+    for key, (cpu, group) in seen.items():
+        if isinstance(key, tuple) == args.threads:       # threads, or whole processes
+            groups[group] += cpu
+            counts[group] += 1
     total = sum(groups.values())
-    print(f"\nexit {proc.returncode}; {wall:.0f} s wall; CPU seen in {len(seen)} processes "
+    processes = sum(1 for key in seen if not isinstance(key, tuple))
+    print(f"\nexit {proc.returncode}; {wall:.0f} s wall; CPU seen in {processes} processes "
           f"{total:.0f} s (a lower bound); the waited-for children's own count "
           f"{usage.ru_utime + usage.ru_stime:.1f} s")
-    print(f"{'CPU s':>8} {'share':>6} {'procs':>5}  group")
+    unit = "threads" if args.threads else "procs"
+    print(f"{'CPU s':>8} {'share':>6} {unit:>7}  group")
     for group, cpu in sorted(groups.items(), key=lambda gc: -gc[1])[:args.top]:
-        print(f"{cpu:8.1f} {100 * cpu / max(total, 1e-9):5.1f}% {counts[group]:5d}  {group}")
+        print(f"{cpu:8.1f} {100 * cpu / max(total, 1e-9):5.1f}% {counts[group]:7d}  {group}")
     raise SystemExit(proc.returncode)
 
 

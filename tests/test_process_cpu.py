@@ -52,3 +52,36 @@ def test_a_command_is_required() -> None:
                          capture_output=True, text=True, timeout=60,
                          env=dict(os.environ, PYTHONPATH=str(REPO)))
     assert run.returncode == 2 and "no command given" in run.stderr
+
+
+#: a main thread that spins 0.4 s of its own CPU while a second thread spins 1.2 s of its own;
+#: both stay alive, idle, for half a second after (a thread is read while it lives)
+TWO_THREADS = ("import threading, time\n"
+               "def spin(seconds):\n"
+               "    end = time.thread_time() + seconds\n"
+               "    while time.thread_time() < end:\n"
+               "        pass\n"
+               "spun, leave = threading.Event(), threading.Event()\n"
+               "def other_thread():\n"
+               "    spin(1.2)\n"
+               "    spun.set()\n"
+               "    leave.wait(60)\n"
+               "other = threading.Thread(target=other_thread)\n"
+               "other.start()\nspin(0.4)\nspun.wait(60)\ntime.sleep(0.5)\n"
+               "leave.set()\nother.join()\n")
+
+
+def test_threads_split_a_process_into_its_main_thread_and_the_others(tmp_path: Path) -> None:
+    """An edge's CPU is its slot thread's and its loop closer's: ``--threads`` tells them
+    apart."""
+    (tmp_path / "two.py").write_text(TWO_THREADS, encoding="utf-8")
+    run = subprocess.run([sys.executable, "-m", "bench.process_cpu", "--every", "0.1",
+                          "--threads", "--", sys.executable, str(tmp_path / "two.py")],
+                         cwd=REPO, capture_output=True, text=True, timeout=120,
+                         env=dict(os.environ, PYTHONPATH=str(REPO)))
+    assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-2000:]
+    rows = {line.split(None, 3)[3]: float(line.split()[0])
+            for line in run.stdout.splitlines() if "python two.py · " in line}
+    main = rows.pop("python two.py · main thread")
+    (others,) = rows.values()
+    assert 0.3 <= main < 0.9 and others >= 1.1, run.stdout
