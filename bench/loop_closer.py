@@ -125,7 +125,9 @@ def main() -> None:
                         help="keyframes of the managed map the corrections move (V_max)")
     parser.add_argument("--jobs", type=int, default=12,
                         help="loop jobs on an archive that changes between them, each run "
-                        "with the place index built for it and with the loop closer's kept")
+                        "with the place index built for it and with the loop closer's kept "
+                        "(at most (archive + 2) // 4: each job archives a keyframe and "
+                        "restores an older one)")
     parser.add_argument("--exact-below", type=int, default=EXACT_BELOW,
                         help="points under which the archive is searched exactly, not under "
                         "its visual words (the edge's setting)")
@@ -134,6 +136,11 @@ def main() -> None:
                         "many keyframes of this other sequence (another place), not the "
                         "archive's own")
     args = parser.parse_args()
+    if not 1 <= args.jobs <= (args.archive + 2) // 4:
+        # job n archives keyframe archive - jobs + n and restores keyframe 3n, which must
+        # still be archived then
+        parser.error(f"--jobs: 1 to {(args.archive + 2) // 4} for an archive of "
+                     f"{args.archive} keyframes, not {args.jobs}")
     print(f"loop closer: {platform.processor() or platform.machine()}, "
           f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; {args.archive} archived "
           f"keyframes of {args.sequence}, {args.queries} queries, a map of {args.map}")

@@ -36,3 +36,14 @@ def test_words_from_a_place_too_small_to_need_any_are_refused_with_the_reason(
     with pytest.raises(SystemExit) as stop:
         _run([*SMALL[:-2], "--words-from", "synthetic:4"], monkeypatch)
     assert "fewer than the 20000 that learn words" in str(stop.value.code)
+
+
+def test_more_changing_jobs_than_a_small_archive_holds_are_refused_before_any_work(
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """Each changing job archives one keyframe and restores an older one: an archive of 12
+    holds three such jobs (more failed, after the rest of the run, on a keyframe archived
+    twice)."""
+    with pytest.raises(SystemExit) as stop:
+        _run(["synthetic-corridor:90", "--archive", "12", "--jobs", "4"], monkeypatch)
+    assert stop.value.code == 2
+    assert "--jobs: 1 to 3 for an archive of 12 keyframes, not 4" in capsys.readouterr().err
