@@ -5,11 +5,15 @@ it does not know by name."""
 
 from __future__ import annotations
 
+import time
+from collections.abc import Mapping
+
 import pytest
 from std_msgs.msg import String
 
 from msg_schemas import qos
 from twinslam.hosts.loopback import LoopbackDomain
+from twinslam.live.monitor import with_info
 from twinslam.node_runtime.session import EXECUTORS, RosSession
 
 
@@ -30,6 +34,28 @@ def test_a_session_takes_what_its_node_subscribed_to_on_either_executor(
             publisher.publish(String(data=f"sample {k}"))
         assert reader.spin_until(lambda: len(got) == 3, 30.0), f"took {got}"
         assert got == ["sample 0", "sample 1", "sample 2"]
+
+
+@pytest.mark.parametrize("executor", sorted(EXECUTORS))
+def test_a_callback_that_asks_for_message_info_gets_it_on_either_executor(
+        domain: LoopbackDomain, executor: str) -> None:
+    """The launcher's monitor times the protocol's samples by their reception (message
+    info): rclpy's two executors hand such a callback the info in two different forms."""
+    with RosSession("session_writer") as writer, \
+            RosSession("session_reader", executor=executor) as reader:
+        got: list[tuple[str, int]] = []
+
+        def take(message: String, info: Mapping[str, int]) -> None:
+            got.append((message.data, int(info["received_timestamp"])))
+        reader.node.create_subscription(String, "chatter", with_info(take), qos.PROTOCOL)
+        publisher = writer.node.create_publisher(String, "chatter", qos.PROTOCOL)
+        assert reader.spin_until(lambda: publisher.get_subscription_count() > 0, 30.0), \
+            "the reader's subscription was never matched"
+        before = time.time_ns()
+        publisher.publish(String(data="timed"))
+        assert reader.spin_until(lambda: bool(got), 30.0), "nothing taken"
+        (data, received), = got
+        assert data == "timed" and before <= received <= time.time_ns()
 
 
 def test_a_session_refuses_an_executor_it_does_not_know(domain: LoopbackDomain) -> None:

@@ -304,7 +304,8 @@ class FleetLauncher(Launcher):
 
     def _run_fleet(self) -> FleetReport:
         c, names = self.config, self.fleet.names()
-        sessions = {d: RosSession("twinslam_monitor", namespace=f"/{d}") for d in names}
+        sessions = {d: RosSession("twinslam_monitor", namespace=f"/{d}", executor="events")
+                    for d in names}
         params_folder = tempfile.TemporaryDirectory(prefix="twinslam-fleet-")
         try:
             monitors = {d: PipelineMonitor(s.node, self._status(d)) for d, s in sessions.items()}

@@ -135,7 +135,7 @@ class Launcher:
 
     def _run(self, on_stats: Callable[[Any, RunLog], None] | None) -> RunReport:
         c = self.config
-        session = RosSession("twinslam_monitor")
+        session = RosSession("twinslam_monitor", executor="events")
         recorder: RunRecorder | None = None
         try:
             def stats(msg: Any, record: RunLog) -> None:

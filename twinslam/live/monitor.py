@@ -3,9 +3,10 @@
 
 from __future__ import annotations
 
+import inspect
 import time
 from collections.abc import Callable, Mapping
-from typing import TypeVar, cast
+from typing import Any, TypeVar, cast
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
@@ -43,10 +44,31 @@ def received_s(info: Mapping[str, int]) -> float:
     return stamp * 1e-9 if stamp > 0 else time.time()
 
 
+class _TakesInfo:
+    """A subscription callback that rclpy hands the sample's message info too, on either
+    executor: rclpy asks for the info of a callback whose signature takes two parameters, and
+    its ``SingleThreadedExecutor`` then calls it with the two, while rclpy 7.1.6's
+    ``EventsExecutor`` calls it with one, the (message, info) pair ``take_message`` returned
+    (a plain function of two parameters raised ``SystemError: null argument to internal
+    routine`` there). This one takes both forms."""
+
+    __signature__ = inspect.Signature([
+        inspect.Parameter("msg", inspect.Parameter.POSITIONAL_ONLY),
+        inspect.Parameter("info", inspect.Parameter.POSITIONAL_ONLY)])
+
+    def __init__(self, callback: Callable[[Any, Mapping[str, int]], None]) -> None:
+        self._callback = callback
+
+    def __call__(self, *taken: Any) -> None:
+        msg, info = taken[0] if len(taken) == 1 else taken
+        self._callback(msg, info)
+
+
 def with_info(callback: Callable[[M, Mapping[str, int]], None]) -> Callable[[M], None]:
-    """``callback`` as a subscription's: rclpy hands a callback of two parameters the sample's
-    message info too (its annotation names only the one-parameter form)."""
-    return cast(Callable[[M], None], callback)
+    """``callback`` as a subscription's that gets the sample's message info too, on the
+    ``EventsExecutor`` as on rclpy's Python executors (:class:`_TakesInfo`; rclpy's annotation
+    names only the one-parameter form)."""
+    return cast(Callable[[M], None], _TakesInfo(callback))
 
 
 class PipelineMonitor:

@@ -9,12 +9,13 @@ rclpy's ``SingleThreadedExecutor`` spins by default: each turn builds a wait set
 over every publisher, subscription and event handler of the node. A host that holds many
 (``bench.edge_scaling``'s fifty emulated devices: 250 of them) can ask for the
 ``EventsExecutor`` the nodes spin on (``executor="events"``), which takes each sample as an
-event instead: py-spy put 78 % of the fifty devices' thread in building wait sets.
-Not for a node with a subscription whose callback takes the message's info (its source
-timestamp): rclpy 7.1.6's ``EventsExecutor`` raises ``SystemError: null argument to internal
-routine`` when such a sample comes (tried 2026-12-05 on the launcher's monitor, which times
-the map updates so: the launcher takes ~21 % of a core over a run, 75 % of its watching
-spent building wait sets by py-spy's count).
+event instead: py-spy put 78 % of the fifty devices' thread in building wait sets. The
+launcher's monitor spins on it too. A callback that takes the message's info must accept it
+as rclpy 7.1.6's ``EventsExecutor`` hands it — one argument, the (message, info) pair, where
+rclpy's Python executors pass two; a plain two-parameter function raises ``SystemError: null
+argument to internal routine`` there (:func:`twinslam.live.monitor.with_info` takes both).
+Moved onto it, the launcher's CPU over a 300-frame run went from 4.1–4.5 s to 3.7–3.8 s, and
+over four devices' from 10.2–10.7 s to 8.1 s (2026-12-05, ``bench.process_cpu``).
 """
 
 from __future__ import annotations
