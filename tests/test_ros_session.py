@@ -5,6 +5,8 @@ it does not know by name."""
 
 from __future__ import annotations
 
+import io
+import sys
 import time
 from collections.abc import Mapping
 
@@ -56,6 +58,17 @@ def test_a_callback_that_asks_for_message_info_gets_it_on_either_executor(
         assert reader.spin_until(lambda: bool(got), 30.0), "nothing taken"
         (data, received), = got
         assert data == "timed" and before <= received <= time.time_ns()
+
+
+def test_a_session_on_the_events_executor_starts_where_stderr_has_no_file_descriptor(
+        domain: LoopbackDomain, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A launcher run from a notebook, an IDE's console or a test that captures its output:
+    rclpy's EventsExecutor enables faulthandler on sys.stderr as it is made."""
+    captured = io.StringIO()
+    monkeypatch.setattr(sys, "stderr", captured)
+    with RosSession("session_captured", executor="events") as session:
+        assert sys.stderr is captured              # the process's stderr lent, then given back
+        session.spin_once(0.01)
 
 
 def test_a_session_refuses_an_executor_it_does_not_know(domain: LoopbackDomain) -> None:

@@ -20,6 +20,7 @@ over four devices' from 10.2–10.7 s to 8.1 s (2026-12-05, ``bench.process_cpu`
 
 from __future__ import annotations
 
+import sys
 import time
 from collections.abc import Callable
 
@@ -32,9 +33,26 @@ from rclpy.signals import SignalHandlerOptions
 
 from twinslam.node_runtime.interrupts import Spinning
 
+
+def events_executor(*, context: Context) -> Executor:
+    """rclpy's ``EventsExecutor`` on ``context``, also in a process whose ``sys.stderr`` has
+    no file descriptor (a notebook, an IDE's console, pytest's captured output): rclpy's
+    factory first enables :mod:`faulthandler` on ``sys.stderr``, which raises
+    ``io.UnsupportedOperation`` there — the process's own stderr is lent to it meanwhile."""
+    try:
+        sys.stderr.fileno()
+    except (AttributeError, OSError, ValueError):    # io.UnsupportedOperation among them
+        stderr, sys.stderr = sys.stderr, sys.__stderr__
+        try:
+            return EventsExecutor(context=context)
+        finally:
+            sys.stderr = stderr
+    return EventsExecutor(context=context)
+
+
 #: the executors a session spins on, by name
 EXECUTORS: dict[str, Callable[..., Executor]] = {"single": SingleThreadedExecutor,
-                                                 "events": EventsExecutor}
+                                                 "events": events_executor}
 
 
 class RosSession:
