@@ -24,7 +24,13 @@ again.
 
 ``ms/answer`` is the edges' CPU over the run (every thread of every edge process) for each
 device-slot they answered, in ms of a core: what a device-slot costs the edge. N devices at
-1 s slots on C cores leave C × 1000 / N ms for everything.
+1 s slots on C cores leave C × 1000 / N ms for everything. ``slot thr`` is how busy the edges'
+slot threads (their main threads, each serving all its devices) were, a share of the run's
+wall time each; most of the rest of an edge process's CPU is its loop closer's worker, the two
+threads sharing one interpreter. Where the edges take all the cores they get and the run ends
+at its deadline with slots unanswered, ``ms/answer`` measures the run's length over its
+answers rather than the work (fifty devices on two edge processes on 2026-12-05: 55–56 ms
+whatever the slot cost); compare work where the edges keep up.
 The emulated devices share the host with the edges: ``devices CPU`` is this process's own
 (the replay and its DDS traffic, in cores) and ``idle`` the share of the host's cores that
 nothing used while the fleet ran. Where slots are late with cores idle, the edges' own serial
@@ -297,8 +303,11 @@ def edge_devices(names: list[str], edges: int, places: int) -> list[list[str]]:
             for a, b in itertools.pairwise(first)]
 
 
-def cpu_seconds(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+def cpu_seconds(pid: int, thread: int | None = None) -> float:
+    """The CPU time (user + system, seconds) of process ``pid``, every thread, or of its
+    thread ``thread`` alone (the main thread's id is the process's)."""
+    stat = f"/proc/{pid}/stat" if thread is None else f"/proc/{pid}/task/{thread}/stat"
+    fields = Path(stat).read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
@@ -440,6 +449,7 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             if not ready:
                 raise SystemExit("the edge did not subscribe to every device")
             cpu0, wall0 = sum(cpu_seconds(p.pid) for p in procs), time.monotonic()
+            slot_threads0 = sum(cpu_seconds(p.pid, p.pid) for p in procs)
             own0, (idle0, ticks0) = time.process_time(), host_idle()
             # every slot played and answered, or 15 s past the last slot's period
             deadline = max(d.start for d in devices) + \
@@ -457,6 +467,7 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
                 due = min(d.next_due() for d in devices) - time.monotonic()
                 ros.spin_once(min(max(due, 0.0), SPIN_AT_MOST_S))
             cpu = sum(cpu_seconds(p.pid) for p in procs) - cpu0
+            slot_threads = sum(cpu_seconds(p.pid, p.pid) for p in procs) - slot_threads0
             wall = time.monotonic() - wall0
             own, (idle, ticks) = time.process_time() - own0, host_idle()
         log = "".join(dom.stop(p)[2] for p in procs)
@@ -494,6 +505,9 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             # the edges' CPU for each device-slot they answered (ms of a core): what a
             # device-slot costs, against the host's cores over devices × slots a second
             "edge_cpu_ms_per_answered": 1000.0 * cpu / max(len(stats), 1),
+            # how busy the edges' slot threads (their main threads, which serve every device)
+            # were, a share of the run's wall time each
+            "slot_thread_busy": slot_threads / (wall * len(procs)),
             # the emulated devices' own (this process: replay and DDS), in cores; and the
             # share of the host's cores nothing used: where none is left the host's CPU is
             # the limit, where some is the edges' own serial work is
@@ -678,6 +692,7 @@ def main() -> None:
     header = (f"{'pools':>5} {'merge':>5} {'edges':>5} {'devices':>7} {'answered':>9} "
               f"{'edge ms/slot':>12} {'p95':>6} "
               f"{'latency ms':>10} {'p95':>6} {'missed':>7} {'edge CPU':>8} {'ms/answer':>9} "
+              f"{'slot thr':>8} "
               f"{'devices CPU':>11} {'idle':>5} {'merged':>6} {'lost':>5} {'loops':>5} "
               f"{'nice':>4} {'share':>5} {'yield':>5} {'ckpt bg':>7} {'across':>6} "
               f"{'view':>4} {'unseen':>6} {'emulator':>8}")
@@ -723,7 +738,7 @@ def main() -> None:
               f"{row['compute_ms_median']:>12.0f} {row['compute_ms_p95']:>6.0f} "
               f"{row['latency_ms_median']:>10.0f} {row['latency_ms_p95']:>6.0f} "
               f"{row['missed_share']:>7.1%} {row['edge_cpu_share']:>8.0%} "
-              f"{row['edge_cpu_ms_per_answered']:>9.0f} "
+              f"{row['edge_cpu_ms_per_answered']:>9.0f} {row['slot_thread_busy']:>8.0%} "
               f"{row['devices_cpu_share']:>11.0%} {row['host_idle_share']:>5.0%} "
               f"{row['merged']:>6} {row['lost_share']:>5.1%} {row['loops_closed']:>5} "
               f"{'edge' if nice is None else nice:>4} "

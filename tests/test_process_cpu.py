@@ -85,3 +85,26 @@ def test_threads_split_a_process_into_its_main_thread_and_the_others(tmp_path: P
     main = rows.pop("python two.py · main thread")
     (others,) = rows.values()
     assert 0.3 <= main < 0.9 and others >= 1.1, run.stdout
+
+
+def test_the_fleet_bench_reads_one_threads_cpu_apart_from_its_process() -> None:
+    """``bench.edge_scaling``'s ``slot thr``: an edge's main thread's CPU, apart from its loop
+    closer's: a thread that spins shows in the process's count, not the main thread's."""
+    import threading
+    import time
+
+    from bench.edge_scaling import cpu_seconds
+
+    pid, main = os.getpid(), threading.get_native_id()
+
+    def spin() -> None:
+        end = time.thread_time() + 0.6
+        while time.thread_time() < end:
+            pass
+
+    main0, whole0 = cpu_seconds(pid, main), cpu_seconds(pid)
+    worker = threading.Thread(target=spin)
+    worker.start()
+    worker.join()
+    assert cpu_seconds(pid, main) - main0 < 0.3
+    assert cpu_seconds(pid) - whole0 >= 0.5
