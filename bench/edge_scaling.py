@@ -126,6 +126,7 @@ from twinslam_msgs.msg import (
 )
 
 from bench.paths import REPO, SEVEN_SCENES
+from bench.process_cpu import stat_cpu
 from msg_schemas import qos, topics
 from twinslam.hosts.loopback import LoopbackDomain, ProcessDomain
 from twinslam.hosts.netns import NetnsHosts, unavailable_reason
@@ -307,8 +308,7 @@ def cpu_seconds(pid: int, thread: int | None = None) -> float:
     """The CPU time (user + system, seconds) of process ``pid``, every thread, or of its
     thread ``thread`` alone (the main thread's id is the process's)."""
     stat = f"/proc/{pid}/stat" if thread is None else f"/proc/{pid}/task/{thread}/stat"
-    fields = Path(stat).read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    return stat_cpu(Path(stat).read_text())[2]
 
 
 def host_idle() -> tuple[int, int]:

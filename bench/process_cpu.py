@@ -55,8 +55,9 @@ def _thread_label(comm: str, main: bool) -> str:
     return f"threads {comm.rstrip('0123456789') or comm}#"
 
 
-def _cpu_of(stat: str) -> tuple[str, list[str], float]:
-    """(name, the fields after it, CPU seconds) of a ``/proc/.../stat`` line."""
+def stat_cpu(stat: str) -> tuple[str, list[str], float]:
+    """(name, the fields after it, CPU seconds: user + system) of a ``/proc/PID/stat`` or
+    ``/proc/PID/task/TID/stat`` line."""
     comm = stat[stat.index("(") + 1:stat.rindex(")")]
     fields = stat[stat.rindex(")") + 2:].split()
     return comm, fields, (int(fields[11]) + int(fields[12])) / TICK
@@ -70,7 +71,7 @@ def _sample_threads(pid: int, group: str, seen: dict[object, tuple[float, str]])
         return
     for task in tasks:
         try:
-            comm, _, cpu = _cpu_of(Path(task.path, "stat").read_text())
+            comm, _, cpu = stat_cpu(Path(task.path, "stat").read_text())
         except (OSError, ValueError):
             continue
         key = (pid, int(task.name))
@@ -90,7 +91,7 @@ def _sample(session: int, seen: dict[object, tuple[float, str]], threads: bool =
             argv = Path(entry.path, "cmdline").read_bytes().split(b"\0")
         except OSError:
             continue
-        comm, fields, cpu = _cpu_of(stat)
+        comm, fields, cpu = stat_cpu(stat)
         if int(fields[3]) != session:        # field 6 of stat: the session id
             continue
         args = [a.decode(errors="replace") for a in argv if a]
