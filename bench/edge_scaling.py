@@ -141,6 +141,8 @@ MOVED_LINE = re.compile(r"slot \d+: map merged into ")
 #: the longest the emulator sleeps without looking at its clock (a device that is due sends
 #: at most this late when no message wakes the spin first)
 SPIN_AT_MOST_S = 0.05
+#: what ``--edge-param`` takes: a ROS parameter's name, ``:=``, a value
+EDGE_PARAM = re.compile(r"[A-Za-z][A-Za-z0-9_.]*:=\S.*")
 #: the slot period when a recording tells none (Table I's)
 SLOT_S = table1.SLOT_FRAMES / table1.FRAME_RATE_HZ
 
@@ -377,7 +379,8 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             niceness: int | None = None, share: float | None = None,
             yields: bool | None = None, background: bool | None = None,
             across: bool | None = None, in_view: bool | None = None,
-            unseen: int | None = None, places: int = 1, executor: str = "events"
+            unseen: int | None = None, places: int = 1, executor: str = "events",
+            extra: tuple[str, ...] = ()
             ) -> tuple[dict[str, float | str], list[dict[str, float | str]]]:
     """One fleet of ``n`` emulated devices served, their starts spread evenly over ``stagger``
     slot periods, each device's map checkpointed every ``checkpoint_every`` slots (0: never),
@@ -388,7 +391,8 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
     devices' keyframes once its device heads where it sees them or at once (``in_view``),
     a lent copy its device has not held nor seen for ``unseen`` slots given back (0: kept;
     None: the edge's defaults), device k walking place k mod ``places``
-    (:meth:`Recording.of_place`); the table's row and every device-slot's figures (its latency,
+    (:meth:`Recording.of_place`), every edge given the ``extra`` parameters (``NAME:=VALUE``
+    each, as ``-p`` takes them); the table's row and every device-slot's figures (its latency,
     the edge's compute, what the slot restored, uploaded, closed)."""
     names = [f"ar{i + 1}" for i in range(n)]
     with pools_env(pools), fleet_network(edges, hosts) as (dom, _), \
@@ -419,7 +423,8 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
                             *(["-p", f"lend_in_view:={str(in_view).lower()}"]
                               if in_view is not None else []),
                             *(["-p", f"lent_unseen_slots:={unseen}"]
-                              if unseen is not None else [])],
+                              if unseen is not None else []),
+                            *itertools.chain.from_iterable(("-p", e) for e in extra)],
                            host=hosted[e])
                  for e, block in enumerate(served)]
         for edge, block in zip(procs, served, strict=True):
@@ -520,6 +525,7 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             "lost_share": float(np.mean([s.lost_share for s in stats])) if stats else math.nan,
             "compute_budget": compute_budget, "trimmed": log.count("compute: slot work takes"),
             "merge_maps": merge_maps, "places": places, "emulator_executor": executor,
+            "edge_params": " ".join(extra),
             # each device moved into another's place logs it once, at its next slot end
             "merged": len(MOVED_LINE.findall(log))}, slots
 
@@ -634,6 +640,11 @@ def main() -> None:
                              "nodes' EventsExecutor) or single (SingleThreadedExecutor, which "
                              "builds a wait set of every device's topics each turn: the "
                              "bench's default until 2026-12-05); comma-separated to compare")
+    parser.add_argument("--edge-param", action="append", default=[], metavar="NAME:=VALUE",
+                        help="one more ROS parameter for every edge process, as `-p` takes it "
+                             "(repeat for several; e.g. loop_closing:=false: what the fleet "
+                             "costs without the loop closer's worker); recorded in the CSV's "
+                             "edge_params")
     parser.add_argument("--hosts", action="store_true",
                         help="each edge process on an edge host of its own and the devices on "
                              "a device host (network namespaces on one switch; needs root) "
@@ -660,6 +671,10 @@ def main() -> None:
                                  False, True, "on or off")
     unseens = values_to_compare(parser, "--unseen-slots", args.unseen_slots, int, 0, 100_000,
                                 "slots")
+    for extra in args.edge_param:
+        if not EDGE_PARAM.fullmatch(extra):
+            parser.error(f"--edge-param: NAME:=VALUE (a parameter name, ':=', a value), not "
+                         f"{extra!r}")
     executors = args.emulator_executor.split(",")
     if not set(executors) <= set(EXECUTORS):
         parser.error(f"--emulator-executor: events, single or both, not "
@@ -682,7 +697,8 @@ def main() -> None:
           f"{args.compute_budget:g} of a core; the devices' starts spread over "
           f"{args.stagger:g} slot periods; {args.places} place(s); "
           f"{checkpoints}"
-          f"{'edge and device hosts (network namespaces)' if args.hosts else 'loopback'}",
+          f"{'edge and device hosts (network namespaces)' if args.hosts else 'loopback'}"
+          f"{'; every edge with ' + ' '.join(args.edge_param) if args.edge_param else ''}",
           flush=True)
     rows = []
     merging = {"off": False, "on": True}
@@ -713,7 +729,8 @@ def main() -> None:
             row, slots = measure(n, recording, args.policy, args.compute_budget, edges, pools,
                                  args.hosts, merging[merge], args.stagger,
                                  args.checkpoint_every, nice, share, yields, background,
-                                 across, in_view, unseen, args.places, executor)
+                                 across, in_view, unseen, args.places, executor,
+                                 tuple(args.edge_param))
             full = [c for c in collections() if c[0] == 2]
         if args.collector_log:
             row.update(full_collections=len(full),
