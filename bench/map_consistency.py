@@ -158,10 +158,6 @@ def main() -> None:
     parser.add_argument("--vmax", type=int,
                         help="V_max, keyframes the edge's map holds (default: the edge's)")
     parser.add_argument("--loops", action="store_true", help="the edge closes loops")
-    parser.add_argument("--loop-query-spacing", type=int,
-                        default=BackEndConfig().loop_query_spacing, metavar="FRAMES",
-                        help="with --loops, keyframe ids between two keyframes that look for "
-                             "a loop (0: every keyframe; default: the edge's)")
     parser.add_argument("--restores", type=int, default=default_device.RESTORE_KEYFRAMES,
                         help="archived keyframes restored a slot where the camera heads")
     parser.add_argument("--update-delay", type=int, default=8,
@@ -192,10 +188,7 @@ def main() -> None:
     device = DeviceTrackerCore(source.intrinsics, settings.slot_frames, settings.tracking,
                                settings.keep_slots, settings.frame_rate_hz, settings.map_source,
                                settings.own_map_after)
-    if args.loop_query_spacing < 0:
-        parser.error(f"--loop-query-spacing: frames, 0 or more, not {args.loop_query_spacing}")
     config = repeatable_edge(loop_closing=args.loops, restore_keyframes=args.restores,
-                             loop_query_spacing=args.loop_query_spacing,
                              ba_window=args.ba_window, point_culling=args.point_culling,
                              integration_fusion=args.integration_fusion,
                              **({} if args.vmax is None else {"vmax": args.vmax}))

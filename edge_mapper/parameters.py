@@ -111,13 +111,6 @@ PARAMETERS = (
               "found by PnP, measured from the two keyframes' depths) and close it with a pose "
               "graph over every keyframe and the loops before, on a worker thread; the "
               "corrected map goes to the device in the next map update"),
-    ParamSpec("loop_query_spacing", loop_closing.QUERY_SPACING, "keyframe ids (frames) between "
-              "two keyframes that look for a loop: of a run of keyframes closer together (LFF "
-              "uploads a slot's last two to four frames, consecutive) only the newest looks, "
-              "once the last one that looked is this far behind — a frame a few frames on sees "
-              "what the last saw, and its search repeats that one's; and a loop waits for "
-              "confirmations from keyframes that look on past the first, not from one slot's "
-              "run; 0: every keyframe looks", low=0, high=100_000),
     ParamSpec("loop_worker_niceness", loop_closing.WORKER_NICENESS, "steps (Linux nice) the "
               "worker thread of the loop closer and the merge looks runs below the slots' "
               "priority, for every device of the process: where the edges fill the host's cores, "
@@ -287,7 +280,6 @@ def edge_config(p: Mapping[str, Any]) -> EdgeConfig:
                           point_culling=bool(p["point_culling"]),
                           integration_fusion=bool(p["integration_fusion"]),
                           loop_closing=bool(p["loop_closing"]),
-                          loop_query_spacing=int(p["loop_query_spacing"]),
                           loops_across_devices=bool(p["loops_across_devices"]),
                           image_shape=(int(p["image_height"]), int(p["image_width"]))))
 

@@ -40,11 +40,6 @@ from twinslam.slam.pose_plausibility import MotionBounds
 DRIFT_M = 0.005
 
 
-#: the walk's loop query spacing: its frames stand 0.1 s apart, so two frames are about the
-#: edge's 15 of a 30 Hz camera (as its loops join keyframes 40 frames apart, not 300)
-SPACING = 2
-
-
 class DriftingDevice(ReturningDevice):
     """The walk out and back along the wall; on the way back its keyframes' pose estimates
     drift DRIFT_M a frame (a tracker with nothing from the way out to hold on to)."""
@@ -67,8 +62,7 @@ def _edge(loops: bool, checkpoint: Path | None = None, reach_m: float | None = N
     return EdgeMapperCore(make_policy("lff"), K,
                           EdgeConfig(slot=SlotConfig(vmax=4), back_end=BackEndConfig(
                               loop_closing=loops, loop_background=False, loop_min_gap=40,
-                              loop_query_spacing=SPACING, loop_confirmations=confirmations,
-                              keyframe_gate=gate)),
+                              loop_confirmations=confirmations, keyframe_gate=gate)),
                           checkpoint)
 
 
@@ -208,8 +202,7 @@ def test_archive_and_map_agree_after_evictions_restores_and_a_loop() -> None:
         device = DriftingDevice(np.random.default_rng(3), 8 * F)
         core = EdgeMapperCore(make_policy("lff"), K, EdgeConfig(
             slot=SlotConfig(vmax=4), restore_keyframes=2, back_end=BackEndConfig(
-                loop_closing=loops, loop_background=False, loop_min_gap=40,
-                loop_query_spacing=SPACING)))
+                loop_closing=loops, loop_background=False, loop_min_gap=40)))
         outs = [_run(core, device, range(slot, slot + 1), rates=[20.0])[0]
                 for slot in range(16)]
         assert any(o.restored for o in outs) and any(o.evicted for o in outs)
@@ -292,30 +285,6 @@ def _moved(pose: np.ndarray, dx: float) -> np.ndarray:
     out = pose.copy()
     out[0, 3] += dx
     return out
-
-
-def test_of_a_run_of_keyframes_only_the_newest_looks_and_only_once_the_last_look_is_behind(
-        ) -> None:
-    """LFF uploads a slot's last frames in a row: of such a run only the newest keyframe
-    looks for a loop (the others see what it sees), and a keyframe looks only once it is
-    ``query_spacing`` frames past the newest a job looked from — the confirmations a loop
-    waits for come from keyframes that look on past the first."""
-    device = ReturningDevice(np.random.default_rng(5), 64)
-    job = _job(device)
-    q = job.queries[0].keyframe
-    closer = LoopCloser(background=False, min_gap=40, confirmations=2, query_spacing=15)
-    assert closer.wanted([q - 3, q - 2, q - 1, q]) == [q]
-    assert closer.wanted([q - 31, q - 30, q - 1, q]) == [q - 30, q]    # two slots' runs
-    assert closer.submit(job)
-    closer.take()
-    assert closer.wanted([q - 30, q + 1, q + 14]) == []
-    assert closer.wanted([q + 1, q + 14, q + 15]) == [q + 15]
-    every = LoopCloser(background=False, min_gap=40, confirmations=2, query_spacing=0)
-    assert every.submit(job)
-    every.take()
-    assert every.wanted([q - 1, q + 1, q + 2]) == [q - 1, q + 1, q + 2]
-    with pytest.raises(ValueError, match="query_spacing"):
-        LoopCloser(query_spacing=-1)
 
 
 def test_a_loop_closes_once_later_keyframes_find_the_place_again() -> None:

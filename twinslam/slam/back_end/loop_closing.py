@@ -62,7 +62,6 @@ same slots, and one or two devices were unchanged.
 from __future__ import annotations
 
 import itertools
-import math
 import os
 import sys
 import threading
@@ -97,16 +96,6 @@ from twinslam.slam.keyframe import KeyFramePayload
 #: after a loop closes at keyframe q, keyframes up to q + COOLDOWN ids look for none (the walk
 #: goes on through the same place: each of them would find the loop just closed again)
 COOLDOWN = 90
-#: a keyframe fewer than this many ids (frames) after the last one that looked for a loop looks
-#: for none, and of a run of keyframes closer together than that only the newest looks. A
-#: frame a few frames on sees what the last one saw: its search (every archived point, then PnP
-#: on up to three places: 5-50 ms on the 7-Scenes walk) repeats the last one's, and as a
-#: confirmation (CONFIRMATIONS) it is no later keyframe that looks on past a look-alike place.
-#: LFF, the edge's default policy, uploads a slot's last frames, two to four of them in a row:
-#: without the spacing each looked, and the three detections a loop waits for came from one
-#: slot's run, 66 ms of the walk. Half a second of a 30 Hz camera: one query a 1 s slot under
-#: LFF; PU's frames spread over the slot look one or two a slot
-QUERY_SPACING = 15
 #: later keyframes that must find a loop's place again, each put where the first detection's
 #: correction puts it, before the loop closes (ORB-SLAM3 closes on three keyframes in all): a
 #: poster that hangs in two rooms fools one keyframe, not the ones that look on past it
@@ -587,18 +576,10 @@ class LoopCloser:
     """One loop job at a time, on the process's loop-closing worker (or in the caller)."""
 
     def __init__(self, background: bool = True, min_gap: int = MIN_GAP,
-                 cooldown: int = COOLDOWN, confirmations: int = CONFIRMATIONS,
-                 query_spacing: int = QUERY_SPACING) -> None:
-        if query_spacing < 0:
-            raise ValueError(f"query_spacing: keyframe ids, 0 or more, not {query_spacing}")
+                 cooldown: int = COOLDOWN, confirmations: int = CONFIRMATIONS) -> None:
         self.background = background
         self.min_gap = min_gap
         self.cooldown = cooldown
-        #: ids (frames) between two keyframes that look for a loop (QUERY_SPACING; 0: every
-        #: keyframe looks)
-        self.query_spacing = query_spacing
-        #: the newest keyframe a submitted job looked from (none yet: far in the past)
-        self._last_query: float = -math.inf
         #: the loops found and waiting for later keyframes (the worker's: one job at a time)
         self.confirmation = LoopConfirmation(confirmations)
         #: its work queued or running on the shared worker, oldest first (close waits for it)
@@ -622,25 +603,14 @@ class LoopCloser:
         return self._running is not None and not self._running.done()
 
     def wanted(self, keyframes: Sequence[int]) -> list[int]:
-        """Of ``keyframes``, those that may look for a loop now, ascending: not in a closed
-        loop's cooldown, at least :attr:`query_spacing` ids after the newest keyframe a job
-        looked from, and as far from one another — of a run closer together, the newest, the
-        camera's latest view (QUERY_SPACING)."""
-        spacing, chosen = self.query_spacing, list[int]()
-        for k in sorted(set(keyframes), reverse=True):
-            if k <= self._quiet_until:
-                continue
-            if spacing and (k - self._last_query < spacing
-                            or (chosen and chosen[-1] - k < spacing)):
-                continue
-            chosen.append(k)
-        return chosen[::-1]
+        """Of ``keyframes``, those that may look for a loop now (not in a closed loop's
+        cooldown)."""
+        return [k for k in keyframes if k > self._quiet_until]
 
     def submit(self, job: LoopJob) -> bool:
         """Start ``job``; False (nothing started) while one runs or waits to be taken."""
         if self._running is not None or self._done is not None or not job.queries:
             return False
-        self._last_query = max(self._last_query, max(q.keyframe for q in job.queries))
         if not self.background:
             self._done = guarded_job(job, self.min_gap, self.confirmation,
                                      index=self.place_index)

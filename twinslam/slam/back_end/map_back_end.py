@@ -66,7 +66,6 @@ from twinslam.slam.back_end.local_mapping import (
 from twinslam.slam.back_end.loop_closing import (
     ACROSS_GAP_SLOTS,
     CONFIRMATIONS,
-    QUERY_SPACING,
     LoopCloser,
     LoopJob,
     LoopQuery,
@@ -136,8 +135,6 @@ class BackEndConfig:
     loop_min_gap: int = MIN_GAP
     #: later keyframes that must find a loop's place again before it closes
     loop_confirmations: int = CONFIRMATIONS
-    #: keyframe ids (frames) between two keyframes that look for a loop (0: every keyframe)
-    loop_query_spacing: int = QUERY_SPACING
     #: in a merged map, a loop may also close with a keyframe of another device of the place
     #: (:attr:`MapBackEnd.loop_across`) that this map adopted ACROSS_GAP_SLOTS before: the
     #: walk bends towards that device's keyframes where it comes to a place the other mapped
@@ -214,8 +211,7 @@ class MapBackEnd:
                                join_radius_m=JOIN_RADIUS_M if config.integration_fusion
                                else None))
         self.loop_closer = LoopCloser(config.loop_background, config.loop_min_gap,
-                                      confirmations=config.loop_confirmations,
-                                      query_spacing=config.loop_query_spacing)
+                                      confirmations=config.loop_confirmations)
         #: keyframes integrated since the last loop job, newest last
         self._loop_queries: list[LoopQuery] = []
         #: the tags of the devices whose copies this map's loops may close with (with
