@@ -93,7 +93,11 @@ setting's full collections: a full collection stalls every device the process se
                                  [--hosts] [--recording DIR] [--csv FILE] [--slots-csv FILE]
                                  [--slots-plot PNG] [--collector-log]
                                  [--merge-maps on --lend-in-view on|off --unseen-slots N]
-                                 [--places P]
+                                 [--places P] [--edge-param NAME:=VALUE …]
+
+``--edge-param NAME:=VALUE`` (repeatable) hands any ROS parameter to every edge process, as
+``-p`` does: a setting the bench has no option for, compared run by run in one tree
+(``loop_closing:=false``: what the fleet costs without the loop closer's worker).
 """
 
 from __future__ import annotations
@@ -142,7 +146,7 @@ MOVED_LINE = re.compile(r"slot \d+: map merged into ")
 #: at most this late when no message wakes the spin first)
 SPIN_AT_MOST_S = 0.05
 #: what ``--edge-param`` takes: a ROS parameter's name, ``:=``, a value
-EDGE_PARAM = re.compile(r"[A-Za-z][A-Za-z0-9_.]*:=\S.*")
+EDGE_PARAM = re.compile(r"[A-Za-z][A-Za-z0-9_./]*:=\S.*")
 #: the slot period when a recording tells none (Table I's)
 SLOT_S = table1.SLOT_FRAMES / table1.FRAME_RATE_HZ
 

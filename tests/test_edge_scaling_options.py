@@ -1,0 +1,31 @@
+"""``bench.edge_scaling``'s options refused before any work: a fleet run takes minutes, and an
+option it cannot use must not cost them."""
+
+from __future__ import annotations
+
+import sys
+
+import pytest
+
+import bench.edge_scaling as edge_scaling
+
+
+@pytest.mark.parametrize("given", ["loop_closing=false", ":=1", "loop_closing:=",
+                                   "9lives:=1"])
+def test_an_edge_parameter_not_written_name_colon_equals_value_is_refused_before_recording(
+        given: str, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    recorded: list[object] = []
+    monkeypatch.setattr(edge_scaling, "record", lambda folder: recorded.append(folder))
+    monkeypatch.setattr(sys, "argv", ["edge_scaling", "--devices", "2",
+                                      "--edge-param", "loop_worker_share:=0.5",
+                                      "--edge-param", given])
+    with pytest.raises(SystemExit) as exited:
+        edge_scaling.main()
+    assert exited.value.code == 2 and not recorded
+    assert "--edge-param: NAME:=VALUE" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("given", ["loop_closing:=false", "loop_worker_share:=0.25",
+                                   "devices:=[ar1, ar2]", "qos_overrides./tf.depth:=5"])
+def test_an_edge_parameter_as_ros_takes_it_is_accepted(given: str) -> None:
+    assert edge_scaling.EDGE_PARAM.fullmatch(given)
