@@ -147,6 +147,18 @@ MOVED_LINE = re.compile(r"slot \d+: map merged into ")
 SPIN_AT_MOST_S = 0.05
 #: what ``--edge-param`` takes: a ROS parameter's name, ``:=``, a value
 EDGE_PARAM = re.compile(r"[A-Za-z][A-Za-z0-9_./]*:=\S.*")
+#: the edge parameters the bench sets itself, and the option that sets each ("": none — the
+#: fleet's own): ``--edge-param`` refuses them, a second value would silently win or lose
+BENCH_SETS = {"devices": "--devices", "vmax_total": "", "allocator": "", "slot_timeout_s": "",
+              "policy": "--policy", "compute_budget": "--compute-budget",
+              "merge_maps": "--merge-maps", "checkpoint": "--checkpoint-every",
+              "checkpoint_every": "--checkpoint-every",
+              "checkpoint_in_background": "--checkpoints-in-background",
+              "loop_worker_niceness": "--loop-worker-niceness",
+              "loop_worker_share": "--loop-worker-share",
+              "loop_worker_yields": "--loop-worker-yields",
+              "loops_across_devices": "--loops-across", "lend_in_view": "--lend-in-view",
+              "lent_unseen_slots": "--unseen-slots"}
 #: the slot period when a recording tells none (Table I's)
 SLOT_S = table1.SLOT_FRAMES / table1.FRAME_RATE_HZ
 
@@ -529,7 +541,7 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             "lost_share": float(np.mean([s.lost_share for s in stats])) if stats else math.nan,
             "compute_budget": compute_budget, "trimmed": log.count("compute: slot work takes"),
             "merge_maps": merge_maps, "places": places, "emulator_executor": executor,
-            "edge_params": " ".join(extra),
+            "edge_params": "; ".join(extra),
             # each device moved into another's place logs it once, at its next slot end
             "merged": len(MOVED_LINE.findall(log))}, slots
 
@@ -679,6 +691,10 @@ def main() -> None:
         if not EDGE_PARAM.fullmatch(extra):
             parser.error(f"--edge-param: NAME:=VALUE (a parameter name, ':=', a value), not "
                          f"{extra!r}")
+        name = extra.split(":=", 1)[0]
+        if name in BENCH_SETS:
+            parser.error(f"--edge-param {name}: the bench sets it for every run"
+                         + (f" (its {BENCH_SETS[name]})" if BENCH_SETS[name] else ""))
     executors = args.emulator_executor.split(",")
     if not set(executors) <= set(EXECUTORS):
         parser.error(f"--emulator-executor: events, single or both, not "

@@ -17,7 +17,7 @@ def test_an_edge_parameter_not_written_name_colon_equals_value_is_refused_before
     recorded: list[object] = []
     monkeypatch.setattr(edge_scaling, "record", lambda folder: recorded.append(folder))
     monkeypatch.setattr(sys, "argv", ["edge_scaling", "--devices", "2",
-                                      "--edge-param", "loop_worker_share:=0.5",
+                                      "--edge-param", "restore_keyframes:=0",
                                       "--edge-param", given])
     with pytest.raises(SystemExit) as exited:
         edge_scaling.main()
@@ -25,7 +25,21 @@ def test_an_edge_parameter_not_written_name_colon_equals_value_is_refused_before
     assert "--edge-param: NAME:=VALUE" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("given", ["loop_closing:=false", "loop_worker_share:=0.25",
-                                   "devices:=[ar1, ar2]", "qos_overrides./tf.depth:=5"])
+@pytest.mark.parametrize(("given", "says"), [("devices:=[ar1]", "(its --devices)"),
+                                            ("loop_worker_share:=0.5", "--loop-worker-share"),
+                                            ("vmax_total:=90", "the bench sets it")])
+def test_an_edge_parameter_the_bench_sets_itself_is_refused_with_the_option_that_does(
+        given: str, says: str, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.setattr(edge_scaling, "record", lambda folder: pytest.fail("recorded"))
+    monkeypatch.setattr(sys, "argv", ["edge_scaling", "--edge-param", given])
+    with pytest.raises(SystemExit) as exited:
+        edge_scaling.main()
+    assert exited.value.code == 2 and says in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("given", ["loop_closing:=false", "restore_keyframes:=0",
+                                   "qos_overrides./tf.depth:=5"])
 def test_an_edge_parameter_as_ros_takes_it_is_accepted(given: str) -> None:
     assert edge_scaling.EDGE_PARAM.fullmatch(given)
+    assert given.split(":=")[0] not in edge_scaling.BENCH_SETS
