@@ -2,7 +2,12 @@
 within its period, and past ~16 devices a 2-core edge does not (BENCHMARKS.md,
 bench.edge_scaling). Of an edge's per-slot work — planning, integrating keyframes, local
 bundle adjustment, the map update — the bundle adjustment is the part that can shrink without
-breaking the protocol: a smaller window of keyframes optimised, fewer points, or none.
+breaking the protocol: a smaller window of keyframes optimised, fewer points, or none. Past
+it, with loop closing on, the loop closer starts no new search (:attr:`ComputeLevel.loops`):
+its worker shares the process's interpreter and the host's cores with the slots, and on an
+edge past its cores it closed no loop anyway — fifty devices on two edge processes of a
+2-core host closed none and paid 11–13 ms of a core a device-slot for it
+(docs/results/shared-map.md, "Fifty devices without the loop closer").
 
 The governor measures the compute the edge spends (seconds of slot work per second of wall
 time, over a sliding window) against ``budget`` (a share of one core: the edge's Python work
@@ -19,35 +24,47 @@ from dataclasses import dataclass
 
 
 @dataclass(frozen=True)
-class BundleAdjustmentLevel:
+class ComputeLevel:
+    """What of its optional work the edge does at one step of the budget."""
+
     window: int                      #: newest keyframes optimised (0: no bundle adjustment)
     points: int | None               #: points in it at most (None: all)
+    #: the loop closer starts new searches (False: none until the load falls; a search
+    #: running goes on, and the newest keyframes wait to look when the searches resume)
+    loops: bool = True
 
     def describe(self) -> str:
         if self.window == 0:
-            return "no local bundle adjustment"
-        return f"bundle adjustment of {self.window} keyframes, {self.points or 'all'} points"
+            adjustment = "no local bundle adjustment"
+        else:
+            adjustment = (f"bundle adjustment of {self.window} keyframes, "
+                          f"{self.points or 'all'} points")
+        return adjustment if self.loops else f"{adjustment}, no new loop search"
 
 
 #: from the full local bundle adjustment (the edge's defaults) down to none
-LEVELS = (BundleAdjustmentLevel(5, 120), BundleAdjustmentLevel(3, 60),
-          BundleAdjustmentLevel(1, 30), BundleAdjustmentLevel(0, 0))
+LEVELS = (ComputeLevel(5, 120), ComputeLevel(3, 60), ComputeLevel(1, 30), ComputeLevel(0, 0))
+#: the last step, with loop closing on: no adjustment and no new loop search
+NO_LOOP_SEARCH = ComputeLevel(0, 0, loops=False)
 
 
-def levels_within(window: int, points: int | None) -> tuple[BundleAdjustmentLevel, ...]:
+def levels_within(window: int, points: int | None, loop_closing: bool = False
+                  ) -> tuple[ComputeLevel, ...]:
     """The levels a governor may step through for an edge configured with ``window`` and
-    ``points``: that adjustment first, then the smaller of :data:`LEVELS` — a budget only
-    trims, it never turns on an adjustment the edge was told not to run (``window`` 0: the
-    one level, none)."""
-    first = BundleAdjustmentLevel(window, points if window else 0)
-    return (first, *(level for level in LEVELS if level.window < window))
+    ``points``: that adjustment first, then the smaller of :data:`LEVELS`, then — for an edge
+    that closes loops — :data:`NO_LOOP_SEARCH`. A budget only trims: it never turns on an
+    adjustment the edge was told not to run (``window`` 0 without loop closing: the one
+    level, none)."""
+    first = ComputeLevel(window, points if window else 0)
+    smaller = (level for level in LEVELS if level.window < window)
+    return (first, *smaller, *((NO_LOOP_SEARCH,) if loop_closing else ()))
 
 
 class ComputeGovernor:
     """``budget``: the share of one core the edge's slot work may take (0: no budget)."""
 
     def __init__(self, budget: float, window_s: float = 10.0, relax: float = 0.6,
-                 levels: tuple[BundleAdjustmentLevel, ...] = LEVELS) -> None:
+                 levels: tuple[ComputeLevel, ...] = LEVELS) -> None:
         if budget < 0 or window_s <= 0 or not 0 < relax < 1:
             raise ValueError("budget must be >= 0, window_s > 0 and relax in (0, 1)")
         self.budget, self.window_s, self.relax, self.levels = budget, window_s, relax, levels
@@ -71,7 +88,7 @@ class ComputeGovernor:
         span = min(self.window_s, max(now - self._started, 1e-3))
         return sum(s for t, s in self._spent if t >= now - self.window_s) / span
 
-    def step(self, now: float) -> BundleAdjustmentLevel | None:
+    def step(self, now: float) -> ComputeLevel | None:
         """The new level when the load calls for one (None: unchanged)."""
         if self.budget <= 0 or now - self._last_step < self.window_s / 2:
             return None

@@ -291,6 +291,11 @@ class EdgeMapperCore:
         started with, the back end's own config holds the adjustment now)."""
         self.back_end.set_bundle_adjustment(window, points)
 
+    def set_loop_search(self, on: bool) -> None:
+        """New loop searches start at the slots' ends from now on, or none does (an edge over
+        its compute budget pauses them: :mod:`edge_mapper.compute_governor`)."""
+        self.back_end.loop_search_paused = not on
+
     def set_vmax(self, vmax: int) -> None:
         """V_max from the next plan on (a smaller one evicts the excess over the next slots'
         C_k, as Theorem 1's sizes allow)."""

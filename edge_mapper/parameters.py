@@ -254,8 +254,10 @@ PARAMETERS = (
               "map is kept, its share goes to the others", low=0.1, high=86_400.0),
     ParamSpec("compute_budget", 0.0, "share of one core the edge's slot work may take "
               "(planning, keyframes, bundle adjustment, map updates, over 10 s); over it the "
-              "local bundle adjustment shrinks step by step (5, 3, 1 keyframes, none), below "
-              "60 % of it it grows back; 0: no budget", low=0.0, high=64.0),
+              "local bundle adjustment shrinks step by step (5, 3, 1 keyframes, none) and then, "
+              "with loop_closing, no new loop search starts (the worker's CPU and the "
+              "interpreter it shares go to the slots); below 60 % of it they come back, the "
+              "loop search first; 0: no budget", low=0.0, high=64.0),
     ParamSpec("device_reclaim_s", 60.0, "a device silent this much longer loses its map and "
               "its share", low=0.0, high=86_400.0),
 )

@@ -119,6 +119,32 @@ def test_the_edge_closes_a_loop_and_takes_the_drift_out_of_the_map() -> None:
     assert _point_error(core, device) < 0.5 * _point_error(plain, same)
 
 
+def test_an_edge_that_pauses_its_loop_search_closes_no_loop_and_resumes_from_its_newest(
+        ) -> None:
+    """An edge over its compute budget starts no loop search (its worker's CPU goes to the
+    slots): the walk back runs paused past the slot where the loop closes, and none closes;
+    resumed, the next slot's end looks from the newest keyframes the map integrated and
+    closes it with the same place."""
+    device = DriftingDevice(np.random.default_rng(3), 8 * F)
+    reference = _edge(loops=True)
+    first = _walk_until_a_loop(reference, device)
+    assert first is not None
+    device = DriftingDevice(np.random.default_rng(3), 8 * F)
+    core = _edge(loops=True)
+    core.set_loop_search(False)
+    for slot in range(first.slot + 2):
+        out = _run(core, device, range(slot, slot + 1), rates=[20.0])[0]
+        assert out.loop is None
+    assert core.loops_closed == 0 and not core.back_end.loop_closer.job_seconds
+    core.set_loop_search(True)
+    slot = first.slot + 2
+    out = _run(core, device, range(slot, slot + 1), rates=[20.0])[0]
+    assert core.loops_closed == 0                  # the search starts at this slot's end
+    out = _run(core, device, range(slot + 1, slot + 2), rates=[20.0])[0]
+    assert out.loop is not None and not out.loop.refused and core.loops_closed == 1
+    assert first.loop is not None and out.loop.old == first.loop.old    # the same place
+
+
 def test_a_loop_that_would_move_the_map_beyond_a_devices_reach_is_refused() -> None:
     """A device accepts a map that moved at most ``correction_m`` under it; a loop whose
     corrections go farther (here: 15 cm against a reach of 5 cm) is refused and counted, the

@@ -214,6 +214,9 @@ class MapBackEnd:
                                       confirmations=config.loop_confirmations)
         #: keyframes integrated since the last loop job, newest last
         self._loop_queries: list[LoopQuery] = []
+        #: no new loop job starts (an edge over its compute budget); the newest keyframes
+        #: integrated meanwhile (LOOP_QUERIES) look once the searches resume
+        self.loop_search_paused = False
         #: the tags of the devices whose copies this map's loops may close with (with
         #: ``loops_across_devices``): the other devices of its place, set by whoever merges
         #: the maps (:mod:`edge_mapper.place_merging`)
@@ -473,7 +476,10 @@ class MapBackEnd:
     def start_loop_job(self, slot: int) -> None:
         """Hand the keyframes integrated since the last job to the loop closer, with a
         snapshot of the archive, the map's keyframes far older than them and every pose;
-        kept for the next slot while a job runs."""
+        kept for the next slot while a job runs or the searches are paused
+        (:attr:`loop_search_paused`)."""
+        if self.loop_search_paused:
+            return
         in_map = [q for q in self._loop_queries if q.keyframe in self.map.keyframes]
         wanted = set(self.loop_closer.wanted([q.keyframe for q in in_map]))
         queries = [q for q in in_map if q.keyframe in wanted]
