@@ -3,6 +3,8 @@ option it cannot use must not cost them."""
 
 from __future__ import annotations
 
+import inspect
+import re
 import sys
 
 import pytest
@@ -43,3 +45,11 @@ def test_an_edge_parameter_the_bench_sets_itself_is_refused_with_the_option_that
 def test_an_edge_parameter_as_ros_takes_it_is_accepted(given: str) -> None:
     assert edge_scaling.EDGE_PARAM.fullmatch(given)
     assert given.split(":=")[0] not in edge_scaling.BENCH_SETS
+
+
+def test_every_parameter_the_bench_hands_an_edge_is_one_edge_param_refuses() -> None:
+    """The refusal's list and the edge's command line name the same parameters: one the bench
+    starts setting must be refused too, or a second value would silently win or lose."""
+    source = inspect.getsource(edge_scaling.measure)
+    set_by_bench = set(re.findall(r'"([a-z_]+):=', source)) - {"__node"}   # a remap, not -p
+    assert set_by_bench == set(edge_scaling.BENCH_SETS)
