@@ -10,8 +10,8 @@ points in a grid of cells one largest reach wide, and looks at each feature's 27
 it, keeping a pair only once it passes both tests: 0.9 ms.
 
 Ties in descriptor distance go to the point the caller ranks first (``rank``): the edge ranks
-points by their place in a k-d tree's leaves, the order its neighbourhood queries once listed
-them in, so that the same points are joined and the same point ids made.
+the map's points by age, the point it has held longest first (a k-d tree's leaf order, which
+reproduced the per-feature queries' choices, cost as much again as the search itself).
 """
 
 from __future__ import annotations

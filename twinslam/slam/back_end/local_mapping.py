@@ -24,13 +24,13 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from twinslam.slam.back_end.join_candidates import join_candidates
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.back_end.point_culling import PointCullingConfig, count_and_cull, facing
 from twinslam.slam.keyframe import is_track
 from twinslam.slam.projection_matching import back_project, match_by_projection, visible_points
+from twinslam.slam.sorted_ids import find_sorted, unique_ids
 
 
 @dataclass(frozen=True)
@@ -188,14 +188,12 @@ class LocalMapping:
             return lambda i: None
         reach = radius + 0.02 * np.asarray(depths, dtype=np.float64)[placed]
         positions = self.map.positions_of(in_view)
-        # a tie in descriptor distance goes to the point first in a k-d tree's leaves, the
-        # order a neighbourhood query lists them in (as each feature's own query did: the
-        # same points chosen, so the same point ids made)
-        leaf = np.empty(len(in_view), dtype=np.int64)
-        leaf[cKDTree(positions).indices] = np.arange(len(in_view))
+        # a tie in descriptor distance goes to the point the map has held longest (the lowest
+        # id: ``in_view`` is sorted), the one most views have refined
+        oldest_first = np.arange(len(in_view), dtype=np.int64)
         rows, counts = join_candidates(world[placed], reach, np.asarray(descriptors)[placed],
-                                       positions, self.map.descriptors_of(in_view), leaf,
-                                       self.config.max_hamming)
+                                       positions, self.map.descriptors_of(in_view),
+                                       oldest_first, self.config.max_hamming)
         if not len(rows):
             return lambda i: None
         # each feature's candidates a slice of one list, read only for the features asked
@@ -277,9 +275,13 @@ class LocalMapping:
         neighbours = {k for k, _ in shared.most_common(cfg.local_keyframes)}
         if not neighbours:
             neighbours = set(m.keyframe_ids()[-cfg.local_keyframes - 1:]) - {kf_id}
-        local = set().union(*(m.keyframes[k].points for k in neighbours)) if neighbours \
-            else set(m.points)
-        pids = np.array(sorted(local - own), dtype=np.int64)
+        # their points, sorted, as arrays: each keyframe's ids are kept as one until the map
+        # edits its observations, where a union of sets touched every id in Python
+        local = unique_ids(np.concatenate([m.keyframes[k].observed()[0] for k in neighbours])
+                           ) if neighbours else unique_ids(np.fromiter(m.points, np.int64,
+                                                                       len(m.points)))
+        mine = unique_ids(m.keyframes[kf_id].observed()[0])
+        pids = local[~find_sorted(mine, local)[1]]
         if pids.size == 0:
             return none
         positions = m.positions_of(pids)
