@@ -3,11 +3,14 @@ within its period, and past ~16 devices a 2-core edge does not (BENCHMARKS.md,
 bench.edge_scaling). Of an edge's per-slot work — planning, integrating keyframes, local
 bundle adjustment, the map update — the bundle adjustment is the part that can shrink without
 breaking the protocol: a smaller window of keyframes optimised, fewer points, or none. Past
-it, with loop closing on, the loop closer starts no new search (:attr:`ComputeLevel.loops`):
-its worker shares the process's interpreter and the host's cores with the slots, and on an
-edge past its cores it closed no loop anyway — fifty devices on two edge processes of a
-2-core host closed none and paid 11–13 ms of a core a device-slot for it
-(docs/results/shared-map.md, "Fifty devices without the loop closer").
+it, with loop closing or map merging on, the worker starts no new search — no loop search,
+no look for a device's place in the other devices' maps (:attr:`ComputeLevel.searches`): the
+worker shares the process's interpreter and the host's cores with the slots, and on an edge
+past its cores it closed no loop anyway — fifty devices on two edge processes of a 2-core
+host closed none and paid 11–13 ms of a core a device-slot for it
+(docs/results/shared-map.md, "Fifty devices without the loop closer"); the looks of fifty
+devices of which half share a place took a fifth of the host's CPU ("Fifty devices
+at places of their own").
 
 The governor measures the compute the edge spends (seconds of slot work per second of wall
 time, over a sliding window) against ``budget`` (a share of one core: the edge's Python work
@@ -29,9 +32,10 @@ class ComputeLevel:
 
     window: int                      #: newest keyframes optimised (0: no bundle adjustment)
     points: int | None               #: points in it at most (None: all)
-    #: the loop closer starts new searches (False: none until the load falls; a search
-    #: running goes on, and the newest keyframes wait to look when the searches resume)
-    loops: bool = True
+    #: the worker starts new searches, for loops and for devices' places (False: none until
+    #: the load falls; a search running goes on, and the newest keyframes wait to look when
+    #: the searches resume)
+    searches: bool = True
 
     def describe(self) -> str:
         if self.window == 0:
@@ -39,25 +43,25 @@ class ComputeLevel:
         else:
             adjustment = (f"bundle adjustment of {self.window} keyframes, "
                           f"{self.points or 'all'} points")
-        return adjustment if self.loops else f"{adjustment}, no new loop search"
+        return adjustment if self.searches else f"{adjustment}, no new loop search or place look"
 
 
 #: from the full local bundle adjustment (the edge's defaults) down to none
 LEVELS = (ComputeLevel(5, 120), ComputeLevel(3, 60), ComputeLevel(1, 30), ComputeLevel(0, 0))
-#: the last step, with loop closing on: no adjustment and no new loop search
-NO_LOOP_SEARCH = ComputeLevel(0, 0, loops=False)
+#: the last step, with loop closing or map merging on: no adjustment and no new search
+NO_NEW_SEARCH = ComputeLevel(0, 0, searches=False)
 
 
-def levels_within(window: int, points: int | None, loop_closing: bool = False
+def levels_within(window: int, points: int | None, searches: bool = False
                   ) -> tuple[ComputeLevel, ...]:
     """The levels a governor may step through for an edge configured with ``window`` and
     ``points``: that adjustment first, then the smaller of :data:`LEVELS`, then — for an edge
-    that closes loops — :data:`NO_LOOP_SEARCH`. A budget only trims: it never turns on an
-    adjustment the edge was told not to run (``window`` 0 without loop closing: the one
-    level, none)."""
+    that closes loops or merges maps (``searches``) — :data:`NO_NEW_SEARCH`. A budget only
+    trims: it never turns on an adjustment the edge was told not to run (``window`` 0 without
+    searches: the one level, none)."""
     first = ComputeLevel(window, points if window else 0)
     smaller = (level for level in LEVELS if level.window < window)
-    return (first, *smaller, *((NO_LOOP_SEARCH,) if loop_closing else ()))
+    return (first, *smaller, *((NO_NEW_SEARCH,) if searches else ()))
 
 
 class ComputeGovernor:

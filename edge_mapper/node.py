@@ -119,9 +119,11 @@ class EdgeMapperNode(Node):
                                    "nice steps below the slots: where the cores run short, "
                                    "loops wait and the slots keep their deadline")
         self.governor = ComputeGovernor(float(p["compute_budget"]),
-                                        levels=levels_within(config.back_end.ba_window,
-                                                             config.back_end.ba_points,
-                                                             config.back_end.loop_closing))
+                                        levels=levels_within(
+                                            config.back_end.ba_window,
+                                            config.back_end.ba_points,
+                                            config.back_end.loop_closing
+                                            or self.merging is not None))
         try:
             if self.several and int(p["vmax_total"]) > 0:
                 self.budget = KeyframeBudget(
@@ -160,7 +162,7 @@ class EdgeMapperNode(Node):
         level = self.governor.levels[self.governor.level]
         if self.governor.level:                # a device that joins gets today's level
             link.core.set_bundle_adjustment(level.window, level.points)
-            link.core.set_loop_search(level.loops)
+            link.core.set_loop_search(level.searches)
         self.links[device] = link
         if device:
             self.get_logger().info(f"serving device {device} (its "
@@ -222,7 +224,9 @@ class EdgeMapperNode(Node):
             return
         for link in self.links.values():
             link.core.set_bundle_adjustment(level.window, level.points)
-            link.core.set_loop_search(level.loops)
+            link.core.set_loop_search(level.searches)
+        if self.merging is not None:
+            self.merging.looking = level.searches
         line = (f"compute: slot work takes {self.governor.load(now):.0%} of a core (budget "
                 f"{self.governor.budget:.0%}); {level.describe()} from the next slots on")
         if self.governor.level > before:

@@ -255,9 +255,10 @@ PARAMETERS = (
     ParamSpec("compute_budget", 0.0, "share of one core the edge's slot work may take "
               "(planning, keyframes, bundle adjustment, map updates, over 10 s); over it the "
               "local bundle adjustment shrinks step by step (5, 3, 1 keyframes, none) and then, "
-              "with loop_closing, no new loop search starts (the worker's CPU and the "
-              "interpreter it shares go to the slots); below 60 % of it they come back, the "
-              "loop search first; 0: no budget", low=0.0, high=64.0),
+              "with loop_closing or merge_maps, no new loop search or place look starts (the "
+              "worker's CPU and the interpreter it shares go to the slots; devices not merged "
+              "yet wait to merge); below 60 % of it they come back, the searches first; 0: no "
+              "budget", low=0.0, high=64.0),
     ParamSpec("device_reclaim_s", 60.0, "a device silent this much longer loses its map and "
               "its share", low=0.0, high=86_400.0),
 )

@@ -201,6 +201,10 @@ class PlaceMerging:
         #: the next (one look at a time: the looks' one worker), edited as its map changes
         #: instead of built for every look (:mod:`~twinslam.slam.back_end.place_index`)
         self._look_indexes: dict[str, KeptPlaceIndex] = {}
+        #: new looks start (False: the edge's compute budget paused them, as it pauses the
+        #: loop search: a look running goes on, and each device's newest keyframes look
+        #: when they resume)
+        self.looking = True
         #: why looks failed since the last :meth:`failures` (the link logs them)
         self._failed: list[str] = []
         #: device → looks finished without a merge, and what the last one found
@@ -443,11 +447,12 @@ class PlaceMerging:
         highest in the keyframe database, or in turn those within its candidate share; the
         others in turn while nothing is ranked (the database's words not learned yet), and
         every EXPLORE_EVERY-th look whatever is ranked. The look ranks its own keyframes for
-        the next one (on the worker: the words' time is not the slot's)."""
+        the next one (on the worker: the words' time is not the slot's). None starts while
+        :attr:`looking` is off."""
         self._learn_beside()
         queries = self._queries.get(device)
         others = self.others(device)
-        if not queries or not others or device in self._running:
+        if not self.looking or not queries or not others or device in self._running:
             self._file_beside()
             return
         turn = self._turn.get(device, 0)

@@ -11,7 +11,7 @@ import numpy as np
 
 from edge_mapper.compute_governor import (
     LEVELS,
-    NO_LOOP_SEARCH,
+    NO_NEW_SEARCH,
     ComputeGovernor,
     levels_within,
 )
@@ -72,13 +72,14 @@ def test_an_edge_that_closes_loops_pauses_its_loop_search_last_and_resumes_it_fi
     """Past no bundle adjustment an edge that closes loops starts no new loop search (the
     default edge has no adjustment to trim: the pause is its one step), and takes the
     searches back first when the load falls; an edge without loop closing has no such step."""
-    assert levels_within(0, 120, loop_closing=True) == (LEVELS[-1], NO_LOOP_SEARCH)
-    assert [(level.window, level.loops) for level in levels_within(3, 60, loop_closing=True)] \
+    assert levels_within(0, 120, searches=True) == (LEVELS[-1], NO_NEW_SEARCH)
+    assert [(level.window, level.searches) for level in levels_within(3, 60, searches=True)] \
         == [(3, True), (1, True), (0, True), (0, False)]
-    assert all(level.loops for level in levels_within(3, 60))
-    assert NO_LOOP_SEARCH.describe() == "no local bundle adjustment, no new loop search"
+    assert all(level.searches for level in levels_within(3, 60))
+    assert NO_NEW_SEARCH.describe() == \
+        "no local bundle adjustment, no new loop search or place look"
     governor = ComputeGovernor(0.8, window_s=4.0, levels=levels_within(0, 120, True))
     heavy = _drive(governor, 1.2, 0.0, 20.0)
     assert heavy[0] == 0 and heavy[-1] == 1
-    assert not governor.levels[governor.level].loops
-    assert _drive(governor, 0.3, 20.0, 20.0)[-1] == 0 and governor.levels[0].loops
+    assert not governor.levels[governor.level].searches
+    assert _drive(governor, 0.3, 20.0, 20.0)[-1] == 0 and governor.levels[0].searches

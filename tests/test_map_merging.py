@@ -265,6 +265,24 @@ def test_the_edge_merges_a_later_device_into_an_earlier_ones_frame(room: Room) -
     assert cores["ar1"].back_end.loop_across == {ar2}
 
 
+def test_paused_looks_start_none_and_resumed_the_newest_keyframes_merge(
+        room: Room) -> None:  # noqa: F811
+    """An edge over its compute budget pauses the looks (``looking`` off): the second
+    device's keyframes start no look and nothing merges however many slots end; once the
+    looks resume, its newest keyframes look and join the first device's frame as they would
+    have."""
+    cores = _room_and_newcomer(room)
+    merging = PlaceMerging(lambda: cores, background=False)
+    merging.looking = False
+    assert _walk_ar2_into_the_room(room, cores, merging) == [None] * 4
+    assert merging.look_ms == [] and merging.joined == {}
+    merging.looking = True
+    merging.look("ar2", 3)
+    event = merging.take("ar2")
+    assert event is not None and event.place == "ar1" and merging.joined == {"ar2": "ar1"}
+    assert len(merging.look_ms) == 1
+
+
 def _looks_of_ar2_in_the_room(room: Room, places: dict[str, dict[int, np.ndarray]],  # noqa: F811
                               database: KeyFrameDatabase, monkeypatch: pytest.MonkeyPatch,
                               frames: tuple[int, ...] = (4, 64, 124, 184, 244),
