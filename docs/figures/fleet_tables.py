@@ -30,6 +30,11 @@ files the commands wrote (every command is on that page beside its table):
   fleet/edge-scaling-default-1s.csv (the default edge on 2026-11-29) →
   fleet/edge-scaling-curve.png: the late share, the edges' CPU a device-slot and the host's
   cores (the edges', the emulator's, idle) vs N, one and two edge processes;
+* ``fifty`` — fleet/staggered/*.csv (``python -m bench.edge_scaling --devices 50 --edges 2
+  [--stagger 10] [--merge-maps on --places 38] [--compute-budget B] [--edge-param
+  loop_closing:=false]``, two runs of each setting) → fleet/fifty-devices.png: fifty devices
+  on one 2-core host, each setting's late share and summaries → map p95, a point a run, with
+  the goal's 5 % and 1 s drawn;
 * ``emulator FILE…`` — ``python -m bench.edge_scaling --devices 50 --edges 1,2
   --emulator-executor single,events`` runs, one file a round: per emulator and edge count,
   each round's late share, answered device-slots, summaries → map p95, the edges' and the
@@ -49,6 +54,7 @@ files the commands wrote (every command is on that page beside its table):
     .venv/bin/python docs/figures/fleet_tables.py hosts
     .venv/bin/python docs/figures/fleet_tables.py stagger
     .venv/bin/python docs/figures/fleet_tables.py revisit
+    .venv/bin/python docs/figures/fleet_tables.py fifty
     .venv/bin/python docs/figures/fleet_tables.py sim docs/figures/fleet/sim-n10-lff.csv
     .venv/bin/python docs/figures/fleet_tables.py split \
         docs/figures/fleet/sim-n10-lff-cell400.csv \
@@ -477,14 +483,53 @@ def emulator_table(paths: Sequence[Path]) -> list[str]:
     return lines
 
 
+#: fleet/staggered/'s settings, in the order drawn: (file stem before the run's number, label)
+FIFTY_SETTINGS = (
+    ("in-step-loops-off-before", "in step, no loop closer (before the integration cut)"),
+    ("in-step-loops-off", "in step, no loop closer"),
+    ("staggered-default", "starts over 10 slots, the default edge"),
+    ("staggered-budget08", "starts over 10 slots, compute_budget 0.8"),
+    ("staggered-budget06", "starts over 10 slots, compute_budget 0.6"),
+    ("staggered-loops-off", "starts over 10 slots, no loop closer"),
+    ("half-shared-default-before",
+     "half in pairs sharing a place (starts over 10 slots), the default edge"),
+    ("half-shared-loops-off-before", "half sharing, no loop closer"),
+    ("half-shared-budget06-before", "half sharing, budget 0.6, looks not paused"),
+    ("half-shared-budget06", "half sharing, budget 0.6, looks paused"),
+)
+
+
+def fifty() -> None:
+    """Fifty devices on two edge processes of one 2-core host: each setting's runs, late
+    share and summaries → map p95."""
+    plt = pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(13, 5.2), sharey=True)
+    folder = HERE / "fleet/staggered"
+    for y, (stem, _) in enumerate(FIFTY_SETTINGS):
+        rows = [_rows(path)[0] for path in sorted(folder.glob(f"{stem}-[0-9].csv"))]
+        late = [100 * float(r["missed_share"]) for r in rows]
+        p95 = [float(r["latency_ms_p95"]) / 1000 for r in rows]
+        axes[0].plot(late, [y] * len(late), "o", color="C3" if "half" in stem else "C0")
+        axes[1].plot(p95, [y] * len(p95), "o", color="C3" if "half" in stem else "C0")
+    axes[0].set_yticks(range(len(FIFTY_SETTINGS)), [label for _, label in FIFTY_SETTINGS],
+                       fontsize=8)
+    axes[0].invert_yaxis()
+    axes[0].axvline(5, color="grey", lw=1)
+    axes[0].set(xlabel="% of device-slots whose map came after 1 s", xlim=(-2, 102),
+                title="late maps (goal: 5 %), a point a run")
+    axes[1].axvline(1, color="grey", lw=1)
+    axes[1].set(xlabel="seconds", xlim=(0, None), title="summaries → map update, p95 (goal: 1 s)")
+    _save(fig, "fleet/fifty-devices.png")
+
+
 def main(argv: list[str]) -> int:
     if not argv or argv[0] not in ("scaling", "edges", "hosts", "stagger", "revisit", "sim",
-                                   "split", "live", "emulator", "curve"):
+                                   "split", "live", "emulator", "curve", "fifty"):
         print(__doc__)
         return 2
     {"scaling": lambda a: scaling(), "edges": lambda a: edges(), "hosts": lambda a: hosts(),
      "stagger": lambda a: stagger(), "revisit": lambda a: revisit(), "sim": sim,
-     "split": split, "live": live, "curve": lambda a: curve(),
+     "split": split, "live": live, "curve": lambda a: curve(), "fifty": lambda a: fifty(),
      "emulator": lambda a: print("\n".join(emulator_table([Path(p) for p in a])))
      }[argv[0]](argv[1:])
     return 0
