@@ -9,7 +9,7 @@ worker shares the process's interpreter and the host's cores with the slots, and
 past its cores it closed no loop anyway — fifty devices on two edge processes of a 2-core
 host closed none and paid 11–13 ms of a core a device-slot for it
 (docs/results/shared-map.md, "Fifty devices without the loop closer"); the looks of fifty
-devices of which half share a place took a fifth of the host's CPU ("Fifty devices
+devices of which half share a place took a fifth of the edges' CPU ("Fifty devices
 at places of their own").
 
 The governor measures the compute the edge spends (seconds of slot work per second of wall

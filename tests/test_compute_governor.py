@@ -69,9 +69,10 @@ def test_a_budget_never_turns_on_an_adjustment_the_edge_was_told_not_to_run() ->
 
 
 def test_an_edge_that_closes_loops_pauses_its_loop_search_last_and_resumes_it_first() -> None:
-    """Past no bundle adjustment an edge that closes loops starts no new loop search (the
-    default edge has no adjustment to trim: the pause is its one step), and takes the
-    searches back first when the load falls; an edge without loop closing has no such step."""
+    """Past no bundle adjustment an edge that closes loops or merges maps starts no new
+    search (the default edge has no adjustment to trim: the pause is its one step), and takes
+    the searches back first when the load falls; an edge that does neither has no such
+    step."""
     assert levels_within(0, 120, searches=True) == (LEVELS[-1], NO_NEW_SEARCH)
     assert [(level.window, level.searches) for level in levels_within(3, 60, searches=True)] \
         == [(3, True), (1, True), (0, True), (0, False)]
