@@ -88,6 +88,7 @@ from twinslam.slam.back_end.map_merging import (
 )
 from twinslam.slam.back_end.place_index import KeptPlaceIndex
 from twinslam.slam.keyframe import KeyFramePayload
+from twinslam.thread_priority import lower_this_thread
 
 #: newest integrated keyframes of a slot looked for (a slot integrates a few; a look costs
 #: place recognition for each)
@@ -504,8 +505,8 @@ class PlaceMerging:
         a look's ranking instead, they held that look up — 3.0 s on one core, 5.7 s on a
         host its devices kept busy — and a device coming to a mapped place merged 8–10 slots
         late, uploading as if alone meanwhile (docs/results/shared-map.md, "The words
-        learned beside the looks"). One learning a process; one that fails is reported and
-        the looks go on in turn."""
+        learned beside the looks"). One learning a process, at the lowest priority (the
+        slots' threads first); one that fails is reported and the looks go on in turn."""
         if self._learning is not None or not self.database.can_learn():
             return
         if not self.background:
@@ -515,6 +516,9 @@ class PlaceMerging:
         words = self.database.word_count
 
         def learn() -> None:
+            # at the lowest priority: the k-means runs outside the interpreter's lock, and on
+            # a host the slots fill it took their cores in the walk's first slots
+            lower_this_thread(19)
             try:
                 self.database.offer_words(WeightedWords.learn(sample, words))
             except Exception as exc:        # reported with the looks' failures

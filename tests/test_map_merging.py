@@ -8,9 +8,11 @@ finds the other."""
 from __future__ import annotations
 
 import dataclasses
+import os
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -25,7 +27,7 @@ from twinslam.policies.registry import make_policy
 from twinslam.rotations import rotation_angle_deg
 from twinslam.slam.back_end.foreign_keyframes import foreign_tag, is_foreign, ties_to_copies
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive, restore_into
-from twinslam.slam.back_end.keyframe_database import KeyFrameDatabase
+from twinslam.slam.back_end.keyframe_database import KeyFrameDatabase, WeightedWords
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.back_end.loop_closing import (
     ACROSS_GAP_SLOTS,
@@ -52,6 +54,7 @@ from twinslam.slam.camera import Camera
 from twinslam.slam.front_end.orb_extractor import OrbExtractor
 from twinslam.slam.front_end.tracking import depth_at
 from twinslam.slam.keyframe import KeyFramePayload
+from twinslam.thread_priority import PER_THREAD_NICE
 
 Room = tuple[object, KeyFrameArchive, OrbExtractor]
 
@@ -388,10 +391,20 @@ def test_a_device_alone_has_the_words_learned_before_another_device_looks(
     assert merging.database.keyframes("ar1") == 5
 
 
-def test_the_edge_learns_the_words_on_a_thread_of_their_own(room: Room) -> None:  # noqa: F811
+def test_the_edge_learns_the_words_on_a_thread_of_their_own(
+        room: Room, monkeypatch: pytest.MonkeyPatch) -> None:  # noqa: F811
     """With the looks on the worker, a look's ranking never learns the words (it held the
     look, and a merge, up by seconds): once enough descriptors wait, a device's slot end
-    starts their learning on a thread of its own, and the next ranking takes them."""
+    starts their learning on a thread of its own, at the lowest priority (Linux: the slots'
+    threads keep the cores), and the next ranking takes them."""
+    learn, priorities = WeightedWords.learn, []
+
+    def learn_seen(*args: Any, **kwargs: Any) -> WeightedWords:
+        if PER_THREAD_NICE:
+            priorities.append(os.getpriority(os.PRIO_PROCESS, threading.get_native_id()))
+        return learn(*args, **kwargs)
+
+    monkeypatch.setattr(WeightedWords, "learn", learn_seen)
     uploads = [_payload(room, 4 + 10 * k, k) for k in range(3)]
     cores = {"ar1": _core()}
     merging = PlaceMerging(lambda: cores, database=KeyFrameDatabase(
@@ -410,6 +423,7 @@ def test_the_edge_learns_the_words_on_a_thread_of_their_own(room: Room) -> None:
         assert not learning.is_alive() and merging.failures() == []
         assert merging.database.candidates_of("ar1", [2], ["ar1"]) == ["ar1"]
         assert merging.database.keyframes("ar1") == 3
+        assert priorities == ([19] if PER_THREAD_NICE else [])
     finally:
         merging.close()
 

@@ -63,7 +63,6 @@ from __future__ import annotations
 
 import itertools
 import os
-import sys
 import threading
 import time
 from collections import deque
@@ -92,6 +91,7 @@ from twinslam.slam.back_end.loop_detection import (
 from twinslam.slam.back_end.place_index import KeptPlaceIndex
 from twinslam.slam.back_end.pose_graph import Anchors, LoopClosure, LoopEdge, close_loop
 from twinslam.slam.keyframe import KeyFramePayload
+from twinslam.thread_priority import PER_THREAD_NICE, lower_this_thread
 
 #: after a loop closes at keyframe q, keyframes up to q + COOLDOWN ids look for none (the walk
 #: goes on through the same place: each of them would find the loop just closed again)
@@ -523,7 +523,7 @@ class SharedWorker:
                 self._executor = ThreadPoolExecutor(
                     1, thread_name_prefix="loop-closer",
                     initializer=_lowered, initargs=(self, os.getpriority(os.PRIO_PROCESS, 0)
-                                                    if _PER_THREAD_NICE else 0))
+                                                    if PER_THREAD_NICE else 0))
             return self._executor.submit(self._paced, fn, *args)
 
     def _paced(self, fn: Callable[..., _T], *args: object) -> _T:
@@ -549,23 +549,12 @@ class SharedWorker:
             executor.shutdown(wait=True)
 
 
-#: Linux gives each thread a nice value of its own (setpriority on its thread id); elsewhere
-#: the call would move the whole process, so the worker keeps the slots' priority there
-_PER_THREAD_NICE = sys.platform.startswith("linux")
-
-
 def _lowered(worker: SharedWorker, starter_nice: int) -> None:
     """The worker thread's first step: its own nice value ``worker.niceness`` above the
     thread that started it (a lower priority only: no privilege needed)."""
-    if not _PER_THREAD_NICE:
-        return
-    own = threading.get_native_id()
-    if worker.niceness:
-        try:
-            os.setpriority(os.PRIO_PROCESS, own, min(19, starter_nice + worker.niceness))
-        except OSError:
-            pass                          # a sandbox that refuses it: the same priority
-    worker.nice = os.getpriority(os.PRIO_PROCESS, own)
+    nice = lower_this_thread(worker.niceness, above=starter_nice)
+    if nice is not None:
+        worker.nice = nice
 
 
 #: the worker every background loop closer of this process shares
