@@ -483,10 +483,12 @@ def emulator_table(paths: Sequence[Path]) -> list[str]:
     return lines
 
 
-#: fleet/staggered/'s settings, in the order drawn: (file stem before the run's number, label)
+#: fleet/staggered/'s settings, in the order drawn: (the file stem before the run's number, or
+#: several stems of runs of the same setting, label)
 FIFTY_SETTINGS = (
     ("in-step-loops-off-before", "in step, no loop closer (before the integration cut)"),
     ("in-step-loops-off", "in step, no loop closer"),
+    ("in-step-budget06", "in step, compute_budget 0.6"),
     ("staggered-default", "starts over 10 slots, the default edge"),
     ("staggered-budget08", "starts over 10 slots, compute_budget 0.8"),
     ("staggered-budget06", "starts over 10 slots, compute_budget 0.6"),
@@ -495,7 +497,10 @@ FIFTY_SETTINGS = (
      "half in pairs sharing a place (starts over 10 slots), the default edge"),
     ("half-shared-loops-off-before", "half sharing, no loop closer"),
     ("half-shared-budget06-before", "half sharing, budget 0.6, looks not paused"),
-    ("half-shared-budget06", "half sharing, budget 0.6, looks paused"),
+    (("half-shared-budget06", "half-shared-budget06-words-same-priority"),
+     "half sharing, budget 0.6, looks paused"),
+    ("half-shared-budget06-words-lowest-priority",
+     "the same, the words learned at the lowest priority (now)"),
 )
 
 
@@ -505,8 +510,11 @@ def fifty() -> None:
     plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(13, 5.2), sharey=True)
     folder = HERE / "fleet/staggered"
-    for y, (stem, _) in enumerate(FIFTY_SETTINGS):
-        rows = [_rows(path)[0] for path in sorted(folder.glob(f"{stem}-[0-9].csv"))]
+    for y, (stems, _) in enumerate(FIFTY_SETTINGS):
+        stems = (stems,) if isinstance(stems, str) else stems
+        rows = [_rows(path)[0] for stem in stems
+                for path in sorted(folder.glob(f"{stem}-[0-9].csv"))]
+        stem = stems[0]
         late = [100 * float(r["missed_share"]) for r in rows]
         p95 = [float(r["latency_ms_p95"]) / 1000 for r in rows]
         axes[0].plot(late, [y] * len(late), "o", color="C3" if "half" in stem else "C0")
