@@ -104,14 +104,17 @@ def test_the_database_says_when_its_queue_can_teach_it_the_words(
 def test_words_learned_on_another_thread_are_taken_by_the_next_scoring(
         places: dict[str, dict[int, np.ndarray]]) -> None:
     """A database whose scoring does not learn (the edge's) ranks nothing however many
-    descriptors wait, until words learned from its sample are offered: the next scoring
-    takes them and files every waiting keyframe under them."""
+    descriptors wait, and its filing learns nothing either, until words learned from its
+    sample are offered: the next scoring takes them and files every waiting keyframe under
+    them."""
     room = places["room"]
     database = KeyFrameDatabase(learn_from=sum(len(d) for d in room.values()))
     database.learn_in_scoring = False
     for index, descriptors in room.items():
         database.add("room", index, descriptors)
     assert database.candidates([room[10]], ["room"]) == [] and database.words is None
+    database.file()                 # the edge's filing beside the looks learns nothing either:
+    assert database.words is None   # the words' own thread does, once
     assert database.can_learn()
     sample = database.learning_sample()
     assert sum(len(d) for d in sample) == sum(len(d) for d in room.values())
