@@ -49,13 +49,19 @@ def test_one_edge_serves_three_devices_within_one_budget_and_reclaims_a_lost_one
                                            for d in DEVICES}
     budgets: list[KeyframeBudget] = []
     sizes: dict[str, int] = {}                # each device's map size, as MapStats last said
-    overfull: list[tuple[str, int, int]] = []
+    #: devices a budget dropped after serving them: their maps are released at the edge. DDS
+    #: orders no messages across topics, so a MapStats the edge sent before the reclaim can
+    #: come after the budget that dropped its device — counted, its map would be held twice
+    released: set[str] = set()
+    overfull: list[tuple[str, int, dict[str, int]]] = []
 
     def on_stats(device: str, msg: MapStats) -> None:
         got[device]["stats"].append(msg)
+        if device in released:
+            return
         sizes[device] = int(msg.map_size)
         if sum(sizes.values()) > V_TOTAL:
-            overfull.append((device, int(msg.slot), sum(sizes.values())))
+            overfull.append((device, int(msg.slot), dict(sizes)))
 
     sub = ros.node.create_subscription
     for d, rec in got.items():
@@ -77,6 +83,7 @@ def test_one_edge_serves_three_devices_within_one_budget_and_reclaims_a_lost_one
                         if not a and d in running)
         for device in set(sizes) - set(msg.devices):     # reclaimed: its map released
             sizes.pop(device)
+            released.add(device)
         served = any(GONE in b.devices for b in budgets)   # before it joined: not a reclaim
         if served and GONE not in msg.devices and not stats_at_reclaim:
             stats_at_reclaim.update({d: len(r["stats"]) for d, r in got.items()})
