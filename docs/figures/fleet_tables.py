@@ -500,7 +500,9 @@ FIFTY_SETTINGS = (
     (("half-shared-budget06", "half-shared-budget06-words-same-priority"),
      "half sharing, budget 0.6, looks paused"),
     ("half-shared-budget06-words-lowest-priority",
-     "the same, the words learned at the lowest priority (now)"),
+     "the same, the words learned at the lowest priority"),
+    ("half-shared-budget06-filing-learns", "the same, alternated with the next"),
+    ("half-shared-budget06-filing-files", "the same, the filing learns no words (now)"),
 )
 
 
