@@ -17,13 +17,26 @@ from msg_schemas import qos, topics
 from twinslam.hosts.loopback import LoopbackDomain
 from twinslam.node_runtime.session import RosSession
 
+#: how long one request waits for its answer before it is sent again, and how often
+ANSWER_WAIT_S, TRIES = 10.0, 3
+
 
 def _call(ros: RosSession, srv_type: type, name: str, request: object) -> object:
+    """One parameter request, sent again where no answer came. A service can be ready for
+    the client (it sees the server's endpoints) before the server has matched the client's
+    reader of answers; Fast DDS' service then waits a bounded moment for that match and
+    drops the answer past it (ros2/rmw_fastrtps#390), which a loaded host reaches: on a clean
+    clone's suite the first list_parameters went unanswered for 30 s once. The parameter
+    services' requests are idempotent, so sending one again is safe."""
     client = ros.node.create_client(srv_type, name)
     assert ros.spin_until(client.service_is_ready, 60.0), f"{name} is not offered"
-    future = client.call_async(request)
-    assert ros.spin_until(future.done, 30.0), f"{name} did not answer"
-    return future.result()
+    for _ in range(TRIES):
+        future = client.call_async(request)
+        if ros.spin_until(future.done, ANSWER_WAIT_S):
+            return future.result()
+        client.remove_pending_request(future)
+    raise AssertionError(f"{name} did not answer {TRIES} requests in "
+                         f"{TRIES * ANSWER_WAIT_S:.0f} s")
 
 
 def _value(value: object) -> ParameterValue:
