@@ -19,12 +19,17 @@ import threading
 PER_THREAD_NICE = sys.platform.startswith("linux")
 
 
+def check_niceness(steps: int) -> None:
+    """Refuse a niceness outside Linux's 0–19 steps (ValueError), before any thread uses it."""
+    if not 0 <= steps <= 19:
+        raise ValueError(f"a niceness is 0 to 19 steps, not {steps}")
+
+
 def lower_this_thread(steps: int, above: int | None = None) -> int | None:
     """Set the calling thread's nice value ``steps`` (0–19) above ``above`` (None: its own
     now), at most 19; its nice value after, or None where threads have none of their own. A
     sandbox that refuses the call leaves the priority as it was."""
-    if not 0 <= steps <= 19:
-        raise ValueError(f"a niceness is 0 to 19 steps, not {steps}")
+    check_niceness(steps)
     if not PER_THREAD_NICE:
         return None
     own = threading.get_native_id()

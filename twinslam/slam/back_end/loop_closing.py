@@ -91,7 +91,7 @@ from twinslam.slam.back_end.loop_detection import (
 from twinslam.slam.back_end.place_index import KeptPlaceIndex
 from twinslam.slam.back_end.pose_graph import Anchors, LoopClosure, LoopEdge, close_loop
 from twinslam.slam.keyframe import KeyFramePayload
-from twinslam.thread_priority import PER_THREAD_NICE, lower_this_thread
+from twinslam.thread_priority import PER_THREAD_NICE, check_niceness, lower_this_thread
 
 #: after a loop closes at keyframe q, keyframes up to q + COOLDOWN ids look for none (the walk
 #: goes on through the same place: each of them would find the loop just closed again)
@@ -452,8 +452,7 @@ class SharedWorker:
     def lower_priority(self, niceness: int) -> None:
         """Run the worker ``niceness`` steps (0-19) below the slots' priority from its next
         start (the edge node's ``loop_worker_niceness``); 0: at the same priority."""
-        if not 0 <= niceness <= 19:
-            raise ValueError(f"a niceness is 0 to 19 steps, not {niceness}")
+        check_niceness(niceness)
         self.niceness = niceness
 
     def limit_share(self, share: float) -> None:
