@@ -74,7 +74,11 @@ integrates and closes loops as the recording's did (XOR keeps every Hamming dist
 a place), while no descriptor of one place is near another's: place recognition relates no
 two places, as the maps of two buildings. With ``--merge-maps on`` the devices of a place
 merge and the others look for their place after every slot, as a fleet of which only some
-share a place does (``--devices 16 --places 8``: every place walked by two).
+share a place does (``--devices 16 --places 8``: every place walked by two). Where some
+places are walked by several devices and others by one (``--devices 50 --places 38``: twelve
+pairs, twenty-six alone), a line under the row gives each half's late share, median slot
+compute, restores a device-slot and lost share apart (:func:`by_sharing`; the CSV's
+``*_sharing`` and ``*_alone`` columns).
 
 The devices' starts are spread over one slot period (``--stagger 1``): each sends its
 summaries at a phase of its own, but all of them walk the recording in step, so the slots
@@ -322,6 +326,35 @@ def edge_devices(names: list[str], edges: int, places: int) -> list[list[str]]:
             for a, b in itertools.pairwise(first)]
 
 
+def by_sharing(slots: list[dict[str, Any]], names: list[str], places: int, slot_s: float,
+               slots_a_device: int) -> dict[str, float]:
+    """The fleet's figures for the devices that share their place with another (device k
+    walks place k mod ``places``) and for those alone in theirs, apart: a fleet of which half
+    shares a place pays for the merges, the copies each map adopts and restores, and the
+    frames a shared device's replay reports lost (its edge asked it for fewer keyframes than
+    the recording's) on the sharing half only, and the mean over the fleet hides which half
+    is late. Per group: devices, the late share of its device-slots (a map later than a slot
+    period, or none), the median slot compute, restored keyframes a device-slot and the
+    lost share — NaN for a group without devices or answers."""
+    walkers = np.bincount(np.arange(len(names)) % max(places, 1), minlength=max(places, 1))
+    sharing = {d for k, d in enumerate(names) if walkers[k % max(places, 1)] > 1}
+    out: dict[str, float] = {}
+    for group, members in (("sharing", sharing), ("alone", set(names) - sharing)):
+        rows = [s for s in slots if s["device"] in members]
+        late = sum(1 for s in rows if s["latency_ms"] > slot_s * 1000)
+        expected = len(members) * slots_a_device
+        out[f"devices_{group}"] = len(members)
+        out[f"missed_share_{group}"] = ((late + expected - len(rows)) / expected
+                                        if expected else math.nan)
+        out[f"compute_ms_median_{group}"] = (float(np.median([s["compute_ms"] for s in rows]))
+                                             if rows else math.nan)
+        out[f"restored_a_slot_{group}"] = (float(np.mean([s["restored"] for s in rows]))
+                                           if rows else math.nan)
+        out[f"lost_share_{group}"] = (float(np.mean([s["lost_share"] for s in rows]))
+                                      if rows else math.nan)
+    return out
+
+
 def cpu_seconds(pid: int, thread: int | None = None) -> float:
     """The CPU time (user + system, seconds) of process ``pid``, every thread, or of its
     thread ``thread`` alone (the main thread's id is the process's)."""
@@ -543,7 +576,10 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             "merge_maps": merge_maps, "places": places, "emulator_executor": executor,
             "edge_params": "; ".join(extra),
             # each device moved into another's place logs it once, at its next slot end
-            "merged": len(MOVED_LINE.findall(log))}, slots
+            "merged": len(MOVED_LINE.findall(log)),
+            "restored_a_slot": float(np.mean([s.restored_keyframes for s in stats]))
+            if stats else math.nan,
+            **by_sharing(slots, names, places, recording.slot_s, len(recording.summaries))}, slots
 
 
 _Value = TypeVar("_Value", bool, int, float)
@@ -752,6 +788,16 @@ def main() -> None:
                                  across, in_view, unseen, args.places, executor,
                                  tuple(args.edge_param))
             full = [c for c in collections() if c[0] == 2]
+        if row["devices_sharing"] and row["devices_alone"]:
+            print(f"      {row['devices_sharing']} devices sharing a place: "
+                  f"{row['missed_share_sharing']:.1%} late, "
+                  f"{row['compute_ms_median_sharing']:.0f} ms a slot (median), "
+                  f"{row['restored_a_slot_sharing']:.2f} restored a slot, "
+                  f"{row['lost_share_sharing']:.1%} lost; {row['devices_alone']} alone in "
+                  f"theirs: {row['missed_share_alone']:.1%}, "
+                  f"{row['compute_ms_median_alone']:.0f} ms, "
+                  f"{row['restored_a_slot_alone']:.2f}, {row['lost_share_alone']:.1%}",
+                  flush=True)
         if args.collector_log:
             row.update(full_collections=len(full),
                        full_collection_ms_max=max((c[1] for c in full), default=0.0),

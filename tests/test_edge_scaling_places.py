@@ -5,11 +5,13 @@ edge processes each serves whole places."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from rclpy.serialization import deserialize_message, serialize_message
 from twinslam_msgs.msg import Keyframe
 
-from bench.edge_scaling import Recording, edge_devices
+from bench.edge_scaling import Recording, by_sharing, edge_devices
 
 
 def hamming_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -56,3 +58,23 @@ def test_each_edge_serves_whole_places_and_a_fair_share_of_the_devices() -> None
     places = [{(int(d[2:]) - 1) % 38 for d in block} for block in served]
     assert not places[0] & places[1]
     assert edge_devices(names[:6], 2, 1) == [names[:3], names[3:6]]
+
+
+def test_the_fleets_figures_split_the_devices_that_share_a_place_from_those_alone() -> None:
+    # five devices over four places: ar1 and ar5 walk place 0, the others a place each
+    names = [f"ar{k}" for k in range(1, 6)]
+    slots = [{"device": d, "slot": k, "latency_ms": 1500.0 if d == "ar5" else 300.0,
+              "compute_ms": 40.0 if d in ("ar1", "ar5") else 20.0,
+              "restored": 2 if d in ("ar1", "ar5") else 0,
+              "lost_share": 0.5 if d == "ar5" else 0.0}
+             for d in names for k in range(4) if not (d == "ar3" and k == 3)]
+    split = by_sharing(slots, names, 4, 1.0, 4)
+    assert (split["devices_sharing"], split["devices_alone"]) == (2, 3)
+    assert split["missed_share_sharing"] == 0.5          # ar5's four slots late of eight
+    assert split["missed_share_alone"] == 1 / 12         # ar3's last slot never answered
+    assert (split["compute_ms_median_sharing"], split["compute_ms_median_alone"]) == (40, 20)
+    assert (split["restored_a_slot_sharing"], split["restored_a_slot_alone"]) == (2, 0)
+    assert (split["lost_share_sharing"], split["lost_share_alone"]) == (0.25, 0.0)
+    every_place_its_own = by_sharing(slots, names, 5, 1.0, 4)
+    assert every_place_its_own["devices_sharing"] == 0
+    assert math.isnan(every_place_its_own["missed_share_sharing"])
