@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from twinslam.slam.back_end.keyframe_map import write_checkpoint
+from twinslam.thread_names import name_this_thread
 
 
 class CheckpointFailed(OSError):
@@ -69,7 +70,7 @@ class CheckpointWriter:
         self._closed = False
         self.written = 0                     #: checkpoints on disk
         self.replaced = 0                    #: submitted, replaced by a newer one unwritten
-        self._thread = threading.Thread(target=self._run, name="checkpoint-writer",
+        self._thread = threading.Thread(target=self._run, name="checkpoints",
                                         daemon=True)
         self._thread.start()
 
@@ -114,6 +115,7 @@ class CheckpointWriter:
                                    f"{failure}") from failure
 
     def _run(self) -> None:
+        name_this_thread()                          # "checkpoints" in top -H and ps -L
         while True:
             with self._lock:
                 self._lock.wait_for(lambda: self._pending or self._closed)

@@ -88,6 +88,7 @@ from twinslam.slam.back_end.map_merging import (
 )
 from twinslam.slam.back_end.place_index import KeptPlaceIndex
 from twinslam.slam.keyframe import KeyFramePayload
+from twinslam.thread_names import name_this_thread
 from twinslam.thread_priority import lower_this_thread
 
 #: newest integrated keyframes of a slot looked for (a slot integrates a few; a look costs
@@ -519,6 +520,7 @@ class PlaceMerging:
             # at the lowest priority: the k-means runs outside the interpreter's lock, and on
             # a host the slots fill it took their cores in the walk's first slots
             lower_this_thread(19)
+            name_this_thread()                  # "place-words" in top -H and ps -L
             try:
                 self.database.offer_words(WeightedWords.learn(sample, words))
             except Exception as exc:        # reported with the looks' failures

@@ -4,7 +4,9 @@ runs only once it is on disk, and a failed write is told to the slot thread."""
 
 from __future__ import annotations
 
+import sys
 import threading
+import time
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
@@ -102,3 +104,15 @@ def test_closing_writes_what_was_submitted(tmp_path: Path) -> None:
     assert [int(_read(p)["version"]) for p in paths] == list(range(5))
     with pytest.raises(RuntimeError, match="closed"):
         writer.submit(paths[0], {"version": np.array(9)})
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="Linux's thread names")
+def test_the_writer_thread_shows_its_name_where_top_and_ps_list_threads(
+        writer: CheckpointWriter) -> None:
+    tid = writer._thread.native_id
+    assert tid is not None
+    comm = Path(f"/proc/self/task/{tid}/comm")
+    deadline = time.monotonic() + WAIT_S        # the thread names itself as it starts
+    while comm.read_text().strip() != "checkpoints" and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert comm.read_text().strip() == "checkpoints"

@@ -543,9 +543,13 @@ def test_the_loop_worker_runs_below_the_slots_priority_and_the_caller_keeps_its_
         worker = SharedWorker(niceness=steps)
         try:
             seen = worker.submit(os.getpriority, os.PRIO_PROCESS, 0).result(timeout=30)
+            # and top -H, ps -L show it by its name, not the process's
+            shown = worker.submit(lambda: Path(
+                f"/proc/self/task/{threading.get_native_id()}/comm").read_text()).result(30)
         finally:
             worker.stop()
         assert seen == worker.nice == min(19, own + steps)
+        assert shown.strip() == "loop-closer_0"
         assert os.getpriority(os.PRIO_PROCESS, 0) == own
     worker = SharedWorker()
     for bad in (-1, 20):

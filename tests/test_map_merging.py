@@ -397,11 +397,14 @@ def test_the_edge_learns_the_words_on_a_thread_of_their_own(
     look, and a merge, up by seconds): once enough descriptors wait, a device's slot end
     starts their learning on a thread of its own, at the lowest priority (Linux: the slots'
     threads keep the cores), and the next ranking takes them."""
-    learn, priorities = WeightedWords.learn, []
+    learn, priorities, names = WeightedWords.learn, [], []
 
     def learn_seen(*args: Any, **kwargs: Any) -> WeightedWords:
         if PER_THREAD_NICE:
             priorities.append(os.getpriority(os.PRIO_PROCESS, threading.get_native_id()))
+            # top -H and ps -L show the learning by its name, not the process's
+            names.append(Path(f"/proc/self/task/{threading.get_native_id()}/comm")
+                         .read_text().strip())
         return learn(*args, **kwargs)
 
     monkeypatch.setattr(WeightedWords, "learn", learn_seen)
@@ -424,6 +427,7 @@ def test_the_edge_learns_the_words_on_a_thread_of_their_own(
         assert merging.database.candidates_of("ar1", [2], ["ar1"]) == ["ar1"]
         assert merging.database.keyframes("ar1") == 3
         assert priorities == ([19] if PER_THREAD_NICE else [])
+        assert names == (["place-words"] if PER_THREAD_NICE else [])
     finally:
         merging.close()
 

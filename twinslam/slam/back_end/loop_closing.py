@@ -91,6 +91,7 @@ from twinslam.slam.back_end.loop_detection import (
 from twinslam.slam.back_end.place_index import KeptPlaceIndex
 from twinslam.slam.back_end.pose_graph import Anchors, LoopClosure, LoopEdge, close_loop
 from twinslam.slam.keyframe import KeyFramePayload
+from twinslam.thread_names import name_this_thread
 from twinslam.thread_priority import PER_THREAD_NICE, check_niceness, lower_this_thread
 
 #: after a loop closes at keyframe q, keyframes up to q + COOLDOWN ids look for none (the walk
@@ -550,7 +551,9 @@ class SharedWorker:
 
 def _lowered(worker: SharedWorker, starter_nice: int) -> None:
     """The worker thread's first step: its own nice value ``worker.niceness`` above the
-    thread that started it (a lower priority only: no privilege needed)."""
+    thread that started it (a lower priority only: no privilege needed), and its name
+    ("loop-closer_0") where ``top -H`` and ``ps -L`` show it."""
+    name_this_thread()
     nice = lower_this_thread(worker.niceness, above=starter_nice)
     if nice is not None:
         worker.nice = nice
