@@ -35,6 +35,12 @@ files the commands wrote (every command is on that page beside its table):
   loop_closing:=false]``, two runs of each setting) → fleet/fifty-devices.png: fifty devices
   on one 2-core host, each setting's late share and summaries → map p95, a point a run, with
   the goal's 5 % and 1 s drawn;
+* ``two-hosts`` — fleet/two-hosts/*.csv and their ``bench.process_cpu --threads`` reports
+  (``python -m bench.process_cpu --threads -- python -m bench.edge_scaling --devices 50
+  --edges 2 --places 38 …`` on one host, and each half on a host of its own: ``--devices 25
+  --places 13`` — the twelve pairs and one — or ``--places 25``, the 25 alone; ``--stagger 10
+  --merge-maps on [--compute-budget 0.6] [--hosts]``) → fleet/fifty-on-two-hosts.png: each
+  setting's late share and summaries → map p95, a point a run, and the edges' cores by thread;
 * ``emulator FILE…`` — ``python -m bench.edge_scaling --devices 50 --edges 1,2
   --emulator-executor single,events`` runs, one file a round: per emulator and edge count,
   each round's late share, answered device-slots, summaries → map p95, the edges' and the
@@ -55,6 +61,7 @@ files the commands wrote (every command is on that page beside its table):
     .venv/bin/python docs/figures/fleet_tables.py stagger
     .venv/bin/python docs/figures/fleet_tables.py revisit
     .venv/bin/python docs/figures/fleet_tables.py fifty
+    .venv/bin/python docs/figures/fleet_tables.py two-hosts
     .venv/bin/python docs/figures/fleet_tables.py sim docs/figures/fleet/sim-n10-lff.csv
     .venv/bin/python docs/figures/fleet_tables.py split \
         docs/figures/fleet/sim-n10-lff-cell400.csv \
@@ -66,6 +73,7 @@ from __future__ import annotations
 
 import csv
 import math
+import statistics
 import sys
 from collections import defaultdict
 from collections.abc import Callable, Sequence
@@ -532,14 +540,88 @@ def fifty() -> None:
     _save(fig, "fleet/fifty-devices.png")
 
 
+TWO_HOSTS_SETTINGS = (
+    ("one-host-fifty-budget06", "fifty on one host (24 in pairs sharing a place)"),
+    ("pairs-half-budget06", "host A: the 12 pairs and one (25)"),
+    ("pairs-half-default", "host A, the default edge"),
+    ("pairs-half-hosts-budget06", "host A, devices across a namespace bridge"),
+    ("alone-half-budget06", "host B: the 25 alone in their places"),
+    ("alone-half-default", "host B, the default edge"),
+    ("alone-half-hosts-budget06", "host B, devices across a namespace bridge"),
+)
+#: an edge process's threads (``bench.process_cpu --threads`` labels) as the figure groups them
+EDGE_THREADS = (("main thread", "slot threads"), ("threads loop-closer_#", "loop worker"),
+                ("threads place-words#", "words' learning"))
+
+
+def process_threads(path: Path) -> tuple[float, dict[str, float]]:
+    """A ``bench.process_cpu --threads`` report's wall seconds (the whole command's) and the
+    edges' CPU seconds by thread label (``python -m edge_mapper.node · LABEL`` lines)."""
+    wall, cpu = math.nan, {}
+    for line in path.read_text(encoding="utf-8").splitlines():
+        if " s wall;" in line:
+            wall = float(line.split(" s wall;")[0].rsplit(" ", 1)[-1])
+        elif "edge_mapper.node · " in line:
+            seconds = float(line.split()[0])
+            label = line.split("edge_mapper.node · ", 1)[1].strip()
+            cpu[label] = cpu.get(label, 0.0) + seconds
+    return wall, cpu
+
+
+def two_hosts() -> None:
+    """Fifty devices, half of them in pairs sharing a place: on one 2-core host, and each
+    half on a 2-core host of its own (what two edge hosts carry): each setting's late share
+    and summaries → map p95, a point a run, and the edges' cores over the run (the bench's
+    ``edge_cpu_share``) split by thread as ``bench.process_cpu --threads`` counted their CPU
+    (mean of the runs)."""
+    plt = pyplot()
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.6), sharey=True)
+    folder = HERE / "fleet/two-hosts"
+    for y, (stem, _) in enumerate(TWO_HOSTS_SETTINGS):
+        runs = sorted(folder.glob(f"{stem}-[0-9].csv"))
+        rows = [_rows(path)[0] for path in runs]
+        colour = "C3" if stem.startswith("one-host") else "C0"
+        axes[0].plot([100 * float(r["missed_share"]) for r in rows], [y] * len(rows), "o",
+                     color=colour)
+        axes[1].plot([float(r["latency_ms_p95"]) / 1000 for r in rows], [y] * len(rows), "o",
+                     color=colour)
+        # the edges' cores over the run (the bench's window), split as their threads' CPU
+        # over the whole command splits it
+        split = [process_threads(path.with_suffix(".txt"))[1] for path in runs]
+        left = 0.0
+        for k, (label, name) in enumerate((*EDGE_THREADS, (None, "other threads"))):
+            cores = statistics.fmean(
+                float(r["edge_cpu_share"]) * (
+                    cpu.get(label, 0.0) if label is not None else
+                    sum(v for t, v in cpu.items() if t not in dict(EDGE_THREADS)))
+                / max(sum(cpu.values()), 1e-9)
+                for r, cpu in zip(rows, split, strict=True)) if rows else 0.0
+            axes[2].barh(y, cores, left=left, color=f"C{k}", label=name if y == 0 else None)
+            left += cores
+    axes[0].set_yticks(range(len(TWO_HOSTS_SETTINGS)),
+                       [label for _, label in TWO_HOSTS_SETTINGS], fontsize=8)
+    axes[0].invert_yaxis()
+    axes[0].axvline(5, color="grey", lw=1)
+    axes[0].set(xlabel="% of device-slots whose map came after 1 s", xlim=(-2, 102),
+                title="late maps (goal: 5 %), a point a run")
+    axes[1].axvline(1, color="grey", lw=1)
+    axes[1].set(xlabel="seconds", xlim=(0, None), title="summaries → map update, p95 (goal: 1 s)")
+    axes[2].axvline(2, color="grey", lw=1)
+    axes[2].set(xlabel="cores over the run", title="the edges' CPU by thread")
+    axes[2].legend(fontsize=8, loc="lower right")
+    _save(fig, "fleet/fifty-on-two-hosts.png")
+
+
 def main(argv: list[str]) -> int:
     if not argv or argv[0] not in ("scaling", "edges", "hosts", "stagger", "revisit", "sim",
-                                   "split", "live", "emulator", "curve", "fifty"):
+                                   "split", "live", "emulator", "curve", "fifty",
+                                   "two-hosts"):
         print(__doc__)
         return 2
     {"scaling": lambda a: scaling(), "edges": lambda a: edges(), "hosts": lambda a: hosts(),
      "stagger": lambda a: stagger(), "revisit": lambda a: revisit(), "sim": sim,
      "split": split, "live": live, "curve": lambda a: curve(), "fifty": lambda a: fifty(),
+     "two-hosts": lambda a: two_hosts(),
      "emulator": lambda a: print("\n".join(emulator_table([Path(p) for p in a])))
      }[argv[0]](argv[1:])
     return 0
