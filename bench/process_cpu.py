@@ -8,8 +8,10 @@ node is the fork server's child, and the server is killed, not waited for).
 The command runs in a session of its own; ``/proc`` is read every ``--every`` seconds, and each
 process of that session is counted at the CPU time (user + system) it last showed
 (``--threads``: each of its threads, the group split into the process's main thread and its
-other threads by name — a Python interpreter's own threads all carry the process's name, so an
-edge's loop closer is one of "other threads", DDS's named ones are not). A process
+other threads by name — a Python thread carries the process's name unless it names itself:
+an edge's loop closer (``loop-closer_0``), its keyframe database's words (``place-words``)
+and its checkpoint writer (``checkpoints``) do (:mod:`twinslam.thread_names`), as DDS's
+threads do). A process
 that lives less than one interval may be missed, and one is counted up to an interval short of
 its end: the total is a lower bound, compared with the command's own children's total (what
 the kernel counts for the processes that were waited for). Processes are grouped by name (a
