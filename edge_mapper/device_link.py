@@ -96,6 +96,9 @@ Granting = Callable[[str, int, list[FrameObservations], float, RateLatent | None
                      EdgeMapperCore], int]
 Finishing = Callable[[str, int, int], None]
 Spending = Callable[[float], None]
+#: a finished slot's summaries → map latency and the device's slot period (the spacing of its
+#: summaries), in seconds, for the edge's load on /diagnostics
+Answering = Callable[[float, float], None]
 
 
 #: a device's looks for another map's place that found none: one log line in this many
@@ -119,8 +122,15 @@ class DeviceLink:
                  live: Callable[[], dict[str, Any]],
                  grant: Granting | None = None, finished: Finishing | None = None,
                  spent: Spending | None = None, merging: PlaceMerging | None = None,
-                 on_fault: Callable[[str, str], None] | None = None) -> None:
+                 on_fault: Callable[[str, str], None] | None = None,
+                 answered: Answering | None = None) -> None:
         self.node, self.device, self.settings = node, device, settings
+        self.answered = answered
+        #: the last slot whose summaries came, and when (the slots' clock): the device's slot
+        #: period is their spacing
+        self._last_summaries: tuple[int, float] | None = None
+        #: each open slot's period estimate, taken when its summaries came
+        self._periods: dict[int, float] = {}
         #: this device's lines, each named by the link's code that wrote it (one or more a
         #: slot per device: rclpy's own caller lookup cost 7 % of a fifty-device edge's slots)
         self.lines = SiteLogger(node.get_logger(), depth=2)
@@ -313,6 +323,10 @@ class DeviceLink:
                                                         self._now()))
         self.slots.open(slot, time.perf_counter() - started, plan.uncertainty, decided_by, vmax,
                         received, covered=len(plan.covered))
+        if self._last_summaries is not None and slot > self._last_summaries[0]:
+            self._periods[slot] = (received - self._last_summaries[1]) / \
+                (slot - self._last_summaries[0])
+        self._last_summaries = (slot, received)
         self.finish_due()                        # a slot that uploads nothing is due at once
 
     def _on_latent(self, msg: RateLatent) -> None:
@@ -415,6 +429,9 @@ class DeviceLink:
                          "the map nor the archive")
         if self.spent is not None:
             self.spent(compute_s)
+        period = self._periods.pop(slot, math.inf)      # the first slot: none to judge by
+        if self.answered is not None:
+            self.answered(entry.latency_s(self.slots.clock()), period)
         if self.views is not None:             # after MapStats: not in its compute time
             self.views.publish(self.core.map, slot, now, frame, out.integrated, out.evicted,
                                out.restored, before, out.loop is not None and

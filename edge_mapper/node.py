@@ -38,9 +38,11 @@ unrequested or repeated one logged and ignored.
 from __future__ import annotations
 
 import dataclasses
+import socket
 import time
 from typing import Any, NoReturn
 
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from twinslam_msgs.msg import FrameSummaries, RateLatent, UploadRequest
 from twinslam_msgs.msg import KeyframeBudget as KeyframeBudgetMsg
@@ -51,6 +53,7 @@ from edge_mapper.device_link import DeviceLink
 from edge_mapper.edge_core import EdgeMapperCore
 from edge_mapper.edge_failover import UnansweredSlots
 from edge_mapper.keyframe_budget import KeyframeBudget, device_demand, slot_uploads
+from edge_mapper.load_diagnostics import EdgeLoad, load_status
 from edge_mapper.messages import keyframe_budget_message
 from edge_mapper.parameters import DEVICE_NAME, PARAMETERS, device_names, link_settings
 from edge_mapper.place_merging import PlaceMerging
@@ -60,6 +63,7 @@ from msg_schemas import qos, topics
 from twinslam.allocation.allocators import BudgetError, check_budget
 from twinslam.node_runtime.node_main import NodeStartError, exit_process, run_node
 from twinslam.node_runtime.parameters import declare
+from twinslam.node_runtime.thread_cpu import ThreadLoad
 from twinslam.slam.back_end.keyframe_map import MapError
 from twinslam.slam.back_end.loop_closing import SHARED_WORKER
 from twinslam.slam.back_end.place_words import PlaceWords
@@ -141,6 +145,31 @@ class EdgeMapperNode(Node):
         if self.several:
             self.create_timer(DISCOVERY_PERIOD_S, self._look_around)
         self.create_timer(0.2, self._finish_due)     # timeouts
+        #: the edge's load on /diagnostics each diagnostics_period_s: the slots answered since
+        #: the last status ((latency, slot period) each) and the threads' CPU
+        self.answered: list[tuple[float, float]] = []
+        self.threads = ThreadLoad()
+        self.pub_diagnostics = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS,
+                                                     qos.PROTOCOL)
+        if float(p["diagnostics_period_s"]) > 0:
+            self.create_timer(float(p["diagnostics_period_s"]), self.publish_load)
+
+    def publish_load(self) -> DiagnosticArray:
+        """The edge's load since the last status, on /diagnostics (and returned)."""
+        level = self.governor.levels[self.governor.level]
+        load = EdgeLoad(devices=len(self.links), answered=self.answered,
+                        load=self.governor.load(time.monotonic()), budget=self.governor.budget,
+                        level=level.describe() if self.governor.budget > 0 else "no budget",
+                        trimmed=self.governor.level > 0,
+                        threads=self.threads.cores())
+        self.answered = []
+        msg = load_status(self.get_fully_qualified_name(), socket.gethostname(), load,
+                          self._now())
+        self.pub_diagnostics.publish(msg)
+        return msg
+
+    def _answered(self, latency_s: float, period_s: float) -> None:
+        self.answered.append((latency_s, period_s))
 
     def _live_values(self) -> dict[str, Any]:
         return {name: self.get_parameter(name).value for name in (*POLICY_KEYS, "vmax")}
@@ -153,7 +182,8 @@ class EdgeMapperNode(Node):
         try:
             link = DeviceLink(self, device, self.settings, self._live_values, grant, finished,
                               self._spent, self.merging,
-                              self._device_failed if self.several else None)
+                              self._device_failed if self.several else None,
+                              answered=self._answered)
         except MapError as exc:
             if not self.several:                 # the node's one device: it cannot start
                 raise

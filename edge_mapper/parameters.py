@@ -252,6 +252,11 @@ PARAMETERS = (
               "tracked share; 1: proportional fairness)", low=0.0, high=10.0),
     ParamSpec("device_silent_s", 10.0, "a device without summaries this long is silent: its "
               "map is kept, its share goes to the others", low=0.1, high=86_400.0),
+    ParamSpec("diagnostics_period_s", 1.0, "seconds between two statuses of the edge's load "
+              "on /diagnostics (diagnostic_msgs/DiagnosticArray, named '<node>: load'): the "
+              "devices served, the slots answered and their latency, the slot work against "
+              "compute_budget, each named thread's share of a core; WARN while the budget trims "
+              "or a map came later than its slot; 0: none", low=0.0, high=3600.0),
     ParamSpec("compute_budget", 0.0, "share of one core the edge's slot work may take "
               "(planning, keyframes, bundle adjustment, map updates, over 10 s); over it the "
               "local bundle adjustment shrinks step by step (5, 3, 1 keyframes, none) and then, "
