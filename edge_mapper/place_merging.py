@@ -572,7 +572,11 @@ class PlaceMerging:
 
     def close(self) -> None:
         """Wait for the looks on the worker (and a filing of the keyframe database's queue):
-        a running one finishes, one not started yet is dropped (its map is closing)."""
+        a running one finishes, one not started yet is dropped (its map is closing). The
+        words' learning is not waited for: nothing will score with its words, and at the
+        lowest priority on a loaded host it may take minutes — a stopping edge waited for it
+        past the 5 s a node is given to stop. Its thread is a daemon: the process's exit
+        ends it."""
         looks = [look for look in self._running.values() if not look.cancel()]
         filing = [self._filing] if self._filing is not None and not self._filing.cancel() \
             else []
@@ -580,8 +584,6 @@ class PlaceMerging:
         with self.worker.outside_slot_work():
             wait(looks)
             wait(filing)
-        if self._learning is not None:
-            self._learning.join()
 
 
 def _next_looks(ranked: tuple[str, ...]) -> str:

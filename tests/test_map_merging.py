@@ -432,6 +432,39 @@ def test_the_edge_learns_the_words_on_a_thread_of_their_own(
         merging.close()
 
 
+def test_closing_does_not_wait_for_the_words_learning(
+        room: Room, monkeypatch: pytest.MonkeyPatch) -> None:  # noqa: F811
+    """An edge that stops (SIGTERM) closes its merging at once, whatever the words' learning
+    is doing: at the lowest priority on a host its slots and others fill, the learning got so
+    little of a core that the edge's shutdown, waiting for it, outlasted the 5 s a stopping
+    node is given (a clean clone run beside a CPU hog). Words nobody will score with are
+    left to the process's exit."""
+    release = threading.Event()
+
+    def learn_slowly(*args: Any, **kwargs: Any) -> WeightedWords:
+        release.wait(60.0)
+        raise RuntimeError("never offered")
+
+    monkeypatch.setattr(WeightedWords, "learn", learn_slowly)
+    uploads = [_payload(room, 4 + 10 * k, k) for k in range(3)]
+    cores = {"ar1": _core()}
+    merging = PlaceMerging(lambda: cores, database=KeyFrameDatabase(
+        learn_from=sum(len(u.descriptors) for u in uploads)))
+    try:
+        for k, upload in enumerate(uploads):
+            merging.keyframe("ar1", upload)
+            merging.look("ar1", k)
+        learning = merging._learning
+        assert learning is not None and learning.is_alive()
+        started = time.monotonic()
+        merging.close()
+        assert time.monotonic() - started < 5.0
+        assert learning.is_alive() and learning.daemon       # the process's exit ends it
+    finally:
+        release.set()
+        merging.close()
+
+
 def test_a_place_the_words_misjudge_is_still_looked_for_every_eighth_look(
         room: Room, places: dict[str, dict[int, np.ndarray]],  # noqa: F811
         monkeypatch: pytest.MonkeyPatch) -> None:

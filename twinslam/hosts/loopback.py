@@ -56,6 +56,10 @@ def _claims_dir() -> Path:
     return folder
 
 
+#: seconds a killed node is given to be gone (its stop's SIGTERM came first, with ``timeout``)
+KILLED_EXIT_S = 30.0
+
+
 class DomainClaim:
     """A domain id of ``ids`` (100..229) held by this process until :meth:`release` (or its
     exit), claimed in ``folder`` (this machine's claims unless given).
@@ -207,7 +211,10 @@ class ProcessDomain:
         except subprocess.TimeoutExpired:
             self.ask_for_stacks(proc)
             proc.kill()
-            proc.wait(timeout=5)
+            # SIGKILL always ends it, but only once each of its threads is scheduled to exit:
+            # on a host a test run and a CPU hog fill, a thread at the lowest priority (the
+            # edge's word learning) may wait seconds for a core
+            proc.wait(timeout=KILLED_EXIT_S)
         assert proc.returncode is not None
         thread = self._log_threads.get(proc.pid)
         if thread is not None:
