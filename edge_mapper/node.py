@@ -28,6 +28,10 @@ joins the frame of a device served before it once its keyframes are found in tha
 map, or that device's in its own (:mod:`edge_mapper.place_merging`): their poses are then in
 one frame.
 
+Every ``diagnostics_period_s`` the node says on ``/diagnostics`` whether it keeps up
+(:mod:`edge_mapper.load_diagnostics`: slots answered and late, latency, slot work against
+``compute_budget``, each named thread's share of a core).
+
 ``policy``, ``policy_checkpoint``, ``fallback_policy``, ``latent_max_age`` and ``vmax`` change
 live from the next slot (:mod:`edge_mapper.policy_control`); the others are read-only
 (:mod:`edge_mapper.parameters`). With ``checkpoint`` set the node resumes from that file (one
@@ -79,6 +83,10 @@ class EdgeMapperNode(Node):
         node made beside others in one process; the command line's apply otherwise."""
         super().__init__("edge_mapper", **options)
         p = declare(self, PARAMETERS)
+        #: the edge's load on /diagnostics each diagnostics_period_s: the slots answered since
+        #: the last status ((latency, slot period) each) and the threads' CPU
+        self.answered: list[tuple[float, float]] = []
+        self.threads = ThreadLoad()
         #: the checkpoints of this edge's devices written on a thread of their own
         #: (``checkpoint_in_background``), not on the slot thread every device waits for
         self.checkpoints = (CheckpointWriter() if p["checkpoint"] and
@@ -145,10 +153,6 @@ class EdgeMapperNode(Node):
         if self.several:
             self.create_timer(DISCOVERY_PERIOD_S, self._look_around)
         self.create_timer(0.2, self._finish_due)     # timeouts
-        #: the edge's load on /diagnostics each diagnostics_period_s: the slots answered since
-        #: the last status ((latency, slot period) each) and the threads' CPU
-        self.answered: list[tuple[float, float]] = []
-        self.threads = ThreadLoad()
         self.pub_diagnostics = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS,
                                                      qos.PROTOCOL)
         if float(p["diagnostics_period_s"]) > 0:
