@@ -391,6 +391,16 @@ def test_a_device_alone_has_the_words_learned_before_another_device_looks(
     assert merging.database.keyframes("ar1") == 5
 
 
+def _learning_after_three(room: Room  # noqa: F811
+                          ) -> tuple[list[KeyFramePayload], PlaceMerging]:
+    """Three uploads of the room and one device's merging whose keyframe database learns its
+    words once all three came (from their descriptors)."""
+    uploads = [_payload(room, 4 + 10 * k, k) for k in range(3)]
+    cores = {"ar1": _core()}
+    return uploads, PlaceMerging(lambda: cores, database=KeyFrameDatabase(
+        learn_from=sum(len(u.descriptors) for u in uploads)))
+
+
 def test_the_edge_learns_the_words_on_a_thread_of_their_own(
         room: Room, monkeypatch: pytest.MonkeyPatch) -> None:  # noqa: F811
     """With the looks on the worker, a look's ranking never learns the words (it held the
@@ -408,10 +418,7 @@ def test_the_edge_learns_the_words_on_a_thread_of_their_own(
         return learn(*args, **kwargs)
 
     monkeypatch.setattr(WeightedWords, "learn", learn_seen)
-    uploads = [_payload(room, 4 + 10 * k, k) for k in range(3)]
-    cores = {"ar1": _core()}
-    merging = PlaceMerging(lambda: cores, database=KeyFrameDatabase(
-        learn_from=sum(len(u.descriptors) for u in uploads)))
+    uploads, merging = _learning_after_three(room)
     try:
         for upload in uploads[:2]:
             merging.keyframe("ar1", upload)
@@ -446,10 +453,7 @@ def test_closing_does_not_wait_for_the_words_learning(
         raise RuntimeError("never offered")
 
     monkeypatch.setattr(WeightedWords, "learn", learn_slowly)
-    uploads = [_payload(room, 4 + 10 * k, k) for k in range(3)]
-    cores = {"ar1": _core()}
-    merging = PlaceMerging(lambda: cores, database=KeyFrameDatabase(
-        learn_from=sum(len(u.descriptors) for u in uploads)))
+    uploads, merging = _learning_after_three(room)
     try:
         for k, upload in enumerate(uploads):
             merging.keyframe("ar1", upload)
