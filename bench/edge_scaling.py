@@ -134,12 +134,12 @@ from twinslam_msgs.msg import (
 )
 
 from bench.paths import REPO, SEVEN_SCENES
-from bench.process_cpu import stat_cpu
 from msg_schemas import qos, topics
 from twinslam.hosts.loopback import LoopbackDomain, ProcessDomain
 from twinslam.hosts.netns import NetnsHosts, unavailable_reason
 from twinslam.live.fleet import edge_blocks, edge_hosts
 from twinslam.node_runtime.session import EXECUTORS, RosSession
+from twinslam.node_runtime.thread_cpu import stat_cpu
 from twinslam.reporting import pyplot, write_dict_rows
 from twinslam.slot_protocol import table1
 

@@ -27,9 +27,9 @@ import time
 from pathlib import Path
 
 from bench.paths import REPO, SEVEN_SCENES
+from twinslam.node_runtime.thread_cpu import stat_cpu
 
 SEQUENCE = SEVEN_SCENES
-TICK = os.sysconf("SC_CLK_TCK")
 
 
 def _device_cpu_s(root: Path) -> float | None:
@@ -47,8 +47,8 @@ def _device_cpu_s(root: Path) -> float | None:
             if (b"device_tracker.node" not in cmd and not forked) or \
                     Path(f"/proc/{pid}/cwd").resolve() != root:
                 continue
-            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-            found.append((int(fields[19]), (int(fields[11]) + int(fields[12])) / TICK))
+            _, fields, cpu = stat_cpu(Path(f"/proc/{pid}/stat").read_text())
+            found.append((int(fields[19]), cpu))
         except (OSError, IndexError, ValueError):
             continue
     return max(found)[1] if found else None

@@ -31,8 +31,7 @@ from collections import Counter, defaultdict
 from pathlib import Path
 
 from twinslam.cli.console import HelpFormatter
-
-TICK = os.sysconf("SC_CLK_TCK")
+from twinslam.node_runtime.thread_cpu import stat_cpu
 
 
 def _group(comm: str, argv: list[str]) -> str:
@@ -55,14 +54,6 @@ def _thread_label(comm: str, main: bool) -> str:
     if main:
         return "main thread"
     return f"threads {comm.rstrip('0123456789') or comm}#"
-
-
-def stat_cpu(stat: str) -> tuple[str, list[str], float]:
-    """(name, the fields after it, CPU seconds: user + system) of a ``/proc/PID/stat`` or
-    ``/proc/PID/task/TID/stat`` line."""
-    comm = stat[stat.index("(") + 1:stat.rindex(")")]
-    fields = stat[stat.rindex(")") + 2:].split()
-    return comm, fields, (int(fields[11]) + int(fields[12])) / TICK
 
 
 def _sample_threads(pid: int, group: str, seen: dict[object, tuple[float, str]]) -> None:

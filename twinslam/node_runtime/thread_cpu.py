@@ -19,6 +19,15 @@ _TASKS = Path("/proc/self/task")
 _TICK_S = 1.0 / os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 0.01
 
 
+def stat_cpu(stat: str) -> tuple[str, list[str], float]:
+    """(name, the fields after it, CPU seconds: user + system) of a ``/proc/PID/stat`` or
+    ``/proc/PID/task/TID/stat`` line (the name in parentheses may hold spaces and
+    parentheses itself: it ends at the line's last ")")."""
+    comm = stat[stat.index("(") + 1:stat.rindex(")")]
+    fields = stat[stat.rindex(")") + 2:].split()
+    return comm, fields, (int(fields[11]) + int(fields[12])) * _TICK_S
+
+
 def thread_cpu_seconds() -> dict[str, float]:
     """CPU seconds (user + system) each named thread of this process has used, threads of
     one name summed (the main thread as MAIN); {} where ``/proc`` has no threads."""
@@ -33,9 +42,9 @@ def thread_cpu_seconds() -> dict[str, float]:
             stat = (task / "stat").read_text()
         except OSError:                          # the thread ended meanwhile
             continue
-        name = MAIN if int(task.name) == main else stat[stat.index("(") + 1:stat.rindex(")")]
-        fields = stat[stat.rindex(")") + 2:].split()
-        out[name] = out.get(name, 0.0) + (int(fields[11]) + int(fields[12])) * _TICK_S
+        comm, _, cpu = stat_cpu(stat)
+        name = MAIN if int(task.name) == main else comm
+        out[name] = out.get(name, 0.0) + cpu
     return out
 
 
