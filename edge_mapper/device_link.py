@@ -397,11 +397,12 @@ class DeviceLink:
                                                 frame_correction=self.core.frame_correction))
         ba_ms = out.bundle_adjustment.milliseconds if out.bundle_adjustment else 0.0
         compute_s = entry.compute_s + time.perf_counter() - started
+        latency_s = entry.latency_s(self.slots.clock())     # summaries → this map update
         self.pub_stats.publish(map_stats_message(
             slot, entry.decided_by, self.core.map, out.map_uncertainty, entry.uncertainty,
             uploads=len(out.integrated), optimisation_ms=ba_ms, processing_ms=compute_s * 1000,
             stamp=now, keyframe_budget=entry.vmax,
-            latency_ms=entry.latency_s(self.slots.clock()) * 1000,
+            latency_ms=latency_s * 1000,
             archived=len(self.core.archive), restored=len(out.restored),
             refused=len(out.refused), missing=len(out.not_in),
             frame_id=frame, loops_closed=self.core.loops_closed,
@@ -431,7 +432,7 @@ class DeviceLink:
             self.spent(compute_s)
         period = self._periods.pop(slot, math.inf)      # the first slot: none to judge by
         if self.answered is not None:
-            self.answered(entry.latency_s(self.slots.clock()), period)
+            self.answered(latency_s, period)
         if self.views is not None:             # after MapStats: not in its compute time
             self.views.publish(self.core.map, slot, now, frame, out.integrated, out.evicted,
                                out.restored, before, out.loop is not None and
