@@ -23,6 +23,12 @@ from the checkpoint before it and goes on from the map version its device holds,
 device's newer checkpoint submitted before its older one was written replaces it: the older is
 not written at all.
 
+What must be on disk before a checkpoint goes with it (``before``: the archive's files of the
+keyframes it no longer holds in its map, :meth:`~twinslam.slam.back_end.keyframe_archive.
+KeyFrameArchive.write_owed`): the writer runs it first, on its thread, and writes the checkpoint
+only where it succeeded — a restart never reads a map without a keyframe whose archive file is
+missing. A replaced checkpoint's ``before`` runs with its replacement's.
+
 A write that fails is not retried by the writer: the device's next checkpoint (its next
 submission) raises it on the slot thread, where a failed write raised before, and the edge
 stops serving that device as it would have then; what was to follow the failed write follows
@@ -49,12 +55,15 @@ class CheckpointFailed(OSError):
 #: what follows a checkpoint once it is on disk, told the arrays written (a newer checkpoint's,
 #: where it replaced the one submitted with this)
 Then = Callable[[Mapping[str, np.ndarray]], None]
+#: what must be on disk before a checkpoint is written (raises where it could not be)
+First = Callable[[], object]
 
 
 @dataclass
 class _Pending:
     arrays: Mapping[str, np.ndarray]
     after: list[Then] = field(default_factory=list)
+    before: list[First] = field(default_factory=list)
 
 
 class CheckpointWriter:
@@ -75,10 +84,11 @@ class CheckpointWriter:
         self._thread.start()
 
     def submit(self, path: Path, arrays: Mapping[str, np.ndarray],
-               after: Then | None = None) -> None:
+               after: Then | None = None, before: First | None = None) -> None:
         """Write ``arrays`` to ``path`` (copied now: the caller's map goes on changing), then
-        call ``after`` with the arrays written. Raises :class:`CheckpointFailed` when the
-        last write to ``path`` failed."""
+        call ``after`` with the arrays written — once ``before`` (called first, on the
+        writer's thread) returned. Raises :class:`CheckpointFailed` when the last write to
+        ``path`` failed."""
         path = Path(path)
         copied = {name: np.array(value, copy=True) for name, value in arrays.items()}
         with self._lock:
@@ -88,9 +98,11 @@ class CheckpointWriter:
             older = self._pending.get(path)
             follow = [*(older.after if older is not None else []),
                       *([after] if after is not None else [])]
+            first = [*(older.before if older is not None else []),
+                     *([before] if before is not None else [])]
             if older is not None:
                 self.replaced += 1
-            self._pending[path] = _Pending(copied, follow)
+            self._pending[path] = _Pending(copied, follow, first)
             self._lock.notify_all()
 
     def wait(self, path: Path) -> None:
@@ -127,6 +139,8 @@ class CheckpointWriter:
             failure: Exception | None = None
             follow: list[Then] = []
             try:
+                for first in job.before:
+                    first()
                 write_checkpoint(path, job.arrays)
             except Exception as exc:                  # the disk's error, for the slot thread
                 failure = exc

@@ -158,9 +158,7 @@ class EdgeMapperCore:
         #: written (the place this map was merged into, :mod:`edge_mapper.place_membership`);
         #: read back from :attr:`MapBackEnd.extra`
         self.saved_with: Callable[[], Mapping[str, np.ndarray]] | None = None
-        #: the edge process's checkpoint writer (None: checkpoints are written on the slot
-        #: thread, before the slot's map update goes out)
-        self.writer: CheckpointWriter | None = None
+        self._writer: CheckpointWriter | None = None
         extra = self.back_end.extra
         self.version = int(extra.get("version", 0))
         self.last_slot = int(extra.get("last_slot", -1))
@@ -199,6 +197,21 @@ class EdgeMapperCore:
     @property
     def map(self) -> KeyFrameMap:
         return self.back_end.map
+
+    @property
+    def writer(self) -> CheckpointWriter | None:
+        """The edge process's checkpoint writer (None: checkpoints are written on the slot
+        thread, before the slot's map update goes out). With one, the archive's files are
+        written on its thread too, each just before the first checkpoint whose map no longer
+        holds its keyframe (:attr:`KeyFrameArchive.write_later`)."""
+        return self._writer
+
+    @writer.setter
+    def writer(self, writer: CheckpointWriter | None) -> None:
+        if writer is None and self.archive.write_later:
+            self.archive.write_owed()          # back on the slot thread: nothing left owed
+        self._writer = writer
+        self.archive.write_later = writer is not None
 
     @property
     def archive(self) -> KeyFrameArchive:
@@ -556,7 +569,8 @@ class EdgeMapperCore:
             taken = archive.hand_over_taken()
             self.writer.submit(self.checkpoint, contents,
                                lambda written: archive.release(
-                                   taken, in_map=written["keyframe_ids"]))
+                                   taken, in_map=written["keyframe_ids"]),
+                               before=archive.write_owed)
         self._unsaved, self._checkpoint_in = 0, self.config.checkpoint_every
 
     def spread_checkpoints(self, phase: int) -> None:

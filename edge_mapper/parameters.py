@@ -80,7 +80,9 @@ PARAMETERS = (
     ParamSpec("checkpoint_in_background", False, "write the checkpoints on a thread of their "
               "own: the slot thread, which every device of the edge waits for, only gathers "
               "the map's arrays (the write and its fsync took ~20 ms a device-slot on a VM's "
-              "disk); each lands shortly after its slot's map update went out, and an edge "
+              "disk), and the evicted keyframes' archive files are written there too, just "
+              "before the checkpoint; each lands shortly after its slot's map update went "
+              "out, and an edge "
               "killed in between resumes one checkpoint back (an edge of many devices, or on a "
               "slow disk). false: written before the update goes out, a map the device got "
               "survives the edge"),

@@ -95,6 +95,30 @@ def test_a_failed_write_is_raised_at_the_next_checkpoint_and_its_follow_up_waits
         writer.wait(tmp_path / "missing" / "x.npz")
 
 
+def test_what_must_be_on_disk_first_is_written_first_and_a_failure_holds_the_checkpoint(
+        tmp_path: Path, writer: CheckpointWriter) -> None:
+    """The archive's owed files land before the checkpoint that no longer holds their
+    keyframes in its map; where they cannot, that checkpoint is not written (a restart from
+    it would find the keyframes nowhere) and the slot thread is told."""
+    path = tmp_path / "edge.npz"
+    order: list[str] = []
+
+    def first() -> None:
+        order.append("archive files" if not path.exists() else "late")
+
+    writer.submit(path, {"version": np.array(1)}, lambda w: order.append("after"), first)
+    writer.wait(path)
+    assert order == ["archive files", "after"] and int(_read(path)["version"]) == 1
+
+    def failing() -> None:
+        raise OSError("disk full")
+
+    writer.submit(path, {"version": np.array(2)}, before=failing)
+    with pytest.raises(CheckpointFailed, match="disk full"):
+        writer.wait(path)
+    assert int(_read(path)["version"]) == 1           # the older map stays
+
+
 def test_closing_writes_what_was_submitted(tmp_path: Path) -> None:
     writer = CheckpointWriter()
     paths = [tmp_path / f"ar{i}.npz" for i in range(5)]

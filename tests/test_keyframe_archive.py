@@ -191,6 +191,49 @@ def test_a_checkpoint_releases_only_the_files_of_keyframes_its_map_holds(
         "keyframe-000000002.npz", "keyframe-000000003.npz"]
 
 
+def test_an_archive_written_later_owes_each_file_until_the_checkpoints_writer_lands_it(
+        tmp_path: Path) -> None:
+    """With the checkpoint writer (``checkpoint_in_background``), archiving writes no file on
+    the slot thread: each is owed until the writer lands it before the map checkpoint — moved
+    there as a loop moved it meanwhile, as it was archived where the map took it back (the
+    checkpoint about to land may predate that), and not at all where the archive let it go
+    for good (a late write would bring a forgotten keyframe's file back)."""
+    folder = tmp_path / "edge.npz.archive"
+    archive = KeyFrameArchive(3, folder)
+    archive.write_later = True
+    for k in (1, 2, 3, 4):                            # 1 leaves to keep the capacity
+        archive.add(_random_keyframe(k, slot=k))
+    taken = archive.take(3)
+    assert archive.correct({2: _lift(0.05)}) == [2]
+    archive.drop(4)                                   # gone for good
+    assert not list(folder.glob("keyframe-*")) and archive.owed == 2
+    assert archive.write_owed() == 2 and archive.owed == 0
+    assert sorted(p.name for p in folder.glob("keyframe-*")) == [
+        "keyframe-000000002.npz", "keyframe-000000003.npz"]
+    back, problems = KeyFrameArchive.restore(3, folder)
+    assert problems == [] and sorted(kf.id for kf in back) == [2, 3]
+    np.testing.assert_allclose(back.get(2).pose, archive.get(2).pose, atol=1e-12)
+    np.testing.assert_array_equal(back.get(3).descriptors, taken.descriptors)
+    assert archive.write_owed() == 0                  # nothing owed twice
+    archive.release(archive.hand_over_taken())        # the map holding 3 checkpointed
+    assert not (folder / "keyframe-000000003.npz").exists()
+
+
+def test_an_owed_file_that_cannot_be_written_stays_owed(tmp_path: Path) -> None:
+    """A disk error raises to the writer (which then writes no checkpoint without the file)
+    and the keyframe is owed still: the next checkpoint's write tries it again."""
+    blocked = tmp_path / "edge.npz.archive"
+    blocked.write_text("a file where the archive's folder should be")
+    archive = KeyFrameArchive(3, blocked)
+    archive.write_later = True
+    archive.add(_random_keyframe(1, slot=1))
+    with pytest.raises(OSError):
+        archive.write_owed()
+    assert archive.owed == 1
+    blocked.unlink()
+    assert archive.write_owed() == 1 and (blocked / "keyframe-000000001.npz").exists()
+
+
 def _lift(dy: float) -> np.ndarray:
     """A rigid correction: a turn of 5° about the vertical and ``dy`` up."""
     c = np.eye(4)

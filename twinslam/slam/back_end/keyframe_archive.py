@@ -29,6 +29,16 @@ of a slot, without rewriting all of it every slot. Loops and merges move archive
 without writing their files again: one pose file beside them says where each moved keyframe
 stands now (:mod:`~twinslam.slam.back_end.archive_poses`). What a restart forgets is how
 recently each keyframe was useful after it was archived (it restarts from the archival slots).
+
+An archive whose files the edge's checkpoint writer lands (:attr:`KeyFrameArchive.write_later`,
+with ``checkpoint_in_background``) does not write an evicted keyframe's file when it is
+archived: writing and ``fsync``-ing it held the slot thread every device waits on ~1.2 ms an
+eviction on an idle disk. The file is owed (:meth:`KeyFrameArchive.write_owed`) until just
+before the next map checkpoint lands — the first one a restart could read without the
+keyframe in its map. Until then a restart reads an older checkpoint, whose map still holds it.
+A keyframe that leaves the archive for good meanwhile is owed no more (a late write would
+bring its file back); one taken back into the map is still owed as it was archived: the
+checkpoint about to land may be one gathered before it came back.
 """
 
 from __future__ import annotations
@@ -197,6 +207,11 @@ class KeyFrameArchive:
         #: and its synchronisation that holds this view's keyframes
         self._kept_index: KeptPlaceIndex | None = None
         self._synced_at = -1
+        #: archived keyframes' files are written by :meth:`write_owed` (the checkpoint
+        #: writer's thread, before each map checkpoint) instead of when they are archived
+        self.write_later = False
+        #: the keyframes whose files are owed (under ``_files``), as each file is to hold it
+        self._owed: dict[int, ArchivedKeyFrame] = {}
 
     # -- contents ---------------------------------------------------------------------------
 
@@ -222,7 +237,8 @@ class KeyFrameArchive:
     def add(self, kf: ArchivedKeyFrame, write: bool = True) -> list[int]:
         """Archive ``kf`` (useful as of its archival slot); returns the ids that left to keep
         the capacity — ``kf`` itself when the capacity is 0. Its file is written now
-        (``write``; else :meth:`save` it later, off the slot's path)."""
+        (``write``; else :meth:`save` it later, off the slot's path) — or owed until
+        :meth:`write_owed` where the archive :attr:`write_later`."""
         if kf.id in self._entries:
             raise ArchiveError(f"keyframe {kf.id} is archived already")
         if self.capacity == 0:
@@ -232,7 +248,10 @@ class KeyFrameArchive:
         # taken back and archived again before the map's checkpoint: the file is this
         # keyframe's again, not one for the checkpoint to release
         self._taken.discard(kf.id)
-        if self.folder is not None and write:
+        if self.folder is not None and write and self.write_later:
+            with self._files:
+                self._owed[kf.id] = kf
+        elif self.folder is not None and write:
             self.folder.mkdir(parents=True, exist_ok=True)
             with self._files:
                 kf.save(self._path(kf.id))
@@ -240,10 +259,39 @@ class KeyFrameArchive:
         self._index = None
         return self._trim()
 
+    def write_owed(self) -> int:
+        """Write the files owed (:attr:`write_later`), each as the keyframe stands now — or,
+        taken back into the map since, as it was archived. The checkpoint writer calls it
+        before it writes the map checkpoint; a write that fails raises, and what was not
+        written stays owed. How many files were written."""
+        if self.folder is None:
+            return 0
+        with self._files:
+            owed = list(self._owed)
+        if owed:
+            self.folder.mkdir(parents=True, exist_ok=True)
+        written = 0
+        for kf_id in owed:
+            with self._files:
+                kf = self._owed.get(kf_id)
+                if kf is None:                 # left the archive for good meanwhile
+                    continue
+                kf.save(self._path(kf_id))
+                self._written(kf)
+                written += 1
+        return written
+
+    @property
+    def owed(self) -> int:
+        """How many archived keyframes' files are owed (:attr:`write_later`)."""
+        return len(self._owed)
+
     def _written(self, kf: ArchivedKeyFrame) -> None:
-        """``kf``'s file now holds it as it is (under ``_files``): no move to record."""
+        """``kf``'s file now holds it as it is (under ``_files``): no move to record, nothing
+        owed."""
         self._on_file[kf.id] = (kf.pose, kf.archived_slot)
         self._moved.pop(kf.id, None)
+        self._owed.pop(kf.id, None)
 
     def _trim(self) -> list[int]:
         """Drop the least recently useful keyframes past the capacity; their ids."""
@@ -284,7 +332,9 @@ class KeyFrameArchive:
                                       positions=kf.positions @ c[:3, :3].T + c[:3, 3])
             self._entries[kf_id] = now
             with self._files:
-                if (held := self._on_file.get(kf_id)) is not None:
+                if kf_id in self._owed:        # no file yet: it is to be written as it is now
+                    self._owed[kf_id] = now
+                elif (held := self._on_file.get(kf_id)) is not None:
                     self._moved[kf_id] = MovedPose(held[0], held[1], now.pose)
             moved.append(kf_id)
         if write and moved:
@@ -400,9 +450,11 @@ class KeyFrameArchive:
                     self._forget_file(kf_id)
 
     def _forget_file(self, kf_id: int) -> None:
-        """Keyframe ``kf_id``'s file is gone (under ``_files``): nothing of it to record."""
+        """Keyframe ``kf_id``'s file is gone, or is to be written no more (under ``_files``):
+        nothing of it to record."""
         self._on_file.pop(kf_id, None)
         self._moved.pop(kf_id, None)
+        self._owed.pop(kf_id, None)
 
     def _remove(self, kf_id: int, keep_file: bool = False) -> None:
         del self._entries[kf_id]
