@@ -28,6 +28,7 @@ def summary(path: Path) -> dict[str, str]:
     first, last = per_slot[:30], per_slot[-30:]
     loop = [row["loop closer"] for row in rows]
     checkpoint = [row["checkpoint"] for row in rows]
+    archive = [row["archive"] for row in rows]
     return {
         "the edge's walk, every step": f"{sum(per_slot):,.0f} ms".replace(",", " "),
         "median device-slot": f"{statistics.median(per_slot):.1f} ms",
@@ -39,6 +40,10 @@ def summary(path: Path) -> dict[str, str]:
         "the checkpoint over the walk (median a slot)":
             f"{sum(checkpoint):,.0f} ms ({statistics.median(checkpoint):.1f})"
             .replace(",", " "),
+        "the archive step over the walk (median a slot, p95)":
+            f"{sum(archive):,.0f} ms".replace(",", " ")
+            + f" ({statistics.median(archive):.1f}, "
+              f"{statistics.quantiles(archive, n=20)[-1]:.1f})",
         "slots": str(len(rows)),
     }
 
