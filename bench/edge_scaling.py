@@ -50,6 +50,11 @@ With ``--hosts`` each edge process runs on an edge host of its own
 ``twinslam launch --hosts --edges K`` places them) and the emulated devices on a host
 ``device``: every message crosses a veth and the bridge over UDP with static discovery peers,
 as between machines on a LAN — the hosts still share this machine's cores (needs root).
+``--edge-cores "0-1 0-1 2-3 2-3"`` holds edge process k to the k-th CPU list (cycled) and
+``--device-cores 4-15`` the emulated devices to theirs (:mod:`twinslam.hosts.cpu_sets`): on a
+machine of enough cores, four edge processes on two emulated 2-core edge hosts measured in one
+run, each host's processes competing for its own two cores only; the ``idle`` column is then
+the edges' cores' idle share.
 ``--pools cores`` runs the edges with the math libraries' thread pools
 at a thread a core, as every node had them before they were kept to one
 (:mod:`twinslam.node_runtime.math_threads`): ``--pools cores,one`` measures both in one run.
@@ -98,6 +103,7 @@ setting's full collections: a full collection stalls every device the process se
                                  [--slots-plot PNG] [--collector-log]
                                  [--merge-maps on --lend-in-view on|off --unseen-slots N]
                                  [--places P] [--edge-param NAME:=VALUE …]
+                                 [--edge-cores "LIST LIST …" --device-cores LIST]
 
 ``--edge-param NAME:=VALUE`` (repeatable) hands any ROS parameter to every edge process, as
 ``-p`` does: a setting the bench has no option for, compared run by run in one tree
@@ -117,7 +123,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Collection, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
@@ -135,6 +141,14 @@ from twinslam_msgs.msg import (
 
 from bench.paths import REPO, SEVEN_SCENES
 from msg_schemas import qos, topics
+from twinslam.hosts.cpu_sets import (
+    CpuSetError,
+    cycled,
+    format_cpu_list,
+    held_to,
+    parse_cpu_list,
+    usable,
+)
 from twinslam.hosts.loopback import LoopbackDomain, ProcessDomain
 from twinslam.hosts.netns import NetnsHosts, unavailable_reason
 from twinslam.live.fleet import edge_blocks, edge_hosts
@@ -362,11 +376,20 @@ def cpu_seconds(pid: int, thread: int | None = None) -> float:
     return stat_cpu(Path(stat).read_text())[2]
 
 
-def host_idle() -> tuple[int, int]:
-    """The host's idle and total CPU time so far (clock ticks, every core, /proc/stat): what
-    the edges, the emulated devices and everything else together left unused."""
-    ticks = [int(v) for v in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
-    return ticks[3] + ticks[4], sum(ticks[:8])       # idle + iowait; without guest time
+def host_idle(cores: Collection[int] = ()) -> tuple[int, int]:
+    """The host's idle and total CPU time so far (clock ticks, /proc/stat): what the edges,
+    the emulated devices and everything else together left unused — on every core, or on
+    ``cores`` only (the edges' own, where they are held to some)."""
+    lines = Path("/proc/stat").read_text().splitlines()
+    wanted = {f"cpu{c}" for c in cores} if cores else {"cpu"}
+    idle = total = 0
+    for line in lines:
+        name, *values = line.split()
+        if name in wanted:
+            ticks = [int(v) for v in values]
+            idle += ticks[3] + ticks[4]                # idle + iowait; without guest time
+            total += sum(ticks[:8])
+    return idle, total
 
 
 #: the math libraries' pools: one thread (the nodes' default) or a thread a core (as before)
@@ -429,7 +452,8 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             yields: bool | None = None, background: bool | None = None,
             across: bool | None = None, in_view: bool | None = None,
             unseen: int | None = None, places: int = 1, executor: str = "events",
-            extra: tuple[str, ...] = ()
+            extra: tuple[str, ...] = (), edge_cores: Sequence[frozenset[int]] = (),
+            everywhere: frozenset[int] | None = None
             ) -> tuple[dict[str, float | str], list[dict[str, float | str]]]:
     """One fleet of ``n`` emulated devices served, their starts spread evenly over ``stagger``
     slot periods, each device's map checkpointed every ``checkpoint_every`` slots (0: never),
@@ -441,13 +465,18 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
     a lent copy its device has not held nor seen for ``unseen`` slots given back (0: kept;
     None: the edge's defaults), device k walking place k mod ``places``
     (:meth:`Recording.of_place`), every edge given the ``extra`` parameters (``NAME:=VALUE``
-    each, as ``-p`` takes them); the table's row and every device-slot's figures (its latency,
-    the edge's compute, what the slot restored, uploaded, closed)."""
+    each, as ``-p`` takes them), edge process k held to CPU set k mod len(``edge_cores``)
+    (none given: to ``everywhere``, or where this process may run); the table's row and every
+    device-slot's figures (its latency, the edge's compute, what the slot restored, uploaded,
+    closed)."""
     names = [f"ar{i + 1}" for i in range(n)]
     with pools_env(pools), fleet_network(edges, hosts) as (dom, _), \
             tempfile.TemporaryDirectory(prefix="twinslam-checkpoints-") as kept:
         served = edge_devices(names, edges, places)
         hosted = edge_hosts(len(served)) if hosts else [None] * len(served)
+        pins = [pin if pin is not None else everywhere
+                for pin in cycled(edge_cores, len(served))]
+        edges_cores = frozenset().union(*edge_cores)
         procs = [dom.spawn(["-m", "edge_mapper.node", "--ros-args",
                             "-r", f"__node:=edge_mapper_{e + 1}", "-p", f"policy:={policy}",
                             "-p", f"devices:=[{', '.join(block)}]",
@@ -474,7 +503,7 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
                             *(["-p", f"lent_unseen_slots:={unseen}"]
                               if unseen is not None else []),
                             *itertools.chain.from_iterable(("-p", e) for e in extra)],
-                           host=hosted[e])
+                           host=hosted[e], **held_to(pins[e]))
                  for e, block in enumerate(served)]
         for edge, block in zip(procs, served, strict=True):
             if not dom.wait_for_log(edge, f"listening on /{block[-1]}", 120):
@@ -504,7 +533,7 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
                 raise SystemExit("the edge did not subscribe to every device")
             cpu0, wall0 = sum(cpu_seconds(p.pid) for p in procs), time.monotonic()
             slot_threads0 = sum(cpu_seconds(p.pid, p.pid) for p in procs)
-            own0, (idle0, ticks0) = time.process_time(), host_idle()
+            own0, (idle0, ticks0) = time.process_time(), host_idle(edges_cores)
             # every slot played and answered, or 15 s past the last slot's period
             deadline = max(d.start for d in devices) + \
                 (len(recording.summaries) + 7.5) * recording.slot_s
@@ -523,7 +552,7 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
             cpu = sum(cpu_seconds(p.pid) for p in procs) - cpu0
             slot_threads = sum(cpu_seconds(p.pid, p.pid) for p in procs) - slot_threads0
             wall = time.monotonic() - wall0
-            own, (idle, ticks) = time.process_time() - own0, host_idle()
+            own, (idle, ticks) = time.process_time() - own0, host_idle(edges_cores)
         log = "".join(dom.stop(p)[2] for p in procs)
     stats = [s for d in devices for s in d.stats.values()]
     expected = n * len(recording.summaries)
@@ -537,6 +566,7 @@ def measure(n: int, recording: Recording, policy: str, compute_budget: float = 0
     latency = [s.slot_latency_ms for s in stats]
     return {"devices": n, "edges": len(served), "pools": pools,
             "network": "hosts" if hosts else "loopback", "device_slots": expected,
+            "edge_cores": " ".join(format_cpu_list(c) for c in edge_cores),
             "answered": len(stats),
             "compute_ms_median": float(np.median(compute)) if compute else math.nan,
             "compute_ms_p95": float(np.percentile(compute, 95)) if compute else math.nan,
@@ -701,7 +731,25 @@ def main() -> None:
                         help="each edge process on an edge host of its own and the devices on "
                              "a device host (network namespaces on one switch; needs root) "
                              "instead of one loopback domain")
+    parser.add_argument("--edge-cores", default="", metavar='"LIST LIST …"',
+                        help="hold edge process k to the k-th CPU list (taskset's form: 0-1, "
+                             "2,3), cycled: \"0-1 0-1 2-3 2-3\" with --edges 4 is two "
+                             "2-core edge hosts of two processes each, measured in one run on "
+                             "a machine with cores to spare (default: the edges run on any "
+                             "core); the idle column is then their cores'")
+    parser.add_argument("--device-cores", default="", metavar="LIST",
+                        help="hold the emulated devices (this process) to these cores, apart "
+                             "from the edges' (default: any core)")
     args = parser.parse_args()
+    try:
+        edge_cores = [usable(parse_cpu_list(text)) for text in args.edge_cores.split()]
+        device_cores = usable(parse_cpu_list(args.device_cores)) \
+            if args.device_cores.strip() else None
+    except CpuSetError as exc:
+        parser.error(f"--edge-cores / --device-cores: {exc}")
+    if device_cores is not None and device_cores & frozenset().union(*edge_cores):
+        parser.error("--device-cores: the devices' cores overlap the edges' "
+                     f"({format_cpu_list(device_cores & frozenset().union(*edge_cores))})")
     if args.stagger < 0:
         parser.error(f"--stagger: slot periods, 0 or more, not {args.stagger:g}")
     if args.checkpoint_every < 0:
@@ -754,8 +802,14 @@ def main() -> None:
           f"{args.stagger:g} slot periods; {args.places} place(s); "
           f"{checkpoints}"
           f"{'edge and device hosts (network namespaces)' if args.hosts else 'loopback'}"
-          f"{'; every edge with ' + ' '.join(args.edge_param) if args.edge_param else ''}",
+          f"{'; every edge with ' + ' '.join(args.edge_param) if args.edge_param else ''}"
+          f"{'; edges held to cores ' + args.edge_cores if edge_cores else ''}"
+          f"{'; devices to ' + format_cpu_list(device_cores) if device_cores else ''}",
           flush=True)
+    # the edges start where this process could run, unless held to cores of their own
+    everywhere = frozenset(os.sched_getaffinity(0))
+    if device_cores is not None:
+        os.sched_setaffinity(0, device_cores)
     rows = []
     merging = {"off": False, "on": True}
     unknown = [m for m in args.merge_maps.split(",") if m not in merging]
@@ -786,7 +840,8 @@ def main() -> None:
                                  args.hosts, merging[merge], args.stagger,
                                  args.checkpoint_every, nice, share, yields, background,
                                  across, in_view, unseen, args.places, executor,
-                                 tuple(args.edge_param))
+                                 tuple(args.edge_param), edge_cores,
+                                 everywhere if device_cores is not None else None)
             full = [c for c in collections() if c[0] == 2]
         if row["devices_sharing"] and row["devices_alone"]:
             print(f"      {row['devices_sharing']} devices sharing a place: "
