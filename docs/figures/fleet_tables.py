@@ -41,6 +41,12 @@ files the commands wrote (every command is on that page beside its table):
   --places 13`` — the twelve pairs and one — or ``--places 25``, the 25 alone; ``--stagger 10
   --merge-maps on [--compute-budget 0.6] [--hosts]``) → fleet/fifty-on-two-hosts.png: each
   setting's late share and summaries → map p95, a point a run, and the edges' cores by thread;
+* ``one-core`` — fleet/one-core/{alone,half-sharing}-R.csv (``python -m bench.edge_scaling
+  --devices N --edges 1 --stagger 10 --edge-cores 1 --device-cores 0``, with ``--places 20``
+  for devices alone in their places, ``--places 3N/4 --merge-maps on`` for half of them in
+  pairs sharing one; round R) → fleet/one-core.png: what one edge process on a core of its
+  own carries, the emulated devices on the other core: the late share and summaries → map
+  p95 vs N, a line a round;
 * ``emulator FILE…`` — ``python -m bench.edge_scaling --devices 50 --edges 1,2
   --emulator-executor single,events`` runs, one file a round: per emulator and edge count,
   each round's late share, answered device-slots, summaries → map p95, the edges' and the
@@ -62,6 +68,7 @@ files the commands wrote (every command is on that page beside its table):
     .venv/bin/python docs/figures/fleet_tables.py revisit
     .venv/bin/python docs/figures/fleet_tables.py fifty
     .venv/bin/python docs/figures/fleet_tables.py two-hosts
+    .venv/bin/python docs/figures/fleet_tables.py one-core
     .venv/bin/python docs/figures/fleet_tables.py sim docs/figures/fleet/sim-n10-lff.csv
     .venv/bin/python docs/figures/fleet_tables.py split \
         docs/figures/fleet/sim-n10-lff-cell400.csv \
@@ -312,27 +319,36 @@ def _late_share_axis(ax: Any, title: str, goal_x: float) -> None:
            ylim=(0, 100), title=title)
 
 
-def hosts() -> None:
-    """Two edge processes on one loopback domain against two edge hosts, run by run."""
+def _late_and_p95_by_run(series: Sequence[tuple[str, list[Path], str]], title: str,
+                         name: str, runs_are: str = "runs") -> None:
+    """The late share and the summaries → map p95 against the devices served, a line a run
+    (``series``: a colour, the runs' CSVs and a label each), saved as ``name``."""
     plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.4))
-    for colour, network, label in (("C0", "loopback", "two edge processes, one loopback domain"),
-                                   ("C3", "hosts", "two edge hosts (network namespaces, UDP)")):
-        runs = sorted((HERE / "fleet/edge-hosts").glob(f"{network}-*.csv"))
+    for colour, runs, label in series:
         for i, path in enumerate(runs):
             rows = _rows(path)
             n = [int(r["devices"]) for r in rows]
-            name = f"{label}, {len(runs)} runs" if i == 0 else None
+            legend = f"{label}, {len(runs)} {runs_are}" if i == 0 else None
             axes[0].plot(n, [100 * float(r["missed_share"]) for r in rows], "o-",
-                         color=colour, alpha=0.8, label=name)
+                         color=colour, alpha=0.8, label=legend)
             axes[1].plot(n, [float(r["latency_ms_p95"]) / 1000 for r in rows], "o-",
-                         color=colour, alpha=0.8, label=name)
-    _late_share_axis(axes[0], "late maps (2 cores shared by every host)", goal_x=8)
+                         color=colour, alpha=0.8, label=legend)
+    _late_share_axis(axes[0], title, goal_x=8)
     axes[1].axhline(1, color="grey", lw=1)
     axes[1].set(xlabel="devices", ylabel="seconds", ylim=(0, None),
                 title="summaries → map update, p95")
     axes[0].legend(fontsize=8, loc="upper left")
-    _save(fig, "fleet/edge-hosts.png")
+    _save(fig, name)
+
+
+def hosts() -> None:
+    """Two edge processes on one loopback domain against two edge hosts, run by run."""
+    folder = HERE / "fleet/edge-hosts"
+    _late_and_p95_by_run(
+        [("C0", sorted(folder.glob("loopback-*.csv")), "two edge processes, one loopback domain"),
+         ("C3", sorted(folder.glob("hosts-*.csv")), "two edge hosts (network namespaces, UDP)")],
+        "late maps (2 cores shared by every host)", "fleet/edge-hosts.png")
 
 
 def stagger() -> None:
@@ -610,16 +626,28 @@ def two_hosts() -> None:
     _save(fig, "fleet/fifty-on-two-hosts.png")
 
 
+def one_core() -> None:
+    """One edge process held to a core of its own, the emulated devices to the other: the
+    late share and the summaries → map p95 vs the devices it serves, alone in their places
+    and half of them sharing one, a line a round."""
+    folder = HERE / "fleet/one-core"
+    _late_and_p95_by_run(
+        [("C0", sorted(folder.glob("alone-*.csv")), "each device alone in its place"),
+         ("C3", sorted(folder.glob("half-sharing-*.csv")),
+          "half of them in pairs sharing a place")],
+        "late maps: an edge process on one core of its own", "fleet/one-core.png", "rounds")
+
+
 def main(argv: list[str]) -> int:
     if not argv or argv[0] not in ("scaling", "edges", "hosts", "stagger", "revisit", "sim",
                                    "split", "live", "emulator", "curve", "fifty",
-                                   "two-hosts"):
+                                   "two-hosts", "one-core"):
         print(__doc__)
         return 2
     {"scaling": lambda a: scaling(), "edges": lambda a: edges(), "hosts": lambda a: hosts(),
      "stagger": lambda a: stagger(), "revisit": lambda a: revisit(), "sim": sim,
      "split": split, "live": live, "curve": lambda a: curve(), "fifty": lambda a: fifty(),
-     "two-hosts": lambda a: two_hosts(),
+     "two-hosts": lambda a: two_hosts(), "one-core": lambda a: one_core(),
      "emulator": lambda a: print("\n".join(emulator_table([Path(p) for p in a])))
      }[argv[0]](argv[1:])
     return 0
