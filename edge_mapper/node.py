@@ -115,7 +115,8 @@ class EdgeMapperNode(Node):
         self.merging = (PlaceMerging(lambda: {d: link.core for d, link in self.links.items()},
                                      min_inliers=int(p["merge_min_inliers"]),
                                      lend_in_view=bool(p["lend_in_view"]),
-                                     unseen_slots=int(p["lent_unseen_slots"]))
+                                     unseen_slots=int(p["lent_unseen_slots"]),
+                                     look_backoff_slots=int(p["merge_look_backoff_slots"]))
                         if self.several and bool(p["merge_maps"]) else None)
         config = self.settings.config
         # the process's loop worker (every device's loop jobs), at or below the slots' priority

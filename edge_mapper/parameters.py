@@ -195,14 +195,22 @@ PARAMETERS = (
               "device served before it once its keyframes are found in that device's map, or "
               "that device's in its own (confirmed by two more, as a loop), and adopts that "
               "map's keyframes into its archive, which restores bring in where it heads: their "
-              "poses in one frame, on shared keyframes; looks beside the slots cost ~0.1 s of "
-              "CPU a slot per unmerged device"),
+              "poses in one frame, on shared keyframes; the looks beside the slots and the "
+              "keyframe database cost the loop worker ~14 ms of CPU a slot per unmerged "
+              "device (twelve alone on one core), and the database's words ~3 s once"),
     ParamSpec("merge_min_inliers", MERGE_MIN_INLIERS, "with merge_maps: the PnP inliers "
               "each of a merge's three detections needs (a loop's 50 at least): a merge places "
               "a whole map by one keyframe's geometry, and waiting for a place both maps see "
               "well merged later and left both devices nearer the truth (live, 100 against 50: "
               "ATE -0.58 and -0.26 cm; their agreement on the same frames not told apart)",
               low=MIN_INLIERS, high=10_000),
+    ParamSpec("merge_look_backoff_slots", 1, "with merge_maps: the most slots between two "
+              "looks of a device whose looks find no candidate place in the maps they search "
+              "(after each such look the wait doubles, up to this; a candidate found, or a "
+              "device served anew, and it looks after every slot again): the looks of devices "
+              "alone in their places cost the loop worker ~14 ms a device-slot, and a device "
+              "that walks into a mapped place then merges up to this many slots less one "
+              "later; 1: a look after every slot", low=1, high=1000),
     ParamSpec("lend_in_view", True, "with merge_maps: a device's map adopts another device's "
               "keyframe of its place once its camera, where it heads, sees it (as a restore "
               "would score it; everything while it is lost): each map welds what its device "

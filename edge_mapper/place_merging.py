@@ -52,6 +52,15 @@ other devices joined already still merge. Each device's next map update carries 
 A look that finished after either map's frame changed (a loop closed, a merge) is dropped,
 its alignment measured against poses a map no longer has.
 
+A device whose looks find no candidate place — no keyframe of the map it looked in passed the
+screen and PnP — may look less often (``look_backoff_slots`` above 1, the edge's
+``merge_look_backoff_slots``): after each such look it waits twice as many slots as before,
+up to that many, and looks every slot again once a look finds a candidate or the edge serves
+another device's map. Twelve devices each alone in its place on one core cost the edge's loop
+worker twice the CPU with ``merge_maps`` (the looks and the database's filing, ~14 ms a
+device-slot); a device that walks into a mapped place then merges up to that many slots
+less one later.
+
 Each device's checkpoint records its place — the root whose frame its map is in, and how many
 of each lender's loops its copies followed (:mod:`edge_mapper.place_membership`) — and the
 copies' tags are functions of the lenders' names: an edge restarted from its checkpoints, or a
@@ -133,6 +142,9 @@ class _Look:
     #: the maps the keyframe database ranked worth the next look, best first (empty: no
     #: ranking, the next look takes the other maps in turn)
     ranked: tuple[str, ...] = ()
+    #: a keyframe of the look found a place in the other map (passed the screen and a
+    #: loop's PnP inliers), confirmed or not, on the merge's inliers or fewer
+    candidate: bool = False
 
 
 class PlaceMerging:
@@ -144,7 +156,7 @@ class PlaceMerging:
                  background: bool = True, min_inliers: int = MERGE_MIN_INLIERS,
                  lend_in_view: bool = True, unseen_slots: int = 0,
                  worker: SharedWorker = SHARED_WORKER,
-                 database: KeyFrameDatabase | None = None) -> None:
+                 database: KeyFrameDatabase | None = None, look_backoff_slots: int = 1) -> None:
         self.cores = cores
         #: every device's uploaded keyframes as bags of words: which maps a look goes to
         self.database = database if database is not None else KeyFrameDatabase()
@@ -172,6 +184,17 @@ class PlaceMerging:
         #: neither holds nor sees it, before it goes back to its lender (the edge's
         #: lent_unseen_slots; 0: kept)
         self.unseen_slots = unseen_slots
+        if look_backoff_slots < 1:
+            raise ValueError(f"the looks' backoff is 1 slot or more, not {look_backoff_slots}")
+        #: the most slots between two looks of a device whose looks found no candidate
+        #: (1: a look after every slot)
+        self.look_backoff_slots = look_backoff_slots
+        #: device → the slot its running look started at
+        self._look_started: dict[str, int] = {}
+        #: device → (slots between its looks now, the first slot it may look at again)
+        self._look_gap: dict[str, tuple[int, int]] = {}
+        #: device → the maps it could look in at its looks so far
+        self._looked_among: dict[str, set[str]] = {}
         #: joined device → the device whose frame it is in
         self.joined: dict[str, str] = {}
         self._finders: dict[tuple[str, str], MergeFinder] = {}
@@ -396,6 +419,7 @@ class PlaceMerging:
         look = running.result()
         self.look_ms.append(look.ms)
         self._ranked[device] = look.ranked
+        self._back_off(device, look.candidate)
         if look.error:
             self._failed.append(f"looking for {look.other}'s place failed: {look.error}")
         if look.merge is None:
@@ -412,6 +436,14 @@ class PlaceMerging:
             return moved
         self._merge_places(device, look.other, look.merge, look.ms)
         return self._moved.pop(device, None) or moved
+
+    def _back_off(self, device: str, candidate: bool) -> None:
+        """After ``device``'s look: the slots until its next one — twice the last gap where
+        it found no candidate place (up to :attr:`look_backoff_slots`), one where it did."""
+        started = self._look_started.pop(device, 0)
+        gap, _ = self._look_gap.get(device, (1, 0))
+        gap = 1 if candidate else min(2 * gap, self.look_backoff_slots)
+        self._look_gap[device] = (gap, started + gap)
 
     def _merge_places(self, device: str, other: str, merge: MapMerge, ms: float) -> None:
         """``device``'s place (it is the root) and ``other``'s made one: ``merge`` carries
@@ -454,7 +486,8 @@ class PlaceMerging:
         self._learn_beside()
         queries = self._queries.get(device)
         others = self.others(device)
-        if not self.looking or not queries or not others or device in self._running:
+        if not self.looking or not queries or not others or device in self._running or \
+                self._backing_off(device, slot, others):
             self._file_beside()
             return
         turn = self._turn.get(device, 0)
@@ -478,6 +511,8 @@ class PlaceMerging:
         job = (place, finder, snapshot, tuple(queries), poses, joining.k.copy(),
                joining.frame_correction.copy(), other.frame_correction.copy())
         self._queries[device] = []
+        self._look_started[device] = slot
+        self._looked_among.setdefault(device, set()).update(others)
         rank = functools.partial(self.database.candidates_of, device,
                                  [query.keyframe for query in queries], others)
         if self.background:
@@ -487,6 +522,18 @@ class PlaceMerging:
             done: Future[_Look] = Future()
             done.set_result(_look(*job, rank=rank))
             self._running[device] = done
+
+    def _backing_off(self, device: str, slot: int, others: list[str]) -> bool:
+        """Whether ``device`` waits at ``slot`` for its next look (its last ones found no
+        candidate, :meth:`_back_off`); not once the edge serves a map it had not looked
+        among."""
+        gap, after = self._look_gap.get(device, (1, 0))
+        if gap == 1:
+            return False
+        if not set(others) <= self._looked_among.get(device, set()):
+            self._look_gap[device] = (1, 0)            # a map it never looked among
+            return False
+        return slot < after
 
     def _file_beside(self) -> None:
         """The keyframe database's queue filed on the worker once it is long (no look filed
@@ -555,6 +602,8 @@ class PlaceMerging:
             del self._seen[pair]
         self._queries.pop(device, None)
         self._running.pop(device, None)
+        for backoff in (self._look_started, self._look_gap, self._looked_among):
+            backoff.pop(device, None)
         self._look_indexes.pop(device, None)
         self._turn.pop(device, None)
         self._ranked.pop(device, None)
@@ -619,6 +668,7 @@ def _look(place: str, finder: MergeFinder, other: KeyFrameArchive,
     spent = 0.0
     merge = None
     ranked: tuple[str, ...] = ()
+    seen_before = finder.sightings
     unranked = ""
     pause()
     started = time.perf_counter()
@@ -648,4 +698,5 @@ def _look(place: str, finder: MergeFinder, other: KeyFrameArchive,
         f"keyframe {last.old} on {last.inliers} inliers, not confirmed yet" if last.found
         else last.reason)
     return _Look(place, merge, frame, spent * 1e3, unranked, found=found,
-                 other_frame=other_frame, ranked=ranked)
+                 other_frame=other_frame, ranked=ranked,
+                 candidate=finder.sightings > seen_before)

@@ -347,6 +347,50 @@ def test_a_look_goes_to_the_map_its_keyframes_scored_highest_in(
         "yet)")
 
 
+def test_a_device_whose_looks_find_nothing_looks_less_often_until_a_new_map_is_served(
+        room: Room, monkeypatch: pytest.MonkeyPatch) -> None:  # noqa: F811
+    """With a backoff of 4 slots, ar2's looks into a map of another place (ar0's, which
+    holds nothing of the room) come twice as far apart after each that found no candidate:
+    at slots 0, 2 and 6, not every slot. Once the edge serves ar1, whose map is the room, ar2
+    looks at once — a map it never looked among — and merges as it would have; the default
+    (1) looks after every slot."""
+    import edge_mapper.place_merging as place_merging
+
+    def walk(backoff: int) -> tuple[list[int], PlaceMerging]:
+        newcomer = _room_and_newcomer(room)
+        cores = {"ar0": _core(), "ar2": newcomer["ar2"]}
+        cores["ar0"].map.add_keyframe(1, np.eye(4))
+        cores["ar0"].back_end.k = room[0].intrinsics              # type: ignore[attr-defined]
+        merging = PlaceMerging(lambda: cores, background=False, look_backoff_slots=backoff)
+        looked_at: list[int] = []
+        slot = 0
+
+        def spied(place: str, *args: object, **kwargs: object) -> object:
+            looked_at.append(slot)
+            return _look(place, *args, **kwargs)                  # type: ignore[arg-type]
+
+        monkeypatch.setattr(place_merging, "_look", spied)
+        for slot in range(16):
+            if slot == 8:
+                cores["ar1"] = newcomer["ar1"]                    # the room's map, served now
+            frame = 4 + 30 * (slot % 8)
+            cores["ar2"].map.add_keyframe(10 + slot, _second_pose(room, frame))
+            merging.keyframe("ar2", _payload(room, frame, 10 + slot))
+            merging.take("ar2")
+            if merging.joined:
+                break
+            merging.look("ar2", slot)
+        return looked_at, merging
+
+    looked_at, merging = walk(backoff=4)
+    assert looked_at[:3] == [0, 2, 6] and looked_at[3] == 8
+    assert set(merging.joined.items()) in ({("ar2", "ar1")}, {("ar1", "ar2")})
+    every_slot, merged = walk(backoff=1)
+    assert every_slot[:9] == list(range(9)) and merged.joined == merging.joined
+    with pytest.raises(ValueError, match="1 slot or more"):
+        PlaceMerging(dict, look_backoff_slots=0)
+
+
 def test_a_device_alone_files_its_uploads_though_it_makes_no_look(room: Room) -> None:  # noqa: F811
     """One device on an edge that merges maps has no other map to look in, so no look files
     the keyframe database's queue: past FILE_QUEUED uploads the device's slot end has it

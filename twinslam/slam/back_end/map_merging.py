@@ -101,6 +101,9 @@ class MergeFinder:
             min_inliers=MIN_INLIERS,
             screen_votes=screen_for(math.ceil(min_inliers / INLIERS_PER_VOTE)))
         self.candidates = 0               #: keyframes whose geometry found the other map
+        #: keyframes whose geometry found the other map at a loop's inliers, below the
+        #: merge's gate too: the place seen, if not well enough to merge on
+        self.sightings = 0
         self.last: LoopCandidate | None = None   #: what the last keyframe found, or why not
 
     def offer(self, other: KeyFrameArchive, query: LoopQuery,
@@ -112,6 +115,7 @@ class MergeFinder:
         pose = joining_poses[query.keyframe]
         candidate = recognise_place(other, query.points_xy, query.descriptors, intrinsics,
                                     self.search, depths=query.depths)
+        self.sightings += candidate.found
         if candidate.found and candidate.inliers < self.min_inliers:
             candidate = LoopCandidate(-1, None, None, candidate.inliers,
                                       f"{candidate.inliers} inliers, fewer than the merge's "
