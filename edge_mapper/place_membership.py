@@ -16,6 +16,13 @@ map counts keyframe and point ids from where any device starts. Its copies in ot
 not carry the old map's tag: a borrower would take the new keyframes for copies it holds
 already and weld the new points to the old map's points of the same ids. So the record keeps
 the map's run (0 for a device's first map).
+
+It keeps too the slot each lender's keyframe, held back out of the device's view and not lent
+yet, was first offered at (:attr:`~twinslam.slam.back_end.map_merging.Lender.offered`): a copy
+counts as adopted then, and a loop across devices closes only with copies adopted a while
+before. Without it a restarted edge counted every keyframe still held back as first offered
+at the restart: where the device came to it, its lender had been there longer than the copy
+said, and a loop across with it waited slots it need not have.
 """
 
 from __future__ import annotations
@@ -34,6 +41,9 @@ from twinslam.slam.back_end.keyframe_map import MapError
 
 #: the checkpoint's arrays of a device's place
 ROOT, LENDERS, FOLLOWED, RUN = "place_root", "place_lenders", "place_followed", "place_run"
+#: the checkpoint's arrays of the keyframes offered and not lent yet: one entry a keyframe
+OFFERED_BY, OFFERED, OFFERED_AT = ("place_offered_lenders", "place_offered_keyframes",
+                                   "place_offered_slots")
 
 
 @functools.cache
@@ -66,13 +76,21 @@ class PlaceMembership:
     #: which of the device's maps this is (0: its first; one more each time the edge started
     #: it a new one): its copies' tag (:func:`source_of`)
     run: int = 0
+    #: lender → its keyframes offered to this map and not lent yet (held back out of the
+    #: device's view) → the slot each was first offered at
+    offered: Mapping[str, Mapping[int, int]] = field(default_factory=dict)
 
     def arrays(self) -> dict[str, np.ndarray]:
         """The record as checkpoint arrays (strings as unicode arrays: no pickle needed)."""
         lenders = sorted(self.followed)
+        entries = [(lender, kf, slot) for lender in sorted(self.offered)
+                   for kf, slot in sorted(self.offered[lender].items())]
         return {ROOT: np.array(self.root), LENDERS: np.array(lenders, dtype=np.str_),
                 FOLLOWED: np.array([self.followed[d] for d in lenders], dtype=np.int64),
-                RUN: np.array(self.run, dtype=np.int64)}
+                RUN: np.array(self.run, dtype=np.int64),
+                OFFERED_BY: np.array([e[0] for e in entries], dtype=np.str_),
+                OFFERED: np.array([e[1] for e in entries], dtype=np.int64),
+                OFFERED_AT: np.array([e[2] for e in entries], dtype=np.int64)}
 
     @classmethod
     def read(cls, extra: Mapping[str, np.ndarray]) -> PlaceMembership:
@@ -90,7 +108,16 @@ class PlaceMembership:
         if len(lenders) != len(counts):
             raise MapError(f"a checkpoint's place record names {len(lenders)} lenders and "
                              f"{len(counts)} loop counts")
-        return cls(str(extra[ROOT]), dict(zip(lenders, counts, strict=True)), run)
+        by = [str(d) for d in np.atleast_1d(extra.get(OFFERED_BY, ()))]
+        kfs = [int(k) for k in np.atleast_1d(extra.get(OFFERED, ()))]
+        slots = [int(t) for t in np.atleast_1d(extra.get(OFFERED_AT, ()))]
+        if not len(by) == len(kfs) == len(slots):
+            raise MapError(f"a checkpoint's place record lists its offers with {len(by)} "
+                           f"lenders, {len(kfs)} keyframes and {len(slots)} slots")
+        offered: dict[str, dict[int, int]] = {}
+        for lender, kf, slot in zip(by, kfs, slots, strict=True):
+            offered.setdefault(lender, {})[kf] = slot
+        return cls(str(extra[ROOT]), dict(zip(lenders, counts, strict=True)), run, offered)
 
 
 def run_after(reclaimed: Path) -> int:

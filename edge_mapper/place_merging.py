@@ -268,6 +268,8 @@ class PlaceMerging:
         self._runs[device] = record.run
         for lender, count in record.followed.items():
             self._followed[(device, lender)] = count
+        for lender, offered in record.offered.items():
+            self._offered[(device, lender)] = dict(offered)
         if record.root and record.root != device:
             self._recorded[device] = record.root
         placed = self._rejoin()
@@ -302,7 +304,9 @@ class PlaceMerging:
         root = self.joined.get(device) or self._recorded.get(device, "")
         return PlaceMembership(root,
                                {lender: n for (borrower, lender), n in self._followed.items()
-                                if borrower == device}, self._runs.get(device, 0))
+                                if borrower == device}, self._runs.get(device, 0),
+                               {lender: dict(kfs) for (borrower, lender), kfs
+                                in self._offered.items() if borrower == device and kfs})
 
     def source(self, device: str) -> int:
         """The source index the copies of ``device``'s current map carry."""

@@ -815,6 +815,38 @@ def test_an_edge_restarted_from_its_checkpoints_serves_each_device_in_the_place_
     assert len(restarted["ar2"].archive) > len(room[1]) and again.database.keyframes("ar2") == 0
 
 
+def test_the_keyframes_held_back_keep_the_slot_they_were_first_offered_at_over_a_restart(
+        room: Room, tmp_path: Path) -> None:  # noqa: F811
+    """ar1's keyframes 180, 210 and 999, out of ar2's view at slot 4, are offered then and
+    held back; the edge restarts from its checkpoints, and when ar2 heads where 180 and 210
+    are (slot 9) they are lent as adopted at slot 4, as they would have been without the
+    restart — not at the restart's first offer: a loop across devices with them may close
+    as soon as it could have."""
+    cores = _room_and_newcomer(room, tmp_path)
+    merging = PlaceMerging(lambda: cores, background=False)
+    for device in cores:
+        merging.serve(device)
+    _walk_ar2_into_the_room(room, cores, merging)
+    _tracked_at(cores["ar2"], 4, room[0].read(4).pose)   # type: ignore[attr-defined]
+    merging.before_slot_end("ar2", 4)
+    assert merging.membership("ar2").offered == {"ar1": {180: 4, 210: 4, 999: 4}}
+    for core in cores.values():
+        core.save_checkpoint()
+        core.close()
+    restarted: dict[str, EdgeMapperCore] = {}
+    again = PlaceMerging(lambda: restarted, background=False)
+    for device in ("ar1", "ar2"):
+        restarted[device] = _core(checkpoint=tmp_path / f"edge.{device}.npz")
+        again.serve(device)
+    assert again.joined == {"ar2": "ar1"}
+    assert again.membership("ar2").offered == {"ar1": {180: 4, 210: 4, 999: 4}}
+    _tracked_at(restarted["ar2"], 9, room[0].read(184).pose)  # type: ignore[attr-defined]
+    assert again.before_slot_end("ar2", 9)[1] == 2
+    ar1 = foreign_tag(source_of("ar1"))
+    assert restarted["ar2"].back_end.adopted_at[ar1 | 180] == 4
+    assert restarted["ar2"].back_end.adopted_at[ar1 | 210] == 4
+
+
 def test_a_device_whose_copies_would_share_another_devices_tag_lends_nothing(
         room: Room) -> None:  # noqa: F811
     """Two device names whose tags collide (1 in ~3 000 edges of fifty devices): a map could

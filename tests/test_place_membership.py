@@ -11,12 +11,22 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from edge_mapper.place_membership import FOLLOWED, RUN, PlaceMembership, run_after, source_of
+from edge_mapper.place_membership import (
+    FOLLOWED,
+    OFFERED,
+    OFFERED_AT,
+    OFFERED_BY,
+    RUN,
+    PlaceMembership,
+    run_after,
+    source_of,
+)
 from twinslam.slam.back_end.foreign_keyframes import MAX_SOURCES
 
 
 def test_a_place_is_read_back_as_it_was_written() -> None:
-    record = PlaceMembership("ar1", {"ar3": 2, "ar1": 5}, run=3)
+    record = PlaceMembership("ar1", {"ar3": 2, "ar1": 5}, run=3,
+                             offered={"ar3": {17: 4, 9: 6}, "ar1": {2: 1}})
     assert PlaceMembership.read(record.arrays()) == record
     assert PlaceMembership.read(PlaceMembership().arrays()) == PlaceMembership()
 
@@ -50,6 +60,24 @@ def test_the_next_maps_run_is_one_past_the_map_set_aside(tmp_path: Path) -> None
     assert run_after(aside) == 3
     aside.write_bytes(b"not a checkpoint")
     assert run_after(aside) == 1
+
+
+def test_a_record_written_before_offers_were_kept_offers_nothing() -> None:
+    arrays = PlaceMembership("ar1", {"ar3": 2}, offered={"ar3": {5: 1}}).arrays()
+    for name in (OFFERED_BY, OFFERED, OFFERED_AT):
+        del arrays[name]
+    assert PlaceMembership.read(arrays) == PlaceMembership("ar1", {"ar3": 2})
+
+
+def test_a_record_whose_offers_disagree_in_length_is_refused() -> None:
+    arrays = PlaceMembership("ar1", {}, offered={"ar3": {5: 1, 6: 2}}).arrays()
+    arrays[OFFERED_AT] = arrays[OFFERED_AT][:1]
+    with pytest.raises(ValueError, match="2 lenders, 2 keyframes and 1 slots"):
+        PlaceMembership.read(arrays)
+    arrays = PlaceMembership("ar1", {}, offered={"ar3": {5: 1, 6: 2}}).arrays()
+    arrays[OFFERED_BY] = arrays[OFFERED_BY][:1]
+    with pytest.raises(ValueError, match="1 lenders, 2 keyframes and 2 slots"):
+        PlaceMembership.read(arrays)
 
 
 def test_a_record_with_a_loop_count_too_few_is_refused() -> None:
