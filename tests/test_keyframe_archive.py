@@ -4,6 +4,8 @@ the synthetic room, the capacity (least recently useful first), and its files on
 from __future__ import annotations
 
 import dataclasses
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -217,6 +219,48 @@ def test_an_archive_written_later_owes_each_file_until_the_checkpoints_writer_la
     assert archive.write_owed() == 0                  # nothing owed twice
     archive.release(archive.hand_over_taken())        # the map holding 3 checkpointed
     assert not (folder / "keyframe-000000003.npz").exists()
+
+
+def test_an_owed_file_is_written_without_holding_up_the_slot_thread(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The writer's write (and its fsync) of keyframe 1's file is held up; meanwhile the slot
+    thread archives keyframe 3 and drops keyframe 2, whose write was to come — neither waits
+    for the disk. Keyframe 2 gets no file (a late write would bring a dropped keyframe back);
+    keyframe 1, moved by a loop while its first write was under way, is written again where
+    it stands now."""
+    folder = tmp_path / "edge.npz.archive"
+    archive = KeyFrameArchive(5, folder)
+    archive.write_later = True
+    for k in (1, 2):
+        archive.add(_random_keyframe(k, slot=k))
+    writing, release = threading.Event(), threading.Event()
+    save = ArchivedKeyFrame.save
+
+    def held_up(kf: ArchivedKeyFrame, path: Path) -> None:
+        if kf.id == 1 and not release.is_set():
+            writing.set()
+            assert release.wait(30.0)
+        save(kf, path)
+
+    monkeypatch.setattr(ArchivedKeyFrame, "save", held_up)
+    writer = threading.Thread(target=archive.write_owed)
+    writer.start()
+    assert writing.wait(30.0)
+    started = time.monotonic()
+    archive.add(_random_keyframe(3, slot=3))
+    archive.drop(2)
+    assert archive.correct({1: _lift(0.05)}, write=False) == [1]
+    assert time.monotonic() - started < 5.0           # not behind the held-up write
+    release.set()
+    writer.join(30.0)
+    assert not writer.is_alive()
+    assert sorted(p.name for p in folder.glob("keyframe-*")) == ["keyframe-000000001.npz"]
+    cut_short = folder / "keyframe-000000009.npz.owed.tmp"   # an edge stopped mid-write
+    cut_short.write_bytes(b"half a file")
+    back, problems = KeyFrameArchive.restore(5, folder)
+    assert problems == [] and [kf.id for kf in back] == [1] and not cut_short.exists()
+    np.testing.assert_allclose(back.get(1).pose, archive.get(1).pose, atol=1e-12)
+    assert archive.owed == 1                          # 3: at the next checkpoint
 
 
 def test_an_owed_file_that_cannot_be_written_stays_owed(tmp_path: Path) -> None:

@@ -66,6 +66,9 @@ from twinslam.slam.back_end.place_index import KeptPlaceIndex
 from twinslam.slam.back_end.place_words import DESCRIPTOR_BITS, PlaceWords
 
 ARCHIVE_FORMAT = "twinslam-archived-keyframe-1"
+#: an owed keyframe's file while it is written, before it takes its name
+#: (:meth:`KeyFrameArchive.write_owed`); one an edge stopped beside is removed at its restart
+STAGED_SUFFIX = ".owed"
 
 
 class ArchiveError(ValueError):
@@ -263,7 +266,13 @@ class KeyFrameArchive:
         """Write the files owed (:attr:`write_later`), each as the keyframe stands now — or,
         taken back into the map since, as it was archived. The checkpoint writer calls it
         before it writes the map checkpoint; a write that fails raises, and what was not
-        written stays owed. How many files were written."""
+        written stays owed. How many files were written.
+
+        Each file is written and flushed to the disk beside its final name, outside the lock
+        the slot thread takes to archive or drop a keyframe — on a slow disk one ``fsync``
+        would hold every device's slot — and renamed into place under it, only if the
+        keyframe is still owed as it was written: one dropped meanwhile gets no file, one
+        archived again or moved by a loop meanwhile is written again as it is now."""
         if self.folder is None:
             return 0
         with self._files:
@@ -272,13 +281,21 @@ class KeyFrameArchive:
             self.folder.mkdir(parents=True, exist_ok=True)
         written = 0
         for kf_id in owed:
-            with self._files:
-                kf = self._owed.get(kf_id)
-                if kf is None:                 # left the archive for good meanwhile
-                    continue
-                kf.save(self._path(kf_id))
-                self._written(kf)
-                written += 1
+            path = self._path(kf_id)
+            staged = path.with_name(path.name + STAGED_SUFFIX)
+            while True:
+                with self._files:
+                    kf = self._owed.get(kf_id)
+                if kf is None:                 # left the archive for good, or written
+                    break
+                kf.save(staged)
+                with self._files:
+                    if self._owed.get(kf_id) is kf:
+                        staged.replace(path)
+                        self._written(kf)
+                        written += 1
+                        break
+                staged.unlink(missing_ok=True)  # changed while it was written: again
         return written
 
     @property
@@ -485,6 +502,8 @@ class KeyFrameArchive:
         if not folder.is_dir():
             return archive, problems
         kfs = []
+        for staged in folder.glob(f"keyframe-*.npz{STAGED_SUFFIX}*"):
+            staged.unlink(missing_ok=True)    # a write of an owed file the stop cut short
         for path in sorted(folder.glob("keyframe-*.npz")):
             try:
                 kfs.append(ArchivedKeyFrame.load(path))

@@ -284,8 +284,8 @@ class MapBackEnd:
         if self.restored_from_file:
             archive, self.archive_problems = KeyFrameArchive.restore(capacity, folder, in_map)
             return archive
-        for stale in folder.glob("keyframe-*.npz") if folder.is_dir() else ():
-            stale.unlink()
+        for stale in folder.glob("keyframe-*.npz*") if folder.is_dir() else ():
+            stale.unlink()                    # its files, and any an owed write left staged
         return KeyFrameArchive(capacity, folder)
 
     def set_bundle_adjustment(self, window: int, points: int | None) -> None:
