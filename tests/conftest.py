@@ -4,8 +4,9 @@ order in which parallel workers (pytest-xdist, ``make test``) take the tests."""
 from __future__ import annotations
 
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -45,6 +46,24 @@ def domain() -> Iterator[LoopbackDomain]:
     with LoopbackDomain() as dom:
         dom.activate()
         yield dom
+
+
+@pytest.fixture
+def cyclone(domain: LoopbackDomain) -> Iterator[Callable[[], Any]]:
+    """Makes Cyclone DDS participants on the test's domain (``tests/cyclone_peer.py``: the
+    nodes' outside peer), each deleted with its readers and writers when the test ends —
+    before the domain's id goes back to the machine."""
+    from tests import cyclone_peer
+
+    made: list[Any] = []
+
+    def make() -> Any:
+        made.append(cyclone_peer.participant(domain.domain_id))
+        return made[-1]
+
+    yield make
+    for dp in made:
+        cyclone_peer.delete(dp)
 
 
 @pytest.fixture

@@ -20,6 +20,7 @@ import sys
 import time
 import tracemalloc
 from collections import Counter
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -232,7 +233,7 @@ def _hostile(type_name: str, rng: np.random.Generator) -> list[bytes]:
 
 @pytest.mark.slow
 def test_running_nodes_survive_hostile_samples_and_still_answer(
-        domain: Any, ros: RosSession) -> None:
+        domain: Any, ros: RosSession, cyclone: Callable[[], Any]) -> None:
     """The real node processes, sent hostile samples over DDS on every topic they read by a
     raw Cyclone writer, log the rejections (each type, including its inconsistent message),
     stay up, and answer the next well-formed message; the edge's map survives."""
@@ -253,7 +254,7 @@ def test_running_nodes_survive_hostile_samples_and_still_answer(
                                      qos.MAP if topic == "/edge/map_update" else qos.PROTOCOL)
             for topics in NODE_TOPICS.values() for t, topic in topics
             if t.startswith("twinslam_msgs")}
-    dp = cyclone_peer.participant(domain.domain_id)
+    dp = cyclone()
     raw = {(t, topic): cyclone_peer.RawWriter(dp, topic, message_class(t),
                                               transient_local=topic == "/edge/map_update")
            for topics in NODE_TOPICS.values() for t, topic in topics}
@@ -332,11 +333,11 @@ def test_a_security_enclave_that_cannot_be_had_is_refused_with_the_reason(domain
     assert "security" in done.stderr.lower() and "Traceback" not in done.stderr
 
 
-def test_the_run_monitor_drops_a_map_update_cut_short(ros: Any) -> None:
+def test_the_run_monitor_drops_a_map_update_cut_short_or_unreadable(ros: Any) -> None:
     """An edge killed while it wrote a map update leaves a sample cut short on the wire (8
     bytes, seen in a clean clone's edge-restart test): the run's monitor drops it as the
     nodes' checked subscriptions do, instead of raising into the executor and ending the run,
-    and still reads the next whole update."""
+    and still reads the next whole update; so is one whose content no map has."""
     from rclpy.serialization import serialize_message
 
     from edge_mapper.messages import map_update_message
@@ -350,3 +351,9 @@ def test_the_run_monitor_drops_a_map_update_cut_short(ros: Any) -> None:
     whole = serialize_message(map_update_message(KeyFrameMap(), 3, 1, 0.0))
     monitor._map(whole, info)
     assert list(monitor.record.maps) == [3]
+    # well-formed CDR whose frame correction is no rotation (a bit flipped into a NaN: what a
+    # hostile writer sent a run once): dropped too, the run goes on
+    broken = map_update_message(KeyFrameMap(), 4, 2, 0.0)
+    broken.frame_correction.orientation.x = float("nan")
+    monitor._map(serialize_message(broken), info)
+    assert list(monitor.record.maps) == [3] and 4 not in monitor.record.first_map_versions

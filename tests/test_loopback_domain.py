@@ -10,6 +10,7 @@ import random
 import re
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -42,6 +43,23 @@ def test_open_domains_hold_distinct_ids_until_they_close(tmp_path: Path) -> None
     finally:
         for c in claims:
             c.release()
+
+
+def test_an_id_a_participant_of_any_index_still_uses_is_not_handed_out(tmp_path: Path) -> None:
+    """A participant that outlived its run's claim — an outside peer of a finished test, which
+    the nodes had pushed to a later participant index — holds ports of its domain other than
+    the first participant's: the claim skips the id all the same, so no later run reads what
+    that participant still sends (a live run once got a finished test's hostile samples)."""
+    held = 231
+    port = 7400 + 250 * held + 11 + 2 * 7           # participant 7's user-data port
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", port))
+        with pytest.raises(RuntimeError, match=r"no free DDS domain id in 231\.\.231"):
+            DomainClaim(ids=range(held, held + 1), folder=tmp_path)
+        claim = DomainClaim(ids=IDS, folder=tmp_path)
+        assert claim.domain_id != held
+        claim.release()
+    DomainClaim(ids=range(held, held + 1), folder=tmp_path).release()   # free once it is gone
 
 
 def test_an_id_held_by_another_process_is_never_handed_out_and_comes_back_when_it_exits(

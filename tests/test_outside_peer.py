@@ -5,6 +5,8 @@ interoperability a ROS 2 host on another middleware, or a plain DDS application,
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 from cyclonedds.qos import Policy
@@ -20,12 +22,13 @@ from twinslam.live.launcher import preloaded_nodes
 FORKS = preloaded_nodes()
 
 
-def test_cyclone_reads_the_players_640x480_images(domain: LoopbackDomain) -> None:
+def test_cyclone_reads_the_players_640x480_images(domain: LoopbackDomain,
+                                                  cyclone: Callable[[], Any]) -> None:
     """Every image after the writer's first. Cyclone's reliable volatile reader misses the
     first sample of a Fast DDS writer (measured: 29 of 30 in every run, with and without the
     project's Fast DDS profile, with 1 s or 3 s of discovery settling before the first frame);
     an rclpy reader gets all 30 (test_sequence_player)."""
-    dp = cyclone_peer.participant(domain.domain_id)
+    dp = cyclone()
     rd = cyclone_peer.reader(dp, "/camera/image_raw", Image,
                              Policy.Reliability.Reliable(duration(seconds=1)),
                              Policy.History.KeepLast(100))
@@ -55,8 +58,9 @@ def test_cyclone_reads_the_players_640x480_images(domain: LoopbackDomain) -> Non
     assert max(gaps) < 1.5 / 60, "consecutive frames (30 Hz played at 2x)"
 
 
-def test_cyclone_sees_the_nodes_in_ros_discovery_info(domain: LoopbackDomain) -> None:
-    dp = cyclone_peer.participant(domain.domain_id)
+def test_cyclone_sees_the_nodes_in_ros_discovery_info(domain: LoopbackDomain,
+                                                      cyclone: Callable[[], Any]) -> None:
+    dp = cyclone()
     from cyclonedds.sub import DataReader
     from cyclonedds.topic import Topic
 

@@ -37,15 +37,27 @@ from twinslam.hosts.forked import ForkServers, NodeProcess
 from twinslam.hosts.native_stacks import native_stacks
 from twinslam.parent_watch import PARENT_ENV
 
+#: participant indexes whose unicast ports a claim checks: RTPS gives participant i of
+#: domain d the ports 7400 + 250 d + 10 + 2 i (discovery) and + 11 + 2 i (user data), and a
+#: domain's 250 ports hold 120 of them
+PARTICIPANT_INDEXES = 120
 
-def _discovery_port_free(domain_id: int) -> bool:
-    """RTPS: the first unicast discovery port of domain d is 7400 + 250 d + 10."""
-    port = 7400 + 250 * domain_id + 10
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        try:
-            sock.bind(("127.0.0.1", port))
-        except OSError:
-            return False
+
+def _domain_ports_free(domain_id: int) -> bool:
+    """Whether no participant of any index holds a unicast port of domain ``domain_id`` on
+    this machine. The first participant's discovery port alone (7400 + 250 d + 10) missed a
+    participant that outlived the nodes it joined: an outside peer of a finished test, given
+    a later index by the nodes that held the first ones (Cyclone's ``ParticipantIndex``
+    auto), stayed in its test process with a transient-local writer's history — and the next
+    run that drew the id read that history (2026-12-05: a live run's monitor got the hostile
+    samples of a test that had ended)."""
+    base = 7400 + 250 * domain_id + 10
+    for port in range(base, min(base + 2 * PARTICIPANT_INDEXES, 65536)):
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+            try:
+                sock.bind(("127.0.0.1", port))
+            except OSError:
+                return False
     return True
 
 
@@ -69,7 +81,8 @@ class DomainClaim:
     participant binds it, and their nodes would then talk across runs. The claim is an
     exclusive ``flock`` on a file of the id, which the kernel drops when the holder exits, so a
     killed run never leaves an id taken; the port check still skips an id that something
-    outside this scheme (a ROS system on the machine) is using.
+    outside this scheme (a ROS system on the machine, a participant a released claim left
+    behind) is using.
     """
 
     def __init__(self, rng: random.Random | None = None, ids: range = range(100, 230),
@@ -85,7 +98,7 @@ class DomainClaim:
             except OSError:
                 os.close(fd)
                 continue
-            if _discovery_port_free(domain_id):
+            if _domain_ports_free(domain_id):
                 self.domain_id, self._fd = domain_id, fd
                 return
             os.close(fd)

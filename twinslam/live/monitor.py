@@ -129,8 +129,14 @@ class PipelineMonitor:
             # not raised into the executor, which would end the run
             self._logger.error(f"dropped a malformed MapUpdate ({len(data)} bytes): {exc}")
             return
+        try:
+            snapshot = read_map_update(msg)
+        except ValueError as exc:    # well-formed CDR, content no map has (a NaN rotation):
+            # refused as the device refuses it, not raised into the executor
+            self._logger.error(f"dropped a MapUpdate of slot {int(msg.slot)} it could not "
+                               f"read: {exc}")
+            return
         self.record.hear("map", int(msg.slot), heard)
-        snapshot = read_map_update(msg)
         self.record.first_map_versions.setdefault(int(msg.slot), snapshot.version)
         self.record.maps[int(msg.slot)] = snapshot
         self.record.map_stamps[int(msg.slot)] = stamp_key(msg.header)
