@@ -50,10 +50,9 @@ def participant(domain_id: int) -> DomainParticipant:
 
 
 def delete(dp: DomainParticipant) -> None:
-    """Delete ``dp`` and every reader and writer under it now. Left to the garbage collector,
-    a test's participant outlived the test (its entities hold one another), on a domain id
-    the test had given back, and a transient-local writer's history of hostile samples
-    reached the next run that drew the id."""
+    """Delete ``dp`` and every reader and writer under it now, not whenever the garbage
+    collector comes to it: a participant left alive on a domain id its test gave back would
+    be heard, with a transient-local writer's history, by the next run that drew the id."""
     dp.__del__()
 
 

@@ -46,10 +46,10 @@ def test_open_domains_hold_distinct_ids_until_they_close(tmp_path: Path) -> None
 
 
 def test_an_id_a_participant_of_any_index_still_uses_is_not_handed_out(tmp_path: Path) -> None:
-    """A participant that outlived its run's claim — an outside peer of a finished test, which
+    """A participant that outlives its run's claim — an outside peer of a finished test, which
     the nodes had pushed to a later participant index — holds ports of its domain other than
-    the first participant's: the claim skips the id all the same, so no later run reads what
-    that participant still sends (a live run once got a finished test's hostile samples)."""
+    the first participant's: the claim skips the id all the same, so no later run hears what
+    that participant still sends."""
     held = 231
     port = 7400 + 250 * held + 11 + 2 * 7           # participant 7's user-data port
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:

@@ -45,12 +45,11 @@ PARTICIPANT_INDEXES = 120
 
 def _domain_ports_free(domain_id: int) -> bool:
     """Whether no participant of any index holds a unicast port of domain ``domain_id`` on
-    this machine. The first participant's discovery port alone (7400 + 250 d + 10) missed a
-    participant that outlived the nodes it joined: an outside peer of a finished test, given
-    a later index by the nodes that held the first ones (Cyclone's ``ParticipantIndex``
-    auto), stayed in its test process with a transient-local writer's history — and the next
-    run that drew the id read that history (2026-12-05: a live run's monitor got the hostile
-    samples of a test that had ended)."""
+    this machine. The first participant's discovery port alone (7400 + 250 d + 10) does not
+    see a participant at a later index — one the nodes that held the first indexes pushed
+    there (Cyclone's ``ParticipantIndex`` auto) and that outlives them — and a run that drew
+    its id would hear what it still sends. Checked since a live run's monitor heard another
+    test's hostile samples (2026-12-05); that this is how they crossed is not proven."""
     base = 7400 + 250 * domain_id + 10
     for port in range(base, min(base + 2 * PARTICIPANT_INDEXES, 65536)):
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
