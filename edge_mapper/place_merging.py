@@ -6,7 +6,7 @@ first camera. After each slot of a device whose map joined no other yet, the key
 integrated that slot are looked for in the whole map (archive and managed map) of one other
 device — the one whose keyframes its last look's scored most like in the process's keyframe
 database (below) — on the process's loop-closing worker,
-queued with the loop jobs (:data:`~twinslam.slam.back_end.loop_closing.SHARED_WORKER`): place
+queued behind the loop jobs (:data:`~twinslam.slam.back_end.loop_closing.SHARED_WORKER`): place
 recognition in another device's map took 17-30 ms a look (``bench.place_walks`` over three
 places), half to two thirds of the looking device's own slot work, after every slot of a
 device whose place no other shares — 3-4 ms since its search is screened and stops at too few
@@ -521,7 +521,7 @@ class PlaceMerging:
                                  [query.keyframe for query in queries], others)
         if self.background:
             self._running[device] = self.worker.submit(_look, *job, self.worker.wait_for_slots,
-                                                       rank)
+                                                       rank, after_loops=True)
         else:
             done: Future[_Look] = Future()
             done.set_result(_look(*job, rank=rank))
@@ -546,7 +546,7 @@ class PlaceMerging:
                 self._filing is not None and not self._filing.done()):
             return
         if self.background:
-            self._filing = self.worker.submit(self.database.file)
+            self._filing = self.worker.submit(self.database.file, after_loops=True)
         else:
             self.database.file()
 

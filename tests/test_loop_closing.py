@@ -7,6 +7,7 @@ the corrected map and archive survive a restart; the worker thread answers as th
 from __future__ import annotations
 
 import dataclasses
+import operator
 import os
 import sys
 import threading
@@ -557,6 +558,32 @@ def test_the_loop_worker_runs_below_the_slots_priority_and_the_caller_keeps_its_
             worker.lower_priority(bad)
     worker.lower_priority(3)
     assert worker.niceness == 3
+
+
+def test_the_loop_workers_queue_runs_the_loops_work_before_the_place_looks() -> None:
+    """Work queued ``after_loops`` (the place looks, the keyframe database's filing) waits
+    while loop work is queued: a loop job submitted behind three looks runs before them, and
+    each kind keeps its order (a correction's files follow the job that made them). A look
+    cancelled before it starts never runs; an error reaches the caller's future."""
+    worker = SharedWorker()
+    ran: list[str] = []
+    release = threading.Event()
+    try:
+        held = worker.submit(release.wait, 30)             # the worker busy meanwhile
+        looks = [worker.submit(ran.append, f"look {i}", after_loops=True) for i in range(3)]
+        dropped = worker.submit(ran.append, "cancelled look", after_loops=True)
+        loops = [worker.submit(ran.append, what) for what in ("loop job", "its files")]
+        failing = worker.submit(operator.truediv, 1, 0)
+        assert dropped.cancel()
+        release.set()
+        for future in (held, *looks, *loops):
+            future.result(timeout=30)
+        with pytest.raises(ZeroDivisionError):
+            failing.result(timeout=30)
+    finally:
+        worker.stop()
+    assert ran == ["loop job", "its files", "look 0", "look 1", "look 2"]
+    assert dropped.cancelled()
 
 
 def test_the_loop_worker_takes_at_most_its_share_of_a_core() -> None:

@@ -21,17 +21,23 @@ place's keyframes, not one per device that only the merge's rigid motion relates
 ``background=False`` runs the same work in the caller, for the offline pipelines whose
 results must not depend on thread timing.
 
-Every background loop closer of a process works on one worker thread, first come first
-served: an edge serving many devices closes their loops one at a time beside its slot
-thread. The edge's merge looks queue on it too (:mod:`edge_mapper.place_merging`): the
-process's background work is one queue under the bounds below. Each device's own thread let
-sixteen devices revisiting their places together run sixteen loop jobs at once (place
-recognition, PnP, the pose graph: 30-110 ms a job on the 7-Scenes walk), on two cores and
-against the slot thread for the interpreter: on one edge process their slots' work took
-67-138 ms a device-slot there against 50-83 ms with loop closing off (``bench.edge_scaling
---devices 16``, docs/results/shared-map.md). A device's loop waits behind the others'
-instead (its next job starts once its last was taken, so a device has one job in the queue
-at most), and the slots keep their deadline.
+Every background loop closer of a process works on one worker thread, in the order the work
+came: an edge serving many devices closes their loops one at a time beside its slot thread.
+The edge's merge looks queue on it too (:mod:`edge_mapper.place_merging`): the process's
+background work is one queue under the bounds below, in which the loops' work goes before
+the looks' (``after_loops``: a look waits while a loop job is queued). In one queue, in the
+order they came, twelve devices alone in their places on one full core closed 29-31 of the
+60 loops of a walk that comes back with ``merge_maps`` on, and 46-50 with it off; the loops
+first, 36-44 (docs/benchmarks/edge-scaling.md): a loop job waited behind looks that found
+nothing, and a keyframe that leaves the map before its device's next job starts is searched
+for no more (:meth:`~twinslam.slam.back_end.map_back_end.MapBackEnd.start_loop_job`). Each
+device's own thread let sixteen devices revisiting their places together run sixteen loop
+jobs at once (place recognition, PnP, the pose graph: 30-110 ms a job on the 7-Scenes walk),
+on two cores and against the slot thread for the interpreter: on one edge process their
+slots' work took 67-138 ms a device-slot there against 50-83 ms with loop closing off
+(``bench.edge_scaling --devices 16``, docs/results/shared-map.md). A device's loop waits
+behind the others' instead (its next job starts once its last was taken, so a device has one
+job in the queue at most), and the slots keep their deadline.
 
 The worker may run below the slot threads' priority (the edge node's
 ``loop_worker_niceness``, Linux nice steps: :meth:`SharedWorker.lower_priority`). Each job
@@ -61,6 +67,7 @@ same slots, and one or two devices were unchanged.
 
 from __future__ import annotations
 
+import heapq
 import itertools
 import os
 import threading
@@ -436,6 +443,11 @@ class SharedWorker:
     def __init__(self, niceness: int = WORKER_NICENESS, share: float = WORKER_SHARE) -> None:
         self._lock = threading.Lock()
         self._executor: ThreadPoolExecutor | None = None
+        #: the work not started yet, as (after_loops, order submitted, future, fn, args): a
+        #: heap whose top is the next to run — the loops' work first, each kind in order
+        self._waiting: list[tuple[bool, int, Future[Any], Callable[..., Any], tuple[Any, ...]]] \
+            = []
+        self._submitted = itertools.count()
         self.niceness = niceness
         self.share = share
         #: the worker thread's nice value once it started (None: not started, or not Linux)
@@ -516,7 +528,13 @@ class SharedWorker:
             self._slots_done.wait_for(lambda: self.slots_idle, YIELD_AT_MOST_S)
         self.yielded_s += time.monotonic() - began
 
-    def submit(self, fn: Callable[..., _T], *args: object) -> Future[_T]:
+    def submit(self, fn: Callable[..., _T], *args: object,
+               after_loops: bool = False) -> Future[_T]:
+        """``fn(*args)`` queued on the worker: after the work queued before it of its kind,
+        and with ``after_loops`` (a place look, the keyframe database's filing) after every
+        loop job and loop correction queued before it starts — those go first, in the order
+        they came. Its future may be cancelled until it starts."""
+        future: Future[_T] = Future()
         with self._lock:
             if self._executor is None:
                 self.nice = None
@@ -524,7 +542,23 @@ class SharedWorker:
                     1, thread_name_prefix="loop-closer",
                     initializer=_lowered, initargs=(self, os.getpriority(os.PRIO_PROCESS, 0)
                                                     if PER_THREAD_NICE else 0))
-            return self._executor.submit(self._paced, fn, *args)
+            heapq.heappush(self._waiting, (after_loops, next(self._submitted), future, fn, args))
+            # one turn a piece of work: each turn runs whichever waits first then
+            self._executor.submit(self._turn)
+        return future
+
+    def _turn(self) -> None:
+        """Run the work at the top of the queue now (skipped if it was cancelled)."""
+        with self._lock:
+            _, _, future, fn, args = heapq.heappop(self._waiting)
+        if not future.set_running_or_notify_cancel():
+            return
+        try:
+            result = self._paced(fn, *args)
+        except BaseException as exc:             # as the executor's own work items do
+            future.set_exception(exc)
+        else:
+            future.set_result(result)
 
     def _paced(self, fn: Callable[..., _T], *args: object) -> _T:
         """``fn(*args)`` on the worker, after the rest the work before it earned: a piece
