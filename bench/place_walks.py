@@ -3,15 +3,19 @@ lent as the edge node merges them: the node's own
 :class:`~edge_mapper.place_merging.PlaceMerging` over every device's edge core.
 
     python -m bench.place_walks [SEQUENCE[,SEQUENCE…]] [--devices 4] [--frames 2700]
-        [--after 300] [--order forward] [--seed 0] [--uplink lte] [--unseen-slots N]
-        [--lend-eagerly] [--merge-inliers N] [--no-merge] [--covered-m M] [--covered-deg D]
-        [--covered-min-points N]
+        [--after 300] [--order forward[,backward…]] [--seed 0] [--uplink lte]
+        [--unseen-slots N] [--lend-eagerly] [--merge-inliers N] [--look-backoff N] [--no-merge]
+        [--covered-m M] [--covered-deg D] [--covered-min-points N]
         [--every 300] [--csv FILE] [--baseline COMMIT [--rounds 1]]
 
 Device k (k = 0, 1, …) starts the walk ``k × --after`` frames after the first, on an uplink
 of its own (seed ``--seed`` + k): users joining a place others walk at different times — on
 the corridor (the default), each comes to ground the devices ahead of it mapped and leaves
-it behind, the case a borrower's copies that go back (``--unseen-slots``) are for. Each
+it behind, the case a borrower's copies that go back (``--unseen-slots``) are for. With
+orders separated by commas device k plays order k mod N: ``--order forward,backward --after
+0`` walks the corridor from its two ends at once, each device alone until they meet — the
+case the looks' backoff (``--look-backoff``) is for: a device whose looks found nothing looks
+less often, and may merge a few slots after it comes to the other's ground. Each
 device and its edge core run as in ``bench.shared_map`` (the default device and edge, the
 loop closer in the caller, the map update ``--update-delay`` frames into the next slot). The
 merging runs in the caller too (its looks are the node's worker's there), around each
@@ -88,7 +92,7 @@ from twinslam.slam.back_end.foreign_keyframes import is_foreign
 COLUMNS = ("sequence", "frames", "devices", "after", "order", "seed", "uplink", "no_merge",
            "covered_m", "covered_deg", "covered_min_points", "own_coverage_after", "lend_in_view",
            "lent_unseen_slots",
-           "merge_min_inliers",
+           "merge_min_inliers", "merge_look_backoff_slots",
            "merged", "edge_ms_median", "edge_ms_mean", "edge_ms_merged_median", "copies_mean",
            "copies_end", "adopted", "uploads", "lost_share", "map_lost_share", "tracked_share",
            "ate_m_mean", "cross_rms_m", "cross_pairs", "cross_worst_pair_rms_m", "loops",
@@ -166,6 +170,16 @@ def pooled(errors: list[RevisitError]) -> RevisitError:
                                         / n), pairs=n)
 
 
+def _orders(text: str) -> tuple[str, ...]:
+    """``--order``'s value: one order, or orders separated by commas, each one of ORDERS."""
+    orders = tuple(o.strip() for o in text.split(","))
+    bad = [o for o in orders if o not in ORDERS]
+    if bad:
+        raise argparse.ArgumentTypeError(f"not an order: {', '.join(map(repr, bad))} "
+                                         f"(orders: {', '.join(ORDERS)})")
+    return orders
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0],
                                      epilog=__doc__.split("\n", 2)[2],
@@ -178,8 +192,13 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=2700, help="frames of it each plays")
     parser.add_argument("--after", type=int, default=300, metavar="FRAMES",
                         help="each device starts this many frames after the one before")
-    parser.add_argument("--order", choices=ORDERS, default="forward",
-                        help="the order every device plays the frames in")
+    parser.add_argument("--order", type=_orders, default=("forward",),
+                        help=f"the order every device plays the frames in ({', '.join(ORDERS)}), "
+                             "or orders separated by commas: device k plays order k mod N")
+    parser.add_argument("--look-backoff", type=int, default=1, metavar="N",
+                        help="after each look that found no candidate place a device waits "
+                             "twice as many slots for its next, up to N (the edge's "
+                             "merge_look_backoff_slots; default 1: a look after every slot)")
     parser.add_argument("--seed", type=int, default=0,
                         help="the first uplink's seed (device k's: seed + k) and a synthetic "
                              "walk's")
@@ -207,6 +226,8 @@ def main() -> None:
     check_place_options(parser, args)
     if args.rounds < 1:
         parser.error(f"--rounds: 1 or more, got {args.rounds}")
+    if args.look_backoff < 1:
+        parser.error(f"--look-backoff: 1 slot or more, got {args.look_backoff}")
     if args.baseline:
         _beside(args, sys.argv[1:])
         return
@@ -221,7 +242,8 @@ def main() -> None:
     started = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         devices = [PlaceWalk(open_walk(f"ar{k + 1}", places[k % len(places)], args.frames,
-                                       args.order, args.seed + k, args.uplink, config,
+                                       args.order[k % len(args.order)], args.seed + k,
+                                       args.uplink, config,
                                        args.update_delay, Path(tmp),
                                        device_params=dict(args.device)),
                              k * args.after, k % len(places))
@@ -231,7 +253,8 @@ def main() -> None:
         merging = PlaceMerging(lambda: served, background=False,
                                min_inliers=args.merge_inliers,
                                lend_in_view=not args.lend_eagerly,
-                               unseen_slots=args.unseen_slots)
+                               unseen_slots=args.unseen_slots,
+                               look_backoff_slots=args.look_backoff)
         for device in devices:
             if not args.no_merge:
                 device.walk.serve = functools.partial(serve_slot,
@@ -377,10 +400,11 @@ def _report(devices: list[PlaceWalk], merging: PlaceMerging, args: argparse.Name
                                        if k in d.walk.poses}, d.walk.truth)
             for d in devices if d.in_place >= 0]
     return {"sequence": args.sequence, "frames": args.frames, "devices": args.devices,
-            "after": args.after, "order": args.order, "seed": args.seed,
+            "after": args.after, "order": ",".join(args.order), "seed": args.seed,
             "uplink": args.uplink, "no_merge": int(args.no_merge),
             "lend_in_view": int(not args.lend_eagerly),
             "lent_unseen_slots": args.unseen_slots, "merge_min_inliers": args.merge_inliers,
+            "merge_look_backoff_slots": args.look_backoff,
             "merged": sum(1 for d in devices if d.merge_slot >= 0),
             "edge_ms_median": float(np.median(every_ms)),
             "edge_ms_mean": float(np.mean(every_ms)),

@@ -1,12 +1,16 @@
 """``bench.place_walks`` over several places: a device whose map joined a device of another
-place is named a false merge; devices of one place, merged or each its own root, are not."""
+place is named a false merge; devices of one place, merged or each its own root, are not.
+And its devices' orders of the walk."""
 
 from __future__ import annotations
 
+import argparse
 from types import SimpleNamespace
 from typing import Any
 
-from bench.place_walks import PlaceWalk, false_merges
+import pytest
+
+from bench.place_walks import PlaceWalk, _orders, false_merges
 
 
 def _device(name: str, place: int) -> PlaceWalk:
@@ -30,3 +34,12 @@ def test_a_map_that_joined_another_places_device_is_a_false_merge() -> None:
 def test_devices_that_never_merge_are_no_false_merges() -> None:
     devices = [_device("ar1", 0), _device("ar2", 1)]
     assert false_merges(devices, {"ar1": "", "ar2": ""}) == []
+
+
+def test_each_device_plays_its_order_of_the_list_and_an_unknown_order_is_refused() -> None:
+    """``--order forward,backward`` walks the corridor from its two ends (device k plays
+    order k mod N); a misspelt order is refused before anything runs, naming the orders."""
+    assert _orders("forward,backward") == ("forward", "backward")
+    assert _orders("backward_forward") == ("backward_forward",)
+    with pytest.raises(argparse.ArgumentTypeError, match=r"'sideways'.*orders: forward"):
+        _orders("forward,sideways")
