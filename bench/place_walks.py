@@ -15,7 +15,7 @@ it behind, the case a borrower's copies that go back (``--unseen-slots``) are fo
 orders separated by commas device k plays order k mod N: ``--order forward,backward --after
 0`` walks the corridor from its two ends at once, each device alone until they meet — the
 case the looks' backoff (``--look-backoff``) is for: a device whose looks found nothing looks
-less often, and may merge a few slots after it comes to the other's ground. Each
+less often, and its merge may wait for its next look. Each
 device and its edge core run as in ``bench.shared_map`` (the default device and edge, the
 loop closer in the caller, the map update ``--update-delay`` frames into the next slot). The
 merging runs in the caller too (its looks are the node's worker's there), around each

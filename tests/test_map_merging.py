@@ -533,8 +533,9 @@ def test_a_place_the_words_misjudge_is_still_looked_for_every_eighth_look(
 def test_the_merge_looks_queue_on_the_loop_workers_thread_behind_its_work(
         room: Room) -> None:  # noqa: F811
     """A look goes on the worker the edge's loop jobs run on, behind what is queued there (the
-    process's background work is one queue under the loop worker's bounds), and its merge is
-    the one the look in the caller makes."""
+    process's background work is one queue under the loop worker's bounds) and behind a loop
+    job queued after it, which goes first; its merge is the one the look in the caller
+    makes."""
     worker = SharedWorker()
     release = threading.Event()
     cores = _room_and_newcomer(room)
@@ -557,8 +558,12 @@ def test_the_merge_looks_queue_on_the_loop_workers_thread_behind_its_work(
             merging.look("ar2", slot)
             if slot == 0:
                 assert merging.take("ar2") is None and merging.look_ms == []  # behind it
+                queued_look = merging._running["ar2"]
+                # a loop job of another device, queued after the look, runs before it
+                loop = worker.submit(lambda: queued_look.running() or queued_look.done())
                 release.set()
                 assert held.result(timeout=60)
+                assert loop.result(timeout=60) is False
             taken(slot + 1)
     finally:
         release.set()
