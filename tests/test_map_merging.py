@@ -11,6 +11,7 @@ import dataclasses
 import os
 import threading
 import time
+from concurrent.futures import Future
 from pathlib import Path
 from typing import Any
 
@@ -530,6 +531,11 @@ def test_a_place_the_words_misjudge_is_still_looked_for_every_eighth_look(
     assert looked[EXPLORE_EVERY - 1] == "ar1"                   # the odd look out, in turn
 
 
+def _started(work: Future[Any]) -> bool:
+    """Whether ``work`` had started (or ended) when this ran."""
+    return work.running() or work.done()
+
+
 def test_the_merge_looks_queue_on_the_loop_workers_thread_behind_its_work(
         room: Room) -> None:  # noqa: F811
     """A look goes on the worker the edge's loop jobs run on, behind what is queued there (the
@@ -560,7 +566,7 @@ def test_the_merge_looks_queue_on_the_loop_workers_thread_behind_its_work(
                 assert merging.take("ar2") is None and merging.look_ms == []  # behind it
                 queued_look = merging._running["ar2"]
                 # a loop job of another device, queued after the look, runs before it
-                loop = worker.submit(lambda: queued_look.running() or queued_look.done())
+                loop = worker.submit(_started, queued_look)
                 release.set()
                 assert held.result(timeout=60)
                 assert loop.result(timeout=60) is False
