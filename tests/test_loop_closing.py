@@ -586,6 +586,28 @@ def test_the_loop_workers_queue_runs_the_loops_work_before_the_place_looks() -> 
     assert dropped.cancelled()
 
 
+def test_a_place_look_that_waited_past_its_bound_goes_before_the_loops_that_keep_coming(
+        ) -> None:
+    """Work queued after the loops waits at most ``after_loops_at_most_s`` while loop work
+    keeps coming: past it, it goes next, before the loop work queued while it waited (on a
+    host the loops keep busy, devices still merge)."""
+    worker = SharedWorker()
+    worker.after_loops_at_most_s = 0.2
+    ran: list[str] = []
+    release = threading.Event()
+    try:
+        held = worker.submit(release.wait, 30)
+        look = worker.submit(ran.append, "look", after_loops=True)
+        loops = [worker.submit(ran.append, f"loop {i}") for i in range(2)]
+        time.sleep(0.4)                          # the look waits past its bound
+        release.set()
+        for future in (held, look, *loops):
+            future.result(timeout=30)
+    finally:
+        worker.stop()
+    assert ran == ["look", "loop 0", "loop 1"]
+
+
 def test_the_loop_worker_takes_at_most_its_share_of_a_core() -> None:
     """With ``share`` s, each piece of work on the loop worker is followed by a rest of its
     CPU time × (1 − s) / s before the next starts (the slots keep the rest of the core);

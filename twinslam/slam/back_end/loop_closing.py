@@ -25,19 +25,20 @@ Every background loop closer of a process works on one worker thread, in the ord
 came: an edge serving many devices closes their loops one at a time beside its slot thread.
 The edge's merge looks queue on it too (:mod:`edge_mapper.place_merging`): the process's
 background work is one queue under the bounds below, in which the loops' work goes before
-the looks' (``after_loops``: a look waits while a loop job is queued). In one queue, in the
-order they came, twelve devices alone in their places on one full core closed 29-31 of the
-60 loops of a walk that comes back with ``merge_maps`` on, and 46-50 with it off; the loops
-first, 36-44 (docs/benchmarks/edge-scaling.md): a loop job waited behind looks that found
-nothing, and a keyframe that leaves the map before its device's next job starts is searched
-for no more (:meth:`~twinslam.slam.back_end.map_back_end.MapBackEnd.start_loop_job`). Each
-device's own thread let sixteen devices revisiting their places together run sixteen loop
-jobs at once (place recognition, PnP, the pose graph: 30-110 ms a job on the 7-Scenes walk),
-on two cores and against the slot thread for the interpreter: on one edge process their
-slots' work took 67-138 ms a device-slot there against 50-83 ms with loop closing off
-(``bench.edge_scaling --devices 16``, docs/results/shared-map.md). A device's loop waits
-behind the others' instead (its next job starts once its last was taken, so a device has one
-job in the queue at most), and the slots keep their deadline.
+the looks' (``after_loops``: a look waits while a loop job is queued, AFTER_LOOPS_AT_MOST_S
+at most). In one queue, in the order they came, twelve devices alone in their places on one
+full core closed 29-31 of the 60 loops of a walk that comes back with ``merge_maps`` on, and
+46-50 with it off; the loops first, 36-44 (docs/benchmarks/edge-scaling.md): a loop job
+waited behind looks that found nothing, and a keyframe that leaves the map before its
+device's next job starts is searched for no more
+(:meth:`~twinslam.slam.back_end.map_back_end.MapBackEnd.start_loop_job`). Each device's own
+thread let sixteen devices revisiting their places together run sixteen loop jobs at once
+(place recognition, PnP, the pose graph: 30-110 ms a job on the 7-Scenes walk), on two cores
+and against the slot thread for the interpreter: on one edge process their slots' work took
+67-138 ms a device-slot there against 50-83 ms with loop closing off (``bench.edge_scaling
+--devices 16``, docs/results/shared-map.md). A device's loop waits behind the others'
+instead (its next job starts once its last was taken, so a device has one job in the queue
+at most), and the slots keep their deadline.
 
 The worker may run below the slot threads' priority (the edge node's
 ``loop_worker_niceness``, Linux nice steps: :meth:`SharedWorker.lower_priority`). Each job
@@ -67,7 +68,6 @@ same slots, and one or two devices were unchanged.
 
 from __future__ import annotations
 
-import heapq
 import itertools
 import os
 import threading
@@ -432,6 +432,22 @@ WORKER_SHARE = 1.0
 WORKER_YIELDS = True
 #: the longest the worker waits for the slots' work before a query, when it yields to it
 YIELD_AT_MOST_S = 0.5
+#: the longest work queued behind the loops' (a place look) waits while loop work keeps
+#: coming: past it, it goes next — on a host the loops keep busy, devices still merge. On one
+#: full core (twelve devices, the walk that comes back) 5 s let the looks take back most of
+#: the loops the loops-first order saved (33-34 closed of 60 against 36-44 unbounded,
+#: 29-31 in the order the work came); 15 s closed 37-44
+AFTER_LOOPS_AT_MOST_S = 15.0
+
+
+@dataclass(frozen=True)
+class _Queued:
+    """A piece of work waiting for the worker, and when it was queued (monotonic)."""
+
+    future: Future[Any]
+    fn: Callable[..., Any]
+    args: tuple[Any, ...]
+    queued_at: float
 
 
 class SharedWorker:
@@ -443,11 +459,12 @@ class SharedWorker:
     def __init__(self, niceness: int = WORKER_NICENESS, share: float = WORKER_SHARE) -> None:
         self._lock = threading.Lock()
         self._executor: ThreadPoolExecutor | None = None
-        #: the work not started yet, as (after_loops, order submitted, future, fn, args): a
-        #: heap whose top is the next to run — the loops' work first, each kind in order
-        self._waiting: list[tuple[bool, int, Future[Any], Callable[..., Any], tuple[Any, ...]]] \
-            = []
-        self._submitted = itertools.count()
+        #: the work not started yet, each kind in the order it came: the loops' and the
+        #: work that goes after them (:meth:`submit`)
+        self._loops: deque[_Queued] = deque()
+        self._after_loops: deque[_Queued] = deque()
+        #: the longest work queued ``after_loops`` waits while loop work keeps coming
+        self.after_loops_at_most_s = AFTER_LOOPS_AT_MOST_S
         self.niceness = niceness
         self.share = share
         #: the worker thread's nice value once it started (None: not started, or not Linux)
@@ -533,7 +550,8 @@ class SharedWorker:
         """``fn(*args)`` queued on the worker: after the work queued before it of its kind,
         and with ``after_loops`` (a place look, the keyframe database's filing) after every
         loop job and loop correction queued before it starts — those go first, in the order
-        they came. Its future may be cancelled until it starts."""
+        they came — unless it has waited :attr:`after_loops_at_most_s` already. Its future may
+        be cancelled until it starts."""
         future: Future[_T] = Future()
         with self._lock:
             if self._executor is None:
@@ -542,19 +560,27 @@ class SharedWorker:
                     1, thread_name_prefix="loop-closer",
                     initializer=_lowered, initargs=(self, os.getpriority(os.PRIO_PROCESS, 0)
                                                     if PER_THREAD_NICE else 0))
-            heapq.heappush(self._waiting, (after_loops, next(self._submitted), future, fn, args))
-            # one turn a piece of work: each turn runs whichever waits first then
+            queue = self._after_loops if after_loops else self._loops
+            queue.append(_Queued(future, fn, args, time.monotonic()))
+            # one turn a piece of work: each turn runs whichever goes first then
             self._executor.submit(self._turn)
         return future
 
     def _turn(self) -> None:
-        """Run the work at the top of the queue now (skipped if it was cancelled)."""
+        """Run the work that goes first now (skipped if it was cancelled): the oldest loop
+        work, unless none waits or the oldest work queued after the loops has waited past its
+        bound."""
         with self._lock:
-            _, _, future, fn, args = heapq.heappop(self._waiting)
-        if not future.set_running_or_notify_cancel():
+            waiting = self._after_loops
+            if self._loops and not (waiting and time.monotonic() - waiting[0].queued_at
+                                    > self.after_loops_at_most_s):
+                waiting = self._loops
+            work = waiting.popleft()
+        if not work.future.set_running_or_notify_cancel():
             return
+        future = work.future
         try:
-            result = self._paced(fn, *args)
+            result = self._paced(work.fn, *work.args)
         except BaseException as exc:             # as the executor's own work items do
             future.set_exception(exc)
         else:
