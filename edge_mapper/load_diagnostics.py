@@ -7,9 +7,12 @@ A status a period (``diagnostics_period_s``): the devices served, the slots answ
 period and their summaries → map latency (median and the longest), the slot work's share of a
 core against ``compute_budget`` and the budget's level, and each named thread's share of a core
 (the slot thread as ``main``; ``loop-closer_0``, ``place-words``, ``checkpoints``:
-:mod:`twinslam.thread_names`; those under LISTED_SHARE summed). WARN while the budget has
-trimmed the edge's work, or while a slot's map came later than the slot period itself (the
-device then tracks on an older map); OK otherwise. Pure: the node gathers the figures and
+:mod:`twinslam.thread_names`; those under LISTED_SHARE summed), and the loop worker's queue:
+the loop work and the place looks waiting on it, and the looks that waited past their bound
+behind the loops in the period. WARN while the budget has trimmed the edge's work, while a
+slot's map came later than the slot period itself (the device then tracks on an older map),
+or while looks waited past their bound (the loops keep the worker busy: devices merge late);
+OK otherwise. Pure: the node gathers the figures and
 publishes what this returns.
 """
 
@@ -42,6 +45,10 @@ class EdgeLoad:
     level: str                             #: what the budget's level does, in words
     trimmed: bool                          #: the level is below the edge's full work
     threads: Mapping[str, float] = field(default_factory=dict)  #: name → share of a core
+    #: the loop worker's queue now: (loop work, place looks and filing) not started
+    worker_waiting: tuple[int, int] = (0, 0)
+    #: place looks that waited past their bound behind the loops in the period
+    looks_overdue: int = 0
 
 
 def load_status(node_name: str, host: str, load: EdgeLoad, stamp: float) -> DiagnosticArray:
@@ -54,6 +61,9 @@ def load_status(node_name: str, host: str, load: EdgeLoad, stamp: float) -> Diag
         warn.append(f"over its compute budget: {load.level}")
     if late:
         warn.append(f"{late} of {len(load.answered)} maps later than their slot")
+    if load.looks_overdue:
+        warn.append(f"{load.looks_overdue} place look{'' if load.looks_overdue == 1 else 's'} "
+                    "waited past their bound behind the loop jobs")
     budget = f" of a budget of {load.budget:.0%}" if load.budget > 0 else ""
     summary = (f"{load.devices} device{'' if load.devices == 1 else 's'}, "
                f"{len(load.answered)} slots answered, slot work "
@@ -68,7 +78,10 @@ def load_status(node_name: str, host: str, load: EdgeLoad, stamp: float) -> Diag
                f"{1000 * float(np.median(latencies)):.0f}" if latencies else ""),
               ("latency_ms_max", f"{1000 * max(latencies):.0f}" if latencies else ""),
               ("slot_work_cores", f"{load.load:.3f}"), ("compute_budget", f"{load.budget:g}"),
-              ("budget_level", load.level)]
+              ("budget_level", load.level),
+              ("loop_work_waiting", str(load.worker_waiting[0])),
+              ("looks_waiting", str(load.worker_waiting[1])),
+              ("looks_overdue", str(load.looks_overdue))]
     listed = {name: share for name, share in load.threads.items()
               if share >= LISTED_SHARE or name == MAIN}
     values += [(f"cores {name}", f"{share:.3f}")

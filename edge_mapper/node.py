@@ -86,6 +86,8 @@ class EdgeMapperNode(Node):
         #: the edge's load on /diagnostics each diagnostics_period_s: the slots answered since
         #: the last status ((latency, slot period) each) and the threads' CPU
         self.answered: list[tuple[float, float]] = []
+        #: the loop worker's overdue looks at the last /diagnostics status (a process count)
+        self._overdue_before = SHARED_WORKER.overdue
         self.threads = ThreadLoad()
         #: the checkpoints of this edge's devices written on a thread of their own
         #: (``checkpoint_in_background``), not on the slot thread every device waits for
@@ -162,12 +164,15 @@ class EdgeMapperNode(Node):
     def publish_load(self) -> DiagnosticArray:
         """The edge's load since the last status, on /diagnostics (and returned)."""
         level = self.governor.levels[self.governor.level]
+        overdue = SHARED_WORKER.overdue
         load = EdgeLoad(devices=len(self.links), answered=self.answered,
                         load=self.governor.load(time.monotonic()), budget=self.governor.budget,
                         level=level.describe() if self.governor.budget > 0 else "no budget",
                         trimmed=self.governor.level > 0,
-                        threads=self.threads.cores())
+                        threads=self.threads.cores(), worker_waiting=SHARED_WORKER.waiting(),
+                        looks_overdue=overdue - self._overdue_before)
         self.answered = []
+        self._overdue_before = overdue
         msg = load_status(self.get_fully_qualified_name(), socket.gethostname(), load,
                           self._now())
         self.pub_diagnostics.publish(msg)

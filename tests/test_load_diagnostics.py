@@ -33,6 +33,7 @@ def test_an_edge_that_keeps_up_within_its_budget_is_ok_and_says_what_it_did() ->
     assert [kv.key for kv in status.values][-3:] == ["cores main", "cores loop-closer_0",
                                                      "cores other threads"]
     assert values["cores other threads"] == "0.006"
+    assert values["loop_work_waiting"] == "0" and values["looks_overdue"] == "0"
 
 
 def test_a_late_map_or_a_trimmed_edge_warns_and_says_why() -> None:
@@ -48,3 +49,16 @@ def test_a_late_map_or_a_trimmed_edge_warns_and_says_why() -> None:
                                       trimmed=False))
     assert status.level == DiagnosticStatus.OK and values["latency_ms_median"] == ""
     assert status.message == "1 device, 0 slots answered, slot work 0% of a core"
+
+
+def test_place_looks_held_past_their_bound_behind_the_loops_warn_and_the_queue_is_shown() -> None:
+    """A worker the loop jobs keep busy holds the place looks back (devices merge late): the
+    looks that waited past their bound in the period warn, and the queue's two kinds are
+    values."""
+    status, values = _values(EdgeLoad(
+        devices=12, answered=[(0.4, 1.0)], load=0.5, budget=0.0, level="no budget",
+        trimmed=False, worker_waiting=(7, 3), looks_overdue=2))
+    assert status.level == DiagnosticStatus.WARN
+    assert "2 place looks waited past their bound behind the loop jobs" in status.message
+    assert values["loop_work_waiting"] == "7" and values["looks_waiting"] == "3"
+    assert values["looks_overdue"] == "2"

@@ -583,7 +583,7 @@ def test_the_loop_workers_queue_runs_the_loops_work_before_the_place_looks() -> 
     finally:
         worker.stop()
     assert ran == ["loop job", "its files", "look 0", "look 1", "look 2"]
-    assert dropped.cancelled()
+    assert dropped.cancelled() and worker.overdue == 0
 
 
 def test_a_place_look_that_waited_past_its_bound_goes_before_the_loops_that_keep_coming(
@@ -600,12 +600,14 @@ def test_a_place_look_that_waited_past_its_bound_goes_before_the_loops_that_keep
         look = worker.submit(ran.append, "look", after_loops=True)
         loops = [worker.submit(ran.append, f"loop {i}") for i in range(2)]
         time.sleep(0.4)                          # the look waits past its bound
+        assert worker.waiting() == (2, 1) and worker.overdue == 0
         release.set()
         for future in (held, look, *loops):
             future.result(timeout=30)
     finally:
         worker.stop()
     assert ran == ["look", "loop 0", "loop 1"]
+    assert worker.waiting() == (0, 0) and worker.overdue == 1     # counted for /diagnostics
 
 
 def test_the_loop_worker_takes_at_most_its_share_of_a_core() -> None:

@@ -465,6 +465,9 @@ class SharedWorker:
         self._after_loops: deque[_Queued] = deque()
         #: the longest work queued ``after_loops`` waits while loop work keeps coming
         self.after_loops_at_most_s = AFTER_LOOPS_AT_MOST_S
+        #: pieces of after-loops work that went before waiting loop work so far, having
+        #: waited past that bound: a worker the loops keep busy (the edge's /diagnostics)
+        self.overdue = 0
         self.niceness = niceness
         self.share = share
         #: the worker thread's nice value once it started (None: not started, or not Linux)
@@ -566,6 +569,11 @@ class SharedWorker:
             self._executor.submit(self._turn)
         return future
 
+    def waiting(self) -> tuple[int, int]:
+        """The pieces of work queued and not started now: (loop work, work after the loops)."""
+        with self._lock:
+            return len(self._loops), len(self._after_loops)
+
     def _turn(self) -> None:
         """Run the work that goes first now (skipped if it was cancelled): the oldest loop
         work, unless none waits or the oldest work queued after the loops has waited past its
@@ -575,6 +583,8 @@ class SharedWorker:
             if self._loops and not (waiting and time.monotonic() - waiting[0].queued_at
                                     > self.after_loops_at_most_s):
                 waiting = self._loops
+            elif self._loops:
+                self.overdue += 1
             work = waiting.popleft()
         if not work.future.set_running_or_notify_cancel():
             return
