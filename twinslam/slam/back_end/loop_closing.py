@@ -579,13 +579,13 @@ class SharedWorker:
         work, unless none waits or the oldest work queued after the loops has waited past its
         bound."""
         with self._lock:
-            waiting = self._after_loops
-            if self._loops and not (waiting and time.monotonic() - waiting[0].queued_at
-                                    > self.after_loops_at_most_s):
-                waiting = self._loops
-            elif self._loops:
-                self.overdue += 1
-            work = waiting.popleft()
+            overdue = bool(self._after_loops) and (
+                time.monotonic() - self._after_loops[0].queued_at > self.after_loops_at_most_s)
+            if self._loops and not overdue:
+                work = self._loops.popleft()
+            else:
+                self.overdue += bool(self._loops)      # went before loop work that waits
+                work = self._after_loops.popleft()
         if not work.future.set_running_or_notify_cancel():
             return
         future = work.future
