@@ -21,6 +21,14 @@ from twinslam.slam.front_end.orb_extractor import OrbExtractor
 #: the frames filed as keyframes; the queries lie half way between them
 EVERY = 20
 FRAMES = 300
+#: the tests that learn words test when and on which thread they are learned, not how well
+#: the words tell places apart: a vocabulary of 256 words learns in a fraction of the
+#: default's seconds of k-means (1024 words: 4-8 s from the room's 30 000 descriptors)
+LEARNING_WORDS = 256
+
+#: the module's fixtures (the two places' descriptors, their words: 12 s of CPU) are made
+#: once, on one worker, not once on every worker that runs one of its tests
+pytestmark = pytest.mark.xdist_group("keyframe-database-places")
 
 
 @pytest.fixture(scope="module")
@@ -72,7 +80,8 @@ def test_nothing_is_ranked_before_the_words_are_learned_on_the_scoring_thread(
     """Adding only queues: the words are learned by the first scoring after enough
     descriptors arrived; before, no map is ranked (the looks take the maps in turn)."""
     room = places["room"]
-    database = KeyFrameDatabase(learn_from=sum(len(d) for d in room.values()))
+    database = KeyFrameDatabase(learn_from=sum(len(d) for d in room.values()),
+                                words=LEARNING_WORDS)
     database.add("room", 0, room[0])
     assert database.candidates([room[10]], ["room"]) == [] and database.words is None
     for index, descriptors in room.items():
@@ -87,7 +96,8 @@ def test_the_database_says_when_its_queue_can_teach_it_the_words(
     """Not before enough descriptors wait (queued, or filed before the words), and not once
     the words are learned: a filing then learns them."""
     room = places["room"]
-    database = KeyFrameDatabase(learn_from=sum(len(d) for d in room.values()))
+    database = KeyFrameDatabase(learn_from=sum(len(d) for d in room.values()),
+                                words=LEARNING_WORDS)
     frames = list(room.items())
     for index, descriptors in frames[:-1]:
         database.add("room", index, descriptors)
@@ -108,7 +118,8 @@ def test_words_learned_on_another_thread_are_taken_by_the_next_scoring(
     sample are offered: the next scoring takes them and files every waiting keyframe under
     them."""
     room = places["room"]
-    database = KeyFrameDatabase(learn_from=sum(len(d) for d in room.values()))
+    database = KeyFrameDatabase(learn_from=sum(len(d) for d in room.values()),
+                                words=LEARNING_WORDS)
     database.learn_in_scoring = False
     for index, descriptors in room.items():
         database.add("room", index, descriptors)
