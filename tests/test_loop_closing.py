@@ -610,6 +610,33 @@ def test_a_place_look_that_waited_past_its_bound_goes_before_the_loops_that_keep
     assert worker.waiting() == (0, 0) and worker.overdue == 1     # counted for /diagnostics
 
 
+def test_cancelled_work_is_neither_waiting_nor_counted_overdue() -> None:
+    """A look cancelled while it waited (its device forgotten, the edge closing) leaves the
+    count of work waiting at once, is not counted overdue when its turn would have come past
+    its bound, and the work queued behind it runs as before: /diagnostics tells of the
+    work the worker still owes."""
+    worker = SharedWorker()
+    worker.after_loops_at_most_s = 0.2
+    ran: list[str] = []
+    release = threading.Event()
+    try:
+        held = worker.submit(release.wait, 30)
+        look = worker.submit(ran.append, "look", after_loops=True)
+        loop = worker.submit(ran.append, "loop")
+        time.sleep(0.4)                          # the look waits past its bound...
+        assert look.cancel()                     # ...and is cancelled before its turn
+        assert worker.waiting() == (1, 0)
+        release.set()
+        held.result(timeout=30)
+        loop.result(timeout=30)
+        later = worker.submit(ran.append, "later", after_loops=True)
+        later.result(timeout=30)
+    finally:
+        worker.stop()
+    assert ran == ["loop", "later"] and look.cancelled()
+    assert worker.waiting() == (0, 0) and worker.overdue == 0
+
+
 def test_the_loop_worker_takes_at_most_its_share_of_a_core() -> None:
     """With ``share`` s, each piece of work on the loop worker is followed by a rest of its
     CPU time × (1 − s) / s before the next starts (the slots keep the rest of the core);

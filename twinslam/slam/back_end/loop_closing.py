@@ -450,6 +450,14 @@ class _Queued:
     queued_at: float
 
 
+def _cancelled_ahead(queue: deque[_Queued]) -> list[_Queued]:
+    """The cancelled work at the head of ``queue``, taken off it."""
+    taken = []
+    while queue and queue[0].future.cancelled():
+        taken.append(queue.popleft())
+    return taken
+
+
 class SharedWorker:
     """The one thread the process's background loop closers queue their work on, started
     with the first work it gets (and again after :meth:`stop`), ``niceness`` steps below the
@@ -570,23 +578,32 @@ class SharedWorker:
         return future
 
     def waiting(self) -> tuple[int, int]:
-        """The pieces of work queued and not started now: (loop work, work after the loops)."""
+        """The pieces of work queued, not started and not cancelled now: (loop work, work
+        after the loops)."""
         with self._lock:
-            return len(self._loops), len(self._after_loops)
+            return (sum(not q.future.cancelled() for q in self._loops),
+                    sum(not q.future.cancelled() for q in self._after_loops))
 
     def _turn(self) -> None:
         """Run the work that goes first now (skipped if it was cancelled): the oldest loop
         work, unless none waits or the oldest work queued after the loops has waited past its
         bound."""
         with self._lock:
+            # work cancelled while it waited is dropped first: it neither goes before the
+            # loops nor counts as overdue (each turn still ends one piece, run or dropped)
+            dropped = [*_cancelled_ahead(self._loops), *_cancelled_ahead(self._after_loops)]
             overdue = bool(self._after_loops) and (
                 time.monotonic() - self._after_loops[0].queued_at > self.after_loops_at_most_s)
             if self._loops and not overdue:
-                work = self._loops.popleft()
-            else:
+                work: _Queued | None = self._loops.popleft()
+            elif self._after_loops:
                 self.overdue += bool(self._loops)      # went before loop work that waits
                 work = self._after_loops.popleft()
-        if not work.future.set_running_or_notify_cancel():
+            else:
+                work = None                            # its piece was dropped by another turn
+        for cancelled in dropped:
+            cancelled.future.set_running_or_notify_cancel()    # tells their waiters
+        if work is None or not work.future.set_running_or_notify_cancel():
             return
         future = work.future
         try:
