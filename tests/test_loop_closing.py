@@ -14,6 +14,7 @@ import threading
 import time
 from concurrent.futures import Future
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -586,17 +587,23 @@ def test_the_loop_workers_queue_runs_the_loops_work_before_the_place_looks() -> 
     assert dropped.cancelled() and worker.overdue == 0
 
 
+def _held_worker(look_bound_s: float) -> tuple[SharedWorker, threading.Event, Future[Any]]:
+    """A loop worker whose looks wait ``look_bound_s`` at most, busy with work that runs until
+    the event is set (what is queued meanwhile waits); the work's future."""
+    worker = SharedWorker()
+    worker.after_loops_at_most_s = look_bound_s
+    release = threading.Event()
+    return worker, release, worker.submit(release.wait, 30)
+
+
 def test_a_place_look_that_waited_past_its_bound_goes_before_the_loops_that_keep_coming(
         ) -> None:
     """Work queued after the loops waits at most ``after_loops_at_most_s`` while loop work
     keeps coming: past it, it goes next, before the loop work queued while it waited (on a
     host the loops keep busy, devices still merge)."""
-    worker = SharedWorker()
-    worker.after_loops_at_most_s = 0.2
+    worker, release, held = _held_worker(look_bound_s=0.2)
     ran: list[str] = []
-    release = threading.Event()
     try:
-        held = worker.submit(release.wait, 30)
         look = worker.submit(ran.append, "look", after_loops=True)
         loops = [worker.submit(ran.append, f"loop {i}") for i in range(2)]
         time.sleep(0.4)                          # the look waits past its bound
@@ -615,12 +622,9 @@ def test_cancelled_work_is_neither_waiting_nor_counted_overdue() -> None:
     count of work waiting at once, is not counted overdue when its turn would have come past
     its bound, and the work queued behind it runs as before: /diagnostics tells of the
     work the worker still owes."""
-    worker = SharedWorker()
-    worker.after_loops_at_most_s = 0.2
+    worker, release, held = _held_worker(look_bound_s=0.2)
     ran: list[str] = []
-    release = threading.Event()
     try:
-        held = worker.submit(release.wait, 30)
         look = worker.submit(ran.append, "look", after_loops=True)
         loop = worker.submit(ran.append, "loop")
         time.sleep(0.4)                          # the look waits past its bound...
