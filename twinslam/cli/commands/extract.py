@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -29,16 +30,21 @@ def run(args: argparse.Namespace) -> int:
 
     tty = sys.stdout.isatty()
 
-    def progress(done: int, total: int) -> None:
-        if tty and (done == total or done % 10 == 0):
-            print(f"\r  {done}/{total} frames", end="\n" if done == total else "",
-                  flush=True)
-        elif not tty and (done == total or done % 100 == 0):
-            print(f"  {done}/{total} frames", flush=True)
+    def counter(what: str) -> Callable[[int, int], None]:
+        """A progress line for one pass over the frames: redrawn on a terminal, every 100th
+        frame in a log."""
+        def progress(done: int, total: int) -> None:
+            if tty and (done == total or done % 10 == 0):
+                print(f"\r  {what}{done}/{total} frames", end="\n" if done == total else "",
+                      flush=True)
+            elif not tty and (done == total or done % 100 == 0):
+                print(f"  {what}{done}/{total} frames", flush=True)
+        return progress
 
     try:
         dataset, _, report = extract_covisibility(
-            reader, TrackingConfig(n_features=args.features), progress)
+            reader, TrackingConfig(n_features=args.features), counter(""),
+            guided_progress=counter("guided over the whole map: "))
     except ValueError as exc:
         return error(exc)
     save_covisibility(out, dataset)
