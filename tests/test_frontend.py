@@ -218,7 +218,7 @@ def extracted(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, int, str]
 def test_extract_command_writes_a_file_the_simulator_reads(
         extracted: tuple[Path, int, str]) -> None:
     """The sample extracted by the command and simulated on; both passes over the frames
-    told their progress (the guided one, over the whole map, takes a third of the time)."""
+    told their progress (the guided one, over the whole map, takes two fifths of the time)."""
     out, frames, printed = extracted
     assert f"\n  {frames}/{frames} frames" in printed and "wrote" in printed
     assert f"guided over the whole map: {frames}/{frames} frames" in printed

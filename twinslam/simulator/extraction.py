@@ -47,7 +47,7 @@ def extract_covisibility(reader: Sequence, config: TrackingConfig | None = None,
 
     ``progress(done, total)`` is called after each tracked frame, ``guided_progress(done,
     total)`` after each frame of the guided pass: it matches every frame against the whole
-    finished map, ~12 ms a frame against the 7-Scenes sample's 136 000 points (a third of the
+    finished map, ~12 ms a frame against the 7-Scenes sample's 136 000 points (two fifths of the
     extraction's time), growing with the map. ``guided``: M_f from that second pass (module
     docstring); otherwise the tracked observations alone.
     """
