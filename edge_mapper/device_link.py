@@ -60,6 +60,7 @@ from msg_schemas import qos, topics
 from msg_schemas.headers import time_seconds
 from twinslam.node_runtime.checked_subscription import CheckedSubscription
 from twinslam.node_runtime.long_lived_objects import release_frozen
+from twinslam.node_runtime.matched_readers import logging_writer_matches
 from twinslam.node_runtime.site_logging import SiteLogger
 from twinslam.policies.connected_map import mended_decision
 from twinslam.rotations import rotation_angle_deg
@@ -171,8 +172,12 @@ class DeviceLink:
                       if settings.visualisation else None)
         guarded = self._guarded
         self.subscriptions = [
+            # its matches logged: a device (or a test) whose first slot must reach this edge
+            # waits for "…/frame_summaries: 1 writer(s) matched"
             CheckedSubscription(node, FrameSummaries, self.topic(topics.FRAME_SUMMARIES),
-                                guarded(self._on_summaries), qos.PROTOCOL),
+                                guarded(self._on_summaries), qos.PROTOCOL,
+                                event_callbacks=logging_writer_matches(
+                                    node, self.topic(topics.FRAME_SUMMARIES))),
             CheckedSubscription(node, Keyframe, self.topic(topics.KEYFRAMES),
                                 guarded(self._on_keyframe), qos.PROTOCOL),
             CheckedSubscription(node, UplinkThroughput, self.topic(topics.UPLINK_THROUGHPUT),

@@ -39,6 +39,9 @@ F = 8
 
 #: node processes forked as the launchers fork theirs (twinslam.live.node_fork_server)
 FORKS = preloaded_nodes()
+#: the edge's log line once its summaries reader matched this test's one writer
+#: (twinslam.node_runtime.matched_readers)
+SUMMARIES_MATCHED = f"{topics.FRAME_SUMMARIES}: 1 writer(s) matched"
 
 
 def _summaries(device: Device, slot: int, rate: float) -> object:
@@ -114,6 +117,7 @@ def test_edge_node_protocol_corrupt_keyframe_and_restart(
     edge = domain.spawn(args, forks=FORKS)
     assert ros.spin_until(lambda: pub_sum.get_subscription_count() > 0
                           and pub_kf.get_subscription_count() > 0, 30.0)
+    assert ros.spin_until(lambda: SUMMARIES_MATCHED in domain.log(edge), 30.0)
     for slot, rate in enumerate([40.0, 80.0, 60.0]):
         run_slot(slot, rate)
     assert [m.map_version for m in got["map"]] == [1, 2, 3]
@@ -141,8 +145,11 @@ def test_edge_node_protocol_corrupt_keyframe_and_restart(
     restored = got["map"][-1]
     assert restored.map_version == 3 and list(restored.keyframe_ids) == list(last.keyframe_ids)
     # the new edge's summaries reader is known here (the killed one's may linger until its
-    # lease ends): a summary published now reaches it
-    assert ros.spin_until(lambda: bool(summary_readers() - killed_readers), 30.0)
+    # lease ends) and has matched this writer (it says so: a volatile reader that matches
+    # after a sample was written never gets it — knowing the reader was not enough, a clean
+    # clone waited 30 s for slot 3's request): a summary published now reaches it
+    assert ros.spin_until(lambda: bool(summary_readers() - killed_readers)
+                          and SUMMARIES_MATCHED in domain.log(edge), 30.0)
     run_slot(3, 40.0)
     assert got["map"][-1].map_version == 4
     # the device no longer held one of slot 4's frames: the slot closes on its report (not
@@ -233,7 +240,8 @@ def test_a_device_that_starts_again_is_served_with_a_new_map(
         return got["map"][-1]
 
     assert ros.spin_until(lambda: pub_sum.get_subscription_count() > 0
-                          and pub_kf.get_subscription_count() > 0, 30.0)
+                          and pub_kf.get_subscription_count() > 0
+                          and SUMMARIES_MATCHED in domain.log(edge), 30.0)
     first = TrackIdDevice(np.random.default_rng(0))
     for slot in range(3):
         before = run_slot(first, slot)
@@ -249,7 +257,10 @@ def test_a_device_that_starts_again_is_served_with_a_new_map(
     pub_sum.publish(_summaries(again, 0, 40.0))
     pub_sum.publish(_summaries(again, 1, 40.0))
     assert domain.wait_for_log(edge, "started again", 30.0), domain.log(edge)[-2000:]
-    assert ros.spin_until(lambda: bool(readers() - old_readers), 30.0)
+    # the new run's link listens on a reader of its own: known here, and matched to this
+    # writer there (its own "1 writer(s) matched", the second line of it)
+    assert ros.spin_until(lambda: bool(readers() - old_readers)
+                          and domain.log(edge).count(SUMMARIES_MATCHED) >= 2, 30.0)
     after = run_slot(again, 2)
     log = domain.log(edge)
     assert "cannot plan" not in log, log[-2000:]

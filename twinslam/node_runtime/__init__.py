@@ -8,7 +8,8 @@
 * :mod:`twinslam.node_runtime.parameters` — parameters declared with descriptors, ranges and
   live checks;
 * :mod:`twinslam.node_runtime.checked_subscription` — subscriptions that validate content first;
-* :mod:`twinslam.node_runtime.matched_readers` — a writer that logs when its readers match, and
+* :mod:`twinslam.node_runtime.matched_readers` — a writer that logs when its readers match (a
+  reader when its writers do), and
   :mod:`twinslam.node_runtime.acks`, waiting for reliable readers to acknowledge;
 * :mod:`twinslam.node_runtime.session` — an rclpy node with its own context and executor inside
   a process that does other work (monitors, tests), stopped cleanly by

@@ -1,15 +1,21 @@
-"""A protocol writer that says when its readers come and go.
+"""Protocol endpoints that say when the other side comes and goes.
 
 The protocol's topics are volatile: a sample written before a reader has matched the writer is
-never delivered to it. A writer's match is only visible inside the writer's own process, so a
-node logs it — ``udt/rate_latent: 1 reader(s) matched`` — for an operator checking that the edge
-listens, and for a test or a tool that must not publish the first slot into the void
-(``ProcessDomain.wait_for_log``).
+never delivered to it. A match is only visible inside each endpoint's own process, and the two
+sides match one after the other: a writer may list a reader (it learned of it) before that
+reader has matched the writer, and a volatile reader that matches late skips what was written
+before (Fast DDS, eProsima/Fast-DDS#2641). So a node logs its endpoints' matches —
+``udt/rate_latent: 1 reader(s) matched`` for a writer, ``device/frame_summaries: 1 writer(s)
+matched`` for a reader — for an operator checking that the edge listens, and for a test or a
+tool that must not publish the first slot into the void (``ProcessDomain.wait_for_log``).
 """
 
 from __future__ import annotations
 
-from rclpy.event_handler import PublisherEventCallbacks, QoSPublisherMatchedInfo
+from collections.abc import Callable
+from typing import Any
+
+from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.node import Node
 
 
@@ -19,14 +25,27 @@ def logging_matches(node: Node, topic: str) -> PublisherEventCallbacks:
     raise one event each, and each event reports the count as it is when the executor takes
     it (eight readers: "8 reader(s) matched" eight times): a count already logged is not
     logged again."""
+    return PublisherEventCallbacks(matched=_logging_count(node, topic, "reader(s)"))
+
+
+def logging_writer_matches(node: Node, topic: str) -> SubscriptionEventCallbacks:
+    """Event callbacks for ``create_subscription(..., event_callbacks=...)`` that log each
+    change in the number of writers matched to the reader of ``topic``, as
+    :func:`logging_matches` does for a writer's readers: once it is logged, what a writer
+    publishes reaches this reader."""
+    return SubscriptionEventCallbacks(matched=_logging_count(node, topic, "writer(s)"))
+
+
+def _logging_count(node: Node, topic: str, what: str) -> Callable[[Any], None]:
+    """A matched-event callback logging ``topic: N {what} matched`` when N changes."""
     name = node.resolve_topic_name(topic).lstrip("/")
     logged: list[int] = []
 
-    def matched(info: QoSPublisherMatchedInfo) -> None:
+    def matched(info: Any) -> None:
         count = int(info.current_count)
         if logged and logged[-1] == count:
             return
         logged[:] = [count]
-        node.get_logger().info(f"{name}: {count} reader(s) matched")
+        node.get_logger().info(f"{name}: {count} {what} matched")
 
-    return PublisherEventCallbacks(matched=matched)
+    return matched
