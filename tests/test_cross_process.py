@@ -129,6 +129,7 @@ def test_malformed_content_is_logged_dropped_and_the_next_one_arrives(
     lines.next("ready", timeout=30)
     pub = ros.node.create_publisher(Image, "chatter", qos.PROTOCOL)
     assert ros.spin_until(lambda: pub.get_subscription_count() > 0, 10)
+    lines.next("matched", timeout=30)        # and its reader matched this writer: none skipped
     truncated = _image()
     truncated.data = truncated.data[:1000]  # 1000 bytes where height x step says 921600
     pub.publish(truncated)
@@ -188,6 +189,7 @@ def test_waiting_for_acknowledgements_lets_the_other_threads_run(domain: Loopbac
     lines.next("ready", timeout=30)
     pub = ros.node.create_publisher(String, "chatter", qos.PROTOCOL)
     assert ros.spin_until(lambda: pub.get_subscription_count() > 0, 10)
+    lines.next("matched", timeout=30)
     # matched both ways and acknowledging before it freezes: a message it received and
     # acknowledged (a reader that had not learnt of the writer yet would leave what follows
     # to discovery, not to the frozen process)
