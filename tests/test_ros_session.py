@@ -9,6 +9,7 @@ import io
 import sys
 import time
 from collections.abc import Mapping
+from typing import Any
 
 import pytest
 from std_msgs.msg import String
@@ -17,6 +18,12 @@ from msg_schemas import qos
 from twinslam.hosts.loopback import LoopbackDomain
 from twinslam.live.monitor import with_info
 from twinslam.node_runtime.session import EXECUTORS, RosSession
+
+
+def _matched_both_ways(publisher: Any, subscription: Any) -> bool:
+    """The writer lists the reader and the reader the writer: the two learn of each other one
+    after the other, and a volatile reader skips what a writer sent before it matched it."""
+    return publisher.get_subscription_count() > 0 and subscription.get_publisher_count() > 0
 
 
 @pytest.mark.parametrize("executor", sorted(EXECUTORS))
@@ -28,9 +35,9 @@ def test_a_session_takes_what_its_node_subscribed_to_on_either_executor(
 
         def take(message: String) -> None:
             got.append(message.data)
-        reader.node.create_subscription(String, "chatter", take, qos.PROTOCOL)
+        subscription = reader.node.create_subscription(String, "chatter", take, qos.PROTOCOL)
         publisher = writer.node.create_publisher(String, "chatter", qos.PROTOCOL)
-        assert reader.spin_until(lambda: publisher.get_subscription_count() > 0, 30.0), \
+        assert reader.spin_until(lambda: _matched_both_ways(publisher, subscription), 30.0), \
             "the reader's subscription was never matched"
         for k in range(3):
             publisher.publish(String(data=f"sample {k}"))
@@ -49,9 +56,10 @@ def test_a_callback_that_asks_for_message_info_gets_it_on_either_executor(
 
         def take(message: String, info: Mapping[str, int]) -> None:
             got.append((message.data, int(info["received_timestamp"])))
-        reader.node.create_subscription(String, "chatter", with_info(take), qos.PROTOCOL)
+        subscription = reader.node.create_subscription(String, "chatter", with_info(take),
+                                                       qos.PROTOCOL)
         publisher = writer.node.create_publisher(String, "chatter", qos.PROTOCOL)
-        assert reader.spin_until(lambda: publisher.get_subscription_count() > 0, 30.0), \
+        assert reader.spin_until(lambda: _matched_both_ways(publisher, subscription), 30.0), \
             "the reader's subscription was never matched"
         before = time.time_ns()
         publisher.publish(String(data="timed"))
