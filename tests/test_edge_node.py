@@ -30,6 +30,7 @@ from msg_schemas import qos, topics
 from tests.test_edge_core import Device, K
 from twinslam.hosts.loopback import LoopbackDomain
 from twinslam.live.launcher import preloaded_nodes
+from twinslam.node_runtime.matched_readers import WRITERS, matched_line
 from twinslam.node_runtime.session import RosSession
 from twinslam.policies.registry import make_policy
 from twinslam.slam.keyframe import TRACK_ID_BIT, KeyFramePayload
@@ -41,7 +42,7 @@ F = 8
 FORKS = preloaded_nodes()
 #: the edge's log line once its summaries reader matched this test's one writer
 #: (twinslam.node_runtime.matched_readers)
-SUMMARIES_MATCHED = f"{topics.FRAME_SUMMARIES}: 1 writer(s) matched"
+SUMMARIES_MATCHED = matched_line(topics.FRAME_SUMMARIES, 1, WRITERS)
 
 
 def _summaries(device: Device, slot: int, rate: float) -> object:

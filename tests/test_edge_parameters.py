@@ -15,6 +15,7 @@ from twinslam_msgs.msg import FrameSummaries, UploadRequest
 from device_tracker.messages import FrameRecord, frame_summaries_message
 from msg_schemas import qos, topics
 from twinslam.hosts.loopback import LoopbackDomain
+from twinslam.node_runtime.matched_readers import WRITERS, matched_line
 from twinslam.node_runtime.session import RosSession
 
 #: how long one request waits for its answer before it is sent again, and how often
@@ -86,9 +87,9 @@ def test_edge_parameters_are_listed_refused_with_reasons_and_changed_live(
     pub = ros.node.create_publisher(FrameSummaries, topics.FRAME_SUMMARIES, qos.PROTOCOL)
     # known here, and matched there: a volatile reader that learns of this writer after its
     # first sample skips it (twinslam.node_runtime.matched_readers)
-    assert ros.spin_until(lambda: pub.get_subscription_count() > 0 and
-                          f"{topics.FRAME_SUMMARIES}: 1 writer(s) matched" in domain.log(edge),
-                          30.0)
+    matched = matched_line(topics.FRAME_SUMMARIES, 1, WRITERS)
+    assert ros.spin_until(lambda: pub.get_subscription_count() > 0
+                          and matched in domain.log(edge), 30.0)
     pub.publish(_summaries(0))
     assert ros.spin_until(lambda: len(requests) == 1, 30.0)
     assert requests[0].policy == "lff"                                   # the default

@@ -16,6 +16,7 @@ from twinslam_msgs.msg import RateLatent, UplinkThroughput
 
 from msg_schemas import new, qos, topics
 from twinslam.hosts.loopback import LoopbackDomain
+from twinslam.node_runtime.matched_readers import READERS, matched_line
 from twinslam.node_runtime.session import RosSession
 from twinslam.twin.markov import MarkovCounts
 from twinslam.uplink.channels import MarkovChannel, chain_states, state_rates
@@ -149,7 +150,7 @@ def _matched_both_ways(domain: LoopbackDomain, ros: RosSession, proc: subprocess
     the test waited a fixed second instead)."""
     assert ros.spin_until(lambda: pub.get_subscription_count() > 0
                           and sub.get_publisher_count() > 0, 60.0)
-    assert domain.wait_for_log(proc, "udt/rate_latent: 1 reader(s) matched", 60.0), \
+    assert domain.wait_for_log(proc, matched_line(topics.RATE_LATENT, 1, READERS), 60.0), \
         domain.log(proc)[-2000:]
 
 

@@ -18,6 +18,16 @@ from typing import Any
 from rclpy.event_handler import PublisherEventCallbacks, SubscriptionEventCallbacks
 from rclpy.node import Node
 
+#: what a writer's and a reader's lines count
+READERS, WRITERS = "reader(s)", "writer(s)"
+
+
+def matched_line(topic_name: str, count: int, endpoints: str) -> str:
+    """The line logged once ``count`` ``endpoints`` (READERS or WRITERS) matched the endpoint
+    of ``topic_name`` (resolved, without its leading slash): what a test or a tool waits for
+    in the node's log before it publishes."""
+    return f"{topic_name}: {count} {endpoints} matched"
+
 
 def logging_matches(node: Node, topic: str) -> PublisherEventCallbacks:
     """Event callbacks for ``create_publisher(..., event_callbacks=...)`` that log each change
@@ -25,7 +35,7 @@ def logging_matches(node: Node, topic: str) -> PublisherEventCallbacks:
     raise one event each, and each event reports the count as it is when the executor takes
     it (eight readers: "8 reader(s) matched" eight times): a count already logged is not
     logged again."""
-    return PublisherEventCallbacks(matched=_logging_count(node, topic, "reader(s)"))
+    return PublisherEventCallbacks(matched=_logging_count(node, topic, READERS))
 
 
 def logging_writer_matches(node: Node, topic: str) -> SubscriptionEventCallbacks:
@@ -33,11 +43,11 @@ def logging_writer_matches(node: Node, topic: str) -> SubscriptionEventCallbacks
     change in the number of writers matched to the reader of ``topic``, as
     :func:`logging_matches` does for a writer's readers: once it is logged, what a writer
     publishes reaches this reader."""
-    return SubscriptionEventCallbacks(matched=_logging_count(node, topic, "writer(s)"))
+    return SubscriptionEventCallbacks(matched=_logging_count(node, topic, WRITERS))
 
 
 def _logging_count(node: Node, topic: str, what: str) -> Callable[[Any], None]:
-    """A matched-event callback logging ``topic: N {what} matched`` when N changes."""
+    """A matched-event callback logging :func:`matched_line` when the count changes."""
     name = node.resolve_topic_name(topic).lstrip("/")
     logged: list[int] = []
 
@@ -46,6 +56,6 @@ def _logging_count(node: Node, topic: str, what: str) -> Callable[[Any], None]:
         if logged and logged[-1] == count:
             return
         logged[:] = [count]
-        node.get_logger().info(f"{name}: {count} {what} matched")
+        node.get_logger().info(matched_line(name, count, what))
 
     return matched
