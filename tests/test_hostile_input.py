@@ -3,7 +3,7 @@
 In process, each payload goes through the subscription's own path
 (:meth:`~twinslam.node_runtime.checked_subscription.CheckedSubscription.handle`: rclpy's CDR
 decoding, validation, the callback or a logged rejection), as a sample taken off the wire would:
-Hypothesis draws truncated, extended and random payloads and bit flips of real ones (~16 s); a
+Hypothesis draws truncated, extended and random payloads and bit flips of real ones (4 000, ~5 s); a
 deterministic sweep writes 0xFFFFFFFF (a 4 GB length) into every aligned word of each type's
 sample under ``tracemalloc``. Over DDS, the real device, edge and twin processes get hostile
 samples on every topic they read from a raw Cyclone DDS writer (``tests.cyclone_peer``: another
@@ -46,7 +46,10 @@ SUBSCRIBED = sorted({"sensor_msgs/msg/Image", "sensor_msgs/msg/CameraInfo",
                      "twinslam_msgs/msg/UplinkThroughput", "twinslam_msgs/msg/RateLatent",
                      "twinslam_msgs/msg/RelocalisationRequest",
                      "twinslam_msgs/msg/Relocalisation", "twinslam_msgs/msg/PlaybackPace"})
-BUDGET_S = 16.0                       #: hypothesis time over all types
+#: hostile payloads drawn over all types (~360 a type): a count, not a wall-clock budget, so
+#: that a loaded machine tries as many as an idle one and an idle one spends no more CPU than
+#: it needs (a 16 s budget drew 8 000 here alone and fewer beside the suite's other workers)
+PAYLOADS = 4000
 tried: dict[str, int] = {}
 
 #: node processes forked as the launchers fork theirs (twinslam.live.node_fork_server)
@@ -132,14 +135,11 @@ def _mutations() -> st.SearchStrategy[tuple[str, bytes]]:
 def test_hostile_payloads_are_rejected_and_logged_never_crash(
         subscriptions: dict[str, Any], capsys: pytest.CaptureFixture[str]) -> None:
     started = time.monotonic()
-    deadline = started + BUDGET_S
 
-    @settings(max_examples=8000, deadline=None, database=None,
+    @settings(max_examples=PAYLOADS, deadline=None, database=None,
               suppress_health_check=list(HealthCheck))
     @given(_mutations())
     def throw(case: tuple[str, bytes]) -> None:
-        if time.monotonic() > deadline:
-            return
         type_name, payload = case
         tried[type_name] = tried.get(type_name, 0) + 1
         subscriptions[type_name].handle(payload)        # must not raise
@@ -147,6 +147,7 @@ def test_hostile_payloads_are_rejected_and_logged_never_crash(
     throw()
     rejected = sum(s.rejected for s in subscriptions.values())
     received = sum(s.received for s in subscriptions.values())
+    assert sum(tried.values()) >= 0.9 * PAYLOADS and set(tried) == set(SUBSCRIBED)
     assert rejected + received == sum(tried.values())
     assert rejected > 0.5 * sum(tried.values())
     errors = next(iter(subscriptions.values()))._logger.errors
