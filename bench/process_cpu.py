@@ -43,9 +43,21 @@ def _group(comm: str, argv: list[str]) -> str:
     if "-m" in argv[:-1]:
         return f"python -m {argv[argv.index('-m') + 1]}"
     if "-c" in argv[:-1]:
-        return "python -c (pytest-xdist workers, benchmark drivers)"
+        return f"python -c ({_snippet_kind(argv[argv.index('-c') + 1])})"
     scripts = [a for a in argv[1:] if a.endswith(".py") or "/bin/" in a]
     return f"python {Path(scripts[0]).name}" if scripts else "python"
+
+
+#: what a ``python -c`` process is, by the code it was started with (the first match)
+SNIPPETS = (("exec(eval(sys.stdin.readline()))", "pytest-xdist workers"),
+            ("from multiprocessing.", "multiprocessing workers"))
+
+
+def _snippet_kind(code: str) -> str:
+    """The kind of a ``python -c CODE`` process: an xdist worker (execnet starts one with a
+    bootstrap line), a worker of a process pool (multiprocessing's spawn), or another snippet
+    (what a test or a benchmark runs in a process of its own)."""
+    return next((kind for marker, kind in SNIPPETS if marker in code), "other snippets")
 
 
 def _thread_label(comm: str, main: bool) -> str:

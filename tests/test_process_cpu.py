@@ -108,3 +108,20 @@ def test_the_fleet_bench_reads_one_threads_cpu_apart_from_its_process() -> None:
     worker.join()
     assert cpu_seconds(pid, main) - main0 < 0.3
     assert cpu_seconds(pid) - whole0 >= 0.5
+
+
+def test_python_c_processes_are_told_apart_by_what_they_run() -> None:
+    """The suite's xdist workers, a sweep's pool workers and a test's own snippets each have a
+    row: together they were 41 % of a clean clone's CPU, under one name."""
+    from bench.process_cpu import _group
+
+    python = "/venv/bin/python"
+    assert _group("python", [python, "-u", "-c", "import sys;exec(eval(sys.stdin.readline()))"]
+                  ) == "python -c (pytest-xdist workers)"
+    spawned = "from multiprocessing.spawn import spawn_main; spawn_main(tracker_fd=5)"
+    assert _group("python3.11", [python, "-c", spawned, "--multiprocessing-fork"]
+                  ) == "python -c (multiprocessing workers)"
+    assert _group("python", [python, "-c", "import runpy\nrunpy.run_module('bench.place_walks')"]
+                  ) == "python -c (other snippets)"
+    assert _group("python", [python, "-m", "device_tracker.node", "--ros-args"]
+                  ) == "python -m device_tracker.node"
