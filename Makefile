@@ -64,10 +64,15 @@ $(STAMP): requirements.txt setup.py tools/install_requirements.py
 # suite's parallel workers would each compile the same modules side by side. 1 840 files in 9 s
 # on one core, where compiling all of site-packages took 33 s of CPU (most of it never
 # imported: sympy, pandas, most of ray and torch); a module imported only later is compiled by
-# its first process. It needs the interface packages: test modules import them.
+# its first process. It needs the interface packages: test modules import them. The benches
+# are imported too: collection finds them without importing (tests/test_bench_commands.py),
+# and what they import (torch among it) would otherwise be compiled in the suite, by whichever
+# processes import it first.
+BENCH_IMPORTS := import importlib, pkgutil, bench; [importlib.import_module(f"bench.{m.name}") for m in pkgutil.iter_modules(bench.__path__)]
 $(BYTECODE_STAMP): $(STAMP) $(MSGS_STAMP) $(TF2_STAMP) $(COMPOSITION_STAMP)
 	@env -u PYTHONDONTWRITEBYTECODE $(PY) -m pytest --collect-only -q -n0 -p no:cacheprovider \
 	  > /dev/null 2>&1 || true
+	@env -u PYTHONDONTWRITEBYTECODE $(PY) -c '$(BENCH_IMPORTS)' > /dev/null 2>&1 || true
 	@touch $@
 
 # colcon, as a ROS 2 host builds (tests/test_colcon_build.py builds the twinslam package over
