@@ -132,6 +132,33 @@ def test_depth_message_encodings_round_trip() -> None:
     assert np.isnan(values[0]) and values[1:3].tolist() == [1.5, 2.25]
 
 
+def test_the_device_reads_back_the_images_the_player_publishes() -> None:
+    """Colour to the byte and depth to the millimetre, through the messages and their wire
+    form: readings past 16UC1's range clipped to it, rows padded beyond the width skipped."""
+    from rclpy.serialization import deserialize_message, serialize_message
+
+    from device_tracker.camera_input import depth_array, image_array
+    from twinslam.sequence_player.messages import color_message
+
+    rng = np.random.default_rng(0)
+    colour = rng.integers(0, 256, (3, 5, 3), dtype=np.uint8)
+    depth = rng.uniform(0.0, 8.0, (3, 5)).astype(np.float32)
+    depth[0, :3] = [0.0, 70.0, 0.0015]                 # no reading, past 65.535 m, half a mm
+    frame = RgbdFrame(0, 0.0, colour, depth, K, None, "f")
+    wire = [deserialize_message(serialize_message(m), Image)
+            for m in (color_message(frame, 0.0, "camera"), depth_message(frame, 0.0, "camera"))]
+    assert np.array_equal(image_array(wire[0]), colour)
+    read = depth_array(wire[1])
+    assert read.dtype == np.float32
+    millimetres = np.round(read.astype(np.float64) * 1000.0)
+    assert np.array_equal(millimetres, np.clip(np.round(depth * 1000.0), 0, 65535))
+    assert millimetres[0, :3].tolist() == [0.0, 65535.0, 2.0]
+    padded = Image(height=3, width=5, encoding="16UC1", step=12,   # 2 bytes of padding a row
+                   data=np.pad(np.frombuffer(bytes(wire[1].data), np.uint8).reshape(3, 10),
+                               ((0, 0), (0, 2)), constant_values=255).reshape(-1).tobytes())
+    assert np.array_equal(depth_array(padded), depth_array(wire[1]))
+
+
 def _messages_equal(a: dict, b: dict) -> None:
     from tests.nodes.digest import content_digest
 
