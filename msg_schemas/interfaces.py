@@ -108,10 +108,13 @@ def new(type_name: str | type[Any], **fields: Any) -> Any:
     takes."""
     cls = message_class(type_name) if isinstance(type_name, str) else type_name
     codes = _sequence_codes(cls)
+    # set one by one on an empty message: rosidl's constructor copies a sequence twice and
+    # took 0.6 ms for a 640×480 rgb8 image where the setter takes 0.06; a name the type does
+    # not have is an AttributeError here (the constructor ignored it without field checks)
+    msg = cls()
     for name, value in fields.items():
-        if name in codes:
-            fields[name] = as_sequence(value, *codes[name])
-    return cls(**fields)
+        setattr(msg, name, as_sequence(value, *codes[name]) if name in codes else value)
+    return msg
 
 
 def custom_message_names() -> list[str]:
