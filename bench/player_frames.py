@@ -32,10 +32,17 @@ _DRIVER = """
 import json, time
 from twinslam.sequence_player.messages import (camera_info_message, color_message,
                                                depth_message, pose_message)
+import inspect
 from twinslam.sequences.opening import open_sequence
 
 sequence, frames = sys.argv[1], int(sys.argv[2])
-reader = iter(open_sequence(sequence, end=frames + 1, colour_intrinsics="auto"))
+# the cache TWINSLAM_FRAME_CACHE names, as the player opens its sequence (a tree from before
+# the cache has no such argument and decodes every frame)
+cached = {}
+if "frame_cache" in inspect.signature(open_sequence).parameters:
+    from twinslam.sequences.decoded_frames import DecodedFrameCache
+    cached["frame_cache"] = DecodedFrameCache.from_environment()
+reader = iter(open_sequence(sequence, end=frames + 1, colour_intrinsics="auto", **cached))
 next(reader)                                   # the kernels load: left out
 read_s, messages_s, n = 0.0, 0.0, 0
 t0 = time.process_time()
