@@ -16,7 +16,8 @@ from twinslam.node_runtime.session import RosSession
 #: per pair: slot length (different, so a frame id tells whose slot it is), channel seed,
 #: first frame of the synthetic room played (different views)
 PAIRS = {"/ar1": (30, 0, 0), "/ar2": (45, 1, 300)}
-FRAMES = 180
+#: three slots of ar1's, two of ar2's: enough to tell whose decision answered which slot
+FRAMES = 90
 
 #: the nodes are forked from the launchers' fork server (twinslam.live.node_fork_server)
 FORKS = preloaded_nodes()
