@@ -90,7 +90,7 @@ def as_sequence(values: Any, dtype: str, code: str) -> Any:
     # filled from the numpy buffer itself: ``tobytes()`` first made a second copy, which took
     # ten times as long as the fill (0.6 against 0.06 ms for a 640×480 rgb8 image)
     out = array.array(code)
-    out.frombytes(memoryview(np.ascontiguousarray(values, dtype=dtype).reshape(-1)).cast("B"))
+    out.frombytes(np.ascontiguousarray(values, dtype=dtype).reshape(-1).data.cast("B"))
     return out
 
 
