@@ -371,8 +371,8 @@ def test_launch_splits_the_devices_among_two_edge_processes(tmp_path: Path) -> N
 
     cli = subprocess.Popen([sys.executable, "-m", "twinslam.cli.main", "launch", "--loopback",
                             "--devices", "2", "--edges", "2", "--vmax-total", "12",
-                            "--sequence", "synthetic:120,synthetic-corridor:120",
-                            "--frames", "120", "--policy", "lff",
+                            "--sequence", "synthetic:90,synthetic-corridor:90",
+                            "--frames", "90", "--policy", "lff",
                             "--out", str(tmp_path)], text=True, stdout=subprocess.PIPE,
                            stderr=subprocess.PIPE, cwd=Path(__file__).resolve().parents[1])
     assert cli.stdout is not None
@@ -389,12 +389,12 @@ def test_launch_splits_the_devices_among_two_edge_processes(tmp_path: Path) -> N
     assert cli.returncode == 0, (out[-3000:], err[-3000:])
     assert len(edges) == 2, (edges, out[-2000:])
     assert "2 devices, 2 edges (V_total 12 split equal)" in out
-    assert "place 1: synthetic:120, walked by ar1, served by edge_mapper\n" in out
-    assert "place 2: synthetic-corridor:120, walked by ar2, served by edge_mapper_2" in out
+    assert "place 1: synthetic:90, walked by ar1, served by edge_mapper\n" in out
+    assert "place 2: synthetic-corridor:90, walked by ar2, served by edge_mapper_2" in out
     assert "a false merge" not in out
     logs = (tmp_path / "lff_equal.log").read_text(encoding="utf-8")
-    assert "[ar1.sequence_player]: playing 120 frames of synthetic sequence synthetic " in logs
-    assert "[ar2.sequence_player]: playing 120 frames of synthetic sequence synthetic-corridor" \
+    assert "[ar1.sequence_player]: playing 90 frames of synthetic sequence synthetic " in logs
+    assert "[ar2.sequence_player]: playing 90 frames of synthetic sequence synthetic-corridor" \
         in logs
     with (tmp_path / "fleet_runs.csv").open(encoding="utf-8") as fh:
         table = {r["device"]: r for r in csv.DictReader(fh)}

@@ -32,12 +32,12 @@ from twinslam.sequences.synthetic import SyntheticSequence
 def test_launch_records_every_topic_and_the_camera_decimated_and_draws_the_run(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     bag, pictures = tmp_path / "bag", tmp_path / "pictures"
-    code = main(["launch", "--sequence", "synthetic:150", "--frames", "150", "--loopback",
+    code = main(["launch", "--sequence", "synthetic:90", "--frames", "90", "--loopback",
                  "--policy", "lff", "--record", str(bag), "--record-camera-every", "5",
                  "--out", str(pictures)])
     out = capsys.readouterr().out
     assert code == 0, out
-    assert "lff: 150 frames of synthetic:150 at 1.0x on loopback domain" in out
+    assert "lff: 90 frames of synthetic:90 at 1.0x on loopback domain" in out
     assert "MB a minute of run" in out
     with Reader(bag) as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
@@ -50,17 +50,17 @@ def test_launch_records_every_topic_and_the_camera_decimated_and_draws_the_run(
                   "/edge/map_update", "/edge/map_points", "/edge/keyframes", "/edge/decisions",
                   "/device/pose", "/device/path", "/camera/ground_truth_path"):
         assert counts[topic] > 0, topic
-    assert counts["/device/pose"] == 150                     # every pose
+    assert counts["/device/pose"] == 90                      # every pose
     # the TF tree: the device's pose at its tracked frames, the map's anchor once, latched
     # in the bag's metadata so that `ros2 bag play` offers it to a late viewer again
-    assert 0 < counts["/tf"] <= 150 and counts["/tf_static"] == 1
+    assert 0 < counts["/tf"] <= 90 and counts["/tf_static"] == 1
     assert offered["/tf_static"][0].durability == QosDurability.TRANSIENT_LOCAL
     assert offered["/edge/map_points"][0].durability == QosDurability.TRANSIENT_LOCAL
     assert offered["/tf"][0].durability == QosDurability.VOLATILE
     anchor = get_typestore(Stores.ROS2_JAZZY).deserialize_cdr(static[0], "tf2_msgs/msg/TFMessage")
     assert [(t.header.frame_id, t.child_frame_id) for t in anchor.transforms] == [("world", "map")]
-    assert counts["/camera/image_raw"] == 30                 # one in five of 150 frames
-    assert counts["/camera/camera_info"] == counts["/camera/depth/image_raw"] == 30
+    assert counts["/camera/image_raw"] == 18                 # one in five of 90 frames
+    assert counts["/camera/camera_info"] == counts["/camera/depth/image_raw"] == 18
     # a reader without twinslam decodes its own messages from the .msg definitions
     store = get_typestore(Stores.ROS2_JAZZY)
     msg_dir = Path(msg_schemas.__file__).parent / "msg"
