@@ -284,6 +284,27 @@ def test_the_committed_covisibility_is_what_extraction_makes(
     assert np.mean(np.abs(sizes - ref_sizes) / ref_sizes) < 0.10
 
 
+def test_extract_without_the_guided_pass_keeps_the_tracked_observations(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``--no-guided``: one pass over the frames, each frame's points those it tracked — a
+    subset of what the guided pass gives it, with the same poses."""
+    from twinslam.cli.main import main
+
+    files = {}
+    for flag in ("--guided", "--no-guided"):
+        files[flag] = tmp_path / f"{flag.strip('-')}.npz"
+        assert main(["extract", "synthetic:40", "-o", str(files[flag]), flag]) == 0
+        printed = capsys.readouterr().out
+        assert ("guided over the whole map: 40/40 frames" in printed) == (flag == "--guided")
+    guided, tracked = (load_covisibility(files[f]) for f in ("--guided", "--no-guided"))
+    assert "guided" not in tracked.source and "guided over the whole map" in guided.source
+    assert tracked.n_frames == guided.n_frames == 40
+    np.testing.assert_array_equal(tracked.poses, guided.poses)
+    every = np.arange(40)
+    assert np.all(tracked.weights(every, every) <= guided.weights(every, every))
+    assert tracked.weights(every, every).sum() < guided.weights(every, every).sum()
+
+
 def test_extract_command_refuses_a_missing_sequence(tmp_path: Path) -> None:
     run = subprocess.run([sys.executable, "-m", "twinslam.cli.main", "extract",
                           str(tmp_path / "nope"), "-o", str(tmp_path / "c.npz")],
