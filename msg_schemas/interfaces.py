@@ -87,8 +87,8 @@ def as_sequence(values: Any, dtype: str, code: str) -> Any:
         return list(values)
     if isinstance(values, array.array) and values.typecode == code:
         return values
-    # filled from the numpy buffer itself: ``tobytes()`` first made a second copy, which took
-    # ten times as long as the fill (0.6 against 0.06 ms for a 640×480 rgb8 image)
+    # filled from the numpy buffer itself: through ``tobytes()`` first (a second copy) a
+    # 640×480 rgb8 image took 0.6 ms, filled once 0.06 ms
     out = array.array(code)
     out.frombytes(np.ascontiguousarray(values, dtype=dtype).reshape(-1).data.cast("B"))
     return out
