@@ -143,7 +143,7 @@ def test_the_device_reads_back_the_images_the_player_publishes() -> None:
     rng = np.random.default_rng(0)
     colour = rng.integers(0, 256, (3, 5, 3), dtype=np.uint8)
     depth = rng.uniform(0.0, 8.0, (3, 5)).astype(np.float32)
-    depth[0, :3] = [0.0, 70.0, 0.0015]                 # no reading, past 65.535 m, half a mm
+    depth[0, :3] = [0.0, 70.0, 0.0015]         # no reading, past 65.535 m, 1.5 mm (to 2)
     frame = RgbdFrame(0, 0.0, colour, depth, K, None, "f")
     wire = [deserialize_message(serialize_message(m), Image)
             for m in (color_message(frame, 0.0, "camera"), depth_message(frame, 0.0, "camera"))]
