@@ -31,6 +31,7 @@ from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
 from msg_schemas.headers import ros_time, set_header
+from msg_schemas.interfaces import new
 from msg_schemas.poses import pose_msgs
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 
@@ -51,10 +52,9 @@ def map_points_message(keyframe_map: KeyFrameMap, stamp: float, frame_id: str = 
     data = np.zeros((len(rows), 4), dtype=np.float32)
     data[:, :3] = keyframe_map.columns.positions[rows]
     data[:, 3] = keyframe_map.columns.observed[rows]
-    cloud = PointCloud2(height=1, width=len(rows), fields=list(POINT_FIELDS),
-                        is_bigendian=False, point_step=16, row_step=16 * len(rows),
-                        is_dense=True)
-    cloud.data = data.tobytes()
+    cloud = new(PointCloud2, height=1, width=len(rows), fields=list(POINT_FIELDS),
+                is_bigendian=False, point_step=16, row_step=16 * len(rows), is_dense=True,
+                data=data.view(np.uint8).reshape(-1))        # the float32 rows' bytes, once
     return set_header(cloud, stamp, frame_id)
 
 

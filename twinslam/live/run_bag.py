@@ -55,7 +55,7 @@ from visualization_msgs.msg import MarkerArray
 
 import msg_schemas
 from msg_schemas import qos, topics
-from msg_schemas.interfaces import type_name_of
+from msg_schemas.interfaces import new, type_name_of
 
 #: a recording refuses to start with less free space than this where it writes
 MIN_FREE_BYTES = 200 * 1024 * 1024
@@ -141,8 +141,8 @@ def compress_image(data: bytes) -> bytes | None:
         return None
     if not ok:
         return None
-    return bytes(serialize_message(CompressedImage(header=img.header, format=fmt,
-                                                   data=out.tobytes())))
+    return bytes(serialize_message(new(CompressedImage, header=img.header, format=fmt,
+                                       data=out.reshape(-1))))
 
 
 def check_destination(folder: Path) -> None:
