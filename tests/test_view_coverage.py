@@ -194,21 +194,21 @@ def test_a_devices_own_keyframes_of_an_earlier_visit_cover_its_views() -> None:
 
 
 def test_a_cover_asks_the_map_to_serve_the_frame_with_the_margin_set() -> None:
-    """Frames that match 20 of the map's points are served (the floor, the default margin, is
-    15) but thinly: keyframes beside them — the device's own of an earlier visit, or another
-    device's — cover them by default; with a margin of 50 points they stay candidates and the
-    uplink's count is asked for, where frames matching 50 are covered still. The edge node's
-    parameters start the margin at the floor."""
+    """Frames that match 20 of the map's points are served (above the device's tracking
+    floor of 15) but thinly: with the default margin of 50 points, keyframes beside them —
+    the device's own of an earlier visit, or another device's — leave them candidates and the
+    uplink's count is asked for, where frames matching 50 are covered; with the margin at
+    the floor they are covered too. The edge node's parameters start at the default."""
     assert edge_config({spec.name: spec.default for spec in PARAMETERS}).coverage == \
         CoverageBounds()
-    assert CoverageBounds().min_points == MIN_INLIERS
+    assert CoverageBounds().min_points == 50 > MIN_INLIERS
     for lent in (False, True):
-        floor = _own_cover(3, (0, UPLOADED), points=20, lent=lent)
-        assert floor.covered == frozenset(range(24, 32)) and floor.action.upload == [], lent
-        thin = _own_cover(3, (0, UPLOADED), points=20, lent=lent, min_points=50)
+        thin = _own_cover(3, (0, UPLOADED), points=20, lent=lent)
         assert not thin.covered and len(thin.action.upload) == 2, lent
-        served = _own_cover(3, (0, UPLOADED), points=50, lent=lent, min_points=50)
+        served = _own_cover(3, (0, UPLOADED), points=50, lent=lent)
         assert served.covered == frozenset(range(24, 32)) and served.action.upload == [], lent
+        floor = _own_cover(3, (0, UPLOADED), points=20, lent=lent, min_points=MIN_INLIERS)
+        assert floor.covered == frozenset(range(24, 32)) and floor.action.upload == [], lent
     with pytest.raises(ValueError, match=">= 0"):
         CoverageBounds(min_points=-1)
 
