@@ -866,6 +866,35 @@ def test_the_covered_margin_tables_are_what_their_command_prints(
     assert seeds == [0, 1, 2] and _missing("\n".join(lines)) == []
 
 
+def test_the_margin_as_the_default_tables_are_what_their_commands_print(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The covered view's margin of 50 points made the default: the 7-Scenes walk's uplink
+    table at 50 and the held-out corridor's, 50 against the floor seed by seed, and live
+    against the floor and against each device alone, as the page has them; the rows at 15
+    and 30 points the page quotes say what it says."""
+    folder = FIGURES / "shared-map" / "covered-margin" / "default-50"
+    monkeypatch.syspath_prepend(str(FIGURES))           # its sibling, shared_uplink_table
+    uplink = _script("shared_uplink_table")
+    for place in ("at-50", "corridor-at-50"):
+        rows = [row.strip() for row in uplink.table(folder / place, "mapped")]
+        assert _on_a_page(rows), place
+        assert len(rows) == 4 and all(row.endswith("| 0, 1, 2, 4, 5 |") for row in rows)
+    for margin, saved, lost in (("at-15", "61.7 ± 4.4 %", "+5.6 [+2.7, +8.5]"),
+                                ("at-30", "50.6 ± 2.9 %", "+3.1 [+1.8, +4.5]")):
+        (row,) = [r for r in uplink.table(folder / margin, "mapped")
+                  if r.startswith("| mapped | second | covered |")]
+        assert f"| {saved} |" in row and f"| {lost} |" in row, (margin, row)
+    printed = _script("shared_map_before_after").table(folder / "at-15", folder / "at-50",
+                                                       both_devices=True)
+    assert _missing("\n".join(printed)) == []
+    live = _script("loops_across_live")
+    now = ("m50", "covered_min_points 50 (the default now)")
+    for before in (("m15", "covered_min_points 15 (the default before)"),
+                   ("alone", "each device alone (merge_maps off)")):
+        lines, seeds, _ = live.table(folder / "live", (before, now), with_map=True)
+        assert seeds == [0, 1, 2] and _missing("\n".join(lines)) == [], before
+
+
 def test_the_words_learned_beside_the_looks_table_is_what_its_command_prints() -> None:
     """Live, the keyframe database's words learned by the first look against beside the
     looks: the second device's merge and uploads over three seeds, as the page has them."""
