@@ -293,8 +293,8 @@ def add_place_options(parser: argparse.ArgumentParser) -> None:
                         help="and turned by at most this (default: the edge's covered_deg)")
     parser.add_argument("--covered-min-points", type=int, metavar="N",
                         help="a covered frame is left out only where N of its reported points "
-                             "are the map's (default: the edge's covered_min_points, the "
-                             "tracking floor: any frame the map serves)")
+                             "are the map's (default: the edge's covered_min_points, 50; 15 "
+                             "is the device's tracking floor: any frame the map serves)")
     parser.add_argument("--own-coverage-after", type=int, metavar="N",
                         help="a device's own keyframe of an earlier visit (restored, or "
                              "uploaded N slots before or more) covers a frame's view as a "
