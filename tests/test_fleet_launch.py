@@ -6,6 +6,10 @@ from __future__ import annotations
 
 import csv
 import os
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -360,24 +364,39 @@ def test_the_bundled_parameter_files_reach_their_nodes_in_any_namespace(
             assert read == pytest.approx(wanted), (node, remaps)
 
 
-@pytest.mark.slow
-def test_launch_splits_the_devices_among_two_edge_processes(tmp_path: Path) -> None:
-    """``--edges 2`` over two places (``--sequence`` the room and the corridor): two edge
-    processes while the devices play, each serving the device of its place, each device
-    answered, each edge with its devices' share of V_total."""
-    import subprocess
-    import sys
-    import time
+@dataclass(frozen=True)
+class FleetRun:
+    """One fleet launch's printout, its folder, and its edge processes seen while it played."""
 
+    out: str
+    folder: Path
+    edges: list[int]
+
+
+@pytest.fixture(scope="module")
+def two_places_three_devices(tmp_path_factory: pytest.TempPathFactory) -> FleetRun:
+    """``twinslam launch --devices 3 --edges 2`` over two places (``--sequence`` the room and
+    the corridor): ar1 and ar2 walk the room, served by one edge, ar3 the corridor, served by
+    the second; the motion allocator, a parameter file keyed by the plain node names whose
+    device section sets 45-frame slots (2 over the 90 frames, where the node's default of 30
+    makes 3), and ``--pace``. The edge processes are listed once every device has planned
+    its first slot. One launch for the tests of one edge serving several devices and of the
+    devices split among edges."""
+    folder = tmp_path_factory.mktemp("fleet")
+    params = folder / "params.yaml"
+    params.write_text("device_tracker:\n  ros__parameters:\n    slot_frames: 45\n",
+                      encoding="utf-8")
     cli = subprocess.Popen([sys.executable, "-m", "twinslam.cli.main", "launch", "--loopback",
-                            "--devices", "2", "--edges", "2", "--vmax-total", "12",
+                            "--devices", "3", "--edges", "2", "--vmax-total", "18",
+                            "--allocator", "motion",
                             "--sequence", "synthetic:90,synthetic-corridor:90",
-                            "--frames", "90", "--policy", "lff",
-                            "--out", str(tmp_path)], text=True, stdout=subprocess.PIPE,
-                           stderr=subprocess.PIPE, cwd=Path(__file__).resolve().parents[1])
+                            "--frames", "90", "--policy", "lff", "--params", str(params),
+                            "--pace", "30", "--out", str(folder)], text=True,
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                           cwd=Path(__file__).resolve().parents[1])
     assert cli.stdout is not None
     seen, deadline = "", time.monotonic() + 180
-    while not ("[lff ar1] slot   0" in seen and "[lff ar2] slot   0" in seen) and \
+    while not all(f"[lff {d}] slot   0" in seen for d in ("ar1", "ar2", "ar3")) and \
             time.monotonic() < deadline and cli.poll() is None:
         seen += cli.stdout.readline()
     pids = [int(pid) for pid in os.listdir("/proc") if pid.isdigit()]
@@ -387,65 +406,77 @@ def test_launch_splits_the_devices_among_two_edge_processes(tmp_path: Path) -> N
     rest, err = cli.communicate(timeout=300)
     out = seen + rest
     assert cli.returncode == 0, (out[-3000:], err[-3000:])
-    assert len(edges) == 2, (edges, out[-2000:])
-    assert "2 devices, 2 edges (V_total 12 split equal)" in out
-    assert "place 1: synthetic:90, walked by ar1, served by edge_mapper\n" in out
-    assert "place 2: synthetic-corridor:90, walked by ar2, served by edge_mapper_2" in out
-    assert "a false merge" not in out
-    logs = (tmp_path / "lff_equal.log").read_text(encoding="utf-8")
-    assert "[ar1.sequence_player]: playing 90 frames of synthetic sequence synthetic " in logs
-    assert "[ar2.sequence_player]: playing 90 frames of synthetic sequence synthetic-corridor" \
-        in logs
-    with (tmp_path / "fleet_runs.csv").open(encoding="utf-8") as fh:
-        table = {r["device"]: r for r in csv.DictReader(fh)}
-    assert set(table) == {"ar1", "ar2"}
-    assert all(int(r["frames"]) > 0 and float(r["latency_ms_median"]) > 0
-               for r in table.values())
-    budgets = {line.split()[0]: float(line.split()[-2]) for line in out.splitlines()
-               if line.split() and line.split()[0] in ("ar1", "ar2")}
-    assert set(budgets) == {"ar1", "ar2"} and all(0 < b <= 6 for b in budgets.values())
+    return FleetRun(out, folder, edges)
+
+
+def _edge_sections(log: str) -> dict[str, str]:
+    """Each node's section of a fleet's log (``===== NAME =====`` heads them)."""
+    parts = log.split("===== ")[1:]
+    return {part.split(" =====", 1)[0]: part for part in parts}
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("fleet-two-places")
+def test_launch_splits_the_devices_among_two_edge_processes(
+        two_places_three_devices: FleetRun) -> None:
+    """``--edges 2`` over two places: two edge processes while the devices play, each
+    serving the devices of its place, each device answered, each edge's devices within its
+    share of V_total (12 for the room's two devices, 6 for the corridor's one)."""
+    run = two_places_three_devices
+    assert len(run.edges) == 2, (run.edges, run.out[-2000:])
+    assert "3 devices, 2 edges (V_total 18 split motion)" in run.out
+    assert "place 1: synthetic:90, walked by ar1, ar2, served by edge_mapper\n" in run.out
+    assert "place 2: synthetic-corridor:90, walked by ar3, served by edge_mapper_2" in run.out
+    assert "a false merge" not in run.out
+    logs = (run.folder / "lff_motion.log").read_text(encoding="utf-8")
+    for device, sequence in (("ar1", "synthetic "), ("ar2", "synthetic "),
+                             ("ar3", "synthetic-corridor")):
+        assert f"[{device}.sequence_player]: playing 90 frames of synthetic sequence " \
+            f"{sequence}" in logs
+    sections = _edge_sections(logs)
+    assert all(f"listening on /{d}/device/frame_summaries" in sections["edge_mapper"]
+               for d in ("ar1", "ar2"))
+    assert "/ar3/" not in sections["edge_mapper"]
+    assert "listening on /ar3/device/frame_summaries" in sections["edge_mapper_2"]
+    assert "/ar1/" not in sections["edge_mapper_2"] and "/ar2/" not in sections["edge_mapper_2"]
+    budgets = {line.split()[0]: float(line.split()[-2]) for line in run.out.splitlines()
+               if line.split() and line.split()[0] in ("ar1", "ar2", "ar3")}
+    assert set(budgets) == {"ar1", "ar2", "ar3"} and all(b > 0 for b in budgets.values())
+    assert budgets["ar1"] + budgets["ar2"] <= 12 + 1e-9 and budgets["ar3"] <= 6 + 1e-9
+
+
+@pytest.mark.slow
+@pytest.mark.xdist_group("fleet-two-places")
 def test_launch_serves_two_devices_from_one_edge_and_reports_each(
-        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """One edge, two devices, each reported; the devices run in their namespaces with the
-    parameter file's device section though it is keyed by the plain node name (40-frame
-    slots: 3 over the 120 frames, where the node's default of 30 makes 4); ``--pace``: the
-    two cameras wait together for their devices (one recording clock), and no device drops
-    a frame however loaded the machine."""
-    params = tmp_path / "params.yaml"
-    params.write_text("device_tracker:\n  ros__parameters:\n    slot_frames: 40\n",
-                      encoding="utf-8")
-    code = main(["launch", "--loopback", "--devices", "2", "--vmax-total", "12",
-                 "--allocator", "motion", "--sequence", "synthetic:120", "--frames", "120",
-                 "--policy", "lff", "--params", str(params), "--pace", "30",
-                 "--out", str(tmp_path)])
-    out = capsys.readouterr().out
-    assert code == 0, out[-3000:]
-    assert "lff, allocator motion: 2 devices" in out and "Jain's index" in out
-    assert "the cameras waiting together for any device beyond 30 unposed frames" in out
-    rows = {line.split()[0]: line.split() for line in out.splitlines()
-            if line.split() and line.split()[0] in ("ar1", "ar2", "mean")}
-    assert set(rows) == {"ar1", "ar2", "mean"}
-    budgets = [float(rows[d][-2]) for d in ("ar1", "ar2")]
-    assert all(0 < b <= 12 for b in budgets) and sum(budgets) <= 12 + 1e-9
-    assert sorted(p.name for p in tmp_path.glob("*.png")) == ["lff_motion_ar1.png",
-                                                            "lff_motion_ar2.png"]
-    # every node's log kept with the run: what the edge said of each device's slots
-    logs = (tmp_path / "lff_motion.log").read_text(encoding="utf-8")
+        two_places_three_devices: FleetRun) -> None:
+    """One edge serving the room's two devices, every device reported: its row, its picture,
+    its node logs, its slots; the devices run in their namespaces with the parameter file's
+    device section though it is keyed by the plain node name (45-frame slots: 2 over the 90
+    frames); ``--pace``: the cameras wait together for their devices (one recording clock),
+    and no device drops a frame however loaded the machine."""
+    run, folder = two_places_three_devices, two_places_three_devices.folder
+    assert "lff, allocator motion: 3 devices" in run.out and "Jain's index" in run.out
+    assert "the cameras waiting together for any device beyond 30 unposed frames" in run.out
+    rows = {line.split()[0] for line in run.out.splitlines()
+            if line.split() and line.split()[0] in ("ar1", "ar2", "ar3", "mean")}
+    assert rows == {"ar1", "ar2", "ar3", "mean"}
+    assert sorted(p.name for p in folder.glob("*.png")) == [
+        "lff_motion_ar1.png", "lff_motion_ar2.png", "lff_motion_ar3.png"]
+    # every node's log kept with the run: what the edges said of each device's slots
+    logs = (folder / "lff_motion.log").read_text(encoding="utf-8")
     assert all(f"===== {node} =====" in logs for node in (
-        "edge_mapper", "device_tracker:ar1", "device_tracker:ar2"))
+        "edge_mapper", "edge_mapper_2", "device_tracker:ar1", "device_tracker:ar2",
+        "device_tracker:ar3"))
     assert "[edge_mapper]" in logs and "slot" in logs
-    assert logs.count("held for the device and its group fleet") == 2
-    with (tmp_path / "fleet_runs.csv").open(encoding="utf-8") as fh:
+    assert logs.count("held for the device and its group fleet") == 3
+    with (folder / "fleet_runs.csv").open(encoding="utf-8") as fh:
         table = list(csv.DictReader(fh))
     assert [(r["device"], r["allocator"], r["seed"]) for r in table] == [
-        ("ar1", "motion", "0"), ("ar2", "motion", "0")]
-    assert [int(r["frames_dropped"]) for r in table] == [0, 0]
+        ("ar1", "motion", "0"), ("ar2", "motion", "0"), ("ar3", "motion", "0")]
+    assert [int(r["frames_dropped"]) for r in table] == [0, 0, 0]
     assert all(int(r["frames"]) > 0 and float(r["latency_ms_median"]) > 0
                and int(r["frames_uploaded"]) > 0 for r in table)
-    assert [int(r["slots"]) for r in table] == [3, 3]
+    assert [int(r["slots"]) for r in table] == [2, 2, 2]
 
 
 @pytest.mark.slow
@@ -453,9 +484,6 @@ def test_a_terminated_launch_stops_the_nodes_it_started(tmp_path: Path) -> None:
     """SIGTERM (``kill``, a scheduler) ends ``twinslam launch`` as Ctrl-C does: exit 130 and
     none of its node processes left running."""
     import signal
-    import subprocess
-    import sys
-    import time
 
     cli = subprocess.Popen([sys.executable, "-m", "twinslam.cli.main", "launch", "--loopback",
                             "--sequence", "synthetic:900", "--frames", "900", "--policy", "lff",
