@@ -409,7 +409,7 @@ def two_places_three_devices(tmp_path_factory: pytest.TempPathFactory) -> FleetR
     return FleetRun(out, folder, edges)
 
 
-def _edge_sections(log: str) -> dict[str, str]:
+def _node_sections(log: str) -> dict[str, str]:
     """Each node's section of a fleet's log (``===== NAME =====`` heads them)."""
     parts = log.split("===== ")[1:]
     return {part.split(" =====", 1)[0]: part for part in parts}
@@ -433,7 +433,7 @@ def test_launch_splits_the_devices_among_two_edge_processes(
                              ("ar3", "synthetic-corridor")):
         assert f"[{device}.sequence_player]: playing 90 frames of synthetic sequence " \
             f"{sequence}" in logs
-    sections = _edge_sections(logs)
+    sections = _node_sections(logs)
     assert all(f"listening on /{d}/device/frame_summaries" in sections["edge_mapper"]
                for d in ("ar1", "ar2"))
     assert "/ar3/" not in sections["edge_mapper"]
