@@ -35,8 +35,9 @@ from twinslam.sequences.frame import RgbdFrame
 from twinslam.sequences.opening import AUTO, open_sequence
 from twinslam.slam.back_end.loop_closing import LoopQuery
 from twinslam.slam.back_end.loop_detection import MIN_INLIERS as LOOP_MIN_INLIERS
-from twinslam.slam.back_end.map_merging import MERGE_MIN_INLIERS
+from twinslam.slam.back_end.map_merging import LEND_VIEWS_ONCE, MERGE_MIN_INLIERS
 from twinslam.slam.back_end.place_words import PlaceWords
+from twinslam.slam.back_end.view_coverage import CoverageBounds
 from twinslam.slam.keyframe import KeyFramePayload
 from twinslam.slam.map_update import MapSnapshot
 from twinslam.slot_protocol import default_device
@@ -286,6 +287,11 @@ def add_place_options(parser: argparse.ArgumentParser) -> None:
                         help="a copy neither held nor seen by its borrowing device for N "
                              "slots goes back to its lender (the edge's lent_unseen_slots; "
                              "default %(default)s: kept; not with --lend-eagerly)")
+    parser.add_argument("--lend-views-once", choices=("on", "off"),
+                        help="a view lent once: another device's keyframe is not lent where a "
+                             "copy the borrowing map holds covers its view (the edge's "
+                             "lend_views_once, with covered_m and covered_deg; default: the "
+                             f"edge's, {'on' if LEND_VIEWS_ONCE else 'off'})")
     parser.add_argument("--covered-m", type=float, metavar="M",
                         help="a lent keyframe this near a frame covers its view: the frame is "
                              "not uploaded (default: the edge's covered_m; 0: never)")
@@ -304,6 +310,13 @@ def add_place_options(parser: argparse.ArgumentParser) -> None:
                         help="each device's archive learns visual words of its own "
                              "(shared_vocabulary:=false), not one vocabulary for the process's "
                              "devices")
+
+
+def lent_views(args: argparse.Namespace, config: EdgeConfig) -> CoverageBounds | None:
+    """The bounds within which a copy a borrowing map holds declines another keyframe of its
+    view (``--lend-views-once``; the edge's covered view), or None: every keyframe lent."""
+    once = LEND_VIEWS_ONCE if args.lend_views_once is None else args.lend_views_once == "on"
+    return config.coverage if once else None
 
 
 def share_vocabulary(cores: Iterable[EdgeMapperCore], per_device: bool) -> None:

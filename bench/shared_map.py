@@ -59,6 +59,7 @@ from bench.in_process import (
     add_device_option,
     add_place_options,
     check_place_options,
+    lent_views,
     open_walk,
     repeatable_edge,
     run_as_the_edge_node,
@@ -84,6 +85,7 @@ from twinslam.slam.back_end.map_merging import (
     lend_from,
 )
 from twinslam.slam.back_end.place_index import KeptPlaceIndex
+from twinslam.slam.back_end.view_coverage import CoverageBounds
 
 SEVEN = SEVEN_SCENES
 
@@ -113,6 +115,8 @@ class LendingState:
     lender: Lender
     eager: bool                                          #: every keyframe at once
     unseen_slots: int                                    #: copies unseen this long go back
+    #: a copy held declines another keyframe of its view within these (None: never)
+    views: CoverageBounds | None
     adopted: int = 0                                     #: adoptions, re-lent copies too
     returned: int = 0                                    #: copies gone back to the lender
 
@@ -129,7 +133,7 @@ def lend_keyframes(lender: DeviceWalk, borrower: DeviceWalk, state: LendingState
     lending = lend_from(borrower.edge.back_end, [state.lender], max(borrower.slot, 0),
                         borrower.edge.version + 1,
                         None if state.eager else borrower.edge.in_coming_view,
-                        state.unseen_slots)[0]
+                        state.unseen_slots, state.views)[0]
     state.lender = dataclasses.replace(state.lender, followed=lending.followed)
     state.adopted += lending.adopted
     state.returned += lending.returned
@@ -274,7 +278,7 @@ def main() -> None:
         #: the first map's keyframes lent to the second, and the second's to the first
         lending, lending_back = (
             LendingState(Lender(walk.edge.back_end, source, set(), 0), args.lend_eagerly,
-                         args.unseen_slots)
+                         args.unseen_slots, lent_views(args, config))
             for walk, source in ((first, 0), (second, 1)))
         copies_held: dict[str, list[int]] = {"first": [], "second": []}
         slot = 0
@@ -376,6 +380,9 @@ def main() -> None:
                        "covered_deg": config.coverage.max_deg,
                        "covered_min_points": config.coverage.min_points,
                        "own_coverage_after": config.own_coverage_after_slots,
+                       "lend_views_once": int(lent_views(args, config) is not None),
+                       "declined": len(lending.lender.declined),
+                       "declined_back": len(lending_back.lender.declined),
                        "no_merge": int(args.no_merge),
                        "loops_across_devices": int(config.back_end.loops_across_devices),
                        "merged": int(merge is not None),
@@ -489,6 +496,7 @@ CSV_FIELDS = ("frames", "seed", "uplink", "first_order", "second_order", "second
               "cross_by_stretch_cm", "merge_min_inliers", "cross_last_rms_m",
               "cross_last_pairs", "cross_last_frames", "ba_window",
               "device_params", "lent_unseen_slots", "returned", "returned_back",
+              "lend_views_once", "declined", "declined_back",
               "first_archive_copies", "second_archive_copies", "first_copies_mean",
               "second_copies_mean")
 #: the second device's frames a stretch of the cross-device error by stretch counts

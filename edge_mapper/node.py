@@ -118,6 +118,8 @@ class EdgeMapperNode(Node):
                                      min_inliers=int(p["merge_min_inliers"]),
                                      lend_in_view=bool(p["lend_in_view"]),
                                      unseen_slots=int(p["lent_unseen_slots"]),
+                                     lent_views=self.settings.config.coverage
+                                     if bool(p["lend_views_once"]) else None,
                                      look_backoff_slots=int(p["merge_look_backoff_slots"]))
                         if self.several and bool(p["merge_maps"]) else None)
         config = self.settings.config

@@ -24,7 +24,7 @@ from edge_mapper.slot_planner import SlotConfig
 from msg_schemas import topics
 from twinslam.allocation.allocators import ALLOCATORS
 from twinslam.node_runtime.parameters import ParamSpec
-from twinslam.slam.back_end import loop_closing
+from twinslam.slam.back_end import loop_closing, map_merging
 from twinslam.slam.back_end.loop_detection import MIN_INLIERS
 from twinslam.slam.back_end.map_back_end import BackEndConfig
 from twinslam.slam.back_end.map_merging import MERGE_MIN_INLIERS
@@ -216,6 +216,13 @@ PARAMETERS = (
               "would score it; everything while it is lost): each map welds what its device "
               "comes to, not every keyframe every device of its place makes; false: each as "
               "soon as its device made it"),
+    ParamSpec("lend_views_once", map_merging.LEND_VIEWS_ONCE, "with merge_maps: a device's "
+              "map adopts another device's keyframe only where no copy it holds of the other "
+              "devices' keyframes covers that view (within covered_m and covered_deg): where "
+              "several devices walk one place, a view is lent once, not once for each device "
+              "that uploaded it (a map's copies, each welded, archived, searched and moved by "
+              "its lender's loops, then grow with the place, not with its devices); the map's "
+              "own keyframes never decline a copy (its loops across devices close with it)"),
     ParamSpec("lent_unseen_slots", 0, "with merge_maps and lend_in_view: the slots a copy "
               "of another device's keyframe stays in this device's archive while the device "
               "neither holds it nor sees it, before it goes back to its lender, to be lent "

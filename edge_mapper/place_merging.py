@@ -96,6 +96,7 @@ from twinslam.slam.back_end.map_merging import (
     lend_from,
 )
 from twinslam.slam.back_end.place_index import KeptPlaceIndex
+from twinslam.slam.back_end.view_coverage import CoverageBounds
 from twinslam.slam.keyframe import KeyFramePayload
 from twinslam.thread_names import name_this_thread
 from twinslam.thread_priority import lower_this_thread
@@ -155,6 +156,7 @@ class PlaceMerging:
     def __init__(self, cores: Callable[[], Mapping[str, EdgeMapperCore]],
                  background: bool = True, min_inliers: int = MERGE_MIN_INLIERS,
                  lend_in_view: bool = True, unseen_slots: int = 0,
+                 lent_views: CoverageBounds | None = None,
                  worker: SharedWorker = SHARED_WORKER,
                  database: KeyFrameDatabase | None = None, look_backoff_slots: int = 1) -> None:
         self.cores = cores
@@ -184,6 +186,10 @@ class PlaceMerging:
         #: neither holds nor sees it, before it goes back to its lender (the edge's
         #: lent_unseen_slots; 0: kept)
         self.unseen_slots = unseen_slots
+        #: a view lent once: a keyframe of another device whose view a copy the borrower holds
+        #: covers within these bounds is not lent (the edge's lend_views_once with its
+        #: covered_m, covered_deg; None: every keyframe of the place is lent)
+        self.lent_views = lent_views
         if look_backoff_slots < 1:
             raise ValueError(f"the looks' backoff is 1 slot or more, not {look_backoff_slots}")
         #: the most slots between two looks of a device whose looks found no candidate
@@ -213,6 +219,9 @@ class PlaceMerging:
         #: (borrower, lender) → the lender's keyframes lent, by the borrower's last slot that
         #: held or saw the copy
         self._seen: dict[tuple[str, str], dict[int, int]] = {}
+        #: (borrower, lender) → the lender's keyframes not lent for a copy the borrower holds
+        #: of their view already, by that copy's id (with :attr:`lent_views`)
+        self._declined: dict[tuple[str, str], dict[int, int]] = {}
         #: device → the root its restored checkpoint named (:meth:`serve`), until it is placed
         self._recorded: dict[str, str] = {}
         #: device → the run of its map (:func:`~edge_mapper.place_membership.source_of`):
@@ -376,11 +385,12 @@ class PlaceMerging:
                 self._lent[pair] = _copies_of(cores[borrower], source)
             rounds.append(Lender(cores[lender].back_end, source, self._lent[pair], followed,
                                  self._offered.setdefault(pair, {}),
-                                 self._seen.setdefault(pair, {})))
+                                 self._seen.setdefault(pair, {}),
+                                 self._declined.setdefault(pair, {})))
         in_view = cores[borrower].in_coming_view if self.lend_in_view else None
         done = dict(zip(serving, lend_from(cores[borrower].back_end, rounds, slot,
                                            cores[borrower].version + 1, in_view,
-                                           self.unseen_slots),
+                                           self.unseen_slots, self.lent_views),
                         strict=True)) if serving else {}
         # the borrower's loops may close with the copies of its place's other devices (those
         # it adopted a while before: MapBackEnd._across)
@@ -604,6 +614,8 @@ class PlaceMerging:
             del self._offered[pair]
         for pair in [pair for pair in self._seen if device in pair]:
             del self._seen[pair]
+        for pair in [pair for pair in self._declined if device in pair]:
+            del self._declined[pair]
         self._queries.pop(device, None)
         self._running.pop(device, None)
         for backoff in (self._look_started, self._look_gap, self._looked_among):

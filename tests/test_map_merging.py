@@ -47,10 +47,13 @@ from twinslam.slam.back_end.map_back_end import (
     archive_folder,
 )
 from twinslam.slam.back_end.map_merging import (
+    Lender,
     MergeFinder,
     follow_lender_loops,
+    lend_from,
     welded,
 )
+from twinslam.slam.back_end.view_coverage import CoverageBounds
 from twinslam.slam.camera import Camera
 from twinslam.slam.front_end.orb_extractor import OrbExtractor
 from twinslam.slam.front_end.tracking import depth_at
@@ -1470,3 +1473,41 @@ def test_a_keyframe_is_tied_to_the_copy_that_brought_the_points_it_observes() ->
               7: np.array([tag | 4, 60], dtype=np.int64)}
     assert ties_to_copies(points) == {(5, tag | 10): 3, (7, tag | 20): 1}
     assert ties_to_copies({5: np.array([50], dtype=np.int64)}) == {}
+
+
+def test_a_view_two_devices_uploaded_is_lent_once_and_again_when_its_copy_leaves(
+        room: Room) -> None:  # noqa: F811
+    """With ``views`` (the edge's lend_views_once), a keyframe whose view a copy the borrower
+    holds covers already is declined, not adopted: two devices that mapped the same room (the
+    same poses, each under its own keyframe and point ids) lend the borrower one copy a view,
+    the first lender's. A declined keyframe is offered again once the copy that covered it
+    has left the borrower; without ``views`` every keyframe of both is adopted."""
+    _, archive, _ = room
+    offset = 1000
+
+    def lenders() -> tuple[EdgeMapperCore, list[Lender]]:
+        first, second, borrower = _core(), _core(), _core()
+        for kf in archive:
+            first.archive.add(kf)
+            second.archive.add(dataclasses.replace(_renumbered(kf, 1 << 20), id=kf.id + offset))
+        for core in (first, second, borrower):
+            core.back_end.k = room[0].intrinsics             # type: ignore[attr-defined]
+        return borrower, [Lender(first.back_end, 1, set(), 0),
+                          Lender(second.back_end, 2, set(), 0)]
+
+    exact = CoverageBounds(max_m=0.01, max_deg=1.0)   # only the same view covers
+    borrower, pair = lenders()
+    lendings = lend_from(borrower.back_end, pair, 0, 1, views=exact)
+    assert [lending.adopted for lending in lendings] == [len(archive), 0]
+    assert pair[1].declined == {kf.id + offset: foreign_tag(1) | kf.id for kf in archive}
+    # the first lender's copy of one view leaves the borrower: the second's is lent instead
+    view = next(iter(archive)).id
+    assert borrower.back_end.release_copies([foreign_tag(1) | view])
+    lendings = lend_from(borrower.back_end, pair, 1, 2, views=exact)
+    assert [lending.adopted for lending in lendings] == [0, 1]
+    assert foreign_tag(2) | (view + offset) in borrower.back_end.store
+    assert view + offset not in pair[1].declined
+    # every keyframe of both lenders without it
+    borrower, pair = lenders()
+    lendings = lend_from(borrower.back_end, pair, 0, 1)
+    assert [lending.adopted for lending in lendings] == [len(archive), len(archive)]

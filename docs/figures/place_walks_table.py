@@ -27,6 +27,7 @@ FIGURES = [
     ("edge_ms_merged_median", "the same, the slots after each device's merge", 1.0,
      "{:.1f}"),
     ("edge_ms_mean", "the edge's mean ms a device-slot", 1.0, "{:.1f}"),
+    ("last_edge_ms", "the last device's median ms a slot", 1.0, "{:.1f}"),
     ("uploads", "keyframes uploaded, every device", 1.0, "{:.0f}"),
     ("later_uploads", "keyframes uploaded by the devices after the first", 1.0, "{:.0f}"),
     ("lost_share", "the edge's lost share (%)", 100.0, "{:.2f}"),
@@ -41,16 +42,20 @@ FIGURES = [
 
 def runs(path: Path) -> dict[int, dict[str, str]]:
     """seed → the run's row (a later run of a seed replaces an earlier one), with the
-    uploads of the devices after the first (those that come to ground others mapped)."""
+    uploads of the devices after the first (those that come to ground others mapped) and the
+    last device's median edge time a slot (the one whose map has the most to adopt)."""
     with path.open(encoding="utf-8") as fh:
         rows = {int(row["seed"]): row for row in csv.DictReader(fh)}
     for row in rows.values():
         row["later_uploads"] = str(sum(int(n) for n in row["device_uploads"].split(";")[1:]))
+        if row.get("device_edge_ms"):
+            row["last_edge_ms"] = row["device_edge_ms"].split(";")[-1]
     return rows
 
 
 #: the settings an arm may differ in, named as the edge's parameters
-SETTINGS = ("covered_m", "covered_deg", "lent_unseen_slots", "lend_in_view", "merge_min_inliers")
+SETTINGS = ("covered_m", "covered_deg", "lent_unseen_slots", "lend_in_view", "merge_min_inliers",
+            "lend_views_once")
 
 
 def arm(row: dict[str, str], settings: list[str]) -> str:

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Collection, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -48,6 +48,7 @@ from twinslam.slam.back_end.foreign_keyframes import (
 )
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
+from twinslam.slam.back_end.keyframe_store import KeyFrameStore
 from twinslam.slam.back_end.loop_closing import (
     CONFIRMATIONS,
     LoopConfirmation,
@@ -57,6 +58,7 @@ from twinslam.slam.back_end.loop_closing import (
 from twinslam.slam.back_end.loop_detection import MIN_INLIERS, LoopCandidate, recognise_place
 from twinslam.slam.back_end.map_back_end import FollowedLoop, MapBackEnd
 from twinslam.slam.back_end.point_fusion import FusionConfig, MapPoints, duplicates_in_view
+from twinslam.slam.back_end.view_coverage import CoverageBounds, first_cover
 from twinslam.slam.camera import Camera
 
 #: the PnP inliers each detection of a merge needs by default: twice a loop's MIN_INLIERS.
@@ -67,6 +69,11 @@ from twinslam.slam.camera import Camera
 #: the merge fell 1.1-1.2 cm, most of it the frames a later merge leaves out
 #: (docs/results/shared-map.md)
 MERGE_MIN_INLIERS = 2 * MIN_INLIERS
+
+#: whether a view is lent once by default (:func:`lend_from`'s ``views``: the covered view's
+#: bounds): a keyframe another device made is not lent where a copy the borrower holds covers
+#: its view already
+LEND_VIEWS_ONCE = False
 
 
 @dataclass(frozen=True)
@@ -166,12 +173,20 @@ def welded(keyframe: ArchivedKeyFrame, source: int, into: KeyFrameMap, camera: C
                                archived_slot=slot)
 
 
-def _unlent(lender: MapBackEnd, lent: Collection[int]) -> tuple[list[ArchivedKeyFrame], list[int]]:
-    """The lender map's own keyframes (not those it adopted itself) not in ``lent``: what
-    another map in its frame has yet to adopt — (its archive's, its managed map's ids: these
-    are copied once lent, not every round a lender offers them)."""
-    return ([kf for kf in lender.archive if kf.id not in lent and not is_foreign(kf.id)],
-            [k for k in lender.map.keyframes if k not in lent and not is_foreign(k)])
+def _unlent(lender: Lender, borrower: KeyFrameStore) -> tuple[list[ArchivedKeyFrame], list[int]]:
+    """The lender map's own keyframes (not those it adopted itself) neither lent to the
+    borrower (its store ``borrower``) nor declined for a copy it still holds: what another
+    map in its frame has yet to adopt — (its archive's, its managed map's ids: these are
+    copied once lent, not every round a lender offers them). A declined keyframe whose cover
+    left the borrower, or that left the lender, is no longer declined."""
+    own = lender.back_end.store
+    for kf_id, cover in list(lender.declined.items()):
+        if cover not in borrower or kf_id not in own:
+            del lender.declined[kf_id]
+    skip = lender.lent | lender.declined.keys()
+    back_end = lender.back_end
+    return ([kf for kf in back_end.archive if kf.id not in skip and not is_foreign(kf.id)],
+            [k for k in back_end.map.keyframes if k not in skip and not is_foreign(k)])
 
 
 @dataclass(frozen=True)
@@ -209,10 +224,15 @@ class Lender:
     #: its keyframes lent, by the borrower's last slot that held or saw its copy (in the
     #: borrower's slice, or in view): a copy unseen for long goes back (:func:`lend_from`)
     seen: dict[int, int] = field(default_factory=dict)
+    #: its keyframes not lent for a copy the borrower holds of their view already
+    #: (:func:`lend_from` with ``views``), each by that copy's (tagged) id: offered again once
+    #: that copy has left the borrower
+    declined: dict[int, int] = field(default_factory=dict)
 
 
 def lend_from(borrower: MapBackEnd, lenders: list[Lender], slot: int, next_version: int,
-              in_view: InView | None = None, unseen_slots: int = 0) -> list[Lending]:
+              in_view: InView | None = None, unseen_slots: int = 0,
+              views: CoverageBounds | None = None) -> list[Lending]:
     """One lending round from every map of the borrower's place (``lenders``, all in its
     frame), before the borrower's map version ``next_version``: first each lender's loops
     since those the borrower followed move the copies lent before and the borrower's keyframes
@@ -242,11 +262,13 @@ def lend_from(borrower: MapBackEnd, lenders: list[Lender], slot: int, next_versi
     it now, welded to the borrower's points as they are now."""
     follows = [follow_lender_loops(borrower, lender.back_end, lender.source, lender.followed,
                                    next_version) for lender in lenders]
-    offers = [_unlent(lender.back_end, lender.lent) for lender in lenders]
+    offers = [_unlent(lender, borrower.store) for lender in lenders]
     for lender, (archived, held) in zip(lenders, offers, strict=True):
         _note_offered(lender.offered, [*(kf.id for kf in archived), *held], slot)
     if in_view is not None:
         offers = _seen_only(lenders, offers, in_view)
+    if views is not None and views.enabled:
+        offers = _new_views_only(borrower, lenders, offers, views)
     # a keyframe of a lender's managed map is copied only once it is lent
     unlent = [archived + [ArchivedKeyFrame.of(lender.back_end.map, k, slot) for k in held]
               for lender, (archived, held) in zip(lenders, offers, strict=True)]
@@ -302,6 +324,34 @@ def _note_offered(offered: dict[int, int], keyframes: list[int], slot: int) -> N
         del offered[gone]
     for k in now:
         offered.setdefault(k, slot)
+
+
+def _new_views_only(borrower: MapBackEnd, lenders: list[Lender], offers: list[Offer],
+                    views: CoverageBounds) -> list[Offer]:
+    """Each lender's ``offers`` whose view no copy the borrower holds covers within
+    ``views`` — nor a keyframe kept before it in this round, lenders in their order, the
+    archived before the managed map's — the others declined (:attr:`Lender.declined`, by the
+    covering copy's tagged id)."""
+    held = [(k, pose) for k, pose in borrower.store.poses().items() if is_foreign(k)]
+    covers = [k for k, _ in held]
+    poses = [pose for _, pose in held]
+    kept: list[Offer] = []
+    for lender, (archived, in_map) in zip(lenders, offers, strict=True):
+        tag = foreign_tag(lender.source)
+        lender_map = lender.back_end.map
+
+        def new(kf_id: int, pose: np.ndarray, lender: Lender = lender, tag: int = tag) -> bool:
+            cover = first_cover(pose, poses, views)
+            if cover is not None:
+                lender.declined[kf_id] = covers[cover]
+                return False
+            covers.append(kf_id | tag)
+            poses.append(pose)
+            return True
+
+        kept.append(([kf for kf in archived if new(kf.id, kf.pose)],
+                     [k for k in in_map if new(k, lender_map.keyframes[k].pose)]))
+    return kept
 
 
 def _seen_only(lenders: list[Lender], offers: list[Offer], in_view: InView) -> list[Offer]:

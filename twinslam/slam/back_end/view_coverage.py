@@ -64,6 +64,18 @@ class CoverageBounds:
         return self.max_m > 0 and self.max_deg > 0
 
 
+def _near(frames: np.ndarray, keyframes: np.ndarray, bounds: CoverageBounds) -> np.ndarray:
+    """(frames, keyframes) bools: which keyframe pose covers which frame pose (both N×4×4
+    camera-to-map, one frame) within ``bounds``."""
+    apart = np.linalg.norm(frames[:, None, :3, 3] - keyframes[None, :, :3, 3], axis=2)
+    # trace(Rfᵀ Rk) for every pair: the angle between two rotations from its cosine
+    trace = np.einsum("fij,kij->fk", frames[:, :3, :3], keyframes[:, :3, :3])
+    cos_max = np.cos(np.radians(bounds.max_deg))
+    turned_ok = (trace - 1.0) / 2.0 >= cos_max
+    near: np.ndarray = (apart <= bounds.max_m) & turned_ok
+    return near
+
+
 def covered_views(frames: Mapping[int, np.ndarray], keyframes: Sequence[np.ndarray],
                   bounds: CoverageBounds) -> set[int]:
     """The ids of ``frames`` (id → 4×4 camera-to-map pose) that some pose of ``keyframes``
@@ -73,13 +85,20 @@ def covered_views(frames: Mapping[int, np.ndarray], keyframes: Sequence[np.ndarr
     ids = list(frames)
     f = np.asarray([frames[i] for i in ids], dtype=np.float64).reshape(-1, 4, 4)
     k = np.asarray(keyframes, dtype=np.float64).reshape(-1, 4, 4)
-    apart = np.linalg.norm(f[:, None, :3, 3] - k[None, :, :3, 3], axis=2)
-    # trace(Rfᵀ Rk) for every pair: the angle between two rotations from its cosine
-    trace = np.einsum("fij,kij->fk", f[:, :3, :3], k[:, :3, :3])
-    cos_max = np.cos(np.radians(bounds.max_deg))
-    turned_ok = (trace - 1.0) / 2.0 >= cos_max
-    near = (apart <= bounds.max_m) & turned_ok
-    return {i for i, hit in zip(ids, near.any(axis=1), strict=True) if hit}
+    hits = np.any(_near(f, k, bounds), axis=1)
+    return {i for i, hit in zip(ids, hits.tolist(), strict=True) if hit}
+
+
+def first_cover(pose: np.ndarray, keyframes: Sequence[np.ndarray], bounds: CoverageBounds
+                ) -> int | None:
+    """The index of the first of ``keyframes`` (4×4 camera-to-map) that covers the view from
+    ``pose`` within ``bounds``; None: none does (or the bounds cover nothing)."""
+    if not len(keyframes) or not bounds.enabled:
+        return None
+    f = np.asarray(pose, dtype=np.float64).reshape(1, 4, 4)
+    k = np.asarray(keyframes, dtype=np.float64).reshape(-1, 4, 4)
+    hits = np.flatnonzero(_near(f, k, bounds)[0])
+    return int(hits[0]) if len(hits) else None
 
 
 def uploads_for_new_views(uploads: int, new_views: int, views: int) -> int:
