@@ -35,7 +35,12 @@ from twinslam.sequences.frame import RgbdFrame
 from twinslam.sequences.opening import AUTO, open_sequence
 from twinslam.slam.back_end.loop_closing import LoopQuery
 from twinslam.slam.back_end.loop_detection import MIN_INLIERS as LOOP_MIN_INLIERS
-from twinslam.slam.back_end.map_merging import LEND_VIEWS_ONCE, MERGE_MIN_INLIERS
+from twinslam.slam.back_end.map_merging import (
+    LENT_VIEW_DEG,
+    LENT_VIEW_M,
+    MERGE_MIN_INLIERS,
+    lent_view,
+)
 from twinslam.slam.back_end.place_words import PlaceWords
 from twinslam.slam.back_end.view_coverage import CoverageBounds
 from twinslam.slam.keyframe import KeyFramePayload
@@ -287,11 +292,13 @@ def add_place_options(parser: argparse.ArgumentParser) -> None:
                         help="a copy neither held nor seen by its borrowing device for N "
                              "slots goes back to its lender (the edge's lent_unseen_slots; "
                              "default %(default)s: kept; not with --lend-eagerly)")
-    parser.add_argument("--lend-views-once", choices=("on", "off"),
+    parser.add_argument("--lent-view-m", type=float, default=LENT_VIEW_M, metavar="M",
                         help="a view lent once: another device's keyframe is not lent where a "
-                             "copy the borrowing map holds covers its view (the edge's "
-                             "lend_views_once, with covered_m and covered_deg; default: the "
-                             f"edge's, {'on' if LEND_VIEWS_ONCE else 'off'})")
+                             "copy the borrowing map holds stands within M metres of it (the "
+                             "edge's lent_view_m; default %(default)s: every keyframe lent)")
+    parser.add_argument("--lent-view-deg", type=float, default=LENT_VIEW_DEG, metavar="D",
+                        help="and turned by at most D degrees (the edge's lent_view_deg; "
+                             "default %(default)s)")
     parser.add_argument("--covered-m", type=float, metavar="M",
                         help="a lent keyframe this near a frame covers its view: the frame is "
                              "not uploaded (default: the edge's covered_m; 0: never)")
@@ -312,11 +319,10 @@ def add_place_options(parser: argparse.ArgumentParser) -> None:
                              "devices")
 
 
-def lent_views(args: argparse.Namespace, config: EdgeConfig) -> CoverageBounds | None:
+def lent_views(args: argparse.Namespace) -> CoverageBounds | None:
     """The bounds within which a copy a borrowing map holds declines another keyframe of its
-    view (``--lend-views-once``; the edge's covered view), or None: every keyframe lent."""
-    once = LEND_VIEWS_ONCE if args.lend_views_once is None else args.lend_views_once == "on"
-    return config.coverage if once else None
+    view (``--lent-view-m``, ``--lent-view-deg``), or None: every keyframe lent."""
+    return lent_view(args.lent_view_m, args.lent_view_deg)
 
 
 def share_vocabulary(cores: Iterable[EdgeMapperCore], per_device: bool) -> None:
@@ -338,6 +344,9 @@ def check_place_options(parser: argparse.ArgumentParser, args: argparse.Namespac
                      f"{args.merge_inliers}")
     if args.unseen_slots < 0:
         parser.error(f"--unseen-slots: 0 or more, got {args.unseen_slots}")
+    if args.lent_view_m < 0 or args.lent_view_deg < 0:
+        parser.error(f"--lent-view-m, --lent-view-deg: 0 or more, got {args.lent_view_m}, "
+                     f"{args.lent_view_deg}")
     for name in ("covered_m", "covered_deg", "covered_min_points", "own_coverage_after"):
         value = getattr(args, name)
         if value is not None and value < 0:

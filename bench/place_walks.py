@@ -92,7 +92,7 @@ from twinslam.slam.back_end.foreign_keyframes import is_foreign
 #: the CSV's columns: the run's settings, then its figures (per-device lists joined by ";")
 COLUMNS = ("sequence", "frames", "devices", "after", "order", "seed", "uplink", "no_merge",
            "covered_m", "covered_deg", "covered_min_points", "own_coverage_after", "lend_in_view",
-           "lent_unseen_slots", "lend_views_once",
+           "lent_unseen_slots", "lent_view_m", "lent_view_deg",
            "merge_min_inliers", "merge_look_backoff_slots",
            "merged", "edge_ms_median", "edge_ms_mean", "edge_ms_merged_median", "copies_mean",
            "copies_end", "adopted", "uploads", "lost_share", "map_lost_share", "tracked_share",
@@ -255,7 +255,7 @@ def main() -> None:
                                min_inliers=args.merge_inliers,
                                lend_in_view=not args.lend_eagerly,
                                unseen_slots=args.unseen_slots,
-                               lent_views=lent_views(args, config),
+                               lent_views=lent_views(args),
                                look_backoff_slots=args.look_backoff)
         for device in devices:
             if not args.no_merge:
@@ -290,7 +290,7 @@ def main() -> None:
         report = _report(devices, merging, args)
     report["covered_m"], report["covered_deg"] = config.coverage.max_m, config.coverage.max_deg
     report["covered_min_points"] = config.coverage.min_points
-    report["lend_views_once"] = int(lent_views(args, config) is not None)
+    report["lent_view_m"], report["lent_view_deg"] = args.lent_view_m, args.lent_view_deg
     report["own_coverage_after"] = config.own_coverage_after_slots
     report["seconds"] = time.perf_counter() - started
     print(f"{report['seconds']:.0f} s", flush=True)

@@ -278,7 +278,7 @@ def main() -> None:
         #: the first map's keyframes lent to the second, and the second's to the first
         lending, lending_back = (
             LendingState(Lender(walk.edge.back_end, source, set(), 0), args.lend_eagerly,
-                         args.unseen_slots, lent_views(args, config))
+                         args.unseen_slots, lent_views(args))
             for walk, source in ((first, 0), (second, 1)))
         copies_held: dict[str, list[int]] = {"first": [], "second": []}
         slot = 0
@@ -380,7 +380,7 @@ def main() -> None:
                        "covered_deg": config.coverage.max_deg,
                        "covered_min_points": config.coverage.min_points,
                        "own_coverage_after": config.own_coverage_after_slots,
-                       "lend_views_once": int(lent_views(args, config) is not None),
+                       "lent_view_m": args.lent_view_m, "lent_view_deg": args.lent_view_deg,
                        "declined": len(lending.lender.declined),
                        "declined_back": len(lending_back.lender.declined),
                        "no_merge": int(args.no_merge),
@@ -496,7 +496,7 @@ CSV_FIELDS = ("frames", "seed", "uplink", "first_order", "second_order", "second
               "cross_by_stretch_cm", "merge_min_inliers", "cross_last_rms_m",
               "cross_last_pairs", "cross_last_frames", "ba_window",
               "device_params", "lent_unseen_slots", "returned", "returned_back",
-              "lend_views_once", "declined", "declined_back",
+              "lent_view_m", "lent_view_deg", "declined", "declined_back",
               "first_archive_copies", "second_archive_copies", "first_copies_mean",
               "second_copies_mean")
 #: the second device's frames a stretch of the cross-device error by stretch counts

@@ -216,13 +216,18 @@ PARAMETERS = (
               "would score it; everything while it is lost): each map welds what its device "
               "comes to, not every keyframe every device of its place makes; false: each as "
               "soon as its device made it"),
-    ParamSpec("lend_views_once", map_merging.LEND_VIEWS_ONCE, "with merge_maps: a device's "
-              "map adopts another device's keyframe only where no copy it holds of the other "
-              "devices' keyframes covers that view (within covered_m and covered_deg): where "
-              "several devices walk one place, a view is lent once, not once for each device "
-              "that uploaded it (a map's copies, each welded, archived, searched and moved by "
-              "its lender's loops, then grow with the place, not with its devices); the map's "
-              "own keyframes never decline a copy (its loops across devices close with it)"),
+    ParamSpec("lent_view_m", map_merging.LENT_VIEW_M, "with merge_maps: a device's map "
+              "adopts another device's keyframe only where no copy of the other devices' "
+              "keyframes it holds stands within this many metres of it, turned by at most "
+              "lent_view_deg: where several devices walk one place, a view is lent once, not "
+              "once for each device that uploaded it (a map's copies, each welded, archived, "
+              "searched and moved by its lender's loops, then grow with the place, not with "
+              "its devices); the map's own keyframes never decline a copy (its loops across "
+              "devices close with it); 0: every keyframe of the place is lent",
+              low=0.0, high=10.0),
+    ParamSpec("lent_view_deg", map_merging.LENT_VIEW_DEG, "the turn, degrees, within which a "
+              "copy a map holds declines another device's keyframe of its view (with "
+              "lent_view_m)", low=0.0, high=180.0),
     ParamSpec("lent_unseen_slots", 0, "with merge_maps and lend_in_view: the slots a copy "
               "of another device's keyframe stays in this device's archive while the device "
               "neither holds it nor sees it, before it goes back to its lender, to be lent "

@@ -187,8 +187,8 @@ class PlaceMerging:
         #: lent_unseen_slots; 0: kept)
         self.unseen_slots = unseen_slots
         #: a view lent once: a keyframe of another device whose view a copy the borrower holds
-        #: covers within these bounds is not lent (the edge's lend_views_once with its
-        #: covered_m, covered_deg; None: every keyframe of the place is lent)
+        #: covers within these bounds is not lent (the edge's lent_view_m, lent_view_deg;
+        #: None: every keyframe of the place is lent)
         self.lent_views = lent_views
         if look_backoff_slots < 1:
             raise ValueError(f"the looks' backoff is 1 slot or more, not {look_backoff_slots}")

@@ -1477,9 +1477,10 @@ def test_a_keyframe_is_tied_to_the_copy_that_brought_the_points_it_observes() ->
 
 def test_a_view_two_devices_uploaded_is_lent_once_and_again_when_its_copy_leaves(
         room: Room) -> None:  # noqa: F811
-    """With ``views`` (the edge's lend_views_once), a keyframe whose view a copy the borrower
-    holds covers already is declined, not adopted: two devices that mapped the same room (the
-    same poses, each under its own keyframe and point ids) lend the borrower one copy a view,
+    """With ``views`` (the edge's lent_view_m and lent_view_deg), a keyframe whose view a copy
+    the borrower holds covers already is declined, not adopted: two devices that mapped the
+    same room (the same poses, each under its own keyframe and point ids) lend the borrower
+    one copy a view,
     the first lender's. A declined keyframe is offered again once the copy that covered it
     has left the borrower; without ``views`` every keyframe of both is adopted."""
     _, archive, _ = room

@@ -55,7 +55,7 @@ def runs(path: Path) -> dict[int, dict[str, str]]:
 
 #: the settings an arm may differ in, named as the edge's parameters
 SETTINGS = ("covered_m", "covered_deg", "lent_unseen_slots", "lend_in_view", "merge_min_inliers",
-            "lend_views_once")
+            "lend_views_once", "lent_view_m", "lent_view_deg")
 
 
 def arm(row: dict[str, str], settings: list[str]) -> str:

@@ -70,10 +70,18 @@ from twinslam.slam.camera import Camera
 #: (docs/results/shared-map.md)
 MERGE_MIN_INLIERS = 2 * MIN_INLIERS
 
-#: whether a view is lent once by default (:func:`lend_from`'s ``views``: the covered view's
-#: bounds): a keyframe another device made is not lent where a copy the borrower holds covers
-#: its view already
-LEND_VIEWS_ONCE = False
+#: a view lent once by default (:func:`lend_from`'s ``views``): another device's keyframe is
+#: not lent where a copy the borrower holds stands within LENT_VIEW_M and LENT_VIEW_DEG of it
+#: (0 m: every keyframe is lent)
+LENT_VIEW_M = 0.0
+LENT_VIEW_DEG = 10.0
+
+
+def lent_view(max_m: float, max_deg: float) -> CoverageBounds | None:
+    """The bounds within which a copy a borrower holds declines another device's keyframe
+    (:func:`lend_from`'s ``views``), or None where they cover nothing: every keyframe lent."""
+    bounds = CoverageBounds(max_m, max_deg)
+    return bounds if bounds.enabled else None
 
 
 @dataclass(frozen=True)
