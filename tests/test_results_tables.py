@@ -948,3 +948,26 @@ def test_the_keeping_up_edges_shares_are_what_their_command_prints() -> None:
     worker = shares.table([("the loop worker", stacks)], thread="loop-closer_0", functions=(
         "detect_loop", "KeyFrameArchive.recognise", "_solve", "SharedWorker.wait_for_slots"))
     assert _missing("\n".join(slot)) == [] and _missing("\n".join(worker)) == []
+
+
+def test_the_view_lent_once_tables_are_what_their_commands_print(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A view lent once: eight devices along the corridor with and without it (four seeds),
+    and the 7-Scenes pair at 0.30 m and at 0.10 m beside alone and beside lending every
+    keyframe, as the page has them."""
+    corridor = FIGURES / "shared-map" / "place-walks" / "views-once"
+    printed = _script("place_walks_table").table(corridor / "off.csv",
+                                                 corridor / "covered-bounds.csv",
+                                                 last_device=True)
+    assert _missing("\n".join(printed)) == [] and "seeds 0, 1, 2, 3:" in printed[0]
+    monkeypatch.syspath_prepend(str(FIGURES))           # its sibling, shared_uplink_table
+    uplink = _script("shared_uplink_table")
+    pair = FIGURES / "shared-map" / "views-once"
+    for bounds in ("mapped-0.3m", "mapped-0.1m"):
+        rows = [row.strip() for row in uplink.table(pair / bounds, "mapped")]
+        assert _on_a_page(rows), bounds
+        assert len(rows) == 4 and all(row.endswith("| 0, 1, 2, 4, 5 |") for row in rows)
+    in_process = _script("shared_map_before_after")
+    lines = in_process.table(FIGURES / "shared-map" / "covered-margin" / "default-50" / "at-50",
+                             pair / "mapped-0.1m", both_devices=True)
+    assert _missing("\n".join(lines)) == []

@@ -5,7 +5,7 @@ both arms and the paired difference (second − first, Student's t,
 :func:`twinslam.reporting.paired_row`); a figure one arm has not (the slots after a merge,
 alone) or one arm's runs predate is left out.
 
-    .venv/bin/python docs/figures/place_walks_table.py FIRST.csv SECOND.csv
+    .venv/bin/python docs/figures/place_walks_table.py FIRST.csv SECOND.csv [--last-device]
 """
 
 from __future__ import annotations
@@ -27,7 +27,6 @@ FIGURES = [
     ("edge_ms_merged_median", "the same, the slots after each device's merge", 1.0,
      "{:.1f}"),
     ("edge_ms_mean", "the edge's mean ms a device-slot", 1.0, "{:.1f}"),
-    ("last_edge_ms", "the last device's median ms a slot", 1.0, "{:.1f}"),
     ("uploads", "keyframes uploaded, every device", 1.0, "{:.0f}"),
     ("later_uploads", "keyframes uploaded by the devices after the first", 1.0, "{:.0f}"),
     ("lost_share", "the edge's lost share (%)", 100.0, "{:.2f}"),
@@ -53,6 +52,9 @@ def runs(path: Path) -> dict[int, dict[str, str]]:
     return rows
 
 
+#: with ``--last-device``, after the edge's mean: the device whose map has the most to adopt
+LAST_DEVICE = ("last_edge_ms", "the last device's median ms a slot", 1.0, "{:.1f}")
+
 #: the settings an arm may differ in, named as the edge's parameters
 SETTINGS = ("covered_m", "covered_deg", "lent_unseen_slots", "lend_in_view", "merge_min_inliers",
             "lend_views_once", "lent_view_m", "lent_view_deg")
@@ -66,8 +68,9 @@ def arm(row: dict[str, str], settings: list[str]) -> str:
     return ", ".join(f"{name} {float(row[name]):g}" for name in settings) or "merged"
 
 
-def table(first_path: Path, second_path: Path) -> list[str]:
-    """The table of two arms: a row a figure."""
+def table(first_path: Path, second_path: Path, last_device: bool = False) -> list[str]:
+    """The table of two arms: a row a figure (with ``last_device``, the last device's edge
+    time too)."""
     first, second = runs(first_path), runs(second_path)
     seeds = sorted(first.keys() & second.keys())
     if not seeds:
@@ -80,7 +83,11 @@ def table(first_path: Path, second_path: Path) -> list[str]:
              f"{', '.join(map(str, seeds))}:", "",
              f"| figure | {names[0]} (seed by seed) | {names[1]} | difference |",
              "|---|---|---|---|"]
-    for column, name, scale, fmt in FIGURES:
+    figures = list(FIGURES)
+    if last_device:
+        figures.insert(next(i for i, f in enumerate(figures) if f[0] == "edge_ms_mean") + 1,
+                       LAST_DEVICE)
+    for column, name, scale, fmt in figures:
         if any(not runs_[s].get(column) for runs_ in (first, second) for s in seeds):
             continue              # a column some runs predate
         before = [float(first[s][column]) * scale for s in seeds]
@@ -95,8 +102,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("first", type=Path, help="the first arm's CSV (bench.place_walks --csv)")
     parser.add_argument("second", type=Path, help="the second arm's CSV")
+    parser.add_argument("--last-device", action="store_true",
+                        help="also the last device's median edge time a slot (the one whose "
+                             "map has the most to adopt)")
     args = parser.parse_args()
-    print("\n".join(table(args.first, args.second)))
+    print("\n".join(table(args.first, args.second, args.last_device)))
 
 
 if __name__ == "__main__":
