@@ -16,6 +16,7 @@ import math
 from pathlib import Path
 
 from twinslam.reporting import paired_row
+from twinslam.slam.back_end.map_merging import LENT_VIEW_DEG
 
 #: (column, name in the table, scale, format)
 FIGURES = [
@@ -49,6 +50,12 @@ def runs(path: Path) -> dict[int, dict[str, str]]:
         row["later_uploads"] = str(sum(int(n) for n in row["device_uploads"].split(";")[1:]))
         if row.get("device_edge_ms"):
             row["last_edge_ms"] = row["device_edge_ms"].split(";")[-1]
+        if not row.get("lent_view_m"):
+            # runs from before the bounds of their own: lend_views_once declined within the
+            # covered view's, and before it every keyframe was lent
+            once = row.get("lend_views_once") == "1"
+            row["lent_view_m"] = row["covered_m"] if once else "0"
+            row["lent_view_deg"] = row["covered_deg"] if once else str(LENT_VIEW_DEG)
     return rows
 
 
@@ -57,7 +64,7 @@ LAST_DEVICE = ("last_edge_ms", "the last device's median ms a slot", 1.0, "{:.1f
 
 #: the settings an arm may differ in, named as the edge's parameters
 SETTINGS = ("covered_m", "covered_deg", "lent_unseen_slots", "lend_in_view", "merge_min_inliers",
-            "lend_views_once", "lent_view_m", "lent_view_deg")
+            "lent_view_m", "lent_view_deg")
 
 
 def arm(row: dict[str, str], settings: list[str]) -> str:
