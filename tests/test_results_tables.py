@@ -953,8 +953,8 @@ def test_the_keeping_up_edges_shares_are_what_their_command_prints() -> None:
 def test_the_view_lent_once_tables_are_what_their_commands_print(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """A view lent once: eight devices along the corridor with and without it (four seeds at
-    0.30 m, two at 0.10 m), and the 7-Scenes pair at 0.30 m and at 0.10 m beside alone and beside lending every
-    keyframe, as the page has them."""
+    0.30 m, two at 0.10 m), and the 7-Scenes pair at 0.30 m and at 0.10 m beside alone and
+    beside lending every keyframe, as the page has them."""
     corridor = FIGURES / "shared-map" / "place-walks" / "views-once"
     script = _script("place_walks_table")
     for arm, seeds in (("covered-bounds", "0, 1, 2, 3"), ("0.1m", "0, 1")):
