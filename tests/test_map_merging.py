@@ -1512,3 +1512,18 @@ def test_a_view_two_devices_uploaded_is_lent_once_and_again_when_its_copy_leaves
     borrower, pair = lenders()
     lendings = lend_from(borrower.back_end, pair, 0, 1)
     assert [lending.adopted for lending in lendings] == [len(archive), len(archive)]
+
+
+def test_the_edge_lends_a_place_s_view_once_within_its_bounds(room: Room) -> None:  # noqa: F811
+    """The edge's lent_view_m and lent_view_deg reach the lending: with bounds that take in
+    the whole room, the merged map adopts one of the first device's keyframes and declines
+    the rest, round after round; without them (the default) it adopts all of them."""
+    for bounds, adopted in ((CoverageBounds(10.0, 180.0), 1), (None, len(room[1]) + 1)):
+        cores = _room_and_newcomer(room)
+        merging = PlaceMerging(lambda: cores, background=False,  # noqa: B023
+                               lend_in_view=False, lent_views=bounds)
+        _walk_ar2_into_the_room(room, cores, merging)
+        _tracked_at(cores["ar2"], 4, room[0].read(4).pose)   # type: ignore[attr-defined]
+        assert merging.before_slot_end("ar2", 4) == (None, adopted, [])
+        _tracked_at(cores["ar2"], 5, room[0].read(64).pose)  # type: ignore[attr-defined]
+        assert merging.before_slot_end("ar2", 5) == (None, 0, [])
