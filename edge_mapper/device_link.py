@@ -468,8 +468,11 @@ class DeviceLink:
             self.info(f"slot {slot}: no other map's place found yet ({count} looks; the last "
                       f"{found})")
         if adopted:
+            declined = self.merging.declined(self.device)
             self.info(f"slot {slot}: {adopted} keyframes of the other maps in its frame "
-                      "adopted into the archive")
+                      "adopted into the archive" + (
+                          f" ({declined} declined: a copy it holds has their view)"
+                          if declined else ""))
         for move in carried:
             if move.refused:
                 self.warning(f"slot {slot}: another device's loop moved {move.copies} of its "

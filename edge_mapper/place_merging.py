@@ -402,6 +402,12 @@ class PlaceMerging:
         return [done.get(lender) or Lending(self._followed.get((borrower, lender), 0), 0)
                 for lender in lenders]
 
+    def declined(self, borrower: str) -> int:
+        """The place's keyframes not lent to ``borrower``'s map now, each for a copy it holds
+        of their view already (:attr:`lent_views`)."""
+        return sum(len(declined) for (b, _), declined in self._declined.items()
+                   if b == borrower)
+
     def _tag_clash(self, borrower: str, lender: str) -> bool:
         """Whether another device — served, or one that lent to ``borrower`` before — tags
         its copies as ``lender`` does: the borrower could not tell their keyframes and points

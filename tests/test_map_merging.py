@@ -1527,3 +1527,4 @@ def test_the_edge_lends_a_place_s_view_once_within_its_bounds(room: Room) -> Non
         assert merging.before_slot_end("ar2", 4) == (None, adopted, [])
         _tracked_at(cores["ar2"], 5, room[0].read(64).pose)  # type: ignore[attr-defined]
         assert merging.before_slot_end("ar2", 5) == (None, 0, [])
+        assert merging.declined("ar2") == len(room[1]) + 1 - adopted
