@@ -25,7 +25,7 @@ import numpy as np
 
 from twinslam.cli.console import HelpFormatter
 from twinslam.reporting import write_dict_rows
-from twinslam.sequences.frame import RandomAccessSequence
+from twinslam.sequences.frame import RandomAccessSequence, RgbdFrame
 from twinslam.sequences.opening import open_sequence
 from twinslam.slam.back_end.archive_relocalisation import (
     SOLVERS,
@@ -38,6 +38,22 @@ from twinslam.slam.front_end.tracking import depth_at
 from twinslam.slam.projection_matching import back_project
 
 
+def true_keyframe(frame: RgbdFrame, index: int, intrinsics: np.ndarray, orb: OrbExtractor,
+                  first_point: int, slot: int) -> ArchivedKeyFrame:
+    """Frame ``index`` as a map would archive it with no error of its own: its ORB features
+    with a depth, placed by that depth and the frame's true pose, numbered from
+    ``first_point``."""
+    assert frame.depth is not None and frame.pose is not None, "a frame with depth and truth"
+    feats = orb.extract(frame.color)
+    z = depth_at(feats.points, frame.depth, (0.2, 8.0))
+    keep = z > 0
+    world = back_project(feats.points[keep], z[keep], intrinsics, frame.pose)
+    n = int(keep.sum())
+    return ArchivedKeyFrame(index, frame.pose.copy(), np.arange(first_point, first_point + n),
+                            world, feats.descriptors[keep],
+                            np.column_stack([feats.points[keep], z[keep]]), slot)
+
+
 def room_archive(frames: int = 300, every: int = 30) -> tuple[object, KeyFrameArchive]:
     """The synthetic room and an archive of a keyframe every ``every`` frames."""
     seq = open_sequence(f"synthetic:{frames}", 0, frames)
@@ -48,16 +64,10 @@ def room_archive(frames: int = 300, every: int = 30) -> tuple[object, KeyFrameAr
     for slot, index in enumerate(range(0, frames, every)):
         frame = seq.read(index)
         # the synthetic world renders every frame with its depth and its true pose
-        assert frame is not None and frame.depth is not None and frame.pose is not None
-        feats = orb.extract(frame.color)
-        z = depth_at(feats.points, frame.depth, (0.2, 8.0))
-        keep = z > 0
-        world = back_project(feats.points[keep], z[keep], seq.intrinsics, frame.pose)
-        n = int(keep.sum())
-        archive.add(ArchivedKeyFrame(index, frame.pose.copy(), np.arange(first, first + n),
-                                     world, feats.descriptors[keep],
-                                     np.column_stack([feats.points[keep], z[keep]]), slot))
-        first += n
+        assert frame is not None
+        kf = true_keyframe(frame, index, seq.intrinsics, orb, first, slot)
+        archive.add(kf)
+        first += len(kf.point_ids)
     return seq, archive
 
 
