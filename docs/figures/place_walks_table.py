@@ -56,6 +56,8 @@ def runs(path: Path) -> dict[int, dict[str, str]]:
             once = row.get("lend_views_once") == "1"
             row["lent_view_m"] = row["covered_m"] if once else "0"
             row["lent_view_deg"] = row["covered_deg"] if once else str(LENT_VIEW_DEG)
+        # a copy's points held already was tried at 39ae973 only: every other run lent them
+        row.setdefault("lent_redundant_share", "0")
     return rows
 
 
@@ -64,7 +66,7 @@ LAST_DEVICE = ("last_edge_ms", "the last device's median ms a slot", 1.0, "{:.1f
 
 #: the settings an arm may differ in, named as the edge's parameters
 SETTINGS = ("covered_m", "covered_deg", "lent_unseen_slots", "lend_in_view", "merge_min_inliers",
-            "lent_view_m", "lent_view_deg")
+            "lent_view_m", "lent_view_deg", "lent_redundant_share")
 
 
 def arm(row: dict[str, str], settings: list[str]) -> str:
