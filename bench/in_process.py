@@ -36,13 +36,9 @@ from twinslam.sequences.opening import AUTO, open_sequence
 from twinslam.slam.back_end.loop_closing import LoopQuery
 from twinslam.slam.back_end.loop_detection import MIN_INLIERS as LOOP_MIN_INLIERS
 from twinslam.slam.back_end.map_merging import (
-    LENT_REDUNDANT_OBSERVERS,
-    LENT_REDUNDANT_SHARE,
     LENT_VIEW_DEG,
     LENT_VIEW_M,
     MERGE_MIN_INLIERS,
-    PointRedundancy,
-    lent_redundancy,
     lent_view,
 )
 from twinslam.slam.back_end.place_words import PlaceWords
@@ -303,15 +299,6 @@ def add_place_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--lent-view-deg", type=float, default=LENT_VIEW_DEG, metavar="D",
                         help="and turned by at most D degrees (the edge's lent_view_deg; "
                              "default %(default)s)")
-    parser.add_argument("--lent-redundant-share", type=float, default=LENT_REDUNDANT_SHARE,
-                        metavar="S", help="another device's keyframe is not lent where this "
-                        "share of its points, welded to the borrowing map's, are points "
-                        "--lent-redundant-observers of its keyframes see (the edge's "
-                        "lent_redundant_share; default %(default)s: every keyframe lent)")
-    parser.add_argument("--lent-redundant-observers", type=int,
-                        default=LENT_REDUNDANT_OBSERVERS, metavar="N",
-                        help="the borrowing map's keyframes that must see a welded point "
-                             "(the edge's lent_redundant_observers; default %(default)s)")
     parser.add_argument("--covered-m", type=float, metavar="M",
                         help="a lent keyframe this near a frame covers its view: the frame is "
                              "not uploaded (default: the edge's covered_m; 0: never)")
@@ -338,12 +325,6 @@ def lent_views(args: argparse.Namespace) -> CoverageBounds | None:
     return lent_view(args.lent_view_m, args.lent_view_deg)
 
 
-def lent_redundancies(args: argparse.Namespace) -> PointRedundancy | None:
-    """The rule that declines another device's keyframe whose points a borrowing map holds
-    already (``--lent-redundant-share``, ``--lent-redundant-observers``), or None."""
-    return lent_redundancy(args.lent_redundant_share, args.lent_redundant_observers)
-
-
 def share_vocabulary(cores: Iterable[EdgeMapperCore], per_device: bool) -> None:
     """The devices' archives searched under one vocabulary, as the edge node's are
     (``shared_vocabulary``, :class:`~edge_mapper.device_link.LinkSettings`' ``words``);
@@ -366,9 +347,6 @@ def check_place_options(parser: argparse.ArgumentParser, args: argparse.Namespac
     if args.lent_view_m < 0 or args.lent_view_deg < 0:
         parser.error(f"--lent-view-m, --lent-view-deg: 0 or more, got {args.lent_view_m}, "
                      f"{args.lent_view_deg}")
-    if not (0 <= args.lent_redundant_share <= 1 and args.lent_redundant_observers >= 1):
-        parser.error(f"--lent-redundant-share: 0 to 1, --lent-redundant-observers: 1 or more, "
-                     f"got {args.lent_redundant_share}, {args.lent_redundant_observers}")
     for name in ("covered_m", "covered_deg", "covered_min_points", "own_coverage_after"):
         value = getattr(args, name)
         if value is not None and value < 0:

@@ -69,7 +69,6 @@ from bench.in_process import (
     add_device_option,
     add_place_options,
     check_place_options,
-    lent_redundancies,
     lent_views,
     open_walk,
     repeatable_edge,
@@ -93,15 +92,13 @@ from twinslam.slam.back_end.foreign_keyframes import is_foreign
 #: the CSV's columns: the run's settings, then its figures (per-device lists joined by ";")
 COLUMNS = ("sequence", "frames", "devices", "after", "order", "seed", "uplink", "no_merge",
            "covered_m", "covered_deg", "covered_min_points", "own_coverage_after", "lend_in_view",
-           "lent_unseen_slots", "lent_view_m", "lent_view_deg", "lent_redundant_share",
-           "lent_redundant_observers",
+           "lent_unseen_slots", "lent_view_m", "lent_view_deg",
            "merge_min_inliers", "merge_look_backoff_slots",
            "merged", "edge_ms_median", "edge_ms_mean", "edge_ms_merged_median", "copies_mean",
            "copies_end", "adopted", "uploads", "lost_share", "map_lost_share", "tracked_share",
            "ate_m_mean", "cross_rms_m", "cross_pairs", "cross_worst_pair_rms_m", "loops",
            "look_ms_median", "seconds", "device_edge_ms", "device_copies_mean", "device_uploads",
-           "device_merge_slot", "device_ate_m", "places", "false_merges", "declined",
-           "redundant")
+           "device_merge_slot", "device_ate_m", "places", "false_merges", "declined")
 #: the figures two trees' runs share when they walked one walk (the timings aside)
 SAME_WALK = ("merged", "copies_mean", "copies_end", "adopted", "uploads", "lost_share",
              "tracked_share", "ate_m_mean", "cross_rms_m", "loops", "device_uploads",
@@ -259,7 +256,6 @@ def main() -> None:
                                lend_in_view=not args.lend_eagerly,
                                unseen_slots=args.unseen_slots,
                                lent_views=lent_views(args),
-                               lent_redundancy=lent_redundancies(args),
                                look_backoff_slots=args.look_backoff)
         for device in devices:
             if not args.no_merge:
@@ -295,8 +291,6 @@ def main() -> None:
     report["covered_m"], report["covered_deg"] = config.coverage.max_m, config.coverage.max_deg
     report["covered_min_points"] = config.coverage.min_points
     report["lent_view_m"], report["lent_view_deg"] = args.lent_view_m, args.lent_view_deg
-    report["lent_redundant_share"] = args.lent_redundant_share
-    report["lent_redundant_observers"] = args.lent_redundant_observers
     report["own_coverage_after"] = config.own_coverage_after_slots
     report["seconds"] = time.perf_counter() - started
     print(f"{report['seconds']:.0f} s", flush=True)
@@ -415,9 +409,8 @@ def _report(devices: list[PlaceWalk], merging: PlaceMerging, args: argparse.Name
             "lent_unseen_slots": args.unseen_slots, "merge_min_inliers": args.merge_inliers,
             "merge_look_backoff_slots": args.look_backoff,
             "merged": sum(1 for d in devices if d.merge_slot >= 0),
-            # the place's keyframes held back from the maps at the end, by either rule
+            # the place's keyframes the maps declined at the end (lent_view_m)
             "declined": sum(merging.declined(d.name) for d in devices),
-            "redundant": sum(merging.redundant(d.name) for d in devices),
             "edge_ms_median": float(np.median(every_ms)),
             "edge_ms_mean": float(np.mean(every_ms)),
             "edge_ms_merged_median": float(np.median(merged_ms)) if merged_ms else math.nan,

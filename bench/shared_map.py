@@ -59,7 +59,6 @@ from bench.in_process import (
     add_device_option,
     add_place_options,
     check_place_options,
-    lent_redundancies,
     lent_views,
     open_walk,
     repeatable_edge,
@@ -83,7 +82,6 @@ from twinslam.slam.back_end.map_merging import (
     Lender,
     MapMerge,
     MergeFinder,
-    PointRedundancy,
     lend_from,
 )
 from twinslam.slam.back_end.place_index import KeptPlaceIndex
@@ -119,8 +117,6 @@ class LendingState:
     unseen_slots: int                                    #: copies unseen this long go back
     #: a copy held declines another keyframe of its view within these (None: never)
     views: CoverageBounds | None
-    #: a keyframe whose points the borrower holds already is declined (None: never)
-    redundancy: PointRedundancy | None = None
     adopted: int = 0                                     #: adoptions, re-lent copies too
     returned: int = 0                                    #: copies gone back to the lender
 
@@ -137,7 +133,7 @@ def lend_keyframes(lender: DeviceWalk, borrower: DeviceWalk, state: LendingState
     lending = lend_from(borrower.edge.back_end, [state.lender], max(borrower.slot, 0),
                         borrower.edge.version + 1,
                         None if state.eager else borrower.edge.in_coming_view,
-                        state.unseen_slots, state.views, state.redundancy)[0]
+                        state.unseen_slots, state.views)[0]
     state.lender = dataclasses.replace(state.lender, followed=lending.followed)
     state.adopted += lending.adopted
     state.returned += lending.returned
@@ -282,7 +278,7 @@ def main() -> None:
         #: the first map's keyframes lent to the second, and the second's to the first
         lending, lending_back = (
             LendingState(Lender(walk.edge.back_end, source, set(), 0), args.lend_eagerly,
-                         args.unseen_slots, lent_views(args), lent_redundancies(args))
+                         args.unseen_slots, lent_views(args))
             for walk, source in ((first, 0), (second, 1)))
         copies_held: dict[str, list[int]] = {"first": [], "second": []}
         slot = 0
@@ -387,10 +383,6 @@ def main() -> None:
                        "lent_view_m": args.lent_view_m, "lent_view_deg": args.lent_view_deg,
                        "declined": len(lending.lender.declined),
                        "declined_back": len(lending_back.lender.declined),
-                       "lent_redundant_share": args.lent_redundant_share,
-                       "lent_redundant_observers": args.lent_redundant_observers,
-                       "redundant": len(lending.lender.redundant),
-                       "redundant_back": len(lending_back.lender.redundant),
                        "no_merge": int(args.no_merge),
                        "loops_across_devices": int(config.back_end.loops_across_devices),
                        "merged": int(merge is not None),
@@ -505,7 +497,6 @@ CSV_FIELDS = ("frames", "seed", "uplink", "first_order", "second_order", "second
               "cross_last_pairs", "cross_last_frames", "ba_window",
               "device_params", "lent_unseen_slots", "returned", "returned_back",
               "lent_view_m", "lent_view_deg", "declined", "declined_back",
-              "lent_redundant_share", "lent_redundant_observers", "redundant", "redundant_back",
               "first_archive_copies", "second_archive_copies", "first_copies_mean",
               "second_copies_mean")
 #: the second device's frames a stretch of the cross-device error by stretch counts

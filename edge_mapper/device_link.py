@@ -469,12 +469,10 @@ class DeviceLink:
                       f"{found})")
         if adopted:
             declined = self.merging.declined(self.device)
-            redundant = self.merging.redundant(self.device)
-            held_back = [f"{declined} declined: a copy it holds has their view"] * bool(declined)
-            held_back += [f"{redundant} redundant: it holds their points"] * bool(redundant)
             self.info(f"slot {slot}: {adopted} keyframes of the other maps in its frame "
                       "adopted into the archive" + (
-                          f" ({'; '.join(held_back)})" if held_back else ""))
+                          f" ({declined} declined: a copy it holds has their view)"
+                          if declined else ""))
         for move in carried:
             if move.refused:
                 self.warning(f"slot {slot}: another device's loop moved {move.copies} of its "

@@ -70,7 +70,7 @@ from twinslam.node_runtime.parameters import declare
 from twinslam.node_runtime.thread_cpu import ThreadLoad
 from twinslam.slam.back_end.keyframe_map import MapError
 from twinslam.slam.back_end.loop_closing import SHARED_WORKER
-from twinslam.slam.back_end.map_merging import lent_redundancy, lent_view
+from twinslam.slam.back_end.map_merging import lent_view
 from twinslam.slam.back_end.place_words import PlaceWords
 
 #: seconds between looks at the graph for new devices, and at the devices' silence
@@ -121,9 +121,6 @@ class EdgeMapperNode(Node):
                                      unseen_slots=int(p["lent_unseen_slots"]),
                                      lent_views=lent_view(float(p["lent_view_m"]),
                                                           float(p["lent_view_deg"])),
-                                     lent_redundancy=lent_redundancy(
-                                         float(p["lent_redundant_share"]),
-                                         int(p["lent_redundant_observers"])),
                                      look_backoff_slots=int(p["merge_look_backoff_slots"]))
                         if self.several and bool(p["merge_maps"]) else None)
         config = self.settings.config

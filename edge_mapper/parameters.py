@@ -228,16 +228,6 @@ PARAMETERS = (
     ParamSpec("lent_view_deg", map_merging.LENT_VIEW_DEG, "the turn, degrees, within which a "
               "copy a map holds declines another device's keyframe of its view (with "
               "lent_view_m)", low=0.0, high=180.0),
-    ParamSpec("lent_redundant_share", map_merging.LENT_REDUNDANT_SHARE, "with merge_maps: a "
-              "device's map adopts another device's keyframe only where less than this share "
-              "of the points it saw, welded to the map's points, are points "
-              "lent_redundant_observers of the map's keyframes see already (ORB-SLAM's "
-              "redundant keyframe, 0.9 of its points seen by three others, judged before a "
-              "copy is made); a keyframe found redundant is judged again 5 slots later where "
-              "still offered; 0: every keyframe of the place is lent", low=0.0, high=1.0),
-    ParamSpec("lent_redundant_observers", map_merging.LENT_REDUNDANT_OBSERVERS, "the map's "
-              "keyframes that must see a welded point for it to count as held already (with "
-              "lent_redundant_share)", low=1, high=100),
     ParamSpec("lent_unseen_slots", 0, "with merge_maps and lend_in_view: the slots a copy "
               "of another device's keyframe stays in this device's archive while the device "
               "neither holds it nor sees it, before it goes back to its lender, to be lent "

@@ -93,7 +93,6 @@ from twinslam.slam.back_end.map_merging import (
     Lending,
     MapMerge,
     MergeFinder,
-    PointRedundancy,
     lend_from,
 )
 from twinslam.slam.back_end.place_index import KeptPlaceIndex
@@ -158,7 +157,6 @@ class PlaceMerging:
                  background: bool = True, min_inliers: int = MERGE_MIN_INLIERS,
                  lend_in_view: bool = True, unseen_slots: int = 0,
                  lent_views: CoverageBounds | None = None,
-                 lent_redundancy: PointRedundancy | None = None,
                  worker: SharedWorker = SHARED_WORKER,
                  database: KeyFrameDatabase | None = None, look_backoff_slots: int = 1) -> None:
         self.cores = cores
@@ -192,10 +190,6 @@ class PlaceMerging:
         #: covers within these bounds is not lent (the edge's lent_view_m, lent_view_deg;
         #: None: every keyframe of the place is lent)
         self.lent_views = lent_views
-        #: a keyframe of another device whose points the borrower's map holds already is not
-        #: lent (the edge's lent_redundant_share, lent_redundant_observers; None: every
-        #: keyframe of the place is lent)
-        self.lent_redundancy = lent_redundancy
         if look_backoff_slots < 1:
             raise ValueError(f"the looks' backoff is 1 slot or more, not {look_backoff_slots}")
         #: the most slots between two looks of a device whose looks found no candidate
@@ -228,9 +222,6 @@ class PlaceMerging:
         #: (borrower, lender) → the lender's keyframes not lent for a copy the borrower holds
         #: of their view already, by that copy's id (with :attr:`lent_views`)
         self._declined: dict[tuple[str, str], dict[int, int]] = {}
-        #: (borrower, lender) → the lender's keyframes not lent for points the borrower holds
-        #: already, by the borrower's slot that judged them so (with :attr:`lent_redundancy`)
-        self._redundant: dict[tuple[str, str], dict[int, int]] = {}
         #: device → the root its restored checkpoint named (:meth:`serve`), until it is placed
         self._recorded: dict[str, str] = {}
         #: device → the run of its map (:func:`~edge_mapper.place_membership.source_of`):
@@ -395,13 +386,11 @@ class PlaceMerging:
             rounds.append(Lender(cores[lender].back_end, source, self._lent[pair], followed,
                                  self._offered.setdefault(pair, {}),
                                  self._seen.setdefault(pair, {}),
-                                 self._declined.setdefault(pair, {}),
-                                 self._redundant.setdefault(pair, {})))
+                                 self._declined.setdefault(pair, {})))
         in_view = cores[borrower].in_coming_view if self.lend_in_view else None
         done = dict(zip(serving, lend_from(cores[borrower].back_end, rounds, slot,
                                            cores[borrower].version + 1, in_view,
-                                           self.unseen_slots, self.lent_views,
-                                           self.lent_redundancy),
+                                           self.unseen_slots, self.lent_views),
                         strict=True)) if serving else {}
         # the borrower's loops may close with the copies of its place's other devices (those
         # it adopted a while before: MapBackEnd._across)
@@ -418,11 +407,6 @@ class PlaceMerging:
         of their view already (:attr:`lent_views`)."""
         return sum(len(declined) for (b, _), declined in self._declined.items()
                    if b == borrower)
-
-    def redundant(self, borrower: str) -> int:
-        """The place's keyframes not lent to ``borrower``'s map now, each for points it holds
-        already (:attr:`lent_redundancy`)."""
-        return sum(len(found) for (b, _), found in self._redundant.items() if b == borrower)
 
     def _tag_clash(self, borrower: str, lender: str) -> bool:
         """Whether another device — served, or one that lent to ``borrower`` before — tags
@@ -638,8 +622,6 @@ class PlaceMerging:
             del self._seen[pair]
         for pair in [pair for pair in self._declined if device in pair]:
             del self._declined[pair]
-        for pair in [pair for pair in self._redundant if device in pair]:
-            del self._redundant[pair]
         self._queries.pop(device, None)
         self._running.pop(device, None)
         for backoff in (self._look_started, self._look_gap, self._looked_among):

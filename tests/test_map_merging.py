@@ -49,7 +49,6 @@ from twinslam.slam.back_end.map_back_end import (
 from twinslam.slam.back_end.map_merging import (
     Lender,
     MergeFinder,
-    PointRedundancy,
     follow_lender_loops,
     lend_from,
     welded,
@@ -1513,46 +1512,6 @@ def test_a_view_two_devices_uploaded_is_lent_once_and_again_when_its_copy_leaves
     borrower, pair = lenders()
     lendings = lend_from(borrower.back_end, pair, 0, 1)
     assert [lending.adopted for lending in lendings] == [len(archive), len(archive)]
-
-
-def test_a_keyframe_whose_points_the_borrower_holds_is_not_lent_until_it_lacks_them(
-        room: Room) -> None:  # noqa: F811
-    """With ``redundancy`` (the edge's lent_redundant_share), another device's keyframe whose
-    points, welded, are points three of the borrower's keyframes see already is not lent: the
-    lender's image of the room's frame 60 (its own point ids) where the borrower holds three
-    keyframes of that view, while its frame 180, a view the borrower lacks, is lent. The
-    redundant one is judged again ``rejudge_slots`` later: once the borrower's keyframes of
-    the view have left its map, it is lent, as adopted at the slot it was first offered."""
-    _, archive, _ = room
-    view, other, offset = archive.get(60), archive.get(180), 100_000
-    rule = PointRedundancy(share=0.9, observers=3, rejudge_slots=5)
-
-    def borrower_and_lender() -> tuple[EdgeMapperCore, Lender]:
-        lender, borrower = _core(), _core()
-        for kf in (view, other):
-            lender.archive.add(dataclasses.replace(_renumbered(kf, offset), id=kf.id + 1))
-        borrower.map.next_point_id = offset
-        for copy in (60, 61, 62):                # three keyframes of the view: 3 observers
-            restore_into(borrower.map, dataclasses.replace(view, id=copy))
-        for core in (lender, borrower):
-            core.back_end.k = room[0].intrinsics             # type: ignore[attr-defined]
-        return borrower, Lender(lender.back_end, 1, set(), 0)
-
-    borrower, lender = borrower_and_lender()
-    assert lend_from(borrower.back_end, [lender], 0, 1, redundancy=rule)[0].adopted == 1
-    assert lender.lent == {other.id + 1} and lender.redundant == {view.id + 1: 0}
-    assert lend_from(borrower.back_end, [lender], 4, 2, redundancy=rule)[0].adopted == 0
-    assert lender.redundant == {view.id + 1: 0}                  # not judged again yet
-    borrower.back_end.evict_to_archive([60, 61, 62], slot=4)
-    assert lend_from(borrower.back_end, [lender], 5, 3, redundancy=rule)[0].adopted == 1
-    assert lender.redundant == {}
-    copy = borrower.archive.get(foreign_tag(1) | (view.id + 1))
-    assert copy.archived_slot == 0                               # first offered at slot 0
-    # every keyframe lent without the rule, and a rule that asks for more observers than the
-    # borrower has lends both too
-    for without in (None, PointRedundancy(share=0.9, observers=4)):
-        borrower, lender = borrower_and_lender()
-        assert lend_from(borrower.back_end, [lender], 0, 1, redundancy=without)[0].adopted == 2
 
 
 def test_the_edge_lends_a_place_s_view_once_within_its_bounds(room: Room) -> None:  # noqa: F811

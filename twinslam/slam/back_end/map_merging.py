@@ -77,55 +77,6 @@ LENT_VIEW_M = 0.0
 LENT_VIEW_DEG = 10.0
 
 
-#: a copy's points already the borrower's by default (:class:`PointRedundancy`): off (0)
-LENT_REDUNDANT_SHARE = 0.0
-LENT_REDUNDANT_OBSERVERS = 3
-#: the borrower's slots before a keyframe found redundant is judged again where it is offered
-REJUDGE_SLOTS = 5
-
-
-@dataclass(frozen=True)
-class PointRedundancy:
-    """When another device's keyframe adds nothing to a borrower's map: ``share`` of the points
-    it saw are welded to points of the borrower's managed map that ``observers`` of its
-    keyframes see already. ORB-SLAM culls a keyframe of its own map by this rule (90 % of its
-    points seen by three others); here it is applied before a copy is made, to the
-    keyframe's points as welding matched them (:func:`welded`). Two images of one view of a
-    thinly textured room hold different corners, so a pose beside a held copy does not make a
-    keyframe redundant; its points do. A keyframe found redundant is not lent and is judged
-    again no sooner than ``rejudge_slots`` later, where it is still offered: the borrower's
-    map moves on, and may no longer hold those points."""
-
-    share: float = 0.9
-    observers: int = LENT_REDUNDANT_OBSERVERS
-    rejudge_slots: int = REJUDGE_SLOTS
-
-    def __post_init__(self) -> None:
-        if not (0.0 < self.share <= 1.0 and self.observers >= 1 and self.rejudge_slots >= 1):
-            raise ValueError(f"a point redundancy is a share in (0, 1], 1 observer or more and "
-                             f"1 slot or more, got {self.share}, {self.observers}, "
-                             f"{self.rejudge_slots}")
-
-    def holds(self, keyframe: ArchivedKeyFrame, into: KeyFrameMap,
-              points: MapPoints | None = None) -> bool:
-        """Whether ``keyframe`` (welded to ``into``'s points) adds nothing to map ``into``
-        (``points``: ``into``'s, as welding read them; None: read here)."""
-        seen = keyframe.point_ids[np.isfinite(keyframe.measurements[:, 0])]
-        if len(seen) == 0:
-            return False
-        theirs = seen[np.isin(seen, (points or MapPoints.every(into)).ids)]
-        covered = int(np.count_nonzero(into.observer_counts(theirs) >= self.observers)) \
-            if len(theirs) else 0
-        return covered >= self.share * len(seen)
-
-
-def lent_redundancy(share: float, observers: int = LENT_REDUNDANT_OBSERVERS
-                    ) -> PointRedundancy | None:
-    """The rule that declines a keyframe whose points a borrower holds already
-    (:func:`lend_from`'s ``redundancy``), or None where ``share`` is 0: every keyframe lent."""
-    return PointRedundancy(share, observers) if share > 0 else None
-
-
 def lent_view(max_m: float, max_deg: float) -> CoverageBounds | None:
     """The bounds within which a copy a borrower holds declines another device's keyframe
     (:func:`lend_from`'s ``views``), or None where they cover nothing: every keyframe lent."""
@@ -285,15 +236,11 @@ class Lender:
     #: (:func:`lend_from` with ``views``), each by that copy's (tagged) id: offered again once
     #: that copy has left the borrower
     declined: dict[int, int] = field(default_factory=dict)
-    #: its keyframes not lent for points the borrower holds already (:func:`lend_from` with
-    #: ``redundancy``), each by the borrower's slot that judged it so
-    redundant: dict[int, int] = field(default_factory=dict)
 
 
 def lend_from(borrower: MapBackEnd, lenders: list[Lender], slot: int, next_version: int,
               in_view: InView | None = None, unseen_slots: int = 0,
-              views: CoverageBounds | None = None,
-              redundancy: PointRedundancy | None = None) -> list[Lending]:
+              views: CoverageBounds | None = None) -> list[Lending]:
     """One lending round from every map of the borrower's place (``lenders``, all in its
     frame), before the borrower's map version ``next_version``: first each lender's loops
     since those the borrower followed move the copies lent before and the borrower's keyframes
@@ -320,11 +267,7 @@ def lend_from(borrower: MapBackEnd, lenders: list[Lender], slot: int, next_versi
     the copies of where its device is and was lately, not of every place it ever passed: each
     copy it holds is welded, archived, searched by its loop closer and the looks, and moved by
     every lender loop. Where its device comes back, the copy is lent anew: as the lender has
-    it now, welded to the borrower's points as they are now.
-
-    With ``redundancy``, a keyframe whose welded points the borrower's map holds already
-    (:meth:`PointRedundancy.holds`) is not adopted (:attr:`Lender.redundant`); it keeps the
-    slot it was first offered at, and is judged again ``rejudge_slots`` later."""
+    it now, welded to the borrower's points as they are now."""
     follows = [follow_lender_loops(borrower, lender.back_end, lender.source, lender.followed,
                                    next_version) for lender in lenders]
     offers = [_unlent(lender, borrower.store) for lender in lenders]
@@ -334,15 +277,12 @@ def lend_from(borrower: MapBackEnd, lenders: list[Lender], slot: int, next_versi
         offers = _seen_only(lenders, offers, in_view)
     if views is not None and views.enabled:
         offers = _new_views_only(borrower, lenders, offers, views)
-    if redundancy is not None:
-        offers = [_not_judged_lately(lender, offer, slot, redundancy.rejudge_slots)
-                  for lender, offer in zip(lenders, offers, strict=True)]
     # a keyframe of a lender's managed map is copied only once it is lent
     unlent = [archived + [ArchivedKeyFrame.of(lender.back_end.map, k, slot) for k in held]
               for lender, (archived, held) in zip(lenders, offers, strict=True)]
     points = MapPoints.every(borrower.map) if any(unlent) else None
     adopted = [adopt_lent(borrower, keyframes, lender.source, lender.lent, slot, points,
-                          lender.offered, redundancy, lender.redundant)
+                          lender.offered)
                for lender, keyframes in zip(lenders, unlent, strict=True)]
     returned = _return_unseen(borrower, lenders, slot, in_view, unseen_slots) \
         if in_view is not None and unseen_slots > 0 else [0] * len(lenders)
@@ -422,21 +362,6 @@ def _new_views_only(borrower: MapBackEnd, lenders: list[Lender], offers: list[Of
     return kept
 
 
-def _not_judged_lately(lender: Lender, offer: Offer, slot: int, every: int) -> Offer:
-    """A lender's ``offer`` but the keyframes found redundant fewer than ``every`` slots before
-    ``slot`` (those the lender no longer has forgotten)."""
-    archived, in_map = offer
-    own = lender.back_end.store
-    for kf_id in [k for k in lender.redundant if k not in own]:
-        del lender.redundant[kf_id]
-
-    def due(kf_id: int) -> bool:
-        judged = lender.redundant.get(kf_id)
-        return judged is None or slot - judged >= every
-
-    return [kf for kf in archived if due(kf.id)], [k for k in in_map if due(k)]
-
-
 def _seen_only(lenders: list[Lender], offers: list[Offer], in_view: InView) -> list[Offer]:
     """Each lender's ``offers`` (its archived keyframes, its managed map's ids) that
     ``in_view`` says the borrower sees, asked once for every lender's by their points'
@@ -470,33 +395,20 @@ def follow_lender_loops(borrower: MapBackEnd, lender: MapBackEnd, source: int,
 
 def adopt_lent(borrower: MapBackEnd, keyframes: list[ArchivedKeyFrame], source: int,
                lent: set[int], slot: int, points: MapPoints | None = None,
-               offered: dict[int, int] | None = None,
-               redundancy: PointRedundancy | None = None,
-               redundant: dict[int, int] | None = None) -> int:
+               offered: dict[int, int] | None = None) -> int:
     """Another map's ``keyframes`` (of source map ``source``, in the borrower's frame) welded
     to the borrower's points (``points``, as they are now; None: read here) and adopted into
     its archive (:meth:`MapBackEnd.adopt`) at ``slot`` — or at the slot each was first
     ``offered`` at (taken out of it) — their ids added to ``lent``: its restores bring them
     in where its device heads, and it tracks on keyframes only the other device uploaded.
-    With ``redundancy``, a keyframe whose welded points the borrower holds already is left
-    out, noted in ``redundant`` at ``slot`` and kept in ``offered``. How many adopted."""
+    How many."""
     if not keyframes:
         return 0
     # the borrower's points are read once for the batch: welding changes none of them
     points = points or MapPoints.every(borrower.map)
     since = offered if offered is not None else {}
-    copies = [welded(kf, source, borrower.map, borrower.camera,
-                     min(since.get(kf.id, slot), slot), points=points) for kf in keyframes]
-    kept = []
-    for kf, copy in zip(keyframes, copies, strict=True):
-        if redundancy is not None and redundancy.holds(copy, borrower.map, points):
-            if redundant is not None:
-                redundant[kf.id] = slot
-            continue
-        since.pop(kf.id, None)
-        if redundant is not None:
-            redundant.pop(kf.id, None)
-        kept.append((kf.id, copy))
-    borrower.adopt(copy for _, copy in kept)
-    lent.update(kf_id for kf_id, _ in kept)
-    return len(kept)
+    borrower.adopt(welded(kf, source, borrower.map, borrower.camera,
+                          min(since.pop(kf.id, slot), slot), points=points)
+                   for kf in keyframes)
+    lent.update(kf.id for kf in keyframes)
+    return len(keyframes)
