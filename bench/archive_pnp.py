@@ -40,9 +40,9 @@ from twinslam.slam.projection_matching import back_project
 
 def true_keyframe(frame: RgbdFrame, index: int, intrinsics: np.ndarray, orb: OrbExtractor,
                   first_point: int, slot: int) -> ArchivedKeyFrame:
-    """Frame ``index`` as a map would archive it with no error of its own: its ORB features
-    with a depth, placed by that depth and the frame's true pose, numbered from
-    ``first_point``."""
+    """Frame ``index`` as a map would archive it were its poses the sequence's truth: its ORB
+    features with a depth, placed by that depth and the frame's true pose, numbered from
+    ``first_point`` (the keyframe's error is then the depth's and the truth's own)."""
     assert frame.depth is not None and frame.pose is not None, "a frame with depth and truth"
     feats = orb.extract(frame.color)
     z = depth_at(feats.points, frame.depth, (0.2, 8.0))
