@@ -976,13 +976,17 @@ def test_the_view_lent_once_tables_are_what_their_commands_print(
 def test_the_copy_points_held_tables_are_what_their_commands_print(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """A copy's points held already: the 7-Scenes pair at a share of 0.3 against the default,
-    eight devices along the corridor at 0.9, and the view overlap of the sample and the room,
-    as the page has them."""
+    eight devices along the corridor at 0.9, a view lent once with the devices walking both
+    ways, and the view overlap of the sample and the room, as the page has them."""
     held = FIGURES / "shared-map" / "points-held"
     corridor = _script("place_walks_table").table(held / "place-walks" / "off.csv",
                                                   held / "place-walks" / "share-0.9.csv",
                                                   last_device=True)
     assert _missing("\n".join(corridor)) == [] and "seeds 0, 1:" in corridor[0]
+    both_ways = FIGURES / "shared-map" / "place-walks" / "views-once" / "both-ways"
+    walks = _script("place_walks_table").table(both_ways / "off.csv", both_ways / "0.3m.csv",
+                                               last_device=True)
+    assert _missing("\n".join(walks)) == [] and "forward,backward" in walks[0]
     monkeypatch.syspath_prepend(str(FIGURES))           # its sibling, shared_uplink_table
     pair = _script("shared_map_before_after").table(held / "mapped-default",
                                                     held / "mapped-share-0.3",
