@@ -142,6 +142,10 @@ def _keyframes(sequence: str, frames: int, wanted: set[int]) -> tuple[dict[int, 
             break
         intrinsics = frame.intrinsics
         if index in wanted:
+            if frame.depth is None or frame.pose is None:
+                raise SystemExit(f"{sequence}: frame {index} ({frame.name or 'unnamed'}) has no "
+                                 f"{'depth' if frame.depth is None else 'true pose'}: the "
+                                 "keyframes are placed by their depth and their truth")
             kept[index] = true_keyframe(frame, index, frame.intrinsics, orb, 1, 0)
     if intrinsics is None:
         raise SystemExit(f"{sequence}: no frames")
