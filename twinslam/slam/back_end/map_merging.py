@@ -342,23 +342,28 @@ def _new_views_only(borrower: MapBackEnd, lenders: list[Lender], offers: list[Of
     covering copy's tagged id)."""
     held = [(k, pose) for k, pose in borrower.store.poses().items() if is_foreign(k)]
     covers = [k for k, _ in held]
-    poses = [pose for _, pose in held]
+    # the covering poses as one array, the copies held first and each kept offer after them
+    # (filled as they are kept, not stacked again for every offer)
+    poses = np.empty((len(held) + sum(len(a) + len(m) for a, m in offers), 4, 4))
+    for row, (_, pose) in enumerate(held):
+        poses[row] = pose
+    count = len(held)
     kept: list[Offer] = []
     for lender, (archived, in_map) in zip(lenders, offers, strict=True):
         tag = foreign_tag(lender.source)
         lender_map = lender.back_end.map
-
-        def new(kf_id: int, pose: np.ndarray, lender: Lender = lender, tag: int = tag) -> bool:
-            cover = first_cover(pose, poses, views)
+        new: set[int] = set()
+        for kf_id, pose in [*((kf.id, kf.pose) for kf in archived),
+                            *((k, lender_map.keyframes[k].pose) for k in in_map)]:
+            cover = first_cover(pose, poses[:count], views)
             if cover is not None:
                 lender.declined[kf_id] = covers[cover]
-                return False
+                continue
             covers.append(kf_id | tag)
-            poses.append(pose)
-            return True
-
-        kept.append(([kf for kf in archived if new(kf.id, kf.pose)],
-                     [k for k in in_map if new(k, lender_map.keyframes[k].pose)]))
+            poses[count] = pose
+            count += 1
+            new.add(kf_id)
+        kept.append(([kf for kf in archived if kf.id in new], [k for k in in_map if k in new]))
     return kept
 
 
