@@ -45,6 +45,7 @@ from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.back_end.map_merging import welded
 from twinslam.slam.back_end.point_fusion import FusionConfig
 from twinslam.slam.camera import Camera
+from twinslam.slam.descriptor_matching import hamming_rows
 from twinslam.slam.front_end.orb_extractor import OrbExtractor
 
 #: the second keyframe's point ids start here: nothing but geometry and descriptors relates
@@ -54,6 +55,8 @@ SECOND_IDS = 1 << 30
 NEIGHBOURS = 4
 #: Lowe's ratio of the image matching
 RATIO = 0.8
+#: two descriptors alike: within welding's Hamming distance
+MAX_HAMMING = FusionConfig().max_hamming
 
 
 @dataclasses.dataclass(frozen=True)
@@ -82,24 +85,23 @@ def _same_corners(first: ArchivedKeyFrame, second: ArchivedKeyFrame, near_m: flo
     distances, rows = cKDTree(first.positions).query(second.positions, k=NEIGHBOURS,
                                                       distance_upper_bound=near_m)
     alike = np.zeros(len(second.point_ids), dtype=bool)
-    max_hamming = FusionConfig().max_hamming
     for column in range(NEIGHBOURS):
         near = np.isfinite(distances[:, column])
         if not near.any():
             break
-        theirs = first.descriptors[rows[near, column]]
-        bits = np.unpackbits(np.bitwise_xor(second.descriptors[near], theirs), axis=1)
-        alike[np.flatnonzero(near)] |= bits.sum(axis=1) <= max_hamming
+        apart = hamming_rows(second.descriptors[near], first.descriptors[rows[near, column]])
+        alike[np.flatnonzero(near)] |= apart <= MAX_HAMMING
     return alike
 
 
 def _matched_in_images(first: ArchivedKeyFrame, second: ArchivedKeyFrame) -> int:
     """How many of ``second``'s features match one of ``first``'s by descriptor (Lowe's ratio
-    0.8, welding's Hamming distance at most) where one fundamental matrix holds for them
-    (RANSAC, 2 px): the overlap as the two images alone tell it."""
+    0.8, welding's Hamming distance at most; several may match one of ``first``'s, unlike
+    :func:`~twinslam.slam.descriptor_matching.match_descriptors`) where one fundamental matrix
+    holds for them (RANSAC, 2 px): the overlap as the two images alone tell it."""
     pairs = cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(second.descriptors, first.descriptors, k=2)
     good = [m[0] for m in pairs if len(m) == 2 and m[0].distance < RATIO * m[1].distance
-            and m[0].distance <= FusionConfig().max_hamming]
+            and m[0].distance <= MAX_HAMMING]
     if len(good) < 8:
         return 0
     theirs = second.measurements[[m.queryIdx for m in good], :2].astype(np.float32)
