@@ -89,10 +89,11 @@ def covered_views(frames: Mapping[int, np.ndarray], keyframes: Sequence[np.ndarr
     return {i for i, hit in zip(ids, hits.tolist(), strict=True) if hit}
 
 
-def first_cover(pose: np.ndarray, keyframes: Sequence[np.ndarray], bounds: CoverageBounds
-                ) -> int | None:
-    """The index of the first of ``keyframes`` (4×4 camera-to-map) that covers the view from
-    ``pose`` within ``bounds``; None: none does (or the bounds cover nothing)."""
+def first_cover(pose: np.ndarray, keyframes: Sequence[np.ndarray] | np.ndarray,
+                bounds: CoverageBounds) -> int | None:
+    """The index of the first of ``keyframes`` (4×4 camera-to-map poses, or an n×4×4 array of
+    them) that covers the view from ``pose`` within ``bounds``; None: none does (or the
+    bounds cover nothing)."""
     if not len(keyframes) or not bounds.enabled:
         return None
     f = np.asarray(pose, dtype=np.float64).reshape(1, 4, 4)
