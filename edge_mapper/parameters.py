@@ -24,10 +24,10 @@ from edge_mapper.slot_planner import SlotConfig
 from msg_schemas import topics
 from twinslam.allocation.allocators import ALLOCATORS
 from twinslam.node_runtime.parameters import ParamSpec
-from twinslam.slam.back_end import loop_closing, map_merging
+from twinslam.slam.back_end import loop_closing
 from twinslam.slam.back_end.loop_detection import MIN_INLIERS
 from twinslam.slam.back_end.map_back_end import BackEndConfig
-from twinslam.slam.back_end.map_merging import MERGE_MIN_INLIERS
+from twinslam.slam.back_end.map_merging import LENT_VIEW_DEG, LENT_VIEW_M, MERGE_MIN_INLIERS
 from twinslam.slam.back_end.view_coverage import CoverageBounds
 from twinslam.slot_protocol import default_device, table1
 
@@ -216,7 +216,7 @@ PARAMETERS = (
               "would score it; everything while it is lost): each map welds what its device "
               "comes to, not every keyframe every device of its place makes; false: each as "
               "soon as its device made it"),
-    ParamSpec("lent_view_m", map_merging.LENT_VIEW_M, "with merge_maps: a device's map "
+    ParamSpec("lent_view_m", LENT_VIEW_M, "with merge_maps: a device's map "
               "adopts another device's keyframe only where no copy of the other devices' "
               "keyframes it holds stands within this many metres of it, turned by at most "
               "lent_view_deg: where several devices walk one place, a view is lent once, not "
@@ -225,7 +225,7 @@ PARAMETERS = (
               "its devices); the map's own keyframes never decline a copy (its loops across "
               "devices close with it); 0: every keyframe of the place is lent",
               low=0.0, high=10.0),
-    ParamSpec("lent_view_deg", map_merging.LENT_VIEW_DEG, "the turn, degrees, within which a "
+    ParamSpec("lent_view_deg", LENT_VIEW_DEG, "the turn, degrees, within which a "
               "copy a map holds declines another device's keyframe of its view (with "
               "lent_view_m)", low=0.0, high=180.0),
     ParamSpec("lent_unseen_slots", 0, "with merge_maps and lend_in_view: the slots a copy "
