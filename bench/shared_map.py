@@ -30,7 +30,11 @@ within 0.3 m and 20°, the translation error of their relative pose against the 
 anchored, as the other sees it — over the second device's frames published in the shared
 frame; beside it the same frames carried by the *true* alignment of the two maps' frames
 instead of the merge's (the two walks' drift apart: a merge found where the devices meet
-aligns them there, which the true frames do not) and the two edge maps' final keyframes.
+aligns them there, which the true frames do not) and the two edge maps' final keyframes;
+then the same error split in two (:func:`~twinslam.live.tracking_quality.rigid_part`): the
+one rigid motion of the second device's frames that leaves it least — how far a better
+merge alignment alone could bring the two maps together — and what is left after it, the
+maps bending apart along the walk, which only one graph over both walks takes out.
 Each device's uploads are counted: with ``--share`` a frame whose view a lent keyframe
 covers is not asked for (the edge's ``covered_m``/``covered_deg``; ``--covered-m 0``: every
 frame a candidate). ``--frames-csv`` and ``--keyframes-csv`` write every frame as
@@ -73,6 +77,7 @@ from twinslam.live.tracking_quality import (
     absolute_trajectory_error,
     cross_device_revisit_error,
     revisit_error,
+    rigid_part,
 )
 from twinslam.reporting import append_csv_rows, write_csv
 from twinslam.rotations import rotation_angle_deg
@@ -419,6 +424,8 @@ def main() -> None:
         cross = cross_device_revisit_error(pairs(first.poses, first.truth),
                                            pairs(second.poses, second.truth,
                                                  shared if merge else None))
+        rigid = rigid_part(pairs(first.poses, first.truth),
+                           pairs(second.poses, second.truth, shared if merge else None))
         assert first.first_truth is not None and second.first_truth is not None
         true = np.linalg.inv(first.first_truth) @ second.first_truth
         floor = cross_device_revisit_error(
@@ -448,6 +455,8 @@ def main() -> None:
     report.update(shared_frames=len(shared), cross_rms_m=cross.rms_m,
                   cross_median_m=cross.median_m, cross_p95_m=cross.p95_m,
                   cross_pairs=cross.pairs, true_alignment_rms_m=floor.rms_m,
+                  cross_rigid_left_rms_m=rigid.left.rms_m, cross_rigid_moved_m=rigid.moved_m,
+                  cross_rigid_turned_deg=rigid.turned_deg,
                   keyframes_cross_rms_m=kf_cross.rms_m, first_self_rms_m=selves[0].rms_m,
                   second_self_rms_m=selves[1].rms_m,
                   cross_by_stretch_cm=";".join(f"{e.rms_m * 100:.1f}" for e in by_stretch),
@@ -459,6 +468,8 @@ def main() -> None:
         report.update(cross_rms_m=math.nan, cross_median_m=math.nan, cross_p95_m=math.nan,
                       cross_pairs=0, true_alignment_rms_m=math.nan,
                       keyframes_cross_rms_m=math.nan, cross_by_stretch_cm="",
+                      cross_rigid_left_rms_m=math.nan, cross_rigid_moved_m=math.nan,
+                      cross_rigid_turned_deg=math.nan,
                       cross_last_rms_m=math.nan, cross_last_pairs=0, cross_last_frames=0)
     else:
         print(f"cross-device revisit error, the second device's {len(shared)} frames in the "
@@ -468,6 +479,11 @@ def main() -> None:
               f"final keyframes {_cm(kf_cross.rms_m)}; each device against itself on "
               f"such pairs {_cm(selves[0].rms_m)} and {_cm(selves[1].rms_m)} "
               f"({time.perf_counter() - started:.0f} s)")
+        print(f"cross-device revisit error left once the second device's frames move by the "
+              f"rigid motion that fits them best ({_cm(rigid.moved_m)}, "
+              f"{rigid.turned_deg:.2f}°): RMS "
+              f"{_cm(rigid.left.rms_m)}: the rest is one rigid offset "
+              "between the two maps (what a better merge alignment could take out)")
         if ordered:
             print(f"cross-device revisit error by the second device's {STRETCH} frames at a "
                   f"time in the shared frame, in its order from its frame {ordered[0]}: "
@@ -498,7 +514,8 @@ CSV_FIELDS = ("frames", "seed", "uplink", "first_order", "second_order", "second
               "device_params", "lent_unseen_slots", "returned", "returned_back",
               "lent_view_m", "lent_view_deg", "declined", "declined_back",
               "first_archive_copies", "second_archive_copies", "first_copies_mean",
-              "second_copies_mean")
+              "second_copies_mean", "cross_rigid_left_rms_m",
+              "cross_rigid_moved_m", "cross_rigid_turned_deg")
 #: the second device's frames a stretch of the cross-device error by stretch counts
 STRETCH = 100
 #: the second device's last frames played, the set ``cross_last_rms_m`` scores

@@ -18,6 +18,7 @@ from twinslam.live.tracking_quality import (
     jump_count,
     relative_pose_error,
     revisit_error,
+    rigid_part,
     step_excess_mm,
     tracking_events,
 )
@@ -173,6 +174,34 @@ def test_a_cross_device_revisit_error_is_where_one_device_sees_the_others_conten
     assert apart.rms_m == pytest.approx(1.0)
     alone = cross_device_revisit_error(first, [])
     assert alone.pairs == 0 and math.isnan(alone.rms_m)
+
+
+def test_one_rigid_motion_takes_out_a_misplaced_map_and_leaves_a_bent_one() -> None:
+    """The cross-device error split in two. The second device's map placed 3 cm and 2° off
+    the first's (a merge's alignment that missed): one rigid motion takes it all out, and
+    that motion puts every one of its frames back where the truth has it. Its map bent
+    instead (an offset growing along the walk, as two walks drift apart): a rigid motion
+    takes out part, never more than there is, and what is left is the bend. Two devices
+    with no pair: nothing to split."""
+    grid = [(0.05 * i, 0.04 * j) for i in range(6) for j in range(3)]       # not one line
+    first_truth = [_pose(x, y) for x, y in grid]
+    second_truth = [_pose(x + 0.01, y, 5.0) for x, y in grid]
+    first = [(t, t) for t in first_truth]
+    off = _pose(0.03, -0.01, 2.0)
+    misplaced = [(off @ t, t) for t in second_truth]
+    error = cross_device_revisit_error(first, misplaced)
+    split = rigid_part(first, misplaced)
+    assert error.rms_m > 0.02
+    assert split.left.pairs == error.pairs and split.left.rms_m < 1e-9
+    assert all(np.allclose((split.motion @ e)[:3, 3], t[:3, 3], atol=1e-9)
+               for e, t in misplaced)
+    assert split.turned_deg == pytest.approx(2.0, abs=1e-6) and 0.0 < split.moved_m < 0.1
+    bent = [(_pose(t[0, 3], t[1, 3] + 0.2 * t[0, 3] ** 2 * 10, 5.0), t) for t in second_truth]
+    bent_error = cross_device_revisit_error(first, bent)
+    bent_split = rigid_part(first, bent)
+    assert 0.003 < bent_split.left.rms_m < bent_error.rms_m
+    nobody = rigid_part(first, [])
+    assert nobody.left.pairs == 0 and np.array_equal(nobody.motion, np.eye(4))
 
 
 def test_a_place_seen_from_elsewhere_or_turned_away_from_is_no_revisit() -> None:

@@ -303,6 +303,65 @@ def cross_device_revisit_error(first: Sequence[tuple[np.ndarray, np.ndarray]],
     return _revisit_summary(_cross_errors(first, second, radius_m, angle_deg))
 
 
+@dataclass(frozen=True)
+class RigidPart:
+    """How much of a :func:`cross_device_revisit_error` one rigid motion of the second
+    device's frames takes out (:func:`rigid_part`)."""
+
+    #: 4×4, in the shared frame: the rigid motion that, applied to the second device's
+    #: poses, fits them best
+    motion: np.ndarray
+    #: the cross-device error once the second device's poses are so moved: what no merge
+    #: alignment, however good, takes out — the two maps bending apart
+    left: RevisitError
+    #: how far the motion moves the second device's frames at their pairs' centre (m) —
+    #: not the motion's translation, a lever arm to the frame's origin far away
+    moved_m: float = 0.0
+
+    @property
+    def turned_deg(self) -> float:
+        """How far the motion turns them (degrees)."""
+        cos = (float(np.trace(self.motion[:3, :3])) - 1.0) / 2.0
+        return math.degrees(math.acos(min(1.0, max(-1.0, cos))))
+
+
+def rigid_part(first: Sequence[tuple[np.ndarray, np.ndarray]],
+               second: Sequence[tuple[np.ndarray, np.ndarray]],
+               radius_m: float = REVISIT_RADIUS_M,
+               angle_deg: float = REVISIT_ANGLE_DEG) -> RigidPart:
+    """The :func:`cross_device_revisit_error` of ``first`` and ``second`` split in two: the
+    rigid motion of the second device's frames that makes it least, and what is left after
+    it. A pair's error is how far the second frame's camera stands from where the first
+    frame and the truth put it, ``Ea · Ta⁻¹ · Tb`` (its rotation does not enter), so the
+    least error one rigid motion M leaves is a least-squares fit of M·pb to those positions
+    over every pair (Kabsch's, exact). A merge that placed the joining map a few
+    centimetres off shows as a large ``moved_m`` and a small ``left``; two maps that bend
+    apart along the walk, as the reverse. With no pair, the identity and an empty error."""
+    cos_max = math.cos(math.radians(angle_deg))
+    placed: list[np.ndarray] = []
+    wanted: list[np.ndarray] = []
+    if first and second:
+        est_b = np.array([e for e, _ in second], dtype=np.float64)
+        ref_b = np.array([t for _, t in second], dtype=np.float64)
+        for est_a, ref_a in first:
+            js = np.flatnonzero(seen_alike(ref_a, ref_b, radius_m, cos_max))
+            if js.size:
+                placed.append(est_b[js, :3, 3])
+                wanted.append((est_a @ np.linalg.inv(ref_a) @ ref_b[js])[:, :3, 3])
+    if not placed:
+        return RigidPart(np.eye(4), RevisitError())
+    p, q = np.concatenate(placed), np.concatenate(wanted)
+    p_centre, q_centre = p.mean(axis=0), q.mean(axis=0)
+    u, _, vt = np.linalg.svd((p - p_centre).T @ (q - q_centre))
+    flip = np.diag([1.0, 1.0, float(np.sign(np.linalg.det(vt.T @ u.T)))])
+    motion = np.eye(4)
+    motion[:3, :3] = vt.T @ flip @ u.T
+    motion[:3, 3] = q_centre - motion[:3, :3] @ p_centre
+    residual = np.linalg.norm(p @ motion[:3, :3].T + motion[:3, 3] - q, axis=1)
+    return RigidPart(motion, _revisit_summary([residual]),
+                     float(np.linalg.norm(q_centre - p_centre)))
+
+
 def cross_device_revisit_error_by_frame(
         first: Mapping[str, Sequence[tuple[np.ndarray, np.ndarray]]],
         second: Mapping[str, Sequence[tuple[np.ndarray, np.ndarray]]],
