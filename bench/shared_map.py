@@ -84,7 +84,6 @@ from twinslam.rotations import rotation_angle_deg
 from twinslam.sequence_player.playback import ORDERS
 from twinslam.slam.back_end.foreign_keyframes import foreign_tag, is_foreign, source_id
 from twinslam.slam.back_end.map_merging import (
-    ALIGNMENT_FROM,
     Lender,
     MapMerge,
     MergeFinder,
@@ -238,11 +237,6 @@ def main() -> None:
                              "keyframes only, never with the first device's lent keyframes "
                              "(the edge's loops_across_devices:=false)")
     add_place_options(parser)
-    parser.add_argument("--merge-alignment", choices=ALIGNMENT_FROM, default="last",
-                        help="which of the detections that confirmed the merge its alignment "
-                             "comes from: the confirming one (its keyframe the newest), the "
-                             "inlier-weighted mean of all, the one with the most inliers "
-                             "(default %(default)s)")
     parser.add_argument("--no-merge", action="store_true",
                         help="never merge (the control: each device in its own frame)")
     parser.add_argument("--every", type=int, default=10, help="print every N slots")
@@ -281,8 +275,7 @@ def main() -> None:
                            args.uplink, config, args.update_delay, Path(tmp),
                            start=args.second_start, device_params=dict(args.device))
         share_vocabulary((first.edge, second.edge), args.vocabulary_per_device)
-        finder = MergeFinder(min_inliers=args.merge_inliers,
-                             alignment_from=args.merge_alignment)
+        finder = MergeFinder(min_inliers=args.merge_inliers)
         merge: MapMerge | None = None
         merged_version = -1            #: the second edge's first map version in the place's
         merge_row: dict[str, object] = {}
@@ -399,7 +392,6 @@ def main() -> None:
                        "loops_across_devices": int(config.back_end.loops_across_devices),
                        "merged": int(merge is not None),
                        "merge_min_inliers": args.merge_inliers,
-                       "merge_alignment": args.merge_alignment,
                        **merge_row,
                        "look_ms_median": float(np.median(look_ms)) if look_ms else math.nan,
                        "look_ms_max": max(look_ms, default=math.nan)})
@@ -523,7 +515,7 @@ CSV_FIELDS = ("frames", "seed", "uplink", "first_order", "second_order", "second
               "lent_view_m", "lent_view_deg", "declined", "declined_back",
               "first_archive_copies", "second_archive_copies", "first_copies_mean",
               "second_copies_mean", "cross_rigid_left_rms_m",
-              "cross_rigid_moved_m", "cross_rigid_turned_deg", "merge_alignment")
+              "cross_rigid_moved_m", "cross_rigid_turned_deg")
 #: the second device's frames a stretch of the cross-device error by stretch counts
 STRETCH = 100
 #: the second device's last frames played, the set ``cross_last_rms_m`` scores

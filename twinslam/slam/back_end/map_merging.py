@@ -109,18 +109,9 @@ class MergeFinder:
     votes; the screen ends each such look at a quarter of its search."""
 
     def __init__(self, confirmations: int = CONFIRMATIONS,
-                 min_inliers: int = MERGE_MIN_INLIERS, alignment_from: str = "last") -> None:
-        if alignment_from not in ALIGNMENT_FROM:
-            raise ValueError(f"alignment_from {alignment_from!r}: one of "
-                             f"{', '.join(ALIGNMENT_FROM)}")
+                 min_inliers: int = MERGE_MIN_INLIERS) -> None:
         self.confirmation = LoopConfirmation(confirmations)
         self.min_inliers = min_inliers
-        #: which of the detections that confirmed a merge its alignment comes from
-        #: (ALIGNMENT_FROM)
-        self.alignment_from = alignment_from
-        #: the detections the pending merge rests on: (the joining keyframe's pose in its
-        #: map, the pose the other map's place gives it, its inliers)
-        self.detections: list[tuple[np.ndarray, np.ndarray, int]] = []
         self.search = ArchiveRelocalisationConfig(
             min_inliers=MIN_INLIERS,
             screen_votes=screen_for(math.ceil(min_inliers / INLIERS_PER_VOTE)))
@@ -149,55 +140,11 @@ class MergeFinder:
         pending = self.confirmation.pending
         walked = 0.0 if pending is None else \
             walk_length(joining_poses, pending.query, query.keyframe)
-        hits = 0 if pending is None else pending.hits
-        confirmed = self.confirmation.judge(query.keyframe, candidate, pose, walked)
-        now = self.confirmation.pending
-        if candidate.pose is not None:
-            detection = (np.array(pose, dtype=np.float64), candidate.pose, candidate.inliers)
-            if confirmed and pending is None:
-                self.detections = [detection]            # confirmed at once
-            elif confirmed or (now is not None and now.hits > hits and now.hits > 1):
-                self.detections.append(detection)        # one more that agrees
-            elif now is not None and now.query == query.keyframe:
-                self.detections = [detection]            # a new pending merge
-        if not confirmed:
+        if not self.confirmation.judge(query.keyframe, candidate, pose, walked):
             return None
         assert candidate.pose is not None            # judge confirms found candidates only
-        detections, self.detections = self.detections, []
-        if self.alignment_from == "mean":
-            alignment = mean_alignment(detections)
-        elif self.alignment_from == "most_inliers":
-            own, placed, _ = max(detections, key=lambda d: d[2])
-            alignment = placed @ np.linalg.inv(own)
-        else:
-            alignment = candidate.pose @ np.linalg.inv(pose)
-        return MapMerge(query.keyframe, candidate.old, alignment, candidate.inliers)
-
-
-#: where a merge's alignment comes from: the detection that confirmed it (its joining
-#: keyframe the newest), the inlier-weighted mean of every detection that agreed
-#: (:func:`mean_alignment`), or the one of them with the most inliers
-ALIGNMENT_FROM = ("last", "mean", "most_inliers")
-
-
-def mean_alignment(detections: Sequence[tuple[np.ndarray, np.ndarray, int]]) -> np.ndarray:
-    """The rigid motion that carries the joining keyframes of ``detections`` (each: its pose
-    in the joining map, the pose the other map gives it, its inliers) where the other map
-    puts them, weighed by inliers: the rotations' weighted mean projected onto SO(3), and
-    the translation that brings the keyframes' weighted centre where the other map has it."""
-    weights = np.array([float(n) for _, _, n in detections])
-    weights /= weights.sum()
-    turn = sum(w * (placed[:3, :3] @ own[:3, :3].T)
-               for w, (own, placed, _) in zip(weights, detections, strict=True))
-    u, _, vt = np.linalg.svd(turn)
-    rotation = u @ np.diag([1.0, 1.0, float(np.sign(np.linalg.det(u @ vt)))]) @ vt
-    own_centre = sum(w * own[:3, 3] for w, (own, _, _) in zip(weights, detections, strict=True))
-    placed_centre = sum(w * placed[:3, 3]
-                        for w, (_, placed, _) in zip(weights, detections, strict=True))
-    alignment = np.eye(4)
-    alignment[:3, :3] = rotation
-    alignment[:3, 3] = placed_centre - rotation @ own_centre
-    return alignment
+        return MapMerge(query.keyframe, candidate.old, candidate.pose @ np.linalg.inv(pose),
+                        candidate.inliers)
 
 
 def welded(keyframe: ArchivedKeyFrame, source: int, into: KeyFrameMap, camera: Camera,
