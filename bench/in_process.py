@@ -33,6 +33,7 @@ from twinslam.policies.registry import make_policy
 from twinslam.sequence_player.playback import Playback, PlayedSequence
 from twinslam.sequences.frame import RgbdFrame
 from twinslam.sequences.opening import AUTO, open_sequence
+from twinslam.slam.back_end.foreign_keyframes import is_foreign
 from twinslam.slam.back_end.loop_closing import LoopQuery
 from twinslam.slam.back_end.loop_detection import MIN_INLIERS as LOOP_MIN_INLIERS
 from twinslam.slam.back_end.map_merging import (
@@ -187,6 +188,10 @@ class DeviceWalk:
     #: the loops its edge closed: (slot, old keyframe, new keyframe, metres moved)
     loops: list[tuple[int, int, int, float]] = field(default_factory=list)
     uploads: int = 0                #: keyframes the edge integrated from this device
+    #: the device's frame id (its keyframes' ids) → the frame's played position (the key of
+    #: ``poses`` and ``truth``): the two differ once a walk skips frames (``bench.shared_map
+    #: --interleave``)
+    positions: dict[int, int] = field(default_factory=dict)
     #: how a finished slot is served (another bench times the edge's steps in finer detail)
     serve: Serving = serve_slot
 
@@ -198,6 +203,7 @@ class DeviceWalk:
             return None
         result = self.device.track(frame.color, frame.depth, frame.stamp)
         record = result.record
+        self.positions[record.frame_id] = frame.index
         if self.held is not None and (result.slot_done or
                                       frame.index - self.held[2] >= self.update_delay):
             self.device.apply_map_update(self.held[0], self.held[1])
@@ -245,6 +251,12 @@ class DeviceWalk:
     def keyframe_poses(self) -> dict[int, np.ndarray]:
         """Every keyframe of its edge map, archive and map, where the edge holds it now."""
         return self.edge.back_end.keyframe_poses()
+
+    def own_keyframe_poses(self) -> dict[int, np.ndarray]:
+        """Its own keyframes' poses (:meth:`keyframe_poses`, the copies of other devices'
+        left out) by their frames' played positions, the keys of ``truth``."""
+        return {self.positions.get(k, k): pose for k, pose in self.keyframe_poses().items()
+                if not is_foreign(k)}
 
 
 def device_parameter(text: str) -> tuple[str, object]:

@@ -4,7 +4,7 @@ map into the first one's frame (:mod:`twinslam.slam.back_end.map_merging`).
 
     python -m bench.shared_map [SEQUENCE] [--frames 1000] [--first forward]
         [--second backward] [--second-after FRAMES] [--first-start FRAME]
-        [--second-start FRAME] [--seed 0]
+        [--second-start FRAME] [--interleave] [--seed 0]
         [--uplink lte] [--vmax N] [--archive N] [--ba-window N] [--device NAME=VALUE]
         [--share [--share-both]] [--covered-m M] [--covered-min-points N] [--no-merge] [--csv FILE]
         [--frames-csv FILE] [--keyframes-csv FILE]
@@ -15,7 +15,12 @@ each other; with ``--second forward --second-after 500`` the second comes to the
 first is mapping 500 frames later (it walks on alone once the first is done); with
 ``--second forward --second-start 500`` both start together, the second from the walk's
 frame 500 — two users in one place from different starts, as ``twinslam launch --devices N
---stride S`` plays them. Each device
+--stride S`` plays them. Played so, the two devices capture the very same images: a merge
+may pair a keyframe with the frame the other device uploaded, a match no two real devices
+ever have (the 7-Scenes pair merged so in most seeds). With ``--interleave`` the first
+plays the walk's even frames and the second its odd ones, each at half the frame rate (its
+steps twice as long), and no image is played by both; ``--second-after`` counts the first
+device's frames played (``--second-after 250`` with it is 500 frames of the walk). Each device
 and its edge core run as in ``bench.map_consistency`` (the default device and edge, the loop
 closer in the caller, the map update ``--update-delay`` frames into the next slot), each on
 an uplink of its own (seeds ``--seed`` and ``--seed`` + 1).
@@ -82,7 +87,12 @@ from twinslam.live.tracking_quality import (
 from twinslam.reporting import append_csv_rows, write_csv
 from twinslam.rotations import rotation_angle_deg
 from twinslam.sequence_player.playback import ORDERS
-from twinslam.slam.back_end.foreign_keyframes import foreign_tag, is_foreign, source_id
+from twinslam.slam.back_end.foreign_keyframes import (
+    foreign_tag,
+    is_foreign,
+    source_id,
+    tag_of,
+)
 from twinslam.slam.back_end.map_merging import (
     Lender,
     MapMerge,
@@ -91,6 +101,7 @@ from twinslam.slam.back_end.map_merging import (
 )
 from twinslam.slam.back_end.place_index import KeptPlaceIndex
 from twinslam.slam.back_end.view_coverage import CoverageBounds
+from twinslam.slot_protocol import default_device, table1
 
 SEVEN = SEVEN_SCENES
 
@@ -209,6 +220,11 @@ def main() -> None:
                              "--second forward, a user coming to a place another mapped")
     parser.add_argument("--first-start", type=int, default=0, metavar="FRAME",
                         help="the first device plays the sequence from this frame on")
+    parser.add_argument("--interleave", action="store_true",
+                        help="the two devices play alternate frames (the first the even, the "
+                             "second the odd ones), each at half the sequence's frame rate: "
+                             "no image is played by both, as two real devices never capture "
+                             "one, and a merge cannot pair a frame with itself")
     parser.add_argument("--second-start", type=int, default=0, metavar="FRAME",
                         help="the second device plays the sequence from this frame on "
                              "(forward or backward over frames [FRAME, --frames))")
@@ -268,12 +284,21 @@ def main() -> None:
     config = repeatable_edge(**overrides)
     started = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
+        device_params = dict(args.device)
+        if args.interleave:          # half the frames: half the rate, a slot still a second
+            device_params.setdefault("frame_rate_hz", table1.FRAME_RATE_HZ / 2)
+            device_params.setdefault("slot_frames", default_device.SLOT_FRAMES // 2)
         first = open_walk("first", spec, args.frames, args.first, args.seed, args.uplink,
                           config, args.update_delay, Path(tmp), start=args.first_start,
-                          device_params=dict(args.device))
+                          device_params=device_params)
         second = open_walk("second", second_spec, args.frames, args.second, args.seed + 1,
                            args.uplink, config, args.update_delay, Path(tmp),
-                           start=args.second_start, device_params=dict(args.device))
+                           start=args.second_start, device_params=device_params)
+        if args.interleave:
+            # no image played by both: the first device the walk's even frames, the second
+            # its odd ones (whichever way each walks), each at half the frame rate
+            first.frames = (f for f in first.frames if f.index % 2 == 0)
+            second.frames = (f for f in second.frames if f.index % 2 == 1)
         share_vocabulary((first.edge, second.edge), args.vocabulary_per_device)
         finder = MergeFinder(min_inliers=args.merge_inliers)
         merge: MapMerge | None = None
@@ -392,6 +417,7 @@ def main() -> None:
                        "loops_across_devices": int(config.back_end.loops_across_devices),
                        "merged": int(merge is not None),
                        "merge_min_inliers": args.merge_inliers,
+                       "interleave": int(args.interleave),
                        **merge_row,
                        "look_ms_median": float(np.median(look_ms)) if look_ms else math.nan,
                        "look_ms_max": max(look_ms, default=math.nan)})
@@ -432,8 +458,8 @@ def main() -> None:
             pairs(first.poses, first.truth),
             pairs({k: true @ p for k, p in own.items()}, second.truth, shared or None))
         kf_cross = cross_device_revisit_error(
-            pairs(first.keyframe_poses(), first.truth),
-            pairs(second.keyframe_poses(), second.truth)) if merge else RevisitError()
+            pairs(first.own_keyframe_poses(), first.truth),
+            pairs(second.own_keyframe_poses(), second.truth)) if merge else RevisitError()
         # where along the second device's walk the two disagree: its frames in the shared
         # frame STRETCH at a time in its play order (a crossing both walked at once shows)
         ordered = sorted(shared) if merge else sorted(second.poses)
@@ -515,7 +541,7 @@ CSV_FIELDS = ("frames", "seed", "uplink", "first_order", "second_order", "second
               "lent_view_m", "lent_view_deg", "declined", "declined_back",
               "first_archive_copies", "second_archive_copies", "first_copies_mean",
               "second_copies_mean", "cross_rigid_left_rms_m",
-              "cross_rigid_moved_m", "cross_rigid_turned_deg")
+              "cross_rigid_moved_m", "cross_rigid_turned_deg", "interleave")
 #: the second device's frames a stretch of the cross-device error by stretch counts
 STRETCH = 100
 #: the second device's last frames played, the set ``cross_last_rms_m`` scores
@@ -530,21 +556,27 @@ def write_frames(path: Path, walks: tuple[DeviceWalk, ...]) -> None:
 
 
 def write_keyframes(path: Path, walks: tuple[DeviceWalk, ...]) -> None:
-    """Every keyframe each walk's edge holds now, with the truth of its frame (the walks
-    play one sequence: a lent keyframe's frame index is the sequence's) in the first walk's
-    frame — which a map is in only once it merged."""
+    """Every keyframe each walk's edge holds now, with the truth of its frame in the first
+    walk's frame — which a map is in only once it merged. A copy of another walk's keyframe
+    (walk k's tagged ``foreign_tag(k)``) takes its truth from that walk: the walks may play
+    the sequence in other orders, or other frames of it."""
     first = walks[0].first_truth
     assert first is not None
     place = np.linalg.inv(first)
+    by_tag = {foreign_tag(source): walk for source, walk in enumerate(walks)}
     rows = []
     for walk in walks:
         for kf, pose in sorted(walk.keyframe_poses().items()):
+            owner = by_tag.get(tag_of(kf)) if is_foreign(kf) else walk
             frame = source_id(kf)
-            truth = walk.truth.get(frame)
+            position = owner.positions.get(frame) if owner is not None else None
+            truth = owner.truth.get(position) if owner is not None and position is not None \
+                else None
             true_xyz = (place @ truth)[:3, 3] if truth is not None else (math.nan,) * 3
-            rows.append((walk.name, kf, int(is_foreign(kf)), frame, *pose[:3, 3], *true_xyz))
-    write_csv(path, ("device", "keyframe", "lent", "frame", "x", "y", "z", "true_x", "true_y",
-                     "true_z"), rows)
+            rows.append((walk.name, kf, int(is_foreign(kf)), frame,
+                         -1 if position is None else position, *pose[:3, 3], *true_xyz))
+    write_csv(path, ("device", "keyframe", "lent", "frame", "played", "x", "y", "z", "true_x",
+                     "true_y", "true_z"), rows)
 
 
 def _merge_state(merge: MapMerge | None, finder: MergeFinder) -> str:
