@@ -996,3 +996,23 @@ def test_the_copy_points_held_tables_are_what_their_commands_print(
     for name in ("7scenes", "synthetic-room"):
         printed = table(read_pairs(FIGURES / "shared-map" / "view-overlap" / f"{name}.csv"))
         assert _on_a_page(printed), name
+
+
+def test_the_cross_device_split_tables_are_what_their_commands_print(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The cross-device error split in two, seed by seed, and the merge's alignment from the
+    mean of its detections and from the one with the most inliers against the confirming
+    one, as the page has them."""
+    rigid = FIGURES / "shared-map" / "rigid-part"
+    split = _script("cross_device_split_table").table(
+        [("two-ends", rigid / "two-ends.csv"),
+         ("two-ends, interleaved", rigid / "interleaved-two-ends.csv"),
+         ("mapped", rigid / "mapped.csv"),
+         ("mapped, interleaved", rigid / "interleaved-mapped.csv")])
+    assert _missing("\n".join(split)) == []
+    monkeypatch.syspath_prepend(str(FIGURES))           # its sibling, shared_uplink_table
+    before_after = _script("shared_map_before_after")
+    alignments = rigid / "merge-alignment"
+    for tried in ("mean", "most-inliers"):
+        printed = before_after.table(alignments / "last", alignments / tried)
+        assert _missing("\n".join(printed)) == [], tried
