@@ -17,7 +17,8 @@ first is mapping 500 frames later (it walks on alone once the first is done); wi
 frame 500 — two users in one place from different starts, as ``twinslam launch --devices N
 --stride S`` plays them. Played so, the two devices capture the very same images: a merge
 may pair a keyframe with the frame the other device uploaded, a match no two real devices
-ever have (the 7-Scenes pair merged so in most seeds). With ``--interleave`` the first
+ever have (the 7-Scenes pair walked forward, one 500 frames after the other, merged so in
+five seeds of six). With ``--interleave`` the first
 plays the walk's even frames and the second its odd ones, each at half the frame rate (its
 steps twice as long), and no image is played by both; ``--second-after`` counts the first
 device's frames played (``--second-after 250`` with it is 500 frames of the walk). Each device
