@@ -4,10 +4,13 @@ maps together) and what is left after it (the maps bending apart along the walks
 each device's error against itself on such pairs.
 
     .venv/bin/python docs/figures/cross_device_split_table.py NAME=CSV [NAME=CSV ...]
+        [--figure PNG]
 
 Each CSV is ``bench.shared_map --csv``'s (runs with the columns ``cross_rigid_left_rms_m``,
 ``cross_rigid_moved_m``, ``cross_rigid_turned_deg``); NAME labels its rows. Prints one
-Markdown table, a row a run in seed order and a mean row a CSV.
+Markdown table, a row a run in seed order and a mean row a CSV; ``--figure`` draws each run
+as a bar of its cross-device RMS, the part left after the best rigid motion below and the
+rest above, beside the worse device's error against itself.
 """
 
 from __future__ import annotations
@@ -17,6 +20,8 @@ import csv
 import math
 import sys
 from pathlib import Path
+
+from twinslam.reporting import pyplot
 
 
 def _cm(value: str) -> str:
@@ -61,6 +66,36 @@ def table(named: list[tuple[str, Path]]) -> list[str]:
     return lines
 
 
+def figure(named: list[tuple[str, Path]], out: Path) -> Path:
+    """Each run's cross-device RMS as a bar — the error left after the best rigid motion
+    below, the rest of it above — with the worse device's error against itself as a tick;
+    the runs in the CSVs' order, each CSV's in seed order."""
+    plt = pyplot()
+    labels, left, whole, selves = [], [], [], []
+    for name, path in named:
+        with path.open(newline="", encoding="utf-8") as fh:
+            for r in sorted(csv.DictReader(fh), key=lambda r: int(r["seed"])):
+                labels.append(f"{name}\nseed {r['seed']}")
+                left.append(float(r["cross_rigid_left_rms_m"]) * 100)
+                whole.append(float(r["cross_rms_m"]) * 100)
+                selves.append((float(r["first_self_rms_m"]) * 100,
+                               float(r["second_self_rms_m"]) * 100))
+    x = list(range(len(labels)))
+    fig, ax = plt.subplots(figsize=(max(6.0, 0.55 * len(x)), 4.2))
+    ax.bar(x, left, color="tab:blue", label="left after the best rigid motion")
+    ax.bar(x, [w - lo for w, lo in zip(whole, left, strict=True)], bottom=left,
+           color="tab:orange", label="what that rigid motion takes out")
+    ax.scatter(x, [max(s) for s in selves], marker="_", s=300, color="black",
+               label="the worse device against itself", zorder=3)
+    ax.set_xticks(x, labels, rotation=90, fontsize=7)
+    ax.set_ylabel("cross-device revisit error RMS (cm)")
+    ax.legend(fontsize=8, loc="upper right")
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
 def _named(arg: str) -> tuple[str, Path]:
     name, sep, path = arg.partition("=")
     if not sep or not name or not path:
@@ -74,8 +109,12 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("runs", nargs="+", type=_named, metavar="NAME=CSV",
                         help="a label and a bench.shared_map --csv file of runs")
+    parser.add_argument("--figure", type=Path, metavar="PNG",
+                        help="also draw the runs' split into this file")
     args = parser.parse_args(argv)
     print("\n".join(table(args.runs)))
+    if args.figure:
+        print(f"wrote {figure(args.runs, args.figure)}")
 
 
 if __name__ == "__main__":
