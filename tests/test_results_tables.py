@@ -1017,6 +1017,6 @@ def test_the_cross_device_split_tables_are_what_their_commands_print(
         printed = before_after.table(alignments / "last", alignments / tried)
         assert _missing("\n".join(printed)) == [], tried
     uplink = _script("shared_uplink_table")
-    rows = [row.strip() for row in uplink.table(FIGURES / "shared-map" / "interleaved",
-                                                "mapped")]
-    assert _on_a_page(rows) and len(rows) == 4
+    rows = [row.strip() for scenario in ("mapped", "two-ends")
+            for row in uplink.table(FIGURES / "shared-map" / "interleaved", scenario)]
+    assert _on_a_page(rows) and len(rows) == 8
