@@ -448,11 +448,10 @@ def main() -> None:
                   f"{report[f'{walk.name}_lost_share']:.1%}, frames its map did not serve "
                   f"{report[f'{walk.name}_map_lost_share']:.1%}, edge median "
                   f"{np.median(walk.edge_ms):.0f} ms a slot")
-        cross = cross_device_revisit_error(pairs(first.poses, first.truth),
-                                           pairs(second.poses, second.truth,
-                                                 shared if merge else None))
-        rigid = rigid_part(pairs(first.poses, first.truth),
-                           pairs(second.poses, second.truth, shared if merge else None))
+        first_pairs = pairs(first.poses, first.truth)
+        second_pairs = pairs(second.poses, second.truth, shared if merge else None)
+        cross = cross_device_revisit_error(first_pairs, second_pairs)
+        rigid = rigid_part(first_pairs, second_pairs)
         assert first.first_truth is not None and second.first_truth is not None
         true = np.linalg.inv(first.first_truth) @ second.first_truth
         floor = cross_device_revisit_error(

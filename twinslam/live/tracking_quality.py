@@ -16,10 +16,13 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from twinslam.rotations import rotation_angle_deg
+from twinslam.slam.back_end.depth_alignment import rigid_fit
 
 
 @dataclass(frozen=True)
@@ -321,8 +324,7 @@ class RigidPart:
     @property
     def turned_deg(self) -> float:
         """How far the motion turns them (degrees)."""
-        cos = (float(np.trace(self.motion[:3, :3])) - 1.0) / 2.0
-        return math.degrees(math.acos(min(1.0, max(-1.0, cos))))
+        return rotation_angle_deg(self.motion[:3, :3])
 
 
 def rigid_part(first: Sequence[tuple[np.ndarray, np.ndarray]],
@@ -334,32 +336,22 @@ def rigid_part(first: Sequence[tuple[np.ndarray, np.ndarray]],
     it. A pair's error is how far the second frame's camera stands from where the first
     frame and the truth put it, ``Ea · Ta⁻¹ · Tb`` (its rotation does not enter), so the
     least error one rigid motion M leaves is a least-squares fit of M·pb to those positions
-    over every pair (Kabsch's, exact). A merge that placed the joining map a few
-    centimetres off shows as a large ``moved_m`` and a small ``left``; two maps that bend
-    apart along the walk, as the reverse. With no pair, the identity and an empty error."""
-    cos_max = math.cos(math.radians(angle_deg))
-    placed: list[np.ndarray] = []
-    wanted: list[np.ndarray] = []
-    if first and second:
-        est_b = np.array([e for e, _ in second], dtype=np.float64)
-        ref_b = np.array([t for _, t in second], dtype=np.float64)
-        for est_a, ref_a in first:
-            js = np.flatnonzero(seen_alike(ref_a, ref_b, radius_m, cos_max))
-            if js.size:
-                placed.append(est_b[js, :3, 3])
-                wanted.append((est_a @ np.linalg.inv(ref_a) @ ref_b[js])[:, :3, 3])
+    over every pair (:func:`~twinslam.slam.back_end.depth_alignment.rigid_fit`, exact). A
+    merge that placed the joining map a few centimetres off shows as a large ``moved_m`` and
+    a small ``left``; two maps that bend apart along the walk, as the reverse. With no pair,
+    the identity and an empty error; with fewer than three (no rigid motion fits them), the
+    identity and the error as it is."""
+    placed, wanted = [], []
+    for est_a, ref_a, est_b, ref_b in _alike(first, second, radius_m, angle_deg):
+        placed.append(est_b[:, :3, 3])
+        wanted.append((est_a @ np.linalg.inv(ref_a) @ ref_b)[:, :3, 3])
     if not placed:
         return RigidPart(np.eye(4), RevisitError())
     p, q = np.concatenate(placed), np.concatenate(wanted)
-    p_centre, q_centre = p.mean(axis=0), q.mean(axis=0)
-    u, _, vt = np.linalg.svd((p - p_centre).T @ (q - q_centre))
-    flip = np.diag([1.0, 1.0, float(np.sign(np.linalg.det(vt.T @ u.T)))])
-    motion = np.eye(4)
-    motion[:3, :3] = vt.T @ flip @ u.T
-    motion[:3, 3] = q_centre - motion[:3, :3] @ p_centre
+    motion = rigid_fit(p, q) if len(p) >= 3 else np.eye(4)
     residual = np.linalg.norm(p @ motion[:3, :3].T + motion[:3, 3] - q, axis=1)
-    return RigidPart(motion, _revisit_summary([residual]),
-                     float(np.linalg.norm(q_centre - p_centre)))
+    moved = float(np.linalg.norm(q.mean(axis=0) - p.mean(axis=0))) if len(p) >= 3 else 0.0
+    return RigidPart(motion, _revisit_summary([residual]), moved)
 
 
 def cross_device_revisit_error_by_frame(
@@ -380,17 +372,24 @@ def _cross_errors(first: Sequence[tuple[np.ndarray, np.ndarray]],
                   second: Sequence[tuple[np.ndarray, np.ndarray]], radius_m: float,
                   angle_deg: float) -> list[np.ndarray]:
     """The relative-pose errors of every pair of :func:`cross_device_revisit_error`."""
+    return [relative_errors(*pair) for pair in _alike(first, second, radius_m, angle_deg)]
+
+
+def _alike(first: Sequence[tuple[np.ndarray, np.ndarray]],
+           second: Sequence[tuple[np.ndarray, np.ndarray]], radius_m: float, angle_deg: float
+           ) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """For each frame of ``first`` (a (pose, true pose) pair) whose true pose ``second`` has
+    frames within ``radius_m`` and ``angle_deg`` of: (its pose, its true pose, those frames'
+    poses (n, 4, 4), their true poses) — the pairs the cross-device figures score."""
     if not first or not second:
-        return []
+        return
     est_b = np.array([e for e, _ in second], dtype=np.float64)
     ref_b = np.array([t for _, t in second], dtype=np.float64)
     cos_max = math.cos(math.radians(angle_deg))
-    errors: list[np.ndarray] = []
     for est_a, ref_a in first:
         js = np.flatnonzero(seen_alike(ref_a, ref_b, radius_m, cos_max))
         if js.size:
-            errors.append(relative_errors(est_a, ref_a, est_b[js], ref_b[js]))
-    return errors
+            yield est_a, ref_a, est_b[js], ref_b[js]
 
 
 def anchored_to_keyframes(poses: Mapping[int, np.ndarray],
