@@ -26,7 +26,6 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
-import math
 import platform
 from pathlib import Path
 
@@ -38,6 +37,7 @@ from bench.archive_pnp import true_keyframe
 from bench.paths import SEVEN_SCENES
 from twinslam.cli.console import HelpFormatter
 from twinslam.reporting import write_dict_rows
+from twinslam.rotations import rotation_angle_deg
 from twinslam.sequences.opening import open_sequence
 from twinslam.slam.back_end.foreign_keyframes import foreign_mask
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, restore_into
@@ -115,8 +115,7 @@ def overlap(first: ArchivedKeyFrame, second: ArchivedKeyFrame, camera: Camera, n
             ) -> Overlap:
     """How much of ``first``'s view ``second`` holds (see the module's docstring)."""
     apart = float(np.linalg.norm(first.pose[:3, 3] - second.pose[:3, 3]))
-    cos = (np.trace(first.pose[:3, :3].T @ second.pose[:3, :3]) - 1.0) / 2.0
-    turned = math.degrees(math.acos(float(np.clip(cos, -1.0, 1.0))))
+    turned = rotation_angle_deg(first.pose[:3, :3].T @ second.pose[:3, :3])
     n = len(second.point_ids)
     if n == 0 or len(first.point_ids) == 0:
         return Overlap(first.id, second.id - first.id, apart, turned, n, 0.0, 0.0, 0.0)
