@@ -261,6 +261,41 @@ def test_settings_that_cannot_run_are_refused_before_any_node_starts(
     assert "unknown allocator 'fifo'" in capsys.readouterr().err
     assert main(["launch", "--devices", "2", "--record", "bag", "--loopback"]) == 2
     assert "without --record" in capsys.readouterr().err
+    assert main(["launch", "--every", "2", "--loopback"]) == 2
+    assert "--every 2: a fleet's option" in capsys.readouterr().err
+
+
+def test_every_second_frame_gives_two_devices_alternate_frames_and_halves_their_slots(
+        tmp_path: Path, domain: LoopbackDomain) -> None:
+    """``--every 2``: device k's camera plays the sequence's frames numbered k mod 2 — its
+    player's phase counted from where its walk starts —, and its device is told a slot of
+    half the frames at half the rate: a slot lasts as long, and the report counts a slot's
+    frames as the device gets them (none dropped where all came)."""
+    params = tmp_path / "params.yaml"
+    params.write_text("device_tracker:\n  ros__parameters:\n    slot_frames: 30\n"
+                      "    frame_rate_hz: 30.0\n", encoding="utf-8")
+    config = LaunchConfig("synthetic:150", "lff", 150, 0.5, params_file=params)
+    fleet = FleetConfig(3, every=2)
+    launcher = FleetLauncher(domain, config, fleet, [("7scenes", 0), ("7scenes", 0),
+                                                     ("7scenes", 501)], echo=None)
+
+    def given(args: list[str]) -> dict[str, str]:
+        return dict(a.split(":=", 1) for a in args if ":=" in a)
+
+    players = [given(launcher.device_args("sequence_player", i)) for i in range(3)]
+    # the third starts at the odd frame 501: its even frames are its walk's odd ones
+    assert [(p["every"], p["phase"]) for p in players] == [("2", "0"), ("2", "1"), ("2", "1")]
+    device = given(launcher.device_args("device_tracker", 1))
+    assert (device["slot_frames"], float(device["frame_rate_hz"])) == ("15", 7.5)
+    assert launcher.device_slot_frames() == 15
+    assert launcher.slot_period_s() == pytest.approx(2.0)     # 30 frames at half speed
+    assert "every" not in given(FleetLauncher(domain, config, FleetConfig(2),
+                                              [("synthetic:150", 0)] * 2, echo=None)
+                                .device_args("sequence_player", 1))
+    with pytest.raises(ValueError, match="slot of 30 frames does not split"):
+        FleetLauncher(domain, config, FleetConfig(2, every=4), [], echo=None)
+    with pytest.raises(ValueError, match="every 0"):
+        FleetConfig(2, every=0).check()
 
 
 def test_devices_are_split_among_edges_as_runs_of_neighbours_each_with_its_budget() -> None:

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from twinslam.sequence_player.playback import Playback, PlayedSequence, parse_bursts
-from twinslam.sequences.frame import SequenceError
+from twinslam.sequences.frame import RgbdFrame, SequenceError
 from twinslam.sequences.synthetic import SyntheticSequence
 
 
@@ -72,3 +72,48 @@ def test_backward_forward_walks_back_to_the_first_frame_and_on_again() -> None:
     assert [f.index for f in frames] == list(range(7)) and len(played) == 7
     np.testing.assert_allclose(np.diff([f.stamp for f in frames]), 1 / 30)
     np.testing.assert_array_equal(frames[4].pose, seq.pose(1))
+
+
+def _number(frame: RgbdFrame) -> int:
+    return int(frame.name.removesuffix(" (blanked)").rsplit("-", 1)[1])
+
+
+@pytest.mark.parametrize("order", ["forward", "backward", "backward_forward"])
+def test_two_phases_of_every_second_frame_share_no_image_and_keep_the_walks_time(
+        order: str) -> None:
+    """Devices replaying one walk at ``every`` 2, phases 0 and 1: one plays the sequence's
+    even frames, the other its odd ones — by the frame, so a walk from the other end (8
+    frames backward: its positions 0, 2, … are the odd frames 7, 5, …) still shares no image
+    with a forward one —, each at its time in the whole walk (the stream path and the
+    random-access one alike)."""
+    seq = SyntheticSequence(8)
+    whole = list(PlayedSequence(seq, Playback(order)))
+    for phase in (0, 1):
+        played = PlayedSequence(seq, Playback(order, every=2, phase=phase))
+        frames = list(played)
+        expected = [f for f in whole if _number(f) % 2 == phase]
+        assert len(played) == len(frames) == len(expected)
+        assert [f.index for f in frames] == list(range(len(frames)))
+        assert [f.name for f in frames] == [f.name for f in expected]
+        assert [f.stamp for f in frames] == pytest.approx([f.stamp for f in expected])
+        assert played.span_s == pytest.approx(PlayedSequence(seq, Playback(order)).span_s)
+    backward = [_number(f) for f in PlayedSequence(seq, Playback("backward", every=2, phase=1))]
+    assert backward == [7, 5, 3, 1]
+
+
+def test_a_blank_burst_counts_the_walks_frames_whichever_are_played() -> None:
+    """A covered lens at the walk's positions 2–4 covers the frames of those positions a
+    device playing one in two sees: the burst is a time of the walk, not of the camera."""
+    seq = SyntheticSequence(8)
+    played = list(PlayedSequence(seq, Playback("backward", parse_bursts("2:3"), every=2,
+                                               phase=0)))
+    # frames 6, 4, 2, 0 played, at the walk's positions 1, 3, 5, 7; 3 is in the burst
+    assert [_number(f) for f in played] == [6, 4, 2, 0]
+    assert [f.color.max() == 0 for f in played] == [False, True, False, False]
+    np.testing.assert_array_equal(played[1].pose, seq.pose(4))
+
+
+def test_a_phase_outside_every_is_refused() -> None:
+    for every, phase in ((0, 0), (2, 2), (3, -1)):
+        with pytest.raises(ValueError, match="phase from 0 to every - 1"):
+            Playback(every=every, phase=phase)

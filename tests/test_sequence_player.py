@@ -21,6 +21,7 @@ from twinslam.node_runtime.session import RosSession
 from twinslam.sequence_player.messages import depth_message, skipped_frames
 from twinslam.sequences.decoded_frames import CACHE_ENV, SUFFIX
 from twinslam.sequences.frame import RgbdFrame
+from twinslam.sequences.synthetic import SyntheticSequence
 
 K = np.array([[200.0, 0, 80], [0, 200.0, 60], [0, 0, 1]])
 
@@ -296,6 +297,30 @@ def test_a_player_given_a_start_delay_holds_its_first_frame_that_much_longer(
     assert code == 0, err
 
 
+def test_a_player_at_one_frame_in_two_plays_its_phase_at_the_walks_times(
+        domain: LoopbackDomain, ros: RosSession) -> None:
+    """``every:=2 phase:=1`` on a walk played backward: the sequence's odd frames, from its
+    last (19, 17, …), each at its time in the walk (two periods apart) with its own ground
+    truth — what a device walking from the other end sees beside one at phase 0, never one
+    of that one's images."""
+    colour: list[Image] = []
+    truth: list[PoseStamped] = []
+    ros.node.create_subscription(Image, topics.CAMERA_IMAGE, colour.append, qos.CAMERA)
+    ros.node.create_subscription(PoseStamped, topics.GROUND_TRUTH_POSE, truth.append,
+                                 qos.CAMERA)
+    player = _play(domain, "sequence:=synthetic:20", "order:=backward", "every:=2",
+                   "phase:=1")
+    assert ros.spin_until(lambda: player.poll() is not None and len(truth) >= 10, 60.0), \
+        domain.log(player)[-2000:]
+    code, _, err = domain.stop(player)
+    assert code == 0 and "one frame in 2 from 1" in err, err[-2000:]
+    assert len(colour) == len(truth) == 10
+    np.testing.assert_allclose(np.diff([_stamp(m) for m in colour]), 2 / 30, atol=1e-6)
+    walk = SyntheticSequence(20)
+    for pose, frame in zip(truth, range(19, 0, -2), strict=True):
+        assert pose.pose.position.x == pytest.approx(walk.pose(frame)[0, 3], abs=1e-9)
+
+
 def test_a_paced_player_holds_its_camera_until_the_device_poses_and_keeps_the_stamps(
         tmp_path: Path, domain: LoopbackDomain, ros: RosSession) -> None:
     """``pace_frames:=5``: with no pose from the device the player stops at five frames it
@@ -395,12 +420,14 @@ def test_the_paced_cameras_of_a_group_wait_together_for_the_slowest_device(
     assert held["ar2"] >= 1.0 and held["ar1"] == pytest.approx(held["ar2"], abs=0.05), held
 
 
-def test_a_group_without_pacing_or_with_a_name_no_topic_takes_is_refused_at_start(
+def test_settings_a_player_cannot_play_are_refused_at_start_with_the_reason(
         domain: LoopbackDomain) -> None:
     """``pace_group`` needs ``pace_frames`` (a camera that does not wait has no held time to
-    share), and names a topic token: each refused with its reason, exit 2."""
+    share), and names a topic token; a ``phase`` is one of ``every``'s: each refused with its
+    reason, exit 2."""
     for params, reason in ((["pace_group:=room"], "needs pace_frames"),
-                           (["pace_frames:=5", "pace_group:=two rooms"], "a topic name's token")):
+                           (["pace_frames:=5", "pace_group:=two rooms"], "a topic name's token"),
+                           (["every:=2", "phase:=2"], "phase from 0 to every - 1")):
         player = _play(domain, *params)
         player.wait(timeout=60)
         code, _, err = domain.stop(player)

@@ -93,6 +93,17 @@ class FleetConfig:
     #: order starts it: two devices from a corridor's two ends look the same way where they
     #: meet, as two users walking one route would
     one_walk: bool = False
+    #: each camera plays one frame in ``every``, device ``index`` the sequence's frames
+    #: numbered ``index mod every`` (the player's ``every`` and ``phase``), its device told the
+    #: rate and slot in frames divided alike: two devices replaying one sequence, whichever
+    #: ways, then never show one image, as no two real cameras would (1: every frame)
+    every: int = 1
+
+    def phase(self, index: int, start: int = 0) -> int:
+        """Device ``index``'s player's ``phase`` where its walk starts at the sequence's frame
+        ``start`` (the player counts frames from there): its frames are the sequence's
+        numbered ``index mod every``."""
+        return (index - start) % self.every
 
     def device_seed(self, index: int) -> int:
         return 100 * self.seed + index
@@ -158,6 +169,8 @@ class FleetConfig:
                              "a device")
         if bad_delays := [d for d in self.delays if not 0 <= d <= 86_400]:
             raise ValueError(f"delay {bad_delays[0]:g} s: from 0 to a day")
+        if not 1 <= self.every <= 1000:
+            raise ValueError(f"every {self.every}: one frame in 1 to 1000")
         if len(self.places) > self.devices:
             raise ValueError(f"{len(self.places)} places for {self.devices} devices: at least "
                              "a device a place")
@@ -241,6 +254,16 @@ class FleetLauncher(Launcher):
         fleet.check()
         self.fleet, self.starts = fleet, list(starts)
         self.records: dict[str, PipelineMonitor] = {}
+        slot_frames = int(self._device_param("slot_frames", default_device.SLOT_FRAMES))
+        if slot_frames % fleet.every:
+            raise ValueError(f"every {fleet.every}: the device's slot of {slot_frames} frames "
+                             "does not split into whole frames played (slot_frames must be a "
+                             "multiple of it)")
+
+    def device_slot_frames(self) -> int:
+        """F of a device's slot, in the frames its camera plays (one in ``every``)."""
+        return int(self._device_param("slot_frames", default_device.SLOT_FRAMES)
+                   ) // self.fleet.every
 
     def edge_args(self, index: int = 0, params_folder: Path | None = None) -> list[str]:
         """Edge ``index``'s command line: its devices, its share of the budget; a second edge
@@ -279,15 +302,23 @@ class FleetLauncher(Launcher):
         finally:
             self.config = saved
         args += ["-r", f"__ns:=/{device}", "-p", f"map_frame:={own_map_frame(device)}"]
+        every = self.fleet.every
         if name == "device_tracker":
             args += ["-p", f"seed:={self.fleet.device_seed(index)}",
                      "-p", f"odom_frame:={device}/odom"]
+            if every > 1:                        # a slot spans as long, in fewer frames
+                rate = (self._device_param("frame_rate_hz", table1.FRAME_RATE_HZ)
+                        * self.config.rate / every)
+                args += ["-p", f"frame_rate_hz:={rate!r}",
+                         "-p", f"slot_frames:={self.device_slot_frames()}"]
         else:
             args += ["-p", f"frame_id:={device}/camera"]
             if self.fleet.orders:                # after the scenario's: the last one holds
                 args += ["-p", f"order:={self.fleet.orders[index]}"]
             if self.fleet.delays:
                 args += ["-p", f"start_delay_s:={float(self.fleet.delays[index])!r}"]
+            if every > 1:
+                args += ["-p", f"every:={every}", "-p", f"phase:={self.fleet.phase(index, start)}"]
             if self.config.pace_frames:       # one recording clock: the walks meet in time
                 args += ["-p", f"pace_group:={PACE_GROUP}"]
         return args
@@ -350,7 +381,7 @@ class FleetLauncher(Launcher):
                 (expected is None or expected - 1 in m.record.stats) for m in monitors.values()),
                 min(60.0, max(10.0, deadline - time.monotonic())))
             spin_all(lambda: False, 0.5)
-            slot_frames = int(self._device_param("slot_frames", default_device.SLOT_FRAMES))
+            slot_frames = self.device_slot_frames()
             elapsed = time.monotonic() - started
             reports = [report(c.policy, monitors[d].record, elapsed, slot_frames) for d in names]
             frames = [sum(len(s.frames) for s in monitors[d].record.summaries.values())

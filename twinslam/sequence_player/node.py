@@ -15,7 +15,8 @@ every header:
   that starts with that frame puts its map's origin (``map_frame:=''`` turns it off)
 
 at the recorded rate × ``rate``, frames [``start``, ``end``), once or with ``loop``, forward or
-``order:=forward_backward``, with ``blank:=START:COUNT`` bursts of covered-lens frames
+``order:=forward_backward``, with ``blank:=START:COUNT`` bursts of covered-lens frames, one
+frame in ``every`` from ``phase`` (devices replaying one walk without sharing an image)
 (:mod:`twinslam.sequence_player.playback`: the scenarios where the edge's map matters), until
 ``stop_after`` frames are published where it is set — also while playing (``ros2 param set
 /sequence_player stop_after N``): a run that waits for an event plays on until it came, then
@@ -96,9 +97,10 @@ class SequencePlayer(Node):
             sequence = open_sequence(p["sequence"], p["start"], p["end"],
                                      str(p["colour_intrinsics"]),
                                      frame_cache=DecodedFrameCache.from_environment())
-            self.reader = PlayedSequence(sequence, Playback(str(p["order"]),
-                                                            parse_bursts(p["blank"])))
-        except SequenceError as exc:
+            playback = Playback(str(p["order"]), parse_bursts(p["blank"]), int(p["every"]),
+                                int(p["phase"]))
+            self.reader = PlayedSequence(sequence, playback)
+        except (SequenceError, ValueError) as exc:
             raise NodeStartError(str(exc)) from None
         self.rate, self.loop = float(p["rate"]), bool(p["loop"])
         self.stop_after = int(p["stop_after"])         #: 0: no limit
@@ -349,6 +351,8 @@ def main(args: list[str] | None = None) -> NoReturn:
             f"{player.rate}x{' in a loop' if player.loop else ''}"
             f"{f', stopping after {player.stop_after}' if player.stop_after else ''}, order "
             f"{reader.playback.order}"
+            + (f", one frame in {reader.playback.every} from {reader.playback.phase}"
+               if reader.playback.every > 1 else "")
             + (f", blanked {reader.playback.blank}" if reader.playback.blank else ""))
 
     exit_process(run_node("sequence_player", SequencePlayer, args,

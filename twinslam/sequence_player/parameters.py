@@ -72,6 +72,14 @@ PARAMETERS = (
               "the first; backward_forward: back to the first frame and on to the last again "
               "(all but forward: dataset folders and synthetic only)",
               check=lambda v: None if v in ORDERS else f"must be one of {', '.join(ORDERS)}"),
-    ParamSpec("blank", "", "bursts of played frames shown black with no depth (a covered "
-              "lens): START:COUNT[,START:COUNT...]; empty: none", check=_bursts_error),
+    ParamSpec("blank", "", "bursts of the walk's frames (the order's positions, whichever "
+              "every and phase play) shown black with no depth (a covered lens): "
+              "START:COUNT[,START:COUNT...]; empty: none", check=_bursts_error),
+    ParamSpec("every", 1, "play one frame in every this many, each at its time in the walk: "
+              "a camera at 1/every of the recorded rate (tell the device: its frame_rate_hz "
+              "and slot_frames divided alike)", low=1, high=1000),
+    ParamSpec("phase", 0, "which frames every plays: the sequence's frames numbered phase "
+              "modulo every (from start), 0 to every - 1: at every:=2, a device at phase 0 "
+              "and one at phase 1 never show one image, whichever ways they walk",
+              low=0, high=999),
 )

@@ -12,9 +12,16 @@ does either, so the player can
   stamps: a second device walking the same place from the other end, towards the first;
   ``order: backward_forward`` walks back to the first frame and on to the last again: a
   device that meets the first one and walks on, over the ground the other mapped;
-* **blank** bursts of played frames (``blank: "START:COUNT,..."``, positions in the played
-  order): black colour and no depth readings — a covered lens — while the ground truth goes on,
-  so the device loses tracking and must relocalise wherever the camera went meanwhile.
+* **blank** bursts of the walk's frames (``blank: "START:COUNT,..."``, positions in the
+  order's walk): black colour and no depth readings — a covered lens — while the ground truth
+  goes on, so the device loses tracking and must relocalise wherever the camera went meanwhile;
+* play **one frame in every** few (``every: N``, ``phase: P``: the sequence's frames numbered
+  P modulo N, counted from its first frame played), each at its time in the walk: a camera at
+  a fraction of the recorded rate, the walk taking as long as recorded. Two devices
+  replaying one sequence, whichever ways they walk it, see the very same images — a merge
+  then pairs a frame with itself, which no two real cameras give; with ``every: 2`` and
+  phases 0 and 1 one plays the even frames, the other the odd ones, and no image is shown
+  twice.
 
 Random access is needed for the backward half: dataset folders and the synthetic room have it,
 a rosbag2 recording does not (play it forward, or record the scenario).
@@ -55,23 +62,44 @@ def parse_bursts(text: str) -> tuple[tuple[int, int], ...]:
 
 @dataclass(frozen=True)
 class Playback:
-    """The order frames are played in and the played positions that are blanked."""
+    """The order frames are played in, which of them are played (the sequence's frames
+    numbered ``phase`` modulo ``every``) and the walk's positions that are blanked."""
 
     order: str = "forward"
     blank: tuple[tuple[int, int], ...] = ()
+    every: int = 1
+    phase: int = 0
 
     def __post_init__(self) -> None:
         if self.order not in ORDERS:
             raise ValueError(f"order must be one of {', '.join(ORDERS)}, got {self.order!r}")
+        if self.every < 1 or not 0 <= self.phase < self.every:
+            raise ValueError(f"every must be >= 1 and phase from 0 to every - 1, got every "
+                             f"{self.every}, phase {self.phase}")
 
-    def source_indices(self, n: int) -> list[int]:
-        """The sequence's frame played at each position (the turning frame plays once)."""
+    def walk(self, n: int) -> list[int]:
+        """The sequence's frame at each position of the order's walk (the turning frame
+        once), every frame of it."""
         forward = list(range(n))
         if self.order == "backward":
             return forward[::-1]
         if self.order == "backward_forward":
             return forward[::-1] + forward[1:]
         return forward if self.order == "forward" else forward + forward[-2::-1]
+
+    def plays(self, source: int) -> bool:
+        """Whether the sequence's frame ``source`` is one this camera plays: chosen by the
+        frame, not by where the walk has it, so that a device at phase 0 and one at phase 1
+        never show one image whichever ways they walk."""
+        return source % self.every == self.phase
+
+    def played(self, n: int) -> list[tuple[int, int]]:
+        """(the walk's position, the sequence's frame) of each frame played, in order."""
+        return [(at, source) for at, source in enumerate(self.walk(n)) if self.plays(source)]
+
+    def source_indices(self, n: int) -> list[int]:
+        """The sequence's frame played at each played position."""
+        return [source for _, source in self.played(n)]
 
     def blanked(self, position: int) -> bool:
         return any(start <= position < start + count for start, count in self.blank)
@@ -86,7 +114,8 @@ def blank_frame(frame: RgbdFrame) -> RgbdFrame:
 
 class PlayedSequence:
     """A sequence reader seen through a :class:`Playback`; iterates :class:`RgbdFrame` s whose
-    ``index`` is the played position and whose stamps increase."""
+    ``index`` is the played position and whose stamps increase. A frame keeps the time of
+    its place in the walk: played one in ``every``, the walk lasts as long."""
 
     def __init__(self, reader: Sequence, playback: Playback) -> None:
         if playback.order != "forward" and not isinstance(reader, RandomAccessSequence):
@@ -94,14 +123,17 @@ class PlayedSequence:
                                 f"(order {playback.order!r} needs a dataset folder or the "
                                 "synthetic room)")
         self.reader, self.playback = reader, playback
-        self.positions = playback.source_indices(len(reader))
+        walk = len(playback.walk(len(reader)))
+        #: (the walk's position, the sequence's frame) of each played position
+        self.played = playback.played(len(reader))
+        self.positions = [source for _, source in self.played]
         stamps = np.asarray(reader.stamps, dtype=np.float64)
         steps = np.diff(stamps)
         steps = steps[steps > 0]
         self.period_s = float(np.median(steps)) if steps.size else DEFAULT_PERIOD_S
         self.first_stamp = float(stamps[0])
         self.span_s = (float(stamps[-1] - stamps[0]) if playback.order == "forward"
-                       else (len(self.positions) - 1) * self.period_s)
+                       else (walk - 1) * self.period_s)
 
     @property
     def kind(self) -> str:
@@ -120,18 +152,23 @@ class PlayedSequence:
         return len(self.positions)
 
     def __iter__(self) -> Iterator[RgbdFrame]:
-        for frame in self._frames():
-            yield blank_frame(frame) if self.playback.blanked(frame.index) else frame
+        for at, frame in self._frames():
+            yield blank_frame(frame) if self.playback.blanked(at) else frame
 
-    def _frames(self) -> Iterator[RgbdFrame]:
-        if self.playback.order == "forward":      # streams (bags too), stamps as recorded
-            yield from self.reader
+    def _frames(self) -> Iterator[tuple[int, RgbdFrame]]:
+        """(the walk's position, the frame) of each frame played."""
+        playback = self.playback
+        if playback.order == "forward":           # streams (bags too), stamps as recorded
+            for frame in self.reader:
+                if playback.plays(frame.index):
+                    yield frame.index, (frame if playback.every == 1 else dataclasses.replace(
+                        frame, index=frame.index // playback.every))
             return
         reader = self.reader
         assert isinstance(reader, RandomAccessSequence)     # checked in __init__
         reader.skipped = []
-        for position, source in enumerate(self.positions):
-            frame = reader.read(source)
-            if frame is not None:
-                yield dataclasses.replace(frame, index=position,
-                                          stamp=self.first_stamp + position * self.period_s)
+        for position, (at, source) in enumerate(self.played):
+            read = reader.read(source)
+            if read is not None:
+                yield at, dataclasses.replace(read, index=position,
+                                              stamp=self.first_stamp + at * self.period_s)

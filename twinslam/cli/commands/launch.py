@@ -81,6 +81,9 @@ def _checked_setup(args: argparse.Namespace
     if places and not args.devices:
         raise ValueError(f"--sequence: {len(places)} places ({args.sequence}) need --devices: "
                          "a fleet's devices walk them")
+    if args.every != 1 and not args.devices:
+        raise ValueError(f"--every {args.every}: a fleet's option (--devices N); one device "
+                         "plays one frame in N with `-p every:=N` on its player")
     extra = _real_frame_uplink(places[0] if places else args.sequence) if args.tc else {}
     if args.map_source is not None:
         reason = check_map_source(args.map_source)

@@ -53,7 +53,7 @@ def fleet_settings(args: argparse.Namespace) -> list[FleetConfig]:
             from None
     fleets = [FleetConfig(args.devices, args.vmax_total, a, args.min_keyframes, args.stride,
                           args.seed, orders, args.merge_maps, args.edges, delays,
-                          places_of(args.sequence), args.one_walk)
+                          places_of(args.sequence), args.one_walk, args.every)
               for a in allocators]
     for fleet in fleets:
         fleet.check()
@@ -179,6 +179,13 @@ def add_fleet_arguments(launch: argparse.ArgumentParser) -> None:
                        "forward,backward with --stride set to the sequence's length (both "
                        "play it from its first frame): two devices walking a place from its "
                        "two ends (default: the scenario's for every device)")
+    fleet.add_argument("--every", type=int, default=1, metavar="N",
+                       help="each camera plays one frame in N, device k the sequence's "
+                       "frames numbered k mod N, each at its time in the walk (its device "
+                       "told the frame rate and slot_frames divided by N): with --stride set "
+                       "to the sequence's length, --every 2 has two devices walk it, in any "
+                       "--orders, without ever showing one image, as no two real cameras "
+                       "would; default %(default)s (every frame)")
     fleet.add_argument("--delays", default="", metavar="SECONDS,…",
                        help="seconds each device's camera starts after the fleet's, one a "
                        "device; e.g. 0,20 with --orders forward,forward and --stride set to "
