@@ -367,10 +367,14 @@ def check_place_options(parser: argparse.ArgumentParser, args: argparse.Namespac
 
 def open_walk(name: str, spec: str, frames: int, order: str, seed: int, uplink: str,
               config: EdgeConfig, update_delay: int, folder: Path, start: int = 0,
-              device_params: Mapping[str, object] | None = None) -> DeviceWalk:
+              device_params: Mapping[str, object] | None = None, every: int = 1,
+              phase: int = 0) -> DeviceWalk:
     """A default device and edge core over frames [``start``, ``frames``) of ``spec`` played
     in ``order``; ``device_params``: the device node's parameters that differ from its defaults
-    (e.g. ``map_source``)."""
+    (e.g. ``map_source``); ``every``, ``phase``: only the frames the player's ``every`` and
+    ``phase`` play (:meth:`Playback.plays`), each keeping its position in the whole walk as
+    its ``index`` (the bench's frame counts — ``update_delay``, the truth's keys — stay the
+    walk's)."""
     source = open_sequence(spec, start=start, end=frames, colour_intrinsics=AUTO)
     settings = DeviceSettings.from_parameters({p.name: p.default for p in DEVICE_PARAMETERS}
                                               | dict(device_params or {}))
@@ -383,5 +387,7 @@ def open_walk(name: str, spec: str, frames: int, order: str, seed: int, uplink: 
     family = uplink_family(uplink)
     channel = parse_channel(family.channel, family.rate_mbps or (5.0, 45.0), seed=seed,
                             slot_seconds=settings.slot_frames / settings.frame_rate_hz)
-    return DeviceWalk(name, iter(PlayedSequence(source, Playback(order))), device, edge,
-                      channel, update_delay)
+    walk = PlayedSequence(source, Playback(order))
+    chosen = Playback(order, every=every, phase=phase)
+    played = (f for f in walk if chosen.plays(walk.positions[f.index]))
+    return DeviceWalk(name, played, device, edge, channel, update_delay)

@@ -19,7 +19,8 @@ frame 500 — two users in one place from different starts, as ``twinslam launch
 may pair a keyframe with the frame the other device uploaded, a match no two real devices
 ever have (the 7-Scenes pair walked forward, one 500 frames after the other, merged so in
 five seeds of six). With ``--interleave`` the first
-plays the walk's even frames and the second its odd ones, each at half the frame rate (its
+plays the sequence's even frames and the second its odd ones, whichever way each walks (the
+player's ``every`` and ``phase``), each at half the frame rate (its
 steps twice as long), and no image is played by both; ``--second-after`` counts the first
 device's frames played (``--second-after 250`` with it is 500 frames of the walk). Each device
 and its edge core run as in ``bench.map_consistency`` (the default device and edge, the loop
@@ -222,8 +223,9 @@ def main() -> None:
     parser.add_argument("--first-start", type=int, default=0, metavar="FRAME",
                         help="the first device plays the sequence from this frame on")
     parser.add_argument("--interleave", action="store_true",
-                        help="the two devices play alternate frames (the first the even, the "
-                             "second the odd ones), each at half the sequence's frame rate: "
+                        help="the two devices play alternate frames (the first the "
+                             "sequence's even frames, the second its odd ones, whichever way "
+                             "each walks), each at half the sequence's frame rate: "
                              "no image is played by both, as two real devices never capture "
                              "one, and a merge cannot pair a frame with itself")
     parser.add_argument("--second-start", type=int, default=0, metavar="FRAME",
@@ -289,17 +291,18 @@ def main() -> None:
         if args.interleave:          # half the frames: half the rate, a slot still a second
             device_params.setdefault("frame_rate_hz", table1.FRAME_RATE_HZ / 2)
             device_params.setdefault("slot_frames", default_device.SLOT_FRAMES // 2)
+        # interleaved, no image is played by both: the first device the sequence's even
+        # frames, the second its odd ones, whichever way each walks (the player's every and
+        # phase, counted from where each starts), each at half the frame rate
+        every = 2 if args.interleave else 1
         first = open_walk("first", spec, args.frames, args.first, args.seed, args.uplink,
                           config, args.update_delay, Path(tmp), start=args.first_start,
-                          device_params=device_params)
+                          device_params=device_params, every=every,
+                          phase=-args.first_start % every)
         second = open_walk("second", second_spec, args.frames, args.second, args.seed + 1,
                            args.uplink, config, args.update_delay, Path(tmp),
-                           start=args.second_start, device_params=device_params)
-        if args.interleave:
-            # no image played by both: the first device the walk's even frames, the second
-            # its odd ones (whichever way each walks), each at half the frame rate
-            first.frames = (f for f in first.frames if f.index % 2 == 0)
-            second.frames = (f for f in second.frames if f.index % 2 == 1)
+                           start=args.second_start, device_params=device_params, every=every,
+                           phase=(1 - args.second_start) % every)
         share_vocabulary((first.edge, second.edge), args.vocabulary_per_device)
         finder = MergeFinder(min_inliers=args.merge_inliers)
         merge: MapMerge | None = None
