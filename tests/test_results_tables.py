@@ -998,6 +998,19 @@ def test_the_copy_points_held_tables_are_what_their_commands_print(
         assert _on_a_page(printed), name
 
 
+def test_the_live_runs_that_never_show_one_image_are_what_their_commands_print() -> None:
+    """Two devices in a mapped place, live, every second frame each (no image shared):
+    against every frame in one place and against each device alone, as the page has them."""
+    live = _script("loops_across_live")
+    folder = FIGURES / "shared-map" / "interleaved" / "live"
+    for before in (("shared1", "in one place, every frame (the images shared)"),
+                   ("alone2", "each device alone, every second frame (merge_maps off)")):
+        lines, seeds, _ = live.table(
+            folder, (before, ("shared2", "in one place, every second frame (no image shared)")),
+            with_map=True)
+        assert seeds == [0, 1, 2] and _missing("\n".join(lines)) == [], before
+
+
 def test_the_cross_device_split_tables_are_what_their_commands_print(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """The cross-device error split in two, seed by seed, and the merge's alignment from the

@@ -120,6 +120,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--figure", default="cross-device.png", metavar="NAME",
                         help="the figure's file name in the folder (two comparisons in one "
                              "folder: one name each); default %(default)s")
+    parser.add_argument("--title", default="two devices from the walk's two ends, live",
+                        help="the figure's title: the scenario the runs played; default "
+                             "%(default)s")
     args = parser.parse_args(argv)
     modes = (args.before, args.after)
     lines, seeds, cross = table(args.folder, modes, args.map)
@@ -137,7 +140,7 @@ def main(argv: list[str] | None = None) -> None:
         ax.set_ylabel(ylabel)
         ax.set_xticks(seeds)
         ax.legend(fontsize=8)
-    fig.suptitle("two devices from the walk's two ends, live", fontsize=10)
+    fig.suptitle(args.title, fontsize=10)
     fig.tight_layout()
     out = args.folder / args.figure
     fig.savefig(out, dpi=120)
