@@ -1,7 +1,9 @@
 """One edge serving two devices in one room (``merge_maps:=true``), every node its own process
 on a loopback domain: the first device walks the synthetic room forward, the second the same
 walk backward from its last frame (and on again), each starting a map in its own first
-camera's frame; the edge finds the second device's keyframes in the first device's map and
+camera's frame — the first camera playing the walk's even frames, the second its odd ones
+(``every:=2``), so that no image of one is an image of the other, as with two real cameras;
+the edge finds the second device's keyframes in the first device's map and
 moves the second map into the first's frame — the second device's map updates then carry the
 motion between the two frames, as the truth has it, the second device's poses are in the
 first one's frame, and it tracks on keyframes only the first device uploaded, where content
@@ -29,6 +31,7 @@ from twinslam.node_runtime.session import RosSession
 from twinslam.rotations import rotation_angle_deg
 from twinslam.sequences.opening import open_sequence
 from twinslam.slam.back_end.foreign_keyframes import is_foreign
+from twinslam.slot_protocol.default_device import SLOT_FRAMES
 
 #: frames of the room walked: the second device starts where the first ends
 FRAMES = 300
@@ -39,6 +42,9 @@ RATE, FRAME_RATE_HZ = 0.5, 30.0
 #: the ground the first mapped — a merge that comes late (a loaded machine's edge falls slots
 #: behind) still has frames of the second device to track on it
 ORDER = {"ar1": "forward", "ar2": "backward_forward"}
+#: each camera plays one frame in two — ar1 the walk's even frames, ar2 its odd ones — and
+#: its device is told so: half the frame rate, slots of half the frames (still a second)
+EVERY, PHASE = 2, {"ar1": 0, "ar2": 1}
 
 #: the cameras wait for their devices, together (the player's pace_group): on a loaded machine
 #: a device that fell behind its camera dropped frames (3–68 of a walk, unpaced), and a camera
@@ -95,10 +101,12 @@ def test_the_edge_merges_the_second_devices_map_into_the_first_ones_frame(
     for d, order in ORDER.items():
         trackers[d] = domain.spawn(["-m", "device_tracker.node", "--ros-args",
                                     "-r", f"__ns:=/{d}",
-                                    "-p", f"frame_rate_hz:={FRAME_RATE_HZ * RATE}",
+                                    "-p", f"frame_rate_hz:={FRAME_RATE_HZ * RATE / EVERY}",
+                                    "-p", f"slot_frames:={SLOT_FRAMES // EVERY}",
                                     "-p", f"map_frame:={d}/map"], forks=FORKS)
         domain.spawn(["-m", "twinslam.sequence_player.node", "--ros-args", "-r", f"__ns:=/{d}",
                       "-p", f"sequence:=synthetic:{FRAMES}", "-p", f"order:={order}",
+                      "-p", f"every:={EVERY}", "-p", f"phase:={PHASE[d]}",
                       "-p", "wait_for_subscribers:=1", "-p", f"rate:={RATE}",
                       "-p", f"frame_id:={d}/camera", "-p", f"map_frame:={d}/map", *PACED],
                      forks=FORKS)
