@@ -1000,7 +1000,8 @@ def test_the_copy_points_held_tables_are_what_their_commands_print(
 
 def test_the_live_runs_that_never_show_one_image_are_what_their_commands_print() -> None:
     """Two devices in a mapped place, live, every second frame each (no image shared):
-    against every frame in one place and against each device alone, as the page has them."""
+    against every frame in one place and against each device alone; and from the walk's two
+    ends, every second frame against every frame: as the page has them."""
     live = _script("loops_across_live")
     folder = FIGURES / "shared-map" / "interleaved" / "live"
     for before in (("shared1", "in one place, every frame (the images shared)"),
@@ -1009,6 +1010,11 @@ def test_the_live_runs_that_never_show_one_image_are_what_their_commands_print()
             folder, (before, ("shared2", "in one place, every second frame (no image shared)")),
             with_map=True)
         assert seeds == [0, 1, 2] and _missing("\n".join(lines)) == [], before
+    lines, seeds, _ = live.table(
+        FIGURES / "shared-map" / "interleaved" / "live-two-ends",
+        (("ends1", "every frame (the images shared)"),
+         ("ends2", "every second frame (no image shared)")), with_map=True)
+    assert seeds == [0, 1, 2] and _missing("\n".join(lines)) == []
 
 
 def test_the_cross_device_split_tables_are_what_their_commands_print(
