@@ -124,7 +124,7 @@ def locate_in_archive(archive: KeyFrameArchive, points_xy: np.ndarray, descripto
     solved: set[frozenset[int]] = set()
     recognised: tuple[int, ...] = ()
     for kf_id in solvable:
-        group = [k for k in with_neighbours(archive, kf_id, config.neighbours)
+        group = [k for k in _with_neighbours(archive, kf_id, config.neighbours)
                  if eligible is None or eligible(k)]
         recognised = recognised or tuple(group)
         # candidates that are each other's neighbours often bring the same keyframes (a
@@ -179,24 +179,11 @@ def _usac(threshold_px: float) -> cv2.UsacParams:
     return params
 
 
-def with_neighbours(archive: KeyFrameArchive, kf_id: int, count: int) -> list[int]:
+def _with_neighbours(archive: KeyFrameArchive, kf_id: int, count: int) -> list[int]:
     """``kf_id`` and the ``count`` archived keyframes sharing the most of its points."""
     shared = sorted(((s, k) for k, s in archive.shared_with(kf_id).items()),
                     key=lambda sk: (-sk[0], sk[1]))
     return [kf_id] + [k for s, k in shared[:count] if s > 0]
-
-
-def group_points(archive: KeyFrameArchive, group: list[int]) -> tuple[np.ndarray, np.ndarray]:
-    """The map points the archived keyframes ``group`` see, each once as the group first lists
-    it: (positions (n, 3) float64, ORB descriptors (n, 32) uint8, contiguous)."""
-    kfs = [archive.get(kf_id) for kf_id in group]
-    if not kfs:
-        return np.zeros((0, 3)), np.zeros((0, 32), dtype=np.uint8)
-    _, first = np.unique(np.concatenate([kf.point_ids for kf in kfs]), return_index=True)
-    first.sort()
-    world = np.concatenate([kf.positions for kf in kfs]).astype(np.float64)[first]
-    point_desc = np.concatenate([kf.descriptors for kf in kfs])[first]
-    return world, np.ascontiguousarray(point_desc, dtype=np.uint8)
 
 
 def _solve(archive: KeyFrameArchive, group: list[int], xy: np.ndarray, desc: np.ndarray,
@@ -204,10 +191,18 @@ def _solve(archive: KeyFrameArchive, group: list[int], xy: np.ndarray, desc: np.
            ) -> tuple[np.ndarray | None, int]:
     """PnP RANSAC of the frame against the points of the archived keyframes ``group`` (each
     map point once): (camera-to-map or None, inliers)."""
-    world, point_desc = group_points(archive, group)
-    if len(world) < config.min_inliers:
+    kfs = [archive.get(kf_id) for kf_id in group]
+    if not kfs:
         return None, 0
-    f_idx, p_idx = match_descriptors(desc, point_desc, config.max_hamming, config.ratio)
+    # each map point once, as the group first lists it
+    _, first = np.unique(np.concatenate([kf.point_ids for kf in kfs]), return_index=True)
+    first.sort()
+    if len(first) < config.min_inliers:
+        return None, 0
+    world = np.concatenate([kf.positions for kf in kfs]).astype(np.float64)[first]
+    point_desc = np.concatenate([kf.descriptors for kf in kfs])[first]
+    f_idx, p_idx = match_descriptors(desc, np.ascontiguousarray(point_desc, dtype=np.uint8),
+                                     config.max_hamming, config.ratio)
     if len(f_idx) < max(config.min_inliers, 6):
         return None, 0
     obj, img = world[p_idx], xy[f_idx]

@@ -37,11 +37,8 @@ import numpy as np
 from twinslam.slam.back_end.archive_relocalisation import (
     INLIERS_PER_VOTE,
     ArchiveRelocalisationConfig,
-    group_points,
     screen_for,
-    with_neighbours,
 )
-from twinslam.slam.back_end.depth_alignment import DepthAlignment, align_with_depth
 from twinslam.slam.back_end.foreign_keyframes import (
     foreign_mask,
     foreign_tag,
@@ -63,8 +60,6 @@ from twinslam.slam.back_end.map_back_end import FollowedLoop, MapBackEnd
 from twinslam.slam.back_end.point_fusion import FusionConfig, MapPoints, duplicates_in_view
 from twinslam.slam.back_end.view_coverage import CoverageBounds, first_cover
 from twinslam.slam.camera import Camera
-from twinslam.slam.descriptor_matching import match_descriptors
-from twinslam.slam.projection_matching import back_project
 
 #: the PnP inliers each detection of a merge needs by default: twice a loop's MIN_INLIERS.
 #: A merge places a whole map by one keyframe's geometry; live on the 7-Scenes walk from its
@@ -114,13 +109,9 @@ class MergeFinder:
     votes; the screen ends each such look at a quarter of its search."""
 
     def __init__(self, confirmations: int = CONFIRMATIONS,
-                 min_inliers: int = MERGE_MIN_INLIERS, on_place_points: bool = False) -> None:
+                 min_inliers: int = MERGE_MIN_INLIERS) -> None:
         self.confirmation = LoopConfirmation(confirmations)
         self.min_inliers = min_inliers
-        #: the confirming keyframe placed, last, on the other map's points where it found the
-        #: place (the place's keyframe and its neighbours' points, fused over their views)
-        #: instead of on the place keyframe's own depth measurements
-        self.on_place_points = on_place_points
         self.search = ArchiveRelocalisationConfig(
             min_inliers=MIN_INLIERS,
             screen_votes=screen_for(math.ceil(min_inliers / INLIERS_PER_VOTE)))
@@ -152,31 +143,8 @@ class MergeFinder:
         if not self.confirmation.judge(query.keyframe, candidate, pose, walked):
             return None
         assert candidate.pose is not None            # judge confirms found candidates only
-        placed = candidate.pose
-        if self.on_place_points and query.depths is not None:
-            on_points = pose_on_place_points(other, candidate.old, query, intrinsics, placed,
-                                             self.search)
-            placed = placed if on_points.pose is None else on_points.pose
-        return MapMerge(query.keyframe, candidate.old, placed @ np.linalg.inv(pose),
+        return MapMerge(query.keyframe, candidate.old, candidate.pose @ np.linalg.inv(pose),
                         candidate.inliers)
-
-
-def pose_on_place_points(other: KeyFrameArchive, place: int, query: LoopQuery,
-                         intrinsics: np.ndarray, start: np.ndarray,
-                         config: ArchiveRelocalisationConfig) -> DepthAlignment:
-    """Keyframe ``query``'s camera-to-map in ``other``'s frame, started at ``start``: its
-    features lifted by their depths onto the map points the keyframe ``place`` and its
-    neighbours see (:func:`~twinslam.slam.back_end.depth_alignment.align_with_depth`)."""
-    world, point_desc = group_points(other, with_neighbours(other, place, config.neighbours))
-    desc = np.ascontiguousarray(query.descriptors, dtype=np.uint8)
-    f_idx, p_idx = match_descriptors(desc, point_desc, config.max_hamming, config.ratio)
-    if len(f_idx) < config.min_inliers or query.depths is None:
-        return DepthAlignment(None, len(f_idx), float("nan"))
-    z = np.asarray(query.depths, dtype=np.float64).reshape(-1)[f_idx]
-    lifted = back_project(np.asarray(query.points_xy, dtype=np.float64).reshape(-1, 2)[f_idx],
-                          np.where(z > 0, z, np.nan), np.asarray(intrinsics, dtype=np.float64),
-                          np.eye(4))
-    return align_with_depth(start, lifted, world[p_idx], config.min_inliers)
 
 
 def welded(keyframe: ArchivedKeyFrame, source: int, into: KeyFrameMap, camera: Camera,
