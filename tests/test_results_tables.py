@@ -1020,8 +1020,8 @@ def test_the_live_runs_that_never_show_one_image_are_what_their_commands_print()
 def test_the_cross_device_split_tables_are_what_their_commands_print(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """The cross-device error split in two, seed by seed, and the merge's alignment from the
-    mean of its detections and from the one with the most inliers against the confirming
-    one, as the page has them."""
+    mean of its detections, from the one with the most inliers and from the confirming one
+    placed on the other map's points against the confirming one, as the page has them."""
     rigid = FIGURES / "shared-map" / "rigid-part"
     split = _script("cross_device_split_table").table(
         [("two-ends", rigid / "two-ends.csv"),
@@ -1035,6 +1035,13 @@ def test_the_cross_device_split_tables_are_what_their_commands_print(
     for tried in ("mean", "most-inliers"):
         printed = before_after.table(alignments / "last", alignments / tried)
         assert _missing("\n".join(printed)) == [], tried
+    printed = before_after.table(alignments / "interleaved-confirming",
+                                 alignments / "on-place-points")
+    assert _missing("\n".join(printed)) == []
+    on_points = _script("cross_device_split_table").table(
+        [("two-ends, on the place's points",
+          alignments / "on-place-points" / "uplink-two-ends-covered.csv")])
+    assert _missing("\n".join(on_points)) == []
     uplink = _script("shared_uplink_table")
     rows = [row.strip() for scenario in ("mapped", "two-ends")
             for row in uplink.table(FIGURES / "shared-map" / "interleaved", scenario)]
