@@ -35,6 +35,7 @@ from twinslam.live.fleet import (
     merge_lines,
     merged_across_places,
     merged_in_place,
+    shared_images,
 )
 from twinslam.live.launcher import (
     DEFAULT_PARAMS,
@@ -296,6 +297,27 @@ def test_every_second_frame_gives_two_devices_alternate_frames_and_halves_their_
         FleetLauncher(domain, config, FleetConfig(2, every=4), [], echo=None)
     with pytest.raises(ValueError, match="every 0"):
         FleetConfig(2, every=0).check()
+
+
+def test_devices_replaying_the_same_images_are_named_and_alternate_frames_part_them() -> None:
+    """Which devices' cameras both show some image — one dataset, overlapping frames, the
+    same frames at ``every`` — whichever orders they walk: the launch names them (a merge
+    between them may pair an image with itself)."""
+    kitchen, lengths = "/data/7scenes", {"/data/7scenes": 1000}
+    two = [(kitchen, 0), (kitchen, 0)]                   # --stride 1000: both from frame 0
+    assert shared_images(FleetConfig(2), two, 1000, lengths) == [("ar1", "ar2")]
+    assert shared_images(FleetConfig(2, orders=("forward", "backward")), two, 1000,
+                         lengths) == [("ar1", "ar2")]
+    assert shared_images(FleetConfig(2, every=2), two, 1000, lengths) == []
+    three = [(kitchen, 0), (kitchen, 300), (kitchen, 600)]
+    assert shared_images(FleetConfig(3), three, 700, lengths) == [
+        ("ar1", "ar2"), ("ar1", "ar3"), ("ar2", "ar3")]
+    assert shared_images(FleetConfig(3, every=2), three, 700, lengths) == [("ar1", "ar3")]
+    assert shared_images(FleetConfig(3), three, 300, lengths) == []    # windows apart
+    walks = [("synthetic:90:0", 0), ("synthetic:90:1", 0)]            # each its own walk
+    assert shared_images(FleetConfig(2), walks, 90, {}) == []
+    assert shared_images(FleetConfig(2, one_walk=True), [("synthetic:90:0", 0)] * 2, 90,
+                         {}) == [("ar1", "ar2")]
 
 
 def test_devices_are_split_among_edges_as_runs_of_neighbours_each_with_its_budget() -> None:

@@ -180,6 +180,32 @@ class FleetConfig:
                              f"process), at most {len(self.places)}")
 
 
+def shared_images(fleet: FleetConfig, starts: Sequence[tuple[str, int]], frames: int,
+                  lengths: Mapping[str, int | None]) -> list[tuple[str, str]]:
+    """The pairs of devices whose cameras both show some image: the same sequence (a
+    synthetic place's walks are a device's own unless :attr:`FleetConfig.one_walk`), frame
+    windows [start, start + ``frames``) that overlap (``frames`` ≤ 0: to the end;
+    ``lengths``: each sequence's frames, None where unknown) and, at ``every`` > 1, the same
+    frame numbers modulo it — whichever orders they walk in. A merge between two such
+    devices may pair an image with itself, which no two real cameras capture."""
+    names = fleet.names()
+
+    def window(index: int) -> range:
+        sequence, start = starts[index]
+        length = lengths.get(sequence)
+        end = start + frames if frames > 0 else (length if length is not None else start + 1)
+        return range(start, end if length is None else min(end, length))
+
+    pairs = []
+    for a, b in itertools.combinations(range(len(starts)), 2):
+        if starts[a][0] != starts[b][0] or a % fleet.every != b % fleet.every:
+            continue
+        wa, wb = window(a), window(b)
+        if max(wa.start, wb.start) < min(wa.stop, wb.stop):
+            pairs.append((names[a], names[b]))
+    return pairs
+
+
 def edge_hosts(edges: int) -> list[str]:
     """The hosts of ``edges`` edge processes (``--hosts``): ``edge`` (a single edge's),
     ``edge2`` …, in :func:`edge_blocks`' order."""

@@ -19,6 +19,7 @@ from twinslam.live.fleet import (
     device_sequence,
     fleet_rows,
     print_fleet_table,
+    shared_images,
 )
 from twinslam.live.launcher import LaunchConfig
 from twinslam.live.node_logs import write_logs
@@ -70,11 +71,19 @@ def places_of(sequence: str) -> tuple[str, ...]:
     return places if len(places) > 1 else ()
 
 
+def place_lengths(args: argparse.Namespace, fleet: FleetConfig) -> dict[str, int | None]:
+    """Each place's frames (None for a synthetic place: each device renders a walk of its
+    own length)."""
+    return {p: None if is_synthetic(p) else len(open_sequence(p, 0, -1))
+            for p in fleet.places or (args.sequence,)}
+
+
 def fleet_starts(args: argparse.Namespace, fleet: FleetConfig) -> list[tuple[str, int]]:
     """(sequence, first frame) of each device: its place's (:meth:`FleetConfig.place_of`),
     the devices of one place spread over it as :func:`device_sequence` spreads a fleet."""
     places = fleet.places or (args.sequence,)
-    lengths = [None if is_synthetic(p) else len(open_sequence(p, 0, -1)) for p in places]
+    by_place = place_lengths(args, fleet)
+    lengths = [by_place[p] for p in places]
     members = [[i for i in range(fleet.devices) if fleet.place_of(i) == p]
                for p in range(len(places))]
     starts = []
@@ -109,6 +118,11 @@ def run_fleet(args: argparse.Namespace, policy: str, fleet: FleetConfig, chosen:
                                                 strict=True) if walking[0] in block)
             print(f"place {p + 1}: {place}, walked by {', '.join(walking)}, served by {served}",
                   flush=True)
+        if shared := shared_images(fleet, starts, args.frames, place_lengths(args, fleet)):
+            named = ", ".join(f"{a}-{b}" for a, b in shared[:6]) + (" …" if shared[6:] else "")
+            print(f"note: {len(shared)} pair(s) of devices replay the same images ({named}): "
+                  "a merge may pair an image with itself, which no two real cameras "
+                  "capture (--every 2 gives neighbouring devices alternate frames)", flush=True)
         launcher = FleetLauncher(dom, config, fleet, starts, lambda line: print(line, flush=True))
         result = launcher.run_fleet()
     args.out.mkdir(parents=True, exist_ok=True)
