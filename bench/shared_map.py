@@ -228,9 +228,6 @@ def main() -> None:
                              "each walks), each at half the sequence's frame rate: "
                              "no image is played by both, as two real devices never capture "
                              "one, and a merge cannot pair a frame with itself")
-    parser.add_argument("--merge-joint", action="store_true",
-                        help="the merge's alignment fitted once to the depth matches of every "
-                             "detection that confirmed it (tried)")
     parser.add_argument("--second-start", type=int, default=0, metavar="FRAME",
                         help="the second device plays the sequence from this frame on "
                              "(forward or backward over frames [FRAME, --frames))")
@@ -307,7 +304,7 @@ def main() -> None:
                            start=args.second_start, device_params=device_params, every=every,
                            phase=(1 - args.second_start) % every)
         share_vocabulary((first.edge, second.edge), args.vocabulary_per_device)
-        finder = MergeFinder(min_inliers=args.merge_inliers, joint=args.merge_joint)
+        finder = MergeFinder(min_inliers=args.merge_inliers)
         merge: MapMerge | None = None
         merged_version = -1            #: the second edge's first map version in the place's
         merge_row: dict[str, object] = {}

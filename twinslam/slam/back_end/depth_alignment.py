@@ -69,16 +69,6 @@ def align_with_depth(start: np.ndarray, camera_points: np.ndarray, world: np.nda
     usable = np.isfinite(cam).all(axis=1) & (cam[:, 2] > 0) & np.isfinite(ref).all(axis=1)
     cam, ref = cam[usable], ref[usable]
     tolerance = NEAR_M + PER_METRE * cam[:, 2] if len(cam) else np.zeros(0)
-    return fit_within(start, cam, ref, tolerance, min_inliers)
-
-
-def fit_within(start: np.ndarray, source: np.ndarray, target: np.ndarray,
-               tolerance: np.ndarray, min_inliers: int) -> DepthAlignment:
-    """The rigid motion carrying ``source`` (n, 3) onto ``target`` (n, 3), started at
-    ``start``: a pair counts while it lies within its ``tolerance`` (n,) — wider in the first
-    rounds (WIDENING) — and the motion is fitted to the pairs that count, round by round.
-    None when fewer than ``min_inliers`` (at least 3) pairs count."""
-    cam, ref = source, target
     pose = np.asarray(start, dtype=np.float64)
     inliers = np.zeros(len(cam), dtype=bool)
     for widening in WIDENING:

@@ -39,7 +39,6 @@ from twinslam.slam.back_end.archive_relocalisation import (
     ArchiveRelocalisationConfig,
     screen_for,
 )
-from twinslam.slam.back_end.depth_alignment import NEAR_M, PER_METRE, fit_within
 from twinslam.slam.back_end.foreign_keyframes import (
     foreign_mask,
     foreign_tag,
@@ -61,8 +60,6 @@ from twinslam.slam.back_end.map_back_end import FollowedLoop, MapBackEnd
 from twinslam.slam.back_end.point_fusion import FusionConfig, MapPoints, duplicates_in_view
 from twinslam.slam.back_end.view_coverage import CoverageBounds, first_cover
 from twinslam.slam.camera import Camera
-from twinslam.slam.descriptor_matching import match_descriptors
-from twinslam.slam.projection_matching import back_project
 
 #: the PnP inliers each detection of a merge needs by default: twice a loop's MIN_INLIERS.
 #: A merge places a whole map by one keyframe's geometry; live on the 7-Scenes walk from its
@@ -112,16 +109,9 @@ class MergeFinder:
     votes; the screen ends each such look at a quarter of its search."""
 
     def __init__(self, confirmations: int = CONFIRMATIONS,
-                 min_inliers: int = MERGE_MIN_INLIERS, joint: bool = False) -> None:
+                 min_inliers: int = MERGE_MIN_INLIERS) -> None:
         self.confirmation = LoopConfirmation(confirmations)
         self.min_inliers = min_inliers
-        #: the alignment fitted once to the depth matches of every detection that confirmed
-        #: the merge (each new keyframe's lifted features, in the joining map by its pose,
-        #: against its place keyframe's lifted measurements, in the other map by that one's)
-        self.joint = joint
-        #: the depth matches of the detections since the confirmation's chain began:
-        #: (joining-map points, other-map points, tolerances)
-        self._matches: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         self.search = ArchiveRelocalisationConfig(
             min_inliers=MIN_INLIERS,
             screen_votes=screen_for(math.ceil(min_inliers / INLIERS_PER_VOTE)))
@@ -150,44 +140,11 @@ class MergeFinder:
         pending = self.confirmation.pending
         walked = 0.0 if pending is None else \
             walk_length(joining_poses, pending.query, query.keyframe)
-        if self.joint and candidate.found and query.depths is not None:
-            if pending is None:
-                self._matches = []
-            self._matches.append(_depth_matches(other, candidate, query, pose, intrinsics,
-                                                self.search))
         if not self.confirmation.judge(query.keyframe, candidate, pose, walked):
             return None
         assert candidate.pose is not None            # judge confirms found candidates only
-        alignment = candidate.pose @ np.linalg.inv(pose)
-        if self.joint and self._matches:
-            source, target, tolerance = (np.concatenate(m) for m in zip(*self._matches,
-                                                                          strict=True))
-            joint = fit_within(alignment, source, target, tolerance, self.min_inliers)
-            alignment = alignment if joint.pose is None else joint.pose
-            self._matches = []
-        return MapMerge(query.keyframe, candidate.old, alignment, candidate.inliers)
-
-
-def _depth_matches(other: KeyFrameArchive, candidate: LoopCandidate, query: LoopQuery,
-                   pose: np.ndarray, intrinsics: np.ndarray,
-                   config: ArchiveRelocalisationConfig
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The detection's depth matches: the query keyframe's features lifted by their depths,
-    in the joining map (by ``pose``), and the place keyframe's measurements they matched,
-    lifted, in the other map; each pair's tolerance by the query's depth."""
-    old = other.get(candidate.old)
-    f_idx, p_idx = match_descriptors(np.ascontiguousarray(query.descriptors, dtype=np.uint8),
-                                     old.descriptors, config.max_hamming, config.ratio)
-    k = np.asarray(intrinsics, dtype=np.float64)
-    assert query.depths is not None
-    z = np.asarray(query.depths, dtype=np.float64).reshape(-1)[f_idx]
-    new = back_project(np.asarray(query.points_xy, dtype=np.float64).reshape(-1, 2)[f_idx],
-                       np.where(z > 0, z, np.nan), k, pose)
-    seen = old.measurements[p_idx]
-    theirs = back_project(seen[:, :2], seen[:, 2], k, old.pose)
-    usable = (np.isfinite(new).all(axis=1) & np.isfinite(theirs).all(axis=1) & (z > 0)
-              & (seen[:, 2] > 0))
-    return new[usable], theirs[usable], (NEAR_M + PER_METRE * z)[usable]
+        return MapMerge(query.keyframe, candidate.old, candidate.pose @ np.linalg.inv(pose),
+                        candidate.inliers)
 
 
 def welded(keyframe: ArchivedKeyFrame, source: int, into: KeyFrameMap, camera: Camera,
