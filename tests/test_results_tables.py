@@ -1020,8 +1020,9 @@ def test_the_live_runs_that_never_show_one_image_are_what_their_commands_print()
 def test_the_cross_device_split_tables_are_what_their_commands_print(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """The cross-device error split in two, seed by seed, and the merge's alignment from the
-    mean of its detections, from the one with the most inliers and from the confirming one
-    placed on the other map's points against the confirming one, as the page has them."""
+    mean of its detections, from the one with the most inliers, from the confirming one
+    placed on the other map's points and from one fit to all the detections' depth matches
+    against the confirming one, as the page has them."""
     rigid = FIGURES / "shared-map" / "rigid-part"
     split = _script("cross_device_split_table").table(
         [("two-ends", rigid / "two-ends.csv"),
@@ -1035,9 +1036,10 @@ def test_the_cross_device_split_tables_are_what_their_commands_print(
     for tried in ("mean", "most-inliers"):
         printed = before_after.table(alignments / "last", alignments / tried)
         assert _missing("\n".join(printed)) == [], tried
-    printed = before_after.table(alignments / "interleaved-confirming",
-                                 alignments / "on-place-points")
-    assert _missing("\n".join(printed)) == []
+    for before, tried in (("interleaved-confirming", "on-place-points"),
+                          ("interleaved-confirming-12", "joint")):
+        printed = before_after.table(alignments / before, alignments / tried)
+        assert _missing("\n".join(printed)) == [], tried
     on_points = _script("cross_device_split_table").table(
         [("two-ends, on the place's points",
           alignments / "on-place-points" / "uplink-two-ends-covered.csv")])
