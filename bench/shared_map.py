@@ -88,7 +88,7 @@ from twinslam.live.tracking_quality import (
 )
 from twinslam.reporting import append_csv_rows, write_csv
 from twinslam.rotations import rotation_angle_deg
-from twinslam.sequence_player.playback import ORDERS
+from twinslam.sequence_player.playback import ORDERS, phase_for
 from twinslam.slam.back_end.foreign_keyframes import (
     foreign_tag,
     is_foreign,
@@ -298,11 +298,11 @@ def main() -> None:
         first = open_walk("first", spec, args.frames, args.first, args.seed, args.uplink,
                           config, args.update_delay, Path(tmp), start=args.first_start,
                           device_params=device_params, every=every,
-                          phase=-args.first_start % every)
+                          phase=phase_for(0, args.first_start, every))
         second = open_walk("second", second_spec, args.frames, args.second, args.seed + 1,
                            args.uplink, config, args.update_delay, Path(tmp),
                            start=args.second_start, device_params=device_params, every=every,
-                           phase=(1 - args.second_start) % every)
+                           phase=phase_for(1, args.second_start, every))
         share_vocabulary((first.edge, second.edge), args.vocabulary_per_device)
         finder = MergeFinder(min_inliers=args.merge_inliers)
         merge: MapMerge | None = None
@@ -458,7 +458,7 @@ def main() -> None:
         assert first.first_truth is not None and second.first_truth is not None
         true = np.linalg.inv(first.first_truth) @ second.first_truth
         floor = cross_device_revisit_error(
-            pairs(first.poses, first.truth),
+            first_pairs,
             pairs({k: true @ p for k, p in own.items()}, second.truth, shared or None))
         kf_cross = cross_device_revisit_error(
             pairs(first.own_keyframe_poses(), first.truth),

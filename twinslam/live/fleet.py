@@ -56,7 +56,7 @@ from twinslam.live.tracking_quality import (
 )
 from twinslam.node_runtime.middleware_teardown import ended_as_asked
 from twinslam.node_runtime.session import RosSession
-from twinslam.sequence_player.playback import ORDERS
+from twinslam.sequence_player.playback import ORDERS, phase_for
 from twinslam.sequences.opening import is_synthetic, synthetic_walk
 from twinslam.slot_protocol import default_device, table1
 
@@ -103,7 +103,7 @@ class FleetConfig:
         """Device ``index``'s player's ``phase`` where its walk starts at the sequence's frame
         ``start`` (the player counts frames from there): its frames are the sequence's
         numbered ``index mod every``."""
-        return (index - start) % self.every
+        return phase_for(index, start, self.every)
 
     def device_seed(self, index: int) -> int:
         return 100 * self.seed + index

@@ -60,6 +60,14 @@ def parse_bursts(text: str) -> tuple[tuple[int, int], ...]:
     return tuple(sorted(bursts))
 
 
+def phase_for(residue: int, start: int, every: int) -> int:
+    """The ``phase`` that plays the sequence's frames numbered ``residue`` modulo ``every``
+    for a camera whose walk starts at the sequence's frame ``start`` (the player counts
+    frames from there): how devices of one sequence are given alternate frames whatever
+    their starts."""
+    return (residue - start) % every
+
+
 @dataclass(frozen=True)
 class Playback:
     """The order frames are played in, which of them are played (the sequence's frames

@@ -78,11 +78,13 @@ def place_lengths(args: argparse.Namespace, fleet: FleetConfig) -> dict[str, int
             for p in fleet.places or (args.sequence,)}
 
 
-def fleet_starts(args: argparse.Namespace, fleet: FleetConfig) -> list[tuple[str, int]]:
+def fleet_starts(args: argparse.Namespace, fleet: FleetConfig,
+                 by_place: dict[str, int | None] | None = None) -> list[tuple[str, int]]:
     """(sequence, first frame) of each device: its place's (:meth:`FleetConfig.place_of`),
-    the devices of one place spread over it as :func:`device_sequence` spreads a fleet."""
+    the devices of one place spread over it as :func:`device_sequence` spreads a fleet;
+    ``by_place``: :func:`place_lengths`, where the caller read them already."""
     places = fleet.places or (args.sequence,)
-    by_place = place_lengths(args, fleet)
+    by_place = by_place or place_lengths(args, fleet)
     lengths = [by_place[p] for p in places]
     members = [[i for i in range(fleet.devices) if fleet.place_of(i) == p]
                for p in range(len(places))]
@@ -98,7 +100,8 @@ def fleet_starts(args: argparse.Namespace, fleet: FleetConfig) -> list[tuple[str
 def run_fleet(args: argparse.Namespace, policy: str, fleet: FleetConfig, chosen: Scenario,
               extra: dict[str, list[str]]) -> FleetReport:
     """One fleet run: its nodes, a picture per device, its rows in OUT/fleet_runs.csv."""
-    starts = fleet_starts(args, fleet)
+    lengths = place_lengths(args, fleet)
+    starts = fleet_starts(args, fleet, lengths)
     config = LaunchConfig(args.sequence, policy, args.frames, args.rate, args.params,
                           timeout_s=args.timeout, extra=extra, scenario=chosen, start=args.start,
                           pace_frames=args.pace)
@@ -118,7 +121,7 @@ def run_fleet(args: argparse.Namespace, policy: str, fleet: FleetConfig, chosen:
                                                 strict=True) if walking[0] in block)
             print(f"place {p + 1}: {place}, walked by {', '.join(walking)}, served by {served}",
                   flush=True)
-        if shared := shared_images(fleet, starts, args.frames, place_lengths(args, fleet)):
+        if shared := shared_images(fleet, starts, args.frames, lengths):
             named = ", ".join(f"{a}-{b}" for a, b in shared[:6]) + (" …" if shared[6:] else "")
             print(f"note: {len(shared)} pair(s) of devices replay the same images ({named}): "
                   "a merge may pair an image with itself, which no two real cameras "
