@@ -46,7 +46,7 @@ from twinslam.slam.back_end.place_words import PlaceWords
 from twinslam.slam.back_end.view_coverage import CoverageBounds
 from twinslam.slam.keyframe import KeyFramePayload
 from twinslam.slam.map_update import MapSnapshot
-from twinslam.slot_protocol import default_device
+from twinslam.slot_protocol import default_device, table1
 from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
 from twinslam.uplink.channels import MarkovChannel, TraceChannel, parse_channel
 from twinslam.uplink.families import uplink_family
@@ -286,6 +286,25 @@ def add_device_option(parser: argparse.ArgumentParser) -> None:
                              "reads it, for every device of the run (repeat for more); e.g. "
                              "map_source=edge own_map_after_s=0: the paper's device, which "
                              "tracks on the edge's map alone")
+
+
+def interleaved_device(device_params: Mapping[str, object], every: int) -> dict[str, object]:
+    """The device parameters for a device that plays one frame in ``every`` (the player's
+    ``every``): the camera's nominal rate and a slot's frames divided by ``every``, so that a
+    slot still lasts as long and asks for its uploads as often — what the fleet launch gives
+    such a device too. A rate or slot given in ``device_params`` stands. Raises
+    :class:`ValueError` where the default slot's frames do not split ``every`` ways."""
+    params = dict(device_params)
+    if every == 1:
+        return params
+    if "slot_frames" not in params:
+        if default_device.SLOT_FRAMES % every:
+            raise ValueError(f"a slot of {default_device.SLOT_FRAMES} frames does not split "
+                             f"{every} ways: give the device's slot_frames (--device "
+                             f"slot_frames=N)")
+        params["slot_frames"] = default_device.SLOT_FRAMES // every
+    params.setdefault("frame_rate_hz", table1.FRAME_RATE_HZ / every)
+    return params
 
 
 def add_place_options(parser: argparse.ArgumentParser) -> None:

@@ -6,7 +6,7 @@ lent as the edge node merges them: the node's own
         [--after 300] [--order forward[,backward…]] [--seed 0] [--uplink lte]
         [--unseen-slots N] [--lend-eagerly] [--merge-inliers N] [--look-backoff N] [--no-merge]
         [--covered-m M] [--covered-deg D] [--covered-min-points N]
-        [--every 300] [--csv FILE] [--baseline COMMIT [--rounds 1]]
+        [--interleave N] [--every 300] [--csv FILE] [--baseline COMMIT [--rounds 1]]
 
 Device k (k = 0, 1, …) starts the walk ``k × --after`` frames after the first, on an uplink
 of its own (seed ``--seed`` + k): users joining a place others walk at different times — on
@@ -40,7 +40,11 @@ many copies it adopted (a copy that went back and was lent again counts twice); 
 **cross-device revisit error** over every two devices of one place (their frames in the
 place's frame, pooled as RMS over the pairs of frames), and each run's figures appended to
 ``--csv``. Devices replaying one sequence see the same frames: a pair is two devices'
-estimates of one view, and their relative pose's truth is the identity.
+estimates of one view, and their relative pose's truth is the identity — and a merge or a
+copy's weld may pair an image with itself, which no two real cameras offer. With
+``--interleave N`` device k plays only the sequence's frames numbered k mod N, each device at
+1/N of the frame rate with 1/N of a slot's frames (a slot lasts as long): with N at least the
+devices of a place, no image is played by two of them.
 
 With ``--baseline COMMIT`` the same run is made in a worktree of that commit and in this
 tree, alternating for ``--rounds`` rounds (bench/baseline.py): the edge's ms a device-slot
@@ -69,6 +73,7 @@ from bench.in_process import (
     add_device_option,
     add_place_options,
     check_place_options,
+    interleaved_device,
     lent_views,
     open_walk,
     repeatable_edge,
@@ -86,7 +91,7 @@ from twinslam.live.tracking_quality import (
     cross_device_revisit_error,
 )
 from twinslam.reporting import append_csv_rows
-from twinslam.sequence_player.playback import ORDERS
+from twinslam.sequence_player.playback import ORDERS, phase_for
 from twinslam.slam.back_end.foreign_keyframes import is_foreign
 
 #: the CSV's columns: the run's settings, then its figures (per-device lists joined by ";")
@@ -98,7 +103,8 @@ COLUMNS = ("sequence", "frames", "devices", "after", "order", "seed", "uplink", 
            "copies_end", "adopted", "uploads", "lost_share", "map_lost_share", "tracked_share",
            "ate_m_mean", "cross_rms_m", "cross_pairs", "cross_worst_pair_rms_m", "loops",
            "look_ms_median", "seconds", "device_edge_ms", "device_copies_mean", "device_uploads",
-           "device_merge_slot", "device_ate_m", "places", "false_merges", "declined")
+           "device_merge_slot", "device_ate_m", "places", "false_merges", "declined",
+           "interleave")
 #: the figures two trees' runs share when they walked one walk (the timings aside)
 SAME_WALK = ("merged", "copies_mean", "copies_end", "adopted", "uploads", "lost_share",
              "tracked_share", "ate_m_mean", "cross_rms_m", "loops", "device_uploads",
@@ -192,7 +198,14 @@ def main() -> None:
     parser.add_argument("--devices", type=int, default=4, help="devices walking it")
     parser.add_argument("--frames", type=int, default=2700, help="frames of it each plays")
     parser.add_argument("--after", type=int, default=300, metavar="FRAMES",
-                        help="each device starts this many frames after the one before")
+                        help="each device starts this many frames of the walk after the "
+                             "one before (with --interleave N, after N times fewer frames "
+                             "played)")
+    parser.add_argument("--interleave", type=int, default=1, metavar="N",
+                        help="device k plays only the sequence's frames numbered k mod N (the "
+                             "player's every and phase), at 1/N of its frame rate, a slot "
+                             "still as long: with N at least the devices of a place, no image "
+                             "is played by two of them, as no two real cameras capture one")
     parser.add_argument("--order", type=_orders, default=("forward",),
                         help=f"the order every device plays the frames in ({', '.join(ORDERS)}), "
                              "or orders separated by commas: device k plays order k mod N")
@@ -227,6 +240,12 @@ def main() -> None:
     check_place_options(parser, args)
     if args.rounds < 1:
         parser.error(f"--rounds: 1 or more, got {args.rounds}")
+    if args.interleave < 1:
+        parser.error(f"--interleave: 1 (every frame) or more, got {args.interleave}")
+    try:
+        device_params = interleaved_device(dict(args.device), args.interleave)
+    except ValueError as err:
+        parser.error(f"--interleave {args.interleave}: {err}")
     if args.look_backoff < 1:
         parser.error(f"--look-backoff: 1 slot or more, got {args.look_backoff}")
     if args.baseline:
@@ -246,8 +265,9 @@ def main() -> None:
                                        args.order[k % len(args.order)], args.seed + k,
                                        args.uplink, config,
                                        args.update_delay, Path(tmp),
-                                       device_params=dict(args.device)),
-                             k * args.after, k % len(places))
+                                       device_params=device_params, every=args.interleave,
+                                       phase=phase_for(k, 0, args.interleave)),
+                             k * args.after // args.interleave, k % len(places))
                    for k in range(args.devices)]
         share_vocabulary((d.walk.edge for d in devices), args.vocabulary_per_device)
         served: dict[str, EdgeMapperCore] = {}
@@ -404,6 +424,7 @@ def _report(devices: list[PlaceWalk], merging: PlaceMerging, args: argparse.Name
             for d in devices if d.in_place >= 0]
     return {"sequence": args.sequence, "frames": args.frames, "devices": args.devices,
             "after": args.after, "order": ",".join(args.order), "seed": args.seed,
+            "interleave": args.interleave,
             "uplink": args.uplink, "no_merge": int(args.no_merge),
             "lend_in_view": int(not args.lend_eagerly),
             "lent_unseen_slots": args.unseen_slots, "merge_min_inliers": args.merge_inliers,

@@ -70,6 +70,7 @@ from bench.in_process import (
     add_device_option,
     add_place_options,
     check_place_options,
+    interleaved_device,
     lent_views,
     open_walk,
     repeatable_edge,
@@ -103,7 +104,6 @@ from twinslam.slam.back_end.map_merging import (
 )
 from twinslam.slam.back_end.place_index import KeptPlaceIndex
 from twinslam.slam.back_end.view_coverage import CoverageBounds
-from twinslam.slot_protocol import default_device, table1
 
 SEVEN = SEVEN_SCENES
 
@@ -287,14 +287,12 @@ def main() -> None:
     config = repeatable_edge(**overrides)
     started = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
-        device_params = dict(args.device)
-        if args.interleave:          # half the frames: half the rate, a slot still a second
-            device_params.setdefault("frame_rate_hz", table1.FRAME_RATE_HZ / 2)
-            device_params.setdefault("slot_frames", default_device.SLOT_FRAMES // 2)
         # interleaved, no image is played by both: the first device the sequence's even
         # frames, the second its odd ones, whichever way each walks (the player's every and
-        # phase, counted from where each starts), each at half the frame rate
+        # phase, counted from where each starts), each at half the frame rate (a slot still
+        # a second)
         every = 2 if args.interleave else 1
+        device_params = interleaved_device(dict(args.device), every)
         first = open_walk("first", spec, args.frames, args.first, args.seed, args.uplink,
                           config, args.update_delay, Path(tmp), start=args.first_start,
                           device_params=device_params, every=every,

@@ -43,3 +43,26 @@ def test_each_device_plays_its_order_of_the_list_and_an_unknown_order_is_refused
     assert _orders("backward_forward") == ("backward_forward",)
     with pytest.raises(argparse.ArgumentTypeError, match=r"'sideways'.*orders: forward"):
         _orders("forward,sideways")
+
+
+def test_interleaved_devices_get_a_slot_as_long_and_play_no_frame_twice() -> None:
+    """``--interleave N``: a device playing one frame in N gets 1/N of the camera's rate and of
+    a slot's frames (a slot lasts as long), what it was given stands, a slot that does not
+    split N ways is refused naming the fix; and the phases the run gives its devices play
+    disjoint frames of the walk."""
+    from bench.in_process import interleaved_device
+    from twinslam.sequence_player.playback import Playback, phase_for
+    from twinslam.slot_protocol import default_device, table1
+
+    slot = default_device.SLOT_FRAMES
+    assert interleaved_device({}, 1) == {}
+    third = interleaved_device({}, 3)
+    assert third == {"slot_frames": slot // 3, "frame_rate_hz": table1.FRAME_RATE_HZ / 3}
+    assert third["slot_frames"] / third["frame_rate_hz"] == slot / table1.FRAME_RATE_HZ
+    assert interleaved_device({"slot_frames": 8}, 4)["slot_frames"] == 8
+    with pytest.raises(ValueError, match="slot_frames=N"):
+        interleaved_device({}, 7)
+    played = [{n for n in range(100) if Playback(every=5, phase=phase_for(k, 0, 5)).plays(n)}
+              for k in range(4)]
+    assert all(len(p) == 20 for p in played)
+    assert all(not (a & b) for i, a in enumerate(played) for b in played[i + 1:])
