@@ -6,7 +6,7 @@ lent as the edge node merges them: the node's own
         [--after 300] [--order forward[,backward…]] [--seed 0] [--uplink lte]
         [--unseen-slots N] [--lend-eagerly] [--merge-inliers N] [--look-backoff N] [--no-merge]
         [--covered-m M] [--covered-deg D] [--covered-min-points N]
-        [--interleave N] [--every 300] [--csv FILE] [--baseline COMMIT [--rounds 1]]
+        [--interleave N | --own-walks] [--every 300] [--csv FILE] [--baseline COMMIT [--rounds 1]]
 
 Device k (k = 0, 1, …) starts the walk ``k × --after`` frames after the first, on an uplink
 of its own (seed ``--seed`` + k): users joining a place others walk at different times — on
@@ -44,7 +44,10 @@ estimates of one view, and their relative pose's truth is the identity — and a
 copy's weld may pair an image with itself, which no two real cameras offer. With
 ``--interleave N`` device k plays only the sequence's frames numbered k mod N, each device at
 1/N of the frame rate with 1/N of a slot's frames (a slot lasts as long): with N at least the
-devices of a place, no image is played by two of them.
+devices of a place, no image is played by two of them. On a synthetic place ``--own-walks``
+gives device k the walk of seed + k instead: its own sway, height and gaze through the same
+world, at the full frame rate (each device's map alone is then in its own first camera's
+frame, and the control ``--no-merge`` has no cross-device figure).
 
 With ``--baseline COMMIT`` the same run is made in a worktree of that commit and in this
 tree, alternating for ``--rounds`` rounds (bench/baseline.py): the edge's ms a device-slot
@@ -92,6 +95,7 @@ from twinslam.live.tracking_quality import (
 )
 from twinslam.reporting import append_csv_rows
 from twinslam.sequence_player.playback import ORDERS, phase_for
+from twinslam.sequences.opening import is_synthetic
 from twinslam.slam.back_end.foreign_keyframes import is_foreign
 
 #: the CSV's columns: the run's settings, then its figures (per-device lists joined by ";")
@@ -104,7 +108,7 @@ COLUMNS = ("sequence", "frames", "devices", "after", "order", "seed", "uplink", 
            "ate_m_mean", "cross_rms_m", "cross_pairs", "cross_worst_pair_rms_m", "loops",
            "look_ms_median", "seconds", "device_edge_ms", "device_copies_mean", "device_uploads",
            "device_merge_slot", "device_ate_m", "places", "false_merges", "declined",
-           "interleave")
+           "interleave", "own_walks")
 #: the figures two trees' runs share when they walked one walk (the timings aside)
 SAME_WALK = ("merged", "copies_mean", "copies_end", "adopted", "uploads", "lost_share",
              "tracked_share", "ate_m_mean", "cross_rms_m", "loops", "device_uploads",
@@ -206,6 +210,12 @@ def main() -> None:
                              "player's every and phase), at 1/N of its frame rate, a slot "
                              "still as long: with N at least the devices of a place, no image "
                              "is played by two of them, as no two real cameras capture one")
+    parser.add_argument("--own-walks", action="store_true",
+                        help="device k walks the synthetic place on seed + k: a walk of its "
+                             "own through the same world (its sway, height and gaze), as "
+                             "several people walk one corridor — no image is played by two "
+                             "devices; synthetic places only (a dataset is one recorded walk: "
+                             "--interleave there)")
     parser.add_argument("--order", type=_orders, default=("forward",),
                         help=f"the order every device plays the frames in ({', '.join(ORDERS)}), "
                              "or orders separated by commas: device k plays order k mod N")
@@ -246,13 +256,16 @@ def main() -> None:
         device_params = interleaved_device(dict(args.device), args.interleave)
     except ValueError as err:
         parser.error(f"--interleave {args.interleave}: {err}")
+    if args.own_walks and not all(is_synthetic(p) for p in args.sequence.split(",")):
+        parser.error("--own-walks: a walk of each device's own needs a synthetic place "
+                     f"(synthetic[:frames], synthetic-corridor[:frames]), not {args.sequence}")
     if args.look_backoff < 1:
         parser.error(f"--look-backoff: 1 slot or more, got {args.look_backoff}")
     if args.baseline:
         _beside(args, sys.argv[1:])
         return
     run_as_the_edge_node()
-    places = [seeded_spec(place, args.seed) for place in args.sequence.split(",")]
+    places = args.sequence.split(",")
     config = repeatable_edge(**{name: value for name, value in
                                 (("covered_m", args.covered_m),
                                  ("covered_deg", args.covered_deg),
@@ -261,7 +274,10 @@ def main() -> None:
                                 if value is not None})
     started = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
-        devices = [PlaceWalk(open_walk(f"ar{k + 1}", places[k % len(places)], args.frames,
+        devices = [PlaceWalk(open_walk(f"ar{k + 1}",
+                                       seeded_spec(places[k % len(places)],
+                                                   args.seed + k if args.own_walks
+                                                   else args.seed), args.frames,
                                        args.order[k % len(args.order)], args.seed + k,
                                        args.uplink, config,
                                        args.update_delay, Path(tmp),
@@ -397,8 +413,10 @@ def _report(devices: list[PlaceWalk], merging: PlaceMerging, args: argparse.Name
               f"{np.median(walk.edge_ms):.0f} ms a slot, others' keyframes held "
               f"{np.mean(d.copies) if d.copies else 0:.1f} on the mean, "
               f"{d.copies[-1] if d.copies else 0} at the end, {d.adopted} adopted")
-    # alone, every device's map is in the walk's first camera's frame (one walk, one start)
-    roots = {d.name: "" if args.no_merge else merging.root(d.name) for d in devices}
+    # alone, every device's map is in the walk's first camera's frame (one walk, one start);
+    # on walks of their own each alone is in its own first camera's: no pair to compare
+    roots = {d.name: (d.name if args.own_walks else "") if args.no_merge
+             else merging.root(d.name) for d in devices}
     errors = [cross_device_revisit_error(
         [(a.walk.poses[k], a.walk.truth[k]) for k in a.placed_frames() if k in a.walk.truth],
         [(b.walk.poses[k], b.walk.truth[k]) for k in b.placed_frames() if k in b.walk.truth])
@@ -424,7 +442,7 @@ def _report(devices: list[PlaceWalk], merging: PlaceMerging, args: argparse.Name
             for d in devices if d.in_place >= 0]
     return {"sequence": args.sequence, "frames": args.frames, "devices": args.devices,
             "after": args.after, "order": ",".join(args.order), "seed": args.seed,
-            "interleave": args.interleave,
+            "interleave": args.interleave, "own_walks": int(args.own_walks),
             "uplink": args.uplink, "no_merge": int(args.no_merge),
             "lend_in_view": int(not args.lend_eagerly),
             "lent_unseen_slots": args.unseen_slots, "merge_min_inliers": args.merge_inliers,

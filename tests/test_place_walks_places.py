@@ -11,6 +11,7 @@ from typing import Any
 import pytest
 
 from bench.place_walks import PlaceWalk, _orders, false_merges
+from twinslam.slot_protocol import default_device
 
 
 def _device(name: str, place: int) -> PlaceWalk:
@@ -52,7 +53,7 @@ def test_interleaved_devices_get_a_slot_as_long_and_play_no_frame_twice() -> Non
     disjoint frames of the walk."""
     from bench.in_process import interleaved_device
     from twinslam.sequence_player.playback import Playback, phase_for
-    from twinslam.slot_protocol import default_device, table1
+    from twinslam.slot_protocol import table1
 
     slot = default_device.SLOT_FRAMES
     assert interleaved_device({}, 1) == {}
@@ -66,3 +67,22 @@ def test_interleaved_devices_get_a_slot_as_long_and_play_no_frame_twice() -> Non
               for k in range(4)]
     assert all(len(p) == 20 for p in played)
     assert all(not (a & b) for i, a in enumerate(played) for b in played[i + 1:])
+
+
+@pytest.mark.parametrize(("argv", "says"), [
+    (["../shared/data/7scenes-1000", "--own-walks"], "--own-walks: a walk of each device's own"),
+    (["--interleave", "7"], f"--interleave 7: a slot of {default_device.SLOT_FRAMES} frames "
+     "does not split 7 ways"),
+    (["--interleave", "0"], "--interleave: 1 (every frame) or more")])
+def test_walks_no_device_can_play_are_refused_before_anything_runs(
+        argv: list[str], says: str, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """A dataset is one recorded walk (no walk of each device's own there), and a slot that
+    does not split among the interleaved devices' frames: refused with the reason, exit 2."""
+    from bench import place_walks
+
+    monkeypatch.setattr("sys.argv", ["place_walks", *argv])
+    with pytest.raises(SystemExit) as exited:
+        place_walks.main()
+    assert exited.value.code == 2
+    assert says in capsys.readouterr().err
