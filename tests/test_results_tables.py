@@ -651,6 +651,24 @@ def test_the_place_walks_tables_are_what_their_command_prints() -> None:
         assert not any("nan" in line for line in printed)
 
 
+def test_the_walks_of_their_own_tables_are_what_their_command_prints() -> None:
+    """Four devices along the corridor on walks of their own (no image played twice) against
+    one walk, each alone against merged, and the covered view's wider bounds on their own
+    walks: as ``place_walks_table.py`` prints them from the committed CSVs over seeds 0–3;
+    alone on walks of their own there is no cross-device figure (each map in its own first
+    camera's frame), left out rather than printed as nan."""
+    folder = FIGURES / "shared-map" / "place-walks" / "own-walks"
+    script = _script("place_walks_table")
+    for first, second in (("whole", "own"), ("own-alone", "own"), ("whole-alone", "whole"),
+                          ("own", "own-wide")):
+        printed = script.table(folder / f"{first}.csv", folder / f"{second}.csv")
+        assert _missing("\n".join(printed)) == [], (first, second)
+        assert "seeds 0, 1, 2, 3:" in printed[0]
+        assert not any("nan" in line for line in printed)
+    alone_rows = script.table(folder / "own-alone.csv", folder / "own.csv")
+    assert not any("cross-device" in line for line in alone_rows)
+
+
 def test_the_covered_view_bounds_tables_are_what_their_commands_print(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """The covered view's bounds judged on the 7-Scenes walk: the in-process uplink table at

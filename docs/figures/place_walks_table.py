@@ -58,6 +58,9 @@ def runs(path: Path) -> dict[int, dict[str, str]]:
             row["lent_view_deg"] = row["covered_deg"] if once else str(LENT_VIEW_DEG)
         # a copy's points held already was tried at 39ae973 only: every other run lent them
         row.setdefault("lent_redundant_share", "0")
+        # runs from before the walks without a shared image replayed one walk, every frame
+        row.setdefault("own_walks", "0")
+        row.setdefault("interleave", "1")
     return rows
 
 
@@ -66,15 +69,20 @@ LAST_DEVICE = ("last_edge_ms", "the last device's median ms a slot", 1.0, "{:.1f
 
 #: the settings an arm may differ in, named as the edge's parameters
 SETTINGS = ("covered_m", "covered_deg", "lent_unseen_slots", "lend_in_view", "merge_min_inliers",
-            "lent_view_m", "lent_view_deg", "lent_redundant_share")
+            "lent_view_m", "lent_view_deg", "lent_redundant_share", "own_walks", "interleave")
+#: how the table names the settings of the devices' walks
+WALKS = {("own_walks", "0"): "one walk", ("own_walks", "1"): "walks of their own"}
 
 
 def arm(row: dict[str, str], settings: list[str]) -> str:
     """An arm's name in the table: alone, or the ``settings`` it differs in ("merged" where
     it differs only in merging)."""
-    if row.get("no_merge") == "1":
-        return "alone (no merge)"
-    return ", ".join(f"{name} {float(row[name]):g}" for name in settings) or "merged"
+    named = {name: WALKS.get((name, row[name]), f"{name} {float(row[name]):g}")
+             for name in settings}
+    if row.get("no_merge") == "1":          # alone, only how the devices walked tells arms apart
+        return ", ".join(["alone (no merge)", *(named[name] for name in ("own_walks", "interleave")
+                                                  if name in named)])
+    return ", ".join(named.values()) or "merged"
 
 
 def table(first_path: Path, second_path: Path, last_device: bool = False) -> list[str]:
