@@ -65,6 +65,9 @@ class ServedSlot:
     #: the share of the slot's frames the edge's lost-frame rule counts lost (MapStats'
     #: lost_share; NaN: the map was empty)
     lost_share: float = math.nan
+    #: the map the slot was planned on fell into pieces (u(G) = +inf): every frame of the
+    #: slot counts lost by the edge's rule, whatever the device tracked
+    in_pieces: bool = False
 
 
 @dataclass(frozen=True)
@@ -118,12 +121,13 @@ def serve_slot(device: DeviceTrackerCore, edge: EdgeMapperCore, rate_mbps: float
                                 tracks=outcome.tracks, frame_correction=edge.frame_correction)
     snapshot = read_map_update(update)
     lost = plan.uncertainty.lost_share if plan.uncertainty is not None else math.nan
+    pieces = plan.uncertainty is not None and math.isinf(plan.uncertainty.map_uncertainty)
     if hold:
         return ServedSlot(outcome, (t1 - t0) * 1e3, (t2 - t1) * 1e3, (t3 - t2) * 1e3, snapshot,
-                          lost)
+                          lost, pieces)
     device.apply_map_update(snapshot, slot)
     return ServedSlot(outcome, (t1 - t0) * 1e3, (t2 - t1) * 1e3, (t3 - t2) * 1e3,
-                      lost_share=lost)
+                      lost_share=lost, in_pieces=pieces)
 
 
 def run_as_the_edge_node() -> None:
@@ -182,6 +186,8 @@ class DeviceWalk:
     edge_ms: list[float] = field(default_factory=list)
     #: each served slot's share of frames the edge's lost-frame rule counted lost
     lost: list[float] = field(default_factory=list)
+    #: the served slots planned on a map in pieces (``ServedSlot.in_pieces``)
+    pieces: int = 0
     #: every frame as the device tracked it: (frame, tracked, features matched, pose
     #: inliers, map points among them, map version)
     frame_rows: list[tuple[int, int, int, int, int, int]] = field(default_factory=list)
@@ -225,6 +231,7 @@ class DeviceWalk:
         self.slot = served.outcome.slot
         self.edge_ms.append(served.plan_ms + served.integrate_ms + served.finish_ms)
         self.lost.append(served.lost_share)
+        self.pieces += served.in_pieces
         self.uploads += len(served.outcome.integrated)
         loop = served.outcome.loop
         if loop is not None and loop.old >= 0 and not loop.refused:

@@ -108,7 +108,7 @@ COLUMNS = ("sequence", "frames", "devices", "after", "order", "seed", "uplink", 
            "ate_m_mean", "cross_rms_m", "cross_pairs", "cross_worst_pair_rms_m", "loops",
            "look_ms_median", "seconds", "device_edge_ms", "device_copies_mean", "device_uploads",
            "device_merge_slot", "device_ate_m", "places", "false_merges", "declined",
-           "interleave", "own_walks")
+           "interleave", "own_walks", "pieces_slots", "device_pieces_slots")
 #: the figures two trees' runs share when they walked one walk (the timings aside)
 SAME_WALK = ("merged", "copies_mean", "copies_end", "adopted", "uploads", "lost_share",
              "tracked_share", "ate_m_mean", "cross_rms_m", "loops", "device_uploads",
@@ -412,7 +412,8 @@ def _report(devices: list[PlaceWalk], merging: PlaceMerging, args: argparse.Name
               f"{np.mean(scored) if scored else math.nan:.1%}, edge median "
               f"{np.median(walk.edge_ms):.0f} ms a slot, others' keyframes held "
               f"{np.mean(d.copies) if d.copies else 0:.1f} on the mean, "
-              f"{d.copies[-1] if d.copies else 0} at the end, {d.adopted} adopted")
+              f"{d.copies[-1] if d.copies else 0} at the end, {d.adopted} adopted, the map "
+              f"in pieces in {walk.pieces} slots")
     # alone, every device's map is in the walk's first camera's frame (one walk, one start);
     # on walks of their own each alone is in its own first camera's: no pair to compare
     roots = {d.name: (d.name if args.own_walks else "") if args.no_merge
@@ -474,7 +475,9 @@ def _report(devices: list[PlaceWalk], merging: PlaceMerging, args: argparse.Name
             "device_uploads": ";".join(str(d.walk.uploads) for d in devices),
             "device_merge_slot": ";".join(str(d.merge_slot) for d in devices),
             "device_ate_m": ";".join(f"{a:.4f}" for a in ates),
-            "places": args.sequence.count(",") + 1, "false_merges": len(false)}
+            "places": args.sequence.count(",") + 1, "false_merges": len(false),
+            "pieces_slots": sum(d.walk.pieces for d in devices),
+            "device_pieces_slots": ";".join(str(d.walk.pieces) for d in devices)}
 
 
 if __name__ == "__main__":

@@ -656,7 +656,8 @@ def test_the_walks_of_their_own_tables_are_what_their_command_prints() -> None:
     one walk, each alone against merged, and the covered view's wider bounds on their own
     walks: as ``place_walks_table.py`` prints them from the committed CSVs over seeds 0–3;
     alone on walks of their own there is no cross-device figure (each map in its own first
-    camera's frame), left out rather than printed as nan."""
+    camera's frame), left out rather than printed as nan; and the merged arms' rerun, which
+    counted the slots planned on a map in pieces the page names."""
     folder = FIGURES / "shared-map" / "place-walks" / "own-walks"
     script = _script("place_walks_table")
     for first, second in (("whole", "own"), ("own-alone", "own"), ("whole-alone", "whole"),
@@ -667,6 +668,17 @@ def test_the_walks_of_their_own_tables_are_what_their_command_prints() -> None:
         assert not any("nan" in line for line in printed)
     alone_rows = script.table(folder / "own-alone.csv", folder / "own.csv")
     assert not any("cross-device" in line for line in alone_rows)
+    # the merged arms run again with the slots on a map in pieces counted: the same walks to
+    # the digit but the timings, the pieces the page names (one device a seed, none on one walk)
+    from bench.place_walks import SAME_WALK
+
+    for arm, pieces in (("own", ["4;0;0;0", "0;0;0;0", "0;0;0;38", "0;0;23;0"]),
+                        ("whole", ["0;0;0;0"] * 4)):
+        first, rerun = (script.runs(f) for f in (folder / f"{arm}.csv",
+                                                 folder / "rerun" / f"{arm}.csv"))
+        assert [rerun[s]["device_pieces_slots"] for s in range(4)] == pieces
+        for seed in range(4):
+            assert all(first[seed][k] == rerun[seed][k] for k in SAME_WALK), (arm, seed)
 
 
 def test_the_covered_view_bounds_tables_are_what_their_commands_print(

@@ -34,6 +34,8 @@ FIGURES = [
     ("map_lost_share", "frames the device's map did not serve, mean over the devices (%)",
      100.0, "{:.2f}"),
     ("tracked_share", "frames tracked (%)", 100.0, "{:.2f}"),
+    ("pieces_slots", "device-slots planned on a map in pieces (every frame counted lost)", 1.0,
+     "{:.0f}"),
     ("cross_rms_m", "cross-device revisit error RMS (cm)", 100.0, "{:.2f}"),
     ("ate_m_mean", "ATE in the place's frame, mean over the devices (cm)", 100.0, "{:.2f}"),
     ("loops", "loops closed", 1.0, "{:.0f}"),
