@@ -6,7 +6,7 @@ lent as the edge node merges them: the node's own
         [--after 300] [--order forward[,backward…]] [--seed 0] [--uplink lte]
         [--unseen-slots N] [--lend-eagerly] [--merge-inliers N] [--look-backoff N] [--no-merge]
         [--covered-m M] [--covered-deg D] [--covered-min-points N]
-        [--interleave N | --own-walks] [--every 300] [--csv FILE] [--baseline COMMIT [--rounds 1]]
+        [--interleave N] [--own-walks] [--every 300] [--csv FILE] [--baseline COMMIT [--rounds 1]]
 
 Device k (k = 0, 1, …) starts the walk ``k × --after`` frames after the first, on an uplink
 of its own (seed ``--seed`` + k): users joining a place others walk at different times — on
