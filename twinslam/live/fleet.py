@@ -56,7 +56,7 @@ from twinslam.live.tracking_quality import (
 )
 from twinslam.node_runtime.middleware_teardown import ended_as_asked
 from twinslam.node_runtime.session import RosSession
-from twinslam.sequence_player.playback import ORDERS, phase_for
+from twinslam.sequence_player.playback import ORDERS, phase_for, played_slot
 from twinslam.sequences.opening import is_synthetic, synthetic_walk
 from twinslam.slot_protocol import default_device, table1
 
@@ -280,16 +280,22 @@ class FleetLauncher(Launcher):
         fleet.check()
         self.fleet, self.starts = fleet, list(starts)
         self.records: dict[str, PipelineMonitor] = {}
-        slot_frames = int(self._device_param("slot_frames", default_device.SLOT_FRAMES))
-        if slot_frames % fleet.every:
-            raise ValueError(f"every {fleet.every}: the device's slot of {slot_frames} frames "
-                             "does not split into whole frames played (slot_frames must be a "
-                             "multiple of it)")
+        try:
+            self._played_slot()
+        except ValueError as err:
+            raise ValueError(f"every {fleet.every}: {err} (the device's slot_frames must be "
+                             "a multiple of it)") from None
+
+    def _played_slot(self) -> tuple[int, float]:
+        """A device's slot frames and nominal frame rate × ``rate``, as its camera plays one
+        frame in ``every`` (:func:`played_slot`)."""
+        return played_slot(int(self._device_param("slot_frames", default_device.SLOT_FRAMES)),
+                           self._device_param("frame_rate_hz", table1.FRAME_RATE_HZ)
+                           * self.config.rate, self.fleet.every)
 
     def device_slot_frames(self) -> int:
         """F of a device's slot, in the frames its camera plays (one in ``every``)."""
-        return int(self._device_param("slot_frames", default_device.SLOT_FRAMES)
-                   ) // self.fleet.every
+        return self._played_slot()[0]
 
     def edge_args(self, index: int = 0, params_folder: Path | None = None) -> list[str]:
         """Edge ``index``'s command line: its devices, its share of the budget; a second edge
@@ -333,10 +339,8 @@ class FleetLauncher(Launcher):
             args += ["-p", f"seed:={self.fleet.device_seed(index)}",
                      "-p", f"odom_frame:={device}/odom"]
             if every > 1:                        # a slot spans as long, in fewer frames
-                rate = (self._device_param("frame_rate_hz", table1.FRAME_RATE_HZ)
-                        * self.config.rate / every)
-                args += ["-p", f"frame_rate_hz:={rate!r}",
-                         "-p", f"slot_frames:={self.device_slot_frames()}"]
+                slot_frames, rate = self._played_slot()
+                args += ["-p", f"frame_rate_hz:={rate!r}", "-p", f"slot_frames:={slot_frames}"]
         else:
             args += ["-p", f"frame_id:={device}/camera"]
             if self.fleet.orders:                # after the scenario's: the last one holds

@@ -68,6 +68,17 @@ def phase_for(residue: int, start: int, every: int) -> int:
     return (residue - start) % every
 
 
+def played_slot(slot_frames: int, frame_rate_hz: float, every: int) -> tuple[int, float]:
+    """The slot's frames and the nominal frame rate of a device whose camera plays one frame
+    in ``every``: both divided by ``every``, so that a slot lasts as long and asks for its
+    uploads as often as at every frame. Raises :class:`ValueError` where the slot's frames do
+    not split ``every`` ways."""
+    if slot_frames % every:
+        raise ValueError(f"a slot of {slot_frames} frames does not split {every} ways into "
+                         "whole frames played")
+    return slot_frames // every, frame_rate_hz / every
+
+
 @dataclass(frozen=True)
 class Playback:
     """The order frames are played in, which of them are played (the sequence's frames
