@@ -69,8 +69,9 @@ PARAMETERS = (
               "more pieces (uploads that share no point with it, as in a fast turn, or an "
               "eviction of the keyframe that ties a piece to the rest), upload as many of the "
               "slot's newest frames that tie to the map and evict keyframes whose eviction "
-              "splits nothing instead; false: the policy's decision as it is (the paper's "
-              "preset)"),
+              "splits nothing instead; and where the map is in pieces, evict whole a piece "
+              "no tracked frame has tied to for two slots (the camera left it; it waits in "
+              "the archive); false: the policy's decision as it is (the paper's preset)"),
     ParamSpec("checkpoint", "", "map file written every checkpoint_every slots and resumed "
               "from after a restart (a standby edge takes a device over from it); empty: none"),
     ParamSpec("checkpoint_every", 1, "slots between two checkpoints of a device's map (with "

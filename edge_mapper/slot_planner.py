@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from twinslam.policies.actions import MapAction, SlotObservation, check_map_action
-from twinslam.policies.connected_map import connected_action
+from twinslam.policies.connected_map import STALE_SLOTS, connected_action, seen_keyframes
 from twinslam.policies.protocol import MapPolicy, SlotViewer
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap, shared_counts
 from twinslam.slam.back_end.view_coverage import uploads_for_new_views
@@ -127,6 +127,10 @@ class SlotPlanner:
         #: what the uplink carried while this device, needing a map, waited for an upload
         #: (:func:`~twinslam.uncertainty.map_uncertainty.waited_after`): it is served first
         self.waited_mbit = 0.0
+        #: the last slot in which a tracked frame tied to each map keyframe's piece (or the
+        #: keyframe entered the map): a piece left that long ago is dropped from a map in
+        #: pieces (:data:`~twinslam.policies.connected_map.STALE_SLOTS`)
+        self.last_seen: dict[int, int] = {}
 
     def weights(self, frames: dict[int, FrameObservations], a: list[int], b: list[int]
                 ) -> np.ndarray:
@@ -234,7 +238,7 @@ class SlotPlanner:
         check_map_action(slot, n_up, n_ev, set(cand), map_ids, action)
         chosen = action
         if cfg.connected_map:
-            action = connected_action(obs, action)
+            action = connected_action(obs, action, self._stale(slot, map_ids, frames, full))
         mended = chosen if action is not chosen else None
         # υ of F_k against the map as it is (eq. 8), None for an empty map
         m = len(map_ids)
@@ -243,6 +247,20 @@ class SlotPlanner:
         upsilon = next_slot_uncertainty(full[:m, :m], full[m:, :m], self.config.log_det_pi,
                                         shared >= MIN_INLIERS)
         return SlotPlan(action, obs, upsilon, skipped, mended)
+
+
+    def _stale(self, slot: int, map_ids: list[int], frames: list[FrameObservations],
+               full: np.ndarray) -> set[int]:
+        """The map keyframes whose piece no tracked frame has tied to for
+        :data:`STALE_SLOTS` slots (this one's frames counted: ``full`` holds the weights
+        among ``map_ids`` and then the slot's ``frames``)."""
+        m = len(map_ids)
+        tracked = [m + i for i, f in enumerate(frames) if f.tracked]
+        seen = seen_keyframes(full[:m, :m], full[np.ix_(tracked, range(m))])
+        last = {k: self.last_seen.get(k, slot) for k in map_ids}
+        last.update((k, slot) for k, s in zip(map_ids, seen, strict=True) if s)
+        self.last_seen = last
+        return {k for k, s in last.items() if slot - s >= STALE_SLOTS}
 
 
 def _held_counts(sets: list[np.ndarray], held: np.ndarray) -> np.ndarray:

@@ -145,3 +145,92 @@ def test_the_edge_plans_uploads_that_keep_its_map_one_graph_unless_told_not_to()
     assert on.policy_action is not None and on.policy_action.upload == [30, 31]
     assert mended_decision(on.policy_action, on.action).startswith(
         "uploads [17, 31] instead of the policy's [30, 31]")
+
+
+def _map_in_two_pieces() -> tuple[dict[int, set[int]], SlotObservation]:
+    """Keyframes 10-11 (points 1-80) and 12-14 (points 300-420, a chain: 12 ties to 13, 13 to
+    14) share nothing: the map is in two pieces. The slot's frames 20-21 see only the second
+    piece (keyframe 14's points)."""
+    sets = {10: _span(1, 50), 11: _span(30, 80), 12: _span(300, 350), 13: _span(330, 390),
+            14: _span(370, 420), 20: _span(380, 440), 21: _span(400, 460)}
+    return sets, _observation(sets, [10, 11, 12, 13, 14], [20, 21], 1)
+
+
+def test_a_piece_the_camera_left_leaves_the_map_whole_beyond_the_count() -> None:
+    """No tracked frame has tied to keyframes 10-11 for STALE_SLOTS slots: their piece goes
+    whole with the slot's decision, though Theorem 1 asked for no eviction, and the map left
+    is one graph: the piece the camera is in with the upload."""
+    _, obs = _map_in_two_pieces()
+    action = MapAction([21], [])
+    mended = connected_action(obs, action, stale={10, 11})
+    assert mended == MapAction([21], [10, 11])
+    kept = [12, 13, 14, 21]
+    assert pieces(obs.weight_block(kept, kept)) == 1
+    said = mended_decision(action, mended)
+    assert "evicts [10, 11] instead of the policy's []" in said
+    assert said.endswith("no tracked frame tied to these for 2 slots: the map keeps the piece "
+                         "the camera is in")
+    # the same map while the piece is not stale yet (the camera may look back): as chosen
+    assert connected_action(obs, action) is action
+    assert connected_action(obs, action, stale={10}) is action
+
+
+def test_a_dropped_piece_counts_towards_the_evictions_the_uploads_need() -> None:
+    """Theorem 1 asks for two evictions; the stale piece makes room for both, and the piece
+    the camera is in keeps the keyframes the policy would have evicted. With three asked
+    for, the policy's first eviction in the live piece goes as well; a decision that evicts
+    the piece itself stands."""
+    _, obs = _map_in_two_pieces()
+    obs.n_evict = 2
+    assert connected_action(obs, MapAction([21], [12, 10]), stale={10, 11}) == \
+        MapAction([21], [10, 11])
+    obs.n_evict = 3
+    assert connected_action(obs, MapAction([21], [12, 13, 10]), stale={10, 11}) == \
+        MapAction([21], [10, 11, 12])
+    whole = MapAction([21], [12, 10, 11])
+    assert connected_action(obs, whole, stale={10, 11}) is whole
+
+
+def test_no_piece_is_dropped_that_an_upload_joins_or_where_nothing_would_be_left() -> None:
+    """An upload that ties the stale piece to the rest makes the map one graph: nothing is
+    dropped. A map all of whose keyframes are stale (a device that tied to nothing, its
+    uploads none) stays, for the edge to relocalise the device in."""
+    sets, obs = _map_in_two_pieces()
+    sets[22] = _span(60, 100) | _span(400, 430)      # sees keyframe 11 and keyframe 14
+    obs = _observation(sets, [10, 11, 12, 13, 14], [20, 21, 22], 1)
+    bridging = MapAction([22], [])
+    assert connected_action(obs, bridging, stale={10, 11}) is bridging
+    _, obs = _map_in_two_pieces()
+    obs.n_upload = 0
+    nothing = MapAction([], [])
+    assert connected_action(obs, nothing, stale={10, 11, 12, 13, 14}) is nothing
+
+
+def test_the_edge_drops_a_piece_no_frame_has_tied_to_for_two_slots() -> None:
+    """The edge's planner over a map in two pieces whose slot frames see only the second:
+    the first two slots keep the piece behind the camera (it was tied to when it entered; one
+    slot away may be a glance), the third evicts it whole; a tracked frame that ties to it
+    again keeps it another two slots."""
+    m = KeyFrameMap()
+    point_of: dict[int, int] = {}
+    for kf, points in ((0, range(0, 60)), (1, range(30, 90)), (2, range(500, 560)),
+                       (3, range(530, 590))):
+        m.add_keyframe(kf, np.eye(4))
+        for p in points:
+            if p not in point_of:
+                point_of[p] = m.add_point(np.zeros(3), np.zeros(32, np.uint8))
+            m.observe(kf, point_of[p])
+    planner = SlotPlanner(m, make_policy("lff"), SlotConfig(vmax=45))
+
+    def slot(k: int, first: int, sees: range) -> MapAction:
+        frames = [FrameObservations(first + i, frozenset(point_of[p] for p in sees))
+                  for i in range(4)]
+        return planner.plan(k, frames, rate_mbps=20.0, rate_state=0,
+                            rate_history=[0]).action
+
+    assert slot(1, 10, range(540, 590)).evict == []
+    assert slot(2, 20, range(540, 590)).evict == []
+    assert slot(3, 30, range(540, 590)).evict == [0, 1]
+    assert slot(4, 40, range(20, 60)).evict == []          # the camera back at keyframes 0-1
+    assert slot(5, 50, range(540, 590)).evict == []
+    assert slot(6, 60, range(540, 590)).evict == [0, 1]

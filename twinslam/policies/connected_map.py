@@ -25,11 +25,27 @@ than the map it starts from. Otherwise it mends what splits it, keeping Theorem 
   that sees the map, then the newest frame, which sees that one.
 
 Where the mended decision would leave as many pieces or more, the policy's stands.
+
+Those two keep a map whole; they cannot rejoin one already in pieces, and nothing else does:
+a restore from the archive must leave the map's uncertainty finite, so none is taken while
+it is not. Measured on four devices walking the corridor (``bench.place_walks
+--own-walks``): a device's upload at a turn shared no point with its map and no frame of the
+slot tied to it; the piece behind the camera stayed for 23-38 slots, its keyframes evicted
+one a slot by Theorem 1's count, every frame counted lost (u = +∞) while the device tracked
+them all. So a piece that no tracked frame of :data:`STALE_SLOTS` slots in a row has tied to
+(:func:`seen_keyframes`) — the camera has left it — goes whole with the slot's evictions,
+beyond Theorem 1's count where it is larger: the map left is what the camera sees, its
+uncertainty finite again, and the piece waits in the archive, from which a restore brings
+its keyframes back once the camera heads there. The slot's evictions made room; the piece's
+size of them counts towards them (the policy's others, as many as the count still asks).
+A piece is never dropped while it holds all the map (a device lost, tying to nothing: the
+map stays for the edge to relocalise it in), nor one that holds a keyframe that entered the
+map within those slots (uploads count as seen).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 
 import numpy as np
 from scipy.sparse.csgraph import connected_components
@@ -42,6 +58,11 @@ from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
 #: one shared point makes a graph connected, not a keyframe a device can be tracked by
 MIN_TIE = MIN_INLIERS
 
+#: slots in a row in which no tracked frame tied to a piece of a map in pieces before it is
+#: dropped: one slot looking away (a glance at a wall, a fast turn and back) keeps the map
+#: the camera comes back to; two at the default 1 s slots is two seconds of a map in pieces
+STALE_SLOTS = 2
+
 
 def pieces(weights: np.ndarray) -> int:
     """How many connected pieces the graph ``weights > 0`` falls into (none for no node)."""
@@ -49,6 +70,18 @@ def pieces(weights: np.ndarray) -> int:
         return 0
     count, _ = connected_components(np.asarray(weights) > 0, directed=False)
     return int(count)
+
+
+def seen_keyframes(map_weights: np.ndarray, frame_weights: np.ndarray) -> np.ndarray:
+    """Which keyframes of a map (``map_weights``: shared points among them) lie in a piece
+    that one of the slot's tracked frames ties to (``frame_weights``: a row a frame, a column
+    a keyframe) by :data:`MIN_TIE` shared points, as a bool a keyframe."""
+    n = len(map_weights)
+    if not n:
+        return np.zeros(0, dtype=bool)
+    _, label = connected_components(np.asarray(map_weights) > 0, directed=False)
+    tied = (np.asarray(frame_weights).reshape(-1, n) >= MIN_TIE).any(axis=0)
+    return np.isin(label, np.unique(label[tied]))
 
 
 class _Graph:
@@ -64,6 +97,11 @@ class _Graph:
         rows = [self.at[x] for x in ids]
         return pieces(self.w[np.ix_(rows, rows)])
 
+    def labels(self, ids: Sequence[int]) -> np.ndarray:
+        """The piece each of ``ids`` lies in (labels 0, 1, ...)."""
+        rows = [self.at[x] for x in ids]
+        return connected_components(self.w[np.ix_(rows, rows)] > 0, directed=False)[1]
+
     def tie(self, frame: int, to: Sequence[int]) -> float:
         """The most points ``frame`` shares with one of ``to``."""
         if not to:
@@ -71,21 +109,46 @@ class _Graph:
         return float(self.w[self.at[frame], [self.at[x] for x in to]].max())
 
 
-def connected_action(obs: SlotObservation, action: MapAction) -> MapAction:
+def connected_action(obs: SlotObservation, action: MapAction,
+                     stale: Collection[int] = frozenset()) -> MapAction:
     """``action``, or — where the map it leaves has more pieces than the map it starts from —
     its evictions and uploads mended as the module docstring says (as many of each; restores
-    kept as they are)."""
+    kept as they are); where the map it leaves is in pieces, a piece all of whose keyframes
+    are ``stale`` (no tracked frame has tied to their piece for :data:`STALE_SLOTS` slots)
+    evicted whole with them."""
     if set(action.upload) & set(action.evict) or not obs.map_frames:
         return action
     graph = _Graph(obs)
     evict = _evictions(graph, obs, action)
     upload = _uploads(graph, obs, action, evict)
+    dropped = _stale_pieces(graph, obs, upload, stale)
+    if dropped:
+        gone = set(dropped)
+        rest = [k for k in evict if k not in gone]
+        evict = [*dropped, *rest[:max(len(evict) - len(dropped), 0)]]
     if (evict, upload) == (list(action.evict), list(action.upload)):
         return action
     if graph.pieces([*_kept(obs, evict), *upload]) >= graph.pieces(
             [*_kept(obs, action.evict), *action.upload]):
         return action                 # never a mend that leaves as many pieces or more
     return MapAction(upload, evict, list(action.restore))
+
+
+def _stale_pieces(graph: _Graph, obs: SlotObservation, upload: Sequence[int],
+                  stale: Collection[int]) -> list[int]:
+    """The keyframes of the pieces of the map with the slot's uploads whose keyframes are all
+    ``stale``, oldest entered first; none where nothing else would be left."""
+    if not stale:
+        return []
+    pool = [*obs.map_frames, *(f for f in upload if f not in obs.map_frames)]
+    label = graph.labels(pool)
+    if label.max(initial=0) == 0:
+        return []
+    fresh = {int(label[i]) for i, k in enumerate(pool) if k not in stale}
+    if not fresh:
+        return []
+    gone = {k for i, k in enumerate(pool) if int(label[i]) not in fresh}
+    return [k for k in obs.entry_order() if k in gone]
 
 
 def _kept(obs: SlotObservation, evict: Sequence[int]) -> list[int]:
@@ -152,10 +215,16 @@ def mended_decision(policy: MapAction, mended: MapAction,
         return "[" + ", ".join(name(k) for k in ids) + "]"
 
     parts = []
+    outcome = ": the map stays one graph"
     if list(policy.upload) != list(mended.upload):
         parts.append(f"uploads {list(mended.upload)} instead of the policy's "
                      f"{list(policy.upload)}, which share no point with the map")
-    if list(policy.evict) != list(mended.evict):
+    if len(mended.evict) > len(policy.evict):
+        parts.append(f"evicts {listed(sorted(mended.evict))} instead of the policy's "
+                     f"{listed(sorted(policy.evict))}: the map was in pieces, and no tracked "
+                     f"frame tied to these for {STALE_SLOTS} slots")
+        outcome = ": the map keeps the piece the camera is in"
+    elif list(policy.evict) != list(mended.evict):
         parts.append(f"evicts {listed(sorted(mended.evict))} instead of the policy's "
                      f"{listed(sorted(policy.evict))}, which would cut the map")
-    return "; ".join(parts) + ": the map stays one graph" if parts else "as the policy chose"
+    return "; ".join(parts) + outcome if parts else "as the policy chose"
