@@ -30,7 +30,7 @@ import argparse
 import math
 import tempfile
 import time
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -59,9 +59,10 @@ def run(spec: str, frames: int, order: str, uplink: str, seed: int, connected: b
     # the planner's own name for the step, replaced for the walk to count what it mends
     mend = slot_planner.connected_action  # type: ignore[attr-defined]
 
-    def counted(obs: SlotObservation, action: MapAction) -> MapAction:
+    def counted(obs: SlotObservation, action: MapAction,
+                stale: Collection[int] = frozenset()) -> MapAction:
         t0 = time.perf_counter()
-        answer = mend(obs, action)
+        answer = mend(obs, action, stale)
         check_ms.append((time.perf_counter() - t0) * 1e3)
         if answer is not action:
             mended.append(obs.slot)

@@ -248,7 +248,6 @@ class SlotPlanner:
                                         shared >= MIN_INLIERS)
         return SlotPlan(action, obs, upsilon, skipped, mended)
 
-
     def _stale(self, slot: int, map_ids: list[int], frames: list[FrameObservations],
                full: np.ndarray) -> set[int]:
         """The map keyframes whose piece no tracked frame has tied to for

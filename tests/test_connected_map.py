@@ -8,7 +8,13 @@ import numpy as np
 
 from edge_mapper.slot_planner import FrameObservations, SlotConfig, SlotPlanner
 from twinslam.policies.actions import MapAction, SlotObservation
-from twinslam.policies.connected_map import MIN_TIE, connected_action, mended_decision, pieces
+from twinslam.policies.connected_map import (
+    MIN_TIE,
+    connected_action,
+    mended_decision,
+    pieces,
+    seen_keyframes,
+)
 from twinslam.policies.registry import make_policy
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 
@@ -234,3 +240,18 @@ def test_the_edge_drops_a_piece_no_frame_has_tied_to_for_two_slots() -> None:
     assert slot(4, 40, range(20, 60)).evict == []          # the camera back at keyframes 0-1
     assert slot(5, 50, range(540, 590)).evict == []
     assert slot(6, 60, range(540, 590)).evict == [0, 1]
+
+
+def test_a_keyframe_is_seen_where_a_frame_ties_to_any_keyframe_of_its_piece() -> None:
+    """Keyframes 0-1-2 a chain, 3-4 a second piece: a frame sharing MIN_TIE points with
+    keyframe 2 sees the whole chain (0 through its piece), a frame sharing fewer with keyframe
+    4 sees nothing of the other piece."""
+    w = np.zeros((5, 5))
+    for a, b in ((0, 1), (1, 2), (3, 4)):
+        w[a, b] = w[b, a] = 40
+    frames = np.zeros((2, 5))
+    frames[0, 2] = MIN_TIE
+    frames[1, 4] = MIN_TIE - 1
+    assert seen_keyframes(w, frames).tolist() == [True, True, True, False, False]
+    assert seen_keyframes(w, np.zeros((0, 5))).tolist() == [False] * 5
+    assert seen_keyframes(np.zeros((0, 0)), np.zeros((0, 0))).tolist() == []

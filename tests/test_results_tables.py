@@ -1078,3 +1078,33 @@ def test_the_cross_device_split_tables_are_what_their_commands_print(
     rows = [row.strip() for scenario in ("mapped", "two-ends")
             for row in uplink.table(FIGURES / "shared-map" / "interleaved", scenario)]
     assert _on_a_page(rows) and len(rows) == 8
+
+
+def test_the_left_piece_tables_are_what_their_command_prints() -> None:
+    """Four devices on walks of their own with a split map kept (the evening's rerun, and the
+    code before beside this one on seeds 4–7) against the piece the camera left dropped: the
+    tables as ``place_walks_table.py --names`` prints them, every seed's pieces as the page
+    has them, and the seeds whose maps never split the same walk to the digit."""
+    folder = FIGURES / "shared-map" / "place-walks" / "own-walks"
+    script = _script("place_walks_table")
+    names = ("a split map kept", "the left piece dropped")
+    for first, second, seeds in ((folder / "rerun" / "own.csv",
+                                  folder / "left-piece" / "dropped.csv", "0, 1, 2, 3"),
+                                 (folder / "left-piece" / "kept-4-7.csv",
+                                  folder / "left-piece" / "dropped-4-7.csv", "4, 5, 6, 7")):
+        printed = script.table(first, second, names=names)
+        assert _missing("\n".join(printed)) == [], (first, second)
+        assert f"seeds {seeds}:" in printed[0] and "| a split map kept (seed by seed) |" in \
+            printed[2]
+    dropped = script.runs(folder / "left-piece" / "dropped.csv")
+    assert [dropped[s]["device_pieces_slots"] for s in range(4)] == \
+        ["1;0;0;0", "0;0;0;0", "0;0;0;1", "0;0;2;0"]
+    from bench.place_walks import SAME_WALK
+
+    kept = script.runs(folder / "rerun" / "own.csv")
+    assert all(kept[1][k] == dropped[1][k] for k in SAME_WALK)        # seed 1 never split
+    before, after = (script.runs(folder / "left-piece" / f"{arm}-4-7.csv")
+                     for arm in ("kept", "dropped"))
+    for seed in range(4, 8):
+        assert after[seed]["device_pieces_slots"] == "0;0;0;0"
+        assert all(before[seed][k] == after[seed][k] for k in SAME_WALK), seed

@@ -6,6 +6,7 @@ both arms and the paired difference (second − first, Student's t,
 alone) or one arm's runs predate is left out.
 
     .venv/bin/python docs/figures/place_walks_table.py FIRST.csv SECOND.csv [--last-device]
+        [--names "FIRST NAME,SECOND NAME"]
 """
 
 from __future__ import annotations
@@ -87,16 +88,18 @@ def arm(row: dict[str, str], settings: list[str]) -> str:
     return ", ".join(named.values()) or "merged"
 
 
-def table(first_path: Path, second_path: Path, last_device: bool = False) -> list[str]:
+def table(first_path: Path, second_path: Path, last_device: bool = False,
+          names: tuple[str, str] | None = None) -> list[str]:
     """The table of two arms: a row a figure (with ``last_device``, the last device's edge
-    time too)."""
+    time too); ``names`` the arms' names where they differ in the code that ran them, not in
+    a setting the CSV records."""
     first, second = runs(first_path), runs(second_path)
     seeds = sorted(first.keys() & second.keys())
     if not seeds:
         raise SystemExit(f"{first_path} and {second_path} share no seed")
     one, two = first[seeds[0]], second[seeds[0]]
     differ = [name for name in SETTINGS if one.get(name) != two.get(name)]
-    names = [arm(one, differ), arm(two, differ)]
+    names = list(names) if names else [arm(one, differ), arm(two, differ)]
     lines = [f"{one['sequence']}, {one['devices']} devices each {one['after']} frames after "
              f"the one before, {one['order']}, uplink {one['uplink']}, seeds "
              f"{', '.join(map(str, seeds))}:", "",
@@ -124,8 +127,17 @@ def main() -> None:
     parser.add_argument("--last-device", action="store_true",
                         help="also the last device's median edge time a slot (the one whose "
                              "map has the most to adopt)")
+    parser.add_argument("--names", metavar="FIRST,SECOND",
+                        help="the two arms' names in the table, where they differ in the code "
+                             "that ran them rather than in a setting the CSVs record")
     args = parser.parse_args()
-    print("\n".join(table(args.first, args.second, args.last_device)))
+    names = None
+    if args.names:
+        given = [n.strip() for n in args.names.split(",")]
+        if len(given) != 2 or not all(given):
+            parser.error(f"--names takes two names separated by a comma, got {args.names!r}")
+        names = (given[0], given[1])
+    print("\n".join(table(args.first, args.second, args.last_device, names)))
 
 
 if __name__ == "__main__":

@@ -48,6 +48,7 @@ from __future__ import annotations
 from collections.abc import Callable, Collection, Sequence
 
 import numpy as np
+from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
 from twinslam.policies.actions import MapAction, SlotObservation
@@ -79,9 +80,11 @@ def seen_keyframes(map_weights: np.ndarray, frame_weights: np.ndarray) -> np.nda
     n = len(map_weights)
     if not n:
         return np.zeros(0, dtype=bool)
-    _, label = connected_components(np.asarray(map_weights) > 0, directed=False)
+    # a sparse graph for scipy: handed a dense one, it converts it at twice the cost
+    _, label = connected_components(csr_matrix(np.asarray(map_weights) > 0), directed=False)
     tied = (np.asarray(frame_weights).reshape(-1, n) >= MIN_TIE).any(axis=0)
-    return np.isin(label, np.unique(label[tied]))
+    seen: np.ndarray = np.bincount(label, weights=tied)[label] > 0
+    return seen
 
 
 class _Graph:
@@ -100,7 +103,9 @@ class _Graph:
     def labels(self, ids: Sequence[int]) -> np.ndarray:
         """The piece each of ``ids`` lies in (labels 0, 1, ...)."""
         rows = [self.at[x] for x in ids]
-        return connected_components(self.w[np.ix_(rows, rows)] > 0, directed=False)[1]
+        label: np.ndarray = connected_components(self.w[np.ix_(rows, rows)] > 0,
+                                                 directed=False)[1]
+        return label
 
     def tie(self, frame: int, to: Sequence[int]) -> float:
         """The most points ``frame`` shares with one of ``to``."""
