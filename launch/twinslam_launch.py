@@ -10,6 +10,11 @@ On separate machines, ``host:=device`` (camera player + device tracker), ``host:
 
     ros2 launch twinslam twinslam_launch.py host:=edge policy:=adapt
 
+``every:=2 phase:=1`` plays one frame in two (those numbered 1 modulo 2), as a camera at half
+the recorded rate: the device is told its slot in the frames it sees (the parameter file's
+``slot_frames`` and ``frame_rate_hz`` divided by ``every``; a slot that does not split so is
+refused before any node starts) — two pairs at phases 0 and 1 never show one image.
+
 ``namespace:=/ar1`` puts a device/edge pair under ``/ar1`` (a second pair under ``/ar2`` shares
 the domain); ``/tf`` is shared by every pair, so give each its own frames as well:
 ``map_frame:=ar1/map camera_frame:=ar1/camera odom_frame:=ar1/odom``. The bundled parameter
@@ -25,14 +30,39 @@ Needs the ROS 2 ``launch`` / ``launch_ros`` packages (never PyPI's unrelated ``l
 from __future__ import annotations
 
 import os
+from pathlib import Path
+from typing import Any
 
 from ament_index_python.packages import get_package_share_directory
-from launch.actions import DeclareLaunchArgument, SetEnvironmentVariable
+from launch.actions import DeclareLaunchArgument, OpaqueFunction, SetEnvironmentVariable
 from launch.conditions import IfCondition
+from launch.launch_context import LaunchContext
 from launch.substitutions import LaunchConfiguration, PythonExpression
 from launch_ros.actions import Node
 
 from launch import LaunchDescription
+from twinslam.live.launcher import node_parameters
+from twinslam.sequence_player.playback import played_slot
+from twinslam.slot_protocol import default_device, table1
+
+
+def device_slot(context: LaunchContext) -> dict[str, Any]:
+    """The device's parameters that follow the player's ``every``: none at every frame; at
+    one frame in N, its slot's frames and nominal frame rate as the parameter file gives them,
+    divided by N (``twinslam launch --every`` tells its devices the same)."""
+    every = int(LaunchConfiguration("every").perform(context))
+    if every <= 1:
+        return {}
+    section = node_parameters(Path(LaunchConfiguration("params_file").perform(context)),
+                              "device_tracker")
+    try:
+        slot_frames, rate = played_slot(
+            int(section.get("slot_frames", default_device.SLOT_FRAMES)),
+            float(section.get("frame_rate_hz", table1.FRAME_RATE_HZ)), every)
+    except ValueError as err:
+        raise RuntimeError(f"every:={every}: {err} (the parameter file's device_tracker "
+                           "slot_frames must be a multiple of it)") from None
+    return {"slot_frames": slot_frames, "frame_rate_hz": rate}
 
 
 def generate_launch_description() -> LaunchDescription:
@@ -52,6 +82,21 @@ def generate_launch_description() -> LaunchDescription:
         if empty:
             test += [" and '", arg(empty), "' == ''"]
         return IfCondition(PythonExpression(test))
+
+    def devices(context: LaunchContext) -> list[Node]:
+        """The device tracker, in its two variants (``map_source`` given or left to the
+        parameter file), told its slot in the frames its camera plays."""
+        told = {"map_frame": arg("map_frame"), "camera_frame": arg("camera_frame"),
+                "odom_frame": arg("odom_frame"), **device_slot(context)}
+        return [
+            Node(package="twinslam", executable="device_tracker", name="device_tracker",
+                 namespace=arg("namespace"),
+                 parameters=[arg("params_file"), {**told, "map_source": arg("map_source")}],
+                 output="screen", condition=on("device", given="map_source")),
+            Node(package="twinslam", executable="device_tracker", name="device_tracker",
+                 namespace=arg("namespace"), parameters=[arg("params_file"), told],
+                 output="screen", condition=on("device", empty="map_source")),
+        ]
 
     return LaunchDescription([
         SetEnvironmentVariable("FASTRTPS_DEFAULT_PROFILES_FILE", profile),
@@ -87,6 +132,15 @@ def generate_launch_description() -> LaunchDescription:
                               description="play the sequence again from start at its end"),
         DeclareLaunchArgument("rate", default_value="1.0",
                               description="playback speed, x the recorded frame rate"),
+        DeclareLaunchArgument("every", default_value="1",
+                              description="play one frame in every this many, each at its "
+                              "time in the walk (a camera at 1/every of the recorded rate); "
+                              "the device's slot_frames and frame_rate_hz from the parameter "
+                              "file are divided by it, so a slot lasts as long"),
+        DeclareLaunchArgument("phase", default_value="0",
+                              description="which frames every plays: those numbered phase "
+                              "modulo every, 0 to every - 1 (two pairs at every:=2, phases 0 "
+                              "and 1, never show one image)"),
         DeclareLaunchArgument("twin", default_value="false",
                               description="start udt_node, the user digital twin, too"),
         DeclareLaunchArgument(
@@ -97,7 +151,9 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("host", default_value="all",
                               description="all | device | edge | twin: this machine's nodes"),
         # each of edge and device in two variants: with the launch argument that overrides the
-        # parameter file where it was given, without it where it was left empty
+        # parameter file where it was given, without it where it was left empty; the devices
+        # first, whose slot is checked against every before any node starts
+        OpaqueFunction(function=devices),
         Node(package="twinslam", executable="edge_mapper", name="edge_mapper",
              namespace=arg("namespace"),
              parameters=[arg("params_file"), {"policy": arg("policy"),
@@ -107,19 +163,6 @@ def generate_launch_description() -> LaunchDescription:
              namespace=arg("namespace"),
              parameters=[arg("params_file"), {"map_frame": arg("map_frame")}],
              output="screen", condition=on("edge", empty="policy")),
-        Node(package="twinslam", executable="device_tracker", name="device_tracker",
-             namespace=arg("namespace"),
-             parameters=[arg("params_file"), {"map_frame": arg("map_frame"),
-                                               "camera_frame": arg("camera_frame"),
-                                               "odom_frame": arg("odom_frame"),
-                                               "map_source": arg("map_source")}],
-             output="screen", condition=on("device", given="map_source")),
-        Node(package="twinslam", executable="device_tracker", name="device_tracker",
-             namespace=arg("namespace"),
-             parameters=[arg("params_file"), {"map_frame": arg("map_frame"),
-                                               "camera_frame": arg("camera_frame"),
-                                               "odom_frame": arg("odom_frame")}],
-             output="screen", condition=on("device", empty="map_source")),
         Node(package="twinslam", executable="udt_node", name="udt_node", namespace=arg("namespace"),
              parameters=[arg("params_file")], output="screen",
              condition=IfCondition(PythonExpression([
@@ -132,6 +175,8 @@ def generate_launch_description() -> LaunchDescription:
                                                "start": arg("start"),
                                                "end": arg("end"),
                                                "loop": arg("loop"),
+                                               "every": arg("every"),
+                                               "phase": arg("phase"),
                                                "map_frame": arg("map_frame"),
                                                "frame_id": arg("camera_frame"),
                                                "wait_for_subscribers":

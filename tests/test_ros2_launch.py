@@ -43,9 +43,22 @@ def test_the_package_is_in_the_venvs_ament_index_with_its_launch_file() -> None:
     assert prefix.returncode == 0 and Path(prefix.stdout.strip()) == VENV, prefix.stderr
     shown = _ros2("launch", "twinslam", "twinslam_launch.py", "--show-args")
     assert shown.returncode == 0, shown.stderr[-2000:]
-    for name in ("params_file", "sequence", "policy", "map_source", "start", "end", "loop"):
+    for name in ("params_file", "sequence", "policy", "map_source", "start", "end", "loop",
+                 "every", "phase"):
         assert f"'{name}':" in shown.stdout, name
     assert "no description given" not in shown.stdout
+
+
+def test_a_slot_that_does_not_split_every_ways_is_refused_before_any_node_starts() -> None:
+    """``every:=7`` with the default device's 30-frame slot: the launch fails naming the
+    slot and the parameter, and starts no process."""
+    with LoopbackDomain() as domain:
+        refused = _ros2("launch", "twinslam", "twinslam_launch.py", "every:=7",
+                        env=dict(domain.env))
+    out = refused.stdout + refused.stderr
+    assert refused.returncode != 0, out[-3000:]
+    assert "does not split 7 ways" in out and "slot_frames" in out, out[-3000:]
+    assert "process started" not in out, out[-3000:]
 
 
 @pytest.mark.slow(seconds=60)
