@@ -86,15 +86,20 @@ def generate_launch_description() -> LaunchDescription:
     def devices(context: LaunchContext) -> list[Node]:
         """The device tracker, in its two variants (``map_source`` given or left to the
         parameter file), told its slot in the frames its camera plays."""
-        told = {"map_frame": arg("map_frame"), "camera_frame": arg("camera_frame"),
-                "odom_frame": arg("odom_frame"), **device_slot(context)}
+        slot = device_slot(context)
         return [
             Node(package="twinslam", executable="device_tracker", name="device_tracker",
                  namespace=arg("namespace"),
-                 parameters=[arg("params_file"), {**told, "map_source": arg("map_source")}],
+                 parameters=[arg("params_file"), {"map_frame": arg("map_frame"),
+                                                   "camera_frame": arg("camera_frame"),
+                                                   "odom_frame": arg("odom_frame"),
+                                                   "map_source": arg("map_source")}, slot],
                  output="screen", condition=on("device", given="map_source")),
             Node(package="twinslam", executable="device_tracker", name="device_tracker",
-                 namespace=arg("namespace"), parameters=[arg("params_file"), told],
+                 namespace=arg("namespace"),
+                 parameters=[arg("params_file"), {"map_frame": arg("map_frame"),
+                                                   "camera_frame": arg("camera_frame"),
+                                                   "odom_frame": arg("odom_frame")}, slot],
                  output="screen", condition=on("device", empty="map_source")),
         ]
 
