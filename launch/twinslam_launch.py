@@ -50,8 +50,15 @@ def device_slot(context: LaunchContext) -> dict[str, Any]:
     """The device's parameters that follow the player's ``every``: none at every frame; at
     one frame in N, its slot's frames and nominal frame rate as the parameter file gives them,
     divided by N (``twinslam launch --every`` tells its devices the same)."""
-    every = int(LaunchConfiguration("every").perform(context))
-    if every <= 1:
+    given = LaunchConfiguration("every").perform(context)
+    try:
+        every = int(given)
+    except ValueError:
+        every = 0
+    if every < 1:
+        raise RuntimeError(f"every:={given}: not a whole number of 1 or more (1 plays every "
+                           "frame)")
+    if every == 1:
         return {}
     section = node_parameters(Path(LaunchConfiguration("params_file").perform(context)),
                               "device_tracker")
