@@ -41,7 +41,7 @@ from launch.substitutions import LaunchConfiguration, PythonExpression
 from launch_ros.actions import Node
 
 from launch import LaunchDescription
-from twinslam.live.launcher import node_parameters
+from twinslam.live.parameter_files import node_parameters
 from twinslam.sequence_player.playback import played_slot
 from twinslam.slot_protocol import default_device, table1
 

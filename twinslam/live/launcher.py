@@ -25,6 +25,7 @@ from twinslam.hosts.forked import ForkServers, NodeProcess
 from twinslam.hosts.loopback import ProcessDomain
 from twinslam.live.monitor import PipelineMonitor, status_line
 from twinslam.live.node_fork_server import SWITCH, fork_servers
+from twinslam.live.parameter_files import EVERY_NODE, any_namespace, node_parameters
 from twinslam.live.playback_end import PlaybackEnd
 from twinslam.live.report import RunReport, report
 from twinslam.live.run_bag import RecordingOptions, RecordingSummary, RunRecorder
@@ -281,28 +282,6 @@ def preloaded_nodes() -> ForkServers | None:
     """The fork servers the launchers start their nodes from (``twinslam.live.node_fork_server``),
     unless ``TWINSLAM_FORK_SERVER=0`` asks for a ``python -m`` process each."""
     return None if os.environ.get(SWITCH, "1") == "0" else fork_servers(REPO)
-
-
-#: rcl's key for every node of every namespace; ``/**/NAME`` is node NAME in any namespace
-EVERY_NODE = "/**"
-
-
-def any_namespace(node: str) -> str:
-    """The parameter file key that gives a section to node ``node`` in any namespace: rcl
-    gives a node only the sections keyed by its full name (``/ar1/device_tracker``), a
-    wildcard that matches it, or — for a node in the root namespace alone — its plain name."""
-    return f"{EVERY_NODE}/{node}"
-
-
-def node_parameters(params_file: Path, node: str) -> dict[str, Any]:
-    """The ``ros__parameters`` a ROS 2 parameter file gives ``node`` (by ``/**``, ``/**/NODE``,
-    its plain name or ``/NODE``, the later overriding), for the launcher's own bookkeeping;
-    the nodes read the file themselves."""
-    doc = yaml.safe_load(Path(params_file).read_text(encoding="utf-8")) or {}
-    out: dict[str, Any] = {}
-    for key in (EVERY_NODE, any_namespace(node), node, f"/{node}"):
-        out.update((doc.get(key) or {}).get("ros__parameters", {}))
-    return out
 
 
 def renamed_params(params_file: Path, node: str, name: str, folder: Path) -> Path:

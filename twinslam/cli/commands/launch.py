@@ -21,10 +21,10 @@ from twinslam.live.launcher import (
     DEFAULT_PARAMS,
     LaunchConfig,
     Launcher,
-    node_parameters,
     tc_uplink_params,
 )
 from twinslam.live.node_logs import write_logs
+from twinslam.live.parameter_files import node_parameters
 from twinslam.live.report import RunReport, policy_label, print_table
 from twinslam.live.run_bag import (
     CHUNK_MODES,
