@@ -65,12 +65,16 @@ MIN_TIE = MIN_INLIERS
 STALE_SLOTS = 2
 
 
+def _components(weights: np.ndarray) -> tuple[int, np.ndarray]:
+    """(pieces, the piece of each node) of the graph ``weights > 0``, at least one node."""
+    # a sparse graph for scipy: handed a dense one, it converts it at twice the cost
+    count, label = connected_components(csr_matrix(np.asarray(weights) > 0), directed=False)
+    return int(count), label
+
+
 def pieces(weights: np.ndarray) -> int:
     """How many connected pieces the graph ``weights > 0`` falls into (none for no node)."""
-    if not len(weights):
-        return 0
-    count, _ = connected_components(np.asarray(weights) > 0, directed=False)
-    return int(count)
+    return _components(weights)[0] if len(weights) else 0
 
 
 def seen_keyframes(map_weights: np.ndarray, frame_weights: np.ndarray) -> np.ndarray:
@@ -80,8 +84,7 @@ def seen_keyframes(map_weights: np.ndarray, frame_weights: np.ndarray) -> np.nda
     n = len(map_weights)
     if not n:
         return np.zeros(0, dtype=bool)
-    # a sparse graph for scipy: handed a dense one, it converts it at twice the cost
-    _, label = connected_components(csr_matrix(np.asarray(map_weights) > 0), directed=False)
+    _, label = _components(map_weights)
     tied = (np.asarray(frame_weights).reshape(-1, n) >= MIN_TIE).any(axis=0)
     seen: np.ndarray = np.bincount(label, weights=tied)[label] > 0
     return seen
@@ -103,9 +106,7 @@ class _Graph:
     def labels(self, ids: Sequence[int]) -> np.ndarray:
         """The piece each of ``ids`` lies in (labels 0, 1, ...)."""
         rows = [self.at[x] for x in ids]
-        label: np.ndarray = connected_components(self.w[np.ix_(rows, rows)] > 0,
-                                                 directed=False)[1]
-        return label
+        return _components(self.w[np.ix_(rows, rows)])[1]
 
     def tie(self, frame: int, to: Sequence[int]) -> float:
         """The most points ``frame`` shares with one of ``to``."""
