@@ -30,7 +30,7 @@ from edge_mapper.slot_planner import FrameObservations
 from twinslam.node_runtime.long_lived_objects import keep_survivors_out
 from twinslam.node_runtime.math_threads import one_math_thread
 from twinslam.policies.registry import make_policy
-from twinslam.sequence_player.playback import Playback, PlayedSequence, played_slot
+from twinslam.sequence_player.playback import Playback, PlayedSequence, played_device_slot
 from twinslam.sequences.frame import RgbdFrame
 from twinslam.sequences.opening import AUTO, open_sequence
 from twinslam.slam.back_end.foreign_keyframes import is_foreign
@@ -298,7 +298,8 @@ def add_device_option(parser: argparse.ArgumentParser) -> None:
 def interleaved_device(device_params: Mapping[str, object], every: int) -> dict[str, object]:
     """The device parameters for a device that plays one frame in ``every`` (the player's
     ``every``): the default slot as the fleet launch plays it
-    (:func:`~twinslam.sequence_player.playback.played_slot`), a slot as long in fewer frames.
+    (:func:`~twinslam.sequence_player.playback.played_device_slot`), a slot as long in
+    fewer frames.
     A rate or slot given in ``device_params`` stands. Raises :class:`ValueError` where the
     default slot's frames do not split ``every`` ways."""
     params = dict(device_params)
@@ -306,8 +307,7 @@ def interleaved_device(device_params: Mapping[str, object], every: int) -> dict[
         return params
     if "slot_frames" not in params:
         try:
-            params["slot_frames"], _ = played_slot(default_device.SLOT_FRAMES,
-                                                   table1.FRAME_RATE_HZ, every)
+            params["slot_frames"], _ = played_device_slot({}, every)
         except ValueError as err:
             raise ValueError(f"{err}: give the device's slot_frames (--device "
                              "slot_frames=N)") from None

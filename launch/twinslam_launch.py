@@ -14,6 +14,8 @@ On separate machines, ``host:=device`` (camera player + device tracker), ``host:
 the recorded rate: the device is told its slot in the frames it sees (the parameter file's
 ``slot_frames`` and ``frame_rate_hz`` divided by ``every``; a slot that does not split so is
 refused before any node starts) — two pairs at phases 0 and 1 never show one image.
+``rate:=2.0`` plays the frames twice as fast, and the device's ``frame_rate_hz`` is doubled with
+it: its slots are cut by frame stamps, so it still closes one a ``slot_frames`` of them.
 
 ``namespace:=/ar1`` puts a device/edge pair under ``/ar1`` (a second pair under ``/ar2`` shares
 the domain); ``/tf`` is shared by every pair, so give each its own frames as well:
@@ -42,14 +44,14 @@ from launch_ros.actions import Node
 
 from launch import LaunchDescription
 from twinslam.live.parameter_files import node_parameters
-from twinslam.sequence_player.playback import played_slot
-from twinslam.slot_protocol import default_device, table1
+from twinslam.sequence_player.playback import played_device_slot
 
 
 def device_slot(context: LaunchContext) -> dict[str, Any]:
-    """The device's parameters that follow the player's ``every``: none at every frame; at
-    one frame in N, its slot's frames and nominal frame rate as the parameter file gives them,
-    divided by N (``twinslam launch --every`` tells its devices the same)."""
+    """The device's parameters that follow the player's ``every`` and ``rate``: none at every
+    frame at the recorded speed; else its slot's frames and nominal frame rate as the
+    parameter file gives them, the rate × ``rate`` (slots are cut by frame stamps) and both
+    divided by ``every`` — what ``twinslam launch --every/--rate`` tells its devices."""
     given = LaunchConfiguration("every").perform(context)
     try:
         every = int(given)
@@ -58,18 +60,23 @@ def device_slot(context: LaunchContext) -> dict[str, Any]:
     if every < 1:
         raise RuntimeError(f"every:={given}: not a whole number of 1 or more (1 plays every "
                            "frame)")
-    if every == 1:
+    given_rate = LaunchConfiguration("rate").perform(context)
+    try:
+        rate = float(given_rate)
+    except ValueError:
+        rate = float("nan")
+    if every == 1 and rate == 1.0:
         return {}
     section = node_parameters(Path(LaunchConfiguration("params_file").perform(context)),
                               "device_tracker")
     try:
-        slot_frames, rate = played_slot(
-            int(section.get("slot_frames", default_device.SLOT_FRAMES)),
-            float(section.get("frame_rate_hz", table1.FRAME_RATE_HZ)), every)
+        slot_frames, frame_rate = played_device_slot(section, every, rate)
     except ValueError as err:
+        if not rate > 0:
+            raise RuntimeError(f"rate:={given_rate}: {err}") from None
         raise RuntimeError(f"every:={every}: {err} (the parameter file's device_tracker "
                            "slot_frames must be a multiple of it)") from None
-    return {"slot_frames": slot_frames, "frame_rate_hz": rate}
+    return {"slot_frames": slot_frames, "frame_rate_hz": frame_rate}
 
 
 def generate_launch_description() -> LaunchDescription:
@@ -143,7 +150,9 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("loop", default_value="false",
                               description="play the sequence again from start at its end"),
         DeclareLaunchArgument("rate", default_value="1.0",
-                              description="playback speed, x the recorded frame rate"),
+                              description="playback speed, x the recorded frame rate "
+                              "(the device's frame_rate_hz from the parameter file is "
+                              "multiplied by it: a slot stays slot_frames frames)"),
         DeclareLaunchArgument("every", default_value="1",
                               description="play one frame in every this many, each at its "
                               "time in the walk (a camera at 1/every of the recorded rate); "

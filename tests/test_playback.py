@@ -6,9 +6,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from twinslam.sequence_player.playback import Playback, PlayedSequence, parse_bursts
+from twinslam.sequence_player.playback import (
+    Playback,
+    PlayedSequence,
+    parse_bursts,
+    played_device_slot,
+)
 from twinslam.sequences.frame import RgbdFrame, SequenceError
 from twinslam.sequences.synthetic import SyntheticSequence
+from twinslam.slot_protocol import default_device, table1
 
 
 def test_forward_backward_revisits_every_frame_with_increasing_stamps() -> None:
@@ -117,3 +123,21 @@ def test_a_phase_outside_every_is_refused() -> None:
     for every, phase in ((0, 0), (2, 2), (3, -1)):
         with pytest.raises(ValueError, match="phase from 0 to every - 1"):
             Playback(every=every, phase=phase)
+
+
+def test_a_device_is_told_its_slot_in_the_frames_and_stamps_it_is_played() -> None:
+    """Slots are cut by frame stamps: a device replayed at ``rate`` × the recorded speed sees
+    its frames come ``rate`` times faster, and one playing one frame in ``every`` sees fewer
+    of them; told so, its slot still spans ``slot_frames`` recorded frames. What a parameter
+    file gives (as YAML's numbers or a command line's strings) stands over the defaults."""
+    assert played_device_slot({}) == (default_device.SLOT_FRAMES, table1.FRAME_RATE_HZ)
+    assert played_device_slot({}, rate=2.0) == (default_device.SLOT_FRAMES,
+                                                2 * table1.FRAME_RATE_HZ)
+    slot, rate = played_device_slot({"slot_frames": 60, "frame_rate_hz": "15"}, 3, 0.5)
+    assert (slot, rate) == (20, 2.5) and slot / rate == 60 / 15 / 0.5
+    with pytest.raises(ValueError, match="does not split 7 ways"):
+        played_device_slot({}, 7)
+    with pytest.raises(ValueError, match="rate must be a positive number"):
+        played_device_slot({}, rate=0.0)
+    with pytest.raises(ValueError, match="whole number of frames"):
+        played_device_slot({"slot_frames": 7.5})

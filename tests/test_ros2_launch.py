@@ -64,6 +64,11 @@ def test_a_slot_that_does_not_split_every_ways_is_refused_before_any_node_starts
                         env=dict(domain.env))
     out = refused.stdout + refused.stderr
     assert refused.returncode != 0 and "every:=two: not a whole number" in out, out[-3000:]
+    with LoopbackDomain() as domain:
+        refused = _ros2("launch", "twinslam", "twinslam_launch.py", "rate:=0",
+                        env=dict(domain.env))
+    out = refused.stdout + refused.stderr
+    assert refused.returncode != 0 and "rate:=0: rate must be a positive" in out, out[-3000:]
 
 
 @pytest.mark.slow(seconds=60)

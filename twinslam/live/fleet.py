@@ -56,9 +56,8 @@ from twinslam.live.tracking_quality import (
 )
 from twinslam.node_runtime.middleware_teardown import ended_as_asked
 from twinslam.node_runtime.session import RosSession
-from twinslam.sequence_player.playback import ORDERS, phase_for, played_slot
+from twinslam.sequence_player.playback import ORDERS, phase_for, played_device_slot
 from twinslam.sequences.opening import is_synthetic, synthetic_walk
-from twinslam.slot_protocol import default_device, table1
 
 #: a paced fleet's cameras keep one recording clock (the player's ``pace_group``): each device's
 #: camera waits while any device is behind, so the walks meet when their recordings have them
@@ -288,10 +287,8 @@ class FleetLauncher(Launcher):
 
     def _played_slot(self) -> tuple[int, float]:
         """A device's slot frames and nominal frame rate × ``rate``, as its camera plays one
-        frame in ``every`` (:func:`played_slot`)."""
-        return played_slot(int(self._device_param("slot_frames", default_device.SLOT_FRAMES)),
-                           self._device_param("frame_rate_hz", table1.FRAME_RATE_HZ)
-                           * self.config.rate, self.fleet.every)
+        frame in ``every`` (:func:`played_device_slot`)."""
+        return played_device_slot(self._device_given(), self.fleet.every, self.config.rate)
 
     def device_slot_frames(self) -> int:
         """F of a device's slot, in the frames its camera plays (one in ``every``)."""
@@ -457,8 +454,8 @@ class FleetLauncher(Launcher):
         at ``rate`` × it — the time the edge has for the slot's map before the device tracks
         its next slot (a half-speed run's slot lasts 2 s, not 1; its maps' latencies are wall
         time)."""
-        return (self._device_param("slot_frames", default_device.SLOT_FRAMES)
-                / self._device_param("frame_rate_hz", table1.FRAME_RATE_HZ) / self.config.rate)
+        slot_frames, rate = played_device_slot(self._device_given(), rate=self.config.rate)
+        return slot_frames / rate
 
     def _status(self, device: str) -> Callable[[MapStats, RunLog], None]:
         own = own_map_frame(device)

@@ -33,8 +33,8 @@ from twinslam.live.run_log import RunLog
 from twinslam.live.scenarios import SCENARIOS, Scenario
 from twinslam.node_runtime.middleware_teardown import ended_as_asked
 from twinslam.node_runtime.session import RosSession
+from twinslam.sequence_player.playback import played_device_slot
 from twinslam.sequences.opening import AUTO
-from twinslam.slot_protocol import default_device, table1
 
 REPO = REPO_ROOT
 #: seconds a run's end waits at most for the device's pose of the last frame played
@@ -111,12 +111,12 @@ class Launcher:
                                       f"{1 + c.watch_images + (c.record is not None)}"]
                   + ([f"pace_frames:={c.pace_frames}"] if c.pace_frames else []),
                   }.get(name, [])
-        params += c.scenario.node_params(c.frames, self._device_param(
-            "frame_rate_hz", table1.FRAME_RATE_HZ)).get(name, []) + c.extra.get(name, [])
+        params += c.scenario.node_params(c.frames, self._recorded_slot()[1]).get(name, []) \
+            + c.extra.get(name, [])
         if name == "device_tracker" and c.rate != 1.0:
             # slots are cut by stamps: replayed faster, the camera's frames come faster
-            nominal = self._device_param("frame_rate_hz", table1.FRAME_RATE_HZ)
-            params.append(f"frame_rate_hz:={nominal * c.rate!r}")
+            _, rate = played_device_slot(self._device_given(), rate=c.rate)
+            params.append(f"frame_rate_hz:={rate!r}")
         for p in params:
             args += ["-p", p]
         return args
@@ -149,7 +149,7 @@ class Launcher:
             if c.record is not None:
                 recorder = RunRecorder(session.node, c.record, c.recording)
             self.record = monitor.record
-            slot_frames = int(self._device_param("slot_frames", default_device.SLOT_FRAMES))
+            slot_frames = self._recorded_slot()[0]
             self._end = PlaybackEnd(session.node, slot_frames,
                                     c.scenario.played_frames(c.frames) if c.frames > 0 else None)
             if self._end_requested:
@@ -228,7 +228,7 @@ class Launcher:
     def expected_slots(self) -> int | None:
         """Full slots in the frames played (None when the whole sequence plays and no end was
         asked for)."""
-        slot_frames = int(self._device_param("slot_frames", default_device.SLOT_FRAMES))
+        slot_frames = self._recorded_slot()[0]
         if self._end is not None and self._end.frames is not None:
             return self._end.frames // slot_frames
         if self.config.frames <= 0:
@@ -244,15 +244,19 @@ class Launcher:
         if self._end is not None:
             self._end.request()
 
-    def _device_param(self, name: str, default: float) -> float:
-        """A device parameter as the node will read it: ``extra`` over the parameter file
-        over the node's default."""
-        value = node_parameters(self.config.params_file, "device_tracker").get(name, default)
+    def _device_given(self) -> dict[str, object]:
+        """The device parameters the run gives, as the node will read them: ``extra`` over
+        the parameter file (the node's defaults for the rest)."""
+        given = dict(node_parameters(self.config.params_file, "device_tracker"))
         for item in self.config.extra.get("device_tracker", []):
-            key, _, given = item.partition(":=")
-            if key == name:
-                value = given
-        return float(value)
+            key, _, value = item.partition(":=")
+            given[key] = value
+        return given
+
+    def _recorded_slot(self) -> tuple[int, float]:
+        """The device's slot frames and nominal frame rate as given, for a camera playing
+        every frame at the recorded speed."""
+        return played_device_slot(self._device_given())
 
     def kill(self, name: str) -> None:
         """SIGKILL a node on purpose (a fault injected mid-run): not a failure of the run."""

@@ -30,13 +30,14 @@ a rosbag2 recording does not (play it forward, or record the scenario).
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from twinslam.sequences.frame import RandomAccessSequence, RgbdFrame, Sequence, SequenceError
+from twinslam.slot_protocol import default_device, table1
 
 ORDERS = ("forward", "forward_backward", "backward", "backward_forward")
 #: the period assumed when a sequence has a single frame (no interval to measure)
@@ -77,6 +78,23 @@ def played_slot(slot_frames: int, frame_rate_hz: float, every: int) -> tuple[int
         raise ValueError(f"a slot of {slot_frames} frames does not split {every} ways into "
                          "whole frames played")
     return slot_frames // every, frame_rate_hz / every
+
+
+def played_device_slot(device_params: Mapping[str, object], every: int = 1, rate: float = 1.0
+                       ) -> tuple[int, float]:
+    """What a device is told of its slot where the player plays one frame in ``every`` at
+    ``rate`` × the recorded speed: ``slot_frames`` and ``frame_rate_hz`` as ``device_params``
+    gives them (a parameter file's device section; the device's defaults for what it leaves
+    out), the rate × ``rate`` — a slot is cut by frame stamps, and replayed faster they come
+    faster — and both divided by ``every`` (:func:`played_slot`). Raises :class:`ValueError`
+    where the slot does not split ``every`` ways or ``rate`` is not a positive number."""
+    if not rate > 0 or not np.isfinite(rate):
+        raise ValueError(f"rate must be a positive number (x the recorded speed), got {rate}")
+    slot_frames = float(str(device_params.get("slot_frames", default_device.SLOT_FRAMES)))
+    if not slot_frames.is_integer() or slot_frames < 1:
+        raise ValueError(f"slot_frames must be a whole number of frames, got {slot_frames:g}")
+    return played_slot(int(slot_frames), float(str(device_params.get(
+        "frame_rate_hz", table1.FRAME_RATE_HZ))) * rate, every)
 
 
 @dataclass(frozen=True)
