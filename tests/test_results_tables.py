@@ -1108,3 +1108,33 @@ def test_the_left_piece_tables_are_what_their_command_prints() -> None:
     for seed in range(4, 8):
         assert after[seed]["device_pieces_slots"] == "0;0;0;0"
         assert all(before[seed][k] == after[seed][k] for k in SAME_WALK), seed
+
+
+def test_the_wider_covers_tables_are_what_their_commands_print(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Covers widened to 0.50 m and 45° on walks of their own (the training seeds against the
+    default and alone, the held-out seeds, the fraction carried) and on the held-out 7-Scenes
+    pair: each table as the page has it, and the default's 7-Scenes runs the very walks of
+    the interleaved runs before them."""
+    folder = FIGURES / "shared-map" / "place-walks" / "own-walks"
+    script = _script("place_walks_table")
+    for first, second, names in (
+            ("left-piece/dropped.csv", "bounds/wide-0.5-45.csv", None),
+            ("own-alone.csv", "bounds/wide-0.5-45.csv", None),
+            ("left-piece/dropped-4-7.csv", "bounds/wide-0.5-45-4-7.csv", None),
+            ("bounds/wide-0.5-45.csv", "bounds/wide-carried.csv",
+             ("each slot rounded up (the code)", "a fraction carried (tried)"))):
+        printed = script.table(folder / first, folder / second, names=names)
+        assert _missing("\n".join(printed)) == [], (first, second)
+    wide = script.runs(folder / "bounds" / "wide-0.5-45.csv")
+    assert {float(run["covered_m"]) for run in wide.values()} == {0.5}
+    monkeypatch.syspath_prepend(str(FIGURES))            # its sibling, shared_uplink_table
+    choice = FIGURES / "shared-map" / "covered-bounds" / "own-walks-choice"
+    printed = _script("shared_map_before_after").table(choice / "default", choice / "wide",
+                                                         both_devices=True)
+    assert _missing("\n".join(printed)) == []
+    for scenario in ("mapped", "two-ends"):
+        with (FIGURES / "shared-map" / "interleaved" / f"uplink-{scenario}-covered.csv").open() \
+                as before, (choice / "default" / f"uplink-{scenario}-covered.csv").open() as now:
+            old, new = list(csv.DictReader(before)), list(csv.DictReader(now))
+        assert [r["second_uploads"] for r in old] == [r["second_uploads"] for r in new]
