@@ -1130,9 +1130,10 @@ def test_the_wider_covers_tables_are_what_their_commands_print(
     assert {float(run["covered_m"]) for run in wide.values()} == {0.5}
     monkeypatch.syspath_prepend(str(FIGURES))            # its sibling, shared_uplink_table
     choice = FIGURES / "shared-map" / "covered-bounds" / "own-walks-choice"
-    printed = _script("shared_map_before_after").table(choice / "default", choice / "wide",
-                                                         both_devices=True)
-    assert _missing("\n".join(printed)) == []
+    for after in ("wide", "carried-default"):
+        printed = _script("shared_map_before_after").table(choice / "default", choice / after,
+                                                             both_devices=True)
+        assert _missing("\n".join(printed)) == [], after
     for scenario in ("mapped", "two-ends"):
         with (FIGURES / "shared-map" / "interleaved" / f"uplink-{scenario}-covered.csv").open() \
                 as before, (choice / "default" / f"uplink-{scenario}-covered.csv").open() as now:
