@@ -31,6 +31,7 @@ Needs the ROS 2 ``launch`` / ``launch_ros`` packages (never PyPI's unrelated ``l
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 from typing import Any
@@ -72,7 +73,7 @@ def device_slot(context: LaunchContext) -> dict[str, Any]:
     try:
         slot_frames, frame_rate = played_device_slot(section, every, rate)
     except ValueError as err:
-        if not rate > 0:
+        if not (rate > 0 and math.isfinite(rate)):
             raise RuntimeError(f"rate:={given_rate}: {err}") from None
         raise RuntimeError(f"every:={every}: {err} (the parameter file's device_tracker "
                            "slot_frames must be a multiple of it)") from None

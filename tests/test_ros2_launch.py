@@ -51,7 +51,8 @@ def test_the_package_is_in_the_venvs_ament_index_with_its_launch_file() -> None:
 
 def test_a_slot_that_does_not_split_every_ways_is_refused_before_any_node_starts() -> None:
     """``every:=7`` with the default device's 30-frame slot: the launch fails naming the
-    slot and the parameter, and starts no process."""
+    slot and the parameter, and starts no process; so do an ``every`` that is no number and
+    a ``rate`` that is not a positive number, each named."""
     with LoopbackDomain() as domain:
         refused = _ros2("launch", "twinslam", "twinslam_launch.py", "every:=7",
                         env=dict(domain.env))
