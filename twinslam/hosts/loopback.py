@@ -22,6 +22,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -81,11 +82,13 @@ class DomainClaim:
     exclusive ``flock`` on a file of the id, which the kernel drops when the holder exits, so a
     killed run never leaves an id taken; the port check still skips an id that something
     outside this scheme (a ROS system on the machine, a participant a released claim left
-    behind) is using.
+    behind) is using. ``ports_free`` is that check (tests of the locks alone give one that
+    does not look at the machine's ports, which any process on it may hold for a moment).
     """
 
     def __init__(self, rng: random.Random | None = None, ids: range = range(100, 230),
-                 folder: Path | None = None) -> None:
+                 folder: Path | None = None,
+                 ports_free: Callable[[int], bool] = _domain_ports_free) -> None:
         rng = rng or random.Random(os.getpid() ^ time.monotonic_ns())
         candidates = list(ids)
         rng.shuffle(candidates)
