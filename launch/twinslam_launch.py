@@ -14,7 +14,7 @@ On separate machines, ``host:=device`` (camera player + device tracker), ``host:
 the recorded rate: the device is told its slot in the frames it sees (the parameter file's
 ``slot_frames`` and ``frame_rate_hz`` divided by ``every``; a slot that does not split so is
 refused before any node starts) — two pairs at phases 0 and 1 never show one image.
-``rate:=2.0`` plays the frames twice as fast, and the device's ``frame_rate_hz`` is doubled with
+``rate:=2`` plays the frames twice as fast, and the device's ``frame_rate_hz`` is doubled with
 it: its slots are cut by frame stamps, so it still closes one a ``slot_frames`` of them.
 
 ``namespace:=/ar1`` puts a device/edge pair under ``/ar1`` (a second pair under ``/ar2`` shares
@@ -42,6 +42,7 @@ from launch.conditions import IfCondition
 from launch.launch_context import LaunchContext
 from launch.substitutions import LaunchConfiguration, PythonExpression
 from launch_ros.actions import Node
+from launch_ros.parameter_descriptions import ParameterValue
 
 from launch import LaunchDescription
 from twinslam.live.parameter_files import node_parameters
@@ -193,7 +194,10 @@ def generate_launch_description() -> LaunchDescription:
         Node(package="twinslam", executable="sequence_player", name="sequence_player",
              namespace=arg("namespace"),
              parameters=[arg("params_file"), {"sequence": arg("sequence"),
-                                               "rate": arg("rate"),
+                                               # rate:=2 reads as an integer, which
+                                               # the player's double refuses
+                                               "rate": ParameterValue(arg("rate"),
+                                                                      value_type=float),
                                                "start": arg("start"),
                                                "end": arg("end"),
                                                "loop": arg("loop"),

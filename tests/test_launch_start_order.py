@@ -60,6 +60,9 @@ def launch_parameters(executable: str, **arguments: str) -> list[str]:
         for key, value in zip(item.keys, item.values, strict=True):
             assert isinstance(key, ast.Constant) and isinstance(value, ast.Call), \
                 f"{executable}: a parameter this test cannot read: {ast.unparse(value)}"
+            if isinstance(value.func, ast.Name) and value.func.id == "ParameterValue":
+                value = value.args[0]              # a typed argument: its substitution
+                assert isinstance(value, ast.Call), ast.unparse(value)
             argument = value.args[0]
             assert isinstance(argument, ast.Constant)
             out += ["-p", f"{key.value}:={defaults[argument.value]}"]

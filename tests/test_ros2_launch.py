@@ -74,16 +74,17 @@ def test_a_slot_that_does_not_split_every_ways_is_refused_before_any_node_starts
 
 @pytest.mark.slow(seconds=60)
 def test_ros2_launch_runs_the_pipeline_on_a_private_domain() -> None:
-    """``ros2 launch twinslam twinslam_launch.py sequence:=synthetic:90 loop:=true``: the
-    device's slot summaries arrive, and Ctrl-C (SIGINT) stops every node. The player loops
+    """``ros2 launch twinslam twinslam_launch.py sequence:=synthetic:90 loop:=true rate:=2``:
+    the device's slot summaries arrive, and Ctrl-C (SIGINT) stops every node. The player loops
     until the Ctrl-C: however long the probe takes to match on a loaded machine, summaries
-    are still coming when it listens."""
+    are still coming when it listens. ``rate:=2``, as a user types it, reaches the player as
+    the double its parameter is (ROS reads ``2`` as an integer, which the player refuses)."""
     with LoopbackDomain() as domain:
         env = dict(domain.env, AMENT_PREFIX_PATH=str(VENV))
         proc = subprocess.Popen(
             [sys.executable, "-c", "import sys; from ros2cli.cli import main; "
              "sys.argv[0] = 'ros2'; sys.exit(main())", "launch", "twinslam",
-             "twinslam_launch.py", "sequence:=synthetic:90", "loop:=true"],
+             "twinslam_launch.py", "sequence:=synthetic:90", "loop:=true", "rate:=2"],
             env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         try:
             domain.activate()
