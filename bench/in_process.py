@@ -347,6 +347,10 @@ def add_place_options(parser: argparse.ArgumentParser) -> None:
                         help="a covered frame is left out only where N of its reported points "
                              "are the map's (default: the edge's covered_min_points, 50; 15 "
                              "is the device's tracking floor: any frame the map serves)")
+    parser.add_argument("--covered-by-points", action=argparse.BooleanOptionalAction,
+                        help="a frame that shares --covered-min-points of its reported points "
+                             "with the keyframes another device lent is covered too, wherever "
+                             "it stands (the edge's covered_by_points; default: the edge's)")
     parser.add_argument("--own-coverage-after", type=int, metavar="N",
                         help="a device's own keyframe of an earlier visit (restored, or "
                              "uploaded N slots before or more) covers a frame's view as a "

@@ -100,7 +100,8 @@ from twinslam.slam.back_end.foreign_keyframes import is_foreign
 
 #: the CSV's columns: the run's settings, then its figures (per-device lists joined by ";")
 COLUMNS = ("sequence", "frames", "devices", "after", "order", "seed", "uplink", "no_merge",
-           "covered_m", "covered_deg", "covered_min_points", "own_coverage_after", "lend_in_view",
+           "covered_m", "covered_deg", "covered_min_points", "covered_by_points",
+           "own_coverage_after", "lend_in_view",
            "lent_unseen_slots", "lent_view_m", "lent_view_deg",
            "merge_min_inliers", "merge_look_backoff_slots",
            "merged", "edge_ms_median", "edge_ms_mean", "edge_ms_merged_median", "copies_mean",
@@ -270,6 +271,7 @@ def main() -> None:
                                 (("covered_m", args.covered_m),
                                  ("covered_deg", args.covered_deg),
                                  ("covered_min_points", args.covered_min_points),
+                                 ("covered_by_points", args.covered_by_points),
                                  ("own_coverage_after_slots", args.own_coverage_after))
                                 if value is not None})
     started = time.perf_counter()
@@ -326,6 +328,7 @@ def main() -> None:
         report = _report(devices, merging, args)
     report["covered_m"], report["covered_deg"] = config.coverage.max_m, config.coverage.max_deg
     report["covered_min_points"] = config.coverage.min_points
+    report["covered_by_points"] = int(config.coverage.by_points)
     report["lent_view_m"], report["lent_view_deg"] = args.lent_view_m, args.lent_view_deg
     report["own_coverage_after"] = config.own_coverage_after_slots
     report["seconds"] = time.perf_counter() - started

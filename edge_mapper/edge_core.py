@@ -55,9 +55,10 @@ from twinslam.slam.back_end.local_mapping import IntegrationReport, LocalMapping
 from twinslam.slam.back_end.loop_closing import LoopCloser
 from twinslam.slam.back_end.map_back_end import BackEndConfig, ClosedLoop, MapBackEnd
 from twinslam.slam.back_end.pose_graph import LoopEdge
-from twinslam.slam.back_end.view_coverage import CoverageBounds, covered_views
+from twinslam.slam.back_end.view_coverage import CoverageBounds, covered_views, served_views
 from twinslam.slam.camera import Camera
 from twinslam.slam.keyframe import KeyFramePayload
+from twinslam.slam.sorted_ids import unique_ids
 from twinslam.slot_protocol.map_entry import RESTORED, UNRECORDED
 from twinslam.uncertainty.map_uncertainty import map_uncertainty
 
@@ -367,7 +368,19 @@ class EdgeMapperCore:
             return {}
         poses = {f.frame_id: self.back_end.moved_since(f.map_version) @ f.pose
                  for f in frames if f.tracked and f.pose is not None}
-        return dict.fromkeys(covered_views(poses, lent + own, bounds), bounds.min_points)
+        covered = covered_views(poses, lent + own, bounds)
+        if bounds.by_points and lent:
+            matched = {f.frame_id: f.keys[f.keys >= 0] for f in frames
+                       if f.tracked and f.frame_id not in covered}
+            covered |= served_views(matched, self._lent_points(leaving), bounds)
+        return dict.fromkeys(covered, bounds.min_points)
+
+    def _lent_points(self, leaving: Collection[int]) -> np.ndarray:
+        """The map points the keyframes other devices lent this map see (those ``leaving``
+        left out), ascending, without repeats."""
+        sets = [self.map.point_array(k) for k in self.map.keyframes
+                if k not in leaving and is_foreign(k)]
+        return unique_ids(np.concatenate(sets)) if sets else np.zeros(0, dtype=np.int64)
 
     def _heads_where_it_was(self, frames: Sequence[FrameObservations],
                             ahead: Sequence[np.ndarray], own: Sequence[np.ndarray]) -> bool:

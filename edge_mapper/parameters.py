@@ -266,6 +266,12 @@ PARAMETERS = (
               "points more of its frames in process, and cost the edge less time a slot "
               "(docs/results/shared-map.md)",
               low=0, high=1_000_000),
+    ParamSpec("covered_by_points", False, "a tracked frame is also covered where at least "
+              "covered_min_points of its reported points are points of keyframes another "
+              "device lent this map, wherever the camera stands: on a long place several "
+              "people walk each at their own height, sway and gaze, seldom within covered_m "
+              "and covered_deg of another's keyframes, though their frames track on the points "
+              "those keyframes made (docs/results/shared-map.md)"),
     ParamSpec("own_coverage_after_slots", 0, "a frame whose view one of the device's own "
               "keyframes of an earlier visit covers (within covered_m and covered_deg; "
               "restored from the archive, or uploaded at least this many slots before) is "
@@ -306,7 +312,8 @@ def edge_config(p: Mapping[str, Any]) -> EdgeConfig:
                       restore_keyframes=int(p["restore_keyframes"]),
                       reloc_restore_keyframes=int(p["reloc_restore_keyframes"]),
                       coverage=CoverageBounds(float(p["covered_m"]), float(p["covered_deg"]),
-                                               int(p["covered_min_points"])),
+                                               int(p["covered_min_points"]),
+                                               bool(p["covered_by_points"])),
                       own_coverage_after_slots=int(p["own_coverage_after_slots"]),
                       checkpoint_every=int(p["checkpoint_every"]),
                       back_end=BackEndConfig(

@@ -26,7 +26,7 @@ from twinslam.slam.back_end.keyframe_map import KeyFrameMap, shared_counts
 from twinslam.slam.back_end.view_coverage import uploads_for_new_views
 from twinslam.slam.camera import Camera
 from twinslam.slam.keyframe import track_counters
-from twinslam.slam.sorted_ids import find_sorted, unique_ids
+from twinslam.slam.sorted_ids import held_counts, unique_ids
 from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
 from twinslam.slot_protocol.map_entry import entry_order
 from twinslam.slot_protocol.slot_settings import SlotSettings
@@ -200,7 +200,7 @@ class SlotPlanner:
         # keyframe holds map-point ids only, so this counts shared map points alone
         in_map = (unique_ids(np.concatenate([counted.points, *(keys[x] for x in arriving)]))
                   if arriving else counted.points)
-        shared = _held_counts([keys[f] for f in every], in_map)
+        shared = held_counts([keys[f] for f in every], in_map)
         lost = [not f.tracked or n < MIN_INLIERS for f, n in zip(frames, shared, strict=True)]
         # a covered frame the map does not serve as its cover asks (the device matched fewer
         # of the map's points: lost by the rule, or near it where the cover asks for a
@@ -262,10 +262,3 @@ class SlotPlanner:
         return {k for k, s in last.items() if slot - s >= STALE_SLOTS}
 
 
-def _held_counts(sets: list[np.ndarray], held: np.ndarray) -> np.ndarray:
-    """How many of each set's keys are among ``held`` (sorted, without repeats): every key
-    found by one sorted search, not a set membership test a frame."""
-    if not sets:
-        return np.zeros(0, dtype=np.int64)
-    owner = np.repeat(np.arange(len(sets)), [len(s) for s in sets])
-    return np.bincount(owner[find_sorted(held, np.concatenate(sets))[1]], minlength=len(sets))

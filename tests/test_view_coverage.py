@@ -232,3 +232,47 @@ def test_a_frame_tracked_before_a_merge_is_judged_where_the_merge_put_it() -> No
     _lend(core, foreign_tag(0) | 26, _pose(2.0 + 1.04))
     plan = core.plan(3, _posed_slot(device, core, 3, version=core.version), 20.0, 1)
     assert not plan.covered and len(plan.action.upload) == 2
+
+
+def _lend_seeing(core: EdgeMapperCore, keyframe_id: int, pose: np.ndarray,
+                 points: list[int]) -> None:
+    """A keyframe another device uploaded, in this map at ``pose``, observing ``points``."""
+    core.map.add_keyframe(keyframe_id, pose)
+    for point in points:
+        core.map.observe(keyframe_id, point, (320.0, 240.0), 2.0)
+
+
+def test_a_frame_that_tracks_on_a_lent_keyframes_points_is_covered_wherever_it_stands() -> None:
+    """Another device's keyframe 2 m off and turned away, out of the pose bounds, seeing the
+    points slot 3's frames track on: with ``by_points`` every frame shares the cover's 50 of
+    its reported points with it, all are covered and the slot asks for nothing; off (the
+    default), the keyframe covers nothing there; the device's own keyframe seeing the same
+    points covers nothing either (its own walk is no shared map). Where the keyframe sees 45
+    of the points every frame of the slot sees and those only the first frames see, the
+    frames that share 50 are covered and the two that share fewer ask for the upload."""
+    by_points = dataclasses.replace(WALL_BOUNDS, by_points=True)
+    assert not CoverageBounds().by_points
+    for bounds, lent in ((by_points, True), (WALL_BOUNDS, True), (by_points, False)):
+        device, core = _walked_edge()
+        core.config = dataclasses.replace(core.config, coverage=bounds)
+        frames = _posed_slot(device, core, 3)
+        seen = sorted(set().union(*(f.map_points for f in frames)))
+        _lend_seeing(core, (foreign_tag(0) | 99) if lent else 1099, _pose(3.0, 90.0), seen)
+        plan = core.plan(3, frames, 20.0, 1)
+        if bounds.by_points and lent:
+            assert plan.covered == frozenset(range(24, 32)) and plan.action.upload == []
+        else:
+            assert not plan.covered and len(plan.action.upload) == 2, (bounds, lent)
+
+    device, core = _walked_edge()
+    core.config = dataclasses.replace(core.config, coverage=by_points)
+    frames = _posed_slot(device, core, 3)
+    every = frozenset.intersection(*(f.map_points for f in frames))
+    first_only = frames[0].map_points - every
+    _lend_seeing(core, foreign_tag(0) | 99, _pose(3.0, 90.0),
+                 sorted(every)[:45] + sorted(first_only))
+    shares = [len(f.map_points & (set(sorted(every)[:45]) | first_only)) for f in frames]
+    assert min(shares[:6]) >= 50 > max(shares[6:])
+    plan = core.plan(3, frames, 20.0, 1)
+    assert plan.covered == frozenset(range(24, 30))
+    assert len(plan.action.upload) == 1 and set(plan.action.upload) <= {30, 31}

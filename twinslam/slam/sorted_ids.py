@@ -20,6 +20,17 @@ def find_sorted(sorted_ids: np.ndarray, keys: np.ndarray) -> tuple[np.ndarray, n
     return at, found
 
 
+def held_counts(sets: list[np.ndarray], held: np.ndarray) -> np.ndarray:
+    """How many of each of ``sets``' keys are among ``held`` (ascending, without repeats):
+    every key found by one sorted search, not a membership test a set."""
+    if not sets:
+        return np.zeros(0, dtype=np.int64)
+    owner = np.repeat(np.arange(len(sets)), [len(s) for s in sets])
+    counts: np.ndarray = np.bincount(owner[find_sorted(held, np.concatenate(sets))[1]],
+                                     minlength=len(sets))
+    return counts
+
+
 def find_last(sorted_keys: np.ndarray, queries: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """:func:`find_sorted` where ``sorted_keys`` (ascending) may repeat: for each of
     ``queries``, the index of its last equal key and whether there is one — a dict built from

@@ -22,7 +22,8 @@ frame the map serves well enough (:attr:`CoverageBounds.min_points` of the point
 matched, 50 by default: an absolute count, not a share). Which keyframes
 cover is the edge's choice (``EdgeMapperCore.covered_frames``: lent ones, and with
 ``own_coverage_after_slots`` the device's own once they are a visit old); this module only
-tells which frames a set of keyframe poses covers.
+tells which frames a set of keyframe poses covers, and (``CoverageBounds.by_points``) which
+frames share the cover's points with a set of keyframes' points.
 """
 
 from __future__ import annotations
@@ -32,6 +33,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+
+from twinslam.slam.sorted_ids import held_counts
 
 
 @dataclass(frozen=True)
@@ -53,6 +56,12 @@ class CoverageBounds:
     #: 80 %, and more of the edge's time a slot for the device in the shared place
     #: (docs/results/shared-map.md, "The margin as the default").
     min_points: int = 50
+    #: also cover a frame by what the device matched, not where it stands: a frame that
+    #: shares ``min_points`` of its reported points with the covering keyframes' points. On
+    #: a long place each person walks at their own height, sway and gaze, seldom within the
+    #: pose bounds of another's keyframes, yet their frames track on the points those
+    #: keyframes made (docs/results/shared-map.md, "A cover judged by the points")
+    by_points: bool = False
 
     def __post_init__(self) -> None:
         if not (self.max_m >= 0 and self.max_deg >= 0 and self.min_points >= 0):
@@ -87,6 +96,19 @@ def covered_views(frames: Mapping[int, np.ndarray], keyframes: Sequence[np.ndarr
     k = np.asarray(keyframes, dtype=np.float64).reshape(-1, 4, 4)
     hits = np.any(_near(f, k, bounds), axis=1)
     return {i for i, hit in zip(ids, hits.tolist(), strict=True) if hit}
+
+
+def served_views(frames: Mapping[int, np.ndarray], covering_points: np.ndarray,
+                 bounds: CoverageBounds) -> set[int]:
+    """The ids of ``frames`` (id → the frame's reported map-point ids) that share at least
+    ``bounds.min_points`` with ``covering_points`` (the points the covering keyframes see,
+    ascending, without repeats): views the map holds by what the device matched there.
+    Empty unless ``bounds.by_points``."""
+    if not frames or not len(covering_points) or not bounds.by_points:
+        return set()
+    ids = list(frames)
+    counts = held_counts([frames[i] for i in ids], covering_points)
+    return {i for i, n in zip(ids, counts.tolist(), strict=True) if n >= bounds.min_points}
 
 
 def first_cover(pose: np.ndarray, keyframes: Sequence[np.ndarray] | np.ndarray,
