@@ -1139,3 +1139,34 @@ def test_the_wider_covers_tables_are_what_their_commands_print(
                 as before, (choice / "default" / f"uplink-{scenario}-covered.csv").open() as now:
             old, new = list(csv.DictReader(before)), list(csv.DictReader(now))
         assert [r["second_uploads"] for r in old] == [r["second_uploads"] for r in new]
+
+
+def test_the_cover_by_points_tables_are_what_their_commands_print(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The cover judged by the points a frame tracks on, on walks of their own (the training
+    seeds against the pose test and alone, the bar of 100 points, the held-out seeds) and on
+    the held-out 7-Scenes pair: each table as the page has it, and the committed code's run
+    of seed 0 the very walk of the tried patch's."""
+    folder = FIGURES / "shared-map" / "place-walks" / "own-walks"
+    script = _script("place_walks_table")
+    for first, second, names in (
+            ("left-piece/dropped.csv", "points/by-points-50.csv", ("pose (the default)",
+                                                                  "by points")),
+            ("own-alone.csv", "points/by-points-50.csv", ("alone", "by points")),
+            ("points/by-points-50.csv", "points/by-points-100.csv",
+             ("by points at 50", "by points at 100")),
+            ("left-piece/dropped-4-7.csv", "points/by-points-50-4-7.csv",
+             ("pose (the default)", "by points"))):
+        printed = script.table(folder / first, folder / second, names=names)
+        assert _missing("\n".join(printed)) == [], (first, second)
+    tried = script.runs(folder / "points" / "by-points-50.csv")
+    committed = script.runs(folder / "points" / "committed-seed0.csv")
+    assert {run["covered_by_points"] for run in committed.values()} == {"1"}
+    for column in ("device_uploads", "lost_share", "cross_rms_m", "copies_end", "loops"):
+        assert [run[column] for run in committed.values()] == \
+            [run[column] for seed, run in tried.items() if seed in committed], column
+    monkeypatch.syspath_prepend(str(FIGURES))            # its sibling, shared_uplink_table
+    choice = FIGURES / "shared-map" / "covered-bounds" / "own-walks-choice"
+    printed = _script("shared_map_before_after").table(choice / "default", choice / "by-points",
+                                                         both_devices=True)
+    assert _missing("\n".join(printed)) == []
