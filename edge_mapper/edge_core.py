@@ -352,9 +352,11 @@ class EdgeMapperCore:
         (``coverage.min_points``): one another device uploaded, or with
         ``own_coverage_after_slots`` one of the device's own from an earlier visit
         (:meth:`_earlier_visit`) while the camera heads where it was before (``ahead``: the
-        frames' :func:`heading`, :meth:`_heads_where_it_was`). A frame's pose is in the frame
-        of the map version it was tracked on (-1: unknown, taken as now's); a loop or a merge
-        applied since moves it into the map's frame now first."""
+        frames' :func:`heading`, :meth:`_heads_where_it_was`); with ``coverage.by_points``
+        also a frame that shares ``coverage.min_points`` of its reported points with the
+        keyframes other devices lent, wherever it stands (:func:`served_views`). A frame's
+        pose is in the frame of the map version it was tracked on (-1: unknown, taken as
+        now's); a loop or a merge applied since moves it into the map's frame now first."""
         bounds = self.config.coverage
         if not bounds.enabled:
             return {}

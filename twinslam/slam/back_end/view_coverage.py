@@ -7,7 +7,10 @@ them), and a frame next to one of them adds the same points seen from the same p
 test is by pose, not by points: a device reports the few hundred map points it matched in a
 frame, a small share of the corners it sees (docs/results/shared-map.md measured 10–42 % on
 7-Scenes), so "the map holds most of the frame's points" would never hold where the map in
-fact covers the view. Two cameras within ``max_m`` of each other turned by at most
+fact covers the view; an absolute count of the points other devices' keyframes made
+does (``CoverageBounds.by_points``: where people walk one place each at their own height and
+gaze, their frames track on each other's points though they seldom stand within the pose
+bounds). Two cameras within ``max_m`` of each other turned by at most
 ``max_deg`` see much of one image of a room whose walls are a metre or more away; how much
 is enough was measured, not reasoned: at 0.10 m and 10° a device walking where others walked
 before uploaded nearly as much as alone (its keyframes stand about 0.4 m apart along a walk:
