@@ -1144,7 +1144,8 @@ def test_the_wider_covers_tables_are_what_their_commands_print(
 def test_the_cover_by_points_tables_are_what_their_commands_print(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """The cover judged by the points a frame tracks on, on walks of their own (the training
-    seeds against the pose test and alone, the bar of 100 points, the held-out seeds) and on
+    seeds against the pose test and alone, the bar of 100 points, the held-out seeds against
+    the pose test and alone, and the pose test against alone there) and on
     the held-out 7-Scenes pair: each table as the page has it, and the committed code's run
     of seed 0 the very walk of the tried patch's."""
     folder = FIGURES / "shared-map" / "place-walks" / "own-walks"
@@ -1156,7 +1157,9 @@ def test_the_cover_by_points_tables_are_what_their_commands_print(
             ("points/by-points-50.csv", "points/by-points-100.csv",
              ("by points at 50", "by points at 100")),
             ("left-piece/dropped-4-7.csv", "points/by-points-50-4-7.csv",
-             ("pose (the default)", "by points"))):
+             ("pose (the default)", "by points")),
+            ("own-alone-4-7.csv", "points/by-points-50-4-7.csv", ("alone", "by points")),
+            ("own-alone-4-7.csv", "left-piece/dropped-4-7.csv", ("alone", "pose (the default)"))):
         printed = script.table(folder / first, folder / second, names=names)
         assert _missing("\n".join(printed)) == [], (first, second)
     tried = script.runs(folder / "points" / "by-points-50.csv")

@@ -244,14 +244,14 @@ def _lend_seeing(core: EdgeMapperCore, keyframe_id: int, pose: np.ndarray,
 
 def test_a_frame_that_tracks_on_a_lent_keyframes_points_is_covered_wherever_it_stands() -> None:
     """Another device's keyframe 2 m off and turned away, out of the pose bounds, seeing the
-    points slot 3's frames track on: with ``by_points`` (the default) every frame shares the
-    cover's 50 of its reported points with it, all are covered and the slot asks for nothing;
-    off, the keyframe covers nothing there; the device's own keyframe seeing the same
+    points slot 3's frames track on: with ``by_points`` every frame shares the cover's 50 of
+    its reported points with it, all are covered and the slot asks for nothing; off (the
+    default), the keyframe covers nothing there; the device's own keyframe seeing the same
     points covers nothing either (its own walk is no shared map). Where the keyframe sees 45
     of the points every frame of the slot sees and those only the first frames see, the
     frames that share 50 are covered and the two that share fewer ask for the upload."""
     by_points, pose_only = (dataclasses.replace(WALL_BOUNDS, by_points=b) for b in (True, False))
-    assert CoverageBounds().by_points
+    assert not CoverageBounds().by_points
     for bounds, lent in ((by_points, True), (pose_only, True), (by_points, False)):
         device, core = _walked_edge()
         core.config = dataclasses.replace(core.config, coverage=bounds)

@@ -64,10 +64,11 @@ class CoverageBounds:
     #: a long place each person walks at their own height, sway and gaze, seldom within the
     #: pose bounds of another's keyframes, yet their frames track on the points those
     #: keyframes made: four devices on walks of their own along the corridor uploaded a
-    #: quarter fewer keyframes than alone where the pose alone saved 5 %, and two in a room,
-    #: which the pose covers already, the same (docs/results/shared-map.md, "A cover judged
-    #: by the points a frame tracks on")
-    by_points: bool = True
+    #: quarter to a third fewer keyframes than alone where the pose alone saved 5–8 %, two in
+    #: a room, which the pose covers already, the same; but on the corridor's held-out walks
+    #: the edge counted 0.6 points more of their frames lost than alone, so it is no default
+    #: (docs/results/shared-map.md, "A cover judged by the points a frame tracks on")
+    by_points: bool = False
 
     def __post_init__(self) -> None:
         if not (self.max_m >= 0 and self.max_deg >= 0 and self.min_points >= 0):
