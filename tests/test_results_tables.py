@@ -1159,7 +1159,9 @@ def test_the_cover_by_points_tables_are_what_their_commands_print(
             ("left-piece/dropped-4-7.csv", "points/by-points-50-4-7.csv",
              ("pose (the default)", "by points")),
             ("own-alone-4-7.csv", "points/by-points-50-4-7.csv", ("alone", "by points")),
-            ("own-alone-4-7.csv", "left-piece/dropped-4-7.csv", ("alone", "pose (the default)"))):
+            ("own-alone-4-7.csv", "left-piece/dropped-4-7.csv", ("alone", "pose (the default)")),
+            ("points/by-points-50.csv", "points/points-wide.csv",
+             ("by points", "by points and 0.50 m / 45°"))):
         printed = script.table(folder / first, folder / second, names=names)
         assert _missing("\n".join(printed)) == [], (first, second)
     tried = script.runs(folder / "points" / "by-points-50.csv")
