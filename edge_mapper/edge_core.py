@@ -360,8 +360,8 @@ class EdgeMapperCore:
         bounds = self.config.coverage
         if not bounds.enabled:
             return {}
-        lent = [kf.pose for k, kf in self.map.keyframes.items()
-                if k not in leaving and is_foreign(k)]
+        lent_ids = [k for k in self.map.keyframes if k not in leaving and is_foreign(k)]
+        lent = [self.map.keyframes[k].pose for k in lent_ids]
         own = [kf.pose for k, kf in self.map.keyframes.items()
                if k not in leaving and not is_foreign(k) and self._earlier_visit(k, slot)]
         if own and not self._heads_where_it_was(frames, ahead, own):
@@ -371,18 +371,14 @@ class EdgeMapperCore:
         poses = {f.frame_id: self.back_end.moved_since(f.map_version) @ f.pose
                  for f in frames if f.tracked and f.pose is not None}
         covered = covered_views(poses, lent + own, bounds)
-        if bounds.by_points and lent:
-            matched = {f.frame_id: f.keys[f.keys >= 0] for f in frames
+        if bounds.by_points and lent_ids:
+            # a frame's keys hold its track ids as negative keys, never among map points
+            matched = {f.frame_id: f.keys for f in frames
                        if f.tracked and f.frame_id not in covered}
-            covered |= served_views(matched, self._lent_points(leaving), bounds)
+            lent_points = unique_ids(np.concatenate([self.map.point_array(k)
+                                                     for k in lent_ids]))
+            covered |= served_views(matched, lent_points, bounds)
         return dict.fromkeys(covered, bounds.min_points)
-
-    def _lent_points(self, leaving: Collection[int]) -> np.ndarray:
-        """The map points the keyframes other devices lent this map see (those ``leaving``
-        left out), ascending, without repeats."""
-        sets = [self.map.point_array(k) for k in self.map.keyframes
-                if k not in leaving and is_foreign(k)]
-        return unique_ids(np.concatenate(sets)) if sets else np.zeros(0, dtype=np.int64)
 
     def _heads_where_it_was(self, frames: Sequence[FrameObservations],
                             ahead: Sequence[np.ndarray], own: Sequence[np.ndarray]) -> bool:

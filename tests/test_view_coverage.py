@@ -83,13 +83,19 @@ def _posed_slot(device: Device, core: EdgeMapperCore, slot: int, version: int = 
             for f in range(slot * F, (slot + 1) * F)]
 
 
-def _lend(core: EdgeMapperCore, keyframe_id: int, pose: np.ndarray) -> None:
+def _lend(core: EdgeMapperCore, keyframe_id: int, pose: np.ndarray,
+          seeing: list[int] | None = None) -> None:
     """A keyframe another device uploaded, in this map (as a restore of an adopted one puts
-    it), observing the points of the map's newest keyframe."""
+    it), observing the points ``seeing`` (None: 30 of the map's newest keyframe's, where that
+    keyframe measured them)."""
     core.map.add_keyframe(keyframe_id, pose)
-    newest = core.map.keyframes[max(k for k in core.map.keyframes if k < 2**40)]
-    for point, (u, v, d) in list(newest.measurements.items())[:30]:
-        core.map.observe(keyframe_id, point, (u, v), d)
+    if seeing is None:
+        newest = core.map.keyframes[max(k for k in core.map.keyframes if k < 2**40)]
+        for point, (u, v, d) in list(newest.measurements.items())[:30]:
+            core.map.observe(keyframe_id, point, (u, v), d)
+        return
+    for point in seeing:
+        core.map.observe(keyframe_id, point, (320.0, 240.0), 2.0)
 
 
 def test_a_slot_whose_views_lent_keyframes_cover_asks_for_no_upload() -> None:
@@ -234,14 +240,6 @@ def test_a_frame_tracked_before_a_merge_is_judged_where_the_merge_put_it() -> No
     assert not plan.covered and len(plan.action.upload) == 2
 
 
-def _lend_seeing(core: EdgeMapperCore, keyframe_id: int, pose: np.ndarray,
-                 points: list[int]) -> None:
-    """A keyframe another device uploaded, in this map at ``pose``, observing ``points``."""
-    core.map.add_keyframe(keyframe_id, pose)
-    for point in points:
-        core.map.observe(keyframe_id, point, (320.0, 240.0), 2.0)
-
-
 def test_a_frame_that_tracks_on_a_lent_keyframes_points_is_covered_wherever_it_stands() -> None:
     """Another device's keyframe 2 m off and turned away, out of the pose bounds, seeing the
     points slot 3's frames track on: with ``by_points`` every frame shares the cover's 50 of
@@ -257,7 +255,7 @@ def test_a_frame_that_tracks_on_a_lent_keyframes_points_is_covered_wherever_it_s
         core.config = dataclasses.replace(core.config, coverage=bounds)
         frames = _posed_slot(device, core, 3)
         seen = sorted(set().union(*(f.map_points for f in frames)))
-        _lend_seeing(core, (foreign_tag(0) | 99) if lent else 1099, _pose(3.0, 90.0), seen)
+        _lend(core, (foreign_tag(0) | 99) if lent else 1099, _pose(3.0, 90.0), seen)
         plan = core.plan(3, frames, 20.0, 1)
         if bounds.by_points and lent:
             assert plan.covered == frozenset(range(24, 32)) and plan.action.upload == []
@@ -269,7 +267,7 @@ def test_a_frame_that_tracks_on_a_lent_keyframes_points_is_covered_wherever_it_s
     frames = _posed_slot(device, core, 3)
     every = frozenset.intersection(*(f.map_points for f in frames))
     first_only = frames[0].map_points - every
-    _lend_seeing(core, foreign_tag(0) | 99, _pose(3.0, 90.0),
+    _lend(core, foreign_tag(0) | 99, _pose(3.0, 90.0),
                  sorted(every)[:45] + sorted(first_only))
     shares = [len(f.map_points & (set(sorted(every)[:45]) | first_only)) for f in frames]
     assert min(shares[:6]) >= 50 > max(shares[6:])
