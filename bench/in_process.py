@@ -14,6 +14,7 @@ import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -52,6 +53,16 @@ from twinslam.uplink.channels import MarkovChannel, TraceChannel, parse_channel
 from twinslam.uplink.families import uplink_family
 
 
+class EdgeFrame(NamedTuple):
+    """One frame of a served slot as the edge planned it."""
+
+    frame_id: int
+    covered: bool       #: left out of the upload candidates: the map covers its view
+    uploaded: bool      #: the edge asked for it
+    shared: int         #: its reported map points the planned-on map shares
+    lost: bool          #: the edge's lost-frame rule counts it lost
+
+
 @dataclass(frozen=True)
 class ServedSlot:
     """What the edge made of a slot, and how long each of its steps took."""
@@ -68,6 +79,8 @@ class ServedSlot:
     #: the map the slot was planned on fell into pieces (u(G) = +inf): every frame of the
     #: slot counts lost by the edge's rule, whatever the device tracked
     in_pieces: bool = False
+    #: the slot's frames as the edge planned them, capture order (empty: not recorded)
+    frames: tuple[EdgeFrame, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -122,12 +135,13 @@ def serve_slot(device: DeviceTrackerCore, edge: EdgeMapperCore, rate_mbps: float
     snapshot = read_map_update(update)
     lost = plan.uncertainty.lost_share if plan.uncertainty is not None else math.nan
     pieces = plan.uncertainty is not None and math.isinf(plan.uncertainty.map_uncertainty)
-    if hold:
-        return ServedSlot(outcome, (t1 - t0) * 1e3, (t2 - t1) * 1e3, (t3 - t2) * 1e3, snapshot,
-                          lost, pieces)
-    device.apply_map_update(snapshot, slot)
+    asked = set(plan.action.upload)
+    planned = tuple(EdgeFrame(f.frame_id, f.frame_id in plan.covered, f.frame_id in asked, n, gone)
+                    for f, n, gone in zip(summaries, plan.shared, plan.lost, strict=True))
+    if not hold:
+        device.apply_map_update(snapshot, slot)
     return ServedSlot(outcome, (t1 - t0) * 1e3, (t2 - t1) * 1e3, (t3 - t2) * 1e3,
-                      lost_share=lost, in_pieces=pieces)
+                      snapshot if hold else None, lost, pieces, planned)
 
 
 def run_as_the_edge_node() -> None:
@@ -191,6 +205,9 @@ class DeviceWalk:
     #: every frame as the device tracked it: (frame, tracked, features matched, pose
     #: inliers, map points among them, map version)
     frame_rows: list[tuple[int, int, int, int, int, int]] = field(default_factory=list)
+    #: every served frame as the edge planned it: (slot, frame's played position, covered,
+    #: uploaded, map points shared, lost by the edge's rule)
+    edge_rows: list[tuple[int, int, int, int, int, int]] = field(default_factory=list)
     #: the loops its edge closed: (slot, old keyframe, new keyframe, metres moved)
     loops: list[tuple[int, int, int, float]] = field(default_factory=list)
     uploads: int = 0                #: keyframes the edge integrated from this device
@@ -231,6 +248,8 @@ class DeviceWalk:
         self.slot = served.outcome.slot
         self.edge_ms.append(served.plan_ms + served.integrate_ms + served.finish_ms)
         self.lost.append(served.lost_share)
+        self.edge_rows.extend((served.outcome.slot, self.positions[f.frame_id], int(f.covered),
+                               int(f.uploaded), f.shared, int(f.lost)) for f in served.frames)
         self.pieces += served.in_pieces
         self.uploads += len(served.outcome.integrated)
         loop = served.outcome.loop

@@ -6,7 +6,8 @@ lent as the edge node merges them: the node's own
         [--after 300] [--order forward[,backward…]] [--seed 0] [--uplink lte]
         [--unseen-slots N] [--lend-eagerly] [--merge-inliers N] [--look-backoff N] [--no-merge]
         [--covered-m M] [--covered-deg D] [--covered-min-points N]
-        [--interleave N] [--own-walks] [--every 300] [--csv FILE] [--baseline COMMIT [--rounds 1]]
+        [--interleave N] [--own-walks] [--every 300] [--csv FILE] [--frames-csv FILE]
+        [--baseline COMMIT [--rounds 1]]
 
 Device k (k = 0, 1, …) starts the walk ``k × --after`` frames after the first, on an uplink
 of its own (seed ``--seed`` + k): users joining a place others walk at different times — on
@@ -39,9 +40,12 @@ slot, the other devices' keyframes its map held (mean over its slots, at the end
 many copies it adopted (a copy that went back and was lent again counts twice); then the
 **cross-device revisit error** over every two devices of one place (their frames in the
 place's frame, pooled as RMS over the pairs of frames), and each run's figures appended to
-``--csv``. Devices replaying one sequence see the same frames: a pair is two devices'
-estimates of one view, and their relative pose's truth is the identity — and a merge or a
-copy's weld may pair an image with itself, which no two real cameras offer. With
+``--csv``; ``--frames-csv`` writes every frame the edge served, with its slot, whether the map
+covered it, whether it was uploaded, the map points it shared and whether the edge counted it
+lost (where a walk's lost frames fall). Devices replaying one sequence see the same frames: a
+pair is two devices' estimates of one view, and their relative pose's truth is the identity
+— and a merge or a copy's weld may pair an image with itself, which no two real cameras
+offer. With
 ``--interleave N`` device k plays only the sequence's frames numbered k mod N, each device at
 1/N of the frame rate with 1/N of a slot's frames (a slot lasts as long): with N at least the
 devices of a place, no image is played by two of them. On a synthetic place ``--own-walks``
@@ -93,7 +97,7 @@ from twinslam.live.tracking_quality import (
     absolute_trajectory_error,
     cross_device_revisit_error,
 )
-from twinslam.reporting import append_csv_rows
+from twinslam.reporting import append_csv_rows, write_csv
 from twinslam.sequence_player.playback import ORDERS, phase_for
 from twinslam.sequences.opening import is_synthetic
 from twinslam.slam.back_end.foreign_keyframes import is_foreign
@@ -163,6 +167,25 @@ def _hooks(device: PlaceWalk, merging: PlaceMerging) -> SlotHooks:
         merging.look(name, slot)
 
     return SlotHooks(lambda payload: merging.keyframe(name, payload), before_end, after_end)
+
+
+#: the columns of ``--frames-csv``
+FRAME_COLUMNS = ("device", "slot", "frame", "covered", "uploaded", "shared", "lost",
+                 "true_x", "true_y", "true_z")
+
+
+def write_frames(path: Path, devices: list[PlaceWalk]) -> None:
+    """Every frame the edge served, a row each (:data:`FRAME_COLUMNS`): where in a walk the
+    edge's lost frames fall, and what the slots before them uploaded. The true position is
+    in the device's own walk's frame (NaN without ground truth)."""
+    rows = []
+    for device in devices:
+        walk = device.walk
+        for slot, position, covered, uploaded, shared, lost in walk.edge_rows:
+            truth = walk.truth.get(position)
+            where = truth[:3, 3].tolist() if truth is not None else [math.nan] * 3
+            rows.append((device.name, slot, position, covered, uploaded, shared, lost, *where))
+    write_csv(path, FRAME_COLUMNS, rows)
 
 
 def false_merges(devices: list[PlaceWalk], roots: dict[str, str]) -> list[str]:
@@ -242,6 +265,12 @@ def main() -> None:
     parser.add_argument("--every", type=int, default=300,
                         help="print the devices' maps every N frames of the run")
     parser.add_argument("--csv", type=Path, help="append the run's figures here")
+    parser.add_argument("--frames-csv", type=Path,
+                        help="write every served frame of every device here, a row each: its "
+                             "slot, whether the map covered its view, whether the edge asked "
+                             "for it, the map points it shared with the map the slot was "
+                             "planned on and whether the edge counted it lost, and where the "
+                             "camera truly stood")
     add_baseline_options(parser, 1, "rounds per tree, the whole run once a round")
     args = parser.parse_args()
     if args.devices < 2:
@@ -326,6 +355,9 @@ def main() -> None:
         for device in devices:
             device.walk.edge.close()
         report = _report(devices, merging, args)
+        if args.frames_csv:
+            write_frames(args.frames_csv, devices)
+            print(f"wrote {args.frames_csv}")
     report["covered_m"], report["covered_deg"] = config.coverage.max_m, config.coverage.max_deg
     report["covered_min_points"] = config.coverage.min_points
     report["covered_by_points"] = int(config.coverage.by_points)
@@ -384,15 +416,16 @@ with tempfile.TemporaryDirectory() as tmp:
 
 
 def _run_options(argv: list[str]) -> list[str]:
-    """``argv`` without ``--baseline``, ``--rounds`` and ``--csv`` (each with its value)."""
+    """``argv`` without ``--baseline``, ``--rounds``, ``--csv`` and ``--frames-csv`` (each with
+    its value)."""
     kept: list[str] = []
     skip = False
     for arg in argv:
         if skip:
             skip = False
-        elif arg in ("--baseline", "--rounds", "--csv"):
+        elif arg in ("--baseline", "--rounds", "--csv", "--frames-csv"):
             skip = True
-        elif not arg.startswith(("--baseline=", "--rounds=", "--csv=")):
+        elif not arg.startswith(("--baseline=", "--rounds=", "--csv=", "--frames-csv=")):
             kept.append(arg)
     return kept
 

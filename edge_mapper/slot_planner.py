@@ -109,6 +109,11 @@ class SlotPlan:
     #: the policy's own decision where it would have left the map in more pieces and
     #: ``action`` is mended (``connected_map``); None: ``action`` is the policy's
     policy_action: MapAction | None = None
+    #: each of the slot's frames (capture order): the map points its reported points share
+    #: with the map it was planned on, and whether the lost-frame rule counts it lost —
+    #: what a bench records frame by frame (the slot's υ keeps only the sums)
+    shared: tuple[int, ...] = ()
+    lost: tuple[bool, ...] = ()
 
 
 class SlotPlanner:
@@ -242,11 +247,12 @@ class SlotPlanner:
         mended = chosen if action is not chosen else None
         # υ of F_k against the map as it is (eq. 8), None for an empty map
         m = len(map_ids)
+        counts = tuple(shared.tolist())
         if not m:
-            return SlotPlan(action, obs, None, skipped, mended)
+            return SlotPlan(action, obs, None, skipped, mended, counts, tuple(lost))
         upsilon = next_slot_uncertainty(full[:m, :m], full[m:, :m], self.config.log_det_pi,
                                         shared >= MIN_INLIERS)
-        return SlotPlan(action, obs, upsilon, skipped, mended)
+        return SlotPlan(action, obs, upsilon, skipped, mended, counts, tuple(lost))
 
     def _stale(self, slot: int, map_ids: list[int], frames: list[FrameObservations],
                full: np.ndarray) -> set[int]:

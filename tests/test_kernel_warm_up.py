@@ -12,11 +12,19 @@ scores).
 
 from __future__ import annotations
 
+import csv
+import re
 import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
+from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
+
 ROOT = Path(__file__).resolve().parents[1]
+#: the tests that read the one walk: one worker runs it
+ONE_WALK = pytest.mark.xdist_group("shared-walk")
 
 #: load the kernels as a node does, walk, and print every overload the walk added
 _WALK = """
@@ -38,7 +46,8 @@ def overloads():
 
 load_kernels()
 before = overloads()
-sys.argv = ["place_walks", "--devices", "2", "--frames", "200", "--after", "70"]
+sys.argv = ["place_walks", "--devices", "2", "--frames", "200", "--after", "70",
+            "--frames-csv", sys.argv[1]]
 runpy.run_module("bench.place_walks", run_name="__main__")
 for kernel, signatures in sorted(overloads().items()):
     for signature in sorted(signatures - before.get(kernel, set())):
@@ -46,11 +55,45 @@ for kernel, signatures in sorted(overloads().items()):
 """
 
 
-def test_a_shared_walk_compiles_no_kernel_the_nodes_did_not_load_before_it() -> None:
-    run = subprocess.run([sys.executable, "-c", _WALK], cwd=ROOT, capture_output=True,
-                         text=True, timeout=300)
+@pytest.fixture(scope="module")
+def shared_walk(tmp_path_factory: pytest.TempPathFactory) -> tuple[str, Path]:
+    """The walk's printout, and its frames as the edge served them (``--frames-csv``)."""
+    frames = tmp_path_factory.mktemp("walk") / "frames.csv"
+    run = subprocess.run([sys.executable, "-c", _WALK, str(frames)], cwd=ROOT,
+                         capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr[-3000:]
-    assert "cross-device revisit error" in run.stdout, run.stdout[-2000:]
-    compiled = [line for line in run.stdout.splitlines()
-                if line.startswith("COMPILED IN A SLOT")]
+    return run.stdout, frames
+
+
+@pytest.mark.slow(seconds=30)
+@ONE_WALK
+def test_a_shared_walk_compiles_no_kernel_the_nodes_did_not_load_before_it(
+        shared_walk: tuple[str, Path]) -> None:
+    printed, _ = shared_walk
+    assert "cross-device revisit error" in printed, printed[-2000:]
+    compiled = [line for line in printed.splitlines() if line.startswith("COMPILED IN A SLOT")]
     assert not compiled, "\n".join(compiled)
+
+
+@ONE_WALK
+def test_the_walks_frames_are_written_as_the_edge_planned_them(
+        shared_walk: tuple[str, Path]) -> None:
+    """``--frames-csv``: every frame each device played after its first slot, a row each; a
+    frame sharing fewer map points than the device needs is lost by the edge's rule, a covered
+    frame is never asked for, and each device's uploads are at least the keyframes it printed
+    as integrated (the edge may refuse one)."""
+    printed, path = shared_walk
+    with path.open(newline="", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    devices = {row["device"] for row in rows}
+    assert devices == {"ar1", "ar2"}
+    for row in rows:
+        if int(row["shared"]) < MIN_INLIERS:
+            assert row["lost"] == "1", row
+        assert not (row["covered"] == "1" and row["uploaded"] == "1"), row
+        assert row["true_x"] != "nan"                 # the corridor has ground truth
+    for name in devices:
+        mine = [r for r in rows if r["device"] == name]
+        assert len({r["frame"] for r in mine}) == len(mine)       # a frame once
+        integrated = int(re.search(rf"^{name}: .*?, (\d+) uploaded", printed, re.M)[1])
+        assert sum(int(r["uploaded"]) for r in mine) >= integrated > 0

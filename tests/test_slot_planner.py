@@ -85,7 +85,8 @@ def test_adapt_and_lff_differ_and_bad_actions_are_refused() -> None:
 def test_a_frame_sharing_fewer_map_points_than_the_device_needs_counts_as_lost() -> None:
     """The lost share is the share of the slot's frames that share fewer than the device's
     MIN_INLIERS map points with the map — counted against the map's points (tracks and
-    points the map lacks never count), and with the keyframes still on their way."""
+    points the map lacks never count), and with the keyframes still on their way; the plan
+    tells each frame's count and verdict."""
     m, frames, _, _ = _setup(n_map=12, n_slot=30)
     in_map = set(m.points)
     expected = [len(f.map_points & in_map) < MIN_INLIERS for f in frames]
@@ -94,6 +95,9 @@ def test_a_frame_sharing_fewer_map_points_than_the_device_needs_counts_as_lost()
         3, frames, rate_mbps=60.0, rate_state=1, rate_history=[0, 1])
     assert plan.uncertainty is not None
     assert plan.uncertainty.n_lost == sum(expected)
+    # frame by frame, as a bench records them: the shared count and the rule's verdict
+    assert list(plan.lost) == expected
+    assert list(plan.shared) == [len(f.map_points & in_map) for f in frames]
     # a keyframe on its way (an open slot's upload) holds its frame's points for the map
     arriving = {frames[-1].frame_id + 100: FrameObservations(
         frames[-1].frame_id + 100, frames[0].map_points | {10**6 + i for i in range(40)},
