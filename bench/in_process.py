@@ -81,6 +81,9 @@ class ServedSlot:
     in_pieces: bool = False
     #: the slot's frames as the edge planned them, capture order (empty: not recorded)
     frames: tuple[EdgeFrame, ...] = ()
+    #: the device's own keyframes in the map the slot was planned on (the rest: other
+    #: devices' copies)
+    own_keyframes: int = 0
 
 
 @dataclass(frozen=True)
@@ -112,6 +115,7 @@ def serve_slot(device: DeviceTrackerCore, edge: EdgeMapperCore, rate_mbps: float
                                    frozenset(f.track_ids.tolist()), bool(f.tracked), f.pose,
                                    f.map_version)
                  for f in frames]
+    own = sum(1 for k in edge.map.keyframes if not is_foreign(k))
     t0 = time.perf_counter()
     plan = edge.plan(slot, summaries, rate_mbps, rate_state)
     t1 = time.perf_counter()
@@ -141,7 +145,7 @@ def serve_slot(device: DeviceTrackerCore, edge: EdgeMapperCore, rate_mbps: float
     if not hold:
         device.apply_map_update(snapshot, slot)
     return ServedSlot(outcome, (t1 - t0) * 1e3, (t2 - t1) * 1e3, (t3 - t2) * 1e3,
-                      snapshot if hold else None, lost, pieces, planned)
+                      snapshot if hold else None, lost, pieces, planned, own)
 
 
 def run_as_the_edge_node() -> None:
@@ -206,8 +210,9 @@ class DeviceWalk:
     #: inliers, map points among them, map version)
     frame_rows: list[tuple[int, int, int, int, int, int]] = field(default_factory=list)
     #: every served frame as the edge planned it: (slot, frame's played position, covered,
-    #: uploaded, map points shared, lost by the edge's rule)
-    edge_rows: list[tuple[int, int, int, int, int, int]] = field(default_factory=list)
+    #: uploaded, map points shared, lost by the edge's rule, the device's own keyframes in
+    #: the map)
+    edge_rows: list[tuple[int, int, int, int, int, int, int]] = field(default_factory=list)
     #: the loops its edge closed: (slot, old keyframe, new keyframe, metres moved)
     loops: list[tuple[int, int, int, float]] = field(default_factory=list)
     uploads: int = 0                #: keyframes the edge integrated from this device
@@ -249,7 +254,8 @@ class DeviceWalk:
         self.edge_ms.append(served.plan_ms + served.integrate_ms + served.finish_ms)
         self.lost.append(served.lost_share)
         self.edge_rows.extend((served.outcome.slot, self.positions[f.frame_id], int(f.covered),
-                               int(f.uploaded), f.shared, int(f.lost)) for f in served.frames)
+                               int(f.uploaded), f.shared, int(f.lost), served.own_keyframes)
+                              for f in served.frames)
         self.pieces += served.in_pieces
         self.uploads += len(served.outcome.integrated)
         loop = served.outcome.loop

@@ -42,10 +42,10 @@ many copies it adopted (a copy that went back and was lent again counts twice); 
 place's frame, pooled as RMS over the pairs of frames), and each run's figures appended to
 ``--csv``; ``--frames-csv`` writes every frame the edge served, with its slot, whether the map
 covered it, whether it was uploaded, the map points it shared and whether the edge counted it
-lost (where a walk's lost frames fall). Devices replaying one sequence see the same frames: a
-pair is two devices' estimates of one view, and their relative pose's truth is the identity
-— and a merge or a copy's weld may pair an image with itself, which no two real cameras
-offer. With
+lost and how many of its own keyframes the map held (where a walk's lost frames fall).
+Devices replaying one sequence see the same frames: a pair is two devices' estimates of one
+view, and their relative pose's truth is the identity — and a merge or a copy's weld may
+pair an image with itself, which no two real cameras offer. With
 ``--interleave N`` device k plays only the sequence's frames numbered k mod N, each device at
 1/N of the frame rate with 1/N of a slot's frames (a slot lasts as long): with N at least the
 devices of a place, no image is played by two of them. On a synthetic place ``--own-walks``
@@ -171,7 +171,7 @@ def _hooks(device: PlaceWalk, merging: PlaceMerging) -> SlotHooks:
 
 #: the columns of ``--frames-csv``
 FRAME_COLUMNS = ("device", "slot", "frame", "covered", "uploaded", "shared", "lost",
-                 "true_x", "true_y", "true_z")
+                 "own_keyframes", "true_x", "true_y", "true_z")
 
 
 def write_frames(path: Path, devices: list[PlaceWalk]) -> None:
@@ -181,10 +181,11 @@ def write_frames(path: Path, devices: list[PlaceWalk]) -> None:
     rows = []
     for device in devices:
         walk = device.walk
-        for slot, position, covered, uploaded, shared, lost in walk.edge_rows:
+        for slot, position, covered, uploaded, shared, lost, own in walk.edge_rows:
             truth = walk.truth.get(position)
             where = truth[:3, 3].tolist() if truth is not None else [math.nan] * 3
-            rows.append((device.name, slot, position, covered, uploaded, shared, lost, *where))
+            rows.append((device.name, slot, position, covered, uploaded, shared, lost, own,
+                         *where))
     write_csv(path, FRAME_COLUMNS, rows)
 
 
@@ -269,8 +270,9 @@ def main() -> None:
                         help="write every served frame of every device here, a row each: its "
                              "slot, whether the map covered its view, whether the edge asked "
                              "for it, the map points it shared with the map the slot was "
-                             "planned on and whether the edge counted it lost, and where the "
-                             "camera truly stood")
+                             "planned on, whether the edge counted it lost, how many of the "
+                             "device's own keyframes that map held, and where the camera truly "
+                             "stood")
     add_baseline_options(parser, 1, "rounds per tree, the whole run once a round")
     args = parser.parse_args()
     if args.devices < 2:

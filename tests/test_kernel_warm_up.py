@@ -92,8 +92,10 @@ def test_the_walks_frames_are_written_as_the_edge_planned_them(
             assert row["lost"] == "1", row
         assert not (row["covered"] == "1" and row["uploaded"] == "1"), row
         assert row["true_x"] != "nan"                 # the corridor has ground truth
+        assert int(row["own_keyframes"]) >= 0
     for name in devices:
         mine = [r for r in rows if r["device"] == name]
         assert len({r["frame"] for r in mine}) == len(mine)       # a frame once
         integrated = int(re.search(rf"^{name}: .*?, (\d+) uploaded", printed, re.M)[1])
         assert sum(int(r["uploaded"]) for r in mine) >= integrated > 0
+        assert max(int(r["own_keyframes"]) for r in mine) > 0       # its uploads entered
