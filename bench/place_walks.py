@@ -42,7 +42,8 @@ many copies it adopted (a copy that went back and was lent again counts twice); 
 place's frame, pooled as RMS over the pairs of frames), and each run's figures appended to
 ``--csv``; ``--frames-csv`` writes every frame the edge served, with its slot, whether the map
 covered it, whether it was uploaded, the map points it shared and whether the edge counted it
-lost and how many of its own keyframes the map held (where a walk's lost frames fall).
+lost and how many of its own keyframes the map held, beside whether the device tracked it and
+on how many points of the map it held (where a walk's lost frames fall).
 Devices replaying one sequence see the same frames: a pair is two devices' estimates of one
 view, and their relative pose's truth is the identity — and a merge or a copy's weld may
 pair an image with itself, which no two real cameras offer. With
@@ -171,21 +172,27 @@ def _hooks(device: PlaceWalk, merging: PlaceMerging) -> SlotHooks:
 
 #: the columns of ``--frames-csv``
 FRAME_COLUMNS = ("device", "slot", "frame", "covered", "uploaded", "shared", "lost",
-                 "own_keyframes", "true_x", "true_y", "true_z")
+                 "own_keyframes", "tracked", "device_map_points", "map_version",
+                 "true_x", "true_y", "true_z")
 
 
 def write_frames(path: Path, devices: list[PlaceWalk]) -> None:
     """Every frame the edge served, a row each (:data:`FRAME_COLUMNS`): where in a walk the
-    edge's lost frames fall, and what the slots before them uploaded. The true position is
-    in the device's own walk's frame (NaN without ground truth)."""
+    edge's lost frames fall, and what the slots before them uploaded. Beside the edge's view
+    of a frame, the device's: whether it tracked it, on how many map points of the map it
+    held, and that map's version — a frame the edge counts lost may have been tracked on the
+    map the device held, whose points the edge's newer map no longer has. The true position
+    is in the device's own walk's frame (NaN without ground truth)."""
     rows = []
     for device in devices:
         walk = device.walk
+        tracked = {row[0]: row for row in walk.frame_rows}
         for slot, position, covered, uploaded, shared, lost, own in walk.edge_rows:
+            _, was_tracked, _, _, map_points, version = tracked[position]
             truth = walk.truth.get(position)
             where = truth[:3, 3].tolist() if truth is not None else [math.nan] * 3
             rows.append((device.name, slot, position, covered, uploaded, shared, lost, own,
-                         *where))
+                         was_tracked, map_points, version, *where))
     write_csv(path, FRAME_COLUMNS, rows)
 
 
@@ -271,8 +278,9 @@ def main() -> None:
                              "slot, whether the map covered its view, whether the edge asked "
                              "for it, the map points it shared with the map the slot was "
                              "planned on, whether the edge counted it lost, how many of the "
-                             "device's own keyframes that map held, and where the camera truly "
-                             "stood")
+                             "device's own keyframes that map held; whether the device tracked "
+                             "it, on how many points of the map it held and that map's version; "
+                             "and where the camera truly stood")
     add_baseline_options(parser, 1, "rounds per tree, the whole run once a round")
     args = parser.parse_args()
     if args.devices < 2:

@@ -93,6 +93,8 @@ def test_the_walks_frames_are_written_as_the_edge_planned_them(
         assert not (row["covered"] == "1" and row["uploaded"] == "1"), row
         assert row["true_x"] != "nan"                 # the corridor has ground truth
         assert int(row["own_keyframes"]) >= 0
+        if row["tracked"] == "0":                      # an untracked frame: lost either way
+            assert row["lost"] == "1" and row["device_map_points"] == "0", row
     for name in devices:
         mine = [r for r in rows if r["device"] == name]
         assert len({r["frame"] for r in mine}) == len(mine)       # a frame once
