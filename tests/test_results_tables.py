@@ -1175,3 +1175,22 @@ def test_the_cover_by_points_tables_are_what_their_commands_print(
     printed = _script("shared_map_before_after").table(choice / "default", choice / "by-points",
                                                          both_devices=True)
     assert _missing("\n".join(printed)) == []
+
+
+def test_where_the_cover_by_points_loses_frames_is_what_its_command_prints() -> None:
+    """The held-out walks' frames, alone and with the cover by points, as the frames script
+    prints them; and the committed code's runs are the walks of the tables before them (the
+    same uploads, lost shares and loops, seed by seed)."""
+    folder = FIGURES / "shared-map" / "place-walks" / "own-walks" / "points"
+    lost = folder / "where-lost"
+    runs = [(f"{name}, seed {seed}", lost / f"{file}-{seed}.frames.csv.gz")
+            for seed in (4, 5) for name, file in (("alone", "alone"), ("by points", "by-points"))]
+    printed = _script("place_walks_frames").tables(runs)
+    assert _missing("\n".join(printed)) == []
+    table = _script("place_walks_table")
+    for committed, earlier in (("by-points-4-5.csv", folder / "by-points-50-4-7.csv"),
+                               ("alone-4-5.csv", folder.parent / "own-alone-4-7.csv")):
+        now, before = table.runs(lost / committed), table.runs(earlier)
+        assert sorted(now) == [4, 5]
+        for column in ("device_uploads", "lost_share", "loops", "copies_end"):
+            assert [now[s][column] for s in (4, 5)] == [before[s][column] for s in (4, 5)]
