@@ -288,6 +288,10 @@ def test_every_second_frame_gives_two_devices_alternate_frames_and_halves_their_
     assert [(p["every"], p["phase"]) for p in players] == [("2", "0"), ("2", "1"), ("2", "1")]
     device = given(launcher.device_args("device_tracker", 1))
     assert (device["slot_frames"], float(device["frame_rate_hz"])) == ("15", 7.5)
+    # told once: the run's rate (0.5) and the one camera frame in two in one figure
+    told = [a for a in launcher.device_args("device_tracker", 1)
+            if a.startswith("frame_rate_hz:=")]
+    assert told == ["frame_rate_hz:=7.5"]
     assert launcher.device_slot_frames() == 15
     assert launcher.slot_period_s() == pytest.approx(2.0)     # 30 frames at half speed
     assert "every" not in given(FleetLauncher(domain, config, FleetConfig(2),

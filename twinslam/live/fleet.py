@@ -337,6 +337,9 @@ class FleetLauncher(Launcher):
                      "-p", f"odom_frame:={device}/odom"]
             if every > 1:                        # a slot spans as long, in fewer frames
                 slot_frames, rate = self._played_slot()
+                # the rate × the run's rate the launcher told the device replaced (told
+                # twice, the later would win; a reader of the command line sees one)
+                args = without_param(args, "frame_rate_hz")
                 args += ["-p", f"frame_rate_hz:={rate!r}", "-p", f"slot_frames:={slot_frames}"]
         else:
             args += ["-p", f"frame_id:={device}/camera"]
@@ -683,3 +686,18 @@ def _cross_cells(errors: Mapping[tuple[str, str], RevisitError], device: str, co
     pairs = sum(e.pairs for e in mine)
     rms = math.sqrt(sum(e.rms_m ** 2 * e.pairs for e in mine) / pairs) if pairs else math.nan
     return {f"{column}_rms_m": rms, f"{column}_pairs": float(pairs)}
+
+
+def without_param(args: list[str], name: str) -> list[str]:
+    """A node's command line ``args`` without its ``-p NAME:=…`` parameters."""
+    out: list[str] = []
+    skip = False
+    for i, arg in enumerate(args):
+        if skip:
+            skip = False
+            continue
+        if arg == "-p" and i + 1 < len(args) and args[i + 1].startswith(f"{name}:="):
+            skip = True
+            continue
+        out.append(arg)
+    return out
