@@ -67,7 +67,11 @@ class CoverageBounds:
     #: quarter to a third fewer keyframes than alone where the pose alone saved 5–8 %, two in
     #: a room, which the pose covers already, the same; but on the corridor's held-out walks
     #: the edge counted 0.6 points more of their frames lost than alone, so it is no default
-    #: (docs/results/shared-map.md, "A cover judged by the points a frame tracks on")
+    #: (docs/results/shared-map.md, "A cover judged by the points a frame tracks on"). Those
+    #: frames fall where the device's map holds mostly other devices' copies, not after a
+    #: slot it uploaded nothing in; gates on where the camera heads, on the slot's newest
+    #: frames and keeping the device's newest keyframes lost as many ("Where the cover by
+    #: points loses frames")
     by_points: bool = False
 
     def __post_init__(self) -> None:
