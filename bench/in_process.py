@@ -11,10 +11,10 @@ import argparse
 import dataclasses
 import math
 import time
-from collections.abc import Callable, Iterable, Iterator, Mapping
+from collections.abc import Callable, Collection, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
@@ -30,6 +30,7 @@ from edge_mapper.parameters import edge_config
 from edge_mapper.slot_planner import FrameObservations
 from twinslam.node_runtime.long_lived_objects import keep_survivors_out
 from twinslam.node_runtime.math_threads import one_math_thread
+from twinslam.node_runtime.parameters import ParamSpec
 from twinslam.policies.registry import make_policy
 from twinslam.sequence_player.playback import Playback, PlayedSequence, played_device_slot
 from twinslam.sequences.frame import RgbdFrame
@@ -291,21 +292,79 @@ class DeviceWalk:
                 if not is_foreign(k)}
 
 
-def device_parameter(text: str) -> tuple[str, object]:
-    """``NAME=VALUE`` as a device node parameter, VALUE typed as its default is."""
+def _node_parameter(text: str, specs: Sequence[ParamSpec], names: Collection[str],
+                    what: str) -> tuple[str, object]:
+    """``NAME=VALUE`` as one of a node's parameters ``specs`` whose name is among ``names``,
+    VALUE typed as its default is and within the spec's bounds, as the node would take it."""
     name, sep, value = text.partition("=")
-    spec = next((p for p in DEVICE_PARAMETERS if p.name == name), None)
-    if not sep or spec is None:
+    spec = next((p for p in specs if p.name == name), None)
+    if not sep or spec is None or name not in names:
         raise argparse.ArgumentTypeError(
-            f"{text!r}: expected NAME=VALUE with NAME a device parameter "
-            f"({', '.join(sorted(p.name for p in DEVICE_PARAMETERS))})")
+            f"{text!r}: expected NAME=VALUE with NAME {what} ({', '.join(sorted(names))})")
     kind = type(spec.default)
     if kind is bool:
         return name, value.lower() in ("1", "true", "yes", "on")
     try:
-        return name, kind(value)
+        typed = kind(value)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(f"{text!r}: {exc}") from exc
+    if isinstance(typed, (int, float)) and (
+            (spec.low is not None and typed < spec.low) or
+            (spec.high is not None and typed > spec.high)):
+        raise argparse.ArgumentTypeError(f"{text!r}: {name} lies within [{spec.low}, "
+                                         f"{spec.high}]")
+    return name, typed
+
+
+def device_parameter(text: str) -> tuple[str, object]:
+    """``NAME=VALUE`` as a device node parameter, VALUE typed as its default is."""
+    return _node_parameter(text, DEVICE_PARAMETERS, [p.name for p in DEVICE_PARAMETERS],
+                           "a device parameter")
+
+
+class _ReadNames(dict[str, Any]):
+    """A parameter mapping that notes which names are read."""
+
+    def __init__(self, values: Mapping[str, Any]) -> None:
+        super().__init__(values)
+        self.read: set[str] = set()
+
+    def __getitem__(self, name: str) -> Any:
+        self.read.add(name)
+        return super().__getitem__(name)
+
+
+def _core_parameters() -> frozenset[str]:
+    """The edge node's parameters its core's configuration is made of (what
+    :func:`~edge_mapper.parameters.edge_config` reads): the ones a bench of edge cores can
+    honour; the node's others (its policy, topics, budget, …) no core reads."""
+    values = _ReadNames({p.name: p.default for p in EDGE_PARAMETERS})
+    edge_config(values)
+    return frozenset(values.read)
+
+
+#: the edge parameters ``--edge`` takes (:func:`_core_parameters`)
+EDGE_CORE_PARAMETERS = _core_parameters()
+
+
+def edge_parameter(text: str) -> tuple[str, object]:
+    """``NAME=VALUE`` as an edge node parameter its core reads, VALUE typed as its default is
+    and within its bounds."""
+    return _node_parameter(text, EDGE_PARAMETERS, EDGE_CORE_PARAMETERS,
+                           "an edge parameter the edge's core reads")
+
+
+def add_edge_option(parser: argparse.ArgumentParser) -> None:
+    """``--edge NAME=VALUE`` (repeatable) on a bench's command line: the edge node's
+    parameters that differ from its defaults, for every device's edge core; the bench passes
+    ``dict(args.edge)`` to :func:`repeatable_edge` (its own options, named for one of them,
+    win over it)."""
+    parser.add_argument("--edge", action="append", default=[], metavar="NAME=VALUE",
+                        type=edge_parameter,
+                        help="an edge node parameter other than its default, as the node "
+                             "reads it, for every device's edge core (repeat for more); e.g. "
+                             "restore_keyframes=6 vmax=30. Only the parameters the core reads "
+                             "(not the node's policy, topics or budget)")
 
 
 def add_device_option(parser: argparse.ArgumentParser) -> None:

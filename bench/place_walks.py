@@ -6,8 +6,8 @@ lent as the edge node merges them: the node's own
         [--after 300] [--order forward[,backward…]] [--seed 0] [--uplink lte]
         [--unseen-slots N] [--lend-eagerly] [--merge-inliers N] [--look-backoff N] [--no-merge]
         [--covered-m M] [--covered-deg D] [--covered-min-points N]
-        [--interleave N] [--own-walks] [--every 300] [--csv FILE] [--frames-csv FILE]
-        [--baseline COMMIT [--rounds 1]]
+        [--interleave N] [--own-walks] [--edge NAME=VALUE …] [--every 300] [--csv FILE]
+        [--frames-csv FILE] [--baseline COMMIT [--rounds 1]]
 
 Device k (k = 0, 1, …) starts the walk ``k × --after`` frames after the first, on an uplink
 of its own (seed ``--seed`` + k): users joining a place others walk at different times — on
@@ -79,6 +79,7 @@ from bench.in_process import (
     DeviceWalk,
     SlotHooks,
     add_device_option,
+    add_edge_option,
     add_place_options,
     check_place_options,
     interleaved_device,
@@ -114,7 +115,7 @@ COLUMNS = ("sequence", "frames", "devices", "after", "order", "seed", "uplink", 
            "ate_m_mean", "cross_rms_m", "cross_pairs", "cross_worst_pair_rms_m", "loops",
            "look_ms_median", "seconds", "device_edge_ms", "device_copies_mean", "device_uploads",
            "device_merge_slot", "device_ate_m", "places", "false_merges", "declined",
-           "interleave", "own_walks", "pieces_slots", "device_pieces_slots")
+           "interleave", "own_walks", "pieces_slots", "device_pieces_slots", "edge_params")
 #: the figures two trees' runs share when they walked one walk (the timings aside)
 SAME_WALK = ("merged", "copies_mean", "copies_end", "adopted", "uploads", "lost_share",
              "tracked_share", "ate_m_mean", "cross_rms_m", "loops", "device_uploads",
@@ -272,6 +273,7 @@ def main() -> None:
                              "still compares them)")
     parser.add_argument("--every", type=int, default=300,
                         help="print the devices' maps every N frames of the run")
+    add_edge_option(parser)
     parser.add_argument("--csv", type=Path, help="append the run's figures here")
     parser.add_argument("--frames-csv", type=Path,
                         help="write every served frame of every device here, a row each: its "
@@ -306,13 +308,13 @@ def main() -> None:
         return
     run_as_the_edge_node()
     places = args.sequence.split(",")
-    config = repeatable_edge(**{name: value for name, value in
-                                (("covered_m", args.covered_m),
-                                 ("covered_deg", args.covered_deg),
-                                 ("covered_min_points", args.covered_min_points),
-                                 ("covered_by_points", args.covered_by_points),
-                                 ("own_coverage_after_slots", args.own_coverage_after))
-                                if value is not None})
+    config = repeatable_edge(**dict(args.edge), **{
+        name: value for name, value in (("covered_m", args.covered_m),
+                                        ("covered_deg", args.covered_deg),
+                                        ("covered_min_points", args.covered_min_points),
+                                        ("covered_by_points", args.covered_by_points),
+                                        ("own_coverage_after_slots", args.own_coverage_after))
+        if value is not None})
     started = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         devices = [PlaceWalk(open_walk(f"ar{k + 1}",
@@ -373,6 +375,7 @@ def main() -> None:
     report["covered_by_points"] = int(config.coverage.by_points)
     report["lent_view_m"], report["lent_view_deg"] = args.lent_view_m, args.lent_view_deg
     report["own_coverage_after"] = config.own_coverage_after_slots
+    report["edge_params"] = " ".join(f"{k}={v}" for k, v in sorted(dict(args.edge).items()))
     report["seconds"] = time.perf_counter() - started
     print(f"{report['seconds']:.0f} s", flush=True)
     if args.csv:

@@ -6,6 +6,7 @@ map into the first one's frame (:mod:`twinslam.slam.back_end.map_merging`).
         [--second backward] [--second-after FRAMES] [--first-start FRAME]
         [--second-start FRAME] [--interleave] [--seed 0]
         [--uplink lte] [--vmax N] [--archive N] [--ba-window N] [--device NAME=VALUE]
+        [--edge NAME=VALUE]
         [--share [--share-both]] [--covered-m M] [--covered-min-points N] [--no-merge] [--csv FILE]
         [--frames-csv FILE] [--keyframes-csv FILE]
 
@@ -68,6 +69,7 @@ import numpy as np
 from bench.in_process import (
     DeviceWalk,
     add_device_option,
+    add_edge_option,
     add_place_options,
     check_place_options,
     interleaved_device,
@@ -241,6 +243,7 @@ def main() -> None:
                              "(the edge's ba_window; default: the node's, 0; the paper's "
                              "edge: 5)")
     add_device_option(parser)
+    add_edge_option(parser)
     parser.add_argument("--update-delay", type=int, default=8,
                         help="frames of the next slot a device tracks before its map update "
                              "reaches it (the default device's D_req of 0.25 s)")
@@ -285,7 +288,7 @@ def main() -> None:
                                                  ("loops_across_devices",
                                                   False if args.no_loops_across else None))
                  if value is not None}
-    config = repeatable_edge(**overrides)
+    config = repeatable_edge(**{**dict(args.edge), **overrides})
     started = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         # interleaved, no image is played by both: the first device the sequence's even
@@ -409,6 +412,8 @@ def main() -> None:
                        "ba_window": config.back_end.ba_window,
                        "device_params": " ".join(f"{k}={v}" for k, v in
                                                  sorted(dict(args.device).items())),
+                       "edge_params": " ".join(f"{k}={v}" for k, v in
+                                               sorted(dict(args.edge).items())),
                        "covered_m": config.coverage.max_m,
                        "covered_deg": config.coverage.max_deg,
                        "covered_min_points": config.coverage.min_points,
@@ -544,7 +549,7 @@ CSV_FIELDS = ("frames", "seed", "uplink", "first_order", "second_order", "second
               "lent_view_m", "lent_view_deg", "declined", "declined_back",
               "first_archive_copies", "second_archive_copies", "first_copies_mean",
               "second_copies_mean", "cross_rigid_left_rms_m",
-              "cross_rigid_moved_m", "cross_rigid_turned_deg", "interleave")
+              "cross_rigid_moved_m", "cross_rigid_turned_deg", "interleave", "edge_params")
 #: the second device's frames a stretch of the cross-device error by stretch counts
 STRETCH = 100
 #: the second device's last frames played, the set ``cross_last_rms_m`` scores
