@@ -354,29 +354,34 @@ def edge_parameter(text: str) -> tuple[str, object]:
                            "an edge parameter the edge's core reads")
 
 
+def _add_node_option(parser: argparse.ArgumentParser, flag: str,
+                     parse: Callable[[str], tuple[str, object]], help_text: str) -> None:
+    """A repeatable ``NAME=VALUE`` option for one node's parameters (parsed by ``parse``)."""
+    parser.add_argument(flag, action="append", default=[], metavar="NAME=VALUE", type=parse,
+                        help=help_text)
+
+
 def add_edge_option(parser: argparse.ArgumentParser) -> None:
     """``--edge NAME=VALUE`` (repeatable) on a bench's command line: the edge node's
     parameters that differ from its defaults, for every device's edge core; the bench passes
     ``dict(args.edge)`` to :func:`repeatable_edge` (its own options, named for one of them,
     win over it)."""
-    parser.add_argument("--edge", action="append", default=[], metavar="NAME=VALUE",
-                        type=edge_parameter,
-                        help="an edge node parameter other than its default, as the node "
-                             "reads it, for every device's edge core (repeat for more); e.g. "
-                             "restore_keyframes=6 vmax=30. Only the parameters the core reads "
-                             "(not the node's policy, topics or budget)")
+    _add_node_option(parser, "--edge", edge_parameter,
+                     "an edge node parameter other than its default, as the node reads it, "
+                     "for every device's edge core (repeat for more); e.g. restore_keyframes=6 "
+                     "vmax=30. Only the parameters the core reads (not the node's policy, "
+                     "topics or budget)")
 
 
 def add_device_option(parser: argparse.ArgumentParser) -> None:
     """``--device NAME=VALUE`` (repeatable) on a bench's command line: the device node's
     parameters that differ from its defaults, for every device of the run; the bench reads
     them as ``dict(args.device)``."""
-    parser.add_argument("--device", action="append", default=[], metavar="NAME=VALUE",
-                        type=device_parameter,
-                        help="a device node parameter other than its default, as the node "
-                             "reads it, for every device of the run (repeat for more); e.g. "
-                             "map_source=edge own_map_after_s=0: the paper's device, which "
-                             "tracks on the edge's map alone")
+    _add_node_option(parser, "--device", device_parameter,
+                     "a device node parameter other than its default, as the node reads it, "
+                     "for every device of the run (repeat for more); e.g. map_source=edge "
+                     "own_map_after_s=0: the paper's device, which tracks on the edge's map "
+                     "alone")
 
 
 def interleaved_device(device_params: Mapping[str, object], every: int) -> dict[str, object]:
