@@ -182,7 +182,8 @@ def write_frames(path: Path, devices: list[PlaceWalk]) -> None:
     edge's lost frames fall, and what the slots before them uploaded. Beside the edge's view
     of a frame, the device's: whether it tracked it, on how many map points of the map it
     held, and that map's version — a frame the edge counts lost may have been tracked on the
-    map the device held, whose points the edge's newer map no longer has. The true position
+    map the device held, whose points the edge's newer map no longer has. ``frame`` is the
+    frame's played position in the walk (``--interleave`` plays every Nth); the true position
     is in the device's own walk's frame (NaN without ground truth)."""
     rows = []
     for device in devices:
@@ -308,13 +309,14 @@ def main() -> None:
         return
     run_as_the_edge_node()
     places = args.sequence.split(",")
-    config = repeatable_edge(**dict(args.edge), **{
+    # the bench's own options win over --edge where both name a parameter
+    config = repeatable_edge(**{**dict(args.edge), **{
         name: value for name, value in (("covered_m", args.covered_m),
                                         ("covered_deg", args.covered_deg),
                                         ("covered_min_points", args.covered_min_points),
                                         ("covered_by_points", args.covered_by_points),
                                         ("own_coverage_after_slots", args.own_coverage_after))
-        if value is not None})
+        if value is not None}})
     started = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         devices = [PlaceWalk(open_walk(f"ar{k + 1}",

@@ -5,10 +5,10 @@ tracked and the edge asked for none: nothing of the device's own view reaches th
 its next slot is tracked on what the other devices lent. Prints two markdown tables, a row a
 run: the frames the edge served after each device's first slot, those it counted lost and,
 of those, the ones the device tracked on ``MIN_INLIERS`` points of the map it held (the
-edge's newer map had dropped the points it matched), the slots left to the cover, and the
-share of frames lost in the slot after one of them against the share after every other
-slot; then the frames lost a slot by how many of the device's own keyframes the map it was
-planned on held (the rest were other devices' copies).
+edge's newer map had dropped the points it matched), the slots after one left to the cover
+and the share of their frames lost against the share after every other slot; then the
+frames lost a slot by how many of the device's own keyframes the map it was planned on held
+(the rest were other devices' copies).
 
     .venv/bin/python docs/figures/place_walks_frames.py NAME=FILE [NAME=FILE …]
 """
@@ -95,7 +95,7 @@ def tables(runs: list[tuple[str, Path]]) -> list[str]:
     named = [(name, summary(path)) for name, path in runs]
     lines = ["| run | frames served | lost by the edge (%) | of them, tracked on "
              f"{MIN_INLIERS} points of the map the device held (% of the frames) "
-             "| slots left to the cover | lost in the slot after one (%) "
+             "| slots after one left to the cover | lost in them (%) "
              "| lost after the other slots (%) |",
              "|---|---|---|---|---|---|---|"]
     for name, s in named:
