@@ -47,9 +47,10 @@ def test_every_edge_parameter_the_option_takes_changes_the_edge_cores_configurat
 
 def test_an_edge_parameter_no_core_reads_or_out_of_bounds_is_refused() -> None:
     assert edge_parameter("restore_keyframes=6") == ("restore_keyframes", 6)
-    assert repeatable_edge(**dict([edge_parameter("restore_keyframes=6")])).restore_keyframes == 6
-    with pytest.raises(argparse.ArgumentTypeError, match="an edge parameter the edge's core "
-                                                          "reads .*restore_keyframes"):
+    restored = dict([edge_parameter("restore_keyframes=6")])
+    assert repeatable_edge(**restored).restore_keyframes == 6
+    with pytest.raises(argparse.ArgumentTypeError,
+                       match=r"an edge parameter the edge's core reads .*restore_keyframes"):
         edge_parameter("policy=lff")
     with pytest.raises(argparse.ArgumentTypeError, match=r"within \[0, 1000\]"):
         edge_parameter("restore_keyframes=-1")
