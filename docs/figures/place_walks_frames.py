@@ -2,13 +2,14 @@
 by points loses frames"): ``bench.place_walks --frames-csv`` files (gzipped or not), one a
 run. A slot is **left to the cover** when the map covered every frame of it the device
 tracked and the edge asked for none: nothing of the device's own view reaches the map, and
-its next slot is tracked on what the other devices lent. Prints two markdown tables, a row a
+its next slot is tracked on what the other devices lent. Prints three markdown tables, a row a
 run: the frames the edge served after each device's first slot, those it counted lost and,
 of those, the ones the device tracked on ``MIN_INLIERS`` points of the map it held (the
 edge's newer map had dropped the points it matched), the slots after one left to the cover
 and the share of their frames lost against the share after every other slot; then the
-frames lost a slot by how many of the device's own keyframes the map it was planned on held
-(the rest were other devices' copies).
+frames lost a slot, and the median map points a tracked frame shares with the map, by how
+many of the device's own keyframes the map it was planned on held (the rest were other
+devices' copies).
 
     .venv/bin/python docs/figures/place_walks_frames.py NAME=FILE [NAME=FILE …]
 """
@@ -21,11 +22,13 @@ import gzip
 import itertools
 from collections import defaultdict
 from pathlib import Path
+from statistics import median
 
 from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
 
-#: a slot's frames: (covered, uploaded, lost, served by the map the device held) each
-Slot = list[tuple[bool, bool, bool, bool]]
+#: a slot's frames: (covered, uploaded, lost, served by the map the device held, map points
+#: shared with the map, tracked) each
+Slot = list[tuple[bool, bool, bool, bool, int, bool]]
 #: the bins of the device's own keyframes in its map: (lowest, highest)
 OWN_BINS = ((0, 2), (3, 5), (6, 10), (11, 20), (21, 10**6))
 
@@ -41,7 +44,8 @@ def slots_of(path: Path) -> tuple[dict[str, dict[int, Slot]], dict[str, dict[int
         for row in csv.DictReader(fh):
             out[row["device"]][int(row["slot"])].append(
                 (row["covered"] == "1", row["uploaded"] == "1", row["lost"] == "1",
-                 row["tracked"] == "1" and int(row["device_map_points"]) >= MIN_INLIERS))
+                 row["tracked"] == "1" and int(row["device_map_points"]) >= MIN_INLIERS,
+                 int(row["shared"]), row["tracked"] == "1"))
             own[row["device"]][int(row["slot"])] = int(row["own_keyframes"])
     return out, own
 
@@ -49,27 +53,29 @@ def slots_of(path: Path) -> tuple[dict[str, dict[int, Slot]], dict[str, dict[int
 def left_to_the_cover(frames: Slot) -> bool:
     """Every tracked frame covered (an untracked one is lost and never covered) and none
     asked for."""
-    return any(c for c, _, _, _ in frames) and not any(u for _, u, _, _ in frames) and all(
-        c or lost for c, _, lost, _ in frames)
+    return any(f[0] for f in frames) and not any(f[1] for f in frames) and all(
+        f[0] or f[2] for f in frames)
 
 
 def summary(path: Path) -> dict[str, int]:
     """The run's figures: frames and lost frames after each device's first slot, slots left
     to the cover, and the lost shares of the slots after them and after the others; per bin
-    of :data:`OWN_BINS`, its slots and the frames lost in them (``own_slots_i``,
-    ``own_lost_i``)."""
+    of :data:`OWN_BINS`, its slots, the frames lost in them and the median map points a
+    tracked frame of them shares with the map (``own_slots_i``, ``own_lost_i``,
+    ``own_shared_i``; -1: no frame)."""
     frames = lost = left = held_served = 0
     after = {True: [0, 0], False: [0, 0]}          # left before? → [lost, frames]
     by_own = [[0, 0] for _ in OWN_BINS]             # [slots, lost]
+    shared_by_own: list[list[int]] = [[] for _ in OWN_BINS]   # a tracked frame's shared
     served, owned = slots_of(path)
     for device, slots in served.items():
         order = sorted(slots)
         for before, slot in itertools.pairwise(order):
             this = slots[slot]
-            n_lost = sum(gone for _, _, gone, _ in this)
+            n_lost = sum(f[2] for f in this)
             frames += len(this)
             lost += n_lost
-            held_served += sum(gone and ok for _, _, gone, ok in this)
+            held_served += sum(f[2] and f[3] for f in this)
             was_left = slot == before + 1 and left_to_the_cover(slots[before])
             left += was_left
             after[was_left][0] += n_lost
@@ -78,11 +84,13 @@ def summary(path: Path) -> dict[str, int]:
             b = next(i for i, (lo, hi) in enumerate(OWN_BINS) if lo <= held <= hi)
             by_own[b][0] += 1
             by_own[b][1] += n_lost
+            shared_by_own[b].extend(f[4] for f in this if f[5])
     out = {"frames": frames, "lost": lost, "left": left, "held_served": held_served,
            "lost_after_left": after[True][0], "frames_after_left": after[True][1],
            "lost_after_other": after[False][0], "frames_after_other": after[False][1]}
     for i, (slots_in, lost_in) in enumerate(by_own):
         out[f"own_slots_{i}"], out[f"own_lost_{i}"] = slots_in, lost_in
+        out[f"own_shared_{i}"] = round(median(shared_by_own[i])) if shared_by_own[i] else -1
     return out
 
 
@@ -111,6 +119,13 @@ def tables(runs: list[tuple[str, Path]]) -> list[str]:
     for name, s in named:
         cells = [f"{s[f'own_lost_{i}'] / s[f'own_slots_{i}']:.2f} ({s[f'own_slots_{i}']})"
                  if s[f"own_slots_{i}"] else "–" for i in range(len(OWN_BINS))]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    lines += ["", "| run | " + " | ".join(f"{b} own keyframes: a tracked frame's map points "
+                                           "shared, median" for b in bins) + " |",
+              "|---|" + "---|" * len(bins)]
+    for name, s in named:
+        cells = [str(s[f"own_shared_{i}"]) if s[f"own_shared_{i}"] >= 0 else "–"
+                 for i in range(len(OWN_BINS))]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return lines
 
