@@ -290,6 +290,15 @@ class FleetLauncher(Launcher):
         frame in ``every`` (:func:`played_device_slot`)."""
         return played_device_slot(self._device_given(), self.fleet.every, self.config.rate)
 
+    def _device_slot_params(self) -> list[str]:
+        """The launcher's, and where the camera plays one frame in ``every``, a slot as long
+        in fewer frames: the played slot's frames and its rate (× the run's rate) in their
+        stead, each told once."""
+        if self.fleet.every == 1:
+            return super()._device_slot_params()
+        slot_frames, rate = self._played_slot()
+        return [f"frame_rate_hz:={rate!r}", f"slot_frames:={slot_frames}"]
+
     def device_slot_frames(self) -> int:
         """F of a device's slot, in the frames its camera plays (one in ``every``)."""
         return self._played_slot()[0]
@@ -335,12 +344,6 @@ class FleetLauncher(Launcher):
         if name == "device_tracker":
             args += ["-p", f"seed:={self.fleet.device_seed(index)}",
                      "-p", f"odom_frame:={device}/odom"]
-            if every > 1:                        # a slot spans as long, in fewer frames
-                slot_frames, rate = self._played_slot()
-                # the rate × the run's rate the launcher told the device replaced (told
-                # twice, the later would win; a reader of the command line sees one)
-                args = without_param(args, "frame_rate_hz")
-                args += ["-p", f"frame_rate_hz:={rate!r}", "-p", f"slot_frames:={slot_frames}"]
         else:
             args += ["-p", f"frame_id:={device}/camera"]
             if self.fleet.orders:                # after the scenario's: the last one holds
@@ -687,17 +690,3 @@ def _cross_cells(errors: Mapping[tuple[str, str], RevisitError], device: str, co
     rms = math.sqrt(sum(e.rms_m ** 2 * e.pairs for e in mine) / pairs) if pairs else math.nan
     return {f"{column}_rms_m": rms, f"{column}_pairs": float(pairs)}
 
-
-def without_param(args: list[str], name: str) -> list[str]:
-    """A node's command line ``args`` without its ``-p NAME:=…`` parameters."""
-    out: list[str] = []
-    skip = False
-    for i, arg in enumerate(args):
-        if skip:
-            skip = False
-            continue
-        if arg == "-p" and i + 1 < len(args) and args[i + 1].startswith(f"{name}:="):
-            skip = True
-            continue
-        out.append(arg)
-    return out

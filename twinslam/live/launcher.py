@@ -113,10 +113,8 @@ class Launcher:
                   }.get(name, [])
         params += c.scenario.node_params(c.frames, self._recorded_slot()[1]).get(name, []) \
             + c.extra.get(name, [])
-        if name == "device_tracker" and c.rate != 1.0:
-            # slots are cut by stamps: replayed faster, the camera's frames come faster
-            _, rate = played_device_slot(self._device_given(), rate=c.rate)
-            params.append(f"frame_rate_hz:={rate!r}")
+        if name == "device_tracker":
+            params += self._device_slot_params()
         for p in params:
             args += ["-p", p]
         return args
@@ -252,6 +250,15 @@ class Launcher:
             key, _, value = item.partition(":=")
             given[key] = value
         return given
+
+    def _device_slot_params(self) -> list[str]:
+        """What the device is told of its slot beyond what the run gives it, as the camera
+        plays: slots are cut by stamps, so replayed faster its frames come faster — its frame
+        rate × the run's ``rate`` (nothing at the recorded speed)."""
+        if self.config.rate == 1.0:
+            return []
+        _, rate = played_device_slot(self._device_given(), rate=self.config.rate)
+        return [f"frame_rate_hz:={rate!r}"]
 
     def _recorded_slot(self) -> tuple[int, float]:
         """The device's slot frames and nominal frame rate as given, for a camera playing
