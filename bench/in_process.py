@@ -354,6 +354,12 @@ def edge_parameter(text: str) -> tuple[str, object]:
                            "an edge parameter the edge's core reads")
 
 
+def parameters_text(params: Iterable[tuple[str, object]]) -> str:
+    """Node parameters ``NAME=VALUE`` (a bench's ``--device``/``--edge`` pairs) as one CSV
+    cell: ``name=value`` each, sorted by name, separated by spaces."""
+    return " ".join(f"{k}={v}" for k, v in sorted(dict(params).items()))
+
+
 def _add_node_option(parser: argparse.ArgumentParser, flag: str,
                      parse: Callable[[str], tuple[str, object]], help_text: str) -> None:
     """A repeatable ``NAME=VALUE`` option for one node's parameters (parsed by ``parse``)."""

@@ -37,7 +37,13 @@ from typing import Any
 import numpy as np
 
 import edge_mapper.slot_planner as slot_planner
-from bench.in_process import add_device_option, open_walk, repeatable_edge, seeded_spec
+from bench.in_process import (
+    add_device_option,
+    open_walk,
+    parameters_text,
+    repeatable_edge,
+    seeded_spec,
+)
 from twinslam.cli.console import HelpFormatter
 from twinslam.live.tracking_quality import absolute_trajectory_error
 from twinslam.node_runtime.math_threads import one_math_thread
@@ -92,7 +98,7 @@ def run(spec: str, frames: int, order: str, uplink: str, seed: int, connected: b
     finally:
         slot_planner.connected_action = mend  # type: ignore[attr-defined]
     return {"sequence": spec, "order": order, "uplink": uplink, "seed": seed,
-            "device_params": " ".join(f"{k}={v}" for k, v in sorted((device or {}).items())),
+            "device_params": parameters_text((device or {}).items()),
             "connected_map": int(connected), "slots": walk.slot + 1,
             "pieces_slots": len(pieces), "edge_lost_share": float(np.nanmean(walk.lost)),
             "device_lost_share": walk.map_lost_share(), "frames_tracked": len(walk.poses),

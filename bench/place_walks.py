@@ -85,6 +85,7 @@ from bench.in_process import (
     interleaved_device,
     lent_views,
     open_walk,
+    parameters_text,
     repeatable_edge,
     run_as_the_edge_node,
     seeded_spec,
@@ -377,7 +378,7 @@ def main() -> None:
     report["covered_by_points"] = int(config.coverage.by_points)
     report["lent_view_m"], report["lent_view_deg"] = args.lent_view_m, args.lent_view_deg
     report["own_coverage_after"] = config.own_coverage_after_slots
-    report["edge_params"] = " ".join(f"{k}={v}" for k, v in sorted(dict(args.edge).items()))
+    report["edge_params"] = parameters_text(args.edge)
     report["seconds"] = time.perf_counter() - started
     print(f"{report['seconds']:.0f} s", flush=True)
     if args.csv:

@@ -75,6 +75,7 @@ from bench.in_process import (
     interleaved_device,
     lent_views,
     open_walk,
+    parameters_text,
     repeatable_edge,
     run_as_the_edge_node,
     seeded_spec,
@@ -410,10 +411,8 @@ def main() -> None:
                        "first_start": args.first_start,
                        "archive": config.back_end.archive_keyframes,
                        "ba_window": config.back_end.ba_window,
-                       "device_params": " ".join(f"{k}={v}" for k, v in
-                                                 sorted(dict(args.device).items())),
-                       "edge_params": " ".join(f"{k}={v}" for k, v in
-                                               sorted(dict(args.edge).items())),
+                       "device_params": parameters_text(args.device),
+                       "edge_params": parameters_text(args.edge),
                        "covered_m": config.coverage.max_m,
                        "covered_deg": config.coverage.max_deg,
                        "covered_min_points": config.coverage.min_points,
