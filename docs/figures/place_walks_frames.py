@@ -23,12 +23,24 @@ import itertools
 from collections import defaultdict
 from pathlib import Path
 from statistics import median
+from typing import NamedTuple
 
 from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
 
-#: a slot's frames: (covered, uploaded, lost, served by the map the device held, map points
-#: shared with the map, tracked) each
-Slot = list[tuple[bool, bool, bool, bool, int, bool]]
+
+class Frame(NamedTuple):
+    """One served frame, as ``--frames-csv`` wrote it."""
+
+    covered: bool
+    uploaded: bool
+    lost: bool              #: by the edge's rule
+    held_served: bool       #: the device tracked it on MIN_INLIERS points of the map it held
+    shared: int             #: map points it shared with the map the slot was planned on
+    tracked: bool
+
+
+#: a slot's frames, capture order
+Slot = list[Frame]
 #: the bins of the device's own keyframes in its map: (lowest, highest)
 OWN_BINS = ((0, 2), (3, 5), (6, 10), (11, 20), (21, 10**6))
 
@@ -42,10 +54,11 @@ def slots_of(path: Path) -> tuple[dict[str, dict[int, Slot]], dict[str, dict[int
     opener = gzip.open if path.suffix == ".gz" else open
     with opener(path, "rt", newline="", encoding="utf-8") as fh:
         for row in csv.DictReader(fh):
-            out[row["device"]][int(row["slot"])].append(
-                (row["covered"] == "1", row["uploaded"] == "1", row["lost"] == "1",
-                 row["tracked"] == "1" and int(row["device_map_points"]) >= MIN_INLIERS,
-                 int(row["shared"]), row["tracked"] == "1"))
+            tracked = row["tracked"] == "1"
+            out[row["device"]][int(row["slot"])].append(Frame(
+                row["covered"] == "1", row["uploaded"] == "1", row["lost"] == "1",
+                tracked and int(row["device_map_points"]) >= MIN_INLIERS, int(row["shared"]),
+                tracked))
             own[row["device"]][int(row["slot"])] = int(row["own_keyframes"])
     return out, own
 
@@ -53,8 +66,8 @@ def slots_of(path: Path) -> tuple[dict[str, dict[int, Slot]], dict[str, dict[int
 def left_to_the_cover(frames: Slot) -> bool:
     """Every tracked frame covered (an untracked one is lost and never covered) and none
     asked for."""
-    return any(f[0] for f in frames) and not any(f[1] for f in frames) and all(
-        f[0] or f[2] for f in frames)
+    return any(f.covered for f in frames) and not any(f.uploaded for f in frames) and all(
+        f.covered or f.lost for f in frames)
 
 
 def summary(path: Path) -> dict[str, int]:
@@ -72,10 +85,10 @@ def summary(path: Path) -> dict[str, int]:
         order = sorted(slots)
         for before, slot in itertools.pairwise(order):
             this = slots[slot]
-            n_lost = sum(f[2] for f in this)
+            n_lost = sum(f.lost for f in this)
             frames += len(this)
             lost += n_lost
-            held_served += sum(f[2] and f[3] for f in this)
+            held_served += sum(f.lost and f.held_served for f in this)
             was_left = slot == before + 1 and left_to_the_cover(slots[before])
             left += was_left
             after[was_left][0] += n_lost
@@ -84,7 +97,7 @@ def summary(path: Path) -> dict[str, int]:
             b = next(i for i, (lo, hi) in enumerate(OWN_BINS) if lo <= held <= hi)
             by_own[b][0] += 1
             by_own[b][1] += n_lost
-            shared_by_own[b].extend(f[4] for f in this if f[5])
+            shared_by_own[b].extend(f.shared for f in this if f.tracked)
     out = {"frames": frames, "lost": lost, "left": left, "held_served": held_served,
            "lost_after_left": after[True][0], "frames_after_left": after[True][1],
            "lost_after_other": after[False][0], "frames_after_other": after[False][1]}
