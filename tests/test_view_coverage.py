@@ -268,7 +268,7 @@ def test_a_frame_that_tracks_on_a_lent_keyframes_points_is_covered_wherever_it_s
     every = frozenset.intersection(*(f.map_points for f in frames))
     first_only = frames[0].map_points - every
     _lend(core, foreign_tag(0) | 99, _pose(3.0, 90.0),
-                 sorted(every)[:45] + sorted(first_only))
+          sorted(every)[:45] + sorted(first_only))
     shares = [len(f.map_points & (set(sorted(every)[:45]) | first_only)) for f in frames]
     assert min(shares[:6]) >= 50 > max(shares[6:])
     plan = core.plan(3, frames, 20.0, 1)
