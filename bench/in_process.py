@@ -35,7 +35,7 @@ from twinslam.policies.registry import make_policy
 from twinslam.sequence_player.playback import Playback, PlayedSequence, played_device_slot
 from twinslam.sequences.frame import RgbdFrame
 from twinslam.sequences.opening import AUTO, open_sequence
-from twinslam.slam.back_end.foreign_keyframes import is_foreign
+from twinslam.slam.back_end.foreign_keyframes import foreign_mask, is_foreign
 from twinslam.slam.back_end.loop_closing import LoopQuery
 from twinslam.slam.back_end.loop_detection import MIN_INLIERS as LOOP_MIN_INLIERS
 from twinslam.slam.back_end.map_merging import (
@@ -46,7 +46,7 @@ from twinslam.slam.back_end.map_merging import (
 )
 from twinslam.slam.back_end.place_words import PlaceWords
 from twinslam.slam.back_end.view_coverage import CoverageBounds
-from twinslam.slam.keyframe import KeyFramePayload
+from twinslam.slam.keyframe import KeyFramePayload, is_track
 from twinslam.slam.map_update import MapSnapshot
 from twinslam.slot_protocol import default_device, table1
 from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
@@ -181,6 +181,44 @@ def repeatable_edge(**overrides: object) -> EdgeConfig:
                                                                     loop_background=False))
 
 
+class MapSearch(NamedTuple):
+    """A frame's search of the map it held, split by who made each point: the device's own
+    edge map (its own ids), another device's (a copy's points, tagged), or the device itself
+    since its last map update (its new points, not on the edge yet) — in view of the
+    predicted pose, searched for (the tracker's candidates), matched to a feature, and
+    observed by the frame (its pose's inliers, and at a keyframe the old points it fused: the
+    record's ``map_point_ids``). Found and observed count the edge's points only."""
+
+    in_view_own: int
+    in_view_others: int
+    in_view_device: int
+    searched_own: int
+    searched_others: int
+    searched_device: int
+    found_own: int
+    found_others: int
+    observed_own: int
+    observed_others: int
+
+
+def by_maker(ids: np.ndarray) -> tuple[int, int, int]:
+    """(the device's edge map's own, other devices', the device's new points) of a map's
+    point ids."""
+    ids = np.asarray(ids, dtype=np.uint64)
+    new = is_track(ids)
+    points = ids[~new].astype(np.int64)
+    others = int(foreign_mask(points).sum())
+    return len(points) - others, others, int(new.sum())
+
+
+def map_search(device: DeviceTrackerCore, observed: np.ndarray) -> MapSearch:
+    """The device's last frame's :class:`MapSearch`; ``observed``: its record's map points."""
+    search = device.tracking.last_search
+    return MapSearch(*by_maker(device.labels[search.in_view]),
+                     *by_maker(device.labels[search.searched]),
+                     *by_maker(device.labels[search.found])[:2], *by_maker(observed)[:2])
+
+
 #: (device, edge, d_k, rate state, hold the update) → what the edge made of the slot
 Serving = Callable[[DeviceTrackerCore, EdgeMapperCore, float, int, bool], ServedSlot]
 
@@ -210,6 +248,9 @@ class DeviceWalk:
     #: every frame as the device tracked it: (frame, tracked, features matched, pose
     #: inliers, map points among them, map version)
     frame_rows: list[tuple[int, int, int, int, int, int]] = field(default_factory=list)
+    #: every frame's search of the map it held, by who made the points (frame's played
+    #: position → :class:`MapSearch`)
+    searches: dict[int, MapSearch] = field(default_factory=dict)
     #: every served frame as the edge planned it: (slot, frame's played position, covered,
     #: uploaded, map points shared, lost by the edge's rule, the device's own keyframes in
     #: the map)
@@ -233,6 +274,8 @@ class DeviceWalk:
         result = self.device.track(frame.color, frame.depth, frame.stamp)
         record = result.record
         self.positions[record.frame_id] = frame.index
+        # read before a held update replaces the map the frame searched
+        self.searches[frame.index] = map_search(self.device, record.map_point_ids)
         if self.held is not None and (result.slot_done or
                                       frame.index - self.held[2] >= self.update_delay):
             self.device.apply_map_update(self.held[0], self.held[1])

@@ -42,8 +42,10 @@ many copies it adopted (a copy that went back and was lent again counts twice); 
 place's frame, pooled as RMS over the pairs of frames), and each run's figures appended to
 ``--csv``; ``--frames-csv`` writes every frame the edge served, with its slot, whether the map
 covered it, whether it was uploaded, the map points it shared and whether the edge counted it
-lost and how many of its own keyframes the map held, beside whether the device tracked it and
-on how many points of the map it held (where a walk's lost frames fall).
+lost and how many of its own keyframes the map held, beside whether the device tracked it,
+on how many points of the map it held, and how many of that map's points — its own edge map's,
+other devices' copies' and its own new points apart — were in view, searched for, found and
+observed (where a walk's lost frames fall, and why).
 Devices replaying one sequence see the same frames: a pair is two devices' estimates of one
 view, and their relative pose's truth is the identity — and a merge or a copy's weld may
 pair an image with itself, which no two real cameras offer. With
@@ -77,6 +79,7 @@ import numpy as np
 from bench.baseline import add_baseline_options, alternately, run_in_tree
 from bench.in_process import (
     DeviceWalk,
+    MapSearch,
     SlotHooks,
     add_device_option,
     add_edge_option,
@@ -175,7 +178,7 @@ def _hooks(device: PlaceWalk, merging: PlaceMerging) -> SlotHooks:
 #: the columns of ``--frames-csv``
 FRAME_COLUMNS = ("device", "slot", "frame", "covered", "uploaded", "shared", "lost",
                  "own_keyframes", "tracked", "device_map_points", "map_version",
-                 "true_x", "true_y", "true_z")
+                 "true_x", "true_y", "true_z", *(f"device_{name}" for name in MapSearch._fields))
 
 
 def write_frames(path: Path, devices: list[PlaceWalk]) -> None:
@@ -185,7 +188,10 @@ def write_frames(path: Path, devices: list[PlaceWalk]) -> None:
     held, and that map's version — a frame the edge counts lost may have been tracked on the
     map the device held, whose points the edge's newer map no longer has. ``frame`` is the
     frame's played position in the walk (``--interleave`` plays every Nth); the true position
-    is in the device's own walk's frame (NaN without ground truth)."""
+    is in the device's own walk's frame (NaN without ground truth). Last, the device's search
+    of the map it held (:class:`~bench.in_process.MapSearch`): the points in view, searched
+    for, found and observed — its own edge map's, other devices' copies' and its own new
+    points apart."""
     rows = []
     for device in devices:
         walk = device.walk
@@ -195,7 +201,7 @@ def write_frames(path: Path, devices: list[PlaceWalk]) -> None:
             truth = walk.truth.get(position)
             where = truth[:3, 3].tolist() if truth is not None else [math.nan] * 3
             rows.append((device.name, slot, position, covered, uploaded, shared, lost, own,
-                         was_tracked, map_points, version, *where))
+                         was_tracked, map_points, version, *where, *walk.searches[position]))
     write_csv(path, FRAME_COLUMNS, rows)
 
 
@@ -284,7 +290,9 @@ def main() -> None:
                              "planned on, whether the edge counted it lost, how many of the "
                              "device's own keyframes that map held; whether the device tracked "
                              "it, on how many points of the map it held and that map's version; "
-                             "and where the camera truly stood")
+                             "where the camera truly stood; and the device's search of the map "
+                             "it held: points in view, searched, found and observed — its own "
+                             "edge map's, other devices' and its own new points apart")
     add_baseline_options(parser, 1, "rounds per tree, the whole run once a round")
     args = parser.parse_args()
     if args.devices < 2:

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import pytest
 
+from twinslam.slam.front_end.tracking import TrackingConfig
 from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -101,3 +102,27 @@ def test_the_walks_frames_are_written_as_the_edge_planned_them(
         integrated = int(re.search(rf"^{name}: .*?, (\d+) uploaded", printed, re.M)[1])
         assert sum(int(r["uploaded"]) for r in mine) >= integrated > 0
         assert max(int(r["own_keyframes"]) for r in mine) > 0       # its uploads entered
+
+
+@ONE_WALK
+def test_the_walks_frames_carry_the_devices_search_of_the_map_it_held(
+        shared_walk: tuple[str, Path]) -> None:
+    """``--frames-csv``'s search columns: of the points in view the device searched at most
+    its candidate cap, found only among those searched, and the edge's points a frame
+    observed are the map points it reported; the device that joined searched the copies the
+    first lent it."""
+    _, path = shared_walk
+    with path.open(newline="", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    cap = TrackingConfig().max_candidates
+    for row in rows:
+        n = {key[len("device_"):]: int(value) for key, value in row.items()
+             if key.startswith("device_") and key != "device_map_points"}
+        for who in ("own", "others", "device"):
+            assert 0 <= n[f"searched_{who}"] <= n[f"in_view_{who}"], row
+        assert n["searched_own"] + n["searched_others"] + n["searched_device"] <= cap, row
+        for who in ("own", "others"):
+            assert n[f"found_{who}"] <= n[f"searched_{who}"], row
+        assert n["observed_own"] + n["observed_others"] == int(row["device_map_points"]), row
+    joined = [r for r in rows if r["device"] == "ar2"]
+    assert max(int(r["device_found_others"]) for r in joined) > 0

@@ -9,7 +9,14 @@ edge's newer map had dropped the points it matched), the slots after one left to
 and the share of their frames lost against the share after every other slot; then the
 frames lost a slot, and the median map points a tracked frame shares with the map, by how
 many of the device's own keyframes the map it was planned on held (the rest were other
-devices' copies).
+devices' copies). Where the files carry the device's search of the map it held (written
+since the search columns came), two tables more: by the same bins, the share of the edge's
+map points in view that the device searched for (the tracker searches ``max_candidates`` at
+most) and the share of those searched that it found, the device's own edge map's against
+other devices' copies'; and for the frames the edge counted lost against the others, the
+points in view, searched, found and observed a frame (medians) — the edge map's own, other
+devices' copies' and the device's own new points apart: a map that lacks the view, points
+in view left unsearched, or points searched and not recognised.
 
     .venv/bin/python docs/figures/place_walks_frames.py NAME=FILE [NAME=FILE …]
 """
@@ -20,12 +27,18 @@ import argparse
 import csv
 import gzip
 import itertools
+import math
 from collections import defaultdict
 from pathlib import Path
 from statistics import median
 from typing import NamedTuple
 
 from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
+
+#: the device's search columns of ``--frames-csv`` (bench.in_process.MapSearch), in order
+SEARCH_COLUMNS = tuple(f"device_{what}_{who}" for what, whose in (
+    ("in_view", ("own", "others", "device")), ("searched", ("own", "others", "device")),
+    ("found", ("own", "others")), ("observed", ("own", "others"))) for who in whose)
 
 
 class Frame(NamedTuple):
@@ -37,6 +50,10 @@ class Frame(NamedTuple):
     held_served: bool       #: the device tracked it on MIN_INLIERS points of the map it held
     shared: int             #: map points it shared with the map the slot was planned on
     tracked: bool
+    #: the device's search of the map it held (bench.in_process.MapSearch's fields: in view,
+    #: searched, found, observed; by who made the points); None: a file written before the
+    #: search columns came
+    search: tuple[int, ...] | None = None
 
 
 #: a slot's frames, capture order
@@ -55,10 +72,12 @@ def slots_of(path: Path) -> tuple[dict[str, dict[int, Slot]], dict[str, dict[int
     with opener(path, "rt", newline="", encoding="utf-8") as fh:
         for row in csv.DictReader(fh):
             tracked = row["tracked"] == "1"
+            search = (tuple(int(row[c]) for c in SEARCH_COLUMNS)
+                      if SEARCH_COLUMNS[0] in row else None)
             out[row["device"]][int(row["slot"])].append(Frame(
                 row["covered"] == "1", row["uploaded"] == "1", row["lost"] == "1",
                 tracked and int(row["device_map_points"]) >= MIN_INLIERS, int(row["shared"]),
-                tracked))
+                tracked, search))
             own[row["device"]][int(row["slot"])] = int(row["own_keyframes"])
     return out, own
 
@@ -107,12 +126,86 @@ def summary(path: Path) -> dict[str, int]:
     return out
 
 
+def searches(path: Path) -> dict[str, float] | None:
+    """The device's searches of the maps it held, over the frames after each device's first
+    slot: per bin of :data:`OWN_BINS`, the share of the edge's points in view searched for
+    (``searched_i``) and of those searched the share found, own and others'
+    (``found_own_i``, ``found_others_i``; NaN: none); for the frames the edge counted lost and
+    the rest (``lost``, ``served``), their count and each :data:`SEARCH_COLUMNS` figure's
+    median (``lost_device_in_view_own`` …). None: the file has no search columns."""
+    served, owned = slots_of(path)
+    fields = ("in_view_own", "in_view_others", "searched_own", "searched_others",
+              "found_own", "found_others")
+    sums = [dict.fromkeys(fields, 0) for _ in OWN_BINS]
+    frames: dict[str, list[tuple[int, ...]]] = {"lost": [], "served": []}
+    for device, slots in served.items():
+        for slot in sorted(slots)[1:]:
+            held = owned[device][slot]
+            b = next(i for i, (lo, hi) in enumerate(OWN_BINS) if lo <= held <= hi)
+            for f in slots[slot]:
+                if f.search is None:
+                    return None
+                for name in fields:
+                    sums[b][name] += f.search[SEARCH_COLUMNS.index(f"device_{name}")]
+                frames["lost" if f.lost else "served"].append(f.search)
+    out: dict[str, float] = {}
+    for i, n in enumerate(sums):
+        in_view = n["in_view_own"] + n["in_view_others"]
+        searched = n["searched_own"] + n["searched_others"]
+        out[f"searched_{i}"] = searched / in_view if in_view else math.nan
+        for who in ("own", "others"):
+            out[f"found_{who}_{i}"] = (n[f"found_{who}"] / n[f"searched_{who}"]
+                                       if n[f"searched_{who}"] else math.nan)
+    for kind, rows in frames.items():
+        out[kind] = len(rows)
+        for k, column in enumerate(SEARCH_COLUMNS):
+            out[f"{kind}_{column}"] = median(r[k] for r in rows) if rows else math.nan
+    return out
+
+
+def _percent(share: float) -> str:
+    return "–" if math.isnan(share) else f"{100 * share:.1f}"
+
+
+def search_tables(runs: list[tuple[str, Path]]) -> list[str]:
+    """The search tables' lines for ``runs`` (name, ``--frames-csv`` file); none where a
+    file has no search columns."""
+    named = [(name, searches(path)) for name, path in runs]
+    if any(s is None for _, s in named):
+        return []
+    bins = [f"{lo}–{hi}" if hi < 10**6 else f"{lo} or more" for lo, hi in OWN_BINS]
+    lines = ["| run | " + " | ".join(f"{b} own keyframes: the edge's points in view searched; "
+                                     "found of those searched, own / others' (%)"
+                                     for b in bins) + " |",
+             "|---|" + "---|" * len(bins)]
+    for name, s in named:
+        assert s is not None
+        cells = [f"{_percent(s[f'searched_{i}'])}; {_percent(s[f'found_own_{i}'])} / "
+                 f"{_percent(s[f'found_others_{i}'])}" for i in range(len(OWN_BINS))]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    lines += ["", "| run | frames | count | in view: own / others' / the device's new "
+                  "(median) | searched: own / others' / the device's new (median) "
+                  "| found: own / others' (median) | observed: own / others' (median) |",
+              "|---|---|---|---|---|---|---|"]
+    for name, s in named:
+        assert s is not None
+        for kind, label in (("lost", "lost by the edge"), ("served", "the others")):
+            cells = [" / ".join(f"{s[f'{kind}_device_{what}_{who}']:.0f}" for who in whose)
+                     for what, whose in (("in_view", ("own", "others", "device")),
+                                         ("searched", ("own", "others", "device")),
+                                         ("found", ("own", "others")),
+                                         ("observed", ("own", "others")))]
+            lines.append(f"| {name} | {label} | {s[kind]:.0f} | " + " | ".join(cells) + " |")
+    return lines
+
+
 def _share(lost: float, frames: float) -> str:
     return f"{100 * lost / frames:.1f}" if frames else "–"
 
 
 def tables(runs: list[tuple[str, Path]]) -> list[str]:
-    """The two tables' lines for ``runs`` (name, ``--frames-csv`` file)."""
+    """The tables' lines for ``runs`` (name, ``--frames-csv`` file): three, and the two of
+    :func:`search_tables` where every file has the search columns."""
     named = [(name, summary(path)) for name, path in runs]
     lines = ["| run | frames served | lost by the edge (%) | of them, tracked on "
              f"{MIN_INLIERS} points of the map the device held (% of the frames) "
@@ -140,7 +233,8 @@ def tables(runs: list[tuple[str, Path]]) -> list[str]:
         cells = [str(s[f"own_shared_{i}"]) if s[f"own_shared_{i}"] >= 0 else "–"
                  for i in range(len(OWN_BINS))]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
-    return lines
+    more = search_tables(runs)
+    return lines + (["", *more] if more else [])
 
 
 def main() -> None:

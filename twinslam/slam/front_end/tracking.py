@@ -121,6 +121,22 @@ class TrackedFrame:
     pnp_ransac: bool = False
 
 
+@dataclass(frozen=True)
+class ProjectionSearch:
+    """What the motion model's search by projection had to work with for one frame, as rows
+    of the local map: the points its predicted pose sees, those of them it searched for (at
+    most ``max_candidates``), and those it matched a feature to before the pose solve (the
+    frame's inliers are of these). Where a frame's map points run short this tells a map that
+    lacks the view from points in view left unsearched or unrecognised."""
+
+    in_view: np.ndarray      #: rows predicted in the image
+    searched: np.ndarray     #: of them, those searched for
+    found: np.ndarray        #: rows matched to a feature
+
+
+NO_SEARCH = ProjectionSearch(*(np.zeros(0, dtype=np.int64),) * 3)
+
+
 class Tracking:
     """Stateful tracker over one sequence; call :meth:`track` with frames in order."""
 
@@ -138,6 +154,9 @@ class Tracking:
         self._solved_by_ransac = False      # the last _solve_pose fell back to PnP RANSAC
         self._probation: list[tuple[int, np.ndarray]] = []   # (frame, ids) of new points
         self._visible = np.zeros(0, dtype=np.int64)
+        #: the last frame's search by projection (NO_SEARCH: its first frame, or none since
+        #: the map was replaced); a relocalisation's search of the whole map is not it
+        self.last_search = NO_SEARCH
         self._new_map = False                           # replaced since the last relocalisation
         self._last_tracked: np.ndarray | None = None    # camera-to-world, last counted frame
         self._last_tracked_index = -1                   # ... and its index
@@ -242,6 +261,7 @@ class Tracking:
             probation.append((frame, kept[kept >= 0]))
         self._probation = probation
         self._visible = np.zeros(0, dtype=np.int64)
+        self.last_search = NO_SEARCH
 
     def move_frame(self, correction: np.ndarray) -> None:
         """The world frame was corrected by ``correction`` (4×4, a loop closed at the edge):
@@ -389,6 +409,7 @@ class Tracking:
                                                cfg.max_hamming, cfg.ratio, shape)
             if len(f_idx) >= 4 * cfg.min_inliers:
                 break
+        self.last_search = ProjectionSearch(self._visible, ids, ids[c_idx])
         return f_idx, ids[c_idx]
 
     def relocalise(self, feats: Features
