@@ -404,7 +404,7 @@ class DeviceTrackerCore:
             own[:] = False
         keep = np.flatnonzero(own & (self.created >= slot) & old.active)
         points = LocalMap(max(len(update.point_ids) + keep.size, 16))
-        new_global = points.add(update.positions, update.descriptors, now)
+        new_global = points.add(update.positions, update.descriptors, now, from_edge=True)
         new_track = points.add(old.positions[keep], old.descriptors[keep], now)
         old_to_new = np.full(len(old), -1, dtype=np.int64)
         old_to_new[keep] = new_track

@@ -454,3 +454,43 @@ def test_a_map_updates_cpu_counts_in_the_next_frames_and_only_there() -> None:
     applying.join()
     after = [r.record.cpu_ms for r in _track(core, frames[SLOT:SLOT + 3])]
     assert after[0] >= 80.0 and all(ms < 80.0 for ms in after[1:]), after
+
+
+def test_a_frame_over_its_candidate_cap_searches_the_edges_points_and_its_own_alike() -> None:
+    """An Edge-SLAM style device holds the edge's map and the points it made itself since; a
+    frame that sees more of them than it may search gives each kind up to half its searches
+    (the newest seen of each), either filling what the other leaves. Ranked by sighting alone
+    its own points, seen in every frame since they were made, crowded the edge's out — the
+    points the edge counts a frame tracked on; the edge's first alone starved its tracking
+    where the edge's map disagrees with the camera."""
+    seq = SyntheticSequence(4 * SLOT, seed=0)
+    frames = list(seq)
+    cap = 150
+    core = DeviceTrackerCore(seq.intrinsics, SLOT, config=TrackingConfig(max_candidates=cap),
+                             map_source="edge+local")
+    _track(core, frames[:SLOT])
+    records = core.take_slot()
+    # the edge made map points of what frame 0 saw, at the device's positions
+    first = records[0].track_ids
+    rows = np.array([int(np.flatnonzero(core.labels == t)[0]) for t in first])
+    global_ids = np.arange(1, len(first) + 1, dtype=np.uint64)
+    update = MapSnapshot(1, np.array([0], np.uint64), np.eye(4)[None], global_ids,
+                         core.tracking.map.positions[rows].copy(),
+                         core.tracking.map.descriptors[rows].copy(),
+                         np.ones(len(first), np.uint32), [global_ids], first, global_ids)
+    assert core.apply_map_update(update, 0)
+    checked = 0
+    for frame in frames[SLOT:]:
+        if core.track(frame.color, frame.depth, frame.stamp).slot_done:
+            core.take_slot()
+        search = core.tracking.last_search
+        own_in_view = int(is_track(core.labels[search.in_view]).sum())
+        edge_in_view = len(search.in_view) - own_in_view
+        if len(search.in_view) <= cap or own_in_view == 0:
+            continue
+        own_searched = int(is_track(core.labels[search.searched]).sum())
+        assert len(search.searched) == cap
+        assert cap - own_searched >= min(edge_in_view, cap // 2), (edge_in_view, own_searched)
+        assert own_searched >= min(own_in_view, cap // 2), (own_in_view, own_searched)
+        checked += 1
+    assert checked >= SLOT, "the cap must bite with both kinds of point in view"

@@ -14,7 +14,8 @@ from msg_schemas.validation import ORB_DESCRIPTOR_BYTES
 
 class LocalMap:
     """The tracker's map points as an append-only store; a point's id is its row (the edge's
-    map update replaces the whole store, :meth:`DeviceTrackerCore.apply_map_update`)."""
+    map update replaces the whole store, :meth:`DeviceTrackerCore.apply_map_update`). Each
+    point knows whether it came in the edge's map (``from_edge``) or the device made it."""
 
     def __init__(self, capacity: int = 4096) -> None:
         self._pos = np.empty((capacity, 3))
@@ -22,6 +23,7 @@ class LocalMap:
         self._last_seen = np.empty(capacity, dtype=np.int64)
         self._seen_count = np.empty(capacity, dtype=np.int64)
         self._active = np.empty(capacity, dtype=np.bool_)
+        self._from_edge = np.empty(capacity, dtype=np.bool_)
         self._n = 0
 
     def __len__(self) -> int:
@@ -48,6 +50,11 @@ class LocalMap:
         """False for culled points: kept (ids stay valid) but no longer searched for."""
         return self._active[:self._n]
 
+    @property
+    def from_edge(self) -> np.ndarray:
+        """True for a point of the edge's map update, False for one the device made since."""
+        return self._from_edge[:self._n]
+
     def cull(self, ids: np.ndarray) -> None:
         self._active[ids] = False
 
@@ -57,8 +64,10 @@ class LocalMap:
         c = np.asarray(correction, dtype=np.float64)
         self.positions[:] = self.positions @ c[:3, :3].T + c[:3, 3]
 
-    def add(self, positions: np.ndarray, descriptors: np.ndarray, frame: int) -> np.ndarray:
-        """Append points first seen in ``frame``; returns their new ids."""
+    def add(self, positions: np.ndarray, descriptors: np.ndarray, frame: int,
+            from_edge: bool = False) -> np.ndarray:
+        """Append points first seen in ``frame`` (``from_edge``: the edge's map's, else the
+        device's own); returns their new ids."""
         k = positions.shape[0]
         if self._n + k > self._pos.shape[0]:
             cap = max(2 * self._pos.shape[0], self._n + k)
@@ -67,23 +76,26 @@ class LocalMap:
             self._last_seen = _grow(self._last_seen, cap)
             self._seen_count = _grow(self._seen_count, cap)
             self._active = _grow(self._active, cap)
+            self._from_edge = _grow(self._from_edge, cap)
         ids = np.arange(self._n, self._n + k)
         self._pos[ids] = positions
         self._desc[ids] = descriptors
         self._last_seen[ids] = frame
         self._seen_count[ids] = 1
         self._active[ids] = True
+        self._from_edge[ids] = from_edge
         self._n += k
         return ids
 
     def take(self, rows: np.ndarray) -> LocalMap:
         """A new map of the points ``rows`` (ascending), renumbered 0..len(rows) - 1, with
-        their positions, descriptors, sightings and activity."""
+        their positions, descriptors, sightings, activity and origin."""
         out = LocalMap(max(int(rows.size), 16))
         new = out.add(self.positions[rows], self.descriptors[rows], 0)
         out.last_seen[new] = self.last_seen[rows]
         out.seen_count[new] = self.seen_count[rows]
         out.active[new] = self.active[rows]
+        out.from_edge[new] = self.from_edge[rows]
         return out
 
     def mark_seen(self, ids: np.ndarray, frame: int) -> None:
