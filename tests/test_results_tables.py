@@ -1194,3 +1194,31 @@ def test_where_the_cover_by_points_loses_frames_is_what_its_command_prints() -> 
         assert sorted(now) == [4, 5]
         for column in ("device_uploads", "lost_share", "loops", "copies_end"):
             assert [now[s][column] for s in (4, 5)] == [before[s][column] for s in (4, 5)]
+
+
+def test_the_devices_search_of_the_map_before_and_after_is_what_its_commands_print() -> None:
+    """The held-out walks' frames with the cover by points, the device's search of its map
+    before and after the edge's points and its own were given half the searches each, as the
+    frames script prints them; the paired tables of every walk before and after; and the
+    runs before repeat the walks of the section before them (the search recorded, nothing
+    else changed)."""
+    folder = FIGURES / "shared-map" / "place-walks" / "own-walks"
+    search = folder / "candidate-search"
+    runs = [(f"{tree}, seed {seed}", search / tree / f"by-points-{seed}.frames.csv.gz")
+            for seed in (4, 5) for tree in ("before", "after")]
+    printed = _script("place_walks_frames").tables(runs)
+    assert _missing("\n".join(printed)) == []
+    table = _script("place_walks_table")
+    names = ("ranked by sighting", "half each")
+    for walks in ("alone", "default", "by-points"):
+        printed = table.table(search / "before" / f"{walks}.csv", search / "after" / f"{walks}.csv",
+                              names=names)
+        assert _missing("\n".join(printed)) == [], walks
+    printed = table.table(search / "before" / "by-points.csv",
+                          search / "tried" / "edge-first-by-points-4-5.csv",
+                          names=("ranked by sighting", "the edge's first"))
+    assert _missing("\n".join(printed)) == []
+    now = table.runs(search / "before" / "by-points.csv")
+    earlier = table.runs(folder / "points" / "where-lost" / "by-points-4-5.csv")
+    for column in ("device_uploads", "lost_share", "loops", "copies_end", "cross_rms_m"):
+        assert [now[s][column] for s in (4, 5)] == [earlier[s][column] for s in (4, 5)]

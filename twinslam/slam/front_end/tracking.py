@@ -412,13 +412,15 @@ class Tracking:
         searches and the edge's the rest, either filling what the other leaves.
 
         Ranked by sighting alone, the points the device made itself in its last slots — seen
-        in every frame since — crowded the edge's out where a place is mapped densely: in the
-        frames the edge counted lost of devices in a place others mapped, a median 168 of
-        1308 edge points in view were searched and 6 observed (``bench.place_walks
-        --frames-csv``); the device tracked, on points the edge never confirms. The edge's
-        first with nothing kept for the device's own starved tracking instead where the
-        edge's points in view disagree (a device of the same walks lost 46–105 frames of
-        2700 it had tracked)."""
+        in every frame since — crowded the edge's out where a place is mapped densely: four
+        devices on walks of their own along the corridor searched 36–53 % of the edge's points
+        in view, and in the frames the edge counted lost (one seed) a median 42 of the 140 of
+        their own edge map's and 10 of the 930 of other devices' copies, against 2506 of their
+        own new points (``bench.place_walks --frames-csv``, docs/results/shared-map.md); the
+        device tracked those frames, on points the edge never confirms. The edge's first,
+        with nothing kept for the device's own, starved tracking instead where the edge's
+        points in view disagree with the camera: the same walks' devices lost their pose in
+        1–2.4 % of their frames."""
         cap = self.config.max_candidates
         edge = np.flatnonzero(self.map.from_edge[ids])
         own = np.flatnonzero(~self.map.from_edge[ids])
