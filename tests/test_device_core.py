@@ -20,6 +20,18 @@ def _track(core: DeviceTrackerCore, frames: list) -> list:
     return [core.track(f.color, f.depth, f.stamp, image=f"image {f.index}") for f in frames]
 
 
+def _first_frame_mapped(core: DeviceTrackerCore, records: list) -> MapSnapshot:
+    """The edge's first map update as it would make it of the device's first slot: the tracks
+    its frame 0 observes turned into map points 1..n at the device's positions."""
+    first = records[0].track_ids
+    rows = np.array([int(np.flatnonzero(core.labels == t)[0]) for t in first])
+    global_ids = np.arange(1, len(first) + 1, dtype=np.uint64)
+    return MapSnapshot(1, np.array([0], np.uint64), np.eye(4)[None], global_ids,
+                       core.tracking.map.positions[rows].copy(),
+                       core.tracking.map.descriptors[rows].copy(),
+                       np.ones(len(first), np.uint32), [global_ids], first, global_ids)
+
+
 def test_map_update_relabels_resolved_tracks_and_keeps_tracking() -> None:
     seq = SyntheticSequence(3 * SLOT, seed=0)
     frames = list(seq)
@@ -37,14 +49,9 @@ def test_map_update_relabels_resolved_tracks_and_keeps_tracking() -> None:
     observed = {int(i) for i in up.point_ids if i}
     assert observed == {int(i) for i in records[5].track_ids}
 
-    # the edge turned the tracks frame 0 observes into map points 1..n, at their positions
     first = records[0].track_ids
-    rows = np.array([int(np.flatnonzero(core.labels == t)[0]) for t in first])
-    global_ids = np.arange(1, len(first) + 1, dtype=np.uint64)
-    update = MapSnapshot(1, np.array([0], np.uint64), np.eye(4)[None], global_ids,
-                      core.tracking.map.positions[rows].copy(),
-                      core.tracking.map.descriptors[rows].copy(),
-                      np.ones(len(first), np.uint32), [global_ids], first, global_ids)
+    update = _first_frame_mapped(core, records)
+    global_ids = update.point_ids
     assert core.apply_map_update(update, 0)
     assert not core.apply_map_update(update, 0), "an old version must not apply twice"
     labels = core.labels
@@ -470,15 +477,7 @@ def test_a_frame_over_its_candidate_cap_searches_the_edges_points_and_its_own_al
                              map_source="edge+local")
     _track(core, frames[:SLOT])
     records = core.take_slot()
-    # the edge made map points of what frame 0 saw, at the device's positions
-    first = records[0].track_ids
-    rows = np.array([int(np.flatnonzero(core.labels == t)[0]) for t in first])
-    global_ids = np.arange(1, len(first) + 1, dtype=np.uint64)
-    update = MapSnapshot(1, np.array([0], np.uint64), np.eye(4)[None], global_ids,
-                         core.tracking.map.positions[rows].copy(),
-                         core.tracking.map.descriptors[rows].copy(),
-                         np.ones(len(first), np.uint32), [global_ids], first, global_ids)
-    assert core.apply_map_update(update, 0)
+    assert core.apply_map_update(_first_frame_mapped(core, records), 0)
     checked = 0
     for frame in frames[SLOT:]:
         if core.track(frame.color, frame.depth, frame.stamp).slot_done:
