@@ -5,6 +5,7 @@ drops the device's stale points, and keeps tracking on course."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from device_tracker.device_core import DeviceTrackerCore, relabelled, rows_of_points
 from device_tracker.frame_log import frame_log_lines
@@ -493,3 +494,5 @@ def test_a_frame_over_its_candidate_cap_searches_the_edges_points_and_its_own_al
         assert own_searched >= min(own_in_view, cap // 2), (own_in_view, own_searched)
         checked += 1
     assert checked >= SLOT, "the cap must bite with both kinds of point in view"
+    with pytest.raises(ValueError, match="own_share is a share of max_candidates"):
+        TrackingConfig(own_share=1.5)

@@ -98,6 +98,11 @@ class TrackingConfig:
     motion: MotionBounds | None = field(default_factory=MotionBounds)
     frame_rate_hz: float = table1.FRAME_RATE_HZ   #: the camera's, for the speed bound
 
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.own_share <= 1.0:
+            raise ValueError(f"own_share is a share of max_candidates, 0 to 1, not "
+                             f"{self.own_share}")
+
 
 @dataclass
 class TrackedFrame:
