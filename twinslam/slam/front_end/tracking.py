@@ -39,8 +39,9 @@ class TrackingConfig:
     max_hamming: int = 64              #: of 256 bits
     search_radius_px: float = 20.0     #: match only near the predicted projection
     max_candidates: int = 3000         #: visible points matched per frame (most recently seen)
-    #: of them, the share the device's own points (not the edge's map's) may take at least,
-    #: where that many are in view: the edge's points are searched first for the rest
+    #: of them, the share the device's own points (not the edge's map's) may take, and at
+    #: least take where that many are in view; the edge's take the rest, either kind filling
+    #: what the other leaves
     own_share: float = 0.5
     min_inliers: int = MIN_INLIERS     #: fewer: the frame is not tracked (pose predicted)
     reprojection_px: float = 3.0       #: inlier threshold (pose refinement and RANSAC)
@@ -170,9 +171,9 @@ class Tracking:
         self._lost = 0                                  # frames lost in a row
         self._solved_by_ransac = False      # the last _solve_pose fell back to PnP RANSAC
         self._probation: list[tuple[int, np.ndarray]] = []   # (frame, ids) of new points
-        self._visible = np.zeros(0, dtype=np.int64)
         #: the last frame's search by projection (NO_SEARCH: its first frame, or none since
-        #: the map was replaced); a relocalisation's search of the whole map is not it
+        #: the map was replaced); a relocalisation's search of the whole map is not it. Its
+        #: points in view are what a keyframe's fusion looks among
         self.last_search = NO_SEARCH
         self._new_map = False                           # replaced since the last relocalisation
         self._last_tracked: np.ndarray | None = None    # camera-to-world, last counted frame
@@ -277,7 +278,6 @@ class Tracking:
             kept = old_to_new[ids]
             probation.append((frame, kept[kept >= 0]))
         self._probation = probation
-        self._visible = np.zeros(0, dtype=np.int64)
         self.last_search = NO_SEARCH
 
     def move_frame(self, correction: np.ndarray) -> None:
@@ -372,7 +372,7 @@ class Tracking:
         drift moves an old point tens of pixels. Marks them seen, clears those features, and
         returns (feature indices, point ids); they are not used for the pose."""
         cfg = self.config
-        ids = self._visible                           # seen from the predicted pose
+        ids = self.last_search.in_view                # seen from the predicted pose
         ids = ids[self.map.last_seen[ids] < index - cfg.fuse_min_age]
         if ids.size > cfg.max_candidates:             # the most often confirmed ones
             ids = np.sort(ids[np.argpartition(-self.map.seen_count[ids], cfg.max_candidates)[
@@ -400,15 +400,15 @@ class Tracking:
             self.map.cull(ids[self.map.seen_count[ids] < 2])
 
     def _candidates(self, predicted: np.ndarray, shape: tuple[int, int]
-                    ) -> tuple[np.ndarray, np.ndarray]:
-        """Ids of points the predicted pose sees, and their predicted pixel positions."""
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Ids of the points the predicted pose sees; of them, the ones to search for (at most
+        ``max_candidates``) and their predicted pixel positions."""
         ids, uv = visible_points(self.map.positions, self.map.active, predicted, self.k, shape,
                                  self.config.depth_range_m)
-        self._visible = ids                           # kept for the keyframe's fusion
         if ids.size > self.config.max_candidates:
             keep = self._searched(ids)
-            ids, uv = ids[keep], uv[keep]
-        return ids, uv
+            return ids, ids[keep], uv[keep]
+        return ids, ids, uv
 
     def _searched(self, ids: np.ndarray) -> np.ndarray:
         """Which of the points ``ids`` in view (more than ``max_candidates``) a frame searches
@@ -427,12 +427,12 @@ class Tracking:
         points in view disagree with the camera: the same walks' devices lost their pose in
         1–2.4 % of their frames."""
         cap = self.config.max_candidates
-        edge = np.flatnonzero(self.map.from_edge[ids])
-        own = np.flatnonzero(~self.map.from_edge[ids])
+        from_edge, last_seen = self.map.from_edge[ids], self.map.last_seen[ids]
+        edge, own = np.flatnonzero(from_edge), np.flatnonzero(~from_edge)
         n_own = min(own.size, max(int(self.config.own_share * cap), cap - edge.size))
         n_edge = min(edge.size, cap - n_own)
-        return np.sort(np.concatenate([_newest(edge, self.map.last_seen[ids[edge]], n_edge),
-                                       _newest(own, self.map.last_seen[ids[own]], n_own)]))
+        return np.sort(np.concatenate([_newest(edge, last_seen[edge], n_edge),
+                                       _newest(own, last_seen[own], n_own)]))
 
     def _match(self, feats: Features, predicted: np.ndarray, shape: tuple[int, int]
                ) -> tuple[np.ndarray, np.ndarray]:
@@ -440,7 +440,7 @@ class Tracking:
 
         Searched near the predicted projections; if that finds too little (a jerk the motion
         model missed), once more with a three times wider window."""
-        ids, uv = self._candidates(predicted, shape)
+        in_view, ids, uv = self._candidates(predicted, shape)
         cfg = self.config
         for radius in (cfg.search_radius_px, 3 * cfg.search_radius_px):
             f_idx, c_idx = match_by_projection(feats.points, feats.descriptors, uv,
@@ -448,7 +448,7 @@ class Tracking:
                                                cfg.max_hamming, cfg.ratio, shape)
             if len(f_idx) >= 4 * cfg.min_inliers:
                 break
-        self.last_search = ProjectionSearch(self._visible, ids, ids[c_idx])
+        self.last_search = ProjectionSearch(in_view, ids, ids[c_idx])
         return f_idx, ids[c_idx]
 
     def relocalise(self, feats: Features
