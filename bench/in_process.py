@@ -48,6 +48,7 @@ from twinslam.slam.back_end.place_words import PlaceWords
 from twinslam.slam.back_end.view_coverage import CoverageBounds
 from twinslam.slam.keyframe import KeyFramePayload, is_track
 from twinslam.slam.map_update import MapSnapshot
+from twinslam.slam.viewing_directions import seen_from_afar
 from twinslam.slot_protocol import default_device, table1
 from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
 from twinslam.uplink.channels import MarkovChannel, TraceChannel, parse_channel
@@ -187,7 +188,10 @@ class MapSearch(NamedTuple):
     since its last map update (its new points, not on the edge yet) — in view of the
     predicted pose, searched for (the tracker's candidates), matched to a feature, and
     observed by the frame (its pose's inliers, and at a keyframe the old points it fused: the
-    record's ``map_point_ids``). Found and observed count the edge's points only."""
+    record's ``map_point_ids``). Found and observed count the edge's points only. Last, of
+    the edge's points inside the image (those ``TrackingConfig.max_view_angle_deg`` left out
+    included) and of those searched, the ones the frame saw from more than
+    :data:`AFAR_DEG` off the direction the map's keyframes saw them from."""
 
     in_view_own: int
     in_view_others: int
@@ -199,6 +203,15 @@ class MapSearch(NamedTuple):
     found_others: int
     observed_own: int
     observed_others: int
+    afar_own: int
+    afar_others: int
+    searched_afar_own: int
+    searched_afar_others: int
+
+
+#: the turn from a point's viewing direction :class:`MapSearch` counts as seen from afar:
+#: ORB-SLAM's local map search refuses a point past it
+AFAR_DEG = 60.0
 
 
 def by_maker(ids: np.ndarray) -> tuple[int, int, int]:
@@ -211,12 +224,22 @@ def by_maker(ids: np.ndarray) -> tuple[int, int, int]:
     return len(points) - others, others, int(new.sum())
 
 
-def map_search(device: DeviceTrackerCore, observed: np.ndarray) -> MapSearch:
-    """The device's last frame's :class:`MapSearch`; ``observed``: its record's map points."""
-    search = device.tracking.last_search
+def map_search(device: DeviceTrackerCore, observed: np.ndarray, pose: np.ndarray
+               ) -> MapSearch:
+    """The device's last frame's :class:`MapSearch`; ``observed``: its record's map points,
+    ``pose``: its camera-to-world."""
+    search, points = device.tracking.last_search, device.tracking.map
+
+    def afar(rows: np.ndarray) -> tuple[int, int]:
+        rows = rows[seen_from_afar(points.views[rows], points.positions[rows], pose[:3, 3],
+                                   AFAR_DEG)]
+        return by_maker(device.labels[rows])[:2]
+
     return MapSearch(*by_maker(device.labels[search.in_view]),
                      *by_maker(device.labels[search.searched]),
-                     *by_maker(device.labels[search.found])[:2], *by_maker(observed)[:2])
+                     *by_maker(device.labels[search.found])[:2], *by_maker(observed)[:2],
+                     *afar(np.concatenate([search.in_view, search.turned])),
+                     *afar(search.searched))
 
 
 #: (device, edge, d_k, rate state, hold the update) → what the edge made of the slot
@@ -275,7 +298,8 @@ class DeviceWalk:
         record = result.record
         self.positions[record.frame_id] = frame.index
         # read before a held update replaces the map the frame searched
-        self.searches[frame.index] = map_search(self.device, record.map_point_ids)
+        self.searches[frame.index] = map_search(self.device, record.map_point_ids,
+                                                record.pose)
         if self.held is not None and (result.slot_done or
                                       frame.index - self.held[2] >= self.update_delay):
             self.device.apply_map_update(self.held[0], self.held[1])

@@ -63,6 +63,7 @@ from twinslam.slam.front_end.tracking import Tracking, TrackingConfig, depth_at
 from twinslam.slam.keyframe import KeyFramePayload, as_track_ids, is_track
 from twinslam.slam.map_update import MapSnapshot
 from twinslam.slam.sorted_ids import find_last
+from twinslam.slam.viewing_directions import mean_viewing_directions
 from twinslam.slot_protocol import table1
 
 
@@ -270,7 +271,7 @@ class DeviceTrackerCore:
         self.tracking.config = dataclasses.replace(self.config, own_points=True)
         old, tracks = self.tracking.map, self.tracks.points
         points = old.take(np.arange(len(old)))
-        rows = points.add(tracks.positions, tracks.descriptors, 0)
+        rows = points.add(tracks.positions, tracks.descriptors, 0, views=tracks.views)
         points.last_seen[rows] = tracks.last_seen
         points.seen_count[rows] = tracks.seen_count
         points.active[rows] = tracks.active
@@ -404,8 +405,12 @@ class DeviceTrackerCore:
             own[:] = False
         keep = np.flatnonzero(own & (self.created >= slot) & old.active)
         points = LocalMap(max(len(update.point_ids) + keep.size, 16))
-        new_global = points.add(update.positions, update.descriptors, now, from_edge=True)
-        new_track = points.add(old.positions[keep], old.descriptors[keep], now)
+        views = mean_viewing_directions(update.point_ids, update.positions,
+                                        update.keyframe_poses, update.keyframe_points)
+        new_global = points.add(update.positions, update.descriptors, now, from_edge=True,
+                                views=views)
+        new_track = points.add(old.positions[keep], old.descriptors[keep], now,
+                               views=old.views[keep])
         old_to_new = np.full(len(old), -1, dtype=np.int64)
         old_to_new[keep] = new_track
         held, at = rows_of_points(self.labels, update.point_ids)

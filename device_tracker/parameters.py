@@ -47,6 +47,10 @@ PARAMETERS = (
               "motion model's pose is refined (ORB-SLAM2's RGB-D bf over fx: the depth as a "
               "right-image coordinate); readings beyond 40 baselines count as none; 0: the "
               "refinement uses the pixels alone", low=0.0, high=10.0),
+    ParamSpec("max_view_angle_deg", TrackingConfig.max_view_angle_deg, "a map point is "
+              "searched for only where the camera sees it within this many degrees of the "
+              "direction the map's keyframes saw it from (ORB-SLAM's local map search: 60); "
+              "180: every point in the image is", low=1.0, high=180.0),
     ParamSpec("max_step_m", MotionBounds.max_step_m, "the motion gate: metres the camera may "
               "move between two frames; a tracked pose farther from the last posed frame is "
               "refused and the frame lost, for relocalisation to bring back "
@@ -141,6 +145,7 @@ class DeviceSettings:
                                   reloc_min_inliers=int(p["reloc_min_inliers"]),
                                   reloc_probation_frames=int(p["reloc_probation_frames"]),
                                   depth_baseline_m=float(p["depth_baseline_m"]),
+                                  max_view_angle_deg=float(p["max_view_angle_deg"]),
                                   motion=motion, frame_rate_hz=rate)
         return cls(slot_frames=int(p["slot_frames"]), frame_rate_hz=rate,
                    alpha_bytes=int(float(p["alpha_mbit"]) * 1e6 / 8), channel=str(p["channel"]),

@@ -4,6 +4,8 @@ drops the device's stale points, and keeps tracking on course."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -496,3 +498,35 @@ def test_a_frame_over_its_candidate_cap_searches_the_edges_points_and_its_own_al
     assert checked >= SLOT, "the cap must bite with both kinds of point in view"
     with pytest.raises(ValueError, match="own_share is a share of max_candidates"):
         TrackingConfig(own_share=1.5)
+
+
+def test_a_frame_searches_no_point_it_sees_from_far_off_where_the_map_saw_it() -> None:
+    """The map update's keyframes tell the device where each point was seen from; a frame
+    searches only the points it sees within ``max_view_angle_deg`` of that direction
+    (ORB-SLAM's 60°: an ORB descriptor does not match across a wider turn). The same points
+    seen by a keyframe on their far side are left out of the search and told apart
+    (``last_search.turned``); at 180° nothing is."""
+    seq = SyntheticSequence(2 * SLOT, seed=0)
+    frames = list(seq)
+    searched: dict[tuple[bool, float], tuple[int, int]] = {}
+    for behind, angle in ((False, 60.0), (True, 60.0), (True, 180.0)):
+        core = DeviceTrackerCore(seq.intrinsics, SLOT,
+                                 config=TrackingConfig(max_view_angle_deg=angle),
+                                 map_source="edge")
+        _track(core, frames[:SLOT])
+        update = _first_frame_mapped(core, core.take_slot())
+        if behind:                       # the keyframe stood beyond the points, facing back
+            pose = np.eye(4)
+            pose[:3, 3] = 2.0 * update.positions.mean(axis=0)
+            update = dataclasses.replace(update, keyframe_poses=pose[None])
+        assert core.apply_map_update(update, 0)
+        core.track(frames[SLOT].color, frames[SLOT].depth, frames[SLOT].stamp)
+        search = core.tracking.last_search
+        edge = ~is_track(core.labels)
+        searched[behind, angle] = (int(edge[search.searched].sum()),
+                                   int(edge[search.turned].sum()))
+    assert searched[False, 60.0][0] > 100 and searched[False, 60.0][1] == 0, searched
+    assert searched[True, 60.0] == (0, searched[False, 60.0][0]), searched
+    assert searched[True, 180.0] == (searched[False, 60.0][0], 0), searched
+    with pytest.raises(ValueError, match="max_view_angle_deg"):
+        TrackingConfig(max_view_angle_deg=0.0)

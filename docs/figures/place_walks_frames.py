@@ -199,6 +199,59 @@ def search_tables(runs: list[tuple[str, Path]]) -> list[str]:
     return lines
 
 
+#: the columns of the frames seen from afar (``bench.in_process.MapSearch``'s last four)
+AFAR_COLUMNS = ("device_afar_own", "device_afar_others", "device_searched_afar_own",
+                "device_searched_afar_others")
+
+
+def afar(path: Path) -> dict[str, float] | None:
+    """For the frames the edge counted lost and the rest (``lost``, ``served``): their count,
+    the median of each :data:`AFAR_COLUMNS` figure, and the share of the searched points seen
+    from afar, own and others' (``lost_searched_afar_own_share`` …). None: the file has no
+    such columns."""
+    rows: dict[str, list[dict[str, str]]] = {"lost": [], "served": []}
+    opener = gzip.open if path.suffix == ".gz" else open
+    with opener(path, "rt", newline="", encoding="utf-8") as fh:
+        for row in csv.DictReader(fh):
+            if AFAR_COLUMNS[0] not in row:
+                return None
+            rows["lost" if row["lost"] == "1" else "served"].append(row)
+    out: dict[str, float] = {}
+    for kind, frames in rows.items():
+        out[kind] = len(frames)
+        for column in AFAR_COLUMNS:
+            out[f"{kind}_{column}"] = (median(int(r[column]) for r in frames) if frames
+                                       else math.nan)
+        for who in ("own", "others"):
+            searched = sum(int(r[f"device_searched_{who}"]) for r in frames)
+            seen_afar = sum(int(r[f"device_searched_afar_{who}"]) for r in frames)
+            out[f"{kind}_searched_afar_{who}_share"] = (seen_afar / searched if searched
+                                                        else math.nan)
+    return out
+
+
+def afar_table(runs: list[tuple[str, Path]]) -> list[str]:
+    """The lines of the table of points seen from afar for ``runs`` (name, ``--frames-csv``
+    file); none where a file has no such columns."""
+    named = [(name, afar(path)) for name, path in runs]
+    if any(s is None for _, s in named):
+        return []
+    lines = ["| run | frames | count | the edge's points in the image seen from afar: own / "
+             "others' (median) | of those searched: own / others' (median) | the searched "
+             "seen from afar, own / others' (%) |", "|---|---|---|---|---|---|"]
+    for name, s in named:
+        assert s is not None
+        for kind, label in (("lost", "lost by the edge"), ("served", "the others")):
+            lines.append(
+                f"| {name} | {label} | {s[kind]:.0f} "
+                f"| {s[f'{kind}_device_afar_own']:.0f} / {s[f'{kind}_device_afar_others']:.0f} "
+                f"| {s[f'{kind}_device_searched_afar_own']:.0f} / "
+                f"{s[f'{kind}_device_searched_afar_others']:.0f} "
+                f"| {_percent(s[f'{kind}_searched_afar_own_share'])} / "
+                f"{_percent(s[f'{kind}_searched_afar_others_share'])} |")
+    return lines
+
+
 def _share(lost: float, frames: float) -> str:
     return f"{100 * lost / frames:.1f}" if frames else "–"
 
@@ -234,7 +287,8 @@ def tables(runs: list[tuple[str, Path]]) -> list[str]:
                  for i in range(len(OWN_BINS))]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     more = search_tables(runs)
-    return lines + (["", *more] if more else [])
+    seen_afar = afar_table(runs)
+    return lines + (["", *more] if more else []) + (["", *seen_afar] if seen_afar else [])
 
 
 def main() -> None:

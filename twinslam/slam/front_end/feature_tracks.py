@@ -20,6 +20,7 @@ from twinslam.slam.front_end.local_map import LocalMap
 from twinslam.slam.front_end.orb_extractor import Features
 from twinslam.slam.front_end.tracking import TrackingConfig, depth_at
 from twinslam.slam.projection_matching import back_project, match_by_projection, visible_points
+from twinslam.slam.viewing_directions import rays_from
 
 
 class FeatureTracks:
@@ -76,8 +77,9 @@ class FeatureTracks:
         cand, z = cand[z > 0], z[z > 0]
         if cand.size == 0:             # nothing to start here: the next frame tries again
             return f_idx, rows, 0
-        new_rows = self.points.add(back_project(feats.points[cand], z, self.k, pose),
-                                   feats.descriptors[cand], index)
+        world = back_project(feats.points[cand], z, self.k, pose)
+        new_rows = self.points.add(world, feats.descriptors[cand], index,
+                                   views=rays_from(pose[:3, 3], world))
         self._last_new_index, self._last_new_seen = index, seen + len(new_rows)
         return (np.concatenate([f_idx, cand]), np.concatenate([rows, new_rows]),
                 len(new_rows))

@@ -1,5 +1,5 @@
 """The device's local map: the map points it tracks against — world position, ORB descriptor,
-when each was last seen.
+the direction it was seen from, when each was last seen.
 
 Stored as growing column arrays (not one object per point) because tracking projects and
 matches all candidate points of a frame at once.
@@ -24,6 +24,7 @@ class LocalMap:
         self._seen_count = np.empty(capacity, dtype=np.int64)
         self._active = np.empty(capacity, dtype=np.bool_)
         self._from_edge = np.empty(capacity, dtype=np.bool_)
+        self._views = np.empty((capacity, 3))
         self._n = 0
 
     def __len__(self) -> int:
@@ -55,6 +56,12 @@ class LocalMap:
         """True for a point of the edge's map update, False for one the device made since."""
         return self._from_edge[:self._n]
 
+    @property
+    def views(self) -> np.ndarray:
+        """The unit direction each point was seen from (the mean over the keyframes that
+        observed it, :mod:`twinslam.slam.viewing_directions`); NaN where none is known."""
+        return self._views[:self._n]
+
     def cull(self, ids: np.ndarray) -> None:
         self._active[ids] = False
 
@@ -63,11 +70,13 @@ class LocalMap:
         corrected (a loop closed at the edge)."""
         c = np.asarray(correction, dtype=np.float64)
         self.positions[:] = self.positions @ c[:3, :3].T + c[:3, 3]
+        self.views[:] = self.views @ c[:3, :3].T
 
     def add(self, positions: np.ndarray, descriptors: np.ndarray, frame: int,
-            from_edge: bool = False) -> np.ndarray:
+            from_edge: bool = False, views: np.ndarray | None = None) -> np.ndarray:
         """Append points first seen in ``frame`` (``from_edge``: the edge's map's, else the
-        device's own); returns their new ids."""
+        device's own), seen from ``views`` (unit rows; None: unknown); returns their new
+        ids."""
         k = positions.shape[0]
         if self._n + k > self._pos.shape[0]:
             cap = max(2 * self._pos.shape[0], self._n + k)
@@ -77,6 +86,7 @@ class LocalMap:
             self._seen_count = _grow(self._seen_count, cap)
             self._active = _grow(self._active, cap)
             self._from_edge = _grow(self._from_edge, cap)
+            self._views = _grow(self._views, cap)
         ids = np.arange(self._n, self._n + k)
         self._pos[ids] = positions
         self._desc[ids] = descriptors
@@ -84,14 +94,16 @@ class LocalMap:
         self._seen_count[ids] = 1
         self._active[ids] = True
         self._from_edge[ids] = from_edge
+        self._views[ids] = np.nan if views is None else views
         self._n += k
         return ids
 
     def take(self, rows: np.ndarray) -> LocalMap:
         """A new map of the points ``rows`` (ascending), renumbered 0..len(rows) - 1, with
-        their positions, descriptors, sightings, activity and origin."""
+        their positions, descriptors, viewing directions, sightings, activity and origin."""
         out = LocalMap(max(int(rows.size), 16))
-        new = out.add(self.positions[rows], self.descriptors[rows], 0)
+        new = out.add(self.positions[rows], self.descriptors[rows], 0,
+                      views=self.views[rows])
         out.last_seen[new] = self.last_seen[rows]
         out.seen_count[new] = self.seen_count[rows]
         out.active[new] = self.active[rows]

@@ -28,6 +28,7 @@ from twinslam.slam.pose_plausibility import (
     non_finite,
 )
 from twinslam.slam.projection_matching import back_project, match_by_projection, visible_points
+from twinslam.slam.viewing_directions import rays_from, seen_from_afar
 from twinslam.slot_protocol import table1
 from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
 
@@ -43,6 +44,13 @@ class TrackingConfig:
     #: least take where that many are in view; the edge's take the rest, either kind filling
     #: what the other leaves
     own_share: float = 0.5
+    #: a point is searched for only where the frame's ray to it is within this of the
+    #: direction the map saw it from (:mod:`twinslam.slam.viewing_directions`; ORB-SLAM's
+    #: local map search uses 60°); 180: every point in the image is. 60° on four devices'
+    #: walks of their own along the corridor (docs/results/shared-map.md, "Copies seen from
+    #: elsewhere"): alone the edge counted 0.7–0.9 points more of their frames lost, sharing
+    #: the place with the cover by points 0.4–0.9 fewer but 9–35 more uploads — no default
+    max_view_angle_deg: float = 180.0
     min_inliers: int = MIN_INLIERS     #: fewer: the frame is not tracked (pose predicted)
     reprojection_px: float = 3.0       #: inlier threshold (pose refinement and RANSAC)
     min_inlier_ratio: float = 0.5      #: refined prediction keeps fewer: RANSAC instead
@@ -103,6 +111,9 @@ class TrackingConfig:
         if not 0.0 <= self.own_share <= 1.0:
             raise ValueError(f"own_share is a share of max_candidates, 0 to 1, not "
                              f"{self.own_share}")
+        if not 0.0 < self.max_view_angle_deg <= 180.0:
+            raise ValueError(f"max_view_angle_deg is an angle above 0 and at most 180°, not "
+                             f"{self.max_view_angle_deg}")
 
 
 @dataclass
@@ -135,15 +146,18 @@ class ProjectionSearch:
     """What the motion model's search by projection had to work with for one frame, as rows
     of the local map: the points its predicted pose sees, those of them it searched for (at
     most ``max_candidates``), and those it matched a feature to before the pose solve (the
-    frame's inliers are of these). Where a frame's map points run short this tells a map that
-    lacks the view from points in view left unsearched or unrecognised."""
+    frame's inliers are of these); beside them, the points inside the image that the camera
+    sees from too far off the direction the map saw them from to search. Where a frame's map
+    points run short this tells a map that lacks the view from points in view left unsearched
+    or unrecognised, and from points the map holds only as seen from elsewhere."""
 
-    in_view: np.ndarray      #: rows predicted in the image
+    in_view: np.ndarray      #: rows predicted in the image, seen from about their direction
     searched: np.ndarray     #: of them, those searched for
     found: np.ndarray        #: rows matched to a feature
+    turned: np.ndarray       #: rows predicted in the image, seen from too far off
 
 
-NO_SEARCH = ProjectionSearch(*(np.zeros(0, dtype=np.int64),) * 3)
+NO_SEARCH = ProjectionSearch(*(np.zeros(0, dtype=np.int64),) * 4)
 
 
 def _newest(rows: np.ndarray, last_seen: np.ndarray, n: int) -> np.ndarray:
@@ -400,15 +414,20 @@ class Tracking:
             self.map.cull(ids[self.map.seen_count[ids] < 2])
 
     def _candidates(self, predicted: np.ndarray, shape: tuple[int, int]
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Ids of the points the predicted pose sees; of them, the ones to search for (at most
-        ``max_candidates``) and their predicted pixel positions."""
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Ids of the points the predicted pose sees from about the direction the map saw
+        them from; of them, the ones to search for (at most ``max_candidates``) and their
+        predicted pixel positions; last, the ids inside the image seen from too far off."""
         ids, uv = visible_points(self.map.positions, self.map.active, predicted, self.k, shape,
                                  self.config.depth_range_m)
+        afar = seen_from_afar(self.map.views[ids], self.map.positions[ids], predicted[:3, 3],
+                              self.config.max_view_angle_deg)
+        turned = ids[afar]
+        ids, uv = ids[~afar], uv[~afar]
         if ids.size > self.config.max_candidates:
             keep = self._searched(ids)
-            return ids, ids[keep], uv[keep]
-        return ids, ids, uv
+            return ids, ids[keep], uv[keep], turned
+        return ids, ids, uv, turned
 
     def _searched(self, ids: np.ndarray) -> np.ndarray:
         """Which of the points ``ids`` in view (more than ``max_candidates``) a frame searches
@@ -440,7 +459,7 @@ class Tracking:
 
         Searched near the predicted projections; if that finds too little (a jerk the motion
         model missed), once more with a three times wider window."""
-        in_view, ids, uv = self._candidates(predicted, shape)
+        in_view, ids, uv, turned = self._candidates(predicted, shape)
         cfg = self.config
         for radius in (cfg.search_radius_px, 3 * cfg.search_radius_px):
             f_idx, c_idx = match_by_projection(feats.points, feats.descriptors, uv,
@@ -448,7 +467,7 @@ class Tracking:
                                                cfg.max_hamming, cfg.ratio, shape)
             if len(f_idx) >= 4 * cfg.min_inliers:
                 break
-        self.last_search = ProjectionSearch(in_view, ids, ids[c_idx])
+        self.last_search = ProjectionSearch(in_view, ids, ids[c_idx], turned)
         return f_idx, ids[c_idx]
 
     def relocalise(self, feats: Features
@@ -529,7 +548,8 @@ class Tracking:
         if idx.size == 0:
             return none, none
         world = back_project(feats.points[idx], z, self.k, pose)
-        ids = self.map.add(world, feats.descriptors[idx], index)
+        ids = self.map.add(world, feats.descriptors[idx], index,
+                           views=rays_from(pose[:3, 3], world))
         self._probation.append((index, ids))
         return idx, ids
 
