@@ -110,7 +110,8 @@ def test_the_walks_frames_carry_the_devices_search_of_the_map_it_held(
     """``--frames-csv``'s search columns: of the points in view the device searched at most
     its candidate cap, found only among those searched, and the edge's points a frame
     observed are the map points it reported; the device that joined searched the copies the
-    first lent it."""
+    first lent it. Of the edge's points in the image, some are seen from over 60° off where
+    the map saw them (the walk turns), and of those searched no more than were in view."""
     _, path = shared_walk
     with path.open(newline="", encoding="utf-8") as fh:
         rows = list(csv.DictReader(fh))
@@ -123,6 +124,8 @@ def test_the_walks_frames_carry_the_devices_search_of_the_map_it_held(
         assert n["searched_own"] + n["searched_others"] + n["searched_device"] <= cap, row
         for who in ("own", "others"):
             assert n[f"found_{who}"] <= n[f"searched_{who}"], row
+            assert n[f"searched_afar_{who}"] <= min(n[f"afar_{who}"], n[f"searched_{who}"]), row
         assert n["observed_own"] + n["observed_others"] == int(row["device_map_points"]), row
     joined = [r for r in rows if r["device"] == "ar2"]
     assert max(int(r["device_found_others"]) for r in joined) > 0
+    assert sum(int(r["device_afar_own"]) + int(r["device_afar_others"]) for r in rows) > 0
