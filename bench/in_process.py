@@ -189,9 +189,9 @@ class MapSearch(NamedTuple):
     predicted pose, searched for (the tracker's candidates), matched to a feature, and
     observed by the frame (its pose's inliers, and at a keyframe the old points it fused: the
     record's ``map_point_ids``). Found and observed count the edge's points only. Last, of
-    the edge's points inside the image (those ``TrackingConfig.max_view_angle_deg`` left out
-    included) and of those searched, the ones the frame saw from more than
-    :data:`AFAR_DEG` off the direction the map's keyframes saw them from."""
+    the edge's points in view and of those searched, the ones the frame saw from more than
+    :data:`AFAR_DEG` off the direction the map's keyframes saw them from (none in view where
+    ``TrackingConfig.max_view_angle_deg`` left them out)."""
 
     in_view_own: int
     in_view_others: int
@@ -238,8 +238,7 @@ def map_search(device: DeviceTrackerCore, observed: np.ndarray, pose: np.ndarray
     return MapSearch(*by_maker(device.labels[search.in_view]),
                      *by_maker(device.labels[search.searched]),
                      *by_maker(device.labels[search.found])[:2], *by_maker(observed)[:2],
-                     *afar(np.concatenate([search.in_view, search.turned])),
-                     *afar(search.searched))
+                     *afar(search.in_view), *afar(search.searched))
 
 
 #: (device, edge, d_k, rate state, hold the update) → what the edge made of the slot

@@ -16,7 +16,11 @@ most) and the share of those searched that it found, the device's own edge map's
 other devices' copies'; and for the frames the edge counted lost against the others, the
 points in view, searched, found and observed a frame (medians) — the edge map's own, other
 devices' copies' and the device's own new points apart: a map that lacks the view, points
-in view left unsearched, or points searched and not recognised.
+in view left unsearched, or points searched and not recognised. Where they carry the
+points seen from afar too, a last table: of the edge's points in view and of those
+searched, the share the frame saw from over 60° off the direction the map's keyframes saw
+them from, for the frames the edge counted lost against the others (docs/results/
+shared-map.md, "Copies seen from elsewhere").
 
     .venv/bin/python docs/figures/place_walks_frames.py NAME=FILE [NAME=FILE …]
 """
@@ -199,56 +203,55 @@ def search_tables(runs: list[tuple[str, Path]]) -> list[str]:
     return lines
 
 
-#: the columns of the frames seen from afar (``bench.in_process.MapSearch``'s last four)
-AFAR_COLUMNS = ("device_afar_own", "device_afar_others", "device_searched_afar_own",
-                "device_searched_afar_others")
+#: the in-view and searched columns of the edge's points, and of them the ones seen from
+#: afar (``bench.in_process.MapSearch``)
+AFAR_COLUMNS = tuple(f"device_{what}_{who}" for what in ("in_view", "afar", "searched",
+                                                         "searched_afar")
+                     for who in ("own", "others"))
 
 
 def afar(path: Path) -> dict[str, float] | None:
-    """For the frames the edge counted lost and the rest (``lost``, ``served``): their count,
-    the median of each :data:`AFAR_COLUMNS` figure, and the share of the searched points seen
-    from afar, own and others' (``lost_searched_afar_own_share`` …). None: the file has no
-    such columns."""
-    rows: dict[str, list[dict[str, str]]] = {"lost": [], "served": []}
+    """For the frames the edge counted lost and the rest (``lost``, ``served``): their count
+    and, of the edge's points in view and of those searched, the share the frame saw from
+    afar, own and others' (``lost_afar_own`` … ``served_searched_afar_others``). None: the
+    file has no such columns."""
+    sums = {kind: dict.fromkeys(AFAR_COLUMNS, 0) for kind in ("lost", "served")}
+    count = dict.fromkeys(sums, 0)
     opener = gzip.open if path.suffix == ".gz" else open
     with opener(path, "rt", newline="", encoding="utf-8") as fh:
         for row in csv.DictReader(fh):
-            if AFAR_COLUMNS[0] not in row:
+            if AFAR_COLUMNS[2] not in row:
                 return None
-            rows["lost" if row["lost"] == "1" else "served"].append(row)
+            kind = "lost" if row["lost"] == "1" else "served"
+            count[kind] += 1
+            for column in AFAR_COLUMNS:
+                sums[kind][column] += int(row[column])
     out: dict[str, float] = {}
-    for kind, frames in rows.items():
-        out[kind] = len(frames)
-        for column in AFAR_COLUMNS:
-            out[f"{kind}_{column}"] = (median(int(r[column]) for r in frames) if frames
-                                       else math.nan)
-        for who in ("own", "others"):
-            searched = sum(int(r[f"device_searched_{who}"]) for r in frames)
-            seen_afar = sum(int(r[f"device_searched_afar_{who}"]) for r in frames)
-            out[f"{kind}_searched_afar_{who}_share"] = (seen_afar / searched if searched
-                                                        else math.nan)
+    for kind, n in sums.items():
+        out[kind] = count[kind]
+        for of, seen_afar in (("in_view", "afar"), ("searched", "searched_afar")):
+            for who in ("own", "others"):
+                total = n[f"device_{of}_{who}"]
+                out[f"{kind}_{seen_afar}_{who}"] = (n[f"device_{seen_afar}_{who}"] / total
+                                                    if total else math.nan)
     return out
 
 
 def afar_table(runs: list[tuple[str, Path]]) -> list[str]:
-    """The lines of the table of points seen from afar for ``runs`` (name, ``--frames-csv``
-    file); none where a file has no such columns."""
+    """The lines of the table of the edge's points seen from afar for ``runs`` (name,
+    ``--frames-csv`` file); none where a file has no such columns."""
     named = [(name, afar(path)) for name, path in runs]
     if any(s is None for _, s in named):
         return []
-    lines = ["| run | frames | count | the edge's points in the image seen from afar: own / "
-             "others' (median) | of those searched: own / others' (median) | the searched "
-             "seen from afar, own / others' (%) |", "|---|---|---|---|---|---|"]
+    lines = ["| run | frames | count | of the edge's points in view, seen from over 60° off "
+             "where the map saw them: own / others' (%) | of those searched: own / others' "
+             "(%) |", "|---|---|---|---|---|"]
     for name, s in named:
         assert s is not None
         for kind, label in (("lost", "lost by the edge"), ("served", "the others")):
-            lines.append(
-                f"| {name} | {label} | {s[kind]:.0f} "
-                f"| {s[f'{kind}_device_afar_own']:.0f} / {s[f'{kind}_device_afar_others']:.0f} "
-                f"| {s[f'{kind}_device_searched_afar_own']:.0f} / "
-                f"{s[f'{kind}_device_searched_afar_others']:.0f} "
-                f"| {_percent(s[f'{kind}_searched_afar_own_share'])} / "
-                f"{_percent(s[f'{kind}_searched_afar_others_share'])} |")
+            cells = [" / ".join(_percent(s[f"{kind}_{what}_{who}"]) for who in ("own", "others"))
+                     for what in ("afar", "searched_afar")]
+            lines.append(f"| {name} | {label} | {s[kind]:.0f} | " + " | ".join(cells) + " |")
     return lines
 
 
