@@ -5,6 +5,7 @@ edited by hand, or a CSV re-run without its table, fails here."""
 from __future__ import annotations
 
 import csv
+import gzip
 import importlib.util
 import sys
 from pathlib import Path
@@ -1222,3 +1223,29 @@ def test_the_devices_search_of_the_map_before_and_after_is_what_its_commands_pri
     earlier = table.runs(folder / "points" / "where-lost" / "by-points-4-5.csv")
     for column in ("device_uploads", "lost_share", "loops", "copies_end", "cross_rms_m"):
         assert [now[s][column] for s in (4, 5)] == [earlier[s][column] for s in (4, 5)]
+
+
+def test_the_copies_seen_from_afar_and_the_view_angle_tried_are_what_their_commands_print(
+        ) -> None:
+    """The held-out walks' frames with the cover by points, the edge's points in view seen
+    from over 60° off, as the frames script prints them; the paired tables of every walk with
+    every point in view and with 60°; and the frames' runs repeat the walks they were
+    compared with (the directions recorded, nothing searched differently)."""
+    folder = FIGURES / "shared-map" / "place-walks" / "own-walks"
+    seen = folder / "view-angle" / "seen-from-afar"
+    runs = [(f"seed {seed}", seen / f"by-points-{seed}.frames.csv.gz") for seed in (4, 5)]
+    printed = _script("place_walks_frames").tables(runs)
+    assert any(line.startswith("| seed 4 | lost by the edge | 649 |") for line in printed)
+    assert _missing("\n".join(printed[-6:])) == []
+    table = _script("place_walks_table")
+    for walks in ("alone", "default", "by-points"):
+        printed = table.table(folder / "candidate-search" / "after" / f"{walks}.csv",
+                              folder / "view-angle" / "gate-60" / f"{walks}.csv",
+                              names=("every point in view", "60°"))
+        assert _missing("\n".join(printed)) == [], walks
+    for seed, (_, path) in zip((4, 5), runs, strict=True):
+        before = folder / "candidate-search" / "after" / f"by-points-{seed}.frames.csv.gz"
+        with gzip.open(before, "rt", encoding="utf-8") as old, \
+                gzip.open(path, "rt", encoding="utf-8") as new:
+            for was, now in zip(csv.DictReader(old), csv.DictReader(new), strict=True):
+                assert was == {key: now[key] for key in was}, seed
