@@ -55,7 +55,7 @@ def rays_from(centre: np.ndarray, positions: np.ndarray) -> np.ndarray:
     direction, seen from the keyframe that made it (NaN for a point at the centre)."""
     rays = np.asarray(positions, dtype=np.float64).reshape(-1, 3) - np.asarray(centre)
     with np.errstate(invalid="ignore", divide="ignore"):
-        return rays / np.linalg.norm(rays, axis=1)[:, None]
+        return np.asarray(rays / np.linalg.norm(rays, axis=1)[:, None])
 
 
 def seen_from_afar(views: np.ndarray, positions: np.ndarray, centre: np.ndarray,
@@ -64,4 +64,4 @@ def seen_from_afar(views: np.ndarray, positions: np.ndarray, centre: np.ndarray,
     viewing direction (``views``, unit rows; a NaN row — no direction known — never is)."""
     cos = np.einsum("ij,ij->i", rays_from(centre, positions), np.asarray(views))
     with np.errstate(invalid="ignore"):
-        return cos < np.cos(np.radians(max_angle_deg))
+        return np.asarray(cos < np.cos(np.radians(max_angle_deg)))
