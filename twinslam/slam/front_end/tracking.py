@@ -48,8 +48,8 @@ class TrackingConfig:
     #: direction the map saw it from (:mod:`twinslam.slam.viewing_directions`; ORB-SLAM's
     #: local map search uses 60°); 180: every point in the image is. 60° on four devices'
     #: walks of their own along the corridor (docs/results/shared-map.md, "Copies seen from
-    #: elsewhere"): alone the edge counted 0.7–0.9 points more of their frames lost, sharing
-    #: the place with the cover by points 0.4–0.9 fewer but 9–35 more uploads — no default
+    #: elsewhere"): alone the edge counted 0.5–0.9 points more of their frames lost (four
+    #: seeds); sharing the place with the cover by points as many lost and 15 more uploads
     max_view_angle_deg: float = 180.0
     min_inliers: int = MIN_INLIERS     #: fewer: the frame is not tracked (pose predicted)
     reprojection_px: float = 3.0       #: inlier threshold (pose refinement and RANSAC)
@@ -420,10 +420,12 @@ class Tracking:
         predicted pixel positions; last, the ids inside the image seen from too far off."""
         ids, uv = visible_points(self.map.positions, self.map.active, predicted, self.k, shape,
                                  self.config.depth_range_m)
-        afar = seen_from_afar(self.map.views[ids], self.map.positions[ids], predicted[:3, 3],
-                              self.config.max_view_angle_deg)
-        turned = ids[afar]
-        ids, uv = ids[~afar], uv[~afar]
+        turned = ids[:0]
+        if self.config.max_view_angle_deg < 180.0:      # 180: no ray is farther off
+            afar = seen_from_afar(self.map.views[ids], self.map.positions[ids],
+                                  predicted[:3, 3], self.config.max_view_angle_deg)
+            turned = ids[afar]
+            ids, uv = ids[~afar], uv[~afar]
         if ids.size > self.config.max_candidates:
             keep = self._searched(ids)
             return ids, ids[keep], uv[keep], turned
