@@ -1227,8 +1227,9 @@ def test_the_devices_search_of_the_map_before_and_after_is_what_its_commands_pri
 
 def test_the_copies_seen_from_afar_and_the_view_angle_tried_are_what_their_commands_print(
         ) -> None:
-    """The held-out walks' frames with the cover by points, the edge's points in view seen
-    from over 60° off, as the frames script prints them; the paired tables of every walk with
+    """The held-out walks' frames with the cover by points and the 7-Scenes pair's, the
+    edge's points in view seen from over 60° off, as the frames script prints them; the
+    paired tables of every walk with
     every point in view and with 60°; and the frames' runs repeat the walks they were
     compared with (the directions recorded, nothing searched differently)."""
     folder = FIGURES / "shared-map" / "place-walks" / "own-walks"
@@ -1237,6 +1238,8 @@ def test_the_copies_seen_from_afar_and_the_view_angle_tried_are_what_their_comma
     printed = _script("place_walks_frames").tables(runs)
     assert any(line.startswith("| seed 4 | lost by the edge | 649 |") for line in printed)
     assert _missing("\n".join(printed[-6:])) == []
+    pair = [("7-Scenes pair, by points", seen / "seven-scenes-by-points.frames.csv.gz")]
+    assert _missing("\n".join(_script("place_walks_frames").tables(pair)[-4:])) == []
     table = _script("place_walks_table")
     for walks in ("alone", "default", "by-points"):
         printed = table.table(folder / "candidate-search" / "after" / f"{walks}.csv",
