@@ -18,6 +18,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from twinslam.slam.sorted_ids import find_sorted
+
 
 def mean_viewing_directions(point_ids: np.ndarray, positions: np.ndarray,
                             keyframe_poses: np.ndarray | Sequence[np.ndarray],
@@ -36,14 +38,14 @@ def mean_viewing_directions(point_ids: np.ndarray, positions: np.ndarray,
     centres = np.asarray(keyframe_poses, dtype=np.float64)[:, :3, 3]
     by = np.repeat(np.arange(len(sizes)), sizes)
     order = np.argsort(ids, kind="stable")
-    at = np.minimum(np.searchsorted(ids[order], seen), len(ids) - 1)
-    held = ids[order][at] == seen
+    at, held = find_sorted(ids[order], seen)
     rows = order[at[held]]
     rays = positions[rows] - centres[by[held]]
     length = np.linalg.norm(rays, axis=1)
     ok = length > 0
-    total = np.zeros((len(ids), 3))
-    np.add.at(total, rows[ok], rays[ok] / length[ok, None])
+    unit = rays[ok] / length[ok, None]
+    total = np.column_stack([np.bincount(rows[ok], weights=unit[:, k], minlength=len(ids))
+                             for k in range(3)])
     norm = np.linalg.norm(total, axis=1)
     some = norm > 1e-9
     out[some] = total[some] / norm[some, None]
