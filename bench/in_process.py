@@ -191,7 +191,8 @@ class MapSearch(NamedTuple):
     record's ``map_point_ids``). Found and observed count the edge's points only. Last, of
     the edge's points in view and of those searched, the ones the frame saw from more than
     :data:`AFAR_DEG` off the direction the map's keyframes saw them from (none in view where
-    ``TrackingConfig.max_view_angle_deg`` left them out)."""
+    ``TrackingConfig.max_view_angle_deg`` left them out; none of the edge's where the device
+    keeps no direction for them, ``DeviceTrackerCore.view_directions``)."""
 
     in_view_own: int
     in_view_others: int

@@ -339,6 +339,8 @@ def main() -> None:
                                        phase=phase_for(k, 0, args.interleave)),
                              k * args.after // args.interleave, k % len(places))
                    for k in range(args.devices)]
+        for device in devices:          # the frames' points seen from afar (MapSearch)
+            device.walk.device.view_directions = True
         share_vocabulary((d.walk.edge for d in devices), args.vocabulary_per_device)
         served: dict[str, EdgeMapperCore] = {}
         merging = PlaceMerging(lambda: served, background=False,

@@ -129,6 +129,10 @@ class DeviceTrackerCore:
         self.track_labels = np.zeros(0, dtype=np.uint64)   #: per track row: its track id
         self.track_created = np.zeros(0, dtype=np.int64)   #: per track row: its slot
         self.map_version = 0
+        #: whether a map update's points get the direction its keyframes saw them from (a
+        #: few milliseconds an update): where the search leaves out points seen from too far
+        #: off, or where a bench records what the frames saw from afar; else they stay NaN
+        self.view_directions = self.config.max_view_angle_deg < 180.0
         #: CPU milliseconds of the map updates applied since the last frame: the next frame
         #: reports them with its own (its ``cpu_ms``), so that the frames' CPU adds up to the
         #: device's — an update runs on another thread, between two frames
@@ -405,8 +409,9 @@ class DeviceTrackerCore:
             own[:] = False
         keep = np.flatnonzero(own & (self.created >= slot) & old.active)
         points = LocalMap(max(len(update.point_ids) + keep.size, 16))
-        views = mean_viewing_directions(update.point_ids, update.positions,
-                                        update.keyframe_poses, update.keyframe_points)
+        views = (mean_viewing_directions(update.point_ids, update.positions,
+                                         update.keyframe_poses, update.keyframe_points)
+                 if self.view_directions else None)
         new_global = points.add(update.positions, update.descriptors, now, from_edge=True,
                                 views=views)
         new_track = points.add(old.positions[keep], old.descriptors[keep], now,

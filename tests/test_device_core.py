@@ -505,7 +505,8 @@ def test_a_frame_searches_no_point_it_sees_from_far_off_where_the_map_saw_it() -
     searches only the points it sees within ``max_view_angle_deg`` of that direction
     (ORB-SLAM's 60°: an ORB descriptor does not match across a wider turn). The same points
     seen by a keyframe on their far side are left out of the search and told apart
-    (``last_search.turned``); at 180° nothing is."""
+    (``last_search.turned``); at 180° nothing is, and the update's directions are not
+    worked out."""
     seq = SyntheticSequence(2 * SLOT, seed=0)
     frames = list(seq)
     searched: dict[tuple[bool, float], tuple[int, int]] = {}
@@ -525,6 +526,9 @@ def test_a_frame_searches_no_point_it_sees_from_far_off_where_the_map_saw_it() -
         edge = ~is_track(core.labels)
         searched[behind, angle] = (int(edge[search.searched].sum()),
                                    int(edge[search.turned].sum()))
+        # the update's directions are worked out only where the search reads them
+        known = ~np.isnan(core.tracking.map.views[edge]).any(axis=1)
+        assert known.all() if angle < 180.0 else not known.any(), (behind, angle)
     assert searched[False, 60.0][0] > 100 and searched[False, 60.0][1] == 0, searched
     assert searched[True, 60.0] == (0, searched[False, 60.0][0]), searched
     assert searched[True, 180.0] == (searched[False, 60.0][0], 0), searched
