@@ -55,16 +55,10 @@ from twinslam.slam.back_end.local_mapping import IntegrationReport, LocalMapping
 from twinslam.slam.back_end.loop_closing import LoopCloser
 from twinslam.slam.back_end.map_back_end import BackEndConfig, ClosedLoop, MapBackEnd
 from twinslam.slam.back_end.pose_graph import LoopEdge
-from twinslam.slam.back_end.view_coverage import (
-    CoverageBounds,
-    PointViews,
-    covered_views,
-    served_views,
-)
+from twinslam.slam.back_end.view_coverage import CoverageBounds, covered_views, served_views
 from twinslam.slam.camera import Camera
 from twinslam.slam.keyframe import KeyFramePayload
 from twinslam.slam.sorted_ids import unique_ids
-from twinslam.slam.viewing_directions import mean_viewing_directions
 from twinslam.slot_protocol.map_entry import RESTORED, UNRECORDED
 from twinslam.uncertainty.map_uncertainty import map_uncertainty
 
@@ -360,9 +354,7 @@ class EdgeMapperCore:
         (:meth:`_earlier_visit`) while the camera heads where it was before (``ahead``: the
         frames' :func:`heading`, :meth:`_heads_where_it_was`); with ``coverage.by_points``
         also a frame that shares ``coverage.min_points`` of its reported points with the
-        keyframes other devices lent, wherever it stands (:func:`served_views`; with
-        ``coverage.points_view_deg`` under 180 only the points it sees from about where the
-        lent keyframes saw them). A frame's
+        keyframes other devices lent, wherever it stands (:func:`served_views`). A frame's
         pose is in the frame of the map version it was tracked on (-1: unknown, taken as
         now's); a loop or a merge applied since moves it into the map's frame now first."""
         bounds = self.config.coverage
@@ -383,17 +375,9 @@ class EdgeMapperCore:
             # a frame's keys hold its track ids as negative keys, never among map points
             matched = {f.frame_id: f.keys for f in frames
                        if f.tracked and f.frame_id not in covered}
-            lent_sets = [self.map.point_array(k) for k in lent_ids]
-            lent_points = unique_ids(np.concatenate(lent_sets))
-            views = None
-            if bounds.views_points:
-                # where the lent keyframes saw their points from: a frame that shares the
-                # points but sees them from elsewhere shares no view with them
-                positions = self.map.positions_of(lent_points)
-                views = PointViews(positions, mean_viewing_directions(
-                    lent_points, positions, lent, lent_sets),
-                    {i: pose[:3, 3] for i, pose in poses.items()})
-            covered |= served_views(matched, lent_points, bounds, views)
+            lent_points = unique_ids(np.concatenate([self.map.point_array(k)
+                                                     for k in lent_ids]))
+            covered |= served_views(matched, lent_points, bounds)
         return dict.fromkeys(covered, bounds.min_points)
 
     def _heads_where_it_was(self, frames: Sequence[FrameObservations],

@@ -275,13 +275,6 @@ PARAMETERS = (
               "uploaded 24-34 % fewer keyframes than alone (5-8 % without it) at 0.3-0.6 "
               "points more of their frames lost by the edge's rule, two in a room the same as "
               "without it (docs/results/shared-map.md); false: the pose alone decides"),
-    ParamSpec("covered_points_view_deg", 180.0, "with covered_by_points, a shared point counts "
-              "only where the frame's camera sees it within this many degrees of the direction "
-              "the lent keyframes saw it from (their mean ray to it, ORB-SLAM's map point "
-              "normal): the frames the edge counted lost under the cover by points saw most "
-              "of their shared points from over 60 degrees off, where an ORB descriptor no "
-              "longer matches (docs/results/shared-map.md); 180: from anywhere",
-              low=1.0, high=180.0),
     ParamSpec("own_coverage_after_slots", 0, "a frame whose view one of the device's own "
               "keyframes of an earlier visit covers (within covered_m and covered_deg; "
               "restored from the archive, or uploaded at least this many slots before) is "
@@ -323,8 +316,7 @@ def edge_config(p: Mapping[str, Any]) -> EdgeConfig:
                       reloc_restore_keyframes=int(p["reloc_restore_keyframes"]),
                       coverage=CoverageBounds(float(p["covered_m"]), float(p["covered_deg"]),
                                                int(p["covered_min_points"]),
-                                               bool(p["covered_by_points"]),
-                                               float(p["covered_points_view_deg"])),
+                                               bool(p["covered_by_points"])),
                       own_coverage_after_slots=int(p["own_coverage_after_slots"]),
                       checkpoint_every=int(p["checkpoint_every"]),
                       back_end=BackEndConfig(

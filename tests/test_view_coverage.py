@@ -17,9 +17,7 @@ from twinslam.policies.registry import make_policy
 from twinslam.slam.back_end.foreign_keyframes import foreign_tag
 from twinslam.slam.back_end.view_coverage import (
     CoverageBounds,
-    PointViews,
     covered_views,
-    served_views,
     uploads_for_new_views,
 )
 from twinslam.slot_protocol.lost_frame_rule import MIN_INLIERS
@@ -276,52 +274,3 @@ def test_a_frame_that_tracks_on_a_lent_keyframes_points_is_covered_wherever_it_s
     plan = core.plan(3, frames, 20.0, 1)
     assert plan.covered == frozenset(range(24, 30))
     assert len(plan.action.upload) == 1 and set(plan.action.upload) <= {30, 31}
-
-
-def test_a_cover_by_points_counts_only_the_points_seen_from_about_where_the_lenders_saw_them(
-        ) -> None:
-    """Sixty shared points on a wall 4 m ahead, seen from below (their directions +z) or from
-    behind the wall (-z): a frame at the origin shares the view only with the first. At the
-    default 180° every shared point counts; at 60° the points seen from behind count none,
-    so a frame sharing 40 points of each kind (80, over the bar of 50) is not served, and
-    one with no camera centre never is."""
-    ids = np.arange(1, 121, dtype=np.int64)
-    positions = np.column_stack([np.linspace(-1, 1, 120), np.zeros(120), np.full(120, 4.0)])
-    directions = np.tile([0.0, 0.0, 1.0], (120, 1))
-    directions[60:] = [0.0, 0.0, -1.0]                   # points 61-120: seen from behind
-    frames = {1: ids[:60], 2: ids[60:], 3: np.r_[ids[20:60], ids[60:100]], 4: ids[:60]}
-    views = PointViews(positions, directions, {i: np.zeros(3) for i in (1, 2, 3)})
-    anywhere = CoverageBounds(by_points=True)
-    assert anywhere.points_view_deg == 180 and not anywhere.views_points
-    assert served_views(frames, ids, anywhere, views) == {1, 2, 3, 4}
-    gated = CoverageBounds(by_points=True, points_view_deg=60.0)
-    assert served_views(frames, ids, gated, views) == {1}
-    assert served_views(frames, ids, gated) == {1, 2, 3, 4}      # no views: by count alone
-    for bad in (0.0, 181.0):
-        with pytest.raises(ValueError, match=r"\(0, 180\]"):
-            CoverageBounds(points_view_deg=bad)
-
-
-def test_the_edge_covers_by_points_only_where_the_lent_keyframe_saw_them_from_this_side(
-        ) -> None:
-    """Another device's keyframe seeing every point slot 3's frames track on covers them by
-    points (``by_points``) from 2 m aside, at 180° and at 60° of the frames' rays; from
-    behind the wall (9 m along z, turned round) it covers them at 180° only: from there the
-    frames see none of those points from within 60° of where the keyframe saw them."""
-    aside = _pose(3.0, 90.0)
-    behind = _pose(1.1, 180.0)
-    behind[2, 3] = 9.0
-    for lent_pose, view_deg, covered in ((aside, 180.0, True), (aside, 60.0, True),
-                                         (behind, 180.0, True), (behind, 60.0, False)):
-        device, core = _walked_edge()
-        core.config = dataclasses.replace(core.config, coverage=dataclasses.replace(
-            WALL_BOUNDS, by_points=True, points_view_deg=view_deg))
-        frames = _posed_slot(device, core, 3)
-        seen = sorted(set().union(*(f.map_points for f in frames)))
-        _lend(core, foreign_tag(0) | 99, lent_pose, seen)
-        plan = core.plan(3, frames, 20.0, 1)
-        if covered:
-            assert plan.covered == frozenset(range(24, 32)) and plan.action.upload == [], \
-                (view_deg, lent_pose[:3, 3])
-        else:
-            assert not plan.covered and len(plan.action.upload) == 2, view_deg

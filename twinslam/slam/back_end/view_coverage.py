@@ -37,8 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from twinslam.slam.sorted_ids import find_sorted, held_counts
-from twinslam.slam.viewing_directions import seen_from_afar
+from twinslam.slam.sorted_ids import held_counts
 
 
 @dataclass(frozen=True)
@@ -74,27 +73,11 @@ class CoverageBounds:
     #: frames and keeping the device's newest keyframes lost as many ("Where the cover by
     #: points loses frames")
     by_points: bool = False
-    #: with ``by_points``, a shared point counts only where the frame's camera sees it within
-    #: this many degrees of the direction the covering keyframes saw it from (the mean of
-    #: their rays to it, ORB-SLAM's map point normal; 180: from anywhere). The frames the
-    #: edge counted lost under the cover by points saw most of their shared points from over
-    #: 60° off that direction, past the turn an ORB descriptor matches across
-    #: (docs/results/shared-map.md, "Copies seen from elsewhere"): such a frame shares the
-    #: points, not the view
-    points_view_deg: float = 180.0
 
     def __post_init__(self) -> None:
         if not (self.max_m >= 0 and self.max_deg >= 0 and self.min_points >= 0):
             raise ValueError(f"coverage bounds are >= 0, got {self.max_m} m, {self.max_deg}°, "
                              f"{self.min_points} points")
-        if not 0 < self.points_view_deg <= 180:
-            raise ValueError("points_view_deg is an angle in (0, 180] degrees, got "
-                             f"{self.points_view_deg}")
-
-    @property
-    def views_points(self) -> bool:
-        """Whether a cover by points asks where its points were seen from."""
-        return self.by_points and self.points_view_deg < 180
 
     @property
     def enabled(self) -> bool:
@@ -126,42 +109,17 @@ def covered_views(frames: Mapping[int, np.ndarray], keyframes: Sequence[np.ndarr
     return {i for i, hit in zip(ids, hits.tolist(), strict=True) if hit}
 
 
-@dataclass(frozen=True)
-class PointViews:
-    """Where the covering keyframes saw their points from: per point of the cover (in the
-    order of ``covering_points``) its position and viewing direction (unit rows, NaN where
-    unknown), and per frame its camera centre — all in one map frame."""
-
-    positions: np.ndarray
-    directions: np.ndarray
-    centres: Mapping[int, np.ndarray]
-
-
 def served_views(frames: Mapping[int, np.ndarray], covering_points: np.ndarray,
-                 bounds: CoverageBounds, views: PointViews | None = None) -> set[int]:
+                 bounds: CoverageBounds) -> set[int]:
     """The ids of ``frames`` (id → the frame's reported map-point ids) that share at least
     ``bounds.min_points`` with ``covering_points`` (the points the covering keyframes see,
     ascending, without repeats): views the map holds by what the device matched there.
-    With ``views`` and ``bounds.points_view_deg`` under 180, a shared point counts only
-    where the frame's camera (``views.centres``; a frame without one counts none) sees it
-    from within that angle of its viewing direction. Empty unless ``bounds.by_points``."""
+    Empty unless ``bounds.by_points``."""
     if not frames or not len(covering_points) or not bounds.by_points:
         return set()
     ids = list(frames)
-    if views is None or not bounds.views_points:
-        counts = held_counts([frames[i] for i in ids], covering_points)
-        return {i for i, n in zip(ids, counts.tolist(), strict=True) if n >= bounds.min_points}
-    served = set()
-    for i in ids:
-        at, held = find_sorted(covering_points, np.asarray(frames[i]))
-        rows = at[held]
-        if len(rows) < bounds.min_points or i not in views.centres:
-            continue
-        afar = seen_from_afar(views.directions[rows], views.positions[rows], views.centres[i],
-                              bounds.points_view_deg)
-        if len(rows) - int(np.count_nonzero(afar)) >= bounds.min_points:
-            served.add(i)
-    return served
+    counts = held_counts([frames[i] for i in ids], covering_points)
+    return {i for i, n in zip(ids, counts.tolist(), strict=True) if n >= bounds.min_points}
 
 
 def first_cover(pose: np.ndarray, keyframes: Sequence[np.ndarray] | np.ndarray,
