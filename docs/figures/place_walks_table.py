@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import csv
 import math
+from collections.abc import Collection
 from pathlib import Path
 
 from twinslam.reporting import paired_row
@@ -89,12 +90,19 @@ def arm(row: dict[str, str], settings: list[str]) -> str:
 
 
 def table(first_path: Path, second_path: Path, last_device: bool = False,
-          names: tuple[str, str] | None = None) -> list[str]:
+          names: tuple[str, str] | None = None,
+          only_seeds: Collection[int] | None = None) -> list[str]:
     """The table of two arms: a row a figure (with ``last_device``, the last device's edge
     time too); ``names`` the arms' names where they differ in the code that ran them, not in
-    a setting the CSV records."""
+    a setting the CSV records; ``only_seeds``: the seeds paired, of those both arms ran (the
+    held-out walks, where a setting was tuned on others); None: every seed both ran."""
     first, second = runs(first_path), runs(second_path)
     seeds = sorted(first.keys() & second.keys())
+    if only_seeds is not None:
+        absent = sorted(set(only_seeds) - set(seeds))
+        if absent:
+            raise SystemExit(f"seeds {absent} are not in both {first_path} and {second_path}")
+        seeds = sorted(set(only_seeds))
     if not seeds:
         raise SystemExit(f"{first_path} and {second_path} share no seed")
     one, two = first[seeds[0]], second[seeds[0]]
@@ -130,14 +138,24 @@ def main() -> None:
     parser.add_argument("--names", metavar="FIRST,SECOND",
                         help="the two arms' names in the table, where they differ in the code "
                              "that ran them rather than in a setting the CSVs record")
+    parser.add_argument("--seeds", metavar="S,S,…",
+                        help="pair only these seeds (both arms must have run each), e.g. "
+                             "the held-out walks; default: every seed both arms ran")
     args = parser.parse_args()
+    only_seeds = None
+    if args.seeds:
+        try:
+            only_seeds = [int(s) for s in args.seeds.split(",")]
+        except ValueError:
+            parser.error(f"--seeds takes whole numbers separated by commas, got {args.seeds!r}")
     names = None
     if args.names:
         given = [n.strip() for n in args.names.split(",")]
         if len(given) != 2 or not all(given):
             parser.error(f"--names takes two names separated by a comma, got {args.names!r}")
         names = (given[0], given[1])
-    print("\n".join(table(args.first, args.second, args.last_device, names)))
+    print("\n".join(table(args.first, args.second, args.last_device, names,
+                           only_seeds)))
 
 
 if __name__ == "__main__":
