@@ -1252,3 +1252,29 @@ def test_the_copies_seen_from_afar_and_the_view_angle_tried_are_what_their_comma
                 gzip.open(path, "rt", encoding="utf-8") as new:
             for was, now in zip(csv.DictReader(old), csv.DictReader(new), strict=True):
                 assert was == {key: now[key] for key in was}, seed
+
+
+def test_the_cover_by_points_gated_by_viewing_direction_is_what_its_commands_print() -> None:
+    """The walks of their own with the cover by points counting every shared point and only
+    those seen from within 60° of the lenders' direction, and each against the devices alone,
+    as the table script prints them; the 7-Scenes pair with the gate repeats the pair without
+    it in every count (one walk: no point seen from afar)."""
+    folder = FIGURES / "shared-map" / "place-walks" / "own-walks" / "view-angle"
+    gate = folder / "cover-gate-60"
+    table = _script("place_walks_table")
+    held_out = (4, 5, 6, 7, 8, 9)            # the cover by points' bar was set on seeds 0-3
+    for before, after, names, seeds in (("by-points", "gated", ("by points", "60°"), None),
+                                        ("alone", "by-points", ("alone", "by points"), held_out),
+                                        ("alone", "gated", ("alone", "60°"), None)):
+        printed = table.table(gate / f"{before}.csv", gate / f"{after}.csv", names=names,
+                              only_seeds=seeds)
+        assert _missing("\n".join(printed)) == [], (before, after)
+    with pytest.raises(SystemExit, match=r"seeds \[6\] are not in both"):
+        table.table(gate / "alone.csv", gate / "gated.csv", only_seeds=(4, 6))
+    with (folder / "seen-from-afar" / "seven-scenes-by-points.csv").open(encoding="utf-8") as fh:
+        plain = next(csv.DictReader(fh))
+    with (gate / "seven-scenes-gated.csv").open(encoding="utf-8") as fh:
+        gated = next(csv.DictReader(fh))
+    for column in ("uploads", "lost_share", "map_lost_share", "copies_end", "cross_rms_m",
+                   "ate_m_mean", "loops", "device_uploads"):
+        assert plain[column] == gated[column], column
