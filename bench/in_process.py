@@ -232,6 +232,8 @@ def map_search(device: DeviceTrackerCore, observed: np.ndarray, pose: np.ndarray
     search, points = device.tracking.last_search, device.tracking.map
 
     def afar(rows: np.ndarray) -> tuple[int, int]:
+        if not device.view_directions:      # the edge's points carry no direction: none afar
+            return 0, 0
         rows = rows[seen_from_afar(points.views[rows], points.positions[rows], pose[:3, 3],
                                    AFAR_DEG)]
         return by_maker(device.labels[rows])[:2]
