@@ -195,7 +195,7 @@ class DeviceLink:
         if self.core.restored:
             self.info(self.core.restored_summary())
             # with the whole track table: the device may still hold tracks of before the stop
-            self.pub_map.publish(map_update_message(self.core.map, self.core.last_slot,
+            self.pub_map.publish(map_update_message(self.core.slice, self.core.last_slot,
                                                     self.core.version, self._now(),
                                                     self.map_frame,
                                                     tracks=self.core.local_mapping.track_points,
@@ -315,7 +315,7 @@ class DeviceLink:
         except ValueError as exc:
             self.error(f"slot {slot}: cannot plan: {exc}")
             if self.finished is not None:      # the grant was never used
-                self.finished(self.device, slot, len(self.core.map.keyframes))
+                self.finished(self.device, slot, len(self.core.slice.keyframes))
             return
         self.restarts.planned(stamps)
         if plan.policy_action is not None:
@@ -395,16 +395,16 @@ class DeviceLink:
         if self.merging is not None:
             self.merging.look(self.device, slot)
         if self.finished is not None:
-            self.finished(self.device, slot, len(self.core.map.keyframes))
+            self.finished(self.device, slot, len(self.core.slice.keyframes))
         now, frame = self._now(), self.map_frame
-        self.pub_map.publish(map_update_message(self.core.map, slot, out.version, now, frame,
+        self.pub_map.publish(map_update_message(self.core.slice, slot, out.version, now, frame,
                                                 tracks=out.tracks,
                                                 frame_correction=self.core.frame_correction))
         ba_ms = out.bundle_adjustment.milliseconds if out.bundle_adjustment else 0.0
         compute_s = entry.compute_s + time.perf_counter() - started
         latency_s = entry.latency_s(self.slots.clock())     # summaries → this map update
         self.pub_stats.publish(map_stats_message(
-            slot, entry.decided_by, self.core.map, out.map_uncertainty, entry.uncertainty,
+            slot, entry.decided_by, self.core.slice, out.map_uncertainty, entry.uncertainty,
             uploads=len(out.integrated), optimisation_ms=ba_ms, processing_ms=compute_s * 1000,
             stamp=now, keyframe_budget=entry.vmax,
             latency_ms=latency_s * 1000,
@@ -452,7 +452,7 @@ class DeviceLink:
             if out.fused_points:
                 kept += f" ({out.fused_points} of their points fused with the map's)"
         self.info(f"slot {slot}: +{len(out.integrated)} keyframes, -{len(out.evicted)}{kept}, map "
-                  f"{len(self.core.map.keyframes)} keyframes / {len(self.core.map.points)} "
+                  f"{len(self.core.slice.keyframes)} keyframes / {len(self.core.slice.points)} "
                   f"points, u(G) {u:.1f}{'' if math.isfinite(u) else ' (disconnected)'}, BA "
                   f"{ba_ms:.0f} ms, version {out.version}")
 

@@ -51,6 +51,7 @@ from twinslam.slam.back_end.bundle_adjustment import BundleAdjustmentResult
 from twinslam.slam.back_end.foreign_keyframes import is_foreign
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap, write_checkpoint
+from twinslam.slam.back_end.keyframe_slice import KeyFrameSlice
 from twinslam.slam.back_end.local_mapping import IntegrationReport, LocalMapping
 from twinslam.slam.back_end.loop_closing import LoopCloser
 from twinslam.slam.back_end.map_back_end import BackEndConfig, ClosedLoop, MapBackEnd
@@ -170,7 +171,7 @@ class EdgeMapperCore:
         if self.back_end.restored_from_file:    # a restarted edge resolves the tracks as before
             self.local_mapping.track_points = _table(extra, "track")
             self._previous_tracks = _table(extra, "previous_track")
-        self.planner = SlotPlanner(self.map, at_the_edge(policy), self.config.slot, n_states,
+        self.planner = SlotPlanner(self.slice, at_the_edge(policy), self.config.slot, n_states,
                                    self.back_end.entered)
         self.pending: dict[int, tuple[MapAction, set[int]]] = {}   #: slot → (action, received)
         self._planned_vmax: dict[int, int] = {}   #: open slot → the V_max it was planned with
@@ -197,7 +198,14 @@ class EdgeMapperCore:
 
     @property
     def map(self) -> KeyFrameMap:
+        """The map the device's keyframes live in (its place's): what the back end edits."""
         return self.back_end.map
+
+    @property
+    def slice(self) -> KeyFrameSlice:
+        """The keyframes of :attr:`map` the device holds: what its plans, map update, map
+        uncertainty, evictions, restores and covers read."""
+        return self.back_end.slice
 
     @property
     def writer(self) -> CheckpointWriter | None:
@@ -283,7 +291,7 @@ class EdgeMapperCore:
     def restored_summary(self) -> str:
         """What a restart resumed from, in one line."""
         return (f"restored map version {self.version} (slot {self.last_slot}, "
-                f"{len(self.map.keyframes)} keyframes, {len(self.map.points)} points, "
+                f"{len(self.slice.keyframes)} keyframes, {len(self.slice.points)} points, "
                 f"{len(self.local_mapping.track_points)} device tracks resolved, "
                 f"{len(self.archive)} archived keyframes) from {self.checkpoint}")
 
@@ -360,9 +368,10 @@ class EdgeMapperCore:
         bounds = self.config.coverage
         if not bounds.enabled:
             return {}
-        lent_ids = [k for k in self.map.keyframes if k not in leaving and is_foreign(k)]
-        lent = [self.map.keyframes[k].pose for k in lent_ids]
-        own = [kf.pose for k, kf in self.map.keyframes.items()
+        held = self.slice.keyframes
+        lent_ids = [k for k in held if k not in leaving and is_foreign(k)]
+        lent = [held[k].pose for k in lent_ids]
+        own = [kf.pose for k, kf in held.items()
                if k not in leaving and not is_foreign(k) and self._earlier_visit(k, slot)]
         if own and not self._heads_where_it_was(frames, ahead, own):
             own = []
@@ -375,7 +384,7 @@ class EdgeMapperCore:
             # a frame's keys hold its track ids as negative keys, never among map points
             matched = {f.frame_id: f.keys for f in frames
                        if f.tracked and f.frame_id not in covered}
-            lent_points = unique_ids(np.concatenate([self.map.point_array(k)
+            lent_points = unique_ids(np.concatenate([self.slice.point_array(k)
                                                      for k in lent_ids]))
             covered |= served_views(matched, lent_points, bounds)
         return dict.fromkeys(covered, bounds.min_points)
@@ -506,7 +515,7 @@ class EdgeMapperCore:
         tl = time.perf_counter()
         loop = self.back_end.take_loop(self.version + 1)
         missing = set(action.upload) - received
-        evicted = applied_evictions(action.evict, self.map.keyframe_ids(), missing, vmax)
+        evicted = applied_evictions(action.evict, self.slice.keyframe_ids(), missing, vmax)
         ta = time.perf_counter()
         loop_ms = (ta - tl) * 1e3
         forgotten, orphans = self.back_end.evict_to_archive(evicted, slot)
@@ -538,7 +547,7 @@ class EdgeMapperCore:
             if self._checkpoint_in <= 0:
                 self.save_checkpoint()
         t2 = time.perf_counter()
-        w = self.map.covisibility()
+        w = self.slice.covisibility()
         u = map_uncertainty(w, self.planner.config.log_det_pi) if len(w) else math.inf
         t3 = time.perf_counter()
         self.back_end.start_loop_job(slot)
@@ -631,10 +640,10 @@ class EdgeMapperCore:
         if not camera.known:
             return [], [], [], 0
         if relocalised and self.config.reloc_restore_keyframes > 0:
-            chosen = plan_relocation_restores(self.map, self.archive, relocalised, camera, vmax,
+            chosen = plan_relocation_restores(self.slice, self.archive, relocalised, camera, vmax,
                                               self.config.reloc_restore_keyframes, slot, received)
         elif self.config.restore_keyframes > 0 and poses:
-            chosen = plan_restores(self.map, self.archive, poses, camera, vmax,
+            chosen = plan_restores(self.slice, self.archive, poses, camera, vmax,
                                    self.config.restore_keyframes, slot, received)
         else:
             return [], [], [], 0

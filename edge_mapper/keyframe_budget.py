@@ -185,7 +185,7 @@ def device_demand(device: str, core: EdgeMapperCore, frames: Sequence[FrameObser
     uploads the curve expects come from its twin's next-state distribution when one is given
     (``next_state_probs`` over ``state_rates_mbps``), else from this slot's rate."""
     if not (with_novelty or with_value):
-        return DeviceDemand(device, len(core.map.keyframes))
+        return DeviceDemand(device, len(core.slice.keyframes))
     planner, cfg = core.planner, core.slot_config
     by_id = {f.frame_id: f for f in frames}
     points = [planner.points_of(by_id, f.frame_id) for f in frames if f.tracked]
@@ -200,9 +200,9 @@ def device_demand(device: str, core: EdgeMapperCore, frames: Sequence[FrameObser
                                        cfg.d_req_s, len(frames), cfg.deadline_s(len(frames)))
         else:
             uploads = slot_uploads(core, rate_mbps, len(frames))
-        keyframes = [core.map.point_array(k) for k in core.map.keyframe_ids()]
+        keyframes = [core.slice.point_array(k) for k in core.slice.keyframe_ids()]
         value = budget_value(keyframes, points, uploads, MIN_INLIERS, max_budget)
-    return DeviceDemand(device, len(core.map.keyframes), novelty, value)
+    return DeviceDemand(device, len(core.slice.keyframes), novelty, value)
 
 
 __all__ = ["BudgetError", "BudgetEvent", "DeviceAccount", "KeyframeBudget", "Presence"]

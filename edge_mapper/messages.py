@@ -28,7 +28,7 @@ from msg_schemas.poses import pose_matrix, pose_msg, pose_msgs
 from msg_schemas.validation import ORB_DESCRIPTOR_BYTES
 from twinslam.policies.actions import MapAction
 from twinslam.slam.back_end.archive_relocalisation import ArchiveLocation
-from twinslam.slam.back_end.keyframe_map import KeyFrameMap
+from twinslam.slam.back_end.keyframe_slice import MapView
 from twinslam.slam.keyframe import KeyFramePayload
 from twinslam.uncertainty.map_uncertainty import SlotUncertainty
 
@@ -51,15 +51,16 @@ def upload_request_message(slot: int, policy: str, rate_mbps: float, action: Map
     return set_header(msg, stamp, "")
 
 
-def map_update_message(keyframe_map: KeyFrameMap, slot: int, version: int, stamp: float,
+def map_update_message(keyframe_map: MapView, slot: int, version: int, stamp: float,
                        frame_id: str = "map", tracks: dict[int, int] | None = None,
                        frame_correction: np.ndarray | None = None) -> MapUpdate:
-    """The whole map for the device: keyframe poses, points with descriptors and how many
-    keyframes observe each, the device tracks that became map points (``tracks``), and the
-    loops' corrections so far at the walk's head (``frame_correction``; None: none)."""
+    """The map the device holds (a map, or the device's slice of its place's): keyframe
+    poses, the points they see with descriptors and how many keyframes observe each, the
+    device tracks that became map points (``tracks``), and the loops' corrections so far at
+    the walk's head (``frame_correction``; None: none)."""
     tracks = {t: p for t, p in (tracks or {}).items() if p in keyframe_map.points}
     kf_ids = keyframe_map.keyframe_ids()
-    pt_ids, rows = keyframe_map.columns.by_id()
+    pt_ids, rows = keyframe_map.point_rows()
     # written for every device every slot: each column read straight into its array, each
     # keyframe's observations from the arrays it keeps until they change
     observed = [np.sort(keyframe_map.keyframes[k].observed()[0]) for k in kf_ids]
@@ -80,7 +81,7 @@ def map_update_message(keyframe_map: KeyFrameMap, slot: int, version: int, stamp
     return set_header(msg, stamp, frame_id)
 
 
-def map_stats_message(slot: int, policy: str, keyframe_map: KeyFrameMap, uncertainty: float,
+def map_stats_message(slot: int, policy: str, keyframe_map: MapView, uncertainty: float,
                       upsilon: SlotUncertainty | None, uploads: int, optimisation_ms: float,
                       processing_ms: float, stamp: float, keyframe_budget: int = 0,
                       latency_ms: float = math.nan, archived: int = 0, restored: int = 0,

@@ -330,7 +330,7 @@ class EdgeMapperNode(Node):
         self.get_logger().warning(
             f"{name} started again: its slot {slot} came after this edge had planned slot "
             f"{newest}; its map of "
-            f"{len(link.core.map.keyframes)} keyframes is set aside"
+            f"{len(link.core.slice.keyframes)} keyframes is set aside"
             + (f" ({checkpoint}.reclaimed)" if checkpoint is not None else "")
             + " and it is served with a new map from its next slot")
         self._set_aside(device)

@@ -26,7 +26,8 @@ import numpy as np
 from edge_mapper.planning_world import MAX_DEPTH_M, visible_mask
 from twinslam.policies.restoring import MIN_VIEW_POINTS, choose_restores
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
-from twinslam.slam.back_end.keyframe_map import Incidence, KeyFrameMap, shared_counts
+from twinslam.slam.back_end.keyframe_map import Incidence, shared_counts
+from twinslam.slam.back_end.keyframe_slice import MapView
 from twinslam.slam.camera import Camera
 from twinslam.slam.sorted_ids import find_sorted
 from twinslam.uncertainty.map_uncertainty import map_uncertainty
@@ -143,7 +144,7 @@ class TrialWeights:
         return self._rows[kf]
 
 
-def plan_restores(m: KeyFrameMap, archive: KeyFrameArchive, poses: Sequence[np.ndarray],
+def plan_restores(m: MapView, archive: KeyFrameArchive, poses: Sequence[np.ndarray],
                   camera: Camera, vmax: int, limit: int, slot: int,
                   protected: Iterable[int] = ()) -> RestorePlan:
     """At most ``limit`` archived keyframes to restore, each with the map keyframe it
@@ -171,7 +172,7 @@ def plan_restores(m: KeyFrameMap, archive: KeyFrameArchive, poses: Sequence[np.n
     return RestorePlan(restore, evict)
 
 
-def plan_relocation_restores(m: KeyFrameMap, archive: KeyFrameArchive,
+def plan_relocation_restores(m: MapView, archive: KeyFrameArchive,
                              poses: Sequence[np.ndarray], camera: Camera, vmax: int, limit: int,
                              slot: int, protected: Iterable[int] = ()) -> RestorePlan:
     """The managed map moved to where the edge relocalised a lost device (``poses``, found in
@@ -211,7 +212,7 @@ def plan_relocation_restores(m: KeyFrameMap, archive: KeyFrameArchive,
     return RestorePlan(restore, evict)
 
 
-def map_view_scores(m: KeyFrameMap, counted: Incidence, poses: Sequence[np.ndarray],
+def map_view_scores(m: MapView, counted: Incidence, poses: Sequence[np.ndarray],
                     camera: Camera) -> dict[int, int]:
     """:func:`view_scores` of the map keyframes ``counted`` holds (their point incidence,
     :meth:`KeyFrameMap.incidence`): each map point read and tested once a pose however many

@@ -22,7 +22,8 @@ import numpy as np
 from twinslam.policies.actions import MapAction, SlotObservation, check_map_action
 from twinslam.policies.connected_map import STALE_SLOTS, connected_action, seen_keyframes
 from twinslam.policies.protocol import MapPolicy, SlotViewer
-from twinslam.slam.back_end.keyframe_map import KeyFrameMap, shared_counts
+from twinslam.slam.back_end.keyframe_map import shared_counts
+from twinslam.slam.back_end.keyframe_slice import MapView
 from twinslam.slam.back_end.view_coverage import uploads_for_new_views
 from twinslam.slam.camera import Camera
 from twinslam.slam.keyframe import track_counters
@@ -91,7 +92,7 @@ class SlotView:
     map, the frames (poses included) and the camera. The slot planner hands it to a policy
     that asks for it (``see_slot``) just before ``decide``."""
 
-    keyframe_map: KeyFrameMap
+    keyframe_map: MapView
     map_ids: list[int]                        #: the observation's map (arriving uploads too)
     frames: list[FrameObservations]           #: the slot's frames, capture order
     points_of: Callable[[int], np.ndarray]    #: the int64 keys a keyframe or frame observes
@@ -117,9 +118,11 @@ class SlotPlan:
 
 
 class SlotPlanner:
-    """Builds observations over a :class:`KeyFrameMap` and runs a policy on them."""
+    """Builds observations over the map a device holds (a :class:`KeyFrameMap`, or the
+    device's :class:`~twinslam.slam.back_end.keyframe_slice.KeyFrameSlice` of its place's)
+    and runs a policy on them."""
 
-    def __init__(self, keyframe_map: KeyFrameMap, policy: MapPolicy,
+    def __init__(self, keyframe_map: MapView, policy: MapPolicy,
                  config: SlotConfig | None = None, n_states: int = 2,
                  entered: Mapping[int, tuple[int, int]] | None = None) -> None:
         self.map = keyframe_map

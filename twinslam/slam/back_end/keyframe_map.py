@@ -476,6 +476,11 @@ class KeyFrameMap:
         slot)."""
         return self.keyframes[kf_id].observed()[0]
 
+    def point_rows(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every point's id, ascending, and its row in :attr:`columns` (int64 arrays): the
+        order the map update writes the points in."""
+        return self.columns.by_id()
+
     def positions_of(self, point_ids: Collection[int] | np.ndarray) -> np.ndarray:
         """``(n, 3)``: the positions of the map's points ``point_ids``, in their order."""
         return self.columns.positions_of(point_ids)

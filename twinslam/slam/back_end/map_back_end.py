@@ -57,6 +57,7 @@ from twinslam.slam.back_end.keyframe_archive import (
 )
 from twinslam.slam.back_end.keyframe_gate import KeyFrameGateConfig, implausible_keyframe
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap, shared_pairs
+from twinslam.slam.back_end.keyframe_slice import KeyFrameSlice
 from twinslam.slam.back_end.keyframe_store import KeyFrameStore
 from twinslam.slam.back_end.local_mapping import (
     IntegrationReport,
@@ -268,6 +269,12 @@ class MapBackEnd:
         return self.store.managed
 
     @property
+    def slice(self) -> KeyFrameSlice:
+        """The keyframes the device holds of :attr:`map`: what its map update, uncertainty,
+        policy and evictions read (the whole map while the map is one device's)."""
+        return self.store.slice
+
+    @property
     def archive(self) -> KeyFrameArchive:
         """The store's keyframes out of the slice."""
         return self.store.archive
@@ -316,6 +323,7 @@ class MapBackEnd:
         report = self.local_mapping.integrate(data.frame_id, data.pose, data.keypoints,
                                               data.descriptors, data.depths, data.point_ids)
         if data.frame_id in self.map.keyframes:
+            self.store.entered([data.frame_id])      # the device's, no other device's
             self.entered[data.frame_id] = (int(data.slot), UPLOADED)
             self.keyframe_stamps[data.frame_id] = float(data.stamp)
             if self.config.loop_closing:
