@@ -94,6 +94,7 @@ from bench.in_process import (
     seeded_spec,
     serve_slot,
     share_vocabulary,
+    with_focal,
 )
 from edge_mapper.edge_core import EdgeMapperCore
 from edge_mapper.place_merging import PlaceMerging
@@ -119,7 +120,8 @@ COLUMNS = ("sequence", "frames", "devices", "after", "order", "seed", "uplink", 
            "ate_m_mean", "cross_rms_m", "cross_pairs", "cross_worst_pair_rms_m", "loops",
            "look_ms_median", "seconds", "device_edge_ms", "device_copies_mean", "device_uploads",
            "device_merge_slot", "device_ate_m", "places", "false_merges", "declined",
-           "interleave", "own_walks", "pieces_slots", "device_pieces_slots", "edge_params")
+           "interleave", "own_walks", "pieces_slots", "device_pieces_slots", "edge_params",
+           "focals")
 #: the figures two trees' runs share when they walked one walk (the timings aside)
 SAME_WALK = ("merged", "copies_mean", "copies_end", "adopted", "uploads", "lost_share",
              "tracked_share", "ate_m_mean", "cross_rms_m", "loops", "device_uploads",
@@ -232,6 +234,15 @@ def _orders(text: str) -> tuple[str, ...]:
     return orders
 
 
+def _focals(text: str) -> tuple[float, ...]:
+    """``--focals``' value: focal lengths in pixels separated by commas."""
+    try:
+        return tuple(float(f) for f in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"focal lengths in pixels separated by commas, not "
+                                         f"{text!r}") from None
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0],
                                      epilog=__doc__.split("\n", 2)[2],
@@ -257,6 +268,10 @@ def main() -> None:
                              "several people walk one corridor — no image is played by two "
                              "devices; synthetic places only (a dataset is one recorded walk: "
                              "--interleave there)")
+    parser.add_argument("--focals", type=_focals, default=(), metavar="PX[,PX…]",
+                        help="each device's camera focal length in pixels, device k the k-th "
+                             "mod their count (synthetic places only; default the world's "
+                             "525): devices of one place with cameras of their own")
     parser.add_argument("--order", type=_orders, default=("forward",),
                         help=f"the order every device plays the frames in ({', '.join(ORDERS)}), "
                              "or orders separated by commas: device k plays order k mod N")
@@ -311,6 +326,9 @@ def main() -> None:
     if args.own_walks and not all(is_synthetic(p) for p in args.sequence.split(",")):
         parser.error("--own-walks: a walk of each device's own needs a synthetic place "
                      f"(synthetic[:frames], synthetic-corridor[:frames]), not {args.sequence}")
+    if args.focals and not all(is_synthetic(p) for p in args.sequence.split(",")):
+        parser.error("--focals: a camera of each device's own needs a synthetic place, not "
+                     f"{args.sequence}")
     if args.look_backoff < 1:
         parser.error(f"--look-backoff: 1 slot or more, got {args.look_backoff}")
     if args.baseline:
@@ -329,9 +347,11 @@ def main() -> None:
     started = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         devices = [PlaceWalk(open_walk(f"ar{k + 1}",
-                                       seeded_spec(places[k % len(places)],
-                                                   args.seed + k if args.own_walks
-                                                   else args.seed), args.frames,
+                                       with_focal(seeded_spec(places[k % len(places)],
+                                                              args.seed + k if args.own_walks
+                                                              else args.seed),
+                                                  args.focals[k % len(args.focals)]
+                                                  if args.focals else None), args.frames,
                                        args.order[k % len(args.order)], args.seed + k,
                                        args.uplink, config,
                                        args.update_delay, Path(tmp),
@@ -506,6 +526,7 @@ def _report(devices: list[PlaceWalk], merging: PlaceMerging, args: argparse.Name
     return {"sequence": args.sequence, "frames": args.frames, "devices": args.devices,
             "after": args.after, "order": ",".join(args.order), "seed": args.seed,
             "interleave": args.interleave, "own_walks": int(args.own_walks),
+            "focals": ";".join(f"{f:g}" for f in args.focals),
             "uplink": args.uplink, "no_merge": int(args.no_merge),
             "lend_in_view": int(not args.lend_eagerly),
             "lent_unseen_slots": args.unseen_slots, "merge_min_inliers": args.merge_inliers,

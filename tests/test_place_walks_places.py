@@ -86,3 +86,22 @@ def test_walks_no_device_can_play_are_refused_before_anything_runs(
         place_walks.main()
     assert exited.value.code == 2
     assert says in capsys.readouterr().err
+
+
+def test_each_device_sees_through_a_camera_of_its_focal_length() -> None:
+    """``--focals 525,450``: device k's walk is seen by a camera of the k-th focal length
+    (mod their count), its spec naming it; a focal length that is no number is refused, and
+    a dataset's walk cannot take one."""
+    from bench.in_process import with_focal
+    from bench.place_walks import _focals
+    from twinslam.sequences.opening import open_sequence
+
+    focals = _focals("525,450")
+    assert focals == (525.0, 450.0)
+    specs = [with_focal(f"synthetic-corridor:4:{k}", focals[k % 2]) for k in range(3)]
+    assert [open_sequence(s).intrinsics[0, 0] for s in specs] == [525.0, 450.0, 525.0]
+    assert with_focal("synthetic:4:0", None) == "synthetic:4:0"
+    with pytest.raises(argparse.ArgumentTypeError, match="focal lengths in pixels"):
+        _focals("525,wide")
+    with pytest.raises(ValueError, match="name:frames:seed"):
+        with_focal("../shared/data/7scenes-1000", 450.0)

@@ -12,7 +12,7 @@ from evo.core.trajectory import PosePath3D
 from scipy.stats import spearmanr
 
 from twinslam.sequences.frame import SequenceError
-from twinslam.sequences.opening import open_sequence
+from twinslam.sequences.opening import open_sequence, synthetic_walk
 from twinslam.sequences.synthetic import SyntheticSequence
 from twinslam.sequences.synthetic_worlds import ROOM_HALF
 from twinslam.simulator.extraction import extract_covisibility
@@ -47,6 +47,23 @@ def test_open_sequence_understands_synthetic_with_frames_and_ranges() -> None:
     assert frames[0].index == 0 and frames[0].stamp == pytest.approx(10 / 30)
     with pytest.raises(SequenceError, match="synthetic"):
         open_sequence("synthetic:many")
+
+
+def test_a_synthetic_spec_names_another_devices_focal_length() -> None:
+    """``synthetic-corridor:frames:seed:focal``: the same walk seen by a camera of another
+    focal length (another device's), the intrinsics it reports following; a walk of another
+    seed keeps it; a focal no 640-pixel camera has is refused, naming the range."""
+    wide = open_sequence("synthetic-corridor:3:1:420")
+    default = open_sequence("synthetic-corridor:3:1")
+    assert wide.intrinsics[0, 0] == wide.intrinsics[1, 1] == 420.0
+    assert default.intrinsics[0, 0] == 525.0
+    np.testing.assert_allclose(next(iter(wide)).pose, next(iter(default)).pose)
+    assert synthetic_walk("synthetic-corridor:3:1:420", 5) == "synthetic-corridor:3:5:420"
+    assert synthetic_walk("synthetic:40", 2) == "synthetic:40:2"
+    with pytest.raises(SequenceError, match="200-2000 px"):
+        open_sequence("synthetic:3:0:20")
+    with pytest.raises(SequenceError, match=r"\[:focal\]"):
+        open_sequence("synthetic:3:0:wide")
 
 
 @pytest.fixture

@@ -24,6 +24,10 @@ if TYPE_CHECKING:
 
 #: frames of ``synthetic`` when the spec names no count
 SYNTHETIC_DEFAULT_FRAMES = 900
+#: the synthetic camera's focal length (px) when the spec names none (a Kinect-like 525)
+DEFAULT_FOCAL_PX = 525.0
+#: focal lengths a synthetic spec may name (px): about 115° to 18° across 640 px
+MIN_FOCAL_PX, MAX_FOCAL_PX = 200.0, 2000.0
 #: ``colour_intrinsics`` that sees each dataset through its colour camera: a 7-Scenes folder
 #: whose intrinsics file is the dataset's depth camera's (585 px) through
 #: :data:`~twinslam.sequences.folders.SEVEN_SCENES_COLOUR_INTRINSICS`, anything else — another
@@ -37,13 +41,15 @@ def open_sequence(path: str | Path, start: int = 0, end: int = -1,
                   frame_cache: DecodedFrameCache | None = None) -> Sequence:
     """Detect the layout of ``path`` and open frames [start, end) of it (end < 0: to the end):
     a dataset folder, a rosbag2 folder or ``.mcap`` file recorded by ``twinslam record``, or
-    ``synthetic[:frames[:seed]]`` (the rendered room) or ``synthetic-corridor[:frames[:seed]]``
-    (the corridor walked out and back, where the edge's map decides tracking; the seed picks
-    the walk). ``colour_intrinsics``: a dataset folder whose intrinsics file is its depth
-    camera's (7-Scenes) is seen by a colour camera with these (a 3×3 matrix or the file of
-    one), its depth registered to it, the colour camera at ``depth_to_colour`` (4×4) from the
-    depth camera (None: the same place); None or "": the folder's own intrinsics; ``"auto"``
-    (:data:`AUTO`): a 7-Scenes scene's colour camera, any other source as it is.
+    ``synthetic[:frames[:seed[:focal]]]`` (the rendered room) or
+    ``synthetic-corridor[:frames[:seed[:focal]]]`` (the corridor walked out and back, where
+    the edge's map decides tracking; the seed picks the walk, ``focal`` the camera's focal
+    length in pixels: another device's camera). ``colour_intrinsics``: a dataset folder
+    whose intrinsics file is its depth camera's (7-Scenes) is seen by a colour camera with
+    these (a 3×3 matrix or the file of one), its depth registered to it, the colour camera
+    at ``depth_to_colour`` (4×4) from the depth camera (None: the same place); None or "":
+    the folder's own intrinsics; ``"auto"`` (:data:`AUTO`): a 7-Scenes scene's colour
+    camera, any other source as it is.
     ``frame_cache``: a dataset folder's frames decoded, or a synthetic world's rendered, once
     and read back from there (what a reader that plays the frames again and again wants; a bag
     ignores it)."""
@@ -92,10 +98,13 @@ def is_synthetic(spec: str | Path) -> bool:
 
 def synthetic_walk(spec: str, seed: int, frames: int | None = None) -> str:
     """The spec of the same synthetic world walked by ``seed``: its frame count kept, or
-    ``frames`` where it names none (the world's default without either)."""
+    ``frames`` where it names none (the world's default without either), and its camera's
+    focal length kept where it names one."""
     name, _, rest = spec.partition(":")
-    count = rest.partition(":")[0] or (str(frames) if frames else str(SYNTHETIC_DEFAULT_FRAMES))
-    return f"{name}:{count}:{seed}"
+    count, _, rest = rest.partition(":")
+    count = count or (str(frames) if frames else str(SYNTHETIC_DEFAULT_FRAMES))
+    focal = rest.partition(":")[2]
+    return f"{name}:{count}:{seed}" + (f":{focal}" if focal else "")
 
 
 def _open_synthetic(spec: str, start: int, end: int, frame_cache: DecodedFrameCache | None
@@ -103,14 +112,19 @@ def _open_synthetic(spec: str, start: int, end: int, frame_cache: DecodedFrameCa
     from twinslam.sequences.synthetic_worlds import SPECS
 
     name, _, rest = spec.partition(":")
-    frames, _, seed = rest.partition(":")
+    frames, _, rest = rest.partition(":")
+    seed, _, focal = rest.partition(":")
     if name not in SPECS:
         raise SequenceError(f"unknown synthetic world {name!r}: one of {', '.join(SPECS)}")
     try:
         n = int(frames) if frames else SYNTHETIC_DEFAULT_FRAMES
         walk = int(seed) if seed else 0
+        fx = float(focal) if focal else DEFAULT_FOCAL_PX
     except ValueError:
-        raise SequenceError(f"{name}[:frames[:seed]] expected, got {spec!r}") from None
+        raise SequenceError(f"{name}[:frames[:seed[:focal]]] expected, got {spec!r}") from None
+    if not MIN_FOCAL_PX <= fx <= MAX_FOCAL_PX:
+        raise SequenceError(f"{spec}: a focal length of {MIN_FOCAL_PX:.0f}-{MAX_FOCAL_PX:.0f} "
+                            f"px for the synthetic camera's 640x480 images, not {fx:g}")
     stop = n if end < 0 else min(end, n)
     if not 0 <= start < stop:
         raise SequenceError(f"{spec}: bad frame range start={start} end={end}")
@@ -118,8 +132,8 @@ def _open_synthetic(spec: str, start: int, end: int, frame_cache: DecodedFrameCa
     # dataset folder never needs
     from twinslam.sequences.synthetic import SyntheticSequence
 
-    return SyntheticSequence(n_frames=n, seed=walk, path=Path(name), world_name=SPECS[name],
-                             cache=frame_cache).select(start, stop)
+    return SyntheticSequence(n_frames=n, seed=walk, fx=fx, path=Path(name),
+                             world_name=SPECS[name], cache=frame_cache).select(start, stop)
 
 
 def open_folder(root: Path, start: int = 0, end: int = -1,
