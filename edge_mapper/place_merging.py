@@ -535,12 +535,14 @@ class PlaceMerging:
         self._looked_among.setdefault(device, set()).update(others)
         rank = functools.partial(self.database.candidates_of, device,
                                  [query.keyframe for query in queries], others)
+        # the other device's camera took its keyframes: the merge's depths read by it
+        look = functools.partial(_look, other_intrinsics=other.k.copy())
         if self.background:
-            self._running[device] = self.worker.submit(_look, *job, self.worker.wait_for_slots,
+            self._running[device] = self.worker.submit(look, *job, self.worker.wait_for_slots,
                                                        rank, after_loops=True)
         else:
             done: Future[_Look] = Future()
-            done.set_result(_look(*job, rank=rank))
+            done.set_result(look(*job, rank=rank))
             self._running[device] = done
 
     def _backing_off(self, device: str, slot: int, others: list[str]) -> bool:
@@ -678,7 +680,8 @@ def _look(place: str, finder: MergeFinder, other: KeyFrameArchive,
           queries: tuple[LoopQuery, ...], poses: dict[int, np.ndarray], intrinsics: np.ndarray,
           frame: np.ndarray, other_frame: np.ndarray,
           pause: Callable[[], None] = lambda: None,
-          rank: Callable[[], list[str]] = list) -> _Look:
+          rank: Callable[[], list[str]] = list,
+          other_intrinsics: np.ndarray | None = None) -> _Look:
     """The looking map's ``queries`` (oldest first) offered to ``finder`` against the other
     device's whole map ``other``, until one confirms a merge; a failure reported in the
     answer, never raised (a look that fails must not take the edge's slots down with it).
@@ -686,7 +689,8 @@ def _look(place: str, finder: MergeFinder, other: KeyFrameArchive,
     (:meth:`~twinslam.slam.back_end.loop_closing.SharedWorker.wait_for_slots`); the time
     it waits is not the look's. First, ``rank`` scores the queries in the keyframe database:
     the maps the next look goes to (its time is the look's); a ranking that fails is reported
-    and the look searches on (the next one takes the maps in turn)."""
+    and the look searches on (the next one takes the maps in turn). ``other_intrinsics``:
+    the other device's camera, which took its keyframes (None: the looking device's)."""
     spent = 0.0
     merge = None
     ranked: tuple[str, ...] = ()
@@ -705,7 +709,7 @@ def _look(place: str, finder: MergeFinder, other: KeyFrameArchive,
                 pause()
                 started = time.perf_counter()
                 try:
-                    merge = finder.offer(other, query, poses, intrinsics)
+                    merge = finder.offer(other, query, poses, intrinsics, other_intrinsics)
                 finally:
                     spent += time.perf_counter() - started
                 if merge is not None:

@@ -19,8 +19,10 @@ def _rot(axis: np.ndarray, angle: float) -> np.ndarray:
     return np.eye(3) + math.sin(angle) * kx + (1 - math.cos(angle)) * kx @ kx
 
 
-def _scene(rng: np.random.Generator, wrong: float = 0.0):
-    """6 keyframes sliding along x looking down +z at 200 points 2-5 m away."""
+def _scene(rng: np.random.Generator, wrong: float = 0.0,
+           cameras: dict[int, np.ndarray] | None = None):
+    """6 keyframes sliding along x looking down +z at 200 points 2-5 m away, each seen by the
+    camera ``K`` but those ``cameras`` names."""
     poses = {}
     for i in range(6):
         p = np.eye(4)
@@ -33,7 +35,7 @@ def _scene(rng: np.random.Generator, wrong: float = 0.0):
         cw = np.linalg.inv(pose)
         for j, xyz in points.items():
             cam = cw[:3, :3] @ xyz + cw[:3, 3]
-            uv = (K @ cam)[:2] / cam[2]
+            uv = ((cameras or {}).get(i, K) @ cam)[:2] / cam[2]
             if not (0 <= uv[0] < 640 and 0 <= uv[1] < 480):
                 continue
             uv = uv + rng.normal(0, 0.5, 2)
@@ -94,3 +96,25 @@ def test_bundle_adjustment_needs_a_fixed_keyframe_and_known_ids() -> None:
         bundle_adjust(poses, points, obs, K, fixed=set())
     with pytest.raises(ValueError, match="point 999"):
         bundle_adjust(poses, points, [*obs, Observation(0, 999, (1.0, 1.0))], K, fixed={0})
+
+
+def test_keyframes_of_another_devices_camera_are_adjusted_with_its_intrinsics() -> None:
+    """Keyframes 3-5 taken by another device's camera (450 px, not 525): adjusted with their
+    own intrinsics, the true map stays where it is and no observation is an outlier; read
+    with this device's, their pixels mean other rays — the adjustment moves the map by
+    centimetres and throws a fifth of their observations out."""
+    rng = np.random.default_rng(4)
+    other = np.array([[450.0, 0, 320], [0, 450, 240], [0, 0, 1]])
+    cameras = {i: other for i in (3, 4, 5)}
+    poses, points, obs, _ = _scene(rng, cameras=cameras)
+    theirs = [ob for ob in obs if ob.keyframe in cameras]
+    right = bundle_adjust(poses, points, obs, K, fixed={0, 1}, max_iterations=5,
+                          cameras=cameras)
+    wrong = bundle_adjust(poses, points, obs, K, fixed={0, 1}, max_iterations=5)
+
+    def moved(res) -> float:
+        return max(np.linalg.norm(res.poses[i][:3, 3] - poses[i][:3, 3]) for i in poses)
+
+    assert moved(right) < 0.005 and not right.outliers
+    assert moved(wrong) > 0.02
+    assert sum(ob.keyframe in cameras for ob in wrong.outliers) > len(theirs) // 5

@@ -695,6 +695,10 @@ def test_a_keyframe_is_lent_once_the_borrowing_device_heads_where_it_sees_it(
     _tracked_at(cores["ar2"], 8, None)                   # lost: 999 too
     assert merging.before_slot_end("ar2", 8) == (None, 1, [])
     assert cores["ar2"].back_end.adopted_at[ar1 | 999] == 4
+    # each copy keeps the camera that took it, ar1's: welded, adjusted and aligned with it
+    copies = [kf for kf in cores["ar2"].archive if kf.id & ar1]
+    assert copies and all(kf.intrinsics is not None and
+                          np.array_equal(kf.intrinsics, cores["ar1"].k) for kf in copies)
     # lending everything at once (lend_in_view false) adopts the three at the first round
     eager = _room_and_newcomer(room)
     at_once = PlaceMerging(lambda: eager, background=False, lend_in_view=False)

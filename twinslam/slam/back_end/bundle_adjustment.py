@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import gtsam
@@ -33,6 +34,21 @@ from gtsam.symbol_shorthand import L, X
 #: χ²(2 dof, 95 %): ORB-SLAM's threshold for a monocular reprojection error, in σ²
 CHI2_MONO = 5.991
 FIXED_SIGMA = 1e-6                  #: prior σ (rad, m) that holds a fixed keyframe
+
+
+@dataclass(frozen=True)
+class _Calibration:
+    """One camera's calibrations as GTSAM's factors take them."""
+
+    fx: float
+    mono: gtsam.Cal3_S2
+    stereo: gtsam.Cal3_S2Stereo
+
+    @classmethod
+    def of(cls, k: np.ndarray, baseline_m: float) -> _Calibration:
+        fx, fy, cx, cy = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
+        return cls(float(fx), gtsam.Cal3_S2(fx, fy, 0.0, cx, cy),
+                   gtsam.Cal3_S2Stereo(fx, fy, 0.0, cx, cy, baseline_m))
 
 
 @dataclass(frozen=True)
@@ -59,17 +75,20 @@ class BundleAdjustmentResult:
 def bundle_adjust(poses: dict[int, np.ndarray], points: dict[int, np.ndarray],
                   observations: list[Observation], intrinsics: np.ndarray,
                   fixed: set[int], pixel_sigma: float = 1.0, baseline_m: float = 0.08,
-                  max_iterations: int = 3) -> BundleAdjustmentResult:
+                  max_iterations: int = 3, cameras: Mapping[int, np.ndarray] | None = None
+                  ) -> BundleAdjustmentResult:
     """Optimise keyframe poses and point positions over the observations; ``fixed`` keyframes
-    do not move (give at least one). Unknown ids in observations are an error."""
+    do not move (give at least one). Unknown ids in observations are an error. Every
+    keyframe was taken by the camera of ``intrinsics`` but those ``cameras`` names (keyframe
+    id → 3×3: another device's keyframes in a shared place, whose pixels mean other rays)."""
     start = time.perf_counter()
     if not fixed or not fixed <= set(poses):
         raise ValueError(f"fixed keyframes {sorted(fixed)} must be a non-empty subset of the "
                          "poses (they remove the gauge freedom)")
     k = np.asarray(intrinsics, dtype=np.float64)
-    fx, fy, cx, cy = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
-    mono_cal = gtsam.Cal3_S2(fx, fy, 0.0, cx, cy)
-    stereo_cal = gtsam.Cal3_S2Stereo(fx, fy, 0.0, cx, cy, baseline_m)
+    own = _Calibration.of(k, baseline_m)
+    calibrations = {kf: _Calibration.of(np.asarray(c, dtype=np.float64), baseline_m)
+                    for kf, c in (cameras or {}).items()}
     huber = gtsam.noiseModel.mEstimator.Huber.Create(math.sqrt(CHI2_MONO))
     mono_noise = gtsam.noiseModel.Robust.Create(
         huber, gtsam.noiseModel.Isotropic.Sigma(2, pixel_sigma))
@@ -100,13 +119,14 @@ def bundle_adjust(poses: dict[int, np.ndarray], points: dict[int, np.ndarray],
         if ob.point not in determined:
             continue
         u, v = ob.uv
+        cal = calibrations.get(ob.keyframe, own)
         if math.isfinite(ob.depth) and ob.depth > 0:
-            measured = gtsam.StereoPoint2(u, u - fx * baseline_m / ob.depth, v)
+            measured = gtsam.StereoPoint2(u, u - cal.fx * baseline_m / ob.depth, v)
             graph.add(gtsam.GenericStereoFactor3D(measured, stereo_noise, X(ob.keyframe),
-                                                  L(ob.point), stereo_cal))
+                                                  L(ob.point), cal.stereo))
         else:
             graph.add(gtsam.GenericProjectionFactorCal3_S2(
-                gtsam.Point2(u, v), mono_noise, X(ob.keyframe), L(ob.point), mono_cal))
+                gtsam.Point2(u, v), mono_noise, X(ob.keyframe), L(ob.point), cal.mono))
 
     params = gtsam.GaussNewtonParams()
     params.setMaxIterations(max_iterations)
@@ -123,7 +143,7 @@ def bundle_adjust(poses: dict[int, np.ndarray], points: dict[int, np.ndarray],
     out_points = {pid: np.asarray(result.atPoint3(L(pid))) if pid in determined
                   else np.asarray(xyz, dtype=np.float64) for pid, xyz in points.items()}
     used = [ob for ob in observations if ob.point in determined]
-    errors = reprojection_sq(out_poses, out_points, k, used)
+    errors = reprojection_sq(out_poses, out_points, k, used, cameras)
     outliers = [ob for ob, e in zip(used, errors, strict=True)
                 if e > CHI2_MONO * pixel_sigma ** 2]
     return BundleAdjustmentResult(out_poses, out_points, initial_error, graph.error(result),
@@ -132,10 +152,12 @@ def bundle_adjust(poses: dict[int, np.ndarray], points: dict[int, np.ndarray],
 
 
 def reprojection_sq(poses: dict[int, np.ndarray], points: dict[int, np.ndarray],
-                    k: np.ndarray, observations: list[Observation]) -> np.ndarray:
+                    k: np.ndarray, observations: list[Observation],
+                    cameras: Mapping[int, np.ndarray] | None = None) -> np.ndarray:
     """Squared pixel distance between each observation's ``uv`` and its point's projection
     (inf behind the camera), all observations at once: the outlier test after an adjustment,
-    and how well a set of poses (the ground truth's, say) explains the images."""
+    and how well a set of poses (the ground truth's, say) explains the images. Each
+    keyframe's camera is ``k`` but those ``cameras`` names."""
     if not observations:
         return np.zeros(0)
     world_to_cam = {kf: np.linalg.inv(p) for kf, p in poses.items()}
@@ -144,7 +166,10 @@ def reprojection_sq(poses: dict[int, np.ndarray], points: dict[int, np.ndarray],
     uv = np.array([ob.uv for ob in observations])
     cam = np.einsum("nij,nj->ni", cw[:, :3, :3], xyz) + cw[:, :3, 3]
     z = cam[:, 2]
+    cameras = cameras or {}
+    ks = np.array([cameras.get(ob.keyframe, k) for ob in observations]) if cameras else \
+        np.broadcast_to(np.asarray(k, dtype=np.float64), (len(observations), 3, 3))
     with np.errstate(divide="ignore", invalid="ignore"):
-        proj = cam[:, :2] / z[:, None] * [k[0, 0], k[1, 1]] + [k[0, 2], k[1, 2]]
+        proj = cam[:, :2] / z[:, None] * ks[:, [0, 1], [0, 1]] + ks[:, [0, 1], [2, 2]]
     err = ((proj - uv) ** 2).sum(axis=1)
     return np.where(z > 0, err, np.inf)

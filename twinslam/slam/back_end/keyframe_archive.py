@@ -86,6 +86,9 @@ class ArchivedKeyFrame:
     descriptors: np.ndarray     #: (n, 32) uint8: their ORB descriptors
     measurements: np.ndarray    #: (n, 3): where it saw them, u, v and depth (NaN: none)
     archived_slot: int          #: the slot that evicted it
+    #: 3×3 intrinsics of the camera that took it where it is another device's than the map's
+    #: (:attr:`KeyFrame.intrinsics`); None: the map's own device's
+    intrinsics: np.ndarray | None = None
 
     @classmethod
     def of(cls, m: KeyFrameMap, kf_id: int, slot: int) -> ArchivedKeyFrame:
@@ -105,7 +108,13 @@ class ArchivedKeyFrame:
                 dtype=np.float64, count=3 * len(point_ids)).reshape(-1, 3)
         rows = m.columns.rows_of(point_ids)
         return cls(kf_id, kf.pose.copy(), point_ids, m.columns.positions[rows],
-                   m.columns.descriptors[rows], measured, slot)
+                   m.columns.descriptors[rows], measured, slot,
+                   None if kf.intrinsics is None else kf.intrinsics.copy())
+
+    def camera(self, own: np.ndarray) -> np.ndarray:
+        """The intrinsics its measurements were taken with: its own, else ``own`` (the map's
+        device's)."""
+        return own if self.intrinsics is None else self.intrinsics
 
     @property
     def nbytes(self) -> int:
@@ -120,7 +129,9 @@ class ArchivedKeyFrame:
                          "pose": self.pose, "point_ids": self.point_ids,
                          "positions": self.positions, "descriptors": self.descriptors,
                          "measurements": self.measurements,
-                         "archived_slot": np.array(self.archived_slot)})
+                         "archived_slot": np.array(self.archived_slot),
+                         **({} if self.intrinsics is None
+                            else {"intrinsics": self.intrinsics})})
 
     @classmethod
     def load(cls, path: Path) -> ArchivedKeyFrame:
@@ -130,7 +141,9 @@ class ArchivedKeyFrame:
                     raise ArchiveError(f"{path}: not a {ARCHIVE_FORMAT} file")
                 kf = cls(int(z["id"]), z["pose"].reshape(4, 4), z["point_ids"].astype(np.int64),
                          z["positions"].reshape(-1, 3), z["descriptors"].astype(np.uint8),
-                         z["measurements"].reshape(-1, 3), int(z["archived_slot"]))
+                         z["measurements"].reshape(-1, 3), int(z["archived_slot"]),
+                         z["intrinsics"].reshape(3, 3).astype(np.float64)
+                         if "intrinsics" in z.files else None)
         except NPZ_READ_ERRORS as exc:
             if isinstance(exc, ArchiveError):
                 raise
@@ -148,7 +161,7 @@ def restore_into(m: KeyFrameMap, kf: ArchivedKeyFrame) -> list[int]:
     position, one that left with the last of its observers comes back as archived. Returns
     the points that came back (which may duplicate points made since:
     :mod:`twinslam.slam.back_end.point_fusion`)."""
-    m.add_keyframe(kf.id, kf.pose)
+    m.add_keyframe(kf.id, kf.pose, kf.intrinsics)
     point_ids = np.asarray(kf.point_ids, dtype=np.int64)
     # each point the map lost, once, where it first comes (a keyframe archived before
     # welding kept its ids apart may name a point twice): asked of the map's columns at once

@@ -44,6 +44,10 @@ class KeyFrame:
     points: set[int] = field(default_factory=set)   #: M_f: ids of the map points it observes
     #: where it saw each point: (u, v, depth in metres or NaN) — the bundle adjustment's data
     measurements: dict[int, tuple[float, float, float]] = field(default_factory=dict)
+    #: the 3×3 intrinsics of the camera that took it, where that is not the camera of the
+    #: device whose map this is (another device's keyframe: its pixels mean other rays);
+    #: None: the map's own device's
+    intrinsics: np.ndarray | None = None
     #: :meth:`observed`'s arrays, until the map edits its observations
     _observed: tuple[np.ndarray, np.ndarray] | None = field(default=None, init=False,
                                                              repr=False, compare=False)
@@ -268,12 +272,23 @@ class KeyFrameMap:
 
     # -- edits -----------------------------------------------------------------------------
 
-    def add_keyframe(self, kf_id: int, pose: np.ndarray) -> KeyFrame:
+    def add_keyframe(self, kf_id: int, pose: np.ndarray,
+                     intrinsics: np.ndarray | None = None) -> KeyFrame:
+        """A keyframe at ``pose``, taken by a camera of ``intrinsics`` where that is not the
+        map's own device's (None)."""
         if kf_id in self.keyframes:
             raise MapError(f"keyframe {kf_id} is already in the map")
-        kf = KeyFrame(kf_id, np.asarray(pose, dtype=np.float64).copy())
+        kf = KeyFrame(kf_id, np.asarray(pose, dtype=np.float64).copy(),
+                      intrinsics=None if intrinsics is None
+                      else np.asarray(intrinsics, dtype=np.float64).reshape(3, 3).copy())
         self.keyframes[kf_id] = kf
         return kf
+
+    def cameras(self, own: np.ndarray) -> dict[int, np.ndarray]:
+        """Each keyframe's intrinsics by id: its own where it has them, else ``own`` (the
+        map's device's)."""
+        return {k: own if kf.intrinsics is None else kf.intrinsics
+                for k, kf in self.keyframes.items()}
 
     def add_point(self, position: np.ndarray, descriptor: np.ndarray) -> int:
         """A new map point; returns its id."""
@@ -548,6 +563,13 @@ class KeyFrameMap:
         observers = np.repeat(np.array(kf_ids, dtype=np.int64), [len(o[0]) for o in observed])
         seen = np.concatenate([o[0] for o in observed] or [np.zeros(0, dtype=np.int64)])
         uvd = np.concatenate([o[1] for o in observed] or [np.zeros((0, 3))])
+        # another device's keyframes' cameras (none in a map of one device's keyframes)
+        other = [k for k in kf_ids if self.keyframes[k].intrinsics is not None]
+        cameras = {} if not other else {
+            "camera_keyframe_ids": np.array(other, dtype=np.int64),
+            "camera_intrinsics": stacked_rows(
+                [c for k in other if (c := self.keyframes[k].intrinsics) is not None],
+                (3, 3), np.float64)}
         return dict(format=np.array(CHECKPOINT_FORMAT),
                     keyframe_ids=np.array(kf_ids, dtype=np.int64),
                     keyframe_poses=stacked_rows([self.keyframes[k].pose for k in kf_ids],
@@ -559,7 +581,7 @@ class KeyFrameMap:
                     measurements=uvd,
                     point_views=np.column_stack([self.columns.visible[rows],
                                                  self.columns.found[rows]]),
-                    next_point_id=np.array(self.next_point_id), **extra)
+                    next_point_id=np.array(self.next_point_id), **cameras, **extra)
 
     @classmethod
     def load(cls, path: Path) -> tuple[KeyFrameMap, dict[str, np.ndarray]]:
@@ -593,6 +615,9 @@ class KeyFrameMap:
                     m.observe_many(int(obs[0, 0]), obs[:, 1].tolist(), uvd[:, :2].tolist(),
                                    uvd[:, 2].tolist())
             m.next_point_id = int(data.pop("next_point_id"))
+            for k, cam in zip(data.pop("camera_keyframe_ids", ()),
+                              data.pop("camera_intrinsics", ()), strict=True):
+                m.keyframes[int(k)].intrinsics = np.asarray(cam, dtype=np.float64).reshape(3, 3)
             # a checkpoint written before points counted their views: each starts afresh
             views = data.pop("point_views", None)
             if views is not None:

@@ -75,13 +75,17 @@ def detect_loop(archive: KeyFrameArchive, keyframe: int, points_xy: np.ndarray,
 def recognise_place(archive: KeyFrameArchive, points_xy: np.ndarray, descriptors: np.ndarray,
                     intrinsics: np.ndarray, config: ArchiveRelocalisationConfig | None = None,
                     depths: np.ndarray | None = None,
-                    eligible: Callable[[int], bool] | None = None) -> LoopCandidate:
+                    eligible: Callable[[int], bool] | None = None,
+                    archive_intrinsics: np.ndarray | None = None) -> LoopCandidate:
     """The place of ``archive`` a keyframe (its ORB features ``points_xy``, ``descriptors``
     and, from a depth camera, their ``depths``) sees, among the keyframes ``eligible`` says
     may be (None: all), confirmed by geometry: PnP with ``MIN_INLIERS`` inliers, then — with
     depths — the relative pose to the recognised keyframe measured from the two keyframes'
     depths (:func:`measure_between`). A loop looks among the walk's own old keyframes; a map
-    merge among another device's (:mod:`twinslam.slam.back_end.map_merging`)."""
+    merge among another device's (:mod:`twinslam.slam.back_end.map_merging`), whose camera,
+    ``archive_intrinsics``, took its keyframes (None: the keyframe's own camera, a walk's
+    own archive); an archived keyframe that carries intrinsics of its own (another device's
+    copy) was taken with those."""
     config = config or ArchiveRelocalisationConfig(min_inliers=MIN_INLIERS)
     found = locate_in_archive(archive, points_xy, descriptors, intrinsics, config,
                               eligible=eligible)
@@ -91,7 +95,9 @@ def recognise_place(archive: KeyFrameArchive, points_xy: np.ndarray, descriptors
     measured = np.linalg.inv(old.pose) @ found.pose
     if depths is None or not np.any(np.asarray(depths) > 0):    # no depth camera: PnP's
         return LoopCandidate(found.keyframe, found.pose, measured, found.inliers)
-    between = measure_between(old, points_xy, descriptors, depths, intrinsics, measured, config)
+    between = measure_between(old, points_xy, descriptors, depths, intrinsics, measured, config,
+                              old.camera(intrinsics if archive_intrinsics is None
+                                         else archive_intrinsics))
     if between.pose is None:
         return LoopCandidate(-1, None, None, between.inliers,
                              f"{between.inliers} of the matches with keyframe {old.id} agree "
@@ -102,20 +108,24 @@ def recognise_place(archive: KeyFrameArchive, points_xy: np.ndarray, descriptors
 
 def measure_between(old: ArchivedKeyFrame, points_xy: np.ndarray, descriptors: np.ndarray,
                     depths: np.ndarray, intrinsics: np.ndarray, start: np.ndarray,
-                    config: ArchiveRelocalisationConfig) -> DepthAlignment:
+                    config: ArchiveRelocalisationConfig,
+                    old_intrinsics: np.ndarray | None = None) -> DepthAlignment:
     """The new keyframe's pose relative to the ``old`` one (old⁻¹ · new) from the two
     keyframes' own depth measurements alone, started at ``start`` (PnP's): the new
     keyframe's features matched to the points the old one saw, both lifted by their depths
-    into their cameras. No map point's position enters — a point a bundle adjustment or a
-    fusion moved since the old keyframe saw it cannot bend the loop."""
+    into their cameras — the new one's of ``intrinsics``, the old one's of
+    ``old_intrinsics`` (None: the same camera). No map point's position enters — a point a
+    bundle adjustment or a fusion moved since the old keyframe saw it cannot bend the
+    loop."""
     f_idx, p_idx = match_descriptors(np.ascontiguousarray(descriptors, dtype=np.uint8),
                                      old.descriptors, config.max_hamming, config.ratio)
     if len(f_idx) < config.min_inliers:
         return DepthAlignment(None, len(f_idx), float("nan"))
     z = np.asarray(depths, dtype=np.float64).reshape(-1)[f_idx]
     k, in_camera = np.asarray(intrinsics, dtype=np.float64), np.eye(4)
+    k_old = k if old_intrinsics is None else np.asarray(old_intrinsics, dtype=np.float64)
     new_points = back_project(np.asarray(points_xy, dtype=np.float64).reshape(-1, 2)[f_idx],
                               np.where(z > 0, z, np.nan), k, in_camera)
     seen = old.measurements[p_idx]
-    old_points = back_project(seen[:, :2], seen[:, 2], k, in_camera)
+    old_points = back_project(seen[:, :2], seen[:, 2], k_old, in_camera)
     return align_with_depth(start, new_points, old_points, config.min_inliers)

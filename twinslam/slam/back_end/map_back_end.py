@@ -309,6 +309,12 @@ class MapBackEnd:
 
     # -- keyframes in ------------------------------------------------------------------------
 
+    def camera_of(self, kf_id: int) -> Camera:
+        """The camera that took keyframe ``kf_id`` of the map: the device's, or — another
+        device's keyframe (a copy) — its own intrinsics at the configured image size."""
+        own = self.map.keyframes[kf_id].intrinsics
+        return self.camera if own is None else Camera(own, self.config.image_shape)
+
     def integrate(self, data: KeyFramePayload, tracked_on: int) -> IntegrationReport:
         """A keyframe the device posed on map version ``tracked_on`` (-1: unknown) into the
         map, moved into the map's frame now, if the gate lets it; a refusal changes
@@ -378,7 +384,7 @@ class MapBackEnd:
         forgotten, _ = self.evict_to_archive(evict, slot)
         returned = self.store.enter_slice(back)
         self.entered.update((kf, (slot, RESTORED)) for kf in returned)
-        fused = sum(len(fuse_restored(self.map, kf, points, self.camera))
+        fused = sum(len(fuse_restored(self.map, kf, points, self.camera_of(kf)))
                     for kf, points in returned.items()) if self.config.point_fusion else 0
         return forgotten, fused
 
@@ -432,10 +438,12 @@ class MapBackEnd:
         fixed = observers - window
         if not observations or not fixed:
             return None
+        # another device's keyframes (copies) were taken by its camera, not this device's
+        cameras = {k: c for k in observers if (c := self.map.keyframes[k].intrinsics) is not None}
         result = bundle_adjust({k: self.map.keyframes[k].pose for k in observers},
                                {p: self.map.points[p].position for p in points}, observations,
                                self.k, fixed, baseline_m=self.config.baseline_m,
-                               max_iterations=self.config.ba_iterations)
+                               max_iterations=self.config.ba_iterations, cameras=cameras)
         refused = self._implausible_adjustment(result, window)
         if refused:
             return dataclasses.replace(result, refused=refused)
@@ -559,7 +567,8 @@ class MapBackEnd:
                       "writing the loop-corrected archive's poses")
         old = result.candidate.old
         if self.config.point_fusion and old in self.map.keyframes and self.camera.known:
-            fuse_restored(self.map, old, sorted(self.map.keyframes[old].points), self.camera)
+            fuse_restored(self.map, old, sorted(self.map.keyframes[old].points),
+                          self.camera_of(old))
         self.loops_closed += 1
         self._keep_applied(AppliedLoop(dict(corrections)))
         if result.candidate.measured is not None:

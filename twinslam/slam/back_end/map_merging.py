@@ -122,14 +122,16 @@ class MergeFinder:
         self.last: LoopCandidate | None = None   #: what the last keyframe found, or why not
 
     def offer(self, other: KeyFrameArchive, query: LoopQuery,
-              joining_poses: Mapping[int, np.ndarray], intrinsics: np.ndarray
-              ) -> MapMerge | None:
+              joining_poses: Mapping[int, np.ndarray], intrinsics: np.ndarray,
+              other_intrinsics: np.ndarray | None = None) -> MapMerge | None:
         """Keyframe ``query`` of the joining map (its poses ``joining_poses``, id →
-        camera-to-map, the query's among them) looked for in ``other``
-        (a store's snapshot): the merge, once confirmed; None until then."""
+        camera-to-map, the query's among them; its camera ``intrinsics``) looked for in
+        ``other`` (a store's snapshot, its keyframes taken by a camera of
+        ``other_intrinsics``; None: the same): the merge, once confirmed; None until then."""
         pose = joining_poses[query.keyframe]
         candidate = recognise_place(other, query.points_xy, query.descriptors, intrinsics,
-                                    self.search, depths=query.depths)
+                                    self.search, depths=query.depths,
+                                    archive_intrinsics=other_intrinsics)
         self.sightings += candidate.found
         if candidate.found and candidate.inliers < self.min_inliers:
             candidate = LoopCandidate(-1, None, None, candidate.inliers,
@@ -162,7 +164,9 @@ def welded(keyframe: ArchivedKeyFrame, source: int, into: KeyFrameMap, camera: C
     itself (a third device's, tagged already: the source's own keyframes observe the copies'
     points they matched) keeps its id — tagged again, its tag would read as yet another
     device's and alias that device's point of the same number. ``points``: ``into``'s
-    points as they are, read once for a batch of keyframes (None: read here)."""
+    points as they are, read once for a batch of keyframes (None: read here). ``camera``:
+    the adopting map's device's; the keyframe's own intrinsics, which a lent keyframe
+    carries (:func:`lend_from`), are what its pixels are projected with."""
     tag = foreign_tag(source)
     ids = keyframe.point_ids.astype(np.int64)
     ids = np.where(foreign_mask(ids), ids, ids | tag)
@@ -170,10 +174,11 @@ def welded(keyframe: ArchivedKeyFrame, source: int, into: KeyFrameMap, camera: C
     # a point the keyframe holds already under that id (a third device's copy both maps
     # adopted) is no duplicate to weld another of its corners to: a keyframe sees a point once
     held = set(ids.tolist())
+    taken_by = Camera(keyframe.camera(camera.intrinsics), camera.shape)
     for row, point in duplicates_in_view(keyframe.pose, keyframe.measurements[rows, :2],
                                          keyframe.descriptors[rows], keyframe.positions[rows],
                                          points or MapPoints.every(into),
-                                         camera, config):
+                                         taken_by, config):
         if point not in held:
             ids[rows[row]] = point
             held.add(point)
@@ -277,8 +282,11 @@ def lend_from(borrower: MapBackEnd, lenders: list[Lender], slot: int, next_versi
         offers = _seen_only(lenders, offers, in_view)
     if views is not None and views.enabled:
         offers = _new_views_only(borrower, lenders, offers, views)
-    # a keyframe of a lender's managed map is copied only once it is lent
-    unlent = [archived + [ArchivedKeyFrame.of(lender.back_end.map, k, slot) for k in held]
+    # a keyframe of a lender's managed map is copied only once it is lent; each carries the
+    # lender's camera, which took it (the borrower's may be another model)
+    unlent = [[_taken_by(kf, lender.back_end.k)
+               for kf in archived + [ArchivedKeyFrame.of(lender.back_end.map, k, slot)
+                                     for k in held]]
               for lender, (archived, held) in zip(lenders, offers, strict=True)]
     points = MapPoints.every(borrower.map) if any(unlent) else None
     adopted = [adopt_lent(borrower, keyframes, lender.source, lender.lent, slot, points,
@@ -289,6 +297,15 @@ def lend_from(borrower: MapBackEnd, lenders: list[Lender], slot: int, next_versi
     return [Lending(followed, count, moves, back)
             for (followed, moves), count, back in zip(follows, adopted, returned,
                                                       strict=True)]
+
+
+def _taken_by(keyframe: ArchivedKeyFrame, intrinsics: np.ndarray) -> ArchivedKeyFrame:
+    """A lender's own ``keyframe`` marked as taken by the lender's camera (``intrinsics``),
+    which the borrower's need not be."""
+    if keyframe.intrinsics is not None:
+        return keyframe
+    return dataclasses.replace(keyframe,
+                               intrinsics=np.asarray(intrinsics, dtype=np.float64).copy())
 
 
 def _return_unseen(borrower: MapBackEnd, lenders: list[Lender], slot: int, in_view: InView,
