@@ -1278,3 +1278,25 @@ def test_the_cover_by_points_gated_by_viewing_direction_is_what_its_commands_pri
     for column in ("uploads", "lost_share", "map_lost_share", "copies_end", "cross_rms_m",
                    "ate_m_mean", "loops", "device_uploads"):
         assert plain[column] == gated[column], column
+
+
+def test_devices_with_cameras_of_their_own_are_what_their_commands_print() -> None:
+    """Four devices of two camera models on walks of their own: each keyframe read with the
+    map's device's camera (before) and with its own (after), after against the devices alone
+    and against one camera model, as the table script prints them; with one camera model the
+    change repeats the walk to the digit."""
+    folder = FIGURES / "shared-map" / "place-walks" / "own-walks" / "cameras"
+    table = _script("place_walks_table")
+    for first, second, names in (("before", "after", ("before", "after")),
+                                 ("alone", "after", ("alone", "after")),
+                                 ("one-camera", "after", ("one camera", "two"))):
+        printed = table.table(folder / f"{first}.csv", folder / f"{second}.csv", names=names)
+        assert _missing("\n".join(printed)) == [], (first, second)
+    from bench.place_walks import SAME_WALK
+
+    with (folder / "one-camera-before.csv").open(encoding="utf-8") as fh:
+        before = next(csv.DictReader(fh))
+    with (folder / "one-camera.csv").open(encoding="utf-8") as fh:
+        after = next(row for row in csv.DictReader(fh) if row["seed"] == before["seed"])
+    for column in SAME_WALK:
+        assert before[column] == after[column], column
