@@ -89,8 +89,9 @@ def test_a_keyframe_is_aligned_to_another_devices_by_depth_only_with_that_device
 def test_the_edges_adjustment_keeps_a_copy_taken_by_another_camera_where_it_is() -> None:
     """An edge map of this device's keyframes 0-3 and a copy of another device's keyframe
     (its camera OTHER), all seeing 150 points where they are (a third of a pixel's noise):
-    the local adjustment moves nothing by 5 mm and drops none of the copy's observations — read with this device's
-    camera, they would be outliers and leave the map."""
+    the local adjustment moves nothing by 5 mm and drops none of the copy's observations —
+    read with this device's camera, they would be outliers and move the copy half a metre
+    (an answer the edge refuses)."""
     from twinslam.slam.back_end.foreign_keyframes import foreign_tag
     from twinslam.slam.back_end.map_back_end import BackEndConfig, MapBackEnd
 
