@@ -115,3 +115,30 @@ def test_the_edges_adjustment_keeps_a_copy_taken_by_another_camera_where_it_is()
     assert len(m.keyframes[copy].points) == 150 and not result.outliers
     for k, pose in before.items():
         assert np.linalg.norm(m.keyframes[k].pose[:3, 3] - pose[:3, 3]) < 0.005, k
+
+
+def test_a_restored_copy_is_fused_with_the_maps_points_through_its_own_camera() -> None:
+    """Another device's keyframe (its camera OTHER) archived with 120 points this device's
+    keyframe 0 sees too, under the other device's ids: restored, its points are found to be
+    the map's — projected into it with its camera they land where it saw them — and fused,
+    nearly all of them."""
+    from twinslam.slam.back_end.foreign_keyframes import foreign_tag
+    from twinslam.slam.back_end.map_back_end import BackEndConfig, MapBackEnd
+
+    rng = np.random.default_rng(6)
+    copy, points = _other_devices_keyframe(rng)
+    back_end = MapBackEnd(BackEndConfig(point_fusion=True), intrinsics=OWN)
+    m = back_end.map
+    ids = m.add_points(copy.positions, copy.descriptors)
+    pose = np.eye(4)
+    pose[0, 3] = 0.1
+    seen = _seen(copy.positions, pose, OWN)
+    m.add_keyframe(0, pose)
+    m.observe_many(0, ids, seen[:, :2].tolist(), seen[:, 2].tolist())
+    tag = foreign_tag(1)
+    back_end.archive.add(ArchivedKeyFrame(tag | copy.id, copy.pose, copy.point_ids | tag,
+                                          copy.positions, copy.descriptors,
+                                          copy.measurements, 0, OTHER.copy()))
+    _, fused = back_end.restore([tag | copy.id], [], slot=1)
+    assert fused >= 0.9 * len(points)
+    assert len(m.points) <= len(ids) + 0.1 * len(points)
