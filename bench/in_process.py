@@ -171,17 +171,6 @@ def seeded_spec(spec: str, seed: int) -> str:
     return f"{spec}:{seed}" if spec.startswith("synthetic") and spec.count(":") == 1 else spec
 
 
-def with_focal(spec: str, focal_px: float | None) -> str:
-    """A synthetic walk's spec (``name:frames:seed``) seen by a camera of focal length
-    ``focal_px`` (None: as it is)."""
-    if focal_px is None:
-        return spec
-    if spec.count(":") != 2:
-        raise ValueError(f"a focal length goes with a synthetic walk's name:frames:seed, not "
-                         f"{spec!r}")
-    return f"{spec}:{focal_px:g}"
-
-
 def repeatable_edge(**overrides: object) -> EdgeConfig:
     """The edge node's default configuration with ``overrides`` (its parameters by name),
     the loop closer working in the caller: a walk through the cores gives the same answer

@@ -94,7 +94,6 @@ from bench.in_process import (
     seeded_spec,
     serve_slot,
     share_vocabulary,
-    with_focal,
 )
 from edge_mapper.edge_core import EdgeMapperCore
 from edge_mapper.place_merging import PlaceMerging
@@ -106,7 +105,7 @@ from twinslam.live.tracking_quality import (
 )
 from twinslam.reporting import append_csv_rows, write_csv
 from twinslam.sequence_player.playback import ORDERS, phase_for
-from twinslam.sequences.opening import is_synthetic
+from twinslam.sequences.opening import is_synthetic, with_focal
 from twinslam.slam.back_end.foreign_keyframes import is_foreign
 
 #: the CSV's columns: the run's settings, then its figures (per-device lists joined by ";")

@@ -210,6 +210,30 @@ def test_one_walk_gives_every_device_of_a_synthetic_place_the_same_walk() -> Non
     assert together.orders == ("forward", "backward")
 
 
+def test_focals_give_each_device_of_a_synthetic_place_a_camera_of_its_own() -> None:
+    """``--focals 525,450``: device k's walk is seen by the k-th focal length (mod their
+    count), a focal the sequence named replaced; a dataset's place refuses them (its camera
+    recorded it), as does a focal length that is no number."""
+    base = ["launch", "--devices", "3", "--sequence", "synthetic-corridor:120", "--frames", "120",
+            "--seed", "3", "--focals", "525,450"]
+    parsed = build_parser().parse_args(base)
+    fleet = fleet_settings(parsed)[0]
+    args = SimpleNamespace(sequence="synthetic-corridor:120", frames=120, start=0,
+                           focals="525,450")
+    assert fleet_starts(args, fleet) == [                      # type: ignore[arg-type]
+        ("synthetic-corridor:120:300:525", 0), ("synthetic-corridor:120:301:450", 0),
+        ("synthetic-corridor:120:302:525", 0)]
+    args.sequence = "synthetic-corridor:120:0:600"
+    assert fleet_starts(args, fleet)[1] == (                   # type: ignore[arg-type]
+        "synthetic-corridor:120:301:450", 0)
+    with pytest.raises(ValueError, match="--focals: a camera of each device's own needs a "
+                                         "synthetic place"):
+        fleet_settings(build_parser().parse_args(
+            ["launch", "--devices", "2", "--sequence", "/data/7scenes", "--focals", "450"]))
+    with pytest.raises(ValueError, match="focal lengths in pixels"):
+        fleet_settings(build_parser().parse_args([*base[:-1], "525,wide"]))
+
+
 def test_a_fleet_over_two_places_splits_its_devices_and_edges_by_place(
         capsys: pytest.CaptureFixture[str]) -> None:
     """``--sequence A,B``: the devices split among the places in runs of neighbours, each

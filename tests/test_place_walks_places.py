@@ -92,9 +92,8 @@ def test_each_device_sees_through_a_camera_of_its_focal_length() -> None:
     """``--focals 525,450``: device k's walk is seen by a camera of the k-th focal length
     (mod their count), its spec naming it; a focal length that is no number is refused, and
     a dataset's walk cannot take one."""
-    from bench.in_process import with_focal
     from bench.place_walks import _focals
-    from twinslam.sequences.opening import open_sequence
+    from twinslam.sequences.opening import open_sequence, with_focal
 
     focals = _focals("525,450")
     assert focals == (525.0, 450.0)
@@ -103,5 +102,6 @@ def test_each_device_sees_through_a_camera_of_its_focal_length() -> None:
     assert with_focal("synthetic:4:0", None) == "synthetic:4:0"
     with pytest.raises(argparse.ArgumentTypeError, match="focal lengths in pixels"):
         _focals("525,wide")
-    with pytest.raises(ValueError, match="name:frames:seed"):
+    assert with_focal("synthetic:4:0:600", 450.0) == "synthetic:4:0:450"
+    with pytest.raises(ValueError, match="synthetic world's walk"):
         with_focal("../shared/data/7scenes-1000", 450.0)

@@ -107,6 +107,20 @@ def synthetic_walk(spec: str, seed: int, frames: int | None = None) -> str:
     return f"{name}:{count}:{seed}" + (f":{focal}" if focal else "")
 
 
+def with_focal(spec: str, focal_px: float | None) -> str:
+    """A synthetic walk's spec (``name[:frames[:seed[:focal]]]``) seen by a camera of focal
+    length ``focal_px`` instead (None: as it is); ValueError for a spec of no synthetic
+    world (a dataset's camera is the one that recorded it)."""
+    if focal_px is None:
+        return spec
+    if not is_synthetic(spec):
+        raise ValueError(f"a focal length goes with a synthetic world's walk, not {spec!r}")
+    name, _, rest = spec.partition(":")
+    frames, _, rest = rest.partition(":")
+    seed = rest.partition(":")[0]
+    return f"{name}:{frames}:{seed}:{focal_px:g}"
+
+
 def _open_synthetic(spec: str, start: int, end: int, frame_cache: DecodedFrameCache | None
                     ) -> SyntheticSequence:
     from twinslam.sequences.synthetic_worlds import SPECS

@@ -28,7 +28,7 @@ from twinslam.live.run_picture import plot_run
 from twinslam.live.scenarios import Scenario
 from twinslam.reporting import append_csv_rows, file_name
 from twinslam.sequences.frame import SequenceError
-from twinslam.sequences.opening import is_synthetic, open_sequence
+from twinslam.sequences.opening import is_synthetic, open_sequence, with_focal
 
 
 def domain_for(args: argparse.Namespace, hosts: tuple[str, ...] | None = None
@@ -58,11 +58,25 @@ def fleet_settings(args: argparse.Namespace) -> list[FleetConfig]:
               for a in allocators]
     for fleet in fleets:
         fleet.check()
+    focals = device_focals(args)
+    if focals and not all(is_synthetic(p) for p in (places_of(args.sequence)
+                                                     or (args.sequence,))):
+        raise ValueError(f"--focals: a camera of each device's own needs a synthetic place, "
+                         f"not {args.sequence}")
     try:
         fleet_starts(args, fleets[0])               # every place can be opened
     except SequenceError as exc:
         raise ValueError(f"--sequence: {exc}") from None
     return fleets
+
+
+def device_focals(args: argparse.Namespace) -> tuple[float, ...]:
+    """``--focals``: each device's camera focal length in pixels (empty: the world's)."""
+    try:
+        return tuple(float(f) for f in getattr(args, "focals", "").split(",") if f.strip())
+    except ValueError:
+        raise ValueError(f"--focals {args.focals!r}: focal lengths in pixels separated by "
+                         "commas (e.g. 525,450)") from None
 
 
 def places_of(sequence: str) -> tuple[str, ...]:
@@ -88,12 +102,15 @@ def fleet_starts(args: argparse.Namespace, fleet: FleetConfig,
     lengths = [by_place[p] for p in places]
     members = [[i for i in range(fleet.devices) if fleet.place_of(i) == p]
                for p in range(len(places))]
+    focals = device_focals(args)
     starts = []
     for i in range(fleet.devices):
         p = fleet.place_of(i)
-        starts.append(device_sequence(places[p], members[p].index(i), len(members[p]),
+        spec, first = device_sequence(places[p], members[p].index(i), len(members[p]),
                                       args.frames, args.start, fleet.stride, lengths[p],
-                                      fleet.walk_seed(i)))
+                                      fleet.walk_seed(i))
+        starts.append((with_focal(spec, focals[i % len(focals)] if focals else None),
+                       first))
     return starts
 
 
@@ -203,6 +220,10 @@ def add_fleet_arguments(launch: argparse.ArgumentParser) -> None:
                        "to the sequence's length, --every 2 has two devices walk it, in any "
                        "--orders, without ever showing one image, as no two real cameras "
                        "would; default %(default)s (every frame)")
+    fleet.add_argument("--focals", default="", metavar="PX,…",
+                       help="on a synthetic place, each device's camera focal length in "
+                       "pixels, device k the k-th mod their count: devices of one place with "
+                       "cameras of their own, e.g. 525,450 (default: the world's 525)")
     fleet.add_argument("--delays", default="", metavar="SECONDS,…",
                        help="seconds each device's camera starts after the fleet's, one a "
                        "device; e.g. 0,20 with --orders forward,forward and --stride set to "
