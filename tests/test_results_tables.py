@@ -1300,3 +1300,17 @@ def test_devices_with_cameras_of_their_own_are_what_their_commands_print() -> No
         after = next(row for row in csv.DictReader(fh) if row["seed"] == before["seed"])
     for column in SAME_WALK:
         assert before[column] == after[column], column
+
+
+def test_devices_with_cameras_of_their_own_live_are_what_their_command_prints() -> None:
+    """Two devices of two camera models live, each keyframe read with the map's device's
+    camera and with its own, on the two walks whose cameras dropped no frame, as the live
+    table script prints them."""
+    folder = FIGURES / "shared-map" / "place-walks" / "own-walks" / "cameras" / "live"
+    live = _script("loops_across_live")
+    modes = (("before", "each keyframe read with the map's camera"),
+             ("after", "each with its own"))
+    for runs, seed in (("1200-frames", 0), ("2700-frames-paced", 1)):
+        lines, seeds, _ = live.table(folder / runs, modes)
+        assert seeds == [seed]
+        assert _missing("\n".join(lines)) == [], runs
