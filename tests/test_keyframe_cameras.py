@@ -56,7 +56,6 @@ def test_another_devices_camera_survives_the_archive_file_and_the_maps_checkpoin
     m.add_keyframe(8, np.eye(4))
     np.testing.assert_array_equal(m.keyframes[7].intrinsics, OTHER)
     assert m.keyframes[8].intrinsics is None
-    np.testing.assert_array_equal(m.cameras(OWN)[8], OWN)
     m.save(tmp_path / "map.npz")
     loaded, _ = KeyFrameMap.load(tmp_path / "map.npz")
     np.testing.assert_array_equal(loaded.keyframes[7].intrinsics, OTHER)

@@ -284,12 +284,6 @@ class KeyFrameMap:
         self.keyframes[kf_id] = kf
         return kf
 
-    def cameras(self, own: np.ndarray) -> dict[int, np.ndarray]:
-        """Each keyframe's intrinsics by id: its own where it has them, else ``own`` (the
-        map's device's)."""
-        return {k: own if kf.intrinsics is None else kf.intrinsics
-                for k, kf in self.keyframes.items()}
-
     def add_point(self, position: np.ndarray, descriptor: np.ndarray) -> int:
         """A new map point; returns its id."""
         return self.add_points(np.asarray(position, dtype=np.float64).reshape(1, 3),
