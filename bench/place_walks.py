@@ -105,7 +105,7 @@ from twinslam.live.tracking_quality import (
 )
 from twinslam.reporting import append_csv_rows, write_csv
 from twinslam.sequence_player.playback import ORDERS, phase_for
-from twinslam.sequences.opening import is_synthetic, with_focal
+from twinslam.sequences.opening import focal_lengths, is_synthetic, with_focal
 from twinslam.slam.back_end.foreign_keyframes import is_foreign
 
 #: the CSV's columns: the run's settings, then its figures (per-device lists joined by ";")
@@ -234,12 +234,11 @@ def _orders(text: str) -> tuple[str, ...]:
 
 
 def _focals(text: str) -> tuple[float, ...]:
-    """``--focals``' value: focal lengths in pixels separated by commas."""
+    """``--focals``' value (:func:`~twinslam.sequences.opening.focal_lengths`)."""
     try:
-        return tuple(float(f) for f in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"focal lengths in pixels separated by commas, not "
-                                         f"{text!r}") from None
+        return focal_lengths(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
 
 
 def main() -> None:

@@ -58,7 +58,8 @@ def map_update_message(keyframe_map: MapView, slot: int, version: int, stamp: fl
     poses, the points they see with descriptors and how many keyframes observe each, the
     device tracks that became map points (``tracks``), and the loops' corrections so far at
     the walk's head (``frame_correction``; None: none)."""
-    tracks = {t: p for t, p in (tracks or {}).items() if p in keyframe_map.points}
+    points = keyframe_map.points      # a slice lists its points at each read: read once
+    tracks = {t: p for t, p in (tracks or {}).items() if p in points}
     kf_ids = keyframe_map.keyframe_ids()
     pt_ids, rows = keyframe_map.point_rows()
     # written for every device every slot: each column read straight into its array, each

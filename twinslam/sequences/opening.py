@@ -107,6 +107,18 @@ def synthetic_walk(spec: str, seed: int, frames: int | None = None) -> str:
     return f"{name}:{count}:{seed}" + (f":{focal}" if focal else "")
 
 
+def focal_lengths(text: str) -> tuple[float, ...]:
+    """Focal lengths in pixels separated by commas (``"525,450"``; ``""``: none), one a
+    device; ValueError naming the text for anything else."""
+    if not text.strip():
+        return ()
+    try:
+        return tuple(float(f) for f in text.split(","))
+    except ValueError:
+        raise ValueError(f"focal lengths in pixels separated by commas (e.g. 525,450), not "
+                         f"{text!r}") from None
+
+
 def with_focal(spec: str, focal_px: float | None) -> str:
     """A synthetic walk's spec (``name[:frames[:seed[:focal]]]``) seen by a camera of focal
     length ``focal_px`` instead (None: as it is); ValueError for a spec of no synthetic

@@ -28,7 +28,7 @@ from twinslam.live.run_picture import plot_run
 from twinslam.live.scenarios import Scenario
 from twinslam.reporting import append_csv_rows, file_name
 from twinslam.sequences.frame import SequenceError
-from twinslam.sequences.opening import is_synthetic, open_sequence, with_focal
+from twinslam.sequences.opening import focal_lengths, is_synthetic, open_sequence, with_focal
 
 
 def domain_for(args: argparse.Namespace, hosts: tuple[str, ...] | None = None
@@ -73,10 +73,9 @@ def fleet_settings(args: argparse.Namespace) -> list[FleetConfig]:
 def device_focals(args: argparse.Namespace) -> tuple[float, ...]:
     """``--focals``: each device's camera focal length in pixels (empty: the world's)."""
     try:
-        return tuple(float(f) for f in getattr(args, "focals", "").split(",") if f.strip())
-    except ValueError:
-        raise ValueError(f"--focals {args.focals!r}: focal lengths in pixels separated by "
-                         "commas (e.g. 525,450)") from None
+        return focal_lengths(getattr(args, "focals", ""))
+    except ValueError as err:
+        raise ValueError(f"--focals: {err}") from None
 
 
 def places_of(sequence: str) -> tuple[str, ...]:
