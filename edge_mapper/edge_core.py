@@ -48,6 +48,7 @@ from twinslam.policies.actions import MapAction
 from twinslam.policies.protocol import MapPolicy
 from twinslam.slam.back_end.archive_relocalisation import ArchiveLocation
 from twinslam.slam.back_end.bundle_adjustment import BundleAdjustmentResult
+from twinslam.slam.back_end.device_record import DeviceRecord
 from twinslam.slam.back_end.foreign_keyframes import is_foreign
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap, write_checkpoint
@@ -172,7 +173,7 @@ class EdgeMapperCore:
             self.local_mapping.track_points = _table(extra, "track")
             self._previous_tracks = _table(extra, "previous_track")
         self.planner = SlotPlanner(self.slice, at_the_edge(policy), self.config.slot, n_states,
-                                   self.back_end.entered)
+                                   self.device.entered)
         self.pending: dict[int, tuple[MapAction, set[int]]] = {}   #: slot → (action, received)
         self._planned_vmax: dict[int, int] = {}   #: open slot → the V_max it was planned with
         #: requested uploads not integrated yet, as the slot's summaries observed them
@@ -202,10 +203,16 @@ class EdgeMapperCore:
         return self.back_end.map
 
     @property
+    def device(self) -> DeviceRecord:
+        """What the back end keeps of this device beside its place's map: its slice, camera,
+        tracks, entry order and the frame of each map version it was sent."""
+        return self.back_end.device
+
+    @property
     def slice(self) -> KeyFrameSlice:
         """The keyframes of :attr:`map` the device holds: what its plans, map update, map
         uncertainty, evictions, restores and covers read."""
-        return self.back_end.slice
+        return self.device.slice
 
     @property
     def writer(self) -> CheckpointWriter | None:
@@ -229,16 +236,16 @@ class EdgeMapperCore:
     @property
     def k(self) -> np.ndarray:
         """The camera's intrinsics (the identity until the first keyframe brings them)."""
-        return self.back_end.k
+        return self.device.k
 
     @property
     def camera(self) -> Camera:
-        """The device's camera as the edge knows it (:attr:`MapBackEnd.camera`)."""
-        return self.back_end.camera
+        """The device's camera as the edge knows it (:attr:`DeviceRecord.camera`)."""
+        return self.device.camera
 
     @property
     def local_mapping(self) -> LocalMapping:
-        return self.back_end.local_mapping
+        return self.device.local_mapping
 
     @property
     def loop_closer(self) -> LoopCloser:
@@ -259,7 +266,7 @@ class EdgeMapperCore:
     @property
     def frame_correction(self) -> np.ndarray:
         """The frame the map is in (MapUpdate.frame_correction)."""
-        return self.back_end.frame_correction
+        return self.device.frame_correction
 
     @property
     def archive_problems(self) -> list[str]:
@@ -377,7 +384,7 @@ class EdgeMapperCore:
             own = []
         if not lent and not own:
             return {}
-        poses = {f.frame_id: self.back_end.moved_since(f.map_version) @ f.pose
+        poses = {f.frame_id: self.device.moved_since(f.map_version) @ f.pose
                  for f in frames if f.tracked and f.pose is not None}
         covered = covered_views(poses, lent + own, bounds)
         if bounds.by_points and lent_ids:
@@ -403,7 +410,7 @@ class EdgeMapperCore:
             return False
         newest = max((f for f in frames if f.tracked and f.pose is not None),
                      key=lambda f: f.frame_id)
-        move = self.back_end.moved_since(newest.map_version)
+        move = self.device.moved_since(newest.map_version)
         poses = {i: move @ pose for i, pose in enumerate(ahead)}
         known = [*own, *(kf.pose for kf in self.archive)]
         return len(covered_views(poses, known, self.config.coverage)) == len(poses)
@@ -418,7 +425,7 @@ class EdgeMapperCore:
         after = self.config.own_coverage_after_slots
         if after <= 0:
             return False
-        entered, how = self.back_end.entered.get(keyframe, UNRECORDED)
+        entered, how = self.device.entered.get(keyframe, UNRECORDED)
         return how == RESTORED or 0 <= entered <= slot - after
 
     def is_restart(self, slot: int) -> bool:
@@ -484,7 +491,7 @@ class EdgeMapperCore:
 
     def frame_correction_at(self, version: int) -> np.ndarray:
         """The frame map version ``version`` was in (its ``frame_correction``)."""
-        return self.back_end.frame_correction_at(version)
+        return self.device.frame_correction_at(version)
 
     def integrate_held(self) -> list[int]:
         """The held keyframes of the slot that is now the oldest open one, integrated (call

@@ -362,8 +362,8 @@ def test_a_restored_keyframe_enters_the_maps_order_at_its_slot_and_keeps_it_over
         restored = set(core.finish_slot(slot).restored)
     assert checked, "no restore with older keyframes beside it: the test tests nothing"
     again = EdgeMapperCore(make_policy("lff"), K, config, checkpoint)
-    assert again.back_end.entered == core.back_end.entered
-    assert entry_order(again.map.keyframes, again.back_end.entered) != \
+    assert again.back_end.device.entered == core.back_end.device.entered
+    assert entry_order(again.map.keyframes, again.back_end.device.entered) != \
         sorted(again.map.keyframes)
 
 

@@ -190,7 +190,7 @@ def test_a_merged_map_moves_whole_into_the_place_frame_and_tells_its_device() ->
     upload = KeyFramePayload(frame_id=40, slot=1, pose=posed, intrinsics=core.k,
                              keypoints=np.zeros((0, 2)), descriptors=np.zeros((0, 32), np.uint8),
                              depths=np.zeros(0), point_ids=np.zeros(0, np.uint64), stamp=1.0)
-    moved = core.back_end.in_current_frame(upload, version)
+    moved = core.back_end.device.in_current_frame(upload, version)
     np.testing.assert_allclose(moved.pose, SECOND_IN_FIRST @ posed)
 
 
@@ -217,7 +217,7 @@ def _room_and_newcomer(room: Room, folder: Path | None = None  # noqa: F811
         cores["ar1"].archive.add(kf)
     cores["ar1"].map.add_keyframe(999, archive.get(270).pose)
     for core in cores.values():
-        core.back_end.k = room[0].intrinsics                    # type: ignore[attr-defined]
+        core.back_end.device.k = room[0].intrinsics                    # type: ignore[attr-defined]
     return cores
 
 
@@ -313,7 +313,7 @@ def _looks_of_ar2_in_the_room(room: Room, places: dict[str, dict[int, np.ndarray
 
     cores = {"ar0": _core(), **_room_and_newcomer(room)}
     cores["ar0"].map.add_keyframe(1, np.eye(4))
-    cores["ar0"].back_end.k = room[0].intrinsics                  # type: ignore[attr-defined]
+    cores["ar0"].back_end.device.k = room[0].intrinsics                  # type: ignore[attr-defined]
     uploads = ar0_uploads if ar0_uploads is not None else list(places["corridor"].values())
     for index, descriptors in enumerate(uploads):
         database.add("ar0", index, descriptors)
@@ -372,7 +372,7 @@ def test_a_device_whose_looks_find_nothing_looks_less_often_until_a_new_map_is_s
         newcomer = _room_and_newcomer(room)
         cores = {"ar0": _core(), "ar2": newcomer["ar2"]}
         cores["ar0"].map.add_keyframe(1, np.eye(4))
-        cores["ar0"].back_end.k = room[0].intrinsics              # type: ignore[attr-defined]
+        cores["ar0"].back_end.device.k = room[0].intrinsics              # type: ignore[attr-defined]
         merging = PlaceMerging(lambda: cores, background=False, look_backoff_slots=backoff)
         looked_at: list[int] = []
         slot = 0
@@ -962,7 +962,7 @@ def test_a_later_device_that_the_earlier_one_finds_in_its_map_joins_the_earlier_
         cores["ar2"].archive.add(kf)
     cores["ar2"].map.add_keyframe(999, archive.get(270).pose)
     for core in cores.values():
-        core.back_end.k = room[0].intrinsics                    # type: ignore[attr-defined]
+        core.back_end.device.k = room[0].intrinsics                    # type: ignore[attr-defined]
     merging = PlaceMerging(lambda: cores, background=False)
     assert merging.others("ar1") == ["ar2"]
     for slot, (key, frame) in enumerate(((10, 4), (11, 64), (12, 124))):
@@ -1003,7 +1003,7 @@ def test_two_places_each_joined_by_another_device_become_one_in_the_earlier_fram
     cores["ar2"].map.add_keyframe(999, archive.get(270).pose)
     cores["ar3"].map.add_keyframe(5, archive.get(270).pose)   # ar3's map, in ar2's frame
     for core in cores.values():
-        core.back_end.k = room[0].intrinsics                    # type: ignore[attr-defined]
+        core.back_end.device.k = room[0].intrinsics                    # type: ignore[attr-defined]
     merging = PlaceMerging(lambda: cores, background=False)
     merging.joined["ar3"] = "ar2"                      # as a merge before left it
     assert merging.place_of("ar3") == ["ar2", "ar3"] and merging.others("ar3") == []
@@ -1042,7 +1042,7 @@ def test_a_look_made_before_the_map_moved_is_dropped(room: Room) -> None:  # noq
         cores["ar1"].archive.add(kf)
     cores["ar1"].map.add_keyframe(999, archive.get(270).pose)
     for core in cores.values():
-        core.back_end.k = room[0].intrinsics                    # type: ignore[attr-defined]
+        core.back_end.device.k = room[0].intrinsics                    # type: ignore[attr-defined]
     merging = PlaceMerging(lambda: cores, background=False)
     for slot, (key, frame) in enumerate(((10, 4), (11, 64), (12, 124))):
         cores["ar2"].map.add_keyframe(key, _second_pose(room, frame))
@@ -1146,7 +1146,7 @@ def test_a_restored_adopted_keyframe_joins_the_map_through_its_welded_points(
     map closes later moves its own keyframes and never the adopted one."""
     seq, archive, _ = room
     core = _core(vmax=4)
-    core.back_end.k = seq.intrinsics                             # type: ignore[attr-defined]
+    core.back_end.device.k = seq.intrinsics                             # type: ignore[attr-defined]
     core.map.next_point_id = int(archive.get(30).point_ids.max()) + 1
     restore_into(core.map, archive.get(30))
     adopted = welded(_renumbered(archive.get(60), 100_000), 0, core.map, core.camera, slot=1)
@@ -1174,7 +1174,7 @@ def test_a_borrowers_bundle_adjustment_moves_the_newest_copies_and_holds_its_own
     "Which keyframes a merged map adjusts"). A change of it must be measured again."""
     seq, archive, _ = room
     core = _core(vmax=6)
-    core.back_end.k = seq.intrinsics                             # type: ignore[attr-defined]
+    core.back_end.device.k = seq.intrinsics                             # type: ignore[attr-defined]
     core.map.next_point_id = int(max(archive.get(k).point_ids.max() for k in (30, 60))) + 1
     restore_into(core.map, archive.get(30))
     restore_into(core.map, archive.get(60))
@@ -1220,7 +1220,7 @@ def test_adopted_keyframes_are_written_beside_the_slots_for_a_restart(
     k = np.array([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])
     core = EdgeMapperCore(make_policy("lff"), k, EdgeConfig(slot=SlotConfig(vmax=4)),
                           tmp_path / "edge.npz")
-    core.back_end.k = room[0].intrinsics                        # type: ignore[attr-defined]
+    core.back_end.device.k = room[0].intrinsics                        # type: ignore[attr-defined]
     lent = [welded(kf, 0, core.map, core.camera, slot=1) for kf in archive]
     assert core.back_end.adopt(lent) == []
     core.close()                                               # the worker's queue done
@@ -1260,7 +1260,7 @@ def test_a_lenders_loop_moves_the_copies_lent_before_it_never_a_keyframe_made_be
     np.testing.assert_allclose(core.map.keyframes[30].pose, own_before)
     for p in welded_points:
         np.testing.assert_allclose(core.map.points[p].position, before[p])
-    np.testing.assert_allclose(core.back_end.frame_correction, np.eye(4))
+    np.testing.assert_allclose(core.back_end.device.frame_correction, np.eye(4))
     assert follow_lender_loops(core.back_end, lender.back_end, 0, 1, next_version=4) == (1, ())
     np.testing.assert_allclose(in_map.pose, C60 @ pose_60)
 
@@ -1292,9 +1292,9 @@ def test_a_borrowers_keyframe_posed_on_a_copy_moves_with_it_and_so_does_its_devi
     np.testing.assert_allclose(head, C60, atol=2e-3)
     np.testing.assert_allclose(core.map.points[made].position,
                                head[:3, :3] @ made_before + head[:3, 3], atol=1e-9)
-    np.testing.assert_allclose(core.back_end.frame_correction, head, atol=1e-9)
-    np.testing.assert_allclose(core.back_end.frame_correction_at(2), np.eye(4))
-    np.testing.assert_allclose(core.back_end.frame_correction_at(3), head, atol=1e-9)
+    np.testing.assert_allclose(core.back_end.device.frame_correction, head, atol=1e-9)
+    np.testing.assert_allclose(core.back_end.device.frame_correction_at(2), np.eye(4))
+    np.testing.assert_allclose(core.back_end.device.frame_correction_at(3), head, atol=1e-9)
     assert [loop.carried for loop in core.back_end.applied_loops] == [True]
 
 
@@ -1322,7 +1322,7 @@ def test_a_move_another_map_carried_moves_the_copies_never_the_maps_own_again(
     assert (moved.copies, moved.own) == (3, 0)         # 90 and 120 as the head, 60
     np.testing.assert_allclose(core.map.keyframes[copies[60].id].pose, C60 @ pose_60)
     np.testing.assert_allclose(core.map.keyframes[30].pose, own_before)
-    np.testing.assert_allclose(core.back_end.frame_correction, np.eye(4))
+    np.testing.assert_allclose(core.back_end.device.frame_correction, np.eye(4))
     assert core.back_end.applied_loops == []
 
 
@@ -1332,7 +1332,7 @@ def _borrower(room: Room) -> tuple[EdgeMapperCore, dict[int, ArchivedKeyFrame]]:
     the lender's ids)."""
     seq, archive, _ = room
     core = _core(vmax=4)
-    core.back_end.k = seq.intrinsics                             # type: ignore[attr-defined]
+    core.back_end.device.k = seq.intrinsics                             # type: ignore[attr-defined]
     core.map.next_point_id = int(archive.get(30).point_ids.max()) + 1
     restore_into(core.map, archive.get(30))
     copies = {k: welded(_renumbered(archive.get(k), 100_000 * (i + 1)), 0, core.map,
@@ -1496,7 +1496,7 @@ def test_a_view_two_devices_uploaded_is_lent_once_and_again_when_its_copy_leaves
             first.archive.add(kf)
             second.archive.add(dataclasses.replace(_renumbered(kf, 1 << 20), id=kf.id + offset))
         for core in (first, second, borrower):
-            core.back_end.k = room[0].intrinsics             # type: ignore[attr-defined]
+            core.back_end.device.k = room[0].intrinsics             # type: ignore[attr-defined]
         return borrower, [Lender(first.back_end, 1, set(), 0),
                           Lender(second.back_end, 2, set(), 0)]
 

@@ -168,7 +168,7 @@ def _own_cover(after: int, entered: tuple[int, int], ahead: str = "map",
     tag = foreign_tag(0) if lent else 1000          # 1000 + k: the device's own ids
     for k, x in (*beside, *there):
         _lend(core, tag | k if lent else tag + k, _pose(x))
-        core.back_end.entered[tag + k] = entered
+        core.back_end.device.entered[tag + k] = entered
     if ahead == "archive":
         core.back_end.evict_to_archive([tag + k for k, _ in there], 0)
         assert all(tag + k in core.archive for k, _ in there)

@@ -11,7 +11,7 @@ closed so far agreeing with each other:
   (:mod:`~twinslam.slam.back_end.keyframe_gate`) into the map
   (:mod:`~twinslam.slam.back_end.local_mapping`, culling the points its view held and never
   found), first moved into the frame the map is in now if a loop corrected it since the
-  device posed it (:meth:`MapBackEnd.in_current_frame`);
+  device posed it (:meth:`DeviceRecord.in_current_frame`);
 * :meth:`MapBackEnd.evict_to_archive` and :meth:`MapBackEnd.restore` — keyframes leave for
   the archive and come back from it, the points they bring back fused with their copies
   (:mod:`~twinslam.slam.back_end.point_fusion`);
@@ -45,6 +45,7 @@ from twinslam.slam.back_end.bundle_adjustment import (
     Observation,
     bundle_adjust,
 )
+from twinslam.slam.back_end.device_record import DeviceRecord
 from twinslam.slam.back_end.foreign_keyframes import (
     copy_anchors,
     is_foreign,
@@ -191,9 +192,9 @@ class MapBackEnd:
 
     def __init__(self, config: BackEndConfig, intrinsics: np.ndarray | None = None,
                  checkpoint: Path | None = None) -> None:
+        """A back end for a device of camera ``intrinsics`` (None: taken from its first
+        keyframe), restarted from ``checkpoint`` where the file is there."""
         self.config = config
-        #: camera intrinsics; without them at start, taken from the first keyframe
-        self.k = np.eye(3) if intrinsics is None else np.asarray(intrinsics, dtype=np.float64)
         self.checkpoint = Path(checkpoint) if checkpoint else None
         managed = KeyFrameMap()
         #: the arrays saved beside the map (the edge core reads its own from them)
@@ -206,11 +207,14 @@ class MapBackEnd:
         self.archive_problems: list[str] = []
         #: every keyframe kept: the slice the device holds (:attr:`map`) and the archive
         self.store = KeyFrameStore(managed, self._open_archive(set(managed.keyframes)))
-        self.local_mapping = LocalMapping(
-            self.map, self.k, config.image_shape,
+        local_mapping = LocalMapping(
+            self.map, np.eye(3) if intrinsics is None else intrinsics, config.image_shape,
             LocalMappingConfig(culling=PointCullingConfig() if config.point_culling else None,
                                join_radius_m=JOIN_RADIUS_M if config.integration_fusion
                                else None))
+        #: the device's share of the back end: its slice, tracks, camera, entry order, frames
+        self.device = DeviceRecord.restored(self.store.slice, local_mapping,
+                                            config.image_shape, extra)
         self.loop_closer = LoopCloser(config.loop_background, config.loop_min_gap,
                                       confirmations=config.loop_confirmations)
         #: keyframes integrated since the last loop job, newest last
@@ -239,29 +243,6 @@ class MapBackEnd:
         self.applied_loops: list[AppliedLoop] = []
         #: loops applied before the oldest of :attr:`applied_loops`, no longer kept
         self.loops_forgotten = 0
-        #: the applied loops' corrections at the walk's head, composed: the frame the map is in
-        #: relative to the one the walk started in (MapUpdate.frame_correction)
-        self.frame_correction = np.asarray(extra.get("frame_correction", np.eye(4)),
-                                           dtype=np.float64).reshape(4, 4)
-        #: where the device's first camera — the map's origin until a merge moved the map
-        #: into another device's frame (:meth:`align`) — is now; loops hold it still
-        self.origin = np.asarray(extra.get("origin", np.eye(4)),
-                                 dtype=np.float64).reshape(4, 4)
-        #: (first map version carrying it, frame_correction): the frame each version is in
-        self._frames_since: list[tuple[int, np.ndarray]] = [(0, self.frame_correction.copy())]
-        #: each integrated keyframe's capture time (s): its place in the keyframe trajectory
-        self.keyframe_stamps: dict[int, float] = dict(zip(
-            (int(k) for k in extra.get("keyframe_stamp_ids", ())),
-            (float(t) for t in extra.get("keyframe_stamps", ())), strict=True))
-        #: when each of the map's keyframes entered it: (the slot that asked for it,
-        #: UPLOADED) or (the slot that brought it back at its end, RESTORED) — the map's order
-        #: for a rule's "oldest" (:mod:`twinslam.slot_protocol.map_entry`); changed in place,
-        #: never replaced (the slot planner reads it)
-        self.entered: dict[int, tuple[int, int]] = dict(zip(
-            (int(k) for k in extra.get("entered_ids", ())),
-            ((int(s), int(p)) for s, p in zip(extra.get("entered_slots", ()),
-                                               extra.get("entered_phases", ()), strict=True)),
-            strict=True))
 
     @property
     def map(self) -> KeyFrameMap:
@@ -272,7 +253,7 @@ class MapBackEnd:
     def slice(self) -> KeyFrameSlice:
         """The keyframes the device holds of :attr:`map`: what its map update, uncertainty,
         policy and evictions read (the whole map while the map is one device's)."""
-        return self.store.slice
+        return self.device.slice
 
     @property
     def archive(self) -> KeyFrameArchive:
@@ -305,7 +286,12 @@ class MapBackEnd:
     def camera(self) -> Camera:
         """The device's camera: its intrinsics (the identity until the first keyframe brings
         them) and the configured image size."""
-        return Camera(self.k, self.config.image_shape)
+        return self.device.camera
+
+    @property
+    def k(self) -> np.ndarray:
+        """The device's camera intrinsics (:attr:`DeviceRecord.k`)."""
+        return self.device.k
 
     # -- keyframes in ------------------------------------------------------------------------
 
@@ -319,48 +305,24 @@ class MapBackEnd:
         """A keyframe the device posed on map version ``tracked_on`` (-1: unknown) into the
         map, moved into the map's frame now, if the gate lets it; a refusal changes
         nothing (its report says why)."""
-        data = self.in_current_frame(data, tracked_on)
+        device = self.device
+        data = device.in_current_frame(data, tracked_on)
         refused = implausible_keyframe(data, self.map,
                                        ((kf.id, kf.pose) for kf in self.archive),
-                                       self.config.keyframe_gate, self.origin)
+                                       self.config.keyframe_gate, device.origin)
         if refused:
             return IntegrationReport.refusal(refused)
-        self.k = self.local_mapping.k = np.asarray(data.intrinsics, dtype=np.float64)
-        report = self.local_mapping.integrate(data.frame_id, data.pose, data.keypoints,
-                                              data.descriptors, data.depths, data.point_ids)
+        device.k = data.intrinsics
+        report = device.local_mapping.integrate(data.frame_id, data.pose, data.keypoints,
+                                                data.descriptors, data.depths, data.point_ids)
         if data.frame_id in self.map.keyframes:
-            self.store.entered([data.frame_id])      # the device's, no other device's
-            self.entered[data.frame_id] = (int(data.slot), UPLOADED)
-            self.keyframe_stamps[data.frame_id] = float(data.stamp)
+            self.store.entered([data.frame_id], device.slice)   # the device's, no other's
+            device.entered[data.frame_id] = (int(data.slot), UPLOADED)
+            device.keyframe_stamps[data.frame_id] = float(data.stamp)
             if self.config.loop_closing:
                 self._loop_queries = [*self._loop_queries[-(LOOP_QUERIES - 1):],
                                       LoopQuery.of(data)]
         return report
-
-    def frame_correction_at(self, version: int) -> np.ndarray:
-        """The frame map version ``version`` was in (its ``frame_correction``)."""
-        return next((c for first, c in reversed(self._frames_since) if first <= version),
-                    self._frames_since[0][1])
-
-    def in_current_frame(self, data: KeyFramePayload, tracked_on: int) -> KeyFramePayload:
-        """A keyframe the device tracked against map version ``tracked_on`` (-1: unknown), in
-        the frame the map is in now: a loop corrected since then did not reach the device
-        before it posed this frame (the map update comes a slot or two after the slot that
-        closed it), so its pose moves by the corrections applied since — else it would enter
-        the corrected map where the uncorrected one had it, its points a second copy of the
-        place."""
-        since = self.moved_since(tracked_on)
-        if np.allclose(since, np.eye(4), atol=1e-12):
-            return data
-        return dataclasses.replace(data, pose=since @ data.pose)
-
-    def moved_since(self, version: int) -> np.ndarray:
-        """The motion the map's frame went through (loops, a merge) since map version
-        ``version`` (-1: unknown, taken as now: the identity): a pose the device posed on that
-        version, times it, is in the map's frame now."""
-        if version < 0:
-            return np.eye(4)
-        return self.frame_correction @ np.linalg.inv(self.frame_correction_at(version))
 
     # -- keyframes out and back --------------------------------------------------------------
 
@@ -368,9 +330,9 @@ class MapBackEnd:
         """``keyframes`` evicted into the archive at ``slot``; (the archived keyframes that left
         the archive to keep its capacity, the points that lost their last observer)."""
         keyframes = list(keyframes)
-        forgotten, orphans = self.store.leave_slice(keyframes, slot)
+        forgotten, orphans = self.store.leave_slice(keyframes, slot, self.device.slice)
         for kf in keyframes:
-            self.entered.pop(kf, None)
+            self.device.entered.pop(kf, None)
         for kf in forgotten:
             self.adopted_at.pop(kf, None)
         return forgotten, orphans
@@ -382,8 +344,8 @@ class MapBackEnd:
         points a restored keyframe brings back that the map made again since)."""
         back = [self.archive.take(kf) for kf in restore]
         forgotten, _ = self.evict_to_archive(evict, slot)
-        returned = self.store.enter_slice(back)
-        self.entered.update((kf, (slot, RESTORED)) for kf in returned)
+        returned = self.store.enter_slice(back, self.device.slice)
+        self.device.entered.update((kf, (slot, RESTORED)) for kf in returned)
         fused = sum(len(fuse_restored(self.map, kf, points, self.camera_of(kf)))
                     for kf, points in returned.items()) if self.config.point_fusion else 0
         return forgotten, fused
@@ -591,8 +553,7 @@ class MapBackEnd:
             return corrections.get(kf_id) if copies_too else correction_for(corrections, kf_id)
 
         move_keyframes(self.map, {k: c for k in self.map.keyframes if (c := of(k)) is not None})
-        self.frame_correction = head @ self.frame_correction
-        self._frames_since.append((next_version, self.frame_correction.copy()))
+        self.device.frame_moved(head, next_version)
         archived = self.archive.correct(
             {kf.id: c for kf in self.archive if (c := of(kf.id)) is not None}, write=False)
         if archived:
@@ -610,7 +571,7 @@ class MapBackEnd:
         if alignment.shape != (4, 4) or not np.isfinite(alignment).all():
             raise ValueError("an alignment is a finite 4×4 rigid motion")
         self.loop_closer.discard()
-        self.origin = alignment @ self.origin
+        self.device.origin = alignment @ self.device.origin
         # a loop's correction c moves points of the old frame; in the new one it is A c A⁻¹
         undo = np.linalg.inv(alignment)
         self.applied_loops = [dataclasses.replace(loop, corrections={
@@ -765,9 +726,9 @@ class MapBackEnd:
         trajectory, which a device's map updates never carry (an archived keyframe a loop
         corrects is not sent again). Keyframes of unknown capture time (a checkpoint written
         before they were kept) are left out."""
-        return sorted(((self.keyframe_stamps[k], pose.copy())
-                       for k, pose in self.keyframe_poses().items()
-                       if k in self.keyframe_stamps), key=lambda entry: entry[0])
+        stamps = self.device.keyframe_stamps
+        return sorted(((stamps[k], pose.copy()) for k, pose in self.keyframe_poses().items()
+                       if k in stamps), key=lambda entry: entry[0])
 
     def keyframe_poses(self) -> dict[int, np.ndarray]:
         """Every keyframe kept — the archive's and the map's — by id, where the edge holds it
@@ -780,15 +741,8 @@ class MapBackEnd:
         """What a restarted back end reads back besides the map: the loops applied, the
         frame they left the map in, where a merge put the device's first camera and the
         capture times of the keyframes kept."""
-        kept = sorted(k for k in self.keyframe_stamps
-                      if k in self.store)
         return {"loops_closed": np.array(self.loops_closed), **_loop_arrays(self.loop_edges),
-                "frame_correction": self.frame_correction, "origin": self.origin,
-                "keyframe_stamp_ids": np.array(kept, dtype=np.int64),
-                "keyframe_stamps": np.array([self.keyframe_stamps[k] for k in kept],
-                                            dtype=np.float64),
-                **_entered_arrays({k: s for k, s in self.entered.items()
-                                   if k in self.map.keyframes}),
+                **self.device.checkpoint_arrays(self.store),
                 **_adopted_arrays({k: s for k, s in self.adopted_at.items()
                                    if k in self.store})}
 
@@ -801,14 +755,6 @@ def _moved_m(before: np.ndarray, after: np.ndarray) -> float:
 def archive_folder(checkpoint: Path) -> Path:
     """Where the archive of the map checkpointed at ``checkpoint`` lives."""
     return checkpoint.with_name(checkpoint.name + ".archive")
-
-
-def _entered_arrays(entered: Mapping[int, tuple[int, int]]) -> dict[str, np.ndarray]:
-    """When the map's keyframes entered it, as the checkpoint's three arrays."""
-    ids = sorted(entered)
-    return {"entered_ids": np.array(ids, dtype=np.int64),
-            "entered_slots": np.array([entered[k][0] for k in ids], dtype=np.int64),
-            "entered_phases": np.array([entered[k][1] for k in ids], dtype=np.int64)}
 
 
 def _adopted_arrays(adopted: Mapping[int, int]) -> dict[str, np.ndarray]:

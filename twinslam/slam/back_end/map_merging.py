@@ -284,7 +284,7 @@ def lend_from(borrower: MapBackEnd, lenders: list[Lender], slot: int, next_versi
         offers = _new_views_only(borrower, lenders, offers, views)
     # a keyframe of a lender's managed map is copied only once it is lent; each carries the
     # lender's camera, which took it (the borrower's may be another model)
-    unlent = [[_taken_by(kf, lender.back_end.k)
+    unlent = [[_taken_by(kf, lender.back_end.device.k)
                for kf in archived + [ArchivedKeyFrame.of(lender.back_end.map, k, slot)
                                      for k in held]]
               for lender, (archived, held) in zip(lenders, offers, strict=True)]
