@@ -152,7 +152,6 @@ def lend_keyframes(lender: DeviceWalk, borrower: DeviceWalk, state: LendingState
     keyframes tied to them; with ``state.unseen_slots``, the copies its device has not held
     nor seen for that long go back (``slot``: the bench's, for the log)."""
     lending = lend_from(borrower.edge.back_end, [state.lender], max(borrower.slot, 0),
-                        borrower.edge.version + 1,
                         None if state.eager else borrower.edge.in_coming_view,
                         state.unseen_slots, state.views)[0]
     state.lender = dataclasses.replace(state.lender, followed=lending.followed)

@@ -163,7 +163,6 @@ class EdgeMapperCore:
         self.saved_with: Callable[[], Mapping[str, np.ndarray]] | None = None
         self._writer: CheckpointWriter | None = None
         extra = self.back_end.extra
-        self.version = int(extra.get("version", 0))
         self.last_slot = int(extra.get("last_slot", -1))
         self.rate_history = [int(x) for x in extra.get("rate_history", [])]
         #: the device's tracks resolved in the last finished slot: the next map update lists
@@ -207,6 +206,15 @@ class EdgeMapperCore:
         """What the back end keeps of this device beside its place's map: its slice, camera,
         tracks, entry order and the frame of each map version it was sent."""
         return self.back_end.device
+
+    @property
+    def version(self) -> int:
+        """The newest map version the device was sent (:attr:`DeviceRecord.version`)."""
+        return self.device.version
+
+    @version.setter
+    def version(self, version: int) -> None:
+        self.device.version = version
 
     @property
     def slice(self) -> KeyFrameSlice:
@@ -520,7 +528,7 @@ class EdgeMapperCore:
         refused = self._refused.pop(slot, {})
         received -= refused.keys()            # a refused upload is as good as lost
         tl = time.perf_counter()
-        loop = self.back_end.take_loop(self.version + 1)
+        loop = self.back_end.take_loop()
         missing = set(action.upload) - received
         evicted = applied_evictions(action.evict, self.slice.keyframe_ids(), missing, vmax)
         ta = time.perf_counter()
@@ -582,7 +590,7 @@ class EdgeMapperCore:
         if self.checkpoint is None:
             raise ValueError("this edge has no checkpoint file to write")
         contents = self.map.checkpoint_contents(
-            version=np.array(self.version), last_slot=np.array(self.last_slot),
+            last_slot=np.array(self.last_slot),
             rate_history=np.array(self.rate_history, dtype=np.int64),
             **self.back_end.checkpoint_arrays(),
             **_table_arrays(self.local_mapping.track_points, "track"),
@@ -693,7 +701,7 @@ class EdgeMapperCore:
         :mod:`twinslam.slam.back_end.map_merging`): the map, its archive and where the
         camera is heading, from the next map update on (:meth:`MapBackEnd.align`; call it
         between slots)."""
-        self.back_end.align(alignment, self.version + 1)
+        self.back_end.align(alignment)
         move = np.asarray(alignment, dtype=np.float64)
         self._headings = {s: [move @ p for p in poses] for s, poses in self._headings.items()}
         self._last_heading = [move @ p for p in self._last_heading]

@@ -388,8 +388,7 @@ class PlaceMerging:
                                  self._seen.setdefault(pair, {}),
                                  self._declined.setdefault(pair, {})))
         in_view = cores[borrower].in_coming_view if self.lend_in_view else None
-        done = dict(zip(serving, lend_from(cores[borrower].back_end, rounds, slot,
-                                           cores[borrower].version + 1, in_view,
+        done = dict(zip(serving, lend_from(cores[borrower].back_end, rounds, slot, in_view,
                                            self.unseen_slots, self.lent_views),
                         strict=True)) if serving else {}
         # the borrower's loops may close with the copies of its place's other devices (those

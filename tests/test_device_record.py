@@ -60,7 +60,8 @@ def test_two_devices_of_one_place_keep_their_tracks_apart() -> None:
 def test_a_keyframe_posed_on_an_older_map_version_moves_by_what_the_map_went_through() -> None:
     record = _record(KeyFrameStore(KeyFrameMap(), KeyFrameArchive(10)))
     loop = _pose(0.3)
-    record.frame_moved(loop, next_version=4)           # a loop applied from version 4 on
+    record.version = 3
+    record.frame_moved(loop)                           # a loop applied from version 4 on
     upload = KeyFramePayload(frame_id=7, slot=3, stamp=1.0, pose=_pose(1.0), intrinsics=K,
                              keypoints=np.zeros((0, 2)), depths=np.zeros(0),
                              descriptors=np.zeros((0, 32), dtype=np.uint8),
@@ -68,7 +69,8 @@ def test_a_keyframe_posed_on_an_older_map_version_moves_by_what_the_map_went_thr
     np.testing.assert_allclose(record.in_current_frame(upload, 3).pose, loop @ _pose(1.0))
     assert record.in_current_frame(upload, 4) is upload      # posed on the corrected map
     assert record.in_current_frame(upload, -1) is upload     # version unknown: as it is
-    record.frame_moved(_pose(0.1), next_version=6)
+    record.version = 5
+    record.frame_moved(_pose(0.1))
     np.testing.assert_allclose(record.moved_since(3), _pose(0.4), atol=1e-12)
     np.testing.assert_allclose(record.moved_since(5), _pose(0.1), atol=1e-12)
 
@@ -81,7 +83,9 @@ def test_a_restart_reads_back_the_device_as_the_place_keeps_it() -> None:
     store.entered([1, 2, 3])
     record.entered.update({1: (0, UPLOADED), 2: (1, UPLOADED), 3: (2, RESTORED)})
     record.keyframe_stamps.update({1: 0.1, 2: 0.2, 3: 0.3, 9: 0.9})   # 9: forgotten since
-    record.frame_moved(_pose(0.2), next_version=2)
+    record.version = 1
+    record.frame_moved(_pose(0.2))
+    record.version = 4
     record.origin = _pose(-1.0)
     store.leave_slice([2], slot=3)                     # archived: kept, no longer held
     arrays = record.checkpoint_arrays(store)
@@ -91,6 +95,7 @@ def test_a_restart_reads_back_the_device_as_the_place_keeps_it() -> None:
     assert again.entered == {1: (0, UPLOADED), 3: (2, RESTORED)}
     assert again.keyframe_stamps == {1: 0.1, 2: 0.2, 3: 0.3}
     np.testing.assert_allclose(again.frame_correction, _pose(0.2))
+    assert again.version == 4
     np.testing.assert_allclose(again.origin, _pose(-1.0))
     # a fresh device starts where its walk starts
     fresh = DeviceRecord.restored(store.slice, LocalMapping(store.managed, K, SHAPE), SHAPE, {})

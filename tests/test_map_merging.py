@@ -1051,7 +1051,7 @@ def test_a_look_made_before_the_map_moved_is_dropped(room: Room) -> None:  # noq
         merging.look("ar2", slot)
     loop = np.eye(4)
     loop[0, 3] = 0.05                                  # a loop corrected the map meanwhile
-    cores["ar2"].back_end.align(loop, cores["ar2"].version + 1)
+    cores["ar2"].back_end.align(loop)
     assert merging.take("ar2") is None and merging.joined == {}
     np.testing.assert_allclose(cores["ar2"].frame_correction, loop)
 
@@ -1248,7 +1248,7 @@ def test_a_lenders_loop_moves_the_copies_lent_before_it_never_a_keyframe_made_be
     archived_before = {k: core.archive.get(copies[k].id).pose.copy() for k in (90, 120)}
 
     lender = _lender_loop()
-    followed, moves = follow_lender_loops(core.back_end, lender.back_end, 0, 0, next_version=3)
+    followed, moves = follow_lender_loops(core.back_end, lender.back_end, 0, 0)
     assert followed == 1 and [(m.copies, m.own) for m in moves] == [(3, 0)]
 
     np.testing.assert_allclose(in_map.pose, C60 @ pose_60)
@@ -1261,7 +1261,7 @@ def test_a_lenders_loop_moves_the_copies_lent_before_it_never_a_keyframe_made_be
     for p in welded_points:
         np.testing.assert_allclose(core.map.points[p].position, before[p])
     np.testing.assert_allclose(core.back_end.device.frame_correction, np.eye(4))
-    assert follow_lender_loops(core.back_end, lender.back_end, 0, 1, next_version=4) == (1, ())
+    assert follow_lender_loops(core.back_end, lender.back_end, 0, 1) == (1, ())
     np.testing.assert_allclose(in_map.pose, C60 @ pose_60)
 
 
@@ -1284,7 +1284,8 @@ def test_a_borrowers_keyframe_posed_on_a_copy_moves_with_it_and_so_does_its_devi
     own_before = {k: core.map.keyframes[k].pose.copy() for k in (30, 150)}
     made_before = core.map.points[made].position.copy()
 
-    moved = core.back_end.follow(_lender_loop().back_end.applied_loops[0], foreign_tag(0), 3)
+    core.version = 2                                   # the device holds map version 2
+    moved = core.back_end.follow(_lender_loop().back_end.applied_loops[0], foreign_tag(0))
     assert (moved.copies, moved.own, moved.refused) == (3, 2, "")
     assert 0.018 < moved.own_moved_m <= 0.02
     np.testing.assert_allclose(core.map.keyframes[30].pose, own_before[30], atol=1e-9)
@@ -1318,7 +1319,7 @@ def test_a_move_another_map_carried_moves_the_copies_never_the_maps_own_again(
     core, copies = _borrower(room)
     own_before = core.map.keyframes[30].pose.copy()
     pose_60 = core.map.keyframes[copies[60].id].pose.copy()
-    moved = core.back_end.follow(AppliedLoop({60: C60}, carried=True), foreign_tag(0), 3)
+    moved = core.back_end.follow(AppliedLoop({60: C60}, carried=True), foreign_tag(0))
     assert (moved.copies, moved.own) == (3, 0)         # 90 and 120 as the head, 60
     np.testing.assert_allclose(core.map.keyframes[copies[60].id].pose, C60 @ pose_60)
     np.testing.assert_allclose(core.map.keyframes[30].pose, own_before)
@@ -1502,19 +1503,19 @@ def test_a_view_two_devices_uploaded_is_lent_once_and_again_when_its_copy_leaves
 
     exact = CoverageBounds(max_m=0.01, max_deg=1.0)   # only the same view covers
     borrower, pair = lenders()
-    lendings = lend_from(borrower.back_end, pair, 0, 1, views=exact)
+    lendings = lend_from(borrower.back_end, pair, 0, views=exact)
     assert [lending.adopted for lending in lendings] == [len(archive), 0]
     assert pair[1].declined == {kf.id + offset: foreign_tag(1) | kf.id for kf in archive}
     # the first lender's copy of one view leaves the borrower: the second's is lent instead
     view = next(iter(archive)).id
     assert borrower.back_end.release_copies([foreign_tag(1) | view])
-    lendings = lend_from(borrower.back_end, pair, 1, 2, views=exact)
+    lendings = lend_from(borrower.back_end, pair, 1, views=exact)
     assert [lending.adopted for lending in lendings] == [0, 1]
     assert foreign_tag(2) | (view + offset) in borrower.back_end.store
     assert view + offset not in pair[1].declined
     # every keyframe of both lenders without it
     borrower, pair = lenders()
-    lendings = lend_from(borrower.back_end, pair, 0, 1)
+    lendings = lend_from(borrower.back_end, pair, 0)
     assert [lending.adopted for lending in lendings] == [len(archive), len(archive)]
 
 

@@ -225,7 +225,7 @@ def test_a_frame_tracked_before_a_merge_is_judged_where_the_merge_put_it() -> No
     covers it, one where its pose says (in the frame it left) does not."""
     device, core = _walked_edge()
     before = core.version
-    core.back_end.align(_pose(2.0), core.version + 1)
+    core.back_end.align(_pose(2.0))
     core.version += 1
     _lend(core, foreign_tag(0) | 26, _pose(2.0 + 1.04))
     _lend(core, foreign_tag(0) | 30, _pose(2.0 + 1.20))
@@ -233,7 +233,7 @@ def test_a_frame_tracked_before_a_merge_is_judged_where_the_merge_put_it() -> No
     assert plan.covered == frozenset(range(24, 32))
     # the same poses said to be in the map's frame now are 2 m from the lent keyframes
     device, core = _walked_edge()
-    core.back_end.align(_pose(2.0), core.version + 1)
+    core.back_end.align(_pose(2.0))
     core.version += 1
     _lend(core, foreign_tag(0) | 26, _pose(2.0 + 1.04))
     plan = core.plan(3, _posed_slot(device, core, 3, version=core.version), 20.0, 1)

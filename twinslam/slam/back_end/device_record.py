@@ -12,8 +12,8 @@ place's map (docs/architecture.md §10, "Devices in one place", step 2(b)) each 
 * **when each of its keyframes entered** its slice (the planner's "oldest",
   :mod:`twinslam.slot_protocol.map_entry`) and each one's **capture time** (its keyframe
   trajectory);
-* **the frame of each map version it was sent**: loops and merges move the map under a
-  device, and a keyframe it posed on an older version must be moved by what the map went
+* **the map versions it was sent**, and the frame of each: loops and merges move the map
+  under a device, and a keyframe it posed on an older version must be moved by what the map went
   through since (:meth:`DeviceRecord.in_current_frame`); and where its first camera is now
   (:attr:`DeviceRecord.origin`, the keyframe gate's reference).
 
@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from twinslam.slam.back_end.foreign_keyframes import tag_of
 from twinslam.slam.back_end.keyframe_slice import KeyFrameSlice
 from twinslam.slam.back_end.local_mapping import LocalMapping
 from twinslam.slam.camera import Camera
@@ -59,6 +60,12 @@ class DeviceRecord:
     origin: np.ndarray = field(default_factory=lambda: np.eye(4))
     #: (first map version carrying it, frame_correction): the frame each version is in
     frames_since: list[tuple[int, np.ndarray]] = field(default_factory=list)
+    #: the newest map version the device was sent (each device counts its own)
+    version: int = 0
+    #: the tag its keyframe ids carry in the place's map
+    #: (:func:`~twinslam.slam.back_end.foreign_keyframes.foreign_tag`; 0: the place's first
+    #: device, whose ids are its frame indices as they are)
+    tag: int = 0
 
     def __post_init__(self) -> None:
         if not self.frames_since:
@@ -66,10 +73,10 @@ class DeviceRecord:
 
     @classmethod
     def restored(cls, slice_: KeyFrameSlice, local_mapping: LocalMapping,
-                 image_shape: tuple[int, int], arrays: Mapping[str, np.ndarray]
+                 image_shape: tuple[int, int], arrays: Mapping[str, np.ndarray], tag: int = 0
                  ) -> DeviceRecord:
         """The record :meth:`checkpoint_arrays` wrote (``arrays``: a checkpoint's, or none:
-        a fresh device)."""
+        a fresh device) for the device of tag ``tag``."""
         def frame(name: str) -> np.ndarray:
             return np.asarray(arrays.get(name, np.eye(4)), dtype=np.float64).reshape(4, 4)
 
@@ -81,7 +88,8 @@ class DeviceRecord:
                                                arrays.get("entered_phases", ()), strict=True)),
             strict=True))
         return cls(slice_, local_mapping, image_shape, entered, stamps,
-                   frame("frame_correction"), frame("origin"))
+                   frame("frame_correction"), frame("origin"),
+                   version=int(arrays.get("version", 0)), tag=tag)
 
     @property
     def k(self) -> np.ndarray:
@@ -125,21 +133,34 @@ class DeviceRecord:
             return data
         return dataclasses.replace(data, pose=since @ data.pose)
 
-    def frame_moved(self, head: np.ndarray, next_version: int) -> None:
+    def frame_moved(self, head: np.ndarray) -> None:
         """The map moved under the device by ``head`` (the correction at its walk's head),
-        from map version ``next_version`` on."""
+        from its next map version on."""
         self.frame_correction = head @ self.frame_correction
-        self.frames_since.append((next_version, self.frame_correction.copy()))
+        self.frames_since.append((self.version + 1, self.frame_correction.copy()))
+
+    def owns(self, kf_id: int) -> bool:
+        """Whether keyframe ``kf_id`` of the place is one the device uploaded (its tag)."""
+        return tag_of(kf_id) == self.tag
+
+    def head_of(self, corrections: Mapping[int, np.ndarray]) -> np.ndarray | None:
+        """Of a loop's ``corrections`` (keyframe id → 4×4), the one at the device's walk's
+        head — its newest keyframe the loop moved; every keyframe it posed since, and every
+        pose it holds, needs that correction (None: the loop moved none of its keyframes)."""
+        newest = max((k for k in corrections if self.owns(k)), default=None)
+        return None if newest is None else corrections[newest]
 
     # -- checkpoint --------------------------------------------------------------------------
 
     def checkpoint_arrays(self, kept: Container[int]) -> dict[str, np.ndarray]:
-        """What a restarted edge reads back of the device (:meth:`restored`): the frame its
-        map is in, where its first camera is, and — of the keyframes the place keeps
-        (``kept``) — capture times, and when those in its slice entered it."""
+        """What a restarted edge reads back of the device (:meth:`restored`): the map version
+        it was sent last, the frame that map is in, where its first camera is, and — of the
+        keyframes the place keeps (``kept``) — capture times, and when those in its slice
+        entered it."""
         stamped = sorted(k for k in self.keyframe_stamps if k in kept)
         held = sorted(k for k in self.entered if self.slice.holds(k))
-        return {"frame_correction": self.frame_correction, "origin": self.origin,
+        return {"version": np.array(self.version),
+                "frame_correction": self.frame_correction, "origin": self.origin,
                 "keyframe_stamp_ids": np.array(stamped, dtype=np.int64),
                 "keyframe_stamps": np.array([self.keyframe_stamps[k] for k in stamped],
                                             dtype=np.float64),

@@ -207,14 +207,12 @@ class MapBackEnd:
         self.archive_problems: list[str] = []
         #: every keyframe kept: the slice the device holds (:attr:`map`) and the archive
         self.store = KeyFrameStore(managed, self._open_archive(set(managed.keyframes)))
-        local_mapping = LocalMapping(
-            self.map, np.eye(3) if intrinsics is None else intrinsics, config.image_shape,
-            LocalMappingConfig(culling=PointCullingConfig() if config.point_culling else None,
-                               join_radius_m=JOIN_RADIUS_M if config.integration_fusion
-                               else None))
+        local_mapping = self._local_mapping(intrinsics)
         #: the device's share of the back end: its slice, tracks, camera, entry order, frames
         self.device = DeviceRecord.restored(self.store.slice, local_mapping,
                                             config.image_shape, extra)
+        #: every device whose keyframes live in :attr:`map`, :attr:`device` first
+        self.devices: list[DeviceRecord] = [self.device]
         self.loop_closer = LoopCloser(config.loop_background, config.loop_min_gap,
                                       confirmations=config.loop_confirmations)
         #: keyframes integrated since the last loop job, newest last
@@ -243,6 +241,35 @@ class MapBackEnd:
         self.applied_loops: list[AppliedLoop] = []
         #: loops applied before the oldest of :attr:`applied_loops`, no longer kept
         self.loops_forgotten = 0
+
+    def _local_mapping(self, intrinsics: np.ndarray | None) -> LocalMapping:
+        """A device's keyframes into :attr:`map` (its camera ``intrinsics``; None: taken from
+        its first keyframe)."""
+        config = self.config
+        return LocalMapping(
+            self.map, np.eye(3) if intrinsics is None else intrinsics, config.image_shape,
+            LocalMappingConfig(culling=PointCullingConfig() if config.point_culling else None,
+                               join_radius_m=JOIN_RADIUS_M if config.integration_fusion
+                               else None))
+
+    def add_device(self, tag: int, intrinsics: np.ndarray | None = None,
+                   holds: Iterable[int] = (), origin: np.ndarray | None = None
+                   ) -> DeviceRecord:
+        """Another device into this back end's place: its keyframes enter :attr:`map` under
+        ids tagged ``tag`` (:func:`~twinslam.slam.back_end.foreign_keyframes.foreign_tag`),
+        its camera ``intrinsics`` (None: taken from its first keyframe), holding the map's
+        keyframes ``holds`` at first, its first camera at ``origin`` in the place's frame
+        (None: the place's origin; a merge's alignment places it). The place's map, archive, bundle adjustment and loops
+        are this back end's; what is the device's alone is its record
+        (:class:`~twinslam.slam.back_end.device_record.DeviceRecord`)."""
+        if tag == 0 or tag_of(tag) != tag or any(d.tag == tag for d in self.devices):
+            raise ValueError(f"{tag} is not a device tag free in this place")
+        record = DeviceRecord(self.store.add_slice(holds), self._local_mapping(intrinsics),
+                              self.config.image_shape, tag=tag)
+        if origin is not None:
+            record.origin = np.asarray(origin, dtype=np.float64).reshape(4, 4).copy()
+        self.devices.append(record)
+        return record
 
     @property
     def map(self) -> KeyFrameMap:
@@ -301,14 +328,19 @@ class MapBackEnd:
         own = self.map.keyframes[kf_id].intrinsics
         return self.camera if own is None else Camera(own, self.config.image_shape)
 
-    def integrate(self, data: KeyFramePayload, tracked_on: int) -> IntegrationReport:
-        """A keyframe the device posed on map version ``tracked_on`` (-1: unknown) into the
-        map, moved into the map's frame now, if the gate lets it; a refusal changes
-        nothing (its report says why)."""
-        device = self.device
+    def integrate(self, data: KeyFramePayload, tracked_on: int,
+                  device: DeviceRecord | None = None) -> IntegrationReport:
+        """A keyframe the device (default :attr:`device`) posed on its map version
+        ``tracked_on`` (-1: unknown) into the map, moved into the map's frame now, if the gate
+        lets it; a refusal changes nothing (its report says why). Its id is the place's: a
+        device other than the first names its keyframes under its tag."""
+        device = device or self.device
         data = device.in_current_frame(data, tracked_on)
+        # the gate reaches from the keyframe nearest in ids: a tagged device's first camera
+        # is its tag's frame 0
+        first = [(device.tag, device.origin)] if device.tag else []
         refused = implausible_keyframe(data, self.map,
-                                       ((kf.id, kf.pose) for kf in self.archive),
+                                       [*first, *((kf.id, kf.pose) for kf in self.archive)],
                                        self.config.keyframe_gate, device.origin)
         if refused:
             return IntegrationReport.refusal(refused)
@@ -316,6 +348,8 @@ class MapBackEnd:
         report = device.local_mapping.integrate(data.frame_id, data.pose, data.keypoints,
                                                 data.descriptors, data.depths, data.point_ids)
         if data.frame_id in self.map.keyframes:
+            if device is not self.device:     # the place's first device's camera is the map's
+                self.map.keyframes[data.frame_id].intrinsics = device.k.copy()
             self.store.entered([data.frame_id], device.slice)   # the device's, no other's
             device.entered[data.frame_id] = (int(data.slot), UPLOADED)
             device.keyframe_stamps[data.frame_id] = float(data.stamp)
@@ -326,35 +360,42 @@ class MapBackEnd:
 
     # -- keyframes out and back --------------------------------------------------------------
 
-    def evict_to_archive(self, keyframes: Iterable[int], slot: int) -> tuple[list[int], int]:
-        """``keyframes`` evicted into the archive at ``slot``; (the archived keyframes that left
-        the archive to keep its capacity, the points that lost their last observer)."""
+    def evict_to_archive(self, keyframes: Iterable[int], slot: int,
+                         device: DeviceRecord | None = None) -> tuple[list[int], int]:
+        """``keyframes`` evicted by the device (default :attr:`device`) at ``slot``: into the
+        archive, but those another device of the place still holds, which stay in the map;
+        (the archived keyframes that left the archive to keep its capacity, the points that
+        lost their last observer)."""
+        device = device or self.device
         keyframes = list(keyframes)
-        forgotten, orphans = self.store.leave_slice(keyframes, slot, self.device.slice)
+        forgotten, orphans = self.store.leave_slice(keyframes, slot, device.slice)
         for kf in keyframes:
-            self.device.entered.pop(kf, None)
+            device.entered.pop(kf, None)
         for kf in forgotten:
             self.adopted_at.pop(kf, None)
         return forgotten, orphans
 
-    def restore(self, restore: Iterable[int], evict: Iterable[int], slot: int
-                ) -> tuple[list[int], int]:
-        """Archived keyframes ``restore`` brought back into the map in place of ``evict`` (into
-        the archive in their turn); (forgotten by the archive to make room, points fused: the
-        points a restored keyframe brings back that the map made again since)."""
+    def restore(self, restore: Iterable[int], evict: Iterable[int], slot: int,
+                device: DeviceRecord | None = None) -> tuple[list[int], int]:
+        """Archived keyframes ``restore`` brought back into the map and the slice of the
+        device (default :attr:`device`) in place of ``evict`` (which leave it in their turn);
+        (forgotten by the archive to make room, points fused: the points a restored keyframe
+        brings back that the map made again since)."""
+        device = device or self.device
         back = [self.archive.take(kf) for kf in restore]
-        forgotten, _ = self.evict_to_archive(evict, slot)
-        returned = self.store.enter_slice(back, self.device.slice)
-        self.device.entered.update((kf, (slot, RESTORED)) for kf in returned)
+        forgotten, _ = self.evict_to_archive(evict, slot, device)
+        returned = self.store.enter_slice(back, device.slice)
+        device.entered.update((kf, (slot, RESTORED)) for kf in returned)
         fused = sum(len(fuse_restored(self.map, kf, points, self.camera_of(kf)))
                     for kf, points in returned.items()) if self.config.point_fusion else 0
         return forgotten, fused
 
-    def relocalise(self, points_xy: np.ndarray, descriptors: np.ndarray, slot: int
-                   ) -> ArchiveLocation:
-        """A lost device's frame (its ORB keypoints and descriptors) found in the archive; the
-        recognised keyframes count as useful at ``slot``."""
-        found = locate_in_archive(self.archive, points_xy, descriptors, self.k,
+    def relocalise(self, points_xy: np.ndarray, descriptors: np.ndarray, slot: int,
+                   device: DeviceRecord | None = None) -> ArchiveLocation:
+        """A lost device's (default :attr:`device`) frame — its ORB keypoints and descriptors —
+        found in the archive; the recognised keyframes count as useful at ``slot``."""
+        found = locate_in_archive(self.archive, points_xy, descriptors,
+                                  (device or self.device).k,
                                   ArchiveRelocalisationConfig(
                                       min_inliers=self.config.reloc_min_inliers))
         if found.pose is not None:
@@ -499,12 +540,12 @@ class MapBackEnd:
         return frozenset(k for k in poses if is_foreign(k) and tag_of(k) in self.loop_across
                          and self.adopted_at.get(k, latest) <= latest)
 
-    def take_loop(self, next_version: int) -> ClosedLoop | None:
+    def take_loop(self) -> ClosedLoop | None:
         """The loop closer's finished job applied (None: none finished, or it found no loop),
-        its corrections in map version ``next_version``."""
-        return self._apply_loop(self.loop_closer.take(), next_version)
+        its corrections in each device's next map version."""
+        return self._apply_loop(self.loop_closer.take())
 
-    def _apply_loop(self, result: LoopResult | None, next_version: int) -> ClosedLoop | None:
+    def _apply_loop(self, result: LoopResult | None) -> ClosedLoop | None:
         """A finished loop job's corrections, applied to the managed map and the archive
         (between slots: the map the device gets next is corrected); the old place, where it is
         in the map, has its points fused with the ones the walk made again. A loop that would
@@ -525,8 +566,7 @@ class MapBackEnd:
                               farthest, result.seconds * 1e3, refused, result.waited * 1e3)
         # the walk's head (the newest keyframe of the graph, and every later one) moves by the
         # newest correction: the frame the next map version is in
-        self._correct(corrections, corrections[max(corrections)], next_version,
-                      "writing the loop-corrected archive's poses")
+        self._correct(corrections, "writing the loop-corrected archive's poses")
         old = result.candidate.old
         if self.config.point_fusion and old in self.map.keyframes and self.camera.known:
             fuse_restored(self.map, old, sorted(self.map.keyframes[old].points),
@@ -539,31 +579,38 @@ class MapBackEnd:
         return ClosedLoop(old, result.query, result.candidate.inliers, farthest,
                           result.seconds * 1e3, waited_ms=result.waited * 1e3)
 
-    def _correct(self, corrections: Mapping[int, np.ndarray], head: np.ndarray,
-                 next_version: int, what: str, copies_too: bool = False) -> None:
+    def _correct(self, corrections: Mapping[int, np.ndarray], what: str,
+                 everywhere: np.ndarray | None = None) -> None:
         """Move the map's and the archive's keyframes by their ``corrections`` (points with
-        their reference keyframes), and the frame the map is in — from map version
-        ``next_version`` on — by ``head``: the correction at the walk's head, which every
-        pose the device holds and every keyframe it is about to upload still needs. A loop's
+        their reference keyframes), and the frame the map is in for each device — from its
+        next map version on — by the correction at its walk's head
+        (:meth:`DeviceRecord.head_of`), which every pose it holds and every keyframe it is
+        about to upload still needs; a device none of whose keyframes moved keeps its frame. A
+        loop's
         corrections reach the map's own keyframes alone (:func:`correction_for`: the copies
-        it adopted hold their lenders' poses); ``copies_too`` moves each keyframe ``corrections``
-        names, copies included — the whole map changing frame. The archive's pose file is
-        written beside the slots (``what`` it is, for a failure)."""
+        it adopted hold their lenders' poses); with ``everywhere`` (a rigid motion) the whole
+        map changes frame: each keyframe ``corrections`` names moves, copies included, and
+        every device's frame by ``everywhere``. The archive's pose file is written beside the
+        slots (``what`` it is, for a failure)."""
         def of(kf_id: int) -> np.ndarray | None:
-            return corrections.get(kf_id) if copies_too else correction_for(corrections, kf_id)
+            return corrections.get(kf_id) if everywhere is not None \
+                else correction_for(corrections, kf_id)
 
         move_keyframes(self.map, {k: c for k in self.map.keyframes if (c := of(k)) is not None})
-        self.device.frame_moved(head, next_version)
+        for device in self.devices:
+            head = everywhere if everywhere is not None else device.head_of(corrections)
+            if head is not None:
+                device.frame_moved(head)
         archived = self.archive.correct(
             {kf.id: c for kf in self.archive if (c := of(kf.id)) is not None}, write=False)
         if archived:
             self.loop_closer.after(self.archive.save_poses, what)
 
-    def align(self, alignment: np.ndarray, next_version: int) -> None:
+    def align(self, alignment: np.ndarray) -> None:
         """Move the whole map — every keyframe, the map's and the archive's, and every point —
         by the rigid motion ``alignment`` into another frame (the frame of a place another
-        device mapped first, :mod:`twinslam.slam.back_end.map_merging`), from map version
-        ``next_version`` on. To the device it is a loop's correction that moved every
+        device mapped first, :mod:`twinslam.slam.back_end.map_merging`), from each device's
+        next map version on. To the device it is a loop's correction that moved every
         keyframe alike: its next map update carries the new ``frame_correction`` and the
         device moves what it holds with it. A loop job running on the poses before is
         dropped: its corrections belong to the frame the map left."""
@@ -571,7 +618,8 @@ class MapBackEnd:
         if alignment.shape != (4, 4) or not np.isfinite(alignment).all():
             raise ValueError("an alignment is a finite 4×4 rigid motion")
         self.loop_closer.discard()
-        self.device.origin = alignment @ self.device.origin
+        for device in self.devices:
+            device.origin = alignment @ device.origin
         # a loop's correction c moves points of the old frame; in the new one it is A c A⁻¹
         undo = np.linalg.inv(alignment)
         self.applied_loops = [dataclasses.replace(loop, corrections={
@@ -580,15 +628,14 @@ class MapBackEnd:
         # the copies of other devices' keyframes too: they are in this map's frame, and a
         # copy left behind is a whole merge's motion away from the place it shows
         everyone = dict.fromkeys(self.store.ids(), alignment)
-        self._correct(everyone, alignment, next_version,
-                      "writing the aligned archive's poses", copies_too=True)
+        self._correct(everyone, "writing the aligned archive's poses", everywhere=alignment)
 
-    def follow(self, loop: AppliedLoop, tag: int, next_version: int) -> FollowedLoop:
+    def follow(self, loop: AppliedLoop, tag: int) -> FollowedLoop:
         """Another device's loop, applied to the copies of its keyframes this map adopted
         (ids tagged ``tag``; ``loop.corrections`` by the lender's own ids, in this map's
         frame — the place's), and — a loop the lender closed, not one it carried from
-        another map — to this map's own keyframes tied to the copies, from map version
-        ``next_version`` on.
+        another map — to this map's own keyframes tied to the copies, from the device's next
+        map version on.
 
         Each copy moves as its original did (one newer than the lender's graph as the
         lender's head, :func:`~twinslam.slam.back_end.loop_correction.correction_for`), and
@@ -634,11 +681,11 @@ class MapBackEnd:
                              if (before := copies_before.get(k)) is not None), default=0.0)
         if loop.carried or farthest_copy < FOLLOW_MIN_M:
             return FollowedLoop(copies_moved, 0, 0.0)
-        return self._carry_own(poses, copies_before, next_version, copies_moved)
+        return self._carry_own(poses, copies_before, copies_moved)
 
     def _carry_own(self, poses: Mapping[int, np.ndarray],
-                   copies_before: Mapping[int, np.ndarray], next_version: int,
-                   copies_moved: int) -> FollowedLoop:
+                   copies_before: Mapping[int, np.ndarray], copies_moved: int
+                   ) -> FollowedLoop:
         """This map's own keyframes (``poses``: every keyframe's, the copies moved) re-posed
         where the copies that moved from ``copies_before`` hold them (:meth:`follow`)."""
         started = time.perf_counter()
@@ -657,8 +704,7 @@ class MapBackEnd:
             self.loops_refused += 1
             return FollowedLoop(copies_moved, 0, farthest, refused, graph_ms)
         corrections = closure.corrections
-        self._correct(corrections, corrections[max(corrections)], next_version,
-                      "writing the archive's poses after following a lender's loop")
+        self._correct(corrections, "writing the archive's poses after following a lender's loop")
         # the maps this one lent its keyframes to move their copies of them in turn
         self._keep_applied(AppliedLoop(dict(corrections), carried=True))
         return FollowedLoop(copies_moved, len(corrections), farthest, graph_ms=graph_ms)
@@ -720,13 +766,14 @@ class MapBackEnd:
         """Stop the loop closer's worker (the node calls it at shutdown)."""
         self.loop_closer.close()
 
-    def keyframe_trajectory(self) -> list[tuple[float, np.ndarray]]:
-        """(capture time in s, camera-to-map pose) of every keyframe kept — the map's and
-        the archive's — oldest first, each where the edge holds it now: the whole map as one
-        trajectory, which a device's map updates never carry (an archived keyframe a loop
-        corrects is not sent again). Keyframes of unknown capture time (a checkpoint written
-        before they were kept) are left out."""
-        stamps = self.device.keyframe_stamps
+    def keyframe_trajectory(self, device: DeviceRecord | None = None
+                            ) -> list[tuple[float, np.ndarray]]:
+        """(capture time in s, camera-to-map pose) of every keyframe the device (default
+        :attr:`device`) uploaded that is kept — in the map or the archive — oldest first, each
+        where the edge holds it now: its walk as one trajectory, which its map updates never
+        carry (an archived keyframe a loop corrects is not sent again). Keyframes of unknown
+        capture time (a checkpoint written before they were kept) are left out."""
+        stamps = (device or self.device).keyframe_stamps
         return sorted(((stamps[k], pose.copy()) for k, pose in self.keyframe_poses().items()
                        if k in stamps), key=lambda entry: entry[0])
 

@@ -243,11 +243,11 @@ class Lender:
     declined: dict[int, int] = field(default_factory=dict)
 
 
-def lend_from(borrower: MapBackEnd, lenders: list[Lender], slot: int, next_version: int,
+def lend_from(borrower: MapBackEnd, lenders: list[Lender], slot: int,
               in_view: InView | None = None, unseen_slots: int = 0,
               views: CoverageBounds | None = None) -> list[Lending]:
     """One lending round from every map of the borrower's place (``lenders``, all in its
-    frame), before the borrower's map version ``next_version``: first each lender's loops
+    frame), before the borrower's next map version: first each lender's loops
     since those the borrower followed move the copies lent before and the borrower's keyframes
     tied to them (:func:`follow_lender_loops`), then each lender's own keyframes not lent yet
     are welded and adopted (:func:`_unlent`, :func:`adopt_lent`) — in that order,
@@ -273,8 +273,8 @@ def lend_from(borrower: MapBackEnd, lenders: list[Lender], slot: int, next_versi
     copy it holds is welded, archived, searched by its loop closer and the looks, and moved by
     every lender loop. Where its device comes back, the copy is lent anew: as the lender has
     it now, welded to the borrower's points as they are now."""
-    follows = [follow_lender_loops(borrower, lender.back_end, lender.source, lender.followed,
-                                   next_version) for lender in lenders]
+    follows = [follow_lender_loops(borrower, lender.back_end, lender.source, lender.followed)
+               for lender in lenders]
     offers = [_unlent(lender, borrower.store) for lender in lenders]
     for lender, (archived, held) in zip(lenders, offers, strict=True):
         _note_offered(lender.offered, [*(kf.id for kf in archived), *held], slot)
@@ -403,14 +403,13 @@ def _seen_only(lenders: list[Lender], offers: list[Offer], in_view: InView) -> l
 
 
 def follow_lender_loops(borrower: MapBackEnd, lender: MapBackEnd, source: int,
-                        followed: int, next_version: int
-                        ) -> tuple[int, tuple[FollowedLoop, ...]]:
+                        followed: int) -> tuple[int, tuple[FollowedLoop, ...]]:
     """The loops the lender (source map ``source``) applied since the first ``followed`` of
     them, applied to the borrower's copies of its keyframes and to its own keyframes tied to
-    them (:meth:`MapBackEnd.follow`, from the borrower's map version ``next_version`` on);
+    them (:meth:`MapBackEnd.follow`, from the borrower's next map version on);
     (how many of the lender's loops the borrower has followed now, what each moved)."""
     tag = foreign_tag(source)
-    moves = tuple(borrower.follow(loop, tag, next_version)
+    moves = tuple(borrower.follow(loop, tag)
                   for loop in lender.loops_since(followed))
     return lender.loops_applied, moves
 
