@@ -259,9 +259,9 @@ class MapBackEnd:
         ids tagged ``tag`` (:func:`~twinslam.slam.back_end.foreign_keyframes.foreign_tag`),
         its camera ``intrinsics`` (None: taken from its first keyframe), holding the map's
         keyframes ``holds`` at first, its first camera at ``origin`` in the place's frame
-        (None: the place's origin; a merge's alignment places it). The place's map, archive, bundle adjustment and loops
-        are this back end's; what is the device's alone is its record
-        (:class:`~twinslam.slam.back_end.device_record.DeviceRecord`)."""
+        (None: the place's origin; a merge's alignment places it). The place's map,
+        archive, bundle adjustment and loops are this back end's; what is the device's alone
+        is its record (:class:`~twinslam.slam.back_end.device_record.DeviceRecord`)."""
         if tag == 0 or tag_of(tag) != tag or any(d.tag == tag for d in self.devices):
             raise ValueError(f"{tag} is not a device tag free in this place")
         record = DeviceRecord(self.store.add_slice(holds), self._local_mapping(intrinsics),
