@@ -1,16 +1,21 @@
 """One back end for a place's devices: each device's keyframes enter the place's map under its
 tag and its slice, read with its camera; a keyframe one device evicts stays while another
 holds it; a restore enters one device's slice; a merge's motion moves every device's frame
-from its own next map version."""
+from its own next map version; a device's map joins its place's moved, tagged, and its device
+goes on in it."""
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 import pytest
 
 from twinslam.slam.back_end.device_record import DeviceRecord
 from twinslam.slam.back_end.foreign_keyframes import foreign_tag
+from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame
 from twinslam.slam.back_end.map_back_end import BackEndConfig, MapBackEnd
+from twinslam.slam.back_end.place_joining import join_into_place
 from twinslam.slam.keyframe import TRACK_ID_BIT, KeyFramePayload
 from twinslam.slot_protocol.map_entry import RESTORED, UPLOADED
 
@@ -109,3 +114,67 @@ def test_a_device_tag_is_one_no_other_device_of_the_place_has() -> None:
     for taken in (0, TAG, TAG | 5):
         with pytest.raises(ValueError):
             back_end.add_device(taken)
+
+
+def _joining_map() -> MapBackEnd:
+    """The second device's map of its own: keyframes 1–3 of one set of corners (its tracks
+    1–60), 1 archived since, the device sent map version 5."""
+    joining = MapBackEnd(BackEndConfig(ba_window=0), SECOND)
+    for n in (1, 2, 3):
+        assert not joining.integrate(_upload(n, 0.05 * n, SECOND, n, seed=20 + n), -1).refused
+    joining.evict_to_archive([1], slot=3)
+    joining.device.version = 5
+    return joining
+
+
+def test_a_joining_map_enters_its_place_moved_and_tagged_and_its_device_goes_on_in_it() -> None:
+    place = MapBackEnd(BackEndConfig(ba_window=0), FIRST)
+    for n in (1, 2):
+        assert not place.integrate(_upload(n, 0.05 * n, FIRST, n, seed=n), -1).refused
+    joining = _joining_map()
+    alignment = _pose(3.0) @ np.array([[0.0, -1, 0, 0], [1, 0, 0, 0], [0, 0, 1, 0],
+                                       [0, 0, 0, 1]])
+    points_before = {k: set(kf.points) for k, kf in joining.map.keyframes.items()}
+    a_point = next(iter(points_before[3]))
+    record = join_into_place(place, joining, TAG, alignment)
+
+    assert record.slice.keyframe_ids() == [TAG | 2, TAG | 3]
+    assert place.device.slice.keyframe_ids() == [1, 2]
+    for k in (2, 3):
+        moved = place.map.keyframes[TAG | k]
+        np.testing.assert_allclose(moved.pose, alignment @ joining.map.keyframes[k].pose)
+        assert moved.points == {TAG | p for p in points_before[k]}
+        np.testing.assert_array_equal(moved.intrinsics, SECOND)
+    before = joining.map.points[a_point].position
+    np.testing.assert_allclose(place.map.points[TAG | a_point].position,
+                               alignment[:3, :3] @ before + alignment[:3, 3])
+    archived = place.archive.get(TAG | 1)
+    np.testing.assert_allclose(archived.pose, alignment @ joining.archive.get(1).pose)
+    assert set(archived.point_ids.tolist()) == {TAG | p for p in points_before[2]}
+    assert record.entered == {TAG | 2: (2, UPLOADED), TAG | 3: (3, UPLOADED)}
+    assert record.keyframe_stamps == {TAG | 1: 1.0, TAG | 2: 2.0, TAG | 3: 3.0}
+    assert record.version == 5
+    np.testing.assert_allclose(record.frame_correction_at(5), np.eye(4))
+    np.testing.assert_allclose(record.frame_correction_at(6), alignment)
+    np.testing.assert_allclose(record.origin, alignment)
+
+    # its next keyframe, posed on the version before the join: moved, its tracks found
+    report = place.integrate(_upload(TAG | 4, 0.2, SECOND, 4, seed=24), 5, record)
+    assert not report.refused and report.tracked == 60 and report.created_from_tracks == 0
+    np.testing.assert_allclose(place.map.keyframes[TAG | 4].pose, alignment @ _pose(0.2))
+    assert record.slice.holds(TAG | 4) and not place.device.slice.holds(TAG | 4)
+    # its archived keyframe comes back into its slice, on the points it saw
+    place.restore([TAG | 1], [], slot=6, device=record)
+    assert record.slice.holds(TAG | 1) and record.entered[TAG | 1] == (6, RESTORED)
+    assert place.map.keyframes[TAG | 1].points == {TAG | p for p in points_before[2]}
+
+
+def test_a_map_holding_another_devices_copies_does_not_join() -> None:
+    place = MapBackEnd(BackEndConfig(ba_window=0), FIRST)
+    joining = _joining_map()
+    copy = ArchivedKeyFrame.of(joining.map, 2, 4)
+    joining.adopt([dataclasses.replace(copy, id=foreign_tag(5) | 2)])
+    with pytest.raises(ValueError, match="copies"):
+        join_into_place(place, joining, TAG, np.eye(4))
+    with pytest.raises(ValueError, match="rigid motion"):
+        join_into_place(place, _joining_map(), TAG, np.full((4, 4), np.nan))

@@ -353,7 +353,9 @@ class MapBackEnd:
             self.store.entered([data.frame_id], device.slice)   # the device's, no other's
             device.entered[data.frame_id] = (int(data.slot), UPLOADED)
             device.keyframe_stamps[data.frame_id] = float(data.stamp)
-            if self.config.loop_closing:
+            # the loops are the place's first device's walk's: another device's keyframes are
+            # no step of it (one graph of every walk is step 3 of docs/architecture.md §10)
+            if self.config.loop_closing and device is self.device:
                 self._loop_queries = [*self._loop_queries[-(LOOP_QUERIES - 1):],
                                       LoopQuery.of(data)]
         return report
@@ -734,19 +736,29 @@ class MapBackEnd:
         bring them into the map where this device heads, as its own archived keyframes, and
         the device tracks on them. Those the archive holds already are skipped; returns the
         archived keyframes that left to make room."""
+        added, forgotten = self.archive_keyframes(keyframes,
+                                                  "writing the adopted keyframes' files")
+        self.adopted_at.update((kf.id, kf.archived_slot) for kf in added)
+        for kf_id in forgotten:
+            self.adopted_at.pop(kf_id, None)
+        return forgotten
+
+    def archive_keyframes(self, keyframes: Iterable[ArchivedKeyFrame], what: str
+                          ) -> tuple[list[ArchivedKeyFrame], list[int]]:
+        """Keyframes from elsewhere (another device's, in this map's frame and under their
+        tagged ids) into the archive, but those the store holds already, their files written
+        beside the slots (``what`` they are, for a failure: a merge brings hundreds at
+        once); (the keyframes archived, the archived keyframes that left to make room)."""
         forgotten: list[int] = []
-        added: list[int] = []
+        added: list[ArchivedKeyFrame] = []
         for kf in keyframes:
             if kf.id not in self.store:
                 forgotten += self.archive.add(kf, write=False)
-                added.append(kf.id)
-                self.adopted_at[kf.id] = kf.archived_slot
-        for kf_id in forgotten:
-            self.adopted_at.pop(kf_id, None)
-        if added:          # a merge adopts hundreds at once: their files beside the slots
-            self.loop_closer.after(lambda: self.archive.save(added),
-                                   "writing the adopted keyframes' files")
-        return forgotten
+                added.append(kf)
+        if added:
+            ids = [kf.id for kf in added]
+            self.loop_closer.after(lambda: self.archive.save(ids), what)
+        return added, forgotten
 
     def release_copies(self, copies: Iterable[int]) -> dict[int, int]:
         """Other devices' keyframes this map adopted (tagged ids) taken out of its archive
