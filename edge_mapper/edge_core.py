@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from edge_mapper.checkpoint_writer import CheckpointWriter
+from edge_mapper.place_ids import PlaceIds
 from edge_mapper.planning_world import at_the_edge, extrapolate
 from edge_mapper.restores import (
     MIN_VISIBLE,
@@ -56,6 +57,7 @@ from twinslam.slam.back_end.keyframe_slice import KeyFrameSlice
 from twinslam.slam.back_end.local_mapping import IntegrationReport, LocalMapping
 from twinslam.slam.back_end.loop_closing import LoopCloser
 from twinslam.slam.back_end.map_back_end import BackEndConfig, ClosedLoop, MapBackEnd
+from twinslam.slam.back_end.place_joining import join_into_place
 from twinslam.slam.back_end.pose_graph import LoopEdge
 from twinslam.slam.back_end.view_coverage import CoverageBounds, covered_views, served_views
 from twinslam.slam.camera import Camera
@@ -157,6 +159,11 @@ class EdgeMapperCore:
         #: slots until the next checkpoint (:meth:`spread_checkpoints` shifts it)
         self._checkpoint_in = self.config.checkpoint_every
         self.back_end = MapBackEnd(self.config.back_end, intrinsics, self.checkpoint)
+        #: what the back end keeps of this device (its own back end's, until its map joins a
+        #: place's: :meth:`join_place`)
+        self._device = self.back_end.device
+        #: the device's ids as its place names them (none renamed until it joins a place)
+        self.ids = PlaceIds()
         #: arrays another part of the edge keeps in this device's checkpoint, read when it is
         #: written (the place this map was merged into, :mod:`edge_mapper.place_membership`);
         #: read back from :attr:`MapBackEnd.extra`
@@ -205,7 +212,14 @@ class EdgeMapperCore:
     def device(self) -> DeviceRecord:
         """What the back end keeps of this device beside its place's map: its slice, camera,
         tracks, entry order and the frame of each map version it was sent."""
-        return self.back_end.device
+        return self._device
+
+    @property
+    def serves_place(self) -> bool:
+        """Whether this core runs its place's bundle adjustment, loops and checkpoint: every
+        core but one whose device's map joined another device's place (:meth:`join_place`),
+        whose slots that device's core closes."""
+        return self._device is self.back_end.device
 
     @property
     def version(self) -> int:
@@ -325,13 +339,17 @@ class EdgeMapperCore:
         """The local bundle adjustment from the next slot on: ``window`` newest keyframes (0:
         none), at most ``points`` points (an edge over its compute budget trims it,
         :mod:`edge_mapper.compute_governor`; ``config.back_end`` is only what the core
-        started with, the back end's own config holds the adjustment now)."""
-        self.back_end.set_bundle_adjustment(window, points)
+        started with, the back end's own config holds the adjustment now). A device that
+        joined another's place has none of its own: the place's is that device's core's."""
+        if self.serves_place:
+            self.back_end.set_bundle_adjustment(window, points)
 
     def set_loop_search(self, on: bool) -> None:
         """New loop searches start at the slots' ends from now on, or none does (an edge over
-        its compute budget pauses them: :mod:`edge_mapper.compute_governor`)."""
-        self.back_end.loop_search_paused = not on
+        its compute budget pauses them: :mod:`edge_mapper.compute_governor`); the place's
+        own core's setting where this device joined another's place."""
+        if self.serves_place:
+            self.back_end.loop_search_paused = not on
 
     def set_vmax(self, vmax: int) -> None:
         """V_max from the next plan on (a smaller one evicts the excess over the next slots'
@@ -351,8 +369,8 @@ class EdgeMapperCore:
         self.rate_history = [*self.rate_history[-63:], int(rate_state)]
         if slot in self.pending:
             raise ValueError(f"slot {slot} is planned already and still open")
-        if not tracks_resolved:
-            frames = self.resolve_tracks(frames)
+        frames = self.resolve_tracks(frames) if not tracks_resolved \
+            else [self.ids.observations(f) for f in frames]
         leaving = {kf for action, _ in self.pending.values() for kf in action.evict}
         ahead = heading(frames)
         plan = self.planner.plan(slot, frames, rate_mbps, rate_state, self.rate_history,
@@ -364,7 +382,22 @@ class EdgeMapperCore:
         self._seen_from = seen_from(frames, ahead)
         by_id = {f.frame_id: f for f in frames}
         self._arriving.update({f: by_id[f] for f in plan.action.upload})
-        return plan
+        return self._as_device_sees(plan)
+
+    def _as_device_sees(self, plan: SlotPlan) -> SlotPlan:
+        """A plan whose frames — the uploads asked for, the frames covered — the device
+        names as its own (:class:`PlaceIds`); the evictions are keyframes of its slice, as
+        its map updates name them."""
+        if not self.ids.tag:
+            return plan
+        frames = self.ids.device_frame
+
+        def asked(action: MapAction) -> MapAction:
+            return dataclasses.replace(action, upload=[frames(f) for f in action.upload])
+
+        return dataclasses.replace(
+            plan, action=asked(plan.action), covered=frozenset(map(frames, plan.covered)),
+            policy_action=None if plan.policy_action is None else asked(plan.policy_action))
 
     def covered_frames(self, frames: Sequence[FrameObservations], slot: int,
                        ahead: Sequence[np.ndarray],
@@ -469,7 +502,7 @@ class EdgeMapperCore:
         those (:meth:`plan`'s ``tracks_resolved``)."""
         known = self.local_mapping.track_points       # pruned to the map's points each slot
         resolved = []
-        for frame in frames:
+        for frame in map(self.ids.observations, frames):
             hits = known.keys() & frame.tracks
             resolved.append(frame if not hits else dataclasses.replace(
                 frame, map_points=frame.map_points | {known[t] for t in hits},
@@ -481,6 +514,9 @@ class EdgeMapperCore:
         slot is open (``IntegrationReport.deferred``); None (and nothing changes) for an
         unrequested or repeated one, or one of a slot that finished already."""
         entry = self.pending.get(data.slot)
+        if entry is not None and self.ids.tag:
+            observed = self._arriving.get(self.ids.frame(data.frame_id))
+            data = self.ids.upload(data, observed.map_version if observed else -1)
         if entry is None or data.frame_id not in entry[0].upload or \
                 data.frame_id in entry[1] or data.frame_id in self.map.keyframes:
             return None
@@ -492,7 +528,8 @@ class EdgeMapperCore:
 
     def _integrate(self, data: KeyFramePayload) -> IntegrationReport:
         observed = self._arriving.pop(data.frame_id, None)
-        report = self.back_end.integrate(data, observed.map_version if observed else -1)
+        report = self.back_end.integrate(data, observed.map_version if observed else -1,
+                                         self.device)
         if report.refused:
             self._refused.setdefault(data.slot, {})[data.frame_id] = report.refused
         return report
@@ -528,12 +565,12 @@ class EdgeMapperCore:
         refused = self._refused.pop(slot, {})
         received -= refused.keys()            # a refused upload is as good as lost
         tl = time.perf_counter()
-        loop = self.back_end.take_loop()
+        loop = self.back_end.take_loop() if self.serves_place else None
         missing = set(action.upload) - received
         evicted = applied_evictions(action.evict, self.slice.keyframe_ids(), missing, vmax)
         ta = time.perf_counter()
         loop_ms = (ta - tl) * 1e3
-        forgotten, orphans = self.back_end.evict_to_archive(evicted, slot)
+        forgotten, orphans = self.back_end.evict_to_archive(evicted, slot, self.device)
         spared = sorted(set(action.evict) - set(evicted) - missing)
         views, self._relocalised_views = self._relocalised_views, []
         # restores fill the map up to the smaller of this slot's V_max and the next one's: an
@@ -545,7 +582,7 @@ class EdgeMapperCore:
         evicted += replaced
         forgotten += dropped
         t0 = time.perf_counter()
-        ba = self.back_end.optimise()
+        ba = self.back_end.optimise() if self.serves_place else None
         t1 = time.perf_counter()
         self.version += 1
         self.last_slot = slot
@@ -565,7 +602,8 @@ class EdgeMapperCore:
         w = self.slice.covisibility()
         u = map_uncertainty(w, self.planner.config.log_det_pi) if len(w) else math.inf
         t3 = time.perf_counter()
-        self.back_end.start_loop_job(slot)
+        if self.serves_place:
+            self.back_end.start_loop_job(slot)
         t4 = time.perf_counter()
         timings = {"archive": (t0 - ta) * 1e3, "optimise": (t1 - t0) * 1e3,
                    "checkpoint": (t2 - t1) * 1e3, "uncertainty": (t3 - t2) * 1e3,
@@ -639,8 +677,10 @@ class EdgeMapperCore:
         return True
 
     def close(self) -> None:
-        """Stop the loop closer's worker (the node calls it at shutdown)."""
-        self.back_end.close()
+        """Stop the loop closer's worker (the node calls it at shutdown; the place's own
+        core's where this device joined another's place)."""
+        if self.serves_place:
+            self.back_end.close()
 
     def _restore(self, slot: int, received: set[int], poses: list[np.ndarray],
                  relocalised: list[np.ndarray], vmax: int
@@ -662,7 +702,7 @@ class EdgeMapperCore:
                                    self.config.restore_keyframes, slot, received)
         else:
             return [], [], [], 0
-        dropped, fused = self.back_end.restore(chosen.restore, chosen.evict, slot)
+        dropped, fused = self.back_end.restore(chosen.restore, chosen.evict, slot, self.device)
         return chosen.restore, chosen.evict, dropped, fused
 
     def in_coming_view(self, positions: Sequence[np.ndarray]) -> list[bool]:
@@ -690,7 +730,8 @@ class EdgeMapperCore:
                                    "(reloc_restore_keyframes is 0)")
         if not self.camera.known:
             return ArchiveLocation(None, 0, -1, (), "no keyframe has told the edge the camera yet")
-        found = self.back_end.relocalise(points_xy, descriptors, self.last_slot + 1)
+        found = self.back_end.relocalise(points_xy, descriptors, self.last_slot + 1,
+                                         self.device)
         if found.pose is not None:
             self._relocalised_views.append(found.pose)
         return found
@@ -702,11 +743,58 @@ class EdgeMapperCore:
         camera is heading, from the next map update on (:meth:`MapBackEnd.align`; call it
         between slots)."""
         self.back_end.align(alignment)
-        move = np.asarray(alignment, dtype=np.float64)
+        self._move_views(np.asarray(alignment, dtype=np.float64))
+
+    def _move_views(self, move: np.ndarray) -> None:
+        """Where the camera heads and was seen from, moved by the rigid motion ``move`` with
+        the map."""
         self._headings = {s: [move @ p for p in poses] for s, poses in self._headings.items()}
         self._last_heading = [move @ p for p in self._last_heading]
         self._seen_from = [move @ p for p in self._seen_from]
         self._relocalised_views = [move @ p for p in self._relocalised_views]
+
+    def join_place(self, place: EdgeMapperCore, tag: int, alignment: np.ndarray) -> None:
+        """This device's map joined into the map of ``place``'s device — the core of the
+        device a merge found it with (:mod:`twinslam.slam.back_end.map_merging`; ``alignment``
+        this map's frame into that one's) — under the device tag ``tag``
+        (:func:`~twinslam.slam.back_end.place_joining.join_into_place`; call it between
+        slots). From the next map update on the device holds its slice of the place's map;
+        the place's bundle adjustment and loops are ``place``'s core's to run. Its open
+        slots, the uploads they wait for and the tracks it resolved are renamed into the
+        place's ids; what the device sends from now on is renamed as it comes in
+        (:class:`~edge_mapper.place_ids.PlaceIds`). Not yet where either core writes a
+        checkpoint: the place's file would need every device's record (ValueError)."""
+        if self.checkpoint is not None or place.checkpoint is not None:
+            raise ValueError("a device whose edge writes checkpoints cannot join a place yet")
+        if not self.serves_place or not place.serves_place or place is self:
+            raise ValueError("a device joins the place of a device whose map is its place's, "
+                             "once")
+        record = join_into_place(place.back_end, self.back_end, tag, alignment)
+        self.back_end.close()
+        self.back_end, self._device = place.back_end, record
+        self.ids = PlaceIds(tag, record.version)
+        self.planner.map, self.planner.entered = record.slice, record.entered
+        self.planner.last_seen = {tag | k: s for k, s in self.planner.last_seen.items()}
+        frame = self.ids.frame
+        self.pending = {s: (dataclasses.replace(action, upload=[frame(f) for f in action.upload],
+                                                evict=[tag | k for k in action.evict],
+                                                restore=[tag | k for k in action.restore]),
+                            {frame(f) for f in received})
+                        for s, (action, received) in self.pending.items()}
+        self._arriving = {frame(f): self.ids.observations(obs)
+                          for f, obs in self._arriving.items()}
+        self._held = {s: [self.ids.upload(d, self._version_of(d)) for d in held]
+                      for s, held in self._held.items()}
+        self._refused = {s: {frame(f): why for f, why in refused.items()}
+                         for s, refused in self._refused.items()}
+        self._previous_tracks = {t: tag | p for t, p in self._previous_tracks.items()}
+        self._move_views(np.asarray(alignment, dtype=np.float64))
+
+    def _version_of(self, data: KeyFramePayload) -> int:
+        """The map version a held upload was tracked on, as its slot's summary said (-1:
+        unknown)."""
+        observed = self._arriving.get(self.ids.frame(data.frame_id))
+        return observed.map_version if observed else -1
 
     def optimise(self) -> BundleAdjustmentResult | None:
         """The back end's local bundle adjustment (:meth:`MapBackEnd.optimise`)."""

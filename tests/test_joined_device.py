@@ -1,0 +1,120 @@
+"""A device whose map joined another device's place goes on at the edge's slot loop: its slot
+open at the join finishes in the place's ids, its uploads tracked on its old map find their
+points there, its next slots plan over its slice of the place's map, and the place's bundle
+adjustment is run once, by the place's first device's core."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from edge_mapper.edge_core import EdgeConfig, EdgeMapperCore
+from edge_mapper.slot_planner import SlotConfig
+from tests.test_edge_core import Device, F, K
+from twinslam.policies.registry import make_policy
+from twinslam.slam.back_end.foreign_keyframes import TAG_SHIFT, foreign_tag, source_id
+from twinslam.slam.back_end.map_back_end import BackEndConfig
+from twinslam.slam.keyframe import KeyFramePayload
+
+TAG = foreign_tag(1)
+#: the second device's frame in the first's: it started 0.3 m along, turned 10° about y
+ALIGNMENT = np.array([[np.cos(0.17), 0, np.sin(0.17), 0.3], [0, 1, 0, 0],
+                      [-np.sin(0.17), 0, np.cos(0.17), 0], [0, 0, 0, 1]])
+
+
+class Elsewhere(Device):
+    """The first device's walk past the same wall, its poses told in a frame of its own until
+    a map update moves what it holds into its place's (:attr:`frame`)."""
+
+    frame = np.linalg.inv(ALIGNMENT)
+
+    def keyframe(self, frame: int, slot: int, core: EdgeMapperCore) -> KeyFramePayload:
+        data = super().keyframe(frame, slot, core)
+        return dataclasses.replace(data, pose=self.frame @ data.pose)
+
+
+def _core() -> EdgeMapperCore:
+    return EdgeMapperCore(make_policy("lff"), K,
+                          EdgeConfig(slot=SlotConfig(vmax=10),
+                                     back_end=BackEndConfig(ba_window=6)))
+
+
+def _slot(core: EdgeMapperCore, device: Device, slot: int, version: int = -1):
+    """Slot ``slot`` planned and its uploads made (not sent): (plan, uploads)."""
+    frames = [dataclasses.replace(device.summary(f, core), map_version=version)
+              for f in range(slot * F, (slot + 1) * F)]
+    plan = core.plan(slot, frames, 40.0, 0)
+    return plan, [device.keyframe(f, slot, core) for f in plan.action.upload]
+
+
+def _walk(core: EdgeMapperCore, device: Device, slots: range) -> None:
+    for slot in slots:
+        _, uploads = _slot(core, device, slot)
+        for data in uploads:
+            assert core.add_keyframe(data) is not None
+        core.finish_slot(slot)
+
+
+def test_a_joined_device_goes_on_in_its_places_map() -> None:
+    first, second = _core(), _core()
+    walker = Device(np.random.default_rng(0))
+    other = Elsewhere(np.random.default_rng(1))          # corners of its own
+    _walk(first, walker, range(3))
+    _walk(second, other, range(3))
+    own = set(second.map.keyframes)
+    # its slot 3 is open at the join: planned on its own map (version 3), its uploads made
+    plan, in_flight = _slot(second, other, 3, version=second.version)
+    assert plan.action.upload and all(d.frame_id < 1 << TAG_SHIFT for d in in_flight)
+
+    first_slice = first.slice.keyframe_ids()
+    second.join_place(first, TAG, ALIGNMENT)
+    assert second.map is first.map and not second.serves_place and first.serves_place
+    assert second.slice.keyframe_ids() == sorted(TAG | k for k in own)
+    assert first.slice.keyframe_ids() == first_slice
+    assert second.version == 3
+
+    reports = [second.add_keyframe(d) for d in in_flight]
+    assert all(r is not None and not r.refused for r in reports)
+    # its old map's points, named as its map version 3 named them, found in the place's
+    assert all(r.associated + r.tracked > 0 for r in reports if r is not None)
+    done = second.finish_slot(3)
+    assert done.integrated == sorted(TAG | d.frame_id for d in in_flight)
+    assert done.bundle_adjustment is None                 # the place's is the first's
+    for data in in_flight:
+        np.testing.assert_allclose(first.map.keyframes[TAG | data.frame_id].pose,
+                                   ALIGNMENT @ data.pose, atol=1e-9)
+
+    # its next slots, on the map update that moved it into the place's frame: asked for its
+    # own frames, planned over its slice alone
+    np.testing.assert_allclose(second.frame_correction_at(4), ALIGNMENT)
+    other.frame = np.eye(4)
+    for slot in (4, 5):
+        plan, uploads = _slot(second, other, slot)
+        assert plan.action.upload and \
+            all(slot * F <= f < (slot + 1) * F for f in plan.action.upload)
+        for data in uploads:
+            report = second.add_keyframe(data)
+            assert report is not None and not report.refused and report.tracked > 0
+        second.finish_slot(slot)
+        assert len(second.slice.keyframes) <= second.slot_config.vmax
+        assert all(source_id(k) != k for k in second.slice.keyframe_ids())
+    _walk(first, walker, range(3, 6))
+    assert first.slice.keyframe_ids() == sorted(k for k in first.map.keyframes
+                                                if k < 1 << TAG_SHIFT)
+    assert first.version == 6 and second.version == 6
+
+
+def test_a_device_joins_a_place_once_and_only_without_checkpoints(tmp_path) -> None:
+    first, second = _core(), _core()
+    _walk(first, Device(np.random.default_rng(0)), range(2))
+    _walk(second, Elsewhere(np.random.default_rng(0)), range(2))
+    with pytest.raises(ValueError, match="once"):
+        second.join_place(second, TAG, ALIGNMENT)
+    saved = EdgeMapperCore(make_policy("lff"), K, EdgeConfig(), tmp_path / "edge.npz")
+    with pytest.raises(ValueError, match="checkpoints"):
+        second.join_place(saved, TAG, ALIGNMENT)
+    second.join_place(first, TAG, ALIGNMENT)
+    with pytest.raises(ValueError, match="once"):
+        second.join_place(first, foreign_tag(2), ALIGNMENT)
