@@ -35,7 +35,7 @@ from twinslam.policies.registry import make_policy
 from twinslam.sequence_player.playback import Playback, PlayedSequence, played_device_slot
 from twinslam.sequences.frame import RgbdFrame
 from twinslam.sequences.opening import AUTO, open_sequence
-from twinslam.slam.back_end.foreign_keyframes import foreign_mask, is_foreign
+from twinslam.slam.back_end.foreign_keyframes import foreign_mask, source_id
 from twinslam.slam.back_end.loop_closing import LoopQuery
 from twinslam.slam.back_end.loop_detection import MIN_INLIERS as LOOP_MIN_INLIERS
 from twinslam.slam.back_end.map_merging import (
@@ -117,7 +117,7 @@ def serve_slot(device: DeviceTrackerCore, edge: EdgeMapperCore, rate_mbps: float
                                    frozenset(f.track_ids.tolist()), bool(f.tracked), f.pose,
                                    f.map_version)
                  for f in frames]
-    own = sum(1 for k in edge.map.keyframes if not is_foreign(k))
+    own = sum(1 for k in edge.slice.keyframes if edge.device.owns(k))
     t0 = time.perf_counter()
     plan = edge.plan(slot, summaries, rate_mbps, rate_state)
     t1 = time.perf_counter()
@@ -136,7 +136,7 @@ def serve_slot(device: DeviceTrackerCore, edge: EdgeMapperCore, rate_mbps: float
     t3 = time.perf_counter()
     if hooks is not None:
         hooks.after_end(slot)
-    update = map_update_message(edge.map, slot, outcome.version, time.time(),
+    update = map_update_message(edge.slice, slot, outcome.version, time.time(),
                                 tracks=outcome.tracks, frame_correction=edge.frame_correction)
     snapshot = read_map_update(update)
     lost = plan.uncertainty.lost_share if plan.uncertainty is not None else math.nan
@@ -357,8 +357,9 @@ class DeviceWalk:
     def own_keyframe_poses(self) -> dict[int, np.ndarray]:
         """Its own keyframes' poses (:meth:`keyframe_poses`, the copies of other devices'
         left out) by their frames' played positions, the keys of ``truth``."""
-        return {self.positions.get(k, k): pose for k, pose in self.keyframe_poses().items()
-                if not is_foreign(k)}
+        owns = self.edge.device.owns
+        return {self.positions.get(source_id(k), k): pose
+                for k, pose in self.keyframe_poses().items() if owns(k)}
 
 
 def _node_parameter(text: str, specs: Sequence[ParamSpec], names: Collection[str],
@@ -561,7 +562,7 @@ def check_place_options(parser: argparse.ArgumentParser, args: argparse.Namespac
 
 
 def open_walk(name: str, spec: str, frames: int, order: str, seed: int, uplink: str,
-              config: EdgeConfig, update_delay: int, folder: Path, start: int = 0,
+              config: EdgeConfig, update_delay: int, folder: Path | None, start: int = 0,
               device_params: Mapping[str, object] | None = None, every: int = 1,
               phase: int = 0) -> DeviceWalk:
     """A default device and edge core over frames [``start``, ``frames``) of ``spec`` played
@@ -569,7 +570,7 @@ def open_walk(name: str, spec: str, frames: int, order: str, seed: int, uplink: 
     (e.g. ``map_source``); ``every``, ``phase``: only the frames the player's ``every`` and
     ``phase`` play (:meth:`Playback.plays`), each keeping its position in the whole walk as
     its ``index`` (the bench's frame counts — ``update_delay``, the truth's keys — stay the
-    walk's)."""
+    walk's); the edge checkpoints its map into ``folder`` (None: no checkpoint)."""
     source = open_sequence(spec, start=start, end=frames, colour_intrinsics=AUTO)
     settings = DeviceSettings.from_parameters({p.name: p.default for p in DEVICE_PARAMETERS}
                                               | dict(device_params or {}))
@@ -578,7 +579,7 @@ def open_walk(name: str, spec: str, frames: int, order: str, seed: int, uplink: 
                                settings.keep_slots, settings.frame_rate_hz, settings.map_source,
                                settings.own_map_after)
     edge = EdgeMapperCore(make_policy(default_device.POLICY), source.intrinsics, config,
-                          folder / f"{name}.npz")
+                          None if folder is None else folder / f"{name}.npz")
     family = uplink_family(uplink)
     channel = parse_channel(family.channel, family.rate_mbps or (5.0, 45.0), seed=seed,
                             slot_seconds=settings.slot_frames / settings.frame_rate_hz)

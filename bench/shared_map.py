@@ -254,6 +254,15 @@ def main() -> None:
     parser.add_argument("--share-both", action="store_true",
                         help="with --share: the first edge map adopts the second's keyframes "
                              "too")
+    parser.add_argument("--join", action="store_true",
+                        help="at the merge, the second device's map joins the first's: one "
+                             "map of the place, each device's slice of it, its keyframes "
+                             "restored into the other's where the camera heads, one bundle "
+                             "adjustment and loop closer (the first's) — instead of --share's "
+                             "copies; both edges write no checkpoint (a joined place does not "
+                             "yet), so compare it with --share --no-checkpoints")
+    parser.add_argument("--no-checkpoints", action="store_true",
+                        help="the edges write no map checkpoint (as --join must)")
     parser.add_argument("--no-loops-across", action="store_true",
                         help="with --share: the second map's loops close among its own "
                              "keyframes only, never with the first device's lent keyframes "
@@ -272,6 +281,9 @@ def main() -> None:
                              "the first device's frame")
     args = parser.parse_args()
     check_place_options(parser, args)
+    if args.join and (args.share or args.no_merge):
+        parser.error("--join is another way to share the place than --share, and needs a "
+                     "merge (not --no-merge)")
     run_as_the_edge_node()
     spec, second_spec = (seeded_spec(s, args.seed) for s in
                          (args.sequence, args.second_sequence or args.sequence))
@@ -297,12 +309,13 @@ def main() -> None:
         # a second)
         every = 2 if args.interleave else 1
         device_params = interleaved_device(dict(args.device), every)
+        folder = None if args.join or args.no_checkpoints else Path(tmp)
         first = open_walk("first", spec, args.frames, args.first, args.seed, args.uplink,
-                          config, args.update_delay, Path(tmp), start=args.first_start,
+                          config, args.update_delay, folder, start=args.first_start,
                           device_params=device_params, every=every,
                           phase=phase_for(0, args.first_start, every))
         second = open_walk("second", second_spec, args.frames, args.second, args.seed + 1,
-                           args.uplink, config, args.update_delay, Path(tmp),
+                           args.uplink, config, args.update_delay, folder,
                            start=args.second_start, device_params=device_params, every=every,
                            phase=phase_for(1, args.second_start, every))
         share_vocabulary((first.edge, second.edge), args.vocabulary_per_device)
@@ -340,7 +353,13 @@ def main() -> None:
                 if merge is not None:
                     t_err, r_err = alignment_error(merge, first, second)
                     merged_version = second.edge.version + 1
-                    second.edge.align(merge.alignment)
+                    if args.join:
+                        second.edge.join_place(first.edge, foreign_tag(1), merge.alignment)
+                        print(f"slot {slot:4d}: the second device's map joined the first's, "
+                              f"{len(second.edge.ids.fused)} of its points fused into the "
+                              "place's", flush=True)
+                    else:
+                        second.edge.align(merge.alignment)
                     merge_row = {"merge_slot": slot, "merge_frame": max(second.poses),
                                  "merge_inliers": merge.inliers,
                                  "alignment_error_m": t_err, "alignment_error_deg": r_err}
@@ -360,7 +379,12 @@ def main() -> None:
                 for walk in (first, second):
                     copies_held[walk.name].append(sum(
                         1 for k in walk.edge.back_end.store.ids() if is_foreign(k)))
-            if slot % args.every == 0:
+            if slot % args.every == 0 and not second.edge.serves_place:
+                print(f"slot {slot:4d}: the place's map {len(first.edge.map.keyframes)} + "
+                      f"archive {len(first.edge.archive)}, the first device's slice "
+                      f"{len(first.edge.slice.keyframes)}, the second's "
+                      f"{len(second.edge.slice.keyframes)}", flush=True)
+            elif slot % args.every == 0:
                 print(f"slot {slot:4d}: first map {len(first.edge.map.keyframes)} + archive "
                       f"{len(first.edge.archive)}, second map {len(second.edge.map.keyframes)} "
                       f"+ archive {len(second.edge.archive)}; {_merge_state(merge, finder)}",
@@ -420,7 +444,9 @@ def main() -> None:
                        "lent_view_m": args.lent_view_m, "lent_view_deg": args.lent_view_deg,
                        "declined": len(lending.lender.declined),
                        "declined_back": len(lending_back.lender.declined),
-                       "no_merge": int(args.no_merge),
+                       "no_merge": int(args.no_merge), "join": int(args.join),
+                       "checkpoints": int(folder is not None),
+                       "joined_points_fused": len(second.edge.ids.fused),
                        "loops_across_devices": int(config.back_end.loops_across_devices),
                        "merged": int(merge is not None),
                        "merge_min_inliers": args.merge_inliers,
@@ -443,9 +469,11 @@ def main() -> None:
             report[f"{walk.name}_map_lost_share"] = walk.map_lost_share()
             report[f"{walk.name}_loops"] = len(walk.loops)
             # the loops it closed with another device's keyframe (a copy: a tagged id)
+            # (a joined device's loops are its place's first device's)
             report[f"{walk.name}_loops_across"] = sum(
-                1 for edge in walk.edge.back_end.loop_edges if is_foreign(edge.old))
-            own_archived = sum(1 for kf in walk.edge.archive if not is_foreign(kf.id))
+                1 for edge in walk.edge.back_end.loop_edges
+                if is_foreign(edge.old)) if walk.edge.serves_place else 0
+            own_archived = sum(1 for kf in walk.edge.archive if walk.edge.device.owns(kf.id))
             report[f"{walk.name}_archive_own"] = own_archived
             report[f"{walk.name}_archive_copies"] = len(walk.edge.archive) - own_archived
             print(f"{walk.name} device: {len(poses)} of {len(walk.truth)} frames tracked, "

@@ -51,7 +51,7 @@ from twinslam.slam.back_end.archive_relocalisation import ArchiveLocation
 from twinslam.slam.back_end.bundle_adjustment import BundleAdjustmentResult
 from twinslam.slam.back_end.device_record import DeviceRecord
 from twinslam.slam.back_end.foreign_keyframes import is_foreign
-from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive
+from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap, write_checkpoint
 from twinslam.slam.back_end.keyframe_slice import KeyFrameSlice
 from twinslam.slam.back_end.local_mapping import IntegrationReport, LocalMapping
@@ -694,16 +694,28 @@ class EdgeMapperCore:
         camera = self.camera
         if not camera.known:
             return [], [], [], 0
+        kept = self._restorable(slot)
         if relocalised and self.config.reloc_restore_keyframes > 0:
-            chosen = plan_relocation_restores(self.slice, self.archive, relocalised, camera, vmax,
+            chosen = plan_relocation_restores(self.slice, kept, relocalised, camera, vmax,
                                               self.config.reloc_restore_keyframes, slot, received)
         elif self.config.restore_keyframes > 0 and poses:
-            chosen = plan_restores(self.slice, self.archive, poses, camera, vmax,
+            chosen = plan_restores(self.slice, kept, poses, camera, vmax,
                                    self.config.restore_keyframes, slot, received)
         else:
             return [], [], [], 0
         dropped, fused = self.back_end.restore(chosen.restore, chosen.evict, slot, self.device)
         return chosen.restore, chosen.evict, dropped, fused
+
+    def _restorable(self, slot: int) -> KeyFrameArchive:
+        """The keyframes a restore may bring into the device's slice: the archive's, and in a
+        place of several devices the map's keyframes another device holds, as they are at
+        ``slot`` (a view: the archive's own record of which keyframes were useful lately is
+        not touched by what the restores score in it then)."""
+        apart = self.slice.apart
+        if not apart:
+            return self.archive
+        return self.archive.snapshot([ArchivedKeyFrame.of(self.map, k, slot)
+                                      for k in sorted(apart)])
 
     def in_coming_view(self, positions: Sequence[np.ndarray]) -> list[bool]:
         """Which of another device's keyframes (each given by its points' ``positions``, in
@@ -769,10 +781,10 @@ class EdgeMapperCore:
         if not self.serves_place or not place.serves_place or place is self:
             raise ValueError("a device joins the place of a device whose map is its place's, "
                              "once")
-        record = join_into_place(place.back_end, self.back_end, tag, alignment)
+        record, fused = join_into_place(place.back_end, self.back_end, tag, alignment)
         self.back_end.close()
         self.back_end, self._device = place.back_end, record
-        self.ids = PlaceIds(tag, record.version)
+        self.ids = PlaceIds(tag, record.version, fused)
         self.planner.map, self.planner.entered = record.slice, record.entered
         self.planner.last_seen = {tag | k: s for k, s in self.planner.last_seen.items()}
         frame = self.ids.frame
@@ -787,7 +799,7 @@ class EdgeMapperCore:
                       for s, held in self._held.items()}
         self._refused = {s: {frame(f): why for f, why in refused.items()}
                          for s, refused in self._refused.items()}
-        self._previous_tracks = {t: tag | p for t, p in self._previous_tracks.items()}
+        self._previous_tracks = {t: self.ids.point(p) for t, p in self._previous_tracks.items()}
         self._move_views(np.asarray(alignment, dtype=np.float64))
 
     def _version_of(self, data: KeyFramePayload) -> int:

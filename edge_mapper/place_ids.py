@@ -23,7 +23,8 @@ its ids are the place's, and nothing is renamed.
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -41,6 +42,14 @@ class PlaceIds:
     #: the newest map version the device was sent before its map joined the place: the
     #: point ids of a frame tracked on it or an older one are its old map's
     joined_at: int = -1
+    #: its old map's points (tagged) that the join fused into the place's: the place's point
+    #: each became
+    fused: Mapping[int, int] = field(default_factory=dict)
+
+    def point(self, point_id: int) -> int:
+        """A map point of the device's old map, as the place names it now."""
+        tagged = self.tag | int(point_id)
+        return self.fused.get(tagged, tagged)
 
     def frame(self, frame_id: int) -> int:
         """A frame of the device, as the place names it."""
@@ -59,7 +68,7 @@ class PlaceIds:
             return frame
         points = frame.map_points
         if self._old_map(frame.map_version):
-            points = frozenset(self.tag | p for p in points)
+            points = frozenset(map(self.point, points))
         if frame.frame_id == self.frame(frame.frame_id) and points is frame.map_points:
             return frame
         return dataclasses.replace(frame, frame_id=self.frame(frame.frame_id),
@@ -73,5 +82,6 @@ class PlaceIds:
         ids = np.asarray(data.point_ids, dtype=np.uint64)
         if self._old_map(version):
             points = (ids != 0) & ((ids & TRACK_ID_BIT) == 0)
-            ids = np.where(points, ids | np.uint64(self.tag), ids).astype(np.uint64)
+            ids = ids.copy()
+            ids[points] = [self.point(p) for p in ids[points].tolist()]
         return dataclasses.replace(data, frame_id=self.frame(data.frame_id), point_ids=ids)

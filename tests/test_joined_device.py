@@ -35,15 +35,17 @@ class Elsewhere(Device):
         return dataclasses.replace(data, pose=self.frame @ data.pose)
 
 
-def _core() -> EdgeMapperCore:
+def _core(restores: int = 0) -> EdgeMapperCore:
     return EdgeMapperCore(make_policy("lff"), K,
-                          EdgeConfig(slot=SlotConfig(vmax=10),
+                          EdgeConfig(slot=SlotConfig(vmax=10), restore_keyframes=restores,
                                      back_end=BackEndConfig(ba_window=6)))
 
 
 def _slot(core: EdgeMapperCore, device: Device, slot: int, version: int = -1):
     """Slot ``slot`` planned and its uploads made (not sent): (plan, uploads)."""
-    frames = [dataclasses.replace(device.summary(f, core), map_version=version)
+    told = getattr(device, "frame", np.eye(4))          # the frame its poses are told in
+    frames = [dataclasses.replace(device.summary(f, core), map_version=version,
+                                  pose=told @ device.pose(f))
               for f in range(slot * F, (slot + 1) * F)]
     plan = core.plan(slot, frames, 40.0, 0)
     return plan, [device.keyframe(f, slot, core) for f in plan.action.upload]
@@ -118,3 +120,21 @@ def test_a_device_joins_a_place_once_and_only_without_checkpoints(tmp_path) -> N
     second.join_place(first, TAG, ALIGNMENT)
     with pytest.raises(ValueError, match="once"):
         second.join_place(first, foreign_tag(2), ALIGNMENT)
+
+
+def test_a_joined_device_coming_where_the_place_was_mapped_takes_its_keyframes_in() -> None:
+    # both walk past one wall: once joined, the second device's slice takes in keyframes the
+    # first device holds where its camera heads, as restores bring archived ones back
+    first, second = _core(restores=3), _core(restores=3)
+    walker, other = Device(np.random.default_rng(0)), Elsewhere(np.random.default_rng(0))
+    _walk(first, walker, range(4))
+    _walk(second, other, range(2))
+    second.join_place(first, TAG, ALIGNMENT)
+    # the corners both mapped are one point each now, the second device's tracks on them
+    fused = set(second.ids.fused.values())
+    assert len(fused) > 100 and all(p in first.map.points for p in fused)
+    assert fused & set(second.local_mapping.track_points.values())
+    other.frame = np.eye(4)
+    _walk(second, other, range(2, 5))
+    taken = [k for k in second.slice.keyframe_ids() if k < 1 << TAG_SHIFT]
+    assert taken and all(first.slice.holds(k) or k in first.archive for k in taken)

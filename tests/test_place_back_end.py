@@ -136,7 +136,8 @@ def test_a_joining_map_enters_its_place_moved_and_tagged_and_its_device_goes_on_
                                        [0, 0, 0, 1]])
     points_before = {k: set(kf.points) for k, kf in joining.map.keyframes.items()}
     a_point = next(iter(points_before[3]))
-    record = join_into_place(place, joining, TAG, alignment)
+    record, fused = join_into_place(place, joining, TAG, alignment)
+    assert not fused                        # two walls of their own: no corner of the place's
 
     assert record.slice.keyframe_ids() == [TAG | 2, TAG | 3]
     assert place.device.slice.keyframe_ids() == [1, 2]
@@ -178,3 +179,14 @@ def test_a_map_holding_another_devices_copies_does_not_join() -> None:
         join_into_place(place, joining, TAG, np.eye(4))
     with pytest.raises(ValueError, match="rigid motion"):
         join_into_place(place, _joining_map(), TAG, np.full((4, 4), np.nan))
+
+
+def test_a_restore_takes_a_keyframe_another_device_holds_as_it_is() -> None:
+    back_end, second = _place()
+    first = back_end.device
+    points = set(back_end.map.keyframes[2].points)
+    back_end.restore([2], [TAG | 1], slot=6, device=second)
+    assert second.slice.holds(2) and first.slice.holds(2)          # held by both now
+    assert back_end.map.keyframes[2].points == points               # one keyframe, its points
+    assert second.entered[2] == (6, RESTORED) and first.entered[2] == (2, UPLOADED)
+    assert not second.slice.holds(TAG | 1) and TAG | 1 in back_end.archive

@@ -379,15 +379,20 @@ class MapBackEnd:
 
     def restore(self, restore: Iterable[int], evict: Iterable[int], slot: int,
                 device: DeviceRecord | None = None) -> tuple[list[int], int]:
-        """Archived keyframes ``restore`` brought back into the map and the slice of the
-        device (default :attr:`device`) in place of ``evict`` (which leave it in their turn);
-        (forgotten by the archive to make room, points fused: the points a restored keyframe
-        brings back that the map made again since)."""
+        """Keyframes ``restore`` brought into the slice of the device (default
+        :attr:`device`) in place of ``evict`` (which leave it in their turn): archived ones
+        back into the map, and — in a place of several devices — ones another device holds
+        in the map, as they are (their points are the place's); (forgotten by the archive to
+        make room, points fused: the points an archived keyframe brings back that the map
+        made again since)."""
         device = device or self.device
-        back = [self.archive.take(kf) for kf in restore]
+        restore = list(restore)
+        in_place = [kf for kf in restore if kf in self.map.keyframes]
+        back = [self.archive.take(kf) for kf in restore if kf not in self.map.keyframes]
         forgotten, _ = self.evict_to_archive(evict, slot, device)
         returned = self.store.enter_slice(back, device.slice)
-        device.entered.update((kf, (slot, RESTORED)) for kf in returned)
+        taken = self.store.take_from_place(in_place, device.slice)
+        device.entered.update((kf, (slot, RESTORED)) for kf in [*returned, *taken])
         fused = sum(len(fuse_restored(self.map, kf, points, self.camera_of(kf)))
                     for kf, points in returned.items()) if self.config.point_fusion else 0
         return forgotten, fused

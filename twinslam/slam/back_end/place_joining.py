@@ -19,17 +19,24 @@ others' (docs/architecture.md §10, "Devices in one place", step 2(b)). This mod
   entry order and capture times, and its frame moves by the alignment from its next map
   version, as :meth:`MapBackEnd.align` would have moved it.
 
-What it does not do (the next steps of §10): the points two devices made of one corner stay
-two points until a slice that takes in the other's keyframe fuses them, as a restore does;
-the joining map's loop edges stay behind (its walk enters the place's graph as the other
-device's keyframes, which the place's loops hold still); and a map that adopted copies of
-another device's keyframes cannot join — lending and joining are two ways to share a place,
-and a device is in one of them.
+* the points the two devices made of one corner become one: each joining keyframe's points
+  are looked for among the place's — projected where the keyframe saw them, alike, and near
+  (:func:`~twinslam.slam.back_end.point_fusion.duplicates_in_view`, as a restored keyframe's
+  are) — and a duplicate is fused into the place's point, the device's tracks following it.
+  Without it the two walks of one room share no point: no keyframe of one is covisible with
+  the other's, and a restore that would bring the other device's keyframe into a slice finds
+  it cut off from the slice's keyframes.
+
+What it does not do (the next steps of §10): the joining map's loop edges stay behind (its
+walk enters the place's graph as the other device's keyframes, which the place's loops hold
+still); and a map that adopted copies of another device's keyframes cannot join — lending and
+joining are two ways to share a place, and a device is in one of them.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 
@@ -38,15 +45,17 @@ from twinslam.slam.back_end.foreign_keyframes import foreign_mask, is_foreign
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.back_end.map_back_end import MapBackEnd
+from twinslam.slam.back_end.point_fusion import MapPoints, duplicates_in_view
 
 
 def join_into_place(place: MapBackEnd, joining: MapBackEnd, tag: int,
-                    alignment: np.ndarray) -> DeviceRecord:
+                    alignment: np.ndarray) -> tuple[DeviceRecord, dict[int, int]]:
     """The map of ``joining``'s device, found in ``place`` with the rigid motion ``alignment``
     (its frame into the place's), joined into ``place`` under the device tag ``tag`` (see the
-    module's text); the device's record there. ``joining`` is left as it was: its device is
-    served by ``place`` from now on, and the caller stops using it (closing its loop
-    closer)."""
+    module's text); (the device's record there, each of its points fused into the place's
+    by the id it had in the place's map at the join: the place's point it became).
+    ``joining`` is left as it was: its device is served by ``place`` from now on, and the
+    caller stops using it (closing its loop closer)."""
     alignment = np.asarray(alignment, dtype=np.float64)
     if alignment.shape != (4, 4) or not np.isfinite(alignment).all():
         raise ValueError("an alignment is a finite 4×4 rigid motion")
@@ -63,7 +72,7 @@ def join_into_place(place: MapBackEnd, joining: MapBackEnd, tag: int,
     archived = [_moved_archived(kf, tag, alignment, own.k) for kf in joining.archive]
     place.archive_keyframes(archived, "writing the joined map's archived keyframes' files")
     _carry_record(record, own, tag, alignment, points)
-    return record
+    return record, _fuse_duplicates(place, record, keyframe_ids)
 
 
 def _move_points(place: KeyFrameMap, joining: KeyFrameMap, tag: int,
@@ -121,3 +130,30 @@ def _carry_record(record: DeviceRecord, own: DeviceRecord, tag: int, alignment: 
     record.frame_correction = own.frame_correction.copy()
     record.frames_since = [(v, c.copy()) for v, c in own.frames_since]
     record.frame_moved(alignment)
+
+
+def _fuse_duplicates(place: MapBackEnd, record: DeviceRecord, keyframe_ids: list[int]
+                     ) -> dict[int, int]:
+    """The joined keyframes' points fused into the place's points that duplicate them (the
+    place's own, not the joined device's: those are its map's, one a corner already), the
+    device's tracks following; each fused point's id → the place's point it became."""
+    m = place.map
+    joined = {p for k in keyframe_ids for p in m.keyframes[k].points}
+    fused: dict[int, int] = {}
+    for kf_id in keyframe_ids:
+        kf = m.keyframes[kf_id]
+        mine = [p for p in sorted(kf.points)
+                if p in joined and p in m.points and p not in fused
+                and p in kf.measurements and math.isfinite(kf.measurements[p][0])]
+        pairs = duplicates_in_view(
+            kf.pose, np.array([kf.measurements[p][:2] for p in mine], dtype=np.float64),
+            m.descriptors_of(mine), m.positions_of(mine), MapPoints.every(m, but=joined),
+            place.camera_of(kf_id))
+        now = {mine[row]: keep for row, keep in pairs}
+        m.fuse_many([(keep, drop) for drop, keep in now.items()])
+        fused.update(now)
+    for table in (record.local_mapping.track_points, record.local_mapping.new_tracks):
+        for track, point in table.items():
+            if point in fused:
+                table[track] = fused[point]
+    return fused
