@@ -1,0 +1,91 @@
+"""Two devices of one place, the second's map joined into the first's against lent copies
+(docs/results/shared-map.md, "One map a place"): ``bench.shared_map`` runs, one CSV an arm
+(``--join``; ``--share --share-both --no-checkpoints``), paired by seed — less a seed whose
+runs repeat an earlier seed's in every arm (two seeds can draw one uplink). Prints a markdown
+table — each figure seed by seed in both arms and the paired difference (joined − lent,
+Student's t, :func:`twinslam.reporting.paired_row`) — and, given the runs alone
+(``--no-merge``), the second device's uploads saved against them in each arm.
+
+    .venv/bin/python docs/figures/joined_place_table.py LENT.csv JOINED.csv [--alone A.csv]
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+from pathlib import Path
+
+from shared_uplink_table import distinct_seeds
+
+from twinslam.reporting import paired_row
+
+#: (column, name in the table, scale, format)
+FIGURES = [
+    ("cross_rms_m", "cross-device revisit error, RMS cm", 100.0, "{:.1f}"),
+    ("keyframes_cross_rms_m", "the two devices' final keyframes apart, RMS cm", 100.0,
+     "{:.1f}"),
+    ("second_uploads", "the second device's keyframes uploaded", 1.0, "{:.0f}"),
+    ("second_lost_share", "its frames the edge counts lost (%)", 100.0, "{:.1f}"),
+    ("second_map_lost_share", "its frames its map did not serve (%)", 100.0, "{:.1f}"),
+    ("second_ate_m", "its ATE, cm", 100.0, "{:.1f}"),
+    ("first_uploads", "the first device's keyframes uploaded", 1.0, "{:.0f}"),
+    ("first_lost_share", "its frames the edge counts lost (%)", 100.0, "{:.1f}"),
+    ("first_ate_m", "its ATE, cm", 100.0, "{:.1f}"),
+    ("first_edge_ms", "the edge's median ms a slot, the first device", 1.0, "{:.1f}"),
+    ("second_edge_ms", "the edge's median ms a slot, the second device", 1.0, "{:.1f}"),
+]
+
+
+def by_seed(path: Path) -> dict[int, dict[str, str]]:
+    """The CSV's runs by seed (a seed run twice: its last run)."""
+    with path.open(newline="") as f:
+        return {int(row["seed"]): row for row in csv.DictReader(f)}
+
+
+def _value(row: dict[str, str], column: str, scale: float) -> float:
+    text = row.get(column, "")
+    return float(text) * scale if text not in ("", None) else math.nan
+
+
+def table(lent_csv: Path, joined_csv: Path, alone_csv: Path | None = None) -> list[str]:
+    """The markdown lines :func:`main` prints."""
+    lent, joined = by_seed(lent_csv), by_seed(joined_csv)
+    alone = by_seed(alone_csv) if alone_csv is not None else {}
+    arms = {"lent": lent, "joined": joined, **({"alone": alone} if alone else {})}
+    seeds = distinct_seeds(arms)
+    lines = [f"seeds {', '.join(map(str, seeds))}", "",
+             "| figure | lent copies | joined | joined − lent [95 % CI] |", "|---|---|---|---|"]
+    for column, name, scale, fmt in FIGURES:
+        before = [_value(lent[s], column, scale) for s in seeds]
+        after = [_value(joined[s], column, scale) for s in seeds]
+        if not any(math.isnan(x) for x in before + after):
+            lines.append(paired_row(name, before, after, fmt))
+    if not alone:
+        return lines
+    common = seeds
+    base = [_value(alone[s], "second_uploads", 1.0) for s in common]
+    lines += ["", f"the second device alone (seeds {', '.join(map(str, common))}) uploaded "
+                  f"{', '.join(f'{x:.0f}' for x in base)}", "",
+              "| the second device's uploads | alone | sharing | sharing − alone [95 % CI] |",
+              "|---|---|---|---|"]
+    for name, arm in (("lent copies", lent), ("joined", joined)):
+        got = [_value(arm[s], "second_uploads", 1.0) for s in common]
+        saved = 1.0 - sum(got) / sum(base)
+        lines.append(paired_row(f"{name}: {saved:.1%} fewer ({sum(got):.0f} against "
+                                f"{sum(base):.0f})", base, got, "{:.0f}"))
+    return lines
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("lent", type=Path, help="the runs with lent copies (the base)")
+    parser.add_argument("joined", type=Path, help="the runs with the map joined")
+    parser.add_argument("--alone", type=Path,
+                        help="the runs that never merged: the second device's uploads saved")
+    args = parser.parse_args(argv)
+    print("\n".join(table(args.lent, args.joined, args.alone)))
+
+
+if __name__ == "__main__":
+    main()
