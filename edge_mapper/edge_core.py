@@ -50,7 +50,6 @@ from twinslam.policies.protocol import MapPolicy
 from twinslam.slam.back_end.archive_relocalisation import ArchiveLocation
 from twinslam.slam.back_end.bundle_adjustment import BundleAdjustmentResult
 from twinslam.slam.back_end.device_record import DeviceRecord
-from twinslam.slam.back_end.foreign_keyframes import is_foreign
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame, KeyFrameArchive
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap, write_checkpoint
 from twinslam.slam.back_end.keyframe_slice import KeyFrameSlice
@@ -417,10 +416,11 @@ class EdgeMapperCore:
         if not bounds.enabled:
             return {}
         held = self.slice.keyframes
-        lent_ids = [k for k in held if k not in leaving and is_foreign(k)]
+        owns = self.device.owns                 # another device's: lent, or its place's
+        lent_ids = [k for k in held if k not in leaving and not owns(k)]
         lent = [held[k].pose for k in lent_ids]
         own = [kf.pose for k, kf in held.items()
-               if k not in leaving and not is_foreign(k) and self._earlier_visit(k, slot)]
+               if k not in leaving and owns(k) and self._earlier_visit(k, slot)]
         if own and not self._heads_where_it_was(frames, ahead, own):
             own = []
         if not lent and not own:

@@ -96,6 +96,8 @@ def test_a_joined_device_goes_on_in_its_places_map() -> None:
         plan, uploads = _slot(second, other, slot)
         assert plan.action.upload and \
             all(slot * F <= f < (slot + 1) * F for f in plan.action.upload)
+        # its own keyframes (tagged) are no other device's: they cover none of its views
+        assert not plan.covered
         for data in uploads:
             report = second.add_keyframe(data)
             assert report is not None and not report.refused and report.tracked > 0
@@ -123,8 +125,9 @@ def test_a_device_joins_a_place_once_and_only_without_checkpoints(tmp_path) -> N
 
 
 def test_a_joined_device_coming_where_the_place_was_mapped_takes_its_keyframes_in() -> None:
-    # both walk past one wall: once joined, the second device's slice takes in keyframes the
-    # first device holds where its camera heads, as restores bring archived ones back
+    # both walk past one wall: once joined, the second device's slice — given room to grow —
+    # takes in keyframes the first device holds where its camera heads, as restores bring
+    # archived ones back
     first, second = _core(restores=3), _core(restores=3)
     walker, other = Device(np.random.default_rng(0)), Elsewhere(np.random.default_rng(0))
     _walk(first, walker, range(4))
@@ -135,6 +138,7 @@ def test_a_joined_device_coming_where_the_place_was_mapped_takes_its_keyframes_i
     assert len(fused) > 100 and all(p in first.map.points for p in fused)
     assert fused & set(second.local_mapping.track_points.values())
     other.frame = np.eye(4)
+    second.set_vmax(20)
     _walk(second, other, range(2, 5))
     taken = [k for k in second.slice.keyframe_ids() if k < 1 << TAG_SHIFT]
     assert taken and all(first.slice.holds(k) or k in first.archive for k in taken)

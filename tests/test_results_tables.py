@@ -1314,3 +1314,19 @@ def test_devices_with_cameras_of_their_own_live_are_what_their_command_prints() 
         lines, seeds, _ = live.table(folder / runs, modes)
         assert seeds == [seed]
         assert _missing("\n".join(lines)) == [], runs
+
+
+def test_one_map_a_place_against_lent_copies_is_what_its_command_prints(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The second device's map joined into the first's against lent copies, from the walk's
+    two ends at once and coming to a mapped place (with the device alone), as the table
+    script prints them."""
+    monkeypatch.syspath_prepend(str(FIGURES))           # its sibling, shared_uplink_table
+    folder = FIGURES / "shared-map" / "joined"
+    table = _script("joined_place_table")
+    printed = table.table(folder / "two-ends" / "lend.csv", folder / "two-ends" / "join.csv")
+    assert _missing("\n".join(printed)) == []
+    printed = table.table(folder / "later" / "lend.csv", folder / "later" / "join.csv",
+                          folder / "later" / "alone.csv")
+    assert _missing("\n".join(printed)) == []
+    assert printed[0] == "seeds 0, 1, 2, 4, 5, 6, 7"
