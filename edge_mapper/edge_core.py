@@ -753,7 +753,11 @@ class EdgeMapperCore:
         (a merge with another device's map of the place,
         :mod:`twinslam.slam.back_end.map_merging`): the map, its archive and where the
         camera is heading, from the next map update on (:meth:`MapBackEnd.align`; call it
-        between slots)."""
+        between slots). A device that joined another's place moves with it, never alone
+        (ValueError)."""
+        if not self.serves_place:
+            raise ValueError("a device that joined a place cannot move its map alone: the "
+                             "map is its place's")
         self.back_end.align(alignment)
         self._move_views(np.asarray(alignment, dtype=np.float64))
 

@@ -6,6 +6,7 @@ adjustment is run once, by the place's first device's core."""
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -110,7 +111,7 @@ def test_a_joined_device_goes_on_in_its_places_map() -> None:
     assert first.version == 6 and second.version == 6
 
 
-def test_a_device_joins_a_place_once_and_only_without_checkpoints(tmp_path) -> None:
+def test_a_device_joins_a_place_once_and_only_without_checkpoints(tmp_path: Path) -> None:
     first, second = _core(), _core()
     _walk(first, Device(np.random.default_rng(0)), range(2))
     _walk(second, Elsewhere(np.random.default_rng(0)), range(2))
@@ -122,6 +123,8 @@ def test_a_device_joins_a_place_once_and_only_without_checkpoints(tmp_path) -> N
     second.join_place(first, TAG, ALIGNMENT)
     with pytest.raises(ValueError, match="once"):
         second.join_place(first, foreign_tag(2), ALIGNMENT)
+    with pytest.raises(ValueError, match="alone"):             # the place's map moves whole
+        second.align(ALIGNMENT)
 
 
 def test_a_joined_device_coming_where_the_place_was_mapped_takes_its_keyframes_in() -> None:

@@ -96,9 +96,10 @@ def _move_keyframes(place: KeyFrameMap, joining: MapBackEnd, tag: int, alignment
     for kf_id, kf in joining.map.keyframes.items():
         place.add_keyframe(tag | kf_id, alignment @ kf.pose,
                            camera if kf.intrinsics is None else kf.intrinsics)
-        seen, uvd = kf.observed()
-        place.observe_many(tag | kf_id, [points[p] for p in seen.tolist()],
-                           uvd[:, :2].tolist(), uvd[:, 2].tolist())
+        seen = sorted(kf.points)             # a point seen with no measurement too (NaN)
+        uvd = [kf.measurements.get(p, (math.nan, math.nan, math.nan)) for p in seen]
+        place.observe_many(tag | kf_id, [points[p] for p in seen],
+                           [[u, v] for u, v, _ in uvd], [d for _, _, d in uvd])
         moved.append(tag | kf_id)
     return moved
 
