@@ -96,7 +96,8 @@ def _move_keyframes(place: KeyFrameMap, joining: MapBackEnd, tag: int, alignment
     for kf_id, kf in joining.map.keyframes.items():
         place.add_keyframe(tag | kf_id, alignment @ kf.pose,
                            camera if kf.intrinsics is None else kf.intrinsics)
-        seen = sorted(kf.points)             # a point seen with no measurement too (NaN)
+        # in the order it came to observe them; a point seen with no measurement too (NaN)
+        seen = [*kf.measurements, *sorted(p for p in kf.points if p not in kf.measurements)]
         uvd = [kf.measurements.get(p, (math.nan, math.nan, math.nan)) for p in seen]
         place.observe_many(tag | kf_id, [points[p] for p in seen],
                            [[u, v] for u, v, _ in uvd], [d for _, _, d in uvd])
