@@ -84,6 +84,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--alone", type=Path,
                         help="the runs that never merged: the second device's uploads saved")
     args = parser.parse_args(argv)
+    for path in (args.lent, args.joined, *([args.alone] if args.alone else [])):
+        if not path.is_file():
+            parser.error(f"{path}: no such CSV (bench.shared_map --csv writes one)")
     print("\n".join(table(args.lent, args.joined, args.alone)))
 
 
