@@ -1330,3 +1330,8 @@ def test_one_map_a_place_against_lent_copies_is_what_its_command_prints(
                           folder / "later" / "alone.csv")
     assert _missing("\n".join(printed)) == []
     assert printed[0] == "seeds 0, 1, 2, 4, 5, 6, 7"
+    # the local adjustment on: the place's once, and a window shared among the walks tried
+    window = folder / "ba-window-6"
+    for first, second in (("lend", "join"), ("join", "join-window-each-walk")):
+        printed = table.table(window / f"{first}.csv", window / f"{second}.csv")
+        assert _missing("\n".join(printed)) == [], (first, second)

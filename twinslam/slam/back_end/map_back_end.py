@@ -427,7 +427,7 @@ class MapBackEnd:
         if len(self.map.keyframes) < 2 or self.config.ba_window <= 0:
             return None
         ids = self.map.keyframe_ids()
-        window = self._ba_window(ids) - {ids[0]}
+        window = set(ids[-self.config.ba_window:]) - {ids[0]}
         if not window:
             return None
         seen = set().union(*(self.map.keyframes[k].points for k in window))
@@ -470,18 +470,6 @@ class MapBackEnd:
             if ob.point in self.map.points:
                 self.map.unobserve(ob.keyframe, ob.point)
         return result
-
-    def _ba_window(self, ids: list[int]) -> set[int]:
-        """The keyframes the local adjustment moves (``ids``: the map's, by id): the newest
-        ``ba_window``; in a place of several devices the newest of each device's walk, the
-        window shared among them — the joined devices' tagged ids sort after every id of the
-        place's first device, and the newest by id alone would be one device's only."""
-        size = self.config.ba_window
-        if len(self.devices) == 1:
-            return set(ids[-size:])
-        each = -(-size // len(self.devices))
-        return {k for device in self.devices
-                for k in [k for k in ids if device.owns(k)][-each:]}
 
     def _implausible_adjustment(self, result: BundleAdjustmentResult, window: set[int]) -> str:
         """Why the adjustment's answer must not be applied, or "": a non-finite pose or point
