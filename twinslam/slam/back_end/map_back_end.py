@@ -1,4 +1,5 @@
-"""One device's map at the edge through its life: keyframes in, points culled and fused,
+"""A place's map at the edge through its life — one device's, or several devices' once their
+maps joined (:mod:`~twinslam.slam.back_end.place_joining`): keyframes in, points culled and fused,
 keyframes archived and restored, the local bundle adjustment, loops closed (ORB-SLAM's
 LocalMapping and LoopClosing in one object; docs/architecture.md §1 step 5).
 
@@ -188,7 +189,9 @@ class FollowedLoop:
 
 
 class MapBackEnd:
-    """The map, its archive and its loops for one device (see the module's text)."""
+    """The map, its archive and its loops for the devices of one place (see the module's
+    text): one device's (:attr:`device`) until another device's map joins it
+    (:mod:`~twinslam.slam.back_end.place_joining`, :meth:`add_device`)."""
 
     def __init__(self, config: BackEndConfig, intrinsics: np.ndarray | None = None,
                  checkpoint: Path | None = None) -> None:

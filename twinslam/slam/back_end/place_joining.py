@@ -141,6 +141,7 @@ def _fuse_duplicates(place: MapBackEnd, record: DeviceRecord, keyframe_ids: list
     device's tracks following; each fused point's id → the place's point it became."""
     m = place.map
     joined = {p for k in keyframe_ids for p in m.keyframes[k].points}
+    theirs = MapPoints.every(m, but=joined)  # a fusion keeps these: they stay as they are
     fused: dict[int, int] = {}
     for kf_id in keyframe_ids:
         kf = m.keyframes[kf_id]
@@ -149,8 +150,7 @@ def _fuse_duplicates(place: MapBackEnd, record: DeviceRecord, keyframe_ids: list
                 and p in kf.measurements and math.isfinite(kf.measurements[p][0])]
         pairs = duplicates_in_view(
             kf.pose, np.array([kf.measurements[p][:2] for p in mine], dtype=np.float64),
-            m.descriptors_of(mine), m.positions_of(mine), MapPoints.every(m, but=joined),
-            place.camera_of(kf_id))
+            m.descriptors_of(mine), m.positions_of(mine), theirs, place.camera_of(kf_id))
         now = {mine[row]: keep for row, keep in pairs}
         m.fuse_many([(keep, drop) for drop, keep in now.items()])
         fused.update(now)
