@@ -368,8 +368,8 @@ class EdgeMapperCore:
         self.rate_history = [*self.rate_history[-63:], int(rate_state)]
         if slot in self.pending:
             raise ValueError(f"slot {slot} is planned already and still open")
-        frames = self.resolve_tracks(frames) if not tracks_resolved \
-            else [self.ids.observations(f) for f in frames]
+        if not tracks_resolved:        # (resolving renames a joined device's ids too)
+            frames = self.resolve_tracks(frames)
         leaving = {kf for action, _ in self.pending.values() for kf in action.evict}
         ahead = heading(frames)
         plan = self.planner.plan(slot, frames, rate_mbps, rate_state, self.rate_history,
@@ -499,7 +499,9 @@ class EdgeMapperCore:
         a frame with none is returned as it is, so resolving twice changes nothing and the
         keys a frame made once (:attr:`FrameObservations.keys`) are read again: the edge node
         resolves a slot's frames before the keyframe budget reads them, and hands the plan
-        those (:meth:`plan`'s ``tracks_resolved``)."""
+        those (:meth:`plan`'s ``tracks_resolved``). A joined device's frames are renamed into
+        its place's ids here, once (:class:`~edge_mapper.place_ids.PlaceIds`): frames this
+        returned must not come back through it."""
         known = self.local_mapping.track_points       # pruned to the map's points each slot
         resolved = []
         for frame in map(self.ids.observations, frames):

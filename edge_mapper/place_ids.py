@@ -14,10 +14,11 @@ sends is renamed where it comes in:
   and upload names); a summary of unknown version is taken as the place's;
 * track ids are the device's and stay so (each device has its own tracks table).
 
-What goes out to the device (the frames a slot asks it to upload) is renamed back. Renaming is
-idempotent — a tagged id tagged again is itself — so frames renamed once may be handed in again
-(the edge resolves a slot's tracks before planning it). The place's first device has no tag:
-its ids are the place's, and nothing is renamed.
+What goes out to the device (the frames a slot asks it to upload) is renamed back. A frame is
+renamed once, where it comes in (:meth:`EdgeMapperCore.resolve_tracks`, which a plan calls
+unless its caller did): a point of the old map fused into one of the place's is that point's
+id afterwards, which renaming again would take for an old id. The place's first device has no
+tag: its ids are the place's, and nothing is renamed.
 """
 
 from __future__ import annotations

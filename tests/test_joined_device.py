@@ -134,14 +134,28 @@ def test_a_joined_device_coming_where_the_place_was_mapped_takes_its_keyframes_i
     first, second = _core(restores=3), _core(restores=3)
     walker, other = Device(np.random.default_rng(0)), Elsewhere(np.random.default_rng(0))
     _walk(first, walker, range(4))
+    second.map.next_point_id = 5000        # its map counts its points from elsewhere
     _walk(second, other, range(2))
+    # its slot 2's summaries, sent before the join: they name its old map's points
+    told = [dataclasses.replace(other.summary(f, second), map_version=second.version)
+            for f in range(2 * F, 3 * F)]
     second.join_place(first, TAG, ALIGNMENT)
     # the corners both mapped are one point each now, the second device's tracks on them
     fused = set(second.ids.fused.values())
     assert len(fused) > 100 and all(p in first.map.points for p in fused)
     assert fused & set(second.local_mapping.track_points.values())
+    # the summaries renamed once as they come in: an old point fused is the place's point,
+    # and the plan over the resolved frames takes them as they are (renamed again, a fused
+    # point's id would be taken for an old one)
+    resolved = second.resolve_tracks(told)
+    assert any(f.map_points & fused for f in resolved)
+    held = set(second.slice.point_ids().tolist())
+    plan = second.plan(2, resolved, 40.0, 0, tracks_resolved=True)
+    assert plan.action.upload
+    assert list(plan.shared) == [len(f.map_points & held) for f in resolved]
+    second.finish_slot(2)
     other.frame = np.eye(4)
     second.set_vmax(20)
-    _walk(second, other, range(2, 5))
+    _walk(second, other, range(3, 6))
     taken = [k for k in second.slice.keyframe_ids() if k < 1 << TAG_SHIFT]
     assert taken and all(first.slice.holds(k) or k in first.archive for k in taken)
