@@ -696,12 +696,12 @@ class EdgeMapperCore:
         camera = self.camera
         if not camera.known:
             return [], [], [], 0
-        kept = self._restorable(slot)
         if relocalised and self.config.reloc_restore_keyframes > 0:
-            chosen = plan_relocation_restores(self.slice, kept, relocalised, camera, vmax,
+            chosen = plan_relocation_restores(self.slice, self._restorable(slot), relocalised,
+                                              camera, vmax,
                                               self.config.reloc_restore_keyframes, slot, received)
         elif self.config.restore_keyframes > 0 and poses:
-            chosen = plan_restores(self.slice, kept, poses, camera, vmax,
+            chosen = plan_restores(self.slice, self._restorable(slot), poses, camera, vmax,
                                    self.config.restore_keyframes, slot, received)
         else:
             return [], [], [], 0
