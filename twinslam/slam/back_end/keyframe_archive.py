@@ -111,6 +111,12 @@ class ArchivedKeyFrame:
                    m.columns.descriptors[rows], measured, slot,
                    None if kf.intrinsics is None else kf.intrinsics.copy())
 
+    def moved(self, motion: np.ndarray) -> ArchivedKeyFrame:
+        """It and the points it saw moved by the rigid motion ``motion`` (4×4): a loop's
+        correction, or a merge's alignment into another map's frame."""
+        return dataclasses.replace(self, pose=motion @ self.pose,
+                                   positions=self.positions @ motion[:3, :3].T + motion[:3, 3])
+
     def camera(self, own: np.ndarray) -> np.ndarray:
         """The intrinsics its measurements were taken with: its own, else ``own`` (the map's
         device's)."""
@@ -358,8 +364,7 @@ class KeyFrameArchive:
             shift = reach @ (c[:3, :3] - np.eye(3)).T + c[:3, 3]      # where each moves
             if np.linalg.norm(shift, axis=1).max(initial=0.0) < min_move_m:
                 continue
-            now = dataclasses.replace(kf, pose=c @ kf.pose,
-                                      positions=kf.positions @ c[:3, :3].T + c[:3, 3])
+            now = kf.moved(c)
             self._entries[kf_id] = now
             with self._files:
                 if kf_id in self._owed:        # no file yet: it is to be written as it is now

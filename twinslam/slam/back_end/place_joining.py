@@ -111,9 +111,8 @@ def _moved_archived(kf: ArchivedKeyFrame, tag: int, alignment: np.ndarray,
     and its points' ids tagged, its camera named."""
     own_points = ~foreign_mask(kf.point_ids)
     return dataclasses.replace(
-        kf, id=tag | kf.id, pose=alignment @ kf.pose,
+        kf.moved(alignment), id=tag | kf.id,
         point_ids=np.where(own_points, kf.point_ids | tag, kf.point_ids),
-        positions=kf.positions @ alignment[:3, :3].T + alignment[:3, 3],
         intrinsics=camera.copy() if kf.intrinsics is None else kf.intrinsics)
 
 
