@@ -596,8 +596,7 @@ class MapBackEnd:
         next map version on — by the correction at its walk's head
         (:meth:`DeviceRecord.head_of`), which every pose it holds and every keyframe it is
         about to upload still needs; a device none of whose keyframes moved keeps its frame. A
-        loop's
-        corrections reach the map's own keyframes alone (:func:`correction_for`: the copies
+        loop's corrections reach the map's own keyframes alone (:func:`correction_for`: the copies
         it adopted hold their lenders' poses); with ``everywhere`` (a rigid motion) the whole
         map changes frame: each keyframe ``corrections`` names moves, copies included, and
         every device's frame by ``everywhere``. The archive's pose file is written beside the
@@ -624,9 +623,7 @@ class MapBackEnd:
         keyframe alike: its next map update carries the new ``frame_correction`` and the
         device moves what it holds with it. A loop job running on the poses before is
         dropped: its corrections belong to the frame the map left."""
-        alignment = np.asarray(alignment, dtype=np.float64)
-        if alignment.shape != (4, 4) or not np.isfinite(alignment).all():
-            raise ValueError("an alignment is a finite 4×4 rigid motion")
+        alignment = checked_alignment(alignment)
         self.loop_closer.discard()
         for device in self.devices:
             device.origin = alignment @ device.origin
@@ -817,6 +814,15 @@ class MapBackEnd:
 def _moved_m(before: np.ndarray, after: np.ndarray) -> float:
     """How far a pose's camera moved (m)."""
     return float(np.linalg.norm(after[:3, 3] - before[:3, 3]))
+
+
+def checked_alignment(alignment: np.ndarray) -> np.ndarray:
+    """``alignment`` as a float 4×4 — the rigid motion that moves one map into another's
+    frame — or ValueError where it is not a finite 4×4 (nothing moves on a broken one)."""
+    checked = np.asarray(alignment, dtype=np.float64)
+    if checked.shape != (4, 4) or not np.isfinite(checked).all():
+        raise ValueError("an alignment is a finite 4×4 rigid motion")
+    return checked
 
 
 def archive_folder(checkpoint: Path) -> Path:

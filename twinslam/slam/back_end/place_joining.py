@@ -44,7 +44,7 @@ from twinslam.slam.back_end.device_record import DeviceRecord
 from twinslam.slam.back_end.foreign_keyframes import foreign_mask, is_foreign
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
-from twinslam.slam.back_end.map_back_end import MapBackEnd
+from twinslam.slam.back_end.map_back_end import MapBackEnd, checked_alignment
 from twinslam.slam.back_end.point_fusion import MapPoints, duplicates_in_view
 
 
@@ -56,9 +56,7 @@ def join_into_place(place: MapBackEnd, joining: MapBackEnd, tag: int,
     by the id it had in the place's map at the join: the place's point it became).
     ``joining`` is left as it was: its device is served by ``place`` from now on, and the
     caller stops using it (closing its loop closer)."""
-    alignment = np.asarray(alignment, dtype=np.float64)
-    if alignment.shape != (4, 4) or not np.isfinite(alignment).all():
-        raise ValueError("an alignment is a finite 4×4 rigid motion")
+    alignment = checked_alignment(alignment)
     if len(joining.devices) != 1:
         raise ValueError("a back end that serves several devices cannot join another place")
     if any(is_foreign(k) for k in joining.store.ids()):
