@@ -4,7 +4,8 @@ lent as the edge node merges them: the node's own
 
     python -m bench.place_walks [SEQUENCE[,SEQUENCE…]] [--devices 4] [--frames 2700]
         [--after 300] [--order forward[,backward…]] [--seed 0] [--uplink lte]
-        [--unseen-slots N] [--lend-eagerly] [--merge-inliers N] [--look-backoff N] [--no-merge]
+        [--unseen-slots N] [--lend-eagerly] [--merge-inliers N] [--look-backoff N]
+        [--no-merge | --join]
         [--covered-m M] [--covered-deg D] [--covered-min-points N]
         [--interleave N] [--own-walks] [--edge NAME=VALUE …] [--every 300] [--csv FILE]
         [--frames-csv FILE] [--baseline COMMIT [--rounds 1]]
@@ -31,7 +32,8 @@ share one edge process as an edge serving users in several buildings does. Each 
 map joined no other looks for its place in the other places' maps after every slot, for as
 long as none is found: the looks' time (``look_ms_median``) is outside the devices' slot
 medians, as the node's looks worker's is; a device whose map joins a device of another place
-is a **false merge**, counted and named.
+is a **false merge**, counted and named. With ``--join`` a merge makes one map of the place
+(the edge's ``merge_join``) instead of lending each map the others' keyframes as copies.
 Only devices of one place are paired for the cross-device figure.
 
 It prints, per device, the frames tracked, its ATE over the frames it published in its
@@ -106,7 +108,6 @@ from twinslam.live.tracking_quality import (
 from twinslam.reporting import append_csv_rows, write_csv
 from twinslam.sequence_player.playback import ORDERS, phase_for
 from twinslam.sequences.opening import focal_lengths, is_synthetic, with_focal
-from twinslam.slam.back_end.foreign_keyframes import is_foreign
 
 #: the CSV's columns: the run's settings, then its figures (per-device lists joined by ";")
 COLUMNS = ("sequence", "frames", "devices", "after", "order", "seed", "uplink", "no_merge",
@@ -120,7 +121,7 @@ COLUMNS = ("sequence", "frames", "devices", "after", "order", "seed", "uplink", 
            "look_ms_median", "seconds", "device_edge_ms", "device_copies_mean", "device_uploads",
            "device_merge_slot", "device_ate_m", "places", "false_merges", "declined",
            "interleave", "own_walks", "pieces_slots", "device_pieces_slots", "edge_params",
-           "focals")
+           "focals", "join")
 #: the figures two trees' runs share when they walked one walk (the timings aside)
 SAME_WALK = ("merged", "copies_mean", "copies_end", "adopted", "uploads", "lost_share",
              "tracked_share", "ate_m_mean", "cross_rms_m", "loops", "device_uploads",
@@ -292,6 +293,11 @@ def main() -> None:
                              "the devices play one walk from its first frame, so their maps' "
                              "frames are one by construction and the cross-device figure "
                              "still compares them)")
+    parser.add_argument("--join", action="store_true",
+                        help="a merge makes one map of the place (the edge's merge_join): "
+                             "a device's map joins the place's, whose bundle adjustment and "
+                             "loops run once; its uploads are every device's keyframes at once; "
+                             "no edge writes a checkpoint (a joined place has none yet)")
     parser.add_argument("--every", type=int, default=300,
                         help="print the devices' maps every N frames of the run")
     add_edge_option(parser)
@@ -327,6 +333,8 @@ def main() -> None:
     if args.focals and not all(is_synthetic(p) for p in args.sequence.split(",")):
         parser.error("--focals: a camera of each device's own needs a synthetic place, not "
                      f"{args.sequence}")
+    if args.join and args.no_merge:
+        parser.error("--join is how maps merge; --no-merge never merges them")
     if args.look_backoff < 1:
         parser.error(f"--look-backoff: 1 slot or more, got {args.look_backoff}")
     if args.baseline:
@@ -352,7 +360,7 @@ def main() -> None:
                                                   if args.focals else None), args.frames,
                                        args.order[k % len(args.order)], args.seed + k,
                                        args.uplink, config,
-                                       args.update_delay, Path(tmp),
+                                       args.update_delay, None if args.join else Path(tmp),
                                        device_params=device_params, every=args.interleave,
                                        phase=phase_for(k, 0, args.interleave)),
                              k * args.after // args.interleave, k % len(places))
@@ -366,7 +374,7 @@ def main() -> None:
                                lend_in_view=not args.lend_eagerly,
                                unseen_slots=args.unseen_slots,
                                lent_views=lent_views(args),
-                               look_backoff_slots=args.look_backoff)
+                               look_backoff_slots=args.look_backoff, join=args.join)
         for device in devices:
             if not args.no_merge:
                 device.walk.serve = functools.partial(serve_slot,
@@ -386,8 +394,10 @@ def main() -> None:
                 if device.walk.step() is None:
                     device.done = True
                 elif len(device.walk.edge_ms) > slots:
+                    # the other devices' keyframes: copies, or the joined place's
+                    owns = device.walk.edge.device.owns
                     device.copies.append(sum(1 for k in device.walk.edge.back_end.store.ids()
-                                             if is_foreign(k)))
+                                             if not owns(k)))
             tick += 1
             if tick % args.every == 0:
                 print(f"frame {tick:5d}: " + ", ".join(
@@ -525,7 +535,7 @@ def _report(devices: list[PlaceWalk], merging: PlaceMerging, args: argparse.Name
             "after": args.after, "order": ",".join(args.order), "seed": args.seed,
             "interleave": args.interleave, "own_walks": int(args.own_walks),
             "focals": ";".join(f"{f:g}" for f in args.focals),
-            "uplink": args.uplink, "no_merge": int(args.no_merge),
+            "uplink": args.uplink, "no_merge": int(args.no_merge), "join": int(args.join),
             "lend_in_view": int(not args.lend_eagerly),
             "lent_unseen_slots": args.unseen_slots, "merge_min_inliers": args.merge_inliers,
             "merge_look_backoff_slots": args.look_backoff,

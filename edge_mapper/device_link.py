@@ -488,6 +488,8 @@ class DeviceLink:
             self.error(f"slot {slot}: {failure}; the map stays in its own frame")
         for clash in self.merging.tag_clashes():
             self.error(f"slot {slot}: {clash}")
+        for notice in self.merging.notices():
+            self.warning(f"slot {slot}: {notice}")
         for event in self.merging.brought(self.device):
             t = event.merge.alignment[:3, 3]
             self.info(f"slot {slot}: {event.device}'s map merged into this device's place "

@@ -808,6 +808,16 @@ class EdgeMapperCore:
         self._previous_tracks = {t: self.ids.point(p) for t, p in self._previous_tracks.items()}
         self._move_views(np.asarray(alignment, dtype=np.float64))
 
+    def leave_place(self) -> list[int]:
+        """This device, which joined another's place, is gone (its edge reclaimed it, its
+        work failed, it started again): the keyframes it held that no other device of the
+        place holds go to the place's archive, where the others' restores find them
+        (:meth:`MapBackEnd.remove_device`); the archived keyframes forgotten for room. The
+        core serves no slot after it."""
+        if self.serves_place:
+            raise ValueError("the device of the place's own map does not leave it")
+        return self.back_end.remove_device(self.device, max(self.newest_planned, 0))
+
     def _version_of(self, data: KeyFramePayload) -> int:
         """The map version a held upload was tracked on, as its slot's summary said (-1:
         unknown)."""

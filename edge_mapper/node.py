@@ -121,8 +121,13 @@ class EdgeMapperNode(Node):
                                      unseen_slots=int(p["lent_unseen_slots"]),
                                      lent_views=lent_view(float(p["lent_view_m"]),
                                                           float(p["lent_view_deg"])),
-                                     look_backoff_slots=int(p["merge_look_backoff_slots"]))
+                                     look_backoff_slots=int(p["merge_look_backoff_slots"]),
+                                     join=bool(p["merge_join"]))
                         if self.several and bool(p["merge_maps"]) else None)
+        if self.merging is not None and self.merging.join and p["checkpoint"]:
+            raise NodeStartError("merge_join makes one map of a place, which no checkpoint "
+                                 "holds yet: set checkpoint empty, or merge_join false (each "
+                                 "map borrows the others' keyframes, checkpointed)")
         config = self.settings.config
         # the process's loop worker (every device's loop jobs), at or below the slots' priority
         SHARED_WORKER.lower_priority(int(p["loop_worker_niceness"]))

@@ -199,6 +199,16 @@ PARAMETERS = (
               "poses in one frame, on shared keyframes; the looks beside the slots and the "
               "keyframe database cost the loop worker ~14 ms of CPU a slot per unmerged "
               "device (twelve alone on one core), and the database's words ~3 s once"),
+    ParamSpec("merge_join", False, "with merge_maps: a merge makes the two maps one map of "
+              "the place — the joining map's keyframes and points moved into the place's, its "
+              "duplicate points fused — which every device of the place feeds and holds a "
+              "slice of under its own policy and V_max: the place's bundle adjustment and "
+              "loop closing run once, not once a device, and a device restores the keyframes "
+              "any device uploaded (in process, 7-Scenes: 51 % fewer uploads than alone "
+              "against lending's 46 %, the joined device's slot 18 ms shorter); a place's "
+              "loops are its first device's walk's, and the edge writes no checkpoint "
+              "(needs checkpoint empty); false: each map borrows the others' keyframes as "
+              "copies (lend_in_view, loops_across_devices)"),
     ParamSpec("merge_min_inliers", MERGE_MIN_INLIERS, "with merge_maps: the PnP inliers "
               "each of a merge's three detections needs (a loop's 50 at least): a merge places "
               "a whole map by one keyframe's geometry, and waiting for a place both maps see "

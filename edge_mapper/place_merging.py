@@ -158,8 +158,25 @@ class PlaceMerging:
                  lend_in_view: bool = True, unseen_slots: int = 0,
                  lent_views: CoverageBounds | None = None,
                  worker: SharedWorker = SHARED_WORKER,
-                 database: KeyFrameDatabase | None = None, look_backoff_slots: int = 1) -> None:
+                 database: KeyFrameDatabase | None = None, look_backoff_slots: int = 1,
+                 join: bool = False) -> None:
         self.cores = cores
+        #: a merge makes one map of the two places (:meth:`_join`: the place's bundle
+        #: adjustment and loops run once, a device's uploads are every device's keyframes at
+        #: once); False: each device keeps its map and borrows the others' keyframes as
+        #: copies (:meth:`lend_all`)
+        self.join = join
+        #: joined device → its core, whose record leaves the place's back end with it
+        #: (:meth:`forget`: the edge no longer serves it, so :attr:`cores` has it no more)
+        self._joined_cores: dict[str, EdgeMapperCore] = {}
+        #: the places of several devices each that met, by their roots (said once each:
+        #: two such places do not join yet)
+        self._unjoined: set[tuple[str, str]] = set()
+        #: with :attr:`join`, a device whose place's first device left → that device: its
+        #: slots go on in the place's map, which nobody adjusts or joins any more
+        self._headless: dict[str, str] = {}
+        #: what the edge's log should say of its places since the last :meth:`notices`
+        self._notices: list[str] = []
         #: every device's uploaded keyframes as bags of words: which maps a look goes to
         self.database = database if database is not None else KeyFrameDatabase()
         #: with the looks on the worker, the database's words are learned on a thread of
@@ -325,7 +342,7 @@ class PlaceMerging:
         """A keyframe of ``device`` the edge accepted: filed in the keyframe database (a look
         may come to its map), and its features kept for the device's next look."""
         self.database.add(device, data.frame_id, data.descriptors)
-        if device in self.joined:
+        if device in self.joined or device in self._headless:
             return
         queries = self._queries.setdefault(device, [])
         queries.append(LoopQuery.of(data))
@@ -344,9 +361,13 @@ class PlaceMerging:
     def others(self, device: str) -> list[str]:
         """The devices whose maps ``device`` looks in: those of the other places, while
         ``device`` is the root of its own (a device that joined another looks no more)."""
-        if device not in self.cores() or device in self.joined:
+        if device not in self.cores() or device in self.joined or device in self._headless:
             return []
-        return [d for d in self.cores() if self.root(d) != device]
+        others = [d for d in self.cores() if self.root(d) != device and d not in self._headless]
+        if self.join and len(self.place_of(device)) > 1:
+            # one of two places that join holds one device: its map joins the other's
+            return [d for d in others if len(self.place_of(d)) == 1]
+        return others
 
     def before_slot_end(self, device: str, slot: int
                         ) -> tuple[MergeEvent | None, int, list[FollowedLoop]]:
@@ -355,6 +376,8 @@ class PlaceMerging:
         adopted (:meth:`lend_all`); (the merge that moved its map, or None; keyframes adopted;
         the other devices' loops that moved its own keyframes, or would have)."""
         merged = self.take(device)
+        if self.join:                    # one map: every keyframe of the place is its own
+            return merged, 0, []
         lendings = self.lend_all(device, [d for d in self.place_of(device) if d != device],
                                  slot)
         return merged, sum(lending.adopted for lending in lendings), \
@@ -468,7 +491,11 @@ class PlaceMerging:
         """``device``'s place (it is the root) and ``other``'s made one: ``merge`` carries
         ``device``'s frame into ``other``'s; the place whose root comes later in the edge's
         order moves — by ``merge`` or its inverse — every device of it into the other root's
-        frame, each told at its next slot end."""
+        frame, each told at its next slot end. With :attr:`join` the two maps become one
+        (:meth:`_join`)."""
+        if self.join:
+            self._join(device, other, merge, ms)
+            return
         order = list(self.cores())
         root = self.root(other)
         if order.index(root) < order.index(device):
@@ -487,6 +514,44 @@ class PlaceMerging:
             self._moved[m] = MergeEvent(m, stay, motion, ms, "" if m == met else met)
             if device not in movers:
                 self._brought.setdefault(device, []).append(self._moved[m])
+
+    def _join(self, device: str, other: str, merge: MapMerge, ms: float) -> None:
+        """``device``'s place (it is the root) and ``other``'s made one map — ``merge``
+        carries ``device``'s frame into ``other``'s: the map of a place of one device joins
+        the other place's (:meth:`EdgeMapperCore.join_place`) under its device's tag, by
+        ``merge`` or its inverse; where both places are one device each, the one served later
+        joins. Two places of several devices each do not join yet (said once, with the
+        looks' failures): their keyframes would need a tag of a tag."""
+        cores = self.cores()
+        root = self.root(other)
+        mine, theirs = self.place_of(device), self.place_of(root)
+        if len(mine) > 1 and len(theirs) > 1:
+            if (device, root) not in self._unjoined:
+                self._unjoined.add((device, root))
+                self._failed.append(f"{device}'s place ({len(mine)} devices) met {root}'s "
+                                    f"({len(theirs)} devices): two places of several devices "
+                                    "each do not join yet")
+            return
+        order = list(cores)
+        if len(theirs) > 1 or (len(mine) == 1 and order.index(root) < order.index(device)):
+            stay, mover, motion = root, device, merge
+        else:
+            stay, mover = device, root
+            motion = MapMerge(merge.place, merge.joining, np.linalg.inv(merge.alignment),
+                              merge.inliers)
+        try:
+            cores[mover].join_place(cores[stay], foreign_tag(self.source(mover)),
+                                    motion.alignment)
+        except ValueError as exc:
+            self._failed.append(f"{mover}'s map could not join {stay}'s place: {exc}")
+            return
+        self.joined[mover] = stay
+        self._joined_cores[mover] = cores[mover]
+        self._queries.pop(mover, None)
+        # the device of the moving place whose map met the other place's: the mover itself
+        self._moved[mover] = MergeEvent(mover, stay, motion, ms)
+        if mover != device:
+            self._brought.setdefault(device, []).append(self._moved[mover])
 
     def brought(self, device: str) -> list[MergeEvent]:
         """The merges ``device``'s own looks made since the last call that moved other
@@ -605,6 +670,8 @@ class PlaceMerging:
         copies of this map that other maps keep are of other keyframes and points than the
         next map's of the same ids."""
         self._runs[device] = self._runs.get(device, 0) + 1
+        if self.join:
+            self._leave_joined_place(device)
         if device not in self.joined:                  # a root: its place goes on without it
             rest = [d for d in self.place_of(device) if d != device]
             for d in rest:
@@ -636,6 +703,34 @@ class PlaceMerging:
         self._clashes = {pair for pair in self._clashes if device not in pair}
         for pair in [pair for pair in self._finders if device in pair]:
             del self._finders[pair]
+
+    def _leave_joined_place(self, device: str) -> None:
+        """With :attr:`join`, ``device`` gone: a device that joined a place leaves it
+        (:meth:`EdgeMapperCore.leave_place`: the keyframes only it held go to the place's
+        archive); the first device of a place others joined takes the place's bundle
+        adjustment and loops with it (its core ran them) — the others' slots go on in the
+        place's map, which nothing adjusts and no other map joins any more (said once:
+        handing a place to another of its devices is not built yet)."""
+        self._headless.pop(device, None)
+        core = self._joined_cores.pop(device, None)
+        if core is not None:
+            core.leave_place()
+            return
+        rest = [d for d in self.place_of(device) if d != device]
+        for d in rest:
+            del self.joined[d]
+            self._headless[d] = device
+        if rest:
+            self._notices.append(
+                f"{device}, the first device of a joined place, is no longer served: "
+                f"{', '.join(rest)} go on in its place's map, which runs no bundle adjustment "
+                "or loop closing from now on and which no other map joins (a place handed to "
+                "another of its devices is not built yet)")
+
+    def notices(self) -> list[str]:
+        """What the edge's log should say of its places since the last call (once each)."""
+        said, self._notices = self._notices, []
+        return said
 
     def failures(self) -> list[str]:
         """Why looks failed since the last call (once each): the edge goes on unmerged."""

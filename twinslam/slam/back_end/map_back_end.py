@@ -274,6 +274,19 @@ class MapBackEnd:
         self.devices.append(record)
         return record
 
+    def remove_device(self, record: DeviceRecord, slot: int) -> list[int]:
+        """A device of the place other than its first gone (reclaimed, failed, started
+        again): the keyframes it held that no other device holds leave the map for the
+        archive at ``slot`` — the place keeps them, restores bring them back where a device
+        heads — and its record and slice go. The archived keyframes the archive forgot to
+        make room (its capacity)."""
+        if record is self.device or record not in self.devices:
+            raise ValueError("only a device that joined this place can leave it")
+        forgotten, _ = self.evict_to_archive(list(record.slice.keyframes), slot, record)
+        self.devices.remove(record)
+        self.store.slices.remove(record.slice)
+        return forgotten
+
     @property
     def map(self) -> KeyFrameMap:
         """The managed map: the store's slice, the keyframes the device holds."""
