@@ -159,7 +159,7 @@ from twinslam.slot_protocol import table1
 
 SEVEN = SEVEN_SCENES
 #: the line a device's edge logs when its map moved into another device's place
-MOVED_LINE = re.compile(r"slot \d+: map merged into ")
+MOVED_LINE = re.compile(r"slot \d+: map (?:merged into|joined) ")
 #: the longest the emulator sleeps without looking at its clock (a device that is due sends
 #: at most this late when no message wakes the spin first)
 SPIN_AT_MOST_S = 0.05

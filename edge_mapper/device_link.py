@@ -490,9 +490,11 @@ class DeviceLink:
             self.error(f"slot {slot}: {clash}")
         for notice in self.merging.notices():
             self.warning(f"slot {slot}: {notice}")
+        # a joined map is one map of the place from now on; a merged one its own, borrowing
+        joined_or_merged = "joined" if self.merging.join else "merged into"
         for event in self.merging.brought(self.device):
             t = event.merge.alignment[:3, 3]
-            self.info(f"slot {slot}: {event.device}'s map merged into this device's place "
+            self.info(f"slot {slot}: {event.device}'s map {joined_or_merged} this device's place "
                       f"({event.place}/{self.settings.map_frame}): this map's keyframe "
                       f"{event.merge.place} found in {event.via or event.device}'s map at its "
                       f"keyframe {event.merge.joining} ({event.merge.inliers} inliers, "
@@ -506,7 +508,7 @@ class DeviceLink:
             how = (f"keyframe {merged.merge.joining} and {merged.place}'s place's keyframe "
                    f"{merged.merge.place} seeing one place" if not merged.via else
                    f"with its place, where {merged.via}'s map met {merged.place}'s place")
-            self.info(f"slot {slot}: map merged into {merged.place}'s: {how} "
+            self.info(f"slot {slot}: map {joined_or_merged} {merged.place}'s: {how} "
                       f"({merged.merge.inliers} inliers, confirmed by the next keyframes); "
                       f"the map moved by ({t[0]:.3f}, {t[1]:.3f}, {t[2]:.3f}) m and turned "
                       f"{rotation_angle_deg(merged.merge.alignment[:3, :3]):.2f}° into "

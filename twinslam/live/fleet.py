@@ -97,6 +97,9 @@ class FleetConfig:
     #: rate and slot in frames divided alike: two devices replaying one sequence, whichever
     #: ways, then never show one image, as no two real cameras would (1: every frame)
     every: int = 1
+    #: with :attr:`merge_maps`, a merge makes the two maps one map of the place
+    #: (``merge_join``) instead of lending each the other's keyframes
+    join_maps: bool = False
 
     def phase(self, index: int, start: int = 0) -> int:
         """Device ``index``'s player's ``phase`` where its walk starts at the sequence's frame
@@ -168,6 +171,8 @@ class FleetConfig:
                              "a device")
         if bad_delays := [d for d in self.delays if not 0 <= d <= 86_400]:
             raise ValueError(f"delay {bad_delays[0]:g} s: from 0 to a day")
+        if self.join_maps and not self.merge_maps:
+            raise ValueError("joining maps is a way to merge them: it needs merge_maps")
         if not 1 <= self.every <= 1000:
             raise ValueError(f"every {self.every}: one frame in 1 to 1000")
         if len(self.places) > self.devices:
@@ -323,6 +328,8 @@ class FleetLauncher(Launcher):
             args += ["-p", f"vmax_total:={f.edge_shares()[index]}"]
         if f.merge_maps:
             args += ["-p", "merge_maps:=true"]
+        if f.join_maps:
+            args += ["-p", "merge_join:=true"]
         return args
 
     def device_args(self, name: str, index: int, params_file: Path | None = None

@@ -53,8 +53,9 @@ def fleet_settings(args: argparse.Namespace) -> list[FleetConfig]:
         raise ValueError(f"--delays {args.delays!r}: seconds, one a device (e.g. 0,20)") \
             from None
     fleets = [FleetConfig(args.devices, args.vmax_total, a, args.min_keyframes, args.stride,
-                          args.seed, orders, args.merge_maps, args.edges, delays,
-                          places_of(args.sequence), args.one_walk, args.every)
+                          args.seed, orders, args.merge_maps or args.join_maps, args.edges,
+                          delays, places_of(args.sequence), args.one_walk, args.every,
+                          join_maps=args.join_maps)
               for a in allocators]
     for fleet in fleets:
         fleet.check()
@@ -237,3 +238,7 @@ def add_fleet_arguments(launch: argparse.ArgumentParser) -> None:
                        help="the edge merges a device's map into the frame of a device before "
                        "it once it finds that device's place (merge_maps); the table then "
                        "gives the cross-device revisit error of each pair in one frame")
+    fleet.add_argument("--join-maps", action="store_true",
+                       help="--merge-maps where a merge makes the two maps one map of the place "
+                       "(merge_join): the place's bundle adjustment and loops run once, each "
+                       "device holds a slice of it; the edges write no checkpoint")

@@ -1,0 +1,118 @@
+"""The edge's merging with ``merge_join``: where a device's keyframes are found in another
+device's map, its map joins that place's — one map, one back end, the joining device's
+keyframes under its tag in the place's frame, nothing lent — and a device leaving a joined
+place leaves the others' map whole: what only it held goes to the place's archive, and a
+place whose first device left is said to run unadjusted, and is joined by no other map."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rclpy.parameter import Parameter
+
+from edge_mapper.edge_core import EdgeMapperCore
+from edge_mapper.node import EdgeMapperNode
+from edge_mapper.place_membership import source_of
+from edge_mapper.place_merging import PlaceMerging
+from tests.test_archive_relocalisation import room  # noqa: F401 (the archived room fixture)
+from tests.test_map_merging import (
+    SECOND_IN_FIRST,
+    Room,
+    _core,
+    _room_and_newcomer,
+    _second_pose,
+    _walk_ar2_into_the_room,
+)
+from twinslam.hosts.loopback import LoopbackDomain
+from twinslam.node_runtime.node_main import NodeStartError
+from twinslam.node_runtime.session import RosSession
+from twinslam.rotations import rotation_angle_deg
+from twinslam.slam.back_end.foreign_keyframes import foreign_tag
+
+#: ar2's keyframes 10, 11, 12 are the room's frames 4, 64, 124
+AR2_FRAMES = {10: 4, 11: 64, 12: 124}
+
+
+def _joined(room: Room) -> tuple[dict[str, EdgeMapperCore], PlaceMerging]:  # noqa: F811
+    """ar2 walked into ar1's room and its map joined ar1's place."""
+    cores = _room_and_newcomer(room)
+    merging = PlaceMerging(lambda: cores, background=False, join=True)
+    events = _walk_ar2_into_the_room(room, cores, merging)
+    assert events[:3] == [None, None, None] and events[3] is not None
+    assert events[3].device == "ar2" and events[3].place == "ar1"
+    return cores, merging
+
+
+def test_a_later_device_joins_the_earlier_ones_map_and_borrows_nothing(
+        room: Room) -> None:  # noqa: F811
+    """ar2's map joins ar1's: one back end; ar2's keyframes are in it under ar2's tag, where
+    the merge put them (the true frame to within centimetres); ar1's core runs the place's
+    adjustment and loops, ar2's does not; neither looks any more, and no keyframe is lent —
+    each is the place's own."""
+    cores, merging = _joined(room)
+    place = cores["ar1"].back_end
+    assert cores["ar2"].back_end is place and merging.joined == {"ar2": "ar1"}
+    assert cores["ar1"].serves_place and not cores["ar2"].serves_place
+    tag = foreign_tag(source_of("ar2"))
+    assert cores["ar2"].device.tag == tag
+    for key, frame in AR2_FRAMES.items():
+        pose = place.map.keyframes[tag | key].pose
+        off = np.linalg.inv(SECOND_IN_FIRST @ _second_pose(room, frame)) @ pose
+        assert np.linalg.norm(off[:3, 3]) < 0.03 and rotation_angle_deg(off[:3, :3]) < 0.5
+    assert merging.others("ar1") == [] and merging.others("ar2") == []
+    assert merging.before_slot_end("ar1", 4) == (None, 0, [])
+    assert merging.before_slot_end("ar2", 4) == (None, 0, [])
+    assert len(place.archive) == len(room[1]) and not merging.failures()
+
+
+def test_a_joined_device_that_leaves_hands_its_keyframes_to_the_places_archive(
+        room: Room) -> None:  # noqa: F811
+    """ar2 reclaimed (the edge serves it no more, then forgets it): the keyframes only it
+    held leave the place's map for its archive, kept for ar1's restores; the place's back
+    end has ar1's record alone again, and ar1 goes on as the place's first device."""
+    cores, merging = _joined(room)
+    place = cores["ar1"].back_end
+    tag = foreign_tag(source_of("ar2"))
+    held = sorted(cores["ar2"].slice.keyframes)
+    assert held == sorted(tag | k for k in AR2_FRAMES)
+    del cores["ar2"]                                  # the node drops the link first
+    merging.forget("ar2")
+    assert [k for k in place.map.keyframes if k in held] == []
+    assert all(kf in place.archive for kf in held)
+    assert place.devices == [place.device] and cores["ar1"].serves_place
+    assert merging.joined == {} and merging.notices() == []
+
+
+def test_a_place_whose_first_device_left_goes_on_unadjusted_and_is_said_so(
+        room: Room) -> None:  # noqa: F811
+    """ar1, the place's first device, reclaimed: ar2 goes on in the place's map (its slice
+    kept, its record in the place) but nothing runs the place's adjustment, which the log is
+    told once; ar2 looks for no place, and a newcomer does not look in ar2's map (it could
+    not join a place whose adjusting core is gone)."""
+    cores, merging = _joined(room)
+    place = cores["ar2"].back_end
+    del cores["ar1"]
+    merging.forget("ar1")
+    notices = merging.notices()
+    assert len(notices) == 1 and "ar2 go on in its place's map" in notices[0]
+    assert "no bundle adjustment" in notices[0] and merging.notices() == []
+    assert not cores["ar2"].serves_place and cores["ar2"].device in place.devices
+    assert merging.others("ar2") == []
+    cores["ar3"] = _core()
+    merging.serve("ar3")
+    assert merging.others("ar3") == []
+    merging.forget("ar2")                            # and the last of it may leave too
+    assert cores["ar2"].device not in place.devices
+
+
+def test_an_edge_that_joins_maps_refuses_to_start_with_checkpoints(
+        tmp_path: Path, domain: LoopbackDomain, ros: RosSession) -> None:
+    """``merge_join`` with a checkpoint path: the edge says why it cannot start (a joined
+    place has no checkpoint file yet) instead of dropping the checkpoints silently."""
+    with pytest.raises(NodeStartError, match=r"merge_join .* checkpoint"):
+        EdgeMapperNode(context=ros.context, parameter_overrides=[
+            Parameter("devices", value=["ar1", "ar2"]), Parameter("merge_maps", value=True),
+            Parameter("merge_join", value=True),
+            Parameter("checkpoint", value=str(tmp_path / "edge.npz"))])
