@@ -1,8 +1,9 @@
 """The edge's merging with ``merge_join``: where a device's keyframes are found in another
 device's map, its map joins that place's — one map, one back end, the joining device's
-keyframes under its tag in the place's frame, nothing lent — and a device leaving a joined
-place leaves the others' map whole: what only it held goes to the place's archive, and a
-place whose first device left is said to run unadjusted, and is joined by no other map."""
+keyframes under its tag in the place's frame, nothing lent — whose loop closer closes each
+device's walk's loops as that walk's own; and a device leaving a joined place leaves the
+others' map whole: what only it held goes to the place's archive, and a place whose first
+device left is said to run unadjusted, and is joined by no other map."""
 
 from __future__ import annotations
 
@@ -17,6 +18,8 @@ from edge_mapper.node import EdgeMapperNode
 from edge_mapper.place_membership import source_of
 from edge_mapper.place_merging import PlaceMerging
 from tests.test_archive_relocalisation import room  # noqa: F401 (the archived room fixture)
+from tests.test_edge_core import F, ReturningDevice
+from tests.test_loop_closing import DriftingDevice, _edge
 from tests.test_map_merging import (
     SECOND_IN_FIRST,
     Room,
@@ -29,7 +32,8 @@ from twinslam.hosts.loopback import LoopbackDomain
 from twinslam.node_runtime.node_main import NodeStartError
 from twinslam.node_runtime.session import RosSession
 from twinslam.rotations import rotation_angle_deg
-from twinslam.slam.back_end.foreign_keyframes import foreign_tag
+from twinslam.slam.back_end.foreign_keyframes import foreign_tag, source_id, tag_of
+from twinslam.slam.back_end.map_back_end import ClosedLoop
 
 #: ar2's keyframes 10, 11, 12 are the room's frames 4, 64, 124
 AR2_FRAMES = {10: 4, 11: 64, 12: 124}
@@ -116,3 +120,54 @@ def test_an_edge_that_joins_maps_refuses_to_start_with_checkpoints(
             Parameter("devices", value=["ar1", "ar2"]), Parameter("merge_maps", value=True),
             Parameter("merge_join", value=True),
             Parameter("checkpoint", value=str(tmp_path / "edge.npz"))])
+
+
+def _walk_a_slot(core: EdgeMapperCore, device: ReturningDevice, slot: int,
+                 place: EdgeMapperCore | None = None) -> ClosedLoop | None:
+    """Slot ``slot`` of ``device``'s walk at ``core``: planned, its uploads in, finished. A
+    joined device's loops are its place's core's (``place``) to run: its slot end takes the
+    last job's loop before the slot's evictions and starts the next job after, as the
+    device's own slot end does alone. The loop the slot took (None: none)."""
+    plan = core.plan(slot, [device.summary(f, core) for f in range(slot * F, (slot + 1) * F)],
+                     20.0, slot % 2)
+    for f in plan.action.upload:
+        assert core.add_keyframe(device.keyframe(f, slot, core)) is not None
+    if place is None:
+        return core.finish_slot(slot).loop
+    loop = place.back_end.take_loop()
+    core.finish_slot(slot)
+    place.back_end.start_loop_job(slot)
+    return loop
+
+
+def test_a_joined_devices_walk_closes_its_own_loop_as_it_would_alone() -> None:
+    """A device whose map joined a place walks out and back along a wall, drifting on the
+    way back: the place's loop closer, run by the place's first core, looks for loops in
+    that device's walk (its tag's keyframes) as it does in the first device's, and closes the
+    loop the same walk closes alone, at the same slot — its keyframes put where they are
+    alone, to the millimetre — while the first device's keyframe and frame stay where they
+    were, and the joined device's frame moves with its walk's head."""
+    alone, walker = _edge(loops=True), DriftingDevice(np.random.default_rng(3), 8 * F)
+    place, joining = _edge(loops=True), _edge(loops=True)
+    first = np.eye(4)
+    first[:3, 3] = [0.0, 5.0, 0.0]                  # the first device's keyframe, far off
+    place.map.add_keyframe(1, first)
+    tag = foreign_tag(1)
+    joining.join_place(place, tag, np.eye(4))
+    joined = DriftingDevice(np.random.default_rng(3), 8 * F)
+    for slot in range(16):
+        loop = _walk_a_slot(alone, walker, slot)
+        closed = _walk_a_slot(joining, joined, slot, place)
+        if loop is not None:
+            break
+    assert loop is not None and not loop.refused and alone.loops_closed == 1
+    assert closed is not None and not closed.refused and place.loops_closed == 1
+    assert (tag_of(closed.old), tag_of(closed.new)) == (tag, tag)
+    assert (source_id(closed.old), source_id(closed.new)) == (loop.old, loop.new)
+    assert loop.moved_m > 0.1
+    for k, kf in alone.map.keyframes.items():
+        np.testing.assert_allclose(place.map.keyframes[tag | k].pose, kf.pose, atol=1e-3)
+    np.testing.assert_allclose(place.map.keyframes[1].pose, first)
+    np.testing.assert_allclose(place.frame_correction, np.eye(4))
+    np.testing.assert_allclose(joining.frame_correction, alone.frame_correction, atol=1e-3)
+    assert not np.allclose(joining.frame_correction, np.eye(4))

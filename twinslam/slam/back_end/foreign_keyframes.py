@@ -62,20 +62,29 @@ def keyframe_label(kf_id: int) -> str:
     return f"another device's keyframe {source_id(kf_id)} (copy {kf_id})"
 
 
-def ties_to_copies(points: Mapping[int, np.ndarray]) -> dict[tuple[int, int], int]:
-    """How many of the points another device's keyframes brought each of this map's own
-    keyframes observes, by the copy that brought them: (own keyframe, copy) → count
-    (``points``: each keyframe's point ids, own and copies alike, int64 without repeats).
+def ties_to_copies(points: Mapping[int, np.ndarray], walk: int = 0
+                   ) -> dict[tuple[int, int], int]:
+    """How many of the points other keyframes brought each keyframe of walk ``walk`` (its
+    tag; 0: the map's own) observes, by the keyframe that brought them: (walk's keyframe,
+    other) → count (``points``: each keyframe's point ids, int64 without repeats). The
+    others are another device's keyframes this map adopted (copies) or, in a place of
+    several devices, the other walks' keyframes.
 
     A point a copy brought carries its source's tag (one a copy was welded to has this map's
-    id: the map had placed it before the copy came). Several copies of one lender may observe
-    it; the oldest of them brought it, and its pose placed it — a later copy observing it
-    too stood, by the lender's own drift, wherever its walk had taken it, and an own keyframe
-    posed on that point was posed on where the oldest copy put it."""
-    copies = [(k, ids[foreign_mask(ids)]) for k, ids in points.items() if is_foreign(k)]
+    id: the map had placed it before the copy came); in a place of several devices a point
+    of another tag than the walk's is one the walk did not make before it joined. Several
+    others may observe it; the oldest of them brought it, and its pose placed it — a later
+    copy observing it too stood, by the lender's own drift, wherever its walk had taken it,
+    and a keyframe of the walk posed on that point was posed on where the oldest put it."""
+    def brought_by_others(ids: np.ndarray) -> np.ndarray:
+        return ids[(ids >> TAG_SHIFT << TAG_SHIFT) != walk]
+
+    copies = [(k, brought_by_others(ids)) for k, ids in points.items() if tag_of(k) != walk]
     if not copies:
         return {}
     point = np.concatenate([ids for _, ids in copies])
+    if not point.size:
+        return {}
     holder = np.concatenate([np.full(len(ids), k, dtype=np.int64) for k, ids in copies])
     order = np.lexsort((holder, point))                   # by point, then oldest copy first
     point, holder = point[order], holder[order]
@@ -83,20 +92,20 @@ def ties_to_copies(points: Mapping[int, np.ndarray]) -> dict[tuple[int, int], in
     brought, by = point[first], holder[first]
     ties: dict[tuple[int, int], int] = {}
     for k, ids in points.items():
-        if is_foreign(k):
+        if tag_of(k) != walk:
             continue
-        tagged = ids[foreign_mask(ids)]
-        at, found = find_sorted(brought, tagged)
+        at, found = find_sorted(brought, brought_by_others(ids))
         copy, count = np.unique(by[at[found]], return_counts=True)
         ties.update({(int(k), int(c)): int(n) for c, n in zip(copy, count, strict=True)})
     return ties
 
 
 def copy_anchors(points: Mapping[int, np.ndarray], before: Mapping[int, np.ndarray],
-                 now: Mapping[int, np.ndarray]) -> Anchors:
-    """The copies of another device's keyframes (``before``: where this map's keyframes were
-    posed on them; ``now``: where they are) as the anchors of this map's own keyframes'
-    graph (:class:`~twinslam.slam.back_end.pose_graph.Anchors`), tied by the points each
-    copy brought (:func:`ties_to_copies`; ``points``: every keyframe's point ids)."""
-    return Anchors(before, now, ties_to_copies(points),
-                   {k: len(ids) for k, ids in points.items() if not is_foreign(k)})
+                 now: Mapping[int, np.ndarray], walk: int = 0) -> Anchors:
+    """The keyframes of other walks than ``walk`` — copies of another device's keyframes,
+    or in a place of several devices its other walks (``before``: where the walk's keyframes
+    were posed on them; ``now``: where they are) — as the anchors of the walk's graph
+    (:class:`~twinslam.slam.back_end.pose_graph.Anchors`), tied by the points each brought
+    (:func:`ties_to_copies`; ``points``: every keyframe's point ids)."""
+    return Anchors(before, now, ties_to_copies(points, walk),
+                   {k: len(ids) for k, ids in points.items() if tag_of(k) == walk})

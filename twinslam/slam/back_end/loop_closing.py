@@ -84,8 +84,8 @@ import numpy as np
 from twinslam.rotations import rotation_angle_deg
 from twinslam.slam.back_end.foreign_keyframes import (
     copy_anchors,
-    is_foreign,
     keyframe_label,
+    tag_of,
 )
 from twinslam.slam.back_end.keyframe_archive import KeyFrameArchive, point_id_sets
 from twinslam.slam.back_end.keyframe_map import shared_pairs
@@ -180,6 +180,10 @@ class LoopJob:
     #: the copies a loop may close with (:func:`loop_across`; the snapshot holds those in the
     #: managed map too); empty: the walk's own keyframes alone
     across: frozenset[int] = frozenset()
+    #: the tag of the walk whose keyframes :attr:`poses` are (a place's devices each walk
+    #: under their own tag; 0: the place's first device, or a map of one device): its loops
+    #: close among them, every other keyframe (:attr:`copies`) held as an anchor
+    walk: int = 0
 
 
 @dataclass(frozen=True)
@@ -197,6 +201,8 @@ class LoopResult:
     error: str = ""
     #: the job's waits for the slots' work (``pause``), seconds
     waited: float = 0.0
+    #: the walk the loop was looked for in (:attr:`LoopJob.walk`)
+    walk: int = 0
 
 
 @dataclass
@@ -298,7 +304,7 @@ def guarded_job(job: LoopJob, min_gap: int = MIN_GAP,
     except Exception as exc:             # reported in the result, logged by the edge
         return LoopResult(LoopCandidate(-1, None, None, 0, "the loop job failed"),
                           job.queries[0].keyframe if job.queries else -1, None, 0.0,
-                          f"{type(exc).__name__}: {exc}")
+                          f"{type(exc).__name__}: {exc}", walk=job.walk)
 
 
 def run_job(job: LoopJob, min_gap: int = MIN_GAP,
@@ -324,14 +330,14 @@ def run_job(job: LoopJob, min_gap: int = MIN_GAP,
     candidate, query = LoopCandidate(-1, None, None, 0, "no query"), -1
     confirmed = False
     # place recognition searches only the keyframes a query may close a loop with: the
-    # walk's own (another device's copies carry ids above every own one, never old enough)
+    # walk's own (its tag's: another walk's keyframes and the copies carry other tags)
     # and at least min_gap older than the newest query. A point of the recent walk or of a
     # copy that shows the same corner as an old keyframe's is as near to the query's
     # descriptor as the old one: it takes the vote (for a keyframe no loop may close with)
     # or, as the runner-up, makes Lowe's ratio refuse it — either way it hides the loop, and
     # searching those points was most of the loop closer's time
     newest = max((q.keyframe for q in job.queries), default=0)
-    own = job.archive.only(lambda k: not is_foreign(k) and k <= newest - min_gap, index)
+    own = job.archive.only(lambda k: tag_of(k) == job.walk and k <= newest - min_gap, index)
     for q in sorted(job.queries, key=lambda q: q.keyframe):
         wait()
         candidate, query = detect_loop(own, q.keyframe, q.points_xy, q.descriptors,
@@ -360,7 +366,7 @@ def run_job(job: LoopJob, min_gap: int = MIN_GAP,
                              shared_pairs(sorted(job.poses), points), job.earlier,
                              candidate.inliers, _anchors(job, points))
     return LoopResult(candidate, query, closure, time.perf_counter() - start - waited,
-                      waited=waited)
+                      waited=waited, walk=job.walk)
 
 
 def loop_across(job: LoopJob, query: LoopQuery) -> LoopCandidate:
@@ -417,7 +423,7 @@ def _anchors(job: LoopJob, points: Mapping[int, np.ndarray]) -> Anchors | None:
     ``points``: every keyframe's map points)."""
     if not job.copies:
         return None
-    return copy_anchors(points, job.copies, job.copies)
+    return copy_anchors(points, job.copies, job.copies, job.walk)
 
 
 _T = TypeVar("_T")
@@ -658,23 +664,42 @@ class LoopCloser:
         self.background = background
         self.min_gap = min_gap
         self.cooldown = cooldown
-        #: the loops found and waiting for later keyframes (the worker's: one job at a time)
-        self.confirmation = LoopConfirmation(confirmations)
+        #: the loops found and waiting for later keyframes, a confirmation a walk (the
+        #: worker's: one job at a time)
+        self._confirmations: dict[int, LoopConfirmation] = {}
+        self._confirmations_needed = confirmations
         #: its work queued or running on the shared worker, oldest first (close waits for it)
         self._queued: deque[Future[Any]] = deque()
         self._running: Future[LoopResult] | None = None
         self._done: LoopResult | None = None
-        self._quiet_until = -1           #: keyframe ids up to this look for no loop
+        #: walk → its keyframe ids up to this look for no loop (a closed loop's cooldown)
+        self._quiet_until: dict[int, int] = {}
         #: why work handed to :meth:`after` failed, until :meth:`failures` takes them (the
         #: worker appends, the slot takes: under the lock, none is lost between the two)
         self._failed: list[str] = []
         self._failed_lock = threading.Lock()
         #: the worker's seconds on each of the latest JOB_TIMES_KEPT jobs taken, oldest first
         self.job_seconds: deque[float] = deque(maxlen=JOB_TIMES_KEPT)
-        #: the place index of the walk's own keyframes, kept from one job to the next: an
-        #: edge that has run for minutes built one over hundreds of archived keyframes for
-        #: every job (:mod:`~twinslam.slam.back_end.place_index`)
-        self.place_index = KeptPlaceIndex()
+        #: walk → the place index of its keyframes, kept from one job to the next: an edge
+        #: that has run for minutes built one over hundreds of archived keyframes for every
+        #: job (:mod:`~twinslam.slam.back_end.place_index`)
+        self._place_indexes: dict[int, KeptPlaceIndex] = {}
+
+    @property
+    def confirmation(self) -> LoopConfirmation:
+        """The loop waiting for confirmation on the first walk (a map of one device's)."""
+        return self.confirmation_of(0)
+
+    def confirmation_of(self, walk: int) -> LoopConfirmation:
+        """Walk ``walk``'s loop waiting for later keyframes of it: one walk's keyframes
+        confirm its own loops, never another's."""
+        if walk not in self._confirmations:
+            self._confirmations[walk] = LoopConfirmation(self._confirmations_needed)
+        return self._confirmations[walk]
+
+    def place_index(self, walk: int = 0) -> KeptPlaceIndex:
+        """The kept place index of walk ``walk``'s keyframes."""
+        return self._place_indexes.setdefault(walk, KeptPlaceIndex())
 
     @property
     def busy(self) -> bool:
@@ -683,18 +708,18 @@ class LoopCloser:
     def wanted(self, keyframes: Sequence[int]) -> list[int]:
         """Of ``keyframes``, those that may look for a loop now (not in a closed loop's
         cooldown)."""
-        return [k for k in keyframes if k > self._quiet_until]
+        return [k for k in keyframes if k > self._quiet_until.get(tag_of(k), -1)]
 
     def submit(self, job: LoopJob) -> bool:
         """Start ``job``; False (nothing started) while one runs or waits to be taken."""
         if self._running is not None or self._done is not None or not job.queries:
             return False
+        confirmation, index = self.confirmation_of(job.walk), self.place_index(job.walk)
         if not self.background:
-            self._done = guarded_job(job, self.min_gap, self.confirmation,
-                                     index=self.place_index)
+            self._done = guarded_job(job, self.min_gap, confirmation, index=index)
             return True
-        self._running = self._queue(guarded_job, job, self.min_gap, self.confirmation,
-                                    SHARED_WORKER.wait_for_slots, self.place_index)
+        self._running = self._queue(guarded_job, job, self.min_gap, confirmation,
+                                    SHARED_WORKER.wait_for_slots, index)
         return True
 
     def take(self, wait_s: float = 0.0) -> LoopResult | None:
@@ -716,7 +741,7 @@ class LoopCloser:
         if done is not None:
             self.job_seconds.append(done.seconds)
         if done is not None and done.closure is not None:
-            self._quiet_until = done.query + self.cooldown
+            self._quiet_until[done.walk] = done.query + self.cooldown
         return done
 
     def discard(self) -> None:
@@ -727,7 +752,8 @@ class LoopCloser:
             with SHARED_WORKER.outside_slot_work():
                 self._running.result()
         self._running = self._done = None
-        self.confirmation.pending = None
+        for confirmation in self._confirmations.values():
+            confirmation.pending = None
 
     def after(self, work: Callable[[], object], what: str) -> None:
         """Run ``work`` (``what`` it does, for its failure's message) on the worker after what

@@ -18,17 +18,19 @@ from collections.abc import Collection, Mapping
 
 import numpy as np
 
-from twinslam.slam.back_end.foreign_keyframes import is_foreign
+from twinslam.slam.back_end.foreign_keyframes import tag_of
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.back_end.pose_graph import move_with_keyframes
 
 
-def correction_for(corrections: Mapping[int, np.ndarray], kf_id: int) -> np.ndarray | None:
-    """Keyframe ``kf_id``'s correction: its own, or — for a keyframe newer than every keyframe
-    of the graph — the newest one's; None for an older keyframe the graph did not hold, and
-    for another device's keyframe this map adopted (its pose is that device's map's, which
-    this map's loop does not move)."""
-    if is_foreign(kf_id):
+def correction_for(corrections: Mapping[int, np.ndarray], kf_id: int,
+                   walk: int = 0) -> np.ndarray | None:
+    """Keyframe ``kf_id``'s correction by a loop of walk ``walk`` (its tag): its own, or —
+    for a keyframe of the walk newer than every keyframe of the graph — the newest one's;
+    None for an older keyframe the graph did not hold, and for a keyframe of another walk or
+    another device's keyframe this map adopted (a loop moves its own walk; the others hold
+    it as anchors)."""
+    if tag_of(kf_id) != walk:
         return None
     own = corrections.get(kf_id)
     if own is not None:
@@ -37,11 +39,13 @@ def correction_for(corrections: Mapping[int, np.ndarray], kf_id: int) -> np.ndar
     return corrections[newest] if newest is not None and kf_id > newest else None
 
 
-def farthest_move(m: KeyFrameMap, corrections: Mapping[int, np.ndarray]) -> float:
-    """The farthest ``corrections`` would move a keyframe of ``m`` (m)."""
+def farthest_move(m: KeyFrameMap, corrections: Mapping[int, np.ndarray],
+                  walk: int = 0) -> float:
+    """The farthest ``corrections`` (a loop of walk ``walk``) would move a keyframe of ``m``
+    (m)."""
     moves = [float(np.linalg.norm((c @ kf.pose)[:3, 3] - kf.pose[:3, 3]))
              for kf_id, kf in m.keyframes.items()
-             if (c := correction_for(corrections, kf_id)) is not None]
+             if (c := correction_for(corrections, kf_id, walk)) is not None]
     return max(moves, default=0.0)
 
 

@@ -219,7 +219,10 @@ class MapBackEnd:
         self.loop_closer = LoopCloser(config.loop_background, config.loop_min_gap,
                                       confirmations=config.loop_confirmations)
         #: keyframes integrated since the last loop job, newest last
-        self._loop_queries: list[LoopQuery] = []
+        #: walk (its device's tag) → the keyframes it integrated since its last loop job
+        self._loop_queries: dict[int, list[LoopQuery]] = {}
+        #: the walks' loop jobs are started in turn: the walk that started the last one
+        self._last_walk = -1
         #: no new loop job starts (an edge over its compute budget); the newest keyframes
         #: integrated meanwhile (LOOP_QUERIES) look once the searches resume
         self.loop_search_paused = False
@@ -369,11 +372,11 @@ class MapBackEnd:
             self.store.entered([data.frame_id], device.slice)   # the device's, no other's
             device.entered[data.frame_id] = (int(data.slot), UPLOADED)
             device.keyframe_stamps[data.frame_id] = float(data.stamp)
-            # the loops are the place's first device's walk's: another device's keyframes are
-            # no step of it (one graph of every walk is step 3 of docs/architecture.md §10)
-            if self.config.loop_closing and device is self.device:
-                self._loop_queries = [*self._loop_queries[-(LOOP_QUERIES - 1):],
-                                      LoopQuery.of(data)]
+            # each device's keyframes are steps of its own walk: a loop closes within it
+            if self.config.loop_closing:
+                queued = self._loop_queries.get(device.tag, [])
+                self._loop_queries[device.tag] = [*queued[-(LOOP_QUERIES - 1):],
+                                                  LoopQuery.of(data)]
         return report
 
     # -- keyframes out and back --------------------------------------------------------------
@@ -516,38 +519,50 @@ class MapBackEnd:
     # -- loop closing ------------------------------------------------------------------------
 
     def start_loop_job(self, slot: int) -> None:
-        """Hand the keyframes integrated since the last job to the loop closer, with a
-        snapshot of the archive, the map's keyframes far older than them and every pose;
+        """Hand the keyframes a walk integrated since its last job to the loop closer, with
+        a snapshot of the archive, the map's keyframes far older than them and every pose;
         kept for the next slot while a job runs or the searches are paused
-        (:attr:`loop_search_paused`)."""
+        (:attr:`loop_search_paused`). Each device of the place walks a walk of its own (its
+        keyframes, under its tag): the walks with keyframes waiting start their jobs in
+        turn, one job at a time for the place — a job's graph holds the other walks where
+        they are, and two at once would each hold the other where it no longer is."""
         if self.loop_search_paused:
             return
-        in_map = [q for q in self._loop_queries if q.keyframe in self.map.keyframes]
-        wanted = set(self.loop_closer.wanted([q.keyframe for q in in_map]))
-        queries = [q for q in in_map if q.keyframe in wanted]
-        if not queries or self.loop_closer.busy or not self.camera.known:
-            self._loop_queries = queries
+        walks = {device.tag: device for device in self.devices}
+        for tag in [tag for tag in self._loop_queries if tag not in walks]:
+            del self._loop_queries[tag]                   # a device that left the place
+        for tag, queued in self._loop_queries.items():
+            in_map = [q for q in queued if q.keyframe in self.map.keyframes]
+            wanted = set(self.loop_closer.wanted([q.keyframe for q in in_map]))
+            self._loop_queries[tag] = [q for q in in_map if q.keyframe in wanted]
+        ready = sorted(tag for tag, queued in self._loop_queries.items()
+                       if queued and walks[tag].camera.known)
+        if not ready or self.loop_closer.busy:
             return
+        walk = next((tag for tag in ready if tag > self._last_walk), ready[0])
+        queries = self._loop_queries[walk]
         newest = max(q.keyframe for q in queries)
-        # the walk's own keyframes: another device's that this map adopted are no step of
-        # it, but anchors the walk's keyframes posed on them hold to (LoopJob.copies)
+        # the walk's own keyframes: another walk's, and another device's this map adopted,
+        # are no step of it, but anchors its keyframes posed on them hold to (LoopJob.copies)
         every = self.keyframe_poses()
-        across = self._across(every, slot)
+        across = self._across(every, slot) if walk == 0 else frozenset()
         # the walk's old keyframes in the map, and the copies a loop may close with across
         # devices that are in the map (the archive's are in its snapshot already)
         old = [ArchivedKeyFrame.of(self.map, k, slot) for k in self.map.keyframes
-               if k <= newest - self.loop_closer.min_gap or k in across]
-        poses = {k: pose for k, pose in every.items() if not is_foreign(k)}
+               if (tag_of(k) == walk and k <= newest - self.loop_closer.min_gap)
+               or k in across]
+        poses = {k: pose for k, pose in every.items() if tag_of(k) == walk}
         job = LoopJob(tuple(reversed(queries)), self.archive.snapshot(old), poses,
-                      self.k.copy(),
+                      walks[walk].k.copy(),
                       {k: frozenset(kf.points) for k, kf in self.map.keyframes.items()
-                       if not is_foreign(k)},
+                       if tag_of(k) == walk},
                       tuple(self.loop_edges),
-                      {k: pose for k, pose in every.items() if is_foreign(k)},
+                      {k: pose for k, pose in every.items() if tag_of(k) != walk},
                       {k: frozenset(kf.points) for k, kf in self.map.keyframes.items()
-                       if is_foreign(k)}, across)
+                       if tag_of(k) != walk}, across, walk)
         if self.loop_closer.submit(job):
-            self._loop_queries = []
+            self._loop_queries[walk] = []
+            self._last_walk = walk
 
     def _across(self, poses: Mapping[int, np.ndarray], slot: int) -> frozenset[int]:
         """The copies (of ``poses``: every keyframe's) a loop across devices may close with at
@@ -582,14 +597,14 @@ class MapBackEnd:
         if result is None or result.closure is None:
             return None
         corrections = result.closure.corrections
-        farthest = farthest_move(self.map, corrections)
+        farthest = farthest_move(self.map, corrections, result.walk)
         if refused := self._beyond_reach("it would move the map", farthest):
             self.loops_refused += 1
             return ClosedLoop(result.candidate.old, result.query, result.candidate.inliers,
                               farthest, result.seconds * 1e3, refused, result.waited * 1e3)
         # the walk's head (the newest keyframe of the graph, and every later one) moves by the
         # newest correction: the frame the next map version is in
-        self._correct(corrections, "writing the loop-corrected archive's poses")
+        self._correct(corrections, "writing the loop-corrected archive's poses", walk=result.walk)
         old = result.candidate.old
         if self.config.point_fusion and old in self.map.keyframes and self.camera.known:
             fuse_restored(self.map, old, sorted(self.map.keyframes[old].points),
@@ -603,20 +618,21 @@ class MapBackEnd:
                           result.seconds * 1e3, waited_ms=result.waited * 1e3)
 
     def _correct(self, corrections: Mapping[int, np.ndarray], what: str,
-                 everywhere: np.ndarray | None = None) -> None:
+                 everywhere: np.ndarray | None = None, walk: int = 0) -> None:
         """Move the map's and the archive's keyframes by their ``corrections`` (points with
         their reference keyframes), and the frame the map is in for each device — from its
         next map version on — by the correction at its walk's head
         (:meth:`DeviceRecord.head_of`), which every pose it holds and every keyframe it is
         about to upload still needs; a device none of whose keyframes moved keeps its frame. A
-        loop's corrections reach the map's own keyframes alone (:func:`correction_for`: the copies
-        it adopted hold their lenders' poses); with ``everywhere`` (a rigid motion) the whole
+        loop's corrections reach its walk's keyframes alone (``walk``, a device's tag;
+        :func:`correction_for`: the other walks, and the copies the map adopted, hold where
+        they are); with ``everywhere`` (a rigid motion) the whole
         map changes frame: each keyframe ``corrections`` names moves, copies included, and
         every device's frame by ``everywhere``. The archive's pose file is written beside the
         slots (``what`` it is, for a failure)."""
         def of(kf_id: int) -> np.ndarray | None:
             return corrections.get(kf_id) if everywhere is not None \
-                else correction_for(corrections, kf_id)
+                else correction_for(corrections, kf_id, walk)
 
         move_keyframes(self.map, {k: c for k in self.map.keyframes if (c := of(k)) is not None})
         for device in self.devices:
