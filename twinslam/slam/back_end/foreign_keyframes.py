@@ -77,7 +77,8 @@ def ties_to_copies(points: Mapping[int, np.ndarray], walk: int = 0
     copy observing it too stood, by the lender's own drift, wherever its walk had taken it,
     and a keyframe of the walk posed on that point was posed on where the oldest put it."""
     def brought_by_others(ids: np.ndarray) -> np.ndarray:
-        return ids[(ids >> TAG_SHIFT << TAG_SHIFT) != walk]
+        others: np.ndarray = ids[(ids >> TAG_SHIFT << TAG_SHIFT) != walk]
+        return others
 
     copies = [(k, brought_by_others(ids)) for k, ids in points.items() if tag_of(k) != walk]
     if not copies:
