@@ -14,6 +14,7 @@ import pytest
 from twinslam.slam.back_end.device_record import DeviceRecord
 from twinslam.slam.back_end.foreign_keyframes import foreign_tag
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame
+from twinslam.slam.back_end.loop_closing import ACROSS_GAP_SLOTS
 from twinslam.slam.back_end.map_back_end import BackEndConfig, MapBackEnd
 from twinslam.slam.back_end.place_joining import join_into_place
 from twinslam.slam.keyframe import TRACK_ID_BIT, KeyFramePayload
@@ -190,3 +191,20 @@ def test_a_restore_takes_a_keyframe_another_device_holds_as_it_is() -> None:
     assert back_end.map.keyframes[2].points == points               # one keyframe, its points
     assert second.entered[2] == (6, RESTORED) and first.entered[2] == (2, UPLOADED)
     assert not second.slice.holds(TAG | 1) and TAG | 1 in back_end.archive
+
+
+def test_a_walks_loop_may_close_with_the_other_walks_keyframes_of_a_few_slots_before(
+        ) -> None:
+    """In a place of several devices a walk's loop may close with another walk's keyframe
+    (the later comer bends towards the place another device mapped), but only with one
+    integrated ACROSS_GAP_SLOTS slots or more before — two walks crossing at once bend
+    neither — never with its own walk's (those are its own loops), and not at all with
+    ``loops_across_devices`` off."""
+    back_end, _ = _place()                            # keyframes of slots 1 and 2 each
+    poses = back_end.keyframe_poses()
+    late = 2 + ACROSS_GAP_SLOTS
+    assert back_end._across(poses, late - 1, TAG) == {1}
+    assert back_end._across(poses, late, TAG) == {1, 2}
+    assert back_end._across(poses, late, 0) == {TAG | 1, TAG | 2}
+    back_end.config = dataclasses.replace(back_end.config, loops_across_devices=False)
+    assert back_end._across(poses, late, TAG) == frozenset()

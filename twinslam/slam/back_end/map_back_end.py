@@ -219,6 +219,9 @@ class MapBackEnd:
         self.loop_closer = LoopCloser(config.loop_background, config.loop_min_gap,
                                       confirmations=config.loop_confirmations)
         #: keyframes integrated since the last loop job, newest last
+        #: keyframe → the slot it was integrated at (a place of several devices: which other
+        #: walks' keyframes are old enough to close a loop with, :meth:`_across`)
+        self.integrated_at: dict[int, int] = {}
         #: walk (its device's tag) → the keyframes it integrated since its last loop job
         self._loop_queries: dict[int, list[LoopQuery]] = {}
         #: the walks' loop jobs are started in turn: the walk that started the last one
@@ -372,6 +375,7 @@ class MapBackEnd:
             self.store.entered([data.frame_id], device.slice)   # the device's, no other's
             device.entered[data.frame_id] = (int(data.slot), UPLOADED)
             device.keyframe_stamps[data.frame_id] = float(data.stamp)
+            self.integrated_at[data.frame_id] = int(data.slot)
             # each device's keyframes are steps of its own walk: a loop closes within it
             if self.config.loop_closing:
                 queued = self._loop_queries.get(device.tag, [])
@@ -394,6 +398,7 @@ class MapBackEnd:
             device.entered.pop(kf, None)
         for kf in forgotten:
             self.adopted_at.pop(kf, None)
+            self.integrated_at.pop(kf, None)
         return forgotten, orphans
 
     def restore(self, restore: Iterable[int], evict: Iterable[int], slot: int,
@@ -545,7 +550,7 @@ class MapBackEnd:
         # the walk's own keyframes: another walk's, and another device's this map adopted,
         # are no step of it, but anchors its keyframes posed on them hold to (LoopJob.copies)
         every = self.keyframe_poses()
-        across = self._across(every, slot) if walk == 0 else frozenset()
+        across = self._across(every, slot, walk)
         # the walk's old keyframes in the map, and the copies a loop may close with across
         # devices that are in the map (the archive's are in its snapshot already)
         old = [ArchivedKeyFrame.of(self.map, k, slot) for k in self.map.keyframes
@@ -564,17 +569,25 @@ class MapBackEnd:
             self._loop_queries[walk] = []
             self._last_walk = walk
 
-    def _across(self, poses: Mapping[int, np.ndarray], slot: int) -> frozenset[int]:
-        """The copies (of ``poses``: every keyframe's) a loop across devices may close with at
-        ``slot``: with ``loops_across_devices``, those of the devices of :attr:`loop_across`
-        adopted ACROSS_GAP_SLOTS before it or earlier (one adopted before the edge kept
-        adoption slots counts as old). A place where the other device was at the same time
-        as this one — the two walks crossing — bends neither towards the other: each would
-        bend towards a keyframe the other is moving at once; the later comer bends, as a
-        loop of one walk bends its newer end towards its older."""
-        if not self.config.loops_across_devices or not self.loop_across:
+    def _across(self, poses: Mapping[int, np.ndarray], slot: int, walk: int = 0
+                ) -> frozenset[int]:
+        """The keyframes of other devices (of ``poses``: every keyframe's) a loop of walk
+        ``walk`` may close with at ``slot``, with ``loops_across_devices``: in a place of
+        several devices, the other walks' keyframes integrated ACROSS_GAP_SLOTS before it or
+        earlier (those its map brought when it joined count as old); in a map of one device,
+        the copies of the devices of :attr:`loop_across` adopted that long before (one
+        adopted before the edge kept adoption slots counts as old). A place where the other
+        device was at the same time as this one — the two walks crossing — bends neither
+        towards the other: each would bend towards a keyframe the other is moving at once;
+        the later comer bends, as a loop of one walk bends its newer end towards its older."""
+        if not self.config.loops_across_devices:
             return frozenset()
         latest = slot - ACROSS_GAP_SLOTS
+        if len(self.devices) > 1:
+            return frozenset(k for k in poses if tag_of(k) != walk
+                             and self.integrated_at.get(k, latest) <= latest)
+        if not self.loop_across:
+            return frozenset()
         return frozenset(k for k in poses if is_foreign(k) and tag_of(k) in self.loop_across
                          and self.adopted_at.get(k, latest) <= latest)
 
