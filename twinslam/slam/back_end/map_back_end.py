@@ -218,11 +218,11 @@ class MapBackEnd:
         self.devices: list[DeviceRecord] = [self.device]
         self.loop_closer = LoopCloser(config.loop_background, config.loop_min_gap,
                                       confirmations=config.loop_confirmations)
-        #: keyframes integrated since the last loop job, newest last
         #: keyframe → the slot it was integrated at (a place of several devices: which other
         #: walks' keyframes are old enough to close a loop with, :meth:`_across`)
         self.integrated_at: dict[int, int] = {}
-        #: walk (its device's tag) → the keyframes it integrated since its last loop job
+        #: walk (its device's tag) → the keyframes it integrated since its last loop job,
+        #: newest last
         self._loop_queries: dict[int, list[LoopQuery]] = {}
         #: the walks' loop jobs are started in turn: the walk that started the last one
         self._last_walk = -1
