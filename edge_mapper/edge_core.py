@@ -215,9 +215,10 @@ class EdgeMapperCore:
 
     @property
     def serves_place(self) -> bool:
-        """Whether this core runs its place's bundle adjustment, loops and checkpoint: every
-        core but one whose device's map joined another device's place (:meth:`join_place`),
-        whose slots that device's core closes."""
+        """Whether this core runs its place's bundle adjustment and checkpoint and sets its
+        loop search: every core but one whose device's map joined another device's place
+        (:meth:`join_place`). The place's loops are taken and started at every device's slot
+        end (one job at a time: :meth:`MapBackEnd.start_loop_job`)."""
         return self._device is self.back_end.device
 
     @property
@@ -567,7 +568,9 @@ class EdgeMapperCore:
         refused = self._refused.pop(slot, {})
         received -= refused.keys()            # a refused upload is as good as lost
         tl = time.perf_counter()
-        loop = self.back_end.take_loop() if self.serves_place else None
+        # the place's loop closer, at every device's slot end: a place goes on closing loops
+        # whichever of its devices walk on (one job at a time, the walks in turn)
+        loop = self.back_end.take_loop()
         missing = set(action.upload) - received
         evicted = applied_evictions(action.evict, self.slice.keyframe_ids(), missing, vmax)
         ta = time.perf_counter()
@@ -604,8 +607,7 @@ class EdgeMapperCore:
         w = self.slice.covisibility()
         u = map_uncertainty(w, self.planner.config.log_det_pi) if len(w) else math.inf
         t3 = time.perf_counter()
-        if self.serves_place:
-            self.back_end.start_loop_job(slot)
+        self.back_end.start_loop_job(slot)
         t4 = time.perf_counter()
         timings = {"archive": (t0 - ta) * 1e3, "optimise": (t1 - t0) * 1e3,
                    "checkpoint": (t2 - t1) * 1e3, "uncertainty": (t3 - t2) * 1e3,

@@ -708,9 +708,10 @@ class PlaceMerging:
         """With :attr:`join`, ``device`` gone: a device that joined a place leaves it
         (:meth:`EdgeMapperCore.leave_place`: the keyframes only it held go to the place's
         archive); the first device of a place others joined takes the place's bundle
-        adjustment and loops with it (its core ran them) — the others' slots go on in the
-        place's map, which nothing adjusts and no other map joins any more (said once:
-        handing a place to another of its devices is not built yet)."""
+        adjustment with it (its core ran it) — the others' slots go on in the place's map,
+        closing its loops at their slot ends, but nothing adjusts it and no other map joins
+        it any more (said once: handing a place to another of its devices is not built
+        yet)."""
         self._headless.pop(device, None)
         core = self._joined_cores.pop(device, None)
         if core is not None:
@@ -723,9 +724,9 @@ class PlaceMerging:
         if rest:
             self._notices.append(
                 f"{device}, the first device of a joined place, is no longer served: "
-                f"{', '.join(rest)} go on in its place's map, which runs no bundle adjustment "
-                "or loop closing from now on and which no other map joins (a place handed to "
-                "another of its devices is not built yet)")
+                f"{', '.join(rest)} go on in its place's map and close its loops, but it runs "
+                "no bundle adjustment from now on and no other map joins it (a place handed "
+                "to another of its devices is not built yet)")
 
     def notices(self) -> list[str]:
         """What the edge's log should say of its places since the last call (once each)."""

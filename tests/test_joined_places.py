@@ -122,31 +122,26 @@ def test_an_edge_that_joins_maps_refuses_to_start_with_checkpoints(
             Parameter("checkpoint", value=str(tmp_path / "edge.npz"))])
 
 
-def _walk_a_slot(core: EdgeMapperCore, device: ReturningDevice, slot: int,
-                 place: EdgeMapperCore | None = None) -> ClosedLoop | None:
-    """Slot ``slot`` of ``device``'s walk at ``core``: planned, its uploads in, finished. A
-    joined device's loops are its place's core's (``place``) to run: its slot end takes the
-    last job's loop before the slot's evictions and starts the next job after, as the
-    device's own slot end does alone. The loop the slot took (None: none)."""
+def _walk_a_slot(core: EdgeMapperCore, device: ReturningDevice, slot: int
+                 ) -> ClosedLoop | None:
+    """Slot ``slot`` of ``device``'s walk at ``core``: planned, its uploads in, finished
+    (the slot end takes the place's finished loop and starts its next job, whichever device
+    of the place it is). The loop the slot took (None: none)."""
     plan = core.plan(slot, [device.summary(f, core) for f in range(slot * F, (slot + 1) * F)],
                      20.0, slot % 2)
     for f in plan.action.upload:
         assert core.add_keyframe(device.keyframe(f, slot, core)) is not None
-    if place is None:
-        return core.finish_slot(slot).loop
-    loop = place.back_end.take_loop()
-    core.finish_slot(slot)
-    place.back_end.start_loop_job(slot)
-    return loop
+    return core.finish_slot(slot).loop
 
 
 def test_a_joined_devices_walk_closes_its_own_loop_as_it_would_alone() -> None:
     """A device whose map joined a place walks out and back along a wall, drifting on the
-    way back: the place's loop closer, run by the place's first core, looks for loops in
-    that device's walk (its tag's keyframes) as it does in the first device's, and closes the
-    loop the same walk closes alone, at the same slot — its keyframes put where they are
-    alone, to the millimetre — while the first device's keyframe and frame stay where they
-    were, and the joined device's frame moves with its walk's head."""
+    way back, while the place's first device has no slots: the place's loop closer, run at
+    the joined device's slot ends, looks for loops in its walk (its tag's keyframes) as in
+    the first device's, and closes the loop the same walk closes alone, at the same slot —
+    its keyframes put where they are alone, to the millimetre — while the first device's
+    keyframe and frame stay where they were, and the joined device's frame moves with its
+    walk's head."""
     alone, walker = _edge(loops=True), DriftingDevice(np.random.default_rng(3), 8 * F)
     place, joining = _edge(loops=True), _edge(loops=True)
     first = np.eye(4)
@@ -157,7 +152,7 @@ def test_a_joined_devices_walk_closes_its_own_loop_as_it_would_alone() -> None:
     joined = DriftingDevice(np.random.default_rng(3), 8 * F)
     for slot in range(16):
         loop = _walk_a_slot(alone, walker, slot)
-        closed = _walk_a_slot(joining, joined, slot, place)
+        closed = _walk_a_slot(joining, joined, slot)
         if loop is not None:
             break
     assert loop is not None and not loop.refused and alone.loops_closed == 1

@@ -196,15 +196,19 @@ def test_a_restore_takes_a_keyframe_another_device_holds_as_it_is() -> None:
 def test_a_walks_loop_may_close_with_the_other_walks_keyframes_of_a_few_slots_before(
         ) -> None:
     """In a place of several devices a walk's loop may close with another walk's keyframe
-    (the later comer bends towards the place another device mapped), but only with one
-    integrated ACROSS_GAP_SLOTS slots or more before — two walks crossing at once bend
-    neither — never with its own walk's (those are its own loops), and not at all with
-    ``loops_across_devices`` off."""
-    back_end, _ = _place()                            # keyframes of slots 1 and 2 each
-    poses = back_end.keyframe_poses()
-    late = 2 + ACROSS_GAP_SLOTS
-    assert back_end._across(poses, late - 1, TAG) == {1}
-    assert back_end._across(poses, late, TAG) == {1, 2}
-    assert back_end._across(poses, late, 0) == {TAG | 1, TAG | 2}
+    (the later comer bends towards the place another device mapped), but only with one its
+    device integrated ACROSS_GAP_SLOTS of its own slots or more before its newest — a walk
+    still there is still moving it — never with its own walk's (those are its own loops),
+    and not at all with ``loops_across_devices`` off."""
+    back_end, second = _place()                      # slots 1 and 2 of each device
+    assert back_end._across(back_end.keyframe_poses(), 0, TAG) == frozenset()
+    later = 1 + ACROSS_GAP_SLOTS                     # the first device walks on
+    assert not back_end.integrate(_upload(3, 0.15, FIRST, later, seed=3), -1).refused
+    assert back_end._across(back_end.keyframe_poses(), 0, TAG) == {1}
+    assert back_end._across(back_end.keyframe_poses(), 0, 0) == frozenset()
+    report = back_end.integrate(_upload(TAG | 3, 3.15, SECOND, 2 + ACROSS_GAP_SLOTS, seed=13),
+                                -1, second)
+    assert not report.refused
+    assert back_end._across(back_end.keyframe_poses(), 0, 0) == {TAG | 1, TAG | 2}
     back_end.config = dataclasses.replace(back_end.config, loops_across_devices=False)
-    assert back_end._across(poses, late, TAG) == frozenset()
+    assert back_end._across(back_end.keyframe_poses(), 0, TAG) == frozenset()

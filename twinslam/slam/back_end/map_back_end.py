@@ -218,9 +218,12 @@ class MapBackEnd:
         self.devices: list[DeviceRecord] = [self.device]
         self.loop_closer = LoopCloser(config.loop_background, config.loop_min_gap,
                                       confirmations=config.loop_confirmations)
-        #: keyframe → the slot it was integrated at (a place of several devices: which other
-        #: walks' keyframes are old enough to close a loop with, :meth:`_across`)
+        #: keyframe → its device's slot it was integrated at, and walk (a device's tag) → its
+        #: newest such slot (a place of several devices: which other walks' keyframes are
+        #: old enough to close a loop with, :meth:`_across`; each device counts its own
+        #: slots)
         self.integrated_at: dict[int, int] = {}
+        self._newest_slot: dict[int, int] = {}
         #: walk (its device's tag) → the keyframes it integrated since its last loop job,
         #: newest last
         self._loop_queries: dict[int, list[LoopQuery]] = {}
@@ -376,6 +379,8 @@ class MapBackEnd:
             device.entered[data.frame_id] = (int(data.slot), UPLOADED)
             device.keyframe_stamps[data.frame_id] = float(data.stamp)
             self.integrated_at[data.frame_id] = int(data.slot)
+            self._newest_slot[device.tag] = max(int(data.slot),
+                                                self._newest_slot.get(device.tag, -1))
             # each device's keyframes are steps of its own walk: a loop closes within it
             if self.config.loop_closing:
                 queued = self._loop_queries.get(device.tag, [])
@@ -573,21 +578,26 @@ class MapBackEnd:
                 ) -> frozenset[int]:
         """The keyframes of other devices (of ``poses``: every keyframe's) a loop of walk
         ``walk`` may close with at ``slot``, with ``loops_across_devices``: in a place of
-        several devices, the other walks' keyframes integrated ACROSS_GAP_SLOTS before it or
-        earlier (those its map brought when it joined count as old); in a map of one device,
-        the copies of the devices of :attr:`loop_across` adopted that long before (one
-        adopted before the edge kept adoption slots counts as old). A place where the other
+        several devices, the other walks' keyframes integrated ACROSS_GAP_SLOTS or more of
+        their own device's slots before its newest (those its map brought when it joined
+        count as old; devices count slots from their own starts); in a map of one device,
+        the copies of the devices of :attr:`loop_across` adopted ACROSS_GAP_SLOTS before
+        ``slot`` or earlier (one adopted before the edge kept adoption slots counts as old).
+        A place where the other
         device was at the same time as this one — the two walks crossing — bends neither
         towards the other: each would bend towards a keyframe the other is moving at once;
         the later comer bends, as a loop of one walk bends its newer end towards its older."""
         if not self.config.loops_across_devices:
             return frozenset()
-        latest = slot - ACROSS_GAP_SLOTS
         if len(self.devices) > 1:
-            return frozenset(k for k in poses if tag_of(k) != walk
-                             and self.integrated_at.get(k, latest) <= latest)
+            newest = self._newest_slot
+            return frozenset(
+                k for k in poses if tag_of(k) != walk and (
+                    (at := self.integrated_at.get(k)) is None
+                    or at <= newest.get(tag_of(k), at) - ACROSS_GAP_SLOTS))
         if not self.loop_across:
             return frozenset()
+        latest = slot - ACROSS_GAP_SLOTS
         return frozenset(k for k in poses if is_foreign(k) and tag_of(k) in self.loop_across
                          and self.adopted_at.get(k, latest) <= latest)
 
