@@ -32,8 +32,15 @@ from twinslam.hosts.loopback import LoopbackDomain
 from twinslam.node_runtime.node_main import NodeStartError
 from twinslam.node_runtime.session import RosSession
 from twinslam.rotations import rotation_angle_deg
-from twinslam.slam.back_end.foreign_keyframes import foreign_tag, source_id, tag_of
+from twinslam.slam.back_end.foreign_keyframes import (
+    MAX_SOURCES,
+    TAG_SHIFT,
+    foreign_tag,
+    source_id,
+    tag_of,
+)
 from twinslam.slam.back_end.map_back_end import ClosedLoop
+from twinslam.slam.back_end.pose_graph import WALK_ID_BITS
 
 #: ar2's keyframes 10, 11, 12 are the room's frames 4, 64, 124
 AR2_FRAMES = {10: 4, 11: 64, 12: 124}
@@ -147,7 +154,8 @@ def test_a_joined_devices_walk_closes_its_own_loop_as_it_would_alone() -> None:
     first = np.eye(4)
     first[:3, 3] = [0.0, 5.0, 0.0]                  # the first device's keyframe, far off
     place.map.add_keyframe(1, first)
-    tag = foreign_tag(1)
+    # the highest tag there is: its ids exceed a gtsam Symbol's index, as most devices' do
+    tag = foreign_tag(MAX_SOURCES - 1)
     joining.join_place(place, tag, np.eye(4))
     joined = DriftingDevice(np.random.default_rng(3), 8 * F)
     for slot in range(16):
@@ -166,3 +174,9 @@ def test_a_joined_devices_walk_closes_its_own_loop_as_it_would_alone() -> None:
     np.testing.assert_allclose(place.frame_correction, np.eye(4))
     np.testing.assert_allclose(joining.frame_correction, alone.frame_correction, atol=1e-3)
     assert not np.allclose(joining.frame_correction, np.eye(4))
+
+
+def test_a_walks_graph_keys_its_keyframes_by_the_bits_below_the_tags() -> None:
+    """The loop graph keys a walk's keyframes by their ids below the device tag (one walk has
+    one tag): the bits it keeps are the ones the tag leaves."""
+    assert WALK_ID_BITS == TAG_SHIFT

@@ -102,6 +102,17 @@ class LoopEdge:
     inliers: int = LOOP_INLIERS_REF       #: the matches the measurement was fitted to
 
 
+#: the low bits of a keyframe id that tell one walk's keyframes apart: a device's tag sits
+#: above them (``foreign_keyframes.TAG_SHIFT``, which imports this module), and a tagged id
+#: exceeds a gtsam Symbol's 56-bit index, where its walk's keyframes have one tag
+WALK_ID_BITS = 40
+
+
+def walk_key(kf_id: int) -> int:
+    """The graph's key of a keyframe of the walk (every keyframe of one walk has one tag)."""
+    return int(X(int(kf_id) & ((1 << WALK_ID_BITS) - 1)))
+
+
 def loop_scale(inliers: int) -> float:
     """How much looser than LOOP_SIGMAS a loop measured on ``inliers`` matches is."""
     return float(np.clip(np.sqrt(LOOP_INLIERS_REF / max(inliers, 1)), *LOOP_SCALE_RANGE))
@@ -212,8 +223,8 @@ def _walk_graph(poses: Mapping[int, np.ndarray], shared: Mapping[tuple[int, int]
     graph = gtsam.NonlinearFactorGraph()
     initial = gtsam.Values()
     for i in ids:
-        initial.insert(X(i), gtsam.Pose3(np.asarray(poses[i], dtype=np.float64)))
-    graph.add(gtsam.PriorFactorPose3(X(ids[0]), gtsam.Pose3(np.asarray(poses[ids[0]])),
+        initial.insert(walk_key(i), gtsam.Pose3(np.asarray(poses[i], dtype=np.float64)))
+    graph.add(gtsam.PriorFactorPose3(walk_key(ids[0]), gtsam.Pose3(np.asarray(poses[ids[0]])),
                                      gtsam.noiseModel.Isotropic.Sigma(6, PRIOR_SIGMA)))
     _add_walk(graph, poses, shared)
     held = _held_keys(poses, loops, anchors)
@@ -243,7 +254,7 @@ def _add_anchors(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values,
     factor holding the relative pose the two had before the anchor moved, as
     :func:`follow_anchors` says."""
     def key(k: int) -> int:
-        return held[k] if k in held else int(X(k))     # a tagged id has no X key
+        return held[k] if k in held else walk_key(k)
 
     prior = gtsam.noiseModel.Isotropic.Sigma(6, PRIOR_SIGMA)
     for k in sorted(held):
@@ -270,7 +281,8 @@ def _add_walk(graph: gtsam.NonlinearFactorGraph, poses: Mapping[int, np.ndarray]
         relative = np.linalg.inv(poses[a]) @ poses[b]
         scale = 1.0 if shared is None else step_scale(shared.get((a, b), 0))
         step = gtsam.noiseModel.Diagonal.Sigmas(scale * step_sigmas(relative))
-        graph.add(gtsam.BetweenFactorPose3(X(a), X(b), gtsam.Pose3(relative), step))
+        graph.add(gtsam.BetweenFactorPose3(walk_key(a), walk_key(b), gtsam.Pose3(relative),
+                                           step))
 
 
 def _add_loops(graph: gtsam.NonlinearFactorGraph, poses: Mapping[int, np.ndarray],
@@ -283,8 +295,8 @@ def _add_loops(graph: gtsam.NonlinearFactorGraph, poses: Mapping[int, np.ndarray
                 gtsam.noiseModel.mEstimator.Cauchy.Create(LOOP_CAUCHY),
                 gtsam.noiseModel.Diagonal.Sigmas(loop_scale(edge.inliers)
                                                  * np.array(LOOP_SIGMAS)))
-            old = held[edge.old] if edge.old in held else X(edge.old)
-            graph.add(gtsam.BetweenFactorPose3(old, X(edge.new),
+            old = held[edge.old] if edge.old in held else walk_key(edge.old)
+            graph.add(gtsam.BetweenFactorPose3(old, walk_key(edge.new),
                                                gtsam.Pose3(np.asarray(edge.measured)),
                                                loop_noise))
 
@@ -295,7 +307,7 @@ def _solved(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values,
     them, and their corrections."""
     before = graph.error(initial)
     result = gtsam.LevenbergMarquardtOptimizer(graph, initial).optimize()
-    corrected = {i: result.atPose3(X(i)).matrix() for i in sorted(poses)}
+    corrected = {i: result.atPose3(walk_key(i)).matrix() for i in sorted(poses)}
     corrections = {i: corrected[i] @ np.linalg.inv(poses[i]) for i in corrected}
     return LoopClosure(corrected, corrections, float(before), float(graph.error(result)))
 
