@@ -1335,3 +1335,33 @@ def test_one_map_a_place_against_lent_copies_is_what_its_command_prints(
     for first, second in (("lend", "join"), ("join", "join-window-each-walk")):
         printed = table.table(window / f"{first}.csv", window / f"{second}.csv")
         assert _missing("\n".join(printed)) == [], (first, second)
+
+
+def test_one_map_a_place_in_the_edge_node_is_what_its_commands_print(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The joined place with every walk's loops: four devices on walks of their own against
+    lent copies and alone, and against the runs whose joined walks' loops failed; the
+    7-Scenes pair again against lending and against the first joined arm — as the table
+    scripts print them from the committed CSVs."""
+    monkeypatch.syspath_prepend(str(FIGURES))           # joined_place_table's sibling
+    folder = FIGURES / "shared-map" / "joined"
+    walks = _script("place_walks_table")
+    for first, second, names in (
+            ("lent", "join", ("lent copies", "joined")), ("alone", "join", ("alone", "joined")),
+            ("alone", "lent", ("alone", "lent copies")),
+            ("join-walk-loops-failing", "join",
+             ("joined (the joined walks' loops failing)", "joined"))):
+        printed = walks.table(folder / "place-walks" / f"{first}.csv",
+                              folder / "place-walks" / f"{second}.csv", names=names)
+        assert _missing("\n".join(printed)) == [], (first, second)
+        assert "seeds 4, 5, 6, 7:" in printed[0]
+    pair = _script("joined_place_table")
+    two, later = folder / "two-ends", folder / "later"
+    for printed in (pair.table(two / "lend.csv", two / "join-every-walk.csv"),
+                    pair.table(two / "join.csv", two / "join-every-walk.csv",
+                               names=("joined (the first walk's loops)",
+                                      "joined (every walk's)")),
+                    pair.table(later / "lend.csv", later / "join-every-walk.csv",
+                               later / "alone.csv")):
+        assert _missing("\n".join(printed)) == []
+        assert printed[0] == "seeds 0, 1, 2, 4, 5, 6, 7"

@@ -7,6 +7,10 @@ Student's t, :func:`twinslam.reporting.paired_row`) — and, given the runs alon
 (``--no-merge``), the second device's uploads saved against them in each arm.
 
     .venv/bin/python docs/figures/joined_place_table.py LENT.csv JOINED.csv [--alone A.csv]
+        [--names "BASE NAME,JOINED NAME"]
+
+``--names`` names the two arms where the first is not lending (two joined arms of different
+code: the base and the one compared with it).
 """
 
 from __future__ import annotations
@@ -48,14 +52,26 @@ def _value(row: dict[str, str], column: str, scale: float) -> float:
     return float(text) * scale if text not in ("", None) else math.nan
 
 
-def table(lent_csv: Path, joined_csv: Path, alone_csv: Path | None = None) -> list[str]:
-    """The markdown lines :func:`main` prints."""
+#: the arms' names when the first is lending
+LENT_AND_JOINED = ("lent copies", "joined")
+
+
+def _difference(names: tuple[str, str]) -> str:
+    """The difference column's name: "joined − lent" for lending against the join, else
+    the second arm's against the first's."""
+    return "joined − lent" if names == LENT_AND_JOINED else "second − first"
+
+
+def table(lent_csv: Path, joined_csv: Path, alone_csv: Path | None = None,
+          names: tuple[str, str] = LENT_AND_JOINED) -> list[str]:
+    """The markdown lines :func:`main` prints (``names``: the two arms', the base first)."""
     lent, joined = by_seed(lent_csv), by_seed(joined_csv)
     alone = by_seed(alone_csv) if alone_csv is not None else {}
     arms = {"lent": lent, "joined": joined, **({"alone": alone} if alone else {})}
     seeds = distinct_seeds(arms)
     lines = [f"seeds {', '.join(map(str, seeds))}", "",
-             "| figure | lent copies | joined | joined − lent [95 % CI] |", "|---|---|---|---|"]
+             f"| figure | {names[0]} | {names[1]} | {_difference(names)} [95 % CI] |",
+             "|---|---|---|---|"]
     for column, name, scale, fmt in FIGURES:
         before = [_value(lent[s], column, scale) for s in seeds]
         after = [_value(joined[s], column, scale) for s in seeds]
@@ -69,7 +85,7 @@ def table(lent_csv: Path, joined_csv: Path, alone_csv: Path | None = None) -> li
                   f"{', '.join(f'{x:.0f}' for x in base)}", "",
               "| the second device's uploads | alone | sharing | sharing − alone [95 % CI] |",
               "|---|---|---|---|"]
-    for name, arm in (("lent copies", lent), ("joined", joined)):
+    for name, arm in ((names[0], lent), (names[1], joined)):
         got = [_value(arm[s], "second_uploads", 1.0) for s in common]
         saved = 1.0 - sum(got) / sum(base)
         lines.append(paired_row(f"{name}: {saved:.1%} fewer ({sum(got):.0f} against "
@@ -83,11 +99,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("joined", type=Path, help="the runs with the map joined")
     parser.add_argument("--alone", type=Path,
                         help="the runs that never merged: the second device's uploads saved")
+    parser.add_argument("--names", metavar="BASE,JOINED", default="lent copies,joined",
+                        help="the two arms' names in the table (default: %(default)s)")
     args = parser.parse_args(argv)
+    names = tuple(n.strip() for n in args.names.split(","))
+    if len(names) != 2 or not all(names):
+        parser.error(f"--names takes two names separated by a comma, got {args.names!r}")
     for path in (args.lent, args.joined, *([args.alone] if args.alone else [])):
         if not path.is_file():
             parser.error(f"{path}: no such CSV (bench.shared_map --csv writes one)")
-    print("\n".join(table(args.lent, args.joined, args.alone)))
+    print("\n".join(table(args.lent, args.joined, args.alone, (names[0], names[1]))))
 
 
 if __name__ == "__main__":
