@@ -1340,7 +1340,8 @@ def test_one_map_a_place_against_lent_copies_is_what_its_command_prints(
 def test_one_map_a_place_in_the_edge_node_is_what_its_commands_print(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """The joined place with every walk's loops: four devices on walks of their own against
-    lent copies and alone, and against the runs whose joined walks' loops failed; the
+    lent copies and alone (the cover by points too), and against the runs whose joined
+    walks' loops failed; the
     7-Scenes pair again against lending and against the first joined arm — as the table
     scripts print them from the committed CSVs."""
     monkeypatch.syspath_prepend(str(FIGURES))           # joined_place_table's sibling
@@ -1349,6 +1350,7 @@ def test_one_map_a_place_in_the_edge_node_is_what_its_commands_print(
     for first, second, names in (
             ("lent", "join", ("lent copies", "joined")), ("alone", "join", ("alone", "joined")),
             ("alone", "lent", ("alone", "lent copies")),
+            ("points-lent", "points-join", ("lent copies", "joined")),
             ("join-walk-loops-failing", "join",
              ("joined (the joined walks' loops failing)", "joined"))):
         printed = walks.table(folder / "place-walks" / f"{first}.csv",
