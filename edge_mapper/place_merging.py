@@ -501,9 +501,7 @@ class PlaceMerging:
         if order.index(root) < order.index(device):
             stay, met, movers, motion = root, device, self.place_of(device), merge
         else:
-            inverse = MapMerge(merge.place, merge.joining, np.linalg.inv(merge.alignment),
-                               merge.inliers)
-            stay, met, movers, motion = device, other, self.place_of(root), inverse
+            stay, met, movers, motion = device, other, self.place_of(root), merge.inverse()
         cores = self.cores()
         for m in movers:
             cores[m].align(motion.alignment)
@@ -536,9 +534,7 @@ class PlaceMerging:
         if len(theirs) > 1 or (len(mine) == 1 and order.index(root) < order.index(device)):
             stay, mover, motion = root, device, merge
         else:
-            stay, mover = device, root
-            motion = MapMerge(merge.place, merge.joining, np.linalg.inv(merge.alignment),
-                              merge.inliers)
+            stay, mover, motion = device, root, merge.inverse()
         try:
             cores[mover].join_place(cores[stay], foreign_tag(self.source(mover)),
                                     motion.alignment)

@@ -94,6 +94,10 @@ class MapMerge:
     alignment: np.ndarray
     inliers: int
 
+    def inverse(self) -> MapMerge:
+        """The same merge seen from the other map: its keyframe joining, the motion back."""
+        return MapMerge(self.place, self.joining, np.linalg.inv(self.alignment), self.inliers)
+
 
 class MergeFinder:
     """Looks for another map's place in one joining map's new keyframes, and confirms it
