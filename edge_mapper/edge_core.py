@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from edge_mapper.checkpoint_writer import CheckpointWriter
-from edge_mapper.place_ids import PlaceIds
+from edge_mapper.place_ids import PlaceIds, PlaceJoin
 from edge_mapper.planning_world import at_the_edge, extrapolate
 from edge_mapper.restores import (
     MIN_VISIBLE,
@@ -773,15 +773,18 @@ class EdgeMapperCore:
         self._seen_from = [move @ p for p in self._seen_from]
         self._relocalised_views = [move @ p for p in self._relocalised_views]
 
-    def join_place(self, place: EdgeMapperCore, tag: int, alignment: np.ndarray) -> None:
+    def join_place(self, place: EdgeMapperCore, tag: int, alignment: np.ndarray,
+                   fellows: Sequence[EdgeMapperCore] = ()) -> None:
         """This device's map joined into the map of ``place``'s device — the core of the
         device a merge found it with (:mod:`twinslam.slam.back_end.map_merging`; ``alignment``
         this map's frame into that one's) — under the device tag ``tag``
         (:func:`~twinslam.slam.back_end.place_joining.join_into_place`; call it between
-        slots). From the next map update on the device holds its slice of the place's map;
-        the place's bundle adjustment and loops are ``place``'s core's to run. Its open
-        slots, the uploads they wait for and the tracks it resolved are renamed into the
-        place's ids; what the device sends from now on is renamed as it comes in
+        slots), with the devices that joined this one's place before (``fellows``: the
+        cores of every other device of its map, each going on under its tag). From the next
+        map update on each device holds its slice of the place's map; the place's bundle
+        adjustment and loops are ``place``'s core's to run. Each one's open slots, the
+        uploads they wait for and the tracks it resolved are renamed into the place's ids;
+        what the device sends from now on is renamed as it comes in
         (:class:`~edge_mapper.place_ids.PlaceIds`). Not yet where either core writes a
         checkpoint: the place's file would need every device's record (ValueError)."""
         if self.checkpoint is not None or place.checkpoint is not None:
@@ -789,25 +792,42 @@ class EdgeMapperCore:
         if not self.serves_place or not place.serves_place or place is self:
             raise ValueError("a device joins the place of a device whose map is its place's, "
                              "once")
-        record, fused = join_into_place(place.back_end, self.back_end, tag, alignment)
+        cores = [self, *fellows]
+        if len({id(core.device) for core in cores}) != len(cores) or \
+                any(core.back_end is not self.back_end for core in fellows) or \
+                {id(core.device) for core in cores} != {id(d) for d in self.back_end.devices}:
+            raise ValueError("a place joins another with every device of its map, each once")
+        records, fused = join_into_place(place.back_end, self.back_end, tag, alignment)
         self.back_end.close()
-        self.back_end, self._device = place.back_end, record
-        self.ids = PlaceIds(tag, record.version, fused)
+        new_record = {id(old): new for old, new in
+                      zip(self.back_end.devices, records, strict=True)}
+        for core in cores:
+            record = new_record[id(core.device)]
+            core._enter_place(place.back_end, record,
+                              PlaceJoin(tag, record.version, fused), alignment)
+
+    def _enter_place(self, back_end: MapBackEnd, record: DeviceRecord, join: PlaceJoin,
+                     alignment: np.ndarray) -> None:
+        """This device goes on as ``record`` of ``back_end``'s place, its map joined into it
+        by ``join`` (:meth:`join_place`): what it keeps between slots renamed by the join."""
+        self.back_end, self._device = back_end, record
+        self.ids = self.ids.joined(record.tag, join)
         self.planner.map, self.planner.entered = record.slice, record.entered
-        self.planner.last_seen = {tag | k: s for k, s in self.planner.last_seen.items()}
-        frame = self.ids.frame
-        self.pending = {s: (dataclasses.replace(action, upload=[frame(f) for f in action.upload],
-                                                evict=[tag | k for k in action.evict],
-                                                restore=[tag | k for k in action.restore]),
-                            {frame(f) for f in received})
+        self.planner.last_seen = {join.keyframe(k): s for k, s in self.planner.last_seen.items()}
+        keyframe = join.keyframe
+        self.pending = {s: (dataclasses.replace(action,
+                                                upload=[keyframe(f) for f in action.upload],
+                                                evict=[keyframe(k) for k in action.evict],
+                                                restore=[keyframe(k) for k in action.restore]),
+                            {keyframe(f) for f in received})
                         for s, (action, received) in self.pending.items()}
-        self._arriving = {frame(f): self.ids.observations(obs)
+        # what came in before the join, in the ids of the map it joined from
+        self._arriving = {keyframe(f): join.observations(obs)
                           for f, obs in self._arriving.items()}
-        self._held = {s: [self.ids.upload(d, self._version_of(d)) for d in held]
-                      for s, held in self._held.items()}
-        self._refused = {s: {frame(f): why for f, why in refused.items()}
+        self._held = {s: [join.upload(d) for d in held] for s, held in self._held.items()}
+        self._refused = {s: {keyframe(f): why for f, why in refused.items()}
                          for s, refused in self._refused.items()}
-        self._previous_tracks = {t: self.ids.point(p) for t, p in self._previous_tracks.items()}
+        self._previous_tracks = {t: join.point(p) for t, p in self._previous_tracks.items()}
         self._move_views(np.asarray(alignment, dtype=np.float64))
 
     def leave_place(self) -> list[int]:
@@ -819,12 +839,6 @@ class EdgeMapperCore:
         if self.serves_place:
             raise ValueError("the device of the place's own map does not leave it")
         return self.back_end.remove_device(self.device, max(self.newest_planned, 0))
-
-    def _version_of(self, data: KeyFramePayload) -> int:
-        """The map version a held upload was tracked on, as its slot's summary said (-1:
-        unknown)."""
-        observed = self._arriving.get(self.ids.frame(data.frame_id))
-        return observed.map_version if observed else -1
 
     def optimise(self) -> BundleAdjustmentResult | None:
         """The back end's local bundle adjustment (:meth:`MapBackEnd.optimise`)."""

@@ -67,6 +67,13 @@ copies' tags are functions of the lenders' names: an edge restarted from its che
 standby taking them over, serves each device in the place it left (:meth:`PlaceMerging.serve`)
 — no look, no keyframe adopted twice, no loop followed twice — whatever order its devices come
 back in. A device whose root is not served (yet) is a place of its own again and looks.
+
+With ``join`` (the edge's ``merge_join``) a merge makes the two places one map instead, and
+nothing is lent (:meth:`PlaceMerging._join`): the map of the place that moves — a place of
+one device where the other holds several, else the later root's — joins the other's back
+end whole, its devices' keyframes under their tags
+(:func:`~twinslam.slam.back_end.place_joining.join_into_place`), and each of its devices
+goes on in the place's map (:meth:`~edge_mapper.edge_core.EdgeMapperCore.join_place`).
 """
 
 from __future__ import annotations
@@ -169,9 +176,6 @@ class PlaceMerging:
         #: joined device → its core, whose record leaves the place's back end with it
         #: (:meth:`forget`: the edge no longer serves it, so :attr:`cores` has it no more)
         self._joined_cores: dict[str, EdgeMapperCore] = {}
-        #: the places of several devices each that met, by their roots (said once each:
-        #: two such places do not join yet)
-        self._unjoined: set[tuple[str, str]] = set()
         #: with :attr:`join`, a device whose place's first device left → that device: its
         #: slots go on in the place's map, which nobody adjusts or joins any more
         self._headless: dict[str, str] = {}
@@ -363,11 +367,7 @@ class PlaceMerging:
         ``device`` is the root of its own (a device that joined another looks no more)."""
         if device not in self.cores() or device in self.joined or device in self._headless:
             return []
-        others = [d for d in self.cores() if self.root(d) != device and d not in self._headless]
-        if self.join and len(self.place_of(device)) > 1:
-            # one of two places that join holds one device: its map joins the other's
-            return [d for d in others if len(self.place_of(d)) == 1]
-        return others
+        return [d for d in self.cores() if self.root(d) != device and d not in self._headless]
 
     def before_slot_end(self, device: str, slot: int
                         ) -> tuple[MergeEvent | None, int, list[FollowedLoop]]:
@@ -515,39 +515,39 @@ class PlaceMerging:
 
     def _join(self, device: str, other: str, merge: MapMerge, ms: float) -> None:
         """``device``'s place (it is the root) and ``other``'s made one map — ``merge``
-        carries ``device``'s frame into ``other``'s: the map of a place of one device joins
-        the other place's (:meth:`EdgeMapperCore.join_place`) under its device's tag, by
-        ``merge`` or its inverse; where both places are one device each, the one served later
-        joins. Two places of several devices each do not join yet (said once, with the
-        looks' failures): their keyframes would need a tag of a tag."""
+        carries ``device``'s frame into ``other``'s: one place's map joins the other's
+        (:meth:`EdgeMapperCore.join_place`), its first device's keyframes under that
+        device's tag, its other devices' under theirs, by ``merge`` or its inverse. A place
+        of one device joins a place of several (the fewer keyframes move); otherwise the
+        place whose root the edge served later joins, as :meth:`_merge_places` moves it."""
         cores = self.cores()
         root = self.root(other)
         mine, theirs = self.place_of(device), self.place_of(root)
-        if len(mine) > 1 and len(theirs) > 1:
-            if (device, root) not in self._unjoined:
-                self._unjoined.add((device, root))
-                self._failed.append(f"{device}'s place ({len(mine)} devices) met {root}'s "
-                                    f"({len(theirs)} devices): two places of several devices "
-                                    "each do not join yet")
-            return
         order = list(cores)
-        if len(theirs) > 1 or (len(mine) == 1 and order.index(root) < order.index(device)):
-            stay, mover, motion = root, device, merge
+        if (len(mine) == 1) != (len(theirs) == 1):
+            mine_moves = len(mine) == 1
         else:
-            stay, mover, motion = device, root, merge.inverse()
+            mine_moves = order.index(root) < order.index(device)
+        if mine_moves:
+            stay, mover, motion, movers = root, device, merge, mine
+        else:
+            stay, mover, motion, movers = device, root, merge.inverse(), theirs
         try:
             cores[mover].join_place(cores[stay], foreign_tag(self.source(mover)),
-                                    motion.alignment)
+                                    motion.alignment,
+                                    [cores[d] for d in movers if d != mover])
         except ValueError as exc:
             self._failed.append(f"{mover}'s map could not join {stay}'s place: {exc}")
             return
-        self.joined[mover] = stay
-        self._joined_cores[mover] = cores[mover]
-        self._queries.pop(mover, None)
-        # the device of the moving place whose map met the other place's: the mover itself
-        self._moved[mover] = MergeEvent(mover, stay, motion, ms)
-        if mover != device:
-            self._brought.setdefault(device, []).append(self._moved[mover])
+        # the device of the moving place whose map met the other place's
+        met = device if mine_moves else other
+        for m in movers:
+            self.joined[m] = stay
+            self._joined_cores[m] = cores[m]
+            self._queries.pop(m, None)
+            self._moved[m] = MergeEvent(m, stay, motion, ms, "" if m == met else met)
+            if not mine_moves:
+                self._brought.setdefault(device, []).append(self._moved[m])
 
     def brought(self, device: str) -> list[MergeEvent]:
         """The merges ``device``'s own looks made since the last call that moved other

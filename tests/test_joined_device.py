@@ -159,3 +159,74 @@ def test_a_joined_device_coming_where_the_place_was_mapped_takes_its_keyframes_i
     _walk(second, other, range(3, 6))
     taken = [k for k in second.slice.keyframe_ids() if k < 1 << TAG_SHIFT]
     assert taken and all(first.slice.holds(k) or k in first.archive for k in taken)
+
+
+def _turned(angle: float, shift: tuple[float, float, float]) -> np.ndarray:
+    """A frame turned ``angle`` about y and shifted by ``shift`` in the first device's."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, 0, s, shift[0]], [0, 1, 0, shift[1]], [-s, 0, c, shift[2]],
+                     [0, 0, 0, 1]])
+
+
+def test_a_place_of_two_devices_joins_another_and_each_goes_on_in_it() -> None:
+    # two places, two devices each: ar2 joined ar1's, ar4 joined ar3's; then ar3's place —
+    # ar3's map with ar4's keyframes in it under ar4's tag — joins ar1's whole
+    third_frame, fourth_frame = _turned(0.3, (-0.2, 0.0, 0.1)), _turned(-0.2, (0.15, 0.0, 0.0))
+    first, second, third, fourth = _core(), _core(), _core(), _core()
+    walker, other = Device(np.random.default_rng(0)), Elsewhere(np.random.default_rng(1))
+    third_dev, fourth_dev = Elsewhere(np.random.default_rng(2)), Elsewhere(np.random.default_rng(3))
+    third_dev.frame, fourth_dev.frame = np.linalg.inv(third_frame), np.linalg.inv(fourth_frame)
+    for core, device in ((first, walker), (second, other), (third, third_dev),
+                         (fourth, fourth_dev)):
+        _walk(core, device, range(3))
+    second.join_place(first, TAG, ALIGNMENT)
+    # ar4's summaries sent on its own map, before either join
+    before_both = [dataclasses.replace(fourth_dev.summary(f, fourth),
+                                       map_version=fourth.version) for f in range(3 * F, 4 * F)]
+    fourth_tag, third_tag = foreign_tag(3), foreign_tag(2)
+    fourth.join_place(third, fourth_tag, np.linalg.inv(third_frame) @ fourth_frame)
+    _walk(fourth, fourth_dev, range(3, 4))      # its slot open at the join, on its own map
+    fourth_dev.frame = np.linalg.inv(third_frame)          # its map update moved it
+    # ar4's slot 4 open at the second join: planned on ar3's place's map, its uploads made
+    plan, in_flight = _slot(fourth, fourth_dev, 4, version=fourth.version)
+    assert plan.action.upload
+    third_keyframes = set(third.map.keyframes)
+
+    with pytest.raises(ValueError, match="every device"):      # ar4 cannot stay behind
+        third.join_place(first, third_tag, third_frame)
+    third.join_place(first, third_tag, third_frame, [fourth])
+    place = first.back_end
+    assert all(core.back_end is place for core in (second, third, fourth))
+    assert first.serves_place and not any(c.serves_place for c in (second, third, fourth))
+    assert [d.tag for d in place.devices] == [0, TAG, third_tag, fourth_tag]
+    # ar3's own keyframes take its tag, ar4's keep theirs; each where the truth has it
+    assert set(place.map.keyframes) >= {k if k >> TAG_SHIFT else third_tag | k
+                                        for k in third_keyframes}
+    for device, core in ((third_dev, third), (fourth_dev, fourth)):
+        own = core.slice.keyframe_ids()
+        assert own and all(core.device.owns(k) for k in own)
+        for k in own:
+            truth = device.pose(source_id(k))
+            assert np.linalg.norm(place.map.keyframes[k].pose[:3, 3] - truth[:3, 3]) < 0.05
+    # ar4's summaries of its own map, renamed through both joins, name the points its
+    # tracks became in the place's map (the summary it would send now names them too)
+    now = [fourth_dev.summary(f, fourth) for f in range(3 * F, 4 * F)]
+    renamed = fourth.resolve_tracks(before_both)
+    kept = [f.map_points & place.map.points.keys() for f in renamed]
+    assert sum(map(len, kept)) > 100 and \
+        sum(map(len, kept)) >= 0.9 * sum(len(f.map_points) for f in renamed)
+    assert all(k <= f.map_points for k, f in zip(kept, now, strict=True))
+    # its uploads tracked between the joins find their points, in the place's frame
+    reports = [fourth.add_keyframe(d) for d in in_flight]
+    assert all(r is not None and not r.refused and r.associated + r.tracked > 0
+               for r in reports)
+    assert fourth.finish_slot(4).integrated == sorted(fourth_tag | d.frame_id
+                                                      for d in in_flight)
+    # every device goes on in the one place
+    fourth_dev.frame = third_dev.frame = other.frame = np.eye(4)
+    for core, device in ((first, walker), (second, other), (third, third_dev),
+                         (fourth, fourth_dev)):
+        _walk(core, device, range(5 if core is fourth else 3, 6))
+        assert all(core.device.owns(k) or k in place.map.keyframes
+                   for k in core.slice.keyframe_ids())
+    assert first.version == 6 and fourth.version == 6

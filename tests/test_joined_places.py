@@ -24,6 +24,7 @@ from tests.test_map_merging import (
     SECOND_IN_FIRST,
     Room,
     _core,
+    _payload,
     _room_and_newcomer,
     _second_pose,
     _walk_ar2_into_the_room,
@@ -76,6 +77,55 @@ def test_a_later_device_joins_the_earlier_ones_map_and_borrows_nothing(
     assert merging.before_slot_end("ar1", 4) == (None, 0, [])
     assert merging.before_slot_end("ar2", 4) == (None, 0, [])
     assert len(place.archive) == len(room[1]) and not merging.failures()
+
+
+def test_two_places_of_two_devices_each_become_one_map(room: Room) -> None:  # noqa: F811
+    """ar4's map joined ar1's place and ar3's joined ar2's; ar1 finds itself in ar2's map:
+    the later place — ar2's map with ar3's keyframes in it — joins ar1's whole, by the
+    inverse motion: ar2's keyframes, archived ones too, under ar2's tag, ar3's under their
+    own, each where the merge puts them; every device of it told at its own slot end, and
+    none of the four looks any more."""
+    _, archive, _ = room
+    cores = {name: _core() for name in ("ar1", "ar2", "ar3", "ar4")}
+    for kf in archive:                                 # ar2's map of the room
+        cores["ar2"].archive.add(kf)
+    cores["ar2"].map.add_keyframe(999, archive.get(270).pose)
+    cores["ar3"].map.add_keyframe(5, archive.get(270).pose)   # ar3's map, in ar2's frame
+    cores["ar4"].map.add_keyframe(7, np.eye(4))               # ar4's, in ar1's
+    for core in cores.values():
+        core.back_end.device.k = room[0].intrinsics                    # type: ignore[attr-defined]
+    merging = PlaceMerging(lambda: cores, background=False, join=True)
+    for device, root in (("ar3", "ar2"), ("ar4", "ar1")):     # as merges before left them
+        cores[device].join_place(cores[root], foreign_tag(source_of(device)), np.eye(4))
+        merging.joined[device] = root
+    assert merging.others("ar1") == ["ar2", "ar3"] and merging.others("ar2") == ["ar1", "ar4"]
+    for slot, (key, frame) in enumerate(((10, 4), (11, 34), (12, 64), (13, 94), (14, 124))):
+        cores["ar1"].map.add_keyframe(key, _second_pose(room, frame))
+        merging.keyframe("ar1", _payload(room, frame, key))
+        assert merging.take("ar1") is None
+        merging.look("ar1", slot)
+    assert merging.take("ar1") is None and not merging.failures()
+    assert merging.joined == {"ar2": "ar1", "ar3": "ar1", "ar4": "ar1"}
+    place = cores["ar1"].back_end
+    assert all(core.back_end is place for core in cores.values())
+    assert cores["ar1"].serves_place and not any(cores[d].serves_place
+                                                 for d in ("ar2", "ar3", "ar4"))
+    second, third = (foreign_tag(source_of(d)) for d in ("ar2", "ar3"))
+    assert {d.tag for d in place.devices} == {0, second, third,
+                                               foreign_tag(source_of("ar4"))}
+    assert cores["ar2"].slice.keyframe_ids() == [second | 999]
+    assert cores["ar3"].slice.keyframe_ids() == [third | 5]
+    assert len(place.archive) == len(archive) and all(tag_of(kf.id) == second
+                                                     for kf in place.archive)
+    moved = np.linalg.inv(SECOND_IN_FIRST) @ archive.get(270).pose
+    for kf_id in (second | 999, third | 5):
+        off = np.linalg.inv(moved) @ place.map.keyframes[kf_id].pose
+        assert np.linalg.norm(off[:3, 3]) < 0.03 and rotation_angle_deg(off[:3, :3]) < 0.5
+    told = {d: merging.take(d) for d in ("ar2", "ar3", "ar4")}
+    assert told["ar4"] is None
+    assert (told["ar2"].place, told["ar2"].via) == ("ar1", "")         # type: ignore[union-attr]
+    assert (told["ar3"].place, told["ar3"].via) == ("ar1", "ar2")      # type: ignore[union-attr]
+    assert all(merging.others(d) == [] for d in cores)
 
 
 def test_a_joined_device_that_leaves_hands_its_keyframes_to_the_places_archive(

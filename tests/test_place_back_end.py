@@ -137,7 +137,7 @@ def test_a_joining_map_enters_its_place_moved_and_tagged_and_its_device_goes_on_
                                        [0, 0, 0, 1]])
     points_before = {k: set(kf.points) for k, kf in joining.map.keyframes.items()}
     a_point = next(iter(points_before[3]))
-    record, fused = join_into_place(place, joining, TAG, alignment)
+    [record], fused = join_into_place(place, joining, TAG, alignment)
     assert not fused                        # two walls of their own: no corner of the place's
 
     assert record.slice.keyframe_ids() == [TAG | 2, TAG | 3]
@@ -171,7 +171,7 @@ def test_a_joining_map_enters_its_place_moved_and_tagged_and_its_device_goes_on_
     assert place.map.keyframes[TAG | 1].points == {TAG | p for p in points_before[2]}
 
 
-def test_a_map_holding_another_devices_copies_does_not_join() -> None:
+def test_a_map_holding_another_devices_copies_or_a_taken_tag_does_not_join() -> None:
     place = MapBackEnd(BackEndConfig(ba_window=0), FIRST)
     joining = _joining_map()
     copy = ArchivedKeyFrame.of(joining.map, 2, 4)
@@ -180,6 +180,12 @@ def test_a_map_holding_another_devices_copies_does_not_join() -> None:
         join_into_place(place, joining, TAG, np.eye(4))
     with pytest.raises(ValueError, match="rigid motion"):
         join_into_place(place, _joining_map(), TAG, np.full((4, 4), np.nan))
+    # a place that has the tag already: refused before anything moved
+    join_into_place(place, _joining_map(), TAG, np.eye(4))
+    keyframes = set(place.map.keyframes)
+    with pytest.raises(ValueError, match="not free"):
+        join_into_place(place, _joining_map(), TAG, np.eye(4))
+    assert set(place.map.keyframes) == keyframes and len(place.devices) == 2
 
 
 def test_a_restore_takes_a_keyframe_another_device_holds_as_it_is() -> None:

@@ -296,6 +296,21 @@ class MapBackEnd:
         self.store.slices.remove(record.slice)
         return forgotten
 
+    def newest_slots(self) -> dict[int, int]:
+        """Each walk's (its device's tag's) newest slot a keyframe of it was integrated at,
+        that device's own slot."""
+        return dict(self._newest_slot)
+
+    def carry_integration_slots(self, integrated_at: Mapping[int, int],
+                                newest: Mapping[int, int]) -> None:
+        """The slots a joining map's keyframes were integrated at (``integrated_at``, by
+        their ids here) and its walks' newest (``newest``, by their tags here): its walks
+        go on here, and which of their keyframes another walk's loop may close with is
+        counted by their own devices' slots as before (:meth:`_across`)."""
+        self.integrated_at.update(integrated_at)
+        for walk, slot in newest.items():
+            self._newest_slot[walk] = max(slot, self._newest_slot.get(walk, -1))
+
     @property
     def map(self) -> KeyFrameMap:
         """The managed map: the store's slice, the keyframes the device holds."""
@@ -579,8 +594,9 @@ class MapBackEnd:
         """The keyframes of other devices (of ``poses``: every keyframe's) a loop of walk
         ``walk`` may close with at ``slot``, with ``loops_across_devices``: in a place of
         several devices, the other walks' keyframes integrated ACROSS_GAP_SLOTS or more of
-        their own device's slots before its newest (those its map brought when it joined
-        count as old; devices count slots from their own starts); in a map of one device,
+        their own device's slots before its newest (devices count slots from their own
+        starts; a joined map's keyframes keep the slots they were integrated at,
+        :meth:`carry_integration_slots`); in a map of one device,
         the copies of the devices of :attr:`loop_across` adopted ACROSS_GAP_SLOTS before
         ``slot`` or earlier (one adopted before the edge kept adoption slots counts as old).
         A place where the other

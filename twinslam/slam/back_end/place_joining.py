@@ -12,11 +12,15 @@ others' (docs/architecture.md §10, "Devices in one place", step 2(b)). This mod
   :data:`~twinslam.slam.back_end.foreign_keyframes.TAG_SHIFT` — its keyframe ids are its frame
   indices and its point ids its own map's count, both of which collide with the place's. A
   point made after the join takes the place's next id (one counter a place); only what was
-  there at the join carries the tag;
-* what is the joining device's own becomes its record in the place's back end
-  (:class:`~twinslam.slam.back_end.device_record.DeviceRecord`): its slice holds its own
-  keyframes as it held them, its tracks resolve to the moved points, its keyframes keep their
-  entry order and capture times, and its frame moves by the alignment from its next map
+  there at the join carries the tag. A joining place of several devices (two places that
+  grew apart, each joined by others, then met) brings its other devices' keyframes and the
+  points they made before they joined it under their tags already: those keep their ids, and
+  only its first device's own — its keyframes, the place's untagged points — take the tag;
+* what is each joining device's own becomes its record in the place's back end
+  (:class:`~twinslam.slam.back_end.device_record.DeviceRecord`): its slice holds the
+  keyframes it held, its tracks resolve to the moved points, its keyframes keep their entry
+  order, capture times and the slots they were integrated at (which other walks' keyframes a
+  walk's loop may close with), and its frame moves by the alignment from its next map
   version, as :meth:`MapBackEnd.align` would have moved it.
 
 * the points the two devices made of one corner become one: each joining keyframe's points
@@ -41,7 +45,7 @@ import math
 import numpy as np
 
 from twinslam.slam.back_end.device_record import DeviceRecord
-from twinslam.slam.back_end.foreign_keyframes import foreign_mask, is_foreign
+from twinslam.slam.back_end.foreign_keyframes import foreign_mask, is_foreign, tag_of
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.back_end.map_back_end import MapBackEnd, checked_alignment
@@ -49,93 +53,130 @@ from twinslam.slam.back_end.point_fusion import MapPoints, duplicates_in_view
 
 
 def join_into_place(place: MapBackEnd, joining: MapBackEnd, tag: int,
-                    alignment: np.ndarray) -> tuple[DeviceRecord, dict[int, int]]:
-    """The map of ``joining``'s device, found in ``place`` with the rigid motion ``alignment``
-    (its frame into the place's), joined into ``place`` under the device tag ``tag`` (see the
-    module's text); (the device's record there, each of its points fused into the place's
-    by the id it had in the place's map at the join: the place's point it became).
-    ``joining`` is left as it was: its device is served by ``place`` from now on, and the
-    caller stops using it (closing its loop closer)."""
+                    alignment: np.ndarray) -> tuple[list[DeviceRecord], dict[int, int]]:
+    """The map of ``joining``'s place, found in ``place`` with the rigid motion ``alignment``
+    (its frame into the place's), joined into ``place``: its own ids — its first device's
+    keyframes, its untagged points — under the device tag ``tag``, the ids of its other
+    devices (a place of several devices) under their tags as they are (see the module's
+    text); (each device's record there, in the order of ``joining.devices``; each of its
+    points fused into the place's by the id it had in the place's map at the join: the
+    place's point it became). ``joining`` is left as it was: its devices are served by
+    ``place`` from now on, and the caller stops using it (closing its loop closer). A tag
+    ``place`` has already, or ``joining`` holding copies lent by another map: ValueError,
+    nothing changed."""
     alignment = checked_alignment(alignment)
-    if len(joining.devices) != 1:
-        raise ValueError("a back end that serves several devices cannot join another place")
-    if any(is_foreign(k) for k in joining.store.ids()):
+    walks = {device.tag for device in joining.devices}
+    if any(is_foreign(k) and tag_of(k) not in walks for k in joining.store.ids()):
         raise ValueError("a map holding copies of another device's keyframes cannot join a "
                          "place: lending and joining are two ways to share it")
-    own = joining.device
-    record = place.add_device(tag, own.k, origin=alignment @ own.origin)
+    tags = [device.tag or tag for device in joining.devices]
+    taken = {device.tag for device in place.devices}
+    if tag in walks or len(set(tags)) != len(tags) or taken & set(tags):
+        raise ValueError(f"the joining place's device tags {sorted(tags)} are not free in "
+                         "the place")
+    records = [place.add_device(new, device.k, origin=alignment @ device.origin)
+               for new, device in zip(tags, joining.devices, strict=True)]
     points = _move_points(place.map, joining.map, tag, alignment)
     keyframe_ids = _move_keyframes(place.map, joining, tag, alignment, points)
-    place.store.entered(keyframe_ids, record.slice)
-    archived = [_moved_archived(kf, tag, alignment, own.k) for kf in joining.archive]
+    _hold_as_before(place, joining, records, tag, keyframe_ids)
+    archived = [_moved_archived(kf, tag, alignment, joining.device.k)
+                for kf in joining.archive]
     place.archive_keyframes(archived, "writing the joined map's archived keyframes' files")
-    _carry_record(record, own, tag, alignment, points)
-    return record, _fuse_duplicates(place, record, keyframe_ids)
+    for record, device in zip(records, joining.devices, strict=True):
+        _carry_record(record, device, tag, alignment, points)
+    place.carry_integration_slots(
+        {_renamed(k, tag): slot for k, slot in joining.integrated_at.items()},
+        {(walk or tag): slot for walk, slot in joining.newest_slots().items()})
+    return records, _fuse_duplicates(place, records, keyframe_ids)
+
+
+def _renamed(item_id: int, tag: int) -> int:
+    """A keyframe or point id of the joining place as the place it joins names it: its own
+    (untagged) under ``tag``, another device's under that device's tag as it is."""
+    return int(item_id) if is_foreign(item_id) else tag | int(item_id)
 
 
 def _move_points(place: KeyFrameMap, joining: KeyFrameMap, tag: int,
                  alignment: np.ndarray) -> dict[int, int]:
-    """Every point of ``joining`` into ``place``, moved by ``alignment``, under its tagged id;
-    its id there by its id in ``joining``."""
+    """Every point of ``joining`` into ``place``, moved by ``alignment``, under its new id
+    (:func:`_renamed`); its id there by its id in ``joining``."""
     ids, rows = joining.point_rows()
-    tagged = [tag | p for p in ids.tolist()]
+    renamed = [_renamed(p, tag) for p in ids.tolist()]
     positions = joining.columns.positions[rows] @ alignment[:3, :3].T + alignment[:3, 3]
-    place.readd_points(tagged, positions, joining.columns.descriptors[rows])
-    return dict(zip(ids.tolist(), tagged, strict=True))
+    place.readd_points(renamed, positions, joining.columns.descriptors[rows])
+    return dict(zip(ids.tolist(), renamed, strict=True))
 
 
 def _move_keyframes(place: KeyFrameMap, joining: MapBackEnd, tag: int, alignment: np.ndarray,
                     points: dict[int, int]) -> list[int]:
     """Every keyframe of ``joining``'s map into ``place``, moved by ``alignment``, under its
-    tagged id, observing the moved points where it saw them, read with the joining device's
-    camera; the tagged ids."""
+    new id, observing the moved points where it saw them, read with the camera that took
+    it (the joining place's first device's, where the keyframe names none); the new ids."""
     moved = []
     camera = joining.device.k
     for kf_id, kf in joining.map.keyframes.items():
-        place.add_keyframe(tag | kf_id, alignment @ kf.pose,
+        new_id = _renamed(kf_id, tag)
+        place.add_keyframe(new_id, alignment @ kf.pose,
                            camera if kf.intrinsics is None else kf.intrinsics)
         # in the order it came to observe them; a point seen with no measurement too (NaN)
         seen = [*kf.measurements, *sorted(p for p in kf.points if p not in kf.measurements)]
         uvd = [kf.measurements.get(p, (math.nan, math.nan, math.nan)) for p in seen]
-        place.observe_many(tag | kf_id, [points[p] for p in seen],
+        place.observe_many(new_id, [points[p] for p in seen],
                            [[u, v] for u, v, _ in uvd], [d for _, _, d in uvd])
-        moved.append(tag | kf_id)
+        moved.append(new_id)
     return moved
+
+
+def _hold_as_before(place: MapBackEnd, joining: MapBackEnd, records: list[DeviceRecord],
+                    tag: int, moved: list[int]) -> None:
+    """Each joining device's slice holds the moved keyframes it held before — in a place of
+    several devices, two devices may hold one — and no device of ``place`` holds any."""
+    moved_set = set(moved)
+    for record, device in zip(records, joining.devices, strict=True):
+        held = {_renamed(k, tag) for k in device.slice.keyframes}
+        record.slice.set_apart(moved_set - held)
+        record.slice.take_in(held)
+    new_slices = [record.slice for record in records]
+    for other in place.store.slices:
+        if not any(other is mine for mine in new_slices):
+            other.set_apart(moved_set)
 
 
 def _moved_archived(kf: ArchivedKeyFrame, tag: int, alignment: np.ndarray,
                     camera: np.ndarray) -> ArchivedKeyFrame:
-    """An archived keyframe of the joining map as the place's archive keeps it: moved, its id
-    and its points' ids tagged, its camera named."""
+    """An archived keyframe of the joining map as the place's archive keeps it: moved, its
+    id and its points' ids renamed (:func:`_renamed`), its camera named."""
     own_points = ~foreign_mask(kf.point_ids)
     return dataclasses.replace(
-        kf.moved(alignment), id=tag | kf.id,
+        kf.moved(alignment), id=_renamed(kf.id, tag),
         point_ids=np.where(own_points, kf.point_ids | tag, kf.point_ids),
         intrinsics=camera.copy() if kf.intrinsics is None else kf.intrinsics)
 
 
 def _carry_record(record: DeviceRecord, own: DeviceRecord, tag: int, alignment: np.ndarray,
                   points: dict[int, int]) -> None:
-    """What the joining device's record held, under the place's ids: its tracks' points, its
+    """What a joining device's record held, under the place's ids: its tracks' points, its
     keyframes' entry order and capture times, its map versions' frames — moved by the
     alignment from its next version, as a merge's motion moves them."""
     record.local_mapping.track_points = {t: points[p] for t, p in
                                          own.local_mapping.track_points.items() if p in points}
     record.local_mapping.new_tracks = {t: points[p] for t, p in
                                        own.local_mapping.new_tracks.items() if p in points}
-    record.entered.update({tag | k: entry for k, entry in own.entered.items()})
-    record.keyframe_stamps.update({tag | k: t for k, t in own.keyframe_stamps.items()})
+    record.entered.update({_renamed(k, tag): entry for k, entry in own.entered.items()})
+    record.keyframe_stamps.update({_renamed(k, tag): t
+                                   for k, t in own.keyframe_stamps.items()})
     record.version = own.version
     record.frame_correction = own.frame_correction.copy()
     record.frames_since = [(v, c.copy()) for v, c in own.frames_since]
     record.frame_moved(alignment)
 
 
-def _fuse_duplicates(place: MapBackEnd, record: DeviceRecord, keyframe_ids: list[int]
+def _fuse_duplicates(place: MapBackEnd, records: list[DeviceRecord], keyframe_ids: list[int]
                      ) -> dict[int, int]:
     """The joined keyframes' points fused into the place's points that duplicate them (the
-    place's own, not the joined device's: those are its map's, one a corner already), the
-    device's tracks following; each fused point's id → the place's point it became."""
+    place's own, not the joining map's: those are its map's, one a corner already), the
+    joining devices' tracks following; each fused point's id → the place's point it
+    became."""
     m = place.map
     joined = {p for k in keyframe_ids for p in m.keyframes[k].points}
     theirs = MapPoints.every(m, but=joined)  # a fusion keeps these: they stay as they are
@@ -151,8 +192,9 @@ def _fuse_duplicates(place: MapBackEnd, record: DeviceRecord, keyframe_ids: list
         now = {mine[row]: keep for row, keep in pairs}
         m.fuse_many([(keep, drop) for drop, keep in now.items()])
         fused.update(now)
-    for table in (record.local_mapping.track_points, record.local_mapping.new_tracks):
-        for track, point in table.items():
-            if point in fused:
-                table[track] = fused[point]
+    for record in records:
+        for table in (record.local_mapping.track_points, record.local_mapping.new_tracks):
+            for track, point in table.items():
+                if point in fused:
+                    table[track] = fused[point]
     return fused
