@@ -489,7 +489,7 @@ class DeviceLink:
         for clash in self.merging.tag_clashes():
             self.error(f"slot {slot}: {clash}")
         for notice in self.merging.notices():
-            self.warning(f"slot {slot}: {notice}")
+            self.info(f"slot {slot}: {notice}")
         # a joined map is one map of the place from now on; a merged one its own, borrowing
         joined_or_merged = "joined" if self.merging.join else "merged into"
         for event in self.merging.brought(self.device):

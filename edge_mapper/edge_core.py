@@ -830,6 +830,15 @@ class EdgeMapperCore:
         self._previous_tracks = {t: join.point(p) for t, p in self._previous_tracks.items()}
         self._move_views(np.asarray(alignment, dtype=np.float64))
 
+    def lead_place(self) -> list[int]:
+        """The device that led this device's place (its core ran the place's bundle
+        adjustment) is gone: this device leads the place from now on, its core running the
+        adjustment (:meth:`MapBackEnd.hand_over`: the keyframes only the one gone held go to
+        the place's archive). The archived keyframes forgotten for room."""
+        if self.serves_place:
+            raise ValueError("this device leads its place already")
+        return self.back_end.hand_over(self.device, max(self.newest_planned, 0))
+
     def leave_place(self) -> list[int]:
         """This device, which joined another's place, is gone (its edge reclaimed it, its
         work failed, it started again): the keyframes it held that no other device of the

@@ -176,9 +176,10 @@ class PlaceMerging:
         #: joined device → its core, whose record leaves the place's back end with it
         #: (:meth:`forget`: the edge no longer serves it, so :attr:`cores` has it no more)
         self._joined_cores: dict[str, EdgeMapperCore] = {}
-        #: with :attr:`join`, a device whose place's first device left → that device: its
-        #: slots go on in the place's map, which nobody adjusts or joins any more
-        self._headless: dict[str, str] = {}
+        #: with :attr:`join`, the root of a place its first device handed over → the source
+        #: of the device gone, whose tag the place's untagged ids take where it joins another
+        #: place (:meth:`_join`)
+        self._untagged: dict[str, int] = {}
         #: what the edge's log should say of its places since the last :meth:`notices`
         self._notices: list[str] = []
         #: every device's uploaded keyframes as bags of words: which maps a look goes to
@@ -346,7 +347,7 @@ class PlaceMerging:
         """A keyframe of ``device`` the edge accepted: filed in the keyframe database (a look
         may come to its map), and its features kept for the device's next look."""
         self.database.add(device, data.frame_id, data.descriptors)
-        if device in self.joined or device in self._headless:
+        if device in self.joined:
             return
         queries = self._queries.setdefault(device, [])
         queries.append(LoopQuery.of(data))
@@ -365,9 +366,9 @@ class PlaceMerging:
     def others(self, device: str) -> list[str]:
         """The devices whose maps ``device`` looks in: those of the other places, while
         ``device`` is the root of its own (a device that joined another looks no more)."""
-        if device not in self.cores() or device in self.joined or device in self._headless:
+        if device not in self.cores() or device in self.joined:
             return []
-        return [d for d in self.cores() if self.root(d) != device and d not in self._headless]
+        return [d for d in self.cores() if self.root(d) != device]
 
     def before_slot_end(self, device: str, slot: int
                         ) -> tuple[MergeEvent | None, int, list[FollowedLoop]]:
@@ -532,13 +533,16 @@ class PlaceMerging:
             stay, mover, motion, movers = root, device, merge, mine
         else:
             stay, mover, motion, movers = device, root, merge.inverse(), theirs
+        # the moving map's untagged ids are its first device's, which may have handed the
+        # place over to ``mover`` (:meth:`_leave_joined_place`)
+        untagged = self._untagged.get(mover, self.source(mover))
         try:
-            cores[mover].join_place(cores[stay], foreign_tag(self.source(mover)),
-                                    motion.alignment,
+            cores[mover].join_place(cores[stay], foreign_tag(untagged), motion.alignment,
                                     [cores[d] for d in movers if d != mover])
         except ValueError as exc:
             self._failed.append(f"{mover}'s map could not join {stay}'s place: {exc}")
             return
+        self._untagged.pop(mover, None)
         # the device of the moving place whose map met the other place's
         met = device if mine_moves else other
         for m in movers:
@@ -595,8 +599,9 @@ class PlaceMerging:
         self._looked_among.setdefault(device, set()).update(others)
         rank = functools.partial(self.database.candidates_of, device,
                                  [query.keyframe for query in queries], others)
-        # the other device's camera took its keyframes: the merge's depths read by it
-        look = functools.partial(_look, other_intrinsics=other.k.copy())
+        # the other place's first device's camera took its keyframes that name none (in a
+        # joined place, not ``place``'s own where it joined it): the merge's depths read by it
+        look = functools.partial(_look, other_intrinsics=other.back_end.k.copy())
         if self.background:
             self._running[device] = self.worker.submit(look, *job, self.worker.wait_for_slots,
                                                        rank, after_loops=True)
@@ -665,9 +670,10 @@ class PlaceMerging:
         is their place's root now), and its next map's copies carry a tag of their own — the
         copies of this map that other maps keep are of other keyframes and points than the
         next map's of the same ids."""
+        source = self.source(device)
         self._runs[device] = self._runs.get(device, 0) + 1
         if self.join:
-            self._leave_joined_place(device)
+            self._leave_joined_place(device, source)
         if device not in self.joined:                  # a root: its place goes on without it
             rest = [d for d in self.place_of(device) if d != device]
             for d in rest:
@@ -700,29 +706,29 @@ class PlaceMerging:
         for pair in [pair for pair in self._finders if device in pair]:
             del self._finders[pair]
 
-    def _leave_joined_place(self, device: str) -> None:
-        """With :attr:`join`, ``device`` gone: a device that joined a place leaves it
-        (:meth:`EdgeMapperCore.leave_place`: the keyframes only it held go to the place's
-        archive); the first device of a place others joined takes the place's bundle
-        adjustment with it (its core ran it) — the others' slots go on in the place's map,
-        closing its loops at their slot ends, but nothing adjusts it and no other map joins
-        it any more (said once: handing a place to another of its devices is not built
-        yet)."""
-        self._headless.pop(device, None)
+    def _leave_joined_place(self, device: str, source: int) -> None:
+        """With :attr:`join`, ``device`` (of source ``source``) gone: a device that joined a
+        place leaves it (:meth:`EdgeMapperCore.leave_place`: the keyframes only it held go to
+        the place's archive); the device that leads a place others joined hands it to the
+        next of them in the edge's order (:meth:`EdgeMapperCore.lead_place`), whose core
+        runs the place's bundle adjustment and whose looks look for other places from now on
+        (:meth:`forget` makes it the place's root); the place's untagged ids stay the gone
+        device's, under its tag where the place joins another (said once)."""
         core = self._joined_cores.pop(device, None)
         if core is not None:
             core.leave_place()
             return
         rest = [d for d in self.place_of(device) if d != device]
-        for d in rest:
-            del self.joined[d]
-            self._headless[d] = device
-        if rest:
-            self._notices.append(
-                f"{device}, the first device of a joined place, is no longer served: "
-                f"{', '.join(rest)} go on in its place's map and close its loops, but it runs "
-                "no bundle adjustment from now on and no other map joins it (a place handed "
-                "to another of its devices is not built yet)")
+        if not rest:
+            self._untagged.pop(device, None)
+            return
+        lead = rest[0]
+        self._joined_cores.pop(lead, None)
+        self.cores()[lead].lead_place()
+        self._untagged[lead] = self._untagged.pop(device, source)
+        self._notices.append(f"{device}, the device that led a joined place, is no longer "
+                             f"served: {lead} leads its place from now on (its bundle "
+                             "adjustment, its looks for other places)")
 
     def notices(self) -> list[str]:
         """What the edge's log should say of its places since the last call (once each)."""

@@ -3,7 +3,7 @@ device's map, its map joins that place's — one map, one back end, the joining 
 keyframes under its tag in the place's frame, nothing lent — whose loop closer closes each
 device's walk's loops as that walk's own; and a device leaving a joined place leaves the
 others' map whole: what only it held goes to the place's archive, and a place whose first
-device left is said to run unadjusted, and is joined by no other map."""
+device left is led by the next of its devices."""
 
 from __future__ import annotations
 
@@ -146,26 +146,49 @@ def test_a_joined_device_that_leaves_hands_its_keyframes_to_the_places_archive(
     assert merging.joined == {} and merging.notices() == []
 
 
-def test_a_place_whose_first_device_left_goes_on_unadjusted_and_is_said_so(
+def test_a_place_whose_first_device_left_is_led_by_the_next_one(
         room: Room) -> None:  # noqa: F811
-    """ar1, the place's first device, reclaimed: ar2 goes on in the place's map (its slice
-    kept, its record in the place) but nothing runs the place's adjustment, which the log is
-    told once; ar2 looks for no place, and a newcomer does not look in ar2's map (it could
-    not join a place whose adjusting core is gone)."""
+    """ar1, the place's first device, reclaimed: ar2 leads the place from now on — its core
+    runs the place's adjustment, its looks look for other places, a newcomer looks in its
+    map — and the log is told once; the keyframes only ar1 held go to the place's archive,
+    and ar1's keyframes are still read with ar1's camera, though ar2's differs. Where the
+    place joins another, its untagged ids take ar1's tag, not ar2's, which ar2's keyframes
+    carry already."""
     cores, merging = _joined(room)
     place = cores["ar2"].back_end
+    first_k = place.k.copy()
+    cores["ar2"].device.k = first_k * [[1.1], [1.1], [1]]     # ar2's camera is another
+    ar1_source = merging.source("ar1")
+    held = [k for k in place.map.keyframes if not tag_of(k)]
+    assert held
     del cores["ar1"]
     merging.forget("ar1")
     notices = merging.notices()
-    assert len(notices) == 1 and "ar2 go on in its place's map" in notices[0]
-    assert "no bundle adjustment" in notices[0] and merging.notices() == []
-    assert not cores["ar2"].serves_place and cores["ar2"].device in place.devices
-    assert merging.others("ar2") == []
+    assert len(notices) == 1 and "ar2 leads its place" in notices[0]
+    assert merging.notices() == []
+    assert cores["ar2"].serves_place and place.devices == [cores["ar2"].device]
+    assert all(k in place.archive for k in held)
+    np.testing.assert_array_equal(place.k, first_k)
+    assert merging.joined == {} and merging.root("ar2") == "ar2"
+    # ar3, served before ar2 in the edge's order now, walks into the room: ar2's place,
+    # one device, the later served, joins ar3's
+    ar2 = cores.pop("ar2")
     cores["ar3"] = _core()
+    cores["ar3"].back_end.device.k = room[0].intrinsics                # type: ignore[attr-defined]
+    cores["ar2"] = ar2
     merging.serve("ar3")
-    assert merging.others("ar3") == []
-    merging.forget("ar2")                            # and the last of it may leave too
-    assert cores["ar2"].device not in place.devices
+    assert merging.others("ar3") == ["ar2"] and merging.others("ar2") == ["ar3"]
+    for slot, (key, frame) in enumerate(((10, 4), (11, 64), (12, 124))):
+        cores["ar3"].map.add_keyframe(key, _second_pose(room, frame))
+        merging.keyframe("ar3", _payload(room, frame, key))
+        merging.take("ar3")
+        merging.look("ar3", slot)
+    merging.take("ar3")
+    assert merging.joined == {"ar2": "ar3"} and not merging.failures()
+    joined = cores["ar3"].back_end
+    assert {tag_of(kf.id) for kf in joined.archive} == {foreign_tag(ar1_source)}
+    assert {tag_of(k) for k in ar2.slice.keyframes} == {ar2.device.tag}
+    assert ar2.device.tag == foreign_tag(source_of("ar2"))
 
 
 def test_an_edge_that_joins_maps_refuses_to_start_with_checkpoints(

@@ -218,3 +218,24 @@ def test_a_walks_loop_may_close_with_the_other_walks_keyframes_of_a_few_slots_be
     assert back_end._across(back_end.keyframe_poses(), 0, 0) == {TAG | 1, TAG | 2}
     back_end.config = dataclasses.replace(back_end.config, loops_across_devices=False)
     assert back_end._across(back_end.keyframe_poses(), 0, TAG) == frozenset()
+
+
+def test_a_place_handed_over_keeps_its_first_devices_keyframes_read_with_its_camera() -> None:
+    back_end, second = _place()
+    first = back_end.device
+    back_end.restore([2], [], slot=3, device=second)        # keyframe 2 held by both
+    with pytest.raises(ValueError, match="hands it over"):
+        back_end.remove_device(first, 4)
+    back_end.hand_over(second, slot=4)
+    assert back_end.device is second and back_end.devices == [second]
+    assert 1 in back_end.archive and back_end.slice.holds(2)   # what only it held: archived
+    assert back_end.store.slices == [second.slice]
+    # the first device's keyframes are still read with its camera; the leading device's own
+    # (tagged) name theirs
+    np.testing.assert_array_equal(back_end.k, FIRST)
+    np.testing.assert_array_equal(back_end.camera_of(2).intrinsics, FIRST)
+    assert not back_end.integrate(_upload(TAG | 3, 3.15, SECOND, 5, seed=13), -1,
+                                  second).refused
+    np.testing.assert_array_equal(back_end.camera_of(TAG | 3).intrinsics, SECOND)
+    with pytest.raises(ValueError, match="another device"):
+        back_end.hand_over(second, slot=5)

@@ -211,11 +211,17 @@ class MapBackEnd:
         #: every keyframe kept: the slice the device holds (:attr:`map`) and the archive
         self.store = KeyFrameStore(managed, self._open_archive(set(managed.keyframes)))
         local_mapping = self._local_mapping(intrinsics)
-        #: the device's share of the back end: its slice, tracks, camera, entry order, frames
+        #: the device's share of the back end: its slice, tracks, camera, entry order, frames;
+        #: in a place of several devices the one that leads it (its core runs the place's
+        #: bundle adjustment): the first device's until it hands the place over
         self.device = DeviceRecord.restored(self.store.slice, local_mapping,
                                             config.image_shape, extra)
         #: every device whose keyframes live in :attr:`map`, :attr:`device` first
         self.devices: list[DeviceRecord] = [self.device]
+        #: the place's first device, whose keyframes and points carry no tag: its camera
+        #: took the keyframes that name none (:meth:`camera_of`), whether it is still served
+        #: or handed the place over (:meth:`hand_over`)
+        self._first = self.device
         self.loop_closer = LoopCloser(config.loop_background, config.loop_min_gap,
                                       confirmations=config.loop_confirmations)
         #: keyframe → its device's slot it was integrated at, and walk (a device's tag) → its
@@ -283,6 +289,22 @@ class MapBackEnd:
         self.devices.append(record)
         return record
 
+    def hand_over(self, to: DeviceRecord, slot: int) -> list[int]:
+        """The device that leads the place (:attr:`device`: its core runs the place's
+        bundle adjustment) gone: ``to``, another device of the place, leads it from now on.
+        The keyframes the one gone held that no other device holds leave the map for the
+        archive at ``slot``, as :meth:`remove_device` sends a joined device's; its record
+        and slice go. Its keyframes keep its camera (:meth:`camera_of`) and their ids. The
+        archived keyframes the archive forgot to make room (its capacity)."""
+        if to is self.device or to not in self.devices:
+            raise ValueError("a place is handed over to another device of it")
+        leaving = self.device
+        forgotten, _ = self.evict_to_archive(list(leaving.slice.keyframes), slot, leaving)
+        self.devices.remove(leaving)
+        self.store.slices.remove(leaving.slice)
+        self.store.slice, self.device = to.slice, to
+        return forgotten
+
     def remove_device(self, record: DeviceRecord, slot: int) -> list[int]:
         """A device of the place other than its first gone (reclaimed, failed, started
         again): the keyframes it held that no other device holds leave the map for the
@@ -290,7 +312,8 @@ class MapBackEnd:
         heads — and its record and slice go. The archived keyframes the archive forgot to
         make room (its capacity)."""
         if record is self.device or record not in self.devices:
-            raise ValueError("only a device that joined this place can leave it")
+            raise ValueError("only a device that joined this place can leave it (its "
+                             "leading device hands it over)")
         forgotten, _ = self.evict_to_archive(list(record.slice.keyframes), slot, record)
         self.devices.remove(record)
         self.store.slices.remove(record.slice)
@@ -351,14 +374,15 @@ class MapBackEnd:
 
     @property
     def camera(self) -> Camera:
-        """The device's camera: its intrinsics (the identity until the first keyframe brings
-        them) and the configured image size."""
-        return self.device.camera
+        """The camera of the place's own keyframes, those that name none (its first
+        device's, served or not): its intrinsics (the identity until the first keyframe
+        brings them) and the configured image size."""
+        return self._first.camera
 
     @property
     def k(self) -> np.ndarray:
-        """The device's camera intrinsics (:attr:`DeviceRecord.k`)."""
-        return self.device.k
+        """The intrinsics of :attr:`camera` (:attr:`DeviceRecord.k`)."""
+        return self._first.k
 
     # -- keyframes in ------------------------------------------------------------------------
 
@@ -388,7 +412,7 @@ class MapBackEnd:
         report = device.local_mapping.integrate(data.frame_id, data.pose, data.keypoints,
                                                 data.descriptors, data.depths, data.point_ids)
         if data.frame_id in self.map.keyframes:
-            if device is not self.device:     # the place's first device's camera is the map's
+            if device.tag:                    # the place's first device's camera is the map's
                 self.map.keyframes[data.frame_id].intrinsics = device.k.copy()
             self.store.entered([data.frame_id], device.slice)   # the device's, no other's
             device.entered[data.frame_id] = (int(data.slot), UPLOADED)

@@ -79,7 +79,7 @@ def join_into_place(place: MapBackEnd, joining: MapBackEnd, tag: int,
     points = _move_points(place.map, joining.map, tag, alignment)
     keyframe_ids = _move_keyframes(place.map, joining, tag, alignment, points)
     _hold_as_before(place, joining, records, tag, keyframe_ids)
-    archived = [_moved_archived(kf, tag, alignment, joining.device.k)
+    archived = [_moved_archived(kf, tag, alignment, joining.k)
                 for kf in joining.archive]
     place.archive_keyframes(archived, "writing the joined map's archived keyframes' files")
     for record, device in zip(records, joining.devices, strict=True):
@@ -113,7 +113,7 @@ def _move_keyframes(place: KeyFrameMap, joining: MapBackEnd, tag: int, alignment
     new id, observing the moved points where it saw them, read with the camera that took
     it (the joining place's first device's, where the keyframe names none); the new ids."""
     moved = []
-    camera = joining.device.k
+    camera = joining.k
     for kf_id, kf in joining.map.keyframes.items():
         new_id = _renamed(kf_id, tag)
         place.add_keyframe(new_id, alignment @ kf.pose,
