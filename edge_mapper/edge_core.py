@@ -174,6 +174,13 @@ class EdgeMapperCore:
         #: the device's tracks resolved in the last finished slot: the next map update lists
         #: them again, in case the device missed the update that first did
         self._previous_tracks: dict[int, int] = {}
+        #: after this device's map joined a place (:meth:`join_place`): each point id of
+        #: what it held → the place's id of that point, listed once, in its next map update,
+        #: beside the tracks resolved — the device relabels its points by it, and goes on
+        #: tracking them (by their old ids it would find none of them in the update, or
+        #: another device's point of the same id); once only: after that update an old id
+        #: may name another device's point it holds
+        self._renamed: dict[int, int] = {}
         if self.back_end.restored_from_file:    # a restarted edge resolves the tracks as before
             self.local_mapping.track_points = _table(extra, "track")
             self._previous_tracks = _table(extra, "previous_track")
@@ -592,8 +599,8 @@ class EdgeMapperCore:
         self.version += 1
         self.last_slot = slot
         fresh = self.local_mapping.take_new_tracks()
-        tracks = {**self._previous_tracks, **fresh}
-        self._previous_tracks = fresh
+        tracks = {**self._renamed, **self._previous_tracks, **fresh}
+        self._previous_tracks, self._renamed = fresh, {}
         # tracks whose point left the map are forgotten: the table stays the map's size
         self.local_mapping.forget_tracks_gone()
         if self.checkpoint is None:
@@ -797,21 +804,25 @@ class EdgeMapperCore:
                 any(core.back_end is not self.back_end for core in fellows) or \
                 {id(core.device) for core in cores} != {id(d) for d in self.back_end.devices}:
             raise ValueError("a place joins another with every device of its map, each once")
+        held = [core.slice.point_ids() for core in cores]
         records, fused = join_into_place(place.back_end, self.back_end, tag, alignment)
         self.back_end.close()
         new_record = {id(old): new for old, new in
                       zip(self.back_end.devices, records, strict=True)}
-        for core in cores:
+        for core, points in zip(cores, held, strict=True):
             record = new_record[id(core.device)]
             core._enter_place(place.back_end, record,
-                              PlaceJoin(tag, record.version, fused), alignment)
+                              PlaceJoin(tag, record.version, fused), alignment, points)
 
     def _enter_place(self, back_end: MapBackEnd, record: DeviceRecord, join: PlaceJoin,
-                     alignment: np.ndarray) -> None:
+                     alignment: np.ndarray, held: np.ndarray) -> None:
         """This device goes on as ``record`` of ``back_end``'s place, its map joined into it
-        by ``join`` (:meth:`join_place`): what it keeps between slots renamed by the join."""
+        by ``join`` (:meth:`join_place`; ``held``: the points of its slice before): what it
+        keeps between slots renamed by the join, and the points it holds told their new
+        ids in its next map update."""
         self.back_end, self._device = back_end, record
         self.ids = self.ids.joined(record.tag, join)
+        self._renamed = {p: new for p in held.tolist() if (new := join.point(p)) != p}
         self.planner.map, self.planner.entered = record.slice, record.entered
         self.planner.last_seen = {join.keyframe(k): s for k, s in self.planner.last_seen.items()}
         keyframe = join.keyframe

@@ -17,7 +17,7 @@ from tests.test_edge_core import Device, F, K
 from twinslam.policies.registry import make_policy
 from twinslam.slam.back_end.foreign_keyframes import TAG_SHIFT, foreign_tag, source_id
 from twinslam.slam.back_end.map_back_end import BackEndConfig
-from twinslam.slam.keyframe import KeyFramePayload
+from twinslam.slam.keyframe import TRACK_ID_BIT, KeyFramePayload
 
 TAG = foreign_tag(1)
 #: the second device's frame in the first's: it started 0.3 m along, turned 10° about y
@@ -72,6 +72,7 @@ def test_a_joined_device_goes_on_in_its_places_map() -> None:
     assert plan.action.upload and all(d.frame_id < 1 << TAG_SHIFT for d in in_flight)
 
     first_slice = first.slice.keyframe_ids()
+    held = set(second.slice.point_ids().tolist())
     second.join_place(first, TAG, ALIGNMENT)
     assert second.map is first.map and not second.serves_place and first.serves_place
     assert second.slice.keyframe_ids() == sorted(TAG | k for k in own)
@@ -84,6 +85,10 @@ def test_a_joined_device_goes_on_in_its_places_map() -> None:
     assert all(r.associated + r.tracked > 0 for r in reports if r is not None)
     done = second.finish_slot(3)
     assert done.integrated == sorted(TAG | d.frame_id for d in in_flight)
+    # its next map update tells the device the new id of every point it held (its
+    # walls' own: none fused), once
+    renamed = {p: q for p, q in done.tracks.items() if not p & TRACK_ID_BIT}
+    assert renamed == {p: TAG | p for p in held} and renamed
     assert done.bundle_adjustment is None                 # the place's is the first's
     for data in in_flight:
         np.testing.assert_allclose(first.map.keyframes[TAG | data.frame_id].pose,
@@ -102,7 +107,7 @@ def test_a_joined_device_goes_on_in_its_places_map() -> None:
         for data in uploads:
             report = second.add_keyframe(data)
             assert report is not None and not report.refused and report.tracked > 0
-        second.finish_slot(slot)
+        assert all(t & TRACK_ID_BIT for t in second.finish_slot(slot).tracks)
         assert len(second.slice.keyframes) <= second.slot_config.vmax
         assert all(source_id(k) != k for k in second.slice.keyframe_ids())
     _walk(first, walker, range(3, 6))
