@@ -1367,3 +1367,40 @@ def test_one_map_a_place_in_the_edge_node_is_what_its_commands_print(
                                later / "alone.csv")):
         assert _missing("\n".join(printed)) == []
         assert printed[0] == "seeds 0, 1, 2, 4, 5, 6, 7"
+
+
+def test_places_of_several_devices_and_renamed_points_are_what_their_commands_print(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Places of several devices joined: four devices on walks of their own, joined against
+    lent copies, every joined run one place at the end (its CSV's ``places``) as the page
+    says; the 7-Scenes pair's joined device with its points renamed in its next map update
+    against the old ids and against lending, from the two ends and coming later — as the
+    table scripts print them from the committed CSVs."""
+    monkeypatch.syspath_prepend(str(FIGURES))           # joined_place_table's sibling
+    folder = FIGURES / "shared-map" / "joined"
+    several = folder / "places-of-several"
+    printed = _script("place_walks_table").table(several / "lent.csv", several / "join.csv",
+                                                  names=("lent copies", "joined"))
+    assert _missing("\n".join(printed)) == [] and "seeds 4, 5, 6, 7:" in printed[0]
+    for arm in ("join", "points-join"):
+        with (several / f"{arm}.csv").open() as f:
+            rows = list(csv.DictReader(f))
+        assert rows and all(row["places"] == "1" and row["join"] == "1" for row in rows), arm
+    pair = _script("joined_place_table")
+    two, later = folder / "two-ends", folder / "later"
+    for printed in (pair.table(two / "join-points-not-renamed.csv",
+                               two / "join-points-renamed.csv",
+                               names=("old point ids", "points renamed")),
+                    pair.table(two / "lend.csv", two / "join-points-renamed.csv")):
+        assert printed[0] == "seeds 0, 1, 2, 4, 5, 6, 7"
+        assert _missing("\n".join(printed)) == []
+    # coming later the page quotes the figures in its words
+    renamed = "\n".join(pair.table(later / "join-points-not-renamed.csv",
+                                   later / "join-points-renamed.csv", later / "alone.csv",
+                                   names=("old point ids", "points renamed")))
+    lent = "\n".join(pair.table(later / "lend.csv", later / "join-points-renamed.csv",
+                                later / "alone.csv"))
+    assert "| +0.06 [-0.38, +0.50] |" in renamed and "| +0.29 [-0.41, +0.98] |" in renamed
+    assert "joined: 48.6% fewer" in lent and "lent copies: 46.2% fewer" in lent
+    for figure in ("-0.86 [-2.74, +1.03]", "+1.40 [-0.53, +3.33]", "+0.17 [+0.00, +0.33]"):
+        assert f"| {figure} |" in lent, figure
