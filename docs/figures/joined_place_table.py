@@ -7,7 +7,7 @@ Student's t, :func:`twinslam.reporting.paired_row`) — and, given the runs alon
 (``--no-merge``), the second device's uploads saved against them in each arm.
 
     .venv/bin/python docs/figures/joined_place_table.py LENT.csv JOINED.csv [--alone A.csv]
-        [--names "BASE NAME,JOINED NAME"]
+        [--lost] [--names "BASE NAME,JOINED NAME"]
 
 ``--names`` names the two arms where the first is not lending (two joined arms of different
 code: the base and the one compared with it).
@@ -63,8 +63,9 @@ def _difference(names: tuple[str, str]) -> str:
 
 
 def table(lent_csv: Path, joined_csv: Path, alone_csv: Path | None = None,
-          names: tuple[str, str] = LENT_AND_JOINED) -> list[str]:
-    """The markdown lines :func:`main` prints (``names``: the two arms', the base first)."""
+          names: tuple[str, str] = LENT_AND_JOINED, lost: bool = False) -> list[str]:
+    """The markdown lines :func:`main` prints (``names``: the two arms', the base first;
+    ``lost``: with the runs alone, the second device's lost share against them too)."""
     lent, joined = by_seed(lent_csv), by_seed(joined_csv)
     alone = by_seed(alone_csv) if alone_csv is not None else {}
     arms = {"lent": lent, "joined": joined, **({"alone": alone} if alone else {})}
@@ -90,6 +91,13 @@ def table(lent_csv: Path, joined_csv: Path, alone_csv: Path | None = None,
         saved = 1.0 - sum(got) / sum(base)
         lines.append(paired_row(f"{name}: {saved:.1%} fewer ({sum(got):.0f} against "
                                 f"{sum(base):.0f})", base, got, "{:.0f}"))
+    if lost:
+        base = [_value(alone[s], "second_lost_share", 100.0) for s in common]
+        lines += ["", "| the second device's frames the edge counts lost (%) | alone | sharing "
+                      "| sharing − alone [95 % CI] |", "|---|---|---|---|"]
+        for name, arm in ((names[0], lent), (names[1], joined)):
+            got = [_value(arm[s], "second_lost_share", 100.0) for s in common]
+            lines.append(paired_row(name, base, got, "{:.1f}"))
     return lines
 
 
@@ -99,6 +107,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("joined", type=Path, help="the runs with the map joined")
     parser.add_argument("--alone", type=Path,
                         help="the runs that never merged: the second device's uploads saved")
+    parser.add_argument("--lost", action="store_true",
+                        help="with --alone: the second device's lost share against alone too")
     parser.add_argument("--names", metavar="BASE,JOINED", default="lent copies,joined",
                         help="the two arms' names in the table (default: %(default)s)")
     args = parser.parse_args(argv)
@@ -108,7 +118,10 @@ def main(argv: list[str] | None = None) -> None:
     for path in (args.lent, args.joined, *([args.alone] if args.alone else [])):
         if not path.is_file():
             parser.error(f"{path}: no such CSV (bench.shared_map --csv writes one)")
-    print("\n".join(table(args.lent, args.joined, args.alone, (names[0], names[1]))))
+    if args.lost and not args.alone:
+        parser.error("--lost compares with the runs alone: give --alone too")
+    print("\n".join(table(args.lent, args.joined, args.alone, (names[0], names[1]),
+                           args.lost)))
 
 
 if __name__ == "__main__":
