@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from edge_mapper.slot_planner import FrameObservations
-from twinslam.slam.back_end.foreign_keyframes import is_foreign, source_id
+from twinslam.slam.back_end.foreign_keyframes import source_id, under_tag
 from twinslam.slam.keyframe import TRACK_ID_BIT, KeyFramePayload
 
 
@@ -55,7 +55,7 @@ class PlaceJoin:
 
     def keyframe(self, kf_id: int) -> int:
         """A keyframe (or frame) of the joining map, as the place names it."""
-        return int(kf_id) if is_foreign(kf_id) else self.tag | int(kf_id)
+        return under_tag(kf_id, self.tag)
 
     def point(self, point_id: int) -> int:
         """A map point of the joining map, as the place names it."""

@@ -44,6 +44,19 @@ def foreign_mask(ids: np.ndarray) -> np.ndarray:
     return mask
 
 
+def under_tag(item_id: int, tag: int) -> int:
+    """A keyframe or point id of a map whose own ids take ``tag`` (a lent keyframe's points,
+    a joining place's ids): its own (untagged) under the tag, another device's, tagged
+    already, as it is — tagged again it would read as yet another device's."""
+    return int(item_id) if is_foreign(item_id) else tag | int(item_id)
+
+
+def all_under_tag(ids: np.ndarray, tag: int) -> np.ndarray:
+    """:func:`under_tag` of every id of an int64 array at once."""
+    renamed: np.ndarray = np.where(foreign_mask(ids), ids, ids | tag)
+    return renamed
+
+
 def tag_of(item_id: int) -> int:
     """The source tag an id carries (0: a map's own)."""
     return int(item_id) >> TAG_SHIFT << TAG_SHIFT

@@ -40,7 +40,7 @@ from twinslam.slam.back_end.archive_relocalisation import (
     screen_for,
 )
 from twinslam.slam.back_end.foreign_keyframes import (
-    foreign_mask,
+    all_under_tag,
     foreign_tag,
     is_foreign,
     source_id,
@@ -173,7 +173,7 @@ def welded(keyframe: ArchivedKeyFrame, source: int, into: KeyFrameMap, camera: C
     carries (:func:`lend_from`), are what its pixels are projected with."""
     tag = foreign_tag(source)
     ids = keyframe.point_ids.astype(np.int64)
-    ids = np.where(foreign_mask(ids), ids, ids | tag)
+    ids = all_under_tag(ids, tag)
     rows = np.flatnonzero(np.isfinite(keyframe.measurements[:, 0]))
     # a point the keyframe holds already under that id (a third device's copy both maps
     # adopted) is no duplicate to weld another of its corners to: a keyframe sees a point once

@@ -45,7 +45,12 @@ import math
 import numpy as np
 
 from twinslam.slam.back_end.device_record import DeviceRecord
-from twinslam.slam.back_end.foreign_keyframes import foreign_mask, is_foreign, tag_of
+from twinslam.slam.back_end.foreign_keyframes import (
+    all_under_tag,
+    is_foreign,
+    tag_of,
+    under_tag,
+)
 from twinslam.slam.back_end.keyframe_archive import ArchivedKeyFrame
 from twinslam.slam.back_end.keyframe_map import KeyFrameMap
 from twinslam.slam.back_end.map_back_end import MapBackEnd, checked_alignment
@@ -85,23 +90,17 @@ def join_into_place(place: MapBackEnd, joining: MapBackEnd, tag: int,
     for record, device in zip(records, joining.devices, strict=True):
         _carry_record(record, device, tag, alignment, points)
     place.carry_integration_slots(
-        {_renamed(k, tag): slot for k, slot in joining.integrated_at.items()},
+        {under_tag(k, tag): slot for k, slot in joining.integrated_at.items()},
         {(walk or tag): slot for walk, slot in joining.newest_slots().items()})
     return records, _fuse_duplicates(place, records, keyframe_ids)
-
-
-def _renamed(item_id: int, tag: int) -> int:
-    """A keyframe or point id of the joining place as the place it joins names it: its own
-    (untagged) under ``tag``, another device's under that device's tag as it is."""
-    return int(item_id) if is_foreign(item_id) else tag | int(item_id)
 
 
 def _move_points(place: KeyFrameMap, joining: KeyFrameMap, tag: int,
                  alignment: np.ndarray) -> dict[int, int]:
     """Every point of ``joining`` into ``place``, moved by ``alignment``, under its new id
-    (:func:`_renamed`); its id there by its id in ``joining``."""
+    (:func:`under_tag`); its id there by its id in ``joining``."""
     ids, rows = joining.point_rows()
-    renamed = [_renamed(p, tag) for p in ids.tolist()]
+    renamed = all_under_tag(ids, tag).tolist()
     positions = joining.columns.positions[rows] @ alignment[:3, :3].T + alignment[:3, 3]
     place.readd_points(renamed, positions, joining.columns.descriptors[rows])
     return dict(zip(ids.tolist(), renamed, strict=True))
@@ -115,7 +114,7 @@ def _move_keyframes(place: KeyFrameMap, joining: MapBackEnd, tag: int, alignment
     moved = []
     camera = joining.k
     for kf_id, kf in joining.map.keyframes.items():
-        new_id = _renamed(kf_id, tag)
+        new_id = under_tag(kf_id, tag)
         place.add_keyframe(new_id, alignment @ kf.pose,
                            camera if kf.intrinsics is None else kf.intrinsics)
         # in the order it came to observe them; a point seen with no measurement too (NaN)
@@ -133,7 +132,7 @@ def _hold_as_before(place: MapBackEnd, joining: MapBackEnd, records: list[Device
     several devices, two devices may hold one — and no device of ``place`` holds any."""
     moved_set = set(moved)
     for record, device in zip(records, joining.devices, strict=True):
-        held = {_renamed(k, tag) for k in device.slice.keyframes}
+        held = {under_tag(k, tag) for k in device.slice.keyframes}
         record.slice.set_apart(moved_set - held)
         record.slice.take_in(held)
     new_slices = [record.slice for record in records]
@@ -145,11 +144,10 @@ def _hold_as_before(place: MapBackEnd, joining: MapBackEnd, records: list[Device
 def _moved_archived(kf: ArchivedKeyFrame, tag: int, alignment: np.ndarray,
                     camera: np.ndarray) -> ArchivedKeyFrame:
     """An archived keyframe of the joining map as the place's archive keeps it: moved, its
-    id and its points' ids renamed (:func:`_renamed`), its camera named."""
-    own_points = ~foreign_mask(kf.point_ids)
+    id and its points' ids renamed (:func:`under_tag`), its camera named."""
     return dataclasses.replace(
-        kf.moved(alignment), id=_renamed(kf.id, tag),
-        point_ids=np.where(own_points, kf.point_ids | tag, kf.point_ids),
+        kf.moved(alignment), id=under_tag(kf.id, tag),
+        point_ids=all_under_tag(kf.point_ids, tag),
         intrinsics=camera.copy() if kf.intrinsics is None else kf.intrinsics)
 
 
@@ -162,8 +160,8 @@ def _carry_record(record: DeviceRecord, own: DeviceRecord, tag: int, alignment: 
                                          own.local_mapping.track_points.items() if p in points}
     record.local_mapping.new_tracks = {t: points[p] for t, p in
                                        own.local_mapping.new_tracks.items() if p in points}
-    record.entered.update({_renamed(k, tag): entry for k, entry in own.entered.items()})
-    record.keyframe_stamps.update({_renamed(k, tag): t
+    record.entered.update({under_tag(k, tag): entry for k, entry in own.entered.items()})
+    record.keyframe_stamps.update({under_tag(k, tag): t
                                    for k, t in own.keyframe_stamps.items()})
     record.version = own.version
     record.frame_correction = own.frame_correction.copy()
