@@ -298,10 +298,7 @@ class MapBackEnd:
         archived keyframes the archive forgot to make room (its capacity)."""
         if to is self.device or to not in self.devices:
             raise ValueError("a place is handed over to another device of it")
-        leaving = self.device
-        forgotten, _ = self.evict_to_archive(list(leaving.slice.keyframes), slot, leaving)
-        self.devices.remove(leaving)
-        self.store.slices.remove(leaving.slice)
+        forgotten = self._drop_device(self.device, slot)
         self.store.slice, self.device = to.slice, to
         return forgotten
 
@@ -314,6 +311,11 @@ class MapBackEnd:
         if record is self.device or record not in self.devices:
             raise ValueError("only a device that joined this place can leave it (its "
                              "leading device hands it over)")
+        return self._drop_device(record, slot)
+
+    def _drop_device(self, record: DeviceRecord, slot: int) -> list[int]:
+        """``record``'s device gone: the keyframes only it held to the archive at ``slot``,
+        its record and slice out of the place; the archived keyframes forgotten for room."""
         forgotten, _ = self.evict_to_archive(list(record.slice.keyframes), slot, record)
         self.devices.remove(record)
         self.store.slices.remove(record.slice)
