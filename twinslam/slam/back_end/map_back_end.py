@@ -303,7 +303,7 @@ class MapBackEnd:
         return forgotten
 
     def remove_device(self, record: DeviceRecord, slot: int) -> list[int]:
-        """A device of the place other than its first gone (reclaimed, failed, started
+        """A device of the place other than the one leading it gone (reclaimed, failed, started
         again): the keyframes it held that no other device holds leave the map for the
         archive at ``slot`` — the place keeps them, restores bring them back where a device
         heads — and its record and slice go. The archived keyframes the archive forgot to
